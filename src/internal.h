@@ -1,0 +1,139 @@
+/* Internal declarations shared by the library's source files and the tests. */
+#ifndef MRVI_INTERNAL_H
+#define MRVI_INTERNAL_H
+
+#include "mrvi.h"
+
+#include <stdarg.h>
+
+/* printf into a caller buffer (NULL-safe, always terminated). */
+void mrvi_fmt(char *buf, size_t len, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+void mrvi_vfmt(char *buf, size_t len, const char *fmt, va_list ap);
+
+/* Wall clock in seconds (monotonic). */
+double mrvi_clock(void);
+
+/* ---------------------------------------------------------------------------
+ * Model
+ * ------------------------------------------------------------------------- */
+/* Largest number of inputs of a non-linear element (terms are limited to it). */
+#define MRVI_MAX_INPUTS 64
+
+typedef enum mrvi_element_kind {
+  MRVI_ELEMENT_SPRING,  /* phi(|x_i - x_j| - L0) */
+  MRVI_ELEMENT_ANCHOR,  /* phi(|x_i - a| - L0) */
+  MRVI_ELEMENT_TERM,    /* phi(c^T y - b) */
+  MRVI_ELEMENT_GRAVITY  /* c^T y (linear, no law) */
+} mrvi_element_kind;
+
+typedef struct mrvi_element {
+  mrvi_element_kind kind;
+  mrvi_rate potential;          /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
+  const mrvi_law *law;          /* NULL for gravity */
+  double params[MRVI_LAW_MAX_PARAMS];
+  double shift;                 /* rest length (springs) or offset b (terms) */
+  double anchor[3];
+  int particle_i, particle_j;   /* springs; -1 if unused */
+  int n_in;                     /* number of input coordinates */
+  int *in;                      /* n_in model indices */
+  double *coef;                 /* n_in coefficients (terms, gravity) */
+} mrvi_element;
+
+typedef struct mrvi_particle {
+  char *name;
+  int first; /* model index of its x coordinate */
+} mrvi_particle;
+
+struct mrvi_model {
+  char *name;
+  int dimension;
+  int n, cap;            /* coordinates */
+  char **names;
+  double *mass, *q0, *v0;
+  mrvi_rate *rate;
+  int n_particles, cap_particles;
+  mrvi_particle *particles;
+  int n_elements, cap_elements;
+  mrvi_element *elements;
+  /* Partition, kept current by every add. */
+  int n_slow, n_fast;
+  int *slow_index, *fast_index; /* slot -> model index */
+  int *slot;                    /* model index -> slot within its rate block */
+  int max_in;                   /* largest n_in of a non-linear element */
+  char errmsg[512];
+};
+
+/* Energy, gradient (n_in) and Hessian (n_in x n_in row-major, may be NULL)
+ * of element e at its local inputs y (n_in). */
+double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
+                         const double *y, double *grad, double *hess);
+
+/* ---------------------------------------------------------------------------
+ * Quadrature (eq:Zapprox and eq:slow_potential_affine as evaluation points)
+ *
+ * Within macro step k a point z is affine in the nodes:
+ *   slow part  a0 q_k^s + a1 q_{k+1}^s
+ *   fast part  cA q_k^{f,m} + cB q_k^{f,m+1}
+ * with weight w (the quadrature weight times the step).
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_point {
+  double w, a0, a1, cA, cB;
+  int m; /* micro interval 0..p-1 */
+} mrvi_point;
+
+/* Evaluation points of one potential class for the given rule.  Writes at
+ * most 2p points into pts (ordered by interval) and returns their number.
+ * grid = MRVI_GRID_MACRO uses the macro-node rule (two points). */
+int mrvi_quadrature_points(mrvi_rule rule, mrvi_grid grid, double macro_step,
+                           int p, mrvi_point *pts);
+
+/* ---------------------------------------------------------------------------
+ * One step (DESIGN §3): residual, Jacobian pattern and values, momenta.
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_step {
+  const mrvi_model *model;
+  int p, ns, nf;
+  double dT, dt;
+  int n_unknowns;               /* ns + p nf */
+  mrvi_point *pts[2];           /* [MRVI_SLOW] points of V, [MRVI_FAST] of W */
+  int n_pts[2];
+  int *elem_of_class[2];        /* element indices of V and W */
+  int n_elem_of_class[2];
+  /* Known data of the step: q_k^s, q_k^{f,0}, p_k^s, p_k^{f,0}. */
+  const double *qs0, *qf0, *ps0, *pf0;
+  /* Jacobian as triplets mapped to CSC. */
+  int recording;                /* 1 while the pattern is being recorded */
+  long n_trip, cap_trip;
+  int *Ti, *Tj;                 /* recorded pattern */
+  int *map;                     /* triplet -> CSC index */
+  double *Ax;                   /* CSC values */
+  int *Ap, *Ai;
+  long nnz;
+  /* Workspace. */
+  double *y, *g, *H;            /* element inputs, gradient, Hessian */
+} mrvi_step;
+
+int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s);
+void mrvi_step_free(mrvi_step *st);
+/* Record the Jacobian pattern (once) and build the CSC structure. */
+int mrvi_step_build_pattern(mrvi_step *st, const double *x);
+/* Residual R(x) (n_unknowns) and, if jac, the CSC values st->Ax. */
+void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac);
+/* Momenta after convergence: ps1 (ns) = D_{q_{k+1}^s} L_d and the fast
+ * micro momenta pf (p x nf) at nodes m = 1..p (eq:pkfm+). */
+void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
+                       double *pf);
+
+/* ---------------------------------------------------------------------------
+ * Newton solver with UMFPACK.
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_newton mrvi_newton;
+mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
+                                const double *Ax, char *msg, size_t len);
+void mrvi_newton_free(mrvi_newton *nw);
+/* Factorise A (values Ax on the fixed pattern) and solve A dx = b. */
+int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
+                      double *dx, char *msg, size_t len);
+
+#endif

@@ -1,0 +1,671 @@
+/* Model builder: coordinates, particles, potential elements, partition. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int fail(mrvi_model *m, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+static int fail(mrvi_model *m, int status, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(m->errmsg, sizeof m->errmsg, fmt, ap);
+  va_end(ap);
+  return status;
+}
+
+static char *dupstr(const char *s) {
+  size_t n = strlen(s) + 1;
+  char *d = malloc(n);
+  if (d)
+    memcpy(d, s, n);
+  return d;
+}
+
+/* Grow *p (elements of size sz) so that it holds at least need entries. */
+static int grow(void **p, int *cap, int need, size_t sz) {
+  if (need <= *cap)
+    return 0;
+  int c = *cap ? *cap : 8;
+  while (c < need)
+    c *= 2;
+  void *q = realloc(*p, (size_t)c * sz);
+  if (!q)
+    return -1;
+  *p = q;
+  *cap = c;
+  return 0;
+}
+
+mrvi_model *mrvi_model_create(void) {
+  mrvi_model *m = calloc(1, sizeof *m);
+  if (!m)
+    return NULL;
+  m->name = dupstr("model");
+  if (!m->name) {
+    free(m);
+    return NULL;
+  }
+  return m;
+}
+
+void mrvi_model_free(mrvi_model *m) {
+  if (!m)
+    return;
+  for (int i = 0; i < m->n; i++)
+    free(m->names[i]);
+  for (int i = 0; i < m->n_particles; i++)
+    free(m->particles[i].name);
+  for (int e = 0; e < m->n_elements; e++) {
+    free(m->elements[e].in);
+    free(m->elements[e].coef);
+  }
+  free(m->names);
+  free(m->mass);
+  free(m->q0);
+  free(m->v0);
+  free(m->rate);
+  free(m->particles);
+  free(m->elements);
+  free(m->slow_index);
+  free(m->fast_index);
+  free(m->slot);
+  free(m->name);
+  free(m);
+}
+
+const char *mrvi_model_errmsg(const mrvi_model *m) {
+  return m ? m->errmsg : "no model";
+}
+
+int mrvi_model_set_name(mrvi_model *m, const char *name) {
+  if (!name)
+    return fail(m, MRVI_EINVAL, "model name is NULL");
+  char *d = dupstr(name);
+  if (!d)
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  free(m->name);
+  m->name = d;
+  return MRVI_OK;
+}
+
+int mrvi_model_set_dimension(mrvi_model *m, int dimension) {
+  if (dimension < 1 || dimension > 3)
+    return fail(m, MRVI_EINVAL, "dimension must be 1, 2 or 3 (got %d)",
+                dimension);
+  if (m->n_particles > 0 && dimension != m->dimension)
+    return fail(m, MRVI_EINVAL,
+                "dimension cannot change after particles were added");
+  m->dimension = dimension;
+  return MRVI_OK;
+}
+
+static int find_coordinate(const mrvi_model *m, const char *name) {
+  for (int i = 0; i < m->n; i++)
+    if (strcmp(m->names[i], name) == 0)
+      return i;
+  return -1;
+}
+
+/* Rebuild slow/fast index maps after a coordinate was added. */
+static int update_partition(mrvi_model *m) {
+  int *si = realloc(m->slow_index, (size_t)m->n * sizeof *si);
+  if (si)
+    m->slow_index = si;
+  int *fi = realloc(m->fast_index, (size_t)m->n * sizeof *fi);
+  if (fi)
+    m->fast_index = fi;
+  int *sl = realloc(m->slot, (size_t)m->n * sizeof *sl);
+  if (sl)
+    m->slot = sl;
+  if (!si || !fi || !sl)
+    return -1;
+  m->n_slow = m->n_fast = 0;
+  for (int i = 0; i < m->n; i++) {
+    if (m->rate[i] == MRVI_SLOW) {
+      m->slot[i] = m->n_slow;
+      m->slow_index[m->n_slow++] = i;
+    } else {
+      m->slot[i] = m->n_fast;
+      m->fast_index[m->n_fast++] = i;
+    }
+  }
+  return 0;
+}
+
+/* Make room for `need` coordinates in every per-coordinate array. */
+static int reserve_coordinates(mrvi_model *m, int need) {
+  if (need <= m->cap)
+    return 0;
+  int c = m->cap ? 2 * m->cap : 16;
+  void *a = realloc(m->names, (size_t)c * sizeof *m->names);
+  if (a)
+    m->names = a;
+  void *b = realloc(m->mass, (size_t)c * sizeof *m->mass);
+  if (b)
+    m->mass = b;
+  void *q = realloc(m->q0, (size_t)c * sizeof *m->q0);
+  if (q)
+    m->q0 = q;
+  void *v = realloc(m->v0, (size_t)c * sizeof *m->v0);
+  if (v)
+    m->v0 = v;
+  void *r = realloc(m->rate, (size_t)c * sizeof *m->rate);
+  if (r)
+    m->rate = r;
+  if (!a || !b || !q || !v || !r)
+    return -1;
+  m->cap = c;
+  return 0;
+}
+
+static int add_coord(mrvi_model *m, const char *name, double mass,
+                     mrvi_rate rate, double q0, double v0) {
+  if (!name || !*name)
+    return fail(m, MRVI_EINVAL, "coordinate name is empty");
+  if (!isfinite(mass) || mass <= 0)
+    return fail(m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name,
+                mass);
+  if (!isfinite(q0) || !isfinite(v0))
+    return fail(m, MRVI_EINVAL, "initial data of '%s' must be finite", name);
+  if (rate != MRVI_SLOW && rate != MRVI_FAST)
+    return fail(m, MRVI_EINVAL, "rate of '%s' must be slow or fast", name);
+  if (find_coordinate(m, name) >= 0)
+    return fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'", name);
+  if (reserve_coordinates(m, m->n + 1))
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  char *d = dupstr(name);
+  if (!d)
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  m->names[m->n] = d;
+  m->mass[m->n] = mass;
+  m->q0[m->n] = q0;
+  m->v0[m->n] = v0;
+  m->rate[m->n] = rate;
+  m->n++;
+  if (update_partition(m))
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  return m->n - 1;
+}
+
+int mrvi_model_add_coordinate(mrvi_model *m, const char *name, double mass,
+                              mrvi_rate rate, double q0, double v0) {
+  return add_coord(m, name, mass, rate, q0, v0);
+}
+
+int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
+                            mrvi_rate rate, const double *x0,
+                            const double *v0) {
+  static const char axis[3] = {'x', 'y', 'z'};
+  if (m->dimension < 1)
+    return fail(m, MRVI_EINVAL, "set the dimension before adding particles");
+  if (!name || !*name || strchr(name, '.'))
+    return fail(m, MRVI_EINVAL, "particle name '%s' is empty or contains '.'",
+                name ? name : "");
+  if (!x0 || !v0)
+    return fail(m, MRVI_EINVAL, "particle '%s' needs position and velocity",
+                name);
+  for (int i = 0; i < m->n_particles; i++)
+    if (strcmp(m->particles[i].name, name) == 0)
+      return fail(m, MRVI_EINVAL, "duplicate particle name '%s'", name);
+  if (!isfinite(mass) || mass <= 0)
+    return fail(m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name,
+                mass);
+  if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
+           sizeof *m->particles))
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  char *pname = dupstr(name);
+  if (!pname)
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  int first = m->n;
+  for (int d = 0; d < m->dimension; d++) {
+    char buf[256];
+    mrvi_fmt(buf, sizeof buf, "%s.%c", name, axis[d]);
+    int st = add_coord(m, buf, mass, rate, x0[d], v0[d]);
+    if (st < 0) {
+      free(pname);
+      return st;
+    }
+  }
+  m->particles[m->n_particles].name = pname;
+  m->particles[m->n_particles].first = first;
+  return m->n_particles++;
+}
+
+/* Append an element whose inputs are already set; checks the rate rule. */
+static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
+  if (e->potential != MRVI_SLOW && e->potential != MRVI_FAST) {
+    free(e->in);
+    free(e->coef);
+    return fail(m, MRVI_EINVAL, "%s: potential must be slow or fast", what);
+  }
+  if (e->potential == MRVI_FAST)
+    for (int j = 0; j < e->n_in; j++)
+      if (m->rate[e->in[j]] == MRVI_SLOW) {
+        int c = e->in[j];
+        free(e->in);
+        free(e->coef);
+        return fail(m, MRVI_EMODEL,
+                    "fast %s touches slow coordinate '%s': the fast potential "
+                    "W may depend on fast coordinates only",
+                    what, m->names[c]);
+      }
+  if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
+           sizeof *m->elements)) {
+    free(e->in);
+    free(e->coef);
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  if (e->kind != MRVI_ELEMENT_GRAVITY && e->n_in > m->max_in)
+    m->max_in = e->n_in;
+  m->elements[m->n_elements] = *e;
+  return m->n_elements++;
+}
+
+/* Look up the law and copy and check its parameters. */
+static int set_law(mrvi_model *m, mrvi_element *e, const char *law,
+                   const double *params, const char *what) {
+  e->law = mrvi_law_find(law);
+  if (!e->law)
+    return fail(m, MRVI_EINVAL, "%s: unknown law '%s'", what,
+                law ? law : "(null)");
+  if (e->law->n_params > 0 && !params)
+    return fail(m, MRVI_EINVAL, "%s: law '%s' needs parameters", what, law);
+  for (int i = 0; i < e->law->n_params; i++)
+    e->params[i] = params[i];
+  if (e->law->check) {
+    char msg[256] = "";
+    if (e->law->check(e->params, msg, sizeof msg) < 0)
+      return fail(m, MRVI_EINVAL, "%s: %s", what, msg);
+  }
+  return MRVI_OK;
+}
+
+static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
+                           const int *parts) {
+  const int d = m->dimension;
+  e->n_in = np * d;
+  e->in = malloc((size_t)e->n_in * sizeof *e->in);
+  if (!e->in)
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  for (int a = 0; a < np; a++)
+    for (int k = 0; k < d; k++)
+      e->in[a * d + k] = m->particles[parts[a]].first + k;
+  return MRVI_OK;
+}
+
+int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
+                          int particle_j, const char *law,
+                          const double *params, double rest_length) {
+  if (particle_i < 0 || particle_i >= m->n_particles || particle_j < 0 ||
+      particle_j >= m->n_particles)
+    return fail(m, MRVI_EINVAL, "spring: particle index out of range");
+  if (particle_i == particle_j)
+    return fail(m, MRVI_EINVAL, "spring: both ends are particle '%s'",
+                m->particles[particle_i].name);
+  if (!isfinite(rest_length))
+    return fail(m, MRVI_EINVAL, "spring: rest length must be finite");
+  char what[300];
+  mrvi_fmt(what, sizeof what, "spring %s-%s", m->particles[particle_i].name,
+           m->particles[particle_j].name);
+  mrvi_element e = {.kind = MRVI_ELEMENT_SPRING,
+                    .potential = potential,
+                    .shift = rest_length,
+                    .particle_i = particle_i,
+                    .particle_j = particle_j};
+  int st = set_law(m, &e, law, params, what);
+  if (st < 0)
+    return st;
+  int parts[2] = {particle_i, particle_j};
+  if ((st = particle_inputs(m, &e, 2, parts)) < 0)
+    return st;
+  return push_element(m, &e, what);
+}
+
+int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
+                                 int particle_i, const double *anchor,
+                                 const char *law, const double *params,
+                                 double rest_length) {
+  if (particle_i < 0 || particle_i >= m->n_particles)
+    return fail(m, MRVI_EINVAL, "spring: particle index out of range");
+  if (!anchor)
+    return fail(m, MRVI_EINVAL, "spring: anchor is NULL");
+  if (!isfinite(rest_length))
+    return fail(m, MRVI_EINVAL, "spring: rest length must be finite");
+  char what[300];
+  mrvi_fmt(what, sizeof what, "spring %s-anchor",
+           m->particles[particle_i].name);
+  mrvi_element e = {.kind = MRVI_ELEMENT_ANCHOR,
+                    .potential = potential,
+                    .shift = rest_length,
+                    .particle_i = particle_i,
+                    .particle_j = -1};
+  for (int k = 0; k < m->dimension; k++) {
+    if (!isfinite(anchor[k]))
+      return fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
+    e.anchor[k] = anchor[k];
+  }
+  int st = set_law(m, &e, law, params, what);
+  if (st < 0)
+    return st;
+  if ((st = particle_inputs(m, &e, 1, &particle_i)) < 0)
+    return st;
+  return push_element(m, &e, what);
+}
+
+int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
+                        const int *coords, const double *coef, double offset,
+                        const char *law, const double *params) {
+  if (n_terms < 1 || !coords || !coef)
+    return fail(m, MRVI_EINVAL, "term: empty combination");
+  if (n_terms > MRVI_MAX_INPUTS)
+    return fail(m, MRVI_EINVAL, "term: at most %d coordinates per term",
+                MRVI_MAX_INPUTS);
+  if (!isfinite(offset))
+    return fail(m, MRVI_EINVAL, "term: offset must be finite");
+  for (int j = 0; j < n_terms; j++) {
+    if (coords[j] < 0 || coords[j] >= m->n)
+      return fail(m, MRVI_EINVAL, "term: coordinate index %d out of range",
+                  coords[j]);
+    if (!isfinite(coef[j]))
+      return fail(m, MRVI_EINVAL, "term: coefficient of '%s' must be finite",
+                  m->names[coords[j]]);
+    for (int i = 0; i < j; i++)
+      if (coords[i] == coords[j])
+        return fail(m, MRVI_EINVAL, "term: coordinate '%s' appears twice",
+                    m->names[coords[j]]);
+  }
+  char what[300];
+  mrvi_fmt(what, sizeof what, "term on %s%s", m->names[coords[0]],
+           n_terms > 1 ? ", ..." : "");
+  mrvi_element e = {.kind = MRVI_ELEMENT_TERM,
+                    .potential = potential,
+                    .shift = offset,
+                    .particle_i = -1,
+                    .particle_j = -1,
+                    .n_in = n_terms};
+  int st = set_law(m, &e, law, params, what);
+  if (st < 0)
+    return st;
+  e.in = malloc((size_t)n_terms * sizeof *e.in);
+  e.coef = malloc((size_t)n_terms * sizeof *e.coef);
+  if (!e.in || !e.coef) {
+    free(e.in);
+    free(e.coef);
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  memcpy(e.in, coords, (size_t)n_terms * sizeof *e.in);
+  memcpy(e.coef, coef, (size_t)n_terms * sizeof *e.coef);
+  return push_element(m, &e, what);
+}
+
+int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
+  if (!g)
+    return fail(m, MRVI_EINVAL, "gravity is NULL");
+  if (m->n_particles == 0 || m->dimension < 1)
+    return fail(m, MRVI_EINVAL, "gravity needs particles");
+  for (int k = 0; k < m->dimension; k++)
+    if (!isfinite(g[k]))
+      return fail(m, MRVI_EINVAL, "gravity must be finite");
+  for (int e = 0; e < m->n_elements; e++)
+    if (m->elements[e].kind == MRVI_ELEMENT_GRAVITY)
+      return fail(m, MRVI_EINVAL, "gravity is already set");
+  const int d = m->dimension;
+  mrvi_element e = {.kind = MRVI_ELEMENT_GRAVITY,
+                    .potential = MRVI_SLOW,
+                    .particle_i = -1,
+                    .particle_j = -1,
+                    .n_in = m->n_particles * d};
+  e.in = malloc((size_t)e.n_in * sizeof *e.in);
+  e.coef = malloc((size_t)e.n_in * sizeof *e.coef);
+  if (!e.in || !e.coef) {
+    free(e.in);
+    free(e.coef);
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  /* -sum_i m_i g^T x_i */
+  for (int i = 0; i < m->n_particles; i++)
+    for (int k = 0; k < d; k++) {
+      int c = m->particles[i].first + k;
+      e.in[i * d + k] = c;
+      e.coef[i * d + k] = -m->mass[c] * g[k];
+    }
+  return push_element(m, &e, "gravity");
+}
+
+/* ---------------------------------------------------------------------------
+ * Read access
+ * ------------------------------------------------------------------------- */
+int mrvi_model_n(const mrvi_model *m) { return m->n; }
+int mrvi_model_n_slow(const mrvi_model *m) { return m->n_slow; }
+int mrvi_model_n_fast(const mrvi_model *m) { return m->n_fast; }
+int mrvi_model_dimension(const mrvi_model *m) {
+  return m->n_particles > 0 ? m->dimension : 0;
+}
+int mrvi_model_n_particles(const mrvi_model *m) { return m->n_particles; }
+int mrvi_model_n_elements(const mrvi_model *m) { return m->n_elements; }
+const char *mrvi_model_name(const mrvi_model *m) { return m->name; }
+const char *mrvi_model_coordinate_name(const mrvi_model *m, int i) {
+  return i >= 0 && i < m->n ? m->names[i] : NULL;
+}
+double mrvi_model_mass(const mrvi_model *m, int i) { return m->mass[i]; }
+mrvi_rate mrvi_model_rate(const mrvi_model *m, int i) { return m->rate[i]; }
+const double *mrvi_model_q0(const mrvi_model *m) { return m->q0; }
+const double *mrvi_model_v0(const mrvi_model *m) { return m->v0; }
+const int *mrvi_model_slow_index(const mrvi_model *m) { return m->slow_index; }
+const int *mrvi_model_fast_index(const mrvi_model *m) { return m->fast_index; }
+
+int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
+                                size_t len) {
+  if (idx < 0 || idx >= m->n_elements)
+    return MRVI_EINVAL;
+  const mrvi_element *e = &m->elements[idx];
+  const char *rate = e->potential == MRVI_SLOW ? "slow" : "fast";
+  char law[256] = "";
+  if (e->law) {
+    size_t used = 0;
+    used += (size_t)snprintf(law, sizeof law, "%s(", e->law->name);
+    for (int i = 0; i < e->law->n_params && used < sizeof law; i++)
+      used += (size_t)snprintf(law + used, sizeof law - used, "%s%s=%g",
+                               i ? ", " : "", e->law->param_names[i],
+                               e->params[i]);
+    if (used < sizeof law)
+      snprintf(law + used, sizeof law - used, ")");
+  }
+  switch (e->kind) {
+  case MRVI_ELEMENT_SPRING:
+    mrvi_fmt(buf, len, "%s spring %s-%s, rest length %g, %s", rate,
+             m->particles[e->particle_i].name,
+             m->particles[e->particle_j].name, e->shift, law);
+    break;
+  case MRVI_ELEMENT_ANCHOR: {
+    char a[96];
+    if (m->dimension == 1)
+      mrvi_fmt(a, sizeof a, "[%g]", e->anchor[0]);
+    else if (m->dimension == 2)
+      mrvi_fmt(a, sizeof a, "[%g, %g]", e->anchor[0], e->anchor[1]);
+    else
+      mrvi_fmt(a, sizeof a, "[%g, %g, %g]", e->anchor[0], e->anchor[1],
+               e->anchor[2]);
+    mrvi_fmt(buf, len, "%s spring %s-anchor %s, rest length %g, %s", rate,
+             m->particles[e->particle_i].name, a, e->shift, law);
+    break;
+  }
+  case MRVI_ELEMENT_TERM: {
+    char comb[512];
+    size_t used = 0;
+    comb[0] = '\0';
+    for (int j = 0; j < e->n_in && used < sizeof comb; j++)
+      used += (size_t)snprintf(comb + used, sizeof comb - used, "%s%g*%s",
+                               j ? " + " : "", e->coef[j], m->names[e->in[j]]);
+    mrvi_fmt(buf, len, "%s term on %s - %g, %s", rate, comb, e->shift, law);
+    break;
+  }
+  case MRVI_ELEMENT_GRAVITY:
+    mrvi_fmt(buf, len, "slow gravity on %d particles", m->n_particles);
+    break;
+  }
+  return MRVI_OK;
+}
+
+/* ---------------------------------------------------------------------------
+ * Element evaluation
+ * ------------------------------------------------------------------------- */
+
+/* Distance-type element: inputs x (d) [and y (d)], d = x - (y or anchor).
+ * Gradient wrt x is phi' u, Hessian block A = phi'' u u^T + phi'/r (I - u u^T);
+ * for a two-particle spring the blocks are [A -A; -A A]. */
+static double eval_distance(const mrvi_element *e, int dim, const double *y,
+                            double *grad, double *hess) {
+  double d[3], r2 = 0.0;
+  const int two = e->kind == MRVI_ELEMENT_SPRING;
+  for (int k = 0; k < dim; k++) {
+    d[k] = y[k] - (two ? y[dim + k] : e->anchor[k]);
+    r2 += d[k] * d[k];
+  }
+  const double r = sqrt(r2);
+  double phi, dphi, ddphi;
+  e->law->eval(e->params, r - e->shift, &phi, &dphi, &ddphi);
+  double u[3] = {0, 0, 0}, a = 0.0, b = 0.0; /* A = a u u^T + b I */
+  if (r > 0.0) {
+    for (int k = 0; k < dim; k++)
+      u[k] = d[k] / r;
+    a = ddphi - dphi / r;
+    b = dphi / r;
+  } else {
+    /* r = 0: smooth only when phi'(-L0) = 0; the limit of A is phi'' I. */
+    b = ddphi;
+  }
+  const int n = two ? 2 * dim : dim;
+  if (grad)
+    for (int k = 0; k < dim; k++) {
+      grad[k] = dphi * u[k];
+      if (two)
+        grad[dim + k] = -dphi * u[k];
+    }
+  if (hess)
+    for (int i = 0; i < dim; i++)
+      for (int j = 0; j < dim; j++) {
+        double A = a * u[i] * u[j] + (i == j ? b : 0.0);
+        hess[i * n + j] = A;
+        if (two) {
+          hess[i * n + dim + j] = -A;
+          hess[(dim + i) * n + j] = -A;
+          hess[(dim + i) * n + dim + j] = A;
+        }
+      }
+  return phi;
+}
+
+double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
+                         const double *y, double *grad, double *hess) {
+  switch (e->kind) {
+  case MRVI_ELEMENT_SPRING:
+  case MRVI_ELEMENT_ANCHOR:
+    return eval_distance(e, m->dimension, y, grad, hess);
+  case MRVI_ELEMENT_TERM: {
+    double s = -e->shift;
+    for (int j = 0; j < e->n_in; j++)
+      s += e->coef[j] * y[j];
+    double phi, dphi, ddphi;
+    e->law->eval(e->params, s, &phi, &dphi, &ddphi);
+    if (grad)
+      for (int j = 0; j < e->n_in; j++)
+        grad[j] = dphi * e->coef[j];
+    if (hess)
+      for (int i = 0; i < e->n_in; i++)
+        for (int j = 0; j < e->n_in; j++)
+          hess[i * e->n_in + j] = ddphi * e->coef[i] * e->coef[j];
+    return phi;
+  }
+  case MRVI_ELEMENT_GRAVITY: {
+    double v = 0.0;
+    for (int j = 0; j < e->n_in; j++) {
+      v += e->coef[j] * y[j];
+      if (grad)
+        grad[j] = e->coef[j];
+    }
+    /* Linear: the Hessian is zero and never requested. */
+    return v;
+  }
+  }
+  return 0.0;
+}
+
+/* ---------------------------------------------------------------------------
+ * Energies and momentum maps
+ * ------------------------------------------------------------------------- */
+double mrvi_model_potential(const mrvi_model *m, mrvi_rate potential,
+                            const double *q, double *grad, double *hess) {
+  double y[MRVI_MAX_INPUTS], g[MRVI_MAX_INPUTS];
+  double H[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
+  double total = 0.0;
+  for (int ei = 0; ei < m->n_elements; ei++) {
+    const mrvi_element *e = &m->elements[ei];
+    if (e->potential != potential)
+      continue;
+    const int lin = e->kind == MRVI_ELEMENT_GRAVITY;
+    /* Gravity is evaluated in one pass; other elements are small. */
+    if (lin) {
+      for (int j = 0; j < e->n_in; j++) {
+        total += e->coef[j] * q[e->in[j]];
+        if (grad)
+          grad[e->in[j]] += e->coef[j];
+      }
+      continue;
+    }
+    for (int j = 0; j < e->n_in; j++)
+      y[j] = q[e->in[j]];
+    total += mrvi_element_eval(m, e, y, grad ? g : NULL, hess ? H : NULL);
+    for (int i = 0; i < e->n_in; i++) {
+      if (grad)
+        grad[e->in[i]] += g[i];
+      if (hess)
+        for (int j = 0; j < e->n_in; j++)
+          hess[(size_t)e->in[i] * (size_t)m->n + (size_t)e->in[j]] +=
+              H[i * e->n_in + j];
+    }
+  }
+  return total;
+}
+
+void mrvi_model_energy(const mrvi_model *m, const double *q, const double *p,
+                       double *kinetic, double *slow, double *fast) {
+  double t = 0.0;
+  for (int i = 0; i < m->n; i++)
+    t += 0.5 * p[i] * p[i] / m->mass[i];
+  if (kinetic)
+    *kinetic = t;
+  if (slow)
+    *slow = mrvi_model_potential(m, MRVI_SLOW, q, NULL, NULL);
+  if (fast)
+    *fast = mrvi_model_potential(m, MRVI_FAST, q, NULL, NULL);
+}
+
+void mrvi_model_momentum(const mrvi_model *m, const double *q,
+                         const double *p, double *linear, double *angular) {
+  const int d = m->dimension;
+  double L[3] = {0, 0, 0}, J[3] = {0, 0, 0};
+  for (int i = 0; i < m->n_particles; i++) {
+    const double *x = q + m->particles[i].first;
+    const double *v = p + m->particles[i].first;
+    for (int k = 0; k < d; k++)
+      L[k] += v[k];
+    if (d == 3) {
+      J[0] += x[1] * v[2] - x[2] * v[1];
+      J[1] += x[2] * v[0] - x[0] * v[2];
+      J[2] += x[0] * v[1] - x[1] * v[0];
+    } else if (d == 2) {
+      J[0] += x[0] * v[1] - x[1] * v[0];
+    }
+  }
+  if (linear)
+    for (int k = 0; k < d; k++)
+      linear[k] = L[k];
+  if (angular)
+    for (int k = 0; k < (d == 3 ? 3 : d == 2 ? 1 : 0); k++)
+      angular[k] = J[k];
+}

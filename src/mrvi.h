@@ -1,0 +1,344 @@
+/* mrvi — variational multirate integrators for mechanical systems.
+ *
+ * Public C API.  Equation labels (eq:..., th:...) refer to the source paper
+ * "Variational multirate integrators" (Ober-Blöbaum, Wenger, Gail, Leyendecker).
+ *
+ * Conventions
+ * - Every function that can fail returns an int status: 0 (MRVI_OK) or a
+ *   negative MRVI_E* code.  The library never prints and never exits; the
+ *   message of the last failure is kept on the object (mrvi_model_errmsg,
+ *   mrvi_integrator_errmsg) or written into a caller buffer (loader, writer).
+ * - Vectors of generalised coordinates are in model order: the order in which
+ *   coordinates and particles were added (a particle adds `dimension`
+ *   consecutive coordinates x, y, z).
+ * - _create/_free pairs; every _free accepts NULL.
+ */
+#ifndef MRVI_H
+#define MRVI_H
+
+#include <stddef.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define MRVI_VERSION "0.1.0"
+
+/* ---------------------------------------------------------------------------
+ * Status codes: one list pairs every code with its message.
+ * ------------------------------------------------------------------------- */
+#define MRVI_STATUS_LIST(X)                                                  \
+  X(MRVI_OK, 0, "success")                                                   \
+  X(MRVI_ENOMEM, -1, "out of memory")                                        \
+  X(MRVI_EINVAL, -2, "invalid argument")                                     \
+  X(MRVI_EMODEL, -3, "invalid model")                                        \
+  X(MRVI_EPARSE, -4, "invalid description file")                             \
+  X(MRVI_ENEWTON, -5, "Newton iteration did not converge")                   \
+  X(MRVI_ESINGULAR, -6, "singular Newton matrix")                            \
+  X(MRVI_EIO, -7, "input/output error")                                      \
+  X(MRVI_EINTERRUPTED, -8, "run interrupted")                                \
+  X(MRVI_ENONFINITE, -9, "non-finite value")
+
+enum mrvi_status {
+#define MRVI_STATUS_ENUM(name, code, msg) name = code,
+  MRVI_STATUS_LIST(MRVI_STATUS_ENUM)
+#undef MRVI_STATUS_ENUM
+};
+
+/* Message of a status code ("unknown status" for codes not in the list). */
+const char *mrvi_strerror(int status);
+
+/* Library version string (MRVI_VERSION of the build). */
+const char *mrvi_version(void);
+
+/* ---------------------------------------------------------------------------
+ * Potential laws: scalar functions phi(s) of a strain-like scalar s.
+ *
+ * An element maps the coordinates to s (spring: s = |x_i - x_j| - L0,
+ * anchor spring: s = |x_i - a| - L0, term: s = a^T q - b) and its energy is
+ * phi(s).  A law is one const table; register user laws with
+ * mrvi_law_register before building models that name them.
+ * ------------------------------------------------------------------------- */
+#define MRVI_LAW_MAX_PARAMS 8
+
+typedef struct mrvi_law {
+  const char *name;                /* e.g. "power", "linear" */
+  const char *summary;             /* one line for `mrvi check` and docs */
+  int n_params;                    /* <= MRVI_LAW_MAX_PARAMS */
+  const char *const *param_names;  /* n_params names, e.g. {"coefficient", "exponent"} */
+  /* Validate parameter values; on failure write a message and return < 0. */
+  int (*check)(const double *params, char *msg, size_t msg_len);
+  /* phi(s), phi'(s), phi''(s). */
+  void (*eval)(const double *params, double s, double *phi, double *dphi,
+               double *ddphi);
+} mrvi_law;
+
+/* Add a law to the registry (the pointer must stay valid).  Fails with
+ * MRVI_EINVAL if the name is taken or the table is incomplete. */
+int mrvi_law_register(const mrvi_law *law);
+/* Law by name, or NULL. */
+const mrvi_law *mrvi_law_find(const char *name);
+/* Iterate over the registry: i = 0 .. mrvi_law_count()-1. */
+int mrvi_law_count(void);
+const mrvi_law *mrvi_law_get(int i);
+
+/* ---------------------------------------------------------------------------
+ * Model: what a description file defines.
+ * ------------------------------------------------------------------------- */
+typedef enum mrvi_rate { MRVI_SLOW = 0, MRVI_FAST = 1 } mrvi_rate;
+
+typedef struct mrvi_model mrvi_model;
+
+mrvi_model *mrvi_model_create(void);
+void mrvi_model_free(mrvi_model *m);
+/* Message of the last failed call on m ("" if none). */
+const char *mrvi_model_errmsg(const mrvi_model *m);
+
+/* Spatial dimension of particles (1, 2 or 3); set before adding particles. */
+int mrvi_model_set_dimension(mrvi_model *m, int dimension);
+
+/* Add a generalised coordinate; returns its index (>= 0) or a status < 0.
+ * mass > 0, finite q0, v0; unique name. */
+int mrvi_model_add_coordinate(mrvi_model *m, const char *name, double mass,
+                              mrvi_rate rate, double q0, double v0);
+
+/* Add a particle of `dimension` coordinates named NAME.x, NAME.y, NAME.z, all
+ * of one rate and one mass; x0, v0 have `dimension` entries.  Returns the
+ * particle index (>= 0) or a status < 0. */
+int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
+                            mrvi_rate rate, const double *x0, const double *v0);
+
+/* Spring between particles i and j with energy phi(|x_i - x_j| - rest_length).
+ * `potential` is MRVI_SLOW (part of V) or MRVI_FAST (part of W); a fast
+ * element touching a slow coordinate is rejected.  params has law->n_params
+ * entries.  Returns the element index or a status < 0. */
+int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
+                          int particle_j, const char *law,
+                          const double *params, double rest_length);
+
+/* Spring between particle i and the fixed point `anchor` (dimension entries). */
+int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
+                                 int particle_i, const double *anchor,
+                                 const char *law, const double *params,
+                                 double rest_length);
+
+/* Term phi(sum_j coef[j] q[coords[j]] - offset) on n_terms coordinates. */
+int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
+                        const int *coords, const double *coef, double offset,
+                        const char *law, const double *params);
+
+/* Uniform gravity: slow potential -sum_i m_i g^T x_i over all particles
+ * (dimension entries).  Call after adding the particles. */
+int mrvi_model_set_gravity(mrvi_model *m, const double *g);
+
+/* Name of the model (free text). */
+int mrvi_model_set_name(mrvi_model *m, const char *name);
+
+/* Sizes and read access. */
+int mrvi_model_n(const mrvi_model *m);          /* all coordinates */
+int mrvi_model_n_slow(const mrvi_model *m);
+int mrvi_model_n_fast(const mrvi_model *m);
+int mrvi_model_dimension(const mrvi_model *m);  /* 0 if no particles */
+int mrvi_model_n_particles(const mrvi_model *m);
+int mrvi_model_n_elements(const mrvi_model *m);
+const char *mrvi_model_name(const mrvi_model *m);
+const char *mrvi_model_coordinate_name(const mrvi_model *m, int i);
+double mrvi_model_mass(const mrvi_model *m, int i);
+mrvi_rate mrvi_model_rate(const mrvi_model *m, int i);
+/* Initial data in model order (n entries). */
+const double *mrvi_model_q0(const mrvi_model *m);
+const double *mrvi_model_v0(const mrvi_model *m);
+/* Indices of the slow (n_slow) and fast (n_fast) coordinates in model order. */
+const int *mrvi_model_slow_index(const mrvi_model *m);
+const int *mrvi_model_fast_index(const mrvi_model *m);
+/* One-line description of element e, e.g. "slow spring m1-m2, power(...)". */
+int mrvi_model_describe_element(const mrvi_model *m, int e, char *buf,
+                                size_t len);
+
+/* Energy parts at (q, p): kinetic 1/2 p^T M^-1 p, slow V(q), fast W(q). */
+void mrvi_model_energy(const mrvi_model *m, const double *q, const double *p,
+                       double *kinetic, double *slow, double *fast);
+/* Potential energy of one class (MRVI_SLOW: V, MRVI_FAST: W) with gradient
+ * (n entries, may be NULL) and dense Hessian (n x n row-major, may be NULL),
+ * both accumulated (+=) into the given arrays.  Returns the energy. */
+double mrvi_model_potential(const mrvi_model *m, mrvi_rate potential,
+                            const double *q, double *grad, double *hess);
+/* Momentum maps of the particles: linear (dimension entries) and angular
+ * momentum sum_i x_i x p_i (3 entries in 3-D, 1 in 2-D, 0 in 1-D). */
+void mrvi_model_momentum(const mrvi_model *m, const double *q,
+                         const double *p, double *linear, double *angular);
+
+/* ---------------------------------------------------------------------------
+ * Integrator settings (DESIGN §2): rule (alpha, gamma) of eq:Zapprox for the
+ * slow potential V and the fast potential W, the grid V is evaluated on.
+ * ------------------------------------------------------------------------- */
+typedef enum mrvi_grid { MRVI_GRID_MICRO = 0, MRVI_GRID_MACRO = 1 } mrvi_grid;
+
+typedef struct mrvi_rule {
+  double alpha; /* weight of the first point, [0, 1] */
+  double gamma; /* 1/2 midpoint, 0 or 1 trapezoidal family, [0, 1] */
+} mrvi_rule;
+
+typedef struct mrvi_settings {
+  char scheme[48];      /* name of the scheme the rules came from */
+  mrvi_rule slow;       /* rule for V */
+  mrvi_grid slow_grid;  /* grid for V; macro: V_d = dT[a V(q_k) + (1-a) V(q_k+1)] */
+  mrvi_rule fast;       /* rule for W (always micro grid) */
+  double macro_step;    /* Delta T > 0 */
+  int micro_steps;      /* p >= 1 */
+  double t_end;         /* >= macro_step; N = ceil(t_end/dT - 1e-9) steps */
+  double newton_tol;    /* stop when ||R||_inf <= tol (default 1e-9) */
+  int newton_max_iter;  /* default 20 */
+} mrvi_settings;
+
+/* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it. */
+void mrvi_settings_default(mrvi_settings *s);
+/* Set both rules and the slow grid from a named scheme:
+ * midpoint-midpoint, trapezoidal-midpoint, trapezoidal-trapezoidal,
+ * explicit-slow, fully-explicit.  MRVI_EINVAL for an unknown name. */
+int mrvi_settings_set_scheme(mrvi_settings *s, const char *scheme);
+/* Names of the schemes, NULL-terminated. */
+const char *const *mrvi_scheme_names(void);
+/* Validate: alpha, gamma in [0,1], p >= 1, dT > 0, t_end >= dT, tol > 0,
+ * max_iter >= 1.  Writes a message on failure. */
+int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len);
+/* Number of macro steps N = ceil(t_end/dT - 1e-9). */
+long mrvi_settings_n_steps(const mrvi_settings *s);
+
+/* ---------------------------------------------------------------------------
+ * Integrator: one-step position-momentum map (DESIGN §3), solved by Newton
+ * with UMFPACK (pattern and symbolic analysis once, numeric per iteration).
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_integrator mrvi_integrator;
+
+/* Create for a model (must outlive the integrator) and settings (copied).
+ * The state is set to (q0, M v0) at t = 0.  On failure *out is NULL and a
+ * message is written to msg. */
+int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
+                           mrvi_integrator **out, char *msg, size_t len);
+void mrvi_integrator_free(mrvi_integrator *it);
+const char *mrvi_integrator_errmsg(const mrvi_integrator *it);
+
+/* Set the state at macro node k = 0 (model order, n entries each). */
+int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,
+                              const double *p);
+/* Advance one macro step.  On failure the state is unchanged and the message
+ * gives the step, time and residual. */
+int mrvi_integrator_step(mrvi_integrator *it);
+
+double mrvi_integrator_time(const mrvi_integrator *it);
+long mrvi_integrator_step_index(const mrvi_integrator *it); /* k */
+const double *mrvi_integrator_q(const mrvi_integrator *it); /* n */
+const double *mrvi_integrator_p(const mrvi_integrator *it); /* n */
+/* Fast micro nodes m = 1..p of the last step: p x n_fast, row-major, fast
+ * coordinates in model order (row p-1 is the new macro node). */
+const double *mrvi_integrator_micro_q(const mrvi_integrator *it);
+const double *mrvi_integrator_micro_p(const mrvi_integrator *it);
+int mrvi_integrator_last_iterations(const mrvi_integrator *it);
+double mrvi_integrator_last_residual(const mrvi_integrator *it);
+/* Size of the Newton system (n_slow + p n_fast) and its nonzeros. */
+int mrvi_integrator_system_size(const mrvi_integrator *it);
+long mrvi_integrator_system_nnz(const mrvi_integrator *it);
+/* Accumulated wall time in seconds spent assembling residual+Jacobian and
+ * in the linear solves (UMFPACK numeric + solve). */
+void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
+                            double *solve);
+
+/* ---------------------------------------------------------------------------
+ * Run driver: integrate to t_end, calling an observer at every macro node.
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_record {
+  long k;                      /* macro node index */
+  double t;                    /* t_k */
+  const double *q, *p;         /* n, model order */
+  double kinetic, potential_slow, potential_fast, energy;
+  double linear_momentum[3];   /* dimension entries used */
+  double angular_momentum[3];  /* 3 in 3-D, 1 in 2-D */
+  int iterations;              /* Newton iterations of the step ending here (0 at k = 0) */
+  double residual;             /* final ||R||_inf of that step (0 at k = 0) */
+  /* Fast micro nodes that this record completes: at k = 0 the single node
+   * t_0; otherwise nodes m = 1..p of step k-1.  micro_count x n_fast. */
+  int micro_count;
+  double micro_t0;             /* time of the first of them */
+  double micro_dt;             /* spacing */
+  const double *micro_q_fast, *micro_p_fast;
+} mrvi_record;
+
+/* Observer: return 0 to continue, a status < 0 to stop the run with it. */
+typedef int (*mrvi_observer)(void *user, const mrvi_record *r);
+
+typedef struct mrvi_summary {
+  long steps;                  /* macro steps completed */
+  long iterations_total;
+  int iterations_max;          /* max per step */
+  double max_rel_energy_error; /* max_k |H_k - H_0| / max(|H_0|, tiny) */
+  double wall_time;            /* seconds */
+  double assemble_time, solve_time;
+  int status;                  /* final status */
+  char message[512];           /* why it stopped ("" when completed) */
+} mrvi_summary;
+
+/* Integrate from (q0, M v0) over N macro steps; the observer sees k = 0..N.
+ * Stops at the first failure (step, observer or `*stop_flag` set nonzero by
+ * e.g. a signal handler, giving MRVI_EINTERRUPTED).  stop_flag may be NULL.
+ * The summary is filled in every case. */
+int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
+             mrvi_observer observer, void *user,
+             volatile const int *stop_flag, mrvi_summary *summary);
+
+/* ---------------------------------------------------------------------------
+ * Description files (YAML 1.2, doc/description-files.md).
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_system {
+  char *name;            /* `name:` */
+  char *path;            /* file it came from ("<string>" for text) */
+  mrvi_model *model;
+  mrvi_settings settings;
+  char *output_file;     /* output.file (default: <name>.h5) */
+  int output_every;      /* output.every (default 1) */
+  int output_micro;      /* output.micro (default 1) */
+  char *description;     /* the input text after overrides */
+} mrvi_system;
+
+/* Load a description file, applying overrides "dotted.path=value" (e.g.
+ * "integrator.micro_steps=5", "particles.2.mass=3") before interpretation.
+ * On failure returns MRVI_EPARSE (or MRVI_EIO / MRVI_ENOMEM) and writes
+ * "file:line:col: message" into msg; *out is NULL. */
+int mrvi_system_load(const char *path, const char *const *overrides,
+                     int n_overrides, mrvi_system **out, char *msg,
+                     size_t len);
+/* Same from text in memory; `display_name` stands in for the file name. */
+int mrvi_system_load_string(const char *text, const char *display_name,
+                            const char *const *overrides, int n_overrides,
+                            mrvi_system **out, char *msg, size_t len);
+void mrvi_system_free(mrvi_system *sys);
+
+/* ---------------------------------------------------------------------------
+ * HDF5 output (doc/output.md).  The writer is an observer for mrvi_run;
+ * rows are buffered and appended to chunked, extendible datasets.
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_writer mrvi_writer;
+
+typedef struct mrvi_writer_options {
+  const char *system_name;  /* root attribute `system` */
+  const char *description;  /* /model/description (may be NULL) */
+  int every;                /* write every `every`-th macro node (>= 1) */
+  int micro;                /* write /micro datasets */
+} mrvi_writer_options;
+
+/* Create (truncate) the file and write attributes and /model. */
+int mrvi_writer_open(const char *path, const mrvi_model *m,
+                     const mrvi_settings *s, const mrvi_writer_options *opt,
+                     mrvi_writer **out, char *msg, size_t len);
+/* Observer callback: user = the writer. */
+int mrvi_writer_observe(void *writer, const mrvi_record *r);
+/* Flush buffered rows, write the root attribute `stop_reason`
+ * ("completed" or the message) and close.  Frees w. */
+int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
+                      size_t len);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* MRVI_H */

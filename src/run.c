@@ -1,0 +1,113 @@
+/* Run driver: integrate a model to t_end and hand every macro node to an
+ * observer (the HDF5 writer, a progress bar, a test). */
+#include "internal.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Fill the observables of a record at (q, p). */
+static void observe_state(const mrvi_model *m, mrvi_record *r) {
+  mrvi_model_energy(m, r->q, r->p, &r->kinetic, &r->potential_slow,
+                    &r->potential_fast);
+  r->energy = r->kinetic + r->potential_slow + r->potential_fast;
+  memset(r->linear_momentum, 0, sizeof r->linear_momentum);
+  memset(r->angular_momentum, 0, sizeof r->angular_momentum);
+  mrvi_model_momentum(m, r->q, r->p, r->linear_momentum, r->angular_momentum);
+}
+
+int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
+             mrvi_observer observer, void *user,
+             volatile const int *stop_flag, mrvi_summary *sum) {
+  mrvi_summary local;
+  if (!sum)
+    sum = &local;
+  memset(sum, 0, sizeof *sum);
+  const double t_start = mrvi_clock();
+  mrvi_integrator *it = NULL;
+  int st = mrvi_integrator_create(m, s, &it, sum->message,
+                                  sizeof sum->message);
+  if (st < 0) {
+    sum->status = st;
+    return st;
+  }
+  const long N = mrvi_settings_n_steps(s);
+  const int nf = m->n_fast, p = s->micro_steps;
+  const double dt = s->macro_step / p;
+
+  /* k = 0: the initial state and the single micro node t_0. */
+  mrvi_record r = {0};
+  r.k = 0;
+  r.t = 0.0;
+  r.q = mrvi_integrator_q(it);
+  r.p = mrvi_integrator_p(it);
+  observe_state(m, &r);
+  /* Initial fast part, in model order of the fast coordinates. */
+  double *fq = malloc((2 * (size_t)nf + 1) * sizeof(double));
+  if (!fq) {
+    mrvi_integrator_free(it);
+    mrvi_fmt(sum->message, sizeof sum->message, "out of memory");
+    return sum->status = MRVI_ENOMEM;
+  }
+  double *fp = fq + nf;
+  for (int j = 0; j < nf; j++) {
+    fq[j] = r.q[m->fast_index[j]];
+    fp[j] = r.p[m->fast_index[j]];
+  }
+  r.micro_count = 1;
+  r.micro_t0 = 0.0;
+  r.micro_dt = dt;
+  r.micro_q_fast = fq;
+  r.micro_p_fast = fp;
+  const double H0 = r.energy;
+  const double scale = fabs(H0) > DBL_MIN ? fabs(H0) : 1.0;
+  if (observer && (st = observer(user, &r)) < 0)
+    mrvi_fmt(sum->message, sizeof sum->message,
+             "stopped by the observer at t = %g (%s)", r.t, mrvi_strerror(st));
+
+  for (long k = 0; st >= 0 && k < N; k++) {
+    if (stop_flag && *stop_flag) {
+      st = MRVI_EINTERRUPTED;
+      mrvi_fmt(sum->message, sizeof sum->message,
+               "interrupted after %ld of %ld macro steps (t = %g)", k, N,
+               mrvi_integrator_time(it));
+      break;
+    }
+    st = mrvi_integrator_step(it);
+    if (st < 0) {
+      mrvi_fmt(sum->message, sizeof sum->message, "%s",
+               mrvi_integrator_errmsg(it));
+      break;
+    }
+    const int iters = mrvi_integrator_last_iterations(it);
+    sum->steps++;
+    sum->iterations_total += iters;
+    if (iters > sum->iterations_max)
+      sum->iterations_max = iters;
+    r.k = k + 1;
+    r.t = (double)(k + 1) * s->macro_step;
+    r.q = mrvi_integrator_q(it);
+    r.p = mrvi_integrator_p(it);
+    observe_state(m, &r);
+    r.iterations = iters;
+    r.residual = mrvi_integrator_last_residual(it);
+    r.micro_count = p;
+    r.micro_t0 = (double)k * s->macro_step + dt;
+    r.micro_q_fast = mrvi_integrator_micro_q(it);
+    r.micro_p_fast = mrvi_integrator_micro_p(it);
+    const double err = fabs(r.energy - H0) / scale;
+    if (err > sum->max_rel_energy_error || isnan(err))
+      sum->max_rel_energy_error = err;
+    if (observer && (st = observer(user, &r)) < 0)
+      mrvi_fmt(sum->message, sizeof sum->message,
+               "stopped by the observer at t = %g (%s)", r.t,
+               mrvi_strerror(st));
+  }
+  mrvi_integrator_timing(it, &sum->assemble_time, &sum->solve_time);
+  mrvi_integrator_free(it);
+  free(fq);
+  sum->wall_time = mrvi_clock() - t_start;
+  sum->status = st < 0 ? st : MRVI_OK;
+  return sum->status;
+}

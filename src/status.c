@@ -1,0 +1,38 @@
+/* Status codes and small utilities shared by the library. */
+#include "internal.h"
+
+#include <stdio.h>
+#include <time.h>
+
+const char *mrvi_strerror(int status) {
+  switch (status) {
+#define MRVI_STATUS_CASE(name, code, msg)                                    \
+  case code:                                                                 \
+    return msg;
+    MRVI_STATUS_LIST(MRVI_STATUS_CASE)
+#undef MRVI_STATUS_CASE
+  default:
+    return "unknown status";
+  }
+}
+
+const char *mrvi_version(void) { return MRVI_VERSION; }
+
+void mrvi_vfmt(char *buf, size_t len, const char *fmt, va_list ap) {
+  if (!buf || len == 0)
+    return;
+  vsnprintf(buf, len, fmt, ap);
+}
+
+void mrvi_fmt(char *buf, size_t len, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(buf, len, fmt, ap);
+  va_end(ap);
+}
+
+double mrvi_clock(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}

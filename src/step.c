@@ -1,0 +1,316 @@
+/* One macro step in position-momentum form (DESIGN §3, eq:DEL_ini).
+ *
+ * Unknowns x = (q_{k+1}^s, q_k^{f,1}, ..., q_k^{f,p}), size ns + p nf.
+ * Residual rows:
+ *   slow          p_k^s     + D_{q_k^s}     L_d = 0        (ns rows)
+ *   fast node 0   p_k^{f,0} + D_{q_k^{f,0}} L_d = 0        (nf rows)
+ *   fast node m               D_{q_k^{f,m}} L_d = 0        (nf rows, m = 1..p-1)
+ * Row of fast node m (0..p-1): ns + m nf + slot; column of fast node m
+ * (1..p): ns + (m-1) nf + slot; slow row and column: slot.
+ *
+ * L_d = T_d - V_d - W_d.  Every potential term is a sum of evaluation points
+ * (quadrature.c); a point with weight w and node coefficients c contributes
+ * -w c_a grad Z to D_{X_a} L_d and -w c_a c_b hess Z to its derivative.  The
+ * same loop serves every rule: there is no scheme-specific derivative. */
+#include "internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+#include <suitesparse/umfpack.h>
+
+/* Value of fast node m (0..p) in slot. */
+static inline double fast_node(const mrvi_step *st, const double *x, int m,
+                               int slot) {
+  return m == 0 ? st->qf0[slot] : x[st->ns + (m - 1) * st->nf + slot];
+}
+
+/* Inputs of element e at point pt. */
+static void gather(const mrvi_step *st, const mrvi_element *e,
+                   const mrvi_point *pt, const double *x, double *y) {
+  const mrvi_model *m = st->model;
+  for (int j = 0; j < e->n_in; j++) {
+    const int c = e->in[j], s = m->slot[c];
+    if (m->rate[c] == MRVI_SLOW)
+      y[j] = pt->a0 * st->qs0[s] + pt->a1 * x[s];
+    else
+      y[j] = pt->cA * fast_node(st, x, pt->m, s) +
+             pt->cB * fast_node(st, x, pt->m + 1, s);
+  }
+}
+
+/* Residual rows (at most 2) that input c feeds at point pt, with their node
+ * coefficients.  Returns the count. */
+static int rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
+                   int *row, double *coef) {
+  const mrvi_model *m = st->model;
+  const int s = m->slot[c];
+  int n = 0;
+  if (m->rate[c] == MRVI_SLOW) {
+    if (pt->a0 != 0.0) {
+      row[n] = s;
+      coef[n++] = pt->a0;
+    }
+    return n;
+  }
+  if (pt->cA != 0.0) {
+    row[n] = st->ns + pt->m * st->nf + s;
+    coef[n++] = pt->cA;
+  }
+  if (pt->cB != 0.0 && pt->m + 1 <= st->p - 1) {
+    row[n] = st->ns + (pt->m + 1) * st->nf + s;
+    coef[n++] = pt->cB;
+  }
+  return n;
+}
+
+/* Unknown columns (at most 2) that input c depends on at point pt. */
+static int cols_of(const mrvi_step *st, int c, const mrvi_point *pt, int *col,
+                   double *coef) {
+  const mrvi_model *m = st->model;
+  const int s = m->slot[c];
+  int n = 0;
+  if (m->rate[c] == MRVI_SLOW) {
+    if (pt->a1 != 0.0) {
+      col[n] = s;
+      coef[n++] = pt->a1;
+    }
+    return n;
+  }
+  if (pt->cA != 0.0 && pt->m >= 1) {
+    col[n] = st->ns + (pt->m - 1) * st->nf + s;
+    coef[n++] = pt->cA;
+  }
+  if (pt->cB != 0.0) {
+    col[n] = st->ns + pt->m * st->nf + s;
+    coef[n++] = pt->cB;
+  }
+  return n;
+}
+
+/* Add v at (row, col): records the pattern on the first pass, then sums into
+ * the CSC values through the triplet map.  Both passes make the same calls
+ * because every skip depends on structure (weights, coefficients) only. */
+static void jac_add(mrvi_step *st, int row, int col, double v) {
+  if (st->recording) {
+    if (st->n_trip == st->cap_trip) {
+      long c = st->cap_trip ? 2 * st->cap_trip : 1024;
+      int *ti = realloc(st->Ti, (size_t)c * sizeof *ti);
+      if (ti)
+        st->Ti = ti;
+      int *tj = realloc(st->Tj, (size_t)c * sizeof *tj);
+      if (tj)
+        st->Tj = tj;
+      if (!ti || !tj) {
+        st->recording = -1; /* out of memory: reported by build_pattern */
+        return;
+      }
+      st->cap_trip = c;
+    }
+    st->Ti[st->n_trip] = row;
+    st->Tj[st->n_trip] = col;
+    st->n_trip++;
+    return;
+  }
+  if (st->recording == 0)
+    st->Ax[st->map[st->n_trip++]] += v;
+}
+
+int mrvi_step_init(mrvi_step *st, const mrvi_model *m,
+                   const mrvi_settings *s) {
+  memset(st, 0, sizeof *st);
+  st->model = m;
+  st->p = s->micro_steps;
+  st->ns = m->n_slow;
+  st->nf = m->n_fast;
+  st->dT = s->macro_step;
+  st->dt = s->macro_step / s->micro_steps;
+  st->n_unknowns = st->ns + st->p * st->nf;
+  const mrvi_rule rules[2] = {s->slow, s->fast};
+  const mrvi_grid grids[2] = {s->slow_grid, MRVI_GRID_MICRO};
+  int max_n_in = 1;
+  for (int c = 0; c < 2; c++) {
+    st->pts[c] = malloc((size_t)(2 * st->p + 2) * sizeof(mrvi_point));
+    st->elem_of_class[c] = malloc((size_t)(m->n_elements + 1) * sizeof(int));
+    if (!st->pts[c] || !st->elem_of_class[c])
+      return MRVI_ENOMEM;
+    st->n_pts[c] = mrvi_quadrature_points(rules[c], grids[c], st->dT, st->p,
+                                          st->pts[c]);
+  }
+  for (int e = 0; e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    st->elem_of_class[el->potential][st->n_elem_of_class[el->potential]++] = e;
+    if (el->n_in > max_n_in)
+      max_n_in = el->n_in;
+  }
+  const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
+  st->y = malloc((size_t)max_n_in * sizeof(double));
+  st->g = malloc((size_t)max_n_in * sizeof(double));
+  st->H = malloc(mi * mi * sizeof(double));
+  if (!st->y || !st->g || !st->H)
+    return MRVI_ENOMEM;
+  return MRVI_OK;
+}
+
+void mrvi_step_free(mrvi_step *st) {
+  if (!st)
+    return;
+  for (int c = 0; c < 2; c++) {
+    free(st->pts[c]);
+    free(st->elem_of_class[c]);
+  }
+  free(st->Ti);
+  free(st->Tj);
+  free(st->map);
+  free(st->Ax);
+  free(st->Ap);
+  free(st->Ai);
+  free(st->y);
+  free(st->g);
+  free(st->H);
+  memset(st, 0, sizeof *st);
+}
+
+/* Kinetic part of the residual and Jacobian (T_d of §3.3). */
+static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
+                             int jac) {
+  const mrvi_model *m = st->model;
+  const int ns = st->ns, nf = st->nf, p = st->p;
+  /* slow: p_k^s - M^s (q_{k+1}^s - q_k^s)/dT */
+  for (int s = 0; s < ns; s++) {
+    const double M = m->mass[m->slow_index[s]];
+    R[s] = st->ps0[s] - M * (x[s] - st->qs0[s]) / st->dT;
+    if (jac)
+      jac_add(st, s, s, -M / st->dT);
+  }
+  /* fast node 0: p_k^{f,0} - M^f (q^{f,1} - q^{f,0})/dt;
+   * node m >= 1: M^f (q^m - q^{m-1})/dt - M^f (q^{m+1} - q^m)/dt */
+  for (int mm = 0; mm < p; mm++)
+    for (int s = 0; s < nf; s++) {
+      const double M = m->mass[m->fast_index[s]];
+      const int row = ns + mm * nf + s;
+      const double vr =
+          (fast_node(st, x, mm + 1, s) - fast_node(st, x, mm, s)) / st->dt;
+      if (mm == 0) {
+        R[row] = st->pf0[s] - M * vr;
+      } else {
+        const double vl =
+            (fast_node(st, x, mm, s) - fast_node(st, x, mm - 1, s)) / st->dt;
+        R[row] = M * (vl - vr);
+      }
+      if (jac) {
+        if (mm >= 2)
+          jac_add(st, row, ns + (mm - 2) * nf + s, -M / st->dt);
+        if (mm >= 1)
+          jac_add(st, row, ns + (mm - 1) * nf + s, 2.0 * M / st->dt);
+        jac_add(st, row, ns + mm * nf + s, -M / st->dt);
+      }
+    }
+}
+
+void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
+  const mrvi_model *m = st->model;
+  if (jac && !st->recording) {
+    memset(st->Ax, 0, (size_t)st->nnz * sizeof(double));
+    st->n_trip = 0;
+  }
+  assemble_kinetic(st, x, R, jac);
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+        const int lin = e->kind == MRVI_ELEMENT_GRAVITY;
+        const int n = e->n_in;
+        gather(st, e, pt, x, st->y);
+        mrvi_element_eval(m, e, st->y, st->g, jac && !lin ? st->H : NULL);
+        /* Gradient: -w c_row grad_j into every row input j feeds. */
+        for (int j = 0; j < n; j++) {
+          int r[2];
+          double rc[2];
+          const int kr = rows_of(st, e->in[j], pt, r, rc);
+          for (int a = 0; a < kr; a++)
+            R[r[a]] -= pt->w * rc[a] * st->g[j];
+        }
+        if (!jac || lin)
+          continue;
+        /* Hessian scatter: -w c_row c_col H_jl. */
+        for (int j = 0; j < n; j++) {
+          int r[2], cl[2];
+          double rc[2], cc[2];
+          const int kr = rows_of(st, e->in[j], pt, r, rc);
+          for (int l = 0; l < n; l++) {
+            const double h = st->H[j * n + l];
+            const int kc = cols_of(st, e->in[l], pt, cl, cc);
+            for (int a = 0; a < kr; a++)
+              for (int b = 0; b < kc; b++)
+                jac_add(st, r[a], cl[b], -pt->w * rc[a] * cc[b] * h);
+          }
+        }
+      }
+    }
+}
+
+int mrvi_step_build_pattern(mrvi_step *st, const double *x) {
+  const int n = st->n_unknowns;
+  double *R = malloc((size_t)n * sizeof *R);
+  if (!R)
+    return MRVI_ENOMEM;
+  st->recording = 1;
+  st->n_trip = 0;
+  mrvi_step_assemble(st, x, R, 1);
+  free(R);
+  if (st->recording < 0)
+    return MRVI_ENOMEM;
+  st->recording = 0;
+  const long nt = st->n_trip;
+  st->Ap = malloc((size_t)(n + 1) * sizeof *st->Ap);
+  st->Ai = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *st->Ai);
+  st->map = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *st->map);
+  if (!st->Ap || !st->Ai || !st->map)
+    return MRVI_ENOMEM;
+  int status = umfpack_di_triplet_to_col(n, n, (int)nt, st->Ti, st->Tj, NULL,
+                                         st->Ap, st->Ai, NULL, st->map);
+  free(st->Ti);
+  free(st->Tj);
+  st->Ti = st->Tj = NULL;
+  st->cap_trip = 0;
+  if (status != UMFPACK_OK)
+    return MRVI_ENOMEM;
+  st->nnz = st->Ap[n];
+  st->Ax = calloc((size_t)(st->nnz > 0 ? st->nnz : 1), sizeof *st->Ax);
+  if (!st->Ax)
+    return MRVI_ENOMEM;
+  return MRVI_OK;
+}
+
+void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
+                       double *pf) {
+  const mrvi_model *m = st->model;
+  const int ns = st->ns, nf = st->nf, p = st->p;
+  /* Kinetic parts: D_{q_{k+1}^s} T_d = M^s v_s; D_{q^{f,m+1}} T_d^m = M^f v_m */
+  for (int s = 0; s < ns; s++)
+    ps1[s] = m->mass[m->slow_index[s]] * (x[s] - st->qs0[s]) / st->dT;
+  for (int mm = 0; mm < p; mm++)
+    for (int s = 0; s < nf; s++)
+      pf[mm * nf + s] =
+          m->mass[m->fast_index[s]] *
+          (fast_node(st, x, mm + 1, s) - fast_node(st, x, mm, s)) / st->dt;
+  /* Potential parts: -w a1 grad_s Z and, for node m+1 of interval m
+   * (eq:pkfm+), -w cB grad_f Z. */
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+        gather(st, e, pt, x, st->y);
+        mrvi_element_eval(m, e, st->y, st->g, NULL);
+        for (int j = 0; j < e->n_in; j++) {
+          const int cidx = e->in[j], s = m->slot[cidx];
+          if (m->rate[cidx] == MRVI_SLOW)
+            ps1[s] -= pt->w * pt->a1 * st->g[j];
+          else
+            pf[pt->m * nf + s] -= pt->w * pt->cB * st->g[j];
+        }
+      }
+    }
+}

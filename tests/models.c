@@ -1,0 +1,107 @@
+#include "models.h"
+
+#include <math.h>
+
+mrvi_model *test_fpu(void) {
+  mrvi_model *m = mrvi_model_create();
+  const char *names[6] = {"qs1", "qs2", "qs3", "qf1", "qf2", "qf3"};
+  const double omega = 50.0;
+  const double q0[6] = {1, 0, 0, 1.0 / omega, 0, 0};
+  const double v0[6] = {1, 0, 0, 1, 0, 0};
+  for (int i = 0; i < 6; i++)
+    mrvi_model_add_coordinate(m, names[i], 1.0, i < 3 ? MRVI_SLOW : MRVI_FAST,
+                              q0[i], v0[i]);
+  /* V = 1/4 [(qs1 - qf1)^4 + sum (qs_{i+1} - qf_{i+1} - qs_i - qf_i)^4
+   *          + (qs3 + qf3)^4] */
+  const double pw[2] = {0.25, 4.0};
+  const int c1[2] = {0, 3}, c4[2] = {2, 5};
+  const double a1[2] = {1, -1}, a4[2] = {1, 1};
+  const int c2[4] = {1, 4, 0, 3}, c3[4] = {2, 5, 1, 4};
+  const double a23[4] = {1, -1, -1, -1};
+  mrvi_model_add_term(m, MRVI_SLOW, 2, c1, a1, 0.0, "power", pw);
+  mrvi_model_add_term(m, MRVI_SLOW, 4, c2, a23, 0.0, "power", pw);
+  mrvi_model_add_term(m, MRVI_SLOW, 4, c3, a23, 0.0, "power", pw);
+  mrvi_model_add_term(m, MRVI_SLOW, 2, c4, a4, 0.0, "power", pw);
+  /* W = omega^2/2 |qf|^2 */
+  const double k[1] = {omega * omega};
+  for (int i = 3; i < 6; i++) {
+    const double one = 1.0;
+    mrvi_model_add_term(m, MRVI_FAST, 1, &i, &one, 0.0, "linear", k);
+  }
+  mrvi_model_set_name(m, "fpu");
+  return m;
+}
+
+mrvi_model *test_spring_ring(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double r = 2.0, h = 2.0, pi = acos(-1.0);
+  double q[6][3], v[6][3] = {{0}};
+  for (int i = 0; i < 6; i++) {
+    q[i][0] = r * sin(i * pi / 3);
+    q[i][1] = -r * cos(i * pi / 3);
+    q[i][2] = -h;
+  }
+  const double off[4][3] = {
+      {0.3, 0.3, 0}, {0.2, -0.3, -0.3}, {0.2, -0.2, 0}, {-0.3, 0.4, 0}};
+  const int who[4] = {2, 4, 1, 3}; /* q3, q5, q2, q4 */
+  for (int a = 0; a < 4; a++)
+    for (int k = 0; k < 3; k++)
+      q[who[a]][k] += off[a][k];
+  double e12[3], e36[3], n12 = 0, n36 = 0;
+  for (int k = 0; k < 3; k++) {
+    e12[k] = q[0][k] - q[1][k];
+    e36[k] = q[2][k] - q[5][k];
+    n12 += e12[k] * e12[k];
+    n36 += e36[k] * e36[k];
+  }
+  for (int k = 0; k < 3; k++) {
+    v[0][k] = 5 * e12[k] / sqrt(n12);
+    v[1][k] = -30 * e12[k] / sqrt(n12);
+    v[2][k] = -5 * e36[k] / sqrt(n36);
+  }
+  const double v4[3] = {50, 40, -10}, v6[3] = {50, 40, 10};
+  for (int k = 0; k < 3; k++) {
+    v[3][k] = v4[k];
+    v[5][k] = v6[k];
+  }
+  const char *names[6] = {"m1", "m2", "m3", "m4", "m5", "m6"};
+  for (int i = 0; i < 6; i++)
+    mrvi_model_add_particle(m, names[i], 2.0, i % 2 == 0 ? MRVI_SLOW : MRVI_FAST,
+                            q[i], v[i]);
+  const double origin[3] = {0, 0, 0};
+  const double w1[1] = {2.0}, w2[1] = {4000.0}, ring[2] = {5.0 / 4.0, 4.0};
+  for (int i = 0; i < 6; i++) {
+    if (i % 2 == 0)
+      mrvi_model_add_anchor_spring(m, MRVI_SLOW, i, origin, "linear", w1, 0.0);
+    else
+      mrvi_model_add_anchor_spring(m, MRVI_FAST, i, origin, "linear", w2, 0.0);
+    mrvi_model_add_spring(m, MRVI_SLOW, i, (i + 1) % 6, "power", ring, 0.0);
+  }
+  const double g[3] = {0, 0, -9.81};
+  mrvi_model_set_gravity(m, g);
+  mrvi_model_set_name(m, "spring-ring");
+  return m;
+}
+
+mrvi_model *test_oscillator(double omega) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_add_coordinate(m, "q", 1.0, MRVI_SLOW, 1.0, 0.0);
+  const int c = 0;
+  const double one = 1.0, k[1] = {omega * omega};
+  mrvi_model_add_term(m, MRVI_SLOW, 1, &c, &one, 0.0, "linear", k);
+  return m;
+}
+
+mrvi_settings test_settings(const char *scheme, double dT, int p,
+                            double t_end, double tol) {
+  mrvi_settings s;
+  mrvi_settings_default(&s);
+  mrvi_settings_set_scheme(&s, scheme);
+  s.macro_step = dT;
+  s.micro_steps = p;
+  s.t_end = t_end;
+  s.newton_tol = tol;
+  s.newton_max_iter = 50;
+  return s;
+}

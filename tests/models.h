@@ -1,0 +1,19 @@
+/* The paper's validation systems built with the C API (DESIGN §5), so the
+ * numerical tests do not depend on the description-file loader. */
+#ifndef MRVI_TEST_MODELS_H
+#define MRVI_TEST_MODELS_H
+
+#include "mrvi.h"
+
+/* FPU (§6): l = 3, unit masses, omega^2 = 2500. */
+mrvi_model *test_fpu(void);
+/* Spring ring (§6): 6 particles of mass 2 in 3-D, odd slow, even fast. */
+mrvi_model *test_spring_ring(void);
+/* Harmonic oscillator, slow only: V = omega^2 q^2 / 2, unit mass. */
+mrvi_model *test_oscillator(double omega);
+
+/* Settings for a named scheme with dT, p, t_end and Newton tolerance. */
+mrvi_settings test_settings(const char *scheme, double dT, int p,
+                            double t_end, double tol);
+
+#endif

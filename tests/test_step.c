@@ -1,0 +1,244 @@
+/* The one-step equations (DESIGN §3):
+ * - the residual equals p_k + D L_d of a discrete Lagrangian written here
+ *   straight from eq:discrete_Lagrangian / eq:Zapprox / eq:slow_potential_affine
+ *   (derivatives by central differences), and the output momenta equal
+ *   D_{q_{k+1}} L_d and the micro momenta D_{q^{f,m}} L_d^{m-1} (eq:pkfm+);
+ * - the assembled Newton matrix equals the finite-difference Jacobian of the
+ *   residual, entry by entry, for every named scheme with p in {1, 3}. */
+#include "internal.h"
+#include "models.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct nodes {
+  const mrvi_model *m;
+  const mrvi_settings *s;
+  double *qs0, *qs1; /* ns */
+  double *qf;        /* (p+1) x nf */
+} nodes;
+
+/* Full configuration z = (slow part, fast part) into q (model order). */
+static void compose(const mrvi_model *m, const double *qs, const double *qf,
+                    double *q) {
+  for (int i = 0; i < m->n_slow; i++)
+    q[m->slow_index[i]] = qs[i];
+  for (int i = 0; i < m->n_fast; i++)
+    q[m->fast_index[i]] = qf[i];
+}
+
+/* Potential of class c at the affine combination a z^m + b z^{m+1} where
+ * z^m = (q^{s,m}, q^{f,m}) and q^{s,m} interpolates the slow macro nodes. */
+static double pot_at(const nodes *X, int c, int mm, double a, double b) {
+  const mrvi_model *m = X->m;
+  const int p = X->s->micro_steps, ns = m->n_slow, nf = m->n_fast;
+  double qs[64], qf[64], q[128];
+  for (int i = 0; i < ns; i++) {
+    double s0 = (1.0 - (double)mm / p) * X->qs0[i] + ((double)mm / p) * X->qs1[i];
+    double s1 = (1.0 - (double)(mm + 1) / p) * X->qs0[i] +
+                ((double)(mm + 1) / p) * X->qs1[i];
+    qs[i] = a * s0 + b * s1;
+  }
+  for (int i = 0; i < nf; i++)
+    qf[i] = a * X->qf[mm * nf + i] + b * X->qf[(mm + 1) * nf + i];
+  compose(m, qs, qf, q);
+  return mrvi_model_potential(m, (mrvi_rate)c, q, NULL, NULL);
+}
+
+/* L_d, or with only >= 0 the part L_d^only of micro interval `only` (fast
+ * kinetic energy and potential evaluations of that interval; no slow
+ * kinetic energy). */
+static double Ld(const nodes *X, int only) {
+  const mrvi_model *m = X->m;
+  const mrvi_settings *s = X->s;
+  const int p = s->micro_steps, ns = m->n_slow, nf = m->n_fast;
+  const double dT = s->macro_step, dt = dT / p;
+  double L = 0.0;
+  if (only < 0)
+    for (int i = 0; i < ns; i++) {
+      double v = (X->qs1[i] - X->qs0[i]) / dT;
+      L += 0.5 * dT * m->mass[m->slow_index[i]] * v * v;
+    }
+  for (int mm = 0; mm < p; mm++) {
+    if (only >= 0 && mm != only)
+      continue;
+    for (int i = 0; i < nf; i++) {
+      double v = (X->qf[(mm + 1) * nf + i] - X->qf[mm * nf + i]) / dt;
+      L += 0.5 * dt * m->mass[m->fast_index[i]] * v * v;
+    }
+    /* eq:Zapprox for W, and for V on the micro grid */
+    for (int c = 0; c < 2; c++) {
+      const mrvi_rule r = c == MRVI_SLOW ? s->slow : s->fast;
+      if (c == MRVI_SLOW && s->slow_grid == MRVI_GRID_MACRO)
+        continue;
+      L -= dt * (r.alpha * pot_at(X, c, mm, r.gamma, 1 - r.gamma) +
+                 (1 - r.alpha) * pot_at(X, c, mm, 1 - r.gamma, r.gamma));
+    }
+  }
+  /* eq:slow_potential_affine */
+  if (s->slow_grid == MRVI_GRID_MACRO) {
+    if (only < 0 || only == 0)
+      L -= dT * s->slow.alpha * pot_at(X, MRVI_SLOW, 0, 1, 0);
+    if (only < 0 || only == p - 1)
+      L -= dT * (1 - s->slow.alpha) * pot_at(X, MRVI_SLOW, p - 1, 0, 1);
+  }
+  return L;
+}
+
+/* Central difference of L_d (or L_d^only) with respect to *v. */
+static double dLd(nodes *X, double *v, int only) {
+  const double h = 1e-6 * (1 + fabs(*v)), v0 = *v;
+  *v = v0 + h;
+  double lp = Ld(X, only);
+  *v = v0 - h;
+  double lm = Ld(X, only);
+  *v = v0;
+  return (lp - lm) / (2 * h);
+}
+
+static void check_settings(const mrvi_model *m, mrvi_settings s,
+                           const char *label) {
+  const int p = s.micro_steps;
+  const double dT = s.macro_step;
+  const char *scheme = s.scheme;
+  mrvi_step st;
+  CHECK(mrvi_step_init(&st, m, &s) == 0, "step init");
+  const int ns = m->n_slow, nf = m->n_fast, nu = st.n_unknowns;
+  double *qs0 = calloc(ns + 1, sizeof(double)), *ps0 = calloc(ns + 1, sizeof(double));
+  double *qf0 = calloc(nf + 1, sizeof(double)), *pf0 = calloc(nf + 1, sizeof(double));
+  for (int i = 0; i < ns; i++) {
+    qs0[i] = m->q0[m->slow_index[i]];
+    ps0[i] = m->mass[m->slow_index[i]] * m->v0[m->slow_index[i]];
+  }
+  for (int i = 0; i < nf; i++) {
+    qf0[i] = m->q0[m->fast_index[i]];
+    pf0[i] = m->mass[m->fast_index[i]] * m->v0[m->fast_index[i]];
+  }
+  st.qs0 = qs0;
+  st.qf0 = qf0;
+  st.ps0 = ps0;
+  st.pf0 = pf0;
+  /* A generic point: free flight plus a deterministic wiggle. */
+  double *x = calloc(nu, sizeof(double)), *R = calloc(nu, sizeof(double));
+  for (int i = 0; i < ns; i++)
+    x[i] = qs0[i] + dT * ps0[i] / m->mass[m->slow_index[i]] + 0.01 * sin(i + 1.0);
+  for (int k = 1; k <= p; k++)
+    for (int i = 0; i < nf; i++)
+      x[ns + (k - 1) * nf + i] = qf0[i] +
+                                 k * (dT / p) * pf0[i] / m->mass[m->fast_index[i]] +
+                                 0.01 * cos(k + 2.0 * i);
+  CHECK(mrvi_step_build_pattern(&st, x) == 0, "pattern");
+  mrvi_step_assemble(&st, x, R, 1);
+
+  /* Residual against derivatives of L_d. */
+  nodes X = {m, &s, calloc(ns + 1, sizeof(double)), calloc(ns + 1, sizeof(double)),
+             calloc((size_t)(p + 1) * nf + 1, sizeof(double))};
+  memcpy(X.qs0, qs0, ns * sizeof(double));
+  memcpy(X.qs1, x, ns * sizeof(double));
+  memcpy(X.qf, qf0, nf * sizeof(double));
+  memcpy(X.qf + nf, x + ns, (size_t)p * nf * sizeof(double));
+  char what[200];
+  snprintf(what, sizeof what, "%s %s p=%d residual = p_k + D L_d", label, scheme, p);
+  for (int i = 0; i < ns; i++) {
+    double d = dLd(&X, &X.qs0[i], -1);
+    CHECK_NEAR(R[i], ps0[i] + d, 1e-6 * (1 + fabs(d)), what);
+  }
+  for (int k = 0; k < p; k++)
+    for (int i = 0; i < nf; i++) {
+      double d = dLd(&X, &X.qf[k * nf + i], -1);
+      double expect = (k == 0 ? pf0[i] : 0.0) + d;
+      CHECK_NEAR(R[ns + k * nf + i], expect, 1e-6 * (1 + fabs(d)), what);
+    }
+  /* Output momenta. */
+  double *ps1 = calloc(ns + 1, sizeof(double)), *pf = calloc((size_t)p * nf + 1, sizeof(double));
+  mrvi_step_momenta(&st, x, ps1, pf);
+  snprintf(what, sizeof what, "%s %s p=%d momenta = D L_d", label, scheme, p);
+  for (int i = 0; i < ns; i++) {
+    double d = dLd(&X, &X.qs1[i], -1);
+    CHECK_NEAR(ps1[i], d, 1e-6 * (1 + fabs(d)), what);
+  }
+  for (int k = 1; k <= p; k++)
+    for (int i = 0; i < nf; i++) {
+      double d = dLd(&X, &X.qf[k * nf + i], k - 1);
+      CHECK_NEAR(pf[(k - 1) * nf + i], d, 1e-6 * (1 + fabs(d)), what);
+    }
+
+  /* Jacobian against central differences of the residual. */
+  double *J = calloc((size_t)nu * nu, sizeof(double));
+  for (int c = 0; c < nu; c++)
+    for (int k = st.Ap[c]; k < st.Ap[c + 1]; k++)
+      J[(size_t)st.Ai[k] * nu + c] += st.Ax[k];
+  double *Rp = calloc(nu, sizeof(double)), *Rm = calloc(nu, sizeof(double));
+  snprintf(what, sizeof what, "%s %s p=%d Jacobian", label, scheme, p);
+  double scale = 0.0;
+  for (size_t k = 0; k < (size_t)nu * nu; k++)
+    scale = fmax(scale, fabs(J[k]));
+  int bad = 0;
+  for (int c = 0; c < nu; c++) {
+    const double h = 1e-6, xc = x[c];
+    x[c] = xc + h;
+    mrvi_step_assemble(&st, x, Rp, 0);
+    x[c] = xc - h;
+    mrvi_step_assemble(&st, x, Rm, 0);
+    x[c] = xc;
+    for (int r = 0; r < nu; r++) {
+      double fd = (Rp[r] - Rm[r]) / (2 * h);
+      if (fabs(fd - J[(size_t)r * nu + c]) > 1e-6 * scale) {
+        if (bad++ < 3)
+          CHECK_NEAR(J[(size_t)r * nu + c], fd, 1e-6 * scale, what);
+      }
+    }
+  }
+  CHECK(bad == 0, "%s: %d entries differ", what, bad);
+  free(J);
+  free(Rp);
+  free(Rm);
+  free(ps1);
+  free(pf);
+  free(X.qs0);
+  free(X.qs1);
+  free(X.qf);
+  free(x);
+  free(R);
+  free(qs0);
+  free(ps0);
+  free(qf0);
+  free(pf0);
+  mrvi_step_free(&st);
+}
+
+int main(void) {
+  mrvi_model *fpu = test_fpu(), *ring = test_spring_ring(), *osc = test_oscillator(2.0);
+  const char *const *schemes = mrvi_scheme_names();
+  const int ps[2] = {1, 3};
+  for (int i = 0; schemes[i]; i++)
+    for (int j = 0; j < 2; j++) {
+      check_settings(fpu, test_settings(schemes[i], 0.1, ps[j], 1, 1e-10), "fpu");
+      check_settings(ring, test_settings(schemes[i], 0.01, ps[j], 1, 1e-10),
+                     "spring ring");
+      check_settings(osc, test_settings(schemes[i], 0.3, ps[j], 1, 1e-10),
+                     "oscillator");
+    }
+  /* Rules beyond the named schemes (eq:Zapprox with any alpha, gamma):
+   * right rectangle, Lobatto, and general values, micro and macro grid. */
+  const mrvi_rule rules[3][2] = {{{0.0, 1.0}, {1.0, 0.0}},
+                                 {{0.5, 0.0}, {0.5, 1.0}},
+                                 {{0.3, 0.2}, {0.7, 0.9}}};
+  for (int r = 0; r < 3; r++)
+    for (int g = 0; g < 2; g++) {
+      mrvi_settings s = test_settings("midpoint-midpoint", 0.1, 3, 1.0, 1e-10);
+      snprintf(s.scheme, sizeof s.scheme, "rule%d%s", r, g ? "-macro" : "");
+      s.slow = rules[r][0];
+      s.fast = rules[r][1];
+      s.slow_grid = g ? MRVI_GRID_MACRO : MRVI_GRID_MICRO;
+      check_settings(fpu, s, "fpu");
+      s.macro_step = 0.01;
+      check_settings(ring, s, "spring ring");
+    }
+  mrvi_model_free(fpu);
+  mrvi_model_free(ring);
+  mrvi_model_free(osc);
+  return test_finish();
+}

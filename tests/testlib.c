@@ -1,0 +1,32 @@
+#include "testlib.h"
+
+#include <stdarg.h>
+#include <stdlib.h>
+
+int test_passed = 0, test_failed = 0;
+
+void test_check(int ok, const char *file, int line, const char *fmt, ...) {
+  if (ok) {
+    test_passed++;
+    return;
+  }
+  test_failed++;
+  va_list ap;
+  va_start(ap, fmt);
+  fprintf(stderr, "%s:%d: FAIL: ", file, line);
+  vfprintf(stderr, fmt, ap);
+  fputc('\n', stderr);
+  va_end(ap);
+}
+
+int test_finish(void) {
+  printf("%d passed, %d failed\n", test_passed, test_failed);
+  return test_failed == 0 && test_passed > 0 ? 0 : 1;
+}
+
+const char *test_source_path(const char *relative) {
+  static char buf[4096];
+  const char *root = getenv("MRVI_SOURCE_ROOT");
+  snprintf(buf, sizeof buf, "%s/%s", root ? root : "..", relative);
+  return buf;
+}

@@ -1,0 +1,29 @@
+/* Minimal test harness shared by the mrvi tests.
+ *
+ * CHECK(cond, fmt, ...) records one assertion; CHECK_NEAR(a, b, tol, what)
+ * checks |a - b| <= tol.  test_finish() prints "N passed, M failed" and
+ * returns the exit code for main. */
+#ifndef MRVI_TESTLIB_H
+#define MRVI_TESTLIB_H
+
+#include <stdio.h>
+
+extern int test_passed, test_failed;
+
+void test_check(int ok, const char *file, int line, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+#define CHECK(cond, ...) test_check(!!(cond), __FILE__, __LINE__, __VA_ARGS__)
+#define CHECK_NEAR(a, b, tol, what)                                          \
+  do {                                                                       \
+    double a_ = (a), b_ = (b), t_ = (tol);                                   \
+    test_check(a_ - b_ <= t_ && b_ - a_ <= t_, __FILE__, __LINE__,          \
+               "%s: %.17g vs %.17g (tol %.3g)", (what), a_, b_, t_);        \
+  } while (0)
+
+int test_finish(void);
+
+/* Path of a file under the source tree ($MRVI_SOURCE_ROOT, else ".."). */
+const char *test_source_path(const char *relative);
+
+#endif
