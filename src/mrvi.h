@@ -337,6 +337,72 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r);
 int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
                       size_t len);
 
+/* ---------------------------------------------------------------------------
+ * Analysis (paper §4-§6): trajectories, errors against a reference,
+ * propagation matrices and linear stability.
+ * ------------------------------------------------------------------------- */
+
+/* Every node of a run, kept in memory. */
+typedef struct mrvi_trajectory {
+  int n, n_fast;
+  double macro_step;
+  int micro_steps;
+  long n_macro;          /* N + 1 */
+  long n_micro;          /* N p + 1 */
+  double *t, *q, *p;     /* n_macro; n_macro x n; n_macro x n */
+  double *micro_t;       /* n_micro */
+  double *micro_q, *micro_p; /* n_micro x n_fast */
+} mrvi_trajectory;
+
+/* Run and keep every node.  On failure *out is NULL and summary->message
+ * says why. */
+int mrvi_trajectory_run(const mrvi_model *m, const mrvi_settings *s,
+                        mrvi_trajectory **out, mrvi_summary *summary);
+void mrvi_trajectory_free(mrvi_trajectory *tr);
+
+/* Errors of a run against a reference (eq:err_mac, eq:err_mic): sup over
+ * nodes of the Euclidean norm of the difference.  Macro errors use all
+ * coordinates and are also split into slow and fast parts; micro errors use
+ * the fast coordinates at the micro nodes m = 1..p-1 (NAN when p = 1). */
+typedef struct mrvi_errors {
+  double macro_step;
+  int micro_steps;
+  double q_mac, p_mac, q_mic, p_mic;
+  double qs_mac, qf_mac, ps_mac, pf_mac;
+} mrvi_errors;
+
+/* The reference must be a single-rate run (micro_steps = 1) whose step
+ * divides the run's micro step and that reaches the run's last node. */
+int mrvi_trajectory_errors(const mrvi_model *m, const mrvi_trajectory *run,
+                           const mrvi_trajectory *ref, mrvi_errors *e,
+                           char *msg, size_t len);
+
+/* Propagation matrix of one macro step of a linear model: P (2n x 2n,
+ * row-major) maps (q_k, p_k) to (q_{k+1}, p_{k+1}); column j is one step
+ * from the j-th unit state.  The model must be linear (quadratic V, W). */
+int mrvi_propagation_matrix(const mrvi_model *m, const mrvi_settings *s,
+                            double *P, char *msg, size_t len);
+
+/* Harmonic oscillator (one coordinate, V = omega^2 M q^2/2 at q0, no W;
+ * Lemma lemma:stability_slow): its frequency omega = sqrt(V''/M). */
+int mrvi_oscillator_omega(const mrvi_model *m, double *omega, char *msg,
+                          size_t len);
+/* det and trace of the propagation matrix at omega dT = x (dT = x/omega,
+ * the rules and p of s). */
+int mrvi_stability_at(const mrvi_model *m, const mrvi_settings *s, double x,
+                      double *det, double *trace, char *msg, size_t len);
+/* Largest x = omega dT such that |trace| < 2 on (0, x): scanned in steps
+ * of `step` up to x_max and refined by bisection.  INFINITY if stable on
+ * the whole scan. */
+int mrvi_stability_limit(const mrvi_model *m, const mrvi_settings *s,
+                         double x_max, double step, double *limit, char *msg,
+                         size_t len);
+/* Analytic bound of Lemma lemma:stability_slow on omega dT for the slow rule
+ * on the micro grid: trapezoidal family (gamma = 0 or 1)
+ * sqrt(12 p^2/(p^2+2)), midpoint (gamma = 1/2) sqrt(12 p^2/(p^2-1))
+ * (INFINITY for p = 1); NAN for other rules. */
+double mrvi_stability_bound(mrvi_rule slow, int p);
+
 #ifdef __cplusplus
 }
 #endif

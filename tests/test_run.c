@@ -1,0 +1,197 @@
+/* Run driver and integrator API: number of steps, failure messages,
+ * interruption, observer stop, restart from a saved state, settings checks. */
+#include "internal.h"
+#include "models.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct counter {
+  long calls, last_k, stop_at;
+  double last_t;
+  int micro_rows;
+  volatile int *flag;
+  long flag_at;
+} counter;
+
+static int count(void *user, const mrvi_record *r) {
+  counter *c = user;
+  c->calls++;
+  c->last_k = r->k;
+  c->last_t = r->t;
+  c->micro_rows += r->micro_count;
+  if (c->flag && r->k == c->flag_at)
+    *c->flag = 1;
+  return c->stop_at >= 0 && r->k == c->stop_at ? MRVI_EIO : 0;
+}
+
+static void steps_and_times(void) {
+  mrvi_model *m = test_fpu();
+  /* t_end = 200, dT = 0.3: N = ceil(666.67) = 667, the last node at 200.1 */
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.3, 2, 200.0, 1e-9);
+  CHECK(mrvi_settings_n_steps(&s) == 667, "N for 200/0.3");
+  s.t_end = 0.9; /* exactly 3 steps despite 0.9/0.3 = 3.0000000000000004 */
+  CHECK(mrvi_settings_n_steps(&s) == 3, "N for 0.9/0.3");
+  counter c = {.stop_at = -1};
+  mrvi_summary sum;
+  CHECK(mrvi_run(m, &s, count, &c, NULL, &sum) == 0, "run");
+  CHECK(c.calls == 4 && c.last_k == 3, "observer sees k = 0..N");
+  CHECK_NEAR(c.last_t, 0.9, 1e-15, "last time");
+  CHECK(c.micro_rows == 3 * 2 + 1, "micro rows N p + 1");
+  CHECK(sum.steps == 3 && sum.iterations_total >= 3, "summary counts");
+  mrvi_model_free(m);
+}
+
+static void newton_failure(void) {
+  mrvi_model *m = test_fpu();
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.3, 5, 3.0, 1e-14);
+  s.newton_max_iter = 1;
+  counter c = {.stop_at = -1};
+  mrvi_summary sum;
+  int st = mrvi_run(m, &s, count, &c, NULL, &sum);
+  CHECK(st == MRVI_ENEWTON, "non-convergence is an error (%d)", st);
+  CHECK(strstr(sum.message, "step 1 ") && strstr(sum.message, "t = 0") &&
+            strstr(sum.message, "residual"),
+        "message names step, time and residual: %s", sum.message);
+  CHECK(c.calls == 1, "only the initial node was observed");
+  mrvi_model_free(m);
+}
+
+static void interruption(void) {
+  mrvi_model *m = test_fpu();
+  mrvi_settings s = test_settings("trapezoidal-midpoint", 0.1, 3, 5.0, 1e-10);
+  volatile int flag = 0;
+  counter c = {.stop_at = -1, .flag = &flag, .flag_at = 7};
+  mrvi_summary sum;
+  int st = mrvi_run(m, &s, count, &c, &flag, &sum);
+  CHECK(st == MRVI_EINTERRUPTED, "stop flag interrupts (%d)", st);
+  CHECK(sum.steps == 7 && c.last_k == 7, "7 steps completed (%ld)", sum.steps);
+  CHECK(strstr(sum.message, "interrupted") != NULL, "message: %s", sum.message);
+  counter d = {.stop_at = 4};
+  st = mrvi_run(m, &s, count, &d, NULL, &sum);
+  CHECK(st == MRVI_EIO && d.last_k == 4, "observer stops the run");
+  mrvi_model_free(m);
+}
+
+/* A run restarted from a saved (q, p) continues the same trajectory: the
+ * one-step map only needs (q_k, p_k) (DESIGN §3). */
+static void restart(void) {
+  mrvi_model *m = test_spring_ring();
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 5, 1.0, 1e-12);
+  mrvi_integrator *a = NULL, *b = NULL;
+  char msg[256];
+  CHECK(mrvi_integrator_create(m, &s, &a, msg, sizeof msg) == 0, "%s", msg);
+  CHECK(mrvi_integrator_create(m, &s, &b, msg, sizeof msg) == 0, "%s", msg);
+  for (int k = 0; k < 10; k++)
+    mrvi_integrator_step(a);
+  mrvi_integrator_set_state(b, mrvi_integrator_time(a), mrvi_integrator_q(a),
+                            mrvi_integrator_p(a));
+  for (int k = 0; k < 10; k++) {
+    mrvi_integrator_step(a);
+    mrvi_integrator_step(b);
+  }
+  double d = 0;
+  for (int i = 0; i < m->n; i++)
+    d = fmax(d, fabs(mrvi_integrator_q(a)[i] - mrvi_integrator_q(b)[i]));
+  CHECK(d == 0.0, "restart reproduces the trajectory bitwise (%.3e)", d);
+  CHECK_NEAR(mrvi_integrator_time(b), 0.2, 1e-14, "restart time");
+  CHECK(mrvi_integrator_system_size(a) == 9 + 5 * 9, "system size ns + p nf");
+  mrvi_integrator_free(a);
+  mrvi_integrator_free(b);
+  mrvi_model_free(m);
+}
+
+static void settings_checks(void) {
+  mrvi_settings s;
+  char msg[256];
+  mrvi_settings_default(&s);
+  CHECK(mrvi_settings_check(&s, msg, sizeof msg) == 0, "defaults are valid");
+  CHECK(mrvi_settings_set_scheme(&s, "midpoint") == MRVI_EINVAL,
+        "unknown scheme");
+  s.slow.alpha = 1.5;
+  CHECK(mrvi_settings_check(&s, msg, sizeof msg) < 0 && strstr(msg, "alpha"),
+        "alpha out of range: %s", msg);
+  mrvi_settings_default(&s);
+  s.micro_steps = 0;
+  CHECK(mrvi_settings_check(&s, msg, sizeof msg) < 0, "p < 1");
+  mrvi_settings_default(&s);
+  s.t_end = s.macro_step / 2;
+  CHECK(mrvi_settings_check(&s, msg, sizeof msg) < 0, "t_end < dT");
+  mrvi_settings_default(&s);
+  s.macro_step = -1;
+  CHECK(mrvi_settings_check(&s, msg, sizeof msg) < 0, "dT <= 0");
+  mrvi_model *empty = mrvi_model_create();
+  mrvi_integrator *it = NULL;
+  mrvi_settings_default(&s);
+  CHECK(mrvi_integrator_create(empty, &s, &it, msg, sizeof msg) ==
+                MRVI_EMODEL && it == NULL,
+        "empty model rejected");
+  mrvi_model_free(empty);
+  CHECK(strcmp(mrvi_strerror(MRVI_ENEWTON),
+               "Newton iteration did not converge") == 0,
+        "strerror");
+  CHECK(strcmp(mrvi_strerror(12345), "unknown status") == 0,
+        "strerror unknown");
+}
+
+/* Builder errors name the offending element or coordinate. */
+static void builder_checks(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double x[2] = {0, 1}, v[2] = {0, 0}, k[1] = {1};
+  CHECK(mrvi_model_add_particle(m, "s", 1, MRVI_SLOW, x, v) == 0, "slow");
+  CHECK(mrvi_model_add_particle(m, "f", 1, MRVI_FAST, x, v) == 1, "fast");
+  int st = mrvi_model_add_spring(m, MRVI_FAST, 0, 1, "linear", k, 0);
+  CHECK(st == MRVI_EMODEL && strstr(mrvi_model_errmsg(m), "s.x"),
+        "fast spring on a slow particle: %s", mrvi_model_errmsg(m));
+  CHECK(mrvi_model_add_particle(m, "f", 1, MRVI_FAST, x, v) < 0 &&
+            strstr(mrvi_model_errmsg(m), "duplicate"),
+        "duplicate particle");
+  CHECK(mrvi_model_add_coordinate(m, "q", 0.0, MRVI_SLOW, 0, 0) < 0 &&
+            strstr(mrvi_model_errmsg(m), "mass"),
+        "mass <= 0");
+  CHECK(mrvi_model_add_spring(m, MRVI_SLOW, 0, 1, "hooke", k, 0) < 0 &&
+            strstr(mrvi_model_errmsg(m), "unknown law"),
+        "unknown law");
+  CHECK(mrvi_model_n_slow(m) == 2 && mrvi_model_n_fast(m) == 2, "partition");
+  mrvi_model_free(m);
+}
+
+/* A user law registered through the C API is usable by name. */
+static void cubic_eval(const double *par, double s, double *phi, double *dphi,
+                       double *ddphi) {
+  *phi = par[0] * s * s * s;
+  *dphi = 3 * par[0] * s * s;
+  *ddphi = 6 * par[0] * s;
+}
+static const char *const cubic_names[] = {"c"};
+static const mrvi_law cubic = {"cubic", "c s^3", 1, cubic_names, NULL,
+                               cubic_eval};
+
+static void user_law(void) {
+  CHECK(mrvi_law_register(&cubic) == 0, "register");
+  CHECK(mrvi_law_register(&cubic) == MRVI_EINVAL, "no duplicate names");
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_add_coordinate(m, "q", 1, MRVI_SLOW, 0.5, 0);
+  const int c = 0;
+  const double one = 1, par[1] = {2.0};
+  CHECK(mrvi_model_add_term(m, MRVI_SLOW, 1, &c, &one, 0, "cubic", par) == 0,
+        "term with the user law");
+  const double q = 0.5;
+  CHECK_NEAR(mrvi_model_potential(m, MRVI_SLOW, &q, NULL, NULL), 0.25, 1e-15,
+             "user law energy");
+  mrvi_model_free(m);
+}
+
+int main(void) {
+  steps_and_times();
+  newton_failure();
+  interruption();
+  restart();
+  settings_checks();
+  builder_checks();
+  user_law();
+  return test_finish();
+}
