@@ -669,3 +669,42 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q,
     for (int k = 0; k < (d == 3 ? 3 : d == 2 ? 1 : 0); k++)
       angular[k] = J[k];
 }
+
+/* ---------------------------------------------------------------------------
+ * Fingerprint (FNV-1a over the defining data)
+ * ------------------------------------------------------------------------- */
+static void fnv(unsigned long long *h, const void *data, size_t n) {
+  const unsigned char *b = data;
+  for (size_t i = 0; i < n; i++) {
+    *h ^= b[i];
+    *h *= 1099511628211ULL;
+  }
+}
+
+unsigned long long mrvi_model_hash(const mrvi_model *m) {
+  unsigned long long h = 1469598103934665603ULL;
+  fnv(&h, &m->n, sizeof m->n);
+  fnv(&h, &m->dimension, sizeof m->dimension);
+  for (int i = 0; i < m->n; i++) {
+    fnv(&h, m->names[i], strlen(m->names[i]) + 1);
+    fnv(&h, &m->mass[i], sizeof(double));
+    fnv(&h, &m->q0[i], sizeof(double));
+    fnv(&h, &m->v0[i], sizeof(double));
+    fnv(&h, &m->rate[i], sizeof m->rate[i]);
+  }
+  for (int e = 0; e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    fnv(&h, &el->kind, sizeof el->kind);
+    fnv(&h, &el->potential, sizeof el->potential);
+    if (el->law) {
+      fnv(&h, el->law->name, strlen(el->law->name) + 1);
+      fnv(&h, el->params, (size_t)el->law->n_params * sizeof(double));
+    }
+    fnv(&h, &el->shift, sizeof el->shift);
+    fnv(&h, el->anchor, sizeof el->anchor);
+    fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
+    if (el->coef)
+      fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);
+  }
+  return h;
+}

@@ -360,6 +360,18 @@ int mrvi_trajectory_run(const mrvi_model *m, const mrvi_settings *s,
                         mrvi_trajectory **out, mrvi_summary *summary);
 void mrvi_trajectory_free(mrvi_trajectory *tr);
 
+/* Read the nodes of a completed run from an mrvi HDF5 file (/macro/t, q, p
+ * and, when present, /micro).  Fails with a message for a run that did not
+ * complete or a file without these datasets. */
+int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
+                         size_t len);
+
+/* 64-bit fingerprint of everything that defines the dynamics of a model
+ * (coordinates, masses, rates, initial data, elements and their
+ * parameters); equal models give equal hashes.  Used to key cached
+ * reference runs. */
+unsigned long long mrvi_model_hash(const mrvi_model *m);
+
 /* Errors of a run against a reference (eq:err_mac, eq:err_mic): sup over
  * nodes of the Euclidean norm of the difference.  Macro errors use all
  * coordinates and are also split into slow and fast parts; micro errors use

@@ -1,0 +1,686 @@
+/* mrvi — command-line tool.
+ *
+ *   mrvi run FILE [-o OUT.h5] [--set KEY=VALUE]... [--quiet]
+ *   mrvi check FILE [--set KEY=VALUE]...
+ *   mrvi help [COMMAND] | --help | --version
+ *
+ * The library never prints and never exits; this file decides both.
+ * Exit status: 0 success, 1 the run did not start (usage, invalid
+ * description file, output cannot be created), 2 the run started and failed
+ * (Newton, non-finite values, writing output), 128 + signal when interrupted
+ * (130 for Ctrl-C, 143 for SIGTERM); an interrupted or failed run still
+ * leaves a valid HDF5 file with every completed step. */
+#include "cli_study.h"
+#include "mrvi.h"
+
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+enum {
+  EXIT_INPUT = 1, /* bad arguments or description file: nothing was run */
+  EXIT_RUN = 2,   /* the run started and failed */
+  MSG_LEN = 8192  /* loader messages may list several errors */
+};
+
+/* ---------------------------------------------------------------------------
+ * Help texts
+ * ------------------------------------------------------------------------- */
+static const char usage_main[] =
+    "Usage: mrvi COMMAND [ARGS]\n"
+    "\n"
+    "Variational multirate integrators for mechanical systems with slow and\n"
+    "fast variables.\n"
+    "\n"
+    "Commands:\n"
+    "  run FILE         integrate a description file and write an HDF5 file\n"
+    "  check FILE       validate a description file and print the model\n"
+    "  help [COMMAND]   show this help or the help of a command\n"
+    "\n"
+    "Studies (paper §5-§6; each prints a table and writes it to HDF5):\n"
+    "  converge FILE    convergence orders against a single-rate reference\n"
+    "  stability FILE   stability bounds of the slow harmonic oscillator\n"
+    "  timing FILE      computing time versus p at a fixed micro step\n"
+    "\n"
+    "Options:\n"
+    "  -h, --help       show this help\n"
+    "  --version        print the version\n"
+    "\n"
+    "Run 'mrvi help COMMAND' (or 'mrvi COMMAND --help') for the options of a\n"
+    "command.\n";
+
+static const char usage_run[] =
+    "Usage: mrvi run FILE [-o OUT.h5] [--set KEY=VALUE]... [--quiet]\n"
+    "\n"
+    "Integrate the system described in FILE (YAML) and write macro and micro\n"
+    "trajectories, energies and solver statistics to an HDF5 file.\n"
+    "\n"
+    "Options:\n"
+    "  -o, --output OUT.h5   output file (default: output.file of FILE,\n"
+    "                        else <name>.h5)\n"
+    "  -s, --set KEY=VALUE   override a scalar of FILE by its dotted path,\n"
+    "                        e.g. integrator.micro_steps=5 or\n"
+    "                        particles.2.mass=3; may be repeated\n"
+    "  -q, --quiet           no progress bar and no summary (errors are still\n"
+    "                        printed)\n"
+    "  -h, --help            show this help\n"
+    "\n"
+    "A progress bar is drawn on stderr when it is a terminal.  Ctrl-C stops\n"
+    "the run after the current step and leaves a valid file (a second\n"
+    "Ctrl-C kills it at once).\n"
+    "\n"
+    "Exit status:\n"
+    "  0    the run completed\n"
+    "  1    nothing was run: bad arguments, invalid description file, or the\n"
+    "       output file cannot be created (no output is written)\n"
+    "  2    the run failed (e.g. Newton did not converge); the output file\n"
+    "       holds every completed step and the attribute stop_reason\n"
+    "  130  interrupted by SIGINT (143: SIGTERM); the file is valid as for 2\n";
+
+static const char usage_check[] =
+    "Usage: mrvi check FILE [--set KEY=VALUE]...\n"
+    "\n"
+    "Validate the description file FILE and print the model: coordinate,\n"
+    "particle and element counts, the slow/fast partition, every potential\n"
+    "element, the scheme with both quadrature rules, step sizes, the Newton\n"
+    "settings and the output file.  Nothing is integrated or written.\n"
+    "\n"
+    "Options:\n"
+    "  -s, --set KEY=VALUE   override a scalar of FILE by its dotted path\n"
+    "  -h, --help            show this help\n"
+    "\n"
+    "Exit status: 0 if FILE is valid, 1 otherwise.\n";
+
+/* ---------------------------------------------------------------------------
+ * Suggestions for misspelt commands and options
+ * ------------------------------------------------------------------------- */
+
+/* Optimal string alignment distance (a transposition counts as one edit);
+ * strings longer than 63 characters are compared on their prefixes. */
+static int edit_distance(const char *a, const char *b) {
+  enum { L = 64 };
+  int d[L][L];
+  int la = (int)strlen(a), lb = (int)strlen(b);
+  if (la >= L)
+    la = L - 1;
+  if (lb >= L)
+    lb = L - 1;
+  for (int i = 0; i <= la; i++)
+    d[i][0] = i;
+  for (int j = 0; j <= lb; j++)
+    d[0][j] = j;
+  for (int i = 1; i <= la; i++) {
+    for (int j = 1; j <= lb; j++) {
+      int cost = a[i - 1] != b[j - 1];
+      int v = d[i - 1][j] + 1;
+      if (d[i][j - 1] + 1 < v)
+        v = d[i][j - 1] + 1;
+      if (d[i - 1][j - 1] + cost < v)
+        v = d[i - 1][j - 1] + cost;
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] &&
+          d[i - 2][j - 2] + 1 < v)
+        v = d[i - 2][j - 2] + 1;
+      d[i][j] = v;
+    }
+  }
+  return d[la][lb];
+}
+
+/* Closest candidate within two edits (and fewer edits than its length), or
+ * NULL.  candidates is NULL-terminated. */
+static const char *closest(const char *word, const char *const *candidates) {
+  const char *best = NULL;
+  int best_d = 3;
+  for (const char *const *c = candidates; *c; c++) {
+    int d = edit_distance(word, *c);
+    if (d < best_d && d < (int)strlen(*c)) {
+      best = *c;
+      best_d = d;
+    }
+  }
+  return best;
+}
+
+/* ---------------------------------------------------------------------------
+ * Argument parsing (hand-written: options may come before or after FILE)
+ * ------------------------------------------------------------------------- */
+typedef struct cli_args {
+  const char *file;
+  const char *output;     /* -o, or NULL */
+  const char **overrides; /* --set values, argc entries allocated */
+  int n_overrides;
+  int quiet;
+  int help;
+} cli_args;
+
+/* Options accepted by a command, for the parser and for suggestions. */
+static const char *const run_options[] = {"--output", "--set", "--quiet",
+                                          "--help", NULL};
+static const char *const check_options[] = {"--set", "--help", NULL};
+
+static void usage_error(const char *usage) { fputs(usage, stderr); }
+
+/* The value of an option that takes one: "--opt=V", "-oV" or the next
+ * argument.  Returns NULL (with a message) if it is missing. */
+static const char *option_value(const char *cmd, const char *arg,
+                                const char *inline_value, int argc, char **argv,
+                                int *i) {
+  if (inline_value)
+    return inline_value;
+  if (*i + 1 >= argc) {
+    fprintf(stderr, "mrvi %s: option '%s' needs a value\n", cmd, arg);
+    return NULL;
+  }
+  return argv[++*i];
+}
+
+/* Parse the arguments after the command name.  allow_run enables
+ * -o and --quiet.  Returns 0, or EXIT_INPUT after printing the reason. */
+static int parse_args(const char *cmd, const char *usage, int allow_run,
+                      int argc, char **argv, cli_args *a) {
+  const char *const *known = allow_run ? run_options : check_options;
+  int only_files = 0;
+  memset(a, 0, sizeof *a);
+  a->overrides = calloc((size_t)argc + 1, sizeof *a->overrides);
+  if (!a->overrides) {
+    fprintf(stderr, "mrvi: out of memory\n");
+    return EXIT_INPUT;
+  }
+  for (int i = 0; i < argc; i++) {
+    const char *arg = argv[i];
+    if (only_files || arg[0] != '-' || arg[1] == '\0') {
+      if (a->file) {
+        fprintf(stderr, "mrvi %s: unexpected argument '%s' (one FILE only)\n",
+                cmd, arg);
+        usage_error(usage);
+        return EXIT_INPUT;
+      }
+      a->file = arg;
+      continue;
+    }
+    if (strcmp(arg, "--") == 0) {
+      only_files = 1;
+      continue;
+    }
+
+    /* Split "--name=value"; short options may carry their value: "-oOUT". */
+    char name[64];
+    const char *inline_value = NULL;
+    if (arg[1] == '-') {
+      const char *eq = strchr(arg, '=');
+      size_t len = eq ? (size_t)(eq - arg) : strlen(arg);
+      if (len >= sizeof name)
+        len = sizeof name - 1;
+      memcpy(name, arg, len);
+      name[len] = '\0';
+      if (eq)
+        inline_value = eq + 1;
+    } else {
+      name[0] = '-';
+      name[1] = arg[1];
+      name[2] = '\0';
+      if (arg[2] != '\0')
+        inline_value = arg + 2;
+    }
+
+    if (!strcmp(name, "-h") || !strcmp(name, "--help")) {
+      a->help = 1;
+    } else if (allow_run && (!strcmp(name, "-q") || !strcmp(name, "--quiet"))) {
+      if (inline_value) {
+        fprintf(stderr, "mrvi %s: option '%s' takes no value\n", cmd, name);
+        return EXIT_INPUT;
+      }
+      a->quiet = 1;
+    } else if (allow_run &&
+               (!strcmp(name, "-o") || !strcmp(name, "--output"))) {
+      const char *v = option_value(cmd, name, inline_value, argc, argv, &i);
+      if (!v)
+        return EXIT_INPUT;
+      if (!*v) {
+        fprintf(stderr, "mrvi %s: empty output file name\n", cmd);
+        return EXIT_INPUT;
+      }
+      a->output = v;
+    } else if (!strcmp(name, "-s") || !strcmp(name, "--set")) {
+      const char *v = option_value(cmd, name, inline_value, argc, argv, &i);
+      if (!v)
+        return EXIT_INPUT;
+      const char *eq = strchr(v, '=');
+      if (!eq || eq == v) {
+        fprintf(stderr,
+                "mrvi %s: --set expects KEY=VALUE (e.g. "
+                "integrator.micro_steps=5), got '%s'\n",
+                cmd, v);
+        return EXIT_INPUT;
+      }
+      a->overrides[a->n_overrides++] = v;
+    } else {
+      const char *hint = name[1] == '-' ? closest(name, known) : NULL;
+      fprintf(stderr, "mrvi %s: unknown option '%s'", cmd, arg);
+      if (hint)
+        fprintf(stderr, "; did you mean '%s'?", hint);
+      fputc('\n', stderr);
+      usage_error(usage);
+      return EXIT_INPUT;
+    }
+  }
+  if (!a->help && !a->file) {
+    fprintf(stderr, "mrvi %s: missing FILE\n", cmd);
+    usage_error(usage);
+    return EXIT_INPUT;
+  }
+  return 0;
+}
+
+/* Load FILE with the overrides; print the loader's "file:line:col: message"
+ * on failure.  Returns the system or NULL. */
+static mrvi_system *load_system(const cli_args *a) {
+  static char msg[MSG_LEN];
+  mrvi_system *sys = NULL;
+  msg[0] = '\0';
+  int st = mrvi_system_load(a->file, a->overrides, a->n_overrides, &sys, msg,
+                            sizeof msg);
+  if (st < 0 || !sys) {
+    if (msg[0]) {
+      size_t len = strlen(msg);
+      fputs(msg, stderr);
+      if (msg[len - 1] != '\n')
+        fputc('\n', stderr);
+    } else {
+      fprintf(stderr, "%s: %s\n", a->file, mrvi_strerror(st));
+    }
+    mrvi_system_free(sys);
+    return NULL;
+  }
+  return sys;
+}
+
+/* ---------------------------------------------------------------------------
+ * mrvi check
+ * ------------------------------------------------------------------------- */
+
+/* Print a list of coordinate names after a label, wrapped at 79 columns. */
+static void print_names(const mrvi_model *m, const char *label,
+                        const int *index, int count) {
+  int col = printf("%-14s%d", label, count);
+  const char *sep = count ? ": " : "";
+  for (int i = 0; i < count; i++) {
+    const char *name = mrvi_model_coordinate_name(m, index[i]);
+    int w = (int)(strlen(sep) + strlen(name));
+    if (col + w > 79) {
+      printf(",\n%14s", "");
+      col = 14;
+      sep = "";
+    }
+    col += printf("%s%s", sep, name);
+    sep = ", ";
+  }
+  putchar('\n');
+}
+
+static void print_rule(const char *label, mrvi_rule r, const char *grid) {
+  printf("  %-12salpha = %g, gamma = %g, %s grid\n", label, r.alpha, r.gamma,
+         grid);
+}
+
+static int cmd_check(int argc, char **argv) {
+  cli_args a;
+  int rc = parse_args("check", usage_check, 0, argc, argv, &a);
+  if (rc || a.help) {
+    if (!rc)
+      fputs(usage_check, stdout);
+    free(a.overrides);
+    return rc;
+  }
+  mrvi_system *sys = load_system(&a);
+  free(a.overrides);
+  if (!sys)
+    return EXIT_INPUT;
+
+  const mrvi_model *m = sys->model;
+  const mrvi_settings *s = &sys->settings;
+  char msg[512];
+  if (mrvi_settings_check(s, msg, sizeof msg) < 0) {
+    fprintf(stderr, "%s: %s\n", a.file, msg);
+    mrvi_system_free(sys);
+    return EXIT_INPUT;
+  }
+
+  int n = mrvi_model_n(m), ns = mrvi_model_n_slow(m), nf = mrvi_model_n_fast(m);
+  int np = mrvi_model_n_particles(m), ne = mrvi_model_n_elements(m);
+  long steps = mrvi_settings_n_steps(s);
+
+  printf("%s: valid\n\n", a.file);
+  printf("%-14s%s\n", "system", sys->name ? sys->name : mrvi_model_name(m));
+  printf("%-14s%d (%d slow, %d fast)\n", "coordinates", n, ns, nf);
+  if (np > 0)
+    printf("%-14s%d in %d-D\n", "particles", np, mrvi_model_dimension(m));
+  else
+    printf("%-14s0\n", "particles");
+  print_names(m, "slow", mrvi_model_slow_index(m), ns);
+  print_names(m, "fast", mrvi_model_fast_index(m), nf);
+
+  printf("%-14s%d\n", "elements", ne);
+  for (int e = 0; e < ne; e++) {
+    char buf[512];
+    if (mrvi_model_describe_element(m, e, buf, sizeof buf) < 0)
+      snprintf(buf, sizeof buf, "(no description)");
+    printf("  %3d  %s\n", e, buf);
+  }
+
+  printf("\n%-14s%s\n", "scheme", s->scheme[0] ? s->scheme : "(custom)");
+  print_rule("slow (V)", s->slow,
+             s->slow_grid == MRVI_GRID_MACRO ? "macro" : "micro");
+  print_rule("fast (W)", s->fast, "micro");
+  printf("%-14s%g\n", "macro step", s->macro_step);
+  printf("%-14s%d (micro step %g)\n", "micro steps", s->micro_steps,
+         s->macro_step / s->micro_steps);
+  printf("%-14s%g (%ld macro steps, last at t = %g)\n", "t_end", s->t_end,
+         steps, (double)steps * s->macro_step);
+  printf("%-14stolerance %g, at most %d iterations\n", "newton", s->newton_tol,
+         s->newton_max_iter);
+  printf("%-14s%s (every %d, micro %s)\n", "output",
+         sys->output_file ? sys->output_file : "-", sys->output_every,
+         sys->output_micro ? "yes" : "no");
+  mrvi_system_free(sys);
+  return 0;
+}
+
+/* ---------------------------------------------------------------------------
+ * mrvi run
+ * ------------------------------------------------------------------------- */
+
+/* Set by the signal handler: the signal number, 0 while running.  mrvi_run
+ * polls it between steps.  The handler only stores to it (async-signal
+ * safe); SA_RESETHAND makes a second Ctrl-C terminate at once. */
+_Static_assert(_Generic((sig_atomic_t)0, int : 1, default : 0),
+               "mrvi_run takes the stop flag as volatile int");
+static volatile sig_atomic_t stop_signal = 0;
+
+static void on_signal(int sig) { stop_signal = sig; }
+
+static void install_handlers(void) {
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_signal;
+  sigemptyset(&sa.sa_mask);
+  sa.sa_flags = SA_RESETHAND;
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+}
+
+static double now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* "m:ss" or "h:mm:ss". */
+static void format_duration(double sec, char *buf, size_t len) {
+  if (!(sec >= 0) || sec > 1e8)
+    sec = 0;
+  long s = (long)(sec + 0.5);
+  if (s >= 3600)
+    snprintf(buf, len, "%ld:%02ld:%02ld", s / 3600, s / 60 % 60, s % 60);
+  else
+    snprintf(buf, len, "%ld:%02ld", s / 60, s % 60);
+}
+
+typedef struct run_ctx {
+  mrvi_writer *writer;
+  long n_steps;       /* N */
+  int progress;       /* draw a progress bar on stderr */
+  int drawn;          /* a bar is on screen */
+  double t_start;     /* monotonic clock at start */
+  double t_last_draw; /* last redraw */
+} run_ctx;
+
+static void progress_draw(run_ctx *c, long k) {
+  enum { WIDTH = 24 };
+  double elapsed = now() - c->t_start;
+  double frac = c->n_steps > 0 ? (double)k / (double)c->n_steps : 1.0;
+  char bar[WIDTH + 1], el[32], eta[32];
+  int filled = (int)(frac * WIDTH);
+  for (int i = 0; i < WIDTH; i++)
+    bar[i] = i < filled ? '#' : '-';
+  bar[WIDTH] = '\0';
+  format_duration(elapsed, el, sizeof el);
+  if (k > 0)
+    format_duration(elapsed * (double)(c->n_steps - k) / (double)k, eta,
+                    sizeof eta);
+  else
+    snprintf(eta, sizeof eta, "?");
+  fprintf(stderr, "\r[%s] %3d%%  step %ld/%ld  %s elapsed  ETA %s\033[K", bar,
+          (int)(100.0 * frac), k, c->n_steps, el, eta);
+  fflush(stderr);
+  c->drawn = 1;
+}
+
+static void progress_clear(run_ctx *c) {
+  if (c->drawn) {
+    fputs("\r\033[K", stderr);
+    fflush(stderr);
+    c->drawn = 0;
+  }
+}
+
+/* Observer: write the record, then redraw the bar at most 10 times a second
+ * (and not at all during the first half second, so short runs stay quiet). */
+static int run_observe(void *user, const mrvi_record *r) {
+  run_ctx *c = user;
+  int st = mrvi_writer_observe(c->writer, r);
+  if (st < 0)
+    return st;
+  if (c->progress) {
+    double t = now();
+    if (t - c->t_start >= 0.5 && t - c->t_last_draw >= 0.1) {
+      progress_draw(c, r->k);
+      c->t_last_draw = t;
+    }
+  }
+  return 0;
+}
+
+/* Refuse to overwrite the description file itself with HDF5 output. */
+static int same_file(const char *a, const char *b) {
+  struct stat sa, sb;
+  return stat(a, &sa) == 0 && stat(b, &sb) == 0 && sa.st_dev == sb.st_dev &&
+         sa.st_ino == sb.st_ino;
+}
+
+static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
+                          long n_steps, const char *out) {
+  const mrvi_settings *s = &sys->settings;
+  const char *name = sys->name ? sys->name : mrvi_model_name(sys->model);
+  printf("%s: %s %ld of %ld macro steps, t = %g (%s, dT = %g, p = %d)\n", name,
+         sum->status == MRVI_OK ? "completed" : "stopped after", sum->steps,
+         n_steps, (double)sum->steps * s->macro_step,
+         s->scheme[0] ? s->scheme : "custom", s->macro_step, s->micro_steps);
+  printf("  %-23s%ld total, max %d per step\n", "Newton iterations",
+         sum->iterations_total, sum->iterations_max);
+  printf("  %-23s%.3e\n", "max rel. energy error", sum->max_rel_energy_error);
+  printf("  %-23s%.3f s (assemble %.3f s, solve %.3f s)\n", "wall time",
+         sum->wall_time, sum->assemble_time, sum->solve_time);
+  printf("  %-23s%s\n", "output", out);
+  if (sum->status != MRVI_OK)
+    printf("  %-23s%s\n", "stopped because",
+           sum->message[0] ? sum->message : mrvi_strerror(sum->status));
+  fflush(stdout);
+}
+
+static int cmd_run(int argc, char **argv) {
+  cli_args a;
+  int rc = parse_args("run", usage_run, 1, argc, argv, &a);
+  if (rc || a.help) {
+    if (!rc)
+      fputs(usage_run, stdout);
+    free(a.overrides);
+    return rc;
+  }
+  /* From here on Ctrl-C only raises the stop flag. */
+  install_handlers();
+  mrvi_system *sys = load_system(&a);
+  free(a.overrides);
+  if (!sys)
+    return EXIT_INPUT;
+  if (stop_signal) { /* interrupted while loading: write nothing */
+    mrvi_system_free(sys);
+    return 128 + (int)stop_signal;
+  }
+
+  /* Output file: -o, else output.file of the description. */
+  const char *out = a.output ? a.output : sys->output_file;
+  if (!out || !*out) {
+    fprintf(stderr, "%s: no output file (give -o OUT.h5 or output.file)\n",
+            a.file);
+    mrvi_system_free(sys);
+    return EXIT_INPUT;
+  }
+  if (same_file(out, a.file)) {
+    fprintf(stderr, "mrvi run: output file '%s' is the description file\n",
+            out);
+    mrvi_system_free(sys);
+    return EXIT_INPUT;
+  }
+
+  char msg[MSG_LEN];
+  msg[0] = '\0';
+  mrvi_writer_options opt = {
+      .system_name = sys->name ? sys->name : mrvi_model_name(sys->model),
+      .description = sys->description,
+      .every = sys->output_every > 0 ? sys->output_every : 1,
+      .micro = sys->output_micro,
+  };
+  mrvi_writer *w = NULL;
+  if (mrvi_writer_open(out, sys->model, &sys->settings, &opt, &w, msg,
+                       sizeof msg) < 0 ||
+      !w) {
+    if (msg[0])
+      fprintf(stderr, "mrvi run: %s\n", msg);
+    else
+      fprintf(stderr, "mrvi run: cannot create '%s'\n", out);
+    mrvi_system_free(sys);
+    return EXIT_INPUT;
+  }
+
+  run_ctx ctx = {
+      .writer = w,
+      .n_steps = mrvi_settings_n_steps(&sys->settings),
+      .progress = !a.quiet && isatty(STDERR_FILENO),
+      .t_start = now(),
+  };
+  mrvi_summary sum;
+  memset(&sum, 0, sizeof sum);
+  int st = mrvi_run(sys->model, &sys->settings, run_observe, &ctx, &stop_signal,
+                    &sum);
+  if (st < 0 && sum.status == MRVI_OK)
+    sum.status = st;
+  progress_clear(&ctx);
+
+  /* Close in every case: the file records why the run stopped. */
+  const char *reason = "completed";
+  if (st < 0)
+    reason = sum.message[0] ? sum.message : mrvi_strerror(st);
+  char close_msg[1024];
+  close_msg[0] = '\0';
+  int cst = mrvi_writer_close(w, reason, close_msg, sizeof close_msg);
+
+  if (!a.quiet)
+    print_summary(sys, &sum, ctx.n_steps, out);
+  if (st == MRVI_EINTERRUPTED)
+    fprintf(stderr, "mrvi run: %s: %s\n",
+            stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);
+  else if (st < 0)
+    fprintf(stderr, "mrvi run: error: %s\n", reason);
+  if (cst < 0)
+    fprintf(stderr, "mrvi run: closing '%s': %s\n", out,
+            close_msg[0] ? close_msg : mrvi_strerror(cst));
+  mrvi_system_free(sys);
+
+  if (st == MRVI_EINTERRUPTED)
+    return 128 + (stop_signal ? (int)stop_signal : SIGINT);
+  return st < 0 || cst < 0 ? EXIT_RUN : 0;
+}
+
+/* ---------------------------------------------------------------------------
+ * main
+ * ------------------------------------------------------------------------- */
+static const char *const commands[] = {
+    "run", "check", "help", "converge", "stability", "timing", NULL};
+static const char *const global_options[] = {"--help", "--version", NULL};
+
+static int unknown_command(const char *cmd) {
+  const char *hint = closest(cmd, cmd[0] == '-' ? global_options : commands);
+  fprintf(stderr, "mrvi: unknown %s '%s'", cmd[0] == '-' ? "option" : "command",
+          cmd);
+  if (hint)
+    fprintf(stderr, "; did you mean '%s'?", hint);
+  fputs("\n\n", stderr);
+  usage_error(usage_main);
+  return EXIT_INPUT;
+}
+
+/* Help text of a command, or NULL. */
+static const char *command_usage(const char *cmd) {
+  if (!strcmp(cmd, "run"))
+    return usage_run;
+  if (!strcmp(cmd, "check"))
+    return usage_check;
+  if (!strcmp(cmd, "help"))
+    return usage_main;
+  if (!strcmp(cmd, "converge"))
+    return mrvi_usage_converge;
+  if (!strcmp(cmd, "stability"))
+    return mrvi_usage_stability;
+  if (!strcmp(cmd, "timing"))
+    return mrvi_usage_timing;
+  return NULL;
+}
+
+int main(int argc, char **argv) {
+  if (argc < 2) {
+    usage_error(usage_main);
+    return EXIT_INPUT;
+  }
+  const char *cmd = argv[1];
+  if (!strcmp(cmd, "--help") || !strcmp(cmd, "-h")) {
+    fputs(usage_main, stdout);
+    return 0;
+  }
+  if (!strcmp(cmd, "--version")) {
+    printf("mrvi %s\n", mrvi_version());
+    return 0;
+  }
+  if (!strcmp(cmd, "help")) {
+    if (argc == 2) {
+      fputs(usage_main, stdout);
+      return 0;
+    }
+    const char *u = command_usage(argv[2]);
+    if (!u)
+      return unknown_command(argv[2]);
+    if (argc > 3) {
+      fprintf(stderr, "mrvi help: unexpected argument '%s'\n", argv[3]);
+      usage_error(usage_main);
+      return EXIT_INPUT;
+    }
+    fputs(u, stdout);
+    return 0;
+  }
+  if (!strcmp(cmd, "run"))
+    return cmd_run(argc - 2, argv + 2);
+  if (!strcmp(cmd, "check"))
+    return cmd_check(argc - 2, argv + 2);
+  /* The studies (cli_study.c) take argv[0] = the command name. */
+  if (!strcmp(cmd, "converge"))
+    return mrvi_cmd_converge(argc - 1, argv + 1);
+  if (!strcmp(cmd, "stability"))
+    return mrvi_cmd_stability(argc - 1, argv + 1);
+  if (!strcmp(cmd, "timing"))
+    return mrvi_cmd_timing(argc - 1, argv + 1);
+  return unknown_command(cmd);
+}

@@ -1,0 +1,1018 @@
+/* mrvi's analysis commands (paper §5-§6):
+ *
+ *   mrvi converge FILE   convergence study: errors eq:err_mac / eq:err_mic
+ *                        against a single-rate reference, observed orders
+ *   mrvi stability FILE  propagation matrix of the slow oscillator, largest
+ *                        stable omega dT next to Lemma lemma:stability_slow
+ *   mrvi timing FILE     computing-time study at fixed micro step (§6.3)
+ *
+ * Each prints a table and writes it to HDF5 (and CSV on request); the
+ * layouts are in doc/output.md. */
+#include "cli_study.h"
+
+#include "mrvi.h"
+
+#include <errno.h>
+#include <hdf5.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+enum { EXIT_INPUT = 1, EXIT_RUN = 2, MAX_LIST = 64, MSG = 8192 };
+
+const char mrvi_usage_converge[] =
+    "Usage: mrvi converge FILE [options]\n"
+    "\n"
+    "Convergence study of the scheme in FILE: runs with halving macro steps\n"
+    "at fixed p, errors on macro nodes (eq:err_mac, also split into slow and\n"
+    "fast parts) and fast micro nodes (eq:err_mic) against a single-rate\n"
+    "reference run with a tiny step, and the observed order between rows.\n"
+    "\n"
+    "Options:\n"
+    "  --dt LIST           macro steps, e.g. 0.02,0.01,0.005 (default: --dt0\n"
+    "                      halved --levels - 1 times)\n"
+    "  --dt0 X             largest macro step (default: integrator.macro_step)\n"
+    "  --levels N          number of macro steps (default 4)\n"
+    "  --p LIST            micro steps per macro step, e.g. 5,10 (default:\n"
+    "                      integrator.micro_steps)\n"
+    "  --t-end T           horizon (default 0.5, as in the paper)\n"
+    "  --reference FILE    reference run: an HDF5 file of `mrvi run` with p = 1\n"
+    "                      whose step divides every micro step\n"
+    "  --ref-step H        step of the computed reference (default: smallest\n"
+    "                      micro step / 8)\n"
+    "  --ref-scheme NAME   scheme of the computed reference (default\n"
+    "                      midpoint-midpoint, second order)\n"
+    "  --cache DIR         keep computed references in DIR and reuse them\n"
+    "                      (default .mrvi-cache); --no-cache keeps none\n"
+    "  -o, --output OUT.h5 table file (default <name>-convergence.h5)\n"
+    "  --csv OUT.csv       also write the table as CSV\n"
+    "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
+    "  -q, --quiet         print only errors\n";
+
+const char mrvi_usage_stability[] =
+    "Usage: mrvi stability FILE [options]\n"
+    "\n"
+    "Linear stability of the slow harmonic oscillator in FILE (one slow\n"
+    "coordinate, e.g. systems/oscillator.yaml).  The propagation matrix of\n"
+    "one macro step comes from two runs of one step from unit states; the\n"
+    "largest stable omega dT (|trace| < 2, det = 1) is found by a scan and\n"
+    "bisection for the trapezoidal (alpha = gamma = 1) and the midpoint rule\n"
+    "of the slow potential on the micro grid, next to the analytic bounds of\n"
+    "Lemma lemma:stability_slow: 12 p^2/(p^2 + 2) and 12 p^2/(p^2 - 1) for\n"
+    "(omega dT)^2.\n"
+    "\n"
+    "Options:\n"
+    "  --p LIST            micro steps (default 1,2,3,5,10)\n"
+    "  --max X             end of the scan of omega dT (default 20)\n"
+    "  --step X            scan step (default 0.01)\n"
+    "  --at X              also print det and trace at omega dT = X\n"
+    "  -o, --output OUT.h5 table file (default <name>-stability.h5)\n"
+    "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
+    "  -q, --quiet         print only errors\n";
+
+const char mrvi_usage_timing[] =
+    "Usage: mrvi timing FILE [options]\n"
+    "\n"
+    "Computing-time study (paper §6.3): the micro step is fixed and p grows,\n"
+    "so dT = p dt grows and the number of macro steps falls.  Prints total\n"
+    "time, Newton iterations and the time per macro step spent assembling\n"
+    "and solving, for each scheme and p.\n"
+    "\n"
+    "Options:\n"
+    "  --dt X              micro step (default 0.001)\n"
+    "  --p LIST            (default 1,5,10,20,50,100,200,500,1000)\n"
+    "  --schemes LIST      (default midpoint-midpoint,trapezoidal-midpoint,\n"
+    "                      trapezoidal-trapezoidal)\n"
+    "  --t-end T           horizon (default integrator.t_end of FILE)\n"
+    "  -o, --output OUT.h5 table file (default <name>-timing.h5)\n"
+    "  --csv OUT.csv       also write the table as CSV\n"
+    "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
+    "  -q, --quiet         print only errors\n";
+
+/* ---------------------------------------------------------------------------
+ * Arguments
+ * ------------------------------------------------------------------------- */
+typedef struct args {
+  const char *file;
+  const char *sets[MAX_LIST];
+  int n_sets;
+  const char *opt[32][2]; /* (name, value) of other options */
+  int n_opt;
+  int quiet, no_cache;
+} args;
+
+/* Options that take a value, per command (NULL-terminated). */
+static int takes_value(const char *name, const char *const *names) {
+  for (int i = 0; names[i]; i++)
+    if (!strcmp(name, names[i]))
+      return 1;
+  return 0;
+}
+
+static int parse(int argc, char **argv, const char *usage,
+                 const char *const *names, args *a) {
+  memset(a, 0, sizeof *a);
+  for (int i = 1; i < argc; i++) {
+    const char *arg = argv[i];
+    if (!strcmp(arg, "-h") || !strcmp(arg, "--help")) {
+      fputs(usage, stdout);
+      return 0;
+    }
+    if (!strcmp(arg, "-q") || !strcmp(arg, "--quiet")) {
+      a->quiet = 1;
+      continue;
+    }
+    if (!strcmp(arg, "--no-cache")) {
+      a->no_cache = 1;
+      continue;
+    }
+    if (arg[0] != '-' || !arg[1]) {
+      if (a->file) {
+        fprintf(stderr, "mrvi %s: more than one FILE ('%s')\n", argv[0], arg);
+        return -1;
+      }
+      a->file = arg;
+      continue;
+    }
+    /* --name=value or --name value; -o and -s are short forms. */
+    char name[64];
+    const char *value = NULL;
+    const char *eq = strchr(arg, '=');
+    if (!strcmp(arg, "-o"))
+      snprintf(name, sizeof name, "--output");
+    else if (!strcmp(arg, "-s"))
+      snprintf(name, sizeof name, "--set");
+    else if (eq && !strncmp(arg, "--", 2)) {
+      snprintf(name, sizeof name, "%.*s", (int)(eq - arg), arg);
+      value = eq + 1;
+    } else
+      snprintf(name, sizeof name, "%s", arg);
+    if (strcmp(name, "--set") && !takes_value(name, names)) {
+      fprintf(stderr, "mrvi %s: unknown option '%s'\n\n%s", argv[0], arg,
+              usage);
+      return -1;
+    }
+    if (!value) {
+      if (i + 1 >= argc) {
+        fprintf(stderr, "mrvi %s: option '%s' needs a value\n", argv[0], arg);
+        return -1;
+      }
+      value = argv[++i];
+    }
+    if (!strcmp(name, "--set")) {
+      if (a->n_sets == MAX_LIST) {
+        fprintf(stderr, "mrvi %s: too many --set options\n", argv[0]);
+        return -1;
+      }
+      a->sets[a->n_sets++] = value;
+    } else if (a->n_opt < 32) {
+      a->opt[a->n_opt][0] = strdup(name);
+      a->opt[a->n_opt][1] = value;
+      a->n_opt++;
+    }
+  }
+  if (!a->file) {
+    fprintf(stderr, "mrvi %s: missing FILE\n\n%s", argv[0], usage);
+    return -1;
+  }
+  return 1;
+}
+
+static void args_free(args *a) {
+  for (int i = 0; i < a->n_opt; i++)
+    free((void *)a->opt[i][0]);
+}
+
+static const char *get(const args *a, const char *name) {
+  const char *v = NULL;
+  for (int i = 0; i < a->n_opt; i++)
+    if (!strcmp(a->opt[i][0], name))
+      v = a->opt[i][1];
+  return v;
+}
+
+static int parse_double(const char *cmd, const char *opt, const char *s,
+                        double *v) {
+  char *end;
+  errno = 0;
+  *v = strtod(s, &end);
+  if (errno || end == s || *end || !isfinite(*v)) {
+    fprintf(stderr, "mrvi %s: %s: '%s' is not a finite number\n", cmd, opt, s);
+    return -1;
+  }
+  return 0;
+}
+
+/* Comma-separated list of numbers; integers when `integer`. */
+static int parse_list(const char *cmd, const char *opt, const char *s,
+                      double *v, int max, int integer) {
+  int n = 0;
+  char buf[1024];
+  snprintf(buf, sizeof buf, "%s", s);
+  for (char *tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+    if (n == max) {
+      fprintf(stderr, "mrvi %s: %s: at most %d values\n", cmd, opt, max);
+      return -1;
+    }
+    if (parse_double(cmd, opt, tok, &v[n]) < 0)
+      return -1;
+    if (integer && (v[n] != floor(v[n]) || v[n] < 1)) {
+      fprintf(stderr, "mrvi %s: %s: '%s' is not a positive integer\n", cmd,
+              opt, tok);
+      return -1;
+    }
+    if (!integer && !(v[n] > 0)) {
+      fprintf(stderr, "mrvi %s: %s: '%s' must be positive\n", cmd, opt, tok);
+      return -1;
+    }
+    n++;
+  }
+  if (n == 0) {
+    fprintf(stderr, "mrvi %s: %s: empty list\n", cmd, opt);
+    return -1;
+  }
+  return n;
+}
+
+static mrvi_system *load(const char *cmd, const args *a) {
+  char *msg = malloc(MSG);
+  mrvi_system *sys = NULL;
+  if (!msg)
+    return NULL;
+  if (mrvi_system_load(a->file, a->sets, a->n_sets, &sys, msg, MSG) < 0)
+    fprintf(stderr, "%s\nmrvi %s: %s is not valid; nothing was run\n", msg,
+            cmd, a->file);
+  free(msg);
+  return sys;
+}
+
+/* ---------------------------------------------------------------------------
+ * HDF5 tables
+ * ------------------------------------------------------------------------- */
+static int h5_vector(hid_t loc, const char *name, hid_t type, const void *v,
+                     hsize_t n) {
+  hid_t sp = H5Screate_simple(1, &n, NULL);
+  hid_t d = H5Dcreate2(loc, name, type, sp, H5P_DEFAULT, H5P_DEFAULT,
+                       H5P_DEFAULT);
+  herr_t rc = d < 0 ? -1 : H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, v);
+  if (d >= 0)
+    H5Dclose(d);
+  H5Sclose(sp);
+  return rc < 0 ? -1 : 0;
+}
+
+static int h5_matrix(hid_t loc, const char *name, const double *v, hsize_t r,
+                     hsize_t c) {
+  hsize_t dims[2] = {r, c};
+  hid_t sp = H5Screate_simple(2, dims, NULL);
+  hid_t d = H5Dcreate2(loc, name, H5T_NATIVE_DOUBLE, sp, H5P_DEFAULT,
+                       H5P_DEFAULT, H5P_DEFAULT);
+  herr_t rc = d < 0 ? -1
+                    : H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL,
+                               H5P_DEFAULT, v);
+  if (d >= 0)
+    H5Dclose(d);
+  H5Sclose(sp);
+  return rc < 0 ? -1 : 0;
+}
+
+static void h5_attr_double(hid_t loc, const char *name, double v) {
+  hid_t sp = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(loc, name, H5T_NATIVE_DOUBLE, sp, H5P_DEFAULT,
+                       H5P_DEFAULT);
+  if (a >= 0) {
+    H5Awrite(a, H5T_NATIVE_DOUBLE, &v);
+    H5Aclose(a);
+  }
+  H5Sclose(sp);
+}
+
+static void h5_attr_int(hid_t loc, const char *name, int v) {
+  hid_t sp = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(loc, name, H5T_NATIVE_INT, sp, H5P_DEFAULT,
+                       H5P_DEFAULT);
+  if (a >= 0) {
+    H5Awrite(a, H5T_NATIVE_INT, &v);
+    H5Aclose(a);
+  }
+  H5Sclose(sp);
+}
+
+static void h5_attr_string(hid_t loc, const char *name, const char *v) {
+  hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, H5T_VARIABLE);
+  H5Tset_cset(t, H5T_CSET_UTF8);
+  hid_t sp = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(loc, name, t, sp, H5P_DEFAULT, H5P_DEFAULT);
+  if (a >= 0) {
+    H5Awrite(a, t, &v);
+    H5Aclose(a);
+  }
+  H5Sclose(sp);
+  H5Tclose(t);
+}
+
+static hid_t h5_create(const char *cmd, const char *path) {
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  hid_t f = H5Fcreate(path, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  if (f < 0)
+    fprintf(stderr, "mrvi %s: cannot create '%s'\n", cmd, path);
+  return f;
+}
+
+static void default_output(char *buf, size_t len, const char *given,
+                           const mrvi_system *sys, const char *what) {
+  if (given)
+    snprintf(buf, len, "%s", given);
+  else
+    snprintf(buf, len, "%s-%s.h5", sys->name, what);
+}
+
+/* Observed order between consecutive rows. */
+static double order(double e0, double e1, double h0, double h1) {
+  if (!(e0 > 0) || !(e1 > 0))
+    return NAN;
+  return log(e0 / e1) / log(h0 / h1);
+}
+
+/* Least-squares slope of log e against log h over the finite rows. */
+static double fitted_order(int n, const double *h, const double *e) {
+  double sx = 0, sy = 0, sxx = 0, sxy = 0;
+  int m = 0;
+  for (int i = 0; i < n; i++)
+    if (e[i] > 0 && isfinite(e[i])) {
+      const double x = log(h[i]), y = log(e[i]);
+      sx += x;
+      sy += y;
+      sxx += x * x;
+      sxy += x * y;
+      m++;
+    }
+  if (m < 2)
+    return NAN;
+  return (m * sxy - sx * sy) / (m * sxx - sx * sx);
+}
+
+static void print_num(FILE *f, double v) {
+  if (isnan(v))
+    fprintf(f, " %9s", "-");
+  else
+    fprintf(f, " %9.3e", v);
+}
+
+static void print_order(FILE *f, double v) {
+  if (isnan(v))
+    fprintf(f, " %5s", "");
+  else
+    fprintf(f, " %5.2f", v);
+}
+
+/* ---------------------------------------------------------------------------
+ * converge
+ * ------------------------------------------------------------------------- */
+
+/* Reference run: read from `given`, from the cache, or computed (and cached). */
+static mrvi_trajectory *reference(const char *cmd, const args *a,
+                                  const mrvi_system *sys, const char *scheme,
+                                  double h, double t_ref, int quiet) {
+  char msg[1024];
+  mrvi_trajectory *ref = NULL;
+  const char *given = get(a, "--reference");
+  if (given) {
+    if (mrvi_trajectory_read(given, &ref, msg, sizeof msg) < 0) {
+      fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+      return NULL;
+    }
+    return ref;
+  }
+  mrvi_settings s = sys->settings;
+  if (mrvi_settings_set_scheme(&s, scheme) < 0) {
+    fprintf(stderr, "mrvi %s: unknown reference scheme '%s'\n", cmd, scheme);
+    return NULL;
+  }
+  s.macro_step = h;
+  s.micro_steps = 1;
+  s.t_end = t_ref;
+  const long steps = mrvi_settings_n_steps(&s);
+  char path[2048] = "";
+  const char *dir = get(a, "--cache") ? get(a, "--cache") : ".mrvi-cache";
+  if (!a->no_cache) {
+    snprintf(path, sizeof path, "%s/%s-%016llx-%s-h%.6e-t%.6e.h5", dir,
+             sys->name, mrvi_model_hash(sys->model), scheme, h, t_ref);
+    if (mrvi_trajectory_read(path, &ref, msg, sizeof msg) == 0) {
+      if (!quiet)
+        printf("reference: %s (cached)\n", path);
+      return ref;
+    }
+  }
+  if (!quiet)
+    printf("reference: %s, single rate, h = %.4g, %ld steps%s%s\n", scheme, h,
+           steps, path[0] ? " -> " : "", path);
+  fflush(stdout);
+  mrvi_summary sum;
+  if (!path[0] || (mkdir(dir, 0777) < 0 && errno != EEXIST)) {
+    if (path[0])
+      fprintf(stderr, "mrvi %s: cannot create cache directory '%s'; the "
+                      "reference is not cached\n", cmd, dir);
+    if (mrvi_trajectory_run(sys->model, &s, &ref, &sum) < 0) {
+      fprintf(stderr, "mrvi %s: reference run failed: %s\n", cmd, sum.message);
+      return NULL;
+    }
+    return ref;
+  }
+  /* Run through the HDF5 writer into the cache, then read it back. */
+  mrvi_writer *w = NULL;
+  mrvi_writer_options opt = {sys->name, NULL, 1, 0};
+  if (mrvi_writer_open(path, sys->model, &s, &opt, &w, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+    return NULL;
+  }
+  int st = mrvi_run(sys->model, &s, mrvi_writer_observe, w, NULL, &sum);
+  mrvi_writer_close(w, st < 0 ? sum.message : "completed", msg, sizeof msg);
+  if (st < 0) {
+    fprintf(stderr, "mrvi %s: reference run failed: %s\n", cmd, sum.message);
+    remove(path);
+    return NULL;
+  }
+  if (mrvi_trajectory_read(path, &ref, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+    return NULL;
+  }
+  return ref;
+}
+
+typedef struct conv_table {
+  int p, rows;
+  double dT[MAX_LIST];
+  mrvi_errors e[MAX_LIST];
+} conv_table;
+
+static void print_conv(const conv_table *T, const mrvi_system *sys,
+                       double t_end) {
+  printf("\n%s, %s, p = %d, t_end = %g\n", sys->name, sys->settings.scheme,
+         T->p, t_end);
+  printf("%10s %9s %5s %9s %5s %9s %5s %9s %5s\n", "dT", "e_q^mac", "order",
+         "e_p^mac", "order", "e_q^mic", "order", "e_p^mic", "order");
+  for (int r = 0; r < T->rows; r++) {
+    const mrvi_errors *e = &T->e[r], *f = r ? &T->e[r - 1] : NULL;
+    printf("%10.4g", T->dT[r]);
+    const double v[4] = {e->q_mac, e->p_mac, e->q_mic, e->p_mic};
+    const double u[4] = {f ? f->q_mac : NAN, f ? f->p_mac : NAN,
+                         f ? f->q_mic : NAN, f ? f->p_mic : NAN};
+    for (int c = 0; c < 4; c++) {
+      print_num(stdout, v[c]);
+      print_order(stdout, f ? order(u[c], v[c], T->dT[r - 1], T->dT[r]) : NAN);
+    }
+    printf("\n");
+  }
+  printf("%10s %9s %5s %9s %5s %9s %5s %9s %5s   (macro nodes, slow/fast)\n",
+         "dT", "e_qs", "order", "e_qf", "order", "e_ps", "order", "e_pf",
+         "order");
+  for (int r = 0; r < T->rows; r++) {
+    const mrvi_errors *e = &T->e[r], *f = r ? &T->e[r - 1] : NULL;
+    printf("%10.4g", T->dT[r]);
+    const double v[4] = {e->qs_mac, e->qf_mac, e->ps_mac, e->pf_mac};
+    const double u[4] = {f ? f->qs_mac : NAN, f ? f->qf_mac : NAN,
+                         f ? f->ps_mac : NAN, f ? f->pf_mac : NAN};
+    for (int c = 0; c < 4; c++) {
+      print_num(stdout, v[c]);
+      print_order(stdout, f ? order(u[c], v[c], T->dT[r - 1], T->dT[r]) : NAN);
+    }
+    printf("\n");
+  }
+  double eq[MAX_LIST], ep[MAX_LIST];
+  for (int r = 0; r < T->rows; r++) {
+    eq[r] = T->e[r].q_mac;
+    ep[r] = T->e[r].p_mac;
+  }
+  printf("fitted order on macro nodes: q %.2f, p %.2f\n",
+         fitted_order(T->rows, T->dT, eq), fitted_order(T->rows, T->dT, ep));
+}
+
+/* Column `c` of the error struct. */
+#define ERROR_COLUMNS(X)                                                     \
+  X(e_q_mac, q_mac)                                                          \
+  X(e_p_mac, p_mac)                                                          \
+  X(e_q_mic, q_mic)                                                          \
+  X(e_p_mic, p_mic)                                                          \
+  X(e_qs_mac, qs_mac)                                                        \
+  X(e_qf_mac, qf_mac)                                                        \
+  X(e_ps_mac, ps_mac)                                                        \
+  X(e_pf_mac, pf_mac)
+
+static int write_conv(const char *cmd, const char *path, const conv_table *T,
+                      int nt, const mrvi_system *sys, double t_end,
+                      double h, const char *ref_scheme) {
+  hid_t f = h5_create(cmd, path);
+  if (f < 0)
+    return -1;
+  int rc = 0;
+  h5_attr_string(f, "system", sys->name);
+  h5_attr_string(f, "scheme", sys->settings.scheme);
+  h5_attr_double(f, "t_end", t_end);
+  h5_attr_double(f, "reference_step", h);
+  h5_attr_string(f, "reference_scheme", ref_scheme);
+  h5_attr_string(f, "mrvi_version", mrvi_version());
+  hid_t g = H5Gcreate2(f, "convergence", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  for (int t = 0; t < nt && g >= 0; t++) {
+    char name[32];
+    snprintf(name, sizeof name, "p%d", T[t].p);
+    hid_t s = H5Gcreate2(g, name, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    h5_attr_int(s, "micro_steps", T[t].p);
+    double col[MAX_LIST];
+    rc |= h5_vector(s, "macro_step", H5T_NATIVE_DOUBLE, T[t].dT,
+                    (hsize_t)T[t].rows);
+#define WRITE_COLUMN(dset, field)                                            \
+  for (int r = 0; r < T[t].rows; r++)                                        \
+    col[r] = T[t].e[r].field;                                                \
+  rc |= h5_vector(s, #dset, H5T_NATIVE_DOUBLE, col, (hsize_t)T[t].rows);
+    ERROR_COLUMNS(WRITE_COLUMN)
+#undef WRITE_COLUMN
+    H5Gclose(s);
+  }
+  if (g >= 0)
+    H5Gclose(g);
+  if (H5Fclose(f) < 0 || g < 0 || rc) {
+    fprintf(stderr, "mrvi %s: writing '%s' failed\n", cmd, path);
+    return -1;
+  }
+  return 0;
+}
+
+static int write_conv_csv(const char *cmd, const char *path,
+                          const conv_table *T, int nt) {
+  FILE *f = fopen(path, "w");
+  if (!f) {
+    fprintf(stderr, "mrvi %s: cannot create '%s': %s\n", cmd, path,
+            strerror(errno));
+    return -1;
+  }
+  fprintf(f, "p,macro_step");
+#define CSV_HEAD(dset, field) fprintf(f, "," #dset);
+  ERROR_COLUMNS(CSV_HEAD)
+#undef CSV_HEAD
+  fprintf(f, ",order_q_mac,order_p_mac\n");
+  for (int t = 0; t < nt; t++)
+    for (int r = 0; r < T[t].rows; r++) {
+      const mrvi_errors *e = &T[t].e[r], *g = r ? &T[t].e[r - 1] : NULL;
+      fprintf(f, "%d,%.17g", T[t].p, T[t].dT[r]);
+#define CSV_ROW(dset, field) fprintf(f, ",%.17g", e->field);
+      ERROR_COLUMNS(CSV_ROW)
+#undef CSV_ROW
+      const double oq = g ? order(g->q_mac, e->q_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
+      const double op = g ? order(g->p_mac, e->p_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
+      fprintf(f, ",%.6g,%.6g\n", oq, op);
+    }
+  if (fclose(f) != 0) {
+    fprintf(stderr, "mrvi %s: writing '%s' failed\n", cmd, path);
+    return -1;
+  }
+  return 0;
+}
+
+static long gcd(long a, long b) { return b ? gcd(b, a % b) : a; }
+
+int mrvi_cmd_converge(int argc, char **argv) {
+  static const char *const names[] = {"--dt", "--dt0", "--levels", "--p",
+                                      "--t-end", "--reference", "--ref-step",
+                                      "--ref-scheme", "--cache", "--output",
+                                      "--csv", NULL};
+  args a;
+  int pr = parse(argc, argv, mrvi_usage_converge, names, &a);
+  if (pr <= 0) {
+    args_free(&a);
+    return pr == 0 ? 0 : EXIT_INPUT;
+  }
+  const char *cmd = "converge";
+  int code = EXIT_INPUT;
+  mrvi_system *sys = load(cmd, &a);
+  conv_table *T = calloc(MAX_LIST, sizeof *T);
+  mrvi_trajectory *ref = NULL;
+  if (!sys || !T)
+    goto out;
+  /* Macro steps, p, horizon. */
+  double dts[MAX_LIST], ps[MAX_LIST], t_end = 0.5, levels = 4,
+         dt0 = sys->settings.macro_step;
+  int n_dt, n_p = 1;
+  ps[0] = sys->settings.micro_steps;
+  if (get(&a, "--t-end") && parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0)
+    goto out;
+  if (get(&a, "--dt0") && parse_double(cmd, "--dt0", get(&a, "--dt0"), &dt0) < 0)
+    goto out;
+  if (get(&a, "--levels") && (parse_double(cmd, "--levels", get(&a, "--levels"), &levels) < 0 ||
+                              levels < 2 || levels > MAX_LIST || levels != floor(levels))) {
+    fprintf(stderr, "mrvi %s: --levels must be an integer in [2, %d]\n", cmd,
+            MAX_LIST);
+    goto out;
+  }
+  if (get(&a, "--dt")) {
+    if ((n_dt = parse_list(cmd, "--dt", get(&a, "--dt"), dts, MAX_LIST, 0)) < 0)
+      goto out;
+  } else {
+    n_dt = (int)levels;
+    for (int i = 0; i < n_dt; i++)
+      dts[i] = dt0 / (double)(1L << i);
+  }
+  if (get(&a, "--p") && (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0)
+    goto out;
+  if (!(t_end > 0)) {
+    fprintf(stderr, "mrvi %s: --t-end must be positive\n", cmd);
+    goto out;
+  }
+  for (int i = 0; i < n_dt; i++)
+    if (dts[i] > t_end) {
+      fprintf(stderr, "mrvi %s: macro step %g exceeds the horizon %g\n", cmd,
+              dts[i], t_end);
+      goto out;
+    }
+  /* Reference step: divides every micro step dT_i/p_j; default the
+   * smallest micro step over lcm-compatible p, divided by 8. */
+  double dt_min = INFINITY, t_ref = 0.0;
+  long lcm = 1;
+  for (int j = 0; j < n_p; j++)
+    lcm = lcm / gcd(lcm, (long)ps[j]) * (long)ps[j];
+  for (int i = 0; i < n_dt; i++) {
+    dt_min = fmin(dt_min, dts[i]);
+    t_ref = fmax(t_ref, ceil(t_end / dts[i] - 1e-9) * dts[i]);
+  }
+  double h = dt_min / (double)lcm / 8.0;
+  if (get(&a, "--ref-step") && parse_double(cmd, "--ref-step", get(&a, "--ref-step"), &h) < 0)
+    goto out;
+  const char *ref_scheme =
+      get(&a, "--ref-scheme") ? get(&a, "--ref-scheme") : "midpoint-midpoint";
+  if (!a.quiet) {
+    printf("convergence study of %s (%s)\n", sys->name, a.file);
+    fflush(stdout);
+  }
+  ref = reference(cmd, &a, sys, ref_scheme, h, t_ref, a.quiet);
+  if (!ref)
+    goto out;
+  code = EXIT_RUN;
+  for (int j = 0; j < n_p; j++) {
+    T[j].p = (int)ps[j];
+    T[j].rows = n_dt;
+    for (int i = 0; i < n_dt; i++) {
+      mrvi_settings s = sys->settings;
+      s.macro_step = dts[i];
+      s.micro_steps = (int)ps[j];
+      s.t_end = t_end;
+      T[j].dT[i] = dts[i];
+      mrvi_trajectory *run = NULL;
+      mrvi_summary sum;
+      char msg[1024];
+      if (mrvi_trajectory_run(sys->model, &s, &run, &sum) < 0) {
+        fprintf(stderr, "mrvi %s: run dT = %g, p = %d failed: %s\n", cmd,
+                dts[i], (int)ps[j], sum.message);
+        goto out;
+      }
+      int st = mrvi_trajectory_errors(sys->model, run, ref, &T[j].e[i], msg,
+                                      sizeof msg);
+      mrvi_trajectory_free(run);
+      if (st < 0) {
+        fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+        code = EXIT_INPUT;
+        goto out;
+      }
+    }
+    if (!a.quiet)
+      print_conv(&T[j], sys, t_end);
+  }
+  char out[2048];
+  default_output(out, sizeof out, get(&a, "--output"), sys, "convergence");
+  if (write_conv(cmd, out, T, n_p, sys, t_end, ref->macro_step,
+                 get(&a, "--reference") ? get(&a, "--reference") : ref_scheme) < 0)
+    goto out;
+  if (get(&a, "--csv") && write_conv_csv(cmd, get(&a, "--csv"), T, n_p) < 0)
+    goto out;
+  if (!a.quiet)
+    printf("\ntable: %s%s%s\n", out, get(&a, "--csv") ? ", " : "",
+           get(&a, "--csv") ? get(&a, "--csv") : "");
+  code = 0;
+out:
+  mrvi_trajectory_free(ref);
+  free(T);
+  mrvi_system_free(sys);
+  args_free(&a);
+  return code;
+}
+
+/* ---------------------------------------------------------------------------
+ * stability
+ * ------------------------------------------------------------------------- */
+int mrvi_cmd_stability(int argc, char **argv) {
+  static const char *const names[] = {"--p", "--max", "--step", "--at",
+                                      "--output", NULL};
+  args a;
+  int pr = parse(argc, argv, mrvi_usage_stability, names, &a);
+  if (pr <= 0) {
+    args_free(&a);
+    return pr == 0 ? 0 : EXIT_INPUT;
+  }
+  const char *cmd = "stability";
+  int code = EXIT_INPUT;
+  double ps[MAX_LIST] = {1, 2, 3, 5, 10}, x_max = 20, step = 0.01, at = NAN;
+  int n_p = 5;
+  double *scan = NULL;
+  char msg[1024];
+  mrvi_system *sys = load(cmd, &a);
+  if (!sys)
+    goto out;
+  if ((get(&a, "--p") && (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0) ||
+      (get(&a, "--max") && parse_double(cmd, "--max", get(&a, "--max"), &x_max) < 0) ||
+      (get(&a, "--step") && parse_double(cmd, "--step", get(&a, "--step"), &step) < 0) ||
+      (get(&a, "--at") && parse_double(cmd, "--at", get(&a, "--at"), &at) < 0))
+    goto out;
+  if (!(x_max > 0) || !(step > 0) || step > x_max) {
+    fprintf(stderr, "mrvi %s: need 0 < --step <= --max\n", cmd);
+    goto out;
+  }
+  double omega;
+  if (mrvi_oscillator_omega(sys->model, &omega, msg, sizeof msg) < 0) {
+    fprintf(stderr, "%s: %s\n", a.file, msg);
+    goto out;
+  }
+  code = EXIT_RUN;
+  /* The two rules of the lemma for V on the micro grid. */
+  const char *rule_name[2] = {"trapezoidal", "midpoint"};
+  const mrvi_rule rules[2] = {{1.0, 1.0}, {0.5, 0.5}};
+  double measured[2][MAX_LIST], analytic[2][MAX_LIST];
+  enum { K = 400 };
+  scan = malloc((size_t)2 * n_p * K * sizeof(double));
+  double xs[K];
+  if (!scan)
+    goto out;
+  for (int k = 0; k < K; k++)
+    xs[k] = x_max * (k + 1) / K;
+  for (int r = 0; r < 2; r++)
+    for (int j = 0; j < n_p; j++) {
+      mrvi_settings s = sys->settings;
+      s.slow = rules[r];
+      s.slow_grid = MRVI_GRID_MICRO;
+      s.micro_steps = (int)ps[j];
+      s.newton_tol = 1e-12;
+      if (mrvi_stability_limit(sys->model, &s, x_max, step, &measured[r][j],
+                               msg, sizeof msg) < 0) {
+        fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+        goto out;
+      }
+      analytic[r][j] = mrvi_stability_bound(rules[r], (int)ps[j]);
+      for (int k = 0; k < K; k++) {
+        double det, tr;
+        if (mrvi_stability_at(sys->model, &s, xs[k], &det, &tr, msg,
+                              sizeof msg) < 0) {
+          fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+          goto out;
+        }
+        scan[((size_t)r * n_p + j) * K + k] = tr;
+      }
+    }
+  if (!a.quiet) {
+    printf("linear stability of %s (omega = %g): largest stable omega dT\n",
+           sys->name, omega);
+    printf("%4s  %-28s  %-28s\n", "", "trapezoidal (alpha=gamma=1)",
+           "midpoint (gamma=1/2)");
+    printf("%4s  %9s %9s %8s  %9s %9s %8s\n", "p", "measured", "analytic",
+           "rel.diff", "measured", "analytic", "rel.diff");
+    for (int j = 0; j < n_p; j++) {
+      printf("%4d ", (int)ps[j]);
+      for (int r = 0; r < 2; r++) {
+        const double m = measured[r][j], an = analytic[r][j];
+        if (isinf(m) && isinf(an))
+          printf(" %9s %9s %8s ", "stable", "uncond.", "-");
+        else
+          printf(" %9.5f %9.5f %8.1e ", m, an, fabs(m - an) / an);
+      }
+      printf("\n");
+    }
+    printf("limit p -> infinity: %.5f (sqrt 12) for both rules; scan up to "
+           "omega dT = %g\n",
+           sqrt(12.0), x_max);
+  }
+  if (!isnan(at)) {
+    printf("\npropagation matrix at omega dT = %g:\n%4s  %-25s  %-25s\n", at,
+           "p", "trapezoidal det, trace", "midpoint det, trace");
+    for (int j = 0; j < n_p; j++) {
+      printf("%4d ", (int)ps[j]);
+      for (int r = 0; r < 2; r++) {
+        mrvi_settings s = sys->settings;
+        s.slow = rules[r];
+        s.slow_grid = MRVI_GRID_MICRO;
+        s.micro_steps = (int)ps[j];
+        s.newton_tol = 1e-12;
+        double det, tr;
+        if (mrvi_stability_at(sys->model, &s, at, &det, &tr, msg, sizeof msg) < 0) {
+          fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+          goto out;
+        }
+        printf(" %11.8f %11.6f %-3s", det, tr, fabs(tr) < 2 ? "" : "!");
+      }
+      printf("\n");
+    }
+    printf("(! = unstable: |trace| >= 2)\n");
+  }
+  char out[2048];
+  default_output(out, sizeof out, get(&a, "--output"), sys, "stability");
+  hid_t f = h5_create(cmd, out);
+  if (f < 0)
+    goto out;
+  int pint[MAX_LIST];
+  for (int j = 0; j < n_p; j++)
+    pint[j] = (int)ps[j];
+  int rc = 0;
+  h5_attr_string(f, "system", sys->name);
+  h5_attr_double(f, "omega", omega);
+  h5_attr_string(f, "mrvi_version", mrvi_version());
+  hid_t g = H5Gcreate2(f, "stability", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  rc |= h5_vector(g, "p", H5T_NATIVE_INT, pint, (hsize_t)n_p);
+  for (int r = 0; r < 2; r++) {
+    char name[64];
+    snprintf(name, sizeof name, "%s_measured", rule_name[r]);
+    rc |= h5_vector(g, name, H5T_NATIVE_DOUBLE, measured[r], (hsize_t)n_p);
+    snprintf(name, sizeof name, "%s_analytic", rule_name[r]);
+    rc |= h5_vector(g, name, H5T_NATIVE_DOUBLE, analytic[r], (hsize_t)n_p);
+  }
+  hid_t sg = H5Gcreate2(g, "scan", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  rc |= h5_vector(sg, "omega_dT", H5T_NATIVE_DOUBLE, xs, K);
+  rc |= h5_vector(sg, "p", H5T_NATIVE_INT, pint, (hsize_t)n_p);
+  rc |= h5_matrix(sg, "trace_trapezoidal", scan, (hsize_t)n_p, K);
+  rc |= h5_matrix(sg, "trace_midpoint", scan + (size_t)n_p * K, (hsize_t)n_p, K);
+  H5Gclose(sg);
+  H5Gclose(g);
+  if (H5Fclose(f) < 0 || rc) {
+    fprintf(stderr, "mrvi %s: writing '%s' failed\n", cmd, out);
+    goto out;
+  }
+  if (!a.quiet)
+    printf("table: %s\n", out);
+  code = 0;
+out:
+  free(scan);
+  mrvi_system_free(sys);
+  args_free(&a);
+  return code;
+}
+
+/* ---------------------------------------------------------------------------
+ * timing
+ * ------------------------------------------------------------------------- */
+#define TIMING_COLUMNS(X)                                                    \
+  X(total_time)                                                              \
+  X(iterations)                                                              \
+  X(time_per_step)                                                           \
+  X(assemble_per_step)                                                       \
+  X(solve_per_step)                                                          \
+  X(macro_steps)                                                             \
+  X(system_size)
+
+typedef struct timing_row {
+#define TIMING_FIELD(name) double name;
+  TIMING_COLUMNS(TIMING_FIELD)
+#undef TIMING_FIELD
+} timing_row;
+
+int mrvi_cmd_timing(int argc, char **argv) {
+  static const char *const names[] = {"--dt", "--p", "--schemes", "--t-end",
+                                      "--output", "--csv", NULL};
+  args a;
+  int pr = parse(argc, argv, mrvi_usage_timing, names, &a);
+  if (pr <= 0) {
+    args_free(&a);
+    return pr == 0 ? 0 : EXIT_INPUT;
+  }
+  const char *cmd = "timing";
+  int code = EXIT_INPUT;
+  double ps[MAX_LIST] = {1, 5, 10, 20, 50, 100, 200, 500, 1000}, dt = 0.001;
+  int n_p = 9, n_s = 0;
+  char schemes_buf[1024] =
+      "midpoint-midpoint,trapezoidal-midpoint,trapezoidal-trapezoidal";
+  const char *schemes[16];
+  timing_row *rows = NULL;
+  FILE *csv = NULL;
+  mrvi_system *sys = load(cmd, &a);
+  if (!sys)
+    goto out;
+  double t_end = sys->settings.t_end;
+  if ((get(&a, "--p") && (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0) ||
+      (get(&a, "--dt") && parse_double(cmd, "--dt", get(&a, "--dt"), &dt) < 0) ||
+      (get(&a, "--t-end") && parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0))
+    goto out;
+  if (get(&a, "--schemes"))
+    snprintf(schemes_buf, sizeof schemes_buf, "%s", get(&a, "--schemes"));
+  for (char *tok = strtok(schemes_buf, ","); tok && n_s < 16;
+       tok = strtok(NULL, ",")) {
+    mrvi_settings s;
+    mrvi_settings_default(&s);
+    if (mrvi_settings_set_scheme(&s, tok) < 0) {
+      fprintf(stderr, "mrvi %s: unknown scheme '%s'\n", cmd, tok);
+      goto out;
+    }
+    schemes[n_s++] = tok;
+  }
+  if (!(dt > 0) || !(t_end > 0)) {
+    fprintf(stderr, "mrvi %s: --dt and --t-end must be positive\n", cmd);
+    goto out;
+  }
+  rows = calloc((size_t)n_s * n_p, sizeof *rows);
+  if (!rows)
+    goto out;
+  code = EXIT_RUN;
+  if (!a.quiet)
+    printf("computing time of %s, dt = %g, t_end = %g\n%-24s %5s %8s %8s %6s "
+           "%9s %9s %11s %11s %11s\n",
+           sys->name, dt, t_end, "scheme", "p", "dT", "steps", "size",
+           "Newton it", "total [s]", "step [ms]", "assemble", "solve");
+  for (int i = 0; i < n_s; i++)
+    for (int j = 0; j < n_p; j++) {
+      mrvi_settings s = sys->settings;
+      mrvi_settings_set_scheme(&s, schemes[i]);
+      s.micro_steps = (int)ps[j];
+      s.macro_step = ps[j] * dt;
+      s.t_end = fmax(t_end, s.macro_step);
+      mrvi_summary sum;
+      if (mrvi_run(sys->model, &s, NULL, NULL, NULL, &sum) < 0) {
+        fprintf(stderr, "mrvi %s: %s, p = %d: %s\n", cmd, schemes[i],
+                (int)ps[j], sum.message);
+        goto out;
+      }
+      timing_row *r = &rows[i * n_p + j];
+      r->total_time = sum.wall_time;
+      r->iterations = (double)sum.iterations_total;
+      r->macro_steps = (double)sum.steps;
+      r->time_per_step = sum.wall_time / sum.steps;
+      r->assemble_per_step = sum.assemble_time / sum.steps;
+      r->solve_per_step = sum.solve_time / sum.steps;
+      r->system_size = mrvi_model_n_slow(sys->model) +
+                       ps[j] * mrvi_model_n_fast(sys->model);
+      if (!a.quiet) {
+        printf("%-24s %5d %8.4g %8.0f %6.0f %9.0f %9.3f %11.4f %11.4f "
+               "%11.4f\n",
+               schemes[i], (int)ps[j], s.macro_step, r->macro_steps,
+               r->system_size, r->iterations, r->total_time,
+               1e3 * r->time_per_step, 1e3 * r->assemble_per_step,
+               1e3 * r->solve_per_step);
+        fflush(stdout);
+      }
+    }
+  char out[2048];
+  default_output(out, sizeof out, get(&a, "--output"), sys, "timing");
+  hid_t f = h5_create(cmd, out);
+  if (f < 0)
+    goto out;
+  int rc = 0, pint[MAX_LIST];
+  for (int j = 0; j < n_p; j++)
+    pint[j] = (int)ps[j];
+  h5_attr_string(f, "system", sys->name);
+  h5_attr_double(f, "micro_step", dt);
+  h5_attr_double(f, "t_end", t_end);
+  h5_attr_string(f, "mrvi_version", mrvi_version());
+  hid_t g = H5Gcreate2(f, "timing", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  rc |= h5_vector(g, "p", H5T_NATIVE_INT, pint, (hsize_t)n_p);
+  for (int i = 0; i < n_s; i++) {
+    hid_t sg = H5Gcreate2(g, schemes[i], H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    double col[MAX_LIST];
+#define TIMING_WRITE(name)                                                   \
+  for (int j = 0; j < n_p; j++)                                              \
+    col[j] = rows[i * n_p + j].name;                                         \
+  rc |= h5_vector(sg, #name, H5T_NATIVE_DOUBLE, col, (hsize_t)n_p);
+    TIMING_COLUMNS(TIMING_WRITE)
+#undef TIMING_WRITE
+    H5Gclose(sg);
+  }
+  H5Gclose(g);
+  if (H5Fclose(f) < 0 || rc) {
+    fprintf(stderr, "mrvi %s: writing '%s' failed\n", cmd, out);
+    goto out;
+  }
+  if (get(&a, "--csv")) {
+    csv = fopen(get(&a, "--csv"), "w");
+    if (!csv) {
+      fprintf(stderr, "mrvi %s: cannot create '%s'\n", cmd, get(&a, "--csv"));
+      goto out;
+    }
+    fprintf(csv, "scheme,p");
+#define TIMING_HEAD(name) fprintf(csv, "," #name);
+    TIMING_COLUMNS(TIMING_HEAD)
+#undef TIMING_HEAD
+    fprintf(csv, "\n");
+    for (int i = 0; i < n_s; i++)
+      for (int j = 0; j < n_p; j++) {
+        fprintf(csv, "%s,%d", schemes[i], (int)ps[j]);
+#define TIMING_CELL(name) fprintf(csv, ",%.9g", rows[i * n_p + j].name);
+        TIMING_COLUMNS(TIMING_CELL)
+#undef TIMING_CELL
+        fprintf(csv, "\n");
+      }
+  }
+  if (!a.quiet)
+    printf("table: %s\n", out);
+  code = 0;
+out:
+  if (csv && fclose(csv) != 0)
+    code = EXIT_RUN;
+  free(rows);
+  mrvi_system_free(sys);
+  args_free(&a);
+  return code;
+}

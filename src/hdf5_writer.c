@@ -1,0 +1,827 @@
+/* HDF5 output (doc/output.md, DESIGN §4).
+ *
+ * The writer is an mrvi_observer.  Each record adds rows to three streams of
+ * datasets (macro nodes, fast micro nodes, solver statistics); rows are
+ * buffered in memory and appended with hyperslab writes to chunked datasets
+ * whose first dimension is unlimited.  After every buffer write the file is
+ * flushed (H5Fflush), so a process killed hard leaves a readable file with
+ * everything written up to the last flush; a run stopped by an error or by
+ * the stop flag reaches mrvi_writer_close, which writes the rest and the
+ * reason it stopped.
+ *
+ * The library never prints: HDF5's automatic error printer is switched off
+ * around every HDF5 call we make (and restored after), and the error stack
+ * is turned into a message instead. */
+#include "internal.h"
+
+#include <hdf5.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+/* Flush after this many records, or after this much wall time, whichever
+ * comes first; fewer records when their rows would exceed BUFFER_BYTES. */
+#define FLUSH_RECORDS 256
+#define FLUSH_SECONDS 1.0
+#define BUFFER_BYTES ((size_t)8 << 20)
+/* Target size of one chunk (never more rows than the run will write). */
+#define CHUNK_BYTES ((size_t)64 << 10)
+
+/* ---------------------------------------------------------------------------
+ * Output table
+ * ------------------------------------------------------------------------- */
+
+/* Row streams: how many rows one record adds to a dataset. */
+enum stream {
+  MACRO,  /* 1 per kept macro node: k % every == 0, and the last one seen */
+  MICRO,  /* micro_count per record: fast micro nodes (if output.micro) */
+  SOLVER, /* 1 per step: records with k >= 1 */
+  N_STREAMS
+};
+
+enum elem { F64, I32 };
+
+/* Every appended dataset, listed once; doc/output.md mirrors this table.
+ *   X(id, path, type, stream, rank, columns, row, long_name)
+ * columns: row width as a function of the writer w; 0 omits the dataset.
+ * row:     address of row i of record r (i < rows r adds to the stream).
+ * rank 1:  shape (rows) and columns must be 1; rank 2: (rows, columns).
+ * long_name is also stored as the dataset attribute `long_name`. */
+#define MRVI_OUTPUT_LIST(X)                                                    \
+  X(MACRO_T, "/macro/t", F64, MACRO, 1, 1, &r->t, "time t_k of macro node k")  \
+  X(MACRO_Q, "/macro/q", F64, MACRO, 2, w->n, r->q,                            \
+    "generalised coordinates q_k, model order")                                \
+  X(MACRO_P, "/macro/p", F64, MACRO, 2, w->n, r->p,                            \
+    "discrete momenta p_k, model order")                                       \
+  X(MACRO_KINETIC, "/macro/kinetic", F64, MACRO, 1, 1, &r->kinetic,            \
+    "kinetic energy 1/2 p^T M^-1 p")                                           \
+  X(MACRO_POTENTIAL_SLOW, "/macro/potential_slow", F64, MACRO, 1, 1,           \
+    &r->potential_slow, "slow potential V(q)")                                 \
+  X(MACRO_POTENTIAL_FAST, "/macro/potential_fast", F64, MACRO, 1, 1,           \
+    &r->potential_fast, "fast potential W(q)")                                 \
+  X(MACRO_ENERGY, "/macro/energy", F64, MACRO, 1, 1, &r->energy,               \
+    "total energy H = kinetic + V + W")                                        \
+  X(MACRO_LINEAR_MOMENTUM, "/macro/linear_momentum", F64, MACRO, 2, w->dim,    \
+    r->linear_momentum, "linear momentum sum_i p_i of the particles")          \
+  X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \
+    w->n_ang, r->angular_momentum,                                             \
+    "angular momentum sum_i x_i x p_i of the particles")                       \
+  X(MICRO_T, "/micro/t", F64, MICRO, 1, 1, &w->micro_t[i],                     \
+    "time of the fast micro node")                                             \
+  X(MICRO_Q_FAST, "/micro/q_fast", F64, MICRO, 2, w->nf,                       \
+    r->micro_q_fast + (size_t)i * (size_t)w->nf,                               \
+    "fast coordinates at the micro node, model order")                         \
+  X(MICRO_P_FAST, "/micro/p_fast", F64, MICRO, 2, w->nf,                       \
+    r->micro_p_fast + (size_t)i * (size_t)w->nf,                               \
+    "fast micro momenta (eq:pkfm-), model order")                              \
+  X(SOLVER_ITERATIONS, "/solver/iterations", I32, SOLVER, 1, 1,                \
+    &r->iterations, "Newton iterations of macro step k-1 -> k")                \
+  X(SOLVER_RESIDUAL, "/solver/residual", F64, SOLVER, 1, 1, &r->residual,      \
+    "final max-norm residual of that step")
+
+/* clang-format off */
+enum output_id {
+#define X_ENUM(id, ...) id,
+  MRVI_OUTPUT_LIST(X_ENUM)
+#undef X_ENUM
+  N_OUTPUTS
+};
+/* clang-format on */
+
+static const struct output_info {
+  const char *path;
+  enum elem type;
+  enum stream stream;
+  int rank;
+  const char *long_name;
+} output_info[N_OUTPUTS] = {
+#define X_INFO(id, path, type, stream, rank, cols, row, long_name)             \
+  {path, type, stream, rank, long_name},
+    MRVI_OUTPUT_LIST(X_INFO)
+#undef X_INFO
+};
+
+/* Root attributes written at open, listed once; doc/output.md mirrors it.
+ *   X(name, kind, value), kind: string, double, int or long.
+ * Values may use the settings s, the writer w and the strings `system_name`,
+ * `scheme` of mrvi_writer_open.  stop_reason and steps_completed are
+ * rewritten at every flush and at close. */
+#define MRVI_ATTRIBUTE_LIST(X)                                                 \
+  X("mrvi_version", string, MRVI_VERSION)                                      \
+  X("system", string, system_name)                                             \
+  X("scheme", string, scheme)                                                  \
+  X("alpha_slow", double, s->slow.alpha)                                       \
+  X("gamma_slow", double, s->slow.gamma)                                       \
+  X("slow_grid", string, s->slow_grid == MRVI_GRID_MACRO ? "macro" : "micro")  \
+  X("alpha_fast", double, s->fast.alpha)                                       \
+  X("gamma_fast", double, s->fast.gamma)                                       \
+  X("macro_step", double, s->macro_step)                                       \
+  X("micro_steps", int, s->micro_steps)                                        \
+  X("t_end", double, s->t_end)                                                 \
+  X("newton_tolerance", double, s->newton_tol)                                 \
+  X("newton_max_iterations", int, s->newton_max_iter)                          \
+  X("output_every", int, w->every)                                             \
+  X("stop_reason", string, "running")                                          \
+  X("steps_completed", long, 0L)
+
+/* ---------------------------------------------------------------------------
+ * Writer
+ * ------------------------------------------------------------------------- */
+typedef struct output {
+  hid_t id;           /* H5I_INVALID_HID when the dataset is omitted */
+  hsize_t cols;       /* row width */
+  size_t row_bytes;   /* cols x element size */
+  unsigned char *buf; /* cap[stream] rows */
+} output;
+
+struct mrvi_writer {
+  char *path;
+  hid_t file;
+  int n, nf, dim, n_ang, p, every;
+  int stream_on[N_STREAMS];
+  long flush_records;         /* records per flush (<= FLUSH_RECORDS) */
+  size_t cap[N_STREAMS];      /* buffer capacity in rows */
+  size_t rows[N_STREAMS];     /* rows buffered */
+  hsize_t written[N_STREAMS]; /* rows in the file */
+  int pending;       /* the macro row at rows[MACRO] is the last record seen but
+                        not kept by `every`; the next record overwrites it and
+                        close keeps it */
+  long records;      /* records buffered since the last flush */
+  double flushed_at; /* mrvi_clock() at the last flush */
+  long last_k;       /* k of the last record, -1 before the first */
+  double *micro_t;   /* p: times of the micro rows of a record */
+  int status;        /* first failure (0 if none) */
+  int io_failed;     /* a write failed: the file is not touched again */
+  char errmsg[512];
+  output out[N_OUTPUTS];
+};
+
+/* Width of dataset id for writer w. */
+static hsize_t output_columns(const mrvi_writer *w, int id) {
+  switch (id) {
+#define X_COLS(id_, path, type, stream, rank, cols, row, long_name)            \
+  case id_:                                                                    \
+    return (hsize_t)(cols);
+    MRVI_OUTPUT_LIST(X_COLS)
+#undef X_COLS
+  default:
+    return 0;
+  }
+}
+
+/* Address of row i of dataset id in record r. */
+static const void *output_row(const mrvi_writer *w, const mrvi_record *r,
+                              int id, int i) {
+  switch (id) {
+#define X_ROW(id_, path, type, stream, rank, cols, row, long_name)             \
+  case id_:                                                                    \
+    return (const void *)(row);
+    MRVI_OUTPUT_LIST(X_ROW)
+#undef X_ROW
+  default:
+    return NULL;
+  }
+}
+
+/* ---------------------------------------------------------------------------
+ * HDF5 errors: no printing, messages instead.
+ * ------------------------------------------------------------------------- */
+typedef struct quiet {
+  H5E_auto2_t func;
+  void *data;
+  int saved;
+} quiet;
+
+/* Switch HDF5's automatic error printing off (remembering the caller's
+ * setting) and start from an empty error stack. */
+static void quiet_begin(quiet *q) {
+  q->saved = H5Eget_auto2(H5E_DEFAULT, &q->func, &q->data) >= 0;
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  H5Eclear2(H5E_DEFAULT);
+}
+
+static void quiet_end(const quiet *q) {
+  if (q->saved)
+    H5Eset_auto2(H5E_DEFAULT, q->func, q->data);
+}
+
+/* Every successful HDF5 call clears the error stack, so the stack of a
+ * failed call is set aside while the handles it leaves are closed:
+ *   es = keep_errors(rc); ...close...; restore_errors(es); */
+static hid_t keep_errors(herr_t rc) {
+  return rc < 0 ? H5Eget_current_stack() : H5I_INVALID_HID;
+}
+
+static void restore_errors(hid_t es) {
+  if (es >= 0)
+    H5Eset_current_stack(es); /* also releases es */
+}
+
+typedef struct h5_walk_data {
+  const char *outer;  /* description at the API function */
+  const char *inner;  /* most specific description */
+  const char *system; /* "error message = '...'" of a failed system call */
+  int system_len;
+} h5_walk_data;
+
+static herr_t h5_walk(unsigned n, const H5E_error2_t *e, void *data) {
+  h5_walk_data *d = data;
+  (void)n;
+  if (!e->desc || !e->desc[0])
+    return 0;
+  if (!d->outer)
+    d->outer = e->desc;
+  d->inner = e->desc;
+  const char *key = "error message = '", *s = strstr(e->desc, key);
+  if (s) {
+    s += strlen(key);
+    const char *end = strchr(s, '\'');
+    d->system = s;
+    d->system_len = end ? (int)(end - s) : (int)strlen(s);
+  }
+  return 0;
+}
+
+/* Record the first failure as "path: what: reason" from the error stack:
+ * the operating system's message when there is one ("No such file or
+ * directory", "File too large"), else HDF5's description at the API call
+ * and the most specific one; then clear the stack.  Returns status. */
+static int fail_h5(mrvi_writer *w, int status, const char *what) {
+  if (w->status)
+    return w->status;
+  h5_walk_data d = {NULL, NULL, NULL, 0};
+  H5Ewalk2(H5E_DEFAULT, H5E_WALK_DOWNWARD, h5_walk, &d);
+  if (d.system)
+    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: %.*s", w->path, what,
+             d.system_len, d.system);
+  else if (d.outer && strcmp(d.outer, d.inner) != 0)
+    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: %s (%s)", w->path, what,
+             d.outer, d.inner);
+  else if (d.outer)
+    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: %s", w->path, what, d.outer);
+  else
+    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: HDF5 error", w->path, what);
+  H5Eclear2(H5E_DEFAULT);
+  w->status = status;
+  return status;
+}
+
+/* Record the first failure as "path: message".  Returns status. */
+static int fail(mrvi_writer *w, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static int fail(mrvi_writer *w, int status, const char *fmt, ...) {
+  if (w->status)
+    return w->status;
+  char text[400];
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(text, sizeof text, fmt, ap);
+  va_end(ap);
+  mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s", w->path, text);
+  w->status = status;
+  return status;
+}
+
+/* ---------------------------------------------------------------------------
+ * Attributes and fixed datasets
+ * ------------------------------------------------------------------------- */
+
+/* Variable-length UTF-8 string type (h5py reads it as str). */
+static hid_t string_type(void) {
+  hid_t t = H5Tcopy(H5T_C_S1);
+  if (t < 0)
+    return t;
+  if (H5Tset_size(t, H5T_VARIABLE) < 0 || H5Tset_cset(t, H5T_CSET_UTF8) < 0) {
+    H5Tclose(t);
+    return H5I_INVALID_HID;
+  }
+  return t;
+}
+
+/* Create or overwrite the scalar attribute `name` of obj. */
+static herr_t attr_write(hid_t obj, const char *name, hid_t ftype, hid_t mtype,
+                         const void *value) {
+  hid_t a, es;
+  htri_t exists = H5Aexists(obj, name);
+  if (exists < 0)
+    return -1;
+  if (exists) {
+    a = H5Aopen(obj, name, H5P_DEFAULT);
+  } else {
+    hid_t space = H5Screate(H5S_SCALAR);
+    if (space < 0)
+      return -1;
+    a = H5Acreate2(obj, name, ftype, space, H5P_DEFAULT, H5P_DEFAULT);
+    es = keep_errors((herr_t)(a < 0 ? -1 : 0));
+    H5Sclose(space);
+    restore_errors(es);
+  }
+  if (a < 0)
+    return -1;
+  herr_t rc = H5Awrite(a, mtype, value);
+  es = keep_errors(rc);
+  if (H5Aclose(a) < 0)
+    rc = -1;
+  restore_errors(es);
+  return rc;
+}
+
+static herr_t attr_string(hid_t obj, const char *name, const char *value) {
+  hid_t t = string_type();
+  if (t < 0)
+    return -1;
+  const char *v = value ? value : "";
+  herr_t rc = attr_write(obj, name, t, t, &v);
+  hid_t es = keep_errors(rc);
+  H5Tclose(t);
+  restore_errors(es);
+  return rc;
+}
+
+static herr_t attr_double(hid_t obj, const char *name, double value) {
+  return attr_write(obj, name, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, &value);
+}
+
+static herr_t attr_int(hid_t obj, const char *name, int value) {
+  return attr_write(obj, name, H5T_STD_I32LE, H5T_NATIVE_INT, &value);
+}
+
+static herr_t attr_long(hid_t obj, const char *name, long value) {
+  return attr_write(obj, name, H5T_STD_I64LE, H5T_NATIVE_LONG, &value);
+}
+
+/* Dataset of count elements (scalar: one) with attribute long_name. */
+static herr_t write_fixed(hid_t file, const char *path, hid_t lcpl, hid_t ftype,
+                          hid_t mtype, hsize_t count, int scalar,
+                          const void *data, const char *long_name) {
+  hid_t space =
+      scalar ? H5Screate(H5S_SCALAR) : H5Screate_simple(1, &count, NULL);
+  if (space < 0)
+    return -1;
+  hid_t d =
+      H5Dcreate2(file, path, ftype, space, lcpl, H5P_DEFAULT, H5P_DEFAULT);
+  hid_t es = keep_errors((herr_t)(d < 0 ? -1 : 0));
+  H5Sclose(space);
+  restore_errors(es);
+  if (d < 0)
+    return -1;
+  herr_t rc = 0;
+  if (scalar || count > 0)
+    rc = H5Dwrite(d, mtype, H5S_ALL, H5S_ALL, H5P_DEFAULT, data);
+  if (rc >= 0)
+    rc = attr_string(d, "long_name", long_name);
+  es = keep_errors(rc);
+  if (H5Dclose(d) < 0)
+    rc = -1;
+  restore_errors(es);
+  return rc;
+}
+
+/* /model: mass, rate, name, description. */
+static int write_model(mrvi_writer *w, const mrvi_model *m,
+                       const char *description, hid_t lcpl) {
+  size_t n = (size_t)w->n;
+  double *mass = malloc((n ? n : 1) * sizeof *mass);
+  int *rate = malloc((n ? n : 1) * sizeof *rate);
+  const char **name = malloc((n ? n : 1) * sizeof *name);
+  int rc = 0;
+  if (!mass || !rate || !name) {
+    rc = fail(w, MRVI_ENOMEM, "writing /model: out of memory");
+    goto out;
+  }
+  for (size_t i = 0; i < n; i++) {
+    mass[i] = mrvi_model_mass(m, (int)i);
+    rate[i] = mrvi_model_rate(m, (int)i) == MRVI_FAST ? 1 : 0;
+    name[i] = mrvi_model_coordinate_name(m, (int)i);
+    if (!name[i])
+      name[i] = "";
+  }
+  if (write_fixed(w->file, "/model/mass", lcpl, H5T_IEEE_F64LE,
+                  H5T_NATIVE_DOUBLE, n, 0, mass,
+                  "mass of each coordinate (diagonal of M), model order") < 0) {
+    rc = fail_h5(w, MRVI_EIO, "writing /model/mass");
+    goto out;
+  }
+  if (write_fixed(w->file, "/model/rate", lcpl, H5T_STD_I32LE, H5T_NATIVE_INT,
+                  n, 0, rate, "rate of each coordinate: 0 slow, 1 fast") < 0) {
+    rc = fail_h5(w, MRVI_EIO, "writing /model/rate");
+    goto out;
+  }
+  hid_t st = string_type();
+  herr_t e = st < 0 ? -1
+                    : write_fixed(w->file, "/model/name", lcpl, st, st, n, 0,
+                                  name, "name of each coordinate");
+  if (e >= 0 && description)
+    e = write_fixed(w->file, "/model/description", lcpl, st, st, 0, 1,
+                    &description, "the input description, verbatim");
+  hid_t es = keep_errors(e);
+  if (st >= 0)
+    H5Tclose(st);
+  restore_errors(es);
+  if (e < 0)
+    rc = fail_h5(w, MRVI_EIO, "writing /model/name and /model/description");
+out:
+  free(mass);
+  free(rate);
+  free(name);
+  return rc;
+}
+
+/* ---------------------------------------------------------------------------
+ * Appended datasets
+ * ------------------------------------------------------------------------- */
+
+/* Create dataset id: chunked, first dimension unlimited, empty. */
+static int create_output(mrvi_writer *w, int id, hid_t lcpl,
+                         hsize_t expected_rows) {
+  const struct output_info *info = &output_info[id];
+  output *o = &w->out[id];
+  hsize_t dims[2] = {0, o->cols}, maxdims[2] = {H5S_UNLIMITED, o->cols};
+  hsize_t chunk_rows = CHUNK_BYTES / o->row_bytes;
+  if (chunk_rows > expected_rows)
+    chunk_rows = expected_rows;
+  if (chunk_rows < 1)
+    chunk_rows = 1;
+  hsize_t chunk[2] = {chunk_rows, o->cols};
+  hid_t space = H5Screate_simple(info->rank, dims, maxdims);
+  hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  hid_t ftype = info->type == F64 ? H5T_IEEE_F64LE : H5T_STD_I32LE;
+  if (space >= 0 && dcpl >= 0 && H5Pset_chunk(dcpl, info->rank, chunk) >= 0)
+    o->id =
+        H5Dcreate2(w->file, info->path, ftype, space, lcpl, dcpl, H5P_DEFAULT);
+  hid_t es = keep_errors((herr_t)(o->id < 0 ? -1 : 0));
+  if (space >= 0)
+    H5Sclose(space);
+  if (dcpl >= 0)
+    H5Pclose(dcpl);
+  restore_errors(es);
+  if (o->id < 0 || attr_string(o->id, "long_name", info->long_name) < 0) {
+    char what[128];
+    mrvi_fmt(what, sizeof what, "creating %s", info->path);
+    return fail_h5(w, MRVI_EIO, what);
+  }
+  return 0;
+}
+
+/* Append `rows` buffered rows to dataset id. */
+static herr_t append_rows(mrvi_writer *w, int id, size_t rows) {
+  const struct output_info *info = &output_info[id];
+  output *o = &w->out[id];
+  hsize_t start[2] = {w->written[info->stream], 0};
+  hsize_t count[2] = {(hsize_t)rows, o->cols};
+  hsize_t size[2] = {start[0] + count[0], o->cols};
+  hid_t mtype = info->type == F64 ? H5T_NATIVE_DOUBLE : H5T_NATIVE_INT;
+  if (H5Dset_extent(o->id, size) < 0)
+    return -1;
+  hid_t fspace = H5Dget_space(o->id);
+  hid_t mspace = H5Screate_simple(info->rank, count, NULL);
+  herr_t rc = -1;
+  if (fspace >= 0 && mspace >= 0 &&
+      H5Sselect_hyperslab(fspace, H5S_SELECT_SET, start, NULL, count, NULL) >=
+          0)
+    rc = H5Dwrite(o->id, mtype, mspace, fspace, H5P_DEFAULT, o->buf);
+  hid_t es = keep_errors(rc);
+  if (fspace >= 0)
+    H5Sclose(fspace);
+  if (mspace >= 0)
+    H5Sclose(mspace);
+  restore_errors(es);
+  return rc;
+}
+
+/* Write all buffered rows, update steps_completed and flush the file.
+ * final: also keep a pending macro row (the last record seen). */
+static int flush(mrvi_writer *w, int final) {
+  if (w->io_failed)
+    return w->status;
+  if (final && w->pending) {
+    w->rows[MACRO]++;
+    w->pending = 0;
+  }
+  quiet q;
+  quiet_begin(&q);
+  int rc = 0;
+  for (int id = 0; id < N_OUTPUTS && rc == 0; id++) {
+    size_t rows = w->rows[output_info[id].stream];
+    if (w->out[id].id < 0 || rows == 0)
+      continue;
+    if (append_rows(w, id, rows) < 0) {
+      char what[128];
+      mrvi_fmt(what, sizeof what, "writing %s", output_info[id].path);
+      rc = fail_h5(w, MRVI_EIO, what);
+    }
+  }
+  if (rc == 0 &&
+      attr_long(w->file, "steps_completed", w->last_k > 0 ? w->last_k : 0) < 0)
+    rc = fail_h5(w, MRVI_EIO, "writing attribute steps_completed");
+  if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
+    rc = fail_h5(w, MRVI_EIO, "flushing the file");
+  quiet_end(&q);
+  if (rc) {
+    w->io_failed = 1;
+    return rc;
+  }
+  /* The pending macro row moves to the front of the emptied buffers. */
+  if (w->pending)
+    for (int id = 0; id < N_OUTPUTS; id++)
+      if (w->out[id].id >= 0 && output_info[id].stream == MACRO)
+        memmove(w->out[id].buf,
+                w->out[id].buf + w->rows[MACRO] * w->out[id].row_bytes,
+                w->out[id].row_bytes);
+  for (int s = 0; s < N_STREAMS; s++) {
+    w->written[s] += w->rows[s];
+    w->rows[s] = 0;
+  }
+  w->records = 0;
+  w->flushed_at = mrvi_clock();
+  return 0;
+}
+
+/* ---------------------------------------------------------------------------
+ * Public API
+ * ------------------------------------------------------------------------- */
+
+/* Close the file and every object of it, recording the first failure.
+ *
+ * Order matters.  When the final flush of a file fails (disk full, file
+ * size limit), HDF5 1.10 returns an error from H5Fclose but leaves the file
+ * identifier registered and half destroyed: closing it again, or H5close at
+ * process exit, then crashes (fixed upstream in HDF5 1.14, PR #2291).  With
+ * the weak close degree, H5Fclose only releases the identifier while
+ * datasets are open; the real close happens in the last H5Dclose, which
+ * reports the failure and leaves no identifier behind.  (HDF5 may still
+ * print "infinite loop closing library" at exit after such a failure.) */
+static void close_handles(mrvi_writer *w) {
+  if (w->file >= 0 && H5Fclose(w->file) < 0)
+    fail_h5(w, MRVI_EIO, "closing the file");
+  w->file = H5I_INVALID_HID;
+  for (int id = 0; id < N_OUTPUTS; id++) {
+    if (w->out[id].id >= 0 && H5Dclose(w->out[id].id) < 0)
+      fail_h5(w, MRVI_EIO, "closing the file");
+    w->out[id].id = H5I_INVALID_HID;
+  }
+}
+
+/* Release the memory of a writer whose handles are closed. */
+static void writer_free(mrvi_writer *w) {
+  for (int id = 0; id < N_OUTPUTS; id++)
+    free(w->out[id].buf);
+  free(w->micro_t);
+  free(w->path);
+  free(w);
+}
+
+/* Sizes, buffers and chunking; then the file. */
+static int writer_setup(mrvi_writer *w, const mrvi_model *m,
+                        const mrvi_settings *s, const char *system_name,
+                        const char *description) {
+  long n_steps = mrvi_settings_n_steps(s);
+  hsize_t N = n_steps > 0 ? (hsize_t)n_steps : 1;
+  hsize_t expected[N_STREAMS];
+  expected[MACRO] = N / (hsize_t)w->every + 1 + (N % (hsize_t)w->every != 0);
+  expected[MICRO] = N * (hsize_t)w->p + 1;
+  expected[SOLVER] = N;
+
+  /* Row widths, and the bytes one record adds to the buffers. */
+  size_t record_bytes = 0;
+  for (int id = 0; id < N_OUTPUTS; id++) {
+    output *o = &w->out[id];
+    enum stream st = output_info[id].stream;
+    o->cols = w->stream_on[st] ? output_columns(w, id) : 0;
+    o->row_bytes = (size_t)o->cols *
+                   (output_info[id].type == F64 ? sizeof(double) : sizeof(int));
+    record_bytes += (st == MICRO ? (size_t)w->p : 1) * o->row_bytes;
+  }
+  w->flush_records = (long)(BUFFER_BYTES / (record_bytes ? record_bytes : 1));
+  if (w->flush_records > FLUSH_RECORDS)
+    w->flush_records = FLUSH_RECORDS;
+  if (w->flush_records < 1)
+    w->flush_records = 1;
+  size_t R = (size_t)w->flush_records;
+  w->cap[MACRO] = R + 1; /* + the pending row */
+  w->cap[MICRO] = R * (size_t)w->p;
+  w->cap[SOLVER] = R;
+  for (int id = 0; id < N_OUTPUTS; id++) {
+    output *o = &w->out[id];
+    if (o->cols == 0)
+      continue;
+    o->buf = malloc(w->cap[output_info[id].stream] * o->row_bytes);
+    if (!o->buf)
+      return fail(w, MRVI_ENOMEM, "out of memory for output buffers");
+  }
+  w->micro_t = malloc((size_t)w->p * sizeof *w->micro_t);
+  if (!w->micro_t)
+    return fail(w, MRVI_ENOMEM, "out of memory");
+
+  /* The file (truncated). */
+  hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
+#if H5_VERSION_GE(1, 10, 7)
+  /* Keep HDF5's file locking but do not fail on file systems without it. */
+  if (fapl >= 0)
+    H5Pset_file_locking(fapl, 1, 1);
+#endif
+  if (fapl >= 0)
+    H5Pset_fclose_degree(fapl, H5F_CLOSE_WEAK); /* see close_handles */
+  w->file = H5Fcreate(w->path, H5F_ACC_TRUNC, H5P_DEFAULT,
+                      fapl >= 0 ? fapl : H5P_DEFAULT);
+  hid_t es = keep_errors((herr_t)(w->file < 0 ? -1 : 0));
+  if (fapl >= 0)
+    H5Pclose(fapl);
+  restore_errors(es);
+  if (w->file < 0)
+    return fail_h5(w, MRVI_EIO, "cannot create the file");
+
+  /* Root attributes. */
+  char scheme[sizeof s->scheme + 1];
+  mrvi_fmt(scheme, sizeof scheme, "%.*s", (int)sizeof s->scheme, s->scheme);
+#define X_ATTR(name, kind, value)                                              \
+  if (attr_##kind(w->file, name, value) < 0)                                   \
+    return fail_h5(w, MRVI_EIO, "writing attribute " name);
+  MRVI_ATTRIBUTE_LIST(X_ATTR)
+#undef X_ATTR
+
+  /* /model and the (empty) appended datasets; groups are created on the way. */
+  hid_t lcpl = H5Pcreate(H5P_LINK_CREATE);
+  if (lcpl < 0 || H5Pset_create_intermediate_group(lcpl, 1) < 0) {
+    fail_h5(w, MRVI_EIO, "creating groups");
+    if (lcpl >= 0)
+      H5Pclose(lcpl);
+    return w->status;
+  }
+  int rc = write_model(w, m, description, lcpl);
+  for (int id = 0; id < N_OUTPUTS && rc == 0; id++)
+    if (w->out[id].cols > 0)
+      rc = create_output(w, id, lcpl, expected[output_info[id].stream]);
+  H5Pclose(lcpl);
+  if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
+    rc = fail_h5(w, MRVI_EIO, "flushing the file");
+  return rc;
+}
+
+int mrvi_writer_open(const char *path, const mrvi_model *m,
+                     const mrvi_settings *s, const mrvi_writer_options *opt,
+                     mrvi_writer **out, char *msg, size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (out)
+    *out = NULL;
+  if (!path || !path[0] || !m || !s || !out) {
+    mrvi_fmt(msg, len, "mrvi_writer_open: %s",
+             !out ? "no result pointer"
+             : !m ? "no model"
+             : !s ? "no settings"
+                  : "no file name");
+    return MRVI_EINVAL;
+  }
+  mrvi_writer_options o = {NULL, NULL, 1, 1};
+  if (opt)
+    o = *opt;
+  if (o.every < 1) {
+    mrvi_fmt(msg, len, "%s: output every %d: must be >= 1", path, o.every);
+    return MRVI_EINVAL;
+  }
+  if (s->micro_steps < 1) {
+    mrvi_fmt(msg, len, "%s: micro_steps %d: must be >= 1", path,
+             s->micro_steps);
+    return MRVI_EINVAL;
+  }
+  const char *system_name = o.system_name ? o.system_name : mrvi_model_name(m);
+
+  mrvi_writer *w = calloc(1, sizeof *w);
+  if (!w) {
+    mrvi_fmt(msg, len, "%s: out of memory", path);
+    return MRVI_ENOMEM;
+  }
+  w->path = strdup(path);
+  if (!w->path) {
+    free(w);
+    mrvi_fmt(msg, len, "%s: out of memory", path);
+    return MRVI_ENOMEM;
+  }
+  w->file = H5I_INVALID_HID;
+  for (int id = 0; id < N_OUTPUTS; id++)
+    w->out[id].id = H5I_INVALID_HID;
+  w->n = mrvi_model_n(m);
+  w->nf = mrvi_model_n_fast(m);
+  w->dim = mrvi_model_dimension(m);
+  w->n_ang = w->dim == 3 ? 3 : w->dim == 2 ? 1 : 0;
+  w->p = s->micro_steps;
+  w->every = o.every;
+  w->stream_on[MACRO] = 1;
+  w->stream_on[MICRO] = o.micro && w->nf > 0;
+  w->stream_on[SOLVER] = 1;
+  w->last_k = -1;
+  w->flushed_at = mrvi_clock();
+
+  quiet q;
+  quiet_begin(&q);
+  int rc = writer_setup(w, m, s, system_name, o.description);
+  if (rc) {
+    mrvi_fmt(msg, len, "%s", w->errmsg);
+    int created = w->file >= 0;
+    close_handles(w);
+    writer_free(w);
+    /* A half-written file is no mrvi file: remove it (a regular file only,
+     * never e.g. a device the user named). */
+    struct stat st;
+    if (created && lstat(path, &st) == 0 && S_ISREG(st.st_mode))
+      remove(path);
+    H5Eclear2(H5E_DEFAULT);
+    quiet_end(&q);
+    return rc;
+  }
+  quiet_end(&q);
+  *out = w;
+  return MRVI_OK;
+}
+
+int mrvi_writer_observe(void *writer, const mrvi_record *r) {
+  mrvi_writer *w = writer;
+  if (!w)
+    return MRVI_EINVAL;
+  if (w->status)
+    return w->status;
+  if (!r || !r->q || !r->p)
+    return fail(w, MRVI_EINVAL, "record without q or p");
+  if (r->k < 0 || (w->last_k >= 0 && r->k != w->last_k + 1))
+    return fail(w, MRVI_EINVAL,
+                "record k = %ld after k = %ld (records must come in "
+                "order)",
+                r->k, w->last_k);
+  /* Rows this record adds to each stream. */
+  size_t add[N_STREAMS];
+  add[MACRO] = 1;
+  add[SOLVER] = r->k >= 1;
+  add[MICRO] = 0;
+  if (w->stream_on[MICRO]) {
+    if (r->micro_count < 0 || r->micro_count > w->p ||
+        (r->micro_count > 0 && (!r->micro_q_fast || !r->micro_p_fast)))
+      return fail(w, MRVI_EINVAL,
+                  "record k = %ld has %d micro nodes (at most %d, "
+                  "with q and p)",
+                  r->k, r->micro_count, w->p);
+    add[MICRO] = (size_t)r->micro_count;
+  }
+  /* Make room (normally the record-count flush below keeps it). */
+  for (int s = 0; s < N_STREAMS; s++)
+    if (w->rows[s] + add[s] > w->cap[s]) {
+      int rc = flush(w, 0);
+      if (rc)
+        return rc;
+      break;
+    }
+
+  for (size_t i = 0; i < add[MICRO]; i++)
+    w->micro_t[i] = r->micro_t0 + (double)i * r->micro_dt;
+  /* Copy the rows; the macro row goes to rows[MACRO] (over a pending row). */
+  for (int id = 0; id < N_OUTPUTS; id++) {
+    output *o = &w->out[id];
+    enum stream st = output_info[id].stream;
+    if (o->cols == 0)
+      continue;
+    for (size_t i = 0; i < add[st]; i++)
+      memcpy(o->buf + (w->rows[st] + i) * o->row_bytes,
+             output_row(w, r, id, (int)i), o->row_bytes);
+  }
+  if (r->k % w->every == 0) {
+    w->rows[MACRO]++;
+    w->pending = 0;
+  } else {
+    w->pending = 1;
+  }
+  w->rows[MICRO] += add[MICRO];
+  w->rows[SOLVER] += add[SOLVER];
+  w->last_k = r->k;
+  w->records++;
+
+  if (w->records >= w->flush_records ||
+      mrvi_clock() - w->flushed_at >= FLUSH_SECONDS)
+    return flush(w, 0);
+  return MRVI_OK;
+}
+
+int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
+                      size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (!w)
+    return MRVI_OK;
+  quiet q;
+  quiet_begin(&q);
+  flush(w, 1);
+  /* The reason is written even after a failed write (best effort), but a
+   * later failure never replaces the first message. */
+  const char *reason =
+      stop_reason && stop_reason[0] ? stop_reason : "completed";
+  if (attr_string(w->file, "stop_reason", reason) < 0 ||
+      attr_long(w->file, "steps_completed", w->last_k > 0 ? w->last_k : 0) < 0)
+    fail_h5(w, MRVI_EIO, "writing attribute stop_reason");
+  close_handles(w);
+  H5Eclear2(H5E_DEFAULT);
+  quiet_end(&q);
+  int rc = w->status;
+  if (rc)
+    mrvi_fmt(msg, len, "%s", w->errmsg);
+  writer_free(w);
+  return rc;
+}

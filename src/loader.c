@@ -1,0 +1,1529 @@
+/* Description files (doc/description-files.md): YAML 1.2 read with libfyaml,
+ * --set overrides applied to the document tree, then interpreted into a
+ * model and integrator settings.
+ *
+ * Every error becomes "file:line:col: message" at the node that caused it
+ * (1-based), or "--set KEY=VALUE: message" when the node came from an
+ * override.  libfyaml's own diagnostics are collected on a silent diag
+ * object: the library never prints. */
+#include "internal.h"
+
+#include <libfyaml.h>
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define COUNT(a) ((int)(sizeof(a) / sizeof((a)[0])))
+#define MAX_KEYS 64 /* keys of one mapping, law parameters included */
+
+/* Node created by an override, with the override's text. */
+typedef struct override_node {
+  struct fy_node *node;
+  const char *text;
+} override_node;
+
+/* An override that replaced a scalar of the input text: the description
+ * keeps the file's text (and comments) with value spliced into
+ * text[start, end). */
+typedef struct splice {
+  size_t start, end;
+  const char *value;
+  struct fy_node *node; /* the new value node */
+} splice;
+
+/* A name defined in the file: coordinate or particle. */
+typedef struct named {
+  const char *name; /* owned by the document */
+  struct fy_node *node;
+  int index; /* model coordinate index / particle index */
+} named;
+
+typedef struct loader {
+  const char *path; /* display name */
+  struct fy_diag *diag;
+  struct fy_document *doc;
+  char *msg;
+  size_t len;
+  override_node *ov;
+  int n_ov, cap_ov;
+  splice *sp;
+  int n_sp, cap_sp;
+  int splice_ok; /* every override replaced a scalar of the text */
+  named *coords, *parts;
+  int n_coords, n_parts;
+  mrvi_system *sys;
+} loader;
+
+/* ---------------------------------------------------------------------------
+ * Error reporting
+ * ------------------------------------------------------------------------- */
+
+static void diag_silent(struct fy_diag *diag, void *user, const char *buf,
+                        size_t len) {
+  (void)diag, (void)user, (void)buf, (void)len;
+}
+
+static struct fy_diag *diag_create(void) {
+  struct fy_diag_cfg cfg;
+  fy_diag_cfg_default(&cfg);
+  cfg.fp = NULL;
+  cfg.output_fn = diag_silent;
+  cfg.user = NULL;
+  cfg.colorize = false;
+  struct fy_diag *diag = fy_diag_create(&cfg);
+  if (diag)
+    fy_diag_set_collect_errors(diag, true);
+  return diag;
+}
+
+/* The override that created n or one of its ancestors, or NULL. */
+static const char *override_of(const loader *L, struct fy_node *n) {
+  for (; n; n = fy_node_get_parent(n))
+    for (int i = 0; i < L->n_ov; i++)
+      if (L->ov[i].node == n)
+        return L->ov[i].text;
+  return NULL;
+}
+
+static int token_position(struct fy_token *t, int *line, int *col) {
+  const struct fy_mark *m = t ? fy_token_start_mark(t) : NULL;
+  if (!m)
+    return 0;
+  *line = m->line + 1;
+  *col = m->column + 1;
+  return 1;
+}
+
+/* Position of the key that holds n (through enclosing lists). */
+static int holder_position(struct fy_node *n, int *line, int *col) {
+  struct fy_node *parent = fy_node_get_parent(n);
+  if (!parent)
+    return 0;
+  if (fy_node_is_mapping(parent)) {
+    void *it = NULL;
+    struct fy_node_pair *p;
+    while ((p = fy_node_mapping_iterate(parent, &it)))
+      if (fy_node_pair_value(p) == n)
+        return token_position(fy_node_get_scalar_token(fy_node_pair_key(p)),
+                              line, col);
+    return 0;
+  }
+  return holder_position(parent, line, col);
+}
+
+/* 1-based position of a parsed node: a scalar's token; for a collection its
+ * first key or item; for an empty value the key that holds it.  (The
+ * public API of libfyaml 0.7 has no marks on collections.) */
+static int node_position(struct fy_node *n, int *line, int *col) {
+  if (!n)
+    return 0;
+  if (fy_node_is_scalar(n)) /* an empty value has no token */
+    return token_position(fy_node_get_scalar_token(n), line, col) ||
+           holder_position(n, line, col);
+  void *it = NULL;
+  struct fy_node *first = NULL;
+  if (fy_node_is_mapping(n)) {
+    struct fy_node_pair *p = fy_node_mapping_iterate(n, &it);
+    first = p ? fy_node_pair_key(p) : NULL;
+  } else {
+    first = fy_node_sequence_iterate(n, &it);
+  }
+  return (first && node_position(first, line, col)) ||
+         holder_position(n, line, col);
+}
+
+/* Write "where: message" and return MRVI_EPARSE.  `at` may be NULL (the
+ * document as a whole, reported at 1:1). */
+__attribute__((format(printf, 3, 4))) static int
+fail(loader *L, struct fy_node *at, const char *fmt, ...) {
+  char text[768];
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(text, sizeof text, fmt, ap);
+  va_end(ap);
+  const char *ov = override_of(L, at);
+  int line, col;
+  if (ov)
+    mrvi_fmt(L->msg, L->len, "--set %s: %s", ov, text);
+  else if (node_position(at, &line, &col))
+    mrvi_fmt(L->msg, L->len, "%s:%d:%d: %s", L->path, line, col, text);
+  else /* the document as a whole */
+    mrvi_fmt(L->msg, L->len, "%s:1:1: %s", L->path, text);
+  return MRVI_EPARSE;
+}
+
+static int fail_nomem(loader *L) {
+  mrvi_fmt(L->msg, L->len, "%s: out of memory", L->path);
+  return MRVI_ENOMEM;
+}
+
+/* Builder failure: the model's message at the element's node. */
+static int fail_model(loader *L, struct fy_node *at, int status) {
+  if (status == MRVI_ENOMEM)
+    return fail_nomem(L);
+  return fail(L, at, "%s", mrvi_model_errmsg(L->sys->model));
+}
+
+/* ---------------------------------------------------------------------------
+ * Closest-name suggestions
+ * ------------------------------------------------------------------------- */
+
+/* Levenshtein distance (names longer than 63 characters never match). */
+static int edit_distance(const char *a, const char *b) {
+  size_t la = strlen(a), lb = strlen(b);
+  if (la > 63 || lb > 63)
+    return 1 << 20;
+  int row[64];
+  for (size_t j = 0; j <= lb; j++)
+    row[j] = (int)j;
+  for (size_t i = 1; i <= la; i++) {
+    int diag = row[0];
+    row[0] = (int)i;
+    for (size_t j = 1; j <= lb; j++) {
+      int up = row[j];
+      int best = diag + (a[i - 1] != b[j - 1]);
+      if (up + 1 < best)
+        best = up + 1;
+      if (row[j - 1] + 1 < best)
+        best = row[j - 1] + 1;
+      row[j] = best;
+      diag = up;
+    }
+  }
+  return row[lb];
+}
+
+static int common_prefix(const char *a, const char *b) {
+  int k = 0;
+  while (a[k] && a[k] == b[k])
+    k++;
+  return k;
+}
+
+/* The candidate closest to `word` if it is close enough to be a likely typo;
+ * ties go to the longer common prefix (micro_step: micro_steps, not
+ * macro_step). */
+static const char *closest(const char *word, const char *const *cand, int n) {
+  const char *best = NULL;
+  int best_d = 1 << 20, best_pre = -1;
+  for (int i = 0; i < n; i++) {
+    int d = edit_distance(word, cand[i]), pre = common_prefix(word, cand[i]);
+    if (d < best_d || (d == best_d && pre > best_pre)) {
+      best_d = d;
+      best_pre = pre;
+      best = cand[i];
+    }
+  }
+  int len = (int)strlen(word);
+  int limit = len / 3 > 2 ? len / 3 : 2;
+  return best && best_d <= limit && best_d < len ? best : NULL;
+}
+
+/* "; did you mean 'x'?" or "; known: a, b, c" into buf. */
+static void suggest(char *buf, size_t len, const char *word,
+                    const char *const *cand, int n) {
+  const char *c = closest(word, cand, n);
+  if (c) {
+    mrvi_fmt(buf, len, "; did you mean '%s'?", c);
+    return;
+  }
+  size_t used = 0;
+  buf[0] = '\0';
+  for (int i = 0; i < n && used + 1 < len; i++) {
+    int w = snprintf(buf + used, len - used, "%s%s",
+                     i ? ", " : "; known: ", cand[i]);
+    if (w < 0)
+      break;
+    used += (size_t)w;
+  }
+  if (n == 0)
+    mrvi_fmt(buf, len, "; none defined");
+}
+
+/* ---------------------------------------------------------------------------
+ * Typed access to nodes
+ * ------------------------------------------------------------------------- */
+
+static const char *scalar0(struct fy_node *n) {
+  const char *s = fy_node_get_scalar0(n);
+  return s ? s : "";
+}
+
+/* YAML 1.2 core schema null: empty plain scalar, ~, null. */
+static int is_null(struct fy_node *n) {
+  if (!n)
+    return 1;
+  if (!fy_node_is_scalar(n) || fy_node_get_style(n) != FYNS_PLAIN)
+    return 0;
+  const char *s = scalar0(n);
+  return !*s || !strcmp(s, "~") || !strcmp(s, "null") || !strcmp(s, "Null") ||
+         !strcmp(s, "NULL");
+}
+
+/* What a node is, for type errors. */
+static void describe(struct fy_node *n, char *buf, size_t len) {
+  if (is_null(n))
+    mrvi_fmt(buf, len, "nothing");
+  else if (fy_node_is_mapping(n))
+    mrvi_fmt(buf, len, "a mapping");
+  else if (fy_node_is_sequence(n))
+    mrvi_fmt(buf, len, "a list");
+  else if (fy_node_get_style(n) == FYNS_PLAIN)
+    mrvi_fmt(buf, len, "'%.60s'", scalar0(n));
+  else
+    mrvi_fmt(buf, len, "the string \"%.60s\"", scalar0(n));
+}
+
+/* Pair of a mapping whose key is the scalar `key`, or NULL.  (libfyaml's
+ * lookup by string parses the key as YAML and may print diagnostics.) */
+static struct fy_node_pair *find_pair(struct fy_node *map, const char *key) {
+  size_t klen = strlen(key), len;
+  void *it = NULL;
+  struct fy_node_pair *p;
+  while ((p = fy_node_mapping_iterate(map, &it))) {
+    struct fy_node *k = fy_node_pair_key(p);
+    const char *s = fy_node_is_scalar(k) ? fy_node_get_scalar(k, &len) : NULL;
+    if (s && len == klen && !memcmp(s, key, len))
+      return p;
+  }
+  return NULL;
+}
+
+/* Value of `key` in a mapping, NULL if absent or null. */
+static struct fy_node *get(struct fy_node *map, const char *key) {
+  struct fy_node_pair *p = find_pair(map, key);
+  struct fy_node *v = p ? fy_node_pair_value(p) : NULL;
+  return is_null(v) ? NULL : v;
+}
+
+/* Required value of `key`; `where` names the mapping for the message. */
+static int need(loader *L, struct fy_node *map, const char *key,
+                const char *where, struct fy_node **out) {
+  struct fy_node_pair *p = find_pair(map, key);
+  if (!p)
+    return fail(L, map, "missing key '%s' in %s", key, where);
+  if (is_null(fy_node_pair_value(p)))
+    return fail(L, fy_node_pair_key(p), "key '%s' in %s has no value", key,
+                where);
+  *out = fy_node_pair_value(p);
+  return MRVI_OK;
+}
+
+static int want_mapping(loader *L, struct fy_node *n, const char *what) {
+  char got[96];
+  if (fy_node_is_mapping(n))
+    return MRVI_OK;
+  describe(n, got, sizeof got);
+  return fail(L, n, "%s must be a mapping, got %s", what, got);
+}
+
+static int want_list(loader *L, struct fy_node *n, const char *what) {
+  char got[96];
+  if (fy_node_is_sequence(n))
+    return MRVI_OK;
+  describe(n, got, sizeof got);
+  return fail(L, n, "%s must be a list, got %s", what, got);
+}
+
+/* A finite number (plain scalar). */
+static int as_number(loader *L, struct fy_node *n, const char *what,
+                     double *out) {
+  char got[96];
+  describe(n, got, sizeof got);
+  if (!fy_node_is_scalar(n) || fy_node_get_style(n) != FYNS_PLAIN || is_null(n))
+    return fail(L, n, "%s must be a number, got %s", what, got);
+  const char *s = scalar0(n);
+  const char *t = s + (*s == '+' || *s == '-');
+  if (!strcmp(t, ".inf") || !strcmp(t, ".Inf") || !strcmp(t, ".INF") ||
+      !strcmp(t, ".nan") || !strcmp(t, ".NaN") || !strcmp(t, ".NAN"))
+    return fail(L, n, "%s must be a finite number, got %s", what, s);
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  if (end == s || *end)
+    return fail(L, n, "%s must be a number, got %s", what, got);
+  if (!isfinite(v) || (errno == ERANGE && fabs(v) > 1.0))
+    return fail(L, n, "%s must be a finite number, got %s", what, s);
+  *out = v;
+  return MRVI_OK;
+}
+
+static int as_int(loader *L, struct fy_node *n, const char *what, int *out) {
+  double v;
+  int st = as_number(L, n, what, &v);
+  if (st)
+    return st;
+  if (v != floor(v) || fabs(v) > 1e9)
+    return fail(L, n, "%s must be an integer, got %s", what, scalar0(n));
+  *out = (int)v;
+  return MRVI_OK;
+}
+
+static int as_bool(loader *L, struct fy_node *n, const char *what, int *out) {
+  static const char *const yes[] = {"true", "True", "TRUE"};
+  static const char *const no[] = {"false", "False", "FALSE"};
+  if (fy_node_is_scalar(n) && fy_node_get_style(n) == FYNS_PLAIN) {
+    const char *s = scalar0(n);
+    for (int i = 0; i < 3; i++) {
+      if (!strcmp(s, yes[i]) || !strcmp(s, no[i])) {
+        *out = !strcmp(s, yes[i]);
+        return MRVI_OK;
+      }
+    }
+  }
+  char got[96];
+  describe(n, got, sizeof got);
+  return fail(L, n, "%s must be true or false, got %s", what, got);
+}
+
+/* A non-empty string (any scalar style). */
+static int as_string(loader *L, struct fy_node *n, const char *what,
+                     const char **out) {
+  char got[96];
+  if (!fy_node_is_scalar(n) || is_null(n) || !*scalar0(n)) {
+    describe(n, got, sizeof got);
+    return fail(L, n, "%s must be a string, got %s", what, got);
+  }
+  *out = scalar0(n);
+  return MRVI_OK;
+}
+
+/* One of a list of names; the message lists them (or suggests one). */
+static int as_choice(loader *L, struct fy_node *n, const char *what,
+                     const char *const *names, int count, int *out) {
+  const char *s;
+  int st = as_string(L, n, what, &s);
+  if (st)
+    return st;
+  for (int i = 0; i < count; i++) {
+    if (!strcmp(s, names[i])) {
+      *out = i;
+      return MRVI_OK;
+    }
+  }
+  char hint[512];
+  suggest(hint, sizeof hint, s, names, count);
+  return fail(L, n, "unknown %s '%s'%s", what, s, hint);
+}
+
+/* A list of exactly `dim` finite numbers (a bare number when dim is 1). */
+static int as_vector(loader *L, struct fy_node *n, const char *what, int dim,
+                     double *out) {
+  char item[80];
+  if (dim == 1 && fy_node_is_scalar(n))
+    return as_number(L, n, what, out);
+  int st = want_list(L, n, what);
+  if (st)
+    return st;
+  int count = fy_node_sequence_item_count(n);
+  if (count != dim)
+    return fail(L, n, "%s has %d entries, expected %d (dimension)", what, count,
+                dim);
+  for (int i = 0; i < dim; i++) {
+    mrvi_fmt(item, sizeof item, "%s[%d]", what, i);
+    st = as_number(L, fy_node_sequence_get_by_index(n, i), item, out + i);
+    if (st)
+      return st;
+  }
+  return MRVI_OK;
+}
+
+/* Every key of `map` must be in keys[0..n) or extra[0..n_extra). */
+static int check_keys(loader *L, struct fy_node *map, const char *where,
+                      const char *const *keys, int n, const char *const *extra,
+                      int n_extra) {
+  const char *all[MAX_KEYS];
+  int n_all = 0;
+  for (int i = 0; i < n && n_all < MAX_KEYS; i++)
+    all[n_all++] = keys[i];
+  for (int i = 0; i < n_extra && n_all < MAX_KEYS; i++)
+    all[n_all++] = extra[i];
+  void *it = NULL;
+  struct fy_node_pair *p;
+  while ((p = fy_node_mapping_iterate(map, &it))) {
+    struct fy_node *k = fy_node_pair_key(p);
+    if (!fy_node_is_scalar(k) || is_null(k))
+      return fail(L, k ? k : map, "keys in %s must be names", where);
+    const char *s = scalar0(k);
+    int known = 0;
+    for (int i = 0; i < n_all && !known; i++)
+      known = !strcmp(s, all[i]);
+    if (!known) {
+      char hint[512];
+      suggest(hint, sizeof hint, s, all, n_all);
+      return fail(L, k, "unknown key '%s' in %s%s", s, where, hint);
+    }
+  }
+  return MRVI_OK;
+}
+
+/* ---------------------------------------------------------------------------
+ * Overrides: "dotted.path=value" applied to the document tree
+ * ------------------------------------------------------------------------- */
+
+static int remember(loader *L, struct fy_node *n, const char *text) {
+  if (L->n_ov == L->cap_ov) {
+    int cap = L->cap_ov ? 2 * L->cap_ov : 8;
+    override_node *ov = realloc(L->ov, (size_t)cap * sizeof *ov);
+    if (!ov)
+      return MRVI_ENOMEM;
+    L->ov = ov;
+    L->cap_ov = cap;
+  }
+  L->ov[L->n_ov].node = n;
+  L->ov[L->n_ov].text = text;
+  L->n_ov++;
+  return MRVI_OK;
+}
+
+static int set_error(loader *L, const char *text, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static int set_error(loader *L, const char *text, const char *fmt, ...) {
+  char buf[512];
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(buf, sizeof buf, fmt, ap);
+  va_end(ap);
+  mrvi_fmt(L->msg, L->len, "--set %s: %s", text, buf);
+  return MRVI_EPARSE;
+}
+
+/* Pair of `map` whose key is the longest run of segments seg[0..k) joined by
+ * dots (coordinate names such as m1.x contain dots); *used = k. */
+static struct fy_node_pair *
+lookup_segments(struct fy_node *map, char *const *seg, int n_seg, int *used) {
+  char key[512];
+  for (int k = n_seg; k >= 1; k--) {
+    size_t off = 0;
+    int ok = 1;
+    for (int i = 0; i < k && ok; i++) {
+      int w =
+          snprintf(key + off, sizeof key - off, "%s%s", i ? "." : "", seg[i]);
+      ok = w >= 0 && (size_t)w < sizeof key - off;
+      off += ok ? (size_t)w : 0;
+    }
+    struct fy_node_pair *p = ok ? find_pair(map, key) : NULL;
+    if (p) {
+      *used = k;
+      return p;
+    }
+  }
+  return NULL;
+}
+
+/* The segments seg[0..upto) joined for messages. */
+static void path_prefix(char *buf, size_t len, char *const *seg, int upto) {
+  size_t off = 0;
+  buf[0] = '\0';
+  for (int i = 0; i < upto; i++) {
+    int w = snprintf(buf + off, len - off, "%s%s", i ? "." : "", seg[i]);
+    if (w < 0 || (size_t)w >= len - off)
+      return;
+    off += (size_t)w;
+  }
+}
+
+/* Note that `old` (about to be replaced by `v`) was a scalar of the input
+ * text, or clear splice_ok when the change cannot be spliced. */
+static int note_splice(loader *L, struct fy_node *old, struct fy_node *v,
+                       const char *value) {
+  for (int i = 0; i < L->n_sp; i++)
+    if (L->sp[i].node == old) { /* the same key set twice */
+      L->sp[i].node = v;
+      L->sp[i].value = value;
+      return MRVI_OK;
+    }
+  struct fy_token *t = fy_node_get_scalar_token(old);
+  const struct fy_mark *a = t ? fy_token_start_mark(t) : NULL;
+  const struct fy_mark *b = t ? fy_token_end_mark(t) : NULL;
+  /* Plain scalars only: a quoted scalar's token excludes its quotes. */
+  if (!a || !b || fy_node_get_style(old) != FYNS_PLAIN || override_of(L, old) ||
+      b->input_pos < a->input_pos) {
+    L->splice_ok = 0;
+    return MRVI_OK;
+  }
+  if (L->n_sp == L->cap_sp) {
+    int cap = L->cap_sp ? 2 * L->cap_sp : 8;
+    splice *sp = realloc(L->sp, (size_t)cap * sizeof *sp);
+    if (!sp)
+      return MRVI_ENOMEM;
+    L->sp = sp;
+    L->cap_sp = cap;
+  }
+  L->sp[L->n_sp++] = (splice){a->input_pos, b->input_pos, value, v};
+  return MRVI_OK;
+}
+
+/* Parse `value` as a YAML node of the document. */
+static int build_value(loader *L, const char *text, const char *value,
+                       struct fy_node **out) {
+  if (!*value)
+    return set_error(L, text, "empty value");
+  *out = fy_node_build_from_string(L->doc, value, FY_NT);
+  if (*out)
+    return MRVI_OK;
+  void *it = NULL;
+  struct fy_diag_error *e, *last = NULL;
+  while ((e = fy_diag_errors_iterate(L->diag, &it)))
+    last = e;
+  return set_error(L, text, "invalid value: %s",
+                   last && last->msg ? last->msg : "not a YAML value");
+}
+
+/* Replace `old` (the value of pair p, or else an item of the list seq) by
+ * the override's value. */
+static int replace_value(loader *L, const char *text, const char *value,
+                         struct fy_node_pair *p, struct fy_node *seq,
+                         struct fy_node *old) {
+  struct fy_node *v;
+  int st = build_value(L, text, value, &v);
+  if (st)
+    return st;
+  if (note_splice(L, old, v, value)) {
+    fy_node_free(v);
+    return fail_nomem(L);
+  }
+  if (p) {
+    if (fy_node_pair_set_value(p, v)) {
+      fy_node_free(v);
+      return fail_nomem(L);
+    }
+  } else {
+    if (fy_node_sequence_insert_before(seq, old, v) ||
+        !fy_node_sequence_remove(seq, old)) {
+      fy_node_free(v);
+      return fail_nomem(L);
+    }
+    fy_node_free(old);
+  }
+  return remember(L, v, text) ? fail_nomem(L) : MRVI_OK;
+}
+
+/* Add `key` to a mapping: with the override's value when `value` is given,
+ * else an empty mapping (*out) to continue the path in. */
+static int add_key(loader *L, const char *text, struct fy_node *map,
+                   const char *key, const char *value, struct fy_node **out) {
+  struct fy_node *k = fy_node_create_scalar_copy(L->doc, key, FY_NT);
+  struct fy_node *v = NULL;
+  int st = value ? build_value(L, text, value, &v) : MRVI_OK;
+  if (!st && !value)
+    v = fy_node_create_mapping(L->doc);
+  if (st || !k || !v || fy_node_mapping_append(map, k, v)) {
+    fy_node_free(k);
+    fy_node_free(v);
+    return st ? st : fail_nomem(L);
+  }
+  L->splice_ok = 0; /* the text has no place for a new key */
+  if (remember(L, k, text) || remember(L, v, text))
+    return fail_nomem(L);
+  *out = v;
+  return MRVI_OK;
+}
+
+/* Walk the dotted path seg[0..n_seg) from the root: list items by index,
+ * mapping keys by name (missing keys are created), then set the value. */
+static int set_path(loader *L, const char *text, const char *value,
+                    char *const *seg, int n_seg) {
+  struct fy_node *node = fy_document_root(L->doc);
+  char where[512], parent[512];
+  if (!node || !fy_node_is_mapping(node))
+    return set_error(L, text, "the document is not a mapping");
+  for (int i = 0; i < n_seg;) {
+    path_prefix(where, sizeof where, seg, i + 1);
+    path_prefix(parent, sizeof parent, seg, i);
+    if (fy_node_is_sequence(node)) {
+      char *end;
+      long idx = strtol(seg[i], &end, 10);
+      int count = fy_node_sequence_item_count(node);
+      if (*end || end == seg[i] || idx < 0 || idx >= count)
+        return set_error(L, text,
+                         "no such key '%s' (%s has %d item%s, index from 0)",
+                         where, parent, count, count == 1 ? "" : "s");
+      struct fy_node *item = fy_node_sequence_get_by_index(node, (int)idx);
+      if (i == n_seg - 1)
+        return replace_value(L, text, value, NULL, node, item);
+      node = item;
+      i++;
+    } else if (fy_node_is_mapping(node)) {
+      int used = 0;
+      struct fy_node_pair *p = lookup_segments(node, seg + i, n_seg - i, &used);
+      if (!p) {
+        int last = i == n_seg - 1;
+        int st = add_key(L, text, node, seg[i], last ? value : NULL, &node);
+        if (st || last)
+          return st;
+        i++;
+        continue;
+      }
+      if (i + used == n_seg)
+        return replace_value(L, text, value, p, NULL, fy_node_pair_value(p));
+      node = fy_node_pair_value(p);
+      i += used;
+      if (is_null(node)) {
+        /* `integrator:` with nothing below: make it a mapping. */
+        struct fy_node *m = fy_node_create_mapping(L->doc);
+        if (!m || fy_node_pair_set_value(p, m)) {
+          fy_node_free(m);
+          return fail_nomem(L);
+        }
+        L->splice_ok = 0;
+        if (remember(L, m, text))
+          return fail_nomem(L);
+        node = m;
+      }
+    } else {
+      return set_error(L, text,
+                       "no such key '%s' ('%s' is a value, not a mapping or "
+                       "list)",
+                       where, parent);
+    }
+  }
+  return MRVI_OK;
+}
+
+/* Apply one override "dotted.key=value" to the document. */
+static int apply_override(loader *L, const char *text) {
+  const char *eq = strchr(text, '=');
+  if (!eq || eq == text)
+    return set_error(L, text, "expected KEY=VALUE");
+  /* Split the key into segments: one copy, dots replaced by NULs. */
+  size_t klen = (size_t)(eq - text);
+  char *key = malloc(klen + 1);
+  char **seg = malloc((klen + 1) * sizeof *seg);
+  int st = MRVI_OK, n_seg = 0;
+  if (!key || !seg) {
+    free(key);
+    free(seg);
+    return fail_nomem(L);
+  }
+  memcpy(key, text, klen);
+  key[klen] = '\0';
+  seg[n_seg++] = key;
+  for (char *c = key; *c; c++)
+    if (*c == '.') {
+      *c = '\0';
+      seg[n_seg++] = c + 1;
+    }
+  for (int i = 0; i < n_seg && !st; i++)
+    if (!*seg[i])
+      st = set_error(L, text, "empty component in key path");
+  if (!st)
+    st = set_path(L, text, eq + 1, seg, n_seg);
+  free(seg);
+  free(key);
+  return st;
+}
+
+/* ---------------------------------------------------------------------------
+ * Interpretation: names
+ * ------------------------------------------------------------------------- */
+
+static const named *find_named(const named *tab, int n, const char *name) {
+  for (int i = 0; i < n; i++)
+    if (!strcmp(tab[i].name, name))
+      return &tab[i];
+  return NULL;
+}
+
+/* Unknown name with a suggestion among the defined ones. */
+static int fail_unknown_name(loader *L, struct fy_node *at, const char *kind,
+                             const char *name, const named *tab, int n) {
+  const char **cand = malloc((size_t)(n ? n : 1) * sizeof *cand);
+  if (!cand)
+    return fail_nomem(L);
+  for (int i = 0; i < n; i++)
+    cand[i] = tab[i].name;
+  const char *c = closest(name, cand, n);
+  free(cand);
+  if (c)
+    return fail(L, at, "unknown %s '%s'; did you mean '%s'?", kind, name, c);
+  return fail(L, at, "unknown %s '%s'", kind, name);
+}
+
+/* Name of a new coordinate or particle, rejecting duplicates. */
+static int new_name(loader *L, struct fy_node *item, const char *where,
+                    const char *kind, const named *tab, int n,
+                    struct fy_node **name_node, const char **name) {
+  int st = need(L, item, "name", where, name_node);
+  if (st || (st = as_string(L, *name_node, "name", name)))
+    return st;
+  const named *prev = find_named(tab, n, *name);
+  int line, col;
+  if (prev && node_position(prev->node, &line, &col))
+    return fail(L, *name_node,
+                "duplicate %s name '%s' (first defined at "
+                "line %d)",
+                kind, *name, line);
+  if (prev)
+    return fail(L, *name_node, "duplicate %s name '%s'", kind, *name);
+  return MRVI_OK;
+}
+
+static int as_rate(loader *L, struct fy_node *map, const char *key,
+                   mrvi_rate *out) {
+  static const char *const rates[] = {"slow", "fast"};
+  struct fy_node *n = get(map, key);
+  int r = 0;
+  if (n) {
+    int st = as_choice(L, n, key, rates, 2, &r);
+    if (st)
+      return st;
+  }
+  *out = r ? MRVI_FAST : MRVI_SLOW;
+  return MRVI_OK;
+}
+
+/* Optional number with a default. */
+static int opt_number(loader *L, struct fy_node *map, const char *key,
+                      double def, double *out) {
+  struct fy_node *n = get(map, key);
+  *out = def;
+  return n ? as_number(L, n, key, out) : MRVI_OK;
+}
+
+/* ---------------------------------------------------------------------------
+ * Interpretation: model
+ * ------------------------------------------------------------------------- */
+
+static const char *const top_keys[] = {"name",      "dimension",  "gravity",
+                                       "particles", "springs",    "coordinates",
+                                       "terms",     "integrator", "output"};
+static const char *const coordinate_keys[] = {"name", "mass", "position",
+                                              "velocity", "rate"};
+static const char *const particle_keys[] = {"name", "mass", "position",
+                                            "velocity", "rate"};
+static const char *const spring_keys[] = {"between", "anchor", "law",
+                                          "rest_length", "potential"};
+static const char *const term_keys[] = {"combination", "offset", "law",
+                                        "potential"};
+static const char *const integrator_keys[] = {
+    "scheme", "slow", "fast", "macro_step", "micro_steps", "t_end", "newton"};
+static const char *const slow_rule_keys[] = {"alpha", "gamma", "grid"};
+static const char *const fast_rule_keys[] = {"alpha", "gamma"};
+static const char *const newton_keys[] = {"tolerance", "max_iterations"};
+static const char *const output_keys[] = {"file", "every", "micro"};
+
+static int load_coordinates(loader *L, struct fy_node *list) {
+  int st = want_list(L, list, "coordinates");
+  if (st)
+    return st;
+  int count = fy_node_sequence_item_count(list);
+  L->coords = calloc((size_t)count + 1, sizeof *L->coords);
+  if (!L->coords)
+    return fail_nomem(L);
+  for (int i = 0; i < count; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *nn, *v;
+    char where[64];
+    mrvi_fmt(where, sizeof where, "coordinates.%d", i);
+    const char *name;
+    double mass, q0, v0;
+    mrvi_rate rate;
+    if ((st = want_mapping(L, item, where)) ||
+        (st = check_keys(L, item, where, coordinate_keys,
+                         COUNT(coordinate_keys), NULL, 0)) ||
+        (st = new_name(L, item, where, "coordinate", L->coords, L->n_coords,
+                       &nn, &name)) ||
+        (st = need(L, item, "mass", where, &v)) ||
+        (st = as_number(L, v, "mass", &mass)))
+      return st;
+    if (mass <= 0)
+      return fail(L, v, "mass must be > 0, got %s", scalar0(v));
+    if ((st = need(L, item, "position", where, &v)) ||
+        (st = as_number(L, v, "position", &q0)) ||
+        (st = opt_number(L, item, "velocity", 0.0, &v0)) ||
+        (st = as_rate(L, item, "rate", &rate)))
+      return st;
+    int idx =
+        mrvi_model_add_coordinate(L->sys->model, name, mass, rate, q0, v0);
+    if (idx < 0)
+      return fail_model(L, item, idx);
+    L->coords[L->n_coords++] = (named){name, nn, idx};
+  }
+  return MRVI_OK;
+}
+
+static int load_particles(loader *L, struct fy_node *list, int dim) {
+  int st = want_list(L, list, "particles");
+  if (st)
+    return st;
+  int count = fy_node_sequence_item_count(list);
+  L->parts = calloc((size_t)count + 1, sizeof *L->parts);
+  if (!L->parts)
+    return fail_nomem(L);
+  for (int i = 0; i < count; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *nn, *v;
+    char where[64];
+    mrvi_fmt(where, sizeof where, "particles.%d", i);
+    const char *name;
+    double mass, x0[3] = {0, 0, 0}, v0[3] = {0, 0, 0};
+    mrvi_rate rate;
+    if ((st = want_mapping(L, item, where)) ||
+        (st = check_keys(L, item, where, particle_keys, COUNT(particle_keys),
+                         NULL, 0)) ||
+        (st = new_name(L, item, where, "particle", L->parts, L->n_parts, &nn,
+                       &name)) ||
+        (st = need(L, item, "mass", where, &v)) ||
+        (st = as_number(L, v, "mass", &mass)))
+      return st;
+    if (mass <= 0)
+      return fail(L, v, "mass must be > 0, got %s", scalar0(v));
+    if ((st = need(L, item, "position", where, &v)) ||
+        (st = as_vector(L, v, "position", dim, x0)))
+      return st;
+    if ((v = get(item, "velocity")) &&
+        (st = as_vector(L, v, "velocity", dim, v0)))
+      return st;
+    if ((st = as_rate(L, item, "rate", &rate)))
+      return st;
+    int idx = mrvi_model_add_particle(L->sys->model, name, mass, rate, x0, v0);
+    if (idx < 0)
+      return fail_model(L, item, idx);
+    L->parts[L->n_parts++] = (named){name, nn, idx};
+  }
+  return MRVI_OK;
+}
+
+/* The law named by `law:` of an element (NULL if the key is absent). */
+static int find_law(loader *L, struct fy_node *item, const mrvi_law **law) {
+  struct fy_node *n = get(item, "law");
+  const char *name;
+  int st;
+  *law = NULL;
+  if (!n)
+    return MRVI_OK;
+  if ((st = as_string(L, n, "law", &name)))
+    return st;
+  if ((*law = mrvi_law_find(name)))
+    return MRVI_OK;
+  const char *names[64];
+  int count = mrvi_law_count() < 64 ? mrvi_law_count() : 64;
+  for (int i = 0; i < count; i++)
+    names[i] = mrvi_law_get(i)->name;
+  char hint[512];
+  suggest(hint, sizeof hint, name, names, count);
+  return fail(L, n, "unknown law '%s'%s", name, hint);
+}
+
+/* Keys of an element: its own plus the law's parameters (of every law when
+ * `law:` is missing, so that a misspelt `law` key is still found). */
+static int check_element_keys(loader *L, struct fy_node *item,
+                              const char *where, const char *const *keys,
+                              int n_keys, const mrvi_law *law) {
+  const char *params[MAX_KEYS];
+  int n = 0;
+  for (int i = 0; i < mrvi_law_count(); i++) {
+    const mrvi_law *l = mrvi_law_get(i);
+    if (law && l != law)
+      continue;
+    for (int j = 0; j < l->n_params && n + n_keys < MAX_KEYS; j++) {
+      int dup = 0;
+      for (int k = 0; k < n && !dup; k++)
+        dup = !strcmp(params[k], l->param_names[j]);
+      if (!dup)
+        params[n++] = l->param_names[j];
+    }
+  }
+  return check_keys(L, item, where, keys, n_keys, params, n);
+}
+
+/* Law and parameters of an element (the law's parameter names are keys). */
+static int load_law(loader *L, struct fy_node *item, const char *where,
+                    const char *const *keys, int n_keys, const mrvi_law **law,
+                    double *params) {
+  struct fy_node *n;
+  int st;
+  if ((st = find_law(L, item, law)) ||
+      (st = check_element_keys(L, item, where, keys, n_keys, *law)) ||
+      (st = need(L, item, "law", where, &n)))
+    return st;
+  for (int i = 0; i < (*law)->n_params; i++) {
+    const char *pname = (*law)->param_names[i];
+    struct fy_node_pair *p = find_pair(item, pname);
+    if (!p)
+      return fail(L, item, "missing key '%s' in %s (parameter of law '%s')",
+                  pname, where, (*law)->name);
+    if ((st = need(L, item, pname, where, &n)) ||
+        (st = as_number(L, n, pname, &params[i])))
+      return st;
+  }
+  return MRVI_OK;
+}
+
+static int load_springs(loader *L, struct fy_node *list, int dim) {
+  int st = want_list(L, list, "springs");
+  if (st)
+    return st;
+  int count = fy_node_sequence_item_count(list);
+  for (int i = 0; i < count; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *between,
+                   *anchor_node;
+    char where[64];
+    mrvi_fmt(where, sizeof where, "springs.%d", i);
+    const mrvi_law *law = NULL;
+    double params[MRVI_LAW_MAX_PARAMS] = {0}, rest, anchor[3] = {0, 0, 0};
+    mrvi_rate potential;
+    if ((st = want_mapping(L, item, where)) ||
+        (st = load_law(L, item, where, spring_keys, COUNT(spring_keys), &law,
+                       params)) ||
+        (st = need(L, item, "between", where, &between)) ||
+        (st = want_list(L, between, "between")))
+      return st;
+    int ends = fy_node_sequence_item_count(between);
+    if (ends != 1 && ends != 2)
+      return fail(L, between,
+                  "between must name one particle (with "
+                  "anchor) or two, got %d",
+                  ends);
+    int pi[2];
+    for (int e = 0; e < ends; e++) {
+      struct fy_node *en = fy_node_sequence_get_by_index(between, e);
+      const char *pname;
+      if ((st = as_string(L, en, "between", &pname)))
+        return st;
+      const named *p = find_named(L->parts, L->n_parts, pname);
+      if (!p)
+        return fail_unknown_name(L, en, "particle", pname, L->parts,
+                                 L->n_parts);
+      pi[e] = p->index;
+    }
+    anchor_node = get(item, "anchor");
+    if (ends == 2 && anchor_node)
+      return fail(L, anchor_node,
+                  "anchor given for a spring between two "
+                  "particles");
+    if (ends == 1 && !anchor_node)
+      return fail(L, between, "a spring on one particle needs an anchor");
+    if ((anchor_node &&
+         (st = as_vector(L, anchor_node, "anchor", dim, anchor))) ||
+        (st = opt_number(L, item, "rest_length", 0.0, &rest)) ||
+        (st = as_rate(L, item, "potential", &potential)))
+      return st;
+    int e = ends == 2
+                ? mrvi_model_add_spring(L->sys->model, potential, pi[0], pi[1],
+                                        law->name, params, rest)
+                : mrvi_model_add_anchor_spring(L->sys->model, potential, pi[0],
+                                               anchor, law->name, params, rest);
+    if (e < 0)
+      return fail_model(L, item, e);
+  }
+  return MRVI_OK;
+}
+
+static int load_terms(loader *L, struct fy_node *list) {
+  int st = want_list(L, list, "terms");
+  if (st)
+    return st;
+  int count = fy_node_sequence_item_count(list);
+  int n = mrvi_model_n(L->sys->model);
+  int *coords = malloc((size_t)(n + 1) * sizeof *coords);
+  double *coef = malloc((size_t)(n + 1) * sizeof *coef);
+  const char **names = malloc((size_t)(n + 1) * sizeof *names);
+  if (!coords || !coef || !names) {
+    st = fail_nomem(L);
+    goto done;
+  }
+  for (int j = 0; j < n; j++)
+    names[j] = mrvi_model_coordinate_name(L->sys->model, j);
+  for (int i = 0; i < count && !st; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *comb;
+    char where[64];
+    mrvi_fmt(where, sizeof where, "terms.%d", i);
+    const mrvi_law *law = NULL;
+    double params[MRVI_LAW_MAX_PARAMS] = {0}, offset;
+    mrvi_rate potential;
+    if ((st = want_mapping(L, item, where)) ||
+        (st = load_law(L, item, where, term_keys, COUNT(term_keys), &law,
+                       params)) ||
+        (st = need(L, item, "combination", where, &comb)) ||
+        (st = want_mapping(L, comb, "combination")))
+      break;
+    /* combination: {coordinate name: coefficient, ...} */
+    int k = 0;
+    void *it = NULL;
+    struct fy_node_pair *p;
+    while (!st && (p = fy_node_mapping_iterate(comb, &it))) {
+      struct fy_node *key = fy_node_pair_key(p);
+      const char *cname;
+      if ((st = as_string(L, key, "coordinate name", &cname)))
+        break;
+      int idx = -1;
+      for (int j = 0; j < n && idx < 0; j++)
+        if (!strcmp(names[j], cname))
+          idx = j;
+      if (idx < 0) {
+        const char *c = closest(cname, names, n);
+        st = c ? fail(L, key, "unknown coordinate '%s'; did you mean '%s'?",
+                      cname, c)
+               : fail(L, key, "unknown coordinate '%s'", cname);
+        break;
+      }
+      char what[128];
+      mrvi_fmt(what, sizeof what, "coefficient of %s", cname);
+      if ((st = as_number(L, fy_node_pair_value(p), what, &coef[k])))
+        break;
+      coords[k++] = idx;
+    }
+    if (st)
+      break;
+    if (k == 0) {
+      st = fail(L, comb, "combination is empty");
+      break;
+    }
+    if ((st = opt_number(L, item, "offset", 0.0, &offset)) ||
+        (st = as_rate(L, item, "potential", &potential)))
+      break;
+    int e = mrvi_model_add_term(L->sys->model, potential, k, coords, coef,
+                                offset, law->name, params);
+    if (e < 0)
+      st = fail_model(L, item, e);
+  }
+done:
+  free(coords);
+  free(coef);
+  free(names);
+  return st;
+}
+
+static int load_model(loader *L, struct fy_node *root) {
+  mrvi_model *m = L->sys->model;
+  struct fy_node *n, *particles = get(root, "particles");
+  struct fy_node *gravity = get(root, "gravity");
+  int st, dim = 0;
+  if ((st = mrvi_model_set_name(m, L->sys->name)))
+    return fail_model(L, get(root, "name"), st);
+  if ((n = get(root, "dimension"))) {
+    if ((st = as_int(L, n, "dimension", &dim)))
+      return st;
+    if (dim < 1 || dim > 3)
+      return fail(L, n, "dimension must be 1, 2 or 3, got %d", dim);
+    if ((st = mrvi_model_set_dimension(m, dim)))
+      return fail_model(L, n, st);
+  } else if (particles || gravity) {
+    return fail(L, root, "missing key 'dimension' (needed by %s)",
+                particles ? "particles" : "gravity");
+  }
+  /* Model order: coordinates first, then particles as declared. */
+  if ((n = get(root, "coordinates")) && (st = load_coordinates(L, n)))
+    return st;
+  if (particles && (st = load_particles(L, particles, dim)))
+    return st;
+  if (mrvi_model_n(m) == 0)
+    return fail(L, root,
+                "the system has no coordinates: add 'coordinates' "
+                "or 'particles'");
+  if (gravity) {
+    double g[3] = {0, 0, 0};
+    if ((st = as_vector(L, gravity, "gravity", dim, g)))
+      return st;
+    if ((st = mrvi_model_set_gravity(m, g)))
+      return fail_model(L, gravity, st);
+  }
+  if ((n = get(root, "springs")) && (st = load_springs(L, n, dim)))
+    return st;
+  if ((n = get(root, "terms")) && (st = load_terms(L, n)))
+    return st;
+  return MRVI_OK;
+}
+
+/* ---------------------------------------------------------------------------
+ * Interpretation: integrator settings and output
+ * ------------------------------------------------------------------------- */
+
+/* alpha and gamma of one rule, each in [0, 1]. */
+static int load_rule(loader *L, struct fy_node *map, const char *where,
+                     mrvi_rule *r) {
+  static const char *const keys[] = {"alpha", "gamma"};
+  double *val[] = {&r->alpha, &r->gamma};
+  for (int i = 0; i < 2; i++) {
+    struct fy_node *n = get(map, keys[i]);
+    char what[64];
+    mrvi_fmt(what, sizeof what, "%s.%s", where, keys[i]);
+    if (!n)
+      continue;
+    int st = as_number(L, n, what, val[i]);
+    if (st)
+      return st;
+    if (*val[i] < 0 || *val[i] > 1)
+      return fail(L, n, "%s must be in [0, 1], got %s", what, scalar0(n));
+  }
+  return MRVI_OK;
+}
+
+static int load_integrator(loader *L, struct fy_node *in) {
+  mrvi_settings *s = &L->sys->settings;
+  struct fy_node *n, *dT_node, *t_node;
+  int st;
+  if ((st = want_mapping(L, in, "integrator")) ||
+      (st = check_keys(L, in, "integrator", integrator_keys,
+                       COUNT(integrator_keys), NULL, 0)))
+    return st;
+  /* The scheme sets both rules; slow/fast then override parts of them. */
+  if ((n = get(in, "scheme"))) {
+    const char *const *names = mrvi_scheme_names();
+    int count = 0, which;
+    while (names[count])
+      count++;
+    if ((st = as_choice(L, n, "scheme", names, count, &which)))
+      return st;
+    if ((st = mrvi_settings_set_scheme(s, names[which])))
+      return fail(L, n, "cannot set scheme '%s'", names[which]);
+  }
+  if ((n = get(in, "slow"))) {
+    static const char *const grids[] = {"micro", "macro"};
+    struct fy_node *g;
+    int grid;
+    if ((st = want_mapping(L, n, "integrator.slow")) ||
+        (st = check_keys(L, n, "integrator.slow", slow_rule_keys,
+                         COUNT(slow_rule_keys), NULL, 0)) ||
+        (st = load_rule(L, n, "integrator.slow", &s->slow)))
+      return st;
+    if ((g = get(n, "grid"))) {
+      if ((st = as_choice(L, g, "grid", grids, 2, &grid)))
+        return st;
+      s->slow_grid = grid ? MRVI_GRID_MACRO : MRVI_GRID_MICRO;
+    }
+  }
+  if ((n = get(in, "fast")) &&
+      ((st = want_mapping(L, n, "integrator.fast")) ||
+       (st = check_keys(L, n, "integrator.fast", fast_rule_keys,
+                        COUNT(fast_rule_keys), NULL, 0)) ||
+       (st = load_rule(L, n, "integrator.fast", &s->fast))))
+    return st;
+  if ((dT_node = get(in, "macro_step"))) {
+    if ((st = as_number(L, dT_node, "macro_step", &s->macro_step)))
+      return st;
+    if (s->macro_step <= 0)
+      return fail(L, dT_node, "macro_step must be > 0, got %s",
+                  scalar0(dT_node));
+  }
+  if ((n = get(in, "micro_steps"))) {
+    if ((st = as_int(L, n, "micro_steps", &s->micro_steps)))
+      return st;
+    if (s->micro_steps < 1)
+      return fail(L, n, "micro_steps must be >= 1, got %d", s->micro_steps);
+  }
+  if ((t_node = get(in, "t_end")) &&
+      (st = as_number(L, t_node, "t_end", &s->t_end)))
+    return st;
+  if (s->t_end < s->macro_step)
+    return fail(L, t_node ? t_node : dT_node,
+                "t_end (%g) must be >= macro_step (%g)", s->t_end,
+                s->macro_step);
+  if ((n = get(in, "newton"))) {
+    struct fy_node *v;
+    if ((st = want_mapping(L, n, "integrator.newton")) ||
+        (st = check_keys(L, n, "integrator.newton", newton_keys,
+                         COUNT(newton_keys), NULL, 0)))
+      return st;
+    if ((v = get(n, "tolerance"))) {
+      if ((st = as_number(L, v, "tolerance", &s->newton_tol)))
+        return st;
+      if (s->newton_tol <= 0)
+        return fail(L, v, "tolerance must be > 0, got %s", scalar0(v));
+    }
+    if ((v = get(n, "max_iterations"))) {
+      if ((st = as_int(L, v, "max_iterations", &s->newton_max_iter)))
+        return st;
+      if (s->newton_max_iter < 1)
+        return fail(L, v, "max_iterations must be >= 1, got %d",
+                    s->newton_max_iter);
+    }
+  }
+  return MRVI_OK;
+}
+
+static int load_output(loader *L, struct fy_node *out) {
+  mrvi_system *sys = L->sys;
+  struct fy_node *n;
+  const char *file;
+  int st;
+  if ((st = want_mapping(L, out, "output")) ||
+      (st = check_keys(L, out, "output", output_keys, COUNT(output_keys), NULL,
+                       0)))
+    return st;
+  if ((n = get(out, "file"))) {
+    if ((st = as_string(L, n, "file", &file)))
+      return st;
+    char *copy = strdup(file);
+    if (!copy)
+      return fail_nomem(L);
+    free(sys->output_file);
+    sys->output_file = copy;
+  }
+  if ((n = get(out, "every"))) {
+    if ((st = as_int(L, n, "every", &sys->output_every)))
+      return st;
+    if (sys->output_every < 1)
+      return fail(L, n, "every must be >= 1, got %d", sys->output_every);
+  }
+  if ((n = get(out, "micro")) &&
+      (st = as_bool(L, n, "micro", &sys->output_micro)))
+    return st;
+  return MRVI_OK;
+}
+
+static int interpret(loader *L) {
+  mrvi_system *sys = L->sys;
+  struct fy_node *root = fy_document_root(L->doc), *n;
+  int st;
+  if (!root || is_null(root))
+    return fail(L, NULL, "the description is empty");
+  if ((st = want_mapping(L, root, "the description")) ||
+      (st = check_keys(L, root, "the top level", top_keys, COUNT(top_keys),
+                       NULL, 0)))
+    return st;
+  const char *name;
+  if ((st = need(L, root, "name", "the top level", &n)) ||
+      (st = as_string(L, n, "name", &name)))
+    return st;
+  sys->name = strdup(name);
+  sys->model = mrvi_model_create();
+  mrvi_settings_default(&sys->settings);
+  sys->output_every = 1;
+  sys->output_micro = 1;
+  size_t flen = strlen(name) + 4;
+  sys->output_file = malloc(flen);
+  if (!sys->name || !sys->model || !sys->output_file)
+    return fail_nomem(L);
+  mrvi_fmt(sys->output_file, flen, "%s.h5", name);
+
+  if ((st = load_model(L, root)))
+    return st;
+  if ((n = get(root, "integrator")) && (st = load_integrator(L, n)))
+    return st;
+  char why[256];
+  if (mrvi_settings_check(&sys->settings, why, sizeof why))
+    return fail(L, n ? n : root, "%s", why);
+  if ((n = get(root, "output")) && (st = load_output(L, n)))
+    return st;
+  return MRVI_OK;
+}
+
+/* ---------------------------------------------------------------------------
+ * Entry points
+ * ------------------------------------------------------------------------- */
+
+static int cmp_splice(const void *a, const void *b) {
+  const splice *x = a, *y = b;
+  return x->start < y->start ? -1 : x->start > y->start;
+}
+
+/* The input text with the spliced values, if that text parses to the same
+ * document as the modified tree (else NULL). */
+static char *spliced_text(loader *L, const char *text) {
+  qsort(L->sp, (size_t)L->n_sp, sizeof *L->sp, cmp_splice);
+  size_t len = strlen(text) + 1;
+  for (int i = 0; i < L->n_sp; i++) {
+    if (L->sp[i].end > strlen(text) ||
+        (i > 0 && L->sp[i].start < L->sp[i - 1].end))
+      return NULL;
+    len += strlen(L->sp[i].value);
+  }
+  char *out = malloc(len);
+  if (!out)
+    return NULL;
+  size_t pos = 0, off = 0;
+  for (int i = 0; i < L->n_sp; i++) {
+    size_t keep = L->sp[i].start - pos, vlen = strlen(L->sp[i].value);
+    memcpy(out + off, text + pos, keep);
+    memcpy(out + off + keep, L->sp[i].value, vlen);
+    off += keep + vlen;
+    pos = L->sp[i].end;
+  }
+  strcpy(out + off, text + pos);
+  /* Keep it only if it means the same as the modified tree. */
+  struct fy_diag *diag = diag_create();
+  struct fy_parse_cfg cfg = {.flags = FYPCF_QUIET | FYPCF_DEFAULT_VERSION_1_2 |
+                                      FYPCF_RESOLVE_DOCUMENT,
+                             .diag = diag};
+  struct fy_document *doc =
+      diag ? fy_document_build_from_string(&cfg, out, FY_NT) : NULL;
+  int same =
+      doc && fy_node_compare(fy_document_root(doc), fy_document_root(L->doc));
+  fy_document_destroy(doc);
+  fy_diag_destroy(diag);
+  if (!same) {
+    free(out);
+    return NULL;
+  }
+  return out;
+}
+
+/* Text of the description after the overrides: the input verbatim when
+ * there are none; with overrides, a header naming them, then the input with
+ * the new values spliced in (comments kept) when every override replaced a
+ * scalar, else the modified document emitted by libfyaml. */
+static char *description_text(loader *L, const char *text,
+                              const char *const *overrides, int n_ov) {
+  if (n_ov == 0)
+    return strdup(text);
+  char *body = L->splice_ok ? spliced_text(L, text) : NULL;
+  if (!body)
+    body = fy_emit_document_to_string(L->doc, FYECF_MODE_PRETTY);
+  if (!body)
+    return NULL;
+  size_t len = strlen(body) + strlen(L->path) + 64;
+  for (int i = 0; i < n_ov; i++)
+    len += strlen(overrides[i]) + 16;
+  char *out = malloc(len);
+  if (out) {
+    size_t off = (size_t)snprintf(out, len, "# %s with overrides:\n", L->path);
+    for (int i = 0; i < n_ov; i++)
+      off += (size_t)snprintf(out + off, len - off, "#   --set %s\n",
+                              overrides[i]);
+    snprintf(out + off, len - off, "%s", body);
+  }
+  free(body);
+  return out;
+}
+
+/* First collected libfyaml error, as file:line:col: message. */
+static int syntax_error(loader *L) {
+  void *it = NULL;
+  struct fy_diag_error *e, *first = NULL;
+  while ((e = fy_diag_errors_iterate(L->diag, &it)))
+    if (!first || (first->line <= 0 && e->line > 0))
+      first = e;
+  if (first && first->line > 0)
+    mrvi_fmt(L->msg, L->len, "%s:%d:%d: YAML syntax error: %s", L->path,
+             first->line, first->column > 0 ? first->column : 1,
+             first->msg ? first->msg : "invalid YAML");
+  else
+    mrvi_fmt(L->msg, L->len, "%s: YAML syntax error: %s", L->path,
+             first && first->msg ? first->msg : "invalid YAML");
+  return MRVI_EPARSE;
+}
+
+void mrvi_system_free(mrvi_system *sys) {
+  if (!sys)
+    return;
+  mrvi_model_free(sys->model);
+  free(sys->name);
+  free(sys->path);
+  free(sys->output_file);
+  free(sys->description);
+  free(sys);
+}
+
+int mrvi_system_load_string(const char *text, const char *display_name,
+                            const char *const *overrides, int n_overrides,
+                            mrvi_system **out, char *msg, size_t len) {
+  char scratch[8];
+  if (!msg || len == 0) {
+    msg = scratch;
+    len = sizeof scratch;
+  }
+  msg[0] = '\0';
+  if (out)
+    *out = NULL;
+  if (!text || !out || n_overrides < 0 || (n_overrides > 0 && !overrides)) {
+    mrvi_fmt(msg, len, "mrvi_system_load_string: invalid argument");
+    return MRVI_EINVAL;
+  }
+  loader L = {.path = display_name ? display_name : "<string>",
+              .msg = msg,
+              .len = len,
+              .splice_ok = 1};
+  int st = MRVI_OK;
+  L.sys = calloc(1, sizeof *L.sys);
+  L.diag = diag_create();
+  if (!L.sys || !L.diag || !(L.sys->path = strdup(L.path))) {
+    st = fail_nomem(&L);
+    goto done;
+  }
+
+  struct fy_parse_cfg cfg = {.flags = FYPCF_QUIET | FYPCF_DEFAULT_VERSION_1_2 |
+                                      FYPCF_RESOLVE_DOCUMENT,
+                             .diag = L.diag};
+  L.doc = fy_document_build_from_string(&cfg, text, FY_NT);
+  if (!L.doc || fy_diag_got_error(L.diag)) {
+    void *it = NULL;
+    if (fy_diag_errors_iterate(L.diag, &it))
+      st = syntax_error(&L);
+    else /* no document at all: only comments or blank */
+      st = fail(&L, NULL, "the description is empty");
+    goto done;
+  }
+  for (int i = 0; i < n_overrides && !st; i++)
+    st = apply_override(&L, overrides[i]);
+  if (st)
+    goto done;
+  if (!(L.sys->description =
+            description_text(&L, text, overrides, n_overrides))) {
+    st = fail_nomem(&L);
+    goto done;
+  }
+  st = interpret(&L);
+
+done:
+  if (st) {
+    mrvi_system_free(L.sys);
+  } else {
+    *out = L.sys;
+    msg[0] = '\0';
+  }
+  free(L.coords);
+  free(L.parts);
+  free(L.ov);
+  free(L.sp);
+  fy_document_destroy(L.doc);
+  fy_diag_destroy(L.diag);
+  return st;
+}
+
+int mrvi_system_load(const char *path, const char *const *overrides,
+                     int n_overrides, mrvi_system **out, char *msg,
+                     size_t len) {
+  if (out)
+    *out = NULL;
+  if (!path) {
+    mrvi_fmt(msg, len, "mrvi_system_load: no file name");
+    return MRVI_EINVAL;
+  }
+  FILE *f = fopen(path, "rb");
+  if (!f) {
+    mrvi_fmt(msg, len, "%s: cannot open: %s", path, strerror(errno));
+    return MRVI_EIO;
+  }
+  /* Read the whole file (the description is kept verbatim). */
+  size_t cap = 4096, used = 0;
+  char *text = malloc(cap);
+  int st = text ? MRVI_OK : MRVI_ENOMEM;
+  while (!st) {
+    if (used + 1 == cap) {
+      char *t = realloc(text, 2 * cap);
+      if (!t) {
+        st = MRVI_ENOMEM;
+        break;
+      }
+      text = t;
+      cap *= 2;
+    }
+    size_t got = fread(text + used, 1, cap - used - 1, f);
+    used += got;
+    if (got == 0)
+      break;
+  }
+  if (!st && ferror(f))
+    st = MRVI_EIO;
+  fclose(f);
+  if (st) {
+    mrvi_fmt(msg, len, "%s: %s", path,
+             st == MRVI_EIO ? "read error" : "out of memory");
+    free(text);
+    return st;
+  }
+  text[used] = '\0';
+  if (strlen(text) != used) {
+    mrvi_fmt(msg, len, "%s: not a text file (contains NUL bytes)", path);
+    free(text);
+    return MRVI_EPARSE;
+  }
+  st = mrvi_system_load_string(text, path, overrides, n_overrides, out, msg,
+                               len);
+  free(text);
+  return st;
+}

@@ -1,0 +1,336 @@
+#!/usr/bin/env bash
+# Tests of the mrvi command-line tool: help and version, `check` output,
+# `run` with overrides and the HDF5 file it writes, exit statuses, error
+# messages with file:line:col, no output on bad input, Ctrl-C handling.
+#
+#   test_cli.sh MRVI_BINARY SOURCE_ROOT [PROJECT_VERSION]
+#
+# Prints "N passed, M failed" and exits non-zero on any failure.
+set -u
+
+mrvi=${1:?usage: test_cli.sh MRVI_BINARY SOURCE_ROOT [VERSION]}
+root=${2:?usage: test_cli.sh MRVI_BINARY SOURCE_ROOT [VERSION]}
+version=${3:-$(sed -n "s/^ *version *: *'\([^']*\)'.*/\1/p" "$root/meson.build" | head -n 1)}
+fpu=$root/systems/fpu.yaml
+
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+cd "$tmp" || exit 1
+
+passed=0
+failed=0
+pass() { passed=$((passed + 1)); }
+fail() {
+  failed=$((failed + 1))
+  printf 'FAIL: %s\n' "$*" >&2
+}
+check() { # check DESCRIPTION COMMAND...
+  local what=$1
+  shift
+  if "$@"; then pass; else fail "$what"; fi
+}
+
+# run_mrvi ARGS...: run mrvi, keep stdout, stderr and the exit status.
+run_mrvi() {
+  "$mrvi" "$@" >"$tmp/out" 2>"$tmp/err" </dev/null
+  rc=$?
+  out=$(cat "$tmp/out")
+  err=$(cat "$tmp/err")
+}
+expect_rc() { # expect_rc WANT DESCRIPTION
+  if [ "$rc" -eq "$1" ]; then
+    pass
+  else
+    fail "$2: exit status $rc, expected $1; stderr: $err"
+  fi
+}
+contains() { # contains HAYSTACK REGEX DESCRIPTION
+  if printf '%s\n' "$1" | grep -Eq -- "$2"; then
+    pass
+  else
+    fail "$3: no match for /$2/ in: $1"
+  fi
+}
+no_h5_files() { # nothing written into the working directory or $tmp/o
+  ! ls "$tmp"/*.h5 "$tmp"/o/*.h5 >/dev/null 2>&1
+}
+
+# HDF5 inspection: h5dump (hdf5-tools) if present, else Debian's h5py.
+h5tool=none
+if command -v h5dump >/dev/null 2>&1; then
+  h5tool=h5dump
+elif /usr/bin/python3 -c 'import h5py' >/dev/null 2>&1; then
+  h5tool=h5py
+fi
+# rows FILE DATASET: first dimension of a dataset
+rows() {
+  case $h5tool in
+  h5dump) h5dump -H -d "$2" "$1" 2>/dev/null |
+    sed -n 's/.*DATASPACE *SIMPLE *{ *( *\([0-9]*\).*/\1/p' | head -n 1 ;;
+  h5py) /usr/bin/python3 -c 'import sys, h5py
+print(h5py.File(sys.argv[1], "r")[sys.argv[2]].shape[0])' "$1" "$2" ;;
+  esac
+}
+# cols FILE DATASET: second dimension
+cols() {
+  case $h5tool in
+  h5dump) h5dump -H -d "$2" "$1" 2>/dev/null |
+    sed -n 's/.*DATASPACE *SIMPLE *{ *( *[0-9]*, *\([0-9]*\).*/\1/p' | head -n 1 ;;
+  h5py) /usr/bin/python3 -c 'import sys, h5py
+print(h5py.File(sys.argv[1], "r")[sys.argv[2]].shape[1])' "$1" "$2" ;;
+  esac
+}
+# root_attr FILE NAME: value of a string attribute of /
+root_attr() {
+  case $h5tool in
+  h5dump) h5dump -a "/$2" "$1" 2>/dev/null | sed -n 's/.*(0): *"\(.*\)".*/\1/p' ;;
+  h5py) /usr/bin/python3 -c 'import sys, h5py
+v = h5py.File(sys.argv[1], "r").attrs[sys.argv[2]]
+print(v.decode() if isinstance(v, bytes) else v)' "$1" "$2" ;;
+  esac
+}
+
+mkdir -p "$tmp/o"
+
+# --- version and help ------------------------------------------------------
+run_mrvi --version
+expect_rc 0 "--version"
+check "--version prints 'mrvi $version' (got '$out')" [ "$out" = "mrvi $version" ]
+
+run_mrvi --help
+expect_rc 0 "--help"
+contains "$out" '^ +run FILE' "--help lists run"
+contains "$out" '^ +check FILE' "--help lists check"
+check "--help writes nothing to stderr" [ -z "$err" ]
+
+run_mrvi help run
+expect_rc 0 "help run"
+contains "$out" '--set KEY=VALUE' "help run documents --set"
+contains "$out" '130' "help run documents the interrupt status"
+
+run_mrvi run --help
+expect_rc 0 "run --help"
+contains "$out" '^Usage: mrvi run FILE' "run --help shows run usage"
+
+run_mrvi check -h
+expect_rc 0 "check -h"
+contains "$out" '^Usage: mrvi check FILE' "check -h shows check usage"
+
+run_mrvi
+expect_rc 1 "no arguments"
+contains "$err" '^Usage: mrvi' "no arguments prints usage on stderr"
+
+# --- usage errors ----------------------------------------------------------
+run_mrvi rnu "$fpu"
+expect_rc 1 "misspelt command"
+contains "$err" "unknown command 'rnu'; did you mean 'run'\\?" "suggests run"
+contains "$err" '^Usage: mrvi' "misspelt command prints usage"
+
+run_mrvi --versoin
+expect_rc 1 "misspelt global option"
+contains "$err" "did you mean '--version'" "suggests --version"
+
+run_mrvi run "$fpu" --quite -o "$tmp/o/x.h5"
+expect_rc 1 "unknown option"
+contains "$err" "unknown option '--quite'; did you mean '--quiet'" \
+  "unknown option is named, closest suggested"
+check "unknown option writes no output" no_h5_files
+
+run_mrvi run
+expect_rc 1 "run without FILE"
+contains "$err" 'missing FILE' "run without FILE says so"
+
+run_mrvi run "$fpu" --set integrator.micro_steps
+expect_rc 1 "--set without '='"
+contains "$err" 'KEY=VALUE' "--set without '=' explains the form"
+
+run_mrvi run "$fpu" -o
+expect_rc 1 "-o without value"
+
+run_mrvi check "$fpu" "$fpu"
+expect_rc 1 "two files"
+
+# --- check -----------------------------------------------------------------
+run_mrvi check "$fpu"
+expect_rc 0 "check fpu.yaml"
+contains "$out" '^coordinates +6 \(3 slow, 3 fast\)$' "fpu: 6 coordinates, 3 slow, 3 fast"
+contains "$out" '^slow +3: qs1, qs2, qs3$' "fpu: slow partition"
+contains "$out" '^fast +3: qf1, qf2, qf3$' "fpu: fast partition"
+contains "$out" '^particles +0$' "fpu: no particles"
+contains "$out" '^elements +[1-9][0-9]*$' "fpu: elements counted"
+contains "$out" '^ +slow \(V\) +alpha = [0-9.]+, gamma = [0-9.]+, (micro|macro) grid$' \
+  "check prints the slow rule"
+contains "$out" '^ +fast \(W\) +alpha = [0-9.]+, gamma = [0-9.]+, micro grid$' \
+  "check prints the fast rule"
+contains "$out" '^macro step +0.3$' "fpu: macro step 0.3"
+contains "$out" '^newton +tolerance ' "check prints the Newton settings"
+contains "$out" '^output +[^ ]+\.h5' "check prints the output file"
+check "check writes no file" no_h5_files
+
+run_mrvi check "$fpu" --set integrator.micro_steps=7 --set integrator.t_end=3 \
+  --set integrator.scheme=trapezoidal-midpoint
+expect_rc 0 "check with --set"
+contains "$out" '^micro steps +7 ' "--set integrator.micro_steps=7 is applied"
+contains "$out" '^t_end +3 \(10 macro steps' "--set t_end=3 gives N = 10 at dT = 0.3"
+contains "$out" '^scheme +trapezoidal-midpoint$' "--set scheme is applied"
+contains "$out" '^ +slow \(V\) +alpha = 1, gamma = 1, micro grid$' \
+  "trapezoidal-midpoint: slow rule alpha = gamma = 1"
+contains "$out" '^ +fast \(W\) +alpha = 0.5, gamma = 0.5, micro grid$' \
+  "trapezoidal-midpoint: fast midpoint rule"
+
+for sys in spring_ring oscillator; do
+  run_mrvi check "$root/systems/$sys.yaml"
+  expect_rc 0 "check $sys.yaml"
+done
+run_mrvi check "$root/systems/spring_ring.yaml"
+contains "$out" '^coordinates +18 \(9 slow, 9 fast\)$' "spring ring: 18 coordinates, 9 slow, 9 fast"
+contains "$out" '^particles +6 in 3-D$' "spring ring: 6 particles in 3-D"
+contains "$out" '^slow +9: m1\.x, m1\.y, m1\.z, m3\.x' "spring ring: odd masses slow"
+
+run_mrvi check "$tmp/does-not-exist.yaml"
+expect_rc 1 "check of a missing file"
+contains "$err" 'does-not-exist\.yaml' "missing file is named"
+
+# --- run -------------------------------------------------------------------
+x=$tmp/o/x.h5
+run_mrvi run "$fpu" --set integrator.t_end=3 -o "$x" --quiet
+expect_rc 0 "run --quiet"
+check "run creates the output file" [ -s "$x" ]
+check "--quiet prints nothing on stdout (got '$out')" [ -z "$out" ]
+check "--quiet prints nothing on stderr (got '$err')" [ -z "$err" ]
+if [ "$h5tool" = none ]; then
+  printf 'note: neither h5dump nor h5py found; HDF5 contents not inspected\n' >&2
+else
+  r=$(rows "$x" /macro/t)
+  check "/macro/t has N+1 = 11 rows for t_end 3, dT 0.3 (got '$r')" [ "$r" = 11 ]
+  r=$(rows "$x" /macro/q)
+  c=$(cols "$x" /macro/q)
+  check "/macro/q is 11 x 6 (got '$r x $c')" [ "$r x $c" = "11 x 6" ]
+  a=$(root_attr "$x" stop_reason)
+  check "stop_reason is 'completed' (got '$a')" [ "$a" = completed ]
+  a=$(root_attr "$x" mrvi_version)
+  check "mrvi_version attribute is $version (got '$a')" [ "$a" = "$version" ]
+fi
+
+# Summary on stdout without --quiet; --output= form; options before FILE.
+y=$tmp/o/y.h5
+run_mrvi run --set=integrator.t_end=3 --output="$y" "$fpu"
+expect_rc 0 "run with summary"
+check "run (--output=) creates the file" [ -s "$y" ]
+contains "$out" 'completed 10 of 10 macro steps' "summary: macro steps"
+contains "$out" 'Newton iterations +[0-9]+ total, max [0-9]+ per step' "summary: Newton iterations"
+contains "$out" 'max rel\. energy error +[0-9.]+e[-+][0-9]+' "summary: energy error"
+contains "$out" 'wall time +[0-9.]+ s' "summary: wall time"
+contains "$out" "output +$y\$" "summary: output file"
+check "no progress bar when stderr is not a terminal (got '$err')" [ -z "$err" ]
+
+# Default output name from the description, written to the working directory.
+run_mrvi run "$fpu" --set integrator.t_end=0.6 --set output.file=named.h5 -q
+expect_rc 0 "run with output.file override"
+check "output.file is used without -o" [ -s "$tmp/named.h5" ]
+rm -f "$tmp/named.h5"
+
+# The description file is never overwritten by the output.
+cp "$fpu" "$tmp/o/copy.yaml"
+run_mrvi run "$tmp/o/copy.yaml" --set integrator.t_end=0.6 -o "$tmp/o/copy.yaml" -q
+expect_rc 1 "output onto the description file"
+check "description file left intact" cmp -s "$fpu" "$tmp/o/copy.yaml"
+rm -f "$tmp/o/copy.yaml"
+
+# --- bad input: exit 1, file:line:col message, no output ---------------------
+rm -f "$tmp"/o/*.h5
+# An override's value is not in the file: the loader points at the --set
+# argument (or at the key's line in the file).
+run_mrvi run "$fpu" --set integrator.micro_steps=0 -o "$tmp/o/bad.h5"
+expect_rc 1 "--set micro_steps=0"
+contains "$err" '^(.*fpu\.yaml:[0-9]+:[0-9]+|--set integrator\.micro_steps=0): .*micro_steps' \
+  "--set micro_steps=0: located message naming the key"
+check "--set micro_steps=0 writes no output" no_h5_files
+check "--set micro_steps=0 prints no summary" [ -z "$out" ]
+
+# The same error inside a file: file:line:col of the value.
+bad=$tmp/o/p0.yaml
+sed 's/^\( *micro_steps: *\)[0-9][0-9]*/\10/' "$fpu" >"$bad"
+line=$(grep -n '^ *micro_steps: *0' "$bad" | cut -d: -f1)
+check "test set-up: micro_steps: 0 written into a copy of fpu.yaml" [ -n "$line" ]
+run_mrvi run "$bad" -o "$tmp/o/bad.h5"
+expect_rc 1 "micro_steps: 0 in the file"
+contains "$err" "^$bad:$line:[0-9]+: .*micro_steps" \
+  "micro_steps: 0: file:line:col message at line $line"
+check "micro_steps: 0 writes no output" no_h5_files
+run_mrvi check "$bad"
+expect_rc 1 "check of micro_steps: 0"
+contains "$err" "^$bad:$line:[0-9]+: " "check reports file:line:col"
+rm -f "$bad"
+
+run_mrvi run "$fpu" --set integrator.micro_stepz=3 -o "$tmp/o/bad.h5"
+expect_rc 1 "misspelt --set key"
+check "misspelt --set key writes no output" no_h5_files
+
+run_mrvi run "$tmp/nope.yaml" -o "$tmp/o/bad.h5"
+expect_rc 1 "nonexistent file"
+contains "$err" 'nope\.yaml' "nonexistent file is named"
+check "nonexistent file writes no output" no_h5_files
+
+printf 'name: broken\ncoordinates: [\n' >"$tmp/o/broken.yaml"
+run_mrvi run "$tmp/o/broken.yaml" -o "$tmp/o/bad.h5"
+expect_rc 1 "YAML syntax error"
+contains "$err" 'broken\.yaml:[0-9]+:[0-9]+: ' "YAML syntax error: file:line:col"
+check "YAML syntax error writes no output" no_h5_files
+rm -f "$tmp/o/broken.yaml"
+
+run_mrvi run "$fpu" -o "$tmp/no/such/dir/x.h5"
+expect_rc 1 "output in a missing directory"
+check "unwritable output: message on stderr" [ -n "$err" ]
+
+# --- run failure: exit 2, the file records why -------------------------------
+# A tolerance below round-off cannot be met: Newton fails in the first step.
+f=$tmp/o/newton.h5
+run_mrvi run "$fpu" --set integrator.newton.tolerance=1e-300 \
+  --set integrator.newton.max_iterations=3 -o "$f"
+expect_rc 2 "Newton failure"
+contains "$err" '^mrvi run: error: .*[Nn]ewton' "Newton failure reported on stderr"
+contains "$out" 'stopped after 0 of 667 macro steps' "summary of a failed run"
+contains "$out" 'stopped because +.*[Nn]ewton' "summary gives the reason"
+check "failed run leaves its file" [ -s "$f" ]
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$f" stop_reason)
+  contains "$a" '[Nn]ewton' "stop_reason of a failed run names Newton"
+  r=$(rows "$f" /macro/t)
+  check "failed run: file holds the initial node only (got '$r' rows)" [ "$r" = 1 ]
+fi
+rm -f "$f"
+
+# --- interrupt: valid file with stop_reason, exit 128 + signal ----------------
+interrupt() { # interrupt SIGNAL WANT_RC
+  local f=$tmp/o/int-$1.h5 i=0
+  "$mrvi" run "$fpu" --set integrator.t_end=1e7 -o "$f" -q \
+    >"$tmp/out" 2>"$tmp/err" </dev/null &
+  local pid=$!
+  # Wait until the file exists and some steps have run.
+  while [ ! -s "$f" ] && [ $i -lt 100 ]; do
+    sleep 0.1
+    i=$((i + 1))
+  done
+  sleep 0.5
+  kill -s "$1" "$pid"
+  wait "$pid"
+  rc=$?
+  err=$(cat "$tmp/err")
+  expect_rc "$2" "SIG$1"
+  contains "$err" "^mrvi run: SIG$1: .*interrupted" "SIG$1: reported on stderr"
+  if [ "$h5tool" != none ]; then
+    local a r
+    a=$(root_attr "$f" stop_reason)
+    check "SIG$1: stop_reason is set and not 'completed' (got '$a')" \
+      test -n "$a" -a "$a" != completed
+    r=$(rows "$f" /macro/t)
+    check "SIG$1: file holds the completed steps (got '$r' rows)" \
+      test "${r:-0}" -ge 1
+  fi
+}
+interrupt INT 130
+interrupt TERM 143
+
+printf '%d passed, %d failed\n' "$passed" "$failed"
+[ "$failed" -eq 0 ] && [ "$passed" -gt 0 ]

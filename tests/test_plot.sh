@@ -1,0 +1,243 @@
+#!/bin/bash
+# Test of src/mrvi-plot: renders every figure from small runs and synthetic
+# study tables and checks the PNG files.
+#
+#   test_plot.sh MRVI_BINARY SOURCE_ROOT
+#
+# Skipped (exit 77) when Debian's /usr/bin/python3 lacks matplotlib or h5py.
+
+set -u
+
+mrvi=${1:?usage: test_plot.sh MRVI_BINARY SOURCE_ROOT}
+root=${2:?usage: test_plot.sh MRVI_BINARY SOURCE_ROOT}
+py=/usr/bin/python3
+plot="$root/src/mrvi-plot"
+
+if ! "$py" -c 'import matplotlib, h5py' 2>/dev/null; then
+  echo "SKIP: $py with python3-matplotlib and python3-h5py is needed"
+  exit 77
+fi
+
+tmp=$(mktemp -d "${TMPDIR:-/tmp}/mrvi-test-plot.XXXXXX")
+trap 'rm -rf "$tmp"' EXIT
+
+passed=0
+failed=0
+
+pass() { passed=$((passed + 1)); echo "ok   $1"; }
+fail() { failed=$((failed + 1)); echo "FAIL $1"; }
+
+# run_ok NAME CMD...: the command exits 0
+run_ok() {
+  local name=$1
+  shift
+  if "$@" >"$tmp/out.txt" 2>"$tmp/err.txt"; then
+    pass "$name"
+  else
+    fail "$name (exit $?)"
+    sed 's/^/     /' "$tmp/err.txt" | head -20
+  fi
+}
+
+# png_ok FILE: exists, > 10 kB, PNG signature
+png_ok() {
+  local f=$1 size sig
+  if [ ! -f "$f" ]; then
+    fail "$(basename "$f") missing"
+    return
+  fi
+  size=$(stat -c %s "$f")
+  sig=$(head -c 8 "$f" | od -An -tx1 | tr -d ' \n')
+  if [ "$size" -le 10240 ]; then
+    fail "$(basename "$f") too small ($size bytes)"
+  elif [ "$sig" != "89504e470d0a1a0a" ]; then
+    fail "$(basename "$f") is not a PNG (signature $sig)"
+  else
+    pass "$(basename "$f") ($size bytes)"
+  fi
+}
+
+# absent FILE: a figure that must not be drawn for this kind of run
+absent() {
+  if [ -e "$1" ]; then fail "$(basename "$1") should not exist"
+  else pass "$(basename "$1") not drawn"; fi
+}
+
+# fails_with NAME PATTERN CMD...: non-zero exit and PATTERN on stderr
+fails_with() {
+  local name=$1 pattern=$2
+  shift 2
+  if "$@" >"$tmp/out.txt" 2>"$tmp/err.txt"; then
+    fail "$name: exit 0, expected failure"
+  elif ! grep -q -- "$pattern" "$tmp/err.txt"; then
+    fail "$name: no '$pattern' in the message"
+    sed 's/^/     /' "$tmp/err.txt" | head -5
+  else
+    pass "$name ($(head -1 "$tmp/err.txt"))"
+  fi
+}
+
+out="$tmp/figs"
+
+# --- help ---
+run_ok "mrvi-plot --help" "$py" "$plot" --help
+for sub in run convergence stability timing all; do
+  run_ok "mrvi-plot $sub --help" "$py" "$plot" "$sub" --help
+done
+
+# --- run files ---
+run_ok "mrvi run fpu" "$mrvi" run "$root/systems/fpu.yaml" -o "$tmp/fpu.h5" \
+  --set integrator.t_end=6 --quiet
+run_ok "mrvi run spring_ring" "$mrvi" run "$root/systems/spring_ring.yaml" \
+  -o "$tmp/ring.h5" --set integrator.t_end=0.5 --quiet
+
+run_ok "mrvi-plot run fpu" "$py" "$plot" run "$tmp/fpu.h5" -o "$out"
+for f in energy stiff_energy micro; do png_ok "$out/fpu_$f.png"; done
+absent "$out/fpu_angular_momentum.png"
+
+run_ok "mrvi-plot run spring_ring" "$py" "$plot" run "$tmp/ring.h5" -o "$out" \
+  --prefix ring --window 0.2
+for f in energy angular_momentum micro; do png_ok "$out/ring_$f.png"; done
+absent "$out/ring_stiff_energy.png"
+
+run_ok "mrvi-plot run --omega" "$py" "$plot" run "$tmp/ring.h5" -o "$out" \
+  --prefix ring_omega --omega 44.72
+png_ok "$out/ring_omega_stiff_energy.png"
+
+# --- synthetic study tables in the formats of mrvi converge / stability /
+# timing ---
+if ! "$py" - "$tmp" <<'EOF' 2>"$tmp/err.txt"
+import math
+import sys
+
+import h5py
+import numpy as np
+
+tmp = sys.argv[1]
+str_t = h5py.string_dtype()
+
+# mrvi converge: errors C dT^2 on 5 halvings, p in {1, 5, 10}
+with h5py.File(tmp + "/conv.h5", "w") as f:
+    for k, v in dict(system="fpu", scheme="midpoint-midpoint",
+                     reference_scheme="midpoint-midpoint").items():
+        f.attrs.create(k, v, dtype=str_t)
+    f.attrs["t_end"] = 0.5
+    f.attrs["reference_step"] = 5e-7
+    dT = 0.1 / 2.0 ** np.arange(5)
+    for p in (1, 5, 10):
+        g = f.create_group("convergence/p%d" % p)
+        g.attrs["micro_steps"] = np.int32(p)
+        g["macro_step"] = dT
+        g["e_q_mac"] = 0.8 * dT ** 2
+        g["e_p_mac"] = 3.0 * dT ** 2
+        nan = np.full_like(dT, np.nan)
+        g["e_q_mic"] = nan if p == 1 else 1.1 * dT ** 2
+        g["e_p_mic"] = nan if p == 1 else 4.0 * dT ** 2
+        g["e_qs_mac"] = 0.5 * dT ** 2
+        g["e_qf_mac"] = 0.7 * dT ** 2
+        g["e_ps_mac"] = 2.0 * dT ** 2
+        g["e_pf_mac"] = 0.05 * dT
+
+# mrvi stability: bounds for p = 1..10, trace scan
+with h5py.File(tmp + "/stab.h5", "w") as f:
+    p = np.arange(1, 11)
+    tra = np.sqrt(12.0 * p ** 2 / (p ** 2 + 2.0))
+    with np.errstate(divide="ignore"):
+        mid = np.sqrt(12.0 * p ** 2 / (p ** 2 - 1.0))
+    s = f.create_group("stability")
+    s["p"] = p.astype(np.int32)
+    s["trapezoidal_analytic"] = tra
+    s["trapezoidal_measured"] = tra * (1 - 1e-3)
+    s["midpoint_analytic"] = mid
+    s["midpoint_measured"] = mid * (1 - 1e-3)
+    x = np.linspace(0.0, 6.0, 241)
+    sc = s.create_group("scan")
+    sc["omega_dT"] = x
+    sc["p"] = p.astype(np.int32)
+    def trace(bound):
+        c = 0.0 if not np.isfinite(bound) else (bound ** 2 - 4) / bound ** 4
+        return 2 - x ** 2 + c * x ** 4 if np.isfinite(bound) else \
+            2 * (1 - x ** 2 / 4) / (1 + x ** 2 / 4)
+    sc["trace_trapezoidal"] = np.array([trace(b) for b in tra])
+    sc["trace_midpoint"] = np.array([trace(b) for b in mid])
+
+# mrvi timing: three schemes, p from 1 to 1000
+with h5py.File(tmp + "/timing.h5", "w") as f:
+    f.attrs.create("system", "fpu", dtype=str_t)
+    f.attrs["micro_step"] = 0.001
+    p = np.array([1, 5, 10, 20, 50, 100, 200, 500, 1000])
+    t = f.create_group("timing")
+    t["p"] = p.astype(np.int32)
+    for i, name in enumerate(("midpoint-midpoint", "trapezoidal-midpoint",
+                              "trapezoidal-trapezoidal")):
+        g = t.create_group(name)
+        steps = np.ceil(10.0 / (0.001 * p))
+        size = 6 + 3 * (p - 1)
+        per = 1e-5 * (1 + i) * size ** 1.1
+        g["macro_steps"] = steps.astype(np.int64)
+        g["system_size"] = size.astype(np.int32)
+        g["assemble_per_step"] = per
+        g["solve_per_step"] = 0.6 * per
+        g["time_per_step"] = 1.8 * per
+        g["total_time"] = 1.8 * per * steps
+        g["iterations"] = (steps * (3 + i)).astype(np.int64)
+
+# a stability table with one dataset missing
+with h5py.File(tmp + "/broken.h5", "w") as f:
+    s = f.create_group("stability")
+    s["p"] = np.arange(1, 4, dtype=np.int32)
+    s["trapezoidal_measured"] = np.ones(3)
+    s["trapezoidal_analytic"] = np.ones(3)
+    s["midpoint_analytic"] = np.ones(3)
+EOF
+then
+  fail "building the synthetic tables"
+  sed 's/^/     /' "$tmp/err.txt" | head -20
+else
+  pass "synthetic tables built"
+fi
+
+run_ok "mrvi-plot convergence" "$py" "$plot" convergence "$tmp/conv.h5" -o "$out"
+for p in 1 5 10; do
+  png_ok "$out/conv_p$p.png"
+  png_ok "$out/conv_p${p}_split.png"
+done
+slope=$("$py" - "$plot" <<'EOF' 2>&1
+import sys
+from importlib.machinery import SourceFileLoader
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+x = 0.1 / 2.0 ** np.arange(5)
+print("%.2f %.2f" % (mod.slope(x, 3 * x ** 2), mod.slope(x, 0.1 * x)))
+EOF
+)
+if [ "$slope" = "2.00 1.00" ]; then
+  pass "fitted slopes of C dT^2 and C dT: $slope"
+else
+  fail "fitted slopes of C dT^2 and C dT: $slope (expected 2.00 1.00)"
+fi
+
+run_ok "mrvi-plot stability" "$py" "$plot" stability "$tmp/stab.h5" -o "$out"
+png_ok "$out/stab_bounds.png"
+png_ok "$out/stab_trace.png"
+
+run_ok "mrvi-plot timing" "$py" "$plot" timing "$tmp/timing.h5" -o "$out"
+png_ok "$out/timing_total.png"
+png_ok "$out/timing_per_step.png"
+
+run_ok "mrvi-plot all" "$py" "$plot" all "$tmp/fpu.h5" "$tmp/stab.h5" \
+  -o "$tmp/all"
+png_ok "$tmp/all/fpu_energy.png"
+png_ok "$tmp/all/stab_trace.png"
+
+# --- errors ---
+fails_with "missing input file" "no such file" \
+  "$py" "$plot" run "$tmp/does-not-exist.h5" -o "$out"
+fails_with "missing dataset named" "/stability/midpoint_measured" \
+  "$py" "$plot" stability "$tmp/broken.h5" -o "$out"
+fails_with "run file given to convergence" "/convergence" \
+  "$py" "$plot" convergence "$tmp/fpu.h5" -o "$out"
+fails_with "no subcommand" "usage" "$py" "$plot"
+
+echo "$passed passed, $failed failed"
+[ "$failed" -eq 0 ]
