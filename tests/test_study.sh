@@ -1,0 +1,100 @@
+#!/usr/bin/env bash
+# The analysis commands end to end: mrvi converge (orders on the FPU, p = 5:
+# 2 +- 0.25 midpoint-midpoint, 1 +- 0.25 the two trapezoidal schemes; cache
+# and --reference give the same table), mrvi stability (measured bounds
+# within 1 % of Lemma lemma:stability_slow), mrvi timing (table, failures).
+# Usage: test_study.sh MRVI SOURCE_ROOT
+set -u
+mrvi=$1
+root=$2
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+cd "$tmp" || exit 1
+passed=0
+failed=0
+check() { # check DESCRIPTION CONDITION-STATUS
+  if [ "$2" -eq 0 ]; then
+    passed=$((passed + 1))
+  else
+    failed=$((failed + 1))
+    echo "FAIL: $1" >&2
+  fi
+}
+# within VALUE TARGET TOL -> status 0 when |VALUE - TARGET| <= TOL
+within() { awk -v v="$1" -v t="$2" -v d="$3" 'BEGIN { exit !(v != "" && (v - t <= d) && (t - v <= d)) }'; }
+fitted() { sed -n 's/^fitted order on macro nodes: q \([-0-9.na]*\), p \([-0-9.na]*\)$/\1 \2/p' "$1"; }
+
+fpu=$root/systems/fpu.yaml
+# --- converge: orders ------------------------------------------------------
+study() { # study NAME EXPECTED ARGS...
+  local name=$1 expect=$2
+  shift 2
+  "$mrvi" converge "$fpu" --p 5 --levels 4 -o "$name.h5" --csv "$name.csv" "$@" >"$name.out" 2>&1
+  check "$name: exit status" $?
+  read -r oq op < <(fitted "$name.out" | head -n 1)
+  within "${oq:-}" "$expect" 0.25
+  check "$name: order in q ${oq:-none} (expected $expect)" $?
+  within "${op:-}" "$expect" 0.25
+  check "$name: order in p ${op:-none} (expected $expect)" $?
+  echo "$name: fitted orders q ${oq:-?} p ${op:-?}"
+}
+study midmid 2 --dt0 0.02 --t-end 0.5
+study trapmid 1 --dt0 5e-4 --t-end 0.1 --set integrator.scheme=trapezoidal-midpoint
+study traptrap 1 --dt0 0.02 --t-end 0.5 --set integrator.scheme=trapezoidal-trapezoidal
+
+# The second run of a study reads the cached reference and gives the same table.
+"$mrvi" converge "$fpu" --p 5 --levels 4 --dt0 0.02 --t-end 0.5 -o again.h5 --csv again.csv >again.out 2>&1
+grep -q "(cached)" again.out
+check "converge: reference read from the cache" $?
+cmp -s midmid.csv again.csv
+check "converge: cached reference gives the same table" $?
+
+# A reference given as an mrvi run file (h = 0.0025/5/8 = 6.25e-5, p = 1).
+"$mrvi" run "$fpu" --set integrator.macro_step=6.25e-5 --set integrator.micro_steps=1 \
+  --set integrator.t_end=0.5 -o ref.h5 --quiet
+check "converge: reference run" $?
+"$mrvi" converge "$fpu" --p 5 --levels 4 --dt0 0.02 --t-end 0.5 --reference ref.h5 \
+  --csv given.csv -q
+check "converge --reference: exit status" $?
+cmp -s midmid.csv given.csv
+check "converge --reference gives the computed-reference table" $?
+# A reference whose step does not divide the micro step is refused.
+"$mrvi" converge "$fpu" --p 3 --levels 2 --dt0 0.02 --t-end 0.5 --reference ref.h5 -q 2>bad.err
+[ $? -eq 1 ] && grep -q "does not divide" bad.err
+check "converge: non-dividing reference refused" $?
+"$mrvi" converge "$fpu" --dt 0.02,abc -q 2>bad.err
+[ $? -eq 1 ] && grep -q "not a finite number" bad.err
+check "converge: bad --dt refused" $?
+[ -f midmid.h5 ] && [ "$(wc -l <midmid.csv)" -eq 5 ]
+check "converge: table files (HDF5 and 4 CSV rows)" $?
+
+# --- stability -------------------------------------------------------------
+"$mrvi" stability "$root/systems/oscillator.yaml" --at 3.5 -o stab.h5 >stab.out 2>&1
+check "stability: exit status" $?
+# Rows "p measured analytic rel.diff measured analytic rel.diff" (midpoint p = 1: stable).
+rows=$(awk '$1 ~ /^[0-9]+$/ && NF >= 7 && $3 != "" { n++ } END { print n + 0 }' stab.out)
+[ "$rows" -ge 5 ]
+check "stability: 5 table rows (got $rows)" $?
+worst=$(awk '$1 ~ /^[0-9]+$/ && NF >= 7 { for (i = 4; i <= NF; i += 3) if ($i != "-" && $i + 0 > w) w = $i + 0 } END { print w + 0 }' stab.out)
+within "$worst" 0 0.01
+check "stability: measured within 1 % of analytic (worst $worst)" $?
+awk '$1 == 1 && /stable +uncond/ { found = 1 } END { exit !found }' stab.out
+check "stability: midpoint p = 1 unconditionally stable" $?
+"$mrvi" stability "$fpu" -q 2>bad.err
+[ $? -eq 1 ] && grep -q "one slow coordinate" bad.err
+check "stability: a non-oscillator is refused" $?
+
+# --- timing ----------------------------------------------------------------
+"$mrvi" timing "$fpu" --p 1,10 --t-end 0.5 -o time.h5 --csv time.csv -q
+check "timing: exit status" $?
+[ -f time.h5 ] && [ "$(grep -c '^[a-z-]*,\(1\|10\),' time.csv)" -eq 6 ]
+check "timing: 3 schemes x 2 p rows" $?
+awk -F, 'NR > 1 && $1 == "midpoint-midpoint" && $2 == 10 { exit !($8 == 50 && $9 == 33) }' time.csv
+check "timing: p = 10 takes 50 macro steps on a 33-unknown system" $?
+# p = 1000 (dT = 1) goes unstable on the FPU before t = 100: a NaN row, exit 2.
+"$mrvi" timing "$fpu" --p 1000 --schemes midpoint-midpoint --t-end 100 --csv fail.csv -o fail.h5 -q 2>fail.err
+[ $? -eq 2 ] && grep -q "failed" fail.err && grep -q ",nan," fail.csv
+check "timing: a failed run is a NaN row and exit status 2" $?
+
+echo "$passed passed, $failed failed"
+[ "$failed" -eq 0 ]
