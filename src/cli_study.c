@@ -15,6 +15,7 @@
 #include <errno.h>
 #include <hdf5.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -451,39 +452,47 @@ typedef struct conv_table {
   mrvi_errors e[MAX_LIST];
 } conv_table;
 
+/* Field of an mrvi_errors at byte offset `off`. */
+static double field(const mrvi_errors *e, size_t off) {
+  return *(const double *)((const char *)e + off);
+}
+
+/* One block of the table: four error columns, each with the observed order
+ * against the previous row. */
+static void print_block(const conv_table *T, const char *const names[4],
+                        const size_t off[4], const char *note) {
+  printf("%10s", "dT");
+  for (int c = 0; c < 4; c++)
+    printf(" %9s %5s", names[c], "order");
+  printf("%s\n", note);
+  for (int r = 0; r < T->rows; r++) {
+    printf("%10.4g", T->dT[r]);
+    for (int c = 0; c < 4; c++) {
+      const double v = field(&T->e[r], off[c]);
+      print_num(stdout, v);
+      print_order(stdout, r ? order(field(&T->e[r - 1], off[c]), v,
+                                    T->dT[r - 1], T->dT[r])
+                            : NAN);
+    }
+    printf("\n");
+  }
+}
+
 static void print_conv(const conv_table *T, const mrvi_system *sys,
                        double t_end) {
+  static const char *const all[4] = {"e_q^mac", "e_p^mac", "e_q^mic",
+                                     "e_p^mic"};
+  static const char *const split[4] = {"e_qs", "e_qf", "e_ps", "e_pf"};
+  const size_t all_off[4] = {
+      offsetof(mrvi_errors, q_mac), offsetof(mrvi_errors, p_mac),
+      offsetof(mrvi_errors, q_mic), offsetof(mrvi_errors, p_mic)};
+  const size_t split_off[4] = {
+      offsetof(mrvi_errors, qs_mac), offsetof(mrvi_errors, qf_mac),
+      offsetof(mrvi_errors, ps_mac), offsetof(mrvi_errors, pf_mac)};
   printf("\n%s, %s, p = %d, t_end = %g\n", sys->name, sys->settings.scheme,
          T->p, t_end);
-  printf("%10s %9s %5s %9s %5s %9s %5s %9s %5s\n", "dT", "e_q^mac", "order",
-         "e_p^mac", "order", "e_q^mic", "order", "e_p^mic", "order");
-  for (int r = 0; r < T->rows; r++) {
-    const mrvi_errors *e = &T->e[r], *f = r ? &T->e[r - 1] : NULL;
-    printf("%10.4g", T->dT[r]);
-    const double v[4] = {e->q_mac, e->p_mac, e->q_mic, e->p_mic};
-    const double u[4] = {f ? f->q_mac : NAN, f ? f->p_mac : NAN,
-                         f ? f->q_mic : NAN, f ? f->p_mic : NAN};
-    for (int c = 0; c < 4; c++) {
-      print_num(stdout, v[c]);
-      print_order(stdout, f ? order(u[c], v[c], T->dT[r - 1], T->dT[r]) : NAN);
-    }
-    printf("\n");
-  }
-  printf("%10s %9s %5s %9s %5s %9s %5s %9s %5s   (macro nodes, slow/fast)\n",
-         "dT", "e_qs", "order", "e_qf", "order", "e_ps", "order", "e_pf",
-         "order");
-  for (int r = 0; r < T->rows; r++) {
-    const mrvi_errors *e = &T->e[r], *f = r ? &T->e[r - 1] : NULL;
-    printf("%10.4g", T->dT[r]);
-    const double v[4] = {e->qs_mac, e->qf_mac, e->ps_mac, e->pf_mac};
-    const double u[4] = {f ? f->qs_mac : NAN, f ? f->qf_mac : NAN,
-                         f ? f->ps_mac : NAN, f ? f->pf_mac : NAN};
-    for (int c = 0; c < 4; c++) {
-      print_num(stdout, v[c]);
-      print_order(stdout, f ? order(u[c], v[c], T->dT[r - 1], T->dT[r]) : NAN);
-    }
-    printf("\n");
-  }
+  print_block(T, all, all_off, "");
+  print_block(T, split, split_off, "   (macro nodes, slow/fast)");
   double eq[MAX_LIST], ep[MAX_LIST];
   for (int r = 0; r < T->rows; r++) {
     eq[r] = T->e[r].q_mac;

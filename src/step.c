@@ -223,29 +223,39 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
         const int n = e->n_in;
         gather(st, e, pt, x, st->y);
         mrvi_element_eval(m, e, st->y, st->g, jac && !lin ? st->H : NULL);
+        /* Rows and unknown columns of every input at this point (at most
+         * two each: the nodes the point interpolates).  Filled only for
+         * non-linear elements, whose inputs are at most MRVI_MAX_INPUTS;
+         * gravity (linear, any size) has no Hessian. */
+        int r[MRVI_MAX_INPUTS][2], cl[MRVI_MAX_INPUTS][2];
+        double rc[MRVI_MAX_INPUTS][2], cc[MRVI_MAX_INPUTS][2];
+        int kr[MRVI_MAX_INPUTS], kc[MRVI_MAX_INPUTS];
         /* Gradient: -w c_row grad_j into every row input j feeds. */
         for (int j = 0; j < n; j++) {
-          int r[2];
-          double rc[2];
-          const int kr = rows_of(st, e->in[j], pt, r, rc);
-          for (int a = 0; a < kr; a++)
-            R[r[a]] -= pt->w * rc[a] * st->g[j];
+          int rj[2];
+          double cj[2];
+          const int k = rows_of(st, e->in[j], pt, rj, cj);
+          for (int a = 0; a < k; a++)
+            R[rj[a]] -= pt->w * cj[a] * st->g[j];
+          if (jac && !lin) {
+            kr[j] = k;
+            for (int a = 0; a < k; a++) {
+              r[j][a] = rj[a];
+              rc[j][a] = cj[a];
+            }
+            kc[j] = cols_of(st, e->in[j], pt, cl[j], cc[j]);
+          }
         }
         if (!jac || lin)
           continue;
         /* Hessian scatter: -w c_row c_col H_jl. */
-        for (int j = 0; j < n; j++) {
-          int r[2], cl[2];
-          double rc[2], cc[2];
-          const int kr = rows_of(st, e->in[j], pt, r, rc);
+        for (int j = 0; j < n; j++)
           for (int l = 0; l < n; l++) {
             const double h = st->H[j * n + l];
-            const int kc = cols_of(st, e->in[l], pt, cl, cc);
-            for (int a = 0; a < kr; a++)
-              for (int b = 0; b < kc; b++)
-                jac_add(st, r[a], cl[b], -pt->w * rc[a] * cc[b] * h);
+            for (int a = 0; a < kr[j]; a++)
+              for (int b = 0; b < kc[l]; b++)
+                jac_add(st, r[j][a], cl[l][b], -pt->w * rc[j][a] * cc[l][b] * h);
           }
-        }
       }
     }
 }
