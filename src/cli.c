@@ -11,7 +11,7 @@
  * (130 for Ctrl-C, 143 for SIGTERM); an interrupted or failed run still
  * leaves a valid HDF5 file with every completed step. */
 #include "cli_study.h"
-#include "mrvi.h"
+#include "internal.h"
 
 #include <signal.h>
 #include <stdio.h>
@@ -99,50 +99,12 @@ static const char usage_check[] =
  * Suggestions for misspelt commands and options
  * ------------------------------------------------------------------------- */
 
-/* Optimal string alignment distance (a transposition counts as one edit);
- * strings longer than 63 characters are compared on their prefixes. */
-static int edit_distance(const char *a, const char *b) {
-  enum { L = 64 };
-  int d[L][L];
-  int la = (int)strlen(a), lb = (int)strlen(b);
-  if (la >= L)
-    la = L - 1;
-  if (lb >= L)
-    lb = L - 1;
-  for (int i = 0; i <= la; i++)
-    d[i][0] = i;
-  for (int j = 0; j <= lb; j++)
-    d[0][j] = j;
-  for (int i = 1; i <= la; i++) {
-    for (int j = 1; j <= lb; j++) {
-      int cost = a[i - 1] != b[j - 1];
-      int v = d[i - 1][j] + 1;
-      if (d[i][j - 1] + 1 < v)
-        v = d[i][j - 1] + 1;
-      if (d[i - 1][j - 1] + cost < v)
-        v = d[i - 1][j - 1] + cost;
-      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] &&
-          d[i - 2][j - 2] + 1 < v)
-        v = d[i - 2][j - 2] + 1;
-      d[i][j] = v;
-    }
-  }
-  return d[la][lb];
-}
-
-/* Closest candidate within two edits (and fewer edits than its length), or
- * NULL.  candidates is NULL-terminated. */
+/* Closest of a NULL-terminated list of candidates, or NULL. */
 static const char *closest(const char *word, const char *const *candidates) {
-  const char *best = NULL;
-  int best_d = 3;
-  for (const char *const *c = candidates; *c; c++) {
-    int d = edit_distance(word, *c);
-    if (d < best_d && d < (int)strlen(*c)) {
-      best = *c;
-      best_d = d;
-    }
-  }
-  return best;
+  int n = 0;
+  while (candidates[n])
+    n++;
+  return mrvi_closest(word, candidates, n);
 }
 
 /* ---------------------------------------------------------------------------

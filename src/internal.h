@@ -11,6 +11,11 @@ void mrvi_fmt(char *buf, size_t len, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 void mrvi_vfmt(char *buf, size_t len, const char *fmt, va_list ap);
 
+/* The candidate (of n) closest to `word` by edit distance if it is close
+ * enough to be a likely typo, else NULL; ties go to the longer common
+ * prefix (suggest.c). */
+const char *mrvi_closest(const char *word, const char *const *cand, int n);
+
 /* Wall clock in seconds (monotonic). */
 double mrvi_clock(void);
 

@@ -171,61 +171,10 @@ static int fail_model(loader *L, struct fy_node *at, int status) {
  * Closest-name suggestions
  * ------------------------------------------------------------------------- */
 
-/* Levenshtein distance (names longer than 63 characters never match). */
-static int edit_distance(const char *a, const char *b) {
-  size_t la = strlen(a), lb = strlen(b);
-  if (la > 63 || lb > 63)
-    return 1 << 20;
-  int row[64];
-  for (size_t j = 0; j <= lb; j++)
-    row[j] = (int)j;
-  for (size_t i = 1; i <= la; i++) {
-    int diag = row[0];
-    row[0] = (int)i;
-    for (size_t j = 1; j <= lb; j++) {
-      int up = row[j];
-      int best = diag + (a[i - 1] != b[j - 1]);
-      if (up + 1 < best)
-        best = up + 1;
-      if (row[j - 1] + 1 < best)
-        best = row[j - 1] + 1;
-      row[j] = best;
-      diag = up;
-    }
-  }
-  return row[lb];
-}
-
-static int common_prefix(const char *a, const char *b) {
-  int k = 0;
-  while (a[k] && a[k] == b[k])
-    k++;
-  return k;
-}
-
-/* The candidate closest to `word` if it is close enough to be a likely typo;
- * ties go to the longer common prefix (micro_step: micro_steps, not
- * macro_step). */
-static const char *closest(const char *word, const char *const *cand, int n) {
-  const char *best = NULL;
-  int best_d = 1 << 20, best_pre = -1;
-  for (int i = 0; i < n; i++) {
-    int d = edit_distance(word, cand[i]), pre = common_prefix(word, cand[i]);
-    if (d < best_d || (d == best_d && pre > best_pre)) {
-      best_d = d;
-      best_pre = pre;
-      best = cand[i];
-    }
-  }
-  int len = (int)strlen(word);
-  int limit = len / 3 > 2 ? len / 3 : 2;
-  return best && best_d <= limit && best_d < len ? best : NULL;
-}
-
 /* "; did you mean 'x'?" or "; known: a, b, c" into buf. */
 static void suggest(char *buf, size_t len, const char *word,
                     const char *const *cand, int n) {
-  const char *c = closest(word, cand, n);
+  const char *c = mrvi_closest(word, cand, n);
   if (c) {
     mrvi_fmt(buf, len, "; did you mean '%s'?", c);
     return;
@@ -736,7 +685,7 @@ static int fail_unknown_name(loader *L, struct fy_node *at, const char *kind,
     return fail_nomem(L);
   for (int i = 0; i < n; i++)
     cand[i] = tab[i].name;
-  const char *c = closest(name, cand, n);
+  const char *c = mrvi_closest(name, cand, n);
   free(cand);
   if (c)
     return fail(L, at, "unknown %s '%s'; did you mean '%s'?", kind, name, c);
@@ -1054,7 +1003,7 @@ static int load_terms(loader *L, struct fy_node *list) {
         if (!strcmp(names[j], cname))
           idx = j;
       if (idx < 0) {
-        const char *c = closest(cname, names, n);
+        const char *c = mrvi_closest(cname, names, n);
         st = c ? fail(L, key, "unknown coordinate '%s'; did you mean '%s'?",
                       cname, c)
                : fail(L, key, "unknown coordinate '%s'", cname);
