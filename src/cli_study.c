@@ -281,26 +281,23 @@ static int h5_matrix(hid_t loc, const char *name, const double *v, hsize_t r,
   return rc < 0 ? -1 : 0;
 }
 
-static void h5_attr_double(hid_t loc, const char *name, double v) {
+/* Scalar attribute of a native numeric type. */
+static void h5_attr(hid_t loc, const char *name, hid_t type, const void *v) {
   hid_t sp = H5Screate(H5S_SCALAR);
-  hid_t a = H5Acreate2(loc, name, H5T_NATIVE_DOUBLE, sp, H5P_DEFAULT,
-                       H5P_DEFAULT);
+  hid_t a = H5Acreate2(loc, name, type, sp, H5P_DEFAULT, H5P_DEFAULT);
   if (a >= 0) {
-    H5Awrite(a, H5T_NATIVE_DOUBLE, &v);
+    H5Awrite(a, type, v);
     H5Aclose(a);
   }
   H5Sclose(sp);
 }
 
+static void h5_attr_double(hid_t loc, const char *name, double v) {
+  h5_attr(loc, name, H5T_NATIVE_DOUBLE, &v);
+}
+
 static void h5_attr_int(hid_t loc, const char *name, int v) {
-  hid_t sp = H5Screate(H5S_SCALAR);
-  hid_t a = H5Acreate2(loc, name, H5T_NATIVE_INT, sp, H5P_DEFAULT,
-                       H5P_DEFAULT);
-  if (a >= 0) {
-    H5Awrite(a, H5T_NATIVE_INT, &v);
-    H5Aclose(a);
-  }
-  H5Sclose(sp);
+  h5_attr(loc, name, H5T_NATIVE_INT, &v);
 }
 
 static void h5_attr_string(hid_t loc, const char *name, const char *v) {

@@ -17,14 +17,6 @@ static int fail(mrvi_model *m, int status, const char *fmt, ...) {
   return status;
 }
 
-static char *dupstr(const char *s) {
-  size_t n = strlen(s) + 1;
-  char *d = malloc(n);
-  if (d)
-    memcpy(d, s, n);
-  return d;
-}
-
 /* Grow *p (elements of size sz) so that it holds at least need entries. */
 static int grow(void **p, int *cap, int need, size_t sz) {
   if (need <= *cap)
@@ -44,7 +36,7 @@ mrvi_model *mrvi_model_create(void) {
   mrvi_model *m = calloc(1, sizeof *m);
   if (!m)
     return NULL;
-  m->name = dupstr("model");
+  m->name = strdup("model");
   if (!m->name) {
     free(m);
     return NULL;
@@ -84,7 +76,7 @@ const char *mrvi_model_errmsg(const mrvi_model *m) {
 int mrvi_model_set_name(mrvi_model *m, const char *name) {
   if (!name)
     return fail(m, MRVI_EINVAL, "model name is NULL");
-  char *d = dupstr(name);
+  char *d = strdup(name);
   if (!d)
     return fail(m, MRVI_ENOMEM, "out of memory");
   free(m->name);
@@ -177,7 +169,7 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
     return fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'", name);
   if (reserve_coordinates(m, m->n + 1))
     return fail(m, MRVI_ENOMEM, "out of memory");
-  char *d = dupstr(name);
+  char *d = strdup(name);
   if (!d)
     return fail(m, MRVI_ENOMEM, "out of memory");
   m->names[m->n] = d;
@@ -217,7 +209,7 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
            sizeof *m->particles))
     return fail(m, MRVI_ENOMEM, "out of memory");
-  char *pname = dupstr(name);
+  char *pname = strdup(name);
   if (!pname)
     return fail(m, MRVI_ENOMEM, "out of memory");
   int first = m->n;
