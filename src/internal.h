@@ -50,6 +50,18 @@ typedef struct mrvi_particle {
   int first; /* model index of its x coordinate */
 } mrvi_particle;
 
+/* A constraint instance: type applied to model coordinates `in`. */
+typedef struct mrvi_constraint {
+  const mrvi_constraint_type *type;
+  char *label;
+  int n_in, *in;                /* model indices */
+  int n_params;
+  double *params;
+  int rows;                     /* scalar equations */
+  int first_row;                /* offset in the model's constraint rows */
+  mrvi_rate where;              /* MRVI_SLOW: macro nodes; MRVI_FAST: micro */
+} mrvi_constraint;
+
 struct mrvi_model {
   char *name;
   int dimension;
@@ -66,6 +78,10 @@ struct mrvi_model {
   int *slow_index, *fast_index; /* slot -> model index */
   int *slot;                    /* model index -> slot within its rate block */
   int max_in;                   /* largest n_in of a non-linear element */
+  int n_constraints, cap_constraints;
+  mrvi_constraint *constraints;
+  int constraint_rows;          /* sum of rows */
+  int max_constraint_in;        /* largest n_in of a constraint */
   char errmsg[512];
 };
 
@@ -73,6 +89,22 @@ struct mrvi_model {
  * of element e at its local inputs y (n_in). */
 double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
                          const double *y, double *grad, double *hess);
+
+/* Release the constraint instances of m (constraints.c). */
+void mrvi_model_free_constraints(mrvi_model *m);
+/* Evaluate constraint c at its inputs y: g (rows), G (rows x n_in), H
+ * (rows x n_in x n_in, may be NULL). */
+void mrvi_constraint_eval_at(const mrvi_constraint *c, const double *y,
+                             double *g, double *G, double *H);
+
+/* Dense helpers (dense.c).  Solve A x = b in place (A n x n row-major,
+ * overwritten; b becomes x); -1 if singular. */
+int mrvi_dense_solve(int n, double *A, double *b);
+/* Householder QR of A (m x n row-major, m <= MRVI_MAX_INPUTS): A is
+ * overwritten with R in its upper triangle, Q (m x m row-major) is explicit
+ * and orthogonal; A = Q R.  Returns -1 if a column is (numerically) in the
+ * span of the previous ones. */
+int mrvi_dense_qr(int m, int n, double *A, double *Q);
 
 /* ---------------------------------------------------------------------------
  * Quadrature (eq:Zapprox and eq:slow_potential_affine as evaluation points)

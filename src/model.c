@@ -62,6 +62,7 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->rate);
   free(m->particles);
   free(m->elements);
+  mrvi_model_free_constraints(m);
   free(m->slow_index);
   free(m->fast_index);
   free(m->slot);
@@ -697,6 +698,12 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
     if (el->coef)
       fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);
+  }
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    fnv(&h, k->type->name, strlen(k->type->name) + 1);
+    fnv(&h, k->in, (size_t)k->n_in * sizeof *k->in);
+    fnv(&h, k->params, (size_t)k->n_params * sizeof *k->params);
   }
   return h;
 }

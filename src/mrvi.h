@@ -169,6 +169,92 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q,
                          const double *p, double *linear, double *angular);
 
 /* ---------------------------------------------------------------------------
+ * Holonomic constraints g(q) = 0 (DESIGN §6).
+ *
+ * A constraint type is one const table in constraints/ (distance, fixed,
+ * plane, linear); an instance applies it to n_in model coordinates with
+ * type-specific parameters and has `rows` scalar equations.  Register user
+ * types with mrvi_constraint_type_register.  Where an instance is enforced
+ * follows from its inputs: on slow coordinates only at macro nodes, involving
+ * a fast coordinate at every micro node (slow part interpolated).
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_constraint_type {
+  const char *name;     /* e.g. "distance" */
+  const char *summary;  /* one line for `mrvi check` and docs */
+  /* Validate sizes and parameters of an instance; return its number of rows
+   * (1 <= rows <= n_in) or a status < 0 with a message. */
+  int (*check)(int n_in, int n_params, const double *params, char *msg,
+               size_t msg_len);
+  /* At inputs y (n_in): g (rows), G = dg/dy (rows x n_in, row-major) and,
+   * if H is not NULL, the second derivatives (rows x n_in x n_in). */
+  void (*eval)(int n_in, int n_params, const double *params,
+               const double *y, double *g, double *G, double *H);
+} mrvi_constraint_type;
+
+/* Add a type to the registry (the pointer must stay valid).  MRVI_EINVAL if
+ * the name is taken or the table is incomplete. */
+int mrvi_constraint_type_register(const mrvi_constraint_type *type);
+/* Type by name, or NULL; iterate with count/get. */
+const mrvi_constraint_type *mrvi_constraint_type_find(const char *name);
+int mrvi_constraint_type_count(void);
+const mrvi_constraint_type *mrvi_constraint_type_get(int i);
+
+/* Generic instance: type by name on n_in model coordinates with n_params
+ * parameters; label names it in messages (NULL: "<type> <coordinates>").
+ * Returns the constraint index (>= 0) or a status < 0. */
+int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
+                              const int *coords, int n_params,
+                              const double *params, const char *label);
+/* Rigid rod |x_i - x_j| = length between two particles; NAN length: the
+ * initial distance.  g = (|d|^2 - length^2) / (2 length), d = x_i - x_j. */
+int mrvi_model_add_distance(mrvi_model *m, int particle_i, int particle_j,
+                            double length);
+/* Rod between particle i and the fixed point `anchor` (dimension entries). */
+int mrvi_model_add_distance_anchor(mrvi_model *m, int particle_i,
+                                   const double *anchor, double length);
+/* Pin the axes of particle i with axes[a] != 0 (dimension entries; NULL: all)
+ * at `position` (dimension entries; NULL: the initial position). */
+int mrvi_model_add_fixed(mrvi_model *m, int particle_i, const int *axes,
+                         const double *position);
+/* Particle i on the plane n.x = offset (n normalised; NAN offset: through
+ * the initial position). */
+int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
+                         double offset);
+/* sum_j coef[j] q[coords[j]] = rhs (NAN rhs: the initial value). */
+int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
+                                     const int *coords, const double *coef,
+                                     double rhs);
+
+int mrvi_model_n_constraints(const mrvi_model *m);
+/* Total number of scalar constraint equations (rows of g). */
+int mrvi_model_constraint_rows(const mrvi_model *m);
+const char *mrvi_model_constraint_label(const mrvi_model *m, int c);
+const char *mrvi_model_constraint_type_name(const mrvi_model *m, int c);
+int mrvi_model_constraint_n_rows(const mrvi_model *m, int c);
+/* MRVI_SLOW: enforced at macro nodes; MRVI_FAST: at every micro node. */
+mrvi_rate mrvi_model_constraint_where(const mrvi_model *m, int c);
+/* One-line description, e.g. "distance cart-bob, length 0.5 (micro nodes)". */
+int mrvi_model_describe_constraint(const mrvi_model *m, int c, char *buf,
+                                   size_t len);
+/* g(q) of every constraint in order (constraint_rows entries) and, if G is
+ * not NULL, the dense gradient (constraint_rows x n, row-major). */
+void mrvi_model_constraint_eval(const mrvi_model *m, const double *q,
+                                double *g, double *G);
+/* max_i |(G M^-1 p)_i|: the hidden (velocity) constraint at (q, p). */
+double mrvi_model_hidden_residual(const mrvi_model *m, const double *q,
+                                  const double *p);
+/* Initial positions: MRVI_EMODEL with a message naming the constraint with
+ * the largest |g(q0)| if that exceeds tol; *worst gets its index (or -1). */
+int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst);
+/* Gradients independent at q (model order): MRVI_ESINGULAR with a message
+ * naming the constraints whose gradients are linearly dependent. */
+int mrvi_model_check_independent(mrvi_model *m, const double *q);
+/* Project the initial velocities onto the tangent space G(q0) v = 0
+ * (M-orthogonally, so that p0 = M v0 meets G M^-1 p = 0); *correction gets
+ * max_i |dv_i|. */
+int mrvi_model_project_velocities(mrvi_model *m, double *correction);
+
+/* ---------------------------------------------------------------------------
  * Integrator settings (DESIGN §2): rule (alpha, gamma) of eq:Zapprox for the
  * slow potential V and the fast potential W, the grid V is evaluated on.
  * ------------------------------------------------------------------------- */
@@ -178,6 +264,13 @@ typedef struct mrvi_rule {
   double alpha; /* weight of the first point, [0, 1] */
   double gamma; /* 1/2 midpoint, 0 or 1 trapezoidal family, [0, 1] */
 } mrvi_rule;
+
+/* How constraints enter the Newton system: multipliers (x, lambda) solved
+ * together, or the discrete null-space form (lambda eliminated). */
+typedef enum mrvi_constraint_form {
+  MRVI_FORM_MULTIPLIERS = 0,
+  MRVI_FORM_NULL_SPACE = 1
+} mrvi_constraint_form;
 
 typedef struct mrvi_settings {
   char scheme[48];      /* name of the scheme the rules came from */
@@ -189,6 +282,10 @@ typedef struct mrvi_settings {
   double t_end;         /* >= macro_step; N = ceil(t_end/dT - 1e-9) steps */
   double newton_tol;    /* stop when ||R||_inf <= tol (default 1e-9) */
   int newton_max_iter;  /* default 20 */
+  /* Constraints (DESIGN §6). */
+  mrvi_constraint_form constraint_form; /* default MRVI_FORM_MULTIPLIERS */
+  double constraint_tol;                /* max |g| at enforced nodes (1e-10) */
+  int project_momenta;                  /* project p onto G M^-1 p = 0 (1) */
 } mrvi_settings;
 
 /* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it. */
@@ -236,9 +333,19 @@ const double *mrvi_integrator_micro_q(const mrvi_integrator *it);
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it);
 int mrvi_integrator_last_iterations(const mrvi_integrator *it);
 double mrvi_integrator_last_residual(const mrvi_integrator *it);
-/* Size of the Newton system (n_slow + p n_fast) and its nonzeros. */
+/* Size of the Newton system (n_slow + p n_fast, plus the multipliers in
+ * the multiplier form) and its nonzeros. */
 int mrvi_integrator_system_size(const mrvi_integrator *it);
 long mrvi_integrator_system_nnz(const mrvi_integrator *it);
+/* Constraint multipliers at the first node of the last step (model
+ * constraint order, constraint_rows entries): lambda_k of the slow-only
+ * constraints and lambda_k^0 of the micro-node ones (a force: the term in the
+ * action is -h lambda^T g with h the step of the grid it is enforced on). */
+const double *mrvi_integrator_lambda(const mrvi_integrator *it);
+/* max |g| over the micro-node constraints at the micro nodes m = 1..p of the
+ * last step (p entries; zeros without such constraints). */
+const double *mrvi_integrator_micro_constraint_residual(
+    const mrvi_integrator *it);
 /* Accumulated wall time in seconds spent assembling residual+Jacobian and
  * in the linear solves (UMFPACK numeric + solve). */
 void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
@@ -262,6 +369,14 @@ typedef struct mrvi_record {
   double micro_t0;             /* time of the first of them */
   double micro_dt;             /* spacing */
   const double *micro_q_fast, *micro_p_fast;
+  /* Constraints (all 0 / NULL without them). */
+  int n_lambda;                /* constraint rows */
+  /* Multipliers of node k-1 (computed by the step k-1 -> k that ends here;
+   * NULL at k = 0): a node's multipliers are known one record late. */
+  const double *lambda_prev;
+  double constraint_residual;  /* max |g| over the nodes this record completes */
+  double hidden_constraint_residual; /* max |G M^-1 p| at node k */
+  const double *micro_constraint_residual; /* micro_count entries */
 } mrvi_record;
 
 /* Observer: return 0 to continue, a status < 0 to stop the run with it. */

@@ -56,6 +56,9 @@ void mrvi_settings_default(mrvi_settings *s) {
   s->t_end = 1.0;
   s->newton_tol = 1e-9;
   s->newton_max_iter = 20;
+  s->constraint_form = MRVI_FORM_MULTIPLIERS;
+  s->constraint_tol = 1e-10;
+  s->project_momenta = 1;
 }
 
 static int unit(double v) { return isfinite(v) && v >= 0.0 && v <= 1.0; }
@@ -92,6 +95,16 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len) {
   if (s->newton_max_iter < 1) {
     mrvi_fmt(msg, len, "newton max_iterations must be at least 1 (got %d)",
              s->newton_max_iter);
+    return MRVI_EINVAL;
+  }
+  if (s->constraint_form != MRVI_FORM_MULTIPLIERS &&
+      s->constraint_form != MRVI_FORM_NULL_SPACE) {
+    mrvi_fmt(msg, len, "constraint form must be multipliers or null-space");
+    return MRVI_EINVAL;
+  }
+  if (!(isfinite(s->constraint_tol) && s->constraint_tol > 0)) {
+    mrvi_fmt(msg, len, "constraint tolerance must be positive (got %g)",
+             s->constraint_tol);
     return MRVI_EINVAL;
   }
   return MRVI_OK;

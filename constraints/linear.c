@@ -1,0 +1,51 @@
+/* linear: a^T q = b on generalised coordinates (inputs: the coordinates;
+ * parameters a (n_in entries) and b).  g = a^T y - b. */
+#include "internal.h"
+
+#include <math.h>
+#include <string.h>
+
+static int check(int n_in, int n_params, const double *par, char *msg,
+                 size_t len) {
+  if (n_in < 1 || n_params != n_in + 1) {
+    mrvi_fmt(msg, len,
+             "linear: needs one coefficient per coordinate and a right-hand "
+             "side (got %d coordinates and %d parameters)",
+             n_in, n_params);
+    return MRVI_EINVAL;
+  }
+  int nonzero = 0;
+  for (int i = 0; i < n_params; i++) {
+    if (!isfinite(par[i])) {
+      mrvi_fmt(msg, len, "linear: coefficients must be finite");
+      return MRVI_EINVAL;
+    }
+    if (i < n_in && par[i] != 0.0)
+      nonzero = 1;
+  }
+  if (!nonzero) {
+    mrvi_fmt(msg, len, "linear: all coefficients are zero");
+    return MRVI_EINVAL;
+  }
+  return 1;
+}
+
+static void eval(int n_in, int n_params, const double *par, const double *y,
+                 double *g, double *G, double *H) {
+  (void)n_params;
+  double s = 0.0;
+  for (int j = 0; j < n_in; j++) {
+    s += par[j] * y[j];
+    G[j] = par[j];
+  }
+  g[0] = s - par[n_in];
+  if (H)
+    memset(H, 0, (size_t)n_in * (size_t)n_in * sizeof *H);
+}
+
+const mrvi_constraint_type mrvi_constraint_linear = {
+    .name = "linear",
+    .summary = "a^T q = b on generalised coordinates",
+    .check = check,
+    .eval = eval,
+};

@@ -1,0 +1,553 @@
+/* Holonomic constraints on a model (DESIGN §6): the registry of constraint
+ * types (one const table per file in constraints/), instances, and the
+ * checks and projections of initial data. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+extern const mrvi_constraint_type mrvi_constraint_distance;
+extern const mrvi_constraint_type mrvi_constraint_fixed;
+extern const mrvi_constraint_type mrvi_constraint_plane;
+extern const mrvi_constraint_type mrvi_constraint_linear;
+
+static const mrvi_constraint_type *const builtin[] = {
+    &mrvi_constraint_distance,
+    &mrvi_constraint_fixed,
+    &mrvi_constraint_plane,
+    &mrvi_constraint_linear,
+};
+
+#define N_BUILTIN ((int)(sizeof builtin / sizeof builtin[0]))
+#define MAX_USER 64
+
+static const mrvi_constraint_type *user[MAX_USER];
+static int n_user = 0;
+
+int mrvi_constraint_type_count(void) { return N_BUILTIN + n_user; }
+
+const mrvi_constraint_type *mrvi_constraint_type_get(int i) {
+  if (i < 0 || i >= mrvi_constraint_type_count())
+    return NULL;
+  return i < N_BUILTIN ? builtin[i] : user[i - N_BUILTIN];
+}
+
+const mrvi_constraint_type *mrvi_constraint_type_find(const char *name) {
+  if (!name)
+    return NULL;
+  for (int i = 0; i < mrvi_constraint_type_count(); i++)
+    if (strcmp(mrvi_constraint_type_get(i)->name, name) == 0)
+      return mrvi_constraint_type_get(i);
+  return NULL;
+}
+
+int mrvi_constraint_type_register(const mrvi_constraint_type *t) {
+  if (!t || !t->name || !t->check || !t->eval)
+    return MRVI_EINVAL;
+  if (mrvi_constraint_type_find(t->name) || n_user == MAX_USER)
+    return MRVI_EINVAL;
+  user[n_user++] = t;
+  return MRVI_OK;
+}
+
+static int fail(mrvi_model *m, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+static int fail(mrvi_model *m, int status, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(m->errmsg, sizeof m->errmsg, fmt, ap);
+  va_end(ap);
+  return status;
+}
+
+void mrvi_model_free_constraints(mrvi_model *m) {
+  for (int c = 0; c < m->n_constraints; c++) {
+    free(m->constraints[c].label);
+    free(m->constraints[c].in);
+    free(m->constraints[c].params);
+  }
+  free(m->constraints);
+  m->constraints = NULL;
+  m->n_constraints = m->cap_constraints = 0;
+}
+
+void mrvi_constraint_eval_at(const mrvi_constraint *c, const double *y,
+                             double *g, double *G, double *H) {
+  c->type->eval(c->n_in, c->n_params, c->params, y, g, G, H);
+}
+
+int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
+                              const int *coords, int n_params,
+                              const double *params, const char *label) {
+  const mrvi_constraint_type *t = mrvi_constraint_type_find(type);
+  if (!t) {
+    const char *names[N_BUILTIN + MAX_USER];
+    const int n = mrvi_constraint_type_count();
+    for (int i = 0; i < n; i++)
+      names[i] = mrvi_constraint_type_get(i)->name;
+    const char *hint = type ? mrvi_closest(type, names, n) : NULL;
+    return fail(m, MRVI_EINVAL, "unknown constraint type '%s'%s%s%s",
+                type ? type : "(null)", hint ? " (did you mean '" : "",
+                hint ? hint : "", hint ? "'?)" : "");
+  }
+  if (n_in < 1 || !coords)
+    return fail(m, MRVI_EINVAL, "%s: no coordinates", t->name);
+  if (n_in > MRVI_MAX_INPUTS)
+    return fail(m, MRVI_EINVAL, "%s: at most %d coordinates per constraint",
+                t->name, MRVI_MAX_INPUTS);
+  if (n_params < 0 || (n_params > 0 && !params))
+    return fail(m, MRVI_EINVAL, "%s: parameters missing", t->name);
+  for (int j = 0; j < n_in; j++) {
+    if (coords[j] < 0 || coords[j] >= m->n)
+      return fail(m, MRVI_EINVAL, "%s: coordinate index %d out of range",
+                  t->name, coords[j]);
+    for (int i = 0; i < j; i++)
+      if (coords[i] == coords[j])
+        return fail(m, MRVI_EINVAL, "%s: coordinate '%s' appears twice",
+                    t->name, m->names[coords[j]]);
+  }
+  char msg[400];
+  const int rows = t->check(n_in, n_params, params, msg, sizeof msg);
+  if (rows < 0)
+    return fail(m, rows, "%s", msg);
+  if (rows < 1 || rows > n_in)
+    return fail(m, MRVI_EINVAL, "%s: check returned %d rows for %d inputs",
+                t->name, rows, n_in);
+  mrvi_constraint c = {.type = t, .n_in = n_in, .n_params = n_params,
+                       .rows = rows, .first_row = m->constraint_rows,
+                       .where = MRVI_SLOW};
+  for (int j = 0; j < n_in; j++)
+    if (m->rate[coords[j]] == MRVI_FAST)
+      c.where = MRVI_FAST;
+  char def[300];
+  if (!label) {
+    mrvi_fmt(def, sizeof def, "%s on %s%s", t->name, m->names[coords[0]],
+             n_in > 1 ? ", ..." : "");
+    label = def;
+  }
+  if (m->n_constraints == m->cap_constraints) {
+    const int cap = m->cap_constraints ? 2 * m->cap_constraints : 8;
+    mrvi_constraint *p =
+        realloc(m->constraints, (size_t)cap * sizeof *m->constraints);
+    if (!p)
+      return fail(m, MRVI_ENOMEM, "out of memory");
+    m->constraints = p;
+    m->cap_constraints = cap;
+  }
+  c.label = strdup(label);
+  c.in = malloc((size_t)n_in * sizeof *c.in);
+  c.params = malloc((size_t)(n_params > 0 ? n_params : 1) * sizeof *c.params);
+  if (!c.label || !c.in || !c.params) {
+    free(c.label);
+    free(c.in);
+    free(c.params);
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  memcpy(c.in, coords, (size_t)n_in * sizeof *c.in);
+  if (n_params > 0)
+    memcpy(c.params, params, (size_t)n_params * sizeof *c.params);
+  m->constraints[m->n_constraints] = c;
+  m->constraint_rows += rows;
+  if (n_in > m->max_constraint_in)
+    m->max_constraint_in = n_in;
+  return m->n_constraints++;
+}
+
+/* Coordinates of particle i (dimension entries) into in; -1 if invalid. */
+static int particle_coords(mrvi_model *m, const char *what, int i, int *in) {
+  if (i < 0 || i >= m->n_particles)
+    return fail(m, MRVI_EINVAL, "%s: particle index %d out of range", what,
+                i);
+  for (int a = 0; a < m->dimension; a++)
+    in[a] = m->particles[i].first + a;
+  return MRVI_OK;
+}
+
+int mrvi_model_add_distance(mrvi_model *m, int particle_i, int particle_j,
+                            double length) {
+  int in[6];
+  const int d = m->dimension;
+  int st;
+  if ((st = particle_coords(m, "distance", particle_i, in)) < 0 ||
+      (st = particle_coords(m, "distance", particle_j, in + d)) < 0)
+    return st;
+  if (particle_i == particle_j)
+    return fail(m, MRVI_EINVAL, "distance: both ends are particle '%s'",
+                m->particles[particle_i].name);
+  if (isnan(length)) {
+    double rr = 0.0;
+    for (int a = 0; a < d; a++)
+      rr += (m->q0[in[a]] - m->q0[in[d + a]]) *
+            (m->q0[in[a]] - m->q0[in[d + a]]);
+    length = sqrt(rr);
+    if (!(length > 0.0))
+      return fail(m, MRVI_EINVAL,
+                  "distance %s-%s: the particles start at the same point, so "
+                  "the length must be given",
+                  m->particles[particle_i].name,
+                  m->particles[particle_j].name);
+  }
+  char label[300];
+  mrvi_fmt(label, sizeof label, "distance %s-%s",
+           m->particles[particle_i].name, m->particles[particle_j].name);
+  return mrvi_model_add_constraint(m, "distance", 2 * d, in, 1, &length,
+                                   label);
+}
+
+int mrvi_model_add_distance_anchor(mrvi_model *m, int particle_i,
+                                   const double *anchor, double length) {
+  int in[3];
+  const int d = m->dimension;
+  int st = particle_coords(m, "distance", particle_i, in);
+  if (st < 0)
+    return st;
+  if (!anchor)
+    return fail(m, MRVI_EINVAL, "distance: anchor is NULL");
+  double par[4];
+  double rr = 0.0;
+  for (int a = 0; a < d; a++) {
+    par[1 + a] = anchor[a];
+    rr += (m->q0[in[a]] - anchor[a]) * (m->q0[in[a]] - anchor[a]);
+  }
+  if (isnan(length)) {
+    length = sqrt(rr);
+    if (!(length > 0.0))
+      return fail(m, MRVI_EINVAL,
+                  "distance %s-anchor: the particle starts at the anchor, so "
+                  "the length must be given",
+                  m->particles[particle_i].name);
+  }
+  par[0] = length;
+  char label[300];
+  mrvi_fmt(label, sizeof label, "distance %s-anchor",
+           m->particles[particle_i].name);
+  return mrvi_model_add_constraint(m, "distance", d, in, d + 1, par, label);
+}
+
+int mrvi_model_add_fixed(mrvi_model *m, int particle_i, const int *axes,
+                         const double *position) {
+  int all[3], in[3];
+  double target[3];
+  const int d = m->dimension;
+  int st = particle_coords(m, "fixed", particle_i, all);
+  if (st < 0)
+    return st;
+  int n = 0;
+  static const char axis_name[] = "xyz";
+  char which[8] = "";
+  for (int a = 0; a < d; a++)
+    if (!axes || axes[a]) {
+      in[n] = all[a];
+      target[n] = position ? position[a] : m->q0[all[a]];
+      which[n] = axis_name[a];
+      n++;
+    }
+  if (n == 0)
+    return fail(m, MRVI_EINVAL, "fixed %s: no axis selected",
+                m->particles[particle_i].name);
+  char label[300];
+  mrvi_fmt(label, sizeof label, "fixed %s%s%s", m->particles[particle_i].name,
+           n < d ? "." : "", n < d ? which : "");
+  return mrvi_model_add_constraint(m, "fixed", n, in, n, target, label);
+}
+
+int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
+                         double offset) {
+  int in[3];
+  const int d = m->dimension;
+  int st = particle_coords(m, "plane", particle_i, in);
+  if (st < 0)
+    return st;
+  if (!normal)
+    return fail(m, MRVI_EINVAL, "plane: normal is NULL");
+  double par[4];
+  double s = 0.0;
+  for (int a = 0; a < d; a++) {
+    par[a] = normal[a];
+    s += normal[a] * m->q0[in[a]];
+  }
+  par[d] = isnan(offset) ? s : offset;
+  char label[300];
+  mrvi_fmt(label, sizeof label, "plane %s", m->particles[particle_i].name);
+  return mrvi_model_add_constraint(m, "plane", d, in, d + 1, par, label);
+}
+
+int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
+                                     const int *coords, const double *coef,
+                                     double rhs) {
+  if (n_terms < 1 || n_terms > MRVI_MAX_INPUTS || !coords || !coef)
+    return fail(m, MRVI_EINVAL, "linear: 1 to %d coordinates required",
+                MRVI_MAX_INPUTS);
+  double par[MRVI_MAX_INPUTS + 1];
+  double s = 0.0;
+  for (int j = 0; j < n_terms; j++) {
+    if (coords[j] < 0 || coords[j] >= m->n)
+      return fail(m, MRVI_EINVAL, "linear: coordinate index %d out of range",
+                  coords[j]);
+    par[j] = coef[j];
+    s += coef[j] * m->q0[coords[j]];
+  }
+  par[n_terms] = isnan(rhs) ? s : rhs;
+  char label[300];
+  mrvi_fmt(label, sizeof label, "linear on %s%s", m->names[coords[0]],
+           n_terms > 1 ? ", ..." : "");
+  return mrvi_model_add_constraint(m, "linear", n_terms, coords, n_terms + 1,
+                                   par, label);
+}
+
+int mrvi_model_n_constraints(const mrvi_model *m) { return m->n_constraints; }
+int mrvi_model_constraint_rows(const mrvi_model *m) {
+  return m->constraint_rows;
+}
+static const mrvi_constraint *get(const mrvi_model *m, int c) {
+  return c >= 0 && c < m->n_constraints ? &m->constraints[c] : NULL;
+}
+const char *mrvi_model_constraint_label(const mrvi_model *m, int c) {
+  return get(m, c) ? get(m, c)->label : NULL;
+}
+const char *mrvi_model_constraint_type_name(const mrvi_model *m, int c) {
+  return get(m, c) ? get(m, c)->type->name : NULL;
+}
+int mrvi_model_constraint_n_rows(const mrvi_model *m, int c) {
+  return get(m, c) ? get(m, c)->rows : 0;
+}
+mrvi_rate mrvi_model_constraint_where(const mrvi_model *m, int c) {
+  return get(m, c) ? get(m, c)->where : MRVI_SLOW;
+}
+
+int mrvi_model_describe_constraint(const mrvi_model *m, int c, char *buf,
+                                   size_t len) {
+  const mrvi_constraint *k = get(m, c);
+  if (!k)
+    return MRVI_EINVAL;
+  char par[200] = "";
+  size_t used = 0;
+  for (int i = 0; i < k->n_params && used + 24 < sizeof par; i++)
+    used += (size_t)snprintf(par + used, sizeof par - used, "%s%.6g",
+                             i ? ", " : "", k->params[i]);
+  mrvi_fmt(buf, len, "%s (%s; %d row%s; parameters %s) at %s", k->label,
+           k->type->name, k->rows, k->rows == 1 ? "" : "s", par,
+           k->where == MRVI_FAST ? "every micro node" : "macro nodes");
+  return MRVI_OK;
+}
+
+/* Inputs of constraint k at q (model order). */
+static void gather_q(const mrvi_constraint *k, const double *q, double *y) {
+  for (int j = 0; j < k->n_in; j++)
+    y[j] = q[k->in[j]];
+}
+
+void mrvi_model_constraint_eval(const mrvi_model *m, const double *q,
+                                double *g, double *G) {
+  double y[MRVI_MAX_INPUTS], Gl[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
+  if (G)
+    memset(G, 0, (size_t)m->constraint_rows * (size_t)m->n * sizeof *G);
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    gather_q(k, q, y);
+    mrvi_constraint_eval_at(k, y, g + k->first_row, Gl, NULL);
+    if (G)
+      for (int r = 0; r < k->rows; r++)
+        for (int j = 0; j < k->n_in; j++)
+          G[(size_t)(k->first_row + r) * (size_t)m->n + (size_t)k->in[j]] +=
+              Gl[r * k->n_in + j];
+  }
+}
+
+double mrvi_model_hidden_residual(const mrvi_model *m, const double *q,
+                                  const double *p) {
+  double y[MRVI_MAX_INPUTS], g[MRVI_MAX_INPUTS],
+      Gl[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
+  double worst = 0.0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    gather_q(k, q, y);
+    mrvi_constraint_eval_at(k, y, g, Gl, NULL);
+    for (int r = 0; r < k->rows; r++) {
+      double s = 0.0;
+      for (int j = 0; j < k->n_in; j++)
+        s += Gl[r * k->n_in + j] * p[k->in[j]] / m->mass[k->in[j]];
+      worst = fmax(worst, fabs(s));
+    }
+  }
+  return worst;
+}
+
+int mrvi_model_check_initial_positions(mrvi_model *m, double tol,
+                                       int *worst) {
+  double y[MRVI_MAX_INPUTS], g[MRVI_MAX_INPUTS],
+      Gl[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
+  int w = -1;
+  double wv = 0.0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    gather_q(k, m->q0, y);
+    mrvi_constraint_eval_at(k, y, g, Gl, NULL);
+    for (int r = 0; r < k->rows; r++)
+      if (!(fabs(g[r]) <= wv)) {
+        wv = fabs(g[r]);
+        w = c;
+      }
+  }
+  if (worst)
+    *worst = w;
+  if (w >= 0 && !(wv <= tol))
+    return fail(m, MRVI_EMODEL,
+                "initial positions violate constraint '%s': |g| = %.3e "
+                "exceeds the tolerance %.3e",
+                m->constraints[w].label, wv, tol);
+  return MRVI_OK;
+}
+
+/* Constraint owning row r. */
+static int constraint_of_row(const mrvi_model *m, int r) {
+  for (int c = 0; c < m->n_constraints; c++)
+    if (r < m->constraints[c].first_row + m->constraints[c].rows)
+      return c;
+  return m->n_constraints - 1;
+}
+
+int mrvi_model_check_independent(mrvi_model *m, const double *q) {
+  const int R = m->constraint_rows, n = m->n;
+  if (R == 0)
+    return MRVI_OK;
+  if (R > n)
+    return fail(m, MRVI_ESINGULAR,
+                "%d constraint equations on %d coordinates: the constraints "
+                "are redundant",
+                R, n);
+  double *g = malloc((size_t)R * sizeof *g);
+  double *G = malloc((size_t)R * (size_t)n * sizeof *G);
+  /* Orthonormal basis E (rank x n) of the rows seen so far, in the metric
+   * M^-1, and T (rank x R) writing each basis row in the original rows. */
+  double *E = malloc((size_t)R * (size_t)n * sizeof *E);
+  double *T = calloc((size_t)R * (size_t)R, sizeof *T);
+  double *v = malloc((size_t)n * sizeof *v);
+  double *t = malloc((size_t)R * sizeof *t);
+  if (!g || !G || !E || !T || !v || !t) {
+    free(g), free(G), free(E), free(T), free(v), free(t);
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  mrvi_model_constraint_eval(m, q, g, G);
+  int rank = 0, status = MRVI_OK;
+  for (int r = 0; r < R && status == MRVI_OK; r++) {
+    double norm0 = 0.0;
+    for (int j = 0; j < n; j++) {
+      v[j] = G[(size_t)r * n + j] / sqrt(m->mass[j]);
+      norm0 += v[j] * v[j];
+    }
+    norm0 = sqrt(norm0);
+    memset(t, 0, (size_t)R * sizeof *t);
+    t[r] = 1.0;
+    /* Two passes of modified Gram-Schmidt. */
+    for (int pass = 0; pass < 2; pass++)
+      for (int b = 0; b < rank; b++) {
+        double s = 0.0;
+        for (int j = 0; j < n; j++)
+          s += E[(size_t)b * n + j] * v[j];
+        for (int j = 0; j < n; j++)
+          v[j] -= s * E[(size_t)b * n + j];
+        for (int l = 0; l < R; l++)
+          t[l] -= s * T[(size_t)b * R + l];
+      }
+    double norm = 0.0;
+    for (int j = 0; j < n; j++)
+      norm += v[j] * v[j];
+    norm = sqrt(norm);
+    if (norm <= 1e-9 * norm0 || norm0 == 0.0) {
+      /* Row r = sum_l (-t_l) row_l over earlier rows: name those involved. */
+      char names[400] = "";
+      size_t used = 0;
+      int count = 0, last = -1;
+      double tmax = 0.0;
+      for (int l = 0; l < r; l++)
+        tmax = fmax(tmax, fabs(t[l]));
+      for (int l = 0; l <= r; l++) {
+        if (l < r && !(fabs(t[l]) > 1e-8 * tmax))
+          continue;
+        const int c = constraint_of_row(m, l);
+        if (c == last)
+          continue;
+        int seen = 0;
+        for (int l2 = 0; l2 < l; l2++)
+          if (fabs(t[l2]) > 1e-8 * tmax && constraint_of_row(m, l2) == c)
+            seen = 1;
+        if (seen)
+          continue;
+        last = c;
+        if (used + 8 < sizeof names)
+          used += (size_t)snprintf(names + used, sizeof names - used,
+                                   "%s'%s'", count ? ", " : "",
+                                   m->constraints[c].label);
+        count++;
+      }
+      status = fail(m, MRVI_ESINGULAR,
+                    count > 1 ? "redundant constraints: the gradients of %s "
+                                "are linearly dependent; remove one of them"
+                              : "constraint %s has a zero gradient (it is "
+                                "redundant or degenerate here)",
+                    names);
+      break;
+    }
+    for (int j = 0; j < n; j++)
+      E[(size_t)rank * n + j] = v[j] / norm;
+    for (int l = 0; l < R; l++)
+      T[(size_t)rank * R + l] = t[l] / norm;
+    rank++;
+  }
+  free(g), free(G), free(E), free(T), free(v), free(t);
+  return status;
+}
+
+int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
+  const int R = m->constraint_rows, n = m->n;
+  if (correction)
+    *correction = 0.0;
+  if (R == 0)
+    return MRVI_OK;
+  int st = mrvi_model_check_independent(m, m->q0);
+  if (st < 0)
+    return st;
+  double *g = malloc((size_t)R * sizeof *g);
+  double *G = malloc((size_t)R * (size_t)n * sizeof *G);
+  double *A = malloc((size_t)R * (size_t)R * sizeof *A);
+  double *mu = malloc((size_t)R * sizeof *mu);
+  if (!g || !G || !A || !mu) {
+    free(g), free(G), free(A), free(mu);
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  mrvi_model_constraint_eval(m, m->q0, g, G);
+  /* (G M^-1 G^T) mu = G v0;  v0 <- v0 - M^-1 G^T mu */
+  for (int a = 0; a < R; a++) {
+    double s = 0.0;
+    for (int j = 0; j < n; j++)
+      s += G[(size_t)a * n + j] * m->v0[j];
+    mu[a] = s;
+    for (int b = 0; b < R; b++) {
+      double t = 0.0;
+      for (int j = 0; j < n; j++)
+        t += G[(size_t)a * n + j] * G[(size_t)b * n + j] / m->mass[j];
+      A[a * R + b] = t;
+    }
+  }
+  if (mrvi_dense_solve(R, A, mu) < 0)
+    st = fail(m, MRVI_ESINGULAR, "constraint gradients are dependent");
+  else {
+    double worst = 0.0;
+    for (int j = 0; j < n; j++) {
+      double s = 0.0;
+      for (int a = 0; a < R; a++)
+        s += G[(size_t)a * n + j] * mu[a];
+      const double dv = s / m->mass[j];
+      m->v0[j] -= dv;
+      worst = fmax(worst, fabs(dv));
+    }
+    if (correction)
+      *correction = worst;
+  }
+  free(g), free(G), free(A), free(mu);
+  return st;
+}

@@ -1,0 +1,92 @@
+/* Small dense linear algebra for constraint blocks (a few rows each):
+ * Gaussian elimination and a Householder QR with explicit Q. */
+#include "internal.h"
+
+#include <math.h>
+#include <string.h>
+
+int mrvi_dense_solve(int n, double *A, double *b) {
+  for (int k = 0; k < n; k++) {
+    int piv = k;
+    for (int i = k + 1; i < n; i++)
+      if (fabs(A[i * n + k]) > fabs(A[piv * n + k]))
+        piv = i;
+    if (!(fabs(A[piv * n + k]) > 0.0))
+      return -1;
+    if (piv != k) {
+      for (int j = 0; j < n; j++) {
+        const double t = A[k * n + j];
+        A[k * n + j] = A[piv * n + j];
+        A[piv * n + j] = t;
+      }
+      const double t = b[k];
+      b[k] = b[piv];
+      b[piv] = t;
+    }
+    for (int i = k + 1; i < n; i++) {
+      const double f = A[i * n + k] / A[k * n + k];
+      if (f == 0.0)
+        continue;
+      for (int j = k; j < n; j++)
+        A[i * n + j] -= f * A[k * n + j];
+      b[i] -= f * b[k];
+    }
+  }
+  for (int i = n - 1; i >= 0; i--) {
+    double s = b[i];
+    for (int j = i + 1; j < n; j++)
+      s -= A[i * n + j] * b[j];
+    b[i] = s / A[i * n + i];
+  }
+  return 0;
+}
+
+int mrvi_dense_qr(int m, int n, double *A, double *Q) {
+  /* Q starts as the identity and accumulates the reflectors H_0 ... H_{n-1}
+   * so that A = Q R with R in the upper triangle of A. */
+  for (int i = 0; i < m; i++)
+    for (int j = 0; j < m; j++)
+      Q[i * m + j] = i == j ? 1.0 : 0.0;
+  double scale = 0.0;
+  for (int i = 0; i < m * n; i++)
+    scale = fmax(scale, fabs(A[i]));
+  int rank_ok = 1;
+  for (int k = 0; k < n && k < m; k++) {
+    double norm = 0.0;
+    for (int i = k; i < m; i++)
+      norm += A[i * n + k] * A[i * n + k];
+    norm = sqrt(norm);
+    if (norm <= 1e-12 * scale || norm == 0.0) {
+      rank_ok = 0;
+      continue;
+    }
+    const double alpha = A[k * n + k] > 0.0 ? -norm : norm;
+    /* v = a - alpha e_k, H = I - 2 v v^T / (v^T v) */
+    double v[MRVI_MAX_INPUTS];
+    double vv = 0.0;
+    for (int i = k; i < m; i++) {
+      v[i - k] = A[i * n + k] - (i == k ? alpha : 0.0);
+      vv += v[i - k] * v[i - k];
+    }
+    if (vv == 0.0)
+      continue;
+    for (int j = k; j < n; j++) {
+      double s = 0.0;
+      for (int i = k; i < m; i++)
+        s += v[i - k] * A[i * n + j];
+      s *= 2.0 / vv;
+      for (int i = k; i < m; i++)
+        A[i * n + j] -= s * v[i - k];
+    }
+    /* Q <- Q H */
+    for (int r = 0; r < m; r++) {
+      double s = 0.0;
+      for (int i = k; i < m; i++)
+        s += Q[r * m + i] * v[i - k];
+      s *= 2.0 / vv;
+      for (int i = k; i < m; i++)
+        Q[r * m + i] -= s * v[i - k];
+    }
+  }
+  return rank_ok ? 0 : -1;
+}
