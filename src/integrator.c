@@ -18,6 +18,8 @@ struct mrvi_integrator {
   double *x, *R, *dx;   /* unknowns, residual, Newton update */
   double *ps1;          /* ns */
   double *micro_q, *micro_p; /* p x nf */
+  double *lambda;       /* constraint rows: multipliers at node k of the last step */
+  double *micro_cres;   /* p: max |g| at micro nodes 1..p of the last step */
   int last_iterations;
   double last_residual;
   double t_assemble, t_solve;
@@ -56,6 +58,8 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->ps1);
   free(it->micro_q);
   free(it->micro_p);
+  free(it->lambda);
+  free(it->micro_cres);
   free(it);
 }
 
@@ -159,8 +163,10 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->ps1 = alloc(ns);
   it->micro_q = alloc(p * nf);
   it->micro_p = alloc(p * nf);
+  it->lambda = alloc((size_t)m->constraint_rows);
+  it->micro_cres = alloc(p);
   if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf ||
-      !it->x || !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p)
+      !it->x || !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p || !it->lambda || !it->micro_cres)
     goto oom;
   /* Initial state (q0, M v0) at t = 0. */
   for (size_t i = 0; i < n; i++) {
@@ -286,6 +292,13 @@ const double *mrvi_integrator_micro_q(const mrvi_integrator *it) {
 }
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it) {
   return it->micro_p;
+}
+const double *mrvi_integrator_lambda(const mrvi_integrator *it) {
+  return it->lambda;
+}
+const double *mrvi_integrator_micro_constraint_residual(
+    const mrvi_integrator *it) {
+  return it->micro_cres;
 }
 int mrvi_integrator_last_iterations(const mrvi_integrator *it) {
   return it->last_iterations;

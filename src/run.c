@@ -17,6 +17,21 @@ static void observe_state(const mrvi_model *m, mrvi_record *r) {
   mrvi_model_momentum(m, r->q, r->p, r->linear_momentum, r->angular_momentum);
 }
 
+/* max |g(q)| over all constraints (0 without constraints). */
+static double max_constraint_residual(const mrvi_model *m, const double *q) {
+  if (m->constraint_rows == 0)
+    return 0.0;
+  double *g = malloc((size_t)m->constraint_rows * sizeof *g);
+  if (!g)
+    return NAN;
+  mrvi_model_constraint_eval(m, q, g, NULL);
+  double r = 0.0;
+  for (int i = 0; i < m->constraint_rows; i++)
+    r = fmax(r, fabs(g[i]));
+  free(g);
+  return r;
+}
+
 int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
              mrvi_observer observer, void *user,
              volatile const int *stop_flag, mrvi_summary *sum) {
@@ -44,13 +59,16 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
   r.p = mrvi_integrator_p(it);
   observe_state(m, &r);
   /* Initial fast part, in model order of the fast coordinates. */
-  double *fq = malloc((2 * (size_t)nf + 1) * sizeof(double));
+  double *fq = malloc((2 * (size_t)nf + 1 + (size_t)p) * sizeof(double));
   if (!fq) {
     mrvi_integrator_free(it);
     mrvi_fmt(sum->message, sizeof sum->message, "out of memory");
     return sum->status = MRVI_ENOMEM;
   }
   double *fp = fq + nf;
+  double *zeros = fp + nf; /* p micro residuals without constraints */
+  for (int j = 0; j < p; j++)
+    zeros[j] = 0.0;
   for (int j = 0; j < nf; j++) {
     fq[j] = r.q[m->fast_index[j]];
     fp[j] = r.p[m->fast_index[j]];
@@ -60,6 +78,12 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
   r.micro_dt = dt;
   r.micro_q_fast = fq;
   r.micro_p_fast = fp;
+  /* Constraints at the initial node. */
+  r.n_lambda = m->constraint_rows;
+  double cres0 = max_constraint_residual(m, r.q);
+  r.constraint_residual = cres0;
+  r.micro_constraint_residual = &cres0;
+  r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
   const double H0 = r.energy;
   const double scale = fabs(H0) > DBL_MIN ? fabs(H0) : 1.0;
   if (observer && (st = observer(user, &r)) < 0)
@@ -96,6 +120,18 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
     r.micro_t0 = (double)k * s->macro_step + dt;
     r.micro_q_fast = mrvi_integrator_micro_q(it);
     r.micro_p_fast = mrvi_integrator_micro_p(it);
+    if (m->n_constraints > 0) {
+      r.lambda_prev = mrvi_integrator_lambda(it);
+      r.micro_constraint_residual =
+          mrvi_integrator_micro_constraint_residual(it);
+      r.constraint_residual = 0.0;
+      for (int j = 0; j < p; j++)
+        r.constraint_residual =
+            fmax(r.constraint_residual, r.micro_constraint_residual[j]);
+      r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
+    } else {
+      r.micro_constraint_residual = zeros;
+    }
     const double err = fabs(r.energy - H0) / scale;
     if (err > sum->max_rel_energy_error || isnan(err))
       sum->max_rel_energy_error = err;
