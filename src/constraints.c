@@ -63,6 +63,17 @@ static int fail(mrvi_model *m, int status, const char *fmt, ...) {
   return status;
 }
 
+static int report(char *msg, size_t len, int status, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+static int report(char *msg, size_t len, int status, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(msg, len, fmt, ap);
+  va_end(ap);
+  return status;
+}
+
 void mrvi_model_free_constraints(mrvi_model *m) {
   for (int c = 0; c < m->n_constraints; c++) {
     free(m->constraints[c].label);
@@ -411,11 +422,16 @@ static int constraint_of_row(const mrvi_model *m, int r) {
 }
 
 int mrvi_model_check_independent(mrvi_model *m, const double *q) {
+  return mrvi_constraints_independent(m, q, m->errmsg, sizeof m->errmsg);
+}
+
+int mrvi_constraints_independent(const mrvi_model *m, const double *q,
+                                 char *msg, size_t len) {
   const int R = m->constraint_rows, n = m->n;
   if (R == 0)
     return MRVI_OK;
   if (R > n)
-    return fail(m, MRVI_ESINGULAR,
+    return report(msg, len, MRVI_ESINGULAR,
                 "%d constraint equations on %d coordinates: the constraints "
                 "are redundant",
                 R, n);
@@ -429,7 +445,7 @@ int mrvi_model_check_independent(mrvi_model *m, const double *q) {
   double *t = malloc((size_t)R * sizeof *t);
   if (!g || !G || !E || !T || !v || !t) {
     free(g), free(G), free(E), free(T), free(v), free(t);
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return report(msg, len, MRVI_ENOMEM, "out of memory");
   }
   mrvi_model_constraint_eval(m, q, g, G);
   int rank = 0, status = MRVI_OK;
@@ -484,7 +500,7 @@ int mrvi_model_check_independent(mrvi_model *m, const double *q) {
                                    m->constraints[c].label);
         count++;
       }
-      status = fail(m, MRVI_ESINGULAR,
+      status = report(msg, len, MRVI_ESINGULAR,
                     count > 1 ? "redundant constraints: the gradients of %s "
                                 "are linearly dependent; remove one of them"
                               : "constraint %s has a zero gradient (it is "

@@ -62,7 +62,7 @@ int mrvi_dense_qr(int m, int n, double *A, double *Q) {
     }
     const double alpha = A[k * n + k] > 0.0 ? -norm : norm;
     /* v = a - alpha e_k, H = I - 2 v v^T / (v^T v) */
-    double v[MRVI_MAX_INPUTS];
+    double v[MRVI_DENSE_MAX];
     double vv = 0.0;
     for (int i = k; i < m; i++) {
       v[i - k] = A[i * n + k] - (i == k ? alpha : 0.0);

@@ -11,6 +11,8 @@ struct mrvi_integrator {
   mrvi_settings settings;
   mrvi_step step;
   mrvi_newton *newton;
+  mrvi_nullspace *nullspace; /* null-space form only */
+  double *rhs;          /* reduced right-hand side (null-space form) */
   double t0;            /* time of node k = 0 */
   long k;
   double *q, *p;        /* model order, n */
@@ -20,6 +22,8 @@ struct mrvi_integrator {
   double *micro_q, *micro_p; /* p x nf */
   double *lambda;       /* constraint rows: multipliers at node k of the last step */
   double *micro_cres;   /* p: max |g| at micro nodes 1..p of the last step */
+  double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
+  double *mu_h;         /* projection impulse / h at the current node */
   int last_iterations;
   double last_residual;
   double t_assemble, t_solve;
@@ -45,6 +49,8 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   if (!it)
     return;
   mrvi_newton_free(it->newton);
+  mrvi_nullspace_free(it->nullspace);
+  free(it->rhs);
   mrvi_step_free(&it->step);
   free(it->q);
   free(it->p);
@@ -60,6 +66,11 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->micro_p);
   free(it->lambda);
   free(it->micro_cres);
+  free(it->cg);
+  free(it->cGd);
+  free(it->cA);
+  free(it->cmu);
+  free(it->mu_h);
   free(it);
 }
 
@@ -125,6 +136,65 @@ static double residual_floor(const mrvi_integrator *it) {
   return 16.0 * DBL_EPSILON * scale;
 }
 
+/* Constraints at q: g within the tolerance and independent gradients. */
+static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
+                             size_t len) {
+  const mrvi_model *m = it->model;
+  double worst = 0.0;
+  int wc = -1;
+  mrvi_model_constraint_eval(m, q, it->cg, NULL);
+  for (int c = 0; c < m->n_constraints; c++)
+    for (int r = 0; r < m->constraints[c].rows; r++) {
+      const double v = fabs(it->cg[m->constraints[c].first_row + r]);
+      if (!(v <= worst)) {
+        worst = v;
+        wc = c;
+      }
+    }
+  if (wc >= 0 && !(worst <= it->settings.constraint_tol)) {
+    mrvi_fmt(msg, len,
+             "positions violate constraint '%s': |g| = %.3e exceeds the "
+             "constraint tolerance %.3e",
+             m->constraints[wc].label, worst, it->settings.constraint_tol);
+    return MRVI_EMODEL;
+  }
+  return mrvi_constraints_independent(m, q, msg, len);
+}
+
+/* Momentum projection at the current macro node (DESIGN §6, RATTLE-style):
+ * p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p, so that the hidden
+ * constraint G M^-1 p = 0 holds.  The shift lies in the range of G^T at the
+ * node, so the next step's lambda absorbs it: positions are unchanged. */
+static int project(mrvi_integrator *it) {
+  const mrvi_model *m = it->model;
+  const int R = m->constraint_rows, n = m->n;
+  double *G = it->cGd, *A = it->cA, *mu = it->cmu;
+  mrvi_model_constraint_eval(m, it->q, it->cg, G);
+  for (int a = 0; a < R; a++) {
+    double s = 0.0;
+    for (int j = 0; j < n; j++)
+      s += G[(size_t)a * n + j] * it->p[j] / m->mass[j];
+    mu[a] = s;
+    for (int b = 0; b <= a; b++) {
+      double t = 0.0;
+      for (int j = 0; j < n; j++)
+        t += G[(size_t)a * n + j] * G[(size_t)b * n + j] / m->mass[j];
+      A[a * R + b] = A[b * R + a] = t;
+    }
+  }
+  if (mrvi_dense_solve(R, A, mu) < 0)
+    return MRVI_ESINGULAR;
+  for (int j = 0; j < n; j++)
+    for (int a = 0; a < R; a++)
+      it->p[j] -= G[(size_t)a * n + j] * mu[a];
+  /* The impulse G^T mu belongs to the node's multipliers: the next step
+   * reports its multipliers (an impulse over dT) plus mu / dT, which equals
+   * what it reports without projection. */
+  for (int r = 0; r < R; r++)
+    it->mu_h[r] = mu[r] / it->settings.macro_step;
+  return MRVI_OK;
+}
+
 int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
                            mrvi_integrator **out, char *msg, size_t len) {
   *out = NULL;
@@ -150,7 +220,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     goto oom;
   const size_t n = (size_t)m->n, ns = (size_t)m->n_slow,
                nf = (size_t)m->n_fast, p = (size_t)s->micro_steps,
-               nu = (size_t)it->step.n_unknowns;
+               nu = (size_t)it->step.n_total;
   it->q = alloc(n);
   it->p = alloc(n);
   it->qs = alloc(ns);
@@ -165,13 +235,29 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->micro_p = alloc(p * nf);
   it->lambda = alloc((size_t)m->constraint_rows);
   it->micro_cres = alloc(p);
+  it->rhs = alloc((size_t)it->step.n_unknowns);
+  const size_t R = (size_t)m->constraint_rows;
+  it->cg = alloc(R);
+  it->cGd = alloc(R * n);
+  it->cA = alloc(R * R);
+  it->cmu = alloc(R);
+  it->mu_h = alloc(R);
   if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf ||
-      !it->x || !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p || !it->lambda || !it->micro_cres)
+      !it->x || !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p || !it->lambda || !it->micro_cres || !it->rhs ||
+      !it->cg || !it->cGd || !it->cA || !it->cmu || !it->mu_h)
     goto oom;
-  /* Initial state (q0, M v0) at t = 0. */
+  /* Initial state (q0, M v0) at t = 0; constraints must hold at q0. */
   for (size_t i = 0; i < n; i++) {
     it->q[i] = m->q0[i];
     it->p[i] = m->mass[i] * m->v0[i];
+  }
+  if (m->n_constraints > 0) {
+    if ((st = check_constraints(it, m->q0, msg, len)) < 0) {
+      mrvi_integrator_free(it);
+      return st;
+    }
+    if (s->project_momenta && project(it) < 0)
+      goto oom;
   }
   split_state(it);
   it->step.qs0 = it->qs;
@@ -183,8 +269,27 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   if ((st = mrvi_step_build_pattern(&it->step, it->x)) < 0)
     goto oom;
   mrvi_step_assemble(&it->step, it->x, it->R, 1);
-  it->newton = mrvi_newton_create(it->step.n_unknowns, it->step.Ap,
-                                  it->step.Ai, it->step.Ax, msg, len);
+  if (s->constraint_form == MRVI_FORM_NULL_SPACE && it->step.n_lambda > 0) {
+    /* Values for the symbolic analysis: lambda(x) and the reduced rows at
+     * the predictor. */
+    mrvi_step *sp = &it->step;
+    if ((st = mrvi_nullspace_create(sp, &it->nullspace, msg, len)) < 0 ||
+        (mrvi_step_assemble(sp, it->x, it->R, 0),
+         st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
+                                    len)) < 0) {
+      mrvi_integrator_free(it);
+      return st;
+    }
+    mrvi_step_assemble(sp, it->x, it->R, 1);
+    mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
+    it->newton = mrvi_newton_create(
+        it->step.n_unknowns, mrvi_nullspace_Ap(it->nullspace),
+        mrvi_nullspace_Ai(it->nullspace), mrvi_nullspace_Ax(it->nullspace),
+        msg, len);
+  } else {
+    it->newton = mrvi_newton_create(it->step.n_total, it->step.Ap,
+                                    it->step.Ai, it->step.Ax, msg, len);
+  }
   if (!it->newton) {
     mrvi_integrator_free(it);
     return MRVI_ESINGULAR;
@@ -205,62 +310,183 @@ int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,
       return fail(it, MRVI_ENONFINITE, "state is not finite");
   memcpy(it->q, q, (size_t)n * sizeof *q);
   memcpy(it->p, p, (size_t)n * sizeof *p);
+  memset(it->mu_h, 0, (size_t)it->model->constraint_rows * sizeof(double));
+  if (it->model->n_constraints > 0) {
+    char msg[400];
+    int st = check_constraints(it, it->q, msg, sizeof msg);
+    if (st < 0)
+      return fail(it, st, "%s", msg);
+    if (it->settings.project_momenta && project(it) < 0)
+      return fail(it, MRVI_ESINGULAR, "momentum projection failed");
+  }
   split_state(it);
   it->t0 = t;
   it->k = 0;
   return MRVI_OK;
 }
 
+/* Norms of the dynamic rows (momentum units) and of the constraint rows
+ * (max |g| at the enforcing nodes). */
+static void residual_norms(const mrvi_integrator *it, double *dyn,
+                           double *con) {
+  const mrvi_step *st = &it->step;
+  *dyn = norm_inf(it->R, st->n_unknowns);
+  *con = norm_inf(it->R + st->n_unknowns, st->n_lambda);
+}
+
+/* Residual and Jacobian at the current x.  In the null-space form the
+ * multipliers are first set to lambda(x) from the residual at lambda = 0. */
+static int evaluate(mrvi_integrator *it, char *msg, size_t len) {
+  mrvi_step *st = &it->step;
+  const double t = mrvi_clock();
+  if (it->nullspace) {
+    memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
+    mrvi_step_assemble(st, it->x, it->R, 0);
+    int s = mrvi_nullspace_lambda(it->nullspace, st, it->x, it->R, msg, len);
+    if (s < 0)
+      return s;
+  }
+  mrvi_step_assemble(st, it->x, it->R, 1);
+  it->t_assemble += mrvi_clock() - t;
+  return MRVI_OK;
+}
+
+/* One Newton update dx (x -= dx): the full saddle-point system in the
+ * multiplier form, the reduced one in the null-space form. */
+static int newton_update(mrvi_integrator *it, char *msg, size_t len) {
+  mrvi_step *st = &it->step;
+  const double t = mrvi_clock();
+  int s;
+  if (it->nullspace) {
+    mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
+    s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace),
+                          it->rhs, it->dx, msg, len);
+    if (s == MRVI_OK)
+      for (int i = 0; i < st->n_unknowns; i++)
+        it->x[i] -= it->dx[i];
+  } else {
+    s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
+    if (s == MRVI_OK)
+      for (int i = 0; i < st->n_total; i++)
+        it->x[i] -= it->dx[i];
+  }
+  it->t_solve += mrvi_clock() - t;
+  return s;
+}
+
+/* A singular Newton matrix with constraints is most often a redundant set:
+ * name the constraints whose gradients are dependent at the current node. */
+static void explain_singular(const mrvi_integrator *it, char *msg,
+                             size_t len) {
+  const mrvi_model *m = it->model;
+  if (m->n_constraints == 0)
+    return;
+  char why[400];
+  if (mrvi_constraints_independent(m, it->q, why, sizeof why) < 0) {
+    const size_t used = strlen(msg);
+    mrvi_fmt(msg + used, len - used, " (%s)", why);
+  }
+}
+
+/* After convergence: multipliers of node k, max |g| at micro nodes 1..p. */
+static void constraint_outputs(mrvi_integrator *it) {
+  const mrvi_model *m = it->model;
+  mrvi_step *st = &it->step;
+  const int nu = st->n_unknowns, p = st->p;
+  for (int i = 0; i < st->n_slow_c; i++) {
+    const mrvi_constraint *k = &m->constraints[st->slow_c[i]];
+    memcpy(it->lambda + k->first_row, it->x + nu + st->c_off[st->slow_c[i]],
+           (size_t)k->rows * sizeof(double));
+  }
+  /* Micro-node constraints: the step average (1/p) sum_m lambda^m.  The
+   * slow interpolation is linear, so the slow coordinates' acceleration is
+   * concentrated at macro nodes; a constraint coupling them to fast ones
+   * passes that kick as an impulse in lambda^0 (interior lambda^m lack it).
+   * Single node values are therefore off by O(1) for p > 1; their average,
+   * the impulse of the step over dT, is consistent. */
+  for (int i = 0; i < st->n_micro_c; i++) {
+    const int c = st->micro_c[i];
+    const mrvi_constraint *k = &m->constraints[c];
+    for (int r = 0; r < k->rows; r++) {
+      double sum = 0.0;
+      for (int mm = 0; mm < p; mm++)
+        sum += it->x[nu + st->r_slow + mm * st->r_micro + st->c_off[c] + r];
+      it->lambda[k->first_row + r] = sum / p;
+    }
+  }
+  for (int mm = 1; mm <= p; mm++) {
+    double worst = 0.0;
+    for (int i = 0; i < st->n_micro_c; i++)
+      for (int r = 0; r < m->constraints[st->micro_c[i]].rows; r++)
+        worst = fmax(worst, fabs(it->R[nu + st->r_slow +
+                                       (mm - 1) * st->r_micro +
+                                       st->c_off[st->micro_c[i]] + r]));
+    if (mm == p)
+      worst = fmax(worst, norm_inf(it->R + nu, st->r_slow));
+    it->micro_cres[mm - 1] = worst;
+  }
+  /* Add the projection impulse of node k (see project). */
+  for (int r = 0; r < m->constraint_rows; r++) {
+    it->lambda[r] += it->mu_h[r];
+    it->mu_h[r] = 0.0;
+  }
+}
+
 int mrvi_integrator_step(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
   mrvi_step *st = &it->step;
-  const int nu = st->n_unknowns;
   const double tol = it->settings.newton_tol;
+  const double ctol = it->settings.constraint_tol;
   const int max_it = it->settings.newton_max_iter;
-  char msg[256] = "";
+  char msg[400] = "";
 
+  /* Free flight for x; the multipliers start from the last step's. */
   predict(it);
-  double t = mrvi_clock();
-  mrvi_step_assemble(st, it->x, it->R, 1);
-  it->t_assemble += mrvi_clock() - t;
+  int s = evaluate(it, msg, sizeof msg);
   int iter = 0;
-  double res = norm_inf(it->R, nu);
-  while (!(res <= fmax(tol, residual_floor(it)))) {
-    if (!isfinite(res) || iter == max_it) {
+  double res, cres;
+  residual_norms(it, &res, &cres);
+  while (s == MRVI_OK &&
+         !(res <= fmax(tol, residual_floor(it)) && cres <= ctol)) {
+    if (!isfinite(res) || !isfinite(cres) || iter == max_it) {
+      const int finite = isfinite(res) && isfinite(cres);
       it->last_iterations = iter;
       it->last_residual = res;
-      return fail(it, isfinite(res) ? MRVI_ENEWTON : MRVI_ENONFINITE,
+      char extra[120] = "";
+      if (st->n_lambda > 0)
+        mrvi_fmt(extra, sizeof extra,
+                 ", constraint residual %.3e (tolerance %.3e)", cres, ctol);
+      return fail(it, finite ? MRVI_ENEWTON : MRVI_ENONFINITE,
                   "step %ld (t = %.10g -> %.10g): Newton %s after %d "
                   "iterations, residual %.3e (tolerance %.3e, roundoff floor "
-                  "%.1e)",
+                  "%.1e)%s",
                   it->k + 1, it->t0 + (double)it->k * st->dT,
                   it->t0 + (double)(it->k + 1) * st->dT,
-                  isfinite(res) ? "did not converge" : "produced non-finite values",
-                  iter, res, tol, residual_floor(it));
+                  finite ? "did not converge" : "produced non-finite values",
+                  iter, res, tol, residual_floor(it), extra);
     }
-    t = mrvi_clock();
-    int s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg,
-                              sizeof msg);
-    it->t_solve += mrvi_clock() - t;
-    if (s < 0) {
-      it->last_iterations = iter;
-      it->last_residual = res;
-      return fail(it, s, "step %ld (t = %.10g): %s, residual %.3e", it->k + 1,
-                  it->t0 + (double)it->k * st->dT, msg, res);
-    }
-    for (int i = 0; i < nu; i++)
-      it->x[i] -= it->dx[i];
+    s = newton_update(it, msg, sizeof msg);
+    if (s < 0)
+      break;
     iter++;
-    t = mrvi_clock();
-    mrvi_step_assemble(st, it->x, it->R, 1);
-    it->t_assemble += mrvi_clock() - t;
-    res = norm_inf(it->R, nu);
+    s = evaluate(it, msg, sizeof msg);
+    residual_norms(it, &res, &cres);
+  }
+  if (s < 0) {
+    it->last_iterations = iter;
+    it->last_residual = res;
+    if (s == MRVI_ESINGULAR)
+      explain_singular(it, msg, sizeof msg);
+    return fail(it, s, "step %ld (t = %.10g): %s, residual %.3e", it->k + 1,
+                it->t0 + (double)it->k * st->dT, msg, res);
   }
   it->last_iterations = iter;
   it->last_residual = res;
 
   /* Momenta at the new macro node and the fast micro nodes (eq:pkfm+). */
   mrvi_step_momenta(st, it->x, it->ps1, it->micro_p);
+  if (st->n_lambda > 0)
+    constraint_outputs(it);
   const int ns = st->ns, nf = st->nf, p = st->p;
   memcpy(it->micro_q, it->x + ns, (size_t)p * (size_t)nf * sizeof(double));
   memcpy(it->qs, it->x, (size_t)ns * sizeof(double));
@@ -269,13 +495,23 @@ int mrvi_integrator_step(mrvi_integrator *it) {
          (size_t)nf * sizeof(double));
   memcpy(it->pf, it->micro_p + (size_t)(p - 1) * (size_t)nf,
          (size_t)nf * sizeof(double));
-  for (int s = 0; s < ns; s++) {
-    it->q[m->slow_index[s]] = it->qs[s];
-    it->p[m->slow_index[s]] = it->ps[s];
+  for (int i = 0; i < ns; i++) {
+    it->q[m->slow_index[i]] = it->qs[i];
+    it->p[m->slow_index[i]] = it->ps[i];
   }
-  for (int s = 0; s < nf; s++) {
-    it->q[m->fast_index[s]] = it->qf[s];
-    it->p[m->fast_index[s]] = it->pf[s];
+  for (int i = 0; i < nf; i++) {
+    it->q[m->fast_index[i]] = it->qf[i];
+    it->p[m->fast_index[i]] = it->pf[i];
+  }
+  if (m->n_constraints > 0 && it->settings.project_momenta) {
+    if (project(it) < 0)
+      return fail(it, MRVI_ESINGULAR,
+                  "step %ld: momentum projection failed (constraint "
+                  "gradients dependent at t = %.10g)",
+                  it->k + 1, it->t0 + (double)(it->k + 1) * st->dT);
+    split_state(it);
+    for (int i = 0; i < nf; i++)
+      it->micro_p[(size_t)(p - 1) * (size_t)nf + (size_t)i] = it->pf[i];
   }
   it->k++;
   return MRVI_OK;
@@ -307,10 +543,10 @@ double mrvi_integrator_last_residual(const mrvi_integrator *it) {
   return it->last_residual;
 }
 int mrvi_integrator_system_size(const mrvi_integrator *it) {
-  return it->step.n_unknowns;
+  return it->nullspace ? it->step.n_unknowns : it->step.n_total;
 }
 long mrvi_integrator_system_nnz(const mrvi_integrator *it) {
-  return it->step.nnz;
+  return it->nullspace ? mrvi_nullspace_nnz(it->nullspace) : it->step.nnz;
 }
 void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
                             double *solve) {

@@ -97,10 +97,16 @@ void mrvi_model_free_constraints(mrvi_model *m);
 void mrvi_constraint_eval_at(const mrvi_constraint *c, const double *y,
                              double *g, double *G, double *H);
 
+/* Gradients of all constraints independent at q (model order); otherwise
+ * MRVI_ESINGULAR and a message naming the dependent constraints. */
+int mrvi_constraints_independent(const mrvi_model *m, const double *q,
+                                 char *msg, size_t len);
+
 /* Dense helpers (dense.c).  Solve A x = b in place (A n x n row-major,
  * overwritten; b becomes x); -1 if singular. */
 int mrvi_dense_solve(int n, double *A, double *b);
-/* Householder QR of A (m x n row-major, m <= MRVI_MAX_INPUTS): A is
+#define MRVI_DENSE_MAX 256
+/* Householder QR of A (m x n row-major, m <= MRVI_DENSE_MAX): A is
  * overwritten with R in its upper triangle, Q (m x m row-major) is explicit
  * and orthogonal; A = Q R.  Returns -1 if a column is (numerically) in the
  * span of the previous ones. */
@@ -149,18 +155,72 @@ typedef struct mrvi_step {
   long nnz;
   /* Workspace. */
   double *y, *g, *H;            /* element inputs, gradient, Hessian */
+  /* Constraints (DESIGN §6).  The full unknown vector is (x, lambda) of
+   * size n_total = n_unknowns + n_lambda; the residual appends the
+   * constraint equations.  Layout of lambda and of the equation rows:
+   *   slow-only constraints: lambda_k (weight dT) at node 0, equations
+   *     g(q_{k+1}^s) = 0                      n_unknowns + [0, r_slow)
+   *   micro-node constraints: lambda^m at nodes m = 0..p-1 (weight dt),
+   *     equations g(z^m) = 0 at nodes m = 1..p
+   *     lambda^m: n_unknowns + r_slow + m r_micro + row
+   *     g(z^m):   n_unknowns + r_slow + (m-1) r_micro + row */
+  int n_lambda, n_total;
+  int n_slow_c, n_micro_c;      /* constraint counts */
+  int *slow_c, *micro_c;        /* model constraint indices */
+  int *c_off;                   /* per model constraint: row within its block */
+  int r_slow, r_micro;          /* rows per block */
+  double *cy, *cg, *cG, *cH;    /* constraint inputs, g, G, second derivs */
 } mrvi_step;
+
+/* Point of constraint evaluation at node m (0..p) of the step: slow part
+ * interpolated (1 - m/p, m/p), fast node m, weight w. */
+mrvi_point mrvi_step_node_point(const mrvi_step *st, int m, double w);
+/* Evaluate constraint c (model index) at node point pt of x: fills st->cy,
+ * st->cg, st->cG and, if hess, st->cH. */
+void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
+                               const double *x, int hess);
+/* Residual rows / unknown columns (at most 2) that model coordinate idx
+ * feeds / depends on at point pt; return counts. */
+int mrvi_step_rows_of(const mrvi_step *st, int idx, const mrvi_point *pt,
+                      int *row, double *coef);
+int mrvi_step_cols_of(const mrvi_step *st, int idx, const mrvi_point *pt,
+                      int *col, double *coef);
 
 int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s);
 void mrvi_step_free(mrvi_step *st);
 /* Record the Jacobian pattern (once) and build the CSC structure. */
 int mrvi_step_build_pattern(mrvi_step *st, const double *x);
-/* Residual R(x) (n_unknowns) and, if jac, the CSC values st->Ax. */
+/* Residual R(x) (n_total) and, if jac, the CSC values st->Ax; x holds
+ * (x, lambda) (n_total). */
 void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac);
-/* Momenta after convergence: ps1 (ns) = D_{q_{k+1}^s} L_d and the fast
+/* Momenta after convergence (x with lambda): ps1 (ns) = D_{q_{k+1}^s} L_d
+ * (with the constraint forces of the interior micro nodes) and the fast
  * micro momenta pf (p x nf) at nodes m = 1..p (eq:pkfm+). */
 void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
                        double *pf);
+
+/* ---------------------------------------------------------------------------
+ * Discrete null-space form (nullspace.c, DESIGN §6): the dynamic rows are
+ * premultiplied by P^T with P^T C = 0, which removes the multipliers.
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_nullspace mrvi_nullspace;
+/* After mrvi_step_build_pattern: reduced pattern (size n_unknowns). */
+int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out,
+                          char *msg, size_t len);
+void mrvi_nullspace_free(mrvi_nullspace *z);
+/* Multipliers lambda(x) (written to x + n_unknowns) from the residual F of
+ * the full system assembled at lambda = 0; also factors the node blocks
+ * used by mrvi_nullspace_reduce. */
+int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
+                          const double *F, char *msg, size_t len);
+/* Reduced matrix [P^T A; H] (values on its own pattern) and right-hand side
+ * [P^T R; h] from the full system assembled at lambda(x). */
+void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
+                           const double *R, double *rhs);
+const int *mrvi_nullspace_Ap(const mrvi_nullspace *z);
+const int *mrvi_nullspace_Ai(const mrvi_nullspace *z);
+const double *mrvi_nullspace_Ax(const mrvi_nullspace *z);
+long mrvi_nullspace_nnz(const mrvi_nullspace *z);
 
 /* ---------------------------------------------------------------------------
  * Newton solver with UMFPACK.

@@ -337,10 +337,14 @@ double mrvi_integrator_last_residual(const mrvi_integrator *it);
  * the multiplier form) and its nonzeros. */
 int mrvi_integrator_system_size(const mrvi_integrator *it);
 long mrvi_integrator_system_nnz(const mrvi_integrator *it);
-/* Constraint multipliers at the first node of the last step (model
- * constraint order, constraint_rows entries): lambda_k of the slow-only
- * constraints and lambda_k^0 of the micro-node ones (a force: the term in the
- * action is -h lambda^T g with h the step of the grid it is enforced on). */
+/* Constraint multipliers of the last step, k -> k+1 (model constraint
+ * order, constraint_rows entries), as forces: the action carries
+ * -h lambda^T g at every enforcing node (h = dT at macro nodes, dt at micro
+ * nodes).  Slow-only constraints: lambda_k.  Micro-node constraints: the
+ * step average (1/p) sum_{m<p} lambda_k^m, i.e. the step's constraint
+ * impulse over dT (single micro-node values carry the slow kick at macro
+ * nodes, doc/constraints.md).  With momentum projection the projection
+ * impulse at node k is included, so the values do not depend on it. */
 const double *mrvi_integrator_lambda(const mrvi_integrator *it);
 /* max |g| over the micro-node constraints at the micro nodes m = 1..p of the
  * last step (p entries; zeros without such constraints). */
@@ -413,6 +417,11 @@ typedef struct mrvi_system {
   int output_every;      /* output.every (default 1) */
   int output_micro;      /* output.micro (default 1) */
   char *description;     /* the input text after overrides */
+  /* What the loader changed or wants the user to know, one note per line
+   * ('\n'-separated, no trailing newline), e.g. that the initial velocities
+   * were projected onto the constraints' tangent space; NULL when there is
+   * nothing to say.  Freed by mrvi_system_free. */
+  char *notes;
 } mrvi_system;
 
 /* Load a description file, applying overrides "dotted.path=value" (e.g.

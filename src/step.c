@@ -40,8 +40,8 @@ static void gather(const mrvi_step *st, const mrvi_element *e,
 
 /* Residual rows (at most 2) that input c feeds at point pt, with their node
  * coefficients.  Returns the count. */
-static int rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
-                   int *row, double *coef) {
+int mrvi_step_rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
+                      int *row, double *coef) {
   const mrvi_model *m = st->model;
   const int s = m->slot[c];
   int n = 0;
@@ -64,8 +64,8 @@ static int rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
 }
 
 /* Unknown columns (at most 2) that input c depends on at point pt. */
-static int cols_of(const mrvi_step *st, int c, const mrvi_point *pt, int *col,
-                   double *coef) {
+int mrvi_step_cols_of(const mrvi_step *st, int c, const mrvi_point *pt,
+                      int *col, double *coef) {
   const mrvi_model *m = st->model;
   const int s = m->slot[c];
   int n = 0;
@@ -115,6 +115,40 @@ static void jac_add(mrvi_step *st, int row, int col, double v) {
     st->Ax[st->map[st->n_trip++]] += v;
 }
 
+/* Split the model's constraints into slow-only (macro nodes) and micro-node
+ * ones and size the multiplier block (DESIGN §6). */
+static int init_constraints(mrvi_step *st) {
+  const mrvi_model *m = st->model;
+  const int nc = m->n_constraints;
+  const size_t ci = (size_t)(m->max_constraint_in > 0 ? m->max_constraint_in
+                                                      : 1);
+  st->slow_c = malloc((size_t)(nc + 1) * sizeof(int));
+  st->micro_c = malloc((size_t)(nc + 1) * sizeof(int));
+  st->c_off = malloc((size_t)(nc + 1) * sizeof(int));
+  st->cy = malloc(ci * sizeof(double));
+  st->cg = malloc(ci * sizeof(double));
+  st->cG = malloc(ci * ci * sizeof(double));
+  st->cH = malloc(ci * ci * ci * sizeof(double));
+  if (!st->slow_c || !st->micro_c || !st->c_off || !st->cy || !st->cg ||
+      !st->cG || !st->cH)
+    return MRVI_ENOMEM;
+  for (int c = 0; c < nc; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    if (k->where == MRVI_SLOW) {
+      st->slow_c[st->n_slow_c++] = c;
+      st->c_off[c] = st->r_slow;
+      st->r_slow += k->rows;
+    } else {
+      st->micro_c[st->n_micro_c++] = c;
+      st->c_off[c] = st->r_micro;
+      st->r_micro += k->rows;
+    }
+  }
+  st->n_lambda = st->r_slow + st->p * st->r_micro;
+  st->n_total = st->n_unknowns + st->n_lambda;
+  return MRVI_OK;
+}
+
 int mrvi_step_init(mrvi_step *st, const mrvi_model *m,
                    const mrvi_settings *s) {
   memset(st, 0, sizeof *st);
@@ -148,7 +182,7 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m,
   st->H = malloc(mi * mi * sizeof(double));
   if (!st->y || !st->g || !st->H)
     return MRVI_ENOMEM;
-  return MRVI_OK;
+  return init_constraints(st);
 }
 
 void mrvi_step_free(mrvi_step *st) {
@@ -167,6 +201,13 @@ void mrvi_step_free(mrvi_step *st) {
   free(st->y);
   free(st->g);
   free(st->H);
+  free(st->slow_c);
+  free(st->micro_c);
+  free(st->c_off);
+  free(st->cy);
+  free(st->cg);
+  free(st->cG);
+  free(st->cH);
   memset(st, 0, sizeof *st);
 }
 
@@ -207,6 +248,116 @@ static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
     }
 }
 
+mrvi_point mrvi_step_node_point(const mrvi_step *st, int m, double w) {
+  return (mrvi_point){.w = w,
+                      .a0 = 1.0 - (double)m / st->p,
+                      .a1 = (double)m / st->p,
+                      .cA = 1.0,
+                      .cB = 0.0,
+                      .m = m};
+}
+
+void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
+                               const double *x, int hess) {
+  const mrvi_model *m = st->model;
+  const mrvi_constraint *k = &m->constraints[c];
+  for (int j = 0; j < k->n_in; j++) {
+    const int idx = k->in[j], s = m->slot[idx];
+    st->cy[j] = m->rate[idx] == MRVI_SLOW
+                    ? pt->a0 * st->qs0[s] + pt->a1 * x[s]
+                    : fast_node(st, x, pt->m, s);
+  }
+  mrvi_constraint_eval_at(k, st->cy, st->cg, st->cG, hess ? st->cH : NULL);
+}
+
+/* Constraint force -w G(z)^T lambda of constraint c at node point pt into
+ * the rows the node feeds, with its derivatives: lambda columns starting at
+ * lcol, and -w c_row c_col sum_r lambda_r d2g_r on the unknown columns. */
+static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
+                             const double *x, const double *lam, int lcol,
+                             double *R, int jac) {
+  const mrvi_constraint *k = &st->model->constraints[c];
+  const int n = k->n_in, rows = k->rows;
+  mrvi_step_constraint_eval(st, c, pt, x, jac);
+  for (int j = 0; j < n; j++) {
+    int rj[2];
+    double cj[2];
+    const int kr = mrvi_step_rows_of(st, k->in[j], pt, rj, cj);
+    double f = 0.0;
+    for (int r = 0; r < rows; r++)
+      f += st->cG[r * n + j] * lam[r];
+    for (int a = 0; a < kr; a++) {
+      R[rj[a]] -= pt->w * cj[a] * f;
+      if (!jac)
+        continue;
+      for (int r = 0; r < rows; r++)
+        jac_add(st, rj[a], lcol + r, -pt->w * cj[a] * st->cG[r * n + j]);
+      for (int l = 0; l < n; l++) {
+        int cl[2];
+        double cc[2];
+        const int kc = mrvi_step_cols_of(st, k->in[l], pt, cl, cc);
+        double h = 0.0;
+        for (int r = 0; r < rows; r++)
+          h += lam[r] * st->cH[(r * n + j) * n + l];
+        for (int b = 0; b < kc; b++)
+          jac_add(st, rj[a], cl[b], -pt->w * cj[a] * cc[b] * h);
+      }
+    }
+  }
+}
+
+/* Constraint equations g(z) = 0 of constraint c at node point pt into rows
+ * starting at row, with their derivatives G on the unknown columns. */
+static void constraint_equation(mrvi_step *st, int c, const mrvi_point *pt,
+                                const double *x, int row, double *R,
+                                int jac) {
+  const mrvi_constraint *k = &st->model->constraints[c];
+  const int n = k->n_in;
+  mrvi_step_constraint_eval(st, c, pt, x, 0);
+  for (int r = 0; r < k->rows; r++)
+    R[row + r] = st->cg[r];
+  if (!jac)
+    return;
+  for (int j = 0; j < n; j++) {
+    int cl[2];
+    double cc[2];
+    const int kc = mrvi_step_cols_of(st, k->in[j], pt, cl, cc);
+    for (int b = 0; b < kc; b++)
+      for (int r = 0; r < k->rows; r++)
+        jac_add(st, row + r, cl[b], cc[b] * st->cG[r * n + j]);
+  }
+}
+
+/* The constrained action adds -h lambda^T g at every enforcing node
+ * (DESIGN §6): slow-only constraints with h = dT at node 0 (equations at
+ * q_{k+1}^s), micro-node constraints with h = dt at nodes 0..p-1
+ * (equations at nodes 1..p, slow part interpolated). */
+static void assemble_constraints(mrvi_step *st, const double *x, double *R,
+                                 int jac) {
+  const int nu = st->n_unknowns, p = st->p;
+  const double *lam = x + nu;
+  for (int i = 0; i < st->n_slow_c; i++) {
+    const int c = st->slow_c[i], off = st->c_off[c];
+    const mrvi_point p0 = mrvi_step_node_point(st, 0, st->dT);
+    const mrvi_point p1 = mrvi_step_node_point(st, p, st->dT);
+    constraint_force(st, c, &p0, x, lam + off, nu + off, R, jac);
+    constraint_equation(st, c, &p1, x, nu + off, R, jac);
+  }
+  const int base = nu + st->r_slow, rm = st->r_micro;
+  for (int mm = 0; mm <= p; mm++) {
+    const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
+    for (int i = 0; i < st->n_micro_c; i++) {
+      const int c = st->micro_c[i], off = st->c_off[c];
+      if (mm < p)
+        constraint_force(st, c, &pt, x, lam + st->r_slow + mm * rm + off,
+                         base + mm * rm + off, R, jac);
+      if (mm > 0)
+        constraint_equation(st, c, &pt, x, base + (mm - 1) * rm + off, R,
+                            jac);
+    }
+  }
+}
+
 void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
   const mrvi_model *m = st->model;
   if (jac && !st->recording) {
@@ -234,7 +385,7 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
         for (int j = 0; j < n; j++) {
           int rj[2];
           double cj[2];
-          const int k = rows_of(st, e->in[j], pt, rj, cj);
+          const int k = mrvi_step_rows_of(st, e->in[j], pt, rj, cj);
           for (int a = 0; a < k; a++)
             R[rj[a]] -= pt->w * cj[a] * st->g[j];
           if (jac && !lin) {
@@ -243,7 +394,7 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
               r[j][a] = rj[a];
               rc[j][a] = cj[a];
             }
-            kc[j] = cols_of(st, e->in[j], pt, cl[j], cc[j]);
+            kc[j] = mrvi_step_cols_of(st, e->in[j], pt, cl[j], cc[j]);
           }
         }
         if (!jac || lin)
@@ -258,10 +409,12 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
           }
       }
     }
+  if (st->n_lambda > 0)
+    assemble_constraints(st, x, R, jac);
 }
 
 int mrvi_step_build_pattern(mrvi_step *st, const double *x) {
-  const int n = st->n_unknowns;
+  const int n = st->n_total;
   double *R = malloc((size_t)n * sizeof *R);
   if (!R)
     return MRVI_ENOMEM;
@@ -323,4 +476,25 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
         }
       }
     }
+  /* Constraint forces of the interior micro nodes on q_{k+1}^s:
+   * -dt (m/p) G_s(z^m)^T lambda^m. */
+  const double *lam = x + st->n_unknowns + st->r_slow;
+  for (int mm = 1; mm < p; mm++) {
+    const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
+    for (int i = 0; i < st->n_micro_c; i++) {
+      const int c = st->micro_c[i];
+      const mrvi_constraint *k = &m->constraints[c];
+      const double *l = lam + mm * st->r_micro + st->c_off[c];
+      mrvi_step_constraint_eval(st, c, &pt, x, 0);
+      for (int j = 0; j < k->n_in; j++) {
+        const int idx = k->in[j];
+        if (m->rate[idx] != MRVI_SLOW)
+          continue;
+        double f = 0.0;
+        for (int r = 0; r < k->rows; r++)
+          f += st->cG[r * k->n_in + j] * l[r];
+        ps1[m->slot[idx]] -= pt.w * pt.a1 * f;
+      }
+    }
+  }
 }

@@ -105,3 +105,27 @@ mrvi_settings test_settings(const char *scheme, double dT, int p,
   s.newton_max_iter = 50;
   return s;
 }
+
+mrvi_model *test_cart_pendulum(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double L = 0.2, a = acos(-1.0) / 6.0;
+  const double xc[3] = {0, 0, 0}, vc[3] = {0.3, 0.1, 0};
+  const double xb[3] = {L * sin(a), 0, -L * cos(a)}, vb[3] = {0, 1.2, 0};
+  mrvi_model_add_particle(m, "cart", 5.0, MRVI_SLOW, xc, vc);
+  mrvi_model_add_particle(m, "bob", 0.5, MRVI_FAST, xb, vb);
+  const double g[3] = {0, 0, -9.81}, n[3] = {0, 0, 1};
+  mrvi_model_set_gravity(m, g);
+  mrvi_model_add_plane(m, 0, n, 0.0);
+  mrvi_model_add_distance(m, 0, 1, NAN);
+  mrvi_model_project_velocities(m, NULL);
+  mrvi_model_set_name(m, "cart_pendulum");
+  return m;
+}
+
+mrvi_model *test_spring_ring_rod(void) {
+  mrvi_model *m = test_spring_ring();
+  mrvi_model_add_distance(m, 0, 1, NAN);
+  mrvi_model_project_velocities(m, NULL);
+  return m;
+}

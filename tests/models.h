@@ -12,6 +12,13 @@ mrvi_model *test_spring_ring(void);
 /* Harmonic oscillator, slow only: V = omega^2 q^2 / 2, unit mass. */
 mrvi_model *test_oscillator(double omega);
 
+/* Cart pendulum (DESIGN §6): slow cart (mass 5) on the plane z = 0, fast
+ * bob (mass 0.5) on a rod of length 0.2 at 30 degrees, gravity -9.81 e3.
+ * Constraints: 0 = plane (macro nodes), 1 = rod (micro nodes). */
+mrvi_model *test_cart_pendulum(void);
+/* Spring ring with a rod between m1 (slow) and m2 (fast). */
+mrvi_model *test_spring_ring_rod(void);
+
 /* Settings for a named scheme with dT, p, t_end and Newton tolerance. */
 mrvi_settings test_settings(const char *scheme, double dT, int p,
                             double t_end, double tol);

@@ -1,0 +1,539 @@
+/* Discrete null-space form of the constrained step (DESIGN §6).
+ *
+ * The multiplier form solves   R(x, lambda) = F(x) - C(x) lambda = 0,
+ *                              h(x) = 0,
+ * C holding the constraint-force columns (dt a0 G_s^T on the slow rows and
+ * dt G_f^T on the rows of fast node m for lambda^m; dT G^T on the slow rows
+ * for slow-only constraints).  The null-space form premultiplies the
+ * dynamic rows by P^T with P^T C = 0, which removes lambda:
+ *
+ *   P^T F(x) = 0,  h(x) = 0       (n_unknowns equations).
+ *
+ * P is built node by node.  With G_f(z^m)^T = [Q1 Q2] [R; 0] (QR over the
+ * fast coordinates the micro-node constraints touch):
+ *   - per fast node m, the columns of Q2 and unit vectors of the other fast
+ *     coordinates (local rows of the reduced system);
+ *   - per slow basis vector b (null space of the slow-only constraints'
+ *     G(q_k)), the slow part b and at every node m the fast part
+ *     -a0_m Q1 R^-T G_s(z^m) b, which cancels the coupling of b with the
+ *     micro-node constraints.
+ * The reduced rows therefore keep the arrowhead pattern of the step.
+ *
+ * Newton matrix: at R = F - C lambda = 0, d(P^T F) = P^T (dF - dC lambda)
+ * because d(P^T) C lambda = -P^T dC lambda (from P^T C = 0).  dF - dC lambda
+ * is the x-block of the multiplier Jacobian evaluated at lambda, so the
+ * reduced matrix is [P^T A; H] with A, H taken from the assembled
+ * multiplier system at lambda = lambda(x): no derivative of P is needed,
+ * also at the unknown micro nodes.  lambda(x) solves the fast rows of each
+ * node in the least-squares sense (exact at the solution). */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <suitesparse/umfpack.h>
+
+#define MAXD MRVI_DENSE_MAX
+
+struct mrvi_nullspace {
+  int n;                 /* reduced size = n_unknowns */
+  int ns, nf, p;
+  int nfc, nsc;          /* constrained fast / slow slots */
+  int *fc, *sc;          /* slot lists */
+  int *fpos;             /* fast slot -> index in fc or -1 */
+  int r, rs;             /* rows of micro-node / slow-only constraints */
+  int nbs;               /* slow basis size ns - rs */
+  int *b_slot;           /* basis vector i: its slot (unit) or -1 (Q column) */
+  int *b_coupled;        /* does it couple to the micro-node constraints? */
+  /* Per node m = 0..p-1: Q (nfc x nfc), R (r x r), G_s (r x ns). */
+  double *Q, *Rm, *Gs;
+  double *Qs, *Rs;       /* slow-only block: nsc x nsc, rs x rs */
+  double *A, *t;         /* scratch: MAXD x MAXD, MAXD */
+  double *Gf, *Gsl;      /* G_f (r x nfc) at one node, slow-only G (rs x nsc) */
+  double *B;             /* slow basis vectors, nbs x ns */
+  /* Recipe of the reduced rows: source rows and their coefficients. */
+  int *rec_start, *rec_row;
+  double *rec_coef;
+  long n_rec;
+  /* Rows of the full matrix (x columns only) as CSR into st->Ax. */
+  int *csr_start, *csr_col, *csr_idx;
+  /* Reduced matrix on a fixed CSC pattern. */
+  int *map, *Ap, *Ai;
+  double *Ax;
+  long nnz;
+};
+
+void mrvi_nullspace_free(mrvi_nullspace *z) {
+  if (!z)
+    return;
+  free(z->fc), free(z->sc), free(z->fpos), free(z->b_slot);
+  free(z->b_coupled), free(z->Q), free(z->Rm), free(z->Gs), free(z->Qs);
+  free(z->Rs), free(z->A), free(z->t), free(z->B), free(z->Gf), free(z->Gsl);
+  free(z->rec_start), free(z->rec_row), free(z->rec_coef);
+  free(z->csr_start), free(z->csr_col), free(z->csr_idx);
+  free(z->map), free(z->Ap), free(z->Ai), free(z->Ax);
+  free(z);
+}
+
+const int *mrvi_nullspace_Ap(const mrvi_nullspace *z) { return z->Ap; }
+const int *mrvi_nullspace_Ai(const mrvi_nullspace *z) { return z->Ai; }
+const double *mrvi_nullspace_Ax(const mrvi_nullspace *z) { return z->Ax; }
+long mrvi_nullspace_nnz(const mrvi_nullspace *z) { return z->nnz; }
+
+/* Row of fast node m, slot f, in the full system. */
+static inline int frow(const mrvi_nullspace *z, int m, int f) {
+  return z->ns + m * z->nf + f;
+}
+
+static int err(char *msg, size_t len, int status, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static int err(char *msg, size_t len, int status, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(msg, len, fmt, ap);
+  va_end(ap);
+  return status;
+}
+
+/* Append source row `row` to the recipe (growing it). */
+static int rec_push(mrvi_nullspace *z, long *cap, int row) {
+  if (z->n_rec == *cap) {
+    const long c = *cap ? 2 * *cap : 256;
+    int *r = realloc(z->rec_row, (size_t)c * sizeof *r);
+    if (!r)
+      return -1;
+    z->rec_row = r;
+    *cap = c;
+  }
+  z->rec_row[z->n_rec++] = row;
+  return 0;
+}
+
+/* Source rows of every reduced row, fixed by structure (DESIGN §6 basis):
+ * slow basis rows, then the local rows of nodes 0..p-1, then the
+ * constraint equations. */
+static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
+  const int nu = st->n_unknowns;
+  long cap = 0;
+  z->rec_start = malloc((size_t)(st->n_unknowns + 1) * sizeof(int));
+  if (!z->rec_start)
+    return -1;
+  int row = 0;
+  for (int i = 0; i < z->nbs; i++) {
+    z->rec_start[row++] = (int)z->n_rec;
+    if (z->b_slot[i] >= 0) {
+      if (rec_push(z, &cap, z->b_slot[i]) < 0)
+        return -1;
+    } else {
+      for (int a = 0; a < z->nsc; a++)
+        if (rec_push(z, &cap, z->sc[a]) < 0)
+          return -1;
+    }
+    if (z->b_coupled[i])
+      for (int m = 0; m < z->p; m++)
+        for (int a = 0; a < z->nfc; a++)
+          if (rec_push(z, &cap, frow(z, m, z->fc[a])) < 0)
+            return -1;
+  }
+  for (int m = 0; m < z->p; m++) {
+    for (int f = 0; f < z->nf; f++)
+      if (z->fpos[f] < 0) {
+        z->rec_start[row++] = (int)z->n_rec;
+        if (rec_push(z, &cap, frow(z, m, f)) < 0)
+          return -1;
+      }
+    for (int j = z->r; j < z->nfc; j++) {
+      z->rec_start[row++] = (int)z->n_rec;
+      for (int a = 0; a < z->nfc; a++)
+        if (rec_push(z, &cap, frow(z, m, z->fc[a])) < 0)
+          return -1;
+    }
+  }
+  for (int e = 0; e < st->n_lambda; e++) {
+    z->rec_start[row++] = (int)z->n_rec;
+    if (rec_push(z, &cap, nu + e) < 0)
+      return -1;
+  }
+  z->rec_start[row] = (int)z->n_rec;
+  z->rec_coef = malloc((size_t)(z->n_rec > 0 ? z->n_rec : 1) *
+                       sizeof *z->rec_coef);
+  return row == nu && z->rec_coef ? 0 : -1;
+}
+
+/* CSR view (x columns only) of the full CSC matrix of the step. */
+static int build_csr(mrvi_nullspace *z, const mrvi_step *st) {
+  const int n = st->n_total, nu = st->n_unknowns;
+  z->csr_start = calloc((size_t)n + 1, sizeof(int));
+  z->csr_col = malloc((size_t)(st->nnz > 0 ? st->nnz : 1) * sizeof(int));
+  z->csr_idx = malloc((size_t)(st->nnz > 0 ? st->nnz : 1) * sizeof(int));
+  if (!z->csr_start || !z->csr_col || !z->csr_idx)
+    return -1;
+  for (int j = 0; j < nu; j++)
+    for (int k = st->Ap[j]; k < st->Ap[j + 1]; k++)
+      z->csr_start[st->Ai[k] + 1]++;
+  for (int i = 0; i < n; i++)
+    z->csr_start[i + 1] += z->csr_start[i];
+  int *fill = malloc((size_t)n * sizeof *fill);
+  if (!fill)
+    return -1;
+  memcpy(fill, z->csr_start, (size_t)n * sizeof *fill);
+  for (int j = 0; j < nu; j++)
+    for (int k = st->Ap[j]; k < st->Ap[j + 1]; k++) {
+      const int i = st->Ai[k];
+      z->csr_col[fill[i]] = j;
+      z->csr_idx[fill[i]++] = k;
+    }
+  free(fill);
+  return 0;
+}
+
+/* Pattern of the reduced matrix: every (reduced row, column) a source row
+ * reaches, mapped to CSC once. */
+static int build_pattern(mrvi_nullspace *z) {
+  const int n = z->n;
+  long nt = 0;
+  for (long e = 0; e < z->n_rec; e++) {
+    const int r = z->rec_row[e];
+    nt += z->csr_start[r + 1] - z->csr_start[r];
+  }
+  if (nt > 2147483647L)
+    return -1;
+  int *Ti = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *Ti);
+  int *Tj = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *Tj);
+  z->map = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *z->map);
+  z->Ap = malloc((size_t)(n + 1) * sizeof *z->Ap);
+  z->Ai = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *z->Ai);
+  if (!Ti || !Tj || !z->map || !z->Ap || !z->Ai) {
+    free(Ti), free(Tj);
+    return -1;
+  }
+  long t = 0;
+  for (int i = 0; i < n; i++)
+    for (int e = z->rec_start[i]; e < z->rec_start[i + 1]; e++) {
+      const int r = z->rec_row[e];
+      for (int k = z->csr_start[r]; k < z->csr_start[r + 1]; k++) {
+        Ti[t] = i;
+        Tj[t++] = z->csr_col[k];
+      }
+    }
+  const int status = umfpack_di_triplet_to_col(n, n, (int)nt, Ti, Tj, NULL,
+                                               z->Ap, z->Ai, NULL, z->map);
+  free(Ti), free(Tj);
+  if (status != UMFPACK_OK)
+    return -1;
+  z->nnz = z->Ap[n];
+  z->Ax = calloc((size_t)(z->nnz > 0 ? z->nnz : 1), sizeof *z->Ax);
+  return z->Ax ? 0 : -1;
+}
+
+int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out,
+                          char *msg, size_t len) {
+  const mrvi_model *m = st->model;
+  *out = NULL;
+  mrvi_nullspace *z = calloc(1, sizeof *z);
+  if (!z)
+    return err(msg, len, MRVI_ENOMEM, "out of memory");
+  z->n = st->n_unknowns;
+  z->ns = st->ns;
+  z->nf = st->nf;
+  z->p = st->p;
+  z->r = st->r_micro;
+  z->rs = st->r_slow;
+  const int ns = st->ns, nf = st->nf;
+  z->fc = malloc((size_t)(nf + 1) * sizeof(int));
+  z->fpos = malloc((size_t)(nf + 1) * sizeof(int));
+  z->sc = malloc((size_t)(ns + 1) * sizeof(int));
+  int *spos = malloc((size_t)(ns + 1) * sizeof(int));
+  int *ms = calloc((size_t)(ns + 1), sizeof(int));
+  if (!z->fc || !z->fpos || !z->sc || !spos || !ms)
+    goto oom;
+  for (int f = 0; f < nf; f++)
+    z->fpos[f] = -1;
+  for (int s = 0; s < ns; s++)
+    spos[s] = -1;
+  /* Constrained slots: fast inputs of micro-node constraints, slow inputs
+   * of slow-only ones; ms marks slow inputs of micro-node constraints. */
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    for (int j = 0; j < k->n_in; j++) {
+      const int idx = k->in[j], s = m->slot[idx];
+      if (k->where == MRVI_FAST && m->rate[idx] == MRVI_FAST) {
+        if (z->fpos[s] < 0) {
+          z->fpos[s] = z->nfc;
+          z->fc[z->nfc++] = s;
+        }
+      } else if (k->where == MRVI_FAST) {
+        ms[s] = 1;
+      } else if (spos[s] < 0) {
+        spos[s] = z->nsc;
+        z->sc[z->nsc++] = s;
+      }
+    }
+  }
+  if (z->nfc > MAXD || z->nsc > MAXD) {
+    free(spos), free(ms);
+    mrvi_nullspace_free(z);
+    return err(msg, len, MRVI_EMODEL,
+               "null-space form: constraints touch more than %d coordinates "
+               "of one rate; use form: multipliers",
+               MAXD);
+  }
+  if (z->r > z->nfc || z->rs > z->nsc) {
+    free(spos), free(ms);
+    mrvi_nullspace_free(z);
+    return err(msg, len, MRVI_ESINGULAR,
+               "null-space form: %d micro-node constraint equations on %d "
+               "fast coordinates (or %d slow-only equations on %d slow "
+               "coordinates) cannot be independent; use form: multipliers",
+               z->r, z->nfc, z->rs, z->nsc);
+  }
+  /* Slow basis: unit vectors of the slots outside sc, then the columns of
+   * the slow-only block's null space. */
+  z->nbs = ns - z->rs;
+  z->b_slot = malloc((size_t)(z->nbs + 1) * sizeof(int));
+  z->b_coupled = malloc((size_t)(z->nbs + 1) * sizeof(int));
+  if (!z->b_slot || !z->b_coupled)
+    goto oom;
+  int any_ms_in_sc = 0;
+  for (int a = 0; a < z->nsc; a++)
+    any_ms_in_sc |= ms[z->sc[a]];
+  int i = 0;
+  for (int s = 0; s < ns; s++)
+    if (spos[s] < 0) {
+      z->b_slot[i] = s;
+      z->b_coupled[i++] = ms[s] && z->r > 0;
+    }
+  for (; i < z->nbs; i++) {
+    z->b_slot[i] = -1;
+    z->b_coupled[i] = any_ms_in_sc && z->r > 0;
+  }
+  free(spos), free(ms);
+  spos = ms = NULL;
+  const size_t p = (size_t)st->p, nfc = (size_t)z->nfc, r = (size_t)z->r;
+  z->Q = malloc((p * nfc * nfc + 1) * sizeof(double));
+  z->Rm = malloc((p * r * r + 1) * sizeof(double));
+  z->Gs = malloc((p * r * (size_t)ns + 1) * sizeof(double));
+  z->Qs = malloc(((size_t)z->nsc * (size_t)z->nsc + 1) * sizeof(double));
+  z->Rs = malloc(((size_t)z->rs * (size_t)z->rs + 1) * sizeof(double));
+  z->A = malloc((size_t)MAXD * MAXD * sizeof(double));
+  z->t = malloc((size_t)MAXD * sizeof(double));
+  z->B = malloc(((size_t)z->nbs * (size_t)ns + 1) * sizeof(double));
+  z->Gf = malloc((r * nfc + 1) * sizeof(double));
+  z->Gsl = malloc(((size_t)z->rs * (size_t)z->nsc + 1) * sizeof(double));
+  if (!z->Q || !z->Rm || !z->Gs || !z->Qs || !z->Rs || !z->A || !z->t ||
+      !z->B || !z->Gf || !z->Gsl)
+    goto oom;
+  if (build_recipe(z, st) < 0 || build_csr(z, st) < 0 || build_pattern(z) < 0)
+    goto oom;
+  *out = z;
+  return MRVI_OK;
+oom:
+  free(spos), free(ms);
+  mrvi_nullspace_free(z);
+  return err(msg, len, MRVI_ENOMEM, "out of memory");
+}
+
+/* QR of the transpose of the k x nc block G (row-major, k rows): Q
+ * (nc x nc), R (k x k upper).  -1 if the rows of G are dependent. */
+static int block_qr(mrvi_nullspace *z, int k, int nc, const double *G,
+                    double *Q, double *R) {
+  for (int a = 0; a < nc; a++)
+    for (int b = 0; b < k; b++)
+      z->A[a * k + b] = G[b * nc + a];
+  if (mrvi_dense_qr(nc, k, z->A, Q) < 0)
+    return -1;
+  for (int a = 0; a < k; a++)
+    for (int b = 0; b < k; b++)
+      R[a * k + b] = b >= a ? z->A[a * k + b] : 0.0;
+  return 0;
+}
+
+/* Solve R^T y = u (R k x k upper) in place. */
+static void solve_rt(int k, const double *R, double *u) {
+  for (int a = 0; a < k; a++) {
+    double s = u[a];
+    for (int b = 0; b < a; b++)
+      s -= R[b * k + a] * u[b];
+    u[a] = s / R[a * k + a];
+  }
+}
+
+/* Solve R y = u (R k x k upper) in place. */
+static void solve_r(int k, const double *R, double *u) {
+  for (int a = k - 1; a >= 0; a--) {
+    double s = u[a];
+    for (int b = a + 1; b < k; b++)
+      s -= R[a * k + b] * u[b];
+    u[a] = s / R[a * k + a];
+  }
+}
+
+int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
+                          const double *F, char *msg, size_t len) {
+  const mrvi_model *m = st->model;
+  const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs;
+  double *lam = x + st->n_unknowns;
+  /* Micro-node constraints, node by node. */
+  for (int mm = 0; mm < z->p; mm++) {
+    const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
+    double *Q = z->Q + (size_t)mm * nfc * nfc;
+    double *R = z->Rm + (size_t)mm * r * r;
+    double *Gs = z->Gs + (size_t)mm * r * ns;
+    double *Gb = z->Gf;
+    if (r == 0)
+      continue;
+    memset(Gb, 0, (size_t)(r * nfc) * sizeof *Gb);
+    memset(Gs, 0, (size_t)(r * ns) * sizeof *Gs);
+    for (int i = 0; i < st->n_micro_c; i++) {
+      const int c = st->micro_c[i], off = st->c_off[c];
+      const mrvi_constraint *k = &m->constraints[c];
+      mrvi_step_constraint_eval(st, c, &pt, x, 0);
+      for (int j = 0; j < k->n_in; j++) {
+        const int idx = k->in[j], s = m->slot[idx];
+        for (int rr = 0; rr < k->rows; rr++) {
+          const double v = st->cG[rr * k->n_in + j];
+          if (m->rate[idx] == MRVI_FAST)
+            Gb[(off + rr) * nfc + z->fpos[s]] += v;
+          else
+            Gs[(off + rr) * ns + s] += v;
+        }
+      }
+    }
+    if (block_qr(z, r, nfc, Gb, Q, R) < 0)
+      return err(msg, len, MRVI_ESINGULAR,
+                 "null-space form: the fast parts of the micro-node "
+                 "constraints are dependent at micro node %d; use form: "
+                 "multipliers",
+                 mm);
+    /* dt R lambda^m = Q1^T F_m */
+    double *u = lam + rs + mm * r;
+    for (int a = 0; a < r; a++) {
+      double s = 0.0;
+      for (int b = 0; b < nfc; b++)
+        s += Q[b * nfc + a] * F[frow(z, mm, z->fc[b])];
+      u[a] = s;
+    }
+    solve_r(r, R, u);
+    for (int a = 0; a < r; a++)
+      u[a] /= st->dt;
+  }
+  if (rs == 0)
+    return MRVI_OK;
+  /* Slow-only constraints at q_k: what the slow rows leave after the
+   * micro-node forces, dT R_s lambda = Q1s^T (F_s - sum_m dt a0 G_s^T l). */
+  double *G = z->Gsl;
+  memset(G, 0, (size_t)(rs * z->nsc) * sizeof *G);
+  const mrvi_point p0 = mrvi_step_node_point(st, 0, st->dT);
+  for (int i = 0; i < st->n_slow_c; i++) {
+    const int c = st->slow_c[i], off = st->c_off[c];
+    const mrvi_constraint *k = &m->constraints[c];
+    mrvi_step_constraint_eval(st, c, &p0, x, 0);
+    for (int j = 0; j < k->n_in; j++) {
+      const int s = m->slot[k->in[j]];
+      int a = 0;
+      while (z->sc[a] != s)
+        a++;
+      for (int rr = 0; rr < k->rows; rr++)
+        G[(off + rr) * z->nsc + a] += st->cG[rr * k->n_in + j];
+    }
+  }
+  if (block_qr(z, rs, z->nsc, G, z->Qs, z->Rs) < 0)
+    return err(msg, len, MRVI_ESINGULAR,
+               "null-space form: the slow-only constraints are dependent");
+  double *u = lam;
+  for (int a = 0; a < rs; a++) {
+    double s = 0.0;
+    for (int b = 0; b < z->nsc; b++) {
+      const int sl = z->sc[b];
+      double f = F[sl];
+      for (int mm = 0; mm < z->p; mm++) {
+        const double a0 = 1.0 - (double)mm / z->p;
+        const double *Gs = z->Gs + (size_t)mm * r * ns;
+        const double *l = lam + rs + mm * r;
+        for (int q = 0; q < r; q++)
+          f -= st->dt * a0 * Gs[q * ns + sl] * l[q];
+      }
+      s += z->Qs[b * z->nsc + a] * f;
+    }
+    u[a] = s;
+  }
+  solve_r(rs, z->Rs, u);
+  for (int a = 0; a < rs; a++)
+    u[a] /= st->dT;
+  return MRVI_OK;
+}
+
+void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
+                           const double *Rfull, double *rhs) {
+  const int ns = z->ns, nfc = z->nfc, r = z->r, nsc = z->nsc;
+  /* Slow basis vectors b (ns each). */
+  for (int i = 0; i < z->nbs; i++) {
+    double *b = z->B + (size_t)i * ns;
+    memset(b, 0, (size_t)ns * sizeof *b);
+    if (z->b_slot[i] >= 0)
+      b[z->b_slot[i]] = 1.0;
+    else {
+      const int col = z->rs + (i - (z->nbs - (nsc - z->rs)));
+      for (int a = 0; a < nsc; a++)
+        b[z->sc[a]] = z->Qs[a * nsc + col];
+    }
+  }
+  /* Coefficients in recipe order. */
+  long e = 0;
+  for (int i = 0; i < z->nbs; i++) {
+    const double *b = z->B + (size_t)i * ns;
+    if (z->b_slot[i] >= 0)
+      z->rec_coef[e++] = 1.0;
+    else
+      for (int a = 0; a < nsc; a++)
+        z->rec_coef[e++] = b[z->sc[a]];
+    if (!z->b_coupled[i])
+      continue;
+    for (int mm = 0; mm < z->p; mm++) {
+      /* v_m = -a0 Q1 R^-T (G_s b) */
+      const double a0 = 1.0 - (double)mm / z->p;
+      const double *Q = z->Q + (size_t)mm * nfc * nfc;
+      const double *R = z->Rm + (size_t)mm * r * r;
+      const double *Gs = z->Gs + (size_t)mm * r * ns;
+      double *u = z->t;
+      for (int q = 0; q < r; q++) {
+        double s = 0.0;
+        for (int c = 0; c < ns; c++)
+          s += Gs[q * ns + c] * b[c];
+        u[q] = s;
+      }
+      solve_rt(r, R, u);
+      for (int a = 0; a < nfc; a++) {
+        double s = 0.0;
+        for (int q = 0; q < r; q++)
+          s += Q[a * nfc + q] * u[q];
+        z->rec_coef[e++] = -a0 * s;
+      }
+    }
+  }
+  for (int mm = 0; mm < z->p; mm++) {
+    const double *Q = z->Q + (size_t)mm * nfc * nfc;
+    for (int f = 0; f < z->nf; f++)
+      if (z->fpos[f] < 0)
+        z->rec_coef[e++] = 1.0;
+    for (int j = r; j < nfc; j++)
+      for (int a = 0; a < nfc; a++)
+        z->rec_coef[e++] = Q[a * nfc + j];
+  }
+  for (int k = 0; k < st->n_lambda; k++)
+    z->rec_coef[e++] = 1.0;
+  /* Rows of the reduced system: combinations of the full rows. */
+  memset(z->Ax, 0, (size_t)z->nnz * sizeof *z->Ax);
+  long t = 0;
+  for (int i = 0; i < z->n; i++) {
+    double s = 0.0;
+    for (int k = z->rec_start[i]; k < z->rec_start[i + 1]; k++) {
+      const int row = z->rec_row[k];
+      const double c = z->rec_coef[k];
+      s += c * Rfull[row];
+      for (int q = z->csr_start[row]; q < z->csr_start[row + 1]; q++)
+        z->Ax[z->map[t++]] += c * st->Ax[z->csr_idx[q]];
+    }
+    rhs[i] = s;
+  }
+}
