@@ -169,8 +169,36 @@ static int run(const mrvi_model *m, const mrvi_settings *s, run_data *d) {
                 sizeof(double));
   mrvi_summary sum;
   int st = mrvi_run(m, s, collect, d, NULL, &sum);
-  CHECK(st == 0, "%s: run failed: %s", mrvi_model_name(m), sum.message);
+  CHECK(st == 0, "%s: run %s", mrvi_model_name(m), st ? sum.message : "completed");
   return st;
+}
+
+/* Energy error over the first and second halves of a run. */
+static void energy_halves(const mrvi_model *m, const mrvi_settings *s) {
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m, s, &tr, &sum) != 0) {
+    CHECK(0, "energy run: %s", sum.message);
+    return;
+  }
+  const int n = tr->n;
+  double H0 = 0.0, e1 = 0.0, e2 = 0.0;
+  for (long k = 0; k < tr->n_macro; k++) {
+    double kin, vs, vf;
+    mrvi_model_energy(m, tr->q + k * n, tr->p + k * n, &kin, &vs, &vf);
+    const double H = kin + vs + vf;
+    if (k == 0)
+      H0 = H;
+    if (k < tr->n_macro / 2)
+      e1 = fmax(e1, fabs(H - H0));
+    else
+      e2 = fmax(e2, fabs(H - H0));
+  }
+  CHECK(e2 <= 1.5 * e1 && e1 <= 1e-3 * fabs(H0) + 1e-3,
+        "energy error first half %.3e, second half %.3e (H0 = %.4f, %ld "
+        "steps)",
+        e1, e2, H0, tr->n_macro - 1);
+  mrvi_trajectory_free(tr);
 }
 
 /* Both forms, both schemes, p in {1, 5}: the same trajectories, and the
@@ -203,7 +231,164 @@ static void test_forms_agree(const char *label, mrvi_model *m, double dT,
     }
 }
 
+/* Cart pendulum, p = 5: horizontal momentum and angular momentum about e3
+ * conserved to the Newton tolerance (discrete Noether: L_d and the
+ * constraints are invariant), energy error bounded without drift, hidden
+ * constraint met when momenta are projected. */
+static void test_conservation(void) {
+  mrvi_model *m = test_cart_pendulum();
+  const double tol = 1e-10;
+  for (int f = 0; f < 2; f++) {
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.02, 5, 100.0, tol);
+    s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    run_data d;
+    if (run(m, &s, &d) != 0)
+      continue;
+    const char *form = f ? "null-space" : "multipliers";
+    CHECK(d.dP[0] <= 10 * tol && d.dP[1] <= 10 * tol,
+          "%s: horizontal momentum drift (%.2e, %.2e) over %ld steps", form,
+          d.dP[0], d.dP[1], d.n - 1);
+    CHECK(d.dL[2] <= 10 * tol, "%s: angular momentum about e3 drift %.2e",
+          form, d.dL[2]);
+    CHECK(d.hidden <= s.constraint_tol,
+          "%s: hidden constraint |G M^-1 p| = %.2e with projection", form,
+          d.hidden);
+    free(d.q);
+  }
+  /* Energy: the error of the second half of a long run is no larger than
+   * that of the first (no drift), and small. */
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.02, 5, 200.0, tol);
+  energy_halves(m, &s);
+  mrvi_model_free(m);
+}
+
+/* Without projection the hidden constraint is O(dt) off; the trajectory is
+ * the same (the shift is absorbed by the next multipliers). */
+static void test_projection_is_output_only(void) {
+  mrvi_model *m = test_cart_pendulum();
+  run_data d[2];
+  for (int proj = 0; proj < 2; proj++) {
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.02, 5, 2.0, 1e-12);
+    s.project_momenta = proj;
+    run(m, &s, &d[proj]);
+  }
+  double diff = 0.0;
+  for (long i = 0; i < d[0].n * d[0].dim; i++)
+    diff = fmax(diff, fabs(d[0].q[i] - d[1].q[i]));
+  CHECK(diff <= 1e-10, "projection changes positions by %.2e", diff);
+  CHECK(d[0].hidden > 1e-4 && d[1].hidden < 1e-12,
+        "hidden constraint %.2e without projection, %.2e with", d[0].hidden,
+        d[1].hidden);
+  free(d[0].q);
+  free(d[1].q);
+  mrvi_model_free(m);
+}
+
+/* Multipliers reported per step are consistent: for the rod coupling the
+ * slow cart and the fast bob, the step averages at p = 1, 5, 10 agree to
+ * O(dT), while the node-0 values of p > 1 carry the cart's kick. */
+static void test_multiplier_consistency(void) {
+  mrvi_model *m = test_cart_pendulum();
+  const int ps[3] = {1, 5, 10};
+  double lam[3][2];
+  for (int a = 0; a < 3; a++) {
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.0025, ps[a], 0.5,
+                                    1e-11);
+    mrvi_integrator *it = NULL;
+    char msg[512];
+    if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) != 0) {
+      CHECK(0, "%s", msg);
+      return;
+    }
+    for (int k = 0; k < 200; k++)
+      mrvi_integrator_step(it);
+    memcpy(lam[a], mrvi_integrator_lambda(it), sizeof lam[a]);
+    mrvi_integrator_free(it);
+  }
+  for (int a = 1; a < 3; a++) {
+    CHECK(fabs(lam[a][1] - lam[0][1]) <= 0.02 * fabs(lam[0][1]),
+          "rod multiplier p = %d: %.6f vs p = 1: %.6f", ps[a], lam[a][1],
+          lam[0][1]);
+    CHECK(fabs(lam[a][0] - lam[0][0]) <= 0.01 * fabs(lam[0][0]),
+          "plane multiplier p = %d: %.6f vs p = 1: %.6f", ps[a], lam[a][0],
+          lam[0][0]);
+  }
+  /* The plane carries the weight of cart and bob, (5 + 0.5) 9.81, up to
+   * the bob's vertical acceleration. */
+  CHECK(fabs(lam[0][0] + 5.5 * 9.81) < 3.0, "plane multiplier %.4f",
+        lam[0][0]);
+  mrvi_model_free(m);
+}
+
+/* Order 2 of midpoint-midpoint in q on macro nodes, p = 5 (fitted). */
+static void test_convergence_order(void) {
+  mrvi_model *m = test_cart_pendulum();
+  mrvi_settings rs = test_settings("midpoint-midpoint", 1e-4, 1, 0.4, 1e-12);
+  rs.constraint_tol = 1e-13;
+  mrvi_trajectory *ref = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m, &rs, &ref, &sum) != 0) {
+    CHECK(0, "reference: %s", sum.message);
+    mrvi_model_free(m);
+    return;
+  }
+  const double steps[4] = {0.04, 0.02, 0.01, 0.005};
+  double lx[4], ly[4];
+  for (int i = 0; i < 4; i++) {
+    mrvi_settings s = test_settings("midpoint-midpoint", steps[i], 5, 0.4,
+                                    1e-12);
+    s.constraint_tol = 1e-13;
+    mrvi_trajectory *tr = NULL;
+    mrvi_errors e;
+    char msg[256];
+    CHECK(mrvi_trajectory_run(m, &s, &tr, &sum) == 0, "%s", sum.message);
+    CHECK(tr && mrvi_trajectory_errors(m, tr, ref, &e, msg, sizeof msg) == 0,
+          "%s", msg);
+    lx[i] = log(steps[i]);
+    ly[i] = log(e.q_mac);
+    mrvi_trajectory_free(tr);
+  }
+  /* Least-squares slope of log error against log dT. */
+  double mx = 0, my = 0, sxy = 0, sxx = 0;
+  for (int i = 0; i < 4; i++)
+    mx += lx[i] / 4, my += ly[i] / 4;
+  for (int i = 0; i < 4; i++)
+    sxy += (lx[i] - mx) * (ly[i] - my), sxx += (lx[i] - mx) * (lx[i] - mx);
+  const double order = sxy / sxx;
+  CHECK(fabs(order - 2.0) <= 0.25,
+        "cart pendulum, midpoint-midpoint p = 5: order in q %.3f (errors "
+        "%.2e .. %.2e)",
+        order, exp(ly[0]), exp(ly[3]));
+  mrvi_trajectory_free(ref);
+  mrvi_model_free(m);
+}
+
+/* Redundant constraints: the integrator refuses them and names them. */
+static void test_redundant(void) {
+  mrvi_model *m = test_cart_pendulum();
+  const int z[1] = {2};
+  const double one[1] = {1.0};
+  mrvi_model_add_linear_constraint(m, 1, z, one, 0.0); /* z_cart = 0 again */
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.02, 5, 1.0, 1e-10);
+  for (int f = 0; f < 2; f++) {
+    s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    mrvi_integrator *it = NULL;
+    char msg[512] = "";
+    const int st = mrvi_integrator_create(m, &s, &it, msg, sizeof msg);
+    CHECK(st == MRVI_ESINGULAR && strstr(msg, "plane cart") &&
+              strstr(msg, "linear on cart.z"),
+          "redundant constraints named (%d): %s", st, msg);
+    mrvi_integrator_free(it);
+  }
+  mrvi_model_free(m);
+}
+
 int main(void) {
+  test_conservation();
+  test_projection_is_output_only();
+  test_multiplier_consistency();
+  test_convergence_order();
+  test_redundant();
   test_cart_pendulum_midpoint();
   mrvi_model *cp = test_cart_pendulum();
   test_forms_agree("cart pendulum", cp, 0.02, 2.0);

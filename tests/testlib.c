@@ -6,8 +6,20 @@
 int test_passed = 0, test_failed = 0;
 
 void test_check(int ok, const char *file, int line, const char *fmt, ...) {
+  /* MRVI_TEST_VERBOSE=1 prints passing checks too (with their figures). */
+  static int verbose = -1;
+  if (verbose < 0)
+    verbose = getenv("MRVI_TEST_VERBOSE") != NULL;
   if (ok) {
     test_passed++;
+    if (verbose) {
+      va_list ap;
+      va_start(ap, fmt);
+      fprintf(stderr, "%s:%d: ok: ", file, line);
+      vfprintf(stderr, fmt, ap);
+      fputc('\n', stderr);
+      va_end(ap);
+    }
     return;
   }
   test_failed++;
