@@ -6,6 +6,7 @@
 #include "testlib.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -396,5 +397,21 @@ int main(void) {
   mrvi_model *sr = test_spring_ring_rod();
   test_forms_agree("spring ring rod", sr, 0.01, 0.5);
   mrvi_model_free(sr);
+  /* Every shipped constrained system, with its own macro step. */
+  const char *systems[4] = {"cart_pendulum", "spring_ring_rod", "triatomic",
+                            "pendulum_chain"};
+  for (int i = 0; i < 4; i++) {
+    char rel[128], msg[1024];
+    snprintf(rel, sizeof rel, "systems/%s.yaml", systems[i]);
+    mrvi_system *sys = NULL;
+    if (mrvi_system_load(test_source_path(rel), NULL, 0, &sys, msg,
+                         sizeof msg) != 0) {
+      CHECK(0, "load %s: %s", rel, msg);
+      continue;
+    }
+    const double dT = sys->settings.macro_step;
+    test_forms_agree(systems[i], sys->model, dT, 50 * dT);
+    mrvi_system_free(sys);
+  }
   return test_finish();
 }
