@@ -24,6 +24,7 @@ struct mrvi_integrator {
   double *micro_cres;   /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
   double *mu_h;         /* projection impulse / h at the current node */
+  double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;
   double last_residual;
   double t_assemble, t_solve;
@@ -71,6 +72,9 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->cA);
   free(it->cmu);
   free(it->mu_h);
+  free(it->pGf);
+  free(it->pA);
+  free(it->pmu);
   free(it);
 }
 
@@ -242,9 +246,14 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->cA = alloc(R * R);
   it->cmu = alloc(R);
   it->mu_h = alloc(R);
+  const size_t rm = (size_t)it->step.r_micro;
+  it->pGf = alloc(rm * nf);
+  it->pA = alloc(rm * rm);
+  it->pmu = alloc(rm);
   if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf ||
       !it->x || !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p || !it->lambda || !it->micro_cres || !it->rhs ||
-      !it->cg || !it->cGd || !it->cA || !it->cmu || !it->mu_h)
+      !it->cg || !it->cGd || !it->cA || !it->cmu || !it->mu_h ||
+      !it->pGf || !it->pA || !it->pmu)
     goto oom;
   /* Initial state (q0, M v0) at t = 0; constraints must hold at q0. */
   for (size_t i = 0; i < n; i++) {
@@ -432,6 +441,55 @@ static void constraint_outputs(mrvi_integrator *it) {
   }
 }
 
+/* Output momenta at the interior micro nodes m = 1..p-1 meet the hidden
+ * constraint of the micro-node constraints there: with the slow velocity
+ * v_s = (q_{k+1}^s - q_k^s)/dT of the step, G_f M_f^-1 p_f = -G_s v_s,
+ * by an M-orthogonal shift of p_f along G_f^T.  Outputs only (the state
+ * holds no interior momenta). */
+static int project_micro(mrvi_integrator *it) {
+  const mrvi_model *m = it->model;
+  mrvi_step *st = &it->step;
+  const int nf = st->nf, r = st->r_micro;
+  for (int mm = 1; mm < st->p; mm++) {
+    const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
+    double *pf = it->micro_p + (size_t)(mm - 1) * (size_t)nf;
+    memset(it->pGf, 0, (size_t)r * (size_t)nf * sizeof(double));
+    for (int i = 0; i < st->n_micro_c; i++) {
+      const int c = st->micro_c[i], off = st->c_off[c];
+      const mrvi_constraint *k = &m->constraints[c];
+      mrvi_step_constraint_eval(st, c, &pt, it->x, 0);
+      for (int q = 0; q < k->rows; q++) {
+        double gv = 0.0; /* G_s v_s + G_f M_f^-1 p_f */
+        for (int j = 0; j < k->n_in; j++) {
+          const int idx = k->in[j], sl = m->slot[idx];
+          const double G = st->cG[q * k->n_in + j];
+          if (m->rate[idx] == MRVI_SLOW) {
+            gv += G * (it->x[sl] - st->qs0[sl]) / st->dT;
+          } else {
+            gv += G * pf[sl] / m->mass[idx];
+            it->pGf[(off + q) * nf + sl] += G;
+          }
+        }
+        it->pmu[off + q] = gv;
+      }
+    }
+    for (int a = 0; a < r; a++)
+      for (int b = 0; b < r; b++) {
+        double t = 0.0;
+        for (int f = 0; f < nf; f++)
+          t += it->pGf[a * nf + f] * it->pGf[b * nf + f] /
+               m->mass[m->fast_index[f]];
+        it->pA[a * r + b] = t;
+      }
+    if (mrvi_dense_solve(r, it->pA, it->pmu) < 0)
+      return MRVI_ESINGULAR;
+    for (int f = 0; f < nf; f++)
+      for (int a = 0; a < r; a++)
+        pf[f] -= it->pGf[a * nf + f] * it->pmu[a];
+  }
+  return MRVI_OK;
+}
+
 int mrvi_integrator_step(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
   mrvi_step *st = &it->step;
@@ -487,6 +545,12 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   mrvi_step_momenta(st, it->x, it->ps1, it->micro_p);
   if (st->n_lambda > 0)
     constraint_outputs(it);
+  if (st->r_micro > 0 && it->settings.project_momenta &&
+      project_micro(it) < 0)
+    return fail(it, MRVI_ESINGULAR,
+                "step %ld: micro-node momentum projection failed (fast "
+                "constraint gradients dependent)",
+                it->k + 1);
   const int ns = st->ns, nf = st->nf, p = st->p;
   memcpy(it->micro_q, it->x + ns, (size_t)p * (size_t)nf * sizeof(double));
   memcpy(it->qs, it->x, (size_t)ns * sizeof(double));
