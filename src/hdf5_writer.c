@@ -16,6 +16,7 @@
 
 #include <hdf5.h>
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -48,7 +49,11 @@ enum elem { F64, I32 };
  * columns: row width as a function of the writer w; 0 omits the dataset.
  * row:     address of row i of record r (i < rows r adds to the stream).
  * rank 1:  shape (rows) and columns must be 1; rank 2: (rows, columns).
- * long_name is also stored as the dataset attribute `long_name`. */
+ * long_name is also stored as the dataset attribute `long_name`.
+ * The constraint datasets exist only for a model with constraints
+ * (n_lambda rows of g).  The multipliers of a node come with the next
+ * record (lambda_prev), so /macro/lambda is written as a NaN placeholder and
+ * filled in when they arrive (fill_lambda); the last node keeps the NaN. */
 #define MRVI_OUTPUT_LIST(X)                                                    \
   X(MACRO_T, "/macro/t", F64, MACRO, 1, 1, &r->t, "time t_k of macro node k")  \
   X(MACRO_Q, "/macro/q", F64, MACRO, 2, w->n, r->q,                            \
@@ -68,6 +73,14 @@ enum elem { F64, I32 };
   X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \
     w->n_ang, r->angular_momentum,                                             \
     "angular momentum sum_i x_i x p_i of the particles")                       \
+  X(MACRO_CONSTRAINT_RESIDUAL, "/macro/constraint_residual", F64, MACRO, 1,    \
+    w->n_lambda > 0, &r->constraint_residual,                                  \
+    "max |g| over the nodes completed at macro node k")                        \
+  X(MACRO_HIDDEN_CONSTRAINT_RESIDUAL, "/macro/hidden_constraint_residual",     \
+    F64, MACRO, 1, w->n_lambda > 0, &r->hidden_constraint_residual,            \
+    "max |G M^-1 p| at macro node k")                                          \
+  X(MACRO_LAMBDA, "/macro/lambda", F64, MACRO, 2, w->n_lambda, w->nan_row,     \
+    "constraint multipliers at macro node k (NaN at the last node)")           \
   X(MICRO_T, "/micro/t", F64, MICRO, 1, 1, &w->micro_t[i],                     \
     "time of the fast micro node")                                             \
   X(MICRO_Q_FAST, "/micro/q_fast", F64, MICRO, 2, w->nf,                       \
@@ -76,6 +89,9 @@ enum elem { F64, I32 };
   X(MICRO_P_FAST, "/micro/p_fast", F64, MICRO, 2, w->nf,                       \
     r->micro_p_fast + (size_t)i * (size_t)w->nf,                               \
     "fast micro momenta (eq:pkfm-), model order")                              \
+  X(MICRO_CONSTRAINT_RESIDUAL, "/micro/constraint_residual", F64, MICRO, 1,    \
+    w->n_lambda > 0, r->micro_constraint_residual + i,                         \
+    "max |g| at the micro node")                                               \
   X(SOLVER_ITERATIONS, "/solver/iterations", I32, SOLVER, 1, 1,                \
     &r->iterations, "Newton iterations of macro step k-1 -> k")                \
   X(SOLVER_RESIDUAL, "/solver/residual", F64, SOLVER, 1, 1, &r->residual,      \
@@ -104,27 +120,34 @@ static const struct output_info {
 };
 
 /* Root attributes written at open, listed once; doc/output.md mirrors it.
- *   X(name, kind, value), kind: string, double, int or long.
+ *   X(name, kind, value, present), kind: string, double, int or long.
  * Values may use the settings s, the writer w and the strings `system_name`,
- * `scheme` of mrvi_writer_open.  stop_reason and steps_completed are
- * rewritten at every flush and at close. */
+ * `scheme` of mrvi_writer_open; an attribute is written when `present` is
+ * true.  stop_reason and steps_completed are rewritten at every flush and at
+ * close. */
 #define MRVI_ATTRIBUTE_LIST(X)                                                 \
-  X("mrvi_version", string, MRVI_VERSION)                                      \
-  X("system", string, system_name)                                             \
-  X("scheme", string, scheme)                                                  \
-  X("alpha_slow", double, s->slow.alpha)                                       \
-  X("gamma_slow", double, s->slow.gamma)                                       \
-  X("slow_grid", string, s->slow_grid == MRVI_GRID_MACRO ? "macro" : "micro")  \
-  X("alpha_fast", double, s->fast.alpha)                                       \
-  X("gamma_fast", double, s->fast.gamma)                                       \
-  X("macro_step", double, s->macro_step)                                       \
-  X("micro_steps", int, s->micro_steps)                                        \
-  X("t_end", double, s->t_end)                                                 \
-  X("newton_tolerance", double, s->newton_tol)                                 \
-  X("newton_max_iterations", int, s->newton_max_iter)                          \
-  X("output_every", int, w->every)                                             \
-  X("stop_reason", string, "running")                                          \
-  X("steps_completed", long, 0L)
+  X("mrvi_version", string, MRVI_VERSION, 1)                                   \
+  X("system", string, system_name, 1)                                          \
+  X("scheme", string, scheme, 1)                                               \
+  X("alpha_slow", double, s->slow.alpha, 1)                                    \
+  X("gamma_slow", double, s->slow.gamma, 1)                                    \
+  X("slow_grid", string, s->slow_grid == MRVI_GRID_MACRO ? "macro" : "micro",  \
+    1)                                                                         \
+  X("alpha_fast", double, s->fast.alpha, 1)                                    \
+  X("gamma_fast", double, s->fast.gamma, 1)                                    \
+  X("macro_step", double, s->macro_step, 1)                                    \
+  X("micro_steps", int, s->micro_steps, 1)                                     \
+  X("t_end", double, s->t_end, 1)                                              \
+  X("newton_tolerance", double, s->newton_tol, 1)                              \
+  X("newton_max_iterations", int, s->newton_max_iter, 1)                       \
+  X("constraint_form", string,                                                 \
+    s->constraint_form == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers", \
+    w->n_lambda > 0)                                                           \
+  X("constraint_tolerance", double, s->constraint_tol, w->n_lambda > 0)        \
+  X("project_momenta", int, s->project_momenta, w->n_lambda > 0)               \
+  X("output_every", int, w->every, 1)                                          \
+  X("stop_reason", string, "running", 1)                                       \
+  X("steps_completed", long, 0L, 1)
 
 /* ---------------------------------------------------------------------------
  * Writer
@@ -140,6 +163,7 @@ struct mrvi_writer {
   char *path;
   hid_t file;
   int n, nf, dim, n_ang, p, every;
+  int n_lambda; /* constraint rows (0: no constraint outputs) */
   int stream_on[N_STREAMS];
   long flush_records;         /* records per flush (<= FLUSH_RECORDS) */
   size_t cap[N_STREAMS];      /* buffer capacity in rows */
@@ -152,8 +176,11 @@ struct mrvi_writer {
   double flushed_at; /* mrvi_clock() at the last flush */
   long last_k;       /* k of the last record, -1 before the first */
   double *micro_t;   /* p: times of the micro rows of a record */
-  int status;        /* first failure (0 if none) */
-  int io_failed;     /* a write failed: the file is not touched again */
+  double *nan_row;   /* n_lambda NaNs: the /macro/lambda placeholder */
+  double *lambda_patch; /* n_lambda: multipliers of the last row in the file */
+  int patch;            /* lambda_patch waits for the next flush */
+  int status;           /* first failure (0 if none) */
+  int io_failed;        /* a write failed: the file is not touched again */
   char errmsg[512];
   output out[N_OUTPUTS];
 };
@@ -379,6 +406,46 @@ static herr_t write_fixed(hid_t file, const char *path, hid_t lcpl, hid_t ftype,
   return rc;
 }
 
+/* Record a failure to write dataset `path`.  Returns the status. */
+static int fail_dataset(mrvi_writer *w, const char *path) {
+  char what[128];
+  mrvi_fmt(what, sizeof what, "writing %s", path);
+  return fail_h5(w, MRVI_EIO, what);
+}
+
+/* One dataset of /model: count elements of type (ftype, mtype), or one
+ * scalar; STRINGS for variable-length strings (data: const char *[]). */
+typedef struct fixed_dataset {
+  const char *path;
+  hid_t ftype, mtype;
+  hsize_t count;
+  int scalar;
+  const void *data; /* NULL: the dataset is left out */
+  const char *long_name;
+} fixed_dataset;
+
+#define STRINGS H5I_INVALID_HID, H5I_INVALID_HID
+
+/* Write the datasets d[0 .. count-1], stopping at the first failure. */
+static int write_fixed_list(mrvi_writer *w, hid_t lcpl, const fixed_dataset *d,
+                            int count) {
+  hid_t st = string_type();
+  if (st < 0)
+    return fail_h5(w, MRVI_EIO, "writing /model: string type");
+  int rc = 0;
+  for (int i = 0; i < count && rc == 0; i++) {
+    if (!d[i].data)
+      continue;
+    const int str = d[i].ftype == H5I_INVALID_HID;
+    if (write_fixed(w->file, d[i].path, lcpl, str ? st : d[i].ftype,
+                    str ? st : d[i].mtype, d[i].count, d[i].scalar, d[i].data,
+                    d[i].long_name) < 0)
+      rc = fail_dataset(w, d[i].path);
+  }
+  H5Tclose(st);
+  return rc;
+}
+
 /* /model: mass, rate, name, description. */
 static int write_model(mrvi_writer *w, const mrvi_model *m,
                        const char *description, hid_t lcpl) {
@@ -398,34 +465,65 @@ static int write_model(mrvi_writer *w, const mrvi_model *m,
     if (!name[i])
       name[i] = "";
   }
-  if (write_fixed(w->file, "/model/mass", lcpl, H5T_IEEE_F64LE,
-                  H5T_NATIVE_DOUBLE, n, 0, mass,
-                  "mass of each coordinate (diagonal of M), model order") < 0) {
-    rc = fail_h5(w, MRVI_EIO, "writing /model/mass");
-    goto out;
-  }
-  if (write_fixed(w->file, "/model/rate", lcpl, H5T_STD_I32LE, H5T_NATIVE_INT,
-                  n, 0, rate, "rate of each coordinate: 0 slow, 1 fast") < 0) {
-    rc = fail_h5(w, MRVI_EIO, "writing /model/rate");
-    goto out;
-  }
-  hid_t st = string_type();
-  herr_t e = st < 0 ? -1
-                    : write_fixed(w->file, "/model/name", lcpl, st, st, n, 0,
-                                  name, "name of each coordinate");
-  if (e >= 0 && description)
-    e = write_fixed(w->file, "/model/description", lcpl, st, st, 0, 1,
-                    &description, "the input description, verbatim");
-  hid_t es = keep_errors(e);
-  if (st >= 0)
-    H5Tclose(st);
-  restore_errors(es);
-  if (e < 0)
-    rc = fail_h5(w, MRVI_EIO, "writing /model/name and /model/description");
+  const fixed_dataset list[] = {
+      {"/model/mass", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, n, 0, mass,
+       "mass of each coordinate (diagonal of M), model order"},
+      {"/model/rate", H5T_STD_I32LE, H5T_NATIVE_INT, n, 0, rate,
+       "rate of each coordinate: 0 slow, 1 fast"},
+      {"/model/name", STRINGS, n, 0, name, "name of each coordinate"},
+      {"/model/description", STRINGS, 0, 1, description ? &description : NULL,
+       "the input description, verbatim"},
+  };
+  rc = write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
 out:
   free(mass);
   free(rate);
   free(name);
+  return rc;
+}
+
+/* /model/constraint_*: one entry per constraint, in model order (their rows
+ * are the columns of /macro/lambda, in the same order).  Nothing without
+ * constraints. */
+static int write_constraints(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
+  const int nc = mrvi_model_n_constraints(m);
+  if (nc <= 0)
+    return 0;
+  const char **label = malloc((size_t)nc * sizeof *label);
+  const char **type = malloc((size_t)nc * sizeof *type);
+  const char **where = malloc((size_t)nc * sizeof *where);
+  int *rows = malloc((size_t)nc * sizeof *rows);
+  int rc = 0;
+  if (!label || !type || !where || !rows) {
+    rc = fail(w, MRVI_ENOMEM, "writing /model: out of memory");
+    goto out;
+  }
+  for (int c = 0; c < nc; c++) {
+    label[c] = mrvi_model_constraint_label(m, c);
+    type[c] = mrvi_model_constraint_type_name(m, c);
+    label[c] = label[c] ? label[c] : "";
+    type[c] = type[c] ? type[c] : "";
+    rows[c] = mrvi_model_constraint_n_rows(m, c);
+    where[c] = mrvi_model_constraint_where(m, c) == MRVI_FAST ? "micro nodes"
+                                                              : "macro nodes";
+  }
+  const hsize_t count = (hsize_t)nc;
+  const fixed_dataset list[] = {
+      {"/model/constraint_label", STRINGS, count, 0, label,
+       "label of each constraint"},
+      {"/model/constraint_type", STRINGS, count, 0, type,
+       "type of each constraint"},
+      {"/model/constraint_rows", H5T_STD_I32LE, H5T_NATIVE_INT, count, 0, rows,
+       "scalar equations of each constraint (its columns of /macro/lambda)"},
+      {"/model/constraint_where", STRINGS, count, 0, where,
+       "where each constraint is enforced: macro nodes or micro nodes"},
+  };
+  rc = write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
+out:
+  free(label);
+  free(type);
+  free(where);
+  free(rows);
   return rc;
 }
 
@@ -465,23 +563,25 @@ static int create_output(mrvi_writer *w, int id, hid_t lcpl,
   return 0;
 }
 
-/* Append `rows` buffered rows to dataset id. */
-static herr_t append_rows(mrvi_writer *w, int id, size_t rows) {
+/* Write `rows` rows from buf at row `start` of dataset id, extending the
+ * dataset when they end past the rows in the file. */
+static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
+                         const void *buf) {
   const struct output_info *info = &output_info[id];
   output *o = &w->out[id];
-  hsize_t start[2] = {w->written[info->stream], 0};
+  hsize_t offset[2] = {start, 0};
   hsize_t count[2] = {(hsize_t)rows, o->cols};
-  hsize_t size[2] = {start[0] + count[0], o->cols};
+  hsize_t size[2] = {start + count[0], o->cols};
   hid_t mtype = info->type == F64 ? H5T_NATIVE_DOUBLE : H5T_NATIVE_INT;
-  if (H5Dset_extent(o->id, size) < 0)
+  if (size[0] > w->written[info->stream] && H5Dset_extent(o->id, size) < 0)
     return -1;
   hid_t fspace = H5Dget_space(o->id);
   hid_t mspace = H5Screate_simple(info->rank, count, NULL);
   herr_t rc = -1;
   if (fspace >= 0 && mspace >= 0 &&
-      H5Sselect_hyperslab(fspace, H5S_SELECT_SET, start, NULL, count, NULL) >=
+      H5Sselect_hyperslab(fspace, H5S_SELECT_SET, offset, NULL, count, NULL) >=
           0)
-    rc = H5Dwrite(o->id, mtype, mspace, fspace, H5P_DEFAULT, o->buf);
+    rc = H5Dwrite(o->id, mtype, mspace, fspace, H5P_DEFAULT, buf);
   hid_t es = keep_errors(rc);
   if (fspace >= 0)
     H5Sclose(fspace);
@@ -503,15 +603,17 @@ static int flush(mrvi_writer *w, int final) {
   quiet q;
   quiet_begin(&q);
   int rc = 0;
+  /* The multipliers of the last row already in the file (fill_lambda). */
+  if (w->patch && write_rows(w, MACRO_LAMBDA, w->written[MACRO] - 1, 1,
+                             w->lambda_patch) < 0)
+    rc = fail_dataset(w, output_info[MACRO_LAMBDA].path);
+  w->patch = 0;
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++) {
-    size_t rows = w->rows[output_info[id].stream];
-    if (w->out[id].id < 0 || rows == 0)
+    const enum stream st = output_info[id].stream;
+    if (w->out[id].id < 0 || w->rows[st] == 0)
       continue;
-    if (append_rows(w, id, rows) < 0) {
-      char what[128];
-      mrvi_fmt(what, sizeof what, "writing %s", output_info[id].path);
-      rc = fail_h5(w, MRVI_EIO, what);
-    }
+    if (write_rows(w, id, w->written[st], w->rows[st], w->out[id].buf) < 0)
+      rc = fail_dataset(w, output_info[id].path);
   }
   if (rc == 0 &&
       attr_long(w->file, "steps_completed", w->last_k > 0 ? w->last_k : 0) < 0)
@@ -569,6 +671,8 @@ static void writer_free(mrvi_writer *w) {
   for (int id = 0; id < N_OUTPUTS; id++)
     free(w->out[id].buf);
   free(w->micro_t);
+  free(w->nan_row);
+  free(w->lambda_patch);
   free(w->path);
   free(w);
 }
@@ -612,8 +716,13 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
       return fail(w, MRVI_ENOMEM, "out of memory for output buffers");
   }
   w->micro_t = malloc((size_t)w->p * sizeof *w->micro_t);
-  if (!w->micro_t)
+  const size_t nl = (size_t)w->n_lambda + 1;
+  w->nan_row = malloc(nl * sizeof *w->nan_row);
+  w->lambda_patch = malloc(nl * sizeof *w->lambda_patch);
+  if (!w->micro_t || !w->nan_row || !w->lambda_patch)
     return fail(w, MRVI_ENOMEM, "out of memory");
+  for (size_t i = 0; i < nl; i++)
+    w->nan_row[i] = NAN;
 
   /* The file (truncated). */
   hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
@@ -636,8 +745,8 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   /* Root attributes. */
   char scheme[sizeof s->scheme + 1];
   mrvi_fmt(scheme, sizeof scheme, "%.*s", (int)sizeof s->scheme, s->scheme);
-#define X_ATTR(name, kind, value)                                              \
-  if (attr_##kind(w->file, name, value) < 0)                                   \
+#define X_ATTR(name, kind, value, present)                                     \
+  if ((present) && attr_##kind(w->file, name, value) < 0)                      \
     return fail_h5(w, MRVI_EIO, "writing attribute " name);
   MRVI_ATTRIBUTE_LIST(X_ATTR)
 #undef X_ATTR
@@ -651,6 +760,8 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
     return w->status;
   }
   int rc = write_model(w, m, description, lcpl);
+  if (rc == 0)
+    rc = write_constraints(w, m, lcpl);
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++)
     if (w->out[id].cols > 0)
       rc = create_output(w, id, lcpl, expected[output_info[id].stream]);
@@ -708,6 +819,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->n_ang = w->dim == 3 ? 3 : w->dim == 2 ? 1 : 0;
   w->p = s->micro_steps;
   w->every = o.every;
+  w->n_lambda = mrvi_model_constraint_rows(m);
   w->stream_on[MACRO] = 1;
   w->stream_on[MICRO] = o.micro && w->nf > 0;
   w->stream_on[SOLVER] = 1;
@@ -734,6 +846,23 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   quiet_end(&q);
   *out = w;
   return MRVI_OK;
+}
+
+/* Record k brings the multipliers of node k-1 (lambda_prev): fill in the
+ * /macro/lambda row of node k-1 unless it is the pending row, which record k
+ * replaces.  That row is the last buffered macro row or, right after a
+ * flush, the last row in the file, which the next flush rewrites. */
+static void fill_lambda(mrvi_writer *w, const mrvi_record *r) {
+  output *o = &w->out[MACRO_LAMBDA];
+  if (o->cols == 0 || r->k < 1 || w->pending)
+    return;
+  if (w->rows[MACRO] > 0) {
+    memcpy(o->buf + (w->rows[MACRO] - 1) * o->row_bytes, r->lambda_prev,
+           o->row_bytes);
+  } else {
+    memcpy(w->lambda_patch, r->lambda_prev, o->row_bytes);
+    w->patch = 1;
+  }
 }
 
 int mrvi_writer_observe(void *writer, const mrvi_record *r) {
@@ -763,6 +892,17 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
                   r->k, r->micro_count, w->p);
     add[MICRO] = (size_t)r->micro_count;
   }
+  if (w->n_lambda > 0 &&
+      (r->n_lambda != w->n_lambda || (r->k >= 1 && !r->lambda_prev) ||
+       (add[MICRO] > 0 && !r->micro_constraint_residual)))
+    return fail(w, MRVI_EINVAL,
+                "record k = %ld has %d constraint rows (the model %d)%s%s",
+                r->k, r->n_lambda, w->n_lambda,
+                r->k >= 1 && !r->lambda_prev ? ", no lambda_prev" : "",
+                add[MICRO] > 0 && !r->micro_constraint_residual
+                    ? ", no micro_constraint_residual"
+                    : "");
+  fill_lambda(w, r);
   /* Make room (normally the record-count flush below keeps it). */
   for (int s = 0; s < N_STREAMS; s++)
     if (w->rows[s] + add[s] > w->cap[s]) {
