@@ -104,6 +104,68 @@ run_ok "mrvi-plot run --omega" "$py" "$plot" run "$tmp/ring.h5" -o "$out" \
   --prefix ring_omega --omega 44.72
 png_ok "$out/ring_omega_stiff_energy.png"
 
+# --- constrained run: fpu.h5 plus the constraint datasets of doc/output.md
+# (zeros and a NaN in the residual, as a real run can have) ---
+if ! "$py" - "$tmp" <<'EOF' 2>"$tmp/err.txt"
+import shutil
+import sys
+
+import h5py
+import numpy as np
+
+tmp = sys.argv[1]
+shutil.copy(tmp + "/fpu.h5", tmp + "/cons.h5")
+with h5py.File(tmp + "/cons.h5", "r+") as f:
+    m = f["macro/t"].shape[0]
+    res = 1e-12 * (1.0 + np.sin(np.arange(m))) ** 2
+    res[::5] = 0.0
+    res[3] = np.nan
+    f["macro/constraint_residual"] = res
+    f["macro/hidden_constraint_residual"] = np.zeros(m)
+    lam = np.ones((m, 2))
+    lam[-1] = np.nan
+    f["macro/lambda"] = lam
+    f.attrs["constraint_tolerance"] = 1e-10
+EOF
+then
+  fail "building the constrained run file"
+  sed 's/^/     /' "$tmp/err.txt" | head -20
+else
+  pass "constrained run file built"
+fi
+run_ok "mrvi-plot run constrained" "$py" "$plot" run "$tmp/cons.h5" -o "$out"
+png_ok "$out/cons_energy.png"
+# The constraint panel makes the energy figure taller than the FPU one
+# (PNG height: bytes 20-23, in the IHDR chunk).
+png_height() {
+  od -An -j20 -N4 -tu1 "$1" | awk '{print $1*16777216+$2*65536+$3*256+$4}'
+}
+h_fpu=$(png_height "$out/fpu_energy.png")
+h_cons=$(png_height "$out/cons_energy.png")
+if [ "${h_cons:-0}" -gt "${h_fpu:-0}" ]; then
+  pass "constraint panel added (height $h_cons > $h_fpu px)"
+else
+  fail "constraint panel added (height ${h_cons:-?} vs ${h_fpu:-?} px)"
+fi
+floor=$("$py" - "$plot" <<'EOF' 2>&1
+import sys
+from importlib.machinery import SourceFileLoader
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+y, floor, n = mod.log_floor(np.array([0.0, 3e-12, np.nan, 1e-10, -0.0]))
+ok = y[0] == floor and np.isclose(floor, 3e-13) and y[1] == 3e-12 and \
+    np.isnan(y[2]) and n == 2
+y0, floor0, n0 = mod.log_floor(np.zeros(3))
+print("ok" if ok and floor0 == 1e-16 and n0 == 3 and (y0 == 1e-16).all()
+      else "bad: %r %r %r / %r %r" % (y, floor, n, y0, floor0))
+EOF
+)
+if [ "$floor" = "ok" ]; then
+  pass "log_floor raises exact zeros to a decade below the smallest value"
+else
+  fail "log_floor: $floor"
+fi
+
 # --- synthetic study tables in the formats of mrvi converge / stability /
 # timing ---
 if ! "$py" - "$tmp" <<'EOF' 2>"$tmp/err.txt"
