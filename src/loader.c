@@ -54,6 +54,8 @@ typedef struct loader {
   int splice_ok; /* every override replaced a scalar of the text */
   named *coords, *parts;
   int n_coords, n_parts;
+  struct fy_node *constraint_list;   /* `constraints:`, NULL if absent */
+  struct fy_node **constraint_items; /* entry of each model constraint */
   mrvi_system *sys;
 } loader;
 
@@ -680,7 +682,7 @@ static const named *find_named(const named *tab, int n, const char *name) {
 /* Unknown name with a suggestion among the defined ones. */
 static int fail_unknown_name(loader *L, struct fy_node *at, const char *kind,
                              const char *name, const named *tab, int n) {
-  const char **cand = malloc((size_t)(n ? n : 1) * sizeof *cand);
+  const char **cand = malloc((size_t)(n > 0 ? n : 1) * sizeof *cand);
   if (!cand)
     return fail_nomem(L);
   for (int i = 0; i < n; i++)
@@ -733,13 +735,30 @@ static int opt_number(loader *L, struct fy_node *map, const char *key,
   return n ? as_number(L, n, key, out) : MRVI_OK;
 }
 
+/* Optional number > 0 under `key` (`what` in messages); *out is left alone
+ * when the key is absent.  *node (may be NULL) gets the value's node. */
+static int opt_positive(loader *L, struct fy_node *map, const char *key,
+                        const char *what, double *out, struct fy_node **node) {
+  struct fy_node *n = get(map, key);
+  int st;
+  if (node)
+    *node = n;
+  if (!n)
+    return MRVI_OK;
+  if ((st = as_number(L, n, what, out)))
+    return st;
+  if (!(*out > 0))
+    return fail(L, n, "%s must be > 0, got %s", what, scalar0(n));
+  return MRVI_OK;
+}
+
 /* ---------------------------------------------------------------------------
  * Interpretation: model
  * ------------------------------------------------------------------------- */
 
-static const char *const top_keys[] = {"name",      "dimension",  "gravity",
-                                       "particles", "springs",    "coordinates",
-                                       "terms",     "integrator", "output"};
+static const char *const top_keys[] = {
+    "name",        "dimension", "gravity",     "particles",  "springs",
+    "coordinates", "terms",     "constraints", "integrator", "output"};
 static const char *const coordinate_keys[] = {"name", "mass", "position",
                                               "velocity", "rate"};
 static const char *const particle_keys[] = {"name", "mass", "position",
@@ -749,10 +768,13 @@ static const char *const spring_keys[] = {"between", "anchor", "law",
 static const char *const term_keys[] = {"combination", "offset", "law",
                                         "potential"};
 static const char *const integrator_keys[] = {
-    "scheme", "slow", "fast", "macro_step", "micro_steps", "t_end", "newton"};
+    "scheme",      "slow",  "fast",   "macro_step",
+    "micro_steps", "t_end", "newton", "constraints"};
 static const char *const slow_rule_keys[] = {"alpha", "gamma", "grid"};
 static const char *const fast_rule_keys[] = {"alpha", "gamma"};
 static const char *const newton_keys[] = {"tolerance", "max_iterations"};
+static const char *const constraint_setting_keys[] = {"form", "tolerance",
+                                                      "projection"};
 static const char *const output_keys[] = {"file", "every", "micro"};
 
 static int load_coordinates(loader *L, struct fy_node *list) {
@@ -901,52 +923,119 @@ static int load_law(loader *L, struct fy_node *item, const char *where,
   return MRVI_OK;
 }
 
+/* Particle named by the string node n. */
+static int find_particle(loader *L, struct fy_node *n, const char *what,
+                         int *index) {
+  const char *pname;
+  int st = as_string(L, n, what, &pname);
+  if (st)
+    return st;
+  const named *p = find_named(L->parts, L->n_parts, pname);
+  if (!p)
+    return fail_unknown_name(L, n, "particle", pname, L->parts, L->n_parts);
+  *index = p->index;
+  return MRVI_OK;
+}
+
+/* Model coordinate named by the string node n (coordinates and particle
+ * coordinates such as m1.x). */
+static int find_coordinate(loader *L, struct fy_node *n, const char *what,
+                           int *index) {
+  const mrvi_model *m = L->sys->model;
+  const int count = mrvi_model_n(m);
+  const char *cname;
+  int st = as_string(L, n, what, &cname);
+  if (st)
+    return st;
+  for (int j = 0; j < count; j++)
+    if (!strcmp(mrvi_model_coordinate_name(m, j), cname)) {
+      *index = j;
+      return MRVI_OK;
+    }
+  const char **names = malloc((size_t)(count + 1) * sizeof *names);
+  if (!names)
+    return fail_nomem(L);
+  for (int j = 0; j < count; j++)
+    names[j] = mrvi_model_coordinate_name(m, j);
+  const char *c = mrvi_closest(cname, names, count);
+  st = c ? fail(L, n, "unknown coordinate '%s'; did you mean '%s'?", cname, c)
+         : fail(L, n, "unknown coordinate '%s'", cname);
+  free(names);
+  return st;
+}
+
+/* `combination: {coordinate name: coefficient, ...}` (non-empty) into
+ * coords, coef (mrvi_model_n entries each); *k gets the number of terms. */
+static int load_combination(loader *L, struct fy_node *comb, int *coords,
+                            double *coef, int *k) {
+  int st = want_mapping(L, comb, "combination");
+  void *it = NULL;
+  struct fy_node_pair *p;
+  *k = 0;
+  while (!st && (p = fy_node_mapping_iterate(comb, &it))) {
+    struct fy_node *key = fy_node_pair_key(p);
+    char what[128];
+    if ((st = find_coordinate(L, key, "coordinate name", &coords[*k])))
+      break;
+    mrvi_fmt(what, sizeof what, "coefficient of %s", scalar0(key));
+    if ((st = as_number(L, fy_node_pair_value(p), what, &coef[*k])))
+      break;
+    (*k)++;
+  }
+  if (!st && *k == 0)
+    st = fail(L, comb, "combination is empty");
+  return st;
+}
+
+/* Ends of a spring or distance constraint (`noun` in messages):
+ * `between: [a, b]`, or `between: [a]` with `anchor:` (dim entries).
+ * *ends is 1 or 2; pi gets the particle indices. */
+static int load_ends(loader *L, struct fy_node *item, const char *where,
+                     const char *noun, int dim, int pi[2], int *ends,
+                     double *anchor) {
+  struct fy_node *between, *anchor_node;
+  int st;
+  if ((st = need(L, item, "between", where, &between)) ||
+      (st = want_list(L, between, "between")))
+    return st;
+  *ends = fy_node_sequence_item_count(between);
+  if (*ends != 1 && *ends != 2)
+    return fail(L, between,
+                "between must name one particle (with "
+                "anchor) or two, got %d",
+                *ends);
+  for (int e = 0; e < *ends; e++)
+    if ((st = find_particle(L, fy_node_sequence_get_by_index(between, e),
+                            "between", &pi[e])))
+      return st;
+  anchor_node = get(item, "anchor");
+  if (*ends == 2 && anchor_node)
+    return fail(L, anchor_node, "anchor given for a %s between two particles",
+                noun);
+  if (*ends == 1 && !anchor_node)
+    return fail(L, between, "a %s on one particle needs an anchor", noun);
+  if (anchor_node)
+    return as_vector(L, anchor_node, "anchor", dim, anchor);
+  return MRVI_OK;
+}
+
 static int load_springs(loader *L, struct fy_node *list, int dim) {
   int st = want_list(L, list, "springs");
   if (st)
     return st;
   int count = fy_node_sequence_item_count(list);
   for (int i = 0; i < count; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *between,
-                   *anchor_node;
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i);
     char where[64];
     mrvi_fmt(where, sizeof where, "springs.%d", i);
     const mrvi_law *law = NULL;
     double params[MRVI_LAW_MAX_PARAMS] = {0}, rest, anchor[3] = {0, 0, 0};
+    int pi[2], ends;
     mrvi_rate potential;
     if ((st = want_mapping(L, item, where)) ||
         (st = load_law(L, item, where, spring_keys, COUNT(spring_keys), &law,
                        params)) ||
-        (st = need(L, item, "between", where, &between)) ||
-        (st = want_list(L, between, "between")))
-      return st;
-    int ends = fy_node_sequence_item_count(between);
-    if (ends != 1 && ends != 2)
-      return fail(L, between,
-                  "between must name one particle (with "
-                  "anchor) or two, got %d",
-                  ends);
-    int pi[2];
-    for (int e = 0; e < ends; e++) {
-      struct fy_node *en = fy_node_sequence_get_by_index(between, e);
-      const char *pname;
-      if ((st = as_string(L, en, "between", &pname)))
-        return st;
-      const named *p = find_named(L->parts, L->n_parts, pname);
-      if (!p)
-        return fail_unknown_name(L, en, "particle", pname, L->parts,
-                                 L->n_parts);
-      pi[e] = p->index;
-    }
-    anchor_node = get(item, "anchor");
-    if (ends == 2 && anchor_node)
-      return fail(L, anchor_node,
-                  "anchor given for a spring between two "
-                  "particles");
-    if (ends == 1 && !anchor_node)
-      return fail(L, between, "a spring on one particle needs an anchor");
-    if ((anchor_node &&
-         (st = as_vector(L, anchor_node, "anchor", dim, anchor))) ||
+        (st = load_ends(L, item, where, "spring", dim, pi, &ends, anchor)) ||
         (st = opt_number(L, item, "rest_length", 0.0, &rest)) ||
         (st = as_rate(L, item, "potential", &potential)))
       return st;
@@ -969,13 +1058,10 @@ static int load_terms(loader *L, struct fy_node *list) {
   int n = mrvi_model_n(L->sys->model);
   int *coords = malloc((size_t)(n + 1) * sizeof *coords);
   double *coef = malloc((size_t)(n + 1) * sizeof *coef);
-  const char **names = malloc((size_t)(n + 1) * sizeof *names);
-  if (!coords || !coef || !names) {
+  if (!coords || !coef) {
     st = fail_nomem(L);
     goto done;
   }
-  for (int j = 0; j < n; j++)
-    names[j] = mrvi_model_coordinate_name(L->sys->model, j);
   for (int i = 0; i < count && !st; i++) {
     struct fy_node *item = fy_node_sequence_get_by_index(list, i), *comb;
     char where[64];
@@ -983,45 +1069,13 @@ static int load_terms(loader *L, struct fy_node *list) {
     const mrvi_law *law = NULL;
     double params[MRVI_LAW_MAX_PARAMS] = {0}, offset;
     mrvi_rate potential;
+    int k;
     if ((st = want_mapping(L, item, where)) ||
         (st = load_law(L, item, where, term_keys, COUNT(term_keys), &law,
                        params)) ||
         (st = need(L, item, "combination", where, &comb)) ||
-        (st = want_mapping(L, comb, "combination")))
-      break;
-    /* combination: {coordinate name: coefficient, ...} */
-    int k = 0;
-    void *it = NULL;
-    struct fy_node_pair *p;
-    while (!st && (p = fy_node_mapping_iterate(comb, &it))) {
-      struct fy_node *key = fy_node_pair_key(p);
-      const char *cname;
-      if ((st = as_string(L, key, "coordinate name", &cname)))
-        break;
-      int idx = -1;
-      for (int j = 0; j < n && idx < 0; j++)
-        if (!strcmp(names[j], cname))
-          idx = j;
-      if (idx < 0) {
-        const char *c = mrvi_closest(cname, names, n);
-        st = c ? fail(L, key, "unknown coordinate '%s'; did you mean '%s'?",
-                      cname, c)
-               : fail(L, key, "unknown coordinate '%s'", cname);
-        break;
-      }
-      char what[128];
-      mrvi_fmt(what, sizeof what, "coefficient of %s", cname);
-      if ((st = as_number(L, fy_node_pair_value(p), what, &coef[k])))
-        break;
-      coords[k++] = idx;
-    }
-    if (st)
-      break;
-    if (k == 0) {
-      st = fail(L, comb, "combination is empty");
-      break;
-    }
-    if ((st = opt_number(L, item, "offset", 0.0, &offset)) ||
+        (st = load_combination(L, comb, coords, coef, &k)) ||
+        (st = opt_number(L, item, "offset", 0.0, &offset)) ||
         (st = as_rate(L, item, "potential", &potential)))
       break;
     int e = mrvi_model_add_term(L->sys->model, potential, k, coords, coef,
@@ -1032,8 +1086,332 @@ static int load_terms(loader *L, struct fy_node *list) {
 done:
   free(coords);
   free(coef);
-  free(names);
   return st;
+}
+
+/* ---------------------------------------------------------------------------
+ * Interpretation: constraints (DESIGN §6)
+ *
+ * Each entry adds one model constraint; its loader returns the constraint
+ * index (>= 0) or a status < 0.
+ * ------------------------------------------------------------------------- */
+
+/* {type: distance, between: [a, b] | [a] + anchor, length} */
+static int load_distance(loader *L, struct fy_node *item, const char *where,
+                         int dim) {
+  double anchor[3] = {0, 0, 0}, length = NAN; /* NAN: initial distance */
+  int pi[2], ends, st;
+  if ((st = load_ends(L, item, where, "distance constraint", dim, pi, &ends,
+                      anchor)) ||
+      (st = opt_positive(L, item, "length", "length", &length, NULL)))
+    return st;
+  int c = ends == 2
+              ? mrvi_model_add_distance(L->sys->model, pi[0], pi[1], length)
+              : mrvi_model_add_distance_anchor(L->sys->model, pi[0], anchor,
+                                               length);
+  return c < 0 ? fail_model(L, get(item, "between"), c) : c;
+}
+
+/* {type: fixed, particle: a, axes: [x, z], position: [...]} */
+static int load_fixed(loader *L, struct fy_node *item, const char *where,
+                      int dim) {
+  static const char *const axis_names[] = {"x", "y", "z"};
+  struct fy_node *n, *axes_node = get(item, "axes");
+  double position[3] = {0, 0, 0};
+  int axes[3] = {0, 0, 0}, p, st;
+  if ((st = need(L, item, "particle", where, &n)) ||
+      (st = find_particle(L, n, "particle", &p)))
+    return st;
+  if (axes_node) {
+    if ((st = want_list(L, axes_node, "axes")))
+      return st;
+    const int count = fy_node_sequence_item_count(axes_node);
+    if (count == 0)
+      return fail(L, axes_node, "axes is empty (omit it to pin every axis)");
+    for (int i = 0; i < count; i++) {
+      struct fy_node *a = fy_node_sequence_get_by_index(axes_node, i);
+      int which;
+      for (int k = dim; k < 3; k++)
+        if (fy_node_is_scalar(a) && !strcmp(scalar0(a), axis_names[k]))
+          return fail(L, a, "axis '%s' does not exist in %d-D", axis_names[k],
+                      dim);
+      if ((st = as_choice(L, a, "axis", axis_names, dim, &which)))
+        return st;
+      if (axes[which])
+        return fail(L, a, "axis '%s' listed twice", axis_names[which]);
+      axes[which] = 1;
+    }
+  }
+  if ((n = get(item, "position")) &&
+      (st = as_vector(L, n, "position", dim, position)))
+    return st;
+  int c = mrvi_model_add_fixed(L->sys->model, p, axes_node ? axes : NULL,
+                               n ? position : NULL);
+  return c < 0 ? fail_model(L, item, c) : c;
+}
+
+/* {type: plane, particle: a, normal: [...], offset: c} */
+static int load_plane(loader *L, struct fy_node *item, const char *where,
+                      int dim) {
+  struct fy_node *n, *normal_node;
+  double normal[3] = {0, 0, 0}, offset;
+  int p, st;
+  if ((st = need(L, item, "particle", where, &n)) ||
+      (st = find_particle(L, n, "particle", &p)) ||
+      (st = need(L, item, "normal", where, &normal_node)) ||
+      (st = as_vector(L, normal_node, "normal", dim, normal)) ||
+      (st = opt_number(L, item, "offset", NAN, &offset)))
+    return st;
+  int c = mrvi_model_add_plane(L->sys->model, p, normal, offset);
+  return c < 0 ? fail_model(L, normal_node, c) : c;
+}
+
+/* {type: linear, combination: {q1: 1, m1.x: -1}, value: b} */
+static int load_linear(loader *L, struct fy_node *item, const char *where,
+                       int dim) {
+  (void)dim;
+  struct fy_node *comb;
+  const int n = mrvi_model_n(L->sys->model);
+  int *coords = malloc((size_t)(n + 1) * sizeof *coords);
+  double *coef = malloc((size_t)(n + 1) * sizeof *coef), value;
+  int k, st;
+  if (!coords || !coef)
+    st = fail_nomem(L);
+  else if (!(st = need(L, item, "combination", where, &comb)) &&
+           !(st = load_combination(L, comb, coords, coef, &k)) &&
+           !(st = opt_number(L, item, "value", NAN, &value))) {
+    st =
+        mrvi_model_add_linear_constraint(L->sys->model, k, coords, coef, value);
+    if (st < 0)
+      st = fail_model(L, comb, st);
+  }
+  free(coords);
+  free(coef);
+  return st;
+}
+
+/* A registered type without its own syntax:
+ * {type: NAME, coordinates: [names...], parameters: [numbers...]} */
+static int load_generic(loader *L, struct fy_node *item, const char *where,
+                        const char *type, const char *label) {
+  struct fy_node *list, *par = get(item, "parameters");
+  int st;
+  if ((st = need(L, item, "coordinates", where, &list)) ||
+      (st = want_list(L, list, "coordinates")) ||
+      (par && (st = want_list(L, par, "parameters"))))
+    return st;
+  const int n_in = fy_node_sequence_item_count(list);
+  const int n_par = par ? fy_node_sequence_item_count(par) : 0;
+  if (n_in == 0)
+    return fail(L, list, "coordinates is empty");
+  int *coords = malloc((size_t)n_in * sizeof *coords);
+  double *params = malloc((size_t)(n_par + 1) * sizeof *params);
+  if (!coords || !params)
+    st = fail_nomem(L);
+  for (int j = 0; j < n_in && !st; j++)
+    st = find_coordinate(L, fy_node_sequence_get_by_index(list, j),
+                         "coordinates", &coords[j]);
+  for (int j = 0; j < n_par && !st; j++) {
+    char what[64];
+    mrvi_fmt(what, sizeof what, "parameters[%d]", j);
+    st = as_number(L, fy_node_sequence_get_by_index(par, j), what, &params[j]);
+  }
+  if (!st) {
+    st = mrvi_model_add_constraint(L->sys->model, type, n_in, coords, n_par,
+                                   params, label);
+    if (st < 0)
+      st = fail_model(L, item, st);
+  }
+  free(coords);
+  free(params);
+  return st;
+}
+
+/* The types with their own syntax; any other registered type takes
+ * `coordinates` and `parameters`. */
+typedef struct constraint_syntax {
+  const char *type;
+  const char *const keys[6];
+  int (*load)(loader *L, struct fy_node *item, const char *where, int dim);
+} constraint_syntax;
+
+static const constraint_syntax constraint_syntaxes[] = {
+    {"distance",
+     {"type", "name", "between", "anchor", "length"},
+     load_distance},
+    {"fixed", {"type", "name", "particle", "axes", "position"}, load_fixed},
+    {"plane", {"type", "name", "particle", "normal", "offset"}, load_plane},
+    {"linear", {"type", "name", "combination", "value"}, load_linear},
+    {NULL, {"type", "name", "coordinates", "parameters"}, NULL},
+};
+
+static int syntax_keys(const constraint_syntax *s, const char **keys) {
+  int n = 0;
+  while (n < COUNT(s->keys) && s->keys[n])
+    keys[n] = s->keys[n], n++;
+  return n;
+}
+
+/* Keys of every syntax (for an entry without `type:`). */
+static int all_constraint_keys(const char **keys) {
+  int n = 0;
+  for (int i = 0; i < COUNT(constraint_syntaxes); i++) {
+    const char *own[COUNT(constraint_syntaxes[0].keys)];
+    const int k = syntax_keys(&constraint_syntaxes[i], own);
+    for (int j = 0; j < k; j++) {
+      int dup = 0;
+      for (int l = 0; l < n && !dup; l++)
+        dup = !strcmp(keys[l], own[j]);
+      if (!dup)
+        keys[n++] = own[j];
+    }
+  }
+  return n;
+}
+
+/* Label of constraint c: the entry's `name:` (unique), else the builder's,
+ * made unique by the entry's path so that messages name one constraint. */
+static int label_constraint(loader *L, struct fy_node *item, const char *where,
+                            int c) {
+  mrvi_model *m = L->sys->model;
+  struct fy_node *n = get(item, "name");
+  const char *label = mrvi_model_constraint_label(m, c);
+  char buf[600];
+  int st;
+  if (n && (st = as_string(L, n, "name", &label)))
+    return st;
+  for (int prev = 0; prev < c; prev++) {
+    if (strcmp(label, mrvi_model_constraint_label(m, prev)))
+      continue;
+    int line, col;
+    if (n && node_position(L->constraint_items[prev], &line, &col))
+      return fail(L, n,
+                  "duplicate constraint name '%s' (constraint at line %d)",
+                  label, line);
+    if (n)
+      return fail(L, n, "duplicate constraint name '%s'", label);
+    mrvi_fmt(buf, sizeof buf, "%s (%s)", label, where);
+    label = buf;
+    break;
+  }
+  if (label == mrvi_model_constraint_label(m, c))
+    return MRVI_OK;
+  /* The builders take no label: replace the one they made. */
+  char *copy = strdup(label);
+  if (!copy)
+    return fail_nomem(L);
+  free(m->constraints[c].label);
+  m->constraints[c].label = copy;
+  return MRVI_OK;
+}
+
+static int load_constraint(loader *L, struct fy_node *item, int i, int dim) {
+  const char *keys[MAX_KEYS], *type_names[64];
+  char where[64];
+  struct fy_node *type_node;
+  int st, which;
+  mrvi_fmt(where, sizeof where, "constraints.%d", i);
+  if ((st = want_mapping(L, item, where)))
+    return st;
+  if (!get(item, "type") &&
+      (st = check_keys(L, item, where, keys, all_constraint_keys(keys), NULL,
+                       0)))
+    return st;
+  const int n_types =
+      mrvi_constraint_type_count() < 64 ? mrvi_constraint_type_count() : 64;
+  for (int t = 0; t < n_types; t++)
+    type_names[t] = mrvi_constraint_type_get(t)->name;
+  if ((st = need(L, item, "type", where, &type_node)) ||
+      (st = as_choice(L, type_node, "constraint type", type_names, n_types,
+                      &which)))
+    return st;
+  const constraint_syntax *s = constraint_syntaxes;
+  while (s->type && strcmp(s->type, type_names[which]))
+    s++;
+  if ((st = check_keys(L, item, where, keys, syntax_keys(s, keys), NULL, 0)))
+    return st;
+  const int c = s->load ? s->load(L, item, where, dim)
+                        : load_generic(L, item, where, type_names[which], NULL);
+  if (c < 0)
+    return c;
+  L->constraint_items[c] = item;
+  return label_constraint(L, item, where, c);
+}
+
+static int load_constraints(loader *L, struct fy_node *list, int dim) {
+  int st = want_list(L, list, "constraints");
+  if (st)
+    return st;
+  const int count = fy_node_sequence_item_count(list);
+  L->constraint_list = list;
+  L->constraint_items = calloc((size_t)count + 1, sizeof *L->constraint_items);
+  if (!L->constraint_items)
+    return fail_nomem(L);
+  for (int i = 0; i < count && !st; i++)
+    st = load_constraint(L, fy_node_sequence_get_by_index(list, i), i, dim);
+  return st;
+}
+
+/* Append a line to sys->notes. */
+__attribute__((format(printf, 2, 3))) static int
+add_note(loader *L, const char *fmt, ...) {
+  char text[512];
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(text, sizeof text, fmt, ap);
+  va_end(ap);
+  char *old = L->sys->notes;
+  const size_t len = (old ? strlen(old) + 1 : 0) + strlen(text) + 1;
+  char *notes = malloc(len);
+  if (!notes)
+    return fail_nomem(L);
+  mrvi_fmt(notes, len, "%s%s%s", old ? old : "", old ? "\n" : "", text);
+  free(old);
+  L->sys->notes = notes;
+  return MRVI_OK;
+}
+
+/* Initial data against the constraints (DESIGN §6), once the settings are
+ * known: positions within the tolerance, independent gradients, velocities
+ * projected onto the tangent space (with a note when they changed). */
+static int check_constraints(loader *L) {
+  mrvi_model *m = L->sys->model;
+  const int n_c = mrvi_model_n_constraints(m);
+  int worst = -1, st;
+  if (n_c == 0)
+    return MRVI_OK;
+  st = mrvi_model_check_initial_positions(m, L->sys->settings.constraint_tol,
+                                          &worst);
+  if (st < 0)
+    return st == MRVI_ENOMEM ? fail_nomem(L)
+                             : fail(L,
+                                    worst >= 0 ? L->constraint_items[worst]
+                                               : L->constraint_list,
+                                    "%s", mrvi_model_errmsg(m));
+  if ((st = mrvi_model_check_independent(m, mrvi_model_q0(m))) < 0) {
+    /* At the last constraint the message names (labels are unique). */
+    const char *msg = mrvi_model_errmsg(m);
+    struct fy_node *at = L->constraint_list;
+    char quoted[600];
+    for (int c = n_c - 1; c >= 0 && at == L->constraint_list; c--) {
+      mrvi_fmt(quoted, sizeof quoted, "'%s'",
+               mrvi_model_constraint_label(m, c));
+      if (strstr(msg, quoted))
+        at = L->constraint_items[c];
+    }
+    return st == MRVI_ENOMEM ? fail_nomem(L) : fail(L, at, "%s", msg);
+  }
+  double correction = 0.0;
+  if ((st = mrvi_model_project_velocities(m, &correction)) < 0)
+    return st == MRVI_ENOMEM
+               ? fail_nomem(L)
+               : fail(L, L->constraint_list, "%s", mrvi_model_errmsg(m));
+  if (correction > 0)
+    return add_note(L,
+                    "initial velocities projected onto the constraints' "
+                    "tangent space (largest change %.1e)",
+                    correction);
+  return MRVI_OK;
 }
 
 static int load_model(loader *L, struct fy_node *root) {
@@ -1074,6 +1452,8 @@ static int load_model(loader *L, struct fy_node *root) {
     return st;
   if ((n = get(root, "terms")) && (st = load_terms(L, n)))
     return st;
+  if ((n = get(root, "constraints")) && (st = load_constraints(L, n, dim)))
+    return st;
   return MRVI_OK;
 }
 
@@ -1098,6 +1478,30 @@ static int load_rule(loader *L, struct fy_node *map, const char *where,
     if (*val[i] < 0 || *val[i] > 1)
       return fail(L, n, "%s must be in [0, 1], got %s", what, scalar0(n));
   }
+  return MRVI_OK;
+}
+
+/* integrator.constraints: {form, tolerance, projection} (DESIGN §6). */
+static int load_constraint_settings(loader *L, struct fy_node *map) {
+  static const char *const forms[] = {"multipliers", "null-space"};
+  mrvi_settings *s = &L->sys->settings;
+  struct fy_node *v;
+  int st, form;
+  if ((st = want_mapping(L, map, "integrator.constraints")) ||
+      (st =
+           check_keys(L, map, "integrator.constraints", constraint_setting_keys,
+                      COUNT(constraint_setting_keys), NULL, 0)))
+    return st;
+  if ((v = get(map, "form"))) {
+    if ((st = as_choice(L, v, "constraint form", forms, 2, &form)))
+      return st;
+    s->constraint_form = form ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+  }
+  if ((st = opt_positive(L, map, "tolerance", "constraint tolerance",
+                         &s->constraint_tol, NULL)))
+    return st;
+  if ((v = get(map, "projection")))
+    return as_bool(L, v, "projection", &s->project_momenta);
   return MRVI_OK;
 }
 
@@ -1141,13 +1545,9 @@ static int load_integrator(loader *L, struct fy_node *in) {
                         COUNT(fast_rule_keys), NULL, 0)) ||
        (st = load_rule(L, n, "integrator.fast", &s->fast))))
     return st;
-  if ((dT_node = get(in, "macro_step"))) {
-    if ((st = as_number(L, dT_node, "macro_step", &s->macro_step)))
-      return st;
-    if (s->macro_step <= 0)
-      return fail(L, dT_node, "macro_step must be > 0, got %s",
-                  scalar0(dT_node));
-  }
+  if ((st = opt_positive(L, in, "macro_step", "macro_step", &s->macro_step,
+                         &dT_node)))
+    return st;
   if ((n = get(in, "micro_steps"))) {
     if ((st = as_int(L, n, "micro_steps", &s->micro_steps)))
       return st;
@@ -1167,12 +1567,9 @@ static int load_integrator(loader *L, struct fy_node *in) {
         (st = check_keys(L, n, "integrator.newton", newton_keys,
                          COUNT(newton_keys), NULL, 0)))
       return st;
-    if ((v = get(n, "tolerance"))) {
-      if ((st = as_number(L, v, "tolerance", &s->newton_tol)))
-        return st;
-      if (s->newton_tol <= 0)
-        return fail(L, v, "tolerance must be > 0, got %s", scalar0(v));
-    }
+    if ((st = opt_positive(L, n, "tolerance", "tolerance", &s->newton_tol,
+                           NULL)))
+      return st;
     if ((v = get(n, "max_iterations"))) {
       if ((st = as_int(L, v, "max_iterations", &s->newton_max_iter)))
         return st;
@@ -1181,6 +1578,8 @@ static int load_integrator(loader *L, struct fy_node *in) {
                     s->newton_max_iter);
     }
   }
+  if ((n = get(in, "constraints")))
+    return load_constraint_settings(L, n);
   return MRVI_OK;
 }
 
@@ -1246,6 +1645,8 @@ static int interpret(loader *L) {
   char why[256];
   if (mrvi_settings_check(&sys->settings, why, sizeof why))
     return fail(L, n ? n : root, "%s", why);
+  if ((st = check_constraints(L)))
+    return st;
   if ((n = get(root, "output")) && (st = load_output(L, n)))
     return st;
   return MRVI_OK;
@@ -1354,6 +1755,7 @@ void mrvi_system_free(mrvi_system *sys) {
   free(sys->path);
   free(sys->output_file);
   free(sys->description);
+  free(sys->notes);
   free(sys);
 }
 
@@ -1416,6 +1818,7 @@ done:
   }
   free(L.coords);
   free(L.parts);
+  free(L.constraint_items);
   free(L.ov);
   free(L.sp);
   fy_document_destroy(L.doc);
