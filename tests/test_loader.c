@@ -1,7 +1,8 @@
 /* Description files: every broken file in tests/bad_input/ fails with
  * "file:line:col: message" (library and CLI), the shipped systems hold the
- * paper's set-ups (DESIGN §5), and --set overrides reach the model and the
- * stored description. */
+ * paper's set-ups (DESIGN §5), --set overrides reach the model and the
+ * stored description, and constraints (DESIGN §6) are parsed, checked and
+ * their initial velocities projected. */
 #include "mrvi.h"
 #include "models.h"
 #include "testlib.h"
@@ -355,6 +356,417 @@ static void check_oscillator_file(void) {
 }
 
 /* ---------------------------------------------------------------------------
+ * Constraints (DESIGN §6)
+ * ------------------------------------------------------------------------- */
+
+static mrvi_system *load_text(const char *text, const char *const *ov,
+                              int n_ov) {
+  char msg[MSG] = "";
+  mrvi_system *sys = NULL;
+  int st = mrvi_system_load_string(text, "text.yaml", ov, n_ov, &sys, msg,
+                                   sizeof msg);
+  CHECK(st == MRVI_OK && sys, "loading text: %s", msg);
+  return st == MRVI_OK ? sys : NULL;
+}
+
+/* max |g(q)| over all constraint rows. */
+static double max_abs_g(const mrvi_model *m, const double *q) {
+  const int R = mrvi_model_constraint_rows(m);
+  double *g = calloc((size_t)R + 1, sizeof *g), worst = 0;
+  mrvi_model_constraint_eval(m, q, g, NULL);
+  for (int r = 0; r < R; r++)
+    worst = fabs(g[r]) > worst ? fabs(g[r]) : worst;
+  free(g);
+  return worst;
+}
+
+/* G M^-1 p0 with p0 = M v0: the hidden constraint of the initial data. */
+static double hidden0(const mrvi_model *m) {
+  const int n = mrvi_model_n(m);
+  double *p = malloc((size_t)n * sizeof *p);
+  for (int i = 0; i < n; i++)
+    p[i] = mrvi_model_mass(m, i) * mrvi_model_v0(m)[i];
+  const double h = mrvi_model_hidden_residual(m, mrvi_model_q0(m), p);
+  free(p);
+  return h;
+}
+
+static const char constrained_text[] =
+    "name: constrained\n"
+    "dimension: 3\n"
+    "coordinates:\n"
+    "  - {name: q1, mass: 1, position: 0.5}\n"
+    "  - {name: q2, mass: 2, position: 1.5, rate: fast}\n"
+    "particles:\n"
+    "  - {name: a, mass: 1, position: [0, 0, 0]}\n"
+    "  - {name: b, mass: 3, position: [3, 4, 0], rate: fast}\n"
+    "  - {name: c, mass: 2, position: [0, 0, -2]}\n"
+    "constraints:\n"
+    "  - {type: distance, between: [a, b]}\n"                 /* 0 */
+    "  - {type: distance, between: [c], anchor: [0, 0, 0],\n" /* 1 */
+    "     name: tether}\n"
+    "  - {type: fixed, particle: a, axes: [z, x]}\n"        /* 2 */
+    "  - {type: plane, particle: b, normal: [0, 0, 2]}\n"   /* 3 */
+    "  - {type: linear, combination: {q1: 1, c.z: 0.25}}\n" /* 4 */
+    "  - {type: linear, combination: {q2: 1, b.y: -1}, value: -2.5}\n"
+    "  - {type: fixed, particle: c, axes: [x], position: [0, 7, 9]}\n";
+
+static void test_constraints_parsed(void) {
+  mrvi_system *sys = load_text(constrained_text, NULL, 0);
+  if (!sys)
+    return;
+  const mrvi_model *m = sys->model;
+  const int n = mrvi_model_n(m);
+  CHECK(mrvi_model_n_constraints(m) == 7, "constraints: %d",
+        mrvi_model_n_constraints(m));
+  /* rows: 1 + 1 + 2 (x and z) + 1 + 1 + 1 + 1 */
+  CHECK(mrvi_model_constraint_rows(m) == 8, "rows: %d",
+        mrvi_model_constraint_rows(m));
+  const int rows[7] = {1, 1, 2, 1, 1, 1, 1};
+  /* Slow-only at macro nodes; touching fast b or q2 at every micro node. */
+  const mrvi_rate where[7] = {MRVI_FAST, MRVI_SLOW, MRVI_SLOW, MRVI_FAST,
+                              MRVI_SLOW, MRVI_FAST, MRVI_SLOW};
+  const char *type[7] = {"distance", "distance", "fixed", "plane",
+                         "linear",   "linear",   "fixed"};
+  for (int c = 0; c < 7 && c < mrvi_model_n_constraints(m); c++) {
+    CHECK(mrvi_model_constraint_n_rows(m, c) == rows[c], "rows of %d: %d", c,
+          mrvi_model_constraint_n_rows(m, c));
+    CHECK(mrvi_model_constraint_where(m, c) == where[c], "where of %d", c);
+    CHECK(!strcmp(mrvi_model_constraint_type_name(m, c), type[c]),
+          "type of %d: %s", c, mrvi_model_constraint_type_name(m, c));
+  }
+  CHECK(!strcmp(mrvi_model_constraint_label(m, 0), "distance a-b"),
+        "default label '%s'", mrvi_model_constraint_label(m, 0));
+  CHECK(!strcmp(mrvi_model_constraint_label(m, 1), "tether"),
+        "name: label '%s'", mrvi_model_constraint_label(m, 1));
+  /* Defaults hold at q0 (length 5 = initial distance, plane and linear
+   * through the initial point); the explicit c.x = 0 holds too. */
+  const double *q0 = mrvi_model_q0(m);
+  CHECK(max_abs_g(m, q0) <= 1e-15, "g(q0) = %g", max_abs_g(m, q0));
+  /* Away from q0 each row has the value its parameters give. */
+  double *q = malloc((size_t)n * sizeof *q);
+  double g[8];
+  memcpy(q, q0, (size_t)n * sizeof *q);
+  /* model order: q1, q2, a.x a.y a.z, b.x b.y b.z, c.x c.y c.z */
+  q[0] = 1.0;         /* q1 */
+  q[5] = 6, q[6] = 8; /* b = (6, 8, 0): |a - b| = 10 */
+  q[7] = 0.5;         /* b.z */
+  q[2] = 0.25;        /* a.x */
+  q[10] = -3;         /* c.z: |c| = 3 */
+  q[8] = 0.125;       /* c.x */
+  mrvi_model_constraint_eval(m, q, g, NULL);
+  /* rows in order: distance, tether, fixed a (x, z), plane, linear q1,
+   * linear q2, fixed c.x */
+  /* a - b = (-5.75, -8, -0.5), c = (0.125, 0, -3) */
+  CHECK_NEAR(g[0], (5.75 * 5.75 + 64.0 + 0.25 - 25.0) / 10.0, 1e-14,
+             "distance length 5");
+  CHECK_NEAR(g[1], (0.125 * 0.125 + 9.0 - 4.0) / 4.0, 1e-14, "tether length 2");
+  CHECK_NEAR(g[2], 0.25, 1e-15, "fixed a.x at 0");
+  CHECK_NEAR(g[3], 0.0, 1e-15, "fixed a.z at 0");
+  CHECK_NEAR(g[4], 0.5, 1e-15, "plane z = 0 (normal normalised)");
+  /* q1 + c.z/4 = 0.5 - 0.5 = 0 at q0; now 1 - 0.75 */
+  CHECK_NEAR(g[5], 0.25, 1e-15, "linear value from q0");
+  /* q2 - b.y = 1.5 - 8 against -2.5 */
+  CHECK_NEAR(g[6], 1.5 - 8.0 + 2.5, 1e-14, "linear value given");
+  CHECK_NEAR(g[7], 0.125, 1e-15, "fixed c.x position given");
+  free(q);
+  /* Settings default without integrator.constraints. */
+  CHECK(sys->settings.constraint_form == MRVI_FORM_MULTIPLIERS, "default form");
+  CHECK_NEAR(sys->settings.constraint_tol, 1e-10, 0.0, "default tolerance");
+  CHECK(sys->settings.project_momenta == 1, "default projection");
+  CHECK(sys->notes == NULL, "note without velocities: %s", sys->notes);
+  mrvi_system_free(sys);
+}
+
+static void test_constraint_settings(void) {
+  const char *text = "name: s\ndimension: 1\n"
+                     "particles: [{name: m, mass: 1, position: [1]}]\n"
+                     "constraints: [{type: fixed, particle: m}]\n"
+                     "integrator:\n"
+                     "  constraints: {form: null-space, tolerance: 1.0e-8, "
+                     "projection: false}\n";
+  mrvi_system *sys = load_text(text, NULL, 0);
+  if (sys) {
+    CHECK(sys->settings.constraint_form == MRVI_FORM_NULL_SPACE, "form");
+    CHECK_NEAR(sys->settings.constraint_tol, 1e-8, 0.0, "tolerance");
+    CHECK(sys->settings.project_momenta == 0, "projection false");
+    mrvi_system_free(sys);
+  }
+  /* The same through --set, on a file without integrator.constraints. */
+  const char *ov[] = {"integrator.constraints.form=null-space",
+                      "integrator.constraints.tolerance=1e-12",
+                      "integrator.constraints.projection=false",
+                      "integrator.constraints.form=multipliers"};
+  sys = load("systems/cart_pendulum.yaml", ov, 3);
+  if (sys) {
+    CHECK(sys->settings.constraint_form == MRVI_FORM_NULL_SPACE, "--set form");
+    CHECK_NEAR(sys->settings.constraint_tol, 1e-12, 0.0, "--set tolerance");
+    CHECK(sys->settings.project_momenta == 0, "--set projection");
+    mrvi_system_free(sys);
+  }
+  sys = load("systems/cart_pendulum.yaml", ov, 4);
+  if (sys) {
+    CHECK(sys->settings.constraint_form == MRVI_FORM_MULTIPLIERS,
+          "last --set wins");
+    mrvi_system_free(sys);
+  }
+  /* --set on a constraint: the rod of the chain made longer together with
+   * the second link's position; the description reloads to the same. */
+  const char *ov2[] = {"constraints.1.length=2",
+                       "particles.1.position=[2.1213203435596428, "
+                       "-2.1213203435596428]"};
+  sys = load("systems/pendulum_chain.yaml", ov2, 2);
+  if (sys) {
+    double q[8];
+    memcpy(q, mrvi_model_q0(sys->model), sizeof q);
+    CHECK(max_abs_g(sys->model, q) <= 1e-12, "g(q0) after --set: %g",
+          max_abs_g(sys->model, q));
+    q[2] = 0.0, q[3] = -3.0; /* h2 at (0, -3), h1 at (1, -1)/sqrt 2 */
+    double g[2];
+    mrvi_model_constraint_eval(sys->model, q, g, NULL);
+    const double h = 0.70710678118654757;
+    const double d2 = h * h + (h - 3.0) * (h - 3.0);
+    CHECK_NEAR(g[1], (d2 - 4.0) / 4.0, 1e-14, "rod 2 length 2 after --set");
+    char msg[MSG];
+    mrvi_system *again = NULL;
+    int st = mrvi_system_load_string(sys->description, "description", NULL, 0,
+                                     &again, msg, sizeof msg);
+    CHECK(st == MRVI_OK, "description after --set does not load: %s", msg);
+    mrvi_system_free(again);
+    mrvi_system_free(sys);
+  }
+}
+
+static void test_velocity_projection(void) {
+  /* a (mass 1) moves along the rod towards b (mass 3, at rest): the
+   * projection leaves both with the common velocity p/M = 1/4 along it and
+   * keeps the tangential part of b (0, 0.5, 0). */
+  const char *text = "name: p\ndimension: 3\nparticles:\n"
+                     "  - {name: a, mass: 1, position: [0, 0, 0], "
+                     "velocity: [1, 0, 0]}\n"
+                     "  - {name: b, mass: 3, position: [2, 0, 0], "
+                     "velocity: [0, 0.5, 0], rate: fast}\n"
+                     "constraints:\n  - {type: distance, between: [a, b]}\n";
+  mrvi_system *sys = load_text(text, NULL, 0);
+  if (sys) {
+    const double *v = mrvi_model_v0(sys->model);
+    const double want[6] = {0.25, 0, 0, 0.25, 0.5, 0};
+    for (int i = 0; i < 6; i++)
+      CHECK_NEAR(v[i], want[i], 1e-15, "projected velocity");
+    CHECK(hidden0(sys->model) <= 1e-12, "G M^-1 p0 = %g after load",
+          hidden0(sys->model));
+    CHECK(sys->notes && strstr(sys->notes, "initial velocities projected") &&
+              strstr(sys->notes, "7.5e-01"),
+          "projection note: %s", sys->notes ? sys->notes : "(none)");
+    mrvi_system_free(sys);
+  }
+  /* Tangential velocities are kept exactly, without a note. */
+  const char *tangent = "name: t\ndimension: 2\nparticles:\n"
+                        "  - {name: a, mass: 1, position: [0, 1], "
+                        "velocity: [2, 0]}\n"
+                        "constraints:\n  - {type: distance, between: [a], "
+                        "anchor: [0, 0]}\n";
+  sys = load_text(tangent, NULL, 0);
+  if (sys) {
+    CHECK_NEAR(mrvi_model_v0(sys->model)[0], 2.0, 0.0, "tangential kept");
+    CHECK(sys->notes == NULL, "note for tangential velocities: %s", sys->notes);
+    mrvi_system_free(sys);
+  }
+}
+
+/* A user type without its own syntax: coordinates and parameters. */
+static int sum_check(int n_in, int n_params, const double *params, char *msg,
+                     size_t len) {
+  (void)params;
+  if (n_params != 1) {
+    snprintf(msg, len, "sum: one parameter (the total), got %d", n_params);
+    return MRVI_EINVAL;
+  }
+  return n_in > 0 ? 1 : MRVI_EINVAL;
+}
+static void sum_eval(int n_in, int n_params, const double *params,
+                     const double *y, double *g, double *G, double *H) {
+  (void)n_params;
+  g[0] = -params[0];
+  for (int j = 0; j < n_in; j++) {
+    g[0] += y[j];
+    G[j] = 1.0;
+  }
+  if (H)
+    memset(H, 0, (size_t)n_in * (size_t)n_in * sizeof *H);
+}
+static const mrvi_constraint_type sum_type = {.name = "sum",
+                                              .summary = "sum of coordinates",
+                                              .check = sum_check,
+                                              .eval = sum_eval};
+
+static void test_user_constraint_type(void) {
+  CHECK(mrvi_constraint_type_register(&sum_type) == MRVI_OK,
+        "register user type");
+  const char *text = "name: u\ndimension: 1\ncoordinates:\n"
+                     "  - {name: q1, mass: 1, position: 1}\n"
+                     "particles: [{name: m, mass: 1, position: [2], "
+                     "rate: fast}]\n"
+                     "constraints:\n"
+                     "  - {type: sum, coordinates: [q1, m.x], "
+                     "parameters: [3]}\n";
+  mrvi_system *sys = load_text(text, NULL, 0);
+  if (sys) {
+    const mrvi_model *m = sys->model;
+    CHECK(mrvi_model_n_constraints(m) == 1, "user type count");
+    CHECK(!strcmp(mrvi_model_constraint_type_name(m, 0), "sum"),
+          "user type name");
+    CHECK(mrvi_model_constraint_where(m, 0) == MRVI_FAST,
+          "user type on a fast coordinate: micro nodes");
+    double q[2] = {2, 5}, g;
+    mrvi_model_constraint_eval(m, q, &g, NULL);
+    CHECK_NEAR(g, 4.0, 0.0, "user type parameter");
+    mrvi_system_free(sys);
+  }
+  /* Its errors: the type's own message at the entry, unknown names. */
+  char bad[512], msg[MSG];
+  snprintf(bad, sizeof bad, "%s", text);
+  char *p = strstr(bad, "parameters: [3]");
+  memcpy(p, "parameters: [ ]", 15);
+  sys = NULL;
+  int st =
+      mrvi_system_load_string(bad, "u.yaml", NULL, 0, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && !strncmp(msg, "u.yaml:7:", 9) &&
+            strstr(msg, "one parameter (the total), got 0"),
+        "user type check message: %s", msg);
+  snprintf(bad, sizeof bad, "%s", text);
+  p = strstr(bad, "m.x");
+  memcpy(p, "m.y", 3);
+  st = mrvi_system_load_string(bad, "u.yaml", NULL, 0, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && strstr(msg, "u.yaml:7:") &&
+            strstr(msg, "unknown coordinate 'm.y'; did you mean 'm.x'?"),
+        "user type unknown coordinate: %s", msg);
+}
+
+/* Shipped constrained systems: constraint counts and where they act, initial
+ * data consistent, no hidden-constraint residual after loading. */
+typedef struct constrained_file {
+  const char *path;
+  int n, n_constraints;
+  mrvi_rate where[2];
+  int note; /* the loader projected the velocities */
+} constrained_file;
+
+static mrvi_system *check_constrained_file(const constrained_file *f) {
+  mrvi_system *sys = load(f->path, NULL, 0);
+  if (!sys)
+    return NULL;
+  const mrvi_model *m = sys->model;
+  CHECK(mrvi_model_n(m) == f->n, "%s: n = %d", f->path, mrvi_model_n(m));
+  CHECK(mrvi_model_n_constraints(m) == f->n_constraints, "%s: %d constraints",
+        f->path, mrvi_model_n_constraints(m));
+  for (int c = 0; c < f->n_constraints && c < mrvi_model_n_constraints(m); c++)
+    CHECK(mrvi_model_constraint_where(m, c) == f->where[c],
+          "%s: constraint %d enforced at the wrong nodes", f->path, c);
+  CHECK(max_abs_g(m, mrvi_model_q0(m)) <= 1e-12, "%s: |g(q0)| = %g", f->path,
+        max_abs_g(m, mrvi_model_q0(m)));
+  CHECK(hidden0(m) <= 1e-12, "%s: |G M^-1 p0| = %g", f->path, hidden0(m));
+  CHECK(!f->note == !sys->notes, "%s: notes '%s'", f->path,
+        sys->notes ? sys->notes : "(none)");
+  return sys;
+}
+
+static void check_constrained_files(void) {
+  const constrained_file cart = {
+      "systems/cart_pendulum.yaml", 6, 2, {MRVI_SLOW, MRVI_FAST}, 0};
+  mrvi_system *sys = check_constrained_file(&cart);
+  if (sys) {
+    const mrvi_model *m = sys->model;
+    const double *q = mrvi_model_q0(m);
+    double d[3] = {q[3] - q[0], q[4] - q[1], q[5] - q[2]};
+    CHECK_NEAR(sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 0.2, 1e-16,
+               "cart pendulum rod length");
+    CHECK_NEAR(atan2(d[0], -d[2]) * 180.0 / acos(-1.0), 30.0, 1e-12,
+               "cart pendulum rod at 30 degrees");
+    /* Horizontal momentum 5 (0.1, 0) + 0.5 (0.1, 0.75). */
+    double p[6], lin[3], ang[3];
+    for (int i = 0; i < 6; i++)
+      p[i] = mrvi_model_mass(m, i) * mrvi_model_v0(m)[i];
+    mrvi_model_momentum(m, q, p, lin, ang);
+    CHECK_NEAR(lin[0], 0.55, 1e-15, "cart pendulum momentum x");
+    CHECK_NEAR(lin[1], 0.375, 1e-15, "cart pendulum momentum y");
+    CHECK_NEAR(mrvi_model_mass(m, 0), 5.0, 0.0, "cart mass");
+    CHECK_NEAR(mrvi_model_mass(m, 3), 0.5, 0.0, "bob mass");
+    const mrvi_settings *s = &sys->settings;
+    CHECK_NEAR(s->macro_step, 0.02, 0.0, "cart pendulum dT");
+    CHECK(s->micro_steps == 5, "cart pendulum p");
+    CHECK_NEAR(s->t_end, 10.0, 0.0, "cart pendulum t_end");
+    CHECK_NEAR(s->newton_tol, 1e-10, 0.0, "cart pendulum tolerance");
+    mrvi_system_free(sys);
+  }
+
+  const constrained_file ring = {
+      "systems/spring_ring_rod.yaml", 18, 1, {MRVI_FAST, MRVI_FAST}, 1};
+  sys = check_constrained_file(&ring);
+  if (sys) {
+    /* Same model as the C-API build, velocities projected the same way. */
+    mrvi_model *ref = test_spring_ring_rod();
+    for (int j = 0; j < 18; j++) {
+      CHECK_NEAR(mrvi_model_q0(sys->model)[j], mrvi_model_q0(ref)[j], 1e-15,
+                 "ring rod q0");
+      CHECK_NEAR(mrvi_model_v0(sys->model)[j], mrvi_model_v0(ref)[j], 1e-13,
+                 "ring rod v0");
+    }
+    mrvi_model_free(ref);
+    CHECK(mrvi_model_n_elements(sys->model) == 13, "ring rod elements");
+    CHECK(sys->settings.micro_steps == 10, "ring rod p");
+    CHECK_NEAR(sys->settings.t_end, 2.0, 0.0, "ring rod t_end");
+    mrvi_system_free(sys);
+  }
+
+  const constrained_file tri = {
+      "systems/triatomic.yaml", 9, 2, {MRVI_FAST, MRVI_FAST}, 0};
+  sys = check_constrained_file(&tri);
+  if (sys) {
+    const double *q = mrvi_model_q0(sys->model);
+    /* Bond angle 104.5 degrees; the H-H spring starts at rest (W = 0). */
+    double c = q[3] * q[6] + q[4] * q[7] + q[5] * q[8];
+    CHECK_NEAR(acos(c) * 180.0 / acos(-1.0), 104.5, 1e-12, "bond angle");
+    CHECK_NEAR(mrvi_model_potential(sys->model, MRVI_FAST, q, NULL, NULL), 0.0,
+               1e-28, "triatomic W(q0)");
+    CHECK(mrvi_model_n_slow(sys->model) == 3, "triatomic: O slow");
+    /* Spin 0.5 about e3: angular momentum 2 * 0.5 sin^2(52.25 degrees). */
+    double p[9], lin[3], ang[3];
+    for (int i = 0; i < 9; i++)
+      p[i] = mrvi_model_mass(sys->model, i) * mrvi_model_v0(sys->model)[i];
+    mrvi_model_momentum(sys->model, q, p, lin, ang);
+    const double s = sin(52.25 * acos(-1.0) / 180.0);
+    CHECK_NEAR(ang[2], s * s, 1e-15, "triatomic angular momentum about e3");
+    CHECK_NEAR(sys->settings.macro_step, 0.05, 0.0, "triatomic dT");
+    CHECK(sys->settings.micro_steps == 10, "triatomic p");
+    mrvi_system_free(sys);
+  }
+
+  const constrained_file chain = {
+      "systems/pendulum_chain.yaml", 8, 2, {MRVI_SLOW, MRVI_SLOW}, 0};
+  sys = check_constrained_file(&chain);
+  if (sys) {
+    const mrvi_model *m = sys->model;
+    const double *q = mrvi_model_q0(m);
+    CHECK(mrvi_model_dimension(m) == 2, "chain in 2-D");
+    CHECK_NEAR(atan2(q[0], -q[1]) * 180.0 / acos(-1.0), 45.0, 1e-12,
+               "chain at 45 degrees");
+    CHECK_NEAR(atan2(q[2] - q[0], q[1] - q[3]) * 180.0 / acos(-1.0), 45.0,
+               1e-12, "second link at 45 degrees");
+    for (int i = 0; i < 8; i++)
+      CHECK_NEAR(mrvi_model_v0(m)[i], 0.0, 0.0, "chain at rest");
+    /* The three springs start at their rest lengths: V is gravity only. */
+    double V = mrvi_model_potential(m, MRVI_SLOW, q, NULL, NULL);
+    double Vg = 9.81 * (2 * q[1] + 2 * q[3] + 0.05 * q[5] + 0.05 * q[7]);
+    CHECK_NEAR(V, Vg, 1e-12, "chain V(q0) = gravity");
+    CHECK_NEAR(mrvi_model_potential(m, MRVI_FAST, q, NULL, NULL), 0.0, 1e-26,
+               "chain W(q0)");
+    CHECK_NEAR(sys->settings.t_end, 3.0, 0.0, "chain t_end");
+    mrvi_system_free(sys);
+  }
+}
+
+/* ---------------------------------------------------------------------------
  * Overrides and defaults
  * ------------------------------------------------------------------------- */
 
@@ -554,6 +966,11 @@ int main(void) {
   check_spring_ring_file();
   check_oscillator_file();
   test_overrides();
+  test_constraints_parsed();
+  test_constraint_settings();
+  test_velocity_projection();
+  test_user_constraint_type();
+  check_constrained_files();
   test_doc_example();
   test_cli_bad_files(files, n);
   for (int i = 0; i < n; i++)
