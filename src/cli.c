@@ -69,6 +69,10 @@ static const char usage_run[] =
     "                        printed)\n"
     "  -h, --help            show this help\n"
     "\n"
+    "Notes about the input, such as initial velocities projected onto the\n"
+    "constraints' tangent space, are printed on stderr as 'FILE: note: ...'\n"
+    "before the run starts (also with --quiet).\n"
+    "\n"
     "A progress bar is drawn on stderr when it is a terminal.  Ctrl-C stops\n"
     "the run after the current step and leaves a valid file (a second\n"
     "Ctrl-C kills it at once).\n"
@@ -86,8 +90,15 @@ static const char usage_check[] =
     "\n"
     "Validate the description file FILE and print the model: coordinate,\n"
     "particle and element counts, the slow/fast partition, every potential\n"
-    "element, the scheme with both quadrature rules, step sizes, the Newton\n"
-    "settings and the output file.  Nothing is integrated or written.\n"
+    "element, every constraint with the nodes it is enforced at (macro nodes\n"
+    "for slow-only constraints, every micro node otherwise), the scheme with\n"
+    "both quadrature rules, step sizes, the Newton and constraint settings,\n"
+    "the output file and any notes (e.g. initial velocities projected onto\n"
+    "the constraints).  Nothing is integrated or written.\n"
+    "\n"
+    "With constraints, FILE is valid only if the initial positions satisfy\n"
+    "them to integrator.constraints.tolerance and their gradients are\n"
+    "independent there.\n"
     "\n"
     "Options:\n"
     "  -s, --set KEY=VALUE   override a scalar of FILE by its dotted path\n"
@@ -265,6 +276,17 @@ static mrvi_system *load_system(const cli_args *a) {
  * mrvi check
  * ------------------------------------------------------------------------- */
 
+/* The loader's notes, one "[FILE: ]note: ..." line each. */
+static void print_notes(FILE *f, const char *file, const char *notes) {
+  for (const char *line = notes; line && *line;) {
+    const char *end = strchr(line, '\n');
+    const int len = end ? (int)(end - line) : (int)strlen(line);
+    fprintf(f, "%s%snote: %.*s\n", file ? file : "", file ? ": " : "", len,
+            line);
+    line = end ? end + 1 : NULL;
+  }
+}
+
 /* Print a list of coordinate names after a label, wrapped at 79 columns. */
 static void print_names(const mrvi_model *m, const char *label,
                         const int *index, int count) {
@@ -333,6 +355,18 @@ static int cmd_check(int argc, char **argv) {
       snprintf(buf, sizeof buf, "(no description)");
     printf("  %3d  %s\n", e, buf);
   }
+  const int nc = mrvi_model_n_constraints(m);
+  printf("%-14s%d", "constraints", nc);
+  if (nc > 0)
+    printf(" (%d equation%s)", mrvi_model_constraint_rows(m),
+           mrvi_model_constraint_rows(m) == 1 ? "" : "s");
+  putchar('\n');
+  for (int c = 0; c < nc; c++) {
+    char buf[512];
+    if (mrvi_model_describe_constraint(m, c, buf, sizeof buf) < 0)
+      snprintf(buf, sizeof buf, "(no description)");
+    printf("  %3d  %s\n", c, buf);
+  }
 
   printf("\n%-14s%s\n", "scheme", s->scheme[0] ? s->scheme : "(custom)");
   print_rule("slow (V)", s->slow,
@@ -345,9 +379,19 @@ static int cmd_check(int argc, char **argv) {
          steps, (double)steps * s->macro_step);
   printf("%-14stolerance %g, at most %d iterations\n", "newton", s->newton_tol,
          s->newton_max_iter);
+  if (nc > 0)
+    printf("%-14s%s form, tolerance %g, momentum projection %s\n",
+           "constraints",
+           s->constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
+                                                      : "multipliers",
+           s->constraint_tol, s->project_momenta ? "on" : "off");
   printf("%-14s%s (every %d, micro %s)\n", "output",
          sys->output_file ? sys->output_file : "-", sys->output_every,
          sys->output_micro ? "yes" : "no");
+  if (sys->notes) {
+    putchar('\n');
+    print_notes(stdout, NULL, sys->notes);
+  }
   mrvi_system_free(sys);
   return 0;
 }
@@ -493,6 +537,7 @@ static int cmd_run(int argc, char **argv) {
     mrvi_system_free(sys);
     return 128 + (int)stop_signal;
   }
+  print_notes(stderr, a.file, sys->notes);
 
   /* Output file: -o, else output.file of the description. */
   const char *out = a.output ? a.output : sys->output_file;

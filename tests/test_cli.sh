@@ -187,6 +187,53 @@ contains "$out" '^coordinates +18 \(9 slow, 9 fast\)$' "spring ring: 18 coordina
 contains "$out" '^particles +6 in 3-D$' "spring ring: 6 particles in 3-D"
 contains "$out" '^slow +9: m1\.x, m1\.y, m1\.z, m3\.x' "spring ring: odd masses slow"
 
+# --- constraints: check lists them with their nodes, settings, notes -------
+for sys in cart_pendulum spring_ring_rod triatomic pendulum_chain; do
+  run_mrvi check "$root/systems/$sys.yaml"
+  expect_rc 0 "check $sys.yaml"
+  contains "$out" '^constraints +[0-9]+ \([0-9]+ equations?\)$' "$sys: constraints counted"
+done
+cart=$root/systems/cart_pendulum.yaml
+run_mrvi check "$cart"
+contains "$out" '^constraints +2 \(2 equations\)$' "cart pendulum: 2 constraints"
+contains "$out" '^ +0 +floor \(plane; 1 row; .*\) at macro nodes$' \
+  "slow-only plane enforced at macro nodes"
+contains "$out" '^ +1 +rod \(distance; 1 row; parameters 0\.2\) at every micro node$' \
+  "slow-fast rod enforced at every micro node"
+contains "$out" '^constraints +multipliers form, tolerance 1e-10, momentum projection on$' \
+  "constraint settings printed"
+check "cart pendulum: no note (velocities already tangent)" \
+  test -z "$(printf '%s\n' "$out" | grep 'note:')"
+run_mrvi check "$cart" --set integrator.constraints.form=null-space \
+  --set integrator.constraints.tolerance=1e-12 \
+  --set integrator.constraints.projection=false
+expect_rc 0 "check with constraint settings overridden"
+contains "$out" '^constraints +null-space form, tolerance 1e-12, momentum projection off$' \
+  "--set integrator.constraints.* applied"
+run_mrvi check "$fpu"
+contains "$out" '^constraints +0$' "fpu: no constraints"
+check "fpu: no constraint settings line" \
+  test -z "$(printf '%s\n' "$out" | grep -E '^constraints +(multipliers|null-space)')"
+
+rod=$root/systems/spring_ring_rod.yaml
+run_mrvi check "$rod"
+contains "$out" '^ +0 +distance m1-m2 \(distance; .*\) at every micro node$' \
+  "spring ring rod: default label, micro nodes"
+contains "$out" "^note: initial velocities projected onto the constraints' tangent space \(largest change [0-9.]+e[-+][0-9]+\)\$" \
+  "check prints the projection note"
+run_mrvi run "$rod" --set integrator.t_end=0.02 -o "$tmp/o/rod.h5" -q
+contains "$err" "spring_ring_rod\.yaml: note: initial velocities projected" \
+  "run prints the projection note on stderr"
+check "run: no note on stdout" test -z "$(printf '%s\n' "$out" | grep 'note:')"
+rm -f "$tmp/o/rod.h5"
+
+# Inconsistent initial positions: reported at the constraint's entry.
+line=$(grep -n 'name: rod' "$cart" | cut -d: -f1)
+run_mrvi check "$cart" --set constraints.1.length=0.3
+expect_rc 1 "rod length that the initial positions violate"
+contains "$err" "cart_pendulum\.yaml:$line:[0-9]+: initial positions violate constraint 'rod': \|g\| = " \
+  "inconsistent rod: file:line:col of the entry, constraint named"
+
 run_mrvi check "$tmp/does-not-exist.yaml"
 expect_rc 1 "check of a missing file"
 contains "$err" 'does-not-exist\.yaml' "missing file is named"
