@@ -346,8 +346,10 @@ long mrvi_integrator_system_nnz(const mrvi_integrator *it);
  * nodes, doc/constraints.md).  With momentum projection the projection
  * impulse at node k is included, so the values do not depend on it. */
 const double *mrvi_integrator_lambda(const mrvi_integrator *it);
-/* max |g| over the micro-node constraints at the micro nodes m = 1..p of the
- * last step (p entries; zeros without such constraints). */
+/* max |g| over the constraints enforced at the micro nodes m = 1..p of the
+ * last step (p entries): the micro-node constraints at every node and, at
+ * m = p (the new macro node), the slow-only ones too; zeros without
+ * constraints. */
 const double *mrvi_integrator_micro_constraint_residual(
     const mrvi_integrator *it);
 /* Accumulated wall time in seconds spent assembling residual+Jacobian and
