@@ -61,8 +61,8 @@ static void bench_one(const char *path, const char *form, int p, int steps) {
   double ta = 0.0, ts = 0.0;
   mrvi_integrator_timing(it, &ta, &ts);
   const double per = done > 0 ? (ta + ts) / done : 0.0;
-  printf("%-18s %-12s %5d %7d %9ld %6.2f %12.1f %12.1f %12.1f  %s\n",
-         sys->name, form, p, mrvi_integrator_system_size(it),
+  printf("%-18s %-12s %5d %7d %9ld %6.2f %12.1f %12.1f %12.1f  %s\n", sys->name,
+         form, p, mrvi_integrator_system_size(it),
          mrvi_integrator_system_nnz(it), done ? (double)iters / done : 0.0,
          1e6 * per, done ? 1e6 * ta / done : 0.0, done ? 1e6 * ts / done : 0.0,
          why);
@@ -109,8 +109,8 @@ int main(int argc, char **argv) {
   }
   printf("# %d macro steps per run; times in microseconds per macro step\n",
          steps);
-  printf("%-18s %-12s %5s %7s %9s %6s %12s %12s %12s\n", "system", "form",
-         "p", "size", "nnz", "it/st", "step [us]", "assemble", "solve");
+  printf("%-18s %-12s %5s %7s %9s %6s %12s %12s %12s\n", "system", "form", "p",
+         "size", "nnz", "it/st", "step [us]", "assemble", "solve");
   const char *forms[2] = {"multipliers", "null-space"};
   for (int f = 0; f < nfiles; f++)
     for (int a = 0; a < np; a++)

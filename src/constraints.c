@@ -127,8 +127,11 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
   if (rows < 1 || rows > n_in)
     return fail(m, MRVI_EINVAL, "%s: check returned %d rows for %d inputs",
                 t->name, rows, n_in);
-  mrvi_constraint c = {.type = t, .n_in = n_in, .n_params = n_params,
-                       .rows = rows, .first_row = m->constraint_rows,
+  mrvi_constraint c = {.type = t,
+                       .n_in = n_in,
+                       .n_params = n_params,
+                       .rows = rows,
+                       .first_row = m->constraint_rows,
                        .where = MRVI_SLOW};
   for (int j = 0; j < n_in; j++)
     if (m->rate[coords[j]] == MRVI_FAST)
@@ -170,8 +173,7 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
 /* Coordinates of particle i (dimension entries) into in; -1 if invalid. */
 static int particle_coords(mrvi_model *m, const char *what, int i, int *in) {
   if (i < 0 || i >= m->n_particles)
-    return fail(m, MRVI_EINVAL, "%s: particle index %d out of range", what,
-                i);
+    return fail(m, MRVI_EINVAL, "%s: particle index %d out of range", what, i);
   for (int a = 0; a < m->dimension; a++)
     in[a] = m->particles[i].first + a;
   return MRVI_OK;
@@ -191,21 +193,19 @@ int mrvi_model_add_distance(mrvi_model *m, int particle_i, int particle_j,
   if (isnan(length)) {
     double rr = 0.0;
     for (int a = 0; a < d; a++)
-      rr += (m->q0[in[a]] - m->q0[in[d + a]]) *
-            (m->q0[in[a]] - m->q0[in[d + a]]);
+      rr +=
+          (m->q0[in[a]] - m->q0[in[d + a]]) * (m->q0[in[a]] - m->q0[in[d + a]]);
     length = sqrt(rr);
     if (!(length > 0.0))
       return fail(m, MRVI_EINVAL,
                   "distance %s-%s: the particles start at the same point, so "
                   "the length must be given",
-                  m->particles[particle_i].name,
-                  m->particles[particle_j].name);
+                  m->particles[particle_i].name, m->particles[particle_j].name);
   }
   char label[300];
-  mrvi_fmt(label, sizeof label, "distance %s-%s",
-           m->particles[particle_i].name, m->particles[particle_j].name);
-  return mrvi_model_add_constraint(m, "distance", 2 * d, in, 1, &length,
-                                   label);
+  mrvi_fmt(label, sizeof label, "distance %s-%s", m->particles[particle_i].name,
+           m->particles[particle_j].name);
+  return mrvi_model_add_constraint(m, "distance", 2 * d, in, 1, &length, label);
 }
 
 int mrvi_model_add_distance_anchor(mrvi_model *m, int particle_i,
@@ -309,6 +309,17 @@ int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
                                    par, label);
 }
 
+int mrvi_model_set_constraint_label(mrvi_model *m, int c, const char *label) {
+  if (c < 0 || c >= m->n_constraints || !label)
+    return fail(m, MRVI_EINVAL, "constraint index %d out of range", c);
+  char *copy = strdup(label);
+  if (!copy)
+    return fail(m, MRVI_ENOMEM, "out of memory");
+  free(m->constraints[c].label);
+  m->constraints[c].label = copy;
+  return MRVI_OK;
+}
+
 int mrvi_model_n_constraints(const mrvi_model *m) { return m->n_constraints; }
 int mrvi_model_constraint_rows(const mrvi_model *m) {
   return m->constraint_rows;
@@ -351,8 +362,8 @@ static void gather_q(const mrvi_constraint *k, const double *q, double *y) {
     y[j] = q[k->in[j]];
 }
 
-void mrvi_model_constraint_eval(const mrvi_model *m, const double *q,
-                                double *g, double *G) {
+void mrvi_model_constraint_eval(const mrvi_model *m, const double *q, double *g,
+                                double *G) {
   double y[MRVI_MAX_INPUTS], Gl[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
   if (G)
     memset(G, 0, (size_t)m->constraint_rows * (size_t)m->n * sizeof *G);
@@ -387,8 +398,7 @@ double mrvi_model_hidden_residual(const mrvi_model *m, const double *q,
   return worst;
 }
 
-int mrvi_model_check_initial_positions(mrvi_model *m, double tol,
-                                       int *worst) {
+int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst) {
   double y[MRVI_MAX_INPUTS], g[MRVI_MAX_INPUTS],
       Gl[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
   int w = -1;
@@ -432,9 +442,9 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
     return MRVI_OK;
   if (R > n)
     return report(msg, len, MRVI_ESINGULAR,
-                "%d constraint equations on %d coordinates: the constraints "
-                "are redundant",
-                R, n);
+                  "%d constraint equations on %d coordinates: the constraints "
+                  "are redundant",
+                  R, n);
   double *g = malloc((size_t)R * sizeof *g);
   double *G = malloc((size_t)R * (size_t)n * sizeof *G);
   /* Orthonormal basis E (rank x n) of the rows seen so far, in the metric
@@ -495,17 +505,16 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
           continue;
         last = c;
         if (used + 8 < sizeof names)
-          used += (size_t)snprintf(names + used, sizeof names - used,
-                                   "%s'%s'", count ? ", " : "",
-                                   m->constraints[c].label);
+          used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                                   count ? ", " : "", m->constraints[c].label);
         count++;
       }
       status = report(msg, len, MRVI_ESINGULAR,
-                    count > 1 ? "redundant constraints: the gradients of %s "
-                                "are linearly dependent; remove one of them"
-                              : "constraint %s has a zero gradient (it is "
-                                "redundant or degenerate here)",
-                    names);
+                      count > 1 ? "redundant constraints: the gradients of %s "
+                                  "are linearly dependent; remove one of them"
+                                : "constraint %s has a zero gradient (it is "
+                                  "redundant or degenerate here)",
+                      names);
       break;
     }
     for (int j = 0; j < n; j++)

@@ -12,18 +12,18 @@ struct mrvi_integrator {
   mrvi_step step;
   mrvi_newton *newton;
   mrvi_nullspace *nullspace; /* null-space form only */
-  double *rhs;          /* reduced right-hand side (null-space form) */
-  double t0;            /* time of node k = 0 */
+  double *rhs;               /* reduced right-hand side (null-space form) */
+  double t0;                 /* time of node k = 0 */
   long k;
-  double *q, *p;        /* model order, n */
+  double *q, *p;             /* model order, n */
   double *qs, *qf, *ps, *pf; /* rate blocks of the state */
-  double *x, *R, *dx;   /* unknowns, residual, Newton update */
-  double *ps1;          /* ns */
+  double *x, *R, *dx;        /* unknowns, residual, Newton update */
+  double *ps1;               /* ns */
   double *micro_q, *micro_p; /* p x nf */
-  double *lambda;       /* constraint rows: multipliers at node k of the last step */
-  double *micro_cres;   /* p: max |g| at micro nodes 1..p of the last step */
+  double *lambda; /* constraint rows: multipliers at node k of the last step */
+  double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
-  double *mu_h;         /* projection impulse / h at the current node */
+  double *mu_h;                /* projection impulse / h at the current node */
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;
   double last_residual;
@@ -222,9 +222,8 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->settings = *s;
   if ((st = mrvi_step_init(&it->step, m, s)) < 0)
     goto oom;
-  const size_t n = (size_t)m->n, ns = (size_t)m->n_slow,
-               nf = (size_t)m->n_fast, p = (size_t)s->micro_steps,
-               nu = (size_t)it->step.n_total;
+  const size_t n = (size_t)m->n, ns = (size_t)m->n_slow, nf = (size_t)m->n_fast,
+               p = (size_t)s->micro_steps, nu = (size_t)it->step.n_total;
   it->q = alloc(n);
   it->p = alloc(n);
   it->qs = alloc(ns);
@@ -250,10 +249,10 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->pGf = alloc(rm * nf);
   it->pA = alloc(rm * rm);
   it->pmu = alloc(rm);
-  if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf ||
-      !it->x || !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p || !it->lambda || !it->micro_cres || !it->rhs ||
-      !it->cg || !it->cGd || !it->cA || !it->cmu || !it->mu_h ||
-      !it->pGf || !it->pA || !it->pmu)
+  if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf || !it->x ||
+      !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p ||
+      !it->lambda || !it->micro_cres || !it->rhs || !it->cg || !it->cGd ||
+      !it->cA || !it->cmu || !it->mu_h || !it->pGf || !it->pA || !it->pmu)
     goto oom;
   /* Initial state (q0, M v0) at t = 0; constraints must hold at q0. */
   for (size_t i = 0; i < n; i++) {
@@ -291,13 +290,13 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     }
     mrvi_step_assemble(sp, it->x, it->R, 1);
     mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
-    it->newton = mrvi_newton_create(
-        it->step.n_unknowns, mrvi_nullspace_Ap(it->nullspace),
-        mrvi_nullspace_Ai(it->nullspace), mrvi_nullspace_Ax(it->nullspace),
-        msg, len);
+    it->newton = mrvi_newton_create(it->step.n_unknowns,
+                                    mrvi_nullspace_Ap(it->nullspace),
+                                    mrvi_nullspace_Ai(it->nullspace),
+                                    mrvi_nullspace_Ax(it->nullspace), msg, len);
   } else {
-    it->newton = mrvi_newton_create(it->step.n_total, it->step.Ap,
-                                    it->step.Ai, it->step.Ax, msg, len);
+    it->newton = mrvi_newton_create(it->step.n_total, it->step.Ap, it->step.Ai,
+                                    it->step.Ax, msg, len);
   }
   if (!it->newton) {
     mrvi_integrator_free(it);
@@ -368,8 +367,8 @@ static int newton_update(mrvi_integrator *it, char *msg, size_t len) {
   int s;
   if (it->nullspace) {
     mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
-    s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace),
-                          it->rhs, it->dx, msg, len);
+    s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
+                          it->dx, msg, len);
     if (s == MRVI_OK)
       for (int i = 0; i < st->n_unknowns; i++)
         it->x[i] -= it->dx[i];
@@ -385,8 +384,7 @@ static int newton_update(mrvi_integrator *it, char *msg, size_t len) {
 
 /* A singular Newton matrix with constraints is most often a redundant set:
  * name the constraints whose gradients are dependent at the current node. */
-static void explain_singular(const mrvi_integrator *it, char *msg,
-                             size_t len) {
+static void explain_singular(const mrvi_integrator *it, char *msg, size_t len) {
   const mrvi_model *m = it->model;
   if (m->n_constraints == 0)
     return;
@@ -427,9 +425,9 @@ static void constraint_outputs(mrvi_integrator *it) {
     double worst = 0.0;
     for (int i = 0; i < st->n_micro_c; i++)
       for (int r = 0; r < m->constraints[st->micro_c[i]].rows; r++)
-        worst = fmax(worst, fabs(it->R[nu + st->r_slow +
-                                       (mm - 1) * st->r_micro +
-                                       st->c_off[st->micro_c[i]] + r]));
+        worst =
+            fmax(worst, fabs(it->R[nu + st->r_slow + (mm - 1) * st->r_micro +
+                                   st->c_off[st->micro_c[i]] + r]));
     if (mm == p)
       worst = fmax(worst, norm_inf(it->R + nu, st->r_slow));
     it->micro_cres[mm - 1] = worst;
@@ -545,8 +543,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   mrvi_step_momenta(st, it->x, it->ps1, it->micro_p);
   if (st->n_lambda > 0)
     constraint_outputs(it);
-  if (st->r_micro > 0 && it->settings.project_momenta &&
-      project_micro(it) < 0)
+  if (st->r_micro > 0 && it->settings.project_momenta && project_micro(it) < 0)
     return fail(it, MRVI_ESINGULAR,
                 "step %ld: micro-node momentum projection failed (fast "
                 "constraint gradients dependent)",
@@ -596,8 +593,8 @@ const double *mrvi_integrator_micro_p(const mrvi_integrator *it) {
 const double *mrvi_integrator_lambda(const mrvi_integrator *it) {
   return it->lambda;
 }
-const double *mrvi_integrator_micro_constraint_residual(
-    const mrvi_integrator *it) {
+const double *
+mrvi_integrator_micro_constraint_residual(const mrvi_integrator *it) {
   return it->micro_cres;
 }
 int mrvi_integrator_last_iterations(const mrvi_integrator *it) {

@@ -1297,11 +1297,8 @@ static int label_constraint(loader *L, struct fy_node *item, const char *where,
   if (label == mrvi_model_constraint_label(m, c))
     return MRVI_OK;
   /* The builders take no label: replace the one they made. */
-  char *copy = strdup(label);
-  if (!copy)
+  if (mrvi_model_set_constraint_label(m, c, label) < 0)
     return fail_nomem(L);
-  free(m->constraints[c].label);
-  m->constraints[c].label = copy;
   return MRVI_OK;
 }
 

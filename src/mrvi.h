@@ -200,7 +200,8 @@ int mrvi_constraint_type_count(void);
 const mrvi_constraint_type *mrvi_constraint_type_get(int i);
 
 /* Generic instance: type by name on n_in model coordinates with n_params
- * parameters; label names it in messages (NULL: "<type> <coordinates>").
+ * parameters; label names it in messages (NULL: "<type> on <first
+ * coordinate>, ...").
  * Returns the constraint index (>= 0) or a status < 0. */
 int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
                               const int *coords, int n_params,
@@ -224,6 +225,9 @@ int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
 int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
                                      const int *coords, const double *coef,
                                      double rhs);
+
+/* Rename constraint c (the builders label it "distance a-b" and so on). */
+int mrvi_model_set_constraint_label(mrvi_model *m, int c, const char *label);
 
 int mrvi_model_n_constraints(const mrvi_model *m);
 /* Total number of scalar constraint equations (rows of g). */

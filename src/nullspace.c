@@ -36,21 +36,21 @@
 #define MAXD MRVI_DENSE_MAX
 
 struct mrvi_nullspace {
-  int n;                 /* reduced size = n_unknowns */
+  int n; /* reduced size = n_unknowns */
   int ns, nf, p;
-  int nfc, nsc;          /* constrained fast / slow slots */
-  int *fc, *sc;          /* slot lists */
-  int *fpos;             /* fast slot -> index in fc or -1 */
-  int r, rs;             /* rows of micro-node / slow-only constraints */
-  int nbs;               /* slow basis size ns - rs */
-  int *b_slot;           /* basis vector i: its slot (unit) or -1 (Q column) */
-  int *b_coupled;        /* does it couple to the micro-node constraints? */
+  int nfc, nsc;   /* constrained fast / slow slots */
+  int *fc, *sc;   /* slot lists */
+  int *fpos;      /* fast slot -> index in fc or -1 */
+  int r, rs;      /* rows of micro-node / slow-only constraints */
+  int nbs;        /* slow basis size ns - rs */
+  int *b_slot;    /* basis vector i: its slot (unit) or -1 (Q column) */
+  int *b_coupled; /* does it couple to the micro-node constraints? */
   /* Per node m = 0..p-1: Q (nfc x nfc), R (r x r), G_s (r x ns). */
   double *Q, *Rm, *Gs;
-  double *Qs, *Rs;       /* slow-only block: nsc x nsc, rs x rs */
-  double *A, *t;         /* scratch: MAXD x MAXD, MAXD */
-  double *Gf, *Gsl;      /* G_f (r x nfc) at one node, slow-only G (rs x nsc) */
-  double *B;             /* slow basis vectors, nbs x ns */
+  double *Qs, *Rs;  /* slow-only block: nsc x nsc, rs x rs */
+  double *A, *t;    /* scratch: MAXD x MAXD, MAXD */
+  double *Gf, *Gsl; /* G_f (r x nfc) at one node, slow-only G (rs x nsc) */
+  double *B;        /* slow basis vectors, nbs x ns */
   /* Recipe of the reduced rows: source rows and their coefficients. */
   int *rec_start, *rec_row;
   double *rec_coef;
@@ -155,8 +155,8 @@ static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
       return -1;
   }
   z->rec_start[row] = (int)z->n_rec;
-  z->rec_coef = malloc((size_t)(z->n_rec > 0 ? z->n_rec : 1) *
-                       sizeof *z->rec_coef);
+  z->rec_coef =
+      malloc((size_t)(z->n_rec > 0 ? z->n_rec : 1) * sizeof *z->rec_coef);
   return row == nu && z->rec_coef ? 0 : -1;
 }
 
@@ -226,8 +226,8 @@ static int build_pattern(mrvi_nullspace *z) {
   return z->Ax ? 0 : -1;
 }
 
-int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out,
-                          char *msg, size_t len) {
+int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
+                          size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   mrvi_nullspace *z = calloc(1, sizeof *z);

@@ -33,16 +33,15 @@ static double max_constraint_residual(const mrvi_model *m, const double *q) {
 }
 
 int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
-             mrvi_observer observer, void *user,
-             volatile const int *stop_flag, mrvi_summary *sum) {
+             mrvi_observer observer, void *user, volatile const int *stop_flag,
+             mrvi_summary *sum) {
   mrvi_summary local;
   if (!sum)
     sum = &local;
   memset(sum, 0, sizeof *sum);
   const double t_start = mrvi_clock();
   mrvi_integrator *it = NULL;
-  int st = mrvi_integrator_create(m, s, &it, sum->message,
-                                  sizeof sum->message);
+  int st = mrvi_integrator_create(m, s, &it, sum->message, sizeof sum->message);
   if (st < 0) {
     sum->status = st;
     return st;

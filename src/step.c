@@ -4,9 +4,9 @@
  * Residual rows:
  *   slow          p_k^s     + D_{q_k^s}     L_d = 0        (ns rows)
  *   fast node 0   p_k^{f,0} + D_{q_k^{f,0}} L_d = 0        (nf rows)
- *   fast node m               D_{q_k^{f,m}} L_d = 0        (nf rows, m = 1..p-1)
- * Row of fast node m (0..p-1): ns + m nf + slot; column of fast node m
- * (1..p): ns + (m-1) nf + slot; slow row and column: slot.
+ *   fast node m               D_{q_k^{f,m}} L_d = 0        (nf rows, m
+ * = 1..p-1) Row of fast node m (0..p-1): ns + m nf + slot; column of fast node
+ * m (1..p): ns + (m-1) nf + slot; slow row and column: slot.
  *
  * L_d = T_d - V_d - W_d.  Every potential term is a sum of evaluation points
  * (quadrature.c); a point with weight w and node coefficients c contributes
@@ -120,8 +120,8 @@ static void jac_add(mrvi_step *st, int row, int col, double v) {
 static int init_constraints(mrvi_step *st) {
   const mrvi_model *m = st->model;
   const int nc = m->n_constraints;
-  const size_t ci = (size_t)(m->max_constraint_in > 0 ? m->max_constraint_in
-                                                      : 1);
+  const size_t ci =
+      (size_t)(m->max_constraint_in > 0 ? m->max_constraint_in : 1);
   st->slow_c = malloc((size_t)(nc + 1) * sizeof(int));
   st->micro_c = malloc((size_t)(nc + 1) * sizeof(int));
   st->c_off = malloc((size_t)(nc + 1) * sizeof(int));
@@ -149,8 +149,7 @@ static int init_constraints(mrvi_step *st) {
   return MRVI_OK;
 }
 
-int mrvi_step_init(mrvi_step *st, const mrvi_model *m,
-                   const mrvi_settings *s) {
+int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   memset(st, 0, sizeof *st);
   st->model = m;
   st->p = s->micro_steps;
@@ -167,8 +166,8 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m,
     st->elem_of_class[c] = malloc((size_t)(m->n_elements + 1) * sizeof(int));
     if (!st->pts[c] || !st->elem_of_class[c])
       return MRVI_ENOMEM;
-    st->n_pts[c] = mrvi_quadrature_points(rules[c], grids[c], st->dT, st->p,
-                                          st->pts[c]);
+    st->n_pts[c] =
+        mrvi_quadrature_points(rules[c], grids[c], st->dT, st->p, st->pts[c]);
   }
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
@@ -263,9 +262,8 @@ void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
   const mrvi_constraint *k = &m->constraints[c];
   for (int j = 0; j < k->n_in; j++) {
     const int idx = k->in[j], s = m->slot[idx];
-    st->cy[j] = m->rate[idx] == MRVI_SLOW
-                    ? pt->a0 * st->qs0[s] + pt->a1 * x[s]
-                    : fast_node(st, x, pt->m, s);
+    st->cy[j] = m->rate[idx] == MRVI_SLOW ? pt->a0 * st->qs0[s] + pt->a1 * x[s]
+                                          : fast_node(st, x, pt->m, s);
   }
   mrvi_constraint_eval_at(k, st->cy, st->cg, st->cG, hess ? st->cH : NULL);
 }
@@ -309,8 +307,7 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
 /* Constraint equations g(z) = 0 of constraint c at node point pt into rows
  * starting at row, with their derivatives G on the unknown columns. */
 static void constraint_equation(mrvi_step *st, int c, const mrvi_point *pt,
-                                const double *x, int row, double *R,
-                                int jac) {
+                                const double *x, int row, double *R, int jac) {
   const mrvi_constraint *k = &st->model->constraints[c];
   const int n = k->n_in;
   mrvi_step_constraint_eval(st, c, pt, x, 0);
@@ -352,8 +349,7 @@ static void assemble_constraints(mrvi_step *st, const double *x, double *R,
         constraint_force(st, c, &pt, x, lam + st->r_slow + mm * rm + off,
                          base + mm * rm + off, R, jac);
       if (mm > 0)
-        constraint_equation(st, c, &pt, x, base + (mm - 1) * rm + off, R,
-                            jac);
+        constraint_equation(st, c, &pt, x, base + (mm - 1) * rm + off, R, jac);
     }
   }
 }
@@ -405,7 +401,8 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
             const double h = st->H[j * n + l];
             for (int a = 0; a < kr[j]; a++)
               for (int b = 0; b < kc[l]; b++)
-                jac_add(st, r[j][a], cl[l][b], -pt->w * rc[j][a] * cc[l][b] * h);
+                jac_add(st, r[j][a], cl[l][b],
+                        -pt->w * rc[j][a] * cc[l][b] * h);
           }
       }
     }
@@ -450,7 +447,8 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
                        double *pf) {
   const mrvi_model *m = st->model;
   const int ns = st->ns, nf = st->nf, p = st->p;
-  /* Kinetic parts: D_{q_{k+1}^s} T_d = M^s v_s; D_{q^{f,m+1}} T_d^m = M^f v_m */
+  /* Kinetic parts: D_{q_{k+1}^s} T_d = M^s v_s; D_{q^{f,m+1}} T_d^m = M^f v_m
+   */
   for (int s = 0; s < ns; s++)
     ps1[s] = m->mass[m->slow_index[s]] * (x[s] - st->qs0[s]) / st->dT;
   for (int mm = 0; mm < p; mm++)

@@ -40,8 +40,8 @@ static void check_type(const char *name, int n_in, int n_params,
   }
   /* Central differences: truncation e^2 |g'''| plus roundoff eps/e. */
   CHECK(errG <= 1e-8, "%s: G vs finite differences, error %.2e", name, errG);
-  CHECK(errH <= 1e-8 * scale, "%s: second derivatives vs FD, error %.2e",
-        name, errH);
+  CHECK(errH <= 1e-8 * scale, "%s: second derivatives vs FD, error %.2e", name,
+        errH);
   /* Symmetry of each second-derivative block. */
   double asym = 0.0;
   for (int r = 0; r < rows; r++)
@@ -55,10 +55,10 @@ static void check_type(const char *name, int n_in, int n_params,
 static void test_derivatives(void) {
   const double y6[6] = {0.3, -0.7, 1.1, -0.2, 0.5, 0.4};
   const double L[1] = {1.3};
-  check_type("distance", 6, 1, L, y6);             /* two particles, 3-D */
-  check_type("distance", 4, 1, L, y6);             /* two particles, 2-D */
+  check_type("distance", 6, 1, L, y6); /* two particles, 3-D */
+  check_type("distance", 4, 1, L, y6); /* two particles, 2-D */
   const double La[4] = {0.8, 0.1, -0.2, 0.3};
-  check_type("distance", 3, 4, La, y6);            /* anchor, 3-D */
+  check_type("distance", 3, 4, La, y6); /* anchor, 3-D */
   const double fx[2] = {0.5, -1.0};
   check_type("fixed", 2, 2, fx, y6);
   const double pl[4] = {1.0, 2.0, -2.0, 0.5};
@@ -157,8 +157,8 @@ static int my_check(int n_in, int n_params, const double *par, char *msg,
   (void)par, (void)msg, (void)len;
   return n_in == 1 && n_params == 0 ? 1 : -2;
 }
-static void my_eval(int n_in, int n_params, const double *par,
-                    const double *y, double *g, double *G, double *H) {
+static void my_eval(int n_in, int n_params, const double *par, const double *y,
+                    double *g, double *G, double *H) {
   (void)n_in, (void)n_params, (void)par;
   g[0] = y[0] * y[0] - 1.0;
   G[0] = 2.0 * y[0];
@@ -167,9 +167,10 @@ static void my_eval(int n_in, int n_params, const double *par,
 }
 
 static void test_registry(void) {
-  static const mrvi_constraint_type mine = {
-      .name = "unit_square", .summary = "q^2 = 1", .check = my_check,
-      .eval = my_eval};
+  static const mrvi_constraint_type mine = {.name = "unit_square",
+                                            .summary = "q^2 = 1",
+                                            .check = my_check,
+                                            .eval = my_eval};
   CHECK(mrvi_constraint_type_register(&mine) == 0, "user type registered");
   CHECK(mrvi_constraint_type_register(&mine) < 0, "duplicate name rejected");
   CHECK(mrvi_constraint_type_find("unit_square") == &mine, "found by name");

@@ -36,8 +36,8 @@ static void cp_constraints(const double *q, double L, double *c,
   }
 }
 
-static void cp_residual(const double *q0, const double *p0, double h,
-                        double L, const double *u, double *F) {
+static void cp_residual(const double *q0, const double *p0, double h, double L,
+                        const double *u, double *F) {
   const double *q1 = u, *lam = u + 6;
   double c[2], C0[2][6], C1[2][6];
   cp_constraints(q0, L, c, C0);
@@ -95,8 +95,7 @@ static void test_cart_pendulum_midpoint(void) {
     s.project_momenta = proj;
     mrvi_integrator *it = NULL;
     char msg[512];
-    CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0, "%s",
-          msg);
+    CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0, "%s", msg);
     if (!it)
       break;
     double q[6], p[6], lam[2] = {0, 0};
@@ -170,7 +169,8 @@ static int run(const mrvi_model *m, const mrvi_settings *s, run_data *d) {
                 sizeof(double));
   mrvi_summary sum;
   int st = mrvi_run(m, s, collect, d, NULL, &sum);
-  CHECK(st == 0, "%s: run %s", mrvi_model_name(m), st ? sum.message : "completed");
+  CHECK(st == 0, "%s: run %s", mrvi_model_name(m),
+        st ? sum.message : "completed");
   return st;
 }
 
@@ -249,8 +249,8 @@ static void test_conservation(void) {
     CHECK(d.dP[0] <= 10 * tol && d.dP[1] <= 10 * tol,
           "%s: horizontal momentum drift (%.2e, %.2e) over %ld steps", form,
           d.dP[0], d.dP[1], d.n - 1);
-    CHECK(d.dL[2] <= 10 * tol, "%s: angular momentum about e3 drift %.2e",
-          form, d.dL[2]);
+    CHECK(d.dL[2] <= 10 * tol, "%s: angular momentum about e3 drift %.2e", form,
+          d.dL[2]);
     CHECK(d.hidden <= s.constraint_tol,
           "%s: hidden constraint |G M^-1 p| = %.2e with projection", form,
           d.hidden);
@@ -309,7 +309,7 @@ static void test_micro_projection(void) {
     for (int mm = 1; mm < 5; mm++) {
       for (int a = 0; a < 3; a++) {
         q[a] = q0[a] + (q1[a] - q0[a]) * mm / 5.0; /* cart interpolated */
-        p[a] = 5.0 * (q1[a] - q0[a]) / 0.02;      /* M_s v_s */
+        p[a] = 5.0 * (q1[a] - q0[a]) / 0.02;       /* M_s v_s */
         q[3 + a] = mq[(mm - 1) * 3 + a];
         p[3 + a] = mp[(mm - 1) * 3 + a];
       }
@@ -330,8 +330,8 @@ static void test_multiplier_consistency(void) {
   const int ps[3] = {1, 5, 10};
   double lam[3][2];
   for (int a = 0; a < 3; a++) {
-    mrvi_settings s = test_settings("midpoint-midpoint", 0.0025, ps[a], 0.5,
-                                    1e-11);
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", 0.0025, ps[a], 0.5, 1e-11);
     mrvi_integrator *it = NULL;
     char msg[512];
     if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) != 0) {
@@ -353,8 +353,7 @@ static void test_multiplier_consistency(void) {
   }
   /* The plane carries the weight of cart and bob, (5 + 0.5) 9.81, up to
    * the bob's vertical acceleration. */
-  CHECK(fabs(lam[0][0] + 5.5 * 9.81) < 3.0, "plane multiplier %.4f",
-        lam[0][0]);
+  CHECK(fabs(lam[0][0] + 5.5 * 9.81) < 3.0, "plane multiplier %.4f", lam[0][0]);
   mrvi_model_free(m);
 }
 
@@ -373,8 +372,8 @@ static void test_convergence_order(void) {
   const double steps[4] = {0.04, 0.02, 0.01, 0.005};
   double lx[4], ly[4];
   for (int i = 0; i < 4; i++) {
-    mrvi_settings s = test_settings("midpoint-midpoint", steps[i], 5, 0.4,
-                                    1e-12);
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", steps[i], 5, 0.4, 1e-12);
     s.constraint_tol = 1e-13;
     mrvi_trajectory *tr = NULL;
     mrvi_errors e;
