@@ -3,6 +3,7 @@
 
 #include <float.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -199,6 +200,60 @@ static int project(mrvi_integrator *it) {
   return MRVI_OK;
 }
 
+/* Micro-node constraints must be independent through their fast
+ * coordinates when p > 1.  A combination of them free of fast coordinates
+ * is a constraint on the slow coordinates alone, enforced at every micro
+ * node on their linear interpolation: p conditions on one unknown node
+ * q_{k+1}^s, which no step can meet (the Newton matrix is singular). */
+static int check_micro_constraints(mrvi_integrator *it) {
+  const mrvi_model *m = it->model;
+  const mrvi_step *st = &it->step;
+  if (st->p == 1 || st->r_micro == 0)
+    return MRVI_OK;
+  const int nf = st->nf, r = st->r_micro;
+  if (r > nf || nf > MRVI_DENSE_MAX)
+    return r > nf ? MRVI_ESINGULAR : MRVI_OK;
+  double *A = it->pGf, *Q = malloc((size_t)nf * (size_t)nf * sizeof *Q);
+  if (!Q)
+    return MRVI_ENOMEM;
+  /* G_f(q0)^T, nf x r */
+  memset(A, 0, (size_t)r * (size_t)nf * sizeof *A);
+  double y[MRVI_MAX_INPUTS];
+  for (int i = 0; i < st->n_micro_c; i++) {
+    const mrvi_constraint *k = &m->constraints[st->micro_c[i]];
+    for (int j = 0; j < k->n_in; j++)
+      y[j] = m->q0[k->in[j]];
+    mrvi_constraint_eval_at(k, y, it->cg, it->cGd, NULL);
+    for (int q = 0; q < k->rows; q++)
+      for (int j = 0; j < k->n_in; j++)
+        if (m->rate[k->in[j]] == MRVI_FAST)
+          A[m->slot[k->in[j]] * r + st->c_off[st->micro_c[i]] + q] +=
+              it->cGd[q * k->n_in + j];
+  }
+  const int rank_ok = mrvi_dense_qr(nf, r, A, Q) == 0;
+  free(Q);
+  return rank_ok ? MRVI_OK : MRVI_ESINGULAR;
+}
+
+/* Message for check_micro_constraints: the constraints involved. */
+static void explain_micro(const mrvi_integrator *it, char *msg, size_t len) {
+  const mrvi_model *m = it->model;
+  const mrvi_step *st = &it->step;
+  char names[300] = "";
+  size_t used = 0;
+  for (int i = 0; i < st->n_micro_c && used + 8 < sizeof names; i++)
+    used +=
+        (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                         i ? ", " : "", m->constraints[st->micro_c[i]].label);
+  mrvi_fmt(msg, len,
+           "the micro-node constraints %s are dependent through their fast "
+           "coordinates (%d equations): a combination of them constrains "
+           "slow coordinates alone, which p = %d micro nodes would enforce "
+           "on their linear interpolation within a macro step; make those "
+           "slow coordinates fast, or use micro_steps = 1",
+           names, st->r_micro, st->p);
+}
+
 int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
                            mrvi_integrator **out, char *msg, size_t len) {
   *out = NULL;
@@ -266,6 +321,14 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     }
     if (s->project_momenta && project(it) < 0)
       goto oom;
+  }
+  if (m->n_constraints > 0 && (st = check_micro_constraints(it)) < 0) {
+    if (st == MRVI_ESINGULAR)
+      explain_micro(it, msg, len);
+    else
+      mrvi_fmt(msg, len, "out of memory");
+    mrvi_integrator_free(it);
+    return st;
   }
   split_state(it);
   it->step.qs0 = it->qs;

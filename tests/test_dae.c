@@ -420,7 +420,61 @@ static void test_redundant(void) {
   mrvi_model_free(m);
 }
 
+/* Two micro-node constraints whose fast parts are dependent (qf = qs1 and
+ * qf = qs2): the full gradients are independent, so the multiplier form
+ * integrates it, while the null-space form, which eliminates the
+ * multipliers through the fast rows, refuses it with a message. */
+static void test_null_space_limit(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_add_coordinate(m, "qs1", 1.0, MRVI_SLOW, 0.5, 0.1);
+  mrvi_model_add_coordinate(m, "qs2", 2.0, MRVI_SLOW, 0.5, -0.2);
+  mrvi_model_add_coordinate(m, "qf", 0.1, MRVI_FAST, 0.5, 0.0);
+  const double k[1] = {4.0};
+  const double one = 1.0;
+  for (int i = 0; i < 2; i++)
+    mrvi_model_add_term(m, MRVI_SLOW, 1, &i, &one, 0.0, "linear", k);
+  const int c1[2] = {2, 0}, c2[2] = {2, 1};
+  const double a[2] = {1.0, -1.0};
+  mrvi_model_add_linear_constraint(m, 2, c1, a, 0.0);
+  mrvi_model_add_linear_constraint(m, 2, c2, a, 0.0);
+  mrvi_model_project_velocities(m, NULL);
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.05, 1, 2.0, 1e-11);
+  run_data d;
+  if (run(m, &s, &d) == 0) {
+    CHECK(d.cres <= s.constraint_tol, "multiplier form: residual %.2e", d.cres);
+    /* All three move together: qs1 = qs2 = qf, one oscillator of mass 3.1
+     * and stiffness 8; energy conserved up to the midpoint error. */
+    CHECK(fabs(d.q[d.n * 3 - 3] - d.q[d.n * 3 - 1]) <= 1e-10,
+          "qs1 = qf at the end (%g, %g)", d.q[d.n * 3 - 3], d.q[d.n * 3 - 1]);
+    free(d.q);
+  }
+  s.constraint_form = MRVI_FORM_NULL_SPACE;
+  mrvi_integrator *it = NULL;
+  char msg[512] = "";
+  int st = mrvi_integrator_create(m, &s, &it, msg, sizeof msg);
+  CHECK(st < 0 && strstr(msg, "null-space form") &&
+            strstr(msg, "use form: multipliers"),
+        "null-space form refuses dependent fast parts (%d): %s", st, msg);
+  mrvi_integrator_free(it);
+  /* p > 1: qs1 = qs2 would be enforced at every micro node on their
+   * interpolation, p conditions on one node: refused by both forms. */
+  s.micro_steps = 4;
+  for (int f = 0; f < 2; f++) {
+    s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    it = NULL;
+    st = mrvi_integrator_create(m, &s, &it, msg, sizeof msg);
+    CHECK(st == MRVI_ESINGULAR && strstr(msg, "linear on qf, ...") &&
+              strstr(msg, "dependent through their fast coordinates"),
+          "p = 4: micro-node constraints over-constrain the slow motion "
+          "(%d): %s",
+          st, msg);
+    mrvi_integrator_free(it);
+  }
+  mrvi_model_free(m);
+}
+
 int main(void) {
+  test_null_space_limit();
   test_conservation();
   test_projection_is_output_only();
   test_micro_projection();
