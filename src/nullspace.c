@@ -279,13 +279,15 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
                MAXD);
   }
   if (z->r > z->nfc || z->rs > z->nsc) {
+    const int st = err(msg, len, MRVI_ESINGULAR,
+                       "null-space form: %d micro-node constraint equations "
+                       "on %d fast coordinates (or %d slow-only equations on "
+                       "%d slow coordinates) cannot be independent; use "
+                       "form: multipliers",
+                       z->r, z->nfc, z->rs, z->nsc);
     free(spos), free(ms);
     mrvi_nullspace_free(z);
-    return err(msg, len, MRVI_ESINGULAR,
-               "null-space form: %d micro-node constraint equations on %d "
-               "fast coordinates (or %d slow-only equations on %d slow "
-               "coordinates) cannot be independent; use form: multipliers",
-               z->r, z->nfc, z->rs, z->nsc);
+    return st;
   }
   /* Slow basis: unit vectors of the slots outside sc, then the columns of
    * the slow-only block's null space. */
