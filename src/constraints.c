@@ -52,28 +52,6 @@ int mrvi_constraint_type_register(const mrvi_constraint_type *t) {
   return MRVI_OK;
 }
 
-static int fail(mrvi_model *m, int status, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-
-static int fail(mrvi_model *m, int status, const char *fmt, ...) {
-  va_list ap;
-  va_start(ap, fmt);
-  mrvi_vfmt(m->errmsg, sizeof m->errmsg, fmt, ap);
-  va_end(ap);
-  return status;
-}
-
-static int report(char *msg, size_t len, int status, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-
-static int report(char *msg, size_t len, int status, const char *fmt, ...) {
-  va_list ap;
-  va_start(ap, fmt);
-  mrvi_vfmt(msg, len, fmt, ap);
-  va_end(ap);
-  return status;
-}
-
 void mrvi_model_free_constraints(mrvi_model *m) {
   for (int c = 0; c < m->n_constraints; c++) {
     free(m->constraints[c].label);
@@ -100,33 +78,38 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
     for (int i = 0; i < n; i++)
       names[i] = mrvi_constraint_type_get(i)->name;
     const char *hint = type ? mrvi_closest(type, names, n) : NULL;
-    return fail(m, MRVI_EINVAL, "unknown constraint type '%s'%s%s%s",
-                type ? type : "(null)", hint ? " (did you mean '" : "",
-                hint ? hint : "", hint ? "'?)" : "");
+    return mrvi_model_fail(m, MRVI_EINVAL, "unknown constraint type '%s'%s%s%s",
+                           type ? type : "(null)",
+                           hint ? " (did you mean '" : "", hint ? hint : "",
+                           hint ? "'?)" : "");
   }
   if (n_in < 1 || !coords)
-    return fail(m, MRVI_EINVAL, "%s: no coordinates", t->name);
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: no coordinates", t->name);
   if (n_in > MRVI_MAX_INPUTS)
-    return fail(m, MRVI_EINVAL, "%s: at most %d coordinates per constraint",
-                t->name, MRVI_MAX_INPUTS);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: at most %d coordinates per constraint", t->name,
+                           MRVI_MAX_INPUTS);
   if (n_params < 0 || (n_params > 0 && !params))
-    return fail(m, MRVI_EINVAL, "%s: parameters missing", t->name);
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: parameters missing", t->name);
   for (int j = 0; j < n_in; j++) {
     if (coords[j] < 0 || coords[j] >= m->n)
-      return fail(m, MRVI_EINVAL, "%s: coordinate index %d out of range",
-                  t->name, coords[j]);
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "%s: coordinate index %d out of range", t->name,
+                             coords[j]);
     for (int i = 0; i < j; i++)
       if (coords[i] == coords[j])
-        return fail(m, MRVI_EINVAL, "%s: coordinate '%s' appears twice",
-                    t->name, m->names[coords[j]]);
+        return mrvi_model_fail(m, MRVI_EINVAL,
+                               "%s: coordinate '%s' appears twice", t->name,
+                               m->names[coords[j]]);
   }
   char msg[400];
   const int rows = t->check(n_in, n_params, params, msg, sizeof msg);
   if (rows < 0)
-    return fail(m, rows, "%s", msg);
+    return mrvi_model_fail(m, rows, "%s", msg);
   if (rows < 1 || rows > n_in)
-    return fail(m, MRVI_EINVAL, "%s: check returned %d rows for %d inputs",
-                t->name, rows, n_in);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: check returned %d rows for %d inputs", t->name,
+                           rows, n_in);
   mrvi_constraint c = {.type = t,
                        .n_in = n_in,
                        .n_params = n_params,
@@ -147,7 +130,7 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
     mrvi_constraint *p =
         realloc(m->constraints, (size_t)cap * sizeof *m->constraints);
     if (!p)
-      return fail(m, MRVI_ENOMEM, "out of memory");
+      return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
     m->constraints = p;
     m->cap_constraints = cap;
   }
@@ -158,7 +141,7 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
     free(c.label);
     free(c.in);
     free(c.params);
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   memcpy(c.in, coords, (size_t)n_in * sizeof *c.in);
   if (n_params > 0)
@@ -173,7 +156,8 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
 /* Coordinates of particle i (dimension entries) into in; -1 if invalid. */
 static int particle_coords(mrvi_model *m, const char *what, int i, int *in) {
   if (i < 0 || i >= m->n_particles)
-    return fail(m, MRVI_EINVAL, "%s: particle index %d out of range", what, i);
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: particle index %d out of range",
+                           what, i);
   for (int a = 0; a < m->dimension; a++)
     in[a] = m->particles[i].first + a;
   return MRVI_OK;
@@ -188,8 +172,9 @@ int mrvi_model_add_distance(mrvi_model *m, int particle_i, int particle_j,
       (st = particle_coords(m, "distance", particle_j, in + d)) < 0)
     return st;
   if (particle_i == particle_j)
-    return fail(m, MRVI_EINVAL, "distance: both ends are particle '%s'",
-                m->particles[particle_i].name);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "distance: both ends are particle '%s'",
+                           m->particles[particle_i].name);
   if (isnan(length)) {
     double rr = 0.0;
     for (int a = 0; a < d; a++)
@@ -197,10 +182,11 @@ int mrvi_model_add_distance(mrvi_model *m, int particle_i, int particle_j,
           (m->q0[in[a]] - m->q0[in[d + a]]) * (m->q0[in[a]] - m->q0[in[d + a]]);
     length = sqrt(rr);
     if (!(length > 0.0))
-      return fail(m, MRVI_EINVAL,
-                  "distance %s-%s: the particles start at the same point, so "
-                  "the length must be given",
-                  m->particles[particle_i].name, m->particles[particle_j].name);
+      return mrvi_model_fail(
+          m, MRVI_EINVAL,
+          "distance %s-%s: the particles start at the same point, so "
+          "the length must be given",
+          m->particles[particle_i].name, m->particles[particle_j].name);
   }
   char label[300];
   mrvi_fmt(label, sizeof label, "distance %s-%s", m->particles[particle_i].name,
@@ -216,7 +202,7 @@ int mrvi_model_add_distance_anchor(mrvi_model *m, int particle_i,
   if (st < 0)
     return st;
   if (!anchor)
-    return fail(m, MRVI_EINVAL, "distance: anchor is NULL");
+    return mrvi_model_fail(m, MRVI_EINVAL, "distance: anchor is NULL");
   double par[4];
   double rr = 0.0;
   for (int a = 0; a < d; a++) {
@@ -226,10 +212,11 @@ int mrvi_model_add_distance_anchor(mrvi_model *m, int particle_i,
   if (isnan(length)) {
     length = sqrt(rr);
     if (!(length > 0.0))
-      return fail(m, MRVI_EINVAL,
-                  "distance %s-anchor: the particle starts at the anchor, so "
-                  "the length must be given",
-                  m->particles[particle_i].name);
+      return mrvi_model_fail(
+          m, MRVI_EINVAL,
+          "distance %s-anchor: the particle starts at the anchor, so "
+          "the length must be given",
+          m->particles[particle_i].name);
   }
   par[0] = length;
   char label[300];
@@ -257,8 +244,8 @@ int mrvi_model_add_fixed(mrvi_model *m, int particle_i, const int *axes,
       n++;
     }
   if (n == 0)
-    return fail(m, MRVI_EINVAL, "fixed %s: no axis selected",
-                m->particles[particle_i].name);
+    return mrvi_model_fail(m, MRVI_EINVAL, "fixed %s: no axis selected",
+                           m->particles[particle_i].name);
   char label[300];
   mrvi_fmt(label, sizeof label, "fixed %s%s%s", m->particles[particle_i].name,
            n < d ? "." : "", n < d ? which : "");
@@ -273,7 +260,7 @@ int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
   if (st < 0)
     return st;
   if (!normal)
-    return fail(m, MRVI_EINVAL, "plane: normal is NULL");
+    return mrvi_model_fail(m, MRVI_EINVAL, "plane: normal is NULL");
   double par[4];
   double s = 0.0;
   for (int a = 0; a < d; a++) {
@@ -290,14 +277,16 @@ int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
                                      const int *coords, const double *coef,
                                      double rhs) {
   if (n_terms < 1 || n_terms > MRVI_MAX_INPUTS || !coords || !coef)
-    return fail(m, MRVI_EINVAL, "linear: 1 to %d coordinates required",
-                MRVI_MAX_INPUTS);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "linear: 1 to %d coordinates required",
+                           MRVI_MAX_INPUTS);
   double par[MRVI_MAX_INPUTS + 1];
   double s = 0.0;
   for (int j = 0; j < n_terms; j++) {
     if (coords[j] < 0 || coords[j] >= m->n)
-      return fail(m, MRVI_EINVAL, "linear: coordinate index %d out of range",
-                  coords[j]);
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "linear: coordinate index %d out of range",
+                             coords[j]);
     par[j] = coef[j];
     s += coef[j] * m->q0[coords[j]];
   }
@@ -311,10 +300,11 @@ int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
 
 int mrvi_model_set_constraint_label(mrvi_model *m, int c, const char *label) {
   if (c < 0 || c >= m->n_constraints || !label)
-    return fail(m, MRVI_EINVAL, "constraint index %d out of range", c);
+    return mrvi_model_fail(m, MRVI_EINVAL, "constraint index %d out of range",
+                           c);
   char *copy = strdup(label);
   if (!copy)
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   free(m->constraints[c].label);
   m->constraints[c].label = copy;
   return MRVI_OK;
@@ -416,10 +406,11 @@ int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst) {
   if (worst)
     *worst = w;
   if (w >= 0 && !(wv <= tol))
-    return fail(m, MRVI_EMODEL,
-                "initial positions violate constraint '%s': |g| = %.3e "
-                "exceeds the tolerance %.3e",
-                m->constraints[w].label, wv, tol);
+    return mrvi_model_fail(
+        m, MRVI_EMODEL,
+        "initial positions violate constraint '%s': |g| = %.3e "
+        "exceeds the tolerance %.3e",
+        m->constraints[w].label, wv, tol);
   return MRVI_OK;
 }
 
@@ -441,10 +432,11 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
   if (R == 0)
     return MRVI_OK;
   if (R > n)
-    return report(msg, len, MRVI_ESINGULAR,
-                  "%d constraint equations on %d coordinates: the constraints "
-                  "are redundant",
-                  R, n);
+    return mrvi_fail(
+        msg, len, MRVI_ESINGULAR,
+        "%d constraint equations on %d coordinates: the constraints "
+        "are redundant",
+        R, n);
   double *g = malloc((size_t)R * sizeof *g);
   double *G = malloc((size_t)R * (size_t)n * sizeof *G);
   /* Orthonormal basis E (rank x n) of the rows seen so far, in the metric
@@ -455,7 +447,7 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
   double *t = malloc((size_t)R * sizeof *t);
   if (!g || !G || !E || !T || !v || !t) {
     free(g), free(G), free(E), free(T), free(v), free(t);
-    return report(msg, len, MRVI_ENOMEM, "out of memory");
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
   mrvi_model_constraint_eval(m, q, g, G);
   int rank = 0, status = MRVI_OK;
@@ -509,12 +501,13 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
                                    count ? ", " : "", m->constraints[c].label);
         count++;
       }
-      status = report(msg, len, MRVI_ESINGULAR,
-                      count > 1 ? "redundant constraints: the gradients of %s "
-                                  "are linearly dependent; remove one of them"
-                                : "constraint %s has a zero gradient (it is "
-                                  "redundant or degenerate here)",
-                      names);
+      status =
+          mrvi_fail(msg, len, MRVI_ESINGULAR,
+                    count > 1 ? "redundant constraints: the gradients of %s "
+                                "are linearly dependent; remove one of them"
+                              : "constraint %s has a zero gradient (it is "
+                                "redundant or degenerate here)",
+                    names);
       break;
     }
     for (int j = 0; j < n; j++)
@@ -542,7 +535,7 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
   double *mu = malloc((size_t)R * sizeof *mu);
   if (!g || !G || !A || !mu) {
     free(g), free(G), free(A), free(mu);
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   mrvi_model_constraint_eval(m, m->q0, g, G);
   /* (G M^-1 G^T) mu = G v0;  v0 <- v0 - M^-1 G^T mu */
@@ -559,7 +552,8 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
     }
   }
   if (mrvi_dense_solve(R, A, mu) < 0)
-    st = fail(m, MRVI_ESINGULAR, "constraint gradients are dependent");
+    st = mrvi_model_fail(m, MRVI_ESINGULAR,
+                         "constraint gradients are dependent");
   else {
     double worst = 0.0;
     for (int j = 0; j < n; j++) {

@@ -10,6 +10,9 @@
 void mrvi_fmt(char *buf, size_t len, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 void mrvi_vfmt(char *buf, size_t len, const char *fmt, va_list ap);
+/* Write a message into msg and return status (for `return mrvi_fail(...)`). */
+int mrvi_fail(char *msg, size_t len, int status, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
 
 /* The candidate (of n) closest to `word` by edit distance if it is close
  * enough to be a likely typo, else NULL; ties go to the longer common
@@ -90,6 +93,9 @@ struct mrvi_model {
 double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
                          const double *y, double *grad, double *hess);
 
+/* Keep a message on m (mrvi_model_errmsg) and return status (model.c). */
+int mrvi_model_fail(mrvi_model *m, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 /* Release the constraint instances of m (constraints.c). */
 void mrvi_model_free_constraints(mrvi_model *m);
 /* Evaluate constraint c at its inputs y: g (rows), G (rows x n_in), H

@@ -6,10 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-static int fail(mrvi_model *m, int status, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-
-static int fail(mrvi_model *m, int status, const char *fmt, ...) {
+int mrvi_model_fail(mrvi_model *m, int status, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
   mrvi_vfmt(m->errmsg, sizeof m->errmsg, fmt, ap);
@@ -76,10 +73,10 @@ const char *mrvi_model_errmsg(const mrvi_model *m) {
 
 int mrvi_model_set_name(mrvi_model *m, const char *name) {
   if (!name)
-    return fail(m, MRVI_EINVAL, "model name is NULL");
+    return mrvi_model_fail(m, MRVI_EINVAL, "model name is NULL");
   char *d = strdup(name);
   if (!d)
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   free(m->name);
   m->name = d;
   return MRVI_OK;
@@ -87,11 +84,11 @@ int mrvi_model_set_name(mrvi_model *m, const char *name) {
 
 int mrvi_model_set_dimension(mrvi_model *m, int dimension) {
   if (dimension < 1 || dimension > 3)
-    return fail(m, MRVI_EINVAL, "dimension must be 1, 2 or 3 (got %d)",
-                dimension);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "dimension must be 1, 2 or 3 (got %d)", dimension);
   if (m->n_particles > 0 && dimension != m->dimension)
-    return fail(m, MRVI_EINVAL,
-                "dimension cannot change after particles were added");
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "dimension cannot change after particles were added");
   m->dimension = dimension;
   return MRVI_OK;
 }
@@ -158,21 +155,24 @@ static int reserve_coordinates(mrvi_model *m, int need) {
 static int add_coord(mrvi_model *m, const char *name, double mass,
                      mrvi_rate rate, double q0, double v0) {
   if (!name || !*name)
-    return fail(m, MRVI_EINVAL, "coordinate name is empty");
+    return mrvi_model_fail(m, MRVI_EINVAL, "coordinate name is empty");
   if (!isfinite(mass) || mass <= 0)
-    return fail(m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name,
-                mass);
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name, mass);
   if (!isfinite(q0) || !isfinite(v0))
-    return fail(m, MRVI_EINVAL, "initial data of '%s' must be finite", name);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "initial data of '%s' must be finite", name);
   if (rate != MRVI_SLOW && rate != MRVI_FAST)
-    return fail(m, MRVI_EINVAL, "rate of '%s' must be slow or fast", name);
+    return mrvi_model_fail(m, MRVI_EINVAL, "rate of '%s' must be slow or fast",
+                           name);
   if (find_coordinate(m, name) >= 0)
-    return fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'", name);
+    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
+                           name);
   if (reserve_coordinates(m, m->n + 1))
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   char *d = strdup(name);
   if (!d)
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   m->names[m->n] = d;
   m->mass[m->n] = mass;
   m->q0[m->n] = q0;
@@ -180,7 +180,7 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   m->rate[m->n] = rate;
   m->n++;
   if (update_partition(m))
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   return m->n - 1;
 }
 
@@ -194,25 +194,28 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
                             const double *v0) {
   static const char axis[3] = {'x', 'y', 'z'};
   if (m->dimension < 1)
-    return fail(m, MRVI_EINVAL, "set the dimension before adding particles");
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "set the dimension before adding particles");
   if (!name || !*name || strchr(name, '.'))
-    return fail(m, MRVI_EINVAL, "particle name '%s' is empty or contains '.'",
-                name ? name : "");
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "particle name '%s' is empty or contains '.'",
+                           name ? name : "");
   if (!x0 || !v0)
-    return fail(m, MRVI_EINVAL, "particle '%s' needs position and velocity",
-                name);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "particle '%s' needs position and velocity", name);
   for (int i = 0; i < m->n_particles; i++)
     if (strcmp(m->particles[i].name, name) == 0)
-      return fail(m, MRVI_EINVAL, "duplicate particle name '%s'", name);
+      return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
+                             name);
   if (!isfinite(mass) || mass <= 0)
-    return fail(m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name,
-                mass);
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name, mass);
   if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
            sizeof *m->particles))
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   char *pname = strdup(name);
   if (!pname)
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int first = m->n;
   for (int d = 0; d < m->dimension; d++) {
     char buf[256];
@@ -233,7 +236,8 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   if (e->potential != MRVI_SLOW && e->potential != MRVI_FAST) {
     free(e->in);
     free(e->coef);
-    return fail(m, MRVI_EINVAL, "%s: potential must be slow or fast", what);
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: potential must be slow or fast",
+                           what);
   }
   if (e->potential == MRVI_FAST)
     for (int j = 0; j < e->n_in; j++)
@@ -241,16 +245,17 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
         int c = e->in[j];
         free(e->in);
         free(e->coef);
-        return fail(m, MRVI_EMODEL,
-                    "fast %s touches slow coordinate '%s': the fast potential "
-                    "W may depend on fast coordinates only",
-                    what, m->names[c]);
+        return mrvi_model_fail(
+            m, MRVI_EMODEL,
+            "fast %s touches slow coordinate '%s': the fast potential "
+            "W may depend on fast coordinates only",
+            what, m->names[c]);
       }
   if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
            sizeof *m->elements)) {
     free(e->in);
     free(e->coef);
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   if (e->kind != MRVI_ELEMENT_GRAVITY && e->n_in > m->max_in)
     m->max_in = e->n_in;
@@ -263,16 +268,17 @@ static int set_law(mrvi_model *m, mrvi_element *e, const char *law,
                    const double *params, const char *what) {
   e->law = mrvi_law_find(law);
   if (!e->law)
-    return fail(m, MRVI_EINVAL, "%s: unknown law '%s'", what,
-                law ? law : "(null)");
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: unknown law '%s'", what,
+                           law ? law : "(null)");
   if (e->law->n_params > 0 && !params)
-    return fail(m, MRVI_EINVAL, "%s: law '%s' needs parameters", what, law);
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: law '%s' needs parameters",
+                           what, law);
   for (int i = 0; i < e->law->n_params; i++)
     e->params[i] = params[i];
   if (e->law->check) {
     char msg[256] = "";
     if (e->law->check(e->params, msg, sizeof msg) < 0)
-      return fail(m, MRVI_EINVAL, "%s: %s", what, msg);
+      return mrvi_model_fail(m, MRVI_EINVAL, "%s: %s", what, msg);
   }
   return MRVI_OK;
 }
@@ -283,7 +289,7 @@ static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
   e->n_in = np * d;
   e->in = malloc((size_t)e->n_in * sizeof *e->in);
   if (!e->in)
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   for (int a = 0; a < np; a++)
     for (int k = 0; k < d; k++)
       e->in[a * d + k] = m->particles[parts[a]].first + k;
@@ -291,16 +297,19 @@ static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
 }
 
 int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
-                          int particle_j, const char *law,
-                          const double *params, double rest_length) {
+                          int particle_j, const char *law, const double *params,
+                          double rest_length) {
   if (particle_i < 0 || particle_i >= m->n_particles || particle_j < 0 ||
       particle_j >= m->n_particles)
-    return fail(m, MRVI_EINVAL, "spring: particle index out of range");
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "spring: particle index out of range");
   if (particle_i == particle_j)
-    return fail(m, MRVI_EINVAL, "spring: both ends are particle '%s'",
-                m->particles[particle_i].name);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "spring: both ends are particle '%s'",
+                           m->particles[particle_i].name);
   if (!isfinite(rest_length))
-    return fail(m, MRVI_EINVAL, "spring: rest length must be finite");
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "spring: rest length must be finite");
   char what[300];
   mrvi_fmt(what, sizeof what, "spring %s-%s", m->particles[particle_i].name,
            m->particles[particle_j].name);
@@ -323,11 +332,13 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
                                  const char *law, const double *params,
                                  double rest_length) {
   if (particle_i < 0 || particle_i >= m->n_particles)
-    return fail(m, MRVI_EINVAL, "spring: particle index out of range");
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "spring: particle index out of range");
   if (!anchor)
-    return fail(m, MRVI_EINVAL, "spring: anchor is NULL");
+    return mrvi_model_fail(m, MRVI_EINVAL, "spring: anchor is NULL");
   if (!isfinite(rest_length))
-    return fail(m, MRVI_EINVAL, "spring: rest length must be finite");
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "spring: rest length must be finite");
   char what[300];
   mrvi_fmt(what, sizeof what, "spring %s-anchor",
            m->particles[particle_i].name);
@@ -338,7 +349,7 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
                     .particle_j = -1};
   for (int k = 0; k < m->dimension; k++) {
     if (!isfinite(anchor[k]))
-      return fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
+      return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
     e.anchor[k] = anchor[k];
   }
   int st = set_law(m, &e, law, params, what);
@@ -353,23 +364,26 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
                         const int *coords, const double *coef, double offset,
                         const char *law, const double *params) {
   if (n_terms < 1 || !coords || !coef)
-    return fail(m, MRVI_EINVAL, "term: empty combination");
+    return mrvi_model_fail(m, MRVI_EINVAL, "term: empty combination");
   if (n_terms > MRVI_MAX_INPUTS)
-    return fail(m, MRVI_EINVAL, "term: at most %d coordinates per term",
-                MRVI_MAX_INPUTS);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "term: at most %d coordinates per term",
+                           MRVI_MAX_INPUTS);
   if (!isfinite(offset))
-    return fail(m, MRVI_EINVAL, "term: offset must be finite");
+    return mrvi_model_fail(m, MRVI_EINVAL, "term: offset must be finite");
   for (int j = 0; j < n_terms; j++) {
     if (coords[j] < 0 || coords[j] >= m->n)
-      return fail(m, MRVI_EINVAL, "term: coordinate index %d out of range",
-                  coords[j]);
+      return mrvi_model_fail(
+          m, MRVI_EINVAL, "term: coordinate index %d out of range", coords[j]);
     if (!isfinite(coef[j]))
-      return fail(m, MRVI_EINVAL, "term: coefficient of '%s' must be finite",
-                  m->names[coords[j]]);
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "term: coefficient of '%s' must be finite",
+                             m->names[coords[j]]);
     for (int i = 0; i < j; i++)
       if (coords[i] == coords[j])
-        return fail(m, MRVI_EINVAL, "term: coordinate '%s' appears twice",
-                    m->names[coords[j]]);
+        return mrvi_model_fail(m, MRVI_EINVAL,
+                               "term: coordinate '%s' appears twice",
+                               m->names[coords[j]]);
   }
   char what[300];
   mrvi_fmt(what, sizeof what, "term on %s%s", m->names[coords[0]],
@@ -388,7 +402,7 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
   if (!e.in || !e.coef) {
     free(e.in);
     free(e.coef);
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   memcpy(e.in, coords, (size_t)n_terms * sizeof *e.in);
   memcpy(e.coef, coef, (size_t)n_terms * sizeof *e.coef);
@@ -397,15 +411,15 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
 
 int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
   if (!g)
-    return fail(m, MRVI_EINVAL, "gravity is NULL");
+    return mrvi_model_fail(m, MRVI_EINVAL, "gravity is NULL");
   if (m->n_particles == 0 || m->dimension < 1)
-    return fail(m, MRVI_EINVAL, "gravity needs particles");
+    return mrvi_model_fail(m, MRVI_EINVAL, "gravity needs particles");
   for (int k = 0; k < m->dimension; k++)
     if (!isfinite(g[k]))
-      return fail(m, MRVI_EINVAL, "gravity must be finite");
+      return mrvi_model_fail(m, MRVI_EINVAL, "gravity must be finite");
   for (int e = 0; e < m->n_elements; e++)
     if (m->elements[e].kind == MRVI_ELEMENT_GRAVITY)
-      return fail(m, MRVI_EINVAL, "gravity is already set");
+      return mrvi_model_fail(m, MRVI_EINVAL, "gravity is already set");
   const int d = m->dimension;
   mrvi_element e = {.kind = MRVI_ELEMENT_GRAVITY,
                     .potential = MRVI_SLOW,
@@ -417,7 +431,7 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
   if (!e.in || !e.coef) {
     free(e.in);
     free(e.coef);
-    return fail(m, MRVI_ENOMEM, "out of memory");
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   /* -sum_i m_i g^T x_i */
   for (int i = 0; i < m->n_particles; i++)
@@ -462,17 +476,17 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     size_t used = 0;
     used += (size_t)snprintf(law, sizeof law, "%s(", e->law->name);
     for (int i = 0; i < e->law->n_params && used < sizeof law; i++)
-      used += (size_t)snprintf(law + used, sizeof law - used, "%s%s=%g",
-                               i ? ", " : "", e->law->param_names[i],
-                               e->params[i]);
+      used +=
+          (size_t)snprintf(law + used, sizeof law - used, "%s%s=%g",
+                           i ? ", " : "", e->law->param_names[i], e->params[i]);
     if (used < sizeof law)
       snprintf(law + used, sizeof law - used, ")");
   }
   switch (e->kind) {
   case MRVI_ELEMENT_SPRING:
     mrvi_fmt(buf, len, "%s spring %s-%s, rest length %g, %s", rate,
-             m->particles[e->particle_i].name,
-             m->particles[e->particle_j].name, e->shift, law);
+             m->particles[e->particle_i].name, m->particles[e->particle_j].name,
+             e->shift, law);
     break;
   case MRVI_ELEMENT_ANCHOR: {
     char a[96];
@@ -638,8 +652,8 @@ void mrvi_model_energy(const mrvi_model *m, const double *q, const double *p,
     *fast = mrvi_model_potential(m, MRVI_FAST, q, NULL, NULL);
 }
 
-void mrvi_model_momentum(const mrvi_model *m, const double *q,
-                         const double *p, double *linear, double *angular) {
+void mrvi_model_momentum(const mrvi_model *m, const double *q, const double *p,
+                         double *linear, double *angular) {
   const int d = m->dimension;
   double L[3] = {0, 0, 0}, J[3] = {0, 0, 0};
   for (int i = 0; i < m->n_particles; i++) {

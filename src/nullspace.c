@@ -85,16 +85,6 @@ static inline int frow(const mrvi_nullspace *z, int m, int f) {
   return z->ns + m * z->nf + f;
 }
 
-static int err(char *msg, size_t len, int status, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-static int err(char *msg, size_t len, int status, const char *fmt, ...) {
-  va_list ap;
-  va_start(ap, fmt);
-  mrvi_vfmt(msg, len, fmt, ap);
-  va_end(ap);
-  return status;
-}
-
 /* Append source row `row` to the recipe (growing it). */
 static int rec_push(mrvi_nullspace *z, long *cap, int row) {
   if (z->n_rec == *cap) {
@@ -232,7 +222,7 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
   *out = NULL;
   mrvi_nullspace *z = calloc(1, sizeof *z);
   if (!z)
-    return err(msg, len, MRVI_ENOMEM, "out of memory");
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   z->n = st->n_unknowns;
   z->ns = st->ns;
   z->nf = st->nf;
@@ -273,18 +263,20 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
   if (z->nfc > MAXD || z->nsc > MAXD) {
     free(spos), free(ms);
     mrvi_nullspace_free(z);
-    return err(msg, len, MRVI_EMODEL,
-               "null-space form: constraints touch more than %d coordinates "
-               "of one rate; use form: multipliers",
-               MAXD);
+    return mrvi_fail(
+        msg, len, MRVI_EMODEL,
+        "null-space form: constraints touch more than %d coordinates "
+        "of one rate; use form: multipliers",
+        MAXD);
   }
   if (z->r > z->nfc || z->rs > z->nsc) {
-    const int st = err(msg, len, MRVI_ESINGULAR,
-                       "null-space form: %d micro-node constraint equations "
-                       "on %d fast coordinates (or %d slow-only equations on "
-                       "%d slow coordinates) cannot be independent; use "
-                       "form: multipliers",
-                       z->r, z->nfc, z->rs, z->nsc);
+    const int st =
+        mrvi_fail(msg, len, MRVI_ESINGULAR,
+                  "null-space form: %d micro-node constraint equations "
+                  "on %d fast coordinates (or %d slow-only equations on "
+                  "%d slow coordinates) cannot be independent; use "
+                  "form: multipliers",
+                  z->r, z->nfc, z->rs, z->nsc);
     free(spos), free(ms);
     mrvi_nullspace_free(z);
     return st;
@@ -332,7 +324,7 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
 oom:
   free(spos), free(ms);
   mrvi_nullspace_free(z);
-  return err(msg, len, MRVI_ENOMEM, "out of memory");
+  return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
 }
 
 /* QR of the transpose of the k x nc block G (row-major, k rows): Q
@@ -402,11 +394,11 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
       }
     }
     if (block_qr(z, r, nfc, Gb, Q, R) < 0)
-      return err(msg, len, MRVI_ESINGULAR,
-                 "null-space form: the fast parts of the micro-node "
-                 "constraints are dependent at micro node %d; use form: "
-                 "multipliers",
-                 mm);
+      return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                       "null-space form: the fast parts of the micro-node "
+                       "constraints are dependent at micro node %d; use form: "
+                       "multipliers",
+                       mm);
     /* dt R lambda^m = Q1^T F_m */
     double *u = lam + rs + mm * r;
     for (int a = 0; a < r; a++) {
@@ -440,8 +432,9 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
     }
   }
   if (block_qr(z, rs, z->nsc, G, z->Qs, z->Rs) < 0)
-    return err(msg, len, MRVI_ESINGULAR,
-               "null-space form: the slow-only constraints are dependent");
+    return mrvi_fail(
+        msg, len, MRVI_ESINGULAR,
+        "null-space form: the slow-only constraints are dependent");
   double *u = lam;
   for (int a = 0; a < rs; a++) {
     double s = 0.0;

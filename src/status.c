@@ -6,8 +6,8 @@
 
 const char *mrvi_strerror(int status) {
   switch (status) {
-#define MRVI_STATUS_CASE(name, code, msg)                                    \
-  case code:                                                                 \
+#define MRVI_STATUS_CASE(name, code, msg)                                      \
+  case code:                                                                   \
     return msg;
     MRVI_STATUS_LIST(MRVI_STATUS_CASE)
 #undef MRVI_STATUS_CASE
@@ -29,6 +29,14 @@ void mrvi_fmt(char *buf, size_t len, const char *fmt, ...) {
   va_start(ap, fmt);
   mrvi_vfmt(buf, len, fmt, ap);
   va_end(ap);
+}
+
+int mrvi_fail(char *msg, size_t len, int status, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(msg, len, fmt, ap);
+  va_end(ap);
+  return status;
 }
 
 double mrvi_clock(void) {
