@@ -388,14 +388,16 @@ double mrvi_model_hidden_residual(const mrvi_model *m, const double *q,
   return worst;
 }
 
-int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst) {
+int mrvi_constraints_check_positions(const mrvi_model *m, const double *q,
+                                     double tol, const char *what, int *worst,
+                                     char *msg, size_t len) {
   double y[MRVI_MAX_INPUTS], g[MRVI_MAX_INPUTS],
       Gl[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
   int w = -1;
   double wv = 0.0;
   for (int c = 0; c < m->n_constraints; c++) {
     const mrvi_constraint *k = &m->constraints[c];
-    gather_q(k, m->q0, y);
+    gather_q(k, q, y);
     mrvi_constraint_eval_at(k, y, g, Gl, NULL);
     for (int r = 0; r < k->rows; r++)
       if (!(fabs(g[r]) <= wv)) {
@@ -406,12 +408,16 @@ int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst) {
   if (worst)
     *worst = w;
   if (w >= 0 && !(wv <= tol))
-    return mrvi_model_fail(
-        m, MRVI_EMODEL,
-        "initial positions violate constraint '%s': |g| = %.3e "
-        "exceeds the tolerance %.3e",
-        m->constraints[w].label, wv, tol);
+    return mrvi_fail(msg, len, MRVI_EMODEL,
+                     "%s violate constraint '%s': |g| = %.3e exceeds the "
+                     "tolerance %.3e",
+                     what, m->constraints[w].label, wv, tol);
   return MRVI_OK;
+}
+
+int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst) {
+  return mrvi_constraints_check_positions(m, m->q0, tol, "initial positions",
+                                          worst, m->errmsg, sizeof m->errmsg);
 }
 
 /* Constraint owning row r. */

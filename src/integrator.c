@@ -144,26 +144,9 @@ static double residual_floor(const mrvi_integrator *it) {
 /* Constraints at q: g within the tolerance and independent gradients. */
 static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
                              size_t len) {
-  const mrvi_model *m = it->model;
-  double worst = 0.0;
-  int wc = -1;
-  mrvi_model_constraint_eval(m, q, it->cg, NULL);
-  for (int c = 0; c < m->n_constraints; c++)
-    for (int r = 0; r < m->constraints[c].rows; r++) {
-      const double v = fabs(it->cg[m->constraints[c].first_row + r]);
-      if (!(v <= worst)) {
-        worst = v;
-        wc = c;
-      }
-    }
-  if (wc >= 0 && !(worst <= it->settings.constraint_tol)) {
-    mrvi_fmt(msg, len,
-             "positions violate constraint '%s': |g| = %.3e exceeds the "
-             "constraint tolerance %.3e",
-             m->constraints[wc].label, worst, it->settings.constraint_tol);
-    return MRVI_EMODEL;
-  }
-  return mrvi_constraints_independent(m, q, msg, len);
+  const int st = mrvi_constraints_check_positions(
+      it->model, q, it->settings.constraint_tol, "positions", NULL, msg, len);
+  return st < 0 ? st : mrvi_constraints_independent(it->model, q, msg, len);
 }
 
 /* Momentum projection at the current macro node (DESIGN §6, RATTLE-style):

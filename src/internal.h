@@ -103,6 +103,12 @@ void mrvi_model_free_constraints(mrvi_model *m);
 void mrvi_constraint_eval_at(const mrvi_constraint *c, const double *y,
                              double *g, double *G, double *H);
 
+/* max |g(q)| within tol; otherwise MRVI_EMODEL and "<what> violate
+ * constraint '<label>': |g| = ..." in msg.  *worst (may be NULL) gets the
+ * constraint with the largest |g| (-1 without constraints). */
+int mrvi_constraints_check_positions(const mrvi_model *m, const double *q,
+                                     double tol, const char *what, int *worst,
+                                     char *msg, size_t len);
 /* Gradients of all constraints independent at q (model order); otherwise
  * MRVI_ESINGULAR and a message naming the dependent constraints. */
 int mrvi_constraints_independent(const mrvi_model *m, const double *q,
