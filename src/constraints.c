@@ -526,6 +526,31 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
   return status;
 }
 
+int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
+                             double *g, double *G, double *A, double *mu) {
+  const int R = m->constraint_rows, n = m->n;
+  mrvi_model_constraint_eval(m, q, g, G);
+  /* (G M^-1 G^T) mu = G M^-1 p (symmetric: lower triangle mirrored) */
+  for (int a = 0; a < R; a++) {
+    double s = 0.0;
+    for (int j = 0; j < n; j++)
+      s += G[(size_t)a * n + j] * p[j] / m->mass[j];
+    mu[a] = s;
+    for (int b = 0; b <= a; b++) {
+      double t = 0.0;
+      for (int j = 0; j < n; j++)
+        t += G[(size_t)a * n + j] * G[(size_t)b * n + j] / m->mass[j];
+      A[a * R + b] = A[b * R + a] = t;
+    }
+  }
+  if (mrvi_dense_solve(R, A, mu) < 0)
+    return MRVI_ESINGULAR;
+  for (int j = 0; j < n; j++)
+    for (int a = 0; a < R; a++)
+      p[j] -= G[(size_t)a * n + j] * mu[a];
+  return MRVI_OK;
+}
+
 int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
   const int R = m->constraint_rows, n = m->n;
   if (correction)
@@ -539,40 +564,27 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
   double *G = malloc((size_t)R * (size_t)n * sizeof *G);
   double *A = malloc((size_t)R * (size_t)R * sizeof *A);
   double *mu = malloc((size_t)R * sizeof *mu);
-  if (!g || !G || !A || !mu) {
-    free(g), free(G), free(A), free(mu);
+  double *p = malloc((size_t)n * sizeof *p);
+  if (!g || !G || !A || !mu || !p) {
+    free(g), free(G), free(A), free(mu), free(p);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
-  mrvi_model_constraint_eval(m, m->q0, g, G);
-  /* (G M^-1 G^T) mu = G v0;  v0 <- v0 - M^-1 G^T mu */
-  for (int a = 0; a < R; a++) {
-    double s = 0.0;
-    for (int j = 0; j < n; j++)
-      s += G[(size_t)a * n + j] * m->v0[j];
-    mu[a] = s;
-    for (int b = 0; b < R; b++) {
-      double t = 0.0;
-      for (int j = 0; j < n; j++)
-        t += G[(size_t)a * n + j] * G[(size_t)b * n + j] / m->mass[j];
-      A[a * R + b] = t;
-    }
-  }
-  if (mrvi_dense_solve(R, A, mu) < 0)
+  /* Project p0 = M v0 and read the velocities back. */
+  for (int j = 0; j < n; j++)
+    p[j] = m->mass[j] * m->v0[j];
+  if (mrvi_constraints_project(m, m->q0, p, g, G, A, mu) < 0) {
     st = mrvi_model_fail(m, MRVI_ESINGULAR,
                          "constraint gradients are dependent");
-  else {
+  } else {
     double worst = 0.0;
     for (int j = 0; j < n; j++) {
-      double s = 0.0;
-      for (int a = 0; a < R; a++)
-        s += G[(size_t)a * n + j] * mu[a];
-      const double dv = s / m->mass[j];
-      m->v0[j] -= dv;
-      worst = fmax(worst, fabs(dv));
+      const double v = p[j] / m->mass[j];
+      worst = fmax(worst, fabs(v - m->v0[j]));
+      m->v0[j] = v;
     }
     if (correction)
       *correction = worst;
   }
-  free(g), free(G), free(A), free(mu);
+  free(g), free(G), free(A), free(mu), free(p);
   return st;
 }

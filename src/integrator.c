@@ -154,32 +154,15 @@ static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
  * constraint G M^-1 p = 0 holds.  The shift lies in the range of G^T at the
  * node, so the next step's lambda absorbs it: positions are unchanged. */
 static int project(mrvi_integrator *it) {
-  const mrvi_model *m = it->model;
-  const int R = m->constraint_rows, n = m->n;
-  double *G = it->cGd, *A = it->cA, *mu = it->cmu;
-  mrvi_model_constraint_eval(m, it->q, it->cg, G);
-  for (int a = 0; a < R; a++) {
-    double s = 0.0;
-    for (int j = 0; j < n; j++)
-      s += G[(size_t)a * n + j] * it->p[j] / m->mass[j];
-    mu[a] = s;
-    for (int b = 0; b <= a; b++) {
-      double t = 0.0;
-      for (int j = 0; j < n; j++)
-        t += G[(size_t)a * n + j] * G[(size_t)b * n + j] / m->mass[j];
-      A[a * R + b] = A[b * R + a] = t;
-    }
-  }
-  if (mrvi_dense_solve(R, A, mu) < 0)
+  const int R = it->model->constraint_rows;
+  if (mrvi_constraints_project(it->model, it->q, it->p, it->cg, it->cGd, it->cA,
+                               it->cmu) < 0)
     return MRVI_ESINGULAR;
-  for (int j = 0; j < n; j++)
-    for (int a = 0; a < R; a++)
-      it->p[j] -= G[(size_t)a * n + j] * mu[a];
   /* The impulse G^T mu belongs to the node's multipliers: the next step
    * reports its multipliers (an impulse over dT) plus mu / dT, which equals
    * what it reports without projection. */
   for (int r = 0; r < R; r++)
-    it->mu_h[r] = mu[r] / it->settings.macro_step;
+    it->mu_h[r] = it->cmu[r] / it->settings.macro_step;
   return MRVI_OK;
 }
 

@@ -109,6 +109,12 @@ void mrvi_constraint_eval_at(const mrvi_constraint *c, const double *y,
 int mrvi_constraints_check_positions(const mrvi_model *m, const double *q,
                                      double tol, const char *what, int *worst,
                                      char *msg, size_t len);
+/* M-orthogonal projection of momenta p (n) at q onto G M^-1 p = 0:
+ * p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p.  Workspace g (rows),
+ * G (rows x n), A (rows x rows); mu (rows) keeps the multiplier.
+ * MRVI_ESINGULAR if the gradients are dependent. */
+int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
+                             double *g, double *G, double *A, double *mu);
 /* Gradients of all constraints independent at q (model order); otherwise
  * MRVI_ESINGULAR and a message naming the dependent constraints. */
 int mrvi_constraints_independent(const mrvi_model *m, const double *q,
