@@ -10,22 +10,15 @@ void test_check(int ok, const char *file, int line, const char *fmt, ...) {
   static int verbose = -1;
   if (verbose < 0)
     verbose = getenv("MRVI_TEST_VERBOSE") != NULL;
-  if (ok) {
+  if (ok)
     test_passed++;
-    if (verbose) {
-      va_list ap;
-      va_start(ap, fmt);
-      fprintf(stderr, "%s:%d: ok: ", file, line);
-      vfprintf(stderr, fmt, ap);
-      fputc('\n', stderr);
-      va_end(ap);
-    }
+  else
+    test_failed++;
+  if (ok && !verbose)
     return;
-  }
-  test_failed++;
   va_list ap;
   va_start(ap, fmt);
-  fprintf(stderr, "%s:%d: FAIL: ", file, line);
+  fprintf(stderr, "%s:%d: %s: ", file, line, ok ? "ok" : "FAIL");
   vfprintf(stderr, fmt, ap);
   fputc('\n', stderr);
   va_end(ap);
