@@ -270,13 +270,13 @@ void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
 
 /* Constraint force -w G(z)^T lambda of constraint c at node point pt into
  * the rows the node feeds, with its derivatives: lambda columns starting at
- * lcol, and -w c_row c_col sum_r lambda_r d2g_r on the unknown columns. */
+ * lcol, and -w c_row c_col sum_r lambda_r d2g_r on the unknown columns.
+ * The caller has evaluated g, G (and, if the node has unknown columns and
+ * jac, the second derivatives) at pt. */
 static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
-                             const double *x, const double *lam, int lcol,
-                             double *R, int jac) {
+                             const double *lam, int lcol, double *R, int jac) {
   const mrvi_constraint *k = &st->model->constraints[c];
   const int n = k->n_in, rows = k->rows;
-  mrvi_step_constraint_eval(st, c, pt, x, jac);
   for (int j = 0; j < n; j++) {
     int rj[2];
     double cj[2];
@@ -294,6 +294,8 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
         int cl[2];
         double cc[2];
         const int kc = mrvi_step_cols_of(st, k->in[l], pt, cl, cc);
+        if (kc == 0)
+          continue;
         double h = 0.0;
         for (int r = 0; r < rows; r++)
           h += lam[r] * st->cH[(r * n + j) * n + l];
@@ -305,12 +307,12 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
 }
 
 /* Constraint equations g(z) = 0 of constraint c at node point pt into rows
- * starting at row, with their derivatives G on the unknown columns. */
+ * starting at row, with their derivatives G on the unknown columns (g and G
+ * evaluated at pt by the caller). */
 static void constraint_equation(mrvi_step *st, int c, const mrvi_point *pt,
-                                const double *x, int row, double *R, int jac) {
+                                int row, double *R, int jac) {
   const mrvi_constraint *k = &st->model->constraints[c];
   const int n = k->n_in;
-  mrvi_step_constraint_eval(st, c, pt, x, 0);
   for (int r = 0; r < k->rows; r++)
     R[row + r] = st->cg[r];
   if (!jac)
@@ -337,19 +339,24 @@ static void assemble_constraints(mrvi_step *st, const double *x, double *R,
     const int c = st->slow_c[i], off = st->c_off[c];
     const mrvi_point p0 = mrvi_step_node_point(st, 0, st->dT);
     const mrvi_point p1 = mrvi_step_node_point(st, p, st->dT);
-    constraint_force(st, c, &p0, x, lam + off, nu + off, R, jac);
-    constraint_equation(st, c, &p1, x, nu + off, R, jac);
+    mrvi_step_constraint_eval(st, c, &p0, x, 0); /* no unknown at node 0 */
+    constraint_force(st, c, &p0, lam + off, nu + off, R, jac);
+    mrvi_step_constraint_eval(st, c, &p1, x, 0);
+    constraint_equation(st, c, &p1, nu + off, R, jac);
   }
   const int base = nu + st->r_slow, rm = st->r_micro;
   for (int mm = 0; mm <= p; mm++) {
     const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
     for (int i = 0; i < st->n_micro_c; i++) {
       const int c = st->micro_c[i], off = st->c_off[c];
+      /* One evaluation serves the force at nodes 0..p-1 and the equation
+       * at nodes 1..p. */
+      mrvi_step_constraint_eval(st, c, &pt, x, jac && mm > 0 && mm < p);
       if (mm < p)
-        constraint_force(st, c, &pt, x, lam + st->r_slow + mm * rm + off,
+        constraint_force(st, c, &pt, lam + st->r_slow + mm * rm + off,
                          base + mm * rm + off, R, jac);
       if (mm > 0)
-        constraint_equation(st, c, &pt, x, base + (mm - 1) * rm + off, R, jac);
+        constraint_equation(st, c, &pt, base + (mm - 1) * rm + off, R, jac);
     }
   }
 }
