@@ -473,7 +473,82 @@ static void test_null_space_limit(void) {
   mrvi_model_free(m);
 }
 
+/* The saddle-point Jacobian of the constrained step (DESIGN §6), with
+ * nonzero multipliers so that the -h sum lambda_i d2g_i terms count, against
+ * central differences of the residual. */
+static void test_step_jacobian(const char *label, mrvi_model *m,
+                               const char *scheme, int p) {
+  mrvi_settings s = test_settings(scheme, 0.02, p, 1.0, 1e-10);
+  mrvi_step st;
+  CHECK(mrvi_step_init(&st, m, &s) == 0, "step init");
+  const int ns = mrvi_model_n_slow(m), nf = mrvi_model_n_fast(m),
+            nt = st.n_total;
+  double qs0[64], ps0[64], qf0[64], pf0[64];
+  const double *q0 = mrvi_model_q0(m), *v0 = mrvi_model_v0(m);
+  for (int i = 0; i < ns; i++) {
+    const int j = mrvi_model_slow_index(m)[i];
+    qs0[i] = q0[j];
+    ps0[i] = mrvi_model_mass(m, j) * v0[j];
+  }
+  for (int i = 0; i < nf; i++) {
+    const int j = mrvi_model_fast_index(m)[i];
+    qf0[i] = q0[j];
+    pf0[i] = mrvi_model_mass(m, j) * v0[j];
+  }
+  st.qs0 = qs0, st.qf0 = qf0, st.ps0 = ps0, st.pf0 = pf0;
+  double *x = calloc((size_t)nt, sizeof *x), *R = calloc((size_t)nt, sizeof *R);
+  double *Rp = calloc((size_t)nt, sizeof *Rp),
+         *Rm = calloc((size_t)nt, sizeof *Rm);
+  double *J = calloc((size_t)nt * nt, sizeof *J);
+  /* Free flight plus a perturbation; multipliers of order one. */
+  for (int i = 0; i < ns; i++)
+    x[i] = qs0[i] + 0.02 * v0[mrvi_model_slow_index(m)[i]] + 1e-3 * (i % 3);
+  for (int k = 1; k <= p; k++)
+    for (int i = 0; i < nf; i++)
+      x[ns + (k - 1) * nf + i] =
+          qf0[i] + 0.02 * k / p * v0[mrvi_model_fast_index(m)[i]] -
+          1e-3 * ((i + k) % 2);
+  for (int i = st.n_unknowns; i < nt; i++)
+    x[i] = 1.0 + 0.5 * (i % 3);
+  CHECK(mrvi_step_build_pattern(&st, x) == 0, "pattern");
+  mrvi_step_assemble(&st, x, R, 1);
+  for (int c = 0; c < nt; c++)
+    for (int k = st.Ap[c]; k < st.Ap[c + 1]; k++)
+      J[(size_t)st.Ai[k] * nt + c] += st.Ax[k];
+  double scale = 0.0;
+  for (size_t k = 0; k < (size_t)nt * nt; k++)
+    scale = fmax(scale, fabs(J[k]));
+  double worst = 0.0;
+  for (int c = 0; c < nt; c++) {
+    const double h = 1e-6, xc = x[c];
+    x[c] = xc + h;
+    mrvi_step_assemble(&st, x, Rp, 0);
+    x[c] = xc - h;
+    mrvi_step_assemble(&st, x, Rm, 0);
+    x[c] = xc;
+    for (int r = 0; r < nt; r++)
+      worst =
+          fmax(worst, fabs((Rp[r] - Rm[r]) / (2 * h) - J[(size_t)r * nt + c]));
+  }
+  CHECK(worst <= 1e-6 * scale,
+        "%s %s p=%d: constrained Jacobian vs FD, max error %.2e (scale "
+        "%.2e, %d unknowns incl. %d multipliers)",
+        label, scheme, p, worst, scale, nt, st.n_lambda);
+  free(x), free(R), free(Rp), free(Rm), free(J);
+  mrvi_step_free(&st);
+}
+
 int main(void) {
+  {
+    mrvi_model *cp = test_cart_pendulum(), *sr = test_spring_ring_rod();
+    for (int p = 1; p <= 3; p += 2) {
+      test_step_jacobian("cart pendulum", cp, "midpoint-midpoint", p);
+      test_step_jacobian("cart pendulum", cp, "trapezoidal-midpoint", p);
+      test_step_jacobian("spring ring rod", sr, "midpoint-midpoint", p);
+    }
+    mrvi_model_free(cp);
+    mrvi_model_free(sr);
+  }
   test_null_space_limit();
   test_conservation();
   test_projection_is_output_only();
