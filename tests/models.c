@@ -1,6 +1,9 @@
 #include "models.h"
 
+#include "internal.h"
+
 #include <math.h>
+#include <stdlib.h>
 
 mrvi_model *test_fpu(void) {
   mrvi_model *m = mrvi_model_create();
@@ -67,8 +70,8 @@ mrvi_model *test_spring_ring(void) {
   }
   const char *names[6] = {"m1", "m2", "m3", "m4", "m5", "m6"};
   for (int i = 0; i < 6; i++)
-    mrvi_model_add_particle(m, names[i], 2.0, i % 2 == 0 ? MRVI_SLOW : MRVI_FAST,
-                            q[i], v[i]);
+    mrvi_model_add_particle(m, names[i], 2.0,
+                            i % 2 == 0 ? MRVI_SLOW : MRVI_FAST, q[i], v[i]);
   const double origin[3] = {0, 0, 0};
   const double w1[1] = {2.0}, w2[1] = {4000.0}, ring[2] = {5.0 / 4.0, 4.0};
   for (int i = 0; i < 6; i++) {
@@ -93,8 +96,8 @@ mrvi_model *test_oscillator(double omega) {
   return m;
 }
 
-mrvi_settings test_settings(const char *scheme, double dT, int p,
-                            double t_end, double tol) {
+mrvi_settings test_settings(const char *scheme, double dT, int p, double t_end,
+                            double tol) {
   mrvi_settings s;
   mrvi_settings_default(&s);
   mrvi_settings_set_scheme(&s, scheme);
@@ -128,4 +131,31 @@ mrvi_model *test_spring_ring_rod(void) {
   mrvi_model_add_distance(m, 0, 1, NAN);
   mrvi_model_project_velocities(m, NULL);
   return m;
+}
+
+double test_step_fd_error(struct mrvi_step *st, double *x, double *scale) {
+  const int nt = st->n_total;
+  double *J = calloc((size_t)nt * nt, sizeof *J);
+  double *Rp = calloc((size_t)nt, sizeof *Rp),
+         *Rm = calloc((size_t)nt, sizeof *Rm);
+  for (int c = 0; c < nt; c++)
+    for (int k = st->Ap[c]; k < st->Ap[c + 1]; k++)
+      J[(size_t)st->Ai[k] * nt + c] += st->Ax[k];
+  *scale = 0.0;
+  for (size_t k = 0; k < (size_t)nt * nt; k++)
+    *scale = fmax(*scale, fabs(J[k]));
+  double worst = 0.0;
+  for (int c = 0; c < nt; c++) {
+    const double h = 1e-6, xc = x[c];
+    x[c] = xc + h;
+    mrvi_step_assemble(st, x, Rp, 0);
+    x[c] = xc - h;
+    mrvi_step_assemble(st, x, Rm, 0);
+    x[c] = xc;
+    for (int r = 0; r < nt; r++)
+      worst =
+          fmax(worst, fabs((Rp[r] - Rm[r]) / (2 * h) - J[(size_t)r * nt + c]));
+  }
+  free(J), free(Rp), free(Rm);
+  return worst;
 }

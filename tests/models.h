@@ -19,6 +19,12 @@ mrvi_model *test_cart_pendulum(void);
 /* Spring ring with a rod between m1 (slow) and m2 (fast). */
 mrvi_model *test_spring_ring_rod(void);
 
+/* Jacobian of an assembled step (st->Ax at x, n_total unknowns) against
+ * central differences of its residual: returns the largest entry error and
+ * writes the largest Jacobian entry to *scale.  x is restored. */
+struct mrvi_step;
+double test_step_fd_error(struct mrvi_step *st, double *x, double *scale);
+
 /* Settings for a named scheme with dT, p, t_end and Newton tolerance. */
 mrvi_settings test_settings(const char *scheme, double dT, int p,
                             double t_end, double tol);

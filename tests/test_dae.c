@@ -497,9 +497,6 @@ static void test_step_jacobian(const char *label, mrvi_model *m,
   }
   st.qs0 = qs0, st.qf0 = qf0, st.ps0 = ps0, st.pf0 = pf0;
   double *x = calloc((size_t)nt, sizeof *x), *R = calloc((size_t)nt, sizeof *R);
-  double *Rp = calloc((size_t)nt, sizeof *Rp),
-         *Rm = calloc((size_t)nt, sizeof *Rm);
-  double *J = calloc((size_t)nt * nt, sizeof *J);
   /* Free flight plus a perturbation; multipliers of order one. */
   for (int i = 0; i < ns; i++)
     x[i] = qs0[i] + 0.02 * v0[mrvi_model_slow_index(m)[i]] + 1e-3 * (i % 3);
@@ -512,29 +509,13 @@ static void test_step_jacobian(const char *label, mrvi_model *m,
     x[i] = 1.0 + 0.5 * (i % 3);
   CHECK(mrvi_step_build_pattern(&st, x) == 0, "pattern");
   mrvi_step_assemble(&st, x, R, 1);
-  for (int c = 0; c < nt; c++)
-    for (int k = st.Ap[c]; k < st.Ap[c + 1]; k++)
-      J[(size_t)st.Ai[k] * nt + c] += st.Ax[k];
-  double scale = 0.0;
-  for (size_t k = 0; k < (size_t)nt * nt; k++)
-    scale = fmax(scale, fabs(J[k]));
-  double worst = 0.0;
-  for (int c = 0; c < nt; c++) {
-    const double h = 1e-6, xc = x[c];
-    x[c] = xc + h;
-    mrvi_step_assemble(&st, x, Rp, 0);
-    x[c] = xc - h;
-    mrvi_step_assemble(&st, x, Rm, 0);
-    x[c] = xc;
-    for (int r = 0; r < nt; r++)
-      worst =
-          fmax(worst, fabs((Rp[r] - Rm[r]) / (2 * h) - J[(size_t)r * nt + c]));
-  }
+  double scale;
+  const double worst = test_step_fd_error(&st, x, &scale);
   CHECK(worst <= 1e-6 * scale,
         "%s %s p=%d: constrained Jacobian vs FD, max error %.2e (scale "
         "%.2e, %d unknowns incl. %d multipliers)",
         label, scheme, p, worst, scale, nt, st.n_lambda);
-  free(x), free(R), free(Rp), free(Rm), free(J);
+  free(x), free(R);
   mrvi_step_free(&st);
 }
 

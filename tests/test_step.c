@@ -166,35 +166,11 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
     }
 
   /* Jacobian against central differences of the residual. */
-  double *J = calloc((size_t)nu * nu, sizeof(double));
-  for (int c = 0; c < nu; c++)
-    for (int k = st.Ap[c]; k < st.Ap[c + 1]; k++)
-      J[(size_t)st.Ai[k] * nu + c] += st.Ax[k];
-  double *Rp = calloc(nu, sizeof(double)), *Rm = calloc(nu, sizeof(double));
   snprintf(what, sizeof what, "%s %s p=%d Jacobian", label, scheme, p);
-  double scale = 0.0;
-  for (size_t k = 0; k < (size_t)nu * nu; k++)
-    scale = fmax(scale, fabs(J[k]));
-  int bad = 0;
-  for (int c = 0; c < nu; c++) {
-    const double h = 1e-6, xc = x[c];
-    x[c] = xc + h;
-    mrvi_step_assemble(&st, x, Rp, 0);
-    x[c] = xc - h;
-    mrvi_step_assemble(&st, x, Rm, 0);
-    x[c] = xc;
-    for (int r = 0; r < nu; r++) {
-      double fd = (Rp[r] - Rm[r]) / (2 * h);
-      if (fabs(fd - J[(size_t)r * nu + c]) > 1e-6 * scale) {
-        if (bad++ < 3)
-          CHECK_NEAR(J[(size_t)r * nu + c], fd, 1e-6 * scale, what);
-      }
-    }
-  }
-  CHECK(bad == 0, "%s: %d entries differ", what, bad);
-  free(J);
-  free(Rp);
-  free(Rm);
+  double scale;
+  const double err = test_step_fd_error(&st, x, &scale);
+  CHECK(err <= 1e-6 * scale, "%s: max entry error %.2e (scale %.2e)", what,
+        err, scale);
   free(ps1);
   free(pf);
   free(X.qs0);
