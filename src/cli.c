@@ -379,6 +379,12 @@ static int cmd_check(int argc, char **argv) {
          steps, (double)steps * s->macro_step);
   printf("%-14stolerance %g, at most %d iterations\n", "newton", s->newton_tol,
          s->newton_max_iter);
+  {
+    char why[300];
+    const char *path = mrvi_solver_path(sys->model, s, why, sizeof why);
+    printf("%-14s%s: %s\n", "solver", path ? path : "structured unavailable",
+           why);
+  }
   if (nc > 0)
     printf("%-14s%s form, tolerance %g, momentum projection %s\n",
            "constraints",
@@ -506,6 +512,8 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
          sum->status == MRVI_OK ? "completed" : "stopped after", sum->steps,
          n_steps, (double)sum->steps * s->macro_step,
          s->scheme[0] ? s->scheme : "custom", s->macro_step, s->micro_steps);
+  const char *path = mrvi_solver_path(sys->model, s, NULL, 0);
+  printf("  %-23s%s\n", "solver path", path ? path : "none");
   printf("  %-23s%ld total, max %d per step\n", "Newton iterations",
          sum->iterations_total, sum->iterations_max);
   printf("  %-23s%.3e\n", "max rel. energy error", sum->max_rel_energy_error);

@@ -145,6 +145,7 @@ static const struct output_info {
     w->n_lambda > 0)                                                           \
   X("constraint_tolerance", double, s->constraint_tol, w->n_lambda > 0)        \
   X("project_momenta", int, s->project_momenta, w->n_lambda > 0)               \
+  X("solver", string, solver_path, 1)                                          \
   X("output_every", int, w->every, 1)                                          \
   X("stop_reason", string, "running", 1)                                       \
   X("steps_completed", long, 0L, 1)
@@ -745,6 +746,9 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   /* Root attributes. */
   char scheme[sizeof s->scheme + 1];
   mrvi_fmt(scheme, sizeof scheme, "%.*s", (int)sizeof s->scheme, s->scheme);
+  const char *solver_path = mrvi_solver_path(m, s, NULL, 0);
+  if (!solver_path)
+    solver_path = "none";
 #define X_ATTR(name, kind, value, present)                                     \
   if ((present) && attr_##kind(w->file, name, value) < 0)                      \
     return fail_h5(w, MRVI_EIO, "writing attribute " name);

@@ -13,6 +13,12 @@ struct mrvi_integrator {
   mrvi_step step;
   mrvi_newton *newton;
   mrvi_nullspace *nullspace; /* null-space form only */
+  int path;                  /* MRVI_PATH_* (doc/solver.md) */
+  mrvi_sweep *sweep;         /* explicit and sweep paths */
+  char why[240];             /* reason for the path */
+  double *qs_prev, *qf_prev; /* q_k^s, q_k^{f,0} of the last step */
+  mrvi_newton *jac_nw;       /* full-step factors for jacobian_solve */
+  int jac_ready;             /* jac_nw holds the last step's Jacobian */
   double *rhs;               /* reduced right-hand side (null-space form) */
   double t0;                 /* time of node k = 0 */
   long k;
@@ -51,6 +57,10 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   if (!it)
     return;
   mrvi_newton_free(it->newton);
+  mrvi_newton_free(it->jac_nw);
+  mrvi_sweep_free(it->sweep);
+  free(it->qs_prev);
+  free(it->qf_prev);
   mrvi_nullspace_free(it->nullspace);
   free(it->rhs);
   mrvi_step_free(&it->step);
@@ -241,6 +251,13 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   }
   it->model = m;
   it->settings = *s;
+  it->path = mrvi_sweep_path(m, s, it->why, sizeof it->why);
+  if (it->path == MRVI_PATH_GENERAL && s->solver == MRVI_SOLVER_STRUCTURED) {
+    mrvi_fmt(msg, len, "integrator.solver = structured: no structured path: %s",
+             it->why);
+    free(it);
+    return MRVI_EINVAL;
+  }
   if ((st = mrvi_step_init(&it->step, m, s)) < 0)
     goto oom;
   const size_t n = (size_t)m->n, ns = (size_t)m->n_slow, nf = (size_t)m->n_fast,
@@ -270,6 +287,10 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->pGf = alloc(rm * nf);
   it->pA = alloc(rm * rm);
   it->pmu = alloc(rm);
+  it->qs_prev = alloc(ns);
+  it->qf_prev = alloc(nf);
+  if (!it->qs_prev || !it->qf_prev)
+    goto oom;
   if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf || !it->x ||
       !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p ||
       !it->lambda || !it->micro_cres || !it->rhs || !it->cg || !it->cGd ||
@@ -301,6 +322,14 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;
   it->step.pf0 = it->pf;
+  if (it->path != MRVI_PATH_GENERAL) {
+    /* No Newton matrix of the whole step (the Jacobian pattern is built
+     * on demand by mrvi_integrator_jacobian_solve). */
+    if (mrvi_sweep_create(&it->step, s, &it->sweep) < 0)
+      goto oom;
+    *out = it;
+    return MRVI_OK;
+  }
   /* Pattern and symbolic analysis once per run. */
   predict(it);
   if ((st = mrvi_step_build_pattern(&it->step, it->x)) < 0)
@@ -357,6 +386,8 @@ int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,
       return fail(it, MRVI_ESINGULAR, "momentum projection failed");
   }
   split_state(it);
+  mrvi_sweep_reset(it->sweep);
+  it->jac_ready = 0;
   it->t0 = t;
   it->k = 0;
   return MRVI_OK;
@@ -517,13 +548,32 @@ static int project_micro(mrvi_integrator *it) {
   return MRVI_OK;
 }
 
+static int finish_step(mrvi_integrator *it);
+
 int mrvi_integrator_step(mrvi_integrator *it) {
-  const mrvi_model *m = it->model;
   mrvi_step *st = &it->step;
   const double tol = it->settings.newton_tol;
   const double ctol = it->settings.constraint_tol;
   const int max_it = it->settings.newton_max_iter;
   char msg[400] = "";
+  it->jac_ready = 0;
+
+  if (it->sweep) {
+    /* Structured paths (solver/sweep.c): solution and momenta at once. */
+    const double t = mrvi_clock();
+    int iters = 0;
+    double res = 0.0;
+    const int s = mrvi_sweep_step(it->sweep, st, it->x, it->ps1, it->micro_p,
+                                  &iters, &res, msg, sizeof msg);
+    it->t_solve += mrvi_clock() - t;
+    it->last_iterations = iters;
+    it->last_residual = res;
+    if (s < 0)
+      return fail(it, s, "step %ld (t = %.10g -> %.10g): %s", it->k + 1,
+                  it->t0 + (double)it->k * st->dT,
+                  it->t0 + (double)(it->k + 1) * st->dT, msg);
+    return finish_step(it);
+  }
 
   /* Free flight for x; the multipliers start from the last step's. */
   predict(it);
@@ -570,6 +620,13 @@ int mrvi_integrator_step(mrvi_integrator *it) {
 
   /* Momenta at the new macro node and the fast micro nodes (eq:pkfm+). */
   mrvi_step_momenta(st, it->x, it->ps1, it->micro_p);
+  return finish_step(it);
+}
+
+/* Common end of a step: outputs, new state, projection. */
+static int finish_step(mrvi_integrator *it) {
+  const mrvi_model *m = it->model;
+  mrvi_step *st = &it->step;
   if (st->n_lambda > 0)
     constraint_outputs(it);
   if (st->r_micro > 0 && it->settings.project_momenta && project_micro(it) < 0)
@@ -578,6 +635,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
                 "constraint gradients dependent)",
                 it->k + 1);
   const int ns = st->ns, nf = st->nf, p = st->p;
+  memcpy(it->qs_prev, it->qs, (size_t)ns * sizeof(double));
+  memcpy(it->qf_prev, it->qf, (size_t)nf * sizeof(double));
   memcpy(it->micro_q, it->x + ns, (size_t)p * (size_t)nf * sizeof(double));
   memcpy(it->qs, it->x, (size_t)ns * sizeof(double));
   memcpy(it->ps, it->ps1, (size_t)ns * sizeof(double));
@@ -604,6 +663,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
       it->micro_p[(size_t)(p - 1) * (size_t)nf + (size_t)i] = it->pf[i];
   }
   it->k++;
+  it->jac_ready = 1;
   return MRVI_OK;
 }
 
@@ -644,4 +704,49 @@ void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
     *assemble = it->t_assemble;
   if (solve)
     *solve = it->t_solve;
+}
+
+const char *mrvi_integrator_solver_path(const mrvi_integrator *it) {
+  static const char *const names[] = {"general", "explicit", "sweep"};
+  return names[it->path];
+}
+
+int mrvi_integrator_jacobian_size(const mrvi_integrator *it) {
+  return it->step.n_total;
+}
+
+int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
+                                   const double *b, double *x) {
+  mrvi_step *st = &it->step;
+  char msg[300] = "";
+  if (!it->jac_ready && it->k == 0)
+    return fail(it, MRVI_EINVAL, "no completed step to solve with");
+  if (it->jac_ready) {
+    /* Assemble the full Jacobian at the last step's solution, with that
+     * step's known data, and factorise it once for any number of solves. */
+    const double *qs0 = st->qs0, *qf0 = st->qf0;
+    st->qs0 = it->qs_prev;
+    st->qf0 = it->qf_prev;
+    int s = MRVI_OK;
+    if (!st->Ap && (s = mrvi_step_build_pattern(st, it->x)) < 0) {
+      st->qs0 = qs0;
+      st->qf0 = qf0;
+      return fail(it, s, "out of memory");
+    }
+    mrvi_step_assemble(st, it->x, it->dx, 1);
+    st->qs0 = qs0;
+    st->qf0 = qf0;
+    if (!it->jac_nw &&
+        !(it->jac_nw = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                                          msg, sizeof msg)))
+      return fail(it, MRVI_ESINGULAR, "%s", msg);
+    if ((s = mrvi_newton_factor(it->jac_nw, st->Ax, msg, sizeof msg)) < 0)
+      return fail(it, s, "step Jacobian: %s", msg);
+    it->jac_ready = 2;
+  }
+  if (it->jac_ready != 2)
+    return fail(it, MRVI_EINVAL, "the step Jacobian is no longer available");
+  const int s =
+      mrvi_linsolve_solve(it->jac_nw, st->Ax, transpose, b, x, msg, sizeof msg);
+  return s < 0 ? fail(it, s, "step Jacobian: %s", msg) : MRVI_OK;
 }

@@ -251,4 +251,40 @@ void mrvi_newton_free(mrvi_newton *nw);
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
                       double *dx, char *msg, size_t len);
 
+/* ---------------------------------------------------------------------------
+ * Structured step solver (solver/sweep.c, doc/solver.md).
+ * ------------------------------------------------------------------------- */
+enum { MRVI_PATH_GENERAL = 0, MRVI_PATH_EXPLICIT = 1, MRVI_PATH_SWEEP = 2 };
+/* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
+int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
+                    size_t len);
+typedef struct mrvi_sweep mrvi_sweep;
+/* Workspace for the explicit and sweep paths of st (after mrvi_step_init). */
+int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
+                      mrvi_sweep **out);
+void mrvi_sweep_free(mrvi_sweep *sw);
+/* Forget cached forces (after the state is set from outside). */
+void mrvi_sweep_reset(mrvi_sweep *sw);
+/* One step from the known data of st: x (n_unknowns) gets
+ * (q_{k+1}^s, q^{f,1..p}), ps1 (ns) the slow momentum at k+1, pf (p x nf)
+ * the fast momenta at nodes 1..p (eq:pkfm+).  *iterations: the largest
+ * number of Newton iterations of a micro step (0 on the explicit path);
+ * *residual: the largest converged micro-row residual. */
+int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                    double *ps1, double *pf, int *iterations, double *residual,
+                    char *msg, size_t len);
+
+/* ---------------------------------------------------------------------------
+ * Linear solves with a factorisation kept between calls (solver/newton.c):
+ * mrvi_newton_solve factorises and solves; mrvi_linsolve_solve solves again
+ * with the kept factors, with A (transpose = 0) or A^T (transpose = 1,
+ * UMFPACK_At) -- the one interface for Newton updates and adjoint solves.
+ * ------------------------------------------------------------------------- */
+/* Factorise A (values Ax on the fixed pattern) and keep the factors. */
+int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
+                       size_t len);
+/* Solve A x = b or A^T x = b with the kept factors (n = the create size). */
+int mrvi_linsolve_solve(mrvi_newton *nw, const double *Ax, int transpose,
+                        const double *b, double *x, char *msg, size_t len);
+
 #endif

@@ -769,7 +769,7 @@ static const char *const term_keys[] = {"combination", "offset", "law",
                                         "potential"};
 static const char *const integrator_keys[] = {
     "scheme",      "slow",  "fast",   "macro_step",
-    "micro_steps", "t_end", "newton", "constraints"};
+    "micro_steps", "t_end", "newton", "constraints", "solver"};
 static const char *const slow_rule_keys[] = {"alpha", "gamma", "grid"};
 static const char *const fast_rule_keys[] = {"alpha", "gamma"};
 static const char *const newton_keys[] = {"tolerance", "max_iterations"};
@@ -1574,6 +1574,13 @@ static int load_integrator(loader *L, struct fy_node *in) {
         return fail(L, v, "max_iterations must be >= 1, got %d",
                     s->newton_max_iter);
     }
+  }
+  if ((n = get(in, "solver"))) { /* doc/solver.md */
+    static const char *const solvers[] = {"auto", "structured", "general"};
+    int which;
+    if ((st = as_choice(L, n, "solver", solvers, 3, &which)))
+      return st;
+    s->solver = (mrvi_solver)which;
   }
   if ((n = get(in, "constraints")))
     return load_constraint_settings(L, n);

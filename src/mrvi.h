@@ -276,6 +276,16 @@ typedef enum mrvi_constraint_form {
   MRVI_FORM_NULL_SPACE = 1
 } mrvi_constraint_form;
 
+/* Step solver (doc/solver.md): auto takes the structured path where the
+ * scheme and model allow it, else the general one; structured insists on
+ * it (integrator creation fails with the reason otherwise); general is the
+ * full Newton iteration with sparse LU on the whole step, the reference. */
+typedef enum mrvi_solver {
+  MRVI_SOLVER_AUTO = 0,
+  MRVI_SOLVER_STRUCTURED = 1,
+  MRVI_SOLVER_GENERAL = 2
+} mrvi_solver;
+
 typedef struct mrvi_settings {
   char scheme[48];      /* name of the scheme the rules came from */
   mrvi_rule slow;       /* rule for V */
@@ -290,6 +300,7 @@ typedef struct mrvi_settings {
   mrvi_constraint_form constraint_form; /* default MRVI_FORM_MULTIPLIERS */
   double constraint_tol;                /* max |g| at enforced nodes (1e-10) */
   int project_momenta;                  /* project p onto G M^-1 p = 0 (1) */
+  mrvi_solver solver;                   /* default MRVI_SOLVER_AUTO */
 } mrvi_settings;
 
 /* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it. */
@@ -298,6 +309,13 @@ void mrvi_settings_default(mrvi_settings *s);
  * midpoint-midpoint, trapezoidal-midpoint, trapezoidal-trapezoidal,
  * explicit-slow, fully-explicit.  MRVI_EINVAL for an unknown name. */
 int mrvi_settings_set_scheme(mrvi_settings *s, const char *scheme);
+/* Step solver path for model m and settings s (doc/solver.md): "explicit"
+ * (no Newton), "sweep" (explicit slow update, forward sweep of p implicit
+ * micro steps) or "general" (Newton on the whole step).  why (may be NULL)
+ * gets the reason for the choice.  With s->solver = structured and no
+ * structured path, returns NULL (why says why). */
+const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
+                             char *why, size_t len);
 /* Names of the schemes, NULL-terminated. */
 const char *const *mrvi_scheme_names(void);
 /* Validate: alpha, gamma in [0,1], p >= 1, dT > 0, t_end >= dT, tol > 0,
@@ -336,6 +354,16 @@ const double *mrvi_integrator_p(const mrvi_integrator *it); /* n */
 const double *mrvi_integrator_micro_q(const mrvi_integrator *it);
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it);
 int mrvi_integrator_last_iterations(const mrvi_integrator *it);
+/* Solve J x = b (transpose = 0) or J^T x = b (transpose = 1) with the
+ * Jacobian J of the last completed step's residual (multiplier form, size
+ * mrvi_integrator_jacobian_size: unknowns (q_{k+1}^s, q_k^{f,1..p}) then
+ * multipliers) at its converged solution; b, x of that size.  Works on
+ * every solver path; valid until the next step or set_state. */
+int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
+                                   const double *b, double *x);
+int mrvi_integrator_jacobian_size(const mrvi_integrator *it);
+/* Step solver path of the integrator ("explicit", "sweep", "general"). */
+const char *mrvi_integrator_solver_path(const mrvi_integrator *it);
 double mrvi_integrator_last_residual(const mrvi_integrator *it);
 /* Size of the Newton system (n_slow + p n_fast, plus the multipliers in
  * the multiplier form) and its nonzeros. */

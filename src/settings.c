@@ -59,6 +59,7 @@ void mrvi_settings_default(mrvi_settings *s) {
   s->constraint_form = MRVI_FORM_MULTIPLIERS;
   s->constraint_tol = 1e-10;
   s->project_momenta = 1;
+  s->solver = MRVI_SOLVER_AUTO;
 }
 
 static int unit(double v) { return isfinite(v) && v >= 0.0 && v <= 1.0; }
@@ -100,6 +101,11 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len) {
   if (s->constraint_form != MRVI_FORM_MULTIPLIERS &&
       s->constraint_form != MRVI_FORM_NULL_SPACE) {
     mrvi_fmt(msg, len, "constraint form must be multipliers or null-space");
+    return MRVI_EINVAL;
+  }
+  if (s->solver != MRVI_SOLVER_AUTO && s->solver != MRVI_SOLVER_STRUCTURED &&
+      s->solver != MRVI_SOLVER_GENERAL) {
+    mrvi_fmt(msg, len, "solver must be auto, structured or general");
     return MRVI_EINVAL;
   }
   if (!(isfinite(s->constraint_tol) && s->constraint_tol > 0)) {

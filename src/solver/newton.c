@@ -1,6 +1,8 @@
 /* Linear solves of the Newton iteration with UMFPACK: the symbolic analysis
  * is done once for the fixed pattern of a run, the numeric factorisation
- * once per iteration (STYLE: symbolic once, numeric many). */
+ * once per iteration (STYLE: symbolic once, numeric many).  The numeric
+ * factors are kept after a solve, so that the same matrix can be solved
+ * again, transposed too (mrvi_linsolve_solve: adjoint solves). */
 #include "internal.h"
 
 #include <stdlib.h>
@@ -9,7 +11,7 @@
 struct mrvi_newton {
   int n;
   const int *Ap, *Ai;
-  void *symbolic;
+  void *symbolic, *numeric;
   double control[UMFPACK_CONTROL];
   double info[UMFPACK_INFO];
 };
@@ -39,34 +41,48 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
 void mrvi_newton_free(mrvi_newton *nw) {
   if (!nw)
     return;
+  if (nw->numeric)
+    umfpack_di_free_numeric(&nw->numeric);
   if (nw->symbolic)
     umfpack_di_free_symbolic(&nw->symbolic);
   free(nw);
 }
 
-int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
-                      double *dx, char *msg, size_t len) {
-  void *numeric = NULL;
-  int st = umfpack_di_numeric(nw->Ap, nw->Ai, Ax, nw->symbolic, &numeric,
+int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
+                       size_t len) {
+  if (nw->numeric)
+    umfpack_di_free_numeric(&nw->numeric);
+  int st = umfpack_di_numeric(nw->Ap, nw->Ai, Ax, nw->symbolic, &nw->numeric,
                               nw->control, nw->info);
+  if (st == UMFPACK_OK)
+    return MRVI_OK;
+  if (nw->numeric)
+    umfpack_di_free_numeric(&nw->numeric);
   if (st == UMFPACK_WARNING_singular_matrix) {
-    umfpack_di_free_numeric(&numeric);
     mrvi_fmt(msg, len, "singular Newton matrix");
     return MRVI_ESINGULAR;
   }
-  if (st != UMFPACK_OK) {
-    if (numeric)
-      umfpack_di_free_numeric(&numeric);
-    mrvi_fmt(msg, len, "UMFPACK numeric factorisation failed (status %d)",
-             st);
-    return st == UMFPACK_ERROR_out_of_memory ? MRVI_ENOMEM : MRVI_ESINGULAR;
+  mrvi_fmt(msg, len, "UMFPACK numeric factorisation failed (status %d)", st);
+  return st == UMFPACK_ERROR_out_of_memory ? MRVI_ENOMEM : MRVI_ESINGULAR;
+}
+
+int mrvi_linsolve_solve(mrvi_newton *nw, const double *Ax, int transpose,
+                        const double *b, double *x, char *msg, size_t len) {
+  if (!nw->numeric) {
+    mrvi_fmt(msg, len, "no factorisation to solve with");
+    return MRVI_EINVAL;
   }
-  st = umfpack_di_solve(UMFPACK_A, nw->Ap, nw->Ai, Ax, dx, b, numeric,
-                        nw->control, nw->info);
-  umfpack_di_free_numeric(&numeric);
+  int st = umfpack_di_solve(transpose ? UMFPACK_At : UMFPACK_A, nw->Ap, nw->Ai,
+                            Ax, x, b, nw->numeric, nw->control, nw->info);
   if (st != UMFPACK_OK) {
     mrvi_fmt(msg, len, "UMFPACK solve failed (status %d)", st);
     return MRVI_ESINGULAR;
   }
   return MRVI_OK;
+}
+
+int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
+                      double *dx, char *msg, size_t len) {
+  const int st = mrvi_newton_factor(nw, Ax, msg, len);
+  return st < 0 ? st : mrvi_linsolve_solve(nw, Ax, 0, b, dx, msg, len);
 }

@@ -1,0 +1,461 @@
+/* Structured step solver (doc/solver.md): an explicit slow update and a
+ * forward sweep over the micro nodes, for schemes whose slow potential V is
+ * evaluated on the macro grid (eq:slow_potential_affine) and models whose
+ * fast potential W depends on fast coordinates only.
+ *
+ * Step equations (eq:DEL_ini in position-momentum form, see step.c):
+ *   slow row   p_k^s - M^s (q_{k+1}^s - q_k^s)/dT - a dT grad_s V(q_k) = 0
+ * (the end point of V_d has a0 = 0 and feeds no row), so q_{k+1}^s is
+ * explicit.  Fast row of node m (0..p-1), with the discrete momentum
+ *   p^{f,m} = M^f (q^m - q^{m-1})/dt - sum_{pts of interval m-1} w cB grad W
+ * (eq:pkfm+; p^{f,0} = p_k^{f,0} - a dT grad_f V(q_k) for row 0):
+ *   p^{f,m} - M^f (q^{m+1} - q^m)/dt - sum_{pts of interval m} w cA grad W(z)
+ *   = 0,   z = cA q^m + cB q^{m+1}.
+ * It involves nodes up to m + 1 only (block lower-triangular), so the step is
+ * a sweep m = 0..p-1 solving row m for q^{m+1}.  Its Jacobian in q^{m+1} is
+ *   -(M^f/dt + sum w cA cB hess W(z)):
+ * constant for the trapezoidal family (gamma in {0, 1}: every point has
+ * cA cB = 0), so q^{m+1} is explicit; for other rules (midpoint) row m is an
+ * nf x nf Newton problem, solved by dense LU. */
+#include "internal.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Largest fast block solved densely. */
+#define SWEEP_DENSE_MAX 64
+
+struct mrvi_sweep {
+  const mrvi_step *st;
+  int ns, nf, p, implicit;
+  double tol;
+  int max_iter;
+  double wv0, wv1; /* weights of V at the macro nodes k and k+1 */
+  int n_w;         /* W points of one interval (the same in every one) */
+  double w[2], cA[2], cB[2];
+  double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
+  double *zs, *zf;               /* point configuration */
+  double *gs, *gf;               /* gradient accumulators */
+  double *gnode;                 /* grad_f W at the current node (cache) */
+  int gnode_ok;
+  double *gpt[2];         /* grad_f W at the implicit points (converged) */
+  double *rhs, *F, *fimp; /* row data, residual, last implicit force */
+  double *J;              /* nf x nf */
+  int *piv;
+  double *y, *g, *H; /* element workspace */
+};
+
+/* The structure the sweep needs, or the reason it is missing. */
+int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
+                    size_t len) {
+  if (s->solver == MRVI_SOLVER_GENERAL) {
+    mrvi_fmt(why, len, "requested (integrator.solver = general)");
+    return MRVI_PATH_GENERAL;
+  }
+  if (m->n_constraints > 0) {
+    mrvi_fmt(why, len,
+             "constrained model: the structured paths do not "
+             "handle constraints yet");
+    return MRVI_PATH_GENERAL;
+  }
+  if (s->slow_grid != MRVI_GRID_MACRO) {
+    mrvi_fmt(why, len,
+             "slow potential on the micro grid couples q_{k+1}^s to every "
+             "micro node (no structured path for it yet)");
+    return MRVI_PATH_GENERAL;
+  }
+  for (int e = 0; e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    if (el->potential != MRVI_FAST)
+      continue;
+    for (int j = 0; j < el->n_in; j++)
+      if (m->rate[el->in[j]] == MRVI_SLOW) {
+        mrvi_fmt(why, len,
+                 "the fast potential depends on slow coordinate '%s', which "
+                 "couples q_{k+1}^s to every micro node",
+                 m->names[el->in[j]]);
+        return MRVI_PATH_GENERAL;
+      }
+  }
+  const double g = s->fast.gamma;
+  if (g == 0.0 || g == 1.0 || m->n_fast == 0) {
+    mrvi_fmt(why, len,
+             "macro-grid slow rule and a trapezoidal-family fast rule: "
+             "every node is explicit");
+    return MRVI_PATH_EXPLICIT;
+  }
+  if (m->n_fast > SWEEP_DENSE_MAX) {
+    mrvi_fmt(why, len,
+             "fast block of %d coordinates exceeds the dense limit %d "
+             "(no sparse block solver yet)",
+             m->n_fast, SWEEP_DENSE_MAX);
+    return MRVI_PATH_GENERAL;
+  }
+  mrvi_fmt(why, len,
+           "macro-grid slow rule: explicit slow update and a sweep of %d "
+           "implicit micro steps of size %d",
+           s->micro_steps, m->n_fast);
+  return MRVI_PATH_SWEEP;
+}
+
+const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
+                             char *why, size_t len) {
+  static const char *const names[] = {"general", "explicit", "sweep"};
+  const int path = mrvi_sweep_path(m, s, why, len);
+  if (path == MRVI_PATH_GENERAL && s->solver == MRVI_SOLVER_STRUCTURED)
+    return NULL;
+  return names[path];
+}
+
+void mrvi_sweep_free(mrvi_sweep *sw) {
+  if (!sw)
+    return;
+  free(sw->minv_s);
+  free(sw->minv_f);
+  free(sw->m_f);
+  free(sw->zs);
+  free(sw->zf);
+  free(sw->gs);
+  free(sw->gf);
+  free(sw->gnode);
+  free(sw->gpt[0]);
+  free(sw->gpt[1]);
+  free(sw->rhs);
+  free(sw->F);
+  free(sw->fimp);
+  free(sw->J);
+  free(sw->piv);
+  free(sw->y);
+  free(sw->g);
+  free(sw->H);
+  free(sw);
+}
+
+static double *dalloc(size_t n) {
+  return calloc(n > 0 ? n : 1, sizeof(double));
+}
+
+int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
+                      mrvi_sweep **out) {
+  const mrvi_model *m = st->model;
+  mrvi_sweep *sw = calloc(1, sizeof *sw);
+  *out = NULL;
+  if (!sw)
+    return MRVI_ENOMEM;
+  sw->st = st;
+  sw->ns = st->ns;
+  sw->nf = st->nf;
+  sw->p = st->p;
+  sw->tol = s->newton_tol;
+  sw->max_iter = s->newton_max_iter;
+  /* V on the macro grid: points at tau = 0 (a0 = 1) and tau = 1 (a1 = 1). */
+  for (int i = 0; i < st->n_pts[MRVI_SLOW]; i++) {
+    const mrvi_point *pt = &st->pts[MRVI_SLOW][i];
+    if (pt->a1 == 0.0)
+      sw->wv0 += pt->w;
+    else
+      sw->wv1 += pt->w;
+  }
+  /* W points of interval 0 (every interval has the same). */
+  for (int i = 0; i < st->n_pts[MRVI_FAST]; i++) {
+    const mrvi_point *pt = &st->pts[MRVI_FAST][i];
+    if (pt->m != 0 || sw->n_w == 2)
+      continue;
+    sw->w[sw->n_w] = pt->w;
+    sw->cA[sw->n_w] = pt->cA;
+    sw->cB[sw->n_w] = pt->cB;
+    if (pt->cA != 0.0 && pt->cB != 0.0)
+      sw->implicit = 1;
+    sw->n_w++;
+  }
+  const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
+  const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
+  int max_n_in = 1;
+  for (int e = 0; e < m->n_elements; e++)
+    if (m->elements[e].n_in > max_n_in)
+      max_n_in = m->elements[e].n_in;
+  sw->minv_s = dalloc(ns);
+  sw->minv_f = dalloc(nf);
+  sw->m_f = dalloc(nf);
+  sw->zs = dalloc(ns);
+  sw->zf = dalloc(nf);
+  sw->gs = dalloc(ns);
+  sw->gf = dalloc(nf);
+  sw->gnode = dalloc(nf);
+  sw->gpt[0] = dalloc(nf);
+  sw->gpt[1] = dalloc(nf);
+  sw->rhs = dalloc(nf);
+  sw->F = dalloc(nf);
+  sw->fimp = dalloc(nf);
+  sw->J = dalloc(sw->implicit ? nf * nf : 1);
+  sw->piv = calloc(nf > 0 ? nf : 1, sizeof(int));
+  sw->y = dalloc((size_t)max_n_in);
+  sw->g = dalloc((size_t)max_n_in);
+  sw->H = dalloc(mi * mi);
+  if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zs || !sw->zf || !sw->gs ||
+      !sw->gf || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
+      !sw->F || !sw->fimp || !sw->J || !sw->piv || !sw->y || !sw->g || !sw->H) {
+    mrvi_sweep_free(sw);
+    return MRVI_ENOMEM;
+  }
+  for (int i = 0; i < sw->ns; i++)
+    sw->minv_s[i] = 1.0 / m->mass[m->slow_index[i]];
+  for (int i = 0; i < sw->nf; i++) {
+    sw->m_f[i] = m->mass[m->fast_index[i]];
+    sw->minv_f[i] = 1.0 / sw->m_f[i];
+  }
+  *out = sw;
+  return MRVI_OK;
+}
+
+void mrvi_sweep_reset(mrvi_sweep *sw) {
+  if (!sw)
+    return;
+  sw->gnode_ok = 0;
+  memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
+}
+
+/* Elements of potential class cls at (zs, zf): gs += scale grad_s (gs may
+ * be NULL when the class has no slow inputs), gf += scale grad_f and, if J,
+ * J += hscale hess_ff (nf x nf). */
+static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
+                       double *gf, double *J, double hscale) {
+  const mrvi_step *st = sw->st;
+  const mrvi_model *m = st->model;
+  const int nf = sw->nf;
+  for (int ie = 0; ie < st->n_elem_of_class[cls]; ie++) {
+    const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
+    const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
+    for (int j = 0; j < n; j++) {
+      const int c = e->in[j];
+      sw->y[j] =
+          m->rate[c] == MRVI_SLOW ? sw->zs[m->slot[c]] : sw->zf[m->slot[c]];
+    }
+    mrvi_element_eval(m, e, sw->y, sw->g, J && !lin ? sw->H : NULL);
+    for (int j = 0; j < n; j++) {
+      const int c = e->in[j], s = m->slot[c];
+      if (m->rate[c] == MRVI_FAST)
+        gf[s] += scale * sw->g[j];
+      else if (gs)
+        gs[s] += scale * sw->g[j];
+    }
+    if (!J || lin)
+      continue;
+    for (int j = 0; j < n; j++) {
+      if (m->rate[e->in[j]] != MRVI_FAST)
+        continue;
+      const int sj = m->slot[e->in[j]];
+      for (int l = 0; l < n; l++)
+        if (m->rate[e->in[l]] == MRVI_FAST)
+          J[sj * nf + m->slot[e->in[l]]] += hscale * sw->H[j * n + l];
+    }
+  }
+}
+
+/* LU with partial pivoting of A (n x n row-major) in place; -1 if
+ * singular. */
+static int lu_factor(int n, double *A, int *piv) {
+  for (int k = 0; k < n; k++) {
+    int r = k;
+    for (int i = k + 1; i < n; i++)
+      if (fabs(A[i * n + k]) > fabs(A[r * n + k]))
+        r = i;
+    piv[k] = r;
+    if (!(fabs(A[r * n + k]) > 0.0))
+      return -1;
+    if (r != k)
+      for (int j = 0; j < n; j++) {
+        const double t = A[k * n + j];
+        A[k * n + j] = A[r * n + j];
+        A[r * n + j] = t;
+      }
+    const double d = 1.0 / A[k * n + k];
+    for (int i = k + 1; i < n; i++) {
+      const double f = (A[i * n + k] *= d);
+      if (f != 0.0)
+        for (int j = k + 1; j < n; j++)
+          A[i * n + j] -= f * A[k * n + j];
+    }
+  }
+  return 0;
+}
+
+/* Solve with the factors of lu_factor: b becomes x. */
+static void lu_solve(int n, const double *A, const int *piv, double *b) {
+  for (int k = 0; k < n; k++) {
+    const double t = b[piv[k]];
+    b[piv[k]] = b[k];
+    b[k] = t;
+    for (int i = k + 1; i < n; i++)
+      b[i] -= A[i * n + k] * b[k];
+  }
+  for (int i = n - 1; i >= 0; i--) {
+    double s = b[i];
+    for (int j = i + 1; j < n; j++)
+      s -= A[i * n + j] * b[j];
+    b[i] = s / A[i * n + i];
+  }
+}
+
+static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
+                   const double *v) {
+  for (int f = 0; f < sw->nf; f++)
+    sw->zf[f] = a * u[f] + b * v[f];
+}
+
+/* Solve row m for qn = q^{m+1} given qm = q^m and rhs = p^{f,m} minus the
+ * forces of the points at node m (Newton on nf unknowns). */
+static int solve_implicit(mrvi_sweep *sw, const double *qm, double *qn,
+                          int *iters, double *res, char *msg, size_t len) {
+  const int nf = sw->nf;
+  const double dt = sw->st->dt;
+  /* Predictor: the last implicit force held fixed (explicit in it). */
+  for (int f = 0; f < nf; f++)
+    qn[f] = qm[f] + dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
+  double scale = 0.0;
+  for (int f = 0; f < nf; f++)
+    scale = fmax(scale, fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt);
+  const double floor = 16.0 * DBL_EPSILON * scale;
+  for (int it = 0;; it++) {
+    /* F = rhs - M (qn - qm)/dt - sum w cA grad W(z); J = M/dt + w cA cB H. */
+    memset(sw->fimp, 0, (size_t)nf * sizeof(double));
+    memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
+    for (int i = 0; i < sw->n_w; i++) {
+      if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
+        continue;
+      set_zf(sw, sw->cA[i], qm, sw->cB[i], qn);
+      memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
+      eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gpt[i], sw->J,
+                 sw->w[i] * sw->cA[i] * sw->cB[i]);
+      for (int f = 0; f < nf; f++)
+        sw->fimp[f] += sw->w[i] * sw->cA[i] * sw->gpt[i][f];
+    }
+    double r = 0.0;
+    for (int f = 0; f < nf; f++) {
+      sw->F[f] = sw->rhs[f] - sw->m_f[f] * (qn[f] - qm[f]) / dt - sw->fimp[f];
+      const double a = fabs(sw->F[f]);
+      r = isnan(a) || a > r ? a : r;
+    }
+    if (r <= fmax(sw->tol, floor)) {
+      *iters = it;
+      *res = fmax(*res, r);
+      return MRVI_OK;
+    }
+    if (!isfinite(r) || it == sw->max_iter) {
+      *iters = it;
+      *res = r;
+      mrvi_fmt(msg, len,
+               "micro-step Newton %s after %d iterations, "
+               "residual %.3e (tolerance %.3e, roundoff floor %.1e)",
+               isfinite(r) ? "did not converge" : "produced non-finite values",
+               it, r, sw->tol, floor);
+      return isfinite(r) ? MRVI_ENEWTON : MRVI_ENONFINITE;
+    }
+    for (int f = 0; f < nf; f++)
+      sw->J[f * nf + f] += sw->m_f[f] / dt;
+    if (lu_factor(nf, sw->J, sw->piv) < 0) {
+      mrvi_fmt(msg, len, "singular micro-step Newton matrix");
+      return MRVI_ESINGULAR;
+    }
+    lu_solve(nf, sw->J, sw->piv, sw->F);
+    for (int f = 0; f < nf; f++)
+      qn[f] += sw->F[f];
+  }
+}
+
+int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
+                    double *pf, int *iterations, double *residual, char *msg,
+                    size_t len) {
+  const int ns = sw->ns, nf = sw->nf, p = sw->p;
+  const double dT = st->dT, dt = st->dt;
+  *iterations = 0;
+  *residual = 0.0;
+  /* Slow row: q_{k+1}^s explicit; V at node k also enters fast row 0. */
+  memset(sw->gs, 0, (size_t)ns * sizeof(double));
+  memset(sw->gf, 0, (size_t)nf * sizeof(double));
+  if (sw->wv0 != 0.0) {
+    memcpy(sw->zs, st->qs0, (size_t)ns * sizeof(double));
+    memcpy(sw->zf, st->qf0, (size_t)nf * sizeof(double));
+    eval_class(sw, MRVI_SLOW, sw->wv0, sw->gs, sw->gf, NULL, 0.0);
+  }
+  for (int s = 0; s < ns; s++)
+    x[s] = st->qs0[s] + dT * sw->minv_s[s] * (st->ps0[s] - sw->gs[s]);
+  /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
+  double *pm = pf; /* momentum at node m (row m's left part) */
+  for (int f = 0; f < nf; f++)
+    pm[f] = st->pf0[f] - sw->gf[f];
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
+    double *qn = x + ns + (size_t)m * nf;
+    /* rhs = p^{f,m} - forces of the points at node m (cB = 0). */
+    memcpy(sw->rhs, pm, (size_t)nf * sizeof(double));
+    for (int i = 0; i < sw->n_w; i++) {
+      if (sw->cB[i] != 0.0)
+        continue;
+      if (!sw->gnode_ok) {
+        memcpy(sw->zf, qm, (size_t)nf * sizeof(double));
+        memset(sw->gnode, 0, (size_t)nf * sizeof(double));
+        eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gnode, NULL, 0.0);
+        sw->gnode_ok = 1;
+      }
+      for (int f = 0; f < nf; f++)
+        sw->rhs[f] -= sw->w[i] * sw->gnode[f];
+    }
+    if (sw->implicit) {
+      int it = 0;
+      const int s = solve_implicit(sw, qm, qn, &it, residual, msg, len);
+      if (it > *iterations)
+        *iterations = it;
+      if (s < 0) {
+        sw->gnode_ok = 0;
+        mrvi_fmt(msg + strlen(msg), len - strlen(msg), " (micro step %d of %d)",
+                 m + 1, p);
+        return s;
+      }
+    } else {
+      for (int f = 0; f < nf; f++)
+        qn[f] = qm[f] + dt * sw->minv_f[f] * sw->rhs[f];
+    }
+    /* p^{f,m+1} (eq:pkfm+): M v_m - sum w cB grad W of interval m. */
+    double *pn = pf + (size_t)m * nf;
+    for (int f = 0; f < nf; f++)
+      pn[f] = sw->m_f[f] * (qn[f] - qm[f]) / dt;
+    sw->gnode_ok = 0;
+    for (int i = 0; i < sw->n_w; i++) {
+      if (sw->cB[i] == 0.0)
+        continue;
+      const double *g = sw->gpt[i];
+      if (sw->cA[i] == 0.0) { /* at node m + 1: also serves interval m+1 */
+        if (!sw->gnode_ok) {
+          memcpy(sw->zf, qn, (size_t)nf * sizeof(double));
+          memset(sw->gnode, 0, (size_t)nf * sizeof(double));
+          eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gnode, NULL, 0.0);
+          sw->gnode_ok = 1;
+        }
+        g = sw->gnode;
+      }
+      for (int f = 0; f < nf; f++)
+        pn[f] -= sw->w[i] * sw->cB[i] * g[f];
+    }
+    pm = pn;
+  }
+  /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
+  for (int s = 0; s < ns; s++)
+    ps1[s] = (x[s] - st->qs0[s]) / (dT * sw->minv_s[s]);
+  if (sw->wv1 != 0.0) {
+    const double *qp = nf > 0 ? x + ns + (size_t)(p - 1) * nf : NULL;
+    memcpy(sw->zs, x, (size_t)ns * sizeof(double));
+    if (nf > 0)
+      memcpy(sw->zf, qp, (size_t)nf * sizeof(double));
+    memset(sw->gs, 0, (size_t)ns * sizeof(double));
+    memset(sw->gf, 0, (size_t)nf * sizeof(double));
+    eval_class(sw, MRVI_SLOW, sw->wv1, sw->gs, sw->gf, NULL, 0.0);
+    for (int s = 0; s < ns; s++)
+      ps1[s] -= sw->gs[s];
+    for (int f = 0; f < nf; f++)
+      pf[(size_t)(p - 1) * nf + f] -= sw->gf[f];
+  }
+  return MRVI_OK;
+}
