@@ -15,6 +15,7 @@ struct mrvi_integrator {
   mrvi_nullspace *nullspace; /* null-space form only */
   int path;                  /* MRVI_PATH_* (doc/solver.md) */
   mrvi_sweep *sweep;         /* explicit and sweep paths */
+  mrvi_blocks *blocks;       /* schur path */
   char why[240];             /* reason for the path */
   double *qs_prev, *qf_prev; /* q_k^s, q_k^{f,0} of the last step */
   mrvi_newton *jac_nw;       /* full-step factors for jacobian_solve */
@@ -59,6 +60,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   mrvi_newton_free(it->newton);
   mrvi_newton_free(it->jac_nw);
   mrvi_sweep_free(it->sweep);
+  mrvi_blocks_free(it->blocks);
   free(it->qs_prev);
   free(it->qf_prev);
   mrvi_nullspace_free(it->nullspace);
@@ -322,7 +324,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;
   it->step.pf0 = it->pf;
-  if (it->path != MRVI_PATH_GENERAL) {
+  if (it->path == MRVI_PATH_EXPLICIT || it->path == MRVI_PATH_SWEEP) {
     /* No Newton matrix of the whole step (the Jacobian pattern is built
      * on demand by mrvi_integrator_jacobian_solve). */
     if (mrvi_sweep_create(&it->step, s, &it->sweep) < 0)
@@ -352,6 +354,11 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
                                     mrvi_nullspace_Ap(it->nullspace),
                                     mrvi_nullspace_Ai(it->nullspace),
                                     mrvi_nullspace_Ax(it->nullspace), msg, len);
+  } else if (it->path == MRVI_PATH_SCHUR) {
+    if (mrvi_blocks_create(&it->step, &it->blocks) < 0)
+      goto oom;
+    *out = it;
+    return MRVI_OK;
   } else {
     it->newton = mrvi_newton_create(it->step.n_total, it->step.Ap, it->step.Ai,
                                     it->step.Ax, msg, len);
@@ -431,6 +438,13 @@ static int newton_update(mrvi_integrator *it, char *msg, size_t len) {
                           it->dx, msg, len);
     if (s == MRVI_OK)
       for (int i = 0; i < st->n_unknowns; i++)
+        it->x[i] -= it->dx[i];
+  } else if (it->blocks) {
+    s = mrvi_blocks_solve(it->blocks, st, it->R, it->dx);
+    if (s < 0)
+      mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
+    else
+      for (int i = 0; i < st->n_total; i++)
         it->x[i] -= it->dx[i];
   } else {
     s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
@@ -707,7 +721,8 @@ void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
 }
 
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it) {
-  static const char *const names[] = {"general", "explicit", "sweep"};
+  static const char *const names[] = {"general", "explicit", "sweep",
+                                      "schur"};
   return names[it->path];
 }
 

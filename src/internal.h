@@ -254,7 +254,12 @@ int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).
  * ------------------------------------------------------------------------- */
-enum { MRVI_PATH_GENERAL = 0, MRVI_PATH_EXPLICIT = 1, MRVI_PATH_SWEEP = 2 };
+enum {
+  MRVI_PATH_GENERAL = 0,
+  MRVI_PATH_EXPLICIT = 1,
+  MRVI_PATH_SWEEP = 2,
+  MRVI_PATH_SCHUR = 3
+};
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len);
@@ -273,6 +278,16 @@ void mrvi_sweep_reset(mrvi_sweep *sw);
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
                     double *ps1, double *pf, int *iterations, double *residual,
                     char *msg, size_t len);
+
+/* Newton matrix of an unconstrained step by block elimination
+ * (solver/blocks.c): Schur complement on the slow block, block forward
+ * sweeps over the micro nodes for the fast block. */
+typedef struct mrvi_blocks mrvi_blocks;
+int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out);
+void mrvi_blocks_free(mrvi_blocks *b);
+/* Solve J dx = R with J the CSC values st->Ax (n_unknowns). */
+int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
+                      double *dx);
 
 /* ---------------------------------------------------------------------------
  * Linear solves with a factorisation kept between calls (solver/newton.c):

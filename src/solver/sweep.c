@@ -60,11 +60,22 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
              "handle constraints yet");
     return MRVI_PATH_GENERAL;
   }
+  const int small =
+      m->n_fast <= SWEEP_DENSE_MAX && m->n_slow <= SWEEP_DENSE_MAX;
   if (s->slow_grid != MRVI_GRID_MACRO) {
+    if (!small) {
+      mrvi_fmt(why, len,
+               "slow potential on the micro grid and blocks larger than the "
+               "dense limit %d",
+               SWEEP_DENSE_MAX);
+      return MRVI_PATH_GENERAL;
+    }
     mrvi_fmt(why, len,
              "slow potential on the micro grid couples q_{k+1}^s to every "
-             "micro node (no structured path for it yet)");
-    return MRVI_PATH_GENERAL;
+             "micro node: Newton with a Schur complement on the %d slow "
+             "unknowns and block sweeps over %d micro nodes",
+             m->n_slow, s->micro_steps);
+    return MRVI_PATH_SCHUR;
   }
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
@@ -74,9 +85,12 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
       if (m->rate[el->in[j]] == MRVI_SLOW) {
         mrvi_fmt(why, len,
                  "the fast potential depends on slow coordinate '%s', which "
-                 "couples q_{k+1}^s to every micro node",
-                 m->names[el->in[j]]);
-        return MRVI_PATH_GENERAL;
+                 "couples q_{k+1}^s to every micro node%s",
+                 m->names[el->in[j]],
+                 small ? ": Newton with a Schur complement on the slow "
+                         "unknowns and block sweeps"
+                       : "");
+        return small ? MRVI_PATH_SCHUR : MRVI_PATH_GENERAL;
       }
   }
   const double g = s->fast.gamma;
@@ -102,7 +116,7 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
 
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
                              char *why, size_t len) {
-  static const char *const names[] = {"general", "explicit", "sweep"};
+  static const char *const names[] = {"general", "explicit", "sweep", "schur"};
   const int path = mrvi_sweep_path(m, s, why, len);
   if (path == MRVI_PATH_GENERAL && s->solver == MRVI_SOLVER_STRUCTURED)
     return NULL;

@@ -1,0 +1,240 @@
+/* Block elimination for the Newton matrix of an unconstrained step
+ * (doc/solver.md, "schur" path).
+ *
+ * Columns: q_{k+1}^s (ns), then the fast nodes 1..p (block c = node - 1).
+ * Rows: the slow row (ns), then the fast row of node m = 0..p-1.  Row m
+ * involves nodes m-1, m, m+1 only (kinetic part and the micro intervals
+ * m-1, m of eq:Zapprox), i.e. column blocks m-2, m-1, m: the fast-fast part
+ * A_ff is block lower-triangular with three block diagonals.  The slow
+ * unknowns couple every row (V and W on the micro grid interpolate
+ * q_{k+1}^s), so
+ *   [A_ss A_sf] [ds]   [R_s]
+ *   [A_fs A_ff] [df] = [R_f]
+ * is solved with the Schur complement on the slow block:
+ *   Y = A_ff^-1 A_fs, z = A_ff^-1 R_f        (block forward sweeps)
+ *   (A_ss - A_sf Y) ds = R_s - A_sf z,  df = z - Y ds,
+ * at O(p (nf^3 + nf^2 ns) + ns^3) per Newton iteration instead of a sparse
+ * LU of the whole step. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct mrvi_blocks {
+  int ns, nf, p;
+  double *Ass, *Asf, *Afs; /* ns x ns, ns x p nf, p nf x ns */
+  double *D, *L1, *L2;     /* p blocks nf x nf each: column m, m-1, m-2 */
+  int *piv;                /* p x nf (pivots of the factored D) */
+  double *Y, *z, *S, *r;   /* p nf x ns, p nf, ns x ns, ns */
+  int *spiv;
+};
+
+/* LU with partial pivoting in place (n x n row-major); -1 if singular. */
+static int lu_factor(int n, double *A, int *piv) {
+  for (int k = 0; k < n; k++) {
+    int r = k;
+    for (int i = k + 1; i < n; i++)
+      if (fabs(A[i * n + k]) > fabs(A[r * n + k]))
+        r = i;
+    piv[k] = r;
+    if (!(fabs(A[r * n + k]) > 0.0))
+      return -1;
+    if (r != k)
+      for (int j = 0; j < n; j++) {
+        const double t = A[k * n + j];
+        A[k * n + j] = A[r * n + j];
+        A[r * n + j] = t;
+      }
+    const double d = 1.0 / A[k * n + k];
+    for (int i = k + 1; i < n; i++) {
+      const double f = (A[i * n + k] *= d);
+      if (f != 0.0)
+        for (int j = k + 1; j < n; j++)
+          A[i * n + j] -= f * A[k * n + j];
+    }
+  }
+  return 0;
+}
+
+/* Solve with lu_factor's factors; b (n x nrhs row-major) becomes x. */
+static void lu_solve(int n, const double *A, const int *piv, double *b,
+                     int nrhs) {
+  for (int k = 0; k < n; k++) {
+    if (piv[k] != k)
+      for (int c = 0; c < nrhs; c++) {
+        const double t = b[piv[k] * nrhs + c];
+        b[piv[k] * nrhs + c] = b[k * nrhs + c];
+        b[k * nrhs + c] = t;
+      }
+    for (int i = k + 1; i < n; i++) {
+      const double f = A[i * n + k];
+      if (f != 0.0)
+        for (int c = 0; c < nrhs; c++)
+          b[i * nrhs + c] -= f * b[k * nrhs + c];
+    }
+  }
+  for (int i = n - 1; i >= 0; i--)
+    for (int c = 0; c < nrhs; c++) {
+      double s = b[i * nrhs + c];
+      for (int j = i + 1; j < n; j++)
+        s -= A[i * n + j] * b[j * nrhs + c];
+      b[i * nrhs + c] = s / A[i * n + i];
+    }
+}
+
+void mrvi_blocks_free(mrvi_blocks *b) {
+  if (!b)
+    return;
+  free(b->Ass);
+  free(b->Asf);
+  free(b->Afs);
+  free(b->D);
+  free(b->L1);
+  free(b->L2);
+  free(b->piv);
+  free(b->Y);
+  free(b->z);
+  free(b->S);
+  free(b->r);
+  free(b->spiv);
+  free(b);
+}
+
+int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
+  mrvi_blocks *b = calloc(1, sizeof *b);
+  *out = NULL;
+  if (!b)
+    return MRVI_ENOMEM;
+  b->ns = st->ns;
+  b->nf = st->nf;
+  b->p = st->p;
+  const size_t ns = (size_t)b->ns, nf = (size_t)b->nf, p = (size_t)b->p;
+  const size_t nF = p * nf;
+#define ALLOC(ptr, count, type)                                                \
+  ptr = calloc((count) > 0 ? (count) : 1, sizeof(type))
+  ALLOC(b->Ass, ns * ns, double);
+  ALLOC(b->Asf, ns * nF, double);
+  ALLOC(b->Afs, nF * ns, double);
+  ALLOC(b->D, p * nf * nf, double);
+  ALLOC(b->L1, p * nf * nf, double);
+  ALLOC(b->L2, p * nf * nf, double);
+  ALLOC(b->piv, nF, int);
+  ALLOC(b->Y, nF * ns, double);
+  ALLOC(b->z, nF, double);
+  ALLOC(b->S, ns * ns, double);
+  ALLOC(b->r, ns, double);
+  ALLOC(b->spiv, ns, int);
+#undef ALLOC
+  if (!b->Ass || !b->Asf || !b->Afs || !b->D || !b->L1 || !b->L2 || !b->piv ||
+      !b->Y || !b->z || !b->S || !b->r || !b->spiv) {
+    mrvi_blocks_free(b);
+    return MRVI_ENOMEM;
+  }
+  *out = b;
+  return MRVI_OK;
+}
+
+/* Scatter the CSC values of st into the blocks; -1 if an entry lies outside
+ * the block structure (it cannot for an unconstrained step). */
+static int scatter(mrvi_blocks *b, const mrvi_step *st) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
+  memset(b->Ass, 0, (size_t)ns * (size_t)ns * sizeof(double));
+  memset(b->Asf, 0, (size_t)ns * (size_t)nF * sizeof(double));
+  memset(b->Afs, 0, (size_t)nF * (size_t)ns * sizeof(double));
+  const size_t bb = (size_t)p * (size_t)nf * (size_t)nf;
+  memset(b->D, 0, bb * sizeof(double));
+  memset(b->L1, 0, bb * sizeof(double));
+  memset(b->L2, 0, bb * sizeof(double));
+  for (int j = 0; j < ns + nF; j++)
+    for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++) {
+      const int i = st->Ai[q];
+      const double v = st->Ax[q];
+      if (i < ns && j < ns)
+        b->Ass[i * ns + j] += v;
+      else if (i < ns)
+        b->Asf[(size_t)i * (size_t)nF + (size_t)(j - ns)] += v;
+      else if (j < ns)
+        b->Afs[(size_t)(i - ns) * (size_t)ns + (size_t)j] += v;
+      else {
+        const int rb = (i - ns) / nf, rf = (i - ns) % nf;
+        const int cb = (j - ns) / nf, cf = (j - ns) % nf;
+        double *blk = rb == cb       ? b->D
+                      : rb == cb + 1 ? b->L1
+                      : rb == cb + 2 ? b->L2
+                                     : NULL;
+        if (!blk)
+          return -1;
+        blk[((size_t)rb * (size_t)nf + (size_t)rf) * (size_t)nf + (size_t)cf] +=
+            v;
+      }
+    }
+  return 0;
+}
+
+/* X (p nf x nrhs) <- A_ff^-1 X by a block forward sweep (D factored). */
+static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
+  const int nf = b->nf;
+  const size_t blk = (size_t)nf * (size_t)nf, row = (size_t)nf * (size_t)nrhs;
+  for (int m = 0; m < b->p; m++) {
+    double *xm = X + (size_t)m * row;
+    for (int d = 1; d <= 2 && d <= m; d++) {
+      const double *L = (d == 1 ? b->L1 : b->L2) + (size_t)m * blk;
+      const double *xc = X + (size_t)(m - d) * row;
+      for (int i = 0; i < nf; i++)
+        for (int k = 0; k < nf; k++) {
+          const double l = L[i * nf + k];
+          if (l != 0.0)
+            for (int c = 0; c < nrhs; c++)
+              xm[i * nrhs + c] -= l * xc[k * nrhs + c];
+        }
+    }
+    lu_solve(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * (size_t)nf, xm,
+             nrhs);
+  }
+}
+
+int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
+                      double *dx) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
+  if (scatter(b, st) < 0)
+    return MRVI_EINVAL;
+  const size_t blk = (size_t)nf * (size_t)nf;
+  for (int m = 0; m < p; m++)
+    if (lu_factor(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * (size_t)nf) <
+        0)
+      return MRVI_ESINGULAR;
+  /* Y = A_ff^-1 A_fs, z = A_ff^-1 R_f */
+  memcpy(b->Y, b->Afs, (size_t)nF * (size_t)ns * sizeof(double));
+  memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
+  if (ns > 0)
+    sweep_solve(b, b->Y, ns);
+  sweep_solve(b, b->z, 1);
+  /* S = A_ss - A_sf Y, r = R_s - A_sf z */
+  for (int i = 0; i < ns; i++) {
+    const double *a = b->Asf + (size_t)i * (size_t)nF;
+    for (int j = 0; j < ns; j++) {
+      double s = b->Ass[i * ns + j];
+      for (int k = 0; k < nF; k++)
+        s -= a[k] * b->Y[(size_t)k * (size_t)ns + (size_t)j];
+      b->S[i * ns + j] = s;
+    }
+    double s = R[i];
+    for (int k = 0; k < nF; k++)
+      s -= a[k] * b->z[k];
+    b->r[i] = s;
+  }
+  if (ns > 0) {
+    if (lu_factor(ns, b->S, b->spiv) < 0)
+      return MRVI_ESINGULAR;
+    lu_solve(ns, b->S, b->spiv, b->r, 1);
+  }
+  memcpy(dx, b->r, (size_t)ns * sizeof(double));
+  for (int k = 0; k < nF; k++) {
+    double s = b->z[k];
+    for (int j = 0; j < ns; j++)
+      s -= b->Y[(size_t)k * (size_t)ns + (size_t)j] * b->r[j];
+    dx[ns + k] = s;
+  }
+  return MRVI_OK;
+}
