@@ -34,6 +34,7 @@ struct mrvi_integrator {
   double *mu_h;                /* projection impulse / h at the current node */
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;
+  long roundoff_steps; /* steps accepted at the roundoff floor above tol */
   double last_residual;
   double t_assemble, t_solve;
   char errmsg[512];
@@ -106,16 +107,30 @@ static void split_state(mrvi_integrator *it) {
   }
 }
 
-/* Predictor: free flight with the current momenta on both grids. */
+/* Predictor: free flight with the current momenta on both grids, as
+ * displacements from the known nodes (the Newton paths solve for
+ * increments, mrvi_step.increments, so that tiny steps keep their digits). */
 static void predict(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
-  const mrvi_step *st = &it->step;
+  mrvi_step *st = &it->step;
+  st->increments = 1;
   for (int s = 0; s < st->ns; s++)
-    it->x[s] = it->qs[s] + st->dT * it->ps[s] / m->mass[m->slow_index[s]];
+    it->x[s] = st->dT * it->ps[s] / m->mass[m->slow_index[s]];
   for (int mm = 1; mm <= st->p; mm++)
     for (int s = 0; s < st->nf; s++)
       it->x[st->ns + (mm - 1) * st->nf + s] =
-          it->qf[s] + mm * st->dt * it->pf[s] / m->mass[m->fast_index[s]];
+          mm * st->dt * it->pf[s] / m->mass[m->fast_index[s]];
+}
+
+/* Displacements -> positions in x (after convergence). */
+static void to_positions(mrvi_integrator *it) {
+  mrvi_step *st = &it->step;
+  for (int s = 0; s < st->ns; s++)
+    it->x[s] += it->qs[s];
+  for (int mm = 1; mm <= st->p; mm++)
+    for (int s = 0; s < st->nf; s++)
+      it->x[st->ns + (mm - 1) * st->nf + s] += it->qf[s];
+  st->increments = 0;
 }
 
 static double norm_inf(const double *v, int n) {
@@ -141,12 +156,14 @@ static double residual_floor(const mrvi_integrator *it) {
   for (int s = 0; s < st->ns; s++) {
     const double M = m->mass[m->slow_index[s]];
     scale = fmax(scale, fabs(it->ps[s]) +
-                            M * (fabs(it->qs[s]) + fabs(it->x[s])) / st->dT);
+                            M * (fabs(it->qs[s]) + fabs(it->qs[s] + it->x[s])) /
+                                st->dT);
   }
   for (int s = 0; s < st->nf; s++) {
     double qmax = fabs(it->qf[s]);
     for (int mm = 1; mm <= st->p; mm++)
-      qmax = fmax(qmax, fabs(it->x[st->ns + (mm - 1) * st->nf + s]));
+      qmax =
+          fmax(qmax, fabs(it->qf[s] + it->x[st->ns + (mm - 1) * st->nf + s]));
     const double M = m->mass[m->fast_index[s]];
     scale = fmax(scale, fabs(it->pf[s]) + 4.0 * M * qmax / st->dt);
   }
@@ -593,10 +610,17 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   predict(it);
   int s = evaluate(it, msg, sizeof msg);
   int iter = 0;
-  double res, cres;
+  double res, cres, prev = INFINITY;
   residual_norms(it, &res, &cres);
-  while (s == MRVI_OK &&
-         !(res <= fmax(tol, residual_floor(it)) && cres <= ctol)) {
+  /* Converged at the tolerance, or -- after at least one update -- stalled
+   * at the roundoff floor (counted: mrvi_integrator_roundoff_steps). */
+  while (s == MRVI_OK && !(res <= tol && cres <= ctol)) {
+    if (iter >= 1 && cres <= ctol && res <= residual_floor(it) &&
+        res > 0.5 * prev) {
+      it->roundoff_steps++;
+      break;
+    }
+    prev = res;
     if (!isfinite(res) || !isfinite(cres) || iter == max_it) {
       const int finite = isfinite(res) && isfinite(cres);
       it->last_iterations = iter;
@@ -634,6 +658,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
 
   /* Momenta at the new macro node and the fast micro nodes (eq:pkfm+). */
   mrvi_step_momenta(st, it->x, it->ps1, it->micro_p);
+  to_positions(it);
   return finish_step(it);
 }
 
@@ -764,4 +789,8 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
   const int s =
       mrvi_linsolve_solve(it->jac_nw, st->Ax, transpose, b, x, msg, sizeof msg);
   return s < 0 ? fail(it, s, "step Jacobian: %s", msg) : MRVI_OK;
+}
+
+long mrvi_integrator_roundoff_steps(const mrvi_integrator *it) {
+  return it->roundoff_steps;
 }

@@ -161,6 +161,9 @@ typedef struct mrvi_step {
   int n_pts[2];
   int *elem_of_class[2];        /* element indices of V and W */
   int n_elem_of_class[2];
+  /* Unknowns as displacements from (q_k^s, q_k^{f,0}) instead of
+   * positions (0 by default; the integrator's Newton paths set it). */
+  int increments;
   /* Known data of the step: q_k^s, q_k^{f,0}, p_k^s, p_k^{f,0}. */
   const double *qs0, *qf0, *ps0, *pf0;
   /* Jacobian as triplets mapped to CSC. */
@@ -250,6 +253,10 @@ void mrvi_newton_free(mrvi_newton *nw);
 /* Factorise A (values Ax on the fixed pattern) and solve A dx = b. */
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
                       double *dx, char *msg, size_t len);
+
+/* Steps whose Newton iteration stopped at the roundoff floor above the
+ * requested tolerance (integrator.c); 0 when every step met it. */
+long mrvi_integrator_roundoff_steps(const mrvi_integrator *it);
 
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).

@@ -18,10 +18,34 @@
 #include <string.h>
 #include <suitesparse/umfpack.h>
 
-/* Value of fast node m (0..p) in slot. */
+/* Value of fast node m (0..p) in slot.  With st->increments the unknowns
+ * are displacements from the known node values (q_k^s, q_k^{f,0}). */
 static inline double fast_node(const mrvi_step *st, const double *x, int m,
                                int slot) {
-  return m == 0 ? st->qf0[slot] : x[st->ns + (m - 1) * st->nf + slot];
+  if (m == 0)
+    return st->qf0[slot];
+  const double v = x[st->ns + (m - 1) * st->nf + slot];
+  return st->increments ? st->qf0[slot] + v : v;
+}
+
+/* q^{f,m+1} - q^{f,m} in slot: from the displacements directly with
+ * st->increments, so that tiny steps lose no digits to |q|. */
+static inline double fast_diff(const mrvi_step *st, const double *x, int m,
+                               int slot) {
+  if (!st->increments)
+    return fast_node(st, x, m + 1, slot) - fast_node(st, x, m, slot);
+  const double *d = x + st->ns + slot;
+  return d[m * st->nf] - (m == 0 ? 0.0 : d[(m - 1) * st->nf]);
+}
+
+/* Slow part a0 q_k^s + a1 q_{k+1}^s of a point, and q_{k+1}^s - q_k^s. */
+static inline double slow_at(const mrvi_step *st, const double *x, double a0,
+                             double a1, int s) {
+  return st->increments ? st->qs0[s] + a1 * x[s]
+                        : a0 * st->qs0[s] + a1 * x[s];
+}
+static inline double slow_diff(const mrvi_step *st, const double *x, int s) {
+  return st->increments ? x[s] : x[s] - st->qs0[s];
 }
 
 /* Inputs of element e at point pt. */
@@ -31,7 +55,7 @@ static void gather(const mrvi_step *st, const mrvi_element *e,
   for (int j = 0; j < e->n_in; j++) {
     const int c = e->in[j], s = m->slot[c];
     if (m->rate[c] == MRVI_SLOW)
-      y[j] = pt->a0 * st->qs0[s] + pt->a1 * x[s];
+      y[j] = slow_at(st, x, pt->a0, pt->a1, s);
     else
       y[j] = pt->cA * fast_node(st, x, pt->m, s) +
              pt->cB * fast_node(st, x, pt->m + 1, s);
@@ -218,7 +242,7 @@ static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
   /* slow: p_k^s - M^s (q_{k+1}^s - q_k^s)/dT */
   for (int s = 0; s < ns; s++) {
     const double M = m->mass[m->slow_index[s]];
-    R[s] = st->ps0[s] - M * (x[s] - st->qs0[s]) / st->dT;
+    R[s] = st->ps0[s] - M * slow_diff(st, x, s) / st->dT;
     if (jac)
       jac_add(st, s, s, -M / st->dT);
   }
@@ -228,13 +252,11 @@ static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
     for (int s = 0; s < nf; s++) {
       const double M = m->mass[m->fast_index[s]];
       const int row = ns + mm * nf + s;
-      const double vr =
-          (fast_node(st, x, mm + 1, s) - fast_node(st, x, mm, s)) / st->dt;
+      const double vr = fast_diff(st, x, mm, s) / st->dt;
       if (mm == 0) {
         R[row] = st->pf0[s] - M * vr;
       } else {
-        const double vl =
-            (fast_node(st, x, mm, s) - fast_node(st, x, mm - 1, s)) / st->dt;
+        const double vl = fast_diff(st, x, mm - 1, s) / st->dt;
         R[row] = M * (vl - vr);
       }
       if (jac) {
@@ -262,7 +284,7 @@ void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
   const mrvi_constraint *k = &m->constraints[c];
   for (int j = 0; j < k->n_in; j++) {
     const int idx = k->in[j], s = m->slot[idx];
-    st->cy[j] = m->rate[idx] == MRVI_SLOW ? pt->a0 * st->qs0[s] + pt->a1 * x[s]
+    st->cy[j] = m->rate[idx] == MRVI_SLOW ? slow_at(st, x, pt->a0, pt->a1, s)
                                           : fast_node(st, x, pt->m, s);
   }
   mrvi_constraint_eval_at(k, st->cy, st->cg, st->cG, hess ? st->cH : NULL);
@@ -457,12 +479,11 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
   /* Kinetic parts: D_{q_{k+1}^s} T_d = M^s v_s; D_{q^{f,m+1}} T_d^m = M^f v_m
    */
   for (int s = 0; s < ns; s++)
-    ps1[s] = m->mass[m->slow_index[s]] * (x[s] - st->qs0[s]) / st->dT;
+    ps1[s] = m->mass[m->slow_index[s]] * slow_diff(st, x, s) / st->dT;
   for (int mm = 0; mm < p; mm++)
     for (int s = 0; s < nf; s++)
       pf[mm * nf + s] =
-          m->mass[m->fast_index[s]] *
-          (fast_node(st, x, mm + 1, s) - fast_node(st, x, mm, s)) / st->dt;
+          m->mass[m->fast_index[s]] * fast_diff(st, x, mm, s) / st->dt;
   /* Potential parts: -w a1 grad_s Z and, for node m+1 of interval m
    * (eq:pkfm+), -w cB grad_f Z. */
   for (int c = 0; c < 2; c++)
