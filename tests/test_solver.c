@@ -294,7 +294,79 @@ static void test_jacobian_solve(void) {
   }
 }
 
+/* Tiny steps (dT = 1e-6, p = 10, 1000 steps): Newton on increments meets
+ * the tolerance in every step (no step stops at the roundoff floor, no
+ * predictor is accepted), and the momentum change over the run agrees with
+ * a run at dT/2 to 1e-6 of its size: the difference of two second-order
+ * runs is (3/4) C dT^2 t, far below that; accepting predictors (free
+ * flight) would lose the whole change. */
+static void test_tiny_steps(void) {
+  const char *const sys_names[] = {"systems/triatomic.yaml",
+                                   "systems/fpu.yaml"};
+  for (int sy = 0; sy < 2; sy++)
+    for (int sv = 0; sv < 2; sv++) {
+      double pend[2][64], p0[64];
+      int n = 0;
+      for (int half = 0; half < 2; half++) {
+        char ov[4][80];
+        const char *ovp[4] = {ov[0], ov[1], ov[2], ov[3]};
+        snprintf(ov[0], sizeof ov[0], "integrator.macro_step=%s",
+                 half ? "5e-7" : "1e-6");
+        snprintf(ov[1], sizeof ov[1], "integrator.t_end=1e-3");
+        snprintf(ov[2], sizeof ov[2], "integrator.solver=%s",
+                 sv ? "auto" : "general");
+        snprintf(ov[3], sizeof ov[3], "integrator.micro_steps=10");
+        mrvi_system *s = NULL;
+        char msg[400];
+        mrvi_integrator *it = NULL;
+        if (mrvi_system_load(test_source_path(sys_names[sy]), ovp, 4, &s, msg,
+                             sizeof msg) < 0 ||
+            mrvi_integrator_create(s->model, &s->settings, &it, msg,
+                                   sizeof msg) < 0) {
+          CHECK(0, "%s: %s", sys_names[sy], msg);
+          mrvi_system_free(s);
+          return;
+        }
+        n = mrvi_model_n(s->model);
+        memcpy(p0, mrvi_integrator_p(it), (size_t)n * sizeof(double));
+        const long N = mrvi_settings_n_steps(&s->settings);
+        int zero_iter = 0, ok = 1;
+        double worst = 0.0;
+        for (long k = 0; k < N && ok; k++) {
+          ok = mrvi_integrator_step(it) == MRVI_OK;
+          worst = fmax(worst, mrvi_integrator_last_residual(it));
+          zero_iter += mrvi_integrator_last_iterations(it) == 0;
+        }
+        const int expl =
+            strcmp(mrvi_integrator_solver_path(it), "explicit") == 0;
+        CHECK(ok, "%s: %s", sys_names[sy], mrvi_integrator_errmsg(it));
+        if (!half) {
+          CHECK(mrvi_integrator_roundoff_steps(it) == 0 &&
+                    worst <= s->settings.newton_tol,
+                "%s (%s): every step at the tolerance: residual %.2e <= "
+                "%.2e, %ld steps at the roundoff floor",
+                sys_names[sy], mrvi_integrator_solver_path(it), worst,
+                s->settings.newton_tol, mrvi_integrator_roundoff_steps(it));
+          CHECK(expl || zero_iter == 0, "%s: %d predictors accepted",
+                sys_names[sy], zero_iter);
+        }
+        memcpy(pend[half], mrvi_integrator_p(it), (size_t)n * sizeof(double));
+        mrvi_integrator_free(it);
+        mrvi_system_free(s);
+      }
+      double dmax = 0.0, change = 0.0;
+      for (int i = 0; i < n; i++) {
+        dmax = fmax(dmax, fabs(pend[0][i] - pend[1][i]));
+        change = fmax(change, fabs(pend[1][i] - p0[i]));
+      }
+      CHECK(change > 0 && dmax <= 1e-6 * change,
+            "%s (%s): momentum change %.3e, dT vs dT/2 differ by %.2e",
+            sys_names[sy], sv ? "auto" : "general", change, dmax);
+    }
+}
+
 int main(void) {
+  test_tiny_steps();
   test_paths_agree();
   test_choice();
   test_jacobian_solve();
