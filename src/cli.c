@@ -517,6 +517,12 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
   printf("  %-23s%ld total, max %d per step\n", "Newton iterations",
          sum->iterations_total, sum->iterations_max);
   printf("  %-23s%.3e\n", "max rel. energy error", sum->max_rel_energy_error);
+  if (sum->roundoff_steps > 0)
+    fprintf(stderr,
+            "warning: %ld step%s stopped at the roundoff floor above the "
+            "Newton tolerance %g (see doc/solver.md)\n",
+            sum->roundoff_steps, sum->roundoff_steps == 1 ? "" : "s",
+            s->newton_tol);
   printf("  %-23s%.3f s (assemble %.3f s, solve %.3f s)\n", "wall time",
          sum->wall_time, sum->assemble_time, sum->solve_time);
   printf("  %-23s%s\n", "output", out);

@@ -746,8 +746,7 @@ void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
 }
 
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it) {
-  static const char *const names[] = {"general", "explicit", "sweep",
-                                      "schur"};
+  static const char *const names[] = {"general", "explicit", "sweep", "schur"};
   return names[it->path];
 }
 

@@ -254,10 +254,6 @@ void mrvi_newton_free(mrvi_newton *nw);
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
                       double *dx, char *msg, size_t len);
 
-/* Steps whose Newton iteration stopped at the roundoff floor above the
- * requested tolerance (integrator.c); 0 when every step met it. */
-long mrvi_integrator_roundoff_steps(const mrvi_integrator *it);
-
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).
  * ------------------------------------------------------------------------- */

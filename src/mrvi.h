@@ -311,7 +311,8 @@ void mrvi_settings_default(mrvi_settings *s);
 int mrvi_settings_set_scheme(mrvi_settings *s, const char *scheme);
 /* Step solver path for model m and settings s (doc/solver.md): "explicit"
  * (no Newton), "sweep" (explicit slow update, forward sweep of p implicit
- * micro steps) or "general" (Newton on the whole step).  why (may be NULL)
+ * micro steps), "schur" (Newton, Schur complement on the slow block) or
+ * "general" (Newton with sparse LU on the whole step).  why (may be NULL)
  * gets the reason for the choice.  With s->solver = structured and no
  * structured path, returns NULL (why says why). */
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
@@ -362,8 +363,12 @@ int mrvi_integrator_last_iterations(const mrvi_integrator *it);
 int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
                                    const double *b, double *x);
 int mrvi_integrator_jacobian_size(const mrvi_integrator *it);
-/* Step solver path of the integrator ("explicit", "sweep", "general"). */
+/* Step solver path of the integrator ("explicit", "sweep", "schur",
+ * "general"). */
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it);
+/* Steps whose Newton iteration stopped at the roundoff floor above the
+ * requested tolerance (0 when every step met it). */
+long mrvi_integrator_roundoff_steps(const mrvi_integrator *it);
 double mrvi_integrator_last_residual(const mrvi_integrator *it);
 /* Size of the Newton system (n_slow + p n_fast, plus the multipliers in
  * the multiplier form) and its nonzeros. */
@@ -427,6 +432,8 @@ typedef struct mrvi_summary {
   double max_rel_energy_error; /* max_k |H_k - H_0| / max(|H_0|, tiny) */
   double wall_time;            /* seconds */
   double assemble_time, solve_time;
+  long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
+                          tolerance (doc/solver.md) */
   int status;                  /* final status */
   char message[512];           /* why it stopped ("" when completed) */
 } mrvi_summary;

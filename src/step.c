@@ -41,8 +41,7 @@ static inline double fast_diff(const mrvi_step *st, const double *x, int m,
 /* Slow part a0 q_k^s + a1 q_{k+1}^s of a point, and q_{k+1}^s - q_k^s. */
 static inline double slow_at(const mrvi_step *st, const double *x, double a0,
                              double a1, int s) {
-  return st->increments ? st->qs0[s] + a1 * x[s]
-                        : a0 * st->qs0[s] + a1 * x[s];
+  return st->increments ? st->qs0[s] + a1 * x[s] : a0 * st->qs0[s] + a1 * x[s];
 }
 static inline double slow_diff(const mrvi_step *st, const double *x, int s) {
   return st->increments ? x[s] : x[s] - st->qs0[s];
