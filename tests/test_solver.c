@@ -301,25 +301,33 @@ static void test_jacobian_solve(void) {
  * runs is (3/4) C dT^2 t, far below that; accepting predictors (free
  * flight) would lose the whole change. */
 static void test_tiny_steps(void) {
-  const char *const sys_names[] = {"systems/triatomic.yaml",
-                                   "systems/fpu.yaml"};
-  for (int sy = 0; sy < 2; sy++)
-    for (int sv = 0; sv < 2; sv++) {
+  /* system, scheme, solver: every path */
+  static const char *const cases[][3] = {
+      {"systems/triatomic.yaml", "midpoint-midpoint", "general"},
+      {"systems/triatomic.yaml", "midpoint-midpoint", "auto"},
+      {"systems/fpu.yaml", "midpoint-midpoint", "general"},
+      {"systems/fpu.yaml", "midpoint-midpoint", "auto"},
+      {"systems/fpu.yaml", "explicit-slow", "auto"},
+      {"systems/fpu.yaml", "fully-explicit", "auto"}};
+  for (int c = 0; c < (int)(sizeof cases / sizeof cases[0]); c++) {
+    const char *const *sys_names = cases[c];
+    const int sy = 0;
+    {
       double pend[2][64], p0[64];
       int n = 0;
       for (int half = 0; half < 2; half++) {
-        char ov[4][80];
-        const char *ovp[4] = {ov[0], ov[1], ov[2], ov[3]};
+        char ov[5][80];
+        const char *ovp[5] = {ov[0], ov[1], ov[2], ov[3], ov[4]};
         snprintf(ov[0], sizeof ov[0], "integrator.macro_step=%s",
                  half ? "5e-7" : "1e-6");
         snprintf(ov[1], sizeof ov[1], "integrator.t_end=1e-3");
-        snprintf(ov[2], sizeof ov[2], "integrator.solver=%s",
-                 sv ? "auto" : "general");
+        snprintf(ov[2], sizeof ov[2], "integrator.solver=%s", cases[c][2]);
+        snprintf(ov[4], sizeof ov[4], "integrator.scheme=%s", cases[c][1]);
         snprintf(ov[3], sizeof ov[3], "integrator.micro_steps=10");
         mrvi_system *s = NULL;
         char msg[400];
         mrvi_integrator *it = NULL;
-        if (mrvi_system_load(test_source_path(sys_names[sy]), ovp, 4, &s, msg,
+        if (mrvi_system_load(test_source_path(sys_names[sy]), ovp, 5, &s, msg,
                              sizeof msg) < 0 ||
             mrvi_integrator_create(s->model, &s->settings, &it, msg,
                                    sizeof msg) < 0) {
@@ -361,8 +369,9 @@ static void test_tiny_steps(void) {
       }
       CHECK(change > 0 && dmax <= 1e-6 * change,
             "%s (%s): momentum change %.3e, dT vs dT/2 differ by %.2e",
-            sys_names[sy], sv ? "auto" : "general", change, dmax);
+            sys_names[sy], cases[c][1], change, dmax);
     }
+  }
 }
 
 int main(void) {

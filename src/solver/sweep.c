@@ -42,6 +42,7 @@ struct mrvi_sweep {
   int gnode_ok;
   double *gpt[2];         /* grad_f W at the implicit points (converged) */
   double *rhs, *F, *fimp; /* row data, residual, last implicit force */
+  double *dn;             /* q^{m+1} - q^m */
   double *J;              /* nf x nf */
   int *piv;
   double *y, *g, *H; /* element workspace */
@@ -139,6 +140,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->rhs);
   free(sw->F);
   free(sw->fimp);
+  free(sw->dn);
   free(sw->J);
   free(sw->piv);
   free(sw->y);
@@ -180,7 +182,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->w[sw->n_w] = pt->w;
     sw->cA[sw->n_w] = pt->cA;
     sw->cB[sw->n_w] = pt->cB;
-    if (pt->cA != 0.0 && pt->cB != 0.0)
+    if (pt->cA != 0.0 && pt->cB != 0.0 && st->nf > 0)
       sw->implicit = 1;
     sw->n_w++;
   }
@@ -203,6 +205,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->rhs = dalloc(nf);
   sw->F = dalloc(nf);
   sw->fimp = dalloc(nf);
+  sw->dn = dalloc(nf);
   sw->J = dalloc(sw->implicit ? nf * nf : 1);
   sw->piv = calloc(nf > 0 ? nf : 1, sizeof(int));
   sw->y = dalloc((size_t)max_n_in);
@@ -210,7 +213,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->H = dalloc(mi * mi);
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zs || !sw->zf || !sw->gs ||
       !sw->gf || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
-      !sw->F || !sw->fimp || !sw->J || !sw->piv || !sw->y || !sw->g || !sw->H) {
+      !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->piv || !sw->y ||
+      !sw->g || !sw->H) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -319,19 +323,23 @@ static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
     sw->zf[f] = a * u[f] + b * v[f];
 }
 
-/* Solve row m for qn = q^{m+1} given qm = q^m and rhs = p^{f,m} minus the
- * forces of the points at node m (Newton on nf unknowns). */
-static int solve_implicit(mrvi_sweep *sw, const double *qm, double *qn,
+/* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
+ * rhs = p^{f,m} minus the forces of the points at node m (Newton on nf
+ * unknowns; displacements keep tiny steps' digits). */
+static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
                           int *iters, double *res, char *msg, size_t len) {
   const int nf = sw->nf;
   const double dt = sw->st->dt;
   /* Predictor: the last implicit force held fixed (explicit in it). */
   for (int f = 0; f < nf; f++)
-    qn[f] = qm[f] + dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
+    dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
   double scale = 0.0;
   for (int f = 0; f < nf; f++)
     scale = fmax(scale, fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt);
   const double floor = 16.0 * DBL_EPSILON * scale;
+  /* At least one update: the predictor is second-order accurate, so at tiny
+   * steps its residual can pass the tolerance while its momentum error,
+   * summed over many micro steps, exceeds the truncation error. */
   for (int it = 0;; it++) {
     /* F = rhs - M (qn - qm)/dt - sum w cA grad W(z); J = M/dt + w cA cB H. */
     memset(sw->fimp, 0, (size_t)nf * sizeof(double));
@@ -339,7 +347,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *qn,
     for (int i = 0; i < sw->n_w; i++) {
       if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
         continue;
-      set_zf(sw, sw->cA[i], qm, sw->cB[i], qn);
+      set_zf(sw, 1.0, qm, sw->cB[i], dn); /* cA qm + cB (qm + dn) */
       memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
       eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gpt[i], sw->J,
                  sw->w[i] * sw->cA[i] * sw->cB[i]);
@@ -348,11 +356,11 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *qn,
     }
     double r = 0.0;
     for (int f = 0; f < nf; f++) {
-      sw->F[f] = sw->rhs[f] - sw->m_f[f] * (qn[f] - qm[f]) / dt - sw->fimp[f];
+      sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
       const double a = fabs(sw->F[f]);
       r = isnan(a) || a > r ? a : r;
     }
-    if (r <= fmax(sw->tol, floor)) {
+    if (it >= 1 && r <= fmax(sw->tol, floor)) {
       *iters = it;
       *res = fmax(*res, r);
       return MRVI_OK;
@@ -375,7 +383,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *qn,
     }
     lu_solve(nf, sw->J, sw->piv, sw->F);
     for (int f = 0; f < nf; f++)
-      qn[f] += sw->F[f];
+      dn[f] += sw->F[f];
   }
 }
 
@@ -394,8 +402,10 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     memcpy(sw->zf, st->qf0, (size_t)nf * sizeof(double));
     eval_class(sw, MRVI_SLOW, sw->wv0, sw->gs, sw->gf, NULL, 0.0);
   }
-  for (int s = 0; s < ns; s++)
-    x[s] = st->qs0[s] + dT * sw->minv_s[s] * (st->ps0[s] - sw->gs[s]);
+  for (int s = 0; s < ns; s++) {
+    ps1[s] = st->ps0[s] - sw->gs[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
+    x[s] = st->qs0[s] + dT * sw->minv_s[s] * ps1[s];
+  }
   /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
   double *pm = pf; /* momentum at node m (row m's left part) */
   for (int f = 0; f < nf; f++)
@@ -419,7 +429,7 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     }
     if (sw->implicit) {
       int it = 0;
-      const int s = solve_implicit(sw, qm, qn, &it, residual, msg, len);
+      const int s = solve_implicit(sw, qm, sw->dn, &it, residual, msg, len);
       if (it > *iterations)
         *iterations = it;
       if (s < 0) {
@@ -430,12 +440,14 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
       }
     } else {
       for (int f = 0; f < nf; f++)
-        qn[f] = qm[f] + dt * sw->minv_f[f] * sw->rhs[f];
+        sw->dn[f] = dt * sw->minv_f[f] * sw->rhs[f];
     }
+    for (int f = 0; f < nf; f++)
+      qn[f] = qm[f] + sw->dn[f];
     /* p^{f,m+1} (eq:pkfm+): M v_m - sum w cB grad W of interval m. */
     double *pn = pf + (size_t)m * nf;
     for (int f = 0; f < nf; f++)
-      pn[f] = sw->m_f[f] * (qn[f] - qm[f]) / dt;
+      pn[f] = sw->m_f[f] * sw->dn[f] / dt;
     sw->gnode_ok = 0;
     for (int i = 0; i < sw->n_w; i++) {
       if (sw->cB[i] == 0.0)
@@ -456,8 +468,6 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     pm = pn;
   }
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
-  for (int s = 0; s < ns; s++)
-    ps1[s] = (x[s] - st->qs0[s]) / (dT * sw->minv_s[s]);
   if (sw->wv1 != 0.0) {
     const double *qp = nf > 0 ? x + ns + (size_t)(p - 1) * nf : NULL;
     memcpy(sw->zs, x, (size_t)ns * sizeof(double));
