@@ -481,5 +481,17 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     for (int f = 0; f < nf; f++)
       pf[(size_t)(p - 1) * nf + f] -= sw->gf[f];
   }
+  /* Non-finite values propagate along the sweep: the new node suffices. */
+  double sum = 0.0;
+  for (int s = 0; s < ns; s++)
+    sum += x[s] + ps1[s];
+  for (int f = 0; f < nf; f++)
+    sum += x[ns + (size_t)(p - 1) * nf + f] + pf[(size_t)(p - 1) * nf + f];
+  if (!isfinite(sum)) {
+    sw->gnode_ok = 0;
+    mrvi_fmt(msg, len, "the %s step produced non-finite values",
+             sw->implicit ? "sweep" : "explicit");
+    return MRVI_ENONFINITE;
+  }
   return MRVI_OK;
 }
