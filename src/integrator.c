@@ -612,9 +612,10 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   int iter = 0;
   double res, cres, prev = INFINITY;
   residual_norms(it, &res, &cres);
-  /* Converged at the tolerance, or -- after at least one update -- stalled
-   * at the roundoff floor (counted: mrvi_integrator_roundoff_steps). */
-  while (s == MRVI_OK && !(res <= tol && cres <= ctol)) {
+  /* Converged at the tolerance after at least one update (the predictor is
+   * never accepted), or stalled at the roundoff floor after one (counted:
+   * mrvi_integrator_roundoff_steps). */
+  while (s == MRVI_OK && !(iter >= 1 && res <= tol && cres <= ctol)) {
     if (iter >= 1 && cres <= ctol && res <= residual_floor(it) &&
         res > 0.5 * prev) {
       it->roundoff_steps++;
