@@ -371,7 +371,8 @@ const char *mrvi_integrator_solver_path(const mrvi_integrator *it);
 long mrvi_integrator_roundoff_steps(const mrvi_integrator *it);
 double mrvi_integrator_last_residual(const mrvi_integrator *it);
 /* Size of the Newton system (n_slow + p n_fast, plus the multipliers in
- * the multiplier form) and its nonzeros. */
+ * the multiplier form) and its nonzeros (0 on the explicit and sweep
+ * paths, which form no matrix of the whole step). */
 int mrvi_integrator_system_size(const mrvi_integrator *it);
 long mrvi_integrator_system_nnz(const mrvi_integrator *it);
 /* Constraint multipliers of the last step, k -> k+1 (model constraint
