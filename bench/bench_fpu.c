@@ -12,7 +12,9 @@
  * Times are CPU times (CLOCK_PROCESS_CPUTIME_ID) of the step loop, median
  * of --repeats runs.  A last table fits the exponent of the time per macro
  * step in p over p = 10..1000 (least squares on log-log) and sets the
- * ratios next to the goals of issue 8.  A measurement: no thresholds. */
+ * ratios next to the goals of issue 8.  A measurement: no thresholds; a
+ * run that fails (an explicit slow rule is unstable at large dT) is shown
+ * as failed, with the reason on stderr, and left out of the fits. */
 #include "bench_util.h"
 
 #include <math.h>
@@ -249,8 +251,7 @@ int main(int argc, char **argv) {
         continue;
       }
       *r = run_case(m, &s, repeats);
-      if (r->failed) {
-        failures++;
+      if (r->failed) { /* e.g. an explicit slow rule unstable at this dT */
         printf("| %-23s | %5d | %7g | %7s | %9s | %11s | %9s | %8s | %9s |\n",
                s.scheme, s.micro_steps, s.macro_step, "failed", "", "", "", "",
                "");
