@@ -13,8 +13,9 @@
  * Each case (n, scheme) runs in a forked child: CPU time of loading the
  * text (mrvi_system_load_string), of creating the integrator and per macro
  * step (--steps steps, dT = 0.01, p = 10), and the child's peak resident
- * memory (VmHWM).  A case that exceeds the CPU budget is killed and the
- * larger n of that scheme are skipped.  Exponents in n are fitted over the
+ * memory (VmHWM).  A case that exceeds the CPU budget (RLIMIT_CPU) or the
+ * memory cap (RLIMIT_AS) is stopped and the larger n of that scheme are
+ * skipped.  Exponents in n are fitted over the
  * completed cases with n >= 1000 (all completed cases with --quick).  A
  * measurement: no thresholds. */
 #include "bench_util.h"
@@ -32,14 +33,16 @@ enum { MAX_N = 16, N_SCHEMES = 2 };
 
 static const char usage[] =
     "Usage: bench_lattice [--quick] [--n N1,N2,...] [--steps K]\n"
-    "                     [--budget SECONDS] [--dT DT] [--p P]\n"
+    "                     [--budget SECONDS] [--mem GB] [--dT DT] [--p P]\n"
     "\n"
     "Planar spring lattices (slow and fast rows, stiff fast springs along\n"
     "fast rows) with about N coordinates each (default 100,300,...,100000):\n"
     "load time, time per macro step (K steps, default 3; dT = 0.01, P = 10)\n"
     "and peak memory for midpoint-midpoint and explicit-slow, each case in\n"
     "a child process limited to SECONDS of CPU time (default 120); larger N\n"
-    "are skipped after a case exceeds it.  Fitted exponents over N >= 1000.\n"
+    "are skipped after a case exceeds it; address space capped at GB\n"
+    "(default 6; a case that runs out of memory also ends the scheme).\n"
+    "Fitted exponents over N >= 1000.\n"
     "--quick: N = 100,300,1000, K = 2, budget 20 s.\n";
 
 static int bad_usage_lattice(void) {
@@ -211,7 +214,7 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
 
 /* Run one case in a child limited to `budget` CPU seconds. */
 static result run_case(int nx, int ny, const char *scheme, double dT, int p,
-                       int steps, double budget) {
+                       int steps, double budget, double mem_gb) {
   result r;
   memset(&r, 0, sizeof r);
   r.status = 1;
@@ -232,6 +235,9 @@ static result run_case(int nx, int ny, const char *scheme, double dT, int p,
     close(fds[0]);
     struct rlimit lim = {(rlim_t)ceil(budget), (rlim_t)ceil(budget) + 5};
     setrlimit(RLIMIT_CPU, &lim);
+    rlim_t bytes = (rlim_t)(mem_gb * 1073741824.0);
+    struct rlimit as = {bytes, bytes};
+    setrlimit(RLIMIT_AS, &as);
     alarm((unsigned)(4 * ceil(budget) + 60)); /* wall-clock safety */
     child(fds[1], nx, ny, scheme, dT, p, steps);
     close(fds[1]);
@@ -261,7 +267,7 @@ static result run_case(int nx, int ny, const char *scheme, double dT, int p,
 int main(int argc, char **argv) {
   int n_list[MAX_N] = {100, 300, 1000, 3000, 10000, 30000, 100000};
   int n_n = 7, steps = 3, p = 10, quick = 0, n_set = 0, k_set = 0, b_set = 0;
-  double budget = 120.0, dT = 0.01;
+  double budget = 120.0, dT = 0.01, mem_gb = 6.0;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
     int has_value = i + 1 < argc;
@@ -283,6 +289,9 @@ int main(int argc, char **argv) {
       if (bench_parse_positive(argv[++i], &budget) < 0)
         return bad_usage_lattice();
       b_set = 1;
+    } else if (!strcmp(a, "--mem") && has_value) {
+      if (bench_parse_positive(argv[++i], &mem_gb) < 0)
+        return bad_usage_lattice();
     } else if (!strcmp(a, "--dT") && has_value) {
       if (bench_parse_positive(argv[++i], &dT) < 0)
         return bad_usage_lattice();
@@ -330,17 +339,17 @@ int main(int argc, char **argv) {
                schemes[si], 2 * nx * ny, springs);
         continue;
       }
-      *r = run_case(nx, ny, schemes[si], dT, p, steps, budget);
+      *r = run_case(nx, ny, schemes[si], dT, p, steps, budget, mem_gb);
       if (r->status == 0) {
         printf("| %-17s | %7d | %9ld | %9.3f | %10.3f | %11.4g | %9.2f | "
                "%9.1f |\n",
                schemes[si], r->n, springs, r->load, r->create, r->step,
                r->iterations, r->peak_kb / 1024.0);
-      } else if (r->status == 2) {
+      } else if (r->status == 2 || strstr(r->message, "memory")) {
         skipping = 1;
-        printf("| %-17s | %7d | %9ld | over the budget of %g s CPU (%s); "
-               "larger n skipped |\n",
-               schemes[si], 2 * nx * ny, springs, budget, r->message);
+        printf("| %-17s | %7d | %9ld | over the budget of %g s CPU or %g GB "
+               "(%s); larger n skipped |\n",
+               schemes[si], 2 * nx * ny, springs, budget, mem_gb, r->message);
       } else {
         failures++;
         printf("| %-17s | %7d | %9ld | failed: %s |\n", schemes[si],
