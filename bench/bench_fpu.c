@@ -17,6 +17,8 @@
  * as failed, with the reason on stderr, and left out of the fits. */
 #include "bench_util.h"
 
+enum { MAX_OVERRIDES = 16 };
+
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -26,7 +28,8 @@ enum { MAX_P = 32, MAX_SCHEMES = 16, MAX_REPEATS = 99 };
 
 static const char usage[] =
     "Usage: bench_fpu [--quick] [--t-end T] [--dt DT] [--p P1,P2,...]\n"
-    "                 [--repeats R] [--file FPU.yaml] [SCHEME...|all]\n"
+    "                 [--repeats R] [--file FPU.yaml] [--set KEY=VALUE]...\n"
+    "                 [SCHEME...|all]\n"
     "\n"
     "FPU computing-time study at a fixed micro step DT (default 0.001):\n"
     "p micro steps per macro step (default 1,10,30,100,300,1000), horizon\n"
@@ -35,7 +38,8 @@ static const char usage[] =
     "hand-written Stoermer-Verlet on the same forces with step DT.\n"
     "--quick: T = 1, p = 1,10,100,1000, R = 1 (a few seconds).\n"
     "The FPU is systems/fpu.yaml (found through $MRVI_SOURCE_ROOT, ./ or\n"
-    "../), or --file.\n";
+    "../), or --file; --set applies a description override such as\n"
+    "integrator.newton.tolerance=1e-10 (repeatable).\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
@@ -124,6 +128,8 @@ static result run_case(const mrvi_model *m, const mrvi_settings *s,
 }
 
 int main(int argc, char **argv) {
+  const char *overrides[MAX_OVERRIDES];
+  int n_over = 0;
   double dt = 0.001, t_end = 10.0;
   int p_list[MAX_P] = {1, 10, 30, 100, 300, 1000}, n_p = 6, repeats = 3;
   int quick = 0, t_set = 0, p_set = 0, r_set = 0;
@@ -155,6 +161,10 @@ int main(int argc, char **argv) {
       if (repeats < 1 || repeats > MAX_REPEATS)
         return bad_usage();
       r_set = 1;
+    } else if (!strcmp(a, "--set") && has_value) {
+      if (n_over == MAX_OVERRIDES)
+        return bad_usage();
+      overrides[n_over++] = argv[++i];
     } else if (!strcmp(a, "--file") && has_value) {
       file = argv[++i];
     } else if (a[0] == '-') {
@@ -188,7 +198,7 @@ int main(int argc, char **argv) {
   mrvi_system *sys = NULL;
   if (!file)
     file = bench_system_path("fpu.yaml");
-  if (mrvi_system_load(file, NULL, 0, &sys, msg, sizeof msg) < 0) {
+  if (mrvi_system_load(file, overrides, n_over, &sys, msg, sizeof msg) < 0) {
     fprintf(stderr, "bench_fpu: %s\n", msg);
     return 1;
   }

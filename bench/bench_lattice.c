@@ -20,6 +20,8 @@
  * measurement: no thresholds. */
 #include "bench_util.h"
 
+enum { MAX_OVERRIDES = 16 };
+
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -34,6 +36,7 @@ enum { MAX_N = 16, N_SCHEMES = 2 };
 static const char usage[] =
     "Usage: bench_lattice [--quick] [--n N1,N2,...] [--steps K]\n"
     "                     [--budget SECONDS] [--mem GB] [--dT DT] [--p P]\n"
+    "                     [--set KEY=VALUE]...\n"
     "\n"
     "Planar spring lattices (slow and fast rows, stiff fast springs along\n"
     "fast rows) with about N coordinates each (default 100,300,...,100000):\n"
@@ -43,7 +46,8 @@ static const char usage[] =
     "are skipped after a case exceeds it; address space capped at GB\n"
     "(default 6; a case that runs out of memory also ends the scheme).\n"
     "Fitted exponents over N >= 1000.\n"
-    "--quick: N = 100,300,1000, K = 2, budget 20 s.\n";
+    "--quick: N = 100,300,1000, K = 2, budget 20 s.  --set applies a\n"
+    "description override to every lattice (repeatable).\n";
 
 static int bad_usage_lattice(void) {
   fputs(usage, stderr);
@@ -162,7 +166,7 @@ typedef struct result {
 
 /* The child: one case, written to fd. */
 static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
-                  int steps) {
+                  int steps, const char *const *overrides, int n_over) {
   result r;
   memset(&r, 0, sizeof r);
   r.status = 1;
@@ -173,8 +177,8 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
   double t0 = bench_cpu();
   if (!text) {
     snprintf(r.message, sizeof r.message, "out of memory");
-  } else if (mrvi_system_load_string(text, "lattice", NULL, 0, &sys, msg,
-                                     sizeof msg) < 0) {
+  } else if (mrvi_system_load_string(text, "lattice", overrides, n_over, &sys,
+                                     msg, sizeof msg) < 0) {
     snprintf(r.message, sizeof r.message, "%.200s", msg);
   } else {
     double t1 = bench_cpu();
@@ -214,7 +218,8 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
 
 /* Run one case in a child limited to `budget` CPU seconds. */
 static result run_case(int nx, int ny, const char *scheme, double dT, int p,
-                       int steps, double budget, double mem_gb) {
+                       int steps, double budget, double mem_gb,
+                       const char *const *overrides, int n_over) {
   result r;
   memset(&r, 0, sizeof r);
   r.status = 1;
@@ -243,7 +248,7 @@ static result run_case(int nx, int ny, const char *scheme, double dT, int p,
     (void)mem_gb;
 #endif
     alarm((unsigned)(4 * ceil(budget) + 60)); /* wall-clock safety */
-    child(fds[1], nx, ny, scheme, dT, p, steps);
+    child(fds[1], nx, ny, scheme, dT, p, steps, overrides, n_over);
     close(fds[1]);
     _exit(0);
   }
@@ -269,6 +274,8 @@ static result run_case(int nx, int ny, const char *scheme, double dT, int p,
 }
 
 int main(int argc, char **argv) {
+  const char *overrides[MAX_OVERRIDES];
+  int n_over = 0;
   int n_list[MAX_N] = {100, 300, 1000, 3000, 10000, 30000, 100000};
   int n_n = 7, steps = 3, p = 10, quick = 0, n_set = 0, k_set = 0, b_set = 0;
   double budget = 120.0, dT = 0.01, mem_gb = 6.0;
@@ -293,6 +300,10 @@ int main(int argc, char **argv) {
       if (bench_parse_positive(argv[++i], &budget) < 0)
         return bad_usage_lattice();
       b_set = 1;
+    } else if (!strcmp(a, "--set") && has_value) {
+      if (n_over == MAX_OVERRIDES)
+        return bad_usage_lattice();
+      overrides[n_over++] = argv[++i];
     } else if (!strcmp(a, "--mem") && has_value) {
       if (bench_parse_positive(argv[++i], &mem_gb) < 0)
         return bad_usage_lattice();
@@ -343,7 +354,8 @@ int main(int argc, char **argv) {
                schemes[si], 2 * nx * ny, springs);
         continue;
       }
-      *r = run_case(nx, ny, schemes[si], dT, p, steps, budget, mem_gb);
+      *r = run_case(nx, ny, schemes[si], dT, p, steps, budget, mem_gb,
+                    overrides, n_over);
       if (r->status == 0) {
         printf("| %-17s | %7d | %9ld | %9.3f | %10.3f | %11.4g | %9.2f | "
                "%9.1f |\n",

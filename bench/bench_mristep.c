@@ -19,6 +19,8 @@
  * A measurement: no thresholds. */
 #include "bench_util.h"
 
+enum { MAX_OVERRIDES = 16 };
+
 #include <arkode/arkode_arkstep.h>
 #include <arkode/arkode_mristep.h>
 #include <math.h>
@@ -32,7 +34,7 @@ enum { MAX_DT = 24, MAX_REPEATS = 99, N = BENCH_FPU_N };
 static const char usage[] =
     "Usage: bench_mristep [--quick] [--dT DT1,DT2,...] [--p P] [--t-end T]\n"
     "                     [--repeats R] [--long-t T] [--long-dT DT]\n"
-    "                     [--file FPU.yaml]\n"
+    "                     [--file FPU.yaml] [--set KEY=VALUE]...\n"
     "\n"
     "Error in q at T (default 20) against RK4 (step 1e-5) vs CPU time for\n"
     "SUNDIALS MRIStep (MRI-GARK-ERK33a + fixed-step inner ERK, inner step\n"
@@ -40,7 +42,8 @@ static const char usage[] =
     "(default 10); the time ratio at matched errors 1e-2..1e-5; and the\n"
     "relative energy error of a long run (default t = 1e4, dT = 0.05) over\n"
     "its first and second half.  Default dT = 0.4/2^k, k = 0..10; R = 3.\n"
-    "--quick: dT = 0.2,0.1,0.05,0.025, R = 1, long run t = 100.\n";
+    "--quick: dT = 0.2,0.1,0.05,0.025, R = 1, long run t = 100.\n"
+    "--set applies a description override to the mrvi runs (repeatable).\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
@@ -304,6 +307,8 @@ static int long_run(int j, const mrvi_model *m, const mrvi_settings *base,
 }
 
 int main(int argc, char **argv) {
+  const char *overrides[MAX_OVERRIDES];
+  int n_over = 0;
   double dts[MAX_DT], t_end = 20.0, long_t = 1e4, long_dT = 0.05;
   int n_dt = 11, p = 10, repeats = 3, quick = 0, dt_set = 0, r_set = 0,
       lt_set = 0;
@@ -341,6 +346,10 @@ int main(int argc, char **argv) {
     } else if (!strcmp(a, "--long-dT") && has_value) {
       if (bench_parse_positive(argv[++i], &long_dT) < 0)
         return bad_usage();
+    } else if (!strcmp(a, "--set") && has_value) {
+      if (n_over == MAX_OVERRIDES)
+        return bad_usage();
+      overrides[n_over++] = argv[++i];
     } else if (!strcmp(a, "--file") && has_value) {
       file = argv[++i];
     } else {
@@ -363,7 +372,7 @@ int main(int argc, char **argv) {
   mrvi_system *sys = NULL;
   if (!file)
     file = bench_system_path("fpu.yaml");
-  if (mrvi_system_load(file, NULL, 0, &sys, msg, sizeof msg) < 0) {
+  if (mrvi_system_load(file, overrides, n_over, &sys, msg, sizeof msg) < 0) {
     fprintf(stderr, "bench_mristep: %s\n", msg);
     return 1;
   }
