@@ -184,6 +184,12 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
     double t1 = bench_cpu();
     r.load = t1 - t0;
     r.n = mrvi_model_n(sys->model);
+    /* A first record with the load time, in case stepping is stopped. */
+    r.status = 3;
+    r.peak_kb = peak_kb();
+    ssize_t w0 = write(fd, &r, sizeof r);
+    (void)w0;
+    r.status = 1;
     mrvi_settings s = sys->settings;
     mrvi_settings_set_scheme(&s, scheme);
     if (mrvi_integrator_create(sys->model, &s, &it, msg, sizeof msg) < 0) {
@@ -253,22 +259,36 @@ static result run_case(int nx, int ny, const char *scheme, double dT, int p,
     _exit(0);
   }
   close(fds[1]);
-  size_t got = 0;
-  while (got < sizeof r) {
-    ssize_t k = read(fds[0], (char *)&r + got, sizeof r - got);
-    if (k <= 0)
+  /* Records: the load record (status 3), then the final one. */
+  result rec;
+  int have = 0;
+  for (;;) {
+    size_t got = 0;
+    while (got < sizeof rec) {
+      ssize_t k = read(fds[0], (char *)&rec + got, sizeof rec - got);
+      if (k <= 0)
+        break;
+      got += (size_t)k;
+    }
+    if (got < sizeof rec)
       break;
-    got += (size_t)k;
+    r = rec;
+    have = 1;
   }
   close(fds[0]);
   int wstatus = 0;
   waitpid(pid, &wstatus, 0);
-  if (got < sizeof r) {
+  if (!have || r.status == 3) {
+    double load = have ? r.load : NAN;
+    int n = have ? r.n : 0;
     memset(&r, 0, sizeof r);
     r.status = WIFSIGNALED(wstatus) ? 2 : 1;
-    snprintf(r.message, sizeof r.message, "child %s %d",
+    r.load = load;
+    r.n = n;
+    snprintf(r.message, sizeof r.message, "child %s %d%s",
              WIFSIGNALED(wstatus) ? "killed by signal" : "exited with",
-             WIFSIGNALED(wstatus) ? WTERMSIG(wstatus) : WEXITSTATUS(wstatus));
+             WIFSIGNALED(wstatus) ? WTERMSIG(wstatus) : WEXITSTATUS(wstatus),
+             have ? " after loading" : " while loading");
   }
   return r;
 }
@@ -363,9 +383,10 @@ int main(int argc, char **argv) {
                r->iterations, r->peak_kb / 1024.0);
       } else if (r->status == 2 || strstr(r->message, "memory")) {
         skipping = 1;
-        printf("| %-17s | %7d | %9ld | over the budget of %g s CPU or %g GB "
-               "(%s); larger n skipped |\n",
-               schemes[si], 2 * nx * ny, springs, budget, mem_gb, r->message);
+        printf("| %-17s | %7d | %9ld | %9.3f | over the budget of %g s CPU "
+               "or %g GB (%s); larger n skipped |\n",
+               schemes[si], 2 * nx * ny, springs, r->load, budget, mem_gb,
+               r->message);
       } else {
         failures++;
         printf("| %-17s | %7d | %9ld | failed: %s |\n", schemes[si],
