@@ -5,7 +5,7 @@
  * kept and p varies, so larger p resolves the fast motion more finely at the
  * same macro step.  A measurement, not a test: no thresholds.
  *
- *   bench_constraints [--steps N] [--p 1,10,100] [FILE.yaml...]
+ *   bench_constraints [--quick] [--steps N] [--p 1,10,100] [FILE.yaml...]
  *
  * Defaults: N = 100 macro steps, p in {1, 10, 100}, the four constrained
  * systems under systems/ (found through $MRVI_SOURCE_ROOT or "..").
@@ -19,11 +19,12 @@
 enum { MAX_P = 16 };
 
 static const char usage[] =
-    "Usage: bench_constraints [--steps N] [--p P1,P2,...] [FILE.yaml...]\n"
+    "Usage: bench_constraints [--quick] [--steps N] [--p P1,P2,...] "
+    "[FILE.yaml...]\n"
     "\n"
     "Time per macro step and Newton matrix size of the multiplier and\n"
     "null-space forms; default N = 100 steps, p = 1,10,100 and the\n"
-    "constrained systems of systems/.\n";
+    "constrained systems of systems/.  --quick: N = 10, p = 1,10.\n";
 
 static const char *const default_systems[] = {
     "systems/cart_pendulum.yaml", "systems/spring_ring_rod.yaml",
@@ -79,6 +80,9 @@ int main(int argc, char **argv) {
     if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
       fputs(usage, stdout);
       return 0;
+    } else if (!strcmp(argv[i], "--quick")) { /* seconds: meson --benchmark */
+      steps = 10;
+      ps[0] = 1, ps[1] = 10, np = 2;
     } else if (!strcmp(argv[i], "--steps") && i + 1 < argc) {
       steps = atoi(argv[++i]);
     } else if (!strcmp(argv[i], "--p") && i + 1 < argc) {

@@ -1,0 +1,148 @@
+#include "bench_util.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+double bench_cpu(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static int cmp_double(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+double bench_median(double *x, int n) {
+  if (n <= 0)
+    return NAN;
+  qsort(x, (size_t)n, sizeof *x, cmp_double);
+  return n % 2 ? x[n / 2] : 0.5 * (x[n / 2 - 1] + x[n / 2]);
+}
+
+double bench_exponent(const double *x, const double *y, int n) {
+  double sx = 0, sy = 0, sxx = 0, sxy = 0;
+  int k = 0;
+  for (int i = 0; i < n; i++) {
+    if (!(x[i] > 0 && y[i] > 0))
+      continue;
+    double lx = log(x[i]), ly = log(y[i]);
+    sx += lx;
+    sy += ly;
+    sxx += lx * lx;
+    sxy += lx * ly;
+    k++;
+  }
+  if (k < 2)
+    return NAN;
+  double d = k * sxx - sx * sx;
+  return d > 0 ? (k * sxy - sx * sy) / d : NAN;
+}
+
+int bench_parse_ints(const char *s, int *out, int max) {
+  int n = 0;
+  while (*s) {
+    char *end;
+    long v = strtol(s, &end, 10);
+    if (end == s || v < 1 || v > 100000000 || n == max)
+      return -1;
+    out[n++] = (int)v;
+    s = end;
+    if (*s == ',')
+      s++;
+    else if (*s)
+      return -1;
+  }
+  return n > 0 ? n : -1;
+}
+
+int bench_parse_doubles(const char *s, double *out, int max) {
+  int n = 0;
+  while (*s) {
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s || !(v > 0) || n == max)
+      return -1;
+    out[n++] = v;
+    s = end;
+    if (*s == ',')
+      s++;
+    else if (*s)
+      return -1;
+  }
+  return n > 0 ? n : -1;
+}
+
+int bench_parse_positive(const char *s, double *out) {
+  char *end;
+  double v = strtod(s, &end);
+  if (end == s || *end || !(v > 0))
+    return -1;
+  *out = v;
+  return 0;
+}
+
+const char *bench_system_path(const char *name) {
+  static char buf[4096];
+  const char *root = getenv("MRVI_SOURCE_ROOT");
+  if (root && *root) {
+    snprintf(buf, sizeof buf, "%s/systems/%s", root, name);
+    return buf;
+  }
+  snprintf(buf, sizeof buf, "systems/%s", name);
+  if (access(buf, R_OK) == 0)
+    return buf;
+  snprintf(buf, sizeof buf, "../systems/%s", name);
+  return buf;
+}
+
+void bench_fpu_initial(double *q, double *v) {
+  for (int i = 0; i < BENCH_FPU_N; i++)
+    q[i] = v[i] = 0.0;
+  q[0] = 1.0;
+  q[3] = 1.0 / sqrt(BENCH_FPU_OMEGA2);
+  v[0] = v[3] = 1.0;
+}
+
+/* Strains of the four quartic springs s_j and their gradients: s0 = qs1 -
+ * qf1, s_i = qs_{i+1} - qf_{i+1} - qs_i - qf_i, s3 = qs3 + qf3. */
+void bench_fpu_force_slow(const double *q, double *f) {
+  const double *s = q, *x = q + 3;
+  double d0 = s[0] - x[0], d1 = s[1] - x[1] - s[0] - x[0],
+         d2 = s[2] - x[2] - s[1] - x[1], d3 = s[2] + x[2];
+  d0 = d0 * d0 * d0;
+  d1 = d1 * d1 * d1;
+  d2 = d2 * d2 * d2;
+  d3 = d3 * d3 * d3;
+  f[0] = -d0 + d1;
+  f[1] = -d1 + d2;
+  f[2] = -d2 - d3;
+  f[3] = d0 + d1;
+  f[4] = d1 + d2;
+  f[5] = d2 - d3;
+}
+
+void bench_fpu_force_fast(const double *q, double *f) {
+  f[0] = f[1] = f[2] = 0.0;
+  for (int i = 3; i < 6; i++)
+    f[i] = -BENCH_FPU_OMEGA2 * q[i];
+}
+
+double bench_fpu_energy(const double *q, const double *v) {
+  const double *s = q, *x = q + 3;
+  double d[4] = {s[0] - x[0], s[1] - x[1] - s[0] - x[0],
+                 s[2] - x[2] - s[1] - x[1], s[2] + x[2]};
+  double e = 0.0;
+  for (int i = 0; i < 4; i++)
+    e += 0.25 * d[i] * d[i] * d[i] * d[i];
+  for (int i = 0; i < 3; i++)
+    e += 0.5 * BENCH_FPU_OMEGA2 * x[i] * x[i];
+  for (int i = 0; i < BENCH_FPU_N; i++)
+    e += 0.5 * v[i] * v[i];
+  return e;
+}

@@ -1,0 +1,40 @@
+/* Helpers shared by the benchmarks: CPU time, medians, least-squares
+ * exponents, list parsing, and the FPU forces written out by hand (the
+ * force-evaluation floor and the first-order peer systems use them). */
+#ifndef MRVI_BENCH_UTIL_H
+#define MRVI_BENCH_UTIL_H
+
+#include "mrvi.h"
+
+/* CPU time of the process in seconds (CLOCK_PROCESS_CPUTIME_ID). */
+double bench_cpu(void);
+/* Median of x[0..n) (sorts x in place). */
+double bench_median(double *x, int n);
+/* Least-squares slope of log y against log x over the n pairs with
+ * x, y > 0; NAN with fewer than two. */
+double bench_exponent(const double *x, const double *y, int n);
+/* Parse "1,10,100" into at most `max` integers >= 1; count or -1. */
+int bench_parse_ints(const char *s, int *out, int max);
+/* Parse "0.1,0.05" into at most `max` positive doubles; count or -1. */
+int bench_parse_doubles(const char *s, double *out, int max);
+/* Parse a positive double; 0 or -1. */
+int bench_parse_positive(const char *s, double *out);
+
+/* Path of systems/NAME: $MRVI_SOURCE_ROOT/systems/NAME, else the first of
+ * systems/NAME and ../systems/NAME that exists (static buffer). */
+const char *bench_system_path(const char *name);
+
+/* The FPU of systems/fpu.yaml written out by hand (l = 3, unit masses,
+ * omega^2 = 2500), coordinates ordered (qs1, qs2, qs3, qf1, qf2, qf3) as in
+ * the file.  V = 1/4 sum of quartic springs, W = omega^2/2 |qf|^2. */
+enum { BENCH_FPU_N = 6 };
+#define BENCH_FPU_OMEGA2 2500.0
+/* Initial positions and velocities of the file. */
+void bench_fpu_initial(double *q, double *v);
+/* Forces -grad V (slow) and -grad W (fast), written (not accumulated). */
+void bench_fpu_force_slow(const double *q, double *f);
+void bench_fpu_force_fast(const double *q, double *f);
+/* Total energy 1/2 |v|^2 + V + W (unit masses). */
+double bench_fpu_energy(const double *q, const double *v);
+
+#endif
