@@ -11,13 +11,21 @@
 #include <libfyaml.h>
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #define COUNT(a) ((int)(sizeof(a) / sizeof((a)[0])))
 #define MAX_KEYS 64 /* keys of one mapping, law parameters included */
+/* Limits on hostile input (doc/description-files.md, "Limits"). */
+#define MAX_TEXT ((size_t)64 << 20) /* bytes of a description or override */
+#define MAX_DEPTH 256               /* nesting, counted through aliases */
+#define MAX_ALIAS_NODES                                                        \
+  1000000L /* nodes added by aliases, beyond 4 per                             \
+              node of the file */
 
 /* Node created by an override, with the override's text. */
 typedef struct override_node {
@@ -508,12 +516,30 @@ static int note_splice(loader *L, struct fy_node *old, struct fy_node *v,
   return MRVI_OK;
 }
 
+static long first_invalid(const char *text, size_t n, int *line, int *col,
+                          long *code);
+static void describe_invalid(char *buf, size_t len, const char *text, long at,
+                             long code);
+static struct fy_node *find_alias(struct fy_node *n);
+
 /* Parse `value` as a YAML node of the document. */
 static int build_value(loader *L, const char *text, const char *value,
                        struct fy_node **out) {
   if (!*value)
     return set_error(L, text, "empty value");
+  int line, col;
+  long code, at = first_invalid(value, strlen(value), &line, &col, &code);
+  if (at >= 0) {
+    char what[128];
+    describe_invalid(what, sizeof what, value, at, code);
+    return set_error(L, text, "%s", what);
+  }
   *out = fy_node_build_from_string(L->doc, value, FY_NT);
+  if (*out && find_alias(*out)) {
+    fy_node_free(*out);
+    *out = NULL;
+    return set_error(L, text, "aliases (*name) are not allowed in a value");
+  }
   if (*out)
     return MRVI_OK;
   void *it = NULL;
@@ -603,6 +629,13 @@ static int set_path(loader *L, const char *text, const char *value,
       struct fy_node_pair *p = lookup_segments(node, seg + i, n_seg - i, &used);
       if (!p) {
         int last = i == n_seg - 1;
+        /* A list item below a missing key: the path does not exist. */
+        if (!last && strspn(seg[i + 1], "0123456789") == strlen(seg[i + 1])) {
+          path_prefix(where, sizeof where, seg, i + 2);
+          return set_error(L, text,
+                           "the path '%s' does not exist (%s%shas no key '%s')",
+                           where, parent, i ? " " : "the file ", seg[i]);
+        }
         int st = add_key(L, text, node, seg[i], last ? value : NULL, &node);
         if (st || last)
           return st;
@@ -640,6 +673,8 @@ static int apply_override(loader *L, const char *text) {
   const char *eq = strchr(text, '=');
   if (!eq || eq == text)
     return set_error(L, text, "expected KEY=VALUE");
+  if (strlen(text) > MAX_TEXT)
+    return set_error(L, "...", "longer than %zu MiB", MAX_TEXT >> 20);
   /* Split the key into segments: one copy, dots replaced by NULs. */
   size_t klen = (size_t)(eq - text);
   char *key = malloc(klen + 1);
@@ -1610,6 +1645,29 @@ static int load_output(loader *L, struct fy_node *out) {
   return MRVI_OK;
 }
 
+/* Sizes the integrator allocates per macro step: p n_f micro unknowns in
+ * an int, and their storage within the machine's memory. */
+static int check_sizes(loader *L, struct fy_node *at) {
+  const mrvi_settings *s = &L->sys->settings;
+  long long pn = (long long)s->micro_steps * mrvi_model_n_fast(L->sys->model);
+  if (pn > INT_MAX / 8)
+    return fail(L, at,
+                "integrator.micro_steps × fast coordinates = %d × %d is too "
+                "large (at most %d)",
+                s->micro_steps, mrvi_model_n_fast(L->sys->model), INT_MAX / 8);
+  long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+  double have = pages > 0 && page > 0 ? (double)pages * (double)page : 0;
+  double need = 8.0 * 8.0 * (double)(pn + mrvi_model_n(L->sys->model));
+  if (have > 0 && need > have)
+    return fail(L, at,
+                "integrator.micro_steps × fast coordinates = %d × %d needs "
+                "about %.3g GiB per macro step, more than this machine's "
+                "%.3g GiB",
+                s->micro_steps, mrvi_model_n_fast(L->sys->model),
+                need / 1073741824.0, have / 1073741824.0);
+  return MRVI_OK;
+}
+
 static int interpret(loader *L) {
   mrvi_system *sys = L->sys;
   struct fy_node *root = fy_document_root(L->doc), *n;
@@ -1642,6 +1700,8 @@ static int interpret(loader *L) {
   char why[256];
   if (mrvi_settings_check(&sys->settings, why, sizeof why))
     return fail(L, n ? n : root, "%s", why);
+  if ((st = check_sizes(L, n ? n : root)))
+    return st;
   if ((st = check_constraints(L)))
     return st;
   if ((n = get(root, "output")) && (st = load_output(L, n)))
@@ -1744,6 +1804,191 @@ static int syntax_error(loader *L) {
   return MRVI_EPARSE;
 }
 
+/* ---------------------------------------------------------------------------
+ * Limits on hostile input (doc/description-files.md, "Limits")
+ * ------------------------------------------------------------------------- */
+
+/* Offset of the first byte that does not start a printable YAML character
+ * (YAML 1.2 §5.1: tab, LF, CR, U+0020..7E, U+0085, U+00A0..D7FF,
+ * U+E000..FFFD, U+10000..10FFFF, UTF-8 encoded), or -1; *line and *col are
+ * its 1-based position (columns in characters), *code the decoded
+ * character or -1 for an invalid byte. */
+static long first_invalid(const char *text, size_t n, int *line, int *col,
+                          long *code) {
+  const unsigned char *s = (const unsigned char *)text;
+  *line = 1;
+  *col = 1;
+  for (size_t i = 0; i < n;) {
+    unsigned c = s[i];
+    int len = c < 0x80             ? 1
+              : (c & 0xe0) == 0xc0 ? 2
+              : (c & 0xf0) == 0xe0 ? 3
+              : (c & 0xf8) == 0xf0 ? 4
+                                   : 0;
+    unsigned long u = len == 1   ? c
+                      : len == 2 ? c & 0x1f
+                      : len == 3 ? c & 0x0f
+                                 : c & 0x07;
+    int ok = len > 0 && i + (size_t)len <= n;
+    for (int k = 1; ok && k < len; k++) {
+      ok = (s[i + k] & 0xc0) == 0x80;
+      u = (u << 6) | (s[i + k] & 0x3f);
+    }
+    static const unsigned long least[5] = {0, 0, 0x80, 0x800, 0x10000};
+    if (!ok || u < least[len] || u > 0x10ffff) { /* overlong or beyond */
+      *code = -1;
+      return (long)i;
+    }
+    int printable = u == 9 || u == 10 || u == 13 || (u >= 0x20 && u <= 0x7e) ||
+                    u == 0x85 || (u >= 0xa0 && u <= 0xd7ff) ||
+                    (u >= 0xe000 && u <= 0xfffd) || u >= 0x10000;
+    if (!printable) {
+      *code = (long)u;
+      return (long)i;
+    }
+    if (c == '\n') {
+      (*line)++;
+      *col = 1;
+    } else {
+      (*col)++;
+    }
+    i += (size_t)len;
+  }
+  return -1;
+}
+
+/* What first_invalid found, for messages. */
+static void describe_invalid(char *buf, size_t len, const char *text, long at,
+                             long code) {
+  if (code < 0)
+    mrvi_fmt(buf, len, "invalid byte 0x%02x: not UTF-8 text",
+             (unsigned char)text[at]);
+  else if (code == 0)
+    mrvi_fmt(buf, len, "NUL byte: not a text file");
+  else
+    mrvi_fmt(buf, len, "control character U+%04lX is not allowed in YAML",
+             code);
+}
+
+/* Nodes of the tree at n, not following aliases. */
+static long count_nodes(struct fy_node *n) {
+  long c = 1;
+  void *it = NULL;
+  if (fy_node_is_sequence(n)) {
+    struct fy_node *x;
+    while ((x = fy_node_sequence_iterate(n, &it)))
+      c += count_nodes(x);
+  } else if (fy_node_is_mapping(n)) {
+    struct fy_node_pair *p;
+    while ((p = fy_node_mapping_iterate(n, &it)))
+      c +=
+          count_nodes(fy_node_pair_key(p)) + count_nodes(fy_node_pair_value(p));
+  }
+  return c;
+}
+
+typedef struct expansion {
+  long extra, limit;    /* nodes added by aliases, their bound */
+  struct fy_node *at;   /* outermost alias being expanded, or the node */
+  int too_deep, exceed; /* which bound was hit */
+} expansion;
+
+/* Walk the tree as it will be after alias resolution, counting the nodes
+ * aliases add and the depth, stopping at the first bound hit (so the walk
+ * itself is bounded: billion laughs stops after `limit` nodes). */
+static int expand_walk(expansion *E, struct fy_node *n, int depth,
+                       struct fy_node *alias) {
+  if (!n)
+    return 0;
+  if (depth > MAX_DEPTH) {
+    E->too_deep = 1;
+    E->at = alias ? alias : n;
+    return 1;
+  }
+  if (alias && ++E->extra > E->limit) {
+    E->exceed = 1;
+    E->at = alias;
+    return 1;
+  }
+  if (fy_node_is_alias(n))
+    return expand_walk(E, fy_node_resolve_alias(n), depth, alias ? alias : n);
+  void *it = NULL;
+  if (fy_node_is_sequence(n)) {
+    struct fy_node *x;
+    while ((x = fy_node_sequence_iterate(n, &it)))
+      if (expand_walk(E, x, depth + 1, alias))
+        return 1;
+  } else if (fy_node_is_mapping(n)) {
+    struct fy_node_pair *p;
+    while ((p = fy_node_mapping_iterate(n, &it)))
+      if (expand_walk(E, fy_node_pair_key(p), depth + 1, alias) ||
+          expand_walk(E, fy_node_pair_value(p), depth + 1, alias))
+        return 1;
+  }
+  return 0;
+}
+
+/* Any alias in the tree at n (override values may not hold one). */
+static struct fy_node *find_alias(struct fy_node *n) {
+  void *it = NULL;
+  struct fy_node *a = NULL;
+  if (fy_node_is_alias(n))
+    return n;
+  if (fy_node_is_sequence(n)) {
+    struct fy_node *x;
+    while (!a && (x = fy_node_sequence_iterate(n, &it)))
+      a = find_alias(x);
+  } else if (fy_node_is_mapping(n)) {
+    struct fy_node_pair *p;
+    while (!a && (p = fy_node_mapping_iterate(n, &it)))
+      if (!(a = find_alias(fy_node_pair_key(p))))
+        a = find_alias(fy_node_pair_value(p));
+  }
+  return a;
+}
+
+/* The text is printable UTF-8 (YAML 1.2 §5.1) of bounded size. */
+static int check_text(loader *L, const char *text) {
+  size_t n = strlen(text);
+  if (n > MAX_TEXT) {
+    mrvi_fmt(L->msg, L->len, "%s: the description is larger than %zu MiB",
+             L->path, MAX_TEXT >> 20);
+    return MRVI_EPARSE;
+  }
+  int line, col;
+  long code, at = first_invalid(text, n, &line, &col, &code);
+  if (at >= 0) {
+    char what[128];
+    describe_invalid(what, sizeof what, text, at, code);
+    mrvi_fmt(L->msg, L->len, "%s:%d:%d: %s", L->path, line, col, what);
+    return MRVI_EPARSE;
+  }
+  return MRVI_OK;
+}
+
+/* Bound the nodes aliases add and the nesting depth through them, then
+ * resolve aliases and merge keys. */
+static int resolve_aliases(loader *L) {
+  struct fy_node *root = fy_document_root(L->doc);
+  long own = count_nodes(root);
+  expansion E = {.limit = MAX_ALIAS_NODES + 4 * own};
+  if (expand_walk(&E, root, 0, NULL)) {
+    if (E.exceed)
+      return fail(L, E.at,
+                  "aliases expand the document beyond %ld nodes (an alias "
+                  "bomb?)",
+                  E.limit);
+    return fail(L, E.at, "nesting deeper than %d levels", MAX_DEPTH);
+  }
+  if (fy_document_resolve(L->doc)) {
+    void *it = NULL;
+    if (fy_diag_errors_iterate(L->diag, &it))
+      return syntax_error(L);
+    return fail(L, NULL, "cannot resolve aliases");
+  }
+  return MRVI_OK;
+}
+
 void mrvi_system_free(mrvi_system *sys) {
   if (!sys)
     return;
@@ -1783,11 +2028,14 @@ int mrvi_system_load_string(const char *text, const char *display_name,
     goto done;
   }
 
-  struct fy_parse_cfg cfg = {.flags = FYPCF_QUIET | FYPCF_DEFAULT_VERSION_1_2 |
-                                      FYPCF_RESOLVE_DOCUMENT,
+  st = check_text(&L, text);
+  if (st)
+    goto done;
+  /* Parsed without resolving aliases: their expansion is bounded first. */
+  struct fy_parse_cfg cfg = {.flags = FYPCF_QUIET | FYPCF_DEFAULT_VERSION_1_2,
                              .diag = L.diag};
   L.doc = fy_document_build_from_string(&cfg, text, FY_NT);
-  if (!L.doc || fy_diag_got_error(L.diag)) {
+  if (!L.doc || fy_diag_got_error(L.diag) || !fy_document_root(L.doc)) {
     void *it = NULL;
     if (fy_diag_errors_iterate(L.diag, &it))
       st = syntax_error(&L);
@@ -1795,6 +2043,9 @@ int mrvi_system_load_string(const char *text, const char *display_name,
       st = fail(&L, NULL, "the description is empty");
     goto done;
   }
+  st = resolve_aliases(&L);
+  if (st)
+    goto done;
   for (int i = 0; i < n_overrides && !st; i++)
     st = apply_override(&L, overrides[i]);
   if (st)
@@ -1837,12 +2088,17 @@ int mrvi_system_load(const char *path, const char *const *overrides,
     mrvi_fmt(msg, len, "%s: cannot open: %s", path, strerror(errno));
     return MRVI_EIO;
   }
-  /* Read the whole file (the description is kept verbatim). */
+  /* Read the whole file (the description is kept verbatim), at most
+   * MAX_TEXT bytes, stopping at the first NUL byte (/dev/zero). */
   size_t cap = 4096, used = 0;
   char *text = malloc(cap);
-  int st = text ? MRVI_OK : MRVI_ENOMEM;
+  int st = text ? MRVI_OK : MRVI_ENOMEM, nul = 0, big = 0;
   while (!st) {
     if (used + 1 == cap) {
+      if (used > MAX_TEXT) {
+        big = 1;
+        break;
+      }
       char *t = realloc(text, 2 * cap);
       if (!t) {
         st = MRVI_ENOMEM;
@@ -1852,8 +2108,9 @@ int mrvi_system_load(const char *path, const char *const *overrides,
       cap *= 2;
     }
     size_t got = fread(text + used, 1, cap - used - 1, f);
+    nul = got && memchr(text + used, 0, got);
     used += got;
-    if (got == 0)
+    if (got == 0 || nul)
       break;
   }
   if (!st && ferror(f))
@@ -1866,8 +2123,19 @@ int mrvi_system_load(const char *path, const char *const *overrides,
     return st;
   }
   text[used] = '\0';
-  if (strlen(text) != used) {
-    mrvi_fmt(msg, len, "%s: not a text file (contains NUL bytes)", path);
+  int line, col;
+  long code, at = nul ? first_invalid(text, used, &line, &col, &code) : -1;
+  if (at >= 0 || big) {
+    char what[128];
+    if (big)
+      mrvi_fmt(what, sizeof what, "the description is larger than %zu MiB",
+               MAX_TEXT >> 20);
+    else
+      describe_invalid(what, sizeof what, text, at, code);
+    if (big)
+      mrvi_fmt(msg, len, "%s: %s", path, what);
+    else
+      mrvi_fmt(msg, len, "%s:%d:%d: %s", path, line, col, what);
     free(text);
     return MRVI_EPARSE;
   }

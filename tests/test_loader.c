@@ -951,6 +951,46 @@ static void test_doc_example(void) {
   free(doc);
 }
 
+/* Hostile input that cannot live in tests/bad_input/: an override value
+ * that is not UTF-8, endless devices, a text beyond the size limit.  Each
+ * fails with its message instead of hanging or growing memory. */
+static void load_expect(const char *path, const char *set, const char *want) {
+  char msg[MSG] = "";
+  mrvi_system *sys = NULL;
+  const char *ov[1] = {set};
+  int st = mrvi_system_load(path, ov, set ? 1 : 0, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && sys == NULL, "%s: status %d", path, st);
+  CHECK(strstr(msg, want) != NULL, "%s: message '%s' lacks '%s'", path, msg,
+        want);
+  mrvi_system_free(sys);
+}
+
+static void test_hostile_input(void) {
+  char fpu[1024];
+  snprintf(fpu, sizeof fpu, "%s", test_source_path("systems/fpu.yaml"));
+  /* libfyaml's directive scanner spins forever on "%\xff". */
+  load_expect(fpu, "integrator.micro_steps=%\xff",
+              "--set integrator.micro_steps=%\xff: invalid byte 0xff");
+  load_expect(fpu, "integrator.micro_steps=1\x01", "control character U+0001");
+  load_expect("/dev/zero", NULL, "/dev/zero:1:1: NUL byte");
+  load_expect("/dev/urandom", NULL, "/dev/urandom:");
+  /* 64 MiB + 1 byte of valid text. */
+  size_t big = ((size_t)64 << 20) + 1;
+  char *text = malloc(big + 1);
+  if (text) {
+    memset(text, '#', big);
+    text[big] = '\0';
+    char msg[MSG] = "";
+    mrvi_system *sys = NULL;
+    int st =
+        mrvi_system_load_string(text, "big", NULL, 0, &sys, msg, sizeof msg);
+    CHECK(st == MRVI_EPARSE && strstr(msg, "larger than 64 MiB"),
+          "64 MiB + 1: status %d, '%s'", st, msg);
+    mrvi_system_free(sys);
+    free(text);
+  }
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_bad_files(&files);
@@ -972,6 +1012,7 @@ int main(void) {
   test_user_constraint_type();
   check_constrained_files();
   test_doc_example();
+  test_hostile_input();
   test_cli_bad_files(files, n);
   for (int i = 0; i < n; i++)
     free(files[i]);
