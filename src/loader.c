@@ -49,6 +49,14 @@ typedef struct named {
   int index; /* model coordinate index / particle index */
 } named;
 
+/* Open-addressing hash of names (linear probing, FNV-1a): slot holds
+ * 1 + value, 0 when empty; keys point into the document or the model. */
+typedef struct name_hash {
+  const char **key;
+  int *val;
+  size_t cap, n; /* cap a power of two (or 0), n <= cap / 2 */
+} name_hash;
+
 typedef struct loader {
   const char *path; /* display name */
   struct fy_diag *diag;
@@ -62,6 +70,8 @@ typedef struct loader {
   int splice_ok; /* every override replaced a scalar of the text */
   named *coords, *parts;
   int n_coords, n_parts;
+  name_hash coord_hash, part_hash;   /* name -> index into coords / parts */
+  name_hash model_hash;              /* model coordinate name -> index */
   struct fy_node *constraint_list;   /* `constraints:`, NULL if absent */
   struct fy_node **constraint_items; /* entry of each model constraint */
   mrvi_system *sys;
@@ -451,26 +461,39 @@ static int set_error(loader *L, const char *text, const char *fmt, ...) {
 }
 
 /* Pair of `map` whose key is the longest run of segments seg[0..k) joined by
- * dots (coordinate names such as m1.x contain dots); *used = k. */
+ * dots (coordinate names such as m1.x contain dots); *used = k.  The
+ * segments lie one after another in one buffer, NULs in place of the dots,
+ * so each key is compared once with the remaining path (linear in the
+ * mapping's keys, whatever the path's length). */
 static struct fy_node_pair *
 lookup_segments(struct fy_node *map, char *const *seg, int n_seg, int *used) {
-  char key[512];
-  for (int k = n_seg; k >= 1; k--) {
-    size_t off = 0;
-    int ok = 1;
-    for (int i = 0; i < k && ok; i++) {
-      int w =
-          snprintf(key + off, sizeof key - off, "%s%s", i ? "." : "", seg[i]);
-      ok = w >= 0 && (size_t)w < sizeof key - off;
-      off += ok ? (size_t)w : 0;
-    }
-    struct fy_node_pair *p = ok ? find_pair(map, key) : NULL;
-    if (p) {
-      *used = k;
-      return p;
+  const char *path = seg[0];
+  const char *end = seg[n_seg - 1] + strlen(seg[n_seg - 1]);
+  size_t best_len = 0, len;
+  struct fy_node_pair *best = NULL, *p;
+  void *it = NULL;
+  while ((p = fy_node_mapping_iterate(map, &it))) {
+    struct fy_node *k = fy_node_pair_key(p);
+    const char *s = fy_node_is_scalar(k) ? fy_node_get_scalar(k, &len) : NULL;
+    if (!s || len == 0 || len > (size_t)(end - path) || len <= best_len ||
+        (path[len] != '\0' && path + len != end))
+      continue;
+    size_t c = 0;
+    while (c < len && (path[c] ? path[c] : '.') == s[c] &&
+           (path[c] || s[c] == '.'))
+      c++;
+    if (c == len) {
+      best = p;
+      best_len = len;
     }
   }
-  return NULL;
+  if (best) {
+    int k = 1;
+    for (size_t c = 0; c < best_len; c++)
+      k += path[c] == '\0';
+    *used = k;
+  }
+  return best;
 }
 
 /* The segments seg[0..upto) joined for messages. */
@@ -609,12 +632,12 @@ static int set_path(loader *L, const char *text, const char *value,
   if (!node || !fy_node_is_mapping(node))
     return set_error(L, text, "the document is not a mapping");
   for (int i = 0; i < n_seg;) {
-    path_prefix(where, sizeof where, seg, i + 1);
-    path_prefix(parent, sizeof parent, seg, i);
     if (fy_node_is_sequence(node)) {
       char *end;
       long idx = strtol(seg[i], &end, 10);
       int count = fy_node_sequence_item_count(node);
+      path_prefix(where, sizeof where, seg, i + 1); /* for messages */
+      path_prefix(parent, sizeof parent, seg, i);
       if (*end || end == seg[i] || idx < 0 || idx >= count)
         return set_error(L, text,
                          "no such key '%s' (%s has %d item%s, index from 0)",
@@ -632,6 +655,7 @@ static int set_path(loader *L, const char *text, const char *value,
         /* A list item below a missing key: the path does not exist. */
         if (!last && strspn(seg[i + 1], "0123456789") == strlen(seg[i + 1])) {
           path_prefix(where, sizeof where, seg, i + 2);
+          path_prefix(parent, sizeof parent, seg, i);
           return set_error(L, text,
                            "the path '%s' does not exist (%s%shas no key '%s')",
                            where, parent, i ? " " : "the file ", seg[i]);
@@ -659,6 +683,8 @@ static int set_path(loader *L, const char *text, const char *value,
         node = m;
       }
     } else {
+      path_prefix(where, sizeof where, seg, i + 1);
+      path_prefix(parent, sizeof parent, seg, i);
       return set_error(L, text,
                        "no such key '%s' ('%s' is a value, not a mapping or "
                        "list)",
@@ -707,11 +733,60 @@ static int apply_override(loader *L, const char *text) {
  * Interpretation: names
  * ------------------------------------------------------------------------- */
 
-static const named *find_named(const named *tab, int n, const char *name) {
-  for (int i = 0; i < n; i++)
-    if (!strcmp(tab[i].name, name))
-      return &tab[i];
-  return NULL;
+static size_t hash_name(const char *s) {
+  size_t h = 1469598103934665603u;
+  for (; *s; s++)
+    h = (h ^ (unsigned char)*s) * 1099511628211u;
+  return h;
+}
+
+/* Value stored for name, or -1. */
+static int hash_find(const name_hash *h, const char *name) {
+  if (!h->cap)
+    return -1;
+  for (size_t i = hash_name(name) & (h->cap - 1);; i = (i + 1) & (h->cap - 1))
+    if (!h->val[i])
+      return -1;
+    else if (!strcmp(h->key[i], name))
+      return h->val[i] - 1;
+}
+
+/* Add name -> value (name not present); MRVI_ENOMEM on failure. */
+static int hash_put(name_hash *h, const char *name, int value) {
+  if (2 * (h->n + 1) > h->cap) {
+    name_hash g = {.cap = h->cap ? 2 * h->cap : 64};
+    g.key = malloc(g.cap * sizeof *g.key);
+    g.val = calloc(g.cap, sizeof *g.val);
+    if (!g.key || !g.val) {
+      free(g.key);
+      free(g.val);
+      return MRVI_ENOMEM;
+    }
+    for (size_t i = 0; i < h->cap; i++)
+      if (h->val[i])
+        hash_put(&g, h->key[i], h->val[i] - 1);
+    free(h->key);
+    free(h->val);
+    *h = g;
+  }
+  size_t i = hash_name(name) & (h->cap - 1);
+  while (h->val[i])
+    i = (i + 1) & (h->cap - 1);
+  h->key[i] = name;
+  h->val[i] = value + 1;
+  h->n++;
+  return MRVI_OK;
+}
+
+static void hash_free(name_hash *h) {
+  free(h->key);
+  free(h->val);
+}
+
+static const named *find_named(const named *tab, const name_hash *h,
+                               const char *name) {
+  int i = hash_find(h, name);
+  return i >= 0 ? &tab[i] : NULL;
 }
 
 /* Unknown name with a suggestion among the defined ones. */
@@ -731,12 +806,12 @@ static int fail_unknown_name(loader *L, struct fy_node *at, const char *kind,
 
 /* Name of a new coordinate or particle, rejecting duplicates. */
 static int new_name(loader *L, struct fy_node *item, const char *where,
-                    const char *kind, const named *tab, int n,
+                    const char *kind, const named *tab, const name_hash *h,
                     struct fy_node **name_node, const char **name) {
   int st = need(L, item, "name", where, name_node);
   if (st || (st = as_string(L, *name_node, "name", name)))
     return st;
-  const named *prev = find_named(tab, n, *name);
+  const named *prev = find_named(tab, h, *name);
   int line, col;
   if (prev && node_position(prev->node, &line, &col))
     return fail(L, *name_node,
@@ -820,8 +895,9 @@ static int load_coordinates(loader *L, struct fy_node *list) {
   L->coords = calloc((size_t)count + 1, sizeof *L->coords);
   if (!L->coords)
     return fail_nomem(L);
-  for (int i = 0; i < count; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *nn, *v;
+  void *it = NULL;
+  struct fy_node *item, *nn, *v;
+  for (int i = 0; (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "coordinates.%d", i);
     const char *name;
@@ -830,7 +906,7 @@ static int load_coordinates(loader *L, struct fy_node *list) {
     if ((st = want_mapping(L, item, where)) ||
         (st = check_keys(L, item, where, coordinate_keys,
                          COUNT(coordinate_keys), NULL, 0)) ||
-        (st = new_name(L, item, where, "coordinate", L->coords, L->n_coords,
+        (st = new_name(L, item, where, "coordinate", L->coords, &L->coord_hash,
                        &nn, &name)) ||
         (st = need(L, item, "mass", where, &v)) ||
         (st = as_number(L, v, "mass", &mass)))
@@ -846,6 +922,8 @@ static int load_coordinates(loader *L, struct fy_node *list) {
         mrvi_model_add_coordinate(L->sys->model, name, mass, rate, q0, v0);
     if (idx < 0)
       return fail_model(L, item, idx);
+    if (hash_put(&L->coord_hash, name, L->n_coords))
+      return fail_nomem(L);
     L->coords[L->n_coords++] = (named){name, nn, idx};
   }
   return MRVI_OK;
@@ -859,8 +937,9 @@ static int load_particles(loader *L, struct fy_node *list, int dim) {
   L->parts = calloc((size_t)count + 1, sizeof *L->parts);
   if (!L->parts)
     return fail_nomem(L);
-  for (int i = 0; i < count; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *nn, *v;
+  void *it = NULL;
+  struct fy_node *item, *nn, *v;
+  for (int i = 0; (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "particles.%d", i);
     const char *name;
@@ -869,7 +948,7 @@ static int load_particles(loader *L, struct fy_node *list, int dim) {
     if ((st = want_mapping(L, item, where)) ||
         (st = check_keys(L, item, where, particle_keys, COUNT(particle_keys),
                          NULL, 0)) ||
-        (st = new_name(L, item, where, "particle", L->parts, L->n_parts, &nn,
+        (st = new_name(L, item, where, "particle", L->parts, &L->part_hash, &nn,
                        &name)) ||
         (st = need(L, item, "mass", where, &v)) ||
         (st = as_number(L, v, "mass", &mass)))
@@ -887,6 +966,8 @@ static int load_particles(loader *L, struct fy_node *list, int dim) {
     int idx = mrvi_model_add_particle(L->sys->model, name, mass, rate, x0, v0);
     if (idx < 0)
       return fail_model(L, item, idx);
+    if (hash_put(&L->part_hash, name, L->n_parts))
+      return fail_nomem(L);
     L->parts[L->n_parts++] = (named){name, nn, idx};
   }
   return MRVI_OK;
@@ -965,7 +1046,7 @@ static int find_particle(loader *L, struct fy_node *n, const char *what,
   int st = as_string(L, n, what, &pname);
   if (st)
     return st;
-  const named *p = find_named(L->parts, L->n_parts, pname);
+  const named *p = find_named(L->parts, &L->part_hash, pname);
   if (!p)
     return fail_unknown_name(L, n, "particle", pname, L->parts, L->n_parts);
   *index = p->index;
@@ -982,11 +1063,11 @@ static int find_coordinate(loader *L, struct fy_node *n, const char *what,
   int st = as_string(L, n, what, &cname);
   if (st)
     return st;
-  for (int j = 0; j < count; j++)
-    if (!strcmp(mrvi_model_coordinate_name(m, j), cname)) {
-      *index = j;
-      return MRVI_OK;
-    }
+  for (int j = (int)L->model_hash.n; j < count; j++) /* new since last */
+    if (hash_put(&L->model_hash, mrvi_model_coordinate_name(m, j), j))
+      return fail_nomem(L);
+  if ((*index = hash_find(&L->model_hash, cname)) >= 0)
+    return MRVI_OK;
   const char **names = malloc((size_t)(count + 1) * sizeof *names);
   if (!names)
     return fail_nomem(L);
@@ -1058,9 +1139,9 @@ static int load_springs(loader *L, struct fy_node *list, int dim) {
   int st = want_list(L, list, "springs");
   if (st)
     return st;
-  int count = fy_node_sequence_item_count(list);
-  for (int i = 0; i < count; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i);
+  void *it = NULL;
+  struct fy_node *item;
+  for (int i = 0; (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "springs.%d", i);
     const mrvi_law *law = NULL;
@@ -1089,7 +1170,6 @@ static int load_terms(loader *L, struct fy_node *list) {
   int st = want_list(L, list, "terms");
   if (st)
     return st;
-  int count = fy_node_sequence_item_count(list);
   int n = mrvi_model_n(L->sys->model);
   int *coords = malloc((size_t)(n + 1) * sizeof *coords);
   double *coef = malloc((size_t)(n + 1) * sizeof *coef);
@@ -1097,8 +1177,9 @@ static int load_terms(loader *L, struct fy_node *list) {
     st = fail_nomem(L);
     goto done;
   }
-  for (int i = 0; i < count && !st; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *comb;
+  void *it = NULL;
+  struct fy_node *item, *comb;
+  for (int i = 0; !st && (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "terms.%d", i);
     const mrvi_law *law = NULL;
@@ -1379,8 +1460,10 @@ static int load_constraints(loader *L, struct fy_node *list, int dim) {
   L->constraint_items = calloc((size_t)count + 1, sizeof *L->constraint_items);
   if (!L->constraint_items)
     return fail_nomem(L);
-  for (int i = 0; i < count && !st; i++)
-    st = load_constraint(L, fy_node_sequence_get_by_index(list, i), i, dim);
+  void *it = NULL;
+  struct fy_node *item;
+  for (int i = 0; !st && (item = fy_node_sequence_iterate(list, &it)); i++)
+    st = load_constraint(L, item, i, dim);
   return st;
 }
 
@@ -1464,11 +1547,15 @@ static int load_model(loader *L, struct fy_node *root) {
     return fail(L, root, "missing key 'dimension' (needed by %s)",
                 particles ? "particles" : "gravity");
   }
-  /* Model order: coordinates first, then particles as declared. */
+  /* Model order: coordinates first, then particles as declared; the
+   * partition is built once, after the last. */
+  mrvi_model_defer_partition(m, 1);
   if ((n = get(root, "coordinates")) && (st = load_coordinates(L, n)))
     return st;
   if (particles && (st = load_particles(L, particles, dim)))
     return st;
+  if ((st = mrvi_model_defer_partition(m, 0)))
+    return fail_model(L, particles ? particles : root, st);
   if (mrvi_model_n(m) == 0)
     return fail(L, root,
                 "the system has no coordinates: add 'coordinates' "
@@ -2066,6 +2153,9 @@ done:
   }
   free(L.coords);
   free(L.parts);
+  hash_free(&L.coord_hash);
+  hash_free(&L.part_hash);
+  hash_free(&L.model_hash);
   free(L.constraint_items);
   free(L.ov);
   free(L.sp);
