@@ -23,9 +23,8 @@
 /* Limits on hostile input (doc/description-files.md, "Limits"). */
 #define MAX_TEXT ((size_t)64 << 20) /* bytes of a description or override */
 #define MAX_DEPTH 256               /* nesting, counted through aliases */
-#define MAX_ALIAS_NODES                                                        \
-  1000000L /* nodes added by aliases, beyond 4 per                             \
-              node of the file */
+/* Nodes aliases may add: this many plus 4 per node of the file. */
+#define MAX_ALIAS_NODES 100000L
 
 /* Node created by an override, with the override's text. */
 typedef struct override_node {
