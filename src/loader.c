@@ -630,7 +630,9 @@ static int set_path(loader *L, const char *text, const char *value,
   char where[512], parent[512];
   if (!node || !fy_node_is_mapping(node))
     return set_error(L, text, "the document is not a mapping");
-  for (int i = 0; i < n_seg;) {
+  for (int i = 0, depth = 1; i < n_seg; depth++) {
+    if (depth > MAX_DEPTH) /* the document's own depth bound */
+      return set_error(L, text, "the path is deeper than %d levels", MAX_DEPTH);
     if (fy_node_is_sequence(node)) {
       char *end;
       long idx = strtol(seg[i], &end, 10);
