@@ -324,8 +324,11 @@ static int as_int(loader *L, struct fy_node *n, const char *what, int *out) {
   int st = as_number(L, n, what, &v);
   if (st)
     return st;
-  if (v != floor(v) || fabs(v) > 1e9)
+  if (v != floor(v))
     return fail(L, n, "%s must be an integer, got %s", what, scalar0(n));
+  if (fabs(v) > 1e9)
+    return fail(L, n, "%s must be at most 10^9 in magnitude, got %s", what,
+                scalar0(n));
   *out = (int)v;
   return MRVI_OK;
 }

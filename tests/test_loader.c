@@ -1152,6 +1152,20 @@ static void test_hostile_input(void) {
   load_expect(fpu, "integrator.micro_steps=1\x01", "control character U+0001");
   load_expect("/dev/zero", NULL, "/dev/zero:1:1: NUL byte");
   load_expect("/dev/urandom", NULL, "/dev/urandom:");
+  /* Anchors, aliases and merge keys still work (resolved after the
+   * expansion bound). */
+  const char *merge = "name: merge\ndimension: 1\nparticles:\n"
+                      "  - &base {name: m1, mass: 3, position: [0]}\n"
+                      "  - {<<: *base, name: m2, position: [1.5]}\n";
+  char mmsg[MSG] = "";
+  mrvi_system *ms = NULL;
+  int mst =
+      mrvi_system_load_string(merge, "merge", NULL, 0, &ms, mmsg, sizeof mmsg);
+  CHECK(mst == MRVI_OK && ms && mrvi_model_n(ms->model) == 2 &&
+            mrvi_model_mass(ms->model, 1) == 3.0 &&
+            mrvi_model_q0(ms->model)[1] == 1.5,
+        "merge key: status %d '%s'", mst, mmsg);
+  mrvi_system_free(ms);
   /* 64 MiB + 1 byte of valid text. */
   size_t big = ((size_t)64 << 20) + 1;
   char *text = malloc(big + 1);
