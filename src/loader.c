@@ -1765,6 +1765,11 @@ static int interpret(loader *L) {
   int st;
   if (!root || is_null(root))
     return fail(L, NULL, "the description is empty");
+  /* A root scalar is not quoted back: reading the text of a root quoted
+   * scalar with escapes leaks in libfyaml 0.7 (found by tests/fuzz). */
+  if (!fy_node_is_mapping(root))
+    return fail(L, root, "the description must be a mapping, got %s",
+                fy_node_is_sequence(root) ? "a list" : "a single value");
   if ((st = want_mapping(L, root, "the description")) ||
       (st = check_keys(L, root, "the top level", top_keys, COUNT(top_keys),
                        NULL, 0)))
