@@ -20,6 +20,7 @@ fi
 meson compile -C "$build" tests/fuzz/fuzz_loader >/dev/null
 mkdir -p "$build/corpus" "$build/artifacts"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1}
+export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$root/tests/fuzz/lsan.supp}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-halt_on_error=1:print_stacktrace=1}
 "$build/tests/fuzz/fuzz_loader" \
   -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -max_len=16384 \
