@@ -76,7 +76,8 @@ struct mrvi_model {
   mrvi_particle *particles;
   int n_elements, cap_elements;
   mrvi_element *elements;
-  /* Partition, kept current by every add. */
+  /* Partition, kept current by every add (unless deferred). */
+  int deferred; /* mrvi_model_defer_partition */
   int n_slow, n_fast;
   int *slow_index, *fast_index; /* slot -> model index */
   int *slot;                    /* model index -> slot within its rate block */
@@ -87,6 +88,13 @@ struct mrvi_model {
   int max_constraint_in;        /* largest n_in of a constraint */
   char errmsg[512];
 };
+
+/* Bulk loading: with defer = 1, adding coordinates and particles neither
+ * rebuilds the partition nor scans for duplicate names (linear cost per
+ * add); defer = 0 then rebuilds the partition once and checks names for
+ * duplicates by sorting.  Returns MRVI_OK or a status with the model's
+ * message. */
+int mrvi_model_defer_partition(mrvi_model *m, int defer);
 
 /* Energy, gradient (n_in) and Hessian (n_in x n_in row-major, may be NULL)
  * of element e at its local inputs y (n_in). */

@@ -11,13 +11,20 @@
 #include <libfyaml.h>
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #define COUNT(a) ((int)(sizeof(a) / sizeof((a)[0])))
 #define MAX_KEYS 64 /* keys of one mapping, law parameters included */
+/* Limits on hostile input (doc/description-files.md, "Limits"). */
+#define MAX_TEXT ((size_t)64 << 20) /* bytes of a description or override */
+#define MAX_DEPTH 256               /* nesting, counted through aliases */
+/* Nodes aliases may add: this many plus 4 per node of the file. */
+#define MAX_ALIAS_NODES 100000L
 
 /* Node created by an override, with the override's text. */
 typedef struct override_node {
@@ -41,6 +48,14 @@ typedef struct named {
   int index; /* model coordinate index / particle index */
 } named;
 
+/* Open-addressing hash of names (linear probing, FNV-1a): slot holds
+ * 1 + value, 0 when empty; keys point into the document or the model. */
+typedef struct name_hash {
+  const char **key;
+  int *val;
+  size_t cap, n; /* cap a power of two (or 0), n <= cap / 2 */
+} name_hash;
+
 typedef struct loader {
   const char *path; /* display name */
   struct fy_diag *diag;
@@ -54,6 +69,8 @@ typedef struct loader {
   int splice_ok; /* every override replaced a scalar of the text */
   named *coords, *parts;
   int n_coords, n_parts;
+  name_hash coord_hash, part_hash;   /* name -> index into coords / parts */
+  name_hash model_hash;              /* model coordinate name -> index */
   struct fy_node *constraint_list;   /* `constraints:`, NULL if absent */
   struct fy_node **constraint_items; /* entry of each model constraint */
   mrvi_system *sys;
@@ -307,8 +324,11 @@ static int as_int(loader *L, struct fy_node *n, const char *what, int *out) {
   int st = as_number(L, n, what, &v);
   if (st)
     return st;
-  if (v != floor(v) || fabs(v) > 1e9)
+  if (v != floor(v))
     return fail(L, n, "%s must be an integer, got %s", what, scalar0(n));
+  if (fabs(v) > 1e9)
+    return fail(L, n, "%s must be at most 10^9 in magnitude, got %s", what,
+                scalar0(n));
   *out = (int)v;
   return MRVI_OK;
 }
@@ -443,26 +463,39 @@ static int set_error(loader *L, const char *text, const char *fmt, ...) {
 }
 
 /* Pair of `map` whose key is the longest run of segments seg[0..k) joined by
- * dots (coordinate names such as m1.x contain dots); *used = k. */
+ * dots (coordinate names such as m1.x contain dots); *used = k.  The
+ * segments lie one after another in one buffer, NULs in place of the dots,
+ * so each key is compared once with the remaining path (linear in the
+ * mapping's keys, whatever the path's length). */
 static struct fy_node_pair *
 lookup_segments(struct fy_node *map, char *const *seg, int n_seg, int *used) {
-  char key[512];
-  for (int k = n_seg; k >= 1; k--) {
-    size_t off = 0;
-    int ok = 1;
-    for (int i = 0; i < k && ok; i++) {
-      int w =
-          snprintf(key + off, sizeof key - off, "%s%s", i ? "." : "", seg[i]);
-      ok = w >= 0 && (size_t)w < sizeof key - off;
-      off += ok ? (size_t)w : 0;
-    }
-    struct fy_node_pair *p = ok ? find_pair(map, key) : NULL;
-    if (p) {
-      *used = k;
-      return p;
+  const char *path = seg[0];
+  const char *end = seg[n_seg - 1] + strlen(seg[n_seg - 1]);
+  size_t best_len = 0, len;
+  struct fy_node_pair *best = NULL, *p;
+  void *it = NULL;
+  while ((p = fy_node_mapping_iterate(map, &it))) {
+    struct fy_node *k = fy_node_pair_key(p);
+    const char *s = fy_node_is_scalar(k) ? fy_node_get_scalar(k, &len) : NULL;
+    if (!s || len == 0 || len > (size_t)(end - path) || len <= best_len ||
+        (path[len] != '\0' && path + len != end))
+      continue;
+    size_t c = 0;
+    while (c < len && (path[c] ? path[c] : '.') == s[c] &&
+           (path[c] || s[c] == '.'))
+      c++;
+    if (c == len) {
+      best = p;
+      best_len = len;
     }
   }
-  return NULL;
+  if (best) {
+    int k = 1;
+    for (size_t c = 0; c < best_len; c++)
+      k += path[c] == '\0';
+    *used = k;
+  }
+  return best;
 }
 
 /* The segments seg[0..upto) joined for messages. */
@@ -508,12 +541,30 @@ static int note_splice(loader *L, struct fy_node *old, struct fy_node *v,
   return MRVI_OK;
 }
 
+static long first_invalid(const char *text, size_t n, int *line, int *col,
+                          long *code);
+static void describe_invalid(char *buf, size_t len, const char *text, long at,
+                             long code);
+static struct fy_node *find_alias(struct fy_node *n);
+
 /* Parse `value` as a YAML node of the document. */
 static int build_value(loader *L, const char *text, const char *value,
                        struct fy_node **out) {
   if (!*value)
     return set_error(L, text, "empty value");
+  int line, col;
+  long code, at = first_invalid(value, strlen(value), &line, &col, &code);
+  if (at >= 0) {
+    char what[128];
+    describe_invalid(what, sizeof what, value, at, code);
+    return set_error(L, text, "%s", what);
+  }
   *out = fy_node_build_from_string(L->doc, value, FY_NT);
+  if (*out && find_alias(*out)) {
+    fy_node_free(*out);
+    *out = NULL;
+    return set_error(L, text, "aliases (*name) are not allowed in a value");
+  }
   if (*out)
     return MRVI_OK;
   void *it = NULL;
@@ -582,13 +633,15 @@ static int set_path(loader *L, const char *text, const char *value,
   char where[512], parent[512];
   if (!node || !fy_node_is_mapping(node))
     return set_error(L, text, "the document is not a mapping");
-  for (int i = 0; i < n_seg;) {
-    path_prefix(where, sizeof where, seg, i + 1);
-    path_prefix(parent, sizeof parent, seg, i);
+  for (int i = 0, depth = 1; i < n_seg; depth++) {
+    if (depth > MAX_DEPTH) /* the document's own depth bound */
+      return set_error(L, text, "the path is deeper than %d levels", MAX_DEPTH);
     if (fy_node_is_sequence(node)) {
       char *end;
       long idx = strtol(seg[i], &end, 10);
       int count = fy_node_sequence_item_count(node);
+      path_prefix(where, sizeof where, seg, i + 1); /* for messages */
+      path_prefix(parent, sizeof parent, seg, i);
       if (*end || end == seg[i] || idx < 0 || idx >= count)
         return set_error(L, text,
                          "no such key '%s' (%s has %d item%s, index from 0)",
@@ -603,6 +656,14 @@ static int set_path(loader *L, const char *text, const char *value,
       struct fy_node_pair *p = lookup_segments(node, seg + i, n_seg - i, &used);
       if (!p) {
         int last = i == n_seg - 1;
+        /* A list item below a missing key: the path does not exist. */
+        if (!last && strspn(seg[i + 1], "0123456789") == strlen(seg[i + 1])) {
+          path_prefix(where, sizeof where, seg, i + 2);
+          path_prefix(parent, sizeof parent, seg, i);
+          return set_error(L, text,
+                           "the path '%s' does not exist (%s%shas no key '%s')",
+                           where, parent, i ? " " : "the file ", seg[i]);
+        }
         int st = add_key(L, text, node, seg[i], last ? value : NULL, &node);
         if (st || last)
           return st;
@@ -626,6 +687,8 @@ static int set_path(loader *L, const char *text, const char *value,
         node = m;
       }
     } else {
+      path_prefix(where, sizeof where, seg, i + 1);
+      path_prefix(parent, sizeof parent, seg, i);
       return set_error(L, text,
                        "no such key '%s' ('%s' is a value, not a mapping or "
                        "list)",
@@ -640,6 +703,8 @@ static int apply_override(loader *L, const char *text) {
   const char *eq = strchr(text, '=');
   if (!eq || eq == text)
     return set_error(L, text, "expected KEY=VALUE");
+  if (strlen(text) > MAX_TEXT)
+    return set_error(L, "...", "longer than %zu MiB", MAX_TEXT >> 20);
   /* Split the key into segments: one copy, dots replaced by NULs. */
   size_t klen = (size_t)(eq - text);
   char *key = malloc(klen + 1);
@@ -672,11 +737,60 @@ static int apply_override(loader *L, const char *text) {
  * Interpretation: names
  * ------------------------------------------------------------------------- */
 
-static const named *find_named(const named *tab, int n, const char *name) {
-  for (int i = 0; i < n; i++)
-    if (!strcmp(tab[i].name, name))
-      return &tab[i];
-  return NULL;
+static size_t hash_name(const char *s) {
+  size_t h = 1469598103934665603u;
+  for (; *s; s++)
+    h = (h ^ (unsigned char)*s) * 1099511628211u;
+  return h;
+}
+
+/* Value stored for name, or -1. */
+static int hash_find(const name_hash *h, const char *name) {
+  if (!h->cap)
+    return -1;
+  for (size_t i = hash_name(name) & (h->cap - 1);; i = (i + 1) & (h->cap - 1))
+    if (!h->val[i])
+      return -1;
+    else if (!strcmp(h->key[i], name))
+      return h->val[i] - 1;
+}
+
+/* Add name -> value (name not present); MRVI_ENOMEM on failure. */
+static int hash_put(name_hash *h, const char *name, int value) {
+  if (2 * (h->n + 1) > h->cap) {
+    name_hash g = {.cap = h->cap ? 2 * h->cap : 64};
+    g.key = malloc(g.cap * sizeof *g.key);
+    g.val = calloc(g.cap, sizeof *g.val);
+    if (!g.key || !g.val) {
+      free(g.key);
+      free(g.val);
+      return MRVI_ENOMEM;
+    }
+    for (size_t i = 0; i < h->cap; i++)
+      if (h->val[i])
+        hash_put(&g, h->key[i], h->val[i] - 1);
+    free(h->key);
+    free(h->val);
+    *h = g;
+  }
+  size_t i = hash_name(name) & (h->cap - 1);
+  while (h->val[i])
+    i = (i + 1) & (h->cap - 1);
+  h->key[i] = name;
+  h->val[i] = value + 1;
+  h->n++;
+  return MRVI_OK;
+}
+
+static void hash_free(name_hash *h) {
+  free(h->key);
+  free(h->val);
+}
+
+static const named *find_named(const named *tab, const name_hash *h,
+                               const char *name) {
+  int i = hash_find(h, name);
+  return i >= 0 ? &tab[i] : NULL;
 }
 
 /* Unknown name with a suggestion among the defined ones. */
@@ -696,12 +810,12 @@ static int fail_unknown_name(loader *L, struct fy_node *at, const char *kind,
 
 /* Name of a new coordinate or particle, rejecting duplicates. */
 static int new_name(loader *L, struct fy_node *item, const char *where,
-                    const char *kind, const named *tab, int n,
+                    const char *kind, const named *tab, const name_hash *h,
                     struct fy_node **name_node, const char **name) {
   int st = need(L, item, "name", where, name_node);
   if (st || (st = as_string(L, *name_node, "name", name)))
     return st;
-  const named *prev = find_named(tab, n, *name);
+  const named *prev = find_named(tab, h, *name);
   int line, col;
   if (prev && node_position(prev->node, &line, &col))
     return fail(L, *name_node,
@@ -785,8 +899,9 @@ static int load_coordinates(loader *L, struct fy_node *list) {
   L->coords = calloc((size_t)count + 1, sizeof *L->coords);
   if (!L->coords)
     return fail_nomem(L);
-  for (int i = 0; i < count; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *nn, *v;
+  void *it = NULL;
+  struct fy_node *item, *nn, *v;
+  for (int i = 0; (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "coordinates.%d", i);
     const char *name;
@@ -795,7 +910,7 @@ static int load_coordinates(loader *L, struct fy_node *list) {
     if ((st = want_mapping(L, item, where)) ||
         (st = check_keys(L, item, where, coordinate_keys,
                          COUNT(coordinate_keys), NULL, 0)) ||
-        (st = new_name(L, item, where, "coordinate", L->coords, L->n_coords,
+        (st = new_name(L, item, where, "coordinate", L->coords, &L->coord_hash,
                        &nn, &name)) ||
         (st = need(L, item, "mass", where, &v)) ||
         (st = as_number(L, v, "mass", &mass)))
@@ -811,6 +926,8 @@ static int load_coordinates(loader *L, struct fy_node *list) {
         mrvi_model_add_coordinate(L->sys->model, name, mass, rate, q0, v0);
     if (idx < 0)
       return fail_model(L, item, idx);
+    if (hash_put(&L->coord_hash, name, L->n_coords))
+      return fail_nomem(L);
     L->coords[L->n_coords++] = (named){name, nn, idx};
   }
   return MRVI_OK;
@@ -824,8 +941,9 @@ static int load_particles(loader *L, struct fy_node *list, int dim) {
   L->parts = calloc((size_t)count + 1, sizeof *L->parts);
   if (!L->parts)
     return fail_nomem(L);
-  for (int i = 0; i < count; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *nn, *v;
+  void *it = NULL;
+  struct fy_node *item, *nn, *v;
+  for (int i = 0; (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "particles.%d", i);
     const char *name;
@@ -834,7 +952,7 @@ static int load_particles(loader *L, struct fy_node *list, int dim) {
     if ((st = want_mapping(L, item, where)) ||
         (st = check_keys(L, item, where, particle_keys, COUNT(particle_keys),
                          NULL, 0)) ||
-        (st = new_name(L, item, where, "particle", L->parts, L->n_parts, &nn,
+        (st = new_name(L, item, where, "particle", L->parts, &L->part_hash, &nn,
                        &name)) ||
         (st = need(L, item, "mass", where, &v)) ||
         (st = as_number(L, v, "mass", &mass)))
@@ -852,6 +970,8 @@ static int load_particles(loader *L, struct fy_node *list, int dim) {
     int idx = mrvi_model_add_particle(L->sys->model, name, mass, rate, x0, v0);
     if (idx < 0)
       return fail_model(L, item, idx);
+    if (hash_put(&L->part_hash, name, L->n_parts))
+      return fail_nomem(L);
     L->parts[L->n_parts++] = (named){name, nn, idx};
   }
   return MRVI_OK;
@@ -930,7 +1050,7 @@ static int find_particle(loader *L, struct fy_node *n, const char *what,
   int st = as_string(L, n, what, &pname);
   if (st)
     return st;
-  const named *p = find_named(L->parts, L->n_parts, pname);
+  const named *p = find_named(L->parts, &L->part_hash, pname);
   if (!p)
     return fail_unknown_name(L, n, "particle", pname, L->parts, L->n_parts);
   *index = p->index;
@@ -947,11 +1067,11 @@ static int find_coordinate(loader *L, struct fy_node *n, const char *what,
   int st = as_string(L, n, what, &cname);
   if (st)
     return st;
-  for (int j = 0; j < count; j++)
-    if (!strcmp(mrvi_model_coordinate_name(m, j), cname)) {
-      *index = j;
-      return MRVI_OK;
-    }
+  for (int j = (int)L->model_hash.n; j < count; j++) /* new since last */
+    if (hash_put(&L->model_hash, mrvi_model_coordinate_name(m, j), j))
+      return fail_nomem(L);
+  if ((*index = hash_find(&L->model_hash, cname)) >= 0)
+    return MRVI_OK;
   const char **names = malloc((size_t)(count + 1) * sizeof *names);
   if (!names)
     return fail_nomem(L);
@@ -1023,9 +1143,9 @@ static int load_springs(loader *L, struct fy_node *list, int dim) {
   int st = want_list(L, list, "springs");
   if (st)
     return st;
-  int count = fy_node_sequence_item_count(list);
-  for (int i = 0; i < count; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i);
+  void *it = NULL;
+  struct fy_node *item;
+  for (int i = 0; (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "springs.%d", i);
     const mrvi_law *law = NULL;
@@ -1054,7 +1174,6 @@ static int load_terms(loader *L, struct fy_node *list) {
   int st = want_list(L, list, "terms");
   if (st)
     return st;
-  int count = fy_node_sequence_item_count(list);
   int n = mrvi_model_n(L->sys->model);
   int *coords = malloc((size_t)(n + 1) * sizeof *coords);
   double *coef = malloc((size_t)(n + 1) * sizeof *coef);
@@ -1062,8 +1181,9 @@ static int load_terms(loader *L, struct fy_node *list) {
     st = fail_nomem(L);
     goto done;
   }
-  for (int i = 0; i < count && !st; i++) {
-    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *comb;
+  void *it = NULL;
+  struct fy_node *item, *comb;
+  for (int i = 0; !st && (item = fy_node_sequence_iterate(list, &it)); i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "terms.%d", i);
     const mrvi_law *law = NULL;
@@ -1344,8 +1464,10 @@ static int load_constraints(loader *L, struct fy_node *list, int dim) {
   L->constraint_items = calloc((size_t)count + 1, sizeof *L->constraint_items);
   if (!L->constraint_items)
     return fail_nomem(L);
-  for (int i = 0; i < count && !st; i++)
-    st = load_constraint(L, fy_node_sequence_get_by_index(list, i), i, dim);
+  void *it = NULL;
+  struct fy_node *item;
+  for (int i = 0; !st && (item = fy_node_sequence_iterate(list, &it)); i++)
+    st = load_constraint(L, item, i, dim);
   return st;
 }
 
@@ -1429,11 +1551,15 @@ static int load_model(loader *L, struct fy_node *root) {
     return fail(L, root, "missing key 'dimension' (needed by %s)",
                 particles ? "particles" : "gravity");
   }
-  /* Model order: coordinates first, then particles as declared. */
+  /* Model order: coordinates first, then particles as declared; the
+   * partition is built once, after the last. */
+  mrvi_model_defer_partition(m, 1);
   if ((n = get(root, "coordinates")) && (st = load_coordinates(L, n)))
     return st;
   if (particles && (st = load_particles(L, particles, dim)))
     return st;
+  if ((st = mrvi_model_defer_partition(m, 0)))
+    return fail_model(L, particles ? particles : root, st);
   if (mrvi_model_n(m) == 0)
     return fail(L, root,
                 "the system has no coordinates: add 'coordinates' "
@@ -1617,12 +1743,40 @@ static int load_output(loader *L, struct fy_node *out) {
   return MRVI_OK;
 }
 
+/* Sizes the integrator allocates per macro step: p n_f micro unknowns in
+ * an int, and their storage within the machine's memory. */
+static int check_sizes(loader *L, struct fy_node *at) {
+  const mrvi_settings *s = &L->sys->settings;
+  long long pn = (long long)s->micro_steps * mrvi_model_n_fast(L->sys->model);
+  if (pn > INT_MAX / 8)
+    return fail(L, at,
+                "integrator.micro_steps × fast coordinates = %d × %d is too "
+                "large (at most %d)",
+                s->micro_steps, mrvi_model_n_fast(L->sys->model), INT_MAX / 8);
+  long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+  double have = pages > 0 && page > 0 ? (double)pages * (double)page : 0;
+  double need = 8.0 * 8.0 * (double)(pn + mrvi_model_n(L->sys->model));
+  if (have > 0 && need > have)
+    return fail(L, at,
+                "integrator.micro_steps × fast coordinates = %d × %d needs "
+                "about %.3g GiB per macro step, more than this machine's "
+                "%.3g GiB",
+                s->micro_steps, mrvi_model_n_fast(L->sys->model),
+                need / 1073741824.0, have / 1073741824.0);
+  return MRVI_OK;
+}
+
 static int interpret(loader *L) {
   mrvi_system *sys = L->sys;
   struct fy_node *root = fy_document_root(L->doc), *n;
   int st;
   if (!root || is_null(root))
     return fail(L, NULL, "the description is empty");
+  /* A root scalar is not quoted back: reading the text of a root quoted
+   * scalar with escapes leaks in libfyaml 0.7 (found by tests/fuzz). */
+  if (!fy_node_is_mapping(root))
+    return fail(L, root, "the description must be a mapping, got %s",
+                fy_node_is_sequence(root) ? "a list" : "a single value");
   if ((st = want_mapping(L, root, "the description")) ||
       (st = check_keys(L, root, "the top level", top_keys, COUNT(top_keys),
                        NULL, 0)))
@@ -1649,6 +1803,8 @@ static int interpret(loader *L) {
   char why[256];
   if (mrvi_settings_check(&sys->settings, why, sizeof why))
     return fail(L, n ? n : root, "%s", why);
+  if ((st = check_sizes(L, n ? n : root)))
+    return st;
   if ((st = check_constraints(L)))
     return st;
   if ((n = get(root, "output")) && (st = load_output(L, n)))
@@ -1751,6 +1907,191 @@ static int syntax_error(loader *L) {
   return MRVI_EPARSE;
 }
 
+/* ---------------------------------------------------------------------------
+ * Limits on hostile input (doc/description-files.md, "Limits")
+ * ------------------------------------------------------------------------- */
+
+/* Offset of the first byte that does not start a printable YAML character
+ * (YAML 1.2 §5.1: tab, LF, CR, U+0020..7E, U+0085, U+00A0..D7FF,
+ * U+E000..FFFD, U+10000..10FFFF, UTF-8 encoded), or -1; *line and *col are
+ * its 1-based position (columns in characters), *code the decoded
+ * character or -1 for an invalid byte. */
+static long first_invalid(const char *text, size_t n, int *line, int *col,
+                          long *code) {
+  const unsigned char *s = (const unsigned char *)text;
+  *line = 1;
+  *col = 1;
+  for (size_t i = 0; i < n;) {
+    unsigned c = s[i];
+    int len = c < 0x80             ? 1
+              : (c & 0xe0) == 0xc0 ? 2
+              : (c & 0xf0) == 0xe0 ? 3
+              : (c & 0xf8) == 0xf0 ? 4
+                                   : 0;
+    unsigned long u = len == 1   ? c
+                      : len == 2 ? c & 0x1f
+                      : len == 3 ? c & 0x0f
+                                 : c & 0x07;
+    int ok = len > 0 && i + (size_t)len <= n;
+    for (int k = 1; ok && k < len; k++) {
+      ok = (s[i + k] & 0xc0) == 0x80;
+      u = (u << 6) | (s[i + k] & 0x3f);
+    }
+    static const unsigned long least[5] = {0, 0, 0x80, 0x800, 0x10000};
+    if (!ok || u < least[len] || u > 0x10ffff) { /* overlong or beyond */
+      *code = -1;
+      return (long)i;
+    }
+    int printable = u == 9 || u == 10 || u == 13 || (u >= 0x20 && u <= 0x7e) ||
+                    u == 0x85 || (u >= 0xa0 && u <= 0xd7ff) ||
+                    (u >= 0xe000 && u <= 0xfffd) || u >= 0x10000;
+    if (!printable) {
+      *code = (long)u;
+      return (long)i;
+    }
+    if (c == '\n') {
+      (*line)++;
+      *col = 1;
+    } else {
+      (*col)++;
+    }
+    i += (size_t)len;
+  }
+  return -1;
+}
+
+/* What first_invalid found, for messages. */
+static void describe_invalid(char *buf, size_t len, const char *text, long at,
+                             long code) {
+  if (code < 0)
+    mrvi_fmt(buf, len, "invalid byte 0x%02x: not UTF-8 text",
+             (unsigned char)text[at]);
+  else if (code == 0)
+    mrvi_fmt(buf, len, "NUL byte: not a text file");
+  else
+    mrvi_fmt(buf, len, "control character U+%04lX is not allowed in YAML",
+             code);
+}
+
+/* Nodes of the tree at n, not following aliases. */
+static long count_nodes(struct fy_node *n) {
+  long c = 1;
+  void *it = NULL;
+  if (fy_node_is_sequence(n)) {
+    struct fy_node *x;
+    while ((x = fy_node_sequence_iterate(n, &it)))
+      c += count_nodes(x);
+  } else if (fy_node_is_mapping(n)) {
+    struct fy_node_pair *p;
+    while ((p = fy_node_mapping_iterate(n, &it)))
+      c +=
+          count_nodes(fy_node_pair_key(p)) + count_nodes(fy_node_pair_value(p));
+  }
+  return c;
+}
+
+typedef struct expansion {
+  long extra, limit;    /* nodes added by aliases, their bound */
+  struct fy_node *at;   /* outermost alias being expanded, or the node */
+  int too_deep, exceed; /* which bound was hit */
+} expansion;
+
+/* Walk the tree as it will be after alias resolution, counting the nodes
+ * aliases add and the depth, stopping at the first bound hit (so the walk
+ * itself is bounded: billion laughs stops after `limit` nodes). */
+static int expand_walk(expansion *E, struct fy_node *n, int depth,
+                       struct fy_node *alias) {
+  if (!n)
+    return 0;
+  if (depth > MAX_DEPTH) {
+    E->too_deep = 1;
+    E->at = alias ? alias : n;
+    return 1;
+  }
+  if (alias && ++E->extra > E->limit) {
+    E->exceed = 1;
+    E->at = alias;
+    return 1;
+  }
+  if (fy_node_is_alias(n))
+    return expand_walk(E, fy_node_resolve_alias(n), depth, alias ? alias : n);
+  void *it = NULL;
+  if (fy_node_is_sequence(n)) {
+    struct fy_node *x;
+    while ((x = fy_node_sequence_iterate(n, &it)))
+      if (expand_walk(E, x, depth + 1, alias))
+        return 1;
+  } else if (fy_node_is_mapping(n)) {
+    struct fy_node_pair *p;
+    while ((p = fy_node_mapping_iterate(n, &it)))
+      if (expand_walk(E, fy_node_pair_key(p), depth + 1, alias) ||
+          expand_walk(E, fy_node_pair_value(p), depth + 1, alias))
+        return 1;
+  }
+  return 0;
+}
+
+/* Any alias in the tree at n (override values may not hold one). */
+static struct fy_node *find_alias(struct fy_node *n) {
+  void *it = NULL;
+  struct fy_node *a = NULL;
+  if (fy_node_is_alias(n))
+    return n;
+  if (fy_node_is_sequence(n)) {
+    struct fy_node *x;
+    while (!a && (x = fy_node_sequence_iterate(n, &it)))
+      a = find_alias(x);
+  } else if (fy_node_is_mapping(n)) {
+    struct fy_node_pair *p;
+    while (!a && (p = fy_node_mapping_iterate(n, &it)))
+      if (!(a = find_alias(fy_node_pair_key(p))))
+        a = find_alias(fy_node_pair_value(p));
+  }
+  return a;
+}
+
+/* The text is printable UTF-8 (YAML 1.2 §5.1) of bounded size. */
+static int check_text(loader *L, const char *text) {
+  size_t n = strlen(text);
+  if (n > MAX_TEXT) {
+    mrvi_fmt(L->msg, L->len, "%s: the description is larger than %zu MiB",
+             L->path, MAX_TEXT >> 20);
+    return MRVI_EPARSE;
+  }
+  int line, col;
+  long code, at = first_invalid(text, n, &line, &col, &code);
+  if (at >= 0) {
+    char what[128];
+    describe_invalid(what, sizeof what, text, at, code);
+    mrvi_fmt(L->msg, L->len, "%s:%d:%d: %s", L->path, line, col, what);
+    return MRVI_EPARSE;
+  }
+  return MRVI_OK;
+}
+
+/* Bound the nodes aliases add and the nesting depth through them, then
+ * resolve aliases and merge keys. */
+static int resolve_aliases(loader *L) {
+  struct fy_node *root = fy_document_root(L->doc);
+  long own = count_nodes(root);
+  expansion E = {.limit = MAX_ALIAS_NODES + 4 * own};
+  if (expand_walk(&E, root, 0, NULL)) {
+    if (E.exceed)
+      return fail(L, E.at,
+                  "aliases expand the document beyond %ld nodes (an alias "
+                  "bomb?)",
+                  E.limit);
+    return fail(L, E.at, "nesting deeper than %d levels", MAX_DEPTH);
+  }
+  if (fy_document_resolve(L->doc)) {
+    void *it = NULL;
+    if (fy_diag_errors_iterate(L->diag, &it))
+      return syntax_error(L);
+    return fail(L, NULL, "cannot resolve aliases");
+  }
+  return MRVI_OK;
+}
+
 void mrvi_system_free(mrvi_system *sys) {
   if (!sys)
     return;
@@ -1790,11 +2131,14 @@ int mrvi_system_load_string(const char *text, const char *display_name,
     goto done;
   }
 
-  struct fy_parse_cfg cfg = {.flags = FYPCF_QUIET | FYPCF_DEFAULT_VERSION_1_2 |
-                                      FYPCF_RESOLVE_DOCUMENT,
+  st = check_text(&L, text);
+  if (st)
+    goto done;
+  /* Parsed without resolving aliases: their expansion is bounded first. */
+  struct fy_parse_cfg cfg = {.flags = FYPCF_QUIET | FYPCF_DEFAULT_VERSION_1_2,
                              .diag = L.diag};
   L.doc = fy_document_build_from_string(&cfg, text, FY_NT);
-  if (!L.doc || fy_diag_got_error(L.diag)) {
+  if (!L.doc || fy_diag_got_error(L.diag) || !fy_document_root(L.doc)) {
     void *it = NULL;
     if (fy_diag_errors_iterate(L.diag, &it))
       st = syntax_error(&L);
@@ -1802,6 +2146,9 @@ int mrvi_system_load_string(const char *text, const char *display_name,
       st = fail(&L, NULL, "the description is empty");
     goto done;
   }
+  st = resolve_aliases(&L);
+  if (st)
+    goto done;
   for (int i = 0; i < n_overrides && !st; i++)
     st = apply_override(&L, overrides[i]);
   if (st)
@@ -1822,6 +2169,9 @@ done:
   }
   free(L.coords);
   free(L.parts);
+  hash_free(&L.coord_hash);
+  hash_free(&L.part_hash);
+  hash_free(&L.model_hash);
   free(L.constraint_items);
   free(L.ov);
   free(L.sp);
@@ -1844,12 +2194,17 @@ int mrvi_system_load(const char *path, const char *const *overrides,
     mrvi_fmt(msg, len, "%s: cannot open: %s", path, strerror(errno));
     return MRVI_EIO;
   }
-  /* Read the whole file (the description is kept verbatim). */
+  /* Read the whole file (the description is kept verbatim), at most
+   * MAX_TEXT bytes, stopping at the first NUL byte (/dev/zero). */
   size_t cap = 4096, used = 0;
   char *text = malloc(cap);
-  int st = text ? MRVI_OK : MRVI_ENOMEM;
+  int st = text ? MRVI_OK : MRVI_ENOMEM, nul = 0, big = 0;
   while (!st) {
     if (used + 1 == cap) {
+      if (used > MAX_TEXT) {
+        big = 1;
+        break;
+      }
       char *t = realloc(text, 2 * cap);
       if (!t) {
         st = MRVI_ENOMEM;
@@ -1859,8 +2214,9 @@ int mrvi_system_load(const char *path, const char *const *overrides,
       cap *= 2;
     }
     size_t got = fread(text + used, 1, cap - used - 1, f);
+    nul = got && memchr(text + used, 0, got);
     used += got;
-    if (got == 0)
+    if (got == 0 || nul)
       break;
   }
   if (!st && ferror(f))
@@ -1873,8 +2229,19 @@ int mrvi_system_load(const char *path, const char *const *overrides,
     return st;
   }
   text[used] = '\0';
-  if (strlen(text) != used) {
-    mrvi_fmt(msg, len, "%s: not a text file (contains NUL bytes)", path);
+  int line, col;
+  long code, at = nul ? first_invalid(text, used, &line, &col, &code) : -1;
+  if (at >= 0 || big) {
+    char what[128];
+    if (big)
+      mrvi_fmt(what, sizeof what, "the description is larger than %zu MiB",
+               MAX_TEXT >> 20);
+    else
+      describe_invalid(what, sizeof what, text, at, code);
+    if (big)
+      mrvi_fmt(msg, len, "%s: %s", path, what);
+    else
+      mrvi_fmt(msg, len, "%s:%d:%d: %s", path, line, col, what);
     free(text);
     return MRVI_EPARSE;
   }

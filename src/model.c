@@ -126,6 +126,55 @@ static int update_partition(mrvi_model *m) {
   return 0;
 }
 
+static const char *const *sort_names_base;
+static int cmp_name_index(const void *a, const void *b) {
+  return strcmp(sort_names_base[*(const int *)a],
+                sort_names_base[*(const int *)b]);
+}
+
+/* First name occurring twice among names[0..n), or NULL (sorts indices). */
+static const char *duplicate_name(const char *const *names, int n, int *fail) {
+  int *ix = malloc((size_t)(n > 0 ? n : 1) * sizeof *ix);
+  const char *dup = NULL;
+  *fail = !ix;
+  if (!ix)
+    return NULL;
+  for (int i = 0; i < n; i++)
+    ix[i] = i;
+  sort_names_base = names;
+  qsort(ix, (size_t)n, sizeof *ix, cmp_name_index);
+  for (int i = 1; i < n && !dup; i++)
+    if (!strcmp(names[ix[i - 1]], names[ix[i]]))
+      dup = names[ix[i]];
+  free(ix);
+  return dup;
+}
+
+int mrvi_model_defer_partition(mrvi_model *m, int defer) {
+  if (defer || !m->deferred) {
+    m->deferred = defer;
+    return MRVI_OK;
+  }
+  m->deferred = 0;
+  int nomem;
+  const char *dup = duplicate_name((const char *const *)m->names, m->n, &nomem);
+  if (dup)
+    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
+                           dup);
+  const char **pn = malloc((size_t)(m->n_particles + 1) * sizeof *pn);
+  if (!nomem && pn) {
+    for (int i = 0; i < m->n_particles; i++)
+      pn[i] = m->particles[i].name;
+    dup = duplicate_name(pn, m->n_particles, &nomem);
+  }
+  free(pn);
+  if (nomem || !pn || (m->n > 0 && update_partition(m)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  if (dup)
+    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'", dup);
+  return MRVI_OK;
+}
+
 /* Make room for `need` coordinates in every per-coordinate array. */
 static int reserve_coordinates(mrvi_model *m, int need) {
   if (need <= m->cap)
@@ -165,7 +214,7 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   if (rate != MRVI_SLOW && rate != MRVI_FAST)
     return mrvi_model_fail(m, MRVI_EINVAL, "rate of '%s' must be slow or fast",
                            name);
-  if (find_coordinate(m, name) >= 0)
+  if (!m->deferred && find_coordinate(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
                            name);
   if (reserve_coordinates(m, m->n + 1))
@@ -179,7 +228,7 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   m->v0[m->n] = v0;
   m->rate[m->n] = rate;
   m->n++;
-  if (update_partition(m))
+  if (!m->deferred && update_partition(m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   return m->n - 1;
 }
@@ -203,7 +252,7 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (!x0 || !v0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s' needs position and velocity", name);
-  for (int i = 0; i < m->n_particles; i++)
+  for (int i = 0; i < m->n_particles * !m->deferred; i++)
     if (strcmp(m->particles[i].name, name) == 0)
       return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
                              name);

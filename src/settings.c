@@ -88,6 +88,17 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len) {
              s->t_end, s->macro_step);
     return MRVI_EINVAL;
   }
+  /* N = ceil(t_end / macro_step) and N p stay exact integers in a double
+   * and a long (2^53). */
+  const double max_steps = 9007199254740992.0;
+  if (!(s->t_end / s->macro_step < max_steps) ||
+      !((double)mrvi_settings_n_steps(s) * s->micro_steps < max_steps)) {
+    mrvi_fmt(msg, len,
+             "t_end / macro_step × micro_steps = %g / %g × %d: too many steps "
+             "(at most 2^53)",
+             s->t_end, s->macro_step, s->micro_steps);
+    return MRVI_EINVAL;
+  }
   if (!(isfinite(s->newton_tol) && s->newton_tol > 0)) {
     mrvi_fmt(msg, len, "newton tolerance must be positive (got %g)",
              s->newton_tol);

@@ -314,6 +314,20 @@ run_mrvi run "$fpu" --set integrator.micro_stepz=3 -o "$tmp/o/bad.h5"
 expect_rc 1 "misspelt --set key"
 check "misspelt --set key writes no output" no_h5_files
 
+# Hostile input stops at once with a message (issue 11): endless devices,
+# libfyaml's directive-scanner hang ("%\xff") through a --set value.
+for dev in /dev/zero /dev/urandom; do
+  run_mrvi check "$dev"
+  expect_rc 1 "$dev as description"
+  contains "$err" "^$dev:1:[0-9]+: (NUL byte|invalid byte|control character)" \
+    "$dev refused as not text"
+done
+run_mrvi run "$fpu" --set "integrator.micro_steps=$(printf '%%\377')" \
+  -o "$tmp/o/bad.h5"
+expect_rc 1 "--set value that is not UTF-8"
+contains "$err" "^--set integrator\.micro_steps=" "--set value that is not UTF-8 is named"
+contains "$err" "invalid byte 0xff: not UTF-8 text" "--set value that is not UTF-8: message"
+
 run_mrvi run "$tmp/nope.yaml" -o "$tmp/o/bad.h5"
 expect_rc 1 "nonexistent file"
 contains "$err" 'nope\.yaml' "nonexistent file is named"

@@ -3,6 +3,7 @@
  * paper's set-ups (DESIGN §5), --set overrides reach the model and the
  * stored description, and constraints (DESIGN §6) are parsed, checked and
  * their initial velocities projected. */
+#include "internal.h" /* mrvi_model_defer_partition */
 #include "mrvi.h"
 #include "models.h"
 #include "testlib.h"
@@ -14,6 +15,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 #define MSG 1024
@@ -951,6 +953,236 @@ static void test_doc_example(void) {
   free(doc);
 }
 
+/* A w x h planar lattice: particle k at (1.1 x, y + 0.01 k mod 7), fast
+ * where x + y is odd; slow springs to the right and upper neighbours with
+ * stiffness 1 + k mod 5.  As description text (lattice_text) and through
+ * the C API (lattice_model): the loader must build the same model. */
+static double lattice_stiffness(int k) { return 1.0 + k % 5; }
+
+static char *lattice_text(int w, int h) {
+  size_t cap = (size_t)w * h * 400 + 256, off = 0;
+  char *t = malloc(cap);
+  if (!t)
+    return NULL;
+  off += (size_t)snprintf(t + off, cap - off,
+                          "name: lattice\ndimension: 2\nparticles:\n");
+  for (int k = 0; k < w * h; k++) {
+    int x = k % w, y = k / w;
+    off += (size_t)snprintf(
+        t + off, cap - off,
+        "  - {name: p%d, mass: %d, position: [%.17g, %.17g]%s}\n", k, 1 + k % 3,
+        1.1 * x, y + 0.01 * (k % 7), (x + y) % 2 ? ", rate: fast" : "");
+  }
+  off += (size_t)snprintf(t + off, cap - off, "springs:\n");
+  for (int k = 0; k < w * h; k++) {
+    int x = k % w, y = k / w;
+    for (int d = 0; d < 2; d++) {
+      int j = d == 0 ? (x + 1 < w ? k + 1 : -1) : (y + 1 < h ? k + w : -1);
+      if (j >= 0)
+        off += (size_t)snprintf(t + off, cap - off,
+                                "  - {between: [p%d, p%d], law: linear, "
+                                "stiffness: %.17g, rest_length: 1}\n",
+                                k, j, lattice_stiffness(k));
+    }
+  }
+  return t;
+}
+
+static mrvi_model *lattice_model(int w, int h) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  mrvi_model_defer_partition(m, 1); /* else quadratic in the particles */
+  for (int k = 0; k < w * h; k++) {
+    int x = k % w, y = k / w;
+    char name[32];
+    double x0[2] = {1.1 * x, y + 0.01 * (k % 7)}, v0[2] = {0, 0};
+    snprintf(name, sizeof name, "p%d", k);
+    mrvi_model_add_particle(m, name, 1 + k % 3,
+                            (x + y) % 2 ? MRVI_FAST : MRVI_SLOW, x0, v0);
+  }
+  if (mrvi_model_defer_partition(m, 0)) {
+    mrvi_model_free(m);
+    return NULL;
+  }
+  for (int k = 0; k < w * h; k++) {
+    int x = k % w, y = k / w;
+    double c = lattice_stiffness(k);
+    if (x + 1 < w)
+      mrvi_model_add_spring(m, MRVI_SLOW, k, k + 1, "linear", &c, 1.0);
+    if (y + 1 < h)
+      mrvi_model_add_spring(m, MRVI_SLOW, k, k + w, "linear", &c, 1.0);
+  }
+  return m;
+}
+
+static double seconds_now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* Load time of the w x h lattice (best of two), and its system. */
+static double lattice_load(int w, int h, mrvi_system **sys) {
+  char *text = lattice_text(w, h), msg[MSG];
+  double best = 1e30;
+  for (int rep = 0; rep < 2 && text; rep++) {
+    mrvi_system_free(*sys);
+    *sys = NULL;
+    double t0 = seconds_now();
+    int st =
+        mrvi_system_load_string(text, "lattice", NULL, 0, sys, msg, sizeof msg);
+    double dt = seconds_now() - t0;
+    best = dt < best ? dt : best;
+    CHECK(st == MRVI_OK, "lattice %dx%d: %s", w, h, msg);
+  }
+  free(text);
+  return best;
+}
+
+/* Issue 8: the loader is linear in the file size (names by hash, lists
+ * iterated once, the partition built once). */
+static void test_large_lattice(void) {
+  mrvi_system *sys = NULL, *small = NULL;
+  double t_small = lattice_load(50, 50, &small);
+  double t_big = lattice_load(100, 100, &sys);
+  mrvi_model *ref = lattice_model(100, 100);
+  fprintf(stderr, "lattice load: %.3f s (2500 particles), %.3f s (10^4)\n",
+          t_small, t_big);
+  if (sys && ref) {
+    const mrvi_model *m = sys->model;
+    int n = mrvi_model_n(ref);
+    CHECK(mrvi_model_n(m) == n && n == 20000,
+          "lattice: %d coordinates, C API %d", mrvi_model_n(m), n);
+    CHECK(mrvi_model_n_fast(m) == mrvi_model_n_fast(ref) &&
+              mrvi_model_n_slow(m) == mrvi_model_n_slow(ref) &&
+              mrvi_model_n_fast(m) == 10000,
+          "lattice: partition %d slow + %d fast, C API %d + %d",
+          mrvi_model_n_slow(m), mrvi_model_n_fast(m), mrvi_model_n_slow(ref),
+          mrvi_model_n_fast(ref));
+    int same = mrvi_model_n(m) == n;
+    for (int i = 0; same && i < mrvi_model_n_fast(m); i++)
+      same = mrvi_model_fast_index(m)[i] == mrvi_model_fast_index(ref)[i];
+    for (int i = 0; same && i < mrvi_model_n_slow(m); i++)
+      same = mrvi_model_slow_index(m)[i] == mrvi_model_slow_index(ref)[i];
+    CHECK(same, "lattice: slow/fast index maps differ from the C API's");
+    /* The partition itself: each map increasing, of its rate, p_k's
+     * coordinates 2k, 2k + 1 fast where x + y is odd. */
+    int ok = mrvi_model_n_slow(m) + mrvi_model_n_fast(m) == n;
+    for (int r = 0; r < 2 && ok; r++) {
+      const int *ix = r ? mrvi_model_fast_index(m) : mrvi_model_slow_index(m);
+      int cnt = r ? mrvi_model_n_fast(m) : mrvi_model_n_slow(m);
+      for (int i = 0; i < cnt && ok; i++) {
+        int k = ix[i] / 2, odd = (k % 100 + k / 100) % 2;
+        ok = (i == 0 || ix[i] > ix[i - 1]) && odd == r &&
+             (int)mrvi_model_rate(m, ix[i]) == r;
+      }
+    }
+    CHECK(ok, "lattice: partition does not follow the rates");
+    CHECK(mrvi_model_n_elements(m) == mrvi_model_n_elements(ref) &&
+              mrvi_model_n_elements(m) == 2 * 100 * 99,
+          "lattice: %d springs, C API %d", mrvi_model_n_elements(m),
+          mrvi_model_n_elements(ref));
+    if (same) {
+      /* Same elements in the same order: the sums agree to rounding. */
+      double v =
+          mrvi_model_potential(m, MRVI_SLOW, mrvi_model_q0(m), NULL, NULL);
+      double vr =
+          mrvi_model_potential(ref, MRVI_SLOW, mrvi_model_q0(ref), NULL, NULL);
+      CHECK_NEAR(v, vr, 1e-12 * fabs(vr), "lattice slow potential");
+      CHECK(vr > 1.0, "lattice: potential %g, springs should be stretched", vr);
+    }
+  }
+  /* 4x the particles: a linear loader takes ~4x the time, the old quadratic
+   * one 16x and more. */
+  CHECK(t_big < 10.0 * t_small + 0.05,
+        "lattice load: %.3f s for 2500 particles, %.3f s for 10^4 (ratio "
+        "%.1f, linear 4)",
+        t_small, t_big, t_big / t_small);
+  mrvi_model_free(ref);
+  mrvi_system_free(sys);
+  mrvi_system_free(small);
+}
+
+/* A --set path of 1600 segments is handled in linear time (was 51 s) and
+ * refused: it would nest deeper than the document may. */
+static void test_long_set_path(void) {
+  size_t len = 11 + 2 * 1600 + 3;
+  char *ov = malloc(len);
+  if (!ov)
+    return;
+  strcpy(ov, "integrator");
+  for (int i = 0; i < 1600; i++)
+    strcat(ov, ".a");
+  strcat(ov, "=1");
+  const char *list[1] = {ov};
+  char msg[8192];
+  mrvi_system *sys = NULL;
+  double t0 = seconds_now();
+  int st = mrvi_system_load(test_source_path("systems/fpu.yaml"), list, 1, &sys,
+                            msg, sizeof msg);
+  double dt = seconds_now() - t0;
+  CHECK(st == MRVI_EPARSE && !strncmp(msg, "--set integrator.a.a", 20) &&
+            strstr(msg, ": the path is deeper than 256 levels"),
+        "1600-segment --set: status %d, '%.80s'", st, msg);
+  CHECK(dt < 5.0, "1600-segment --set took %.2f s", dt);
+  mrvi_system_free(sys);
+  free(ov);
+}
+
+/* Hostile input that cannot live in tests/bad_input/: an override value
+ * that is not UTF-8, endless devices, a text beyond the size limit.  Each
+ * fails with its message instead of hanging or growing memory. */
+static void load_expect(const char *path, const char *set, const char *want) {
+  char msg[MSG] = "";
+  mrvi_system *sys = NULL;
+  const char *ov[1] = {set};
+  int st = mrvi_system_load(path, ov, set ? 1 : 0, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && sys == NULL, "%s: status %d", path, st);
+  CHECK(strstr(msg, want) != NULL, "%s: message '%s' lacks '%s'", path, msg,
+        want);
+  mrvi_system_free(sys);
+}
+
+static void test_hostile_input(void) {
+  char fpu[1024];
+  snprintf(fpu, sizeof fpu, "%s", test_source_path("systems/fpu.yaml"));
+  /* libfyaml's directive scanner spins forever on "%\xff". */
+  load_expect(fpu, "integrator.micro_steps=%\xff",
+              "--set integrator.micro_steps=%\xff: invalid byte 0xff");
+  load_expect(fpu, "integrator.micro_steps=1\x01", "control character U+0001");
+  load_expect("/dev/zero", NULL, "/dev/zero:1:1: NUL byte");
+  load_expect("/dev/urandom", NULL, "/dev/urandom:");
+  /* Anchors, aliases and merge keys still work (resolved after the
+   * expansion bound). */
+  const char *merge = "name: merge\ndimension: 1\nparticles:\n"
+                      "  - &base {name: m1, mass: 3, position: [0]}\n"
+                      "  - {<<: *base, name: m2, position: [1.5]}\n";
+  char mmsg[MSG] = "";
+  mrvi_system *ms = NULL;
+  int mst =
+      mrvi_system_load_string(merge, "merge", NULL, 0, &ms, mmsg, sizeof mmsg);
+  CHECK(mst == MRVI_OK && ms && mrvi_model_n(ms->model) == 2 &&
+            mrvi_model_mass(ms->model, 1) == 3.0 &&
+            mrvi_model_q0(ms->model)[1] == 1.5,
+        "merge key: status %d '%s'", mst, mmsg);
+  mrvi_system_free(ms);
+  /* 64 MiB + 1 byte of valid text. */
+  size_t big = ((size_t)64 << 20) + 1;
+  char *text = malloc(big + 1);
+  if (text) {
+    memset(text, '#', big);
+    text[big] = '\0';
+    char msg[MSG] = "";
+    mrvi_system *sys = NULL;
+    int st =
+        mrvi_system_load_string(text, "big", NULL, 0, &sys, msg, sizeof msg);
+    CHECK(st == MRVI_EPARSE && strstr(msg, "larger than 64 MiB"),
+          "64 MiB + 1: status %d, '%s'", st, msg);
+    mrvi_system_free(sys);
+    free(text);
+  }
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_bad_files(&files);
@@ -972,6 +1204,9 @@ int main(void) {
   test_user_constraint_type();
   check_constrained_files();
   test_doc_example();
+  test_hostile_input();
+  test_large_lattice();
+  test_long_set_path();
   test_cli_bad_files(files, n);
   for (int i = 0; i < n; i++)
     free(files[i]);
