@@ -348,6 +348,43 @@ if [ "$h5tool" != none ]; then
 fi
 rm -f "$f"
 
+# --- non-finite states: exit 2, never "completed", finite rows kept -----------
+osc=$root/systems/oscillator.yaml
+f=$tmp/o/nonfinite.h5
+run_mrvi run "$osc" --set coordinates.0.position=1e200 -o "$f" -q
+expect_rc 2 "position 1e200 (infinite energy)"
+contains "$err" 'non-finite state at macro node 0 .*potential = inf' \
+  "position 1e200: the non-finite energy is named"
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$f" stop_reason)
+  contains "$a" '^non-finite state' "position 1e200: stop_reason says why"
+fi
+run_mrvi run "$osc" --set coordinates.0.mass=1e308 \
+  --set coordinates.0.velocity=10 -o "$f" -q
+expect_rc 2 "mass 1e308 (infinite momentum)"
+contains "$err" 'non-finite state at macro node 0 .*p\[0\] = inf' \
+  "mass 1e308: the non-finite momentum is named"
+# An unstable explicit-like run (trapezoidal, omega dT = 4 > sqrt(6)) grows
+# until the energy overflows at node 135; nodes 0..134 are finite and kept.
+run_mrvi run "$osc" --set integrator.scheme=trapezoidal-trapezoidal \
+  --set integrator.macro_step=4 --set integrator.micro_steps=1 \
+  --set integrator.t_end=4000 -o "$f" -q
+expect_rc 2 "unstable run"
+contains "$err" 'non-finite state at macro node 135 ' "unstable run: node named"
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$f" stop_reason)
+  check "unstable run: not completed (got '$a')" test "$a" != completed
+  r=$(rows "$f" /macro/energy)
+  check "unstable run: the 135 finite nodes are kept (got '$r')" [ "$r" = 135 ]
+  if [ "$h5tool" = h5py ] || /usr/bin/python3 -c 'import h5py' 2>/dev/null; then
+    check "unstable run: every stored energy is finite" /usr/bin/python3 -c '
+import sys, h5py, numpy as np
+e = h5py.File(sys.argv[1], "r")["/macro/energy"][:]
+sys.exit(0 if np.all(np.isfinite(e)) else 1)' "$f"
+  fi
+fi
+rm -f "$f"
+
 # --- interrupt: valid file with stop_reason, exit 128 + signal ----------------
 interrupt() { # interrupt SIGNAL WANT_RC
   local f=$tmp/o/int-$1.h5 i=0
