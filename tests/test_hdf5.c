@@ -856,7 +856,7 @@ static void synthetic_case_s(const char *name, mrvi_model *m,
   const mrvi_settings s = *sp;
   char path[64];
   snprintf(path, sizeof path, "synthetic_%s.h5", name);
-  mrvi_writer_options opt = {"synthetic", description, every, micro};
+  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg);
@@ -931,7 +931,7 @@ static void test_synthetic(void) {
   /* Explicit check of the `every` rule on /macro/t (k = 0,3,6,9,10). */
   {
     mrvi_settings s = settings("midpoint-midpoint", 0.5, 2, 5.0);
-    mrvi_writer_options opt = {"x", NULL, 3, 1};
+    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0};
     mrvi_writer *w = NULL;
     char msg[256];
     mrvi_writer_open("every_rule.h5", m3, &s, &opt, &w, msg, sizeof msg);
@@ -1047,7 +1047,7 @@ static void test_bad_records(void) {
 
   /* Bad options. */
   static char sentinel;
-  mrvi_writer_options opt = {NULL, NULL, 0, 1};
+  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0};
   w = (mrvi_writer *)(void *)&sentinel;
   CHECK(mrvi_writer_open("bad_records.h5", m, &s, &opt, &w, msg, sizeof msg) ==
                 MRVI_EINVAL &&
@@ -1075,7 +1075,7 @@ static void hard_kill_case(mrvi_model *m) {
   if (pid == 0) {
     mrvi_writer *w = NULL;
     char msg[256];
-    mrvi_writer_options opt = {"killed", NULL, 1, 1};
+    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0};
     if (mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg))
       _exit(3);
     synth g;
@@ -1312,7 +1312,7 @@ static void run_case(const char *name, mrvi_model *m, const mrvi_settings *s,
                      int every, long stop_at) {
   char path[64];
   snprintf(path, sizeof path, "run_%s.h5", name);
-  mrvi_writer_options opt = {name, "description text\n", every, 1};
+  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, s, &opt, &w, msg, sizeof msg);
