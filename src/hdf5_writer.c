@@ -26,6 +26,7 @@
 #include <fcntl.h>
 #include <sys/file.h>
 #include <sys/stat.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 
 /* Flush after this many records, or after this much wall time, whichever
@@ -603,6 +604,31 @@ static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
   return rc;
 }
 
+/* Bytes that must stay free on the file system beyond the rows of a write:
+ * a new chunk for every dataset, twice, and 1 MiB for metadata. */
+#define SPACE_RESERVE ((size_t)2 * N_OUTPUTS * CHUNK_BYTES + ((size_t)1 << 20))
+
+/* Refuse a write of `bytes` that could run the file system full.  HDF5 1.10
+ * does not recover from a failed write: its metadata cache may reach the
+ * file only in part, leaving datasets unreadable or with fill-value rows.
+ * So the writer stops first, with the file intact, when free space (for an
+ * unprivileged user) drops below twice the rows plus SPACE_RESERVE.  (A
+ * quota or a racing writer can still make a write fail; then close cuts the
+ * datasets back, see mrvi_writer_close.) */
+static int check_space(mrvi_writer *w, size_t bytes) {
+  struct statvfs v;
+  if (w->lock_fd < 0 || fstatvfs(w->lock_fd, &v) < 0)
+    return 0; /* unknown: try */
+  const double avail = (double)v.f_bavail * (double)v.f_frsize;
+  const double need = 2.0 * (double)bytes + (double)SPACE_RESERVE;
+  if (avail >= need)
+    return 0;
+  return fail(w, MRVI_EIO,
+              "file system nearly full (%.0f KiB free, %.0f KiB needed for "
+              "the next write and a reserve); stopped before writing",
+              avail / 1024, need / 1024);
+}
+
 /* Write all buffered rows, update steps_completed and flush the file.
  * final: also keep a pending macro row (the last record seen). */
 static int flush(mrvi_writer *w, int final) {
@@ -621,6 +647,13 @@ static int flush(mrvi_writer *w, int final) {
     rc = fail(w, MRVI_EIO,
               "writing rows: injected write failure "
               "(MRVI_TEST_WRITE_FAIL_AFTER)");
+  if (rc == 0) {
+    size_t bytes = 0;
+    for (int id = 0; id < N_OUTPUTS; id++)
+      if (w->out[id].id >= 0)
+        bytes += w->rows[output_info[id].stream] * w->out[id].row_bytes;
+    rc = check_space(w, bytes);
+  }
   /* The multipliers of the last row already in the file (fill_lambda). */
   if (rc == 0 && w->patch &&
       write_rows(w, MACRO_LAMBDA, w->written[MACRO] - 1, 1, w->lambda_patch) <
@@ -730,7 +763,7 @@ static int lock_and_check(mrvi_writer *w, int force) {
     return fail(w, MRVI_EIO, "cannot lock the file: %s", strerror(e));
   }
   if (!existed || force || fstat(w->lock_fd, &st) < 0 || st.st_size == 0)
-    return 0;
+    return check_space(w, 0);
   /* An existing non-empty file: an mrvi output has the root attribute
    * mrvi_version. */
   int ours = 0;
@@ -755,7 +788,7 @@ static int lock_and_check(mrvi_writer *w, int force) {
   }
   H5Eclear2(H5E_DEFAULT);
   if (ours)
-    return 0;
+    return check_space(w, 0);
   close(w->lock_fd);
   w->lock_fd = -1;
   return fail(w, MRVI_EIO,
@@ -867,6 +900,12 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   mrvi_fmt(msg, len, "%s", "");
   if (out)
     *out = NULL;
+  /* No H5close at exit: after a failed flush (disk full) HDF5 1.10 cannot
+   * shut down cleanly and prints "infinite loop closing library" (or
+   * crashes); files are complete when H5Fclose returns, so nothing is lost
+   * by leaving the library's memory to the process exit.  Has an effect
+   * only before the library's first use. */
+  H5dont_atexit();
   if (!path || !path[0] || !m || !s || !out) {
     mrvi_fmt(msg, len, "mrvi_writer_open: %s",
              !out ? "no result pointer"
