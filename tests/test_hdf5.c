@@ -1123,6 +1123,55 @@ static void hard_kill_case(mrvi_model *m) {
   remove(path);
 }
 
+/* A second writer on a file a live writer holds is refused before it
+ * touches the file; an existing file that is no mrvi output is refused
+ * unless force, an earlier mrvi output is replaced. */
+static void test_lock(void) {
+  mrvi_model *m = particle_model(2);
+  mrvi_settings s = settings("midpoint-midpoint", 0.1, 2, 1.0);
+  const char *path = "lock.h5";
+  char msg[512] = "";
+  mrvi_writer *w = NULL, *w2 = NULL;
+  remove(path);
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w, msg, sizeof msg) == MRVI_OK,
+        "first writer opens: %s", msg);
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w2, msg, sizeof msg) == MRVI_EIO &&
+            !w2 && strstr(msg, "in use by another run"),
+        "second writer refused: %s", msg);
+  CHECK(mrvi_writer_close(w, NULL, msg, sizeof msg) == MRVI_OK,
+        "first writer closes after the refusal: %s", msg);
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  CHECK(f >= 0, "first writer's file intact");
+  if (f >= 0)
+    H5Fclose(f);
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w, msg, sizeof msg) == MRVI_OK,
+        "an earlier mrvi output is replaced: %s", msg);
+  mrvi_writer_close(w, NULL, msg, sizeof msg);
+  FILE *fp = fopen(path, "w");
+  if (fp) {
+    fputs("not an HDF5 file\n", fp);
+    fclose(fp);
+  }
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w, msg, sizeof msg) == MRVI_EIO &&
+            strstr(msg, "not an mrvi output"),
+        "foreign file refused: %s", msg);
+  char buf[32] = "";
+  fp = fopen(path, "r");
+  if (fp) {
+    if (!fgets(buf, sizeof buf, fp))
+      buf[0] = '\0';
+    fclose(fp);
+  }
+  CHECK(!strcmp(buf, "not an HDF5 file\n"), "foreign file untouched");
+  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1};
+  CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == MRVI_OK,
+        "force replaces it: %s", msg);
+  mrvi_writer_close(w, NULL, msg, sizeof msg);
+  check_no_open_objects("lock");
+  mrvi_model_free(m);
+  remove(path);
+}
+
 static void test_hard_kill(void) {
   mrvi_model *m = particle_model(3), *mc = constrained_model();
   hard_kill_case(m);
@@ -1467,6 +1516,7 @@ int main(void) {
   test_synthetic_constrained();
   test_bad_records();
   test_hard_kill();
+  test_lock();
   test_unwritable();
   test_io_error();
   test_runs();
