@@ -637,10 +637,11 @@ static int cmd_run(int argc, char **argv) {
   if (st == MRVI_EINTERRUPTED)
     fprintf(stderr, "mrvi run: %s: %s\n",
             stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);
-  else if (st < 0)
+  else if (st < 0 && !(st == MRVI_EIO && cst < 0)) /* else: the writer's */
     fprintf(stderr, "mrvi run: error: %s\n", reason);
   if (cst < 0)
-    fprintf(stderr, "mrvi run: closing '%s': %s\n", out,
+    fprintf(stderr, "mrvi run: %s '%s': %s\n",
+            st == MRVI_EIO ? "error: output stopped; writing" : "closing", out,
             close_msg[0] ? close_msg : mrvi_strerror(cst));
   mrvi_system_free(sys);
 
