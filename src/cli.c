@@ -54,7 +54,8 @@ static const char usage_main[] =
     "command.\n";
 
 static const char usage_run[] =
-    "Usage: mrvi run FILE [-o OUT.h5] [--set KEY=VALUE]... [--quiet]\n"
+    "Usage: mrvi run FILE [-o OUT.h5] [--set KEY=VALUE]... [--quiet] "
+    "[--force]\n"
     "\n"
     "Integrate the system described in FILE (YAML) and write macro and micro\n"
     "trajectories, energies and solver statistics to an HDF5 file.\n"
@@ -67,6 +68,9 @@ static const char usage_run[] =
     "                        particles.2.mass=3; may be repeated\n"
     "  -q, --quiet           no progress bar and no summary (errors are still\n"
     "                        printed)\n"
+    "      --force           replace an existing OUT.h5 that is not an mrvi\n"
+    "                        output (an earlier mrvi output is always\n"
+    "                        replaced; a file a live run holds never is)\n"
     "  -h, --help            show this help\n"
     "\n"
     "Notes about the input, such as initial velocities projected onto the\n"
@@ -80,8 +84,10 @@ static const char usage_run[] =
     "Exit status:\n"
     "  0    the run completed\n"
     "  1    nothing was run: bad arguments, invalid description file, or the\n"
-    "       output file cannot be created (no output is written)\n"
-    "  2    the run failed (e.g. Newton did not converge); the output file\n"
+    "       output file cannot be created or is refused (no output is "
+    "written)\n"
+    "  2    the run failed (Newton did not converge, a non-finite state, an\n"
+    "       output error such as a full disk); the output file\n"
     "       holds every completed step and the attribute stop_reason\n"
     "  130  interrupted by SIGINT (143: SIGTERM); the file is valid as for 2\n";
 
@@ -127,12 +133,13 @@ typedef struct cli_args {
   const char **overrides; /* --set values, argc entries allocated */
   int n_overrides;
   int quiet;
+  int force; /* --force: replace an existing file that is no mrvi output */
   int help;
 } cli_args;
 
 /* Options accepted by a command, for the parser and for suggestions. */
-static const char *const run_options[] = {"--output", "--set", "--quiet",
-                                          "--help", NULL};
+static const char *const run_options[] = {"--output", "--set",  "--quiet",
+                                          "--force",  "--help", NULL};
 static const char *const check_options[] = {"--set", "--help", NULL};
 
 static void usage_error(const char *usage) { fputs(usage, stderr); }
@@ -208,6 +215,12 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
         return EXIT_INPUT;
       }
       a->quiet = 1;
+    } else if (allow_run && !strcmp(name, "--force")) {
+      if (inline_value) {
+        fprintf(stderr, "mrvi %s: option '%s' takes no value\n", cmd, name);
+        return EXIT_INPUT;
+      }
+      a->force = 1;
     } else if (allow_run &&
                (!strcmp(name, "-o") || !strcmp(name, "--output"))) {
       const char *v = option_value(cmd, name, inline_value, argc, argv, &i);
@@ -561,6 +574,27 @@ static int cmd_run(int argc, char **argv) {
     mrvi_system_free(sys);
     return EXIT_INPUT;
   }
+  /* An output name taken from the description (output.file, or name + .h5)
+   * must be a plain file name: no control characters, and a name-derived
+   * one no directory part ("../../x" in `name:` writes nowhere else). */
+  if (!a.output) {
+    int bad = 0;
+    for (const char *c = out; *c; c++)
+      bad |= (unsigned char)*c < 0x20 || *c == 0x7f;
+    const char *nm = sys->name ? sys->name : "";
+    size_t ln = strlen(nm);
+    if (!bad && ln > 0 && !strncmp(out, nm, ln) && !strcmp(out + ln, ".h5"))
+      bad = strchr(nm, '/') != NULL || nm[0] == '.';
+    if (bad) {
+      fprintf(stderr,
+              "%s: output file name '%s' (from the description) contains a "
+              "directory part or control characters; give -o OUT.h5 or a "
+              "plain output.file\n",
+              a.file, out);
+      mrvi_system_free(sys);
+      return EXIT_INPUT;
+    }
+  }
   if (same_file(out, a.file)) {
     fprintf(stderr, "mrvi run: output file '%s' is the description file\n",
             out);
@@ -575,6 +609,8 @@ static int cmd_run(int argc, char **argv) {
       .description = sys->description,
       .every = sys->output_every > 0 ? sys->output_every : 1,
       .micro = sys->output_micro,
+      .flush_interval = sys->output_flush_interval,
+      .force = a.force,
   };
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(out, sys->model, &sys->settings, &opt, &w, msg,
@@ -615,10 +651,11 @@ static int cmd_run(int argc, char **argv) {
   if (st == MRVI_EINTERRUPTED)
     fprintf(stderr, "mrvi run: %s: %s\n",
             stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);
-  else if (st < 0)
+  else if (st < 0 && !(st == MRVI_EIO && cst < 0)) /* else: the writer's */
     fprintf(stderr, "mrvi run: error: %s\n", reason);
   if (cst < 0)
-    fprintf(stderr, "mrvi run: closing '%s': %s\n", out,
+    fprintf(stderr, "mrvi run: %s '%s': %s\n",
+            st == MRVI_EIO ? "error: output stopped; writing" : "closing", out,
             close_msg[0] ? close_msg : mrvi_strerror(cst));
   mrvi_system_free(sys);
 

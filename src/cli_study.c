@@ -424,7 +424,7 @@ static mrvi_trajectory *reference(const char *cmd, const args *a,
   }
   /* Run through the HDF5 writer into the cache, then read it back. */
   mrvi_writer *w = NULL;
-  mrvi_writer_options opt = {sys->name, NULL, 1, 0};
+  mrvi_writer_options opt = {.system_name = sys->name, .every = 1};
   if (mrvi_writer_open(path, sys->model, &s, &opt, &w, msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
     return NULL;

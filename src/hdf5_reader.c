@@ -17,11 +17,12 @@ static double *read_matrix(hid_t file, const char *name, long *rows,
   hsize_t dims[2] = {0, 1};
   const int rank = H5Sget_simple_extent_ndims(sp);
   double *buf = NULL;
-  if (rank >= 1 && rank <= 2 && H5Sget_simple_extent_dims(sp, dims, NULL) >= 0) {
+  if (rank >= 1 && rank <= 2 &&
+      H5Sget_simple_extent_dims(sp, dims, NULL) >= 0) {
     const size_t count = (size_t)dims[0] * (size_t)(rank == 2 ? dims[1] : 1);
     buf = malloc((count > 0 ? count : 1) * sizeof(double));
-    if (buf && H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT,
-                       buf) < 0) {
+    if (buf &&
+        H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf) < 0) {
       free(buf);
       buf = NULL;
     }
@@ -87,6 +88,11 @@ int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
   }
   char reason[256];
   read_attr_string(file, "stop_reason", reason, sizeof reason);
+  /* A writer sets "running" at open and replaces it at close; while it runs
+   * it holds a lock that makes the open above fail.  So "running" in a file
+   * we could open means the writer died (SIGKILL, power loss). */
+  if (!strcmp(reason, "running"))
+    mrvi_fmt(reason, sizeof reason, "%s", "incomplete (writer killed)");
   if (strcmp(reason, "completed") != 0) {
     st = MRVI_EIO;
     mrvi_fmt(msg, len, "%s: the run did not complete (stop_reason: %s)", path,
@@ -112,8 +118,10 @@ int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
       cq != cp || rm != cq) {
     free(rate);
     st = MRVI_EIO;
-    mrvi_fmt(msg, len, "%s: /macro/t, /macro/q, /macro/p or /model/rate "
-                       "missing or inconsistent", path);
+    mrvi_fmt(msg, len,
+             "%s: /macro/t, /macro/q, /macro/p or /model/rate "
+             "missing or inconsistent",
+             path);
     goto done;
   }
   tr->n = cq;

@@ -4,14 +4,16 @@
  * datasets (macro nodes, fast micro nodes, solver statistics); rows are
  * buffered in memory and appended with hyperslab writes to chunked datasets
  * whose first dimension is unlimited.  After every buffer write the file is
- * flushed (H5Fflush), so a process killed hard leaves a readable file with
- * everything written up to the last flush; a run stopped by an error or by
- * the stop flag reaches mrvi_writer_close, which writes the rest and the
- * reason it stopped.
+ * flushed (H5Fflush) twice, rows first and steps_completed after them, so a
+ * process killed hard leaves a readable file with everything written up to
+ * the last flush and a counter that never exceeds the rows (flush); a run
+ * stopped by an error or by the stop flag reaches mrvi_writer_close, which
+ * writes the rest and the reason it stopped.
  *
  * The library never prints: HDF5's automatic error printer is switched off
  * around every HDF5 call we make (and restored after), and the error stack
  * is turned into a message instead. */
+#define _DEFAULT_SOURCE /* flock */
 #include "internal.h"
 
 #include <hdf5.h>
@@ -20,12 +22,17 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <sys/file.h>
 #include <sys/stat.h>
+#include <sys/statvfs.h>
+#include <unistd.h>
 
 /* Flush after this many records, or after this much wall time, whichever
  * comes first; fewer records when their rows would exceed BUFFER_BYTES. */
 #define FLUSH_RECORDS 256
-#define FLUSH_SECONDS 1.0
+#define FLUSH_SECONDS 2.0 /* default of output.flush_interval */
 #define BUFFER_BYTES ((size_t)8 << 20)
 /* Target size of one chunk (never more rows than the run will write). */
 #define CHUNK_BYTES ((size_t)64 << 10)
@@ -175,13 +182,19 @@ struct mrvi_writer {
                         close keeps it */
   long records;      /* records buffered since the last flush */
   double flushed_at; /* mrvi_clock() at the last flush */
-  long last_k;       /* k of the last record, -1 before the first */
-  double *micro_t;   /* p: times of the micro rows of a record */
-  double *nan_row;   /* n_lambda NaNs: the /macro/lambda placeholder */
-  double *lambda_patch; /* n_lambda: multipliers of the last row in the file */
-  int patch;            /* lambda_patch waits for the next flush */
-  int status;           /* first failure (0 if none) */
-  int io_failed;        /* a write failed: the file is not touched again */
+  double flush_interval; /* seconds between flushes (output.flush_interval) */
+  long flushed_k;        /* steps_completed in the file */
+  int new_file;          /* lock_and_check created the file */
+  int lock_fd;           /* holds flock(LOCK_EX) on the file, -1 when none */
+  long fail_after;       /* MRVI_TEST_WRITE_FAIL_AFTER: fail the first flush
+                            after this many records (testing), -1: never */
+  long last_k;           /* k of the last record, -1 before the first */
+  double *micro_t;       /* p: times of the micro rows of a record */
+  double *nan_row;       /* n_lambda NaNs: the /macro/lambda placeholder */
+  double *lambda_patch;  /* n_lambda: multipliers of the last row in the file */
+  int patch;             /* lambda_patch waits for the next flush */
+  int status;            /* first failure (0 if none) */
+  int io_failed;         /* a write failed: the file is not touched again */
   char errmsg[512];
   output out[N_OUTPUTS];
 };
@@ -592,6 +605,31 @@ static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
   return rc;
 }
 
+/* Bytes that must stay free on the file system beyond the rows of a write:
+ * a new chunk for every dataset, twice, and 1 MiB for metadata. */
+#define SPACE_RESERVE ((size_t)2 * N_OUTPUTS * CHUNK_BYTES + ((size_t)1 << 20))
+
+/* Refuse a write of `bytes` that could run the file system full.  HDF5 1.10
+ * does not recover from a failed write: its metadata cache may reach the
+ * file only in part, leaving datasets unreadable or with fill-value rows.
+ * So the writer stops first, with the file intact, when free space (for an
+ * unprivileged user) drops below twice the rows plus SPACE_RESERVE.  (A
+ * quota or a racing writer can still make a write fail; then close cuts the
+ * datasets back, see mrvi_writer_close.) */
+static int check_space(mrvi_writer *w, size_t bytes) {
+  struct statvfs v;
+  if (w->lock_fd < 0 || fstatvfs(w->lock_fd, &v) < 0)
+    return 0; /* unknown: try */
+  const double avail = (double)v.f_bavail * (double)v.f_frsize;
+  const double need = 2.0 * (double)bytes + (double)SPACE_RESERVE;
+  if (avail >= need)
+    return 0;
+  return fail(w, MRVI_EIO,
+              "file system nearly full (%.0f KiB free, %.0f KiB needed for "
+              "the next write and a reserve); stopped before writing",
+              avail / 1024, need / 1024);
+}
+
 /* Write all buffered rows, update steps_completed and flush the file.
  * final: also keep a pending macro row (the last record seen). */
 static int flush(mrvi_writer *w, int final) {
@@ -604,9 +642,23 @@ static int flush(mrvi_writer *w, int final) {
   quiet q;
   quiet_begin(&q);
   int rc = 0;
+  /* Injected failure (tests of the error path): as if the disk filled up
+   * before these rows reached the file. */
+  if (w->fail_after >= 0 && w->last_k >= w->fail_after)
+    rc = fail(w, MRVI_EIO,
+              "writing rows: injected write failure "
+              "(MRVI_TEST_WRITE_FAIL_AFTER)");
+  if (rc == 0) {
+    size_t bytes = 0;
+    for (int id = 0; id < N_OUTPUTS; id++)
+      if (w->out[id].id >= 0)
+        bytes += w->rows[output_info[id].stream] * w->out[id].row_bytes;
+    rc = check_space(w, bytes);
+  }
   /* The multipliers of the last row already in the file (fill_lambda). */
-  if (w->patch && write_rows(w, MACRO_LAMBDA, w->written[MACRO] - 1, 1,
-                             w->lambda_patch) < 0)
+  if (rc == 0 && w->patch &&
+      write_rows(w, MACRO_LAMBDA, w->written[MACRO] - 1, 1, w->lambda_patch) <
+          0)
     rc = fail_dataset(w, output_info[MACRO_LAMBDA].path);
   w->patch = 0;
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++) {
@@ -616,6 +668,12 @@ static int flush(mrvi_writer *w, int final) {
     if (write_rows(w, id, w->written[st], w->rows[st], w->out[id].buf) < 0)
       rc = fail_dataset(w, output_info[id].path);
   }
+  /* Two flushes, so that the counter never runs ahead of the data: the rows
+   * and the datasets' new extents reach the file first; only then is
+   * steps_completed raised and flushed.  A process killed between (or
+   * during) the two leaves a counter that is at most the rows stored. */
+  if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
+    rc = fail_h5(w, MRVI_EIO, "flushing the file");
   if (rc == 0 &&
       attr_long(w->file, "steps_completed", w->last_k > 0 ? w->last_k : 0) < 0)
     rc = fail_h5(w, MRVI_EIO, "writing attribute steps_completed");
@@ -638,6 +696,7 @@ static int flush(mrvi_writer *w, int final) {
     w->rows[s] = 0;
   }
   w->records = 0;
+  w->flushed_k = w->last_k > 0 ? w->last_k : 0;
   w->flushed_at = mrvi_clock();
   return 0;
 }
@@ -669,6 +728,8 @@ static void close_handles(mrvi_writer *w) {
 
 /* Release the memory of a writer whose handles are closed. */
 static void writer_free(mrvi_writer *w) {
+  if (w->lock_fd >= 0)
+    close(w->lock_fd); /* releases the lock */
   for (int id = 0; id < N_OUTPUTS; id++)
     free(w->out[id].buf);
   free(w->micro_t);
@@ -678,10 +739,68 @@ static void writer_free(mrvi_writer *w) {
   free(w);
 }
 
+/* Take an exclusive lock on the output file before anything truncates it,
+ * and refuse a file that is not an earlier mrvi output unless force: a
+ * second run must never destroy the file of a live run, nor a user's data.
+ * The lock (flock on a descriptor of our own, held until close) is what a
+ * second mrvi run, or mrvi_writer_open in another process, runs into. */
+static int lock_and_check(mrvi_writer *w, int force) {
+  struct stat st;
+  int existed = stat(w->path, &st) == 0;
+  if (existed && !S_ISREG(st.st_mode))
+    return fail(w, MRVI_EIO, "not a regular file");
+  w->lock_fd = open(w->path, O_RDWR | O_CREAT | O_CLOEXEC, 0666);
+  w->new_file = !existed && w->lock_fd >= 0;
+  if (w->lock_fd < 0)
+    return fail(w, MRVI_EIO, "cannot create the file: %s", strerror(errno));
+  if (flock(w->lock_fd, LOCK_EX | LOCK_NB) < 0) {
+    int e = errno;
+    close(w->lock_fd);
+    w->lock_fd = -1;
+    if (e == EWOULDBLOCK)
+      return fail(w, MRVI_EIO,
+                  "the file is in use by another run (locked); "
+                  "not touched");
+    return fail(w, MRVI_EIO, "cannot lock the file: %s", strerror(e));
+  }
+  if (!existed || force || fstat(w->lock_fd, &st) < 0 || st.st_size == 0)
+    return check_space(w, 0);
+  /* An existing non-empty file: an mrvi output has the root attribute
+   * mrvi_version. */
+  int ours = 0;
+#if H5_VERSION_GE(1, 12, 0)
+  htri_t is_h5 = H5Fis_accessible(w->path, H5P_DEFAULT);
+#else
+  htri_t is_h5 = H5Fis_hdf5(w->path);
+#endif
+  if (is_h5 > 0) {
+    hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
+#if H5_VERSION_GE(1, 10, 7)
+    if (fapl >= 0)
+      H5Pset_file_locking(fapl, 0, 1);
+#endif
+    hid_t f = H5Fopen(w->path, H5F_ACC_RDONLY, fapl >= 0 ? fapl : H5P_DEFAULT);
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    if (f >= 0) {
+      ours = H5Aexists(f, "mrvi_version") > 0;
+      H5Fclose(f);
+    }
+  }
+  H5Eclear2(H5E_DEFAULT);
+  if (ours)
+    return check_space(w, 0);
+  close(w->lock_fd);
+  w->lock_fd = -1;
+  return fail(w, MRVI_EIO,
+              "exists and is not an mrvi output file; not overwritten "
+              "(use --force to replace it)");
+}
+
 /* Sizes, buffers and chunking; then the file. */
 static int writer_setup(mrvi_writer *w, const mrvi_model *m,
                         const mrvi_settings *s, const char *system_name,
-                        const char *description) {
+                        const char *description, int force) {
   long n_steps = mrvi_settings_n_steps(s);
   hsize_t N = n_steps > 0 ? (hsize_t)n_steps : 1;
   hsize_t expected[N_STREAMS];
@@ -725,12 +844,16 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   for (size_t i = 0; i < nl; i++)
     w->nan_row[i] = NAN;
 
-  /* The file (truncated). */
+  /* The file: locked, checked, then truncated. */
+  int rc = lock_and_check(w, force);
+  if (rc)
+    return rc;
   hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
 #if H5_VERSION_GE(1, 10, 7)
-  /* Keep HDF5's file locking but do not fail on file systems without it. */
+  /* Our own lock (lock_and_check) guards the file; HDF5's lock on its own
+   * descriptor would conflict with it. */
   if (fapl >= 0)
-    H5Pset_file_locking(fapl, 1, 1);
+    H5Pset_file_locking(fapl, 0, 1);
 #endif
   if (fapl >= 0)
     H5Pset_fclose_degree(fapl, H5F_CLOSE_WEAK); /* see close_handles */
@@ -763,7 +886,7 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
       H5Pclose(lcpl);
     return w->status;
   }
-  int rc = write_model(w, m, description, lcpl);
+  rc = write_model(w, m, description, lcpl);
   if (rc == 0)
     rc = write_constraints(w, m, lcpl);
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++)
@@ -781,6 +904,12 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   mrvi_fmt(msg, len, "%s", "");
   if (out)
     *out = NULL;
+  /* No H5close at exit: after a failed flush (disk full) HDF5 1.10 cannot
+   * shut down cleanly and prints "infinite loop closing library" (or
+   * crashes); files are complete when H5Fclose returns, so nothing is lost
+   * by leaving the library's memory to the process exit.  Has an effect
+   * only before the library's first use. */
+  H5dont_atexit();
   if (!path || !path[0] || !m || !s || !out) {
     mrvi_fmt(msg, len, "mrvi_writer_open: %s",
              !out ? "no result pointer"
@@ -789,7 +918,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
                   : "no file name");
     return MRVI_EINVAL;
   }
-  mrvi_writer_options o = {NULL, NULL, 1, 1};
+  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0};
   if (opt)
     o = *opt;
   if (o.every < 1) {
@@ -829,13 +958,19 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->stream_on[SOLVER] = 1;
   w->last_k = -1;
   w->flushed_at = mrvi_clock();
+  w->flush_interval = o.flush_interval > 0 ? o.flush_interval : FLUSH_SECONDS;
+  w->lock_fd = -1;
+  w->fail_after = -1;
+  const char *inject = getenv("MRVI_TEST_WRITE_FAIL_AFTER");
+  if (inject && *inject)
+    w->fail_after = strtol(inject, NULL, 10);
 
   quiet q;
   quiet_begin(&q);
-  int rc = writer_setup(w, m, s, system_name, o.description);
+  int rc = writer_setup(w, m, s, system_name, o.description, o.force);
   if (rc) {
     mrvi_fmt(msg, len, "%s", w->errmsg);
-    int created = w->file >= 0;
+    int created = w->file >= 0 || w->new_file;
     close_handles(w);
     writer_free(w);
     /* A half-written file is no mrvi file: remove it (a regular file only,
@@ -940,7 +1075,7 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
   w->records++;
 
   if (w->records >= w->flush_records ||
-      mrvi_clock() - w->flushed_at >= FLUSH_SECONDS)
+      mrvi_clock() - w->flushed_at >= w->flush_interval)
     return flush(w, 0);
   return MRVI_OK;
 }
@@ -957,9 +1092,24 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
    * later failure never replaces the first message. */
   const char *reason =
       stop_reason && stop_reason[0] ? stop_reason : "completed";
+  char why[1200];
+  if (w->io_failed) {
+    /* Rows of the failed flush may have extended a dataset without their
+     * data reaching the file: cut every dataset back to the rows of the
+     * last successful flush, so that no fill-value rows remain. */
+    for (int id = 0; id < N_OUTPUTS; id++) {
+      if (w->out[id].id < 0)
+        continue;
+      hsize_t size[2] = {w->written[output_info[id].stream], w->out[id].cols};
+      H5Dset_extent(w->out[id].id, size);
+    }
+    mrvi_fmt(why, sizeof why, "output error: %s", w->errmsg);
+    reason = why;
+  }
   if (attr_string(w->file, "stop_reason", reason) < 0 ||
-      attr_long(w->file, "steps_completed", w->last_k > 0 ? w->last_k : 0) < 0)
+      attr_long(w->file, "steps_completed", w->flushed_k) < 0)
     fail_h5(w, MRVI_EIO, "writing attribute stop_reason");
+  H5Eclear2(H5E_DEFAULT);
   close_handles(w);
   H5Eclear2(H5E_DEFAULT);
   quiet_end(&q);

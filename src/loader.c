@@ -889,7 +889,8 @@ static const char *const fast_rule_keys[] = {"alpha", "gamma"};
 static const char *const newton_keys[] = {"tolerance", "max_iterations"};
 static const char *const constraint_setting_keys[] = {"form", "tolerance",
                                                       "projection"};
-static const char *const output_keys[] = {"file", "every", "micro"};
+static const char *const output_keys[] = {"file", "every", "micro",
+                                          "flush_interval"};
 
 static int load_coordinates(loader *L, struct fy_node *list) {
   int st = want_list(L, list, "coordinates");
@@ -1740,6 +1741,13 @@ static int load_output(loader *L, struct fy_node *out) {
   if ((n = get(out, "micro")) &&
       (st = as_bool(L, n, "micro", &sys->output_micro)))
     return st;
+  if ((n = get(out, "flush_interval"))) {
+    if ((st = as_number(L, n, "flush_interval", &sys->output_flush_interval)))
+      return st;
+    if (!(sys->output_flush_interval > 0))
+      return fail(L, n, "flush_interval must be > 0 seconds, got %g",
+                  sys->output_flush_interval);
+  }
   return MRVI_OK;
 }
 

@@ -458,6 +458,7 @@ typedef struct mrvi_system {
   char *output_file;     /* output.file (default: <name>.h5) */
   int output_every;      /* output.every (default 1) */
   int output_micro;      /* output.micro (default 1) */
+  double output_flush_interval; /* output.flush_interval, s (0: default) */
   char *description;     /* the input text after overrides */
   /* What the loader changed or wants the user to know, one note per line
    * ('\n'-separated, no trailing newline), e.g. that the initial velocities
@@ -490,6 +491,8 @@ typedef struct mrvi_writer_options {
   const char *description;  /* /model/description (may be NULL) */
   int every;                /* write every `every`-th macro node (>= 1) */
   int micro;                /* write /micro datasets */
+  double flush_interval;    /* seconds between flushes (<= 0: default 2) */
+  int force;                /* replace an existing non-mrvi file */
 } mrvi_writer_options;
 
 /* Create (truncate) the file and write attributes and /model. */

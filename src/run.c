@@ -32,6 +32,45 @@ static double max_constraint_residual(const mrvi_model *m, const double *q) {
   return r;
 }
 
+/* The first non-finite value of node k (q, p, then the energies), described
+ * in msg; 0 when all are finite.  A run never stores or reports such a node
+ * as a result: the integrator's state has left the range of doubles. */
+static int nonfinite_state(const mrvi_model *m, const mrvi_record *r, char *msg,
+                           size_t len) {
+  const int n = mrvi_model_n(m);
+  const char *what = NULL;
+  int idx = -1;
+  double v = 0.0;
+  for (int i = 0; i < n && !what; i++) {
+    if (!isfinite(r->q[i]))
+      what = "q", idx = i, v = r->q[i];
+    else if (!isfinite(r->p[i]))
+      what = "p", idx = i, v = r->p[i];
+  }
+  if (!what) {
+    const struct {
+      const char *name;
+      double v;
+    } e[] = {{"kinetic energy", r->kinetic},
+             {"slow potential", r->potential_slow},
+             {"fast potential", r->potential_fast},
+             {"energy", r->energy}};
+    for (size_t i = 0; i < sizeof e / sizeof e[0] && !what; i++)
+      if (!isfinite(e[i].v))
+        what = e[i].name, v = e[i].v;
+  }
+  if (!what)
+    return 0;
+  char at[32] = "";
+  if (idx >= 0)
+    mrvi_fmt(at, sizeof at, "[%d]", idx);
+  mrvi_fmt(msg, len,
+           "non-finite state at macro node %ld (t = %g): %s%s = %g; the run "
+           "stopped before storing it",
+           r->k, r->t, what, at, v);
+  return 1;
+}
+
 int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
              mrvi_observer observer, void *user, volatile const int *stop_flag,
              mrvi_summary *sum) {
@@ -85,7 +124,9 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
   r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
   const double H0 = r.energy;
   const double scale = fabs(H0) > DBL_MIN ? fabs(H0) : 1.0;
-  if (observer && (st = observer(user, &r)) < 0)
+  if (nonfinite_state(m, &r, sum->message, sizeof sum->message))
+    st = MRVI_ENONFINITE;
+  else if (observer && (st = observer(user, &r)) < 0)
     mrvi_fmt(sum->message, sizeof sum->message,
              "stopped by the observer at t = %g (%s)", r.t, mrvi_strerror(st));
 
@@ -130,6 +171,10 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
       r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
     } else {
       r.micro_constraint_residual = zeros;
+    }
+    if (nonfinite_state(m, &r, sum->message, sizeof sum->message)) {
+      st = MRVI_ENONFINITE;
+      break;
     }
     const double err = fabs(r.energy - H0) / scale;
     if (err > sum->max_rel_energy_error || isnan(err))

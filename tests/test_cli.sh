@@ -362,6 +362,98 @@ if [ "$h5tool" != none ]; then
 fi
 rm -f "$f"
 
+# --- non-finite states: exit 2, never "completed", finite rows kept -----------
+osc=$root/systems/oscillator.yaml
+f=$tmp/o/nonfinite.h5
+run_mrvi run "$osc" --set coordinates.0.position=1e200 -o "$f" -q
+expect_rc 2 "position 1e200 (infinite energy)"
+contains "$err" 'non-finite state at macro node 0 .*potential = inf' \
+  "position 1e200: the non-finite energy is named"
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$f" stop_reason)
+  contains "$a" '^non-finite state' "position 1e200: stop_reason says why"
+fi
+run_mrvi run "$osc" --set coordinates.0.mass=1e308 \
+  --set coordinates.0.velocity=10 -o "$f" -q
+expect_rc 2 "mass 1e308 (infinite momentum)"
+contains "$err" 'non-finite state at macro node 0 .*p\[0\] = inf' \
+  "mass 1e308: the non-finite momentum is named"
+# An unstable explicit-like run (trapezoidal, omega dT = 4 > sqrt(6)) grows
+# until the energy overflows at node 135; nodes 0..134 are finite and kept.
+run_mrvi run "$osc" --set integrator.scheme=trapezoidal-trapezoidal \
+  --set integrator.macro_step=4 --set integrator.micro_steps=1 \
+  --set integrator.t_end=4000 -o "$f" -q
+expect_rc 2 "unstable run"
+contains "$err" 'non-finite state at macro node 135 ' "unstable run: node named"
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$f" stop_reason)
+  check "unstable run: not completed (got '$a')" test "$a" != completed
+  r=$(rows "$f" /macro/energy)
+  check "unstable run: the 135 finite nodes are kept (got '$r')" [ "$r" = 135 ]
+  if [ "$h5tool" = h5py ] || /usr/bin/python3 -c 'import h5py' 2>/dev/null; then
+    check "unstable run: every stored energy is finite" /usr/bin/python3 -c '
+import sys, h5py, numpy as np
+e = h5py.File(sys.argv[1], "r")["/macro/energy"][:]
+sys.exit(0 if np.all(np.isfinite(e)) else 1)' "$f"
+  fi
+fi
+rm -f "$f"
+
+# --- existing files: a live run's file, foreign files, names ------------------
+# A second run refuses the file a live run holds, and leaves it intact.
+f=$tmp/o/live.h5
+"$mrvi" run "$fpu" --set integrator.t_end=1e7 -o "$f" -q 2>/dev/null &
+pid=$!
+i=0
+while [ ! -s "$f" ] && [ $i -lt 100 ]; do sleep 0.1; i=$((i + 1)); done
+sleep 0.3
+run_mrvi run "$fpu" -o "$f" -q
+expect_rc 1 "second run on a live run's file"
+contains "$err" 'in use by another run' "second run: the lock is named"
+kill -INT "$pid"
+wait "$pid"
+check "first run ends normally after the refused second run (got $?)" true
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$f" stop_reason)
+  contains "$a" 'interrupted' "the live run's file survives a second writer"
+fi
+rm -f "$f"
+# A file that is not an mrvi output is not replaced without --force.
+f=$tmp/o/foreign.h5
+printf 'precious data\n' >"$f"
+run_mrvi run "$root/systems/oscillator.yaml" -o "$f" -q
+expect_rc 1 "non-HDF5 file as output"
+contains "$err" 'not an mrvi output file.*--force' "non-HDF5 file: refusal names --force"
+check "non-HDF5 file left as it was" [ "$(cat "$f")" = "precious data" ]
+run_mrvi run "$root/systems/oscillator.yaml" -o "$f" -q --force
+expect_rc 0 "--force replaces a non-mrvi file"
+if /usr/bin/python3 -c 'import h5py' 2>/dev/null; then
+  /usr/bin/python3 -c 'import sys, h5py
+h5py.File(sys.argv[1], "w")["x"] = [1.0]' "$f"
+  run_mrvi run "$root/systems/oscillator.yaml" -o "$f" -q
+  expect_rc 1 "HDF5 file without mrvi's marker as output"
+  contains "$err" 'not an mrvi output' "foreign HDF5 file refused"
+fi
+# An earlier mrvi output is replaced (that is how reruns work).
+run_mrvi run "$root/systems/oscillator.yaml" -o "$tmp/o/again.h5" -q
+run_mrvi run "$root/systems/oscillator.yaml" -o "$tmp/o/again.h5" -q
+expect_rc 0 "an earlier mrvi output is replaced"
+rm -f "$tmp/o/foreign.h5" "$tmp/o/again.h5"
+# name: gives the default output name; it must not leave the directory.
+mkdir -p "$tmp/o/nm"
+sed '/^output:/d' "$root/systems/oscillator.yaml" >"$tmp/noout.yaml"
+for bad in '../../escape' 'a/b' '"two\\nlines"'; do
+  sed "s|^name:.*|name: $bad|" "$tmp/noout.yaml" >"$tmp/named.yaml"
+  (cd "$tmp/o/nm" && "$mrvi" run "$tmp/named.yaml" -q >"$tmp/out" 2>"$tmp/err")
+  rc=$?
+  err=$(cat "$tmp/err")
+  expect_rc 1 "name '$bad' as output name"
+  contains "$err" 'directory part or control characters' "name '$bad' refused"
+done
+check "bad names wrote nothing" [ -z "$(ls -A "$tmp/o/nm")" ] && \
+  ! ls "$tmp"/escape.h5 "$tmp"/o/escape.h5 >/dev/null 2>&1
+rm -rf "$tmp/o/nm"
+
 # --- interrupt: valid file with stop_reason, exit 128 + signal ----------------
 interrupt() { # interrupt SIGNAL WANT_RC
   local f=$tmp/o/int-$1.h5 i=0

@@ -856,7 +856,7 @@ static void synthetic_case_s(const char *name, mrvi_model *m,
   const mrvi_settings s = *sp;
   char path[64];
   snprintf(path, sizeof path, "synthetic_%s.h5", name);
-  mrvi_writer_options opt = {"synthetic", description, every, micro};
+  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg);
@@ -931,7 +931,7 @@ static void test_synthetic(void) {
   /* Explicit check of the `every` rule on /macro/t (k = 0,3,6,9,10). */
   {
     mrvi_settings s = settings("midpoint-midpoint", 0.5, 2, 5.0);
-    mrvi_writer_options opt = {"x", NULL, 3, 1};
+    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0};
     mrvi_writer *w = NULL;
     char msg[256];
     mrvi_writer_open("every_rule.h5", m3, &s, &opt, &w, msg, sizeof msg);
@@ -1047,7 +1047,7 @@ static void test_bad_records(void) {
 
   /* Bad options. */
   static char sentinel;
-  mrvi_writer_options opt = {NULL, NULL, 0, 1};
+  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0};
   w = (mrvi_writer *)(void *)&sentinel;
   CHECK(mrvi_writer_open("bad_records.h5", m, &s, &opt, &w, msg, sizeof msg) ==
                 MRVI_EINVAL &&
@@ -1075,7 +1075,7 @@ static void hard_kill_case(mrvi_model *m) {
   if (pid == 0) {
     mrvi_writer *w = NULL;
     char msg[256];
-    mrvi_writer_options opt = {"killed", NULL, 1, 1};
+    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0};
     if (mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg))
       _exit(3);
     synth g;
@@ -1120,6 +1120,55 @@ static void hard_kill_case(mrvi_model *m) {
     traj_free(&tr);
     synth_free(&g);
   }
+  remove(path);
+}
+
+/* A second writer on a file a live writer holds is refused before it
+ * touches the file; an existing file that is no mrvi output is refused
+ * unless force, an earlier mrvi output is replaced. */
+static void test_lock(void) {
+  mrvi_model *m = particle_model(2);
+  mrvi_settings s = settings("midpoint-midpoint", 0.1, 2, 1.0);
+  const char *path = "lock.h5";
+  char msg[512] = "";
+  mrvi_writer *w = NULL, *w2 = NULL;
+  remove(path);
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w, msg, sizeof msg) == MRVI_OK,
+        "first writer opens: %s", msg);
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w2, msg, sizeof msg) == MRVI_EIO &&
+            !w2 && strstr(msg, "in use by another run"),
+        "second writer refused: %s", msg);
+  CHECK(mrvi_writer_close(w, NULL, msg, sizeof msg) == MRVI_OK,
+        "first writer closes after the refusal: %s", msg);
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  CHECK(f >= 0, "first writer's file intact");
+  if (f >= 0)
+    H5Fclose(f);
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w, msg, sizeof msg) == MRVI_OK,
+        "an earlier mrvi output is replaced: %s", msg);
+  mrvi_writer_close(w, NULL, msg, sizeof msg);
+  FILE *fp = fopen(path, "w");
+  if (fp) {
+    fputs("not an HDF5 file\n", fp);
+    fclose(fp);
+  }
+  CHECK(mrvi_writer_open(path, m, &s, NULL, &w, msg, sizeof msg) == MRVI_EIO &&
+            strstr(msg, "not an mrvi output"),
+        "foreign file refused: %s", msg);
+  char buf[32] = "";
+  fp = fopen(path, "r");
+  if (fp) {
+    if (!fgets(buf, sizeof buf, fp))
+      buf[0] = '\0';
+    fclose(fp);
+  }
+  CHECK(!strcmp(buf, "not an HDF5 file\n"), "foreign file untouched");
+  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1};
+  CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == MRVI_OK,
+        "force replaces it: %s", msg);
+  mrvi_writer_close(w, NULL, msg, sizeof msg);
+  check_no_open_objects("lock");
+  mrvi_model_free(m);
   remove(path);
 }
 
@@ -1312,7 +1361,7 @@ static void run_case(const char *name, mrvi_model *m, const mrvi_settings *s,
                      int every, long stop_at) {
   char path[64];
   snprintf(path, sizeof path, "run_%s.h5", name);
-  mrvi_writer_options opt = {name, "description text\n", every, 1};
+  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, s, &opt, &w, msg, sizeof msg);
@@ -1467,6 +1516,7 @@ int main(void) {
   test_synthetic_constrained();
   test_bad_records();
   test_hard_kill();
+  test_lock();
   test_unwritable();
   test_io_error();
   test_runs();

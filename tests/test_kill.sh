@@ -1,0 +1,183 @@
+#!/usr/bin/env bash
+# Crash safety of the HDF5 output (doc/output.md, "Crash safety"): runs of
+# mrvi killed with SIGKILL at 20 random instants (FPU chain; 8 more for a
+# constrained cart-pendulum) each leave a file that
+# opens, whose rows agree bit for bit with an uninterrupted run, whose
+# counter steps_completed is at most the rows it holds, and that the reader
+# reports as "incomplete (writer killed)".  Also: a write failure injected
+# after K steps (MRVI_TEST_WRITE_FAIL_AFTER) leaves exactly the flushed rows,
+# no zero-filled ones, and no HDF5 messages on stderr.
+#
+#   test_kill.sh MRVI_BINARY SOURCE_ROOT
+#
+# Needs /usr/bin/python3 with h5py and numpy (exit 77 = skipped otherwise).
+set -u
+mrvi=${1:?usage: test_kill.sh MRVI_BINARY SOURCE_ROOT}
+root=${2:?usage: test_kill.sh MRVI_BINARY SOURCE_ROOT}
+py=/usr/bin/python3
+if ! "$py" -c 'import h5py, numpy' 2>/dev/null; then
+  echo "skipped: needs python3 h5py and numpy"
+  exit 77
+fi
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+passed=0
+failed=0
+pass() { passed=$((passed + 1)); }
+fail() {
+  failed=$((failed + 1))
+  printf 'FAIL: %s\n' "$*" >&2
+}
+
+# compare REF FILE WHAT: every dataset of FILE is a prefix of REF's (bit for
+# bit; the last macro row's multipliers are filled in only by the next
+# record, so that row of /macro/lambda is skipped), counters <= rows.
+compare() {
+  "$py" - "$1" "$2" "$3" <<'PY'
+import sys, h5py, numpy as np
+ref, f, what = h5py.File(sys.argv[1], "r"), h5py.File(sys.argv[2], "r"), sys.argv[3]
+bad = []
+def visit(name, obj):
+    if not isinstance(obj, h5py.Dataset) or name.startswith("model"):
+        return
+    a, b = ref[name][()], obj[()]
+    if a.ndim == 0:
+        return
+    n = b.shape[0]
+    if name == "macro/lambda":
+        n -= 1
+    if n > a.shape[0] or a[:n].tobytes() != b[:n].tobytes():
+        bad.append(name)
+f.visititems(visit)
+k = int(f.attrs["steps_completed"])
+if f["solver/iterations"].shape[0] < k or f["macro/t"].shape[0] < k + 1 and k > 0:
+    bad.append("steps_completed %d > rows" % k)
+reason = f.attrs["stop_reason"]
+reason = reason.decode() if isinstance(reason, bytes) else reason
+if reason == "completed" and not bad:
+    sys.exit(3)  # finished before the kill (a loaded machine ran it fast)
+if reason != "running":
+    bad.append("stop_reason " + reason)
+print(what, "rows", f["macro/t"].shape[0], "steps_completed", k,
+      "bad:", bad or "none")
+sys.exit(1 if bad else 0)
+PY
+}
+
+# kill_series SYSTEM T_END KILLS: a reference run, then KILLS runs killed
+# with SIGKILL, each compared with the reference.
+kill_series() {
+  sys=$1
+  set_=(--set "integrator.t_end=$2" --set integrator.micro_steps=1
+    --set output.flush_interval=0.05)
+  local t0 window i f pid ms finished=0
+  t0=$(date +%s%N)
+  "$mrvi" run "$sys" "${set_[@]}" -o "$tmp/ref.h5" -q || fail "reference run"
+  # Kill instants: uniform in 0 .. 60 % of the reference run's wall time.
+  window=$((($(date +%s%N) - t0) * 6 / 10000000))
+  [ "$window" -ge 10 ] || window=10
+  for i in $(seq 1 "$3"); do
+    f=$tmp/k$i.h5
+    "$mrvi" run "$sys" "${set_[@]}" -o "$f" -q 2>/dev/null &
+    pid=$!
+    # A random instant (ms) before, during and after the first flushes.
+    ms=$(((RANDOM * 32768 + RANDOM) % window))
+    sleep "$((ms / 1000)).$(printf %03d $((ms % 1000)))"
+    kill -KILL "$pid" 2>/dev/null
+    wait "$pid" 2>/dev/null
+    if [ ! -s "$f" ]; then
+      pass # killed before the file existed: nothing to check
+      continue
+    fi
+    compare "$tmp/ref.h5" "$f" "kill $i" >"$tmp/log" 2>&1
+    case $? in
+    0) pass ;;
+    3) finished=$((finished + 1)); continue ;;
+    *) fail "$(basename "$sys"): killed run $i: $(cat "$tmp/log")" ;;
+    esac
+    # The reader (mrvi converge --reference uses it) names the cause.
+    out=$("$mrvi" converge "$sys" --reference "$f" 2>&1)
+    case $out in
+    *"incomplete (writer killed)"*) pass ;;
+    *) fail "reader on killed file $i: $out" ;;
+    esac
+    rm -f "$f"
+  done
+  # Most kills must have hit a running process.
+  if [ $((finished * 4)) -le "$3" ]; then pass; else
+    fail "$(basename "$sys"): $finished of $3 runs finished before their kill"
+  fi
+}
+# A constrained system (multipliers, /macro/lambda), then the FPU chain,
+# whose reference the tests below use.
+kill_series "$root/systems/cart_pendulum.yaml" 1500 8
+kill_series "$root/systems/fpu.yaml" 30000 20
+
+# Injected write failure after K steps: rows up to the last good flush.
+for K in 1 37 150; do
+  f=$tmp/inj$K.h5
+  MRVI_TEST_WRITE_FAIL_AFTER=$K "$mrvi" run "$sys" "${set_[@]}" \
+    --set output.flush_interval=1e-9 -o "$f" -q >/dev/null 2>"$tmp/err"
+  rc=$?
+  [ $rc -eq 2 ] && pass || fail "injected failure K=$K: exit $rc"
+  if grep -q 'HDF5\|infinite loop' "$tmp/err"; then
+    fail "injected failure K=$K: HDF5 messages: $(cat "$tmp/err")"
+  else pass; fi
+  "$py" - "$tmp/ref.h5" "$f" "$K" <<'PY' && pass || fail "injected failure K=$K: rows"
+import sys, h5py
+ref, f, K = h5py.File(sys.argv[1], "r"), h5py.File(sys.argv[2], "r"), int(sys.argv[3])
+r = f.attrs["stop_reason"]; r = r.decode() if isinstance(r, bytes) else r
+k = int(f.attrs["steps_completed"])
+ok = "injected write failure" in r and k == K - 1
+for name in ("macro/q", "macro/p", "macro/energy", "solver/residual", "micro/q_fast"):
+    n = f[name].shape[0]
+    ok = ok and f[name][()].tobytes() == ref[name][:n].tobytes()
+ok = ok and f["macro/t"].shape[0] == K and f["solver/iterations"].shape[0] == K - 1
+print("K", K, "rows", f["macro/t"].shape[0], "steps_completed", k, r, "ok" if ok else "BAD")
+sys.exit(0 if ok else 1)
+PY
+done
+
+# A real full disk: a 16 MiB tmpfs filled to several sizes (needs root and
+# mount; skipped otherwise).  The writer stops before HDF5 could hit ENOSPC
+# (doc/output.md, "Errors writing the file"): exit 1 (nothing written) or 2,
+# a file that opens with consistent rows and no zero-filled ones, no HDF5
+# messages.
+mnt=$tmp/tmpfs
+mkdir -p "$mnt"
+if [ "$(id -u)" = 0 ] && mount -t tmpfs -o size=16m tmpfs "$mnt" 2>/dev/null; then
+  trap 'umount "$mnt" 2>/dev/null; rm -rf "$tmp"' EXIT
+  for free in 200 2000 3500 5000 9000 14000; do
+    rm -f "$mnt"/*
+    dd if=/dev/zero of="$mnt/fill" bs=1k count=$((16384 - free)) 2>/dev/null
+    f=$mnt/full.h5
+    "$mrvi" run "$sys" "${set_[@]}" -o "$f" -q >/dev/null 2>"$tmp/err"
+    rc=$?
+    case $rc in 1 | 2) pass ;; *) fail "disk full ($free KiB free): exit $rc" ;; esac
+    if grep -q 'HDF5\|infinite loop' "$tmp/err"; then
+      fail "disk full ($free KiB free): HDF5 messages: $(head -c 300 "$tmp/err")"
+    else pass; fi
+    grep -q 'nearly full\|No space' "$tmp/err" && pass ||
+      fail "disk full ($free KiB free): no clear message: $(cat "$tmp/err")"
+    [ -e "$f" ] || continue
+    "$py" - "$tmp/ref.h5" "$f" "$free" <<'PY' && pass || fail "disk full ($free KiB free): file"
+import sys, h5py
+ref, f = h5py.File(sys.argv[1], "r"), h5py.File(sys.argv[2], "r")
+k = int(f.attrs["steps_completed"])
+n = f["macro/t"].shape[0]
+ok = n == k + 1 and f["solver/iterations"].shape[0] == k
+for name in ("macro/t", "macro/q", "macro/p", "macro/energy", "solver/iterations",
+             "solver/residual"):
+    m = f[name].shape[0]
+    ok = ok and f[name][()].tobytes() == ref[name][:m].tobytes()
+print(sys.argv[3], "KiB free: rows", n, "steps_completed", k, "ok" if ok else "BAD")
+sys.exit(0 if ok else 1)
+PY
+  done
+  umount "$mnt"
+else
+  echo "disk-full test skipped: cannot mount a tmpfs (needs root)"
+fi
+
+printf '%d passed, %d failed\n' "$passed" "$failed"
+[ "$failed" -eq 0 ] && [ "$passed" -gt 0 ]
