@@ -6,6 +6,10 @@
 
 #include <stdarg.h>
 
+#ifndef M_PI /* not in strict C11 */
+#define M_PI 3.14159265358979323846
+#endif
+
 /* printf into a caller buffer (NULL-safe, always terminated). */
 void mrvi_fmt(char *buf, size_t len, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
@@ -32,7 +36,9 @@ typedef enum mrvi_element_kind {
   MRVI_ELEMENT_SPRING,  /* phi(|x_i - x_j| - L0) */
   MRVI_ELEMENT_ANCHOR,  /* phi(|x_i - a| - L0) */
   MRVI_ELEMENT_TERM,    /* phi(c^T y - b) */
-  MRVI_ELEMENT_GRAVITY  /* c^T y (linear, no law) */
+  MRVI_ELEMENT_GRAVITY, /* c^T y (linear, no law) */
+  MRVI_ELEMENT_ANGLE,   /* k [1 - cos(theta_ijk - theta0)], no law */
+  MRVI_ELEMENT_FORCE    /* c^T y with c = -f (constant force, no law) */
 } mrvi_element_kind;
 
 typedef struct mrvi_element {
@@ -43,6 +49,7 @@ typedef struct mrvi_element {
   double shift;                 /* rest length (springs) or offset b (terms) */
   double anchor[3];
   int particle_i, particle_j;   /* springs; -1 if unused */
+  int particle_k;               /* angles: i-j-k with the vertex at j */
   int n_in;                     /* number of input coordinates */
   int *in;                      /* n_in model indices */
   double *coef;                 /* n_in coefficients (terms, gravity) */

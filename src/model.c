@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+
 int mrvi_model_fail(mrvi_model *m, int status, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
@@ -248,7 +249,9 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
         return mrvi_model_fail(
             m, MRVI_EMODEL,
             "fast %s touches slow coordinate '%s': the fast potential "
-            "W may depend on fast coordinates only",
+            "W may depend on fast coordinates only; to couple slow and "
+            "fast particles make it slow ('potential: slow'), i.e. part "
+            "of V, which the micro grid still resolves",
             what, m->names[c]);
       }
   if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
@@ -443,6 +446,123 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
   return push_element(m, &e, "gravity");
 }
 
+/* Angle at particle j between i and k at the positions x (model order). */
+static double angle_at(const mrvi_model *m, const double *x, int i, int j,
+                       int k) {
+  const int d = m->dimension;
+  const double *xi = x + m->particles[i].first, *xj = x + m->particles[j].first,
+               *xk = x + m->particles[k].first;
+  double uv = 0, uu = 0, vv = 0;
+  for (int a = 0; a < d; a++) {
+    const double u = xi[a] - xj[a], v = xk[a] - xj[a];
+    uv += u * v;
+    uu += u * u;
+    vv += v * v;
+  }
+  if (uu == 0 || vv == 0)
+    return NAN;
+  double c = uv / sqrt(uu * vv);
+  return acos(c > 1 ? 1 : c < -1 ? -1 : c);
+}
+
+int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
+                         int particle_j, int particle_k, double stiffness,
+                         double rest_angle) {
+  const int np = m->n_particles;
+  if (particle_i < 0 || particle_i >= np || particle_j < 0 ||
+      particle_j >= np || particle_k < 0 || particle_k >= np)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "angle: particle index out of range");
+  if (m->dimension < 2)
+    return mrvi_model_fail(m, MRVI_EINVAL, "angle: needs dimension 2 or 3");
+  const char *ni = m->particles[particle_i].name,
+             *nj = m->particles[particle_j].name,
+             *nk = m->particles[particle_k].name;
+  char what[400];
+  mrvi_fmt(what, sizeof what, "angle %s-%s-%s", ni, nj, nk);
+  if (particle_i == particle_j || particle_j == particle_k ||
+      particle_i == particle_k)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: the three particles must differ", what);
+  if (!isfinite(stiffness))
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: stiffness must be finite",
+                           what);
+  if (isnan(rest_angle)) {
+    rest_angle = angle_at(m, m->q0, particle_i, particle_j, particle_k);
+    if (isnan(rest_angle))
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "%s: the initial angle is undefined (two "
+                             "particles coincide)",
+                             what);
+  }
+  if (!(rest_angle >= 0 && rest_angle <= M_PI))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: rest angle must be in [0, pi] radians (got %g)",
+                           what, rest_angle);
+  mrvi_element e = {.kind = MRVI_ELEMENT_ANGLE,
+                    .potential = potential,
+                    .shift = rest_angle,
+                    .particle_i = particle_i,
+                    .particle_j = particle_j,
+                    .particle_k = particle_k};
+  e.params[0] = stiffness;
+  e.params[1] = cos(rest_angle);
+  /* sin(pi) is 1.2e-16, not 0: keep the smooth straight case exact. */
+  e.params[2] = rest_angle == M_PI || rest_angle == 0 ? 0.0 : sin(rest_angle);
+  int parts[3] = {particle_i, particle_j, particle_k}, st;
+  if ((st = particle_inputs(m, &e, 3, parts)) < 0)
+    return st;
+  return push_element(m, &e, what);
+}
+
+int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
+                         const int *coords, const double *f) {
+  if (n_terms < 1 || n_terms > MRVI_MAX_INPUTS || !coords || !f)
+    return mrvi_model_fail(m, MRVI_EINVAL, "force: 1 to %d coordinates needed",
+                           MRVI_MAX_INPUTS);
+  for (int j = 0; j < n_terms; j++) {
+    if (coords[j] < 0 || coords[j] >= m->n)
+      return mrvi_model_fail(
+          m, MRVI_EINVAL, "force: coordinate index %d out of range", coords[j]);
+    if (!isfinite(f[j]))
+      return mrvi_model_fail(m, MRVI_EINVAL, "force on '%s' must be finite",
+                             m->names[coords[j]]);
+  }
+  char what[300];
+  mrvi_fmt(what, sizeof what, "force on %s%s", m->names[coords[0]],
+           n_terms > 1 ? ", ..." : "");
+  mrvi_element e = {.kind = MRVI_ELEMENT_FORCE,
+                    .potential = potential,
+                    .particle_i = -1,
+                    .particle_j = -1,
+                    .n_in = n_terms};
+  e.in = malloc((size_t)n_terms * sizeof *e.in);
+  e.coef = malloc((size_t)n_terms * sizeof *e.coef);
+  if (!e.in || !e.coef) {
+    free(e.in);
+    free(e.coef);
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  for (int j = 0; j < n_terms; j++) {
+    e.in[j] = coords[j];
+    e.coef[j] = -f[j]; /* potential -f^T q */
+  }
+  return push_element(m, &e, what);
+}
+
+double mrvi_model_initial_distance(const mrvi_model *m, int particle_i,
+                                   int particle_j) {
+  if (particle_i < 0 || particle_i >= m->n_particles || particle_j < 0 ||
+      particle_j >= m->n_particles)
+    return NAN;
+  const double *a = m->q0 + m->particles[particle_i].first,
+               *b = m->q0 + m->particles[particle_j].first;
+  double r2 = 0;
+  for (int k = 0; k < m->dimension; k++)
+    r2 += (a[k] - b[k]) * (a[k] - b[k]);
+  return sqrt(r2);
+}
+
 /* ---------------------------------------------------------------------------
  * Read access
  * ------------------------------------------------------------------------- */
@@ -514,6 +634,22 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
   case MRVI_ELEMENT_GRAVITY:
     mrvi_fmt(buf, len, "slow gravity on %d particles", m->n_particles);
     break;
+  case MRVI_ELEMENT_ANGLE:
+    mrvi_fmt(buf, len, "%s angle %s-%s-%s, stiffness %g, rest angle %g rad",
+             rate, m->particles[e->particle_i].name,
+             m->particles[e->particle_j].name, m->particles[e->particle_k].name,
+             e->params[0], e->shift);
+    break;
+  case MRVI_ELEMENT_FORCE: {
+    char f[512];
+    size_t used = 0;
+    f[0] = '\0';
+    for (int j = 0; j < e->n_in && used < sizeof f; j++)
+      used += (size_t)snprintf(f + used, sizeof f - used, "%s%s %g",
+                               j ? ", " : "", m->names[e->in[j]], -e->coef[j]);
+    mrvi_fmt(buf, len, "%s constant force: %s", rate, f);
+    break;
+  }
   }
   return MRVI_OK;
 }
@@ -567,9 +703,105 @@ static double eval_distance(const mrvi_element *e, int dim, const double *y,
   return phi;
 }
 
+/* Angle element k [1 - cos(theta - theta0)] = k [1 - c C0 - s S0] with
+ * c = cos theta = u.v/(|u||v|), s = sin theta, u = x_i - x_j, v = x_k - x_j.
+ * dE/dc = -k C0 + k S0 c/s, d2E/dc2 = k S0/s^3; the derivatives of c in
+ * (u, v) are mapped to (x_i, x_j, x_k) by x_i -> u, x_k -> v, x_j -> -u-v. */
+static double eval_angle(const mrvi_element *e, int d, const double *y,
+                         double *grad, double *hess) {
+  const double k = e->params[0], C0 = e->params[1], S0 = e->params[2];
+  double u[3], v[3], a = 0, b = 0;
+  for (int p = 0; p < d; p++) {
+    u[p] = y[p] - y[d + p];
+    v[p] = y[2 * d + p] - y[d + p];
+    a += u[p] * u[p];
+    b += v[p] * v[p];
+  }
+  const int n = 3 * d;
+  if (grad)
+    memset(grad, 0, (size_t)n * sizeof *grad);
+  if (hess)
+    memset(hess, 0, (size_t)n * n * sizeof *hess);
+  if (a == 0 || b == 0)
+    return 0.0; /* undefined angle: no force */
+  a = sqrt(a);
+  b = sqrt(b);
+  double c = 0;
+  for (int p = 0; p < d; p++) {
+    u[p] /= a;
+    v[p] /= b;
+    c += u[p] * v[p];
+  }
+  c = c > 1 ? 1 : c < -1 ? -1 : c;
+  double s = sqrt(1 - c * c);
+  const double E = k * (1 - c * C0 - s * S0);
+  double Ec = -k * C0, Ecc = 0;
+  if (S0 != 0) {
+    if (s < 1e-12)
+      s = 1e-12; /* collinear with theta0 != 0, pi: singular (documented) */
+    Ec += k * S0 * c / s;
+    Ecc = k * S0 / (s * s * s);
+  }
+  double gu[3], gv[3];
+  for (int p = 0; p < d; p++) {
+    gu[p] = (v[p] - c * u[p]) / a;
+    gv[p] = (u[p] - c * v[p]) / b;
+  }
+  if (grad)
+    for (int p = 0; p < d; p++) {
+      grad[p] = Ec * gu[p];
+      grad[2 * d + p] = Ec * gv[p];
+      grad[d + p] = -Ec * (gu[p] + gv[p]);
+    }
+  if (!hess)
+    return E;
+  /* Hessian in (u, v): blocks Huu, Huv, Hvv (Hvu = Huv^T). */
+  double Huu[9], Huv[9], Hvv[9];
+  for (int p = 0; p < d; p++)
+    for (int q = 0; q < d; q++) {
+      const double dl = p == q;
+      Huu[p * 3 + q] = Ecc * gu[p] * gu[q] -
+                       Ec / (a * a) *
+                           ((v[p] - c * u[p]) * u[q] +
+                            u[p] * (v[q] - c * u[q]) + c * (dl - u[p] * u[q]));
+      Hvv[p * 3 + q] = Ecc * gv[p] * gv[q] -
+                       Ec / (b * b) *
+                           ((u[p] - c * v[p]) * v[q] +
+                            v[p] * (u[q] - c * v[q]) + c * (dl - v[p] * v[q]));
+      Huv[p * 3 + q] =
+          Ecc * gu[p] * gv[q] +
+          Ec / (a * b) * (dl - v[p] * v[q] - u[p] * u[q] + c * u[p] * v[q]);
+    }
+  /* Coefficients of u and v in blocks i, j, k. */
+  static const double J[3][2] = {{1, 0}, {-1, -1}, {0, 1}};
+  for (int A = 0; A < 3; A++)
+    for (int B = 0; B < 3; B++)
+      for (int p = 0; p < d; p++)
+        for (int q = 0; q < d; q++)
+          hess[(A * d + p) * n + B * d + q] =
+              J[A][0] * J[B][0] * Huu[p * 3 + q] +
+              J[A][0] * J[B][1] * Huv[p * 3 + q] +
+              J[A][1] * J[B][0] * Huv[q * 3 + p] +
+              J[A][1] * J[B][1] * Hvv[p * 3 + q];
+  return E;
+}
+
 double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
                          const double *y, double *grad, double *hess) {
   switch (e->kind) {
+  case MRVI_ELEMENT_ANGLE:
+    return eval_angle(e, m->dimension, y, grad, hess);
+  case MRVI_ELEMENT_FORCE: {
+    double v = 0.0;
+    for (int j = 0; j < e->n_in; j++) {
+      v += e->coef[j] * y[j];
+      if (grad)
+        grad[j] = e->coef[j];
+    }
+    if (hess)
+      memset(hess, 0, (size_t)e->n_in * e->n_in * sizeof *hess);
+    return v;
+  }
   case MRVI_ELEMENT_SPRING:
   case MRVI_ELEMENT_ANCHOR:
     return eval_distance(e, m->dimension, y, grad, hess);
@@ -706,6 +938,8 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     if (el->law) {
       fnv(&h, el->law->name, strlen(el->law->name) + 1);
       fnv(&h, el->params, (size_t)el->law->n_params * sizeof(double));
+    } else if (el->kind == MRVI_ELEMENT_ANGLE) {
+      fnv(&h, el->params, sizeof(double)); /* stiffness; shift is theta0 */
     }
     fnv(&h, &el->shift, sizeof el->shift);
     fnv(&h, el->anchor, sizeof el->anchor);

@@ -131,6 +131,27 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
  * (dimension entries).  Call after adding the particles. */
 int mrvi_model_set_gravity(mrvi_model *m, const double *g);
 
+/* Bending term on the angle theta at particle j between particles i and k
+ * (dimension 2 or 3): k [1 - cos(theta - theta0)], which is
+ * (k/2)(theta - theta0)^2 + O((theta - theta0)^4) and smooth everywhere
+ * for theta0 = 0 or pi (straight chains); for other theta0 its gradient is
+ * singular where i, j, k are collinear (as every angle potential's).
+ * rest_angle theta0 in radians in [0, pi], or NAN for the initial angle.
+ * Returns the element index or a status < 0. */
+int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
+                         int particle_j, int particle_k, double stiffness,
+                         double rest_angle);
+
+/* Constant external force: potential -sum_j f[j] q[coords[j]] on n_terms
+ * coordinates (linear, like gravity; slow or fast by `potential`). */
+int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
+                         const int *coords, const double *f);
+
+/* Distance between two particles at the initial positions (rest_length
+ * "initial" of springs).  NAN for an invalid index. */
+double mrvi_model_initial_distance(const mrvi_model *m, int particle_i,
+                                   int particle_j);
+
 /* Name of the model (free text). */
 int mrvi_model_set_name(mrvi_model *m, const char *name);
 
