@@ -6,7 +6,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-
 int mrvi_model_fail(mrvi_model *m, int status, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
@@ -551,12 +550,13 @@ int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
 }
 
 double mrvi_model_initial_distance(const mrvi_model *m, int particle_i,
-                                   int particle_j) {
-  if (particle_i < 0 || particle_i >= m->n_particles || particle_j < 0 ||
-      particle_j >= m->n_particles)
+                                   int particle_j, const double *anchor) {
+  if (particle_i < 0 || particle_i >= m->n_particles ||
+      particle_j >= m->n_particles || (particle_j < 0 && !anchor))
     return NAN;
   const double *a = m->q0 + m->particles[particle_i].first,
-               *b = m->q0 + m->particles[particle_j].first;
+               *b = particle_j >= 0 ? m->q0 + m->particles[particle_j].first
+                                    : anchor;
   double r2 = 0;
   for (int k = 0; k < m->dimension; k++)
     r2 += (a[k] - b[k]) * (a[k] - b[k]);
