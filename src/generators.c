@@ -19,7 +19,7 @@ long mrvi_generator_particles(const mrvi_generator *g, char *msg, size_t len) {
   extent(g, n);
   const int min = g->kind == MRVI_GEN_RING ? 3 : g->kind == MRVI_GEN_CHAIN;
   for (int a = 0; a < 3; a++)
-    if (n[a] < min || n[a] > 1000000)
+    if (n[a] < (a == 0 ? min : 1) || n[a] > 1000000)
       return mrvi_fail(msg, len, MRVI_EINVAL,
                        "%s needs %d to 1000000 particles per axis (got %d)",
                        g->kind == MRVI_GEN_RING ? "a ring" : "a generator",

@@ -250,7 +250,8 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
             "fast %s touches slow coordinate '%s': the fast potential "
             "W may depend on fast coordinates only; to couple slow and "
             "fast particles make it slow ('potential: slow'), i.e. part "
-            "of V, which the micro grid still resolves",
+            "of V, which the default micro slow grid evaluates at every "
+            "micro step",
             what, m->names[c]);
       }
   if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
