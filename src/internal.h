@@ -80,6 +80,10 @@ struct mrvi_model {
   double *mass, *q0, *v0;
   mrvi_rate *rate;
   int n_particles, cap_particles;
+  /* Name lookup (model.c): open-addressing tables of coordinate and
+   * particle indices by name, 0 = empty, else index + 1. */
+  int *coord_table, *particle_table;
+  int coord_table_cap, particle_table_cap;
   mrvi_particle *particles;
   int n_elements, cap_elements;
   mrvi_element *elements;

@@ -63,6 +63,8 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->slow_index);
   free(m->fast_index);
   free(m->slot);
+  free(m->coord_table);
+  free(m->particle_table);
   free(m->name);
   free(m);
 }
@@ -93,37 +95,81 @@ int mrvi_model_set_dimension(mrvi_model *m, int dimension) {
   return MRVI_OK;
 }
 
-static int find_coordinate(const mrvi_model *m, const char *name) {
-  for (int i = 0; i < m->n; i++)
-    if (strcmp(m->names[i], name) == 0)
-      return i;
-  return -1;
+/* ---------------------------------------------------------------------------
+ * Name tables: open addressing (linear probing) on an FNV-1a hash, load at
+ * most 1/2, so that building a model with n names costs O(n).
+ * ------------------------------------------------------------------------- */
+static unsigned long name_hash(const char *s) {
+  unsigned long h = 2166136261UL;
+  for (; *s; s++)
+    h = (h ^ (unsigned char)*s) * 16777619UL;
+  return h;
 }
 
-/* Rebuild slow/fast index maps after a coordinate was added. */
-static int update_partition(mrvi_model *m) {
-  int *si = realloc(m->slow_index, (size_t)m->n * sizeof *si);
-  if (si)
-    m->slow_index = si;
-  int *fi = realloc(m->fast_index, (size_t)m->n * sizeof *fi);
-  if (fi)
-    m->fast_index = fi;
-  int *sl = realloc(m->slot, (size_t)m->n * sizeof *sl);
-  if (sl)
-    m->slot = sl;
-  if (!si || !fi || !sl)
+/* Index of `name` among count entries named by name_of, or -1. */
+static int table_find(const int *table, int cap, const char *name,
+                      const char *(*name_of)(const mrvi_model *, int),
+                      const mrvi_model *m) {
+  if (!table)
     return -1;
-  m->n_slow = m->n_fast = 0;
-  for (int i = 0; i < m->n; i++) {
-    if (m->rate[i] == MRVI_SLOW) {
-      m->slot[i] = m->n_slow;
-      m->slow_index[m->n_slow++] = i;
-    } else {
-      m->slot[i] = m->n_fast;
-      m->fast_index[m->n_fast++] = i;
-    }
+  for (unsigned long h = name_hash(name) & (unsigned long)(cap - 1);;
+       h = (h + 1) & (unsigned long)(cap - 1)) {
+    if (table[h] == 0)
+      return -1;
+    if (strcmp(name_of(m, table[h] - 1), name) == 0)
+      return table[h] - 1;
   }
+}
+
+static void table_put(int *table, int cap, const char *name, int index) {
+  unsigned long h = name_hash(name) & (unsigned long)(cap - 1);
+  while (table[h] != 0)
+    h = (h + 1) & (unsigned long)(cap - 1);
+  table[h] = index + 1;
+}
+
+/* Make room for count + 1 entries (rehashing all count entries). */
+static int table_reserve(int **table, int *cap, int count,
+                         const char *(*name_of)(const mrvi_model *, int),
+                         const mrvi_model *m) {
+  if (2 * (count + 1) <= *cap)
+    return 0;
+  int c = *cap ? 2 * *cap : 64;
+  while (2 * (count + 1) > c)
+    c *= 2;
+  int *t = calloc((size_t)c, sizeof *t);
+  if (!t)
+    return -1;
+  for (int i = 0; i < count; i++)
+    table_put(t, c, name_of(m, i), i);
+  free(*table);
+  *table = t;
+  *cap = c;
   return 0;
+}
+
+static const char *coord_name(const mrvi_model *m, int i) {
+  return m->names[i];
+}
+static const char *particle_name(const mrvi_model *m, int i) {
+  return m->particles[i].name;
+}
+
+static int find_coordinate(const mrvi_model *m, const char *name) {
+  return table_find(m->coord_table, m->coord_table_cap, name, coord_name, m);
+}
+
+/* Extend the slow/fast index maps by the coordinate just appended (the
+ * arrays have m->cap entries, reserve_coordinates). */
+static void update_partition(mrvi_model *m) {
+  const int i = m->n - 1;
+  if (m->rate[i] == MRVI_SLOW) {
+    m->slot[i] = m->n_slow;
+    m->slow_index[m->n_slow++] = i;
+  } else {
+    m->slot[i] = m->n_fast;
+    m->fast_index[m->n_fast++] = i;
+  }
 }
 
 /* Make room for `need` coordinates in every per-coordinate array. */
@@ -146,7 +192,16 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   void *r = realloc(m->rate, (size_t)c * sizeof *m->rate);
   if (r)
     m->rate = r;
-  if (!a || !b || !q || !v || !r)
+  void *si = realloc(m->slow_index, (size_t)c * sizeof *m->slow_index);
+  if (si)
+    m->slow_index = si;
+  void *fi = realloc(m->fast_index, (size_t)c * sizeof *m->fast_index);
+  if (fi)
+    m->fast_index = fi;
+  void *sl = realloc(m->slot, (size_t)c * sizeof *m->slot);
+  if (sl)
+    m->slot = sl;
+  if (!a || !b || !q || !v || !r || !si || !fi || !sl)
     return -1;
   m->cap = c;
   return 0;
@@ -168,7 +223,8 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   if (find_coordinate(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
                            name);
-  if (reserve_coordinates(m, m->n + 1))
+  if (reserve_coordinates(m, m->n + 1) ||
+      table_reserve(&m->coord_table, &m->coord_table_cap, m->n, coord_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   char *d = strdup(name);
   if (!d)
@@ -178,9 +234,9 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   m->q0[m->n] = q0;
   m->v0[m->n] = v0;
   m->rate[m->n] = rate;
+  table_put(m->coord_table, m->coord_table_cap, d, m->n);
   m->n++;
-  if (update_partition(m))
-    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  update_partition(m);
   return m->n - 1;
 }
 
@@ -203,10 +259,13 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (!x0 || !v0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s' needs position and velocity", name);
-  for (int i = 0; i < m->n_particles; i++)
-    if (strcmp(m->particles[i].name, name) == 0)
-      return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
-                             name);
+  if (table_find(m->particle_table, m->particle_table_cap, name, particle_name,
+                 m) >= 0)
+    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
+                           name);
+  if (table_reserve(&m->particle_table, &m->particle_table_cap, m->n_particles,
+                    particle_name, m))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   if (!isfinite(mass) || mass <= 0)
     return mrvi_model_fail(
         m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name, mass);
@@ -228,6 +287,7 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   }
   m->particles[m->n_particles].name = pname;
   m->particles[m->n_particles].first = first;
+  table_put(m->particle_table, m->particle_table_cap, pname, m->n_particles);
   return m->n_particles++;
 }
 
