@@ -358,12 +358,14 @@ static int cmd_check(int argc, char **argv) {
   if (n > 200)
     printf("  ... and %d more coordinates\n", n - 200);
   printf("%-14s%d\n", "elements", ne);
-  for (int e = 0; e < ne; e++) {
+  for (int e = 0; e < ne && e < 200; e++) {
     char buf[512];
     if (mrvi_model_describe_element(m, e, buf, sizeof buf) < 0)
       snprintf(buf, sizeof buf, "(no description)");
     printf("  %3d  %s\n", e, buf);
   }
+  if (ne > 200)
+    printf("  ... and %d more elements\n", ne - 200);
   const int nc = mrvi_model_n_constraints(m);
   printf("%-14s%d", "constraints", nc);
   if (nc > 0)
