@@ -361,13 +361,24 @@ static int cmd_check(int argc, char **argv) {
   print_names(m, "slow", mrvi_model_slow_index(m), ns);
   print_names(m, "fast", mrvi_model_fast_index(m), nf);
 
+  /* Masses and initial data, one coordinate a line (at most 200). */
+  const double *q0 = mrvi_model_q0(m), *v0 = mrvi_model_v0(m);
+  printf("%-14s%-16s %12s %12s %12s\n", "initial", "coordinate", "mass",
+         "position", "velocity");
+  for (int i = 0; i < n && i < 200; i++)
+    printf("  %-28s %12.6g %12.6g %12.6g\n", mrvi_model_coordinate_name(m, i),
+           mrvi_model_mass(m, i), q0[i], v0[i]);
+  if (n > 200)
+    printf("  ... and %d more coordinates\n", n - 200);
   printf("%-14s%d\n", "elements", ne);
-  for (int e = 0; e < ne; e++) {
+  for (int e = 0; e < ne && e < 200; e++) {
     char buf[512];
     if (mrvi_model_describe_element(m, e, buf, sizeof buf) < 0)
       snprintf(buf, sizeof buf, "(no description)");
     printf("  %3d  %s\n", e, buf);
   }
+  if (ne > 200)
+    printf("  ... and %d more elements\n", ne - 200);
   const int nc = mrvi_model_n_constraints(m);
   printf("%-14s%d", "constraints", nc);
   if (nc > 0)

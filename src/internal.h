@@ -6,6 +6,10 @@
 
 #include <stdarg.h>
 
+#ifndef M_PI /* not in strict C11 */
+#define M_PI 3.14159265358979323846
+#endif
+
 /* printf into a caller buffer (NULL-safe, always terminated). */
 void mrvi_fmt(char *buf, size_t len, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
@@ -32,7 +36,9 @@ typedef enum mrvi_element_kind {
   MRVI_ELEMENT_SPRING,  /* phi(|x_i - x_j| - L0) */
   MRVI_ELEMENT_ANCHOR,  /* phi(|x_i - a| - L0) */
   MRVI_ELEMENT_TERM,    /* phi(c^T y - b) */
-  MRVI_ELEMENT_GRAVITY  /* c^T y (linear, no law) */
+  MRVI_ELEMENT_GRAVITY, /* c^T y (linear, no law) */
+  MRVI_ELEMENT_ANGLE,   /* k [1 - cos(theta_ijk - theta0)], no law */
+  MRVI_ELEMENT_FORCE    /* c^T y with c = -f (constant force, no law) */
 } mrvi_element_kind;
 
 typedef struct mrvi_element {
@@ -43,6 +49,7 @@ typedef struct mrvi_element {
   double shift;                 /* rest length (springs) or offset b (terms) */
   double anchor[3];
   int particle_i, particle_j;   /* springs; -1 if unused */
+  int particle_k;               /* angles: i-j-k with the vertex at j */
   int n_in;                     /* number of input coordinates */
   int *in;                      /* n_in model indices */
   double *coef;                 /* n_in coefficients (terms, gravity) */
@@ -73,11 +80,14 @@ struct mrvi_model {
   double *mass, *q0, *v0;
   mrvi_rate *rate;
   int n_particles, cap_particles;
+  /* Name lookup (model.c): open-addressing tables of coordinate and
+   * particle indices by name, 0 = empty, else index + 1. */
+  int *coord_table, *particle_table;
+  int coord_table_cap, particle_table_cap;
   mrvi_particle *particles;
   int n_elements, cap_elements;
   mrvi_element *elements;
-  /* Partition, kept current by every add (unless deferred). */
-  int deferred; /* mrvi_model_defer_partition */
+  /* Partition, extended by every add. */
   int n_slow, n_fast;
   int *slow_index, *fast_index; /* slot -> model index */
   int *slot;                    /* model index -> slot within its rate block */
@@ -89,12 +99,6 @@ struct mrvi_model {
   char errmsg[512];
 };
 
-/* Bulk loading: with defer = 1, adding coordinates and particles neither
- * rebuilds the partition nor scans for duplicate names (linear cost per
- * add); defer = 0 then rebuilds the partition once and checks names for
- * duplicates by sorting.  Returns MRVI_OK or a status with the model's
- * message. */
-int mrvi_model_defer_partition(mrvi_model *m, int defer);
 
 /* Energy, gradient (n_in) and Hessian (n_in x n_in row-major, may be NULL)
  * of element e at its local inputs y (n_in). */

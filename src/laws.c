@@ -6,10 +6,16 @@
 
 extern const mrvi_law mrvi_law_power;
 extern const mrvi_law mrvi_law_linear;
+extern const mrvi_law mrvi_law_morse;
+extern const mrvi_law mrvi_law_lennard_jones;
+extern const mrvi_law mrvi_law_inverse;
 
 static const mrvi_law *const builtin[] = {
     &mrvi_law_power,
     &mrvi_law_linear,
+    &mrvi_law_morse,
+    &mrvi_law_lennard_jones,
+    &mrvi_law_inverse,
 };
 
 #define N_BUILTIN ((int)(sizeof builtin / sizeof builtin[0]))

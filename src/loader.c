@@ -872,7 +872,8 @@ static int opt_positive(loader *L, struct fy_node *map, const char *key,
 
 static const char *const top_keys[] = {
     "name",        "dimension", "gravity",     "particles",  "springs",
-    "coordinates", "terms",     "constraints", "integrator", "output"};
+    "coordinates", "terms",     "constraints", "integrator", "output",
+    "angles",      "forces",    "generate"};
 static const char *const coordinate_keys[] = {"name", "mass", "position",
                                               "velocity", "rate"};
 static const char *const particle_keys[] = {"name", "mass", "position",
@@ -1140,6 +1141,21 @@ static int load_ends(loader *L, struct fy_node *item, const char *where,
   return MRVI_OK;
 }
 
+/* `rest_length:` of a spring: a number, `initial` (the initial distance)
+ * or absent (0). */
+static int spring_rest(loader *L, struct fy_node *item, const int pi[2],
+                       int ends, const double *anchor, double *rest) {
+  struct fy_node *n = get(item, "rest_length");
+  *rest = 0.0;
+  if (n && fy_node_is_scalar(n) && !strcmp(scalar0(n), "initial")) {
+    *rest = mrvi_model_initial_distance(L->sys->model, pi[0],
+                                        ends == 2 ? pi[1] : -1, anchor);
+    return MRVI_OK;
+  }
+  return n ? as_number(L, n, "rest_length (a number or 'initial')", rest)
+           : MRVI_OK;
+}
+
 static int load_springs(loader *L, struct fy_node *list, int dim) {
   int st = want_list(L, list, "springs");
   if (st)
@@ -1157,7 +1173,7 @@ static int load_springs(loader *L, struct fy_node *list, int dim) {
         (st = load_law(L, item, where, spring_keys, COUNT(spring_keys), &law,
                        params)) ||
         (st = load_ends(L, item, where, "spring", dim, pi, &ends, anchor)) ||
-        (st = opt_number(L, item, "rest_length", 0.0, &rest)) ||
+        (st = spring_rest(L, item, pi, ends, anchor, &rest)) ||
         (st = as_rate(L, item, "potential", &potential)))
       return st;
     int e = ends == 2
@@ -1534,6 +1550,307 @@ static int check_constraints(loader *L) {
   return MRVI_OK;
 }
 
+/* ---------------------------------------------------------------------------
+ * Interpretation: angles, constant forces, generators
+ * ------------------------------------------------------------------------- */
+static const char *const angle_keys[] = {"particles", "stiffness", "rest_angle",
+                                         "potential"};
+static const char *const force_keys[] = {"particle", "coordinate", "force",
+                                         "potential"};
+static const char *const generate_keys[] = {
+    "kind",  "name",   "count",       "spacing",     "origin", "mass",
+    "rates", "spring", "slow_spring", "fast_spring", "initial"};
+static const char *const generated_spring_keys[] = {"law", "rest_length"};
+static const char *const initial_keys[] = {"index", "displacement", "velocity"};
+
+/* {particles: [i, j, k], stiffness, rest_angle (radians, default initial),
+ *  potential} */
+static int load_angles(loader *L, struct fy_node *list) {
+  int st = want_list(L, list, "angles");
+  int count = st ? 0 : fy_node_sequence_item_count(list);
+  for (int i = 0; i < count && !st; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *ps, *n;
+    char where[64];
+    mrvi_fmt(where, sizeof where, "angles.%d", i);
+    int pi[3];
+    double k, rest = NAN;
+    mrvi_rate potential;
+    if ((st = want_mapping(L, item, where)) ||
+        (st = check_keys(L, item, where, angle_keys, COUNT(angle_keys), NULL,
+                         0)) ||
+        (st = need(L, item, "particles", where, &ps)) ||
+        (st = want_list(L, ps, "particles")))
+      break;
+    if (fy_node_sequence_item_count(ps) != 3) {
+      st = fail(L, ps,
+                "particles of an angle must be [i, j, k] (vertex j), "
+                "got %d names",
+                fy_node_sequence_item_count(ps));
+      break;
+    }
+    for (int a = 0; a < 3 && !st; a++)
+      st = find_particle(L, fy_node_sequence_get_by_index(ps, a), "particles",
+                         &pi[a]);
+    if (st || (st = need(L, item, "stiffness", where, &n)) ||
+        (st = as_number(L, n, "stiffness", &k)) ||
+        (st = as_rate(L, item, "potential", &potential)))
+      break;
+    if ((n = get(item, "rest_angle")) &&
+        !(fy_node_is_scalar(n) && !strcmp(scalar0(n), "initial")) &&
+        (st = as_number(L, n, "rest_angle (radians or 'initial')", &rest)))
+      break;
+    int e = mrvi_model_add_angle(L->sys->model, potential, pi[0], pi[1], pi[2],
+                                 k, rest);
+    if (e < 0)
+      st = fail_model(L, item, e);
+  }
+  return st;
+}
+
+/* {particle: a, force: [fx, fy, fz]} or {coordinate: q, force: f}, with
+ * potential slow (default) or fast. */
+static int load_forces(loader *L, struct fy_node *list, int dim) {
+  int st = want_list(L, list, "forces");
+  int count = st ? 0 : fy_node_sequence_item_count(list);
+  for (int i = 0; i < count && !st; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *n, *f;
+    char where[64];
+    mrvi_fmt(where, sizeof where, "forces.%d", i);
+    int coords[3], k = 1;
+    double force[3] = {0, 0, 0};
+    mrvi_rate potential;
+    if ((st = want_mapping(L, item, where)) ||
+        (st = check_keys(L, item, where, force_keys, COUNT(force_keys), NULL,
+                         0)) ||
+        (st = need(L, item, "force", where, &f)) ||
+        (st = as_rate(L, item, "potential", &potential)))
+      break;
+    struct fy_node *pn = get(item, "particle"), *cn = get(item, "coordinate");
+    if (!pn == !cn) {
+      st = fail(L, item, "%s needs exactly one of 'particle' or 'coordinate'",
+                where);
+      break;
+    }
+    if (pn) {
+      int p;
+      if ((st = find_particle(L, pn, "particle", &p)) ||
+          (st = as_vector(L, f, "force", dim, force)))
+        break;
+      const int first = L->sys->model->particles[p].first;
+      for (int a = 0; a < dim; a++)
+        coords[a] = first + a;
+      k = dim;
+    } else if ((st = find_coordinate(L, cn, "coordinate", &coords[0])) ||
+               (st = as_number(L, f, "force", &force[0]))) {
+      break;
+    }
+    (void)n;
+    int e = mrvi_model_add_force(L->sys->model, potential, k, coords, force);
+    if (e < 0)
+      st = fail_model(L, item, e);
+  }
+  return st;
+}
+
+/* A generated particle becomes a name the rest of the file can use. */
+static int add_generated_name(loader *L, struct fy_node *at, int p) {
+  named *np = realloc(L->parts, (size_t)(L->n_parts + 2) * sizeof *np);
+  if (!np)
+    return fail_nomem(L);
+  L->parts = np;
+  const char *name = L->sys->model->particles[p].name;
+  if (find_named(L->parts, &L->part_hash, name))
+    return fail(L, at, "generated particle name '%s' is already used", name);
+  if (hash_put(&L->part_hash, name, L->n_parts))
+    return fail_nomem(L);
+  L->parts[L->n_parts++] = (named){name, at, p};
+  return MRVI_OK;
+}
+
+/* `spring:` / `slow_spring:` / `fast_spring:` of a generator. */
+static int load_spring_spec(loader *L, struct fy_node *n, const char *where,
+                            mrvi_spring_spec *sp) {
+  const mrvi_law *law;
+  struct fy_node *r;
+  int st;
+  sp->rest_length = NAN;
+  if ((st = want_mapping(L, n, where)) ||
+      (st = load_law(L, n, where, generated_spring_keys,
+                     COUNT(generated_spring_keys), &law, sp->params)))
+    return st;
+  sp->law = law->name;
+  if ((r = get(n, "rest_length")))
+    return as_number(L, r, "rest_length", &sp->rest_length);
+  return MRVI_OK;
+}
+
+/* `rates:` all_slow | all_fast | alternate | {every: k} */
+static int load_rate_rule(loader *L, struct fy_node *n, mrvi_generator *g) {
+  static const char *const rules[] = {"all_slow", "all_fast", "alternate"};
+  int r = 0, st;
+  if (fy_node_is_mapping(n)) {
+    struct fy_node *e;
+    static const char *const every_keys[] = {"every"};
+    if ((st = check_keys(L, n, "rates", every_keys, 1, NULL, 0)) ||
+        (st = need(L, n, "every", "rates", &e)) ||
+        (st = as_int(L, e, "every", &g->every)))
+      return st;
+    if (g->every < 1)
+      return fail(L, e, "every must be >= 1, got %d", g->every);
+    g->rates = MRVI_RATES_EVERY;
+    return MRVI_OK;
+  }
+  if ((st = as_choice(L, n, "rates (or {every: k})", rules, 3, &r)))
+    return st;
+  g->rates = (mrvi_rate_rule)r;
+  return MRVI_OK;
+}
+
+/* `initial:` list of {index: i | [i, j(, k)], displacement, velocity}. */
+static int load_generated_initial(loader *L, struct fy_node *list,
+                                  const mrvi_generator *g, long total, int dim,
+                                  double *disp, double *vel) {
+  int st = want_list(L, list, "initial");
+  int count = st ? 0 : fy_node_sequence_item_count(list);
+  const int axes = g->kind == MRVI_GEN_LATTICE3D   ? 3
+                   : g->kind == MRVI_GEN_LATTICE2D ? 2
+                                                   : 1;
+  for (int i = 0; i < count && !st; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *in, *n;
+    char where[64];
+    mrvi_fmt(where, sizeof where, "initial.%d", i);
+    double idx[3] = {0, 0, 0};
+    if ((st = want_mapping(L, item, where)) ||
+        (st = check_keys(L, item, where, initial_keys, COUNT(initial_keys),
+                         NULL, 0)) ||
+        (st = need(L, item, "index", where, &in)) ||
+        (st = as_vector(L, in, "index", axes, idx)))
+      break;
+    long lin = 0, stride = 1;
+    for (int a = 0; a < axes; a++) {
+      const int na = g->count[a];
+      if (idx[a] != floor(idx[a]) || idx[a] < 0 || idx[a] >= na) {
+        st = fail(L, in, "index %g is outside 0..%d", idx[a], na - 1);
+        break;
+      }
+      lin += (long)idx[a] * stride;
+      stride *= na;
+    }
+    if (st || lin >= total)
+      break;
+    if ((n = get(item, "displacement")) &&
+        (st = as_vector(L, n, "displacement", dim, disp + lin * dim)))
+      break;
+    if ((n = get(item, "velocity")) &&
+        (st = as_vector(L, n, "velocity", dim, vel + lin * dim)))
+      break;
+  }
+  return st;
+}
+
+/* One `generate:` entry; notes its counts for `mrvi check`. */
+static int load_generator(loader *L, struct fy_node *item, const char *where,
+                          int dim) {
+  static const char *const kinds[] = {"chain", "ring", "lattice2d",
+                                      "lattice3d"};
+  mrvi_generator g = {.spacing = 1.0, .every = 1};
+  struct fy_node *n;
+  int st, kind = 0;
+  if ((st = want_mapping(L, item, where)) ||
+      (st = check_keys(L, item, where, generate_keys, COUNT(generate_keys),
+                       NULL, 0)) ||
+      (st = need(L, item, "kind", where, &n)) ||
+      (st = as_choice(L, n, "generator kind", kinds, 4, &kind)) ||
+      (st = need(L, item, "name", where, &n)) ||
+      (st = as_string(L, n, "name", &g.prefix)) ||
+      (st = need(L, item, "mass", where, &n)) ||
+      (st = as_number(L, n, "mass", &g.mass)))
+    return st;
+  if (!(g.mass > 0))
+    return fail(L, n, "mass must be > 0, got %s", scalar0(n));
+  g.kind = (mrvi_generator_kind)kind;
+  const int axes = kind == MRVI_GEN_LATTICE3D   ? 3
+                   : kind == MRVI_GEN_LATTICE2D ? 2
+                                                : 1;
+  if ((st = need(L, item, "count", where, &n)))
+    return st;
+  if (axes <= 1) {
+    if ((st = as_int(L, n, "count", &g.count[0])))
+      return st;
+  } else {
+    double c[3];
+    if ((st = as_vector(L, n, "count", axes, c)))
+      return st;
+    for (int a = 0; a < axes; a++)
+      if (c[a] != floor(c[a]) || c[a] < 1 || c[a] > 1e6)
+        return fail(L, n, "count entries must be integers >= 1");
+    for (int a = 0; a < axes; a++)
+      g.count[a] = (int)c[a];
+  }
+  char msg[256];
+  const long total = mrvi_generator_particles(&g, msg, sizeof msg);
+  if (total < 0)
+    return fail(L, n, "%s", msg);
+  if ((st = opt_positive(L, item, "spacing", "spacing", &g.spacing, NULL)))
+    return st;
+  if ((n = get(item, "origin")) &&
+      (st = as_vector(L, n, "origin", dim, g.origin)))
+    return st;
+  if ((n = get(item, "rates")) && (st = load_rate_rule(L, n, &g)))
+    return st;
+  if ((n = get(item, "spring"))) {
+    if ((st = load_spring_spec(L, n, "spring", &g.slow)))
+      return st;
+    g.fast = g.slow;
+  }
+  if ((n = get(item, "slow_spring")) &&
+      (st = load_spring_spec(L, n, "slow_spring", &g.slow)))
+    return st;
+  if ((n = get(item, "fast_spring")) &&
+      (st = load_spring_spec(L, n, "fast_spring", &g.fast)))
+    return st;
+  double *disp = NULL, *vel = NULL;
+  if ((n = get(item, "initial"))) {
+    disp = calloc((size_t)total * (size_t)dim, sizeof *disp);
+    vel = calloc((size_t)total * (size_t)dim, sizeof *vel);
+    if (!disp || !vel)
+      st = fail_nomem(L);
+    else
+      st = load_generated_initial(L, n, &g, total, dim, disp, vel);
+    g.displacement = disp;
+    g.velocity = vel;
+  }
+  int counts[4] = {0, 0, 0, 0};
+  int first = st ? 0 : mrvi_model_generate(L->sys->model, &g, counts);
+  free(disp);
+  free(vel);
+  if (st)
+    return st;
+  if (first < 0)
+    return fail_model(L, item, first);
+  for (long p = 0; p < total && !st; p++)
+    st = add_generated_name(L, item, first + (int)p);
+  if (st)
+    return st;
+  return add_note(L,
+                  "%s: %s '%s' generated %d particles (%d slow, %d fast), "
+                  "%d springs (%d slow, %d fast)",
+                  where, kinds[kind], g.prefix, counts[0], counts[1],
+                  counts[0] - counts[1], counts[2] + counts[3], counts[2],
+                  counts[3]);
+}
+
+static int load_generators(loader *L, struct fy_node *list, int dim) {
+  int st = want_list(L, list, "generate");
+  int count = st ? 0 : fy_node_sequence_item_count(list);
+  for (int i = 0; i < count && !st; i++) {
+    char where[64];
+    mrvi_fmt(where, sizeof where, "generate.%d", i);
+    st = load_generator(L, fy_node_sequence_get_by_index(list, i), where, dim);
+  }
+  return st;
+}
+
 static int load_model(loader *L, struct fy_node *root) {
   mrvi_model *m = L->sys->model;
   struct fy_node *n, *particles = get(root, "particles");
@@ -1548,19 +1865,20 @@ static int load_model(loader *L, struct fy_node *root) {
       return fail(L, n, "dimension must be 1, 2 or 3, got %d", dim);
     if ((st = mrvi_model_set_dimension(m, dim)))
       return fail_model(L, n, st);
-  } else if (particles || gravity) {
+  } else if (particles || gravity || get(root, "generate")) {
     return fail(L, root, "missing key 'dimension' (needed by %s)",
-                particles ? "particles" : "gravity");
+                particles ? "particles"
+                : gravity ? "gravity"
+                          : "generate");
   }
-  /* Model order: coordinates first, then particles as declared; the
-   * partition is built once, after the last. */
-  mrvi_model_defer_partition(m, 1);
+  /* Model order: coordinates first, then particles as declared (names by
+   * hash, the partition extended by each add: linear in the file). */
   if ((n = get(root, "coordinates")) && (st = load_coordinates(L, n)))
     return st;
   if (particles && (st = load_particles(L, particles, dim)))
     return st;
-  if ((st = mrvi_model_defer_partition(m, 0)))
-    return fail_model(L, particles ? particles : root, st);
+  if ((n = get(root, "generate")) && (st = load_generators(L, n, dim)))
+    return st;
   if (mrvi_model_n(m) == 0)
     return fail(L, root,
                 "the system has no coordinates: add 'coordinates' "
@@ -1575,6 +1893,10 @@ static int load_model(loader *L, struct fy_node *root) {
   if ((n = get(root, "springs")) && (st = load_springs(L, n, dim)))
     return st;
   if ((n = get(root, "terms")) && (st = load_terms(L, n)))
+    return st;
+  if ((n = get(root, "angles")) && (st = load_angles(L, n)))
+    return st;
+  if ((n = get(root, "forces")) && (st = load_forces(L, n, dim)))
     return st;
   if ((n = get(root, "constraints")) && (st = load_constraints(L, n, dim)))
     return st;

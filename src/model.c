@@ -63,6 +63,8 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->slow_index);
   free(m->fast_index);
   free(m->slot);
+  free(m->coord_table);
+  free(m->particle_table);
   free(m->name);
   free(m);
 }
@@ -93,86 +95,81 @@ int mrvi_model_set_dimension(mrvi_model *m, int dimension) {
   return MRVI_OK;
 }
 
-static int find_coordinate(const mrvi_model *m, const char *name) {
-  for (int i = 0; i < m->n; i++)
-    if (strcmp(m->names[i], name) == 0)
-      return i;
-  return -1;
+/* ---------------------------------------------------------------------------
+ * Name tables: open addressing (linear probing) on an FNV-1a hash, load at
+ * most 1/2, so that building a model with n names costs O(n).
+ * ------------------------------------------------------------------------- */
+static unsigned long name_hash(const char *s) {
+  unsigned long h = 2166136261UL;
+  for (; *s; s++)
+    h = (h ^ (unsigned char)*s) * 16777619UL;
+  return h;
 }
 
-/* Rebuild slow/fast index maps after a coordinate was added. */
-static int update_partition(mrvi_model *m) {
-  int *si = realloc(m->slow_index, (size_t)m->n * sizeof *si);
-  if (si)
-    m->slow_index = si;
-  int *fi = realloc(m->fast_index, (size_t)m->n * sizeof *fi);
-  if (fi)
-    m->fast_index = fi;
-  int *sl = realloc(m->slot, (size_t)m->n * sizeof *sl);
-  if (sl)
-    m->slot = sl;
-  if (!si || !fi || !sl)
+/* Index of `name` among count entries named by name_of, or -1. */
+static int table_find(const int *table, int cap, const char *name,
+                      const char *(*name_of)(const mrvi_model *, int),
+                      const mrvi_model *m) {
+  if (!table)
     return -1;
-  m->n_slow = m->n_fast = 0;
-  for (int i = 0; i < m->n; i++) {
-    if (m->rate[i] == MRVI_SLOW) {
-      m->slot[i] = m->n_slow;
-      m->slow_index[m->n_slow++] = i;
-    } else {
-      m->slot[i] = m->n_fast;
-      m->fast_index[m->n_fast++] = i;
-    }
+  for (unsigned long h = name_hash(name) & (unsigned long)(cap - 1);;
+       h = (h + 1) & (unsigned long)(cap - 1)) {
+    if (table[h] == 0)
+      return -1;
+    if (strcmp(name_of(m, table[h] - 1), name) == 0)
+      return table[h] - 1;
   }
+}
+
+static void table_put(int *table, int cap, const char *name, int index) {
+  unsigned long h = name_hash(name) & (unsigned long)(cap - 1);
+  while (table[h] != 0)
+    h = (h + 1) & (unsigned long)(cap - 1);
+  table[h] = index + 1;
+}
+
+/* Make room for count + 1 entries (rehashing all count entries). */
+static int table_reserve(int **table, int *cap, int count,
+                         const char *(*name_of)(const mrvi_model *, int),
+                         const mrvi_model *m) {
+  if (2 * (count + 1) <= *cap)
+    return 0;
+  int c = *cap ? 2 * *cap : 64;
+  while (2 * (count + 1) > c)
+    c *= 2;
+  int *t = calloc((size_t)c, sizeof *t);
+  if (!t)
+    return -1;
+  for (int i = 0; i < count; i++)
+    table_put(t, c, name_of(m, i), i);
+  free(*table);
+  *table = t;
+  *cap = c;
   return 0;
 }
 
-static const char *const *sort_names_base;
-static int cmp_name_index(const void *a, const void *b) {
-  return strcmp(sort_names_base[*(const int *)a],
-                sort_names_base[*(const int *)b]);
+static const char *coord_name(const mrvi_model *m, int i) {
+  return m->names[i];
+}
+static const char *particle_name(const mrvi_model *m, int i) {
+  return m->particles[i].name;
 }
 
-/* First name occurring twice among names[0..n), or NULL (sorts indices). */
-static const char *duplicate_name(const char *const *names, int n, int *fail) {
-  int *ix = malloc((size_t)(n > 0 ? n : 1) * sizeof *ix);
-  const char *dup = NULL;
-  *fail = !ix;
-  if (!ix)
-    return NULL;
-  for (int i = 0; i < n; i++)
-    ix[i] = i;
-  sort_names_base = names;
-  qsort(ix, (size_t)n, sizeof *ix, cmp_name_index);
-  for (int i = 1; i < n && !dup; i++)
-    if (!strcmp(names[ix[i - 1]], names[ix[i]]))
-      dup = names[ix[i]];
-  free(ix);
-  return dup;
+static int find_coordinate(const mrvi_model *m, const char *name) {
+  return table_find(m->coord_table, m->coord_table_cap, name, coord_name, m);
 }
 
-int mrvi_model_defer_partition(mrvi_model *m, int defer) {
-  if (defer || !m->deferred) {
-    m->deferred = defer;
-    return MRVI_OK;
+/* Extend the slow/fast index maps by the coordinate just appended (the
+ * arrays have m->cap entries, reserve_coordinates). */
+static void update_partition(mrvi_model *m) {
+  const int i = m->n - 1;
+  if (m->rate[i] == MRVI_SLOW) {
+    m->slot[i] = m->n_slow;
+    m->slow_index[m->n_slow++] = i;
+  } else {
+    m->slot[i] = m->n_fast;
+    m->fast_index[m->n_fast++] = i;
   }
-  m->deferred = 0;
-  int nomem;
-  const char *dup = duplicate_name((const char *const *)m->names, m->n, &nomem);
-  if (dup)
-    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
-                           dup);
-  const char **pn = malloc((size_t)(m->n_particles + 1) * sizeof *pn);
-  if (!nomem && pn) {
-    for (int i = 0; i < m->n_particles; i++)
-      pn[i] = m->particles[i].name;
-    dup = duplicate_name(pn, m->n_particles, &nomem);
-  }
-  free(pn);
-  if (nomem || !pn || (m->n > 0 && update_partition(m)))
-    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  if (dup)
-    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'", dup);
-  return MRVI_OK;
 }
 
 /* Make room for `need` coordinates in every per-coordinate array. */
@@ -195,7 +192,16 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   void *r = realloc(m->rate, (size_t)c * sizeof *m->rate);
   if (r)
     m->rate = r;
-  if (!a || !b || !q || !v || !r)
+  void *si = realloc(m->slow_index, (size_t)c * sizeof *m->slow_index);
+  if (si)
+    m->slow_index = si;
+  void *fi = realloc(m->fast_index, (size_t)c * sizeof *m->fast_index);
+  if (fi)
+    m->fast_index = fi;
+  void *sl = realloc(m->slot, (size_t)c * sizeof *m->slot);
+  if (sl)
+    m->slot = sl;
+  if (!a || !b || !q || !v || !r || !si || !fi || !sl)
     return -1;
   m->cap = c;
   return 0;
@@ -214,10 +220,11 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   if (rate != MRVI_SLOW && rate != MRVI_FAST)
     return mrvi_model_fail(m, MRVI_EINVAL, "rate of '%s' must be slow or fast",
                            name);
-  if (!m->deferred && find_coordinate(m, name) >= 0)
+  if (find_coordinate(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
                            name);
-  if (reserve_coordinates(m, m->n + 1))
+  if (reserve_coordinates(m, m->n + 1) ||
+      table_reserve(&m->coord_table, &m->coord_table_cap, m->n, coord_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   char *d = strdup(name);
   if (!d)
@@ -227,9 +234,9 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   m->q0[m->n] = q0;
   m->v0[m->n] = v0;
   m->rate[m->n] = rate;
+  table_put(m->coord_table, m->coord_table_cap, d, m->n);
   m->n++;
-  if (!m->deferred && update_partition(m))
-    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  update_partition(m);
   return m->n - 1;
 }
 
@@ -252,10 +259,13 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (!x0 || !v0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s' needs position and velocity", name);
-  for (int i = 0; i < m->n_particles * !m->deferred; i++)
-    if (strcmp(m->particles[i].name, name) == 0)
-      return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
-                             name);
+  if (table_find(m->particle_table, m->particle_table_cap, name, particle_name,
+                 m) >= 0)
+    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
+                           name);
+  if (table_reserve(&m->particle_table, &m->particle_table_cap, m->n_particles,
+                    particle_name, m))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   if (!isfinite(mass) || mass <= 0)
     return mrvi_model_fail(
         m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name, mass);
@@ -277,6 +287,7 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   }
   m->particles[m->n_particles].name = pname;
   m->particles[m->n_particles].first = first;
+  table_put(m->particle_table, m->particle_table_cap, pname, m->n_particles);
   return m->n_particles++;
 }
 
@@ -297,7 +308,10 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
         return mrvi_model_fail(
             m, MRVI_EMODEL,
             "fast %s touches slow coordinate '%s': the fast potential "
-            "W may depend on fast coordinates only",
+            "W may depend on fast coordinates only; to couple slow and "
+            "fast particles make it slow ('potential: slow'), i.e. part "
+            "of V, which the default micro slow grid evaluates at every "
+            "micro step",
             what, m->names[c]);
       }
   if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
@@ -492,6 +506,124 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
   return push_element(m, &e, "gravity");
 }
 
+/* Angle at particle j between i and k at the positions x (model order). */
+static double angle_at(const mrvi_model *m, const double *x, int i, int j,
+                       int k) {
+  const int d = m->dimension;
+  const double *xi = x + m->particles[i].first, *xj = x + m->particles[j].first,
+               *xk = x + m->particles[k].first;
+  double uv = 0, uu = 0, vv = 0;
+  for (int a = 0; a < d; a++) {
+    const double u = xi[a] - xj[a], v = xk[a] - xj[a];
+    uv += u * v;
+    uu += u * u;
+    vv += v * v;
+  }
+  if (uu == 0 || vv == 0)
+    return NAN;
+  double c = uv / sqrt(uu * vv);
+  return acos(c > 1 ? 1 : c < -1 ? -1 : c);
+}
+
+int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
+                         int particle_j, int particle_k, double stiffness,
+                         double rest_angle) {
+  const int np = m->n_particles;
+  if (particle_i < 0 || particle_i >= np || particle_j < 0 ||
+      particle_j >= np || particle_k < 0 || particle_k >= np)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "angle: particle index out of range");
+  if (m->dimension < 2)
+    return mrvi_model_fail(m, MRVI_EINVAL, "angle: needs dimension 2 or 3");
+  const char *ni = m->particles[particle_i].name,
+             *nj = m->particles[particle_j].name,
+             *nk = m->particles[particle_k].name;
+  char what[400];
+  mrvi_fmt(what, sizeof what, "angle %s-%s-%s", ni, nj, nk);
+  if (particle_i == particle_j || particle_j == particle_k ||
+      particle_i == particle_k)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: the three particles must differ", what);
+  if (!isfinite(stiffness))
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: stiffness must be finite",
+                           what);
+  if (isnan(rest_angle)) {
+    rest_angle = angle_at(m, m->q0, particle_i, particle_j, particle_k);
+    if (isnan(rest_angle))
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "%s: the initial angle is undefined (two "
+                             "particles coincide)",
+                             what);
+  }
+  if (!(rest_angle >= 0 && rest_angle <= M_PI))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: rest angle must be in [0, pi] radians (got %g)",
+                           what, rest_angle);
+  mrvi_element e = {.kind = MRVI_ELEMENT_ANGLE,
+                    .potential = potential,
+                    .shift = rest_angle,
+                    .particle_i = particle_i,
+                    .particle_j = particle_j,
+                    .particle_k = particle_k};
+  e.params[0] = stiffness;
+  e.params[1] = cos(rest_angle);
+  /* sin(pi) is 1.2e-16, not 0: keep the smooth straight case exact. */
+  e.params[2] = rest_angle == M_PI || rest_angle == 0 ? 0.0 : sin(rest_angle);
+  int parts[3] = {particle_i, particle_j, particle_k}, st;
+  if ((st = particle_inputs(m, &e, 3, parts)) < 0)
+    return st;
+  return push_element(m, &e, what);
+}
+
+int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
+                         const int *coords, const double *f) {
+  if (n_terms < 1 || n_terms > MRVI_MAX_INPUTS || !coords || !f)
+    return mrvi_model_fail(m, MRVI_EINVAL, "force: 1 to %d coordinates needed",
+                           MRVI_MAX_INPUTS);
+  for (int j = 0; j < n_terms; j++) {
+    if (coords[j] < 0 || coords[j] >= m->n)
+      return mrvi_model_fail(
+          m, MRVI_EINVAL, "force: coordinate index %d out of range", coords[j]);
+    if (!isfinite(f[j]))
+      return mrvi_model_fail(m, MRVI_EINVAL, "force on '%s' must be finite",
+                             m->names[coords[j]]);
+  }
+  char what[300];
+  mrvi_fmt(what, sizeof what, "force on %s%s", m->names[coords[0]],
+           n_terms > 1 ? ", ..." : "");
+  mrvi_element e = {.kind = MRVI_ELEMENT_FORCE,
+                    .potential = potential,
+                    .particle_i = -1,
+                    .particle_j = -1,
+                    .n_in = n_terms};
+  e.in = malloc((size_t)n_terms * sizeof *e.in);
+  e.coef = malloc((size_t)n_terms * sizeof *e.coef);
+  if (!e.in || !e.coef) {
+    free(e.in);
+    free(e.coef);
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  for (int j = 0; j < n_terms; j++) {
+    e.in[j] = coords[j];
+    e.coef[j] = -f[j]; /* potential -f^T q */
+  }
+  return push_element(m, &e, what);
+}
+
+double mrvi_model_initial_distance(const mrvi_model *m, int particle_i,
+                                   int particle_j, const double *anchor) {
+  if (particle_i < 0 || particle_i >= m->n_particles ||
+      particle_j >= m->n_particles || (particle_j < 0 && !anchor))
+    return NAN;
+  const double *a = m->q0 + m->particles[particle_i].first,
+               *b = particle_j >= 0 ? m->q0 + m->particles[particle_j].first
+                                    : anchor;
+  double r2 = 0;
+  for (int k = 0; k < m->dimension; k++)
+    r2 += (a[k] - b[k]) * (a[k] - b[k]);
+  return sqrt(r2);
+}
+
 /* ---------------------------------------------------------------------------
  * Read access
  * ------------------------------------------------------------------------- */
@@ -563,6 +695,22 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
   case MRVI_ELEMENT_GRAVITY:
     mrvi_fmt(buf, len, "slow gravity on %d particles", m->n_particles);
     break;
+  case MRVI_ELEMENT_ANGLE:
+    mrvi_fmt(buf, len, "%s angle %s-%s-%s, stiffness %g, rest angle %g rad",
+             rate, m->particles[e->particle_i].name,
+             m->particles[e->particle_j].name, m->particles[e->particle_k].name,
+             e->params[0], e->shift);
+    break;
+  case MRVI_ELEMENT_FORCE: {
+    char f[512];
+    size_t used = 0;
+    f[0] = '\0';
+    for (int j = 0; j < e->n_in && used < sizeof f; j++)
+      used += (size_t)snprintf(f + used, sizeof f - used, "%s%s %g",
+                               j ? ", " : "", m->names[e->in[j]], -e->coef[j]);
+    mrvi_fmt(buf, len, "%s constant force: %s", rate, f);
+    break;
+  }
   }
   return MRVI_OK;
 }
@@ -616,9 +764,105 @@ static double eval_distance(const mrvi_element *e, int dim, const double *y,
   return phi;
 }
 
+/* Angle element k [1 - cos(theta - theta0)] = k [1 - c C0 - s S0] with
+ * c = cos theta = u.v/(|u||v|), s = sin theta, u = x_i - x_j, v = x_k - x_j.
+ * dE/dc = -k C0 + k S0 c/s, d2E/dc2 = k S0/s^3; the derivatives of c in
+ * (u, v) are mapped to (x_i, x_j, x_k) by x_i -> u, x_k -> v, x_j -> -u-v. */
+static double eval_angle(const mrvi_element *e, int d, const double *y,
+                         double *grad, double *hess) {
+  const double k = e->params[0], C0 = e->params[1], S0 = e->params[2];
+  double u[3], v[3], a = 0, b = 0;
+  for (int p = 0; p < d; p++) {
+    u[p] = y[p] - y[d + p];
+    v[p] = y[2 * d + p] - y[d + p];
+    a += u[p] * u[p];
+    b += v[p] * v[p];
+  }
+  const int n = 3 * d;
+  if (grad)
+    memset(grad, 0, (size_t)n * sizeof *grad);
+  if (hess)
+    memset(hess, 0, (size_t)n * n * sizeof *hess);
+  if (a == 0 || b == 0)
+    return 0.0; /* undefined angle: no force */
+  a = sqrt(a);
+  b = sqrt(b);
+  double c = 0;
+  for (int p = 0; p < d; p++) {
+    u[p] /= a;
+    v[p] /= b;
+    c += u[p] * v[p];
+  }
+  c = c > 1 ? 1 : c < -1 ? -1 : c;
+  double s = sqrt(1 - c * c);
+  const double E = k * (1 - c * C0 - s * S0);
+  double Ec = -k * C0, Ecc = 0;
+  if (S0 != 0) {
+    if (s < 1e-12)
+      s = 1e-12; /* collinear with theta0 != 0, pi: singular (documented) */
+    Ec += k * S0 * c / s;
+    Ecc = k * S0 / (s * s * s);
+  }
+  double gu[3], gv[3];
+  for (int p = 0; p < d; p++) {
+    gu[p] = (v[p] - c * u[p]) / a;
+    gv[p] = (u[p] - c * v[p]) / b;
+  }
+  if (grad)
+    for (int p = 0; p < d; p++) {
+      grad[p] = Ec * gu[p];
+      grad[2 * d + p] = Ec * gv[p];
+      grad[d + p] = -Ec * (gu[p] + gv[p]);
+    }
+  if (!hess)
+    return E;
+  /* Hessian in (u, v): blocks Huu, Huv, Hvv (Hvu = Huv^T). */
+  double Huu[9], Huv[9], Hvv[9];
+  for (int p = 0; p < d; p++)
+    for (int q = 0; q < d; q++) {
+      const double dl = p == q;
+      Huu[p * 3 + q] = Ecc * gu[p] * gu[q] -
+                       Ec / (a * a) *
+                           ((v[p] - c * u[p]) * u[q] +
+                            u[p] * (v[q] - c * u[q]) + c * (dl - u[p] * u[q]));
+      Hvv[p * 3 + q] = Ecc * gv[p] * gv[q] -
+                       Ec / (b * b) *
+                           ((u[p] - c * v[p]) * v[q] +
+                            v[p] * (u[q] - c * v[q]) + c * (dl - v[p] * v[q]));
+      Huv[p * 3 + q] =
+          Ecc * gu[p] * gv[q] +
+          Ec / (a * b) * (dl - v[p] * v[q] - u[p] * u[q] + c * u[p] * v[q]);
+    }
+  /* Coefficients of u and v in blocks i, j, k. */
+  static const double J[3][2] = {{1, 0}, {-1, -1}, {0, 1}};
+  for (int A = 0; A < 3; A++)
+    for (int B = 0; B < 3; B++)
+      for (int p = 0; p < d; p++)
+        for (int q = 0; q < d; q++)
+          hess[(A * d + p) * n + B * d + q] =
+              J[A][0] * J[B][0] * Huu[p * 3 + q] +
+              J[A][0] * J[B][1] * Huv[p * 3 + q] +
+              J[A][1] * J[B][0] * Huv[q * 3 + p] +
+              J[A][1] * J[B][1] * Hvv[p * 3 + q];
+  return E;
+}
+
 double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
                          const double *y, double *grad, double *hess) {
   switch (e->kind) {
+  case MRVI_ELEMENT_ANGLE:
+    return eval_angle(e, m->dimension, y, grad, hess);
+  case MRVI_ELEMENT_FORCE: {
+    double v = 0.0;
+    for (int j = 0; j < e->n_in; j++) {
+      v += e->coef[j] * y[j];
+      if (grad)
+        grad[j] = e->coef[j];
+    }
+    if (hess)
+      memset(hess, 0, (size_t)e->n_in * e->n_in * sizeof *hess);
+    return v;
+  }
   case MRVI_ELEMENT_SPRING:
   case MRVI_ELEMENT_ANCHOR:
     return eval_distance(e, m->dimension, y, grad, hess);
@@ -755,6 +999,8 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     if (el->law) {
       fnv(&h, el->law->name, strlen(el->law->name) + 1);
       fnv(&h, el->params, (size_t)el->law->n_params * sizeof(double));
+    } else if (el->kind == MRVI_ELEMENT_ANGLE) {
+      fnv(&h, el->params, sizeof(double)); /* stiffness; shift is theta0 */
     }
     fnv(&h, &el->shift, sizeof el->shift);
     fnv(&h, el->anchor, sizeof el->anchor);

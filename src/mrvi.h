@@ -131,6 +131,78 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
  * (dimension entries).  Call after adding the particles. */
 int mrvi_model_set_gravity(mrvi_model *m, const double *g);
 
+/* Bending term on the angle theta at particle j between particles i and k
+ * (dimension 2 or 3): k [1 - cos(theta - theta0)], which is
+ * (k/2)(theta - theta0)^2 + O((theta - theta0)^4) and smooth everywhere
+ * for theta0 = 0 or pi (straight chains); for other theta0 its gradient is
+ * singular where i, j, k are collinear (as every angle potential's).
+ * rest_angle theta0 in radians in [0, pi], or NAN for the initial angle.
+ * Returns the element index or a status < 0. */
+int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
+                         int particle_j, int particle_k, double stiffness,
+                         double rest_angle);
+
+/* Constant external force: potential -sum_j f[j] q[coords[j]] on n_terms
+ * coordinates (linear, like gravity; slow or fast by `potential`). */
+int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
+                         const int *coords, const double *f);
+
+/* Distance of particle i from particle j (j >= 0) or from the point anchor
+ * (j < 0; dimension entries) at the initial positions (rest_length
+ * "initial" of springs).  NAN for an invalid index. */
+double mrvi_model_initial_distance(const mrvi_model *m, int particle_i,
+                                   int particle_j, const double *anchor);
+
+/* Generators (doc/description-files.md, `generate:`): particles on a chain
+ * (along x), a ring (a regular polygon in the x-y plane), a planar or a
+ * cubic lattice, joined by springs between nearest neighbours.  A spring is
+ * fast only if both its ends are fast particles; it then takes the fast
+ * law, otherwise the slow one. */
+typedef enum mrvi_generator_kind {
+  MRVI_GEN_CHAIN = 0,
+  MRVI_GEN_RING = 1,
+  MRVI_GEN_LATTICE2D = 2,
+  MRVI_GEN_LATTICE3D = 3
+} mrvi_generator_kind;
+
+/* Which particles are slow; the others are fast. */
+typedef enum mrvi_rate_rule {
+  MRVI_RATES_ALL_SLOW = 0,
+  MRVI_RATES_ALL_FAST = 1,
+  MRVI_RATES_ALTERNATE = 2, /* slow where the index sum is even */
+  MRVI_RATES_EVERY = 3      /* slow where the linear index % every == 0 */
+} mrvi_rate_rule;
+
+typedef struct mrvi_spring_spec {
+  const char *law;                    /* NULL: no springs of this rate */
+  double params[MRVI_LAW_MAX_PARAMS]; /* law->n_params entries */
+  double rest_length;                 /* NAN: the spacing */
+} mrvi_spring_spec;
+
+typedef struct mrvi_generator {
+  mrvi_generator_kind kind;
+  const char *prefix;   /* names prefix0.. (chain, ring), prefixI_J(_K) */
+  int count[3];         /* chain/ring: count[0]; lattices: per axis */
+  double spacing;       /* nearest-neighbour distance > 0 */
+  double origin[3];     /* position of particle 0 (ring: its centre) */
+  double mass;          /* > 0, every particle */
+  mrvi_rate_rule rates;
+  int every;            /* for MRVI_RATES_EVERY, >= 1 */
+  mrvi_spring_spec slow, fast;
+  /* Optional (may be NULL): per particle (linear index, x fastest) and
+   * dimension entries: displacement from the lattice site, velocity. */
+  const double *displacement, *velocity;
+} mrvi_generator;
+
+/* Number of particles the generator makes, or a status < 0 with a message
+ * in msg when its counts are invalid (chain >= 2, ring >= 3, lattices >= 1
+ * per axis and >= 2 particles). */
+long mrvi_generator_particles(const mrvi_generator *g, char *msg, size_t len);
+/* Add the particles (after those already in m) and springs; counts (may be
+ * NULL) receive particles, slow particles, slow springs, fast springs.
+ * Returns the index of the first generated particle or a status < 0. */
+int mrvi_model_generate(mrvi_model *m, const mrvi_generator *g, int counts[4]);
+
 /* Name of the model (free text). */
 int mrvi_model_set_name(mrvi_model *m, const char *name);
 

@@ -186,6 +186,14 @@ run_mrvi check "$root/systems/spring_ring.yaml"
 contains "$out" '^coordinates +18 \(9 slow, 9 fast\)$' "spring ring: 18 coordinates, 9 slow, 9 fast"
 contains "$out" '^particles +6 in 3-D$' "spring ring: 6 particles in 3-D"
 contains "$out" '^slow +9: m1\.x, m1\.y, m1\.z, m3\.x' "spring ring: odd masses slow"
+contains "$out" '^  m2\.y +2 +-1\.2 +11\.4771$' "spring ring: mass, position, velocity of m2.y"
+
+# --- generators: counts in the notes, masses and initial velocities --------
+run_mrvi check "$root/systems/lattice.yaml"
+expect_rc 0 "check lattice.yaml"
+contains "$out" "^note: generate\.0: lattice2d 'p' generated 30 particles \(15 slow, 15 fast\), 49 springs \(37 slow, 12 fast\)$" \
+  "lattice: generated counts"
+contains "$out" '^  p2_2\.y +1 +2\.05 +0\.5$' "lattice: mass, position, velocity of p2_2.y"
 
 # --- constraints: check lists them with their nodes, settings, notes -------
 for sys in cart_pendulum spring_ring_rod triatomic pendulum_chain; do

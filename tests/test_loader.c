@@ -3,7 +3,7 @@
  * paper's set-ups (DESIGN §5), --set overrides reach the model and the
  * stored description, and constraints (DESIGN §6) are parsed, checked and
  * their initial velocities projected. */
-#include "internal.h" /* mrvi_model_defer_partition */
+#include "internal.h"
 #include "mrvi.h"
 #include "models.h"
 #include "testlib.h"
@@ -991,7 +991,6 @@ static char *lattice_text(int w, int h) {
 static mrvi_model *lattice_model(int w, int h) {
   mrvi_model *m = mrvi_model_create();
   mrvi_model_set_dimension(m, 2);
-  mrvi_model_defer_partition(m, 1); /* else quadratic in the particles */
   for (int k = 0; k < w * h; k++) {
     int x = k % w, y = k / w;
     char name[32];
@@ -999,10 +998,6 @@ static mrvi_model *lattice_model(int w, int h) {
     snprintf(name, sizeof name, "p%d", k);
     mrvi_model_add_particle(m, name, 1 + k % 3,
                             (x + y) % 2 ? MRVI_FAST : MRVI_SLOW, x0, v0);
-  }
-  if (mrvi_model_defer_partition(m, 0)) {
-    mrvi_model_free(m);
-    return NULL;
   }
   for (int k = 0; k < w * h; k++) {
     int x = k % w, y = k / w;
@@ -1183,6 +1178,184 @@ static void test_hostile_input(void) {
   }
 }
 
+/* ---------------------------------------------------------------------------
+ * Generators, angles, forces, rest_length: initial
+ * ------------------------------------------------------------------------- */
+
+/* Springs of model m by rate: counts[0] slow, counts[1] fast. */
+static void count_springs(const mrvi_model *m, int counts[2]) {
+  counts[0] = counts[1] = 0;
+  for (int e = 0; e < mrvi_model_n_elements(m); e++) {
+    char buf[512];
+    mrvi_model_describe_element(m, e, buf, sizeof buf);
+    if (!strncmp(buf, "slow spring", 11))
+      counts[0]++;
+    else if (!strncmp(buf, "fast spring", 11))
+      counts[1]++;
+  }
+}
+
+static void check_generated(const char *gen, int dim, int particles, int slow,
+                            int slow_springs, int fast_springs) {
+  char text[2048];
+  snprintf(text, sizeof text,
+           "name: g\ndimension: %d\ngenerate:\n  - %s\n"
+           "integrator: {macro_step: 0.1, t_end: 1}\n",
+           dim, gen);
+  mrvi_system *sys = load_text(text, NULL, 0);
+  if (!sys)
+    return;
+  const mrvi_model *m = sys->model;
+  int sp[2];
+  count_springs(m, sp);
+  CHECK(mrvi_model_n_particles(m) == particles, "%s: %d particles", gen,
+        mrvi_model_n_particles(m));
+  CHECK(mrvi_model_n_slow(m) == slow * dim, "%s: %d slow coordinates", gen,
+        mrvi_model_n_slow(m));
+  CHECK(sp[0] == slow_springs && sp[1] == fast_springs,
+        "%s: %d slow and %d fast springs", gen, sp[0], sp[1]);
+  char note[256];
+  snprintf(note, sizeof note, "%d particles (%d slow, %d fast), %d springs",
+           particles, slow, particles - slow, slow_springs + fast_springs);
+  CHECK(sys->notes && strstr(sys->notes, note), "%s: note '%s' in '%s'", gen,
+        note, sys->notes ? sys->notes : "");
+  mrvi_system_free(sys);
+}
+
+static void test_generators(void) {
+  const char *k = "spring: {law: linear, stiffness: 2}";
+  char g[512];
+  /* n x m lattice: n(m-1) + m(n-1) springs; checkerboard rates join a slow
+   * and a fast particle by every spring, so all springs are slow. */
+  snprintf(g, sizeof g,
+           "{kind: lattice2d, name: p, count: [3, 4], mass: 1, rates: "
+           "alternate, %s}",
+           k);
+  check_generated(g, 2, 12, 6, 3 * 3 + 4 * 2, 0);
+  /* n x m x l lattice: (n-1)ml + n(m-1)l + nm(l-1) springs, all fast. */
+  snprintf(g, sizeof g,
+           "{kind: lattice3d, name: c, count: [2, 3, 4], mass: 2, rates: "
+           "all_fast, %s}",
+           k);
+  check_generated(g, 3, 24, 0, 0, 1 * 12 + 2 * 2 * 4 + 6 * 3);
+  /* Ring of 7 with every third slow (0, 3, 6): 7 springs, fast only
+   * between 1-2 and 4-5. */
+  snprintf(g, sizeof g,
+           "{kind: ring, name: r, count: 7, mass: 1, rates: {every: 3}, %s}",
+           k);
+  check_generated(g, 2, 7, 3, 5, 2);
+  /* Chain of 10 alternating: 9 springs, all slow. */
+  snprintf(g, sizeof g,
+           "{kind: chain, name: q, count: 10, mass: 1, rates: alternate, %s}",
+           k);
+  check_generated(g, 1, 10, 5, 9, 0);
+  /* Ring geometry: neighbours at the spacing. */
+  mrvi_system *sys =
+      load_text("name: r\ndimension: 2\ngenerate:\n  - {kind: ring, name: r, "
+                "count: 5, spacing: 0.3, mass: 1}\n"
+                "integrator: {macro_step: 0.1, t_end: 1}\n",
+                NULL, 0);
+  if (sys) {
+    const double *q = mrvi_model_q0(sys->model);
+    for (int i = 0; i < 5; i++) {
+      const int j = (i + 1) % 5;
+      CHECK_NEAR(hypot(q[2 * i] - q[2 * j], q[2 * i + 1] - q[2 * j + 1]), 0.3,
+                 1e-14, "ring side");
+    }
+    mrvi_system_free(sys);
+  }
+}
+
+/* A generated chain is the same model as the chain written by hand. */
+static void test_generated_equals_hand(void) {
+  static const char gen[] =
+      "name: c\ndimension: 1\n"
+      "generate:\n"
+      "  - kind: chain\n    name: p\n    count: 4\n    spacing: 1.5\n"
+      "    origin: [0.5]\n    mass: 2\n    rates: {every: 3}\n"
+      "    slow_spring: {law: power, coefficient: 0.25, exponent: 4}\n"
+      "    fast_spring: {law: linear, stiffness: 100}\n"
+      "    initial:\n      - {index: 1, displacement: 0.25, velocity: -1}\n"
+      "integrator: {macro_step: 0.1, t_end: 1}\n";
+  static const char hand[] =
+      "name: c\ndimension: 1\n"
+      "particles:\n"
+      "  - {name: p0, mass: 2, position: 0.5, rate: slow}\n"
+      "  - {name: p1, mass: 2, position: 2.25, velocity: -1, rate: fast}\n"
+      "  - {name: p2, mass: 2, position: 3.5, rate: fast}\n"
+      "  - {name: p3, mass: 2, position: 5, rate: slow}\n"
+      "springs:\n"
+      "  - {between: [p0, p1], law: power, coefficient: 0.25, exponent: 4, "
+      "rest_length: 1.5}\n"
+      "  - {between: [p1, p2], law: linear, stiffness: 100, rest_length: 1.5, "
+      "potential: fast}\n"
+      "  - {between: [p2, p3], law: power, coefficient: 0.25, exponent: 4, "
+      "rest_length: 1.5}\n"
+      "integrator: {macro_step: 0.1, t_end: 1}\n";
+  mrvi_system *a = load_text(gen, NULL, 0), *b = load_text(hand, NULL, 0);
+  if (a && b) {
+    CHECK(mrvi_model_hash(a->model) == mrvi_model_hash(b->model),
+          "generated chain equals the hand-written chain");
+    CHECK(mrvi_model_n_elements(a->model) == 3, "3 springs");
+  }
+  mrvi_system_free(a);
+  mrvi_system_free(b);
+  /* Generated particles are names the rest of the file can use. */
+  mrvi_system *c = load_text(
+      "name: c\ndimension: 1\n"
+      "generate:\n  - {kind: chain, name: p, count: 3, mass: 1, spring: "
+      "{law: linear, stiffness: 1}}\n"
+      "springs:\n  - {between: [p0], anchor: [-1], law: linear, stiffness: 1, "
+      "rest_length: initial}\n"
+      "integrator: {macro_step: 0.1, t_end: 1}\n",
+      NULL, 0);
+  if (c) {
+    char buf[512];
+    mrvi_model_describe_element(c->model, 2, buf, sizeof buf);
+    CHECK(strstr(buf, "p0-anchor [-1], rest length 1,") != NULL,
+          "anchor spring on a generated particle: %s", buf);
+  }
+  mrvi_system_free(c);
+}
+
+static void test_angles_forces_rest(void) {
+  static const char text[] =
+      "name: t\ndimension: 2\n"
+      "particles:\n"
+      "  - {name: a, mass: 1, position: [3, 0]}\n"
+      "  - {name: b, mass: 1, position: [0, 0]}\n"
+      "  - {name: c, mass: 1, position: [0, 4]}\n"
+      "springs:\n"
+      "  - {between: [a, c], law: linear, stiffness: 1, rest_length: "
+      "initial}\n"
+      "angles:\n"
+      "  - {particles: [a, b, c], stiffness: 2}\n"
+      "  - {particles: [b, a, c], stiffness: 3, rest_angle: 1.0}\n"
+      "forces:\n"
+      "  - {particle: a, force: [1, -2]}\n"
+      "  - {coordinate: c.y, force: 0.5}\n"
+      "integrator: {macro_step: 0.1, t_end: 1}\n";
+  mrvi_system *sys = load_text(text, NULL, 0);
+  if (!sys)
+    return;
+  const mrvi_model *m = sys->model;
+  char buf[512];
+  CHECK(mrvi_model_n_elements(m) == 5, "5 elements");
+  mrvi_model_describe_element(m, 0, buf, sizeof buf);
+  CHECK(strstr(buf, "rest length 5,") != NULL, "rest_length initial: %s", buf);
+  mrvi_model_describe_element(m, 1, buf, sizeof buf);
+  CHECK(strstr(buf, "angle a-b-c, stiffness 2, rest angle 1.5708") != NULL,
+        "initial rest angle: %s", buf);
+  /* At q0: spring and first angle at rest; second angle at theta =
+   * atan(4/3) against 1.0; forces -f^T q = -(1*3 - 2*0) - 0.5*4. */
+  const double th = atan2(4.0, 3.0);
+  const double V =
+      mrvi_model_potential(m, MRVI_SLOW, mrvi_model_q0(m), NULL, NULL);
+  CHECK_NEAR(V, 3 * (1 - cos(th - 1.0)) - 3.0 - 2.0, 1e-13,
+             "potential of angles and forces at q0");
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_bad_files(&files);
@@ -1207,6 +1380,9 @@ int main(void) {
   test_hostile_input();
   test_large_lattice();
   test_long_set_path();
+  test_generators();
+  test_generated_equals_hand();
+  test_angles_forces_rest();
   test_cli_bad_files(files, n);
   for (int i = 0; i < n; i++)
     free(files[i]);
