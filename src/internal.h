@@ -188,6 +188,11 @@ typedef struct mrvi_step {
   int *c_off;                   /* per model constraint: row within its block */
   int r_slow, r_micro;          /* rows per block */
   double *cy, *cg, *cG, *cH;    /* constraint inputs, g, G, second derivs */
+  /* External (control) forces of the discrete Lagrange-d'Alembert
+   * principle (optimal control): f_rows (n_unknowns) is added to the
+   * dynamic rows of R, f_end (ns + nf) to p_{k+1}^s and p_{k+1}^{f,0}.
+   * NULL (the default) for none. */
+  const double *f_rows, *f_end;
 } mrvi_step;
 
 /* Point of constraint evaluation at node m (0..p) of the step: slow part
@@ -250,5 +255,10 @@ void mrvi_newton_free(mrvi_newton *nw);
 /* Factorise A (values Ax on the fixed pattern) and solve A dx = b. */
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
                       double *dx, char *msg, size_t len);
+/* Factorise A once and solve A^T x_i = b_i for nrhs right-hand sides
+ * (b, x: nrhs x n, row i contiguous); the adjoint of optimal control. */
+int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
+                                const double *b, double *x, char *msg,
+                                size_t len);
 
 #endif

@@ -70,3 +70,28 @@ int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
   }
   return MRVI_OK;
 }
+
+int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
+                                const double *b, double *x, char *msg,
+                                size_t len) {
+  void *numeric = NULL;
+  int st = umfpack_di_numeric(nw->Ap, nw->Ai, Ax, nw->symbolic, &numeric,
+                              nw->control, nw->info);
+  if (st != UMFPACK_OK) {
+    if (numeric)
+      umfpack_di_free_numeric(&numeric);
+    mrvi_fmt(msg, len, "UMFPACK numeric factorisation failed (status %d)",
+             st);
+    return MRVI_ESINGULAR;
+  }
+  const size_t n = (size_t)nw->n;
+  for (int i = 0; i < nrhs && st == UMFPACK_OK; i++)
+    st = umfpack_di_solve(UMFPACK_At, nw->Ap, nw->Ai, Ax, x + (size_t)i * n,
+                          b + (size_t)i * n, numeric, nw->control, nw->info);
+  umfpack_di_free_numeric(&numeric);
+  if (st != UMFPACK_OK) {
+    mrvi_fmt(msg, len, "UMFPACK transposed solve failed (status %d)", st);
+    return MRVI_ESINGULAR;
+  }
+  return MRVI_OK;
+}
