@@ -98,6 +98,49 @@ static void test_gradients(void) {
     }
 }
 
+/* Cart pendulum (slow cart on a plane, fast bob on a rod: constraints at
+ * macro and micro nodes) in both constraint forms. */
+static void test_gradients_constrained(void) {
+  const char *const *schemes = mrvi_scheme_names();
+  const int ps[2] = {1, 5};
+  const char *forms[2] = {"multipliers", "null-space"};
+  for (int is = 0; schemes[is]; is++)
+    for (int ip = 0; ip < 2; ip++)
+      for (int form = 0; form < 2; form++) {
+        mrvi_model *m = test_cart_pendulum();
+        mrvi_settings s = test_settings(schemes[is], 0.01, ps[ip], 0.04, 1e-13);
+        s.constraint_form = form ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+        s.constraint_tol = 1e-13;
+        mrvi_ocp *o = NULL;
+        char msg[300];
+        int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
+        CHECK(st == 0, "create: %s", msg);
+        if (st == 0) {
+          /* cart.x, cart.y slow (0, 1); bob.x, bob.y fast (3, 4) */
+          mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 2.0, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 0.5, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 1.5, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_tracking(o, 5, 3.0, -0.2);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 3, 0.0, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.0, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.0, 4.0);
+          char what[120];
+          mrvi_fmt(what, sizeof what, "cart pendulum %s p=%d %s", schemes[is],
+                   ps[ip], forms[form]);
+          check_gradients(o, what);
+        }
+        mrvi_ocp_free(o);
+        mrvi_model_free(m);
+      }
+}
+
 /* Slow free mass (and, if p > 1, an uncoupled fast oscillator). */
 static mrvi_model *double_integrator(double mass, int with_fast) {
   mrvi_model *m = mrvi_model_create();
@@ -154,6 +197,18 @@ static void test_double_integrator(void) {
     CHECK(fabs(J - JN) <= 1e-8 * JN,
           "double integrator p=%d: J = %.15g, J_N = %.15g (rel %.2e)", p, J, JN,
           fabs(J - JN) / JN);
+    mrvi_model_free(m);
+  }
+  /* The augmented-Lagrangian algorithms reach the same optimum (their
+   * penalty iteration stops at a looser tolerance). */
+  const mrvi_ocp_algorithm algs[2] = {MRVI_OCP_AUGLAG_LBFGS,
+                                      MRVI_OCP_AUGLAG_CCSAQ};
+  for (int a = 0; a < 2; a++) {
+    mrvi_model *m = double_integrator(mass, 0);
+    mrvi_settings s = test_settings("midpoint-midpoint", T / N, 1, T, 1e-12);
+    const double J = rest_to_rest(m, &s, d, algs[a], NULL);
+    CHECK(fabs(J - JN) <= 1e-6 * JN,
+          "double integrator algorithm %d: J = %.15g, J_N = %.15g", a, J, JN);
     mrvi_model_free(m);
   }
 }
@@ -234,10 +289,68 @@ static void test_dmoc_reference(void) {
   mrvi_model_free(m);
 }
 
+/* Gantry crane in the plane: slow cart on the line y = 0, fast bob on a
+ * rod of length 0.2 below it; the cart moves 0 -> 1 in T = 2 and cart and
+ * bob end at rest above each other.  Both constraint forms give the same
+ * optimum; the rod length holds to the constraint tolerance. */
+static void test_gantry(void) {
+  double J[2];
+  for (int form = 0; form < 2; form++) {
+    mrvi_model *m = mrvi_model_create();
+    mrvi_model_set_dimension(m, 2);
+    const double xc[2] = {0, 0}, xb[2] = {0, -0.2}, v0[2] = {0, 0};
+    const double g[2] = {0, -9.81}, ny[2] = {0, 1};
+    mrvi_model_add_particle(m, "cart", 1.0, MRVI_SLOW, xc, v0);
+    mrvi_model_add_particle(m, "bob", 0.1, MRVI_FAST, xb, v0);
+    mrvi_model_set_gravity(m, g);
+    mrvi_model_add_plane(m, 0, ny, 0.0);
+    mrvi_model_add_distance(m, 0, 1, NAN);
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.1, 5, 2.0, 1e-12);
+    s.constraint_form = form ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    s.constraint_tol = 1e-12;
+    mrvi_ocp *o = NULL;
+    char msg[300];
+    J[form] = NAN;
+    if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) == 0) {
+      mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 1.0, 0.0);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 2, 1.0, 0.0);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 2, 0.0, 0.0);
+      mrvi_ocp_set_tolerances(o, 1e-14, 1e-9);
+      const int n = mrvi_ocp_n_controls(o);
+      double *u = calloc((size_t)n, sizeof *u);
+      mrvi_ocp_result r;
+      const int st = mrvi_ocp_solve(o, u, &r);
+      CHECK(st == 0, "gantry %d: %s (%d evaluations, violation %.2e)", form,
+            mrvi_ocp_errmsg(o), r.evaluations, r.violation);
+      J[form] = r.cost;
+      /* Rod length at every macro node. */
+      const double *q = mrvi_ocp_q(o);
+      double worst = 0.0;
+      for (long k = 0; k <= mrvi_ocp_n_steps(o); k++) {
+        const double dx = q[4 * k + 2] - q[4 * k],
+                     dy = q[4 * k + 3] - q[4 * k + 1];
+        worst = fmax(worst, fabs(sqrt(dx * dx + dy * dy) - 0.2));
+      }
+      CHECK(worst <= 1e-11, "gantry %d: rod length error %.2e", form, worst);
+      free(u);
+    } else {
+      CHECK(0, "gantry create: %s", msg);
+    }
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+  CHECK(fabs(J[0] - J[1]) <= 1e-6 * fabs(J[0]),
+        "gantry: cost multipliers %.12g vs null-space %.12g", J[0], J[1]);
+}
+
 int main(void) {
   test_gradients();
+  test_gradients_constrained();
   test_double_integrator();
   test_oscillator_period();
   test_dmoc_reference();
+  test_gantry();
   return test_finish();
 }

@@ -19,27 +19,88 @@
 #include <stdlib.h>
 #include <string.h>
 
-void ocp_hessian(mrvi_ocp *o, long k, double *H) {
+/* z indices and coefficients of the (at most two) nodes that model
+ * coordinate idx interpolates at point pt. */
+static int znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt, int *zi,
+                  double *zc) {
+  const mrvi_model *m = o->model;
+  const int s = m->slot[idx], ns = o->ns, nf = o->nf;
+  if (m->rate[idx] == MRVI_SLOW) {
+    zi[0] = s;
+    zi[1] = ns + s;
+    zc[0] = pt->a0;
+    zc[1] = pt->a1;
+  } else {
+    zi[0] = 2 * ns + pt->m * nf + s;
+    zi[1] = zi[0] + nf;
+    zc[0] = pt->cA;
+    zc[1] = pt->cB;
+  }
+  return 2;
+}
+
+/* Constraint c at node point pt of step k: force -w G^T lambda (lambda at
+ * variable lv, if lv >= 0) into the node rows with its derivatives, and the
+ * equation g = 0 at row er (if er >= 0). */
+static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
+                           int er, double *J) {
+  mrvi_step *st = &o->step;
+  const mrvi_constraint *kc = &o->model->constraints[c];
+  const int n = kc->n_in, rows = kc->rows, nv = o->nv;
+  mrvi_step_constraint_eval(st, c, pt, o->x, lv >= 0);
+  /* Node coefficients: for a constraint node, cA = 1 at fast node m. */
+  int zi[MRVI_MAX_INPUTS][2];
+  double zc[MRVI_MAX_INPUTS][2];
+  for (int j = 0; j < n; j++) {
+    znodes(o, kc->in[j], pt, zi[j], zc[j]);
+    if (o->model->rate[kc->in[j]] == MRVI_FAST)
+      zc[j][1] = 0.0; /* node point: fast node m only */
+  }
+  for (int j = 0; j < n; j++)
+    for (int a = 0; a < 2; a++) {
+      if (zc[j][a] == 0.0)
+        continue;
+      const int zr = zi[j][a];
+      if (er >= 0)
+        for (int r = 0; r < rows; r++)
+          J[(er + r) * nv + zr] += zc[j][a] * st->cG[r * n + j];
+      if (lv < 0)
+        continue;
+      const double *lam = o->x + st->n_unknowns + (lv - o->nz);
+      for (int r = 0; r < rows; r++)
+        J[zr * nv + lv + r] -= pt->w * zc[j][a] * st->cG[r * n + j];
+      for (int l = 0; l < n; l++) {
+        double h = 0.0;
+        for (int r = 0; r < rows; r++)
+          h += lam[r] * st->cH[(r * n + j) * n + l];
+        for (int b = 0; b < 2; b++)
+          if (zc[l][b] != 0.0)
+            J[zr * nv + zi[l][b]] -= pt->w * zc[j][a] * zc[l][b] * h;
+      }
+    }
+}
+
+void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
   const mrvi_model *m = o->model;
   mrvi_step *st = &o->step;
-  const int ns = o->ns, nf = o->nf, p = o->p, nz = o->nz;
-  memset(H, 0, (size_t)nz * (size_t)nz * sizeof *H);
+  const int ns = o->ns, nf = o->nf, p = o->p, nv = o->nv;
+  memset(J, 0, (size_t)nv * (size_t)nv * sizeof *J);
   /* Kinetic: M/h [[1, -1], [-1, 1]] on every interval. */
   for (int s = 0; s < ns; s++) {
     const double a = m->mass[m->slow_index[s]] / st->dT;
-    H[s * nz + s] += a;
-    H[(ns + s) * nz + ns + s] += a;
-    H[s * nz + ns + s] -= a;
-    H[(ns + s) * nz + s] -= a;
+    J[s * nv + s] += a;
+    J[(ns + s) * nv + ns + s] += a;
+    J[s * nv + ns + s] -= a;
+    J[(ns + s) * nv + s] -= a;
   }
   for (int mm = 0; mm < p; mm++)
     for (int s = 0; s < nf; s++) {
       const double a = m->mass[m->fast_index[s]] / st->dt;
       const int i = 2 * ns + mm * nf + s, j = i + nf;
-      H[i * nz + i] += a;
-      H[j * nz + j] += a;
-      H[i * nz + j] -= a;
-      H[j * nz + i] -= a;
+      J[i * nv + i] += a;
+      J[j * nv + j] += a;
+      J[i * nv + j] -= a;
+      J[j * nv + i] -= a;
     }
   /* Potentials: -w c_a c_b hess Z at every evaluation point. */
   for (int c = 0; c < 2; c++)
@@ -53,18 +114,7 @@ void ocp_hessian(mrvi_ocp *o, long k, double *H) {
         int zi[MRVI_MAX_INPUTS][2];
         double zc[MRVI_MAX_INPUTS][2];
         for (int j = 0; j < n; j++) {
-          const int idx = e->in[j], s = m->slot[idx];
-          if (m->rate[idx] == MRVI_SLOW) {
-            zi[j][0] = s;
-            zi[j][1] = ns + s;
-            zc[j][0] = pt->a0;
-            zc[j][1] = pt->a1;
-          } else {
-            zi[j][0] = 2 * ns + pt->m * nf + s;
-            zi[j][1] = zi[j][0] + nf;
-            zc[j][0] = pt->cA;
-            zc[j][1] = pt->cB;
-          }
+          znodes(o, e->in[j], pt, zi[j], zc[j]);
           st->y[j] = zc[j][0] * o->Q[ocp_global(o, k, zi[j][0])] +
                      zc[j][1] * o->Q[ocp_global(o, k, zi[j][1])];
         }
@@ -74,10 +124,35 @@ void ocp_hessian(mrvi_ocp *o, long k, double *H) {
             const double h = pt->w * st->H[j * n + l];
             for (int a = 0; a < 2; a++)
               for (int b = 0; b < 2; b++)
-                H[zi[j][a] * nz + zi[l][b]] -= zc[j][a] * zc[l][b] * h;
+                J[zi[j][a] * nv + zi[l][b]] -= zc[j][a] * zc[l][b] * h;
           }
       }
     }
+  if (o->nl == 0)
+    return;
+  /* Constraints in the step's layout (internal.h, struct mrvi_step):
+   * slow-only: lambda at node 0 (weight dT), equation at q_{k+1}^s;
+   * micro-node: lambda^m at nodes 0..p-1 (weight dt), equations at nodes
+   * 1..p.  Variables and rows nz + (step index - n_unknowns). */
+  const int nz = o->nz;
+  for (int i = 0; i < st->n_slow_c; i++) {
+    const int c = st->slow_c[i], off = st->c_off[c];
+    const mrvi_point p0 = mrvi_step_node_point(st, 0, st->dT);
+    const mrvi_point p1 = mrvi_step_node_point(st, p, st->dT);
+    jac_constraint(o, c, &p0, nz + off, -1, J);
+    jac_constraint(o, c, &p1, -1, nz + off, J);
+  }
+  const int base = nz + st->r_slow, rm = st->r_micro;
+  for (int mm = 0; mm <= p; mm++) {
+    const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
+    for (int i = 0; i < st->n_micro_c; i++) {
+      const int c = st->micro_c[i], off = st->c_off[c];
+      if (mm < p)
+        jac_constraint(o, c, &pt, base + mm * rm + off, -1, J);
+      if (mm > 0)
+        jac_constraint(o, c, &pt, -1, base + (mm - 1) * rm + off, J);
+    }
+  }
 }
 
 /* Global index of the final node of coordinate c and its slot in p_N. */
@@ -153,6 +228,7 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
 /* Lazily sized adjoint workspace for nfun functionals. */
 static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   const size_t nn = (size_t)o->n_nodes, nu = (size_t)o->step.n_total;
+  (void)nu;
   const size_t npn = (size_t)(o->ns + o->nf), f = (size_t)nfun;
   free(o->r);
   free(o->mu);
@@ -161,7 +237,7 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
-  o->sol = calloc(f * nu + 1, sizeof(double));
+  o->sol = calloc(f * nu + nu + 1, sizeof(double));
   return o->r && o->mu && o->rhs && o->sol ? MRVI_OK : MRVI_ENOMEM;
 }
 
@@ -200,52 +276,64 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
       o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
   }
   double *H = o->H;
+  const int nv = o->nv, nl = o->nl, nt = st->n_total;
+  double *rloc = o->sol + (size_t)nfun * (size_t)nt; /* nl, see alloc */
   char msg[300];
   for (long k = N - 1; k >= 0; k--) {
-    ocp_hessian(o, k, H);
-    /* r -= H_k[:, final_k] mu[final_k] (final_k: q_{k+1}^s and fast node
-     * p, whose adjoints are known). */
-    for (int f = 0; f < nfun; f++) {
-      double *r = gQ + f * nn;
-      const double *mu = o->mu + f * nn;
-      for (int zz = ns; zz < nz; zz++) {
-        if (zz >= 2 * ns && zz < 2 * ns + p * nf)
-          continue;
-        const double mz = mu[ocp_global(o, k, zz)];
-        if (mz != 0.0)
-          for (int z = 0; z < nz; z++)
-            r[ocp_global(o, k, z)] -= H[z * nz + zz] * mz;
-      }
-    }
-    /* A_k^T mu_k = r[x_k] with the step Jacobian at the converged x_k. */
+    /* Step k's data and converged unknowns (x, lambda). */
     st->qs0 = o->Q + k * ns;
     st->qf0 = o->Q + (N + 1) * ns + k * p * nf;
     memcpy(o->x, o->Q + (k + 1) * ns, (size_t)ns * sizeof(double));
     memcpy(o->x + ns, o->Q + (N + 1) * ns + (k * p + 1) * nf,
            (size_t)(p * nf) * sizeof(double));
-    mrvi_step_assemble(st, o->x, o->R, 1);
+    memcpy(o->x + nu, o->Lam + k * nl, (size_t)nl * sizeof(double));
+    ocp_jacobian(o, k, H);
     for (int f = 0; f < nfun; f++) {
-      const double *r = gQ + f * nn;
-      double *b = o->rhs + (size_t)f * (size_t)nu;
+      double *r = gQ + f * nn;
+      const double *mu = o->mu + f * nn;
+      /* r -= J_k[final rows, :]^T mu[final] (final: q_{k+1}^s and fast
+       * node p, whose adjoints are known). */
+      for (int i = 0; i < nl; i++)
+        rloc[i] = 0.0;
+      for (int zz = ns; zz < nz; zz++) {
+        if (zz >= 2 * ns && zz < 2 * ns + p * nf)
+          continue;
+        const double mz = mu[ocp_global(o, k, zz)];
+        if (mz == 0.0)
+          continue;
+        for (int y = 0; y < nz; y++)
+          r[ocp_global(o, k, y)] -= H[zz * nv + y] * mz;
+        for (int y = 0; y < nl; y++)
+          rloc[y] -= H[zz * nv + nz + y] * mz;
+      }
+      /* Right-hand side on the step's unknowns (x_k, lambda_k). */
+      double *b = o->rhs + (size_t)f * (size_t)nt;
       for (int i = 0; i < ns; i++)
         b[i] = r[ocp_global(o, k, ns + i)];
       for (int i = 0; i < p * nf; i++)
         b[ns + i] = r[ocp_global(o, k, 2 * ns + nf + i)];
+      for (int i = 0; i < nl; i++)
+        b[nu + i] = rloc[i];
     }
-    s = mrvi_newton_solve_transpose(o->newton, st->Ax, nfun, o->rhs, o->sol,
-                                    msg, sizeof msg);
+    /* A_k^T mu_k = b with the step Jacobian at the converged step. */
+    mrvi_step_assemble(st, o->x, o->R, 1);
+    s = mrvi_newton_solve_transpose(o->newton_full ? o->newton_full : o->newton,
+                                    st->Ax, nfun, o->rhs, o->sol, msg,
+                                    sizeof msg);
     if (s < 0)
       return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);
-    /* mu on the equation nodes of step k; r -= H_k[:, eq_k] mu_k. */
+    /* mu on the equation nodes of step k; r -= J_k[rows_k, :]^T mu_k. */
     for (int f = 0; f < nfun; f++) {
       double *r = gQ + f * nn, *mu = o->mu + f * nn;
-      const double *x = o->sol + (size_t)f * (size_t)nu;
-      for (int i = 0; i < nu; i++) {
-        const int zz = i < ns ? i : 2 * ns + (i - ns); /* q_k^s, fast 0..p-1 */
-        mu[ocp_global(o, k, zz)] = x[i];
+      const double *x = o->sol + (size_t)f * (size_t)nt;
+      for (int i = 0; i < nt; i++) {
+        /* dynamic rows: q_k^s, fast nodes 0..p-1; then constraint rows */
+        const int row = i < ns ? i : (i < nu ? 2 * ns + (i - ns) : nz + i - nu);
+        if (row < nz)
+          mu[ocp_global(o, k, row)] = x[i];
         if (x[i] != 0.0)
-          for (int z = 0; z < nz; z++)
-            r[ocp_global(o, k, z)] -= H[z * nz + zz] * x[i];
+          for (int y = 0; y < nz; y++)
+            r[ocp_global(o, k, y)] -= H[row * nv + y] * x[i];
       }
     }
   }

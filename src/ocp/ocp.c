@@ -50,9 +50,10 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
     return MRVI_EMODEL;
   }
   if (m->n_constraints > 0) {
-    mrvi_fmt(msg, len,
-             "optimal control of constrained systems is not implemented yet");
-    return MRVI_EINVAL;
+    st = mrvi_constraints_check_positions(m, m->q0, s->constraint_tol,
+                                          "initial positions", NULL, msg, len);
+    if (st < 0)
+      return st;
   }
   mrvi_ocp *o = calloc(1, sizeof *o);
   if (!o) {
@@ -73,6 +74,8 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
   o->max_eval = 2000;
   if (mrvi_step_init(&o->step, m, s) < 0)
     goto oom;
+  o->nl = o->step.n_lambda;
+  o->nv = o->nz + o->nl;
   const size_t nu = (size_t)o->step.n_total, n = (size_t)m->n,
                N1 = (size_t)o->N + 1;
   o->x = dalloc(nu);
@@ -88,10 +91,12 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
   o->pf_k = dalloc(N1 * (size_t)o->nf);
   o->q_out = dalloc(N1 * n);
   o->p_out = dalloc(N1 * n);
-  o->H = dalloc((size_t)o->nz * (size_t)o->nz);
+  o->H = dalloc((size_t)o->nv * (size_t)o->nv);
+  o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
+  o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
   if (!o->x || !o->R || !o->dx || !o->f_rows || !o->f_end || !o->ps1 ||
       !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k || !o->q_out ||
-      !o->p_out || !o->H)
+      !o->p_out || !o->H || !o->Lam || !o->rhs_ns)
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
@@ -107,7 +112,11 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   if (!o)
     return;
   mrvi_newton_free(o->newton);
+  mrvi_nullspace_free(o->nullspace);
+  mrvi_newton_free(o->newton_full);
   mrvi_step_free(&o->step);
+  free(o->Lam);
+  free(o->rhs_ns);
   free(o->act);
   free(o->trk);
   free(o->term);
@@ -303,6 +312,62 @@ static double norm_inf(const double *v, int n) {
   return r;
 }
 
+/* Pattern, symbolic analysis (and null-space set-up) at the first step's
+ * predictor. */
+static int prepare(mrvi_ocp *o) {
+  mrvi_step *st = &o->step;
+  char msg[300];
+  if (mrvi_step_build_pattern(st, o->x) < 0)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  mrvi_step_assemble(st, o->x, o->R, 1);
+  if (o->settings.constraint_form == MRVI_FORM_NULL_SPACE && o->nl > 0) {
+    int s = mrvi_nullspace_create(st, &o->nullspace, msg, sizeof msg);
+    if (s == 0) {
+      mrvi_step_assemble(st, o->x, o->R, 0);
+      s = mrvi_nullspace_lambda(o->nullspace, st, o->x, o->R, msg, sizeof msg);
+    }
+    if (s < 0)
+      return mrvi_ocp_fail(o, s, "%s", msg);
+    mrvi_step_assemble(st, o->x, o->R, 1);
+    mrvi_nullspace_reduce(o->nullspace, st, o->R, o->rhs_ns);
+    o->newton =
+        mrvi_newton_create(st->n_unknowns, mrvi_nullspace_Ap(o->nullspace),
+                           mrvi_nullspace_Ai(o->nullspace),
+                           mrvi_nullspace_Ax(o->nullspace), msg, sizeof msg);
+  } else {
+    o->newton = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax, msg,
+                                   sizeof msg);
+  }
+  if (!o->newton)
+    return mrvi_ocp_fail(o, MRVI_ESINGULAR, "%s", msg);
+  /* The adjoint always solves with the saddle-point matrix of the
+   * multiplier form (same equations, same converged steps). */
+  if (o->nullspace) {
+    o->newton_full = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                                        msg, sizeof msg);
+    if (!o->newton_full)
+      return mrvi_ocp_fail(o, MRVI_ESINGULAR, "%s", msg);
+  }
+  o->ready = 1;
+  return MRVI_OK;
+}
+
+/* Residual and Jacobian at o->x (null-space form: lambda(x) first);
+ * *res gets max |R| over dynamic and constraint rows. */
+static int evaluate(mrvi_ocp *o, double *res, char *msg, size_t len) {
+  mrvi_step *st = &o->step;
+  if (o->nullspace) {
+    memset(o->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
+    mrvi_step_assemble(st, o->x, o->R, 0);
+    int s = mrvi_nullspace_lambda(o->nullspace, st, o->x, o->R, msg, len);
+    if (s < 0)
+      return s;
+  }
+  mrvi_step_assemble(st, o->x, o->R, 1);
+  *res = norm_inf(o->R, st->n_total);
+  return MRVI_OK;
+}
+
 int ocp_forward(mrvi_ocp *o, const double *u) {
   const mrvi_model *m = o->model;
   mrvi_step *st = &o->step;
@@ -311,6 +376,8 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
   const double dT = st->dT, dt = st->dt;
   double *Qs = o->Q, *Qf = o->Q + (N + 1) * ns;
   char msg[300];
+  int s0;
+  memset(o->x, 0, (size_t)st->n_total * sizeof(double));
   /* Initial state (q0, M v0). */
   for (int s = 0; s < ns; s++) {
     const int c = m->slow_index[s];
@@ -335,35 +402,36 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
       for (int s = 0; s < nf; s++)
         o->x[ns + (mm - 1) * nf + s] =
             st->qf0[s] + mm * dt * st->pf0[s] / m->mass[m->fast_index[s]];
-    if (!o->ready) {
-      if (mrvi_step_build_pattern(st, o->x) < 0)
-        return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
-      mrvi_step_assemble(st, o->x, o->R, 1);
-      o->newton = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax, msg,
-                                     sizeof msg);
-      if (!o->newton)
-        return mrvi_ocp_fail(o, MRVI_ESINGULAR, "%s", msg);
-      o->ready = 1;
-    }
+    if (!o->ready && (s0 = prepare(o)) < 0)
+      return s0;
     int it = 0;
-    mrvi_step_assemble(st, o->x, o->R, 1);
-    double res = norm_inf(o->R, st->n_total);
+    double res;
+    if ((s0 = evaluate(o, &res, msg, sizeof msg)) < 0)
+      return mrvi_ocp_fail(o, s0, "step %ld: %s", k + 1, msg);
     while (!(res <= o->settings.newton_tol)) {
       if (!isfinite(res) || it == o->settings.newton_max_iter)
         return mrvi_ocp_fail(o, isfinite(res) ? MRVI_ENEWTON : MRVI_ENONFINITE,
                              "step %ld: Newton did not converge (residual "
                              "%.3e after %d iterations)",
                              k + 1, res, it);
-      int s =
-          mrvi_newton_solve(o->newton, st->Ax, o->R, o->dx, msg, sizeof msg);
-      if (s < 0)
-        return mrvi_ocp_fail(o, s, "step %ld: %s", k + 1, msg);
-      for (int i = 0; i < st->n_total; i++)
+      if (o->nullspace) {
+        mrvi_nullspace_reduce(o->nullspace, st, o->R, o->rhs_ns);
+        s0 = mrvi_newton_solve(o->newton, mrvi_nullspace_Ax(o->nullspace),
+                               o->rhs_ns, o->dx, msg, sizeof msg);
+      } else {
+        s0 = mrvi_newton_solve(o->newton, st->Ax, o->R, o->dx, msg, sizeof msg);
+      }
+      if (s0 < 0)
+        return mrvi_ocp_fail(o, s0, "step %ld: %s", k + 1, msg);
+      const int nx = o->nullspace ? st->n_unknowns : st->n_total;
+      for (int i = 0; i < nx; i++)
         o->x[i] -= o->dx[i];
       it++;
-      mrvi_step_assemble(st, o->x, o->R, 1);
-      res = norm_inf(o->R, st->n_total);
+      if ((s0 = evaluate(o, &res, msg, sizeof msg)) < 0)
+        return mrvi_ocp_fail(o, s0, "step %ld: %s", k + 1, msg);
     }
+    memcpy(o->Lam + k * o->nl, o->x + st->n_unknowns,
+           (size_t)o->nl * sizeof(double));
     mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
     memcpy(Qs + (k + 1) * ns, o->x, (size_t)ns * sizeof(double));
     memcpy(Qf + (k * p + 1) * nf, o->x + ns, (size_t)(p * nf) * sizeof(double));

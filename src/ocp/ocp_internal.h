@@ -35,6 +35,7 @@ struct mrvi_ocp {
   mrvi_settings settings;
   long N;
   int p, ns, nf, nz; /* nz = 2 ns + (p+1) nf nodes of one step */
+  int nl, nv;        /* multipliers of a step; nv = nz + nl step variables */
   int n_act, n_trk, n_term, n_con, n_u;
   ocp_actuator *act;
   ocp_tracking *trk;
@@ -45,12 +46,16 @@ struct mrvi_ocp {
   /* Step solver. */
   mrvi_step step;
   mrvi_newton *newton;
+  mrvi_nullspace *nullspace; /* null-space form of the forward solve */
+  mrvi_newton *newton_full;  /* saddle-point matrix for the adjoint */
+  double *rhs_ns;            /* its reduced right-hand side */
   int ready;
   double *x, *R, *dx, *f_rows, *f_end, *ps1, *pf1;
   /* Trajectory: global nodes: slow (N+1) x ns, then fast (N p + 1) x nf. */
   long n_nodes;
   double *Q;
   double *pN;            /* final momenta ns + nf */
+  double *Lam;           /* multipliers of every step, N x nl */
   double *ps_k, *pf_k;   /* momenta p_k per step (N+1) x ns, (N+1) x nf */
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Adjoint workspace. */
@@ -72,7 +77,10 @@ long ocp_global(const mrvi_ocp *o, long k, int z);
 int ocp_forward(mrvi_ocp *o, const double *u);
 /* Control index of force entry fe in step k. */
 int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe);
-/* Dense Hessian (nz x nz) of L_d of step k at the stored trajectory. */
-void ocp_hessian(mrvi_ocp *o, long k, double *H);
+/* Dense Jacobian J (nv x nv) of the equations of step k in its variables
+ * v = (z_k, lambda_k) at the stored trajectory: rows 0..nz-1 are
+ * D_z of L_d^k - sum h lambda^T g (all nodes of the step), rows nz.. the
+ * step's constraint equations g (step row order). */
+void ocp_jacobian(mrvi_ocp *o, long k, double *J);
 
 #endif
