@@ -19,6 +19,15 @@ int mrvi_fail(char *msg, size_t len, int status, const char *fmt, ...)
  * prefix (suggest.c). */
 const char *mrvi_closest(const char *word, const char *const *cand, int n);
 
+/* Optimal control (src/ocp/ocp_loader.c): build a problem from the
+ * `control:` node of a description (path for file:line:col messages). */
+struct fy_node;
+struct mrvi_ocp;
+int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
+                   struct fy_node *control, const char *path,
+                   struct mrvi_ocp **out, double **u0, char *msg, size_t len);
+void mrvi_ocp_free(struct mrvi_ocp *o);
+
 /* Wall clock in seconds (monotonic). */
 double mrvi_clock(void);
 

@@ -758,7 +758,8 @@ static int opt_positive(loader *L, struct fy_node *map, const char *key,
 
 static const char *const top_keys[] = {
     "name",        "dimension", "gravity",     "particles",  "springs",
-    "coordinates", "terms",     "constraints", "integrator", "output"};
+    "coordinates", "terms",     "constraints", "integrator", "output",
+    "control" /* optimal control, read by src/ocp/ocp_loader.c */};
 static const char *const coordinate_keys[] = {"name", "mass", "position",
                                               "velocity", "rate"};
 static const char *const particle_keys[] = {"name", "mass", "position",
@@ -1805,6 +1806,14 @@ int mrvi_system_load_string(const char *text, const char *display_name,
     goto done;
   }
   st = interpret(&L);
+  /* The `control:` section (optimal control) is checked here too. */
+  struct fy_node *control = st ? NULL : get(fy_document_root(L.doc), "control");
+  if (control) {
+    struct mrvi_ocp *o = NULL;
+    st = mrvi_ocp_parse(L.sys->model, &L.sys->settings, control, L.path, &o,
+                        NULL, msg, len);
+    mrvi_ocp_free(o);
+  }
 
 done:
   if (st) {

@@ -181,6 +181,7 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
                               .upper = upper,
                               .offset = o->n_u,
                               .size = (int)(o->N * per)};
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s", o->model->names[c]);
   o->n_u += o->act[ia].size;
   /* Force template of one step (virtual work, see the file comment). */
   const mrvi_model *m = o->model;
@@ -263,6 +264,24 @@ int mrvi_ocp_actuator_offset(const mrvi_ocp *o, int a) {
   return o->act[a].offset;
 }
 int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a) { return o->act[a].size; }
+int mrvi_ocp_n_actuators(const mrvi_ocp *o) { return o->n_act; }
+const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a) {
+  return o->act[a].name;
+}
+int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a) {
+  return (int)o->act[a].grid;
+}
+const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a) {
+  static const char *const names[] = {"slsqp", "auglag-lbfgs", "auglag-mma",
+                                      "auglag-ccsaq"};
+  return a >= 0 && a <= MRVI_OCP_AUGLAG_CCSAQ ? names[a] : "unknown";
+}
+mrvi_ocp_algorithm mrvi_ocp_get_algorithm(const mrvi_ocp *o) {
+  return o->algorithm;
+}
+double mrvi_ocp_terminal_tolerance(const mrvi_ocp *o) {
+  return o->terminal_tol;
+}
 
 long ocp_global(const mrvi_ocp *o, long k, int z) {
   const int ns = o->ns, nf = o->nf;

@@ -113,6 +113,23 @@ const double *mrvi_ocp_p(const mrvi_ocp *o);
  * the control vector; number of values of actuator a. */
 int mrvi_ocp_actuator_offset(const mrvi_ocp *o, int a);
 int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a);
+/* Number of actuators; name (default: its coordinate's) and grid
+ * (mrvi_grid) of actuator a. */
+int mrvi_ocp_n_actuators(const mrvi_ocp *o);
+const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a);
+int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a);
+/* Name of an algorithm ("slsqp", "auglag-lbfgs", "auglag-mma",
+ * "auglag-ccsaq"); the problem's algorithm and terminal tolerance. */
+const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);
+mrvi_ocp_algorithm mrvi_ocp_get_algorithm(const mrvi_ocp *o);
+double mrvi_ocp_terminal_tolerance(const mrvi_ocp *o);
+
+/* Build the problem from the `control:` section of a loaded description
+ * (doc/optimal-control.md): actuators, objective, terminal conditions,
+ * solver settings.  *u0 (malloc'ed, n_controls) gets the initial guess.
+ * On failure MRVI_EPARSE with "file:line:col: message" in msg. */
+int mrvi_ocp_load(const mrvi_system *sys, mrvi_ocp **out, double **u0,
+                  char *msg, size_t len);
 
 #ifdef __cplusplus
 }

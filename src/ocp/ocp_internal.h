@@ -10,6 +10,7 @@ typedef struct ocp_actuator {
   mrvi_grid grid; /* MRVI_GRID_MACRO or MRVI_GRID_MICRO */
   double weight, lower, upper;
   int offset, size; /* in the control vector */
+  char name[64];    /* default: the coordinate's name */
 } ocp_actuator;
 
 typedef struct ocp_tracking {
