@@ -17,6 +17,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 
 /* Central-difference check of the cost and constraint gradients. */
 static void check_gradients(mrvi_ocp *o, const char *what) {
@@ -345,6 +346,41 @@ static void test_gantry(void) {
         "gantry: cost multipliers %.12g vs null-space %.12g", J[0], J[1]);
 }
 
+/* `mrvi optimize` on the shipped problems: exit 0 at the optimum, 2 when
+ * the optimiser stops before the terminal conditions hold, 1 for bad
+ * input. */
+static void test_cli(void) {
+  const char *bin = getenv("MRVI_BIN");
+  if (!bin) {
+    CHECK(0, "MRVI_BIN not set");
+    return;
+  }
+  struct {
+    const char *file, *extra;
+    int rc;
+  } cases[] = {
+      {"systems/ocp_double_integrator.yaml", "", 0},
+      {"systems/ocp_gantry_crane.yaml", "", 0},
+      {"systems/ocp_gantry_crane.yaml",
+       "--set integrator.constraints.form=null-space", 0},
+      {"systems/ocp_gantry_crane.yaml",
+       "--set control.solver.max_evaluations=2", 2},
+      {"tests/bad_input/control_bounds.yaml", "", 1},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    char cmd[2048];
+    snprintf(cmd, sizeof cmd,
+             "%s optimize %s -q -o test_ocp_cli.h5 %s "
+             ">/dev/null 2>&1",
+             bin, test_source_path(cases[i].file), cases[i].extra);
+    const int st = system(cmd);
+    const int rc = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+    CHECK(rc == cases[i].rc, "mrvi optimize %s %s: exit %d, expected %d",
+          cases[i].file, cases[i].extra, rc, cases[i].rc);
+  }
+  remove("test_ocp_cli.h5");
+}
+
 int main(void) {
   test_gradients();
   test_gradients_constrained();
@@ -352,5 +388,6 @@ int main(void) {
   test_oscillator_period();
   test_dmoc_reference();
   test_gantry();
+  test_cli();
   return test_finish();
 }

@@ -473,3 +473,26 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
   }
   return MRVI_OK;
 }
+
+void mrvi_ocp_lambda(const mrvi_ocp *o, long k, double *out) {
+  const mrvi_model *m = o->model;
+  const mrvi_step *st = &o->step;
+  const double *x = o->Lam + k * o->nl;
+  for (int i = 0; i < st->n_slow_c; i++) {
+    const mrvi_constraint *c = &m->constraints[st->slow_c[i]];
+    for (int r = 0; r < c->rows; r++)
+      out[c->first_row + r] = x[st->c_off[st->slow_c[i]] + r];
+  }
+  /* Micro-node constraints: the step average (1/p) sum_m lambda^m, as the
+   * integrator reports it. */
+  for (int i = 0; i < st->n_micro_c; i++) {
+    const int ci = st->micro_c[i];
+    const mrvi_constraint *c = &m->constraints[ci];
+    for (int r = 0; r < c->rows; r++) {
+      double sum = 0.0;
+      for (int mm = 0; mm < o->p; mm++)
+        sum += x[st->r_slow + mm * st->r_micro + st->c_off[ci] + r];
+      out[c->first_row + r] = sum / o->p;
+    }
+  }
+}

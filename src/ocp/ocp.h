@@ -109,6 +109,10 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res);
  * Valid until the next evaluation. */
 const double *mrvi_ocp_q(const mrvi_ocp *o);
 const double *mrvi_ocp_p(const mrvi_ocp *o);
+/* Multipliers of step k (0..N-1) of the last evaluation in the model's
+ * constraint-row order (micro-node constraints: the step average), as
+ * mrvi_integrator_lambda reports them; out has constraint_rows entries. */
+void mrvi_ocp_lambda(const mrvi_ocp *o, long k, double *out);
 /* Time of control j of actuator a (start of its interval) and its offset in
  * the control vector; number of values of actuator a. */
 int mrvi_ocp_actuator_offset(const mrvi_ocp *o, int a);
