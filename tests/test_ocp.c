@@ -381,6 +381,49 @@ static void test_cli(void) {
   remove("test_ocp_cli.h5");
 }
 
+/* Cost of the adjoint: one cost+gradient evaluation (forward sweep plus
+ * the backward sweep for the cost and two constraints) against the forward
+ * sweep alone, FPU with p = 10, N = 60.  Target <= 3; asserted <= 6 so a
+ * loaded machine does not fail the test. */
+static void test_adjoint_cost(void) {
+  const int ps[2] = {1, 10};
+  for (int ip = 0; ip < 2; ip++) {
+    mrvi_model *m = test_fpu();
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", 0.1, ps[ip], 6.0, 1e-11);
+    mrvi_ocp *o = NULL;
+    char msg[300];
+    if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) != 0) {
+      CHECK(0, "create: %s", msg);
+      mrvi_model_free(m);
+      return;
+    }
+    mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+    mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.0, 0.0);
+    mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+    const int n = mrvi_ocp_n_controls(o);
+    double *u = calloc((size_t)n, sizeof *u), *g = calloc((size_t)n, sizeof *g);
+    double *cg = calloc((size_t)(2 * n), sizeof *cg), c[2], J;
+    double tf = 1e30, ta = 1e30;
+    for (int r = 0; r < 5; r++) {
+      double t0 = mrvi_clock();
+      mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+      tf = fmin(tf, mrvi_clock() - t0);
+      t0 = mrvi_clock();
+      mrvi_ocp_evaluate(o, u, &J, g, c, cg);
+      ta = fmin(ta, mrvi_clock() - t0);
+    }
+    CHECK(ta <= 6.0 * tf,
+          "FPU p=%d N=60: cost+gradient %.3g ms = %.2f x forward %.3g ms",
+          ps[ip], 1e3 * ta, ta / tf, 1e3 * tf);
+    free(u);
+    free(g);
+    free(cg);
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+}
+
 int main(void) {
   test_gradients();
   test_gradients_constrained();
@@ -389,5 +432,6 @@ int main(void) {
   test_dmoc_reference();
   test_gantry();
   test_cli();
+  test_adjoint_cost();
   return test_finish();
 }
