@@ -685,6 +685,9 @@ int main(int argc, char **argv) {
     fputs(u, stdout);
     return 0;
   }
+  for (int i = 2; !strcmp(cmd, "run") && i < argc; i++)
+    if (!strncmp(argv[i], "--controls", 10)) /* replay (cli_optimize.c) */
+      return mrvi_cmd_optimize(argc - 1, argv + 1);
   if (!strcmp(cmd, "run"))
     return cmd_run(argc - 2, argv + 2);
   if (!strcmp(cmd, "check"))

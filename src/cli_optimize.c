@@ -33,6 +33,10 @@ const char mrvi_usage_optimize[] =
     "  -q, --quiet            no per-iteration lines\n"
     "  -h, --help             show this help\n"
     "\n"
+    "Replay: `mrvi run FILE --controls OPT.h5 [-o OUT.h5]` runs the stored\n"
+    "controls /control/u of OPT.h5 through the discrete equations of FILE,\n"
+    "writes the trajectory and checks the terminal conditions.\n"
+    "\n"
     "Exit status: 0 success, 1 invalid input, 2 the optimiser failed or the\n"
     "terminal conditions are not met to control.solver.terminal_tolerance.\n";
 
@@ -239,8 +243,112 @@ static char *default_output(const mrvi_system *sys) {
   return s;
 }
 
+/* Controls stored by `mrvi optimize` (/control/u) into the control vector
+ * of o; 0 or -1 with a message. */
+static int read_controls(const char *path, const mrvi_ocp *o, double *u,
+                         char *msg, size_t len) {
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) {
+    mrvi_fmt(msg, len, "cannot open '%s'", path);
+    return -1;
+  }
+  int rc = -1;
+  hid_t d = H5Dopen2(f, "/control/u", H5P_DEFAULT);
+  hid_t sp = d >= 0 ? H5Dget_space(d) : -1;
+  hsize_t dims[2] = {0, 0};
+  const int na = mrvi_ocp_n_actuators(o);
+  const long N = mrvi_ocp_n_steps(o);
+  if (sp < 0 || H5Sget_simple_extent_ndims(sp) != 2 ||
+      H5Sget_simple_extent_dims(sp, dims, NULL) < 0) {
+    mrvi_fmt(msg, len, "'%s' has no 2-D /control/u", path);
+  } else if ((int)dims[1] != na || dims[0] == 0 || dims[0] % (hsize_t)N) {
+    mrvi_fmt(msg, len,
+             "/control/u of '%s' is %llu x %llu; the problem has %d "
+             "actuators on %ld macro steps",
+             path, (unsigned long long)dims[0], (unsigned long long)dims[1], na,
+             N);
+  } else {
+    double *U = malloc((size_t)(dims[0] * dims[1]) * sizeof *U);
+    if (U &&
+        H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, U) >= 0) {
+      const long pt = (long)dims[0] / N;
+      rc = 0;
+      for (int a = 0; a < na && rc == 0; a++) {
+        const int micro = mrvi_ocp_actuator_grid(o, a) == MRVI_GRID_MICRO;
+        const int size = mrvi_ocp_actuator_size(o, a);
+        if (micro && size != (int)dims[0]) {
+          mrvi_fmt(msg, len, "actuator '%s' needs %d values, '%s' has %llu",
+                   mrvi_ocp_actuator_name(o, a), size, path,
+                   (unsigned long long)dims[0]);
+          rc = -1;
+        }
+        for (int j = 0; rc == 0 && j < size; j++)
+          u[mrvi_ocp_actuator_offset(o, a) + j] =
+              U[(micro ? j : j * pt) * na + a];
+      }
+    } else {
+      mrvi_fmt(msg, len, "cannot read /control/u of '%s'", path);
+    }
+    free(U);
+  }
+  if (sp >= 0)
+    H5Sclose(sp);
+  if (d >= 0)
+    H5Dclose(d);
+  H5Fclose(f);
+  return rc;
+}
+
+/* mrvi run FILE --controls STORED.h5 [-o OUT.h5] [--set ...]: replay. */
+static int replay(const char *file, const char *controls, const char *out,
+                  const char **ov, int n_ov) {
+  static char msg[8192];
+  mrvi_system *sys = NULL;
+  if (mrvi_system_load(file, ov, n_ov, &sys, msg, sizeof msg) < 0) {
+    fprintf(stderr, "%s\n", msg);
+    return 1;
+  }
+  mrvi_ocp *o = NULL;
+  double *u = NULL;
+  int rc = 1;
+  if (mrvi_ocp_load(sys, &o, &u, msg, sizeof msg) < 0 ||
+      read_controls(controls, o, u, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi run: %s\n", msg);
+    goto done;
+  }
+  const int nc = mrvi_ocp_n_constraints(o);
+  double J, *c = calloc((size_t)nc + 1, sizeof *c);
+  rc = 2;
+  if (c && mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) == 0) {
+    double viol = 0.0;
+    for (int i = 0; i < nc; i++)
+      viol = fmax(viol, fabs(c[i]));
+    const char *dst = out ? out : sys->output_file;
+    if (write_trajectory(dst, sys, o, msg, sizeof msg) < 0) {
+      fprintf(stderr, "mrvi run: writing '%s' failed: %s\n", dst, msg);
+    } else {
+      const int met = viol <= mrvi_ocp_terminal_tolerance(o);
+      printf("%s: replayed the controls of %s\n", file, controls);
+      printf("  %-22s%.12e\n", "cost", J);
+      printf("  %-22s%.3e (tolerance %.1e)%s\n", "terminal violation", viol,
+             mrvi_ocp_terminal_tolerance(o), met ? "" : " NOT MET");
+      printf("  %-22s%s\n", "output", dst);
+      rc = met ? 0 : 2;
+    }
+  } else {
+    fprintf(stderr, "mrvi run: %s\n", mrvi_ocp_errmsg(o));
+  }
+  free(c);
+done:
+  free(u);
+  mrvi_ocp_free(o);
+  mrvi_system_free(sys);
+  return rc;
+}
+
 int mrvi_cmd_optimize(int argc, char **argv) {
-  const char *file = NULL, *out = NULL;
+  const char *file = NULL, *out = NULL, *controls = NULL;
+  const int is_run = !strcmp(argv[0], "run"); /* mrvi run --controls */
   const char **ov = calloc((size_t)argc + 1, sizeof *ov);
   int n_ov = 0, quiet = 0;
   if (!ov)
@@ -259,6 +367,10 @@ int mrvi_cmd_optimize(int argc, char **argv) {
       out = a + 9;
     } else if ((!strcmp(a, "-s") || !strcmp(a, "--set")) && i + 1 < argc) {
       ov[n_ov++] = argv[++i];
+    } else if (is_run && !strcmp(a, "--controls") && i + 1 < argc) {
+      controls = argv[++i];
+    } else if (is_run && !strncmp(a, "--controls=", 11)) {
+      controls = a + 11;
     } else if (!strncmp(a, "--set=", 6)) {
       ov[n_ov++] = a + 6;
     } else if (a[0] == '-' && a[1]) {
@@ -278,6 +390,11 @@ int mrvi_cmd_optimize(int argc, char **argv) {
     fprintf(stderr, "mrvi optimize: missing FILE\n%s", mrvi_usage_optimize);
     free(ov);
     return 1;
+  }
+  if (is_run) {
+    const int rc = replay(file, controls, out, ov, n_ov);
+    free(ov);
+    return rc;
   }
   static char msg[8192];
   mrvi_system *sys = NULL;

