@@ -238,7 +238,8 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  return o->r && o->mu && o->rhs && o->sol ? MRVI_OK : MRVI_ENOMEM;
+  o->nfun_alloc = o->r && o->mu && o->rhs && o->sol ? nfun : 0;
+  return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
 }
 
 int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
@@ -251,7 +252,7 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     return s;
   const int nfun = 1 + o->n_con, npn = o->ns + o->nf, nz = o->nz;
   const long nn = o->n_nodes;
-  if (!o->r && adjoint_alloc(o, nfun) < 0)
+  if (nfun != o->nfun_alloc && adjoint_alloc(o, nfun) < 0)
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
   double *gQ = o->r, *val = o->r + (size_t)nfun * (size_t)nn;
   double *gp = val + nfun, *gu = gp + (size_t)nfun * (size_t)npn;

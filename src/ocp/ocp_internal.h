@@ -61,6 +61,7 @@ struct mrvi_ocp {
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
+  int nfun_alloc; /* functionals the adjoint workspace is sized for */
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
   double ftol_rel, terminal_tol;
