@@ -120,10 +120,11 @@ int main(int argc, char **argv) {
     for (int N = 50; N <= 1 << 20; N *= 2) {
       char a[64];
       snprintf(a, sizeof a, "integrator.macro_step=%.17g", 2.0 / N);
-      const char *ov[3] = {a, "integrator.micro_steps=1",
-                           "control.solver.terminal_tolerance=1e-8"};
+      const char *ov[4] = {a, "integrator.micro_steps=1",
+                           "control.solver.terminal_tolerance=1e-8",
+                           "control.solver.tolerance=1e-10"};
       row r;
-      if (bench(files[0], ov, 3, alg, &r) < 0)
+      if (bench(files[0], ov, 4, alg, &r) < 0)
         return 1;
       printf("  %-14s N = %7d: %5d evaluations, %8.3f s, %s\n",
              mrvi_ocp_algorithm_name((mrvi_ocp_algorithm)alg), N, r.evals,
