@@ -44,6 +44,7 @@ typedef enum mrvi_ocp_terminal_kind {
  * initial state is the model's (q0, M v0). */
 int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
                     char *msg, size_t len);
+/* Free a problem (NULL is accepted). */
 void mrvi_ocp_free(mrvi_ocp *o);
 /* Message of the last failure on o. */
 const char *mrvi_ocp_errmsg(const mrvi_ocp *o);
