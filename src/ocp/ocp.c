@@ -15,6 +15,7 @@
  * p_{k+1}. */
 #include "ocp/ocp_internal.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -427,7 +428,22 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     double res;
     if ((s0 = evaluate(o, &res, msg, sizeof msg)) < 0)
       return mrvi_ocp_fail(o, s0, "step %ld: %s", k + 1, msg);
-    while (!(res <= o->settings.newton_tol)) {
+    /* Roundoff floor of the residual (as in the integrator): its rows
+     * subtract momenta of size M |q| / dt. */
+    double scale = 0.0;
+    for (int i = 0; i < ns; i++)
+      scale = fmax(scale, fabs(st->ps0[i]) +
+                              m->mass[m->slow_index[i]] *
+                                  (fabs(st->qs0[i]) + fabs(o->x[i])) / dT);
+    for (int i = 0; i < nf; i++) {
+      double qm = fabs(st->qf0[i]);
+      for (int mm = 1; mm <= p; mm++)
+        qm = fmax(qm, fabs(o->x[ns + (mm - 1) * nf + i]));
+      scale = fmax(scale, fabs(st->pf0[i]) +
+                              4.0 * m->mass[m->fast_index[i]] * qm / dt);
+    }
+    const double tol = fmax(o->settings.newton_tol, 16.0 * DBL_EPSILON * scale);
+    while (!(res <= tol)) {
       if (!isfinite(res) || it == o->settings.newton_max_iter)
         return mrvi_ocp_fail(o, isfinite(res) ? MRVI_ENEWTON : MRVI_ENONFINITE,
                              "step %ld: Newton did not converge (residual "
