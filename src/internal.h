@@ -20,11 +20,14 @@ int mrvi_fail(char *msg, size_t len, int status, const char *fmt, ...)
 const char *mrvi_closest(const char *word, const char *const *cand, int n);
 
 /* Optimal control (src/ocp/ocp_loader.c): build a problem from the
- * `control:` node of a description (path for file:line:col messages). */
+ * `control:` node of a description (path for file:line:col messages;
+ * override_of, if not NULL, names the --set override that made a node). */
 struct fy_node;
 struct mrvi_ocp;
+typedef const char *(*mrvi_override_of)(const void *ctx, struct fy_node *n);
 int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
                    struct fy_node *control, const char *path,
+                   mrvi_override_of override_of, const void *ctx,
                    struct mrvi_ocp **out, double **u0, char *msg, size_t len);
 void mrvi_ocp_free(struct mrvi_ocp *o);
 

@@ -89,6 +89,9 @@ static const char *override_of(const loader *L, struct fy_node *n) {
         return L->ov[i].text;
   return NULL;
 }
+static const char *loader_override_of(const void *L, struct fy_node *n) {
+  return override_of(L, n);
+}
 
 static int token_position(struct fy_token *t, int *line, int *col) {
   const struct fy_mark *m = t ? fy_token_start_mark(t) : NULL;
@@ -1810,8 +1813,8 @@ int mrvi_system_load_string(const char *text, const char *display_name,
   struct fy_node *control = st ? NULL : get(fy_document_root(L.doc), "control");
   if (control) {
     struct mrvi_ocp *o = NULL;
-    st = mrvi_ocp_parse(L.sys->model, &L.sys->settings, control, L.path, &o,
-                        NULL, msg, len);
+    st = mrvi_ocp_parse(L.sys->model, &L.sys->settings, control, L.path,
+                        loader_override_of, &L, &o, NULL, msg, len);
     mrvi_ocp_free(o);
   }
 

@@ -22,6 +22,8 @@ typedef struct parser {
   const mrvi_model *m;
   char *msg;
   size_t len;
+  mrvi_override_of override_of;
+  const void *ctx;
 } parser;
 
 /* 1-based position of n: its token, or its first key / item. */
@@ -52,9 +54,13 @@ fail(parser *P, struct fy_node *at, const char *fmt, ...) {
   va_start(ap, fmt);
   mrvi_vfmt(text, sizeof text, fmt, ap);
   va_end(ap);
+  const char *ov = P->override_of ? P->override_of(P->ctx, at) : NULL;
   int line = 1, col = 1;
   position(at, &line, &col);
-  mrvi_fmt(P->msg, P->len, "%s:%d:%d: %s", P->path, line, col, text);
+  if (ov)
+    mrvi_fmt(P->msg, P->len, "--set %s: %s", ov, text);
+  else
+    mrvi_fmt(P->msg, P->len, "%s:%d:%d: %s", P->path, line, col, text);
   return MRVI_EPARSE;
 }
 
@@ -329,9 +335,10 @@ static int load_solver(parser *P, struct fy_node *map, mrvi_ocp *o) {
 }
 
 int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
-                   struct fy_node *control, const char *path, mrvi_ocp **out,
-                   double **u0, char *msg, size_t len) {
-  parser P = {path, m, msg, len};
+                   struct fy_node *control, const char *path,
+                   mrvi_override_of override_of, const void *ctx,
+                   mrvi_ocp **out, double **u0, char *msg, size_t len) {
+  parser P = {path, m, msg, len, override_of, ctx};
   *out = NULL;
   if (u0)
     *u0 = NULL;
@@ -390,8 +397,8 @@ int mrvi_ocp_load(const mrvi_system *sys, mrvi_ocp **out, double **u0,
              sys->path);
     st = MRVI_EPARSE;
   } else {
-    st = mrvi_ocp_parse(sys->model, &sys->settings, control, sys->path, out, u0,
-                        msg, len);
+    st = mrvi_ocp_parse(sys->model, &sys->settings, control, sys->path, NULL,
+                        NULL, out, u0, msg, len);
   }
   fy_document_destroy(doc);
   return st;
