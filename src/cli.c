@@ -39,6 +39,7 @@ static const char usage_main[] =
     "Commands:\n"
     "  run FILE         integrate a description file and write an HDF5 file\n"
     "  check FILE       validate a description file and print the model\n"
+    "  optimize FILE    optimal control of the `control:` section (NLopt)\n"
     "  help [COMMAND]   show this help or the help of a command\n"
     "\n"
     "Studies (paper §5-§6; each prints a table and writes it to HDF5):\n"
@@ -678,8 +679,12 @@ static int cmd_run(int argc, char **argv) {
 /* ---------------------------------------------------------------------------
  * main
  * ------------------------------------------------------------------------- */
-static const char *const commands[] = {
-    "run", "check", "help", "converge", "stability", "timing", NULL};
+static const char *const commands[] = {"run",      "check",     "help",
+                                       "converge", "stability", "timing",
+                                       "optimize", NULL};
+/* Optimal control (cli_optimize.c). */
+int mrvi_cmd_optimize(int argc, char **argv);
+extern const char mrvi_usage_optimize[];
 static const char *const global_options[] = {"--help", "--version", NULL};
 
 static int unknown_command(const char *cmd) {
@@ -707,6 +712,8 @@ static const char *command_usage(const char *cmd) {
     return mrvi_usage_stability;
   if (!strcmp(cmd, "timing"))
     return mrvi_usage_timing;
+  if (!strcmp(cmd, "optimize"))
+    return mrvi_usage_optimize;
   return NULL;
 }
 
@@ -740,6 +747,9 @@ int main(int argc, char **argv) {
     fputs(u, stdout);
     return 0;
   }
+  for (int i = 2; !strcmp(cmd, "run") && i < argc; i++)
+    if (!strncmp(argv[i], "--controls", 10)) /* replay (cli_optimize.c) */
+      return mrvi_cmd_optimize(argc - 1, argv + 1);
   if (!strcmp(cmd, "run"))
     return cmd_run(argc - 2, argv + 2);
   if (!strcmp(cmd, "check"))
@@ -751,5 +761,7 @@ int main(int argc, char **argv) {
     return mrvi_cmd_stability(argc - 1, argv + 1);
   if (!strcmp(cmd, "timing"))
     return mrvi_cmd_timing(argc - 1, argv + 1);
+  if (!strcmp(cmd, "optimize"))
+    return mrvi_cmd_optimize(argc - 1, argv + 1);
   return unknown_command(cmd);
 }

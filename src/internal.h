@@ -23,6 +23,18 @@ int mrvi_fail(char *msg, size_t len, int status, const char *fmt, ...)
  * prefix (suggest.c). */
 const char *mrvi_closest(const char *word, const char *const *cand, int n);
 
+/* Optimal control (src/ocp/ocp_loader.c): build a problem from the
+ * `control:` node of a description (path for file:line:col messages;
+ * override_of, if not NULL, names the --set override that made a node). */
+struct fy_node;
+struct mrvi_ocp;
+typedef const char *(*mrvi_override_of)(const void *ctx, struct fy_node *n);
+int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
+                   struct fy_node *control, const char *path,
+                   mrvi_override_of override_of, const void *ctx,
+                   struct mrvi_ocp **out, double **u0, char *msg, size_t len);
+void mrvi_ocp_free(struct mrvi_ocp *o);
+
 /* Wall clock in seconds (monotonic). */
 double mrvi_clock(void);
 
@@ -203,6 +215,11 @@ typedef struct mrvi_step {
   int *c_off;                   /* per model constraint: row within its block */
   int r_slow, r_micro;          /* rows per block */
   double *cy, *cg, *cG, *cH;    /* constraint inputs, g, G, second derivs */
+  /* External (control) forces of the discrete Lagrange-d'Alembert
+   * principle (optimal control): f_rows (n_unknowns) is added to the
+   * dynamic rows of R, f_end (ns + nf) to p_{k+1}^s and p_{k+1}^{f,0}.
+   * NULL (the default) for none. */
+  const double *f_rows, *f_end;
 } mrvi_step;
 
 /* Point of constraint evaluation at node m (0..p) of the step: slow part
@@ -265,6 +282,11 @@ void mrvi_newton_free(mrvi_newton *nw);
 /* Factorise A (values Ax on the fixed pattern) and solve A dx = b. */
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
                       double *dx, char *msg, size_t len);
+/* Factorise A once and solve A^T x_i = b_i for nrhs right-hand sides
+ * (b, x: nrhs x n, row i contiguous); the adjoint of optimal control. */
+int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
+                                const double *b, double *x, char *msg,
+                                size_t len);
 
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).

@@ -106,6 +106,9 @@ static const char *override_of(const loader *L, struct fy_node *n) {
         return L->ov[i].text;
   return NULL;
 }
+static const char *loader_override_of(const void *L, struct fy_node *n) {
+  return override_of(L, n);
+}
 
 static int token_position(struct fy_token *t, int *line, int *col) {
   const struct fy_mark *m = t ? fy_token_start_mark(t) : NULL;
@@ -873,7 +876,8 @@ static int opt_positive(loader *L, struct fy_node *map, const char *key,
 static const char *const top_keys[] = {
     "name",        "dimension", "gravity",     "particles",  "springs",
     "coordinates", "terms",     "constraints", "integrator", "output",
-    "angles",      "forces",    "generate"};
+    "angles",      "forces",    "generate",
+    "control" /* optimal control, read by src/ocp/ocp_loader.c */};
 static const char *const coordinate_keys[] = {"name", "mass", "position",
                                               "velocity", "rate"};
 static const char *const particle_keys[] = {"name", "mass", "position",
@@ -2489,6 +2493,14 @@ int mrvi_system_load_string(const char *text, const char *display_name,
     goto done;
   }
   st = interpret(&L);
+  /* The `control:` section (optimal control) is checked here too. */
+  struct fy_node *control = st ? NULL : get(fy_document_root(L.doc), "control");
+  if (control) {
+    struct mrvi_ocp *o = NULL;
+    st = mrvi_ocp_parse(L.sys->model, &L.sys->settings, control, L.path,
+                        loader_override_of, &L, &o, NULL, msg, len);
+    mrvi_ocp_free(o);
+  }
 
 done:
   if (st) {

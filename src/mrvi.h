@@ -37,7 +37,8 @@ extern "C" {
   X(MRVI_ESINGULAR, -6, "singular Newton matrix")                            \
   X(MRVI_EIO, -7, "input/output error")                                      \
   X(MRVI_EINTERRUPTED, -8, "run interrupted")                                \
-  X(MRVI_ENONFINITE, -9, "non-finite value")
+  X(MRVI_ENONFINITE, -9, "non-finite value")                                \
+  X(MRVI_EOPTIMIZE, -10, "optimisation failed")
 
 enum mrvi_status {
 #define MRVI_STATUS_ENUM(name, code, msg) name = code,

@@ -389,6 +389,9 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
     st->n_trip = 0;
   }
   assemble_kinetic(st, x, R, jac);
+  if (st->f_rows)
+    for (int i = 0; i < st->n_unknowns; i++)
+      R[i] += st->f_rows[i];
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
@@ -501,6 +504,12 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
         }
       }
     }
+  if (st->f_end) {
+    for (int s = 0; s < ns; s++)
+      ps1[s] += st->f_end[s];
+    for (int s = 0; s < nf; s++)
+      pf[(p - 1) * nf + s] += st->f_end[ns + s];
+  }
   /* Constraint forces of the interior micro nodes on q_{k+1}^s:
    * -dt (m/p) G_s(z^m)^T lambda^m. */
   const double *lam = x + st->n_unknowns + st->r_slow;

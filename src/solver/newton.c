@@ -86,3 +86,16 @@ int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
   const int st = mrvi_newton_factor(nw, Ax, msg, len);
   return st < 0 ? st : mrvi_linsolve_solve(nw, Ax, 0, b, dx, msg, len);
 }
+
+/* Solve A^T x_i = b_i for nrhs right-hand sides (columns of length n),
+ * through the same factorisation and solve as the Newton updates. */
+int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
+                                const double *b, double *x, char *msg,
+                                size_t len) {
+  int st = mrvi_newton_factor(nw, Ax, msg, len);
+  const size_t n = (size_t)nw->n;
+  for (int i = 0; i < nrhs && st == MRVI_OK; i++)
+    st = mrvi_linsolve_solve(nw, Ax, 1, b + (size_t)i * n, x + (size_t)i * n,
+                             msg, len);
+  return st;
+}

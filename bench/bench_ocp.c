@@ -1,0 +1,143 @@
+/* Optimal control timings (doc/optimal-control.md):
+ *   1. shipped problems at growing N and p: optimiser evaluations, time of
+ *      one cost+gradient evaluation relative to one forward sweep (target
+ *      <= 3), total time;
+ *   2. the largest number of controls each algorithm solves within a time
+ *      budget (default 60 s per solve), doubling N on the double
+ *      integrator.
+ * Usage: bench_ocp [--budget SECONDS]   (run from the source root, or set
+ * MRVI_SOURCE_ROOT). */
+#include "mrvi.h"
+#include "ocp/ocp.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+static double now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+typedef struct row {
+  int n_u, evals, ok;
+  double t_eval, ratio, total, cost;
+} row;
+
+/* Load FILE with overrides, time evaluations and solve. */
+static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
+  char msg[2048];
+  mrvi_system *sys = NULL;
+  memset(r, 0, sizeof *r);
+  if (mrvi_system_load(file, ov, n_ov, &sys, msg, sizeof msg) < 0) {
+    fprintf(stderr, "%s\n", msg);
+    return -1;
+  }
+  mrvi_ocp *o = NULL;
+  double *u = NULL;
+  if (mrvi_ocp_load(sys, &o, &u, msg, sizeof msg) < 0) {
+    fprintf(stderr, "%s\n", msg);
+    mrvi_system_free(sys);
+    return -1;
+  }
+  if (alg >= 0)
+    mrvi_ocp_set_algorithm(o, (mrvi_ocp_algorithm)alg);
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  double *g = malloc((size_t)n * sizeof *g);
+  double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
+  double *c = malloc((size_t)(m + 1) * sizeof *c), J;
+  double tf = 1e30, ta = 1e30;
+  for (int i = 0; i < 3; i++) {
+    double t0 = now();
+    mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+    tf = tf < now() - t0 ? tf : now() - t0;
+    t0 = now();
+    mrvi_ocp_evaluate(o, u, &J, g, c, cg);
+    ta = ta < now() - t0 ? ta : now() - t0;
+  }
+  mrvi_ocp_result res;
+  const double t0 = now();
+  const int st = mrvi_ocp_solve(o, u, &res);
+  r->total = now() - t0;
+  r->n_u = n;
+  r->evals = res.evaluations;
+  r->ok = st == 0;
+  r->t_eval = ta;
+  r->ratio = ta / tf;
+  r->cost = res.cost;
+  free(g);
+  free(cg);
+  free(c);
+  free(u);
+  mrvi_ocp_free(o);
+  mrvi_system_free(sys);
+  return 0;
+}
+
+int main(int argc, char **argv) {
+  double budget = 60.0;
+  for (int i = 1; i < argc; i++) {
+    if (!strcmp(argv[i], "--budget") && i + 1 < argc) {
+      budget = atof(argv[++i]);
+    } else {
+      fputs("usage: bench_ocp [--budget SECONDS]\n", stderr);
+      return !!strcmp(argv[i], "--help");
+    }
+  }
+  const char *root = getenv("MRVI_SOURCE_ROOT");
+  char files[3][1024];
+  const char *names[3] = {"ocp_double_integrator", "ocp_gantry_crane",
+                          "ocp_fpu"};
+  for (int i = 0; i < 3; i++)
+    snprintf(files[i], sizeof files[i], "%s/systems/%s.yaml", root ? root : ".",
+             names[i]);
+  printf("%-22s %5s %3s %6s %6s %10s %9s %9s %s\n", "problem", "N", "p", "n_u",
+         "evals", "eval [ms]", "eval/fwd", "total [s]", "status");
+  const double T[3] = {2.0, 2.0, 6.0};
+  const int Ns[3] = {20, 40, 80}, ps[2] = {1, 5};
+  for (int f = 0; f < 3; f++)
+    for (int in = 0; in < 3; in++)
+      for (int ip = 0; ip < 2; ip++) {
+        char a[64], b[64];
+        snprintf(a, sizeof a, "integrator.macro_step=%.17g", T[f] / Ns[in]);
+        snprintf(b, sizeof b, "integrator.micro_steps=%d", ps[ip]);
+        const char *ov[2] = {a, b};
+        row r;
+        if (bench(files[f], ov, 2, -1, &r) < 0)
+          return 1;
+        printf("%-22s %5d %3d %6d %6d %10.3f %9.2f %9.3f %s\n", names[f],
+               Ns[in], ps[ip], r.n_u, r.evals, 1e3 * r.t_eval, r.ratio, r.total,
+               r.ok ? "ok" : "FAILED");
+        fflush(stdout);
+      }
+  printf("\nlargest N (double integrator, p = 1, terminal tolerance 1e-8) "
+         "solved within %.0f s:\n",
+         budget);
+  for (int alg = 0; alg < 4; alg++) {
+    int best = 0;
+    for (int N = 50; N <= 1 << 20; N *= 2) {
+      char a[64];
+      snprintf(a, sizeof a, "integrator.macro_step=%.17g", 2.0 / N);
+      const char *ov[4] = {a, "integrator.micro_steps=1",
+                           "control.solver.terminal_tolerance=1e-8",
+                           "control.solver.tolerance=1e-10"};
+      row r;
+      if (bench(files[0], ov, 4, alg, &r) < 0)
+        return 1;
+      printf("  %-14s N = %7d: %5d evaluations, %8.3f s, %s\n",
+             mrvi_ocp_algorithm_name((mrvi_ocp_algorithm)alg), N, r.evals,
+             r.total, r.ok ? "ok" : "FAILED");
+      fflush(stdout);
+      if (!r.ok || r.total > budget)
+        break;
+      best = N;
+      if (r.total > budget / 4) /* the next doubling would exceed it */
+        break;
+    }
+    printf("  %-14s largest N = %d\n",
+           mrvi_ocp_algorithm_name((mrvi_ocp_algorithm)alg), best);
+  }
+  return 0;
+}

@@ -1,0 +1,357 @@
+/* Cost, terminal conditions and their exact discrete adjoint gradients.
+ *
+ * Write the shooting trajectory as all nodes Y of the grid (slow macro
+ * nodes, fast micro nodes) and the discrete Euler-Lagrange equations as
+ * E(Y, u) = 0: at every node but the last, the sum over the steps touching
+ * it of D_node L_d^k plus the control forces (and p_0 at the initial
+ * nodes).  With H_k the Hessian of L_d^k in the nodes z_k of step k, the
+ * adjoint of a functional Phi(Y, p_N, u) solves
+ *   sum_k H_k mu[z_k] = grad_Y Phi   (on the unknown nodes),
+ * with mu = -dPhi/dp_N on the final nodes (p_N = D_2 L_d^{N-1} + f^+).
+ * The system is block triangular in the steps; its diagonal block is the
+ * transposed step Jacobian A_k^T of eq:DEL_ini (from the step assembly and
+ * UMFPACK), the off-diagonal blocks are parts of H_k.  Then
+ *   dPhi/du = dPhi/du|_direct - sum_k mu[z_k]^T d(forces_k)/du.
+ * All functionals (cost and every terminal constraint) share one sweep. */
+#include "ocp/ocp_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* z indices and coefficients of the (at most two) nodes that model
+ * coordinate idx interpolates at point pt. */
+static int znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt, int *zi,
+                  double *zc) {
+  const mrvi_model *m = o->model;
+  const int s = m->slot[idx], ns = o->ns, nf = o->nf;
+  if (m->rate[idx] == MRVI_SLOW) {
+    zi[0] = s;
+    zi[1] = ns + s;
+    zc[0] = pt->a0;
+    zc[1] = pt->a1;
+  } else {
+    zi[0] = 2 * ns + pt->m * nf + s;
+    zi[1] = zi[0] + nf;
+    zc[0] = pt->cA;
+    zc[1] = pt->cB;
+  }
+  return 2;
+}
+
+/* Constraint c at node point pt of step k: force -w G^T lambda (lambda at
+ * variable lv, if lv >= 0) into the node rows with its derivatives, and the
+ * equation g = 0 at row er (if er >= 0). */
+static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
+                           int er, double *J) {
+  mrvi_step *st = &o->step;
+  const mrvi_constraint *kc = &o->model->constraints[c];
+  const int n = kc->n_in, rows = kc->rows, nv = o->nv;
+  mrvi_step_constraint_eval(st, c, pt, o->x, lv >= 0);
+  /* Node coefficients: for a constraint node, cA = 1 at fast node m. */
+  int zi[MRVI_MAX_INPUTS][2];
+  double zc[MRVI_MAX_INPUTS][2];
+  for (int j = 0; j < n; j++) {
+    znodes(o, kc->in[j], pt, zi[j], zc[j]);
+    if (o->model->rate[kc->in[j]] == MRVI_FAST)
+      zc[j][1] = 0.0; /* node point: fast node m only */
+  }
+  for (int j = 0; j < n; j++)
+    for (int a = 0; a < 2; a++) {
+      if (zc[j][a] == 0.0)
+        continue;
+      const int zr = zi[j][a];
+      if (er >= 0)
+        for (int r = 0; r < rows; r++)
+          J[(er + r) * nv + zr] += zc[j][a] * st->cG[r * n + j];
+      if (lv < 0)
+        continue;
+      const double *lam = o->x + st->n_unknowns + (lv - o->nz);
+      for (int r = 0; r < rows; r++)
+        J[zr * nv + lv + r] -= pt->w * zc[j][a] * st->cG[r * n + j];
+      for (int l = 0; l < n; l++) {
+        double h = 0.0;
+        for (int r = 0; r < rows; r++)
+          h += lam[r] * st->cH[(r * n + j) * n + l];
+        for (int b = 0; b < 2; b++)
+          if (zc[l][b] != 0.0)
+            J[zr * nv + zi[l][b]] -= pt->w * zc[j][a] * zc[l][b] * h;
+      }
+    }
+}
+
+void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
+  const mrvi_model *m = o->model;
+  mrvi_step *st = &o->step;
+  const int ns = o->ns, nf = o->nf, p = o->p, nv = o->nv;
+  memset(J, 0, (size_t)nv * (size_t)nv * sizeof *J);
+  /* Kinetic: M/h [[1, -1], [-1, 1]] on every interval. */
+  for (int s = 0; s < ns; s++) {
+    const double a = m->mass[m->slow_index[s]] / st->dT;
+    J[s * nv + s] += a;
+    J[(ns + s) * nv + ns + s] += a;
+    J[s * nv + ns + s] -= a;
+    J[(ns + s) * nv + s] -= a;
+  }
+  for (int mm = 0; mm < p; mm++)
+    for (int s = 0; s < nf; s++) {
+      const double a = m->mass[m->fast_index[s]] / st->dt;
+      const int i = 2 * ns + mm * nf + s, j = i + nf;
+      J[i * nv + i] += a;
+      J[j * nv + j] += a;
+      J[i * nv + j] -= a;
+      J[j * nv + i] -= a;
+    }
+  /* Potentials: -w c_a c_b hess Z at every evaluation point. */
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+        if (e->kind == MRVI_ELEMENT_GRAVITY)
+          continue;
+        const int n = e->n_in;
+        int zi[MRVI_MAX_INPUTS][2];
+        double zc[MRVI_MAX_INPUTS][2];
+        for (int j = 0; j < n; j++) {
+          znodes(o, e->in[j], pt, zi[j], zc[j]);
+          st->y[j] = zc[j][0] * o->Q[ocp_global(o, k, zi[j][0])] +
+                     zc[j][1] * o->Q[ocp_global(o, k, zi[j][1])];
+        }
+        mrvi_element_eval(m, e, st->y, st->g, st->H);
+        for (int j = 0; j < n; j++)
+          for (int l = 0; l < n; l++) {
+            const double h = pt->w * st->H[j * n + l];
+            for (int a = 0; a < 2; a++)
+              for (int b = 0; b < 2; b++)
+                J[zi[j][a] * nv + zi[l][b]] -= zc[j][a] * zc[l][b] * h;
+          }
+      }
+    }
+  if (o->nl == 0)
+    return;
+  /* Constraints in the step's layout (internal.h, struct mrvi_step):
+   * slow-only: lambda at node 0 (weight dT), equation at q_{k+1}^s;
+   * micro-node: lambda^m at nodes 0..p-1 (weight dt), equations at nodes
+   * 1..p.  Variables and rows nz + (step index - n_unknowns). */
+  const int nz = o->nz;
+  for (int i = 0; i < st->n_slow_c; i++) {
+    const int c = st->slow_c[i], off = st->c_off[c];
+    const mrvi_point p0 = mrvi_step_node_point(st, 0, st->dT);
+    const mrvi_point p1 = mrvi_step_node_point(st, p, st->dT);
+    jac_constraint(o, c, &p0, nz + off, -1, J);
+    jac_constraint(o, c, &p1, -1, nz + off, J);
+  }
+  const int base = nz + st->r_slow, rm = st->r_micro;
+  for (int mm = 0; mm <= p; mm++) {
+    const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
+    for (int i = 0; i < st->n_micro_c; i++) {
+      const int c = st->micro_c[i], off = st->c_off[c];
+      if (mm < p)
+        jac_constraint(o, c, &pt, base + mm * rm + off, -1, J);
+      if (mm > 0)
+        jac_constraint(o, c, &pt, -1, base + (mm - 1) * rm + off, J);
+    }
+  }
+}
+
+/* Global index of the final node of coordinate c and its slot in p_N. */
+static long final_node(const mrvi_ocp *o, int c, int *pslot) {
+  const mrvi_model *m = o->model;
+  const int s = m->slot[c];
+  if (m->rate[c] == MRVI_SLOW) {
+    *pslot = s;
+    return o->N * o->ns + s;
+  }
+  *pslot = o->ns + s;
+  return (o->N + 1) * o->ns + o->N * o->p * o->nf + s;
+}
+
+/* Cost and constraints with their direct partial derivatives: rows
+ * f = 0 (cost), 1..n_con of gQ (n_nodes), gp (ns + nf), gu (n_u). */
+static void functionals(const mrvi_ocp *o, const double *u, double *val,
+                        double *gQ, double *gp, double *gu) {
+  const mrvi_model *m = o->model;
+  const int nfun = 1 + o->n_con, npn = o->ns + o->nf;
+  const long nn = o->n_nodes;
+  memset(val, 0, (size_t)nfun * sizeof *val);
+  memset(gQ, 0, (size_t)nfun * (size_t)nn * sizeof *gQ);
+  memset(gp, 0, (size_t)nfun * (size_t)npn * sizeof *gp);
+  memset(gu, 0, (size_t)nfun * (size_t)o->n_u * sizeof *gu);
+  const double dT = o->settings.macro_step, dt = dT / o->p;
+  /* Effort 1/2 int w u^2 dt (exact for piecewise constant u). */
+  for (int a = 0; a < o->n_act; a++) {
+    const ocp_actuator *A = &o->act[a];
+    const double h = A->grid == MRVI_GRID_MACRO ? dT : dt;
+    for (int j = 0; j < A->size; j++) {
+      const double v = u[A->offset + j];
+      val[0] += 0.5 * A->weight * h * v * v;
+      gu[A->offset + j] += A->weight * h * v;
+    }
+  }
+  /* Tracking: exact integral of the squared linear interpolant. */
+  for (int t = 0; t < o->n_trk; t++) {
+    const ocp_tracking *T = &o->trk[t];
+    const int c = T->coord, s = m->slot[c];
+    const int slow = m->rate[c] == MRVI_SLOW;
+    const long nint = slow ? o->N : o->N * o->p;
+    const double h = slow ? dT : dt, w = T->weight * h / 6.0;
+    for (long i = 0; i < nint; i++) {
+      const long ga = slow ? i * o->ns + s : (o->N + 1) * o->ns + i * o->nf + s;
+      const long gb = ga + (slow ? o->ns : o->nf);
+      const double ea = o->Q[ga] - T->ref, eb = o->Q[gb] - T->ref;
+      val[0] += w * (ea * ea + ea * eb + eb * eb);
+      gQ[ga] += w * (2.0 * ea + eb);
+      gQ[gb] += w * (2.0 * eb + ea);
+    }
+  }
+  /* Terminal conditions. */
+  int ic = 0;
+  for (int t = 0; t < o->n_term; t++) {
+    const ocp_terminal *T = &o->term[t];
+    int ps;
+    const long g = final_node(o, T->coord, &ps);
+    const double M = m->mass[T->coord];
+    const double v =
+        (T->kind == MRVI_OCP_POSITION ? o->Q[g] : o->pN[ps] / M) - T->target;
+    const double dv = T->kind == MRVI_OCP_POSITION ? 1.0 : 1.0 / M;
+    const int f = T->penalty > 0.0 ? 0 : 1 + ic++;
+    const double scale = f == 0 ? T->penalty * v : 1.0;
+    val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
+    if (T->kind == MRVI_OCP_POSITION)
+      gQ[(size_t)f * (size_t)nn + (size_t)g] += scale * dv;
+    else
+      gp[f * npn + ps] += scale * dv;
+  }
+}
+
+/* Lazily sized adjoint workspace for nfun functionals. */
+static int adjoint_alloc(mrvi_ocp *o, int nfun) {
+  const size_t nn = (size_t)o->n_nodes, nu = (size_t)o->step.n_total;
+  (void)nu;
+  const size_t npn = (size_t)(o->ns + o->nf), f = (size_t)nfun;
+  free(o->r);
+  free(o->mu);
+  free(o->rhs);
+  free(o->sol);
+  o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
+  o->mu = calloc(f * nn + 1, sizeof(double));
+  o->rhs = calloc(f * nu + 1, sizeof(double));
+  o->sol = calloc(f * nu + nu + 1, sizeof(double));
+  o->nfun_alloc = o->r && o->mu && o->rhs && o->sol ? nfun : 0;
+  return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
+}
+
+int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
+                      double *c, double *cgrad) {
+  for (int i = 0; i < o->n_u; i++)
+    if (!isfinite(u[i]))
+      return mrvi_ocp_fail(o, MRVI_ENONFINITE, "control %d is not finite", i);
+  int s = ocp_forward(o, u);
+  if (s < 0)
+    return s;
+  const int nfun = 1 + o->n_con, npn = o->ns + o->nf, nz = o->nz;
+  const long nn = o->n_nodes;
+  if (nfun != o->nfun_alloc && adjoint_alloc(o, nfun) < 0)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  double *gQ = o->r, *val = o->r + (size_t)nfun * (size_t)nn;
+  double *gp = val + nfun, *gu = gp + (size_t)nfun * (size_t)npn;
+  /* (val, gp and gu fit in the second n_nodes block of r; see alloc.) */
+  functionals(o, u, val, gQ, gp, gu);
+  *J = val[0];
+  if (c)
+    for (int i = 0; i < o->n_con; i++)
+      c[i] = val[1 + i];
+  if (!grad && !cgrad)
+    return MRVI_OK;
+
+  /* Backward sweep.  mu: global node adjoints; final nodes -dPhi/dp_N. */
+  mrvi_step *st = &o->step;
+  const int ns = o->ns, nf = o->nf, p = o->p, nu = st->n_unknowns;
+  const long N = o->N;
+  memset(o->mu, 0, (size_t)nfun * (size_t)nn * sizeof(double));
+  for (int f = 0; f < nfun; f++) {
+    for (int i = 0; i < ns; i++)
+      o->mu[f * nn + N * ns + i] = -gp[f * npn + i];
+    for (int i = 0; i < nf; i++)
+      o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
+  }
+  double *H = o->H;
+  const int nv = o->nv, nl = o->nl, nt = st->n_total;
+  double *rloc = o->sol + (size_t)nfun * (size_t)nt; /* nl, see alloc */
+  char msg[300];
+  for (long k = N - 1; k >= 0; k--) {
+    /* Step k's data and converged unknowns (x, lambda). */
+    st->qs0 = o->Q + k * ns;
+    st->qf0 = o->Q + (N + 1) * ns + k * p * nf;
+    memcpy(o->x, o->Q + (k + 1) * ns, (size_t)ns * sizeof(double));
+    memcpy(o->x + ns, o->Q + (N + 1) * ns + (k * p + 1) * nf,
+           (size_t)(p * nf) * sizeof(double));
+    memcpy(o->x + nu, o->Lam + k * nl, (size_t)nl * sizeof(double));
+    ocp_jacobian(o, k, H);
+    for (int f = 0; f < nfun; f++) {
+      double *r = gQ + f * nn;
+      const double *mu = o->mu + f * nn;
+      /* r -= J_k[final rows, :]^T mu[final] (final: q_{k+1}^s and fast
+       * node p, whose adjoints are known). */
+      for (int i = 0; i < nl; i++)
+        rloc[i] = 0.0;
+      for (int zz = ns; zz < nz; zz++) {
+        if (zz >= 2 * ns && zz < 2 * ns + p * nf)
+          continue;
+        const double mz = mu[ocp_global(o, k, zz)];
+        if (mz == 0.0)
+          continue;
+        for (int y = 0; y < nz; y++)
+          r[ocp_global(o, k, y)] -= H[zz * nv + y] * mz;
+        for (int y = 0; y < nl; y++)
+          rloc[y] -= H[zz * nv + nz + y] * mz;
+      }
+      /* Right-hand side on the step's unknowns (x_k, lambda_k). */
+      double *b = o->rhs + (size_t)f * (size_t)nt;
+      for (int i = 0; i < ns; i++)
+        b[i] = r[ocp_global(o, k, ns + i)];
+      for (int i = 0; i < p * nf; i++)
+        b[ns + i] = r[ocp_global(o, k, 2 * ns + nf + i)];
+      for (int i = 0; i < nl; i++)
+        b[nu + i] = rloc[i];
+    }
+    /* A_k^T mu_k = b with the step Jacobian at the converged step. */
+    mrvi_step_assemble(st, o->x, o->R, 1);
+    s = mrvi_newton_solve_transpose(o->newton_full ? o->newton_full : o->newton,
+                                    st->Ax, nfun, o->rhs, o->sol, msg,
+                                    sizeof msg);
+    if (s < 0)
+      return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);
+    /* mu on the equation nodes of step k; r -= J_k[rows_k, :]^T mu_k. */
+    for (int f = 0; f < nfun; f++) {
+      double *r = gQ + f * nn, *mu = o->mu + f * nn;
+      const double *x = o->sol + (size_t)f * (size_t)nt;
+      for (int i = 0; i < nt; i++) {
+        /* dynamic rows: q_k^s, fast nodes 0..p-1; then constraint rows */
+        const int row = i < ns ? i : (i < nu ? 2 * ns + (i - ns) : nz + i - nu);
+        if (row < nz)
+          mu[ocp_global(o, k, row)] = x[i];
+        if (x[i] != 0.0)
+          for (int y = 0; y < nz; y++)
+            r[ocp_global(o, k, y)] -= H[row * nv + y] * x[i];
+      }
+    }
+  }
+  /* dPhi/du = direct - sum_k mu[z_k]^T dforces_k/du. */
+  for (int f = 0; f < nfun; f++) {
+    double *out =
+        f == 0 ? grad : (cgrad ? cgrad + (size_t)(f - 1) * o->n_u : NULL);
+    if (!out)
+      continue;
+    memcpy(out, gu + (size_t)f * o->n_u, (size_t)o->n_u * sizeof(double));
+    const double *mu = o->mu + f * nn;
+    for (long k = 0; k < N; k++)
+      for (int i = 0; i < o->n_force; i++) {
+        const ocp_force *fe = &o->force[i];
+        out[ocp_control_index(o, k, fe)] -=
+            fe->coef * mu[ocp_global(o, k, fe->z)];
+      }
+  }
+  return MRVI_OK;
+}

@@ -1,0 +1,514 @@
+/* MDMOC problem: actuators, objective, terminal conditions and forward
+ * shooting through the one-step map with control forces (see ocp.h).
+ *
+ * Discrete forces (virtual work of a piecewise-constant force u along the
+ * linearly interpolated path of its coordinate, integrated exactly; the
+ * hat function of node j on the coordinate's grid weights u):
+ *   same grid, interval of length h:   f^- = f^+ = (h/2) u
+ *   slow coordinate, fast actuator (u_m on micro interval m of a macro
+ *   step, dt = dT/p):  f^- = sum_m dt (1 - (m + 1/2)/p) u_m,
+ *                      f^+ = sum_m dt (m + 1/2)/p u_m
+ *   fast coordinate, slow actuator (u on the whole macro step): every
+ *   micro interval m gets f^- = f^+ = (dt/2) u.
+ * Forces on interior fast nodes add up from both neighbouring intervals;
+ * f^- of the step enters the residual rows of eq:DEL_ini, f^+ the momenta
+ * p_{k+1}. */
+#include "ocp/ocp_internal.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+int mrvi_ocp_fail(mrvi_ocp *o, int status, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  mrvi_vfmt(o->errmsg, sizeof o->errmsg, fmt, ap);
+  va_end(ap);
+  return status;
+}
+
+const char *mrvi_ocp_errmsg(const mrvi_ocp *o) {
+  return o ? o->errmsg : "no optimal control problem";
+}
+
+static double *dalloc(size_t n) {
+  return calloc(n > 0 ? n : 1, sizeof(double));
+}
+
+int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
+                    char *msg, size_t len) {
+  *out = NULL;
+  if (!m || !s) {
+    mrvi_fmt(msg, len, "model and settings are required");
+    return MRVI_EINVAL;
+  }
+  int st = mrvi_settings_check(s, msg, len);
+  if (st < 0)
+    return st;
+  if (m->n == 0) {
+    mrvi_fmt(msg, len, "the model has no coordinates");
+    return MRVI_EMODEL;
+  }
+  if (m->n_constraints > 0) {
+    st = mrvi_constraints_check_positions(m, m->q0, s->constraint_tol,
+                                          "initial positions", NULL, msg, len);
+    if (st < 0)
+      return st;
+  }
+  mrvi_ocp *o = calloc(1, sizeof *o);
+  if (!o) {
+    mrvi_fmt(msg, len, "out of memory");
+    return MRVI_ENOMEM;
+  }
+  o->model = m;
+  o->settings = *s;
+  o->N = mrvi_settings_n_steps(s);
+  o->p = s->micro_steps;
+  o->ns = m->n_slow;
+  o->nf = m->n_fast;
+  o->nz = 2 * o->ns + (o->p + 1) * o->nf;
+  o->n_nodes = (o->N + 1) * o->ns + (o->N * o->p + 1) * o->nf;
+  o->algorithm = MRVI_OCP_SLSQP;
+  o->ftol_rel = 1e-12;
+  o->terminal_tol = 1e-8;
+  o->max_eval = 2000;
+  if (mrvi_step_init(&o->step, m, s) < 0)
+    goto oom;
+  o->nl = o->step.n_lambda;
+  o->nv = o->nz + o->nl;
+  const size_t nu = (size_t)o->step.n_total, n = (size_t)m->n,
+               N1 = (size_t)o->N + 1;
+  o->x = dalloc(nu);
+  o->R = dalloc(nu);
+  o->dx = dalloc(nu);
+  o->f_rows = dalloc(nu);
+  o->f_end = dalloc((size_t)(o->ns + o->nf));
+  o->ps1 = dalloc((size_t)o->ns);
+  o->pf1 = dalloc((size_t)(o->p * o->nf));
+  o->Q = dalloc((size_t)o->n_nodes);
+  o->pN = dalloc((size_t)(o->ns + o->nf));
+  o->ps_k = dalloc(N1 * (size_t)o->ns);
+  o->pf_k = dalloc(N1 * (size_t)o->nf);
+  o->q_out = dalloc(N1 * n);
+  o->p_out = dalloc(N1 * n);
+  o->H = dalloc((size_t)o->nv * (size_t)o->nv);
+  o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
+  o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
+  if (!o->x || !o->R || !o->dx || !o->f_rows || !o->f_end || !o->ps1 ||
+      !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k || !o->q_out ||
+      !o->p_out || !o->H || !o->Lam || !o->rhs_ns)
+    goto oom;
+  o->step.f_rows = o->f_rows;
+  o->step.f_end = o->f_end;
+  *out = o;
+  return MRVI_OK;
+oom:
+  mrvi_ocp_free(o);
+  mrvi_fmt(msg, len, "out of memory");
+  return MRVI_ENOMEM;
+}
+
+void mrvi_ocp_free(mrvi_ocp *o) {
+  if (!o)
+    return;
+  mrvi_newton_free(o->newton);
+  mrvi_nullspace_free(o->nullspace);
+  mrvi_newton_free(o->newton_full);
+  mrvi_step_free(&o->step);
+  free(o->Lam);
+  free(o->rhs_ns);
+  free(o->act);
+  free(o->trk);
+  free(o->term);
+  free(o->force);
+  free(o->x);
+  free(o->R);
+  free(o->dx);
+  free(o->f_rows);
+  free(o->f_end);
+  free(o->ps1);
+  free(o->pf1);
+  free(o->Q);
+  free(o->pN);
+  free(o->ps_k);
+  free(o->pf_k);
+  free(o->q_out);
+  free(o->p_out);
+  free(o->H);
+  free(o->r);
+  free(o->mu);
+  free(o->rhs);
+  free(o->sol);
+  free(o);
+}
+
+static int check_coord(mrvi_ocp *o, int c) {
+  if (c < 0 || c >= o->model->n)
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "coordinate index %d out of range", c);
+  return MRVI_OK;
+}
+
+/* Append one entry to the force template. */
+static int push_force(mrvi_ocp *o, int z, int act, int j, double coef) {
+  ocp_force *f = realloc(o->force, (size_t)(o->n_force + 1) * sizeof *f);
+  if (!f)
+    return MRVI_ENOMEM;
+  o->force = f;
+  o->force[o->n_force++] = (ocp_force){z, act, j, coef};
+  return MRVI_OK;
+}
+
+int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
+                          double lower, double upper) {
+  int st = check_coord(o, c);
+  if (st < 0)
+    return st;
+  if (!(weight > 0.0) || !isfinite(weight))
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "actuator weight must be > 0");
+  if (!(lower <= upper))
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "actuator bounds: lower %g > upper %g",
+                         lower, upper);
+  ocp_actuator *a = realloc(o->act, (size_t)(o->n_act + 1) * sizeof *a);
+  if (!a)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  o->act = a;
+  const int ia = o->n_act++;
+  const int per = grid == MRVI_GRID_MACRO ? 1 : o->p;
+  o->act[ia] = (ocp_actuator){.coord = c,
+                              .grid = grid,
+                              .weight = weight,
+                              .lower = lower,
+                              .upper = upper,
+                              .offset = o->n_u,
+                              .size = (int)(o->N * per)};
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s", o->model->names[c]);
+  o->n_u += o->act[ia].size;
+  /* Force template of one step (virtual work, see the file comment). */
+  const mrvi_model *m = o->model;
+  const int s = m->slot[c], ns = o->ns, nf = o->nf, p = o->p;
+  const double dT = o->settings.macro_step, dt = dT / p;
+  if (m->rate[c] == MRVI_SLOW) {
+    if (grid == MRVI_GRID_MACRO) {
+      st |= push_force(o, s, ia, 0, 0.5 * dT);
+      st |= push_force(o, ns + s, ia, 0, 0.5 * dT);
+    } else {
+      for (int mm = 0; mm < p; mm++) {
+        const double th = (mm + 0.5) / p;
+        st |= push_force(o, s, ia, mm, dt * (1.0 - th));
+        st |= push_force(o, ns + s, ia, mm, dt * th);
+      }
+    }
+  } else {
+    for (int mm = 0; mm < p; mm++) {
+      const int j = grid == MRVI_GRID_MACRO ? 0 : mm;
+      st |= push_force(o, 2 * ns + mm * nf + s, ia, j, 0.5 * dt);
+      st |= push_force(o, 2 * ns + (mm + 1) * nf + s, ia, j, 0.5 * dt);
+    }
+  }
+  if (st < 0)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  return ia;
+}
+
+int mrvi_ocp_add_tracking(mrvi_ocp *o, int c, double weight, double ref) {
+  int st = check_coord(o, c);
+  if (st < 0)
+    return st;
+  if (!(weight >= 0.0) || !isfinite(ref))
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "tracking weight must be >= 0");
+  ocp_tracking *t = realloc(o->trk, (size_t)(o->n_trk + 1) * sizeof *t);
+  if (!t)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  o->trk = t;
+  o->trk[o->n_trk++] = (ocp_tracking){c, weight, ref};
+  return MRVI_OK;
+}
+
+int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind, int c,
+                          double target, double penalty) {
+  int st = check_coord(o, c);
+  if (st < 0)
+    return st;
+  if (!(penalty >= 0.0) || !isfinite(target))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal penalty must be >= 0, target finite");
+  ocp_terminal *t = realloc(o->term, (size_t)(o->n_term + 1) * sizeof *t);
+  if (!t)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  o->term = t;
+  o->term[o->n_term++] = (ocp_terminal){kind, c, target, penalty};
+  return penalty > 0.0 ? 0 : o->n_con++;
+}
+
+void mrvi_ocp_set_algorithm(mrvi_ocp *o, mrvi_ocp_algorithm a) {
+  o->algorithm = a;
+}
+void mrvi_ocp_set_tolerances(mrvi_ocp *o, double ftol_rel,
+                             double terminal_tol) {
+  o->ftol_rel = ftol_rel;
+  o->terminal_tol = terminal_tol;
+}
+void mrvi_ocp_set_max_evaluations(mrvi_ocp *o, int max_eval) {
+  o->max_eval = max_eval;
+}
+void mrvi_ocp_set_callback(mrvi_ocp *o, mrvi_ocp_callback cb, void *data) {
+  o->cb = cb;
+  o->cb_data = data;
+}
+int mrvi_ocp_n_controls(const mrvi_ocp *o) { return o->n_u; }
+int mrvi_ocp_n_constraints(const mrvi_ocp *o) { return o->n_con; }
+long mrvi_ocp_n_steps(const mrvi_ocp *o) { return o->N; }
+const double *mrvi_ocp_q(const mrvi_ocp *o) { return o->q_out; }
+const double *mrvi_ocp_p(const mrvi_ocp *o) { return o->p_out; }
+int mrvi_ocp_actuator_offset(const mrvi_ocp *o, int a) {
+  return o->act[a].offset;
+}
+int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a) { return o->act[a].size; }
+int mrvi_ocp_n_actuators(const mrvi_ocp *o) { return o->n_act; }
+const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a) {
+  return o->act[a].name;
+}
+int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a) {
+  return (int)o->act[a].grid;
+}
+const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a) {
+  static const char *const names[] = {"slsqp", "auglag-lbfgs", "auglag-mma",
+                                      "auglag-ccsaq"};
+  return a >= 0 && a <= MRVI_OCP_AUGLAG_CCSAQ ? names[a] : "unknown";
+}
+mrvi_ocp_algorithm mrvi_ocp_get_algorithm(const mrvi_ocp *o) {
+  return o->algorithm;
+}
+double mrvi_ocp_terminal_tolerance(const mrvi_ocp *o) {
+  return o->terminal_tol;
+}
+
+long ocp_global(const mrvi_ocp *o, long k, int z) {
+  const int ns = o->ns, nf = o->nf;
+  if (z < ns)
+    return k * ns + z;
+  if (z < 2 * ns)
+    return (k + 1) * ns + (z - ns);
+  const int zf = z - 2 * ns, mm = zf / nf, s = zf % nf;
+  return (o->N + 1) * ns + (k * o->p + mm) * nf + s;
+}
+
+int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe) {
+  const ocp_actuator *a = &o->act[fe->act];
+  const int per = a->grid == MRVI_GRID_MACRO ? 1 : o->p;
+  return a->offset + (int)(k * per) + fe->j;
+}
+
+/* Control forces of step k into the residual rows and the end momenta. */
+static void step_forces(mrvi_ocp *o, long k, const double *u) {
+  const int ns = o->ns, nf = o->nf, p = o->p;
+  memset(o->f_rows, 0, (size_t)o->step.n_unknowns * sizeof(double));
+  memset(o->f_end, 0, (size_t)(ns + nf) * sizeof(double));
+  for (int i = 0; i < o->n_force; i++) {
+    const ocp_force *fe = &o->force[i];
+    const double f = fe->coef * u[ocp_control_index(o, k, fe)];
+    if (fe->z < ns) {
+      o->f_rows[fe->z] += f;
+    } else if (fe->z < 2 * ns) {
+      o->f_end[fe->z - ns] += f;
+    } else {
+      const int zf = fe->z - 2 * ns, mm = zf / nf, s = zf % nf;
+      if (mm < p)
+        o->f_rows[ns + mm * nf + s] += f;
+      else
+        o->f_end[ns + s] += f;
+    }
+  }
+}
+
+static double norm_inf(const double *v, int n) {
+  double r = 0.0;
+  for (int i = 0; i < n; i++) {
+    if (isnan(v[i]))
+      return v[i];
+    r = fmax(r, fabs(v[i]));
+  }
+  return r;
+}
+
+/* Pattern, symbolic analysis (and null-space set-up) at the first step's
+ * predictor. */
+static int prepare(mrvi_ocp *o) {
+  mrvi_step *st = &o->step;
+  char msg[300];
+  if (mrvi_step_build_pattern(st, o->x) < 0)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  mrvi_step_assemble(st, o->x, o->R, 1);
+  if (o->settings.constraint_form == MRVI_FORM_NULL_SPACE && o->nl > 0) {
+    int s = mrvi_nullspace_create(st, &o->nullspace, msg, sizeof msg);
+    if (s == 0) {
+      mrvi_step_assemble(st, o->x, o->R, 0);
+      s = mrvi_nullspace_lambda(o->nullspace, st, o->x, o->R, msg, sizeof msg);
+    }
+    if (s < 0)
+      return mrvi_ocp_fail(o, s, "%s", msg);
+    mrvi_step_assemble(st, o->x, o->R, 1);
+    mrvi_nullspace_reduce(o->nullspace, st, o->R, o->rhs_ns);
+    o->newton =
+        mrvi_newton_create(st->n_unknowns, mrvi_nullspace_Ap(o->nullspace),
+                           mrvi_nullspace_Ai(o->nullspace),
+                           mrvi_nullspace_Ax(o->nullspace), msg, sizeof msg);
+  } else {
+    o->newton = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax, msg,
+                                   sizeof msg);
+  }
+  if (!o->newton)
+    return mrvi_ocp_fail(o, MRVI_ESINGULAR, "%s", msg);
+  /* The adjoint always solves with the saddle-point matrix of the
+   * multiplier form (same equations, same converged steps). */
+  if (o->nullspace) {
+    o->newton_full = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                                        msg, sizeof msg);
+    if (!o->newton_full)
+      return mrvi_ocp_fail(o, MRVI_ESINGULAR, "%s", msg);
+  }
+  o->ready = 1;
+  return MRVI_OK;
+}
+
+/* Residual and Jacobian at o->x (null-space form: lambda(x) first);
+ * *res gets max |R| over dynamic and constraint rows. */
+static int evaluate(mrvi_ocp *o, double *res, char *msg, size_t len) {
+  mrvi_step *st = &o->step;
+  if (o->nullspace) {
+    memset(o->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
+    mrvi_step_assemble(st, o->x, o->R, 0);
+    int s = mrvi_nullspace_lambda(o->nullspace, st, o->x, o->R, msg, len);
+    if (s < 0)
+      return s;
+  }
+  mrvi_step_assemble(st, o->x, o->R, 1);
+  *res = norm_inf(o->R, st->n_total);
+  return MRVI_OK;
+}
+
+int ocp_forward(mrvi_ocp *o, const double *u) {
+  const mrvi_model *m = o->model;
+  mrvi_step *st = &o->step;
+  const int ns = o->ns, nf = o->nf, p = o->p, n = m->n;
+  const long N = o->N;
+  const double dT = st->dT, dt = st->dt;
+  double *Qs = o->Q, *Qf = o->Q + (N + 1) * ns;
+  char msg[300];
+  int s0;
+  memset(o->x, 0, (size_t)st->n_total * sizeof(double));
+  /* Initial state (q0, M v0). */
+  for (int s = 0; s < ns; s++) {
+    const int c = m->slow_index[s];
+    Qs[s] = m->q0[c];
+    o->ps_k[s] = m->mass[c] * m->v0[c];
+  }
+  for (int s = 0; s < nf; s++) {
+    const int c = m->fast_index[s];
+    Qf[s] = m->q0[c];
+    o->pf_k[s] = m->mass[c] * m->v0[c];
+  }
+  for (long k = 0; k < N; k++) {
+    st->qs0 = Qs + k * ns;
+    st->qf0 = Qf + k * p * nf;
+    st->ps0 = o->ps_k + k * ns;
+    st->pf0 = o->pf_k + k * nf;
+    step_forces(o, k, u);
+    /* Predictor: free flight. */
+    for (int s = 0; s < ns; s++)
+      o->x[s] = st->qs0[s] + dT * st->ps0[s] / m->mass[m->slow_index[s]];
+    for (int mm = 1; mm <= p; mm++)
+      for (int s = 0; s < nf; s++)
+        o->x[ns + (mm - 1) * nf + s] =
+            st->qf0[s] + mm * dt * st->pf0[s] / m->mass[m->fast_index[s]];
+    if (!o->ready && (s0 = prepare(o)) < 0)
+      return s0;
+    int it = 0;
+    double res;
+    if ((s0 = evaluate(o, &res, msg, sizeof msg)) < 0)
+      return mrvi_ocp_fail(o, s0, "step %ld: %s", k + 1, msg);
+    /* Roundoff floor of the residual (as in the integrator): its rows
+     * subtract momenta of size M |q| / dt. */
+    double scale = 0.0;
+    for (int i = 0; i < ns; i++)
+      scale = fmax(scale, fabs(st->ps0[i]) +
+                              m->mass[m->slow_index[i]] *
+                                  (fabs(st->qs0[i]) + fabs(o->x[i])) / dT);
+    for (int i = 0; i < nf; i++) {
+      double qm = fabs(st->qf0[i]);
+      for (int mm = 1; mm <= p; mm++)
+        qm = fmax(qm, fabs(o->x[ns + (mm - 1) * nf + i]));
+      scale = fmax(scale, fabs(st->pf0[i]) +
+                              4.0 * m->mass[m->fast_index[i]] * qm / dt);
+    }
+    const double tol = fmax(o->settings.newton_tol, 16.0 * DBL_EPSILON * scale);
+    while (!(res <= tol)) {
+      if (!isfinite(res) || it == o->settings.newton_max_iter)
+        return mrvi_ocp_fail(o, isfinite(res) ? MRVI_ENEWTON : MRVI_ENONFINITE,
+                             "step %ld: Newton did not converge (residual "
+                             "%.3e after %d iterations)",
+                             k + 1, res, it);
+      if (o->nullspace) {
+        mrvi_nullspace_reduce(o->nullspace, st, o->R, o->rhs_ns);
+        s0 = mrvi_newton_solve(o->newton, mrvi_nullspace_Ax(o->nullspace),
+                               o->rhs_ns, o->dx, msg, sizeof msg);
+      } else {
+        s0 = mrvi_newton_solve(o->newton, st->Ax, o->R, o->dx, msg, sizeof msg);
+      }
+      if (s0 < 0)
+        return mrvi_ocp_fail(o, s0, "step %ld: %s", k + 1, msg);
+      const int nx = o->nullspace ? st->n_unknowns : st->n_total;
+      for (int i = 0; i < nx; i++)
+        o->x[i] -= o->dx[i];
+      it++;
+      if ((s0 = evaluate(o, &res, msg, sizeof msg)) < 0)
+        return mrvi_ocp_fail(o, s0, "step %ld: %s", k + 1, msg);
+    }
+    memcpy(o->Lam + k * o->nl, o->x + st->n_unknowns,
+           (size_t)o->nl * sizeof(double));
+    mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
+    memcpy(Qs + (k + 1) * ns, o->x, (size_t)ns * sizeof(double));
+    memcpy(Qf + (k * p + 1) * nf, o->x + ns, (size_t)(p * nf) * sizeof(double));
+    memcpy(o->ps_k + (k + 1) * ns, o->ps1, (size_t)ns * sizeof(double));
+    memcpy(o->pf_k + (k + 1) * nf, o->pf1 + (p - 1) * nf,
+           (size_t)nf * sizeof(double));
+  }
+  memcpy(o->pN, o->ps_k + N * ns, (size_t)ns * sizeof(double));
+  memcpy(o->pN + ns, o->pf_k + N * nf, (size_t)nf * sizeof(double));
+  /* Macro-node outputs in model order. */
+  for (long k = 0; k <= N; k++) {
+    for (int s = 0; s < ns; s++) {
+      o->q_out[k * n + m->slow_index[s]] = Qs[k * ns + s];
+      o->p_out[k * n + m->slow_index[s]] = o->ps_k[k * ns + s];
+    }
+    for (int s = 0; s < nf; s++) {
+      o->q_out[k * n + m->fast_index[s]] = Qf[k * p * nf + s];
+      o->p_out[k * n + m->fast_index[s]] = o->pf_k[k * nf + s];
+    }
+  }
+  return MRVI_OK;
+}
+
+void mrvi_ocp_lambda(const mrvi_ocp *o, long k, double *out) {
+  const mrvi_model *m = o->model;
+  const mrvi_step *st = &o->step;
+  const double *x = o->Lam + k * o->nl;
+  for (int i = 0; i < st->n_slow_c; i++) {
+    const mrvi_constraint *c = &m->constraints[st->slow_c[i]];
+    for (int r = 0; r < c->rows; r++)
+      out[c->first_row + r] = x[st->c_off[st->slow_c[i]] + r];
+  }
+  /* Micro-node constraints: the step average (1/p) sum_m lambda^m, as the
+   * integrator reports it. */
+  for (int i = 0; i < st->n_micro_c; i++) {
+    const int ci = st->micro_c[i];
+    const mrvi_constraint *c = &m->constraints[ci];
+    for (int r = 0; r < c->rows; r++) {
+      double sum = 0.0;
+      for (int mm = 0; mm < o->p; mm++)
+        sum += x[st->r_slow + mm * st->r_micro + st->c_off[ci] + r];
+      out[c->first_row + r] = sum / o->p;
+    }
+  }
+}

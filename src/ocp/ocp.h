@@ -1,0 +1,143 @@
+/* Multirate discrete mechanics and optimal control (MDMOC), see
+ * doc/optimal-control.md.
+ *
+ * Dynamics: the discrete Lagrange-d'Alembert principle on mrvi's multirate
+ * discrete Lagrangian L_d (arXiv 2406.12991, eq:DEL_ini in one-step form):
+ *   p_k + D_1 L_d + f_k^- = 0 (with the micro-node rows),
+ *   p_{k+1} = D_2 L_d + f_k^+.
+ * Controls are piecewise constant on the macro grid (slow actuator) or the
+ * micro grid (fast actuator) and act along one generalised coordinate; the
+ * discrete forces f^+- are the exact virtual work of that force along the
+ * linearly interpolated path of the coordinate.  Single shooting over the
+ * controls with gradients from the exact discrete adjoint, optimised with
+ * NLopt.
+ *
+ * Control vector layout: actuator by actuator (in the order added), each
+ * with N values (macro grid) or N p values (micro grid), in time order. */
+#ifndef MRVI_OCP_H
+#define MRVI_OCP_H
+
+#include "mrvi.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct mrvi_ocp mrvi_ocp;
+
+/* Optimisation algorithms (NLopt). */
+typedef enum mrvi_ocp_algorithm {
+  MRVI_OCP_SLSQP = 0,        /* dense SQP; default, up to a few hundred u */
+  MRVI_OCP_AUGLAG_LBFGS = 1, /* augmented Lagrangian, L-BFGS inner solver */
+  MRVI_OCP_AUGLAG_MMA = 2,   /* augmented Lagrangian, MMA inner solver */
+  MRVI_OCP_AUGLAG_CCSAQ = 3  /* augmented Lagrangian, CCSAQ inner solver */
+} mrvi_ocp_algorithm;
+
+/* Terminal quantity of a coordinate. */
+typedef enum mrvi_ocp_terminal_kind {
+  MRVI_OCP_POSITION = 0, /* q_N */
+  MRVI_OCP_VELOCITY = 1  /* p_N / M (final discrete momentum) */
+} mrvi_ocp_terminal_kind;
+
+/* Create a problem on model m (must outlive it; no constraints yet) with the
+ * integrator settings s (copied; N = mrvi_settings_n_steps(s) steps).  The
+ * initial state is the model's (q0, M v0). */
+int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
+                    char *msg, size_t len);
+/* Free a problem (NULL is accepted). */
+void mrvi_ocp_free(mrvi_ocp *o);
+/* Message of the last failure on o. */
+const char *mrvi_ocp_errmsg(const mrvi_ocp *o);
+
+/* Add an actuator: force u along model coordinate `coordinate`, piecewise
+ * constant on grid (MRVI_GRID_MACRO: slow, N values; MRVI_GRID_MICRO: fast,
+ * N p values), effort weight w > 0 in 1/2 int w u^2 dt, bounds
+ * lower <= u <= upper (+-HUGE_VAL for none).  Returns the actuator index. */
+int mrvi_ocp_add_actuator(mrvi_ocp *o, int coordinate, mrvi_grid grid,
+                          double weight, double lower, double upper);
+/* Running tracking term 1/2 int weight (q_c - ref)^2 dt, integrated exactly
+ * along the linearly interpolated path on the coordinate's grid. */
+int mrvi_ocp_add_tracking(mrvi_ocp *o, int coordinate, double weight,
+                          double ref);
+/* Terminal condition on coordinate c: an equality constraint
+ * (penalty = 0) value - target = 0, or the penalty
+ * 1/2 penalty (value - target)^2 in the cost (penalty > 0).  Returns the
+ * constraint index (>= 0) or, for a penalty, 0. */
+int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
+                          int coordinate, double target, double penalty);
+
+/* Solver settings: algorithm, relative tolerance on the cost (default
+ * 1e-12), terminal tolerance (default 1e-8, also the NLopt constraint
+ * tolerance), evaluation limit (default 2000). */
+void mrvi_ocp_set_algorithm(mrvi_ocp *o, mrvi_ocp_algorithm a);
+void mrvi_ocp_set_tolerances(mrvi_ocp *o, double ftol_rel, double terminal_tol);
+void mrvi_ocp_set_max_evaluations(mrvi_ocp *o, int max_eval);
+/* Called after every cost evaluation of the optimiser with its count, cost,
+ * largest terminal violation and gradient norm; a non-zero return stops the
+ * optimisation (MRVI_EINTERRUPTED). */
+typedef int (*mrvi_ocp_callback)(void *data, int evaluation, double cost,
+                                 double violation, double grad_norm);
+void mrvi_ocp_set_callback(mrvi_ocp *o, mrvi_ocp_callback cb, void *data);
+
+/* Sizes: controls, terminal equality constraints, macro steps N. */
+int mrvi_ocp_n_controls(const mrvi_ocp *o);
+int mrvi_ocp_n_constraints(const mrvi_ocp *o);
+long mrvi_ocp_n_steps(const mrvi_ocp *o);
+
+/* Forward shooting and exact discrete adjoint at controls u (n_controls):
+ * cost J, its gradient grad (n_controls, may be NULL), terminal constraint
+ * values c (n_constraints, may be NULL) and their gradients cgrad
+ * (n_constraints x n_controls row-major, may be NULL). */
+int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
+                      double *c, double *cgrad);
+
+/* Result of mrvi_ocp_solve. */
+typedef struct mrvi_ocp_result {
+  int nlopt_result;    /* NLopt's return code */
+  char nlopt_name[48]; /* its name */
+  double cost;         /* J at the returned controls */
+  double violation;    /* max |c_i| re-checked at the returned controls */
+  int evaluations;     /* cost+gradient evaluations */
+} mrvi_ocp_result;
+
+/* Optimise: u (n_controls) holds the initial guess and receives the result.
+ * MRVI_OK when NLopt succeeds and the terminal conditions hold to the
+ * terminal tolerance; MRVI_EOPTIMIZE otherwise (u and res are still set). */
+int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res);
+
+/* Trajectory of the last evaluation: macro-node positions and momenta
+ * ((N+1) x n, model order) and fast micro-node positions ((N p + 1) x n_fast).
+ * Valid until the next evaluation. */
+const double *mrvi_ocp_q(const mrvi_ocp *o);
+const double *mrvi_ocp_p(const mrvi_ocp *o);
+/* Multipliers of step k (0..N-1) of the last evaluation in the model's
+ * constraint-row order (micro-node constraints: the step average), as
+ * mrvi_integrator_lambda reports them; out has constraint_rows entries. */
+void mrvi_ocp_lambda(const mrvi_ocp *o, long k, double *out);
+/* Time of control j of actuator a (start of its interval) and its offset in
+ * the control vector; number of values of actuator a. */
+int mrvi_ocp_actuator_offset(const mrvi_ocp *o, int a);
+int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a);
+/* Number of actuators; name (default: its coordinate's) and grid
+ * (mrvi_grid) of actuator a. */
+int mrvi_ocp_n_actuators(const mrvi_ocp *o);
+const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a);
+int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a);
+/* Name of an algorithm ("slsqp", "auglag-lbfgs", "auglag-mma",
+ * "auglag-ccsaq"); the problem's algorithm and terminal tolerance. */
+const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);
+mrvi_ocp_algorithm mrvi_ocp_get_algorithm(const mrvi_ocp *o);
+double mrvi_ocp_terminal_tolerance(const mrvi_ocp *o);
+
+/* Build the problem from the `control:` section of a loaded description
+ * (doc/optimal-control.md): actuators, objective, terminal conditions,
+ * solver settings.  *u0 (malloc'ed, n_controls) gets the initial guess.
+ * On failure MRVI_EPARSE with "file:line:col: message" in msg. */
+int mrvi_ocp_load(const mrvi_system *sys, mrvi_ocp **out, double **u0,
+                  char *msg, size_t len);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

@@ -1,0 +1,88 @@
+/* Private layout of mrvi_ocp shared by ocp.c, adjoint.c and solve.c. */
+#ifndef MRVI_OCP_INTERNAL_H
+#define MRVI_OCP_INTERNAL_H
+
+#include "internal.h"
+#include "ocp/ocp.h"
+
+typedef struct ocp_actuator {
+  int coord;      /* model index */
+  mrvi_grid grid; /* MRVI_GRID_MACRO or MRVI_GRID_MICRO */
+  double weight, lower, upper;
+  int offset, size; /* in the control vector */
+  char name[64];    /* default: the coordinate's name */
+} ocp_actuator;
+
+typedef struct ocp_tracking {
+  int coord;
+  double weight, ref;
+} ocp_tracking;
+
+typedef struct ocp_terminal {
+  mrvi_ocp_terminal_kind kind;
+  int coord;
+  double target, penalty; /* penalty 0: equality constraint */
+} ocp_terminal;
+
+/* One entry of the linear map u -> node forces of a step: z index (layout
+ * of struct mrvi_ocp), actuator, control within the step, coefficient. */
+typedef struct ocp_force {
+  int z, act, j;
+  double coef;
+} ocp_force;
+
+struct mrvi_ocp {
+  const mrvi_model *model;
+  mrvi_settings settings;
+  long N;
+  int p, ns, nf, nz; /* nz = 2 ns + (p+1) nf nodes of one step */
+  int nl, nv;        /* multipliers of a step; nv = nz + nl step variables */
+  int n_act, n_trk, n_term, n_con, n_u;
+  ocp_actuator *act;
+  ocp_tracking *trk;
+  ocp_terminal *term;
+  /* Forces of a step (same template every step). */
+  int n_force;
+  ocp_force *force;
+  /* Step solver. */
+  mrvi_step step;
+  mrvi_newton *newton;
+  mrvi_nullspace *nullspace; /* null-space form of the forward solve */
+  mrvi_newton *newton_full;  /* saddle-point matrix for the adjoint */
+  double *rhs_ns;            /* its reduced right-hand side */
+  int ready;
+  double *x, *R, *dx, *f_rows, *f_end, *ps1, *pf1;
+  /* Trajectory: global nodes: slow (N+1) x ns, then fast (N p + 1) x nf. */
+  long n_nodes;
+  double *Q;
+  double *pN;            /* final momenta ns + nf */
+  double *Lam;           /* multipliers of every step, N x nl */
+  double *ps_k, *pf_k;   /* momenta p_k per step (N+1) x ns, (N+1) x nf */
+  double *q_out, *p_out; /* (N+1) x n model order */
+  /* Adjoint workspace. */
+  double *H, *r, *mu, *rhs, *sol;
+  int nfun_alloc; /* functionals the adjoint workspace is sized for */
+  /* Solver settings. */
+  mrvi_ocp_algorithm algorithm;
+  double ftol_rel, terminal_tol;
+  int max_eval;
+  mrvi_ocp_callback cb;
+  void *cb_data;
+  char errmsg[512];
+};
+
+int mrvi_ocp_fail(mrvi_ocp *o, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+/* z index of step k -> global node index (times ns/nf offsets included). */
+long ocp_global(const mrvi_ocp *o, long k, int z);
+/* Forward shooting at u: fills Q, pN, momenta, trajectory outputs. */
+int ocp_forward(mrvi_ocp *o, const double *u);
+/* Control index of force entry fe in step k. */
+int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe);
+/* Dense Jacobian J (nv x nv) of the equations of step k in its variables
+ * v = (z_k, lambda_k) at the stored trajectory: rows 0..nz-1 are
+ * D_z of L_d^k - sum h lambda^T g (all nodes of the step), rows nz.. the
+ * step's constraint equations g (step row order). */
+void ocp_jacobian(mrvi_ocp *o, long k, double *J);
+
+#endif

@@ -1,0 +1,160 @@
+/* NLopt driver: single shooting over the controls with adjoint gradients.
+ * NLopt asks for the cost and the constraints separately at the same
+ * point, so the last evaluation is cached.  SLSQP can report success with
+ * violated constraints: the terminal residuals are re-checked here. */
+#include "ocp/ocp_internal.h"
+
+#include <math.h>
+#include <nlopt.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct cache {
+  mrvi_ocp *o;
+  double *u, *grad, *c, *cgrad;
+  double J;
+  int valid, status, evaluations, stop;
+} cache;
+
+static int cached_eval(cache *cc, const double *u) {
+  const int n = cc->o->n_u;
+  if (cc->valid && memcmp(u, cc->u, (size_t)n * sizeof *u) == 0)
+    return cc->status;
+  memcpy(cc->u, u, (size_t)n * sizeof *u);
+  cc->status = mrvi_ocp_evaluate(cc->o, u, &cc->J, cc->grad, cc->c, cc->cgrad);
+  cc->valid = 1;
+  return cc->status;
+}
+
+static double violation(const cache *cc) {
+  double v = 0.0;
+  for (int i = 0; i < cc->o->n_con; i++)
+    v = fmax(v, fabs(cc->c[i]));
+  return v;
+}
+
+static double objective(unsigned n, const double *u, double *grad, void *data) {
+  cache *cc = data;
+  if (cached_eval(cc, u) < 0) {
+    cc->stop = 1;
+    return HUGE_VAL;
+  }
+  if (grad)
+    memcpy(grad, cc->grad, n * sizeof *grad);
+  cc->evaluations++;
+  mrvi_ocp *o = cc->o;
+  if (o->cb) {
+    double g2 = 0.0;
+    for (unsigned i = 0; i < n; i++)
+      g2 += cc->grad[i] * cc->grad[i];
+    if (o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc), sqrt(g2)))
+      cc->stop = 2;
+  }
+  return cc->J;
+}
+
+static void constraints(unsigned m, double *result, unsigned n, const double *u,
+                        double *grad, void *data) {
+  cache *cc = data;
+  if (cached_eval(cc, u) < 0) {
+    cc->stop = 1;
+    for (unsigned i = 0; i < m; i++)
+      result[i] = HUGE_VAL;
+    return;
+  }
+  memcpy(result, cc->c, m * sizeof *result);
+  if (grad)
+    memcpy(grad, cc->cgrad, (size_t)m * n * sizeof *grad);
+}
+
+int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res) {
+  memset(res, 0, sizeof *res);
+  const int n = o->n_u, m = o->n_con;
+  if (n == 0)
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "the problem has no actuators");
+  cache cc = {.o = o};
+  cc.u = calloc((size_t)n, sizeof(double));
+  cc.grad = calloc((size_t)n, sizeof(double));
+  cc.c = calloc((size_t)m + 1, sizeof(double));
+  cc.cgrad = calloc((size_t)m * (size_t)n + 1, sizeof(double));
+  double *lb = calloc((size_t)n, sizeof(double));
+  double *ub = calloc((size_t)n, sizeof(double));
+  double *tol = calloc((size_t)m + 1, sizeof(double));
+  nlopt_opt opt = NULL, local = NULL;
+  int status = MRVI_OK;
+  if (!cc.u || !cc.grad || !cc.c || !cc.cgrad || !lb || !ub || !tol) {
+    status = mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+    goto done;
+  }
+  for (int a = 0; a < o->n_act; a++)
+    for (int j = 0; j < o->act[a].size; j++) {
+      lb[o->act[a].offset + j] = o->act[a].lower;
+      ub[o->act[a].offset + j] = o->act[a].upper;
+      double *v = &u[o->act[a].offset + j];
+      *v = fmin(fmax(*v, o->act[a].lower), o->act[a].upper);
+    }
+  for (int i = 0; i < m; i++)
+    tol[i] = o->terminal_tol;
+  static const nlopt_algorithm inner[] = {NLOPT_LD_SLSQP, NLOPT_LD_LBFGS,
+                                          NLOPT_LD_MMA, NLOPT_LD_CCSAQ};
+  if (o->algorithm == MRVI_OCP_SLSQP) {
+    opt = nlopt_create(NLOPT_LD_SLSQP, (unsigned)n);
+  } else {
+    opt = nlopt_create(NLOPT_LD_AUGLAG, (unsigned)n);
+    local = nlopt_create(inner[o->algorithm], (unsigned)n);
+    if (local) {
+      nlopt_set_ftol_rel(local, o->ftol_rel);
+      nlopt_set_xtol_rel(local, 1e-14);
+      nlopt_set_local_optimizer(opt, local);
+    }
+  }
+  if (!opt || (o->algorithm != MRVI_OCP_SLSQP && !local)) {
+    status = mrvi_ocp_fail(o, MRVI_ENOMEM, "NLopt could not be created");
+    goto done;
+  }
+  nlopt_set_lower_bounds(opt, lb);
+  nlopt_set_upper_bounds(opt, ub);
+  nlopt_set_min_objective(opt, objective, &cc);
+  if (m > 0)
+    nlopt_add_equality_mconstraint(opt, (unsigned)m, constraints, &cc, tol);
+  nlopt_set_ftol_rel(opt, o->ftol_rel);
+  nlopt_set_xtol_rel(opt, 1e-14);
+  nlopt_set_maxeval(opt, o->max_eval);
+  double fmin = 0.0;
+  const nlopt_result r = nlopt_optimize(opt, u, &fmin);
+  res->nlopt_result = (int)r;
+  mrvi_fmt(res->nlopt_name, sizeof res->nlopt_name, "%s",
+           nlopt_result_to_string(r));
+  res->evaluations = cc.evaluations;
+  /* Re-check at the returned controls. */
+  cc.valid = 0;
+  const int se = cached_eval(&cc, u);
+  if (se < 0) {
+    status = se;
+    goto done;
+  }
+  res->cost = cc.J;
+  res->violation = violation(&cc);
+  if (cc.stop == 2)
+    status = mrvi_ocp_fail(o, MRVI_EINTERRUPTED, "optimisation interrupted");
+  else if (r < 0 && r != NLOPT_ROUNDOFF_LIMITED)
+    status =
+        mrvi_ocp_fail(o, MRVI_EOPTIMIZE, "NLopt failed: %s", res->nlopt_name);
+  else if (!(res->violation <= o->terminal_tol))
+    status = mrvi_ocp_fail(
+        o, MRVI_EOPTIMIZE,
+        "terminal conditions not met: max violation %.3e > tolerance %.3e "
+        "(NLopt: %s)",
+        res->violation, o->terminal_tol, res->nlopt_name);
+done:
+  nlopt_destroy(local);
+  nlopt_destroy(opt);
+  free(cc.u);
+  free(cc.grad);
+  free(cc.c);
+  free(cc.cgrad);
+  free(lb);
+  free(ub);
+  free(tol);
+  return status;
+}

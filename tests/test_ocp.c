@@ -1,0 +1,492 @@
+/* Multirate discrete mechanics and optimal control (src/ocp/):
+ * - adjoint gradients of the cost and of every terminal constraint against
+ *   central differences (relative 1e-6) for every named scheme, p in
+ *   {1, 5}, slow and fast actuators on slow and fast coordinates;
+ * - double integrator rest-to-rest: J_N = J* N^2/(N^2 - 1),
+ *   J* = 6 m^2 d^2 / T^3, beside an uncoupled fast oscillator (p = 5) and
+ *   alone (p = 1), to 1e-8 relative;
+ * - harmonic oscillator rest-to-rest over one period: J* = m^2 w^2 d^2 / T,
+ *   order 2 (midpoint) fitted from a halving sequence;
+ * - p = 1 equals a few-line single-rate DMOC written here (midpoint L_d,
+ *   f^+- = (h/2) u), to 1e-8 on the optimal controls. */
+#include "internal.h"
+#include "models.h"
+#include "ocp/ocp.h"
+#include "testlib.h"
+
+#include <hdf5.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+
+/* Central-difference check of the cost and constraint gradients. */
+static void check_gradients(mrvi_ocp *o, const char *what) {
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  double *u = malloc((size_t)n * sizeof *u), *g = malloc((size_t)n * sizeof *g);
+  double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
+  double *c = malloc((size_t)(m + 1) * sizeof *c);
+  double *cp = malloc((size_t)(m + 1) * sizeof *cp);
+  double *cm = malloc((size_t)(m + 1) * sizeof *cm);
+  for (int i = 0; i < n; i++)
+    u[i] = 0.5 * sin(1.7 * i + 0.3);
+  double J;
+  int st = mrvi_ocp_evaluate(o, u, &J, g, c, cg);
+  CHECK(st == 0, "%s: evaluate: %s", what, mrvi_ocp_errmsg(o));
+  if (st != 0)
+    goto out;
+  double errJ = 0, scJ = 0, errC = 0, scC = 0;
+  for (int i = 0; i < n; i++) {
+    const double h = 1e-5, ui = u[i];
+    double Jp, Jm;
+    u[i] = ui + h;
+    mrvi_ocp_evaluate(o, u, &Jp, NULL, cp, NULL);
+    u[i] = ui - h;
+    mrvi_ocp_evaluate(o, u, &Jm, NULL, cm, NULL);
+    u[i] = ui;
+    const double fd = (Jp - Jm) / (2 * h);
+    errJ = fmax(errJ, fabs(fd - g[i]));
+    scJ = fmax(scJ, fabs(fd));
+    for (int j = 0; j < m; j++) {
+      const double fc = (cp[j] - cm[j]) / (2 * h);
+      errC = fmax(errC, fabs(fc - cg[j * n + i]));
+      scC = fmax(scC, fabs(fc));
+    }
+  }
+  CHECK(scJ > 0 && errJ <= 1e-6 * scJ,
+        "%s: cost gradient error %.3e (scale %.3e)", what, errJ, scJ);
+  CHECK(m == 0 || (scC > 0 && errC <= 1e-6 * scC),
+        "%s: constraint gradient error %.3e (scale %.3e)", what, errC, scC);
+out:
+  free(u);
+  free(g);
+  free(cg);
+  free(c);
+  free(cp);
+  free(cm);
+}
+
+/* FPU with four actuators (slow/fast grid on slow/fast coordinates),
+ * tracking, a terminal penalty and four terminal constraints. */
+static void test_gradients(void) {
+  const char *const *schemes = mrvi_scheme_names();
+  const int ps[2] = {1, 5};
+  for (int is = 0; schemes[is]; is++)
+    for (int ip = 0; ip < 2; ip++) {
+      mrvi_model *m = test_fpu();
+      mrvi_settings s = test_settings(schemes[is], 0.03, ps[ip], 0.12, 1e-13);
+      mrvi_ocp *o = NULL;
+      char msg[300];
+      int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
+      CHECK(st == 0, "create: %s", msg);
+      if (st == 0) {
+        mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+        mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
+        mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 0.5, -HUGE_VAL, HUGE_VAL);
+        mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 1.5, -HUGE_VAL, HUGE_VAL);
+        mrvi_ocp_add_tracking(o, 2, 3.0, 0.1);
+        mrvi_ocp_add_tracking(o, 5, 2.0, -0.1);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 1.0, 0.0);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 1, 0.5, 0.0);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 3, 0.0, 0.0);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.2, 0.0);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.1, 7.0);
+        char what[100];
+        mrvi_fmt(what, sizeof what, "FPU %s p=%d", schemes[is], ps[ip]);
+        check_gradients(o, what);
+      }
+      mrvi_ocp_free(o);
+      mrvi_model_free(m);
+    }
+}
+
+/* Cart pendulum (slow cart on a plane, fast bob on a rod: constraints at
+ * macro and micro nodes) in both constraint forms. */
+static void test_gradients_constrained(void) {
+  const char *const *schemes = mrvi_scheme_names();
+  const int ps[2] = {1, 5};
+  const char *forms[2] = {"multipliers", "null-space"};
+  for (int is = 0; schemes[is]; is++)
+    for (int ip = 0; ip < 2; ip++)
+      for (int form = 0; form < 2; form++) {
+        mrvi_model *m = test_cart_pendulum();
+        mrvi_settings s = test_settings(schemes[is], 0.01, ps[ip], 0.04, 1e-13);
+        s.constraint_form = form ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+        s.constraint_tol = 1e-13;
+        mrvi_ocp *o = NULL;
+        char msg[300];
+        int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
+        CHECK(st == 0, "create: %s", msg);
+        if (st == 0) {
+          /* cart.x, cart.y slow (0, 1); bob.x, bob.y fast (3, 4) */
+          mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 2.0, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 0.5, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 1.5, -HUGE_VAL,
+                                HUGE_VAL);
+          mrvi_ocp_add_tracking(o, 5, 3.0, -0.2);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 3, 0.0, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.0, 0.0);
+          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.0, 4.0);
+          char what[120];
+          mrvi_fmt(what, sizeof what, "cart pendulum %s p=%d %s", schemes[is],
+                   ps[ip], forms[form]);
+          check_gradients(o, what);
+        }
+        mrvi_ocp_free(o);
+        mrvi_model_free(m);
+      }
+}
+
+/* Slow free mass (and, if p > 1, an uncoupled fast oscillator). */
+static mrvi_model *double_integrator(double mass, int with_fast) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_add_coordinate(m, "x", mass, MRVI_SLOW, 0.0, 0.0);
+  if (with_fast) {
+    mrvi_model_add_coordinate(m, "y", 0.3, MRVI_FAST, 0.01, 0.2);
+    const int c = 1;
+    const double one = 1.0, k[1] = {0.3 * 2500.0};
+    mrvi_model_add_term(m, MRVI_FAST, 1, &c, &one, 0.0, "linear", k);
+  }
+  return m;
+}
+
+/* Rest-to-rest 0 -> d of coordinate 0 in t_end with effort cost; returns
+ * the optimal cost (NaN on failure); u (n) gets the controls. */
+static double rest_to_rest(mrvi_model *m, const mrvi_settings *s, double d,
+                           mrvi_ocp_algorithm alg, double *u_out) {
+  mrvi_ocp *o = NULL;
+  char msg[300];
+  double J = NAN;
+  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
+    CHECK(0, "create: %s", msg);
+    return J;
+  }
+  mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, d, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+  mrvi_ocp_set_algorithm(o, alg);
+  mrvi_ocp_set_tolerances(o, 1e-15, 1e-11);
+  const int n = mrvi_ocp_n_controls(o);
+  double *u = calloc((size_t)n, sizeof *u);
+  mrvi_ocp_result r;
+  const int st = mrvi_ocp_solve(o, u, &r);
+  CHECK(st == 0, "solve: %s (%s, %d evaluations)", mrvi_ocp_errmsg(o),
+        r.nlopt_name, r.evaluations);
+  if (st == 0)
+    J = r.cost;
+  if (u_out)
+    memcpy(u_out, u, (size_t)n * sizeof *u);
+  free(u);
+  mrvi_ocp_free(o);
+  return J;
+}
+
+static void test_double_integrator(void) {
+  const double mass = 2.0, d = 1.0, T = 2.0;
+  const int N = 10;
+  const double Js = 6.0 * mass * mass * d * d / (T * T * T);
+  const double JN = Js * N * N / (N * N - 1.0);
+  for (int p = 1; p <= 5; p += 4) {
+    mrvi_model *m = double_integrator(mass, p > 1);
+    mrvi_settings s = test_settings("midpoint-midpoint", T / N, p, T, 1e-12);
+    const double J = rest_to_rest(m, &s, d, MRVI_OCP_SLSQP, NULL);
+    CHECK(fabs(J - JN) <= 1e-8 * JN,
+          "double integrator p=%d: J = %.15g, J_N = %.15g (rel %.2e)", p, J, JN,
+          fabs(J - JN) / JN);
+    mrvi_model_free(m);
+  }
+  /* The augmented-Lagrangian algorithms reach the same optimum (their
+   * penalty iteration stops at a looser tolerance). */
+  const mrvi_ocp_algorithm algs[2] = {MRVI_OCP_AUGLAG_LBFGS,
+                                      MRVI_OCP_AUGLAG_CCSAQ};
+  for (int a = 0; a < 2; a++) {
+    mrvi_model *m = double_integrator(mass, 0);
+    mrvi_settings s = test_settings("midpoint-midpoint", T / N, 1, T, 1e-12);
+    const double J = rest_to_rest(m, &s, d, algs[a], NULL);
+    CHECK(fabs(J - JN) <= 1e-6 * JN,
+          "double integrator algorithm %d: J = %.15g, J_N = %.15g", a, J, JN);
+    mrvi_model_free(m);
+  }
+}
+
+static void test_oscillator_period(void) {
+  const double w = 2.0 * acos(-1.0), T = 1.0, d = 0.5;
+  const double Js = w * w * d * d / T;
+  double err[4];
+  for (int i = 0; i < 4; i++) {
+    const int N = 10 << i;
+    mrvi_model *m = test_oscillator(w);
+    /* Start at rest at 0. */
+    m->q0[0] = 0.0;
+    mrvi_settings s = test_settings("midpoint-midpoint", T / N, 1, T, 1e-12);
+    const double J = rest_to_rest(m, &s, d, MRVI_OCP_SLSQP, NULL);
+    err[i] = fabs(J - Js);
+    mrvi_model_free(m);
+  }
+  for (int i = 0; i + 1 < 4; i++) {
+    const double order = log2(err[i] / err[i + 1]);
+    CHECK(fabs(order - 2.0) < 0.1,
+          "oscillator period: order %.3f (errors %.3e, %.3e)", order, err[i],
+          err[i + 1]);
+  }
+}
+
+/* Independent single-rate DMOC of m q'' + k q = u (midpoint L_d, f^+- =
+ * (h/2) u): the map u -> (q_N, p_N) is affine, so the effort-optimal
+ * rest-to-rest controls solve min 1/2 h |u|^2, A u = b directly. */
+static void dmoc_reference(double mass, double k, double h, int N, double d,
+                           double *u) {
+  double A[2][200], c0[2] = {0.0, 0.0};
+  for (int col = -1; col < N; col++) {
+    double q = 0.0, p = 0.0;
+    for (int j = 0; j < N; j++) {
+      const double uj = col == j ? 1.0 : 0.0;
+      /* p + D1 Ld + h u/2 = 0, D1 Ld = -m (q1-q)/h - h k (q+q1)/4 */
+      const double q1 = (p + mass * q / h - h * k * q / 4 + h * uj / 2) /
+                        (mass / h + h * k / 4);
+      p = mass * (q1 - q) / h - h * k * (q + q1) / 4 + h * uj / 2;
+      q = q1;
+    }
+    if (col < 0) {
+      c0[0] = q;
+      c0[1] = p;
+    } else {
+      A[0][col] = q - c0[0];
+      A[1][col] = p - c0[1];
+    }
+  }
+  /* u = A^T (A A^T)^-1 (b - c0). */
+  double G[4] = {0, 0, 0, 0}, r[2] = {d - c0[0], 0.0 - c0[1]};
+  for (int j = 0; j < N; j++)
+    for (int a = 0; a < 2; a++)
+      for (int b = 0; b < 2; b++)
+        G[a * 2 + b] += A[a][j] * A[b][j];
+  mrvi_dense_solve(2, G, r);
+  for (int j = 0; j < N; j++)
+    u[j] = A[0][j] * r[0] + A[1][j] * r[1];
+}
+
+static void test_dmoc_reference(void) {
+  const double w = 3.0, mass = 1.0, T = 1.3, d = 0.7;
+  const int N = 20;
+  mrvi_model *m = test_oscillator(w);
+  m->q0[0] = 0.0;
+  mrvi_settings s = test_settings("midpoint-midpoint", T / N, 1, T, 1e-13);
+  double u[20], ur[20];
+  rest_to_rest(m, &s, d, MRVI_OCP_SLSQP, u);
+  dmoc_reference(mass, w * w, T / N, N, d, ur);
+  double err = 0, sc = 0;
+  for (int j = 0; j < N; j++) {
+    err = fmax(err, fabs(u[j] - ur[j]));
+    sc = fmax(sc, fabs(ur[j]));
+  }
+  CHECK(err <= 1e-8 * sc,
+        "p = 1 vs single-rate DMOC: max |du| = %.3e (scale %.3e)", err, sc);
+  mrvi_model_free(m);
+}
+
+/* Gantry crane in the plane: slow cart on the line y = 0, fast bob on a
+ * rod of length 0.2 below it; the cart moves 0 -> 1 in T = 2 and cart and
+ * bob end at rest above each other.  Both constraint forms give the same
+ * optimum; the rod length holds to the constraint tolerance. */
+static void test_gantry(void) {
+  double J[2];
+  for (int form = 0; form < 2; form++) {
+    mrvi_model *m = mrvi_model_create();
+    mrvi_model_set_dimension(m, 2);
+    const double xc[2] = {0, 0}, xb[2] = {0, -0.2}, v0[2] = {0, 0};
+    const double g[2] = {0, -9.81}, ny[2] = {0, 1};
+    mrvi_model_add_particle(m, "cart", 1.0, MRVI_SLOW, xc, v0);
+    mrvi_model_add_particle(m, "bob", 0.1, MRVI_FAST, xb, v0);
+    mrvi_model_set_gravity(m, g);
+    mrvi_model_add_plane(m, 0, ny, 0.0);
+    mrvi_model_add_distance(m, 0, 1, NAN);
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.1, 5, 2.0, 1e-12);
+    s.constraint_form = form ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    s.constraint_tol = 1e-12;
+    mrvi_ocp *o = NULL;
+    char msg[300];
+    J[form] = NAN;
+    if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) == 0) {
+      mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 1.0, 0.0);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 2, 1.0, 0.0);
+      mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 2, 0.0, 0.0);
+      mrvi_ocp_set_tolerances(o, 1e-14, 1e-9);
+      const int n = mrvi_ocp_n_controls(o);
+      double *u = calloc((size_t)n, sizeof *u);
+      mrvi_ocp_result r;
+      const int st = mrvi_ocp_solve(o, u, &r);
+      CHECK(st == 0, "gantry %d: %s (%d evaluations, violation %.2e)", form,
+            mrvi_ocp_errmsg(o), r.evaluations, r.violation);
+      J[form] = r.cost;
+      /* Rod length at every macro node. */
+      const double *q = mrvi_ocp_q(o);
+      double worst = 0.0;
+      for (long k = 0; k <= mrvi_ocp_n_steps(o); k++) {
+        const double dx = q[4 * k + 2] - q[4 * k],
+                     dy = q[4 * k + 3] - q[4 * k + 1];
+        worst = fmax(worst, fabs(sqrt(dx * dx + dy * dy) - 0.2));
+      }
+      CHECK(worst <= 1e-11, "gantry %d: rod length error %.2e", form, worst);
+      free(u);
+    } else {
+      CHECK(0, "gantry create: %s", msg);
+    }
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+  CHECK(fabs(J[0] - J[1]) <= 1e-6 * fabs(J[0]),
+        "gantry: cost multipliers %.12g vs null-space %.12g", J[0], J[1]);
+}
+
+/* /macro/q of an output file (malloc'ed, *n entries) or NULL. */
+static double *read_q(const char *path, size_t *n) {
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0)
+    return NULL;
+  hid_t d = H5Dopen2(f, "/macro/q", H5P_DEFAULT);
+  double *q = NULL;
+  if (d >= 0) {
+    hid_t sp = H5Dget_space(d);
+    *n = (size_t)H5Sget_simple_extent_npoints(sp);
+    q = malloc(*n * sizeof *q);
+    if (q &&
+        H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, q) < 0) {
+      free(q);
+      q = NULL;
+    }
+    H5Sclose(sp);
+    H5Dclose(d);
+  }
+  H5Fclose(f);
+  return q;
+}
+
+/* `mrvi optimize` on the shipped problems: exit 0 at the optimum, 2 when
+ * the optimiser stops before the terminal conditions hold, 1 for bad
+ * input. */
+static void test_cli(void) {
+  const char *bin = getenv("MRVI_BIN");
+  if (!bin) {
+    CHECK(0, "MRVI_BIN not set");
+    return;
+  }
+  struct {
+    const char *file, *extra;
+    int rc;
+  } cases[] = {
+      {"systems/ocp_double_integrator.yaml", "", 0},
+      {"systems/ocp_gantry_crane.yaml", "", 0},
+      {"systems/ocp_gantry_crane.yaml",
+       "--set integrator.constraints.form=null-space", 0},
+      {"systems/ocp_gantry_crane.yaml",
+       "--set control.solver.max_evaluations=2", 2},
+      {"tests/bad_input/control_bounds.yaml", "", 1},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    char cmd[2048];
+    snprintf(cmd, sizeof cmd,
+             "%s optimize %s -q -o test_ocp_cli.h5 %s "
+             ">/dev/null 2>&1",
+             bin, test_source_path(cases[i].file), cases[i].extra);
+    const int st = system(cmd);
+    const int rc = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+    CHECK(rc == cases[i].rc, "mrvi optimize %s %s: exit %d, expected %d",
+          cases[i].file, cases[i].extra, rc, cases[i].rc);
+  }
+  remove("test_ocp_cli.h5");
+  /* Replay: the stored optimal controls through `mrvi run --controls`
+   * (multiplier form, and the null-space form for the same controls)
+   * reproduce the optimised trajectory and meet the terminal conditions. */
+  const char *crane = test_source_path("systems/ocp_gantry_crane.yaml");
+  char cmd[2048];
+  snprintf(cmd, sizeof cmd,
+           "%s optimize %s -q -o test_ocp_opt.h5 >/dev/null 2>&1", bin, crane);
+  int st = system(cmd);
+  CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0, "optimize for replay");
+  const char *extra[2] = {"", "--set integrator.constraints.form=null-space"};
+  for (int i = 0; i < 2; i++) {
+    snprintf(cmd, sizeof cmd,
+             "%s run %s --controls test_ocp_opt.h5 -o test_ocp_replay.h5 %s "
+             ">/dev/null 2>&1",
+             bin, crane, extra[i]);
+    st = system(cmd);
+    CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0, "replay %s: exit %d", extra[i],
+          WIFEXITED(st) ? WEXITSTATUS(st) : -1);
+    size_t na = 0, nb = 0;
+    double *a = read_q("test_ocp_opt.h5", &na);
+    double *b = read_q("test_ocp_replay.h5", &nb);
+    double diff = a && b && na == nb && na > 0 ? 0.0 : HUGE_VAL;
+    for (size_t j = 0; a && b && j < na && j < nb; j++)
+      diff = fmax(diff, fabs(a[j] - b[j]));
+    CHECK(diff <= 1e-10, "replay %s: max |q - q_opt| = %.2e", extra[i], diff);
+    free(a);
+    free(b);
+  }
+  remove("test_ocp_opt.h5");
+  remove("test_ocp_replay.h5");
+}
+
+/* Cost of the adjoint: one cost+gradient evaluation (forward sweep plus
+ * the backward sweep for the cost and two constraints) against the forward
+ * sweep alone, FPU with p = 1 and 10, N = 60.  Target <= 3 (1.5 measured
+ * in the optimised build); asserted <= 20 so that sanitizer builds and a
+ * loaded machine pass while a sweep that is not linear in N fails. */
+static void test_adjoint_cost(void) {
+  const int ps[2] = {1, 10};
+  for (int ip = 0; ip < 2; ip++) {
+    mrvi_model *m = test_fpu();
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", 0.1, ps[ip], 6.0, 1e-11);
+    mrvi_ocp *o = NULL;
+    char msg[300];
+    if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) != 0) {
+      CHECK(0, "create: %s", msg);
+      mrvi_model_free(m);
+      return;
+    }
+    mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+    mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.0, 0.0);
+    mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+    const int n = mrvi_ocp_n_controls(o);
+    double *u = calloc((size_t)n, sizeof *u), *g = calloc((size_t)n, sizeof *g);
+    double *cg = calloc((size_t)(2 * n), sizeof *cg), c[2], J;
+    double tf = 1e30, ta = 1e30;
+    for (int r = 0; r < 5; r++) {
+      double t0 = mrvi_clock();
+      mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+      tf = fmin(tf, mrvi_clock() - t0);
+      t0 = mrvi_clock();
+      mrvi_ocp_evaluate(o, u, &J, g, c, cg);
+      ta = fmin(ta, mrvi_clock() - t0);
+    }
+    CHECK(ta <= 20.0 * tf,
+          "FPU p=%d N=60: cost+gradient %.3g ms = %.2f x forward %.3g ms",
+          ps[ip], 1e3 * ta, ta / tf, 1e3 * tf);
+    free(u);
+    free(g);
+    free(cg);
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+}
+
+int main(void) {
+  test_gradients();
+  test_gradients_constrained();
+  test_double_integrator();
+  test_oscillator_period();
+  test_dmoc_reference();
+  test_gantry();
+  test_cli();
+  test_adjoint_cost();
+  return test_finish();
+}
