@@ -1,4 +1,4 @@
-/* Cost of the two constraint forms (DESIGN §6) on the shipped constrained
+/* Cost of the two constraint forms (doc/constraints.md) on the shipped constrained
  * systems: for every system, form and p the table gives the size and
  * nonzeros of the Newton matrix, the Newton iterations and the time per
  * macro step (assembly + solve).  The macro step of the description file is

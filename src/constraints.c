@@ -1,4 +1,4 @@
-/* Holonomic constraints on a model (DESIGN §6): the registry of constraint
+/* Holonomic constraints on a model (doc/constraints.md): the registry of constraint
  * types (one const table per file in constraints/), instances, and the
  * checks and projections of initial data. */
 #include "internal.h"

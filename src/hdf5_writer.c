@@ -1,4 +1,4 @@
-/* HDF5 output (doc/output.md, DESIGN §4).
+/* HDF5 output (doc/output.md).
  *
  * The writer is an mrvi_observer.  Each record adds rows to three streams of
  * datasets (macro nodes, fast micro nodes, solver statistics); rows are

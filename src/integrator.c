@@ -178,7 +178,7 @@ static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
   return st < 0 ? st : mrvi_constraints_independent(it->model, q, msg, len);
 }
 
-/* Momentum projection at the current macro node (DESIGN §6, RATTLE-style):
+/* Momentum projection at the current macro node (doc/constraints.md, RATTLE-style):
  * p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p, so that the hidden
  * constraint G M^-1 p = 0 holds.  The shift lies in the range of G^T at the
  * node, so the next step's lambda absorbs it: positions are unchanged. */

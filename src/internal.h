@@ -174,7 +174,7 @@ int mrvi_quadrature_points(mrvi_rule rule, mrvi_grid grid, double macro_step,
                            int p, mrvi_point *pts);
 
 /* ---------------------------------------------------------------------------
- * One step (DESIGN §3): residual, Jacobian pattern and values, momenta.
+ * One step (arXiv 2406.12991 §3.1, doc/solver.md): residual, Jacobian pattern and values, momenta.
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_step {
   const mrvi_model *model;
@@ -200,7 +200,7 @@ typedef struct mrvi_step {
   long nnz;
   /* Workspace. */
   double *y, *g, *H;            /* element inputs, gradient, Hessian */
-  /* Constraints (DESIGN §6).  The full unknown vector is (x, lambda) of
+  /* Constraints (doc/constraints.md).  The full unknown vector is (x, lambda) of
    * size n_total = n_unknowns + n_lambda; the residual appends the
    * constraint equations.  Layout of lambda and of the equation rows:
    *   slow-only constraints: lambda_k (weight dT) at node 0, equations
@@ -250,7 +250,7 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
                        double *pf);
 
 /* ---------------------------------------------------------------------------
- * Discrete null-space form (nullspace.c, DESIGN §6): the dynamic rows are
+ * Discrete null-space form (nullspace.c, doc/constraints.md): the dynamic rows are
  * premultiplied by P^T with P^T C = 0, which removes the multipliers.
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_nullspace mrvi_nullspace;

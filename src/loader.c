@@ -1231,7 +1231,7 @@ done:
 }
 
 /* ---------------------------------------------------------------------------
- * Interpretation: constraints (DESIGN §6)
+ * Interpretation: constraints (doc/constraints.md)
  *
  * Each entry adds one model constraint; its loader returns the constraint
  * index (>= 0) or a status < 0.
@@ -1511,7 +1511,7 @@ add_note(loader *L, const char *fmt, ...) {
   return MRVI_OK;
 }
 
-/* Initial data against the constraints (DESIGN §6), once the settings are
+/* Initial data against the constraints (doc/constraints.md), once the settings are
  * known: positions within the tolerance, independent gradients, velocities
  * projected onto the tangent space (with a note when they changed). */
 static int check_constraints(loader *L) {
@@ -1931,7 +1931,7 @@ static int load_rule(loader *L, struct fy_node *map, const char *where,
   return MRVI_OK;
 }
 
-/* integrator.constraints: {form, tolerance, projection} (DESIGN §6). */
+/* integrator.constraints: {form, tolerance, projection} (doc/constraints.md). */
 static int load_constraint_settings(loader *L, struct fy_node *map) {
   static const char *const forms[] = {"multipliers", "null-space"};
   mrvi_settings *s = &L->sys->settings;

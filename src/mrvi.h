@@ -242,7 +242,7 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q,
                          const double *p, double *linear, double *angular);
 
 /* ---------------------------------------------------------------------------
- * Holonomic constraints g(q) = 0 (DESIGN §6).
+ * Holonomic constraints g(q) = 0 (doc/constraints.md).
  *
  * A constraint type is one const table in constraints/ (distance, fixed,
  * plane, linear); an instance applies it to n_in model coordinates with
@@ -332,7 +332,7 @@ int mrvi_model_check_independent(mrvi_model *m, const double *q);
 int mrvi_model_project_velocities(mrvi_model *m, double *correction);
 
 /* ---------------------------------------------------------------------------
- * Integrator settings (DESIGN §2): rule (alpha, gamma) of eq:Zapprox for the
+ * Integrator settings (arXiv 2406.12991 §3.3): rule (alpha, gamma) of eq:Zapprox for the
  * slow potential V and the fast potential W, the grid V is evaluated on.
  * ------------------------------------------------------------------------- */
 typedef enum mrvi_grid { MRVI_GRID_MICRO = 0, MRVI_GRID_MACRO = 1 } mrvi_grid;
@@ -369,7 +369,7 @@ typedef struct mrvi_settings {
   double t_end;         /* >= macro_step; N = ceil(t_end/dT - 1e-9) steps */
   double newton_tol;    /* stop when ||R||_inf <= tol (default 1e-9) */
   int newton_max_iter;  /* default 20 */
-  /* Constraints (DESIGN §6). */
+  /* Constraints (doc/constraints.md). */
   mrvi_constraint_form constraint_form; /* default MRVI_FORM_MULTIPLIERS */
   double constraint_tol;                /* max |g| at enforced nodes (1e-10) */
   int project_momenta;                  /* project p onto G M^-1 p = 0 (1) */
@@ -399,7 +399,7 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len);
 long mrvi_settings_n_steps(const mrvi_settings *s);
 
 /* ---------------------------------------------------------------------------
- * Integrator: one-step position-momentum map (DESIGN §3), solved by Newton
+ * Integrator: one-step position-momentum map (arXiv 2406.12991 §3.1, doc/solver.md), solved by Newton
  * with UMFPACK (pattern and symbolic analysis once, numeric per iteration).
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_integrator mrvi_integrator;

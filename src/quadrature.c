@@ -1,5 +1,5 @@
 /* Evaluation points of the generalised rule eq:Zapprox on the micro grid and
- * of the macro-node rule eq:slow_potential_affine (DESIGN §2). */
+ * of the macro-node rule eq:slow_potential_affine (arXiv 2406.12991 §3.3). */
 #include "internal.h"
 
 static int push(mrvi_point *pts, int n, double w, double tau, int m,

@@ -1,4 +1,4 @@
-/* Integrator settings and the named schemes of DESIGN §2. */
+/* Integrator settings and the named schemes of arXiv 2406.12991 §3.3. */
 #include "internal.h"
 
 #include <math.h>

@@ -1,4 +1,4 @@
-/* One macro step in position-momentum form (DESIGN §3, eq:DEL_ini).
+/* One macro step in position-momentum form (arXiv 2406.12991 §3.1, doc/solver.md, eq:DEL_ini).
  *
  * Unknowns x = (q_{k+1}^s, q_k^{f,1}, ..., q_k^{f,p}), size ns + p nf.
  * Residual rows:
@@ -139,7 +139,7 @@ static void jac_add(mrvi_step *st, int row, int col, double v) {
 }
 
 /* Split the model's constraints into slow-only (macro nodes) and micro-node
- * ones and size the multiplier block (DESIGN §6). */
+ * ones and size the multiplier block (doc/constraints.md). */
 static int init_constraints(mrvi_step *st) {
   const mrvi_model *m = st->model;
   const int nc = m->n_constraints;
@@ -349,7 +349,7 @@ static void constraint_equation(mrvi_step *st, int c, const mrvi_point *pt,
 }
 
 /* The constrained action adds -h lambda^T g at every enforcing node
- * (DESIGN §6): slow-only constraints with h = dT at node 0 (equations at
+ * (doc/constraints.md): slow-only constraints with h = dT at node 0 (equations at
  * q_{k+1}^s), micro-node constraints with h = dt at nodes 0..p-1
  * (equations at nodes 1..p, slow part interpolated). */
 static void assemble_constraints(mrvi_step *st, const double *x, double *R,

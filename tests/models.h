@@ -1,4 +1,4 @@
-/* The paper's validation systems built with the C API (DESIGN §5), so the
+/* The paper's validation systems built with the C API (arXiv 2406.12991 §6, doc/reproduction.md), so the
  * numerical tests do not depend on the description-file loader. */
 #ifndef MRVI_TEST_MODELS_H
 #define MRVI_TEST_MODELS_H
@@ -12,7 +12,7 @@ mrvi_model *test_spring_ring(void);
 /* Harmonic oscillator, slow only: V = omega^2 q^2 / 2, unit mass. */
 mrvi_model *test_oscillator(double omega);
 
-/* Cart pendulum (DESIGN §6): slow cart (mass 5) on the plane z = 0, fast
+/* Cart pendulum (doc/constraints.md): slow cart (mass 5) on the plane z = 0, fast
  * bob (mass 0.5) on a rod of length 0.2 at 30 degrees, gravity -9.81 e3.
  * Constraints: 0 = plane (macro nodes), 1 = rod (micro nodes). */
 mrvi_model *test_cart_pendulum(void);

@@ -1,4 +1,4 @@
-/* Constrained integration (DESIGN §6): the multiplier and null-space forms
+/* Constrained integration (doc/constraints.md): the multiplier and null-space forms
  * against an independent constrained midpoint integrator, against each
  * other, conservation laws, residuals and convergence order. */
 #include "internal.h"
@@ -473,7 +473,7 @@ static void test_null_space_limit(void) {
   mrvi_model_free(m);
 }
 
-/* The saddle-point Jacobian of the constrained step (DESIGN §6), with
+/* The saddle-point Jacobian of the constrained step (doc/constraints.md), with
  * nonzero multipliers so that the -h sum lambda_i d2g_i terms count, against
  * central differences of the residual. */
 static void test_step_jacobian(const char *label, mrvi_model *m,

@@ -654,7 +654,7 @@ static void law_params(const char *law, double *par, const char *n1, double v1,
   }
 }
 
-/* FPU (DESIGN §5) with omega^2 = 2500. */
+/* FPU (arXiv 2406.12991 §6, doc/reproduction.md) with omega^2 = 2500. */
 static mrvi_model *fpu_model(void) {
   mrvi_model *m = mrvi_model_create();
   const char *names[6] = {"qs1", "qs2", "qs3", "qf1", "qf2", "qf3"};

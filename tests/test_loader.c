@@ -1,7 +1,7 @@
 /* Description files: every broken file in tests/bad_input/ fails with
  * "file:line:col: message" (library and CLI), the shipped systems hold the
- * paper's set-ups (DESIGN §5), --set overrides reach the model and the
- * stored description, and constraints (DESIGN §6) are parsed, checked and
+ * paper's set-ups (arXiv 2406.12991 §6, doc/reproduction.md), --set overrides reach the model and the
+ * stored description, and constraints (doc/constraints.md) are parsed, checked and
  * their initial velocities projected. */
 #include "internal.h"
 #include "mrvi.h"
@@ -288,7 +288,7 @@ static void check_spring_ring_file(void) {
   CHECK(mrvi_model_n_elements(m) == 13, "ring elements = %d",
         mrvi_model_n_elements(m));
   /* Initial data equal to the C-API build of the paper's set-up
-   * (tests/models.c, DESIGN §5): positions to the 17 digits written in the
+   * (tests/models.c, arXiv 2406.12991 §6, doc/reproduction.md): positions to the 17 digits written in the
    * file, velocities to rounding of the normalisations. */
   mrvi_model *ref = test_spring_ring();
   double x[6][3];
@@ -358,7 +358,7 @@ static void check_oscillator_file(void) {
 }
 
 /* ---------------------------------------------------------------------------
- * Constraints (DESIGN §6)
+ * Constraints (doc/constraints.md)
  * ------------------------------------------------------------------------- */
 
 static mrvi_system *load_text(const char *text, const char *const *ov,

@@ -1,4 +1,4 @@
-/* p = 1 reductions to classical one-step schemes (DESIGN §2, remarks after
+/* p = 1 reductions to classical one-step schemes (arXiv 2406.12991 §3.3, remarks after
  * th:midfmids, th:midftraps, th:trapftraps and Examples ex:slow_ex__fast_im,
  * ex:fully_ex).  Each classical scheme is written here in a few lines on top
  * of the model's gradient and Hessian only; mrvi's multirate step with p = 1

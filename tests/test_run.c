@@ -76,7 +76,7 @@ static void interruption(void) {
 }
 
 /* A run restarted from a saved (q, p) continues the same trajectory: the
- * one-step map only needs (q_k, p_k) (DESIGN §3). */
+ * one-step map only needs (q_k, p_k) (arXiv 2406.12991 §3.1, doc/solver.md). */
 static void restart(void) {
   mrvi_model *m = test_spring_ring();
   mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 5, 1.0, 1e-12);

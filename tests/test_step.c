@@ -1,4 +1,4 @@
-/* The one-step equations (DESIGN §3):
+/* The one-step equations (arXiv 2406.12991 §3.1, doc/solver.md):
  * - the residual equals p_k + D L_d of a discrete Lagrangian written here
  *   straight from eq:discrete_Lagrangian / eq:Zapprox / eq:slow_potential_affine
  *   (derivatives by central differences), and the output momenta equal

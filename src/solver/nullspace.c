@@ -1,4 +1,4 @@
-/* Discrete null-space form of the constrained step (DESIGN §6).
+/* Discrete null-space form of the constrained step (doc/constraints.md).
  *
  * The multiplier form solves   R(x, lambda) = F(x) - C(x) lambda = 0,
  *                              h(x) = 0,
@@ -99,7 +99,7 @@ static int rec_push(mrvi_nullspace *z, long *cap, int row) {
   return 0;
 }
 
-/* Source rows of every reduced row, fixed by structure (DESIGN §6 basis):
+/* Source rows of every reduced row, fixed by structure (doc/constraints.md, null-space basis):
  * slow basis rows, then the local rows of nodes 0..p-1, then the
  * constraint equations. */
 static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
