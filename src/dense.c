@@ -90,3 +90,57 @@ int mrvi_dense_qr(int m, int n, double *A, double *Q) {
   }
   return rank_ok ? 0 : -1;
 }
+
+/* LU with partial pivoting in place (n x n row-major); -1 if singular. */
+int mrvi_dense_lu_factor(int n, double *A, int *piv) {
+  for (int k = 0; k < n; k++) {
+    int r = k;
+    for (int i = k + 1; i < n; i++)
+      if (fabs(A[i * n + k]) > fabs(A[r * n + k]))
+        r = i;
+    piv[k] = r;
+    if (!(fabs(A[r * n + k]) > 0.0))
+      return -1;
+    if (r != k)
+      for (int j = 0; j < n; j++) {
+        const double t = A[k * n + j];
+        A[k * n + j] = A[r * n + j];
+        A[r * n + j] = t;
+      }
+    const double d = 1.0 / A[k * n + k];
+    for (int i = k + 1; i < n; i++) {
+      const double f = (A[i * n + k] *= d);
+      if (f != 0.0)
+        for (int j = k + 1; j < n; j++)
+          A[i * n + j] -= f * A[k * n + j];
+    }
+  }
+  return 0;
+}
+
+/* Solve with mrvi_dense_lu_factor's factors; b (n x nrhs row-major) becomes x.
+ */
+void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
+                         int nrhs) {
+  for (int k = 0; k < n; k++) {
+    if (piv[k] != k)
+      for (int c = 0; c < nrhs; c++) {
+        const double t = b[piv[k] * nrhs + c];
+        b[piv[k] * nrhs + c] = b[k * nrhs + c];
+        b[k * nrhs + c] = t;
+      }
+    for (int i = k + 1; i < n; i++) {
+      const double f = A[i * n + k];
+      if (f != 0.0)
+        for (int c = 0; c < nrhs; c++)
+          b[i * nrhs + c] -= f * b[k * nrhs + c];
+    }
+  }
+  for (int i = n - 1; i >= 0; i--)
+    for (int c = 0; c < nrhs; c++) {
+      double s = b[i * nrhs + c];
+      for (int j = i + 1; j < n; j++)
+        s -= A[i * n + j] * b[j * nrhs + c];
+      b[i * nrhs + c] = s / A[i * n + i];
+    }
+}

@@ -147,6 +147,12 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
 /* Dense helpers (dense.c).  Solve A x = b in place (A n x n row-major,
  * overwritten; b becomes x); -1 if singular. */
 int mrvi_dense_solve(int n, double *A, double *b);
+/* LU with partial pivoting of A (n x n row-major) in place, pivots in piv
+ * (n); -1 if singular.  mrvi_dense_lu_solve: b (n x nrhs row-major)
+ * becomes A^-1 b.  The small blocks of the structured step solvers. */
+int mrvi_dense_lu_factor(int n, double *A, int *piv);
+void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
+                         int nrhs);
 #define MRVI_DENSE_MAX 256
 /* Householder QR of A (m x n row-major, m <= MRVI_DENSE_MAX): A is
  * overwritten with R in its upper triangle, Q (m x m row-major) is explicit

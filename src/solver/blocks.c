@@ -30,59 +30,6 @@ struct mrvi_blocks {
   int *spiv;
 };
 
-/* LU with partial pivoting in place (n x n row-major); -1 if singular. */
-static int lu_factor(int n, double *A, int *piv) {
-  for (int k = 0; k < n; k++) {
-    int r = k;
-    for (int i = k + 1; i < n; i++)
-      if (fabs(A[i * n + k]) > fabs(A[r * n + k]))
-        r = i;
-    piv[k] = r;
-    if (!(fabs(A[r * n + k]) > 0.0))
-      return -1;
-    if (r != k)
-      for (int j = 0; j < n; j++) {
-        const double t = A[k * n + j];
-        A[k * n + j] = A[r * n + j];
-        A[r * n + j] = t;
-      }
-    const double d = 1.0 / A[k * n + k];
-    for (int i = k + 1; i < n; i++) {
-      const double f = (A[i * n + k] *= d);
-      if (f != 0.0)
-        for (int j = k + 1; j < n; j++)
-          A[i * n + j] -= f * A[k * n + j];
-    }
-  }
-  return 0;
-}
-
-/* Solve with lu_factor's factors; b (n x nrhs row-major) becomes x. */
-static void lu_solve(int n, const double *A, const int *piv, double *b,
-                     int nrhs) {
-  for (int k = 0; k < n; k++) {
-    if (piv[k] != k)
-      for (int c = 0; c < nrhs; c++) {
-        const double t = b[piv[k] * nrhs + c];
-        b[piv[k] * nrhs + c] = b[k * nrhs + c];
-        b[k * nrhs + c] = t;
-      }
-    for (int i = k + 1; i < n; i++) {
-      const double f = A[i * n + k];
-      if (f != 0.0)
-        for (int c = 0; c < nrhs; c++)
-          b[i * nrhs + c] -= f * b[k * nrhs + c];
-    }
-  }
-  for (int i = n - 1; i >= 0; i--)
-    for (int c = 0; c < nrhs; c++) {
-      double s = b[i * nrhs + c];
-      for (int j = i + 1; j < n; j++)
-        s -= A[i * n + j] * b[j * nrhs + c];
-      b[i * nrhs + c] = s / A[i * n + i];
-    }
-}
-
 void mrvi_blocks_free(mrvi_blocks *b) {
   if (!b)
     return;
@@ -189,8 +136,8 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
               xm[i * nrhs + c] -= l * xc[k * nrhs + c];
         }
     }
-    lu_solve(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * (size_t)nf, xm,
-             nrhs);
+    mrvi_dense_lu_solve(nf, b->D + (size_t)m * blk,
+                        b->piv + (size_t)m * (size_t)nf, xm, nrhs);
   }
 }
 
@@ -201,8 +148,8 @@ int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
     return MRVI_EINVAL;
   const size_t blk = (size_t)nf * (size_t)nf;
   for (int m = 0; m < p; m++)
-    if (lu_factor(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * (size_t)nf) <
-        0)
+    if (mrvi_dense_lu_factor(nf, b->D + (size_t)m * blk,
+                             b->piv + (size_t)m * (size_t)nf) < 0)
       return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs, z = A_ff^-1 R_f */
   memcpy(b->Y, b->Afs, (size_t)nF * (size_t)ns * sizeof(double));
@@ -225,9 +172,9 @@ int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
     b->r[i] = s;
   }
   if (ns > 0) {
-    if (lu_factor(ns, b->S, b->spiv) < 0)
+    if (mrvi_dense_lu_factor(ns, b->S, b->spiv) < 0)
       return MRVI_ESINGULAR;
-    lu_solve(ns, b->S, b->spiv, b->r, 1);
+    mrvi_dense_lu_solve(ns, b->S, b->spiv, b->r, 1);
   }
   memcpy(dx, b->r, (size_t)ns * sizeof(double));
   for (int k = 0; k < nF; k++) {

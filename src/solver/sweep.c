@@ -272,51 +272,6 @@ static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
   }
 }
 
-/* LU with partial pivoting of A (n x n row-major) in place; -1 if
- * singular. */
-static int lu_factor(int n, double *A, int *piv) {
-  for (int k = 0; k < n; k++) {
-    int r = k;
-    for (int i = k + 1; i < n; i++)
-      if (fabs(A[i * n + k]) > fabs(A[r * n + k]))
-        r = i;
-    piv[k] = r;
-    if (!(fabs(A[r * n + k]) > 0.0))
-      return -1;
-    if (r != k)
-      for (int j = 0; j < n; j++) {
-        const double t = A[k * n + j];
-        A[k * n + j] = A[r * n + j];
-        A[r * n + j] = t;
-      }
-    const double d = 1.0 / A[k * n + k];
-    for (int i = k + 1; i < n; i++) {
-      const double f = (A[i * n + k] *= d);
-      if (f != 0.0)
-        for (int j = k + 1; j < n; j++)
-          A[i * n + j] -= f * A[k * n + j];
-    }
-  }
-  return 0;
-}
-
-/* Solve with the factors of lu_factor: b becomes x. */
-static void lu_solve(int n, const double *A, const int *piv, double *b) {
-  for (int k = 0; k < n; k++) {
-    const double t = b[piv[k]];
-    b[piv[k]] = b[k];
-    b[k] = t;
-    for (int i = k + 1; i < n; i++)
-      b[i] -= A[i * n + k] * b[k];
-  }
-  for (int i = n - 1; i >= 0; i--) {
-    double s = b[i];
-    for (int j = i + 1; j < n; j++)
-      s -= A[i * n + j] * b[j];
-    b[i] = s / A[i * n + i];
-  }
-}
-
 static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
                    const double *v) {
   for (int f = 0; f < sw->nf; f++)
@@ -377,11 +332,11 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
     }
     for (int f = 0; f < nf; f++)
       sw->J[f * nf + f] += sw->m_f[f] / dt;
-    if (lu_factor(nf, sw->J, sw->piv) < 0) {
+    if (mrvi_dense_lu_factor(nf, sw->J, sw->piv) < 0) {
       mrvi_fmt(msg, len, "singular micro-step Newton matrix");
       return MRVI_ESINGULAR;
     }
-    lu_solve(nf, sw->J, sw->piv, sw->F);
+    mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->F, 1);
     for (int f = 0; f < nf; f++)
       dn[f] += sw->F[f];
   }
