@@ -16,6 +16,8 @@ struct mrvi_integrator {
   int path;                  /* MRVI_PATH_* (doc/solver.md) */
   mrvi_sweep *sweep;         /* explicit and sweep paths */
   mrvi_blocks *blocks;       /* schur path */
+  mrvi_predictor *predictor; /* Newton paths */
+  int factors_ok;            /* factors of this step's Jacobian are kept */
   char why[240];             /* reason for the path */
   double *qs_prev, *qf_prev; /* q_k^s, q_k^{f,0} of the last step */
   mrvi_newton *jac_nw;       /* full-step factors for jacobian_solve */
@@ -43,6 +45,12 @@ struct mrvi_integrator {
 static int fail(mrvi_integrator *it, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 
+/* Largest residual ratio of an update with kept factors (schur path) for
+ * which they are kept for the next update, and the factor below the
+ * tolerance at which such updates stop. */
+#define MRVI_REUSE_RATE 0.1
+#define MRVI_REUSE_TIGHTEN 0.01
+
 static int fail(mrvi_integrator *it, int status, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
@@ -62,6 +70,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   mrvi_newton_free(it->jac_nw);
   mrvi_sweep_free(it->sweep);
   mrvi_blocks_free(it->blocks);
+  mrvi_predictor_free(it->predictor);
   free(it->qs_prev);
   free(it->qf_prev);
   mrvi_nullspace_free(it->nullspace);
@@ -107,19 +116,12 @@ static void split_state(mrvi_integrator *it) {
   }
 }
 
-/* Predictor: free flight with the current momenta on both grids, as
+/* Predictor: an explicit multirate sweep (solver/predict.c), as
  * displacements from the known nodes (the Newton paths solve for
  * increments, mrvi_step.increments, so that tiny steps keep their digits). */
 static void predict(mrvi_integrator *it) {
-  const mrvi_model *m = it->model;
-  mrvi_step *st = &it->step;
-  st->increments = 1;
-  for (int s = 0; s < st->ns; s++)
-    it->x[s] = st->dT * it->ps[s] / m->mass[m->slow_index[s]];
-  for (int mm = 1; mm <= st->p; mm++)
-    for (int s = 0; s < st->nf; s++)
-      it->x[st->ns + (mm - 1) * st->nf + s] =
-          mm * st->dt * it->pf[s] / m->mass[m->fast_index[s]];
+  it->step.increments = 1;
+  mrvi_predict_checked(it->predictor, &it->step, it->x);
 }
 
 /* Displacements -> positions in x (after convergence). */
@@ -178,10 +180,10 @@ static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
   return st < 0 ? st : mrvi_constraints_independent(it->model, q, msg, len);
 }
 
-/* Momentum projection at the current macro node (doc/constraints.md, RATTLE-style):
- * p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p, so that the hidden
- * constraint G M^-1 p = 0 holds.  The shift lies in the range of G^T at the
- * node, so the next step's lambda absorbs it: positions are unchanged. */
+/* Momentum projection at the current macro node (doc/constraints.md,
+ * RATTLE-style): p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p, so that the
+ * hidden constraint G M^-1 p = 0 holds.  The shift lies in the range of G^T at
+ * the node, so the next step's lambda absorbs it: positions are unchanged. */
 static int project(mrvi_integrator *it) {
   const int R = it->model->constraint_rows;
   if (mrvi_constraints_project(it->model, it->q, it->p, it->cg, it->cGd, it->cA,
@@ -350,6 +352,8 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     return MRVI_OK;
   }
   /* Pattern and symbolic analysis once per run. */
+  if (mrvi_predictor_create(m, &it->step, &it->predictor) < 0)
+    goto oom;
   predict(it);
   if ((st = mrvi_step_build_pattern(&it->step, it->x)) < 0)
     goto oom;
@@ -426,9 +430,10 @@ static void residual_norms(const mrvi_integrator *it, double *dyn,
   *con = norm_inf(it->R + st->n_unknowns, st->n_lambda);
 }
 
-/* Residual and Jacobian at the current x.  In the null-space form the
- * multipliers are first set to lambda(x) from the residual at lambda = 0. */
-static int evaluate(mrvi_integrator *it, char *msg, size_t len) {
+/* Residual (and, if jac, the Jacobian) at the current x.  In the null-space
+ * form the multipliers are first set to lambda(x) from the residual at
+ * lambda = 0. */
+static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
   mrvi_step *st = &it->step;
   const double t = mrvi_clock();
   if (it->nullspace) {
@@ -438,17 +443,27 @@ static int evaluate(mrvi_integrator *it, char *msg, size_t len) {
     if (s < 0)
       return s;
   }
-  mrvi_step_assemble(st, it->x, it->R, 1);
+  mrvi_step_assemble(st, it->x, it->R, jac);
   it->t_assemble += mrvi_clock() - t;
   return MRVI_OK;
 }
 
-/* One Newton update dx (x -= dx): the full saddle-point system in the
- * multiplier form, the reduced one in the null-space form. */
-static int newton_update(mrvi_integrator *it, char *msg, size_t len) {
+/* One Newton update dx (x -= dx) from the residual it->R at x: the full
+ * saddle-point system in the multiplier form, the reduced one in the
+ * null-space form (both factorised afresh at x: the general path is full
+ * Newton), the block elimination on the schur path (factorised afresh when
+ * `fresh`, else with the factors kept from an earlier iterate of the step:
+ * a simplified Newton update). */
+static int newton_update(mrvi_integrator *it, int fresh, char *msg,
+                         size_t len) {
   mrvi_step *st = &it->step;
+  int s = MRVI_OK;
+  if (fresh) {
+    /* The Jacobian at x (the residual is recomputed with it). */
+    if ((s = evaluate(it, 1, msg, len)) < 0)
+      return s;
+  }
   const double t = mrvi_clock();
-  int s;
   if (it->nullspace) {
     mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
     s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
@@ -457,12 +472,18 @@ static int newton_update(mrvi_integrator *it, char *msg, size_t len) {
       for (int i = 0; i < st->n_unknowns; i++)
         it->x[i] -= it->dx[i];
   } else if (it->blocks) {
-    s = mrvi_blocks_solve(it->blocks, st, it->R, it->dx);
-    if (s < 0)
-      mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
-    else
+    if (fresh) {
+      it->factors_ok = 0;
+      if ((s = mrvi_blocks_factor(it->blocks, st)) < 0)
+        mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
+      else
+        it->factors_ok = 1;
+    }
+    if (s == MRVI_OK) {
+      mrvi_blocks_solve(it->blocks, it->R, it->dx);
       for (int i = 0; i < st->n_total; i++)
         it->x[i] -= it->dx[i];
+    }
   } else {
     s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
     if (s == MRVI_OK)
@@ -606,22 +627,39 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     return finish_step(it);
   }
 
-  /* Free flight for x; the multipliers start from the last step's. */
+  /* Predictor for x; the multipliers start from the last step's.  The
+   * first update of a step always factorises afresh, so a step depends on
+   * (q_k, p_k) alone: a restarted run continues bit for bit. */
   predict(it);
-  int s = evaluate(it, msg, sizeof msg);
-  int iter = 0;
+  it->factors_ok = 0;
+  int s = evaluate(it, 0, msg, sizeof msg);
+  int iter = 0, fresh = 0;
   double res, cres, prev = INFINITY;
   residual_norms(it, &res, &cres);
   /* Converged at the tolerance after at least one update (the predictor is
    * never accepted), or stalled at the roundoff floor after one (counted:
-   * mrvi_integrator_roundoff_steps). */
-  while (s == MRVI_OK && !(iter >= 1 && res <= tol && cres <= ctol)) {
-    if (iter >= 1 && cres <= ctol && res <= residual_floor(it) &&
-        res > 0.5 * prev) {
-      it->roundoff_steps++;
-      break;
+   * mrvi_integrator_roundoff_steps).  On the schur path the factors of the
+   * first update are kept for the further updates of the step while they
+   * contract the residual by MRVI_REUSE_RATE per update (simplified Newton;
+   * the residual is exact, so the converged solution is the same) and
+   * refactorised otherwise.  Updates stop MRVI_REUSE_TIGHTEN below the
+   * tolerance, or when they stall at the roundoff floor (counted if that is
+   * above the tolerance), or at the iteration limit if the tolerance itself
+   * is met: a last update with kept factors is cheap, and it takes the
+   * error as far below the tolerance as a full Newton update typically
+   * lands. */
+  while (s == MRVI_OK) {
+    if (iter >= 1 && cres <= ctol) {
+      if (res <= MRVI_REUSE_TIGHTEN * tol)
+        break;
+      if (res <= residual_floor(it) && res > 0.5 * prev) {
+        if (res > tol)
+          it->roundoff_steps++;
+        break;
+      }
+      if (iter == max_it && res <= tol)
+        break;
     }
-    prev = res;
     if (!isfinite(res) || !isfinite(cres) || iter == max_it) {
       const int finite = isfinite(res) && isfinite(cres);
       it->last_iterations = iter;
@@ -639,11 +677,16 @@ int mrvi_integrator_step(mrvi_integrator *it) {
                   finite ? "did not converge" : "produced non-finite values",
                   iter, res, tol, residual_floor(it), extra);
     }
-    s = newton_update(it, msg, sizeof msg);
+    /* Refactorise unless kept factors contracted well on the last update
+     * (schur path; the general path, the reference, is full Newton). */
+    fresh = !it->blocks || !it->factors_ok ||
+            (iter >= 1 && !fresh && res > MRVI_REUSE_RATE * prev);
+    prev = res;
+    s = newton_update(it, fresh, msg, sizeof msg);
     if (s < 0)
       break;
     iter++;
-    s = evaluate(it, msg, sizeof msg);
+    s = evaluate(it, 0, msg, sizeof msg);
     residual_norms(it, &res, &cres);
   }
   if (s < 0) {

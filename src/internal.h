@@ -322,15 +322,31 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
                     double *ps1, double *pf, int *iterations, double *residual,
                     char *msg, size_t len);
 
+/* Predictor of the Newton paths (solver/predict.c): an explicit multirate
+ * sweep (Stoermer-Verlet on both grids) from the known data of st, written
+ * into x (n_unknowns) as displacements from (q_k^s, q_k^{f,0}). */
+typedef struct mrvi_predictor mrvi_predictor;
+int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
+                          mrvi_predictor **out);
+void mrvi_predictor_free(mrvi_predictor *pr);
+/* The sweep, or free flight where the sweep would be unstable (see
+ * predict.c) or produces non-finite values. */
+void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x);
+/* Largest frequency sqrt(max eig M^-1 hess(V + W)) at the initial state,
+ * by power iteration (0 if not positive). */
+double mrvi_predictor_omega_max(mrvi_predictor *pr);
+
 /* Newton matrix of an unconstrained step by block elimination
  * (solver/blocks.c): Schur complement on the slow block, block forward
  * sweeps over the micro nodes for the fast block. */
 typedef struct mrvi_blocks mrvi_blocks;
 int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out);
 void mrvi_blocks_free(mrvi_blocks *b);
-/* Solve J dx = R with J the CSC values st->Ax (n_unknowns). */
-int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
-                      double *dx);
+/* Factorise J (the CSC values st->Ax, n_unknowns) by block elimination and
+ * keep the factors; MRVI_ESINGULAR if a block is singular. */
+int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st);
+/* Solve J dx = R with the kept factors. */
+void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
 
 /* ---------------------------------------------------------------------------
  * Linear solves with a factorisation kept between calls (solver/newton.c):

@@ -13,8 +13,9 @@
  * is solved with the Schur complement on the slow block:
  *   Y = A_ff^-1 A_fs, z = A_ff^-1 R_f        (block forward sweeps)
  *   (A_ss - A_sf Y) ds = R_s - A_sf z,  df = z - Y ds,
- * at O(p (nf^3 + nf^2 ns) + ns^3) per Newton iteration instead of a sparse
- * LU of the whole step. */
+ * at O(p (nf^3 + nf^2 ns) + ns^3) per factorisation instead of a sparse LU
+ * of the whole step, and O(p (nf^2 + nf ns) + ns^2) per solve with kept
+ * factors (the integrator reuses them while Newton converges). */
 #include "internal.h"
 
 #include <math.h>
@@ -141,8 +142,7 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
   }
 }
 
-int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
-                      double *dx) {
+int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
   const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
   if (scatter(b, st) < 0)
     return MRVI_EINVAL;
@@ -151,13 +151,10 @@ int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
     if (mrvi_dense_lu_factor(nf, b->D + (size_t)m * blk,
                              b->piv + (size_t)m * (size_t)nf) < 0)
       return MRVI_ESINGULAR;
-  /* Y = A_ff^-1 A_fs, z = A_ff^-1 R_f */
+  /* Y = A_ff^-1 A_fs, S = A_ss - A_sf Y (factored) */
   memcpy(b->Y, b->Afs, (size_t)nF * (size_t)ns * sizeof(double));
-  memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
   if (ns > 0)
     sweep_solve(b, b->Y, ns);
-  sweep_solve(b, b->z, 1);
-  /* S = A_ss - A_sf Y, r = R_s - A_sf z */
   for (int i = 0; i < ns; i++) {
     const double *a = b->Asf + (size_t)i * (size_t)nF;
     for (int j = 0; j < ns; j++) {
@@ -166,16 +163,26 @@ int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
         s -= a[k] * b->Y[(size_t)k * (size_t)ns + (size_t)j];
       b->S[i * ns + j] = s;
     }
+  }
+  if (ns > 0 && mrvi_dense_lu_factor(ns, b->S, b->spiv) < 0)
+    return MRVI_ESINGULAR;
+  return MRVI_OK;
+}
+
+void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
+  const int ns = b->ns, nF = b->p * b->nf;
+  /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds */
+  memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
+  sweep_solve(b, b->z, 1);
+  for (int i = 0; i < ns; i++) {
+    const double *a = b->Asf + (size_t)i * (size_t)nF;
     double s = R[i];
     for (int k = 0; k < nF; k++)
       s -= a[k] * b->z[k];
     b->r[i] = s;
   }
-  if (ns > 0) {
-    if (mrvi_dense_lu_factor(ns, b->S, b->spiv) < 0)
-      return MRVI_ESINGULAR;
+  if (ns > 0)
     mrvi_dense_lu_solve(ns, b->S, b->spiv, b->r, 1);
-  }
   memcpy(dx, b->r, (size_t)ns * sizeof(double));
   for (int k = 0; k < nF; k++) {
     double s = b->z[k];
@@ -183,5 +190,4 @@ int mrvi_blocks_solve(mrvi_blocks *b, const mrvi_step *st, const double *R,
       s -= b->Y[(size_t)k * (size_t)ns + (size_t)j] * b->r[j];
     dx[ns + k] = s;
   }
-  return MRVI_OK;
 }

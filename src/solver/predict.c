@@ -1,0 +1,305 @@
+/* Predictor of the Newton paths (doc/solver.md): an explicit multirate
+ * sweep from the known data of the step, written as displacements from
+ * (q_k^s, q_k^{f,0}) (mrvi_step.increments).  It walks the rows of the step
+ * (step.c) in the order of the micro nodes, with the quadrature points of
+ * both potentials evaluated where they are known or well estimated:
+ *
+ *   slow row    p_k^s - M^s dq^s/dT - sum_pts w a0 grad_s Z(z) = 0, first
+ *               with every point at node k (exact for the macro-grid rule,
+ *               whose slow row holds node k only; a Stoermer-Verlet position
+ *               update on the micro grid);
+ *   fast row m  p^{f,m} - M^f (d^{m+1} - d^m)/dt - F_m^A = 0, F_m^A the sum
+ *               over the points of interval m of w cA grad_f Z(z), with the
+ *               implicit points (cA cB != 0) at the estimate d^{m+1} of the
+ *               last interval's implicit force; then
+ *               p^{f,m+1} = M^f (d^{m+1} - d^m)/dt - F_m^B (eq:pkfm+).
+ *
+ * Rectangle and trapezoidal rules are reproduced exactly (their points lie
+ * on nodes); for the midpoint rule the error of a row is w cA cB hess Z
+ * times the estimate's error, a factor (omega dt)^2/4 below it.  Where the
+ * slow row sees the micro nodes (V on the micro grid, or W depending on slow
+ * coordinates), it is solved again with the forces of its points along the
+ * swept path (summed during the sweep), and the fast nodes are swept once
+ * more along the corrected slow path.  Cost: one or two evaluations of the
+ * gradients at the points, no Jacobian.
+ *
+ * The sweep is explicit: it is used only where dt omega_max <= 1/2 at the
+ * initial state (omega_max the largest frequency of hess(V + W) in the mass
+ * metric, by power iteration), else, and for a step where it produces
+ * non-finite values, free flight is the predictor. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct mrvi_predictor {
+  const mrvi_model *m;
+  int sweep_ok;     /* dt omega_max small enough for the explicit sweep */
+  int slow_coupled; /* the slow row sees the micro nodes */
+  /* Model-order vectors (n): configuration, gradient, slow-row force, the
+   * explicit and implicit parts of F_m^A, and F_m^B. */
+  double *z, *g, *fs, *fexp, *fimp, *fb;
+  double *pm; /* p^{f,m} (nf) */
+};
+
+int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
+                          mrvi_predictor **out) {
+  mrvi_predictor *pr = calloc(1, sizeof *pr);
+  *out = NULL;
+  if (!pr)
+    return MRVI_ENOMEM;
+  const size_t n = (size_t)(m->n > 0 ? m->n : 1);
+  pr->m = m;
+  double **vec[] = {&pr->z, &pr->g, &pr->fs, &pr->fexp, &pr->fimp, &pr->fb};
+  for (size_t i = 0; i < sizeof vec / sizeof *vec; i++)
+    if (!(*vec[i] = malloc(n * sizeof(double)))) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
+  if (!(pr->pm =
+            malloc((size_t)(m->n_fast > 0 ? m->n_fast : 1) * sizeof(double)))) {
+    mrvi_predictor_free(pr);
+    return MRVI_ENOMEM;
+  }
+  /* A point strictly inside the step with a slow input feeds the slow row
+   * from the micro nodes. */
+  for (int c = 0; c < 2; c++)
+    for (int i = 0; i < st->n_pts[c]; i++) {
+      const mrvi_point *pt = &st->pts[c][i];
+      if (pt->a0 == 0.0 || pt->a1 == 0.0)
+        continue;
+      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+        for (int j = 0; j < e->n_in; j++)
+          if (m->rate[e->in[j]] == MRVI_SLOW)
+            pr->slow_coupled = 1;
+      }
+    }
+  pr->sweep_ok = st->dt * mrvi_predictor_omega_max(pr) <= 0.5;
+  *out = pr;
+  return MRVI_OK;
+}
+
+void mrvi_predictor_free(mrvi_predictor *pr) {
+  if (!pr)
+    return;
+  free(pr->z);
+  free(pr->g);
+  free(pr->fs);
+  free(pr->fexp);
+  free(pr->fimp);
+  free(pr->fb);
+  free(pr->pm);
+  free(pr);
+}
+
+/* g <- grad (V + W) at z. */
+static void full_gradient(mrvi_predictor *pr) {
+  memset(pr->g, 0, (size_t)pr->m->n * sizeof(double));
+  mrvi_model_potential(pr->m, MRVI_SLOW, pr->z, pr->g, NULL);
+  mrvi_model_potential(pr->m, MRVI_FAST, pr->z, pr->g, NULL);
+}
+
+double mrvi_predictor_omega_max(mrvi_predictor *pr) {
+  /* Power iteration on M^-1/2 hess(V + W)(q0) M^-1/2 with Hessian-vector
+   * products from central differences of the gradient (fs, fexp, fimp and
+   * fb serve as vectors here). */
+  const mrvi_model *m = pr->m;
+  const int n = m->n;
+  double *u = pr->fs, *gp = pr->fexp, *gm = pr->fimp;
+  double lambda = 0.0;
+  for (int i = 0; i < n; i++)
+    u[i] = 1.0 + 0.1 * (double)(i % 7);
+  for (int it = 0; it < 30; it++) {
+    double nu = 0.0;
+    for (int i = 0; i < n; i++)
+      nu += u[i] * u[i];
+    nu = sqrt(nu);
+    if (!(nu > 0.0))
+      return 0.0;
+    double h = 0.0;
+    for (int i = 0; i < n; i++) {
+      u[i] /= nu;
+      h = fmax(h, fabs(m->q0[i]));
+    }
+    h = 1e-6 * (1.0 + h);
+    for (int sgn = 0; sgn < 2; sgn++) {
+      for (int i = 0; i < n; i++)
+        pr->z[i] = m->q0[i] + (sgn ? -h : h) * u[i] / sqrt(m->mass[i]);
+      full_gradient(pr);
+      memcpy(sgn ? gm : gp, pr->g, (size_t)n * sizeof(double));
+    }
+    lambda = 0.0;
+    for (int i = 0; i < n; i++) {
+      const double hu = (gp[i] - gm[i]) / (2.0 * h) / sqrt(m->mass[i]);
+      lambda += u[i] * hu;
+      u[i] = hu;
+    }
+  }
+  return lambda > 0.0 && isfinite(lambda) ? sqrt(lambda) : 0.0;
+}
+
+/* Free flight: the momenta of node k held over the step. */
+static void free_flight(const mrvi_model *m, const mrvi_step *st, double *x) {
+  for (int s = 0; s < st->ns; s++)
+    x[s] = st->dT * st->ps0[s] / m->mass[m->slow_index[s]];
+  for (int mm = 1; mm <= st->p; mm++)
+    for (int s = 0; s < st->nf; s++)
+      x[st->ns + (size_t)(mm - 1) * st->nf + s] =
+          mm * st->dt * st->pf0[s] / m->mass[m->fast_index[s]];
+}
+
+/* g <- grad Z_c at point pt of the step at the displacements x (fast nodes
+ * m and m + 1 of pt's interval; node 0 is q_k^{f,0}). */
+static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
+                           const double *x, const mrvi_point *pt, int c) {
+  const mrvi_model *m = pr->m;
+  const int ns = st->ns, nf = st->nf;
+  for (int s = 0; s < ns; s++)
+    pr->z[m->slow_index[s]] = st->qs0[s] + pt->a1 * x[s];
+  const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
+  const double *dB = x + ns + (size_t)pt->m * nf;
+  for (int f = 0; f < nf; f++)
+    pr->z[m->fast_index[f]] = st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
+                              (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
+  memset(pr->g, 0, (size_t)m->n * sizeof(double));
+  mrvi_model_potential(m, (mrvi_rate)c, pr->z, pr->g, NULL);
+}
+
+static void axpy(int n, double a, const double *g, double *acc) {
+  for (int i = 0; i < n; i++)
+    acc[i] += a * g[i];
+}
+
+/* Point kinds within an interval: at node m (cB = 0, explicit), inside
+ * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
+enum { AT_LEFT, INSIDE, AT_RIGHT };
+static int kind(const mrvi_point *pt) {
+  return pt->cB == 0.0 ? AT_LEFT : pt->cA == 0.0 ? AT_RIGHT : INSIDE;
+}
+
+/* Evaluate the points of kind k in [first[c], end[c]) of both classes:
+ * fa += w cA g, fb += w cB g and, with sum_slow, fs += w a0 g. */
+static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
+                        const double *x, const int *first, const int *end,
+                        int k, double *fa, double *fb, int sum_slow) {
+  const int n = pr->m->n;
+  for (int c = 0; c < 2; c++)
+    for (int ip = first[c]; ip < end[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      if (kind(pt) != k)
+        continue;
+      point_gradient(pr, st, x, pt, c);
+      if (fa && pt->cA != 0.0)
+        axpy(n, pt->w * pt->cA, pr->g, fa);
+      if (fb && pt->cB != 0.0)
+        axpy(n, pt->w * pt->cB, pr->g, fb);
+      if (sum_slow && pt->a0 != 0.0)
+        axpy(n, pt->w * pt->a0, pr->g, pr->fs);
+    }
+}
+
+/* The fast nodes d^1 .. d^p for the slow displacement x_s; with sum_slow,
+ * fs gets the slow-row force of every point along the swept path. */
+static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                  int sum_slow) {
+  const mrvi_model *m = pr->m;
+  const int n = m->n, ns = st->ns, nf = st->nf, p = st->p;
+  const double dt = st->dt;
+  const size_t bytes = (size_t)n * sizeof(double);
+  if (sum_slow)
+    memset(pr->fs, 0, bytes);
+  memset(pr->fimp, 0, bytes);
+  for (int f = 0; f < nf; f++)
+    pr->pm[f] = st->pf0[f];
+  int first[2] = {0, 0}, end[2];
+  for (int mm = 0; mm < p; mm++) {
+    for (int c = 0; c < 2; c++)
+      for (end[c] = first[c];
+           end[c] < st->n_pts[c] && st->pts[c][end[c]].m == mm; end[c]++)
+        ;
+    const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+    double *dn = x + ns + (size_t)mm * nf;
+    /* Row mm with F^A = explicit points + the implicit force fimp. */
+#define SOLVE_ROW()                                                            \
+  for (int f = 0; f < nf; f++) {                                               \
+    const int i = m->fast_index[f];                                            \
+    dn[f] = (d ? d[f] : 0.0) +                                                 \
+            dt / m->mass[i] * (pr->pm[f] - pr->fexp[i] - pr->fimp[i]);         \
+  }
+    memset(pr->fexp, 0, bytes);
+    eval_points(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow);
+    /* Estimate with the last interval's implicit force (in interval 0,
+     * with the implicit points evaluated once at a first estimate). */
+    for (int pass = mm == 0 ? 0 : 1; pass < 2; pass++) {
+      SOLVE_ROW();
+      memset(pr->fimp, 0, bytes);
+      memset(pr->fb, 0, bytes);
+      eval_points(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
+                  sum_slow && pass == 1);
+    }
+    SOLVE_ROW();
+#undef SOLVE_ROW
+    eval_points(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow);
+    for (int f = 0; f < nf; f++) {
+      const int i = m->fast_index[f];
+      pr->pm[f] = m->mass[i] * (dn[f] - (d ? d[f] : 0.0)) / dt - pr->fb[i];
+    }
+    first[0] = end[0];
+    first[1] = end[1];
+  }
+  /* Without fast coordinates the points still feed the slow row. */
+  if (nf == 0 && sum_slow)
+    for (int k = AT_LEFT; k <= AT_RIGHT; k++)
+      eval_points(pr, st, x, (int[2]){0, 0}, st->n_pts, k, NULL, NULL, 1);
+}
+
+/* Slow row solved for dq^s = x_s with the slow force fs. */
+static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  const mrvi_model *m = pr->m;
+  for (int s = 0; s < st->ns; s++) {
+    const int i = m->slow_index[s];
+    x[s] = st->dT / m->mass[i] * (st->ps0[s] - pr->fs[i]);
+  }
+}
+
+static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  const mrvi_model *m = pr->m;
+  if (!pr->sweep_ok) {
+    free_flight(m, st, x);
+    return;
+  }
+  /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
+  memset(pr->fs, 0, (size_t)m->n * sizeof(double));
+  memset(x, 0, (size_t)st->n_unknowns * sizeof(double));
+  for (int c = 0; c < 2; c++) {
+    double w = 0.0;
+    for (int ip = 0; ip < st->n_pts[c]; ip++)
+      w += st->pts[c][ip].w * st->pts[c][ip].a0;
+    if (w == 0.0 || st->n_elem_of_class[c] == 0)
+      continue;
+    const mrvi_point node = {.cA = 1.0};
+    point_gradient(pr, st, x, &node, c);
+    axpy(m->n, w, pr->g, pr->fs);
+  }
+  slow_update(pr, st, x);
+  if (!pr->slow_coupled || st->ns == 0) {
+    sweep(pr, st, x, 0);
+    return;
+  }
+  /* The slow row's points along the swept path, then the fast nodes along
+   * the corrected slow path. */
+  sweep(pr, st, x, 1);
+  slow_update(pr, st, x);
+  sweep(pr, st, x, 0);
+}
+
+void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  predict_sweep(pr, st, x);
+  for (int i = 0; i < st->n_unknowns; i++)
+    if (!isfinite(x[i])) {
+      free_flight(pr->m, st, x);
+      return;
+    }
+}
