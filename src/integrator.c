@@ -453,12 +453,13 @@ static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
  * null-space form (both factorised afresh at x: the general path is full
  * Newton), the block elimination on the schur path (factorised afresh when
  * `fresh`, else with the factors kept from an earlier iterate of the step:
- * a simplified Newton update). */
-static int newton_update(mrvi_integrator *it, int fresh, char *msg,
-                         size_t len) {
+ * a simplified Newton update).  jac_at_x: st->Ax already holds the Jacobian
+ * at x. */
+static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
+                         char *msg, size_t len) {
   mrvi_step *st = &it->step;
   int s = MRVI_OK;
-  if (fresh) {
+  if (fresh && !jac_at_x) {
     /* The Jacobian at x (the residual is recomputed with it). */
     if ((s = evaluate(it, 1, msg, len)) < 0)
       return s;
@@ -632,8 +633,10 @@ int mrvi_integrator_step(mrvi_integrator *it) {
    * (q_k, p_k) alone: a restarted run continues bit for bit. */
   predict(it);
   it->factors_ok = 0;
-  int s = evaluate(it, 0, msg, sizeof msg);
-  int iter = 0, fresh = 0;
+  /* The first update needs the Jacobian at the predictor: assembled with
+   * its residual. */
+  int s = evaluate(it, 1, msg, sizeof msg);
+  int iter = 0, fresh = 0, jac_at_x = 1;
   double res, cres, prev = INFINITY;
   residual_norms(it, &res, &cres);
   /* Converged at the tolerance after at least one update (the predictor is
@@ -682,11 +685,17 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     fresh = !it->blocks || !it->factors_ok ||
             (iter >= 1 && !fresh && res > MRVI_REUSE_RATE * prev);
     prev = res;
-    s = newton_update(it, fresh, msg, sizeof msg);
+    s = newton_update(it, fresh, jac_at_x, msg, sizeof msg);
     if (s < 0)
       break;
     iter++;
+    /* The residual at the update, with the potential parts of the momenta
+     * (used if it converges). */
+    st->mom_ps = it->ps1;
+    st->mom_pf = it->micro_p;
     s = evaluate(it, 0, msg, sizeof msg);
+    st->mom_ps = st->mom_pf = NULL;
+    jac_at_x = 0;
     residual_norms(it, &res, &cres);
   }
   if (s < 0) {
@@ -700,8 +709,9 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   it->last_iterations = iter;
   it->last_residual = res;
 
-  /* Momenta at the new macro node and the fast micro nodes (eq:pkfm+). */
-  mrvi_step_momenta(st, it->x, it->ps1, it->micro_p);
+  /* Momenta at the new macro node and the fast micro nodes (eq:pkfm+):
+   * their potential parts came with the last residual. */
+  mrvi_step_momenta_finish(st, it->x, it->ps1, it->micro_p);
   to_positions(it);
   return finish_step(it);
 }

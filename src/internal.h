@@ -117,6 +117,11 @@ struct mrvi_model {
 double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
                          const double *y, double *grad, double *hess);
 
+/* 1 if e's energy is a polynomial of degree <= 2 in its inputs (constant
+ * Hessian): terms with the linear law or the power law of exponent 0, 1, 2,
+ * gravity and constant forces (model.c). */
+int mrvi_element_is_quadratic(const mrvi_element *e);
+
 /* Keep a message on m (mrvi_model_errmsg) and return status (model.c). */
 int mrvi_model_fail(mrvi_model *m, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
@@ -226,6 +231,11 @@ typedef struct mrvi_step {
    * dynamic rows of R, f_end (ns + nf) to p_{k+1}^s and p_{k+1}^{f,0}.
    * NULL (the default) for none. */
   const double *f_rows, *f_end;
+  /* If not NULL, mrvi_step_assemble also sums the potential parts of the
+   * momenta at x into mom_ps (ns) and mom_pf (p x nf), which
+   * mrvi_step_momenta_finish completes: the gradients of the residual
+   * serve both. */
+  double *mom_ps, *mom_pf;
 } mrvi_step;
 
 /* Point of constraint evaluation at node m (0..p) of the step: slow part
@@ -254,6 +264,11 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac);
  * micro momenta pf (p x nf) at nodes m = 1..p (eq:pkfm+). */
 void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
                        double *pf);
+/* Add the kinetic, external-force and constraint parts of the momenta at x
+ * to their potential parts in ps1, pf (as summed by mrvi_step_assemble into
+ * mom_ps, mom_pf). */
+void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
+                              double *pf);
 
 /* ---------------------------------------------------------------------------
  * Discrete null-space form (nullspace.c, doc/constraints.md): the dynamic rows are

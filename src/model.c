@@ -847,6 +847,22 @@ static double eval_angle(const mrvi_element *e, int d, const double *y,
   return E;
 }
 
+int mrvi_element_is_quadratic(const mrvi_element *e) {
+  extern const mrvi_law mrvi_law_power, mrvi_law_linear;
+  switch (e->kind) {
+  case MRVI_ELEMENT_GRAVITY:
+  case MRVI_ELEMENT_FORCE:
+    return 1;
+  case MRVI_ELEMENT_TERM:
+    return e->law == &mrvi_law_linear ||
+           (e->law == &mrvi_law_power &&
+            (e->params[1] == 0.0 || e->params[1] == 1.0 ||
+             e->params[1] == 2.0));
+  default:
+    return 0; /* distances and angles are not polynomial in positions */
+  }
+}
+
 double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
                          const double *y, double *grad, double *hess) {
   switch (e->kind) {

@@ -1,4 +1,5 @@
-/* One macro step in position-momentum form (arXiv 2406.12991 §3.1, doc/solver.md, eq:DEL_ini).
+/* One macro step in position-momentum form (arXiv 2406.12991 §3.1,
+ * doc/solver.md, eq:DEL_ini).
  *
  * Unknowns x = (q_{k+1}^s, q_k^{f,1}, ..., q_k^{f,p}), size ns + p nf.
  * Residual rows:
@@ -60,6 +61,9 @@ static void gather(const mrvi_step *st, const mrvi_element *e,
              pt->cB * fast_node(st, x, pt->m + 1, s);
   }
 }
+
+static void potential_momenta(const mrvi_step *st, const mrvi_element *e,
+                              const mrvi_point *pt, double *ps1, double *pf);
 
 /* Residual rows (at most 2) that input c feeds at point pt, with their node
  * coefficients.  Returns the count. */
@@ -349,9 +353,9 @@ static void constraint_equation(mrvi_step *st, int c, const mrvi_point *pt,
 }
 
 /* The constrained action adds -h lambda^T g at every enforcing node
- * (doc/constraints.md): slow-only constraints with h = dT at node 0 (equations at
- * q_{k+1}^s), micro-node constraints with h = dt at nodes 0..p-1
- * (equations at nodes 1..p, slow part interpolated). */
+ * (doc/constraints.md): slow-only constraints with h = dT at node 0 (equations
+ * at q_{k+1}^s), micro-node constraints with h = dt at nodes 0..p-1 (equations
+ * at nodes 1..p, slow part interpolated). */
 static void assemble_constraints(mrvi_step *st, const double *x, double *R,
                                  int jac) {
   const int nu = st->n_unknowns, p = st->p;
@@ -384,9 +388,15 @@ static void assemble_constraints(mrvi_step *st, const double *x, double *R,
 
 void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
   const mrvi_model *m = st->model;
+  const int nf = st->nf;
+  double *mps = st->mom_ps, *mpf = st->mom_pf;
   if (jac && !st->recording) {
     memset(st->Ax, 0, (size_t)st->nnz * sizeof(double));
     st->n_trip = 0;
+  }
+  if (mps) {
+    memset(mps, 0, (size_t)st->ns * sizeof(double));
+    memset(mpf, 0, (size_t)st->p * (size_t)nf * sizeof(double));
   }
   assemble_kinetic(st, x, R, jac);
   if (st->f_rows)
@@ -401,6 +411,8 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
         const int n = e->n_in;
         gather(st, e, pt, x, st->y);
         mrvi_element_eval(m, e, st->y, st->g, jac && !lin ? st->H : NULL);
+        if (mps)
+          potential_momenta(st, e, pt, mps, mpf);
         /* Rows and unknown columns of every input at this point (at most
          * two each: the nodes the point interpolates).  Filled only for
          * non-linear elements, whose inputs are at most MRVI_MAX_INPUTS;
@@ -474,36 +486,33 @@ int mrvi_step_build_pattern(mrvi_step *st, const double *x) {
   return MRVI_OK;
 }
 
-void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
-                       double *pf) {
+/* Potential part of the momenta at the end nodes of point pt's interval:
+ * -w a1 grad_s Z into ps1 and -w cB grad_f Z into pf (node m + 1 of
+ * interval m, eq:pkfm+), from the gradient st->g of element e. */
+static void potential_momenta(const mrvi_step *st, const mrvi_element *e,
+                              const mrvi_point *pt, double *ps1, double *pf) {
+  const mrvi_model *m = st->model;
+  for (int j = 0; j < e->n_in; j++) {
+    const int cidx = e->in[j], s = m->slot[cidx];
+    if (m->rate[cidx] == MRVI_SLOW)
+      ps1[s] -= pt->w * pt->a1 * st->g[j];
+    else
+      pf[pt->m * st->nf + s] -= pt->w * pt->cB * st->g[j];
+  }
+}
+
+void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
+                              double *pf) {
   const mrvi_model *m = st->model;
   const int ns = st->ns, nf = st->nf, p = st->p;
   /* Kinetic parts: D_{q_{k+1}^s} T_d = M^s v_s; D_{q^{f,m+1}} T_d^m = M^f v_m
    */
   for (int s = 0; s < ns; s++)
-    ps1[s] = m->mass[m->slow_index[s]] * slow_diff(st, x, s) / st->dT;
+    ps1[s] += m->mass[m->slow_index[s]] * slow_diff(st, x, s) / st->dT;
   for (int mm = 0; mm < p; mm++)
     for (int s = 0; s < nf; s++)
-      pf[mm * nf + s] =
+      pf[mm * nf + s] +=
           m->mass[m->fast_index[s]] * fast_diff(st, x, mm, s) / st->dt;
-  /* Potential parts: -w a1 grad_s Z and, for node m+1 of interval m
-   * (eq:pkfm+), -w cB grad_f Z. */
-  for (int c = 0; c < 2; c++)
-    for (int ip = 0; ip < st->n_pts[c]; ip++) {
-      const mrvi_point *pt = &st->pts[c][ip];
-      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
-        gather(st, e, pt, x, st->y);
-        mrvi_element_eval(m, e, st->y, st->g, NULL);
-        for (int j = 0; j < e->n_in; j++) {
-          const int cidx = e->in[j], s = m->slot[cidx];
-          if (m->rate[cidx] == MRVI_SLOW)
-            ps1[s] -= pt->w * pt->a1 * st->g[j];
-          else
-            pf[pt->m * nf + s] -= pt->w * pt->cB * st->g[j];
-        }
-      }
-    }
   if (st->f_end) {
     for (int s = 0; s < ns; s++)
       ps1[s] += st->f_end[s];
@@ -531,4 +540,22 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
       }
     }
   }
+}
+
+void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
+                       double *pf) {
+  const mrvi_model *m = st->model;
+  memset(ps1, 0, (size_t)st->ns * sizeof(double));
+  memset(pf, 0, (size_t)st->p * (size_t)st->nf * sizeof(double));
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+        gather(st, e, pt, x, st->y);
+        mrvi_element_eval(m, e, st->y, st->g, NULL);
+        potential_momenta(st, e, pt, ps1, pf);
+      }
+    }
+  mrvi_step_momenta_finish(st, x, ps1, pf);
 }

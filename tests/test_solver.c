@@ -15,7 +15,7 @@ static const char *const systems[] = {
     "systems/cart_pendulum.yaml", "systems/fpu.yaml",
     "systems/oscillator.yaml",    "systems/pendulum_chain.yaml",
     "systems/spring_ring.yaml",   "systems/spring_ring_rod.yaml",
-    "systems/triatomic.yaml"};
+    "systems/triatomic.yaml",     "systems/lattice.yaml"};
 #define N_SYSTEMS ((int)(sizeof systems / sizeof systems[0]))
 #define N_STEPS 20
 
