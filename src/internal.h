@@ -347,6 +347,8 @@ void mrvi_predictor_free(mrvi_predictor *pr);
 /* The sweep, or free flight where the sweep would be unstable (see
  * predict.c) or produces non-finite values. */
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x);
+/* Free flight: the momenta of node k held over the step (displacements). */
+void mrvi_predict_free_flight(const mrvi_step *st, double *x);
 /* Largest frequency sqrt(max eig M^-1 hess(V + W)) at the initial state,
  * by power iteration (0 if not positive). */
 double mrvi_predictor_omega_max(mrvi_predictor *pr);

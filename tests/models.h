@@ -1,5 +1,6 @@
-/* The paper's validation systems built with the C API (arXiv 2406.12991 §6, doc/reproduction.md), so the
- * numerical tests do not depend on the description-file loader. */
+/* The paper's validation systems built with the C API (arXiv 2406.12991 §6,
+ * doc/reproduction.md), so the numerical tests do not depend on the
+ * description-file loader. */
 #ifndef MRVI_TEST_MODELS_H
 #define MRVI_TEST_MODELS_H
 
@@ -12,8 +13,8 @@ mrvi_model *test_spring_ring(void);
 /* Harmonic oscillator, slow only: V = omega^2 q^2 / 2, unit mass. */
 mrvi_model *test_oscillator(double omega);
 
-/* Cart pendulum (doc/constraints.md): slow cart (mass 5) on the plane z = 0, fast
- * bob (mass 0.5) on a rod of length 0.2 at 30 degrees, gravity -9.81 e3.
+/* Cart pendulum (doc/constraints.md): slow cart (mass 5) on the plane z = 0,
+ * fast bob (mass 0.5) on a rod of length 0.2 at 30 degrees, gravity -9.81 e3.
  * Constraints: 0 = plane (macro nodes), 1 = rod (micro nodes). */
 mrvi_model *test_cart_pendulum(void);
 /* Spring ring with a rod between m1 (slow) and m2 (fast). */
@@ -26,7 +27,12 @@ struct mrvi_step;
 double test_step_fd_error(struct mrvi_step *st, double *x, double *scale);
 
 /* Settings for a named scheme with dT, p, t_end and Newton tolerance. */
-mrvi_settings test_settings(const char *scheme, double dT, int p,
-                            double t_end, double tol);
+/* Known data of a step at the model's initial state: q0 and M v0 split
+ * into the rate blocks qs, ps (n_slow) and qf, pf (n_fast), set on st. */
+void test_initial_data(struct mrvi_step *st, double *qs, double *qf, double *ps,
+                       double *pf);
+
+mrvi_settings test_settings(const char *scheme, double dT, int p, double t_end,
+                            double tol);
 
 #endif

@@ -4,6 +4,7 @@
  * refusal; solves with the step Jacobian and its transpose against the
  * assembled CSC matrix. */
 #include "internal.h"
+#include "models.h"
 #include "testlib.h"
 
 #include <math.h>
@@ -473,29 +474,12 @@ static void test_predictor(void) {
   const double w = mrvi_predictor_omega_max(pr);
   CHECK(fabs(w - 50.0) < 0.5, "omega_max at q0 = %.4f (50 expected)", w);
   /* Residual of the prediction and of free flight at the initial state. */
-  const mrvi_model *m = sys->model;
   double qs[8], qf[8], ps[8], pf[8], x[64], R[64], Rff[64];
-  for (int s = 0; s < m->n_slow; s++) {
-    qs[s] = m->q0[m->slow_index[s]];
-    ps[s] = m->mass[m->slow_index[s]] * m->v0[m->slow_index[s]];
-  }
-  for (int f = 0; f < m->n_fast; f++) {
-    qf[f] = m->q0[m->fast_index[f]];
-    pf[f] = m->mass[m->fast_index[f]] * m->v0[m->fast_index[f]];
-  }
-  st.qs0 = qs;
-  st.qf0 = qf;
-  st.ps0 = ps;
-  st.pf0 = pf;
+  test_initial_data(&st, qs, qf, ps, pf);
   st.increments = 1;
   mrvi_predict_checked(pr, &st, x);
   mrvi_step_assemble(&st, x, R, 0);
-  for (int s = 0; s < st.ns; s++)
-    x[s] = st.dT * ps[s] / m->mass[m->slow_index[s]];
-  for (int mm = 1; mm <= st.p; mm++)
-    for (int f = 0; f < st.nf; f++)
-      x[st.ns + (mm - 1) * st.nf + f] =
-          mm * st.dt * pf[f] / m->mass[m->fast_index[f]];
+  mrvi_predict_free_flight(&st, x);
   mrvi_step_assemble(&st, x, Rff, 0);
   double r = 0.0, rff = 0.0;
   for (int i = 0; i < st.n_unknowns; i++) {

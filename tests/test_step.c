@@ -1,8 +1,9 @@
 /* The one-step equations (arXiv 2406.12991 §3.1, doc/solver.md):
  * - the residual equals p_k + D L_d of a discrete Lagrangian written here
- *   straight from eq:discrete_Lagrangian / eq:Zapprox / eq:slow_potential_affine
- *   (derivatives by central differences), and the output momenta equal
- *   D_{q_{k+1}} L_d and the micro momenta D_{q^{f,m}} L_d^{m-1} (eq:pkfm+);
+ *   straight from eq:discrete_Lagrangian / eq:Zapprox /
+ * eq:slow_potential_affine (derivatives by central differences), and the output
+ * momenta equal D_{q_{k+1}} L_d and the micro momenta D_{q^{f,m}} L_d^{m-1}
+ * (eq:pkfm+);
  * - the assembled Newton matrix equals the finite-difference Jacobian of the
  *   residual, entry by entry, for every named scheme with p in {1, 3}. */
 #include "internal.h"
@@ -36,7 +37,8 @@ static double pot_at(const nodes *X, int c, int mm, double a, double b) {
   const int p = X->s->micro_steps, ns = m->n_slow, nf = m->n_fast;
   double qs[64], qf[64], q[128];
   for (int i = 0; i < ns; i++) {
-    double s0 = (1.0 - (double)mm / p) * X->qs0[i] + ((double)mm / p) * X->qs1[i];
+    double s0 =
+        (1.0 - (double)mm / p) * X->qs0[i] + ((double)mm / p) * X->qs1[i];
     double s1 = (1.0 - (double)(mm + 1) / p) * X->qs0[i] +
                 ((double)(mm + 1) / p) * X->qs1[i];
     qs[i] = a * s0 + b * s1;
@@ -106,41 +108,35 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
   mrvi_step st;
   CHECK(mrvi_step_init(&st, m, &s) == 0, "step init");
   const int ns = m->n_slow, nf = m->n_fast, nu = st.n_unknowns;
-  double *qs0 = calloc(ns + 1, sizeof(double)), *ps0 = calloc(ns + 1, sizeof(double));
-  double *qf0 = calloc(nf + 1, sizeof(double)), *pf0 = calloc(nf + 1, sizeof(double));
-  for (int i = 0; i < ns; i++) {
-    qs0[i] = m->q0[m->slow_index[i]];
-    ps0[i] = m->mass[m->slow_index[i]] * m->v0[m->slow_index[i]];
-  }
-  for (int i = 0; i < nf; i++) {
-    qf0[i] = m->q0[m->fast_index[i]];
-    pf0[i] = m->mass[m->fast_index[i]] * m->v0[m->fast_index[i]];
-  }
-  st.qs0 = qs0;
-  st.qf0 = qf0;
-  st.ps0 = ps0;
-  st.pf0 = pf0;
+  double *qs0 = calloc(ns + 1, sizeof(double)),
+         *ps0 = calloc(ns + 1, sizeof(double));
+  double *qf0 = calloc(nf + 1, sizeof(double)),
+         *pf0 = calloc(nf + 1, sizeof(double));
+  test_initial_data(&st, qs0, qf0, ps0, pf0);
   /* A generic point: free flight plus a deterministic wiggle. */
   double *x = calloc(nu, sizeof(double)), *R = calloc(nu, sizeof(double));
   for (int i = 0; i < ns; i++)
-    x[i] = qs0[i] + dT * ps0[i] / m->mass[m->slow_index[i]] + 0.01 * sin(i + 1.0);
+    x[i] =
+        qs0[i] + dT * ps0[i] / m->mass[m->slow_index[i]] + 0.01 * sin(i + 1.0);
   for (int k = 1; k <= p; k++)
     for (int i = 0; i < nf; i++)
-      x[ns + (k - 1) * nf + i] = qf0[i] +
-                                 k * (dT / p) * pf0[i] / m->mass[m->fast_index[i]] +
-                                 0.01 * cos(k + 2.0 * i);
+      x[ns + (k - 1) * nf + i] =
+          qf0[i] + k * (dT / p) * pf0[i] / m->mass[m->fast_index[i]] +
+          0.01 * cos(k + 2.0 * i);
   CHECK(mrvi_step_build_pattern(&st, x) == 0, "pattern");
   mrvi_step_assemble(&st, x, R, 1);
 
   /* Residual against derivatives of L_d. */
-  nodes X = {m, &s, calloc(ns + 1, sizeof(double)), calloc(ns + 1, sizeof(double)),
+  nodes X = {m, &s, calloc(ns + 1, sizeof(double)),
+             calloc(ns + 1, sizeof(double)),
              calloc((size_t)(p + 1) * nf + 1, sizeof(double))};
   memcpy(X.qs0, qs0, ns * sizeof(double));
   memcpy(X.qs1, x, ns * sizeof(double));
   memcpy(X.qf, qf0, nf * sizeof(double));
   memcpy(X.qf + nf, x + ns, (size_t)p * nf * sizeof(double));
   char what[200];
-  snprintf(what, sizeof what, "%s %s p=%d residual = p_k + D L_d", label, scheme, p);
+  snprintf(what, sizeof what, "%s %s p=%d residual = p_k + D L_d", label,
+           scheme, p);
   for (int i = 0; i < ns; i++) {
     double d = dLd(&X, &X.qs0[i], -1);
     CHECK_NEAR(R[i], ps0[i] + d, 1e-6 * (1 + fabs(d)), what);
@@ -152,7 +148,8 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
       CHECK_NEAR(R[ns + k * nf + i], expect, 1e-6 * (1 + fabs(d)), what);
     }
   /* Output momenta. */
-  double *ps1 = calloc(ns + 1, sizeof(double)), *pf = calloc((size_t)p * nf + 1, sizeof(double));
+  double *ps1 = calloc(ns + 1, sizeof(double)),
+         *pf = calloc((size_t)p * nf + 1, sizeof(double));
   mrvi_step_momenta(&st, x, ps1, pf);
   snprintf(what, sizeof what, "%s %s p=%d momenta = D L_d", label, scheme, p);
   for (int i = 0; i < ns; i++) {
@@ -169,8 +166,8 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
   snprintf(what, sizeof what, "%s %s p=%d Jacobian", label, scheme, p);
   double scale;
   const double err = test_step_fd_error(&st, x, &scale);
-  CHECK(err <= 1e-6 * scale, "%s: max entry error %.2e (scale %.2e)", what,
-        err, scale);
+  CHECK(err <= 1e-6 * scale, "%s: max entry error %.2e (scale %.2e)", what, err,
+        scale);
   free(ps1);
   free(pf);
   free(X.qs0);
@@ -186,12 +183,14 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
 }
 
 int main(void) {
-  mrvi_model *fpu = test_fpu(), *ring = test_spring_ring(), *osc = test_oscillator(2.0);
+  mrvi_model *fpu = test_fpu(), *ring = test_spring_ring(),
+             *osc = test_oscillator(2.0);
   const char *const *schemes = mrvi_scheme_names();
   const int ps[2] = {1, 3};
   for (int i = 0; schemes[i]; i++)
     for (int j = 0; j < 2; j++) {
-      check_settings(fpu, test_settings(schemes[i], 0.1, ps[j], 1, 1e-10), "fpu");
+      check_settings(fpu, test_settings(schemes[i], 0.1, ps[j], 1, 1e-10),
+                     "fpu");
       check_settings(ring, test_settings(schemes[i], 0.01, ps[j], 1, 1e-10),
                      "spring ring");
       check_settings(osc, test_settings(schemes[i], 0.3, ps[j], 1, 1e-10),

@@ -140,7 +140,8 @@ double mrvi_predictor_omega_max(mrvi_predictor *pr) {
 }
 
 /* Free flight: the momenta of node k held over the step. */
-static void free_flight(const mrvi_model *m, const mrvi_step *st, double *x) {
+void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
+  const mrvi_model *m = st->model;
   for (int s = 0; s < st->ns; s++)
     x[s] = st->dT * st->ps0[s] / m->mass[m->slow_index[s]];
   for (int mm = 1; mm <= st->p; mm++)
@@ -266,7 +267,7 @@ static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const mrvi_model *m = pr->m;
   if (!pr->sweep_ok) {
-    free_flight(m, st, x);
+    mrvi_predict_free_flight(st, x);
     return;
   }
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
@@ -298,7 +299,7 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   predict_sweep(pr, st, x);
   for (int i = 0; i < st->n_unknowns; i++)
     if (!isfinite(x[i])) {
-      free_flight(pr->m, st, x);
+      mrvi_predict_free_flight(st, x);
       return;
     }
 }
