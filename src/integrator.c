@@ -628,10 +628,11 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     return finish_step(it);
   }
 
-  /* Predictor for x; the multipliers start from the last step's.  The
-   * first update of a step always factorises afresh, so a step depends on
-   * (q_k, p_k) alone: a restarted run continues bit for bit. */
+  /* Predictor for x, the multipliers from zero.  Nothing is carried from
+   * the last step (multipliers, factors), so a step depends on (q_k, p_k)
+   * alone: a restarted or resumed run continues bit for bit. */
   predict(it);
+  memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;
   /* The first update needs the Jacobian at the predictor: assembled with
    * its residual. */

@@ -436,6 +436,9 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
   const double dT = st->dT, dt = st->dt;
   *iterations = 0;
   *residual = 0.0;
+  /* The first micro step's predictor holds no implicit force: nothing is
+   * carried from the last step, so a step depends on (q_k, p_k) alone. */
+  memset(sw->fimp, 0, (size_t)nf * sizeof(double));
   /* Slow row: q_{k+1}^s explicit; V at node k also enters fast row 0. */
   memset(sw->gs, 0, (size_t)ns * sizeof(double));
   memset(sw->gf, 0, (size_t)nf * sizeof(double));
