@@ -681,10 +681,15 @@ int mrvi_integrator_step(mrvi_integrator *it) {
                   finite ? "did not converge" : "produced non-finite values",
                   iter, res, tol, residual_floor(it), extra);
     }
-    /* Refactorise unless kept factors contracted well on the last update
-     * (schur path; the general path, the reference, is full Newton). */
-    fresh = !it->blocks || !it->factors_ok ||
-            (iter >= 1 && !fresh && res > MRVI_REUSE_RATE * prev);
+    /* Refactorise unless the kept factors contracted well on the last
+     * update and, at that rate, reach the target in two more (schur path;
+     * the general path, the reference, is full Newton). */
+    if (!it->blocks || !it->factors_ok)
+      fresh = 1;
+    else {
+      const double rate = res / prev, target = MRVI_REUSE_TIGHTEN * tol;
+      fresh = rate > MRVI_REUSE_RATE || res * rate * rate > target;
+    }
     prev = res;
     s = newton_update(it, fresh, jac_at_x, msg, sizeof msg);
     if (s < 0)
