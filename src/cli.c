@@ -623,6 +623,7 @@ static int cmd_run(int argc, char **argv) {
       .micro = sys->output_micro,
       .flush_interval = sys->output_flush_interval,
       .force = a.force,
+      .micro_slow = sys->output_micro_slow,
   };
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(out, sys->model, &sys->settings, &opt, &w, msg,

@@ -240,6 +240,23 @@ double mrvi_model_potential(const mrvi_model *m, mrvi_rate potential,
  * momentum sum_i x_i x p_i (3 entries in 3-D, 1 in 2-D, 0 in 1-D). */
 void mrvi_model_momentum(const mrvi_model *m, const double *q,
                          const double *p, double *linear, double *angular);
+/* Which components of those momentum maps the model's symmetries conserve
+ * (1) or not (0): linear (dimension entries) is conserved along e_a when
+ * every potential element and constraint is invariant under translations
+ * along e_a; angular (3 entries in 3-D, 1 in 2-D) about e_a when they are
+ * invariant under rotations about the axis e_a through the origin.  Pair
+ * springs, angles and rods between particles keep both; anchors, gravity,
+ * forces, terms, fixed, plane and linear constraints keep what their
+ * direction allows (src/symmetry.c); user constraint types keep nothing
+ * they touch.  Either pointer may be NULL. */
+int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular);
+/* Lines of a picture of the model: springs between two particles (kind 0
+ * slow, 1 fast potential), then distance constraints between two particles
+ * (kind 2, rods), in model order.  Anchored springs and rods and pair laws
+ * (lennard-jones, inverse) are not lines.  Writes at most cap edges into
+ * pairs (2 x cap particle indices) and kind (cap), either may be NULL, and
+ * returns the number of edges (call with cap = 0 to count). */
+int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap);
 
 /* ---------------------------------------------------------------------------
  * Holonomic constraints g(q) = 0 (doc/constraints.md).
@@ -531,6 +548,8 @@ typedef struct mrvi_system {
   char *output_file;     /* output.file (default: <name>.h5) */
   int output_every;      /* output.every (default 1) */
   int output_micro;      /* output.micro (default 1) */
+  int output_micro_slow; /* output.micro_slow (default 0) */
+  int output_xdmf;       /* output.xdmf: write OUT.xdmf (default 1) */
   double output_flush_interval; /* output.flush_interval, s (0: default) */
   char *description;     /* the input text after overrides */
   /* What the loader changed or wants the user to know, one note per line
@@ -566,6 +585,8 @@ typedef struct mrvi_writer_options {
   int micro;                /* write /micro datasets */
   double flush_interval;    /* seconds between flushes (<= 0: default 2) */
   int force;                /* replace an existing non-mrvi file */
+  int micro_slow;           /* with micro: also /micro/q_slow, the slow
+                               coordinates interpolated at the micro nodes */
 } mrvi_writer_options;
 
 /* Create (truncate) the file and write attributes and /model. */
