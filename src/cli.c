@@ -10,6 +10,7 @@
  * (Newton, non-finite values, writing output), 128 + signal when interrupted
  * (130 for Ctrl-C, 143 for SIGTERM); an interrupted or failed run still
  * leaves a valid HDF5 file with every completed step. */
+#include "cli_export.h"
 #include "cli_study.h"
 #include "internal.h"
 
@@ -40,6 +41,8 @@ static const char usage_main[] =
     "  run FILE         integrate a description file and write an HDF5 file\n"
     "  check FILE       validate a description file and print the model\n"
     "  optimize FILE    optimal control of the `control:` section (NLopt)\n"
+    "  export FILE.h5   particles of a run for OVITO/VMD (xyz) or ParaView\n"
+    "                   (xdmf)\n"
     "  help [COMMAND]   show this help or the help of a command\n"
     "\n"
     "Studies (paper §5-§6; each prints a table and writes it to HDF5):\n"
@@ -661,6 +664,10 @@ static int cmd_run(int argc, char **argv) {
 
   if (!a.quiet)
     print_summary(sys, &sum, ctx.n_steps, out);
+  /* The XDMF file for ParaView: the steps the file holds (particles only). */
+  if (sys->output_xdmf && mrvi_model_n_particles(sys->model) > 0 &&
+      cst == MRVI_OK)
+    mrvi_cli_write_xdmf(out, a.quiet);
   if (st == MRVI_EINTERRUPTED)
     fprintf(stderr, "mrvi run: %s: %s\n",
             stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);
@@ -682,7 +689,7 @@ static int cmd_run(int argc, char **argv) {
  * ------------------------------------------------------------------------- */
 static const char *const commands[] = {"run",      "check",     "help",
                                        "converge", "stability", "timing",
-                                       "optimize", NULL};
+                                       "optimize", "export",    NULL};
 /* Optimal control (cli_optimize.c). */
 int mrvi_cmd_optimize(int argc, char **argv);
 extern const char mrvi_usage_optimize[];
@@ -715,6 +722,8 @@ static const char *command_usage(const char *cmd) {
     return mrvi_usage_timing;
   if (!strcmp(cmd, "optimize"))
     return mrvi_usage_optimize;
+  if (!strcmp(cmd, "export"))
+    return mrvi_usage_export;
   return NULL;
 }
 
@@ -764,5 +773,7 @@ int main(int argc, char **argv) {
     return mrvi_cmd_timing(argc - 1, argv + 1);
   if (!strcmp(cmd, "optimize"))
     return mrvi_cmd_optimize(argc - 1, argv + 1);
+  if (!strcmp(cmd, "export"))
+    return mrvi_cmd_export(argc - 1, argv + 1);
   return unknown_command(cmd);
 }

@@ -601,6 +601,39 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
                       size_t len);
 
 /* ---------------------------------------------------------------------------
+ * Viewing the motion (doc/output.md): files for ParaView, OVITO, VMD made
+ * from a run file, for the macro nodes it stores (also of a run that
+ * stopped early or was killed).  Both need a model with particles: a run
+ * file of generalised coordinates only gives MRVI_EINVAL ("no particles").
+ * ------------------------------------------------------------------------- */
+
+/* XDMF 2 file describing the particles of run file h5_path over time,
+ * pointing into its datasets (no data copied): two temporal collections of
+ * one uniform grid per macro node, "particles" (points from /macro/q, node
+ * attribute rate) and, when /model/edges has rows, "bonds" (springs and
+ * rods as lines, cell attribute edge_rate).  The HDF5 file is named by its
+ * base name when both files are in one directory, else by absolute path. */
+int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
+                     size_t len);
+
+enum { MRVI_XYZ_SPECIES_RATE = 0, MRVI_XYZ_SPECIES_NAME = 1 };
+
+typedef struct mrvi_xyz_options {
+  int every;   /* write every every-th frame (>= 1) */
+  int micro;   /* frames at the micro nodes (/micro; slow particles need
+                  /micro/q_slow, output.micro_slow) instead of macro nodes */
+  int species; /* MRVI_XYZ_SPECIES_RATE: "slow"/"fast"; _NAME: the name */
+} mrvi_xyz_options;
+
+/* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of particles,
+ * a comment line "Properties=species:S:1:pos:R:3 Time=t pbc="F F F"" and a
+ * line "species x y z" per particle (2-D and 1-D padded with zeros), all
+ * values with 17 significant digits.  opt may be NULL (every frame, macro
+ * nodes, species by rate). */
+int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
+                    const mrvi_xyz_options *opt, char *msg, size_t len);
+
+/* ---------------------------------------------------------------------------
  * Analysis (paper §4-§6): trajectories, errors against a reference,
  * propagation matrices and linear stability.
  * ------------------------------------------------------------------------- */
