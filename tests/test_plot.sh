@@ -197,10 +197,18 @@ fig.canvas.draw()
 labels = [t.get_text().replace("$\\mathdefault{", "").rstrip("}$")
           for t in ax.get_yticklabels() if t.get_text()]
 out.append("ticks:%s" % (max(len(lab) for lab in labels) <= 5))
+# Log axis of p = 1 ... 1000 in a narrow panel: labels at the decades only.
+fig, ax = plt.subplots()
+p = [1, 5, 10, 20, 50, 100, 200, 500, 1000]
+ax.loglog(p, p)
+mod.plain_log_ticks(ax.xaxis, p, most=12, labels=4)
+major = list(ax.xaxis.get_major_locator()())
+out.append("decades:%s" % (major == [1, 10, 100, 1000]))
 print(" ".join(out))
 PYEOF
 )
-for c in fit-fpu fit-ring fit-lattice fit-cart omega-refused pick q_slow ticks; do
+for c in fit-fpu fit-ring fit-lattice fit-cart omega-refused pick q_slow ticks \
+  decades; do
   case " $checks " in
     *" $c:True "*) pass "$c" ;;
     *) fail "$c (got: $checks)" ;;
