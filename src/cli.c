@@ -62,7 +62,10 @@ static const char usage_run[] =
     "[--force]\n"
     "\n"
     "Integrate the system described in FILE (YAML) and write macro and micro\n"
-    "trajectories, energies and solver statistics to an HDF5 file.\n"
+    "trajectories, energies and solver statistics to an HDF5 file.  For a\n"
+    "model with particles also write OUT.xdmf beside it (ParaView: particles\n"
+    "and springs over time; output.xdmf: false turns it off; see also\n"
+    "'mrvi export' and 'mrvi-plot animate').\n"
     "\n"
     "Options:\n"
     "  -o, --output OUT.h5   output file (default: output.file of FILE,\n"
@@ -667,7 +670,7 @@ static int cmd_run(int argc, char **argv) {
   /* The XDMF file for ParaView: the steps the file holds (particles only). */
   if (sys->output_xdmf && mrvi_model_n_particles(sys->model) > 0 &&
       cst == MRVI_OK)
-    mrvi_cli_write_xdmf(out, a.quiet);
+    mrvi_cli_write_xdmf(out, a.quiet, a.force);
   if (st == MRVI_EINTERRUPTED)
     fprintf(stderr, "mrvi run: %s: %s\n",
             stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);

@@ -47,9 +47,29 @@ void mrvi_cli_replace_extension(const char *path, const char *ext, char *buf,
   snprintf(buf, len, "%.*s%s", (int)n, path, ext);
 }
 
-int mrvi_cli_write_xdmf(const char *h5_path, int quiet) {
+/* 1 if path exists and is not an XDMF file mrvi wrote (its first line
+ * after the XML declaration is the "<!-- mrvi" comment). */
+static int foreign_file(const char *path) {
+  FILE *f = fopen(path, "r");
+  if (!f)
+    return 0;
+  char head[256] = "";
+  size_t got = fread(head, 1, sizeof head - 1, f);
+  head[got] = '\0';
+  fclose(f);
+  return strstr(head, "<!-- mrvi ") == NULL;
+}
+
+int mrvi_cli_write_xdmf(const char *h5_path, int quiet, int force) {
   char xdmf[4096], msg[1024];
   mrvi_cli_replace_extension(h5_path, ".xdmf", xdmf, sizeof xdmf);
+  if (!force && foreign_file(xdmf)) {
+    fprintf(stderr,
+            "mrvi run: warning: no XDMF file: %s exists and was not written "
+            "by mrvi; not overwritten (--force replaces it)\n",
+            xdmf);
+    return -1;
+  }
   if (mrvi_export_xdmf(h5_path, xdmf, msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi run: warning: no XDMF file: %s\n", msg);
     return -1;

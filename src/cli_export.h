@@ -14,7 +14,8 @@ void mrvi_cli_replace_extension(const char *path, const char *ext, char *buf,
                                 size_t len);
 
 /* Write OUT.xdmf beside the run file OUT.h5 (a line in the summary unless
- * quiet; a warning on stderr when it cannot be written).  0 or -1. */
-int mrvi_cli_write_xdmf(const char *h5_path, int quiet);
+ * quiet; a warning on stderr when it cannot be written, or when OUT.xdmf
+ * is a file mrvi did not write and force is 0).  0 or -1. */
+int mrvi_cli_write_xdmf(const char *h5_path, int quiet, int force);
 
 #endif

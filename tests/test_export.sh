@@ -327,6 +327,17 @@ run_ok "output.xdmf: false" "$mrvi" run "$root/systems/lattice.yaml" \
 [ ! -e noxdmf.xdmf ] && pass "output.xdmf: false writes no XDMF" ||
   fail "output.xdmf: false still wrote noxdmf.xdmf"
 
+# A file of the user's with the XDMF name is not overwritten (--force does).
+echo "my notes" >mine.xdmf
+run_ok "run beside a foreign mine.xdmf" "$mrvi" run \
+  "$root/systems/lattice.yaml" -o mine.h5 --set integrator.t_end=0.1 --quiet
+grep -q "not overwritten" err.txt && [ "$(cat mine.xdmf)" = "my notes" ] &&
+  pass "a foreign .xdmf is kept, with a warning" ||
+  fail "a foreign .xdmf is kept: $(cat err.txt)"
+run_ok "--force replaces it" "$mrvi" run "$root/systems/lattice.yaml" \
+  -o mine.h5 --set integrator.t_end=0.1 --quiet --force
+py_ok "mine.xdmf written with --force" check_xdmf.py mine.xdmf 3
+
 # --- mrvi export --format xdmf -------------------------------------------------
 run_ok "mrvi export --format xdmf" "$mrvi" export lattice.h5 --format xdmf \
   -o again.xdmf
