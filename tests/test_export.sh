@@ -29,22 +29,8 @@ tmp=$(mktemp -d "${TMPDIR:-/tmp}/mrvi-test-export.XXXXXX")
 trap 'rm -rf "$tmp"' EXIT
 cd "$tmp" || exit 1
 
-passed=0
-failed=0
-pass() { passed=$((passed + 1)); echo "ok   $1"; }
-fail() { failed=$((failed + 1)); echo "FAIL $1"; }
-
-# run_ok NAME CMD...: the command exits 0
-run_ok() {
-  local name=$1
-  shift
-  if "$@" >out.txt 2>err.txt; then
-    pass "$name"
-  else
-    fail "$name (exit $?)"
-    sed 's/^/     /' err.txt | head -10
-  fi
-}
+# shellcheck source=testlib.sh
+. "$(dirname "$0")/testlib.sh"
 
 # fails_with NAME PATTERN CMD...: exit 1 and PATTERN on stderr
 fails_with() {
@@ -416,5 +402,4 @@ run_ok "mrvi help export" "$mrvi" help export
 grep -q "extended XYZ" out.txt && pass "help export explains xyz" ||
   fail "help export explains xyz"
 
-echo "$passed passed, $failed failed"
-[ "$failed" -eq 0 ]
+test_finish

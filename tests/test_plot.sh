@@ -21,23 +21,8 @@ fi
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/mrvi-test-plot.XXXXXX")
 trap 'rm -rf "$tmp"' EXIT
 
-passed=0
-failed=0
-
-pass() { passed=$((passed + 1)); echo "ok   $1"; }
-fail() { failed=$((failed + 1)); echo "FAIL $1"; }
-
-# run_ok NAME CMD...: the command exits 0
-run_ok() {
-  local name=$1
-  shift
-  if "$@" >"$tmp/out.txt" 2>"$tmp/err.txt"; then
-    pass "$name"
-  else
-    fail "$name (exit $?)"
-    sed 's/^/     /' "$tmp/err.txt" | head -20
-  fi
-}
+# shellcheck source=testlib.sh
+. "$(dirname "$0")/testlib.sh"
 
 # png_ok FILE: exists, > 10 kB, PNG signature
 png_ok() {
@@ -456,5 +441,4 @@ fails_with "run file given to convergence" "/convergence" \
   "$py" "$plot" convergence "$tmp/fpu.h5" -o "$out"
 fails_with "no subcommand" "usage" "$py" "$plot"
 
-echo "$passed passed, $failed failed"
-[ "$failed" -eq 0 ]
+test_finish
