@@ -23,7 +23,7 @@
 typedef struct run_file {
   const char *path;
   hid_t file;
-  int d;        /* root attribute `dimension` */
+  int d;        /* /model/dimension */
   int n, np;    /* coordinates, particles */
   hsize_t rows; /* macro nodes stored: rows of /macro/t and /macro/q */
   int *column;  /* np: /model/particle_column */
@@ -157,12 +157,9 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
                      "/model/particle_column): nothing to show as points",
                      path);
   int d = 0;
-  hid_t a = H5Aopen(r->file, "dimension", H5P_DEFAULT);
-  if (a >= 0) {
-    if (H5Aread(a, H5T_NATIVE_INT, &d) < 0)
-      d = 0;
-    H5Aclose(a);
-  }
+  if (H5Lexists(r->file, "/model/dimension", H5P_DEFAULT) <= 0 ||
+      read_data(r->file, "/model/dimension", H5T_NATIVE_INT, -1, &d) < 0)
+    d = 0;
   r->d = d;
   r->n = (int)dq[1];
   r->np = (int)dc[0];
@@ -171,7 +168,7 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
       shape(r->file, "/model/edges", de) == 2 && de[1] == 2 ? (int)de[0] : 0;
   if (d < 1 || d > 3 || (size_t)r->np * (size_t)d > (size_t)r->n)
     return mrvi_fail(msg, len, MRVI_EIO,
-                     "%s: attribute dimension = %d does not fit %d particles "
+                     "%s: /model/dimension = %d does not fit %d particles "
                      "in %d coordinates",
                      path, d, r->np, r->n);
   r->column = read_all(r->file, "/model/particle_column", H5T_NATIVE_INT,

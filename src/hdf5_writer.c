@@ -158,7 +158,6 @@ static const struct output_info {
   X("project_momenta", int, s->project_momenta, w->n_lambda > 0)               \
   X("solver", string, solver_path, 1)                                          \
   X("output_every", int, w->every, 1)                                          \
-  X("dimension", int, mrvi_model_n_particles(m) > 0 ? w->dim : 0, 1)           \
   X("stop_reason", string, "running", 1)                                       \
   X("steps_completed", long, 0L, 1)
 
@@ -532,7 +531,10 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
     column[i] = m->particles[i].first;
     name[i] = m->particles[i].name ? m->particles[i].name : "";
   }
+  const int dim = w->dim;
   const fixed_dataset list[] = {
+      {"/model/dimension", H5T_STD_I32LE, H5T_NATIVE_INT, 1, 1, &dim,
+       "spatial dimension d of the particles"},
       {"/model/particle_name", STRINGS, (hsize_t)np, 0, name,
        "name of each particle"},
       {"/model/particle_column", H5T_STD_I32LE, H5T_NATIVE_INT, (hsize_t)np, 0,
@@ -671,8 +673,11 @@ static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
 }
 
 /* Bytes that must stay free on the file system beyond the rows of a write:
- * a new chunk for every dataset, twice, and 1 MiB for metadata. */
-#define SPACE_RESERVE ((size_t)2 * N_OUTPUTS * CHUNK_BYTES + ((size_t)1 << 20))
+ * a new chunk for every dataset the writer may create (the optional
+ * /micro/q_slow only when it is written), twice, and 1 MiB for metadata. */
+#define SPACE_RESERVE(w)                                                       \
+  ((size_t)2 * (size_t)(N_OUTPUTS - !(w)->micro_slow) * CHUNK_BYTES +          \
+   ((size_t)1 << 20))
 
 /* Refuse a write of `bytes` that could run the file system full.  HDF5 1.10
  * does not recover from a failed write: its metadata cache may reach the
@@ -686,7 +691,7 @@ static int check_space(mrvi_writer *w, size_t bytes) {
   if (w->lock_fd < 0 || fstatvfs(w->lock_fd, &v) < 0)
     return 0; /* unknown: try */
   const double avail = (double)v.f_bavail * (double)v.f_frsize;
-  const double need = 2.0 * (double)bytes + (double)SPACE_RESERVE;
+  const double need = 2.0 * (double)bytes + (double)SPACE_RESERVE(w);
   if (avail >= need)
     return 0;
   return fail(w, MRVI_EIO,

@@ -166,7 +166,7 @@ for coll in colls:
         h5 = f
         q = f["macro/q"][k]
         col = f["model/particle_column"][()]
-        d = int(f.attrs["dimension"])
+        d = int(f["model/dimension"][()])
         want = np.stack([q[col + a] for a in range(d)], axis=1)
         if xyz.shape[0] != col.size or \
                 not np.array_equal(xyz[:, :d], want) or \
@@ -224,7 +224,7 @@ every = int(every)
 f = h5py.File(h5, "r")
 col = f["model/particle_column"][()]
 rate = f["model/rate"][()]
-d = int(f.attrs["dimension"])
+d = int(f["model/dimension"][()])
 if grid == "macro":
     t = f["macro/t"][()]
     q = f["macro/q"][()]

@@ -1546,7 +1546,12 @@ static void test_particles_micro_slow(void) {
                  H5T_NATIVE_INT, sizeof(int), none);
       check_data(f, "/model/angular_momentum_conserved", 1, 3, 1,
                  H5T_NATIVE_INT, sizeof(int), none);
-      check_attr_long(f, "dimension", 3);
+      int drank;
+      hsize_t ddims[2];
+      int *dim = read_all(f, "/model/dimension", H5T_NATIVE_INT, sizeof(int),
+                          &drank, ddims);
+      CHECK(dim && drank == 0 && *dim == 3, "/model/dimension: scalar 3");
+      free(dim);
       check_documented(path);
     }
     H5Fclose(f);
@@ -1563,9 +1568,9 @@ static void test_particles_micro_slow(void) {
         "open: %s", msg);
   mrvi_writer_close(w, NULL, msg, sizeof msg);
   hid_t f = H5Fopen("no_particles.h5", H5F_ACC_RDONLY, H5P_DEFAULT);
-  CHECK(!exists(f, "/model/particle_column") && !exists(f, "/model/edges"),
-        "no particles: no /model/particle_column, no /model/edges");
-  check_attr_long(f, "dimension", 0);
+  CHECK(!exists(f, "/model/particle_column") && !exists(f, "/model/edges") &&
+            !exists(f, "/model/dimension"),
+        "no particles: no /model/particle_column, /model/edges, dimension");
   H5Fclose(f);
   remove("no_particles.h5");
   mrvi_model_free(fpu);
