@@ -10,6 +10,7 @@
  * (Newton, non-finite values, writing output), 128 + signal when interrupted
  * (130 for Ctrl-C, 143 for SIGTERM); an interrupted or failed run still
  * leaves a valid HDF5 file with every completed step. */
+#include "cli_export.h"
 #include "cli_study.h"
 #include "internal.h"
 
@@ -40,6 +41,8 @@ static const char usage_main[] =
     "  run FILE         integrate a description file and write an HDF5 file\n"
     "  check FILE       validate a description file and print the model\n"
     "  optimize FILE    optimal control of the `control:` section (NLopt)\n"
+    "  export FILE.h5   particles of a run for OVITO/VMD (xyz) or ParaView\n"
+    "                   (xdmf)\n"
     "  help [COMMAND]   show this help or the help of a command\n"
     "\n"
     "Studies (paper §5-§6; each prints a table and writes it to HDF5):\n"
@@ -59,7 +62,10 @@ static const char usage_run[] =
     "[--force]\n"
     "\n"
     "Integrate the system described in FILE (YAML) and write macro and micro\n"
-    "trajectories, energies and solver statistics to an HDF5 file.\n"
+    "trajectories, energies and solver statistics to an HDF5 file.  For a\n"
+    "model with particles also write OUT.xdmf beside it (ParaView: particles\n"
+    "and springs over time; output.xdmf: false turns it off; see also\n"
+    "'mrvi export' and 'mrvi-plot animate').\n"
     "\n"
     "Options:\n"
     "  -o, --output OUT.h5   output file (default: output.file of FILE,\n"
@@ -623,6 +629,7 @@ static int cmd_run(int argc, char **argv) {
       .micro = sys->output_micro,
       .flush_interval = sys->output_flush_interval,
       .force = a.force,
+      .micro_slow = sys->output_micro_slow,
   };
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(out, sys->model, &sys->settings, &opt, &w, msg,
@@ -660,6 +667,10 @@ static int cmd_run(int argc, char **argv) {
 
   if (!a.quiet)
     print_summary(sys, &sum, ctx.n_steps, out);
+  /* The XDMF file for ParaView: the steps the file holds (particles only). */
+  if (sys->output_xdmf && mrvi_model_n_particles(sys->model) > 0 &&
+      cst == MRVI_OK)
+    mrvi_cli_write_xdmf(out, a.quiet, a.force);
   if (st == MRVI_EINTERRUPTED)
     fprintf(stderr, "mrvi run: %s: %s\n",
             stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);
@@ -681,7 +692,7 @@ static int cmd_run(int argc, char **argv) {
  * ------------------------------------------------------------------------- */
 static const char *const commands[] = {"run",      "check",     "help",
                                        "converge", "stability", "timing",
-                                       "optimize", NULL};
+                                       "optimize", "export",    NULL};
 /* Optimal control (cli_optimize.c). */
 int mrvi_cmd_optimize(int argc, char **argv);
 extern const char mrvi_usage_optimize[];
@@ -714,6 +725,8 @@ static const char *command_usage(const char *cmd) {
     return mrvi_usage_timing;
   if (!strcmp(cmd, "optimize"))
     return mrvi_usage_optimize;
+  if (!strcmp(cmd, "export"))
+    return mrvi_usage_export;
   return NULL;
 }
 
@@ -763,5 +776,7 @@ int main(int argc, char **argv) {
     return mrvi_cmd_timing(argc - 1, argv + 1);
   if (!strcmp(cmd, "optimize"))
     return mrvi_cmd_optimize(argc - 1, argv + 1);
+  if (!strcmp(cmd, "export"))
+    return mrvi_cmd_export(argc - 1, argv + 1);
   return unknown_command(cmd);
 }

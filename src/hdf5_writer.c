@@ -93,6 +93,10 @@ enum elem { F64, I32 };
   X(MICRO_Q_FAST, "/micro/q_fast", F64, MICRO, 2, w->nf,                       \
     r->micro_q_fast + (size_t)i * (size_t)w->nf,                               \
     "fast coordinates at the micro node, model order")                         \
+  X(MICRO_Q_SLOW, "/micro/q_slow", F64, MICRO, 2, w->micro_slow ? w->ns : 0,   \
+    w->slow_rows + (size_t)i * (size_t)w->ns,                                  \
+    "slow coordinates at the micro node, linear between macro nodes "          \
+    "(output.micro_slow)")                                                     \
   X(MICRO_P_FAST, "/micro/p_fast", F64, MICRO, 2, w->nf,                       \
     r->micro_p_fast + (size_t)i * (size_t)w->nf,                               \
     "fast micro momenta (eq:pkfm-), model order")                              \
@@ -170,8 +174,12 @@ typedef struct output {
 struct mrvi_writer {
   char *path;
   hid_t file;
-  int n, nf, dim, n_ang, p, every;
-  int n_lambda; /* constraint rows (0: no constraint outputs) */
+  int n, nf, ns, dim, n_ang, p, every;
+  int micro_slow;    /* write /micro/q_slow (ns > 0, micro output on) */
+  int *slow_col;     /* ns: model index of each slow coordinate */
+  double *prev_slow; /* ns: slow coordinates of the previous record */
+  double *slow_rows; /* p x ns: /micro/q_slow rows of the current record */
+  int n_lambda;      /* constraint rows (0: no constraint outputs) */
   int stream_on[N_STREAMS];
   long flush_records;         /* records per flush (<= FLUSH_RECORDS) */
   size_t cap[N_STREAMS];      /* buffer capacity in rows */
@@ -393,12 +401,14 @@ static herr_t attr_long(hid_t obj, const char *name, long value) {
   return attr_write(obj, name, H5T_STD_I64LE, H5T_NATIVE_LONG, &value);
 }
 
-/* Dataset of count elements (scalar: one) with attribute long_name. */
+/* Dataset of count elements, or count x cols (cols > 0), or one scalar,
+ * with attribute long_name. */
 static herr_t write_fixed(hid_t file, const char *path, hid_t lcpl, hid_t ftype,
-                          hid_t mtype, hsize_t count, int scalar,
+                          hid_t mtype, hsize_t count, hsize_t cols, int scalar,
                           const void *data, const char *long_name) {
-  hid_t space =
-      scalar ? H5Screate(H5S_SCALAR) : H5Screate_simple(1, &count, NULL);
+  const hsize_t dims[2] = {count, cols};
+  hid_t space = scalar ? H5Screate(H5S_SCALAR)
+                       : H5Screate_simple(cols > 0 ? 2 : 1, dims, NULL);
   if (space < 0)
     return -1;
   hid_t d =
@@ -452,8 +462,8 @@ static int write_fixed_list(mrvi_writer *w, hid_t lcpl, const fixed_dataset *d,
       continue;
     const int str = d[i].ftype == H5I_INVALID_HID;
     if (write_fixed(w->file, d[i].path, lcpl, str ? st : d[i].ftype,
-                    str ? st : d[i].mtype, d[i].count, d[i].scalar, d[i].data,
-                    d[i].long_name) < 0)
+                    str ? st : d[i].mtype, d[i].count, 0, d[i].scalar,
+                    d[i].data, d[i].long_name) < 0)
       rc = fail_dataset(w, d[i].path);
   }
   H5Tclose(st);
@@ -493,6 +503,63 @@ out:
   free(mass);
   free(rate);
   free(name);
+  return rc;
+}
+
+/* /model/particle_*, edges and the conserved momentum maps of a model with
+ * particles (nothing without): what pictures of the motion (XDMF, `mrvi
+ * export`, `mrvi-plot animate`) and the plots need to know. */
+static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
+  const int np = mrvi_model_n_particles(m);
+  if (np <= 0)
+    return 0;
+  const int ne = mrvi_model_edges(m, NULL, NULL, 0);
+  const size_t cap = (size_t)(np > ne ? np : ne) + 1;
+  const char **name = malloc(cap * sizeof *name);
+  int *column = malloc(cap * sizeof *column);
+  int *pairs = malloc(2 * cap * sizeof *pairs);
+  int *kind = malloc(cap * sizeof *kind);
+  int lin[3] = {0, 0, 0}, ang[3] = {0, 0, 0};
+  int rc = 0;
+  if (!name || !column || !pairs || !kind || ne < 0 ||
+      mrvi_model_conserved(m, lin, ang) < 0) {
+    rc = fail(w, MRVI_ENOMEM, "writing /model: out of memory");
+    goto out;
+  }
+  mrvi_model_edges(m, pairs, kind, ne);
+  for (int i = 0; i < np; i++) {
+    column[i] = m->particles[i].first;
+    name[i] = m->particles[i].name ? m->particles[i].name : "";
+  }
+  const int dim = w->dim;
+  const fixed_dataset list[] = {
+      {"/model/dimension", H5T_STD_I32LE, H5T_NATIVE_INT, 1, 1, &dim,
+       "spatial dimension d of the particles"},
+      {"/model/particle_name", STRINGS, (hsize_t)np, 0, name,
+       "name of each particle"},
+      {"/model/particle_column", H5T_STD_I32LE, H5T_NATIVE_INT, (hsize_t)np, 0,
+       column, "column of /macro/q holding the particle's x (y, z follow)"},
+      {"/model/edge_rate", H5T_STD_I32LE, H5T_NATIVE_INT, (hsize_t)ne, 0, kind,
+       "each edge: 0 slow spring, 1 fast spring, 2 rod"},
+      {"/model/linear_momentum_conserved", H5T_STD_I32LE, H5T_NATIVE_INT,
+       (hsize_t)w->dim, 0, lin,
+       "1 where the symmetry of the model conserves that component"},
+      {"/model/angular_momentum_conserved", H5T_STD_I32LE, H5T_NATIVE_INT,
+       (hsize_t)w->n_ang, 0, w->n_ang > 0 ? ang : NULL,
+       "1 where the symmetry of the model conserves that component"},
+  };
+  rc = write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
+  if (rc == 0 &&
+      write_fixed(w->file, "/model/edges", lcpl, H5T_STD_I32LE, H5T_NATIVE_INT,
+                  (hsize_t)ne, 2, 0, pairs,
+                  "particle indices of the springs and rods between two "
+                  "particles") < 0)
+    rc = fail_dataset(w, "/model/edges");
+out:
+  free(name);
+  free(column);
+  free(pairs);
+  free(kind);
   return rc;
 }
 
@@ -606,8 +673,11 @@ static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
 }
 
 /* Bytes that must stay free on the file system beyond the rows of a write:
- * a new chunk for every dataset, twice, and 1 MiB for metadata. */
-#define SPACE_RESERVE ((size_t)2 * N_OUTPUTS * CHUNK_BYTES + ((size_t)1 << 20))
+ * a new chunk for every dataset the writer may create (the optional
+ * /micro/q_slow only when it is written), twice, and 1 MiB for metadata. */
+#define SPACE_RESERVE(w)                                                       \
+  ((size_t)2 * (size_t)(N_OUTPUTS - !(w)->micro_slow) * CHUNK_BYTES +          \
+   ((size_t)1 << 20))
 
 /* Refuse a write of `bytes` that could run the file system full.  HDF5 1.10
  * does not recover from a failed write: its metadata cache may reach the
@@ -621,7 +691,7 @@ static int check_space(mrvi_writer *w, size_t bytes) {
   if (w->lock_fd < 0 || fstatvfs(w->lock_fd, &v) < 0)
     return 0; /* unknown: try */
   const double avail = (double)v.f_bavail * (double)v.f_frsize;
-  const double need = 2.0 * (double)bytes + (double)SPACE_RESERVE;
+  const double need = 2.0 * (double)bytes + (double)SPACE_RESERVE(w);
   if (avail >= need)
     return 0;
   return fail(w, MRVI_EIO,
@@ -733,6 +803,9 @@ static void writer_free(mrvi_writer *w) {
   for (int id = 0; id < N_OUTPUTS; id++)
     free(w->out[id].buf);
   free(w->micro_t);
+  free(w->slow_col);
+  free(w->prev_slow);
+  free(w->slow_rows);
   free(w->nan_row);
   free(w->lambda_patch);
   free(w->path);
@@ -836,6 +909,15 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
       return fail(w, MRVI_ENOMEM, "out of memory for output buffers");
   }
   w->micro_t = malloc((size_t)w->p * sizeof *w->micro_t);
+  if (w->micro_slow) {
+    w->slow_col = malloc((size_t)w->ns * sizeof *w->slow_col);
+    w->prev_slow = malloc((size_t)w->ns * sizeof *w->prev_slow);
+    w->slow_rows = malloc((size_t)w->p * (size_t)w->ns * sizeof *w->slow_rows);
+    if (!w->slow_col || !w->prev_slow || !w->slow_rows)
+      return fail(w, MRVI_ENOMEM, "out of memory");
+    memcpy(w->slow_col, mrvi_model_slow_index(m),
+           (size_t)w->ns * sizeof *w->slow_col);
+  }
   const size_t nl = (size_t)w->n_lambda + 1;
   w->nan_row = malloc(nl * sizeof *w->nan_row);
   w->lambda_patch = malloc(nl * sizeof *w->lambda_patch);
@@ -888,6 +970,8 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   }
   rc = write_model(w, m, description, lcpl);
   if (rc == 0)
+    rc = write_particles(w, m, lcpl);
+  if (rc == 0)
     rc = write_constraints(w, m, lcpl);
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++)
     if (w->out[id].cols > 0)
@@ -918,7 +1002,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
                   : "no file name");
     return MRVI_EINVAL;
   }
-  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0};
+  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0, 0};
   if (opt)
     o = *opt;
   if (o.every < 1) {
@@ -948,6 +1032,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
     w->out[id].id = H5I_INVALID_HID;
   w->n = mrvi_model_n(m);
   w->nf = mrvi_model_n_fast(m);
+  w->ns = mrvi_model_n_slow(m);
   w->dim = mrvi_model_dimension(m);
   w->n_ang = w->dim == 3 ? 3 : w->dim == 2 ? 1 : 0;
   w->p = s->micro_steps;
@@ -955,6 +1040,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->n_lambda = mrvi_model_constraint_rows(m);
   w->stream_on[MACRO] = 1;
   w->stream_on[MICRO] = o.micro && w->nf > 0;
+  w->micro_slow = o.micro_slow && w->stream_on[MICRO] && w->ns > 0;
   w->stream_on[SOLVER] = 1;
   w->last_k = -1;
   w->flushed_at = mrvi_clock();
@@ -1002,6 +1088,25 @@ static void fill_lambda(mrvi_writer *w, const mrvi_record *r) {
     memcpy(w->lambda_patch, r->lambda_prev, o->row_bytes);
     w->patch = 1;
   }
+}
+
+/* /micro/q_slow rows of record r (rows of them): the slow coordinates as
+ * the scheme sees them at the micro nodes m = 1..p of step k-1 -> k, the
+ * linear interpolation (1 - m/p) q_{k-1}^s + (m/p) q_k^s of the macro nodes
+ * (mrvi_step_node_point); at k = 0 the initial node q_0^s. */
+static void interpolate_slow(mrvi_writer *w, const mrvi_record *r,
+                             size_t rows) {
+  const int *slow = w->slow_col, ns = w->ns;
+  for (size_t i = 0; i < rows; i++) {
+    const double b = r->k == 0 ? 0.0 : (double)(i + 1) / (double)w->p;
+    const double a = 1.0 - b;
+    double *row = w->slow_rows + i * (size_t)ns;
+    for (int j = 0; j < ns; j++)
+      row[j] =
+          r->k == 0 ? r->q[slow[j]] : a * w->prev_slow[j] + b * r->q[slow[j]];
+  }
+  for (int j = 0; j < ns; j++)
+    w->prev_slow[j] = r->q[slow[j]];
 }
 
 int mrvi_writer_observe(void *writer, const mrvi_record *r) {
@@ -1053,6 +1158,8 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
 
   for (size_t i = 0; i < add[MICRO]; i++)
     w->micro_t[i] = r->micro_t0 + (double)i * r->micro_dt;
+  if (w->micro_slow)
+    interpolate_slow(w, r, add[MICRO]);
   /* Copy the rows; the macro row goes to rows[MACRO] (over a pending row). */
   for (int id = 0; id < N_OUTPUTS; id++) {
     output *o = &w->out[id];

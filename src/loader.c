@@ -894,8 +894,8 @@ static const char *const fast_rule_keys[] = {"alpha", "gamma"};
 static const char *const newton_keys[] = {"tolerance", "max_iterations"};
 static const char *const constraint_setting_keys[] = {"form", "tolerance",
                                                       "projection"};
-static const char *const output_keys[] = {"file", "every", "micro",
-                                          "flush_interval"};
+static const char *const output_keys[] = {
+    "file", "every", "micro", "micro_slow", "xdmf", "flush_interval"};
 
 static int load_coordinates(loader *L, struct fy_node *list) {
   int st = want_list(L, list, "coordinates");
@@ -2067,6 +2067,11 @@ static int load_output(loader *L, struct fy_node *out) {
   if ((n = get(out, "micro")) &&
       (st = as_bool(L, n, "micro", &sys->output_micro)))
     return st;
+  if ((n = get(out, "micro_slow")) &&
+      (st = as_bool(L, n, "micro_slow", &sys->output_micro_slow)))
+    return st;
+  if ((n = get(out, "xdmf")) && (st = as_bool(L, n, "xdmf", &sys->output_xdmf)))
+    return st;
   if ((n = get(out, "flush_interval"))) {
     if ((st = as_number(L, n, "flush_interval", &sys->output_flush_interval)))
       return st;
@@ -2124,6 +2129,7 @@ static int interpret(loader *L) {
   mrvi_settings_default(&sys->settings);
   sys->output_every = 1;
   sys->output_micro = 1;
+  sys->output_xdmf = 1;
   size_t flen = strlen(name) + 4;
   sys->output_file = malloc(flen);
   if (!sys->name || !sys->model || !sys->output_file)

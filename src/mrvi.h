@@ -240,6 +240,23 @@ double mrvi_model_potential(const mrvi_model *m, mrvi_rate potential,
  * momentum sum_i x_i x p_i (3 entries in 3-D, 1 in 2-D, 0 in 1-D). */
 void mrvi_model_momentum(const mrvi_model *m, const double *q,
                          const double *p, double *linear, double *angular);
+/* Which components of those momentum maps the model's symmetries conserve
+ * (1) or not (0): linear (dimension entries) is conserved along e_a when
+ * every potential element and constraint is invariant under translations
+ * along e_a; angular (3 entries in 3-D, 1 in 2-D) about e_a when they are
+ * invariant under rotations about the axis e_a through the origin.  Pair
+ * springs, angles and rods between particles keep both; anchors, gravity,
+ * forces, terms, fixed, plane and linear constraints keep what their
+ * direction allows (src/symmetry.c); user constraint types keep nothing
+ * they touch.  Either pointer may be NULL. */
+int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular);
+/* Lines of a picture of the model: springs between two particles (kind 0
+ * slow, 1 fast potential), then distance constraints between two particles
+ * (kind 2, rods), in model order.  Anchored springs and rods and pair laws
+ * (lennard-jones, inverse) are not lines.  Writes at most cap edges into
+ * pairs (2 x cap particle indices) and kind (cap), either may be NULL, and
+ * returns the number of edges (call with cap = 0 to count). */
+int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap);
 
 /* ---------------------------------------------------------------------------
  * Holonomic constraints g(q) = 0 (doc/constraints.md).
@@ -531,6 +548,8 @@ typedef struct mrvi_system {
   char *output_file;     /* output.file (default: <name>.h5) */
   int output_every;      /* output.every (default 1) */
   int output_micro;      /* output.micro (default 1) */
+  int output_micro_slow; /* output.micro_slow (default 0) */
+  int output_xdmf;       /* output.xdmf: write OUT.xdmf (default 1) */
   double output_flush_interval; /* output.flush_interval, s (0: default) */
   char *description;     /* the input text after overrides */
   /* What the loader changed or wants the user to know, one note per line
@@ -566,6 +585,8 @@ typedef struct mrvi_writer_options {
   int micro;                /* write /micro datasets */
   double flush_interval;    /* seconds between flushes (<= 0: default 2) */
   int force;                /* replace an existing non-mrvi file */
+  int micro_slow;           /* with micro: also /micro/q_slow, the slow
+                               coordinates interpolated at the micro nodes */
 } mrvi_writer_options;
 
 /* Create (truncate) the file and write attributes and /model. */
@@ -578,6 +599,39 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r);
  * ("completed" or the message) and close.  Frees w. */
 int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
                       size_t len);
+
+/* ---------------------------------------------------------------------------
+ * Viewing the motion (doc/output.md): files for ParaView, OVITO, VMD made
+ * from a run file, for the macro nodes it stores (also of a run that
+ * stopped early or was killed).  Both need a model with particles: a run
+ * file of generalised coordinates only gives MRVI_EINVAL ("no particles").
+ * ------------------------------------------------------------------------- */
+
+/* XDMF 2 file describing the particles of run file h5_path over time,
+ * pointing into its datasets (no data copied): two temporal collections of
+ * one uniform grid per macro node, "particles" (points from /macro/q, node
+ * attribute rate) and, when /model/edges has rows, "bonds" (springs and
+ * rods as lines, cell attribute edge_rate).  The HDF5 file is named by its
+ * base name when both files are in one directory, else by absolute path. */
+int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
+                     size_t len);
+
+enum { MRVI_XYZ_SPECIES_RATE = 0, MRVI_XYZ_SPECIES_NAME = 1 };
+
+typedef struct mrvi_xyz_options {
+  int every;   /* write every every-th frame (>= 1) */
+  int micro;   /* frames at the micro nodes (/micro; slow particles need
+                  /micro/q_slow, output.micro_slow) instead of macro nodes */
+  int species; /* MRVI_XYZ_SPECIES_RATE: "slow"/"fast"; _NAME: the name */
+} mrvi_xyz_options;
+
+/* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of particles,
+ * a comment line "Properties=species:S:1:pos:R:3 Time=t pbc="F F F"" and a
+ * line "species x y z" per particle (2-D and 1-D padded with zeros), all
+ * values with 17 significant digits.  opt may be NULL (every frame, macro
+ * nodes, species by rate). */
+int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
+                    const mrvi_xyz_options *opt, char *msg, size_t len);
 
 /* ---------------------------------------------------------------------------
  * Analysis (paper §4-§6): trajectories, errors against a reference,

@@ -856,7 +856,7 @@ static void synthetic_case_s(const char *name, mrvi_model *m,
   const mrvi_settings s = *sp;
   char path[64];
   snprintf(path, sizeof path, "synthetic_%s.h5", name);
-  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0, 0};
+  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0, 0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg);
@@ -931,7 +931,7 @@ static void test_synthetic(void) {
   /* Explicit check of the `every` rule on /macro/t (k = 0,3,6,9,10). */
   {
     mrvi_settings s = settings("midpoint-midpoint", 0.5, 2, 5.0);
-    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0};
+    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0, 0};
     mrvi_writer *w = NULL;
     char msg[256];
     mrvi_writer_open("every_rule.h5", m3, &s, &opt, &w, msg, sizeof msg);
@@ -1047,7 +1047,7 @@ static void test_bad_records(void) {
 
   /* Bad options. */
   static char sentinel;
-  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0};
+  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0, 0};
   w = (mrvi_writer *)(void *)&sentinel;
   CHECK(mrvi_writer_open("bad_records.h5", m, &s, &opt, &w, msg, sizeof msg) ==
                 MRVI_EINVAL &&
@@ -1075,7 +1075,7 @@ static void hard_kill_case(mrvi_model *m) {
   if (pid == 0) {
     mrvi_writer *w = NULL;
     char msg[256];
-    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0};
+    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0, 0};
     if (mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg))
       _exit(3);
     synth g;
@@ -1163,7 +1163,7 @@ static void test_lock(void) {
     fclose(fp);
   }
   CHECK(!strcmp(buf, "not an HDF5 file\n"), "foreign file untouched");
-  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1};
+  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1, 0};
   CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == MRVI_OK,
         "force replaces it: %s", msg);
   mrvi_writer_close(w, NULL, msg, sizeof msg);
@@ -1361,7 +1361,7 @@ static void run_case(const char *name, mrvi_model *m, const mrvi_settings *s,
                      int every, long stop_at) {
   char path[64];
   snprintf(path, sizeof path, "run_%s.h5", name);
-  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0};
+  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, s, &opt, &w, msg, sizeof msg);
@@ -1469,6 +1469,114 @@ static void test_runs(void) {
   mrvi_model_free(cm);
 }
 
+/* /model/particle_*, edges, conserved components and /micro/q_slow
+ * (output.micro_slow): the slow coordinates at micro node m of step
+ * k-1 -> k are (1 - m/p) q_{k-1}^s + (m/p) q_k^s of the records, to
+ * 1e-15; row 0 is q_0^s and row k p is q_k^s exactly.  Without the option
+ * the dataset is absent. */
+static void test_particles_micro_slow(void) {
+  mrvi_model *m = particle_model(3);
+  mrvi_settings s = settings("midpoint-midpoint", 0.01, 4, 0.3); /* N = 30 */
+  const int p = s.micro_steps, ns = mrvi_model_n_slow(m);
+  const int *slow = mrvi_model_slow_index(m);
+  for (int with = 0; with <= 1; with++) {
+    const char *path = with ? "micro_slow.h5" : "micro_fast_only.h5";
+    mrvi_writer_options opt = {"particles", NULL, 1, 1, 0.0, 0, with};
+    mrvi_writer *w = NULL;
+    char msg[512];
+    CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == 0,
+          "open %s: %s", path, msg);
+    if (!w)
+      continue;
+    traj tr;
+    traj_init(&tr, m);
+    tee t = {w, &tr, -1};
+    mrvi_summary sum;
+    CHECK(mrvi_run(m, &s, tee_observe, &t, NULL, &sum) == 0, "run: %s",
+          sum.message);
+    CHECK(mrvi_writer_close(w, NULL, msg, sizeof msg) == 0, "close: %s", msg);
+    hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+    CHECK(exists(f, "/micro/q_slow") == with, "%s: /micro/q_slow %s", path,
+          with ? "present" : "absent");
+    if (with) {
+      int rank;
+      hsize_t dims[2];
+      double *qs = read_all(f, "/micro/q_slow", H5T_NATIVE_DOUBLE,
+                            sizeof(double), &rank, dims);
+      const long N = tr.count - 1;
+      CHECK(qs && rank == 2 && dims[0] == (hsize_t)(N * p + 1) &&
+                dims[1] == (hsize_t)ns,
+            "/micro/q_slow shape (%llu, %llu), expected (%ld, %d)",
+            (unsigned long long)dims[0], (unsigned long long)dims[1],
+            N * p + 1, ns);
+      double worst = 0.0;
+      int nodes_exact = 1;
+      for (long k = 0; qs && k <= N; k++)
+        for (int mm = k == 0 ? 0 : 1; mm <= (k == 0 ? 0 : p); mm++) {
+          const double *row = qs + (size_t)(k == 0 ? 0 : (k - 1) * p + mm) * ns;
+          for (int j = 0; j < ns; j++) {
+            const double b = (double)mm / p;
+            const double want =
+                k == 0 ? tr.r[0].q[slow[j]]
+                       : (1 - b) * tr.r[k - 1].q[slow[j]] +
+                             b * tr.r[k].q[slow[j]];
+            worst = fmax(worst, fabs(row[j] - want) / fmax(1.0, fabs(want)));
+            if (mm == p || k == 0)
+              nodes_exact &= row[j] == tr.r[k].q[slow[j]];
+          }
+        }
+      CHECK(worst <= 1e-15, "/micro/q_slow = linear interpolation (%.2e)",
+            worst);
+      CHECK(nodes_exact, "/micro/q_slow rows k p are the macro nodes q_k^s");
+      free(qs);
+
+      /* The particle datasets of the model (c, m1 slow, m2 fast). */
+      const char *names[2] = {"m1", "m2"};
+      check_strings(f, "/model/particle_name", 2, names);
+      const int column[2] = {1, 4}, edges[2] = {0, 1}, edge_rate[1] = {0};
+      const int none[3] = {0, 0, 0};
+      check_data(f, "/model/particle_column", 1, 2, 1, H5T_NATIVE_INT,
+                 sizeof(int), column);
+      check_data(f, "/model/edges", 2, 1, 2, H5T_NATIVE_INT, sizeof(int),
+                 edges);
+      check_data(f, "/model/edge_rate", 1, 1, 1, H5T_NATIVE_INT, sizeof(int),
+                 edge_rate);
+      /* Anchor at (1, 0, 0) and gravity along -e3: nothing conserved. */
+      check_data(f, "/model/linear_momentum_conserved", 1, 3, 1,
+                 H5T_NATIVE_INT, sizeof(int), none);
+      check_data(f, "/model/angular_momentum_conserved", 1, 3, 1,
+                 H5T_NATIVE_INT, sizeof(int), none);
+      int drank;
+      hsize_t ddims[2];
+      int *dim = read_all(f, "/model/dimension", H5T_NATIVE_INT, sizeof(int),
+                          &drank, ddims);
+      CHECK(dim && drank == 0 && *dim == 3, "/model/dimension: scalar 3");
+      free(dim);
+      check_documented(path);
+    }
+    H5Fclose(f);
+    traj_free(&tr);
+    remove(path);
+  }
+  /* A model without particles has none of the particle datasets. */
+  mrvi_model *fpu = fpu_model();
+  mrvi_writer_options opt = {"fpu", NULL, 1, 1, 0.0, 0, 1};
+  mrvi_writer *w = NULL;
+  char msg[512];
+  CHECK(mrvi_writer_open("no_particles.h5", fpu, &s, &opt, &w, msg,
+                         sizeof msg) == 0,
+        "open: %s", msg);
+  mrvi_writer_close(w, NULL, msg, sizeof msg);
+  hid_t f = H5Fopen("no_particles.h5", H5F_ACC_RDONLY, H5P_DEFAULT);
+  CHECK(!exists(f, "/model/particle_column") && !exists(f, "/model/edges") &&
+            !exists(f, "/model/dimension"),
+        "no particles: no /model/particle_column, /model/edges, dimension");
+  H5Fclose(f);
+  remove("no_particles.h5");
+  mrvi_model_free(fpu);
+  mrvi_model_free(m);
+}
+
 /* `mrvi run` writes exactly what an in-memory run of the same file gives. */
 static void test_cli(void) {
   const char *bin = getenv("MRVI_BIN");
@@ -1520,6 +1628,7 @@ int main(void) {
   test_unwritable();
   test_io_error();
   test_runs();
+  test_particles_micro_slow();
   test_cli();
   check_no_open_objects("end");
   return test_finish();

@@ -21,23 +21,8 @@ fi
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/mrvi-test-plot.XXXXXX")
 trap 'rm -rf "$tmp"' EXIT
 
-passed=0
-failed=0
-
-pass() { passed=$((passed + 1)); echo "ok   $1"; }
-fail() { failed=$((failed + 1)); echo "FAIL $1"; }
-
-# run_ok NAME CMD...: the command exits 0
-run_ok() {
-  local name=$1
-  shift
-  if "$@" >"$tmp/out.txt" 2>"$tmp/err.txt"; then
-    pass "$name"
-  else
-    fail "$name (exit $?)"
-    sed 's/^/     /' "$tmp/err.txt" | head -20
-  fi
-}
+# shellcheck source=testlib.sh
+. "$(dirname "$0")/testlib.sh"
 
 # png_ok FILE: exists, > 10 kB, PNG signature
 png_ok() {
@@ -81,7 +66,7 @@ out="$tmp/figs"
 
 # --- help ---
 run_ok "mrvi-plot --help" "$py" "$plot" --help
-for sub in run convergence stability timing all; do
+for sub in run convergence stability timing animate all; do
   run_ok "mrvi-plot $sub --help" "$py" "$plot" "$sub" --help
 done
 
@@ -97,12 +82,167 @@ absent "$out/fpu_angular_momentum.png"
 
 run_ok "mrvi-plot run spring_ring" "$py" "$plot" run "$tmp/ring.h5" -o "$out" \
   --prefix ring --window 0.2
-for f in energy angular_momentum micro; do png_ok "$out/ring_$f.png"; done
-absent "$out/ring_stiff_energy.png"
+# W = (omega2/2) |q_f|^2: the stiff-spring energies mean something here.
+for f in energy angular_momentum micro stiff_energy; do
+  png_ok "$out/ring_$f.png"
+done
 
 run_ok "mrvi-plot run --omega" "$py" "$plot" run "$tmp/ring.h5" -o "$out" \
   --prefix ring_omega --omega 44.72
 png_ok "$out/ring_omega_stiff_energy.png"
+
+# --- particle systems: lattice (2-D, springs only, micro_slow), cart
+# pendulum (J_z conserved), pendulum chain (nothing conserved) ---
+run_ok "mrvi run lattice" "$mrvi" run "$root/systems/lattice.yaml" \
+  -o "$tmp/lattice.h5" --set integrator.t_end=0.3 \
+  --set output.micro_slow=true --quiet
+run_ok "mrvi run cart_pendulum" "$mrvi" run "$root/systems/cart_pendulum.yaml" \
+  -o "$tmp/cart.h5" --set integrator.t_end=0.4 --quiet
+run_ok "mrvi run pendulum_chain" "$mrvi" run \
+  "$root/systems/pendulum_chain.yaml" -o "$tmp/chain.h5" \
+  --set integrator.t_end=0.1 --quiet
+run_ok "mrvi-plot run lattice" "$py" "$plot" run "$tmp/lattice.h5" -o "$out"
+for f in energy angular_momentum micro; do png_ok "$out/lattice_$f.png"; done
+absent "$out/lattice_stiff_energy.png"
+run_ok "mrvi-plot run cart_pendulum" "$py" "$plot" run "$tmp/cart.h5" -o "$out"
+png_ok "$out/cart_angular_momentum.png"
+run_ok "mrvi-plot run pendulum_chain" "$py" "$plot" run "$tmp/chain.h5" \
+  -o "$out"
+absent "$out/chain_angular_momentum.png"
+if grep -q "conserves no component" "$tmp/out.txt"; then
+  pass "pendulum chain: says why there is no angular momentum figure"
+else
+  fail "pendulum chain: no reason given: $(cat "$tmp/out.txt")"
+fi
+# warns NAME PATTERN CMD...: exit 0 and PATTERN on stderr
+warns() {
+  local name=$1 pattern=$2
+  shift 2
+  if "$@" >"$tmp/out.txt" 2>"$tmp/err.txt" &&
+    grep -q -- "$pattern" "$tmp/err.txt"; then
+    pass "$name ($(head -1 "$tmp/err.txt"))"
+  else
+    fail "$name: $(head -1 "$tmp/err.txt")"
+  fi
+}
+warns "--omega where W is not quadratic per coordinate" \
+  "no stiff-energy figure" "$py" "$plot" run "$tmp/lattice.h5" -o "$out" \
+  --prefix lattice_omega --omega 40
+absent "$out/lattice_omega_stiff_energy.png"
+
+# What the figures are made of, asserted on the numbers.
+checks=$("$py" - "$plot" "$tmp" <<'PYEOF'
+import sys
+from importlib.machinery import SourceFileLoader
+import h5py
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+tmp = sys.argv[2]
+out = []
+
+
+def run(name):
+    return mod.Run(h5py.File("%s/%s.h5" % (tmp, name), "r"))
+
+
+# Stiffnesses fitted to W: FPU 2500, spring ring 4000 (fast anchors), none
+# for the lattice (fast springs between particles) and the cart (W = 0).
+k_fpu = mod.fitted_stiffness(run("fpu"))
+k_ring = mod.fitted_stiffness(run("ring"))
+out.append("fit-fpu:%s" % np.allclose(k_fpu, 2500, rtol=1e-9))
+out.append("fit-ring:%s" % np.allclose(k_ring, 4000, rtol=1e-9))
+out.append("fit-lattice:%s" % (mod.fitted_stiffness(run("lattice")) is None))
+out.append("fit-cart:%s" % (mod.fitted_stiffness(run("cart")) is None))
+k, why = mod.stiffnesses(run("lattice"), 40.0)
+out.append("omega-refused:%s" % (k is None and "not" in why))
+
+# Micro figure of the lattice: the 6 of 15 fast particles that move most.
+r = run("lattice")
+tm = mod.read(r.h5, "micro/t")
+sel = tm <= tm[0] + 1.0
+chosen, note = mod.pick_particles(r, tm, sel, None)
+out.append("pick:%s" % (len(chosen) == 6 and "6 of 15" in note and
+                        all(r.rate[r.columns[i]] == 1 for i in chosen)))
+# The slow coordinates interpolated linearly between the macro nodes equal
+# the stored /micro/q_slow (the writer's formula) to 1e-15.
+stored = r.h5["micro/q_slow"][()]
+qmac = r.h5["macro/q"][()]
+slow = np.flatnonzero(r.rate == 0)
+interp = np.column_stack([np.interp(tm, r.t, qmac[:, c]) for c in slow])
+out.append("q_slow:%s" % (np.max(np.abs(interp - stored)) <= 1e-15 *
+                          max(1.0, np.max(np.abs(stored)))))
+
+# A conserved (flat) series gets short tick labels, not 1.0500000000010.
+import matplotlib.pyplot as plt
+fig, ax = plt.subplots()
+y = 1.05 + 1e-14 * np.sin(np.arange(50.0))
+ax.plot(y)
+mod.flat_ylim(ax, y)
+fig.canvas.draw()
+labels = [t.get_text().replace("$\\mathdefault{", "").rstrip("}$")
+          for t in ax.get_yticklabels() if t.get_text()]
+out.append("ticks:%s" % (max(len(lab) for lab in labels) <= 5))
+# Log axis of p = 1 ... 1000 in a narrow panel: labels at the decades only.
+fig, ax = plt.subplots()
+p = [1, 5, 10, 20, 50, 100, 200, 500, 1000]
+ax.loglog(p, p)
+mod.plain_log_ticks(ax.xaxis, p, most=12, labels=4)
+major = list(ax.xaxis.get_major_locator()())
+out.append("decades:%s" % (major == [1, 10, 100, 1000]))
+print(" ".join(out))
+PYEOF
+)
+for c in fit-fpu fit-ring fit-lattice fit-cart omega-refused pick q_slow ticks \
+  decades; do
+  case " $checks " in
+    *" $c:True "*) pass "$c" ;;
+    *) fail "$c (got: $checks)" ;;
+  esac
+done
+
+# --- animate ---
+run_ok "mrvi-plot animate lattice (micro nodes)" "$py" "$plot" animate \
+  "$tmp/lattice.h5" -o "$tmp/lattice.gif" --every 5
+run_ok "mrvi-plot animate spring_ring (macro nodes)" "$py" "$plot" animate \
+  "$tmp/ring.h5" -o "$tmp/ring.gif" --every 10 --fps 10
+# MP4 asked for where matplotlib finds no ffmpeg: a GIF and a note.
+mkdir -p "$tmp/rc"
+echo "animation.ffmpeg_path: $tmp/no-such-ffmpeg" >"$tmp/rc/matplotlibrc"
+if MATPLOTLIBRC="$tmp/rc" "$py" "$plot" animate "$tmp/cart.h5" \
+  -o "$tmp/cart.mp4" --every 4 >"$tmp/out.txt" 2>"$tmp/err.txt" &&
+  grep -q "ffmpeg not found" "$tmp/err.txt" && [ ! -e "$tmp/cart.mp4" ]; then
+  pass "no ffmpeg: $(head -1 "$tmp/err.txt")"
+else
+  fail "no ffmpeg: GIF fallback ($(head -1 "$tmp/err.txt"))"
+fi
+frames=$("$py" - "$tmp" <<'PYEOF'
+import math
+import sys
+import h5py
+from PIL import Image
+tmp = sys.argv[1]
+res = []
+# The cart is slow and the file has no /micro/q_slow: macro nodes.
+for name, grid, every in (("lattice", "micro", 5), ("ring", "macro", 10),
+                          ("cart", "macro", 4)):
+    rows = h5py.File("%s/%s.h5" % (tmp, name), "r")[grid + "/t"].shape[0]
+    im = Image.open("%s/%s.gif" % (tmp, name))
+    want = math.ceil(rows / every)
+    ok = im.format == "GIF" and im.n_frames == want and im.size[0] > 300
+    res.append("%s:%s:%d/%d" % (name, ok, im.n_frames, want))
+print(" ".join(res))
+PYEOF
+)
+for n in lattice ring cart; do
+  case " $frames " in
+    *" $n:True:"*) pass "animation $n: one GIF frame per node kept ($frames)" ;;
+    *) fail "animation $n: frames ($frames)" ;;
+  esac
+done
+fails_with "animate a run without particles" "no particles" \
+  "$py" "$plot" animate "$tmp/fpu.h5" -o "$tmp/fpu.gif"
+fails_with "animate --grid micro without q_slow" "micro_slow" \
+  "$py" "$plot" animate "$tmp/ring.h5" -o "$tmp/x.gif" --grid micro
 
 # --- constrained run: fpu.h5 plus the constraint datasets of doc/output.md
 # (zeros and a NaN in the residual, as a real run can have) ---
@@ -301,5 +441,4 @@ fails_with "run file given to convergence" "/convergence" \
   "$py" "$plot" convergence "$tmp/fpu.h5" -o "$out"
 fails_with "no subcommand" "usage" "$py" "$plot"
 
-echo "$passed passed, $failed failed"
-[ "$failed" -eq 0 ]
+test_finish

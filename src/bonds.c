@@ -1,0 +1,59 @@
+/* The lines of a picture of the model (XDMF, animations; doc/output.md):
+ * springs between two particles and rods (distance constraints) between
+ * two particles.  Anchored springs and rods have one end at a fixed point
+ * that is no particle, and pair interactions (the `lennard-jones` and
+ * `inverse` laws) are no bonds: they are left out. */
+#include "internal.h"
+
+#include <string.h>
+
+/* A pair law acts between every pair it is written for, bonded or not. */
+static int pair_law(const mrvi_law *law) {
+  return law &&
+         (!strcmp(law->name, "lennard-jones") || !strcmp(law->name, "inverse"));
+}
+
+/* Particle whose x coordinate is model coordinate c, or -1. */
+static int particle_at(const mrvi_model *m, int c) {
+  for (int i = 0; i < m->n_particles; i++)
+    if (m->particles[i].first == c)
+      return i;
+  return -1;
+}
+
+/* Store edge (i, j, kind) as number *count if it fits. */
+static void push(int *pairs, int *kind, int cap, int *count, int i, int j,
+                 int k) {
+  if (*count < cap) {
+    if (pairs) {
+      pairs[2 * *count] = i;
+      pairs[2 * *count + 1] = j;
+    }
+    if (kind)
+      kind[*count] = k;
+  }
+  (*count)++;
+}
+
+int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap) {
+  if (!m)
+    return MRVI_EINVAL;
+  int count = 0;
+  for (int e = 0; e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    if (el->kind == MRVI_ELEMENT_SPRING && !pair_law(el->law))
+      push(pairs, kind, cap, &count, el->particle_i, el->particle_j,
+           el->potential == MRVI_FAST ? 1 : 0);
+  }
+  const int d = m->dimension;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    if (strcmp(k->type->name, "distance") != 0 || k->n_params != 1 ||
+        k->n_in != 2 * d)
+      continue;
+    const int i = particle_at(m, k->in[0]), j = particle_at(m, k->in[d]);
+    if (i >= 0 && j >= 0)
+      push(pairs, kind, cap, &count, i, j, 2);
+  }
+  return count;
+}
