@@ -14,7 +14,7 @@ struct mrvi_integrator {
   mrvi_newton *newton;
   mrvi_nullspace *nullspace; /* null-space form only */
   int path;                  /* MRVI_PATH_* (doc/solver.md) */
-  mrvi_sweep *sweep;         /* explicit and sweep paths */
+  mrvi_sweep *sweep;         /* explicit, sweep and sweep-cg paths */
   mrvi_blocks *blocks;       /* schur path */
   mrvi_predictor *predictor; /* Newton paths */
   int factors_ok;            /* factors of this step's Jacobian are kept */
@@ -343,7 +343,8 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;
   it->step.pf0 = it->pf;
-  if (it->path == MRVI_PATH_EXPLICIT || it->path == MRVI_PATH_SWEEP) {
+  if (it->path == MRVI_PATH_EXPLICIT || it->path == MRVI_PATH_SWEEP ||
+      it->path == MRVI_PATH_SWEEP_CG) {
     /* No Newton matrix of the whole step (the Jacobian pattern is built
      * on demand by mrvi_integrator_jacobian_solve). */
     if (mrvi_sweep_create(&it->step, s, &it->sweep) < 0)
@@ -790,8 +791,16 @@ void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
 }
 
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it) {
-  static const char *const names[] = {"general", "explicit", "sweep", "schur"};
-  return names[it->path];
+  return mrvi_path_name(it->path);
+}
+
+void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
+                                  mrvi_krylov_stats *out) {
+  const mrvi_krylov_stats *k = mrvi_sweep_stats(it->sweep);
+  if (k)
+    *out = *k;
+  else
+    memset(out, 0, sizeof *out);
 }
 
 int mrvi_integrator_jacobian_size(const mrvi_integrator *it) {

@@ -301,7 +301,8 @@ enum {
   MRVI_PATH_GENERAL = 0,
   MRVI_PATH_EXPLICIT = 1,
   MRVI_PATH_SWEEP = 2,
-  MRVI_PATH_SCHUR = 3
+  MRVI_PATH_SCHUR = 3,
+  MRVI_PATH_SWEEP_CG = 4 /* sweep, micro steps by CG (sparse_block.c) */
 };
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
@@ -321,6 +322,56 @@ void mrvi_sweep_reset(mrvi_sweep *sw);
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
                     double *ps1, double *pf, int *iterations, double *residual,
                     char *msg, size_t len);
+
+/* Statistics of the micro-step blocks' iterative solves (NULL on the
+ * dense and explicit paths). */
+const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);
+/* Name of path MRVI_PATH_* ("general", "explicit", ...): the one list. */
+const char *mrvi_path_name(int path);
+
+/* ---------------------------------------------------------------------------
+ * Krylov solvers (solver/krylov.c) for blocks beyond the dense limit.
+ * ------------------------------------------------------------------------- */
+enum { MRVI_CG_OK = 0, MRVI_CG_CURVATURE = 1, MRVI_CG_MAXIT = 2 };
+/* Iteration cap of one CG solve (J = M/dt + O(dt K) needs a handful). */
+#define MRVI_CG_MAX_IT 200
+typedef void (*mrvi_matvec)(void *ctx, const double *x, double *y);
+typedef int (*mrvi_matvec_status)(void *ctx, const double *x, double *y);
+/* Jacobi-preconditioned CG on A x = b (n) from x = 0; stops at
+ * ||r||_inf <= max(atol, rtol ||b||_inf).  MRVI_CG_CURVATURE (with
+ * *curvature = p^T A p / p^T p) when A is not positive definite along a
+ * search direction, MRVI_CG_MAXIT without convergence.  work: 4 n. */
+int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
+             const double *b, double *x, double rtol, double atol, int max_it,
+             double *work, int *iterations, double *curvature);
+/* Workspace (doubles) of mrvi_gmres. */
+size_t mrvi_gmres_work(int n, int restart);
+/* Restarted GMRES(restart) on A x = b from x = 0, right-preconditioned by
+ * the diagonal dinv; stops at ||r||_2 <= max(atol, rtol ||b||_2) or after
+ * max_it iterations (MRVI_CG_MAXIT); an operator status < 0 is returned. */
+int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
+               const double *b, double *x, double rtol, double atol,
+               int restart, int max_it, double *work, int *iterations);
+
+/* Micro-step Newton matrix J = diag + sum_e scale_e hess_ff(e) of the sweep
+ * path on a fixed sparse pattern (solver/sparse_block.c, "sweep-cg"). */
+typedef struct mrvi_sblock mrvi_sblock;
+/* Pattern of the fast-fast Hessians of the elements elems (n_elems model
+ * indices; the sweep's W elements) and the diagonal. */
+int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
+                       mrvi_sblock **out);
+void mrvi_sblock_free(mrvi_sblock *sb);
+/* Values to zero, then add scale H (n_in x n_in, element ie of the list). */
+void mrvi_sblock_zero(mrvi_sblock *sb);
+void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H,
+                             int n_in, double scale);
+/* Add dscale diag (nf) to the diagonal and solve J x = b in place (b
+ * becomes x) by CG, stopping at ||r||_inf <= atol or 1e-12 relative;
+ * sparse LU where CG meets non-positive curvature or does not converge
+ * (counted in the stats with the reason). */
+int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
+                      double *b, double atol, char *msg, size_t len);
+const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb);
 
 /* Predictor of the Newton paths (solver/predict.c): an explicit multirate
  * sweep (Stoermer-Verlet on both grids) from the known data of st, written
