@@ -16,6 +16,7 @@ struct mrvi_integrator {
   int path;                  /* MRVI_PATH_* (doc/solver.md) */
   mrvi_sweep *sweep;         /* explicit, sweep and sweep-cg paths */
   mrvi_blocks *blocks;       /* schur path */
+  mrvi_skrylov *skrylov;     /* schur-krylov path */
   mrvi_predictor *predictor; /* Newton paths */
   int factors_ok;            /* factors of this step's Jacobian are kept */
   char why[240];             /* reason for the path */
@@ -70,6 +71,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   mrvi_newton_free(it->jac_nw);
   mrvi_sweep_free(it->sweep);
   mrvi_blocks_free(it->blocks);
+  mrvi_skrylov_free(it->skrylov);
   mrvi_predictor_free(it->predictor);
   free(it->qs_prev);
   free(it->qf_prev);
@@ -381,6 +383,13 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
       goto oom;
     *out = it;
     return MRVI_OK;
+  } else if (it->path == MRVI_PATH_SCHUR_KRYLOV) {
+    if ((st = mrvi_skrylov_create(&it->step, &it->skrylov, msg, len)) < 0) {
+      mrvi_integrator_free(it);
+      return st;
+    }
+    *out = it;
+    return MRVI_OK;
   } else {
     it->newton = mrvi_newton_create(it->step.n_total, it->step.Ap, it->step.Ai,
                                     it->step.Ax, msg, len);
@@ -452,9 +461,9 @@ static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
 /* One Newton update dx (x -= dx) from the residual it->R at x: the full
  * saddle-point system in the multiplier form, the reduced one in the
  * null-space form (both factorised afresh at x: the general path is full
- * Newton), the block elimination on the schur path (factorised afresh when
- * `fresh`, else with the factors kept from an earlier iterate of the step:
- * a simplified Newton update). */
+ * Newton), the block elimination on the schur and schur-krylov paths
+ * (factorised afresh when `fresh`, else with the factors kept from an
+ * earlier iterate of the step: a simplified Newton update). */
 static int newton_update(mrvi_integrator *it, int fresh, char *msg,
                          size_t len) {
   mrvi_step *st = &it->step;
@@ -485,6 +494,14 @@ static int newton_update(mrvi_integrator *it, int fresh, char *msg,
       for (int i = 0; i < st->n_total; i++)
         it->x[i] -= it->dx[i];
     }
+  } else if (it->skrylov) {
+    if (fresh)
+      mrvi_skrylov_factor(it->skrylov);
+    it->factors_ok = 1;
+    s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+    if (s == MRVI_OK)
+      for (int i = 0; i < st->n_total; i++)
+        it->x[i] -= it->dx[i];
   } else {
     s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
     if (s == MRVI_OK)
@@ -680,7 +697,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     }
     /* Refactorise unless kept factors contracted well on the last update
      * (schur path; the general path, the reference, is full Newton). */
-    fresh = !it->blocks || !it->factors_ok ||
+    fresh = !(it->blocks || it->skrylov) || !it->factors_ok ||
             (iter >= 1 && !fresh && res > MRVI_REUSE_RATE * prev);
     prev = res;
     s = newton_update(it, fresh, msg, sizeof msg);
@@ -796,7 +813,8 @@ const char *mrvi_integrator_solver_path(const mrvi_integrator *it) {
 
 void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
                                   mrvi_krylov_stats *out) {
-  const mrvi_krylov_stats *k = mrvi_sweep_stats(it->sweep);
+  const mrvi_krylov_stats *k = it->skrylov ? mrvi_skrylov_stats(it->skrylov)
+                                           : mrvi_sweep_stats(it->sweep);
   if (k)
     *out = *k;
   else

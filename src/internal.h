@@ -302,7 +302,9 @@ enum {
   MRVI_PATH_EXPLICIT = 1,
   MRVI_PATH_SWEEP = 2,
   MRVI_PATH_SCHUR = 3,
-  MRVI_PATH_SWEEP_CG = 4 /* sweep, micro steps by CG (sparse_block.c) */
+  MRVI_PATH_SWEEP_CG = 4,     /* sweep, micro steps by CG (sparse_block.c) */
+  MRVI_PATH_SCHUR_KRYLOV = 5  /* Newton, GMRES on the slow unknowns and
+                                 CG block sweeps (schur_krylov.c) */
 };
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
@@ -398,6 +400,24 @@ void mrvi_blocks_free(mrvi_blocks *b);
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
+
+/* The same elimination with iterative solves for blocks beyond the dense
+ * limit (solver/schur_krylov.c): GMRES on the Schur complement of the slow
+ * unknowns, CG on the diagonal blocks of the forward sweeps, working on
+ * st's CSC Jacobian (after mrvi_step_build_pattern). */
+typedef struct mrvi_skrylov mrvi_skrylov;
+int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
+                        size_t len);
+void mrvi_skrylov_free(mrvi_skrylov *k);
+/* Take the Jacobian now in st->Ax (preconditioners); solves use it until
+ * the next call. */
+void mrvi_skrylov_factor(mrvi_skrylov *k);
+/* Solve J dx = R; a sparse LU of the whole step where CG meets
+ * non-positive curvature or an iteration does not converge (counted with
+ * the reason in the stats, kept until the next mrvi_skrylov_factor). */
+int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
+                       size_t len);
+const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k);
 
 /* ---------------------------------------------------------------------------
  * Linear solves with a factorisation kept between calls (solver/newton.c):

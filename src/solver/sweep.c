@@ -68,10 +68,12 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
   if (s->slow_grid != MRVI_GRID_MACRO) {
     if (!small) {
       mrvi_fmt(why, len,
-               "slow potential on the micro grid and blocks larger than the "
-               "dense limit %d",
-               SWEEP_DENSE_MAX);
-      return MRVI_PATH_GENERAL;
+               "slow potential on the micro grid couples q_{k+1}^s to every "
+               "micro node, blocks beyond the dense limit %d: Newton with "
+               "GMRES on the Schur complement of the %d slow unknowns and "
+               "block sweeps over %d micro nodes solved by CG",
+               SWEEP_DENSE_MAX, m->n_slow, s->micro_steps);
+      return MRVI_PATH_SCHUR_KRYLOV;
     }
     mrvi_fmt(why, len,
              "slow potential on the micro grid couples q_{k+1}^s to every "
@@ -92,8 +94,9 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                  m->names[el->in[j]],
                  small ? ": Newton with a Schur complement on the slow "
                          "unknowns and block sweeps"
-                       : "");
-        return small ? MRVI_PATH_SCHUR : MRVI_PATH_GENERAL;
+                       : ": Newton with GMRES on the slow unknowns and CG "
+                         "block sweeps (blocks beyond the dense limit)");
+        return small ? MRVI_PATH_SCHUR : MRVI_PATH_SCHUR_KRYLOV;
       }
   }
   const double g = s->fast.gamma;
@@ -119,8 +122,8 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
 }
 
 const char *mrvi_path_name(int path) {
-  static const char *const names[] = {"general", "explicit", "sweep", "schur",
-                                      "sweep-cg"};
+  static const char *const names[] = {"general", "explicit", "sweep",
+                                      "schur",   "sweep-cg", "schur-krylov"};
   return names[path];
 }
 
