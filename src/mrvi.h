@@ -524,6 +524,7 @@ typedef struct mrvi_summary {
   double assemble_time, solve_time;
   long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
                           tolerance (doc/solver.md) */
+  mrvi_krylov_stats krylov; /* iterative solves (sweep-cg, schur-krylov) */
   int status;                  /* final status */
   char message[512];           /* why it stopped ("" when completed) */
 } mrvi_summary;
