@@ -165,8 +165,8 @@ const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb) {
   return &sb->stats;
 }
 
-/* CG tolerances: the Newton tolerance's share (atol) and a relative
- * floor well above round-off. */
+/* Relative CG tolerance besides the caller's absolute one (a share of the
+ * Newton tolerance): reachable where that share is below round-off. */
 #define SBLOCK_RTOL 1e-12
 
 int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
@@ -210,13 +210,13 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
       !(sb->lu = mrvi_newton_create(nf, sb->Ap, sb->Ai, sb->Ax, msg, len)))
     return MRVI_ESINGULAR;
   const int r = mrvi_newton_solve(sb->lu, sb->Ax, b, x, msg, len);
-  if (r == MRVI_OK)
-    memcpy(b, x, (size_t)nf * sizeof(double));
-  else {
+  if (r < 0) {
     const size_t used = strlen(msg);
     mrvi_fmt(msg + used, len - used, " (micro-step block, after %s)",
              s == MRVI_CG_CURVATURE ? "non-positive curvature in CG"
                                     : "CG did not converge");
+    return r;
   }
-  return r;
+  memcpy(b, x, (size_t)nf * sizeof(double));
+  return MRVI_OK;
 }
