@@ -12,9 +12,11 @@
  *
  * Each case (n, scheme) runs in a forked child: CPU time of loading the
  * text (mrvi_system_load_string), of creating the integrator and per macro
- * step (--steps steps, dT = 0.01, p = 10), and the child's peak resident
- * memory (VmHWM).  A case that exceeds the CPU budget (RLIMIT_CPU) or the
- * memory cap (RLIMIT_AS) is stopped and the larger n of that scheme are
+ * step (at least --steps steps and 0.5 s of CPU time, dT = 0.01, p = 10),
+ * the iterative solvers' iterations (CG per block solve, GMRES per slow
+ * solve, on the sweep-cg and schur-krylov paths), and the child's peak
+ * resident memory (VmHWM).  A case that exceeds the CPU budget (RLIMIT_CPU) or
+ * the memory cap (RLIMIT_AS) is stopped and the larger n of that scheme are
  * skipped.  Exponents in n are fitted over the
  * completed cases with n >= 1000 (all completed cases with --quick).  A
  * measurement: no thresholds. */
@@ -32,6 +34,7 @@ enum { MAX_OVERRIDES = 16 };
 #include <unistd.h>
 
 enum { MAX_N = 16, N_SCHEMES = 2 };
+#define MIN_CPU 0.5 /* seconds of stepping per case, at least */
 
 static const char usage[] =
     "Usage: bench_lattice [--quick] [--n N1,N2,...] [--steps K]\n"
@@ -40,9 +43,11 @@ static const char usage[] =
     "\n"
     "Planar spring lattices (slow and fast rows, stiff fast springs along\n"
     "fast rows) with about N coordinates each (default 100,300,...,100000):\n"
-    "load time, time per macro step (K steps, default 3; dT = 0.01, P = 10)\n"
-    "and peak memory for midpoint-midpoint and explicit-slow, each case in\n"
-    "a child process limited to SECONDS of CPU time (default 120); larger N\n"
+    "load time, time per macro step (at least K steps, default 3, and 0.5 s\n"
+    "of CPU time; dT = 0.01, P = 10), the solver path with its CG / GMRES\n"
+    "iterations per solve, and peak memory for midpoint-midpoint and\n"
+    "explicit-slow, each case in a child process limited to SECONDS of CPU\n"
+    "time (default 120); larger N\n"
     "are skipped after a case exceeds it; address space capped at GB\n"
     "(default 6; a case that runs out of memory also ends the scheme).\n"
     "Fitted exponents over N >= 1000.\n"
@@ -160,6 +165,9 @@ typedef struct result {
   int status; /* 0 ok, 1 failed (message), 2 over budget */
   int n;      /* coordinates */
   double load, create, step, iterations;
+  double cg, gmres; /* mean iterations per CG / GMRES solve */
+  long fallbacks;   /* linear solves by sparse LU instead */
+  char path[16];
   long peak_kb;
   char message[256];
 } result;
@@ -199,7 +207,9 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
       r.create = t2 - t1;
       long iters = 0;
       int k = 0;
-      for (; k < steps; k++) {
+      /* At least `steps` steps and MIN_CPU seconds (clock resolution). */
+      for (; k < steps || (bench_cpu() - t2 < MIN_CPU && k < 1000 * steps);
+           k++) {
         if (mrvi_integrator_step(it) < 0) {
           snprintf(r.message, sizeof r.message, "%.200s",
                    mrvi_integrator_errmsg(it));
@@ -207,10 +217,18 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
         }
         iters += mrvi_integrator_last_iterations(it);
       }
-      if (k == steps) {
+      if (k >= steps && !r.message[0]) {
+        mrvi_krylov_stats ks;
+        mrvi_integrator_krylov_stats(it, &ks);
         r.status = 0;
-        r.step = (bench_cpu() - t2) / steps;
-        r.iterations = (double)iters / steps;
+        r.step = (bench_cpu() - t2) / k;
+        r.iterations = (double)iters / k;
+        r.cg = ks.cg_solves ? (double)ks.cg_iterations / ks.cg_solves : 0.0;
+        r.gmres = ks.gmres_solves
+                      ? (double)ks.gmres_iterations / ks.gmres_solves
+                      : 0.0;
+        r.fallbacks = ks.fallbacks;
+        snprintf(r.path, sizeof r.path, "%s", mrvi_integrator_solver_path(it));
       }
     }
   }
@@ -349,14 +367,16 @@ int main(int argc, char **argv) {
       budget = 20.0;
   }
 
-  printf("# mrvi %s  planar lattices  dT = %g  p = %d  %d macro steps  CPU "
-         "budget %g s per case\n\n",
-         mrvi_version(), dT, p, steps, budget);
-  printf("| %-17s | %7s | %9s | %9s | %10s | %11s | %9s | %9s |\n", "scheme",
-         "n", "springs", "load_s", "create_s", "step_s", "newton/st",
-         "peak_MB");
+  printf("# mrvi %s  planar lattices  dT = %g  p = %d  at least %d macro "
+         "steps and %g s CPU  CPU budget %g s per case\n\n",
+         mrvi_version(), dT, p, steps, MIN_CPU, budget);
+  printf("| %-17s | %7s | %9s | %9s | %10s | %11s | %9s | %-12s | %7s | "
+         "%7s | %9s |\n",
+         "scheme", "n", "springs", "load_s", "create_s", "step_s", "newton/st",
+         "path", "cg/sol", "gm/sol", "peak_MB");
   printf("|-------------------|--------:|----------:|----------:|-----------:|"
-         "------------:|----------:|----------:|\n");
+         "------------:|----------:|--------------|--------:|--------:|"
+         "----------:|\n");
 
   static result res[N_SCHEMES][MAX_N];
   int failures = 0;
@@ -378,9 +398,12 @@ int main(int argc, char **argv) {
                     overrides, n_over);
       if (r->status == 0) {
         printf("| %-17s | %7d | %9ld | %9.3f | %10.3f | %11.4g | %9.2f | "
-               "%9.1f |\n",
+               "%-12s | %7.2f | %7.2f | %9.1f |\n",
                schemes[si], r->n, springs, r->load, r->create, r->step,
-               r->iterations, r->peak_kb / 1024.0);
+               r->iterations, r->path, r->cg, r->gmres, r->peak_kb / 1024.0);
+        if (r->fallbacks > 0)
+          printf("|   (%ld linear solves fell back to sparse LU) |\n",
+                 r->fallbacks);
       } else if (r->status == 2 || strstr(r->message, "memory")) {
         skipping = 1;
         printf("| %-17s | %7d | %9ld | %9.3f | over the budget of %g s CPU "

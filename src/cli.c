@@ -547,6 +547,21 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
   printf("  %-23s%s\n", "solver path", path ? path : "none");
   printf("  %-23s%ld total, max %d per step\n", "Newton iterations",
          sum->iterations_total, sum->iterations_max);
+  const mrvi_krylov_stats *ks = &sum->krylov;
+  if (ks->cg_solves > 0)
+    printf("  %-23s%ld block solves, %.2f iterations each, max %d\n",
+           "CG (micro blocks)", ks->cg_solves,
+           (double)ks->cg_iterations / (double)ks->cg_solves, ks->cg_max);
+  if (ks->gmres_solves > 0)
+    printf("  %-23s%ld solves, %.2f iterations each, max %d\n",
+           "GMRES (slow unknowns)", ks->gmres_solves,
+           (double)ks->gmres_iterations / (double)ks->gmres_solves,
+           ks->gmres_max);
+  if (ks->fallbacks > 0)
+    fprintf(stderr,
+            "warning: %ld linear solve%s fell back to a sparse LU (first: "
+            "%s; see doc/solver.md)\n",
+            ks->fallbacks, ks->fallbacks == 1 ? "" : "s", ks->fallback_reason);
   printf("  %-23s%.3e\n", "max rel. energy error", sum->max_rel_energy_error);
   if (sum->roundoff_steps > 0)
     fprintf(stderr,

@@ -14,8 +14,9 @@ struct mrvi_integrator {
   mrvi_newton *newton;
   mrvi_nullspace *nullspace; /* null-space form only */
   int path;                  /* MRVI_PATH_* (doc/solver.md) */
-  mrvi_sweep *sweep;         /* explicit and sweep paths */
+  mrvi_sweep *sweep;         /* explicit, sweep and sweep-cg paths */
   mrvi_blocks *blocks;       /* schur path */
+  mrvi_skrylov *skrylov;     /* schur-krylov path */
   mrvi_predictor *predictor; /* Newton paths */
   int factors_ok;            /* factors of this step's Jacobian are kept */
   char why[240];             /* reason for the path */
@@ -70,6 +71,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   mrvi_newton_free(it->jac_nw);
   mrvi_sweep_free(it->sweep);
   mrvi_blocks_free(it->blocks);
+  mrvi_skrylov_free(it->skrylov);
   mrvi_predictor_free(it->predictor);
   free(it->qs_prev);
   free(it->qf_prev);
@@ -343,7 +345,8 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;
   it->step.pf0 = it->pf;
-  if (it->path == MRVI_PATH_EXPLICIT || it->path == MRVI_PATH_SWEEP) {
+  if (it->path == MRVI_PATH_EXPLICIT || it->path == MRVI_PATH_SWEEP ||
+      it->path == MRVI_PATH_SWEEP_CG) {
     /* No Newton matrix of the whole step (the Jacobian pattern is built
      * on demand by mrvi_integrator_jacobian_solve). */
     if (mrvi_sweep_create(&it->step, s, &it->sweep) < 0)
@@ -378,6 +381,13 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   } else if (it->path == MRVI_PATH_SCHUR) {
     if (mrvi_blocks_create(&it->step, &it->blocks) < 0)
       goto oom;
+    *out = it;
+    return MRVI_OK;
+  } else if (it->path == MRVI_PATH_SCHUR_KRYLOV) {
+    if ((st = mrvi_skrylov_create(&it->step, &it->skrylov, msg, len)) < 0) {
+      mrvi_integrator_free(it);
+      return st;
+    }
     *out = it;
     return MRVI_OK;
   } else {
@@ -451,10 +461,10 @@ static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
 /* One Newton update dx (x -= dx) from the residual it->R at x: the full
  * saddle-point system in the multiplier form, the reduced one in the
  * null-space form (both factorised afresh at x: the general path is full
- * Newton), the block elimination on the schur path (factorised afresh when
- * `fresh`, else with the factors kept from an earlier iterate of the step:
- * a simplified Newton update).  jac_at_x: st->Ax already holds the Jacobian
- * at x. */
+ * Newton), the block elimination on the schur and schur-krylov paths
+ * (factorised afresh when `fresh`, else with the factors kept from an
+ * earlier iterate of the step: a simplified Newton update).  jac_at_x:
+ * st->Ax already holds the Jacobian at x. */
 static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
                          char *msg, size_t len) {
   mrvi_step *st = &it->step;
@@ -485,6 +495,14 @@ static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
       for (int i = 0; i < st->n_total; i++)
         it->x[i] -= it->dx[i];
     }
+  } else if (it->skrylov) {
+    if (fresh)
+      mrvi_skrylov_factor(it->skrylov);
+    it->factors_ok = 1;
+    s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+    if (s == MRVI_OK)
+      for (int i = 0; i < st->n_total; i++)
+        it->x[i] -= it->dx[i];
   } else {
     s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
     if (s == MRVI_OK)
@@ -682,9 +700,9 @@ int mrvi_integrator_step(mrvi_integrator *it) {
                   iter, res, tol, residual_floor(it), extra);
     }
     /* Refactorise unless the kept factors contracted well on the last
-     * update and, at that rate, reach the target in two more (schur path;
-     * the general path, the reference, is full Newton). */
-    if (!it->blocks || !it->factors_ok)
+     * update and, at that rate, reach the target in two more (schur and
+     * schur-krylov paths; the general path, the reference, is full Newton). */
+    if (!(it->blocks || it->skrylov) || !it->factors_ok)
       fresh = 1;
     else {
       const double rate = res / prev, target = MRVI_REUSE_TIGHTEN * tol;
@@ -806,8 +824,17 @@ void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
 }
 
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it) {
-  static const char *const names[] = {"general", "explicit", "sweep", "schur"};
-  return names[it->path];
+  return mrvi_path_name(it->path);
+}
+
+void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
+                                  mrvi_krylov_stats *out) {
+  const mrvi_krylov_stats *k = it->skrylov ? mrvi_skrylov_stats(it->skrylov)
+                                           : mrvi_sweep_stats(it->sweep);
+  if (k)
+    *out = *k;
+  else
+    memset(out, 0, sizeof *out);
 }
 
 int mrvi_integrator_jacobian_size(const mrvi_integrator *it) {

@@ -316,7 +316,10 @@ enum {
   MRVI_PATH_GENERAL = 0,
   MRVI_PATH_EXPLICIT = 1,
   MRVI_PATH_SWEEP = 2,
-  MRVI_PATH_SCHUR = 3
+  MRVI_PATH_SCHUR = 3,
+  MRVI_PATH_SWEEP_CG = 4,     /* sweep, micro steps by CG (sparse_block.c) */
+  MRVI_PATH_SCHUR_KRYLOV = 5  /* Newton, GMRES on the slow unknowns and
+                                 CG block sweeps (schur_krylov.c) */
 };
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
@@ -336,6 +339,56 @@ void mrvi_sweep_reset(mrvi_sweep *sw);
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
                     double *ps1, double *pf, int *iterations, double *residual,
                     char *msg, size_t len);
+
+/* Statistics of the micro-step blocks' iterative solves (NULL on the
+ * dense and explicit paths). */
+const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);
+/* Name of path MRVI_PATH_* ("general", "explicit", ...): the one list. */
+const char *mrvi_path_name(int path);
+
+/* ---------------------------------------------------------------------------
+ * Krylov solvers (solver/krylov.c) for blocks beyond the dense limit.
+ * ------------------------------------------------------------------------- */
+enum { MRVI_CG_OK = 0, MRVI_CG_CURVATURE = 1, MRVI_CG_MAXIT = 2 };
+/* Iteration cap of one CG solve (J = M/dt + O(dt K) needs a handful). */
+#define MRVI_CG_MAX_IT 200
+typedef void (*mrvi_matvec)(void *ctx, const double *x, double *y);
+typedef int (*mrvi_matvec_status)(void *ctx, const double *x, double *y);
+/* Jacobi-preconditioned CG on A x = b (n) from x = 0; stops at
+ * ||r||_inf <= max(atol, rtol ||b||_inf).  MRVI_CG_CURVATURE (with
+ * *curvature = p^T A p / p^T p) when A is not positive definite along a
+ * search direction, MRVI_CG_MAXIT without convergence.  work: 4 n. */
+int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
+             const double *b, double *x, double rtol, double atol, int max_it,
+             double *work, int *iterations, double *curvature);
+/* Workspace (doubles) of mrvi_gmres. */
+size_t mrvi_gmres_work(int n, int restart);
+/* Restarted GMRES(restart) on A x = b from x = 0, right-preconditioned by
+ * the diagonal dinv; stops at ||r||_2 <= max(atol, rtol ||b||_2) or after
+ * max_it iterations (MRVI_CG_MAXIT); an operator status < 0 is returned. */
+int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
+               const double *b, double *x, double rtol, double atol,
+               int restart, int max_it, double *work, int *iterations);
+
+/* Micro-step Newton matrix J = diag + sum_e scale_e hess_ff(e) of the sweep
+ * path on a fixed sparse pattern (solver/sparse_block.c, "sweep-cg"). */
+typedef struct mrvi_sblock mrvi_sblock;
+/* Pattern of the fast-fast Hessians of the elements elems (n_elems model
+ * indices; the sweep's W elements) and the diagonal. */
+int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
+                       mrvi_sblock **out);
+void mrvi_sblock_free(mrvi_sblock *sb);
+/* Values to zero, then add scale H (n_in x n_in, element ie of the list). */
+void mrvi_sblock_zero(mrvi_sblock *sb);
+void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H,
+                             int n_in, double scale);
+/* Add dscale diag (nf) to the diagonal and solve J x = b in place (b
+ * becomes x) by CG, stopping at ||r||_inf <= atol or 1e-12 relative;
+ * sparse LU where CG meets non-positive curvature or does not converge
+ * (counted in the stats with the reason). */
+int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
+                      double *b, double atol, char *msg, size_t len);
+const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb);
 
 /* Predictor of the Newton paths (solver/predict.c): an explicit multirate
  * sweep (Stoermer-Verlet on both grids) from the known data of st, written
@@ -364,6 +417,24 @@ void mrvi_blocks_free(mrvi_blocks *b);
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
+
+/* The same elimination with iterative solves for blocks beyond the dense
+ * limit (solver/schur_krylov.c): GMRES on the Schur complement of the slow
+ * unknowns, CG on the diagonal blocks of the forward sweeps, working on
+ * st's CSC Jacobian (after mrvi_step_build_pattern). */
+typedef struct mrvi_skrylov mrvi_skrylov;
+int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
+                        size_t len);
+void mrvi_skrylov_free(mrvi_skrylov *k);
+/* Take the Jacobian now in st->Ax (preconditioners); solves use it until
+ * the next call. */
+void mrvi_skrylov_factor(mrvi_skrylov *k);
+/* Solve J dx = R; a sparse LU of the whole step where CG meets
+ * non-positive curvature or an iteration does not converge (counted with
+ * the reason in the stats, kept until the next mrvi_skrylov_factor). */
+int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
+                       size_t len);
+const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k);
 
 /* ---------------------------------------------------------------------------
  * Linear solves with a factorisation kept between calls (solver/newton.c):

@@ -401,8 +401,10 @@ void mrvi_settings_default(mrvi_settings *s);
 int mrvi_settings_set_scheme(mrvi_settings *s, const char *scheme);
 /* Step solver path for model m and settings s (doc/solver.md): "explicit"
  * (no Newton), "sweep" (explicit slow update, forward sweep of p implicit
- * micro steps), "schur" (Newton, Schur complement on the slow block) or
- * "general" (Newton with sparse LU on the whole step).  why (may be NULL)
+ * micro steps), "schur" (Newton, Schur complement on the slow block),
+ * "sweep-cg" and "schur-krylov" (the same with CG and GMRES for blocks
+ * beyond 64 coordinates) or "general" (Newton with sparse LU on the whole
+ * step).  why (may be NULL)
  * gets the reason for the choice.  With s->solver = structured and no
  * structured path, returns NULL (why says why). */
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
@@ -454,8 +456,22 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
                                    const double *b, double *x);
 int mrvi_integrator_jacobian_size(const mrvi_integrator *it);
 /* Step solver path of the integrator ("explicit", "sweep", "schur",
- * "general"). */
+ * "sweep-cg", "schur-krylov", "general"). */
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it);
+/* Iterative linear solves of the sweep-cg and schur-krylov paths
+ * (doc/solver.md), accumulated since creation; zero on the other paths. */
+typedef struct mrvi_krylov_stats {
+  long cg_solves;        /* CG solves of micro-step blocks */
+  long cg_iterations;    /* their iterations in total */
+  int cg_max;            /* most iterations of one CG solve */
+  long gmres_solves;     /* GMRES solves on the slow unknowns (schur-krylov) */
+  long gmres_iterations; /* their iterations in total */
+  int gmres_max;         /* most iterations of one GMRES solve */
+  long fallbacks;        /* linear solves done by sparse LU instead */
+  char fallback_reason[320]; /* why the first of them was */
+} mrvi_krylov_stats;
+void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
+                                  mrvi_krylov_stats *out);
 /* Steps whose Newton iteration stopped at the roundoff floor above the
  * requested tolerance (0 when every step met it). */
 long mrvi_integrator_roundoff_steps(const mrvi_integrator *it);
@@ -525,6 +541,7 @@ typedef struct mrvi_summary {
   double assemble_time, solve_time;
   long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
                           tolerance (doc/solver.md) */
+  mrvi_krylov_stats krylov; /* iterative solves (sweep-cg, schur-krylov) */
   int status;                  /* final status */
   char message[512];           /* why it stopped ("" when completed) */
 } mrvi_summary;

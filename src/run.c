@@ -186,6 +186,7 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
   }
   mrvi_integrator_timing(it, &sum->assemble_time, &sum->solve_time);
   sum->roundoff_steps = mrvi_integrator_roundoff_steps(it);
+  mrvi_integrator_krylov_stats(it, &sum->krylov);
   mrvi_integrator_free(it);
   free(fq);
   sum->wall_time = mrvi_clock() - t_start;

@@ -493,5 +493,55 @@ interrupt() { # interrupt SIGNAL WANT_RC
 interrupt INT 130
 interrupt TERM 143
 
+# --- large networks: the iterative solver paths (doc/solver.md) -------------
+# A 12 x 8 lattice from a generator (96 slow and 96 fast coordinates, beyond
+# the dense limit 64): check names the path and why, run prints the
+# iterations, the file records the path.
+cat >"$tmp/net.yaml" <<'EOF_NET'
+name: net
+dimension: 2
+generate:
+  - {kind: lattice2d, name: p, count: [12, 8], mass: 1, rates: {every: 2},
+     slow_spring: {law: linear, stiffness: 1},
+     fast_spring: {law: linear, stiffness: 2500},
+     initial: [{index: [3, 3], displacement: [0.1, 0.05], velocity: [0, 0.5]}]}
+integrator: {scheme: explicit-slow, macro_step: 0.01, micro_steps: 10, t_end: 0.1}
+EOF_NET
+run_mrvi check "$tmp/net.yaml"
+contains "$out" "^solver +sweep-cg: .*CG" "lattice explicit-slow: check names sweep-cg"
+run_mrvi check "$tmp/net.yaml" --set integrator.scheme=midpoint-midpoint
+contains "$out" "^solver +schur-krylov: .*GMRES" "lattice midpoint-midpoint: check names schur-krylov"
+run_mrvi run "$tmp/net.yaml" --set integrator.scheme=midpoint-midpoint -o "$tmp/o/net.h5"
+expect_rc 0 "lattice run"
+contains "$out" "solver path +schur-krylov" "lattice run: path in the summary"
+contains "$out" "GMRES \(slow unknowns\) +10 solves" "lattice run: GMRES iterations in the summary"
+contains "$out" "CG \(micro blocks\) +[0-9]+ block solves" "lattice run: CG iterations in the summary"
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$tmp/o/net.h5" solver)
+  check "lattice run: solver attribute schur-krylov (got '$a')" test "$a" = schur-krylov
+fi
+# 70 fast masses on a line, half of them on anchor springs of negative
+# stiffness: at dt = 0.05 the micro-step matrix is indefinite, CG meets
+# non-positive curvature and the solves fall back to a sparse LU, said once.
+{
+  printf 'name: anchors\ndimension: 1\nparticles:\n'
+  printf '  - {name: s, mass: 1, rate: slow, position: [9], velocity: [0.1]}\n'
+  for i in $(seq 0 69); do
+    printf '  - {name: c%d, mass: 1, rate: fast, position: [%s]}\n' "$i" "$((20 + i))"
+  done
+  printf 'springs:\n  - {between: [s, c0], law: linear, stiffness: 1, rest_length: 0.9}\n'
+  for i in $(seq 0 69); do
+    k=2500
+    [ $((i % 2)) -eq 0 ] && k=-2500
+    printf '  - {between: [c%d], anchor: [0], law: linear, stiffness: %s, rest_length: initial, potential: fast}\n' "$i" "$k"
+  done
+  printf 'integrator: {scheme: explicit-slow, macro_step: 0.1, micro_steps: 2, t_end: 0.2}\n'
+} >"$tmp/anchors.yaml"
+run_mrvi run "$tmp/anchors.yaml" -o "$tmp/o/anchors.h5"
+expect_rc 0 "anchors run"
+contains "$out" "solver path +sweep-cg" "anchors: sweep-cg"
+contains "$err" "^warning: 4 linear solves fell back to a sparse LU \(first: non-positive curvature" "anchors: one fallback warning"
+check "anchors: the warning is printed once" test "$(printf '%s\n' "$err" | grep -c 'fell back')" -eq 1
+
 printf '%d passed, %d failed\n' "$passed" "$failed"
 [ "$failed" -eq 0 ] && [ "$passed" -gt 0 ]

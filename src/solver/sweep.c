@@ -16,7 +16,8 @@
  *   -(M^f/dt + sum w cA cB hess W(z)):
  * constant for the trapezoidal family (gamma in {0, 1}: every point has
  * cA cB = 0), so q^{m+1} is explicit; for other rules (midpoint) row m is an
- * nf x nf Newton problem, solved by dense LU. */
+ * nf x nf Newton problem, solved by dense LU up to SWEEP_DENSE_MAX and by
+ * CG on a sparse pattern beyond ("sweep-cg", solver/sparse_block.c). */
 #include "internal.h"
 
 #include <float.h>
@@ -49,6 +50,7 @@ struct mrvi_sweep {
   double *dn;             /* q^{m+1} - q^m */
   double *J;              /* nf x nf */
   int *piv;
+  mrvi_sblock *sb;   /* sparse J instead (nf > SWEEP_DENSE_MAX) */
   double *y, *g, *H; /* element workspace */
 };
 
@@ -70,10 +72,12 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
   if (s->slow_grid != MRVI_GRID_MACRO) {
     if (!small) {
       mrvi_fmt(why, len,
-               "slow potential on the micro grid and blocks larger than the "
-               "dense limit %d",
-               SWEEP_DENSE_MAX);
-      return MRVI_PATH_GENERAL;
+               "slow potential on the micro grid couples q_{k+1}^s to every "
+               "micro node, blocks beyond the dense limit %d: Newton with "
+               "GMRES on the Schur complement of the %d slow unknowns and "
+               "block sweeps over %d micro nodes solved by CG",
+               SWEEP_DENSE_MAX, m->n_slow, s->micro_steps);
+      return MRVI_PATH_SCHUR_KRYLOV;
     }
     mrvi_fmt(why, len,
              "slow potential on the micro grid couples q_{k+1}^s to every "
@@ -94,8 +98,9 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                  m->names[el->in[j]],
                  small ? ": Newton with a Schur complement on the slow "
                          "unknowns and block sweeps"
-                       : "");
-        return small ? MRVI_PATH_SCHUR : MRVI_PATH_GENERAL;
+                       : ": Newton with GMRES on the slow unknowns and CG "
+                         "block sweeps (blocks beyond the dense limit)");
+        return small ? MRVI_PATH_SCHUR : MRVI_PATH_SCHUR_KRYLOV;
       }
   }
   const double g = s->fast.gamma;
@@ -107,10 +112,11 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
   }
   if (m->n_fast > SWEEP_DENSE_MAX) {
     mrvi_fmt(why, len,
-             "fast block of %d coordinates exceeds the dense limit %d "
-             "(no sparse block solver yet)",
-             m->n_fast, SWEEP_DENSE_MAX);
-    return MRVI_PATH_GENERAL;
+             "macro-grid slow rule: explicit slow update and a sweep of %d "
+             "implicit micro steps of size %d (beyond the dense limit %d), "
+             "each solved by Newton with Jacobi-preconditioned CG",
+             s->micro_steps, m->n_fast, SWEEP_DENSE_MAX);
+    return MRVI_PATH_SWEEP_CG;
   }
   mrvi_fmt(why, len,
            "macro-grid slow rule: explicit slow update and a sweep of %d "
@@ -119,13 +125,22 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
   return MRVI_PATH_SWEEP;
 }
 
+const char *mrvi_path_name(int path) {
+  static const char *const names[] = {"general", "explicit", "sweep",
+                                      "schur",   "sweep-cg", "schur-krylov"};
+  return names[path];
+}
+
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
                              char *why, size_t len) {
-  static const char *const names[] = {"general", "explicit", "sweep", "schur"};
   const int path = mrvi_sweep_path(m, s, why, len);
   if (path == MRVI_PATH_GENERAL && s->solver == MRVI_SOLVER_STRUCTURED)
     return NULL;
-  return names[path];
+  return mrvi_path_name(path);
+}
+
+const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw) {
+  return sw && sw->sb ? mrvi_sblock_stats(sw->sb) : NULL;
 }
 
 void mrvi_sweep_free(mrvi_sweep *sw) {
@@ -149,6 +164,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->Hpt[0]);
   free(sw->Hpt[1]);
   free(sw->piv);
+  mrvi_sblock_free(sw->sb);
   free(sw->y);
   free(sw->g);
   free(sw->H);
@@ -212,8 +228,16 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->F = dalloc(nf);
   sw->fimp = dalloc(nf);
   sw->dn = dalloc(nf);
-  sw->J = dalloc(sw->implicit ? nf * nf : 1);
-  sw->linear = sw->implicit;
+  const int sparse = sw->implicit && sw->nf > SWEEP_DENSE_MAX;
+  if (sparse &&
+      mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
+                         st->n_elem_of_class[MRVI_FAST], &sw->sb) < 0) {
+    mrvi_sweep_free(sw);
+    return MRVI_ENOMEM;
+  }
+  sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
+  /* A quadratic W on a dense block: one factorisation per run. */
+  sw->linear = sw->implicit && !sparse;
   for (int ie = 0; ie < st->n_elem_of_class[MRVI_FAST]; ie++)
     if (!mrvi_element_is_quadratic(
             &m->elements[st->elem_of_class[MRVI_FAST][ie]]))
@@ -250,7 +274,7 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
 
 /* Elements of potential class cls at (zs, zf): gs += scale grad_s (gs may
  * be NULL when the class has no slow inputs), gf += scale grad_f and, if J,
- * J += hscale hess_ff (nf x nf). */
+ * J += hscale hess_ff (nf x nf, or the sparse sw->sb when set). */
 static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
                        double *gf, double *J, double hscale) {
   const mrvi_step *st = sw->st;
@@ -274,6 +298,10 @@ static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
     }
     if (!J || lin)
       continue;
+    if (sw->sb) {
+      mrvi_sblock_add_element(sw->sb, ie, sw->H, n, hscale);
+      continue;
+    }
     for (int j = 0; j < n; j++) {
       if (m->rate[e->in[j]] != MRVI_FAST)
         continue;
@@ -385,7 +413,10 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
   for (int it = 0;; it++) {
     /* F = rhs - M (qn - qm)/dt - sum w cA grad W(z); J = M/dt + w cA cB H. */
     memset(sw->fimp, 0, (size_t)nf * sizeof(double));
-    memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
+    if (sw->sb)
+      mrvi_sblock_zero(sw->sb);
+    else
+      memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
     for (int i = 0; i < sw->n_w; i++) {
       if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
         continue;
@@ -417,13 +448,22 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
                it, r, sw->tol, floor);
       return isfinite(r) ? MRVI_ENEWTON : MRVI_ENONFINITE;
     }
-    for (int f = 0; f < nf; f++)
-      sw->J[f * nf + f] += sw->m_f[f] / dt;
-    if (mrvi_dense_lu_factor(nf, sw->J, sw->piv) < 0) {
-      mrvi_fmt(msg, len, "singular micro-step Newton matrix");
-      return MRVI_ESINGULAR;
+    if (sw->sb) {
+      /* J d = F by CG to 1 % of the tolerance (inexact Newton: the
+       * residual above is exact, so the solution is the same). */
+      const int s = mrvi_sblock_solve(sw->sb, sw->m_f, 1.0 / dt, sw->F,
+                                      0.01 * fmax(sw->tol, floor), msg, len);
+      if (s < 0)
+        return s;
+    } else {
+      for (int f = 0; f < nf; f++)
+        sw->J[f * nf + f] += sw->m_f[f] / dt;
+      if (mrvi_dense_lu_factor(nf, sw->J, sw->piv) < 0) {
+        mrvi_fmt(msg, len, "singular micro-step Newton matrix");
+        return MRVI_ESINGULAR;
+      }
+      mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->F, 1);
     }
-    mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->F, 1);
     for (int f = 0; f < nf; f++)
       dn[f] += sw->F[f];
   }

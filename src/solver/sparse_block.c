@@ -1,0 +1,222 @@
+/* The micro-step Newton matrix of the sweep path for fast blocks beyond
+ * the dense limit (doc/solver.md, "sweep-cg"):
+ *   J = M^f/dt + sum_points w cA cB hess_ff W(z)          (nf x nf)
+ * symmetric, assembled on a fixed sparse pattern (the fast inputs of every
+ * W element, plus the diagonal) recorded once per run, and solved by
+ * Jacobi-preconditioned CG (solver/krylov.c).  M/dt dominates at the step
+ * sizes in use, so J is positive definite with condition number about
+ * 1 + (omega dt)^2/4 and CG converges in a few iterations.  A direction of
+ * non-positive curvature, or no convergence, falls back to a sparse LU of
+ * J (UMFPACK: symbolic analysis on the first fallback of the run, numeric
+ * per fallback), counted with its reason.  Memory O(nnz); nothing is
+ * allocated after creation except UMFPACK's factors on a fallback. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <suitesparse/umfpack.h>
+
+struct mrvi_sblock {
+  int nf;
+  int *Ap, *Ai; /* CSC pattern (symmetric), sorted rows */
+  long nnz;
+  double *Ax;              /* values */
+  int *diag;               /* nf: index of (f, f) in Ax */
+  long *elem_off;          /* per element of the class: offset in emap, -1 */
+  int *emap;               /* per element: n_in x n_in -> Ax index or -1 */
+  double *dinv, *x, *work; /* Jacobi preconditioner, solution, CG (4 nf) */
+  mrvi_newton *lu;         /* fallback, created on first use */
+  mrvi_krylov_stats stats;
+};
+
+void mrvi_sblock_free(mrvi_sblock *sb) {
+  if (!sb)
+    return;
+  free(sb->Ap);
+  free(sb->Ai);
+  free(sb->Ax);
+  free(sb->diag);
+  free(sb->elem_off);
+  free(sb->emap);
+  free(sb->dinv);
+  free(sb->x);
+  free(sb->work);
+  mrvi_newton_free(sb->lu);
+  free(sb);
+}
+
+/* Pattern of the fast-fast Hessians of elements `elems` (model indices)
+ * and the diagonal, as triplets mapped to CSC. */
+int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
+                       mrvi_sblock **out) {
+  const int nf = m->n_fast;
+  *out = NULL;
+  mrvi_sblock *sb = calloc(1, sizeof *sb);
+  if (!sb)
+    return MRVI_ENOMEM;
+  sb->nf = nf;
+  long nt = nf;
+  sb->elem_off = malloc((size_t)(n_elems > 0 ? n_elems : 1) * sizeof(long));
+  if (!sb->elem_off)
+    goto oom;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    sb->elem_off[ie] = -1;
+    if (e->kind == MRVI_ELEMENT_GRAVITY)
+      continue; /* linear: no Hessian */
+    sb->elem_off[ie] = nt - nf;
+    nt += (long)e->n_in * e->n_in;
+  }
+  int *Ti = malloc((size_t)nt * sizeof(int)),
+      *Tj = malloc((size_t)nt * sizeof(int));
+  int *map = malloc((size_t)nt * sizeof(int));
+  sb->emap = malloc((size_t)(nt - nf > 0 ? nt - nf : 1) * sizeof(int));
+  sb->Ap = malloc((size_t)(nf + 1) * sizeof(int));
+  sb->Ai = malloc((size_t)nt * sizeof(int));
+  if (!Ti || !Tj || !map || !sb->emap || !sb->Ap || !sb->Ai) {
+    free(Ti);
+    free(Tj);
+    free(map);
+    goto oom;
+  }
+  /* Triplets: the diagonal, then every element's fast-fast pairs (slow
+   * pairs recorded on the diagonal, their map entry cleared below). */
+  for (int f = 0; f < nf; f++)
+    Ti[f] = Tj[f] = f;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    if (sb->elem_off[ie] < 0)
+      continue;
+    const long o = nf + sb->elem_off[ie];
+    for (int j = 0; j < e->n_in; j++)
+      for (int l = 0; l < e->n_in; l++) {
+        const int fj = m->rate[e->in[j]] == MRVI_FAST,
+                  fl = m->rate[e->in[l]] == MRVI_FAST;
+        const long t = o + (long)j * e->n_in + l;
+        Ti[t] = fj && fl ? m->slot[e->in[j]] : 0;
+        Tj[t] = fj && fl ? m->slot[e->in[l]] : 0;
+      }
+  }
+  const int st = umfpack_di_triplet_to_col(nf, nf, (int)nt, Ti, Tj, NULL,
+                                           sb->Ap, sb->Ai, NULL, map);
+  if (st == UMFPACK_OK) {
+    for (long t = nf; t < nt; t++)
+      sb->emap[t - nf] = map[t];
+    for (int ie = 0; ie < n_elems; ie++) {
+      const mrvi_element *e = &m->elements[elems[ie]];
+      if (sb->elem_off[ie] < 0)
+        continue;
+      for (int j = 0; j < e->n_in; j++)
+        for (int l = 0; l < e->n_in; l++)
+          if (m->rate[e->in[j]] != MRVI_FAST || m->rate[e->in[l]] != MRVI_FAST)
+            sb->emap[sb->elem_off[ie] + (long)j * e->n_in + l] = -1;
+    }
+    sb->diag = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(int));
+    if (sb->diag)
+      for (int f = 0; f < nf; f++)
+        sb->diag[f] = map[f];
+  }
+  free(Ti);
+  free(Tj);
+  free(map);
+  if (st != UMFPACK_OK || !sb->diag)
+    goto oom;
+  sb->nnz = sb->Ap[nf];
+  sb->Ax = calloc((size_t)(sb->nnz > 0 ? sb->nnz : 1), sizeof(double));
+  sb->dinv = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));
+  sb->x = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));
+  sb->work = malloc((size_t)(nf > 0 ? 4 * nf : 1) * sizeof(double));
+  if (!sb->Ax || !sb->dinv || !sb->x || !sb->work)
+    goto oom;
+  *out = sb;
+  return MRVI_OK;
+oom:
+  mrvi_sblock_free(sb);
+  return MRVI_ENOMEM;
+}
+
+void mrvi_sblock_zero(mrvi_sblock *sb) {
+  memset(sb->Ax, 0, (size_t)sb->nnz * sizeof(double));
+}
+
+void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
+                             double scale) {
+  const long o = sb->elem_off[ie];
+  if (o < 0)
+    return;
+  const int *map = sb->emap + o;
+  for (int k = 0; k < n_in * n_in; k++)
+    if (map[k] >= 0)
+      sb->Ax[map[k]] += scale * H[k];
+}
+
+static void matvec(void *ctx, const double *x, double *y) {
+  const mrvi_sblock *sb = ctx;
+  memset(y, 0, (size_t)sb->nf * sizeof(double));
+  for (int j = 0; j < sb->nf; j++) {
+    const double xj = x[j];
+    for (int q = sb->Ap[j]; q < sb->Ap[j + 1]; q++)
+      y[sb->Ai[q]] += sb->Ax[q] * xj;
+  }
+}
+
+const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb) {
+  return &sb->stats;
+}
+
+/* Relative CG tolerance besides the caller's absolute one (a share of the
+ * Newton tolerance): reachable where that share is below round-off. */
+#define SBLOCK_RTOL 1e-12
+
+int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
+                      double *b, double atol, char *msg, size_t len) {
+  const int nf = sb->nf;
+  double *x = sb->x;
+  for (int f = 0; f < nf; f++) {
+    const double d = (sb->Ax[sb->diag[f]] += dscale * diag[f]);
+    sb->dinv[f] = d > 0.0 ? 1.0 / d : 1.0;
+  }
+  int it = 0;
+  double curv = 0.0;
+  const int max_it = nf < MRVI_CG_MAX_IT ? nf + 10 : MRVI_CG_MAX_IT;
+  const int s = mrvi_pcg(nf, matvec, sb, sb->dinv, b, x, SBLOCK_RTOL, atol,
+                         max_it, sb->work, &it, &curv);
+  mrvi_krylov_stats *k = &sb->stats;
+  k->cg_solves++;
+  k->cg_iterations += it;
+  if (it > k->cg_max)
+    k->cg_max = it;
+  if (s == MRVI_CG_OK) {
+    memcpy(b, x, (size_t)nf * sizeof(double));
+    return MRVI_OK;
+  }
+  /* Fallback: sparse LU of the block. */
+  if (k->fallbacks++ == 0) {
+    if (s == MRVI_CG_CURVATURE)
+      mrvi_fmt(k->fallback_reason, sizeof k->fallback_reason,
+               "non-positive curvature p^T J p / p^T p = %.3e of the "
+               "micro-step Newton matrix J = M/dt + w cA cB hess W (the fast "
+               "potential's negative curvature outweighs M/dt; a smaller "
+               "micro step restores CG): sparse LU of the %d x %d block",
+               curv, nf, nf);
+    else
+      mrvi_fmt(k->fallback_reason, sizeof k->fallback_reason,
+               "CG on the micro-step Newton matrix did not converge in %d "
+               "iterations: sparse LU of the %d x %d block",
+               it, nf, nf);
+  }
+  if (!sb->lu &&
+      !(sb->lu = mrvi_newton_create(nf, sb->Ap, sb->Ai, sb->Ax, msg, len)))
+    return MRVI_ESINGULAR;
+  const int r = mrvi_newton_solve(sb->lu, sb->Ax, b, x, msg, len);
+  if (r < 0) {
+    const size_t used = strlen(msg);
+    mrvi_fmt(msg + used, len - used, " (micro-step block, after %s)",
+             s == MRVI_CG_CURVATURE ? "non-positive curvature in CG"
+                                    : "CG did not converge");
+    return r;
+  }
+  memcpy(b, x, (size_t)nf * sizeof(double));
+  return MRVI_OK;
+}

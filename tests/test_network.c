@@ -1,0 +1,416 @@
+/* Large networks (doc/solver.md, "sweep-cg" and "schur-krylov"): generated
+ * planar lattices beyond the dense block limit.  The iterative paths give
+ * the general path's trajectory (same equations, same converged solution);
+ * their CG and GMRES iteration counts stay at the few that the condition
+ * numbers allow; a micro-step matrix with non-positive curvature falls back
+ * to a sparse LU with the reason, and the trajectory is still the general
+ * path's. */
+#include "internal.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Deterministic uniform numbers in [-1, 1). */
+static double uniform(unsigned long long *state) {
+  *state = *state * 6364136223846793005ULL + 1442695040888963407ULL;
+  return (double)(*state >> 11) / 4503599627370496.0 - 1.0;
+}
+
+static void append(char **buf, size_t *len, size_t *cap, const char *fmt, ...) {
+  for (;;) {
+    va_list ap;
+    va_start(ap, fmt);
+    const int k = vsnprintf(*buf + *len, *cap - *len, fmt, ap);
+    va_end(ap);
+    if (k >= 0 && *len + (size_t)k < *cap) {
+      *len += (size_t)k;
+      return;
+    }
+    *cap = 2 * *cap + (size_t)(k > 0 ? k : 0) + 4096;
+    *buf = realloc(*buf, *cap);
+    if (!*buf)
+      abort();
+  }
+}
+
+/* The lattice of bench/bench_lattice.c: nx x ny unit masses at spacing 1,
+ * even rows slow, odd rows fast; stiff fast springs (k = 2500) along the
+ * fast rows, soft slow springs (k = 1) elsewhere; perturbed positions and
+ * velocities.  Caller frees. */
+static char *lattice(int nx, int ny) {
+  size_t len = 0, cap = 0;
+  char *b = NULL;
+  unsigned long long seed = 12345;
+  append(&b, &len, &cap, "name: lattice\ndimension: 2\nparticles:\n");
+  for (int j = 0; j < ny; j++)
+    for (int i = 0; i < nx; i++) {
+      const double dx = 0.05 * uniform(&seed), dy = 0.05 * uniform(&seed);
+      const double vx = 0.1 * uniform(&seed), vy = 0.1 * uniform(&seed);
+      append(&b, &len, &cap,
+             "  - {name: p%d_%d, mass: 1, rate: %s, position: [%.6f, %.6f], "
+             "velocity: [%.6f, %.6f]}\n",
+             i, j, j % 2 ? "fast" : "slow", i + dx, j + dy, vx, vy);
+    }
+  append(&b, &len, &cap, "springs:\n");
+  for (int j = 0; j < ny; j++)
+    for (int i = 0; i < nx; i++) {
+      if (i + 1 < nx)
+        append(&b, &len, &cap,
+               "  - {between: [p%d_%d, p%d_%d], law: linear, stiffness: %s, "
+               "rest_length: 1, potential: %s}\n",
+               i, j, i + 1, j, j % 2 ? "2500" : "1", j % 2 ? "fast" : "slow");
+      if (j + 1 < ny)
+        append(&b, &len, &cap,
+               "  - {between: [p%d_%d, p%d_%d], law: linear, stiffness: 1, "
+               "rest_length: 1, potential: slow}\n",
+               i, j, i, j + 1);
+    }
+  return b;
+}
+
+/* n fast unit masses on a line (1-D), joined by weak springs (k = 100) and
+ * each held by an anchor spring of stiffness +k or -k alternately (W has
+ * curvature -k in half of the coordinates), plus one slow mass coupled to
+ * the first by a soft spring.  At dt^2 k / 4 > 1 the micro-step matrix
+ * M/dt + (dt/4) hess W is indefinite. */
+static char *inverted_anchors(int n, double k) {
+  size_t len = 0, cap = 0;
+  char *b = NULL;
+  append(
+      &b, &len, &cap,
+      "name: anchors\ndimension: 1\nparticles:\n"
+      "  - {name: s, mass: 1, rate: slow, position: [9], velocity: [0.1]}\n");
+  for (int i = 0; i < n; i++)
+    append(&b, &len, &cap,
+           "  - {name: c%d, mass: 1, rate: fast, position: [%g], "
+           "velocity: [%g]}\n",
+           i, 10.0 + 0.5 * i, i == n / 2 ? 1e-3 : 0.0);
+  append(&b, &len, &cap,
+         "springs:\n  - {between: [s, c0], law: linear, stiffness: 1, "
+         "rest_length: 0.9}\n");
+  for (int i = 0; i < n; i++) {
+    append(&b, &len, &cap,
+           "  - {between: [c%d], anchor: [0], law: linear, stiffness: %g, "
+           "rest_length: initial, potential: fast}\n",
+           i, i % 2 ? k : -k);
+    if (i + 1 < n)
+      append(&b, &len, &cap,
+             "  - {between: [c%d, c%d], law: linear, stiffness: 100, "
+             "rest_length: 0.5, potential: fast}\n",
+             i, i + 1);
+  }
+  return b;
+}
+
+static mrvi_system *load_text(const char *text, const char *const *set,
+                              int n_set) {
+  mrvi_system *sys = NULL;
+  char msg[512];
+  if (mrvi_system_load_string(text, "network", set, n_set, &sys, msg,
+                              sizeof msg) < 0) {
+    CHECK(0, "load: %s", msg);
+    return NULL;
+  }
+  return sys;
+}
+
+typedef struct trajectory {
+  int n, nmicro, steps, ok;
+  double *q, *p, *micro; /* (steps + 1) x n, ..., steps x nmicro */
+  int max_iter;
+  char path[32];
+  mrvi_krylov_stats ks;
+} trajectory;
+
+static void run(const mrvi_system *sys, int steps, trajectory *t) {
+  const mrvi_model *m = sys->model;
+  memset(t, 0, sizeof *t);
+  t->n = mrvi_model_n(m);
+  t->nmicro = sys->settings.micro_steps * m->n_fast;
+  t->steps = steps;
+  t->q = calloc((size_t)(steps + 1) * (size_t)t->n, sizeof(double));
+  t->p = calloc((size_t)(steps + 1) * (size_t)t->n, sizeof(double));
+  t->micro = calloc((size_t)steps * (size_t)t->nmicro, sizeof(double));
+  mrvi_integrator *it = NULL;
+  char msg[512];
+  if (mrvi_integrator_create(m, &sys->settings, &it, msg, sizeof msg) < 0) {
+    CHECK(0, "create: %s", msg);
+    return;
+  }
+  snprintf(t->path, sizeof t->path, "%s", mrvi_integrator_solver_path(it));
+  const size_t n = (size_t)t->n, nm = (size_t)t->nmicro;
+  memcpy(t->q, mrvi_integrator_q(it), n * sizeof(double));
+  memcpy(t->p, mrvi_integrator_p(it), n * sizeof(double));
+  for (int k = 0; k < steps; k++) {
+    if (mrvi_integrator_step(it) < 0) {
+      CHECK(0, "%s step %d: %s", t->path, k + 1, mrvi_integrator_errmsg(it));
+      mrvi_integrator_free(it);
+      return;
+    }
+    memcpy(t->q + (size_t)(k + 1) * n, mrvi_integrator_q(it),
+           n * sizeof(double));
+    memcpy(t->p + (size_t)(k + 1) * n, mrvi_integrator_p(it),
+           n * sizeof(double));
+    memcpy(t->micro + (size_t)k * nm, mrvi_integrator_micro_q(it),
+           nm * sizeof(double));
+    if (mrvi_integrator_last_iterations(it) > t->max_iter)
+      t->max_iter = mrvi_integrator_last_iterations(it);
+  }
+  mrvi_integrator_krylov_stats(it, &t->ks);
+  mrvi_integrator_free(it);
+  t->ok = 1;
+}
+
+static void release(trajectory *t) {
+  free(t->q);
+  free(t->p);
+  free(t->micro);
+}
+
+/* max |a - b| / max |a| over q, p and the micro nodes (each separately). */
+static double rel_diff(const trajectory *a, const trajectory *b) {
+  const double *x[3] = {a->q, a->p, a->micro}, *y[3] = {b->q, b->p, b->micro};
+  const size_t len[3] = {(size_t)(a->steps + 1) * (size_t)a->n,
+                         (size_t)(a->steps + 1) * (size_t)a->n,
+                         (size_t)a->steps * (size_t)a->nmicro};
+  double worst = 0.0;
+  for (int w = 0; w < 3; w++) {
+    double d = 0.0, s = 0.0;
+    for (size_t i = 0; i < len[w]; i++) {
+      d = fmax(d, fabs(x[w][i] - y[w][i]));
+      s = fmax(s, fabs(x[w][i]));
+    }
+    if (s > 0.0)
+      worst = fmax(worst, d / s);
+  }
+  return worst;
+}
+
+/* Settings overrides: scheme, p, dT, tolerance, solver. */
+typedef struct overrides {
+  char text[5][80];
+  const char *ptr[5];
+} overrides;
+
+static const char *const *set(overrides *o, const char *scheme, int p,
+                              double dT, double tol, const char *solver) {
+  snprintf(o->text[0], sizeof o->text[0], "integrator.scheme=%s", scheme);
+  snprintf(o->text[1], sizeof o->text[1], "integrator.micro_steps=%d", p);
+  snprintf(o->text[2], sizeof o->text[2], "integrator.macro_step=%g", dT);
+  snprintf(o->text[3], sizeof o->text[3], "integrator.newton.tolerance=%g",
+           tol);
+  snprintf(o->text[4], sizeof o->text[4], "integrator.solver=%s", solver);
+  for (int i = 0; i < 5; i++)
+    o->ptr[i] = o->text[i];
+  return o->ptr;
+}
+
+/* A 10 x 8 lattice (80 slow and 80 fast coordinates, beyond the dense
+ * limit 64): every scheme with an implicit fast rule on its iterative path
+ * against the general path, tolerance 1e-12, 20 steps, p in {1, 5}.  Both
+ * solutions meet ||R|| <= 1e-12 with a Jacobian M/dt + O(dt K), so they
+ * differ by about 1e-12 dt / M relative to q and p; 1e-10 leaves room for
+ * 20 steps of growth (doc/solver.md). */
+static void test_agree(void) {
+  static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint",
+                                        "trapezoidal-midpoint",
+                                        "trapezoidal-trapezoidal"};
+  static const char *const want[] = {"sweep-cg", "schur-krylov", "schur-krylov",
+                                     "schur-krylov"};
+  char *text = lattice(10, 8);
+  for (int sc = 0; sc < 4; sc++)
+    for (int pi = 0; pi < 2; pi++) {
+      const int p = pi ? 5 : 1;
+      overrides og, oa;
+      mrvi_system *sg =
+          load_text(text, set(&og, schemes[sc], p, 0.01, 1e-12, "general"), 5);
+      mrvi_system *sa =
+          load_text(text, set(&oa, schemes[sc], p, 0.01, 1e-12, "auto"), 5);
+      if (sg && sa) {
+        CHECK(sa->model->n_slow == 80 && sa->model->n_fast == 80,
+              "lattice: %d slow, %d fast", sa->model->n_slow,
+              sa->model->n_fast);
+        trajectory a, b;
+        run(sg, 20, &a);
+        run(sa, 20, &b);
+        if (a.ok && b.ok) {
+          const double d = rel_diff(&a, &b);
+          CHECK(d <= 1e-10, "%s p=%d: %s vs general: %.2e", schemes[sc], p,
+                b.path, d);
+          CHECK(strcmp(a.path, "general") == 0 && strcmp(b.path, want[sc]) == 0,
+                "%s: paths %s, %s", schemes[sc], a.path, b.path);
+          CHECK(b.ks.cg_solves > 0 && b.ks.fallbacks == 0,
+                "%s p=%d: %ld CG solves, %ld fallbacks (%s)", schemes[sc], p,
+                b.ks.cg_solves, b.ks.fallbacks, b.ks.fallback_reason);
+          printf("%-24s p=%d %-13s vs general %.2e  CG %.2f/solve (max %d)  "
+                 "GMRES %.2f/solve (max %d)\n",
+                 schemes[sc], p, b.path, d,
+                 (double)b.ks.cg_iterations / (double)b.ks.cg_solves,
+                 b.ks.cg_max,
+                 b.ks.gmres_solves
+                     ? (double)b.ks.gmres_iterations / (double)b.ks.gmres_solves
+                     : 0.0,
+                 b.ks.gmres_max);
+        }
+        release(&a);
+        release(&b);
+      }
+      mrvi_system_free(sg);
+      mrvi_system_free(sa);
+    }
+  free(text);
+}
+
+/* Iteration counts at the benchmark's step sizes (dT = 0.01, p = 10) on a
+ * 30 x 30 lattice (1800 coordinates).  With unit masses the micro-step
+ * block is J = (I + (dt^2/4) H)/dt, H the fast-fast Hessian with spectrum
+ * in [-w^2, w^2] (w = omega_max, power iteration at q0), so the Jacobi-
+ * preconditioned J has condition number kappa <= ((1 + a)/(1 - a))^2,
+ * a = (w dt)^2/4, and CG reduces the A-norm error by 2 rho^k, rho =
+ * (sqrt(kappa) - 1)/(sqrt(kappa) + 1); in the inf-norm of the residual that
+ * is 2 sqrt(kappa n) rho^k.  The tightest stopping rule (1e-13 relative,
+ * schur-krylov) then needs at most k = log(1e-13 / (2 sqrt(kappa n))) /
+ * log(rho) iterations per block solve.  GMRES works on S diag(A_ss)^-1 =
+ * I + E with ||E|| = O((dT omega_slow)^2 + p dt^2 K_sf^2 ...) << 1 and
+ * contracts by ||E|| per iteration: 1e-11 in at most 6 iterations as long
+ * as ||E|| <= 0.015.  Newton: at most 2 updates per (micro) step. */
+static void test_iterations(void) {
+  char *text = lattice(30, 30);
+  static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint"};
+  for (int sc = 0; sc < 2; sc++) {
+    overrides o;
+    mrvi_system *s =
+        load_text(text, set(&o, schemes[sc], 10, 0.01, 1e-9, "auto"), 5);
+    if (!s)
+      continue;
+    mrvi_step st;
+    mrvi_predictor *pr = NULL;
+    mrvi_step_init(&st, s->model, &s->settings);
+    mrvi_predictor_create(s->model, &st, &pr);
+    const double w = mrvi_predictor_omega_max(pr);
+    mrvi_predictor_free(pr);
+    mrvi_step_free(&st);
+    const double dt = 0.001, a = 0.25 * (w * dt) * (w * dt);
+    const double kappa = pow((1.0 + a) / (1.0 - a), 2.0);
+    const double rho = (sqrt(kappa) - 1.0) / (sqrt(kappa) + 1.0);
+    const int n = s->model->n_fast;
+    const int bound =
+        (int)ceil(log(1e-13 / (2.0 * sqrt(kappa * n))) / log(rho));
+    trajectory t;
+    run(s, 10, &t);
+    if (t.ok) {
+      const mrvi_krylov_stats *k = &t.ks;
+      CHECK(k->cg_solves > 0 && k->cg_max <= bound && k->cg_max <= 30,
+            "%s (%s): CG at most %d iterations per block solve (bound %d "
+            "from omega_max %.1f)",
+            schemes[sc], t.path, k->cg_max, bound, w);
+      CHECK(sc == 0 || (k->gmres_solves > 0 && k->gmres_max <= 6),
+            "%s: GMRES at most %d iterations per solve", schemes[sc],
+            k->gmres_max);
+      CHECK(t.max_iter <= 2 && k->fallbacks == 0,
+            "%s: %d Newton updates at most, %ld fallbacks", schemes[sc],
+            t.max_iter, k->fallbacks);
+      printf("%s 30x30 (%s): omega_max %.1f, CG max %d (bound %d), %.2f "
+             "per solve; GMRES max %d; Newton max %d\n",
+             schemes[sc], t.path, w, k->cg_max, bound,
+             (double)k->cg_iterations / (double)k->cg_solves, k->gmres_max,
+             t.max_iter);
+    }
+    release(&t);
+    mrvi_system_free(s);
+  }
+  free(text);
+}
+
+/* Non-positive curvature: 80 fast masses, half of them on anchor springs
+ * of stiffness -2500, at dt = 0.05 (dT = 0.1, p = 2): dt^2 k / 4 = 1.56,
+ * so the micro-step matrix has diagonal entries (1 - 1.56)/dt < 0 and CG
+ * meets p^T J p <= 0 at once.  The solve falls back to a sparse LU with
+ * the reason, and the trajectory is still the general path's (to the 1e-10
+ * of test_agree).  Two steps: the inverted springs amplify the motion
+ * about tenfold per micro step, and the masses would soon cross. */
+static void test_fallback(void) {
+  char *text = inverted_anchors(80, 2500.0);
+  static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint"};
+  static const char *const want[] = {"sweep-cg", "schur-krylov"};
+  for (int sc = 0; sc < 2; sc++) {
+    overrides og, oa;
+    mrvi_system *sg =
+        load_text(text, set(&og, schemes[sc], 2, 0.1, 1e-12, "general"), 5);
+    mrvi_system *sa =
+        load_text(text, set(&oa, schemes[sc], 2, 0.1, 1e-12, "auto"), 5);
+    if (sg && sa) {
+      trajectory a, b;
+      run(sg, 2, &a);
+      run(sa, 2, &b);
+      if (a.ok && b.ok) {
+        const double d = rel_diff(&a, &b);
+        CHECK(strcmp(b.path, want[sc]) == 0, "%s: path %s", schemes[sc],
+              b.path);
+        CHECK(d <= 1e-10, "%s with fallback vs general: %.2e", schemes[sc], d);
+        CHECK(b.ks.fallbacks > 0 &&
+                  strstr(b.ks.fallback_reason, "non-positive curvature") &&
+                  strstr(b.ks.fallback_reason, "sparse LU"),
+              "%s: %ld fallbacks: %s", schemes[sc], b.ks.fallbacks,
+              b.ks.fallback_reason);
+        printf("%s inverted anchors: %ld fallbacks (%s), vs general %.2e\n",
+               schemes[sc], b.ks.fallbacks, b.ks.fallback_reason, d);
+      }
+      release(&a);
+      release(&b);
+      /* The run summary carries the count and the reason. */
+      mrvi_summary sum;
+      mrvi_settings s = sa->settings;
+      s.t_end = 2 * s.macro_step;
+      mrvi_run(sa->model, &s, NULL, NULL, NULL, &sum);
+      CHECK(sum.status == MRVI_OK && sum.krylov.fallbacks > 0 &&
+                strstr(sum.krylov.fallback_reason, "curvature"),
+            "%s summary: status %d, %ld fallbacks", schemes[sc], sum.status,
+            sum.krylov.fallbacks);
+    }
+    mrvi_system_free(sg);
+    mrvi_system_free(sa);
+  }
+  free(text);
+}
+
+/* Path choice: the large lattice takes the iterative paths under auto and
+ * structured (with reasons naming CG / GMRES), general when asked. */
+static void test_choice(void) {
+  char *text = lattice(10, 8);
+  static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint",
+                                        "fully-explicit"};
+  static const char *const want[] = {"sweep-cg", "schur-krylov", "explicit"};
+  static const char *const word[] = {"CG", "GMRES", "explicit"};
+  for (int sc = 0; sc < 3; sc++)
+    for (int so = 0; so < 3; so++) {
+      static const char *const solvers[] = {"auto", "structured", "general"};
+      overrides o;
+      mrvi_system *s =
+          load_text(text, set(&o, schemes[sc], 5, 0.01, 1e-9, solvers[so]), 5);
+      if (!s)
+        continue;
+      char why[400] = "";
+      const char *path =
+          mrvi_solver_path(s->model, &s->settings, why, sizeof why);
+      const char *expect = so == 2 ? "general" : want[sc];
+      CHECK(path && strcmp(path, expect) == 0 &&
+                strstr(why, so == 2 ? "requested" : word[sc]),
+            "%s, solver %s: %s: %s", schemes[sc], solvers[so],
+            path ? path : "(none)", why);
+      mrvi_system_free(s);
+    }
+  free(text);
+}
+
+int main(void) {
+  test_choice();
+  test_agree();
+  test_iterations();
+  test_fallback();
+  return test_finish();
+}
