@@ -105,10 +105,10 @@ else # a source tree without git: everything but build directories
 fi
 (cd "$root" && xargs -0 grep -IlE "$notes|$outside" <"$tmp/files") >"$tmp/hits.txt" 2>/dev/null
 if [ -s "$tmp/hits.txt" ]; then
-  fail "files refer to design notes or ../shared:"
+  fail "files refer to design notes or to the directory outside the repository:"
   sed 's/^/     /' "$tmp/hits.txt"
 else
-  pass "no file refers to design notes or ../shared ($(tr -cd '\0' <"$tmp/files" | wc -c) files)"
+  pass "no file refers to design notes or outside the repository ($(tr -cd '\0' <"$tmp/files" | wc -c) files)"
 fi
 
 test_finish
