@@ -7,6 +7,8 @@
 #     the checker itself is first shown to fail on a broken link;
 #   - the description file printed in doc/tutorial.md is the shipped
 #     systems/tutorial_spring.yaml (without its header comment);
+#   - doc/*.md cite the paper by equation number, not by LaTeX label
+#     (doc/theory.md's translation table excepted);
 #   - no file of the repository refers to design notes or directories
 #     outside it (the repository must stand alone).
 #
@@ -92,6 +94,16 @@ if [ -s "$tmp/printed.yaml" ] && cmp -s "$tmp/printed.yaml" "$tmp/shipped.yaml";
 else
   fail "doc/tutorial.md and systems/tutorial_spring.yaml differ"
   diff "$tmp/printed.yaml" "$tmp/shipped.yaml" | head -10 | sed 's/^/     /'
+fi
+
+# --- the docs cite the paper by number, not by LaTeX label ---
+# doc/theory.md holds the one table from labels to numbers.
+labels='(^|[^A-Za-z])(eq|th|ex|lemma|tab|fig):[A-Za-z]'
+if grep -nE "$labels" "$root"/doc/*.md | grep -v "^$root/doc/theory.md:" >"$tmp/labels.txt"; then
+  fail "doc/*.md cite LaTeX labels (use the numbers of doc/theory.md's table):"
+  sed "s|^$root/||; s/^/     /" "$tmp/labels.txt" | head -10
+else
+  pass "doc/*.md cite no LaTeX labels outside doc/theory.md's table"
 fi
 
 # --- the repository stands alone ---
