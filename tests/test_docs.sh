@@ -1,0 +1,126 @@
+#!/usr/bin/env bash
+# Keeps the documentation true:
+#   - every systems/*.yaml that README.md or doc/*.md names exists and passes
+#     `mrvi check`;
+#   - every relative link in README.md and doc/*.md points to an existing
+#     file or directory (the part before '#'; anchors are not checked);
+#     the checker itself is first shown to fail on a broken link;
+#   - the description file printed in doc/tutorial.md is the shipped
+#     systems/tutorial_spring.yaml (without its header comment);
+#   - doc/*.md cite the paper by equation number, not by LaTeX label
+#     (doc/theory.md's translation table excepted);
+#   - no file of the repository refers to design notes or directories
+#     outside it (the repository must stand alone).
+#
+#   test_docs.sh MRVI_BINARY SOURCE_ROOT
+#
+# Prints "N passed, M failed" and exits non-zero on any failure.
+set -u
+
+mrvi=${1:?usage: test_docs.sh MRVI_BINARY SOURCE_ROOT}
+root=${2:?usage: test_docs.sh MRVI_BINARY SOURCE_ROOT}
+
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+. "$(dirname "$0")/testlib.sh"
+
+docs=("$root/README.md" "$root"/doc/*.md)
+
+# --- description files named by the docs pass `mrvi check` ---
+names=$(grep -ohE 'systems/[A-Za-z0-9_.-]+\.yaml' "${docs[@]}" | sort -u)
+count=$(printf '%s\n' "$names" | grep -c .)
+if [ "$count" -ge 10 ]; then
+  pass "docs name $count description files"
+else
+  fail "docs name only $count description files (expected at least 10)"
+fi
+for f in $names; do
+  if [ ! -f "$root/$f" ]; then
+    fail "$f named in the docs does not exist"
+  elif "$mrvi" check "$root/$f" >"$tmp/out.txt" 2>"$tmp/err.txt" &&
+    grep -q "^$root/$f: valid\$" "$tmp/out.txt"; then
+    pass "mrvi check $f"
+  else
+    fail "mrvi check $f"
+    sed 's/^/     /' "$tmp/err.txt" | head -5
+  fi
+done
+
+# --- relative links ---
+# check_links FILE...: prints every broken relative link as FILE: TARGET and
+# returns non-zero if there is one.  Links are [text](target); http(s),
+# mailto and same-page (#...) links are skipped.
+check_links() {
+  local file target path bad=0
+  for file in "$@"; do
+    while IFS= read -r target; do
+      case $target in
+      http://* | https://* | mailto:* | '#'*) continue ;;
+      esac
+      path=${target%%#*}
+      if [ ! -e "$(dirname "$file")/$path" ]; then
+        echo "$file: $target"
+        bad=1
+      fi
+    done < <(grep -oE '\]\([^) ]+\)' "$file" | sed -e 's/^](//' -e 's/)$//')
+  done
+  return $bad
+}
+
+mkdir -p "$tmp/d"
+printf 'fine [a](b.md), [self](#x), [web](https://example.org)\n' >"$tmp/d/a.md"
+printf 'see [a](a.md#top) and [gone](missing.md#top)\n' >"$tmp/d/b.md"
+if check_links "$tmp/d/a.md" "$tmp/d/b.md" >"$tmp/out.txt"; then
+  fail "link checker accepts a broken link"
+elif [ "$(cat "$tmp/out.txt")" = "$tmp/d/b.md: missing.md#top" ]; then
+  pass "link checker reports exactly the broken link"
+else
+  fail "link checker output: $(cat "$tmp/out.txt")"
+fi
+nlinks=$(cat "${docs[@]}" | grep -oE '\]\([^) ]+\)' | grep -cvE '\]\((https?:|mailto:|#)')
+if check_links "${docs[@]}" >"$tmp/out.txt"; then
+  pass "all $nlinks relative links in README.md and doc/*.md resolve"
+else
+  fail "broken links:"
+  sed 's/^/     /' "$tmp/out.txt"
+fi
+
+# --- the tutorial prints the shipped file ---
+tut=$root/doc/tutorial.md
+sed -n '/^## 2\./,/^## 3\./p' "$tut" | sed -n '/^```yaml$/,/^```$/p' | sed '1d;$d' >"$tmp/printed.yaml"
+grep -v '^#' "$root/systems/tutorial_spring.yaml" >"$tmp/shipped.yaml"
+if [ -s "$tmp/printed.yaml" ] && cmp -s "$tmp/printed.yaml" "$tmp/shipped.yaml"; then
+  pass "doc/tutorial.md prints systems/tutorial_spring.yaml"
+else
+  fail "doc/tutorial.md and systems/tutorial_spring.yaml differ"
+  diff "$tmp/printed.yaml" "$tmp/shipped.yaml" | head -10 | sed 's/^/     /'
+fi
+
+# --- the docs cite the paper by number, not by LaTeX label ---
+# doc/theory.md holds the one table from labels to numbers.
+labels='(^|[^A-Za-z])(eq|th|ex|lemma|tab|fig):[A-Za-z]'
+if grep -nE "$labels" "$root"/doc/*.md | grep -v "^$root/doc/theory.md:" >"$tmp/labels.txt"; then
+  fail "doc/*.md cite LaTeX labels (use the numbers of doc/theory.md's table):"
+  sed "s|^$root/||; s/^/     /" "$tmp/labels.txt" | head -10
+else
+  pass "doc/*.md cite no LaTeX labels outside doc/theory.md's table"
+fi
+
+# --- the repository stands alone ---
+# The patterns are assembled so that this file does not match itself.
+notes="DES""IGN"
+outside="\.\./sha""red"
+if git -C "$root" rev-parse --git-dir >/dev/null 2>&1; then
+  git -C "$root" ls-files -z >"$tmp/files"
+else # a source tree without git: everything but build directories
+  (cd "$root" && find . -path ./.git -prune -o -type f ! -path '*/meson-*' -print0) >"$tmp/files"
+fi
+(cd "$root" && xargs -0 grep -IlE "$notes|$outside" <"$tmp/files") >"$tmp/hits.txt" 2>/dev/null
+if [ -s "$tmp/hits.txt" ]; then
+  fail "files refer to design notes or to the directory outside the repository:"
+  sed 's/^/     /' "$tmp/hits.txt"
+else
+  pass "no file refers to design notes or outside the repository ($(tr -cd '\0' <"$tmp/files" | wc -c) files)"
+fi
+
+test_finish
