@@ -1,7 +1,8 @@
 /* mrvi — variational multirate integrators for mechanical systems.
  *
  * Public C API.  Equation labels (eq:..., th:...) refer to the source paper
- * "Variational multirate integrators" (Ober-Blöbaum, Wenger, Gail, Leyendecker).
+ * "Variational multirate integrators" (Ober-Blöbaum, Wenger, Gail, Leyendecker,
+ * arXiv 2406.12991); doc/theory.md maps each label to its equation number.
  *
  * Conventions
  * - Every function that can fail returns an int status: 0 (MRVI_OK) or a
