@@ -249,13 +249,12 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
       !hinted) {
     char err[160];
     describe_energy_error(sum, err, sizeof err);
-    mrvi_fmt(
-        sum->warning, sizeof sum->warning,
-        "%s exceeds integrator.energy_warning = %g: the trajectory is probably "
-        "wrong; the macro step %g is probably beyond the stability or "
-        "accuracy range of the scheme %s; reduce macro_step",
-        err, s->energy_warning, s->macro_step,
-        s->scheme[0] ? s->scheme : "(custom)");
+    mrvi_fmt(sum->warning, sizeof sum->warning,
+             "%s exceeds integrator.energy_warning = %g: the trajectory is "
+             "probably inaccurate; the macro step %g is probably beyond the "
+             "accuracy or stability range of the scheme %s; reduce macro_step",
+             err, s->energy_warning, s->macro_step,
+             s->scheme[0] ? s->scheme : "(custom)");
   }
   return sum->status;
 }

@@ -89,6 +89,11 @@ check "converge: bad --dt refused" $?
 [ -f midmid.h5 ] && [ "$(wc -l <midmid.csv)" -eq 5 ]
 check "converge: table files (HDF5 and 4 CSV rows)" $?
 
+# doc/reproduce.sh keeps machine paths out of the tracked result tables.
+bad=$(grep -rlE '(^|[[:space:](,=:])/[A-Za-z_.-]+/' "$root/doc/results" 2>/dev/null)
+[ -z "$bad" ]
+check "doc/results names no absolute path (${bad:-none})" $?
+
 # --- stability -------------------------------------------------------------
 "$mrvi" stability "$root/systems/oscillator.yaml" --at 3.5 -o stab.h5 >stab.out 2>&1
 check "stability: exit status" $?
