@@ -45,7 +45,8 @@ const char mrvi_usage_converge[] =
     "                      steps halve from min(integrator.macro_step,\n"
     "                      t_end/4) until the observed orders of the last N\n"
     "                      rows agree within 0.3 (at most 16 halvings); the\n"
-    "                      larger steps are skipped (and named).  When the\n"
+    "                      larger steps, also those whose runs fail, are\n"
+    "                      skipped (and named).  When the\n"
     "                      orders of a table disagree by more than 0.3, a\n"
     "                      warning says the steps are not all in the\n"
     "                      asymptotic range.\n"
@@ -733,6 +734,15 @@ int mrvi_cmd_converge(int argc, char **argv) {
       mrvi_summary sum;
       char msg[1024];
       if (mrvi_trajectory_run(sys->model, &s, &run, &sum) < 0) {
+        if (adaptive && i + 1 < n_dt) { /* a coarse step may fail: halve on */
+          if (!a.quiet)
+            printf("dT = %g, p = %d failed, trying smaller steps: %s\n", dts[i],
+                   (int)ps[j], sum.message);
+          const mrvi_errors none = {dts[i], (int)ps[j], NAN, NAN, NAN,
+                                    NAN,    NAN,        NAN, NAN, NAN};
+          T[j].e[i] = none;
+          continue;
+        }
         fprintf(stderr, "mrvi %s: run dT = %g, p = %d failed: %s\n", cmd,
                 dts[i], (int)ps[j], sum.message);
         goto out;
@@ -751,6 +761,8 @@ int mrvi_cmd_converge(int argc, char **argv) {
       int settled = 1;
       for (int j = 0; j < n_p; j++) {
         T[j].rows = rows;
+        for (int r = rows - (int)levels; r < rows; r++)
+          settled &= isfinite(T[j].e[r].q_mac) && isfinite(T[j].e[r].p_mac);
         settled &=
             order_spread(&T[j], rows - (int)levels, rows, NULL) <= ORDER_SPREAD;
       }
@@ -766,7 +778,8 @@ int mrvi_cmd_converge(int argc, char **argv) {
     memmove(T[j].e, T[j].e + first, (size_t)T[j].rows * sizeof T[j].e[0]);
   }
   if (first > 0 && !a.quiet)
-    printf("skipped the macro steps %g ... %g: their orders had not settled\n",
+    printf("skipped the macro steps %g ... %g: their orders had not settled "
+           "(or their runs failed)\n",
            dts[0], dts[first - 1]);
   for (int j = 0; j < n_p; j++) {
     if (!a.quiet)

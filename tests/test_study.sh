@@ -55,6 +55,14 @@ readme() { # readme NAME EXPECTED ARGS...
 }
 readme readme-midmid 2
 readme readme-trapmid 1 --set integrator.scheme=trapezoidal-midpoint
+# Newton limited to 2 iterations fails at dT = 0.125 and 0.0625: the chosen
+# range halves on past the failed runs; a fixed range stops with exit 2.
+readme readme-newton2 2 --set integrator.newton.max_iterations=2
+grep -q '^dT = 0.125, p = 5 failed, trying smaller steps: step 1 .*Newton' readme-newton2.out
+check "converge: a failed coarse run is named and skipped" $?
+"$mrvi" converge "$fpu" --p 5 --dt0 0.125 --levels 2 --set integrator.newton.max_iterations=2 -q -o fixed.h5 2>fixed.err
+[ $? -eq 2 ] && grep -q 'run dT = 0.125, p = 5 failed' fixed.err
+check "converge --dt0: a failed run stops the study (exit 2)" $?
 # A given range outside the asymptotic one is computed, with a warning.
 "$mrvi" converge "$fpu" --p 5 --dt0 0.3 --levels 4 -o coarse.h5 >coarse.out 2>coarse.err
 check "converge --dt0 0.3: exit status" $?
