@@ -63,6 +63,10 @@ check "converge: a failed coarse run is named and skipped" $?
 "$mrvi" converge "$fpu" --p 5 --dt0 0.125 --levels 2 --set integrator.newton.max_iterations=2 -q -o fixed.h5 2>fixed.err
 [ $? -eq 2 ] && grep -q 'run dT = 0.125, p = 5 failed' fixed.err
 check "converge --dt0: a failed run stops the study (exit 2)" $?
+# An invalid description: its error once, exit 1.
+"$mrvi" converge "$fpu" --set integrator.micro_steps=0 -q 2>bad.err
+[ $? -eq 1 ] && [ "$(wc -l <bad.err)" -eq 1 ] && grep -q '^--set integrator.micro_steps=0: micro_steps must be >= 1' bad.err
+check "converge: an invalid description is reported once ($(cat bad.err))" $?
 # A given range outside the asymptotic one is computed, with a warning.
 "$mrvi" converge "$fpu" --p 5 --dt0 0.3 --levels 4 -o coarse.h5 >coarse.out 2>coarse.err
 check "converge --dt0 0.3: exit status" $?
