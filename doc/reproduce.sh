@@ -25,6 +25,9 @@ cd "$work"
 "$py" -c 'import matplotlib, h5py' || { echo "needs python3-matplotlib and python3-h5py" >&2; exit 1; }
 
 section() { printf '\n== %s\n' "$*"; }
+# Tables quoted in the report name files relative to the repository (and the
+# reproduction directory), never by this machine's absolute paths.
+neutral() { sed -e "s|$work/||g" -e "s|$build/||g" -e "s|$root/||g"; }
 short() { case $1 in midpoint-midpoint) echo Q1 ;; trapezoidal-midpoint) echo Q2 ;; trapezoidal-trapezoidal) echo Q3 ;; esac; }
 
 # Summary of a run: energy error, FPU stiff energies or angular momentum.
@@ -88,7 +91,7 @@ for spec in midpoint-midpoint:0.3 trapezoidal-midpoint:0.3 trapezoidal-trapezoid
     "$plot" run "$out" -o "$figs" >/dev/null
     files+=("$out")
   done
-  summarise "${files[@]}" | tee -a "$results/fpu.txt"
+  summarise "${files[@]}" | neutral | tee -a "$results/fpu.txt"
 done
 
 section "Spring ring, t_N = 50, dT = 0.01 (Figs. sr energy, sr ang mom)"
@@ -103,7 +106,7 @@ for scheme in midpoint-midpoint trapezoidal-midpoint trapezoidal-trapezoidal; do
     "$plot" run "$out" -o "$figs" >/dev/null
     files+=("$out")
   done
-  summarise "${files[@]}" | tee -a "$results/spring_ring.txt"
+  summarise "${files[@]}" | neutral | tee -a "$results/spring_ring.txt"
 done
 
 section "Convergence (Table tab:convergence rates), reference: single-rate midpoint"
@@ -114,14 +117,14 @@ for sys in fpu:0.02 spring_ring:0.01; do
     tag=$name-$(short "$scheme")
     "$mrvi" converge "$root/systems/$name.yaml" --set integrator.scheme="$scheme" \
       --p 5,10 --dt0 "$dt0" --levels 5 --t-end 0.5 --cache "$work/cache" \
-      -o "conv-$tag.h5" --csv "$results/conv-$tag.csv" | tee "$results/conv-$tag.txt"
+      -o "conv-$tag.h5" --csv "$results/conv-$tag.csv" | neutral | tee "$results/conv-$tag.txt"
     "$plot" convergence "conv-$tag.h5" -o "$figs" >/dev/null
   done
   # Trapezoidal-midpoint again where its first-order slow error dominates.
   tag=$name-Q2-fine
   "$mrvi" converge "$root/systems/$name.yaml" --set integrator.scheme=trapezoidal-midpoint \
     --p 5,10 --dt0 5e-4 --levels 4 --t-end 0.1 --cache "$work/cache" \
-    -o "conv-$tag.h5" --csv "$results/conv-$tag.csv" | tee "$results/conv-$tag.txt"
+    -o "conv-$tag.h5" --csv "$results/conv-$tag.csv" | neutral | tee "$results/conv-$tag.txt"
   "$plot" convergence "conv-$tag.h5" -o "$figs" >/dev/null
 done
 
@@ -150,12 +153,12 @@ PY
 
 section "Linear stability (Lemma lemma:stability_slow)"
 "$mrvi" stability "$root/systems/oscillator.yaml" --p 1,2,3,4,5,6,7,8,9,10,20,50 \
-  --at 3.5 -o stability.h5 | tee "$results/stability.txt"
+  --at 3.5 -o stability.h5 | neutral | tee "$results/stability.txt"
 "$plot" stability stability.h5 -o "$figs" >/dev/null
 
 section "Computing time (§6.3): FPU, dt = 0.001"
 "$mrvi" timing "$root/systems/fpu.yaml" --dt 0.001 --t-end 20 \
-  -o timing.h5 --csv "$results/timing.csv" | tee "$results/timing.txt"
+  -o timing.h5 --csv "$results/timing.csv" | neutral | tee "$results/timing.txt"
 "$plot" timing timing.h5 -o "$figs" >/dev/null
 
 section "done"

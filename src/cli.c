@@ -88,8 +88,13 @@ static const char usage_run[] =
     "the run after the current step and leaves a valid file (a second\n"
     "Ctrl-C kills it at once).\n"
     "\n"
+    "When the maximal energy error exceeds integrator.energy_warning\n"
+    "(default 0.1, relative to the initial energy; --set changes it) the\n"
+    "run completes with one warning on stderr and the root attribute\n"
+    "'warning'; an error is printed once, on stderr.\n"
+    "\n"
     "Exit status:\n"
-    "  0    the run completed\n"
+    "  0    the run completed (also with an energy warning)\n"
     "  1    nothing was run: bad arguments, invalid description file, or the\n"
     "       output file cannot be created or is refused (no output is "
     "written)\n"
@@ -562,7 +567,16 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
             "warning: %ld linear solve%s fell back to a sparse LU (first: "
             "%s; see doc/solver.md)\n",
             ks->fallbacks, ks->fallbacks == 1 ? "" : "s", ks->fallback_reason);
-  printf("  %-23s%.3e\n", "max rel. energy error", sum->max_rel_energy_error);
+  /* The energy error and what it is relative to (doc/output.md). */
+  if (sum->energy_scale_kind == 0)
+    printf("  %-23s%.3e\n", "max rel. energy error", sum->max_rel_energy_error);
+  else if (sum->energy_scale_kind == 1)
+    printf("  %-23s%.3e (H0 = 0: relative to the largest energy magnitude "
+           "of the run, %.3e)\n",
+           "max energy error", sum->max_rel_energy_error, sum->energy_scale);
+  else
+    printf("  %-23s%.3e (absolute: every energy is 0)\n",
+           "max abs. energy error", sum->max_rel_energy_error);
   if (sum->roundoff_steps > 0)
     fprintf(stderr,
             "warning: %ld step%s stopped at the roundoff floor above the "
@@ -572,9 +586,7 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
   printf("  %-23s%.3f s (assemble %.3f s, solve %.3f s)\n", "wall time",
          sum->wall_time, sum->assemble_time, sum->solve_time);
   printf("  %-23s%s\n", "output", out);
-  if (sum->status != MRVI_OK)
-    printf("  %-23s%s\n", "stopped because",
-           sum->message[0] ? sum->message : mrvi_strerror(sum->status));
+  /* Why it stopped is printed once, on stderr, by cmd_run. */
   fflush(stdout);
 }
 
@@ -671,6 +683,7 @@ static int cmd_run(int argc, char **argv) {
   if (st < 0 && sum.status == MRVI_OK)
     sum.status = st;
   progress_clear(&ctx);
+  mrvi_writer_set_summary(w, &sum);
 
   /* Close in every case: the file records why the run stopped. */
   const char *reason = "completed";
@@ -686,6 +699,8 @@ static int cmd_run(int argc, char **argv) {
   if (sys->output_xdmf && mrvi_model_n_particles(sys->model) > 0 &&
       cst == MRVI_OK)
     mrvi_cli_write_xdmf(out, a.quiet, a.force);
+  if (sum.warning[0])
+    fprintf(stderr, "mrvi run: warning: %s\n", sum.warning);
   if (st == MRVI_EINTERRUPTED)
     fprintf(stderr, "mrvi run: %s: %s\n",
             stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);

@@ -22,6 +22,10 @@
 #include <sys/stat.h>
 
 enum { EXIT_INPUT = 1, EXIT_RUN = 2, MAX_LIST = 64, MSG = 8192 };
+/* converge: consecutive observed orders further apart than this are not in
+ * the asymptotic range; without --dt0 at most this many halvings. */
+#define ORDER_SPREAD 0.3
+enum { MAX_HALVINGS = 16 };
 
 const char mrvi_usage_converge[] =
     "Usage: mrvi converge FILE [options]\n"
@@ -30,16 +34,27 @@ const char mrvi_usage_converge[] =
     "at fixed p, errors on macro nodes (eq:err_mac, also split into slow and\n"
     "fast parts) and fast micro nodes (eq:err_mic) against a single-rate\n"
     "reference run with a tiny step, and the observed order between rows.\n"
+    "The reference is computed with a step of the smallest micro step / 8\n"
+    "(deepened as the chosen range goes down).\n"
     "\n"
     "Options:\n"
-    "  --dt LIST           macro steps, e.g. 0.02,0.01,0.005 (default: --dt0\n"
-    "                      halved --levels - 1 times)\n"
-    "  --dt0 X             largest macro step (default: integrator.macro_step)\n"
-    "  --levels N          number of macro steps (default 4)\n"
+    "  --dt LIST           macro steps, e.g. 0.02,0.01,0.005\n"
+    "  --dt0 X             largest macro step, halved --levels - 1 times\n"
+    "  --levels N          number of macro steps in the table (default 4)\n"
+    "                      Without --dt and --dt0 the range is chosen: macro\n"
+    "                      steps halve from min(integrator.macro_step,\n"
+    "                      t_end/4) until the observed orders of the last N\n"
+    "                      rows agree within 0.3 (at most 16 halvings); the\n"
+    "                      larger steps, also those whose runs fail, are\n"
+    "                      skipped (and named).  When the\n"
+    "                      orders of a table disagree by more than 0.3, a\n"
+    "                      warning says the steps are not all in the\n"
+    "                      asymptotic range.\n"
     "  --p LIST            micro steps per macro step, e.g. 5,10 (default:\n"
     "                      integrator.micro_steps)\n"
     "  --t-end T           horizon (default 0.5, as in the paper)\n"
-    "  --reference FILE    reference run: an HDF5 file of `mrvi run` with p = 1\n"
+    "  --reference FILE    reference run: an HDF5 file of `mrvi run` with p = "
+    "1\n"
     "                      whose step divides every micro step\n"
     "  --ref-step H        step of the computed reference (default: smallest\n"
     "                      micro step / 8)\n"
@@ -244,9 +259,9 @@ static mrvi_system *load(const char *cmd, const args *a) {
   mrvi_system *sys = NULL;
   if (!msg)
     return NULL;
+  (void)cmd;
   if (mrvi_system_load(a->file, a->sets, a->n_sets, &sys, msg, MSG) < 0)
-    fprintf(stderr, "%s\nmrvi %s: %s is not valid; nothing was run\n", msg,
-            cmd, a->file);
+    fprintf(stderr, "%s\n", msg); /* file:line:col: message, once */
   free(msg);
   return sys;
 }
@@ -373,6 +388,41 @@ static void print_order(FILE *f, double v) {
  * converge
  * ------------------------------------------------------------------------- */
 
+typedef struct conv_table {
+  int p, rows;
+  double dT[MAX_LIST];
+  mrvi_errors e[MAX_LIST];
+} conv_table;
+
+/* Largest difference between observed orders of e_q^mac (and of e_p^mac)
+ * over rows [a, b) of a table (orders between consecutive rows; NaN orders
+ * skipped); *col names the column.  0 when there are fewer than 2. */
+static double order_spread(const conv_table *T, int a, int b,
+                           const char **col) {
+  double worst = 0.0;
+  for (int c = 0; c < 2; c++) {
+    double lo = INFINITY, hi = -INFINITY;
+    for (int r = a + 1; r < b; r++) {
+      const double o =
+          c == 0
+              ? order(T->e[r - 1].q_mac, T->e[r].q_mac, T->dT[r - 1], T->dT[r])
+              : order(T->e[r - 1].p_mac, T->e[r].p_mac, T->dT[r - 1], T->dT[r]);
+      if (isfinite(o)) {
+        lo = fmin(lo, o);
+        hi = fmax(hi, o);
+      }
+    }
+    if (hi - lo > worst) {
+      worst = hi - lo;
+      if (col)
+        *col = c == 0 ? "e_q^mac" : "e_p^mac";
+    }
+  }
+  if (col && worst == 0.0)
+    *col = "e_q^mac";
+  return worst;
+}
+
 /* Reference run: read from `given`, from the cache, or computed (and cached). */
 static mrvi_trajectory *reference(const char *cmd, const args *a,
                                   const mrvi_system *sys, const char *scheme,
@@ -442,12 +492,6 @@ static mrvi_trajectory *reference(const char *cmd, const args *a,
   }
   return ref;
 }
-
-typedef struct conv_table {
-  int p, rows;
-  double dT[MAX_LIST];
-  mrvi_errors e[MAX_LIST];
-} conv_table;
 
 /* Field of an mrvi_errors at byte offset `off`. */
 static double field(const mrvi_errors *e, size_t off) {
@@ -604,6 +648,7 @@ int mrvi_cmd_converge(int argc, char **argv) {
   double dts[MAX_LIST], ps[MAX_LIST], t_end = 0.5, levels = 4,
          dt0 = sys->settings.macro_step;
   int n_dt, n_p = 1;
+  const int adaptive = !get(&a, "--dt") && !get(&a, "--dt0");
   ps[0] = sys->settings.micro_steps;
   if (get(&a, "--t-end") && parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0)
     goto out;
@@ -619,7 +664,11 @@ int mrvi_cmd_converge(int argc, char **argv) {
     if ((n_dt = parse_list(cmd, "--dt", get(&a, "--dt"), dts, MAX_LIST, 0)) < 0)
       goto out;
   } else {
-    n_dt = (int)levels;
+    /* Without --dt0 the range is chosen: halving from min(macro_step,
+     * t_end/4) until the orders of the last `levels` rows agree. */
+    n_dt = adaptive ? MAX_HALVINGS : (int)levels;
+    if (adaptive)
+      dt0 = fmin(dt0, t_end / 4);
     for (int i = 0; i < n_dt; i++)
       dts[i] = dt0 / (double)(1L << i);
   }
@@ -637,40 +686,63 @@ int mrvi_cmd_converge(int argc, char **argv) {
     }
   /* Reference step: divides every micro step dT_i/p_j; default the
    * smallest micro step over lcm-compatible p, divided by 8. */
-  double dt_min = INFINITY, t_ref = 0.0;
+  double t_ref = 0.0;
   long lcm = 1;
   for (int j = 0; j < n_p; j++)
     lcm = lcm / gcd(lcm, (long)ps[j]) * (long)ps[j];
-  for (int i = 0; i < n_dt; i++) {
-    dt_min = fmin(dt_min, dts[i]);
+  for (int i = 0; i < n_dt; i++)
     t_ref = fmax(t_ref, ceil(t_end / dts[i] - 1e-9) * dts[i]);
-  }
-  double h = dt_min / (double)lcm / 8.0;
-  if (get(&a, "--ref-step") && parse_double(cmd, "--ref-step", get(&a, "--ref-step"), &h) < 0)
+  double h_fixed = NAN; /* --ref-step */
+  if (get(&a, "--ref-step") &&
+      parse_double(cmd, "--ref-step", get(&a, "--ref-step"), &h_fixed) < 0)
     goto out;
   const char *ref_scheme =
       get(&a, "--ref-scheme") ? get(&a, "--ref-scheme") : "midpoint-midpoint";
   if (!a.quiet) {
     printf("convergence study of %s (%s)\n", sys->name, a.file);
+    if (adaptive)
+      printf("macro steps: halving from %g until the observed orders of the "
+             "last %d agree within %.1f\n",
+             dts[0], (int)levels, ORDER_SPREAD);
     fflush(stdout);
   }
-  ref = reference(cmd, &a, sys, ref_scheme, h, t_ref, a.quiet);
-  if (!ref)
-    goto out;
   code = EXIT_RUN;
-  for (int j = 0; j < n_p; j++) {
-    T[j].p = (int)ps[j];
-    T[j].rows = n_dt;
-    for (int i = 0; i < n_dt; i++) {
+  int rows = 0;
+  for (int i = 0; i < n_dt; i++) {
+    /* A reference fine enough for row i: computed once for the fixed
+     * table, deepened 4 halvings at a time for the chosen range. */
+    const double h_row = dts[i] / (double)lcm / 8.0;
+    if (!ref || (!get(&a, "--reference") && isnan(h_fixed) &&
+                 ref->macro_step > h_row * (1 + 1e-9))) {
+      const int deep = adaptive ? (i + 3 < n_dt ? i + 3 : n_dt - 1) : n_dt - 1;
+      const double h = isnan(h_fixed) ? dts[deep] / (double)lcm / 8.0 : h_fixed;
+      mrvi_trajectory_free(ref);
+      ref = reference(cmd, &a, sys, ref_scheme, h, t_ref, a.quiet);
+      if (!ref) {
+        code = EXIT_INPUT;
+        goto out;
+      }
+    }
+    for (int j = 0; j < n_p; j++) {
       mrvi_settings s = sys->settings;
       s.macro_step = dts[i];
       s.micro_steps = (int)ps[j];
       s.t_end = t_end;
+      T[j].p = (int)ps[j];
       T[j].dT[i] = dts[i];
       mrvi_trajectory *run = NULL;
       mrvi_summary sum;
       char msg[1024];
       if (mrvi_trajectory_run(sys->model, &s, &run, &sum) < 0) {
+        if (adaptive && i + 1 < n_dt) { /* a coarse step may fail: halve on */
+          if (!a.quiet)
+            printf("dT = %g, p = %d failed, trying smaller steps: %s\n", dts[i],
+                   (int)ps[j], sum.message);
+          const mrvi_errors none = {dts[i], (int)ps[j], NAN, NAN, NAN,
+                                    NAN,    NAN,        NAN, NAN, NAN};
+          T[j].e[i] = none;
+          continue;
+        }
         fprintf(stderr, "mrvi %s: run dT = %g, p = %d failed: %s\n", cmd,
                 dts[i], (int)ps[j], sum.message);
         goto out;
@@ -684,8 +756,48 @@ int mrvi_cmd_converge(int argc, char **argv) {
         goto out;
       }
     }
+    rows = i + 1;
+    if (adaptive && rows >= (int)levels) {
+      int settled = 1;
+      for (int j = 0; j < n_p; j++) {
+        T[j].rows = rows;
+        for (int r = rows - (int)levels; r < rows; r++)
+          settled &= isfinite(T[j].e[r].q_mac) && isfinite(T[j].e[r].p_mac);
+        settled &=
+            order_spread(&T[j], rows - (int)levels, rows, NULL) <= ORDER_SPREAD;
+      }
+      if (settled)
+        break;
+    }
+  }
+  /* The table: every row, or with the chosen range its last `levels`. */
+  const int first = adaptive && rows > (int)levels ? rows - (int)levels : 0;
+  for (int j = 0; j < n_p; j++) {
+    T[j].rows = rows - first;
+    memmove(T[j].dT, T[j].dT + first, (size_t)T[j].rows * sizeof T[j].dT[0]);
+    memmove(T[j].e, T[j].e + first, (size_t)T[j].rows * sizeof T[j].e[0]);
+  }
+  if (first > 0 && !a.quiet)
+    printf("skipped the macro steps %g ... %g: their orders had not settled "
+           "(or their runs failed)\n",
+           dts[0], dts[first - 1]);
+  for (int j = 0; j < n_p; j++) {
     if (!a.quiet)
       print_conv(&T[j], sys, t_end);
+    const char *col;
+    const double spread = order_spread(&T[j], 0, T[j].rows, &col);
+    if (spread > ORDER_SPREAD)
+      fprintf(stderr,
+              "mrvi %s: warning: p = %d: consecutive observed orders of %s "
+              "differ by up to %.2f (more than %.1f): the macro steps %g ... "
+              "%g are not all in the asymptotic range, the fitted orders do "
+              "not measure the scheme's order; %s\n",
+              cmd, T[j].p, col, spread, ORDER_SPREAD, T[j].dT[0],
+              T[j].dT[T[j].rows - 1],
+              adaptive ? "no settled range was found within the halvings "
+                         "tried (--dt0, --levels)"
+                       : "use smaller macro steps (--dt0), or give neither "
+                         "--dt nor --dt0 to let mrvi choose the range");
   }
   char out[2048];
   default_output(out, sizeof out, get(&a, "--output"), sys, "convergence");

@@ -173,6 +173,9 @@ typedef struct output {
 
 struct mrvi_writer {
   char *path;
+  int have_summary;      /* mrvi_writer_set_summary was called */
+  mrvi_summary energy;   /* its energy error and warning */
+  double energy_warning; /* settings.energy_warning */
   hid_t file;
   int n, nf, ns, dim, n_ang, p, every;
   int micro_slow;    /* write /micro/q_slow (ns > 0, micro output on) */
@@ -1037,6 +1040,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->n_ang = w->dim == 3 ? 3 : w->dim == 2 ? 1 : 0;
   w->p = s->micro_steps;
   w->every = o.every;
+  w->energy_warning = s->energy_warning;
   w->n_lambda = mrvi_model_constraint_rows(m);
   w->stream_on[MACRO] = 1;
   w->stream_on[MICRO] = o.micro && w->nf > 0;
@@ -1187,6 +1191,32 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
   return MRVI_OK;
 }
 
+void mrvi_writer_set_summary(mrvi_writer *w, const mrvi_summary *sum) {
+  if (!w || !sum)
+    return;
+  w->have_summary = 1;
+  w->energy.max_rel_energy_error = sum->max_rel_energy_error;
+  w->energy.energy_scale = sum->energy_scale;
+  w->energy.energy_scale_kind = sum->energy_scale_kind;
+  mrvi_fmt(w->energy.warning, sizeof w->energy.warning, "%s", sum->warning);
+}
+
+/* The energy error attributes of mrvi_writer_set_summary (doc/output.md). */
+static herr_t write_energy_attributes(mrvi_writer *w) {
+  static const char *const kind[] = {"initial", "run", "absolute"};
+  const mrvi_summary *e = &w->energy;
+  const int k = e->energy_scale_kind >= 0 && e->energy_scale_kind <= 2
+                    ? e->energy_scale_kind
+                    : 2;
+  if (attr_double(w->file, "energy_error_max", e->max_rel_energy_error) < 0 ||
+      attr_double(w->file, "energy_scale", e->energy_scale) < 0 ||
+      attr_string(w->file, "energy_scale_kind", kind[k]) < 0 ||
+      attr_double(w->file, "energy_warning", w->energy_warning) < 0 ||
+      attr_string(w->file, "warning", e->warning) < 0)
+    return -1;
+  return 0;
+}
+
 int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
                       size_t len) {
   mrvi_fmt(msg, len, "%s", "");
@@ -1216,6 +1246,8 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
   if (attr_string(w->file, "stop_reason", reason) < 0 ||
       attr_long(w->file, "steps_completed", w->flushed_k) < 0)
     fail_h5(w, MRVI_EIO, "writing attribute stop_reason");
+  if (w->have_summary && write_energy_attributes(w) < 0)
+    fail_h5(w, MRVI_EIO, "writing the energy error attributes");
   H5Eclear2(H5E_DEFAULT);
   close_handles(w);
   H5Eclear2(H5E_DEFAULT);

@@ -887,8 +887,8 @@ static const char *const spring_keys[] = {"between", "anchor", "law",
 static const char *const term_keys[] = {"combination", "offset", "law",
                                         "potential"};
 static const char *const integrator_keys[] = {
-    "scheme",      "slow",  "fast",   "macro_step",
-    "micro_steps", "t_end", "newton", "constraints", "solver"};
+    "scheme", "slow",   "fast",        "macro_step", "micro_steps",
+    "t_end",  "newton", "constraints", "solver",     "energy_warning"};
 static const char *const slow_rule_keys[] = {"alpha", "gamma", "grid"};
 static const char *const fast_rule_keys[] = {"alpha", "gamma"};
 static const char *const newton_keys[] = {"tolerance", "max_iterations"};
@@ -2027,6 +2027,13 @@ static int load_integrator(loader *L, struct fy_node *in) {
         return fail(L, v, "max_iterations must be >= 1, got %d",
                     s->newton_max_iter);
     }
+  }
+  if ((n = get(in, "energy_warning"))) {
+    if ((st = as_number(L, n, "energy_warning", &s->energy_warning)))
+      return st;
+    if (!(s->energy_warning >= 0))
+      return fail(L, n, "energy_warning must be >= 0 (0: never warn), got %g",
+                  s->energy_warning);
   }
   if ((n = get(in, "solver"))) { /* doc/solver.md */
     static const char *const solvers[] = {"auto", "structured", "general"};

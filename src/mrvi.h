@@ -392,9 +392,13 @@ typedef struct mrvi_settings {
   double constraint_tol;                /* max |g| at enforced nodes (1e-10) */
   int project_momenta;                  /* project p onto G M^-1 p = 0 (1) */
   mrvi_solver solver;                   /* default MRVI_SOLVER_AUTO */
+  /* Warn when the run's maximal energy error (mrvi_summary) exceeds this
+   * (default 0.1); 0 never warns. */
+  double energy_warning;
 } mrvi_settings;
 
-/* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it. */
+/* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it,
+ * energy warning above 10 %. */
 void mrvi_settings_default(mrvi_settings *s);
 /* Set both rules and the slow grid from a named scheme:
  * midpoint-midpoint, trapezoidal-midpoint, trapezoidal-trapezoidal,
@@ -537,14 +541,28 @@ typedef struct mrvi_summary {
   long steps;                  /* macro steps completed */
   long iterations_total;
   int iterations_max;          /* max per step */
-  double max_rel_energy_error; /* max_k |H_k - H_0| / max(|H_0|, tiny) */
+  /* Energy error (doc/output.md, Energy error): max_k |H_k - H_0| / E, with
+   * E = T_0 + |V_0| + |W_0| (= |H_0| unless an energy part is negative)
+   * when that is nonzero, else the largest T_k + |V_k| + |W_k| of the run
+   * (energy_scale_kind 1), else 1: the error is then absolute (kind 2). */
+  double max_rel_energy_error;
+  double energy_scale;   /* E */
+  int energy_scale_kind; /* 0: initial, 1: largest along the run, 2: none */
+  double energy_initial; /* H_0 */
+  double energy_last;    /* H at the last completed macro node */
+  /* Set when max_rel_energy_error exceeds settings.energy_warning: what
+   * the error is and what to do ("" otherwise).  The run still completes. */
+  char warning[512];
   double wall_time;            /* seconds */
   double assemble_time, solve_time;
   long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
                           tolerance (doc/solver.md) */
   mrvi_krylov_stats krylov; /* iterative solves (sweep-cg, schur-krylov) */
   int status;                  /* final status */
-  char message[512];           /* why it stopped ("" when completed) */
+  /* Why it stopped ("" when completed).  A failed step after an energy
+   * error above settings.energy_warning adds that the macro step is
+   * probably beyond the stability limit of the scheme. */
+  char message[1024];
 } mrvi_summary;
 
 /* Integrate from (q0, M v0) over N macro steps; the observer sees k = 0..N.
@@ -613,6 +631,10 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
                      mrvi_writer **out, char *msg, size_t len);
 /* Observer callback: user = the writer. */
 int mrvi_writer_observe(void *writer, const mrvi_record *r);
+/* Record the energy error and the warning of a run's summary: close
+ * writes them as the root attributes energy_error_max, energy_scale,
+ * energy_scale_kind, energy_warning and warning (doc/output.md). */
+void mrvi_writer_set_summary(mrvi_writer *w, const mrvi_summary *sum);
 /* Flush buffered rows, write the root attribute `stop_reason`
  * ("completed" or the message) and close.  Frees w. */
 int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,

@@ -2,7 +2,6 @@
  * observer (the HDF5 writer, a progress bar, a test). */
 #include "internal.h"
 
-#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -71,6 +70,51 @@ static int nonfinite_state(const mrvi_model *m, const mrvi_record *r, char *msg,
   return 1;
 }
 
+/* Energy magnitude T + |V| + |W| of a record. */
+static double energy_magnitude(const mrvi_record *r) {
+  return fabs(r->kinetic) + fabs(r->potential_slow) + fabs(r->potential_fast);
+}
+
+/* The energy error of the run so far (mrvi_summary): max |H_k - H_0| over
+ * the scale E_0 = T_0 + |V_0| + |W_0|, or when that is 0 over the largest
+ * magnitude seen, or absolute when every energy was 0. */
+static void energy_error(mrvi_summary *sum, double max_abs, double E0,
+                         double max_mag) {
+  sum->energy_scale_kind = E0 > 0 ? 0 : max_mag > 0 ? 1 : 2;
+  sum->energy_scale = E0 > 0 ? E0 : max_mag > 0 ? max_mag : 1.0;
+  sum->max_rel_energy_error = max_abs / sum->energy_scale;
+}
+
+/* "relative energy error 5.67" and its kind, for messages. */
+static void describe_energy_error(const mrvi_summary *sum, char *buf,
+                                  size_t len) {
+  static const char *const kind[] = {
+      "", " relative to the largest energy magnitude of the run (H_0 = 0)",
+      " (absolute: every energy is 0)"};
+  mrvi_fmt(buf, len, "%senergy error %.3g%s",
+           sum->energy_scale_kind == 0 ? "relative " : "",
+           sum->max_rel_energy_error, kind[sum->energy_scale_kind]);
+}
+
+/* After a failed step: when the energy had grown beyond the warning level,
+ * say that the failure is probably an instability. */
+static int instability_hint(mrvi_summary *sum, const mrvi_settings *s,
+                            double t) {
+  if (sum->steps == 0 || !(s->energy_warning > 0) ||
+      !(sum->max_rel_energy_error > s->energy_warning))
+    return 0;
+  char err[160];
+  describe_energy_error(sum, err, sizeof err);
+  const size_t used = strlen(sum->message);
+  mrvi_fmt(sum->message + used, sizeof sum->message - used,
+           "; energy %s from %.6g to %.6g by t = %g (%s); the macro step %g "
+           "is probably beyond the stability limit of this scheme; reduce "
+           "macro_step",
+           sum->energy_last > sum->energy_initial ? "grew" : "changed",
+           sum->energy_initial, sum->energy_last, t, err, s->macro_step);
+  return 1;
+}
+
 int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
              mrvi_observer observer, void *user, volatile const int *stop_flag,
              mrvi_summary *sum) {
@@ -122,8 +166,11 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
   r.constraint_residual = cres0;
   r.micro_constraint_residual = &cres0;
   r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
-  const double H0 = r.energy;
-  const double scale = fabs(H0) > DBL_MIN ? fabs(H0) : 1.0;
+  const double H0 = r.energy, E0 = energy_magnitude(&r);
+  double max_abs = 0.0, max_mag = E0;
+  int hinted = 0; /* the failure message says the energy grew */
+  sum->energy_initial = sum->energy_last = H0;
+  energy_error(sum, max_abs, E0, max_mag);
   if (nonfinite_state(m, &r, sum->message, sizeof sum->message))
     st = MRVI_ENONFINITE;
   else if (observer && (st = observer(user, &r)) < 0)
@@ -142,6 +189,7 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
     if (st < 0) {
       mrvi_fmt(sum->message, sizeof sum->message, "%s",
                mrvi_integrator_errmsg(it));
+      hinted = instability_hint(sum, s, mrvi_integrator_time(it));
       break;
     }
     const int iters = mrvi_integrator_last_iterations(it);
@@ -174,11 +222,15 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
     }
     if (nonfinite_state(m, &r, sum->message, sizeof sum->message)) {
       st = MRVI_ENONFINITE;
+      hinted = instability_hint(sum, s, r.t - s->macro_step);
       break;
     }
-    const double err = fabs(r.energy - H0) / scale;
-    if (err > sum->max_rel_energy_error || isnan(err))
-      sum->max_rel_energy_error = err;
+    const double err = fabs(r.energy - H0);
+    if (err > max_abs || isnan(err))
+      max_abs = err;
+    max_mag = fmax(max_mag, energy_magnitude(&r));
+    sum->energy_last = r.energy;
+    energy_error(sum, max_abs, E0, max_mag);
     if (observer && (st = observer(user, &r)) < 0)
       mrvi_fmt(sum->message, sizeof sum->message,
                "stopped by the observer at t = %g (%s)", r.t,
@@ -191,5 +243,18 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
   free(fq);
   sum->wall_time = mrvi_clock() - t_start;
   sum->status = st < 0 ? st : MRVI_OK;
+  /* Warn about a large energy error, unless the failure message already
+   * says it (instability_hint). */
+  if (s->energy_warning > 0 && sum->max_rel_energy_error > s->energy_warning &&
+      !hinted) {
+    char err[160];
+    describe_energy_error(sum, err, sizeof err);
+    mrvi_fmt(sum->warning, sizeof sum->warning,
+             "%s exceeds integrator.energy_warning = %g: the trajectory is "
+             "probably inaccurate; the macro step %g is probably beyond the "
+             "accuracy or stability range of the scheme %s; reduce macro_step",
+             err, s->energy_warning, s->macro_step,
+             s->scheme[0] ? s->scheme : "(custom)");
+  }
   return sum->status;
 }

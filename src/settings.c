@@ -60,6 +60,7 @@ void mrvi_settings_default(mrvi_settings *s) {
   s->constraint_tol = 1e-10;
   s->project_momenta = 1;
   s->solver = MRVI_SOLVER_AUTO;
+  s->energy_warning = 0.1;
 }
 
 static int unit(double v) { return isfinite(v) && v >= 0.0 && v <= 1.0; }
@@ -102,6 +103,11 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len) {
   if (!(isfinite(s->newton_tol) && s->newton_tol > 0)) {
     mrvi_fmt(msg, len, "newton tolerance must be positive (got %g)",
              s->newton_tol);
+    return MRVI_EINVAL;
+  }
+  if (!(isfinite(s->energy_warning) && s->energy_warning >= 0)) {
+    mrvi_fmt(msg, len, "energy_warning must be >= 0 (got %g)",
+             s->energy_warning);
     return MRVI_EINVAL;
   }
   if (s->newton_max_iter < 1) {

@@ -90,6 +90,17 @@ print(v.decode() if isinstance(v, bytes) else v)' "$1" "$2" ;;
   esac
 }
 
+# root_num FILE NAME: value of a numeric attribute of /
+root_num() {
+  case $h5tool in
+  h5dump) h5dump -a "/$2" "$1" 2>/dev/null | sed -n 's/.*(0): *\([-+0-9.eEinfa]*\).*/\1/p' ;;
+  h5py) /usr/bin/python3 -c 'import sys, h5py
+print(repr(float(h5py.File(sys.argv[1], "r").attrs[sys.argv[2]])))' "$1" "$2" ;;
+  esac
+}
+# num_in VALUE LOW HIGH: LOW <= VALUE <= HIGH
+num_in() { awk -v v="$1" -v a="$2" -v b="$3" 'BEGIN { exit !(v != "" && v + 0 >= a && v + 0 <= b) }'; }
+
 mkdir -p "$tmp/o"
 
 # --- version and help ------------------------------------------------------
@@ -327,7 +338,8 @@ check "misspelt --set key writes no output" no_h5_files
 for dev in /dev/zero /dev/urandom; do
   run_mrvi check "$dev"
   expect_rc 1 "$dev as description"
-  contains "$err" "^$dev:1:[0-9]+: (NUL byte|invalid byte|control character)" \
+  # (a random first line may end in a newline byte: any line number)
+  contains "$err" "^$dev:[0-9]+:[0-9]+: (NUL byte|invalid byte|control character)" \
     "$dev refused as not text"
 done
 run_mrvi run "$fpu" --set "integrator.micro_steps=$(printf '%%\377')" \
@@ -360,7 +372,8 @@ run_mrvi run "$fpu" --set integrator.newton.tolerance=1e-300 \
 expect_rc 2 "Newton failure"
 contains "$err" '^mrvi run: error: .*[Nn]ewton' "Newton failure reported on stderr"
 contains "$out" 'stopped after 0 of 667 macro steps' "summary of a failed run"
-contains "$out" 'stopped because +.*[Nn]ewton' "summary gives the reason"
+check "the reason is printed once (stderr), not again in the summary" \
+  test "$(cat "$tmp/out" "$tmp/err" | grep -c 'did not converge')" -eq 1
 check "failed run leaves its file" [ -s "$f" ]
 if [ "$h5tool" != none ]; then
   a=$(root_attr "$f" stop_reason)
@@ -369,6 +382,73 @@ if [ "$h5tool" != none ]; then
   check "failed run: file holds the initial node only (got '$r' rows)" [ "$r" = 1 ]
 fi
 rm -f "$f"
+
+# --- energy error: warning above integrator.energy_warning -------------------
+# explicit-slow at the FPU's dT = 0.3, p = 10 completes with an energy error
+# of 567 % (paper-scale wrong answer): exit 0, one warning, attributes.
+f=$tmp/o/es.h5
+run_mrvi run "$fpu" --set integrator.scheme=explicit-slow -o "$f"
+expect_rc 0 "explicit-slow dT = 0.3 completes"
+contains "$out" 'completed 667 of 667' "explicit-slow: completed"
+contains "$err" '^mrvi run: warning: relative energy error [0-9.]+ exceeds integrator\.energy_warning = 0\.1: .*reduce macro_step$' \
+  "energy warning on stderr"
+check "energy warning printed once" test "$(grep -c 'energy_warning' "$tmp/err")" -eq 1
+s_err=$(sed -n 's/^ *max rel\. energy error *//p' "$tmp/out")
+check "summary: energy error $s_err > 1" num_in "$s_err" 1 100
+run_mrvi run "$fpu" --set integrator.scheme=explicit-slow -o "$f" -q
+contains "$err" '^mrvi run: warning: relative energy error' "energy warning also with --quiet"
+if [ "$h5tool" != none ]; then
+  a=$(root_attr "$f" warning)
+  contains "$a" '^relative energy error [0-9.]+ exceeds integrator\.energy_warning = 0\.1' "attribute warning"
+  v=$(root_num "$f" energy_error_max)
+  check "attribute energy_error_max $v = summary $s_err (4 digits)" \
+    awk -v a="$v" -v b="$s_err" 'BEGIN { exit !(a - b < 1e-3 * b && b - a < 1e-3 * b) }'
+  check "attribute energy_scale_kind initial" test "$(root_attr "$f" energy_scale_kind)" = initial
+  v=$(root_num "$f" energy_scale)
+  check "attribute energy_scale = H_0 = 2.0012 (got $v)" num_in "$v" 2.00119 2.00121
+  check "attribute energy_warning 0.1" num_in "$(root_num "$f" energy_warning)" 0.1 0.1
+fi
+# The threshold from --set: no warning, the attributes say so.
+run_mrvi run "$fpu" --set integrator.scheme=explicit-slow --set integrator.energy_warning=10 -o "$f" -q
+expect_rc 0 "energy_warning = 10"
+check "energy_warning = 10: no warning (stderr: $err)" test -z "$err"
+if [ "$h5tool" != none ]; then
+  check "energy_warning = 10: attribute warning empty" test -z "$(root_attr "$f" warning)"
+  check "energy_warning = 10: attribute" num_in "$(root_num "$f" energy_warning)" 10 10
+fi
+run_mrvi check "$fpu" --set integrator.energy_warning=-1
+expect_rc 1 "negative energy_warning"
+contains "$err" 'energy_warning must be >= 0' "negative energy_warning refused"
+# midpoint-midpoint at the same step: no warning.
+run_mrvi run "$fpu" --set integrator.t_end=20 -o "$f" -q
+check "midpoint-midpoint: no warning (stderr: $err)" test -z "$err"
+# H_0 = 0: a unit mass falling from rest under a unit force; the error is
+# relative to the largest T + |V| of the run (= t_end^2 = 1), and says so.
+printf 'name: fall\ncoordinates: [{name: x, mass: 1, position: 0, velocity: 0}]\nforces: [{coordinate: x, force: 1}]\nintegrator: {macro_step: 0.1, t_end: 1}\n' >"$tmp/fall.yaml"
+run_mrvi run "$tmp/fall.yaml" -o "$tmp/o/fall.h5"
+expect_rc 0 "H_0 = 0 run"
+contains "$out" 'max energy error +[0-9.e+-]+ \(H0 = 0: relative to the largest energy magnitude of the run, 1\.000e\+00\)' \
+  "H_0 = 0: the summary says what the error is relative to"
+if [ "$h5tool" != none ]; then
+  check "H_0 = 0: attribute energy_scale_kind run" test "$(root_attr "$tmp/o/fall.h5" energy_scale_kind)" = run
+  check "H_0 = 0: attribute energy_scale 1" num_in "$(root_num "$tmp/o/fall.h5" energy_scale)" 0.999999999 1.000000001
+fi
+printf 'name: rest\ncoordinates: [{name: x, mass: 1, position: 0}]\nintegrator: {macro_step: 0.1, t_end: 1}\n' >"$tmp/rest.yaml"
+run_mrvi run "$tmp/rest.yaml" -o "$tmp/o/rest.h5"
+contains "$out" 'max abs\. energy error +0\.000e\+00 \(absolute: every energy is 0\)' "every energy 0: absolute"
+# Instability: the pendulum chain fully explicit; Newton fails after the
+# energy grew, the message says so once.
+f=$tmp/o/chain.h5
+run_mrvi run "$root/systems/pendulum_chain.yaml" --set integrator.scheme=fully-explicit -o "$f"
+expect_rc 2 "unstable pendulum chain"
+contains "$err" '^mrvi run: error: step 40 .*Newton did not converge.*; energy grew from -42\.7589 to [0-9.e+]+ by t = 0\.39 .*the macro step 0\.01 is probably beyond the stability limit of this scheme; reduce macro_step$' \
+  "instability hint on stderr"
+check "instability: one message in all (stdout + stderr)" \
+  test "$(cat "$tmp/out" "$tmp/err" | grep -c 'Newton did not converge')" -eq 1
+check "instability: no separate energy warning" test "$(grep -c 'warning' "$tmp/err")" -eq 0
+if [ "$h5tool" != none ]; then
+  contains "$(root_attr "$f" stop_reason)" 'stability limit of this scheme' "instability hint in stop_reason"
+fi
 
 # --- non-finite states: exit 2, never "completed", finite rows kept -----------
 osc=$root/systems/oscillator.yaml

@@ -101,6 +101,9 @@ run_ok "mrvi run cart_pendulum" "$mrvi" run "$root/systems/cart_pendulum.yaml" \
 run_ok "mrvi run pendulum_chain" "$mrvi" run \
   "$root/systems/pendulum_chain.yaml" -o "$tmp/chain.h5" \
   --set integrator.t_end=0.1 --quiet
+# H_0 = 0: a unit mass falling from rest under a unit force.
+printf 'name: fall\ncoordinates: [{name: x, mass: 1, position: 0, velocity: 0}]\nforces: [{coordinate: x, force: 1}]\nintegrator: {macro_step: 0.1, t_end: 1}\n' >"$tmp/fall.yaml"
+run_ok "mrvi run fall" "$mrvi" run "$tmp/fall.yaml" -o "$tmp/fall.h5" --quiet
 run_ok "mrvi-plot run lattice" "$py" "$plot" run "$tmp/lattice.h5" -o "$out"
 for f in energy angular_momentum micro; do png_ok "$out/lattice_$f.png"; done
 absent "$out/lattice_stiff_energy.png"
@@ -156,6 +159,27 @@ out.append("fit-cart:%s" % (mod.fitted_stiffness(run("cart")) is None))
 k, why = mod.stiffnesses(run("lattice"), 40.0)
 out.append("omega-refused:%s" % (k is None and "not" in why))
 
+# The energy error is divided by what the run summary divides it by: the
+# attribute energy_scale (cart pendulum: T0 + |V0| + |W0|, V0 < 0), for
+# H0 = 0 the largest T + |V| + |W| (falling mass: t_end^2 = 1), also
+# recomputed from the datasets for a file without the attribute.
+h = run("cart").h5
+mag0 = sum(abs(float(h["macro/" + d][0])) for d in
+           ("kinetic", "potential_slow", "potential_fast"))
+scale, name = mod.energy_scale(h)
+out.append("escale-cart:%s" % (abs(scale - mag0) <= 1e-15 * mag0 and
+                              float(h.attrs["energy_scale"]) == scale and
+                              name.startswith("(H − H₀)/E₀")))
+scale, name = mod.energy_scale(run("fall").h5)
+out.append("escale-fall:%s" % (abs(scale - 1.0) <= 1e-12 and "H₀ = 0" in name))
+import shutil
+shutil.copy("%s/fall.h5" % tmp, "%s/fall_old.h5" % tmp)
+with h5py.File("%s/fall_old.h5" % tmp, "r+") as f:
+    for a in ("energy_scale", "energy_scale_kind"):
+        del f.attrs[a]
+scale, name = mod.energy_scale(run("fall_old").h5)
+out.append("escale-noattr:%s" % (abs(scale - 1.0) <= 1e-12 and "H₀ = 0" in name))
+
 # Micro figure of the lattice: the 6 of 15 fast particles that move most.
 r = run("lattice")
 tm = mod.read(r.h5, "micro/t")
@@ -193,7 +217,7 @@ print(" ".join(out))
 PYEOF
 )
 for c in fit-fpu fit-ring fit-lattice fit-cart omega-refused pick q_slow ticks \
-  decades; do
+  decades escale-cart escale-fall escale-noattr; do
   case " $checks " in
     *" $c:True "*) pass "$c" ;;
     *) fail "$c (got: $checks)" ;;

@@ -139,6 +139,112 @@ static void restart(void) {
   mrvi_system_free(sys);
 }
 
+/* Load a description from text; NULL (and a failed check) on error. */
+static mrvi_system *load_text(const char *text, const char *const *set,
+                              int n_set) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  CHECK(mrvi_system_load_string(text, "<test>", set, n_set, &sys, msg,
+                                sizeof msg) == 0,
+        "load: %s", msg);
+  return sys;
+}
+
+/* The energy error of the summary, its scale, the warning above
+ * settings.energy_warning and the instability hint of a failed step. */
+static void energy_warning(void) {
+  /* FPU, explicit-slow at the paper's dT = 0.3, p = 10: completes with an
+   * energy error of several hundred percent (measured 5.67). */
+  mrvi_model *m = test_fpu();
+  mrvi_settings s = test_settings("explicit-slow", 0.3, 10, 200.0, 1e-9);
+  CHECK_NEAR(s.energy_warning, 0.1, 0.0, "default energy_warning 10 %%");
+  mrvi_summary sum;
+  int st = mrvi_run(m, &s, NULL, NULL, NULL, &sum);
+  CHECK(st == 0, "explicit-slow dT = 0.3 completes (%d: %s)", st, sum.message);
+  CHECK(sum.energy_scale_kind == 0, "H_0 > 0: relative to the initial energy");
+  /* T_0 = 1, V_0 = (0.98^4 + 1.02^4)/4, W_0 = 1250 * 0.02^2: all >= 0. */
+  const double H0 = 1.0 + (pow(0.98, 4) + pow(1.02, 4)) / 4 + 0.5;
+  CHECK_NEAR(sum.energy_initial, H0, 1e-14, "H_0 of the FPU");
+  CHECK_NEAR(sum.energy_scale, H0, 1e-14, "scale T_0 + |V_0| + |W_0| = H_0");
+  CHECK(sum.max_rel_energy_error > 1.0, "energy error %g > 100 %%",
+        sum.max_rel_energy_error);
+  CHECK(strstr(sum.warning, "relative energy error") &&
+            strstr(sum.warning, "exceeds integrator.energy_warning = 0.1") &&
+            strstr(sum.warning, "reduce macro_step"),
+        "warning: %s", sum.warning);
+  const double err = sum.max_rel_energy_error;
+  s.energy_warning = 10.0;
+  mrvi_run(m, &s, NULL, NULL, NULL, &sum);
+  CHECK(sum.warning[0] == '\0' && sum.max_rel_energy_error == err,
+        "energy_warning = 10: same error %g, no warning", err);
+  s.energy_warning = 0.0;
+  mrvi_run(m, &s, NULL, NULL, NULL, &sum);
+  CHECK(sum.warning[0] == '\0', "energy_warning = 0: never warns");
+  s = test_settings("midpoint-midpoint", 0.3, 10, 20.0, 1e-9);
+  mrvi_run(m, &s, NULL, NULL, NULL, &sum);
+  CHECK(sum.warning[0] == '\0' && sum.max_rel_energy_error < 0.1,
+        "midpoint-midpoint: error %g, no warning", sum.max_rel_energy_error);
+  /* A Newton failure without energy growth gets no instability hint. */
+  s.newton_tol = 1e-300;
+  s.newton_max_iter = 2;
+  st = mrvi_run(m, &s, NULL, NULL, NULL, &sum);
+  CHECK(st == MRVI_ENEWTON && !strstr(sum.message, "stability limit"),
+        "first-step Newton failure: no hint: %s", sum.message);
+  mrvi_model_free(m);
+
+  /* H_0 = 0 with motion: a unit mass from rest under a unit force has
+   * T = t^2/2, V = -t^2/2 (exact for the midpoint rule), so the scale is the
+   * largest T + |V| = t_end^2 = 1. */
+  const char *falling =
+      "name: fall\n"
+      "coordinates: [{name: x, mass: 1, position: 0, velocity: 0}]\n"
+      "forces: [{coordinate: x, force: 1}]\n"
+      "integrator: {macro_step: 0.1, t_end: 1}\n";
+  mrvi_system *sys = load_text(falling, NULL, 0);
+  if (sys) {
+    mrvi_run(sys->model, &sys->settings, NULL, NULL, NULL, &sum);
+    CHECK(sum.energy_scale_kind == 1,
+          "H_0 = 0: relative to the run's "
+          "largest magnitude (kind %d)",
+          sum.energy_scale_kind);
+    CHECK_NEAR(sum.energy_scale, 1.0, 1e-12, "scale = max T + |V| = 1");
+    CHECK(sum.max_rel_energy_error < 1e-13, "energy conserved: %g",
+          sum.max_rel_energy_error);
+  }
+  mrvi_system_free(sys);
+  const char *rest = "name: rest\n"
+                     "coordinates: [{name: x, mass: 1, position: 0}]\n"
+                     "integrator: {macro_step: 0.1, t_end: 1}\n";
+  sys = load_text(rest, NULL, 0);
+  if (sys) {
+    mrvi_run(sys->model, &sys->settings, NULL, NULL, NULL, &sum);
+    CHECK(sum.energy_scale_kind == 2 && sum.energy_scale == 1.0 &&
+              sum.max_rel_energy_error == 0.0,
+          "every energy 0: absolute error 0 (kind %d)", sum.energy_scale_kind);
+  }
+  mrvi_system_free(sys);
+
+  /* The pendulum chain, fully explicit at dT = 0.01: the energy grows by
+   * orders of magnitude, then Newton fails; the message says why. */
+  const char *set[] = {"integrator.scheme=fully-explicit"};
+  char msg[1024];
+  sys = NULL;
+  CHECK(mrvi_system_load(test_source_path("systems/pendulum_chain.yaml"), set,
+                         1, &sys, msg, sizeof msg) == 0,
+        "%s", msg);
+  if (sys) {
+    st = mrvi_run(sys->model, &sys->settings, NULL, NULL, NULL, &sum);
+    CHECK(st == MRVI_ENEWTON, "pendulum chain fully explicit fails (%d)", st);
+    CHECK(strstr(sum.message, "Newton did not converge") &&
+              strstr(sum.message, "; energy grew from -42.7589 to ") &&
+              strstr(sum.message, "is probably beyond the stability limit "
+                                  "of this scheme; reduce macro_step"),
+          "instability hint: %s", sum.message);
+    CHECK(sum.warning[0] == '\0', "the hint is not repeated as a warning");
+  }
+  mrvi_system_free(sys);
+}
+
 static void settings_checks(void) {
   mrvi_settings s;
   char msg[256];
@@ -227,6 +333,7 @@ int main(void) {
   newton_failure();
   interruption();
   restart();
+  energy_warning();
   settings_checks();
   builder_checks();
   user_law();

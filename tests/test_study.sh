@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The analysis commands end to end: mrvi converge (orders on the FPU, p = 5:
 # 2 +- 0.25 midpoint-midpoint, 1 +- 0.25 the two trapezoidal schemes; cache
-# and --reference give the same table), mrvi stability (measured bounds
+# and --reference give the same table; without --dt0 the range is chosen and
+# the README command gives 2 and 1; a coarse range warns), mrvi stability (measured bounds
 # within 1 % of Lemma lemma:stability_slow), mrvi timing (table, failures).
 # Usage: test_study.sh MRVI SOURCE_ROOT
 set -u
@@ -26,10 +27,10 @@ fitted() { sed -n 's/^fitted order on macro nodes: q \([-0-9.na]*\), p \([-0-9.n
 
 fpu=$root/systems/fpu.yaml
 # --- converge: orders ------------------------------------------------------
-study() { # study NAME EXPECTED ARGS...
+study() { # study NAME EXPECTED ARGS...: orders within 0.25 of EXPECTED
   local name=$1 expect=$2
   shift 2
-  "$mrvi" converge "$fpu" --p 5 --levels 4 -o "$name.h5" --csv "$name.csv" "$@" >"$name.out" 2>&1
+  "$mrvi" converge "$fpu" --p 5 -o "$name.h5" --csv "$name.csv" "$@" >"$name.out" 2>"$name.err"
   check "$name: exit status" $?
   read -r oq op < <(fitted "$name.out" | head -n 1)
   within "${oq:-}" "$expect" 0.25
@@ -38,9 +39,41 @@ study() { # study NAME EXPECTED ARGS...
   check "$name: order in p ${op:-none} (expected $expect)" $?
   echo "$name: fitted orders q ${oq:-?} p ${op:-?}"
 }
-study midmid 2 --dt0 0.02 --t-end 0.5
-study trapmid 1 --dt0 5e-4 --t-end 0.1 --set integrator.scheme=trapezoidal-midpoint
-study traptrap 1 --dt0 0.02 --t-end 0.5 --set integrator.scheme=trapezoidal-trapezoidal
+study midmid 2 --levels 4 --dt0 0.02 --t-end 0.5
+study trapmid 1 --levels 4 --dt0 5e-4 --t-end 0.1 --set integrator.scheme=trapezoidal-midpoint
+study traptrap 1 --levels 4 --dt0 0.02 --t-end 0.5 --set integrator.scheme=trapezoidal-trapezoidal
+
+# The README's command: without --dt0 the range is chosen (halving until
+# the orders of the last 4 rows agree within 0.3), orders within 0.25 of
+# the theory, no warning.  Before, it started at dT = 0.3 (0.96 / 0.52).
+readme() { # readme NAME EXPECTED ARGS...
+  study "$@"
+  [ ! -s "$1.err" ]
+  check "$1: no warning ($(cat "$1.err"))" $?
+  grep -q '^skipped the macro steps 0.125 \.\.\. ' "$1.out"
+  check "$1: the pre-asymptotic steps are named" $?
+}
+readme readme-midmid 2
+readme readme-trapmid 1 --set integrator.scheme=trapezoidal-midpoint
+# Newton limited to 2 iterations fails at dT = 0.125 and 0.0625: the chosen
+# range halves on past the failed runs; a fixed range stops with exit 2.
+readme readme-newton2 2 --set integrator.newton.max_iterations=2
+grep -q '^dT = 0.125, p = 5 failed, trying smaller steps: step 1 .*Newton' readme-newton2.out
+check "converge: a failed coarse run is named and skipped" $?
+"$mrvi" converge "$fpu" --p 5 --dt0 0.125 --levels 2 --set integrator.newton.max_iterations=2 -q -o fixed.h5 2>fixed.err
+[ $? -eq 2 ] && grep -q 'run dT = 0.125, p = 5 failed' fixed.err
+check "converge --dt0: a failed run stops the study (exit 2)" $?
+# An invalid description: its error once, exit 1.
+"$mrvi" converge "$fpu" --set integrator.micro_steps=0 -q 2>bad.err
+[ $? -eq 1 ] && [ "$(wc -l <bad.err)" -eq 1 ] && grep -q '^--set integrator.micro_steps=0: micro_steps must be >= 1' bad.err
+check "converge: an invalid description is reported once ($(cat bad.err))" $?
+# A given range outside the asymptotic one is computed, with a warning.
+"$mrvi" converge "$fpu" --p 5 --dt0 0.3 --levels 4 -o coarse.h5 >coarse.out 2>coarse.err
+check "converge --dt0 0.3: exit status" $?
+grep -q '^mrvi converge: warning: p = 5: consecutive observed orders of e_[qp]^mac differ by up to [0-9.]* (more than 0.3): the macro steps 0.3 \.\.\. 0.0375 are not all in the asymptotic range' coarse.err
+check "converge --dt0 0.3: warning that the orders disagree ($(cat coarse.err))" $?
+[ "$(wc -l <coarse.err)" -eq 1 ]
+check "converge --dt0 0.3: one warning line" $?
 
 # The second run of a study reads the cached reference and gives the same table.
 "$mrvi" converge "$fpu" --p 5 --levels 4 --dt0 0.02 --t-end 0.5 -o again.h5 --csv again.csv >again.out 2>&1
@@ -67,6 +100,11 @@ check "converge: non-dividing reference refused" $?
 check "converge: bad --dt refused" $?
 [ -f midmid.h5 ] && [ "$(wc -l <midmid.csv)" -eq 5 ]
 check "converge: table files (HDF5 and 4 CSV rows)" $?
+
+# doc/reproduce.sh keeps machine paths out of the tracked result tables.
+bad=$(grep -rlE '(^|[[:space:](,=:])/[A-Za-z_.-]+/' "$root/doc/results" 2>/dev/null)
+[ -z "$bad" ]
+check "doc/results names no absolute path (${bad:-none})" $?
 
 # --- stability -------------------------------------------------------------
 "$mrvi" stability "$root/systems/oscillator.yaml" --at 3.5 -o stab.h5 >stab.out 2>&1
