@@ -3,8 +3,8 @@
  * Optimal control (doc/optimal-control.md): read the system and its
  * `control:` section, optimise the controls with NLopt (single shooting,
  * exact discrete adjoint), print a line per iteration and a summary, and
- * write the optimal trajectory (layout of `mrvi run`, without micro
- * datasets) plus /control and /optimizer to HDF5 (doc/output.md).
+ * write the optimal trajectory (layout of `mrvi run`, /micro included)
+ * plus /control and /optimizer to HDF5 (doc/output.md).
  * Exit status: 0 optimum found with the terminal conditions met, 1 bad
  * input, 2 the optimiser failed or the terminal conditions are not met. */
 #include "internal.h"
@@ -68,7 +68,9 @@ static int on_iteration(void *data, int it, double cost, double viol,
   return 0;
 }
 
-/* Trajectory in the `mrvi run` layout through the HDF5 writer. */
+/* Trajectory in the `mrvi run` layout through the HDF5 writer: macro nodes
+ * and, with output.micro, the fast coordinates at every micro node
+ * (/micro, as `mrvi run` writes them). */
 static int write_trajectory(const char *out, const mrvi_system *sys,
                             const mrvi_ocp *o, char *msg, size_t len) {
   const mrvi_model *m = sys->model;
@@ -76,36 +78,56 @@ static int write_trajectory(const char *out, const mrvi_system *sys,
       .system_name = sys->name ? sys->name : mrvi_model_name(m),
       .description = sys->description,
       .every = 1,
-      .micro = 0,
+      .micro = sys->output_micro,
+      .micro_slow = sys->output_micro_slow,
   };
   mrvi_writer *w = NULL;
   int st = mrvi_writer_open(out, m, &sys->settings, &opt, &w, msg, len);
   if (st < 0)
     return st;
   const int n = mrvi_model_n(m), nr = mrvi_model_constraint_rows(m);
+  const int nf = mrvi_model_n_fast(m), p = sys->settings.micro_steps;
+  const double dT = sys->settings.macro_step, dt = dT / p;
   const long N = mrvi_ocp_n_steps(o);
   double *lam = calloc((size_t)(nr > 0 ? nr : 1), sizeof *lam);
   double *g = calloc((size_t)(nr > 0 ? nr : 1), sizeof *g);
+  double cres0 = 0.0;
   for (long k = 0; k <= N && st == 0; k++) {
     mrvi_record r;
     memset(&r, 0, sizeof r);
     r.k = k;
-    r.t = k * sys->settings.macro_step;
+    r.t = k * dT;
     r.q = mrvi_ocp_q(o) + k * n;
     r.p = mrvi_ocp_p(o) + k * n;
     mrvi_model_energy(m, r.q, r.p, &r.kinetic, &r.potential_slow,
                       &r.potential_fast);
     r.energy = r.kinetic + r.potential_slow + r.potential_fast;
     mrvi_model_momentum(m, r.q, r.p, r.linear_momentum, r.angular_momentum);
+    /* Micro nodes this record completes: t_0 at k = 0, else m = 1..p of
+     * step k-1. */
+    const long first = k == 0 ? 0 : (k - 1) * p + 1;
+    r.micro_count = k == 0 ? 1 : p;
+    r.micro_t0 = first * dt;
+    r.micro_dt = dt;
+    r.micro_q_fast = mrvi_ocp_micro_q(o) + first * nf;
+    r.micro_p_fast = mrvi_ocp_micro_p(o) + first * nf;
     r.n_lambda = nr;
     if (nr > 0) {
       if (k >= 1) {
         mrvi_ocp_lambda(o, k - 1, lam);
         r.lambda_prev = lam;
+        r.micro_constraint_residual =
+            mrvi_ocp_micro_constraint_residual(o) + (k - 1) * p;
+        for (int j = 0; j < p; j++)
+          r.constraint_residual =
+              fmax(r.constraint_residual, r.micro_constraint_residual[j]);
+      } else {
+        mrvi_model_constraint_eval(m, r.q, g, NULL);
+        for (int i = 0; i < nr; i++)
+          cres0 = fmax(cres0, fabs(g[i]));
+        r.constraint_residual = cres0;
+        r.micro_constraint_residual = &cres0;
       }
-      mrvi_model_constraint_eval(m, r.q, g, NULL);
-      for (int i = 0; i < nr; i++)
-        r.constraint_residual = fmax(r.constraint_residual, fabs(g[i]));
       r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
     }
     st = mrvi_writer_observe(w, &r);

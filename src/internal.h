@@ -259,6 +259,11 @@ int mrvi_step_build_pattern(mrvi_step *st, const double *x);
 /* Residual R(x) (n_total) and, if jac, the CSC values st->Ax; x holds
  * (x, lambda) (n_total). */
 void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac);
+/* max |g| over the constraint equations of the micro nodes m = 1..p in the
+ * residual R of a step (p entries): the micro-node constraints at every
+ * node, the slow-only ones too at m = p; zeros without constraints. */
+void mrvi_step_micro_residuals(const mrvi_step *st, const double *R,
+                               double *out);
 /* Momenta after convergence (x with lambda): ps1 (ns) = D_{q_{k+1}^s} L_d
  * (with the constraint forces of the interior micro nodes) and the fast
  * micro momenta pf (p x nf) at nodes m = 1..p (eq:pkfm+). */

@@ -110,6 +110,16 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res);
  * Valid until the next evaluation. */
 const double *mrvi_ocp_q(const mrvi_ocp *o);
 const double *mrvi_ocp_p(const mrvi_ocp *o);
+/* Fast coordinates (in model order of the fast coordinates) at every micro
+ * node of the last evaluation: positions and momenta, (N p + 1) x n_fast;
+ * the momenta are p^{m+1} = D_2 L_d^m + f^{+,m} (the control force of the
+ * micro interval ending at the node included).  Valid until the next
+ * evaluation. */
+const double *mrvi_ocp_micro_q(const mrvi_ocp *o);
+const double *mrvi_ocp_micro_p(const mrvi_ocp *o);
+/* max |g| at the micro nodes m = 1..p of every step (N p), as
+ * mrvi_integrator_micro_constraint_residual reports them per step. */
+const double *mrvi_ocp_micro_constraint_residual(const mrvi_ocp *o);
 /* Multipliers of step k (0..N-1) of the last evaluation in the model's
  * constraint-row order (micro-node constraints: the step average), as
  * mrvi_integrator_lambda reports them; out has constraint_rows entries. */

@@ -25,9 +25,11 @@ typedef struct ocp_terminal {
 } ocp_terminal;
 
 /* One entry of the linear map u -> node forces of a step: z index (layout
- * of struct mrvi_ocp), actuator, control within the step, coefficient. */
+ * of struct mrvi_ocp), actuator, control within the step, coefficient;
+ * plus = 1 for f^+ of the interval ending at node z (it enters the
+ * momentum there), 0 for f^- of the interval starting at z. */
 typedef struct ocp_force {
-  int z, act, j;
+  int z, act, j, plus;
   double coef;
 } ocp_force;
 
@@ -58,6 +60,9 @@ struct mrvi_ocp {
   double *pN;            /* final momenta ns + nf */
   double *Lam;           /* multipliers of every step, N x nl */
   double *ps_k, *pf_k;   /* momenta p_k per step (N+1) x ns, (N+1) x nf */
+  double *pf_micro;      /* fast momenta at every micro node (N p + 1) x nf */
+  double *f_plus;        /* f^+ of a step on fast nodes 1..p, p x nf */
+  double *cres_micro;    /* max |g| at micro nodes 1..p of every step, N p */
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
