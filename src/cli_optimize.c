@@ -178,6 +178,40 @@ static int dataset(hid_t loc, const char *name, int rank, const hsize_t *dims,
   return d < 0 || e < 0 ? -1 : 0;
 }
 
+/* 1-D dataset of n variable-length strings. */
+static int strings(hid_t loc, const char *name, int n, const char **v) {
+  hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, H5T_VARIABLE);
+  hsize_t dn[1] = {(hsize_t)n};
+  hid_t sp = H5Screate_simple(1, dn, NULL);
+  hid_t d = H5Dcreate2(loc, name, t, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const int rc =
+      d < 0 || (n > 0 && H5Dwrite(d, t, H5S_ALL, H5S_ALL, H5P_DEFAULT, v) < 0)
+          ? -1
+          : 0;
+  if (d >= 0)
+    H5Dclose(d);
+  H5Sclose(sp);
+  H5Tclose(t);
+  return rc;
+}
+
+/* 1-D int32 dataset. */
+static int ints(hid_t loc, const char *name, int n, const int *v) {
+  hsize_t dn[1] = {(hsize_t)n};
+  hid_t sp = H5Screate_simple(1, dn, NULL);
+  hid_t d = H5Dcreate2(loc, name, H5T_STD_I32LE, sp, H5P_DEFAULT, H5P_DEFAULT,
+                       H5P_DEFAULT);
+  const int rc = d < 0 || (n > 0 && H5Dwrite(d, H5T_NATIVE_INT, H5S_ALL,
+                                             H5S_ALL, H5P_DEFAULT, v) < 0)
+                     ? -1
+                     : 0;
+  if (d >= 0)
+    H5Dclose(d);
+  H5Sclose(sp);
+  return rc;
+}
+
 /* /control (t, u on the finest grid of the actuators, names) and
  * /optimizer (history, attributes). */
 static int write_control(const char *out, const mrvi_system *sys,
@@ -208,25 +242,39 @@ static int write_control(const char *out, const mrvi_system *sys,
     hid_t gc = H5Gcreate2(f, "control", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
     hsize_t d1[1] = {(hsize_t)nt}, d2[2] = {(hsize_t)nt, (hsize_t)na};
     rc = dataset(gc, "t", 1, d1, t) | dataset(gc, "u", 2, d2, U);
-    /* names: variable-length strings */
-    const char **names = malloc((size_t)na * sizeof *names);
-    if (names) {
+    /* Per actuator: name, grid, coordinate; per terminal condition:
+     * coordinate, kind, target, penalty (for mrvi-plot optimize). */
+    const int nterm = mrvi_ocp_n_terminals(o), nmax = na > nterm ? na : nterm;
+    const char **sv = malloc((size_t)(nmax + 1) * sizeof *sv);
+    int *iv = malloc((size_t)(nmax + 1) * sizeof *iv);
+    double *tv = malloc((size_t)(2 * nterm + 1) * sizeof *tv);
+    if (sv && iv && tv) {
       for (int a = 0; a < na; a++)
-        names[a] = mrvi_ocp_actuator_name(o, a);
-      hid_t st = H5Tcopy(H5T_C_S1);
-      H5Tset_size(st, H5T_VARIABLE);
-      hsize_t dn[1] = {(hsize_t)na};
-      hid_t sp = H5Screate_simple(1, dn, NULL);
-      hid_t d = H5Dcreate2(gc, "names", st, sp, H5P_DEFAULT, H5P_DEFAULT,
-                           H5P_DEFAULT);
-      if (d < 0 || H5Dwrite(d, st, H5S_ALL, H5S_ALL, H5P_DEFAULT, names) < 0)
-        rc = -1;
-      if (d >= 0)
-        H5Dclose(d);
-      H5Sclose(sp);
-      H5Tclose(st);
-      free(names);
+        sv[a] = mrvi_ocp_actuator_name(o, a);
+      rc |= strings(gc, "names", na, sv);
+      for (int a = 0; a < na; a++) {
+        sv[a] =
+            mrvi_ocp_actuator_grid(o, a) == MRVI_GRID_MICRO ? "micro" : "macro";
+        iv[a] = mrvi_ocp_actuator_coordinate(o, a);
+      }
+      rc |= strings(gc, "actuator_grid", na, sv) |
+            ints(gc, "actuator_coordinate", na, iv);
+      for (int i = 0; i < nterm; i++) {
+        mrvi_ocp_terminal_kind kind;
+        mrvi_ocp_terminal(o, i, &kind, &iv[i], &tv[i], &tv[nterm + i]);
+        sv[i] = kind == MRVI_OCP_POSITION ? "position" : "velocity";
+      }
+      hsize_t dt1[1] = {(hsize_t)nterm};
+      rc |= ints(gc, "terminal_coordinate", nterm, iv) |
+            strings(gc, "terminal_kind", nterm, sv) |
+            dataset(gc, "terminal_target", 1, dt1, tv) |
+            dataset(gc, "terminal_penalty", 1, dt1, tv + nterm);
+    } else {
+      rc = -1;
     }
+    free(sv);
+    free(iv);
+    free(tv);
     attr_string(gc, "grid", p > 1 ? "micro" : "macro");
     H5Gclose(gc);
     hid_t go =

@@ -287,6 +287,22 @@ const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a) {
 int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a) {
   return (int)o->act[a].grid;
 }
+int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a) {
+  return o->act[a].coord;
+}
+int mrvi_ocp_n_terminals(const mrvi_ocp *o) { return o->n_term; }
+void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
+                       int *coordinate, double *target, double *penalty) {
+  const ocp_terminal *t = &o->term[i];
+  if (kind)
+    *kind = t->kind;
+  if (coordinate)
+    *coordinate = t->coord;
+  if (target)
+    *target = t->target;
+  if (penalty)
+    *penalty = t->penalty;
+}
 const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a) {
   static const char *const names[] = {"slsqp", "auglag-lbfgs", "auglag-mma",
                                       "auglag-ccsaq"};

@@ -133,6 +133,14 @@ int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a);
 int mrvi_ocp_n_actuators(const mrvi_ocp *o);
 const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a);
 int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a);
+/* Model coordinate actuator a acts on. */
+int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a);
+/* Terminal conditions (equalities and penalties, in the order added): their
+ * number, and kind, coordinate, target and penalty (0: equality) of
+ * condition i (any output pointer may be NULL). */
+int mrvi_ocp_n_terminals(const mrvi_ocp *o);
+void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
+                       int *coordinate, double *target, double *penalty);
 /* Name of an algorithm ("slsqp", "auglag-lbfgs", "auglag-mma",
  * "auglag-ccsaq"); the problem's algorithm and terminal tolerance. */
 const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);
