@@ -403,6 +403,8 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
   if (st->f_rows)
     for (int i = 0; i < st->n_unknowns; i++)
       R[i] += st->f_rows[i];
+  if (st->extra)
+    st->extra(st->extra_ctx, st, x, R, jac);
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
@@ -541,6 +543,10 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
       }
     }
   }
+}
+
+void mrvi_step_jac_add(mrvi_step *st, int row, int col, double v) {
+  jac_add(st, row, col, v);
 }
 
 void mrvi_step_micro_residuals(const mrvi_step *st, const double *R,

@@ -184,6 +184,8 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
   const int ia = o->n_act++;
   const int per = grid == MRVI_GRID_MACRO ? 1 : o->p;
   o->act[ia] = (ocp_actuator){.coord = c,
+                              .pi = -1,
+                              .pj = -1,
                               .grid = grid,
                               .weight = weight,
                               .lower = lower,
@@ -216,6 +218,42 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
   }
   if (st < 0)
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  return ia;
+}
+
+int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
+                               double weight, double lower, double upper) {
+  const mrvi_model *m = o->model;
+  if (m->dimension < 1 || pi < 0 || pj < 0 || pi >= m->n_particles ||
+      pj >= m->n_particles)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "pair actuator: particle index out "
+                         "of range (the model has %d)",
+                         m->n_particles);
+  if (pi == pj)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "pair actuator: particle '%s' given twice",
+                         m->particles[pi].name);
+  if (o->ready)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "pair actuators must be added before the first "
+                         "evaluation");
+  /* The coordinate actuator's bookkeeping (sizes, bounds, weight) without
+   * its force template: add one on particle i and drop the template
+   * entries it pushed. */
+  const int n_force = o->n_force;
+  const int ia = mrvi_ocp_add_actuator(o, m->particles[pi].first, grid, weight,
+                                       lower, upper);
+  if (ia < 0)
+    return ia;
+  o->n_force = n_force;
+  o->act[ia].pi = pi;
+  o->act[ia].pj = pj;
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s",
+           m->particles[pi].name, m->particles[pj].name);
+  o->n_pair++;
+  o->step.extra = ocp_pair_hook;
+  o->step.extra_ctx = o;
   return ia;
 }
 
@@ -459,6 +497,8 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
       for (int s = 0; s < nf; s++)
         o->x[ns + (mm - 1) * nf + s] =
             st->qf0[s] + mm * dt * st->pf0[s] / m->mass[m->fast_index[s]];
+    o->u_cur = u; /* for the pair-force step hook */
+    o->k_cur = k;
     if (!o->ready && (s0 = prepare(o)) < 0)
       return s0;
     int it = 0;
@@ -504,6 +544,8 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     }
     memcpy(o->Lam + k * o->nl, o->x + st->n_unknowns,
            (size_t)o->nl * sizeof(double));
+    if (o->n_pair > 0)
+      ocp_pair_end_forces(o, k, u);
     mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
     mrvi_step_micro_residuals(st, o->R, o->cres_micro + k * p);
     /* Fast micro momenta p^{m+1} = D_2 L_d^m + f^{+,m} (eq:pkfm+ with the

@@ -6,7 +6,8 @@
  *   p_k + D_1 L_d + f_k^- = 0 (with the micro-node rows),
  *   p_{k+1} = D_2 L_d + f_k^+.
  * Controls are piecewise constant on the macro grid (slow actuator) or the
- * micro grid (fast actuator) and act along one generalised coordinate; the
+ * micro grid (fast actuator) and act along one generalised coordinate (or,
+ * pair actuators, along the line between two particles); the
  * discrete forces f^+- are the exact virtual work of that force along the
  * linearly interpolated path of the coordinate.  Single shooting over the
  * controls with gradients from the exact discrete adjoint, optimised with
@@ -55,6 +56,15 @@ const char *mrvi_ocp_errmsg(const mrvi_ocp *o);
  * lower <= u <= upper (+-HUGE_VAL for none).  Returns the actuator index. */
 int mrvi_ocp_add_actuator(mrvi_ocp *o, int coordinate, mrvi_grid grid,
                           double weight, double lower, double upper);
+/* Add a pair actuator: equal and opposite forces of magnitude u along the
+ * line between particles i and j (model particle indices, i != j; u > 0
+ * pushes them apart), piecewise constant on grid, weight and bounds as for
+ * mrvi_ocp_add_actuator; default name "I-J".  Its discrete forces depend
+ * on the configuration (doc/optimal-control.md).  Add it before the first
+ * evaluation.  Returns the actuator index. */
+int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int particle_i, int particle_j,
+                               mrvi_grid grid, double weight, double lower,
+                               double upper);
 /* Running tracking term 1/2 int weight (q_c - ref)^2 dt, integrated exactly
  * along the linearly interpolated path on the coordinate's grid. */
 int mrvi_ocp_add_tracking(mrvi_ocp *o, int coordinate, double weight,
