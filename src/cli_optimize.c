@@ -196,10 +196,10 @@ static int strings(hid_t loc, const char *name, int n, const char **v) {
   return rc;
 }
 
-/* 1-D int32 dataset. */
-static int ints(hid_t loc, const char *name, int n, const int *v) {
-  hsize_t dn[1] = {(hsize_t)n};
-  hid_t sp = H5Screate_simple(1, dn, NULL);
+/* int32 dataset of n rows and cols columns (cols 0: 1-D). */
+static int ints(hid_t loc, const char *name, int n, int cols, const int *v) {
+  hsize_t dn[2] = {(hsize_t)n, (hsize_t)cols};
+  hid_t sp = H5Screate_simple(cols ? 2 : 1, dn, NULL);
   hid_t d = H5Dcreate2(loc, name, H5T_STD_I32LE, sp, H5P_DEFAULT, H5P_DEFAULT,
                        H5P_DEFAULT);
   const int rc = d < 0 || (n > 0 && H5Dwrite(d, H5T_NATIVE_INT, H5S_ALL,
@@ -246,7 +246,7 @@ static int write_control(const char *out, const mrvi_system *sys,
      * coordinate, kind, target, penalty (for mrvi-plot optimize). */
     const int nterm = mrvi_ocp_n_terminals(o), nmax = na > nterm ? na : nterm;
     const char **sv = malloc((size_t)(nmax + 1) * sizeof *sv);
-    int *iv = malloc((size_t)(nmax + 1) * sizeof *iv);
+    int *iv = malloc((size_t)(2 * nmax + 1) * sizeof *iv);
     double *tv = malloc((size_t)(2 * nterm + 1) * sizeof *tv);
     if (sv && iv && tv) {
       for (int a = 0; a < na; a++)
@@ -258,14 +258,17 @@ static int write_control(const char *out, const mrvi_system *sys,
         iv[a] = mrvi_ocp_actuator_coordinate(o, a);
       }
       rc |= strings(gc, "actuator_grid", na, sv) |
-            ints(gc, "actuator_coordinate", na, iv);
+            ints(gc, "actuator_coordinate", na, 0, iv);
+      for (int a = 0; a < na; a++)
+        mrvi_ocp_actuator_pair(o, a, &iv[2 * a], &iv[2 * a + 1]);
+      rc |= ints(gc, "actuator_pair", na, 2, iv);
       for (int i = 0; i < nterm; i++) {
         mrvi_ocp_terminal_kind kind;
         mrvi_ocp_terminal(o, i, &kind, &iv[i], &tv[i], &tv[nterm + i]);
         sv[i] = kind == MRVI_OCP_POSITION ? "position" : "velocity";
       }
       hsize_t dt1[1] = {(hsize_t)nterm};
-      rc |= ints(gc, "terminal_coordinate", nterm, iv) |
+      rc |= ints(gc, "terminal_coordinate", nterm, 0, iv) |
             strings(gc, "terminal_kind", nterm, sv) |
             dataset(gc, "terminal_target", 1, dt1, tv) |
             dataset(gc, "terminal_penalty", 1, dt1, tv + nterm);

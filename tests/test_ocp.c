@@ -127,6 +127,9 @@ static void test_gradients_constrained(void) {
                                 HUGE_VAL);
           mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 1.5, -HUGE_VAL,
                                 HUGE_VAL);
+          /* A pair force between cart and bob (along the rod). */
+          mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MICRO, 1.0, -HUGE_VAL,
+                                     HUGE_VAL);
           mrvi_ocp_add_tracking(o, 5, 3.0, -0.2);
           mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
           mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);

@@ -321,11 +321,30 @@ control:
     - {coordinate: y, position: 0, velocity: 0}
   solver: {algorithm: slsqp, tolerance: 1.0e-12, terminal_tolerance: 1.0e-9}
 EOF
+# A pair actuator (a slow and a fast particle pushed apart or pulled
+# together along their line, micro grid): no coordinate of its own.
+cat >"$tmp/pair.yaml" <<'EOF'
+name: pair_demo
+dimension: 2
+particles:
+  - {name: a, mass: 1, rate: slow, position: [0, 0], velocity: [0, 0]}
+  - {name: b, mass: 0.1, rate: fast, position: [1, 0], velocity: [0, 0.5]}
+springs:
+  - {between: [a, b], law: linear, stiffness: 5, rest_length: 1, potential: slow}
+integrator: {scheme: midpoint-midpoint, macro_step: 0.1, micro_steps: 4, t_end: 2}
+control:
+  actuators:
+    - {pair: [a, b], grid: micro}
+  terminal:
+    - {coordinate: b.x, position: 1.5, velocity: 0}
+EOF
+run_ok "mrvi optimize pair actuator" "$mrvi" optimize "$tmp/pair.yaml" \
+  -o "$tmp/pair.h5" -q
 run_ok "mrvi optimize gantry crane" "$mrvi" optimize \
   "$root/systems/ocp_gantry_crane.yaml" -o "$tmp/crane.h5" -q
 run_ok "mrvi optimize two actuators" "$mrvi" optimize "$tmp/di2.yaml" \
   -o "$tmp/di2.h5" -q
-for f in crane di2; do
+for f in crane di2 pair; do
   run_ok "mrvi-plot optimize $f" "$py" "$plot" optimize "$tmp/$f.h5" -o "$out"
   for g in controls trajectory history; do png_ok "$out/${f}_$g.png"; done
 done
@@ -353,7 +372,7 @@ mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
 tmp = sys.argv[2]
 res = []
 for name, sizes, want in (("crane", [40], [0, 2]),
-                          ("di2", [10, 50], [0, 1])):
+                          ("di2", [10, 50], [0, 1]), ("pair", [80], [2])):
     h5 = h5py.File("%s/%s.h5" % (tmp, name), "r")
     opt = mod.Optimal(h5)
     u, t = h5["control/u"][()], h5["control/t"][()]
@@ -377,7 +396,7 @@ for name, sizes, want in (("crane", [40], [0, 2]),
 print(" ".join(res))
 PYEOF
 )
-for n in crane di2; do
+for n in crane di2 pair; do
   case " $ocp " in
     *" $n:True "*) pass "optimize $n: drawn steps equal /control/u" ;;
     *) fail "optimize $n: drawn steps vs /control/u ($ocp)" ;;

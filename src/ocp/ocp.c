@@ -326,7 +326,11 @@ int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a) {
   return (int)o->act[a].grid;
 }
 int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a) {
-  return o->act[a].coord;
+  return o->act[a].pi >= 0 ? -1 : o->act[a].coord;
+}
+void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj) {
+  *pi = o->act[a].pi;
+  *pj = o->act[a].pj;
 }
 int mrvi_ocp_n_terminals(const mrvi_ocp *o) { return o->n_term; }
 void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,

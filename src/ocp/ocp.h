@@ -143,8 +143,10 @@ int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a);
 int mrvi_ocp_n_actuators(const mrvi_ocp *o);
 const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a);
 int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a);
-/* Model coordinate actuator a acts on. */
+/* Model coordinate actuator a acts on (-1 for a pair actuator), and the
+ * particles of a pair actuator (-1, -1 otherwise). */
 int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a);
+void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj);
 /* Terminal conditions (equalities and penalties, in the order added): their
  * number, and kind, coordinate, target and penalty (0: equality) of
  * condition i (any output pointer may be NULL). */
