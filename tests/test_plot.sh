@@ -392,14 +392,22 @@ for name, sizes, want in (("crane", [40], [0, 2]),
             np.array_equal(edges, np.append(t, T)[::rep]) and \
             ax.get_ylabel() == mod.text(h5["control/names"][a])
     ok = ok and mod.ocp_coordinates(opt) == want
+    if name == "pair":
+        # The distance panel: on the 81 micro nodes (b is fast), equal to
+        # |x_a - x_b| of /macro/q at the macro nodes.
+        tr, r = mod.pair_distance(opt.run, 0, 1)
+        q = h5["macro/q"][()]
+        rm = np.hypot(q[:, 0] - q[:, 2], q[:, 1] - q[:, 3])
+        ok = ok and opt.pairs == [(0, 1)] and r.size == 81 and \
+            np.allclose(r[::4], rm, rtol=0, atol=1e-14)
     res.append("%s:%s" % (name, ok))
 print(" ".join(res))
 PYEOF
 )
 for n in crane di2 pair; do
   case " $ocp " in
-    *" $n:True "*) pass "optimize $n: drawn steps equal /control/u" ;;
-    *) fail "optimize $n: drawn steps vs /control/u ($ocp)" ;;
+    *" $n:True "*) pass "optimize $n: drawn steps equal /control/u, panels" ;;
+    *) fail "optimize $n: drawn steps vs /control/u, panels ($ocp)" ;;
   esac
 done
 
