@@ -3,8 +3,8 @@
  * Optimal control (doc/optimal-control.md): read the system and its
  * `control:` section, optimise the controls with NLopt (single shooting,
  * exact discrete adjoint), print a line per iteration and a summary, and
- * write the optimal trajectory (layout of `mrvi run`, without micro
- * datasets) plus /control and /optimizer to HDF5 (doc/output.md).
+ * write the optimal trajectory (layout of `mrvi run`, /micro included)
+ * plus /control and /optimizer to HDF5 (doc/output.md).
  * Exit status: 0 optimum found with the terminal conditions met, 1 bad
  * input, 2 the optimiser failed or the terminal conditions are not met. */
 #include "internal.h"
@@ -23,9 +23,11 @@ const char mrvi_usage_optimize[] =
     "(multirate DMOC: discrete Lagrange-d'Alembert on the integrator's\n"
     "discrete Lagrangian, single shooting, exact discrete adjoint, NLopt).\n"
     "Prints one line per evaluation (cost, largest terminal violation,\n"
-    "gradient norm) and a summary; writes the optimal trajectory, /control\n"
-    "and /optimizer to OUT.h5 (default: output.file with '.h5' replaced by\n"
-    "'_opt.h5').\n"
+    "gradient norm) and a summary; writes the optimal trajectory (/macro\n"
+    "and /micro, as `mrvi run` writes them), /control and /optimizer to\n"
+    "OUT.h5 (default: output.file with '.h5' replaced by '_opt.h5').\n"
+    "Figures: src/mrvi-plot optimize OUT.h5 -o DIR (controls, trajectory,\n"
+    "optimiser history).\n"
     "\n"
     "Options:\n"
     "  -o, --output OUT.h5    output file\n"
@@ -68,7 +70,9 @@ static int on_iteration(void *data, int it, double cost, double viol,
   return 0;
 }
 
-/* Trajectory in the `mrvi run` layout through the HDF5 writer. */
+/* Trajectory in the `mrvi run` layout through the HDF5 writer: macro nodes
+ * and, with output.micro, the fast coordinates at every micro node
+ * (/micro, as `mrvi run` writes them). */
 static int write_trajectory(const char *out, const mrvi_system *sys,
                             const mrvi_ocp *o, char *msg, size_t len) {
   const mrvi_model *m = sys->model;
@@ -76,36 +80,56 @@ static int write_trajectory(const char *out, const mrvi_system *sys,
       .system_name = sys->name ? sys->name : mrvi_model_name(m),
       .description = sys->description,
       .every = 1,
-      .micro = 0,
+      .micro = sys->output_micro,
+      .micro_slow = sys->output_micro_slow,
   };
   mrvi_writer *w = NULL;
   int st = mrvi_writer_open(out, m, &sys->settings, &opt, &w, msg, len);
   if (st < 0)
     return st;
   const int n = mrvi_model_n(m), nr = mrvi_model_constraint_rows(m);
+  const int nf = mrvi_model_n_fast(m), p = sys->settings.micro_steps;
+  const double dT = sys->settings.macro_step, dt = dT / p;
   const long N = mrvi_ocp_n_steps(o);
   double *lam = calloc((size_t)(nr > 0 ? nr : 1), sizeof *lam);
   double *g = calloc((size_t)(nr > 0 ? nr : 1), sizeof *g);
+  double cres0 = 0.0;
   for (long k = 0; k <= N && st == 0; k++) {
     mrvi_record r;
     memset(&r, 0, sizeof r);
     r.k = k;
-    r.t = k * sys->settings.macro_step;
+    r.t = k * dT;
     r.q = mrvi_ocp_q(o) + k * n;
     r.p = mrvi_ocp_p(o) + k * n;
     mrvi_model_energy(m, r.q, r.p, &r.kinetic, &r.potential_slow,
                       &r.potential_fast);
     r.energy = r.kinetic + r.potential_slow + r.potential_fast;
     mrvi_model_momentum(m, r.q, r.p, r.linear_momentum, r.angular_momentum);
+    /* Micro nodes this record completes: t_0 at k = 0, else m = 1..p of
+     * step k-1. */
+    const long first = k == 0 ? 0 : (k - 1) * p + 1;
+    r.micro_count = k == 0 ? 1 : p;
+    r.micro_t0 = first * dt;
+    r.micro_dt = dt;
+    r.micro_q_fast = mrvi_ocp_micro_q(o) + first * nf;
+    r.micro_p_fast = mrvi_ocp_micro_p(o) + first * nf;
     r.n_lambda = nr;
     if (nr > 0) {
       if (k >= 1) {
         mrvi_ocp_lambda(o, k - 1, lam);
         r.lambda_prev = lam;
+        r.micro_constraint_residual =
+            mrvi_ocp_micro_constraint_residual(o) + (k - 1) * p;
+        for (int j = 0; j < p; j++)
+          r.constraint_residual =
+              fmax(r.constraint_residual, r.micro_constraint_residual[j]);
+      } else {
+        mrvi_model_constraint_eval(m, r.q, g, NULL);
+        for (int i = 0; i < nr; i++)
+          cres0 = fmax(cres0, fabs(g[i]));
+        r.constraint_residual = cres0;
+        r.micro_constraint_residual = &cres0;
       }
-      mrvi_model_constraint_eval(m, r.q, g, NULL);
-      for (int i = 0; i < nr; i++)
-        r.constraint_residual = fmax(r.constraint_residual, fabs(g[i]));
       r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
     }
     st = mrvi_writer_observe(w, &r);
@@ -156,6 +180,40 @@ static int dataset(hid_t loc, const char *name, int rank, const hsize_t *dims,
   return d < 0 || e < 0 ? -1 : 0;
 }
 
+/* 1-D dataset of n variable-length strings. */
+static int strings(hid_t loc, const char *name, int n, const char **v) {
+  hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, H5T_VARIABLE);
+  hsize_t dn[1] = {(hsize_t)n};
+  hid_t sp = H5Screate_simple(1, dn, NULL);
+  hid_t d = H5Dcreate2(loc, name, t, sp, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const int rc =
+      d < 0 || (n > 0 && H5Dwrite(d, t, H5S_ALL, H5S_ALL, H5P_DEFAULT, v) < 0)
+          ? -1
+          : 0;
+  if (d >= 0)
+    H5Dclose(d);
+  H5Sclose(sp);
+  H5Tclose(t);
+  return rc;
+}
+
+/* int32 dataset of n rows and cols columns (cols 0: 1-D). */
+static int ints(hid_t loc, const char *name, int n, int cols, const int *v) {
+  hsize_t dn[2] = {(hsize_t)n, (hsize_t)cols};
+  hid_t sp = H5Screate_simple(cols ? 2 : 1, dn, NULL);
+  hid_t d = H5Dcreate2(loc, name, H5T_STD_I32LE, sp, H5P_DEFAULT, H5P_DEFAULT,
+                       H5P_DEFAULT);
+  const int rc = d < 0 || (n > 0 && H5Dwrite(d, H5T_NATIVE_INT, H5S_ALL,
+                                             H5S_ALL, H5P_DEFAULT, v) < 0)
+                     ? -1
+                     : 0;
+  if (d >= 0)
+    H5Dclose(d);
+  H5Sclose(sp);
+  return rc;
+}
+
 /* /control (t, u on the finest grid of the actuators, names) and
  * /optimizer (history, attributes). */
 static int write_control(const char *out, const mrvi_system *sys,
@@ -186,25 +244,42 @@ static int write_control(const char *out, const mrvi_system *sys,
     hid_t gc = H5Gcreate2(f, "control", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
     hsize_t d1[1] = {(hsize_t)nt}, d2[2] = {(hsize_t)nt, (hsize_t)na};
     rc = dataset(gc, "t", 1, d1, t) | dataset(gc, "u", 2, d2, U);
-    /* names: variable-length strings */
-    const char **names = malloc((size_t)na * sizeof *names);
-    if (names) {
+    /* Per actuator: name, grid, coordinate; per terminal condition:
+     * coordinate, kind, target, penalty (for mrvi-plot optimize). */
+    const int nterm = mrvi_ocp_n_terminals(o), nmax = na > nterm ? na : nterm;
+    const char **sv = malloc((size_t)(nmax + 1) * sizeof *sv);
+    int *iv = malloc((size_t)(2 * nmax + 1) * sizeof *iv);
+    double *tv = malloc((size_t)(2 * nterm + 1) * sizeof *tv);
+    if (sv && iv && tv) {
       for (int a = 0; a < na; a++)
-        names[a] = mrvi_ocp_actuator_name(o, a);
-      hid_t st = H5Tcopy(H5T_C_S1);
-      H5Tset_size(st, H5T_VARIABLE);
-      hsize_t dn[1] = {(hsize_t)na};
-      hid_t sp = H5Screate_simple(1, dn, NULL);
-      hid_t d = H5Dcreate2(gc, "names", st, sp, H5P_DEFAULT, H5P_DEFAULT,
-                           H5P_DEFAULT);
-      if (d < 0 || H5Dwrite(d, st, H5S_ALL, H5S_ALL, H5P_DEFAULT, names) < 0)
-        rc = -1;
-      if (d >= 0)
-        H5Dclose(d);
-      H5Sclose(sp);
-      H5Tclose(st);
-      free(names);
+        sv[a] = mrvi_ocp_actuator_name(o, a);
+      rc |= strings(gc, "names", na, sv);
+      for (int a = 0; a < na; a++) {
+        sv[a] =
+            mrvi_ocp_actuator_grid(o, a) == MRVI_GRID_MICRO ? "micro" : "macro";
+        iv[a] = mrvi_ocp_actuator_coordinate(o, a);
+      }
+      rc |= strings(gc, "actuator_grid", na, sv) |
+            ints(gc, "actuator_coordinate", na, 0, iv);
+      for (int a = 0; a < na; a++)
+        mrvi_ocp_actuator_pair(o, a, &iv[2 * a], &iv[2 * a + 1]);
+      rc |= ints(gc, "actuator_pair", na, 2, iv);
+      for (int i = 0; i < nterm; i++) {
+        mrvi_ocp_terminal_kind kind;
+        mrvi_ocp_terminal(o, i, &kind, &iv[i], &tv[i], &tv[nterm + i]);
+        sv[i] = kind == MRVI_OCP_POSITION ? "position" : "velocity";
+      }
+      hsize_t dt1[1] = {(hsize_t)nterm};
+      rc |= ints(gc, "terminal_coordinate", nterm, 0, iv) |
+            strings(gc, "terminal_kind", nterm, sv) |
+            dataset(gc, "terminal_target", 1, dt1, tv) |
+            dataset(gc, "terminal_penalty", 1, dt1, tv + nterm);
+    } else {
+      rc = -1;
     }
+    free(sv);
+    free(iv);
+    free(tv);
     attr_string(gc, "grid", p > 1 ? "micro" : "macro");
     H5Gclose(gc);
     hid_t go =

@@ -552,17 +552,7 @@ static void constraint_outputs(mrvi_integrator *it) {
       it->lambda[k->first_row + r] = sum / p;
     }
   }
-  for (int mm = 1; mm <= p; mm++) {
-    double worst = 0.0;
-    for (int i = 0; i < st->n_micro_c; i++)
-      for (int r = 0; r < m->constraints[st->micro_c[i]].rows; r++)
-        worst =
-            fmax(worst, fabs(it->R[nu + st->r_slow + (mm - 1) * st->r_micro +
-                                   st->c_off[st->micro_c[i]] + r]));
-    if (mm == p)
-      worst = fmax(worst, norm_inf(it->R + nu, st->r_slow));
-    it->micro_cres[mm - 1] = worst;
-  }
+  mrvi_step_micro_residuals(st, it->R, it->micro_cres);
   /* Add the projection impulse of node k (see project). */
   for (int r = 0; r < m->constraint_rows; r++) {
     it->lambda[r] += it->mu_h[r];

@@ -231,6 +231,14 @@ typedef struct mrvi_step {
    * dynamic rows of R, f_end (ns + nf) to p_{k+1}^s and p_{k+1}^{f,0}.
    * NULL (the default) for none. */
   const double *f_rows, *f_end;
+  /* Optional configuration-dependent terms (optimal control: pair-force
+   * actuators): called by mrvi_step_assemble after f_rows with its
+   * arguments; it adds to R and, through mrvi_step_jac_add, to the Jacobian
+   * (making the same calls on every pass, so that the pattern recorded by
+   * mrvi_step_build_pattern holds).  NULL (the default) for none. */
+  void (*extra)(void *ctx, struct mrvi_step *st, const double *x, double *R,
+                int jac);
+  void *extra_ctx;
   /* If not NULL, mrvi_step_assemble also sums the potential parts of the
    * momenta at x into mom_ps (ns) and mom_pf (p x nf), which
    * mrvi_step_momenta_finish completes: the gradients of the residual
@@ -259,6 +267,13 @@ int mrvi_step_build_pattern(mrvi_step *st, const double *x);
 /* Residual R(x) (n_total) and, if jac, the CSC values st->Ax; x holds
  * (x, lambda) (n_total). */
 void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac);
+/* Add v to the Jacobian entry (row, col) of the step (for st->extra). */
+void mrvi_step_jac_add(mrvi_step *st, int row, int col, double v);
+/* max |g| over the constraint equations of the micro nodes m = 1..p in the
+ * residual R of a step (p entries): the micro-node constraints at every
+ * node, the slow-only ones too at m = p; zeros without constraints. */
+void mrvi_step_micro_residuals(const mrvi_step *st, const double *R,
+                               double *out);
 /* Momenta after convergence (x with lambda): ps1 (ns) = D_{q_{k+1}^s} L_d
  * (with the constraint forces of the interior micro nodes) and the fast
  * micro momenta pf (p x nf) at nodes m = 1..p (eq:pkfm+). */

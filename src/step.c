@@ -15,6 +15,7 @@
  * same loop serves every rule: there is no scheme-specific derivative. */
 #include "internal.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <suitesparse/umfpack.h>
@@ -402,6 +403,8 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
   if (st->f_rows)
     for (int i = 0; i < st->n_unknowns; i++)
       R[i] += st->f_rows[i];
+  if (st->extra)
+    st->extra(st->extra_ctx, st, x, R, jac);
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
@@ -539,6 +542,26 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
         ps1[m->slot[idx]] -= pt.w * pt.a1 * f;
       }
     }
+  }
+}
+
+void mrvi_step_jac_add(mrvi_step *st, int row, int col, double v) {
+  jac_add(st, row, col, v);
+}
+
+void mrvi_step_micro_residuals(const mrvi_step *st, const double *R,
+                               double *out) {
+  const int nu = st->n_unknowns, p = st->p;
+  for (int mm = 1; mm <= p; mm++) {
+    double worst = 0.0;
+    for (int i = 0; i < st->n_micro_c; i++)
+      for (int r = 0; r < st->model->constraints[st->micro_c[i]].rows; r++)
+        worst = fmax(worst, fabs(R[nu + st->r_slow + (mm - 1) * st->r_micro +
+                                   st->c_off[st->micro_c[i]] + r]));
+    if (mm == p)
+      for (int r = 0; r < st->r_slow; r++)
+        worst = fmax(worst, fabs(R[nu + r]));
+    out[mm - 1] = worst;
   }
 }
 

@@ -127,6 +127,9 @@ static void test_gradients_constrained(void) {
                                 HUGE_VAL);
           mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 1.5, -HUGE_VAL,
                                 HUGE_VAL);
+          /* A pair force between cart and bob (along the rod). */
+          mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MICRO, 1.0, -HUGE_VAL,
+                                     HUGE_VAL);
           mrvi_ocp_add_tracking(o, 5, 3.0, -0.2);
           mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
           mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
@@ -347,12 +350,226 @@ static void test_gantry(void) {
         "gantry: cost multipliers %.12g vs null-space %.12g", J[0], J[1]);
 }
 
-/* /macro/q of an output file (malloc'ed, *n entries) or NULL. */
-static double *read_q(const char *path, size_t *n) {
+/* Four particles in 2-D: A, B slow, C, D fast, springs A-B, B-C (slow)
+ * and C-D (fast); no anchors, no gravity: only internal forces. */
+static mrvi_model *four_particles(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double x[4][2] = {{0, 0}, {1, 0.2}, {1.0, 0.7}, {1.4, 0.9}};
+  const double v[4][2] = {{0.1, 0.2}, {0, -0.1}, {0.3, 0}, {0, 0.2}};
+  const double mass[4] = {1, 1.5, 0.2, 0.3};
+  const char *names[4] = {"A", "B", "C", "D"};
+  for (int i = 0; i < 4; i++)
+    mrvi_model_add_particle(m, names[i], mass[i], i < 2 ? MRVI_SLOW : MRVI_FAST,
+                            x[i], v[i]);
+  const double k1[1] = {2.0}, k2[1] = {3.0}, k3[1] = {300.0};
+  mrvi_model_add_spring(m, MRVI_SLOW, 0, 1, "linear", k1, 1.0);
+  mrvi_model_add_spring(m, MRVI_SLOW, 1, 2, "linear", k2, 0.5);
+  mrvi_model_add_spring(m, MRVI_FAST, 2, 3, "linear", k3, 0.4);
+  return m;
+}
+
+/* Pair-force actuators (src/ocp/pair.c):
+ * - adjoint gradients of the cost and the terminal constraints against
+ *   central differences (relative 1e-6), every scheme, p in {1, 5}, pairs
+ *   slow-slow (macro grid), fast-fast (micro), slow-fast (macro, micro);
+ * - internal forces: total linear and angular momentum constant at every
+ *   macro node (the discrete pair force depends on the relative position
+ *   only and is rotation invariant), while the motion does change;
+ * - two free particles moving along their line: the direction is constant,
+ *   so the momenta are exactly p_0 -+ u t_k e. */
+static void test_pair_actuators(void) {
+  const char *const *schemes = mrvi_scheme_names();
+  const int ps[2] = {1, 5};
+  for (int is = 0; schemes[is]; is++)
+    for (int ip = 0; ip < 2; ip++) {
+      mrvi_model *m = four_particles();
+      mrvi_settings s = test_settings(schemes[is], 0.05, ps[ip], 0.2, 1e-13);
+      mrvi_ocp *o = NULL;
+      char msg[300];
+      int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
+      CHECK(st == 0, "pair create: %s", msg);
+      if (st == 0) {
+        int a = mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MACRO, 1.0,
+                                           -HUGE_VAL, HUGE_VAL);
+        a |= mrvi_ocp_add_pair_actuator(o, 2, 3, MRVI_GRID_MICRO, 2.0,
+                                        -HUGE_VAL, HUGE_VAL);
+        a |= mrvi_ocp_add_pair_actuator(o, 1, 2, MRVI_GRID_MACRO, 0.5,
+                                        -HUGE_VAL, HUGE_VAL);
+        a |= mrvi_ocp_add_pair_actuator(o, 3, 0, MRVI_GRID_MICRO, 1.5,
+                                        -HUGE_VAL, HUGE_VAL);
+        CHECK(a >= 0, "pair actuators: %s", mrvi_ocp_errmsg(o));
+        mrvi_ocp_add_tracking(o, 4, 3.0, 1.1);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 7, 0.2, 0.0);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 5, 0.3, 0.0);
+        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 3, 0.1, 5.0);
+        char what[100];
+        mrvi_fmt(what, sizeof what, "pair %s p=%d", schemes[is], ps[ip]);
+        check_gradients(o, what);
+        /* Momentum maps at every macro node. */
+        const int n = mrvi_ocp_n_controls(o);
+        double *u = malloc((size_t)n * sizeof *u), J;
+        for (int i = 0; i < n; i++)
+          u[i] = 2.0 * sin(0.9 * i + 0.4);
+        st = mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL);
+        double P0[3], L0[3], P[3], L[3], dP = 0.0, dL = 0.0, moved = 0.0;
+        const double *q = mrvi_ocp_q(o), *pm = mrvi_ocp_p(o);
+        const long N = mrvi_ocp_n_steps(o);
+        mrvi_model_momentum(m, q, pm, P0, L0);
+        for (long k = 1; st == 0 && k <= N; k++) {
+          mrvi_model_momentum(m, q + 8 * k, pm + 8 * k, P, L);
+          dP = fmax(dP, fmax(fabs(P[0] - P0[0]), fabs(P[1] - P0[1])));
+          dL = fmax(dL, fabs(L[0] - L0[0]));
+        }
+        /* The same run without the forces differs: they act. */
+        double *qf = malloc((size_t)(8 * (N + 1)) * sizeof *qf);
+        memcpy(qf, q, (size_t)(8 * (N + 1)) * sizeof *qf);
+        for (int i = 0; i < n; i++)
+          u[i] = 0.0;
+        st |= mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL);
+        for (long j = 0; j < 8 * (N + 1); j++)
+          moved = fmax(moved, fabs(qf[j] - mrvi_ocp_q(o)[j]));
+        CHECK(st == 0 && dP <= 1e-12 && dL <= 1e-12 && moved > 1e-3,
+              "%s: internal pair forces: |P - P0| %.2e, |L - L0| %.2e, "
+              "effect %.2e",
+              what, dP, dL, moved);
+        free(qf);
+        free(u);
+      }
+      mrvi_ocp_free(o);
+      mrvi_model_free(m);
+    }
+  /* Two free slow particles on the x axis, pushed apart by u. */
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double xa[2] = {0, 0}, xb[2] = {1, 0}, va[2] = {0.1, 0},
+               vb[2] = {-0.2, 0};
+  mrvi_model_add_particle(m, "a", 1.0, MRVI_SLOW, xa, va);
+  mrvi_model_add_particle(m, "b", 2.0, MRVI_SLOW, xb, vb);
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.1, 3, 1.0, 1e-13);
+  mrvi_ocp *o = NULL;
+  char msg[300];
+  if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) == 0 &&
+      mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
+                                 HUGE_VAL) >= 0) {
+    const double uc = 0.3;
+    double u[10], J, err = 0.0;
+    for (int i = 0; i < 10; i++)
+      u[i] = uc;
+    const int st = mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL);
+    for (long k = 0; st == 0 && k <= 10; k++) {
+      const double *p = mrvi_ocp_p(o) + 4 * k, t = 0.1 * k;
+      err = fmax(err, fabs(p[0] - (0.1 - uc * t)));
+      err = fmax(err, fabs(p[2] - (-0.4 + uc * t)));
+      err = fmax(err, fmax(fabs(p[1]), fabs(p[3])));
+    }
+    CHECK(st == 0 && err <= 1e-13,
+          "pair force along the line: max |p - (p0 -+ u t e)| = %.2e", err);
+  } else {
+    CHECK(0, "pair line: %s", o ? mrvi_ocp_errmsg(o) : msg);
+  }
+  /* Errors: the same particle twice, an index out of range. */
+  if (o) {
+    CHECK(mrvi_ocp_add_pair_actuator(o, 1, 1, MRVI_GRID_MACRO, 1.0, -1, 1) ==
+                  MRVI_EINVAL &&
+              strstr(mrvi_ocp_errmsg(o), "twice"),
+          "pair actuator on one particle: %s", mrvi_ocp_errmsg(o));
+    CHECK(mrvi_ocp_add_pair_actuator(o, 0, 5, MRVI_GRID_MACRO, 1.0, -1, 1) ==
+                  MRVI_EINVAL &&
+              strstr(mrvi_ocp_errmsg(o), "out of range"),
+          "pair actuator on particle 5: %s", mrvi_ocp_errmsg(o));
+  }
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+/* Fast micro nodes of the shooting trajectory (mrvi_ocp_micro_q/p, written
+ * to /micro): with zero controls they equal the integrator's micro nodes
+ * (every scheme, FPU, p = 5) to the Newton tolerance; under a constant
+ * force u on a free fast coordinate (grid micro or macro) the discrete
+ * momentum at micro node j is exactly p_0 + u j dt, which needs the
+ * f^+ of the micro interval ending at the node. */
+static void test_micro_nodes(void) {
+  const char *const *schemes = mrvi_scheme_names();
+  const int p = 5;
+  for (int is = 0; schemes[is]; is++) {
+    mrvi_model *m = test_fpu();
+    mrvi_settings s = test_settings(schemes[is], 0.03, p, 0.3, 1e-13);
+    mrvi_ocp *o = NULL;
+    mrvi_integrator *it = NULL;
+    char msg[300];
+    int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
+    if (st == 0)
+      st = mrvi_integrator_create(m, &s, &it, msg, sizeof msg);
+    CHECK(st == 0, "micro %s: create: %s", schemes[is], msg);
+    if (st == 0) {
+      mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 1.0, -HUGE_VAL, HUGE_VAL);
+      double *u = calloc((size_t)mrvi_ocp_n_controls(o), sizeof *u), J;
+      st = mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL);
+      CHECK(st == 0, "micro %s: evaluate: %s", schemes[is], mrvi_ocp_errmsg(o));
+      const int nf = m->n_fast;
+      double eq = 0.0, ep = 0.0;
+      for (long k = 0; st == 0 && k < mrvi_ocp_n_steps(o); k++) {
+        if ((st = mrvi_integrator_step(it)) < 0)
+          break;
+        const double *iq = mrvi_integrator_micro_q(it),
+                     *ip = mrvi_integrator_micro_p(it);
+        const double *oq = mrvi_ocp_micro_q(o) + (k * p + 1) * nf,
+                     *op = mrvi_ocp_micro_p(o) + (k * p + 1) * nf;
+        for (int i = 0; i < p * nf; i++) {
+          eq = fmax(eq, fabs(iq[i] - oq[i]));
+          ep = fmax(ep, fabs(ip[i] - op[i]));
+        }
+      }
+      CHECK(st == 0 && eq <= 1e-11 && ep <= 1e-9,
+            "micro %s: OCP vs integrator at u = 0: q %.2e, p %.2e", schemes[is],
+            eq, ep);
+      free(u);
+    }
+    mrvi_integrator_free(it);
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+  /* Constant force on a free fast coordinate. */
+  for (int grid = 0; grid < 2; grid++) {
+    mrvi_model *m = mrvi_model_create();
+    mrvi_model_add_coordinate(m, "x", 1.0, MRVI_SLOW, 0.0, 0.0);
+    mrvi_model_add_coordinate(m, "y", 0.3, MRVI_FAST, 0.1, -0.4);
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.1, p, 1.0, 1e-13);
+    mrvi_ocp *o = NULL;
+    char msg[300];
+    int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
+    CHECK(st == 0, "constant force: create: %s", msg);
+    if (st == 0) {
+      mrvi_ocp_add_actuator(o, 1, grid ? MRVI_GRID_MACRO : MRVI_GRID_MICRO, 1.0,
+                            -HUGE_VAL, HUGE_VAL);
+      const int n = mrvi_ocp_n_controls(o);
+      const double uc = 0.7, p0 = 0.3 * -0.4, dt = 0.1 / p;
+      double *u = malloc((size_t)n * sizeof *u), J, err = 0.0;
+      for (int i = 0; i < n; i++)
+        u[i] = uc;
+      st = mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL);
+      const long nm = mrvi_ocp_n_steps(o) * p + 1;
+      for (long j = 0; st == 0 && j < nm; j++)
+        err = fmax(err, fabs(mrvi_ocp_micro_p(o)[j] - (p0 + uc * j * dt)));
+      CHECK(st == 0 && err <= 1e-13,
+            "constant force, %s grid: max |p_j - (p_0 + u j dt)| = %.2e",
+            grid ? "macro" : "micro", err);
+      free(u);
+    }
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+}
+
+/* Dataset `name` (e.g. /macro/q) of an output file (malloc'ed, *n
+ * entries) or NULL. */
+static double *read_dataset(const char *path, const char *name, size_t *n) {
   hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0)
     return NULL;
-  hid_t d = H5Dopen2(f, "/macro/q", H5P_DEFAULT);
+  hid_t d = H5Dopen2(f, name, H5P_DEFAULT);
   double *q = NULL;
   if (d >= 0) {
     hid_t sp = H5Dget_space(d);
@@ -421,15 +638,31 @@ static void test_cli(void) {
     st = system(cmd);
     CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0, "replay %s: exit %d", extra[i],
           WIFEXITED(st) ? WEXITSTATUS(st) : -1);
-    size_t na = 0, nb = 0;
-    double *a = read_q("test_ocp_opt.h5", &na);
-    double *b = read_q("test_ocp_replay.h5", &nb);
-    double diff = a && b && na == nb && na > 0 ? 0.0 : HUGE_VAL;
-    for (size_t j = 0; a && b && j < na && j < nb; j++)
-      diff = fmax(diff, fabs(a[j] - b[j]));
-    CHECK(diff <= 1e-10, "replay %s: max |q - q_opt| = %.2e", extra[i], diff);
-    free(a);
-    free(b);
+    /* Macro nodes and the fast coordinates at every micro node (/micro,
+     * written by the same writer as `mrvi run`), to the Newton tolerance
+     * 1e-12 of the file (momenta: M/dt = 10 times that). */
+    const char *names[3] = {"/macro/q", "/micro/q_fast", "/micro/p_fast"};
+    const double tols[3] = {1e-10, 1e-10, 1e-9};
+    for (int d = 0; d < 3; d++) {
+      size_t na = 0, nb = 0;
+      double *a = read_dataset("test_ocp_opt.h5", names[d], &na);
+      double *b = read_dataset("test_ocp_replay.h5", names[d], &nb);
+      double diff = a && b && na == nb && na > 0 ? 0.0 : HUGE_VAL;
+      for (size_t j = 0; a && b && j < na && j < nb; j++)
+        diff = fmax(diff, fabs(a[j] - b[j]));
+      CHECK(diff <= tols[d], "replay %s: %s: max |replay - optimum| = %.2e",
+            extra[i], names[d], diff);
+      free(a);
+      free(b);
+    }
+    /* 40 steps, p = 5: 201 micro nodes of the one fast particle (x, y). */
+    size_t nq = 0;
+    double *mq = read_dataset("test_ocp_opt.h5", "/micro/q_fast", &nq);
+    CHECK(nq == 201 * 2,
+          "optimize: /micro/q_fast has %zu entries, 402 "
+          "expected",
+          nq);
+    free(mq);
   }
   remove("test_ocp_opt.h5");
   remove("test_ocp_replay.h5");
@@ -486,6 +719,8 @@ int main(void) {
   test_oscillator_period();
   test_dmoc_reference();
   test_gantry();
+  test_micro_nodes();
+  test_pair_actuators();
   test_cli();
   test_adjoint_cost();
   return test_finish();

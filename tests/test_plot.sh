@@ -66,7 +66,7 @@ out="$tmp/figs"
 
 # --- help ---
 run_ok "mrvi-plot --help" "$py" "$plot" --help
-for sub in run convergence stability timing animate all; do
+for sub in run optimize convergence stability timing animate all; do
   run_ok "mrvi-plot $sub --help" "$py" "$plot" "$sub" --help
 done
 
@@ -329,6 +329,111 @@ if [ "$floor" = "ok" ]; then
 else
   fail "log_floor: $floor"
 fi
+
+# --- optimal control files (mrvi optimize): the gantry crane (macro
+# actuator, constrained, fast load on /micro) and the double integrator
+# with a slow macro and a fast micro actuator ---
+sed '/^control:/,$d' "$root/systems/ocp_double_integrator.yaml" \
+  >"$tmp/di2.yaml"
+cat >>"$tmp/di2.yaml" <<'EOF'
+control:
+  actuators:
+    - {name: push, coordinate: x, grid: macro, weight: 1}
+    - {name: nudge, coordinate: y, grid: micro, weight: 1}
+  terminal:
+    - {coordinate: x, position: 1, velocity: 0}
+    - {coordinate: y, position: 0, velocity: 0}
+  solver: {algorithm: slsqp, tolerance: 1.0e-12, terminal_tolerance: 1.0e-9}
+EOF
+# A pair actuator (a slow and a fast particle pushed apart or pulled
+# together along their line, micro grid): no coordinate of its own.
+cat >"$tmp/pair.yaml" <<'EOF'
+name: pair_demo
+dimension: 2
+particles:
+  - {name: a, mass: 1, rate: slow, position: [0, 0], velocity: [0, 0]}
+  - {name: b, mass: 0.1, rate: fast, position: [1, 0], velocity: [0, 0.5]}
+springs:
+  - {between: [a, b], law: linear, stiffness: 5, rest_length: 1, potential: slow}
+integrator: {scheme: midpoint-midpoint, macro_step: 0.1, micro_steps: 4, t_end: 2}
+control:
+  actuators:
+    - {pair: [a, b], grid: micro}
+  terminal:
+    - {coordinate: b.x, position: 1.5, velocity: 0}
+EOF
+run_ok "mrvi optimize pair actuator" "$mrvi" optimize "$tmp/pair.yaml" \
+  -o "$tmp/pair.h5" -q
+run_ok "mrvi optimize gantry crane" "$mrvi" optimize \
+  "$root/systems/ocp_gantry_crane.yaml" -o "$tmp/crane.h5" -q
+run_ok "mrvi optimize two actuators" "$mrvi" optimize "$tmp/di2.yaml" \
+  -o "$tmp/di2.h5" -q
+for f in crane di2 pair; do
+  run_ok "mrvi-plot optimize $f" "$py" "$plot" optimize "$tmp/$f.h5" -o "$out"
+  for g in controls trajectory history; do png_ok "$out/${f}_$g.png"; done
+done
+# `all` recognises the file and draws the run figures too.
+run_ok "mrvi-plot all (optimize file)" "$py" "$plot" all "$tmp/crane.h5" \
+  -o "$out/all" --prefix x
+for g in energy micro controls trajectory history; do
+  png_ok "$out/all/x_crane_$g.png"
+done
+fails_with "mrvi-plot optimize on a run file" \
+  "missing dataset or group '/control'" \
+  "$py" "$plot" optimize "$tmp/fpu.h5" -o "$out"
+# The drawn steps are the stored controls: per actuator, the step values
+# repeated over the intervals of /control/t equal /control/u exactly, the
+# step edges are /control/t and T (macro actuator: every p-th), the panel
+# is labelled with /control/names; the trajectory figure shows the actuated
+# and terminal coordinates.
+ocp=$("$py" - "$plot" "$tmp" <<'PYEOF'
+import sys
+from importlib.machinery import SourceFileLoader
+import h5py
+import matplotlib.patches
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+tmp = sys.argv[2]
+res = []
+for name, sizes, want in (("crane", [40], [0, 2]),
+                          ("di2", [10, 50], [0, 1]), ("pair", [80], [2])):
+    h5 = h5py.File("%s/%s.h5" % (tmp, name), "r")
+    opt = mod.Optimal(h5)
+    u, t = h5["control/u"][()], h5["control/t"][()]
+    T = h5["macro/t"][-1]
+    fig = mod.controls_figure(opt)
+    ok = len(fig.axes) == u.shape[1]
+    for a, ax in enumerate(fig.axes):
+        steps = [s for s in ax.patches
+                 if isinstance(s, matplotlib.patches.StepPatch)]
+        if len(steps) != 1:
+            ok = False
+            continue
+        values, edges, _ = steps[0].get_data()
+        rep = u.shape[0] // values.size
+        ok = ok and values.size == sizes[a] and \
+            np.array_equal(np.repeat(values, rep), u[:, a]) and \
+            np.array_equal(edges, np.append(t, T)[::rep]) and \
+            ax.get_ylabel() == mod.text(h5["control/names"][a])
+    ok = ok and mod.ocp_coordinates(opt) == want
+    if name == "pair":
+        # The distance panel: on the 81 micro nodes (b is fast), equal to
+        # |x_a - x_b| of /macro/q at the macro nodes.
+        tr, r = mod.pair_distance(opt.run, 0, 1)
+        q = h5["macro/q"][()]
+        rm = np.hypot(q[:, 0] - q[:, 2], q[:, 1] - q[:, 3])
+        ok = ok and opt.pairs == [(0, 1)] and r.size == 81 and \
+            np.allclose(r[::4], rm, rtol=0, atol=1e-14)
+    res.append("%s:%s" % (name, ok))
+print(" ".join(res))
+PYEOF
+)
+for n in crane di2 pair; do
+  case " $ocp " in
+    *" $n:True "*) pass "optimize $n: drawn steps equal /control/u, panels" ;;
+    *) fail "optimize $n: drawn steps vs /control/u, panels ($ocp)" ;;
+  esac
+done
 
 # --- synthetic study tables in the formats of mrvi converge / stability /
 # timing ---

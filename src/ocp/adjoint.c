@@ -19,10 +19,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* z indices and coefficients of the (at most two) nodes that model
- * coordinate idx interpolates at point pt. */
-static int znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt, int *zi,
-                  double *zc) {
+int ocp_znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt, int *zi,
+               double *zc) {
   const mrvi_model *m = o->model;
   const int s = m->slot[idx], ns = o->ns, nf = o->nf;
   if (m->rate[idx] == MRVI_SLOW) {
@@ -52,7 +50,7 @@ static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
   int zi[MRVI_MAX_INPUTS][2];
   double zc[MRVI_MAX_INPUTS][2];
   for (int j = 0; j < n; j++) {
-    znodes(o, kc->in[j], pt, zi[j], zc[j]);
+    ocp_znodes(o, kc->in[j], pt, zi[j], zc[j]);
     if (o->model->rate[kc->in[j]] == MRVI_FAST)
       zc[j][1] = 0.0; /* node point: fast node m only */
   }
@@ -114,7 +112,7 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
         int zi[MRVI_MAX_INPUTS][2];
         double zc[MRVI_MAX_INPUTS][2];
         for (int j = 0; j < n; j++) {
-          znodes(o, e->in[j], pt, zi[j], zc[j]);
+          ocp_znodes(o, e->in[j], pt, zi[j], zc[j]);
           st->y[j] = zc[j][0] * o->Q[ocp_global(o, k, zi[j][0])] +
                      zc[j][1] * o->Q[ocp_global(o, k, zi[j][1])];
         }
@@ -128,6 +126,8 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
           }
       }
     }
+  if (o->n_pair > 0)
+    ocp_pair_jacobian(o, k, J);
   if (o->nl == 0)
     return;
   /* Constraints in the step's layout (internal.h, struct mrvi_step):
@@ -288,6 +288,7 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     memcpy(o->x + ns, o->Q + (N + 1) * ns + (k * p + 1) * nf,
            (size_t)(p * nf) * sizeof(double));
     memcpy(o->x + nu, o->Lam + k * nl, (size_t)nl * sizeof(double));
+    o->k_cur = k; /* for the pair-force step hook */
     ocp_jacobian(o, k, H);
     for (int f = 0; f < nfun; f++) {
       double *r = gQ + f * nn;
@@ -352,6 +353,9 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         out[ocp_control_index(o, k, fe)] -=
             fe->coef * mu[ocp_global(o, k, fe->z)];
       }
+    if (o->n_pair > 0)
+      for (long k = 0; k < N; k++)
+        ocp_pair_gradient(o, k, mu, out);
   }
   return MRVI_OK;
 }

@@ -90,14 +90,18 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
   o->pN = dalloc((size_t)(o->ns + o->nf));
   o->ps_k = dalloc(N1 * (size_t)o->ns);
   o->pf_k = dalloc(N1 * (size_t)o->nf);
+  o->pf_micro = dalloc(((size_t)o->N * (size_t)o->p + 1) * (size_t)o->nf);
+  o->f_plus = dalloc((size_t)o->p * (size_t)o->nf);
+  o->cres_micro = dalloc((size_t)o->N * (size_t)o->p);
   o->q_out = dalloc(N1 * n);
   o->p_out = dalloc(N1 * n);
   o->H = dalloc((size_t)o->nv * (size_t)o->nv);
   o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
   o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
   if (!o->x || !o->R || !o->dx || !o->f_rows || !o->f_end || !o->ps1 ||
-      !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k || !o->q_out ||
-      !o->p_out || !o->H || !o->Lam || !o->rhs_ns)
+      !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k || !o->pf_micro ||
+      !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out || !o->H ||
+      !o->Lam || !o->rhs_ns)
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
@@ -133,6 +137,9 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->pN);
   free(o->ps_k);
   free(o->pf_k);
+  free(o->pf_micro);
+  free(o->f_plus);
+  free(o->cres_micro);
   free(o->q_out);
   free(o->p_out);
   free(o->H);
@@ -150,12 +157,13 @@ static int check_coord(mrvi_ocp *o, int c) {
 }
 
 /* Append one entry to the force template. */
-static int push_force(mrvi_ocp *o, int z, int act, int j, double coef) {
+static int push_force(mrvi_ocp *o, int z, int act, int j, int plus,
+                      double coef) {
   ocp_force *f = realloc(o->force, (size_t)(o->n_force + 1) * sizeof *f);
   if (!f)
     return MRVI_ENOMEM;
   o->force = f;
-  o->force[o->n_force++] = (ocp_force){z, act, j, coef};
+  o->force[o->n_force++] = (ocp_force){z, act, j, plus, coef};
   return MRVI_OK;
 }
 
@@ -176,6 +184,8 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
   const int ia = o->n_act++;
   const int per = grid == MRVI_GRID_MACRO ? 1 : o->p;
   o->act[ia] = (ocp_actuator){.coord = c,
+                              .pi = -1,
+                              .pj = -1,
                               .grid = grid,
                               .weight = weight,
                               .lower = lower,
@@ -190,24 +200,60 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
   const double dT = o->settings.macro_step, dt = dT / p;
   if (m->rate[c] == MRVI_SLOW) {
     if (grid == MRVI_GRID_MACRO) {
-      st |= push_force(o, s, ia, 0, 0.5 * dT);
-      st |= push_force(o, ns + s, ia, 0, 0.5 * dT);
+      st |= push_force(o, s, ia, 0, 0, 0.5 * dT);
+      st |= push_force(o, ns + s, ia, 0, 1, 0.5 * dT);
     } else {
       for (int mm = 0; mm < p; mm++) {
         const double th = (mm + 0.5) / p;
-        st |= push_force(o, s, ia, mm, dt * (1.0 - th));
-        st |= push_force(o, ns + s, ia, mm, dt * th);
+        st |= push_force(o, s, ia, mm, 0, dt * (1.0 - th));
+        st |= push_force(o, ns + s, ia, mm, 1, dt * th);
       }
     }
   } else {
     for (int mm = 0; mm < p; mm++) {
       const int j = grid == MRVI_GRID_MACRO ? 0 : mm;
-      st |= push_force(o, 2 * ns + mm * nf + s, ia, j, 0.5 * dt);
-      st |= push_force(o, 2 * ns + (mm + 1) * nf + s, ia, j, 0.5 * dt);
+      st |= push_force(o, 2 * ns + mm * nf + s, ia, j, 0, 0.5 * dt);
+      st |= push_force(o, 2 * ns + (mm + 1) * nf + s, ia, j, 1, 0.5 * dt);
     }
   }
   if (st < 0)
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  return ia;
+}
+
+int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
+                               double weight, double lower, double upper) {
+  const mrvi_model *m = o->model;
+  if (m->dimension < 1 || pi < 0 || pj < 0 || pi >= m->n_particles ||
+      pj >= m->n_particles)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "pair actuator: particle index out "
+                         "of range (the model has %d)",
+                         m->n_particles);
+  if (pi == pj)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "pair actuator: particle '%s' given twice",
+                         m->particles[pi].name);
+  if (o->ready)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "pair actuators must be added before the first "
+                         "evaluation");
+  /* The coordinate actuator's bookkeeping (sizes, bounds, weight) without
+   * its force template: add one on particle i and drop the template
+   * entries it pushed. */
+  const int n_force = o->n_force;
+  const int ia = mrvi_ocp_add_actuator(o, m->particles[pi].first, grid, weight,
+                                       lower, upper);
+  if (ia < 0)
+    return ia;
+  o->n_force = n_force;
+  o->act[ia].pi = pi;
+  o->act[ia].pj = pj;
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s",
+           m->particles[pi].name, m->particles[pj].name);
+  o->n_pair++;
+  o->step.extra = ocp_pair_hook;
+  o->step.extra_ctx = o;
   return ia;
 }
 
@@ -261,6 +307,13 @@ int mrvi_ocp_n_constraints(const mrvi_ocp *o) { return o->n_con; }
 long mrvi_ocp_n_steps(const mrvi_ocp *o) { return o->N; }
 const double *mrvi_ocp_q(const mrvi_ocp *o) { return o->q_out; }
 const double *mrvi_ocp_p(const mrvi_ocp *o) { return o->p_out; }
+const double *mrvi_ocp_micro_q(const mrvi_ocp *o) {
+  return o->Q + (o->N + 1) * o->ns;
+}
+const double *mrvi_ocp_micro_p(const mrvi_ocp *o) { return o->pf_micro; }
+const double *mrvi_ocp_micro_constraint_residual(const mrvi_ocp *o) {
+  return o->cres_micro;
+}
 int mrvi_ocp_actuator_offset(const mrvi_ocp *o, int a) {
   return o->act[a].offset;
 }
@@ -271,6 +324,26 @@ const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a) {
 }
 int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a) {
   return (int)o->act[a].grid;
+}
+int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a) {
+  return o->act[a].pi >= 0 ? -1 : o->act[a].coord;
+}
+void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj) {
+  *pi = o->act[a].pi;
+  *pj = o->act[a].pj;
+}
+int mrvi_ocp_n_terminals(const mrvi_ocp *o) { return o->n_term; }
+void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
+                       int *coordinate, double *target, double *penalty) {
+  const ocp_terminal *t = &o->term[i];
+  if (kind)
+    *kind = t->kind;
+  if (coordinate)
+    *coordinate = t->coord;
+  if (target)
+    *target = t->target;
+  if (penalty)
+    *penalty = t->penalty;
 }
 const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a) {
   static const char *const names[] = {"slsqp", "auglag-lbfgs", "auglag-mma",
@@ -300,11 +373,14 @@ int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe) {
   return a->offset + (int)(k * per) + fe->j;
 }
 
-/* Control forces of step k into the residual rows and the end momenta. */
+/* Control forces of step k into the residual rows and the end momenta;
+ * f_plus gets the f^+ parts on the fast nodes 1..p (for the micro
+ * momenta). */
 static void step_forces(mrvi_ocp *o, long k, const double *u) {
   const int ns = o->ns, nf = o->nf, p = o->p;
   memset(o->f_rows, 0, (size_t)o->step.n_unknowns * sizeof(double));
   memset(o->f_end, 0, (size_t)(ns + nf) * sizeof(double));
+  memset(o->f_plus, 0, (size_t)(p * nf) * sizeof(double));
   for (int i = 0; i < o->n_force; i++) {
     const ocp_force *fe = &o->force[i];
     const double f = fe->coef * u[ocp_control_index(o, k, fe)];
@@ -318,6 +394,8 @@ static void step_forces(mrvi_ocp *o, long k, const double *u) {
         o->f_rows[ns + mm * nf + s] += f;
       else
         o->f_end[ns + s] += f;
+      if (fe->plus)
+        o->f_plus[(mm - 1) * nf + s] += f;
     }
   }
 }
@@ -408,6 +486,7 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     const int c = m->fast_index[s];
     Qf[s] = m->q0[c];
     o->pf_k[s] = m->mass[c] * m->v0[c];
+    o->pf_micro[s] = o->pf_k[s];
   }
   for (long k = 0; k < N; k++) {
     st->qs0 = Qs + k * ns;
@@ -422,6 +501,8 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
       for (int s = 0; s < nf; s++)
         o->x[ns + (mm - 1) * nf + s] =
             st->qf0[s] + mm * dt * st->pf0[s] / m->mass[m->fast_index[s]];
+    o->u_cur = u; /* for the pair-force step hook */
+    o->k_cur = k;
     if (!o->ready && (s0 = prepare(o)) < 0)
       return s0;
     int it = 0;
@@ -467,7 +548,16 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     }
     memcpy(o->Lam + k * o->nl, o->x + st->n_unknowns,
            (size_t)o->nl * sizeof(double));
+    if (o->n_pair > 0)
+      ocp_pair_end_forces(o, k, u);
     mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
+    mrvi_step_micro_residuals(st, o->R, o->cres_micro + k * p);
+    /* Fast micro momenta p^{m+1} = D_2 L_d^m + f^{+,m} (eq:pkfm+ with the
+     * control force; the last one, p_{k+1}^f, has f_end already). */
+    for (int mm = 0; mm < p; mm++)
+      for (int s = 0; s < nf; s++)
+        o->pf_micro[(k * p + mm + 1) * nf + s] =
+            o->pf1[mm * nf + s] + (mm < p - 1 ? o->f_plus[mm * nf + s] : 0.0);
     memcpy(Qs + (k + 1) * ns, o->x, (size_t)ns * sizeof(double));
     memcpy(Qf + (k * p + 1) * nf, o->x + ns, (size_t)(p * nf) * sizeof(double));
     memcpy(o->ps_k + (k + 1) * ns, o->ps1, (size_t)ns * sizeof(double));

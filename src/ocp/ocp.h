@@ -6,7 +6,8 @@
  *   p_k + D_1 L_d + f_k^- = 0 (with the micro-node rows),
  *   p_{k+1} = D_2 L_d + f_k^+.
  * Controls are piecewise constant on the macro grid (slow actuator) or the
- * micro grid (fast actuator) and act along one generalised coordinate; the
+ * micro grid (fast actuator) and act along one generalised coordinate (or,
+ * pair actuators, along the line between two particles); the
  * discrete forces f^+- are the exact virtual work of that force along the
  * linearly interpolated path of the coordinate.  Single shooting over the
  * controls with gradients from the exact discrete adjoint, optimised with
@@ -55,6 +56,15 @@ const char *mrvi_ocp_errmsg(const mrvi_ocp *o);
  * lower <= u <= upper (+-HUGE_VAL for none).  Returns the actuator index. */
 int mrvi_ocp_add_actuator(mrvi_ocp *o, int coordinate, mrvi_grid grid,
                           double weight, double lower, double upper);
+/* Add a pair actuator: equal and opposite forces of magnitude u along the
+ * line between particles i and j (model particle indices, i != j; u > 0
+ * pushes them apart), piecewise constant on grid, weight and bounds as for
+ * mrvi_ocp_add_actuator; default name "I-J".  Its discrete forces depend
+ * on the configuration (doc/optimal-control.md).  Add it before the first
+ * evaluation.  Returns the actuator index. */
+int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int particle_i, int particle_j,
+                               mrvi_grid grid, double weight, double lower,
+                               double upper);
 /* Running tracking term 1/2 int weight (q_c - ref)^2 dt, integrated exactly
  * along the linearly interpolated path on the coordinate's grid. */
 int mrvi_ocp_add_tracking(mrvi_ocp *o, int coordinate, double weight,
@@ -110,6 +120,16 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res);
  * Valid until the next evaluation. */
 const double *mrvi_ocp_q(const mrvi_ocp *o);
 const double *mrvi_ocp_p(const mrvi_ocp *o);
+/* Fast coordinates (in model order of the fast coordinates) at every micro
+ * node of the last evaluation: positions and momenta, (N p + 1) x n_fast;
+ * the momenta are p^{m+1} = D_2 L_d^m + f^{+,m} (the control force of the
+ * micro interval ending at the node included).  Valid until the next
+ * evaluation. */
+const double *mrvi_ocp_micro_q(const mrvi_ocp *o);
+const double *mrvi_ocp_micro_p(const mrvi_ocp *o);
+/* max |g| at the micro nodes m = 1..p of every step (N p), as
+ * mrvi_integrator_micro_constraint_residual reports them per step. */
+const double *mrvi_ocp_micro_constraint_residual(const mrvi_ocp *o);
 /* Multipliers of step k (0..N-1) of the last evaluation in the model's
  * constraint-row order (micro-node constraints: the step average), as
  * mrvi_integrator_lambda reports them; out has constraint_rows entries. */
@@ -123,6 +143,16 @@ int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a);
 int mrvi_ocp_n_actuators(const mrvi_ocp *o);
 const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a);
 int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a);
+/* Model coordinate actuator a acts on (-1 for a pair actuator), and the
+ * particles of a pair actuator (-1, -1 otherwise). */
+int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a);
+void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj);
+/* Terminal conditions (equalities and penalties, in the order added): their
+ * number, and kind, coordinate, target and penalty (0: equality) of
+ * condition i (any output pointer may be NULL). */
+int mrvi_ocp_n_terminals(const mrvi_ocp *o);
+void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
+                       int *coordinate, double *target, double *penalty);
 /* Name of an algorithm ("slsqp", "auglag-lbfgs", "auglag-mma",
  * "auglag-ccsaq"); the problem's algorithm and terminal tolerance. */
 const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);

@@ -6,7 +6,8 @@
 #include "ocp/ocp.h"
 
 typedef struct ocp_actuator {
-  int coord;      /* model index */
+  int coord;      /* model index (pair: particle i's first coordinate) */
+  int pi, pj;     /* pair actuator: particles i, j; -1 otherwise */
   mrvi_grid grid; /* MRVI_GRID_MACRO or MRVI_GRID_MICRO */
   double weight, lower, upper;
   int offset, size; /* in the control vector */
@@ -25,9 +26,11 @@ typedef struct ocp_terminal {
 } ocp_terminal;
 
 /* One entry of the linear map u -> node forces of a step: z index (layout
- * of struct mrvi_ocp), actuator, control within the step, coefficient. */
+ * of struct mrvi_ocp), actuator, control within the step, coefficient;
+ * plus = 1 for f^+ of the interval ending at node z (it enters the
+ * momentum there), 0 for f^- of the interval starting at z. */
 typedef struct ocp_force {
-  int z, act, j;
+  int z, act, j, plus;
   double coef;
 } ocp_force;
 
@@ -44,6 +47,11 @@ struct mrvi_ocp {
   /* Forces of a step (same template every step). */
   int n_force;
   ocp_force *force;
+  /* Pair actuators (pair.c): their number, and the controls and step of
+   * the forward sweep for the step hook. */
+  int n_pair;
+  const double *u_cur;
+  long k_cur;
   /* Step solver. */
   mrvi_step step;
   mrvi_newton *newton;
@@ -58,6 +66,9 @@ struct mrvi_ocp {
   double *pN;            /* final momenta ns + nf */
   double *Lam;           /* multipliers of every step, N x nl */
   double *ps_k, *pf_k;   /* momenta p_k per step (N+1) x ns, (N+1) x nf */
+  double *pf_micro;      /* fast momenta at every micro node (N p + 1) x nf */
+  double *f_plus;        /* f^+ of a step on fast nodes 1..p, p x nf */
+  double *cres_micro;    /* max |g| at micro nodes 1..p of every step, N p */
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
@@ -84,5 +95,26 @@ int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe);
  * D_z of L_d^k - sum h lambda^T g (all nodes of the step), rows nz.. the
  * step's constraint equations g (step row order). */
 void ocp_jacobian(mrvi_ocp *o, long k, double *J);
+
+/* z indices and coefficients of the (two) nodes that model coordinate idx
+ * interpolates at point pt of a step. */
+int ocp_znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt, int *zi,
+               double *zc);
+/* Pair-force actuators (pair.c, doc/optimal-control.md).  Step hook
+ * (mrvi_step.extra): their forces f^- on the residual rows of step o->k_cur
+ * at x and their derivatives. */
+void ocp_pair_hook(void *ctx, mrvi_step *st, const double *x, double *R,
+                   int jac);
+/* After convergence of step k at o->x under controls u: their f^+ into
+ * o->f_end (end nodes) and o->f_plus (fast nodes 1..p). */
+void ocp_pair_end_forces(mrvi_ocp *o, long k, const double *u);
+/* Their second derivatives in the step's nodes added to the dense step
+ * Jacobian J (nv x nv) of step k at the stored trajectory (controls
+ * o->u_cur). */
+void ocp_pair_jacobian(const mrvi_ocp *o, long k, double *J);
+/* out[control] -= mu^T d(forces of step k)/du for every pair control of
+ * step k (mu: global node adjoints). */
+void ocp_pair_gradient(const mrvi_ocp *o, long k, const double *mu,
+                       double *out);
 
 #endif

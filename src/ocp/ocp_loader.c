@@ -2,8 +2,8 @@
  * keys in doc/description-files.md):
  *
  *   control:
- *     actuators:    [{name, coordinate, grid: macro|micro, weight, lower,
- *                     upper, initial}]
+ *     actuators:    [{name, coordinate | pair: [particle, particle],
+ *                     grid: macro|micro, weight, lower, upper, initial}]
  *     tracking:     [{coordinate, weight, reference}]
  *     terminal:     [{coordinate, position, velocity, penalty}]
  *     solver:       {algorithm, tolerance, terminal_tolerance,
@@ -159,10 +159,52 @@ static int fixing_constraint(const mrvi_model *m, int c) {
   return -1;
 }
 
+/* Particles named at map["pair"]: a list of two different particles. */
+static int pair(parser *P, struct fy_node *map, const char *where, int *pi,
+                int *pj) {
+  struct fy_node *n = get(map, "pair");
+  if (get(map, "coordinate"))
+    return fail(P, n, "%s: give either 'coordinate' or 'pair', not both",
+                where);
+  if (!fy_node_is_sequence(n) || fy_node_sequence_item_count(n) != 2)
+    return fail(P, n, "%s.pair must be a list of two particle names", where);
+  const mrvi_model *m = P->m;
+  const char **names = malloc((size_t)(m->n_particles + 1) * sizeof *names);
+  if (!names)
+    return fail(P, n, "out of memory");
+  for (int i = 0; i < m->n_particles; i++)
+    names[i] = m->particles[i].name;
+  int *out[2] = {pi, pj}, st = MRVI_OK;
+  for (int e = 0; e < 2 && !st; e++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(n, e);
+    const char *s = fy_node_is_scalar(item) ? fy_node_get_scalar0(item) : NULL;
+    *out[e] = -1;
+    for (int i = 0; s && i < m->n_particles && *out[e] < 0; i++)
+      if (!strcmp(s, names[i]))
+        *out[e] = i;
+    if (*out[e] < 0) {
+      const char *close =
+          s && m->n_particles
+              ? mrvi_closest(s, (const char *const *)names, m->n_particles)
+              : NULL;
+      char hint[160] = "";
+      if (close)
+        mrvi_fmt(hint, sizeof hint, "; did you mean '%s'?", close);
+      st = fail(P, item, "unknown particle '%s' in %s.pair%s", s ? s : "?",
+                where, hint);
+    } else if (e == 1 && *pi == *pj) {
+      st = fail(P, item, "%s.pair names particle '%s' twice", where, s);
+    }
+  }
+  free(names);
+  return st;
+}
+
 static const char *const control_keys[] = {"actuators", "tracking", "terminal",
                                            "solver"};
-static const char *const actuator_keys[] = {
-    "name", "coordinate", "grid", "weight", "lower", "upper", "initial"};
+static const char *const actuator_keys[] = {"name",  "coordinate", "pair",
+                                            "grid",  "weight",     "lower",
+                                            "upper", "initial"};
 static const char *const tracking_keys[] = {"coordinate", "weight",
                                             "reference"};
 static const char *const terminal_keys[] = {"coordinate", "position",
@@ -185,9 +227,10 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
     mrvi_fmt(where, sizeof where, "control.actuators[%d]", i);
     if ((st = check_keys(P, item, where, actuator_keys, NKEYS(actuator_keys))))
       return st;
-    int c;
+    int c = -1, pi = -1, pj = -1;
     double w = 1.0, lo = -HUGE_VAL, hi = HUGE_VAL, u0 = 0.0;
-    if ((st = coordinate(P, item, where, &c)) ||
+    if ((st = get(item, "pair") ? pair(P, item, where, &pi, &pj)
+                                : coordinate(P, item, where, &c)) ||
         (st = number(P, item, "weight", where, &w)) ||
         (st = number(P, item, "lower", where, &lo)) ||
         (st = number(P, item, "upper", where, &hi)) ||
@@ -211,7 +254,9 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
     if (u0 < lo || u0 > hi)
       return fail(P, get(item, "initial"),
                   "%s: initial value %g outside [%g, %g]", where, u0, lo, hi);
-    const int a = mrvi_ocp_add_actuator(o, c, grid, w, lo, hi);
+    const int a = pi >= 0
+                      ? mrvi_ocp_add_pair_actuator(o, pi, pj, grid, w, lo, hi)
+                      : mrvi_ocp_add_actuator(o, c, grid, w, lo, hi);
     if (a < 0)
       return fail(P, item, "%s: %s", where, mrvi_ocp_errmsg(o));
     struct fy_node *nn = get(item, "name");
