@@ -28,6 +28,25 @@
 /* Largest fast block solved densely. */
 #define SWEEP_DENSE_MAX 64
 
+/* A potential class compiled for evaluation at a packed configuration z
+ * (doc/solver.md, "Evaluation"): the terms phi(s), s = a^T q - b, are
+ * evaluated on precomputed columns (no gather through the rate tables, the
+ * linear law inline), every other element through mrvi_element_eval.  The
+ * arithmetic is the one of mrvi_element_eval and the laws, in the same order,
+ * so the results are bitwise the same. */
+enum { KT_LINEAR, KT_LAW, KT_ELEMENT };
+typedef struct kterm {
+  int kind, n, first; /* inputs col[first..first+n), coef[first..] */
+  double c, shift;    /* stiffness (KT_LINEAR), offset b */
+  const mrvi_element *el;
+} kterm;
+typedef struct kclass {
+  int n;
+  kterm *t;
+  int *col;
+  double *coef;
+} kclass;
+
 struct mrvi_sweep {
   const mrvi_step *st;
   int ns, nf, p, implicit;
@@ -41,9 +60,15 @@ struct mrvi_sweep {
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
-  double *zs, *zf;               /* point configuration */
-  double *gs, *gf;               /* gradient accumulators */
-  double *gnode;                 /* grad_f W at the current node (cache) */
+  double *zs, *zf; /* point configuration (zf = zs + ns: packed) */
+  double *gs, *gf; /* gradient accumulators (gf = gs + ns: packed) */
+  kclass kc[2];    /* the potential classes compiled (kclass_create) */
+  /* grad V at the last macro node where V was evaluated (unscaled), and
+   * that node's (q^s, q^f): the end node of a step is the start node of the
+   * next, and the gradient is reused only for the bitwise same input. */
+  double *gv_at, *gv;
+  int gv_ok;
+  double *gnode; /* grad_f W at the current node (cache) */
   int gnode_ok;
   double *gpt[2];         /* grad_f W at the implicit points (converged) */
   double *rhs, *F, *fimp; /* row data, residual, last implicit force */
@@ -53,6 +78,101 @@ struct mrvi_sweep {
   mrvi_sblock *sb;   /* sparse J instead (nf > SWEEP_DENSE_MAX) */
   double *y, *g, *H; /* element workspace */
 };
+
+static void kclass_free(kclass *kc) {
+  free(kc->t);
+  free(kc->col);
+  free(kc->coef);
+  memset(kc, 0, sizeof *kc);
+}
+
+/* Class cls of st's elements; input c goes to column off_slow + slot (slow)
+ * or off_fast + slot (fast) of z and of the gradient. */
+static int kclass_create(kclass *kc, const mrvi_step *st, int cls, int off_slow,
+                         int off_fast) {
+  extern const mrvi_law mrvi_law_linear;
+  const mrvi_model *m = st->model;
+  const int ne = st->n_elem_of_class[cls];
+  int n_in = 0;
+  for (int ie = 0; ie < ne; ie++)
+    n_in += m->elements[st->elem_of_class[cls][ie]].n_in;
+  kc->n = ne;
+  kc->t = calloc((size_t)(ne > 0 ? ne : 1), sizeof *kc->t);
+  kc->col = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->col);
+  kc->coef = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->coef);
+  if (!kc->t || !kc->col || !kc->coef)
+    return MRVI_ENOMEM;
+  int first = 0;
+  for (int ie = 0; ie < ne; ie++) {
+    const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
+    kterm *t = &kc->t[ie];
+    t->el = e;
+    t->n = e->n_in;
+    t->first = first;
+    t->kind = KT_ELEMENT;
+    if (e->kind == MRVI_ELEMENT_TERM) {
+      t->kind = KT_LAW;
+      t->shift = e->shift;
+      t->c = e->params[0];
+      if (e->law == &mrvi_law_linear)
+        t->kind = KT_LINEAR;
+    }
+    for (int j = 0; j < e->n_in; j++) {
+      const int c = e->in[j];
+      kc->col[first + j] =
+          (m->rate[c] == MRVI_SLOW ? off_slow : off_fast) + m->slot[c];
+      kc->coef[first + j] = e->coef ? e->coef[j] : 0.0;
+    }
+    first += e->n_in;
+  }
+  return MRVI_OK;
+}
+
+/* g += scale grad Z(z) over the class and, if J, J += hscale hess Z(z)
+ * (ld x ld, row-major, on the columns; only for classes whose columns are
+ * all in J's range). */
+static void kclass_eval(mrvi_sweep *sw, const kclass *kc, const double *z,
+                        double scale, double *g, double *J, int ld,
+                        double hscale) {
+  const mrvi_model *m = sw->st->model;
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    const int n = t->n, *col = kc->col + t->first;
+    const double *a = kc->coef + t->first;
+    if (t->kind == KT_ELEMENT) {
+      const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
+      for (int j = 0; j < n; j++)
+        sw->y[j] = z[col[j]];
+      mrvi_element_eval(m, t->el, sw->y, sw->g, J && !lin ? sw->H : NULL);
+      for (int j = 0; j < n; j++)
+        g[col[j]] += scale * sw->g[j];
+      if (J && !lin)
+        for (int j = 0; j < n; j++)
+          for (int l = 0; l < n; l++)
+            J[col[j] * ld + col[l]] += hscale * sw->H[j * n + l];
+      continue;
+    }
+    double s = -t->shift;
+    for (int j = 0; j < n; j++)
+      s += a[j] * z[col[j]];
+    double phi, d1, d2;
+    switch (t->kind) {
+    case KT_LINEAR:
+      d1 = t->c * s;
+      d2 = t->c;
+      break;
+    default:
+      t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
+      break;
+    }
+    for (int j = 0; j < n; j++)
+      g[col[j]] += scale * (d1 * a[j]);
+    if (J)
+      for (int j = 0; j < n; j++)
+        for (int l = 0; l < n; l++)
+          J[col[j] * ld + col[l]] += hscale * (d2 * a[j] * a[l]);
+  }
+}
 
 /* The structure the sweep needs, or the reason it is missing. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
@@ -149,10 +269,12 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->minv_s);
   free(sw->minv_f);
   free(sw->m_f);
-  free(sw->zs);
-  free(sw->zf);
+  free(sw->zs); /* zf, gf are inside zs, gs */
   free(sw->gs);
-  free(sw->gf);
+  kclass_free(&sw->kc[0]);
+  kclass_free(&sw->kc[1]);
+  free(sw->gv_at);
+  free(sw->gv);
   free(sw->gnode);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
@@ -217,10 +339,17 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->minv_s = dalloc(ns);
   sw->minv_f = dalloc(nf);
   sw->m_f = dalloc(nf);
-  sw->zs = dalloc(ns);
-  sw->zf = dalloc(nf);
-  sw->gs = dalloc(ns);
-  sw->gf = dalloc(nf);
+  sw->zs = dalloc(ns + nf);
+  sw->zf = sw->zs ? sw->zs + ns : NULL;
+  sw->gs = dalloc(ns + nf);
+  sw->gf = sw->gs ? sw->gs + ns : NULL;
+  sw->gv_at = dalloc(ns + nf);
+  sw->gv = dalloc(ns + nf);
+  if (kclass_create(&sw->kc[MRVI_SLOW], st, MRVI_SLOW, 0, sw->ns) < 0 ||
+      kclass_create(&sw->kc[MRVI_FAST], st, MRVI_FAST, 0, 0) < 0) {
+    mrvi_sweep_free(sw);
+    return MRVI_ENOMEM;
+  }
   sw->gnode = dalloc(nf);
   sw->gpt[0] = dalloc(nf);
   sw->gpt[1] = dalloc(nf);
@@ -249,9 +378,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->g = dalloc((size_t)max_n_in);
   sw->H = dalloc(mi * mi);
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zs || !sw->zf || !sw->gs ||
-      !sw->gf || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
-      !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
-      !sw->piv || !sw->y || !sw->g || !sw->H) {
+      !sw->gv_at || !sw->gv || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] ||
+      !sw->rhs || !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] ||
+      !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -269,48 +398,54 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
   if (!sw)
     return;
   sw->gnode_ok = 0;
+  sw->gv_ok = 0;
   memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
 }
 
-/* Elements of potential class cls at (zs, zf): gs += scale grad_s (gs may
- * be NULL when the class has no slow inputs), gf += scale grad_f and, if J,
- * J += hscale hess_ff (nf x nf, or the sparse sw->sb when set). */
+/* Elements of potential class cls at (zs, zf): gs += scale grad_s and
+ * gf += scale grad_f (for the slow class gs, gf are sw->gs, sw->gf, packed;
+ * the fast class has no slow inputs on these paths and gs is unused) and,
+ * if J, J += hscale hess_ff (nf x nf, or the sparse sw->sb when set). */
 static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
                        double *gf, double *J, double hscale) {
+  if (cls == MRVI_SLOW) {
+    (void)gf; /* = gs + ns */
+    kclass_eval(sw, &sw->kc[MRVI_SLOW], sw->zs, scale, gs, NULL, 0, 0.0);
+    return;
+  }
+  if (!(J && sw->sb)) {
+    kclass_eval(sw, &sw->kc[MRVI_FAST], sw->zf, scale, gf, J, sw->nf, hscale);
+    return;
+  }
+  /* Sparse block: each element's Hessian goes to its pattern entries. */
   const mrvi_step *st = sw->st;
   const mrvi_model *m = st->model;
-  const int nf = sw->nf;
   for (int ie = 0; ie < st->n_elem_of_class[cls]; ie++) {
     const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
     const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
-    for (int j = 0; j < n; j++) {
-      const int c = e->in[j];
-      sw->y[j] =
-          m->rate[c] == MRVI_SLOW ? sw->zs[m->slot[c]] : sw->zf[m->slot[c]];
-    }
-    mrvi_element_eval(m, e, sw->y, sw->g, J && !lin ? sw->H : NULL);
-    for (int j = 0; j < n; j++) {
-      const int c = e->in[j], s = m->slot[c];
-      if (m->rate[c] == MRVI_FAST)
-        gf[s] += scale * sw->g[j];
-      else if (gs)
-        gs[s] += scale * sw->g[j];
-    }
-    if (!J || lin)
-      continue;
-    if (sw->sb) {
+    for (int j = 0; j < n; j++)
+      sw->y[j] = sw->zf[m->slot[e->in[j]]];
+    mrvi_element_eval(m, e, sw->y, sw->g, lin ? NULL : sw->H);
+    for (int j = 0; j < n; j++)
+      gf[m->slot[e->in[j]]] += scale * sw->g[j];
+    if (!lin)
       mrvi_sblock_add_element(sw->sb, ie, sw->H, n, hscale);
-      continue;
-    }
-    for (int j = 0; j < n; j++) {
-      if (m->rate[e->in[j]] != MRVI_FAST)
-        continue;
-      const int sj = m->slot[e->in[j]];
-      for (int l = 0; l < n; l++)
-        if (m->rate[e->in[l]] == MRVI_FAST)
-          J[sj * nf + m->slot[e->in[l]]] += hscale * sw->H[j * n + l];
-    }
   }
+}
+
+/* (gs, gf) = w grad V at the packed (zs, zf).  The gradient at a step's end
+ * node serves the next step's start node: it is reused when the input is
+ * bitwise the same, so a step still depends on (q_k, p_k) alone. */
+static void slow_gradient(mrvi_sweep *sw, double w) {
+  const size_t n = (size_t)(sw->ns + sw->nf);
+  if (!sw->gv_ok || memcmp(sw->gv_at, sw->zs, n * sizeof(double)) != 0) {
+    memset(sw->gv, 0, n * sizeof(double));
+    eval_class(sw, MRVI_SLOW, 1.0, sw->gv, NULL, NULL, 0.0);
+    memcpy(sw->gv_at, sw->zs, n * sizeof(double));
+    sw->gv_ok = 1;
+  }
+  for (size_t i = 0; i < n; i++)
+    sw->gs[i] = w * sw->gv[i];
 }
 
 static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
@@ -480,12 +615,12 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
    * carried from the last step, so a step depends on (q_k, p_k) alone. */
   memset(sw->fimp, 0, (size_t)nf * sizeof(double));
   /* Slow row: q_{k+1}^s explicit; V at node k also enters fast row 0. */
-  memset(sw->gs, 0, (size_t)ns * sizeof(double));
-  memset(sw->gf, 0, (size_t)nf * sizeof(double));
   if (sw->wv0 != 0.0) {
     memcpy(sw->zs, st->qs0, (size_t)ns * sizeof(double));
     memcpy(sw->zf, st->qf0, (size_t)nf * sizeof(double));
-    eval_class(sw, MRVI_SLOW, sw->wv0, sw->gs, sw->gf, NULL, 0.0);
+    slow_gradient(sw, sw->wv0);
+  } else {
+    memset(sw->gs, 0, (size_t)(ns + nf) * sizeof(double));
   }
   for (int s = 0; s < ns; s++) {
     ps1[s] = st->ps0[s] - sw->gs[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
@@ -560,9 +695,7 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     memcpy(sw->zs, x, (size_t)ns * sizeof(double));
     if (nf > 0)
       memcpy(sw->zf, qp, (size_t)nf * sizeof(double));
-    memset(sw->gs, 0, (size_t)ns * sizeof(double));
-    memset(sw->gf, 0, (size_t)nf * sizeof(double));
-    eval_class(sw, MRVI_SLOW, sw->wv1, sw->gs, sw->gf, NULL, 0.0);
+    slow_gradient(sw, sw->wv1);
     for (int s = 0; s < ns; s++)
       ps1[s] -= sw->gs[s];
     for (int f = 0; f < nf; f++)
