@@ -390,6 +390,18 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
                       double *b, double atol, char *msg, size_t len);
 const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb);
 
+/* A potential class compiled for evaluation (solver/terms.c): the elements
+ * elems (n_elems model indices) with input c read from and summed into
+ * column col_of[c] (col_of NULL: column c) of a packed configuration. */
+typedef struct mrvi_terms mrvi_terms;
+int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                      const int *col_of, mrvi_terms **out);
+void mrvi_terms_free(mrvi_terms *kc);
+/* g += scale grad Z(z) and, if J, J += hscale hess Z(z) (ld x ld, row-major
+ * on the columns). */
+void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
+                     double *J, int ld, double hscale);
+
 /* Predictor of the Newton paths (solver/predict.c): an explicit multirate
  * sweep (Stoermer-Verlet on both grids) from the known data of st, written
  * into x (n_unknowns) as displacements from (q_k^s, q_k^{f,0}). */

@@ -28,25 +28,6 @@
 /* Largest fast block solved densely. */
 #define SWEEP_DENSE_MAX 64
 
-/* A potential class compiled for evaluation at a packed configuration z
- * (doc/solver.md, "Evaluation"): the terms phi(s), s = a^T q - b, are
- * evaluated on precomputed columns (no gather through the rate tables, the
- * linear law inline), every other element through mrvi_element_eval.  The
- * arithmetic is the one of mrvi_element_eval and the laws, in the same order,
- * so the results are bitwise the same. */
-enum { KT_LINEAR, KT_LAW, KT_ELEMENT };
-typedef struct kterm {
-  int kind, n, first; /* inputs col[first..first+n), coef[first..] */
-  double c, shift;    /* stiffness (KT_LINEAR), offset b */
-  const mrvi_element *el;
-} kterm;
-typedef struct kclass {
-  int n;
-  kterm *t;
-  int *col;
-  double *coef;
-} kclass;
-
 struct mrvi_sweep {
   const mrvi_step *st;
   int ns, nf, p, implicit;
@@ -60,9 +41,9 @@ struct mrvi_sweep {
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
-  double *zs, *zf; /* point configuration (zf = zs + ns: packed) */
-  double *gs, *gf; /* gradient accumulators (gf = gs + ns: packed) */
-  kclass kc[2];    /* the potential classes compiled (kclass_create) */
+  double *zs, *zf;   /* point configuration (zf = zs + ns: packed) */
+  double *gs, *gf;   /* gradient accumulators (gf = gs + ns: packed) */
+  mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
   /* grad V at the last macro node where V was evaluated (unscaled), and
    * that node's (q^s, q^f): the end node of a step is the start node of the
    * next, and the gradient is reused only for the bitwise same input. */
@@ -74,105 +55,11 @@ struct mrvi_sweep {
   double *rhs, *F, *fimp; /* row data, residual, last implicit force */
   double *dn;             /* q^{m+1} - q^m */
   double *J;              /* nf x nf */
+  double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
   mrvi_sblock *sb;   /* sparse J instead (nf > SWEEP_DENSE_MAX) */
   double *y, *g, *H; /* element workspace */
 };
-
-static void kclass_free(kclass *kc) {
-  free(kc->t);
-  free(kc->col);
-  free(kc->coef);
-  memset(kc, 0, sizeof *kc);
-}
-
-/* Class cls of st's elements; input c goes to column off_slow + slot (slow)
- * or off_fast + slot (fast) of z and of the gradient. */
-static int kclass_create(kclass *kc, const mrvi_step *st, int cls, int off_slow,
-                         int off_fast) {
-  extern const mrvi_law mrvi_law_linear;
-  const mrvi_model *m = st->model;
-  const int ne = st->n_elem_of_class[cls];
-  int n_in = 0;
-  for (int ie = 0; ie < ne; ie++)
-    n_in += m->elements[st->elem_of_class[cls][ie]].n_in;
-  kc->n = ne;
-  kc->t = calloc((size_t)(ne > 0 ? ne : 1), sizeof *kc->t);
-  kc->col = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->col);
-  kc->coef = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->coef);
-  if (!kc->t || !kc->col || !kc->coef)
-    return MRVI_ENOMEM;
-  int first = 0;
-  for (int ie = 0; ie < ne; ie++) {
-    const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
-    kterm *t = &kc->t[ie];
-    t->el = e;
-    t->n = e->n_in;
-    t->first = first;
-    t->kind = KT_ELEMENT;
-    if (e->kind == MRVI_ELEMENT_TERM) {
-      t->kind = KT_LAW;
-      t->shift = e->shift;
-      t->c = e->params[0];
-      if (e->law == &mrvi_law_linear)
-        t->kind = KT_LINEAR;
-    }
-    for (int j = 0; j < e->n_in; j++) {
-      const int c = e->in[j];
-      kc->col[first + j] =
-          (m->rate[c] == MRVI_SLOW ? off_slow : off_fast) + m->slot[c];
-      kc->coef[first + j] = e->coef ? e->coef[j] : 0.0;
-    }
-    first += e->n_in;
-  }
-  return MRVI_OK;
-}
-
-/* g += scale grad Z(z) over the class and, if J, J += hscale hess Z(z)
- * (ld x ld, row-major, on the columns; only for classes whose columns are
- * all in J's range). */
-static void kclass_eval(mrvi_sweep *sw, const kclass *kc, const double *z,
-                        double scale, double *g, double *J, int ld,
-                        double hscale) {
-  const mrvi_model *m = sw->st->model;
-  for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
-    const int n = t->n, *col = kc->col + t->first;
-    const double *a = kc->coef + t->first;
-    if (t->kind == KT_ELEMENT) {
-      const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
-      for (int j = 0; j < n; j++)
-        sw->y[j] = z[col[j]];
-      mrvi_element_eval(m, t->el, sw->y, sw->g, J && !lin ? sw->H : NULL);
-      for (int j = 0; j < n; j++)
-        g[col[j]] += scale * sw->g[j];
-      if (J && !lin)
-        for (int j = 0; j < n; j++)
-          for (int l = 0; l < n; l++)
-            J[col[j] * ld + col[l]] += hscale * sw->H[j * n + l];
-      continue;
-    }
-    double s = -t->shift;
-    for (int j = 0; j < n; j++)
-      s += a[j] * z[col[j]];
-    double phi, d1, d2;
-    switch (t->kind) {
-    case KT_LINEAR:
-      d1 = t->c * s;
-      d2 = t->c;
-      break;
-    default:
-      t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
-      break;
-    }
-    for (int j = 0; j < n; j++)
-      g[col[j]] += scale * (d1 * a[j]);
-    if (J)
-      for (int j = 0; j < n; j++)
-        for (int l = 0; l < n; l++)
-          J[col[j] * ld + col[l]] += hscale * (d2 * a[j] * a[l]);
-  }
-}
 
 /* The structure the sweep needs, or the reason it is missing. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
@@ -271,8 +158,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->m_f);
   free(sw->zs); /* zf, gf are inside zs, gs */
   free(sw->gs);
-  kclass_free(&sw->kc[0]);
-  kclass_free(&sw->kc[1]);
+  mrvi_terms_free(sw->kc[0]);
+  mrvi_terms_free(sw->kc[1]);
   free(sw->gv_at);
   free(sw->gv);
   free(sw->gnode);
@@ -283,6 +170,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->fimp);
   free(sw->dn);
   free(sw->J);
+  free(sw->Jinv);
+  free(sw->del);
   free(sw->Hpt[0]);
   free(sw->Hpt[1]);
   free(sw->piv);
@@ -345,8 +234,21 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->gf = sw->gs ? sw->gs + ns : NULL;
   sw->gv_at = dalloc(ns + nf);
   sw->gv = dalloc(ns + nf);
-  if (kclass_create(&sw->kc[MRVI_SLOW], st, MRVI_SLOW, 0, sw->ns) < 0 ||
-      kclass_create(&sw->kc[MRVI_FAST], st, MRVI_FAST, 0, 0) < 0) {
+  /* Columns: (zs, zf) packed for V, zf alone for W (no slow inputs). */
+  int *col = calloc((size_t)(m->n > 0 ? m->n : 1), sizeof *col);
+  int s_ok = col != NULL;
+  for (int c = 0; s_ok && c < m->n; c++)
+    col[c] = (m->rate[c] == MRVI_SLOW ? 0 : sw->ns) + m->slot[c];
+  s_ok = s_ok && mrvi_terms_create(m, st->elem_of_class[MRVI_SLOW],
+                                   st->n_elem_of_class[MRVI_SLOW], col,
+                                   &sw->kc[MRVI_SLOW]) == MRVI_OK;
+  for (int c = 0; s_ok && c < m->n; c++)
+    col[c] = m->slot[c];
+  s_ok = s_ok && mrvi_terms_create(m, st->elem_of_class[MRVI_FAST],
+                                   st->n_elem_of_class[MRVI_FAST], col,
+                                   &sw->kc[MRVI_FAST]) == MRVI_OK;
+  free(col);
+  if (!s_ok) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -373,6 +275,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->linear = 0;
   sw->Hpt[0] = dalloc(sw->linear ? nf * nf : 1);
   sw->Hpt[1] = dalloc(sw->linear ? nf * nf : 1);
+  sw->Jinv = dalloc(sw->linear ? nf * nf : 1);
+  sw->del = dalloc(nf);
   sw->piv = calloc(nf > 0 ? nf : 1, sizeof(int));
   sw->y = dalloc((size_t)max_n_in);
   sw->g = dalloc((size_t)max_n_in);
@@ -410,11 +314,11 @@ static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
                        double *gf, double *J, double hscale) {
   if (cls == MRVI_SLOW) {
     (void)gf; /* = gs + ns */
-    kclass_eval(sw, &sw->kc[MRVI_SLOW], sw->zs, scale, gs, NULL, 0, 0.0);
+    mrvi_terms_eval(sw->kc[MRVI_SLOW], sw->zs, scale, gs, NULL, 0, 0.0);
     return;
   }
   if (!(J && sw->sb)) {
-    kclass_eval(sw, &sw->kc[MRVI_FAST], sw->zf, scale, gf, J, sw->nf, hscale);
+    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, scale, gf, J, sw->nf, hscale);
     return;
   }
   /* Sparse block: each element's Hessian goes to its pattern entries. */
@@ -483,6 +387,12 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
       mrvi_fmt(msg, len, "singular micro-step matrix");
       return MRVI_ESINGULAR;
     }
+    /* The inverse (nf <= SWEEP_DENSE_MAX): a micro step's solve is then one
+     * matrix-vector product. */
+    memset(sw->Jinv, 0, (size_t)nf * (size_t)nf * sizeof(double));
+    for (int f = 0; f < nf; f++)
+      sw->Jinv[f * nf + f] = 1.0;
+    mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->Jinv, nf);
     sw->lu_ok = 1;
   }
   /* F at the predictor, then dn += J^-1 F. */
@@ -498,9 +408,14 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
   }
   for (int f = 0; f < nf; f++)
     sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
-  mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->F, 1);
-  for (int f = 0; f < nf; f++)
-    dn[f] += sw->F[f];
+  for (int a = 0; a < nf; a++) {
+    double d = 0.0;
+    for (int b = 0; b < nf; b++)
+      d += sw->Jinv[a * nf + b] * sw->F[b];
+    sw->del[a] = d;
+    dn[a] += d;
+  }
+  memcpy(sw->F, sw->del, (size_t)nf * sizeof(double));
   /* Gradients at the implicit points after the update: g += cB H delta. */
   memset(sw->fimp, 0, (size_t)nf * sizeof(double));
   for (int i = 0; i < sw->n_w; i++) {

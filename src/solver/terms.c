@@ -1,0 +1,127 @@
+/* Potential classes compiled for evaluation (doc/solver.md, "Evaluation"):
+ * the elements of one class with their inputs mapped once to columns of a
+ * packed configuration z, so that the step loops evaluate the gradient (and
+ * Hessian) without looking up rates and slots per input.  Terms phi(s),
+ * s = a^T q - b, are evaluated here (the linear law inline, others through
+ * their law table); every other element through mrvi_element_eval.  The
+ * arithmetic is that of mrvi_element_eval and the laws, in the same order,
+ * so the results are bitwise the same. */
+#include "internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+enum { KT_LINEAR, KT_LAW, KT_ELEMENT };
+typedef struct kterm {
+  int kind, n, first; /* inputs col[first..first+n), coef[first..] */
+  double c, shift;    /* stiffness (KT_LINEAR), offset b */
+  const mrvi_element *el;
+} kterm;
+
+struct mrvi_terms {
+  const mrvi_model *m;
+  int n;
+  kterm *t;
+  int *col;
+  double *coef;
+  double *y, *g, *H; /* element workspace */
+};
+
+void mrvi_terms_free(mrvi_terms *kc) {
+  if (!kc)
+    return;
+  free(kc->t);
+  free(kc->col);
+  free(kc->coef);
+  free(kc->y);
+  free(kc->g);
+  free(kc->H);
+  free(kc);
+}
+
+int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                      const int *col_of, mrvi_terms **out) {
+  extern const mrvi_law mrvi_law_linear;
+  mrvi_terms *kc = calloc(1, sizeof *kc);
+  *out = NULL;
+  if (!kc)
+    return MRVI_ENOMEM;
+  int n_in = 0, max_in = 1;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const int k = m->elements[elems[ie]].n_in;
+    n_in += k;
+    max_in = k > max_in ? k : max_in;
+  }
+  const size_t mi = (size_t)max_in;
+  kc->m = m;
+  kc->n = n_elems;
+  kc->t = calloc((size_t)(n_elems > 0 ? n_elems : 1), sizeof *kc->t);
+  kc->col = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->col);
+  kc->coef = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->coef);
+  kc->y = calloc(mi, sizeof *kc->y);
+  kc->g = calloc(mi, sizeof *kc->g);
+  kc->H = calloc(mi * mi, sizeof *kc->H);
+  if (!kc->t || !kc->col || !kc->coef || !kc->y || !kc->g || !kc->H) {
+    mrvi_terms_free(kc);
+    return MRVI_ENOMEM;
+  }
+  int first = 0;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    kterm *t = &kc->t[ie];
+    t->el = e;
+    t->n = e->n_in;
+    t->first = first;
+    t->kind = KT_ELEMENT;
+    if (e->kind == MRVI_ELEMENT_TERM) {
+      t->kind = e->law == &mrvi_law_linear ? KT_LINEAR : KT_LAW;
+      t->shift = e->shift;
+      t->c = e->params[0];
+    }
+    for (int j = 0; j < e->n_in; j++) {
+      kc->col[first + j] = col_of ? col_of[e->in[j]] : e->in[j];
+      kc->coef[first + j] = e->coef ? e->coef[j] : 0.0;
+    }
+    first += e->n_in;
+  }
+  *out = kc;
+  return MRVI_OK;
+}
+
+void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
+                     double *J, int ld, double hscale) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    const int n = t->n, *col = kc->col + t->first;
+    const double *a = kc->coef + t->first;
+    if (t->kind == KT_ELEMENT) {
+      const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
+      for (int j = 0; j < n; j++)
+        kc->y[j] = z[col[j]];
+      mrvi_element_eval(kc->m, t->el, kc->y, kc->g, J && !lin ? kc->H : NULL);
+      for (int j = 0; j < n; j++)
+        g[col[j]] += scale * kc->g[j];
+      if (J && !lin)
+        for (int j = 0; j < n; j++)
+          for (int l = 0; l < n; l++)
+            J[col[j] * ld + col[l]] += hscale * kc->H[j * n + l];
+      continue;
+    }
+    double s = -t->shift;
+    for (int j = 0; j < n; j++)
+      s += a[j] * z[col[j]];
+    double phi, d1, d2;
+    if (t->kind == KT_LINEAR) {
+      d1 = t->c * s;
+      d2 = t->c;
+    } else {
+      t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
+    }
+    for (int j = 0; j < n; j++)
+      g[col[j]] += scale * (d1 * a[j]);
+    if (J)
+      for (int j = 0; j < n; j++)
+        for (int l = 0; l < n; l++)
+          J[col[j] * ld + col[l]] += hscale * (d2 * a[j] * a[l]);
+  }
+}
