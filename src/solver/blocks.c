@@ -29,6 +29,9 @@ struct mrvi_blocks {
   int *piv;                /* p x nf (pivots of the factored D) */
   double *Y, *z, *S, *r;   /* p nf x ns, p nf, ns x ns, ns */
   int *spiv;
+  double **dst; /* block entry of every CSC entry (built on the first
+                   factorisation: the pattern is fixed for the run) */
+  long n_dst;
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -46,6 +49,7 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->S);
   free(b->r);
   free(b->spiv);
+  free(b->dst);
   free(b);
 }
 
@@ -83,10 +87,48 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   return MRVI_OK;
 }
 
-/* Scatter the CSC values of st into the blocks; -1 if an entry lies outside
+/* The block entry that CSC entry (i, j) adds to; NULL if it lies outside
  * the block structure (it cannot for an unconstrained step). */
+static double *block_entry(mrvi_blocks *b, int i, int j) {
+  const int ns = b->ns, nf = b->nf, nF = b->p * nf;
+  if (i < ns && j < ns)
+    return &b->Ass[i * ns + j];
+  if (i < ns)
+    return &b->Asf[(size_t)i * (size_t)nF + (size_t)(j - ns)];
+  if (j < ns)
+    return &b->Afs[(size_t)(i - ns) * (size_t)ns + (size_t)j];
+  const int rb = (i - ns) / nf, rf = (i - ns) % nf;
+  const int cb = (j - ns) / nf, cf = (j - ns) % nf;
+  double *blk = rb == cb       ? b->D
+                : rb == cb + 1 ? b->L1
+                : rb == cb + 2 ? b->L2
+                               : NULL;
+  return blk ? &blk[((size_t)rb * (size_t)nf + (size_t)rf) * (size_t)nf +
+                    (size_t)cf]
+             : NULL;
+}
+
+/* Scatter the CSC values of st into the blocks through the entry map (built
+ * on the first call); MRVI_EINVAL if an entry lies outside the block
+ * structure, MRVI_ENOMEM. */
 static int scatter(mrvi_blocks *b, const mrvi_step *st) {
   const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
+  const long nnz = st->Ap[ns + nF];
+  if (!b->dst || b->n_dst != nnz) {
+    free(b->dst);
+    b->n_dst = 0;
+    b->dst = malloc((size_t)(nnz > 0 ? nnz : 1) * sizeof *b->dst);
+    if (!b->dst)
+      return MRVI_ENOMEM;
+    for (int j = 0; j < ns + nF; j++)
+      for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
+        if (!(b->dst[q] = block_entry(b, st->Ai[q], j))) {
+          free(b->dst);
+          b->dst = NULL;
+          return MRVI_EINVAL;
+        }
+    b->n_dst = nnz;
+  }
   memset(b->Ass, 0, (size_t)ns * (size_t)ns * sizeof(double));
   memset(b->Asf, 0, (size_t)ns * (size_t)nF * sizeof(double));
   memset(b->Afs, 0, (size_t)nF * (size_t)ns * sizeof(double));
@@ -94,30 +136,9 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
   memset(b->D, 0, bb * sizeof(double));
   memset(b->L1, 0, bb * sizeof(double));
   memset(b->L2, 0, bb * sizeof(double));
-  for (int j = 0; j < ns + nF; j++)
-    for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++) {
-      const int i = st->Ai[q];
-      const double v = st->Ax[q];
-      if (i < ns && j < ns)
-        b->Ass[i * ns + j] += v;
-      else if (i < ns)
-        b->Asf[(size_t)i * (size_t)nF + (size_t)(j - ns)] += v;
-      else if (j < ns)
-        b->Afs[(size_t)(i - ns) * (size_t)ns + (size_t)j] += v;
-      else {
-        const int rb = (i - ns) / nf, rf = (i - ns) % nf;
-        const int cb = (j - ns) / nf, cf = (j - ns) % nf;
-        double *blk = rb == cb       ? b->D
-                      : rb == cb + 1 ? b->L1
-                      : rb == cb + 2 ? b->L2
-                                     : NULL;
-        if (!blk)
-          return -1;
-        blk[((size_t)rb * (size_t)nf + (size_t)rf) * (size_t)nf + (size_t)cf] +=
-            v;
-      }
-    }
-  return 0;
+  for (long q = 0; q < nnz; q++)
+    *b->dst[q] += st->Ax[q];
+  return MRVI_OK;
 }
 
 /* X (p nf x nrhs) <- A_ff^-1 X by a block forward sweep (D factored). */
@@ -144,8 +165,9 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
 
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
   const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
-  if (scatter(b, st) < 0)
-    return MRVI_EINVAL;
+  const int sc = scatter(b, st);
+  if (sc < 0)
+    return sc;
   const size_t blk = (size_t)nf * (size_t)nf;
   for (int m = 0; m < p; m++)
     if (mrvi_dense_lu_factor(nf, b->D + (size_t)m * blk,

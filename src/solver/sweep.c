@@ -519,6 +519,52 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
   }
 }
 
+/* The fast nodes of the explicit path (every W point on a node): row m
+ * gives q^{m+1} from p^{f,m} (in pf's row m - 1, row 0: pf's first row as
+ * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
+ * node m + 1, which also serves row m + 1.  The arithmetic of the general
+ * sweep below, in one pass per node. */
+static void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                           double *pf) {
+  const int ns = sw->ns, nf = sw->nf, p = sw->p;
+  const double dt = st->dt;
+  double wl[2], wr[2];
+  int nl = 0, nr = 0;
+  for (int i = 0; i < sw->n_w; i++) {
+    if (sw->cB[i] == 0.0)
+      wl[nl++] = sw->w[i];
+    else
+      wr[nr++] = sw->w[i] * sw->cB[i];
+  }
+  const double *pm = pf;
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
+    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    if (nl > 0 && !sw->gnode_ok) {
+      memset(sw->gnode, 0, (size_t)nf * sizeof(double));
+      mrvi_terms_eval(sw->kc[MRVI_FAST], qm, 1.0, sw->gnode, NULL, 0, 0.0);
+    }
+    for (int f = 0; f < nf; f++) {
+      double r = pm[f];
+      for (int i = 0; i < nl; i++)
+        r -= wl[i] * sw->gnode[f];
+      const double dn = dt * sw->minv_f[f] * r;
+      qn[f] = qm[f] + dn;
+      pn[f] = sw->m_f[f] * dn / dt;
+    }
+    sw->gnode_ok = 0;
+    if (nr > 0) {
+      memset(sw->gnode, 0, (size_t)nf * sizeof(double));
+      mrvi_terms_eval(sw->kc[MRVI_FAST], qn, 1.0, sw->gnode, NULL, 0, 0.0);
+      sw->gnode_ok = 1;
+      for (int f = 0; f < nf; f++)
+        for (int i = 0; i < nr; i++)
+          pn[f] -= wr[i] * sw->gnode[f];
+    }
+    pm = pn;
+  }
+}
+
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
                     double *pf, int *iterations, double *residual, char *msg,
                     size_t len) {
@@ -545,7 +591,9 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
   double *pm = pf; /* momentum at node m (row m's left part) */
   for (int f = 0; f < nf; f++)
     pm[f] = st->pf0[f] - sw->gf[f];
-  for (int m = 0; m < p; m++) {
+  if (!sw->implicit)
+    explicit_sweep(sw, st, x, pf);
+  for (int m = 0; m < p && sw->implicit; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf;
     /* rhs = p^{f,m} - forces of the points at node m (cB = 0). */

@@ -8,13 +8,15 @@
  * so the results are bitwise the same. */
 #include "internal.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-enum { KT_LINEAR, KT_LAW, KT_ELEMENT };
+enum { KT_LINEAR, KT_POWER, KT_LAW, KT_ELEMENT };
 typedef struct kterm {
   int kind, n, first; /* inputs col[first..first+n), coef[first..] */
-  double c, shift;    /* stiffness (KT_LINEAR), offset b */
+  int k;              /* integer exponent (KT_POWER) */
+  double c, e, shift; /* stiffness or coefficient, exponent, offset b */
   const mrvi_element *el;
 } kterm;
 
@@ -41,7 +43,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
 
 int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, mrvi_terms **out) {
-  extern const mrvi_law mrvi_law_linear;
+  extern const mrvi_law mrvi_law_linear, mrvi_law_power;
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
@@ -77,6 +79,12 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
       t->kind = e->law == &mrvi_law_linear ? KT_LINEAR : KT_LAW;
       t->shift = e->shift;
       t->c = e->params[0];
+      t->e = e->params[1];
+      if (e->law == &mrvi_law_power && t->e == floor(t->e) && t->e >= 0.0 &&
+          t->e <= 8.0) {
+        t->kind = KT_POWER;
+        t->k = (int)t->e;
+      }
     }
     for (int j = 0; j < e->n_in; j++) {
       kc->col[first + j] = col_of ? col_of[e->in[j]] : e->in[j];
@@ -114,6 +122,13 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
     if (t->kind == KT_LINEAR) {
       d1 = t->c * s;
       d2 = t->c;
+    } else if (t->kind == KT_POWER) {
+      /* c s^e for a small integer e: phi' and, for J, phi'' only. */
+      double sk = 1.0; /* s^(k-2) */
+      for (int i = 2; i < t->k; i++)
+        sk *= s;
+      d1 = t->k >= 1 ? t->c * t->e * (t->k >= 2 ? sk * s : 1.0) : 0.0;
+      d2 = t->k >= 2 ? t->c * t->e * (t->e - 1) * sk : 0.0;
     } else {
       t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
     }
