@@ -565,6 +565,65 @@ static void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   }
 }
 
+/* The fast nodes of the sweep path for a quadratic W with one (implicit)
+ * point per interval, once the micro-step matrix is factored: the
+ * arithmetic of solve_linear and of the general sweep below, in one pass
+ * per node. */
+static int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                        double *pf, double *residual, char *msg, size_t len) {
+  const int ns = sw->ns, nf = sw->nf, p = sw->p;
+  const double dt = st->dt, cB = sw->cB[0], wc = sw->w[0] * sw->cA[0];
+  const double wb = sw->w[0] * sw->cB[0];
+  const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->Hpt[0];
+  double *g = sw->gpt[0], *fimp = sw->fimp, *F = sw->F, *del = sw->del;
+  double *rhs = sw->rhs, *dn = sw->dn, r = 0.0;
+  const double *pm = pf;
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
+    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    /* Predictor (the last implicit force held fixed) and F there. */
+    for (int f = 0; f < nf; f++) {
+      rhs[f] = pm[f];
+      dn[f] = dt * sw->minv_f[f] * (rhs[f] - fimp[f]);
+      sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
+      g[f] = 0.0;
+    }
+    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, 1.0, g, NULL, 0, 0.0);
+    for (int f = 0; f < nf; f++) {
+      fimp[f] = 0.0 + wc * g[f];
+      F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
+    }
+    /* dn += J^-1 F; the point's gradient follows by the kept Hessian. */
+    for (int a = 0; a < nf; a++) {
+      double d = 0.0;
+      for (int b = 0; b < nf; b++)
+        d += Jinv[a * nf + b] * F[b];
+      del[a] = d;
+      dn[a] += d;
+    }
+    for (int a = 0; a < nf; a++) {
+      double h = 0.0;
+      for (int b = 0; b < nf; b++)
+        h += H[a * nf + b] * del[b];
+      g[a] += cB * h;
+      fimp[a] = 0.0 + wc * g[a];
+      const double ra = fabs(rhs[a] - mf[a] * dn[a] / dt - fimp[a]);
+      r = isnan(ra) || ra > r ? ra : r;
+      qn[a] = qm[a] + dn[a];
+      pn[a] = mf[a] * dn[a] / dt;
+      pn[a] -= wb * g[a];
+    }
+    pm = pn;
+  }
+  sw->gnode_ok = 0;
+  *residual = fmax(*residual, r);
+  if (!isfinite(r)) {
+    mrvi_fmt(msg, len, "micro step produced non-finite values");
+    return MRVI_ENONFINITE;
+  }
+  return MRVI_OK;
+}
+
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
                     double *pf, int *iterations, double *residual, char *msg,
                     size_t len) {
@@ -591,9 +650,18 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
   double *pm = pf; /* momentum at node m (row m's left part) */
   for (int f = 0; f < nf; f++)
     pm[f] = st->pf0[f] - sw->gf[f];
-  if (!sw->implicit)
+  int done = 0;
+  if (!sw->implicit) {
     explicit_sweep(sw, st, x, pf);
-  for (int m = 0; m < p && sw->implicit; m++) {
+    done = 1;
+  } else if (sw->linear && sw->lu_ok && sw->n_w == 1) {
+    const int s = linear_sweep(sw, st, x, pf, residual, msg, len);
+    if (s < 0)
+      return s;
+    *iterations = 1;
+    done = 1;
+  }
+  for (int m = 0; m < p && !done; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf;
     /* rhs = p^{f,m} - forces of the points at node m (cB = 0). */

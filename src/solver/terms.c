@@ -16,6 +16,7 @@ enum { KT_LINEAR, KT_POWER, KT_LAW, KT_ELEMENT };
 typedef struct kterm {
   int kind, n, first; /* inputs col[first..first+n), coef[first..] */
   int k;              /* integer exponent (KT_POWER) */
+  int run; /* KT_LINEAR with one input: the number of such terms from here */
   double c, e, shift; /* stiffness or coefficient, exponent, offset b */
   const mrvi_element *el;
 } kterm;
@@ -92,6 +93,13 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     }
     first += e->n_in;
   }
+  /* Runs of one-input linear terms (k q^2/2 on a coordinate: the stiff
+   * springs of W in the FPU) are evaluated in one loop. */
+  for (int ie = n_elems - 1; ie >= 0; ie--) {
+    kterm *t = &kc->t[ie];
+    if (t->kind == KT_LINEAR && t->n == 1)
+      t->run = 1 + (ie + 1 < n_elems ? kc->t[ie + 1].run : 0);
+  }
   *out = kc;
   return MRVI_OK;
 }
@@ -102,6 +110,16 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
     const kterm *t = &kc->t[it];
     const int n = t->n, *col = kc->col + t->first;
     const double *a = kc->coef + t->first;
+    if (t->run > 1) { /* as below, one input each */
+      for (int r = 0; r < t->run; r++) {
+        const double ar = a[r], d1 = t[r].c * (-t[r].shift + ar * z[col[r]]);
+        g[col[r]] += scale * (d1 * ar);
+        if (J)
+          J[col[r] * ld + col[r]] += hscale * (t[r].c * ar * ar);
+      }
+      it += t->run - 1;
+      continue;
+    }
     if (t->kind == KT_ELEMENT) {
       const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
       for (int j = 0; j < n; j++)
