@@ -401,6 +401,9 @@ void mrvi_terms_free(mrvi_terms *kc);
  * on the columns). */
 void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale);
+/* phi'(s) and phi''(s) of term element e's law (the linear law and small
+ * integer powers without the law table). */
+void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2);
 
 /* Predictor of the Newton paths (solver/predict.c): an explicit multirate
  * sweep (Stoermer-Verlet on both grids) from the known data of st, written

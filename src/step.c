@@ -482,10 +482,10 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
         const int term = e->kind == MRVI_ELEMENT_TERM;
         double d2 = 0.0;
         if (term) {
-          double arg = -e->shift, phi, d1;
+          double arg = -e->shift, d1;
           for (int j = 0; j < n; j++)
             arg += e->coef[j] * st->y[j];
-          e->law->eval(e->params, arg, &phi, &d1, &d2);
+          mrvi_term_derivs(e, arg, &d1, &d2);
           for (int j = 0; j < n; j++)
             st->g[j] = d1 * e->coef[j];
         } else {

@@ -8,7 +8,6 @@
  * so the results are bitwise the same. */
 #include "internal.h"
 
-#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -30,6 +29,38 @@ struct mrvi_terms {
   double *y, *g, *H; /* element workspace */
 };
 
+/* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
+ * phi, by repeated multiplication). */
+static inline void power_derivs(double c, double e, int k, double s, double *d1,
+                                double *d2) {
+  double sk = 1.0; /* s^(k-2) */
+  for (int i = 2; i < k; i++)
+    sk *= s;
+  *d1 = k >= 1 ? c * e * (k >= 2 ? sk * s : 1.0) : 0.0;
+  *d2 = k >= 2 ? c * e * (e - 1) * sk : 0.0;
+}
+
+/* A power law with a small integer exponent (evaluated inline). */
+static int small_power(const mrvi_element *e) {
+  extern const mrvi_law mrvi_law_power;
+  const double x = e->params[1];
+  return e->law == &mrvi_law_power && x >= 0.0 && x <= 8.0 &&
+         (double)(int)x == x;
+}
+
+void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2) {
+  extern const mrvi_law mrvi_law_linear;
+  if (e->law == &mrvi_law_linear) {
+    *d1 = e->params[0] * s;
+    *d2 = e->params[0];
+  } else if (small_power(e)) {
+    power_derivs(e->params[0], e->params[1], (int)e->params[1], s, d1, d2);
+  } else {
+    double phi;
+    e->law->eval(e->params, s, &phi, d1, d2);
+  }
+}
+
 void mrvi_terms_free(mrvi_terms *kc) {
   if (!kc)
     return;
@@ -44,7 +75,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
 
 int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, mrvi_terms **out) {
-  extern const mrvi_law mrvi_law_linear, mrvi_law_power;
+  extern const mrvi_law mrvi_law_linear;
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
@@ -81,8 +112,7 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
       t->shift = e->shift;
       t->c = e->params[0];
       t->e = e->params[1];
-      if (e->law == &mrvi_law_power && t->e == floor(t->e) && t->e >= 0.0 &&
-          t->e <= 8.0) {
+      if (small_power(e)) {
         t->kind = KT_POWER;
         t->k = (int)t->e;
       }
@@ -141,12 +171,7 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
       d1 = t->c * s;
       d2 = t->c;
     } else if (t->kind == KT_POWER) {
-      /* c s^e for a small integer e: phi' and, for J, phi'' only. */
-      double sk = 1.0; /* s^(k-2) */
-      for (int i = 2; i < t->k; i++)
-        sk *= s;
-      d1 = t->k >= 1 ? t->c * t->e * (t->k >= 2 ? sk * s : 1.0) : 0.0;
-      d2 = t->k >= 2 ? t->c * t->e * (t->e - 1) * sk : 0.0;
+      power_derivs(t->c, t->e, t->k, s, &d1, &d2);
     } else {
       t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
     }
