@@ -427,9 +427,17 @@ double mrvi_predictor_omega_max(mrvi_predictor *pr);
 typedef struct mrvi_blocks mrvi_blocks;
 int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out);
 void mrvi_blocks_free(mrvi_blocks *b);
-/* Factorise J (the CSC values st->Ax, n_unknowns) by block elimination and
- * keep the factors; MRVI_ESINGULAR if a block is singular. */
+/* Factorise J by block elimination and keep the factors: the blocks of the
+ * last mrvi_blocks_assemble with jac if not yet factored, else the CSC
+ * values st->Ax (n_unknowns); MRVI_ESINGULAR if a block is singular. */
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st);
+/* The residual R (n_unknowns) of st at the displacements x
+ * (st->increments; unconstrained, no f_rows) with the potential momenta
+ * into st->mom_ps / mom_pf when set, as mrvi_step_assemble, and, if jac,
+ * the Newton matrix straight into the blocks (no CSC); MRVI_EINVAL where
+ * this does not apply (then use mrvi_step_assemble). */
+int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         double *R, int jac);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
 

@@ -32,6 +32,15 @@ struct mrvi_blocks {
   double **dst; /* block entry of every CSC entry (built on the first
                    factorisation: the pattern is fixed for the run) */
   long n_dst;
+  /* Direct assembly (mrvi_blocks_assemble): V and W compiled on the packed
+   * point configuration zp = (z_s, z_f), its gradient G and Hessian H
+   * (nz x nz, nz = ns + nf), the masses, and whether a class has slow and
+   * fast inputs. */
+  mrvi_terms *kc[2];
+  double *zp, *G, *H, *ms, *mf;
+  int has_s[2], has_f[2];
+  int assembled; /* the blocks hold the Newton matrix of the last
+                    mrvi_blocks_assemble (not yet factored) */
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -50,6 +59,13 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->r);
   free(b->spiv);
   free(b->dst);
+  mrvi_terms_free(b->kc[0]);
+  mrvi_terms_free(b->kc[1]);
+  free(b->zp);
+  free(b->G);
+  free(b->H);
+  free(b->ms);
+  free(b->mf);
   free(b);
 }
 
@@ -77,12 +93,51 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->S, ns * ns, double);
   ALLOC(b->r, ns, double);
   ALLOC(b->spiv, ns, int);
+  const size_t nz = ns + nf;
+  ALLOC(b->zp, nz, double);
+  ALLOC(b->G, nz, double);
+  ALLOC(b->H, nz * nz, double);
+  ALLOC(b->ms, ns, double);
+  ALLOC(b->mf, nf, double);
 #undef ALLOC
   if (!b->Ass || !b->Asf || !b->Afs || !b->D || !b->L1 || !b->L2 || !b->piv ||
-      !b->Y || !b->z || !b->S || !b->r || !b->spiv) {
+      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->zp || !b->G ||
+      !b->H || !b->ms || !b->mf) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
+  const mrvi_model *m = st->model;
+  int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
+  if (!col) {
+    mrvi_blocks_free(b);
+    return MRVI_ENOMEM;
+  }
+  for (int c = 0; c < m->n; c++)
+    col[c] = (m->rate[c] == MRVI_SLOW ? 0 : b->ns) + m->slot[c];
+  for (int c = 0; c < 2; c++) {
+    const int st_ok =
+        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
+                          &b->kc[c]) == MRVI_OK;
+    for (int ie = 0; st_ok && ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      for (int j = 0; j < e->n_in; j++) {
+        if (m->rate[e->in[j]] == MRVI_SLOW)
+          b->has_s[c] = 1;
+        else
+          b->has_f[c] = 1;
+      }
+    }
+    if (!st_ok) {
+      free(col);
+      mrvi_blocks_free(b);
+      return MRVI_ENOMEM;
+    }
+  }
+  free(col);
+  for (int i = 0; i < b->ns; i++)
+    b->ms[i] = m->mass[m->slow_index[i]];
+  for (int i = 0; i < b->nf; i++)
+    b->mf[i] = m->mass[m->fast_index[i]];
   *out = b;
   return MRVI_OK;
 }
@@ -163,11 +218,175 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
   }
 }
 
-int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
+/* Zero the blocks. */
+static void zero_blocks(mrvi_blocks *b) {
+  const size_t ns = (size_t)b->ns, nF = (size_t)b->p * (size_t)b->nf;
+  const size_t bb = nF * (size_t)b->nf;
+  memset(b->Ass, 0, ns * ns * sizeof(double));
+  memset(b->Asf, 0, ns * nF * sizeof(double));
+  memset(b->Afs, 0, nF * ns * sizeof(double));
+  memset(b->D, 0, bb * sizeof(double));
+  memset(b->L1, 0, bb * sizeof(double));
+  memset(b->L2, 0, bb * sizeof(double));
+}
+
+/* The fast-fast block of row block rb and column block cb (rb - cb in
+ * 0..2: D, L1, L2 of row block rb). */
+static double *ff_block(mrvi_blocks *b, int rb, int cb) {
+  double *base = rb == cb ? b->D : rb == cb + 1 ? b->L1 : b->L2;
+  return base + (size_t)rb * (size_t)b->nf * (size_t)b->nf;
+}
+
+/* Hessian H of point pt (packed nz x nz) into the blocks: the entry of
+ * input j in row (a0 | cA node m, cB node m + 1) and input l in column
+ * (a1 | cA node m, cB node m + 1) gets -w c_row c_col H_jl, as the scatter
+ * of step.c (mrvi_step_rows_of, mrvi_step_cols_of). */
+static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nz = ns + nf, nF = p * nf;
+  const int mm = pt->m;
+  const double *H = b->H;
+  /* Fast rows: (coefficient, row block); fast columns: (coefficient,
+   * column block = node - 1). */
+  double rc[2], cc[2];
+  int rb[2], cb[2], nr = 0, nc = 0;
+  if (pt->cA != 0.0) {
+    rc[nr] = pt->cA;
+    rb[nr++] = mm;
+    if (mm >= 1) {
+      cc[nc] = pt->cA;
+      cb[nc++] = mm - 1;
+    }
+  }
+  if (pt->cB != 0.0) {
+    if (mm + 1 <= p - 1) {
+      rc[nr] = pt->cB;
+      rb[nr++] = mm + 1;
+    }
+    cc[nc] = pt->cB;
+    cb[nc++] = mm;
+  }
+  const double w = pt->w;
+  if (b->has_s[cls]) {
+    if (pt->a0 != 0.0 && pt->a1 != 0.0) {
+      const double f = -w * pt->a0 * pt->a1;
+      for (int i = 0; i < ns; i++)
+        for (int j = 0; j < ns; j++)
+          b->Ass[i * ns + j] += f * H[i * nz + j];
+    }
+    if (b->has_f[cls]) {
+      for (int k = 0; pt->a0 != 0.0 && k < nc; k++) {
+        const double f = -w * pt->a0 * cc[k];
+        for (int i = 0; i < ns; i++) {
+          double *a = b->Asf + (size_t)i * (size_t)nF + (size_t)cb[k] * nf;
+          for (int j = 0; j < nf; j++)
+            a[j] += f * H[i * nz + ns + j];
+        }
+      }
+      for (int k = 0; pt->a1 != 0.0 && k < nr; k++) {
+        const double f = -w * rc[k] * pt->a1;
+        for (int i = 0; i < nf; i++) {
+          double *a = b->Afs + ((size_t)rb[k] * nf + (size_t)i) * (size_t)ns;
+          for (int j = 0; j < ns; j++)
+            a[j] += f * H[(ns + i) * nz + j];
+        }
+      }
+    }
+  }
+  if (!b->has_f[cls])
+    return;
+  for (int r = 0; r < nr; r++)
+    for (int c = 0; c < nc; c++) {
+      const double f = -w * rc[r] * cc[c];
+      double *blk = ff_block(b, rb[r], cb[c]);
+      for (int i = 0; i < nf; i++)
+        for (int j = 0; j < nf; j++)
+          blk[i * nf + j] += f * H[(ns + i) * nz + ns + j];
+    }
+}
+
+int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         double *R, int jac) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nz = ns + nf;
+  if (!st->increments || st->n_lambda > 0 || st->f_rows)
+    return MRVI_EINVAL;
+  double *mps = st->mom_ps, *mpf = st->mom_pf;
+  b->assembled = jac;
+  if (jac)
+    zero_blocks(b);
+  if (mps) {
+    memset(mps, 0, (size_t)ns * sizeof(double));
+    memset(mpf, 0, (size_t)p * (size_t)nf * sizeof(double));
+  }
+  /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
+  const double dT = st->dT, dt = st->dt;
+  for (int s = 0; s < ns; s++) {
+    R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
+    if (jac)
+      b->Ass[s * ns + s] += -b->ms[s] / dT;
+  }
+  for (int mm = 0; mm < p; mm++) {
+    const double *d = x + ns + (size_t)mm * nf;
+    double *Rm = R + ns + (size_t)mm * nf;
+    for (int f = 0; f < nf; f++) {
+      const double M = b->mf[f];
+      const double vr = (d[f] - (mm == 0 ? 0.0 : d[f - nf])) / dt;
+      if (mm == 0) {
+        Rm[f] = st->pf0[f] - M * vr;
+      } else {
+        const double vl = (d[f - nf] - (mm == 1 ? 0.0 : d[f - 2 * nf])) / dt;
+        Rm[f] = M * (vl - vr);
+      }
+      if (jac) {
+        if (mm >= 2)
+          ff_block(b, mm, mm - 2)[f * nf + f] += -M / dt;
+        if (mm >= 1)
+          ff_block(b, mm, mm - 1)[f * nf + f] += 2.0 * M / dt;
+        ff_block(b, mm, mm)[f * nf + f] += -M / dt;
+      }
+    }
+  }
+  /* Potential points: gradient (and Hessian) of the class at the point's
+   * configuration, into the rows and blocks of its nodes. */
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      const int mm = pt->m;
+      const double *dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+      const double *dB = x + ns + (size_t)mm * nf;
+      for (int s = 0; s < ns; s++)
+        b->zp[s] = st->qs0[s] + pt->a1 * x[s];
+      for (int f = 0; f < nf; f++)
+        b->zp[ns + f] = pt->cA * (dA ? st->qf0[f] + dA[f] : st->qf0[f]) +
+                        pt->cB * (st->qf0[f] + dB[f]);
+      memset(b->G, 0, (size_t)nz * sizeof(double));
+      if (jac)
+        memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
+      mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, jac ? b->H : NULL, nz, 1.0);
+      const double w = pt->w, *Gf = b->G + ns;
+      if (pt->a0 != 0.0)
+        for (int s = 0; s < ns; s++)
+          R[s] -= w * pt->a0 * b->G[s];
+      if (pt->cA != 0.0)
+        for (int f = 0; f < nf; f++)
+          R[ns + mm * nf + f] -= w * pt->cA * Gf[f];
+      if (pt->cB != 0.0 && mm + 1 <= p - 1)
+        for (int f = 0; f < nf; f++)
+          R[ns + (mm + 1) * nf + f] -= w * pt->cB * Gf[f];
+      if (mps) {
+        for (int s = 0; s < ns; s++)
+          mps[s] -= w * pt->a1 * b->G[s];
+        for (int f = 0; f < nf; f++)
+          mpf[mm * nf + f] -= w * pt->cB * Gf[f];
+      }
+      if (jac)
+        point_hessian(b, pt, c);
+    }
+  return MRVI_OK;
+}
+
+/* Factorise the blocks as they are (scattered or assembled directly). */
+static int factor_blocks(mrvi_blocks *b) {
   const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
-  const int sc = scatter(b, st);
-  if (sc < 0)
-    return sc;
   const size_t blk = (size_t)nf * (size_t)nf;
   for (int m = 0; m < p; m++)
     if (mrvi_dense_lu_factor(nf, b->D + (size_t)m * blk,
@@ -189,6 +408,15 @@ int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
   if (ns > 0 && mrvi_dense_lu_factor(ns, b->S, b->spiv) < 0)
     return MRVI_ESINGULAR;
   return MRVI_OK;
+}
+
+int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
+  if (b->assembled) {
+    b->assembled = 0;
+    return factor_blocks(b);
+  }
+  const int sc = scatter(b, st);
+  return sc < 0 ? sc : factor_blocks(b);
 }
 
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
