@@ -41,6 +41,11 @@ struct mrvi_blocks {
   int has_s[2], has_f[2];
   int assembled; /* the blocks hold the Newton matrix of the last
                     mrvi_blocks_assemble (not yet factored) */
+  /* The constant part of the Newton matrix (kinetic rows and the classes
+   * whose Hessian is constant, quad[c]: every element quadratic), saved on
+   * the first assembly: Ass, Asf, Afs, D, L1, L2 in order. */
+  int quad[2], const_ok;
+  double *cblk;
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -66,6 +71,7 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->H);
   free(b->ms);
   free(b->mf);
+  free(b->cblk);
   free(b);
 }
 
@@ -134,6 +140,17 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     }
   }
   free(col);
+  for (int c = 0; c < 2; c++) {
+    b->quad[c] = 1;
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++)
+      if (!mrvi_element_is_quadratic(&m->elements[st->elem_of_class[c][ie]]))
+        b->quad[c] = 0;
+  }
+  if (!(b->cblk = calloc(ns * ns + 2 * ns * nF + 3 * p * nf * nf + 1,
+                         sizeof(double)))) {
+    mrvi_blocks_free(b);
+    return MRVI_ENOMEM;
+  }
   for (int i = 0; i < b->ns; i++)
     b->ms[i] = m->mass[m->slow_index[i]];
   for (int i = 0; i < b->nf; i++)
@@ -218,16 +235,23 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
   }
 }
 
-/* Zero the blocks. */
-static void zero_blocks(mrvi_blocks *b) {
+/* Zero the blocks (dir 0), save them to cblk (dir 1) or restore them from
+ * cblk (dir 2). */
+static void copy_blocks(mrvi_blocks *b, int dir) {
   const size_t ns = (size_t)b->ns, nF = (size_t)b->p * (size_t)b->nf;
   const size_t bb = nF * (size_t)b->nf;
-  memset(b->Ass, 0, ns * ns * sizeof(double));
-  memset(b->Asf, 0, ns * nF * sizeof(double));
-  memset(b->Afs, 0, nF * ns * sizeof(double));
-  memset(b->D, 0, bb * sizeof(double));
-  memset(b->L1, 0, bb * sizeof(double));
-  memset(b->L2, 0, bb * sizeof(double));
+  double *const blk[6] = {b->Ass, b->Asf, b->Afs, b->D, b->L1, b->L2};
+  const size_t len[6] = {ns * ns, ns * nF, nF * ns, bb, bb, bb};
+  double *c = b->cblk;
+  for (int i = 0; i < 6; i++) {
+    if (dir == 0)
+      memset(blk[i], 0, len[i] * sizeof(double));
+    else if (dir == 1)
+      memcpy(c, blk[i], len[i] * sizeof(double));
+    else
+      memcpy(blk[i], c, len[i] * sizeof(double));
+    c += len[i];
+  }
 }
 
 /* The fast-fast block of row block rb and column block cb (rb - cb in
@@ -304,6 +328,52 @@ static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
     }
 }
 
+/* Configuration zp of point pt at the displacements x (step.c, gather). */
+static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         const mrvi_point *pt) {
+  const int ns = b->ns, nf = b->nf, mm = pt->m;
+  const double *dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+  const double *dB = x + ns + (size_t)mm * nf;
+  for (int s = 0; s < ns; s++)
+    b->zp[s] = st->qs0[s] + pt->a1 * x[s];
+  for (int f = 0; f < nf; f++)
+    b->zp[ns + f] = pt->cA * (dA ? st->qf0[f] + dA[f] : st->qf0[f]) +
+                    pt->cB * (st->qf0[f] + dB[f]);
+}
+
+/* H of class c at point pt's configuration (G is scratch here). */
+static void class_hessian(mrvi_blocks *b, int c) {
+  const size_t nz = (size_t)(b->ns + b->nf);
+  memset(b->G, 0, nz * sizeof(double));
+  memset(b->H, 0, nz * nz * sizeof(double));
+  mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, b->H, (int)nz, 1.0);
+}
+
+/* The constant part of the Newton matrix into the blocks: the kinetic rows
+ * and the classes with a constant Hessian (quad), at any x. */
+static void constant_part(mrvi_blocks *b, const mrvi_step *st,
+                          const double *x) {
+  const int ns = b->ns, nf = b->nf, p = b->p;
+  copy_blocks(b, 0);
+  for (int s = 0; s < ns; s++)
+    b->Ass[s * ns + s] += -b->ms[s] / st->dT;
+  for (int mm = 0; mm < p; mm++)
+    for (int f = 0; f < nf; f++) {
+      const double M = b->mf[f], dt = st->dt;
+      if (mm >= 2)
+        ff_block(b, mm, mm - 2)[f * nf + f] += -M / dt;
+      if (mm >= 1)
+        ff_block(b, mm, mm - 1)[f * nf + f] += 2.0 * M / dt;
+      ff_block(b, mm, mm)[f * nf + f] += -M / dt;
+    }
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c] && b->quad[c]; ip++) {
+      point_config(b, st, x, &st->pts[c][ip]);
+      class_hessian(b, c);
+      point_hessian(b, &st->pts[c][ip], c);
+    }
+}
+
 int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac) {
   const int ns = b->ns, nf = b->nf, p = b->p, nz = ns + nf;
@@ -311,19 +381,22 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
     return MRVI_EINVAL;
   double *mps = st->mom_ps, *mpf = st->mom_pf;
   b->assembled = jac;
-  if (jac)
-    zero_blocks(b);
+  /* The constant part: computed and saved once, then restored. */
+  if (jac && !b->const_ok) {
+    constant_part(b, st, x);
+    copy_blocks(b, 1);
+    b->const_ok = 1;
+  } else if (jac) {
+    copy_blocks(b, 2);
+  }
   if (mps) {
     memset(mps, 0, (size_t)ns * sizeof(double));
     memset(mpf, 0, (size_t)p * (size_t)nf * sizeof(double));
   }
   /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
   const double dT = st->dT, dt = st->dt;
-  for (int s = 0; s < ns; s++) {
+  for (int s = 0; s < ns; s++)
     R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
-    if (jac)
-      b->Ass[s * ns + s] += -b->ms[s] / dT;
-  }
   for (int mm = 0; mm < p; mm++) {
     const double *d = x + ns + (size_t)mm * nf;
     double *Rm = R + ns + (size_t)mm * nf;
@@ -336,32 +409,20 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
         const double vl = (d[f - nf] - (mm == 1 ? 0.0 : d[f - 2 * nf])) / dt;
         Rm[f] = M * (vl - vr);
       }
-      if (jac) {
-        if (mm >= 2)
-          ff_block(b, mm, mm - 2)[f * nf + f] += -M / dt;
-        if (mm >= 1)
-          ff_block(b, mm, mm - 1)[f * nf + f] += 2.0 * M / dt;
-        ff_block(b, mm, mm)[f * nf + f] += -M / dt;
-      }
     }
   }
-  /* Potential points: gradient (and Hessian) of the class at the point's
-   * configuration, into the rows and blocks of its nodes. */
+  /* Potential points: gradient (and, for a Hessian that is not constant,
+   * the Hessian) of the class at the point's configuration, into the rows
+   * and blocks of its nodes. */
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
-      const int mm = pt->m;
-      const double *dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
-      const double *dB = x + ns + (size_t)mm * nf;
-      for (int s = 0; s < ns; s++)
-        b->zp[s] = st->qs0[s] + pt->a1 * x[s];
-      for (int f = 0; f < nf; f++)
-        b->zp[ns + f] = pt->cA * (dA ? st->qf0[f] + dA[f] : st->qf0[f]) +
-                        pt->cB * (st->qf0[f] + dB[f]);
+      const int mm = pt->m, hess = jac && !b->quad[c];
+      point_config(b, st, x, pt);
       memset(b->G, 0, (size_t)nz * sizeof(double));
-      if (jac)
+      if (hess)
         memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, jac ? b->H : NULL, nz, 1.0);
+      mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, hess ? b->H : NULL, nz, 1.0);
       const double w = pt->w, *Gf = b->G + ns;
       if (pt->a0 != 0.0)
         for (int s = 0; s < ns; s++)
@@ -378,7 +439,7 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
         for (int f = 0; f < nf; f++)
           mpf[mm * nf + f] -= w * pt->cB * Gf[f];
       }
-      if (jac)
+      if (hess)
         point_hessian(b, pt, c);
     }
   return MRVI_OK;

@@ -178,8 +178,11 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
     for (int j = 0; j < n; j++)
       g[col[j]] += scale * (d1 * a[j]);
     if (J)
-      for (int j = 0; j < n; j++)
+      for (int j = 0; j < n; j++) {
+        const double u = d2 * a[j];
+        double *Jj = J + (size_t)col[j] * (size_t)ld;
         for (int l = 0; l < n; l++)
-          J[col[j] * ld + col[l]] += hscale * (d2 * a[j] * a[l]);
+          Jj[col[l]] += hscale * (u * a[l]);
+      }
   }
 }
