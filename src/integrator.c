@@ -453,7 +453,10 @@ static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
     if (s < 0)
       return s;
   }
-  mrvi_step_assemble(st, it->x, it->R, jac);
+  /* The schur path assembles its blocks directly (no CSC). */
+  if (!it->blocks ||
+      mrvi_blocks_assemble(it->blocks, st, it->x, it->R, jac) != MRVI_OK)
+    mrvi_step_assemble(st, it->x, it->R, jac);
   it->t_assemble += mrvi_clock() - t;
   return MRVI_OK;
 }

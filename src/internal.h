@@ -405,6 +405,21 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
                       double *b, double atol, char *msg, size_t len);
 const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb);
 
+/* A potential class compiled for evaluation (solver/terms.c): the elements
+ * elems (n_elems model indices) with input c read from and summed into
+ * column col_of[c] (col_of NULL: column c) of a packed configuration. */
+typedef struct mrvi_terms mrvi_terms;
+int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                      const int *col_of, mrvi_terms **out);
+void mrvi_terms_free(mrvi_terms *kc);
+/* g += scale grad Z(z) and, if J, J += hscale hess Z(z) (ld x ld, row-major
+ * on the columns). */
+void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
+                     double *J, int ld, double hscale);
+/* phi'(s) and phi''(s) of term element e's law (the linear law and small
+ * integer powers without the law table). */
+void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2);
+
 /* Predictor of the Newton paths (solver/predict.c): an explicit multirate
  * sweep (Stoermer-Verlet on both grids) from the known data of st, written
  * into x (n_unknowns) as displacements from (q_k^s, q_k^{f,0}). */
@@ -427,9 +442,17 @@ double mrvi_predictor_omega_max(mrvi_predictor *pr);
 typedef struct mrvi_blocks mrvi_blocks;
 int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out);
 void mrvi_blocks_free(mrvi_blocks *b);
-/* Factorise J (the CSC values st->Ax, n_unknowns) by block elimination and
- * keep the factors; MRVI_ESINGULAR if a block is singular. */
+/* Factorise J by block elimination and keep the factors: the blocks of the
+ * last mrvi_blocks_assemble with jac if not yet factored, else the CSC
+ * values st->Ax (n_unknowns); MRVI_ESINGULAR if a block is singular. */
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st);
+/* The residual R (n_unknowns) of st at the displacements x
+ * (st->increments; unconstrained, no f_rows) with the potential momenta
+ * into st->mom_ps / mom_pf when set, as mrvi_step_assemble, and, if jac,
+ * the Newton matrix straight into the blocks (no CSC); MRVI_EINVAL where
+ * this does not apply (then use mrvi_step_assemble). */
+int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         double *R, int jac);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
 

@@ -67,9 +67,10 @@ static void potential_momenta(const mrvi_step *st, const mrvi_element *e,
                               const mrvi_point *pt, double *ps1, double *pf);
 
 /* Residual rows (at most 2) that input c feeds at point pt, with their node
- * coefficients.  Returns the count. */
-int mrvi_step_rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
-                      int *row, double *coef) {
+ * coefficients.  Returns the count.  (Inline for the assembly loop; the
+ * exported mrvi_step_rows_of is the same.) */
+static inline int rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
+                          int *row, double *coef) {
   const mrvi_model *m = st->model;
   const int s = m->slot[c];
   int n = 0;
@@ -92,8 +93,8 @@ int mrvi_step_rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
 }
 
 /* Unknown columns (at most 2) that input c depends on at point pt. */
-int mrvi_step_cols_of(const mrvi_step *st, int c, const mrvi_point *pt,
-                      int *col, double *coef) {
+static inline int cols_of(const mrvi_step *st, int c, const mrvi_point *pt,
+                          int *col, double *coef) {
   const mrvi_model *m = st->model;
   const int s = m->slot[c];
   int n = 0;
@@ -113,6 +114,16 @@ int mrvi_step_cols_of(const mrvi_step *st, int c, const mrvi_point *pt,
     coef[n++] = pt->cB;
   }
   return n;
+}
+
+int mrvi_step_rows_of(const mrvi_step *st, int c, const mrvi_point *pt,
+                      int *row, double *coef) {
+  return rows_of(st, c, pt, row, coef);
+}
+
+int mrvi_step_cols_of(const mrvi_step *st, int c, const mrvi_point *pt,
+                      int *col, double *coef) {
+  return cols_of(st, c, pt, col, coef);
 }
 
 /* Add v at (row, col): records the pattern on the first pass, then sums into
@@ -410,41 +421,103 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
       const mrvi_point *pt = &st->pts[c][ip];
       for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
         const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
-        const int lin = e->kind == MRVI_ELEMENT_GRAVITY;
         const int n = e->n_in;
-        gather(st, e, pt, x, st->y);
-        mrvi_element_eval(m, e, st->y, st->g, jac && !lin ? st->H : NULL);
-        if (mps)
-          potential_momenta(st, e, pt, mps, mpf);
-        /* Rows and unknown columns of every input at this point (at most
-         * two each: the nodes the point interpolates).  Filled only for
-         * non-linear elements, whose inputs are at most MRVI_MAX_INPUTS;
-         * gravity (linear, any size) has no Hessian. */
+        if (e->kind == MRVI_ELEMENT_GRAVITY) {
+          /* Linear (any number of inputs): gradient only. */
+          gather(st, e, pt, x, st->y);
+          mrvi_element_eval(m, e, st->y, st->g, NULL);
+          if (mps)
+            potential_momenta(st, e, pt, mps, mpf);
+          for (int j = 0; j < n; j++) {
+            int rj[2];
+            double cj[2];
+            const int k = rows_of(st, e->in[j], pt, rj, cj);
+            for (int a = 0; a < k; a++)
+              R[rj[a]] -= pt->w * cj[a] * st->g[j];
+          }
+          continue;
+        }
+        /* Every input once: its value at the point, the rows it feeds and
+         * the unknown columns it depends on (at most two each: the nodes
+         * the point interpolates; as rows_of, cols_of and gather). */
         int r[MRVI_MAX_INPUTS][2], cl[MRVI_MAX_INPUTS][2];
         double rc[MRVI_MAX_INPUTS][2], cc[MRVI_MAX_INPUTS][2];
         int kr[MRVI_MAX_INPUTS], kc[MRVI_MAX_INPUTS];
-        /* Gradient: -w c_row grad_j into every row input j feeds. */
         for (int j = 0; j < n; j++) {
-          int rj[2];
-          double cj[2];
-          const int k = mrvi_step_rows_of(st, e->in[j], pt, rj, cj);
-          for (int a = 0; a < k; a++)
-            R[rj[a]] -= pt->w * cj[a] * st->g[j];
-          if (jac && !lin) {
-            kr[j] = k;
-            for (int a = 0; a < k; a++) {
-              r[j][a] = rj[a];
-              rc[j][a] = cj[a];
+          const int ci = e->in[j], s = m->slot[ci];
+          int k = 0, kk = 0;
+          if (m->rate[ci] == MRVI_SLOW) {
+            st->y[j] = slow_at(st, x, pt->a0, pt->a1, s);
+            if (pt->a0 != 0.0) {
+              r[j][k] = s;
+              rc[j][k++] = pt->a0;
             }
-            kc[j] = mrvi_step_cols_of(st, e->in[j], pt, cl[j], cc[j]);
+            if (pt->a1 != 0.0) {
+              cl[j][kk] = s;
+              cc[j][kk++] = pt->a1;
+            }
+          } else {
+            st->y[j] = pt->cA * fast_node(st, x, pt->m, s) +
+                       pt->cB * fast_node(st, x, pt->m + 1, s);
+            const int row = st->ns + pt->m * nf + s;
+            if (pt->cA != 0.0) {
+              r[j][k] = row;
+              rc[j][k++] = pt->cA;
+              if (pt->m >= 1) {
+                cl[j][kk] = row - nf;
+                cc[j][kk++] = pt->cA;
+              }
+            }
+            if (pt->cB != 0.0) {
+              if (pt->m + 1 <= st->p - 1) {
+                r[j][k] = row + nf;
+                rc[j][k++] = pt->cB;
+              }
+              cl[j][kk] = row;
+              cc[j][kk++] = pt->cB;
+            }
           }
+          kr[j] = k;
+          kc[j] = kk;
         }
-        if (!jac || lin)
+        /* Terms phi(a^T q - b) here: their Hessian ddphi a a^T is formed
+         * entry by entry in the scatter below; other elements by the model. */
+        const int term = e->kind == MRVI_ELEMENT_TERM;
+        double d2 = 0.0;
+        if (term) {
+          double arg = -e->shift, d1;
+          for (int j = 0; j < n; j++)
+            arg += e->coef[j] * st->y[j];
+          mrvi_term_derivs(e, arg, &d1, &d2);
+          for (int j = 0; j < n; j++)
+            st->g[j] = d1 * e->coef[j];
+        } else {
+          mrvi_element_eval(m, e, st->y, st->g, jac ? st->H : NULL);
+        }
+        if (mps)
+          potential_momenta(st, e, pt, mps, mpf);
+        /* Gradient: -w c_row grad_j into every row input j feeds. */
+        for (int j = 0; j < n; j++)
+          for (int a = 0; a < kr[j]; a++)
+            R[r[j][a]] -= pt->w * rc[j][a] * st->g[j];
+        if (!jac)
           continue;
-        /* Hessian scatter: -w c_row c_col H_jl. */
+        /* Hessian scatter: -w c_row c_col H_jl (through the triplet map
+         * directly once the pattern is recorded). */
         for (int j = 0; j < n; j++)
           for (int l = 0; l < n; l++) {
-            const double h = st->H[j * n + l];
+            const double h =
+                term ? d2 * e->coef[j] * e->coef[l] : st->H[j * n + l];
+            if (st->recording == 0) {
+              const int *map = st->map;
+              double *Ax = st->Ax;
+              long t = st->n_trip;
+              for (int a = 0; a < kr[j]; a++)
+                for (int b = 0; b < kc[l]; b++)
+                  Ax[map[t++]] += -pt->w * rc[j][a] * cc[l][b] * h;
+              st->n_trip = t;
+              continue;
+            }
             for (int a = 0; a < kr[j]; a++)
               for (int b = 0; b < kc[l]; b++)
                 jac_add(st, r[j][a], cl[l][b],

@@ -29,6 +29,23 @@ struct mrvi_blocks {
   int *piv;                /* p x nf (pivots of the factored D) */
   double *Y, *z, *S, *r;   /* p nf x ns, p nf, ns x ns, ns */
   int *spiv;
+  double **dst; /* block entry of every CSC entry (built on the first
+                   factorisation: the pattern is fixed for the run) */
+  long n_dst;
+  /* Direct assembly (mrvi_blocks_assemble): V and W compiled on the packed
+   * point configuration zp = (z_s, z_f), its gradient G and Hessian H
+   * (nz x nz, nz = ns + nf), the masses, and whether a class has slow and
+   * fast inputs. */
+  mrvi_terms *kc[2];
+  double *zp, *G, *H, *ms, *mf;
+  int has_s[2], has_f[2];
+  int assembled; /* the blocks hold the Newton matrix of the last
+                    mrvi_blocks_assemble (not yet factored) */
+  /* The constant part of the Newton matrix (kinetic rows and the classes
+   * whose Hessian is constant, quad[c]: every element quadratic), saved on
+   * the first assembly: Ass, Asf, Afs, D, L1, L2 in order. */
+  int quad[2], const_ok;
+  double *cblk;
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -46,6 +63,15 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->S);
   free(b->r);
   free(b->spiv);
+  free(b->dst);
+  mrvi_terms_free(b->kc[0]);
+  mrvi_terms_free(b->kc[1]);
+  free(b->zp);
+  free(b->G);
+  free(b->H);
+  free(b->ms);
+  free(b->mf);
+  free(b->cblk);
   free(b);
 }
 
@@ -73,20 +99,108 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->S, ns * ns, double);
   ALLOC(b->r, ns, double);
   ALLOC(b->spiv, ns, int);
+  const size_t nz = ns + nf;
+  ALLOC(b->zp, nz, double);
+  ALLOC(b->G, nz, double);
+  ALLOC(b->H, nz * nz, double);
+  ALLOC(b->ms, ns, double);
+  ALLOC(b->mf, nf, double);
 #undef ALLOC
   if (!b->Ass || !b->Asf || !b->Afs || !b->D || !b->L1 || !b->L2 || !b->piv ||
-      !b->Y || !b->z || !b->S || !b->r || !b->spiv) {
+      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->zp || !b->G ||
+      !b->H || !b->ms || !b->mf) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
+  const mrvi_model *m = st->model;
+  int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
+  if (!col) {
+    mrvi_blocks_free(b);
+    return MRVI_ENOMEM;
+  }
+  for (int c = 0; c < m->n; c++)
+    col[c] = (m->rate[c] == MRVI_SLOW ? 0 : b->ns) + m->slot[c];
+  for (int c = 0; c < 2; c++) {
+    const int st_ok =
+        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
+                          &b->kc[c]) == MRVI_OK;
+    for (int ie = 0; st_ok && ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      for (int j = 0; j < e->n_in; j++) {
+        if (m->rate[e->in[j]] == MRVI_SLOW)
+          b->has_s[c] = 1;
+        else
+          b->has_f[c] = 1;
+      }
+    }
+    if (!st_ok) {
+      free(col);
+      mrvi_blocks_free(b);
+      return MRVI_ENOMEM;
+    }
+  }
+  free(col);
+  for (int c = 0; c < 2; c++) {
+    b->quad[c] = 1;
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++)
+      if (!mrvi_element_is_quadratic(&m->elements[st->elem_of_class[c][ie]]))
+        b->quad[c] = 0;
+  }
+  if (!(b->cblk = calloc(ns * ns + 2 * ns * nF + 3 * p * nf * nf + 1,
+                         sizeof(double)))) {
+    mrvi_blocks_free(b);
+    return MRVI_ENOMEM;
+  }
+  for (int i = 0; i < b->ns; i++)
+    b->ms[i] = m->mass[m->slow_index[i]];
+  for (int i = 0; i < b->nf; i++)
+    b->mf[i] = m->mass[m->fast_index[i]];
   *out = b;
   return MRVI_OK;
 }
 
-/* Scatter the CSC values of st into the blocks; -1 if an entry lies outside
+/* The block entry that CSC entry (i, j) adds to; NULL if it lies outside
  * the block structure (it cannot for an unconstrained step). */
+static double *block_entry(mrvi_blocks *b, int i, int j) {
+  const int ns = b->ns, nf = b->nf, nF = b->p * nf;
+  if (i < ns && j < ns)
+    return &b->Ass[i * ns + j];
+  if (i < ns)
+    return &b->Asf[(size_t)i * (size_t)nF + (size_t)(j - ns)];
+  if (j < ns)
+    return &b->Afs[(size_t)(i - ns) * (size_t)ns + (size_t)j];
+  const int rb = (i - ns) / nf, rf = (i - ns) % nf;
+  const int cb = (j - ns) / nf, cf = (j - ns) % nf;
+  double *blk = rb == cb       ? b->D
+                : rb == cb + 1 ? b->L1
+                : rb == cb + 2 ? b->L2
+                               : NULL;
+  return blk ? &blk[((size_t)rb * (size_t)nf + (size_t)rf) * (size_t)nf +
+                    (size_t)cf]
+             : NULL;
+}
+
+/* Scatter the CSC values of st into the blocks through the entry map (built
+ * on the first call); MRVI_EINVAL if an entry lies outside the block
+ * structure, MRVI_ENOMEM. */
 static int scatter(mrvi_blocks *b, const mrvi_step *st) {
   const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
+  const long nnz = st->Ap[ns + nF];
+  if (!b->dst || b->n_dst != nnz) {
+    free(b->dst);
+    b->n_dst = 0;
+    b->dst = malloc((size_t)(nnz > 0 ? nnz : 1) * sizeof *b->dst);
+    if (!b->dst)
+      return MRVI_ENOMEM;
+    for (int j = 0; j < ns + nF; j++)
+      for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
+        if (!(b->dst[q] = block_entry(b, st->Ai[q], j))) {
+          free(b->dst);
+          b->dst = NULL;
+          return MRVI_EINVAL;
+        }
+    b->n_dst = nnz;
+  }
   memset(b->Ass, 0, (size_t)ns * (size_t)ns * sizeof(double));
   memset(b->Asf, 0, (size_t)ns * (size_t)nF * sizeof(double));
   memset(b->Afs, 0, (size_t)nF * (size_t)ns * sizeof(double));
@@ -94,30 +208,9 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
   memset(b->D, 0, bb * sizeof(double));
   memset(b->L1, 0, bb * sizeof(double));
   memset(b->L2, 0, bb * sizeof(double));
-  for (int j = 0; j < ns + nF; j++)
-    for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++) {
-      const int i = st->Ai[q];
-      const double v = st->Ax[q];
-      if (i < ns && j < ns)
-        b->Ass[i * ns + j] += v;
-      else if (i < ns)
-        b->Asf[(size_t)i * (size_t)nF + (size_t)(j - ns)] += v;
-      else if (j < ns)
-        b->Afs[(size_t)(i - ns) * (size_t)ns + (size_t)j] += v;
-      else {
-        const int rb = (i - ns) / nf, rf = (i - ns) % nf;
-        const int cb = (j - ns) / nf, cf = (j - ns) % nf;
-        double *blk = rb == cb       ? b->D
-                      : rb == cb + 1 ? b->L1
-                      : rb == cb + 2 ? b->L2
-                                     : NULL;
-        if (!blk)
-          return -1;
-        blk[((size_t)rb * (size_t)nf + (size_t)rf) * (size_t)nf + (size_t)cf] +=
-            v;
-      }
-    }
-  return 0;
+  for (long q = 0; q < nnz; q++)
+    *b->dst[q] += st->Ax[q];
+  return MRVI_OK;
 }
 
 /* X (p nf x nrhs) <- A_ff^-1 X by a block forward sweep (D factored). */
@@ -142,10 +235,219 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
   }
 }
 
-int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
-  const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
-  if (scatter(b, st) < 0)
+/* Zero the blocks (dir 0), save them to cblk (dir 1) or restore them from
+ * cblk (dir 2). */
+static void copy_blocks(mrvi_blocks *b, int dir) {
+  const size_t ns = (size_t)b->ns, nF = (size_t)b->p * (size_t)b->nf;
+  const size_t bb = nF * (size_t)b->nf;
+  double *const blk[6] = {b->Ass, b->Asf, b->Afs, b->D, b->L1, b->L2};
+  const size_t len[6] = {ns * ns, ns * nF, nF * ns, bb, bb, bb};
+  double *c = b->cblk;
+  for (int i = 0; i < 6; i++) {
+    if (dir == 0)
+      memset(blk[i], 0, len[i] * sizeof(double));
+    else if (dir == 1)
+      memcpy(c, blk[i], len[i] * sizeof(double));
+    else
+      memcpy(blk[i], c, len[i] * sizeof(double));
+    c += len[i];
+  }
+}
+
+/* The fast-fast block of row block rb and column block cb (rb - cb in
+ * 0..2: D, L1, L2 of row block rb). */
+static double *ff_block(mrvi_blocks *b, int rb, int cb) {
+  double *base = rb == cb ? b->D : rb == cb + 1 ? b->L1 : b->L2;
+  return base + (size_t)rb * (size_t)b->nf * (size_t)b->nf;
+}
+
+/* Hessian H of point pt (packed nz x nz) into the blocks: the entry of
+ * input j in row (a0 | cA node m, cB node m + 1) and input l in column
+ * (a1 | cA node m, cB node m + 1) gets -w c_row c_col H_jl, as the scatter
+ * of step.c (mrvi_step_rows_of, mrvi_step_cols_of). */
+static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nz = ns + nf, nF = p * nf;
+  const int mm = pt->m;
+  const double *H = b->H;
+  /* Fast rows: (coefficient, row block); fast columns: (coefficient,
+   * column block = node - 1). */
+  double rc[2], cc[2];
+  int rb[2], cb[2], nr = 0, nc = 0;
+  if (pt->cA != 0.0) {
+    rc[nr] = pt->cA;
+    rb[nr++] = mm;
+    if (mm >= 1) {
+      cc[nc] = pt->cA;
+      cb[nc++] = mm - 1;
+    }
+  }
+  if (pt->cB != 0.0) {
+    if (mm + 1 <= p - 1) {
+      rc[nr] = pt->cB;
+      rb[nr++] = mm + 1;
+    }
+    cc[nc] = pt->cB;
+    cb[nc++] = mm;
+  }
+  const double w = pt->w;
+  if (b->has_s[cls]) {
+    if (pt->a0 != 0.0 && pt->a1 != 0.0) {
+      const double f = -w * pt->a0 * pt->a1;
+      for (int i = 0; i < ns; i++)
+        for (int j = 0; j < ns; j++)
+          b->Ass[i * ns + j] += f * H[i * nz + j];
+    }
+    if (b->has_f[cls]) {
+      for (int k = 0; pt->a0 != 0.0 && k < nc; k++) {
+        const double f = -w * pt->a0 * cc[k];
+        for (int i = 0; i < ns; i++) {
+          double *a = b->Asf + (size_t)i * (size_t)nF + (size_t)cb[k] * nf;
+          for (int j = 0; j < nf; j++)
+            a[j] += f * H[i * nz + ns + j];
+        }
+      }
+      for (int k = 0; pt->a1 != 0.0 && k < nr; k++) {
+        const double f = -w * rc[k] * pt->a1;
+        for (int i = 0; i < nf; i++) {
+          double *a = b->Afs + ((size_t)rb[k] * nf + (size_t)i) * (size_t)ns;
+          for (int j = 0; j < ns; j++)
+            a[j] += f * H[(ns + i) * nz + j];
+        }
+      }
+    }
+  }
+  if (!b->has_f[cls])
+    return;
+  for (int r = 0; r < nr; r++)
+    for (int c = 0; c < nc; c++) {
+      const double f = -w * rc[r] * cc[c];
+      double *blk = ff_block(b, rb[r], cb[c]);
+      for (int i = 0; i < nf; i++)
+        for (int j = 0; j < nf; j++)
+          blk[i * nf + j] += f * H[(ns + i) * nz + ns + j];
+    }
+}
+
+/* Configuration zp of point pt at the displacements x (step.c, gather). */
+static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         const mrvi_point *pt) {
+  const int ns = b->ns, nf = b->nf, mm = pt->m;
+  const double *dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+  const double *dB = x + ns + (size_t)mm * nf;
+  for (int s = 0; s < ns; s++)
+    b->zp[s] = st->qs0[s] + pt->a1 * x[s];
+  for (int f = 0; f < nf; f++)
+    b->zp[ns + f] = pt->cA * (dA ? st->qf0[f] + dA[f] : st->qf0[f]) +
+                    pt->cB * (st->qf0[f] + dB[f]);
+}
+
+/* H of class c at point pt's configuration (G is scratch here). */
+static void class_hessian(mrvi_blocks *b, int c) {
+  const size_t nz = (size_t)(b->ns + b->nf);
+  memset(b->G, 0, nz * sizeof(double));
+  memset(b->H, 0, nz * nz * sizeof(double));
+  mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, b->H, (int)nz, 1.0);
+}
+
+/* The constant part of the Newton matrix into the blocks: the kinetic rows
+ * and the classes with a constant Hessian (quad), at any x. */
+static void constant_part(mrvi_blocks *b, const mrvi_step *st,
+                          const double *x) {
+  const int ns = b->ns, nf = b->nf, p = b->p;
+  copy_blocks(b, 0);
+  for (int s = 0; s < ns; s++)
+    b->Ass[s * ns + s] += -b->ms[s] / st->dT;
+  for (int mm = 0; mm < p; mm++)
+    for (int f = 0; f < nf; f++) {
+      const double M = b->mf[f], dt = st->dt;
+      if (mm >= 2)
+        ff_block(b, mm, mm - 2)[f * nf + f] += -M / dt;
+      if (mm >= 1)
+        ff_block(b, mm, mm - 1)[f * nf + f] += 2.0 * M / dt;
+      ff_block(b, mm, mm)[f * nf + f] += -M / dt;
+    }
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c] && b->quad[c]; ip++) {
+      point_config(b, st, x, &st->pts[c][ip]);
+      class_hessian(b, c);
+      point_hessian(b, &st->pts[c][ip], c);
+    }
+}
+
+int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         double *R, int jac) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nz = ns + nf;
+  if (!st->increments || st->n_lambda > 0 || st->f_rows)
     return MRVI_EINVAL;
+  double *mps = st->mom_ps, *mpf = st->mom_pf;
+  b->assembled = jac;
+  /* The constant part: computed and saved once, then restored. */
+  if (jac && !b->const_ok) {
+    constant_part(b, st, x);
+    copy_blocks(b, 1);
+    b->const_ok = 1;
+  } else if (jac) {
+    copy_blocks(b, 2);
+  }
+  if (mps) {
+    memset(mps, 0, (size_t)ns * sizeof(double));
+    memset(mpf, 0, (size_t)p * (size_t)nf * sizeof(double));
+  }
+  /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
+  const double dT = st->dT, dt = st->dt;
+  for (int s = 0; s < ns; s++)
+    R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
+  for (int mm = 0; mm < p; mm++) {
+    const double *d = x + ns + (size_t)mm * nf;
+    double *Rm = R + ns + (size_t)mm * nf;
+    for (int f = 0; f < nf; f++) {
+      const double M = b->mf[f];
+      const double vr = (d[f] - (mm == 0 ? 0.0 : d[f - nf])) / dt;
+      if (mm == 0) {
+        Rm[f] = st->pf0[f] - M * vr;
+      } else {
+        const double vl = (d[f - nf] - (mm == 1 ? 0.0 : d[f - 2 * nf])) / dt;
+        Rm[f] = M * (vl - vr);
+      }
+    }
+  }
+  /* Potential points: gradient (and, for a Hessian that is not constant,
+   * the Hessian) of the class at the point's configuration, into the rows
+   * and blocks of its nodes. */
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      const int mm = pt->m, hess = jac && !b->quad[c];
+      point_config(b, st, x, pt);
+      memset(b->G, 0, (size_t)nz * sizeof(double));
+      if (hess)
+        memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
+      mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, hess ? b->H : NULL, nz, 1.0);
+      const double w = pt->w, *Gf = b->G + ns;
+      if (pt->a0 != 0.0)
+        for (int s = 0; s < ns; s++)
+          R[s] -= w * pt->a0 * b->G[s];
+      if (pt->cA != 0.0)
+        for (int f = 0; f < nf; f++)
+          R[ns + mm * nf + f] -= w * pt->cA * Gf[f];
+      if (pt->cB != 0.0 && mm + 1 <= p - 1)
+        for (int f = 0; f < nf; f++)
+          R[ns + (mm + 1) * nf + f] -= w * pt->cB * Gf[f];
+      if (mps) {
+        for (int s = 0; s < ns; s++)
+          mps[s] -= w * pt->a1 * b->G[s];
+        for (int f = 0; f < nf; f++)
+          mpf[mm * nf + f] -= w * pt->cB * Gf[f];
+      }
+      if (hess)
+        point_hessian(b, pt, c);
+    }
+  return MRVI_OK;
+}
+
+/* Factorise the blocks as they are (scattered or assembled directly). */
+static int factor_blocks(mrvi_blocks *b) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
   const size_t blk = (size_t)nf * (size_t)nf;
   for (int m = 0; m < p; m++)
     if (mrvi_dense_lu_factor(nf, b->D + (size_t)m * blk,
@@ -167,6 +469,15 @@ int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
   if (ns > 0 && mrvi_dense_lu_factor(ns, b->S, b->spiv) < 0)
     return MRVI_ESINGULAR;
   return MRVI_OK;
+}
+
+int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
+  if (b->assembled) {
+    b->assembled = 0;
+    return factor_blocks(b);
+  }
+  const int sc = scatter(b, st);
+  return sc < 0 ? sc : factor_blocks(b);
 }
 
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {

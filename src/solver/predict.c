@@ -39,7 +39,8 @@ struct mrvi_predictor {
   /* Model-order vectors (n): configuration, gradient, slow-row force, the
    * explicit and implicit parts of F_m^A, and F_m^B. */
   double *z, *g, *fs, *fexp, *fimp, *fb;
-  double *pm; /* p^{f,m} (nf) */
+  double *pm;        /* p^{f,m} (nf) */
+  mrvi_terms *kc[2]; /* V and W compiled on model indices (terms.c) */
 };
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
@@ -61,6 +62,12 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
+  for (int c = 0; c < 2; c++)
+    if (mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], NULL,
+                          &pr->kc[c]) < 0) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
   for (int c = 0; c < 2; c++)
@@ -90,6 +97,8 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fimp);
   free(pr->fb);
   free(pr->pm);
+  mrvi_terms_free(pr->kc[0]);
+  mrvi_terms_free(pr->kc[1]);
   free(pr);
 }
 
@@ -164,7 +173,7 @@ static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
     pr->z[m->fast_index[f]] = st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
                               (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
   memset(pr->g, 0, (size_t)m->n * sizeof(double));
-  mrvi_model_potential(m, (mrvi_rate)c, pr->z, pr->g, NULL);
+  mrvi_terms_eval(pr->kc[c], pr->z, 1.0, pr->g, NULL, 0, 0.0);
 }
 
 static void axpy(int n, double a, const double *g, double *acc) {

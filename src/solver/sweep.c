@@ -41,14 +41,21 @@ struct mrvi_sweep {
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
-  double *zs, *zf;               /* point configuration */
-  double *gs, *gf;               /* gradient accumulators */
-  double *gnode;                 /* grad_f W at the current node (cache) */
+  double *zs, *zf;   /* point configuration (zf = zs + ns: packed) */
+  double *gs, *gf;   /* gradient accumulators (gf = gs + ns: packed) */
+  mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
+  /* grad V at the last macro node where V was evaluated (unscaled), and
+   * that node's (q^s, q^f): the end node of a step is the start node of the
+   * next, and the gradient is reused only for the bitwise same input. */
+  double *gv_at, *gv;
+  int gv_ok;
+  double *gnode; /* grad_f W at the current node (cache) */
   int gnode_ok;
   double *gpt[2];         /* grad_f W at the implicit points (converged) */
   double *rhs, *F, *fimp; /* row data, residual, last implicit force */
   double *dn;             /* q^{m+1} - q^m */
   double *J;              /* nf x nf */
+  double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
   mrvi_sblock *sb;   /* sparse J instead (nf > SWEEP_DENSE_MAX) */
   double *y, *g, *H; /* element workspace */
@@ -149,10 +156,12 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->minv_s);
   free(sw->minv_f);
   free(sw->m_f);
-  free(sw->zs);
-  free(sw->zf);
+  free(sw->zs); /* zf, gf are inside zs, gs */
   free(sw->gs);
-  free(sw->gf);
+  mrvi_terms_free(sw->kc[0]);
+  mrvi_terms_free(sw->kc[1]);
+  free(sw->gv_at);
+  free(sw->gv);
   free(sw->gnode);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
@@ -161,6 +170,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->fimp);
   free(sw->dn);
   free(sw->J);
+  free(sw->Jinv);
+  free(sw->del);
   free(sw->Hpt[0]);
   free(sw->Hpt[1]);
   free(sw->piv);
@@ -217,10 +228,30 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->minv_s = dalloc(ns);
   sw->minv_f = dalloc(nf);
   sw->m_f = dalloc(nf);
-  sw->zs = dalloc(ns);
-  sw->zf = dalloc(nf);
-  sw->gs = dalloc(ns);
-  sw->gf = dalloc(nf);
+  sw->zs = dalloc(ns + nf);
+  sw->zf = sw->zs ? sw->zs + ns : NULL;
+  sw->gs = dalloc(ns + nf);
+  sw->gf = sw->gs ? sw->gs + ns : NULL;
+  sw->gv_at = dalloc(ns + nf);
+  sw->gv = dalloc(ns + nf);
+  /* Columns: (zs, zf) packed for V, zf alone for W (no slow inputs). */
+  int *col = calloc((size_t)(m->n > 0 ? m->n : 1), sizeof *col);
+  int s_ok = col != NULL;
+  for (int c = 0; s_ok && c < m->n; c++)
+    col[c] = (m->rate[c] == MRVI_SLOW ? 0 : sw->ns) + m->slot[c];
+  s_ok = s_ok && mrvi_terms_create(m, st->elem_of_class[MRVI_SLOW],
+                                   st->n_elem_of_class[MRVI_SLOW], col,
+                                   &sw->kc[MRVI_SLOW]) == MRVI_OK;
+  for (int c = 0; s_ok && c < m->n; c++)
+    col[c] = m->slot[c];
+  s_ok = s_ok && mrvi_terms_create(m, st->elem_of_class[MRVI_FAST],
+                                   st->n_elem_of_class[MRVI_FAST], col,
+                                   &sw->kc[MRVI_FAST]) == MRVI_OK;
+  free(col);
+  if (!s_ok) {
+    mrvi_sweep_free(sw);
+    return MRVI_ENOMEM;
+  }
   sw->gnode = dalloc(nf);
   sw->gpt[0] = dalloc(nf);
   sw->gpt[1] = dalloc(nf);
@@ -244,14 +275,16 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->linear = 0;
   sw->Hpt[0] = dalloc(sw->linear ? nf * nf : 1);
   sw->Hpt[1] = dalloc(sw->linear ? nf * nf : 1);
+  sw->Jinv = dalloc(sw->linear ? nf * nf : 1);
+  sw->del = dalloc(nf);
   sw->piv = calloc(nf > 0 ? nf : 1, sizeof(int));
   sw->y = dalloc((size_t)max_n_in);
   sw->g = dalloc((size_t)max_n_in);
   sw->H = dalloc(mi * mi);
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zs || !sw->zf || !sw->gs ||
-      !sw->gf || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
-      !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
-      !sw->piv || !sw->y || !sw->g || !sw->H) {
+      !sw->gv_at || !sw->gv || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] ||
+      !sw->rhs || !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] ||
+      !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -269,48 +302,54 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
   if (!sw)
     return;
   sw->gnode_ok = 0;
+  sw->gv_ok = 0;
   memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
 }
 
-/* Elements of potential class cls at (zs, zf): gs += scale grad_s (gs may
- * be NULL when the class has no slow inputs), gf += scale grad_f and, if J,
- * J += hscale hess_ff (nf x nf, or the sparse sw->sb when set). */
+/* Elements of potential class cls at (zs, zf): gs += scale grad_s and
+ * gf += scale grad_f (for the slow class gs, gf are sw->gs, sw->gf, packed;
+ * the fast class has no slow inputs on these paths and gs is unused) and,
+ * if J, J += hscale hess_ff (nf x nf, or the sparse sw->sb when set). */
 static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
                        double *gf, double *J, double hscale) {
+  if (cls == MRVI_SLOW) {
+    (void)gf; /* = gs + ns */
+    mrvi_terms_eval(sw->kc[MRVI_SLOW], sw->zs, scale, gs, NULL, 0, 0.0);
+    return;
+  }
+  if (!(J && sw->sb)) {
+    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, scale, gf, J, sw->nf, hscale);
+    return;
+  }
+  /* Sparse block: each element's Hessian goes to its pattern entries. */
   const mrvi_step *st = sw->st;
   const mrvi_model *m = st->model;
-  const int nf = sw->nf;
   for (int ie = 0; ie < st->n_elem_of_class[cls]; ie++) {
     const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
     const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
-    for (int j = 0; j < n; j++) {
-      const int c = e->in[j];
-      sw->y[j] =
-          m->rate[c] == MRVI_SLOW ? sw->zs[m->slot[c]] : sw->zf[m->slot[c]];
-    }
-    mrvi_element_eval(m, e, sw->y, sw->g, J && !lin ? sw->H : NULL);
-    for (int j = 0; j < n; j++) {
-      const int c = e->in[j], s = m->slot[c];
-      if (m->rate[c] == MRVI_FAST)
-        gf[s] += scale * sw->g[j];
-      else if (gs)
-        gs[s] += scale * sw->g[j];
-    }
-    if (!J || lin)
-      continue;
-    if (sw->sb) {
+    for (int j = 0; j < n; j++)
+      sw->y[j] = sw->zf[m->slot[e->in[j]]];
+    mrvi_element_eval(m, e, sw->y, sw->g, lin ? NULL : sw->H);
+    for (int j = 0; j < n; j++)
+      gf[m->slot[e->in[j]]] += scale * sw->g[j];
+    if (!lin)
       mrvi_sblock_add_element(sw->sb, ie, sw->H, n, hscale);
-      continue;
-    }
-    for (int j = 0; j < n; j++) {
-      if (m->rate[e->in[j]] != MRVI_FAST)
-        continue;
-      const int sj = m->slot[e->in[j]];
-      for (int l = 0; l < n; l++)
-        if (m->rate[e->in[l]] == MRVI_FAST)
-          J[sj * nf + m->slot[e->in[l]]] += hscale * sw->H[j * n + l];
-    }
   }
+}
+
+/* (gs, gf) = w grad V at the packed (zs, zf).  The gradient at a step's end
+ * node serves the next step's start node: it is reused when the input is
+ * bitwise the same, so a step still depends on (q_k, p_k) alone. */
+static void slow_gradient(mrvi_sweep *sw, double w) {
+  const size_t n = (size_t)(sw->ns + sw->nf);
+  if (!sw->gv_ok || memcmp(sw->gv_at, sw->zs, n * sizeof(double)) != 0) {
+    memset(sw->gv, 0, n * sizeof(double));
+    eval_class(sw, MRVI_SLOW, 1.0, sw->gv, NULL, NULL, 0.0);
+    memcpy(sw->gv_at, sw->zs, n * sizeof(double));
+    sw->gv_ok = 1;
+  }
+  for (size_t i = 0; i < n; i++)
+    sw->gs[i] = w * sw->gv[i];
 }
 
 static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
@@ -348,6 +387,12 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
       mrvi_fmt(msg, len, "singular micro-step matrix");
       return MRVI_ESINGULAR;
     }
+    /* The inverse (nf <= SWEEP_DENSE_MAX): a micro step's solve is then one
+     * matrix-vector product. */
+    memset(sw->Jinv, 0, (size_t)nf * (size_t)nf * sizeof(double));
+    for (int f = 0; f < nf; f++)
+      sw->Jinv[f * nf + f] = 1.0;
+    mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->Jinv, nf);
     sw->lu_ok = 1;
   }
   /* F at the predictor, then dn += J^-1 F. */
@@ -363,9 +408,14 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
   }
   for (int f = 0; f < nf; f++)
     sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
-  mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->F, 1);
-  for (int f = 0; f < nf; f++)
-    dn[f] += sw->F[f];
+  for (int a = 0; a < nf; a++) {
+    double d = 0.0;
+    for (int b = 0; b < nf; b++)
+      d += sw->Jinv[a * nf + b] * sw->F[b];
+    sw->del[a] = d;
+    dn[a] += d;
+  }
+  memcpy(sw->F, sw->del, (size_t)nf * sizeof(double));
   /* Gradients at the implicit points after the update: g += cB H delta. */
   memset(sw->fimp, 0, (size_t)nf * sizeof(double));
   for (int i = 0; i < sw->n_w; i++) {
@@ -469,6 +519,111 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
   }
 }
 
+/* The fast nodes of the explicit path (every W point on a node): row m
+ * gives q^{m+1} from p^{f,m} (in pf's row m - 1, row 0: pf's first row as
+ * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
+ * node m + 1, which also serves row m + 1.  The arithmetic of the general
+ * sweep below, in one pass per node. */
+static void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                           double *pf) {
+  const int ns = sw->ns, nf = sw->nf, p = sw->p;
+  const double dt = st->dt;
+  double wl[2], wr[2];
+  int nl = 0, nr = 0;
+  for (int i = 0; i < sw->n_w; i++) {
+    if (sw->cB[i] == 0.0)
+      wl[nl++] = sw->w[i];
+    else
+      wr[nr++] = sw->w[i] * sw->cB[i];
+  }
+  const double *pm = pf;
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
+    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    if (nl > 0 && !sw->gnode_ok) {
+      memset(sw->gnode, 0, (size_t)nf * sizeof(double));
+      mrvi_terms_eval(sw->kc[MRVI_FAST], qm, 1.0, sw->gnode, NULL, 0, 0.0);
+    }
+    for (int f = 0; f < nf; f++) {
+      double r = pm[f];
+      for (int i = 0; i < nl; i++)
+        r -= wl[i] * sw->gnode[f];
+      const double dn = dt * sw->minv_f[f] * r;
+      qn[f] = qm[f] + dn;
+      pn[f] = sw->m_f[f] * dn / dt;
+    }
+    sw->gnode_ok = 0;
+    if (nr > 0) {
+      memset(sw->gnode, 0, (size_t)nf * sizeof(double));
+      mrvi_terms_eval(sw->kc[MRVI_FAST], qn, 1.0, sw->gnode, NULL, 0, 0.0);
+      sw->gnode_ok = 1;
+      for (int f = 0; f < nf; f++)
+        for (int i = 0; i < nr; i++)
+          pn[f] -= wr[i] * sw->gnode[f];
+    }
+    pm = pn;
+  }
+}
+
+/* The fast nodes of the sweep path for a quadratic W with one (implicit)
+ * point per interval, once the micro-step matrix is factored: the
+ * arithmetic of solve_linear and of the general sweep below, in one pass
+ * per node. */
+static int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                        double *pf, double *residual, char *msg, size_t len) {
+  const int ns = sw->ns, nf = sw->nf, p = sw->p;
+  const double dt = st->dt, cB = sw->cB[0], wc = sw->w[0] * sw->cA[0];
+  const double wb = sw->w[0] * sw->cB[0];
+  const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->Hpt[0];
+  double *g = sw->gpt[0], *fimp = sw->fimp, *F = sw->F, *del = sw->del;
+  double *rhs = sw->rhs, *dn = sw->dn, r = 0.0;
+  const double *pm = pf;
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
+    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    /* Predictor (the last implicit force held fixed) and F there. */
+    for (int f = 0; f < nf; f++) {
+      rhs[f] = pm[f];
+      dn[f] = dt * sw->minv_f[f] * (rhs[f] - fimp[f]);
+      sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
+      g[f] = 0.0;
+    }
+    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, 1.0, g, NULL, 0, 0.0);
+    for (int f = 0; f < nf; f++) {
+      fimp[f] = 0.0 + wc * g[f];
+      F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
+    }
+    /* dn += J^-1 F; the point's gradient follows by the kept Hessian. */
+    for (int a = 0; a < nf; a++) {
+      double d = 0.0;
+      for (int b = 0; b < nf; b++)
+        d += Jinv[a * nf + b] * F[b];
+      del[a] = d;
+      dn[a] += d;
+    }
+    for (int a = 0; a < nf; a++) {
+      double h = 0.0;
+      for (int b = 0; b < nf; b++)
+        h += H[a * nf + b] * del[b];
+      g[a] += cB * h;
+      fimp[a] = 0.0 + wc * g[a];
+      const double ra = fabs(rhs[a] - mf[a] * dn[a] / dt - fimp[a]);
+      r = isnan(ra) || ra > r ? ra : r;
+      qn[a] = qm[a] + dn[a];
+      pn[a] = mf[a] * dn[a] / dt;
+      pn[a] -= wb * g[a];
+    }
+    pm = pn;
+  }
+  sw->gnode_ok = 0;
+  *residual = fmax(*residual, r);
+  if (!isfinite(r)) {
+    mrvi_fmt(msg, len, "micro step produced non-finite values");
+    return MRVI_ENONFINITE;
+  }
+  return MRVI_OK;
+}
+
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
                     double *pf, int *iterations, double *residual, char *msg,
                     size_t len) {
@@ -480,12 +635,12 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
    * carried from the last step, so a step depends on (q_k, p_k) alone. */
   memset(sw->fimp, 0, (size_t)nf * sizeof(double));
   /* Slow row: q_{k+1}^s explicit; V at node k also enters fast row 0. */
-  memset(sw->gs, 0, (size_t)ns * sizeof(double));
-  memset(sw->gf, 0, (size_t)nf * sizeof(double));
   if (sw->wv0 != 0.0) {
     memcpy(sw->zs, st->qs0, (size_t)ns * sizeof(double));
     memcpy(sw->zf, st->qf0, (size_t)nf * sizeof(double));
-    eval_class(sw, MRVI_SLOW, sw->wv0, sw->gs, sw->gf, NULL, 0.0);
+    slow_gradient(sw, sw->wv0);
+  } else {
+    memset(sw->gs, 0, (size_t)(ns + nf) * sizeof(double));
   }
   for (int s = 0; s < ns; s++) {
     ps1[s] = st->ps0[s] - sw->gs[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
@@ -495,7 +650,18 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
   double *pm = pf; /* momentum at node m (row m's left part) */
   for (int f = 0; f < nf; f++)
     pm[f] = st->pf0[f] - sw->gf[f];
-  for (int m = 0; m < p; m++) {
+  int done = 0;
+  if (!sw->implicit) {
+    explicit_sweep(sw, st, x, pf);
+    done = 1;
+  } else if (sw->linear && sw->lu_ok && sw->n_w == 1) {
+    const int s = linear_sweep(sw, st, x, pf, residual, msg, len);
+    if (s < 0)
+      return s;
+    *iterations = 1;
+    done = 1;
+  }
+  for (int m = 0; m < p && !done; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf;
     /* rhs = p^{f,m} - forces of the points at node m (cB = 0). */
@@ -560,9 +726,7 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     memcpy(sw->zs, x, (size_t)ns * sizeof(double));
     if (nf > 0)
       memcpy(sw->zf, qp, (size_t)nf * sizeof(double));
-    memset(sw->gs, 0, (size_t)ns * sizeof(double));
-    memset(sw->gf, 0, (size_t)nf * sizeof(double));
-    eval_class(sw, MRVI_SLOW, sw->wv1, sw->gs, sw->gf, NULL, 0.0);
+    slow_gradient(sw, sw->wv1);
     for (int s = 0; s < ns; s++)
       ps1[s] -= sw->gs[s];
     for (int f = 0; f < nf; f++)

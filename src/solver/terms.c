@@ -1,0 +1,188 @@
+/* Potential classes compiled for evaluation (doc/solver.md, "Evaluation"):
+ * the elements of one class with their inputs mapped once to columns of a
+ * packed configuration z, so that the step loops evaluate the gradient (and
+ * Hessian) without looking up rates and slots per input.  Terms phi(s),
+ * s = a^T q - b, are evaluated here (the linear law inline, others through
+ * their law table); every other element through mrvi_element_eval.  The
+ * arithmetic is that of mrvi_element_eval and the laws, in the same order,
+ * so the results are bitwise the same. */
+#include "internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+enum { KT_LINEAR, KT_POWER, KT_LAW, KT_ELEMENT };
+typedef struct kterm {
+  int kind, n, first; /* inputs col[first..first+n), coef[first..] */
+  int k;              /* integer exponent (KT_POWER) */
+  int run; /* KT_LINEAR with one input: the number of such terms from here */
+  double c, e, shift; /* stiffness or coefficient, exponent, offset b */
+  const mrvi_element *el;
+} kterm;
+
+struct mrvi_terms {
+  const mrvi_model *m;
+  int n;
+  kterm *t;
+  int *col;
+  double *coef;
+  double *y, *g, *H; /* element workspace */
+};
+
+/* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
+ * phi, by repeated multiplication). */
+static inline void power_derivs(double c, double e, int k, double s, double *d1,
+                                double *d2) {
+  double sk = 1.0; /* s^(k-2) */
+  for (int i = 2; i < k; i++)
+    sk *= s;
+  *d1 = k >= 1 ? c * e * (k >= 2 ? sk * s : 1.0) : 0.0;
+  *d2 = k >= 2 ? c * e * (e - 1) * sk : 0.0;
+}
+
+/* A power law with a small integer exponent (evaluated inline). */
+static int small_power(const mrvi_element *e) {
+  extern const mrvi_law mrvi_law_power;
+  const double x = e->params[1];
+  return e->law == &mrvi_law_power && x >= 0.0 && x <= 8.0 &&
+         (double)(int)x == x;
+}
+
+void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2) {
+  extern const mrvi_law mrvi_law_linear;
+  if (e->law == &mrvi_law_linear) {
+    *d1 = e->params[0] * s;
+    *d2 = e->params[0];
+  } else if (small_power(e)) {
+    power_derivs(e->params[0], e->params[1], (int)e->params[1], s, d1, d2);
+  } else {
+    double phi;
+    e->law->eval(e->params, s, &phi, d1, d2);
+  }
+}
+
+void mrvi_terms_free(mrvi_terms *kc) {
+  if (!kc)
+    return;
+  free(kc->t);
+  free(kc->col);
+  free(kc->coef);
+  free(kc->y);
+  free(kc->g);
+  free(kc->H);
+  free(kc);
+}
+
+int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                      const int *col_of, mrvi_terms **out) {
+  extern const mrvi_law mrvi_law_linear;
+  mrvi_terms *kc = calloc(1, sizeof *kc);
+  *out = NULL;
+  if (!kc)
+    return MRVI_ENOMEM;
+  int n_in = 0, max_in = 1;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const int k = m->elements[elems[ie]].n_in;
+    n_in += k;
+    max_in = k > max_in ? k : max_in;
+  }
+  const size_t mi = (size_t)max_in;
+  kc->m = m;
+  kc->n = n_elems;
+  kc->t = calloc((size_t)(n_elems > 0 ? n_elems : 1), sizeof *kc->t);
+  kc->col = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->col);
+  kc->coef = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->coef);
+  kc->y = calloc(mi, sizeof *kc->y);
+  kc->g = calloc(mi, sizeof *kc->g);
+  kc->H = calloc(mi * mi, sizeof *kc->H);
+  if (!kc->t || !kc->col || !kc->coef || !kc->y || !kc->g || !kc->H) {
+    mrvi_terms_free(kc);
+    return MRVI_ENOMEM;
+  }
+  int first = 0;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    kterm *t = &kc->t[ie];
+    t->el = e;
+    t->n = e->n_in;
+    t->first = first;
+    t->kind = KT_ELEMENT;
+    if (e->kind == MRVI_ELEMENT_TERM) {
+      t->kind = e->law == &mrvi_law_linear ? KT_LINEAR : KT_LAW;
+      t->shift = e->shift;
+      t->c = e->params[0];
+      t->e = e->params[1];
+      if (small_power(e)) {
+        t->kind = KT_POWER;
+        t->k = (int)t->e;
+      }
+    }
+    for (int j = 0; j < e->n_in; j++) {
+      kc->col[first + j] = col_of ? col_of[e->in[j]] : e->in[j];
+      kc->coef[first + j] = e->coef ? e->coef[j] : 0.0;
+    }
+    first += e->n_in;
+  }
+  /* Runs of one-input linear terms (k q^2/2 on a coordinate: the stiff
+   * springs of W in the FPU) are evaluated in one loop. */
+  for (int ie = n_elems - 1; ie >= 0; ie--) {
+    kterm *t = &kc->t[ie];
+    if (t->kind == KT_LINEAR && t->n == 1)
+      t->run = 1 + (ie + 1 < n_elems ? kc->t[ie + 1].run : 0);
+  }
+  *out = kc;
+  return MRVI_OK;
+}
+
+void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
+                     double *J, int ld, double hscale) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    const int n = t->n, *col = kc->col + t->first;
+    const double *a = kc->coef + t->first;
+    if (t->run > 1) { /* as below, one input each */
+      for (int r = 0; r < t->run; r++) {
+        const double ar = a[r], d1 = t[r].c * (-t[r].shift + ar * z[col[r]]);
+        g[col[r]] += scale * (d1 * ar);
+        if (J)
+          J[col[r] * ld + col[r]] += hscale * (t[r].c * ar * ar);
+      }
+      it += t->run - 1;
+      continue;
+    }
+    if (t->kind == KT_ELEMENT) {
+      const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
+      for (int j = 0; j < n; j++)
+        kc->y[j] = z[col[j]];
+      mrvi_element_eval(kc->m, t->el, kc->y, kc->g, J && !lin ? kc->H : NULL);
+      for (int j = 0; j < n; j++)
+        g[col[j]] += scale * kc->g[j];
+      if (J && !lin)
+        for (int j = 0; j < n; j++)
+          for (int l = 0; l < n; l++)
+            J[col[j] * ld + col[l]] += hscale * kc->H[j * n + l];
+      continue;
+    }
+    double s = -t->shift;
+    for (int j = 0; j < n; j++)
+      s += a[j] * z[col[j]];
+    double phi, d1, d2;
+    if (t->kind == KT_LINEAR) {
+      d1 = t->c * s;
+      d2 = t->c;
+    } else if (t->kind == KT_POWER) {
+      power_derivs(t->c, t->e, t->k, s, &d1, &d2);
+    } else {
+      t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
+    }
+    for (int j = 0; j < n; j++)
+      g[col[j]] += scale * (d1 * a[j]);
+    if (J)
+      for (int j = 0; j < n; j++) {
+        const double u = d2 * a[j];
+        double *Jj = J + (size_t)col[j] * (size_t)ld;
+        for (int l = 0; l < n; l++)
+          Jj[col[l]] += hscale * (u * a[l]);
+      }
+  }
+}
