@@ -336,6 +336,8 @@ static void print_rule(const char *label, mrvi_rule r, const char *grid) {
          grid);
 }
 
+int mrvi_cli_check_control(const mrvi_system *sys); /* cli_optimize.c */
+
 static int cmd_check(int argc, char **argv) {
   cli_args a;
   int rc = parse_args("check", usage_check, 0, argc, argv, &a);
@@ -430,12 +432,13 @@ static int cmd_check(int argc, char **argv) {
   printf("%-14s%s (every %d, micro %s)\n", "output",
          sys->output_file ? sys->output_file : "-", sys->output_every,
          sys->output_micro ? "yes" : "no");
+  const int bad_control = mrvi_cli_check_control(sys);
   if (sys->notes) {
     putchar('\n');
     print_notes(stdout, NULL, sys->notes);
   }
   mrvi_system_free(sys);
-  return 0;
+  return bad_control ? EXIT_INPUT : 0;
 }
 
 /* ---------------------------------------------------------------------------

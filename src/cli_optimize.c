@@ -305,6 +305,60 @@ static int write_control(const char *out, const mrvi_system *sys,
 }
 
 /* Default output: output.file with ".h5" -> "_opt.h5". */
+/* `mrvi check`: the problem of the `control:` section, if any (actuators,
+ * terminal conditions, algorithm).  Returns 0, or 1 when the section is
+ * invalid (its message printed). */
+int mrvi_cli_check_control(const mrvi_system *sys) {
+  if (!mrvi_ocp_has_control(sys))
+    return 0;
+  char msg[2048];
+  mrvi_ocp *o = NULL;
+  double *u = NULL;
+  if (mrvi_ocp_load(sys, &o, &u, msg, sizeof msg) < 0) {
+    fprintf(stderr, "%s\n", msg);
+    return 1;
+  }
+  const mrvi_model *m = sys->model;
+  const int na = mrvi_ocp_n_actuators(o), nt = mrvi_ocp_n_terminals(o);
+  printf("\n%-14s%d controls, %d terminal constraints, %s\n", "control",
+         mrvi_ocp_n_controls(o), mrvi_ocp_n_constraints(o),
+         mrvi_ocp_algorithm_name(mrvi_ocp_get_algorithm(o)));
+  printf("%-14s%d\n", "actuators", na);
+  for (int a = 0; a < na; a++) {
+    const int c = mrvi_ocp_actuator_coordinate(o, a);
+    char on[300];
+    if (c >= 0) {
+      snprintf(on, sizeof on, "on %s", mrvi_model_coordinate_name(m, c));
+    } else {
+      int pi, pj;
+      mrvi_ocp_actuator_pair(o, a, &pi, &pj);
+      snprintf(on, sizeof on, "pair %s - %s", m->particles[pi].name,
+               m->particles[pj].name);
+    }
+    printf("  %3d  %s (%s; %s grid, %d values)\n", a,
+           mrvi_ocp_actuator_name(o, a), on,
+           mrvi_ocp_actuator_grid(o, a) == MRVI_GRID_MACRO ? "macro" : "micro",
+           mrvi_ocp_actuator_size(o, a));
+  }
+  printf("%-14s%d (tolerance %g)\n", "terminal", nt,
+         mrvi_ocp_terminal_tolerance(o));
+  for (int i = 0; i < nt; i++) {
+    mrvi_ocp_terminal_kind kind;
+    int c;
+    double target, penalty;
+    mrvi_ocp_terminal(o, i, &kind, &c, &target, &penalty);
+    printf("  %3d  %s of %s = %g", i,
+           kind == MRVI_OCP_POSITION ? "position" : "velocity",
+           mrvi_model_coordinate_name(m, c), target);
+    if (penalty > 0)
+      printf(" (penalty %g)", penalty);
+    putchar('\n');
+  }
+  free(u);
+  mrvi_ocp_free(o);
+  return 0;
+}
+
 static char *default_output(const mrvi_system *sys) {
   const char *base = sys->output_file ? sys->output_file : "optimal.h5";
   size_t n = strlen(base);

@@ -161,6 +161,8 @@ expect_rc 1 "-o without value"
 run_mrvi check "$fpu" "$fpu"
 expect_rc 1 "two files"
 
+not_contains_control() { ! grep -q '^control ' <<<"$out"; }
+
 # --- check -----------------------------------------------------------------
 run_mrvi check "$fpu"
 expect_rc 0 "check fpu.yaml"
@@ -188,6 +190,20 @@ contains "$out" '^ +slow \(V\) +alpha = 1, gamma = 1, micro grid$' \
   "trapezoidal-midpoint: slow rule alpha = gamma = 1"
 contains "$out" '^ +fast \(W\) +alpha = 0.5, gamma = 0.5, micro grid$' \
   "trapezoidal-midpoint: fast midpoint rule"
+
+# A control: section is listed: actuators, terminal conditions, algorithm.
+run_mrvi check "$root/systems/ocp_gantry_crane.yaml"
+expect_rc 0 "check ocp_gantry_crane.yaml"
+contains "$out" '^control +40 controls, 4 terminal constraints, slsqp$' \
+  "check lists the control problem (40 controls, 4 terminal constraints)"
+contains "$out" '^ +0  cart_force \(on cart\.x; macro grid, 40 values\)$' \
+  "check lists the actuator, its coordinate and grid"
+contains "$out" '^ +3  velocity of load\.x = 0$' "check lists terminal velocities"
+run_mrvi check "$root/systems/ocp_gantry_crane.yaml" --set control.solver.algorithm=auglag-mma
+contains "$out" '^control +40 controls, 4 terminal constraints, auglag-mma$' \
+  "check shows the --set algorithm"
+run_mrvi check "$fpu"
+check "no control section, no control lines" not_contains_control
 
 for sys in spring_ring oscillator; do
   run_mrvi check "$root/systems/$sys.yaml"

@@ -159,6 +159,9 @@ const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);
 mrvi_ocp_algorithm mrvi_ocp_get_algorithm(const mrvi_ocp *o);
 double mrvi_ocp_terminal_tolerance(const mrvi_ocp *o);
 
+/* 1 when the loaded description has a `control:` section, else 0. */
+int mrvi_ocp_has_control(const mrvi_system *sys);
+
 /* Build the problem from the `control:` section of a loaded description
  * (doc/optimal-control.md): actuators, objective, terminal conditions,
  * solver settings.  *u0 (malloc'ed, n_controls) gets the initial guess.

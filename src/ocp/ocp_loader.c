@@ -426,6 +426,14 @@ int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
   return MRVI_OK;
 }
 
+int mrvi_ocp_has_control(const mrvi_system *sys) {
+  struct fy_document *doc =
+      fy_document_build_from_string(NULL, sys->description, FY_NT);
+  const int has = doc && get(fy_document_root(doc), "control") != NULL;
+  fy_document_destroy(doc);
+  return has;
+}
+
 int mrvi_ocp_load(const mrvi_system *sys, mrvi_ocp **out, double **u0,
                   char *msg, size_t len) {
   *out = NULL;
