@@ -1,10 +1,16 @@
 /* Reading a run back from an mrvi HDF5 file (doc/output.md) into a
  * trajectory, e.g. a cached reference solution of a convergence study. */
+#define _DEFAULT_SOURCE /* flock */
+#include "h5util.h"
 #include "internal.h"
 
 #include <hdf5.h>
+#include <errno.h>
+#include <fcntl.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 /* Read a whole float64 dataset of rank 1 or 2; *rows, *cols get its shape
  * (cols = 1 for rank 1).  Returns a malloc'ed array or NULL. */
@@ -43,7 +49,8 @@ static int read_attr_double(hid_t file, const char *name, double *v) {
   return rc < 0 ? -1 : 0;
 }
 
-/* Root string attribute into buf ("" if absent). */
+/* Root string attribute into buf ("" if absent): variable-length or
+ * fixed-length. */
 static void read_attr_string(hid_t file, const char *name, char *buf,
                              size_t len) {
   buf[0] = '\0';
@@ -51,19 +58,73 @@ static void read_attr_string(hid_t file, const char *name, char *buf,
   if (a < 0)
     return;
   hid_t t = H5Aget_type(a);
-  if (H5Tis_variable_str(t) > 0) {
+  hid_t mt = H5Tcopy(H5T_C_S1);
+  if (H5Tget_class(t) == H5T_STRING && H5Tis_variable_str(t) > 0) {
     char *s = NULL;
-    hid_t mt = H5Tcopy(H5T_C_S1);
     H5Tset_size(mt, H5T_VARIABLE);
     H5Tset_cset(mt, H5Tget_cset(t));
     if (H5Aread(a, mt, &s) >= 0 && s) {
       mrvi_fmt(buf, len, "%s", s);
       H5free_memory(s);
     }
-    H5Tclose(mt);
+  } else if (H5Tget_class(t) == H5T_STRING) {
+    const size_t n = H5Tget_size(t);
+    char *s = calloc(n + 1, 1);
+    H5Tset_size(mt, n + 1);
+    H5Tset_cset(mt, H5Tget_cset(t));
+    H5Tset_strpad(mt, H5T_STR_NULLTERM);
+    if (s && H5Aread(a, mt, s) >= 0)
+      mrvi_fmt(buf, len, "%s", s);
+    free(s);
   }
+  H5Tclose(mt);
   H5Tclose(t);
   H5Aclose(a);
+}
+
+hid_t mrvi_h5_open_read(const char *path, hid_t fapl) {
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, fapl);
+  if (f < 0)
+    f = H5Fopen(path, H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, fapl);
+  if (f >= 0)
+    H5Eclear2(H5E_DEFAULT);
+  return f;
+}
+
+void mrvi_h5_stop_reason(hid_t file, const char *path, char *buf, size_t len) {
+  read_attr_string(file, "stop_reason", buf, len);
+  if (strcmp(buf, "running") != 0)
+    return;
+  /* A live run holds flock(LOCK_EX) on its output (hdf5_writer.c). */
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  int live =
+      fd >= 0 && flock(fd, LOCK_SH | LOCK_NB) < 0 && errno == EWOULDBLOCK;
+  if (fd >= 0)
+    close(fd);
+  if (!live)
+    mrvi_fmt(buf, len, "%s", "incomplete (writer killed)");
+}
+
+int mrvi_run_file_status(const char *path, char *reason, size_t len) {
+  H5E_auto2_t func;
+  void *data;
+  H5Eget_auto2(H5E_DEFAULT, &func, &data);
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  hid_t f = mrvi_h5_open_read(path, H5P_DEFAULT);
+  int st = MRVI_OK;
+  if (f < 0) {
+    st = mrvi_fail(reason, len, MRVI_EIO, "%s: cannot open as an HDF5 file",
+                   path);
+  } else {
+    mrvi_h5_stop_reason(f, path, reason, len);
+    H5Fclose(f);
+    if (!reason[0])
+      st = mrvi_fail(reason, len, MRVI_EIO,
+                     "%s: not an mrvi output (no stop_reason)", path);
+  }
+  H5Eclear2(H5E_DEFAULT);
+  H5Eset_auto2(H5E_DEFAULT, func, data);
+  return st;
 }
 
 int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
@@ -75,7 +136,7 @@ int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   int st = MRVI_OK;
   mrvi_trajectory *tr = calloc(1, sizeof *tr);
-  hid_t file = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  hid_t file = mrvi_h5_open_read(path, H5P_DEFAULT);
   if (!tr) {
     st = MRVI_ENOMEM;
     mrvi_fmt(msg, len, "out of memory");
@@ -87,12 +148,7 @@ int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
     goto done;
   }
   char reason[256];
-  read_attr_string(file, "stop_reason", reason, sizeof reason);
-  /* A writer sets "running" at open and replaces it at close; while it runs
-   * it holds a lock that makes the open above fail.  So "running" in a file
-   * we could open means the writer died (SIGKILL, power loss). */
-  if (!strcmp(reason, "running"))
-    mrvi_fmt(reason, sizeof reason, "%s", "incomplete (writer killed)");
+  mrvi_h5_stop_reason(file, path, reason, sizeof reason);
   if (strcmp(reason, "completed") != 0) {
     st = MRVI_EIO;
     mrvi_fmt(msg, len, "%s: the run did not complete (stop_reason: %s)", path,

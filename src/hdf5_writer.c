@@ -3,17 +3,22 @@
  * The writer is an mrvi_observer.  Each record adds rows to three streams of
  * datasets (macro nodes, fast micro nodes, solver statistics); rows are
  * buffered in memory and appended with hyperslab writes to chunked datasets
- * whose first dimension is unlimited.  After every buffer write the file is
- * flushed (H5Fflush) twice, rows first and steps_completed after them, so a
- * process killed hard leaves a readable file with everything written up to
- * the last flush and a counter that never exceeds the rows (flush); a run
- * stopped by an error or by the stop flag reaches mrvi_writer_close, which
- * writes the rest and the reason it stopped.
+ * whose first dimension is unlimited.  The file is set up under a temporary
+ * name, switched to SWMR writing (every object exists by then) and renamed
+ * to the output path; SWMR's ordered metadata flushes keep it consistent on
+ * disk at every instant.  After every buffer write the file is flushed
+ * (H5Fflush) twice, rows first and steps_completed (rewritten in place)
+ * after them, so a process killed hard leaves a readable file with
+ * everything written up to the last flush and a counter that never exceeds
+ * the rows (flush); a run stopped by an error or by the stop flag reaches
+ * mrvi_writer_close, which writes the rest and, last, the reason it stopped
+ * (stop_reason "running" thus marks a run that never closed).
  *
  * The library never prints: HDF5's automatic error printer is switched off
  * around every HDF5 call we make (and restored after), and the error stack
  * is turned into a message instead. */
 #define _DEFAULT_SOURCE /* flock */
+#include "h5util.h"
 #include "internal.h"
 
 #include <hdf5.h>
@@ -36,6 +41,8 @@
 #define BUFFER_BYTES ((size_t)8 << 20)
 /* Target size of one chunk (never more rows than the run will write). */
 #define CHUNK_BYTES ((size_t)64 << 10)
+/* Size of the fixed-length root attribute stop_reason. */
+#define STOP_REASON_BYTES 1024
 
 /* ---------------------------------------------------------------------------
  * Output table
@@ -158,7 +165,7 @@ static const struct output_info {
   X("project_momenta", int, s->project_momenta, w->n_lambda > 0)               \
   X("solver", string, solver_path, 1)                                          \
   X("output_every", int, w->every, 1)                                          \
-  X("stop_reason", string, "running", 1)                                       \
+  X("stop_reason", fixed_string, "running", 1)                                 \
   X("steps_completed", long, 0L, 1)
 
 /* ---------------------------------------------------------------------------
@@ -193,6 +200,7 @@ struct mrvi_writer {
   double flush_interval; /* seconds between flushes (output.flush_interval) */
   long flushed_k;        /* steps_completed in the file */
   int new_file;          /* lock_and_check created the file */
+  char *part_path;       /* the file while it is set up (writer_setup) */
   int lock_fd;           /* holds flock(LOCK_EX) on the file, -1 when none */
   long fail_after;       /* MRVI_TEST_WRITE_FAIL_AFTER: fail the first flush
                             after this many records (testing), -1: never */
@@ -383,6 +391,27 @@ static herr_t attr_string(hid_t obj, const char *name, const char *value) {
     return -1;
   const char *v = value ? value : "";
   herr_t rc = attr_write(obj, name, t, t, &v);
+  hid_t es = keep_errors(rc);
+  H5Tclose(t);
+  restore_errors(es);
+  return rc;
+}
+
+/* Fixed-length string attribute (STOP_REASON_BYTES, truncated): rewritten
+ * in place in the object header, never in the global heap, so SWMR writing
+ * may change it (see flush). */
+static herr_t attr_fixed_string(hid_t obj, const char *name,
+                                const char *value) {
+  char buf[STOP_REASON_BYTES];
+  memset(buf, 0, sizeof buf);
+  mrvi_fmt(buf, sizeof buf, "%s", value ? value : "");
+  hid_t t = H5Tcopy(H5T_C_S1);
+  if (t < 0)
+    return -1;
+  herr_t rc = -1;
+  if (H5Tset_size(t, sizeof buf) >= 0 && H5Tset_cset(t, H5T_CSET_UTF8) >= 0 &&
+      H5Tset_strpad(t, H5T_STR_NULLTERM) >= 0)
+    rc = attr_write(obj, name, t, t, buf);
   hid_t es = keep_errors(rc);
   H5Tclose(t);
   restore_errors(es);
@@ -809,6 +838,7 @@ static void writer_free(mrvi_writer *w) {
   free(w->nan_row);
   free(w->lambda_patch);
   free(w->path);
+  free(w->part_path);
   free(w);
 }
 
@@ -852,7 +882,7 @@ static int lock_and_check(mrvi_writer *w, int force) {
     if (fapl >= 0)
       H5Pset_file_locking(fapl, 0, 1);
 #endif
-    hid_t f = H5Fopen(w->path, H5F_ACC_RDONLY, fapl >= 0 ? fapl : H5P_DEFAULT);
+    hid_t f = mrvi_h5_open_read(w->path, fapl >= 0 ? fapl : H5P_DEFAULT);
     if (fapl >= 0)
       H5Pclose(fapl);
     if (f >= 0) {
@@ -868,6 +898,27 @@ static int lock_and_check(mrvi_writer *w, int force) {
   return fail(w, MRVI_EIO,
               "exists and is not an mrvi output file; not overwritten "
               "(use --force to replace it)");
+}
+
+/* Rename the file set up under part_path to the output path, moving the
+ * lock with it: the new file is locked before it gets the name, so a
+ * second run never finds the output path unlocked. */
+static int move_into_place(mrvi_writer *w) {
+  int fd = open(w->part_path, O_RDWR | O_CLOEXEC);
+  if (fd < 0 || flock(fd, LOCK_EX | LOCK_NB) < 0 ||
+      rename(w->part_path, w->path) < 0) {
+    int e = errno;
+    if (fd >= 0)
+      close(fd);
+    return fail(w, MRVI_EIO, "cannot rename %s to it: %s", w->part_path,
+                strerror(e));
+  }
+  free(w->part_path);
+  w->part_path = NULL;
+  if (w->lock_fd >= 0)
+    close(w->lock_fd);
+  w->lock_fd = fd;
+  return 0;
 }
 
 /* Sizes, buffers and chunking; then the file. */
@@ -939,7 +990,35 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
 #endif
   if (fapl >= 0)
     H5Pset_fclose_degree(fapl, H5F_CLOSE_WEAK); /* see close_handles */
-  w->file = H5Fcreate(w->path, H5F_ACC_TRUNC, H5P_DEFAULT,
+  /* SWMR writing (below) needs the latest file format. */
+  if (fapl >= 0 &&
+      H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST) < 0) {
+    H5Pclose(fapl);
+    return fail_h5(w, MRVI_EIO, "cannot select the HDF5 file format");
+  }
+  /* The file is set up under a name of its own and renamed to the output
+   * once it is complete and in SWMR mode: a run killed before leaves the
+   * previous file (or an empty one) at the output path, never a half-built
+   * one. */
+  const size_t plen = strlen(w->path) + 16;
+  w->part_path = malloc(plen);
+  if (!w->part_path) {
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    return fail(w, MRVI_ENOMEM, "out of memory");
+  }
+  mrvi_fmt(w->part_path, plen, "%s.partXXXXXX", w->path);
+  int part_fd = mkstemp(w->part_path);
+  if (part_fd < 0) {
+    int e = errno;
+    free(w->part_path);
+    w->part_path = NULL;
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    return fail(w, MRVI_EIO, "cannot create a file beside it: %s", strerror(e));
+  }
+  close(part_fd);
+  w->file = H5Fcreate(w->part_path, H5F_ACC_TRUNC, H5P_DEFAULT,
                       fapl >= 0 ? fapl : H5P_DEFAULT);
   hid_t es = keep_errors((herr_t)(w->file < 0 ? -1 : 0));
   if (fapl >= 0)
@@ -979,7 +1058,11 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   H5Pclose(lcpl);
   if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     rc = fail_h5(w, MRVI_EIO, "flushing the file");
-  return rc;
+  /* Every object exists: from here on the file is written in SWMR mode,
+   * whose ordered metadata flushes keep it consistent at every instant. */
+  if (rc == 0 && H5Fstart_swmr_write(w->file) < 0)
+    rc = fail_h5(w, MRVI_EIO, "starting SWMR writing");
+  return rc ? rc : move_into_place(w);
 }
 
 int mrvi_writer_open(const char *path, const mrvi_model *m,
@@ -1056,8 +1139,10 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   int rc = writer_setup(w, m, s, system_name, o.description, o.force);
   if (rc) {
     mrvi_fmt(msg, len, "%s", w->errmsg);
-    int created = w->file >= 0 || w->new_file;
+    int created = w->new_file;
     close_handles(w);
+    if (w->part_path)
+      remove(w->part_path);
     writer_free(w);
     /* A half-written file is no mrvi file: remove it (a regular file only,
      * never e.g. a device the user named). */
@@ -1213,8 +1298,11 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
     mrvi_fmt(why, sizeof why, "output error: %s", w->errmsg);
     reason = why;
   }
-  if (attr_string(w->file, "stop_reason", reason) < 0 ||
-      attr_long(w->file, "steps_completed", w->flushed_k) < 0)
+  /* The counter first, stop_reason last: a stop_reason other than
+   * "running" marks a run that closed. */
+  if (attr_long(w->file, "steps_completed", w->flushed_k) < 0 ||
+      H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0 ||
+      attr_fixed_string(w->file, "stop_reason", reason) < 0)
     fail_h5(w, MRVI_EIO, "writing attribute stop_reason");
   H5Eclear2(H5E_DEFAULT);
   close_handles(w);

@@ -616,6 +616,12 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r);
  * ("completed" or the message) and close.  Frees w. */
 int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
                       size_t len);
+/* The root attribute stop_reason of an mrvi output into reason: "completed",
+ * the message of a run that stopped, "incomplete (writer killed)" for a run
+ * that never closed, or "running" while a live run holds the file.  Opens a
+ * killed file too (SWMR reading).  MRVI_EIO with a message in reason for a
+ * file that is not an mrvi output. */
+int mrvi_run_file_status(const char *path, char *reason, size_t len);
 
 /* ---------------------------------------------------------------------------
  * Viewing the motion (doc/output.md): files for ParaView, OVITO, VMD made
