@@ -205,6 +205,9 @@ struct mrvi_writer {
   long fail_after;       /* MRVI_TEST_WRITE_FAIL_AFTER: fail the first flush
                             after this many records (testing), -1: never */
   long last_k;           /* k of the last record, -1 before the first */
+  int resume;            /* appending: the first record is in the file */
+  int keep_lambda;       /* appending: the multipliers of the last row in the
+                            file are final (resume_point) */
   double *micro_t;       /* p: times of the micro rows of a record */
   double *nan_row;       /* n_lambda NaNs: the /macro/lambda placeholder */
   double *lambda_patch;  /* n_lambda: multipliers of the last row in the file */
@@ -921,10 +924,75 @@ static int move_into_place(mrvi_writer *w) {
   return 0;
 }
 
+/* Appending (mrvi run --resume): open the existing output for SWMR writing
+ * and cut every dataset back to macro node k, as a run that stopped after
+ * node k would have left it.  The file keeps HDF5's "open for writing" flag
+ * when its writer was killed; opening clears it (as h5clear -s does). */
+static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
+  w->lock_fd = open(w->path, O_RDWR | O_CLOEXEC);
+  if (w->lock_fd < 0)
+    return fail(w, MRVI_EIO, "cannot open: %s", strerror(errno));
+  if (flock(w->lock_fd, LOCK_EX | LOCK_NB) < 0)
+    return fail(w, MRVI_EIO, "%s",
+                errno == EWOULDBLOCK
+                    ? "the file is in use by another run (locked); not touched"
+                    : "cannot lock the file");
+  hbool_t clear = 1;
+  H5Pset(fapl, "clear_status_flags", &clear);
+  w->file = H5Fopen(w->path, H5F_ACC_RDWR | H5F_ACC_SWMR_WRITE, fapl);
+  if (w->file < 0)
+    return fail_h5(w, MRVI_EIO, "cannot open the file for appending");
+  hsize_t keep[N_STREAMS];
+  keep[MACRO] = (hsize_t)(k / w->every) + 1;
+  keep[MICRO] = (hsize_t)k * (hsize_t)w->p + 1;
+  keep[SOLVER] = (hsize_t)k;
+  for (int id = 0; id < N_OUTPUTS; id++) {
+    output *o = &w->out[id];
+    if (o->cols == 0)
+      continue;
+    const struct output_info *info = &output_info[id];
+    o->id = H5Dopen2(w->file, info->path, H5P_DEFAULT);
+    hsize_t dims[2] = {0, 1};
+    hid_t sp = o->id >= 0 ? H5Dget_space(o->id) : H5I_INVALID_HID;
+    const int rank = sp >= 0 ? H5Sget_simple_extent_ndims(sp) : -1;
+    if (sp >= 0)
+      H5Sget_simple_extent_dims(sp, dims, NULL);
+    if (sp >= 0)
+      H5Sclose(sp);
+    const hsize_t cols = rank == 2 ? dims[1] : 1;
+    if (rank != info->rank || cols != o->cols || dims[0] < keep[info->stream]) {
+      H5Eclear2(H5E_DEFAULT);
+      return fail(w, MRVI_EIO,
+                  "%s: %s (%llu rows of %llu) does not fit macro node %ld of "
+                  "this model and settings",
+                  info->path, o->id < 0 ? "missing" : "shape",
+                  (unsigned long long)dims[0], (unsigned long long)cols, k);
+    }
+    hsize_t size[2] = {keep[info->stream], o->cols};
+    if (H5Dset_extent(o->id, size) < 0) {
+      char what[128];
+      mrvi_fmt(what, sizeof what, "cutting %s back", info->path);
+      return fail_h5(w, MRVI_EIO, what);
+    }
+  }
+  for (int s = 0; s < N_STREAMS; s++)
+    w->written[s] = w->stream_on[s] ? keep[s] : 0;
+  if (attr_long(w->file, "steps_completed", k) < 0 ||
+      attr_fixed_string(w->file, "stop_reason", "running") < 0)
+    return fail_h5(w, MRVI_EIO,
+                   "writing attributes steps_completed and stop_reason");
+  if (H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
+    return fail_h5(w, MRVI_EIO, "flushing the file");
+  w->resume = 1;
+  w->keep_lambda = w->n_lambda > 0;
+  w->flushed_k = k;
+  return 0;
+}
+
 /* Sizes, buffers and chunking; then the file. */
 static int writer_setup(mrvi_writer *w, const mrvi_model *m,
                         const mrvi_settings *s, const char *system_name,
-                        const char *description, int force) {
+                        const char *description, int force, long resume_k) {
   long n_steps = mrvi_settings_n_steps(s);
   hsize_t N = n_steps > 0 ? (hsize_t)n_steps : 1;
   hsize_t expected[N_STREAMS];
@@ -978,7 +1046,7 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
     w->nan_row[i] = NAN;
 
   /* The file: locked, checked, then truncated. */
-  int rc = lock_and_check(w, force);
+  int rc = resume_k >= 0 ? 0 : lock_and_check(w, force);
   if (rc)
     return rc;
   hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
@@ -995,6 +1063,13 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
       H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST) < 0) {
     H5Pclose(fapl);
     return fail_h5(w, MRVI_EIO, "cannot select the HDF5 file format");
+  }
+  if (resume_k >= 0) {
+    rc = fapl >= 0 ? resume_open(w, resume_k, fapl)
+                   : fail_h5(w, MRVI_EIO, "file access properties");
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    return rc;
   }
   /* The file is set up under a name of its own and renamed to the output
    * once it is complete and in SWMR mode: a run killed before leaves the
@@ -1085,7 +1160,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
                   : "no file name");
     return MRVI_EINVAL;
   }
-  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0, 0};
+  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0, 0, 0, 0};
   if (opt)
     o = *opt;
   if (o.every < 1) {
@@ -1136,7 +1211,8 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
 
   quiet q;
   quiet_begin(&q);
-  int rc = writer_setup(w, m, s, system_name, o.description, o.force);
+  int rc = writer_setup(w, m, s, system_name, o.description, o.force,
+                        o.resume ? (o.resume_k >= 0 ? o.resume_k : 0) : -1);
   if (rc) {
     mrvi_fmt(msg, len, "%s", w->errmsg);
     int created = w->new_file;
@@ -1164,8 +1240,12 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
  * flush, the last row in the file, which the next flush rewrites. */
 static void fill_lambda(mrvi_writer *w, const mrvi_record *r) {
   output *o = &w->out[MACRO_LAMBDA];
-  if (o->cols == 0 || r->k < 1 || w->pending)
+  if (o->cols == 0 || w->last_k < 0 || w->pending)
     return;
+  if (w->keep_lambda) {
+    w->keep_lambda = 0;
+    return;
+  }
   if (w->rows[MACRO] > 0) {
     memcpy(o->buf + (w->rows[MACRO] - 1) * o->row_bytes, r->lambda_prev,
            o->row_bytes);
@@ -1209,8 +1289,9 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
                 r->k, w->last_k);
   /* Rows this record adds to each stream. */
   size_t add[N_STREAMS];
+  /* The first record is an initial node: no solver row. */
   add[MACRO] = 1;
-  add[SOLVER] = r->k >= 1;
+  add[SOLVER] = w->last_k >= 0;
   add[MICRO] = 0;
   if (w->stream_on[MICRO]) {
     if (r->micro_count < 0 || r->micro_count > w->p ||
@@ -1222,15 +1303,22 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
     add[MICRO] = (size_t)r->micro_count;
   }
   if (w->n_lambda > 0 &&
-      (r->n_lambda != w->n_lambda || (r->k >= 1 && !r->lambda_prev) ||
+      (r->n_lambda != w->n_lambda || (w->last_k >= 0 && !r->lambda_prev) ||
        (add[MICRO] > 0 && !r->micro_constraint_residual)))
     return fail(w, MRVI_EINVAL,
                 "record k = %ld has %d constraint rows (the model %d)%s%s",
                 r->k, r->n_lambda, w->n_lambda,
-                r->k >= 1 && !r->lambda_prev ? ", no lambda_prev" : "",
+                w->last_k >= 0 && !r->lambda_prev ? ", no lambda_prev" : "",
                 add[MICRO] > 0 && !r->micro_constraint_residual
                     ? ", no micro_constraint_residual"
                     : "");
+  if (w->resume && w->last_k < 0) {
+    /* Appending: node resume_k is in the file already. */
+    if (w->micro_slow)
+      interpolate_slow(w, r, 0);
+    w->last_k = r->k;
+    return MRVI_OK;
+  }
   fill_lambda(w, r);
   /* Make room (normally the record-count flush below keeps it). */
   for (int s = 0; s < N_STREAMS; s++)

@@ -53,7 +53,7 @@ def visit(name, obj):
         return
     n = b.shape[0]
     if name == "macro/lambda":
-        n -= 1
+        n = max(n - 1, 0)
     if n > a.shape[0] or a[:n].tobytes() != b[:n].tobytes():
         bad.append(name)
 f.visititems(visit)
@@ -81,8 +81,8 @@ kill_series() {
   local t0 window i f pid ms finished=0
   t0=$(date +%s%N)
   "$mrvi" run "$sys" "${set_[@]}" -o "$tmp/ref.h5" -q || fail "reference run"
-  # Kill instants: uniform in 0 .. 60 % of the reference run's wall time.
-  window=$((($(date +%s%N) - t0) * 6 / 10000000))
+  # Kill instants: uniform in 0 .. 50 % of the reference run's wall time.
+  window=$((($(date +%s%N) - t0) * 5 / 10000000))
   [ "$window" -ge 10 ] || window=10
   for i in $(seq 1 "$3"); do
     f=$tmp/k$i.h5
@@ -121,7 +121,7 @@ kill_series() {
     rm -f "$f" "$f".part*
   done
   # Most kills must have hit a running process.
-  if [ $((finished * 4)) -le "$3" ]; then pass; else
+  if [ $((finished * 2)) -le "$3" ]; then pass; else
     fail "$(basename "$sys"): $finished of $3 runs finished before their kill"
   fi
 }
