@@ -25,8 +25,12 @@ static double *read_matrix(hid_t file, const char *name, long *rows,
   double *buf = NULL;
   if (rank >= 1 && rank <= 2 &&
       H5Sget_simple_extent_dims(sp, dims, NULL) >= 0) {
-    const size_t count = (size_t)dims[0] * (size_t)(rank == 2 ? dims[1] : 1);
-    buf = malloc((count > 0 ? count : 1) * sizeof(double));
+    /* Shapes come from the file: a product beyond size_t is refused. */
+    size_t count = 0, bytes = 0;
+    if (!__builtin_mul_overflow((size_t)dims[0],
+                                (size_t)(rank == 2 ? dims[1] : 1), &count) &&
+        !__builtin_mul_overflow(count > 0 ? count : 1, sizeof(double), &bytes))
+      buf = malloc(bytes);
     if (buf &&
         H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf) < 0) {
       free(buf);
