@@ -295,6 +295,11 @@ static int stored_node_read(hid_t file, const char *path, long which,
                      "mrvi_version)",
                      path);
   mrvi_h5_stop_reason(file, path, node->stop_reason, sizeof node->stop_reason);
+  if (which == MRVI_NODE_RESUME && H5Lexists(file, "/control", H5P_DEFAULT) > 0)
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "%s: written by mrvi optimize or run --controls; "
+                     "resuming a controlled run is not supported",
+                     path);
   if (which == MRVI_NODE_RESUME && !strcmp(node->stop_reason, "completed"))
     return mrvi_fail(msg, len, MRVI_EINVAL,
                      "%s: the run completed; nothing to resume (to go on "

@@ -244,6 +244,11 @@ expect_error() {
 }
 expect_error "resume a completed run" 1 "the run completed; nothing to resume" \
   "$mrvi" run --resume "$tmp/short.h5"
+cp "$tmp/short.h5" "$tmp/ctl.h5"
+"$py" -c 'import sys, h5py; h5py.File(sys.argv[1], "r+")["control/u"] = [1.0]' \
+  "$tmp/ctl.h5"
+expect_error "resume a controlled run" 1 "resuming a controlled run is not" \
+  "$mrvi" run --resume "$tmp/ctl.h5"
 echo "not hdf5" >"$tmp/text.h5"
 expect_error "resume a text file" 1 "cannot open as an HDF5 file" \
   "$mrvi" run --resume "$tmp/text.h5"
