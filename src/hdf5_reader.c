@@ -334,14 +334,17 @@ static int stored_node_read(hid_t file, const char *path, long which,
   free(rate);
   hsize_t rows = 0;
   double t0;
-  if (!rate || nr < 1 || read_row(file, "/macro/t", 0, 1, &t0, &rows) < 0)
+  const int empty = read_row(file, "/macro/t", 0, 1, &t0, &rows) < 0;
+  if (!rate || nr < 1 || (empty && (which != MRVI_NODE_RESUME || rows > 0)))
     return mrvi_fail(msg, len, MRVI_EIO,
                      "%s: /model/rate or /macro/t missing or empty", path);
   node->n = (int)nr;
-  node->q = malloc((size_t)nr * sizeof *node->q);
-  node->p = malloc((size_t)nr * sizeof *node->p);
+  node->q = calloc((size_t)nr, sizeof *node->q);
+  node->p = calloc((size_t)nr, sizeof *node->p);
   if (!node->q || !node->p)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  if (empty)
+    return MRVI_OK; /* killed before its first row: resume from node 0 */
   const long e = node->every;
   if (which == MRVI_NODE_LAST)
     return read_node_row(file, path, rows - 1, node, msg, len);

@@ -942,9 +942,10 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
   w->file = H5Fopen(w->path, H5F_ACC_RDWR | H5F_ACC_SWMR_WRITE, fapl);
   if (w->file < 0)
     return fail_h5(w, MRVI_EIO, "cannot open the file for appending");
+  /* From node 0 the run starts afresh: every row is written again. */
   hsize_t keep[N_STREAMS];
-  keep[MACRO] = (hsize_t)(k / w->every) + 1;
-  keep[MICRO] = (hsize_t)k * (hsize_t)w->p + 1;
+  keep[MACRO] = k > 0 ? (hsize_t)(k / w->every) + 1 : 0;
+  keep[MICRO] = k > 0 ? (hsize_t)k * (hsize_t)w->p + 1 : 0;
   keep[SOLVER] = (hsize_t)k;
   for (int id = 0; id < N_OUTPUTS; id++) {
     output *o = &w->out[id];
@@ -983,8 +984,8 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
                    "writing attributes steps_completed and stop_reason");
   if (H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     return fail_h5(w, MRVI_EIO, "flushing the file");
-  w->resume = 1;
-  w->keep_lambda = w->n_lambda > 0;
+  w->resume = k > 0;
+  w->keep_lambda = w->n_lambda > 0 && k > 0;
   w->flushed_k = k;
   return 0;
 }

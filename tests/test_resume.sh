@@ -190,6 +190,22 @@ resume_case() {
 
 fpu=$root/systems/fpu.yaml
 cart=$root/systems/cart_pendulum.yaml
+
+# A run that failed at its first write (node 0 stored, its multipliers not)
+# is resumed from node 0, as a new start.
+cargs=(run "$cart" --set integrator.t_end=20 --set output.flush_interval=0.05)
+run_ok "cart, t_end 20" "$mrvi" "${cargs[@]}" -o "$tmp/c20.h5" -q
+MRVI_TEST_WRITE_FAIL_AFTER=1 "$mrvi" "${cargs[@]}" -o "$tmp/c0.h5" -q \
+  >/dev/null 2>&1
+k=$(steps_of "$tmp/c0.h5")
+[ "$k" = 0 ] && pass "failure at the first write: 0 steps stored" ||
+  fail "failure at the first write: $k steps stored"
+rc=$(resume "$tmp/c0.h5")
+[ "$rc" = 0 ] && pass "resumed from node 0" ||
+  fail "resume from node 0: exit $rc: $(cat "$tmp/err.txt")"
+"$py" "$tmp/same.py" "$tmp/c20.h5" "$tmp/c0.h5" >"$tmp/log" &&
+  pass "resume from node 0 = uninterrupted ($(cat "$tmp/log"))" ||
+  fail "resume from node 0: $(cat "$tmp/log")"
 resume_case "fpu" 20000 "$fpu" --set integrator.t_end=6000
 resume_case "fpu every 7" 20000 "$fpu" --set integrator.t_end=6000 \
   --set output.every=7
