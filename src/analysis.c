@@ -43,6 +43,18 @@ static int keep_record(void *user, const mrvi_record *r) {
   return 0;
 }
 
+/* Elements rows x cols (+ extra) as a byte count of doubles in *bytes; 0,
+ * or -1 when it overflows size_t. */
+static int doubles_bytes(size_t rows, size_t cols, size_t extra,
+                         size_t *bytes) {
+  size_t count;
+  return __builtin_mul_overflow(rows, cols, &count) ||
+                 __builtin_add_overflow(count, extra, &count) ||
+                 __builtin_mul_overflow(count, sizeof(double), bytes)
+             ? -1
+             : 0;
+}
+
 int mrvi_trajectory_run(const mrvi_model *m, const mrvi_settings *s,
                         mrvi_trajectory **out, mrvi_summary *summary) {
   mrvi_summary local;
@@ -54,7 +66,22 @@ int mrvi_trajectory_run(const mrvi_model *m, const mrvi_settings *s,
   if (st < 0)
     return summary->status = st;
   const long N = mrvi_settings_n_steps(s);
-  const size_t rows = (size_t)N + 1, mrows = (size_t)N * s->micro_steps + 1;
+  /* Every buffer size checked: N (< 2^53) x p x n overflows size_t for
+   * absurd settings long before any allocation could succeed. */
+  size_t rows = 0, b_t, b_q, b_mt, b_mq;
+  if (doubles_bytes((size_t)N, (size_t)s->micro_steps, 1, &b_mt) < 0 ||
+      doubles_bytes((size_t)N, 1, 1, &b_t) < 0 ||
+      doubles_bytes(b_t / sizeof(double), (size_t)m->n, 0, &b_q) < 0 ||
+      doubles_bytes(b_mt / sizeof(double), (size_t)m->n_fast, 1, &b_mq) < 0) {
+    mrvi_fmt(summary->message, sizeof summary->message,
+             "a trajectory of %ld macro steps (integrator.t_end / "
+             "integrator.macro_step) x %d micro steps "
+             "(integrator.micro_steps) of %d coordinates does not fit in "
+             "memory",
+             N, s->micro_steps, m->n);
+    return summary->status = MRVI_ENOMEM;
+  }
+  rows = b_t / sizeof(double);
   mrvi_trajectory *tr = calloc(1, sizeof *tr);
   if (!tr)
     return summary->status = MRVI_ENOMEM;
@@ -62,12 +89,12 @@ int mrvi_trajectory_run(const mrvi_model *m, const mrvi_settings *s,
   tr->n_fast = m->n_fast;
   tr->macro_step = s->macro_step;
   tr->micro_steps = s->micro_steps;
-  tr->t = malloc(rows * sizeof(double));
-  tr->q = malloc(rows * (size_t)m->n * sizeof(double));
-  tr->p = malloc(rows * (size_t)m->n * sizeof(double));
-  tr->micro_t = malloc(mrows * sizeof(double));
-  tr->micro_q = malloc((mrows * (size_t)m->n_fast + 1) * sizeof(double));
-  tr->micro_p = malloc((mrows * (size_t)m->n_fast + 1) * sizeof(double));
+  tr->t = malloc(b_t);
+  tr->q = malloc(b_q ? b_q : sizeof(double));
+  tr->p = malloc(b_q ? b_q : sizeof(double));
+  tr->micro_t = malloc(b_mt);
+  tr->micro_q = malloc(b_mq);
+  tr->micro_p = malloc(b_mq);
   if (!tr->t || !tr->q || !tr->p || !tr->micro_t || !tr->micro_q ||
       !tr->micro_p) {
     mrvi_trajectory_free(tr);
@@ -100,8 +127,9 @@ int mrvi_trajectory_errors(const mrvi_model *m, const mrvi_trajectory *run,
   e->macro_step = run->macro_step;
   e->micro_steps = run->micro_steps;
   if (ref->micro_steps != 1 || ref->n != run->n) {
-    mrvi_fmt(msg, len, "the reference must be a single-rate run (p = 1) of "
-                       "the same model");
+    mrvi_fmt(msg, len,
+             "the reference must be a single-rate run (p = 1) of "
+             "the same model");
     return MRVI_EINVAL;
   }
   const double dt = run->macro_step / run->micro_steps;
@@ -219,8 +247,10 @@ int mrvi_oscillator_omega(const mrvi_model *m, double *omega, char *msg,
   double g = 0.0, H = 0.0;
   mrvi_model_potential(m, MRVI_SLOW, m->q0, &g, &H);
   if (!(H > 0)) {
-    mrvi_fmt(msg, len, "V''(q0) = %g: the oscillator needs a positive "
-                       "stiffness", H);
+    mrvi_fmt(msg, len,
+             "V''(q0) = %g: the oscillator needs a positive "
+             "stiffness",
+             H);
     return MRVI_EMODEL;
   }
   *omega = sqrt(H / m->mass[0]);

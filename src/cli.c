@@ -14,6 +14,7 @@
 #include "cli_study.h"
 #include "internal.h"
 
+#include <errno.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -60,6 +61,8 @@ static const char usage_main[] =
 static const char usage_run[] =
     "Usage: mrvi run FILE [-o OUT.h5] [--set KEY=VALUE]... [--quiet] "
     "[--force]\n"
+    "                [--from RUN.h5[:K]]\n"
+    "       mrvi run --resume OUT.h5 [--quiet]\n"
     "\n"
     "Integrate the system described in FILE (YAML) and write macro and micro\n"
     "trajectories, energies and solver statistics to an HDF5 file.  For a\n"
@@ -78,6 +81,18 @@ static const char usage_run[] =
     "      --force           replace an existing OUT.h5 that is not an mrvi\n"
     "                        output (an earlier mrvi output is always\n"
     "                        replaced; a file a live run holds never is)\n"
+    "      --resume OUT.h5   continue the run that wrote OUT.h5 and stopped\n"
+    "                        (Ctrl-C, SIGTERM, killed, an error) from its\n"
+    "                        last complete stored macro node, appending to\n"
+    "                        OUT.h5; description and settings come from the\n"
+    "                        file; the result equals an uninterrupted run bit\n"
+    "                        for bit.  Refused for a completed run or a file\n"
+    "                        a live run holds\n"
+    "      --from RUN.h5[:K] start a new run (a new output file) from the\n"
+    "                        state of stored macro node K of RUN.h5 (default:\n"
+    "                        its last node); FILE must have the same\n"
+    "                        coordinates and macro_step, and steps K+1 .. N\n"
+    "                        are taken (e.g. a later t_end extends a run)\n"
     "  -h, --help            show this help\n"
     "\n"
     "Notes about the input, such as initial velocities projected onto the\n"
@@ -147,11 +162,14 @@ typedef struct cli_args {
   int quiet;
   int force; /* --force: replace an existing file that is no mrvi output */
   int help;
+  const char *resume; /* --resume OUT.h5 */
+  const char *from;   /* --from OUT.h5[:k] */
 } cli_args;
 
 /* Options accepted by a command, for the parser and for suggestions. */
 static const char *const run_options[] = {"--output", "--set",  "--quiet",
-                                          "--force",  "--help", NULL};
+                                          "--force",  "--help", "--resume",
+                                          "--from",   NULL};
 static const char *const check_options[] = {"--set", "--help", NULL};
 
 static void usage_error(const char *usage) { fputs(usage, stderr); }
@@ -243,6 +261,16 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
         return EXIT_INPUT;
       }
       a->output = v;
+    } else if (allow_run &&
+               (!strcmp(name, "--resume") || !strcmp(name, "--from"))) {
+      const char *v = option_value(cmd, name, inline_value, argc, argv, &i);
+      if (!v)
+        return EXIT_INPUT;
+      if (!*v) {
+        fprintf(stderr, "mrvi %s: %s: empty file name\n", cmd, name);
+        return EXIT_INPUT;
+      }
+      *(!strcmp(name, "--resume") ? &a->resume : &a->from) = v;
     } else if (!strcmp(name, "-s") || !strcmp(name, "--set")) {
       const char *v = option_value(cmd, name, inline_value, argc, argv, &i);
       if (!v)
@@ -266,7 +294,7 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
       return EXIT_INPUT;
     }
   }
-  if (!a->help && !a->file) {
+  if (!a->help && !a->file && !a->resume) {
     fprintf(stderr, "mrvi %s: missing FILE\n", cmd);
     usage_error(usage);
     return EXIT_INPUT;
@@ -543,14 +571,18 @@ static int same_file(const char *a, const char *b) {
          sa.st_ino == sb.st_ino;
 }
 
+/* k0: the node the run started from (0, or --resume / --from). */
 static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
-                          long n_steps, const char *out) {
+                          long n_steps, long k0, const char *out) {
   const mrvi_settings *s = &sys->settings;
   const char *name = sys->name ? sys->name : mrvi_model_name(sys->model);
   printf("%s: %s %ld of %ld macro steps, t = %g (%s, dT = %g, p = %d)\n", name,
-         sum->status == MRVI_OK ? "completed" : "stopped after", sum->steps,
-         n_steps, (double)sum->steps * s->macro_step,
+         sum->status == MRVI_OK ? "completed" : "stopped after",
+         k0 + sum->steps, n_steps, (double)(k0 + sum->steps) * s->macro_step,
          s->scheme[0] ? s->scheme : "custom", s->macro_step, s->micro_steps);
+  if (k0 > 0)
+    printf("  %-23s%ld (%ld steps in this run)\n", "started at node", k0,
+           sum->steps);
   const char *path = mrvi_solver_path(sys->model, s, NULL, 0);
   printf("  %-23s%s\n", "solver path", path ? path : "none");
   printf("  %-23s%ld total, max %d per step\n", "Newton iterations",
@@ -593,6 +625,89 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
   fflush(stdout);
 }
 
+/* --resume OUT.h5: the node to continue from and the system of its stored
+ * description (which has the original overrides spliced in). */
+static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node) {
+  char msg[MSG_LEN];
+  if (a->file || a->n_overrides > 0 || a->output || a->from) {
+    fprintf(stderr, "mrvi run: --resume takes the description, settings and "
+                    "output file from OUT.h5; give no FILE, --set, -o or "
+                    "--from with it\n");
+    return NULL;
+  }
+  if (mrvi_stored_node_read(a->resume, MRVI_NODE_RESUME, node, msg,
+                            sizeof msg) < 0) {
+    fprintf(stderr, "mrvi run: --resume %s\n", msg);
+    return NULL;
+  }
+  char name[4200];
+  snprintf(name, sizeof name, "%s:/model/description", a->resume);
+  mrvi_system *sys = NULL;
+  if (mrvi_system_load_string((*node)->description, name, NULL, 0, &sys, msg,
+                              sizeof msg) < 0 ||
+      !sys) {
+    fprintf(stderr, "mrvi run: --resume: %s\n", msg);
+    mrvi_system_free(sys);
+    mrvi_stored_node_free(*node);
+    *node = NULL;
+    return NULL;
+  }
+  return sys;
+}
+
+/* --from OUT.h5[:k]: stored node k (default: the last) of an earlier run,
+ * checked against the system of FILE. */
+static mrvi_stored_node *load_from(const char *spec, const mrvi_system *sys,
+                                   char *path, size_t path_len) {
+  char msg[MSG_LEN];
+  snprintf(path, path_len, "%s", spec);
+  long which = MRVI_NODE_LAST;
+  char *colon = strrchr(path, ':');
+  if (colon && colon[1]) {
+    char *end;
+    errno = 0;
+    long k = strtol(colon + 1, &end, 10);
+    if (*end == '\0') {
+      if (errno || k < 0) {
+        fprintf(stderr, "mrvi run: --from %s: node index must be >= 0\n", spec);
+        return NULL;
+      }
+      which = k;
+      *colon = '\0';
+    }
+  }
+  mrvi_stored_node *node = NULL;
+  if (mrvi_stored_node_read(path, which, &node, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi run: --from %s\n", msg);
+    return NULL;
+  }
+  const mrvi_settings *s = &sys->settings;
+  const long N = mrvi_settings_n_steps(s);
+  const char *bad = NULL;
+  char why[512];
+  if (node->n != mrvi_model_n(sys->model)) {
+    snprintf(why, sizeof why, "it has %d coordinates, the model %d", node->n,
+             mrvi_model_n(sys->model));
+    bad = why;
+  } else if (node->macro_step != s->macro_step) {
+    snprintf(why, sizeof why,
+             "its macro_step %.17g differs from integrator.macro_step %.17g",
+             node->macro_step, s->macro_step);
+    bad = why;
+  } else if (node->k >= N) {
+    snprintf(why, sizeof why,
+             "node %ld (t = %g) is not before the last node %ld (t_end = %g)",
+             node->k, node->t, N, s->t_end);
+    bad = why;
+  }
+  if (bad) {
+    fprintf(stderr, "mrvi run: --from %s: %s\n", path, bad);
+    mrvi_stored_node_free(node);
+    return NULL;
+  }
+  return node;
+}
+
 static int cmd_run(int argc, char **argv) {
   cli_args a;
   int rc = parse_args("run", usage_run, 1, argc, argv, &a);
@@ -604,18 +719,41 @@ static int cmd_run(int argc, char **argv) {
   }
   /* From here on Ctrl-C only raises the stop flag. */
   install_handlers();
-  mrvi_system *sys = load_system(&a);
+  mrvi_stored_node *node = NULL;
+  mrvi_system *sys = a.resume ? load_resume(&a, &node) : load_system(&a);
   free(a.overrides);
+  char from_path[4096] = "";
+  if (sys && a.from &&
+      !(node = load_from(a.from, sys, from_path, sizeof from_path))) {
+    mrvi_system_free(sys);
+    sys = NULL;
+  }
   if (!sys)
     return EXIT_INPUT;
   if (stop_signal) { /* interrupted while loading: write nothing */
     mrvi_system_free(sys);
+    mrvi_stored_node_free(node);
     return 128 + (int)stop_signal;
   }
-  print_notes(stderr, a.file, sys->notes);
+  if (!a.resume)
+    print_notes(stderr, a.file, sys->notes);
+  else if (!a.quiet)
+    fprintf(stderr, "mrvi run: resuming %s at macro node %ld (t = %g)\n",
+            a.resume, node->k, node->t);
+  if (a.resume && node->n != mrvi_model_n(sys->model)) {
+    fprintf(stderr,
+            "mrvi run: --resume %s: /macro/q has %d columns, the stored "
+            "description's model %d\n",
+            a.resume, node->n, mrvi_model_n(sys->model));
+    mrvi_system_free(sys);
+    mrvi_stored_node_free(node);
+    return EXIT_INPUT;
+  }
 
-  /* Output file: -o, else output.file of the description. */
-  const char *out = a.output ? a.output : sys->output_file;
+  /* Output file: --resume, -o, else output.file of the description. */
+  const char *out = a.resume   ? a.resume
+                    : a.output ? a.output
+                               : sys->output_file;
   if (!out || !*out) {
     fprintf(stderr, "%s: no output file (give -o OUT.h5 or output.file)\n",
             a.file);
@@ -625,7 +763,7 @@ static int cmd_run(int argc, char **argv) {
   /* An output name taken from the description (output.file, or name + .h5)
    * must be a plain file name: no control characters, and a name-derived
    * one no directory part ("../../x" in `name:` writes nowhere else). */
-  if (!a.output) {
+  if (!a.output && !a.resume) {
     int bad = 0;
     for (const char *c = out; *c; c++)
       bad |= (unsigned char)*c < 0x20 || *c == 0x7f;
@@ -643,11 +781,23 @@ static int cmd_run(int argc, char **argv) {
       return EXIT_INPUT;
     }
   }
-  if (same_file(out, a.file)) {
+  if (a.file && same_file(out, a.file)) {
     fprintf(stderr, "mrvi run: output file '%s' is the description file\n",
             out);
     mrvi_system_free(sys);
+    mrvi_stored_node_free(node);
     return EXIT_INPUT;
+  }
+  if (a.from && node) {
+    if (same_file(out, from_path)) {
+      fprintf(stderr,
+              "mrvi run: output file '%s' is the --from file (--from starts "
+              "a new run; --resume %s continues that one)\n",
+              out, out);
+      mrvi_system_free(sys);
+      mrvi_stored_node_free(node);
+      return EXIT_INPUT;
+    }
   }
 
   char msg[MSG_LEN];
@@ -660,6 +810,8 @@ static int cmd_run(int argc, char **argv) {
       .flush_interval = sys->output_flush_interval,
       .force = a.force,
       .micro_slow = sys->output_micro_slow,
+      .resume = a.resume != NULL,
+      .resume_k = node ? node->k : 0,
   };
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(out, sys->model, &sys->settings, &opt, &w, msg,
@@ -670,6 +822,7 @@ static int cmd_run(int argc, char **argv) {
     else
       fprintf(stderr, "mrvi run: cannot create '%s'\n", out);
     mrvi_system_free(sys);
+    mrvi_stored_node_free(node);
     return EXIT_INPUT;
   }
 
@@ -681,8 +834,14 @@ static int cmd_run(int argc, char **argv) {
   };
   mrvi_summary sum;
   memset(&sum, 0, sizeof sum);
-  int st = mrvi_run(sys->model, &sys->settings, run_observe, &ctx, &stop_signal,
-                    &sum);
+  /* From a stored node; a resume at node 0 starts as the original run. */
+  mrvi_start start = {node ? node->k : 0, node ? node->q : NULL,
+                      node ? node->p : NULL};
+  int st = mrvi_run_from(sys->model, &sys->settings,
+                         node && (a.from || node->k > 0) ? &start : NULL,
+                         run_observe, &ctx, &stop_signal, &sum);
+  mrvi_stored_node_free(node);
+  node = NULL;
   if (st < 0 && sum.status == MRVI_OK)
     sum.status = st;
   progress_clear(&ctx);
@@ -697,7 +856,7 @@ static int cmd_run(int argc, char **argv) {
   int cst = mrvi_writer_close(w, reason, close_msg, sizeof close_msg);
 
   if (!a.quiet)
-    print_summary(sys, &sum, ctx.n_steps, out);
+    print_summary(sys, &sum, ctx.n_steps, start.k, out);
   /* The XDMF file for ParaView: the steps the file holds (particles only). */
   if (sys->output_xdmf && mrvi_model_n_particles(sys->model) > 0 &&
       cst == MRVI_OK)

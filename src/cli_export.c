@@ -188,6 +188,15 @@ int mrvi_cmd_export(int argc, char **argv) {
     fprintf(stderr, "mrvi export: %s\n", msg[0] ? msg : mrvi_strerror(st));
     return 1;
   }
+  char reason[1024];
+  if (mrvi_run_file_status(file, reason, sizeof reason) == MRVI_OK &&
+      strcmp(reason, "completed") != 0)
+    fprintf(stderr,
+            "mrvi export: note: %s did not complete (stop_reason: %s); its "
+            "stored nodes were exported%s%s%s\n",
+            file, reason,
+            xyz ? "" : "; other HDF5 readers (ParaView) need `h5clear -s ",
+            xyz ? "" : file, xyz ? "" : "` first when the writer was killed");
   printf("%s\n", path);
   return 0;
 }

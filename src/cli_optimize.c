@@ -7,6 +7,7 @@
  * plus /control and /optimizer to HDF5 (doc/output.md).
  * Exit status: 0 optimum found with the terminal conditions met, 1 bad
  * input, 2 the optimiser failed or the terminal conditions are not met. */
+#include "h5util.h"
 #include "internal.h"
 #include "ocp/ocp.h"
 
@@ -376,7 +377,7 @@ static char *default_output(const mrvi_system *sys) {
  * of o; 0 or -1 with a message. */
 static int read_controls(const char *path, const mrvi_ocp *o, double *u,
                          char *msg, size_t len) {
-  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  hid_t f = mrvi_h5_open_read(path, H5P_DEFAULT);
   if (f < 0) {
     mrvi_fmt(msg, len, "cannot open '%s'", path);
     return -1;

@@ -5,6 +5,7 @@
  * Both read only what the file holds, so they describe exactly the steps a
  * run stored, also when it stopped early or was killed. */
 #define _DEFAULT_SOURCE /* realpath */
+#include "h5util.h"
 #include "internal.h"
 
 #include <hdf5.h>
@@ -136,7 +137,7 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
   memset(r, 0, sizeof *r);
   r->path = path;
   r->first = -1;
-  r->file = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  r->file = mrvi_h5_open_read(path, H5P_DEFAULT);
   if (r->file < 0)
     return mrvi_fail(msg, len, MRVI_EIO,
                      "%s: cannot open as an HDF5 file (missing, not HDF5, or "

@@ -3,17 +3,22 @@
  * The writer is an mrvi_observer.  Each record adds rows to three streams of
  * datasets (macro nodes, fast micro nodes, solver statistics); rows are
  * buffered in memory and appended with hyperslab writes to chunked datasets
- * whose first dimension is unlimited.  After every buffer write the file is
- * flushed (H5Fflush) twice, rows first and steps_completed after them, so a
- * process killed hard leaves a readable file with everything written up to
- * the last flush and a counter that never exceeds the rows (flush); a run
- * stopped by an error or by the stop flag reaches mrvi_writer_close, which
- * writes the rest and the reason it stopped.
+ * whose first dimension is unlimited.  The file is set up under a temporary
+ * name, switched to SWMR writing (every object exists by then) and renamed
+ * to the output path; SWMR's ordered metadata flushes keep it consistent on
+ * disk at every instant.  After every buffer write the file is flushed
+ * (H5Fflush) twice, rows first and steps_completed (rewritten in place)
+ * after them, so a process killed hard leaves a readable file with
+ * everything written up to the last flush and a counter that never exceeds
+ * the rows (flush); a run stopped by an error or by the stop flag reaches
+ * mrvi_writer_close, which writes the rest and, last, the reason it stopped
+ * (stop_reason "running" thus marks a run that never closed).
  *
  * The library never prints: HDF5's automatic error printer is switched off
  * around every HDF5 call we make (and restored after), and the error stack
  * is turned into a message instead. */
 #define _DEFAULT_SOURCE /* flock */
+#include "h5util.h"
 #include "internal.h"
 
 #include <hdf5.h>
@@ -36,6 +41,8 @@
 #define BUFFER_BYTES ((size_t)8 << 20)
 /* Target size of one chunk (never more rows than the run will write). */
 #define CHUNK_BYTES ((size_t)64 << 10)
+/* Size of the fixed-length root attribute stop_reason. */
+#define STOP_REASON_BYTES 1024
 
 /* ---------------------------------------------------------------------------
  * Output table
@@ -158,7 +165,7 @@ static const struct output_info {
   X("project_momenta", int, s->project_momenta, w->n_lambda > 0)               \
   X("solver", string, solver_path, 1)                                          \
   X("output_every", int, w->every, 1)                                          \
-  X("stop_reason", string, "running", 1)                                       \
+  X("stop_reason", fixed_string, "running", 1)                                 \
   X("steps_completed", long, 0L, 1)
 
 /* ---------------------------------------------------------------------------
@@ -196,10 +203,14 @@ struct mrvi_writer {
   double flush_interval; /* seconds between flushes (output.flush_interval) */
   long flushed_k;        /* steps_completed in the file */
   int new_file;          /* lock_and_check created the file */
+  char *part_path;       /* the file while it is set up (writer_setup) */
   int lock_fd;           /* holds flock(LOCK_EX) on the file, -1 when none */
   long fail_after;       /* MRVI_TEST_WRITE_FAIL_AFTER: fail the first flush
                             after this many records (testing), -1: never */
   long last_k;           /* k of the last record, -1 before the first */
+  int resume;            /* appending: the first record is in the file */
+  int keep_lambda;       /* appending: the multipliers of the last row in the
+                            file are final (resume_point) */
   double *micro_t;       /* p: times of the micro rows of a record */
   double *nan_row;       /* n_lambda NaNs: the /macro/lambda placeholder */
   double *lambda_patch;  /* n_lambda: multipliers of the last row in the file */
@@ -386,6 +397,27 @@ static herr_t attr_string(hid_t obj, const char *name, const char *value) {
     return -1;
   const char *v = value ? value : "";
   herr_t rc = attr_write(obj, name, t, t, &v);
+  hid_t es = keep_errors(rc);
+  H5Tclose(t);
+  restore_errors(es);
+  return rc;
+}
+
+/* Fixed-length string attribute (STOP_REASON_BYTES, truncated): rewritten
+ * in place in the object header, never in the global heap, so SWMR writing
+ * may change it (see flush). */
+static herr_t attr_fixed_string(hid_t obj, const char *name,
+                                const char *value) {
+  char buf[STOP_REASON_BYTES];
+  memset(buf, 0, sizeof buf);
+  mrvi_fmt(buf, sizeof buf, "%s", value ? value : "");
+  hid_t t = H5Tcopy(H5T_C_S1);
+  if (t < 0)
+    return -1;
+  herr_t rc = -1;
+  if (H5Tset_size(t, sizeof buf) >= 0 && H5Tset_cset(t, H5T_CSET_UTF8) >= 0 &&
+      H5Tset_strpad(t, H5T_STR_NULLTERM) >= 0)
+    rc = attr_write(obj, name, t, t, buf);
   hid_t es = keep_errors(rc);
   H5Tclose(t);
   restore_errors(es);
@@ -812,6 +844,7 @@ static void writer_free(mrvi_writer *w) {
   free(w->nan_row);
   free(w->lambda_patch);
   free(w->path);
+  free(w->part_path);
   free(w);
 }
 
@@ -855,7 +888,7 @@ static int lock_and_check(mrvi_writer *w, int force) {
     if (fapl >= 0)
       H5Pset_file_locking(fapl, 0, 1);
 #endif
-    hid_t f = H5Fopen(w->path, H5F_ACC_RDONLY, fapl >= 0 ? fapl : H5P_DEFAULT);
+    hid_t f = mrvi_h5_open_read(w->path, fapl >= 0 ? fapl : H5P_DEFAULT);
     if (fapl >= 0)
       H5Pclose(fapl);
     if (f >= 0) {
@@ -873,10 +906,97 @@ static int lock_and_check(mrvi_writer *w, int force) {
               "(use --force to replace it)");
 }
 
+/* Rename the file set up under part_path to the output path, moving the
+ * lock with it: the new file is locked before it gets the name, so a
+ * second run never finds the output path unlocked. */
+static int move_into_place(mrvi_writer *w) {
+  int fd = open(w->part_path, O_RDWR | O_CLOEXEC);
+  if (fd < 0 || flock(fd, LOCK_EX | LOCK_NB) < 0 ||
+      rename(w->part_path, w->path) < 0) {
+    int e = errno;
+    if (fd >= 0)
+      close(fd);
+    return fail(w, MRVI_EIO, "cannot rename %s to it: %s", w->part_path,
+                strerror(e));
+  }
+  free(w->part_path);
+  w->part_path = NULL;
+  if (w->lock_fd >= 0)
+    close(w->lock_fd);
+  w->lock_fd = fd;
+  return 0;
+}
+
+/* Appending (mrvi run --resume): open the existing output for SWMR writing
+ * and cut every dataset back to macro node k, as a run that stopped after
+ * node k would have left it.  The file keeps HDF5's "open for writing" flag
+ * when its writer was killed; opening clears it (as h5clear -s does). */
+static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
+  w->lock_fd = open(w->path, O_RDWR | O_CLOEXEC);
+  if (w->lock_fd < 0)
+    return fail(w, MRVI_EIO, "cannot open: %s", strerror(errno));
+  if (flock(w->lock_fd, LOCK_EX | LOCK_NB) < 0)
+    return fail(w, MRVI_EIO, "%s",
+                errno == EWOULDBLOCK
+                    ? "the file is in use by another run (locked); not touched"
+                    : "cannot lock the file");
+  hbool_t clear = 1;
+  H5Pset(fapl, "clear_status_flags", &clear);
+  w->file = H5Fopen(w->path, H5F_ACC_RDWR | H5F_ACC_SWMR_WRITE, fapl);
+  if (w->file < 0)
+    return fail_h5(w, MRVI_EIO, "cannot open the file for appending");
+  /* From node 0 the run starts afresh: every row is written again. */
+  hsize_t keep[N_STREAMS];
+  keep[MACRO] = k > 0 ? (hsize_t)(k / w->every) + 1 : 0;
+  keep[MICRO] = k > 0 ? (hsize_t)k * (hsize_t)w->p + 1 : 0;
+  keep[SOLVER] = (hsize_t)k;
+  for (int id = 0; id < N_OUTPUTS; id++) {
+    output *o = &w->out[id];
+    if (o->cols == 0)
+      continue;
+    const struct output_info *info = &output_info[id];
+    o->id = H5Dopen2(w->file, info->path, H5P_DEFAULT);
+    hsize_t dims[2] = {0, 1};
+    hid_t sp = o->id >= 0 ? H5Dget_space(o->id) : H5I_INVALID_HID;
+    const int rank = sp >= 0 ? H5Sget_simple_extent_ndims(sp) : -1;
+    if (sp >= 0)
+      H5Sget_simple_extent_dims(sp, dims, NULL);
+    if (sp >= 0)
+      H5Sclose(sp);
+    const hsize_t cols = rank == 2 ? dims[1] : 1;
+    if (rank != info->rank || cols != o->cols || dims[0] < keep[info->stream]) {
+      H5Eclear2(H5E_DEFAULT);
+      return fail(w, MRVI_EIO,
+                  "%s: %s (%llu rows of %llu) does not fit macro node %ld of "
+                  "this model and settings",
+                  info->path, o->id < 0 ? "missing" : "shape",
+                  (unsigned long long)dims[0], (unsigned long long)cols, k);
+    }
+    hsize_t size[2] = {keep[info->stream], o->cols};
+    if (H5Dset_extent(o->id, size) < 0) {
+      char what[128];
+      mrvi_fmt(what, sizeof what, "cutting %s back", info->path);
+      return fail_h5(w, MRVI_EIO, what);
+    }
+  }
+  for (int s = 0; s < N_STREAMS; s++)
+    w->written[s] = w->stream_on[s] ? keep[s] : 0;
+  if (attr_long(w->file, "steps_completed", k) < 0 ||
+      attr_fixed_string(w->file, "stop_reason", "running") < 0)
+    return fail_h5(w, MRVI_EIO,
+                   "writing attributes steps_completed and stop_reason");
+  if (H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
+    return fail_h5(w, MRVI_EIO, "flushing the file");
+  w->resume = k > 0;
+  w->keep_lambda = w->n_lambda > 0 && k > 0;
+  w->flushed_k = k;
+  return 0;
+}
+
 /* Sizes, buffers and chunking; then the file. */
 static int writer_setup(mrvi_writer *w, const mrvi_model *m,
                         const mrvi_settings *s, const char *system_name,
-                        const char *description, int force) {
+                        const char *description, int force, long resume_k) {
   long n_steps = mrvi_settings_n_steps(s);
   hsize_t N = n_steps > 0 ? (hsize_t)n_steps : 1;
   hsize_t expected[N_STREAMS];
@@ -930,7 +1050,7 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
     w->nan_row[i] = NAN;
 
   /* The file: locked, checked, then truncated. */
-  int rc = lock_and_check(w, force);
+  int rc = resume_k >= 0 ? 0 : lock_and_check(w, force);
   if (rc)
     return rc;
   hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
@@ -942,7 +1062,42 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
 #endif
   if (fapl >= 0)
     H5Pset_fclose_degree(fapl, H5F_CLOSE_WEAK); /* see close_handles */
-  w->file = H5Fcreate(w->path, H5F_ACC_TRUNC, H5P_DEFAULT,
+  /* SWMR writing (below) needs the latest file format. */
+  if (fapl >= 0 &&
+      H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST) < 0) {
+    H5Pclose(fapl);
+    return fail_h5(w, MRVI_EIO, "cannot select the HDF5 file format");
+  }
+  if (resume_k >= 0) {
+    rc = fapl >= 0 ? resume_open(w, resume_k, fapl)
+                   : fail_h5(w, MRVI_EIO, "file access properties");
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    return rc;
+  }
+  /* The file is set up under a name of its own and renamed to the output
+   * once it is complete and in SWMR mode: a run killed before leaves the
+   * previous file (or an empty one) at the output path, never a half-built
+   * one. */
+  const size_t plen = strlen(w->path) + 16;
+  w->part_path = malloc(plen);
+  if (!w->part_path) {
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    return fail(w, MRVI_ENOMEM, "out of memory");
+  }
+  mrvi_fmt(w->part_path, plen, "%s.partXXXXXX", w->path);
+  int part_fd = mkstemp(w->part_path);
+  if (part_fd < 0) {
+    int e = errno;
+    free(w->part_path);
+    w->part_path = NULL;
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    return fail(w, MRVI_EIO, "cannot create a file beside it: %s", strerror(e));
+  }
+  close(part_fd);
+  w->file = H5Fcreate(w->part_path, H5F_ACC_TRUNC, H5P_DEFAULT,
                       fapl >= 0 ? fapl : H5P_DEFAULT);
   hid_t es = keep_errors((herr_t)(w->file < 0 ? -1 : 0));
   if (fapl >= 0)
@@ -982,7 +1137,11 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   H5Pclose(lcpl);
   if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     rc = fail_h5(w, MRVI_EIO, "flushing the file");
-  return rc;
+  /* Every object exists: from here on the file is written in SWMR mode,
+   * whose ordered metadata flushes keep it consistent at every instant. */
+  if (rc == 0 && H5Fstart_swmr_write(w->file) < 0)
+    rc = fail_h5(w, MRVI_EIO, "starting SWMR writing");
+  return rc ? rc : move_into_place(w);
 }
 
 int mrvi_writer_open(const char *path, const mrvi_model *m,
@@ -1005,7 +1164,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
                   : "no file name");
     return MRVI_EINVAL;
   }
-  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0, 0};
+  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0, 0, 0, 0};
   if (opt)
     o = *opt;
   if (o.every < 1) {
@@ -1057,11 +1216,14 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
 
   quiet q;
   quiet_begin(&q);
-  int rc = writer_setup(w, m, s, system_name, o.description, o.force);
+  int rc = writer_setup(w, m, s, system_name, o.description, o.force,
+                        o.resume ? (o.resume_k >= 0 ? o.resume_k : 0) : -1);
   if (rc) {
     mrvi_fmt(msg, len, "%s", w->errmsg);
-    int created = w->file >= 0 || w->new_file;
+    int created = w->new_file;
     close_handles(w);
+    if (w->part_path)
+      remove(w->part_path);
     writer_free(w);
     /* A half-written file is no mrvi file: remove it (a regular file only,
      * never e.g. a device the user named). */
@@ -1083,8 +1245,12 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
  * flush, the last row in the file, which the next flush rewrites. */
 static void fill_lambda(mrvi_writer *w, const mrvi_record *r) {
   output *o = &w->out[MACRO_LAMBDA];
-  if (o->cols == 0 || r->k < 1 || w->pending)
+  if (o->cols == 0 || w->last_k < 0 || w->pending)
     return;
+  if (w->keep_lambda) {
+    w->keep_lambda = 0;
+    return;
+  }
   if (w->rows[MACRO] > 0) {
     memcpy(o->buf + (w->rows[MACRO] - 1) * o->row_bytes, r->lambda_prev,
            o->row_bytes);
@@ -1128,8 +1294,9 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
                 r->k, w->last_k);
   /* Rows this record adds to each stream. */
   size_t add[N_STREAMS];
+  /* The first record is an initial node: no solver row. */
   add[MACRO] = 1;
-  add[SOLVER] = r->k >= 1;
+  add[SOLVER] = w->last_k >= 0;
   add[MICRO] = 0;
   if (w->stream_on[MICRO]) {
     if (r->micro_count < 0 || r->micro_count > w->p ||
@@ -1141,15 +1308,22 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
     add[MICRO] = (size_t)r->micro_count;
   }
   if (w->n_lambda > 0 &&
-      (r->n_lambda != w->n_lambda || (r->k >= 1 && !r->lambda_prev) ||
+      (r->n_lambda != w->n_lambda || (w->last_k >= 0 && !r->lambda_prev) ||
        (add[MICRO] > 0 && !r->micro_constraint_residual)))
     return fail(w, MRVI_EINVAL,
                 "record k = %ld has %d constraint rows (the model %d)%s%s",
                 r->k, r->n_lambda, w->n_lambda,
-                r->k >= 1 && !r->lambda_prev ? ", no lambda_prev" : "",
+                w->last_k >= 0 && !r->lambda_prev ? ", no lambda_prev" : "",
                 add[MICRO] > 0 && !r->micro_constraint_residual
                     ? ", no micro_constraint_residual"
                     : "");
+  if (w->resume && w->last_k < 0) {
+    /* Appending: node resume_k is in the file already. */
+    if (w->micro_slow)
+      interpolate_slow(w, r, 0);
+    w->last_k = r->k;
+    return MRVI_OK;
+  }
   fill_lambda(w, r);
   /* Make room (normally the record-count flush below keeps it). */
   for (int s = 0; s < N_STREAMS; s++)
@@ -1243,8 +1417,11 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
     mrvi_fmt(why, sizeof why, "output error: %s", w->errmsg);
     reason = why;
   }
-  if (attr_string(w->file, "stop_reason", reason) < 0 ||
-      attr_long(w->file, "steps_completed", w->flushed_k) < 0)
+  /* The counter first, stop_reason last: a stop_reason other than
+   * "running" marks a run that closed. */
+  if (attr_long(w->file, "steps_completed", w->flushed_k) < 0 ||
+      H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0 ||
+      attr_fixed_string(w->file, "stop_reason", reason) < 0)
     fail_h5(w, MRVI_EIO, "writing attribute stop_reason");
   if (w->have_summary && write_energy_attributes(w) < 0)
     fail_h5(w, MRVI_EIO, "writing the energy error attributes");

@@ -431,6 +431,33 @@ int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,
   return MRVI_OK;
 }
 
+int mrvi_integrator_resume_state(mrvi_integrator *it, long k, const double *q,
+                                 const double *p) {
+  const int n = it->model->n;
+  if (k < 0)
+    return fail(it, MRVI_EINVAL, "macro node %ld: must be >= 0", k);
+  for (int i = 0; i < n; i++)
+    if (!isfinite(q[i]) || !isfinite(p[i]))
+      return fail(it, MRVI_ENONFINITE, "state is not finite");
+  if (it->model->n_constraints > 0) {
+    char msg[400];
+    int st = check_constraints(it, q, msg, sizeof msg);
+    if (st < 0)
+      return fail(it, st, "%s", msg);
+  }
+  memcpy(it->q, q, (size_t)n * sizeof *q);
+  memcpy(it->p, p, (size_t)n * sizeof *p);
+  /* No projection: p_k of a stored node is projected already, and
+   * projecting again would change its last bits. */
+  memset(it->mu_h, 0, (size_t)it->model->constraint_rows * sizeof(double));
+  split_state(it);
+  mrvi_sweep_reset(it->sweep);
+  it->jac_ready = 0;
+  it->t0 = 0.0;
+  it->k = k;
+  return MRVI_OK;
+}
+
 /* Norms of the dynamic rows (momentum units) and of the constraint rows
  * (max |g| at the enforcing nodes). */
 static void residual_norms(const mrvi_integrator *it, double *dyn,

@@ -439,6 +439,14 @@ const char *mrvi_integrator_errmsg(const mrvi_integrator *it);
 /* Set the state at macro node k = 0 (model order, n entries each). */
 int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,
                               const double *p);
+/* Set the state to that of macro node k of an earlier run with the same
+ * settings (t = k * macro_step), exactly as stored: no momentum projection
+ * (the stored p_k is projected already), the constraints only checked.  The
+ * steps that follow equal the earlier run's bit for bit, except that the
+ * multipliers reported by the first one lack the projection impulse of
+ * node k (doc/output.md, "Resuming a run"). */
+int mrvi_integrator_resume_state(mrvi_integrator *it, long k, const double *q,
+                                 const double *p);
 /* Advance one macro step.  On failure the state is unchanged and the message
  * gives the step, time and residual. */
 int mrvi_integrator_step(mrvi_integrator *it);
@@ -572,6 +580,18 @@ typedef struct mrvi_summary {
 int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
              mrvi_observer observer, void *user,
              volatile const int *stop_flag, mrvi_summary *summary);
+/* Macro node a run starts from: node k with state (q, p), model order. */
+typedef struct mrvi_start {
+  long k;
+  const double *q, *p;
+} mrvi_start;
+/* mrvi_run from node start->k (mrvi_integrator_resume_state) instead of
+ * node 0: the first record is node k (as the initial record of mrvi_run:
+ * one micro node, no solver statistics), then steps k+1 .. N.  start NULL:
+ * mrvi_run. */
+int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
+                  const mrvi_start *start, mrvi_observer observer, void *user,
+                  volatile const int *stop_flag, mrvi_summary *summary);
 
 /* ---------------------------------------------------------------------------
  * Description files (YAML 1.2, doc/description-files.md).
@@ -623,6 +643,11 @@ typedef struct mrvi_writer_options {
   int force;                /* replace an existing non-mrvi file */
   int micro_slow;           /* with micro: also /micro/q_slow, the slow
                                coordinates interpolated at the micro nodes */
+  int resume;               /* append to the existing output (mrvi run
+                               --resume): cut its datasets back to macro node
+                               resume_k, which the first record repeats and
+                               is not written again */
+  long resume_k;
 } mrvi_writer_options;
 
 /* Create (truncate) the file and write attributes and /model. */
@@ -639,6 +664,36 @@ void mrvi_writer_set_summary(mrvi_writer *w, const mrvi_summary *sum);
  * ("completed" or the message) and close.  Frees w. */
 int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
                       size_t len);
+/* The root attribute stop_reason of an mrvi output into reason: "completed",
+ * the message of a run that stopped, "incomplete (writer killed)" for a run
+ * that never closed, or "running" while a live run holds the file.  Opens a
+ * killed file too (SWMR reading).  MRVI_EIO with a message in reason for a
+ * file that is not an mrvi output. */
+int mrvi_run_file_status(const char *path, char *reason, size_t len);
+
+/* A macro node stored in an mrvi output, to continue a run from it (mrvi
+ * run --resume / --from, doc/output.md "Resuming a run"). */
+typedef struct mrvi_stored_node {
+  long k;               /* macro node index: t = k * macro_step */
+  long steps_completed; /* root attribute */
+  int every;            /* output_every of the file */
+  int n;                /* coordinates */
+  double t, macro_step;
+  double *q, *p;        /* n each, model order */
+  char *description;    /* /model/description: the input after overrides */
+  char stop_reason[1024]; /* as mrvi_run_file_status */
+} mrvi_stored_node;
+#define MRVI_NODE_LAST (-1L)   /* the last stored macro node */
+#define MRVI_NODE_RESUME (-2L) /* the node a resumed run continues from */
+/* Read node `which` (a node index k >= 0 that the file stores, or one of
+ * the two above) of the mrvi output at path.  MRVI_NODE_RESUME: the last
+ * stored node k <= steps_completed with k a multiple of `every` whose
+ * multipliers (/macro/lambda) are in the file; a completed run or a file a
+ * live run holds is refused.  Errors (MRVI_EIO, MRVI_EINVAL) with a
+ * message: not an mrvi output, node not stored or out of range. */
+int mrvi_stored_node_read(const char *path, long which,
+                          mrvi_stored_node **out, char *msg, size_t len);
+void mrvi_stored_node_free(mrvi_stored_node *node);
 
 /* ---------------------------------------------------------------------------
  * Viewing the motion (doc/output.md): files for ParaView, OVITO, VMD made

@@ -118,6 +118,12 @@ static int instability_hint(mrvi_summary *sum, const mrvi_settings *s,
 int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
              mrvi_observer observer, void *user, volatile const int *stop_flag,
              mrvi_summary *sum) {
+  return mrvi_run_from(m, s, NULL, observer, user, stop_flag, sum);
+}
+
+int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
+                  const mrvi_start *start, mrvi_observer observer, void *user,
+                  volatile const int *stop_flag, mrvi_summary *sum) {
   mrvi_summary local;
   if (!sum)
     sum = &local;
@@ -132,11 +138,26 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
   const long N = mrvi_settings_n_steps(s);
   const int nf = m->n_fast, p = s->micro_steps;
   const double dt = s->macro_step / p;
+  const long k0 = start ? start->k : 0;
+  if (start &&
+      (st = mrvi_integrator_resume_state(it, k0, start->q, start->p)) < 0) {
+    mrvi_fmt(sum->message, sizeof sum->message, "%s",
+             mrvi_integrator_errmsg(it));
+    mrvi_integrator_free(it);
+    return sum->status = st;
+  }
+  if (k0 > N) {
+    mrvi_fmt(sum->message, sizeof sum->message,
+             "start node %ld is beyond the last node %ld", k0, N);
+    mrvi_integrator_free(it);
+    return sum->status = MRVI_EINVAL;
+  }
 
-  /* k = 0: the initial state and the single micro node t_0. */
+  /* k = k0 (0 unless started from a node): the initial state and the single
+   * micro node t_k0. */
   mrvi_record r = {0};
-  r.k = 0;
-  r.t = 0.0;
+  r.k = k0;
+  r.t = (double)k0 * s->macro_step;
   r.q = mrvi_integrator_q(it);
   r.p = mrvi_integrator_p(it);
   observe_state(m, &r);
@@ -156,7 +177,11 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
     fp[j] = r.p[m->fast_index[j]];
   }
   r.micro_count = 1;
-  r.micro_t0 = 0.0;
+  /* Node k0 > 0 as the last micro node of step k0-1 -> k0 (bitwise the
+   * time an uninterrupted run stores for it). */
+  r.micro_t0 =
+      k0 > 0 ? ((double)(k0 - 1) * s->macro_step + dt) + (double)(p - 1) * dt
+             : 0.0;
   r.micro_dt = dt;
   r.micro_q_fast = fq;
   r.micro_p_fast = fp;
@@ -177,7 +202,7 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
     mrvi_fmt(sum->message, sizeof sum->message,
              "stopped by the observer at t = %g (%s)", r.t, mrvi_strerror(st));
 
-  for (long k = 0; st >= 0 && k < N; k++) {
+  for (long k = k0; st >= 0 && k < N; k++) {
     if (stop_flag && *stop_flag) {
       st = MRVI_EINTERRUPTED;
       mrvi_fmt(sum->message, sizeof sum->message,

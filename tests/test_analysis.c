@@ -18,7 +18,8 @@ static void stability(void) {
     for (int j = 0; j < 5; j++) {
       mrvi_settings s = test_settings(schemes[i], 0.1, ps[j], 0.1, 1e-12);
       double limit = 0;
-      int st = mrvi_stability_limit(osc, &s, 20.0, 0.01, &limit, msg, sizeof msg);
+      int st =
+          mrvi_stability_limit(osc, &s, 20.0, 0.01, &limit, msg, sizeof msg);
       CHECK(st == 0, "%s", msg);
       const double bound = mrvi_stability_bound(s.slow, ps[j]);
       if (isinf(bound)) {
@@ -26,8 +27,8 @@ static void stability(void) {
               schemes[i], ps[j], limit);
       } else {
         CHECK(fabs(limit - bound) <= 0.01 * bound,
-              "%s p=%d: measured %.6f, analytic %.6f", schemes[i], ps[j],
-              limit, bound);
+              "%s p=%d: measured %.6f, analytic %.6f", schemes[i], ps[j], limit,
+              bound);
       }
       printf("stability %-22s p=%-2d measured %-10.6g analytic %.6g\n",
              schemes[i], ps[j], limit, bound);
@@ -48,7 +49,8 @@ static void stability(void) {
     const double den = 12 + 2 * a * p * p + a;
     const double P11 = (12 - 4 * a * p * p + a) / den, P12 = 12 * p * dt / den;
     const double P21 = (-12 * dt * w * w * p + dt * a * w * w * p * p * p -
-                        dt * a * w * w * p) / den;
+                        dt * a * w * w * p) /
+                       den;
     CHECK_NEAR(P[0], P11, 1e-12, "P^mid_11");
     CHECK_NEAR(P[1], P12, 1e-12, "P^mid_12");
     CHECK_NEAR(P[2], P21, 1e-12, "P^mid_21");
@@ -104,8 +106,37 @@ static void errors(void) {
   mrvi_model_free(fpu);
 }
 
+/* Buffer sizes of a kept trajectory are checked for overflow before any
+ * allocation: 800 fast coordinates over 4e15 steps need 2.6e19 bytes, more
+ * than size_t holds; the message names the keys. */
+static void huge(void) {
+  const char *text = "name: big\ndimension: 2\ngenerate:\n"
+                     "  - kind: lattice2d\n    name: p\n    count: [20, 20]\n"
+                     "    spacing: 1.0\n    mass: 1.0\n    rates: all_fast\n"
+                     "    fast_spring: {law: linear, stiffness: 10}\n"
+                     "integrator: {scheme: midpoint-midpoint, macro_step: 1, "
+                     "micro_steps: 1, t_end: 4e15}\n";
+  mrvi_system *sys = NULL;
+  char msg[512];
+  int st =
+      mrvi_system_load_string(text, "big.yaml", NULL, 0, &sys, msg, sizeof msg);
+  CHECK(st == 0 && sys, "huge: loads: %s", msg);
+  if (!sys)
+    return;
+  CHECK(mrvi_model_n_fast(sys->model) == 800, "huge: 800 fast coordinates");
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  st = mrvi_trajectory_run(sys->model, &sys->settings, &tr, &sum);
+  CHECK(st == MRVI_ENOMEM && !tr && strstr(sum.message, "integrator.t_end") &&
+            strstr(sum.message, "does not fit in memory"),
+        "huge: refused before allocating (%d: %s)", st, sum.message);
+  mrvi_trajectory_free(tr);
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   stability();
   errors();
+  huge();
   return test_finish();
 }

@@ -366,7 +366,12 @@ wait $pid 2>/dev/null
 [ ! -e killed.xdmf ] && pass "SIGKILL: no XDMF" || fail "SIGKILL: XDMF exists"
 run_ok "mrvi export --format xdmf of the killed run" "$mrvi" export killed.h5 \
   --format xdmf
-rows=$("$py" -c 'import h5py; print(h5py.File("killed.h5","r")["macro/t"].shape[0])')
+rows=$("$py" -c 'import h5py; print(h5py.File("killed.h5","r",swmr=True)["macro/t"].shape[0])')
+grep -q 'incomplete (writer killed)' "$tmp/err.txt" &&
+  pass "mrvi export notes the killed run" ||
+  fail "mrvi export: no note on the killed run: $(cat "$tmp/err.txt")"
+# HDF5's own tools need its "open for writing" flag cleared (doc/output.md).
+h5clear -s killed.h5 2>/dev/null
 py_ok "killed.xdmf: the $rows flushed nodes" check_xdmf.py killed.xdmf "$rows"
 
 # --- mrvi export --format xyz --------------------------------------------------

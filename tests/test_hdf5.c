@@ -14,6 +14,7 @@
  *     none of it for unconstrained models;
  *   - an unwritable path fails with a message and prints nothing;
  *   - `mrvi run` on systems/fpu.yaml writes exactly the in-memory run. */
+#include "h5util.h"
 #include "mrvi.h"
 #include "testlib.h"
 
@@ -245,6 +246,18 @@ static char *attr_string(hid_t obj, const char *name) {
       H5free_memory(v);
     }
     H5Tclose(mt);
+  } else if (H5Tget_class(ft) == H5T_STRING) { /* fixed length */
+    const size_t n = H5Tget_size(ft);
+    hid_t mt = H5Tcopy(H5T_C_S1);
+    H5Tset_size(mt, n + 1);
+    H5Tset_cset(mt, H5Tget_cset(ft));
+    H5Tset_strpad(mt, H5T_STR_NULLTERM);
+    out = calloc(n + 1, 1);
+    if (out && H5Aread(a, mt, out) < 0) {
+      free(out);
+      out = NULL;
+    }
+    H5Tclose(mt);
   }
   H5Tclose(ft);
   H5Aclose(a);
@@ -390,7 +403,7 @@ static void verify(const char *path, const traj *tr, const expect *e) {
   const int dim = mrvi_model_dimension(m);
   const int n_ang = dim == 3 ? 3 : dim == 2 ? 1 : 0;
   const int micro = e->micro && nf > 0;
-  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  hid_t f = mrvi_h5_open_read(path, H5P_DEFAULT);
   CHECK(f >= 0, "%s: opens", path);
   if (f < 0)
     return;
@@ -856,7 +869,7 @@ static void synthetic_case_s(const char *name, mrvi_model *m,
   const mrvi_settings s = *sp;
   char path[64];
   snprintf(path, sizeof path, "synthetic_%s.h5", name);
-  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0, 0, 0};
+  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0, 0, 0, 0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg);
@@ -931,7 +944,7 @@ static void test_synthetic(void) {
   /* Explicit check of the `every` rule on /macro/t (k = 0,3,6,9,10). */
   {
     mrvi_settings s = settings("midpoint-midpoint", 0.5, 2, 5.0);
-    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0, 0};
+    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0, 0, 0, 0};
     mrvi_writer *w = NULL;
     char msg[256];
     mrvi_writer_open("every_rule.h5", m3, &s, &opt, &w, msg, sizeof msg);
@@ -1047,7 +1060,7 @@ static void test_bad_records(void) {
 
   /* Bad options. */
   static char sentinel;
-  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0, 0};
+  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0, 0, 0, 0};
   w = (mrvi_writer *)(void *)&sentinel;
   CHECK(mrvi_writer_open("bad_records.h5", m, &s, &opt, &w, msg, sizeof msg) ==
                 MRVI_EINVAL &&
@@ -1075,7 +1088,7 @@ static void hard_kill_case(mrvi_model *m) {
   if (pid == 0) {
     mrvi_writer *w = NULL;
     char msg[256];
-    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0, 0};
+    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0, 0, 0, 0};
     if (mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg))
       _exit(3);
     synth g;
@@ -1092,8 +1105,15 @@ static void hard_kill_case(mrvi_model *m) {
   waitpid(pid, &status, 0);
   CHECK(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL,
         "child killed by SIGKILL (status %d)", status);
+  /* Written in SWMR mode and killed: HDF5's "open for writing" flag is set,
+   * a plain open refuses the file, SWMR reading opens it. */
   hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
-  CHECK(f >= 0, "file of a killed process opens");
+  CHECK(f < 0, "a plain open refuses the file of a killed process");
+  if (f >= 0)
+    H5Fclose(f);
+  H5Eclear2(H5E_DEFAULT);
+  f = mrvi_h5_open_read(path, H5P_DEFAULT);
+  CHECK(f >= 0, "file of a killed process opens for SWMR reading");
   if (f >= 0) {
     int rank;
     hsize_t dims[2];
@@ -1163,7 +1183,7 @@ static void test_lock(void) {
     fclose(fp);
   }
   CHECK(!strcmp(buf, "not an HDF5 file\n"), "foreign file untouched");
-  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1, 0};
+  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1, 0, 0, 0};
   CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == MRVI_OK,
         "force replaces it: %s", msg);
   mrvi_writer_close(w, NULL, msg, sizeof msg);
@@ -1361,7 +1381,7 @@ static void run_case(const char *name, mrvi_model *m, const mrvi_settings *s,
                      int every, long stop_at) {
   char path[64];
   snprintf(path, sizeof path, "run_%s.h5", name);
-  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0, 0};
+  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0, 0, 0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, s, &opt, &w, msg, sizeof msg);
@@ -1481,7 +1501,7 @@ static void test_particles_micro_slow(void) {
   const int *slow = mrvi_model_slow_index(m);
   for (int with = 0; with <= 1; with++) {
     const char *path = with ? "micro_slow.h5" : "micro_fast_only.h5";
-    mrvi_writer_options opt = {"particles", NULL, 1, 1, 0.0, 0, with};
+    mrvi_writer_options opt = {"particles", NULL, 1, 1, 0.0, 0, with, 0, 0};
     mrvi_writer *w = NULL;
     char msg[512];
     CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == 0,
@@ -1507,8 +1527,8 @@ static void test_particles_micro_slow(void) {
       CHECK(qs && rank == 2 && dims[0] == (hsize_t)(N * p + 1) &&
                 dims[1] == (hsize_t)ns,
             "/micro/q_slow shape (%llu, %llu), expected (%ld, %d)",
-            (unsigned long long)dims[0], (unsigned long long)dims[1],
-            N * p + 1, ns);
+            (unsigned long long)dims[0], (unsigned long long)dims[1], N * p + 1,
+            ns);
       double worst = 0.0;
       int nodes_exact = 1;
       for (long k = 0; qs && k <= N; k++)
@@ -1516,10 +1536,9 @@ static void test_particles_micro_slow(void) {
           const double *row = qs + (size_t)(k == 0 ? 0 : (k - 1) * p + mm) * ns;
           for (int j = 0; j < ns; j++) {
             const double b = (double)mm / p;
-            const double want =
-                k == 0 ? tr.r[0].q[slow[j]]
-                       : (1 - b) * tr.r[k - 1].q[slow[j]] +
-                             b * tr.r[k].q[slow[j]];
+            const double want = k == 0 ? tr.r[0].q[slow[j]]
+                                       : (1 - b) * tr.r[k - 1].q[slow[j]] +
+                                             b * tr.r[k].q[slow[j]];
             worst = fmax(worst, fabs(row[j] - want) / fmax(1.0, fabs(want)));
             if (mm == p || k == 0)
               nodes_exact &= row[j] == tr.r[k].q[slow[j]];
@@ -1542,8 +1561,8 @@ static void test_particles_micro_slow(void) {
       check_data(f, "/model/edge_rate", 1, 1, 1, H5T_NATIVE_INT, sizeof(int),
                  edge_rate);
       /* Anchor at (1, 0, 0) and gravity along -e3: nothing conserved. */
-      check_data(f, "/model/linear_momentum_conserved", 1, 3, 1,
-                 H5T_NATIVE_INT, sizeof(int), none);
+      check_data(f, "/model/linear_momentum_conserved", 1, 3, 1, H5T_NATIVE_INT,
+                 sizeof(int), none);
       check_data(f, "/model/angular_momentum_conserved", 1, 3, 1,
                  H5T_NATIVE_INT, sizeof(int), none);
       int drank;
@@ -1560,7 +1579,7 @@ static void test_particles_micro_slow(void) {
   }
   /* A model without particles has none of the particle datasets. */
   mrvi_model *fpu = fpu_model();
-  mrvi_writer_options opt = {"fpu", NULL, 1, 1, 0.0, 0, 1};
+  mrvi_writer_options opt = {"fpu", NULL, 1, 1, 0.0, 0, 1, 0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   CHECK(mrvi_writer_open("no_particles.h5", fpu, &s, &opt, &w, msg,
