@@ -836,7 +836,8 @@ static int cmd_run(int argc, char **argv) {
   memset(&sum, 0, sizeof sum);
   /* From a stored node; a resume at node 0 starts as the original run. */
   mrvi_start start = {node ? node->k : 0, node ? node->q : NULL,
-                      node ? node->p : NULL};
+                      node ? node->p : NULL,
+                      a.resume && node ? node->energy : NULL};
   int st = mrvi_run_from(sys->model, &sys->settings,
                          node && (a.from || node->k > 0) ? &start : NULL,
                          run_observe, &ctx, &stop_signal, &sum);

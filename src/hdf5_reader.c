@@ -7,6 +7,7 @@
 #include <hdf5.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/file.h>
@@ -404,6 +405,28 @@ static int stored_node_read(hid_t file, const char *path, long which,
   return st;
 }
 
+/* node->energy: H_0 and T_0 + |V_0| + |W_0| from row 0, the running energy
+ * error of node k from its row (k / every). */
+static int read_node_energy(hid_t file, const char *path,
+                            mrvi_stored_node *node, char *msg, size_t len) {
+  hsize_t rows = 0;
+  double e[3] = {0};
+  const hsize_t row = (hsize_t)(node->k / (node->every > 0 ? node->every : 1));
+  if (read_row(file, "/macro/energy", 0, 1, &node->energy[0], &rows) < 0 ||
+      read_row(file, "/macro/kinetic", 0, 1, &e[0], &rows) < 0 ||
+      read_row(file, "/macro/potential_slow", 0, 1, &e[1], &rows) < 0 ||
+      read_row(file, "/macro/potential_fast", 0, 1, &e[2], &rows) < 0 ||
+      read_row(file, "/macro/energy_running", row, 2, &node->energy[2], &rows) <
+          0)
+    return mrvi_fail(msg, len, MRVI_EIO,
+                     "%s: cannot read the energies of rows 0 and %llu "
+                     "(/macro/energy_running; a file of an earlier mrvi "
+                     "cannot be resumed)",
+                     path, (unsigned long long)row);
+  node->energy[1] = fabs(e[0]) + fabs(e[1]) + fabs(e[2]);
+  return MRVI_OK;
+}
+
 int mrvi_stored_node_read(const char *path, long which, mrvi_stored_node **out,
                           char *msg, size_t len) {
   *out = NULL;
@@ -430,6 +453,8 @@ int mrvi_stored_node_read(const char *path, long which, mrvi_stored_node **out,
                    path);
   else
     st = stored_node_read(f, path, which, node, msg, len);
+  if (st == MRVI_OK && which == MRVI_NODE_RESUME && node->k > 0)
+    st = read_node_energy(f, path, node, msg, len);
   if (f >= 0)
     H5Fclose(f);
   H5Eclear2(H5E_DEFAULT);

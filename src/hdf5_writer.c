@@ -82,6 +82,9 @@ enum elem { F64, I32 };
     &r->potential_fast, "fast potential W(q)")                                 \
   X(MACRO_ENERGY, "/macro/energy", F64, MACRO, 1, 1, &r->energy,               \
     "total energy H = kinetic + V + W")                                        \
+  X(MACRO_ENERGY_RUNNING, "/macro/energy_running", F64, MACRO, 2, 2,         \
+    r->energy_running,                                                         \
+    "max |H_j - H_0| and max T_j + |V_j| + |W_j| over all nodes j <= k")      \
   X(MACRO_LINEAR_MOMENTUM, "/macro/linear_momentum", F64, MACRO, 2, w->dim,    \
     r->linear_momentum, "linear momentum sum_i p_i of the particles")          \
   X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \

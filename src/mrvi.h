@@ -540,6 +540,10 @@ typedef struct mrvi_record {
   double constraint_residual;  /* max |g| over the nodes this record completes */
   double hidden_constraint_residual; /* max |G M^-1 p| at node k */
   const double *micro_constraint_residual; /* micro_count entries */
+  /* The run's energy error so far, over every node j <= k (stored or not):
+   * max |H_j - H_0| and max T_j + |V_j| + |W_j| (mrvi_summary's error and
+   * scale follow from them; a resumed run continues from them). */
+  double energy_running[2];
 } mrvi_record;
 
 /* Observer: return 0 to continue, a status < 0 to stop the run with it. */
@@ -584,6 +588,10 @@ int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
 typedef struct mrvi_start {
   long k;
   const double *q, *p;
+  /* NULL: the energy error counts from node k (a new run).  Else the
+   * resumed run's H_0, T_0 + |V_0| + |W_0| and energy_running at node k, so
+   * that its summary equals the uninterrupted run's. */
+  const double *energy;
 } mrvi_start;
 /* mrvi_run from node start->k (mrvi_integrator_resume_state) instead of
  * node 0: the first record is node k (as the initial record of mrvi_run:
@@ -680,6 +688,9 @@ typedef struct mrvi_stored_node {
   int n;                /* coordinates */
   double t, macro_step;
   double *q, *p;        /* n each, model order */
+  /* H_0, T_0 + |V_0| + |W_0| (row 0) and /macro/energy_running of node k:
+   * mrvi_start.energy of a resumed run. */
+  double energy[4];
   char *description;    /* /model/description: the input after overrides */
   char stop_reason[1024]; /* as mrvi_run_file_status */
 } mrvi_stored_node;

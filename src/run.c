@@ -191,8 +191,13 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
   r.constraint_residual = cres0;
   r.micro_constraint_residual = &cres0;
   r.hidden_constraint_residual = mrvi_model_hidden_residual(m, r.q, r.p);
-  const double H0 = r.energy, E0 = energy_magnitude(&r);
-  double max_abs = 0.0, max_mag = E0;
+  const int resumed = start && start->energy;
+  const double H0 = resumed ? start->energy[0] : r.energy;
+  const double E0 = resumed ? start->energy[1] : energy_magnitude(&r);
+  double max_abs = resumed ? start->energy[2] : 0.0;
+  double max_mag = resumed ? start->energy[3] : E0;
+  r.energy_running[0] = max_abs;
+  r.energy_running[1] = max_mag;
   int hinted = 0; /* the failure message says the energy grew */
   sum->energy_initial = sum->energy_last = H0;
   energy_error(sum, max_abs, E0, max_mag);
@@ -254,6 +259,8 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     if (err > max_abs || isnan(err))
       max_abs = err;
     max_mag = fmax(max_mag, energy_magnitude(&r));
+    r.energy_running[0] = max_abs;
+    r.energy_running[1] = max_mag;
     sum->energy_last = r.energy;
     energy_error(sum, max_abs, E0, max_mag);
     if (observer && (st = observer(user, &r)) < 0)
