@@ -595,16 +595,24 @@ def _():
 
 
 # Running min/max and mean of a sine with 20 samples per period over 61
-# points: the extremes +-1 exactly, the mean within one sample, 1/61.
+# points: the extremes +-1 exactly, the mean within one sample, 1/61; the
+# O(n) min/max equal to the brute-force ones.
 @check("range")
 def _():
     x = np.sin(2 * np.pi * np.arange(400) / 20)
     lo, hi = mod.running_range(x, 60)
     mean = mod.running_mean(x, 60)
     inner = slice(30, 370)
+    # Random data with NaN: equal to the brute-force window extrema.
+    y = np.random.default_rng(1).normal(size=997)
+    y[::37] = np.nan
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(y, 30, "edge"), 61)
+    ylo, yhi = mod.running_range(y, 60)
     return (np.allclose(lo[inner], -1, atol=1e-12) and
             np.allclose(hi[inner], 1, atol=1e-12) and
-            np.max(np.abs(mean[inner])) <= 1 / 61 + 1e-12)
+            np.max(np.abs(mean[inner])) <= 1 / 61 + 1e-12 and
+            np.array_equal(ylo, np.nanmin(win, axis=1)) and
+            np.array_equal(yhi, np.nanmax(win, axis=1)))
 
 
 # Spring ring: the Newton tolerance is written beside the J_z drift panel,
