@@ -449,11 +449,12 @@ str_t = h5py.string_dtype()
 
 # mrvi converge: errors C dT^2 on 5 halvings, p in {1, 5, 10}
 with h5py.File(tmp + "/conv.h5", "w") as f:
-    for k, v in dict(system="fpu", scheme="midpoint-midpoint",
+    # The longest title of the reproduction (doc/reproduce.sh).
+    for k, v in dict(system="spring_ring", scheme="trapezoidal-trapezoidal",
                      reference_scheme="midpoint-midpoint").items():
         f.attrs.create(k, v, dtype=str_t)
     f.attrs["t_end"] = 0.5
-    f.attrs["reference_step"] = 5e-7
+    f.attrs["reference_step"] = 7.8125e-6
     dT = 0.1 / 2.0 ** np.arange(5)
     for p in (1, 5, 10):
         g = f.create_group("convergence/p%d" % p)
@@ -555,6 +556,215 @@ png_ok "$out/stab_trace.png"
 run_ok "mrvi-plot timing" "$py" "$plot" timing "$tmp/timing.h5" -o "$out"
 png_ok "$out/timing_total.png"
 png_ok "$out/timing_per_step.png"
+
+# --- what a reader needs to see, asserted on the figures themselves ---
+run_ok "mrvi run fpu Q3 p = 1" "$mrvi" run "$root/systems/fpu.yaml" \
+  -o "$tmp/fpu3.h5" --set integrator.scheme=trapezoidal-trapezoidal \
+  --set integrator.macro_step=0.03 --set integrator.micro_steps=1 \
+  --set integrator.t_end=6 --quiet
+# 1601 macro nodes: more than DENSE_NODES = 1500.
+run_ok "mrvi run spring_ring, 1601 nodes" "$mrvi" run \
+  "$root/systems/spring_ring.yaml" -o "$tmp/ring_long.h5" \
+  --set integrator.t_end=16 --set output.micro=false --quiet
+readable=$("$py" - "$plot" "$tmp" <<'PYEOF'
+import argparse
+import contextlib
+import io
+import sys
+import traceback
+from importlib.machinery import SourceFileLoader
+import h5py
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+tmp = sys.argv[2]
+figs = []
+# Keep the figures to inspect (not "all", which matplotlib may close).
+mod.plt.close = lambda fig=None: isinstance(fig, mod.plt.Figure) and \
+    figs.append(fig)
+out = []
+
+
+def check(name):
+    """Decorator: run the check now, record name:True/False (an exception
+    is False, its traceback on stderr)."""
+    def wrap(func):
+        try:
+            ok = bool(func())
+        except Exception:
+            traceback.print_exc()
+            ok = False
+        out.append("%s:%s" % (name, ok))
+    return wrap
+
+
+def draw(func, *args):
+    """The figures `func` saves (drawn, so text extents are known)."""
+    figs.clear()
+    with contextlib.redirect_stdout(io.StringIO()):   # the paths printed
+        func(*args)
+    return list(figs)
+
+
+def texts(ax):
+    return [t.get_text() for t in ax.texts]
+
+
+def legend(ax):
+    leg = ax.get_legend()
+    return [t.get_text() for t in leg.get_texts()] if leg else []
+
+
+def overlap(fig):
+    """Pairs of neighbouring x tick labels whose drawn extents intersect,
+    plus figure texts (titles) wider than the figure."""
+    r = fig.canvas.get_renderer()
+    width = fig.bbox.width
+    bad = sum(t.get_window_extent(r).x0 < 0 or
+              t.get_window_extent(r).x1 > width for t in fig.texts)
+    for ax in fig.axes:
+        boxes = sorted((lab.get_window_extent(r) for lab in
+                        ax.get_xticklabels() if lab.get_visible() and
+                        lab.get_text()), key=lambda b: b.x0)
+        bad += sum(a.x1 > b.x0 for a, b in zip(boxes, boxes[1:]))
+    return bad
+
+
+def png(name):
+    return "%s/%s.png" % (tmp, name)
+
+
+def run(name):
+    return mod.Run(h5py.File("%s/%s.h5" % (tmp, name), "r"))
+
+
+def table(kind, name):
+    args = argparse.Namespace(file="%s/%s.h5" % (tmp, name), outdir=tmp,
+                              prefix="r_" + name)
+    return draw(getattr(mod, "cmd_" + kind), args)
+
+
+# FPU Q3, p = 1: I sits below the dashed I(0) = 1 and the figure says why.
+@check("q3-note")
+def _():
+    ax = draw(mod.plot_stiff_energy, run("fpu3"), png("s3"), None)[0].axes[0]
+    note = " ".join(texts(ax))
+    return ("not about I(0) = 1" in note and "ωΔt = 1.5" in note
+            and "I(0) = 1, initial value" in legend(ax))
+
+
+# The dotted Ĩ, kept exactly by the left rectangle rule for the harmonic
+# springs, moves by at most 10 % of I's swing (the quartic slow coupling
+# moves it; I swings by the cross term).
+@check("q3-tilde")
+def _():
+    ax = draw(mod.plot_stiff_energy, run("fpu3"), png("s3"), None)[0].axes[0]
+    lines = {ln.get_label(): ln for ln in ax.get_lines()}
+    tilde = [ln for lab, ln in lines.items() if lab.startswith("Ĩ")]
+    total = lines["I = Σ I_j"].get_ydata()
+    return len(tilde) == 1 and \
+        np.ptp(tilde[0].get_ydata()) <= 0.1 * np.ptp(total)
+
+
+# Q1 (implicit midpoint fast rule): neither Ĩ nor the note.
+@check("q1-no-note")
+def _():
+    ax = draw(mod.plot_stiff_energy, run("fpu"), png("s1"), None)[0].axes[0]
+    return not any(t.startswith("Ĩ") for t in legend(ax)) and \
+        not any("I(0)" in t for t in texts(ax))
+
+
+# Long spring-ring run: H at every node, exactly; T as its running mean
+# with the min-max band of the data; a zoom panel at every node.
+@check("dense-H")
+def _():
+    r = run("ring_long")
+    ax = draw(mod.plot_energy, r, png("e"))[0].axes[0]
+    h = [ln for ln in ax.get_lines()
+         if ln.get_label() == "total H (every node)"]
+    return len(h) == 1 and np.array_equal(h[0].get_ydata(),
+                                          mod.read(r.h5, "macro/energy"))
+
+
+@check("dense-T")
+def _():
+    r = run("ring_long")
+    fig = draw(mod.plot_energy, r, png("e"))[0]
+    ax = fig.axes[0]
+    kin = mod.read(r.h5, "macro/kinetic")
+    mean = [ln for ln in ax.get_lines() if ln.get_label() == "kinetic T"]
+    band = ax.collections[0].get_paths()[0].vertices[:, 1]
+    return (len(mean) == 1 and np.ptp(mean[0].get_ydata()) < 0.2 * np.ptp(kin)
+            and np.isclose(band.max(), kin.max(), rtol=1e-12)
+            and np.isclose(band.min(), kin.min(), rtol=1e-12)
+            and fig.axes[-1].get_xlabel() == "t (zoom)")
+
+
+# Running min/max and mean of a sine with 20 samples per period over 61
+# points: the extremes +-1 exactly, the mean within one sample, 1/61; the
+# O(n) min/max equal to the brute-force ones.
+@check("range")
+def _():
+    x = np.sin(2 * np.pi * np.arange(400) / 20)
+    lo, hi = mod.running_range(x, 60)
+    mean = mod.running_mean(x, 60)
+    inner = slice(30, 370)
+    # Random data with NaN: equal to the brute-force window extrema.
+    y = np.random.default_rng(1).normal(size=997)
+    y[::37] = np.nan
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(y, 30, "edge"), 61)
+    ylo, yhi = mod.running_range(y, 60)
+    return (np.allclose(lo[inner], -1, atol=1e-12) and
+            np.allclose(hi[inner], 1, atol=1e-12) and
+            np.max(np.abs(mean[inner])) <= 1 / 61 + 1e-12 and
+            np.array_equal(ylo, np.nanmin(win, axis=1)) and
+            np.array_equal(yhi, np.nanmax(win, axis=1)))
+
+
+# Spring ring: the Newton tolerance is written beside the J_z drift panel,
+# not beside the upper panel where J_y ends.
+@check("j-tol")
+def _():
+    top, drift = draw(mod.plot_angular_momentum, run("ring"), png("j"))[0].axes
+    return (drift.get_title(loc="right").startswith("J_z")
+            and any("Newton tolerance" in t for t in texts(drift))
+            and not any("Newton" in t for t in texts(top)))
+
+
+# Convergence: the reference's step is h, not ΔT (the x axis is ΔT).
+@check("conv-h")
+def _():
+    title = table("convergence", "conv")[0].texts[0].get_text()
+    return "single rate, h = 7.8125e-06" in title and "ΔT" not in title
+
+
+# Stability: the infinite midpoint p = 1 bound is said in words.
+@check("stab-inf")
+def _():
+    ax = table("stability", "stab")[0].axes[0]
+    words = " ".join(texts(ax))
+    return ("midpoint, p = 1: ∞ (stable at every ωΔT)" in words and
+            any("unconditionally stable" in t for t in legend(ax)))
+
+
+# No two x tick labels touch and every title fits (extents as drawn) in the
+# timing, stability and convergence figures.
+@check("no-overlap")
+def _():
+    drawn = table("timing", "timing") + table("stability", "stab") + \
+        table("convergence", "conv")
+    return len(drawn) == 10 and sum(overlap(f) for f in drawn) == 0
+
+
+print(" ".join(out))
+PYEOF
+)
+for c in q3-note q3-tilde q1-no-note dense-H dense-T range j-tol \
+  conv-h stab-inf no-overlap; do
+  case " $readable " in
+    *" $c:True "*) pass "readable figure: $c" ;;
+    *) fail "readable figure: $c (got: $readable)" ;;
+  esac
+done
 
 run_ok "mrvi-plot all" "$py" "$plot" all "$tmp/fpu.h5" "$tmp/stab.h5" \
   -o "$tmp/all"
