@@ -27,6 +27,7 @@ struct mrvi_blocks {
   double *Ass, *Asf, *Afs; /* ns x ns, ns x p nf, p nf x ns */
   double *D, *L1, *L2;     /* p blocks nf x nf each: column m, m-1, m-2 */
   int *piv;                /* p x nf (pivots of the factored D) */
+  double *dinv, *sdinv;    /* p x nf, ns: reciprocal pivots of D and S */
   double *Y, *z, *S, *r;   /* p nf x ns, p nf, ns x ns, ns */
   int *spiv;
   double **dst; /* block entry of every CSC entry (built on the first
@@ -63,6 +64,8 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->S);
   free(b->r);
   free(b->spiv);
+  free(b->dinv);
+  free(b->sdinv);
   free(b->dst);
   mrvi_terms_free(b->kc[0]);
   mrvi_terms_free(b->kc[1]);
@@ -99,6 +102,8 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->S, ns * ns, double);
   ALLOC(b->r, ns, double);
   ALLOC(b->spiv, ns, int);
+  ALLOC(b->dinv, nF, double);
+  ALLOC(b->sdinv, ns, double);
   const size_t nz = ns + nf;
   ALLOC(b->zp, nz, double);
   ALLOC(b->G, nz, double);
@@ -107,8 +112,8 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->mf, nf, double);
 #undef ALLOC
   if (!b->Ass || !b->Asf || !b->Afs || !b->D || !b->L1 || !b->L2 || !b->piv ||
-      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->zp || !b->G ||
-      !b->H || !b->ms || !b->mf) {
+      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->dinv || !b->sdinv ||
+      !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
@@ -246,7 +251,7 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
 /* LU with partial pivoting in place, as mrvi_dense_lu_factor; -1 if
  * singular. */
 ALWAYS_INLINE int lu_factor_k(const int n, double *restrict A,
-                              int *restrict piv) {
+                              int *restrict piv, double *restrict dinv) {
   UNROLL for (int k = 0; k < n; k++) {
     int r = k;
     UNROLL for (int i = k + 1; i < n;
@@ -260,7 +265,7 @@ ALWAYS_INLINE int lu_factor_k(const int n, double *restrict A,
         A[k * n + j] = A[r * n + j];
         A[r * n + j] = t;
       }
-    const double d = 1.0 / A[k * n + k];
+    const double d = dinv[k] = 1.0 / A[k * n + k];
     UNROLL for (int i = k + 1; i < n; i++) {
       const double f = (A[i * n + k] *= d);
       UNROLL for (int j = k + 1; j < n; j++) A[i * n + j] -= f * A[k * n + j];
@@ -272,7 +277,8 @@ ALWAYS_INLINE int lu_factor_k(const int n, double *restrict A,
 /* B (n x nrhs) <- A^-1 B with lu_factor_k's factors (as
  * mrvi_dense_lu_solve, without its tests for zero factors). */
 ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
-                              const int *restrict piv, double *restrict B,
+                              const int *restrict piv,
+                              const double *restrict dinv, double *restrict B,
                               const int nrhs) {
   UNROLL for (int k = 0; k < n; k++) {
     double *bk = B + k * nrhs;
@@ -295,8 +301,9 @@ ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
       const double a = A[i * n + j];
       UNROLL for (int c = 0; c < nrhs; c++) bi[c] -= a * B[j * nrhs + c];
     }
-    const double d = A[i * n + i];
-    UNROLL for (int c = 0; c < nrhs; c++) bi[c] /= d;
+    const double d = dinv[i]; /* multiplications: off the division
+                                 latency in the sequential sweeps */
+    UNROLL for (int c = 0; c < nrhs; c++) bi[c] *= d;
   }
 }
 
@@ -319,7 +326,8 @@ ALWAYS_INLINE void sweep_k(const mrvi_blocks *b, double *restrict X,
       }
     }
     if (dense)
-      lu_solve_k(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * nf, xm, nrhs);
+      lu_solve_k(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * nf,
+                 b->dinv + (size_t)m * nf, xm, nrhs);
     else
       mrvi_dense_lu_solve(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * nf,
                           xm, nrhs);
@@ -579,7 +587,7 @@ static int factor_blocks(mrvi_blocks *b) {
   for (int m = 0; m < p && !bad; m++) {
     double *Dm = b->D + (size_t)m * blk;
     int *pm = b->piv + (size_t)m * (size_t)nf;
-    SMALL(nf, NF, bad = lu_factor_k(NF, Dm, pm) < 0);
+    SMALL(nf, NF, bad = lu_factor_k(NF, Dm, pm, b->dinv + (size_t)m * nf) < 0);
   }
   if (bad)
     return MRVI_ESINGULAR;
@@ -589,7 +597,7 @@ static int factor_blocks(mrvi_blocks *b) {
     sweep_solve(b, b->Y, ns);
   SMALL(ns, NS, schur_k(b, NS));
   if (ns > 0) {
-    SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv) < 0);
+    SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv, b->sdinv) < 0);
   }
   return bad ? MRVI_ESINGULAR : MRVI_OK;
 }
@@ -617,7 +625,7 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
     r[i] = s;
   }
   if (ns > 0)
-    lu_solve_k(ns, b->S, b->spiv, r, 1);
+    lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
   UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];
   for (int k = 0; k < nF; k++) {
     double s = z[k];
