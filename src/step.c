@@ -598,7 +598,7 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
   /* Constraint forces of the interior micro nodes on q_{k+1}^s:
    * -dt (m/p) G_s(z^m)^T lambda^m. */
   const double *lam = x + st->n_unknowns + st->r_slow;
-  for (int mm = 1; mm < p; mm++) {
+  for (int mm = 1; mm < p && st->n_micro_c > 0; mm++) {
     const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
     for (int i = 0; i < st->n_micro_c; i++) {
       const int c = st->micro_c[i];

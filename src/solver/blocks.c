@@ -17,6 +17,7 @@
  * of the whole step, and O(p (nf^2 + nf ns) + ns^2) per solve with kept
  * factors (the integrator reuses them while Newton converges). */
 #include "internal.h"
+#include "small.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -217,36 +218,6 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
     *b->dst[q] += st->Ax[q];
   return MRVI_OK;
 }
-
-/* Small-block kernels.  SMALL(n, N, code) runs code with N an integer
- * constant equal to n for n = 1..4, so that the compiler unrolls the loops
- * over the tiny blocks of few-body systems (the FPU: ns = nf = 3), and with
- * N = n otherwise.  The kernels are inlined into each case. */
-#define ALWAYS_INLINE static inline __attribute__((always_inline))
-#define UNROLL _Pragma("GCC unroll 4")
-#define SMALL(n, N, ...)                                                       \
-  switch (n) {                                                                 \
-  case 1: {                                                                    \
-    enum { N = 1 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  case 2: {                                                                    \
-    enum { N = 2 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  case 3: {                                                                    \
-    enum { N = 3 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  case 4: {                                                                    \
-    enum { N = 4 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  default: {                                                                   \
-    const int N = (n);                                                         \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  }
 
 /* LU with partial pivoting in place, as mrvi_dense_lu_factor; -1 if
  * singular. */

@@ -27,6 +27,7 @@
  * metric, by power iteration), else, and for a step where it produces
  * non-finite values, free flight is the predictor. */
 #include "internal.h"
+#include "small.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -194,38 +195,42 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
 
 /* g <- grad Z_c at point pt of the step at the displacements x (fast nodes
  * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed. */
-static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
-                           const double *x, const mrvi_point *pt, int c) {
-  const int ns = st->ns, nf = st->nf;
-  double *z = pr->z;
-  for (int s = 0; s < ns; s++)
-    z[s] = st->qs0[s] + pt->a1 * x[s];
+ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
+                                    const double *x, const mrvi_point *pt,
+                                    int c, const int ns, const int nf) {
+  double *restrict z = pr->z, *restrict g = pr->g;
+  UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s] + pt->a1 * x[s];
   const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
   const double *dB = x + ns + (size_t)pt->m * nf;
-  for (int f = 0; f < nf; f++)
-    z[ns + f] = st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
-                (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
-  memset(pr->g, 0, (size_t)(ns + nf) * sizeof(double));
-  mrvi_terms_eval(pr->kc[c], z, 1.0, pr->g, NULL, 0, 0.0);
+  UNROLL for (int f = 0; f < nf; f++) z[ns + f] =
+      st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
+      (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
+  UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
+  mrvi_terms_eval(pr->kc[c], z, 1.0, g, NULL, 0, 0.0);
 }
 
-static void axpy(int n, double a, const double *g, double *acc) {
-  for (int i = 0; i < n; i++)
-    acc[i] += a * g[i];
+static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
+                           const double *x, const mrvi_point *pt, int c) {
+  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf);
+}
+
+ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
+                        double *restrict acc) {
+  UNROLL for (int i = 0; i < n; i++) acc[i] += a * g[i];
 }
 
 /* Evaluate the points of kind k in [first[c], end[c]) of both classes:
  * fa += w cA g_f, fb += w cB g_f and, with sum_slow, fs += w a0 g_s. */
-static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
-                        const double *x, const int *first, const int *end,
-                        int k, double *fa, double *fb, int sum_slow) {
-  const int ns = st->ns, nf = st->nf;
+ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
+                                 const double *x, const int *first,
+                                 const int *end, int k, double *fa, double *fb,
+                                 int sum_slow, const int ns, const int nf) {
   for (int c = 0; c < 2; c++)
     for (int ip = first[c]; ip < end[c]; ip++) {
       if (pr->kinds[c][ip] != k)
         continue;
       const mrvi_point *pt = &st->pts[c][ip];
-      point_gradient(pr, st, x, pt, c);
+      point_gradient_k(pr, st, x, pt, c, ns, nf);
       if (fa && pt->cA != 0.0)
         axpy(nf, pt->w * pt->cA, pr->g + ns, fa);
       if (fb && pt->cB != 0.0)
@@ -237,14 +242,19 @@ static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
 
 /* The fast nodes d^1 .. d^p for the slow displacement x_s; with sum_slow,
  * fs gets the slow-row force of every point along the swept path. */
-static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
-                  int sum_slow) {
-  const int ns = st->ns, nf = st->nf, p = st->p;
+static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
+                        const double *x, const int *first, const int *end,
+                        int k, double *fa, double *fb, int sum_slow) {
+  eval_points_k(pr, st, x, first, end, k, fa, fb, sum_slow, st->ns, st->nf);
+}
+
+ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                           int sum_slow, const int ns, const int nf) {
+  const int p = st->p;
   const double dt = st->dt, *minv = pr->minv + ns;
-  const size_t bytes = (size_t)nf * sizeof(double);
   if (sum_slow)
     memset(pr->fs, 0, (size_t)ns * sizeof(double));
-  memset(pr->fimp, 0, bytes);
+  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
   for (int f = 0; f < nf; f++)
     pr->pm[f] = st->pf0[f];
   int first[2] = {0, 0}, end[2];
@@ -260,20 +270,22 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
   for (int f = 0; f < nf; f++)                                                 \
     dn[f] = (d ? d[f] : 0.0) +                                                 \
             dt * minv[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
-    memset(pr->fexp, 0, bytes);
-    eval_points(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow);
+    UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
+    eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
+                  nf);
     /* Estimate with the last interval's implicit force (in interval 0,
      * with the implicit points evaluated once at a first estimate). */
     for (int pass = mm == 0 ? 0 : 1; pass < 2; pass++) {
       SOLVE_ROW();
-      memset(pr->fimp, 0, bytes);
-      memset(pr->fb, 0, bytes);
-      eval_points(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
-                  sum_slow && pass == 1);
+      UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
+      UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
+      eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
+                    sum_slow && pass == 1, ns, nf);
     }
     SOLVE_ROW();
 #undef SOLVE_ROW
-    eval_points(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow);
+    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, ns,
+                  nf);
     for (int f = 0; f < nf; f++)
       pr->pm[f] = (dn[f] - (d ? d[f] : 0.0)) / (dt * minv[f]) - pr->fb[f];
     first[0] = end[0];
@@ -283,6 +295,11 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
   if (nf == 0 && sum_slow)
     for (int k = AT_LEFT; k <= AT_RIGHT; k++)
       eval_points(pr, st, x, (int[2]){0, 0}, st->n_pts, k, NULL, NULL, 1);
+}
+
+static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                  int sum_slow) {
+  SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
 }
 
 /* Slow row solved for dq^s = x_s with the slow force fs. */
