@@ -150,15 +150,15 @@ static void to_positions(mrvi_integrator *it) {
 }
 
 static double norm_inf(const double *v, int n) {
+  /* max |v_i|, NaN if any v_i is NaN (counted without a branch per entry) */
   double r = 0.0;
+  int nan = 0;
   for (int i = 0; i < n; i++) {
     const double a = fabs(v[i]);
-    if (isnan(a))
-      return a;
-    if (a > r)
-      r = a;
+    r = a > r ? a : r;
+    nan |= a != a;
   }
-  return r;
+  return nan ? NAN : r;
 }
 
 /* Roundoff floor of the residual: its rows subtract momenta of size

@@ -286,14 +286,33 @@ ALWAYS_INLINE void sweep_k(const mrvi_blocks *b, double *restrict X,
   const int blk = nf * nf, row = nf * nrhs, dense = nf <= 4;
   for (int m = 0; m < b->p; m++) {
     double *restrict xm = X + (size_t)m * (size_t)row;
-    UNROLL for (int d = 1; d <= 2 && d <= m; d++) {
-      const double *restrict L = (d == 1 ? b->L1 : b->L2) + (size_t)m * blk;
-      const double *restrict xc = xm - d * row;
-      UNROLL for (int i = 0; i < nf; i++) UNROLL for (int k = 0; k < nf; k++) {
-        const double l = L[i * nf + k];
-        if (dense || l != 0.0)
-          UNROLL for (int c = 0; c < nrhs; c++) xm[i * nrhs + c] -=
-              l * xc[k * nrhs + c];
+    const double *restrict L1 = b->L1 + (size_t)m * blk;
+    const double *restrict L2 = b->L2 + (size_t)m * blk;
+    const double *restrict x1 = xm - row, *restrict x2 = x1 - row;
+    if (dense && m >= 1) {
+      /* x_m -= L1 x_{m-1} + L2 x_{m-2}: the products summed apart from x_m
+       * (the L2 part does not wait for x_{m-1}) */
+      UNROLL for (int i = 0; i < nf; i++)
+          UNROLL for (int c = 0; c < nrhs; c++) {
+        double s1 = 0.0, s2 = 0.0;
+        UNROLL for (int k = 0; k < nf; k++) s1 +=
+            L1[i * nf + k] * x1[k * nrhs + c];
+        if (m >= 2)
+          UNROLL for (int k = 0; k < nf; k++) s2 +=
+              L2[i * nf + k] * x2[k * nrhs + c];
+        xm[i * nrhs + c] -= s1 + s2;
+      }
+    } else if (m >= 1) {
+      UNROLL for (int d = 1; d <= 2 && d <= m; d++) {
+        const double *restrict L = d == 1 ? L1 : L2;
+        const double *restrict xc = xm - d * row;
+        for (int i = 0; i < nf; i++)
+          for (int k = 0; k < nf; k++) {
+            const double l = L[i * nf + k];
+            if (l != 0.0)
+              for (int c = 0; c < nrhs; c++)
+                xm[i * nrhs + c] -= l * xc[k * nrhs + c];
+          }
       }
     }
     if (dense)
@@ -473,18 +492,15 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
+  double vl[nf > 0 ? nf : 1]; /* velocity of the interval before node mm */
   for (int mm = 0; mm < p; mm++) {
     const double *d = x + ns + (size_t)mm * nf;
     double *Rm = R + ns + (size_t)mm * nf;
     UNROLL for (int f = 0; f < nf; f++) {
       const double M = b->mf[f];
       const double vr = (d[f] - (mm == 0 ? 0.0 : d[f - nf])) / dt;
-      if (mm == 0) {
-        Rm[f] = st->pf0[f] - M * vr;
-      } else {
-        const double vl = (d[f - nf] - (mm == 1 ? 0.0 : d[f - 2 * nf])) / dt;
-        Rm[f] = M * (vl - vr);
-      }
+      Rm[f] = mm == 0 ? st->pf0[f] - M * vr : M * (vl[f] - vr);
+      vl[f] = vr;
     }
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
