@@ -585,10 +585,11 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
    */
   for (int s = 0; s < ns; s++)
     ps1[s] += m->mass[m->slow_index[s]] * slow_diff(st, x, s) / st->dT;
-  for (int mm = 0; mm < p; mm++)
-    for (int s = 0; s < nf; s++)
-      pf[mm * nf + s] +=
-          m->mass[m->fast_index[s]] * fast_diff(st, x, mm, s) / st->dt;
+  for (int s = 0; s < nf; s++) {
+    const double M = m->mass[m->fast_index[s]];
+    for (int mm = 0; mm < p; mm++)
+      pf[mm * nf + s] += M * fast_diff(st, x, mm, s) / st->dt;
+  }
   if (st->f_end) {
     for (int s = 0; s < ns; s++)
       ps1[s] += st->f_end[s];
