@@ -48,7 +48,6 @@ struct mrvi_predictor {
    * the sweep): configuration, gradient, slow-row force (ns), the explicit
    * and implicit parts of F_m^A, and F_m^B (nf each). */
   double *z, *g, *fs, *fexp, *fimp, *fb;
-  double *fimp0;     /* interval 0's implicit force at q_k (nf) */
   double *pm;        /* p^{f,m} (nf) */
   double *minv;      /* 1 / mass, packed (n) */
   char *kinds[2];    /* kind of every point of V and W (see kind) */
@@ -64,8 +63,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     return MRVI_ENOMEM;
   const size_t n = (size_t)(m->n > 0 ? m->n : 1);
   pr->m = m;
-  double **vec[] = {&pr->z,    &pr->g,  &pr->fs,   &pr->fexp,
-                    &pr->fimp, &pr->fb, &pr->fimp0};
+  double **vec[] = {&pr->z, &pr->g, &pr->fs, &pr->fexp, &pr->fimp, &pr->fb};
   for (size_t i = 0; i < sizeof vec / sizeof *vec; i++)
     if (!(*vec[i] = malloc(n * sizeof(double)))) {
       mrvi_predictor_free(pr);
@@ -132,7 +130,6 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fexp);
   free(pr->fimp);
   free(pr->fb);
-  free(pr->fimp0);
   free(pr->pm);
   free(pr->minv);
   free(pr->kinds[0]);
@@ -262,7 +259,7 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   const double dt = st->dt, *minv = pr->minv + ns;
   if (sum_slow)
     memset(pr->fs, 0, (size_t)ns * sizeof(double));
-  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = pr->fimp0[f];
+  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
   for (int f = 0; f < nf; f++)
     pr->pm[f] = st->pf0[f];
   int first[2] = {0, 0}, end[2];
@@ -281,14 +278,15 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
     eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
                   nf);
-    /* Estimate with the last interval's implicit force (in interval 0 that
-     * of the points at q_k), the implicit points evaluated there, the row
-     * solved again. */
-    SOLVE_ROW();
-    UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
-    UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
-    eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb, sum_slow, ns,
-                  nf);
+    /* Estimate with the last interval's implicit force (in interval 0,
+     * with the implicit points evaluated once at a first estimate). */
+    for (int pass = mm == 0 ? 0 : 1; pass < 2; pass++) {
+      SOLVE_ROW();
+      UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
+      UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
+      eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
+                    sum_slow && pass == 1, ns, nf);
+    }
     SOLVE_ROW();
 #undef SOLVE_ROW
     eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, ns,
@@ -320,26 +318,18 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     mrvi_predict_free_flight(st, x);
     return;
   }
-  /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k); the
-   * same gradients estimate the implicit force of interval 0,
-   * sum_pts w cA grad_f Z_c(q_k) over its inside points. */
+  /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
   memset(pr->fs, 0, (size_t)st->ns * sizeof(double));
-  memset(pr->fimp0, 0, (size_t)st->nf * sizeof(double));
   memset(x, 0, (size_t)st->n_unknowns * sizeof(double));
   for (int c = 0; c < 2; c++) {
-    double w = 0.0, w0 = 0.0;
-    for (int ip = 0; ip < st->n_pts[c]; ip++) {
-      const mrvi_point *pt = &st->pts[c][ip];
-      w += pt->w * pt->a0;
-      if (pt->m == 0 && pr->kinds[c][ip] == INSIDE)
-        w0 += pt->w * pt->cA;
-    }
-    if ((w == 0.0 && w0 == 0.0) || st->n_elem_of_class[c] == 0)
+    double w = 0.0;
+    for (int ip = 0; ip < st->n_pts[c]; ip++)
+      w += st->pts[c][ip].w * st->pts[c][ip].a0;
+    if (w == 0.0 || st->n_elem_of_class[c] == 0)
       continue;
     const mrvi_point node = {.cA = 1.0};
     point_gradient(pr, st, x, &node, c);
     axpy(st->ns, w, pr->g, pr->fs);
-    axpy(st->nf, w0, pr->g + st->ns, pr->fimp0);
   }
   slow_update(pr, st, x);
   if (!pr->slow_coupled || st->ns == 0) {
