@@ -585,10 +585,11 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
    */
   for (int s = 0; s < ns; s++)
     ps1[s] += m->mass[m->slow_index[s]] * slow_diff(st, x, s) / st->dT;
-  for (int mm = 0; mm < p; mm++)
-    for (int s = 0; s < nf; s++)
-      pf[mm * nf + s] +=
-          m->mass[m->fast_index[s]] * fast_diff(st, x, mm, s) / st->dt;
+  for (int s = 0; s < nf; s++) {
+    const double M = m->mass[m->fast_index[s]];
+    for (int mm = 0; mm < p; mm++)
+      pf[mm * nf + s] += M * fast_diff(st, x, mm, s) / st->dt;
+  }
   if (st->f_end) {
     for (int s = 0; s < ns; s++)
       ps1[s] += st->f_end[s];
@@ -598,7 +599,7 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
   /* Constraint forces of the interior micro nodes on q_{k+1}^s:
    * -dt (m/p) G_s(z^m)^T lambda^m. */
   const double *lam = x + st->n_unknowns + st->r_slow;
-  for (int mm = 1; mm < p; mm++) {
+  for (int mm = 1; mm < p && st->n_micro_c > 0; mm++) {
     const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
     for (int i = 0; i < st->n_micro_c; i++) {
       const int c = st->micro_c[i];

@@ -17,6 +17,7 @@
  * of the whole step, and O(p (nf^2 + nf ns) + ns^2) per solve with kept
  * factors (the integrator reuses them while Newton converges). */
 #include "internal.h"
+#include "small.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -27,6 +28,7 @@ struct mrvi_blocks {
   double *Ass, *Asf, *Afs; /* ns x ns, ns x p nf, p nf x ns */
   double *D, *L1, *L2;     /* p blocks nf x nf each: column m, m-1, m-2 */
   int *piv;                /* p x nf (pivots of the factored D) */
+  double *dinv, *sdinv;    /* p x nf, ns: reciprocal pivots of D and S */
   double *Y, *z, *S, *r;   /* p nf x ns, p nf, ns x ns, ns */
   int *spiv;
   double **dst; /* block entry of every CSC entry (built on the first
@@ -63,6 +65,8 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->S);
   free(b->r);
   free(b->spiv);
+  free(b->dinv);
+  free(b->sdinv);
   free(b->dst);
   mrvi_terms_free(b->kc[0]);
   mrvi_terms_free(b->kc[1]);
@@ -99,6 +103,8 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->S, ns * ns, double);
   ALLOC(b->r, ns, double);
   ALLOC(b->spiv, ns, int);
+  ALLOC(b->dinv, nF, double);
+  ALLOC(b->sdinv, ns, double);
   const size_t nz = ns + nf;
   ALLOC(b->zp, nz, double);
   ALLOC(b->G, nz, double);
@@ -107,8 +113,8 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->mf, nf, double);
 #undef ALLOC
   if (!b->Ass || !b->Asf || !b->Afs || !b->D || !b->L1 || !b->L2 || !b->piv ||
-      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->zp || !b->G ||
-      !b->H || !b->ms || !b->mf) {
+      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->dinv || !b->sdinv ||
+      !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
@@ -213,25 +219,116 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
   return MRVI_OK;
 }
 
-/* X (p nf x nrhs) <- A_ff^-1 X by a block forward sweep (D factored). */
-static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
-  const int nf = b->nf;
-  const size_t blk = (size_t)nf * (size_t)nf, row = (size_t)nf * (size_t)nrhs;
-  for (int m = 0; m < b->p; m++) {
-    double *xm = X + (size_t)m * row;
-    for (int d = 1; d <= 2 && d <= m; d++) {
-      const double *L = (d == 1 ? b->L1 : b->L2) + (size_t)m * blk;
-      const double *xc = X + (size_t)(m - d) * row;
-      for (int i = 0; i < nf; i++)
-        for (int k = 0; k < nf; k++) {
-          const double l = L[i * nf + k];
-          if (l != 0.0)
-            for (int c = 0; c < nrhs; c++)
-              xm[i * nrhs + c] -= l * xc[k * nrhs + c];
-        }
+/* LU with partial pivoting in place, as mrvi_dense_lu_factor; -1 if
+ * singular. */
+ALWAYS_INLINE int lu_factor_k(const int n, double *restrict A,
+                              int *restrict piv, double *restrict dinv) {
+  UNROLL for (int k = 0; k < n; k++) {
+    int r = k;
+    UNROLL for (int i = k + 1; i < n;
+                i++) if (fabs(A[i * n + k]) > fabs(A[r * n + k])) r = i;
+    piv[k] = r;
+    if (!(fabs(A[r * n + k]) > 0.0))
+      return -1;
+    if (r != k)
+      UNROLL for (int j = 0; j < n; j++) {
+        const double t = A[k * n + j];
+        A[k * n + j] = A[r * n + j];
+        A[r * n + j] = t;
+      }
+    const double d = dinv[k] = 1.0 / A[k * n + k];
+    UNROLL for (int i = k + 1; i < n; i++) {
+      const double f = (A[i * n + k] *= d);
+      UNROLL for (int j = k + 1; j < n; j++) A[i * n + j] -= f * A[k * n + j];
     }
-    mrvi_dense_lu_solve(nf, b->D + (size_t)m * blk,
-                        b->piv + (size_t)m * (size_t)nf, xm, nrhs);
+  }
+  return 0;
+}
+
+/* B (n x nrhs) <- A^-1 B with lu_factor_k's factors (as
+ * mrvi_dense_lu_solve, without its tests for zero factors). */
+ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
+                              const int *restrict piv,
+                              const double *restrict dinv, double *restrict B,
+                              const int nrhs) {
+  UNROLL for (int k = 0; k < n; k++) {
+    double *bk = B + k * nrhs;
+    if (k + 1 < n && piv[k] != k) { /* piv[n - 1] = n - 1 */
+      double *br = B + piv[k] * nrhs;
+      UNROLL for (int c = 0; c < nrhs; c++) {
+        const double t = br[c];
+        br[c] = bk[c];
+        bk[c] = t;
+      }
+    }
+    UNROLL for (int i = k + 1; i < n; i++) {
+      const double f = A[i * n + k];
+      UNROLL for (int c = 0; c < nrhs; c++) B[i * nrhs + c] -= f * bk[c];
+    }
+  }
+  UNROLL for (int i = n - 1; i >= 0; i--) {
+    double *bi = B + i * nrhs;
+    UNROLL for (int j = i + 1; j < n; j++) {
+      const double a = A[i * n + j];
+      UNROLL for (int c = 0; c < nrhs; c++) bi[c] -= a * B[j * nrhs + c];
+    }
+    const double d = dinv[i]; /* multiplications: off the division
+                                 latency in the sequential sweeps */
+    UNROLL for (int c = 0; c < nrhs; c++) bi[c] *= d;
+  }
+}
+
+/* X (p nf x nrhs) <- A_ff^-1 X by a block forward sweep (D factored):
+ * X_m <- D_m^-1 (X_m - L1_m X_{m-1} - L2_m X_{m-2}).  Blocks beyond the
+ * small sizes skip zero entries of L1, L2 (sparse couplings of networks). */
+ALWAYS_INLINE void sweep_k(const mrvi_blocks *b, double *restrict X,
+                           const int nf, const int nrhs) {
+  const int blk = nf * nf, row = nf * nrhs, dense = nf <= 4;
+  for (int m = 0; m < b->p; m++) {
+    double *restrict xm = X + (size_t)m * (size_t)row;
+    const double *restrict L1 = b->L1 + (size_t)m * blk;
+    const double *restrict L2 = b->L2 + (size_t)m * blk;
+    const double *restrict x1 = xm - row, *restrict x2 = x1 - row;
+    if (dense && m >= 1) {
+      /* x_m -= L1 x_{m-1} + L2 x_{m-2}: the products summed apart from x_m
+       * (the L2 part does not wait for x_{m-1}) */
+      UNROLL for (int i = 0; i < nf; i++)
+          UNROLL for (int c = 0; c < nrhs; c++) {
+        double s1 = 0.0, s2 = 0.0;
+        UNROLL for (int k = 0; k < nf; k++) s1 +=
+            L1[i * nf + k] * x1[k * nrhs + c];
+        if (m >= 2)
+          UNROLL for (int k = 0; k < nf; k++) s2 +=
+              L2[i * nf + k] * x2[k * nrhs + c];
+        xm[i * nrhs + c] -= s1 + s2;
+      }
+    } else if (m >= 1) {
+      UNROLL for (int d = 1; d <= 2 && d <= m; d++) {
+        const double *restrict L = d == 1 ? L1 : L2;
+        const double *restrict xc = xm - d * row;
+        for (int i = 0; i < nf; i++)
+          for (int k = 0; k < nf; k++) {
+            const double l = L[i * nf + k];
+            if (l != 0.0)
+              for (int c = 0; c < nrhs; c++)
+                xm[i * nrhs + c] -= l * xc[k * nrhs + c];
+          }
+      }
+    }
+    if (dense)
+      lu_solve_k(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * nf,
+                 b->dinv + (size_t)m * nf, xm, nrhs);
+    else
+      mrvi_dense_lu_solve(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * nf,
+                          xm, nrhs);
+  }
+}
+
+static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
+  if (nrhs == 1) {
+    SMALL(b->nf, NF, sweep_k(b, X, NF, 1));
+  } else {
+    SMALL(b->nf, NF, SMALL(nrhs, NR, sweep_k(b, X, NF, NR)));
   }
 }
 
@@ -261,12 +358,22 @@ static double *ff_block(mrvi_blocks *b, int rb, int cb) {
   return base + (size_t)rb * (size_t)b->nf * (size_t)b->nf;
 }
 
+/* dst (rows x cols, leading dimension ldd) += f src (leading dimension
+ * lds). */
+ALWAYS_INLINE void add_scaled_k(double *restrict dst, int ldd,
+                                const double *restrict src, int lds,
+                                const int rows, const int cols, double f) {
+  UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+      dst[i * ldd + j] += f * src[i * lds + j];
+}
+
 /* Hessian H of point pt (packed nz x nz) into the blocks: the entry of
  * input j in row (a0 | cA node m, cB node m + 1) and input l in column
  * (a1 | cA node m, cB node m + 1) gets -w c_row c_col H_jl, as the scatter
  * of step.c (mrvi_step_rows_of, mrvi_step_cols_of). */
-static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
-  const int ns = b->ns, nf = b->nf, p = b->p, nz = ns + nf, nF = p * nf;
+ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
+                                   int cls, const int ns, const int nf) {
+  const int p = b->p, nz = ns + nf, nF = p * nf;
   const int mm = pt->m;
   const double *H = b->H;
   /* Fast rows: (coefficient, row block); fast columns: (coefficient,
@@ -291,54 +398,51 @@ static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
   }
   const double w = pt->w;
   if (b->has_s[cls]) {
-    if (pt->a0 != 0.0 && pt->a1 != 0.0) {
-      const double f = -w * pt->a0 * pt->a1;
-      for (int i = 0; i < ns; i++)
-        for (int j = 0; j < ns; j++)
-          b->Ass[i * ns + j] += f * H[i * nz + j];
-    }
+    if (pt->a0 != 0.0 && pt->a1 != 0.0)
+      add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * pt->a0 * pt->a1);
     if (b->has_f[cls]) {
-      for (int k = 0; pt->a0 != 0.0 && k < nc; k++) {
-        const double f = -w * pt->a0 * cc[k];
-        for (int i = 0; i < ns; i++) {
-          double *a = b->Asf + (size_t)i * (size_t)nF + (size_t)cb[k] * nf;
-          for (int j = 0; j < nf; j++)
-            a[j] += f * H[i * nz + ns + j];
-        }
-      }
-      for (int k = 0; pt->a1 != 0.0 && k < nr; k++) {
-        const double f = -w * rc[k] * pt->a1;
-        for (int i = 0; i < nf; i++) {
-          double *a = b->Afs + ((size_t)rb[k] * nf + (size_t)i) * (size_t)ns;
-          for (int j = 0; j < ns; j++)
-            a[j] += f * H[(ns + i) * nz + j];
-        }
-      }
+      for (int k = 0; pt->a0 != 0.0 && k < nc; k++)
+        add_scaled_k(b->Asf + (size_t)cb[k] * nf, nF, H + ns, nz, ns, nf,
+                     -w * pt->a0 * cc[k]);
+      for (int k = 0; pt->a1 != 0.0 && k < nr; k++)
+        add_scaled_k(b->Afs + (size_t)rb[k] * nf * (size_t)ns, ns,
+                     H + (size_t)ns * nz, nz, nf, ns, -w * rc[k] * pt->a1);
     }
   }
   if (!b->has_f[cls])
     return;
+  const double *Hff = H + (size_t)ns * nz + ns;
   for (int r = 0; r < nr; r++)
-    for (int c = 0; c < nc; c++) {
-      const double f = -w * rc[r] * cc[c];
-      double *blk = ff_block(b, rb[r], cb[c]);
-      for (int i = 0; i < nf; i++)
-        for (int j = 0; j < nf; j++)
-          blk[i * nf + j] += f * H[(ns + i) * nz + ns + j];
-    }
+    for (int c = 0; c < nc; c++)
+      add_scaled_k(ff_block(b, rb[r], cb[c]), nf, Hff, nz, nf, nf,
+                   -w * rc[r] * cc[c]);
+}
+
+static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
+  SMALL(b->ns, NS, SMALL(b->nf, NF, point_hessian_k(b, pt, cls, NS, NF)));
 }
 
 /* Configuration zp of point pt at the displacements x (step.c, gather). */
-static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
-                         const mrvi_point *pt) {
-  const int ns = b->ns, nf = b->nf, mm = pt->m;
+ALWAYS_INLINE void point_config_k(mrvi_blocks *b, const mrvi_step *st,
+                                  const double *x, const mrvi_point *pt,
+                                  const int ns, const int nf) {
+  const int mm = pt->m;
   const double *dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
   const double *dB = x + ns + (size_t)mm * nf;
-  for (int s = 0; s < ns; s++)
-    b->zp[s] = st->qs0[s] + pt->a1 * x[s];
-  for (int f = 0; f < nf; f++)
-    b->zp[ns + f] = pt->cA * (dA ? st->qf0[f] + dA[f] : st->qf0[f]) +
-                    pt->cB * (st->qf0[f] + dB[f]);
+  double *restrict zp = b->zp;
+  UNROLL for (int s = 0; s < ns; s++) zp[s] = st->qs0[s] + pt->a1 * x[s];
+  if (dA) {
+    UNROLL for (int f = 0; f < nf; f++) zp[ns + f] =
+        pt->cA * (st->qf0[f] + dA[f]) + pt->cB * (st->qf0[f] + dB[f]);
+  } else {
+    UNROLL for (int f = 0; f < nf; f++) zp[ns + f] =
+        pt->cA * st->qf0[f] + pt->cB * (st->qf0[f] + dB[f]);
+  }
+}
+
+static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         const mrvi_point *pt) {
+  SMALL(b->ns, NS, SMALL(b->nf, NF, point_config_k(b, st, x, pt, NS, NF)));
 }
 
 /* H of class c at point pt's configuration (G is scratch here). */
@@ -374,41 +478,29 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
     }
 }
 
-int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
-                         double *R, int jac) {
-  const int ns = b->ns, nf = b->nf, p = b->p, nz = ns + nf;
-  if (!st->increments || st->n_lambda > 0 || st->f_rows)
-    return MRVI_EINVAL;
+/* The residual (with the momenta's potential parts) and, if jac, the
+ * potential part of the Newton matrix (mrvi_blocks_assemble). */
+ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
+                              const double *x, double *R, int jac, const int ns,
+                              const int nf) {
+  const int p = b->p, nz = ns + nf;
   double *mps = st->mom_ps, *mpf = st->mom_pf;
-  b->assembled = jac;
-  /* The constant part: computed and saved once, then restored. */
-  if (jac && !b->const_ok) {
-    constant_part(b, st, x);
-    copy_blocks(b, 1);
-    b->const_ok = 1;
-  } else if (jac) {
-    copy_blocks(b, 2);
-  }
   if (mps) {
     memset(mps, 0, (size_t)ns * sizeof(double));
     memset(mpf, 0, (size_t)p * (size_t)nf * sizeof(double));
   }
   /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
   const double dT = st->dT, dt = st->dt;
-  for (int s = 0; s < ns; s++)
-    R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
+  UNROLL for (int s = 0; s < ns; s++) R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
+  double vl[nf > 0 ? nf : 1]; /* velocity of the interval before node mm */
   for (int mm = 0; mm < p; mm++) {
     const double *d = x + ns + (size_t)mm * nf;
     double *Rm = R + ns + (size_t)mm * nf;
-    for (int f = 0; f < nf; f++) {
+    UNROLL for (int f = 0; f < nf; f++) {
       const double M = b->mf[f];
       const double vr = (d[f] - (mm == 0 ? 0.0 : d[f - nf])) / dt;
-      if (mm == 0) {
-        Rm[f] = st->pf0[f] - M * vr;
-      } else {
-        const double vl = (d[f - nf] - (mm == 1 ? 0.0 : d[f - 2 * nf])) / dt;
-        Rm[f] = M * (vl - vr);
-      }
+      Rm[f] = mm == 0 ? st->pf0[f] - M * vr : M * (vl[f] - vr);
+      vl[f] = vr;
     }
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
@@ -418,57 +510,83 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       const int mm = pt->m, hess = jac && !b->quad[c];
-      point_config(b, st, x, pt);
+      point_config_k(b, st, x, pt, ns, nf);
       memset(b->G, 0, (size_t)nz * sizeof(double));
       if (hess)
         memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
       mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, hess ? b->H : NULL, nz, 1.0);
       const double w = pt->w, *Gf = b->G + ns;
       if (pt->a0 != 0.0)
-        for (int s = 0; s < ns; s++)
-          R[s] -= w * pt->a0 * b->G[s];
+        UNROLL for (int s = 0; s < ns; s++) R[s] -= w * pt->a0 * b->G[s];
       if (pt->cA != 0.0)
-        for (int f = 0; f < nf; f++)
-          R[ns + mm * nf + f] -= w * pt->cA * Gf[f];
+        UNROLL for (int f = 0; f < nf; f++) R[ns + mm * nf + f] -=
+            w * pt->cA * Gf[f];
       if (pt->cB != 0.0 && mm + 1 <= p - 1)
-        for (int f = 0; f < nf; f++)
-          R[ns + (mm + 1) * nf + f] -= w * pt->cB * Gf[f];
+        UNROLL for (int f = 0; f < nf; f++) R[ns + (mm + 1) * nf + f] -=
+            w * pt->cB * Gf[f];
       if (mps) {
-        for (int s = 0; s < ns; s++)
-          mps[s] -= w * pt->a1 * b->G[s];
-        for (int f = 0; f < nf; f++)
-          mpf[mm * nf + f] -= w * pt->cB * Gf[f];
+        UNROLL for (int s = 0; s < ns; s++) mps[s] -= w * pt->a1 * b->G[s];
+        UNROLL for (int f = 0; f < nf; f++) mpf[mm * nf + f] -=
+            w * pt->cB * Gf[f];
       }
       if (hess)
-        point_hessian(b, pt, c);
+        point_hessian_k(b, pt, c, ns, nf);
     }
+}
+
+int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
+                         double *R, int jac) {
+  const int ns = b->ns, nf = b->nf;
+  if (!st->increments || st->n_lambda > 0 || st->f_rows)
+    return MRVI_EINVAL;
+  b->assembled = jac;
+  /* The constant part: computed and saved once, then restored. */
+  if (jac && !b->const_ok) {
+    constant_part(b, st, x);
+    copy_blocks(b, 1);
+    b->const_ok = 1;
+  } else if (jac) {
+    copy_blocks(b, 2);
+  }
+  SMALL(ns, NS, SMALL(nf, NF, assemble_k(b, st, x, R, jac, NS, NF)));
   return MRVI_OK;
+}
+
+/* S = A_ss - A_sf Y. */
+ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
+  const int nF = b->p * b->nf;
+  const double *restrict Y = b->Y;
+  UNROLL for (int i = 0; i < ns; i++) {
+    const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
+    double s[ns > 0 ? ns : 1];
+    UNROLL for (int j = 0; j < ns; j++) s[j] = b->Ass[i * ns + j];
+    for (int k = 0; k < nF; k++)
+      UNROLL for (int j = 0; j < ns; j++) s[j] -= a[k] * Y[(size_t)k * ns + j];
+    UNROLL for (int j = 0; j < ns; j++) b->S[i * ns + j] = s[j];
+  }
 }
 
 /* Factorise the blocks as they are (scattered or assembled directly). */
 static int factor_blocks(mrvi_blocks *b) {
   const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
   const size_t blk = (size_t)nf * (size_t)nf;
-  for (int m = 0; m < p; m++)
-    if (mrvi_dense_lu_factor(nf, b->D + (size_t)m * blk,
-                             b->piv + (size_t)m * (size_t)nf) < 0)
-      return MRVI_ESINGULAR;
+  int bad = 0;
+  for (int m = 0; m < p && !bad; m++) {
+    double *Dm = b->D + (size_t)m * blk;
+    int *pm = b->piv + (size_t)m * (size_t)nf;
+    SMALL(nf, NF, bad = lu_factor_k(NF, Dm, pm, b->dinv + (size_t)m * nf) < 0);
+  }
+  if (bad)
+    return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs, S = A_ss - A_sf Y (factored) */
   memcpy(b->Y, b->Afs, (size_t)nF * (size_t)ns * sizeof(double));
   if (ns > 0)
     sweep_solve(b, b->Y, ns);
-  for (int i = 0; i < ns; i++) {
-    const double *a = b->Asf + (size_t)i * (size_t)nF;
-    for (int j = 0; j < ns; j++) {
-      double s = b->Ass[i * ns + j];
-      for (int k = 0; k < nF; k++)
-        s -= a[k] * b->Y[(size_t)k * (size_t)ns + (size_t)j];
-      b->S[i * ns + j] = s;
-    }
+  SMALL(ns, NS, schur_k(b, NS));
+  if (ns > 0) {
+    SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv, b->sdinv) < 0);
   }
-  if (ns > 0 && mrvi_dense_lu_factor(ns, b->S, b->spiv) < 0)
-    return MRVI_ESINGULAR;
-  return MRVI_OK;
+  return bad ? MRVI_ESINGULAR : MRVI_OK;
 }
 
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
@@ -480,25 +598,33 @@ int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
   return sc < 0 ? sc : factor_blocks(b);
 }
 
+/* ds = S^-1 (R_s - A_sf z), df = z - Y ds (after z = A_ff^-1 R_f). */
+ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
+                                double *restrict dx, const int ns) {
+  const int nF = b->p * b->nf;
+  const double *restrict z = b->z, *restrict Y = b->Y;
+  double r[ns > 0 ? ns : 1];
+  UNROLL for (int i = 0; i < ns; i++) {
+    const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
+    double s = R[i];
+    for (int k = 0; k < nF; k++)
+      s -= a[k] * z[k];
+    r[i] = s;
+  }
+  if (ns > 0)
+    lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
+  UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];
+  for (int k = 0; k < nF; k++) {
+    double s = z[k];
+    UNROLL for (int j = 0; j < ns; j++) s -= Y[(size_t)k * ns + j] * r[j];
+    dx[ns + k] = s;
+  }
+}
+
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
   const int ns = b->ns, nF = b->p * b->nf;
   /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds */
   memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
   sweep_solve(b, b->z, 1);
-  for (int i = 0; i < ns; i++) {
-    const double *a = b->Asf + (size_t)i * (size_t)nF;
-    double s = R[i];
-    for (int k = 0; k < nF; k++)
-      s -= a[k] * b->z[k];
-    b->r[i] = s;
-  }
-  if (ns > 0)
-    mrvi_dense_lu_solve(ns, b->S, b->spiv, b->r, 1);
-  memcpy(dx, b->r, (size_t)ns * sizeof(double));
-  for (int k = 0; k < nF; k++) {
-    double s = b->z[k];
-    for (int j = 0; j < ns; j++)
-      s -= b->Y[(size_t)k * (size_t)ns + (size_t)j] * b->r[j];
-    dx[ns + k] = s;
-  }
+  SMALL(ns, NS, slow_solve_k(b, R, dx, NS));
 }

@@ -27,20 +27,32 @@
  * metric, by power iteration), else, and for a step where it produces
  * non-finite values, free flight is the predictor. */
 #include "internal.h"
+#include "small.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
+/* Point kinds within an interval: at node m (cB = 0, explicit), inside
+ * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
+enum { AT_LEFT, INSIDE, AT_RIGHT };
+static int kind(const mrvi_point *pt) {
+  return pt->cB == 0.0 ? AT_LEFT : pt->cA == 0.0 ? AT_RIGHT : INSIDE;
+}
+
 struct mrvi_predictor {
   const mrvi_model *m;
   int sweep_ok;     /* dt omega_max small enough for the explicit sweep */
   int slow_coupled; /* the slow row sees the micro nodes */
-  /* Model-order vectors (n): configuration, gradient, slow-row force, the
-   * explicit and implicit parts of F_m^A, and F_m^B. */
+  /* Vectors of n entries (model order in omega_max; packed (q^s, q^f) in
+   * the sweep): configuration, gradient, slow-row force (ns), the explicit
+   * and implicit parts of F_m^A, and F_m^B (nf each). */
   double *z, *g, *fs, *fexp, *fimp, *fb;
   double *pm;        /* p^{f,m} (nf) */
-  mrvi_terms *kc[2]; /* V and W compiled on model indices (terms.c) */
+  double *minv;      /* 1 / mass, packed (n) */
+  char *kinds[2];    /* kind of every point of V and W (see kind) */
+  int has_kind[3];   /* some point of V or W is of that kind */
+  mrvi_terms *kc[2]; /* V and W compiled on the packed columns (terms.c) */
 };
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
@@ -62,12 +74,34 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
-  for (int c = 0; c < 2; c++)
-    if (mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], NULL,
-                          &pr->kc[c]) < 0) {
+  /* Packed columns: q^s then q^f (as solver/blocks.c). */
+  int *col = malloc(n * sizeof *col);
+  pr->minv = malloc(n * sizeof(double));
+  if (!col || !pr->minv) {
+    free(col);
+    mrvi_predictor_free(pr);
+    return MRVI_ENOMEM;
+  }
+  for (int c = 0; c < m->n; c++) {
+    col[c] = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
+    pr->minv[col[c]] = 1.0 / m->mass[c];
+  }
+  for (int c = 0; c < 2; c++) {
+    const int ok =
+        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
+                          &pr->kc[c]) == MRVI_OK &&
+        (pr->kinds[c] = malloc((size_t)st->n_pts[c] + 1));
+    if (!ok) {
+      free(col);
       mrvi_predictor_free(pr);
       return MRVI_ENOMEM;
     }
+    for (int i = 0; i < st->n_pts[c]; i++) {
+      pr->kinds[c][i] = (char)kind(&st->pts[c][i]);
+      pr->has_kind[(int)pr->kinds[c][i]] = 1;
+    }
+  }
+  free(col);
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
   for (int c = 0; c < 2; c++)
@@ -97,6 +131,9 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fimp);
   free(pr->fb);
   free(pr->pm);
+  free(pr->minv);
+  free(pr->kinds[0]);
+  free(pr->kinds[1]);
   mrvi_terms_free(pr->kc[0]);
   mrvi_terms_free(pr->kc[1]);
   free(pr);
@@ -160,66 +197,69 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
 }
 
 /* g <- grad Z_c at point pt of the step at the displacements x (fast nodes
- * m and m + 1 of pt's interval; node 0 is q_k^{f,0}). */
-static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
-                           const double *x, const mrvi_point *pt, int c) {
-  const mrvi_model *m = pr->m;
-  const int ns = st->ns, nf = st->nf;
-  for (int s = 0; s < ns; s++)
-    pr->z[m->slow_index[s]] = st->qs0[s] + pt->a1 * x[s];
+ * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed. */
+ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
+                                    const double *x, const mrvi_point *pt,
+                                    int c, const int ns, const int nf) {
+  double *restrict z = pr->z, *restrict g = pr->g;
+  UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s] + pt->a1 * x[s];
   const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
   const double *dB = x + ns + (size_t)pt->m * nf;
-  for (int f = 0; f < nf; f++)
-    pr->z[m->fast_index[f]] = st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
-                              (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
-  memset(pr->g, 0, (size_t)m->n * sizeof(double));
-  mrvi_terms_eval(pr->kc[c], pr->z, 1.0, pr->g, NULL, 0, 0.0);
+  UNROLL for (int f = 0; f < nf; f++) z[ns + f] =
+      st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
+      (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
+  UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
+  mrvi_terms_eval(pr->kc[c], z, 1.0, g, NULL, 0, 0.0);
 }
 
-static void axpy(int n, double a, const double *g, double *acc) {
-  for (int i = 0; i < n; i++)
-    acc[i] += a * g[i];
+static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
+                           const double *x, const mrvi_point *pt, int c) {
+  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf);
 }
 
-/* Point kinds within an interval: at node m (cB = 0, explicit), inside
- * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
-enum { AT_LEFT, INSIDE, AT_RIGHT };
-static int kind(const mrvi_point *pt) {
-  return pt->cB == 0.0 ? AT_LEFT : pt->cA == 0.0 ? AT_RIGHT : INSIDE;
+ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
+                        double *restrict acc) {
+  UNROLL for (int i = 0; i < n; i++) acc[i] += a * g[i];
 }
 
 /* Evaluate the points of kind k in [first[c], end[c]) of both classes:
- * fa += w cA g, fb += w cB g and, with sum_slow, fs += w a0 g. */
-static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
-                        const double *x, const int *first, const int *end,
-                        int k, double *fa, double *fb, int sum_slow) {
-  const int n = pr->m->n;
+ * fa += w cA g_f, fb += w cB g_f and, with sum_slow, fs += w a0 g_s. */
+ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
+                                 const double *x, const int *first,
+                                 const int *end, int k, double *fa, double *fb,
+                                 int sum_slow, const int ns, const int nf) {
+  if (!pr->has_kind[k])
+    return;
   for (int c = 0; c < 2; c++)
     for (int ip = first[c]; ip < end[c]; ip++) {
-      const mrvi_point *pt = &st->pts[c][ip];
-      if (kind(pt) != k)
+      if (pr->kinds[c][ip] != k)
         continue;
-      point_gradient(pr, st, x, pt, c);
+      const mrvi_point *pt = &st->pts[c][ip];
+      point_gradient_k(pr, st, x, pt, c, ns, nf);
       if (fa && pt->cA != 0.0)
-        axpy(n, pt->w * pt->cA, pr->g, fa);
+        axpy(nf, pt->w * pt->cA, pr->g + ns, fa);
       if (fb && pt->cB != 0.0)
-        axpy(n, pt->w * pt->cB, pr->g, fb);
+        axpy(nf, pt->w * pt->cB, pr->g + ns, fb);
       if (sum_slow && pt->a0 != 0.0)
-        axpy(n, pt->w * pt->a0, pr->g, pr->fs);
+        axpy(ns, pt->w * pt->a0, pr->g, pr->fs);
     }
 }
 
 /* The fast nodes d^1 .. d^p for the slow displacement x_s; with sum_slow,
  * fs gets the slow-row force of every point along the swept path. */
-static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
-                  int sum_slow) {
-  const mrvi_model *m = pr->m;
-  const int n = m->n, ns = st->ns, nf = st->nf, p = st->p;
-  const double dt = st->dt;
-  const size_t bytes = (size_t)n * sizeof(double);
+static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
+                        const double *x, const int *first, const int *end,
+                        int k, double *fa, double *fb, int sum_slow) {
+  eval_points_k(pr, st, x, first, end, k, fa, fb, sum_slow, st->ns, st->nf);
+}
+
+ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                           int sum_slow, const int ns, const int nf) {
+  const int p = st->p;
+  const double dt = st->dt, *minv = pr->minv + ns;
   if (sum_slow)
-    memset(pr->fs, 0, bytes);
-  memset(pr->fimp, 0, bytes);
+    memset(pr->fs, 0, (size_t)ns * sizeof(double));
+  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
   for (int f = 0; f < nf; f++)
     pr->pm[f] = st->pf0[f];
   int first[2] = {0, 0}, end[2];
@@ -232,29 +272,27 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
     double *dn = x + ns + (size_t)mm * nf;
     /* Row mm with F^A = explicit points + the implicit force fimp. */
 #define SOLVE_ROW()                                                            \
-  for (int f = 0; f < nf; f++) {                                               \
-    const int i = m->fast_index[f];                                            \
+  for (int f = 0; f < nf; f++)                                                 \
     dn[f] = (d ? d[f] : 0.0) +                                                 \
-            dt / m->mass[i] * (pr->pm[f] - pr->fexp[i] - pr->fimp[i]);         \
-  }
-    memset(pr->fexp, 0, bytes);
-    eval_points(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow);
+            dt * minv[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
+    UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
+    eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
+                  nf);
     /* Estimate with the last interval's implicit force (in interval 0,
      * with the implicit points evaluated once at a first estimate). */
     for (int pass = mm == 0 ? 0 : 1; pass < 2; pass++) {
       SOLVE_ROW();
-      memset(pr->fimp, 0, bytes);
-      memset(pr->fb, 0, bytes);
-      eval_points(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
-                  sum_slow && pass == 1);
+      UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
+      UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
+      eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
+                    sum_slow && pass == 1, ns, nf);
     }
     SOLVE_ROW();
 #undef SOLVE_ROW
-    eval_points(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow);
-    for (int f = 0; f < nf; f++) {
-      const int i = m->fast_index[f];
-      pr->pm[f] = m->mass[i] * (dn[f] - (d ? d[f] : 0.0)) / dt - pr->fb[i];
-    }
+    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, ns,
+                  nf);
+    for (int f = 0; f < nf; f++)
+      pr->pm[f] = (dn[f] - (d ? d[f] : 0.0)) / (dt * minv[f]) - pr->fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
@@ -264,23 +302,24 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
       eval_points(pr, st, x, (int[2]){0, 0}, st->n_pts, k, NULL, NULL, 1);
 }
 
+static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                  int sum_slow) {
+  SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
+}
+
 /* Slow row solved for dq^s = x_s with the slow force fs. */
 static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  const mrvi_model *m = pr->m;
-  for (int s = 0; s < st->ns; s++) {
-    const int i = m->slow_index[s];
-    x[s] = st->dT / m->mass[i] * (st->ps0[s] - pr->fs[i]);
-  }
+  for (int s = 0; s < st->ns; s++)
+    x[s] = st->dT * pr->minv[s] * (st->ps0[s] - pr->fs[s]);
 }
 
 static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  const mrvi_model *m = pr->m;
   if (!pr->sweep_ok) {
     mrvi_predict_free_flight(st, x);
     return;
   }
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
-  memset(pr->fs, 0, (size_t)m->n * sizeof(double));
+  memset(pr->fs, 0, (size_t)st->ns * sizeof(double));
   memset(x, 0, (size_t)st->n_unknowns * sizeof(double));
   for (int c = 0; c < 2; c++) {
     double w = 0.0;
@@ -290,7 +329,7 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
       continue;
     const mrvi_point node = {.cA = 1.0};
     point_gradient(pr, st, x, &node, c);
-    axpy(m->n, w, pr->g, pr->fs);
+    axpy(st->ns, w, pr->g, pr->fs);
   }
   slow_update(pr, st, x);
   if (!pr->slow_coupled || st->ns == 0) {
@@ -306,9 +345,11 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   predict_sweep(pr, st, x);
+  /* Any entry NaN or infinite (x * 0 is NaN exactly then; no branch per
+   * entry): free flight instead. */
+  double bad = 0.0;
   for (int i = 0; i < st->n_unknowns; i++)
-    if (!isfinite(x[i])) {
-      mrvi_predict_free_flight(st, x);
-      return;
-    }
+    bad += x[i] * 0.0;
+  if (bad != 0.0 || bad != bad)
+    mrvi_predict_free_flight(st, x);
 }

@@ -33,9 +33,18 @@ struct mrvi_terms {
  * phi, by repeated multiplication). */
 static inline void power_derivs(double c, double e, int k, double s, double *d1,
                                 double *d2) {
-  double sk = 1.0; /* s^(k-2) */
-  for (int i = 2; i < k; i++)
-    sk *= s;
+  double sk = 1.0; /* s^(k-2), the product order of laws/power.c */
+  switch (k) {
+  case 3:
+    sk = 1.0 * s;
+    break;
+  case 4:
+    sk = (1.0 * s) * s;
+    break;
+  default:
+    for (int i = 2; i < k; i++)
+      sk *= s;
+  }
   *d1 = k >= 1 ? c * e * (k >= 2 ? sk * s : 1.0) : 0.0;
   *d2 = k >= 2 ? c * e * (e - 1) * sk : 0.0;
 }
@@ -134,6 +143,39 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
   return MRVI_OK;
 }
 
+/* One term phi(a^T z - b) with n inputs: gradient into g, Hessian into J
+ * (inlined with a constant n for the common sizes). */
+static inline __attribute__((always_inline)) void
+term_eval(const kterm *t, const int *col, const double *a, const double *z,
+          double scale, double *g, double *J, int ld, double hscale,
+          const int n) {
+  double s = -t->shift;
+#pragma GCC unroll 4
+  for (int j = 0; j < n; j++)
+    s += a[j] * z[col[j]];
+  double phi, d1, d2;
+  if (t->kind == KT_LINEAR) {
+    d1 = t->c * s;
+    d2 = t->c;
+  } else if (t->kind == KT_POWER) {
+    power_derivs(t->c, t->e, t->k, s, &d1, &d2);
+  } else {
+    t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
+  }
+#pragma GCC unroll 4
+  for (int j = 0; j < n; j++)
+    g[col[j]] += scale * (d1 * a[j]);
+  if (J)
+#pragma GCC unroll 4
+    for (int j = 0; j < n; j++) {
+      const double u = d2 * a[j];
+      double *Jj = J + (size_t)col[j] * (size_t)ld;
+#pragma GCC unroll 4
+      for (int l = 0; l < n; l++)
+        Jj[col[l]] += hscale * (u * a[l]);
+    }
+}
+
 void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale) {
   for (int it = 0; it < kc->n; it++) {
@@ -163,26 +205,22 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
             J[col[j] * ld + col[l]] += hscale * kc->H[j * n + l];
       continue;
     }
-    double s = -t->shift;
-    for (int j = 0; j < n; j++)
-      s += a[j] * z[col[j]];
-    double phi, d1, d2;
-    if (t->kind == KT_LINEAR) {
-      d1 = t->c * s;
-      d2 = t->c;
-    } else if (t->kind == KT_POWER) {
-      power_derivs(t->c, t->e, t->k, s, &d1, &d2);
-    } else {
-      t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
+    switch (n) { /* unrolled for the common few-input terms */
+    case 1:
+      term_eval(t, col, a, z, scale, g, J, ld, hscale, 1);
+      break;
+    case 2:
+      term_eval(t, col, a, z, scale, g, J, ld, hscale, 2);
+      break;
+    case 3:
+      term_eval(t, col, a, z, scale, g, J, ld, hscale, 3);
+      break;
+    case 4:
+      term_eval(t, col, a, z, scale, g, J, ld, hscale, 4);
+      break;
+    default:
+      term_eval(t, col, a, z, scale, g, J, ld, hscale, n);
+      break;
     }
-    for (int j = 0; j < n; j++)
-      g[col[j]] += scale * (d1 * a[j]);
-    if (J)
-      for (int j = 0; j < n; j++) {
-        const double u = d2 * a[j];
-        double *Jj = J + (size_t)col[j] * (size_t)ld;
-        for (int l = 0; l < n; l++)
-          Jj[col[l]] += hscale * (u * a[l]);
-      }
   }
 }

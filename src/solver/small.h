@@ -1,0 +1,36 @@
+/* Small-block kernels of the structured step solvers (doc/solver.md,
+ * "Evaluation"). */
+#ifndef MRVI_SOLVER_SMALL_H
+#define MRVI_SOLVER_SMALL_H
+
+/* Small-block kernels.  SMALL(n, N, code) runs code with N an integer
+ * constant equal to n for n = 1..4, so that the compiler unrolls the loops
+ * over the tiny blocks of few-body systems (the FPU: ns = nf = 3), and with
+ * N = n otherwise.  The kernels are inlined into each case. */
+#define ALWAYS_INLINE static inline __attribute__((always_inline))
+#define UNROLL _Pragma("GCC unroll 4")
+#define SMALL(n, N, ...)                                                       \
+  switch (n) {                                                                 \
+  case 1: {                                                                    \
+    enum { N = 1 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 2: {                                                                    \
+    enum { N = 2 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 3: {                                                                    \
+    enum { N = 3 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 4: {                                                                    \
+    enum { N = 4 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  default: {                                                                   \
+    const int N = (n);                                                         \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  }
+
+#endif
