@@ -277,7 +277,18 @@ static void test_agree(void) {
  * log(rho) iterations per block solve.  GMRES works on S diag(A_ss)^-1 =
  * I + E with ||E|| = O((dT omega_slow)^2 + p dt^2 K_sf^2 ...) << 1 and
  * contracts by ||E|| per iteration: 1e-11 in at most 6 iterations as long
- * as ||E|| <= 0.015.  Newton: at most 2 updates per (micro) step. */
+ * as ||E|| <= 0.015.  Newton: at most 2 updates per step on schur-krylov;
+ * on sweep-cg (explicit-slow) exactly 1 per micro step.  Newton's residual
+ * after one update is quadratic in the predictor's row residual r0.  Rows
+ * m >= 1 start from the last interval's implicit force held fixed, r0 the
+ * change of that force over one micro step, and one update reaches the
+ * tolerance (benchmark lattice n = 312: r0 <= 2e-2, after the update
+ * <= 1.2e-10 against 1e-9).  Row 0 has no last force (a step depends on
+ * (q_k, p_k) alone); its implicit points are evaluated once at the estimate
+ * without implicit force, which leaves a = (omega dt)^2/4 = 0.0024 times
+ * that whole force as r0: 1.9e-4 (median, n = 312), below the other rows',
+ * so it too takes one update.  Started from no implicit force (r0 = 1e-1),
+ * one update left 3e-9 and nearly every macro step took 2. */
 static void test_iterations(void) {
   char *text = lattice(30, 30);
   static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint"};
@@ -311,9 +322,9 @@ static void test_iterations(void) {
       CHECK(sc == 0 || (k->gmres_solves > 0 && k->gmres_max <= 6),
             "%s: GMRES at most %d iterations per solve", schemes[sc],
             k->gmres_max);
-      CHECK(t.max_iter <= 2 && k->fallbacks == 0,
-            "%s: %d Newton updates at most, %ld fallbacks", schemes[sc],
-            t.max_iter, k->fallbacks);
+      CHECK(t.max_iter <= (sc == 0 ? 1 : 2) && k->fallbacks == 0,
+            "%s: %d Newton updates at most (bound %d), %ld fallbacks",
+            schemes[sc], t.max_iter, sc == 0 ? 1 : 2, k->fallbacks);
       printf("%s 30x30 (%s): omega_max %.1f, CG max %d (bound %d), %.2f "
              "per solve; GMRES max %d; Newton max %d\n",
              schemes[sc], t.path, w, k->cg_max, bound,

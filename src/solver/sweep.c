@@ -443,16 +443,50 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
   return MRVI_OK;
 }
 
+/* fimp = sum w cA grad W(z) over the implicit points of the interval,
+ * z = qm + cB dn, with the Newton matrix's w cA cB hess W(z) added to J
+ * (sw->J or the sparse block) unless J is NULL. */
+static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
+                           double *J) {
+  const int nf = sw->nf;
+  memset(sw->fimp, 0, (size_t)nf * sizeof(double));
+  for (int i = 0; i < sw->n_w; i++) {
+    if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
+      continue;
+    set_zf(sw, 1.0, qm, sw->cB[i], dn); /* cA qm + cB (qm + dn) */
+    memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
+    eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gpt[i], J,
+               sw->w[i] * sw->cA[i] * sw->cB[i]);
+    for (int f = 0; f < nf; f++)
+      sw->fimp[f] += sw->w[i] * sw->cA[i] * sw->gpt[i][f];
+  }
+}
+
 /* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
  * rhs = p^{f,m} minus the forces of the points at node m (Newton on nf
- * unknowns; displacements keep tiny steps' digits). */
+ * unknowns; displacements keep tiny steps' digits).  first: row 0 of the
+ * step, whose predictor has no last implicit force. */
 static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
-                          int *iters, double *res, char *msg, size_t len) {
+                          int first, int *iters, double *res, char *msg,
+                          size_t len) {
   const int nf = sw->nf;
   const double dt = sw->st->dt;
-  /* Predictor: the last implicit force held fixed (explicit in it). */
-  for (int f = 0; f < nf; f++)
-    dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
+  /* Predictor: the last implicit force held fixed (explicit in it).  Row 0
+   * has none (nothing is carried from the last step, so a step depends on
+   * (q_k, p_k) alone): its implicit points are evaluated once at the
+   * estimate without implicit force, as in the predictor's interval 0
+   * (solver/predict.c), which leaves a row error w cA cB |hess W| / (M/dt)
+   * = (omega dt)^2/4 times that estimate's.  Without it the lattice
+   * benchmark's row 0 (n = 312) starts at a residual about 10 times that of
+   * the other rows (1e-1 against 8e-3, medians), and one update leaves 3e-9
+   * > the tolerance 1e-9: two updates where the other rows take one (one
+   * gradient against a Newton update); with it, 1.9e-4 and 3e-14. */
+  for (int pass = first ? 0 : 1; pass < 2; pass++) {
+    for (int f = 0; f < nf; f++)
+      dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
+    if (pass == 0)
+      implicit_force(sw, qm, dn, NULL);
+  }
   double scale = 0.0;
   for (int f = 0; f < nf; f++)
     scale = fmax(scale, fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt);
@@ -462,21 +496,11 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
    * summed over many micro steps, exceeds the truncation error. */
   for (int it = 0;; it++) {
     /* F = rhs - M (qn - qm)/dt - sum w cA grad W(z); J = M/dt + w cA cB H. */
-    memset(sw->fimp, 0, (size_t)nf * sizeof(double));
     if (sw->sb)
       mrvi_sblock_zero(sw->sb);
     else
       memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
-    for (int i = 0; i < sw->n_w; i++) {
-      if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
-        continue;
-      set_zf(sw, 1.0, qm, sw->cB[i], dn); /* cA qm + cB (qm + dn) */
-      memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
-      eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gpt[i], sw->J,
-                 sw->w[i] * sw->cA[i] * sw->cB[i]);
-      for (int f = 0; f < nf; f++)
-        sw->fimp[f] += sw->w[i] * sw->cA[i] * sw->gpt[i][f];
-    }
+    implicit_force(sw, qm, dn, sw->J);
     double r = 0.0;
     for (int f = 0; f < nf; f++) {
       sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
@@ -681,8 +705,9 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     if (sw->implicit) {
       int it = 0;
       const int s =
-          sw->linear ? solve_linear(sw, qm, sw->dn, &it, residual, msg, len)
-                     : solve_implicit(sw, qm, sw->dn, &it, residual, msg, len);
+          sw->linear
+              ? solve_linear(sw, qm, sw->dn, &it, residual, msg, len)
+              : solve_implicit(sw, qm, sw->dn, m == 0, &it, residual, msg, len);
       if (it > *iterations)
         *iterations = it;
       if (s < 0) {
