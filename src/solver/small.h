@@ -7,6 +7,22 @@
  * constant equal to n for n = 1..4, so that the compiler unrolls the loops
  * over the tiny blocks of few-body systems (the FPU: ns = nf = 3), and with
  * N = n otherwise.  The kernels are inlined into each case. */
+/* -DMRVI_SMALL_KERNELS=0 keeps only the run-time-size case: the same
+ * arithmetic, compiled in a fraction of the time.  clang with ASan + UBSan +
+ * libFuzzer instrumentation needs over 10 minutes and 2.6 GB for the
+ * unrolled cases of blocks.c (1 s without them); tests/fuzz/run.sh sets it. */
+#ifndef MRVI_SMALL_KERNELS
+#define MRVI_SMALL_KERNELS 1
+#endif
+#if !MRVI_SMALL_KERNELS
+#define ALWAYS_INLINE static inline
+#define UNROLL
+#define SMALL(n, N, ...)                                                       \
+  do {                                                                         \
+    const int N = (n);                                                         \
+    __VA_ARGS__;                                                               \
+  } while (0)
+#else
 #define ALWAYS_INLINE static inline __attribute__((always_inline))
 #define UNROLL _Pragma("GCC unroll 4")
 #define SMALL(n, N, ...)                                                       \
@@ -32,5 +48,6 @@
     __VA_ARGS__;                                                               \
   } break;                                                                     \
   }
+#endif
 
 #endif

@@ -15,7 +15,8 @@ build=${2:-$root/build-fuzz}
 if [ ! -d "$build" ]; then
   CC=clang meson setup "$build" "$root" -Dfuzz=true \
     -Db_sanitize=address,undefined -Db_lundef=false \
-    -Dc_args=-fsanitize=fuzzer-no-link -Dbuildtype=debugoptimized >/dev/null
+    -Dc_args="-fsanitize=fuzzer-no-link -DMRVI_SMALL_KERNELS=0" \
+    -Dbuildtype=debugoptimized >/dev/null
 fi
 meson compile -C "$build" tests/fuzz/fuzz_loader >/dev/null
 mkdir -p "$build/corpus" "$build/artifacts"
