@@ -7,6 +7,7 @@
  * arithmetic is that of mrvi_element_eval and the laws, in the same order,
  * so the results are bitwise the same. */
 #include "internal.h"
+#include "small.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -145,10 +146,9 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
 
 /* One term phi(a^T z - b) with n inputs: gradient into g, Hessian into J
  * (inlined with a constant n for the common sizes). */
-static inline __attribute__((always_inline)) void
-term_eval(const kterm *t, const int *col, const double *a, const double *z,
-          double scale, double *g, double *J, int ld, double hscale,
-          const int n) {
+ALWAYS_INLINE void term_eval(const kterm *t, const int *col, const double *a,
+                             const double *z, double scale, double *g,
+                             double *J, int ld, double hscale, const int n) {
   double s = -t->shift;
 #pragma GCC unroll 4
   for (int j = 0; j < n; j++)
@@ -205,22 +205,7 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
             J[col[j] * ld + col[l]] += hscale * kc->H[j * n + l];
       continue;
     }
-    switch (n) { /* unrolled for the common few-input terms */
-    case 1:
-      term_eval(t, col, a, z, scale, g, J, ld, hscale, 1);
-      break;
-    case 2:
-      term_eval(t, col, a, z, scale, g, J, ld, hscale, 2);
-      break;
-    case 3:
-      term_eval(t, col, a, z, scale, g, J, ld, hscale, 3);
-      break;
-    case 4:
-      term_eval(t, col, a, z, scale, g, J, ld, hscale, 4);
-      break;
-    default:
-      term_eval(t, col, a, z, scale, g, J, ld, hscale, n);
-      break;
-    }
+    /* Unrolled for the common few-input terms. */
+    SMALL(n, N, term_eval(t, col, a, z, scale, g, J, ld, hscale, N));
   }
 }
