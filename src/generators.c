@@ -25,9 +25,10 @@ long mrvi_generator_particles(const mrvi_generator *g, char *msg, size_t len) {
                        g->kind == MRVI_GEN_RING ? "a ring" : "a generator",
                        min > 1 ? min : 1, n[a]);
   const long total = (long)n[0] * n[1] * n[2];
-  if (total < 2 || total > 10000000)
+  if (total < 2 || total > MRVI_MAX_GENERATED)
     return mrvi_fail(msg, len, MRVI_EINVAL,
-                     "a generator makes 2 to 10^7 particles (got %ld)", total);
+                     "a generator makes 2 to %ld particles (got %ld)",
+                     (long)MRVI_MAX_GENERATED, total);
   return total;
 }
 

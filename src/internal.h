@@ -37,6 +37,15 @@ void mrvi_ocp_free(struct mrvi_ocp *o);
 
 /* Wall clock in seconds (monotonic). */
 double mrvi_clock(void);
+/* The machine's physical memory in bytes (0 when unknown): sizes needing
+ * more are refused before allocation.  A build may lower it with
+ * -DMRVI_MEMORY_CAP=BYTES (the fuzz build does, so that what the checks
+ * admit fits the fuzzer's memory limit; tests/fuzz/run.sh). */
+double mrvi_machine_memory(void);
+/* Particles one `generate:` entry may make (the fuzz build lowers it). */
+#ifndef MRVI_MAX_GENERATED
+#define MRVI_MAX_GENERATED 10000000
+#endif
 
 /* ---------------------------------------------------------------------------
  * Model

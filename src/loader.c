@@ -1511,8 +1511,8 @@ add_note(loader *L, const char *fmt, ...) {
   return MRVI_OK;
 }
 
-/* Initial data against the constraints (doc/constraints.md), once the settings are
- * known: positions within the tolerance, independent gradients, velocities
+/* Initial data against the constraints (doc/constraints.md), once the settings
+ * are known: positions within the tolerance, independent gradients, velocities
  * projected onto the tangent space (with a note when they changed). */
 static int check_constraints(loader *L) {
   mrvi_model *m = L->sys->model;
@@ -1931,7 +1931,8 @@ static int load_rule(loader *L, struct fy_node *map, const char *where,
   return MRVI_OK;
 }
 
-/* integrator.constraints: {form, tolerance, projection} (doc/constraints.md). */
+/* integrator.constraints: {form, tolerance, projection} (doc/constraints.md).
+ */
 static int load_constraint_settings(loader *L, struct fy_node *map) {
   static const char *const forms[] = {"multipliers", "null-space"};
   mrvi_settings *s = &L->sys->settings;
@@ -2099,9 +2100,11 @@ static int check_sizes(loader *L, struct fy_node *at) {
                 "integrator.micro_steps × fast coordinates = %d × %d is too "
                 "large (at most %d)",
                 s->micro_steps, mrvi_model_n_fast(L->sys->model), INT_MAX / 8);
-  long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
-  double have = pages > 0 && page > 0 ? (double)pages * (double)page : 0;
-  double need = 8.0 * 8.0 * (double)(pn + mrvi_model_n(L->sys->model));
+  const double have = mrvi_machine_memory();
+  /* eight vectors of the step's unknowns, and the quadrature points of
+   * both potentials (2p + 2 each) */
+  const double need = 8.0 * 8.0 * (double)(pn + mrvi_model_n(L->sys->model)) +
+                      4.0 * ((double)s->micro_steps + 1.0) * sizeof(mrvi_point);
   if (have > 0 && need > have)
     return fail(L, at,
                 "integrator.micro_steps × fast coordinates = %d × %d needs "

@@ -3,6 +3,7 @@
 
 #include <stdio.h>
 #include <time.h>
+#include <unistd.h>
 
 const char *mrvi_strerror(int status) {
   switch (status) {
@@ -43,4 +44,15 @@ double mrvi_clock(void) {
   struct timespec ts;
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+double mrvi_machine_memory(void) {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+  const double have = pages > 0 && page > 0 ? (double)pages * (double)page : 0;
+#ifdef MRVI_MEMORY_CAP
+  return have > 0 && have < (double)MRVI_MEMORY_CAP ? have
+                                                    : (double)MRVI_MEMORY_CAP;
+#else
+  return have;
+#endif
 }

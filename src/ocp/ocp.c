@@ -16,6 +16,7 @@
 #include "ocp/ocp_internal.h"
 
 #include <float.h>
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -34,6 +35,44 @@ const char *mrvi_ocp_errmsg(const mrvi_ocp *o) {
 
 static double *dalloc(size_t n) {
   return calloc(n > 0 ? n : 1, sizeof(double));
+}
+
+/* Sizes of the problem against int indexing and the machine's memory,
+ * before anything is allocated: the trajectory (N + 1) n_s + (N p + 1) n_f
+ * nodes with momenta and outputs, and the adjoint's dense step Jacobian of
+ * nv = 2 n_s + (p + 1) n_f + (multipliers) rows. */
+static int ocp_check_sizes(const mrvi_model *m, const mrvi_settings *s,
+                           char *msg, size_t len) {
+  const double N = (double)mrvi_settings_n_steps(s), p = s->micro_steps;
+  const double ns = m->n_slow, nf = m->n_fast, n = m->n;
+  double r_slow = 0.0, r_micro = 0.0;
+  for (int c = 0; c < m->n_constraints; c++)
+    *(m->constraints[c].where == MRVI_SLOW ? &r_slow : &r_micro) +=
+        m->constraints[c].rows;
+  const double nl = r_slow + p * r_micro, nz = 2.0 * ns + (p + 1.0) * nf;
+  const double nv = nz + nl, nodes = (N + 1.0) * ns + (N * p + 1.0) * nf;
+  if (nv > INT_MAX || N * p > INT_MAX)
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "the optimal control problem is too large: N × p = %.0f "
+                     "× %.0f micro steps and %.0f unknowns per step "
+                     "(at most %d each)",
+                     N, p, nv, INT_MAX);
+  /* doubles: step vectors, trajectory, momenta, outputs, multipliers,
+   * the adjoint's Jacobian and workspace (one functional) */
+  const double words = 6.0 * nv + 4.0 * nodes + (N + 1.0) * (ns + 3.0 * nf) +
+                       N * p * (nf + 1.0) + 2.0 * (N + 1.0) * n + nv * nv +
+                       N * nl;
+  const double need = 8.0 * words, have = mrvi_machine_memory();
+  if (have > 0 && need > have)
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "the optimal control problem needs about %.3g GiB "
+                     "(N = %.0f macro steps, p = %.0f micro steps, n_f = %.0f "
+                     "fast coordinates; the adjoint's dense step Jacobian "
+                     "has %.0f × %.0f entries), more than this machine's "
+                     "%.3g GiB",
+                     need / 1073741824.0, N, p, nf, nv, nv,
+                     have / 1073741824.0);
+  return MRVI_OK;
 }
 
 int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
@@ -56,6 +95,11 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
     if (st < 0)
       return st;
   }
+  char why[300];
+  if ((st = ocp_check_sizes(m, s, why, sizeof why)) < 0) {
+    mrvi_fmt(msg, len, "%s", why);
+    return st;
+  }
   mrvi_ocp *o = calloc(1, sizeof *o);
   if (!o) {
     mrvi_fmt(msg, len, "out of memory");
@@ -73,7 +117,18 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
   o->ftol_rel = 1e-12;
   o->terminal_tol = 1e-8;
   o->max_eval = 2000;
-  if (mrvi_step_init(&o->step, m, s) < 0)
+  *out = o;
+  return MRVI_OK;
+}
+
+/* The step and the trajectory buffers, at the first forward pass: a
+ * problem that is only described (the loader's check, `mrvi check`)
+ * allocates nothing proportional to N or p. */
+int ocp_alloc(mrvi_ocp *o) {
+  if (o->allocated)
+    return MRVI_OK;
+  const mrvi_model *m = o->model;
+  if (mrvi_step_init(&o->step, m, &o->settings) < 0)
     goto oom;
   o->nl = o->step.n_lambda;
   o->nv = o->nz + o->nl;
@@ -105,12 +160,14 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
-  *out = o;
+  if (o->n_pair > 0) {
+    o->step.extra = ocp_pair_hook;
+    o->step.extra_ctx = o;
+  }
+  o->allocated = 1;
   return MRVI_OK;
 oom:
-  mrvi_ocp_free(o);
-  mrvi_fmt(msg, len, "out of memory");
-  return MRVI_ENOMEM;
+  return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
 }
 
 void mrvi_ocp_free(mrvi_ocp *o) {
@@ -177,12 +234,17 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
   if (!(lower <= upper))
     return mrvi_ocp_fail(o, MRVI_EINVAL, "actuator bounds: lower %g > upper %g",
                          lower, upper);
+  const int per = grid == MRVI_GRID_MACRO ? 1 : o->p;
+  if ((double)o->n_u + (double)o->N * per > INT_MAX)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "too many controls: %d so far and %ld more for this "
+                         "actuator (at most %d)",
+                         o->n_u, o->N * per, INT_MAX);
   ocp_actuator *a = realloc(o->act, (size_t)(o->n_act + 1) * sizeof *a);
   if (!a)
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
   o->act = a;
   const int ia = o->n_act++;
-  const int per = grid == MRVI_GRID_MACRO ? 1 : o->p;
   o->act[ia] = (ocp_actuator){.coord = c,
                               .pi = -1,
                               .pj = -1,
@@ -251,9 +313,7 @@ int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
   o->act[ia].pj = pj;
   mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s",
            m->particles[pi].name, m->particles[pj].name);
-  o->n_pair++;
-  o->step.extra = ocp_pair_hook;
-  o->step.extra_ctx = o;
+  o->n_pair++; /* the step hook is set in ocp_alloc */
   return ia;
 }
 
@@ -467,6 +527,9 @@ static int evaluate(mrvi_ocp *o, double *res, char *msg, size_t len) {
 }
 
 int ocp_forward(mrvi_ocp *o, const double *u) {
+  int s0 = ocp_alloc(o);
+  if (s0 < 0)
+    return s0;
   const mrvi_model *m = o->model;
   mrvi_step *st = &o->step;
   const int ns = o->ns, nf = o->nf, p = o->p, n = m->n;
@@ -474,7 +537,6 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
   const double dT = st->dT, dt = st->dt;
   double *Qs = o->Q, *Qf = o->Q + (N + 1) * ns;
   char msg[300];
-  int s0;
   memset(o->x, 0, (size_t)st->n_total * sizeof(double));
   /* Initial state (q0, M v0). */
   for (int s = 0; s < ns; s++) {

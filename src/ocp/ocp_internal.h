@@ -59,6 +59,7 @@ struct mrvi_ocp {
   mrvi_newton *newton_full;  /* saddle-point matrix for the adjoint */
   double *rhs_ns;            /* its reduced right-hand side */
   int ready;
+  int allocated; /* ocp_alloc done: step and trajectory buffers */
   double *x, *R, *dx, *f_rows, *f_end, *ps1, *pf1;
   /* Trajectory: global nodes: slow (N+1) x ns, then fast (N p + 1) x nf. */
   long n_nodes;
@@ -86,6 +87,8 @@ int mrvi_ocp_fail(mrvi_ocp *o, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 /* z index of step k -> global node index (times ns/nf offsets included). */
 long ocp_global(const mrvi_ocp *o, long k, int z);
+/* The step and trajectory buffers (once, at the first forward pass). */
+int ocp_alloc(mrvi_ocp *o);
 /* Forward shooting at u: fills Q, pN, momenta, trajectory outputs. */
 int ocp_forward(mrvi_ocp *o, const double *u);
 /* Control index of force entry fe in step k. */
