@@ -13,8 +13,8 @@ root=${2:?usage: test_cli.sh MRVI_BINARY SOURCE_ROOT [VERSION]}
 version=${3:-$(sed -n "s/^ *version *: *'\([^']*\)'.*/\1/p" "$root/meson.build" | head -n 1)}
 fpu=$root/systems/fpu.yaml
 
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+# shellcheck source=tests/testlib.sh
+. "$(dirname "$0")/testlib.sh"
 cd "$tmp" || exit 1
 
 passed=0

@@ -20,8 +20,7 @@ set -u
 mrvi=${1:?usage: test_docs.sh MRVI_BINARY SOURCE_ROOT}
 root=${2:?usage: test_docs.sh MRVI_BINARY SOURCE_ROOT}
 
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+# shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
 
 docs=("$root/README.md" "$root"/doc/*.md)

@@ -18,19 +18,11 @@ set -u
 
 mrvi=${1:?usage: test_export.sh MRVI_BINARY SOURCE_ROOT}
 root=${2:?usage: test_export.sh MRVI_BINARY SOURCE_ROOT}
-py=/usr/bin/python3
 
-if ! "$py" -c 'import h5py, numpy, xml.etree.ElementTree' 2>/dev/null; then
-  echo "SKIP: $py with python3-h5py is needed to read the files back"
-  exit 77
-fi
-
-tmp=$(mktemp -d "${TMPDIR:-/tmp}/mrvi-test-export.XXXXXX")
-trap 'rm -rf "$tmp"' EXIT
-cd "$tmp" || exit 1
-
-# shellcheck source=testlib.sh
+# shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
+need_python h5py numpy xml.etree.ElementTree
+cd "$tmp" || exit 1
 
 # fails_with NAME PATTERN CMD...: exit 1 and PATTERN on stderr
 fails_with() {

@@ -9,8 +9,7 @@
 set -u
 meson=${1:?usage: test_install.sh MESON BUILD_ROOT}
 build=${2:?usage: test_install.sh MESON BUILD_ROOT}
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+# shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
 unset LD_LIBRARY_PATH
 

@@ -17,20 +17,9 @@
 set -u
 mrvi=${1:?usage: test_kill.sh MRVI_BINARY SOURCE_ROOT}
 root=${2:?usage: test_kill.sh MRVI_BINARY SOURCE_ROOT}
-py=/usr/bin/python3
-if ! "$py" -c 'import h5py, numpy' 2>/dev/null; then
-  echo "skipped: needs python3 h5py and numpy"
-  exit 77
-fi
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
-passed=0
-failed=0
-pass() { passed=$((passed + 1)); }
-fail() {
-  failed=$((failed + 1))
-  printf 'FAIL: %s\n' "$*" >&2
-}
+# shellcheck source=tests/testlib.sh
+. "$(dirname "$0")/testlib.sh"
+need_python h5py numpy
 
 # compare REF FILE WHAT: every dataset of FILE is a prefix of REF's (bit for
 # bit; the last macro row's multipliers are filled in only by the next
@@ -199,5 +188,4 @@ else
   echo "disk-full test skipped: cannot mount a tmpfs (needs root)"
 fi
 
-printf '%d passed, %d failed\n' "$passed" "$failed"
-[ "$failed" -eq 0 ] && [ "$passed" -gt 0 ]
+test_finish

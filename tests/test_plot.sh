@@ -10,19 +10,11 @@ set -u
 
 mrvi=${1:?usage: test_plot.sh MRVI_BINARY SOURCE_ROOT}
 root=${2:?usage: test_plot.sh MRVI_BINARY SOURCE_ROOT}
-py=/usr/bin/python3
 plot="$root/src/mrvi-plot"
 
-if ! "$py" -c 'import matplotlib, h5py' 2>/dev/null; then
-  echo "SKIP: $py with python3-matplotlib and python3-h5py is needed"
-  exit 77
-fi
-
-tmp=$(mktemp -d "${TMPDIR:-/tmp}/mrvi-test-plot.XXXXXX")
-trap 'rm -rf "$tmp"' EXIT
-
-# shellcheck source=testlib.sh
+# shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
+need_python matplotlib h5py
 
 # png_ok FILE: exists, > 10 kB, PNG signature
 png_ok() {

@@ -17,15 +17,9 @@
 set -u
 mrvi=${1:?usage: test_resume.sh MRVI_BINARY SOURCE_ROOT}
 root=${2:?usage: test_resume.sh MRVI_BINARY SOURCE_ROOT}
-py=/usr/bin/python3
-if ! "$py" -c 'import h5py, numpy' 2>/dev/null; then
-  echo "skipped: needs python3 h5py and numpy"
-  exit 77
-fi
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
 # shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
+need_python h5py numpy
 
 # same.py REF FILE [K]: without K, FILE equals REF (every dataset, every
 # root attribute, bit for bit).  With K (a run --from node K): FILE's rows

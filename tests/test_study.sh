@@ -8,8 +8,8 @@
 set -u
 mrvi=$1
 root=$2
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+# shellcheck source=tests/testlib.sh
+. "$(dirname "$0")/testlib.sh"
 cd "$tmp" || exit 1
 passed=0
 failed=0

@@ -1,13 +1,30 @@
-# Helpers shared by the shell tests (sourced; the caller sets $tmp, a
-# scratch directory).  Each check prints "ok   NAME" or "FAIL NAME"; the
-# script ends with test_finish, which prints "N passed, M failed" and
-# returns non-zero on a failure.
+# Helpers shared by the shell tests (sourced).  Each check prints
+# "ok   NAME" (nothing for a nameless pass) or "FAIL NAME"; the script ends
+# with test_finish, which prints "N passed, M failed" and returns non-zero
+# on a failure or when nothing passed.
 
 passed=0
 failed=0
 
-pass() { passed=$((passed + 1)); echo "ok   $1"; }
+pass() {
+  passed=$((passed + 1))
+  if [ -n "${1:-}" ]; then echo "ok   $1"; fi
+}
 fail() { failed=$((failed + 1)); echo "FAIL $1"; }
+
+# $tmp: a scratch directory, removed when the script exits.
+tmp=$(mktemp -d "${TMPDIR:-/tmp}/mrvi-test.XXXXXX") || exit 1
+trap 'rm -rf "$tmp"' EXIT
+
+# need_python MODULE...: $py is /usr/bin/python3 and imports the modules,
+# or the test is skipped (exit 77).
+need_python() {
+  py=/usr/bin/python3
+  if ! "$py" -c "import $(IFS=,; echo "$*")" 2>/dev/null; then
+    echo "skipped: needs $py with $*"
+    exit 77
+  fi
+}
 
 # run_ok NAME CMD...: the command exits 0 (its output in $tmp/out.txt and
 # $tmp/err.txt)
@@ -24,5 +41,5 @@ run_ok() {
 
 test_finish() {
   echo "$passed passed, $failed failed"
-  [ "$failed" -eq 0 ]
+  [ "$failed" -eq 0 ] && [ "$passed" -gt 0 ]
 }
