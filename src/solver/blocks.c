@@ -48,6 +48,9 @@ struct mrvi_blocks {
    * the first assembly: Ass, Asf, Afs, D, L1, L2 in order. */
   int quad[2], const_ok;
   double *cblk;
+  /* V and W have the same points (midpoint-midpoint): each point is
+   * visited once with the two classes' gradients summed. */
+  int same_pts;
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -156,6 +159,12 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
                          sizeof(double)))) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
+  }
+  b->same_pts = st->n_pts[0] == st->n_pts[1];
+  for (int ip = 0; b->same_pts && ip < st->n_pts[0]; ip++) {
+    const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
+    b->same_pts = u->m == v->m && u->w == v->w && u->a0 == v->a0 &&
+                  u->a1 == v->a1 && u->cA == v->cA && u->cB == v->cB;
   }
   for (int i = 0; i < b->ns; i++)
     b->ms[i] = m->mass[m->slow_index[i]];
@@ -372,7 +381,8 @@ ALWAYS_INLINE void add_scaled_k(double *restrict dst, int ldd,
  * (a1 | cA node m, cB node m + 1) gets -w c_row c_col H_jl, as the scatter
  * of step.c (mrvi_step_rows_of, mrvi_step_cols_of). */
 ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
-                                   int cls, const int ns, const int nf) {
+                                   int has_s, int has_f, const int ns,
+                                   const int nf) {
   const int p = b->p, nz = ns + nf, nF = p * nf;
   const int mm = pt->m;
   const double *H = b->H;
@@ -397,10 +407,10 @@ ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
     cb[nc++] = mm;
   }
   const double w = pt->w;
-  if (b->has_s[cls]) {
+  if (has_s) {
     if (pt->a0 != 0.0 && pt->a1 != 0.0)
       add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * pt->a0 * pt->a1);
-    if (b->has_f[cls]) {
+    if (has_f) {
       for (int k = 0; pt->a0 != 0.0 && k < nc; k++)
         add_scaled_k(b->Asf + (size_t)cb[k] * nf, nF, H + ns, nz, ns, nf,
                      -w * pt->a0 * cc[k]);
@@ -409,7 +419,7 @@ ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
                      H + (size_t)ns * nz, nz, nf, ns, -w * rc[k] * pt->a1);
     }
   }
-  if (!b->has_f[cls])
+  if (!has_f)
     return;
   const double *Hff = H + (size_t)ns * nz + ns;
   for (int r = 0; r < nr; r++)
@@ -419,30 +429,41 @@ ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
 }
 
 static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
-  SMALL(b->ns, NS, SMALL(b->nf, NF, point_hessian_k(b, pt, cls, NS, NF)));
+  SMALL(b->ns, NS,
+        SMALL(b->nf, NF,
+              point_hessian_k(b, pt, b->has_s[cls], b->has_f[cls], NS, NF)));
 }
 
-/* Configuration zp of point pt at the displacements x (step.c, gather). */
+/* Configuration zp of point pt at the displacements x (step.c, gather):
+ * its slow part if slow, its fast part if fast (a class without inputs of
+ * one rate leaves that part unread). */
 ALWAYS_INLINE void point_config_k(mrvi_blocks *b, const mrvi_step *st,
                                   const double *x, const mrvi_point *pt,
-                                  const int ns, const int nf) {
+                                  int slow, int fast, const int ns,
+                                  const int nf) {
   const int mm = pt->m;
-  const double *dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
-  const double *dB = x + ns + (size_t)mm * nf;
+  const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  const double *restrict dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+  const double *restrict dB = x + ns + (size_t)mm * nf;
+  const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
   double *restrict zp = b->zp;
-  UNROLL for (int s = 0; s < ns; s++) zp[s] = st->qs0[s] + pt->a1 * x[s];
+  if (slow)
+    UNROLL for (int s = 0; s < ns; s++) zp[s] = qs0[s] + a1 * x[s];
+  if (!fast)
+    return;
   if (dA) {
     UNROLL for (int f = 0; f < nf; f++) zp[ns + f] =
-        pt->cA * (st->qf0[f] + dA[f]) + pt->cB * (st->qf0[f] + dB[f]);
+        cA * (qf0[f] + dA[f]) + cB * (qf0[f] + dB[f]);
   } else {
     UNROLL for (int f = 0; f < nf; f++) zp[ns + f] =
-        pt->cA * st->qf0[f] + pt->cB * (st->qf0[f] + dB[f]);
+        cA * qf0[f] + cB * (qf0[f] + dB[f]);
   }
 }
 
 static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          const mrvi_point *pt) {
-  SMALL(b->ns, NS, SMALL(b->nf, NF, point_config_k(b, st, x, pt, NS, NF)));
+  SMALL(b->ns, NS,
+        SMALL(b->nf, NF, point_config_k(b, st, x, pt, 1, 1, NS, NF)));
 }
 
 /* H of class c at point pt's configuration (G is scratch here). */
@@ -505,32 +526,52 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
    * the Hessian) of the class at the point's configuration, into the rows
-   * and blocks of its nodes. */
-  for (int c = 0; c < 2; c++)
+   * and blocks of its nodes; with the same points for V and W, both
+   * classes at once (c1 = 1). */
+  const int same = b->same_pts;
+  for (int c = 0; c < (same ? 1 : 2); c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
-      const int mm = pt->m, hess = jac && !b->quad[c];
-      point_config_k(b, st, x, pt, ns, nf);
-      memset(b->G, 0, (size_t)nz * sizeof(double));
+      const int c1 = same ? 1 : c, mm = pt->m;
+      const int h0 = jac && !b->quad[c], h1 = same && jac && !b->quad[1];
+      const int hess = h0 || h1;
+      /* The rows of a rate the classes have no inputs of get no gradient. */
+      const int hs = b->has_s[c] || b->has_s[c1],
+                hf = b->has_f[c] || b->has_f[c1];
+      point_config_k(b, st, x, pt, hs, hf, ns, nf);
+      double *restrict G = b->G;
+      UNROLL for (int i = 0; i < nz; i++) G[i] = 0.0;
       if (hess)
         memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, hess ? b->H : NULL, nz, 1.0);
-      const double w = pt->w, *Gf = b->G + ns;
-      if (pt->a0 != 0.0)
-        UNROLL for (int s = 0; s < ns; s++) R[s] -= w * pt->a0 * b->G[s];
-      if (pt->cA != 0.0)
-        UNROLL for (int f = 0; f < nf; f++) R[ns + mm * nf + f] -=
-            w * pt->cA * Gf[f];
-      if (pt->cB != 0.0 && mm + 1 <= p - 1)
-        UNROLL for (int f = 0; f < nf; f++) R[ns + (mm + 1) * nf + f] -=
-            w * pt->cB * Gf[f];
+      mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, h0 ? b->H : NULL, nz, 1.0);
+      if (same)
+        mrvi_terms_eval(b->kc[1], b->zp, 1.0, G, h1 ? b->H : NULL, nz, 1.0);
+      /* The point's factors in locals: R may alias nothing of pt, but the
+       * compiler cannot know. */
+      const double w = pt->w, a0 = pt->a0, a1 = pt->a1, cA = pt->cA,
+                   cB = pt->cB;
+      const double *restrict Gf = G + ns;
+      if (hs && a0 != 0.0)
+        UNROLL for (int s = 0; s < ns; s++) R[s] -= w * a0 * G[s];
+      if (hf && cA != 0.0) {
+        double *restrict Rm = R + ns + (size_t)mm * nf;
+        UNROLL for (int f = 0; f < nf; f++) Rm[f] -= w * cA * Gf[f];
+      }
+      if (hf && cB != 0.0 && mm + 1 <= p - 1) {
+        double *restrict Rm = R + ns + (size_t)(mm + 1) * nf;
+        UNROLL for (int f = 0; f < nf; f++) Rm[f] -= w * cB * Gf[f];
+      }
       if (mps) {
-        UNROLL for (int s = 0; s < ns; s++) mps[s] -= w * pt->a1 * b->G[s];
-        UNROLL for (int f = 0; f < nf; f++) mpf[mm * nf + f] -=
-            w * pt->cB * Gf[f];
+        if (hs)
+          UNROLL for (int s = 0; s < ns; s++) mps[s] -= w * a1 * G[s];
+        if (hf) {
+          double *restrict pm = mpf + (size_t)mm * nf;
+          UNROLL for (int f = 0; f < nf; f++) pm[f] -= w * cB * Gf[f];
+        }
       }
       if (hess)
-        point_hessian_k(b, pt, c, ns, nf);
+        point_hessian_k(b, pt, (h0 && b->has_s[c]) || (h1 && b->has_s[1]),
+                        (h0 && b->has_f[c]) || (h1 && b->has_f[1]), ns, nf);
     }
 }
 
