@@ -27,9 +27,11 @@ struct mrvi_blocks {
   int ns, nf, p;
   double *Ass, *Asf, *Afs; /* ns x ns, ns x p nf, p nf x ns */
   double *D, *L1, *L2;     /* p blocks nf x nf each: column m, m-1, m-2 */
-  int *piv;                /* p x nf (pivots of the factored D) */
-  double *dinv, *sdinv;    /* p x nf, ns: reciprocal pivots of D and S */
-  double *Y, *z, *S, *r;   /* p nf x ns, p nf, ns x ns, ns */
+  double *blk;             /* the six above, contiguous in this order */
+  size_t n_blk;
+  int *piv;              /* p x nf (pivots of the factored D) */
+  double *dinv, *sdinv;  /* p x nf, ns: reciprocal pivots of D and S */
+  double *Y, *z, *S, *r; /* p nf x ns (in place of Afs), p nf, ns x ns, ns */
   int *spiv;
   double **dst; /* block entry of every CSC entry (built on the first
                    factorisation: the pattern is fixed for the run) */
@@ -56,14 +58,8 @@ struct mrvi_blocks {
 void mrvi_blocks_free(mrvi_blocks *b) {
   if (!b)
     return;
-  free(b->Ass);
-  free(b->Asf);
-  free(b->Afs);
-  free(b->D);
-  free(b->L1);
-  free(b->L2);
+  free(b->blk);
   free(b->piv);
-  free(b->Y);
   free(b->z);
   free(b->S);
   free(b->r);
@@ -94,14 +90,9 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   const size_t nF = p * nf;
 #define ALLOC(ptr, count, type)                                                \
   ptr = calloc((count) > 0 ? (count) : 1, sizeof(type))
-  ALLOC(b->Ass, ns * ns, double);
-  ALLOC(b->Asf, ns * nF, double);
-  ALLOC(b->Afs, nF * ns, double);
-  ALLOC(b->D, p * nf * nf, double);
-  ALLOC(b->L1, p * nf * nf, double);
-  ALLOC(b->L2, p * nf * nf, double);
+  b->n_blk = ns * ns + 2 * ns * nF + 3 * p * nf * nf;
+  ALLOC(b->blk, b->n_blk, double);
   ALLOC(b->piv, nF, int);
-  ALLOC(b->Y, nF * ns, double);
   ALLOC(b->z, nF, double);
   ALLOC(b->S, ns * ns, double);
   ALLOC(b->r, ns, double);
@@ -115,12 +106,18 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->ms, ns, double);
   ALLOC(b->mf, nf, double);
 #undef ALLOC
-  if (!b->Ass || !b->Asf || !b->Afs || !b->D || !b->L1 || !b->L2 || !b->piv ||
-      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->dinv || !b->sdinv ||
-      !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
+  if (!b->blk || !b->piv || !b->z || !b->S || !b->r || !b->spiv || !b->dinv ||
+      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
+  b->Ass = b->blk;
+  b->Asf = b->Ass + ns * ns;
+  b->Afs = b->Asf + ns * nF;
+  b->D = b->Afs + nF * ns;
+  b->L1 = b->D + p * nf * nf;
+  b->L2 = b->L1 + p * nf * nf;
+  b->Y = b->Afs; /* the sweep for Y runs in place */
   const mrvi_model *m = st->model;
   int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
   if (!col) {
@@ -155,8 +152,7 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
       if (!mrvi_element_is_quadratic(&m->elements[st->elem_of_class[c][ie]]))
         b->quad[c] = 0;
   }
-  if (!(b->cblk = calloc(ns * ns + 2 * ns * nF + 3 * p * nf * nf + 1,
-                         sizeof(double)))) {
+  if (!(b->cblk = calloc(b->n_blk + 1, sizeof(double)))) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
@@ -216,13 +212,7 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
         }
     b->n_dst = nnz;
   }
-  memset(b->Ass, 0, (size_t)ns * (size_t)ns * sizeof(double));
-  memset(b->Asf, 0, (size_t)ns * (size_t)nF * sizeof(double));
-  memset(b->Afs, 0, (size_t)nF * (size_t)ns * sizeof(double));
-  const size_t bb = (size_t)p * (size_t)nf * (size_t)nf;
-  memset(b->D, 0, bb * sizeof(double));
-  memset(b->L1, 0, bb * sizeof(double));
-  memset(b->L2, 0, bb * sizeof(double));
+  memset(b->blk, 0, b->n_blk * sizeof(double));
   for (long q = 0; q < nnz; q++)
     *b->dst[q] += st->Ax[q];
   return MRVI_OK;
@@ -344,20 +334,13 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
 /* Zero the blocks (dir 0), save them to cblk (dir 1) or restore them from
  * cblk (dir 2). */
 static void copy_blocks(mrvi_blocks *b, int dir) {
-  const size_t ns = (size_t)b->ns, nF = (size_t)b->p * (size_t)b->nf;
-  const size_t bb = nF * (size_t)b->nf;
-  double *const blk[6] = {b->Ass, b->Asf, b->Afs, b->D, b->L1, b->L2};
-  const size_t len[6] = {ns * ns, ns * nF, nF * ns, bb, bb, bb};
-  double *c = b->cblk;
-  for (int i = 0; i < 6; i++) {
-    if (dir == 0)
-      memset(blk[i], 0, len[i] * sizeof(double));
-    else if (dir == 1)
-      memcpy(c, blk[i], len[i] * sizeof(double));
-    else
-      memcpy(blk[i], c, len[i] * sizeof(double));
-    c += len[i];
-  }
+  const size_t len = b->n_blk * sizeof(double);
+  if (dir == 0)
+    memset(b->blk, 0, len);
+  else if (dir == 1)
+    memcpy(b->cblk, b->blk, len);
+  else
+    memcpy(b->blk, b->cblk, len);
 }
 
 /* The fast-fast block of row block rb and column block cb (rb - cb in
@@ -390,33 +373,35 @@ ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
    * column block = node - 1). */
   double rc[2], cc[2];
   int rb[2], cb[2], nr = 0, nc = 0;
-  if (pt->cA != 0.0) {
-    rc[nr] = pt->cA;
+  const double cA = pt->cA, cB = pt->cB;
+  if (cA != 0.0) {
+    rc[nr] = cA;
     rb[nr++] = mm;
     if (mm >= 1) {
-      cc[nc] = pt->cA;
+      cc[nc] = cA;
       cb[nc++] = mm - 1;
     }
   }
-  if (pt->cB != 0.0) {
+  if (cB != 0.0) {
     if (mm + 1 <= p - 1) {
-      rc[nr] = pt->cB;
+      rc[nr] = cB;
       rb[nr++] = mm + 1;
     }
-    cc[nc] = pt->cB;
+    cc[nc] = cB;
     cb[nc++] = mm;
   }
-  const double w = pt->w;
+  /* In locals: the stores into the blocks could alias pt. */
+  const double w = pt->w, a0 = pt->a0, a1 = pt->a1;
   if (has_s) {
-    if (pt->a0 != 0.0 && pt->a1 != 0.0)
-      add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * pt->a0 * pt->a1);
+    if (a0 != 0.0 && a1 != 0.0)
+      add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * a0 * a1);
     if (has_f) {
-      for (int k = 0; pt->a0 != 0.0 && k < nc; k++)
+      for (int k = 0; a0 != 0.0 && k < nc; k++)
         add_scaled_k(b->Asf + (size_t)cb[k] * nf, nF, H + ns, nz, ns, nf,
-                     -w * pt->a0 * cc[k]);
-      for (int k = 0; pt->a1 != 0.0 && k < nr; k++)
+                     -w * a0 * cc[k]);
+      for (int k = 0; a1 != 0.0 && k < nr; k++)
         add_scaled_k(b->Afs + (size_t)rb[k] * nf * (size_t)ns, ns,
-                     H + (size_t)ns * nz, nz, nf, ns, -w * rc[k] * pt->a1);
+                     H + (size_t)ns * nz, nz, nf, ns, -w * rc[k] * a1);
     }
   }
   if (!has_f)
@@ -609,7 +594,7 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
 
 /* Factorise the blocks as they are (scattered or assembled directly). */
 static int factor_blocks(mrvi_blocks *b) {
-  const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
+  const int ns = b->ns, nf = b->nf, p = b->p;
   const size_t blk = (size_t)nf * (size_t)nf;
   int bad = 0;
   for (int m = 0; m < p && !bad; m++) {
@@ -619,8 +604,7 @@ static int factor_blocks(mrvi_blocks *b) {
   }
   if (bad)
     return MRVI_ESINGULAR;
-  /* Y = A_ff^-1 A_fs, S = A_ss - A_sf Y (factored) */
-  memcpy(b->Y, b->Afs, (size_t)nF * (size_t)ns * sizeof(double));
+  /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
   if (ns > 0)
     sweep_solve(b, b->Y, ns);
   SMALL(ns, NS, schur_k(b, NS));

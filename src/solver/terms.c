@@ -29,6 +29,7 @@ typedef struct kterm4 {
   int col[4];
   double a[4];
   double c, e, shift;
+  double ce, ce1; /* c e and c e (e - 1) (power_derivs' products) */
 } kterm4;
 
 struct mrvi_terms {
@@ -42,9 +43,9 @@ struct mrvi_terms {
 };
 
 /* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
- * phi, by repeated multiplication). */
-static inline void power_derivs(double c, double e, int k, double s, double *d1,
-                                double *d2) {
+ * phi, by repeated multiplication), from ce = c e and ce1 = c e (e - 1). */
+static inline void power_derivs_ce(double ce, double ce1, int k, double s,
+                                   double *d1, double *d2) {
   double sk = 1.0; /* s^(k-2), the product order of laws/power.c */
   switch (k) {
   case 3:
@@ -57,8 +58,13 @@ static inline void power_derivs(double c, double e, int k, double s, double *d1,
     for (int i = 2; i < k; i++)
       sk *= s;
   }
-  *d1 = k >= 1 ? c * e * (k >= 2 ? sk * s : 1.0) : 0.0;
-  *d2 = k >= 2 ? c * e * (e - 1) * sk : 0.0;
+  *d1 = k >= 1 ? ce * (k >= 2 ? sk * s : 1.0) : 0.0;
+  *d2 = k >= 2 ? ce1 * sk : 0.0;
+}
+
+static inline void power_derivs(double c, double e, int k, double s, double *d1,
+                                double *d2) {
+  power_derivs_ce(c * e, c * e * (e - 1), k, s, d1, d2);
 }
 
 /* A power law with a small integer exponent (evaluated inline). */
@@ -175,6 +181,8 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     q->c = t->c;
     q->e = t->e;
     q->shift = t->shift;
+    q->ce = t->c * t->e;
+    q->ce1 = t->c * t->e * (t->e - 1);
     for (int j = 0; j < t->n; j++) {
       q->col[j] = kc->col[t->first + j];
       q->a[j] = kc->coef[t->first + j];
@@ -236,7 +244,7 @@ ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
     d1 = c * s;
     d2 = c;
   } else {
-    power_derivs(c, q->e, q->k, s, &d1, &d2);
+    power_derivs_ce(q->ce, q->ce1, q->k, s, &d1, &d2);
   }
   UNROLL for (int j = 0; j < n; j++) g[col[j]] +=
       unit ? d1 * a[j] : scale * (d1 * a[j]);
