@@ -27,9 +27,11 @@ struct mrvi_blocks {
   int ns, nf, p;
   double *Ass, *Asf, *Afs; /* ns x ns, ns x p nf, p nf x ns */
   double *D, *L1, *L2;     /* p blocks nf x nf each: column m, m-1, m-2 */
-  int *piv;                /* p x nf (pivots of the factored D) */
-  double *dinv, *sdinv;    /* p x nf, ns: reciprocal pivots of D and S */
-  double *Y, *z, *S, *r;   /* p nf x ns, p nf, ns x ns, ns */
+  double *blk;             /* the six above, contiguous in this order */
+  size_t n_blk;
+  int *piv;              /* p x nf (pivots of the factored D) */
+  double *dinv, *sdinv;  /* p x nf, ns: reciprocal pivots of D and S */
+  double *Y, *z, *S, *r; /* p nf x ns (in place of Afs), p nf, ns x ns, ns */
   int *spiv;
   double **dst; /* block entry of every CSC entry (built on the first
                    factorisation: the pattern is fixed for the run) */
@@ -48,19 +50,16 @@ struct mrvi_blocks {
    * the first assembly: Ass, Asf, Afs, D, L1, L2 in order. */
   int quad[2], const_ok;
   double *cblk;
+  /* V and W have the same points (midpoint-midpoint): each point is
+   * visited once with the two classes' gradients summed. */
+  int same_pts;
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
   if (!b)
     return;
-  free(b->Ass);
-  free(b->Asf);
-  free(b->Afs);
-  free(b->D);
-  free(b->L1);
-  free(b->L2);
+  free(b->blk);
   free(b->piv);
-  free(b->Y);
   free(b->z);
   free(b->S);
   free(b->r);
@@ -91,14 +90,9 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   const size_t nF = p * nf;
 #define ALLOC(ptr, count, type)                                                \
   ptr = calloc((count) > 0 ? (count) : 1, sizeof(type))
-  ALLOC(b->Ass, ns * ns, double);
-  ALLOC(b->Asf, ns * nF, double);
-  ALLOC(b->Afs, nF * ns, double);
-  ALLOC(b->D, p * nf * nf, double);
-  ALLOC(b->L1, p * nf * nf, double);
-  ALLOC(b->L2, p * nf * nf, double);
+  b->n_blk = ns * ns + 2 * ns * nF + 3 * p * nf * nf;
+  ALLOC(b->blk, b->n_blk, double);
   ALLOC(b->piv, nF, int);
-  ALLOC(b->Y, nF * ns, double);
   ALLOC(b->z, nF, double);
   ALLOC(b->S, ns * ns, double);
   ALLOC(b->r, ns, double);
@@ -112,12 +106,18 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->ms, ns, double);
   ALLOC(b->mf, nf, double);
 #undef ALLOC
-  if (!b->Ass || !b->Asf || !b->Afs || !b->D || !b->L1 || !b->L2 || !b->piv ||
-      !b->Y || !b->z || !b->S || !b->r || !b->spiv || !b->dinv || !b->sdinv ||
-      !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
+  if (!b->blk || !b->piv || !b->z || !b->S || !b->r || !b->spiv || !b->dinv ||
+      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
+  b->Ass = b->blk;
+  b->Asf = b->Ass + ns * ns;
+  b->Afs = b->Asf + ns * nF;
+  b->D = b->Afs + nF * ns;
+  b->L1 = b->D + p * nf * nf;
+  b->L2 = b->L1 + p * nf * nf;
+  b->Y = b->Afs; /* the sweep for Y runs in place */
   const mrvi_model *m = st->model;
   int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
   if (!col) {
@@ -152,10 +152,15 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
       if (!mrvi_element_is_quadratic(&m->elements[st->elem_of_class[c][ie]]))
         b->quad[c] = 0;
   }
-  if (!(b->cblk = calloc(ns * ns + 2 * ns * nF + 3 * p * nf * nf + 1,
-                         sizeof(double)))) {
+  if (!(b->cblk = calloc(b->n_blk + 1, sizeof(double)))) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
+  }
+  b->same_pts = st->n_pts[0] == st->n_pts[1];
+  for (int ip = 0; b->same_pts && ip < st->n_pts[0]; ip++) {
+    const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
+    b->same_pts = u->m == v->m && u->w == v->w && u->a0 == v->a0 &&
+                  u->a1 == v->a1 && u->cA == v->cA && u->cB == v->cB;
   }
   for (int i = 0; i < b->ns; i++)
     b->ms[i] = m->mass[m->slow_index[i]];
@@ -207,13 +212,7 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
         }
     b->n_dst = nnz;
   }
-  memset(b->Ass, 0, (size_t)ns * (size_t)ns * sizeof(double));
-  memset(b->Asf, 0, (size_t)ns * (size_t)nF * sizeof(double));
-  memset(b->Afs, 0, (size_t)nF * (size_t)ns * sizeof(double));
-  const size_t bb = (size_t)p * (size_t)nf * (size_t)nf;
-  memset(b->D, 0, bb * sizeof(double));
-  memset(b->L1, 0, bb * sizeof(double));
-  memset(b->L2, 0, bb * sizeof(double));
+  memset(b->blk, 0, b->n_blk * sizeof(double));
   for (long q = 0; q < nnz; q++)
     *b->dst[q] += st->Ax[q];
   return MRVI_OK;
@@ -335,20 +334,13 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
 /* Zero the blocks (dir 0), save them to cblk (dir 1) or restore them from
  * cblk (dir 2). */
 static void copy_blocks(mrvi_blocks *b, int dir) {
-  const size_t ns = (size_t)b->ns, nF = (size_t)b->p * (size_t)b->nf;
-  const size_t bb = nF * (size_t)b->nf;
-  double *const blk[6] = {b->Ass, b->Asf, b->Afs, b->D, b->L1, b->L2};
-  const size_t len[6] = {ns * ns, ns * nF, nF * ns, bb, bb, bb};
-  double *c = b->cblk;
-  for (int i = 0; i < 6; i++) {
-    if (dir == 0)
-      memset(blk[i], 0, len[i] * sizeof(double));
-    else if (dir == 1)
-      memcpy(c, blk[i], len[i] * sizeof(double));
-    else
-      memcpy(blk[i], c, len[i] * sizeof(double));
-    c += len[i];
-  }
+  const size_t len = b->n_blk * sizeof(double);
+  if (dir == 0)
+    memset(b->blk, 0, len);
+  else if (dir == 1)
+    memcpy(b->cblk, b->blk, len);
+  else
+    memcpy(b->blk, b->cblk, len);
 }
 
 /* The fast-fast block of row block rb and column block cb (rb - cb in
@@ -372,7 +364,8 @@ ALWAYS_INLINE void add_scaled_k(double *restrict dst, int ldd,
  * (a1 | cA node m, cB node m + 1) gets -w c_row c_col H_jl, as the scatter
  * of step.c (mrvi_step_rows_of, mrvi_step_cols_of). */
 ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
-                                   int cls, const int ns, const int nf) {
+                                   int has_s, int has_f, const int ns,
+                                   const int nf) {
   const int p = b->p, nz = ns + nf, nF = p * nf;
   const int mm = pt->m;
   const double *H = b->H;
@@ -380,36 +373,38 @@ ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
    * column block = node - 1). */
   double rc[2], cc[2];
   int rb[2], cb[2], nr = 0, nc = 0;
-  if (pt->cA != 0.0) {
-    rc[nr] = pt->cA;
+  const double cA = pt->cA, cB = pt->cB;
+  if (cA != 0.0) {
+    rc[nr] = cA;
     rb[nr++] = mm;
     if (mm >= 1) {
-      cc[nc] = pt->cA;
+      cc[nc] = cA;
       cb[nc++] = mm - 1;
     }
   }
-  if (pt->cB != 0.0) {
+  if (cB != 0.0) {
     if (mm + 1 <= p - 1) {
-      rc[nr] = pt->cB;
+      rc[nr] = cB;
       rb[nr++] = mm + 1;
     }
-    cc[nc] = pt->cB;
+    cc[nc] = cB;
     cb[nc++] = mm;
   }
-  const double w = pt->w;
-  if (b->has_s[cls]) {
-    if (pt->a0 != 0.0 && pt->a1 != 0.0)
-      add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * pt->a0 * pt->a1);
-    if (b->has_f[cls]) {
-      for (int k = 0; pt->a0 != 0.0 && k < nc; k++)
+  /* In locals: the stores into the blocks could alias pt. */
+  const double w = pt->w, a0 = pt->a0, a1 = pt->a1;
+  if (has_s) {
+    if (a0 != 0.0 && a1 != 0.0)
+      add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * a0 * a1);
+    if (has_f) {
+      for (int k = 0; a0 != 0.0 && k < nc; k++)
         add_scaled_k(b->Asf + (size_t)cb[k] * nf, nF, H + ns, nz, ns, nf,
-                     -w * pt->a0 * cc[k]);
-      for (int k = 0; pt->a1 != 0.0 && k < nr; k++)
+                     -w * a0 * cc[k]);
+      for (int k = 0; a1 != 0.0 && k < nr; k++)
         add_scaled_k(b->Afs + (size_t)rb[k] * nf * (size_t)ns, ns,
-                     H + (size_t)ns * nz, nz, nf, ns, -w * rc[k] * pt->a1);
+                     H + (size_t)ns * nz, nz, nf, ns, -w * rc[k] * a1);
     }
   }
-  if (!b->has_f[cls])
+  if (!has_f)
     return;
   const double *Hff = H + (size_t)ns * nz + ns;
   for (int r = 0; r < nr; r++)
@@ -419,30 +414,41 @@ ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
 }
 
 static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
-  SMALL(b->ns, NS, SMALL(b->nf, NF, point_hessian_k(b, pt, cls, NS, NF)));
+  SMALL(b->ns, NS,
+        SMALL(b->nf, NF,
+              point_hessian_k(b, pt, b->has_s[cls], b->has_f[cls], NS, NF)));
 }
 
-/* Configuration zp of point pt at the displacements x (step.c, gather). */
+/* Configuration zp of point pt at the displacements x (step.c, gather):
+ * its slow part if slow, its fast part if fast (a class without inputs of
+ * one rate leaves that part unread). */
 ALWAYS_INLINE void point_config_k(mrvi_blocks *b, const mrvi_step *st,
                                   const double *x, const mrvi_point *pt,
-                                  const int ns, const int nf) {
+                                  int slow, int fast, const int ns,
+                                  const int nf) {
   const int mm = pt->m;
-  const double *dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
-  const double *dB = x + ns + (size_t)mm * nf;
+  const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  const double *restrict dA = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+  const double *restrict dB = x + ns + (size_t)mm * nf;
+  const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
   double *restrict zp = b->zp;
-  UNROLL for (int s = 0; s < ns; s++) zp[s] = st->qs0[s] + pt->a1 * x[s];
+  if (slow)
+    UNROLL for (int s = 0; s < ns; s++) zp[s] = qs0[s] + a1 * x[s];
+  if (!fast)
+    return;
   if (dA) {
     UNROLL for (int f = 0; f < nf; f++) zp[ns + f] =
-        pt->cA * (st->qf0[f] + dA[f]) + pt->cB * (st->qf0[f] + dB[f]);
+        cA * (qf0[f] + dA[f]) + cB * (qf0[f] + dB[f]);
   } else {
     UNROLL for (int f = 0; f < nf; f++) zp[ns + f] =
-        pt->cA * st->qf0[f] + pt->cB * (st->qf0[f] + dB[f]);
+        cA * qf0[f] + cB * (qf0[f] + dB[f]);
   }
 }
 
 static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          const mrvi_point *pt) {
-  SMALL(b->ns, NS, SMALL(b->nf, NF, point_config_k(b, st, x, pt, NS, NF)));
+  SMALL(b->ns, NS,
+        SMALL(b->nf, NF, point_config_k(b, st, x, pt, 1, 1, NS, NF)));
 }
 
 /* H of class c at point pt's configuration (G is scratch here). */
@@ -505,32 +511,52 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
    * the Hessian) of the class at the point's configuration, into the rows
-   * and blocks of its nodes. */
-  for (int c = 0; c < 2; c++)
+   * and blocks of its nodes; with the same points for V and W, both
+   * classes at once (c1 = 1). */
+  const int same = b->same_pts;
+  for (int c = 0; c < (same ? 1 : 2); c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
-      const int mm = pt->m, hess = jac && !b->quad[c];
-      point_config_k(b, st, x, pt, ns, nf);
-      memset(b->G, 0, (size_t)nz * sizeof(double));
+      const int c1 = same ? 1 : c, mm = pt->m;
+      const int h0 = jac && !b->quad[c], h1 = same && jac && !b->quad[1];
+      const int hess = h0 || h1;
+      /* The rows of a rate the classes have no inputs of get no gradient. */
+      const int hs = b->has_s[c] || b->has_s[c1],
+                hf = b->has_f[c] || b->has_f[c1];
+      point_config_k(b, st, x, pt, hs, hf, ns, nf);
+      double *restrict G = b->G;
+      UNROLL for (int i = 0; i < nz; i++) G[i] = 0.0;
       if (hess)
         memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, hess ? b->H : NULL, nz, 1.0);
-      const double w = pt->w, *Gf = b->G + ns;
-      if (pt->a0 != 0.0)
-        UNROLL for (int s = 0; s < ns; s++) R[s] -= w * pt->a0 * b->G[s];
-      if (pt->cA != 0.0)
-        UNROLL for (int f = 0; f < nf; f++) R[ns + mm * nf + f] -=
-            w * pt->cA * Gf[f];
-      if (pt->cB != 0.0 && mm + 1 <= p - 1)
-        UNROLL for (int f = 0; f < nf; f++) R[ns + (mm + 1) * nf + f] -=
-            w * pt->cB * Gf[f];
+      mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, h0 ? b->H : NULL, nz, 1.0);
+      if (same)
+        mrvi_terms_eval(b->kc[1], b->zp, 1.0, G, h1 ? b->H : NULL, nz, 1.0);
+      /* The point's factors in locals: R may alias nothing of pt, but the
+       * compiler cannot know. */
+      const double w = pt->w, a0 = pt->a0, a1 = pt->a1, cA = pt->cA,
+                   cB = pt->cB;
+      const double *restrict Gf = G + ns;
+      if (hs && a0 != 0.0)
+        UNROLL for (int s = 0; s < ns; s++) R[s] -= w * a0 * G[s];
+      if (hf && cA != 0.0) {
+        double *restrict Rm = R + ns + (size_t)mm * nf;
+        UNROLL for (int f = 0; f < nf; f++) Rm[f] -= w * cA * Gf[f];
+      }
+      if (hf && cB != 0.0 && mm + 1 <= p - 1) {
+        double *restrict Rm = R + ns + (size_t)(mm + 1) * nf;
+        UNROLL for (int f = 0; f < nf; f++) Rm[f] -= w * cB * Gf[f];
+      }
       if (mps) {
-        UNROLL for (int s = 0; s < ns; s++) mps[s] -= w * pt->a1 * b->G[s];
-        UNROLL for (int f = 0; f < nf; f++) mpf[mm * nf + f] -=
-            w * pt->cB * Gf[f];
+        if (hs)
+          UNROLL for (int s = 0; s < ns; s++) mps[s] -= w * a1 * G[s];
+        if (hf) {
+          double *restrict pm = mpf + (size_t)mm * nf;
+          UNROLL for (int f = 0; f < nf; f++) pm[f] -= w * cB * Gf[f];
+        }
       }
       if (hess)
-        point_hessian_k(b, pt, c, ns, nf);
+        point_hessian_k(b, pt, (h0 && b->has_s[c]) || (h1 && b->has_s[1]),
+                        (h0 && b->has_f[c]) || (h1 && b->has_f[1]), ns, nf);
     }
 }
 
@@ -568,7 +594,7 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
 
 /* Factorise the blocks as they are (scattered or assembled directly). */
 static int factor_blocks(mrvi_blocks *b) {
-  const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
+  const int ns = b->ns, nf = b->nf, p = b->p;
   const size_t blk = (size_t)nf * (size_t)nf;
   int bad = 0;
   for (int m = 0; m < p && !bad; m++) {
@@ -578,8 +604,7 @@ static int factor_blocks(mrvi_blocks *b) {
   }
   if (bad)
     return MRVI_ESINGULAR;
-  /* Y = A_ff^-1 A_fs, S = A_ss - A_sf Y (factored) */
-  memcpy(b->Y, b->Afs, (size_t)nF * (size_t)ns * sizeof(double));
+  /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
   if (ns > 0)
     sweep_solve(b, b->Y, ns);
   SMALL(ns, NS, schur_k(b, NS));

@@ -19,7 +19,18 @@ typedef struct kterm {
   int run; /* KT_LINEAR with one input: the number of such terms from here */
   double c, e, shift; /* stiffness or coefficient, exponent, offset b */
   const mrvi_element *el;
+  int run4, q4; /* KT_LINEAR or KT_POWER with 2..4 inputs: the number of
+                   such terms from here, their first record in q4 */
 } kterm;
+
+/* The few-input terms compact and contiguous (kterm4 runs). */
+typedef struct kterm4 {
+  int n, k; /* inputs; integer exponent, -1 for the linear law */
+  int col[4];
+  double a[4];
+  double c, e, shift;
+  double ce, ce1; /* c e and c e (e - 1) (power_derivs' products) */
+} kterm4;
 
 struct mrvi_terms {
   const mrvi_model *m;
@@ -28,12 +39,13 @@ struct mrvi_terms {
   int *col;
   double *coef;
   double *y, *g, *H; /* element workspace */
+  kterm4 *q4;
 };
 
 /* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
- * phi, by repeated multiplication). */
-static inline void power_derivs(double c, double e, int k, double s, double *d1,
-                                double *d2) {
+ * phi, by repeated multiplication), from ce = c e and ce1 = c e (e - 1). */
+static inline void power_derivs_ce(double ce, double ce1, int k, double s,
+                                   double *d1, double *d2) {
   double sk = 1.0; /* s^(k-2), the product order of laws/power.c */
   switch (k) {
   case 3:
@@ -46,8 +58,13 @@ static inline void power_derivs(double c, double e, int k, double s, double *d1,
     for (int i = 2; i < k; i++)
       sk *= s;
   }
-  *d1 = k >= 1 ? c * e * (k >= 2 ? sk * s : 1.0) : 0.0;
-  *d2 = k >= 2 ? c * e * (e - 1) * sk : 0.0;
+  *d1 = k >= 1 ? ce * (k >= 2 ? sk * s : 1.0) : 0.0;
+  *d2 = k >= 2 ? ce1 * sk : 0.0;
+}
+
+static inline void power_derivs(double c, double e, int k, double s, double *d1,
+                                double *d2) {
+  power_derivs_ce(c * e, c * e * (e - 1), k, s, d1, d2);
 }
 
 /* A power law with a small integer exponent (evaluated inline). */
@@ -80,6 +97,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->y);
   free(kc->g);
   free(kc->H);
+  free(kc->q4);
   free(kc);
 }
 
@@ -134,11 +152,41 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     first += e->n_in;
   }
   /* Runs of one-input linear terms (k q^2/2 on a coordinate: the stiff
-   * springs of W in the FPU) are evaluated in one loop. */
+   * springs of W in the FPU) are evaluated in one loop, and so are runs of
+   * terms with 2..4 inputs of the linear or a small power law (the quartic
+   * springs of V in the FPU), from compact records. */
+  int n4 = 0;
   for (int ie = n_elems - 1; ie >= 0; ie--) {
     kterm *t = &kc->t[ie];
+    const int next = ie + 1 < n_elems;
     if (t->kind == KT_LINEAR && t->n == 1)
-      t->run = 1 + (ie + 1 < n_elems ? kc->t[ie + 1].run : 0);
+      t->run = 1 + (next ? kc->t[ie + 1].run : 0);
+    if ((t->kind == KT_LINEAR || t->kind == KT_POWER) && t->n >= 2 &&
+        t->n <= 4) {
+      t->run4 = 1 + (next ? kc->t[ie + 1].run4 : 0);
+      n4++;
+    }
+  }
+  if (!(kc->q4 = calloc((size_t)(n4 > 0 ? n4 : 1), sizeof *kc->q4))) {
+    mrvi_terms_free(kc);
+    return MRVI_ENOMEM;
+  }
+  for (int ie = 0, i4 = 0; ie < n_elems; ie++) {
+    kterm *t = &kc->t[ie];
+    if (t->run4 == 0)
+      continue;
+    kterm4 *q = &kc->q4[t->q4 = i4++];
+    q->n = t->n;
+    q->k = t->kind == KT_LINEAR ? -1 : t->k;
+    q->c = t->c;
+    q->e = t->e;
+    q->shift = t->shift;
+    q->ce = t->c * t->e;
+    q->ce1 = t->c * t->e * (t->e - 1);
+    for (int j = 0; j < t->n; j++) {
+      q->col[j] = kc->col[t->first + j];
+      q->a[j] = kc->coef[t->first + j];
+    }
   }
   *out = kc;
   return MRVI_OK;
@@ -176,10 +224,61 @@ ALWAYS_INLINE void term_eval(const kterm *t, const int *col, const double *a,
     }
 }
 
-void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
-                     double *J, int ld, double hscale) {
+/* A compact term with n inputs (term_eval's arithmetic; unit: scale and
+ * hscale are 1, whose products are left out, bitwise the same).  Its data
+ * is read into locals first: the stores into g and J could alias it. */
+ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
+                              double *g, double *J, int ld, double hscale,
+                              const int n, const int unit) {
+  int col[4];
+  double a[4];
+  UNROLL for (int j = 0; j < n; j++) {
+    col[j] = q->col[j];
+    a[j] = q->a[j];
+  }
+  const double c = q->c;
+  double s = -q->shift;
+  UNROLL for (int j = 0; j < n; j++) s += a[j] * z[col[j]];
+  double d1, d2;
+  if (q->k < 0) {
+    d1 = c * s;
+    d2 = c;
+  } else {
+    power_derivs_ce(q->ce, q->ce1, q->k, s, &d1, &d2);
+  }
+  UNROLL for (int j = 0; j < n; j++) g[col[j]] +=
+      unit ? d1 * a[j] : scale * (d1 * a[j]);
+  if (J)
+    UNROLL for (int j = 0; j < n; j++) {
+      const double u = d2 * a[j];
+      double *Jj = J + (size_t)col[j] * (size_t)ld;
+      UNROLL for (int l = 0; l < n; l++) Jj[col[l]] +=
+          unit ? u * a[l] : hscale * (u * a[l]);
+    }
+}
+
+ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
+                          double *g, double *J, int ld, double hscale,
+                          const int unit) {
   for (int it = 0; it < kc->n; it++) {
     const kterm *t = &kc->t[it];
+    if (t->run4 > 0) {
+      const kterm4 *q = kc->q4 + t->q4;
+      for (int r = 0; r < t->run4; r++) {
+        switch (q[r].n) {
+        case 2:
+          term4_eval(q + r, z, scale, g, J, ld, hscale, 2, unit);
+          break;
+        case 3:
+          term4_eval(q + r, z, scale, g, J, ld, hscale, 3, unit);
+          break;
+        default:
+          term4_eval(q + r, z, scale, g, J, ld, hscale, 4, unit);
+        }
+      }
+      it += t->run4 - 1;
+      continue;
+    }
     const int n = t->n, *col = kc->col + t->first;
     const double *a = kc->coef + t->first;
     if (t->run > 1) { /* as below, one input each */
@@ -208,4 +307,12 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
     /* Unrolled for the common few-input terms. */
     SMALL(n, N, term_eval(t, col, a, z, scale, g, J, ld, hscale, N));
   }
+}
+
+void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
+                     double *J, int ld, double hscale) {
+  if (scale == 1.0 && (!J || hscale == 1.0))
+    eval_k(kc, z, scale, g, J, ld, hscale, 1);
+  else
+    eval_k(kc, z, scale, g, J, ld, hscale, 0);
 }
