@@ -512,8 +512,82 @@ static void test_predictor(void) {
   mrvi_system_free(sys);
 }
 
+/* Large macro steps at the fixed micro step dt = 0.001 of bench_fpu
+ * (dT = 0.1, 0.3, 1 with p = 100, 300, 1000): where the slow row is far
+ * from solved after the sweep (the quartic coupling over dT = 1), the
+ * predictor solves it by Newton steps with the fast nodes held and sweeps
+ * them again (predict.c).  Its residual at the initial state must then be
+ * within 10 sqrt(0.01 tol): sqrt(0.01 tol) is the residual from which one
+ * Newton update is expected to land at the 0.01 tol where the updates
+ * stop, and a sampled slow solve below the re-sweep threshold 10 (0.01
+ * tol)^(1/4) leaves the fast rows about 1e-3 of its change, 1.8e-5 here
+ * (measured: 4e-6 at dT = 0.1, 1e-8 .. 7e-7 at dT = 0.3 and 1; the
+ * fixed-point update alone leaves 1.2e-4, 7.5e-3 and 2.7e-1, and the runs
+ * took 1.22 / 2.62 / 4.30 updates per step).  Runs: at most 1.1 updates
+ * per step on average and 2 in any step (measured: 1.00, 1.00 .. 1.03,
+ * 1.00), every scheme whose slow row sees the micro nodes. */
+static void test_predictor_large_steps(void) {
+  static const char *const schemes[] = {
+      "midpoint-midpoint", "trapezoidal-midpoint", "trapezoidal-trapezoidal"};
+  static const char *const steps[][2] = {
+      {"integrator.macro_step=0.1", "integrator.micro_steps=100"},
+      {"integrator.macro_step=0.3", "integrator.micro_steps=300"},
+      {"integrator.macro_step=1", "integrator.micro_steps=1000"}};
+  const double tol = 1e-9;
+  for (int sc = 0; sc < 3; sc++)
+    for (int k = 0; k < 3; k++) {
+      char scheme[64], msg[512];
+      snprintf(scheme, sizeof scheme, "integrator.scheme=%s", schemes[sc]);
+      const char *set[] = {steps[k][0], steps[k][1], "integrator.t_end=5",
+                           "integrator.newton.tolerance=1e-9", scheme};
+      mrvi_system *sys = NULL;
+      CHECK(mrvi_system_load(test_source_path("systems/fpu.yaml"), set, 5, &sys,
+                             msg, sizeof msg) == 0,
+            "%s", msg);
+      if (!sys)
+        continue;
+      mrvi_step st;
+      mrvi_predictor *pr = NULL;
+      CHECK(mrvi_step_init(&st, sys->model, &sys->settings) == 0, "step init");
+      CHECK(mrvi_predictor_create(sys->model, &st, &pr) == 0, "predictor");
+      mrvi_predictor_set_tolerance(pr, tol);
+      const int nu = st.n_unknowns;
+      double qs[8], qf[8], ps[8], pf[8];
+      double *x = malloc((size_t)nu * sizeof *x);
+      double *R = malloc((size_t)nu * sizeof *R);
+      test_initial_data(&st, qs, qf, ps, pf);
+      st.increments = 1;
+      mrvi_predict_checked(pr, &st, x);
+      mrvi_step_assemble(&st, x, R, 0);
+      double r = 0.0;
+      for (int i = 0; i < nu; i++)
+        r = fmax(r, fabs(R[i]));
+      CHECK(r <= 10.0 * sqrt(0.01 * tol),
+            "%s %s: predictor residual %.2e > %.2e", schemes[sc], steps[k][0],
+            r, 10.0 * sqrt(0.01 * tol));
+      free(x);
+      free(R);
+      mrvi_predictor_free(pr);
+      mrvi_step_free(&st);
+      mrvi_summary sum;
+      CHECK(mrvi_run(sys->model, &sys->settings, NULL, NULL, NULL, &sum) == 0,
+            "%s %s: %s", schemes[sc], steps[k][0], sum.message);
+      CHECK(sum.iterations_total <= 1.1 * (double)sum.steps &&
+                sum.iterations_max <= 2,
+            "%s %s: %ld Newton updates in %ld steps (max %d)", schemes[sc],
+            steps[k][0], sum.iterations_total, sum.steps, sum.iterations_max);
+      printf("fpu %s %s: predictor residual %.2e, %.2f updates per step "
+             "(max %d)\n",
+             schemes[sc], steps[k][0], r,
+             (double)sum.iterations_total / (double)sum.steps,
+             sum.iterations_max);
+      mrvi_system_free(sys);
+    }
+}
+
 int main(void) {
   test_predictor();
+  test_predictor_large_steps();
   test_jacobian_solve_constrained();
   test_blowup();
   test_tiny_steps();
