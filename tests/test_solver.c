@@ -457,35 +457,58 @@ static void test_jacobian_solve_constrained(void) {
  * flight needs two); its frequency estimate finds the stiff springs'
  * omega = 50 (W = (omega^2/2)|q^f|^2 dominates the Hessian at q0); where
  * dt omega is large the sweep would be unstable and free flight is used. */
-static void test_predictor(void) {
+/* The FPU with the overrides set, a step of it and its predictor. */
+static mrvi_system *fpu_predictor(const char **set, int n_set, mrvi_step *st,
+                                  mrvi_predictor **pr) {
   char msg[512];
   mrvi_system *sys = NULL;
-  const char *set[] = {"integrator.macro_step=0.01",
-                       "integrator.micro_steps=10", "integrator.t_end=1"};
-  CHECK(mrvi_system_load(test_source_path("systems/fpu.yaml"), set, 3, &sys,
+  *pr = NULL;
+  CHECK(mrvi_system_load(test_source_path("systems/fpu.yaml"), set, n_set, &sys,
                          msg, sizeof msg) == 0,
         "%s", msg);
   if (!sys)
-    return;
+    return NULL;
+  CHECK(mrvi_step_init(st, sys->model, &sys->settings) == 0, "step init");
+  CHECK(mrvi_predictor_create(sys->model, st, pr) == 0, "predictor");
+  return sys;
+}
+
+/* max |R| at the initial state of the prediction (or free flight). */
+static double initial_residual(mrvi_step *st, mrvi_predictor *pr,
+                               int free_flight) {
+  const int nu = st->n_unknowns;
+  double qs[8], qf[8], ps[8], pf[8];
+  double *x = malloc((size_t)nu * sizeof *x);
+  double *R = malloc((size_t)nu * sizeof *R);
+  test_initial_data(st, qs, qf, ps, pf);
+  st->increments = 1;
+  if (free_flight)
+    mrvi_predict_free_flight(st, x);
+  else
+    mrvi_predict_checked(pr, st, x);
+  mrvi_step_assemble(st, x, R, 0);
+  double r = 0.0;
+  for (int i = 0; i < nu; i++)
+    r = fmax(r, fabs(R[i]));
+  free(x);
+  free(R);
+  return r;
+}
+
+static void test_predictor(void) {
+  const char *set[] = {"integrator.macro_step=0.01",
+                       "integrator.micro_steps=10", "integrator.t_end=1"};
   mrvi_step st;
-  mrvi_predictor *pr = NULL;
-  CHECK(mrvi_step_init(&st, sys->model, &sys->settings) == 0, "step init");
-  CHECK(mrvi_predictor_create(sys->model, &st, &pr) == 0, "predictor");
+  mrvi_predictor *pr;
+  mrvi_system *sys = fpu_predictor(set, 3, &st, &pr);
+  if (!sys)
+    return;
+  char msg[512];
   const double w = mrvi_predictor_omega_max(pr);
   CHECK(fabs(w - 50.0) < 0.5, "omega_max at q0 = %.4f (50 expected)", w);
   /* Residual of the prediction and of free flight at the initial state. */
-  double qs[8], qf[8], ps[8], pf[8], x[64], R[64], Rff[64];
-  test_initial_data(&st, qs, qf, ps, pf);
-  st.increments = 1;
-  mrvi_predict_checked(pr, &st, x);
-  mrvi_step_assemble(&st, x, R, 0);
-  mrvi_predict_free_flight(&st, x);
-  mrvi_step_assemble(&st, x, Rff, 0);
-  double r = 0.0, rff = 0.0;
-  for (int i = 0; i < st.n_unknowns; i++) {
-    r = fmax(r, fabs(R[i]));
-    rff = fmax(rff, fabs(Rff[i]));
-  }
+  const double r = initial_residual(&st, pr, 0);
+  const double rff = initial_residual(&st, pr, 1);
   CHECK(r < 1e-3 * rff, "predictor residual %.2e, free flight %.2e", r, rff);
   printf("predictor: omega_max %.4f, residual %.2e (free flight %.2e)\n", w, r,
          rff);
@@ -536,37 +559,20 @@ static void test_predictor_large_steps(void) {
   const double tol = 1e-9;
   for (int sc = 0; sc < 3; sc++)
     for (int k = 0; k < 3; k++) {
-      char scheme[64], msg[512];
+      char scheme[64];
       snprintf(scheme, sizeof scheme, "integrator.scheme=%s", schemes[sc]);
       const char *set[] = {steps[k][0], steps[k][1], "integrator.t_end=5",
                            "integrator.newton.tolerance=1e-9", scheme};
-      mrvi_system *sys = NULL;
-      CHECK(mrvi_system_load(test_source_path("systems/fpu.yaml"), set, 5, &sys,
-                             msg, sizeof msg) == 0,
-            "%s", msg);
+      mrvi_step st;
+      mrvi_predictor *pr;
+      mrvi_system *sys = fpu_predictor(set, 5, &st, &pr);
       if (!sys)
         continue;
-      mrvi_step st;
-      mrvi_predictor *pr = NULL;
-      CHECK(mrvi_step_init(&st, sys->model, &sys->settings) == 0, "step init");
-      CHECK(mrvi_predictor_create(sys->model, &st, &pr) == 0, "predictor");
       mrvi_predictor_set_tolerance(pr, tol);
-      const int nu = st.n_unknowns;
-      double qs[8], qf[8], ps[8], pf[8];
-      double *x = malloc((size_t)nu * sizeof *x);
-      double *R = malloc((size_t)nu * sizeof *R);
-      test_initial_data(&st, qs, qf, ps, pf);
-      st.increments = 1;
-      mrvi_predict_checked(pr, &st, x);
-      mrvi_step_assemble(&st, x, R, 0);
-      double r = 0.0;
-      for (int i = 0; i < nu; i++)
-        r = fmax(r, fabs(R[i]));
+      const double r = initial_residual(&st, pr, 0);
       CHECK(r <= 10.0 * sqrt(0.01 * tol),
             "%s %s: predictor residual %.2e > %.2e", schemes[sc], steps[k][0],
             r, 10.0 * sqrt(0.01 * tol));
-      free(x);
-      free(R);
       mrvi_predictor_free(pr);
       mrvi_step_free(&st);
       mrvi_summary sum;
