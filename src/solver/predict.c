@@ -11,7 +11,8 @@
  *   fast row m  p^{f,m} - M^f (d^{m+1} - d^m)/dt - F_m^A = 0, F_m^A the sum
  *               over the points of interval m of w cA grad_f Z(z), with the
  *               implicit points (cA cB != 0) at the estimate d^{m+1} of the
- *               last interval's implicit force; then
+ *               implicit force extrapolated from the last two intervals';
+ *               then
  *               p^{f,m+1} = M^f (d^{m+1} - d^m)/dt - F_m^B (eq:pkfm+).
  *
  * Rectangle and trapezoidal rules are reproduced exactly (their points lie
@@ -21,6 +22,11 @@
  * coordinates), it is solved again with the forces of its points along the
  * swept path (summed during the sweep).  Cost: one evaluation of the
  * gradients at the points, no Jacobian.
+ *
+ * Where the slow row is still far from solved after that (a large dT
+ * with a non-linear V), it is solved by Newton's method on a sample of its
+ * points with the fast nodes held, and the fast nodes swept again
+ * (slow_newton).
  *
  * The sweep is explicit: it is used only where dt omega_max <= 1/2 at the
  * initial state (omega_max the largest frequency of hess(V + W) in the mass
@@ -35,10 +41,12 @@
 
 /* Slow Newton steps of the predictor (slow_newton): at most this many
  * per step, on models of at most MRVI_SLOW_NEWTON_N coordinates (the
- * Hessian sum is dense). */
+ * Hessian sum is dense), with at most MRVI_SLOW_SAMPLES sampled points
+ * (FPU, dT = 1, p = 1000: 16 or 32 keep one Newton update per step, 8 do
+ * not: 1.6). */
 #define MRVI_SLOW_NEWTON_MAX 8
 #define MRVI_SLOW_NEWTON_N 64
-#define MRVI_SLOW_SAMPLES 64
+#define MRVI_SLOW_SAMPLES 32
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -75,22 +83,30 @@ struct mrvi_predictor {
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
- * (a0 a1 != 0), every stride-th of each class, stride such that at most
- * MRVI_SLOW_SAMPLES are taken in all; a sample stands for the points
- * around it by the ratio of the sums of w a0 a1. */
+ * (a0 a1 != 0, of a class with a slow input), every stride-th of each
+ * class, stride such that at most MRVI_SLOW_SAMPLES are taken in all; a
+ * sample stands for the points around it by the ratio of the sums of
+ * w a0 a1. */
 static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
-  int count = 0;
-  for (int c = 0; c < 2; c++)
-    for (int ip = 0; ip < st->n_pts[c]; ip++)
+  const mrvi_model *m = pr->m;
+  int slow_in[2] = {0, 0}, count = 0;
+  for (int c = 0; c < 2; c++) {
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      for (int j = 0; j < e->n_in; j++)
+        slow_in[c] |= m->rate[e->in[j]] == MRVI_SLOW;
+    }
+    for (int ip = 0; slow_in[c] && ip < st->n_pts[c]; ip++)
       count += st->pts[c][ip].a0 * st->pts[c][ip].a1 != 0.0;
+  }
   const int stride = (count + MRVI_SLOW_SAMPLES - 1) / MRVI_SLOW_SAMPLES;
   pr->n_samples = 0;
   for (int c = 0; c < 2; c++) {
     double all = 0.0, taken = 0.0;
-    for (int ip = 0, j = 0; ip < st->n_pts[c]; ip++) {
+    for (int ip = 0, j = 0; slow_in[c] && ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       const double w = pt->w * pt->a0 * pt->a1;
-      if (w == 0.0 || st->n_elem_of_class[c] == 0)
+      if (w == 0.0)
         continue;
       all += w;
       if (j++ % stride == stride / 2) {
