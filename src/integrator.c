@@ -369,6 +369,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   /* Pattern and symbolic analysis once per run. */
   if (mrvi_predictor_create(m, &it->step, &it->predictor) < 0)
     goto oom;
+  mrvi_predictor_set_tolerance(it->predictor, s->newton_tol);
   predict(it);
   if ((st = mrvi_step_build_pattern(&it->step, it->x)) < 0)
     goto oom;

@@ -436,6 +436,10 @@ typedef struct mrvi_predictor mrvi_predictor;
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
                           mrvi_predictor **out);
 void mrvi_predictor_free(mrvi_predictor *pr);
+/* The Newton tolerance of the step: where the slow row is far from solved
+ * the predictor solves it by Newton steps on the sweep (predict.c); without
+ * a tolerance it makes the fixed-point update only. */
+void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol);
 /* The sweep, or free flight where the sweep would be unstable (see
  * predict.c) or produces non-finite values. */
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x);

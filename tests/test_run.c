@@ -78,8 +78,9 @@ static void interruption(void) {
 /* A run restarted from a saved (q, p) continues the same trajectory bit for
  * bit: the one-step map only needs (q_k, p_k) (arXiv 2406.12991 §3.1,
  * doc/solver.md); no solver state (predictor forces, factors, multipliers)
- * is carried from one step to the next.  On the schur, sweep (with a
- * non-linear W: the lattice's fast springs) and explicit paths. */
+ * is carried from one step to the next.  On the schur (also where the
+ * predictor solves the slow row), sweep (with a non-linear W: the
+ * lattice's fast springs) and explicit paths. */
 static void restart_case(const mrvi_model *m, const mrvi_settings *s,
                          const char *label) {
   mrvi_integrator *a = NULL, *b = NULL;
@@ -126,6 +127,10 @@ static void restart(void) {
   m = test_fpu();
   s = test_settings("fully-explicit", 0.01, 5, 1.0, 1e-12);
   restart_case(m, &s, "fpu, fully-explicit");
+  /* dT = 1 with dt = 0.001: the predictor solves the slow row by sampled
+   * Newton steps and sweeps again (solver/predict.c, slow_newton). */
+  s = test_settings("midpoint-midpoint", 1.0, 1000, 20.0, 1e-9);
+  restart_case(m, &s, "fpu dT = 1, p = 1000, midpoint-midpoint");
   mrvi_model_free(m);
   mrvi_system *sys = NULL;
   const char *set[] = {"integrator.scheme=explicit-slow",

@@ -11,7 +11,8 @@
  *   fast row m  p^{f,m} - M^f (d^{m+1} - d^m)/dt - F_m^A = 0, F_m^A the sum
  *               over the points of interval m of w cA grad_f Z(z), with the
  *               implicit points (cA cB != 0) at the estimate d^{m+1} of the
- *               last interval's implicit force; then
+ *               implicit force extrapolated from the last two intervals';
+ *               then
  *               p^{f,m+1} = M^f (d^{m+1} - d^m)/dt - F_m^B (eq:pkfm+).
  *
  * Rectangle and trapezoidal rules are reproduced exactly (their points lie
@@ -21,6 +22,11 @@
  * coordinates), it is solved again with the forces of its points along the
  * swept path (summed during the sweep).  Cost: one evaluation of the
  * gradients at the points, no Jacobian.
+ *
+ * Where the slow row is still far from solved after that (a large dT
+ * with a non-linear V), it is solved by Newton's method on a sample of its
+ * points with the fast nodes held, and the fast nodes swept again
+ * (slow_newton).
  *
  * The sweep is explicit: it is used only where dt omega_max <= 1/2 at the
  * initial state (omega_max the largest frequency of hess(V + W) in the mass
@@ -32,6 +38,15 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+
+/* Slow Newton steps of the predictor (slow_newton): at most this many
+ * per step, on models of at most MRVI_SLOW_NEWTON_N coordinates (the
+ * Hessian sum is dense), with at most MRVI_SLOW_SAMPLES sampled points
+ * (FPU, dT = 1, p = 1000: 16 or 32 keep one Newton update per step, 8 do
+ * not: 1.6). */
+#define MRVI_SLOW_NEWTON_MAX 8
+#define MRVI_SLOW_NEWTON_N 64
+#define MRVI_SLOW_SAMPLES 32
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -47,13 +62,61 @@ struct mrvi_predictor {
   /* Vectors of n entries (model order in omega_max; packed (q^s, q^f) in
    * the sweep): configuration, gradient, slow-row force (ns), the explicit
    * and implicit parts of F_m^A, and F_m^B (nf each). */
-  double *z, *g, *fs, *fexp, *fimp, *fb;
-  double *pm;        /* p^{f,m} (nf) */
-  double *minv;      /* 1 / mass, packed (n) */
-  char *kinds[2];    /* kind of every point of V and W (see kind) */
-  int has_kind[3];   /* some point of V or W is of that kind */
-  mrvi_terms *kc[2]; /* V and W compiled on the packed columns (terms.c) */
+  double *z, *g, *fs, *fexp, *fimp, *fb, *fimp1;
+  double *pm;    /* p^{f,m} (nf) */
+  double *H;     /* sum w a0 a1 hess Z along the sweep, packed (n x n;
+                    NULL for n > MRVI_SLOW_NEWTON_N: no Newton steps) */
+  double *xs;    /* swept slow displacement, sampled forces (3 ns) */
+  double *A, *b; /* slow Newton matrix (ns x ns), right-hand side and
+                    fixed-point update (2 ns) */
+  int *sample;   /* sampled points: ip of V, -1 - ip of W */
+  int n_samples;
+  double sample_w[2]; /* weight of a sample relative to its point */
+  double rstop;       /* slow-row residual above which the slow row is solved
+                         by Newton steps (mrvi_predictor_set_tolerance) */
+  double rsweep;      /* change of that solve above which the fast nodes are
+                         swept again */
+  double *minv;       /* 1 / mass, packed (n) */
+  char *kinds[2];     /* kind of every point of V and W (see kind) */
+  int has_kind[3];    /* some point of V or W is of that kind */
+  mrvi_terms *kc[2];  /* V and W compiled on the packed columns (terms.c) */
 };
+
+/* The points whose force on the slow row changes with q_{k+1}^s
+ * (a0 a1 != 0, of a class with a slow input), every stride-th of each
+ * class, stride such that at most MRVI_SLOW_SAMPLES are taken in all; a
+ * sample stands for the points around it by the ratio of the sums of
+ * w a0 a1. */
+static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
+  const mrvi_model *m = pr->m;
+  int slow_in[2] = {0, 0}, count = 0;
+  for (int c = 0; c < 2; c++) {
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      for (int j = 0; j < e->n_in; j++)
+        slow_in[c] |= m->rate[e->in[j]] == MRVI_SLOW;
+    }
+    for (int ip = 0; slow_in[c] && ip < st->n_pts[c]; ip++)
+      count += st->pts[c][ip].a0 * st->pts[c][ip].a1 != 0.0;
+  }
+  const int stride = (count + MRVI_SLOW_SAMPLES - 1) / MRVI_SLOW_SAMPLES;
+  pr->n_samples = 0;
+  for (int c = 0; c < 2; c++) {
+    double all = 0.0, taken = 0.0;
+    for (int ip = 0, j = 0; slow_in[c] && ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      const double w = pt->w * pt->a0 * pt->a1;
+      if (w == 0.0)
+        continue;
+      all += w;
+      if (j++ % stride == stride / 2) {
+        taken += w;
+        pr->sample[pr->n_samples++] = c == 0 ? ip : -ip - 1;
+      }
+    }
+    pr->sample_w[c] = taken != 0.0 ? all / taken : 0.0;
+  }
+}
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
                           mrvi_predictor **out) {
@@ -63,14 +126,17 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     return MRVI_ENOMEM;
   const size_t n = (size_t)(m->n > 0 ? m->n : 1);
   pr->m = m;
-  double **vec[] = {&pr->z, &pr->g, &pr->fs, &pr->fexp, &pr->fimp, &pr->fb};
+  double **vec[] = {&pr->z,    &pr->g,  &pr->fs,   &pr->fexp,
+                    &pr->fimp, &pr->fb, &pr->fimp1};
   for (size_t i = 0; i < sizeof vec / sizeof *vec; i++)
     if (!(*vec[i] = malloc(n * sizeof(double)))) {
       mrvi_predictor_free(pr);
       return MRVI_ENOMEM;
     }
   if (!(pr->pm =
-            malloc((size_t)(m->n_fast > 0 ? m->n_fast : 1) * sizeof(double)))) {
+            malloc((size_t)(m->n_fast > 0 ? m->n_fast : 1) * sizeof(double))) ||
+      !(pr->xs = malloc(3 * n * sizeof(double))) ||
+      !(pr->b = malloc(2 * n * sizeof(double)))) {
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
@@ -117,6 +183,19 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       }
     }
   pr->sweep_ok = st->dt * mrvi_predictor_omega_max(pr) <= 0.5;
+  pr->rstop = pr->rsweep = INFINITY;
+  if (pr->slow_coupled && m->n <= MRVI_SLOW_NEWTON_N) {
+    const size_t ns = (size_t)(m->n_slow > 0 ? m->n_slow : 1);
+    pr->H = malloc(n * n * sizeof(double));
+    pr->A = malloc(ns * ns * sizeof(double));
+    pr->sample =
+        malloc((size_t)(st->n_pts[0] + st->n_pts[1] + 1) * sizeof(int));
+    if (!pr->H || !pr->A || !pr->sample) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
+    choose_samples(pr, st);
+  }
   *out = pr;
   return MRVI_OK;
 }
@@ -129,8 +208,14 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fs);
   free(pr->fexp);
   free(pr->fimp);
+  free(pr->fimp1);
   free(pr->fb);
   free(pr->pm);
+  free(pr->H);
+  free(pr->xs);
+  free(pr->A);
+  free(pr->b);
+  free(pr->sample);
   free(pr->minv);
   free(pr->kinds[0]);
   free(pr->kinds[1]);
@@ -200,7 +285,8 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
  * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed. */
 ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     const double *x, const mrvi_point *pt,
-                                    int c, const int ns, const int nf) {
+                                    int c, const int ns, const int nf,
+                                    double *J, double hscale) {
   double *restrict z = pr->z, *restrict g = pr->g;
   UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s] + pt->a1 * x[s];
   const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
@@ -209,12 +295,12 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
       st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
       (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
   UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
-  mrvi_terms_eval(pr->kc[c], z, 1.0, g, NULL, 0, 0.0);
+  mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
 }
 
 static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
                            const double *x, const mrvi_point *pt, int c) {
-  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf);
+  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf, NULL, 0.0);
 }
 
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
@@ -235,7 +321,7 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
       if (pr->kinds[c][ip] != k)
         continue;
       const mrvi_point *pt = &st->pts[c][ip];
-      point_gradient_k(pr, st, x, pt, c, ns, nf);
+      point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0);
       if (fa && pt->cA != 0.0)
         axpy(nf, pt->w * pt->cA, pr->g + ns, fa);
       if (fb && pt->cB != 0.0)
@@ -278,8 +364,18 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
     eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
                   nf);
-    /* Estimate with the last interval's implicit force (in interval 0,
-     * with the implicit points evaluated once at a first estimate). */
+    /* Estimate with the implicit force of the last intervals (in interval
+     * 0, with the implicit points evaluated once at a first estimate). */
+    /* From interval 2 on, the implicit force extrapolated linearly from
+     * the last two intervals' (an error O(dt^2) instead of O(dt)). */
+    if (mm >= 2)
+      UNROLL for (int f = 0; f < nf; f++) {
+        const double fi = pr->fimp[f];
+        pr->fimp[f] = 2.0 * fi - pr->fimp1[f];
+        pr->fimp1[f] = fi;
+      }
+    else
+      UNROLL for (int f = 0; f < nf; f++) pr->fimp1[f] = pr->fimp[f];
     for (int pass = mm == 0 ? 0 : 1; pass < 2; pass++) {
       SOLVE_ROW();
       UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
@@ -313,6 +409,91 @@ static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     x[s] = st->dT * pr->minv[s] * (st->ps0[s] - pr->fs[s]);
 }
 
+/* Slow-row force of the sampled points (see slow_newton) at the slow
+ * displacement x_s = x[0..ns) with the fast nodes of x: f = sum over the
+ * samples of sw w a0 grad_s Z, H += sw w a0 a1 hess Z (packed, n x n). */
+static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
+                          const double *x, double *f) {
+  const int ns = st->ns, n = ns + st->nf;
+  memset(f, 0, (size_t)ns * sizeof(double));
+  memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
+  for (int i = 0; i < pr->n_samples; i++) {
+    const int c = pr->sample[i] < 0 ? 1 : 0;
+    const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
+    const mrvi_point *pt = &st->pts[c][ip];
+    const double w = pr->sample_w[c] * pt->w * pt->a0;
+    point_gradient_k(pr, st, x, pt, c, ns, st->nf, pr->H, w * pt->a1);
+    axpy(ns, w, pr->g, f);
+  }
+}
+
+static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
+                          const double *x) {
+  double r = 0.0;
+  for (int s = 0; s < st->ns; s++)
+    r = fmax(r, fabs(x[s] - pr->xs[s]) / (st->dT * pr->minv[s]));
+  return r;
+}
+
+/* y solving M (y - x_s') / dT + F~(y) - F~(x_s) = 0 by Newton's method
+ * from y = x_s (x_s, the swept path, in xs; x_s' in x, y written to x). */
+static void sampled_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  const int ns = st->ns, n = ns + st->nf;
+  double *f0 = pr->xs + ns, *f = pr->xs + 2 * ns, *xf = pr->b + ns;
+  memcpy(xf, x, (size_t)ns * sizeof(double));
+  memcpy(x, pr->xs, (size_t)ns * sizeof(double));
+  sampled_force(pr, st, x, f0);
+  for (int it = 0; it < MRVI_SLOW_NEWTON_MAX; it++) {
+    if (it > 0)
+      sampled_force(pr, st, x, f);
+    double step = 0.0;
+    for (int i = 0; i < ns; i++) {
+      const double mdt = 1.0 / (st->dT * pr->minv[i]);
+      for (int j = 0; j < ns; j++)
+        pr->A[i * ns + j] = pr->H[i * n + j] + (i == j ? mdt : 0.0);
+      pr->b[i] = mdt * (x[i] - xf[i]) + (it > 0 ? f[i] - f0[i] : 0.0);
+    }
+    if (mrvi_dense_solve(ns, pr->A, pr->b) < 0)
+      return;
+    for (int i = 0; i < ns; i++) {
+      x[i] -= pr->b[i];
+      step = fmax(step, fabs(pr->b[i]) / (st->dT * pr->minv[i]));
+    }
+    if (!(step > 1e-3 * pr->rstop))
+      return;
+  }
+}
+
+/* The slow row solved along the swept path (doc/solver.md, "Predictor").
+ * On entry x_s = x[0..ns) is the slow displacement the fast nodes were
+ * swept along and fs the slow-row force of the points of that path.  The
+ * fixed-point update x_s' = dT M^-1 (p_k^s - fs) contracts by about
+ * dT^2 |M^-1 hess V| / 3, enough at small dT.  Where the change it makes,
+ * r = M |x_s' - x_s| / dT (the slow row's residual on the swept path), is
+ * above rstop, the slow row is instead solved by Newton's method with the
+ * fast nodes held, the change of the force along the path taken from a
+ * sample of its points (sampled_solve, cost independent of p); where that
+ * moves x_s by more than rsweep (same measure), the fast nodes are swept
+ * again along the new slow path and the slow row solved again.  What the
+ * sampled solve leaves out, the response of the fast nodes to x_s and the
+ * sample's quadrature error, is a small fraction of its change (FPU: about
+ * 1e-3).  Every step of this depends on (q_k, p_k) only. */
+static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  const int ns = st->ns;
+  memcpy(pr->xs, x, (size_t)ns * sizeof(double));
+  slow_update(pr, st, x);
+  if (!pr->H || !(slow_change(pr, st, x) > pr->rstop))
+    return;
+  for (int k = 0; k < MRVI_SLOW_NEWTON_MAX; k++) {
+    sampled_solve(pr, st, x);
+    if (!(slow_change(pr, st, x) > pr->rsweep) || k == MRVI_SLOW_NEWTON_MAX - 1)
+      return;
+    sweep(pr, st, x, 1);
+    memcpy(pr->xs, x, (size_t)ns * sizeof(double));
+    slow_update(pr, st, x);
+  }
+}
+
 static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   if (!pr->sweep_ok) {
     mrvi_predict_free_flight(st, x);
@@ -340,7 +521,7 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
    * the fast nodes once more along the corrected slow path does not save
    * a Newton update on the FPU: measured, it only costs a sweep.) */
   sweep(pr, st, x, 1);
-  slow_update(pr, st, x);
+  slow_newton(pr, st, x);
 }
 
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
@@ -352,4 +533,17 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     bad += x[i] * 0.0;
   if (bad != 0.0 || bad != bad)
     mrvi_predict_free_flight(st, x);
+}
+
+void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
+  /* A Newton step from a slow-row residual r leaves about r^2 (the
+   * quadratic constant of the FPU's slow row is 0.2..1 per unit momentum):
+   * above rstop = (0.01 tol)^(1/4), a fixed-point update would leave more
+   * than sqrt(0.01 tol), from where one Newton update of the step lands at
+   * the 0.01 tol where the updates stop (integrator.c).  The fast path,
+   * swept along the old slow path, lags a sampled solve's change by about
+   * 1e-3 of it (FPU), hence a new sweep only above 10 rstop (measured on
+   * bench_fpu: 1.8e-2 at tol = 1e-9 is the fastest of 3e-3 .. 5e-2). */
+  pr->rstop = pow(0.01 * tol, 0.25);
+  pr->rsweep = 10.0 * pr->rstop;
 }
