@@ -600,6 +600,61 @@ static double *read_dataset(const char *path, const char *name, size_t *n) {
   return q;
 }
 
+/* Root string attribute name of the HDF5 file path into out ("" if
+ * missing). */
+static void read_root_string(const char *path, const char *name, char *out,
+                             size_t len) {
+  out[0] = 0;
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0)
+    return;
+  hid_t a = H5Aexists(f, name) > 0 ? H5Aopen(f, name, H5P_DEFAULT) : -1;
+  if (a >= 0) {
+    hid_t t = H5Aget_type(a);
+    const size_t n = H5Tget_size(t);
+    if (n < len && H5Aread(a, t, out) >= 0)
+      out[n] = 0;
+    H5Tclose(t);
+    H5Aclose(a);
+  }
+  H5Fclose(f);
+}
+
+/* The step solver path of the forward pass in `mrvi optimize`'s summary
+ * and in the root attribute "solver" of its output: schur for the double
+ * integrator (midpoint-midpoint), sweep with explicit-slow, general for the
+ * constrained gantry crane. */
+static void test_cli_path(void) {
+  const char *bin = getenv("MRVI_BIN");
+  if (!bin)
+    return;
+  const struct {
+    const char *file, *extra, *path;
+  } cases[] = {
+      {"systems/ocp_double_integrator.yaml", "", "schur"},
+      {"systems/ocp_double_integrator.yaml",
+       "--set integrator.scheme=explicit-slow", "sweep"},
+      {"systems/ocp_gantry_crane.yaml", "", "general"},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    char cmd[2048], attr[64];
+    snprintf(cmd, sizeof cmd,
+             "%s optimize %s -q -o test_ocp_path.h5 %s 2>&1 | grep -q "
+             "'^  solver path  *%s ('",
+             bin, test_source_path(cases[i].file), cases[i].extra,
+             cases[i].path);
+    const int st = system(cmd);
+    read_root_string("test_ocp_path.h5", "solver", attr, sizeof attr);
+    CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0 &&
+              strcmp(attr, cases[i].path) == 0,
+          "mrvi optimize %s %s: summary without 'solver path %s' (exit %d) "
+          "or attribute solver '%s'",
+          cases[i].file, cases[i].extra, cases[i].path,
+          WIFEXITED(st) ? WEXITSTATUS(st) : -1, attr);
+  }
+  remove("test_ocp_path.h5");
+}
+
 /* `mrvi optimize` on the shipped problems: exit 0 at the optimum, 2 when
  * the optimiser stops before the terminal conditions hold, 1 for bad
  * input. */
@@ -910,6 +965,7 @@ int main(void) {
   test_micro_nodes();
   test_pair_actuators();
   test_cli();
+  test_cli_path();
   test_adjoint_cost();
   test_paths();
   test_paths_optimum();
