@@ -226,6 +226,7 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->mu);
   free(o->rhs);
   free(o->sol);
+  free(o->gz);
   free(o);
 }
 

@@ -79,6 +79,7 @@ struct mrvi_ocp {
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
+  long *gz;       /* global node of every z of the step (nz) */
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
