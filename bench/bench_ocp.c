@@ -24,6 +24,7 @@ static double now(void) {
 typedef struct row {
   int n_u, evals, ok;
   double t_eval, ratio, total, cost;
+  char path[16]; /* step solver path of the forward pass */
 } row;
 
 /* Load FILE with overrides, time evaluations and solve. */
@@ -57,6 +58,8 @@ static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
     mrvi_ocp_evaluate(o, u, &J, g, c, cg);
     ta = ta < now() - t0 ? ta : now() - t0;
   }
+  const char *path = mrvi_ocp_solver_path(o, NULL, 0);
+  snprintf(r->path, sizeof r->path, "%s", path ? path : "none");
   mrvi_ocp_result res;
   const double t0 = now();
   const int st = mrvi_ocp_solve(o, u, &res);
@@ -87,28 +90,37 @@ int main(int argc, char **argv) {
     }
   }
   const char *root = getenv("MRVI_SOURCE_ROOT");
-  char files[3][1024];
-  const char *names[3] = {"ocp_double_integrator", "ocp_gantry_crane",
-                          "ocp_fpu"};
-  for (int i = 0; i < 3; i++)
+  /* The shipped problems (their scheme), and the FPU problem with the
+   * schemes of the sweep and explicit paths. */
+  enum { NP = 5 };
+  const char *names[NP] = {"ocp_double_integrator", "ocp_gantry_crane",
+                           "ocp_fpu", "ocp_fpu", "ocp_fpu"};
+  const char *scheme[NP] = {NULL, NULL, NULL, "explicit-slow",
+                            "fully-explicit"};
+  char files[NP][1024];
+  for (int i = 0; i < NP; i++)
     snprintf(files[i], sizeof files[i], "%s/systems/%s.yaml", root ? root : ".",
              names[i]);
-  printf("%-22s %5s %3s %6s %6s %10s %9s %9s %s\n", "problem", "N", "p", "n_u",
-         "evals", "eval [ms]", "eval/fwd", "total [s]", "status");
-  const double T[3] = {2.0, 2.0, 6.0};
+  printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %9s %-8s %s\n", "problem",
+         "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd",
+         "total [s]", "path", "status");
+  const double T[NP] = {2.0, 2.0, 6.0, 6.0, 6.0};
   const int Ns[3] = {20, 40, 80}, ps[2] = {1, 5};
-  for (int f = 0; f < 3; f++)
+  for (int f = 0; f < NP; f++)
     for (int in = 0; in < 3; in++)
       for (int ip = 0; ip < 2; ip++) {
-        char a[64], b[64];
+        char a[64], b[64], c[64];
         snprintf(a, sizeof a, "integrator.macro_step=%.17g", T[f] / Ns[in]);
         snprintf(b, sizeof b, "integrator.micro_steps=%d", ps[ip]);
-        const char *ov[2] = {a, b};
+        snprintf(c, sizeof c, "integrator.scheme=%s",
+                 scheme[f] ? scheme[f] : "midpoint-midpoint");
+        const char *ov[3] = {a, b, c};
         row r;
-        if (bench(files[f], ov, 2, -1, &r) < 0)
+        if (bench(files[f], ov, 3, -1, &r) < 0)
           return 1;
-        printf("%-22s %5d %3d %6d %6d %10.3f %9.2f %9.3f %s\n", names[f],
-               Ns[in], ps[ip], r.n_u, r.evals, 1e3 * r.t_eval, r.ratio, r.total,
+        printf("%-22s %-15s %4d %2d %5d %5d %9.3f %8.2f %9.3f %-8s %s\n",
+               names[f], scheme[f] ? scheme[f] : "midpoint-midpoint", Ns[in],
+               ps[ip], r.n_u, r.evals, 1e3 * r.t_eval, r.ratio, r.total, r.path,
                r.ok ? "ok" : "FAILED");
         fflush(stdout);
       }
@@ -126,9 +138,9 @@ int main(int argc, char **argv) {
       row r;
       if (bench(files[0], ov, 4, alg, &r) < 0)
         return 1;
-      printf("  %-14s N = %7d: %5d evaluations, %8.3f s, %s\n",
+      printf("  %-14s N = %7d: %5d evaluations, %8.3f s, %s path, %s\n",
              mrvi_ocp_algorithm_name((mrvi_ocp_algorithm)alg), N, r.evals,
-             r.total, r.ok ? "ok" : "FAILED");
+             r.total, r.path, r.ok ? "ok" : "FAILED");
       fflush(stdout);
       if (!r.ok || r.total > budget)
         break;

@@ -158,6 +158,24 @@ static void attr_string(hid_t loc, const char *name, const char *value) {
   H5Tclose(t);
 }
 
+/* Root attribute "solver": the step solver path of the forward pass (the
+ * writer has the integrator's, which pair actuators change to general). */
+static int write_solver_path(const char *out, const mrvi_ocp *o, char *msg,
+                             size_t len) {
+  const char *path = mrvi_ocp_solver_path(o, NULL, 0);
+  hid_t f = H5Fopen(out, H5F_ACC_RDWR, H5P_DEFAULT);
+  const int rc = f < 0                        ? -1
+                 : H5Aexists(f, "solver") > 0 ? H5Adelete(f, "solver")
+                                              : 0;
+  if (rc >= 0)
+    attr_string(f, "solver", path ? path : "none");
+  else
+    mrvi_fmt(msg, len, "cannot set the attribute 'solver'");
+  if (f >= 0)
+    H5Fclose(f);
+  return rc < 0 ? -1 : 0;
+}
+
 static void attr_double(hid_t loc, const char *name, double v) {
   hid_t sp = H5Screate(H5S_SCALAR);
   hid_t a =
@@ -324,6 +342,11 @@ int mrvi_cli_check_control(const mrvi_system *sys) {
   printf("\n%-14s%d controls, %d terminal constraints, %s\n", "control",
          mrvi_ocp_n_controls(o), mrvi_ocp_n_constraints(o),
          mrvi_ocp_algorithm_name(mrvi_ocp_get_algorithm(o)));
+  {
+    char why[300] = "";
+    const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
+    printf("%-14s%s: %s\n", "control path", path ? path : "none", why);
+  }
   printf("%-14s%d\n", "actuators", na);
   for (int a = 0; a < na; a++) {
     const int c = mrvi_ocp_actuator_coordinate(o, a);
@@ -454,7 +477,8 @@ static int replay(const char *file, const char *controls, const char *out,
     for (int i = 0; i < nc; i++)
       viol = fmax(viol, fabs(c[i]));
     const char *dst = out ? out : sys->output_file;
-    if (write_trajectory(dst, sys, o, msg, sizeof msg) < 0) {
+    if (write_trajectory(dst, sys, o, msg, sizeof msg) < 0 ||
+        write_solver_path(dst, o, msg, sizeof msg) < 0) {
       fprintf(stderr, "mrvi run: writing '%s' failed: %s\n", dst, msg);
     } else {
       const int met = viol <= mrvi_ocp_terminal_tolerance(o);
@@ -562,11 +586,17 @@ int mrvi_cmd_optimize(int argc, char **argv) {
          mrvi_ocp_terminal_tolerance(o));
   printf("  %-22s%d (NLopt: %s)\n", "evaluations", res.evaluations,
          res.nlopt_name);
+  {
+    char why[300] = "";
+    const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
+    printf("  %-22s%s (%s)\n", "solver path", path ? path : "none", why);
+  }
   printf("  %-22s%.3f s\n", "wall time", wall);
   if (st != 0)
     fprintf(stderr, "mrvi optimize: %s\n", mrvi_ocp_errmsg(o));
   /* The trajectory of the returned controls (re-evaluated by solve). */
   if (write_trajectory(out, sys, o, msg, sizeof msg) < 0 ||
+      write_solver_path(out, o, msg, sizeof msg) < 0 ||
       write_control(out, sys, o, u, &h, &res, st) < 0) {
     fprintf(stderr, "mrvi optimize: writing '%s' failed: %s\n", out, msg);
     rc = 2;

@@ -913,6 +913,12 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
   return s < 0 ? fail(it, s, "step Jacobian: %s", msg) : MRVI_OK;
 }
 
+void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
+                                const double *f_end) {
+  it->step.f_rows = f_rows;
+  it->step.f_end = f_end;
+}
+
 long mrvi_integrator_roundoff_steps(const mrvi_integrator *it) {
   return it->roundoff_steps;
 }

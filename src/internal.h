@@ -370,6 +370,13 @@ const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);
 /* Name of path MRVI_PATH_* ("general", "explicit", ...): the one list. */
 const char *mrvi_path_name(int path);
 
+/* Control forces of the next steps (optimal control, src/ocp/): f_rows
+ * (n_unknowns of the step) and f_end (ns + nf) as in struct mrvi_step, read
+ * at every step (the caller updates them in place between steps); NULL for
+ * none.  Every path honours them (doc/solver.md). */
+void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
+                                const double *f_end);
+
 /* ---------------------------------------------------------------------------
  * Krylov solvers (solver/krylov.c) for blocks beyond the dense limit.
  * ------------------------------------------------------------------------- */
@@ -460,7 +467,8 @@ void mrvi_blocks_free(mrvi_blocks *b);
  * values st->Ax (n_unknowns); MRVI_ESINGULAR if a block is singular. */
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st);
 /* The residual R (n_unknowns) of st at the displacements x
- * (st->increments; unconstrained, no f_rows) with the potential momenta
+ * (st->increments; unconstrained, no step hook st->extra; the control
+ * forces st->f_rows added) with the potential momenta
  * into st->mom_ps / mom_pf when set, as mrvi_step_assemble, and, if jac,
  * the Newton matrix straight into the blocks (no CSC); MRVI_EINVAL where
  * this does not apply (then use mrvi_step_assemble). */

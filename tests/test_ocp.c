@@ -19,6 +19,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/wait.h>
+#include <time.h>
 
 /* Central-difference check of the cost and constraint gradients. */
 static void check_gradients(mrvi_ocp *o, const char *what) {
@@ -66,8 +67,31 @@ out:
   free(cm);
 }
 
-/* FPU with four actuators (slow/fast grid on slow/fast coordinates),
- * tracking, a terminal penalty and four terminal constraints. */
+/* FPU problem (four actuators: slow and fast grids on slow and fast
+ * coordinates, tracking, four terminal constraints and a terminal
+ * penalty). */
+static mrvi_ocp *fpu_problem(mrvi_model *m, const mrvi_settings *s) {
+  mrvi_ocp *o = NULL;
+  char msg[300];
+  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
+    CHECK(0, "create: %s", msg);
+    return NULL;
+  }
+  mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 0.5, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 1.5, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_tracking(o, 2, 3.0, 0.1);
+  mrvi_ocp_add_tracking(o, 5, 2.0, -0.1);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 1.0, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 1, 0.5, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 3, 0.0, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.2, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.1, 7.0);
+  return o;
+}
+
+/* The FPU problem for every named scheme and p in {1, 5}. */
 static void test_gradients(void) {
   const char *const *schemes = mrvi_scheme_names();
   const int ps[2] = {1, 5};
@@ -75,22 +99,8 @@ static void test_gradients(void) {
     for (int ip = 0; ip < 2; ip++) {
       mrvi_model *m = test_fpu();
       mrvi_settings s = test_settings(schemes[is], 0.03, ps[ip], 0.12, 1e-13);
-      mrvi_ocp *o = NULL;
-      char msg[300];
-      int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
-      CHECK(st == 0, "create: %s", msg);
-      if (st == 0) {
-        mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
-        mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
-        mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 0.5, -HUGE_VAL, HUGE_VAL);
-        mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 1.5, -HUGE_VAL, HUGE_VAL);
-        mrvi_ocp_add_tracking(o, 2, 3.0, 0.1);
-        mrvi_ocp_add_tracking(o, 5, 2.0, -0.1);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 1.0, 0.0);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 1, 0.5, 0.0);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 3, 0.0, 0.0);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.2, 0.0);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.1, 7.0);
+      mrvi_ocp *o = fpu_problem(m, &s);
+      if (o) {
         char what[100];
         mrvi_fmt(what, sizeof what, "FPU %s p=%d", schemes[is], ps[ip]);
         check_gradients(o, what);
@@ -205,12 +215,16 @@ static void test_double_integrator(void) {
     mrvi_model_free(m);
   }
   /* The augmented-Lagrangian algorithms reach the same optimum (their
-   * penalty iteration stops at a looser tolerance). */
+   * penalty iteration stops at a looser tolerance).  On the general path:
+   * at the terminal tolerance 1e-11 whether L-BFGS's line search stalls
+   * (NLopt FAILURE) hangs on the last bits of the cost, and the schur
+   * path's differ (N = 8..20 fail on either path for most N). */
   const mrvi_ocp_algorithm algs[2] = {MRVI_OCP_AUGLAG_LBFGS,
                                       MRVI_OCP_AUGLAG_CCSAQ};
   for (int a = 0; a < 2; a++) {
     mrvi_model *m = double_integrator(mass, 0);
     mrvi_settings s = test_settings("midpoint-midpoint", T / N, 1, T, 1e-12);
+    s.solver = MRVI_SOLVER_GENERAL;
     const double J = rest_to_rest(m, &s, d, algs[a], NULL);
     CHECK(fabs(J - JN) <= 1e-6 * JN,
           "double integrator algorithm %d: J = %.15g, J_N = %.15g", a, J, JN);
@@ -587,6 +601,61 @@ static double *read_dataset(const char *path, const char *name, size_t *n) {
   return q;
 }
 
+/* Root string attribute name of the HDF5 file path into out ("" if
+ * missing). */
+static void read_root_string(const char *path, const char *name, char *out,
+                             size_t len) {
+  out[0] = 0;
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0)
+    return;
+  hid_t a = H5Aexists(f, name) > 0 ? H5Aopen(f, name, H5P_DEFAULT) : -1;
+  if (a >= 0) {
+    hid_t t = H5Aget_type(a);
+    const size_t n = H5Tget_size(t);
+    if (n < len && H5Aread(a, t, out) >= 0)
+      out[n] = 0;
+    H5Tclose(t);
+    H5Aclose(a);
+  }
+  H5Fclose(f);
+}
+
+/* The step solver path of the forward pass in `mrvi optimize`'s summary
+ * and in the root attribute "solver" of its output: schur for the double
+ * integrator (midpoint-midpoint), sweep with explicit-slow, general for the
+ * constrained gantry crane. */
+static void test_cli_path(void) {
+  const char *bin = getenv("MRVI_BIN");
+  if (!bin)
+    return;
+  const struct {
+    const char *file, *extra, *path;
+  } cases[] = {
+      {"systems/ocp_double_integrator.yaml", "", "schur"},
+      {"systems/ocp_double_integrator.yaml",
+       "--set integrator.scheme=explicit-slow", "sweep"},
+      {"systems/ocp_gantry_crane.yaml", "", "general"},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    char cmd[2048], attr[64];
+    snprintf(cmd, sizeof cmd,
+             "%s optimize %s -q -o test_ocp_path.h5 %s 2>&1 | grep -q "
+             "'^  solver path  *%s ('",
+             bin, test_source_path(cases[i].file), cases[i].extra,
+             cases[i].path);
+    const int st = system(cmd);
+    read_root_string("test_ocp_path.h5", "solver", attr, sizeof attr);
+    CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0 &&
+              strcmp(attr, cases[i].path) == 0,
+          "mrvi optimize %s %s: summary without 'solver path %s' (exit %d) "
+          "or attribute solver '%s'",
+          cases[i].file, cases[i].extra, cases[i].path,
+          WIFEXITED(st) ? WEXITSTATUS(st) : -1, attr);
+  }
+  remove("test_ocp_path.h5");
+}
+
 /* `mrvi optimize` on the shipped problems: exit 0 at the optimum, 2 when
  * the optimiser stops before the terminal conditions hold, 1 for bad
  * input. */
@@ -668,11 +737,23 @@ static void test_cli(void) {
   remove("test_ocp_replay.h5");
 }
 
+/* CPU time of this thread (a loaded machine preempts the longer
+ * evaluation more often than the short forward run: wall-clock ratios
+ * grew 4-fold at load 7 on 2 cores). */
+static double thread_time(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 /* Cost of the adjoint: one cost+gradient evaluation (forward sweep plus
  * the backward sweep for the cost and two constraints) against the forward
- * sweep alone, FPU with p = 1 and 10, N = 60.  Target <= 3 (1.5 measured
- * in the optimised build); asserted <= 20 so that sanitizer builds and a
- * loaded machine pass while a sweep that is not linear in N fails. */
+ * sweep alone, FPU with p = 1 and 10, N = 60, midpoint-midpoint (forward on
+ * the schur path).  Target <= 3: 1.3-2.5 with the general path's forward,
+ * 6-8 with the schur path's, which is 10 times faster while the adjoint
+ * still factorises the whole step with UMFPACK (doc/optimal-control.md);
+ * asserted <= 20 so that sanitizer builds pass while a sweep that is not
+ * linear in N fails. */
 static void test_adjoint_cost(void) {
   const int ps[2] = {1, 10};
   for (int ip = 0; ip < 2; ip++) {
@@ -694,12 +775,12 @@ static void test_adjoint_cost(void) {
     double *cg = calloc((size_t)(2 * n), sizeof *cg), c[2], J;
     double tf = 1e30, ta = 1e30;
     for (int r = 0; r < 5; r++) {
-      double t0 = mrvi_clock();
+      double t0 = thread_time();
       mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
-      tf = fmin(tf, mrvi_clock() - t0);
-      t0 = mrvi_clock();
+      tf = fmin(tf, thread_time() - t0);
+      t0 = thread_time();
       mrvi_ocp_evaluate(o, u, &J, g, c, cg);
-      ta = fmin(ta, mrvi_clock() - t0);
+      ta = fmin(ta, thread_time() - t0);
     }
     CHECK(ta <= 20.0 * tf,
           "FPU p=%d N=60: cost+gradient %.3g ms = %.2f x forward %.3g ms",
@@ -712,6 +793,259 @@ static void test_adjoint_cost(void) {
   }
 }
 
+/* The forward pass of o equals that of og (the same problem on the
+ * general path) at the same controls: cost and terminal constraints to
+ * 1e-10 relative to their scale (the Newton tolerance 1e-13 times the
+ * condition of the step maps). */
+static void check_against_general(mrvi_ocp *o, mrvi_ocp *og, const char *what) {
+  const int n = mrvi_ocp_n_controls(o), nc = mrvi_ocp_n_constraints(o);
+  double *u = malloc((size_t)n * sizeof *u);
+  double *c = calloc((size_t)nc + 1, sizeof *c);
+  double *cg = calloc((size_t)nc + 1, sizeof *cg), J = NAN, Jg = NAN;
+  for (int i = 0; i < n; i++)
+    u[i] = 0.4 * cos(0.9 * i + 0.2);
+  const int st = mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) |
+                 mrvi_ocp_evaluate(og, u, &Jg, NULL, cg, NULL);
+  double err = fabs(J - Jg) / fabs(Jg);
+  for (int i = 0; i < nc; i++)
+    err = fmax(err, fabs(c[i] - cg[i]) / fmax(1.0, fabs(cg[i])));
+  CHECK(st == 0 && err <= 1e-10,
+        "%s: against the general path: status %d, difference %.3e", what, st,
+        err);
+  free(u);
+  free(c);
+  free(cg);
+}
+
+/* The FPU with, if quartic, a quartic term added to the fast potential W
+ * (non-linear micro steps on the sweep path). */
+static mrvi_model *fpu_model(int quartic) {
+  mrvi_model *m = test_fpu();
+  if (quartic) {
+    const int c = 4;
+    const double one = 1.0, pw[2] = {40.0, 4.0};
+    mrvi_model_add_term(m, MRVI_FAST, 1, &c, &one, 0.0, "power", pw);
+  }
+  return m;
+}
+
+/* The forward pass takes the integrator's step solver path (explicit,
+ * sweep with linear and with Newton micro steps, schur, general on
+ * request), control forces included: on each, p in {1, 5}, the adjoint
+ * gradients of the cost and of every terminal constraint match central
+ * differences (relative 1e-6), and cost and constraints equal the general
+ * path's at the same controls to 1e-10 (relative to their scale: the
+ * Newton tolerance 1e-13 times the condition of the step maps). */
+static void test_paths(void) {
+  static const struct {
+    const char *scheme, *path;
+    int quartic, general;
+  } cases[] = {{"fully-explicit", "explicit", 0, 0},
+               {"explicit-slow", "sweep", 0, 0},
+               {"explicit-slow", "sweep", 1, 0},
+               {"midpoint-midpoint", "schur", 1, 0},
+               {"trapezoidal-midpoint", "general", 1, 1}};
+  const int ps[2] = {1, 5};
+  for (size_t ic = 0; ic < sizeof cases / sizeof cases[0]; ic++)
+    for (int ip = 0; ip < 2; ip++) {
+      mrvi_model *m = fpu_model(cases[ic].quartic);
+      mrvi_settings s =
+          test_settings(cases[ic].scheme, 0.03, ps[ip], 0.12, 1e-13);
+      if (cases[ic].general)
+        s.solver = MRVI_SOLVER_GENERAL;
+      mrvi_settings sg = s;
+      sg.solver = MRVI_SOLVER_GENERAL;
+      mrvi_ocp *o = fpu_problem(m, &s), *og = fpu_problem(m, &sg);
+      char what[120];
+      mrvi_fmt(what, sizeof what, "paths: FPU%s %s p=%d",
+               cases[ic].quartic ? " (quartic W)" : "", cases[ic].scheme,
+               ps[ip]);
+      if (o && og) {
+        char why[300];
+        const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
+        CHECK(path && strcmp(path, cases[ic].path) == 0,
+              "%s: path %s (%s), expected %s", what, path ? path : "none", why,
+              cases[ic].path);
+        check_gradients(o, what);
+        check_against_general(o, og, what);
+      }
+      mrvi_ocp_free(o);
+      mrvi_ocp_free(og);
+      mrvi_model_free(m);
+    }
+}
+
+/* The iterative paths (blocks beyond the dense limit 64): a slow mass
+ * coupled by a quartic spring to the first of 65 fast oscillators joined
+ * by quartic springs.  explicit-slow takes sweep-cg (micro steps by CG),
+ * midpoint-midpoint schur-krylov (GMRES on the slow unknowns); p in
+ * {1, 5}, actuators on the slow mass (macro grid), a fast node (micro
+ * grid) and a fast node on the macro grid; the adjoint gradients match
+ * central differences (1e-6) and the forward pass the general path's
+ * (1e-10). */
+static void test_paths_iterative(void) {
+  const char *schemes[2] = {"explicit-slow", "midpoint-midpoint"};
+  const char *paths[2] = {"sweep-cg", "schur-krylov"};
+  const int ps[2] = {1, 5}, nf = 65;
+  for (int is = 0; is < 2; is++)
+    for (int ip = 0; ip < 2; ip++) {
+      mrvi_model *m = mrvi_model_create();
+      mrvi_model_add_coordinate(m, "x", 1.0, MRVI_SLOW, 0.1, 0.5);
+      for (int i = 0; i < nf; i++) {
+        char name[16];
+        mrvi_fmt(name, sizeof name, "y%d", i);
+        mrvi_model_add_coordinate(m, name, 0.5, MRVI_FAST, 0.01 * sin(i),
+                                  0.2 * cos(i));
+      }
+      const double pw[2] = {0.25, 4.0}, k[1] = {0.5 * 400.0}, one = 1.0;
+      const double a2[2] = {1.0, -1.0};
+      const int xs[2] = {0, 1};
+      mrvi_model_add_term(m, MRVI_SLOW, 2, xs, a2, 0.0, "power", pw);
+      for (int i = 1; i <= nf; i++) {
+        mrvi_model_add_term(m, MRVI_FAST, 1, &i, &one, 0.0, "linear", k);
+        const int c[2] = {i + 1, i};
+        if (i < nf)
+          mrvi_model_add_term(m, MRVI_FAST, 2, c, a2, 0.0, "power", pw);
+      }
+      mrvi_settings s = test_settings(schemes[is], 0.05, ps[ip], 0.15, 1e-13);
+      mrvi_settings sg = s;
+      sg.solver = MRVI_SOLVER_GENERAL;
+      mrvi_ocp *o = NULL, *og = NULL;
+      char msg[300], what[100];
+      mrvi_fmt(what, sizeof what, "paths: 65 fast oscillators %s p=%d",
+               schemes[is], ps[ip]);
+      const int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg) |
+                     mrvi_ocp_create(m, &sg, &og, msg, sizeof msg);
+      CHECK(st == 0, "%s: create: %s", what, msg);
+      for (int j = 0; st == 0 && j < 2; j++) {
+        mrvi_ocp *q = j ? og : o;
+        mrvi_ocp_add_actuator(q, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+        mrvi_ocp_add_actuator(q, 4, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
+        mrvi_ocp_add_actuator(q, 40, MRVI_GRID_MACRO, 0.5, -HUGE_VAL, HUGE_VAL);
+        mrvi_ocp_add_tracking(q, 2, 3.0, 0.05);
+        mrvi_ocp_add_terminal(q, MRVI_OCP_POSITION, 0, 0.3, 0.0);
+        mrvi_ocp_add_terminal(q, MRVI_OCP_VELOCITY, 1, 0.0, 0.0);
+        mrvi_ocp_add_terminal(q, MRVI_OCP_POSITION, 40, 0.0, 0.0);
+      }
+      if (st == 0) {
+        char why[300];
+        const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
+        CHECK(path && strcmp(path, paths[is]) == 0,
+              "%s: path %s (%s), expected %s", what, path ? path : "none", why,
+              paths[is]);
+        check_gradients(o, what);
+        check_against_general(o, og, what);
+      }
+      mrvi_ocp_free(o);
+      mrvi_ocp_free(og);
+      mrvi_model_free(m);
+    }
+}
+
+/* The optimum found on the path chosen automatically equals the general
+ * path's: the rest-to-rest double integrator beside a fast oscillator
+ * (p = 5) reaches J_N = J* N^2/(N^2 - 1) to 1e-8 on the explicit, sweep and
+ * schur paths, and the FPU problem's optimal controls agree with the
+ * general path's to 1e-6 of their scale (SLSQP stops at ftol 1e-12). */
+static void test_paths_optimum(void) {
+  const double mass = 2.0, d = 1.0, T = 2.0;
+  const int N = 10;
+  const double JN =
+      6.0 * mass * mass * d * d / (T * T * T) * N * N / (N * N - 1.0);
+  const char *schemes[3] = {"fully-explicit", "explicit-slow",
+                            "midpoint-midpoint"};
+  const char *paths[3] = {"explicit", "sweep", "schur"};
+  for (int is = 0; is < 3; is++) {
+    mrvi_model *m = double_integrator(mass, 1);
+    mrvi_settings s = test_settings(schemes[is], T / N, 5, T, 1e-12);
+    const char *path = mrvi_solver_path(m, &s, NULL, 0);
+    CHECK(path && strcmp(path, paths[is]) == 0, "double integrator %s: %s",
+          schemes[is], path ? path : "none");
+    const double J = rest_to_rest(m, &s, d, MRVI_OCP_SLSQP, NULL);
+    CHECK(fabs(J - JN) <= 1e-8 * JN,
+          "double integrator %s (%s path): J = %.15g, J_N = %.15g", schemes[is],
+          paths[is], J, JN);
+    mrvi_model_free(m);
+  }
+  for (int is = 0; is < 3; is++) {
+    mrvi_model *m = fpu_model(1);
+    mrvi_settings s = test_settings(schemes[is], 0.03, 5, 0.12, 1e-13);
+    mrvi_settings sg = s;
+    sg.solver = MRVI_SOLVER_GENERAL;
+    mrvi_ocp *o = fpu_problem(m, &s), *og = fpu_problem(m, &sg);
+    if (o && og) {
+      const int n = mrvi_ocp_n_controls(o);
+      double *u = calloc((size_t)n, sizeof *u), *ug = calloc((size_t)n, 8);
+      mrvi_ocp_result r, rg;
+      const int st = mrvi_ocp_solve(o, u, &r),
+                stg = mrvi_ocp_solve(og, ug, &rg);
+      double err = 0.0, sc = 0.0;
+      for (int i = 0; i < n; i++) {
+        err = fmax(err, fabs(u[i] - ug[i]));
+        sc = fmax(sc, fabs(ug[i]));
+      }
+      CHECK(st == 0 && stg == 0 && err <= 1e-6 * sc &&
+                fabs(r.cost - rg.cost) <= 1e-9 * fabs(rg.cost),
+            "FPU %s optimum (%s path) against general: status %d/%d, "
+            "max |du| %.3e (scale %.3e), cost %.15g / %.15g",
+            schemes[is], paths[is], st, stg, err, sc, r.cost, rg.cost);
+      free(u);
+      free(ug);
+    }
+    mrvi_ocp_free(o);
+    mrvi_ocp_free(og);
+    mrvi_model_free(m);
+  }
+}
+
+/* Paths of the general kind: a constrained model, pair actuators, and
+ * integrator.solver = structured where no structured path applies. */
+static void test_paths_general(void) {
+  mrvi_model *m = test_cart_pendulum();
+  mrvi_settings s = test_settings("explicit-slow", 0.01, 5, 0.04, 1e-13);
+  mrvi_ocp *o = NULL;
+  char msg[300], why[300];
+  if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) == 0) {
+    mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+    const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
+    CHECK(path && strcmp(path, "general") == 0 && strstr(why, "constrained"),
+          "cart pendulum: path %s (%s)", path ? path : "none", why);
+  }
+  mrvi_ocp_free(o);
+  /* integrator.solver = structured: the evaluation fails with the reason. */
+  s.solver = MRVI_SOLVER_STRUCTURED;
+  o = NULL;
+  if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) == 0) {
+    mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+    double u[4] = {0, 0, 0, 0}, J;
+    CHECK(mrvi_ocp_solver_path(o, NULL, 0) == NULL, "structured: a path");
+    const int st = mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL);
+    CHECK(st == MRVI_EINVAL &&
+              strstr(mrvi_ocp_errmsg(o), "integrator.solver = structured") &&
+              strstr(mrvi_ocp_errmsg(o), "constrained"),
+          "structured on a constrained model: status %d, '%s'", st,
+          mrvi_ocp_errmsg(o));
+  }
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+  /* Pair actuators on a model the integrator steps by the sweep. */
+  m = four_particles();
+  s = test_settings("explicit-slow", 0.05, 5, 0.2, 1e-13);
+  o = NULL;
+  if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) == 0) {
+    const char *ip = mrvi_solver_path(m, &s, NULL, 0);
+    mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
+                               HUGE_VAL);
+    const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
+    CHECK(ip && strcmp(ip, "general") != 0 && path &&
+              strcmp(path, "general") == 0 && strstr(why, "pair actuators"),
+          "pair actuators: integrator path %s, problem path %s (%s)",
+          ip ? ip : "none", path ? path : "none", why);
+  }
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
 int main(void) {
   test_gradients();
   test_gradients_constrained();
@@ -722,6 +1056,11 @@ int main(void) {
   test_micro_nodes();
   test_pair_actuators();
   test_cli();
+  test_cli_path();
   test_adjoint_cost();
+  test_paths();
+  test_paths_iterative();
+  test_paths_optimum();
+  test_paths_general();
   return test_finish();
 }

@@ -234,11 +234,13 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   free(o->mu);
   free(o->rhs);
   free(o->sol);
+  free(o->gz);
+  o->gz = malloc((size_t)o->nz * sizeof *o->gz);
   o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  o->nfun_alloc = o->r && o->mu && o->rhs && o->sol ? nfun : 0;
+  o->nfun_alloc = o->r && o->mu && o->rhs && o->sol && o->gz ? nfun : 0;
   return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
 }
 
@@ -290,6 +292,9 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     memcpy(o->x + nu, o->Lam + k * nl, (size_t)nl * sizeof(double));
     o->k_cur = k; /* for the pair-force step hook */
     ocp_jacobian(o, k, H);
+    long *gz = o->gz; /* global node of every z of step k */
+    for (int z = 0; z < nz; z++)
+      gz[z] = ocp_global(o, k, z);
     for (int f = 0; f < nfun; f++) {
       double *r = gQ + f * nn;
       const double *mu = o->mu + f * nn;
@@ -300,20 +305,20 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
       for (int zz = ns; zz < nz; zz++) {
         if (zz >= 2 * ns && zz < 2 * ns + p * nf)
           continue;
-        const double mz = mu[ocp_global(o, k, zz)];
+        const double mz = mu[gz[zz]];
         if (mz == 0.0)
           continue;
         for (int y = 0; y < nz; y++)
-          r[ocp_global(o, k, y)] -= H[zz * nv + y] * mz;
+          r[gz[y]] -= H[zz * nv + y] * mz;
         for (int y = 0; y < nl; y++)
           rloc[y] -= H[zz * nv + nz + y] * mz;
       }
       /* Right-hand side on the step's unknowns (x_k, lambda_k). */
       double *b = o->rhs + (size_t)f * (size_t)nt;
       for (int i = 0; i < ns; i++)
-        b[i] = r[ocp_global(o, k, ns + i)];
+        b[i] = r[gz[ns + i]];
       for (int i = 0; i < p * nf; i++)
-        b[ns + i] = r[ocp_global(o, k, 2 * ns + nf + i)];
+        b[ns + i] = r[gz[2 * ns + nf + i]];
       for (int i = 0; i < nl; i++)
         b[nu + i] = rloc[i];
     }
@@ -332,10 +337,10 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         /* dynamic rows: q_k^s, fast nodes 0..p-1; then constraint rows */
         const int row = i < ns ? i : (i < nu ? 2 * ns + (i - ns) : nz + i - nu);
         if (row < nz)
-          mu[ocp_global(o, k, row)] = x[i];
+          mu[gz[row]] = x[i];
         if (x[i] != 0.0)
           for (int y = 0; y < nz; y++)
-            r[ocp_global(o, k, y)] -= H[row * nv + y] * x[i];
+            r[gz[y]] -= H[row * nv + y] * x[i];
       }
     }
   }

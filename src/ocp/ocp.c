@@ -121,6 +121,25 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
   return MRVI_OK;
 }
 
+int ocp_path(const mrvi_ocp *o, char *why, size_t len) {
+  const int path = mrvi_sweep_path(o->model, &o->settings, why, len);
+  if (o->n_pair == 0 || path == MRVI_PATH_GENERAL)
+    return path;
+  /* Their forces depend on the positions (the step hook mrvi_step.extra),
+   * which only the general path's assembly takes. */
+  mrvi_fmt(why, len,
+           "pair actuators: their forces depend on the positions, which "
+           "only the general path assembles");
+  return MRVI_PATH_GENERAL;
+}
+
+const char *mrvi_ocp_solver_path(const mrvi_ocp *o, char *why, size_t len) {
+  const int path = ocp_path(o, why, len);
+  if (path == MRVI_PATH_GENERAL && o->settings.solver == MRVI_SOLVER_STRUCTURED)
+    return NULL;
+  return mrvi_path_name(path);
+}
+
 /* The step and the trajectory buffers, at the first forward pass: a
  * problem that is only described (the loader's check, `mrvi check`)
  * allocates nothing proportional to N or p. */
@@ -153,10 +172,11 @@ int ocp_alloc(mrvi_ocp *o) {
   o->H = dalloc((size_t)o->nv * (size_t)o->nv);
   o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
   o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
-  if (!o->x || !o->R || !o->dx || !o->f_rows || !o->f_end || !o->ps1 ||
-      !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k || !o->pf_micro ||
-      !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out || !o->H ||
-      !o->Lam || !o->rhs_ns)
+  o->p0 = dalloc(n);
+  if (!o->p0 || !o->x || !o->R || !o->dx || !o->f_rows || !o->f_end ||
+      !o->ps1 || !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k ||
+      !o->pf_micro || !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out ||
+      !o->H || !o->Lam || !o->rhs_ns)
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
@@ -176,6 +196,8 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   mrvi_newton_free(o->newton);
   mrvi_nullspace_free(o->nullspace);
   mrvi_newton_free(o->newton_full);
+  mrvi_integrator_free(o->integ);
+  free(o->p0);
   mrvi_step_free(&o->step);
   free(o->Lam);
   free(o->rhs_ns);
@@ -204,6 +226,7 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->mu);
   free(o->rhs);
   free(o->sol);
+  free(o->gz);
   free(o);
 }
 
@@ -526,6 +549,102 @@ static int evaluate(mrvi_ocp *o, double *res, char *msg, size_t len) {
   return MRVI_OK;
 }
 
+/* Free-flight predictor of the step whose known data o->step holds. */
+static void free_flight(mrvi_ocp *o) {
+  const mrvi_model *m = o->model;
+  const mrvi_step *st = &o->step;
+  const int ns = o->ns, nf = o->nf, p = o->p;
+  for (int s = 0; s < ns; s++)
+    o->x[s] = st->qs0[s] + st->dT * st->ps0[s] / m->mass[m->slow_index[s]];
+  for (int mm = 1; mm <= p; mm++)
+    for (int s = 0; s < nf; s++)
+      o->x[ns + (mm - 1) * nf + s] =
+          st->qf0[s] + mm * st->dt * st->pf0[s] / m->mass[m->fast_index[s]];
+}
+
+/* Converged step k into the trajectory: slow node qs1 (ns), fast nodes
+ * 1..p qf (p x nf), momenta ps1 (ns, f^+ included) and pf (p x nf: D_2 L_d
+ * of the micro intervals, the last with f^+). */
+static void store_step(mrvi_ocp *o, long k, const double *qs1, const double *qf,
+                       const double *ps1, const double *pf) {
+  const int ns = o->ns, nf = o->nf, p = o->p;
+  double *Qs = o->Q, *Qf = o->Q + (o->N + 1) * ns;
+  /* Fast micro momenta p^{m+1} = D_2 L_d^m + f^{+,m} (eq:pkfm+ with the
+   * control force; the last one, p_{k+1}^f, has f_end already). */
+  for (int mm = 0; mm < p; mm++)
+    for (int s = 0; s < nf; s++)
+      o->pf_micro[(k * p + mm + 1) * nf + s] =
+          pf[mm * nf + s] + (mm < p - 1 ? o->f_plus[mm * nf + s] : 0.0);
+  memcpy(Qs + (k + 1) * ns, qs1, (size_t)ns * sizeof(double));
+  memcpy(Qf + (k * p + 1) * nf, qf, (size_t)(p * nf) * sizeof(double));
+  memcpy(o->ps_k + (k + 1) * ns, ps1, (size_t)ns * sizeof(double));
+  memcpy(o->pf_k + (k + 1) * nf, pf + (p - 1) * nf,
+         (size_t)nf * sizeof(double));
+}
+
+/* At the first forward pass: the path (ocp_path), the general path's
+ * pattern and factorisation at the first step's predictor (the adjoint
+ * solves with them on every path) and, on a structured path, the
+ * integrator that takes the steps with the control forces. */
+static int setup(mrvi_ocp *o, const double *u) {
+  char why[300], msg[400];
+  o->path = ocp_path(o, why, sizeof why);
+  if (o->path == MRVI_PATH_GENERAL &&
+      o->settings.solver == MRVI_SOLVER_STRUCTURED)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "integrator.solver = structured: no structured "
+                         "path: %s",
+                         why);
+  if (o->path != MRVI_PATH_GENERAL && !o->integ) {
+    /* The integrator's own path objects; no momentum projection (the step
+     * equations of the problem have none; structured paths are
+     * unconstrained anyway). */
+    mrvi_settings s = o->settings;
+    s.project_momenta = 0;
+    const int st =
+        mrvi_integrator_create(o->model, &s, &o->integ, msg, sizeof msg);
+    if (st < 0)
+      return mrvi_ocp_fail(o, st, "%s", msg);
+    mrvi_integrator_set_forces(o->integ, o->f_rows, o->f_end);
+  }
+  mrvi_step *st = &o->step;
+  st->qs0 = o->Q;
+  st->qf0 = o->Q + (o->N + 1) * o->ns;
+  st->ps0 = o->ps_k;
+  st->pf0 = o->pf_k;
+  step_forces(o, 0, u);
+  free_flight(o);
+  o->u_cur = u;
+  o->k_cur = 0;
+  return prepare(o);
+}
+
+/* Step k on a structured path: the integrator's step with the control
+ * forces of step k (it holds the state from step k - 1). */
+static int structured_step(mrvi_ocp *o, long k, const double *u) {
+  const mrvi_model *m = o->model;
+  mrvi_integrator *it = o->integ;
+  if (k == 0) {
+    for (int i = 0; i < m->n; i++)
+      o->p0[i] = m->mass[i] * m->v0[i];
+    const int s = mrvi_integrator_resume_state(it, 0, m->q0, o->p0);
+    if (s < 0)
+      return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
+  }
+  step_forces(o, k, u);
+  const int s = mrvi_integrator_step(it);
+  if (s < 0)
+    return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
+  const double *q = mrvi_integrator_q(it), *pm = mrvi_integrator_p(it);
+  for (int i = 0; i < o->ns; i++) {
+    o->ps1[i] = pm[m->slow_index[i]];
+    o->x[i] = q[m->slow_index[i]];
+  }
+  store_step(o, k, o->x, mrvi_integrator_micro_q(it), o->ps1,
+             mrvi_integrator_micro_p(it));
+  return MRVI_OK;
+}
+
 int ocp_forward(mrvi_ocp *o, const double *u) {
   int s0 = ocp_alloc(o);
   if (s0 < 0)
@@ -550,23 +669,20 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     o->pf_k[s] = m->mass[c] * m->v0[c];
     o->pf_micro[s] = o->pf_k[s];
   }
-  for (long k = 0; k < N; k++) {
+  if (!o->ready && (s0 = setup(o, u)) < 0)
+    return s0;
+  for (long k = 0; k < N && o->integ; k++)
+    if ((s0 = structured_step(o, k, u)) < 0)
+      return s0;
+  for (long k = 0; k < N && !o->integ; k++) {
     st->qs0 = Qs + k * ns;
     st->qf0 = Qf + k * p * nf;
     st->ps0 = o->ps_k + k * ns;
     st->pf0 = o->pf_k + k * nf;
     step_forces(o, k, u);
-    /* Predictor: free flight. */
-    for (int s = 0; s < ns; s++)
-      o->x[s] = st->qs0[s] + dT * st->ps0[s] / m->mass[m->slow_index[s]];
-    for (int mm = 1; mm <= p; mm++)
-      for (int s = 0; s < nf; s++)
-        o->x[ns + (mm - 1) * nf + s] =
-            st->qf0[s] + mm * dt * st->pf0[s] / m->mass[m->fast_index[s]];
+    free_flight(o);
     o->u_cur = u; /* for the pair-force step hook */
     o->k_cur = k;
-    if (!o->ready && (s0 = prepare(o)) < 0)
-      return s0;
     int it = 0;
     double res;
     if ((s0 = evaluate(o, &res, msg, sizeof msg)) < 0)
@@ -614,17 +730,7 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
       ocp_pair_end_forces(o, k, u);
     mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
     mrvi_step_micro_residuals(st, o->R, o->cres_micro + k * p);
-    /* Fast micro momenta p^{m+1} = D_2 L_d^m + f^{+,m} (eq:pkfm+ with the
-     * control force; the last one, p_{k+1}^f, has f_end already). */
-    for (int mm = 0; mm < p; mm++)
-      for (int s = 0; s < nf; s++)
-        o->pf_micro[(k * p + mm + 1) * nf + s] =
-            o->pf1[mm * nf + s] + (mm < p - 1 ? o->f_plus[mm * nf + s] : 0.0);
-    memcpy(Qs + (k + 1) * ns, o->x, (size_t)ns * sizeof(double));
-    memcpy(Qf + (k * p + 1) * nf, o->x + ns, (size_t)(p * nf) * sizeof(double));
-    memcpy(o->ps_k + (k + 1) * ns, o->ps1, (size_t)ns * sizeof(double));
-    memcpy(o->pf_k + (k + 1) * nf, o->pf1 + (p - 1) * nf,
-           (size_t)nf * sizeof(double));
+    store_step(o, k, o->x, o->x + ns, o->ps1, o->pf1);
   }
   memcpy(o->pN, o->ps_k + N * ns, (size_t)ns * sizeof(double));
   memcpy(o->pN + ns, o->pf_k + N * nf, (size_t)nf * sizeof(double));

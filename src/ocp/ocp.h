@@ -159,6 +159,14 @@ const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);
 mrvi_ocp_algorithm mrvi_ocp_get_algorithm(const mrvi_ocp *o);
 double mrvi_ocp_terminal_tolerance(const mrvi_ocp *o);
 
+/* Step solver path of the forward pass ("explicit", "sweep", "schur", ...,
+ * "general"; doc/solver.md): the one the integrator takes for the model
+ * and settings (integrator.solver honoured), except that pair actuators
+ * need the general path; why (may be NULL) gets the reason.  NULL when
+ * integrator.solver = structured and no structured path applies (the
+ * evaluation then fails). */
+const char *mrvi_ocp_solver_path(const mrvi_ocp *o, char *why, size_t len);
+
 /* 1 when the loaded description has a `control:` section, else 0. */
 int mrvi_ocp_has_control(const mrvi_system *sys);
 

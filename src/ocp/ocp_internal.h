@@ -52,7 +52,13 @@ struct mrvi_ocp {
   int n_pair;
   const double *u_cur;
   long k_cur;
-  /* Step solver. */
+  /* Step solver.  The forward pass takes the path the integrator would
+   * (ocp_path): the structured ones through an integrator with the control
+   * forces (integ), the general one here (step, newton, nullspace), which
+   * also serves every adjoint solve. */
+  int path;               /* MRVI_PATH_*, set in ocp_alloc */
+  mrvi_integrator *integ; /* structured paths */
+  double *p0;             /* initial momenta M v0, model order */
   mrvi_step step;
   mrvi_newton *newton;
   mrvi_nullspace *nullspace; /* null-space form of the forward solve */
@@ -73,6 +79,7 @@ struct mrvi_ocp {
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
+  long *gz;       /* global node of every z of the step (nz) */
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
@@ -87,6 +94,10 @@ int mrvi_ocp_fail(mrvi_ocp *o, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 /* z index of step k -> global node index (times ns/nf offsets included). */
 long ocp_global(const mrvi_ocp *o, long k, int z);
+/* Step solver path of the forward pass (MRVI_PATH_*) and its reason: the
+ * integrator's for the model and settings (mrvi_sweep_path), the general
+ * one with pair actuators. */
+int ocp_path(const mrvi_ocp *o, char *why, size_t len);
 /* The step and trajectory buffers (once, at the first forward pass). */
 int ocp_alloc(mrvi_ocp *o);
 /* Forward shooting at u: fills Q, pN, momenta, trajectory outputs. */

@@ -563,7 +563,7 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
 int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac) {
   const int ns = b->ns, nf = b->nf;
-  if (!st->increments || st->n_lambda > 0 || st->f_rows)
+  if (!st->increments || st->n_lambda > 0 || st->extra)
     return MRVI_EINVAL;
   b->assembled = jac;
   /* The constant part: computed and saved once, then restored. */
@@ -575,6 +575,9 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
     copy_blocks(b, 2);
   }
   SMALL(ns, NS, SMALL(nf, NF, assemble_k(b, st, x, R, jac, NS, NF)));
+  if (st->f_rows) /* control forces: constants of the step */
+    for (int i = 0; i < st->n_unknowns; i++)
+      R[i] += st->f_rows[i];
   return MRVI_OK;
 }
 

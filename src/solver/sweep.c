@@ -11,6 +11,8 @@
  * (eq:pkfm+; p^{f,0} = p_k^{f,0} - a dT grad_f V(q_k) for row 0):
  *   p^{f,m} - M^f (q^{m+1} - q^m)/dt - sum_{pts of interval m} w cA grad W(z)
  *   = 0,   z = cA q^m + cB q^{m+1}.
+ * Control forces (optimal control, mrvi_step.f_rows / f_end) are constants
+ * of the step: f_rows adds to the row's momentum, f_end to p_{k+1}.
  * It involves nodes up to m + 1 only (block lower-triangular), so the step is
  * a sweep m = 0..p-1 solving row m for q^{m+1}.  Its Jacobian in q^{m+1} is
  *   -(M^f/dt + sum w cA cB hess W(z)):
@@ -543,6 +545,12 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
   }
 }
 
+/* Control forces on fast row m (st->f_rows, optimal control), or NULL:
+ * constants of the step that add to the row's momentum p^{f,m}. */
+static const double *force_row(const mrvi_step *st, int m) {
+  return st->f_rows ? st->f_rows + st->ns + (size_t)m * (size_t)st->nf : NULL;
+}
+
 /* The fast nodes of the explicit path (every W point on a node): row m
  * gives q^{m+1} from p^{f,m} (in pf's row m - 1, row 0: pf's first row as
  * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
@@ -564,12 +572,15 @@ static void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   for (int m = 0; m < p; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *fm = force_row(st, m);
     if (nl > 0 && !sw->gnode_ok) {
       memset(sw->gnode, 0, (size_t)nf * sizeof(double));
       mrvi_terms_eval(sw->kc[MRVI_FAST], qm, 1.0, sw->gnode, NULL, 0, 0.0);
     }
     for (int f = 0; f < nf; f++) {
       double r = pm[f];
+      if (fm)
+        r += fm[f];
       for (int i = 0; i < nl; i++)
         r -= wl[i] * sw->gnode[f];
       const double dn = dt * sw->minv_f[f] * r;
@@ -605,9 +616,10 @@ static int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   for (int m = 0; m < p; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *fm = force_row(st, m);
     /* Predictor (the last implicit force held fixed) and F there. */
     for (int f = 0; f < nf; f++) {
-      rhs[f] = pm[f];
+      rhs[f] = fm ? pm[f] + fm[f] : pm[f];
       dn[f] = dt * sw->minv_f[f] * (rhs[f] - fimp[f]);
       sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
       g[f] = 0.0;
@@ -668,6 +680,8 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
   }
   for (int s = 0; s < ns; s++) {
     ps1[s] = st->ps0[s] - sw->gs[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
+    if (st->f_rows)
+      ps1[s] += st->f_rows[s];
     x[s] = st->qs0[s] + dT * sw->minv_s[s] * ps1[s];
   }
   /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
@@ -688,8 +702,12 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
   for (int m = 0; m < p && !done; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf;
-    /* rhs = p^{f,m} - forces of the points at node m (cB = 0). */
+    /* rhs = p^{f,m} (+ control force) - forces of the points at node m
+     * (cB = 0). */
     memcpy(sw->rhs, pm, (size_t)nf * sizeof(double));
+    const double *fm = force_row(st, m);
+    for (int f = 0; fm && f < nf; f++)
+      sw->rhs[f] += fm[f];
     for (int i = 0; i < sw->n_w; i++) {
       if (sw->cB[i] != 0.0)
         continue;
@@ -756,6 +774,13 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
       ps1[s] -= sw->gs[s];
     for (int f = 0; f < nf; f++)
       pf[(size_t)(p - 1) * nf + f] -= sw->gf[f];
+  }
+  /* Control forces f^+ of the step on the end momenta. */
+  if (st->f_end) {
+    for (int s = 0; s < ns; s++)
+      ps1[s] += st->f_end[s];
+    for (int f = 0; f < nf; f++)
+      pf[(size_t)(p - 1) * nf + f] += st->f_end[ns + f];
   }
   /* Non-finite values propagate along the sweep: the new node suffices. */
   double sum = 0.0;
