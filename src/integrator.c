@@ -658,7 +658,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   const double tol = it->settings.newton_tol;
   const double ctol = it->settings.constraint_tol;
   const int max_it = it->settings.newton_max_iter;
-  char msg[400] = "";
+  char msg[400];
+  msg[0] = '\0'; /* (not = "": that zeroes all 400 bytes every step) */
   it->jac_ready = 0;
   it->timed = it->n_steps++ % MRVI_TIME_EVERY == 0;
   it->n_timed += it->timed;

@@ -17,7 +17,9 @@ typedef struct kterm {
   int kind, n, first; /* inputs col[first..first+n), coef[first..] */
   int k;              /* integer exponent (KT_POWER) */
   int run; /* KT_LINEAR with one input: the number of such terms from here */
+  int op;  /* gradient-only kernel (mrvi_terms_grad) */
   double c, e, shift; /* stiffness or coefficient, exponent, offset b */
+  double ce;          /* c e (KT_POWER), the first factor of phi' */
   const mrvi_element *el;
 } kterm;
 
@@ -30,11 +32,10 @@ struct mrvi_terms {
   double *y, *g, *H; /* element workspace */
 };
 
-/* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
- * phi, by repeated multiplication). */
-static inline void power_derivs(double c, double e, int k, double s, double *d1,
-                                double *d2) {
-  double sk = 1.0; /* s^(k-2), the product order of laws/power.c */
+/* s^(k-2) for a small integer k >= 2 (1 below), in the product order of
+ * laws/power.c. */
+static inline double power_sk(int k, double s) {
+  double sk = 1.0;
   switch (k) {
   case 3:
     sk = 1.0 * s;
@@ -46,6 +47,14 @@ static inline void power_derivs(double c, double e, int k, double s, double *d1,
     for (int i = 2; i < k; i++)
       sk *= s;
   }
+  return sk;
+}
+
+/* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
+ * phi, by repeated multiplication). */
+static inline void power_derivs(double c, double e, int k, double s, double *d1,
+                                double *d2) {
+  const double sk = power_sk(k, s);
   *d1 = k >= 1 ? c * e * (k >= 2 ? sk * s : 1.0) : 0.0;
   *d2 = k >= 2 ? c * e * (e - 1) * sk : 0.0;
 }
@@ -69,6 +78,20 @@ void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2) {
     double phi;
     e->law->eval(e->params, s, &phi, d1, d2);
   }
+}
+
+/* Kernels of mrvi_terms_grad: runs of one-input linear terms, linear and
+ * small-power terms of 1..4 inputs, anything else through the general
+ * evaluation. */
+enum { OP_GENERAL, OP_RUN, OP_LINEAR = 2, OP_POWER = 6 };
+static int grad_op(const kterm *t) {
+  if (t->run > 1)
+    return OP_RUN;
+  if (t->n < 1 || t->n > 4)
+    return OP_GENERAL;
+  return t->kind == KT_LINEAR  ? OP_LINEAR + t->n - 1
+         : t->kind == KT_POWER ? OP_POWER + t->n - 1
+                               : OP_GENERAL;
 }
 
 void mrvi_terms_free(mrvi_terms *kc) {
@@ -125,6 +148,7 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
       if (small_power(e)) {
         t->kind = KT_POWER;
         t->k = (int)t->e;
+        t->ce = t->c * t->e;
       }
     }
     for (int j = 0; j < e->n_in; j++) {
@@ -139,6 +163,7 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     kterm *t = &kc->t[ie];
     if (t->kind == KT_LINEAR && t->n == 1)
       t->run = 1 + (ie + 1 < n_elems ? kc->t[ie + 1].run : 0);
+    t->op = grad_op(t);
   }
   *out = kc;
   return MRVI_OK;
@@ -176,36 +201,98 @@ ALWAYS_INLINE void term_eval(const kterm *t, const int *col, const double *a,
     }
 }
 
+/* Term it of kc (and, for a run of one-input linear terms, the run): g +=
+ * scale grad, J += hscale hess if J; returns the index of its last term. */
+ALWAYS_INLINE int eval_one(mrvi_terms *kc, int it, const double *z,
+                           double scale, double *g, double *J, int ld,
+                           double hscale) {
+  const kterm *t = &kc->t[it];
+  const int n = t->n, *col = kc->col + t->first;
+  const double *a = kc->coef + t->first;
+  if (t->run > 1) { /* as below, one input each */
+    for (int r = 0; r < t->run; r++) {
+      const double ar = a[r], d1 = t[r].c * (-t[r].shift + ar * z[col[r]]);
+      g[col[r]] += scale * (d1 * ar);
+      if (J)
+        J[col[r] * ld + col[r]] += hscale * (t[r].c * ar * ar);
+    }
+    return it + t->run - 1;
+  }
+  if (t->kind == KT_ELEMENT) {
+    const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
+    for (int j = 0; j < n; j++)
+      kc->y[j] = z[col[j]];
+    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, J && !lin ? kc->H : NULL);
+    for (int j = 0; j < n; j++)
+      g[col[j]] += scale * kc->g[j];
+    if (J && !lin)
+      for (int j = 0; j < n; j++)
+        for (int l = 0; l < n; l++)
+          J[col[j] * ld + col[l]] += hscale * kc->H[j * n + l];
+    return it;
+  }
+  /* Unrolled for the common few-input terms. */
+  SMALL(n, N, term_eval(t, col, a, z, scale, g, J, ld, hscale, N));
+  return it;
+}
+
 void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale) {
+  for (int it = 0; it < kc->n; it++)
+    it = eval_one(kc, it, z, scale, g, J, ld, hscale);
+}
+
+/* phi' of a KT_POWER term: power_derivs' d1 with c e kept (the same
+ * products in the same order). */
+ALWAYS_INLINE double power_d1(const kterm *t, double s) {
+  const int k = t->k;
+  const double sk = power_sk(k, s);
+  return k >= 1 ? t->ce * (k >= 2 ? sk * s : 1.0) : 0.0;
+}
+
+/* A linear (power: 0) or power (1) term of N inputs, gradient only. */
+ALWAYS_INLINE void grad_term(const kterm *t, const int *col, const double *a,
+                             const double *z, double *g, int power,
+                             const int N) {
+  double s = -t->shift;
+  UNROLL
+  for (int j = 0; j < N; j++)
+    s += a[j] * z[col[j]];
+  const double d1 = power ? power_d1(t, s) : t->c * s;
+  UNROLL
+  for (int j = 0; j < N; j++)
+    g[col[j]] += d1 * a[j];
+}
+
+void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   for (int it = 0; it < kc->n; it++) {
     const kterm *t = &kc->t[it];
-    const int n = t->n, *col = kc->col + t->first;
+    const int *col = kc->col + t->first;
     const double *a = kc->coef + t->first;
-    if (t->run > 1) { /* as below, one input each */
+    switch (t->op) {
+    case OP_RUN:
       for (int r = 0; r < t->run; r++) {
         const double ar = a[r], d1 = t[r].c * (-t[r].shift + ar * z[col[r]]);
-        g[col[r]] += scale * (d1 * ar);
-        if (J)
-          J[col[r] * ld + col[r]] += hscale * (t[r].c * ar * ar);
+        g[col[r]] += d1 * ar;
       }
       it += t->run - 1;
-      continue;
+      break;
+      /* One case per kind and input count 1..4, unrolled. */
+#define GRAD_CASE(op, power, N)                                                \
+  case op + N - 1:                                                             \
+    grad_term(t, col, a, z, g, power, N);                                      \
+    break;
+      GRAD_CASE(OP_LINEAR, 0, 1)
+      GRAD_CASE(OP_LINEAR, 0, 2)
+      GRAD_CASE(OP_LINEAR, 0, 3)
+      GRAD_CASE(OP_LINEAR, 0, 4)
+      GRAD_CASE(OP_POWER, 1, 1)
+      GRAD_CASE(OP_POWER, 1, 2)
+      GRAD_CASE(OP_POWER, 1, 3)
+      GRAD_CASE(OP_POWER, 1, 4)
+#undef GRAD_CASE
+    default:
+      it = eval_one(kc, it, z, 1.0, g, NULL, 0, 0.0);
     }
-    if (t->kind == KT_ELEMENT) {
-      const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
-      for (int j = 0; j < n; j++)
-        kc->y[j] = z[col[j]];
-      mrvi_element_eval(kc->m, t->el, kc->y, kc->g, J && !lin ? kc->H : NULL);
-      for (int j = 0; j < n; j++)
-        g[col[j]] += scale * kc->g[j];
-      if (J && !lin)
-        for (int j = 0; j < n; j++)
-          for (int l = 0; l < n; l++)
-            J[col[j] * ld + col[l]] += hscale * kc->H[j * n + l];
-      continue;
-    }
-    /* Unrolled for the common few-input terms. */
-    SMALL(n, N, term_eval(t, col, a, z, scale, g, J, ld, hscale, N));
   }
 }
