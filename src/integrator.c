@@ -672,33 +672,47 @@ static int project_micro(mrvi_integrator *it) {
 
 static int finish_step(mrvi_integrator *it);
 
+/* Which steps are timed (mrvi_integrator_timing). */
+static void count_step(mrvi_integrator *it) {
+  it->timed = (unsigned long)it->n_steps++ % MRVI_TIME_EVERY == 0;
+  it->n_timed += it->timed;
+}
+
+/* A step of the structured paths (solver/sweep.c): solution and momenta at
+ * once. */
+static int structured_step(mrvi_integrator *it) {
+  const mrvi_step *st = &it->step;
+  char msg[400];
+  msg[0] = '\0'; /* (not = "": that zeroes all 400 bytes every step) */
+  it->jac_ready = 0;
+  count_step(it);
+  const double t = tick(it);
+  int iters = 0;
+  double res = 0.0;
+  const int s = mrvi_sweep_step(it->sweep, st, it->x, it->ps1, it->micro_p,
+                                &iters, &res, msg, sizeof msg);
+  if (it->timed)
+    it->t_solve += tick(it) - t;
+  it->last_iterations = iters;
+  it->last_residual = res;
+  if (s < 0)
+    return fail(it, s, "step %ld (t = %.10g -> %.10g): %s", it->k + 1,
+                it->t0 + (double)it->k * st->dT,
+                it->t0 + (double)(it->k + 1) * st->dT, msg);
+  return finish_step(it);
+}
+
 int mrvi_integrator_step(mrvi_integrator *it) {
+  if (it->sweep)
+    return structured_step(it);
   mrvi_step *st = &it->step;
   const double tol = it->settings.newton_tol;
   const double ctol = it->settings.constraint_tol;
   const int max_it = it->settings.newton_max_iter;
   char msg[400];
-  msg[0] = '\0'; /* (not = "": that zeroes all 400 bytes every step) */
+  msg[0] = '\0';
   it->jac_ready = 0;
-  it->timed = it->n_steps++ % MRVI_TIME_EVERY == 0;
-  it->n_timed += it->timed;
-
-  if (it->sweep) {
-    /* Structured paths (solver/sweep.c): solution and momenta at once. */
-    const double t = tick(it);
-    int iters = 0;
-    double res = 0.0;
-    const int s = mrvi_sweep_step(it->sweep, st, it->x, it->ps1, it->micro_p,
-                                  &iters, &res, msg, sizeof msg);
-    it->t_solve += tick(it) - t;
-    it->last_iterations = iters;
-    it->last_residual = res;
-    if (s < 0)
-      return fail(it, s, "step %ld (t = %.10g -> %.10g): %s", it->k + 1,
-                  it->t0 + (double)it->k * st->dT,
-                  it->t0 + (double)(it->k + 1) * st->dT, msg);
-    return finish_step(it);
-  }
+  count_step(it);
 
   /* Predictor for x, the multipliers from zero.  Nothing is carried from
    * the last step (multipliers, factors), so a step depends on (q_k, p_k)
@@ -822,7 +836,7 @@ ALWAYS_INLINE void new_state_packed(mrvi_integrator *it, const double *xf,
 }
 
 /* Common end of a step: outputs, new state, projection. */
-static int finish_step(mrvi_integrator *it) {
+static int finish_step_general(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
   mrvi_step *st = &it->step;
   if (st->n_lambda > 0)
@@ -863,6 +877,20 @@ static int finish_step(mrvi_integrator *it) {
     for (int i = 0; i < nf; i++)
       it->micro_p[(size_t)(p - 1) * (size_t)nf + (size_t)i] = it->pf[i];
   }
+  it->k++;
+  it->jac_ready = 1;
+  return MRVI_OK;
+}
+
+static int finish_step(mrvi_integrator *it) {
+  const mrvi_step *st = &it->step;
+  if (!it->packed || it->model->n_constraints > 0)
+    return finish_step_general(it);
+  /* Unconstrained, packed layout: the new state only. */
+  const int ns = st->ns, nf = st->nf, p = st->p;
+  const double *xf = it->x + ns + (size_t)(p - 1) * nf;
+  const double *pf1 = it->micro_p + (size_t)(p - 1) * (size_t)nf;
+  SMALL(ns, NS, SMALL(nf, NF, new_state_packed(it, xf, pf1, NS, NF)));
   it->k++;
   it->jac_ready = 1;
   return MRVI_OK;

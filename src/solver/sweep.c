@@ -23,7 +23,6 @@
 
 #include <float.h>
 #include <math.h>
-#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -49,10 +48,11 @@ struct mrvi_sweep {
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
-  /* grad V at the last macro node where V was evaluated (unscaled), and
-   * that node's (q^s, q^f): the end node of a step is the start node of the
-   * next, and the gradient is reused only for the bitwise same input. */
-  double *gv_at, *gv;
+  /* grad V (unscaled, packed) at the last macro node where V was
+   * evaluated; gv_ok: that node is the current one, the end node of the
+   * last step (cleared by mrvi_sweep_reset when the state is set from
+   * outside, like gnode).  zv: a packed copy of a node's configuration. */
+  double *zv, *gv;
   int gv_ok;
   double *gzero; /* zeros in place of grad V when its weight is 0 */
   double *gnode; /* grad_f W at the current node (cache) */
@@ -165,7 +165,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->zf);
   mrvi_terms_free(sw->kc[0]);
   mrvi_terms_free(sw->kc[1]);
-  free(sw->gv_at);
+  free(sw->zv);
   free(sw->gv);
   free(sw->gzero);
   free(sw->gnode);
@@ -239,7 +239,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->minv_f = dalloc(nf);
   sw->m_f = dalloc(nf);
   sw->zf = dalloc(nf);
-  sw->gv_at = dalloc(ns + nf);
+  sw->zv = dalloc(ns + nf);
   sw->gv = dalloc(ns + nf);
   sw->gzero = dalloc(ns + nf);
   /* Columns: (q^s, q^f) packed for V, q^f alone for W (no slow inputs). */
@@ -289,10 +289,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->y = dalloc((size_t)max_n_in);
   sw->g = dalloc((size_t)max_n_in);
   sw->H = dalloc(mi * mi);
-  if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->gv_at ||
-      !sw->gv || !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] ||
-      !sw->rhs || !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] ||
-      !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H) {
+  if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
+      !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
+      !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
+      !sw->piv || !sw->y || !sw->g || !sw->H) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -338,9 +338,10 @@ static void eval_fast(mrvi_sweep *sw, double *gf, double *J, double hscale) {
   }
 }
 
-/* The blocks of a few coordinates are copied, zeroed and compared by loops:
- * a library call costs more than the work at these sizes, and reads that
- * span the scalar stores just made stall on store forwarding. */
+/* The blocks of a few coordinates are copied and zeroed by loops (unrolled
+ * for small blocks): a library call costs more than the work at these
+ * sizes, and reads that span the scalar stores just made stall on store
+ * forwarding. */
 ALWAYS_INLINE void copy(double *restrict d, const double *restrict s, int n) {
   UNROLL
   for (int i = 0; i < n; i++)
@@ -353,35 +354,18 @@ ALWAYS_INLINE void zero(double *d, int n) {
     d[i] = 0.0;
 }
 
-/* a and b bitwise the same (memcmp, word by word). */
-ALWAYS_INLINE int same_bits(const double *a, const double *b, int n) {
-  UNROLL
-  for (int i = 0; i < n; i++) {
-    uint64_t x, y;
-    memcpy(&x, a + i, sizeof x);
-    memcpy(&y, b + i, sizeof y);
-    if (x != y)
-      return 0;
+/* sw->gv = grad V (unscaled, packed: ns slow then nf fast entries) at
+ * (qs, qf), read in place when they are adjacent. */
+ALWAYS_INLINE void slow_gradient(mrvi_sweep *sw, const double *qs,
+                                 const double *qf, const int ns, const int nf) {
+  const double *z = qs;
+  if (qf != qs + ns) {
+    copy(sw->zv, qs, ns);
+    copy(sw->zv + ns, qf, nf);
+    z = sw->zv;
   }
-  return 1;
-}
-
-/* grad V (unscaled, packed: ns slow then nf fast entries) at (qs, qf).  The
- * gradient at a step's end node serves the next step's start node: it is
- * reused when the input is bitwise the same, so a step still depends on
- * (q_k, p_k) alone. */
-ALWAYS_INLINE const double *slow_gradient(mrvi_sweep *sw, const double *qs,
-                                          const double *qf, const int ns,
-                                          const int nf) {
-  if (!sw->gv_ok || !same_bits(sw->gv_at, qs, ns) ||
-      !same_bits(sw->gv_at + ns, qf, nf)) {
-    copy(sw->gv_at, qs, ns);
-    copy(sw->gv_at + ns, qf, nf);
-    zero(sw->gv, ns + nf);
-    mrvi_terms_grad(sw->kc[MRVI_SLOW], sw->gv_at, sw->gv);
-    sw->gv_ok = 1;
-  }
-  return sw->gv;
+  zero(sw->gv, ns + nf);
+  mrvi_terms_grad(sw->kc[MRVI_SLOW], z, sw->gv);
 }
 
 static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
@@ -579,9 +563,10 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
  * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
  * node m + 1, which also serves row m + 1.  The arithmetic of the general
  * sweep below, in one pass per node. */
-ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
-                                  double *x, double *pf, const int nf) {
-  const int ns = sw->ns, p = sw->p, nl = sw->nl, nr = sw->nr;
+ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
+                                  double *x, double *pf, const int nl,
+                                  const int nr, const int nf) {
+  const int ns = sw->ns, p = sw->p;
   const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
   const double *mf = sw->m_f, *minv = sw->minv_f;
   double *gnode = sw->gnode;
@@ -612,6 +597,16 @@ ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
     }
     pm = pn;
   }
+}
+
+/* The explicit sweep, unrolled for the trapezoidal rule (one point at each
+ * node of an interval). */
+ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
+                                  double *x, double *pf, const int nf) {
+  if (sw->nl == 1 && sw->nr == 1)
+    explicit_nodes(sw, st, x, pf, 1, 1, nf);
+  else
+    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf);
 }
 
 /* The fast nodes of the sweep path for a quadratic W with one (implicit)
@@ -763,8 +758,12 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
     zero(sw->fimp, nf);
   /* Slow row: q_{k+1}^s explicit; V at node k also enters fast row 0. */
   const double w0 = sw->wv0;
-  const double *gv =
-      w0 != 0.0 ? slow_gradient(sw, st->qs0, st->qf0, ns, nf) : sw->gzero;
+  /* grad V at node k: kept from the last step's end node (it is bitwise
+   * q_k, so a step still depends on (q_k, p_k) alone), else evaluated. */
+  if (w0 != 0.0 && !sw->gv_ok)
+    slow_gradient(sw, st->qs0, st->qf0, ns, nf);
+  sw->gv_ok = 0;
+  const double *gv = w0 != 0.0 ? sw->gv : sw->gzero;
   for (int s = 0; s < ns; s++) {
     ps1[s] = st->ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
     x[s] = st->qs0[s] + dT * sw->minv_s[s] * ps1[s];
@@ -792,7 +791,8 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
   if (sw->wv1 != 0.0) {
     const double w1 = sw->wv1;
-    gv = slow_gradient(sw, x, x + ns + (size_t)(p - 1) * nf, ns, nf);
+    slow_gradient(sw, x, x + ns + (size_t)(p - 1) * nf, ns, nf);
+    gv = sw->gv;
     for (int s = 0; s < ns; s++)
       ps1[s] -= w1 * gv[s];
     for (int f = 0; f < nf; f++)
@@ -810,6 +810,8 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
              sw->implicit ? "sweep" : "explicit");
     return MRVI_ENONFINITE;
   }
+  /* The step is taken: grad V at its end node serves the next one. */
+  sw->gv_ok = sw->wv1 != 0.0;
   return MRVI_OK;
 }
 
