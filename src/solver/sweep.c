@@ -652,10 +652,11 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
         h += H[a * nf + b] * del[b];
       g[a] += cB * h;
       fimp[a] = 0.0 + wc * g[a];
-      const double ra = fabs(rhs[a] - mf[a] * dn[a] / dt - fimp[a]);
+      const double mv = mf[a] * dn[a] / dt; /* M v_m, one division */
+      const double ra = fabs(rhs[a] - mv - fimp[a]);
       r = isnan(ra) || ra > r ? ra : r;
       qn[a] = qm[a] + dn[a];
-      pn[a] = mf[a] * dn[a] / dt;
+      pn[a] = mv;
       pn[a] -= wb * g[a];
     }
     pm = pn;
