@@ -406,7 +406,8 @@ static mrvi_model *terms_model(void) {
 }
 
 /* mrvi_terms_grad is mrvi_terms_eval at scale 1 without a Hessian, bitwise,
- * and both are the model's potential gradient (to rounding). */
+ * and both are the model's potential gradient (to rounding);
+ * mrvi_terms_value is the model's potential value, bitwise. */
 static void check_terms_grad(const mrvi_model *m, const char *what) {
   const int n = m->n;
   int *elems = calloc((size_t)m->n_elements + 1, sizeof *elems);
@@ -430,7 +431,11 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
       }
       mrvi_terms_eval(kc, q, 1.0, g1, NULL, 0, 0.0);
       mrvi_terms_grad(kc, q, g2);
-      mrvi_model_potential(m, (mrvi_rate)c, q, gm, NULL);
+      const double v = mrvi_model_potential(m, (mrvi_rate)c, q, gm, NULL);
+      const double vt = mrvi_terms_value(kc, q);
+      CHECK(memcmp(&v, &vt, sizeof v) == 0,
+            "%s class %d: value %.17g bitwise the model's %.17g", what, c, vt,
+            v);
       CHECK(memcmp(g1, g2, (size_t)n * sizeof *g1) == 0,
             "%s class %d: grad kernel bitwise the general evaluation", what, c);
       for (int i = 0; i < n; i++)
