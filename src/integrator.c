@@ -1,5 +1,6 @@
 /* The one-step map (q_k, p_k) -> (q_{k+1}, p_{k+1}) solved by Newton. */
 #include "internal.h"
+#include "solver/small.h"
 
 #include <float.h>
 #include <math.h>
@@ -20,7 +21,7 @@ struct mrvi_integrator {
   mrvi_predictor *predictor; /* Newton paths */
   int factors_ok;            /* factors of this step's Jacobian are kept */
   char why[240];             /* reason for the path */
-  double *qs_prev, *qf_prev; /* q_k^s, q_k^{f,0} of the last step */
+  double *qs_prev, *qf_prev; /* q_k^s, q_k^{f,0} of the last step (packed) */
   mrvi_newton *jac_nw;       /* full-step factors for jacobian_solve */
   int jac_ready;             /* jac_nw holds the last step's Jacobian */
   double *rhs;               /* reduced right-hand side (null-space form) */
@@ -28,6 +29,7 @@ struct mrvi_integrator {
   long k;
   double *q, *p;             /* model order, n */
   double *qs, *qf, *ps, *pf; /* rate blocks of the state */
+  int packed; /* model order is slow then fast: the blocks alias q and p */
   double *x, *R, *dx;        /* unknowns, residual, Newton update */
   double *ps1;               /* ns */
   double *micro_q, *micro_p; /* p x nf */
@@ -57,7 +59,7 @@ static int fail(mrvi_integrator *it, int status, const char *fmt, ...)
 /* The assembly and solve times (mrvi_integrator_timing) are measured on
  * one step in MRVI_TIME_EVERY and scaled to all steps: a clock read costs
  * about 20 ns, as much as a micro step of the explicit paths. */
-#define MRVI_TIME_EVERY 16
+#define MRVI_TIME_EVERY 64
 
 /* The clock on timed steps, else 0. */
 static double tick(const mrvi_integrator *it) {
@@ -85,17 +87,18 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   mrvi_blocks_free(it->blocks);
   mrvi_skrylov_free(it->skrylov);
   mrvi_predictor_free(it->predictor);
-  free(it->qs_prev);
-  free(it->qf_prev);
+  free(it->qs_prev); /* qf_prev inside */
   mrvi_nullspace_free(it->nullspace);
   free(it->rhs);
   mrvi_step_free(&it->step);
   free(it->q);
   free(it->p);
-  free(it->qs);
-  free(it->qf);
-  free(it->ps);
-  free(it->pf);
+  if (!it->packed) {
+    free(it->qs);
+    free(it->qf);
+    free(it->ps);
+    free(it->pf);
+  }
   free(it->x);
   free(it->R);
   free(it->dx);
@@ -299,10 +302,26 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
                p = (size_t)s->micro_steps, nu = (size_t)it->step.n_total;
   it->q = alloc(n);
   it->p = alloc(n);
-  it->qs = alloc(ns);
-  it->ps = alloc(ns);
-  it->qf = alloc(nf);
-  it->pf = alloc(nf);
+  /* Slow coordinates first, then the fast ones, in their order (the usual
+   * layout): the rate blocks are views of q and p, and a step's new state
+   * is written once. */
+  it->packed = 1;
+  for (int i = 0; i < m->n_slow; i++)
+    it->packed &= m->slow_index[i] == i;
+  for (int i = 0; i < m->n_fast; i++)
+    it->packed &= m->fast_index[i] == m->n_slow + i;
+  if (it->packed && it->q && it->p) {
+    it->qs = it->q;
+    it->qf = it->q + ns;
+    it->ps = it->p;
+    it->pf = it->p + ns;
+  } else {
+    it->packed = 0;
+    it->qs = alloc(ns);
+    it->ps = alloc(ns);
+    it->qf = alloc(nf);
+    it->pf = alloc(nf);
+  }
   it->x = alloc(nu);
   it->R = alloc(nu);
   it->dx = alloc(nu);
@@ -322,10 +341,10 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->pGf = alloc(rm * nf);
   it->pA = alloc(rm * rm);
   it->pmu = alloc(rm);
-  it->qs_prev = alloc(ns);
-  it->qf_prev = alloc(nf);
-  if (!it->qs_prev || !it->qf_prev)
+  it->qs_prev = alloc(ns + nf);
+  if (!it->qs_prev)
     goto oom;
+  it->qf_prev = it->qs_prev + ns;
   if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf || !it->x ||
       !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p ||
       !it->lambda || !it->micro_cres || !it->rhs || !it->cg || !it->cGd ||
@@ -654,32 +673,47 @@ static int project_micro(mrvi_integrator *it) {
 
 static int finish_step(mrvi_integrator *it);
 
+/* Which steps are timed (mrvi_integrator_timing). */
+static void count_step(mrvi_integrator *it) {
+  it->timed = (unsigned long)it->n_steps++ % MRVI_TIME_EVERY == 0;
+  it->n_timed += it->timed;
+}
+
+/* A step of the structured paths (solver/sweep.c): solution and momenta at
+ * once. */
+static int structured_step(mrvi_integrator *it) {
+  const mrvi_step *st = &it->step;
+  char msg[400];
+  msg[0] = '\0'; /* (not = "": that zeroes all 400 bytes every step) */
+  it->jac_ready = 0;
+  count_step(it);
+  const double t = tick(it);
+  int iters = 0;
+  double res = 0.0;
+  const int s = mrvi_sweep_step(it->sweep, st, it->x, it->ps1, it->micro_p,
+                                &iters, &res, msg, sizeof msg);
+  if (it->timed)
+    it->t_solve += tick(it) - t;
+  it->last_iterations = iters;
+  it->last_residual = res;
+  if (s < 0)
+    return fail(it, s, "step %ld (t = %.10g -> %.10g): %s", it->k + 1,
+                it->t0 + (double)it->k * st->dT,
+                it->t0 + (double)(it->k + 1) * st->dT, msg);
+  return finish_step(it);
+}
+
 int mrvi_integrator_step(mrvi_integrator *it) {
+  if (it->sweep)
+    return structured_step(it);
   mrvi_step *st = &it->step;
   const double tol = it->settings.newton_tol;
   const double ctol = it->settings.constraint_tol;
   const int max_it = it->settings.newton_max_iter;
-  char msg[400] = "";
+  char msg[400];
+  msg[0] = '\0';
   it->jac_ready = 0;
-  it->timed = it->n_steps++ % MRVI_TIME_EVERY == 0;
-  it->n_timed += it->timed;
-
-  if (it->sweep) {
-    /* Structured paths (solver/sweep.c): solution and momenta at once. */
-    const double t = tick(it);
-    int iters = 0;
-    double res = 0.0;
-    const int s = mrvi_sweep_step(it->sweep, st, it->x, it->ps1, it->micro_p,
-                                  &iters, &res, msg, sizeof msg);
-    it->t_solve += tick(it) - t;
-    it->last_iterations = iters;
-    it->last_residual = res;
-    if (s < 0)
-      return fail(it, s, "step %ld (t = %.10g -> %.10g): %s", it->k + 1,
-                  it->t0 + (double)it->k * st->dT,
-                  it->t0 + (double)(it->k + 1) * st->dT, msg);
-    return finish_step(it);
-  }
+  count_step(it);
 
   /* Predictor for x, the multipliers from zero.  Nothing is carried from
    * the last step (multipliers, factors), so a step depends on (q_k, p_k)
@@ -775,8 +809,35 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   return finish_step(it);
 }
 
+/* The new state (x, ps1 and xf, pf1: the last fast node) into q, p, the
+ * last one into qs_prev, qf_prev and the fast nodes into micro_q, for the
+ * packed layout and ns, nf constants for small blocks. */
+ALWAYS_INLINE void new_state_packed(mrvi_integrator *it, const double *xf,
+                                    const double *pf1, const int ns,
+                                    const int nf) {
+  const int p = it->step.p;
+  UNROLL
+  for (int i = 0; i < ns + nf; i++)
+    it->qs_prev[i] = it->q[i];
+  UNROLL
+  for (int i = 0; i < ns; i++) {
+    it->q[i] = it->x[i];
+    it->p[i] = it->ps1[i];
+  }
+  UNROLL
+  for (int i = 0; i < nf; i++) {
+    it->q[ns + i] = xf[i];
+    it->p[ns + i] = pf1[i];
+  }
+  for (int mm = 0; mm < p; mm++) {
+    UNROLL
+    for (int i = 0; i < nf; i++)
+      it->micro_q[mm * nf + i] = it->x[ns + mm * nf + i];
+  }
+}
+
 /* Common end of a step: outputs, new state, projection. */
-static int finish_step(mrvi_integrator *it) {
+static int finish_step_general(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
   mrvi_step *st = &it->step;
   if (st->n_lambda > 0)
@@ -787,22 +848,26 @@ static int finish_step(mrvi_integrator *it) {
                 "constraint gradients dependent)",
                 it->k + 1);
   const int ns = st->ns, nf = st->nf, p = st->p;
-  /* The new state in rate blocks and model order, the last one kept (one
-   * pass per block: these copies are short, a call each would cost more
-   * than the copying at p = 1). */
+  /* The new state in rate blocks and model order, the last one kept (loops:
+   * these copies are short, a call each would cost more than the copying at
+   * p = 1). */
   const double *xq = it->x, *xf = it->x + ns + (size_t)(p - 1) * nf;
   const double *pf1 = it->micro_p + (size_t)(p - 1) * (size_t)nf;
-  for (int i = 0; i < ns; i++) {
-    it->qs_prev[i] = it->qs[i];
-    it->qs[i] = it->q[m->slow_index[i]] = xq[i];
-    it->ps[i] = it->p[m->slow_index[i]] = it->ps1[i];
+  if (it->packed) {
+    SMALL(ns, NS, SMALL(nf, NF, new_state_packed(it, xf, pf1, NS, NF)));
+  } else {
+    for (int i = 0; i < ns; i++) {
+      it->qs_prev[i] = it->qs[i];
+      it->qs[i] = it->q[m->slow_index[i]] = xq[i];
+      it->ps[i] = it->p[m->slow_index[i]] = it->ps1[i];
+    }
+    for (int i = 0; i < nf; i++) {
+      it->qf_prev[i] = it->qf[i];
+      it->qf[i] = it->q[m->fast_index[i]] = xf[i];
+      it->pf[i] = it->p[m->fast_index[i]] = pf1[i];
+    }
+    memcpy(it->micro_q, it->x + ns, (size_t)p * (size_t)nf * sizeof(double));
   }
-  for (int i = 0; i < nf; i++) {
-    it->qf_prev[i] = it->qf[i];
-    it->qf[i] = it->q[m->fast_index[i]] = xf[i];
-    it->pf[i] = it->p[m->fast_index[i]] = pf1[i];
-  }
-  memcpy(it->micro_q, it->x + ns, (size_t)p * (size_t)nf * sizeof(double));
   if (m->n_constraints > 0 && it->settings.project_momenta) {
     if (project(it) < 0)
       return fail(it, MRVI_ESINGULAR,
@@ -813,6 +878,20 @@ static int finish_step(mrvi_integrator *it) {
     for (int i = 0; i < nf; i++)
       it->micro_p[(size_t)(p - 1) * (size_t)nf + (size_t)i] = it->pf[i];
   }
+  it->k++;
+  it->jac_ready = 1;
+  return MRVI_OK;
+}
+
+static int finish_step(mrvi_integrator *it) {
+  const mrvi_step *st = &it->step;
+  if (!it->packed || it->model->n_constraints > 0)
+    return finish_step_general(it);
+  /* Unconstrained, packed layout: the new state only. */
+  const int ns = st->ns, nf = st->nf, p = st->p;
+  const double *xf = it->x + ns + (size_t)(p - 1) * nf;
+  const double *pf1 = it->micro_p + (size_t)(p - 1) * (size_t)nf;
+  SMALL(ns, NS, SMALL(nf, NF, new_state_packed(it, xf, pf1, NS, NF)));
   it->k++;
   it->jac_ready = 1;
   return MRVI_OK;

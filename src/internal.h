@@ -432,6 +432,12 @@ void mrvi_terms_free(mrvi_terms *kc);
  * on the columns). */
 void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale);
+/* g += grad Z(z): mrvi_terms_eval with scale 1 and no Hessian (the same
+ * kernels without their Hessian part), bitwise the same. */
+void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
+/* Z(z): the sum of the elements' values in their order, bitwise
+ * mrvi_model_potential's (the same products and additions). */
+double mrvi_terms_value(mrvi_terms *kc, const double *z);
 /* phi'(s) and phi''(s) of term element e's law (the linear law and small
  * integer powers without the law table). */
 void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2);

@@ -6,10 +6,43 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* The potentials V and W compiled once per run (solver/terms.c): their
+ * values at every node, bitwise mrvi_model_energy's, without its per-element
+ * dispatch.  NULL entries (out of memory): mrvi_model_energy. */
+typedef struct potentials {
+  mrvi_terms *kc[2];
+} potentials;
+
+static void potentials_create(const mrvi_model *m, potentials *pot) {
+  pot->kc[0] = pot->kc[1] = NULL;
+  int *elems = malloc((size_t)(m->n_elements + 1) * sizeof *elems);
+  for (int c = 0; elems && c < 2; c++) {
+    int n = 0;
+    for (int e = 0; e < m->n_elements; e++)
+      if (m->elements[e].potential == (mrvi_rate)c)
+        elems[n++] = e;
+    if (mrvi_terms_create(m, elems, n, NULL, &pot->kc[c]) < 0)
+      pot->kc[c] = NULL;
+  }
+  free(elems);
+}
+
+static void potentials_free(potentials *pot) {
+  mrvi_terms_free(pot->kc[0]);
+  mrvi_terms_free(pot->kc[1]);
+}
+
 /* Fill the observables of a record at (q, p). */
-static void observe_state(const mrvi_model *m, mrvi_record *r) {
-  mrvi_model_energy(m, r->q, r->p, &r->kinetic, &r->potential_slow,
-                    &r->potential_fast);
+static void observe_state(const mrvi_model *m, const potentials *pot,
+                          mrvi_record *r) {
+  if (pot->kc[0] && pot->kc[1]) {
+    mrvi_model_energy(m, r->q, r->p, &r->kinetic, NULL, NULL);
+    r->potential_slow = mrvi_terms_value(pot->kc[0], r->q);
+    r->potential_fast = mrvi_terms_value(pot->kc[1], r->q);
+  } else {
+    mrvi_model_energy(m, r->q, r->p, &r->kinetic, &r->potential_slow,
+                      &r->potential_fast);
+  }
   r->energy = r->kinetic + r->potential_slow + r->potential_fast;
   memset(r->linear_momentum, 0, sizeof r->linear_momentum);
   memset(r->angular_momentum, 0, sizeof r->angular_momentum);
@@ -160,11 +193,14 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
   r.t = (double)k0 * s->macro_step;
   r.q = mrvi_integrator_q(it);
   r.p = mrvi_integrator_p(it);
-  observe_state(m, &r);
+  potentials pot;
+  potentials_create(m, &pot);
+  observe_state(m, &pot, &r);
   /* Initial fast part, in model order of the fast coordinates. */
   double *fq = malloc((2 * (size_t)nf + 1 + (size_t)p) * sizeof(double));
   if (!fq) {
     mrvi_integrator_free(it);
+    potentials_free(&pot);
     mrvi_fmt(sum->message, sizeof sum->message, "out of memory");
     return sum->status = MRVI_ENOMEM;
   }
@@ -231,7 +267,7 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     r.t = (double)(k + 1) * s->macro_step;
     r.q = mrvi_integrator_q(it);
     r.p = mrvi_integrator_p(it);
-    observe_state(m, &r);
+    observe_state(m, &pot, &r);
     r.iterations = iters;
     r.residual = mrvi_integrator_last_residual(it);
     r.micro_count = p;
@@ -272,6 +308,7 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
   sum->roundoff_steps = mrvi_integrator_roundoff_steps(it);
   mrvi_integrator_krylov_stats(it, &sum->krylov);
   mrvi_integrator_free(it);
+  potentials_free(&pot);
   free(fq);
   sum->wall_time = mrvi_clock() - t_start;
   sum->status = st < 0 ? st : MRVI_OK;

@@ -373,6 +373,83 @@ static void check_molecule_run(void) {
   mrvi_model_free(m);
 }
 
+/* Terms of every kernel of mrvi_terms_grad (solver/terms.c): runs of
+ * one-input linear terms, linear and integer-power terms of 1..4 inputs,
+ * powers of every small exponent, a real exponent and a Morse law (the law
+ * table), five inputs (the general kernel). */
+static mrvi_model *terms_model(void) {
+  mrvi_model *m = mrvi_model_create();
+  for (int i = 0; i < 6; i++)
+    mrvi_model_add_coordinate(
+        m, (const char *[]){"a", "b", "c", "d", "e", "f"}[i], 1.0 + i,
+        i < 3 ? MRVI_SLOW : MRVI_FAST, 0.3 * i - 0.7, 0.0);
+  const int c[6] = {0, 3, 1, 4, 2, 5}, cf[3] = {3, 4, 5};
+  const double a[6] = {1.0, -1.0, 0.5, 2.0, -1.5, 0.25};
+  const double lin[1] = {7.0}, mo[2] = {2.0, 1.5}, real[2] = {0.6, 2.5};
+  /* W (fast coordinates only): a run of one-input linear terms, powers */
+  for (int i = 0; i < 3; i++)
+    mrvi_model_add_term(m, MRVI_FAST, 1, cf + i, a + i, 0.1 * i, "linear", lin);
+  for (int k = 2; k <= 3; k++) {
+    const double pw[2] = {0.4, k};
+    mrvi_model_add_term(m, MRVI_FAST, k, cf, a, 0.1, "power", pw);
+  }
+  /* V: phi = 0.3 s^k on k % 4 + 1 inputs, linear terms of 1..5 inputs */
+  for (int k = 0; k <= 6; k++) {
+    const double pw[2] = {0.3, k};
+    mrvi_model_add_term(m, MRVI_SLOW, k % 4 + 1, c, a, 0.2, "power", pw);
+  }
+  for (int n = 1; n <= 5; n++)
+    mrvi_model_add_term(m, MRVI_SLOW, n, c + 6 - n, a, -0.1, "linear", lin);
+  mrvi_model_add_term(m, MRVI_SLOW, 2, c, a, -2.0, "power", real);
+  mrvi_model_add_term(m, MRVI_SLOW, 3, c + 1, a, 0.3, "morse", mo);
+  return m;
+}
+
+/* mrvi_terms_grad is mrvi_terms_eval at scale 1 without a Hessian, bitwise,
+ * and both are the model's potential gradient (to rounding);
+ * mrvi_terms_value is the model's potential value, bitwise. */
+static void check_terms_grad(const mrvi_model *m, const char *what) {
+  const int n = m->n;
+  int *elems = calloc((size_t)m->n_elements + 1, sizeof *elems);
+  double *q = calloc((size_t)n, sizeof *q), *g1 = calloc((size_t)n, sizeof *g1);
+  double *g2 = calloc((size_t)n, sizeof *g2),
+         *gm = calloc((size_t)n, sizeof *gm);
+  for (int c = 0; c < 2; c++) {
+    int ne = 0;
+    for (int e = 0; e < m->n_elements; e++)
+      if (m->elements[e].potential == (mrvi_rate)c)
+        elems[ne++] = e;
+    mrvi_terms *kc = NULL;
+    CHECK(mrvi_terms_create(m, elems, ne, NULL, &kc) == MRVI_OK, "%s: create",
+          what);
+    if (!kc)
+      continue;
+    for (int r = 0; r < 8; r++) { /* configurations around q0 */
+      for (int i = 0; i < n; i++) {
+        q[i] = m->q0[i] + 0.05 * sin(3.0 * i + c + 0.7 * r);
+        g1[i] = g2[i] = gm[i] = 0.0;
+      }
+      mrvi_terms_eval(kc, q, 1.0, g1, NULL, 0, 0.0);
+      mrvi_terms_grad(kc, q, g2);
+      const double v = mrvi_model_potential(m, (mrvi_rate)c, q, gm, NULL);
+      const double vt = mrvi_terms_value(kc, q);
+      CHECK(memcmp(&v, &vt, sizeof v) == 0,
+            "%s class %d: value %.17g bitwise the model's %.17g", what, c, vt,
+            v);
+      CHECK(memcmp(g1, g2, (size_t)n * sizeof *g1) == 0,
+            "%s class %d: grad kernel bitwise the general evaluation", what, c);
+      for (int i = 0; i < n; i++)
+        CHECK_NEAR(g2[i], gm[i], 1e-13 * (1 + fabs(gm[i])), what);
+    }
+    mrvi_terms_free(kc);
+  }
+  free(elems);
+  free(q);
+  free(g1);
+  free(g2);
+  free(gm);
+}
+
 int main(void) {
   check_laws();
   check_pair_laws();
@@ -392,6 +469,17 @@ int main(void) {
     mrvi_model_free(m);
   }
   check_zero_length();
+  check_terms_grad(fpu, "fpu terms");
+  check_terms_grad(ring, "spring ring terms");
+  for (int d = 1; d <= 3; d++) {
+    mrvi_model *m = mixed_model(d);
+    check_terms_grad(m, "mixed terms");
+    mrvi_model_free(m);
+  }
+  mrvi_model *tm = terms_model();
+  CHECK(tm && tm->n_elements == 3 + 2 + 7 + 5 + 2, "terms model built");
+  check_terms_grad(tm, "term kernels");
+  mrvi_model_free(tm);
   mrvi_model_free(fpu);
   mrvi_model_free(ring);
   return test_finish();

@@ -295,7 +295,10 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
       st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
       (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
   UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
-  mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
+  if (J) /* the slow solve's Hessian as well */
+    mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
+  else
+    mrvi_terms_grad(pr->kc[c], z, g);
 }
 
 static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,

@@ -21,6 +21,7 @@
  * nf x nf Newton problem, solved by dense LU up to SWEEP_DENSE_MAX and by
  * CG on a sparse pattern beyond ("sweep-cg", solver/sparse_block.c). */
 #include "internal.h"
+#include "small.h"
 
 #include <float.h>
 #include <math.h>
@@ -42,15 +43,20 @@ struct mrvi_sweep {
   double wv0, wv1; /* weights of V at the macro nodes k and k+1 */
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
+  /* explicit path: weights of the points at node m (wl) and at node m + 1
+   * (wr = w cB) of interval m */
+  int nl, nr;
+  double wl[2], wr[2];
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
-  double *zs, *zf;   /* point configuration (zf = zs + ns: packed) */
-  double *gs, *gf;   /* gradient accumulators (gf = gs + ns: packed) */
+  double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
-  /* grad V at the last macro node where V was evaluated (unscaled), and
-   * that node's (q^s, q^f): the end node of a step is the start node of the
-   * next, and the gradient is reused only for the bitwise same input. */
-  double *gv_at, *gv;
+  /* grad V (unscaled, packed) at the last macro node where V was
+   * evaluated; gv_ok: that node is the current one, the end node of the
+   * last step (cleared by mrvi_sweep_reset when the state is set from
+   * outside, like gnode).  zv: a packed copy of a node's configuration. */
+  double *zv, *gv;
   int gv_ok;
+  double *gzero; /* zeros in place of grad V when its weight is 0 */
   double *gnode; /* grad_f W at the current node (cache) */
   int gnode_ok;
   double *gpt[2];         /* grad_f W at the implicit points (converged) */
@@ -158,12 +164,12 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->minv_s);
   free(sw->minv_f);
   free(sw->m_f);
-  free(sw->zs); /* zf, gf are inside zs, gs */
-  free(sw->gs);
+  free(sw->zf);
   mrvi_terms_free(sw->kc[0]);
   mrvi_terms_free(sw->kc[1]);
-  free(sw->gv_at);
+  free(sw->zv);
   free(sw->gv);
+  free(sw->gzero);
   free(sw->gnode);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
@@ -219,6 +225,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->cB[sw->n_w] = pt->cB;
     if (pt->cA != 0.0 && pt->cB != 0.0 && st->nf > 0)
       sw->implicit = 1;
+    if (pt->cB == 0.0)
+      sw->wl[sw->nl++] = pt->w;
+    else
+      sw->wr[sw->nr++] = pt->w * pt->cB;
     sw->n_w++;
   }
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
@@ -230,13 +240,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->minv_s = dalloc(ns);
   sw->minv_f = dalloc(nf);
   sw->m_f = dalloc(nf);
-  sw->zs = dalloc(ns + nf);
-  sw->zf = sw->zs ? sw->zs + ns : NULL;
-  sw->gs = dalloc(ns + nf);
-  sw->gf = sw->gs ? sw->gs + ns : NULL;
-  sw->gv_at = dalloc(ns + nf);
+  sw->zf = dalloc(nf);
+  sw->zv = dalloc(ns + nf);
   sw->gv = dalloc(ns + nf);
-  /* Columns: (zs, zf) packed for V, zf alone for W (no slow inputs). */
+  sw->gzero = dalloc(ns + nf);
+  /* Columns: (q^s, q^f) packed for V, q^f alone for W (no slow inputs). */
   int *col = calloc((size_t)(m->n > 0 ? m->n : 1), sizeof *col);
   int s_ok = col != NULL;
   for (int c = 0; s_ok && c < m->n; c++)
@@ -283,10 +291,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->y = dalloc((size_t)max_n_in);
   sw->g = dalloc((size_t)max_n_in);
   sw->H = dalloc(mi * mi);
-  if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zs || !sw->zf || !sw->gs ||
-      !sw->gv_at || !sw->gv || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] ||
-      !sw->rhs || !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] ||
-      !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H) {
+  if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
+      !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
+      !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
+      !sw->piv || !sw->y || !sw->g || !sw->H) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -308,19 +316,12 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
   memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
 }
 
-/* Elements of potential class cls at (zs, zf): gs += scale grad_s and
- * gf += scale grad_f (for the slow class gs, gf are sw->gs, sw->gf, packed;
- * the fast class has no slow inputs on these paths and gs is unused) and,
- * if J, J += hscale hess_ff (nf x nf, or the sparse sw->sb when set). */
-static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
-                       double *gf, double *J, double hscale) {
-  if (cls == MRVI_SLOW) {
-    (void)gf; /* = gs + ns */
-    mrvi_terms_eval(sw->kc[MRVI_SLOW], sw->zs, scale, gs, NULL, 0, 0.0);
-    return;
-  }
+/* The fast class at zf: gf += grad W and, if J, J += hscale hess W
+ * (nf x nf, or the sparse sw->sb when set). */
+static void eval_fast(mrvi_sweep *sw, double *gf, double *J, double hscale) {
+  const int cls = MRVI_FAST;
   if (!(J && sw->sb)) {
-    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, scale, gf, J, sw->nf, hscale);
+    mrvi_terms_eval(sw->kc[cls], sw->zf, 1.0, gf, J, sw->nf, hscale);
     return;
   }
   /* Sparse block: each element's Hessian goes to its pattern entries. */
@@ -333,25 +334,40 @@ static void eval_class(mrvi_sweep *sw, int cls, double scale, double *gs,
       sw->y[j] = sw->zf[m->slot[e->in[j]]];
     mrvi_element_eval(m, e, sw->y, sw->g, lin ? NULL : sw->H);
     for (int j = 0; j < n; j++)
-      gf[m->slot[e->in[j]]] += scale * sw->g[j];
+      gf[m->slot[e->in[j]]] += sw->g[j];
     if (!lin)
       mrvi_sblock_add_element(sw->sb, ie, sw->H, n, hscale);
   }
 }
 
-/* (gs, gf) = w grad V at the packed (zs, zf).  The gradient at a step's end
- * node serves the next step's start node: it is reused when the input is
- * bitwise the same, so a step still depends on (q_k, p_k) alone. */
-static void slow_gradient(mrvi_sweep *sw, double w) {
-  const size_t n = (size_t)(sw->ns + sw->nf);
-  if (!sw->gv_ok || memcmp(sw->gv_at, sw->zs, n * sizeof(double)) != 0) {
-    memset(sw->gv, 0, n * sizeof(double));
-    eval_class(sw, MRVI_SLOW, 1.0, sw->gv, NULL, NULL, 0.0);
-    memcpy(sw->gv_at, sw->zs, n * sizeof(double));
-    sw->gv_ok = 1;
+/* The blocks of a few coordinates are copied and zeroed by loops (unrolled
+ * for small blocks): a library call costs more than the work at these
+ * sizes, and reads that span the scalar stores just made stall on store
+ * forwarding. */
+ALWAYS_INLINE void copy(double *restrict d, const double *restrict s, int n) {
+  UNROLL
+  for (int i = 0; i < n; i++)
+    d[i] = s[i];
+}
+
+ALWAYS_INLINE void zero(double *d, int n) {
+  UNROLL
+  for (int i = 0; i < n; i++)
+    d[i] = 0.0;
+}
+
+/* sw->gv = grad V (unscaled, packed: ns slow then nf fast entries) at
+ * (qs, qf), read in place when they are adjacent. */
+ALWAYS_INLINE void slow_gradient(mrvi_sweep *sw, const double *qs,
+                                 const double *qf, const int ns, const int nf) {
+  const double *z = qs;
+  if (qf != qs + ns) {
+    copy(sw->zv, qs, ns);
+    copy(sw->zv + ns, qf, nf);
+    z = sw->zv;
   }
-  for (size_t i = 0; i < n; i++)
-    sw->gs[i] = w * sw->gv[i];
+  zero(sw->gv, ns + nf);
+  mrvi_terms_grad(sw->kc[MRVI_SLOW], z, sw->gv);
 }
 
 static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
@@ -379,7 +395,7 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
         continue;
       set_zf(sw, 1.0, qm, sw->cB[i], dn);
       memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
-      eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gpt[i], sw->Hpt[i], 1.0);
+      eval_fast(sw, sw->gpt[i], sw->Hpt[i], 1.0);
       for (int k = 0; k < nf * nf; k++)
         sw->J[k] += sw->w[i] * sw->cA[i] * sw->cB[i] * sw->Hpt[i][k];
     }
@@ -404,7 +420,7 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
       continue;
     set_zf(sw, 1.0, qm, sw->cB[i], dn);
     memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
-    eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gpt[i], NULL, 0.0);
+    eval_fast(sw, sw->gpt[i], NULL, 0.0);
     for (int f = 0; f < nf; f++)
       sw->fimp[f] += sw->w[i] * sw->cA[i] * sw->gpt[i][f];
   }
@@ -457,8 +473,7 @@ static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
       continue;
     set_zf(sw, 1.0, qm, sw->cB[i], dn); /* cA qm + cB (qm + dn) */
     memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
-    eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gpt[i], J,
-               sw->w[i] * sw->cA[i] * sw->cB[i]);
+    eval_fast(sw, sw->gpt[i], J, sw->w[i] * sw->cA[i] * sw->cB[i]);
     for (int f = 0; f < nf; f++)
       sw->fimp[f] += sw->w[i] * sw->cA[i] * sw->gpt[i][f];
   }
@@ -556,57 +571,63 @@ static const double *force_row(const mrvi_step *st, int m) {
  * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
  * node m + 1, which also serves row m + 1.  The arithmetic of the general
  * sweep below, in one pass per node. */
-static void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
-                           double *pf) {
-  const int ns = sw->ns, nf = sw->nf, p = sw->p;
-  const double dt = st->dt;
-  double wl[2], wr[2];
-  int nl = 0, nr = 0;
-  for (int i = 0; i < sw->n_w; i++) {
-    if (sw->cB[i] == 0.0)
-      wl[nl++] = sw->w[i];
-    else
-      wr[nr++] = sw->w[i] * sw->cB[i];
-  }
+ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
+                                  double *x, double *pf, const int nl,
+                                  const int nr, const int nf) {
+  const int ns = sw->ns, p = sw->p;
+  const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
+  const double *mf = sw->m_f, *minv = sw->minv_f;
+  double *gnode = sw->gnode;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
     const double *fm = force_row(st, m);
     if (nl > 0 && !sw->gnode_ok) {
-      memset(sw->gnode, 0, (size_t)nf * sizeof(double));
-      mrvi_terms_eval(sw->kc[MRVI_FAST], qm, 1.0, sw->gnode, NULL, 0, 0.0);
+      zero(gnode, nf);
+      mrvi_terms_grad(sw->kc[MRVI_FAST], qm, gnode);
     }
     for (int f = 0; f < nf; f++) {
       double r = pm[f];
       if (fm)
         r += fm[f];
       for (int i = 0; i < nl; i++)
-        r -= wl[i] * sw->gnode[f];
-      const double dn = dt * sw->minv_f[f] * r;
+        r -= wl[i] * gnode[f];
+      const double dn = dt * minv[f] * r;
       qn[f] = qm[f] + dn;
-      pn[f] = sw->m_f[f] * dn / dt;
+      pn[f] = mf[f] * dn / dt;
     }
     sw->gnode_ok = 0;
     if (nr > 0) {
-      memset(sw->gnode, 0, (size_t)nf * sizeof(double));
-      mrvi_terms_eval(sw->kc[MRVI_FAST], qn, 1.0, sw->gnode, NULL, 0, 0.0);
+      zero(gnode, nf);
+      mrvi_terms_grad(sw->kc[MRVI_FAST], qn, gnode);
       sw->gnode_ok = 1;
       for (int f = 0; f < nf; f++)
         for (int i = 0; i < nr; i++)
-          pn[f] -= wr[i] * sw->gnode[f];
+          pn[f] -= wr[i] * gnode[f];
     }
     pm = pn;
   }
+}
+
+/* The explicit sweep, unrolled for the trapezoidal rule (one point at each
+ * node of an interval). */
+ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
+                                  double *x, double *pf, const int nf) {
+  if (sw->nl == 1 && sw->nr == 1)
+    explicit_nodes(sw, st, x, pf, 1, 1, nf);
+  else
+    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf);
 }
 
 /* The fast nodes of the sweep path for a quadratic W with one (implicit)
  * point per interval, once the micro-step matrix is factored: the
  * arithmetic of solve_linear and of the general sweep below, in one pass
  * per node. */
-static int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
-                        double *pf, double *residual, char *msg, size_t len) {
-  const int ns = sw->ns, nf = sw->nf, p = sw->p;
+ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                               double *pf, double *residual, char *msg,
+                               size_t len, const int nf) {
+  const int ns = sw->ns, p = sw->p;
   const double dt = st->dt, cB = sw->cB[0], wc = sw->w[0] * sw->cA[0];
   const double wb = sw->w[0] * sw->cB[0];
   const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->Hpt[0];
@@ -624,7 +645,7 @@ static int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
       g[f] = 0.0;
     }
-    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, 1.0, g, NULL, 0, 0.0);
+    mrvi_terms_grad(sw->kc[MRVI_FAST], sw->zf, g);
     for (int f = 0; f < nf; f++) {
       fimp[f] = 0.0 + wc * g[f];
       F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
@@ -643,16 +664,18 @@ static int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
         h += H[a * nf + b] * del[b];
       g[a] += cB * h;
       fimp[a] = 0.0 + wc * g[a];
-      const double ra = fabs(rhs[a] - mf[a] * dn[a] / dt - fimp[a]);
+      const double mv = mf[a] * dn[a] / dt; /* M v_m, one division */
+      const double ra = fabs(rhs[a] - mv - fimp[a]);
       r = isnan(ra) || ra > r ? ra : r;
       qn[a] = qm[a] + dn[a];
-      pn[a] = mf[a] * dn[a] / dt;
+      pn[a] = mv;
       pn[a] -= wb * g[a];
     }
     pm = pn;
   }
   sw->gnode_ok = 0;
-  *residual = fmax(*residual, r);
+  if (r > *residual) /* fmax: a NaN r leaves it (and fails below) */
+    *residual = r;
   if (!isfinite(r)) {
     mrvi_fmt(msg, len, "micro step produced non-finite values");
     return MRVI_ENONFINITE;
@@ -660,46 +683,16 @@ static int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   return MRVI_OK;
 }
 
-int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
-                    double *pf, int *iterations, double *residual, char *msg,
-                    size_t len) {
+/* The fast nodes of the sweep path in general (row m solved by Newton, or
+ * the explicit arithmetic of a general point set), with p^{f,0} in pf's
+ * first row. */
+static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                         double *pf, int *iterations, double *residual,
+                         char *msg, size_t len) {
   const int ns = sw->ns, nf = sw->nf, p = sw->p;
-  const double dT = st->dT, dt = st->dt;
-  *iterations = 0;
-  *residual = 0.0;
-  /* The first micro step's predictor holds no implicit force: nothing is
-   * carried from the last step, so a step depends on (q_k, p_k) alone. */
-  memset(sw->fimp, 0, (size_t)nf * sizeof(double));
-  /* Slow row: q_{k+1}^s explicit; V at node k also enters fast row 0. */
-  if (sw->wv0 != 0.0) {
-    memcpy(sw->zs, st->qs0, (size_t)ns * sizeof(double));
-    memcpy(sw->zf, st->qf0, (size_t)nf * sizeof(double));
-    slow_gradient(sw, sw->wv0);
-  } else {
-    memset(sw->gs, 0, (size_t)(ns + nf) * sizeof(double));
-  }
-  for (int s = 0; s < ns; s++) {
-    ps1[s] = st->ps0[s] - sw->gs[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
-    if (st->f_rows)
-      ps1[s] += st->f_rows[s];
-    x[s] = st->qs0[s] + dT * sw->minv_s[s] * ps1[s];
-  }
-  /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
-  double *pm = pf; /* momentum at node m (row m's left part) */
-  for (int f = 0; f < nf; f++)
-    pm[f] = st->pf0[f] - sw->gf[f];
-  int done = 0;
-  if (!sw->implicit) {
-    explicit_sweep(sw, st, x, pf);
-    done = 1;
-  } else if (sw->linear && sw->lu_ok && sw->n_w == 1) {
-    const int s = linear_sweep(sw, st, x, pf, residual, msg, len);
-    if (s < 0)
-      return s;
-    *iterations = 1;
-    done = 1;
-  }
-  for (int m = 0; m < p && !done; m++) {
+  const double dt = st->dt;
+  const double *pm = pf;
+  for (int m = 0; m < p; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf;
     /* rhs = p^{f,m} (+ control force) - forces of the points at node m
@@ -714,7 +707,7 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
       if (!sw->gnode_ok) {
         memcpy(sw->zf, qm, (size_t)nf * sizeof(double));
         memset(sw->gnode, 0, (size_t)nf * sizeof(double));
-        eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gnode, NULL, 0.0);
+        eval_fast(sw, sw->gnode, NULL, 0.0);
         sw->gnode_ok = 1;
       }
       for (int f = 0; f < nf; f++)
@@ -753,7 +746,7 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
         if (!sw->gnode_ok) {
           memcpy(sw->zf, qn, (size_t)nf * sizeof(double));
           memset(sw->gnode, 0, (size_t)nf * sizeof(double));
-          eval_class(sw, MRVI_FAST, 1.0, NULL, sw->gnode, NULL, 0.0);
+          eval_fast(sw, sw->gnode, NULL, 0.0);
           sw->gnode_ok = 1;
         }
         g = sw->gnode;
@@ -763,17 +756,66 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
     }
     pm = pn;
   }
+  return MRVI_OK;
+}
+
+/* mrvi_sweep_step for ns slow and nf fast coordinates (constants for small
+ * blocks, so that the loops over them unroll). */
+ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                             double *ps1, double *pf, int *iterations,
+                             double *residual, char *msg, size_t len,
+                             const int ns, const int nf) {
+  const int p = sw->p;
+  const double dT = st->dT;
+  *iterations = 0;
+  *residual = 0.0;
+  /* The first micro step's predictor holds no implicit force: nothing is
+   * carried from the last step, so a step depends on (q_k, p_k) alone. */
+  if (sw->implicit)
+    zero(sw->fimp, nf);
+  /* Slow row: q_{k+1}^s explicit; V at node k also enters fast row 0. */
+  const double w0 = sw->wv0;
+  /* grad V at node k: kept from the last step's end node (it is bitwise
+   * q_k, so a step still depends on (q_k, p_k) alone), else evaluated. */
+  if (w0 != 0.0 && !sw->gv_ok)
+    slow_gradient(sw, st->qs0, st->qf0, ns, nf);
+  sw->gv_ok = 0;
+  const double *gv = w0 != 0.0 ? sw->gv : sw->gzero;
+  for (int s = 0; s < ns; s++) {
+    ps1[s] = st->ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
+    if (st->f_rows)
+      ps1[s] += st->f_rows[s];
+    x[s] = st->qs0[s] + dT * sw->minv_s[s] * ps1[s];
+  }
+  /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
+  double *pm = pf; /* momentum at node m (row m's left part) */
+  for (int f = 0; f < nf; f++)
+    pm[f] = st->pf0[f] - w0 * gv[ns + f];
+  int done = 0;
+  if (!sw->implicit) {
+    explicit_sweep(sw, st, x, pf, nf);
+    done = 1;
+  } else if (sw->linear && sw->lu_ok && sw->n_w == 1) {
+    const int s = linear_sweep(sw, st, x, pf, residual, msg, len, nf);
+    if (s < 0)
+      return s;
+    *iterations = 1;
+    done = 1;
+  }
+  if (!done) {
+    const int s = general_sweep(sw, st, x, pf, iterations, residual, msg, len);
+    if (s < 0)
+      return s;
+  }
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
   if (sw->wv1 != 0.0) {
-    const double *qp = nf > 0 ? x + ns + (size_t)(p - 1) * nf : NULL;
-    memcpy(sw->zs, x, (size_t)ns * sizeof(double));
-    if (nf > 0)
-      memcpy(sw->zf, qp, (size_t)nf * sizeof(double));
-    slow_gradient(sw, sw->wv1);
+    const double w1 = sw->wv1;
+    slow_gradient(sw, x, x + ns + (size_t)(p - 1) * nf, ns, nf);
+    gv = sw->gv;
     for (int s = 0; s < ns; s++)
-      ps1[s] -= sw->gs[s];
+      ps1[s] -= w1 * gv[s];
     for (int f = 0; f < nf; f++)
-      pf[(size_t)(p - 1) * nf + f] -= sw->gf[f];
+      pf[(size_t)(p - 1) * nf + f] -= w1 * gv[ns + f];
   }
   /* Control forces f^+ of the step on the end momenta. */
   if (st->f_end) {
@@ -794,5 +836,18 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
              sw->implicit ? "sweep" : "explicit");
     return MRVI_ENONFINITE;
   }
+  /* The step is taken: grad V at its end node serves the next one. */
+  sw->gv_ok = sw->wv1 != 0.0;
   return MRVI_OK;
+}
+
+int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
+                    double *pf, int *iterations, double *residual, char *msg,
+                    size_t len) {
+  int s = MRVI_OK;
+  SMALL(sw->ns, NS,
+        SMALL(sw->nf, NF,
+              s = sweep_step(sw, st, x, ps1, pf, iterations, residual, msg, len,
+                             NS, NF)));
+  return s;
 }

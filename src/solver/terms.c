@@ -316,3 +316,52 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
   else
     eval_k(kc, z, scale, g, J, ld, hscale, 0);
 }
+
+/* Gradient only: the evaluation above with scale 1 and no Hessian (the
+ * same products in the same order, so bitwise the same gradient). */
+void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
+  eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
+}
+
+/* c s^k for a small integer k: laws/power.c's phi (s^k by repeated
+ * squaring, the same products). */
+static double power_phi(double c, int k, double s) {
+  double r = 1.0;
+  for (long kk = k; kk > 0; kk >>= 1) {
+    if (kk & 1)
+      r *= s;
+    s *= s;
+  }
+  return c * r;
+}
+
+double mrvi_terms_value(mrvi_terms *kc, const double *z) {
+  double total = 0.0;
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    const int n = t->n, *col = kc->col + t->first;
+    const double *a = kc->coef + t->first;
+    if (t->kind == KT_ELEMENT) {
+      if (t->el->kind == MRVI_ELEMENT_GRAVITY) { /* input by input */
+        for (int j = 0; j < n; j++)
+          total += a[j] * z[col[j]];
+        continue;
+      }
+      for (int j = 0; j < n; j++)
+        kc->y[j] = z[col[j]];
+      total += mrvi_element_eval(kc->m, t->el, kc->y, NULL, NULL);
+      continue;
+    }
+    double s = -t->shift, phi, d1, d2;
+    for (int j = 0; j < n; j++)
+      s += a[j] * z[col[j]];
+    if (t->kind == KT_LINEAR)
+      phi = 0.5 * t->c * s * s; /* laws/linear.c */
+    else if (t->kind == KT_POWER)
+      phi = power_phi(t->c, t->k, s);
+    else
+      t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
+    total += phi;
+  }
+  return total;
+}
