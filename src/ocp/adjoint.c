@@ -9,8 +9,9 @@
  *   sum_k H_k mu[z_k] = grad_Y Phi   (on the unknown nodes),
  * with mu = -dPhi/dp_N on the final nodes (p_N = D_2 L_d^{N-1} + f^+).
  * The system is block triangular in the steps; its diagonal block is the
- * transposed step Jacobian A_k^T of eq:DEL_ini (from the step assembly and
- * UMFPACK), the off-diagonal blocks are parts of H_k.  Then
+ * transposed step Jacobian A_k^T of eq:DEL_ini (a block of H_k, gathered
+ * into the step's CSC pattern and solved through the Newton solver's
+ * transposed solve), the off-diagonal blocks are other parts of H_k.  Then
  *   dPhi/du = dPhi/du|_direct - sum_k mu[z_k]^T d(forces_k)/du.
  * All functionals (cost and every terminal constraint) share one sweep. */
 #include "ocp/ocp_internal.h"
@@ -235,12 +236,33 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   free(o->rhs);
   free(o->sol);
   free(o->gz);
+  free(o->h_of_a);
+  free(o->Ak);
   o->gz = malloc((size_t)o->nz * sizeof *o->gz);
+  /* A_k[i][j] = H[row(i)][col(j)] in the step's order: rows q_k^s, fast
+   * nodes 0..p-1, constraint equations; columns q_{k+1}^s, fast nodes
+   * 1..p, multipliers. */
+  const mrvi_step *st = &o->step;
+  const int ns = o->ns, nf = o->nf, nx = st->n_unknowns, nz = o->nz;
+  o->h_of_a = malloc(((size_t)st->nnz + 1) * sizeof *o->h_of_a);
+  o->Ak = malloc(((size_t)st->nnz + 1) * sizeof *o->Ak);
+  if (o->h_of_a)
+    for (int j = 0; j < st->n_total; j++) {
+      const int col =
+          j < ns ? ns + j : (j < nx ? 2 * ns + nf + (j - ns) : nz + j - nx);
+      for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++) {
+        const int i = st->Ai[e];
+        const int row = i < ns ? i : (i < nx ? 2 * ns + (i - ns) : nz + i - nx);
+        o->h_of_a[e] = row * o->nv + col;
+      }
+    }
   o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  o->nfun_alloc = o->r && o->mu && o->rhs && o->sol && o->gz ? nfun : 0;
+  o->nfun_alloc =
+      o->r && o->mu && o->rhs && o->sol && o->gz && o->h_of_a && o->Ak ? nfun
+                                                                       : 0;
   return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
 }
 
@@ -323,9 +345,10 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         b[nu + i] = rloc[i];
     }
     /* A_k^T mu_k = b with the step Jacobian at the converged step. */
-    mrvi_step_assemble(st, o->x, o->R, 1);
+    for (long e = 0; e < st->nnz; e++)
+      o->Ak[e] = H[o->h_of_a[e]];
     s = mrvi_newton_solve_transpose(o->newton_full ? o->newton_full : o->newton,
-                                    st->Ax, nfun, o->rhs, o->sol, msg,
+                                    o->Ak, nfun, o->rhs, o->sol, msg,
                                     sizeof msg);
     if (s < 0)
       return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);

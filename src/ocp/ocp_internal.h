@@ -80,6 +80,8 @@ struct mrvi_ocp {
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
   long *gz;       /* global node of every z of the step (nz) */
+  int *h_of_a;    /* entry of H of every CSC entry of A_k (step nnz) */
+  double *Ak;     /* A_k on the step's CSC pattern, gathered from H */
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;

@@ -1,11 +1,19 @@
-/* Linear solves of the Newton iteration with UMFPACK: the symbolic analysis
- * is done once for the fixed pattern of a run, the numeric factorisation
- * once per iteration (STYLE: symbolic once, numeric many).  The numeric
- * factors are kept after a solve, so that the same matrix can be solved
+/* Linear solves of the Newton iteration.  Two backends behind one
+ * interface, chosen by size at creation:
+ *  - UMFPACK: the symbolic analysis is done once for the fixed pattern of a
+ *    run, the numeric factorisation once per iteration (STYLE: symbolic
+ *    once, numeric many);
+ *  - for n <= MRVI_NEWTON_DENSE_MAX, a dense LU with partial pivoting
+ *    (dense.c) of the matrix scattered from its CSC values: on the small
+ *    step Jacobians (general path, optimal-control adjoint) UMFPACK's fixed
+ *    cost per factorisation dominates (doc/performance.md, bench_ocp).
+ * The factors are kept after a solve, so that the same matrix can be solved
  * again, transposed too (mrvi_linsolve_solve: adjoint solves). */
 #include "internal.h"
 
+#include <math.h>
 #include <stdlib.h>
+#include <string.h>
 #include <suitesparse/umfpack.h>
 
 struct mrvi_newton {
@@ -14,6 +22,11 @@ struct mrvi_newton {
   void *symbolic, *numeric;
   double control[UMFPACK_CONTROL];
   double info[UMFPACK_INFO];
+  /* Dense backend (lu != NULL): row-major factors, pivots, and whether
+   * they hold a factorisation. */
+  double *lu, *rs; /* rs: reciprocal row scales */
+  int *piv;
+  int factored;
 };
 
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
@@ -26,6 +39,17 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
   nw->n = n;
   nw->Ap = Ap;
   nw->Ai = Ai;
+  if (n <= MRVI_NEWTON_DENSE_MAX) {
+    nw->lu = malloc(((size_t)n * (size_t)n + 1) * sizeof *nw->lu);
+    nw->piv = malloc(((size_t)n + 1) * sizeof *nw->piv);
+    nw->rs = malloc(((size_t)n + 1) * sizeof *nw->rs);
+    if (!nw->lu || !nw->piv || !nw->rs) {
+      mrvi_newton_free(nw);
+      mrvi_fmt(msg, len, "out of memory");
+      return NULL;
+    }
+    return nw;
+  }
   umfpack_di_defaults(nw->control);
   nw->control[UMFPACK_PRL] = 0; /* the library never prints */
   int st = umfpack_di_symbolic(n, n, Ap, Ai, Ax, &nw->symbolic, nw->control,
@@ -45,11 +69,46 @@ void mrvi_newton_free(mrvi_newton *nw) {
     umfpack_di_free_numeric(&nw->numeric);
   if (nw->symbolic)
     umfpack_di_free_symbolic(&nw->symbolic);
+  free(nw->lu);
+  free(nw->piv);
+  free(nw->rs);
   free(nw);
+}
+
+/* Dense backend: scatter the CSC values, scale every row by the reciprocal
+ * of its sum of magnitudes (as UMFPACK's default UMFPACK_SCALE_SUM: the
+ * dynamic rows M/h and the constraint rows G of a saddle-point matrix differ
+ * by orders of magnitude) and factorise in place. */
+static int dense_factor(mrvi_newton *nw, const double *Ax, char *msg,
+                        size_t len) {
+  const int n = nw->n;
+  double *A = nw->lu;
+  memset(A, 0, (size_t)n * (size_t)n * sizeof *A);
+  for (int i = 0; i < n; i++)
+    nw->rs[i] = 0.0;
+  for (int j = 0; j < n; j++)
+    for (int e = nw->Ap[j]; e < nw->Ap[j + 1]; e++) {
+      A[(size_t)nw->Ai[e] * (size_t)n + (size_t)j] += Ax[e];
+      nw->rs[nw->Ai[e]] += fabs(Ax[e]);
+    }
+  nw->factored = 1;
+  for (int i = 0; i < n && nw->factored; i++) {
+    nw->factored = nw->rs[i] > 0.0 && isfinite(nw->rs[i]);
+    const double r = nw->rs[i] = 1.0 / nw->rs[i];
+    for (int j = 0; j < n; j++)
+      A[(size_t)i * (size_t)n + (size_t)j] *= r;
+  }
+  nw->factored = nw->factored && mrvi_dense_lu_factor(n, A, nw->piv) == 0;
+  if (nw->factored)
+    return MRVI_OK;
+  mrvi_fmt(msg, len, "singular Newton matrix");
+  return MRVI_ESINGULAR;
 }
 
 int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
                        size_t len) {
+  if (nw->lu)
+    return dense_factor(nw, Ax, msg, len);
   if (nw->numeric)
     umfpack_di_free_numeric(&nw->numeric);
   int st = umfpack_di_numeric(nw->Ap, nw->Ai, Ax, nw->symbolic, &nw->numeric,
@@ -68,6 +127,22 @@ int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
 
 int mrvi_linsolve_solve(mrvi_newton *nw, const double *Ax, int transpose,
                         const double *b, double *x, char *msg, size_t len) {
+  if (nw->lu && nw->factored) {
+    /* R^-1 A x = R^-1 b; (R^-1 A)^T (R x) = b for the transpose. */
+    const int n = nw->n;
+    if (transpose) {
+      if (x != b)
+        memcpy(x, b, (size_t)n * sizeof *x);
+      mrvi_dense_lu_solve_transpose(n, nw->lu, nw->piv, x, 1);
+      for (int i = 0; i < n; i++)
+        x[i] *= nw->rs[i];
+    } else {
+      for (int i = 0; i < n; i++)
+        x[i] = nw->rs[i] * b[i];
+      mrvi_dense_lu_solve(n, nw->lu, nw->piv, x, 1);
+    }
+    return MRVI_OK;
+  }
   if (!nw->numeric) {
     mrvi_fmt(msg, len, "no factorisation to solve with");
     return MRVI_EINVAL;
