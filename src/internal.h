@@ -325,7 +325,7 @@ long mrvi_nullspace_nnz(const mrvi_nullspace *z);
  * MRVI_NEWTON_DENSE_MAX rows (solver/newton.c); the caller sees one
  * interface.
  * ------------------------------------------------------------------------- */
-#define MRVI_NEWTON_DENSE_MAX 48
+#define MRVI_NEWTON_DENSE_MAX 128
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, char *msg, size_t len);

@@ -229,6 +229,9 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->gz);
   free(o->h_of_a);
   free(o->Ak);
+  free(o->h_ptr);
+  free(o->h_col);
+  free(o->h_val);
   free(o);
 }
 
