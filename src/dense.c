@@ -119,16 +119,18 @@ int mrvi_dense_lu_factor(int n, double *A, int *piv) {
 }
 
 /* Solve with mrvi_dense_lu_factor's factors; b (n x nrhs row-major) becomes x.
- */
+ * The factorisation swaps whole rows (P A = L U with L in its final row
+ * order), so all row swaps apply to b before the forward substitution. */
 void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
                          int nrhs) {
-  for (int k = 0; k < n; k++) {
+  for (int k = 0; k < n; k++)
     if (piv[k] != k)
       for (int c = 0; c < nrhs; c++) {
         const double t = b[piv[k] * nrhs + c];
         b[piv[k] * nrhs + c] = b[k * nrhs + c];
         b[k * nrhs + c] = t;
       }
+  for (int k = 0; k < n; k++) {
     for (int i = k + 1; i < n; i++) {
       const double f = A[i * n + k];
       if (f != 0.0)
@@ -143,4 +145,34 @@ void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
         s -= A[i * n + j] * b[j * nrhs + c];
       b[i * nrhs + c] = s / A[i * n + i];
     }
+}
+
+/* Solve A^T x = b with mrvi_dense_lu_factor's factors of A (P A = L U, so
+ * A^T = U^T L^T P); b (n x nrhs row-major) becomes x. */
+void mrvi_dense_lu_solve_transpose(int n, const double *A, const int *piv,
+                                   double *b, int nrhs) {
+  /* U^T w = b: forward substitution. */
+  for (int i = 0; i < n; i++)
+    for (int c = 0; c < nrhs; c++) {
+      double s = b[i * nrhs + c];
+      for (int j = 0; j < i; j++)
+        s -= A[j * n + i] * b[j * nrhs + c];
+      b[i * nrhs + c] = s / A[i * n + i];
+    }
+  /* L^T y = w: backward substitution, unit diagonal. */
+  for (int k = n - 1; k >= 0; k--)
+    for (int i = k + 1; i < n; i++) {
+      const double f = A[i * n + k];
+      if (f != 0.0)
+        for (int c = 0; c < nrhs; c++)
+          b[k * nrhs + c] -= f * b[i * nrhs + c];
+    }
+  /* x = P^T y: the row swaps in reverse order. */
+  for (int k = n - 1; k >= 0; k--)
+    if (piv[k] != k)
+      for (int c = 0; c < nrhs; c++) {
+        const double t = b[piv[k] * nrhs + c];
+        b[piv[k] * nrhs + c] = b[k * nrhs + c];
+        b[k * nrhs + c] = t;
+      }
 }

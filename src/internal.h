@@ -167,6 +167,9 @@ int mrvi_dense_solve(int n, double *A, double *b);
 int mrvi_dense_lu_factor(int n, double *A, int *piv);
 void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
                          int nrhs);
+/* The same with A^T: b (n x nrhs row-major) becomes A^-T b. */
+void mrvi_dense_lu_solve_transpose(int n, const double *A, const int *piv,
+                                   double *b, int nrhs);
 #define MRVI_DENSE_MAX 256
 /* Householder QR of A (m x n row-major, m <= MRVI_DENSE_MAX): A is
  * overwritten with R in its upper triangle, Q (m x m row-major) is explicit
@@ -318,8 +321,11 @@ const double *mrvi_nullspace_Ax(const mrvi_nullspace *z);
 long mrvi_nullspace_nnz(const mrvi_nullspace *z);
 
 /* ---------------------------------------------------------------------------
- * Newton solver with UMFPACK.
+ * Newton solver: UMFPACK, or a dense LU (dense.c) for matrices of at most
+ * MRVI_NEWTON_DENSE_MAX rows (solver/newton.c); the caller sees one
+ * interface.
  * ------------------------------------------------------------------------- */
+#define MRVI_NEWTON_DENSE_MAX 128
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, char *msg, size_t len);
@@ -504,8 +510,9 @@ const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k);
 /* ---------------------------------------------------------------------------
  * Linear solves with a factorisation kept between calls (solver/newton.c):
  * mrvi_newton_solve factorises and solves; mrvi_linsolve_solve solves again
- * with the kept factors, with A (transpose = 0) or A^T (transpose = 1,
- * UMFPACK_At) -- the one interface for Newton updates and adjoint solves.
+ * with the kept factors, with A (transpose = 0) or A^T (transpose = 1) --
+ * the one interface for Newton updates and adjoint solves, whichever the
+ * backend.
  * ------------------------------------------------------------------------- */
 /* Factorise A (values Ax on the fixed pattern) and keep the factors. */
 int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,

@@ -750,8 +750,8 @@ static double thread_time(void) {
  * the backward sweep for the cost and two constraints) against the forward
  * sweep alone, FPU with p = 1 and 10, N = 60, midpoint-midpoint (forward on
  * the schur path).  Target <= 3: 1.3-2.5 with the general path's forward,
- * 6-8 with the schur path's, which is 10 times faster while the adjoint
- * still factorises the whole step with UMFPACK (doc/optimal-control.md);
+ * 6-8 with the schur path's while the adjoint factorised every step with
+ * UMFPACK, 2.6-3.3 with the dense LU backend (doc/optimal-control.md);
  * asserted <= 20 so that sanitizer builds pass while a sweep that is not
  * linear in N fails. */
 static void test_adjoint_cost(void) {

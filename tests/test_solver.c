@@ -7,6 +7,7 @@
 #include "models.h"
 #include "testlib.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -591,7 +592,107 @@ static void test_predictor_large_steps(void) {
     }
 }
 
+/* The one linear-solve interface (solver/newton.c) on both of its backends:
+ * a dense LU below MRVI_NEWTON_DENSE_MAX rows, UMFPACK above.  Saddle-point
+ * matrices [[0, G], [-G^T, K]] (K non-symmetric, rows scaled over six
+ * orders of magnitude; the zero block first, so that partial pivoting swaps
+ * rows from the first column on) solved with A and A^T; residuals against
+ * the CSC matrix itself. */
+static void test_linsolve_backends(void) {
+  const int sizes[2] = {9, 3 * MRVI_NEWTON_DENSE_MAX + 3};
+  for (int t = 0; t < 2; t++) {
+    const int n = sizes[t], nk = 2 * n / 3, ng = n - nk;
+    double *A = calloc((size_t)n * (size_t)n, sizeof *A);
+    int *Ap = malloc((size_t)(n + 1) * sizeof *Ap);
+    int *Ai = malloc((size_t)n * (size_t)n * sizeof *Ai);
+    double *Ax = malloc((size_t)n * (size_t)n * sizeof *Ax);
+    double *b = malloc((size_t)n * sizeof *b),
+           *x = malloc((size_t)n * sizeof *x);
+    /* K: tridiagonal plus a coupling column, scaled by 10^(6 i / nk). */
+    for (int i = 0; i < nk; i++) {
+      const double sc = pow(10.0, 6.0 * i / nk);
+      A[i * n + i] = sc * (4.0 + 0.1 * i);
+      if (i > 0)
+        A[i * n + i - 1] = -sc * 1.3;
+      if (i + 1 < nk)
+        A[i * n + i + 1] = -sc * 0.7;
+      A[i * n + 0] += sc * 0.2;
+    }
+    /* G: each constraint row couples three of K's unknowns. */
+    for (int r = 0; r < ng; r++)
+      for (int c = 0; c < 3; c++) {
+        const int j = (2 * r + c) % nk;
+        const double g = cos(1.0 + r + 2.0 * c);
+        A[(nk + r) * n + j] = g;
+        A[j * n + nk + r] = -g * pow(10.0, 6.0 * j / nk);
+      }
+    /* Constraint rows and multipliers first: index i -> (i + ng) mod n. */
+    double *P = calloc((size_t)n * (size_t)n, sizeof *P);
+    for (int i = 0; i < n; i++)
+      for (int j = 0; j < n; j++)
+        P[((i + ng) % n) * n + (j + ng) % n] = A[i * n + j];
+    free(A);
+    A = P;
+    int nnz = 0;
+    for (int j = 0; j < n; j++) {
+      Ap[j] = nnz;
+      for (int i = 0; i < n; i++)
+        if (A[i * n + j] != 0.0) {
+          Ai[nnz] = i;
+          Ax[nnz++] = A[i * n + j];
+        }
+    }
+    Ap[n] = nnz;
+    char msg[200];
+    mrvi_newton *nw = mrvi_newton_create(n, Ap, Ai, Ax, msg, sizeof msg);
+    CHECK(nw != NULL, "n = %d: create: %s", n, msg);
+    if (nw) {
+      CHECK(mrvi_linsolve_solve(nw, Ax, 0, b, x, msg, sizeof msg) ==
+                    MRVI_EINVAL &&
+                strstr(msg, "no factorisation"),
+            "n = %d: solve before factorising refused", n);
+      const int f = mrvi_newton_factor(nw, Ax, msg, sizeof msg);
+      CHECK(f == MRVI_OK, "n = %d: factor: %s", n, msg);
+      for (int tr = 0; tr < 2 && f == MRVI_OK; tr++) {
+        for (int i = 0; i < n; i++)
+          b[i] = sin(0.4 + 1.7 * i);
+        const int s = mrvi_linsolve_solve(nw, Ax, tr, b, x, msg, sizeof msg);
+        /* ||op(A) x - b|| <= 1e3 eps (|op(A)| |x| + |b|), per row. */
+        double worst = 0.0;
+        for (int i = 0; i < n; i++) {
+          double r = -b[i], sc = fabs(b[i]);
+          for (int j = 0; j < n; j++) {
+            const double a = tr ? A[j * n + i] : A[i * n + j];
+            r += a * x[j];
+            sc += fabs(a * x[j]);
+          }
+          worst = fmax(worst, fabs(r) / sc);
+        }
+        CHECK(s == MRVI_OK && worst <= 1e3 * DBL_EPSILON,
+              "n = %d (%s): %s solve, worst relative row residual %.2e", n,
+              n <= MRVI_NEWTON_DENSE_MAX ? "dense" : "UMFPACK",
+              tr ? "transposed" : "plain", worst);
+      }
+      /* A zero constraint row: singular, reported as such. */
+      for (int e = 0; e < nnz; e++)
+        if (Ai[e] == 0)
+          Ax[e] = 0.0;
+      CHECK(mrvi_newton_factor(nw, Ax, msg, sizeof msg) == MRVI_ESINGULAR &&
+                strstr(msg, "singular"),
+            "n = %d: singular matrix reported: %s", n, msg);
+    }
+    mrvi_newton_free(nw);
+    free(A);
+    free(Ap);
+    free(Ai);
+    free(Ax);
+    free(b);
+    free(x);
+  }
+}
+
 int main(void) {
+  test_linsolve_backends();
   test_predictor();
   test_predictor_large_steps();
   test_jacobian_solve_constrained();

@@ -9,8 +9,9 @@
  *   sum_k H_k mu[z_k] = grad_Y Phi   (on the unknown nodes),
  * with mu = -dPhi/dp_N on the final nodes (p_N = D_2 L_d^{N-1} + f^+).
  * The system is block triangular in the steps; its diagonal block is the
- * transposed step Jacobian A_k^T of eq:DEL_ini (from the step assembly and
- * UMFPACK), the off-diagonal blocks are parts of H_k.  Then
+ * transposed step Jacobian A_k^T of eq:DEL_ini (a block of H_k, gathered
+ * into the step's CSC pattern and solved through the Newton solver's
+ * transposed solve), the off-diagonal blocks are other parts of H_k.  Then
  *   dPhi/du = dPhi/du|_direct - sum_k mu[z_k]^T d(forces_k)/du.
  * All functionals (cost and every terminal constraint) share one sweep. */
 #include "ocp/ocp_internal.h"
@@ -82,6 +83,9 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
   const mrvi_model *m = o->model;
   mrvi_step *st = &o->step;
   const int ns = o->ns, nf = o->nf, p = o->p, nv = o->nv;
+  const long *gz = o->gz;
+  for (int z = 0; z < o->nz; z++)
+    o->gz[z] = ocp_global(o, k, z);
   memset(J, 0, (size_t)nv * (size_t)nv * sizeof *J);
   /* Kinetic: M/h [[1, -1], [-1, 1]] on every interval. */
   for (int s = 0; s < ns; s++) {
@@ -113,8 +117,8 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
         double zc[MRVI_MAX_INPUTS][2];
         for (int j = 0; j < n; j++) {
           ocp_znodes(o, e->in[j], pt, zi[j], zc[j]);
-          st->y[j] = zc[j][0] * o->Q[ocp_global(o, k, zi[j][0])] +
-                     zc[j][1] * o->Q[ocp_global(o, k, zi[j][1])];
+          st->y[j] =
+              zc[j][0] * o->Q[gz[zi[j][0]]] + zc[j][1] * o->Q[gz[zi[j][1]]];
         }
         mrvi_element_eval(m, e, st->y, st->g, st->H);
         for (int j = 0; j < n; j++)
@@ -235,12 +239,40 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   free(o->rhs);
   free(o->sol);
   free(o->gz);
+  free(o->h_of_a);
+  free(o->Ak);
+  free(o->h_ptr);
+  free(o->h_col);
+  free(o->h_val);
   o->gz = malloc((size_t)o->nz * sizeof *o->gz);
+  const size_t nvz = (size_t)o->nv * (size_t)o->nz + 1;
+  o->h_ptr = malloc(((size_t)o->nv + 1) * sizeof *o->h_ptr);
+  o->h_col = malloc(nvz * sizeof *o->h_col);
+  o->h_val = malloc(nvz * sizeof *o->h_val);
+  /* A_k[i][j] = H[row(i)][col(j)] in the step's order: rows q_k^s, fast
+   * nodes 0..p-1, constraint equations; columns q_{k+1}^s, fast nodes
+   * 1..p, multipliers. */
+  const mrvi_step *st = &o->step;
+  const int ns = o->ns, nf = o->nf, nx = st->n_unknowns, nz = o->nz;
+  o->h_of_a = malloc(((size_t)st->nnz + 1) * sizeof *o->h_of_a);
+  o->Ak = malloc(((size_t)st->nnz + 1) * sizeof *o->Ak);
+  if (o->h_of_a)
+    for (int j = 0; j < st->n_total; j++) {
+      const int col =
+          j < ns ? ns + j : (j < nx ? 2 * ns + nf + (j - ns) : nz + j - nx);
+      for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++) {
+        const int i = st->Ai[e];
+        const int row = i < ns ? i : (i < nx ? 2 * ns + (i - ns) : nz + i - nx);
+        o->h_of_a[e] = row * o->nv + col;
+      }
+    }
   o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  o->nfun_alloc = o->r && o->mu && o->rhs && o->sol && o->gz ? nfun : 0;
+  o->nfun_alloc =
+      o->r && o->mu && o->rhs && o->sol && o->gz && o->h_of_a && o->Ak ? nfun
+                                                                       : 0;
   return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
 }
 
@@ -292,9 +324,19 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     memcpy(o->x + nu, o->Lam + k * nl, (size_t)nl * sizeof(double));
     o->k_cur = k; /* for the pair-force step hook */
     ocp_jacobian(o, k, H);
-    long *gz = o->gz; /* global node of every z of step k */
-    for (int z = 0; z < nz; z++)
-      gz[z] = ocp_global(o, k, z);
+    const long *gz = o->gz; /* global node of every z of step k */
+    /* The nonzeros of every row of H in the node columns (CSR). */
+    int *hp = o->h_ptr, *hy = o->h_col, nh = 0;
+    double *hv = o->h_val;
+    for (int row = 0; row < nv; row++) {
+      hp[row] = nh;
+      for (int y = 0; y < nz; y++)
+        if (H[row * nv + y] != 0.0) {
+          hy[nh] = y;
+          hv[nh++] = H[row * nv + y];
+        }
+    }
+    hp[nv] = nh;
     for (int f = 0; f < nfun; f++) {
       double *r = gQ + f * nn;
       const double *mu = o->mu + f * nn;
@@ -308,8 +350,8 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         const double mz = mu[gz[zz]];
         if (mz == 0.0)
           continue;
-        for (int y = 0; y < nz; y++)
-          r[gz[y]] -= H[zz * nv + y] * mz;
+        for (int e = hp[zz]; e < hp[zz + 1]; e++)
+          r[gz[hy[e]]] -= hv[e] * mz;
         for (int y = 0; y < nl; y++)
           rloc[y] -= H[zz * nv + nz + y] * mz;
       }
@@ -323,9 +365,10 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         b[nu + i] = rloc[i];
     }
     /* A_k^T mu_k = b with the step Jacobian at the converged step. */
-    mrvi_step_assemble(st, o->x, o->R, 1);
+    for (long e = 0; e < st->nnz; e++)
+      o->Ak[e] = H[o->h_of_a[e]];
     s = mrvi_newton_solve_transpose(o->newton_full ? o->newton_full : o->newton,
-                                    st->Ax, nfun, o->rhs, o->sol, msg,
+                                    o->Ak, nfun, o->rhs, o->sol, msg,
                                     sizeof msg);
     if (s < 0)
       return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);
@@ -339,8 +382,8 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         if (row < nz)
           mu[gz[row]] = x[i];
         if (x[i] != 0.0)
-          for (int y = 0; y < nz; y++)
-            r[gz[y]] -= H[row * nv + y] * x[i];
+          for (int e = hp[row]; e < hp[row + 1]; e++)
+            r[gz[hy[e]]] -= hv[e] * x[i];
       }
     }
   }

@@ -227,6 +227,11 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->rhs);
   free(o->sol);
   free(o->gz);
+  free(o->h_of_a);
+  free(o->Ak);
+  free(o->h_ptr);
+  free(o->h_col);
+  free(o->h_val);
   free(o);
 }
 

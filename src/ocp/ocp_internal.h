@@ -80,6 +80,10 @@ struct mrvi_ocp {
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
   long *gz;       /* global node of every z of the step (nz) */
+  int *h_of_a;    /* entry of H of every CSC entry of A_k (step nnz) */
+  double *Ak;     /* A_k on the step's CSC pattern, gathered from H */
+  int *h_ptr, *h_col; /* nonzeros of H's rows in the node columns (CSR) */
+  double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
@@ -107,7 +111,8 @@ int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe);
 /* Dense Jacobian J (nv x nv) of the equations of step k in its variables
  * v = (z_k, lambda_k) at the stored trajectory: rows 0..nz-1 are
  * D_z of L_d^k - sum h lambda^T g (all nodes of the step), rows nz.. the
- * step's constraint equations g (step row order). */
+ * step's constraint equations g (step row order).  Also fills o->gz (the
+ * global node of every z of step k; the adjoint workspace). */
 void ocp_jacobian(mrvi_ocp *o, long k, double *J);
 
 /* z indices and coefficients of the (two) nodes that model coordinate idx

@@ -1,11 +1,20 @@
-/* Linear solves of the Newton iteration with UMFPACK: the symbolic analysis
- * is done once for the fixed pattern of a run, the numeric factorisation
- * once per iteration (STYLE: symbolic once, numeric many).  The numeric
- * factors are kept after a solve, so that the same matrix can be solved
+/* Linear solves of the Newton iteration.  Two backends behind one
+ * interface, chosen by size at creation:
+ *  - UMFPACK: the symbolic analysis is done once for the fixed pattern of a
+ *    run, the numeric factorisation once per iteration (STYLE: symbolic
+ *    once, numeric many);
+ *  - for n <= MRVI_NEWTON_DENSE_MAX, an LU with partial pivoting in dense
+ *    storage that skips zeros, of the row-scaled matrix renumbered for
+ *    little fill: on the small step Jacobians (general path, optimal-control
+ *    adjoint) UMFPACK's fixed cost per factorisation dominates
+ *    (doc/performance.md, bench_ocp).
+ * The factors are kept after a solve, so that the same matrix can be solved
  * again, transposed too (mrvi_linsolve_solve: adjoint solves). */
 #include "internal.h"
 
+#include <math.h>
 #include <stdlib.h>
+#include <string.h>
 #include <suitesparse/umfpack.h>
 
 struct mrvi_newton {
@@ -14,7 +23,53 @@ struct mrvi_newton {
   void *symbolic, *numeric;
   double control[UMFPACK_CONTROL];
   double info[UMFPACK_INFO];
+  /* Dense backend (lu != NULL), for B = P R^-1 A P^T: the rows scaled by
+   * the reciprocals rs of their sums of magnitudes (as UMFPACK's default
+   * UMFPACK_SCALE_SUM: the dynamic rows M/h and the constraint rows G of a
+   * saddle-point matrix differ by orders of magnitude), rows and columns
+   * renumbered by pos (original -> position) in the order of increasing
+   * nonzero count of row plus column, so that the dense slow and constraint
+   * couplings come last and the micro-node band first (little fill).
+   * Factors S B = L U in lu (row-major, in place) with row swaps piv, and
+   * their nonzeros by rows (CSR: L strictly lower, U with its diagonal) for
+   * the solves. */
+  double *lu, *rs, *val, *y;
+  int *piv, *pos, *nzc, *ptr, *idx;
+  int factored;
 };
+
+/* Dense backend set-up: workspaces and the ordering pos. */
+static int dense_create(mrvi_newton *nw) {
+  const size_t n = (size_t)nw->n, nn = n * n + 1;
+  nw->lu = malloc(nn * sizeof *nw->lu);
+  nw->val = malloc(nn * sizeof *nw->val);
+  nw->idx = malloc(nn * sizeof *nw->idx);
+  nw->rs = malloc((n + 1) * sizeof *nw->rs);
+  nw->y = malloc((n + 1) * sizeof *nw->y);
+  nw->piv = malloc((n + 1) * sizeof *nw->piv);
+  nw->pos = malloc((n + 1) * sizeof *nw->pos);
+  nw->nzc = malloc((n + 1) * sizeof *nw->nzc);
+  nw->ptr = malloc((2 * n + 2) * sizeof *nw->ptr);
+  if (!nw->lu || !nw->val || !nw->idx || !nw->rs || !nw->y || !nw->piv ||
+      !nw->pos || !nw->nzc || !nw->ptr)
+    return MRVI_ENOMEM;
+  /* Degree of index i: nonzeros of row i plus column i (in ptr). */
+  int *deg = nw->ptr, *order = nw->nzc;
+  for (int i = 0; i < nw->n; i++)
+    deg[i] = nw->Ap[i + 1] - nw->Ap[i];
+  for (int e = 0; e < nw->Ap[nw->n]; e++)
+    deg[nw->Ai[e]]++;
+  /* Stable insertion sort of the indices by degree. */
+  for (int i = 0; i < nw->n; i++) {
+    int k = i;
+    for (; k > 0 && deg[order[k - 1]] > deg[i]; k--)
+      order[k] = order[k - 1];
+    order[k] = i;
+  }
+  for (int k = 0; k < nw->n; k++)
+    nw->pos[order[k]] = k;
+  return MRVI_OK;
+}
 
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, char *msg, size_t len) {
@@ -26,6 +81,14 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
   nw->n = n;
   nw->Ap = Ap;
   nw->Ai = Ai;
+  if (n <= MRVI_NEWTON_DENSE_MAX) {
+    if (dense_create(nw) < 0) {
+      mrvi_newton_free(nw);
+      mrvi_fmt(msg, len, "out of memory");
+      return NULL;
+    }
+    return nw;
+  }
   umfpack_di_defaults(nw->control);
   nw->control[UMFPACK_PRL] = 0; /* the library never prints */
   int st = umfpack_di_symbolic(n, n, Ap, Ai, Ax, &nw->symbolic, nw->control,
@@ -45,11 +108,161 @@ void mrvi_newton_free(mrvi_newton *nw) {
     umfpack_di_free_numeric(&nw->numeric);
   if (nw->symbolic)
     umfpack_di_free_symbolic(&nw->symbolic);
+  free(nw->lu);
+  free(nw->rs);
+  free(nw->val);
+  free(nw->y);
+  free(nw->piv);
+  free(nw->pos);
+  free(nw->nzc);
+  free(nw->ptr);
+  free(nw->idx);
   free(nw);
+}
+
+/* LU with partial pivoting of B (n x n row-major) in place, as
+ * mrvi_dense_lu_factor, updating only the nonzero columns of each pivot row
+ * (nzc: workspace n); -1 if singular. */
+static int sparse_lu(int n, double *B, int *piv, int *nzc) {
+  for (int k = 0; k < n; k++) {
+    int r = k;
+    for (int i = k + 1; i < n; i++)
+      if (fabs(B[i * n + k]) > fabs(B[r * n + k]))
+        r = i;
+    piv[k] = r;
+    if (!(fabs(B[r * n + k]) > 0.0))
+      return -1;
+    if (r != k)
+      for (int j = 0; j < n; j++) {
+        const double t = B[k * n + j];
+        B[k * n + j] = B[r * n + j];
+        B[r * n + j] = t;
+      }
+    const double *bk = B + k * n, d = 1.0 / bk[k];
+    int nn = 0;
+    for (int j = k + 1; j < n; j++)
+      if (bk[j] != 0.0)
+        nzc[nn++] = j;
+    for (int i = k + 1; i < n; i++) {
+      double *bi = B + i * n;
+      if (bi[k] == 0.0)
+        continue;
+      const double f = (bi[k] *= d);
+      for (int t = 0; t < nn; t++)
+        bi[nzc[t]] -= f * bk[nzc[t]];
+    }
+  }
+  return 0;
+}
+
+/* Dense backend: scatter the scaled, renumbered CSC values into B, factorise
+ * and list the factors' nonzeros by rows: L in ptr[0..n], U in
+ * ptr[n+1..2n+1] (diagonal first). */
+static int dense_factor(mrvi_newton *nw, const double *Ax, char *msg,
+                        size_t len) {
+  const int n = nw->n;
+  double *B = nw->lu;
+  memset(B, 0, (size_t)n * (size_t)n * sizeof *B);
+  for (int i = 0; i < n; i++)
+    nw->rs[i] = 0.0;
+  for (int e = 0; e < nw->Ap[n]; e++)
+    nw->rs[nw->Ai[e]] += fabs(Ax[e]);
+  nw->factored = 1;
+  for (int i = 0; i < n; i++) {
+    nw->factored = nw->factored && nw->rs[i] > 0.0 && isfinite(nw->rs[i]);
+    nw->rs[i] = 1.0 / nw->rs[i];
+  }
+  for (int j = 0; j < n && nw->factored; j++)
+    for (int e = nw->Ap[j]; e < nw->Ap[j + 1]; e++)
+      B[(size_t)nw->pos[nw->Ai[e]] * (size_t)n + (size_t)nw->pos[j]] +=
+          nw->rs[nw->Ai[e]] * Ax[e];
+  nw->factored = nw->factored && sparse_lu(n, B, nw->piv, nw->nzc) == 0;
+  if (!nw->factored) {
+    mrvi_fmt(msg, len, "singular Newton matrix");
+    return MRVI_ESINGULAR;
+  }
+  int *lp = nw->ptr, *up = nw->ptr + n + 1, e = 0;
+  for (int i = 0; i < n; i++) {
+    lp[i] = e;
+    for (int j = 0; j < i; j++)
+      if (B[i * n + j] != 0.0) {
+        nw->idx[e] = j;
+        nw->val[e++] = B[i * n + j];
+      }
+  }
+  lp[n] = e;
+  for (int i = 0; i < n; i++) {
+    up[i] = e;
+    nw->idx[e] = i;
+    nw->val[e++] = B[i * n + i];
+    for (int j = i + 1; j < n; j++)
+      if (B[i * n + j] != 0.0) {
+        nw->idx[e] = j;
+        nw->val[e++] = B[i * n + j];
+      }
+  }
+  up[n] = e;
+  return MRVI_OK;
+}
+
+/* Dense backend solves (A = R P^T S^T L U P):
+ *   A x = b:   L U (P x) = S P R^-1 b;
+ *   A^T x = b: U^T L^T S (P R x) = P b. */
+static void dense_solve(const mrvi_newton *nw, int transpose, const double *b,
+                        double *x) {
+  const int n = nw->n, *lp = nw->ptr, *up = nw->ptr + n + 1, *ix = nw->idx;
+  const double *v = nw->val;
+  double *y = nw->y;
+  if (!transpose) {
+    for (int i = 0; i < n; i++)
+      y[nw->pos[i]] = nw->rs[i] * b[i];
+    for (int k = 0; k < n; k++)
+      if (nw->piv[k] != k) {
+        const double t = y[k];
+        y[k] = y[nw->piv[k]];
+        y[nw->piv[k]] = t;
+      }
+    for (int i = 0; i < n; i++) {
+      double s = y[i];
+      for (int e = lp[i]; e < lp[i + 1]; e++)
+        s -= v[e] * y[ix[e]];
+      y[i] = s;
+    }
+    for (int i = n - 1; i >= 0; i--) {
+      double s = y[i];
+      for (int e = up[i] + 1; e < up[i + 1]; e++)
+        s -= v[e] * y[ix[e]];
+      y[i] = s / v[up[i]];
+    }
+    for (int i = 0; i < n; i++)
+      x[i] = y[nw->pos[i]];
+    return;
+  }
+  for (int i = 0; i < n; i++)
+    y[nw->pos[i]] = b[i];
+  /* U^T w = y, L^T z = w by columns of the transposes (rows of L, U). */
+  for (int i = 0; i < n; i++) {
+    const double w = y[i] /= v[up[i]];
+    for (int e = up[i] + 1; e < up[i + 1]; e++)
+      y[ix[e]] -= v[e] * w;
+  }
+  for (int i = n - 1; i >= 0; i--)
+    for (int e = lp[i]; e < lp[i + 1]; e++)
+      y[ix[e]] -= v[e] * y[i];
+  for (int k = n - 1; k >= 0; k--)
+    if (nw->piv[k] != k) {
+      const double t = y[k];
+      y[k] = y[nw->piv[k]];
+      y[nw->piv[k]] = t;
+    }
+  for (int i = 0; i < n; i++)
+    x[i] = nw->rs[i] * y[nw->pos[i]];
 }
 
 int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
                        size_t len) {
+  if (nw->lu)
+    return dense_factor(nw, Ax, msg, len);
   if (nw->numeric)
     umfpack_di_free_numeric(&nw->numeric);
   int st = umfpack_di_numeric(nw->Ap, nw->Ai, Ax, nw->symbolic, &nw->numeric,
@@ -68,6 +281,10 @@ int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
 
 int mrvi_linsolve_solve(mrvi_newton *nw, const double *Ax, int transpose,
                         const double *b, double *x, char *msg, size_t len) {
+  if (nw->lu && nw->factored) {
+    dense_solve(nw, transpose, b, x);
+    return MRVI_OK;
+  }
   if (!nw->numeric) {
     mrvi_fmt(msg, len, "no factorisation to solve with");
     return MRVI_EINVAL;
