@@ -80,6 +80,9 @@ struct mrvi_predictor {
   char *kinds[2];     /* kind of every point of V and W (see kind) */
   int has_kind[3];    /* some point of V or W is of that kind */
   mrvi_terms *kc[2];  /* V and W compiled on the packed columns (terms.c) */
+  int *pend[2];       /* end of the points of interval m of V and W (p each) */
+  int same; /* V and W have the same points (midpoint-midpoint): a point's
+               two gradients are evaluated at one configuration, summed */
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -168,6 +171,24 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     }
   }
   free(col);
+  for (int c = 0; c < 2; c++) {
+    if (!(pr->pend[c] =
+              malloc((size_t)(st->p > 0 ? st->p : 1) * sizeof(int)))) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
+    for (int mm = 0, e = 0; mm < st->p; mm++) {
+      while (e < st->n_pts[c] && st->pts[c][e].m == mm)
+        e++;
+      pr->pend[c][mm] = e;
+    }
+  }
+  pr->same = st->n_pts[0] == st->n_pts[1];
+  for (int ip = 0; pr->same && ip < st->n_pts[0]; ip++) {
+    const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
+    pr->same = u->m == v->m && u->w == v->w && u->a0 == v->a0 &&
+               u->a1 == v->a1 && u->cA == v->cA && u->cB == v->cB;
+  }
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
   for (int c = 0; c < 2; c++)
@@ -219,6 +240,8 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->minv);
   free(pr->kinds[0]);
   free(pr->kinds[1]);
+  free(pr->pend[0]);
+  free(pr->pend[1]);
   mrvi_terms_free(pr->kc[0]);
   mrvi_terms_free(pr->kc[1]);
   free(pr);
@@ -286,7 +309,7 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
 ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     const double *x, const mrvi_point *pt,
                                     int c, const int ns, const int nf,
-                                    double *J, double hscale) {
+                                    double *J, double hscale, int both) {
   double *restrict z = pr->z, *restrict g = pr->g;
   UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s] + pt->a1 * x[s];
   const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
@@ -299,11 +322,13 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
   else
     mrvi_terms_grad(pr->kc[c], z, g);
+  if (both) /* W at V's point (pr->same) */
+    mrvi_terms_grad(pr->kc[1], z, g);
 }
 
 static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
                            const double *x, const mrvi_point *pt, int c) {
-  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf, NULL, 0.0);
+  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf, NULL, 0.0, 0);
 }
 
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
@@ -319,12 +344,13 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
                                  int sum_slow, const int ns, const int nf) {
   if (!pr->has_kind[k])
     return;
-  for (int c = 0; c < 2; c++)
+  const int same = pr->same;
+  for (int c = 0; c < (same ? 1 : 2); c++)
     for (int ip = first[c]; ip < end[c]; ip++) {
       if (pr->kinds[c][ip] != k)
         continue;
       const mrvi_point *pt = &st->pts[c][ip];
-      point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0);
+      point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
       if (fa && pt->cA != 0.0)
         axpy(nf, pt->w * pt->cA, pr->g + ns, fa);
       if (fb && pt->cB != 0.0)
@@ -351,19 +377,18 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
   for (int f = 0; f < nf; f++)
     pr->pm[f] = st->pf0[f];
+  double cm[nf > 0 ? nf : 1]; /* dt / M */
+  UNROLL for (int f = 0; f < nf; f++) cm[f] = dt * minv[f];
   int first[2] = {0, 0}, end[2];
   for (int mm = 0; mm < p; mm++) {
-    for (int c = 0; c < 2; c++)
-      for (end[c] = first[c];
-           end[c] < st->n_pts[c] && st->pts[c][end[c]].m == mm; end[c]++)
-        ;
+    end[0] = pr->pend[0][mm];
+    end[1] = pr->pend[1][mm];
     const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
     double *dn = x + ns + (size_t)mm * nf;
     /* Row mm with F^A = explicit points + the implicit force fimp. */
 #define SOLVE_ROW()                                                            \
-  for (int f = 0; f < nf; f++)                                                 \
-    dn[f] = (d ? d[f] : 0.0) +                                                 \
-            dt * minv[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
+  UNROLL for (int f = 0; f < nf; f++) dn[f] =                                  \
+      (d ? d[f] : 0.0) + cm[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
     UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
     eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
                   nf);
@@ -390,8 +415,8 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
 #undef SOLVE_ROW
     eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, ns,
                   nf);
-    for (int f = 0; f < nf; f++)
-      pr->pm[f] = (dn[f] - (d ? d[f] : 0.0)) / (dt * minv[f]) - pr->fb[f];
+    UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
+        (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
@@ -425,7 +450,7 @@ static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
     const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
     const mrvi_point *pt = &st->pts[c][ip];
     const double w = pr->sample_w[c] * pt->w * pt->a0;
-    point_gradient_k(pr, st, x, pt, c, ns, st->nf, pr->H, w * pt->a1);
+    point_gradient_k(pr, st, x, pt, c, ns, st->nf, pr->H, w * pt->a1, 0);
     axpy(ns, w, pr->g, f);
   }
 }
