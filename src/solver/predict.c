@@ -81,6 +81,11 @@ struct mrvi_predictor {
   int has_kind[3];    /* some point of V or W is of that kind */
   mrvi_terms *kc[2];  /* V and W compiled on the packed columns (terms.c) */
   int *pend[2];       /* end of the points of interval m of V and W (p each) */
+  /* A class with a constant Hessian on small blocks (ns, nf <= 4):
+   * gradient g0 + Hq z (affine_grad_k), from column lo (the first fast
+   * one if it has no slow inputs); Hq NULL otherwise. */
+  double *g0[2], *Hq[2];
+  int lo[2];
   int same; /* V and W have the same points (midpoint-midpoint): a point's
                two gradients are evaluated at one configuration, summed */
 };
@@ -183,6 +188,27 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       pr->pend[c][mm] = e;
     }
   }
+  const size_t nz = (size_t)st->ns + (size_t)st->nf;
+  for (int c = 0; c < 2 && st->ns <= 4 && st->nf <= 4 && nz > 0; c++) {
+    int quad = 1, slow = 0;
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      quad &= mrvi_element_is_quadratic(e);
+      for (int j = 0; j < e->n_in; j++)
+        slow |= m->rate[e->in[j]] == MRVI_SLOW;
+    }
+    if (!quad)
+      continue;
+    pr->g0[c] = calloc(nz, sizeof(double));
+    pr->Hq[c] = calloc(nz * nz, sizeof(double));
+    if (!pr->g0[c] || !pr->Hq[c]) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
+    memset(pr->z, 0, nz * sizeof(double)); /* at z = 0 */
+    mrvi_terms_eval(pr->kc[c], pr->z, 1.0, pr->g0[c], pr->Hq[c], (int)nz, 1.0);
+    pr->lo[c] = slow ? 0 : st->ns;
+  }
   pr->same = st->n_pts[0] == st->n_pts[1];
   for (int ip = 0; pr->same && ip < st->n_pts[0]; ip++) {
     const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
@@ -242,6 +268,10 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->kinds[1]);
   free(pr->pend[0]);
   free(pr->pend[1]);
+  for (int c = 0; c < 2; c++) {
+    free(pr->g0[c]);
+    free(pr->Hq[c]);
+  }
   mrvi_terms_free(pr->kc[0]);
   mrvi_terms_free(pr->kc[1]);
   free(pr);
@@ -322,8 +352,14 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
   else
     mrvi_terms_grad(pr->kc[c], z, g);
-  if (both) /* W at V's point (pr->same) */
+  if (!both) /* W at V's point (pr->same) */
+    return;
+  if (!pr->Hq[1])
     mrvi_terms_grad(pr->kc[1], z, g);
+  else if (pr->lo[1] == 0) /* (each with constant bounds) */
+    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, 0, ns + nf);
+  else
+    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, ns, ns + nf);
 }
 
 static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
