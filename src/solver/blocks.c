@@ -177,12 +177,7 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     /* at z = 0 (zp is zero here) */
     mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->g0[c], b->Hq[c], (int)nz0, 1.0);
   }
-  b->same_pts = st->n_pts[0] == st->n_pts[1];
-  for (int ip = 0; b->same_pts && ip < st->n_pts[0]; ip++) {
-    const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
-    b->same_pts = u->m == v->m && u->w == v->w && u->a0 == v->a0 &&
-                  u->a1 == v->a1 && u->cA == v->cA && u->cB == v->cB;
-  }
+  b->same_pts = mrvi_step_same_points(st);
   for (int i = 0; i < b->ns; i++)
     b->ms[i] = m->mass[m->slow_index[i]];
   for (int i = 0; i < b->nf; i++)

@@ -209,12 +209,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     mrvi_terms_eval(pr->kc[c], pr->z, 1.0, pr->g0[c], pr->Hq[c], (int)nz, 1.0);
     pr->lo[c] = slow ? 0 : st->ns;
   }
-  pr->same = st->n_pts[0] == st->n_pts[1];
-  for (int ip = 0; pr->same && ip < st->n_pts[0]; ip++) {
-    const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
-    pr->same = u->m == v->m && u->w == v->w && u->a0 == v->a0 &&
-               u->a1 == v->a1 && u->cA == v->cA && u->cB == v->cB;
-  }
+  pr->same = mrvi_step_same_points(st);
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
   for (int c = 0; c < 2; c++)
