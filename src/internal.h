@@ -261,6 +261,9 @@ typedef struct mrvi_step {
 /* Point of constraint evaluation at node m (0..p) of the step: slow part
  * interpolated (1 - m/p, m/p), fast node m, weight w. */
 mrvi_point mrvi_step_node_point(const mrvi_step *st, int m, double w);
+/* 1 if V and W have the same points (both on the micro grid with the
+ * same quadrature, e.g. midpoint-midpoint), else 0. */
+int mrvi_step_same_points(const mrvi_step *st);
 /* Evaluate constraint c (model index) at node point pt of x: fills st->cy,
  * st->cg, st->cG and, if hess, st->cH. */
 void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,

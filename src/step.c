@@ -293,6 +293,18 @@ mrvi_point mrvi_step_node_point(const mrvi_step *st, int m, double w) {
                       .m = m};
 }
 
+int mrvi_step_same_points(const mrvi_step *st) {
+  if (st->n_pts[0] != st->n_pts[1])
+    return 0;
+  for (int ip = 0; ip < st->n_pts[0]; ip++) {
+    const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
+    if (!(u->m == v->m && u->w == v->w && u->a0 == v->a0 && u->a1 == v->a1 &&
+          u->cA == v->cA && u->cB == v->cB))
+      return 0;
+  }
+  return 1;
+}
+
 void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
                                const double *x, int hess) {
   const mrvi_model *m = st->model;

@@ -50,6 +50,10 @@ struct mrvi_blocks {
    * the first assembly: Ass, Asf, Afs, D, L1, L2 in order. */
   int quad[2], const_ok;
   double *cblk;
+  /* A class with a constant Hessian on small blocks (ns, nf <= 4) takes
+   * its gradient as the affine map g0 + Hq z (nz and nz x nz): a few
+   * products instead of a pass over its terms. */
+  double *g0[2], *Hq[2];
   /* V and W have the same points (midpoint-midpoint): each point is
    * visited once with the two classes' gradients summed. */
   int same_pts;
@@ -75,6 +79,10 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->ms);
   free(b->mf);
   free(b->cblk);
+  for (int c = 0; c < 2; c++) {
+    free(b->g0[c]);
+    free(b->Hq[c]);
+  }
   free(b);
 }
 
@@ -156,12 +164,20 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
-  b->same_pts = st->n_pts[0] == st->n_pts[1];
-  for (int ip = 0; b->same_pts && ip < st->n_pts[0]; ip++) {
-    const mrvi_point *u = &st->pts[0][ip], *v = &st->pts[1][ip];
-    b->same_pts = u->m == v->m && u->w == v->w && u->a0 == v->a0 &&
-                  u->a1 == v->a1 && u->cA == v->cA && u->cB == v->cB;
+  const size_t nz0 = (size_t)b->ns + (size_t)b->nf;
+  for (int c = 0; c < 2; c++) {
+    if (!b->quad[c] || b->ns > 4 || b->nf > 4 || nz0 == 0)
+      continue;
+    b->g0[c] = calloc(nz0, sizeof(double));
+    b->Hq[c] = calloc(nz0 * nz0, sizeof(double));
+    if (!b->g0[c] || !b->Hq[c]) {
+      mrvi_blocks_free(b);
+      return MRVI_ENOMEM;
+    }
+    /* at z = 0 (zp is zero here) */
+    mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->g0[c], b->Hq[c], (int)nz0, 1.0);
   }
+  b->same_pts = mrvi_step_same_points(st);
   for (int i = 0; i < b->ns; i++)
     b->ms[i] = m->mass[m->slow_index[i]];
   for (int i = 0; i < b->nf; i++)
@@ -484,6 +500,21 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
     }
 }
 
+/* G += gradient of class c at zp: the terms, or g0 + Hq zp (from the
+ * first fast column if the class has no slow inputs). */
+ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
+                                double *H, const int ns, const int nf) {
+  const double *restrict Hq = b->Hq[c], *restrict g0 = b->g0[c];
+  if (!Hq || H) {
+    mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, H, ns + nf, 1.0);
+    return;
+  }
+  if (b->has_s[c]) /* (each with constant bounds) */
+    affine_grad_k(g0, Hq, b->zp, G, 0, ns + nf);
+  else
+    affine_grad_k(g0, Hq, b->zp, G, ns, ns + nf);
+}
+
 /* The residual (with the momenta's potential parts) and, if jac, the
  * potential part of the Newton matrix (mrvi_blocks_assemble). */
 ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
@@ -499,13 +530,17 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
   double vl[nf > 0 ? nf : 1]; /* velocity of the interval before node mm */
-  for (int mm = 0; mm < p; mm++) {
-    const double *d = x + ns + (size_t)mm * nf;
-    double *Rm = R + ns + (size_t)mm * nf;
+  const double *restrict d0 = x + ns, *restrict mf = b->mf;
+  UNROLL for (int f = 0; f < nf; f++) {
+    vl[f] = d0[f] / dt; /* (d - 0) / dt */
+    R[ns + f] = st->pf0[f] - mf[f] * vl[f];
+  }
+  for (int mm = 1; mm < p; mm++) {
+    const double *restrict d = x + ns + (size_t)mm * nf;
+    double *restrict Rm = R + ns + (size_t)mm * nf;
     UNROLL for (int f = 0; f < nf; f++) {
-      const double M = b->mf[f];
-      const double vr = (d[f] - (mm == 0 ? 0.0 : d[f - nf])) / dt;
-      Rm[f] = mm == 0 ? st->pf0[f] - M * vr : M * (vl[f] - vr);
+      const double vr = (d[f] - d[f - nf]) / dt;
+      Rm[f] = mf[f] * (vl[f] - vr);
       vl[f] = vr;
     }
   }
@@ -514,23 +549,27 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
    * and blocks of its nodes; with the same points for V and W, both
    * classes at once (c1 = 1). */
   const int same = b->same_pts;
-  for (int c = 0; c < (same ? 1 : 2); c++)
+  for (int c = 0; c < (same ? 1 : 2); c++) {
+    /* What the points of class c (and W with them) need. */
+    const int c1 = same ? 1 : c;
+    const int h0 = jac && !b->quad[c], h1 = same && jac && !b->quad[1];
+    const int hess = h0 || h1;
+    /* The rows of a rate the classes have no inputs of get no gradient. */
+    const int hs = b->has_s[c] || b->has_s[c1],
+              hf = b->has_f[c] || b->has_f[c1];
+    const int Hs = (h0 && b->has_s[c]) || (h1 && b->has_s[1]),
+              Hf = (h0 && b->has_f[c]) || (h1 && b->has_f[1]);
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
-      const int c1 = same ? 1 : c, mm = pt->m;
-      const int h0 = jac && !b->quad[c], h1 = same && jac && !b->quad[1];
-      const int hess = h0 || h1;
-      /* The rows of a rate the classes have no inputs of get no gradient. */
-      const int hs = b->has_s[c] || b->has_s[c1],
-                hf = b->has_f[c] || b->has_f[c1];
+      const int mm = pt->m;
       point_config_k(b, st, x, pt, hs, hf, ns, nf);
       double *restrict G = b->G;
       UNROLL for (int i = 0; i < nz; i++) G[i] = 0.0;
       if (hess)
         memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, h0 ? b->H : NULL, nz, 1.0);
+      class_grad_k(b, c, G, h0 ? b->H : NULL, ns, nf);
       if (same)
-        mrvi_terms_eval(b->kc[1], b->zp, 1.0, G, h1 ? b->H : NULL, nz, 1.0);
+        class_grad_k(b, 1, G, h1 ? b->H : NULL, ns, nf);
       /* The point's factors in locals: R may alias nothing of pt, but the
        * compiler cannot know. */
       const double w = pt->w, a0 = pt->a0, a1 = pt->a1, cA = pt->cA,
@@ -555,9 +594,9 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
         }
       }
       if (hess)
-        point_hessian_k(b, pt, (h0 && b->has_s[c]) || (h1 && b->has_s[1]),
-                        (h0 && b->has_f[c]) || (h1 && b->has_f[1]), ns, nf);
+        point_hessian_k(b, pt, Hs, Hf, ns, nf);
     }
+  }
 }
 
 int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,

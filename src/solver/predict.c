@@ -80,6 +80,14 @@ struct mrvi_predictor {
   char *kinds[2];     /* kind of every point of V and W (see kind) */
   int has_kind[3];    /* some point of V or W is of that kind */
   mrvi_terms *kc[2];  /* V and W compiled on the packed columns (terms.c) */
+  int *pend[2];       /* end of the points of interval m of V and W (p each) */
+  /* A class with a constant Hessian on small blocks (ns, nf <= 4):
+   * gradient g0 + Hq z (affine_grad_k), from column lo (the first fast
+   * one if it has no slow inputs); Hq NULL otherwise. */
+  double *g0[2], *Hq[2];
+  int lo[2];
+  int same; /* V and W have the same points (midpoint-midpoint): a point's
+               two gradients are evaluated at one configuration, summed */
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -168,6 +176,40 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     }
   }
   free(col);
+  for (int c = 0; c < 2; c++) {
+    if (!(pr->pend[c] =
+              malloc((size_t)(st->p > 0 ? st->p : 1) * sizeof(int)))) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
+    for (int mm = 0, e = 0; mm < st->p; mm++) {
+      while (e < st->n_pts[c] && st->pts[c][e].m == mm)
+        e++;
+      pr->pend[c][mm] = e;
+    }
+  }
+  const size_t nz = (size_t)st->ns + (size_t)st->nf;
+  for (int c = 0; c < 2 && st->ns <= 4 && st->nf <= 4 && nz > 0; c++) {
+    int quad = 1, slow = 0;
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      quad &= mrvi_element_is_quadratic(e);
+      for (int j = 0; j < e->n_in; j++)
+        slow |= m->rate[e->in[j]] == MRVI_SLOW;
+    }
+    if (!quad)
+      continue;
+    pr->g0[c] = calloc(nz, sizeof(double));
+    pr->Hq[c] = calloc(nz * nz, sizeof(double));
+    if (!pr->g0[c] || !pr->Hq[c]) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
+    memset(pr->z, 0, nz * sizeof(double)); /* at z = 0 */
+    mrvi_terms_eval(pr->kc[c], pr->z, 1.0, pr->g0[c], pr->Hq[c], (int)nz, 1.0);
+    pr->lo[c] = slow ? 0 : st->ns;
+  }
+  pr->same = mrvi_step_same_points(st);
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
   for (int c = 0; c < 2; c++)
@@ -219,6 +261,12 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->minv);
   free(pr->kinds[0]);
   free(pr->kinds[1]);
+  free(pr->pend[0]);
+  free(pr->pend[1]);
+  for (int c = 0; c < 2; c++) {
+    free(pr->g0[c]);
+    free(pr->Hq[c]);
+  }
   mrvi_terms_free(pr->kc[0]);
   mrvi_terms_free(pr->kc[1]);
   free(pr);
@@ -286,7 +334,7 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
 ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     const double *x, const mrvi_point *pt,
                                     int c, const int ns, const int nf,
-                                    double *J, double hscale) {
+                                    double *J, double hscale, int both) {
   double *restrict z = pr->z, *restrict g = pr->g;
   UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s] + pt->a1 * x[s];
   const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
@@ -299,11 +347,19 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
   else
     mrvi_terms_grad(pr->kc[c], z, g);
+  if (!both) /* W at V's point (pr->same) */
+    return;
+  if (!pr->Hq[1])
+    mrvi_terms_grad(pr->kc[1], z, g);
+  else if (pr->lo[1] == 0) /* (each with constant bounds) */
+    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, 0, ns + nf);
+  else
+    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, ns, ns + nf);
 }
 
 static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
                            const double *x, const mrvi_point *pt, int c) {
-  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf, NULL, 0.0);
+  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf, NULL, 0.0, 0);
 }
 
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
@@ -319,12 +375,13 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
                                  int sum_slow, const int ns, const int nf) {
   if (!pr->has_kind[k])
     return;
-  for (int c = 0; c < 2; c++)
+  const int same = pr->same;
+  for (int c = 0; c < (same ? 1 : 2); c++)
     for (int ip = first[c]; ip < end[c]; ip++) {
       if (pr->kinds[c][ip] != k)
         continue;
       const mrvi_point *pt = &st->pts[c][ip];
-      point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0);
+      point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
       if (fa && pt->cA != 0.0)
         axpy(nf, pt->w * pt->cA, pr->g + ns, fa);
       if (fb && pt->cB != 0.0)
@@ -351,19 +408,18 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
   for (int f = 0; f < nf; f++)
     pr->pm[f] = st->pf0[f];
+  double cm[nf > 0 ? nf : 1]; /* dt / M */
+  UNROLL for (int f = 0; f < nf; f++) cm[f] = dt * minv[f];
   int first[2] = {0, 0}, end[2];
   for (int mm = 0; mm < p; mm++) {
-    for (int c = 0; c < 2; c++)
-      for (end[c] = first[c];
-           end[c] < st->n_pts[c] && st->pts[c][end[c]].m == mm; end[c]++)
-        ;
+    end[0] = pr->pend[0][mm];
+    end[1] = pr->pend[1][mm];
     const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
     double *dn = x + ns + (size_t)mm * nf;
     /* Row mm with F^A = explicit points + the implicit force fimp. */
 #define SOLVE_ROW()                                                            \
-  for (int f = 0; f < nf; f++)                                                 \
-    dn[f] = (d ? d[f] : 0.0) +                                                 \
-            dt * minv[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
+  UNROLL for (int f = 0; f < nf; f++) dn[f] =                                  \
+      (d ? d[f] : 0.0) + cm[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
     UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
     eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
                   nf);
@@ -390,8 +446,8 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
 #undef SOLVE_ROW
     eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, ns,
                   nf);
-    for (int f = 0; f < nf; f++)
-      pr->pm[f] = (dn[f] - (d ? d[f] : 0.0)) / (dt * minv[f]) - pr->fb[f];
+    UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
+        (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
@@ -425,7 +481,7 @@ static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
     const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
     const mrvi_point *pt = &st->pts[c][ip];
     const double w = pr->sample_w[c] * pt->w * pt->a0;
-    point_gradient_k(pr, st, x, pt, c, ns, st->nf, pr->H, w * pt->a1);
+    point_gradient_k(pr, st, x, pt, c, ns, st->nf, pr->H, w * pt->a1, 0);
     axpy(ns, w, pr->g, f);
   }
 }

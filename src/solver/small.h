@@ -50,4 +50,19 @@
   }
 #endif
 
+/* G[lo..nz) += g0 + Hq z on the rows and columns lo..nz-1 (g0: nz, Hq:
+ * nz x nz): the gradient of a class whose Hessian is constant (quadratic
+ * terms) and zero outside those rows and columns, as an affine map, a few
+ * products instead of a pass over its terms (round-off apart, the same). */
+ALWAYS_INLINE void affine_grad_k(const double *restrict g0,
+                                 const double *restrict Hq,
+                                 const double *restrict z, double *restrict G,
+                                 const int lo, const int nz) {
+  UNROLL for (int i = lo; i < nz; i++) {
+    double t = g0[i];
+    UNROLL for (int j = lo; j < nz; j++) t += Hq[i * nz + j] * z[j];
+    G[i] += t;
+  }
+}
+
 #endif
