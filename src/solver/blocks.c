@@ -266,16 +266,20 @@ ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
                               const int *restrict piv,
                               const double *restrict dinv, double *restrict B,
                               const int nrhs) {
-  UNROLL for (int k = 0; k < n; k++) {
-    double *bk = B + k * nrhs;
-    if (k + 1 < n && piv[k] != k) { /* piv[n - 1] = n - 1 */
-      double *br = B + piv[k] * nrhs;
+  /* The factorisation swaps whole rows (P A = L U, L in its final row
+   * order): every swap applies to B before the forward substitution. */
+  UNROLL for (int k = 0; k + 1 < n; k++) { /* piv[n - 1] = n - 1 */
+    if (piv[k] != k) {
+      double *bk = B + k * nrhs, *br = B + piv[k] * nrhs;
       UNROLL for (int c = 0; c < nrhs; c++) {
         const double t = br[c];
         br[c] = bk[c];
         bk[c] = t;
       }
     }
+  }
+  UNROLL for (int k = 0; k < n; k++) {
+    const double *bk = B + k * nrhs;
     UNROLL for (int i = k + 1; i < n; i++) {
       const double f = A[i * n + k];
       UNROLL for (int c = 0; c < nrhs; c++) B[i * nrhs + c] -= f * bk[c];
