@@ -640,6 +640,7 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
     const double *fm = force_row(st, m);
     /* Predictor (the last implicit force held fixed) and F there. */
+    UNROLL
     for (int f = 0; f < nf; f++) {
       rhs[f] = fm ? pm[f] + fm[f] : pm[f];
       dn[f] = dt * sw->minv_f[f] * (rhs[f] - fimp[f]);
@@ -647,20 +648,25 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       g[f] = 0.0;
     }
     mrvi_terms_grad_k(sw->kc[MRVI_FAST], sw->zf, g);
+    UNROLL
     for (int f = 0; f < nf; f++) {
       fimp[f] = 0.0 + wc * g[f];
       F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
     }
     /* dn += J^-1 F; the point's gradient follows by the kept Hessian. */
+    UNROLL
     for (int a = 0; a < nf; a++) {
       double d = 0.0;
+      UNROLL
       for (int b = 0; b < nf; b++)
         d += Jinv[a * nf + b] * F[b];
       del[a] = d;
       dn[a] += d;
     }
+    UNROLL
     for (int a = 0; a < nf; a++) {
       double h = 0.0;
+      UNROLL
       for (int b = 0; b < nf; b++)
         h += H[a * nf + b] * del[b];
       g[a] += cB * h;
