@@ -20,7 +20,8 @@
  * cA cB = 0), so q^{m+1} is explicit; for other rules (midpoint) row m is an
  * nf x nf Newton problem, solved by dense LU up to SWEEP_DENSE_MAX and by
  * CG on a sparse pattern beyond ("sweep-cg", solver/sparse_block.c). */
-#include "terms.h"
+#include "internal.h"
+#include "small.h"
 
 #include <float.h>
 #include <math.h>
@@ -366,7 +367,7 @@ ALWAYS_INLINE void slow_gradient(mrvi_sweep *sw, const double *qs,
     z = sw->zv;
   }
   zero(sw->gv, ns + nf);
-  mrvi_terms_grad_k(sw->kc[MRVI_SLOW], z, sw->gv);
+  mrvi_terms_grad(sw->kc[MRVI_SLOW], z, sw->gv);
 }
 
 static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
@@ -584,7 +585,7 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     const double *fm = force_row(st, m);
     if (nl > 0 && !sw->gnode_ok) {
       zero(gnode, nf);
-      mrvi_terms_grad_k(sw->kc[MRVI_FAST], qm, gnode);
+      mrvi_terms_grad(sw->kc[MRVI_FAST], qm, gnode);
     }
     UNROLL
     for (int f = 0; f < nf; f++) {
@@ -600,7 +601,7 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     sw->gnode_ok = 0;
     if (nr > 0) {
       zero(gnode, nf);
-      mrvi_terms_grad_k(sw->kc[MRVI_FAST], qn, gnode);
+      mrvi_terms_grad(sw->kc[MRVI_FAST], qn, gnode);
       sw->gnode_ok = 1;
       UNROLL
       for (int f = 0; f < nf; f++)
@@ -647,7 +648,7 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
       g[f] = 0.0;
     }
-    mrvi_terms_grad_k(sw->kc[MRVI_FAST], sw->zf, g);
+    mrvi_terms_grad(sw->kc[MRVI_FAST], sw->zf, g);
     UNROLL
     for (int f = 0; f < nf; f++) {
       fimp[f] = 0.0 + wc * g[f];
