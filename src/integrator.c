@@ -671,7 +671,7 @@ static int project_micro(mrvi_integrator *it) {
   return MRVI_OK;
 }
 
-static int finish_step(mrvi_integrator *it);
+ALWAYS_INLINE int finish_step(mrvi_integrator *it);
 
 /* Which steps are timed (mrvi_integrator_timing). */
 static void count_step(mrvi_integrator *it) {
@@ -816,23 +816,27 @@ ALWAYS_INLINE void new_state_packed(mrvi_integrator *it, const double *xf,
                                     const double *pf1, const int ns,
                                     const int nf) {
   const int p = it->step.p;
-  UNROLL
-  for (int i = 0; i < ns + nf; i++)
-    it->qs_prev[i] = it->q[i];
+  double *restrict q = it->q, *restrict pq = it->p,
+                   *restrict prev = it->qs_prev;
+  const double *restrict x = it->x, *restrict ps1 = it->ps1;
   UNROLL
   for (int i = 0; i < ns; i++) {
-    it->q[i] = it->x[i];
-    it->p[i] = it->ps1[i];
+    prev[i] = q[i];
+    q[i] = x[i];
+    pq[i] = ps1[i];
   }
   UNROLL
   for (int i = 0; i < nf; i++) {
-    it->q[ns + i] = xf[i];
-    it->p[ns + i] = pf1[i];
+    prev[ns + i] = q[ns + i];
+    q[ns + i] = xf[i];
+    pq[ns + i] = pf1[i];
   }
-  for (int mm = 0; mm < p; mm++) {
+  if (p == 1) { /* the one fast node is the new state's */
     UNROLL
     for (int i = 0; i < nf; i++)
-      it->micro_q[mm * nf + i] = it->x[ns + mm * nf + i];
+      it->micro_q[i] = xf[i];
+  } else {
+    memcpy(it->micro_q, x + ns, (size_t)p * (size_t)nf * sizeof(double));
   }
 }
 
@@ -883,7 +887,7 @@ static int finish_step_general(mrvi_integrator *it) {
   return MRVI_OK;
 }
 
-static int finish_step(mrvi_integrator *it) {
+ALWAYS_INLINE int finish_step(mrvi_integrator *it) {
   const mrvi_step *st = &it->step;
   if (!it->packed || it->model->n_constraints > 0)
     return finish_step_general(it);

@@ -587,6 +587,7 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
       zero(gnode, nf);
       mrvi_terms_grad(sw->kc[MRVI_FAST], qm, gnode);
     }
+    UNROLL
     for (int f = 0; f < nf; f++) {
       double r = pm[f];
       if (fm)
@@ -602,6 +603,7 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
       zero(gnode, nf);
       mrvi_terms_grad(sw->kc[MRVI_FAST], qn, gnode);
       sw->gnode_ok = 1;
+      UNROLL
       for (int f = 0; f < nf; f++)
         for (int i = 0; i < nr; i++)
           pn[f] -= wr[i] * gnode[f];
@@ -639,6 +641,7 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
     const double *fm = force_row(st, m);
     /* Predictor (the last implicit force held fixed) and F there. */
+    UNROLL
     for (int f = 0; f < nf; f++) {
       rhs[f] = fm ? pm[f] + fm[f] : pm[f];
       dn[f] = dt * sw->minv_f[f] * (rhs[f] - fimp[f]);
@@ -646,20 +649,25 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       g[f] = 0.0;
     }
     mrvi_terms_grad(sw->kc[MRVI_FAST], sw->zf, g);
+    UNROLL
     for (int f = 0; f < nf; f++) {
       fimp[f] = 0.0 + wc * g[f];
       F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
     }
     /* dn += J^-1 F; the point's gradient follows by the kept Hessian. */
+    UNROLL
     for (int a = 0; a < nf; a++) {
       double d = 0.0;
+      UNROLL
       for (int b = 0; b < nf; b++)
         d += Jinv[a * nf + b] * F[b];
       del[a] = d;
       dn[a] += d;
     }
+    UNROLL
     for (int a = 0; a < nf; a++) {
       double h = 0.0;
+      UNROLL
       for (int b = 0; b < nf; b++)
         h += H[a * nf + b] * del[b];
       g[a] += cB * h;
@@ -781,16 +789,21 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
     slow_gradient(sw, st->qs0, st->qf0, ns, nf);
   sw->gv_ok = 0;
   const double *gv = w0 != 0.0 ? sw->gv : sw->gzero;
+  const double *ps0 = st->ps0, *qs0 = st->qs0, *pf0 = st->pf0;
+  const double *frow = st->f_rows, *minv_s = sw->minv_s;
+  UNROLL
   for (int s = 0; s < ns; s++) {
-    ps1[s] = st->ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
-    if (st->f_rows)
-      ps1[s] += st->f_rows[s];
-    x[s] = st->qs0[s] + dT * sw->minv_s[s] * ps1[s];
+    double v = ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
+    if (frow)
+      v += frow[s];
+    ps1[s] = v;
+    x[s] = qs0[s] + dT * minv_s[s] * v;
   }
   /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
   double *pm = pf; /* momentum at node m (row m's left part) */
+  UNROLL
   for (int f = 0; f < nf; f++)
-    pm[f] = st->pf0[f] - w0 * gv[ns + f];
+    pm[f] = pf0[f] - w0 * gv[ns + f];
   int done = 0;
   if (!sw->implicit) {
     explicit_sweep(sw, st, x, pf, nf);
@@ -808,28 +821,37 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
       return s;
   }
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
+  double *pe = pf + (size_t)(p - 1) * nf;
+  const double *xe = x + ns + (size_t)(p - 1) * nf;
   if (sw->wv1 != 0.0) {
     const double w1 = sw->wv1;
-    slow_gradient(sw, x, x + ns + (size_t)(p - 1) * nf, ns, nf);
+    slow_gradient(sw, x, xe, ns, nf);
     gv = sw->gv;
+    UNROLL
     for (int s = 0; s < ns; s++)
       ps1[s] -= w1 * gv[s];
+    UNROLL
     for (int f = 0; f < nf; f++)
-      pf[(size_t)(p - 1) * nf + f] -= w1 * gv[ns + f];
+      pe[f] -= w1 * gv[ns + f];
   }
   /* Control forces f^+ of the step on the end momenta. */
   if (st->f_end) {
+    const double *fe = st->f_end;
+    UNROLL
     for (int s = 0; s < ns; s++)
-      ps1[s] += st->f_end[s];
+      ps1[s] += fe[s];
+    UNROLL
     for (int f = 0; f < nf; f++)
-      pf[(size_t)(p - 1) * nf + f] += st->f_end[ns + f];
+      pe[f] += fe[ns + f];
   }
   /* Non-finite values propagate along the sweep: the new node suffices. */
   double sum = 0.0;
+  UNROLL
   for (int s = 0; s < ns; s++)
     sum += x[s] + ps1[s];
+  UNROLL
   for (int f = 0; f < nf; f++)
-    sum += x[ns + (size_t)(p - 1) * nf + f] + pf[(size_t)(p - 1) * nf + f];
+    sum += xe[f] + pe[f];
   if (!isfinite(sum)) {
     sw->gnode_ok = 0;
     mrvi_fmt(msg, len, "the %s step produced non-finite values",

@@ -154,7 +154,8 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
   /* Runs of one-input linear terms (k q^2/2 on a coordinate: the stiff
    * springs of W in the FPU) are evaluated in one loop, and so are runs of
    * terms with 2..4 inputs of the linear or a small power law (the quartic
-   * springs of V in the FPU), from compact records. */
+   * springs of V in the FPU), from compact records, one loop per run of
+   * terms with the same input count and law. */
   int n4 = 0;
   for (int ie = n_elems - 1; ie >= 0; ie--) {
     kterm *t = &kc->t[ie];
@@ -163,7 +164,11 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
       t->run = 1 + (next ? kc->t[ie + 1].run : 0);
     if ((t->kind == KT_LINEAR || t->kind == KT_POWER) && t->n >= 2 &&
         t->n <= 4) {
-      t->run4 = 1 + (next ? kc->t[ie + 1].run4 : 0);
+      /* (runs of one input count and one law) */
+      const kterm *u = next ? &kc->t[ie + 1] : NULL;
+      const int same = u && u->run4 > 0 && u->n == t->n && u->kind == t->kind &&
+                       (t->kind == KT_LINEAR || u->k == t->k);
+      t->run4 = 1 + (same ? u->run4 : 0);
       n4++;
     }
   }
@@ -225,11 +230,14 @@ ALWAYS_INLINE void term_eval(const kterm *t, const int *col, const double *a,
 }
 
 /* A compact term with n inputs (term_eval's arithmetic; unit: scale and
- * hscale are 1, whose products are left out, bitwise the same).  Its data
- * is read into locals first: the stores into g and J could alias it. */
+ * hscale are 1, whose products are left out, bitwise the same) and law k
+ * (-1 linear, else the power's integer exponent; K_ANY: the record's).
+ * Its data is read into locals first: the stores into g and J could alias
+ * it. */
+enum { K_ANY = -2 };
 ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
                               double *g, double *J, int ld, double hscale,
-                              const int n, const int unit) {
+                              const int n, const int unit, const int kk) {
   int col[4];
   double a[4];
   UNROLL for (int j = 0; j < n; j++) {
@@ -237,14 +245,15 @@ ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
     a[j] = q->a[j];
   }
   const double c = q->c;
+  const int k = kk == K_ANY ? q->k : kk;
   double s = -q->shift;
   UNROLL for (int j = 0; j < n; j++) s += a[j] * z[col[j]];
   double d1, d2;
-  if (q->k < 0) {
+  if (k < 0) {
     d1 = c * s;
     d2 = c;
   } else {
-    power_derivs_ce(q->ce, q->ce1, q->k, s, &d1, &d2);
+    power_derivs_ce(q->ce, q->ce1, k, s, &d1, &d2);
   }
   UNROLL for (int j = 0; j < n; j++) g[col[j]] +=
       unit ? d1 * a[j] : scale * (d1 * a[j]);
@@ -257,37 +266,67 @@ ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
     }
 }
 
+/* A run of nr compact terms with n inputs each and one law (linear and
+ * the quartic with the law a constant). */
+ALWAYS_INLINE void run4_n(const kterm4 *q, int nr, const double *z,
+                          double scale, double *g, double *J, int ld,
+                          double hscale, const int n, const int unit) {
+  switch (q->k) {
+  case -1:
+    for (int r = 0; r < nr; r++)
+      term4_eval(q + r, z, scale, g, J, ld, hscale, n, unit, -1);
+    break;
+  case 4:
+    for (int r = 0; r < nr; r++)
+      term4_eval(q + r, z, scale, g, J, ld, hscale, n, unit, 4);
+    break;
+  default:
+    for (int r = 0; r < nr; r++)
+      term4_eval(q + r, z, scale, g, J, ld, hscale, n, unit, K_ANY);
+  }
+}
+
+ALWAYS_INLINE void run4_eval(const kterm4 *q, int nr, const double *z,
+                             double scale, double *g, double *J, int ld,
+                             double hscale, const int unit) {
+  switch (q->n) {
+  case 2:
+    run4_n(q, nr, z, scale, g, J, ld, hscale, 2, unit);
+    break;
+  case 3:
+    run4_n(q, nr, z, scale, g, J, ld, hscale, 3, unit);
+    break;
+  default:
+    run4_n(q, nr, z, scale, g, J, ld, hscale, 4, unit);
+  }
+}
+
+/* A run of nr one-input linear terms from t (col, a: their inputs). */
+ALWAYS_INLINE void run1_eval(const kterm *t, int nr, const int *col,
+                             const double *a, const double *z, double scale,
+                             double *g, double *J, int ld, double hscale) {
+  for (int r = 0; r < nr; r++) {
+    const double ar = a[r], d1 = t[r].c * (-t[r].shift + ar * z[col[r]]);
+    g[col[r]] += scale * (d1 * ar);
+    if (J)
+      J[col[r] * ld + col[r]] += hscale * (t[r].c * ar * ar);
+  }
+}
+
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
                           double *g, double *J, int ld, double hscale,
                           const int unit) {
   for (int it = 0; it < kc->n; it++) {
     const kterm *t = &kc->t[it];
     if (t->run4 > 0) {
-      const kterm4 *q = kc->q4 + t->q4;
-      for (int r = 0; r < t->run4; r++) {
-        switch (q[r].n) {
-        case 2:
-          term4_eval(q + r, z, scale, g, J, ld, hscale, 2, unit);
-          break;
-        case 3:
-          term4_eval(q + r, z, scale, g, J, ld, hscale, 3, unit);
-          break;
-        default:
-          term4_eval(q + r, z, scale, g, J, ld, hscale, 4, unit);
-        }
-      }
+      run4_eval(kc->q4 + t->q4, t->run4, z, scale, g, J, ld, hscale, unit);
       it += t->run4 - 1;
       continue;
     }
     const int n = t->n, *col = kc->col + t->first;
     const double *a = kc->coef + t->first;
     if (t->run > 1) { /* as below, one input each */
-      for (int r = 0; r < t->run; r++) {
-        const double ar = a[r], d1 = t[r].c * (-t[r].shift + ar * z[col[r]]);
-        g[col[r]] += scale * (d1 * ar);
-        if (J)
-          J[col[r] * ld + col[r]] += hscale * (t[r].c * ar * ar);
-      }
+      run1_eval(t, t->run, col, a, z, scale, g, J, ld, hscale);
       it += t->run - 1;
       continue;
     }
