@@ -229,21 +229,28 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
   }
 }
 
+void ocp_adjoint_free(mrvi_ocp *o) {
+  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val};
+  for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
+    free(*d[i]);
+    *d[i] = NULL;
+  }
+  free(o->gz);
+  free(o->h_of_a);
+  free(o->h_ptr);
+  free(o->h_col);
+  o->gz = NULL;
+  o->h_of_a = NULL;
+  o->h_ptr = NULL;
+  o->h_col = NULL;
+  o->nfun_alloc = 0;
+}
+
 /* Lazily sized adjoint workspace for nfun functionals. */
 static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   const size_t nn = (size_t)o->n_nodes, nu = (size_t)o->step.n_total;
-  (void)nu;
   const size_t npn = (size_t)(o->ns + o->nf), f = (size_t)nfun;
-  free(o->r);
-  free(o->mu);
-  free(o->rhs);
-  free(o->sol);
-  free(o->gz);
-  free(o->h_of_a);
-  free(o->Ak);
-  free(o->h_ptr);
-  free(o->h_col);
-  free(o->h_val);
+  ocp_adjoint_free(o);
   o->gz = malloc((size_t)o->nz * sizeof *o->gz);
   const size_t nvz = (size_t)o->nv * (size_t)o->nz + 1;
   o->h_ptr = malloc(((size_t)o->nv + 1) * sizeof *o->h_ptr);

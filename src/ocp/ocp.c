@@ -222,16 +222,7 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->q_out);
   free(o->p_out);
   free(o->H);
-  free(o->r);
-  free(o->mu);
-  free(o->rhs);
-  free(o->sol);
-  free(o->gz);
-  free(o->h_of_a);
-  free(o->Ak);
-  free(o->h_ptr);
-  free(o->h_col);
-  free(o->h_val);
+  ocp_adjoint_free(o);
   free(o);
 }
 

@@ -102,6 +102,8 @@ long ocp_global(const mrvi_ocp *o, long k, int z);
  * integrator's for the model and settings (mrvi_sweep_path), the general
  * one with pair actuators. */
 int ocp_path(const mrvi_ocp *o, char *why, size_t len);
+/* Free the adjoint workspace (adjoint.c; sized lazily per functional count). */
+void ocp_adjoint_free(mrvi_ocp *o);
 /* The step and trajectory buffers (once, at the first forward pass). */
 int ocp_alloc(mrvi_ocp *o);
 /* Forward shooting at u: fills Q, pN, momenta, trajectory outputs. */
