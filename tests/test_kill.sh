@@ -75,6 +75,10 @@ kill_series() {
   [ "$window" -ge 10 ] || window=10
   for i in $(seq 1 "$3"); do
     f=$tmp/k$i.h5
+    # No file left from an earlier series (a run that finished before its
+    # kill keeps its file): a run killed before its file exists must find
+    # none.
+    rm -f "$f" "$f".part*
     "$mrvi" run "$sys" "${set_[@]}" -o "$f" -q 2>/dev/null &
     pid=$!
     # A random instant (ms) before, during and after the first flushes.
