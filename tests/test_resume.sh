@@ -119,6 +119,16 @@ print(int(f.attrs["steps_completed"]))
 PY
 }
 
+# same_as_ref WHAT FILE: FILE equals the uninterrupted run's ref.h5 bit for
+# bit (same.py).
+same_as_ref() {
+  if "$py" "$tmp/same.py" "$tmp/ref.h5" "$2" >"$tmp/log"; then
+    pass "$1 = uninterrupted ($(cat "$tmp/log"))"
+  else
+    fail "$1: $(cat "$tmp/log")"
+  fi
+}
+
 # resume_case NAME N ARGS...: reference run of N steps, then the three
 # interruptions, each resumed and compared with the reference.
 resume_case() {
@@ -139,9 +149,7 @@ resume_case() {
     rc=$(resume "$tmp/a.h5")
     [ "$rc" = 0 ] && pass "$name: resumed after SIGINT" ||
       fail "$name: resume after SIGINT: exit $rc: $(cat "$tmp/err.txt")"
-    "$py" "$tmp/same.py" "$tmp/ref.h5" "$tmp/a.h5" >"$tmp/log" &&
-      pass "$name: SIGINT + resume = uninterrupted ($(cat "$tmp/log"))" ||
-      fail "$name: SIGINT + resume: $(cat "$tmp/log")"
+    same_as_ref "$name: SIGINT + resume" "$tmp/a.h5"
   else
     echo "note: $name: SIGINT missed the run (exit $rc, $k steps)"
   fi
@@ -162,9 +170,7 @@ resume_case() {
       [ "$rc" = 0 ] && pass "$name: resumed a second time" ||
         fail "$name: second resume: exit $rc: $(cat "$tmp/err.txt")"
     fi
-    "$py" "$tmp/same.py" "$tmp/ref.h5" "$tmp/b.h5" >"$tmp/log" &&
-      pass "$name: SIGKILL + 2 resumes = uninterrupted ($(cat "$tmp/log"))" ||
-      fail "$name: SIGKILL + resumes: $(cat "$tmp/log")"
+    same_as_ref "$name: SIGKILL + 2 resumes" "$tmp/b.h5"
   else
     echo "note: $name: SIGKILL missed the run (exit $rc, $k steps)"
   fi
@@ -180,9 +186,7 @@ resume_case() {
   rc=$(resume "$tmp/c.h5")
   [ "$rc" = 0 ] && pass "$name: resumed after the write failure" ||
     fail "$name: resume after the failure: exit $rc: $(cat "$tmp/err.txt")"
-  "$py" "$tmp/same.py" "$tmp/ref.h5" "$tmp/c.h5" >"$tmp/log" &&
-    pass "$name: failure + resume = uninterrupted ($(cat "$tmp/log"))" ||
-    fail "$name: failure + resume: $(cat "$tmp/log")"
+  same_as_ref "$name: failure + resume" "$tmp/c.h5"
 }
 
 fpu=$root/systems/fpu.yaml
