@@ -58,7 +58,8 @@ struct mrvi_blocks {
    * visited once with the two classes' gradients summed. */
   int same_pts;
   /* Class c has one point per micro interval, point m in interval m (the
-   * midpoint rule on the micro grid): its points' Hessians are kept, one
+   * midpoint and trapezoidal rules on the micro grid, p >= 2; set at
+   * creation): its points' Hessians are kept, one
    * per interval (Hp, p x nz x nz), and added to the blocks row block by
    * row block after the points (interval_hessians_k). */
   int per_iv[2];
