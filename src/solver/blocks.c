@@ -57,6 +57,13 @@ struct mrvi_blocks {
   /* V and W have the same points (midpoint-midpoint): each point is
    * visited once with the two classes' gradients summed. */
   int same_pts;
+  /* Class c has one point per micro interval, point m in interval m (the
+   * midpoint and trapezoidal rules on the micro grid, p >= 2; set at
+   * creation): its points' Hessians are kept, one
+   * per interval (Hp, p x nz x nz), and added to the blocks row block by
+   * row block after the points (interval_hessians_k). */
+  int per_iv[2];
+  double *Hp;
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -79,6 +86,7 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->ms);
   free(b->mf);
   free(b->cblk);
+  free(b->Hp);
   for (int c = 0; c < 2; c++) {
     free(b->g0[c]);
     free(b->Hq[c]);
@@ -178,6 +186,17 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->g0[c], b->Hq[c], (int)nz0, 1.0);
   }
   b->same_pts = mrvi_step_same_points(st);
+  for (int c = 0; c < 2; c++) {
+    b->per_iv[c] = st->n_pts[c] == b->p && b->p >= 2 && nz0 > 0;
+    for (int ip = 0; ip < st->n_pts[c]; ip++)
+      if (st->pts[c][ip].m != ip)
+        b->per_iv[c] = 0;
+  }
+  if ((b->per_iv[0] || b->per_iv[1]) &&
+      !(b->Hp = calloc((size_t)b->p * nz0 * nz0, sizeof(double)))) {
+    mrvi_blocks_free(b);
+    return MRVI_ENOMEM;
+  }
   for (int i = 0; i < b->ns; i++)
     b->ms[i] = m->mass[m->slow_index[i]];
   for (int i = 0; i < b->nf; i++)
@@ -433,6 +452,90 @@ ALWAYS_INLINE void point_hessian_k(mrvi_blocks *b, const mrvi_point *pt,
                    -w * rc[r] * cc[c]);
 }
 
+/* dst (rows x cols, leading dimension ldd) += f1 s1 + f2 s2 (leading
+ * dimension lds), s1 only if n1, s2 only if n2: add_scaled_k for s1 and
+ * then for s2 in one pass (the same sums). */
+ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
+                                 const double *restrict s1, double f1, int n1,
+                                 const double *restrict s2, double f2, int n2,
+                                 int lds, const int rows, const int cols) {
+  if (n1 && n2) {
+    UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+        dst[i * ldd + j] =
+            (dst[i * ldd + j] + f1 * s1[i * lds + j]) + f2 * s2[i * lds + j];
+  } else if (n1) {
+    add_scaled_k(dst, ldd, s1, lds, rows, cols, f1);
+  } else if (n2) {
+    add_scaled_k(dst, ldd, s2, lds, rows, cols, f2);
+  }
+}
+
+/* The Hessians kept in Hp of a class with one point per micro interval
+ * (point m in interval m) into the blocks, row block by row block: row
+ * block m (and slow column block m - 1, node m) takes what points m - 1
+ * and m give it, in that order -- the entries and the order of
+ * point_hessian_k point by point (the same sums), with each destination
+ * read and written once. */
+ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const mrvi_point *pts,
+                                       int has_s, int has_f, const int ns,
+                                       const int nf) {
+  const int p = b->p, nz = ns + nf, nF = p * nf;
+  const size_t hsz = (size_t)nz * (size_t)nz, blk = (size_t)nf * (size_t)nf;
+  /* Point m - 1 (Q): zero factors before the first interval. */
+  double qw = 0.0, qa0 = 0.0, qa1 = 0.0, qA = 0.0, qB = 0.0;
+  for (int m = 0; m < p; m++) {
+    const double *H = b->Hp + (size_t)m * hsz;
+    const double *HQ = m >= 1 ? H - hsz : H; /* (unread at m = 0) */
+    const mrvi_point *P = &pts[m];
+    const double w = P->w, a0 = P->a0, a1 = P->a1, cA = P->cA, cB = P->cB;
+    if (has_s) {
+      if (a0 != 0.0 && a1 != 0.0)
+        add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * a0 * a1);
+      if (has_f) {
+        /* slow rows, column block m - 1: Q by cB, P by cA */
+        if (m >= 1)
+          add_scaled2_k(b->Asf + (size_t)(m - 1) * nf, nF, HQ + ns,
+                        -qw * qa0 * qB, qa0 != 0.0 && qB != 0.0, H + ns,
+                        -w * a0 * cA, a0 != 0.0 && cA != 0.0, nz, ns, nf);
+        if (m == p - 1 && a0 != 0.0 && cB != 0.0)
+          add_scaled_k(b->Asf + (size_t)m * nf, nF, H + ns, nz, ns, nf,
+                       -w * a0 * cB);
+        /* row block m, slow columns: Q by cB, P by cA */
+        add_scaled2_k(b->Afs + (size_t)m * nf * (size_t)ns, ns,
+                      HQ + (size_t)ns * nz, -qw * qB * qa1,
+                      m >= 1 && qa1 != 0.0 && qB != 0.0, H + (size_t)ns * nz,
+                      -w * cA * a1, a1 != 0.0 && cA != 0.0, nz, nf, ns);
+      }
+    }
+    if (has_f) {
+      const double *Hff = H + (size_t)ns * nz + ns,
+                   *HQff = HQ + (size_t)ns * nz + ns;
+      /* D_m: P, row cA, column cB; L1_m: Q by cB cB, then P by cA cA;
+       * L2_m: Q, row cB, column cA */
+      if (cA != 0.0 && cB != 0.0)
+        add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf, -w * cA * cB);
+      if (m >= 1)
+        add_scaled2_k(b->L1 + (size_t)m * blk, nf, HQff, -qw * qB * qB,
+                      qB != 0.0, Hff, -w * cA * cA, cA != 0.0, nz, nf, nf);
+      if (m >= 2 && qA != 0.0 && qB != 0.0)
+        add_scaled_k(b->L2 + (size_t)m * blk, nf, HQff, nz, nf, nf,
+                     -qw * qB * qA);
+    }
+    qw = w;
+    qa0 = a0;
+    qa1 = a1;
+    qA = cA;
+    qB = cB;
+  }
+}
+
+/* (a call: inlined, it crowded the registers of the assembly loop) */
+static __attribute__((noinline)) void
+interval_hessians(mrvi_blocks *b, const mrvi_point *pts, int has_s, int has_f) {
+  SMALL(b->ns, NS,
+        SMALL(b->nf, NF, interval_hessians_k(b, pts, has_s, has_f, NS, NF)));
+}
+
 static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
   SMALL(b->ns, NS,
         SMALL(b->nf, NF,
@@ -558,6 +661,8 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
     const int c1 = same ? 1 : c;
     const int h0 = jac && !b->quad[c], h1 = same && jac && !b->quad[1];
     const int hess = h0 || h1;
+    /* one point per interval: Hessians kept, added after the points */
+    const int defer = hess && b->per_iv[c];
     /* The rows of a rate the classes have no inputs of get no gradient. */
     const int hs = b->has_s[c] || b->has_s[c1],
               hf = b->has_f[c] || b->has_f[c1];
@@ -569,11 +674,12 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
       point_config_k(b, st, x, pt, hs, hf, ns, nf);
       double *restrict G = b->G;
       UNROLL for (int i = 0; i < nz; i++) G[i] = 0.0;
+      double *Ht = defer ? b->Hp + (size_t)ip * (size_t)nz * (size_t)nz : b->H;
       if (hess)
-        memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      class_grad_k(b, c, G, h0 ? b->H : NULL, ns, nf);
+        memset(Ht, 0, (size_t)nz * (size_t)nz * sizeof(double));
+      class_grad_k(b, c, G, h0 ? Ht : NULL, ns, nf);
       if (same)
-        class_grad_k(b, 1, G, h1 ? b->H : NULL, ns, nf);
+        class_grad_k(b, 1, G, h1 ? Ht : NULL, ns, nf);
       /* The point's factors in locals: R may alias nothing of pt, but the
        * compiler cannot know. */
       const double w = pt->w, a0 = pt->a0, a1 = pt->a1, cA = pt->cA,
@@ -597,9 +703,11 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
           UNROLL for (int f = 0; f < nf; f++) pm[f] -= w * cB * Gf[f];
         }
       }
-      if (hess)
+      if (hess && !defer)
         point_hessian_k(b, pt, Hs, Hf, ns, nf);
     }
+    if (defer)
+      interval_hessians(b, st->pts[c], Hs, Hf);
   }
 }
 
