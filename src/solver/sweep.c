@@ -50,6 +50,9 @@ struct mrvi_sweep {
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
+  /* W quadratic on a block of at most 4 fast coordinates: grad W = wg0 +
+   * wH z (affine_grad_k, evaluated at z = 0 once per run), else NULL. */
+  double *wg0, *wH;
   /* grad V (unscaled, packed) at the last macro node where V was
    * evaluated; gv_ok: that node is the current one, the end node of the
    * last step (cleared by mrvi_sweep_reset when the state is set from
@@ -167,6 +170,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->zf);
   mrvi_terms_free(sw->kc[0]);
   mrvi_terms_free(sw->kc[1]);
+  free(sw->wg0);
+  free(sw->wH);
   free(sw->zv);
   free(sw->gv);
   free(sw->gzero);
@@ -277,12 +282,25 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
-  /* A quadratic W on a dense block: one factorisation per run. */
-  sw->linear = sw->implicit && !sparse;
+  int quad_w = 1;
   for (int ie = 0; ie < st->n_elem_of_class[MRVI_FAST]; ie++)
     if (!mrvi_element_is_quadratic(
             &m->elements[st->elem_of_class[MRVI_FAST][ie]]))
-      sw->linear = 0;
+      quad_w = 0;
+  /* A quadratic W on a dense block: one factorisation per run. */
+  sw->linear = sw->implicit && !sparse && quad_w;
+  /* ... and on a block of at most 4: its gradient as an affine map (the
+   * zeros of zf are z = 0). */
+  if (quad_w && nf >= 1 && nf <= 4) {
+    sw->wg0 = dalloc(nf);
+    sw->wH = dalloc(nf * nf);
+    if (!sw->wg0 || !sw->wH) {
+      mrvi_sweep_free(sw);
+      return MRVI_ENOMEM;
+    }
+    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, 1.0, sw->wg0, sw->wH, (int)nf,
+                    1.0);
+  }
   sw->Hpt[0] = dalloc(sw->linear ? nf * nf : 1);
   sw->Hpt[1] = dalloc(sw->linear ? nf * nf : 1);
   sw->Jinv = dalloc(sw->linear ? nf * nf : 1);
@@ -354,6 +372,17 @@ ALWAYS_INLINE void zero(double *d, int n) {
   UNROLL
   for (int i = 0; i < n; i++)
     d[i] = 0.0;
+}
+
+/* g = grad W at z (nf fast entries): the affine map of a quadratic W on a
+ * small block (round-off apart, the terms' gradient), else the terms. */
+ALWAYS_INLINE void fast_gradient(mrvi_sweep *sw, const double *z, double *g,
+                                 const int nf) {
+  zero(g, nf);
+  if (sw->wH)
+    affine_grad_k(sw->wg0, sw->wH, z, g, 0, nf);
+  else
+    mrvi_terms_grad(sw->kc[MRVI_FAST], z, g);
 }
 
 /* sw->gv = grad V (unscaled, packed: ns slow then nf fast entries) at
@@ -583,10 +612,8 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
     const double *fm = force_row(st, m);
-    if (nl > 0 && !sw->gnode_ok) {
-      zero(gnode, nf);
-      mrvi_terms_grad(sw->kc[MRVI_FAST], qm, gnode);
-    }
+    if (nl > 0 && !sw->gnode_ok)
+      fast_gradient(sw, qm, gnode, nf);
     UNROLL
     for (int f = 0; f < nf; f++) {
       double r = pm[f];
@@ -600,8 +627,7 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     }
     sw->gnode_ok = 0;
     if (nr > 0) {
-      zero(gnode, nf);
-      mrvi_terms_grad(sw->kc[MRVI_FAST], qn, gnode);
+      fast_gradient(sw, qn, gnode, nf);
       sw->gnode_ok = 1;
       UNROLL
       for (int f = 0; f < nf; f++)
@@ -646,9 +672,8 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       rhs[f] = fm ? pm[f] + fm[f] : pm[f];
       dn[f] = dt * sw->minv_f[f] * (rhs[f] - fimp[f]);
       sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
-      g[f] = 0.0;
     }
-    mrvi_terms_grad(sw->kc[MRVI_FAST], sw->zf, g);
+    fast_gradient(sw, sw->zf, g, nf);
     UNROLL
     for (int f = 0; f < nf; f++) {
       fimp[f] = 0.0 + wc * g[f];
