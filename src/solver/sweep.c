@@ -378,11 +378,20 @@ ALWAYS_INLINE void zero(double *d, int n) {
  * small block (round-off apart, the terms' gradient), else the terms. */
 ALWAYS_INLINE void fast_gradient(mrvi_sweep *sw, const double *z, double *g,
                                  const int nf) {
-  zero(g, nf);
-  if (sw->wH)
-    affine_grad_k(sw->wg0, sw->wH, z, g, 0, nf);
-  else
+  if (sw->wH) {
+    const double *restrict g0 = sw->wg0, *restrict H = sw->wH;
+    UNROLL
+    for (int i = 0; i < nf; i++) {
+      double t = g0[i];
+      UNROLL
+      for (int j = 0; j < nf; j++)
+        t += H[i * nf + j] * z[j];
+      g[i] = t;
+    }
+  } else {
+    zero(g, nf);
     mrvi_terms_grad(sw->kc[MRVI_FAST], z, g);
+  }
 }
 
 /* sw->gv = grad V (unscaled, packed: ns slow then nf fast entries) at
@@ -648,6 +657,32 @@ ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
     explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf);
 }
 
+/* y = A x (A: nf x nf, row-major). */
+ALWAYS_INLINE void matvec(const double *restrict A, const double *restrict x,
+                          double *restrict y, const int nf) {
+  UNROLL
+  for (int a = 0; a < nf; a++) {
+    double d = 0.0;
+    UNROLL
+    for (int b = 0; b < nf; b++)
+      d += A[a * nf + b] * x[b];
+    y[a] = d;
+  }
+}
+
+/* The end of a sweep whose largest micro-step residual is r. */
+static int sweep_end(mrvi_sweep *sw, double r, double *residual, char *msg,
+                     size_t len) {
+  sw->gnode_ok = 0;
+  if (r > *residual) /* fmax: a NaN r leaves it (and fails below) */
+    *residual = r;
+  if (!isfinite(r)) {
+    mrvi_fmt(msg, len, "micro step produced non-finite values");
+    return MRVI_ENONFINITE;
+  }
+  return MRVI_OK;
+}
+
 /* The fast nodes of the sweep path for a quadratic W with one (implicit)
  * point per interval, once the micro-step matrix is factored: the
  * arithmetic of solve_linear and of the general sweep below, in one pass
@@ -680,22 +715,14 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
     }
     /* dn += J^-1 F; the point's gradient follows by the kept Hessian. */
+    matvec(Jinv, F, del, nf);
+    UNROLL
+    for (int a = 0; a < nf; a++)
+      dn[a] += del[a];
+    matvec(H, del, F, nf);
     UNROLL
     for (int a = 0; a < nf; a++) {
-      double d = 0.0;
-      UNROLL
-      for (int b = 0; b < nf; b++)
-        d += Jinv[a * nf + b] * F[b];
-      del[a] = d;
-      dn[a] += d;
-    }
-    UNROLL
-    for (int a = 0; a < nf; a++) {
-      double h = 0.0;
-      UNROLL
-      for (int b = 0; b < nf; b++)
-        h += H[a * nf + b] * del[b];
-      g[a] += cB * h;
+      g[a] += cB * F[a];
       fimp[a] = 0.0 + wc * g[a];
       const double mv = mf[a] * dn[a] / dt; /* M v_m, one division */
       const double ra = fabs(rhs[a] - mv - fimp[a]);
@@ -706,14 +733,49 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     }
     pm = pn;
   }
-  sw->gnode_ok = 0;
-  if (r > *residual) /* fmax: a NaN r leaves it (and fails below) */
-    *residual = r;
-  if (!isfinite(r)) {
-    mrvi_fmt(msg, len, "micro step produced non-finite values");
-    return MRVI_ENONFINITE;
+  return sweep_end(sw, r, residual, msg, len);
+}
+
+/* linear_sweep for a W whose gradient is the affine map g0 + H z
+ * (sw->wH): row m, rhs - M dn/dt - w cA (gq + cB H dn) = 0 with gq = grad W
+ * at q^m, is solved directly, dn = J^-1 (rhs - w cA gq), where linear_sweep
+ * corrects a predictor (the same solution, round-off apart): the chain from
+ * one node to the next is shorter by the predictor's gradient. */
+ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                               double *pf, double *residual, char *msg,
+                               size_t len, const int nf) {
+  const int ns = sw->ns, p = sw->p;
+  const double dt = st->dt, cB = sw->cB[0], wc = sw->w[0] * sw->cA[0];
+  const double wb = sw->w[0] * sw->cB[0];
+  const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->wH;
+  double *g = sw->gpt[0], *F = sw->F, *dn = sw->dn, *hd = sw->del, r = 0.0;
+  const double *pm = pf;
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
+    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *fm = force_row(st, m);
+    fast_gradient(sw, qm, g, nf); /* gq */
+    UNROLL
+    for (int f = 0; f < nf; f++) {
+      F[f] = fm ? pm[f] + fm[f] : pm[f];
+      F[f] -= wc * g[f];
+    }
+    matvec(Jinv, F, dn, nf);
+    /* the point's gradient gq + cB H dn, the residual and the new node */
+    matvec(H, dn, hd, nf);
+    UNROLL
+    for (int a = 0; a < nf; a++) {
+      g[a] += cB * hd[a];
+      const double mv = mf[a] * dn[a] / dt; /* M v_m */
+      const double rhs = fm ? pm[a] + fm[a] : pm[a];
+      const double ra = fabs(rhs - mv - wc * g[a]);
+      r = isnan(ra) || ra > r ? ra : r;
+      qn[a] = qm[a] + dn[a];
+      pn[a] = mv - wb * g[a];
+    }
+    pm = pn;
   }
-  return MRVI_OK;
+  return sweep_end(sw, r, residual, msg, len);
 }
 
 /* The fast nodes of the sweep path in general (row m solved by Newton, or
@@ -834,7 +896,8 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
     explicit_sweep(sw, st, x, pf, nf);
     done = 1;
   } else if (sw->linear && sw->lu_ok && sw->n_w == 1) {
-    const int s = linear_sweep(sw, st, x, pf, residual, msg, len, nf);
+    const int s = sw->wH ? affine_sweep(sw, st, x, pf, residual, msg, len, nf)
+                         : linear_sweep(sw, st, x, pf, residual, msg, len, nf);
     if (s < 0)
       return s;
     *iterations = 1;
