@@ -611,8 +611,8 @@ static const double *force_row(const mrvi_step *st, int m) {
  * sweep below, in one pass per node. */
 ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nl,
-                                  const int nr, const int nf) {
-  const int ns = sw->ns, p = sw->p;
+                                  const int nr, const int nf, const int p) {
+  const int ns = sw->ns;
   const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
   const double *mf = sw->m_f, *minv = sw->minv_f;
   double *gnode = sw->gnode;
@@ -651,10 +651,12 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
  * node of an interval). */
 ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nf) {
-  if (sw->nl == 1 && sw->nr == 1)
-    explicit_nodes(sw, st, x, pf, 1, 1, nf);
+  if (sw->nl == 1 && sw->nr == 1 && sw->p == 1)
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, 1); /* p = 1: no loop */
+  else if (sw->nl == 1 && sw->nr == 1)
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, sw->p);
   else
-    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf);
+    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p);
 }
 
 /* y = A x (A: nf x nf, row-major). */
