@@ -414,6 +414,40 @@ static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
     sw->zf[f] = a * u[f] + b * v[f];
 }
 
+/* Factor the micro-step matrix J = M/dt + sum w cA cB hess W of a
+ * quadratic W (its Hessians, constant, evaluated at qm + cB dn) and keep
+ * its inverse and the Hessians. */
+static int factor_linear(mrvi_sweep *sw, const double *qm, const double *dn,
+                         char *msg, size_t len) {
+  const int nf = sw->nf;
+  const double dt = sw->st->dt;
+  memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
+  for (int i = 0; i < sw->n_w; i++) {
+    memset(sw->Hpt[i], 0, (size_t)nf * (size_t)nf * sizeof(double));
+    if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
+      continue;
+    set_zf(sw, 1.0, qm, sw->cB[i], dn);
+    memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
+    eval_fast(sw, sw->gpt[i], sw->Hpt[i], 1.0);
+    for (int k = 0; k < nf * nf; k++)
+      sw->J[k] += sw->w[i] * sw->cA[i] * sw->cB[i] * sw->Hpt[i][k];
+  }
+  for (int f = 0; f < nf; f++)
+    sw->J[f * nf + f] += sw->m_f[f] / dt;
+  if (mrvi_dense_lu_factor(nf, sw->J, sw->piv) < 0) {
+    mrvi_fmt(msg, len, "singular micro-step matrix");
+    return MRVI_ESINGULAR;
+  }
+  /* The inverse (nf <= SWEEP_DENSE_MAX): a micro step's solve is then one
+   * matrix-vector product. */
+  memset(sw->Jinv, 0, (size_t)nf * (size_t)nf * sizeof(double));
+  for (int f = 0; f < nf; f++)
+    sw->Jinv[f * nf + f] = 1.0;
+  mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->Jinv, nf);
+  sw->lu_ok = 1;
+  return MRVI_OK;
+}
+
 /* Row m for a quadratic W: F(dn) is affine with the constant matrix
  * -J = -(M/dt + sum w cA cB H), so one solve from the predictor is exact.
  * J is factored on the first call; the gradients at the implicit points
@@ -426,30 +460,9 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
   for (int f = 0; f < nf; f++)
     dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
   if (!sw->lu_ok) {
-    memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
-    for (int i = 0; i < sw->n_w; i++) {
-      memset(sw->Hpt[i], 0, (size_t)nf * (size_t)nf * sizeof(double));
-      if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
-        continue;
-      set_zf(sw, 1.0, qm, sw->cB[i], dn);
-      memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
-      eval_fast(sw, sw->gpt[i], sw->Hpt[i], 1.0);
-      for (int k = 0; k < nf * nf; k++)
-        sw->J[k] += sw->w[i] * sw->cA[i] * sw->cB[i] * sw->Hpt[i][k];
-    }
-    for (int f = 0; f < nf; f++)
-      sw->J[f * nf + f] += sw->m_f[f] / dt;
-    if (mrvi_dense_lu_factor(nf, sw->J, sw->piv) < 0) {
-      mrvi_fmt(msg, len, "singular micro-step matrix");
-      return MRVI_ESINGULAR;
-    }
-    /* The inverse (nf <= SWEEP_DENSE_MAX): a micro step's solve is then one
-     * matrix-vector product. */
-    memset(sw->Jinv, 0, (size_t)nf * (size_t)nf * sizeof(double));
-    for (int f = 0; f < nf; f++)
-      sw->Jinv[f * nf + f] = 1.0;
-    mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->Jinv, nf);
-    sw->lu_ok = 1;
+    const int s = factor_linear(sw, qm, dn, msg, len);
+    if (s < 0)
+      return s;
   }
   /* F at the predictor, then dn += J^-1 F. */
   memset(sw->fimp, 0, (size_t)nf * sizeof(double));
@@ -897,7 +910,14 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   if (!sw->implicit) {
     explicit_sweep(sw, st, x, pf, nf);
     done = 1;
-  } else if (sw->linear && sw->lu_ok && sw->n_w == 1) {
+  } else if (sw->linear && sw->n_w == 1 && (sw->lu_ok || sw->wH)) {
+    /* The affine sweep from the first step on (factored here), so that
+     * every step takes the same arithmetic: a restarted run continues bit
+     * for bit. */
+    const int fs =
+        sw->lu_ok ? MRVI_OK : factor_linear(sw, st->qf0, sw->gzero, msg, len);
+    if (fs < 0)
+      return fs;
     const int s = sw->wH ? affine_sweep(sw, st, x, pf, residual, msg, len, nf)
                          : linear_sweep(sw, st, x, pf, residual, msg, len, nf);
     if (s < 0)
