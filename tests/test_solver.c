@@ -691,17 +691,18 @@ static void test_linsolve_backends(void) {
   }
 }
 
-/* The structured paths with a quadratic W on a fast block of 5 (beyond the
- * small blocks, whose gradient is the affine map g0 + H z): the sweep's
- * predictor-corrector micro steps (linear_sweep) and the explicit nodes'
- * term-by-term gradients, against the general path.  An FPU-like chain of
- * 5 + 5 coordinates, W with one- and two-input linear springs. */
-static void test_quadratic_w_large_block(void) {
+/* The structured paths with a quadratic W whose Hessian is not diagonal,
+ * against the general path: on a fast block of 3, the affine gradient
+ * g0 + H z with the full products (the FPU's W is diagonal); on a block of 5
+ * (beyond the small blocks), the sweep's predictor-corrector micro steps
+ * (linear_sweep) and the explicit nodes' term-by-term gradients.  FPU-like
+ * chains of nc + nc coordinates, W with one- and two-input linear springs. */
+static void chain_case(int nc) {
   char text[4096];
   int n = 0;
   n += snprintf(text + n, sizeof text - (size_t)n,
-                "name: chain5\ncoordinates:\n");
-  for (int i = 0; i < 5; i++)
+                "name: chain%d\ncoordinates:\n", nc);
+  for (int i = 0; i < nc; i++)
     n += snprintf(text + n, sizeof text - (size_t)n,
                   "  - {name: s%d, mass: %d, position: %g, velocity: %g, "
                   "rate: slow}\n  - {name: f%d, mass: 1, position: %g, "
@@ -709,7 +710,7 @@ static void test_quadratic_w_large_block(void) {
                   i, 1 + i % 2, 0.3 - 0.1 * i, 0.2 * (i == 0), i,
                   0.01 * (i + 1), i == 2 ? 1.0 : 0.0);
   n += snprintf(text + n, sizeof text - (size_t)n, "terms:\n");
-  for (int i = 0; i < 5; i++) {
+  for (int i = 0; i < nc; i++) {
     /* V: (s_i - f_i [- s_{i-1} - f_{i-1}])^4 / 4; W: springs on f_i and
      * between f_i and f_{i-1} */
     char prev[40] = "";
@@ -745,17 +746,18 @@ static void test_quadratic_w_large_block(void) {
       for (int g = 0; g < 2; g++) {
         snprintf(ov[3], sizeof ov[3], "integrator.solver=%s",
                  g ? "auto" : "general");
-        CHECK(mrvi_system_load_string(text, "chain5.yaml", ovp, 4, &sys[g], msg,
+        CHECK(mrvi_system_load_string(text, "chain.yaml", ovp, 4, &sys[g], msg,
                                       sizeof msg) == MRVI_OK,
-              "chain5: %s", msg);
+              "chain%d: %s", nc, msg);
       }
       if (sys[0] && sys[1]) {
         run(sys[0], &a);
         run(sys[1], &b);
         CHECK(a.ok && b.ok && strcmp(b.path, want[sc]) == 0,
-              "chain5 %s p=%d: path %s", schemes[sc], p, b.ok ? b.path : "-");
+              "chain%d %s p=%d: path %s", nc, schemes[sc], p,
+              b.ok ? b.path : "-");
         const double d = a.ok && b.ok ? rel_diff(&a, &b) : INFINITY;
-        CHECK(d <= 1e-10, "chain5 %s p=%d: %s path vs general: %.2e",
+        CHECK(d <= 1e-10, "chain%d %s p=%d: %s path vs general: %.2e", nc,
               schemes[sc], p, want[sc], d);
       }
       mrvi_system_free(sys[0]);
@@ -771,7 +773,8 @@ int main(void) {
   test_blowup();
   test_tiny_steps();
   test_paths_agree();
-  test_quadratic_w_large_block();
+  chain_case(3);
+  chain_case(5);
   test_choice();
   test_jacobian_solve();
   return test_finish();

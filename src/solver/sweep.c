@@ -53,6 +53,10 @@ struct mrvi_sweep {
   /* W quadratic on a block of at most 4 fast coordinates: grad W = wg0 +
    * wH z (affine_grad_k, evaluated at z = 0 once per run), else NULL. */
   double *wg0, *wH;
+  /* wH diagonal (W a sum of one-coordinate quadratics), and then the kept
+   * inverse of the micro-step matrix too: products by the diagonals alone
+   * (the off-diagonal products are exact zeros) */
+  int wdiag;
   /* grad V (unscaled, packed) at the last macro node where V was
    * evaluated; gv_ok: that node is the current one, the end node of the
    * last step (cleared by mrvi_sweep_reset when the state is set from
@@ -300,6 +304,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     }
     mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, 1.0, sw->wg0, sw->wH, (int)nf,
                     1.0);
+    sw->wdiag = 1;
+    for (size_t a = 0; a < nf; a++)
+      for (size_t b = 0; b < nf; b++)
+        if (a != b && sw->wH[a * nf + b] != 0.0)
+          sw->wdiag = 0;
   }
   sw->Hpt[0] = dalloc(sw->linear ? nf * nf : 1);
   sw->Hpt[1] = dalloc(sw->linear ? nf * nf : 1);
@@ -378,7 +387,11 @@ ALWAYS_INLINE void zero(double *d, int n) {
  * small block (round-off apart, the terms' gradient), else the terms. */
 ALWAYS_INLINE void fast_gradient(mrvi_sweep *sw, const double *z, double *g,
                                  const int nf) {
-  if (sw->wH) {
+  if (sw->wdiag) {
+    UNROLL
+    for (int i = 0; i < nf; i++)
+      g[i] = sw->wg0[i] + sw->wH[i * nf + i] * z[i];
+  } else if (sw->wH) {
     const double *restrict g0 = sw->wg0, *restrict H = sw->wH;
     UNROLL
     for (int i = 0; i < nf; i++) {
@@ -444,6 +457,9 @@ static int factor_linear(mrvi_sweep *sw, const double *qm, const double *dn,
   for (int f = 0; f < nf; f++)
     sw->Jinv[f * nf + f] = 1.0;
   mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->Jinv, nf);
+  for (int k = 0; k < nf * nf; k++) /* (diagonal with a diagonal H) */
+    if (k % (nf + 1) != 0 && sw->Jinv[k] != 0.0)
+      sw->wdiag = 0;
   sw->lu_ok = 1;
   return MRVI_OK;
 }
@@ -685,6 +701,18 @@ ALWAYS_INLINE void matvec(const double *restrict A, const double *restrict x,
   }
 }
 
+/* matvec, by the diagonal alone for a diagonal A. */
+ALWAYS_INLINE void matvec_d(const double *restrict A, const double *restrict x,
+                            double *restrict y, const int nf, const int diag) {
+  if (diag) {
+    UNROLL
+    for (int a = 0; a < nf; a++)
+      y[a] = A[a * nf + a] * x[a];
+    return;
+  }
+  matvec(A, x, y, nf);
+}
+
 /* The end of a sweep whose largest micro-step residual is r. */
 static int sweep_end(mrvi_sweep *sw, double r, double *residual, char *msg,
                      size_t len) {
@@ -775,9 +803,9 @@ ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       F[f] = fm ? pm[f] + fm[f] : pm[f];
       F[f] -= wc * g[f];
     }
-    matvec(Jinv, F, dn, nf);
+    matvec_d(Jinv, F, dn, nf, sw->wdiag);
     /* the point's gradient gq + cB H dn, the residual and the new node */
-    matvec(H, dn, hd, nf);
+    matvec_d(H, dn, hd, nf, sw->wdiag);
     UNROLL
     for (int a = 0; a < nf; a++) {
       g[a] += cB * hd[a];
