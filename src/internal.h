@@ -444,6 +444,10 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
 /* g += grad Z(z): mrvi_terms_eval with scale 1 and no Hessian (the same
  * kernels without their Hessian part), bitwise the same. */
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
+/* Whether mrvi_terms_grad takes the flat loop (every term linear or a small
+ * integer power on 2..4 inputs): 1 with one law for all, 2 with mixed laws,
+ * 0 (the kernel per run) otherwise. */
+int mrvi_terms_flat(const mrvi_terms *kc);
 /* Z(z): the sum of the elements' values in their order, bitwise
  * mrvi_model_potential's (the same products and additions). */
 double mrvi_terms_value(mrvi_terms *kc, const double *z);

@@ -405,6 +405,30 @@ static mrvi_model *terms_model(void) {
   return m;
 }
 
+/* Classes of compact terms alone (mrvi_terms_grad's flat loop): V with
+ * 2..4 inputs and mixed laws (linear, s^3, s^4, s^4), W with quartics on
+ * 2 and 3 inputs (one law). */
+static mrvi_model *flat_model(void) {
+  mrvi_model *m = mrvi_model_create();
+  for (int i = 0; i < 6; i++)
+    mrvi_model_add_coordinate(
+        m, (const char *[]){"a", "b", "c", "d", "e", "f"}[i], 1.0 + i,
+        i < 3 ? MRVI_SLOW : MRVI_FAST, 0.2 * i - 0.5, 0.0);
+  const int c[6] = {0, 3, 1, 4, 2, 5}, cf[3] = {3, 4, 5};
+  const double a[6] = {1.0, -1.0, 0.5, 2.0, -1.5, 0.25};
+  const double lin[1] = {3.0}, p3[2] = {0.5, 3}, p4[2] = {0.25, 4};
+  mrvi_model_add_term(m, MRVI_SLOW, 2, c, a, 0.1, "linear", lin);
+  mrvi_model_add_term(m, MRVI_SLOW, 3, c + 1, a + 1, -0.2, "power", p3);
+  mrvi_model_add_term(m, MRVI_SLOW, 4, c + 2, a, 0.0, "power", p4);
+  mrvi_model_add_term(m, MRVI_SLOW, 2, c + 4, a + 2, 0.3, "power", p4);
+  for (int n = 2; n <= 3; n++)
+    mrvi_model_add_term(m, MRVI_FAST, n, cf + 3 - n, a + n, 0.1 * n, "power",
+                        p4);
+  mrvi_model_add_term(m, MRVI_FAST, 3, cf, a + 1, -0.1, "power", p4);
+  mrvi_model_add_term(m, MRVI_FAST, 2, cf, a, 0.0, "power", p4);
+  return m;
+}
+
 /* mrvi_terms_grad is mrvi_terms_eval at scale 1 without a Hessian, bitwise,
  * and both are the model's potential gradient (to rounding);
  * mrvi_terms_value is the model's potential value, bitwise. */
@@ -424,6 +448,25 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
           what);
     if (!kc)
       continue;
+    /* Which gradient loop it takes: the flat one for a class of linear and
+     * small integer-power terms on 2..4 inputs (one law: 1, mixed: 2). */
+    int compact = ne > 0, one_law = 1;
+    const mrvi_element *e0 = ne > 0 ? &m->elements[elems[0]] : NULL;
+    for (int i = 0; i < ne && compact; i++) {
+      const mrvi_element *e = &m->elements[elems[i]];
+      const int term = e->kind == MRVI_ELEMENT_TERM && e->n_in >= 2 &&
+                       e->n_in <= 4 && e0->kind == MRVI_ELEMENT_TERM;
+      const int linear = term && strcmp(e->law->name, "linear") == 0;
+      const int power = term && strcmp(e->law->name, "power") == 0 &&
+                        e->params[1] >= 0 && e->params[1] <= 8 &&
+                        e->params[1] == (int)e->params[1];
+      compact = linear || power;
+      one_law = one_law && compact && e->law == e0->law &&
+                (linear || e->params[1] == e0->params[1]);
+    }
+    const int flat = compact ? (one_law ? 1 : 2) : 0;
+    CHECK(mrvi_terms_flat(kc) == flat, "%s class %d: flat loop %d, expected %d",
+          what, c, mrvi_terms_flat(kc), flat);
     for (int r = 0; r < 8; r++) { /* configurations around q0 */
       for (int i = 0; i < n; i++) {
         q[i] = m->q0[i] + 0.05 * sin(3.0 * i + c + 0.7 * r);
@@ -480,6 +523,11 @@ int main(void) {
   CHECK(tm && tm->n_elements == 3 + 2 + 7 + 5 + 2, "terms model built");
   check_terms_grad(tm, "term kernels");
   mrvi_model_free(tm);
+  mrvi_model *fm = flat_model();
+  CHECK(fm && fm->n_elements == 8, "flat terms model built (%s)",
+        fm ? mrvi_model_errmsg(fm) : "");
+  check_terms_grad(fm, "flat term kernels");
+  mrvi_model_free(fm);
   mrvi_model_free(fpu);
   mrvi_model_free(ring);
   return test_finish();

@@ -80,7 +80,7 @@ static void interruption(void) {
  * doc/solver.md); no solver state (predictor forces, factors, multipliers)
  * is carried from one step to the next.  On the schur (also where the
  * predictor solves the slow row), sweep (with a non-linear W: the
- * lattice's fast springs) and explicit paths. */
+ * lattice's fast springs; with a quadratic W: the FPU) and explicit paths. */
 static void restart_case(const mrvi_model *m, const mrvi_settings *s,
                          const char *label) {
   mrvi_integrator *a = NULL, *b = NULL;
@@ -127,6 +127,11 @@ static void restart(void) {
   m = test_fpu();
   s = test_settings("fully-explicit", 0.01, 5, 1.0, 1e-12);
   restart_case(m, &s, "fpu, fully-explicit");
+  /* quadratic W on a small block: the affine sweep from the first step */
+  s = test_settings("explicit-slow", 0.01, 5, 1.0, 1e-12);
+  restart_case(m, &s, "fpu, explicit-slow");
+  s = test_settings("explicit-slow", 0.001, 1, 1.0, 1e-12);
+  restart_case(m, &s, "fpu, explicit-slow, p = 1");
   /* dT = 1 with dt = 0.001: the predictor solves the slow row by sampled
    * Newton steps and sweeps again (solver/predict.c, slow_newton). */
   s = test_settings("midpoint-midpoint", 1.0, 1000, 20.0, 1e-9);

@@ -691,6 +691,80 @@ static void test_linsolve_backends(void) {
   }
 }
 
+/* The structured paths with a quadratic W whose Hessian is not diagonal,
+ * against the general path: on a fast block of 3, the affine gradient
+ * g0 + H z with the full products (the FPU's W is diagonal); on a block of 5
+ * (beyond the small blocks), the sweep's predictor-corrector micro steps
+ * (linear_sweep) and the explicit nodes' term-by-term gradients.  FPU-like
+ * chains of nc + nc coordinates, W with one- and two-input linear springs. */
+static void chain_case(int nc) {
+  char text[4096];
+  int n = 0;
+  n += snprintf(text + n, sizeof text - (size_t)n,
+                "name: chain%d\ncoordinates:\n", nc);
+  for (int i = 0; i < nc; i++)
+    n += snprintf(text + n, sizeof text - (size_t)n,
+                  "  - {name: s%d, mass: %d, position: %g, velocity: %g, "
+                  "rate: slow}\n  - {name: f%d, mass: 1, position: %g, "
+                  "velocity: %g, rate: fast}\n",
+                  i, 1 + i % 2, 0.3 - 0.1 * i, 0.2 * (i == 0), i,
+                  0.01 * (i + 1), i == 2 ? 1.0 : 0.0);
+  n += snprintf(text + n, sizeof text - (size_t)n, "terms:\n");
+  for (int i = 0; i < nc; i++) {
+    /* V: (s_i - f_i [- s_{i-1} - f_{i-1}])^4 / 4; W: springs on f_i and
+     * between f_i and f_{i-1} */
+    char prev[40] = "";
+    if (i)
+      snprintf(prev, sizeof prev, ", s%d: -1, f%d: -1", i - 1, i - 1);
+    n += snprintf(text + n, sizeof text - (size_t)n,
+                  "  - {combination: {s%d: 1, f%d: -1%s}, law: power, "
+                  "coefficient: 0.25, exponent: 4, potential: slow}\n"
+                  "  - {combination: {f%d: 1}, law: linear, stiffness: %d, "
+                  "potential: fast}\n",
+                  i, i, prev, i, 900 + 100 * i);
+    if (i)
+      n += snprintf(text + n, sizeof text - (size_t)n,
+                    "  - {combination: {f%d: 1, f%d: -1}, law: linear, "
+                    "stiffness: 50, potential: fast}\n",
+                    i, i - 1);
+  }
+  snprintf(text + n, sizeof text - (size_t)n,
+           "integrator: {scheme: explicit-slow, macro_step: 0.01, "
+           "micro_steps: 2, t_end: 1}\n");
+  const char *const schemes[] = {"explicit-slow", "fully-explicit"};
+  const char *const want[] = {"sweep", "explicit"};
+  static run_out a, b;
+  for (int sc = 0; sc < 2; sc++)
+    for (int p = 1; p <= 3; p += 2) {
+      char ov[4][64];
+      const char *ovp[4] = {ov[0], ov[1], ov[2], ov[3]};
+      snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", schemes[sc]);
+      snprintf(ov[1], sizeof ov[1], "integrator.micro_steps=%d", p);
+      snprintf(ov[2], sizeof ov[2], "integrator.newton.tolerance=1e-12");
+      mrvi_system *sys[2] = {NULL, NULL};
+      char msg[512];
+      for (int g = 0; g < 2; g++) {
+        snprintf(ov[3], sizeof ov[3], "integrator.solver=%s",
+                 g ? "auto" : "general");
+        CHECK(mrvi_system_load_string(text, "chain.yaml", ovp, 4, &sys[g], msg,
+                                      sizeof msg) == MRVI_OK,
+              "chain%d: %s", nc, msg);
+      }
+      if (sys[0] && sys[1]) {
+        run(sys[0], &a);
+        run(sys[1], &b);
+        CHECK(a.ok && b.ok && strcmp(b.path, want[sc]) == 0,
+              "chain%d %s p=%d: path %s", nc, schemes[sc], p,
+              b.ok ? b.path : "-");
+        const double d = a.ok && b.ok ? rel_diff(&a, &b) : INFINITY;
+        CHECK(d <= 1e-10, "chain%d %s p=%d: %s path vs general: %.2e", nc,
+              schemes[sc], p, want[sc], d);
+      }
+      mrvi_system_free(sys[0]);
+      mrvi_system_free(sys[1]);
+    }
+}
+
 int main(void) {
   test_linsolve_backends();
   test_predictor();
@@ -699,6 +773,8 @@ int main(void) {
   test_blowup();
   test_tiny_steps();
   test_paths_agree();
+  chain_case(3);
+  chain_case(5);
   test_choice();
   test_jacobian_solve();
   return test_finish();

@@ -50,6 +50,13 @@ struct mrvi_sweep {
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
+  /* W quadratic on a block of at most 4 fast coordinates: grad W = wg0 +
+   * wH z (affine_grad_k, evaluated at z = 0 once per run), else NULL. */
+  double *wg0, *wH;
+  /* wH diagonal (W a sum of one-coordinate quadratics), and then the kept
+   * inverse of the micro-step matrix too: products by the diagonals alone
+   * (the off-diagonal products are exact zeros) */
+  int wdiag;
   /* grad V (unscaled, packed) at the last macro node where V was
    * evaluated; gv_ok: that node is the current one, the end node of the
    * last step (cleared by mrvi_sweep_reset when the state is set from
@@ -167,6 +174,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->zf);
   mrvi_terms_free(sw->kc[0]);
   mrvi_terms_free(sw->kc[1]);
+  free(sw->wg0);
+  free(sw->wH);
   free(sw->zv);
   free(sw->gv);
   free(sw->gzero);
@@ -277,12 +286,30 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
-  /* A quadratic W on a dense block: one factorisation per run. */
-  sw->linear = sw->implicit && !sparse;
+  int quad_w = 1;
   for (int ie = 0; ie < st->n_elem_of_class[MRVI_FAST]; ie++)
     if (!mrvi_element_is_quadratic(
             &m->elements[st->elem_of_class[MRVI_FAST][ie]]))
-      sw->linear = 0;
+      quad_w = 0;
+  /* A quadratic W on a dense block: one factorisation per run. */
+  sw->linear = sw->implicit && !sparse && quad_w;
+  /* ... and on a block of at most 4: its gradient as an affine map (the
+   * zeros of zf are z = 0). */
+  if (quad_w && nf >= 1 && nf <= 4) {
+    sw->wg0 = dalloc(nf);
+    sw->wH = dalloc(nf * nf);
+    if (!sw->wg0 || !sw->wH) {
+      mrvi_sweep_free(sw);
+      return MRVI_ENOMEM;
+    }
+    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, 1.0, sw->wg0, sw->wH, (int)nf,
+                    1.0);
+    sw->wdiag = 1;
+    for (size_t a = 0; a < nf; a++)
+      for (size_t b = 0; b < nf; b++)
+        if (a != b && sw->wH[a * nf + b] != 0.0)
+          sw->wdiag = 0;
+  }
   sw->Hpt[0] = dalloc(sw->linear ? nf * nf : 1);
   sw->Hpt[1] = dalloc(sw->linear ? nf * nf : 1);
   sw->Jinv = dalloc(sw->linear ? nf * nf : 1);
@@ -356,6 +383,30 @@ ALWAYS_INLINE void zero(double *d, int n) {
     d[i] = 0.0;
 }
 
+/* g = grad W at z (nf fast entries): the affine map of a quadratic W on a
+ * small block (round-off apart, the terms' gradient), else the terms. */
+ALWAYS_INLINE void fast_gradient(mrvi_sweep *sw, const double *z, double *g,
+                                 const int nf) {
+  if (sw->wdiag) {
+    UNROLL
+    for (int i = 0; i < nf; i++)
+      g[i] = sw->wg0[i] + sw->wH[i * nf + i] * z[i];
+  } else if (sw->wH) {
+    const double *restrict g0 = sw->wg0, *restrict H = sw->wH;
+    UNROLL
+    for (int i = 0; i < nf; i++) {
+      double t = g0[i];
+      UNROLL
+      for (int j = 0; j < nf; j++)
+        t += H[i * nf + j] * z[j];
+      g[i] = t;
+    }
+  } else {
+    zero(g, nf);
+    mrvi_terms_grad(sw->kc[MRVI_FAST], z, g);
+  }
+}
+
 /* sw->gv = grad V (unscaled, packed: ns slow then nf fast entries) at
  * (qs, qf), read in place when they are adjacent. */
 ALWAYS_INLINE void slow_gradient(mrvi_sweep *sw, const double *qs,
@@ -376,6 +427,43 @@ static void set_zf(mrvi_sweep *sw, double a, const double *u, double b,
     sw->zf[f] = a * u[f] + b * v[f];
 }
 
+/* Factor the micro-step matrix J = M/dt + sum w cA cB hess W of a
+ * quadratic W (its Hessians, constant, evaluated at qm + cB dn) and keep
+ * its inverse and the Hessians. */
+static int factor_linear(mrvi_sweep *sw, const double *qm, const double *dn,
+                         char *msg, size_t len) {
+  const int nf = sw->nf;
+  const double dt = sw->st->dt;
+  memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
+  for (int i = 0; i < sw->n_w; i++) {
+    memset(sw->Hpt[i], 0, (size_t)nf * (size_t)nf * sizeof(double));
+    if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
+      continue;
+    set_zf(sw, 1.0, qm, sw->cB[i], dn);
+    memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
+    eval_fast(sw, sw->gpt[i], sw->Hpt[i], 1.0);
+    for (int k = 0; k < nf * nf; k++)
+      sw->J[k] += sw->w[i] * sw->cA[i] * sw->cB[i] * sw->Hpt[i][k];
+  }
+  for (int f = 0; f < nf; f++)
+    sw->J[f * nf + f] += sw->m_f[f] / dt;
+  if (mrvi_dense_lu_factor(nf, sw->J, sw->piv) < 0) {
+    mrvi_fmt(msg, len, "singular micro-step matrix");
+    return MRVI_ESINGULAR;
+  }
+  /* The inverse (nf <= SWEEP_DENSE_MAX): a micro step's solve is then one
+   * matrix-vector product. */
+  memset(sw->Jinv, 0, (size_t)nf * (size_t)nf * sizeof(double));
+  for (int f = 0; f < nf; f++)
+    sw->Jinv[f * nf + f] = 1.0;
+  mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->Jinv, nf);
+  for (int k = 0; k < nf * nf; k++) /* (diagonal with a diagonal H) */
+    if (k % (nf + 1) != 0 && sw->Jinv[k] != 0.0)
+      sw->wdiag = 0;
+  sw->lu_ok = 1;
+  return MRVI_OK;
+}
+
 /* Row m for a quadratic W: F(dn) is affine with the constant matrix
  * -J = -(M/dt + sum w cA cB H), so one solve from the predictor is exact.
  * J is factored on the first call; the gradients at the implicit points
@@ -388,30 +476,9 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
   for (int f = 0; f < nf; f++)
     dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
   if (!sw->lu_ok) {
-    memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
-    for (int i = 0; i < sw->n_w; i++) {
-      memset(sw->Hpt[i], 0, (size_t)nf * (size_t)nf * sizeof(double));
-      if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
-        continue;
-      set_zf(sw, 1.0, qm, sw->cB[i], dn);
-      memset(sw->gpt[i], 0, (size_t)nf * sizeof(double));
-      eval_fast(sw, sw->gpt[i], sw->Hpt[i], 1.0);
-      for (int k = 0; k < nf * nf; k++)
-        sw->J[k] += sw->w[i] * sw->cA[i] * sw->cB[i] * sw->Hpt[i][k];
-    }
-    for (int f = 0; f < nf; f++)
-      sw->J[f * nf + f] += sw->m_f[f] / dt;
-    if (mrvi_dense_lu_factor(nf, sw->J, sw->piv) < 0) {
-      mrvi_fmt(msg, len, "singular micro-step matrix");
-      return MRVI_ESINGULAR;
-    }
-    /* The inverse (nf <= SWEEP_DENSE_MAX): a micro step's solve is then one
-     * matrix-vector product. */
-    memset(sw->Jinv, 0, (size_t)nf * (size_t)nf * sizeof(double));
-    for (int f = 0; f < nf; f++)
-      sw->Jinv[f * nf + f] = 1.0;
-    mrvi_dense_lu_solve(nf, sw->J, sw->piv, sw->Jinv, nf);
-    sw->lu_ok = 1;
+    const int s = factor_linear(sw, qm, dn, msg, len);
+    if (s < 0)
+      return s;
   }
   /* F at the predictor, then dn += J^-1 F. */
   memset(sw->fimp, 0, (size_t)nf * sizeof(double));
@@ -573,8 +640,8 @@ static const double *force_row(const mrvi_step *st, int m) {
  * sweep below, in one pass per node. */
 ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nl,
-                                  const int nr, const int nf) {
-  const int ns = sw->ns, p = sw->p;
+                                  const int nr, const int nf, const int p) {
+  const int ns = sw->ns;
   const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
   const double *mf = sw->m_f, *minv = sw->minv_f;
   double *gnode = sw->gnode;
@@ -583,10 +650,8 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
     double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
     const double *fm = force_row(st, m);
-    if (nl > 0 && !sw->gnode_ok) {
-      zero(gnode, nf);
-      mrvi_terms_grad(sw->kc[MRVI_FAST], qm, gnode);
-    }
+    if (nl > 0 && !sw->gnode_ok)
+      fast_gradient(sw, qm, gnode, nf);
     UNROLL
     for (int f = 0; f < nf; f++) {
       double r = pm[f];
@@ -600,8 +665,7 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     }
     sw->gnode_ok = 0;
     if (nr > 0) {
-      zero(gnode, nf);
-      mrvi_terms_grad(sw->kc[MRVI_FAST], qn, gnode);
+      fast_gradient(sw, qn, gnode, nf);
       sw->gnode_ok = 1;
       UNROLL
       for (int f = 0; f < nf; f++)
@@ -616,10 +680,50 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
  * node of an interval). */
 ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nf) {
-  if (sw->nl == 1 && sw->nr == 1)
-    explicit_nodes(sw, st, x, pf, 1, 1, nf);
+  if (sw->nl == 1 && sw->nr == 1 && sw->p == 1)
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, 1); /* p = 1: no loop */
+  else if (sw->nl == 1 && sw->nr == 1)
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, sw->p);
   else
-    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf);
+    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p);
+}
+
+/* y = A x (A: nf x nf, row-major). */
+ALWAYS_INLINE void matvec(const double *restrict A, const double *restrict x,
+                          double *restrict y, const int nf) {
+  UNROLL
+  for (int a = 0; a < nf; a++) {
+    double d = 0.0;
+    UNROLL
+    for (int b = 0; b < nf; b++)
+      d += A[a * nf + b] * x[b];
+    y[a] = d;
+  }
+}
+
+/* matvec, by the diagonal alone for a diagonal A. */
+ALWAYS_INLINE void matvec_d(const double *restrict A, const double *restrict x,
+                            double *restrict y, const int nf, const int diag) {
+  if (diag) {
+    UNROLL
+    for (int a = 0; a < nf; a++)
+      y[a] = A[a * nf + a] * x[a];
+    return;
+  }
+  matvec(A, x, y, nf);
+}
+
+/* The end of a sweep whose largest micro-step residual is r. */
+static int sweep_end(mrvi_sweep *sw, double r, double *residual, char *msg,
+                     size_t len) {
+  sw->gnode_ok = 0;
+  if (r > *residual) /* fmax: a NaN r leaves it (and fails below) */
+    *residual = r;
+  if (!isfinite(r)) {
+    mrvi_fmt(msg, len, "micro step produced non-finite values");
+    return MRVI_ENONFINITE;
+  }
+  return MRVI_OK;
 }
 
 /* The fast nodes of the sweep path for a quadratic W with one (implicit)
@@ -646,31 +750,22 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       rhs[f] = fm ? pm[f] + fm[f] : pm[f];
       dn[f] = dt * sw->minv_f[f] * (rhs[f] - fimp[f]);
       sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
-      g[f] = 0.0;
     }
-    mrvi_terms_grad(sw->kc[MRVI_FAST], sw->zf, g);
+    fast_gradient(sw, sw->zf, g, nf);
     UNROLL
     for (int f = 0; f < nf; f++) {
       fimp[f] = 0.0 + wc * g[f];
       F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
     }
     /* dn += J^-1 F; the point's gradient follows by the kept Hessian. */
+    matvec(Jinv, F, del, nf);
+    UNROLL
+    for (int a = 0; a < nf; a++)
+      dn[a] += del[a];
+    matvec(H, del, F, nf);
     UNROLL
     for (int a = 0; a < nf; a++) {
-      double d = 0.0;
-      UNROLL
-      for (int b = 0; b < nf; b++)
-        d += Jinv[a * nf + b] * F[b];
-      del[a] = d;
-      dn[a] += d;
-    }
-    UNROLL
-    for (int a = 0; a < nf; a++) {
-      double h = 0.0;
-      UNROLL
-      for (int b = 0; b < nf; b++)
-        h += H[a * nf + b] * del[b];
-      g[a] += cB * h;
+      g[a] += cB * F[a];
       fimp[a] = 0.0 + wc * g[a];
       const double mv = mf[a] * dn[a] / dt; /* M v_m, one division */
       const double ra = fabs(rhs[a] - mv - fimp[a]);
@@ -681,14 +776,49 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     }
     pm = pn;
   }
-  sw->gnode_ok = 0;
-  if (r > *residual) /* fmax: a NaN r leaves it (and fails below) */
-    *residual = r;
-  if (!isfinite(r)) {
-    mrvi_fmt(msg, len, "micro step produced non-finite values");
-    return MRVI_ENONFINITE;
+  return sweep_end(sw, r, residual, msg, len);
+}
+
+/* linear_sweep for a W whose gradient is the affine map g0 + H z
+ * (sw->wH): row m, rhs - M dn/dt - w cA (gq + cB H dn) = 0 with gq = grad W
+ * at q^m, is solved directly, dn = J^-1 (rhs - w cA gq), where linear_sweep
+ * corrects a predictor (the same solution, round-off apart): the chain from
+ * one node to the next is shorter by the predictor's gradient. */
+ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                               double *pf, double *residual, char *msg,
+                               size_t len, const int nf) {
+  const int ns = sw->ns, p = sw->p;
+  const double dt = st->dt, cB = sw->cB[0], wc = sw->w[0] * sw->cA[0];
+  const double wb = sw->w[0] * sw->cB[0];
+  const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->wH;
+  double *g = sw->gpt[0], *F = sw->F, *dn = sw->dn, *hd = sw->del, r = 0.0;
+  const double *pm = pf;
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
+    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *fm = force_row(st, m);
+    fast_gradient(sw, qm, g, nf); /* gq */
+    UNROLL
+    for (int f = 0; f < nf; f++) {
+      F[f] = fm ? pm[f] + fm[f] : pm[f];
+      F[f] -= wc * g[f];
+    }
+    matvec_d(Jinv, F, dn, nf, sw->wdiag);
+    /* the point's gradient gq + cB H dn, the residual and the new node */
+    matvec_d(H, dn, hd, nf, sw->wdiag);
+    UNROLL
+    for (int a = 0; a < nf; a++) {
+      g[a] += cB * hd[a];
+      const double mv = mf[a] * dn[a] / dt; /* M v_m */
+      const double rhs = fm ? pm[a] + fm[a] : pm[a];
+      const double ra = fabs(rhs - mv - wc * g[a]);
+      r = isnan(ra) || ra > r ? ra : r;
+      qn[a] = qm[a] + dn[a];
+      pn[a] = mv - wb * g[a];
+    }
+    pm = pn;
   }
-  return MRVI_OK;
+  return sweep_end(sw, r, residual, msg, len);
 }
 
 /* The fast nodes of the sweep path in general (row m solved by Newton, or
@@ -808,8 +938,16 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   if (!sw->implicit) {
     explicit_sweep(sw, st, x, pf, nf);
     done = 1;
-  } else if (sw->linear && sw->lu_ok && sw->n_w == 1) {
-    const int s = linear_sweep(sw, st, x, pf, residual, msg, len, nf);
+  } else if (sw->linear && sw->n_w == 1 && (sw->lu_ok || sw->wH)) {
+    /* The affine sweep from the first step on (factored here), so that
+     * every step takes the same arithmetic: a restarted run continues bit
+     * for bit. */
+    const int fs =
+        sw->lu_ok ? MRVI_OK : factor_linear(sw, st->qf0, sw->gzero, msg, len);
+    if (fs < 0)
+      return fs;
+    const int s = sw->wH ? affine_sweep(sw, st, x, pf, residual, msg, len, nf)
+                         : linear_sweep(sw, st, x, pf, residual, msg, len, nf);
     if (s < 0)
       return s;
     *iterations = 1;
