@@ -47,6 +47,9 @@
 #define MRVI_SLOW_NEWTON_MAX 8
 #define MRVI_SLOW_NEWTON_N 64
 #define MRVI_SLOW_SAMPLES 32
+#ifndef MRVI_SLOW_HESS
+#define MRVI_SLOW_HESS 8
+#endif
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -71,6 +74,9 @@ struct mrvi_predictor {
                     fixed-point update (2 ns) */
   int *sample;   /* sampled points: ip of V, -1 - ip of W */
   int n_samples;
+  int hstride; /* the Hessian from every hstride-th sample, */
+  double hfac; /* scaled by hfac (choose_samples) */
+  int h_ok;    /* H holds the sampled Hessian of this step (sampled_solve) */
   double sample_w[2]; /* weight of a sample relative to its point */
   double rstop;       /* slow-row residual above which the slow row is solved
                          by Newton steps (mrvi_predictor_set_tolerance) */
@@ -124,6 +130,22 @@ static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
     }
     pr->sample_w[c] = taken != 0.0 ? all / taken : 0.0;
   }
+  /* The Hessian (the first Jacobian of sampled_solve) from every
+   * hstride-th sample, scaled to the sum of all samples' w a0 a1. */
+  pr->hstride = (pr->n_samples + MRVI_SLOW_HESS - 1) / MRVI_SLOW_HESS;
+  if (pr->hstride < 1)
+    pr->hstride = 1;
+  double all = 0.0, taken = 0.0;
+  for (int i = 0; i < pr->n_samples; i++) {
+    const int c = pr->sample[i] < 0 ? 1 : 0;
+    const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
+    const mrvi_point *pt = &st->pts[c][ip];
+    const double w = pr->sample_w[c] * pt->w * pt->a0 * pt->a1;
+    all += w;
+    if (i % pr->hstride == pr->hstride / 2)
+      taken += w;
+  }
+  pr->hfac = taken != 0.0 ? all / taken : 1.0;
 }
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
@@ -144,7 +166,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   if (!(pr->pm =
             malloc((size_t)(m->n_fast > 0 ? m->n_fast : 1) * sizeof(double))) ||
       !(pr->xs = malloc(3 * n * sizeof(double))) ||
-      !(pr->b = malloc(2 * n * sizeof(double)))) {
+      !(pr->b = malloc(4 * n * sizeof(double)))) {
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
@@ -229,7 +251,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   if (pr->slow_coupled && m->n <= MRVI_SLOW_NEWTON_N) {
     const size_t ns = (size_t)(m->n_slow > 0 ? m->n_slow : 1);
     pr->H = malloc(n * n * sizeof(double));
-    pr->A = malloc(ns * ns * sizeof(double));
+    pr->A = malloc(2 * ns * ns * sizeof(double));
     pr->sample =
         malloc((size_t)(st->n_pts[0] + st->n_pts[1] + 1) * sizeof(int));
     if (!pr->H || !pr->A || !pr->sample) {
@@ -470,20 +492,31 @@ static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 
 /* Slow-row force of the sampled points (see slow_newton) at the slow
  * displacement x_s = x[0..ns) with the fast nodes of x: f = sum over the
- * samples of sw w a0 grad_s Z, H += sw w a0 a1 hess Z (packed, n x n). */
-static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
-                          const double *x, double *f) {
-  const int ns = st->ns, n = ns + st->nf;
-  memset(f, 0, (size_t)ns * sizeof(double));
-  memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
+ * samples of sw w a0 grad_s Z and, with hess, H = sum over every
+ * hstride-th sample of hfac sw w a0 a1 hess Z (packed, n x n). */
+ALWAYS_INLINE void sampled_force_k(mrvi_predictor *pr, const mrvi_step *st,
+                                   const double *x, double *f, int hess,
+                                   const int ns, const int nf) {
+  const int n = ns + nf;
+  UNROLL for (int s = 0; s < ns; s++) f[s] = 0.0;
+  if (hess)
+    memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
   for (int i = 0; i < pr->n_samples; i++) {
     const int c = pr->sample[i] < 0 ? 1 : 0;
     const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
     const mrvi_point *pt = &st->pts[c][ip];
     const double w = pr->sample_w[c] * pt->w * pt->a0;
-    point_gradient_k(pr, st, x, pt, c, ns, st->nf, pr->H, w * pt->a1, 0);
+    const int h = hess && i % pr->hstride == pr->hstride / 2;
+    point_gradient_k(pr, st, x, pt, c, ns, nf, h ? pr->H : NULL,
+                     pr->hfac * w * pt->a1, 0);
     axpy(ns, w, pr->g, f);
   }
+}
+
+static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
+                          const double *x, double *f, int hess) {
+  SMALL(st->ns, NS,
+        SMALL(st->nf, NF, sampled_force_k(pr, st, x, f, hess, NS, NF)));
 }
 
 static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
@@ -494,29 +527,54 @@ static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
   return r;
 }
 
-/* y solving M (y - x_s') / dT + F~(y) - F~(x_s) = 0 by Newton's method
- * from y = x_s (x_s, the swept path, in xs; x_s' in x, y written to x). */
+/* y solving r(y) = M (y - x_s') / dT + F~(y) - F~(x_s) = 0 (x_s, the
+ * swept path, in xs; x_s' in x, y written to x) from y = x_s by
+ * Broyden's method: the Jacobian M / dT + H~ with the sampled Hessian H~
+ * evaluated once per step (at the first solve's x_s, pr->h_ok), then
+ * corrected by a rank-one update from every iteration's change of r
+ * (superlinear convergence from gradients alone). */
 static void sampled_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const int ns = st->ns, n = ns + st->nf;
   double *f0 = pr->xs + ns, *f = pr->xs + 2 * ns, *xf = pr->b + ns;
+  double *J = pr->A + ns * ns, *r = pr->b + 2 * ns, *dy = pr->b + 3 * ns;
   memcpy(xf, x, (size_t)ns * sizeof(double));
   memcpy(x, pr->xs, (size_t)ns * sizeof(double));
-  sampled_force(pr, st, x, f0);
+  sampled_force(pr, st, x, f0, !pr->h_ok);
+  pr->h_ok = 1;
+  for (int i = 0; i < ns; i++) {
+    const double mdt = 1.0 / (st->dT * pr->minv[i]);
+    for (int j = 0; j < ns; j++)
+      J[i * ns + j] = pr->H[i * n + j] + (i == j ? mdt : 0.0);
+    r[i] = mdt * (x[i] - xf[i]);
+  }
   for (int it = 0; it < MRVI_SLOW_NEWTON_MAX; it++) {
-    if (it > 0)
-      sampled_force(pr, st, x, f);
+    if (it > 0) {
+      /* r at the new y; J += (r_new - r - J dy) dy^T / (dy^T dy) */
+      sampled_force(pr, st, x, f, 0);
+      double dd = 0.0;
+      for (int i = 0; i < ns; i++)
+        dd += dy[i] * dy[i];
+      for (int i = 0; i < ns; i++) {
+        const double mdt = 1.0 / (st->dT * pr->minv[i]);
+        const double rn = mdt * (x[i] - xf[i]) + f[i] - f0[i];
+        double u = rn - r[i];
+        for (int j = 0; j < ns; j++)
+          u -= J[i * ns + j] * dy[j];
+        r[i] = rn;
+        if (dd > 0.0)
+          for (int j = 0; j < ns; j++)
+            J[i * ns + j] += u * dy[j] / dd;
+      }
+    }
+    memcpy(pr->A, J, (size_t)ns * (size_t)ns * sizeof(double));
+    memcpy(dy, r, (size_t)ns * sizeof(double));
+    if (mrvi_dense_solve(ns, pr->A, dy) < 0)
+      return;
     double step = 0.0;
     for (int i = 0; i < ns; i++) {
-      const double mdt = 1.0 / (st->dT * pr->minv[i]);
-      for (int j = 0; j < ns; j++)
-        pr->A[i * ns + j] = pr->H[i * n + j] + (i == j ? mdt : 0.0);
-      pr->b[i] = mdt * (x[i] - xf[i]) + (it > 0 ? f[i] - f0[i] : 0.0);
-    }
-    if (mrvi_dense_solve(ns, pr->A, pr->b) < 0)
-      return;
-    for (int i = 0; i < ns; i++) {
-      x[i] -= pr->b[i];
-      step = fmax(step, fabs(pr->b[i]) / (st->dT * pr->minv[i]));
+      dy[i] = -dy[i];
+      x[i] += dy[i];
+      step = fmax(step, fabs(dy[i]) / (st->dT * pr->minv[i]));
     }
     if (!(step > 1e-3 * pr->rstop))
       return;
@@ -558,6 +616,7 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     mrvi_predict_free_flight(st, x);
     return;
   }
+  pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
   memset(pr->fs, 0, (size_t)st->ns * sizeof(double));
   memset(x, 0, (size_t)st->n_unknowns * sizeof(double));
