@@ -40,16 +40,16 @@
 #include <string.h>
 
 /* Slow Newton steps of the predictor (slow_newton): at most this many
- * per step, on models of at most MRVI_SLOW_NEWTON_N coordinates (the
- * Hessian sum is dense), with at most MRVI_SLOW_SAMPLES sampled points
- * (FPU, dT = 1, p = 1000: 16 or 32 keep one Newton update per step, 8 do
- * not: 1.6). */
+ * Broyden iterations per solve, on models of at most MRVI_SLOW_NEWTON_N
+ * coordinates (the Hessian sum is dense), with at most MRVI_SLOW_SAMPLES
+ * sampled points (FPU, dT = 1, p = 1000: 16 or 32 keep one Newton update
+ * per step, 8 did not: 1.6; 16 since the pre-solve, 4 % fewer
+ * instructions at p = 100) and the first Jacobian's Hessian from
+ * MRVI_SLOW_HESS of them. */
 #define MRVI_SLOW_NEWTON_MAX 8
 #define MRVI_SLOW_NEWTON_N 64
-#define MRVI_SLOW_SAMPLES 32
-#ifndef MRVI_SLOW_HESS
+#define MRVI_SLOW_SAMPLES 16
 #define MRVI_SLOW_HESS 8
-#endif
 /* The slow pre-solve (pre_solve) is used where dT^2 |M_s^-1 hess_ss V|
  * / 3 at the initial state, the fixed-point update's contraction factor
  * (row-sum norm), is above this (FPU: 0.03 / 0.27 / 3.0 at dT = 0.1 /
