@@ -105,7 +105,7 @@ struct mrvi_predictor {
    * V at node k (gk, packed n), the slow-row force of the points with
    * a0 a1 != 0 at node k (fk, ns) and their sums of w a0 per class (wk),
    * and the weight of a sample in the absolute force (sample_f). */
-  int pre, presolved;
+  int pre, presolved, n_sweeps;
   double *K, lsum[8], *gk, *fk, wk[2], sample_f[2];
 };
 
@@ -606,6 +606,7 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
 
 static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
                   int sum_slow) {
+  pr->n_sweeps++;
   SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
 }
 
@@ -830,6 +831,7 @@ static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 }
 
 static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  pr->n_sweeps = 0;
   if (!pr->sweep_ok) {
     mrvi_predict_free_flight(st, x);
     return;
@@ -895,3 +897,11 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
   pr->rstop = pow(0.01 * tol, 0.25);
   pr->rsweep = 10.0 * pr->rstop;
 }
+
+int mrvi_predictor_presolve(mrvi_predictor *pr, int on) {
+  const int was = pr->pre;
+  pr->pre = was && on;
+  return was;
+}
+
+int mrvi_predictor_sweeps(const mrvi_predictor *pr) { return pr->n_sweeps; }
