@@ -24,9 +24,13 @@
  * gradients at the points, no Jacobian.
  *
  * Where the slow row is still far from solved after that (a large dT
- * with a non-linear V), it is solved by Newton's method on a sample of its
- * points with the fast nodes held, and the fast nodes swept again
- * (slow_newton).
+ * with a non-linear V), it is solved by Broyden's method on a sample of
+ * its points with the fast nodes held, and the fast nodes swept again
+ * (slow_newton); where the slow row is known to be far from the
+ * Stoermer-Verlet estimate (the fixed-point contraction at q0) and W has
+ * a constant Hessian, it is solved before the sweep on a cheap linear
+ * sweep of the fast nodes instead, so that the one sweep runs along a
+ * slow path close to the solution (pre_solve).
  *
  * The sweep is explicit: it is used only where dt omega_max <= 1/2 at the
  * initial state (omega_max the largest frequency of hess(V + W) in the mass
@@ -129,28 +133,22 @@ static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
   const int stride = (count + MRVI_SLOW_SAMPLES - 1) / MRVI_SLOW_SAMPLES;
   pr->n_samples = 0;
   for (int c = 0; c < 2; c++) {
-    double all = 0.0, taken = 0.0;
+    /* (all, taken: sums of w a0 a1; fa, ft: of w a0, for sample_f) */
+    double all = 0.0, taken = 0.0, fa = 0.0, ft = 0.0;
     for (int ip = 0, j = 0; slow_in[c] && ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       const double w = pt->w * pt->a0 * pt->a1;
       if (w == 0.0)
         continue;
       all += w;
+      fa += pt->w * pt->a0;
       if (j++ % stride == stride / 2) {
         taken += w;
+        ft += pt->w * pt->a0;
         pr->sample[pr->n_samples++] = c == 0 ? ip : -ip - 1;
       }
     }
     pr->sample_w[c] = taken != 0.0 ? all / taken : 0.0;
-    double fa = 0.0, ft = 0.0;
-    for (int ip = 0, j = 0; slow_in[c] && ip < st->n_pts[c]; ip++) {
-      const mrvi_point *pt = &st->pts[c][ip];
-      if (pt->w * pt->a0 * pt->a1 == 0.0)
-        continue;
-      fa += pt->w * pt->a0;
-      if (j++ % stride == stride / 2)
-        ft += pt->w * pt->a0;
-    }
     pr->sample_f[c] = ft != 0.0 ? fa / ft : 0.0;
     pr->wk[c] = fa;
   }
@@ -804,12 +802,12 @@ static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * fixed-point update x_s' = dT M^-1 (p_k^s - fs) contracts by about
  * dT^2 |M^-1 hess V| / 3, enough at small dT.  Where the change it makes,
  * r = M |x_s' - x_s| / dT (the slow row's residual on the swept path), is
- * above rstop, the slow row is instead solved by Newton's method with the
- * fast nodes held, the change of the force along the path taken from a
- * sample of its points (sampled_solve, cost independent of p); where that
- * moves x_s by more than rsweep (same measure), the fast nodes are swept
- * again along the new slow path and the slow row solved again.  What the
- * sampled solve leaves out, the response of the fast nodes to x_s and the
+ * above rstop (or after a pre-solve), the slow row is instead solved by
+ * Broyden's method with the fast nodes held, the change of the force along the
+ * path taken from a sample of its points (sampled_solve, cost independent of
+ * p); where that moves x_s by more than rsweep (same measure), the fast nodes
+ * are swept again along the new slow path and the slow row solved again.  What
+ * the sampled solve leaves out, the response of the fast nodes to x_s and the
  * sample's quadrature error, is a small fraction of its change (FPU: about
  * 1e-3).  Every step of this depends on (q_k, p_k) only. */
 static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
