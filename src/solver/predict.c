@@ -105,12 +105,18 @@ struct mrvi_predictor {
                two gradients are evaluated at one configuration, summed */
   /* The slow pre-solve (pre_solve): used at all (pre), done in this step
    * (presolved); the linear sweep's matrix K = (M^f/dt + S_AB H_ff)^-1
-   * (nf x nf) and interval sums lsum (see linear_sweep_k); the gradient of
+   * (nf x nf) and interval sums lsum (see linear_step); the gradient of
    * V at node k (gk, packed n), the slow-row force of the points with
    * a0 a1 != 0 at node k (fk, ns) and their sums of w a0 per class (wk),
    * and the weight of a sample in the absolute force (sample_f). */
   int pre, presolved, n_sweeps;
   double *K, lsum[8], *gk, *fk, wk[2], sample_f[2];
+  /* The nodes the samples read (jnode, n_jumps of them, increasing) and
+   * the affine maps of the linear sweep from one to the next: the state
+   * (d, p^f) (2 nf) goes to M s + S c with c = (c_A, c_B) (see
+   * linear_nodes_k), M and S 2 nf x 2 nf each, in jmat. */
+  int n_jumps, *jnode;
+  double *jmat;
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -188,6 +194,111 @@ static int uniform_intervals(const mrvi_predictor *pr, const mrvi_step *st,
   return 1;
 }
 
+/* One micro step of the linear sweep (linear_nodes_k): the state
+ * s = (d^m, p^{f,m}) becomes (d^{m+1}, p^{f,m+1}),
+ *   (M/dt + S_AB H) d^{m+1} = p^m + M d^m / dt - c_A - S_AA H d^m,
+ *   p^{m+1} = M (d^{m+1} - d^m) / dt - c_B - S_BA H d^m - S_BB H d^{m+1},
+ * with c = (c_A, c_B), H = H_ff of W and the sums S_AA = sum w cA cA,
+ * S_AB = sum w cA cB, ... over an interval's W points (lsum). */
+static void linear_step(const mrvi_predictor *pr, const mrvi_step *st,
+                        double *s, const double *c) {
+  const int ns = st->ns, nf = st->nf, nz = ns + nf;
+  const double *H = pr->Hq[1] + (size_t)ns * nz + ns, *L = pr->lsum;
+  double hd[4], r[4], dn[4];
+  for (int f = 0; f < nf; f++) {
+    hd[f] = 0.0;
+    for (int j = 0; j < nf; j++)
+      hd[f] += H[f * nz + j] * s[j];
+  }
+  for (int f = 0; f < nf; f++)
+    r[f] = s[nf + f] + s[f] / (st->dt * pr->minv[ns + f]) - c[f] - L[1] * hd[f];
+  for (int f = 0; f < nf; f++) {
+    dn[f] = 0.0;
+    for (int j = 0; j < nf; j++)
+      dn[f] += pr->K[f * nf + j] * r[j];
+  }
+  for (int f = 0; f < nf; f++) {
+    double hn = 0.0;
+    for (int j = 0; j < nf; j++)
+      hn += H[f * nz + j] * dn[j];
+    s[nf + f] = (dn[f] - s[f]) / (st->dt * pr->minv[ns + f]) - c[nf + f] -
+                L[4] * hd[f] - L[5] * hn;
+  }
+  for (int f = 0; f < nf; f++)
+    s[f] = dn[f];
+}
+
+/* The nodes the samples read (d^m and d^{m+1} of a sample's interval m)
+ * and the affine maps of the linear sweep between them (jnode, jmat),
+ * composed from the one-step map s -> T s + P c.  0, or MRVI_ENOMEM. */
+static int linear_jumps(mrvi_predictor *pr, const mrvi_step *st) {
+  const int nf = st->nf, p = st->p, n2 = 2 * nf;
+  const size_t sq = (size_t)n2 * (size_t)n2;
+  char *need = calloc((size_t)p + 1, 1);
+  double *T = malloc(6 * sq * sizeof(double));
+  pr->jnode = malloc((size_t)(2 * pr->n_samples + 1) * sizeof(int));
+  pr->jmat = malloc((size_t)(2 * pr->n_samples + 1) * 2 * sq * sizeof(double));
+  if (!need || !T || !pr->jnode || !pr->jmat) {
+    free(need);
+    free(T);
+    return MRVI_ENOMEM;
+  }
+  double *P = T + sq, *M = P + sq, *S = M + sq, *M1 = S + sq, *S1 = M1 + sq;
+  for (int i = 0; i < pr->n_samples; i++) {
+    const int c = pr->sample[i] < 0 ? 1 : 0;
+    const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
+    need[st->pts[c][ip].m] = 1;
+    need[st->pts[c][ip].m + 1] = 1;
+  }
+  /* T and P column by column */
+  double e[8], z[8] = {0};
+  for (int j = 0; j < n2; j++) {
+    for (int i = 0; i < n2; i++)
+      e[i] = i == j;
+    linear_step(pr, st, e, z);
+    for (int i = 0; i < n2; i++)
+      T[i * n2 + j] = e[i];
+    for (int i = 0; i < n2; i++)
+      e[i] = 0.0;
+    double cj[8] = {0};
+    cj[j] = 1.0;
+    linear_step(pr, st, e, cj);
+    for (int i = 0; i < n2; i++)
+      P[i * n2 + j] = e[i];
+  }
+  /* M = T^J, S = sum_{j < J} T^j P from the last needed node */
+  pr->n_jumps = 0;
+  for (size_t i = 0; i < sq; i++) {
+    M[i] = i % (size_t)(n2 + 1) == 0;
+    S[i] = 0.0;
+  }
+  for (int node = 1; node <= p; node++) {
+    for (int i = 0; i < n2; i++)
+      for (int j = 0; j < n2; j++) {
+        double tm = 0.0, ts = P[i * n2 + j];
+        for (int k = 0; k < n2; k++) {
+          tm += T[i * n2 + k] * M[k * n2 + j];
+          ts += T[i * n2 + k] * S[k * n2 + j];
+        }
+        M1[i * n2 + j] = tm;
+        S1[i * n2 + j] = ts;
+      }
+    memcpy(M, M1, 2 * sq * sizeof(double)); /* M, S <- M1, S1 */
+    if (!need[node])
+      continue;
+    pr->jnode[pr->n_jumps] = node;
+    memcpy(pr->jmat + (size_t)pr->n_jumps * 2 * sq, M, 2 * sq * sizeof(double));
+    pr->n_jumps++;
+    for (size_t i = 0; i < sq; i++) {
+      M[i] = i % (size_t)(n2 + 1) == 0;
+      S[i] = 0.0;
+    }
+  }
+  free(need);
+  free(T);
+  return 0;
+}
+
 /* The slow pre-solve (pre_solve) and its linear sweep: where W has a
  * constant Hessian and no slow input (Hq[1] on the fast columns), every
  * interval has the points of interval 0 and the fixed-point contraction
@@ -258,8 +369,8 @@ static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
   }
   free(A);
   free(piv);
-  pr->pre = ok;
-  return 0;
+  pr->pre = ok && linear_jumps(pr, st) == 0;
+  return ok && !pr->pre ? MRVI_ENOMEM : 0;
 }
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
@@ -400,6 +511,8 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->gk);
   free(pr->fk);
   free(pr->K);
+  free(pr->jnode);
+  free(pr->jmat);
   free(pr->A);
   free(pr->b);
   free(pr->sample);
@@ -650,57 +763,48 @@ static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
         SMALL(st->nf, NF, sampled_force_k(pr, st, x, f, fa, hess, NS, NF)));
 }
 
-/* The fast nodes d^1 .. d^p for the slow displacement x_s with V held at
- * its gradient at node k (gk) and W's constant Hessian: every fast row is
- * then linear with the same matrix,
- *   (M/dt + S_AB H) d^{m+1} = p^m + M d^m / dt - S_A c - S_AA H d^m - V_A g,
- *   p^{m+1} = M (d^{m+1} - d^m) / dt - S_B c - S_BA H d^m - S_BB H d^{m+1}
- *             - V_B g,
- * with c = g0 + H q_k^f, g the fast part of gk, H = H_ff of W, and the
- * sums S_A = sum w cA, S_AB = sum w cA cB, ... over an interval's W points,
- * V_A, V_B over its V points (lsum).  A few products per micro node. */
-ALWAYS_INLINE void linear_sweep_k(mrvi_predictor *pr, const mrvi_step *st,
+/* The fast nodes the samples read (jnode) for the slow displacement x_s,
+ * with V held at its gradient at node k (gk) and W's constant Hessian:
+ * every fast row is then linear with the same matrix (linear_step), the
+ * state (d, p^f) goes from one needed node to the next by the affine map
+ * kept for that jump, with c_A = S_A c + V_A g, c_B = S_B c + V_B g,
+ * c = g0 + H q_k^f, g the fast part of gk, S_A = sum w cA, S_B = sum w cB
+ * over an interval's W points and V_A, V_B over its V points (lsum).
+ * Two products of size 2 nf per needed node, whatever p; the other fast
+ * nodes of x are left as they are (the sweep after the pre-solve writes
+ * them all). */
+ALWAYS_INLINE void linear_nodes_k(mrvi_predictor *pr, const mrvi_step *st,
                                   double *x, const int ns, const int nf) {
-  const int nz = ns + nf;
+  const int nz = ns + nf, n2 = 2 * nf;
   const double *restrict H = pr->Hq[1] + (size_t)ns * nz + ns;
   const double *restrict g0 = pr->g0[1] + ns, *restrict gv = pr->gk + ns;
-  const double *restrict K = pr->K, *L = pr->lsum;
-  double ca[nf], cb[nf], pm[nf], md[nf], hd[nf], hn[nf], r[nf];
+  const double *L = pr->lsum;
+  double c[2 * nf], s[2 * nf], t[2 * nf];
   UNROLL for (int f = 0; f < nf; f++) {
-    double c = g0[f];
-    UNROLL for (int j = 0; j < nf; j++) c += H[f * nz + j] * st->qf0[j];
-    ca[f] = L[0] * c + L[6] * gv[f];
-    cb[f] = L[3] * c + L[7] * gv[f];
-    pm[f] = st->pf0[f];
-    md[f] = 1.0 / (st->dt * pr->minv[ns + f]);
-    hd[f] = 0.0;
+    double a = g0[f];
+    UNROLL for (int j = 0; j < nf; j++) a += H[f * nz + j] * st->qf0[j];
+    c[f] = L[0] * a + L[6] * gv[f];
+    c[nf + f] = L[3] * a + L[7] * gv[f];
+    s[f] = 0.0;
+    s[nf + f] = st->pf0[f];
   }
-  const double *d = NULL;
-  for (int mm = 0; mm < st->p; mm++) {
-    double *restrict dn = x + ns + (size_t)mm * nf;
-    UNROLL for (int f = 0; f < nf; f++) r[f] =
-        pm[f] + (d ? md[f] * d[f] : 0.0) - ca[f] - L[1] * hd[f];
-    UNROLL for (int f = 0; f < nf; f++) {
-      double t = 0.0;
-      UNROLL for (int j = 0; j < nf; j++) t += K[f * nf + j] * r[j];
-      dn[f] = t;
+  for (int k = 0; k < pr->n_jumps; k++) {
+    const double *restrict M = pr->jmat + (size_t)k * 2 * n2 * n2;
+    const double *restrict S = M + n2 * n2;
+    UNROLL for (int i = 0; i < n2; i++) {
+      double a = 0.0;
+      UNROLL for (int j = 0; j < n2; j++) a +=
+          M[i * n2 + j] * s[j] + S[i * n2 + j] * c[j];
+      t[i] = a;
     }
-    UNROLL for (int f = 0; f < nf; f++) {
-      double t = 0.0;
-      UNROLL for (int j = 0; j < nf; j++) t += H[f * nz + j] * dn[j];
-      hn[f] = t;
-    }
-    UNROLL for (int f = 0; f < nf; f++) {
-      pm[f] = md[f] * (dn[f] - (d ? d[f] : 0.0)) - cb[f] - L[4] * hd[f] -
-              L[5] * hn[f];
-      hd[f] = hn[f];
-    }
-    d = dn;
+    UNROLL for (int i = 0; i < n2; i++) s[i] = t[i];
+    double *restrict d = x + ns + (size_t)(pr->jnode[k] - 1) * nf;
+    UNROLL for (int f = 0; f < nf; f++) d[f] = s[f];
   }
 }
 
-static void linear_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  SMALL(st->ns, NS, SMALL(st->nf, NF, linear_sweep_k(pr, st, x, NS, NF)));
+static void linear_nodes(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  SMALL(st->ns, NS, SMALL(st->nf, NF, linear_nodes_k(pr, st, x, NS, NF)));
 }
 
 static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
@@ -781,7 +885,7 @@ static void sampled_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 }
 
 /* The slow row solved before the sweep (where pr->pre): the fast nodes
- * from linear_sweep along the slow update x_V = x[0..ns) with every point
+ * from linear_nodes along the slow update x_V = x[0..ns) with every point
  * at node k, then the slow row M (y - x_V) / dT + F(y) - F_k = 0 on the
  * samples along them (broyden), to 0.1 rsweep: the sweep then runs along
  * a slow path that the sampled solve after it moves by less than rsweep,
@@ -790,7 +894,7 @@ static void sampled_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const int ns = st->ns;
   double *xv = pr->b + ns;
-  linear_sweep(pr, st, x);
+  linear_nodes(pr, st, x);
   memcpy(xv, x, (size_t)ns * sizeof(double));
   broyden(pr, st, x, xv, 1, 0.1 * pr->rsweep);
   pr->presolved = 1;
