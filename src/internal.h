@@ -471,6 +471,14 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol);
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x);
 /* Free flight: the momenta of node k held over the step (displacements). */
 void mrvi_predict_free_flight(const mrvi_step *st, double *x);
+/* The slow pre-solve (predict.c, pre_solve): whether the predictor uses
+ * it (chosen at creation), switched off with on = 0 (tests: the path
+ * without it); returns the previous setting. */
+int mrvi_predictor_presolve(mrvi_predictor *pr, int on);
+/* Sweeps of the fast nodes in the last prediction (1, or more where the
+ * slow row's solve moved the slow path by more than the re-sweep
+ * threshold; the pre-solve's linear sweep not counted). */
+int mrvi_predictor_sweeps(const mrvi_predictor *pr);
 /* Largest frequency sqrt(max eig M^-1 hess(V + W)) at the initial state,
  * by power iteration (0 if not positive). */
 double mrvi_predictor_omega_max(mrvi_predictor *pr);

@@ -570,10 +570,30 @@ static void test_predictor_large_steps(void) {
       if (!sys)
         continue;
       mrvi_predictor_set_tolerance(pr, tol);
+      const int pre = mrvi_predictor_presolve(pr, 1);
       const double r = initial_residual(&st, pr, 0);
+      const int sweeps = mrvi_predictor_sweeps(pr);
       CHECK(r <= 10.0 * sqrt(0.01 * tol),
             "%s %s: predictor residual %.2e > %.2e", schemes[sc], steps[k][0],
             r, 10.0 * sqrt(0.01 * tol));
+      /* The pre-solve where the fixed-point contraction at q0 is above
+       * 0.1 (0.03 / 0.27 / 3.0 here): then, and at dT = 0.1, one sweep. */
+      CHECK(pre == (k > 0) && sweeps == 1,
+            "%s %s: pre-solve %d (expected %d), %d sweeps (expected 1)",
+            schemes[sc], steps[k][0], pre, k > 0, sweeps);
+      /* Without it (the path of models without a constant-Hessian W): the
+       * same residual bound, with a second sweep at dT = 0.3 and 1. */
+      mrvi_predictor_presolve(pr, 0);
+      const double r0 = initial_residual(&st, pr, 0);
+      const int sweeps0 = mrvi_predictor_sweeps(pr);
+      CHECK(r0 <= 10.0 * sqrt(0.01 * tol) && sweeps0 == (k > 0 ? 2 : 1),
+            "%s %s without the pre-solve: predictor residual %.2e (bound "
+            "%.2e), %d sweeps (expected %d)",
+            schemes[sc], steps[k][0], r0, 10.0 * sqrt(0.01 * tol), sweeps0,
+            k > 0 ? 2 : 1);
+      printf("fpu %s %s: predictor residual %.2e with %d sweep(s), %.2e "
+             "with %d without the pre-solve\n",
+             schemes[sc], steps[k][0], r, sweeps, r0, sweeps0);
       mrvi_predictor_free(pr);
       mrvi_step_free(&st);
       mrvi_summary sum;

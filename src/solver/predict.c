@@ -24,9 +24,13 @@
  * gradients at the points, no Jacobian.
  *
  * Where the slow row is still far from solved after that (a large dT
- * with a non-linear V), it is solved by Newton's method on a sample of its
- * points with the fast nodes held, and the fast nodes swept again
- * (slow_newton).
+ * with a non-linear V), it is solved by Broyden's method on a sample of
+ * its points with the fast nodes held, and the fast nodes swept again
+ * (slow_newton); where the slow row is known to be far from the
+ * Stoermer-Verlet estimate (the fixed-point contraction at q0) and W has
+ * a constant Hessian, it is solved before the sweep on a cheap linear
+ * sweep of the fast nodes instead, so that the one sweep runs along a
+ * slow path close to the solution (pre_solve).
  *
  * The sweep is explicit: it is used only where dt omega_max <= 1/2 at the
  * initial state (omega_max the largest frequency of hess(V + W) in the mass
@@ -40,13 +44,21 @@
 #include <string.h>
 
 /* Slow Newton steps of the predictor (slow_newton): at most this many
- * per step, on models of at most MRVI_SLOW_NEWTON_N coordinates (the
- * Hessian sum is dense), with at most MRVI_SLOW_SAMPLES sampled points
- * (FPU, dT = 1, p = 1000: 16 or 32 keep one Newton update per step, 8 do
- * not: 1.6). */
+ * Broyden iterations per solve, on models of at most MRVI_SLOW_NEWTON_N
+ * coordinates (the Hessian sum is dense), with at most MRVI_SLOW_SAMPLES
+ * sampled points (FPU, dT = 1, p = 1000: 16 or 32 keep one Newton update
+ * per step, 8 did not: 1.6; 16 since the pre-solve, 4 % fewer
+ * instructions at p = 100) and the first Jacobian's Hessian from
+ * MRVI_SLOW_HESS of them. */
 #define MRVI_SLOW_NEWTON_MAX 8
 #define MRVI_SLOW_NEWTON_N 64
-#define MRVI_SLOW_SAMPLES 32
+#define MRVI_SLOW_SAMPLES 16
+#define MRVI_SLOW_HESS 8
+/* The slow pre-solve (pre_solve) is used where dT^2 |M_s^-1 hess_ss V|
+ * / 3 at the initial state, the fixed-point update's contraction factor
+ * (row-sum norm), is above this (FPU: 0.03 / 0.27 / 3.0 at dT = 0.1 /
+ * 0.3 / 1). */
+#define MRVI_PRE_KAPPA 0.1
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -71,6 +83,9 @@ struct mrvi_predictor {
                     fixed-point update (2 ns) */
   int *sample;   /* sampled points: ip of V, -1 - ip of W */
   int n_samples;
+  int hstride; /* the Hessian from every hstride-th sample, */
+  double hfac; /* scaled by hfac (choose_samples) */
+  int h_ok;    /* H holds the sampled Hessian of this step (sampled_solve) */
   double sample_w[2]; /* weight of a sample relative to its point */
   double rstop;       /* slow-row residual above which the slow row is solved
                          by Newton steps (mrvi_predictor_set_tolerance) */
@@ -88,6 +103,20 @@ struct mrvi_predictor {
   int lo[2];
   int same; /* V and W have the same points (midpoint-midpoint): a point's
                two gradients are evaluated at one configuration, summed */
+  /* The slow pre-solve (pre_solve): used at all (pre), done in this step
+   * (presolved); the linear sweep's matrix K = (M^f/dt + S_AB H_ff)^-1
+   * (nf x nf) and interval sums lsum (see linear_step); the gradient of
+   * V at node k (gk, packed n), the slow-row force of the points with
+   * a0 a1 != 0 at node k (fk, ns) and their sums of w a0 per class (wk),
+   * and the weight of a sample in the absolute force (sample_f). */
+  int pre, presolved, n_sweeps;
+  double *K, lsum[8], *gk, *fk, wk[2], sample_f[2];
+  /* The nodes the samples read (jnode, n_jumps of them, increasing) and
+   * the affine maps of the linear sweep from one to the next: the state
+   * (d, p^f) (2 nf) goes to M s + S c with c = (c_A, c_B) (see
+   * linear_nodes_k), M and S 2 nf x 2 nf each, in jmat. */
+  int n_jumps, *jnode;
+  double *jmat;
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -110,20 +139,238 @@ static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
   const int stride = (count + MRVI_SLOW_SAMPLES - 1) / MRVI_SLOW_SAMPLES;
   pr->n_samples = 0;
   for (int c = 0; c < 2; c++) {
-    double all = 0.0, taken = 0.0;
+    /* (all, taken: sums of w a0 a1; fa, ft: of w a0, for sample_f) */
+    double all = 0.0, taken = 0.0, fa = 0.0, ft = 0.0;
     for (int ip = 0, j = 0; slow_in[c] && ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       const double w = pt->w * pt->a0 * pt->a1;
       if (w == 0.0)
         continue;
       all += w;
+      fa += pt->w * pt->a0;
       if (j++ % stride == stride / 2) {
         taken += w;
+        ft += pt->w * pt->a0;
         pr->sample[pr->n_samples++] = c == 0 ? ip : -ip - 1;
       }
     }
     pr->sample_w[c] = taken != 0.0 ? all / taken : 0.0;
+    pr->sample_f[c] = ft != 0.0 ? fa / ft : 0.0;
+    pr->wk[c] = fa;
   }
+  /* The Hessian (the first Jacobian of sampled_solve) from every
+   * hstride-th sample, scaled to the sum of all samples' w a0 a1. */
+  pr->hstride = (pr->n_samples + MRVI_SLOW_HESS - 1) / MRVI_SLOW_HESS;
+  if (pr->hstride < 1)
+    pr->hstride = 1;
+  double all = 0.0, taken = 0.0;
+  for (int i = 0; i < pr->n_samples; i++) {
+    const int c = pr->sample[i] < 0 ? 1 : 0;
+    const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
+    const mrvi_point *pt = &st->pts[c][ip];
+    const double w = pr->sample_w[c] * pt->w * pt->a0 * pt->a1;
+    all += w;
+    if (i % pr->hstride == pr->hstride / 2)
+      taken += w;
+  }
+  pr->hfac = taken != 0.0 ? all / taken : 1.0;
+}
+
+/* Whether every interval has the points of interval 0 (the same w, cA,
+ * cB in the same order) in class c. */
+static int uniform_intervals(const mrvi_predictor *pr, const mrvi_step *st,
+                             int c) {
+  const int n0 = pr->pend[c][0];
+  for (int mm = 1; mm < st->p; mm++) {
+    const int first = pr->pend[c][mm - 1];
+    if (pr->pend[c][mm] - first != n0)
+      return 0;
+    for (int i = 0; i < n0; i++) {
+      const mrvi_point *a = &st->pts[c][i], *b = &st->pts[c][first + i];
+      if (a->w != b->w || a->cA != b->cA || a->cB != b->cB)
+        return 0;
+    }
+  }
+  return 1;
+}
+
+/* One micro step of the linear sweep (linear_nodes_k): the state
+ * s = (d^m, p^{f,m}) becomes (d^{m+1}, p^{f,m+1}),
+ *   (M/dt + S_AB H) d^{m+1} = p^m + M d^m / dt - c_A - S_AA H d^m,
+ *   p^{m+1} = M (d^{m+1} - d^m) / dt - c_B - S_BA H d^m - S_BB H d^{m+1},
+ * with c = (c_A, c_B), H = H_ff of W and the sums S_AA = sum w cA cA,
+ * S_AB = sum w cA cB, ... over an interval's W points (lsum). */
+static void linear_step(const mrvi_predictor *pr, const mrvi_step *st,
+                        double *s, const double *c) {
+  const int ns = st->ns, nf = st->nf, nz = ns + nf;
+  const double *H = pr->Hq[1] + (size_t)ns * nz + ns, *L = pr->lsum;
+  double hd[4], r[4], dn[4];
+  for (int f = 0; f < nf; f++) {
+    hd[f] = 0.0;
+    for (int j = 0; j < nf; j++)
+      hd[f] += H[f * nz + j] * s[j];
+  }
+  for (int f = 0; f < nf; f++)
+    r[f] = s[nf + f] + s[f] / (st->dt * pr->minv[ns + f]) - c[f] - L[1] * hd[f];
+  for (int f = 0; f < nf; f++) {
+    dn[f] = 0.0;
+    for (int j = 0; j < nf; j++)
+      dn[f] += pr->K[f * nf + j] * r[j];
+  }
+  for (int f = 0; f < nf; f++) {
+    double hn = 0.0;
+    for (int j = 0; j < nf; j++)
+      hn += H[f * nz + j] * dn[j];
+    s[nf + f] = (dn[f] - s[f]) / (st->dt * pr->minv[ns + f]) - c[nf + f] -
+                L[4] * hd[f] - L[5] * hn;
+  }
+  for (int f = 0; f < nf; f++)
+    s[f] = dn[f];
+}
+
+/* The nodes the samples read (d^m and d^{m+1} of a sample's interval m)
+ * and the affine maps of the linear sweep between them (jnode, jmat),
+ * composed from the one-step map s -> T s + P c.  0, or MRVI_ENOMEM. */
+static int linear_jumps(mrvi_predictor *pr, const mrvi_step *st) {
+  const int nf = st->nf, p = st->p, n2 = 2 * nf;
+  const size_t sq = (size_t)n2 * (size_t)n2;
+  char *need = calloc((size_t)p + 1, 1);
+  double *T = malloc(6 * sq * sizeof(double));
+  pr->jnode = malloc((size_t)(2 * pr->n_samples + 1) * sizeof(int));
+  pr->jmat = malloc((size_t)(2 * pr->n_samples + 1) * 2 * sq * sizeof(double));
+  if (!need || !T || !pr->jnode || !pr->jmat) {
+    free(need);
+    free(T);
+    return MRVI_ENOMEM;
+  }
+  double *P = T + sq, *M = P + sq, *S = M + sq, *M1 = S + sq, *S1 = M1 + sq;
+  for (int i = 0; i < pr->n_samples; i++) {
+    const int c = pr->sample[i] < 0 ? 1 : 0;
+    const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
+    need[st->pts[c][ip].m] = 1;
+    need[st->pts[c][ip].m + 1] = 1;
+  }
+  /* T and P column by column */
+  double e[8], z[8] = {0};
+  for (int j = 0; j < n2; j++) {
+    for (int i = 0; i < n2; i++)
+      e[i] = i == j;
+    linear_step(pr, st, e, z);
+    for (int i = 0; i < n2; i++)
+      T[i * n2 + j] = e[i];
+    for (int i = 0; i < n2; i++)
+      e[i] = 0.0;
+    double cj[8] = {0};
+    cj[j] = 1.0;
+    linear_step(pr, st, e, cj);
+    for (int i = 0; i < n2; i++)
+      P[i * n2 + j] = e[i];
+  }
+  /* M = T^J, S = sum_{j < J} T^j P from the last needed node */
+  pr->n_jumps = 0;
+  for (size_t i = 0; i < sq; i++) {
+    M[i] = i % (size_t)(n2 + 1) == 0;
+    S[i] = 0.0;
+  }
+  for (int node = 1; node <= p; node++) {
+    for (int i = 0; i < n2; i++)
+      for (int j = 0; j < n2; j++) {
+        double tm = 0.0, ts = P[i * n2 + j];
+        for (int k = 0; k < n2; k++) {
+          tm += T[i * n2 + k] * M[k * n2 + j];
+          ts += T[i * n2 + k] * S[k * n2 + j];
+        }
+        M1[i * n2 + j] = tm;
+        S1[i * n2 + j] = ts;
+      }
+    memcpy(M, M1, 2 * sq * sizeof(double)); /* M, S <- M1, S1 */
+    if (!need[node])
+      continue;
+    pr->jnode[pr->n_jumps] = node;
+    memcpy(pr->jmat + (size_t)pr->n_jumps * 2 * sq, M, 2 * sq * sizeof(double));
+    pr->n_jumps++;
+    for (size_t i = 0; i < sq; i++) {
+      M[i] = i % (size_t)(n2 + 1) == 0;
+      S[i] = 0.0;
+    }
+  }
+  free(need);
+  free(T);
+  return 0;
+}
+
+/* The slow pre-solve (pre_solve) and its linear sweep: where W has a
+ * constant Hessian and no slow input (Hq[1] on the fast columns), every
+ * interval has the points of interval 0 and the fixed-point contraction
+ * dT^2 |M_s^-1 hess_ss V(q0)| / 3 is above MRVI_PRE_KAPPA.  0, or
+ * MRVI_ENOMEM. */
+static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
+  const mrvi_model *m = pr->m;
+  const int ns = st->ns, nf = st->nf, nz = ns + nf;
+  if (!pr->Hq[1] || pr->lo[1] != ns || nf == 0 || ns == 0 || st->p < 1 ||
+      !uniform_intervals(pr, st, 0) || !uniform_intervals(pr, st, 1))
+    return 0;
+  /* hess_ss V at q0 (packed columns: q0 into pr->z) */
+  for (int c = 0; c < m->n; c++)
+    pr->z[(m->rate[c] == MRVI_SLOW ? 0 : ns) + m->slot[c]] = m->q0[c];
+  memset(pr->g, 0, (size_t)nz * sizeof(double));
+  memset(pr->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
+  mrvi_terms_eval(pr->kc[0], pr->z, 1.0, pr->g, pr->H, nz, 1.0);
+  double norm = 0.0;
+  for (int i = 0; i < ns; i++) {
+    double r = 0.0;
+    for (int j = 0; j < ns; j++)
+      r += fabs(pr->H[i * nz + j]);
+    norm = fmax(norm, r * pr->minv[i]);
+  }
+  if (!(st->dT * st->dT * norm / 3.0 > MRVI_PRE_KAPPA))
+    return 0;
+  /* Interval sums: W's w cA, w cA cA, w cA cB, w cB, w cB cA, w cB cB,
+   * V's w cA, w cB. */
+  double *L = pr->lsum;
+  memset(L, 0, sizeof pr->lsum);
+  for (int c = 0; c < 2; c++)
+    for (int i = 0; i < pr->pend[c][0]; i++) {
+      const mrvi_point *pt = &st->pts[c][i];
+      if (c == 1) {
+        L[0] += pt->w * pt->cA;
+        L[1] += pt->w * pt->cA * pt->cA;
+        L[2] += pt->w * pt->cA * pt->cB;
+        L[3] += pt->w * pt->cB;
+        L[4] += pt->w * pt->cB * pt->cA;
+        L[5] += pt->w * pt->cB * pt->cB;
+      } else {
+        L[6] += pt->w * pt->cA;
+        L[7] += pt->w * pt->cB;
+      }
+    }
+  /* K = (M^f/dt + S_AB H_ff)^-1, column by column */
+  double *A = malloc((size_t)nf * (size_t)nf * sizeof(double));
+  int *piv = malloc((size_t)nf * sizeof(int));
+  pr->K = malloc((size_t)nf * (size_t)nf * sizeof(double));
+  if (!A || !piv || !pr->K) {
+    free(A);
+    free(piv);
+    return MRVI_ENOMEM;
+  }
+  const double *Hff = pr->Hq[1] + (size_t)ns * nz + ns;
+  for (int i = 0; i < nf; i++)
+    for (int j = 0; j < nf; j++)
+      A[i * nf + j] = L[2] * Hff[i * nz + j] +
+                      (i == j ? 1.0 / (st->dt * pr->minv[ns + i]) : 0.0);
+  int ok = mrvi_dense_lu_factor(nf, A, piv) == 0;
+  for (int j = 0; ok && j < nf; j++) {
+    double e[MRVI_SLOW_NEWTON_N];
+    for (int i = 0; i < nf; i++)
+      e[i] = i == j;
+    mrvi_dense_lu_solve(nf, A, piv, e, 1);
+    for (int i = 0; i < nf; i++)
+      pr->K[i * nf + j] = e[i];
+  }
+  free(A);
+  free(piv);
+  pr->pre = ok && linear_jumps(pr, st) == 0;
+  return ok && !pr->pre ? MRVI_ENOMEM : 0;
 }
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
@@ -144,7 +391,9 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   if (!(pr->pm =
             malloc((size_t)(m->n_fast > 0 ? m->n_fast : 1) * sizeof(double))) ||
       !(pr->xs = malloc(3 * n * sizeof(double))) ||
-      !(pr->b = malloc(2 * n * sizeof(double)))) {
+      !(pr->b = malloc(4 * n * sizeof(double))) ||
+      !(pr->gk = calloc(n, sizeof(double))) ||
+      !(pr->fk = calloc(n, sizeof(double)))) {
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
@@ -229,7 +478,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   if (pr->slow_coupled && m->n <= MRVI_SLOW_NEWTON_N) {
     const size_t ns = (size_t)(m->n_slow > 0 ? m->n_slow : 1);
     pr->H = malloc(n * n * sizeof(double));
-    pr->A = malloc(ns * ns * sizeof(double));
+    pr->A = malloc(2 * ns * ns * sizeof(double));
     pr->sample =
         malloc((size_t)(st->n_pts[0] + st->n_pts[1] + 1) * sizeof(int));
     if (!pr->H || !pr->A || !pr->sample) {
@@ -237,6 +486,10 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       return MRVI_ENOMEM;
     }
     choose_samples(pr, st);
+    if (linear_sweep_setup(pr, st) < 0) {
+      mrvi_predictor_free(pr);
+      return MRVI_ENOMEM;
+    }
   }
   *out = pr;
   return MRVI_OK;
@@ -255,6 +508,11 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->pm);
   free(pr->H);
   free(pr->xs);
+  free(pr->gk);
+  free(pr->fk);
+  free(pr->K);
+  free(pr->jnode);
+  free(pr->jmat);
   free(pr->A);
   free(pr->b);
   free(pr->sample);
@@ -459,6 +717,7 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
 
 static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
                   int sum_slow) {
+  pr->n_sweeps++;
   SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
 }
 
@@ -470,20 +729,82 @@ static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 
 /* Slow-row force of the sampled points (see slow_newton) at the slow
  * displacement x_s = x[0..ns) with the fast nodes of x: f = sum over the
- * samples of sw w a0 grad_s Z, H += sw w a0 a1 hess Z (packed, n x n). */
-static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
-                          const double *x, double *f) {
-  const int ns = st->ns, n = ns + st->nf;
-  memset(f, 0, (size_t)ns * sizeof(double));
-  memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
+ * samples of sw w a0 grad_s Z (the change of the force: sw scaled to the
+ * sum of w a0 a1), fa (if not NULL) = sum of sf w a0 grad_s Z (the force
+ * itself: sf scaled to the sum of w a0 of the points with a0 a1 != 0),
+ * and, with hess, H = sum over every hstride-th sample of
+ * hfac sw w a0 a1 hess Z (packed, n x n). */
+ALWAYS_INLINE void sampled_force_k(mrvi_predictor *pr, const mrvi_step *st,
+                                   const double *x, double *f, double *fa,
+                                   int hess, const int ns, const int nf) {
+  const int n = ns + nf;
+  UNROLL for (int s = 0; s < ns; s++) f[s] = 0.0;
+  if (fa)
+    UNROLL for (int s = 0; s < ns; s++) fa[s] = 0.0;
+  if (hess)
+    memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
   for (int i = 0; i < pr->n_samples; i++) {
     const int c = pr->sample[i] < 0 ? 1 : 0;
     const int ip = pr->sample[i] < 0 ? -pr->sample[i] - 1 : pr->sample[i];
     const mrvi_point *pt = &st->pts[c][ip];
     const double w = pr->sample_w[c] * pt->w * pt->a0;
-    point_gradient_k(pr, st, x, pt, c, ns, st->nf, pr->H, w * pt->a1, 0);
+    const int h = hess && i % pr->hstride == pr->hstride / 2;
+    point_gradient_k(pr, st, x, pt, c, ns, nf, h ? pr->H : NULL,
+                     pr->hfac * w * pt->a1, 0);
     axpy(ns, w, pr->g, f);
+    if (fa)
+      axpy(ns, pr->sample_f[c] * pt->w * pt->a0, pr->g, fa);
   }
+}
+
+static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
+                          const double *x, double *f, double *fa, int hess) {
+  SMALL(st->ns, NS,
+        SMALL(st->nf, NF, sampled_force_k(pr, st, x, f, fa, hess, NS, NF)));
+}
+
+/* The fast nodes the samples read (jnode) for the slow displacement x_s,
+ * with V held at its gradient at node k (gk) and W's constant Hessian:
+ * every fast row is then linear with the same matrix (linear_step), the
+ * state (d, p^f) goes from one needed node to the next by the affine map
+ * kept for that jump, with c_A = S_A c + V_A g, c_B = S_B c + V_B g,
+ * c = g0 + H q_k^f, g the fast part of gk, S_A = sum w cA, S_B = sum w cB
+ * over an interval's W points and V_A, V_B over its V points (lsum).
+ * Two products of size 2 nf per needed node, whatever p; the other fast
+ * nodes of x are left as they are (the sweep after the pre-solve writes
+ * them all). */
+ALWAYS_INLINE void linear_nodes_k(mrvi_predictor *pr, const mrvi_step *st,
+                                  double *x, const int ns, const int nf) {
+  const int nz = ns + nf, n2 = 2 * nf;
+  const double *restrict H = pr->Hq[1] + (size_t)ns * nz + ns;
+  const double *restrict g0 = pr->g0[1] + ns, *restrict gv = pr->gk + ns;
+  const double *L = pr->lsum;
+  double c[2 * nf], s[2 * nf], t[2 * nf];
+  UNROLL for (int f = 0; f < nf; f++) {
+    double a = g0[f];
+    UNROLL for (int j = 0; j < nf; j++) a += H[f * nz + j] * st->qf0[j];
+    c[f] = L[0] * a + L[6] * gv[f];
+    c[nf + f] = L[3] * a + L[7] * gv[f];
+    s[f] = 0.0;
+    s[nf + f] = st->pf0[f];
+  }
+  for (int k = 0; k < pr->n_jumps; k++) {
+    const double *restrict M = pr->jmat + (size_t)k * 2 * n2 * n2;
+    const double *restrict S = M + n2 * n2;
+    UNROLL for (int i = 0; i < n2; i++) {
+      double a = 0.0;
+      UNROLL for (int j = 0; j < n2; j++) a +=
+          M[i * n2 + j] * s[j] + S[i * n2 + j] * c[j];
+      t[i] = a;
+    }
+    UNROLL for (int i = 0; i < n2; i++) s[i] = t[i];
+    double *restrict d = x + ns + (size_t)(pr->jnode[k] - 1) * nf;
+    UNROLL for (int f = 0; f < nf; f++) d[f] = s[f];
+  }
+}
+
+static void linear_nodes(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  SMALL(st->ns, NS, SMALL(st->nf, NF, linear_nodes_k(pr, st, x, NS, NF)));
 }
 
 static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
@@ -494,33 +815,89 @@ static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
   return r;
 }
 
-/* y solving M (y - x_s') / dT + F~(y) - F~(x_s) = 0 by Newton's method
- * from y = x_s (x_s, the swept path, in xs; x_s' in x, y written to x). */
-static void sampled_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+/* Broyden's method for the slow row with the fast nodes held, from
+ * y = x[0..ns) (written to x): the Jacobian M / dT + H~ with the sampled
+ * Hessian H~ evaluated once per step (at the first call's y, pr->h_ok),
+ * then corrected by a rank-one update from every iteration's change of
+ * the residual (superlinear convergence from gradients alone).  The
+ * residual: with pre, M (y - x_V) / dT + F(y) - F_k (pre_solve: x_V the
+ * slow update with every point at node k, in xv, F the absolute sampled
+ * force, F_k its value with every point at node k, fk); else
+ * M (y - x_s') / dT + F~(y) - F~(x_s) (sampled_solve: x_s' in xv, F~ the
+ * sampled force, f0 = F~(x_s)).  Stops where an update moves y by at
+ * most stop (in M |dy| / dT). */
+static void broyden(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                    const double *xv, int pre, double stop) {
   const int ns = st->ns, n = ns + st->nf;
-  double *f0 = pr->xs + ns, *f = pr->xs + 2 * ns, *xf = pr->b + ns;
-  memcpy(xf, x, (size_t)ns * sizeof(double));
-  memcpy(x, pr->xs, (size_t)ns * sizeof(double));
-  sampled_force(pr, st, x, f0);
+  double *f0 = pr->xs + ns, *f = pr->xs + 2 * ns;
+  double *J = pr->A + ns * ns, *r = pr->b + 2 * ns, *dy = pr->b + 3 * ns;
+  sampled_force(pr, st, x, f0, pre ? f : NULL, !pr->h_ok);
+  pr->h_ok = 1;
+  for (int i = 0; i < ns; i++) {
+    const double mdt = 1.0 / (st->dT * pr->minv[i]);
+    for (int j = 0; j < ns; j++)
+      J[i * ns + j] = pr->H[i * n + j] + (i == j ? mdt : 0.0);
+    r[i] = mdt * (x[i] - xv[i]) + (pre ? f[i] - pr->fk[i] : 0.0);
+  }
   for (int it = 0; it < MRVI_SLOW_NEWTON_MAX; it++) {
-    if (it > 0)
-      sampled_force(pr, st, x, f);
+    if (it > 0) {
+      /* r at the new y; J += (r_new - r - J dy) dy^T / (dy^T dy) */
+      sampled_force(pr, st, x, pre ? f0 : f, pre ? f : NULL, 0);
+      double dd = 0.0;
+      for (int i = 0; i < ns; i++)
+        dd += dy[i] * dy[i];
+      for (int i = 0; i < ns; i++) {
+        const double mdt = 1.0 / (st->dT * pr->minv[i]);
+        const double rn =
+            mdt * (x[i] - xv[i]) + f[i] - (pre ? pr->fk[i] : f0[i]);
+        double u = rn - r[i];
+        for (int j = 0; j < ns; j++)
+          u -= J[i * ns + j] * dy[j];
+        r[i] = rn;
+        if (dd > 0.0)
+          for (int j = 0; j < ns; j++)
+            J[i * ns + j] += u * dy[j] / dd;
+      }
+    }
+    memcpy(pr->A, J, (size_t)ns * (size_t)ns * sizeof(double));
+    memcpy(dy, r, (size_t)ns * sizeof(double));
+    if (mrvi_dense_solve(ns, pr->A, dy) < 0)
+      return;
     double step = 0.0;
     for (int i = 0; i < ns; i++) {
-      const double mdt = 1.0 / (st->dT * pr->minv[i]);
-      for (int j = 0; j < ns; j++)
-        pr->A[i * ns + j] = pr->H[i * n + j] + (i == j ? mdt : 0.0);
-      pr->b[i] = mdt * (x[i] - xf[i]) + (it > 0 ? f[i] - f0[i] : 0.0);
+      dy[i] = -dy[i];
+      x[i] += dy[i];
+      step = fmax(step, fabs(dy[i]) / (st->dT * pr->minv[i]));
     }
-    if (mrvi_dense_solve(ns, pr->A, pr->b) < 0)
-      return;
-    for (int i = 0; i < ns; i++) {
-      x[i] -= pr->b[i];
-      step = fmax(step, fabs(pr->b[i]) / (st->dT * pr->minv[i]));
-    }
-    if (!(step > 1e-3 * pr->rstop))
+    if (!(step > stop))
       return;
   }
+}
+
+/* y solving M (y - x_s') / dT + F~(y) - F~(x_s) = 0 (x_s, the swept path,
+ * in xs; x_s' in x, y written to x) from y = x_s. */
+static void sampled_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  const int ns = st->ns;
+  double *xf = pr->b + ns;
+  memcpy(xf, x, (size_t)ns * sizeof(double));
+  memcpy(x, pr->xs, (size_t)ns * sizeof(double));
+  broyden(pr, st, x, xf, 0, 1e-3 * pr->rstop);
+}
+
+/* The slow row solved before the sweep (where pr->pre): the fast nodes
+ * from linear_nodes along the slow update x_V = x[0..ns) with every point
+ * at node k, then the slow row M (y - x_V) / dT + F(y) - F_k = 0 on the
+ * samples along them (broyden), to 0.1 rsweep: the sweep then runs along
+ * a slow path that the sampled solve after it moves by less than rsweep,
+ * and no second sweep is needed (FPU, dT = 1: the change after it
+ * 2e-4 .. 1e-3, against 0.16 .. 0.57 from x_V). */
+static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  const int ns = st->ns;
+  double *xv = pr->b + ns;
+  linear_nodes(pr, st, x);
+  memcpy(xv, x, (size_t)ns * sizeof(double));
+  broyden(pr, st, x, xv, 1, 0.1 * pr->rsweep);
+  pr->presolved = 1;
 }
 
 /* The slow row solved along the swept path (doc/solver.md, "Predictor").
@@ -529,19 +906,21 @@ static void sampled_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * fixed-point update x_s' = dT M^-1 (p_k^s - fs) contracts by about
  * dT^2 |M^-1 hess V| / 3, enough at small dT.  Where the change it makes,
  * r = M |x_s' - x_s| / dT (the slow row's residual on the swept path), is
- * above rstop, the slow row is instead solved by Newton's method with the
- * fast nodes held, the change of the force along the path taken from a
- * sample of its points (sampled_solve, cost independent of p); where that
- * moves x_s by more than rsweep (same measure), the fast nodes are swept
- * again along the new slow path and the slow row solved again.  What the
- * sampled solve leaves out, the response of the fast nodes to x_s and the
+ * above rstop (or after a pre-solve), the slow row is instead solved by
+ * Broyden's method with the fast nodes held, the change of the force along the
+ * path taken from a sample of its points (sampled_solve, cost independent of
+ * p); where that moves x_s by more than rsweep (same measure), the fast nodes
+ * are swept again along the new slow path and the slow row solved again.  What
+ * the sampled solve leaves out, the response of the fast nodes to x_s and the
  * sample's quadrature error, is a small fraction of its change (FPU: about
  * 1e-3).  Every step of this depends on (q_k, p_k) only. */
 static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const int ns = st->ns;
   memcpy(pr->xs, x, (size_t)ns * sizeof(double));
   slow_update(pr, st, x);
-  if (!pr->H || !(slow_change(pr, st, x) > pr->rstop))
+  /* (after the pre-solve the slow row is close, but not to the
+   * tolerance: always solved) */
+  if (!pr->H || !(slow_change(pr, st, x) > (pr->presolved ? 0.0 : pr->rstop)))
     return;
   for (int k = 0; k < MRVI_SLOW_NEWTON_MAX; k++) {
     sampled_solve(pr, st, x);
@@ -554,12 +933,18 @@ static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 }
 
 static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  pr->n_sweeps = 0;
   if (!pr->sweep_ok) {
     mrvi_predict_free_flight(st, x);
     return;
   }
+  pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
   memset(pr->fs, 0, (size_t)st->ns * sizeof(double));
+  if (pr->pre) {
+    memset(pr->gk, 0, (size_t)(st->ns + st->nf) * sizeof(double));
+    memset(pr->fk, 0, (size_t)st->ns * sizeof(double));
+  }
   memset(x, 0, (size_t)st->n_unknowns * sizeof(double));
   for (int c = 0; c < 2; c++) {
     double w = 0.0;
@@ -570,8 +955,16 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     const mrvi_point node = {.cA = 1.0};
     point_gradient(pr, st, x, &node, c);
     axpy(st->ns, w, pr->g, pr->fs);
+    if (pr->pre) { /* for pre_solve */
+      if (c == 0)
+        memcpy(pr->gk, pr->g, (size_t)(st->ns + st->nf) * sizeof(double));
+      axpy(st->ns, pr->wk[c], pr->g, pr->fk);
+    }
   }
   slow_update(pr, st, x);
+  pr->presolved = 0;
+  if (pr->pre && pr->slow_coupled)
+    pre_solve(pr, st, x);
   if (!pr->slow_coupled || st->ns == 0) {
     sweep(pr, st, x, 0);
     return;
@@ -606,3 +999,11 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
   pr->rstop = pow(0.01 * tol, 0.25);
   pr->rsweep = 10.0 * pr->rstop;
 }
+
+int mrvi_predictor_presolve(mrvi_predictor *pr, int on) {
+  const int was = pr->pre;
+  pr->pre = was && on;
+  return was;
+}
+
+int mrvi_predictor_sweeps(const mrvi_predictor *pr) { return pr->n_sweeps; }
