@@ -948,6 +948,12 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
   w->file = H5Fopen(w->path, H5F_ACC_RDWR | H5F_ACC_SWMR_WRITE, fapl);
   if (w->file < 0)
     return fail_h5(w, MRVI_EIO, "cannot open the file for appending");
+  /* A killed SWMR writer can leave the superblock's end of allocation
+   * (EOA) behind the data its flushed metadata points to; appending then
+   * fails with "addr overflow".  Raise the EOA to the file's end (as
+   * h5clear --increment does). */
+  if (H5Fincrement_filesize(w->file, 0) < 0)
+    return fail_h5(w, MRVI_EIO, "cannot extend the file's end of allocation");
   /* From node 0 the run starts afresh: every row is written again. */
   hsize_t keep[N_STREAMS];
   keep[MACRO] = k > 0 ? (hsize_t)(k / w->every) + 1 : 0;
