@@ -720,11 +720,10 @@ static int structured_step(mrvi_integrator *it) {
 static int use_chord(mrvi_integrator *it) {
   if (it->chord_mode == MRVI_CHORD_OFF || !mrvi_blocks_chord_ok(it->blocks))
     return 0;
-  if (it->chord_mode == MRVI_CHORD_ON)
-    return 1;
   const double dT = it->step.dT;
-  return dT * dT * mrvi_blocks_chord_spread(it->blocks, &it->step, it->x) <=
-         MRVI_CHORD_MAX;
+  const double e =
+      dT * dT * mrvi_blocks_chord_spread(it->blocks, &it->step, it->x);
+  return it->chord_mode == MRVI_CHORD_ON || e <= MRVI_CHORD_MAX;
 }
 
 void mrvi_integrator_set_chord(mrvi_integrator *it, int mode) {

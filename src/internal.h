@@ -496,14 +496,16 @@ void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
  * point per micro interval, the points of intervals 1..p-1 have the same
  * weights, the constant part of the matrix is the same in the row blocks
  * from 2 on); then mrvi_blocks_chord(b, 1) makes the next assemblies with
- * jac freeze those Hessians at one point of the step (the middle
- * interval's): the fast row blocks from 2 on are then equal, assembled and
+ * jac freeze those Hessians (the mean of those at the step's first and
+ * last points, mrvi_blocks_chord_spread): the fast row blocks from 2 on are then equal, assembled and
  * factored once.  The residual stays exact. */
 int mrvi_blocks_chord_ok(const mrvi_blocks *b);
 void mrvi_blocks_chord(mrvi_blocks *b, int on);
 /* Largest entry of |H_last - H_first| over the classes whose Hessian is
  * not constant, H at the step's last and first points at x, over the
- * smallest mass (the a-priori measure of the chord matrix's error). */
+ * smallest mass (the a-priori measure of the chord matrix's error); keeps
+ * their mean as the frozen Hessian of the next chord assembly (call it
+ * before mrvi_blocks_chord(b, 1) at the predictor of every step). */
 double mrvi_blocks_chord_spread(mrvi_blocks *b, const mrvi_step *st,
                                 const double *x);
 /* The integrator's choice of the chord matrix on the schur path (tests

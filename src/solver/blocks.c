@@ -74,6 +74,9 @@ struct mrvi_blocks {
    * chord_st): Ass, then per node j = 1..p the column block j - 1 of Asf
    * and the row block j - 1 of Afs (2p + 1). */
   double *fw[2];
+  /* Class c's frozen Hessian: the mean of those at its first and last
+   * points (mrvi_blocks_chord_spread; nz x nz each). */
+  double *Hz[2];
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -99,6 +102,7 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->Hp);
   for (int c = 0; c < 2; c++) {
     free(b->fw[c]);
+    free(b->Hz[c]);
     free(b->g0[c]);
     free(b->Hq[c]);
   }
@@ -229,7 +233,8 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     const mrvi_point *pts = st->pts[c];
     const int p = b->p;
     double *fw = b->fw[c] = calloc(2 * (size_t)p + 1, sizeof(double));
-    if (!fw) {
+    b->Hz[c] = calloc(nz0 * nz0, sizeof(double));
+    if (!fw || !b->Hz[c]) {
       mrvi_blocks_free(b);
       return MRVI_ENOMEM;
     }
@@ -725,6 +730,26 @@ ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
     affine_grad_k(g0, Hq, b->zp, G, ns, ns + nf);
 }
 
+/* The chord matrix's Hessian of loop class c (with W if the points are
+ * the same: h0, h1 as in assemble_k), the one mrvi_blocks_chord_spread
+ * kept, into the blocks (a call: inlined, it crowded the registers of the
+ * assembly loop). */
+static __attribute__((noinline)) void
+frozen_point(mrvi_blocks *b, const mrvi_step *st, const double *x, int c,
+             int h0, int h1, int Hs, int Hf) {
+  const size_t n2 = (size_t)(b->ns + b->nf) * (size_t)(b->ns + b->nf);
+  const double *H0 = h0 ? b->Hz[c] : NULL,
+               *H1 = h1 && b->same_pts ? b->Hz[1] : NULL;
+  if (H0 && H1)
+    for (size_t i = 0; i < n2; i++)
+      b->H[i] = H0[i] + H1[i];
+  else
+    memcpy(b->H, H0 ? H0 : H1, n2 * sizeof(double));
+  (void)st;
+  (void)x;
+  frozen_hessian(b, st->pts[c], b->fw[b->quad[c] ? 1 : c], Hs, Hf);
+}
+
 /* The residual (with the momenta's potential parts) and, if jac, the
  * potential part of the Newton matrix (mrvi_blocks_assemble). */
 ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
@@ -814,14 +839,8 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
     }
     if (defer)
       interval_hessians(b, st->pts[c], Hs, Hf);
-    if (frozen) { /* at the middle interval's point */
-      point_config_k(b, st, x, &st->pts[c][p / 2], hs, hf, ns, nf);
-      memset(b->H, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      class_grad_k(b, c, b->G, h0 ? b->H : NULL, ns, nf);
-      if (same)
-        class_grad_k(b, 1, b->G, h1 ? b->H : NULL, ns, nf);
-      frozen_hessian(b, st->pts[c], b->fw[b->quad[c] ? 1 : c], Hs, Hf);
-    }
+    if (frozen)
+      frozen_point(b, st, x, c, h0, h1, Hs, Hf);
   }
 }
 
@@ -875,17 +894,21 @@ double mrvi_blocks_chord_spread(mrvi_blocks *b, const mrvi_step *st,
   for (int c = 0; c < 2; c++) {
     if (b->quad[c] || st->n_pts[c] < 2)
       continue;
-    /* H at the last point into H, then the first point's subtracted */
+    /* H at the last point into Hz, then the first point's: their
+     * difference, and their mean kept in Hz */
+    double *Hz = b->Hz[c];
+    if (!Hz)
+      return INFINITY;
     point_config(b, st, x, &st->pts[c][st->n_pts[c] - 1]);
     class_hessian(b, c);
-    double *Hl = b->Hp; /* (scratch here: allocated with chord_st) */
-    if (!Hl)
-      return INFINITY;
-    memcpy(Hl, b->H, n2 * sizeof(double));
+    memcpy(Hz, b->H, n2 * sizeof(double));
     point_config(b, st, x, &st->pts[c][0]);
     class_hessian(b, c);
-    for (size_t i = 0; i < n2; i++)
-      spread = fmax(spread, fabs(b->H[i] - Hl[i]));
+    for (size_t i = 0; i < n2; i++) {
+      const double d = fabs(b->H[i] - Hz[i]);
+      spread = d > spread ? d : spread;
+      Hz[i] = 0.5 * (Hz[i] + b->H[i]);
+    }
   }
   double mmin = INFINITY;
   for (int i = 0; i < b->ns; i++)
