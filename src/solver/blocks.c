@@ -720,8 +720,12 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
 ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
                                 double *H, const int ns, const int nf) {
   const double *restrict Hq = b->Hq[c], *restrict g0 = b->g0[c];
-  if (!Hq || H) {
+  if (H) {
     mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, H, ns + nf, 1.0);
+    return;
+  }
+  if (!Hq) { /* (the same gradient, by the kernels without a Hessian) */
+    mrvi_terms_grad(b->kc[c], b->zp, G);
     return;
   }
   if (b->has_s[c]) /* (each with constant bounds) */
