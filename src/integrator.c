@@ -39,6 +39,7 @@ struct mrvi_integrator {
   double *mu_h;                /* projection impulse / h at the current node */
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;
+  int chord_mode;      /* schur path: MRVI_CHORD_AUTO, _OFF or _ON */
   long roundoff_steps; /* steps accepted at the roundoff floor above tol */
   double last_residual;
   double t_assemble, t_solve; /* over the timed steps */
@@ -55,6 +56,14 @@ static int fail(mrvi_integrator *it, int status, const char *fmt, ...)
  * tolerance at which such updates stop. */
 #define MRVI_REUSE_RATE 0.1
 #define MRVI_REUSE_TIGHTEN 0.01
+
+/* Largest a-priori error measure dT^2 |H_last - H_first| / m_min of the
+ * chord matrix (frozen Hessians, schur path) for which the first update of
+ * a step uses it (doc/solver.md, "Newton details"): FPU, dt = 0.001, the
+ * measure is 1e-5 at dT = 0.01, where one chord update contracts the
+ * residual by 5e-7 (as exact Newton lands, below 0.01 tol), and 1e-2 at
+ * dT = 0.1, where it contracts by 1e-4..1e-3 and two updates are needed. */
+#define MRVI_CHORD_MAX 1e-4
 
 /* The assembly and solve times (mrvi_integrator_timing) are measured on
  * one step in MRVI_TIME_EVERY and scaled to all steps: a clock read costs
@@ -532,7 +541,10 @@ static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
   mrvi_step *st = &it->step;
   int s = MRVI_OK;
   if (fresh && !jac_at_x) {
-    /* The Jacobian at x (the residual is recomputed with it). */
+    /* The Jacobian at x (the residual is recomputed with it); exact: a
+     * refactorisation follows an update that did not contract enough. */
+    if (it->blocks)
+      mrvi_blocks_chord(it->blocks, 0);
     if ((s = evaluate(it, 1, msg, len)) < 0)
       return s;
   }
@@ -703,6 +715,21 @@ static int structured_step(mrvi_integrator *it) {
   return finish_step(it);
 }
 
+/* Whether the first Newton matrix of a schur step is the chord matrix
+ * (doc/solver.md, "Newton details"). */
+static int use_chord(mrvi_integrator *it) {
+  if (it->chord_mode == MRVI_CHORD_OFF || !mrvi_blocks_chord_ok(it->blocks))
+    return 0;
+  const double dT = it->step.dT;
+  const double e =
+      dT * dT * mrvi_blocks_chord_spread(it->blocks, &it->step, it->x);
+  return it->chord_mode == MRVI_CHORD_ON || e <= MRVI_CHORD_MAX;
+}
+
+void mrvi_integrator_set_chord(mrvi_integrator *it, int mode) {
+  it->chord_mode = mode;
+}
+
 int mrvi_integrator_step(mrvi_integrator *it) {
   if (it->sweep)
     return structured_step(it);
@@ -721,6 +748,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   predict(it);
   memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;
+  if (it->blocks)
+    mrvi_blocks_chord(it->blocks, use_chord(it));
   /* The first update needs the Jacobian at the predictor: assembled with
    * its residual. */
   int s = evaluate(it, 1, msg, sizeof msg);

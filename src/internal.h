@@ -503,6 +503,28 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
+/* Chord matrix (doc/solver.md, "Newton details"): 1 if the step's
+ * structure admits it (every class whose Hessian is not constant has one
+ * point per micro interval, the points of intervals 1..p-1 have the same
+ * weights, the constant part of the matrix is the same in the row blocks
+ * from 2 on); then mrvi_blocks_chord(b, 1) makes the next assemblies with
+ * jac freeze those Hessians (the mean of those at the step's first and
+ * last points, mrvi_blocks_chord_spread): the fast row blocks from 2 on are then equal, assembled and
+ * factored once.  The residual stays exact. */
+int mrvi_blocks_chord_ok(const mrvi_blocks *b);
+void mrvi_blocks_chord(mrvi_blocks *b, int on);
+/* Largest entry of |H_last - H_first| over the classes whose Hessian is
+ * not constant, H at the step's last and first points at x, over the
+ * smallest mass (the a-priori measure of the chord matrix's error); keeps
+ * their mean as the frozen Hessian of the next chord assembly (call it
+ * before mrvi_blocks_chord(b, 1) at the predictor of every step). */
+double mrvi_blocks_chord_spread(mrvi_blocks *b, const mrvi_step *st,
+                                const double *x);
+/* The integrator's choice of the chord matrix on the schur path (tests
+ * force either): by its rule (auto, the default), never, or for the first
+ * update of every step where the structure admits it. */
+enum { MRVI_CHORD_AUTO = 0, MRVI_CHORD_OFF = 1, MRVI_CHORD_ON = 2 };
+void mrvi_integrator_set_chord(mrvi_integrator *it, int mode);
 
 /* The same elimination with iterative solves for blocks beyond the dense
  * limit (solver/schur_krylov.c): GMRES on the Schur complement of the slow

@@ -52,11 +52,14 @@ static mrvi_system *load(const char *rel, const char *scheme, int p,
 
 typedef struct run_out {
   double q[N_STEPS + 1][64], p[N_STEPS + 1][64];
-  double micro[N_STEPS][256];
+  double micro[N_STEPS][320];
   int iters[N_STEPS];
   const char *path;
   int n, nmicro, ok;
 } run_out;
+
+/* The integrator's chord mode for run() (MRVI_CHORD_AUTO by default). */
+static int run_chord = MRVI_CHORD_AUTO;
 
 static void run(const mrvi_system *sys, run_out *o) {
   mrvi_integrator *it = NULL;
@@ -65,7 +68,7 @@ static void run(const mrvi_system *sys, run_out *o) {
   const mrvi_model *m = sys->model;
   o->n = mrvi_model_n(m);
   o->nmicro = sys->settings.micro_steps * m->n_fast;
-  if (o->n > 64 || o->nmicro > 256) {
+  if (o->n > 64 || o->nmicro > 320) {
     CHECK(0, "test buffers too small");
     return;
   }
@@ -73,6 +76,7 @@ static void run(const mrvi_system *sys, run_out *o) {
     CHECK(0, "create: %s", msg);
     return;
   }
+  mrvi_integrator_set_chord(it, run_chord);
   o->path = mrvi_integrator_solver_path(it);
   memcpy(o->q[0], mrvi_integrator_q(it), (size_t)o->n * sizeof(double));
   memcpy(o->p[0], mrvi_integrator_p(it), (size_t)o->n * sizeof(double));
@@ -785,7 +789,125 @@ static void chain_case(int nc) {
     }
 }
 
+/* FPU with the given scheme, dT, p and tolerance. */
+static mrvi_system *fpu_at(const char *scheme, const char *dT, int p,
+                           const char *tol) {
+  char ov[4][64];
+  snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", scheme);
+  snprintf(ov[1], sizeof ov[1], "integrator.macro_step=%s", dT);
+  snprintf(ov[2], sizeof ov[2], "integrator.micro_steps=%d", p);
+  snprintf(ov[3], sizeof ov[3], "integrator.newton.tolerance=%s", tol);
+  const char *ovp[4] = {ov[0], ov[1], ov[2], ov[3]};
+  mrvi_system *sys = NULL;
+  char msg[512];
+  CHECK(mrvi_system_load(test_source_path("systems/fpu.yaml"), ovp, 4, &sys,
+                         msg, sizeof msg) == 0,
+        "fpu %s: %s", scheme, msg);
+  return sys;
+}
+
+static int iters_total(const run_out *o) {
+  int n = 0;
+  for (int k = 0; k < N_STEPS; k++)
+    n += o->iters[k];
+  return n;
+}
+
+/* The chord matrix of the schur path (frozen Hessians, doc/solver.md
+ * "Newton details"): forced on and off, the same trajectory as the general
+ * path within 1e-10 (tolerance 1e-12; the residual is exact, only the
+ * convergence differs) for the three implicit schemes at p = 5 and 10 --
+ * and not bitwise the same as exact Newton, so the chord matrix was used.
+ * At tolerance 1e-9: at dT = 0.01, p = 10 the chord update lands in one
+ * update per step (as exact Newton) and the rule takes it (auto equals
+ * forced on, bit for bit); at dT = 0.1, p = 100 the chord needs two
+ * updates in some step (its contraction, about dT^2 |Delta hess V| / m,
+ * measured 1e-4 .. 1e-3 against 5e-7 at dT = 0.01), so the rule falls
+ * back to exact Newton there (auto equals forced off, bit for bit, one
+ * update per step).  At p = 1 the chord does not apply (forced on equals
+ * off). */
+static void test_chord(void) {
+  static const char *const schemes[] = {
+      "midpoint-midpoint", "trapezoidal-midpoint", "trapezoidal-trapezoidal"};
+  static run_out g, on, off, au;
+  for (int sc = 0; sc < 3; sc++)
+    for (int pi = 0; pi < 2; pi++) {
+      const int p = pi ? 10 : 5;
+      mrvi_system *sg =
+          load("systems/fpu.yaml", schemes[sc], p, "multipliers", "general");
+      mrvi_system *sa =
+          load("systems/fpu.yaml", schemes[sc], p, "multipliers", "auto");
+      if (!sg || !sa) {
+        mrvi_system_free(sg);
+        mrvi_system_free(sa);
+        continue;
+      }
+      run(sg, &g);
+      run_chord = MRVI_CHORD_ON;
+      run(sa, &on);
+      run_chord = MRVI_CHORD_OFF;
+      run(sa, &off);
+      run_chord = MRVI_CHORD_AUTO;
+      if (g.ok && on.ok && off.ok) {
+        CHECK(strcmp(on.path, "schur") == 0, "path %s", on.path);
+        const double d_on = rel_diff(&g, &on), d_off = rel_diff(&g, &off);
+        CHECK(d_on <= 1e-10 && d_off <= 1e-10,
+              "fpu %s p=%d: chord vs general %.2e, exact vs general %.2e",
+              schemes[sc], p, d_on, d_off);
+        CHECK(rel_diff(&on, &off) > 0.0, "fpu %s p=%d: chord not used",
+              schemes[sc], p);
+      }
+      mrvi_system_free(sg);
+      mrvi_system_free(sa);
+    }
+  /* p = 1: one point per interval but no equal row blocks to share; the
+   * structure is refused and forcing the chord changes nothing. */
+  mrvi_system *s1 =
+      load("systems/fpu.yaml", "midpoint-midpoint", 1, "multipliers", "auto");
+  if (s1) {
+    run_chord = MRVI_CHORD_ON;
+    run(s1, &on);
+    run_chord = MRVI_CHORD_OFF;
+    run(s1, &off);
+    run_chord = MRVI_CHORD_AUTO;
+    CHECK(on.ok && off.ok && rel_diff(&on, &off) == 0.0,
+          "fpu p=1: the chord was used");
+    mrvi_system_free(s1);
+  }
+  for (int sc = 0; sc < 3; sc++)
+    for (int big = 0; big < 2; big++) {
+      mrvi_system *sys =
+          fpu_at(schemes[sc], big ? "0.1" : "0.01", big ? 100 : 10, "1e-9");
+      if (!sys)
+        continue;
+      run_chord = MRVI_CHORD_ON;
+      run(sys, &on);
+      run_chord = MRVI_CHORD_OFF;
+      run(sys, &off);
+      run_chord = MRVI_CHORD_AUTO;
+      run(sys, &au);
+      mrvi_system_free(sys);
+      if (!on.ok || !off.ok || !au.ok)
+        continue;
+      const int n_on = iters_total(&on), n_off = iters_total(&off),
+                n_au = iters_total(&au);
+      const run_out *same = big ? &off : &on;
+      CHECK(rel_diff(&au, same) == 0.0,
+            "fpu %s dT=%s: the rule did not take %s", schemes[sc],
+            big ? "0.1" : "0.01", big ? "exact Newton" : "the chord");
+      CHECK(n_off == N_STEPS && n_au == N_STEPS,
+            "fpu %s: %d updates (exact), %d (auto) in %d steps", schemes[sc],
+            n_off, n_au, N_STEPS);
+      CHECK(big ? n_on > N_STEPS : n_on == N_STEPS,
+            "fpu %s dT=%s: %d chord updates in %d steps", schemes[sc],
+            big ? "0.1" : "0.01", n_on, N_STEPS);
+      printf("fpu %s dT=%s: updates in %d steps: chord %d, exact %d, auto %d\n",
+             schemes[sc], big ? "0.1" : "0.01", N_STEPS, n_on, n_off, n_au);
+    }
+}
+
 int main(void) {
+  test_chord();
   test_linsolve_backends();
   test_predictor();
   test_predictor_large_steps();

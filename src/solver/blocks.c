@@ -64,6 +64,19 @@ struct mrvi_blocks {
    * row block after the points (interval_hessians_k). */
   int per_iv[2];
   double *Hp;
+  /* Chord matrix (mrvi_blocks_chord): the structure admits it (chord_st;
+   * const_uni: the constant part's fast row blocks from 2 on are equal,
+   * known after the first assembly), it is requested (chord), and the
+   * blocks as last assembled hold it (uniform: the fast row blocks from 2
+   * on are those of row block 2, which alone is filled and factored). */
+  int chord_st, const_uni, chord, uniform;
+  /* Class c's weights of the frozen Hessian in the slow blocks (set with
+   * chord_st): Ass, then per node j = 1..p the column block j - 1 of Asf
+   * and the row block j - 1 of Afs (2p + 1). */
+  double *fw[2];
+  /* Class c's frozen Hessian: the mean of those at its first and last
+   * points (mrvi_blocks_chord_spread; nz x nz each). */
+  double *Hz[2];
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -88,6 +101,8 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->cblk);
   free(b->Hp);
   for (int c = 0; c < 2; c++) {
+    free(b->fw[c]);
+    free(b->Hz[c]);
     free(b->g0[c]);
     free(b->Hq[c]);
   }
@@ -196,6 +211,42 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
       !(b->Hp = calloc((size_t)b->p * nz0 * nz0, sizeof(double)))) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
+  }
+  /* Chord: every class whose Hessian is not constant has one point per
+   * interval, and the points of intervals 1..p-1 the same weights (row
+   * block m >= 2 takes points m - 1 and m). */
+  b->chord_st = b->p >= 2 && nz0 > 0;
+  for (int c = 0; c < 2; c++) {
+    if (b->quad[c])
+      continue;
+    if (!b->per_iv[c])
+      b->chord_st = 0;
+    for (int ip = 2; b->chord_st && ip < st->n_pts[c]; ip++) {
+      const mrvi_point *a = &st->pts[c][1], *q = &st->pts[c][ip];
+      if (a->w != q->w || a->cA != q->cA || a->cB != q->cB)
+        b->chord_st = 0;
+    }
+  }
+  for (int c = 0; c < 2 && b->chord_st; c++) {
+    if (b->quad[c])
+      continue;
+    const mrvi_point *pts = st->pts[c];
+    const int p = b->p;
+    double *fw = b->fw[c] = calloc(2 * (size_t)p + 1, sizeof(double));
+    b->Hz[c] = calloc(nz0 * nz0, sizeof(double));
+    if (!fw || !b->Hz[c]) {
+      mrvi_blocks_free(b);
+      return MRVI_ENOMEM;
+    }
+    for (int j = 0; j < p; j++) {
+      const mrvi_point *P = &pts[j], *N = j + 1 < p ? &pts[j + 1] : NULL;
+      const mrvi_point *Q = j >= 1 ? &pts[j - 1] : NULL;
+      fw[0] -= P->w * P->a0 * P->a1;
+      /* column block j: point j by cB, point j + 1 by cA; row block j:
+       * point j by cA, point j - 1 by cB */
+      fw[1 + 2 * j] = -P->w * P->a0 * P->cB - (N ? N->w * N->a0 * N->cA : 0.0);
+      fw[2 + 2 * j] = -P->w * P->cA * P->a1 - (Q ? Q->w * Q->cB * Q->a1 : 0.0);
+    }
   }
   for (int i = 0; i < b->ns; i++)
     b->ms[i] = m->mass[m->slow_index[i]];
@@ -316,50 +367,66 @@ ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
   }
 }
 
+/* Row block m of the block forward sweep (D factored, with its pivots and
+ * reciprocal pivots): x_m <- D^-1 (x_m - L1 x_{m-1} - L2 x_{m-2}). */
+ALWAYS_INLINE void
+sweep_row_k(const int m, double *restrict X, const double *restrict L1,
+            const double *restrict L2, const double *restrict D, const int *piv,
+            const double *dinv, const int nf, const int nrhs) {
+  const int row = nf * nrhs, dense = nf <= 4;
+  double *restrict xm = X + (size_t)m * (size_t)row;
+  const double *restrict x1 = xm - row, *restrict x2 = x1 - row;
+  if (dense && m >= 1) {
+    /* x_m -= L1 x_{m-1} + L2 x_{m-2}: the products summed apart from x_m
+     * (the L2 part does not wait for x_{m-1}) */
+    UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++) {
+      double s1 = 0.0, s2 = 0.0;
+      UNROLL for (int k = 0; k < nf; k++) s1 +=
+          L1[i * nf + k] * x1[k * nrhs + c];
+      if (m >= 2)
+        UNROLL for (int k = 0; k < nf; k++) s2 +=
+            L2[i * nf + k] * x2[k * nrhs + c];
+      xm[i * nrhs + c] -= s1 + s2;
+    }
+  } else if (m >= 1) {
+    UNROLL for (int d = 1; d <= 2 && d <= m; d++) {
+      const double *restrict L = d == 1 ? L1 : L2;
+      const double *restrict xc = xm - d * row;
+      for (int i = 0; i < nf; i++)
+        for (int k = 0; k < nf; k++) {
+          const double l = L[i * nf + k];
+          if (l != 0.0)
+            for (int c = 0; c < nrhs; c++)
+              xm[i * nrhs + c] -= l * xc[k * nrhs + c];
+        }
+    }
+  }
+  if (dense)
+    lu_solve_k(nf, D, piv, dinv, xm, nrhs);
+  else
+    mrvi_dense_lu_solve(nf, D, piv, xm, nrhs);
+}
+
 /* X (p nf x nrhs) <- A_ff^-1 X by a block forward sweep (D factored):
  * X_m <- D_m^-1 (X_m - L1_m X_{m-1} - L2_m X_{m-2}).  Blocks beyond the
- * small sizes skip zero entries of L1, L2 (sparse couplings of networks). */
+ * small sizes skip zero entries of L1, L2 (sparse couplings of networks).
+ * Uniform blocks (chord matrix): the row blocks from 2 on use row block
+ * 2's. */
 ALWAYS_INLINE void sweep_k(const mrvi_blocks *b, double *restrict X,
                            const int nf, const int nrhs) {
-  const int blk = nf * nf, row = nf * nrhs, dense = nf <= 4;
-  for (int m = 0; m < b->p; m++) {
-    double *restrict xm = X + (size_t)m * (size_t)row;
-    const double *restrict L1 = b->L1 + (size_t)m * blk;
-    const double *restrict L2 = b->L2 + (size_t)m * blk;
-    const double *restrict x1 = xm - row, *restrict x2 = x1 - row;
-    if (dense && m >= 1) {
-      /* x_m -= L1 x_{m-1} + L2 x_{m-2}: the products summed apart from x_m
-       * (the L2 part does not wait for x_{m-1}) */
-      UNROLL for (int i = 0; i < nf; i++)
-          UNROLL for (int c = 0; c < nrhs; c++) {
-        double s1 = 0.0, s2 = 0.0;
-        UNROLL for (int k = 0; k < nf; k++) s1 +=
-            L1[i * nf + k] * x1[k * nrhs + c];
-        if (m >= 2)
-          UNROLL for (int k = 0; k < nf; k++) s2 +=
-              L2[i * nf + k] * x2[k * nrhs + c];
-        xm[i * nrhs + c] -= s1 + s2;
-      }
-    } else if (m >= 1) {
-      UNROLL for (int d = 1; d <= 2 && d <= m; d++) {
-        const double *restrict L = d == 1 ? L1 : L2;
-        const double *restrict xc = xm - d * row;
-        for (int i = 0; i < nf; i++)
-          for (int k = 0; k < nf; k++) {
-            const double l = L[i * nf + k];
-            if (l != 0.0)
-              for (int c = 0; c < nrhs; c++)
-                xm[i * nrhs + c] -= l * xc[k * nrhs + c];
-          }
-      }
-    }
-    if (dense)
-      lu_solve_k(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * nf,
-                 b->dinv + (size_t)m * nf, xm, nrhs);
-    else
-      mrvi_dense_lu_solve(nf, b->D + (size_t)m * blk, b->piv + (size_t)m * nf,
-                          xm, nrhs);
-  }
+  const size_t blk = (size_t)nf * (size_t)nf;
+  const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
+  for (int m = 0; m < last; m++)
+    sweep_row_k(m, X, b->L1 + m * blk, b->L2 + m * blk, b->D + m * blk,
+                b->piv + (size_t)m * nf, b->dinv + (size_t)m * nf, nf, nrhs);
+  if (last == p)
+    return;
+  const double *restrict L1 = b->L1 + 2 * blk, *restrict L2 = b->L2 + 2 * blk,
+                         *restrict D = b->D + 2 * blk;
+  const int *piv = b->piv + 2 * nf;
+  const double *dinv = b->dinv + 2 * nf;
+  for (int m = 3; m < p; m++)
+    sweep_row_k(m, X, L1, L2, D, piv, dinv, nf, nrhs);
 }
 
 static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
@@ -536,6 +603,47 @@ interval_hessians(mrvi_blocks *b, const mrvi_point *pts, int has_s, int has_f) {
         SMALL(b->nf, NF, interval_hessians_k(b, pts, has_s, has_f, NS, NF)));
 }
 
+/* The chord matrix of a class with one point per interval: its Hessian H,
+ * frozen at one point of the step, for every point (the entries of
+ * interval_hessians_k with H in place of each point's): the slow blocks
+ * in full (their weights a0, a1 vary along the step), the fast blocks of
+ * row blocks 0 .. min(p, 3) - 1 only (the rows from 2 on are equal). */
+ALWAYS_INLINE void frozen_hessian_k(mrvi_blocks *b, const mrvi_point *pts,
+                                    const double *restrict fw, int has_s,
+                                    int has_f, const int ns, const int nf) {
+  const int p = b->p, nz = ns + nf, nF = p * nf;
+  const size_t blk = (size_t)nf * (size_t)nf;
+  const double *H = b->H, *Hff = H + (size_t)ns * nz + ns;
+  if (has_s) {
+    add_scaled_k(b->Ass, ns, H, nz, ns, ns, fw[0]);
+    for (int j = 0; has_f && j < p; j++) {
+      add_scaled_k(b->Asf + (size_t)j * nf, nF, H + ns, nz, ns, nf,
+                   fw[1 + 2 * j]);
+      add_scaled_k(b->Afs + (size_t)j * nf * (size_t)ns, ns,
+                   H + (size_t)ns * nz, nz, nf, ns, fw[2 + 2 * j]);
+    }
+  }
+  if (!has_f)
+    return;
+  for (int m = 0; m < p && m < 3; m++) {
+    const mrvi_point *P = &pts[m], *Q = m >= 1 ? &pts[m - 1] : NULL;
+    add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf,
+                 -P->w * P->cA * P->cB);
+    if (Q)
+      add_scaled_k(b->L1 + (size_t)m * blk, nf, Hff, nz, nf, nf,
+                   -Q->w * Q->cB * Q->cB - P->w * P->cA * P->cA);
+    if (m >= 2)
+      add_scaled_k(b->L2 + (size_t)m * blk, nf, Hff, nz, nf, nf,
+                   -Q->w * Q->cB * Q->cA);
+  }
+}
+
+static void frozen_hessian(mrvi_blocks *b, const mrvi_point *pts,
+                           const double *fw, int has_s, int has_f) {
+  SMALL(b->ns, NS,
+        SMALL(b->nf, NF, frozen_hessian_k(b, pts, fw, has_s, has_f, NS, NF)));
+}
+
 static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
   SMALL(b->ns, NS,
         SMALL(b->nf, NF,
@@ -612,14 +720,38 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
 ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
                                 double *H, const int ns, const int nf) {
   const double *restrict Hq = b->Hq[c], *restrict g0 = b->g0[c];
-  if (!Hq || H) {
+  if (H) {
     mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, H, ns + nf, 1.0);
+    return;
+  }
+  if (!Hq) { /* (the same gradient, by the kernels without a Hessian) */
+    mrvi_terms_grad(b->kc[c], b->zp, G);
     return;
   }
   if (b->has_s[c]) /* (each with constant bounds) */
     affine_grad_k(g0, Hq, b->zp, G, 0, ns + nf);
   else
     affine_grad_k(g0, Hq, b->zp, G, ns, ns + nf);
+}
+
+/* The chord matrix's Hessian of loop class c (with W if the points are
+ * the same: h0, h1 as in assemble_k), the one mrvi_blocks_chord_spread
+ * kept, into the blocks (a call: inlined, it crowded the registers of the
+ * assembly loop). */
+static __attribute__((noinline)) void
+frozen_point(mrvi_blocks *b, const mrvi_step *st, const double *x, int c,
+             int h0, int h1, int Hs, int Hf) {
+  const size_t n2 = (size_t)(b->ns + b->nf) * (size_t)(b->ns + b->nf);
+  const double *H0 = h0 ? b->Hz[c] : NULL,
+               *H1 = h1 && b->same_pts ? b->Hz[1] : NULL;
+  if (H0 && H1)
+    for (size_t i = 0; i < n2; i++)
+      b->H[i] = H0[i] + H1[i];
+  else
+    memcpy(b->H, H0 ? H0 : H1, n2 * sizeof(double));
+  (void)st;
+  (void)x;
+  frozen_hessian(b, st->pts[c], b->fw[b->quad[c] ? 1 : c], Hs, Hf);
 }
 
 /* The residual (with the momenta's potential parts) and, if jac, the
@@ -661,8 +793,10 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
     const int c1 = same ? 1 : c;
     const int h0 = jac && !b->quad[c], h1 = same && jac && !b->quad[1];
     const int hess = h0 || h1;
-    /* one point per interval: Hessians kept, added after the points */
-    const int defer = hess && b->per_iv[c];
+    /* chord: the Hessian at one point of the step, added after the
+     * points; one point per interval: Hessians kept, added after them */
+    const int frozen = hess && b->uniform;
+    const int defer = hess && !frozen && b->per_iv[c];
     /* The rows of a rate the classes have no inputs of get no gradient. */
     const int hs = b->has_s[c] || b->has_s[c1],
               hf = b->has_f[c] || b->has_f[c1];
@@ -675,11 +809,12 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
       double *restrict G = b->G;
       UNROLL for (int i = 0; i < nz; i++) G[i] = 0.0;
       double *Ht = defer ? b->Hp + (size_t)ip * (size_t)nz * (size_t)nz : b->H;
-      if (hess)
+      const int ph = hess && !frozen; /* this point's Hessian */
+      if (ph)
         memset(Ht, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      class_grad_k(b, c, G, h0 ? Ht : NULL, ns, nf);
+      class_grad_k(b, c, G, ph && h0 ? Ht : NULL, ns, nf);
       if (same)
-        class_grad_k(b, 1, G, h1 ? Ht : NULL, ns, nf);
+        class_grad_k(b, 1, G, ph && h1 ? Ht : NULL, ns, nf);
       /* The point's factors in locals: R may alias nothing of pt, but the
        * compiler cannot know. */
       const double w = pt->w, a0 = pt->a0, a1 = pt->a1, cA = pt->cA,
@@ -703,12 +838,27 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
           UNROLL for (int f = 0; f < nf; f++) pm[f] -= w * cB * Gf[f];
         }
       }
-      if (hess && !defer)
+      if (ph && !defer)
         point_hessian_k(b, pt, Hs, Hf, ns, nf);
     }
     if (defer)
       interval_hessians(b, st->pts[c], Hs, Hf);
+    if (frozen)
+      frozen_point(b, st, x, c, h0, h1, Hs, Hf);
   }
+}
+
+/* 1 if the constant part's fast row blocks m >= 2 equal row block 2's. */
+static int const_uniform(const mrvi_blocks *b) {
+  const size_t blk = (size_t)b->nf * (size_t)b->nf;
+  const double *D = b->cblk + (b->D - b->blk), *L1 = b->cblk + (b->L1 - b->blk),
+               *L2 = b->cblk + (b->L2 - b->blk);
+  for (int m = 3; m < b->p; m++)
+    if (memcmp(D + m * blk, D + 2 * blk, blk * sizeof(double)) ||
+        memcmp(L1 + m * blk, L1 + 2 * blk, blk * sizeof(double)) ||
+        memcmp(L2 + m * blk, L2 + 2 * blk, blk * sizeof(double)))
+      return 0;
+  return 1;
 }
 
 int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
@@ -722,14 +872,54 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
     constant_part(b, st, x);
     copy_blocks(b, 1);
     b->const_ok = 1;
+    b->const_uni = const_uniform(b);
   } else if (jac) {
     copy_blocks(b, 2);
   }
+  if (jac)
+    b->uniform = b->chord && b->chord_st && b->const_uni;
   SMALL(ns, NS, SMALL(nf, NF, assemble_k(b, st, x, R, jac, NS, NF)));
   if (st->f_rows) /* control forces: constants of the step */
     for (int i = 0; i < st->n_unknowns; i++)
       R[i] += st->f_rows[i];
   return MRVI_OK;
+}
+
+int mrvi_blocks_chord_ok(const mrvi_blocks *b) {
+  return b->chord_st && (!b->const_ok || b->const_uni);
+}
+
+void mrvi_blocks_chord(mrvi_blocks *b, int on) { b->chord = on; }
+
+double mrvi_blocks_chord_spread(mrvi_blocks *b, const mrvi_step *st,
+                                const double *x) {
+  const size_t nz = (size_t)(b->ns + b->nf), n2 = nz * nz;
+  double spread = 0.0;
+  for (int c = 0; c < 2; c++) {
+    if (b->quad[c] || st->n_pts[c] < 2)
+      continue;
+    /* H at the last point into Hz, then the first point's: their
+     * difference, and their mean kept in Hz */
+    double *Hz = b->Hz[c];
+    if (!Hz)
+      return INFINITY;
+    point_config(b, st, x, &st->pts[c][st->n_pts[c] - 1]);
+    class_hessian(b, c);
+    memcpy(Hz, b->H, n2 * sizeof(double));
+    point_config(b, st, x, &st->pts[c][0]);
+    class_hessian(b, c);
+    for (size_t i = 0; i < n2; i++) {
+      const double d = fabs(b->H[i] - Hz[i]);
+      spread = d > spread ? d : spread;
+      Hz[i] = 0.5 * (Hz[i] + b->H[i]);
+    }
+  }
+  double mmin = INFINITY;
+  for (int i = 0; i < b->ns; i++)
+    mmin = fmin(mmin, b->ms[i]);
+  for (int i = 0; i < b->nf; i++)
+    mmin = fmin(mmin, b->mf[i]);
+  return spread / mmin;
 }
 
 /* S = A_ss - A_sf Y. */
@@ -751,7 +941,8 @@ static int factor_blocks(mrvi_blocks *b) {
   const int ns = b->ns, nf = b->nf, p = b->p;
   const size_t blk = (size_t)nf * (size_t)nf;
   int bad = 0;
-  for (int m = 0; m < p && !bad; m++) {
+  const int nfac = b->uniform && p > 3 ? 3 : p; /* (uniform: rows 0..2) */
+  for (int m = 0; m < nfac && !bad; m++) {
     double *Dm = b->D + (size_t)m * blk;
     int *pm = b->piv + (size_t)m * (size_t)nf;
     SMALL(nf, NF, bad = lu_factor_k(NF, Dm, pm, b->dinv + (size_t)m * nf) < 0);
@@ -773,6 +964,7 @@ int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
     b->assembled = 0;
     return factor_blocks(b);
   }
+  b->uniform = 0;
   const int sc = scatter(b, st);
   return sc < 0 ? sc : factor_blocks(b);
 }
