@@ -47,6 +47,7 @@ struct mrvi_sweep {
    * (wr = w cB) of interval m */
   int nl, nr;
   double wl[2], wr[2];
+  int tight; /* explicit, p = 1, one point at each node (explicit_p1) */
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
@@ -240,6 +241,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->wr[sw->nr++] = pt->w * pt->cB;
     sw->n_w++;
   }
+  sw->tight = !sw->implicit && sw->p == 1 && sw->nl == 1 && sw->nr == 1;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
   int max_n_in = 1;
@@ -994,9 +996,6 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double dT = st->dT;
   *iterations = 0;
   *residual = 0.0;
-  if (!sw->implicit && p == 1 && sw->nl == 1 && sw->nr == 1 && !st->f_rows &&
-      !st->f_end)
-    return explicit_p1(sw, st, x, ps1, pf, msg, len, ns, nf);
   /* The first micro step's predictor holds no implicit force: nothing is
    * carried from the last step, so a step depends on (q_k, p_k) alone. */
   if (sw->implicit)
@@ -1063,6 +1062,17 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
       pe[f] += fe[ns + f];
   }
   return end_check(sw, x, xe, ps1, pe, msg, len, ns, nf);
+}
+
+int mrvi_sweep_tight(const mrvi_sweep *sw) { return sw->tight; }
+
+int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                           double *ps1, double *pf, char *msg, size_t len) {
+  int s = MRVI_OK;
+  SMALL(
+      sw->ns, NS,
+      SMALL(sw->nf, NF, s = explicit_p1(sw, st, x, ps1, pf, msg, len, NS, NF)));
+  return s;
 }
 
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
