@@ -16,6 +16,7 @@ struct mrvi_integrator {
   mrvi_nullspace *nullspace; /* null-space form only */
   int path;                  /* MRVI_PATH_* (doc/solver.md) */
   mrvi_sweep *sweep;         /* explicit, sweep and sweep-cg paths */
+  int sweep_tight;           /* mrvi_sweep_tight(sweep) */
   mrvi_blocks *blocks;       /* schur path */
   mrvi_skrylov *skrylov;     /* schur-krylov path */
   mrvi_predictor *predictor; /* Newton paths */
@@ -391,6 +392,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
      * on demand by mrvi_integrator_jacobian_solve). */
     if (mrvi_sweep_create(&it->step, s, &it->sweep) < 0)
       goto oom;
+    it->sweep_tight = mrvi_sweep_tight(it->sweep);
     *out = it;
     return MRVI_OK;
   }
@@ -702,8 +704,13 @@ static int structured_step(mrvi_integrator *it) {
   const double t = tick(it);
   int iters = 0;
   double res = 0.0;
-  const int s = mrvi_sweep_step(it->sweep, st, it->x, it->ps1, it->micro_p,
-                                &iters, &res, msg, sizeof msg);
+  /* An uncontrolled explicit step at p = 1: the short entry. */
+  const int s =
+      it->sweep_tight && !st->f_rows && !st->f_end
+          ? mrvi_sweep_explicit_p1(it->sweep, st, it->x, it->ps1, it->micro_p,
+                                   msg, sizeof msg)
+          : mrvi_sweep_step(it->sweep, st, it->x, it->ps1, it->micro_p, &iters,
+                            &res, msg, sizeof msg);
   if (it->timed)
     it->t_solve += tick(it) - t;
   it->last_iterations = iters;

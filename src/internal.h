@@ -373,6 +373,15 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
                     double *ps1, double *pf, int *iterations, double *residual,
                     char *msg, size_t len);
 
+/* 1 if the steps of sw are explicit at p = 1 with one W point at each
+ * node (the trapezoidal fast rule): then an uncontrolled step (st->f_rows
+ * and f_end NULL) may take mrvi_sweep_explicit_p1, mrvi_sweep_step's
+ * arithmetic in the same order (iterations and residual 0) without its
+ * set-up and tests. */
+int mrvi_sweep_tight(const mrvi_sweep *sw);
+int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                           double *ps1, double *pf, char *msg, size_t len);
+
 /* Statistics of the micro-step blocks' iterative solves (NULL on the
  * dense and explicit paths). */
 const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);

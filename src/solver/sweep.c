@@ -47,6 +47,7 @@ struct mrvi_sweep {
    * (wr = w cB) of interval m */
   int nl, nr;
   double wl[2], wr[2];
+  int tight; /* explicit, p = 1, one point at each node (explicit_p1) */
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
@@ -240,6 +241,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->wr[sw->nr++] = pt->w * pt->cB;
     sw->n_w++;
   }
+  sw->tight = !sw->implicit && sw->p == 1 && sw->nl == 1 && sw->nr == 1;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
   int max_n_in = 1;
@@ -897,6 +899,93 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   return MRVI_OK;
 }
 
+/* V at node k + 1 into the end momenta (ps1 and p^{f,p}: pe) alone, with
+ * the new node x (slow) and xe (fast). */
+ALWAYS_INLINE void end_potential(mrvi_sweep *sw, const double *x,
+                                 const double *xe, double *ps1, double *pe,
+                                 const int ns, const int nf) {
+  if (sw->wv1 == 0.0)
+    return;
+  const double w1 = sw->wv1;
+  slow_gradient(sw, x, xe, ns, nf);
+  const double *gv = sw->gv;
+  UNROLL
+  for (int s = 0; s < ns; s++)
+    ps1[s] -= w1 * gv[s];
+  UNROLL
+  for (int f = 0; f < nf; f++)
+    pe[f] -= w1 * gv[ns + f];
+}
+
+/* The end of a step: non-finite values propagate along the step, so the
+ * new node suffices to notice them; a step taken keeps grad V at its end
+ * node for the next one. */
+ALWAYS_INLINE int end_check(mrvi_sweep *sw, const double *x, const double *xe,
+                            const double *ps1, const double *pe, char *msg,
+                            size_t len, const int ns, const int nf) {
+  double sum = 0.0;
+  UNROLL
+  for (int s = 0; s < ns; s++)
+    sum += x[s] + ps1[s];
+  UNROLL
+  for (int f = 0; f < nf; f++)
+    sum += xe[f] + pe[f];
+  if (!isfinite(sum)) {
+    sw->gnode_ok = 0;
+    mrvi_fmt(msg, len, "the %s step produced non-finite values",
+             sw->implicit ? "sweep" : "explicit");
+    return MRVI_ENONFINITE;
+  }
+  sw->gv_ok = sw->wv1 != 0.0;
+  return MRVI_OK;
+}
+
+/* The explicit step at p = 1 without control forces (an uncontrolled run
+ * of a trapezoidal fast rule: one W point at each node): the arithmetic of
+ * sweep_step below, in the same order, kept in locals (no reloads through
+ * possibly aliasing stores) and without the tests for forces and further
+ * nodes. */
+ALWAYS_INLINE int explicit_p1(mrvi_sweep *sw, const mrvi_step *st,
+                              double *restrict x, double *restrict ps1,
+                              double *restrict pf, char *msg, size_t len,
+                              const int ns, const int nf) {
+  const double dT = st->dT, dt = st->dt, w0 = sw->wv0;
+  const double wl = sw->wl[0], wr = sw->wr[0];
+  const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
+  const double *restrict ps0 = st->ps0, *restrict pf0 = st->pf0;
+  const double *restrict minv_s = sw->minv_s, *restrict minv = sw->minv_f;
+  const double *restrict mf = sw->m_f;
+  if (w0 != 0.0 && !sw->gv_ok)
+    slow_gradient(sw, qs0, qf0, ns, nf);
+  sw->gv_ok = 0;
+  if (!sw->gnode_ok)
+    fast_gradient(sw, qf0, sw->gnode, nf);
+  const double *gv = w0 != 0.0 ? sw->gv : sw->gzero;
+  const double *gnode = sw->gnode;
+  UNROLL
+  for (int s = 0; s < ns; s++) {
+    const double v = ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
+    ps1[s] = v;
+    x[s] = qs0[s] + dT * minv_s[s] * v;
+  }
+  UNROLL
+  for (int f = 0; f < nf; f++) {
+    double r = pf0[f] - w0 * gv[ns + f]; /* p^{f,0} */
+    r -= wl * gnode[f];
+    const double dn = dt * minv[f] * r;
+    x[ns + f] = qf0[f] + dn;
+    pf[f] = mf[f] * dn / dt;
+  }
+  fast_gradient(sw, x + ns, sw->gnode, nf);
+  gnode = sw->gnode;
+  UNROLL
+  for (int f = 0; f < nf; f++)
+    pf[f] -= wr * gnode[f];
+  sw->gnode_ok = 1;
+  end_potential(sw, x, x + ns, ps1, pf, ns, nf);
+  return end_check(sw, x, x + ns, ps1, pf, msg, len, ns, nf);
+}
+
 /* mrvi_sweep_step for ns slow and nf fast coordinates (constants for small
  * blocks, so that the loops over them unroll). */
 ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
@@ -961,17 +1050,7 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
   double *pe = pf + (size_t)(p - 1) * nf;
   const double *xe = x + ns + (size_t)(p - 1) * nf;
-  if (sw->wv1 != 0.0) {
-    const double w1 = sw->wv1;
-    slow_gradient(sw, x, xe, ns, nf);
-    gv = sw->gv;
-    UNROLL
-    for (int s = 0; s < ns; s++)
-      ps1[s] -= w1 * gv[s];
-    UNROLL
-    for (int f = 0; f < nf; f++)
-      pe[f] -= w1 * gv[ns + f];
-  }
+  end_potential(sw, x, xe, ps1, pe, ns, nf);
   /* Control forces f^+ of the step on the end momenta. */
   if (st->f_end) {
     const double *fe = st->f_end;
@@ -982,23 +1061,18 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
     for (int f = 0; f < nf; f++)
       pe[f] += fe[ns + f];
   }
-  /* Non-finite values propagate along the sweep: the new node suffices. */
-  double sum = 0.0;
-  UNROLL
-  for (int s = 0; s < ns; s++)
-    sum += x[s] + ps1[s];
-  UNROLL
-  for (int f = 0; f < nf; f++)
-    sum += xe[f] + pe[f];
-  if (!isfinite(sum)) {
-    sw->gnode_ok = 0;
-    mrvi_fmt(msg, len, "the %s step produced non-finite values",
-             sw->implicit ? "sweep" : "explicit");
-    return MRVI_ENONFINITE;
-  }
-  /* The step is taken: grad V at its end node serves the next one. */
-  sw->gv_ok = sw->wv1 != 0.0;
-  return MRVI_OK;
+  return end_check(sw, x, xe, ps1, pe, msg, len, ns, nf);
+}
+
+int mrvi_sweep_tight(const mrvi_sweep *sw) { return sw->tight; }
+
+int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                           double *ps1, double *pf, char *msg, size_t len) {
+  int s = MRVI_OK;
+  SMALL(
+      sw->ns, NS,
+      SMALL(sw->nf, NF, s = explicit_p1(sw, st, x, ps1, pf, msg, len, NS, NF)));
+  return s;
 }
 
 int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
