@@ -383,7 +383,10 @@ ALWAYS_INLINE void flat_grad_k(const kterm4 *q, int n, const double *z,
   }
 }
 
-static void flat_grad(const mrvi_terms *kc, const double *z, double *g) {
+/* (calls, not inlined: each saves only the registers it uses, and the
+ * dispatch in mrvi_terms_grad jumps to them) */
+static __attribute__((noinline)) void flat_grad(const mrvi_terms *kc,
+                                                const double *z, double *g) {
   switch (kc->flat_k) {
   case -1:
     flat_grad_k(kc->q4, kc->n, z, g, -1);
@@ -402,11 +405,16 @@ int mrvi_terms_flat(const mrvi_terms *kc) {
 
 /* Gradient only: the evaluation above with scale 1 and no Hessian (the
  * same products in the same order, so bitwise the same gradient). */
+static __attribute__((noinline)) void
+terms_grad_any(mrvi_terms *kc, const double *z, double *g) {
+  eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
+}
+
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->flat)
     flat_grad(kc, z, g);
   else
-    eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
+    terms_grad_any(kc, z, g);
 }
 
 /* c s^k for a small integer k: laws/power.c's phi (s^k by repeated
