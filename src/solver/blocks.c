@@ -934,8 +934,8 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
     const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
     double s[ns > 0 ? ns : 1];
     UNROLL for (int j = 0; j < ns; j++) s[j] = b->Ass[i * ns + j];
-    for (int k = 0; k < nF; k++)
-      UNROLL for (int j = 0; j < ns; j++) s[j] -= a[k] * Y[(size_t)k * ns + j];
+    UNROLL2 for (int k = 0; k < nF; k++) UNROLL for (int j = 0; j < ns; j++)
+        s[j] -= a[k] * Y[(size_t)k * ns + j];
     UNROLL for (int j = 0; j < ns; j++) b->S[i * ns + j] = s[j];
   }
 }
@@ -982,14 +982,13 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
   UNROLL for (int i = 0; i < ns; i++) {
     const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
     double s = R[i];
-    for (int k = 0; k < nF; k++)
-      s -= a[k] * z[k];
+    UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
     r[i] = s;
   }
   if (ns > 0)
     lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
   UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];
-  for (int k = 0; k < nF; k++) {
+  UNROLL2 for (int k = 0; k < nF; k++) {
     double s = z[k];
     UNROLL for (int j = 0; j < ns; j++) s -= Y[(size_t)k * ns + j] * r[j];
     dx[ns + k] = s;
