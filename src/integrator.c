@@ -163,15 +163,28 @@ static void to_positions(mrvi_integrator *it) {
 }
 
 static double norm_inf(const double *v, int n) {
-  /* max |v_i|, NaN if any v_i is NaN (counted without a branch per entry) */
-  double r = 0.0;
-  int nan = 0;
-  for (int i = 0; i < n; i++) {
-    const double a = fabs(v[i]);
-    r = a > r ? a : r;
-    nan |= a != a;
+  /* max |v_i|, NaN if any v_i is NaN.  Two running maxima (exact, so the
+   * same value) and z = sum of 0 v_i, a NaN only if some v_i is not finite:
+   * then the entries are looked at again, one by one. */
+  double r0 = 0.0, r1 = 0.0, z = 0.0;
+  int i = 0;
+  for (; i + 1 < n; i += 2) {
+    const double a = fabs(v[i]), b = fabs(v[i + 1]);
+    r0 = a > r0 ? a : r0;
+    r1 = b > r1 ? b : r1;
+    z += 0.0 * a + 0.0 * b;
   }
-  return nan ? NAN : r;
+  if (i < n) {
+    const double a = fabs(v[i]);
+    r0 = a > r0 ? a : r0;
+    z += 0.0 * a;
+  }
+  if (z == 0.0)
+    return r0 > r1 ? r0 : r1;
+  for (i = 0; i < n; i++)
+    if (v[i] != v[i])
+      return NAN;
+  return INFINITY;
 }
 
 /* Roundoff floor of the residual: its rows subtract momenta of size

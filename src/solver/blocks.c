@@ -77,6 +77,7 @@ struct mrvi_blocks {
   /* Class c's frozen Hessian: the mean of those at its first and last
    * points (mrvi_blocks_chord_spread; nz x nz each). */
   double *Hz[2];
+  double m_min; /* the smallest mass (the chord rule's measure) */
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -252,6 +253,11 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     b->ms[i] = m->mass[m->slow_index[i]];
   for (int i = 0; i < b->nf; i++)
     b->mf[i] = m->mass[m->fast_index[i]];
+  b->m_min = INFINITY;
+  for (int i = 0; i < b->ns; i++)
+    b->m_min = fmin(b->m_min, b->ms[i]);
+  for (int i = 0; i < b->nf; i++)
+    b->m_min = fmin(b->m_min, b->mf[i]);
   *out = b;
   return MRVI_OK;
 }
@@ -608,12 +614,13 @@ interval_hessians(mrvi_blocks *b, const mrvi_point *pts, int has_s, int has_f) {
  * interval_hessians_k with H in place of each point's): the slow blocks
  * in full (their weights a0, a1 vary along the step), the fast blocks of
  * row blocks 0 .. min(p, 3) - 1 only (the rows from 2 on are equal). */
-ALWAYS_INLINE void frozen_hessian_k(mrvi_blocks *b, const mrvi_point *pts,
+ALWAYS_INLINE void frozen_hessian_k(mrvi_blocks *b, const double *restrict H,
+                                    const mrvi_point *pts,
                                     const double *restrict fw, int has_s,
                                     int has_f, const int ns, const int nf) {
   const int p = b->p, nz = ns + nf, nF = p * nf;
   const size_t blk = (size_t)nf * (size_t)nf;
-  const double *H = b->H, *Hff = H + (size_t)ns * nz + ns;
+  const double *Hff = H + (size_t)ns * nz + ns;
   if (has_s) {
     add_scaled_k(b->Ass, ns, H, nz, ns, ns, fw[0]);
     for (int j = 0; has_f && j < p; j++) {
@@ -638,10 +645,12 @@ ALWAYS_INLINE void frozen_hessian_k(mrvi_blocks *b, const mrvi_point *pts,
   }
 }
 
-static void frozen_hessian(mrvi_blocks *b, const mrvi_point *pts,
-                           const double *fw, int has_s, int has_f) {
-  SMALL(b->ns, NS,
-        SMALL(b->nf, NF, frozen_hessian_k(b, pts, fw, has_s, has_f, NS, NF)));
+static void frozen_hessian(mrvi_blocks *b, const double *H,
+                           const mrvi_point *pts, const double *fw, int has_s,
+                           int has_f) {
+  SMALL(
+      b->ns, NS,
+      SMALL(b->nf, NF, frozen_hessian_k(b, H, pts, fw, has_s, has_f, NS, NF)));
 }
 
 static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
@@ -682,12 +691,13 @@ static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
         SMALL(b->nf, NF, point_config_k(b, st, x, pt, 1, 1, NS, NF)));
 }
 
-/* H of class c at point pt's configuration (G is scratch here). */
-static void class_hessian(mrvi_blocks *b, int c) {
+/* H (nz x nz) of class c at point pt's configuration (G is scratch
+ * here). */
+static void class_hessian(mrvi_blocks *b, int c, double *H) {
   const size_t nz = (size_t)(b->ns + b->nf);
   memset(b->G, 0, nz * sizeof(double));
-  memset(b->H, 0, nz * nz * sizeof(double));
-  mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, b->H, (int)nz, 1.0);
+  memset(H, 0, nz * nz * sizeof(double));
+  mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, H, (int)nz, 1.0);
 }
 
 /* The constant part of the Newton matrix into the blocks: the kinetic rows
@@ -710,7 +720,7 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c] && b->quad[c]; ip++) {
       point_config(b, st, x, &st->pts[c][ip]);
-      class_hessian(b, c);
+      class_hessian(b, c, b->H);
       point_hessian(b, &st->pts[c][ip], c);
     }
 }
@@ -744,14 +754,14 @@ frozen_point(mrvi_blocks *b, const mrvi_step *st, const double *x, int c,
   const size_t n2 = (size_t)(b->ns + b->nf) * (size_t)(b->ns + b->nf);
   const double *H0 = h0 ? b->Hz[c] : NULL,
                *H1 = h1 && b->same_pts ? b->Hz[1] : NULL;
-  if (H0 && H1)
+  const double *H = H0 ? H0 : H1; /* (one of them: read in place) */
+  if (H0 && H1) {
     for (size_t i = 0; i < n2; i++)
       b->H[i] = H0[i] + H1[i];
-  else
-    memcpy(b->H, H0 ? H0 : H1, n2 * sizeof(double));
-  (void)st;
+    H = b->H;
+  }
   (void)x;
-  frozen_hessian(b, st->pts[c], b->fw[b->quad[c] ? 1 : c], Hs, Hf);
+  frozen_hessian(b, H, st->pts[c], b->fw[b->quad[c] ? 1 : c], Hs, Hf);
 }
 
 /* The residual (with the momenta's potential parts) and, if jac, the
@@ -904,22 +914,16 @@ double mrvi_blocks_chord_spread(mrvi_blocks *b, const mrvi_step *st,
     if (!Hz)
       return INFINITY;
     point_config(b, st, x, &st->pts[c][st->n_pts[c] - 1]);
-    class_hessian(b, c);
-    memcpy(Hz, b->H, n2 * sizeof(double));
+    class_hessian(b, c, Hz);
     point_config(b, st, x, &st->pts[c][0]);
-    class_hessian(b, c);
+    class_hessian(b, c, b->H);
     for (size_t i = 0; i < n2; i++) {
       const double d = fabs(b->H[i] - Hz[i]);
       spread = d > spread ? d : spread;
       Hz[i] = 0.5 * (Hz[i] + b->H[i]);
     }
   }
-  double mmin = INFINITY;
-  for (int i = 0; i < b->ns; i++)
-    mmin = fmin(mmin, b->ms[i]);
-  for (int i = 0; i < b->nf; i++)
-    mmin = fmin(mmin, b->mf[i]);
-  return spread / mmin;
+  return spread / b->m_min;
 }
 
 /* S = A_ss - A_sf Y. */
@@ -930,8 +934,8 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
     const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
     double s[ns > 0 ? ns : 1];
     UNROLL for (int j = 0; j < ns; j++) s[j] = b->Ass[i * ns + j];
-    for (int k = 0; k < nF; k++)
-      UNROLL for (int j = 0; j < ns; j++) s[j] -= a[k] * Y[(size_t)k * ns + j];
+    UNROLL2 for (int k = 0; k < nF; k++) UNROLL for (int j = 0; j < ns; j++)
+        s[j] -= a[k] * Y[(size_t)k * ns + j];
     UNROLL for (int j = 0; j < ns; j++) b->S[i * ns + j] = s[j];
   }
 }
@@ -978,14 +982,13 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
   UNROLL for (int i = 0; i < ns; i++) {
     const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
     double s = R[i];
-    for (int k = 0; k < nF; k++)
-      s -= a[k] * z[k];
+    UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
     r[i] = s;
   }
   if (ns > 0)
     lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
   UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];
-  for (int k = 0; k < nF; k++) {
+  UNROLL2 for (int k = 0; k < nF; k++) {
     double s = z[k];
     UNROLL for (int j = 0; j < ns; j++) s -= Y[(size_t)k * ns + j] * r[j];
     dx[ns + k] = s;

@@ -17,6 +17,7 @@
 #if !MRVI_SMALL_KERNELS
 #define ALWAYS_INLINE static inline
 #define UNROLL
+#define UNROLL2
 #define SMALL(n, N, ...)                                                       \
   do {                                                                         \
     const int N = (n);                                                         \
@@ -25,6 +26,9 @@
 #else
 #define ALWAYS_INLINE static inline __attribute__((always_inline))
 #define UNROLL _Pragma("GCC unroll 4")
+/* two iterations per pass of a loop of run-time length (the same
+ * operations in the same order, half the loop control) */
+#define UNROLL2 _Pragma("GCC unroll 2")
 #define SMALL(n, N, ...)                                                       \
   switch (n) {                                                                 \
   case 1: {                                                                    \

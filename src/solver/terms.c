@@ -356,43 +356,75 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
   }
 }
 
-void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
-                     double *J, int ld, double hscale) {
+static __attribute__((noinline)) void
+terms_eval_any(mrvi_terms *kc, const double *z, double scale, double *g,
+               double *J, int ld, double hscale) {
   if (scale == 1.0 && (!J || hscale == 1.0))
     eval_k(kc, z, scale, g, J, ld, hscale, 1);
   else
     eval_k(kc, z, scale, g, J, ld, hscale, 0);
 }
 
+static void flat_eval(const mrvi_terms *kc, const double *z, double *g,
+                      double *J, int ld);
+
+void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
+                     double *J, int ld, double hscale) {
+  if (kc->flat && J && scale == 1.0 && hscale == 1.0)
+    flat_eval(kc, z, g, J, ld); /* (a call: see flat_grad) */
+  else
+    terms_eval_any(kc, z, scale, g, J, ld, hscale);
+}
+
 /* The gradient of a class of compact records alone, with law k: one loop
  * over the records (their input count a branch per term), without the
  * dispatch per run of eval_k; the same products in the same order. */
 ALWAYS_INLINE void flat_grad_k(const kterm4 *q, int n, const double *z,
-                               double *g, const int k) {
+                               double *g, double *J, int ld, const int k) {
   for (int r = 0; r < n; r++) {
     switch (q[r].n) {
     case 2:
-      term4_eval(q + r, z, 1.0, g, NULL, 0, 0.0, 2, 1, k);
+      term4_eval(q + r, z, 1.0, g, J, ld, 1.0, 2, 1, k);
       break;
     case 3:
-      term4_eval(q + r, z, 1.0, g, NULL, 0, 0.0, 3, 1, k);
+      term4_eval(q + r, z, 1.0, g, J, ld, 1.0, 3, 1, k);
       break;
     default:
-      term4_eval(q + r, z, 1.0, g, NULL, 0, 0.0, 4, 1, k);
+      term4_eval(q + r, z, 1.0, g, J, ld, 1.0, 4, 1, k);
     }
   }
 }
 
-static void flat_grad(const mrvi_terms *kc, const double *z, double *g) {
+/* (calls, not inlined: each saves only the registers it uses, and the
+ * dispatch in mrvi_terms_grad jumps to them) */
+static __attribute__((noinline)) void flat_grad(const mrvi_terms *kc,
+                                                const double *z, double *g) {
   switch (kc->flat_k) {
   case -1:
-    flat_grad_k(kc->q4, kc->n, z, g, -1);
+    flat_grad_k(kc->q4, kc->n, z, g, NULL, 0, -1);
     break;
   case 4:
-    flat_grad_k(kc->q4, kc->n, z, g, 4);
+    flat_grad_k(kc->q4, kc->n, z, g, NULL, 0, 4);
     break;
   default:
-    flat_grad_k(kc->q4, kc->n, z, g, K_ANY);
+    flat_grad_k(kc->q4, kc->n, z, g, NULL, 0, K_ANY);
+  }
+}
+
+/* flat_grad with the Hessian into J (scale and hscale 1): the
+ * evaluation of eval_k for such a class, the same products in the same
+ * order. */
+static __attribute__((noinline)) void
+flat_eval(const mrvi_terms *kc, const double *z, double *g, double *J, int ld) {
+  switch (kc->flat_k) {
+  case -1:
+    flat_grad_k(kc->q4, kc->n, z, g, J, ld, -1);
+    break;
+  case 4:
+    flat_grad_k(kc->q4, kc->n, z, g, J, ld, 4);
+    break;
+  default:
+    flat_grad_k(kc->q4, kc->n, z, g, J, ld, K_ANY);
   }
 }
 
@@ -402,11 +434,16 @@ int mrvi_terms_flat(const mrvi_terms *kc) {
 
 /* Gradient only: the evaluation above with scale 1 and no Hessian (the
  * same products in the same order, so bitwise the same gradient). */
+static __attribute__((noinline)) void
+terms_grad_any(mrvi_terms *kc, const double *z, double *g) {
+  eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
+}
+
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->flat)
     flat_grad(kc, z, g);
   else
-    eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
+    terms_grad_any(kc, z, g);
 }
 
 /* c s^k for a small integer k: laws/power.c's phi (s^k by repeated
