@@ -91,22 +91,28 @@ int mrvi_dense_qr(int m, int n, double *A, double *Q) {
   return rank_ok ? 0 : -1;
 }
 
+int mrvi_dense_lu_pivot(int n, double *A, int *piv, int k) {
+  int r = k;
+  for (int i = k + 1; i < n; i++)
+    if (fabs(A[i * n + k]) > fabs(A[r * n + k]))
+      r = i;
+  piv[k] = r;
+  if (!(fabs(A[r * n + k]) > 0.0))
+    return -1;
+  if (r != k)
+    for (int j = 0; j < n; j++) {
+      const double t = A[k * n + j];
+      A[k * n + j] = A[r * n + j];
+      A[r * n + j] = t;
+    }
+  return 0;
+}
+
 /* LU with partial pivoting in place (n x n row-major); -1 if singular. */
 int mrvi_dense_lu_factor(int n, double *A, int *piv) {
   for (int k = 0; k < n; k++) {
-    int r = k;
-    for (int i = k + 1; i < n; i++)
-      if (fabs(A[i * n + k]) > fabs(A[r * n + k]))
-        r = i;
-    piv[k] = r;
-    if (!(fabs(A[r * n + k]) > 0.0))
+    if (mrvi_dense_lu_pivot(n, A, piv, k) < 0)
       return -1;
-    if (r != k)
-      for (int j = 0; j < n; j++) {
-        const double t = A[k * n + j];
-        A[k * n + j] = A[r * n + j];
-        A[r * n + j] = t;
-      }
     const double d = 1.0 / A[k * n + k];
     for (int i = k + 1; i < n; i++) {
       const double f = (A[i * n + k] *= d);

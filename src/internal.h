@@ -165,6 +165,9 @@ int mrvi_dense_solve(int n, double *A, double *b);
  * (n); -1 if singular.  mrvi_dense_lu_solve: b (n x nrhs row-major)
  * becomes A^-1 b.  The small blocks of the structured step solvers. */
 int mrvi_dense_lu_factor(int n, double *A, int *piv);
+/* Step k of that factorisation's pivoting: the largest |A_ik|, i >= k, its
+ * row in piv[k] and swapped with row k; -1 if that column is zero. */
+int mrvi_dense_lu_pivot(int n, double *A, int *piv, int k);
 void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
                          int nrhs);
 /* The same with A^T: b (n x nrhs row-major) becomes A^-T b. */
@@ -457,6 +460,13 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
  * integer power on 2..4 inputs): 1 with one law for all, 2 with mixed laws,
  * 0 (the kernel per run) otherwise. */
 int mrvi_terms_flat(const mrvi_terms *kc);
+/* Whether every element of the class is quadratic
+ * (mrvi_element_is_quadratic): its Hessian is constant. */
+int mrvi_terms_quadratic(const mrvi_terms *kc);
+/* The gradient of a quadratic class on n packed columns as the affine map
+ * g0 + H z: g0 (n) and H (n x n, row-major) newly allocated, evaluated at
+ * z = 0.  MRVI_ENOMEM (nothing allocated) or MRVI_OK. */
+int mrvi_terms_affine(mrvi_terms *kc, int n, double **g0, double **H);
 /* Z(z): the sum of the elements' values in their order, bitwise
  * mrvi_model_potential's (the same products and additions). */
 double mrvi_terms_value(mrvi_terms *kc, const double *z);

@@ -178,12 +178,8 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     }
   }
   free(col);
-  for (int c = 0; c < 2; c++) {
-    b->quad[c] = 1;
-    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++)
-      if (!mrvi_element_is_quadratic(&m->elements[st->elem_of_class[c][ie]]))
-        b->quad[c] = 0;
-  }
+  for (int c = 0; c < 2; c++)
+    b->quad[c] = mrvi_terms_quadratic(b->kc[c]);
   if (!(b->cblk = calloc(b->n_blk + 1, sizeof(double)))) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
@@ -192,14 +188,11 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   for (int c = 0; c < 2; c++) {
     if (!b->quad[c] || b->ns > 4 || b->nf > 4 || nz0 == 0)
       continue;
-    b->g0[c] = calloc(nz0, sizeof(double));
-    b->Hq[c] = calloc(nz0 * nz0, sizeof(double));
-    if (!b->g0[c] || !b->Hq[c]) {
+    if (mrvi_terms_affine(b->kc[c], (int)nz0, &b->g0[c], &b->Hq[c]) !=
+        MRVI_OK) {
       mrvi_blocks_free(b);
       return MRVI_ENOMEM;
     }
-    /* at z = 0 (zp is zero here) */
-    mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->g0[c], b->Hq[c], (int)nz0, 1.0);
   }
   b->same_pts = mrvi_step_same_points(st);
   for (int c = 0; c < 2; c++) {

@@ -125,19 +125,8 @@ void mrvi_newton_free(mrvi_newton *nw) {
  * (nzc: workspace n); -1 if singular. */
 static int sparse_lu(int n, double *B, int *piv, int *nzc) {
   for (int k = 0; k < n; k++) {
-    int r = k;
-    for (int i = k + 1; i < n; i++)
-      if (fabs(B[i * n + k]) > fabs(B[r * n + k]))
-        r = i;
-    piv[k] = r;
-    if (!(fabs(B[r * n + k]) > 0.0))
+    if (mrvi_dense_lu_pivot(n, B, piv, k) < 0)
       return -1;
-    if (r != k)
-      for (int j = 0; j < n; j++) {
-        const double t = B[k * n + j];
-        B[k * n + j] = B[r * n + j];
-        B[r * n + j] = t;
-      }
     const double *bk = B + k * n, d = 1.0 / bk[k];
     int nn = 0;
     for (int j = k + 1; j < n; j++)

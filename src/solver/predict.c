@@ -439,23 +439,19 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   }
   const size_t nz = (size_t)st->ns + (size_t)st->nf;
   for (int c = 0; c < 2 && st->ns <= 4 && st->nf <= 4 && nz > 0; c++) {
-    int quad = 1, slow = 0;
+    if (!mrvi_terms_quadratic(pr->kc[c]))
+      continue;
+    int slow = 0;
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
       const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
-      quad &= mrvi_element_is_quadratic(e);
       for (int j = 0; j < e->n_in; j++)
         slow |= m->rate[e->in[j]] == MRVI_SLOW;
     }
-    if (!quad)
-      continue;
-    pr->g0[c] = calloc(nz, sizeof(double));
-    pr->Hq[c] = calloc(nz * nz, sizeof(double));
-    if (!pr->g0[c] || !pr->Hq[c]) {
+    if (mrvi_terms_affine(pr->kc[c], (int)nz, &pr->g0[c], &pr->Hq[c]) !=
+        MRVI_OK) {
       mrvi_predictor_free(pr);
       return MRVI_ENOMEM;
     }
-    memset(pr->z, 0, nz * sizeof(double)); /* at z = 0 */
-    mrvi_terms_eval(pr->kc[c], pr->z, 1.0, pr->g0[c], pr->Hq[c], (int)nz, 1.0);
     pr->lo[c] = slow ? 0 : st->ns;
   }
   pr->same = mrvi_step_same_points(st);

@@ -288,24 +288,16 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
-  int quad_w = 1;
-  for (int ie = 0; ie < st->n_elem_of_class[MRVI_FAST]; ie++)
-    if (!mrvi_element_is_quadratic(
-            &m->elements[st->elem_of_class[MRVI_FAST][ie]]))
-      quad_w = 0;
+  const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
-  /* ... and on a block of at most 4: its gradient as an affine map (the
-   * zeros of zf are z = 0). */
+  /* ... and on a block of at most 4: its gradient as an affine map. */
   if (quad_w && nf >= 1 && nf <= 4) {
-    sw->wg0 = dalloc(nf);
-    sw->wH = dalloc(nf * nf);
-    if (!sw->wg0 || !sw->wH) {
+    if (mrvi_terms_affine(sw->kc[MRVI_FAST], (int)nf, &sw->wg0, &sw->wH) !=
+        MRVI_OK) {
       mrvi_sweep_free(sw);
       return MRVI_ENOMEM;
     }
-    mrvi_terms_eval(sw->kc[MRVI_FAST], sw->zf, 1.0, sw->wg0, sw->wH, (int)nf,
-                    1.0);
     sw->wdiag = 1;
     for (size_t a = 0; a < nf; a++)
       for (size_t b = 0; b < nf; b++)

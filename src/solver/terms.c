@@ -428,6 +428,30 @@ flat_eval(const mrvi_terms *kc, const double *z, double *g, double *J, int ld) {
   }
 }
 
+int mrvi_terms_quadratic(const mrvi_terms *kc) {
+  for (int i = 0; i < kc->n; i++)
+    if (!mrvi_element_is_quadratic(kc->t[i].el))
+      return 0;
+  return 1;
+}
+
+int mrvi_terms_affine(mrvi_terms *kc, int n, double **g0, double **H) {
+  const size_t nz = (size_t)(n > 0 ? n : 1);
+  double *z = calloc(nz, sizeof(double));
+  *g0 = calloc(nz, sizeof(double));
+  *H = calloc(nz * nz, sizeof(double));
+  if (!z || !*g0 || !*H) {
+    free(z);
+    free(*g0);
+    free(*H);
+    *g0 = *H = NULL;
+    return MRVI_ENOMEM;
+  }
+  mrvi_terms_eval(kc, z, 1.0, *g0, *H, n, 1.0);
+  free(z);
+  return MRVI_OK;
+}
+
 int mrvi_terms_flat(const mrvi_terms *kc) {
   return kc->flat ? (kc->flat_k == K_ANY ? 2 : 1) : 0;
 }
