@@ -103,6 +103,12 @@ struct mrvi_predictor {
   int lo[2];
   int same; /* V and W have the same points (midpoint-midpoint): a point's
                two gradients are evaluated at one configuration, summed */
+  /* Node k (node_gradients): the gradients of V and W there and, with
+   * same, their sum (gnode, 3 n packed); the sums over a class's points
+   * of w a0 (wnode: its slow-row force with every point at node k) and
+   * over interval 0's implicit points of w cA (wins: their force F_0^A
+   * estimated at node k, fimp0, nf). */
+  double *gnode, *fimp0, wnode[2], wins[2];
   /* The slow pre-solve (pre_solve): used at all (pre), done in this step
    * (presolved); the linear sweep's matrix K = (M^f/dt + S_AB H_ff)^-1
    * (nf x nf) and interval sums lsum (see linear_step); the gradient of
@@ -381,8 +387,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     return MRVI_ENOMEM;
   const size_t n = (size_t)(m->n > 0 ? m->n : 1);
   pr->m = m;
-  double **vec[] = {&pr->z,    &pr->g,  &pr->fs,   &pr->fexp,
-                    &pr->fimp, &pr->fb, &pr->fimp1};
+  double **vec[] = {&pr->z,    &pr->g,  &pr->fs,    &pr->fexp,
+                    &pr->fimp, &pr->fb, &pr->fimp1, &pr->fimp0};
   for (size_t i = 0; i < sizeof vec / sizeof *vec; i++)
     if (!(*vec[i] = malloc(n * sizeof(double)))) {
       mrvi_predictor_free(pr);
@@ -393,7 +399,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       !(pr->xs = malloc(3 * n * sizeof(double))) ||
       !(pr->b = malloc(4 * n * sizeof(double))) ||
       !(pr->gk = calloc(n, sizeof(double))) ||
-      !(pr->fk = calloc(n, sizeof(double)))) {
+      !(pr->fk = calloc(n, sizeof(double))) ||
+      !(pr->gnode = calloc(3 * n, sizeof(double)))) {
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
@@ -455,6 +462,13 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     pr->lo[c] = slow ? 0 : st->ns;
   }
   pr->same = mrvi_step_same_points(st);
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      pr->wnode[c] += pt->w * pt->a0;
+      if (pt->m == 0 && kind(pt) == INSIDE)
+        pr->wins[c] += pt->w * pt->cA;
+    }
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
   for (int c = 0; c < 2; c++)
@@ -500,6 +514,8 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fexp);
   free(pr->fimp);
   free(pr->fimp1);
+  free(pr->fimp0);
+  free(pr->gnode);
   free(pr->fb);
   free(pr->pm);
   free(pr->H);
@@ -611,22 +627,51 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     affine_grad_k(pr->g0[1], pr->Hq[1], z, g, ns, ns + nf);
 }
 
-static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
-                           const double *x, const mrvi_point *pt, int c) {
-  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf, NULL, 0.0, 0);
-}
-
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
                         double *restrict acc) {
   UNROLL for (int i = 0; i < n; i++) acc[i] += a * g[i];
 }
 
+/* The gradients of V and W at node k, z = (q_k^s, q_k^{f,0}), into gnode
+ * (and their sum, with same); fs = the slow-row force with every point at
+ * node k, fimp0 = interval 0's implicit force F_0^A estimated there. */
+ALWAYS_INLINE void node_gradients_k(mrvi_predictor *pr, const mrvi_step *st,
+                                    const int ns, const int nf) {
+  const int n = ns + nf;
+  double *restrict z = pr->z, *restrict gv = pr->gnode,
+                   *restrict gw = pr->gnode + n;
+  UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s];
+  UNROLL for (int f = 0; f < nf; f++) z[ns + f] = st->qf0[f];
+  UNROLL for (int i = 0; i < n; i++) gv[i] = gw[i] = 0.0;
+  for (int c = 0; c < 2; c++) {
+    if (st->n_elem_of_class[c] == 0)
+      continue;
+    double *g = c == 0 ? gv : gw;
+    if (!pr->Hq[c])
+      mrvi_terms_grad(pr->kc[c], z, g);
+    else if (pr->lo[c] == 0) /* (each with constant bounds) */
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, 0, n);
+    else
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, ns, n);
+  }
+  const double v0 = pr->wnode[0], w0 = pr->wnode[1];
+  UNROLL for (int s = 0; s < ns; s++) pr->fs[s] = v0 * gv[s] + w0 * gw[s];
+  const double v1 = pr->wins[0], w1 = pr->wins[1];
+  UNROLL for (int f = 0; f < nf; f++) pr->fimp0[f] =
+      v1 * gv[ns + f] + w1 * gw[ns + f];
+  if (pr->same)
+    UNROLL for (int i = 0; i < n; i++) pr->gnode[2 * n + i] = gv[i] + gw[i];
+}
+
 /* Evaluate the points of kind k in [first[c], end[c]) of both classes:
- * fa += w cA g_f, fb += w cB g_f and, with sum_slow, fs += w a0 g_s. */
+ * fa += w cA g_f, fb += w cB g_f and, with sum_slow, fs += w a0 g_s.  With
+ * at_k (interval 0), a point at node k (AT_LEFT with a1 = 0) takes the
+ * gradient kept from node_gradients_k. */
 ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
                                  const double *x, const int *first,
                                  const int *end, int k, double *fa, double *fb,
-                                 int sum_slow, const int ns, const int nf) {
+                                 int sum_slow, int at_k, const int ns,
+                                 const int nf) {
   if (!pr->has_kind[k])
     return;
   const int same = pr->same;
@@ -635,13 +680,17 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
       if (pr->kinds[c][ip] != k)
         continue;
       const mrvi_point *pt = &st->pts[c][ip];
-      point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+      const double *g = pr->g;
+      if (at_k && pt->a1 == 0.0)
+        g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)(ns + nf);
+      else
+        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
       if (fa && pt->cA != 0.0)
-        axpy(nf, pt->w * pt->cA, pr->g + ns, fa);
+        axpy(nf, pt->w * pt->cA, g + ns, fa);
       if (fb && pt->cB != 0.0)
-        axpy(nf, pt->w * pt->cB, pr->g + ns, fb);
+        axpy(nf, pt->w * pt->cB, g + ns, fb);
       if (sum_slow && pt->a0 != 0.0)
-        axpy(ns, pt->w * pt->a0, pr->g, pr->fs);
+        axpy(ns, pt->w * pt->a0, g, pr->fs);
     }
 }
 
@@ -650,7 +699,7 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
 static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
                         const double *x, const int *first, const int *end,
                         int k, double *fa, double *fb, int sum_slow) {
-  eval_points_k(pr, st, x, first, end, k, fa, fb, sum_slow, st->ns, st->nf);
+  eval_points_k(pr, st, x, first, end, k, fa, fb, sum_slow, 0, st->ns, st->nf);
 }
 
 ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
@@ -659,9 +708,8 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   const double dt = st->dt, *minv = pr->minv + ns;
   if (sum_slow)
     memset(pr->fs, 0, (size_t)ns * sizeof(double));
-  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
-  for (int f = 0; f < nf; f++)
-    pr->pm[f] = st->pf0[f];
+  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = pr->fimp0[f];
+  UNROLL for (int f = 0; f < nf; f++) pr->pm[f] = st->pf0[f];
   double cm[nf > 0 ? nf : 1]; /* dt / M */
   UNROLL for (int f = 0; f < nf; f++) cm[f] = dt * minv[f];
   int first[2] = {0, 0}, end[2];
@@ -675,12 +723,12 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   UNROLL for (int f = 0; f < nf; f++) dn[f] =                                  \
       (d ? d[f] : 0.0) + cm[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
     UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
-    eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
-                  nf);
-    /* Estimate with the implicit force of the last intervals (in interval
-     * 0, with the implicit points evaluated once at a first estimate). */
-    /* From interval 2 on, the implicit force extrapolated linearly from
-     * the last two intervals' (an error O(dt^2) instead of O(dt)). */
+    eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow,
+                  mm == 0, ns, nf);
+    /* Estimate with the implicit force of the last intervals: in interval
+     * 0 its value at node k (fimp0, node_gradients_k), in interval 1
+     * interval 0's, from interval 2 on extrapolated linearly from the
+     * last two intervals' (an error O(dt^2) instead of O(dt)). */
     if (mm >= 2)
       UNROLL for (int f = 0; f < nf; f++) {
         const double fi = pr->fimp[f];
@@ -689,17 +737,15 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
       }
     else
       UNROLL for (int f = 0; f < nf; f++) pr->fimp1[f] = pr->fimp[f];
-    for (int pass = mm == 0 ? 0 : 1; pass < 2; pass++) {
-      SOLVE_ROW();
-      UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
-      UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
-      eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
-                    sum_slow && pass == 1, ns, nf);
-    }
+    SOLVE_ROW();
+    UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
+    UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
+    eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb, sum_slow, 0,
+                  ns, nf);
     SOLVE_ROW();
 #undef SOLVE_ROW
-    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, ns,
-                  nf);
+    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, 0,
+                  ns, nf);
     UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
         (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
     first[0] = end[0];
@@ -936,26 +982,12 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   }
   pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
-  memset(pr->fs, 0, (size_t)st->ns * sizeof(double));
-  if (pr->pre) {
-    memset(pr->gk, 0, (size_t)(st->ns + st->nf) * sizeof(double));
-    memset(pr->fk, 0, (size_t)st->ns * sizeof(double));
-  }
-  memset(x, 0, (size_t)st->n_unknowns * sizeof(double));
-  for (int c = 0; c < 2; c++) {
-    double w = 0.0;
-    for (int ip = 0; ip < st->n_pts[c]; ip++)
-      w += st->pts[c][ip].w * st->pts[c][ip].a0;
-    if (w == 0.0 || st->n_elem_of_class[c] == 0)
-      continue;
-    const mrvi_point node = {.cA = 1.0};
-    point_gradient(pr, st, x, &node, c);
-    axpy(st->ns, w, pr->g, pr->fs);
-    if (pr->pre) { /* for pre_solve */
-      if (c == 0)
-        memcpy(pr->gk, pr->g, (size_t)(st->ns + st->nf) * sizeof(double));
-      axpy(st->ns, pr->wk[c], pr->g, pr->fk);
-    }
+  SMALL(st->ns, NS, SMALL(st->nf, NF, node_gradients_k(pr, st, NS, NF)));
+  if (pr->pre) { /* for pre_solve */
+    const int n = st->ns + st->nf;
+    memcpy(pr->gk, pr->gnode, (size_t)n * sizeof(double));
+    for (int s = 0; s < st->ns; s++)
+      pr->fk[s] = pr->wk[0] * pr->gnode[s] + pr->wk[1] * pr->gnode[n + s];
   }
   slow_update(pr, st, x);
   pr->presolved = 0;
