@@ -151,14 +151,20 @@ static void predict(mrvi_integrator *it) {
   mrvi_predict_checked(it->predictor, &it->step, it->x);
 }
 
-/* Displacements -> positions in x (after convergence). */
+/* Displacements -> positions in x (after convergence), for ns, nf
+ * constants on small blocks. */
+ALWAYS_INLINE void to_positions_k(mrvi_integrator *it, const int ns,
+                                  const int nf) {
+  double *restrict x = it->x;
+  const double *restrict qs = it->qs, *restrict qf = it->qf;
+  UNROLL for (int s = 0; s < ns; s++) x[s] += qs[s];
+  for (int mm = 1; mm <= it->step.p; mm++)
+    UNROLL for (int s = 0; s < nf; s++) x[ns + (mm - 1) * nf + s] += qf[s];
+}
+
 static void to_positions(mrvi_integrator *it) {
   mrvi_step *st = &it->step;
-  for (int s = 0; s < st->ns; s++)
-    it->x[s] += it->qs[s];
-  for (int mm = 1; mm <= st->p; mm++)
-    for (int s = 0; s < st->nf; s++)
-      it->x[st->ns + (mm - 1) * st->nf + s] += it->qf[s];
+  SMALL(st->ns, NS, SMALL(st->nf, NF, to_positions_k(it, NS, NF)));
   st->increments = 0;
 }
 
@@ -520,7 +526,8 @@ static void residual_norms(const mrvi_integrator *it, double *dyn,
                            double *con) {
   const mrvi_step *st = &it->step;
   *dyn = norm_inf(it->R, st->n_unknowns);
-  *con = norm_inf(it->R + st->n_unknowns, st->n_lambda);
+  *con =
+      st->n_lambda > 0 ? norm_inf(it->R + st->n_unknowns, st->n_lambda) : 0.0;
 }
 
 /* Residual (and, if jac, the Jacobian) at the current x.  In the null-space
@@ -766,7 +773,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
    * the last step (multipliers, factors), so a step depends on (q_k, p_k)
    * alone: a restarted or resumed run continues bit for bit. */
   predict(it);
-  memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
+  if (st->n_lambda > 0)
+    memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;
   if (it->blocks)
     mrvi_blocks_chord(it->blocks, use_chord(it));

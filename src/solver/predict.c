@@ -109,6 +109,7 @@ struct mrvi_predictor {
    * over interval 0's implicit points of w cA (wins: their force F_0^A
    * estimated at node k, fimp0, nf). */
   double *gnode, *fimp0, wnode[2], wins[2];
+  int node_left; /* some point of interval 0 is at node k (AT_LEFT, a1 = 0) */
   /* The slow pre-solve (pre_solve): used at all (pre), done in this step
    * (presolved); the linear sweep's matrix K = (M^f/dt + S_AB H_ff)^-1
    * (nf x nf) and interval sums lsum (see linear_step); the gradient of
@@ -468,6 +469,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       pr->wnode[c] += pt->w * pt->a0;
       if (pt->m == 0 && kind(pt) == INSIDE)
         pr->wins[c] += pt->w * pt->cA;
+      if (pt->m == 0 && kind(pt) == AT_LEFT && pt->a1 == 0.0)
+        pr->node_left = 1;
     }
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
@@ -659,7 +662,7 @@ ALWAYS_INLINE void node_gradients_k(mrvi_predictor *pr, const mrvi_step *st,
   const double v1 = pr->wins[0], w1 = pr->wins[1];
   UNROLL for (int f = 0; f < nf; f++) pr->fimp0[f] =
       v1 * gv[ns + f] + w1 * gw[ns + f];
-  if (pr->same)
+  if (pr->same && pr->node_left)
     UNROLL for (int i = 0; i < n; i++) pr->gnode[2 * n + i] = gv[i] + gw[i];
 }
 
@@ -746,8 +749,9 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
 #undef SOLVE_ROW
     eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, 0,
                   ns, nf);
-    UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
-        (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
+    if (mm + 1 < p) /* (p^{f,p} is not needed) */
+      UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
+          (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
@@ -763,10 +767,29 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
   SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
 }
 
-/* Slow row solved for dq^s = x_s with the slow force fs. */
-static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  for (int s = 0; s < st->ns; s++)
-    x[s] = st->dT * pr->minv[s] * (st->ps0[s] - pr->fs[s]);
+ALWAYS_INLINE double slow_update_k(mrvi_predictor *pr, const mrvi_step *st,
+                                   double *restrict x, int keep, const int ns) {
+  double r = 0.0;
+  UNROLL for (int s = 0; s < ns; s++) {
+    const double xn = st->dT * pr->minv[s] * (st->ps0[s] - pr->fs[s]);
+    if (keep) {
+      const double d = fabs(xn - x[s]) / (st->dT * pr->minv[s]);
+      r = d > r ? d : r;
+      pr->xs[s] = x[s];
+    }
+    x[s] = xn;
+  }
+  return r;
+}
+
+/* Slow row solved for dq^s = x_s with the slow force fs; with keep, the
+ * old x_s kept in xs and the change M |x_s' - x_s| / dT (slow_change)
+ * returned, else 0. */
+static double slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                          int keep) {
+  double r = 0.0;
+  SMALL(st->ns, NS, r = slow_update_k(pr, st, x, keep, NS));
+  return r;
 }
 
 /* Slow-row force of the sampled points (see slow_newton) at the slow
@@ -852,8 +875,10 @@ static void linear_nodes(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
                           const double *x) {
   double r = 0.0;
-  for (int s = 0; s < st->ns; s++)
-    r = fmax(r, fabs(x[s] - pr->xs[s]) / (st->dT * pr->minv[s]));
+  for (int s = 0; s < st->ns; s++) {
+    const double d = fabs(x[s] - pr->xs[s]) / (st->dT * pr->minv[s]);
+    r = d > r ? d : r;
+  }
   return r;
 }
 
@@ -957,20 +982,17 @@ static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * sample's quadrature error, is a small fraction of its change (FPU: about
  * 1e-3).  Every step of this depends on (q_k, p_k) only. */
 static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  const int ns = st->ns;
-  memcpy(pr->xs, x, (size_t)ns * sizeof(double));
-  slow_update(pr, st, x);
+  const double r = slow_update(pr, st, x, 1);
   /* (after the pre-solve the slow row is close, but not to the
    * tolerance: always solved) */
-  if (!pr->H || !(slow_change(pr, st, x) > (pr->presolved ? 0.0 : pr->rstop)))
+  if (!pr->H || !(r > (pr->presolved ? 0.0 : pr->rstop)))
     return;
   for (int k = 0; k < MRVI_SLOW_NEWTON_MAX; k++) {
     sampled_solve(pr, st, x);
     if (!(slow_change(pr, st, x) > pr->rsweep) || k == MRVI_SLOW_NEWTON_MAX - 1)
       return;
     sweep(pr, st, x, 1);
-    memcpy(pr->xs, x, (size_t)ns * sizeof(double));
-    slow_update(pr, st, x);
+    slow_update(pr, st, x, 1);
   }
 }
 
@@ -989,7 +1011,7 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     for (int s = 0; s < st->ns; s++)
       pr->fk[s] = pr->wk[0] * pr->gnode[s] + pr->wk[1] * pr->gnode[n + s];
   }
-  slow_update(pr, st, x);
+  slow_update(pr, st, x, 0);
   pr->presolved = 0;
   if (pr->pre && pr->slow_coupled)
     pre_solve(pr, st, x);
