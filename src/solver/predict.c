@@ -609,12 +609,22 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     int c, const int ns, const int nf,
                                     double *J, double hscale, int both) {
   double *restrict z = pr->z, *restrict g = pr->g;
-  UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s] + pt->a1 * x[s];
-  const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
+  const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
+  const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  UNROLL for (int s = 0; s < ns; s++) z[s] = qs0[s] + a1 * x[s];
+  /* (the tests outside the loop: qf0 + cA d^m + cB d^{m+1}, a term 0.0
+   * where its node is node k or its weight 0) */
   const double *dB = x + ns + (size_t)pt->m * nf;
-  UNROLL for (int f = 0; f < nf; f++) z[ns + f] =
-      st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
-      (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
+  const double *dA = pt->m > 0 ? dB - nf : dB;
+  if (pt->m > 0 && cB != 0.0)
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] =
+        qf0[f] + cA * dA[f] + cB * dB[f];
+  else if (pt->m > 0)
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + cA * dA[f] + 0.0;
+  else if (cB != 0.0)
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + cB * dB[f];
+  else
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + 0.0;
   UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
   if (J) /* the slow solve's Hessian as well */
     mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
