@@ -11,8 +11,9 @@
  *   fast row m  p^{f,m} - M^f (d^{m+1} - d^m)/dt - F_m^A = 0, F_m^A the sum
  *               over the points of interval m of w cA grad_f Z(z), with the
  *               implicit points (cA cB != 0) at the estimate d^{m+1} of the
- *               implicit force extrapolated from the last two intervals';
- *               then
+ *               implicit force (in interval 0 its value at node k, in
+ *               interval 1 interval 0's, then extrapolated from the last
+ *               two intervals'); then
  *               p^{f,m+1} = M^f (d^{m+1} - d^m)/dt - F_m^B (eq:pkfm+).
  *
  * Rectangle and trapezoidal rules are reproduced exactly (their points lie
@@ -20,8 +21,10 @@
  * times the estimate's error, a factor (omega dt)^2/4 below it.  Where the
  * slow row sees the micro nodes (V on the micro grid, or W depending on slow
  * coordinates), it is solved again with the forces of its points along the
- * swept path (summed during the sweep).  Cost: one evaluation of the
- * gradients at the points, no Jacobian.
+ * swept path (summed during the sweep).  Cost: the gradients of V and W at
+ * node k once (node_gradients_k: the slow row's first solve, interval 0's
+ * estimate and the points at node k) and one evaluation of the gradients
+ * at every other point, no Jacobian.
  *
  * Where the slow row is still far from solved after that (a large dT
  * with a non-linear V), it is solved by Broyden's method on a sample of
