@@ -170,27 +170,28 @@ static void to_positions(mrvi_integrator *it) {
 
 static double norm_inf(const double *v, int n) {
   /* max |v_i|, NaN if any v_i is NaN.  Two running maxima (exact, so the
-   * same value) and z = sum of 0 v_i, a NaN only if some v_i is not finite:
-   * then the entries are looked at again, one by one. */
+   * same value) and z = sum of |v_i|, finite unless some v_i is not finite
+   * or the sum overflows: then the entries are looked at again, one by
+   * one. */
   double r0 = 0.0, r1 = 0.0, z = 0.0;
   int i = 0;
   for (; i + 1 < n; i += 2) {
     const double a = fabs(v[i]), b = fabs(v[i + 1]);
     r0 = a > r0 ? a : r0;
     r1 = b > r1 ? b : r1;
-    z += 0.0 * a + 0.0 * b;
+    z += a + b;
   }
   if (i < n) {
     const double a = fabs(v[i]);
     r0 = a > r0 ? a : r0;
-    z += 0.0 * a;
+    z += a;
   }
-  if (z == 0.0)
+  if (z <= DBL_MAX)
     return r0 > r1 ? r0 : r1;
   for (i = 0; i < n; i++)
     if (v[i] != v[i])
       return NAN;
-  return INFINITY;
+  return r0 > r1 ? r0 : r1; /* (infinite, or a sum that overflowed) */
 }
 
 /* Roundoff floor of the residual: its rows subtract momenta of size
