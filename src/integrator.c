@@ -151,40 +151,47 @@ static void predict(mrvi_integrator *it) {
   mrvi_predict_checked(it->predictor, &it->step, it->x);
 }
 
-/* Displacements -> positions in x (after convergence). */
+/* Displacements -> positions in x (after convergence), for ns, nf
+ * constants on small blocks. */
+ALWAYS_INLINE void to_positions_k(mrvi_integrator *it, const int ns,
+                                  const int nf) {
+  double *restrict x = it->x;
+  const double *restrict qs = it->qs, *restrict qf = it->qf;
+  UNROLL for (int s = 0; s < ns; s++) x[s] += qs[s];
+  for (int mm = 1; mm <= it->step.p; mm++)
+    UNROLL for (int s = 0; s < nf; s++) x[ns + (mm - 1) * nf + s] += qf[s];
+}
+
 static void to_positions(mrvi_integrator *it) {
   mrvi_step *st = &it->step;
-  for (int s = 0; s < st->ns; s++)
-    it->x[s] += it->qs[s];
-  for (int mm = 1; mm <= st->p; mm++)
-    for (int s = 0; s < st->nf; s++)
-      it->x[st->ns + (mm - 1) * st->nf + s] += it->qf[s];
+  SMALL(st->ns, NS, SMALL(st->nf, NF, to_positions_k(it, NS, NF)));
   st->increments = 0;
 }
 
 static double norm_inf(const double *v, int n) {
   /* max |v_i|, NaN if any v_i is NaN.  Two running maxima (exact, so the
-   * same value) and z = sum of 0 v_i, a NaN only if some v_i is not finite:
-   * then the entries are looked at again, one by one. */
+   * same value) and z = sum of |v_i|, finite unless some v_i is not finite
+   * or the sum overflows: then the entries are looked at again, one by
+   * one. */
   double r0 = 0.0, r1 = 0.0, z = 0.0;
   int i = 0;
   for (; i + 1 < n; i += 2) {
     const double a = fabs(v[i]), b = fabs(v[i + 1]);
     r0 = a > r0 ? a : r0;
     r1 = b > r1 ? b : r1;
-    z += 0.0 * a + 0.0 * b;
+    z += a + b;
   }
   if (i < n) {
     const double a = fabs(v[i]);
     r0 = a > r0 ? a : r0;
-    z += 0.0 * a;
+    z += a;
   }
-  if (z == 0.0)
+  if (z <= DBL_MAX)
     return r0 > r1 ? r0 : r1;
   for (i = 0; i < n; i++)
     if (v[i] != v[i])
       return NAN;
-  return INFINITY;
+  return r0 > r1 ? r0 : r1; /* (infinite, or a sum that overflowed) */
 }
 
 /* Roundoff floor of the residual: its rows subtract momenta of size
@@ -520,7 +527,8 @@ static void residual_norms(const mrvi_integrator *it, double *dyn,
                            double *con) {
   const mrvi_step *st = &it->step;
   *dyn = norm_inf(it->R, st->n_unknowns);
-  *con = norm_inf(it->R + st->n_unknowns, st->n_lambda);
+  *con =
+      st->n_lambda > 0 ? norm_inf(it->R + st->n_unknowns, st->n_lambda) : 0.0;
 }
 
 /* Residual (and, if jac, the Jacobian) at the current x.  In the null-space
@@ -766,7 +774,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
    * the last step (multipliers, factors), so a step depends on (q_k, p_k)
    * alone: a restarted or resumed run continues bit for bit. */
   predict(it);
-  memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
+  if (st->n_lambda > 0)
+    memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;
   if (it->blocks)
     mrvi_blocks_chord(it->blocks, use_chord(it));

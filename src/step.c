@@ -14,6 +14,7 @@
  * -w c_a grad Z to D_{X_a} L_d and -w c_a c_b hess Z to its derivative.  The
  * same loop serves every rule: there is no scheme-specific derivative. */
 #include "internal.h"
+#include "solver/small.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -589,6 +590,25 @@ static void potential_momenta(const mrvi_step *st, const mrvi_element *e,
   }
 }
 
+/* The kinetic parts of the momenta from increments (mrvi_step.increments),
+ * for ns, nf constants on small blocks. */
+ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
+                                        double *ps1, double *pf, const int ns,
+                                        const int nf) {
+  const mrvi_model *m = st->model;
+  const int p = st->p;
+  const double dT = st->dT, dt = st->dt;
+  UNROLL for (int s = 0; s < ns; s++) ps1[s] +=
+      m->mass[m->slow_index[s]] * x[s] / dT;
+  UNROLL for (int s = 0; s < nf; s++) {
+    const double M = m->mass[m->fast_index[s]];
+    const double *d = x + ns + s;
+    pf[s] += M * (d[0] - 0.0) / dt;
+    for (int mm = 1; mm < p; mm++)
+      pf[mm * nf + s] += M * (d[mm * nf] - d[(mm - 1) * nf]) / dt;
+  }
+}
+
 void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
                               double *pf) {
   const mrvi_model *m = st->model;
@@ -598,15 +618,7 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
   const double dT = st->dT, dt = st->dt;
   if (st->increments) { /* the same sums without a test per entry (a
                            step's fixed cost at p = 1) */
-    for (int s = 0; s < ns; s++)
-      ps1[s] += m->mass[m->slow_index[s]] * x[s] / dT;
-    for (int s = 0; s < nf; s++) {
-      const double M = m->mass[m->fast_index[s]];
-      const double *d = x + ns + s;
-      pf[s] += M * (d[0] - 0.0) / dt;
-      for (int mm = 1; mm < p; mm++)
-        pf[mm * nf + s] += M * (d[mm * nf] - d[(mm - 1) * nf]) / dt;
-    }
+    SMALL(ns, NS, SMALL(nf, NF, kinetic_increments_k(st, x, ps1, pf, NS, NF)));
   } else {
     for (int s = 0; s < ns; s++)
       ps1[s] += m->mass[m->slow_index[s]] * slow_diff(st, x, s) / dT;

@@ -506,6 +506,22 @@ static double initial_residual(mrvi_step *st, mrvi_predictor *pr,
   return r;
 }
 
+/* fpu_predictor for one scheme, a macro step and micro steps (step), the
+ * end time t_end and tolerance 1e-9. */
+static mrvi_system *fpu_scheme_predictor(const char *scheme_name,
+                                         const char *const step[2],
+                                         const char *t_end, mrvi_step *st,
+                                         mrvi_predictor **pr) {
+  char scheme[64];
+  snprintf(scheme, sizeof scheme, "integrator.scheme=%s", scheme_name);
+  const char *set[] = {step[0], step[1], t_end,
+                       "integrator.newton.tolerance=1e-9", scheme};
+  mrvi_system *sys = fpu_predictor(set, 5, st, pr);
+  if (sys)
+    mrvi_predictor_set_tolerance(*pr, 1e-9);
+  return sys;
+}
+
 static void test_predictor(void) {
   const char *set[] = {"integrator.macro_step=0.01",
                        "integrator.micro_steps=10", "integrator.t_end=1"};
@@ -570,16 +586,12 @@ static void test_predictor_large_steps(void) {
   const double tol = 1e-9;
   for (int sc = 0; sc < 3; sc++)
     for (int k = 0; k < 3; k++) {
-      char scheme[64];
-      snprintf(scheme, sizeof scheme, "integrator.scheme=%s", schemes[sc]);
-      const char *set[] = {steps[k][0], steps[k][1], "integrator.t_end=5",
-                           "integrator.newton.tolerance=1e-9", scheme};
       mrvi_step st;
       mrvi_predictor *pr;
-      mrvi_system *sys = fpu_predictor(set, 5, &st, &pr);
+      mrvi_system *sys = fpu_scheme_predictor(schemes[sc], steps[k],
+                                              "integrator.t_end=5", &st, &pr);
       if (!sys)
         continue;
-      mrvi_predictor_set_tolerance(pr, tol);
       const int pre = mrvi_predictor_presolve(pr, 1);
       const double r = initial_residual(&st, pr, 0);
       const int sweeps = mrvi_predictor_sweeps(pr);
@@ -618,6 +630,50 @@ static void test_predictor_large_steps(void) {
              schemes[sc], steps[k][0], r,
              (double)sum.iterations_total / (double)sum.steps,
              sum.iterations_max);
+      mrvi_system_free(sys);
+    }
+}
+
+/* Small macro steps (bench_fpu's dt = 0.001 at p = 1 and 2), where the
+ * step's fixed cost is the predictor's: node k's gradients, evaluated once
+ * (predict.c, node_gradients_k), give the slow row's first solve, interval
+ * 0's implicit force and the points at node k.  The predictor's residual
+ * at the initial state stays within 10 sqrt(0.01 tol), from where one
+ * Newton update reaches the stop at 0.01 tol (every step of a run takes
+ * one).  Trapezoidal-trapezoidal at p = 1 has every point on a node and
+ * its rows explicit (the slow row holds node k's point only, fast row 0
+ * its force): the prediction from node k's gradients is the solution, its
+ * residual at round-off, below the floor 16 eps M |q| / dt = 5e-12. */
+static void test_predictor_small_steps(void) {
+  static const char *const schemes[] = {
+      "midpoint-midpoint", "trapezoidal-midpoint", "trapezoidal-trapezoidal"};
+  static const char *const steps[][2] = {
+      {"integrator.macro_step=0.001", "integrator.micro_steps=1"},
+      {"integrator.macro_step=0.002", "integrator.micro_steps=2"}};
+  const double tol = 1e-9;
+  for (int sc = 0; sc < 3; sc++)
+    for (int k = 0; k < 2; k++) {
+      mrvi_step st;
+      mrvi_predictor *pr;
+      mrvi_system *sys = fpu_scheme_predictor(schemes[sc], steps[k],
+                                              "integrator.t_end=0.5", &st, &pr);
+      if (!sys)
+        continue;
+      const double r = initial_residual(&st, pr, 0);
+      const int exact = sc == 2 && k == 0;
+      const double bound = exact ? 5e-12 : 10.0 * sqrt(0.01 * tol);
+      CHECK(r <= bound, "%s %s: predictor residual %.2e > %.2e", schemes[sc],
+            steps[k][1], r, bound);
+      mrvi_predictor_free(pr);
+      mrvi_step_free(&st);
+      mrvi_summary sum;
+      CHECK(mrvi_run(sys->model, &sys->settings, NULL, NULL, NULL, &sum) == 0,
+            "%s %s: %s", schemes[sc], steps[k][1], sum.message);
+      CHECK(sum.iterations_total == sum.steps && sum.iterations_max == 1,
+            "%s %s: %ld Newton updates in %ld steps (max %d)", schemes[sc],
+            steps[k][1], sum.iterations_total, sum.steps, sum.iterations_max);
+      printf("fpu %s %s: predictor residual %.2e, %ld updates in %ld steps\n",
+             schemes[sc], steps[k][1], r, sum.iterations_total, sum.steps);
       mrvi_system_free(sys);
     }
 }
@@ -917,6 +973,7 @@ int main(void) {
   test_linsolve_backends();
   test_predictor();
   test_predictor_large_steps();
+  test_predictor_small_steps();
   test_jacobian_solve_constrained();
   test_blowup();
   test_tiny_steps();

@@ -11,8 +11,9 @@
  *   fast row m  p^{f,m} - M^f (d^{m+1} - d^m)/dt - F_m^A = 0, F_m^A the sum
  *               over the points of interval m of w cA grad_f Z(z), with the
  *               implicit points (cA cB != 0) at the estimate d^{m+1} of the
- *               implicit force extrapolated from the last two intervals';
- *               then
+ *               implicit force (in interval 0 its value at node k, in
+ *               interval 1 interval 0's, then extrapolated from the last
+ *               two intervals'); then
  *               p^{f,m+1} = M^f (d^{m+1} - d^m)/dt - F_m^B (eq:pkfm+).
  *
  * Rectangle and trapezoidal rules are reproduced exactly (their points lie
@@ -20,8 +21,10 @@
  * times the estimate's error, a factor (omega dt)^2/4 below it.  Where the
  * slow row sees the micro nodes (V on the micro grid, or W depending on slow
  * coordinates), it is solved again with the forces of its points along the
- * swept path (summed during the sweep).  Cost: one evaluation of the
- * gradients at the points, no Jacobian.
+ * swept path (summed during the sweep).  Cost: the gradients of V and W at
+ * node k once (node_gradients_k: the slow row's first solve, interval 0's
+ * estimate and the points at node k) and one evaluation of the gradients
+ * at every other point, no Jacobian.
  *
  * Where the slow row is still far from solved after that (a large dT
  * with a non-linear V), it is solved by Broyden's method on a sample of
@@ -103,6 +106,13 @@ struct mrvi_predictor {
   int lo[2];
   int same; /* V and W have the same points (midpoint-midpoint): a point's
                two gradients are evaluated at one configuration, summed */
+  /* Node k (node_gradients): the gradients of V and W there and, with
+   * same, their sum (gnode, 3 n packed); the sums over a class's points
+   * of w a0 (wnode: its slow-row force with every point at node k) and
+   * over interval 0's implicit points of w cA (wins: their force F_0^A
+   * estimated at node k, fimp0, nf). */
+  double *gnode, *fimp0, wnode[2], wins[2];
+  int node_left; /* some point of interval 0 is at node k (AT_LEFT, a1 = 0) */
   /* The slow pre-solve (pre_solve): used at all (pre), done in this step
    * (presolved); the linear sweep's matrix K = (M^f/dt + S_AB H_ff)^-1
    * (nf x nf) and interval sums lsum (see linear_step); the gradient of
@@ -381,8 +391,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     return MRVI_ENOMEM;
   const size_t n = (size_t)(m->n > 0 ? m->n : 1);
   pr->m = m;
-  double **vec[] = {&pr->z,    &pr->g,  &pr->fs,   &pr->fexp,
-                    &pr->fimp, &pr->fb, &pr->fimp1};
+  double **vec[] = {&pr->z,    &pr->g,  &pr->fs,    &pr->fexp,
+                    &pr->fimp, &pr->fb, &pr->fimp1, &pr->fimp0};
   for (size_t i = 0; i < sizeof vec / sizeof *vec; i++)
     if (!(*vec[i] = malloc(n * sizeof(double)))) {
       mrvi_predictor_free(pr);
@@ -393,7 +403,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       !(pr->xs = malloc(3 * n * sizeof(double))) ||
       !(pr->b = malloc(4 * n * sizeof(double))) ||
       !(pr->gk = calloc(n, sizeof(double))) ||
-      !(pr->fk = calloc(n, sizeof(double)))) {
+      !(pr->fk = calloc(n, sizeof(double))) ||
+      !(pr->gnode = calloc(3 * n, sizeof(double)))) {
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
@@ -455,6 +466,15 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     pr->lo[c] = slow ? 0 : st->ns;
   }
   pr->same = mrvi_step_same_points(st);
+  for (int c = 0; c < 2; c++)
+    for (int ip = 0; ip < st->n_pts[c]; ip++) {
+      const mrvi_point *pt = &st->pts[c][ip];
+      pr->wnode[c] += pt->w * pt->a0;
+      if (pt->m == 0 && kind(pt) == INSIDE)
+        pr->wins[c] += pt->w * pt->cA;
+      if (pt->m == 0 && kind(pt) == AT_LEFT && pt->a1 == 0.0)
+        pr->node_left = 1;
+    }
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
   for (int c = 0; c < 2; c++)
@@ -500,6 +520,8 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fexp);
   free(pr->fimp);
   free(pr->fimp1);
+  free(pr->fimp0);
+  free(pr->gnode);
   free(pr->fb);
   free(pr->pm);
   free(pr->H);
@@ -590,12 +612,22 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     int c, const int ns, const int nf,
                                     double *J, double hscale, int both) {
   double *restrict z = pr->z, *restrict g = pr->g;
-  UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s] + pt->a1 * x[s];
-  const double *dA = pt->m == 0 ? NULL : x + ns + (size_t)(pt->m - 1) * nf;
+  const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
+  const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  UNROLL for (int s = 0; s < ns; s++) z[s] = qs0[s] + a1 * x[s];
+  /* (the tests outside the loop: qf0 + cA d^m + cB d^{m+1}, a term 0.0
+   * where its node is node k or its weight 0) */
   const double *dB = x + ns + (size_t)pt->m * nf;
-  UNROLL for (int f = 0; f < nf; f++) z[ns + f] =
-      st->qf0[f] + (dA ? pt->cA * dA[f] : 0.0) +
-      (pt->cB != 0.0 ? pt->cB * dB[f] : 0.0);
+  const double *dA = pt->m > 0 ? dB - nf : dB;
+  if (pt->m > 0 && cB != 0.0)
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] =
+        qf0[f] + cA * dA[f] + cB * dB[f];
+  else if (pt->m > 0)
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + cA * dA[f] + 0.0;
+  else if (cB != 0.0)
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + cB * dB[f];
+  else
+    UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + 0.0;
   UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
   if (J) /* the slow solve's Hessian as well */
     mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
@@ -611,22 +643,51 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     affine_grad_k(pr->g0[1], pr->Hq[1], z, g, ns, ns + nf);
 }
 
-static void point_gradient(mrvi_predictor *pr, const mrvi_step *st,
-                           const double *x, const mrvi_point *pt, int c) {
-  point_gradient_k(pr, st, x, pt, c, st->ns, st->nf, NULL, 0.0, 0);
-}
-
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
                         double *restrict acc) {
   UNROLL for (int i = 0; i < n; i++) acc[i] += a * g[i];
 }
 
+/* The gradients of V and W at node k, z = (q_k^s, q_k^{f,0}), into gnode
+ * (and their sum, with same); fs = the slow-row force with every point at
+ * node k, fimp0 = interval 0's implicit force F_0^A estimated there. */
+ALWAYS_INLINE void node_gradients_k(mrvi_predictor *pr, const mrvi_step *st,
+                                    const int ns, const int nf) {
+  const int n = ns + nf;
+  double *restrict z = pr->z, *restrict gv = pr->gnode,
+                   *restrict gw = pr->gnode + n;
+  UNROLL for (int s = 0; s < ns; s++) z[s] = st->qs0[s];
+  UNROLL for (int f = 0; f < nf; f++) z[ns + f] = st->qf0[f];
+  UNROLL for (int i = 0; i < n; i++) gv[i] = gw[i] = 0.0;
+  for (int c = 0; c < 2; c++) {
+    if (st->n_elem_of_class[c] == 0)
+      continue;
+    double *g = c == 0 ? gv : gw;
+    if (!pr->Hq[c])
+      mrvi_terms_grad(pr->kc[c], z, g);
+    else if (pr->lo[c] == 0) /* (each with constant bounds) */
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, 0, n);
+    else
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, ns, n);
+  }
+  const double v0 = pr->wnode[0], w0 = pr->wnode[1];
+  UNROLL for (int s = 0; s < ns; s++) pr->fs[s] = v0 * gv[s] + w0 * gw[s];
+  const double v1 = pr->wins[0], w1 = pr->wins[1];
+  UNROLL for (int f = 0; f < nf; f++) pr->fimp0[f] =
+      v1 * gv[ns + f] + w1 * gw[ns + f];
+  if (pr->same && pr->node_left)
+    UNROLL for (int i = 0; i < n; i++) pr->gnode[2 * n + i] = gv[i] + gw[i];
+}
+
 /* Evaluate the points of kind k in [first[c], end[c]) of both classes:
- * fa += w cA g_f, fb += w cB g_f and, with sum_slow, fs += w a0 g_s. */
+ * fa += w cA g_f, fb += w cB g_f and, with sum_slow, fs += w a0 g_s.  With
+ * at_k (interval 0), a point at node k (AT_LEFT with a1 = 0) takes the
+ * gradient kept from node_gradients_k. */
 ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
                                  const double *x, const int *first,
                                  const int *end, int k, double *fa, double *fb,
-                                 int sum_slow, const int ns, const int nf) {
+                                 int sum_slow, int at_k, const int ns,
+                                 const int nf) {
   if (!pr->has_kind[k])
     return;
   const int same = pr->same;
@@ -635,13 +696,17 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
       if (pr->kinds[c][ip] != k)
         continue;
       const mrvi_point *pt = &st->pts[c][ip];
-      point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+      const double *g = pr->g;
+      if (at_k && pt->a1 == 0.0)
+        g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)(ns + nf);
+      else
+        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
       if (fa && pt->cA != 0.0)
-        axpy(nf, pt->w * pt->cA, pr->g + ns, fa);
+        axpy(nf, pt->w * pt->cA, g + ns, fa);
       if (fb && pt->cB != 0.0)
-        axpy(nf, pt->w * pt->cB, pr->g + ns, fb);
+        axpy(nf, pt->w * pt->cB, g + ns, fb);
       if (sum_slow && pt->a0 != 0.0)
-        axpy(ns, pt->w * pt->a0, pr->g, pr->fs);
+        axpy(ns, pt->w * pt->a0, g, pr->fs);
     }
 }
 
@@ -650,7 +715,7 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
 static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
                         const double *x, const int *first, const int *end,
                         int k, double *fa, double *fb, int sum_slow) {
-  eval_points_k(pr, st, x, first, end, k, fa, fb, sum_slow, st->ns, st->nf);
+  eval_points_k(pr, st, x, first, end, k, fa, fb, sum_slow, 0, st->ns, st->nf);
 }
 
 ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
@@ -659,9 +724,8 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   const double dt = st->dt, *minv = pr->minv + ns;
   if (sum_slow)
     memset(pr->fs, 0, (size_t)ns * sizeof(double));
-  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
-  for (int f = 0; f < nf; f++)
-    pr->pm[f] = st->pf0[f];
+  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = pr->fimp0[f];
+  UNROLL for (int f = 0; f < nf; f++) pr->pm[f] = st->pf0[f];
   double cm[nf > 0 ? nf : 1]; /* dt / M */
   UNROLL for (int f = 0; f < nf; f++) cm[f] = dt * minv[f];
   int first[2] = {0, 0}, end[2];
@@ -675,12 +739,12 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   UNROLL for (int f = 0; f < nf; f++) dn[f] =                                  \
       (d ? d[f] : 0.0) + cm[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
     UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
-    eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow, ns,
-                  nf);
-    /* Estimate with the implicit force of the last intervals (in interval
-     * 0, with the implicit points evaluated once at a first estimate). */
-    /* From interval 2 on, the implicit force extrapolated linearly from
-     * the last two intervals' (an error O(dt^2) instead of O(dt)). */
+    eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow,
+                  mm == 0, ns, nf);
+    /* Estimate with the implicit force of the last intervals: in interval
+     * 0 its value at node k (fimp0, node_gradients_k), in interval 1
+     * interval 0's, from interval 2 on extrapolated linearly from the
+     * last two intervals' (an error O(dt^2) instead of O(dt)). */
     if (mm >= 2)
       UNROLL for (int f = 0; f < nf; f++) {
         const double fi = pr->fimp[f];
@@ -689,19 +753,18 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
       }
     else
       UNROLL for (int f = 0; f < nf; f++) pr->fimp1[f] = pr->fimp[f];
-    for (int pass = mm == 0 ? 0 : 1; pass < 2; pass++) {
-      SOLVE_ROW();
-      UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
-      UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
-      eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb,
-                    sum_slow && pass == 1, ns, nf);
-    }
+    SOLVE_ROW();
+    UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
+    UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
+    eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb, sum_slow, 0,
+                  ns, nf);
     SOLVE_ROW();
 #undef SOLVE_ROW
-    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, ns,
-                  nf);
-    UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
-        (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
+    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, 0,
+                  ns, nf);
+    if (mm + 1 < p) /* (p^{f,p} is not needed) */
+      UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
+          (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
@@ -717,10 +780,29 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
   SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
 }
 
-/* Slow row solved for dq^s = x_s with the slow force fs. */
-static void slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  for (int s = 0; s < st->ns; s++)
-    x[s] = st->dT * pr->minv[s] * (st->ps0[s] - pr->fs[s]);
+ALWAYS_INLINE double slow_update_k(mrvi_predictor *pr, const mrvi_step *st,
+                                   double *restrict x, int keep, const int ns) {
+  double r = 0.0;
+  UNROLL for (int s = 0; s < ns; s++) {
+    const double xn = st->dT * pr->minv[s] * (st->ps0[s] - pr->fs[s]);
+    if (keep) {
+      const double d = fabs(xn - x[s]) / (st->dT * pr->minv[s]);
+      r = d > r ? d : r;
+      pr->xs[s] = x[s];
+    }
+    x[s] = xn;
+  }
+  return r;
+}
+
+/* Slow row solved for dq^s = x_s with the slow force fs; with keep, the
+ * old x_s kept in xs and the change M |x_s' - x_s| / dT (slow_change)
+ * returned, else 0. */
+static double slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                          int keep) {
+  double r = 0.0;
+  SMALL(st->ns, NS, r = slow_update_k(pr, st, x, keep, NS));
+  return r;
 }
 
 /* Slow-row force of the sampled points (see slow_newton) at the slow
@@ -806,8 +888,10 @@ static void linear_nodes(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
                           const double *x) {
   double r = 0.0;
-  for (int s = 0; s < st->ns; s++)
-    r = fmax(r, fabs(x[s] - pr->xs[s]) / (st->dT * pr->minv[s]));
+  for (int s = 0; s < st->ns; s++) {
+    const double d = fabs(x[s] - pr->xs[s]) / (st->dT * pr->minv[s]);
+    r = d > r ? d : r;
+  }
   return r;
 }
 
@@ -911,20 +995,17 @@ static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * sample's quadrature error, is a small fraction of its change (FPU: about
  * 1e-3).  Every step of this depends on (q_k, p_k) only. */
 static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  const int ns = st->ns;
-  memcpy(pr->xs, x, (size_t)ns * sizeof(double));
-  slow_update(pr, st, x);
+  const double r = slow_update(pr, st, x, 1);
   /* (after the pre-solve the slow row is close, but not to the
    * tolerance: always solved) */
-  if (!pr->H || !(slow_change(pr, st, x) > (pr->presolved ? 0.0 : pr->rstop)))
+  if (!pr->H || !(r > (pr->presolved ? 0.0 : pr->rstop)))
     return;
   for (int k = 0; k < MRVI_SLOW_NEWTON_MAX; k++) {
     sampled_solve(pr, st, x);
     if (!(slow_change(pr, st, x) > pr->rsweep) || k == MRVI_SLOW_NEWTON_MAX - 1)
       return;
     sweep(pr, st, x, 1);
-    memcpy(pr->xs, x, (size_t)ns * sizeof(double));
-    slow_update(pr, st, x);
+    slow_update(pr, st, x, 1);
   }
 }
 
@@ -936,28 +1017,14 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   }
   pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
-  memset(pr->fs, 0, (size_t)st->ns * sizeof(double));
-  if (pr->pre) {
-    memset(pr->gk, 0, (size_t)(st->ns + st->nf) * sizeof(double));
-    memset(pr->fk, 0, (size_t)st->ns * sizeof(double));
+  SMALL(st->ns, NS, SMALL(st->nf, NF, node_gradients_k(pr, st, NS, NF)));
+  if (pr->pre) { /* for pre_solve */
+    const int n = st->ns + st->nf;
+    memcpy(pr->gk, pr->gnode, (size_t)n * sizeof(double));
+    for (int s = 0; s < st->ns; s++)
+      pr->fk[s] = pr->wk[0] * pr->gnode[s] + pr->wk[1] * pr->gnode[n + s];
   }
-  memset(x, 0, (size_t)st->n_unknowns * sizeof(double));
-  for (int c = 0; c < 2; c++) {
-    double w = 0.0;
-    for (int ip = 0; ip < st->n_pts[c]; ip++)
-      w += st->pts[c][ip].w * st->pts[c][ip].a0;
-    if (w == 0.0 || st->n_elem_of_class[c] == 0)
-      continue;
-    const mrvi_point node = {.cA = 1.0};
-    point_gradient(pr, st, x, &node, c);
-    axpy(st->ns, w, pr->g, pr->fs);
-    if (pr->pre) { /* for pre_solve */
-      if (c == 0)
-        memcpy(pr->gk, pr->g, (size_t)(st->ns + st->nf) * sizeof(double));
-      axpy(st->ns, pr->wk[c], pr->g, pr->fk);
-    }
-  }
-  slow_update(pr, st, x);
+  slow_update(pr, st, x, 0);
   pr->presolved = 0;
   if (pr->pre && pr->slow_coupled)
     pre_solve(pr, st, x);
