@@ -673,9 +673,8 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
   const mrvi_model *m = st->model;
   memset(ps1, 0, (size_t)st->ns * sizeof(double));
   memset(pf, 0, (size_t)st->p * (size_t)st->nf * sizeof(double));
-  /* Elements outer, points inner: one element's entries of all its points
-   * are summed while they are in cache (one pass over the Jacobian, not
-   * one per point, for networks beyond the caches). */
+  /* Elements outer, points inner, as in mrvi_step_assemble (the same
+   * order of the sums). */
   for (int c = 0; c < 2; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
       const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
