@@ -54,21 +54,23 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
       return MRVI_CG_CURVATURE;
     }
     const double alpha = rz / pq;
-    double rn = 0.0;
+    /* One pass: x, r, ||r||_inf, z = D^-1 r and r^T z (the same sums in
+     * the same order as separate passes). */
+    double rn = 0.0, rz1 = 0.0;
     for (int i = 0; i < n; i++) {
       x[i] += alpha * p[i];
-      r[i] -= alpha * q[i];
-      const double a = fabs(r[i]);
+      const double ri = r[i] - alpha * q[i];
+      r[i] = ri;
+      const double a = fabs(ri);
       rn = isnan(a) || a > rn ? a : rn;
+      z[i] = dinv[i] * ri;
+      rz1 += ri * z[i];
     }
     *iterations = k;
     if (rn <= stop)
       return MRVI_CG_OK;
     if (!isfinite(rn))
       return MRVI_CG_MAXIT;
-    for (int i = 0; i < n; i++)
-      z[i] = dinv[i] * r[i];
-    const double rz1 = dot(n, r, z);
     const double beta = rz1 / rz;
     rz = rz1;
     for (int i = 0; i < n; i++)

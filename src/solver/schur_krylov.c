@@ -34,6 +34,81 @@
 #define SK_RESTART 20
 #define SK_GMRES_MAX_IT 100
 
+/* Entries of the step Jacobian gathered by rows or columns. */
+typedef struct {
+  int *ptr, *idx, *src;
+  double *val;
+} part;
+
+static void part_free(part *P) {
+  free(P->ptr);
+  free(P->idx);
+  free(P->src);
+  free(P->val);
+}
+
+/* Allocate for `count` entries in `lines` rows or columns. */
+static int part_alloc(part *P, size_t lines, size_t count) {
+  P->ptr = calloc(lines + 1, sizeof *P->ptr);
+  P->idx = malloc((count > 0 ? count : 1) * sizeof *P->idx);
+  P->src = malloc((count > 0 ? count : 1) * sizeof *P->src);
+  P->val = malloc((count > 0 ? count : 1) * sizeof *P->val);
+  return P->ptr && P->idx && P->src && P->val ? 0 : -1;
+}
+
+/* The entries beg[j] .. end[j] - 1 of fast columns j = 0..nF-1 (rows in
+ * the fast block, Ai - ns), by rows: row r holds (r, j) for j ascending,
+ * with column index j % nf when `local`, else j. */
+static int part_rows(part *P, size_t nF, int nf, int ns, const int *beg,
+                     const int *end, const int *Ai, int local) {
+  size_t count = 0;
+  for (size_t j = 0; j < nF; j++)
+    count += (size_t)(end[j] - beg[j]);
+  if (part_alloc(P, nF, count) < 0)
+    return -1;
+  for (size_t j = 0; j < nF; j++)
+    for (int q = beg[j]; q < end[j]; q++)
+      P->ptr[Ai[q] - ns + 1]++;
+  for (size_t i = 0; i < nF; i++)
+    P->ptr[i + 1] += P->ptr[i];
+  /* ptr[i] is row i's next free slot while filling, shifted back after. */
+  for (size_t j = 0; j < nF; j++)
+    for (int q = beg[j]; q < end[j]; q++) {
+      const int at = P->ptr[Ai[q] - ns]++;
+      P->idx[at] = local ? (int)(j % (size_t)nf) : (int)j;
+      P->src[at] = q;
+    }
+  for (size_t i = nF; i > 0; i--)
+    P->ptr[i] = P->ptr[i - 1];
+  P->ptr[0] = 0;
+  return 0;
+}
+
+/* The same entries by columns (row indices Ai). */
+static int part_cols(part *P, size_t nF, const int *beg, const int *end,
+                     const int *Ai) {
+  size_t count = 0;
+  for (size_t j = 0; j < nF; j++)
+    count += (size_t)(end[j] - beg[j]);
+  if (part_alloc(P, nF, count) < 0)
+    return -1;
+  int at = 0;
+  for (size_t j = 0; j < nF; j++) {
+    for (int q = beg[j]; q < end[j]; q++) {
+      P->idx[at] = Ai[q];
+      P->src[at++] = q;
+    }
+    P->ptr[j + 1] = at;
+  }
+  return 0;
+}
+
+static void part_copy(part *P, size_t lines, const double *Ax, double sign) {
+  const int n = P->ptr[lines];
+  for (int i = 0; i < n; i++)
+    P->val[i] = sign * Ax[P->src[i]];
+}
+
 struct mrvi_skrylov {
   const mrvi_step *st;
   int ns, nf, p;
@@ -41,13 +116,14 @@ struct mrvi_skrylov {
    * its own row block (s2), and its diagonal entry (dg); per slow column
    * the first entry in a fast row (sdiv). */
   int *s1, *s2, *dg, *sdiv;
-  /* The diagonal blocks -D_c by rows, compact (CSR, rows of block c at
-   * dptr[c nf ..], local column indices, columns ascending), copied from
-   * the Jacobian at each factor: dval[k] = -Ax[dsrc[k]].  A CG product
-   * then streams 16 bytes per entry of D_c instead of the whole columns
-   * of the step Jacobian. */
-  int *dptr, *dcol, *dsrc;
-  double *dval;
+  /* Compact copies of the parts a sweep reads, refreshed at each factor
+   * (val[k] = sign Ax[src[k]]), so that the products stream only their own
+   * entries instead of the whole columns of the step Jacobian:
+   *   D  rows of -D_c (row r = c nf + f; local columns, ascending),
+   *   L  rows of the sub-diagonal blocks (global fast columns, ascending),
+   *   sf columns of A_sf (per fast column, slow rows ascending).
+   * The row forms add the products in the column order of a scatter. */
+  part D, L, sf;
   double *dinv;               /* p nf: 1 / diag(-D_c) */
   double *dinv_s;             /* ns: 1 / diag(A_ss) */
   double *t;                  /* p nf: sweep vector of the S operator */
@@ -70,10 +146,9 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   free(k->s2);
   free(k->dg);
   free(k->sdiv);
-  free(k->dptr);
-  free(k->dcol);
-  free(k->dsrc);
-  free(k->dval);
+  part_free(&k->D);
+  part_free(&k->L);
+  part_free(&k->sf);
   free(k->dinv);
   free(k->dinv_s);
   free(k->t);
@@ -85,44 +160,6 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   free(k->gwork);
   mrvi_newton_free(k->lu);
   free(k);
-}
-
-/* The row structure of the diagonal blocks from the split columns: row f
- * of block c holds the entries (f, g) of columns g = 0..nf-1 in order, so
- * that a row sum adds the same products in the same order as the column
- * scatter. */
-static int build_rows(mrvi_skrylov *k) {
-  const int nf = k->nf, ns = k->ns;
-  const size_t nF = (size_t)k->p * (size_t)nf;
-  const int *Ai = k->st->Ai;
-  size_t nd = 0;
-  for (size_t j = 0; j < nF; j++)
-    nd += (size_t)(k->s2[j] - k->s1[j]);
-  k->dptr = calloc(nF + 1, sizeof *k->dptr);
-  k->dcol = malloc((nd > 0 ? nd : 1) * sizeof *k->dcol);
-  k->dsrc = malloc((nd > 0 ? nd : 1) * sizeof *k->dsrc);
-  k->dval = malloc((nd > 0 ? nd : 1) * sizeof *k->dval);
-  if (!k->dptr || !k->dcol || !k->dsrc || !k->dval)
-    return -1;
-  for (size_t j = 0; j < nF; j++)
-    for (int q = k->s1[j]; q < k->s2[j]; q++)
-      k->dptr[Ai[q] - ns + 1]++;
-  for (size_t i = 0; i < nF; i++)
-    k->dptr[i + 1] += k->dptr[i];
-  /* Fill by columns ascending, with dptr[i] as the next free slot of row i
-   * (shifted back afterwards). */
-  for (size_t j = 0; j < nF; j++) {
-    const int g = (int)(j % (size_t)nf);
-    for (int q = k->s1[j]; q < k->s2[j]; q++) {
-      const int at = k->dptr[Ai[q] - ns]++;
-      k->dcol[at] = g;
-      k->dsrc[at] = q;
-    }
-  }
-  for (size_t i = nF; i > 0; i--)
-    k->dptr[i] = k->dptr[i - 1];
-  k->dptr[0] = 0;
-  return 0;
 }
 
 int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
@@ -190,7 +227,12 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
                        j);
     }
   }
-  if (build_rows(k) < 0) {
+  /* The column ends (for L) and starts (for sf) of the fast columns. */
+  const int *fend = Ap + k->ns + 1, *fbeg = Ap + k->ns;
+  const size_t nFc = (size_t)k->p * (size_t)k->nf;
+  if (part_rows(&k->D, nFc, k->nf, k->ns, k->s1, k->s2, Ai, 1) < 0 ||
+      part_rows(&k->L, nFc, k->nf, k->ns, k->s2, fend, Ai, 0) < 0 ||
+      part_cols(&k->sf, nFc, fbeg, k->s1, Ai) < 0) {
     mrvi_skrylov_free(k);
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
@@ -208,9 +250,10 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
     const double d = -Ax[k->dg[j]];
     k->dinv[j] = d > 0.0 ? 1.0 / d : 1.0;
   }
-  const int nd = k->dptr[k->p * k->nf];
-  for (int i = 0; i < nd; i++)
-    k->dval[i] = -Ax[k->dsrc[i]];
+  const size_t nF = (size_t)k->p * (size_t)k->nf;
+  part_copy(&k->D, nF, Ax, -1.0);
+  part_copy(&k->L, nF, Ax, 1.0);
+  part_copy(&k->sf, nF, Ax, 1.0);
   for (int j = 0; j < k->ns; j++) {
     double d = 0.0;
     for (int q = k->st->Ap[j]; q < k->sdiv[j]; q++)
@@ -226,9 +269,9 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
 static void neg_diag_block(void *ctx, const double *v, double *y) {
   const mrvi_skrylov *k = ctx;
   const int nf = k->nf;
-  const int *ptr = k->dptr + (size_t)k->block * (size_t)nf;
-  const int *col = k->dcol;
-  const double *val = k->dval;
+  const int *ptr = k->D.ptr + (size_t)k->block * (size_t)nf;
+  const int *col = k->D.idx;
+  const double *val = k->D.val;
   for (int f = 0; f < nf; f++) {
     double s = 0.0;
     for (int q = ptr[f]; q < ptr[f + 1]; q++)
@@ -237,15 +280,23 @@ static void neg_diag_block(void *ctx, const double *v, double *y) {
   }
 }
 
-/* X (p nf) <- A_ff^-1 X by a block forward sweep; MRVI_CG_* on failure. */
-static int forward_sweep(mrvi_skrylov *k, double *X) {
-  const mrvi_step *st = k->st;
-  const int nf = k->nf, ns = k->ns;
+/* X (p nf) <- A_ff^-1 X by a block forward sweep, and, if ysf is not
+ * NULL, ysf (ns) -= A_sf (A_ff^-1 X) while each block is in cache;
+ * MRVI_CG_* on failure. */
+static int forward_sweep(mrvi_skrylov *k, double *X, double *ysf) {
+  const int nf = k->nf;
+  const int *lp = k->L.ptr, *lc = k->L.idx;
+  const double *lv = k->L.val;
   for (int c = 0; c < k->p; c++) {
     double *xc = X + (size_t)c * (size_t)nf;
-    /* D_c x = b  <=>  (-D_c) x = -b */
-    for (int f = 0; f < nf; f++)
-      k->cgb[f] = -xc[f];
+    /* b_c = X_c - L_c X (earlier blocks);  D_c x = b  <=>  (-D_c) x = -b */
+    const int *lpc = lp + (size_t)c * (size_t)nf;
+    for (int f = 0; f < nf; f++) {
+      double acc = xc[f];
+      for (int q = lpc[f]; q < lpc[f + 1]; q++)
+        acc -= lv[q] * X[lc[q]];
+      k->cgb[f] = -acc;
+    }
     k->block = c;
     int it = 0;
     const int s = mrvi_pcg(
@@ -262,12 +313,14 @@ static int forward_sweep(mrvi_skrylov *k, double *X) {
       return s;
     }
     memcpy(xc, k->cgx, (size_t)nf * sizeof(double));
-    /* Later rows: X_{c+1}, X_{c+2} -= (their entries of column block c) */
+    if (!ysf)
+      continue;
+    const int *sp = k->sf.ptr + (size_t)c * (size_t)nf, *sr = k->sf.idx;
+    const double *sv = k->sf.val;
     for (int f = 0; f < nf; f++) {
-      const int jf = c * nf + f;
       const double v = xc[f];
-      for (int q = k->s2[jf]; q < st->Ap[ns + jf + 1]; q++)
-        X[st->Ai[q] - ns] -= st->Ax[q] * v;
+      for (int q = sp[f]; q < sp[f + 1]; q++)
+        ysf[sr[q]] -= sv[q] * v;
     }
   }
   return MRVI_CG_OK;
@@ -282,27 +335,16 @@ static void apply_fs(const mrvi_skrylov *k, const double *v, double *y) {
       y[st->Ai[q] - k->ns] += st->Ax[q] * v[j];
 }
 
-/* y (ns) -= A_sf x (p nf). */
-static void sub_sf(const mrvi_skrylov *k, const double *x, double *y) {
-  const mrvi_step *st = k->st;
-  for (int jf = 0; jf < k->p * k->nf; jf++)
-    for (int q = st->Ap[k->ns + jf]; q < k->s1[jf]; q++)
-      y[st->Ai[q]] -= st->Ax[q] * x[jf];
-}
-
 /* y = S v = A_ss v - A_sf A_ff^-1 A_fs v. */
 static int schur_op(void *ctx, const double *v, double *y) {
   mrvi_skrylov *k = ctx;
   const mrvi_step *st = k->st;
-  apply_fs(k, v, k->t);
-  if (forward_sweep(k, k->t) != MRVI_CG_OK)
-    return -1;
   memset(y, 0, (size_t)k->ns * sizeof(double));
   for (int j = 0; j < k->ns; j++)
     for (int q = st->Ap[j]; q < k->sdiv[j]; q++)
       y[st->Ai[q]] += st->Ax[q] * v[j];
-  sub_sf(k, k->t, y);
-  return 0;
+  apply_fs(k, v, k->t);
+  return forward_sweep(k, k->t, y) == MRVI_CG_OK ? 0 : -1;
 }
 
 /* The iterative solve; MRVI_CG_* on failure. */
@@ -312,13 +354,12 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   double *df = dx + ns;
   /* z = A_ff^-1 R_f (in df), rs = R_s - A_sf z */
   memcpy(df, R + ns, nF * sizeof(double));
-  int s = forward_sweep(k, df);
+  memcpy(k->rs, R, (size_t)ns * sizeof(double));
+  int s = forward_sweep(k, df, k->rs);
   if (s != MRVI_CG_OK)
     return s;
   if (ns == 0)
     return MRVI_CG_OK;
-  memcpy(k->rs, R, (size_t)ns * sizeof(double));
-  sub_sf(k, df, k->rs);
   int it = 0;
   s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds, SK_GMRES_RTOL, 0.0,
                  SK_RESTART, SK_GMRES_MAX_IT, k->gwork, &it);
@@ -339,7 +380,7 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   apply_fs(k, k->ds, df);
   for (size_t i = 0; i < nF; i++)
     df[i] = R[ns + i] - df[i];
-  return forward_sweep(k, df);
+  return forward_sweep(k, df, NULL);
 }
 
 int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
