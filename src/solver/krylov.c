@@ -33,8 +33,7 @@ static double dot(int n, const double *a, const double *b) {
 int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
              const double *b, double *x, double rtol, double atol, int max_it,
              double *work, int *iterations, double *curvature) {
-  double *r = work, *z = work + n, *p = work + 2 * (size_t)n,
-         *q = work + 3 * (size_t)n;
+  double *r = work, *p = work + n, *q = work + 2 * (size_t)n;
   *iterations = 0;
   *curvature = 0.0;
   memset(x, 0, (size_t)n * sizeof(double));
@@ -42,20 +41,20 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
   const double stop = fmax(atol, rtol * norm_inf(n, b));
   if (norm_inf(n, r) <= stop)
     return MRVI_CG_OK;
+  /* z = D^-1 r is formed where it is used, not stored. */
   for (int i = 0; i < n; i++)
-    p[i] = z[i] = dinv[i] * r[i];
-  double rz = dot(n, r, z);
+    p[i] = dinv[i] * r[i];
+  double rz = dot(n, r, p);
   for (int k = 1; k <= max_it; k++) {
-    A(ctx, p, q);
-    const double pq = dot(n, p, q);
+    const double pq = A(ctx, p, q);
     if (!(pq > 0.0)) {
       *iterations = k;
       *curvature = pq / dot(n, p, p);
       return MRVI_CG_CURVATURE;
     }
     const double alpha = rz / pq;
-    /* One pass: x, r, ||r||_inf, z = D^-1 r and r^T z (the same sums in
-     * the same order as separate passes). */
+    /* One pass: x, r, ||r||_inf and r^T z (the same sums in the same order
+     * as separate passes). */
     double rn = 0.0, rz1 = 0.0;
     for (int i = 0; i < n; i++) {
       x[i] += alpha * p[i];
@@ -63,8 +62,7 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
       r[i] = ri;
       const double a = fabs(ri);
       rn = isnan(a) || a > rn ? a : rn;
-      z[i] = dinv[i] * ri;
-      rz1 += ri * z[i];
+      rz1 += ri * (dinv[i] * ri);
     }
     *iterations = k;
     if (rn <= stop)
@@ -74,7 +72,7 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
     const double beta = rz1 / rz;
     rz = rz1;
     for (int i = 0; i < n; i++)
-      p[i] = z[i] + beta * p[i];
+      p[i] = dinv[i] * r[i] + beta * p[i];
   }
   return MRVI_CG_MAXIT;
 }

@@ -128,7 +128,7 @@ struct mrvi_skrylov {
   double *dinv_s;             /* ns: 1 / diag(A_ss) */
   double *t;                  /* p nf: sweep vector of the S operator */
   double *rs, *ds;            /* ns */
-  double *cgb, *cgx, *cgwork; /* nf, nf, 4 nf */
+  double *cgb, *cgx, *cgwork; /* nf, nf, 3 nf */
   double *gwork;              /* GMRES */
   int block;                  /* diagonal block of the CG operator */
   int failed;                 /* MRVI_CG_* of the last failed solve */
@@ -186,7 +186,7 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->ds, ns);
   ALLOC(k->cgb, nf);
   ALLOC(k->cgx, nf);
-  ALLOC(k->cgwork, 4 * nf);
+  ALLOC(k->cgwork, 3 * nf);
   ALLOC(k->gwork, mrvi_gmres_work(k->ns, SK_RESTART));
 #undef ALLOC
   if (!k->s1 || !k->s2 || !k->dg || !k->sdiv || !k->dinv || !k->dinv_s ||
@@ -265,19 +265,22 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
 }
 
 /* y = -D_c v (positive definite where CG applies), c = k->block, by the
- * compact rows. */
-static void neg_diag_block(void *ctx, const double *v, double *y) {
+ * compact rows; returns v^T y. */
+static double neg_diag_block(void *ctx, const double *v, double *y) {
   const mrvi_skrylov *k = ctx;
   const int nf = k->nf;
   const int *ptr = k->D.ptr + (size_t)k->block * (size_t)nf;
   const int *col = k->D.idx;
   const double *val = k->D.val;
+  double vy = 0.0;
   for (int f = 0; f < nf; f++) {
     double s = 0.0;
     for (int q = ptr[f]; q < ptr[f + 1]; q++)
       s += val[q] * v[col[q]];
     y[f] = s;
+    vy += v[f] * s;
   }
+  return vy;
 }
 
 /* X (p nf) <- A_ff^-1 X by a block forward sweep, and, if ysf is not
