@@ -56,23 +56,23 @@ static int part_alloc(part *P, size_t lines, size_t count) {
   return P->ptr && P->idx && P->src && P->val ? 0 : -1;
 }
 
-/* The entries beg[j] .. end[j] - 1 of fast columns j = 0..nF-1 (rows in
- * the fast block, Ai - ns), by rows: row r holds (r, j) for j ascending,
- * with column index j % nf when `local`, else j. */
-static int part_rows(part *P, size_t nF, int nf, int ns, const int *beg,
-                     const int *end, const int *Ai, int local) {
+/* The entries beg[j] .. end[j] - 1 of columns j = 0..ncol-1 (rows in the
+ * fast block, Ai - ns, nF of them), by rows: row r holds (r, j) for j
+ * ascending, with column index j % nf when `local`, else j. */
+static int part_rows(part *P, size_t ncol, size_t nF, int nf, int ns,
+                     const int *beg, const int *end, const int *Ai, int local) {
   size_t count = 0;
-  for (size_t j = 0; j < nF; j++)
+  for (size_t j = 0; j < ncol; j++)
     count += (size_t)(end[j] - beg[j]);
   if (part_alloc(P, nF, count) < 0)
     return -1;
-  for (size_t j = 0; j < nF; j++)
+  for (size_t j = 0; j < ncol; j++)
     for (int q = beg[j]; q < end[j]; q++)
       P->ptr[Ai[q] - ns + 1]++;
   for (size_t i = 0; i < nF; i++)
     P->ptr[i + 1] += P->ptr[i];
   /* ptr[i] is row i's next free slot while filling, shifted back after. */
-  for (size_t j = 0; j < nF; j++)
+  for (size_t j = 0; j < ncol; j++)
     for (int q = beg[j]; q < end[j]; q++) {
       const int at = P->ptr[Ai[q] - ns]++;
       P->idx[at] = local ? (int)(j % (size_t)nf) : (int)j;
@@ -121,9 +121,10 @@ struct mrvi_skrylov {
    * entries instead of the whole columns of the step Jacobian:
    *   D  rows of -D_c (row r = c nf + f; local columns, ascending),
    *   L  rows of the sub-diagonal blocks (global fast columns, ascending),
-   *   sf columns of A_sf (per fast column, slow rows ascending).
+   *   sf columns of A_sf (per fast column, slow rows ascending),
+   *   fs rows of A_fs (slow columns, ascending).
    * The row forms add the products in the column order of a scatter. */
-  part D, L, sf;
+  part D, L, sf, fs;
   double *dinv;               /* p nf: 1 / diag(-D_c) */
   double *dinv_s;             /* ns: 1 / diag(A_ss) */
   double *t;                  /* p nf: sweep vector of the S operator */
@@ -149,6 +150,7 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   part_free(&k->D);
   part_free(&k->L);
   part_free(&k->sf);
+  part_free(&k->fs);
   free(k->dinv);
   free(k->dinv_s);
   free(k->t);
@@ -230,9 +232,11 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   /* The column ends (for L) and starts (for sf) of the fast columns. */
   const int *fend = Ap + k->ns + 1, *fbeg = Ap + k->ns;
   const size_t nFc = (size_t)k->p * (size_t)k->nf;
-  if (part_rows(&k->D, nFc, k->nf, k->ns, k->s1, k->s2, Ai, 1) < 0 ||
-      part_rows(&k->L, nFc, k->nf, k->ns, k->s2, fend, Ai, 0) < 0 ||
-      part_cols(&k->sf, nFc, fbeg, k->s1, Ai) < 0) {
+  if (part_rows(&k->D, nFc, nFc, k->nf, k->ns, k->s1, k->s2, Ai, 1) < 0 ||
+      part_rows(&k->L, nFc, nFc, k->nf, k->ns, k->s2, fend, Ai, 0) < 0 ||
+      part_cols(&k->sf, nFc, fbeg, k->s1, Ai) < 0 ||
+      part_rows(&k->fs, (size_t)k->ns, nFc, k->nf, k->ns, k->sdiv, Ap + 1, Ai,
+                0) < 0) {
     mrvi_skrylov_free(k);
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
@@ -254,6 +258,7 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
   part_copy(&k->D, nF, Ax, -1.0);
   part_copy(&k->L, nF, Ax, 1.0);
   part_copy(&k->sf, nF, Ax, 1.0);
+  part_copy(&k->fs, nF, Ax, 1.0);
   for (int j = 0; j < k->ns; j++) {
     double d = 0.0;
     for (int q = k->st->Ap[j]; q < k->sdiv[j]; q++)
@@ -283,19 +288,36 @@ static double neg_diag_block(void *ctx, const double *v, double *y) {
   return vy;
 }
 
-/* X (p nf) <- A_ff^-1 X by a block forward sweep, and, if ysf is not
- * NULL, ysf (ns) -= A_sf (A_ff^-1 X) while each block is in cache;
- * MRVI_CG_* on failure. */
-static int forward_sweep(mrvi_skrylov *k, double *X, double *ysf) {
+/* Right-hand sides of forward_sweep from the slow unknowns vs: */
+enum {
+  FS_NONE,  /* X as given */
+  FS_SET,   /* X = A_fs vs */
+  FS_MINUS, /* X = X - A_fs vs */
+};
+
+/* X (p nf) <- A_ff^-1 X by a block forward sweep (X first set from vs
+ * by `fs`, block by block), and, if ysf is not NULL, ysf (ns) -= A_sf
+ * (A_ff^-1 X) while each block is in cache; MRVI_CG_* on failure. */
+static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
+                         double *ysf) {
   const int nf = k->nf;
   const int *lp = k->L.ptr, *lc = k->L.idx;
   const double *lv = k->L.val;
+  const int *fc = k->fs.idx;
+  const double *fv = k->fs.val;
   for (int c = 0; c < k->p; c++) {
     double *xc = X + (size_t)c * (size_t)nf;
     /* b_c = X_c - L_c X (earlier blocks);  D_c x = b  <=>  (-D_c) x = -b */
     const int *lpc = lp + (size_t)c * (size_t)nf;
+    const int *fp = k->fs.ptr + (size_t)c * (size_t)nf;
     for (int f = 0; f < nf; f++) {
       double acc = xc[f];
+      if (fs != FS_NONE) {
+        double a = 0.0;
+        for (int q = fp[f]; q < fp[f + 1]; q++)
+          a += fv[q] * vs[fc[q]];
+        acc = fs == FS_SET ? a : acc - a;
+      }
       for (int q = lpc[f]; q < lpc[f + 1]; q++)
         acc -= lv[q] * X[lc[q]];
       k->cgb[f] = -acc;
@@ -329,15 +351,6 @@ static int forward_sweep(mrvi_skrylov *k, double *X, double *ysf) {
   return MRVI_CG_OK;
 }
 
-/* y (p nf) = A_fs v (ns). */
-static void apply_fs(const mrvi_skrylov *k, const double *v, double *y) {
-  const mrvi_step *st = k->st;
-  memset(y, 0, (size_t)k->p * (size_t)k->nf * sizeof(double));
-  for (int j = 0; j < k->ns; j++)
-    for (int q = k->sdiv[j]; q < st->Ap[j + 1]; q++)
-      y[st->Ai[q] - k->ns] += st->Ax[q] * v[j];
-}
-
 /* y = S v = A_ss v - A_sf A_ff^-1 A_fs v. */
 static int schur_op(void *ctx, const double *v, double *y) {
   mrvi_skrylov *k = ctx;
@@ -346,8 +359,7 @@ static int schur_op(void *ctx, const double *v, double *y) {
   for (int j = 0; j < k->ns; j++)
     for (int q = st->Ap[j]; q < k->sdiv[j]; q++)
       y[st->Ai[q]] += st->Ax[q] * v[j];
-  apply_fs(k, v, k->t);
-  return forward_sweep(k, k->t, y) == MRVI_CG_OK ? 0 : -1;
+  return forward_sweep(k, k->t, FS_SET, v, y) == MRVI_CG_OK ? 0 : -1;
 }
 
 /* The iterative solve; MRVI_CG_* on failure. */
@@ -358,7 +370,7 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   /* z = A_ff^-1 R_f (in df), rs = R_s - A_sf z */
   memcpy(df, R + ns, nF * sizeof(double));
   memcpy(k->rs, R, (size_t)ns * sizeof(double));
-  int s = forward_sweep(k, df, k->rs);
+  int s = forward_sweep(k, df, FS_NONE, NULL, k->rs);
   if (s != MRVI_CG_OK)
     return s;
   if (ns == 0)
@@ -380,10 +392,8 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   }
   /* df = A_ff^-1 (R_f - A_fs ds) */
   memcpy(dx, k->ds, (size_t)ns * sizeof(double));
-  apply_fs(k, k->ds, df);
-  for (size_t i = 0; i < nF; i++)
-    df[i] = R[ns + i] - df[i];
-  return forward_sweep(k, df, NULL);
+  memcpy(df, R + ns, nF * sizeof(double));
+  return forward_sweep(k, df, FS_MINUS, k->ds, NULL);
 }
 
 int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
