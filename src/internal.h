@@ -419,10 +419,14 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
 size_t mrvi_gmres_work(int n, int restart);
 /* Restarted GMRES(restart) on A x = b from x = 0, right-preconditioned by
  * the diagonal dinv; stops at ||r||_2 <= max(atol, rtol ||b||_2) or after
- * max_it iterations (MRVI_CG_MAXIT); an operator status < 0 is returned. */
+ * max_it iterations (MRVI_CG_MAXIT); an operator status < 0 is returned.
+ * If y is not NULL: when the solve ends within its first cycle, *ny = k
+ * and x = sum_{j<k} y[j] t_j (up to rounding), t_j the argument of the
+ * j-th operator call (y: restart doubles); *ny = -1 after a restart. */
 int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
                const double *b, double *x, double rtol, double atol,
-               int restart, int max_it, double *work, int *iterations);
+               int restart, int max_it, double *work, int *iterations,
+               double *y, int *ny);
 
 /* Micro-step Newton matrix J = diag + sum_e scale_e hess_ff(e) of the sweep
  * path on a fixed sparse pattern (solver/sparse_block.c, "sweep-cg"). */

@@ -88,7 +88,8 @@ size_t mrvi_gmres_work(int n, int restart) {
  * fail (status < 0, returned as is). */
 int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
                const double *b, double *x, double rtol, double atol,
-               int restart, int max_it, double *work, int *iterations) {
+               int restart, int max_it, double *work, int *iterations,
+               double *y, int *ny) {
   const int m = restart;
   double *V = work;                             /* (m + 1) x n */
   double *H = V + (size_t)(m + 1) * (size_t)n;  /* (m + 1) x m */
@@ -96,6 +97,8 @@ int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
   double *sn = cs + m + 1, *g = sn + m + 1;     /* m + 1 each */
   double *t = g + m + 1;                        /* n */
   *iterations = 0;
+  if (ny)
+    *ny = 0;
   memset(x, 0, (size_t)n * sizeof(double));
   const double bn = sqrt(dot(n, b, b));
   const double stop = fmax(atol, rtol * bn);
@@ -109,6 +112,8 @@ int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
       memcpy(V, b, (size_t)n * sizeof(double));
       beta = bn;
     } else {
+      if (ny)
+        *ny = -1;
       int s = A(ctx, x, V);
       if (s < 0)
         return s;
@@ -170,6 +175,10 @@ int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
       for (int l = j + 1; l < k; l++)
         s -= H[j * m + l] * g[l];
       g[j] = H[j * m + j] != 0.0 ? s / H[j * m + j] : 0.0;
+    }
+    if (y && total == k) {
+      memcpy(y, g, (size_t)k * sizeof(double));
+      *ny = k;
     }
     memset(t, 0, (size_t)n * sizeof(double));
     for (int j = 0; j < k; j++) {

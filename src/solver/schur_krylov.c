@@ -33,6 +33,8 @@
 #define SK_GMRES_RTOL 1e-11
 #define SK_RESTART 20
 #define SK_GMRES_MAX_IT 100
+/* Sweeps of the S operator kept for the final one (T below). */
+#define SK_KEEP 6
 
 /* Entries of the step Jacobian gathered by rows or columns. */
 typedef struct {
@@ -125,9 +127,15 @@ struct mrvi_skrylov {
    *   fs rows of A_fs (slow columns, ascending).
    * The row forms add the products in the column order of a scatter. */
   part D, L, sf, fs;
-  double *dinv;               /* p nf: 1 / diag(-D_c) */
-  double *dinv_s;             /* ns: 1 / diag(A_ss) */
-  double *t;                  /* p nf: sweep vector of the S operator */
+  double *dinv;   /* p nf: 1 / diag(-D_c) */
+  double *dinv_s; /* ns: 1 / diag(A_ss) */
+  double *t;      /* p nf: sweep vector of the S operator */
+  /* The S operator's sweeps T_j = A_ff^-1 A_fs t_j of GMRES's first
+   * SK_KEEP calls (p nf each), and GMRES's coefficients: when GMRES ends
+   * in its first cycle, ds = sum y_j t_j, so A_ff^-1 A_fs ds = sum y_j T_j
+   * and the final sweep is a combination of these. */
+  double *T, *gy;
+  int calls;
   double *rs, *ds;            /* ns */
   double *cgb, *cgx, *cgwork; /* nf, nf, 3 nf */
   double *gwork;              /* GMRES */
@@ -154,6 +162,8 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   free(k->dinv);
   free(k->dinv_s);
   free(k->t);
+  free(k->T);
+  free(k->gy);
   free(k->rs);
   free(k->ds);
   free(k->cgb);
@@ -184,6 +194,8 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->dinv, nF);
   ALLOC(k->dinv_s, ns);
   ALLOC(k->t, nF);
+  ALLOC(k->T, SK_KEEP * nF);
+  ALLOC(k->gy, SK_RESTART);
   ALLOC(k->rs, ns);
   ALLOC(k->ds, ns);
   ALLOC(k->cgb, nf);
@@ -192,8 +204,8 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->gwork, mrvi_gmres_work(k->ns, SK_RESTART));
 #undef ALLOC
   if (!k->s1 || !k->s2 || !k->dg || !k->sdiv || !k->dinv || !k->dinv_s ||
-      !k->t || !k->rs || !k->ds || !k->cgb || !k->cgx || !k->cgwork ||
-      !k->gwork) {
+      !k->t || !k->T || !k->gy || !k->rs || !k->ds || !k->cgb || !k->cgx ||
+      !k->cgwork || !k->gwork) {
     mrvi_skrylov_free(k);
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
@@ -359,7 +371,11 @@ static int schur_op(void *ctx, const double *v, double *y) {
   for (int j = 0; j < k->ns; j++)
     for (int q = st->Ap[j]; q < k->sdiv[j]; q++)
       y[st->Ai[q]] += st->Ax[q] * v[j];
-  return forward_sweep(k, k->t, FS_SET, v, y) == MRVI_CG_OK ? 0 : -1;
+  double *tv = k->calls < SK_KEEP
+                   ? k->T + (size_t)k->calls * (size_t)k->p * (size_t)k->nf
+                   : k->t;
+  k->calls++;
+  return forward_sweep(k, tv, FS_SET, v, y) == MRVI_CG_OK ? 0 : -1;
 }
 
 /* The iterative solve; MRVI_CG_* on failure. */
@@ -375,9 +391,10 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
     return s;
   if (ns == 0)
     return MRVI_CG_OK;
-  int it = 0;
+  int it = 0, ny = -1;
+  k->calls = 0;
   s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds, SK_GMRES_RTOL, 0.0,
-                 SK_RESTART, SK_GMRES_MAX_IT, k->gwork, &it);
+                 SK_RESTART, SK_GMRES_MAX_IT, k->gwork, &it, k->gy, &ny);
   k->stats.gmres_solves++;
   k->stats.gmres_iterations += it;
   if (it > k->stats.gmres_max)
@@ -390,8 +407,17 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
     }
     return k->failed;
   }
-  /* df = A_ff^-1 (R_f - A_fs ds) */
+  /* df = A_ff^-1 (R_f - A_fs ds) = z - sum y_j T_j, or by a sweep when
+   * GMRES restarted or took more than SK_KEEP iterations */
   memcpy(dx, k->ds, (size_t)ns * sizeof(double));
+  if (ny >= 0 && ny <= SK_KEEP) {
+    for (int j = 0; j < ny; j++) {
+      const double yj = k->gy[j], *Tj = k->T + (size_t)j * nF;
+      for (size_t i = 0; i < nF; i++)
+        df[i] -= yj * Tj[i];
+    }
+    return MRVI_CG_OK;
+  }
   memcpy(df, R + ns, nF * sizeof(double));
   return forward_sweep(k, df, FS_MINUS, k->ds, NULL);
 }
