@@ -36,7 +36,9 @@
 /* Sweeps of the S operator kept for the final one (T below). */
 #define SK_KEEP 6
 
-/* Entries of the step Jacobian gathered by rows or columns. */
+/* Entries of the step Jacobian gathered by rows or columns: pattern, the
+ * Jacobian index of each entry (src, at creation only) and the values (a
+ * slice of mrvi_skrylov.vals). */
 typedef struct {
   int *ptr, *idx, *src;
   double *val;
@@ -46,7 +48,6 @@ static void part_free(part *P) {
   free(P->ptr);
   free(P->idx);
   free(P->src);
-  free(P->val);
 }
 
 /* Allocate for `count` entries in `lines` rows or columns. */
@@ -54,8 +55,7 @@ static int part_alloc(part *P, size_t lines, size_t count) {
   P->ptr = calloc(lines + 1, sizeof *P->ptr);
   P->idx = malloc((count > 0 ? count : 1) * sizeof *P->idx);
   P->src = malloc((count > 0 ? count : 1) * sizeof *P->src);
-  P->val = malloc((count > 0 ? count : 1) * sizeof *P->val);
-  return P->ptr && P->idx && P->src && P->val ? 0 : -1;
+  return P->ptr && P->idx && P->src ? 0 : -1;
 }
 
 /* The entries beg[j] .. end[j] - 1 of columns j = 0..ncol-1 (rows in the
@@ -105,12 +105,6 @@ static int part_cols(part *P, size_t nF, const int *beg, const int *end,
   return 0;
 }
 
-static void part_copy(part *P, size_t lines, const double *Ax, double sign) {
-  const int n = P->ptr[lines];
-  for (int i = 0; i < n; i++)
-    P->val[i] = sign * Ax[P->src[i]];
-}
-
 struct mrvi_skrylov {
   const mrvi_step *st;
   int ns, nf, p;
@@ -119,14 +113,18 @@ struct mrvi_skrylov {
    * the first entry in a fast row (sdiv). */
   int *s1, *s2, *dg, *sdiv;
   /* Compact copies of the parts a sweep reads, refreshed at each factor
-   * (val[k] = sign Ax[src[k]]), so that the products stream only their own
-   * entries instead of the whole columns of the step Jacobian:
-   *   D  rows of -D_c (row r = c nf + f; local columns, ascending),
+   * in one pass over the Jacobian (vals[dst[q]] = Ax[q]; the entries of
+   * A_ss go to a last, unused slot), so that the products stream only
+   * their own entries instead of the whole columns of the step Jacobian:
+   *   D  rows of D_c (row r = c nf + f; local columns, ascending),
    *   L  rows of the sub-diagonal blocks (global fast columns, ascending),
    *   sf columns of A_sf (per fast column, slow rows ascending),
    *   fs rows of A_fs (slow columns, ascending).
    * The row forms add the products in the column order of a scatter. */
   part D, L, sf, fs;
+  double *vals;
+  int *dst;       /* nnz of the step Jacobian */
+  int *ddg;       /* p nf: index of D_c's diagonal entries in vals */
   double *dinv;   /* p nf: 1 / diag(-D_c) */
   double *dinv_s; /* ns: 1 / diag(A_ss) */
   double *t;      /* p nf: sweep vector of the S operator */
@@ -159,6 +157,9 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   part_free(&k->L);
   part_free(&k->sf);
   part_free(&k->fs);
+  free(k->vals);
+  free(k->dst);
+  free(k->ddg);
   free(k->dinv);
   free(k->dinv_s);
   free(k->t);
@@ -172,6 +173,38 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   free(k->gwork);
   mrvi_newton_free(k->lu);
   free(k);
+}
+
+/* The values of the parts as slices of one array, and the destination of
+ * every Jacobian entry in it (the src indices are then dropped). */
+static int spread(mrvi_skrylov *k) {
+  part *parts[4] = {&k->D, &k->L, &k->sf, &k->fs};
+  const size_t nF = (size_t)k->p * (size_t)k->nf;
+  const int nnz = k->st->Ap[k->ns + k->p * k->nf];
+  size_t total = 0;
+  for (int i = 0; i < 4; i++)
+    total += (size_t)parts[i]->ptr[nF];
+  k->vals = malloc((total + 1) * sizeof *k->vals);
+  k->dst = malloc((size_t)(nnz > 0 ? nnz : 1) * sizeof *k->dst);
+  k->ddg = malloc((nF > 0 ? nF : 1) * sizeof *k->ddg);
+  if (!k->vals || !k->dst || !k->ddg)
+    return -1;
+  for (int q = 0; q < nnz; q++)
+    k->dst[q] = (int)total;
+  size_t off = 0;
+  for (int i = 0; i < 4; i++) {
+    part *P = parts[i];
+    const int n = P->ptr[nF];
+    P->val = k->vals + off;
+    for (int e = 0; e < n; e++)
+      k->dst[P->src[e]] = (int)off + e;
+    off += (size_t)n;
+    free(P->src);
+    P->src = NULL;
+  }
+  for (size_t j = 0; j < nF; j++)
+    k->ddg[j] = k->dst[k->dg[j]];
+  return 0;
 }
 
 int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
@@ -252,6 +285,10 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
     mrvi_skrylov_free(k);
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
+  if (spread(k) < 0) {
+    mrvi_skrylov_free(k);
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  }
   *out = k;
   return MRVI_OK;
 }
@@ -262,15 +299,13 @@ const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k) {
 
 void mrvi_skrylov_factor(mrvi_skrylov *k) {
   const double *Ax = k->st->Ax;
+  const int nnz = k->st->Ap[k->ns + k->p * k->nf];
+  for (int q = 0; q < nnz; q++)
+    k->vals[k->dst[q]] = Ax[q];
   for (int j = 0; j < k->p * k->nf; j++) {
-    const double d = -Ax[k->dg[j]];
+    const double d = -k->vals[k->ddg[j]];
     k->dinv[j] = d > 0.0 ? 1.0 / d : 1.0;
   }
-  const size_t nF = (size_t)k->p * (size_t)k->nf;
-  part_copy(&k->D, nF, Ax, -1.0);
-  part_copy(&k->L, nF, Ax, 1.0);
-  part_copy(&k->sf, nF, Ax, 1.0);
-  part_copy(&k->fs, nF, Ax, 1.0);
   for (int j = 0; j < k->ns; j++) {
     double d = 0.0;
     for (int q = k->st->Ap[j]; q < k->sdiv[j]; q++)
@@ -282,7 +317,8 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
 }
 
 /* y = -D_c v (positive definite where CG applies), c = k->block, by the
- * compact rows; returns v^T y. */
+ * compact rows of D_c (the same operations as adding the products of
+ * -D_c); returns v^T y. */
 static double neg_diag_block(void *ctx, const double *v, double *y) {
   const mrvi_skrylov *k = ctx;
   const int nf = k->nf;
@@ -293,7 +329,7 @@ static double neg_diag_block(void *ctx, const double *v, double *y) {
   for (int f = 0; f < nf; f++) {
     double s = 0.0;
     for (int q = ptr[f]; q < ptr[f + 1]; q++)
-      s += val[q] * v[col[q]];
+      s -= val[q] * v[col[q]];
     y[f] = s;
     vy += v[f] * s;
   }
