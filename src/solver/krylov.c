@@ -9,15 +9,6 @@
 #include <math.h>
 #include <string.h>
 
-static double norm_inf(int n, const double *v) {
-  double r = 0.0;
-  for (int i = 0; i < n; i++) {
-    const double a = fabs(v[i]);
-    r = isnan(a) || a > r ? a : r;
-  }
-  return r;
-}
-
 static double dot(int n, const double *a, const double *b) {
   double s = 0.0;
   for (int i = 0; i < n; i++)
@@ -37,14 +28,19 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
   *iterations = 0;
   *curvature = 0.0;
   memset(x, 0, (size_t)n * sizeof(double));
-  memcpy(r, b, (size_t)n * sizeof(double));
-  const double stop = fmax(atol, rtol * norm_inf(n, b));
-  if (norm_inf(n, r) <= stop)
+  /* r = b, p = z = D^-1 r (z is formed where it is used, not stored),
+   * ||b||_inf and r^T z in one pass. */
+  double bn = 0.0, rz = 0.0;
+  for (int i = 0; i < n; i++) {
+    const double bi = b[i], a = fabs(bi);
+    r[i] = bi;
+    p[i] = dinv[i] * bi;
+    rz += bi * p[i];
+    bn = isnan(a) || a > bn ? a : bn;
+  }
+  const double stop = fmax(atol, rtol * bn);
+  if (bn <= stop)
     return MRVI_CG_OK;
-  /* z = D^-1 r is formed where it is used, not stored. */
-  for (int i = 0; i < n; i++)
-    p[i] = dinv[i] * r[i];
-  double rz = dot(n, r, p);
   for (int k = 1; k <= max_it; k++) {
     const double pq = A(ctx, p, q);
     if (!(pq > 0.0)) {

@@ -134,12 +134,12 @@ struct mrvi_skrylov {
    * and the final sweep is a combination of these. */
   double *T, *gy;
   int calls;
-  double *rs, *ds;            /* ns */
-  double *cgb, *cgx, *cgwork; /* nf, nf, 3 nf */
-  double *gwork;              /* GMRES */
-  int block;                  /* diagonal block of the CG operator */
-  int failed;                 /* MRVI_CG_* of the last failed solve */
-  double curvature;           /* of a non-positive direction */
+  double *rs, *ds;      /* ns */
+  double *cgb, *cgwork; /* nf, 3 nf */
+  double *gwork;        /* GMRES */
+  int block;            /* diagonal block of the CG operator */
+  int failed;           /* MRVI_CG_* of the last failed solve */
+  double curvature;     /* of a non-positive direction */
   int fail_block, fail_iters;
   mrvi_newton *lu; /* whole-step fallback, on first use */
   int lu_active;   /* the current Jacobian is factored by LU */
@@ -168,7 +168,6 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   free(k->rs);
   free(k->ds);
   free(k->cgb);
-  free(k->cgx);
   free(k->cgwork);
   free(k->gwork);
   mrvi_newton_free(k->lu);
@@ -232,13 +231,12 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->rs, ns);
   ALLOC(k->ds, ns);
   ALLOC(k->cgb, nf);
-  ALLOC(k->cgx, nf);
   ALLOC(k->cgwork, 3 * nf);
   ALLOC(k->gwork, mrvi_gmres_work(k->ns, SK_RESTART));
 #undef ALLOC
   if (!k->s1 || !k->s2 || !k->dg || !k->sdiv || !k->dinv || !k->dinv_s ||
-      !k->t || !k->T || !k->gy || !k->rs || !k->ds || !k->cgb || !k->cgx ||
-      !k->cgwork || !k->gwork) {
+      !k->t || !k->T || !k->gy || !k->rs || !k->ds || !k->cgb || !k->cgwork ||
+      !k->gwork) {
     mrvi_skrylov_free(k);
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
@@ -372,8 +370,9 @@ static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
     }
     k->block = c;
     int it = 0;
+    /* X_c is read: the solution goes there */
     const int s = mrvi_pcg(
-        nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, k->cgx,
+        nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, xc,
         SK_CG_RTOL, 0.0, MRVI_CG_MAX_IT, k->cgwork, &it, &k->curvature);
     k->stats.cg_solves++;
     k->stats.cg_iterations += it;
@@ -385,7 +384,6 @@ static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
       k->fail_iters = it;
       return s;
     }
-    memcpy(xc, k->cgx, (size_t)nf * sizeof(double));
     if (!ysf)
       continue;
     const int *sp = k->sf.ptr + (size_t)c * (size_t)nf, *sr = k->sf.idx;
