@@ -39,7 +39,7 @@ enum { MAX_N = 16, N_SCHEMES = 2 };
 static const char usage[] =
     "Usage: bench_lattice [--quick] [--n N1,N2,...] [--steps K]\n"
     "                     [--budget SECONDS] [--mem GB] [--dT DT] [--p P]\n"
-    "                     [--set KEY=VALUE]...\n"
+    "                     [--scheme NAME] [--set KEY=VALUE]...\n"
     "\n"
     "Planar spring lattices (slow and fast rows, stiff fast springs along\n"
     "fast rows) with about N coordinates each (default 100,300,...,100000):\n"
@@ -52,7 +52,8 @@ static const char usage[] =
     "(default 6; a case that runs out of memory also ends the scheme).\n"
     "Fitted exponents over N >= 1000.\n"
     "--quick: N = 100,300,1000, K = 2, budget 20 s.  --set applies a\n"
-    "description override to every lattice (repeatable).\n";
+    "description override to every lattice (repeatable).  --scheme runs\n"
+    "only midpoint-midpoint or only explicit-slow.\n";
 
 static int bad_usage_lattice(void) {
   fputs(usage, stderr);
@@ -317,6 +318,7 @@ int main(int argc, char **argv) {
   int n_list[MAX_N] = {100, 300, 1000, 3000, 10000, 30000, 100000};
   int n_n = 7, steps = 3, p = 10, quick = 0, n_set = 0, k_set = 0, b_set = 0;
   double budget = 120.0, dT = 0.01, mem_gb = 6.0;
+  const char *only = NULL;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
     int has_value = i + 1 < argc;
@@ -342,6 +344,10 @@ int main(int argc, char **argv) {
       if (n_over == MAX_OVERRIDES)
         return bad_usage_lattice();
       overrides[n_over++] = argv[++i];
+    } else if (!strcmp(a, "--scheme") && has_value) {
+      only = argv[++i];
+      if (strcmp(only, schemes[0]) && strcmp(only, schemes[1]))
+        return bad_usage_lattice();
     } else if (!strcmp(a, "--mem") && has_value) {
       if (bench_parse_positive(argv[++i], &mem_gb) < 0)
         return bad_usage_lattice();
@@ -381,6 +387,11 @@ int main(int argc, char **argv) {
   static result res[N_SCHEMES][MAX_N];
   int failures = 0;
   for (int si = 0; si < N_SCHEMES; si++) {
+    if (only && strcmp(only, schemes[si])) {
+      for (int ni = 0; ni < n_n; ni++)
+        res[si][ni].status = 2;
+      continue;
+    }
     int skipping = 0;
     for (int ni = 0; ni < n_n; ni++) {
       int nx, ny;
@@ -427,6 +438,8 @@ int main(int argc, char **argv) {
   printf("|-------------------|-------:|---------:|---------:|---------:|"
          "---------:|\n");
   for (int si = 0; si < N_SCHEMES; si++) {
+    if (only && strcmp(only, schemes[si]))
+      continue;
     /* n >= 1000 when two such cases completed, else all of them. */
     int big = 0;
     for (int ni = 0; ni < n_n; ni++)

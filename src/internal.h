@@ -404,12 +404,14 @@ void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
 enum { MRVI_CG_OK = 0, MRVI_CG_CURVATURE = 1, MRVI_CG_MAXIT = 2 };
 /* Iteration cap of one CG solve (J = M/dt + O(dt K) needs a handful). */
 #define MRVI_CG_MAX_IT 200
-typedef void (*mrvi_matvec)(void *ctx, const double *x, double *y);
+/* y = A x, returning x^T y (summed over i ascending, as a separate dot
+ * product would). */
+typedef double (*mrvi_matvec)(void *ctx, const double *x, double *y);
 typedef int (*mrvi_matvec_status)(void *ctx, const double *x, double *y);
 /* Jacobi-preconditioned CG on A x = b (n) from x = 0; stops at
  * ||r||_inf <= max(atol, rtol ||b||_inf).  MRVI_CG_CURVATURE (with
  * *curvature = p^T A p / p^T p) when A is not positive definite along a
- * search direction, MRVI_CG_MAXIT without convergence.  work: 4 n. */
+ * search direction, MRVI_CG_MAXIT without convergence.  work: 3 n. */
 int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
              const double *b, double *x, double rtol, double atol, int max_it,
              double *work, int *iterations, double *curvature);
@@ -417,10 +419,14 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
 size_t mrvi_gmres_work(int n, int restart);
 /* Restarted GMRES(restart) on A x = b from x = 0, right-preconditioned by
  * the diagonal dinv; stops at ||r||_2 <= max(atol, rtol ||b||_2) or after
- * max_it iterations (MRVI_CG_MAXIT); an operator status < 0 is returned. */
+ * max_it iterations (MRVI_CG_MAXIT); an operator status < 0 is returned.
+ * If y is not NULL: when the solve ends within its first cycle, *ny = k
+ * and x = sum_{j<k} y[j] t_j (up to rounding), t_j the argument of the
+ * j-th operator call (y: restart doubles); *ny = -1 after a restart. */
 int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
                const double *b, double *x, double rtol, double atol,
-               int restart, int max_it, double *work, int *iterations);
+               int restart, int max_it, double *work, int *iterations,
+               double *y, int *ny);
 
 /* Micro-step Newton matrix J = diag + sum_e scale_e hess_ff(e) of the sweep
  * path on a fixed sparse pattern (solver/sparse_block.c, "sweep-cg"). */

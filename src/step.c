@@ -429,11 +429,14 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
       R[i] += st->f_rows[i];
   if (st->extra)
     st->extra(st->extra_ctx, st, x, R, jac);
+  /* Elements outer, points inner: one element's entries of all its points
+   * are summed while they are in cache (one pass over the Jacobian, not
+   * one per point, for networks beyond the caches). */
   for (int c = 0; c < 2; c++)
-    for (int ip = 0; ip < st->n_pts[c]; ip++) {
-      const mrvi_point *pt = &st->pts[c][ip];
-      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      for (int ip = 0; ip < st->n_pts[c]; ip++) {
+        const mrvi_point *pt = &st->pts[c][ip];
         const int n = e->n_in;
         if (e->kind == MRVI_ELEMENT_GRAVITY) {
           /* Linear (any number of inputs): gradient only. */
@@ -682,11 +685,13 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
   const mrvi_model *m = st->model;
   memset(ps1, 0, (size_t)st->ns * sizeof(double));
   memset(pf, 0, (size_t)st->p * (size_t)st->nf * sizeof(double));
+  /* Elements outer, points inner, as in mrvi_step_assemble (the same
+   * order of the sums). */
   for (int c = 0; c < 2; c++)
-    for (int ip = 0; ip < st->n_pts[c]; ip++) {
-      const mrvi_point *pt = &st->pts[c][ip];
-      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      for (int ip = 0; ip < st->n_pts[c]; ip++) {
+        const mrvi_point *pt = &st->pts[c][ip];
         gather(st, e, pt, x, st->y);
         mrvi_element_eval(m, e, st->y, st->g, NULL);
         potential_momenta(st, e, pt, ps1, pf);

@@ -9,15 +9,6 @@
 #include <math.h>
 #include <string.h>
 
-static double norm_inf(int n, const double *v) {
-  double r = 0.0;
-  for (int i = 0; i < n; i++) {
-    const double a = fabs(v[i]);
-    r = isnan(a) || a > r ? a : r;
-  }
-  return r;
-}
-
 static double dot(int n, const double *a, const double *b) {
   double s = 0.0;
   for (int i = 0; i < n; i++)
@@ -33,46 +24,51 @@ static double dot(int n, const double *a, const double *b) {
 int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
              const double *b, double *x, double rtol, double atol, int max_it,
              double *work, int *iterations, double *curvature) {
-  double *r = work, *z = work + n, *p = work + 2 * (size_t)n,
-         *q = work + 3 * (size_t)n;
+  double *r = work, *p = work + n, *q = work + 2 * (size_t)n;
   *iterations = 0;
   *curvature = 0.0;
   memset(x, 0, (size_t)n * sizeof(double));
-  memcpy(r, b, (size_t)n * sizeof(double));
-  const double stop = fmax(atol, rtol * norm_inf(n, b));
-  if (norm_inf(n, r) <= stop)
+  /* r = b, p = z = D^-1 r (z is formed where it is used, not stored),
+   * ||b||_inf and r^T z in one pass. */
+  double bn = 0.0, rz = 0.0;
+  for (int i = 0; i < n; i++) {
+    const double bi = b[i], a = fabs(bi);
+    r[i] = bi;
+    p[i] = dinv[i] * bi;
+    rz += bi * p[i];
+    bn = isnan(a) || a > bn ? a : bn;
+  }
+  const double stop = fmax(atol, rtol * bn);
+  if (bn <= stop)
     return MRVI_CG_OK;
-  for (int i = 0; i < n; i++)
-    p[i] = z[i] = dinv[i] * r[i];
-  double rz = dot(n, r, z);
   for (int k = 1; k <= max_it; k++) {
-    A(ctx, p, q);
-    const double pq = dot(n, p, q);
+    const double pq = A(ctx, p, q);
     if (!(pq > 0.0)) {
       *iterations = k;
       *curvature = pq / dot(n, p, p);
       return MRVI_CG_CURVATURE;
     }
     const double alpha = rz / pq;
-    double rn = 0.0;
+    /* One pass: x, r, ||r||_inf and r^T z (the same sums in the same order
+     * as separate passes). */
+    double rn = 0.0, rz1 = 0.0;
     for (int i = 0; i < n; i++) {
       x[i] += alpha * p[i];
-      r[i] -= alpha * q[i];
-      const double a = fabs(r[i]);
+      const double ri = r[i] - alpha * q[i];
+      r[i] = ri;
+      const double a = fabs(ri);
       rn = isnan(a) || a > rn ? a : rn;
+      rz1 += ri * (dinv[i] * ri);
     }
     *iterations = k;
     if (rn <= stop)
       return MRVI_CG_OK;
     if (!isfinite(rn))
       return MRVI_CG_MAXIT;
-    for (int i = 0; i < n; i++)
-      z[i] = dinv[i] * r[i];
-    const double rz1 = dot(n, r, z);
     const double beta = rz1 / rz;
     rz = rz1;
     for (int i = 0; i < n; i++)
-      p[i] = z[i] + beta * p[i];
+      p[i] = dinv[i] * r[i] + beta * p[i];
   }
   return MRVI_CG_MAXIT;
 }
@@ -88,7 +84,8 @@ size_t mrvi_gmres_work(int n, int restart) {
  * fail (status < 0, returned as is). */
 int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
                const double *b, double *x, double rtol, double atol,
-               int restart, int max_it, double *work, int *iterations) {
+               int restart, int max_it, double *work, int *iterations,
+               double *y, int *ny) {
   const int m = restart;
   double *V = work;                             /* (m + 1) x n */
   double *H = V + (size_t)(m + 1) * (size_t)n;  /* (m + 1) x m */
@@ -96,6 +93,8 @@ int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
   double *sn = cs + m + 1, *g = sn + m + 1;     /* m + 1 each */
   double *t = g + m + 1;                        /* n */
   *iterations = 0;
+  if (ny)
+    *ny = 0;
   memset(x, 0, (size_t)n * sizeof(double));
   const double bn = sqrt(dot(n, b, b));
   const double stop = fmax(atol, rtol * bn);
@@ -109,6 +108,8 @@ int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
       memcpy(V, b, (size_t)n * sizeof(double));
       beta = bn;
     } else {
+      if (ny)
+        *ny = -1;
       int s = A(ctx, x, V);
       if (s < 0)
         return s;
@@ -170,6 +171,10 @@ int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
       for (int l = j + 1; l < k; l++)
         s -= H[j * m + l] * g[l];
       g[j] = H[j * m + j] != 0.0 ? s / H[j * m + j] : 0.0;
+    }
+    if (y && total == k) {
+      memcpy(y, g, (size_t)k * sizeof(double));
+      *ny = k;
     }
     memset(t, 0, (size_t)n * sizeof(double));
     for (int j = 0; j < k; j++) {

@@ -33,6 +33,77 @@
 #define SK_GMRES_RTOL 1e-11
 #define SK_RESTART 20
 #define SK_GMRES_MAX_IT 100
+/* Sweeps of the S operator kept for the final one (T below). */
+#define SK_KEEP 6
+
+/* Entries of the step Jacobian gathered by rows or columns: pattern, the
+ * Jacobian index of each entry (src, at creation only) and the values (a
+ * slice of mrvi_skrylov.vals). */
+typedef struct {
+  int *ptr, *idx, *src;
+  double *val;
+} part;
+
+static void part_free(part *P) {
+  free(P->ptr);
+  free(P->idx);
+  free(P->src);
+}
+
+/* Allocate for `count` entries in `lines` rows or columns. */
+static int part_alloc(part *P, size_t lines, size_t count) {
+  P->ptr = calloc(lines + 1, sizeof *P->ptr);
+  P->idx = malloc((count > 0 ? count : 1) * sizeof *P->idx);
+  P->src = malloc((count > 0 ? count : 1) * sizeof *P->src);
+  return P->ptr && P->idx && P->src ? 0 : -1;
+}
+
+/* The entries beg[j] .. end[j] - 1 of columns j = 0..ncol-1 (rows in the
+ * fast block, Ai - ns, nF of them), by rows: row r holds (r, j) for j
+ * ascending, with column index j % nf when `local`, else j. */
+static int part_rows(part *P, size_t ncol, size_t nF, int nf, int ns,
+                     const int *beg, const int *end, const int *Ai, int local) {
+  size_t count = 0;
+  for (size_t j = 0; j < ncol; j++)
+    count += (size_t)(end[j] - beg[j]);
+  if (part_alloc(P, nF, count) < 0)
+    return -1;
+  for (size_t j = 0; j < ncol; j++)
+    for (int q = beg[j]; q < end[j]; q++)
+      P->ptr[Ai[q] - ns + 1]++;
+  for (size_t i = 0; i < nF; i++)
+    P->ptr[i + 1] += P->ptr[i];
+  /* ptr[i] is row i's next free slot while filling, shifted back after. */
+  for (size_t j = 0; j < ncol; j++)
+    for (int q = beg[j]; q < end[j]; q++) {
+      const int at = P->ptr[Ai[q] - ns]++;
+      P->idx[at] = local ? (int)(j % (size_t)nf) : (int)j;
+      P->src[at] = q;
+    }
+  for (size_t i = nF; i > 0; i--)
+    P->ptr[i] = P->ptr[i - 1];
+  P->ptr[0] = 0;
+  return 0;
+}
+
+/* The same entries by columns (row indices Ai). */
+static int part_cols(part *P, size_t nF, const int *beg, const int *end,
+                     const int *Ai) {
+  size_t count = 0;
+  for (size_t j = 0; j < nF; j++)
+    count += (size_t)(end[j] - beg[j]);
+  if (part_alloc(P, nF, count) < 0)
+    return -1;
+  int at = 0;
+  for (size_t j = 0; j < nF; j++) {
+    for (int q = beg[j]; q < end[j]; q++) {
+      P->idx[at] = Ai[q];
+      P->src[at++] = q;
+    }
+    P->ptr[j + 1] = at;
+  }
+  return 0;
+}
 
 struct mrvi_skrylov {
   const mrvi_step *st;
@@ -41,15 +112,34 @@ struct mrvi_skrylov {
    * its own row block (s2), and its diagonal entry (dg); per slow column
    * the first entry in a fast row (sdiv). */
   int *s1, *s2, *dg, *sdiv;
-  double *dinv;               /* p nf: 1 / diag(-D_c) */
-  double *dinv_s;             /* ns: 1 / diag(A_ss) */
-  double *t;                  /* p nf: sweep vector of the S operator */
-  double *rs, *ds;            /* ns */
-  double *cgb, *cgx, *cgwork; /* nf, nf, 4 nf */
-  double *gwork;              /* GMRES */
-  int block;                  /* diagonal block of the CG operator */
-  int failed;                 /* MRVI_CG_* of the last failed solve */
-  double curvature;           /* of a non-positive direction */
+  /* Compact copies of the parts a sweep reads, refreshed at each factor
+   * in one pass over the Jacobian (vals[dst[q]] = Ax[q]; the entries of
+   * A_ss go to a last, unused slot), so that the products stream only
+   * their own entries instead of the whole columns of the step Jacobian:
+   *   D  rows of D_c (row r = c nf + f; local columns, ascending),
+   *   L  rows of the sub-diagonal blocks (global fast columns, ascending),
+   *   sf columns of A_sf (per fast column, slow rows ascending),
+   *   fs rows of A_fs (slow columns, ascending).
+   * The row forms add the products in the column order of a scatter. */
+  part D, L, sf, fs;
+  double *vals;
+  int *dst;       /* nnz of the step Jacobian */
+  int *ddg;       /* p nf: index of D_c's diagonal entries in vals */
+  double *dinv;   /* p nf: 1 / diag(-D_c) */
+  double *dinv_s; /* ns: 1 / diag(A_ss) */
+  double *t;      /* p nf: sweep vector of the S operator */
+  /* The S operator's sweeps T_j = A_ff^-1 A_fs t_j of GMRES's first
+   * SK_KEEP calls (p nf each), and GMRES's coefficients: when GMRES ends
+   * in its first cycle, ds = sum y_j t_j, so A_ff^-1 A_fs ds = sum y_j T_j
+   * and the final sweep is a combination of these. */
+  double *T, *gy;
+  int calls;
+  double *rs, *ds;      /* ns */
+  double *cgb, *cgwork; /* nf, 3 nf */
+  double *gwork;        /* GMRES */
+  int block;            /* diagonal block of the CG operator */
+  int failed;           /* MRVI_CG_* of the last failed solve */
+  double curvature;     /* of a non-positive direction */
   int fail_block, fail_iters;
   mrvi_newton *lu; /* whole-step fallback, on first use */
   int lu_active;   /* the current Jacobian is factored by LU */
@@ -63,17 +153,57 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   free(k->s2);
   free(k->dg);
   free(k->sdiv);
+  part_free(&k->D);
+  part_free(&k->L);
+  part_free(&k->sf);
+  part_free(&k->fs);
+  free(k->vals);
+  free(k->dst);
+  free(k->ddg);
   free(k->dinv);
   free(k->dinv_s);
   free(k->t);
+  free(k->T);
+  free(k->gy);
   free(k->rs);
   free(k->ds);
   free(k->cgb);
-  free(k->cgx);
   free(k->cgwork);
   free(k->gwork);
   mrvi_newton_free(k->lu);
   free(k);
+}
+
+/* The values of the parts as slices of one array, and the destination of
+ * every Jacobian entry in it (the src indices are then dropped). */
+static int spread(mrvi_skrylov *k) {
+  part *parts[4] = {&k->D, &k->L, &k->sf, &k->fs};
+  const size_t nF = (size_t)k->p * (size_t)k->nf;
+  const int nnz = k->st->Ap[k->ns + k->p * k->nf];
+  size_t total = 0;
+  for (int i = 0; i < 4; i++)
+    total += (size_t)parts[i]->ptr[nF];
+  k->vals = malloc((total + 1) * sizeof *k->vals);
+  k->dst = malloc((size_t)(nnz > 0 ? nnz : 1) * sizeof *k->dst);
+  k->ddg = malloc((nF > 0 ? nF : 1) * sizeof *k->ddg);
+  if (!k->vals || !k->dst || !k->ddg)
+    return -1;
+  for (int q = 0; q < nnz; q++)
+    k->dst[q] = (int)total;
+  size_t off = 0;
+  for (int i = 0; i < 4; i++) {
+    part *P = parts[i];
+    const int n = P->ptr[nF];
+    P->val = k->vals + off;
+    for (int e = 0; e < n; e++)
+      k->dst[P->src[e]] = (int)off + e;
+    off += (size_t)n;
+    free(P->src);
+    P->src = NULL;
+  }
+  for (size_t j = 0; j < nF; j++)
+    k->ddg[j] = k->dst[k->dg[j]];
+  return 0;
 }
 
 int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
@@ -96,15 +226,16 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->dinv, nF);
   ALLOC(k->dinv_s, ns);
   ALLOC(k->t, nF);
+  ALLOC(k->T, SK_KEEP * nF);
+  ALLOC(k->gy, SK_RESTART);
   ALLOC(k->rs, ns);
   ALLOC(k->ds, ns);
   ALLOC(k->cgb, nf);
-  ALLOC(k->cgx, nf);
-  ALLOC(k->cgwork, 4 * nf);
+  ALLOC(k->cgwork, 3 * nf);
   ALLOC(k->gwork, mrvi_gmres_work(k->ns, SK_RESTART));
 #undef ALLOC
   if (!k->s1 || !k->s2 || !k->dg || !k->sdiv || !k->dinv || !k->dinv_s ||
-      !k->t || !k->rs || !k->ds || !k->cgb || !k->cgx || !k->cgwork ||
+      !k->t || !k->T || !k->gy || !k->rs || !k->ds || !k->cgb || !k->cgwork ||
       !k->gwork) {
     mrvi_skrylov_free(k);
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
@@ -141,6 +272,21 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
                        j);
     }
   }
+  /* The column ends (for L) and starts (for sf) of the fast columns. */
+  const int *fend = Ap + k->ns + 1, *fbeg = Ap + k->ns;
+  const size_t nFc = (size_t)k->p * (size_t)k->nf;
+  if (part_rows(&k->D, nFc, nFc, k->nf, k->ns, k->s1, k->s2, Ai, 1) < 0 ||
+      part_rows(&k->L, nFc, nFc, k->nf, k->ns, k->s2, fend, Ai, 0) < 0 ||
+      part_cols(&k->sf, nFc, fbeg, k->s1, Ai) < 0 ||
+      part_rows(&k->fs, (size_t)k->ns, nFc, k->nf, k->ns, k->sdiv, Ap + 1, Ai,
+                0) < 0) {
+    mrvi_skrylov_free(k);
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  }
+  if (spread(k) < 0) {
+    mrvi_skrylov_free(k);
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  }
   *out = k;
   return MRVI_OK;
 }
@@ -151,8 +297,11 @@ const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k) {
 
 void mrvi_skrylov_factor(mrvi_skrylov *k) {
   const double *Ax = k->st->Ax;
+  const int nnz = k->st->Ap[k->ns + k->p * k->nf];
+  for (int q = 0; q < nnz; q++)
+    k->vals[k->dst[q]] = Ax[q];
   for (int j = 0; j < k->p * k->nf; j++) {
-    const double d = -Ax[k->dg[j]];
+    const double d = -k->vals[k->ddg[j]];
     k->dinv[j] = d > 0.0 ? 1.0 / d : 1.0;
   }
   for (int j = 0; j < k->ns; j++) {
@@ -165,33 +314,65 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
   k->lu_active = 0;
 }
 
-/* y = -D_c v (positive definite where CG applies), c = k->block. */
-static void neg_diag_block(void *ctx, const double *v, double *y) {
+/* y = -D_c v (positive definite where CG applies), c = k->block, by the
+ * compact rows of D_c (the same operations as adding the products of
+ * -D_c); returns v^T y. */
+static double neg_diag_block(void *ctx, const double *v, double *y) {
   const mrvi_skrylov *k = ctx;
-  const mrvi_step *st = k->st;
-  const int nf = k->nf, base = k->ns + k->block * nf;
-  memset(y, 0, (size_t)nf * sizeof(double));
+  const int nf = k->nf;
+  const int *ptr = k->D.ptr + (size_t)k->block * (size_t)nf;
+  const int *col = k->D.idx;
+  const double *val = k->D.val;
+  double vy = 0.0;
   for (int f = 0; f < nf; f++) {
-    const int jf = k->block * nf + f;
-    const double vf = v[f];
-    for (int q = k->s1[jf]; q < k->s2[jf]; q++)
-      y[st->Ai[q] - base] -= st->Ax[q] * vf;
+    double s = 0.0;
+    for (int q = ptr[f]; q < ptr[f + 1]; q++)
+      s -= val[q] * v[col[q]];
+    y[f] = s;
+    vy += v[f] * s;
   }
+  return vy;
 }
 
-/* X (p nf) <- A_ff^-1 X by a block forward sweep; MRVI_CG_* on failure. */
-static int forward_sweep(mrvi_skrylov *k, double *X) {
-  const mrvi_step *st = k->st;
-  const int nf = k->nf, ns = k->ns;
+/* Right-hand sides of forward_sweep from the slow unknowns vs: */
+enum {
+  FS_NONE,  /* X as given */
+  FS_SET,   /* X = A_fs vs */
+  FS_MINUS, /* X = X - A_fs vs */
+};
+
+/* X (p nf) <- A_ff^-1 X by a block forward sweep (X first set from vs
+ * by `fs`, block by block), and, if ysf is not NULL, ysf (ns) -= A_sf
+ * (A_ff^-1 X) while each block is in cache; MRVI_CG_* on failure. */
+static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
+                         double *ysf) {
+  const int nf = k->nf;
+  const int *lp = k->L.ptr, *lc = k->L.idx;
+  const double *lv = k->L.val;
+  const int *fc = k->fs.idx;
+  const double *fv = k->fs.val;
   for (int c = 0; c < k->p; c++) {
     double *xc = X + (size_t)c * (size_t)nf;
-    /* D_c x = b  <=>  (-D_c) x = -b */
-    for (int f = 0; f < nf; f++)
-      k->cgb[f] = -xc[f];
+    /* b_c = X_c - L_c X (earlier blocks);  D_c x = b  <=>  (-D_c) x = -b */
+    const int *lpc = lp + (size_t)c * (size_t)nf;
+    const int *fp = k->fs.ptr + (size_t)c * (size_t)nf;
+    for (int f = 0; f < nf; f++) {
+      double acc = xc[f];
+      if (fs != FS_NONE) {
+        double a = 0.0;
+        for (int q = fp[f]; q < fp[f + 1]; q++)
+          a += fv[q] * vs[fc[q]];
+        acc = fs == FS_SET ? a : acc - a;
+      }
+      for (int q = lpc[f]; q < lpc[f + 1]; q++)
+        acc -= lv[q] * X[lc[q]];
+      k->cgb[f] = -acc;
+    }
     k->block = c;
     int it = 0;
+    /* X_c is read: the solution goes there */
     const int s = mrvi_pcg(
-        nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, k->cgx,
+        nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, xc,
         SK_CG_RTOL, 0.0, MRVI_CG_MAX_IT, k->cgwork, &it, &k->curvature);
     k->stats.cg_solves++;
     k->stats.cg_iterations += it;
@@ -203,48 +384,32 @@ static int forward_sweep(mrvi_skrylov *k, double *X) {
       k->fail_iters = it;
       return s;
     }
-    memcpy(xc, k->cgx, (size_t)nf * sizeof(double));
-    /* Later rows: X_{c+1}, X_{c+2} -= (their entries of column block c) */
+    if (!ysf)
+      continue;
+    const int *sp = k->sf.ptr + (size_t)c * (size_t)nf, *sr = k->sf.idx;
+    const double *sv = k->sf.val;
     for (int f = 0; f < nf; f++) {
-      const int jf = c * nf + f;
       const double v = xc[f];
-      for (int q = k->s2[jf]; q < st->Ap[ns + jf + 1]; q++)
-        X[st->Ai[q] - ns] -= st->Ax[q] * v;
+      for (int q = sp[f]; q < sp[f + 1]; q++)
+        ysf[sr[q]] -= sv[q] * v;
     }
   }
   return MRVI_CG_OK;
-}
-
-/* y (p nf) = A_fs v (ns). */
-static void apply_fs(const mrvi_skrylov *k, const double *v, double *y) {
-  const mrvi_step *st = k->st;
-  memset(y, 0, (size_t)k->p * (size_t)k->nf * sizeof(double));
-  for (int j = 0; j < k->ns; j++)
-    for (int q = k->sdiv[j]; q < st->Ap[j + 1]; q++)
-      y[st->Ai[q] - k->ns] += st->Ax[q] * v[j];
-}
-
-/* y (ns) -= A_sf x (p nf). */
-static void sub_sf(const mrvi_skrylov *k, const double *x, double *y) {
-  const mrvi_step *st = k->st;
-  for (int jf = 0; jf < k->p * k->nf; jf++)
-    for (int q = st->Ap[k->ns + jf]; q < k->s1[jf]; q++)
-      y[st->Ai[q]] -= st->Ax[q] * x[jf];
 }
 
 /* y = S v = A_ss v - A_sf A_ff^-1 A_fs v. */
 static int schur_op(void *ctx, const double *v, double *y) {
   mrvi_skrylov *k = ctx;
   const mrvi_step *st = k->st;
-  apply_fs(k, v, k->t);
-  if (forward_sweep(k, k->t) != MRVI_CG_OK)
-    return -1;
   memset(y, 0, (size_t)k->ns * sizeof(double));
   for (int j = 0; j < k->ns; j++)
     for (int q = st->Ap[j]; q < k->sdiv[j]; q++)
       y[st->Ai[q]] += st->Ax[q] * v[j];
-  sub_sf(k, k->t, y);
-  return 0;
+  double *tv = k->calls < SK_KEEP
+                   ? k->T + (size_t)k->calls * (size_t)k->p * (size_t)k->nf
+                   : k->t;
+  k->calls++;
+  return forward_sweep(k, tv, FS_SET, v, y) == MRVI_CG_OK ? 0 : -1;
 }
 
 /* The iterative solve; MRVI_CG_* on failure. */
@@ -254,16 +419,16 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   double *df = dx + ns;
   /* z = A_ff^-1 R_f (in df), rs = R_s - A_sf z */
   memcpy(df, R + ns, nF * sizeof(double));
-  int s = forward_sweep(k, df);
+  memcpy(k->rs, R, (size_t)ns * sizeof(double));
+  int s = forward_sweep(k, df, FS_NONE, NULL, k->rs);
   if (s != MRVI_CG_OK)
     return s;
   if (ns == 0)
     return MRVI_CG_OK;
-  memcpy(k->rs, R, (size_t)ns * sizeof(double));
-  sub_sf(k, df, k->rs);
-  int it = 0;
+  int it = 0, ny = -1;
+  k->calls = 0;
   s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds, SK_GMRES_RTOL, 0.0,
-                 SK_RESTART, SK_GMRES_MAX_IT, k->gwork, &it);
+                 SK_RESTART, SK_GMRES_MAX_IT, k->gwork, &it, k->gy, &ny);
   k->stats.gmres_solves++;
   k->stats.gmres_iterations += it;
   if (it > k->stats.gmres_max)
@@ -276,12 +441,19 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
     }
     return k->failed;
   }
-  /* df = A_ff^-1 (R_f - A_fs ds) */
+  /* df = A_ff^-1 (R_f - A_fs ds) = z - sum y_j T_j, or by a sweep when
+   * GMRES restarted or took more than SK_KEEP iterations */
   memcpy(dx, k->ds, (size_t)ns * sizeof(double));
-  apply_fs(k, k->ds, df);
-  for (size_t i = 0; i < nF; i++)
-    df[i] = R[ns + i] - df[i];
-  return forward_sweep(k, df);
+  if (ny >= 0 && ny <= SK_KEEP) {
+    for (int j = 0; j < ny; j++) {
+      const double yj = k->gy[j], *Tj = k->T + (size_t)j * nF;
+      for (size_t i = 0; i < nF; i++)
+        df[i] -= yj * Tj[i];
+    }
+    return MRVI_CG_OK;
+  }
+  memcpy(df, R + ns, nF * sizeof(double));
+  return forward_sweep(k, df, FS_MINUS, k->ds, NULL);
 }
 
 int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,

@@ -25,7 +25,7 @@ struct mrvi_sblock {
   int *diag;               /* nf: index of (f, f) in Ax */
   long *elem_off;          /* per element of the class: offset in emap, -1 */
   int *emap;               /* per element: n_in x n_in -> Ax index or -1 */
-  double *dinv, *x, *work; /* Jacobi preconditioner, solution, CG (4 nf) */
+  double *dinv, *x, *work; /* Jacobi preconditioner, solution, CG (3 nf) */
   mrvi_newton *lu;         /* fallback, created on first use */
   mrvi_krylov_stats stats;
 };
@@ -126,7 +126,7 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
   sb->Ax = calloc((size_t)(sb->nnz > 0 ? sb->nnz : 1), sizeof(double));
   sb->dinv = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));
   sb->x = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));
-  sb->work = malloc((size_t)(nf > 0 ? 4 * nf : 1) * sizeof(double));
+  sb->work = malloc((size_t)(nf > 0 ? 3 * nf : 1) * sizeof(double));
   if (!sb->Ax || !sb->dinv || !sb->x || !sb->work)
     goto oom;
   *out = sb;
@@ -151,7 +151,7 @@ void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
       sb->Ax[map[k]] += scale * H[k];
 }
 
-static void matvec(void *ctx, const double *x, double *y) {
+static double matvec(void *ctx, const double *x, double *y) {
   const mrvi_sblock *sb = ctx;
   memset(y, 0, (size_t)sb->nf * sizeof(double));
   for (int j = 0; j < sb->nf; j++) {
@@ -159,6 +159,10 @@ static void matvec(void *ctx, const double *x, double *y) {
     for (int q = sb->Ap[j]; q < sb->Ap[j + 1]; q++)
       y[sb->Ai[q]] += sb->Ax[q] * xj;
   }
+  double xy = 0.0;
+  for (int i = 0; i < sb->nf; i++)
+    xy += x[i] * y[i];
+  return xy;
 }
 
 const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb) {
