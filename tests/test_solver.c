@@ -912,7 +912,153 @@ static void test_chord(void) {
     }
 }
 
+/* The schur path's fused assembly (doc/solver.md, "schur"): the exact
+ * Newton matrix restored, assembled, factored and swept row block by row
+ * block gives the separate passes' residual and update bit for bit, and
+ * the update of the CSC matrix's block elimination to 1e-12; also after a
+ * residual-only assembly with the kept factors.  Where the fused pass does
+ * not apply (p = 1: the Hessians scattered point by point; the chord
+ * matrix) both blocks take the separate passes.  Models: the FPU (the
+ * constant part's slow couplings zero), a chain of linear springs (every
+ * class quadratic: no kept Hessians, a constant part with slow
+ * couplings), the chain with a quartic fast spring (W's Hessians kept),
+ * the spring ring (distance springs in V and W; with different
+ * points, trapezoidal-midpoint, both classes keep Hessians: separate
+ * passes). */
+static void fused_case(mrvi_model *m, const char *label, const char *scheme,
+                       int p, double dT, int chord, int expect_fused) {
+  mrvi_settings s = test_settings(scheme, dT, p, 1.0, 1e-10);
+  mrvi_step st;
+  CHECK(mrvi_step_init(&st, m, &s) == 0, "%s: step init", label);
+  st.increments = 1;
+  const int ns = st.ns, nf = st.nf, nu = st.n_unknowns;
+  double *qs0 = calloc(ns + 1, sizeof(double)),
+         *ps0 = calloc(ns + 1, sizeof(double)),
+         *qf0 = calloc(nf + 1, sizeof(double)),
+         *pf0 = calloc(nf + 1, sizeof(double));
+  test_initial_data(&st, qs0, qf0, ps0, pf0);
+  double *x = calloc(nu, sizeof(double)), *R[3], *dx[3];
+  for (int k = 0; k < 3; k++) {
+    R[k] = calloc(nu, sizeof(double));
+    dx[k] = calloc(nu, sizeof(double));
+  }
+  /* displacements: free flight plus a wiggle */
+  for (int i = 0; i < ns; i++)
+    x[i] = dT * ps0[i] / m->mass[m->slow_index[i]] + 0.01 * sin(i + 1.0);
+  for (int k = 1; k <= p; k++)
+    for (int i = 0; i < nf; i++)
+      x[ns + (k - 1) * nf + i] =
+          k * (dT / p) * pf0[i] / m->mass[m->fast_index[i]] +
+          0.01 * cos(k + 2.0 * i);
+  mrvi_blocks *b[3] = {NULL, NULL, NULL};
+  for (int k = 0; k < 3; k++)
+    CHECK(mrvi_blocks_create(&st, &b[k]) == MRVI_OK, "%s: blocks", label);
+  mrvi_blocks_fuse(b[1], 0);
+  /* the chord's frozen Hessian (its structure permitting) */
+  for (int k = 0; k < 2 && chord; k++) {
+    mrvi_blocks_chord_spread(b[k], &st, x);
+    mrvi_blocks_chord(b[k], 1);
+  }
+  /* b[2]: the CSC matrix of step.c, scattered */
+  CHECK(mrvi_step_build_pattern(&st, x) == 0, "%s: pattern", label);
+  mrvi_step_assemble(&st, x, R[2], 1);
+  CHECK(mrvi_blocks_factor(b[2], &st) == MRVI_OK, "%s: CSC factor", label);
+  mrvi_blocks_solve(b[2], R[2], dx[2]);
+  double *x1 = calloc(nu, sizeof(double));
+  for (int pass = 0; pass < 2; pass++) {
+    for (int k = 0; k < 2; k++) {
+      if (pass == 0) {
+        CHECK(mrvi_blocks_assemble(b[k], &st, x, R[k], 1) == MRVI_OK,
+              "%s: assemble", label);
+        if (k == 0)
+          CHECK(mrvi_blocks_fused(b[0]) == expect_fused,
+                "%s %s p=%d: fused %d, expected %d", label, scheme, p,
+                mrvi_blocks_fused(b[0]), expect_fused);
+        CHECK(mrvi_blocks_factor(b[k], &st) == MRVI_OK, "%s: factor", label);
+      } else { /* the residual after the update, the factors kept */
+        CHECK(mrvi_blocks_assemble(b[k], &st, x1, R[k], 0) == MRVI_OK,
+              "%s: assemble", label);
+      }
+      mrvi_blocks_solve(b[k], R[k], dx[k]);
+    }
+    CHECK(!mrvi_blocks_fused(b[1]), "%s: the separate passes fused", label);
+    CHECK(memcmp(R[0], R[1], (size_t)nu * sizeof(double)) == 0 &&
+              memcmp(dx[0], dx[1], (size_t)nu * sizeof(double)) == 0,
+          "%s %s p=%d pass %d: fused and separate passes differ", label, scheme,
+          p, pass);
+    if (pass == 0) {
+      double e = 0.0, sc = 0.0;
+      for (int i = 0; i < nu; i++) {
+        e = fmax(e, fabs(dx[0][i] - dx[2][i]));
+        sc = fmax(sc, fabs(dx[2][i]));
+        x1[i] = x[i] - dx[0][i];
+      }
+      /* the chord's matrix is not the CSC one */
+      if (!chord)
+        CHECK(e <= 1e-12 * sc, "%s %s p=%d: update %.2e off the CSC one's",
+              label, scheme, p, e / sc);
+    }
+  }
+  for (int k = 0; k < 3; k++) {
+    mrvi_blocks_free(b[k]);
+    free(R[k]);
+    free(dx[k]);
+  }
+  free(x1);
+  free(x);
+  free(qs0);
+  free(ps0);
+  free(qf0);
+  free(pf0);
+  mrvi_step_free(&st);
+}
+
+static void test_fused(void) {
+  mrvi_model *fpu = test_fpu(), *ring = test_spring_ring();
+  /* qs1 - qf1 - qf2 - qs2 with linear springs, soft on the slow ones (lin);
+   * with a quartic fast spring on qf2 too (lin4) */
+  mrvi_model *lin[2];
+  const double a[2] = {1, -1};
+  for (int c = 0; c < 2; c++) {
+    mrvi_model *m = lin[c] = mrvi_model_create();
+    const char *names[4] = {"qs1", "qs2", "qf1", "qf2"};
+    for (int i = 0; i < 4; i++)
+      mrvi_model_add_coordinate(m, names[i], 1.0 + 0.5 * i,
+                                i < 2 ? MRVI_SLOW : MRVI_FAST, 0.1 * i,
+                                1.0 - 0.3 * i);
+    const int l1[2] = {0, 2}, l2[2] = {1, 3}, l3[2] = {2, 3}, l4[1] = {2},
+              l5[1] = {3};
+    const double k1[1] = {3.0}, k2[1] = {400.0}, pw[2] = {100.0, 4.0};
+    int ok =
+        mrvi_model_add_term(m, MRVI_SLOW, 2, l1, a, 0.0, "linear", k1) >= 0;
+    ok &= mrvi_model_add_term(m, MRVI_SLOW, 2, l2, a, 0.0, "linear", k1) >= 0;
+    ok &= mrvi_model_add_term(m, MRVI_FAST, 2, l3, a, 0.0, "linear", k2) >= 0;
+    ok &= mrvi_model_add_term(m, MRVI_FAST, 1, l4, a, 0.0, "linear", k2) >= 0;
+    if (c == 1)
+      ok &= mrvi_model_add_term(m, MRVI_FAST, 1, l5, a, 0.0, "power", pw) >= 0;
+    CHECK(ok, "linear chain %d: %s", c, mrvi_model_errmsg(m));
+  }
+  const char *const schemes[3] = {"midpoint-midpoint", "trapezoidal-midpoint",
+                                  "trapezoidal-trapezoidal"};
+  for (int i = 0; i < 3; i++) {
+    const int tt = i == 2;
+    fused_case(fpu, "fpu", schemes[i], 1, 0.03, 0, 0);
+    fused_case(fpu, "fpu", schemes[i], 5, 0.03, 0, 1);
+    fused_case(fpu, "fpu", schemes[i], 5, 0.03, 1, 0);
+    fused_case(lin[0], "linear chain", schemes[i], 5, 0.03, 0, 1);
+    /* (trapezoidal-midpoint: W's Hessians kept, V's constant) */
+    fused_case(lin[1], "chain with a quartic W", schemes[i], 6, 0.03, 0, 1);
+    fused_case(ring, "spring ring", schemes[i], 4, tt ? 0.001 : 0.01, 0,
+               i != 1);
+  }
+  mrvi_model_free(lin[0]);
+  mrvi_model_free(lin[1]);
+  mrvi_model_free(fpu);
+  mrvi_model_free(ring);
+}
+
 int main(void) {
+  test_fused();
   test_chord();
   test_linsolve_backends();
   test_predictor();
