@@ -545,18 +545,18 @@ ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
   }
 }
 
-/* Row block m of the Hessians kept in Hp of a class with one point per
- * micro interval (point m in interval m): row block m (and slow column
+/* Row block m of the Hessians H of point m and HQ of point m - 1 (unread
+ * at m = 0) of a class with one point per micro interval (point m in
+ * interval m): row block m (and slow column
  * block m - 1, node m) takes what points m - 1 (Q) and m (P) give it, in
  * that order -- the entries and the order of point_hessian_k point by
  * point (the same sums), with each destination read and written once. */
 ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const mrvi_point *pts,
-                                  const int m, int has_s, int has_f,
+                                  const int m, const double *H,
+                                  const double *HQ, int has_s, int has_f,
                                   const int ns, const int nf) {
   const int p = b->p, nz = ns + nf, nF = p * nf;
-  const size_t hsz = (size_t)nz * (size_t)nz, blk = (size_t)nf * (size_t)nf;
-  const double *H = b->Hp + (size_t)m * hsz;
-  const double *HQ = m >= 1 ? H - hsz : H; /* (unread at m = 0) */
+  const size_t blk = (size_t)nf * (size_t)nf;
   const mrvi_point *P = &pts[m];
   const double w = P->w, a0 = P->a0, a1 = P->a1, cA = P->cA, cB = P->cB;
   /* Point m - 1: zero factors before the first interval. */
@@ -609,8 +609,10 @@ ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const mrvi_point *pts,
 ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const mrvi_point *pts,
                                        int has_s, int has_f, const int ns,
                                        const int nf) {
+  const size_t hsz = (size_t)(ns + nf) * (size_t)(ns + nf);
   for (int m = 0; m < b->p; m++)
-    interval_row_k(b, pts, m, has_s, has_f, ns, nf);
+    interval_row_k(b, pts, m, b->Hp + m * hsz,
+                   b->Hp + (m >= 1 ? m - 1 : 0) * hsz, has_s, has_f, ns, nf);
 }
 
 /* (a call: inlined, it crowded the registers of the assembly loop) */
@@ -711,6 +713,16 @@ static void class_hessian(mrvi_blocks *b, int c, double *H) {
   mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, H, (int)nz, 1.0);
 }
 
+/* The Hessian H of every point of a class with one point per interval
+ * into the blocks (interval_row_k). */
+static void const_rows(mrvi_blocks *b, const mrvi_point *pts, const double *H,
+                       int has_s, int has_f) {
+  for (int m = 0; m < b->p; m++)
+    SMALL(b->ns, NS,
+          SMALL(b->nf, NF,
+                interval_row_k(b, pts, m, H, H, has_s, has_f, NS, NF)));
+}
+
 /* The constant part of the Newton matrix into the blocks: the kinetic rows
  * and the classes with a constant Hessian (quad), at any x. */
 static void constant_part(mrvi_blocks *b, const mrvi_step *st,
@@ -728,12 +740,21 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
         ff_block(b, mm, mm - 1)[f * nf + f] += 2.0 * M / dt;
       ff_block(b, mm, mm)[f * nf + f] += -M / dt;
     }
-  for (int c = 0; c < 2; c++)
-    for (int ip = 0; ip < st->n_pts[c] && b->quad[c]; ip++) {
-      point_config(b, st, x, &st->pts[c][ip]);
-      class_hessian(b, c, b->H);
-      point_hessian(b, &st->pts[c][ip], c);
-    }
+  /* A class whose terms are all quadratic has the same Hessian at every
+   * configuration, bit for bit (its second derivatives do not depend on
+   * s = a^T z - b): evaluated at its first point, then scattered for
+   * every point. */
+  for (int c = 0; c < 2; c++) {
+    if (!b->quad[c] || st->n_pts[c] == 0)
+      continue;
+    point_config(b, st, x, &st->pts[c][0]);
+    class_hessian(b, c, b->H);
+    if (b->per_iv[c]) /* (row block by row block: the same sums) */
+      const_rows(b, st->pts[c], b->H, b->has_s[c], b->has_f[c]);
+    else
+      for (int ip = 0; ip < st->n_pts[c]; ip++)
+        point_hessian(b, &st->pts[c][ip], c);
+  }
 }
 
 /* G += gradient of class c at zp: the terms, or g0 + Hq zp (from the
@@ -891,7 +912,7 @@ ALWAYS_INLINE int fused_rows_k(mrvi_blocks *b, const mrvi_point *pts, int cls,
                                int Hs, int Hf, const double *R, const int ns,
                                const int nf) {
   const int p = b->p, nF = p * nf, fb = nf * nf;
-  const size_t blk = (size_t)fb;
+  const size_t blk = (size_t)fb, hsz = (size_t)(ns + nf) * (size_t)(ns + nf);
   const double *cb = b->cblk;
   const double *cD = cb + (b->D - b->blk), *cL1 = cb + (b->L1 - b->blk),
                *cL2 = cb + (b->L2 - b->blk);
@@ -921,7 +942,8 @@ ALWAYS_INLINE int fused_rows_k(mrvi_blocks *b, const mrvi_point *pts, int cls,
       }
     }
     if (cls >= 0)
-      interval_row_k(b, pts, m, Hs, Hf, ns, nf);
+      interval_row_k(b, pts, m, b->Hp + m * hsz,
+                     b->Hp + (m >= 1 ? m - 1 : 0) * hsz, Hs, Hf, ns, nf);
     int *piv = b->piv + (size_t)m * nf;
     double *dinv = b->dinv + (size_t)m * nf;
     if (lu_factor_k(nf, D, piv, dinv) < 0)
