@@ -520,17 +520,8 @@ int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st);
  * this does not apply (then use mrvi_step_assemble). */
 int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac);
-/* Solve J dx = R with the kept factors.  After an assembly with jac, the
- * first solve must be for the residual R that assembly wrote (unchanged):
- * where the assembly is fused (doc/solver.md, "schur"), its forward sweep
- * of R was made there. */
-void mrvi_blocks_solve(mrvi_blocks *b, const double *R, double *dx);
-/* Tests: on (the default) fuses the assembly with the Newton matrix, the
- * factorisation of the D_m and the sweeps where it applies; off keeps the
- * separate passes (the same results bit for bit). */
-void mrvi_blocks_fuse(mrvi_blocks *b, int on);
-/* 1 if the last assembly with jac was fused. */
-int mrvi_blocks_fused(const mrvi_blocks *b);
+/* Solve J dx = R with the kept factors. */
+void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
 /* Chord matrix (doc/solver.md, "Newton details"): 1 if the step's
  * structure admits it (every class whose Hessian is not constant has one
  * point per micro interval, the points of intervals 1..p-1 have the same

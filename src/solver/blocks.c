@@ -78,13 +78,6 @@ struct mrvi_blocks {
    * points (mrvi_blocks_chord_spread; nz x nz each). */
   double *Hz[2];
   double m_min; /* the smallest mass (the chord rule's measure) */
-  /* Fused assembly (fused_rows_k): the last assembly with jac also
-   * factored the D_m and swept Y and z (fused; fused_bad: a D_m was
-   * singular), and rs = R_s - A_sf z is kept for the next solve
-   * (fz_ready).  cs_zero: the constant part of A_sf and A_fs is zero. */
-  int fused, fused_bad, fz_ready, cs_zero;
-  int fused_off; /* tests: the separate passes (mrvi_blocks_fuse) */
-  double *rs;    /* ns */
 };
 
 void mrvi_blocks_free(mrvi_blocks *b) {
@@ -108,7 +101,6 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->mf);
   free(b->cblk);
   free(b->Hp);
-  free(b->rs);
   for (int c = 0; c < 2; c++) {
     free(b->fw[c]);
     free(b->Hz[c]);
@@ -145,10 +137,9 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->H, nz * nz, double);
   ALLOC(b->ms, ns, double);
   ALLOC(b->mf, nf, double);
-  ALLOC(b->rs, ns, double);
 #undef ALLOC
   if (!b->blk || !b->piv || !b->z || !b->S || !b->r || !b->spiv || !b->dinv ||
-      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf || !b->rs) {
+      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
@@ -742,14 +733,15 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
     }
   /* A class whose terms are all quadratic has the same Hessian at every
    * configuration, bit for bit (its second derivatives do not depend on
-   * s = a^T z - b): evaluated at its first point, then scattered for
-   * every point. */
+   * s = a^T z - b): evaluated at its first point, then added for every
+   * point, row block by row block for a class with one point per interval
+   * (the same sums). */
   for (int c = 0; c < 2; c++) {
     if (!b->quad[c] || st->n_pts[c] == 0)
       continue;
     point_config(b, st, x, &st->pts[c][0]);
     class_hessian(b, c, b->H);
-    if (b->per_iv[c]) /* (row block by row block: the same sums) */
+    if (b->per_iv[c])
       const_rows(b, st->pts[c], b->H, b->has_s[c], b->has_f[c]);
     else
       for (int ip = 0; ip < st->n_pts[c]; ip++)
@@ -799,8 +791,8 @@ frozen_point(mrvi_blocks *b, const mrvi_step *st, const double *x, int c,
 /* The residual (with the momenta's potential parts) and, if jac, the
  * potential part of the Newton matrix (mrvi_blocks_assemble). */
 ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
-                              const double *x, double *R, int jac, int fuse,
-                              const int ns, const int nf) {
+                              const double *x, double *R, int jac, const int ns,
+                              const int nf) {
   const int p = b->p, nz = ns + nf;
   double *mps = st->mom_ps, *mpf = st->mom_pf;
   if (mps) {
@@ -883,123 +875,11 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
       if (ph && !defer)
         point_hessian_k(b, pt, Hs, Hf, ns, nf);
     }
-    if (defer && !fuse) /* (fused: in fused_rows) */
+    if (defer)
       interval_hessians(b, st->pts[c], Hs, Hf);
     if (frozen)
       frozen_point(b, st, x, c, h0, h1, Hs, Hf);
   }
-}
-
-/* dst (n) <- the saved constant part at src, or zeros (src NULL). */
-ALWAYS_INLINE void restore_k(double *restrict dst, const double *restrict src,
-                             const int n) {
-  if (src)
-    UNROLL for (int i = 0; i < n; i++) dst[i] = src[i];
-  else
-    UNROLL for (int i = 0; i < n; i++) dst[i] = 0.0;
-}
-
-/* The exact Newton matrix from the saved constant part and the Hessians
- * kept per interval of class cls (none if cls < 0), factored, in one pass
- * over the row blocks while each is in cache: row block m restored (its
- * D, L1, L2, A_fs rows and the slow column blocks it completes), the
- * Hessians of points m - 1, m added (interval_row_k), D_m factored, Y and
- * z swept (sweep_row_k; z from R_f) and rs = R_s - A_sf z accumulated
- * over the completed column blocks.  Each of these is the separate pass's
- * arithmetic in the separate pass's order: the same factors, Y, z and rs
- * bit for bit.  Returns -1 at a singular D_m (the rest left unfilled). */
-ALWAYS_INLINE int fused_rows_k(mrvi_blocks *b, const mrvi_point *pts, int cls,
-                               int Hs, int Hf, const double *R, const int ns,
-                               const int nf) {
-  const int p = b->p, nF = p * nf, fb = nf * nf;
-  const size_t blk = (size_t)fb, hsz = (size_t)(ns + nf) * (size_t)(ns + nf);
-  const double *cb = b->cblk;
-  const double *cD = cb + (b->D - b->blk), *cL1 = cb + (b->L1 - b->blk),
-               *cL2 = cb + (b->L2 - b->blk);
-  const double *cAsf = b->cs_zero ? NULL : cb + (b->Asf - b->blk),
-               *cAfs = b->cs_zero ? NULL : cb + (b->Afs - b->blk);
-  restore_k(b->Ass, cb, ns * ns);
-  double *restrict rs = b->rs;
-  UNROLL for (int i = 0; i < ns; i++) rs[i] = R[i];
-  for (int m = 0; m < p; m++) {
-    double *D = b->D + m * blk, *L1 = b->L1 + m * blk, *L2 = b->L2 + m * blk;
-    /* (the constant part's row blocks from 2 on are row block 2's when
-     * const_uni: read from there, in cache) */
-    const size_t o = b->const_uni && m >= 2 ? 2 * blk : m * blk;
-    restore_k(D, cD + o, fb);
-    restore_k(L1, cL1 + o, fb);
-    restore_k(L2, cL2 + o, fb);
-    const size_t fo = (size_t)m * nf * (size_t)ns;
-    restore_k(b->Afs + fo, cAfs ? cAfs + fo : NULL, nf * ns);
-    /* the slow column blocks row block m completes: m - 1, and m at the
-     * last */
-    for (int j = m >= 1 ? m - 1 : m; j <= m && ns > 0; j++) {
-      if (j == m && m < p - 1)
-        break;
-      UNROLL for (int i = 0; i < ns; i++) {
-        const size_t so = (size_t)i * nF + (size_t)j * nf;
-        restore_k(b->Asf + so, cAsf ? cAsf + so : NULL, nf);
-      }
-    }
-    if (cls >= 0)
-      interval_row_k(b, pts, m, b->Hp + m * hsz,
-                     b->Hp + (m >= 1 ? m - 1 : 0) * hsz, Hs, Hf, ns, nf);
-    int *piv = b->piv + (size_t)m * nf;
-    double *dinv = b->dinv + (size_t)m * nf;
-    if (lu_factor_k(nf, D, piv, dinv) < 0)
-      return -1;
-    if (ns > 0)
-      sweep_row_k(m, b->Y, L1, L2, D, piv, dinv, nf, ns);
-    double *restrict zm = b->z + (size_t)m * nf;
-    const double *restrict Rm = R + ns + (size_t)m * nf;
-    UNROLL for (int f = 0; f < nf; f++) zm[f] = Rm[f];
-    sweep_row_k(m, b->z, L1, L2, D, piv, dinv, nf, 1);
-    /* rs over the completed column blocks (slow_solve_k's order) */
-    for (int j = m >= 1 ? m - 1 : m; j <= m && ns > 0; j++) {
-      if (j == m && m < p - 1)
-        break;
-      const double *restrict zj = b->z + (size_t)j * nf;
-      UNROLL for (int i = 0; i < ns; i++) {
-        const double *restrict a = b->Asf + (size_t)i * nF + (size_t)j * nf;
-        double t = rs[i];
-        UNROLL for (int k = 0; k < nf; k++) t -= a[k] * zj[k];
-        rs[i] = t;
-      }
-    }
-  }
-  return 0;
-}
-
-static __attribute__((noinline)) int fused_rows(mrvi_blocks *b,
-                                                const mrvi_point *pts, int cls,
-                                                int Hs, int Hf,
-                                                const double *R) {
-  int s = 0;
-  SMALL(b->ns, NS,
-        SMALL(b->nf, NF, s = fused_rows_k(b, pts, cls, Hs, Hf, R, NS, NF)));
-  return s;
-}
-
-/* The class whose kept Hessians fused_rows adds (-1: none, the blocks are
- * the constant part), or -2 where the assembly is not fused: the chord
- * matrix, Hessians scattered point by point (two points per interval,
- * p = 1), or two classes with Hessians kept per interval (one Hp). */
-static int fuse_class(const mrvi_blocks *b, int *Hs, int *Hf) {
-  if (b->uniform)
-    return -2;
-  const int same = b->same_pts;
-  int cls = -1;
-  for (int c = 0; c < (same ? 1 : 2); c++) {
-    const int h0 = !b->quad[c], h1 = same && !b->quad[1];
-    if (!h0 && !h1)
-      continue;
-    if (!b->per_iv[c] || cls >= 0)
-      return -2;
-    cls = c;
-    *Hs = (h0 && b->has_s[c]) || (h1 && b->has_s[1]);
-    *Hf = (h0 && b->has_f[c]) || (h1 && b->has_f[1]);
-  }
-  return cls;
 }
 
 /* 1 if the constant part's fast row blocks m >= 2 equal row block 2's. */
@@ -1021,38 +901,21 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
   if (!st->increments || st->n_lambda > 0 || st->extra)
     return MRVI_EINVAL;
   b->assembled = jac;
-  b->fused = b->fz_ready = 0;
-  /* The constant part: computed and saved once, then restored (by the
-   * fused pass where it applies). */
+  /* The constant part: computed and saved once, then restored. */
   if (jac && !b->const_ok) {
     constant_part(b, st, x);
     copy_blocks(b, 1);
     b->const_ok = 1;
     b->const_uni = const_uniform(b);
-    b->cs_zero = 1;
-    for (const double *c = b->cblk + (b->Asf - b->blk),
-                      *e = b->cblk + (b->D - b->blk);
-         c < e; c++)
-      b->cs_zero &= *c == 0.0;
+  } else if (jac) {
+    copy_blocks(b, 2);
   }
   if (jac)
     b->uniform = b->chord && b->chord_st && b->const_uni;
-  int Hs = 0, Hf = 0;
-  const int cls = jac ? fuse_class(b, &Hs, &Hf) : -2;
-  const int fuse = cls >= -1 && !b->fused_off;
-  if (jac && !fuse)
-    copy_blocks(b, 2);
-  SMALL(ns, NS, SMALL(nf, NF, assemble_k(b, st, x, R, jac, fuse, NS, NF)));
+  SMALL(ns, NS, SMALL(nf, NF, assemble_k(b, st, x, R, jac, NS, NF)));
   if (st->f_rows) /* control forces: constants of the step */
     for (int i = 0; i < st->n_unknowns; i++)
       R[i] += st->f_rows[i];
-  if (fuse) {
-    /* the matrix with its factors, z and rs (R is final here) */
-    b->fused = 1;
-    b->fused_bad =
-        fused_rows(b, cls >= 0 ? st->pts[cls] : NULL, cls, Hs, Hf, R) < 0;
-    b->fz_ready = !b->fused_bad;
-  }
   return MRVI_OK;
 }
 
@@ -1101,8 +964,6 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
   }
 }
 
-static int factor_schur(mrvi_blocks *b);
-
 /* Factorise the blocks as they are (scattered or assembled directly). */
 static int factor_blocks(mrvi_blocks *b) {
   const int ns = b->ns, nf = b->nf, p = b->p;
@@ -1116,16 +977,9 @@ static int factor_blocks(mrvi_blocks *b) {
   }
   if (bad)
     return MRVI_ESINGULAR;
-  /* Y = A_ff^-1 A_fs (in place of A_fs) */
+  /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
   if (ns > 0)
     sweep_solve(b, b->Y, ns);
-  return factor_schur(b);
-}
-
-/* S = A_ss - A_sf Y, factored. */
-static int factor_schur(mrvi_blocks *b) {
-  const int ns = b->ns;
-  int bad = 0;
   SMALL(ns, NS, schur_k(b, NS));
   if (ns > 0) {
     SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv, b->sdinv) < 0);
@@ -1136,29 +990,20 @@ static int factor_schur(mrvi_blocks *b) {
 int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
   if (b->assembled) {
     b->assembled = 0;
-    if (b->fused) /* D_m and Y done in the assembly */
-      return b->fused_bad ? MRVI_ESINGULAR : factor_schur(b);
     return factor_blocks(b);
   }
   b->uniform = 0;
-  b->fused = b->fz_ready = 0;
   const int sc = scatter(b, st);
   return sc < 0 ? sc : factor_blocks(b);
 }
 
-/* ds = S^-1 (R_s - A_sf z), df = z - Y ds (after z = A_ff^-1 R_f;
- * R_s - A_sf z given as rs if not NULL). */
+/* ds = S^-1 (R_s - A_sf z), df = z - Y ds (after z = A_ff^-1 R_f). */
 ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
-                                const double *rs, double *restrict dx,
-                                const int ns) {
+                                double *restrict dx, const int ns) {
   const int nF = b->p * b->nf;
   const double *restrict z = b->z, *restrict Y = b->Y;
   double r[ns > 0 ? ns : 1];
   UNROLL for (int i = 0; i < ns; i++) {
-    if (rs) {
-      r[i] = rs[i];
-      continue;
-    }
     const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
     double s = R[i];
     UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
@@ -1174,19 +1019,10 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
   }
 }
 
-void mrvi_blocks_solve(mrvi_blocks *b, const double *R, double *dx) {
+void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
   const int ns = b->ns, nF = b->p * b->nf;
-  /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds; z and
-   * r from the fused assembly for its residual */
-  const double *rs = b->fz_ready ? b->rs : NULL;
-  b->fz_ready = 0;
-  if (!rs) {
-    memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
-    sweep_solve(b, b->z, 1);
-  }
-  SMALL(ns, NS, slow_solve_k(b, R, rs, dx, NS));
+  /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds */
+  memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
+  sweep_solve(b, b->z, 1);
+  SMALL(ns, NS, slow_solve_k(b, R, dx, NS));
 }
-
-void mrvi_blocks_fuse(mrvi_blocks *b, int on) { b->fused_off = !on; }
-
-int mrvi_blocks_fused(const mrvi_blocks *b) { return b->fused; }
