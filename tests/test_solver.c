@@ -968,7 +968,121 @@ static void test_chord(void) {
     }
 }
 
+/* The schur path's direct assembly (doc/solver.md, "Evaluation") against
+ * the CSC matrix of step.c scattered into the same blocks: the Newton
+ * update of the block elimination agrees to 1e-12 of its size.  This
+ * checks the matrix itself (a wrong matrix still converges, in more
+ * updates): the constant part -- kinetic rows and quadratic classes,
+ * whose Hessian is evaluated once and added row block by row block for a
+ * class with one point per interval, point by point otherwise (p = 1) --
+ * and the Hessians of the other classes.  Models: the FPU (W quadratic,
+ * fast only), a chain of linear springs (every class quadratic, V with
+ * slow and fast inputs: slow couplings in the constant part), the chain
+ * with a quartic fast spring, the spring ring (distance springs). */
+static void direct_case(mrvi_model *m, const char *label, const char *scheme,
+                        int p, double dT) {
+  mrvi_settings s = test_settings(scheme, dT, p, 1.0, 1e-10);
+  mrvi_step st;
+  CHECK(mrvi_step_init(&st, m, &s) == 0, "%s: step init", label);
+  st.increments = 1;
+  const int ns = st.ns, nf = st.nf, nu = st.n_unknowns;
+  double *qs0 = calloc(ns + 1, sizeof(double)),
+         *ps0 = calloc(ns + 1, sizeof(double)),
+         *qf0 = calloc(nf + 1, sizeof(double)),
+         *pf0 = calloc(nf + 1, sizeof(double));
+  test_initial_data(&st, qs0, qf0, ps0, pf0);
+  double *x = calloc(nu, sizeof(double)), *R[2], *dx[2];
+  for (int k = 0; k < 2; k++) {
+    R[k] = calloc(nu, sizeof(double));
+    dx[k] = calloc(nu, sizeof(double));
+  }
+  /* displacements: free flight plus a wiggle */
+  for (int i = 0; i < ns; i++)
+    x[i] = dT * ps0[i] / m->mass[m->slow_index[i]] + 0.01 * sin(i + 1.0);
+  for (int k = 1; k <= p; k++)
+    for (int i = 0; i < nf; i++)
+      x[ns + (k - 1) * nf + i] =
+          k * (dT / p) * pf0[i] / m->mass[m->fast_index[i]] +
+          0.01 * cos(k + 2.0 * i);
+  mrvi_blocks *b[2] = {NULL, NULL};
+  for (int k = 0; k < 2; k++)
+    CHECK(mrvi_blocks_create(&st, &b[k]) == MRVI_OK, "%s: blocks", label);
+  /* twice: the constant part made (first) and restored (second) */
+  for (int pass = 0; pass < 2; pass++) {
+    CHECK(mrvi_blocks_assemble(b[0], &st, x, R[0], 1) == MRVI_OK,
+          "%s: assemble", label);
+    CHECK(mrvi_blocks_factor(b[0], &st) == MRVI_OK, "%s: factor", label);
+    mrvi_blocks_solve(b[0], R[0], dx[0]);
+  }
+  CHECK(mrvi_step_build_pattern(&st, x) == 0, "%s: pattern", label);
+  mrvi_step_assemble(&st, x, R[1], 1);
+  CHECK(mrvi_blocks_factor(b[1], &st) == MRVI_OK, "%s: CSC factor", label);
+  mrvi_blocks_solve(b[1], R[1], dx[1]);
+  double e = 0.0, sc = 0.0;
+  for (int i = 0; i < nu; i++) {
+    e = fmax(e, fabs(dx[0][i] - dx[1][i]));
+    sc = fmax(sc, fabs(dx[1][i]));
+  }
+  CHECK(sc > 0.0 && e <= 1e-12 * sc,
+        "%s %s p=%d: direct update %.2e (relative) off the CSC one's", label,
+        scheme, p, sc > 0.0 ? e / sc : e);
+  for (int k = 0; k < 2; k++) {
+    mrvi_blocks_free(b[k]);
+    free(R[k]);
+    free(dx[k]);
+  }
+  free(x);
+  free(qs0);
+  free(ps0);
+  free(qf0);
+  free(pf0);
+  mrvi_step_free(&st);
+}
+
+static void test_direct(void) {
+  mrvi_model *fpu = test_fpu(), *ring = test_spring_ring();
+  /* qs1 - qf1 - qf2 - qs2 with linear springs, soft on the slow ones (lin);
+   * with a quartic fast spring on qf2 too (lin4) */
+  mrvi_model *lin[2];
+  const double a[2] = {1, -1};
+  for (int c = 0; c < 2; c++) {
+    mrvi_model *m = lin[c] = mrvi_model_create();
+    const char *names[4] = {"qs1", "qs2", "qf1", "qf2"};
+    for (int i = 0; i < 4; i++)
+      mrvi_model_add_coordinate(m, names[i], 1.0 + 0.5 * i,
+                                i < 2 ? MRVI_SLOW : MRVI_FAST, 0.1 * i,
+                                1.0 - 0.3 * i);
+    const int l1[2] = {0, 2}, l2[2] = {1, 3}, l3[2] = {2, 3}, l4[1] = {2},
+              l5[1] = {3};
+    const double k1[1] = {3.0}, k2[1] = {400.0}, pw[2] = {100.0, 4.0};
+    int ok =
+        mrvi_model_add_term(m, MRVI_SLOW, 2, l1, a, 0.0, "linear", k1) >= 0;
+    ok &= mrvi_model_add_term(m, MRVI_SLOW, 2, l2, a, 0.0, "linear", k1) >= 0;
+    ok &= mrvi_model_add_term(m, MRVI_FAST, 2, l3, a, 0.0, "linear", k2) >= 0;
+    ok &= mrvi_model_add_term(m, MRVI_FAST, 1, l4, a, 0.0, "linear", k2) >= 0;
+    if (c == 1)
+      ok &= mrvi_model_add_term(m, MRVI_FAST, 1, l5, a, 0.0, "power", pw) >= 0;
+    CHECK(ok, "linear chain %d: %s", c, mrvi_model_errmsg(m));
+  }
+  const char *const schemes[3] = {"midpoint-midpoint", "trapezoidal-midpoint",
+                                  "trapezoidal-trapezoidal"};
+  for (int i = 0; i < 3; i++) {
+    const int tt = i == 2;
+    for (int p = 1; p <= 5; p += 4) {
+      direct_case(fpu, "fpu", schemes[i], p, 0.03);
+      direct_case(lin[0], "linear chain", schemes[i], p, 0.03);
+      direct_case(lin[1], "chain with a quartic W", schemes[i], p + 1, 0.03);
+      direct_case(ring, "spring ring", schemes[i], p, tt ? 0.001 : 0.01);
+    }
+  }
+  mrvi_model_free(lin[0]);
+  mrvi_model_free(lin[1]);
+  mrvi_model_free(fpu);
+  mrvi_model_free(ring);
+}
+
 int main(void) {
+  test_direct();
   test_chord();
   test_linsolve_backends();
   test_predictor();

@@ -536,63 +536,74 @@ ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
   }
 }
 
-/* The Hessians kept in Hp of a class with one point per micro interval
- * (point m in interval m) into the blocks, row block by row block: row
- * block m (and slow column block m - 1, node m) takes what points m - 1
- * and m give it, in that order -- the entries and the order of
- * point_hessian_k point by point (the same sums), with each destination
- * read and written once. */
+/* Row block m of the Hessians H of point m and HQ of point m - 1 (unread
+ * at m = 0) of a class with one point per micro interval (point m in
+ * interval m): row block m (and slow column
+ * block m - 1, node m) takes what points m - 1 (Q) and m (P) give it, in
+ * that order -- the entries and the order of point_hessian_k point by
+ * point (the same sums), with each destination read and written once. */
+ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const mrvi_point *pts,
+                                  const int m, const double *H,
+                                  const double *HQ, int has_s, int has_f,
+                                  const int ns, const int nf) {
+  const int p = b->p, nz = ns + nf, nF = p * nf;
+  const size_t blk = (size_t)nf * (size_t)nf;
+  const mrvi_point *P = &pts[m];
+  const double w = P->w, a0 = P->a0, a1 = P->a1, cA = P->cA, cB = P->cB;
+  /* Point m - 1: zero factors before the first interval. */
+  double qw = 0.0, qa0 = 0.0, qa1 = 0.0, qA = 0.0, qB = 0.0;
+  if (m >= 1) {
+    const mrvi_point *Q = &pts[m - 1];
+    qw = Q->w;
+    qa0 = Q->a0;
+    qa1 = Q->a1;
+    qA = Q->cA;
+    qB = Q->cB;
+  }
+  if (has_s) {
+    if (a0 != 0.0 && a1 != 0.0)
+      add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * a0 * a1);
+    if (has_f) {
+      /* slow rows, column block m - 1: Q by cB, P by cA */
+      if (m >= 1)
+        add_scaled2_k(b->Asf + (size_t)(m - 1) * nf, nF, HQ + ns,
+                      -qw * qa0 * qB, qa0 != 0.0 && qB != 0.0, H + ns,
+                      -w * a0 * cA, a0 != 0.0 && cA != 0.0, nz, ns, nf);
+      if (m == p - 1 && a0 != 0.0 && cB != 0.0)
+        add_scaled_k(b->Asf + (size_t)m * nf, nF, H + ns, nz, ns, nf,
+                     -w * a0 * cB);
+      /* row block m, slow columns: Q by cB, P by cA */
+      add_scaled2_k(b->Afs + (size_t)m * nf * (size_t)ns, ns,
+                    HQ + (size_t)ns * nz, -qw * qB * qa1,
+                    m >= 1 && qa1 != 0.0 && qB != 0.0, H + (size_t)ns * nz,
+                    -w * cA * a1, a1 != 0.0 && cA != 0.0, nz, nf, ns);
+    }
+  }
+  if (has_f) {
+    const double *Hff = H + (size_t)ns * nz + ns,
+                 *HQff = HQ + (size_t)ns * nz + ns;
+    /* D_m: P, row cA, column cB; L1_m: Q by cB cB, then P by cA cA;
+     * L2_m: Q, row cB, column cA */
+    if (cA != 0.0 && cB != 0.0)
+      add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf, -w * cA * cB);
+    if (m >= 1)
+      add_scaled2_k(b->L1 + (size_t)m * blk, nf, HQff, -qw * qB * qB, qB != 0.0,
+                    Hff, -w * cA * cA, cA != 0.0, nz, nf, nf);
+    if (m >= 2 && qA != 0.0 && qB != 0.0)
+      add_scaled_k(b->L2 + (size_t)m * blk, nf, HQff, nz, nf, nf,
+                   -qw * qB * qA);
+  }
+}
+
+/* The Hessians kept in Hp into the blocks, row block by row block
+ * (interval_row_k). */
 ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const mrvi_point *pts,
                                        int has_s, int has_f, const int ns,
                                        const int nf) {
-  const int p = b->p, nz = ns + nf, nF = p * nf;
-  const size_t hsz = (size_t)nz * (size_t)nz, blk = (size_t)nf * (size_t)nf;
-  /* Point m - 1 (Q): zero factors before the first interval. */
-  double qw = 0.0, qa0 = 0.0, qa1 = 0.0, qA = 0.0, qB = 0.0;
-  for (int m = 0; m < p; m++) {
-    const double *H = b->Hp + (size_t)m * hsz;
-    const double *HQ = m >= 1 ? H - hsz : H; /* (unread at m = 0) */
-    const mrvi_point *P = &pts[m];
-    const double w = P->w, a0 = P->a0, a1 = P->a1, cA = P->cA, cB = P->cB;
-    if (has_s) {
-      if (a0 != 0.0 && a1 != 0.0)
-        add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * a0 * a1);
-      if (has_f) {
-        /* slow rows, column block m - 1: Q by cB, P by cA */
-        if (m >= 1)
-          add_scaled2_k(b->Asf + (size_t)(m - 1) * nf, nF, HQ + ns,
-                        -qw * qa0 * qB, qa0 != 0.0 && qB != 0.0, H + ns,
-                        -w * a0 * cA, a0 != 0.0 && cA != 0.0, nz, ns, nf);
-        if (m == p - 1 && a0 != 0.0 && cB != 0.0)
-          add_scaled_k(b->Asf + (size_t)m * nf, nF, H + ns, nz, ns, nf,
-                       -w * a0 * cB);
-        /* row block m, slow columns: Q by cB, P by cA */
-        add_scaled2_k(b->Afs + (size_t)m * nf * (size_t)ns, ns,
-                      HQ + (size_t)ns * nz, -qw * qB * qa1,
-                      m >= 1 && qa1 != 0.0 && qB != 0.0, H + (size_t)ns * nz,
-                      -w * cA * a1, a1 != 0.0 && cA != 0.0, nz, nf, ns);
-      }
-    }
-    if (has_f) {
-      const double *Hff = H + (size_t)ns * nz + ns,
-                   *HQff = HQ + (size_t)ns * nz + ns;
-      /* D_m: P, row cA, column cB; L1_m: Q by cB cB, then P by cA cA;
-       * L2_m: Q, row cB, column cA */
-      if (cA != 0.0 && cB != 0.0)
-        add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf, -w * cA * cB);
-      if (m >= 1)
-        add_scaled2_k(b->L1 + (size_t)m * blk, nf, HQff, -qw * qB * qB,
-                      qB != 0.0, Hff, -w * cA * cA, cA != 0.0, nz, nf, nf);
-      if (m >= 2 && qA != 0.0 && qB != 0.0)
-        add_scaled_k(b->L2 + (size_t)m * blk, nf, HQff, nz, nf, nf,
-                     -qw * qB * qA);
-    }
-    qw = w;
-    qa0 = a0;
-    qa1 = a1;
-    qA = cA;
-    qB = cB;
-  }
+  const size_t hsz = (size_t)(ns + nf) * (size_t)(ns + nf);
+  for (int m = 0; m < b->p; m++)
+    interval_row_k(b, pts, m, b->Hp + m * hsz,
+                   b->Hp + (m >= 1 ? m - 1 : 0) * hsz, has_s, has_f, ns, nf);
 }
 
 /* (a call: inlined, it crowded the registers of the assembly loop) */
@@ -693,6 +704,16 @@ static void class_hessian(mrvi_blocks *b, int c, double *H) {
   mrvi_terms_eval(b->kc[c], b->zp, 1.0, b->G, H, (int)nz, 1.0);
 }
 
+/* The Hessian H of every point of a class with one point per interval
+ * into the blocks (interval_row_k). */
+static void const_rows(mrvi_blocks *b, const mrvi_point *pts, const double *H,
+                       int has_s, int has_f) {
+  for (int m = 0; m < b->p; m++)
+    SMALL(b->ns, NS,
+          SMALL(b->nf, NF,
+                interval_row_k(b, pts, m, H, H, has_s, has_f, NS, NF)));
+}
+
 /* The constant part of the Newton matrix into the blocks: the kinetic rows
  * and the classes with a constant Hessian (quad), at any x. */
 static void constant_part(mrvi_blocks *b, const mrvi_step *st,
@@ -710,12 +731,22 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
         ff_block(b, mm, mm - 1)[f * nf + f] += 2.0 * M / dt;
       ff_block(b, mm, mm)[f * nf + f] += -M / dt;
     }
-  for (int c = 0; c < 2; c++)
-    for (int ip = 0; ip < st->n_pts[c] && b->quad[c]; ip++) {
-      point_config(b, st, x, &st->pts[c][ip]);
-      class_hessian(b, c, b->H);
-      point_hessian(b, &st->pts[c][ip], c);
-    }
+  /* A class whose terms are all quadratic has the same Hessian at every
+   * configuration, bit for bit (its second derivatives do not depend on
+   * s = a^T z - b): evaluated at its first point, then added for every
+   * point, row block by row block for a class with one point per interval
+   * (the same sums). */
+  for (int c = 0; c < 2; c++) {
+    if (!b->quad[c] || st->n_pts[c] == 0)
+      continue;
+    point_config(b, st, x, &st->pts[c][0]);
+    class_hessian(b, c, b->H);
+    if (b->per_iv[c])
+      const_rows(b, st->pts[c], b->H, b->has_s[c], b->has_f[c]);
+    else
+      for (int ip = 0; ip < st->n_pts[c]; ip++)
+        point_hessian(b, &st->pts[c][ip], c);
+  }
 }
 
 /* G += gradient of class c at zp: the terms, or g0 + Hq zp (from the
