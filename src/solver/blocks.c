@@ -1063,12 +1063,20 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
   const int nF = b->p * b->nf;
   const double *restrict z = b->z, *restrict Y = b->Y;
   double r[ns > 0 ? ns : 1];
-  UNROLL for (int i = 0; i < ns; i++) {
-    const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
-    double s = R[i];
-    UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
-    r[i] = s;
-  }
+  const double *restrict Asf = b->Asf;
+  UNROLL for (int i = 0; i < ns; i++) r[i] = R[i];
+  if (ns <= 4) /* the rows' sums side by side, each in its order */
+    UNROLL2 for (int k = 0; k < nF; k++) {
+      const double zk = z[k];
+      UNROLL for (int i = 0; i < ns; i++) r[i] -= Asf[(size_t)i * nF + k] * zk;
+    }
+  else /* (row by row: each row of A_sf read in order) */
+    for (int i = 0; i < ns; i++) {
+      const double *restrict a = Asf + (size_t)i * (size_t)nF;
+      double s = r[i];
+      UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
+      r[i] = s;
+    }
   if (ns > 0)
     lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
   UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];
