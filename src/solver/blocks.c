@@ -23,6 +23,27 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* The factors of row block m of a class with one point per interval
+ * (interval_row_k), from its points m - 1 (Q) and m (P), made once at
+ * creation: each product as interval_row_k would form it, and in fl the
+ * bit of each add that interval_row_k makes (the same tests). */
+enum {
+  RC_SS = 1 << 0,  /* Ass: P, a0 a1 */
+  RC_SFQ = 1 << 1, /* Asf column block m - 1: Q, a0 cB */
+  RC_SFP = 1 << 2, /* Asf column block m - 1: P, a0 cA */
+  RC_SFL = 1 << 3, /* Asf column block m = p - 1: P, a0 cB */
+  RC_FSQ = 1 << 4, /* Afs row block m: Q, cB a1 */
+  RC_FSP = 1 << 5, /* Afs row block m: P, cA a1 */
+  RC_D = 1 << 6,   /* D_m: P, cA cB */
+  RC_L1Q = 1 << 7, /* L1_m: Q, cB cB */
+  RC_L1P = 1 << 8, /* L1_m: P, cA cA */
+  RC_L2 = 1 << 9   /* L2_m: Q, cB cA */
+};
+typedef struct row_coef {
+  double ss, sfq, sfp, sfl, fsq, fsp, d, l1q, l1p, l2;
+  unsigned fl;
+} row_coef;
+
 struct mrvi_blocks {
   int ns, nf, p;
   double *Ass, *Asf, *Afs; /* ns x ns, ns x p nf, p nf x ns */
@@ -64,6 +85,7 @@ struct mrvi_blocks {
    * row block after the points (interval_hessians_k). */
   int per_iv[2];
   double *Hp;
+  row_coef *rc[2]; /* with per_iv[c]: class c's factors per row block */
   /* Chord matrix (mrvi_blocks_chord): the structure admits it (chord_st;
    * const_uni: the constant part's fast row blocks from 2 on are equal,
    * known after the first assembly), it is requested (chord), and the
@@ -102,12 +124,57 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->cblk);
   free(b->Hp);
   for (int c = 0; c < 2; c++) {
+    free(b->rc[c]);
     free(b->fw[c]);
     free(b->Hz[c]);
     free(b->g0[c]);
     free(b->Hq[c]);
   }
   free(b);
+}
+
+/* The factors of interval_row_k for the p points pts of a class with one
+ * point per interval (NULL if out of memory). */
+static row_coef *row_coefs(const mrvi_point *pts, int p) {
+  row_coef *rc = calloc((size_t)p, sizeof(row_coef));
+  for (int m = 0; rc && m < p; m++) {
+    const mrvi_point *P = &pts[m];
+    const double w = P->w, a0 = P->a0, a1 = P->a1, cA = P->cA, cB = P->cB;
+    /* Point m - 1: zero factors before the first interval. */
+    double qw = 0.0, qa0 = 0.0, qa1 = 0.0, qA = 0.0, qB = 0.0;
+    if (m >= 1) {
+      const mrvi_point *Q = &pts[m - 1];
+      qw = Q->w;
+      qa0 = Q->a0;
+      qa1 = Q->a1;
+      qA = Q->cA;
+      qB = Q->cB;
+    }
+    row_coef *r = &rc[m];
+    unsigned fl = 0;
+    r->ss = -w * a0 * a1;
+    fl |= a0 != 0.0 && a1 != 0.0 ? RC_SS : 0;
+    r->sfq = -qw * qa0 * qB;
+    fl |= m >= 1 && qa0 != 0.0 && qB != 0.0 ? RC_SFQ : 0;
+    r->sfp = -w * a0 * cA;
+    fl |= m >= 1 && a0 != 0.0 && cA != 0.0 ? RC_SFP : 0;
+    r->sfl = -w * a0 * cB;
+    fl |= m == p - 1 && a0 != 0.0 && cB != 0.0 ? RC_SFL : 0;
+    r->fsq = -qw * qB * qa1;
+    fl |= m >= 1 && qa1 != 0.0 && qB != 0.0 ? RC_FSQ : 0;
+    r->fsp = -w * cA * a1;
+    fl |= a1 != 0.0 && cA != 0.0 ? RC_FSP : 0;
+    r->d = -w * cA * cB;
+    fl |= cA != 0.0 && cB != 0.0 ? RC_D : 0;
+    r->l1q = -qw * qB * qB;
+    fl |= m >= 1 && qB != 0.0 ? RC_L1Q : 0;
+    r->l1p = -w * cA * cA;
+    fl |= m >= 1 && cA != 0.0 ? RC_L1P : 0;
+    r->l2 = -qw * qB * qA;
+    fl |= m >= 2 && qA != 0.0 && qB != 0.0 ? RC_L2 : 0;
+    r->fl = fl;
+  }
+  return rc;
 }
 
 int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
@@ -206,6 +273,11 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
+  for (int c = 0; c < 2; c++)
+    if (b->per_iv[c] && !(b->rc[c] = row_coefs(st->pts[c], b->p))) {
+      mrvi_blocks_free(b);
+      return MRVI_ENOMEM;
+    }
   /* Chord: every class whose Hessian is not constant has one point per
    * interval, and the points of intervals 1..p-1 the same weights (row
    * block m >= 2 takes points m - 1 and m). */
@@ -538,45 +610,32 @@ ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
 
 /* Row block m of the Hessians H of point m and HQ of point m - 1 (unread
  * at m = 0) of a class with one point per micro interval (point m in
- * interval m): row block m (and slow column
- * block m - 1, node m) takes what points m - 1 (Q) and m (P) give it, in
- * that order -- the entries and the order of point_hessian_k point by
- * point (the same sums), with each destination read and written once. */
-ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const mrvi_point *pts,
+ * interval m), with the factors r of row block m (row_coefs): row block m
+ * (and slow column block m - 1, node m) takes what points m - 1 (Q) and
+ * m (P) give it, in that order -- the entries and the order of
+ * point_hessian_k point by point (the same sums), with each destination
+ * read and written once. */
+ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const row_coef *r,
                                   const int m, const double *H,
                                   const double *HQ, int has_s, int has_f,
                                   const int ns, const int nf) {
-  const int p = b->p, nz = ns + nf, nF = p * nf;
+  const int nz = ns + nf, nF = b->p * nf;
   const size_t blk = (size_t)nf * (size_t)nf;
-  const mrvi_point *P = &pts[m];
-  const double w = P->w, a0 = P->a0, a1 = P->a1, cA = P->cA, cB = P->cB;
-  /* Point m - 1: zero factors before the first interval. */
-  double qw = 0.0, qa0 = 0.0, qa1 = 0.0, qA = 0.0, qB = 0.0;
-  if (m >= 1) {
-    const mrvi_point *Q = &pts[m - 1];
-    qw = Q->w;
-    qa0 = Q->a0;
-    qa1 = Q->a1;
-    qA = Q->cA;
-    qB = Q->cB;
-  }
+  const unsigned fl = r->fl;
   if (has_s) {
-    if (a0 != 0.0 && a1 != 0.0)
-      add_scaled_k(b->Ass, ns, H, nz, ns, ns, -w * a0 * a1);
+    if (fl & RC_SS)
+      add_scaled_k(b->Ass, ns, H, nz, ns, ns, r->ss);
     if (has_f) {
       /* slow rows, column block m - 1: Q by cB, P by cA */
       if (m >= 1)
-        add_scaled2_k(b->Asf + (size_t)(m - 1) * nf, nF, HQ + ns,
-                      -qw * qa0 * qB, qa0 != 0.0 && qB != 0.0, H + ns,
-                      -w * a0 * cA, a0 != 0.0 && cA != 0.0, nz, ns, nf);
-      if (m == p - 1 && a0 != 0.0 && cB != 0.0)
-        add_scaled_k(b->Asf + (size_t)m * nf, nF, H + ns, nz, ns, nf,
-                     -w * a0 * cB);
+        add_scaled2_k(b->Asf + (size_t)(m - 1) * nf, nF, HQ + ns, r->sfq,
+                      fl & RC_SFQ, H + ns, r->sfp, fl & RC_SFP, nz, ns, nf);
+      if (fl & RC_SFL)
+        add_scaled_k(b->Asf + (size_t)m * nf, nF, H + ns, nz, ns, nf, r->sfl);
       /* row block m, slow columns: Q by cB, P by cA */
       add_scaled2_k(b->Afs + (size_t)m * nf * (size_t)ns, ns,
-                    HQ + (size_t)ns * nz, -qw * qB * qa1,
-                    m >= 1 && qa1 != 0.0 && qB != 0.0, H + (size_t)ns * nz,
-                    -w * cA * a1, a1 != 0.0 && cA != 0.0, nz, nf, ns);
+                    HQ + (size_t)ns * nz, r->fsq, fl & RC_FSQ,
+                    H + (size_t)ns * nz, r->fsp, fl & RC_FSP, nz, nf, ns);
     }
   }
   if (has_f) {
@@ -584,33 +643,33 @@ ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const mrvi_point *pts,
                  *HQff = HQ + (size_t)ns * nz + ns;
     /* D_m: P, row cA, column cB; L1_m: Q by cB cB, then P by cA cA;
      * L2_m: Q, row cB, column cA */
-    if (cA != 0.0 && cB != 0.0)
-      add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf, -w * cA * cB);
+    if (fl & RC_D)
+      add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf, r->d);
     if (m >= 1)
-      add_scaled2_k(b->L1 + (size_t)m * blk, nf, HQff, -qw * qB * qB, qB != 0.0,
-                    Hff, -w * cA * cA, cA != 0.0, nz, nf, nf);
-    if (m >= 2 && qA != 0.0 && qB != 0.0)
-      add_scaled_k(b->L2 + (size_t)m * blk, nf, HQff, nz, nf, nf,
-                   -qw * qB * qA);
+      add_scaled2_k(b->L1 + (size_t)m * blk, nf, HQff, r->l1q, fl & RC_L1Q, Hff,
+                    r->l1p, fl & RC_L1P, nz, nf, nf);
+    if (fl & RC_L2)
+      add_scaled_k(b->L2 + (size_t)m * blk, nf, HQff, nz, nf, nf, r->l2);
   }
 }
 
 /* The Hessians kept in Hp into the blocks, row block by row block
  * (interval_row_k). */
-ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const mrvi_point *pts,
+ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const row_coef *rc,
                                        int has_s, int has_f, const int ns,
                                        const int nf) {
   const size_t hsz = (size_t)(ns + nf) * (size_t)(ns + nf);
   for (int m = 0; m < b->p; m++)
-    interval_row_k(b, pts, m, b->Hp + m * hsz,
+    interval_row_k(b, rc + m, m, b->Hp + m * hsz,
                    b->Hp + (m >= 1 ? m - 1 : 0) * hsz, has_s, has_f, ns, nf);
 }
 
 /* (a call: inlined, it crowded the registers of the assembly loop) */
-static __attribute__((noinline)) void
-interval_hessians(mrvi_blocks *b, const mrvi_point *pts, int has_s, int has_f) {
+static __attribute__((noinline)) void interval_hessians(mrvi_blocks *b, int c,
+                                                        int has_s, int has_f) {
+  const row_coef *rc = b->rc[c];
   SMALL(b->ns, NS,
-        SMALL(b->nf, NF, interval_hessians_k(b, pts, has_s, has_f, NS, NF)));
+        SMALL(b->nf, NF, interval_hessians_k(b, rc, has_s, has_f, NS, NF)));
 }
 
 /* The chord matrix of a class with one point per interval: its Hessian H,
@@ -706,12 +765,13 @@ static void class_hessian(mrvi_blocks *b, int c, double *H) {
 
 /* The Hessian H of every point of a class with one point per interval
  * into the blocks (interval_row_k). */
-static void const_rows(mrvi_blocks *b, const mrvi_point *pts, const double *H,
-                       int has_s, int has_f) {
+static void const_rows(mrvi_blocks *b, int c, const double *H, int has_s,
+                       int has_f) {
   for (int m = 0; m < b->p; m++)
-    SMALL(b->ns, NS,
-          SMALL(b->nf, NF,
-                interval_row_k(b, pts, m, H, H, has_s, has_f, NS, NF)));
+    SMALL(
+        b->ns, NS,
+        SMALL(b->nf, NF,
+              interval_row_k(b, b->rc[c] + m, m, H, H, has_s, has_f, NS, NF)));
 }
 
 /* The constant part of the Newton matrix into the blocks: the kinetic rows
@@ -742,7 +802,7 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
     point_config(b, st, x, &st->pts[c][0]);
     class_hessian(b, c, b->H);
     if (b->per_iv[c])
-      const_rows(b, st->pts[c], b->H, b->has_s[c], b->has_f[c]);
+      const_rows(b, c, b->H, b->has_s[c], b->has_f[c]);
     else
       for (int ip = 0; ip < st->n_pts[c]; ip++)
         point_hessian(b, &st->pts[c][ip], c);
@@ -876,7 +936,7 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
         point_hessian_k(b, pt, Hs, Hf, ns, nf);
     }
     if (defer)
-      interval_hessians(b, st->pts[c], Hs, Hf);
+      interval_hessians(b, c, Hs, Hf);
     if (frozen)
       frozen_point(b, st, x, c, h0, h1, Hs, Hf);
   }
@@ -1003,12 +1063,20 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
   const int nF = b->p * b->nf;
   const double *restrict z = b->z, *restrict Y = b->Y;
   double r[ns > 0 ? ns : 1];
-  UNROLL for (int i = 0; i < ns; i++) {
-    const double *restrict a = b->Asf + (size_t)i * (size_t)nF;
-    double s = R[i];
-    UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
-    r[i] = s;
-  }
+  const double *restrict Asf = b->Asf;
+  UNROLL for (int i = 0; i < ns; i++) r[i] = R[i];
+  if (ns <= 4) /* the rows' sums side by side, each in its order */
+    UNROLL2 for (int k = 0; k < nF; k++) {
+      const double zk = z[k];
+      UNROLL for (int i = 0; i < ns; i++) r[i] -= Asf[(size_t)i * nF + k] * zk;
+    }
+  else /* (row by row: each row of A_sf read in order) */
+    for (int i = 0; i < ns; i++) {
+      const double *restrict a = Asf + (size_t)i * (size_t)nF;
+      double s = r[i];
+      UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
+      r[i] = s;
+    }
   if (ns > 0)
     lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
   UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];

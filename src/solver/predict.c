@@ -686,8 +686,8 @@ ALWAYS_INLINE void node_gradients_k(mrvi_predictor *pr, const mrvi_step *st,
 ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
                                  const double *x, const int *first,
                                  const int *end, int k, double *fa, double *fb,
-                                 int sum_slow, int at_k, const int ns,
-                                 const int nf) {
+                                 double *fs, int sum_slow, int at_k,
+                                 const int ns, const int nf) {
   if (!pr->has_kind[k])
     return;
   const int same = pr->same;
@@ -706,7 +706,7 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
       if (fb && pt->cB != 0.0)
         axpy(nf, pt->w * pt->cB, g + ns, fb);
       if (sum_slow && pt->a0 != 0.0)
-        axpy(ns, pt->w * pt->a0, g, pr->fs);
+        axpy(ns, pt->w * pt->a0, g, fs);
     }
 }
 
@@ -715,17 +715,30 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
 static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
                         const double *x, const int *first, const int *end,
                         int k, double *fa, double *fb, int sum_slow) {
-  eval_points_k(pr, st, x, first, end, k, fa, fb, sum_slow, 0, st->ns, st->nf);
+  eval_points_k(pr, st, x, first, end, k, fa, fb, pr->fs, sum_slow, 0, st->ns,
+                st->nf);
 }
 
+/* The sweep's vectors (slow-row force, F^A explicit and implicit, the
+ * last F^A implicit, F^B, p^{f,m}) are local arrays for small blocks (ns,
+ * nf <= 4: held in registers, nothing that x may alias), else pr's; fs is
+ * copied to pr->fs at the end. */
 ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
                            int sum_slow, const int ns, const int nf) {
   const int p = st->p;
   const double dt = st->dt, *minv = pr->minv + ns;
+  const int loc = ns <= 4 && nf <= 4;
+  double lfs[4], lfexp[4], lfimp[4], lfimp1[4] = {0}, lfb[4], lpm[4];
+  double *restrict fs = loc ? lfs : pr->fs,
+                   *restrict fexp = loc ? lfexp : pr->fexp,
+                   *restrict fimp = loc ? lfimp : pr->fimp,
+                   *restrict fimp1 = loc ? lfimp1 : pr->fimp1,
+                   *restrict fb = loc ? lfb : pr->fb,
+                   *restrict pm = loc ? lpm : pr->pm;
   if (sum_slow)
-    memset(pr->fs, 0, (size_t)ns * sizeof(double));
-  UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = pr->fimp0[f];
-  UNROLL for (int f = 0; f < nf; f++) pr->pm[f] = st->pf0[f];
+    UNROLL for (int s = 0; s < ns; s++) fs[s] = 0.0;
+  UNROLL for (int f = 0; f < nf; f++) fimp[f] = pr->fimp0[f];
+  UNROLL for (int f = 0; f < nf; f++) pm[f] = st->pf0[f];
   double cm[nf > 0 ? nf : 1]; /* dt / M */
   UNROLL for (int f = 0; f < nf; f++) cm[f] = dt * minv[f];
   int first[2] = {0, 0}, end[2];
@@ -737,9 +750,9 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     /* Row mm with F^A = explicit points + the implicit force fimp. */
 #define SOLVE_ROW()                                                            \
   UNROLL for (int f = 0; f < nf; f++) dn[f] =                                  \
-      (d ? d[f] : 0.0) + cm[f] * (pr->pm[f] - pr->fexp[f] - pr->fimp[f]);
-    UNROLL for (int f = 0; f < nf; f++) pr->fexp[f] = 0.0;
-    eval_points_k(pr, st, x, first, end, AT_LEFT, pr->fexp, NULL, sum_slow,
+      (d ? d[f] : 0.0) + cm[f] * (pm[f] - fexp[f] - fimp[f]);
+    UNROLL for (int f = 0; f < nf; f++) fexp[f] = 0.0;
+    eval_points_k(pr, st, x, first, end, AT_LEFT, fexp, NULL, fs, sum_slow,
                   mm == 0, ns, nf);
     /* Estimate with the implicit force of the last intervals: in interval
      * 0 its value at node k (fimp0, node_gradients_k), in interval 1
@@ -747,27 +760,29 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
      * last two intervals' (an error O(dt^2) instead of O(dt)). */
     if (mm >= 2)
       UNROLL for (int f = 0; f < nf; f++) {
-        const double fi = pr->fimp[f];
-        pr->fimp[f] = 2.0 * fi - pr->fimp1[f];
-        pr->fimp1[f] = fi;
+        const double fi = fimp[f];
+        fimp[f] = 2.0 * fi - fimp1[f];
+        fimp1[f] = fi;
       }
     else
-      UNROLL for (int f = 0; f < nf; f++) pr->fimp1[f] = pr->fimp[f];
+      UNROLL for (int f = 0; f < nf; f++) fimp1[f] = fimp[f];
     SOLVE_ROW();
-    UNROLL for (int f = 0; f < nf; f++) pr->fimp[f] = 0.0;
-    UNROLL for (int f = 0; f < nf; f++) pr->fb[f] = 0.0;
-    eval_points_k(pr, st, x, first, end, INSIDE, pr->fimp, pr->fb, sum_slow, 0,
-                  ns, nf);
+    UNROLL for (int f = 0; f < nf; f++) fimp[f] = 0.0;
+    UNROLL for (int f = 0; f < nf; f++) fb[f] = 0.0;
+    eval_points_k(pr, st, x, first, end, INSIDE, fimp, fb, fs, sum_slow, 0, ns,
+                  nf);
     SOLVE_ROW();
 #undef SOLVE_ROW
-    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, pr->fb, sum_slow, 0,
+    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, fb, fs, sum_slow, 0,
                   ns, nf);
     if (mm + 1 < p) /* (p^{f,p} is not needed) */
-      UNROLL for (int f = 0; f < nf; f++) pr->pm[f] =
-          (dn[f] - (d ? d[f] : 0.0)) / cm[f] - pr->fb[f];
+      UNROLL for (int f = 0; f < nf; f++) pm[f] =
+          (dn[f] - (d ? d[f] : 0.0)) / cm[f] - fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
+  if (loc && sum_slow)
+    UNROLL for (int s = 0; s < ns; s++) pr->fs[s] = fs[s];
   /* Without fast coordinates the points still feed the slow row. */
   if (nf == 0 && sum_slow)
     for (int k = AT_LEFT; k <= AT_RIGHT; k++)
