@@ -653,15 +653,17 @@ ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const row_coef *r,
   }
 }
 
-/* The Hessians kept in Hp into the blocks, row block by row block
- * (interval_row_k). */
+/* The Hessians of a class with one point per interval into the blocks,
+ * row block by row block (interval_row_k): point m's at H0 + m hstep
+ * (the kept Hp, hstep one Hessian; or one Hessian for every point,
+ * hstep 0). */
 ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const row_coef *rc,
+                                       const double *H0, size_t hstep,
                                        int has_s, int has_f, const int ns,
                                        const int nf) {
-  const size_t hsz = (size_t)(ns + nf) * (size_t)(ns + nf);
   for (int m = 0; m < b->p; m++)
-    interval_row_k(b, rc + m, m, b->Hp + m * hsz,
-                   b->Hp + (m >= 1 ? m - 1 : 0) * hsz, has_s, has_f, ns, nf);
+    interval_row_k(b, rc + m, m, H0 + m * hstep,
+                   H0 + (m >= 1 ? m - 1 : 0) * hstep, has_s, has_f, ns, nf);
 }
 
 /* (a call: inlined, it crowded the registers of the assembly loop) */
@@ -669,7 +671,9 @@ static __attribute__((noinline)) void interval_hessians(mrvi_blocks *b, int c,
                                                         int has_s, int has_f) {
   const row_coef *rc = b->rc[c];
   SMALL(b->ns, NS,
-        SMALL(b->nf, NF, interval_hessians_k(b, rc, has_s, has_f, NS, NF)));
+        SMALL(b->nf, NF,
+              interval_hessians_k(b, rc, b->Hp, (size_t)(NS + NF) * (NS + NF),
+                                  has_s, has_f, NS, NF)));
 }
 
 /* The chord matrix of a class with one point per interval: its Hessian H,
@@ -767,11 +771,9 @@ static void class_hessian(mrvi_blocks *b, int c, double *H) {
  * into the blocks (interval_row_k). */
 static void const_rows(mrvi_blocks *b, int c, const double *H, int has_s,
                        int has_f) {
-  for (int m = 0; m < b->p; m++)
-    SMALL(
-        b->ns, NS,
+  SMALL(b->ns, NS,
         SMALL(b->nf, NF,
-              interval_row_k(b, b->rc[c] + m, m, H, H, has_s, has_f, NS, NF)));
+              interval_hessians_k(b, b->rc[c], H, 0, has_s, has_f, NS, NF)));
 }
 
 /* The constant part of the Newton matrix into the blocks: the kinetic rows

@@ -115,12 +115,12 @@ struct mrvi_predictor {
   int node_left; /* some point of interval 0 is at node k (AT_LEFT, a1 = 0) */
   /* The slow pre-solve (pre_solve): used at all (pre), done in this step
    * (presolved); the linear sweep's matrix K = (M^f/dt + S_AB H_ff)^-1
-   * (nf x nf) and interval sums lsum (see linear_step); the gradient of
-   * V at node k (gk, packed n), the slow-row force of the points with
-   * a0 a1 != 0 at node k (fk, ns) and their sums of w a0 per class (wk),
+   * (nf x nf) and interval sums lsum (see linear_step); the slow-row
+   * force of the points with a0 a1 != 0 at node k (fk, ns; V's gradient
+   * there is gnode's first n) and their sums of w a0 per class (wk),
    * and the weight of a sample in the absolute force (sample_f). */
   int pre, presolved, n_sweeps;
-  double *K, lsum[8], *gk, *fk, wk[2], sample_f[2];
+  double *K, lsum[8], *fk, wk[2], sample_f[2];
   /* The nodes the samples read (jnode, n_jumps of them, increasing) and
    * the affine maps of the linear sweep from one to the next: the state
    * (d, p^f) (2 nf) goes to M s + S c with c = (c_A, c_B) (see
@@ -402,7 +402,6 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
             malloc((size_t)(m->n_fast > 0 ? m->n_fast : 1) * sizeof(double))) ||
       !(pr->xs = malloc(3 * n * sizeof(double))) ||
       !(pr->b = malloc(4 * n * sizeof(double))) ||
-      !(pr->gk = calloc(n, sizeof(double))) ||
       !(pr->fk = calloc(n, sizeof(double))) ||
       !(pr->gnode = calloc(3 * n, sizeof(double)))) {
     mrvi_predictor_free(pr);
@@ -526,7 +525,6 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->pm);
   free(pr->H);
   free(pr->xs);
-  free(pr->gk);
   free(pr->fk);
   free(pr->K);
   free(pr->jnode);
@@ -857,20 +855,20 @@ static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
 }
 
 /* The fast nodes the samples read (jnode) for the slow displacement x_s,
- * with V held at its gradient at node k (gk) and W's constant Hessian:
+ * with V held at its gradient at node k (gnode) and W's constant Hessian:
  * every fast row is then linear with the same matrix (linear_step), the
  * state (d, p^f) goes from one needed node to the next by the affine map
  * kept for that jump, with c_A = S_A c + V_A g, c_B = S_B c + V_B g,
- * c = g0 + H q_k^f, g the fast part of gk, S_A = sum w cA, S_B = sum w cB
- * over an interval's W points and V_A, V_B over its V points (lsum).
- * Two products of size 2 nf per needed node, whatever p; the other fast
+ * c = g0 + H q_k^f, g the fast part of V's gradient in gnode, S_A = sum w cA,
+ * S_B = sum w cB over an interval's W points and V_A, V_B over its V points
+ * (lsum). Two products of size 2 nf per needed node, whatever p; the other fast
  * nodes of x are left as they are (the sweep after the pre-solve writes
  * them all). */
 ALWAYS_INLINE void linear_nodes_k(mrvi_predictor *pr, const mrvi_step *st,
                                   double *x, const int ns, const int nf) {
   const int nz = ns + nf, n2 = 2 * nf;
   const double *restrict H = pr->Hq[1] + (size_t)ns * nz + ns;
-  const double *restrict g0 = pr->g0[1] + ns, *restrict gv = pr->gk + ns;
+  const double *restrict g0 = pr->g0[1] + ns, *restrict gv = pr->gnode + ns;
   const double *L = pr->lsum;
   double c[2 * nf], s[2 * nf], t[2 * nf];
   UNROLL for (int f = 0; f < nf; f++) {
@@ -1035,7 +1033,6 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   SMALL(st->ns, NS, SMALL(st->nf, NF, node_gradients_k(pr, st, NS, NF)));
   if (pr->pre) { /* for pre_solve */
     const int n = st->ns + st->nf;
-    memcpy(pr->gk, pr->gnode, (size_t)n * sizeof(double));
     for (int s = 0; s < st->ns; s++)
       pr->fk[s] = pr->wk[0] * pr->gnode[s] + pr->wk[1] * pr->gnode[n + s];
   }
