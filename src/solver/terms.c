@@ -453,14 +453,15 @@ ALWAYS_INLINE void term4_sym(const kterm4 *q, const double *z, double *g,
   double a[4], d1, d2;
   term4_derivs(q, z, col, a, &d1, &d2, n, kk);
   UNROLL for (int j = 0; j < n; j++) g[col[j]] += d1 * a[j];
+  double *Jr[4]; /* the rows of the inputs */
+  UNROLL for (int j = 0; j < n; j++) Jr[j] = J + (size_t)col[j] * (size_t)ld;
   UNROLL for (int j = 0; j < n; j++) {
     const double u = d2 * a[j];
-    double *Jj = J + (size_t)col[j] * (size_t)ld;
-    Jj[col[j]] += u * a[j];
+    Jr[j][col[j]] += u * a[j];
     UNROLL for (int l = j + 1; l < n; l++) {
-      const double v = Jj[col[l]] + u * a[l];
-      Jj[col[l]] = v;
-      J[(size_t)col[l] * (size_t)ld + (size_t)col[j]] = v;
+      const double v = Jr[j][col[l]] + u * a[l];
+      Jr[j][col[l]] = v;
+      Jr[l][col[j]] = v;
     }
   }
 }
