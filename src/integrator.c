@@ -172,32 +172,29 @@ static void to_positions(mrvi_integrator *it) {
 }
 
 static double norm_inf(const double *v, int n) {
-  /* max |v_i|, NaN if any v_i is NaN.  Four running maxima (exact, so the
-   * same value) and sums z of |v_i|, finite unless some v_i is not finite
-   * or a sum overflows: then the entries are looked at again, one by one.
-   * The four lanes are independent, two to a vector instruction. */
-  double r[4] = {0.0, 0.0, 0.0, 0.0}, z[4] = {0.0, 0.0, 0.0, 0.0};
+  /* max |v_i|, NaN if any v_i is NaN.  Two running maxima (exact, so the
+   * same value) and z = sum of |v_i|, finite unless some v_i is not finite
+   * or the sum overflows: then the entries are looked at again, one by
+   * one. */
+  double r0 = 0.0, r1 = 0.0, z = 0.0;
   int i = 0;
-  for (; i + 3 < n; i += 4)
-    UNROLL for (int l = 0; l < 4; l++) {
-      const double a = fabs(v[i + l]);
-      r[l] = a > r[l] ? a : r[l];
-      z[l] += a;
-    }
-  for (; i < n; i++) {
-    const double a = fabs(v[i]);
-    r[0] = a > r[0] ? a : r[0];
-    z[0] += a;
+  for (; i + 1 < n; i += 2) {
+    const double a = fabs(v[i]), b = fabs(v[i + 1]);
+    r0 = a > r0 ? a : r0;
+    r1 = b > r1 ? b : r1;
+    z += a + b;
   }
-  r[0] = r[1] > r[0] ? r[1] : r[0];
-  r[2] = r[3] > r[2] ? r[3] : r[2];
-  const double rmax = r[2] > r[0] ? r[2] : r[0];
-  if ((z[0] + z[1]) + (z[2] + z[3]) <= DBL_MAX)
-    return rmax;
+  if (i < n) {
+    const double a = fabs(v[i]);
+    r0 = a > r0 ? a : r0;
+    z += a;
+  }
+  if (z <= DBL_MAX)
+    return r0 > r1 ? r0 : r1;
   for (i = 0; i < n; i++)
     if (v[i] != v[i])
       return NAN;
-  return rmax; /* (infinite, or a sum that overflowed) */
+  return r0 > r1 ? r0 : r1; /* (infinite, or a sum that overflowed) */
 }
 
 /* Roundoff floor of the residual: its rows subtract momenta of size
