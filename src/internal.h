@@ -459,6 +459,17 @@ void mrvi_terms_free(mrvi_terms *kc);
  * on the columns). */
 void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale);
+/* g += grad Z(z) and J = hess Z(z) (ld x ld, cleared here: the caller
+ * need not): mrvi_terms_eval at unit scales into a cleared J.  For a class
+ * of compact terms (mrvi_terms_flat) with distinct inputs per term, a
+ * term's product (phi'' a_j) a_l is formed for j < l only and its sum with
+ * the entry (col_j, col_l) written to both (col_j, col_l) and
+ * (col_l, col_j): J exactly symmetric, the gradient mrvi_terms_eval's
+ * bitwise, the Hessian its sums in the same order with the products of one
+ * triangle (round-off apart the same; bitwise where the products are
+ * exact, e.g. coefficients +-1). */
+void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
+                         int ld);
 /* g += grad Z(z): mrvi_terms_eval with scale 1 and no Hessian (the same
  * kernels without their Hessian part), bitwise the same. */
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);

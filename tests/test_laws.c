@@ -429,9 +429,54 @@ static mrvi_model *flat_model(void) {
   return m;
 }
 
+/* mrvi_terms_eval_set at z (n columns) into J of ld x ld filled with NaN
+ * first: the gradient of mrvi_terms_eval bitwise; its Hessian, the entries
+ * beyond n zero; for a flat class exactly symmetric and bitwise
+ * mrvi_terms_eval's where the class's coefficients are all +-1 (exact
+ * products), else to 1e-14; for any other class bitwise. */
+static void check_eval_set(mrvi_terms *kc, const double *z, int n, int ld,
+                           int unit, const char *what) {
+  const int flat = mrvi_terms_flat(kc) > 0;
+  unit = unit || !flat;
+  const size_t nl = (size_t)ld;
+  double *g1 = calloc((size_t)n, sizeof *g1),
+         *g2 = calloc((size_t)n, sizeof *g2);
+  double *J1 = calloc((size_t)n * (size_t)n, sizeof *J1),
+         *J2 = calloc(nl * nl, sizeof *J2);
+  for (size_t i = 0; i < nl * nl; i++)
+    J2[i] = NAN;
+  mrvi_terms_eval(kc, z, 1.0, g1, J1, n, 1.0);
+  mrvi_terms_eval_set(kc, z, g2, J2, ld);
+  CHECK(memcmp(g1, g2, (size_t)n * sizeof *g1) == 0,
+        "%s: eval_set's gradient bitwise mrvi_terms_eval's", what);
+  int sym = 1, zero = 1, same = 1;
+  for (int i = 0; i < ld; i++)
+    for (int l = 0; l < ld; l++) {
+      const double v = J2[(size_t)i * nl + (size_t)l];
+      sym = sym && (!flat ||
+                    memcmp(&v, &J2[(size_t)l * nl + (size_t)i], sizeof v) == 0);
+      if (i >= n || l >= n) {
+        zero = zero && v == 0.0;
+        continue;
+      }
+      const double w = J1[i * n + l];
+      same = same && (unit ? v == w : fabs(v - w) <= 1e-14 * (1 + fabs(w)));
+    }
+  CHECK(sym, "%s: eval_set's Hessian exactly symmetric (ld %d)", what, ld);
+  CHECK(zero, "%s: eval_set's Hessian zero beyond column %d (ld %d)", what, n,
+        ld);
+  CHECK(same, "%s: eval_set's Hessian %s mrvi_terms_eval's (ld %d)", what,
+        unit ? "bitwise" : "within 1e-14 of", ld);
+  free(g1);
+  free(g2);
+  free(J1);
+  free(J2);
+}
+
 /* mrvi_terms_grad is mrvi_terms_eval at scale 1 without a Hessian, bitwise,
  * and both are the model's potential gradient (to rounding);
- * mrvi_terms_value is the model's potential value, bitwise. */
+ * mrvi_terms_value is the model's potential value, bitwise;
+ * mrvi_terms_eval_set as check_eval_set. */
 static void check_terms_grad(const mrvi_model *m, const char *what) {
   const int n = m->n;
   int *elems = calloc((size_t)m->n_elements + 1, sizeof *elems);
@@ -465,6 +510,12 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
                 (linear || e->params[1] == e0->params[1]);
     }
     const int flat = compact ? (one_law ? 1 : 2) : 0;
+    int unit = 1; /* coefficients +-1 */
+    for (int i = 0; i < ne; i++) {
+      const mrvi_element *e = &m->elements[elems[i]];
+      for (int j = 0; j < e->n_in && e->coef; j++)
+        unit = unit && fabs(e->coef[j]) == 1.0;
+    }
     CHECK(mrvi_terms_flat(kc) == flat, "%s class %d: flat loop %d, expected %d",
           what, c, mrvi_terms_flat(kc), flat);
     for (int r = 0; r < 8; r++) { /* configurations around q0 */
@@ -483,6 +534,7 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
             "%s class %d: grad kernel bitwise the general evaluation", what, c);
       for (int i = 0; i < n; i++)
         CHECK_NEAR(g2[i], gm[i], 1e-13 * (1 + fabs(gm[i])), what);
+      check_eval_set(kc, q, n, n + (r & 1) * 2, unit, what);
     }
     mrvi_terms_free(kc);
   }

@@ -812,12 +812,17 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
 }
 
 /* G += gradient of class c at zp: the terms, or g0 + Hq zp (from the
- * first fast column if the class has no slow inputs). */
+ * first fast column if the class has no slow inputs); H += its Hessian, or
+ * with set H = its Hessian (mrvi_terms_eval_set: H need not be cleared). */
 ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
-                                double *H, const int ns, const int nf) {
+                                double *H, int set, const int ns,
+                                const int nf) {
   const double *restrict Hq = b->Hq[c], *restrict g0 = b->g0[c];
   if (H) {
-    mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, H, ns + nf, 1.0);
+    if (set)
+      mrvi_terms_eval_set(b->kc[c], b->zp, G, H, ns + nf);
+    else
+      mrvi_terms_eval(b->kc[c], b->zp, 1.0, G, H, ns + nf, 1.0);
     return;
   }
   if (!Hq) { /* (the same gradient, by the kernels without a Hessian) */
@@ -906,11 +911,11 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
       UNROLL for (int i = 0; i < nz; i++) G[i] = 0.0;
       double *Ht = defer ? b->Hp + (size_t)ip * (size_t)nz * (size_t)nz : b->H;
       const int ph = hess && !frozen; /* this point's Hessian */
-      if (ph)
-        memset(Ht, 0, (size_t)nz * (size_t)nz * sizeof(double));
-      class_grad_k(b, c, G, ph && h0 ? Ht : NULL, ns, nf);
+      /* (Ht written by the first class with a Hessian, added to by the
+       * second: not cleared) */
+      class_grad_k(b, c, G, ph && h0 ? Ht : NULL, 1, ns, nf);
       if (same)
-        class_grad_k(b, 1, G, ph && h1 ? Ht : NULL, ns, nf);
+        class_grad_k(b, 1, G, ph && h1 ? Ht : NULL, !h0, ns, nf);
       /* The point's factors in locals: R may alias nothing of pt, but the
        * compiler cannot know. */
       const double w = pt->w, a0 = pt->a0, a1 = pt->a1, cA = pt->cA,

@@ -44,6 +44,8 @@ struct mrvi_terms {
   /* Every term a compact record (q4[0..n)): gradients by one loop over
    * them (flat_grad), with the law flat_k (K_ANY: each record's). */
   int flat, flat_k;
+  /* flat_sym applies: flat, and every record's columns distinct */
+  int sym;
 };
 
 /* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
@@ -202,6 +204,12 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
   for (int i = 1; i < n4; i++)
     if (kc->q4[i].k != kc->flat_k)
       kc->flat_k = K_ANY;
+  kc->sym = kc->flat;
+  for (int r = 0; r < n4; r++)
+    for (int j = 0; j < kc->q4[r].n; j++)
+      for (int l = 0; l < j; l++)
+        if (kc->q4[r].col[l] == kc->q4[r].col[j])
+          kc->sym = 0;
   *out = kc;
   return MRVI_OK;
 }
@@ -241,13 +249,12 @@ ALWAYS_INLINE void term_eval(const kterm *t, const int *col, const double *a,
 /* A compact term with n inputs (term_eval's arithmetic; unit: scale and
  * hscale are 1, whose products are left out, bitwise the same) and law k
  * (-1 linear, else the power's integer exponent; K_ANY: the record's).
- * Its data is read into locals first: the stores into g and J could alias
- * it. */
-ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
-                              double *g, double *J, int ld, double hscale,
-                              const int n, const int unit, const int kk) {
-  int col[4];
-  double a[4];
+ * Its data is read into locals first (term4_derivs: the inputs into col
+ * and a, phi' and phi'' into d1 and d2): the stores into g and J could
+ * alias it. */
+ALWAYS_INLINE void term4_derivs(const kterm4 *q, const double *z, int *col,
+                                double *a, double *d1, double *d2, const int n,
+                                const int kk) {
   UNROLL for (int j = 0; j < n; j++) {
     col[j] = q->col[j];
     a[j] = q->a[j];
@@ -256,13 +263,20 @@ ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
   const int k = kk == K_ANY ? q->k : kk;
   double s = -q->shift;
   UNROLL for (int j = 0; j < n; j++) s += a[j] * z[col[j]];
-  double d1, d2;
   if (k < 0) {
-    d1 = c * s;
-    d2 = c;
+    *d1 = c * s;
+    *d2 = c;
   } else {
-    power_derivs_ce(q->ce, q->ce1, k, s, &d1, &d2);
+    power_derivs_ce(q->ce, q->ce1, k, s, d1, d2);
   }
+}
+
+ALWAYS_INLINE void term4_eval(const kterm4 *q, const double *z, double scale,
+                              double *g, double *J, int ld, double hscale,
+                              const int n, const int unit, const int kk) {
+  int col[4];
+  double a[4], d1, d2;
+  term4_derivs(q, z, col, a, &d1, &d2, n, kk);
   UNROLL for (int j = 0; j < n; j++) g[col[j]] +=
       unit ? d1 * a[j] : scale * (d1 * a[j]);
   if (J)
@@ -426,6 +440,75 @@ flat_eval(const mrvi_terms *kc, const double *z, double *g, double *J, int ld) {
   default:
     flat_grad_k(kc->q4, kc->n, z, g, J, ld, K_ANY);
   }
+}
+
+/* A compact record's gradient into g and Hessian added into J
+ * (mrvi_terms_eval_set): term4_eval's products at unit scale, the
+ * Hessian's product (d2 a_j) a_l formed for j <= l only, its sum with the
+ * entry (col_j, col_l) written to both (col_j, col_l) and (col_l, col_j),
+ * which are equal (every term writes both). */
+ALWAYS_INLINE void term4_sym(const kterm4 *q, const double *z, double *g,
+                             double *J, int ld, const int n, const int kk) {
+  int col[4];
+  double a[4], d1, d2;
+  term4_derivs(q, z, col, a, &d1, &d2, n, kk);
+  UNROLL for (int j = 0; j < n; j++) g[col[j]] += d1 * a[j];
+  double *Jr[4]; /* the rows of the inputs */
+  UNROLL for (int j = 0; j < n; j++) Jr[j] = J + (size_t)col[j] * (size_t)ld;
+  UNROLL for (int j = 0; j < n; j++) {
+    const double u = d2 * a[j];
+    Jr[j][col[j]] += u * a[j];
+    UNROLL for (int l = j + 1; l < n; l++) {
+      const double v = Jr[j][col[l]] + u * a[l];
+      Jr[j][col[l]] = v;
+      Jr[l][col[j]] = v;
+    }
+  }
+}
+
+ALWAYS_INLINE void flat_sym_k(const mrvi_terms *kc, const double *z, double *g,
+                              double *J, int ld, const int k) {
+  const kterm4 *q = kc->q4;
+  for (int r = 0; r < kc->n; r++) {
+    switch (q[r].n) {
+    case 2:
+      term4_sym(q + r, z, g, J, ld, 2, k);
+      break;
+    case 3:
+      term4_sym(q + r, z, g, J, ld, 3, k);
+      break;
+    default:
+      term4_sym(q + r, z, g, J, ld, 4, k);
+    }
+  }
+}
+
+/* J cleared here by the library's memset (vector stores), not the
+ * caller's (a fixed-size memset, which GCC inlines as `rep stos`: its
+ * start-up costs more than the stores at this size). */
+static __attribute__((noinline)) void
+flat_sym(const mrvi_terms *kc, const double *z, double *g, double *J, int ld) {
+  memset(J, 0, (size_t)ld * (size_t)ld * sizeof(double));
+  switch (kc->flat_k) {
+  case -1:
+    flat_sym_k(kc, z, g, J, ld, -1);
+    break;
+  case 4:
+    flat_sym_k(kc, z, g, J, ld, 4);
+    break;
+  default:
+    flat_sym_k(kc, z, g, J, ld, K_ANY);
+  }
+}
+
+void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
+                         int ld) {
+  if (kc->sym) {
+    flat_sym(kc, z, g, J, ld);
+    return;
+  }
+  memset(J, 0, (size_t)ld * (size_t)ld * sizeof(double));
+  mrvi_terms_eval(kc, z, 1.0, g, J, ld, 1.0);
 }
 
 int mrvi_terms_quadratic(const mrvi_terms *kc) {
