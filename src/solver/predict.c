@@ -42,6 +42,17 @@
 #include "internal.h"
 #include "small.h"
 
+/* No straight-line (SLP) vectorisation in this file (GCC): it pairs the
+ * scalar entries of the sweep's short vectors into 16-byte loads of data
+ * just stored as scalars (the configuration before W's affine gradient, the
+ * gradient after V's call), whose store-to-load forwarding fails: a stall of
+ * about a dozen cycles each on the chain from micro node to micro node
+ * (perf annotate: 12 % and 15 % of the sweep's time on two such loads; FPU,
+ * midpoint-midpoint, p = 100). */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize("no-tree-slp-vectorize")
+#endif
+
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -604,7 +615,12 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
 }
 
 /* g <- grad Z_c at point pt of the step at the displacements x (fast nodes
- * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed. */
+ * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed.  With both
+ * (V at its point, pr->same), W's gradient too: an affine W (Hq[1]) from
+ * the configuration in registers (zl), before V's call, so that it runs
+ * beside it and does not read back z after z's scalar stores (store-to-load
+ * forwarding fails for the vector loads), then added: G[i] += t, as
+ * affine_grad_k. */
 ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     const double *x, const mrvi_point *pt,
                                     int c, const int ns, const int nf,
@@ -612,6 +628,8 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
   double *restrict z = pr->z, *restrict g = pr->g;
   const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
   const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  const int nz = ns + nf;
+  double tw[nz > 0 ? nz : 1];
   UNROLL for (int s = 0; s < ns; s++) z[s] = qs0[s] + a1 * x[s];
   /* (the tests outside the loop: qf0 + cA d^m + cB d^{m+1}, a term 0.0
    * where its node is node k or its weight 0) */
@@ -626,19 +644,35 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + cB * dB[f];
   else
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + 0.0;
-  UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
+  const int wlo = pr->lo[1] == 0 ? 0 : ns;
+  const double *restrict g0 = pr->g0[1], *restrict Hq = pr->Hq[1];
+  if (both && Hq) { /* (each with constant bounds) */
+    if (wlo == 0)
+      UNROLL for (int i = 0; i < nz; i++) {
+        double t = g0[i];
+        UNROLL for (int j = 0; j < nz; j++) t += Hq[i * nz + j] * z[j];
+        tw[i] = t;
+      }
+    else
+      UNROLL for (int i = ns; i < nz; i++) {
+        double t = g0[i];
+        UNROLL for (int j = ns; j < nz; j++) t += Hq[i * nz + j] * z[j];
+        tw[i] = t;
+      }
+  }
+  UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
   if (J) /* the slow solve's Hessian as well */
-    mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
+    mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, nz, hscale);
   else
     mrvi_terms_grad(pr->kc[c], z, g);
   if (!both) /* W at V's point (pr->same) */
     return;
-  if (!pr->Hq[1])
+  if (!Hq)
     mrvi_terms_grad(pr->kc[1], z, g);
-  else if (pr->lo[1] == 0) /* (each with constant bounds) */
-    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, 0, ns + nf);
+  else if (wlo == 0)
+    UNROLL for (int i = 0; i < nz; i++) g[i] += tw[i];
   else
-    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, ns, ns + nf);
+    UNROLL for (int i = ns; i < nz; i++) g[i] += tw[i];
 }
 
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
@@ -769,13 +803,20 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     UNROLL for (int f = 0; f < nf; f++) fb[f] = 0.0;
     eval_points_k(pr, st, x, first, end, INSIDE, fimp, fb, fs, sum_slow, 0, ns,
                   nf);
-    SOLVE_ROW();
 #undef SOLVE_ROW
+    /* The row again with the implicit force at the estimate: u = p^{f,m} -
+     * F_m^A = M (d^{m+1} - d^m) / dt, so that p^{f,m+1} = u - F_m^B
+     * follows from u without dividing the difference of the nodes by dt / M
+     * (a division on the chain from node to node; the same to round-off). */
+    double u[nf > 0 ? nf : 1];
+    UNROLL for (int f = 0; f < nf; f++) {
+      u[f] = pm[f] - fexp[f] - fimp[f];
+      dn[f] = (d ? d[f] : 0.0) + cm[f] * u[f];
+    }
     eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, fb, fs, sum_slow, 0,
                   ns, nf);
     if (mm + 1 < p) /* (p^{f,p} is not needed) */
-      UNROLL for (int f = 0; f < nf; f++) pm[f] =
-          (dn[f] - (d ? d[f] : 0.0)) / cm[f] - fb[f];
+      UNROLL for (int f = 0; f < nf; f++) pm[f] = u[f] - fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
@@ -1055,9 +1096,14 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   predict_sweep(pr, st, x);
   /* Any entry NaN or infinite (x * 0 is NaN exactly then; no branch per
    * entry): free flight instead. */
-  double bad = 0.0;
-  for (int i = 0; i < st->n_unknowns; i++)
-    bad += x[i] * 0.0;
+  double b4[4] = {0.0, 0.0, 0.0, 0.0}; /* (four independent sums) */
+  int i = 0;
+  for (; i + 4 <= st->n_unknowns; i += 4)
+    for (int j = 0; j < 4; j++)
+      b4[j] += x[i + j] * 0.0;
+  for (; i < st->n_unknowns; i++)
+    b4[0] += x[i] * 0.0;
+  const double bad = (b4[0] + b4[1]) + (b4[2] + b4[3]);
   if (bad != 0.0 || bad != bad)
     mrvi_predict_free_flight(st, x);
 }
