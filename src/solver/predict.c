@@ -138,6 +138,10 @@ struct mrvi_predictor {
    * linear_nodes_k), M and S 2 nf x 2 nf each, in jmat. */
   int n_jumps, *jnode;
   double *jmat;
+  /* One point per micro interval in each class (one_point): the kind of
+   * class c's points (AT_LEFT or INSIDE; -1 for a class not evaluated on
+   * its own: W with same, or a class without elements), for sweep1_k. */
+  int one, one_kind[2];
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -394,6 +398,33 @@ static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
   return ok && !pr->pre ? MRVI_ENOMEM : 0;
 }
 
+/* Whether the sweep may take sweep1_k: fast coordinates, blocks of at most
+ * 4, and in each class evaluated (class 0 alone with same) exactly one
+ * point per micro interval, point m in interval m, all of one kind, at the
+ * left end or inside (the midpoint rule, the trapezoidal rule of
+ * alpha = gamma = 1 on the micro grid), with the same w, cA, cB. */
+static void one_point(mrvi_predictor *pr, const mrvi_step *st) {
+  pr->one = 0;
+  if (st->nf < 1 || st->ns > 4 || st->nf > 4 || st->p < 1)
+    return;
+  for (int c = 0; c < 2; c++) {
+    pr->one_kind[c] = -1;
+    if ((c == 1 && pr->same) || st->n_elem_of_class[c] == 0)
+      continue;
+    for (int mm = 0; mm < st->p; mm++)
+      if (pr->pend[c][mm] != mm + 1 || st->pts[c][mm].m != mm)
+        return;
+    const int k = pr->kinds[c][0];
+    for (int mm = 1; mm < st->p; mm++)
+      if (pr->kinds[c][mm] != k)
+        return;
+    if (k == AT_RIGHT || !uniform_intervals(pr, st, c))
+      return;
+    pr->one_kind[c] = k;
+  }
+  pr->one = 1;
+}
+
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
                           mrvi_predictor **out) {
   mrvi_predictor *pr = calloc(1, sizeof *pr);
@@ -476,6 +507,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     pr->lo[c] = slow ? 0 : st->ns;
   }
   pr->same = mrvi_step_same_points(st);
+  one_point(pr, st);
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
@@ -644,6 +676,14 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + cB * dB[f];
   else
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + 0.0;
+  if (!J && !both && pr->Hq[c]) { /* a class with a constant Hessian alone */
+    UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
+    if (pr->lo[c] == 0) /* (each with constant bounds) */
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, 0, nz);
+    else
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, ns, nz);
+    return;
+  }
   const int wlo = pr->lo[1] == 0 ? 0 : ns;
   const double *restrict g0 = pr->g0[1], *restrict Hq = pr->Hq[1];
   if (both && Hq) { /* (each with constant bounds) */
@@ -751,6 +791,23 @@ static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
                 st->nf);
 }
 
+/* The estimate of interval mm's implicit force from the last intervals'
+ * (fimp the last, fimp1 the one before; both updated): in interval 0 its
+ * value at node k (fimp0, node_gradients_k), in interval 1 interval 0's,
+ * from interval 2 on extrapolated linearly from the last two intervals' (an
+ * error O(dt^2) instead of O(dt)). */
+ALWAYS_INLINE void extrapolate_k(const int mm, double *restrict fimp,
+                                 double *restrict fimp1, const int nf) {
+  if (mm >= 2)
+    UNROLL for (int f = 0; f < nf; f++) {
+      const double fi = fimp[f];
+      fimp[f] = 2.0 * fi - fimp1[f];
+      fimp1[f] = fi;
+    }
+  else
+    UNROLL for (int f = 0; f < nf; f++) fimp1[f] = fimp[f];
+}
+
 /* The sweep's vectors (slow-row force, F^A explicit and implicit, the
  * last F^A implicit, F^B, p^{f,m}) are local arrays for small blocks (ns,
  * nf <= 4: held in registers, nothing that x may alias), else pr's; fs is
@@ -786,18 +843,7 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     UNROLL for (int f = 0; f < nf; f++) fexp[f] = 0.0;
     eval_points_k(pr, st, x, first, end, AT_LEFT, fexp, NULL, fs, sum_slow,
                   mm == 0, ns, nf);
-    /* Estimate with the implicit force of the last intervals: in interval
-     * 0 its value at node k (fimp0, node_gradients_k), in interval 1
-     * interval 0's, from interval 2 on extrapolated linearly from the
-     * last two intervals' (an error O(dt^2) instead of O(dt)). */
-    if (mm >= 2)
-      UNROLL for (int f = 0; f < nf; f++) {
-        const double fi = fimp[f];
-        fimp[f] = 2.0 * fi - fimp1[f];
-        fimp1[f] = fi;
-      }
-    else
-      UNROLL for (int f = 0; f < nf; f++) fimp1[f] = fimp[f];
+    extrapolate_k(mm, fimp, fimp1, nf);
     SOLVE_ROW();
     UNROLL for (int f = 0; f < nf; f++) fimp[f] = 0.0;
     UNROLL for (int f = 0; f < nf; f++) fb[f] = 0.0;
@@ -828,10 +874,91 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
       eval_points(pr, st, x, (int[2]){0, 0}, st->n_pts, k, NULL, NULL, 1);
 }
 
+/* The sweep where every class has one point per interval, all of one kind
+ * (pr->one: the midpoint and the alpha = gamma = 1 trapezoidal rule on the
+ * micro grid): sweep_k's arithmetic in its order (the same predictor),
+ * without its loops over the points and kinds, so that fewer values live
+ * across the gradients' calls; the row is solved once at the estimate only
+ * where some class has implicit points. */
+ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                            int sum_slow, const int ns, const int nf) {
+  const int p = st->p, n = ns + nf, same = pr->same;
+  const int k0 = pr->one_kind[0], k1 = pr->one_kind[1];
+  const int implicit = k0 == INSIDE || k1 == INSIDE;
+  const double dt = st->dt, *minv = pr->minv + ns;
+  const mrvi_point *pts[2] = {st->pts[0], st->pts[1]};
+  double fs[ns > 0 ? ns : 1], fimp[nf > 0 ? nf : 1], fimp1[nf > 0 ? nf : 1],
+      pm[nf > 0 ? nf : 1], cm[nf > 0 ? nf : 1];
+  UNROLL for (int s = 0; s < ns; s++) fs[s] = 0.0;
+  UNROLL for (int f = 0; f < nf; f++) {
+    fimp[f] = pr->fimp0[f];
+    fimp1[f] = 0.0;
+    pm[f] = st->pf0[f];
+    cm[f] = dt * minv[f]; /* dt / M */
+  }
+  for (int mm = 0; mm < p; mm++) {
+    const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+    double *dn = x + ns + (size_t)mm * nf;
+    double fexp[nf > 0 ? nf : 1], fi[nf > 0 ? nf : 1], fb[nf > 0 ? nf : 1];
+    UNROLL for (int f = 0; f < nf; f++) fexp[f] = fi[f] = fb[f] = 0.0;
+    /* The points at node m (explicit): F^A, the slow row. */
+    for (int c = 0; c < 2; c++) {
+      if ((c == 0 ? k0 : k1) != AT_LEFT)
+        continue;
+      const mrvi_point *pt = &pts[c][mm];
+      const double *g = pr->g;
+      if (mm == 0 && pt->a1 == 0.0)
+        g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)n;
+      else
+        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+      const double wa = pt->w * pt->cA, w0 = pt->w * pt->a0;
+      UNROLL for (int f = 0; f < nf; f++) fexp[f] += wa * g[ns + f];
+      if (sum_slow && pt->a0 != 0.0)
+        UNROLL for (int s = 0; s < ns; s++) fs[s] += w0 * g[s];
+    }
+    if (implicit) {
+      /* The row at the estimate of the implicit force (sweep_k) */
+      extrapolate_k(mm, fimp, fimp1, nf);
+      UNROLL for (int f = 0; f < nf; f++) dn[f] =
+          (d ? d[f] : 0.0) + cm[f] * (pm[f] - fexp[f] - fimp[f]);
+      /* ... and the implicit points there: F^A, F^B, the slow row. */
+      for (int c = 0; c < 2; c++) {
+        if ((c == 0 ? k0 : k1) != INSIDE)
+          continue;
+        const mrvi_point *pt = &pts[c][mm];
+        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+        const double *g = pr->g;
+        const double wa = pt->w * pt->cA, wb = pt->w * pt->cB,
+                     w0 = pt->w * pt->a0;
+        UNROLL for (int f = 0; f < nf; f++) {
+          fi[f] += wa * g[ns + f];
+          fb[f] += wb * g[ns + f];
+        }
+        if (sum_slow && pt->a0 != 0.0)
+          UNROLL for (int s = 0; s < ns; s++) fs[s] += w0 * g[s];
+      }
+    }
+    /* The row with the implicit force at the solved node, and p^{f,m+1} =
+     * u - F_m^B (sweep_k). */
+    UNROLL for (int f = 0; f < nf; f++) {
+      const double u = pm[f] - fexp[f] - fi[f];
+      dn[f] = (d ? d[f] : 0.0) + cm[f] * u;
+      pm[f] = u - fb[f];
+      fimp[f] = fi[f];
+    }
+  }
+  if (sum_slow)
+    UNROLL for (int s = 0; s < ns; s++) pr->fs[s] = fs[s];
+}
+
 static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
                   int sum_slow) {
   pr->n_sweeps++;
-  SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
+  if (pr->one) {
+    SMALL(st->ns, NS, SMALL(st->nf, NF, sweep1_k(pr, st, x, sum_slow, NS, NF)));
+  } else {
+    SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
+  }
 }
 
 ALWAYS_INLINE double slow_update_k(mrvi_predictor *pr, const mrvi_step *st,
