@@ -140,8 +140,13 @@ struct mrvi_predictor {
   double *jmat;
   /* One point per micro interval in each class (one_point): the kind of
    * class c's points (AT_LEFT or INSIDE; -1 for a class not evaluated on
-   * its own: W with same, or a class without elements), for sweep1_k. */
-  int one, one_kind[2];
+   * its own: W with same, or a class without elements), for sweep1_k;
+   * one_ok: chosen at creation (one: taken, mrvi_predictor_one_point). */
+  int one, one_ok, one_kind[2];
+  /* W has a constant Hessian on the fast columns alone (Hq[1], lo[1] = ns)
+   * that is diagonal (a sum of one-coordinate quadratics, the FPU's): its
+   * gradient g0 + H z by the diagonal alone. */
+  int wdiag;
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -507,7 +512,13 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     pr->lo[c] = slow ? 0 : st->ns;
   }
   pr->same = mrvi_step_same_points(st);
+  pr->wdiag = pr->Hq[1] && pr->lo[1] == st->ns;
+  for (int i = st->ns; pr->wdiag && i < (int)nz; i++)
+    for (int j = st->ns; j < (int)nz; j++)
+      if (i != j && pr->Hq[1][i * nz + j] != 0.0)
+        pr->wdiag = 0;
   one_point(pr, st);
+  pr->one_ok = pr->one;
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
@@ -676,18 +687,24 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + cB * dB[f];
   else
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + 0.0;
+  const int wlo = pr->lo[1] == 0 ? 0 : ns;
+  const double *restrict g0 = pr->g0[1], *restrict Hq = pr->Hq[1];
   if (!J && !both && pr->Hq[c]) { /* a class with a constant Hessian alone */
     UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
-    if (pr->lo[c] == 0) /* (each with constant bounds) */
+    if (c == 1 && pr->wdiag)
+      UNROLL for (int i = ns; i < nz; i++) g[i] +=
+          g0[i] + Hq[i * nz + i] * z[i];
+    else if (pr->lo[c] == 0) /* (each with constant bounds) */
       affine_grad_k(pr->g0[c], pr->Hq[c], z, g, 0, nz);
     else
       affine_grad_k(pr->g0[c], pr->Hq[c], z, g, ns, nz);
     return;
   }
-  const int wlo = pr->lo[1] == 0 ? 0 : ns;
-  const double *restrict g0 = pr->g0[1], *restrict Hq = pr->Hq[1];
   if (both && Hq) { /* (each with constant bounds) */
-    if (wlo == 0)
+    if (pr->wdiag)  /* (the off-diagonal products are zeros) */
+      UNROLL for (int i = ns; i < nz; i++) tw[i] =
+          g0[i] + Hq[i * nz + i] * z[i];
+    else if (wlo == 0)
       UNROLL for (int i = 0; i < nz; i++) {
         double t = g0[i];
         UNROLL for (int j = 0; j < nz; j++) t += Hq[i * nz + j] * z[j];
@@ -1255,3 +1272,9 @@ int mrvi_predictor_presolve(mrvi_predictor *pr, int on) {
 }
 
 int mrvi_predictor_sweeps(const mrvi_predictor *pr) { return pr->n_sweeps; }
+
+int mrvi_predictor_one_point(mrvi_predictor *pr, int on) {
+  const int was = pr->one;
+  pr->one = pr->one_ok && on;
+  return was;
+}
