@@ -90,8 +90,9 @@ struct mrvi_predictor {
    * and implicit parts of F_m^A, and F_m^B (nf each). */
   double *z, *g, *fs, *fexp, *fimp, *fb, *fimp1;
   double *pm;    /* p^{f,m} (nf) */
-  double *H;     /* sum w a0 a1 hess Z along the sweep, packed (n x n;
-                    NULL for n > MRVI_SLOW_NEWTON_N: no Newton steps) */
+  double *H;     /* sum w a0 a1 hess Z along the sweep, packed (n x n, its
+                    slow block; NULL for n > MRVI_SLOW_NEWTON_N: no Newton
+                    steps), then a point's Hessian (n x n, point_gradient_k) */
   double *xs;    /* swept slow displacement, sampled forces (3 ns) */
   double *A, *b; /* slow Newton matrix (ns x ns), right-hand side and
                     fixed-point update (2 ns) */
@@ -546,7 +547,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   pr->rstop = pr->rsweep = INFINITY;
   if (pr->slow_coupled && m->n <= MRVI_SLOW_NEWTON_N) {
     const size_t ns = (size_t)(m->n_slow > 0 ? m->n_slow : 1);
-    pr->H = malloc(n * n * sizeof(double));
+    pr->H = malloc(2 * n * n * sizeof(double)); /* (and a point's, Ht) */
     pr->A = malloc(2 * ns * ns * sizeof(double));
     pr->sample =
         malloc((size_t)(st->n_pts[0] + st->n_pts[1] + 1) * sizeof(int));
@@ -718,9 +719,14 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
       }
   }
   UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
-  if (J) /* the slow solve's Hessian as well */
-    mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, nz, hscale);
-  else
+  if (J) { /* the slow solve's Hessian as well: at scale 1 (the flat
+            * kernels, mrvi_terms_eval), its slow block times hscale into J */
+    double *restrict Ht = pr->H + (size_t)nz * (size_t)nz;
+    UNROLL for (int i = 0; i < nz * nz; i++) Ht[i] = 0.0;
+    mrvi_terms_eval(pr->kc[c], z, 1.0, g, Ht, nz, 1.0);
+    UNROLL for (int i = 0; i < ns; i++) UNROLL for (int j = 0; j < ns; j++)
+        J[i * nz + j] += hscale * Ht[i * nz + j];
+  } else
     mrvi_terms_grad(pr->kc[c], z, g);
   if (!both) /* W at V's point (pr->same) */
     return;
@@ -1009,7 +1015,7 @@ static double slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x,
  * sum of w a0 a1), fa (if not NULL) = sum of sf w a0 grad_s Z (the force
  * itself: sf scaled to the sum of w a0 of the points with a0 a1 != 0),
  * and, with hess, H = sum over every hstride-th sample of
- * hfac sw w a0 a1 hess Z (packed, n x n). */
+ * hfac sw w a0 a1 hess Z (packed, n x n, the slow block). */
 ALWAYS_INLINE void sampled_force_k(mrvi_predictor *pr, const mrvi_step *st,
                                    const double *x, double *f, double *fa,
                                    int hess, const int ns, const int nf) {
