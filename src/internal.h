@@ -50,8 +50,7 @@ double mrvi_machine_memory(void);
 /* ---------------------------------------------------------------------------
  * Model
  * ------------------------------------------------------------------------- */
-/* Largest number of inputs of a non-linear element (terms are limited to it).
- */
+/* Largest number of inputs of a non-linear element (terms are limited to it). */
 #define MRVI_MAX_INPUTS 64
 
 typedef enum mrvi_element_kind {
@@ -65,16 +64,16 @@ typedef enum mrvi_element_kind {
 
 typedef struct mrvi_element {
   mrvi_element_kind kind;
-  mrvi_rate potential; /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
-  const mrvi_law *law; /* NULL for gravity */
+  mrvi_rate potential;          /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
+  const mrvi_law *law;          /* NULL for gravity */
   double params[MRVI_LAW_MAX_PARAMS];
-  double shift; /* rest length (springs) or offset b (terms) */
+  double shift;                 /* rest length (springs) or offset b (terms) */
   double anchor[3];
-  int particle_i, particle_j; /* springs; -1 if unused */
-  int particle_k;             /* angles: i-j-k with the vertex at j */
-  int n_in;                   /* number of input coordinates */
-  int *in;                    /* n_in model indices */
-  double *coef;               /* n_in coefficients (terms, gravity) */
+  int particle_i, particle_j;   /* springs; -1 if unused */
+  int particle_k;               /* angles: i-j-k with the vertex at j */
+  int n_in;                     /* number of input coordinates */
+  int *in;                      /* n_in model indices */
+  double *coef;                 /* n_in coefficients (terms, gravity) */
 } mrvi_element;
 
 typedef struct mrvi_particle {
@@ -86,18 +85,18 @@ typedef struct mrvi_particle {
 typedef struct mrvi_constraint {
   const mrvi_constraint_type *type;
   char *label;
-  int n_in, *in; /* model indices */
+  int n_in, *in;                /* model indices */
   int n_params;
   double *params;
-  int rows;        /* scalar equations */
-  int first_row;   /* offset in the model's constraint rows */
-  mrvi_rate where; /* MRVI_SLOW: macro nodes; MRVI_FAST: micro */
+  int rows;                     /* scalar equations */
+  int first_row;                /* offset in the model's constraint rows */
+  mrvi_rate where;              /* MRVI_SLOW: macro nodes; MRVI_FAST: micro */
 } mrvi_constraint;
 
 struct mrvi_model {
   char *name;
   int dimension;
-  int n, cap; /* coordinates */
+  int n, cap;            /* coordinates */
   char **names;
   double *mass, *q0, *v0;
   mrvi_rate *rate;
@@ -116,10 +115,11 @@ struct mrvi_model {
   int max_in;                   /* largest n_in of a non-linear element */
   int n_constraints, cap_constraints;
   mrvi_constraint *constraints;
-  int constraint_rows;   /* sum of rows */
-  int max_constraint_in; /* largest n_in of a constraint */
+  int constraint_rows;          /* sum of rows */
+  int max_constraint_in;        /* largest n_in of a constraint */
   char errmsg[512];
 };
+
 
 /* Energy, gradient (n_in) and Hessian (n_in x n_in row-major, may be NULL)
  * of element e at its local inputs y (n_in). */
@@ -200,17 +200,16 @@ int mrvi_quadrature_points(mrvi_rule rule, mrvi_grid grid, double macro_step,
                            int p, mrvi_point *pts);
 
 /* ---------------------------------------------------------------------------
- * One step (arXiv 2406.12991 §3.1, doc/solver.md): residual, Jacobian pattern
- * and values, momenta.
+ * One step (arXiv 2406.12991 §3.1, doc/solver.md): residual, Jacobian pattern and values, momenta.
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_step {
   const mrvi_model *model;
   int p, ns, nf;
   double dT, dt;
-  int n_unknowns;     /* ns + p nf */
-  mrvi_point *pts[2]; /* [MRVI_SLOW] points of V, [MRVI_FAST] of W */
+  int n_unknowns;               /* ns + p nf */
+  mrvi_point *pts[2];           /* [MRVI_SLOW] points of V, [MRVI_FAST] of W */
   int n_pts[2];
-  int *elem_of_class[2]; /* element indices of V and W */
+  int *elem_of_class[2];        /* element indices of V and W */
   int n_elem_of_class[2];
   /* Unknowns as displacements from (q_k^s, q_k^{f,0}) instead of
    * positions (0 by default; the integrator's Newton paths set it). */
@@ -218,17 +217,17 @@ typedef struct mrvi_step {
   /* Known data of the step: q_k^s, q_k^{f,0}, p_k^s, p_k^{f,0}. */
   const double *qs0, *qf0, *ps0, *pf0;
   /* Jacobian as triplets mapped to CSC. */
-  int recording; /* 1 while the pattern is being recorded */
+  int recording;                /* 1 while the pattern is being recorded */
   long n_trip, cap_trip;
-  int *Ti, *Tj; /* recorded pattern */
-  int *map;     /* triplet -> CSC index */
-  double *Ax;   /* CSC values */
+  int *Ti, *Tj;                 /* recorded pattern */
+  int *map;                     /* triplet -> CSC index */
+  double *Ax;                   /* CSC values */
   int *Ap, *Ai;
   long nnz;
   /* Workspace. */
-  double *y, *g, *H; /* element inputs, gradient, Hessian */
-  /* Constraints (doc/constraints.md).  The full unknown vector is (x, lambda)
-   * of size n_total = n_unknowns + n_lambda; the residual appends the
+  double *y, *g, *H;            /* element inputs, gradient, Hessian */
+  /* Constraints (doc/constraints.md).  The full unknown vector is (x, lambda) of
+   * size n_total = n_unknowns + n_lambda; the residual appends the
    * constraint equations.  Layout of lambda and of the equation rows:
    *   slow-only constraints: lambda_k (weight dT) at node 0, equations
    *     g(q_{k+1}^s) = 0                      n_unknowns + [0, r_slow)
@@ -237,11 +236,11 @@ typedef struct mrvi_step {
    *     lambda^m: n_unknowns + r_slow + m r_micro + row
    *     g(z^m):   n_unknowns + r_slow + (m-1) r_micro + row */
   int n_lambda, n_total;
-  int n_slow_c, n_micro_c;   /* constraint counts */
-  int *slow_c, *micro_c;     /* model constraint indices */
-  int *c_off;                /* per model constraint: row within its block */
-  int r_slow, r_micro;       /* rows per block */
-  double *cy, *cg, *cG, *cH; /* constraint inputs, g, G, second derivs */
+  int n_slow_c, n_micro_c;      /* constraint counts */
+  int *slow_c, *micro_c;        /* model constraint indices */
+  int *c_off;                   /* per model constraint: row within its block */
+  int r_slow, r_micro;          /* rows per block */
+  double *cy, *cg, *cG, *cH;    /* constraint inputs, g, G, second derivs */
   /* External (control) forces of the discrete Lagrange-d'Alembert
    * principle (optimal control): f_rows (n_unknowns) is added to the
    * dynamic rows of R, f_end (ns + nf) to p_{k+1}^s and p_{k+1}^{f,0}.
@@ -296,7 +295,8 @@ void mrvi_step_micro_residuals(const mrvi_step *st, const double *R,
 /* Momenta after convergence (x with lambda): ps1 (ns) = D_{q_{k+1}^s} L_d
  * (with the constraint forces of the interior micro nodes) and the fast
  * micro momenta pf (p x nf) at nodes m = 1..p (eq:pkfm+). */
-void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1, double *pf);
+void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
+                       double *pf);
 /* Add the kinetic, external-force and constraint parts of the momenta at x
  * to their potential parts in ps1, pf (as summed by mrvi_step_assemble into
  * mom_ps, mom_pf). */
@@ -304,13 +304,13 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
                               double *pf);
 
 /* ---------------------------------------------------------------------------
- * Discrete null-space form (nullspace.c, doc/constraints.md): the dynamic rows
- * are premultiplied by P^T with P^T C = 0, which removes the multipliers.
+ * Discrete null-space form (nullspace.c, doc/constraints.md): the dynamic rows are
+ * premultiplied by P^T with P^T C = 0, which removes the multipliers.
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_nullspace mrvi_nullspace;
 /* After mrvi_step_build_pattern: reduced pattern (size n_unknowns). */
-int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
-                          size_t len);
+int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out,
+                          char *msg, size_t len);
 void mrvi_nullspace_free(mrvi_nullspace *z);
 /* Multipliers lambda(x) (written to x + n_unknowns) from the residual F of
  * the full system assembled at lambda = 0; also factors the node blocks
@@ -353,9 +353,9 @@ enum {
   MRVI_PATH_EXPLICIT = 1,
   MRVI_PATH_SWEEP = 2,
   MRVI_PATH_SCHUR = 3,
-  MRVI_PATH_SWEEP_CG = 4,    /* sweep, micro steps by CG (sparse_block.c) */
-  MRVI_PATH_SCHUR_KRYLOV = 5 /* Newton, GMRES on the slow unknowns and
-                                CG block sweeps (schur_krylov.c) */
+  MRVI_PATH_SWEEP_CG = 4,     /* sweep, micro steps by CG (sparse_block.c) */
+  MRVI_PATH_SCHUR_KRYLOV = 5  /* Newton, GMRES on the slow unknowns and
+                                 CG block sweeps (schur_krylov.c) */
 };
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
@@ -372,9 +372,9 @@ void mrvi_sweep_reset(mrvi_sweep *sw);
  * the fast momenta at nodes 1..p (eq:pkfm+).  *iterations: the largest
  * number of Newton iterations of a micro step (0 on the explicit path);
  * *residual: the largest converged micro-row residual. */
-int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
-                    double *pf, int *iterations, double *residual, char *msg,
-                    size_t len);
+int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                    double *ps1, double *pf, int *iterations, double *residual,
+                    char *msg, size_t len);
 
 /* 1 if the steps of sw are explicit at p = 1 with one W point at each
  * node (the trapezoidal fast rule): then an uncontrolled step (st->f_rows
@@ -438,8 +438,8 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
 void mrvi_sblock_free(mrvi_sblock *sb);
 /* Values to zero, then add scale H (n_in x n_in, element ie of the list). */
 void mrvi_sblock_zero(mrvi_sblock *sb);
-void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
-                             double scale);
+void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H,
+                             int n_in, double scale);
 /* Add dscale diag (nf) to the diagonal and solve J x = b in place (b
  * becomes x) by CG, stopping at ||r||_inf <= atol or 1e-12 relative;
  * sparse LU where CG meets non-positive curvature or does not converge
@@ -539,8 +539,8 @@ void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
  * weights, the constant part of the matrix is the same in the row blocks
  * from 2 on); then mrvi_blocks_chord(b, 1) makes the next assemblies with
  * jac freeze those Hessians (the mean of those at the step's first and
- * last points, mrvi_blocks_chord_spread): the fast row blocks from 2 on are
- * then equal, assembled and factored once.  The residual stays exact. */
+ * last points, mrvi_blocks_chord_spread): the fast row blocks from 2 on are then equal, assembled and
+ * factored once.  The residual stays exact. */
 int mrvi_blocks_chord_ok(const mrvi_blocks *b);
 void mrvi_blocks_chord(mrvi_blocks *b, int on);
 /* Largest entry of |H_last - H_first| over the classes whose Hessian is
