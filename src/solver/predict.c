@@ -660,11 +660,11 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
 
 /* g <- grad Z_c at point pt of the step at the displacements x (fast nodes
  * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed.  With both
- * (V at its point, pr->same), W's gradient too: an affine W (Hq[1]) from
- * the configuration in registers (zl), before V's call, so that it runs
- * beside it and does not read back z after z's scalar stores (store-to-load
- * forwarding fails for the vector loads), then added: G[i] += t, as
- * affine_grad_k. */
+ * (V at its point, pr->same), W's gradient too: an affine W (Hq[1]) formed
+ * before V's call, so that it runs beside it, then added (G[i] += t, as
+ * affine_grad_k; by the diagonal with wdiag).  A class with a constant
+ * Hessian evaluated alone takes its affine map as well.  With J, the slow
+ * block of the point's Hessian times hscale is added to J. */
 ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     const double *x, const mrvi_point *pt,
                                     int c, const int ns, const int nf,
