@@ -515,6 +515,11 @@ int mrvi_predictor_presolve(mrvi_predictor *pr, int on);
  * slow row's solve moved the slow path by more than the re-sweep
  * threshold; the pre-solve's linear sweep not counted). */
 int mrvi_predictor_sweeps(const mrvi_predictor *pr);
+/* The sweep for one point per micro interval in each class (predict.c,
+ * sweep1_k): whether the predictor takes it (chosen at creation), switched
+ * off with on = 0 and back on with 1 (tests: the generic sweep); returns the
+ * previous setting. */
+int mrvi_predictor_one_point(mrvi_predictor *pr, int on);
 /* Largest frequency sqrt(max eig M^-1 hess(V + W)) at the initial state,
  * by power iteration (0 if not positive). */
 double mrvi_predictor_omega_max(mrvi_predictor *pr);

@@ -783,40 +783,11 @@ static void test_linsolve_backends(void) {
  * (beyond the small blocks), the sweep's predictor-corrector micro steps
  * (linear_sweep) and the explicit nodes' term-by-term gradients.  FPU-like
  * chains of nc + nc coordinates, W with one- and two-input linear springs. */
+static void chain_yaml(int nc, char *text, size_t size);
+
 static void chain_case(int nc) {
   char text[4096];
-  int n = 0;
-  n += snprintf(text + n, sizeof text - (size_t)n,
-                "name: chain%d\ncoordinates:\n", nc);
-  for (int i = 0; i < nc; i++)
-    n += snprintf(text + n, sizeof text - (size_t)n,
-                  "  - {name: s%d, mass: %d, position: %g, velocity: %g, "
-                  "rate: slow}\n  - {name: f%d, mass: 1, position: %g, "
-                  "velocity: %g, rate: fast}\n",
-                  i, 1 + i % 2, 0.3 - 0.1 * i, 0.2 * (i == 0), i,
-                  0.01 * (i + 1), i == 2 ? 1.0 : 0.0);
-  n += snprintf(text + n, sizeof text - (size_t)n, "terms:\n");
-  for (int i = 0; i < nc; i++) {
-    /* V: (s_i - f_i [- s_{i-1} - f_{i-1}])^4 / 4; W: springs on f_i and
-     * between f_i and f_{i-1} */
-    char prev[40] = "";
-    if (i)
-      snprintf(prev, sizeof prev, ", s%d: -1, f%d: -1", i - 1, i - 1);
-    n += snprintf(text + n, sizeof text - (size_t)n,
-                  "  - {combination: {s%d: 1, f%d: -1%s}, law: power, "
-                  "coefficient: 0.25, exponent: 4, potential: slow}\n"
-                  "  - {combination: {f%d: 1}, law: linear, stiffness: %d, "
-                  "potential: fast}\n",
-                  i, i, prev, i, 900 + 100 * i);
-    if (i)
-      n += snprintf(text + n, sizeof text - (size_t)n,
-                    "  - {combination: {f%d: 1, f%d: -1}, law: linear, "
-                    "stiffness: 50, potential: fast}\n",
-                    i, i - 1);
-  }
-  snprintf(text + n, sizeof text - (size_t)n,
-           "integrator: {scheme: explicit-slow, macro_step: 0.01, "
-           "micro_steps: 2, t_end: 1}\n");
+  chain_yaml(nc, text, sizeof text);
   const char *const schemes[] = {"explicit-slow", "fully-explicit"};
   const char *const want[] = {"sweep", "explicit"};
   static run_out a, b;
@@ -849,6 +820,120 @@ static void chain_case(int nc) {
       mrvi_system_free(sys[0]);
       mrvi_system_free(sys[1]);
     }
+}
+
+/* The chain of chain_case as a description file: nc slow and nc fast
+ * coordinates, V quartic, W linear springs on each fast coordinate and
+ * between neighbours (a Hessian that is not diagonal). */
+static void chain_yaml(int nc, char *text, size_t size) {
+  int n = 0;
+  n +=
+      snprintf(text + n, size - (size_t)n, "name: chain%d\ncoordinates:\n", nc);
+  for (int i = 0; i < nc; i++)
+    n += snprintf(text + n, size - (size_t)n,
+                  "  - {name: s%d, mass: %d, position: %g, velocity: %g, "
+                  "rate: slow}\n  - {name: f%d, mass: 1, position: %g, "
+                  "velocity: %g, rate: fast}\n",
+                  i, 1 + i % 2, 0.3 - 0.1 * i, 0.2 * (i == 0), i,
+                  0.01 * (i + 1), i == 2 ? 1.0 : 0.0);
+  n += snprintf(text + n, size - (size_t)n, "terms:\n");
+  for (int i = 0; i < nc; i++) {
+    /* V: (s_i - f_i [- s_{i-1} - f_{i-1}])^4 / 4; W: springs on f_i and
+     * between f_i and f_{i-1} */
+    char prev[40] = "";
+    if (i)
+      snprintf(prev, sizeof prev, ", s%d: -1, f%d: -1", i - 1, i - 1);
+    n += snprintf(text + n, size - (size_t)n,
+                  "  - {combination: {s%d: 1, f%d: -1%s}, law: power, "
+                  "coefficient: 0.25, exponent: 4, potential: slow}\n"
+                  "  - {combination: {f%d: 1}, law: linear, stiffness: %d, "
+                  "potential: fast}\n",
+                  i, i, prev, i, 900 + 100 * i);
+    if (i)
+      n += snprintf(text + n, size - (size_t)n,
+                    "  - {combination: {f%d: 1, f%d: -1}, law: linear, "
+                    "stiffness: 50, potential: fast}\n",
+                    i, i - 1);
+  }
+  snprintf(text + n, size - (size_t)n,
+           "integrator: {scheme: explicit-slow, macro_step: 0.01, "
+           "micro_steps: 2, t_end: 1}\n");
+}
+
+/* The predictor's sweep for one point per micro interval in each class
+ * (predict.c, sweep1_k: the three implicit schemes) against its generic
+ * sweep over the points by kind: the same arithmetic in the same order, so
+ * the same prediction (asserted to 1e-14 of max |x|; measured identical),
+ * on the FPU (W's Hessian diagonal: its gradient by the diagonal) and on
+ * chain_yaml's chain (W coupling neighbours: the full products), at p = 5
+ * and 100 (dt = 0.001), with the sweep along the slow row's solve
+ * (sum_slow) and, at p = 100 on the FPU (dT = 0.1), the sampled slow solve
+ * after it.  The prediction's residual at the initial state must be within
+ * 10 sqrt(0.01 tol), from where one Newton update reaches the stop. */
+static void test_predictor_one_point(void) {
+  static const char *const schemes[] = {
+      "midpoint-midpoint", "trapezoidal-midpoint", "trapezoidal-trapezoidal"};
+  char chain[4096];
+  chain_yaml(3, chain, sizeof chain);
+  const double tol = 1e-9;
+  for (int sy = 0; sy < 2; sy++)
+    for (int sc = 0; sc < 3; sc++)
+      for (int p = 5; p <= 100; p += 95) {
+        char ov[4][64], msg[512];
+        const char *ovp[4] = {ov[0], ov[1], ov[2], ov[3]};
+        snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", schemes[sc]);
+        snprintf(ov[1], sizeof ov[1], "integrator.micro_steps=%d", p);
+        snprintf(ov[2], sizeof ov[2], "integrator.macro_step=%g", 0.001 * p);
+        snprintf(ov[3], sizeof ov[3], "integrator.newton.tolerance=%g", tol);
+        mrvi_system *sys = NULL;
+        const int rc =
+            sy == 0 ? mrvi_system_load(test_source_path("systems/fpu.yaml"),
+                                       ovp, 4, &sys, msg, sizeof msg)
+                    : mrvi_system_load_string(chain, "chain.yaml", ovp, 4, &sys,
+                                              msg, sizeof msg);
+        CHECK(rc == MRVI_OK, "%s", msg);
+        if (!sys)
+          continue;
+        mrvi_step st;
+        mrvi_predictor *pr = NULL;
+        CHECK(mrvi_step_init(&st, sys->model, &sys->settings) == 0 &&
+                  mrvi_predictor_create(sys->model, &st, &pr) == 0,
+              "step and predictor");
+        if (pr) {
+          mrvi_predictor_set_tolerance(pr, tol);
+          const int nu = st.n_unknowns;
+          double *x = malloc(2 * (size_t)nu * sizeof *x), *x1 = x + nu;
+          const double r = initial_residual(&st, pr, 0);
+          double qs[8], qf[8], ps[8], pf[8]; /* (st points to them) */
+          test_initial_data(&st, qs, qf, ps, pf);
+          st.increments = 1;
+          mrvi_predict_checked(pr, &st, x);
+          const int one = mrvi_predictor_one_point(pr, 0);
+          mrvi_predict_checked(pr, &st, x1);
+          mrvi_predictor_one_point(pr, 1);
+          double d = 0.0, xm = 0.0;
+          for (int i = 0; i < nu; i++) {
+            d = fmax(d, fabs(x[i] - x1[i]));
+            xm = fmax(xm, fabs(x[i]));
+          }
+          const char *name = sy == 0 ? "fpu" : "chain3";
+          CHECK(one == 1, "%s %s p=%d: the one-point sweep not taken", name,
+                schemes[sc], p);
+          CHECK(d <= 1e-14 * xm,
+                "%s %s p=%d: one-point sweep vs generic: %.2e (max |x| %.2e)",
+                name, schemes[sc], p, d, xm);
+          CHECK(r <= 10.0 * sqrt(0.01 * tol),
+                "%s %s p=%d: predictor residual %.2e > %.2e", name, schemes[sc],
+                p, r, 10.0 * sqrt(0.01 * tol));
+          printf("%s %s p=%d: one-point sweep vs generic %.2e, predictor "
+                 "residual %.2e\n",
+                 name, schemes[sc], p, d, r);
+          free(x);
+        }
+        mrvi_predictor_free(pr);
+        mrvi_step_free(&st);
+        mrvi_system_free(sys);
+      }
 }
 
 /* FPU with the given scheme, dT, p and tolerance. */
@@ -1088,6 +1173,7 @@ int main(void) {
   test_predictor();
   test_predictor_large_steps();
   test_predictor_small_steps();
+  test_predictor_one_point();
   test_jacobian_solve_constrained();
   test_blowup();
   test_tiny_steps();

@@ -42,6 +42,17 @@
 #include "internal.h"
 #include "small.h"
 
+/* No straight-line (SLP) vectorisation in this file (GCC): it pairs the
+ * scalar entries of the sweep's short vectors into 16-byte loads of data
+ * just stored as scalars (the configuration before W's affine gradient, the
+ * gradient after V's call), whose store-to-load forwarding fails: a stall of
+ * about a dozen cycles each on the chain from micro node to micro node
+ * (perf annotate: 12 % and 15 % of the sweep's time on two such loads; FPU,
+ * midpoint-midpoint, p = 100). */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize("no-tree-slp-vectorize")
+#endif
+
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -79,8 +90,9 @@ struct mrvi_predictor {
    * and implicit parts of F_m^A, and F_m^B (nf each). */
   double *z, *g, *fs, *fexp, *fimp, *fb, *fimp1;
   double *pm;    /* p^{f,m} (nf) */
-  double *H;     /* sum w a0 a1 hess Z along the sweep, packed (n x n;
-                    NULL for n > MRVI_SLOW_NEWTON_N: no Newton steps) */
+  double *H;     /* sum w a0 a1 hess Z along the sweep, packed (n x n, its
+                    slow block; NULL for n > MRVI_SLOW_NEWTON_N: no Newton
+                    steps), then a point's Hessian (n x n, point_gradient_k) */
   double *xs;    /* swept slow displacement, sampled forces (3 ns) */
   double *A, *b; /* slow Newton matrix (ns x ns), right-hand side and
                     fixed-point update (2 ns) */
@@ -127,6 +139,15 @@ struct mrvi_predictor {
    * linear_nodes_k), M and S 2 nf x 2 nf each, in jmat. */
   int n_jumps, *jnode;
   double *jmat;
+  /* One point per micro interval in each class (one_point): the kind of
+   * class c's points (AT_LEFT or INSIDE; -1 for a class not evaluated on
+   * its own: W with same, or a class without elements), for sweep1_k;
+   * one_ok: chosen at creation (one: taken, mrvi_predictor_one_point). */
+  int one, one_ok, one_kind[2];
+  /* W has a constant Hessian on the fast columns alone (Hq[1], lo[1] = ns)
+   * that is diagonal (a sum of one-coordinate quadratics, the FPU's): its
+   * gradient g0 + H z by the diagonal alone. */
+  int wdiag;
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -383,6 +404,33 @@ static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
   return ok && !pr->pre ? MRVI_ENOMEM : 0;
 }
 
+/* Whether the sweep may take sweep1_k: fast coordinates, blocks of at most
+ * 4, and in each class evaluated (class 0 alone with same) exactly one
+ * point per micro interval, point m in interval m, all of one kind, at the
+ * left end or inside (the midpoint rule, the trapezoidal rule of
+ * alpha = gamma = 1 on the micro grid), with the same w, cA, cB. */
+static void one_point(mrvi_predictor *pr, const mrvi_step *st) {
+  pr->one = 0;
+  if (st->nf < 1 || st->ns > 4 || st->nf > 4 || st->p < 1)
+    return;
+  for (int c = 0; c < 2; c++) {
+    pr->one_kind[c] = -1;
+    if ((c == 1 && pr->same) || st->n_elem_of_class[c] == 0)
+      continue;
+    for (int mm = 0; mm < st->p; mm++)
+      if (pr->pend[c][mm] != mm + 1 || st->pts[c][mm].m != mm)
+        return;
+    const int k = pr->kinds[c][0];
+    for (int mm = 1; mm < st->p; mm++)
+      if (pr->kinds[c][mm] != k)
+        return;
+    if (k == AT_RIGHT || !uniform_intervals(pr, st, c))
+      return;
+    pr->one_kind[c] = k;
+  }
+  pr->one = 1;
+}
+
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
                           mrvi_predictor **out) {
   mrvi_predictor *pr = calloc(1, sizeof *pr);
@@ -465,6 +513,13 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     pr->lo[c] = slow ? 0 : st->ns;
   }
   pr->same = mrvi_step_same_points(st);
+  pr->wdiag = pr->Hq[1] && pr->lo[1] == st->ns;
+  for (int i = st->ns; pr->wdiag && i < (int)nz; i++)
+    for (int j = st->ns; j < (int)nz; j++)
+      if (i != j && pr->Hq[1][i * nz + j] != 0.0)
+        pr->wdiag = 0;
+  one_point(pr, st);
+  pr->one_ok = pr->one;
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
@@ -492,7 +547,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   pr->rstop = pr->rsweep = INFINITY;
   if (pr->slow_coupled && m->n <= MRVI_SLOW_NEWTON_N) {
     const size_t ns = (size_t)(m->n_slow > 0 ? m->n_slow : 1);
-    pr->H = malloc(n * n * sizeof(double));
+    pr->H = malloc(2 * n * n * sizeof(double)); /* (and a point's, Ht) */
     pr->A = malloc(2 * ns * ns * sizeof(double));
     pr->sample =
         malloc((size_t)(st->n_pts[0] + st->n_pts[1] + 1) * sizeof(int));
@@ -604,7 +659,12 @@ void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
 }
 
 /* g <- grad Z_c at point pt of the step at the displacements x (fast nodes
- * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed. */
+ * m and m + 1 of pt's interval; node 0 is q_k^{f,0}), packed.  With both
+ * (V at its point, pr->same), W's gradient too: an affine W (Hq[1]) formed
+ * before V's call, so that it runs beside it, then added (G[i] += t, as
+ * affine_grad_k; by the diagonal with wdiag).  A class with a constant
+ * Hessian evaluated alone takes its affine map as well.  With J, the slow
+ * block of the point's Hessian times hscale is added to J. */
 ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
                                     const double *x, const mrvi_point *pt,
                                     int c, const int ns, const int nf,
@@ -612,6 +672,8 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
   double *restrict z = pr->z, *restrict g = pr->g;
   const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
   const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  const int nz = ns + nf;
+  double tw[nz > 0 ? nz : 1];
   UNROLL for (int s = 0; s < ns; s++) z[s] = qs0[s] + a1 * x[s];
   /* (the tests outside the loop: qf0 + cA d^m + cB d^{m+1}, a term 0.0
    * where its node is node k or its weight 0) */
@@ -626,19 +688,54 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + cB * dB[f];
   else
     UNROLL for (int f = 0; f < nf; f++) z[ns + f] = qf0[f] + 0.0 + 0.0;
-  UNROLL for (int i = 0; i < ns + nf; i++) g[i] = 0.0;
-  if (J) /* the slow solve's Hessian as well */
-    mrvi_terms_eval(pr->kc[c], z, 1.0, g, J, ns + nf, hscale);
-  else
+  const int wlo = pr->lo[1] == 0 ? 0 : ns;
+  const double *restrict g0 = pr->g0[1], *restrict Hq = pr->Hq[1];
+  if (!J && !both && pr->Hq[c]) { /* a class with a constant Hessian alone */
+    UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
+    if (c == 1 && pr->wdiag)
+      UNROLL for (int i = ns; i < nz; i++) g[i] +=
+          g0[i] + Hq[i * nz + i] * z[i];
+    else if (pr->lo[c] == 0) /* (each with constant bounds) */
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, 0, nz);
+    else
+      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, ns, nz);
+    return;
+  }
+  if (both && Hq) { /* (each with constant bounds) */
+    if (pr->wdiag)  /* (the off-diagonal products are zeros) */
+      UNROLL for (int i = ns; i < nz; i++) tw[i] =
+          g0[i] + Hq[i * nz + i] * z[i];
+    else if (wlo == 0)
+      UNROLL for (int i = 0; i < nz; i++) {
+        double t = g0[i];
+        UNROLL for (int j = 0; j < nz; j++) t += Hq[i * nz + j] * z[j];
+        tw[i] = t;
+      }
+    else
+      UNROLL for (int i = ns; i < nz; i++) {
+        double t = g0[i];
+        UNROLL for (int j = ns; j < nz; j++) t += Hq[i * nz + j] * z[j];
+        tw[i] = t;
+      }
+  }
+  UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
+  if (J) { /* the slow solve's Hessian as well: at scale 1 (the flat
+            * kernels, mrvi_terms_eval), its slow block times hscale into J */
+    double *restrict Ht = pr->H + (size_t)nz * (size_t)nz;
+    UNROLL for (int i = 0; i < nz * nz; i++) Ht[i] = 0.0;
+    mrvi_terms_eval(pr->kc[c], z, 1.0, g, Ht, nz, 1.0);
+    UNROLL for (int i = 0; i < ns; i++) UNROLL for (int j = 0; j < ns; j++)
+        J[i * nz + j] += hscale * Ht[i * nz + j];
+  } else
     mrvi_terms_grad(pr->kc[c], z, g);
   if (!both) /* W at V's point (pr->same) */
     return;
-  if (!pr->Hq[1])
+  if (!Hq)
     mrvi_terms_grad(pr->kc[1], z, g);
-  else if (pr->lo[1] == 0) /* (each with constant bounds) */
-    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, 0, ns + nf);
+  else if (wlo == 0)
+    UNROLL for (int i = 0; i < nz; i++) g[i] += tw[i];
   else
-    affine_grad_k(pr->g0[1], pr->Hq[1], z, g, ns, ns + nf);
+    UNROLL for (int i = ns; i < nz; i++) g[i] += tw[i];
 }
 
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
@@ -717,6 +814,23 @@ static void eval_points(mrvi_predictor *pr, const mrvi_step *st,
                 st->nf);
 }
 
+/* The estimate of interval mm's implicit force from the last intervals'
+ * (fimp the last, fimp1 the one before; both updated): in interval 0 its
+ * value at node k (fimp0, node_gradients_k), in interval 1 interval 0's,
+ * from interval 2 on extrapolated linearly from the last two intervals' (an
+ * error O(dt^2) instead of O(dt)). */
+ALWAYS_INLINE void extrapolate_k(const int mm, double *restrict fimp,
+                                 double *restrict fimp1, const int nf) {
+  if (mm >= 2)
+    UNROLL for (int f = 0; f < nf; f++) {
+      const double fi = fimp[f];
+      fimp[f] = 2.0 * fi - fimp1[f];
+      fimp1[f] = fi;
+    }
+  else
+    UNROLL for (int f = 0; f < nf; f++) fimp1[f] = fimp[f];
+}
+
 /* The sweep's vectors (slow-row force, F^A explicit and implicit, the
  * last F^A implicit, F^B, p^{f,m}) are local arrays for small blocks (ns,
  * nf <= 4: held in registers, nothing that x may alias), else pr's; fs is
@@ -752,30 +866,26 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     UNROLL for (int f = 0; f < nf; f++) fexp[f] = 0.0;
     eval_points_k(pr, st, x, first, end, AT_LEFT, fexp, NULL, fs, sum_slow,
                   mm == 0, ns, nf);
-    /* Estimate with the implicit force of the last intervals: in interval
-     * 0 its value at node k (fimp0, node_gradients_k), in interval 1
-     * interval 0's, from interval 2 on extrapolated linearly from the
-     * last two intervals' (an error O(dt^2) instead of O(dt)). */
-    if (mm >= 2)
-      UNROLL for (int f = 0; f < nf; f++) {
-        const double fi = fimp[f];
-        fimp[f] = 2.0 * fi - fimp1[f];
-        fimp1[f] = fi;
-      }
-    else
-      UNROLL for (int f = 0; f < nf; f++) fimp1[f] = fimp[f];
+    extrapolate_k(mm, fimp, fimp1, nf);
     SOLVE_ROW();
     UNROLL for (int f = 0; f < nf; f++) fimp[f] = 0.0;
     UNROLL for (int f = 0; f < nf; f++) fb[f] = 0.0;
     eval_points_k(pr, st, x, first, end, INSIDE, fimp, fb, fs, sum_slow, 0, ns,
                   nf);
-    SOLVE_ROW();
 #undef SOLVE_ROW
+    /* The row again with the implicit force at the estimate: u = p^{f,m} -
+     * F_m^A = M (d^{m+1} - d^m) / dt, so that p^{f,m+1} = u - F_m^B
+     * follows from u without dividing the difference of the nodes by dt / M
+     * (a division on the chain from node to node; the same to round-off). */
+    double u[nf > 0 ? nf : 1];
+    UNROLL for (int f = 0; f < nf; f++) {
+      u[f] = pm[f] - fexp[f] - fimp[f];
+      dn[f] = (d ? d[f] : 0.0) + cm[f] * u[f];
+    }
     eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, fb, fs, sum_slow, 0,
                   ns, nf);
     if (mm + 1 < p) /* (p^{f,p} is not needed) */
-      UNROLL for (int f = 0; f < nf; f++) pm[f] =
-          (dn[f] - (d ? d[f] : 0.0)) / cm[f] - fb[f];
+      UNROLL for (int f = 0; f < nf; f++) pm[f] = u[f] - fb[f];
     first[0] = end[0];
     first[1] = end[1];
   }
@@ -787,10 +897,91 @@ ALWAYS_INLINE void sweep_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
       eval_points(pr, st, x, (int[2]){0, 0}, st->n_pts, k, NULL, NULL, 1);
 }
 
+/* The sweep where every class has one point per interval, all of one kind
+ * (pr->one: the midpoint and the alpha = gamma = 1 trapezoidal rule on the
+ * micro grid): sweep_k's arithmetic in its order (the same predictor),
+ * without its loops over the points and kinds, so that fewer values live
+ * across the gradients' calls; the row is solved once at the estimate only
+ * where some class has implicit points. */
+ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                            int sum_slow, const int ns, const int nf) {
+  const int p = st->p, n = ns + nf, same = pr->same;
+  const int k0 = pr->one_kind[0], k1 = pr->one_kind[1];
+  const int implicit = k0 == INSIDE || k1 == INSIDE;
+  const double dt = st->dt, *minv = pr->minv + ns;
+  const mrvi_point *pts[2] = {st->pts[0], st->pts[1]};
+  double fs[ns > 0 ? ns : 1], fimp[nf > 0 ? nf : 1], fimp1[nf > 0 ? nf : 1],
+      pm[nf > 0 ? nf : 1], cm[nf > 0 ? nf : 1];
+  UNROLL for (int s = 0; s < ns; s++) fs[s] = 0.0;
+  UNROLL for (int f = 0; f < nf; f++) {
+    fimp[f] = pr->fimp0[f];
+    fimp1[f] = 0.0;
+    pm[f] = st->pf0[f];
+    cm[f] = dt * minv[f]; /* dt / M */
+  }
+  for (int mm = 0; mm < p; mm++) {
+    const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+    double *dn = x + ns + (size_t)mm * nf;
+    double fexp[nf > 0 ? nf : 1], fi[nf > 0 ? nf : 1], fb[nf > 0 ? nf : 1];
+    UNROLL for (int f = 0; f < nf; f++) fexp[f] = fi[f] = fb[f] = 0.0;
+    /* The points at node m (explicit): F^A, the slow row. */
+    for (int c = 0; c < 2; c++) {
+      if ((c == 0 ? k0 : k1) != AT_LEFT)
+        continue;
+      const mrvi_point *pt = &pts[c][mm];
+      const double *g = pr->g;
+      if (mm == 0 && pt->a1 == 0.0)
+        g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)n;
+      else
+        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+      const double wa = pt->w * pt->cA, w0 = pt->w * pt->a0;
+      UNROLL for (int f = 0; f < nf; f++) fexp[f] += wa * g[ns + f];
+      if (sum_slow && pt->a0 != 0.0)
+        UNROLL for (int s = 0; s < ns; s++) fs[s] += w0 * g[s];
+    }
+    if (implicit) {
+      /* The row at the estimate of the implicit force (sweep_k) */
+      extrapolate_k(mm, fimp, fimp1, nf);
+      UNROLL for (int f = 0; f < nf; f++) dn[f] =
+          (d ? d[f] : 0.0) + cm[f] * (pm[f] - fexp[f] - fimp[f]);
+      /* ... and the implicit points there: F^A, F^B, the slow row. */
+      for (int c = 0; c < 2; c++) {
+        if ((c == 0 ? k0 : k1) != INSIDE)
+          continue;
+        const mrvi_point *pt = &pts[c][mm];
+        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+        const double *g = pr->g;
+        const double wa = pt->w * pt->cA, wb = pt->w * pt->cB,
+                     w0 = pt->w * pt->a0;
+        UNROLL for (int f = 0; f < nf; f++) {
+          fi[f] += wa * g[ns + f];
+          fb[f] += wb * g[ns + f];
+        }
+        if (sum_slow && pt->a0 != 0.0)
+          UNROLL for (int s = 0; s < ns; s++) fs[s] += w0 * g[s];
+      }
+    }
+    /* The row with the implicit force at the solved node, and p^{f,m+1} =
+     * u - F_m^B (sweep_k). */
+    UNROLL for (int f = 0; f < nf; f++) {
+      const double u = pm[f] - fexp[f] - fi[f];
+      dn[f] = (d ? d[f] : 0.0) + cm[f] * u;
+      pm[f] = u - fb[f];
+      fimp[f] = fi[f];
+    }
+  }
+  if (sum_slow)
+    UNROLL for (int s = 0; s < ns; s++) pr->fs[s] = fs[s];
+}
+
 static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
                   int sum_slow) {
   pr->n_sweeps++;
-  SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
+  if (pr->one) {
+    SMALL(st->ns, NS, SMALL(st->nf, NF, sweep1_k(pr, st, x, sum_slow, NS, NF)));
+  } else {
+    SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
+  }
 }
 
 ALWAYS_INLINE double slow_update_k(mrvi_predictor *pr, const mrvi_step *st,
@@ -824,7 +1015,7 @@ static double slow_update(mrvi_predictor *pr, const mrvi_step *st, double *x,
  * sum of w a0 a1), fa (if not NULL) = sum of sf w a0 grad_s Z (the force
  * itself: sf scaled to the sum of w a0 of the points with a0 a1 != 0),
  * and, with hess, H = sum over every hstride-th sample of
- * hfac sw w a0 a1 hess Z (packed, n x n). */
+ * hfac sw w a0 a1 hess Z (packed, n x n, the slow block). */
 ALWAYS_INLINE void sampled_force_k(mrvi_predictor *pr, const mrvi_step *st,
                                    const double *x, double *f, double *fa,
                                    int hess, const int ns, const int nf) {
@@ -1055,9 +1246,14 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   predict_sweep(pr, st, x);
   /* Any entry NaN or infinite (x * 0 is NaN exactly then; no branch per
    * entry): free flight instead. */
-  double bad = 0.0;
-  for (int i = 0; i < st->n_unknowns; i++)
-    bad += x[i] * 0.0;
+  double b4[4] = {0.0, 0.0, 0.0, 0.0}; /* (four independent sums) */
+  int i = 0;
+  for (; i + 4 <= st->n_unknowns; i += 4)
+    for (int j = 0; j < 4; j++)
+      b4[j] += x[i + j] * 0.0;
+  for (; i < st->n_unknowns; i++)
+    b4[0] += x[i] * 0.0;
+  const double bad = (b4[0] + b4[1]) + (b4[2] + b4[3]);
   if (bad != 0.0 || bad != bad)
     mrvi_predict_free_flight(st, x);
 }
@@ -1082,3 +1278,9 @@ int mrvi_predictor_presolve(mrvi_predictor *pr, int on) {
 }
 
 int mrvi_predictor_sweeps(const mrvi_predictor *pr) { return pr->n_sweeps; }
+
+int mrvi_predictor_one_point(mrvi_predictor *pr, int on) {
+  const int was = pr->one;
+  pr->one = pr->one_ok && on;
+  return was;
+}
