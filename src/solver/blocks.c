@@ -907,7 +907,7 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
       double *Ht = defer ? b->Hp + (size_t)ip * (size_t)nz * (size_t)nz : b->H;
       const int ph = hess && !frozen; /* this point's Hessian */
       if (ph)
-        memset(Ht, 0, (size_t)nz * (size_t)nz * sizeof(double));
+        zero_k(Ht, nz * nz);
       class_grad_k(b, c, G, ph && h0 ? Ht : NULL, ns, nf);
       if (same)
         class_grad_k(b, 1, G, ph && h1 ? Ht : NULL, ns, nf);
