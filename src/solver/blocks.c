@@ -408,17 +408,32 @@ ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
                               const double *restrict dinv, double *restrict B,
                               const int nrhs) {
   /* The factorisation swaps whole rows (P A = L U, L in its final row
-   * order): every swap applies to B before the forward substitution. */
-  UNROLL for (int k = 0; k + 1 < n; k++) { /* piv[n - 1] = n - 1 */
-    if (piv[k] != k) {
-      double *bk = B + k * nrhs, *br = B + piv[k] * nrhs;
-      UNROLL for (int c = 0; c < nrhs; c++) {
-        const double t = br[c];
-        br[c] = bk[c];
-        bk[c] = t;
+   * order): every swap applies to B before the forward substitution.
+   * Small n: each swap row r tested by its constant index, so that a B
+   * in locals stays in registers (a row picked by a run-time index makes
+   * the compiler keep B in memory). */
+  if (n <= 4) {
+    UNROLL for (int k = 0; k + 1 < n; k++)
+        UNROLL for (int r = k + 1; r < n; r++) {
+      if (piv[k] == r) {
+        UNROLL for (int c = 0; c < nrhs; c++) {
+          const double t = B[r * nrhs + c];
+          B[r * nrhs + c] = B[k * nrhs + c];
+          B[k * nrhs + c] = t;
+        }
       }
     }
-  }
+  } else
+    UNROLL for (int k = 0; k + 1 < n; k++) { /* piv[n - 1] = n - 1 */
+      if (piv[k] != k) {
+        double *bk = B + k * nrhs, *br = B + piv[k] * nrhs;
+        UNROLL for (int c = 0; c < nrhs; c++) {
+          const double t = br[c];
+          br[c] = bk[c];
+          bk[c] = t;
+        }
+      }
+    }
   UNROLL for (int k = 0; k < n; k++) {
     const double *bk = B + k * nrhs;
     UNROLL for (int i = k + 1; i < n; i++) {
@@ -438,6 +453,23 @@ ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
   }
 }
 
+/* x_m -= L1 x_{m-1} + L2 x_{m-2} (row block m >= 1; x_{m-2} unread at
+ * m = 1): the products summed apart from x_m (the L2 part does not wait
+ * for x_{m-1}). */
+ALWAYS_INLINE void
+couple_k(const int m, double *restrict xm, const double *restrict x1,
+         const double *restrict x2, const double *restrict L1,
+         const double *restrict L2, const int nf, const int nrhs) {
+  UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++) {
+    double s1 = 0.0, s2 = 0.0;
+    UNROLL for (int k = 0; k < nf; k++) s1 += L1[i * nf + k] * x1[k * nrhs + c];
+    if (m >= 2)
+      UNROLL for (int k = 0; k < nf; k++) s2 +=
+          L2[i * nf + k] * x2[k * nrhs + c];
+    xm[i * nrhs + c] -= s1 + s2;
+  }
+}
+
 /* Row block m of the block forward sweep (D factored, with its pivots and
  * reciprocal pivots): x_m <- D^-1 (x_m - L1 x_{m-1} - L2 x_{m-2}). */
 ALWAYS_INLINE void
@@ -448,17 +480,7 @@ sweep_row_k(const int m, double *restrict X, const double *restrict L1,
   double *restrict xm = X + (size_t)m * (size_t)row;
   const double *restrict x1 = xm - row, *restrict x2 = x1 - row;
   if (dense && m >= 1) {
-    /* x_m -= L1 x_{m-1} + L2 x_{m-2}: the products summed apart from x_m
-     * (the L2 part does not wait for x_{m-1}) */
-    UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++) {
-      double s1 = 0.0, s2 = 0.0;
-      UNROLL for (int k = 0; k < nf; k++) s1 +=
-          L1[i * nf + k] * x1[k * nrhs + c];
-      if (m >= 2)
-        UNROLL for (int k = 0; k < nf; k++) s2 +=
-            L2[i * nf + k] * x2[k * nrhs + c];
-      xm[i * nrhs + c] -= s1 + s2;
-    }
+    couple_k(m, xm, x1, x2, L1, L2, nf, nrhs);
   } else if (m >= 1) {
     UNROLL for (int d = 1; d <= 2 && d <= m; d++) {
       const double *restrict L = d == 1 ? L1 : L2;
@@ -505,6 +527,66 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
     SMALL(b->nf, NF, sweep_k(b, X, NF, 1));
   } else {
     SMALL(b->nf, NF, SMALL(nrhs, NR, sweep_k(b, X, NF, NR)));
+  }
+}
+
+/* Row block m of a dense sweep (sweep_row_k with nf <= 4) on locals: v
+ * holds x_m on entry, x1 and x2 the solved x_{m-1}, x_{m-2}; on return x_m
+ * is solved into v and stored, and x1, x2 move on.  Every value passes
+ * from row block to row block in registers: loaded back from X, the
+ * vector loads of a row block spanned two stores of the last one and
+ * missed the store-to-load forwarding. */
+ALWAYS_INLINE void
+row_regs_k(const int m, double *restrict xm, double *restrict x1,
+           double *restrict x2, const double *restrict L1,
+           const double *restrict L2, const double *restrict D, const int *piv,
+           const double *dinv, const int nf, const int nrhs) {
+  double v[16]; /* (nf, nrhs <= 4: constant indices once unrolled) */
+  UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++)
+      v[i * nrhs + c] = xm[i * nrhs + c];
+  if (m >= 1)
+    couple_k(m, v, x1, x2, L1, L2, nf, nrhs);
+  lu_solve_k(nf, D, piv, dinv, v, nrhs);
+  UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++) {
+    const int e = i * nrhs + c;
+    xm[e] = v[e];
+    x2[e] = x1[e];
+    x1[e] = v[e];
+  }
+}
+
+/* Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 z in one sweep: row
+ * block m of Y, then of z (each as sweep_k alone: the same operations).
+ * Both chains run from row block to row block, each waiting on its last
+ * row block: in one loop the z chain overlaps the Y chains. */
+ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
+                            double *restrict z, const int nf, const int ns) {
+  const size_t blk = (size_t)nf * (size_t)nf;
+  const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
+  if (nf <= 4 && ns <= 4) {
+    double y1[16], y2[16], z1[4], z2[4];
+    zero_k(y1, 16); /* (unread at m <= 1, but copied on) */
+    zero_k(y2, 16);
+    zero_k(z1, 4);
+    zero_k(z2, 4);
+    for (int m = 0; m < p; m++) {
+      const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
+      const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
+                   *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
+      const int *piv = b->piv + (size_t)r * nf;
+      row_regs_k(m, Y + (size_t)m * nf * ns, y1, y2, L1, L2, D, piv, dinv, nf,
+                 ns);
+      row_regs_k(m, z + (size_t)m * nf, z1, z2, L1, L2, D, piv, dinv, nf, 1);
+    }
+    return;
+  }
+  for (int m = 0; m < p; m++) {
+    const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
+    const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
+                 *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
+    const int *piv = b->piv + (size_t)r * nf;
+    sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
+    sweep_row_k(m, z, L1, L2, D, piv, dinv, nf, 1);
   }
 }
 
@@ -1026,8 +1108,9 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
   }
 }
 
-/* Factorise the blocks as they are (scattered or assembled directly). */
-static int factor_blocks(mrvi_blocks *b) {
+/* Factorise the blocks as they are (scattered or assembled directly);
+ * with R (n_unknowns), also z = A_ff^-1 R_f, in the sweep of Y. */
+static int factor_blocks(mrvi_blocks *b, const double *R) {
   const int ns = b->ns, nf = b->nf, p = b->p;
   const size_t blk = (size_t)nf * (size_t)nf;
   int bad = 0;
@@ -1040,8 +1123,13 @@ static int factor_blocks(mrvi_blocks *b) {
   if (bad)
     return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
-  if (ns > 0)
+  if (R)
+    memcpy(b->z, R + ns, (size_t)p * (size_t)nf * sizeof(double));
+  if (R) {
+    SMALL(nf, NF, SMALL(ns, NS, sweep2_k(b, b->Y, b->z, NF, NS)));
+  } else if (ns > 0) {
     sweep_solve(b, b->Y, ns);
+  }
   SMALL(ns, NS, schur_k(b, NS));
   if (ns > 0) {
     SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv, b->sdinv) < 0);
@@ -1049,14 +1137,19 @@ static int factor_blocks(mrvi_blocks *b) {
   return bad ? MRVI_ESINGULAR : MRVI_OK;
 }
 
-int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
+/* mrvi_blocks_factor, with z = A_ff^-1 R_f if R. */
+static int factor(mrvi_blocks *b, const mrvi_step *st, const double *R) {
   if (b->assembled) {
     b->assembled = 0;
-    return factor_blocks(b);
+    return factor_blocks(b, R);
   }
   b->uniform = 0;
   const int sc = scatter(b, st);
-  return sc < 0 ? sc : factor_blocks(b);
+  return sc < 0 ? sc : factor_blocks(b, R);
+}
+
+int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
+  return factor(b, st, NULL);
 }
 
 /* ds = S^-1 (R_s - A_sf z), df = z - Y ds (after z = A_ff^-1 R_f). */
@@ -1095,4 +1188,12 @@ void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
   memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
   sweep_solve(b, b->z, 1);
   SMALL(ns, NS, slow_solve_k(b, R, dx, NS));
+}
+
+int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,
+                             const double *R, double *dx) {
+  const int s = factor(b, st, R);
+  if (s == MRVI_OK)
+    SMALL(b->ns, NS, slow_solve_k(b, R, dx, NS));
+  return s;
 }
