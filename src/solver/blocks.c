@@ -71,6 +71,11 @@ struct mrvi_blocks {
    * the first assembly: Ass, Asf, Afs, D, L1, L2 in order. */
   int quad[2], const_ok;
   double *cblk;
+  /* The blocks still wait for their constant part (an assembly with jac
+   * after the first): restored by the first class that adds Hessians
+   * (before it; in its own pass if it keeps them per interval), or at the
+   * end of the assembly if none does. */
+  int restore;
   /* A class with a constant Hessian on small blocks (ns, nf <= 4) takes
    * its gradient as the affine map g0 + Hq z (nz and nz x nz): a few
    * products instead of a pass over its terms. */
@@ -690,6 +695,39 @@ ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
   }
 }
 
+/* add_scaled2_k on the block dst of the blocks (c NULL), or, restoring
+ * the constant part in the same pass, dst = c + f1 s1 + f2 s2 from c, the
+ * block's saved constant part (c: dst's place in cblk; the same sums as
+ * the copy and then the adds; a plain copy if neither n1 nor n2). */
+ALWAYS_INLINE void acc2_k(double *restrict dst, int ldd,
+                          const double *restrict c, const double *restrict s1,
+                          double f1, int n1, const double *restrict s2,
+                          double f2, int n2, int lds, const int rows,
+                          const int cols) {
+  if (!c) {
+    add_scaled2_k(dst, ldd, s1, f1, n1, s2, f2, n2, lds, rows, cols);
+  } else if (n1 && n2) {
+    UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+        dst[i * ldd + j] =
+            (c[i * ldd + j] + f1 * s1[i * lds + j]) + f2 * s2[i * lds + j];
+  } else if (n1 || n2) {
+    const double *restrict sx = n1 ? s1 : s2;
+    const double f = n1 ? f1 : f2;
+    UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+        dst[i * ldd + j] = c[i * ldd + j] + f * sx[i * lds + j];
+  } else {
+    UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+        dst[i * ldd + j] = c[i * ldd + j];
+  }
+}
+
+/* The place of block entry dst in the saved constant part if fresh, else
+ * NULL (acc2_k). */
+static inline const double *saved(const mrvi_blocks *b, const double *dst,
+                                  int fresh) {
+  return fresh ? b->cblk + (dst - b->blk) : NULL;
+}
+
 /* Row block m of the Hessians H of point m and HQ of point m - 1 (unread
  * at m = 0) of a class with one point per micro interval (point m in
  * interval m), with the factors r of row block m (row_coefs): row block m
@@ -700,7 +738,7 @@ ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
 ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const row_coef *r,
                                   const int m, const double *H,
                                   const double *HQ, int has_s, int has_f,
-                                  const int ns, const int nf) {
+                                  const int fresh, const int ns, const int nf) {
   const int nz = ns + nf, nF = b->p * nf;
   const size_t blk = (size_t)nf * (size_t)nf;
   const unsigned fl = r->fl;
@@ -709,53 +747,81 @@ ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const row_coef *r,
       add_scaled_k(b->Ass, ns, H, nz, ns, ns, r->ss);
     if (has_f) {
       /* slow rows, column block m - 1: Q by cB, P by cA */
-      if (m >= 1)
-        add_scaled2_k(b->Asf + (size_t)(m - 1) * nf, nF, HQ + ns, r->sfq,
-                      fl & RC_SFQ, H + ns, r->sfp, fl & RC_SFP, nz, ns, nf);
-      if (fl & RC_SFL)
-        add_scaled_k(b->Asf + (size_t)m * nf, nF, H + ns, nz, ns, nf, r->sfl);
+      if (m >= 1) {
+        double *d = b->Asf + (size_t)(m - 1) * nf;
+        acc2_k(d, nF, saved(b, d, fresh), HQ + ns, r->sfq, fl & RC_SFQ, H + ns,
+               r->sfp, fl & RC_SFP, nz, ns, nf);
+      }
+      if (m == b->p - 1) { /* (RC_SFL only here) */
+        double *d = b->Asf + (size_t)m * nf;
+        acc2_k(d, nF, saved(b, d, fresh), H + ns, r->sfl, fl & RC_SFL, H, 0.0,
+               0, nz, ns, nf);
+      }
       /* row block m, slow columns: Q by cB, P by cA */
-      add_scaled2_k(b->Afs + (size_t)m * nf * (size_t)ns, ns,
-                    HQ + (size_t)ns * nz, r->fsq, fl & RC_FSQ,
-                    H + (size_t)ns * nz, r->fsp, fl & RC_FSP, nz, nf, ns);
+      double *d = b->Afs + (size_t)m * nf * (size_t)ns;
+      acc2_k(d, ns, saved(b, d, fresh), HQ + (size_t)ns * nz, r->fsq,
+             fl & RC_FSQ, H + (size_t)ns * nz, r->fsp, fl & RC_FSP, nz, nf, ns);
     }
   }
   if (has_f) {
     const double *Hff = H + (size_t)ns * nz + ns,
                  *HQff = HQ + (size_t)ns * nz + ns;
     /* D_m: P, row cA, column cB; L1_m: Q by cB cB, then P by cA cA;
-     * L2_m: Q, row cB, column cA */
-    if (fl & RC_D)
-      add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf, r->d);
-    if (m >= 1)
-      add_scaled2_k(b->L1 + (size_t)m * blk, nf, HQff, r->l1q, fl & RC_L1Q, Hff,
-                    r->l1p, fl & RC_L1P, nz, nf, nf);
-    if (fl & RC_L2)
-      add_scaled_k(b->L2 + (size_t)m * blk, nf, HQff, nz, nf, nf, r->l2);
+     * L2_m: Q, row cB, column cA (flags only where m >= 1, 2) */
+    double *D = b->D + (size_t)m * blk, *L1 = b->L1 + (size_t)m * blk,
+           *L2 = b->L2 + (size_t)m * blk;
+    acc2_k(D, nf, saved(b, D, fresh), Hff, r->d, fl & RC_D, Hff, 0.0, 0, nz, nf,
+           nf);
+    acc2_k(L1, nf, saved(b, L1, fresh), HQff, r->l1q, fl & RC_L1Q, Hff, r->l1p,
+           fl & RC_L1P, nz, nf, nf);
+    acc2_k(L2, nf, saved(b, L2, fresh), HQff, r->l2, fl & RC_L2, Hff, 0.0, 0,
+           nz, nf, nf);
   }
 }
 
 /* The Hessians of a class with one point per interval into the blocks,
  * row block by row block (interval_row_k): point m's at H0 + m hstep
  * (the kept Hp, hstep one Hessian; or one Hessian for every point,
- * hstep 0). */
+ * hstep 0).  fresh: the blocks' constant part is restored in the same pass
+ * (each block read from cblk, the Hessians added, written once), as
+ * copy_blocks(b, 2) and then the adds would (the same sums); the blocks
+ * the rows do not reach (Ass, and the slow or fast blocks of a class
+ * without slow or fast inputs) are copied. */
 ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const row_coef *rc,
                                        const double *H0, size_t hstep,
-                                       int has_s, int has_f, const int ns,
-                                       const int nf) {
+                                       int has_s, int has_f, const int fresh,
+                                       const int ns, const int nf) {
+  if (fresh) {
+    const size_t nF = (size_t)b->p * (size_t)nf;
+    const double *c = b->cblk;
+    memcpy(b->Ass, c, (size_t)ns * (size_t)ns * sizeof(double));
+    if (!has_s || !has_f) /* A_sf, A_fs */
+      memcpy(b->Asf, saved(b, b->Asf, 1), 2 * ns * nF * sizeof(double));
+    if (!has_f) /* D, L1, L2 */
+      memcpy(b->D, saved(b, b->D, 1), 3 * nF * (size_t)nf * sizeof(double));
+  }
   for (int m = 0; m < b->p; m++)
     interval_row_k(b, rc + m, m, H0 + m * hstep,
-                   H0 + (m >= 1 ? m - 1 : 0) * hstep, has_s, has_f, ns, nf);
+                   H0 + (m >= 1 ? m - 1 : 0) * hstep, has_s, has_f, fresh, ns,
+                   nf);
 }
 
 /* (a call: inlined, it crowded the registers of the assembly loop) */
-static __attribute__((noinline)) void interval_hessians(mrvi_blocks *b, int c,
-                                                        int has_s, int has_f) {
+static __attribute__((noinline)) void
+interval_hessians(mrvi_blocks *b, int c, int has_s, int has_f, int fresh) {
   const row_coef *rc = b->rc[c];
-  SMALL(b->ns, NS,
-        SMALL(b->nf, NF,
-              interval_hessians_k(b, rc, b->Hp, (size_t)(NS + NF) * (NS + NF),
-                                  has_s, has_f, NS, NF)));
+  const double *H0 = b->Hp;
+  if (fresh) {
+    SMALL(b->ns, NS,
+          SMALL(b->nf, NF,
+                interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF),
+                                    has_s, has_f, 1, NS, NF)));
+  } else {
+    SMALL(b->ns, NS,
+          SMALL(b->nf, NF,
+                interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF),
+                                    has_s, has_f, 0, NS, NF)));
+  }
 }
 
 /* The chord matrix of a class with one point per interval: its Hessian H,
@@ -855,7 +921,7 @@ static void const_rows(mrvi_blocks *b, int c, const double *H, int has_s,
                        int has_f) {
   SMALL(b->ns, NS,
         SMALL(b->nf, NF,
-              interval_hessians_k(b, b->rc[c], H, 0, has_s, has_f, NS, NF)));
+              interval_hessians_k(b, b->rc[c], H, 0, has_s, has_f, 0, NS, NF)));
 }
 
 /* The constant part of the Newton matrix into the blocks: the kinetic rows
@@ -980,6 +1046,12 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
               hf = b->has_f[c] || b->has_f[c1];
     const int Hs = (h0 && b->has_s[c]) || (h1 && b->has_s[1]),
               Hf = (h0 && b->has_f[c]) || (h1 && b->has_f[1]);
+    /* Restored here unless in interval_hessians' pass. */
+    const int fresh = hess && defer && b->restore;
+    if (hess && !defer && b->restore) {
+      copy_blocks(b, 2);
+      b->restore = 0;
+    }
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       const int mm = pt->m;
@@ -1019,10 +1091,16 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
       if (ph && !defer)
         point_hessian_k(b, pt, Hs, Hf, ns, nf);
     }
-    if (defer)
-      interval_hessians(b, c, Hs, Hf);
+    if (defer) {
+      interval_hessians(b, c, Hs, Hf, fresh);
+      b->restore = 0;
+    }
     if (frozen)
       frozen_point(b, st, x, c, h0, h1, Hs, Hf);
+  }
+  if (b->restore) { /* (no class adds Hessians) */
+    copy_blocks(b, 2);
+    b->restore = 0;
   }
 }
 
@@ -1052,7 +1130,7 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
     b->const_ok = 1;
     b->const_uni = const_uniform(b);
   } else if (jac) {
-    copy_blocks(b, 2);
+    b->restore = 1; /* (by assemble_k) */
   }
   if (jac)
     b->uniform = b->chord && b->chord_st && b->const_uni;
