@@ -959,6 +959,21 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
   }
 }
 
+/* affine_grad_k with each G[i] read alone: G as the terms' kernel (a
+ * call) stored it, one entry at a time; a vector load of two entries
+ * would miss the store-to-load forwarding and wait for the stores. */
+ALWAYS_INLINE void affine_add_k(const double *restrict g0,
+                                const double *restrict Hq,
+                                const double *restrict z, double *restrict G,
+                                const int lo, const int nz) {
+  const volatile double *Gv = G;
+  UNROLL for (int i = lo; i < nz; i++) {
+    double t = g0[i];
+    UNROLL for (int j = lo; j < nz; j++) t += Hq[i * nz + j] * z[j];
+    G[i] = Gv[i] + t;
+  }
+}
+
 /* G += gradient of class c at zp: the terms, or g0 + Hq zp (from the
  * first fast column if the class has no slow inputs). */
 ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
@@ -973,9 +988,9 @@ ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
     return;
   }
   if (b->has_s[c]) /* (each with constant bounds) */
-    affine_grad_k(g0, Hq, b->zp, G, 0, ns + nf);
+    affine_add_k(g0, Hq, b->zp, G, 0, ns + nf);
   else
-    affine_grad_k(g0, Hq, b->zp, G, ns, ns + nf);
+    affine_add_k(g0, Hq, b->zp, G, ns, ns + nf);
 }
 
 /* The chord matrix's Hessian of loop class c (with W if the points are
