@@ -63,6 +63,7 @@ struct mrvi_blocks {
    * fast inputs. */
   mrvi_terms *kc[2];
   double *zp, *G, *H, *ms, *mf;
+  double *vel; /* p nf: the micro intervals' velocities (assemble_k) */
   int has_s[2], has_f[2];
   int assembled; /* the blocks hold the Newton matrix of the last
                     mrvi_blocks_assemble (not yet factored) */
@@ -126,6 +127,7 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->H);
   free(b->ms);
   free(b->mf);
+  free(b->vel);
   free(b->cblk);
   free(b->Hp);
   for (int c = 0; c < 2; c++) {
@@ -209,9 +211,10 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->H, nz * nz, double);
   ALLOC(b->ms, ns, double);
   ALLOC(b->mf, nf, double);
+  ALLOC(b->vel, nF, double);
 #undef ALLOC
   if (!b->blk || !b->piv || !b->z || !b->S || !b->r || !b->spiv || !b->dinv ||
-      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
+      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf || !b->vel) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
@@ -1013,6 +1016,20 @@ frozen_point(mrvi_blocks *b, const mrvi_step *st, const double *x, int c,
   frozen_hessian(b, H, st->pts[c], b->fw[b->quad[c] ? 1 : c], Hs, Hf);
 }
 
+/* vel[i] = (d[i] - d[i - nf]) / dt for i < n (d[i - nf] = 0 for i < nf):
+ * two at a time, which the compiler divides as a pair. */
+ALWAYS_INLINE void velocities_k(const double *restrict d, double *restrict vel,
+                                const int n, const int nf, const double dt) {
+  UNROLL for (int f = 0; f < nf; f++) vel[f] = d[f] / dt; /* (d - 0) / dt */
+  int i = nf;
+  for (; i + 1 < n; i += 2) {
+    vel[i] = (d[i] - d[i - nf]) / dt;
+    vel[i + 1] = (d[i + 1] - d[i + 1 - nf]) / dt;
+  }
+  if (i < n)
+    vel[i] = (d[i] - d[i - nf]) / dt;
+}
+
 /* The residual (with the momenta's potential parts) and, if jac, the
  * potential part of the Newton matrix (mrvi_blocks_assemble). */
 ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
@@ -1027,20 +1044,16 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
-  double vl[nf > 0 ? nf : 1]; /* velocity of the interval before node mm */
+  /* The velocities of the micro intervals first, in one pass over the
+   * p nf entries (the divisions set the pace of these rows). */
   const double *restrict d0 = x + ns, *restrict mf = b->mf;
-  UNROLL for (int f = 0; f < nf; f++) {
-    vl[f] = d0[f] / dt; /* (d - 0) / dt */
-    R[ns + f] = st->pf0[f] - mf[f] * vl[f];
-  }
+  double *restrict vel = b->vel;
+  velocities_k(d0, vel, p * nf, nf, dt);
+  UNROLL for (int f = 0; f < nf; f++) R[ns + f] = st->pf0[f] - mf[f] * vel[f];
   for (int mm = 1; mm < p; mm++) {
-    const double *restrict d = x + ns + (size_t)mm * nf;
+    const double *restrict vl = vel + (size_t)(mm - 1) * nf;
     double *restrict Rm = R + ns + (size_t)mm * nf;
-    UNROLL for (int f = 0; f < nf; f++) {
-      const double vr = (d[f] - d[f - nf]) / dt;
-      Rm[f] = mf[f] * (vl[f] - vr);
-      vl[f] = vr;
-    }
+    UNROLL for (int f = 0; f < nf; f++) Rm[f] = mf[f] * (vl[f] - vl[f + nf]);
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
    * the Hessian) of the class at the point's configuration, into the rows
