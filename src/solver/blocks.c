@@ -563,15 +563,41 @@ row_regs_k(const int m, double *restrict xm, double *restrict x1,
   }
 }
 
+/* SMALL for n = 1..4 only (nothing otherwise): the kernels whose local
+ * arrays have the small sizes' bound. */
+#define SMALL4(n, N, ...)                                                      \
+  switch (n) {                                                                 \
+  case 1: {                                                                    \
+    enum { N = 1 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 2: {                                                                    \
+    enum { N = 2 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 3: {                                                                    \
+    enum { N = 3 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 4: {                                                                    \
+    enum { N = 4 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  default:                                                                     \
+    break;                                                                     \
+  }
+
 /* Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 z in one sweep: row
  * block m of Y, then of z (each as sweep_k alone: the same operations).
  * Both chains run from row block to row block, each waiting on its last
- * row block: in one loop the z chain overlaps the Y chains. */
+ * row block: in one loop the z chain overlaps the Y chains.  nf, ns in
+ * 1..4 as constants (SMALL4): the row blocks in registers (row_regs_k). */
 ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
-                            double *restrict z, const int nf, const int ns) {
+                            double *restrict z, const int nf, const int ns,
+                            const int regs) {
   const size_t blk = (size_t)nf * (size_t)nf;
   const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
-  if (nf <= 4 && ns <= 4) {
+  if (regs) {
     double y1[16], y2[16], z1[4], z2[4];
     zero_k(y1, 16); /* (unread at m <= 1, but copied on) */
     zero_k(y2, 16);
@@ -1231,8 +1257,10 @@ static int factor_blocks(mrvi_blocks *b, const double *R) {
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
   if (R)
     memcpy(b->z, R + ns, (size_t)p * (size_t)nf * sizeof(double));
-  if (R) {
-    SMALL(nf, NF, SMALL(ns, NS, sweep2_k(b, b->Y, b->z, NF, NS)));
+  if (R && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
+    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, NF, NS, 1)));
+  } else if (R) {
+    sweep2_k(b, b->Y, b->z, nf, ns, 0);
   } else if (ns > 0) {
     sweep_solve(b, b->Y, ns);
   }
