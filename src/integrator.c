@@ -585,13 +585,14 @@ static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
   } else if (it->blocks) {
     if (fresh) {
       it->factors_ok = 0;
-      if ((s = mrvi_blocks_factor(it->blocks, st)) < 0)
+      if ((s = mrvi_blocks_factor_solve(it->blocks, st, it->R, it->dx)) < 0)
         mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
       else
         it->factors_ok = 1;
+    } else {
+      mrvi_blocks_solve(it->blocks, it->R, it->dx);
     }
     if (s == MRVI_OK) {
-      mrvi_blocks_solve(it->blocks, it->R, it->dx);
       for (int i = 0; i < st->n_total; i++)
         it->x[i] -= it->dx[i];
     }

@@ -544,6 +544,10 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
+/* mrvi_blocks_factor, then mrvi_blocks_solve of R: the same dx, with
+ * A_ff^-1 R_f computed in the forward sweep of the factorisation. */
+int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,
+                             const double *R, double *dx);
 /* Chord matrix (doc/solver.md, "Newton details"): 1 if the step's
  * structure admits it (every class whose Hessian is not constant has one
  * point per micro interval, the points of intervals 1..p-1 have the same

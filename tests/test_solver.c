@@ -1111,6 +1111,22 @@ static void direct_case(mrvi_model *m, const char *label, const char *scheme,
   CHECK(sc > 0.0 && e <= 1e-12 * sc,
         "%s %s p=%d: direct update %.2e (relative) off the CSC one's", label,
         scheme, p, sc > 0.0 ? e / sc : e);
+  /* Factor and solve in one (z swept with Y): the same update bit for
+   * bit, on the direct assembly and on the CSC values. */
+  double *dx2 = calloc(nu, sizeof(double));
+  CHECK(mrvi_blocks_assemble(b[0], &st, x, R[0], 1) == MRVI_OK, "%s: assemble",
+        label);
+  CHECK(mrvi_blocks_factor_solve(b[0], &st, R[0], dx2) == MRVI_OK,
+        "%s: factor_solve", label);
+  CHECK(memcmp(dx2, dx[0], nu * sizeof(double)) == 0,
+        "%s %s p=%d: factor_solve differs from factor, solve", label, scheme,
+        p);
+  CHECK(mrvi_blocks_factor_solve(b[1], &st, R[1], dx2) == MRVI_OK,
+        "%s: CSC factor_solve", label);
+  CHECK(memcmp(dx2, dx[1], nu * sizeof(double)) == 0,
+        "%s %s p=%d: CSC factor_solve differs from factor, solve", label,
+        scheme, p);
+  free(dx2);
   for (int k = 0; k < 2; k++) {
     mrvi_blocks_free(b[k]);
     free(R[k]);
@@ -1127,10 +1143,12 @@ static void direct_case(mrvi_model *m, const char *label, const char *scheme,
 static void test_direct(void) {
   mrvi_model *fpu = test_fpu(), *ring = test_spring_ring();
   /* qs1 - qf1 - qf2 - qs2 with linear springs, soft on the slow ones (lin);
-   * with a quartic fast spring on qf2 too (lin4) */
-  mrvi_model *lin[2];
+   * with a quartic fast spring on qf2 too (lin4); and qs1 - qs2, qf1 - qf2
+   * decoupled, with a quartic spring on qs1 (V's Hessian, not constant,
+   * has no fast inputs: the blocks' restore copies the fast blocks) */
+  mrvi_model *lin[3];
   const double a[2] = {1, -1};
-  for (int c = 0; c < 2; c++) {
+  for (int c = 0; c < 3; c++) {
     mrvi_model *m = lin[c] = mrvi_model_create();
     const char *names[4] = {"qs1", "qs2", "qf1", "qf2"};
     for (int i = 0; i < 4; i++)
@@ -1140,13 +1158,17 @@ static void test_direct(void) {
     const int l1[2] = {0, 2}, l2[2] = {1, 3}, l3[2] = {2, 3}, l4[1] = {2},
               l5[1] = {3};
     const double k1[1] = {3.0}, k2[1] = {400.0}, pw[2] = {100.0, 4.0};
-    int ok =
-        mrvi_model_add_term(m, MRVI_SLOW, 2, l1, a, 0.0, "linear", k1) >= 0;
-    ok &= mrvi_model_add_term(m, MRVI_SLOW, 2, l2, a, 0.0, "linear", k1) >= 0;
+    const int l6[2] = {0, 1}; /* (decoupled: qs1 - qs2) */
+    int ok = mrvi_model_add_term(m, MRVI_SLOW, 2, c == 2 ? l6 : l1, a, 0.0,
+                                 "linear", k1) >= 0;
+    if (c < 2)
+      ok &= mrvi_model_add_term(m, MRVI_SLOW, 2, l2, a, 0.0, "linear", k1) >= 0;
     ok &= mrvi_model_add_term(m, MRVI_FAST, 2, l3, a, 0.0, "linear", k2) >= 0;
     ok &= mrvi_model_add_term(m, MRVI_FAST, 1, l4, a, 0.0, "linear", k2) >= 0;
     if (c == 1)
       ok &= mrvi_model_add_term(m, MRVI_FAST, 1, l5, a, 0.0, "power", pw) >= 0;
+    if (c == 2)
+      ok &= mrvi_model_add_term(m, MRVI_SLOW, 1, l1, a, 0.0, "power", pw) >= 0;
     CHECK(ok, "linear chain %d: %s", c, mrvi_model_errmsg(m));
   }
   const char *const schemes[3] = {"midpoint-midpoint", "trapezoidal-midpoint",
@@ -1157,11 +1179,14 @@ static void test_direct(void) {
       direct_case(fpu, "fpu", schemes[i], p, 0.03);
       direct_case(lin[0], "linear chain", schemes[i], p, 0.03);
       direct_case(lin[1], "chain with a quartic W", schemes[i], p + 1, 0.03);
+      direct_case(lin[2], "decoupled chains, quartic slow spring", schemes[i],
+                  p, 0.03);
       direct_case(ring, "spring ring", schemes[i], p, tt ? 0.001 : 0.01);
     }
   }
   mrvi_model_free(lin[0]);
   mrvi_model_free(lin[1]);
+  mrvi_model_free(lin[2]);
   mrvi_model_free(fpu);
   mrvi_model_free(ring);
 }

@@ -63,6 +63,7 @@ struct mrvi_blocks {
    * fast inputs. */
   mrvi_terms *kc[2];
   double *zp, *G, *H, *ms, *mf;
+  double *vel; /* p nf: the micro intervals' velocities (assemble_k) */
   int has_s[2], has_f[2];
   int assembled; /* the blocks hold the Newton matrix of the last
                     mrvi_blocks_assemble (not yet factored) */
@@ -71,6 +72,11 @@ struct mrvi_blocks {
    * the first assembly: Ass, Asf, Afs, D, L1, L2 in order. */
   int quad[2], const_ok;
   double *cblk;
+  /* The blocks still wait for their constant part (an assembly with jac
+   * after the first): restored by the first class that adds Hessians
+   * (before it; in its own pass if it keeps them per interval), or at the
+   * end of the assembly if none does. */
+  int restore;
   /* A class with a constant Hessian on small blocks (ns, nf <= 4) takes
    * its gradient as the affine map g0 + Hq z (nz and nz x nz): a few
    * products instead of a pass over its terms. */
@@ -121,6 +127,7 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->H);
   free(b->ms);
   free(b->mf);
+  free(b->vel);
   free(b->cblk);
   free(b->Hp);
   for (int c = 0; c < 2; c++) {
@@ -204,9 +211,10 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   ALLOC(b->H, nz * nz, double);
   ALLOC(b->ms, ns, double);
   ALLOC(b->mf, nf, double);
+  ALLOC(b->vel, nF, double);
 #undef ALLOC
   if (!b->blk || !b->piv || !b->z || !b->S || !b->r || !b->spiv || !b->dinv ||
-      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf) {
+      !b->sdinv || !b->zp || !b->G || !b->H || !b->ms || !b->mf || !b->vel) {
     mrvi_blocks_free(b);
     return MRVI_ENOMEM;
   }
@@ -408,17 +416,32 @@ ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
                               const double *restrict dinv, double *restrict B,
                               const int nrhs) {
   /* The factorisation swaps whole rows (P A = L U, L in its final row
-   * order): every swap applies to B before the forward substitution. */
-  UNROLL for (int k = 0; k + 1 < n; k++) { /* piv[n - 1] = n - 1 */
-    if (piv[k] != k) {
-      double *bk = B + k * nrhs, *br = B + piv[k] * nrhs;
-      UNROLL for (int c = 0; c < nrhs; c++) {
-        const double t = br[c];
-        br[c] = bk[c];
-        bk[c] = t;
+   * order): every swap applies to B before the forward substitution.
+   * Small n: each swap row r tested by its constant index, so that a B
+   * in locals stays in registers (a row picked by a run-time index makes
+   * the compiler keep B in memory). */
+  if (n <= 4) {
+    UNROLL for (int k = 0; k + 1 < n; k++)
+        UNROLL for (int r = k + 1; r < n; r++) {
+      if (piv[k] == r) {
+        UNROLL for (int c = 0; c < nrhs; c++) {
+          const double t = B[r * nrhs + c];
+          B[r * nrhs + c] = B[k * nrhs + c];
+          B[k * nrhs + c] = t;
+        }
       }
     }
-  }
+  } else
+    UNROLL for (int k = 0; k + 1 < n; k++) { /* piv[n - 1] = n - 1 */
+      if (piv[k] != k) {
+        double *bk = B + k * nrhs, *br = B + piv[k] * nrhs;
+        UNROLL for (int c = 0; c < nrhs; c++) {
+          const double t = br[c];
+          br[c] = bk[c];
+          bk[c] = t;
+        }
+      }
+    }
   UNROLL for (int k = 0; k < n; k++) {
     const double *bk = B + k * nrhs;
     UNROLL for (int i = k + 1; i < n; i++) {
@@ -438,6 +461,23 @@ ALWAYS_INLINE void lu_solve_k(const int n, const double *restrict A,
   }
 }
 
+/* x_m -= L1 x_{m-1} + L2 x_{m-2} (row block m >= 1; x_{m-2} unread at
+ * m = 1): the products summed apart from x_m (the L2 part does not wait
+ * for x_{m-1}). */
+ALWAYS_INLINE void
+couple_k(const int m, double *restrict xm, const double *restrict x1,
+         const double *restrict x2, const double *restrict L1,
+         const double *restrict L2, const int nf, const int nrhs) {
+  UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++) {
+    double s1 = 0.0, s2 = 0.0;
+    UNROLL for (int k = 0; k < nf; k++) s1 += L1[i * nf + k] * x1[k * nrhs + c];
+    if (m >= 2)
+      UNROLL for (int k = 0; k < nf; k++) s2 +=
+          L2[i * nf + k] * x2[k * nrhs + c];
+    xm[i * nrhs + c] -= s1 + s2;
+  }
+}
+
 /* Row block m of the block forward sweep (D factored, with its pivots and
  * reciprocal pivots): x_m <- D^-1 (x_m - L1 x_{m-1} - L2 x_{m-2}). */
 ALWAYS_INLINE void
@@ -448,17 +488,7 @@ sweep_row_k(const int m, double *restrict X, const double *restrict L1,
   double *restrict xm = X + (size_t)m * (size_t)row;
   const double *restrict x1 = xm - row, *restrict x2 = x1 - row;
   if (dense && m >= 1) {
-    /* x_m -= L1 x_{m-1} + L2 x_{m-2}: the products summed apart from x_m
-     * (the L2 part does not wait for x_{m-1}) */
-    UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++) {
-      double s1 = 0.0, s2 = 0.0;
-      UNROLL for (int k = 0; k < nf; k++) s1 +=
-          L1[i * nf + k] * x1[k * nrhs + c];
-      if (m >= 2)
-        UNROLL for (int k = 0; k < nf; k++) s2 +=
-            L2[i * nf + k] * x2[k * nrhs + c];
-      xm[i * nrhs + c] -= s1 + s2;
-    }
+    couple_k(m, xm, x1, x2, L1, L2, nf, nrhs);
   } else if (m >= 1) {
     UNROLL for (int d = 1; d <= 2 && d <= m; d++) {
       const double *restrict L = d == 1 ? L1 : L2;
@@ -505,6 +535,92 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
     SMALL(b->nf, NF, sweep_k(b, X, NF, 1));
   } else {
     SMALL(b->nf, NF, SMALL(nrhs, NR, sweep_k(b, X, NF, NR)));
+  }
+}
+
+/* Row block m of a dense sweep (sweep_row_k with nf <= 4) on locals: v
+ * holds x_m on entry, x1 and x2 the solved x_{m-1}, x_{m-2}; on return x_m
+ * is solved into v and stored, and x1, x2 move on.  Every value passes
+ * from row block to row block in registers: loaded back from X, the
+ * vector loads of a row block spanned two stores of the last one and
+ * missed the store-to-load forwarding. */
+ALWAYS_INLINE void
+row_regs_k(const int m, double *restrict xm, double *restrict x1,
+           double *restrict x2, const double *restrict L1,
+           const double *restrict L2, const double *restrict D, const int *piv,
+           const double *dinv, const int nf, const int nrhs) {
+  double v[16]; /* (nf, nrhs <= 4: constant indices once unrolled) */
+  UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++)
+      v[i * nrhs + c] = xm[i * nrhs + c];
+  if (m >= 1)
+    couple_k(m, v, x1, x2, L1, L2, nf, nrhs);
+  lu_solve_k(nf, D, piv, dinv, v, nrhs);
+  UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++) {
+    const int e = i * nrhs + c;
+    xm[e] = v[e];
+    x2[e] = x1[e];
+    x1[e] = v[e];
+  }
+}
+
+/* SMALL for n = 1..4 only (nothing otherwise): the kernels whose local
+ * arrays have the small sizes' bound. */
+#define SMALL4(n, N, ...)                                                      \
+  switch (n) {                                                                 \
+  case 1: {                                                                    \
+    enum { N = 1 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 2: {                                                                    \
+    enum { N = 2 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 3: {                                                                    \
+    enum { N = 3 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  case 4: {                                                                    \
+    enum { N = 4 };                                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  default:                                                                     \
+    break;                                                                     \
+  }
+
+/* Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 z in one sweep: row
+ * block m of Y, then of z (each as sweep_k alone: the same operations).
+ * Both chains run from row block to row block, each waiting on its last
+ * row block: in one loop the z chain overlaps the Y chains.  nf, ns in
+ * 1..4 as constants (SMALL4): the row blocks in registers (row_regs_k). */
+ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
+                            double *restrict z, const int nf, const int ns,
+                            const int regs) {
+  const size_t blk = (size_t)nf * (size_t)nf;
+  const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
+  if (regs) {
+    double y1[16], y2[16], z1[4], z2[4];
+    zero_k(y1, 16); /* (unread at m <= 1, but copied on) */
+    zero_k(y2, 16);
+    zero_k(z1, 4);
+    zero_k(z2, 4);
+    for (int m = 0; m < p; m++) {
+      const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
+      const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
+                   *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
+      const int *piv = b->piv + (size_t)r * nf;
+      row_regs_k(m, Y + (size_t)m * nf * ns, y1, y2, L1, L2, D, piv, dinv, nf,
+                 ns);
+      row_regs_k(m, z + (size_t)m * nf, z1, z2, L1, L2, D, piv, dinv, nf, 1);
+    }
+    return;
+  }
+  for (int m = 0; m < p; m++) {
+    const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
+    const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
+                 *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
+    const int *piv = b->piv + (size_t)r * nf;
+    sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
+    sweep_row_k(m, z, L1, L2, D, piv, dinv, nf, 1);
   }
 }
 
@@ -608,6 +724,39 @@ ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
   }
 }
 
+/* add_scaled2_k on the block dst of the blocks (c NULL), or, restoring
+ * the constant part in the same pass, dst = c + f1 s1 + f2 s2 from c, the
+ * block's saved constant part (c: dst's place in cblk; the same sums as
+ * the copy and then the adds; a plain copy if neither n1 nor n2). */
+ALWAYS_INLINE void acc2_k(double *restrict dst, int ldd,
+                          const double *restrict c, const double *restrict s1,
+                          double f1, int n1, const double *restrict s2,
+                          double f2, int n2, int lds, const int rows,
+                          const int cols) {
+  if (!c) {
+    add_scaled2_k(dst, ldd, s1, f1, n1, s2, f2, n2, lds, rows, cols);
+  } else if (n1 && n2) {
+    UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+        dst[i * ldd + j] =
+            (c[i * ldd + j] + f1 * s1[i * lds + j]) + f2 * s2[i * lds + j];
+  } else if (n1 || n2) {
+    const double *restrict sx = n1 ? s1 : s2;
+    const double f = n1 ? f1 : f2;
+    UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+        dst[i * ldd + j] = c[i * ldd + j] + f * sx[i * lds + j];
+  } else {
+    UNROLL for (int i = 0; i < rows; i++) UNROLL for (int j = 0; j < cols; j++)
+        dst[i * ldd + j] = c[i * ldd + j];
+  }
+}
+
+/* The place of block entry dst in the saved constant part if fresh, else
+ * NULL (acc2_k). */
+static inline const double *saved(const mrvi_blocks *b, const double *dst,
+                                  int fresh) {
+  return fresh ? b->cblk + (dst - b->blk) : NULL;
+}
+
 /* Row block m of the Hessians H of point m and HQ of point m - 1 (unread
  * at m = 0) of a class with one point per micro interval (point m in
  * interval m), with the factors r of row block m (row_coefs): row block m
@@ -618,7 +767,7 @@ ALWAYS_INLINE void add_scaled2_k(double *restrict dst, int ldd,
 ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const row_coef *r,
                                   const int m, const double *H,
                                   const double *HQ, int has_s, int has_f,
-                                  const int ns, const int nf) {
+                                  const int fresh, const int ns, const int nf) {
   const int nz = ns + nf, nF = b->p * nf;
   const size_t blk = (size_t)nf * (size_t)nf;
   const unsigned fl = r->fl;
@@ -627,53 +776,81 @@ ALWAYS_INLINE void interval_row_k(mrvi_blocks *b, const row_coef *r,
       add_scaled_k(b->Ass, ns, H, nz, ns, ns, r->ss);
     if (has_f) {
       /* slow rows, column block m - 1: Q by cB, P by cA */
-      if (m >= 1)
-        add_scaled2_k(b->Asf + (size_t)(m - 1) * nf, nF, HQ + ns, r->sfq,
-                      fl & RC_SFQ, H + ns, r->sfp, fl & RC_SFP, nz, ns, nf);
-      if (fl & RC_SFL)
-        add_scaled_k(b->Asf + (size_t)m * nf, nF, H + ns, nz, ns, nf, r->sfl);
+      if (m >= 1) {
+        double *d = b->Asf + (size_t)(m - 1) * nf;
+        acc2_k(d, nF, saved(b, d, fresh), HQ + ns, r->sfq, fl & RC_SFQ, H + ns,
+               r->sfp, fl & RC_SFP, nz, ns, nf);
+      }
+      if (m == b->p - 1) { /* (RC_SFL only here) */
+        double *d = b->Asf + (size_t)m * nf;
+        acc2_k(d, nF, saved(b, d, fresh), H + ns, r->sfl, fl & RC_SFL, H, 0.0,
+               0, nz, ns, nf);
+      }
       /* row block m, slow columns: Q by cB, P by cA */
-      add_scaled2_k(b->Afs + (size_t)m * nf * (size_t)ns, ns,
-                    HQ + (size_t)ns * nz, r->fsq, fl & RC_FSQ,
-                    H + (size_t)ns * nz, r->fsp, fl & RC_FSP, nz, nf, ns);
+      double *d = b->Afs + (size_t)m * nf * (size_t)ns;
+      acc2_k(d, ns, saved(b, d, fresh), HQ + (size_t)ns * nz, r->fsq,
+             fl & RC_FSQ, H + (size_t)ns * nz, r->fsp, fl & RC_FSP, nz, nf, ns);
     }
   }
   if (has_f) {
     const double *Hff = H + (size_t)ns * nz + ns,
                  *HQff = HQ + (size_t)ns * nz + ns;
     /* D_m: P, row cA, column cB; L1_m: Q by cB cB, then P by cA cA;
-     * L2_m: Q, row cB, column cA */
-    if (fl & RC_D)
-      add_scaled_k(b->D + (size_t)m * blk, nf, Hff, nz, nf, nf, r->d);
-    if (m >= 1)
-      add_scaled2_k(b->L1 + (size_t)m * blk, nf, HQff, r->l1q, fl & RC_L1Q, Hff,
-                    r->l1p, fl & RC_L1P, nz, nf, nf);
-    if (fl & RC_L2)
-      add_scaled_k(b->L2 + (size_t)m * blk, nf, HQff, nz, nf, nf, r->l2);
+     * L2_m: Q, row cB, column cA (flags only where m >= 1, 2) */
+    double *D = b->D + (size_t)m * blk, *L1 = b->L1 + (size_t)m * blk,
+           *L2 = b->L2 + (size_t)m * blk;
+    acc2_k(D, nf, saved(b, D, fresh), Hff, r->d, fl & RC_D, Hff, 0.0, 0, nz, nf,
+           nf);
+    acc2_k(L1, nf, saved(b, L1, fresh), HQff, r->l1q, fl & RC_L1Q, Hff, r->l1p,
+           fl & RC_L1P, nz, nf, nf);
+    acc2_k(L2, nf, saved(b, L2, fresh), HQff, r->l2, fl & RC_L2, Hff, 0.0, 0,
+           nz, nf, nf);
   }
 }
 
 /* The Hessians of a class with one point per interval into the blocks,
  * row block by row block (interval_row_k): point m's at H0 + m hstep
  * (the kept Hp, hstep one Hessian; or one Hessian for every point,
- * hstep 0). */
+ * hstep 0).  fresh: the blocks' constant part is restored in the same pass
+ * (each block read from cblk, the Hessians added, written once), as
+ * copy_blocks(b, 2) and then the adds would (the same sums); the blocks
+ * the rows do not reach (Ass, and the slow or fast blocks of a class
+ * without slow or fast inputs) are copied. */
 ALWAYS_INLINE void interval_hessians_k(mrvi_blocks *b, const row_coef *rc,
                                        const double *H0, size_t hstep,
-                                       int has_s, int has_f, const int ns,
-                                       const int nf) {
+                                       int has_s, int has_f, const int fresh,
+                                       const int ns, const int nf) {
+  if (fresh) {
+    const size_t nF = (size_t)b->p * (size_t)nf;
+    const double *c = b->cblk;
+    memcpy(b->Ass, c, (size_t)ns * (size_t)ns * sizeof(double));
+    if (!has_s || !has_f) /* A_sf, A_fs */
+      memcpy(b->Asf, saved(b, b->Asf, 1), 2 * ns * nF * sizeof(double));
+    if (!has_f) /* D, L1, L2 */
+      memcpy(b->D, saved(b, b->D, 1), 3 * nF * (size_t)nf * sizeof(double));
+  }
   for (int m = 0; m < b->p; m++)
     interval_row_k(b, rc + m, m, H0 + m * hstep,
-                   H0 + (m >= 1 ? m - 1 : 0) * hstep, has_s, has_f, ns, nf);
+                   H0 + (m >= 1 ? m - 1 : 0) * hstep, has_s, has_f, fresh, ns,
+                   nf);
 }
 
 /* (a call: inlined, it crowded the registers of the assembly loop) */
-static __attribute__((noinline)) void interval_hessians(mrvi_blocks *b, int c,
-                                                        int has_s, int has_f) {
+static __attribute__((noinline)) void
+interval_hessians(mrvi_blocks *b, int c, int has_s, int has_f, int fresh) {
   const row_coef *rc = b->rc[c];
-  SMALL(b->ns, NS,
-        SMALL(b->nf, NF,
-              interval_hessians_k(b, rc, b->Hp, (size_t)(NS + NF) * (NS + NF),
-                                  has_s, has_f, NS, NF)));
+  const double *H0 = b->Hp;
+  if (fresh) {
+    SMALL(b->ns, NS,
+          SMALL(b->nf, NF,
+                interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF),
+                                    has_s, has_f, 1, NS, NF)));
+  } else {
+    SMALL(b->ns, NS,
+          SMALL(b->nf, NF,
+                interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF),
+                                    has_s, has_f, 0, NS, NF)));
+  }
 }
 
 /* The chord matrix of a class with one point per interval: its Hessian H,
@@ -773,7 +950,7 @@ static void const_rows(mrvi_blocks *b, int c, const double *H, int has_s,
                        int has_f) {
   SMALL(b->ns, NS,
         SMALL(b->nf, NF,
-              interval_hessians_k(b, b->rc[c], H, 0, has_s, has_f, NS, NF)));
+              interval_hessians_k(b, b->rc[c], H, 0, has_s, has_f, 0, NS, NF)));
 }
 
 /* The constant part of the Newton matrix into the blocks: the kinetic rows
@@ -811,6 +988,21 @@ static void constant_part(mrvi_blocks *b, const mrvi_step *st,
   }
 }
 
+/* affine_grad_k with each G[i] read alone: G as the terms' kernel (a
+ * call) stored it, one entry at a time; a vector load of two entries
+ * would miss the store-to-load forwarding and wait for the stores. */
+ALWAYS_INLINE void affine_add_k(const double *restrict g0,
+                                const double *restrict Hq,
+                                const double *restrict z, double *restrict G,
+                                const int lo, const int nz) {
+  const volatile double *Gv = G;
+  UNROLL for (int i = lo; i < nz; i++) {
+    double t = g0[i];
+    UNROLL for (int j = lo; j < nz; j++) t += Hq[i * nz + j] * z[j];
+    G[i] = Gv[i] + t;
+  }
+}
+
 /* G += gradient of class c at zp: the terms, or g0 + Hq zp (from the
  * first fast column if the class has no slow inputs); H += its Hessian, or
  * with set H = its Hessian (mrvi_terms_eval_set: H need not be cleared). */
@@ -830,9 +1022,9 @@ ALWAYS_INLINE void class_grad_k(mrvi_blocks *b, int c, double *restrict G,
     return;
   }
   if (b->has_s[c]) /* (each with constant bounds) */
-    affine_grad_k(g0, Hq, b->zp, G, 0, ns + nf);
+    affine_add_k(g0, Hq, b->zp, G, 0, ns + nf);
   else
-    affine_grad_k(g0, Hq, b->zp, G, ns, ns + nf);
+    affine_add_k(g0, Hq, b->zp, G, ns, ns + nf);
 }
 
 /* The chord matrix's Hessian of loop class c (with W if the points are
@@ -855,6 +1047,20 @@ frozen_point(mrvi_blocks *b, const mrvi_step *st, const double *x, int c,
   frozen_hessian(b, H, st->pts[c], b->fw[b->quad[c] ? 1 : c], Hs, Hf);
 }
 
+/* vel[i] = (d[i] - d[i - nf]) / dt for i < n (d[i - nf] = 0 for i < nf):
+ * two at a time, which the compiler divides as a pair. */
+ALWAYS_INLINE void velocities_k(const double *restrict d, double *restrict vel,
+                                const int n, const int nf, const double dt) {
+  UNROLL for (int f = 0; f < nf; f++) vel[f] = d[f] / dt; /* (d - 0) / dt */
+  int i = nf;
+  for (; i + 1 < n; i += 2) {
+    vel[i] = (d[i] - d[i - nf]) / dt;
+    vel[i + 1] = (d[i + 1] - d[i + 1 - nf]) / dt;
+  }
+  if (i < n)
+    vel[i] = (d[i] - d[i - nf]) / dt;
+}
+
 /* The residual (with the momenta's potential parts) and, if jac, the
  * potential part of the Newton matrix (mrvi_blocks_assemble). */
 ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
@@ -869,20 +1075,16 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
-  double vl[nf > 0 ? nf : 1]; /* velocity of the interval before node mm */
+  /* The velocities of the micro intervals first, in one pass over the
+   * p nf entries (the divisions set the pace of these rows). */
   const double *restrict d0 = x + ns, *restrict mf = b->mf;
-  UNROLL for (int f = 0; f < nf; f++) {
-    vl[f] = d0[f] / dt; /* (d - 0) / dt */
-    R[ns + f] = st->pf0[f] - mf[f] * vl[f];
-  }
+  double *restrict vel = b->vel;
+  velocities_k(d0, vel, p * nf, nf, dt);
+  UNROLL for (int f = 0; f < nf; f++) R[ns + f] = st->pf0[f] - mf[f] * vel[f];
   for (int mm = 1; mm < p; mm++) {
-    const double *restrict d = x + ns + (size_t)mm * nf;
+    const double *restrict vl = vel + (size_t)(mm - 1) * nf;
     double *restrict Rm = R + ns + (size_t)mm * nf;
-    UNROLL for (int f = 0; f < nf; f++) {
-      const double vr = (d[f] - d[f - nf]) / dt;
-      Rm[f] = mf[f] * (vl[f] - vr);
-      vl[f] = vr;
-    }
+    UNROLL for (int f = 0; f < nf; f++) Rm[f] = mf[f] * (vl[f] - vl[f + nf]);
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
    * the Hessian) of the class at the point's configuration, into the rows
@@ -903,6 +1105,12 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
               hf = b->has_f[c] || b->has_f[c1];
     const int Hs = (h0 && b->has_s[c]) || (h1 && b->has_s[1]),
               Hf = (h0 && b->has_f[c]) || (h1 && b->has_f[1]);
+    /* Restored here unless in interval_hessians' pass. */
+    const int fresh = hess && defer && b->restore;
+    if (hess && !defer && b->restore) {
+      copy_blocks(b, 2);
+      b->restore = 0;
+    }
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       const int mm = pt->m;
@@ -942,10 +1150,16 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
       if (ph && !defer)
         point_hessian_k(b, pt, Hs, Hf, ns, nf);
     }
-    if (defer)
-      interval_hessians(b, c, Hs, Hf);
+    if (defer) {
+      interval_hessians(b, c, Hs, Hf, fresh);
+      b->restore = 0;
+    }
     if (frozen)
       frozen_point(b, st, x, c, h0, h1, Hs, Hf);
+  }
+  if (b->restore) { /* (no class adds Hessians) */
+    copy_blocks(b, 2);
+    b->restore = 0;
   }
 }
 
@@ -975,7 +1189,7 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
     b->const_ok = 1;
     b->const_uni = const_uniform(b);
   } else if (jac) {
-    copy_blocks(b, 2);
+    b->restore = 1; /* (by assemble_k) */
   }
   if (jac)
     b->uniform = b->chord && b->chord_st && b->const_uni;
@@ -1031,8 +1245,9 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
   }
 }
 
-/* Factorise the blocks as they are (scattered or assembled directly). */
-static int factor_blocks(mrvi_blocks *b) {
+/* Factorise the blocks as they are (scattered or assembled directly);
+ * with R (n_unknowns), also z = A_ff^-1 R_f, in the sweep of Y. */
+static int factor_blocks(mrvi_blocks *b, const double *R) {
   const int ns = b->ns, nf = b->nf, p = b->p;
   const size_t blk = (size_t)nf * (size_t)nf;
   int bad = 0;
@@ -1045,8 +1260,15 @@ static int factor_blocks(mrvi_blocks *b) {
   if (bad)
     return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
-  if (ns > 0)
+  if (R)
+    memcpy(b->z, R + ns, (size_t)p * (size_t)nf * sizeof(double));
+  if (R && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
+    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, NF, NS, 1)));
+  } else if (R) {
+    sweep2_k(b, b->Y, b->z, nf, ns, 0);
+  } else if (ns > 0) {
     sweep_solve(b, b->Y, ns);
+  }
   SMALL(ns, NS, schur_k(b, NS));
   if (ns > 0) {
     SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv, b->sdinv) < 0);
@@ -1054,14 +1276,19 @@ static int factor_blocks(mrvi_blocks *b) {
   return bad ? MRVI_ESINGULAR : MRVI_OK;
 }
 
-int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
+/* mrvi_blocks_factor, with z = A_ff^-1 R_f if R. */
+static int factor(mrvi_blocks *b, const mrvi_step *st, const double *R) {
   if (b->assembled) {
     b->assembled = 0;
-    return factor_blocks(b);
+    return factor_blocks(b, R);
   }
   b->uniform = 0;
   const int sc = scatter(b, st);
-  return sc < 0 ? sc : factor_blocks(b);
+  return sc < 0 ? sc : factor_blocks(b, R);
+}
+
+int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
+  return factor(b, st, NULL);
 }
 
 /* ds = S^-1 (R_s - A_sf z), df = z - Y ds (after z = A_ff^-1 R_f). */
@@ -1100,4 +1327,12 @@ void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
   memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
   sweep_solve(b, b->z, 1);
   SMALL(ns, NS, slow_solve_k(b, R, dx, NS));
+}
+
+int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,
+                             const double *R, double *dx) {
+  const int s = factor(b, st, R);
+  if (s == MRVI_OK)
+    SMALL(b->ns, NS, slow_solve_k(b, R, dx, NS));
+  return s;
 }

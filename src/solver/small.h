@@ -18,6 +18,7 @@
 #define ALWAYS_INLINE static inline
 #define UNROLL
 #define UNROLL2
+#define UNROLL_ALL
 #define SMALL(n, N, ...)                                                       \
   do {                                                                         \
     const int N = (n);                                                         \
@@ -29,6 +30,8 @@
 /* two iterations per pass of a loop of run-time length (the same
  * operations in the same order, half the loop control) */
 #define UNROLL2 _Pragma("GCC unroll 2")
+/* a loop of constant length unrolled in full (up to 64 iterations) */
+#define UNROLL_ALL _Pragma("GCC unroll 64")
 #define SMALL(n, N, ...)                                                       \
   switch (n) {                                                                 \
   case 1: {                                                                    \
@@ -53,6 +56,13 @@
   } break;                                                                     \
   }
 #endif
+
+/* a[0..n) = 0.  With n constant (nz x nz of a point's Hessian, up to 64
+ * entries), GCC stores vectors in line: `memset`, inlined for a fixed size,
+ * became `rep stos`, whose start-up cost exceeds the few stores. */
+ALWAYS_INLINE void zero_k(double *restrict a, const int n) {
+  UNROLL_ALL for (int i = 0; i < n; i++) a[i] = 0.0;
+}
 
 /* G[lo..nz) += g0 + Hq z on the rows and columns lo..nz-1 (g0: nz, Hq:
  * nz x nz): the gradient of a class whose Hessian is constant (quadratic
