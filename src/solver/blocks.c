@@ -563,30 +563,6 @@ row_regs_k(const int m, double *restrict xm, double *restrict x1,
   }
 }
 
-/* SMALL for n = 1..4 only (nothing otherwise): the kernels whose local
- * arrays have the small sizes' bound. */
-#define SMALL4(n, N, ...)                                                      \
-  switch (n) {                                                                 \
-  case 1: {                                                                    \
-    enum { N = 1 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  case 2: {                                                                    \
-    enum { N = 2 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  case 3: {                                                                    \
-    enum { N = 3 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  case 4: {                                                                    \
-    enum { N = 4 };                                                            \
-    __VA_ARGS__;                                                               \
-  } break;                                                                     \
-  default:                                                                     \
-    break;                                                                     \
-  }
-
 /* Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 z in one sweep: row
  * block m of Y, then of z (each as sweep_k alone: the same operations).
  * Both chains run from row block to row block, each waiting on its last
@@ -1262,7 +1238,7 @@ static int factor_blocks(mrvi_blocks *b, const double *R) {
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
   if (R)
     memcpy(b->z, R + ns, (size_t)p * (size_t)nf * sizeof(double));
-  if (R && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
+  if (R && MRVI_SMALL_KERNELS && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
     SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, NF, NS, 1)));
   } else if (R) {
     sweep2_k(b, b->Y, b->z, nf, ns, 0);

@@ -24,6 +24,10 @@
     const int N = (n);                                                         \
     __VA_ARGS__;                                                               \
   } while (0)
+/* (the callers of SMALL4 test MRVI_SMALL_KERNELS: nothing to compile) */
+#define SMALL4(n, N, ...)                                                      \
+  do {                                                                         \
+  } while (0)
 #else
 #define ALWAYS_INLINE static inline __attribute__((always_inline))
 #define UNROLL _Pragma("GCC unroll 4")
@@ -32,8 +36,8 @@
 #define UNROLL2 _Pragma("GCC unroll 2")
 /* a loop of constant length unrolled in full (up to 64 iterations) */
 #define UNROLL_ALL _Pragma("GCC unroll 64")
-#define SMALL(n, N, ...)                                                       \
-  switch (n) {                                                                 \
+/* The cases n = 1..4 of SMALL and SMALL4, N an integer constant. */
+#define SMALL_CASES(N, ...)                                                    \
   case 1: {                                                                    \
     enum { N = 1 };                                                            \
     __VA_ARGS__;                                                               \
@@ -49,11 +53,22 @@
   case 4: {                                                                    \
     enum { N = 4 };                                                            \
     __VA_ARGS__;                                                               \
-  } break;                                                                     \
+  } break;
+#define SMALL(n, N, ...)                                                       \
+  switch (n) {                                                                 \
+    SMALL_CASES(N, __VA_ARGS__)                                                \
   default: {                                                                   \
     const int N = (n);                                                         \
     __VA_ARGS__;                                                               \
   } break;                                                                     \
+  }
+/* SMALL for n = 1..4 only (nothing otherwise): the kernels whose local
+ * arrays have the small sizes' bound (the caller checks n). */
+#define SMALL4(n, N, ...)                                                      \
+  switch (n) {                                                                 \
+    SMALL_CASES(N, __VA_ARGS__)                                                \
+  default:                                                                     \
+    break;                                                                     \
   }
 #endif
 
