@@ -573,30 +573,26 @@ ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
                             const int regs) {
   const size_t blk = (size_t)nf * (size_t)nf;
   const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
+  double y1[16], y2[16], z1[4], z2[4]; /* (regs: the last two row blocks) */
   if (regs) {
-    double y1[16], y2[16], z1[4], z2[4];
     zero_k(y1, 16); /* (unread at m <= 1, but copied on) */
     zero_k(y2, 16);
     zero_k(z1, 4);
     zero_k(z2, 4);
-    for (int m = 0; m < p; m++) {
-      const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
-      const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
-                   *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
-      const int *piv = b->piv + (size_t)r * nf;
-      row_regs_k(m, Y + (size_t)m * nf * ns, y1, y2, L1, L2, D, piv, dinv, nf,
-                 ns);
-      row_regs_k(m, z + (size_t)m * nf, z1, z2, L1, L2, D, piv, dinv, nf, 1);
-    }
-    return;
   }
   for (int m = 0; m < p; m++) {
     const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
     const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
                  *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
     const int *piv = b->piv + (size_t)r * nf;
-    sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
-    sweep_row_k(m, z, L1, L2, D, piv, dinv, nf, 1);
+    if (regs) {
+      row_regs_k(m, Y + (size_t)m * nf * ns, y1, y2, L1, L2, D, piv, dinv, nf,
+                 ns);
+      row_regs_k(m, z + (size_t)m * nf, z1, z2, L1, L2, D, piv, dinv, nf, 1);
+    } else {
+      sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
+      sweep_row_k(m, z, L1, L2, D, piv, dinv, nf, 1);
+    }
   }
 }
 

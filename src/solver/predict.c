@@ -706,17 +706,9 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
       UNROLL for (int i = ns; i < nz; i++) tw[i] =
           g0[i] + Hq[i * nz + i] * z[i];
     else if (wlo == 0)
-      UNROLL for (int i = 0; i < nz; i++) {
-        double t = g0[i];
-        UNROLL for (int j = 0; j < nz; j++) t += Hq[i * nz + j] * z[j];
-        tw[i] = t;
-      }
+      affine_k(g0, Hq, z, tw, 0, nz, 0);
     else
-      UNROLL for (int i = ns; i < nz; i++) {
-        double t = g0[i];
-        UNROLL for (int j = ns; j < nz; j++) t += Hq[i * nz + j] * z[j];
-        tw[i] = t;
-      }
+      affine_k(g0, Hq, z, tw, ns, nz, 0);
   }
   UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
   if (J) { /* the slow solve's Hessian as well: at scale 1 (the flat

@@ -79,19 +79,28 @@ ALWAYS_INLINE void zero_k(double *restrict a, const int n) {
   UNROLL_ALL for (int i = 0; i < n; i++) a[i] = 0.0;
 }
 
-/* G[lo..nz) += g0 + Hq z on the rows and columns lo..nz-1 (g0: nz, Hq:
- * nz x nz): the gradient of a class whose Hessian is constant (quadratic
- * terms) and zero outside those rows and columns, as an affine map, a few
- * products instead of a pass over its terms (round-off apart, the same). */
+/* out[lo..nz) = g0 + Hq z on the rows and columns lo..nz-1 (g0: nz, Hq:
+ * nz x nz), or with add out += that: the gradient of a class whose Hessian
+ * is constant (quadratic terms) and zero outside those rows and columns,
+ * as an affine map, a few products instead of a pass over its terms
+ * (round-off apart, the same). */
+ALWAYS_INLINE void affine_k(const double *restrict g0,
+                            const double *restrict Hq, const double *restrict z,
+                            double *restrict out, const int lo, const int nz,
+                            const int add) {
+  UNROLL for (int i = lo; i < nz; i++) {
+    double t = g0[i];
+    UNROLL for (int j = lo; j < nz; j++) t += Hq[i * nz + j] * z[j];
+    out[i] = add ? out[i] + t : t;
+  }
+}
+
+/* G[lo..nz) += g0 + Hq z (affine_k). */
 ALWAYS_INLINE void affine_grad_k(const double *restrict g0,
                                  const double *restrict Hq,
                                  const double *restrict z, double *restrict G,
                                  const int lo, const int nz) {
-  UNROLL for (int i = lo; i < nz; i++) {
-    double t = g0[i];
-    UNROLL for (int j = lo; j < nz; j++) t += Hq[i * nz + j] * z[j];
-    G[i] += t;
-  }
+  affine_k(g0, Hq, z, G, lo, nz, 1);
 }
 
 #endif
