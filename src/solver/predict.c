@@ -124,6 +124,8 @@ struct mrvi_predictor {
    * over interval 0's implicit points of w cA (wins: their force F_0^A
    * estimated at node k, fimp0, nf). */
   double *gnode, *fimp0, wnode[2], wins[2];
+  /* sweep1_k's vectors in its run-time-size copy (8 of n) */
+  double *scr;
   int node_left; /* some point of interval 0 is at node k (AT_LEFT, a1 = 0) */
   /* The slow pre-solve (pre_solve): used at all (pre), done in this step
    * (presolved); the linear sweep's matrix K = (M^f/dt + S_AB H_ff)^-1
@@ -451,7 +453,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       !(pr->xs = malloc(3 * n * sizeof(double))) ||
       !(pr->b = malloc(4 * n * sizeof(double))) ||
       !(pr->fk = calloc(n, sizeof(double))) ||
-      !(pr->gnode = calloc(3 * n, sizeof(double)))) {
+      !(pr->gnode = calloc(3 * n, sizeof(double))) ||
+      !(pr->scr = calloc(8 * n, sizeof(double)))) {
     mrvi_predictor_free(pr);
     return MRVI_ENOMEM;
   }
@@ -576,6 +579,7 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fimp1);
   free(pr->fimp0);
   free(pr->gnode);
+  free(pr->scr);
   free(pr->fb);
   free(pr->pm);
   free(pr->H);
@@ -673,7 +677,10 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
   const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
   const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
   const int nz = ns + nf;
-  double tw[nz > 0 ? nz : 1];
+  /* (of constant size: a variable-length array cost a stack save and
+   * restore per call on the sweep's chain; W has an affine map only with
+   * ns, nf <= 4) */
+  double tw[8] = {0};
   UNROLL for (int s = 0; s < ns; s++) z[s] = qs0[s] + a1 * x[s];
   /* (the tests outside the loop: qf0 + cA d^m + cB d^{m+1}, a term 0.0
    * where its node is node k or its weight 0) */
@@ -701,8 +708,8 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
       affine_grad_k(pr->g0[c], pr->Hq[c], z, g, ns, nz);
     return;
   }
-  if (both && Hq) { /* (each with constant bounds) */
-    if (pr->wdiag)  /* (the off-diagonal products are zeros) */
+  if (both && Hq && nz <= 8) { /* (each with constant bounds) */
+    if (pr->wdiag)             /* (the off-diagonal products are zeros) */
       UNROLL for (int i = ns; i < nz; i++) tw[i] =
           g0[i] + Hq[i * nz + i] * z[i];
     else if (wlo == 0)
@@ -722,7 +729,7 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     mrvi_terms_grad(pr->kc[c], z, g);
   if (!both) /* W at V's point (pr->same) */
     return;
-  if (!Hq)
+  if (!Hq || nz > 8)
     mrvi_terms_grad(pr->kc[1], z, g);
   else if (wlo == 0)
     UNROLL for (int i = 0; i < nz; i++) g[i] += tw[i];
@@ -902,8 +909,22 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   const int implicit = k0 == INSIDE || k1 == INSIDE;
   const double dt = st->dt, *minv = pr->minv + ns;
   const mrvi_point *pts[2] = {st->pts[0], st->pts[1]};
-  double fs[ns > 0 ? ns : 1], fimp[nf > 0 ? nf : 1], fimp1[nf > 0 ? nf : 1],
-      pm[nf > 0 ? nf : 1], cm[nf > 0 ? nf : 1];
+  /* The sweep's short vectors: local arrays of constant size for blocks of
+   * at most 4, which the compiler can scalarise (as variable-length
+   * arrays they stayed in memory, each += a store and a reload on the
+   * chain from node to node, and cost a stack save and restore per node);
+   * pr->scr's in the copy with run-time sizes, compiled but not taken
+   * (one_point: ns, nf <= 4). */
+  const int loc = ns <= 4 && nf <= 4;
+  double lv[8][4];
+  double *sv = pr->scr;
+  double *restrict fs = loc ? lv[0] : sv, *restrict fimp = loc ? lv[1] : sv + n,
+                   *restrict fimp1 = loc ? lv[2] : sv + 2 * n,
+                   *restrict pm = loc ? lv[3] : sv + 3 * n,
+                   *restrict cm = loc ? lv[4] : sv + 4 * n,
+                   *restrict fexp = loc ? lv[5] : sv + 5 * n,
+                   *restrict fi = loc ? lv[6] : sv + 6 * n,
+                   *restrict fb = loc ? lv[7] : sv + 7 * n;
   UNROLL for (int s = 0; s < ns; s++) fs[s] = 0.0;
   UNROLL for (int f = 0; f < nf; f++) {
     fimp[f] = pr->fimp0[f];
@@ -914,7 +935,6 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
   for (int mm = 0; mm < p; mm++) {
     const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
     double *dn = x + ns + (size_t)mm * nf;
-    double fexp[nf > 0 ? nf : 1], fi[nf > 0 ? nf : 1], fb[nf > 0 ? nf : 1];
     UNROLL for (int f = 0; f < nf; f++) fexp[f] = fi[f] = fb[f] = 0.0;
     /* The points at node m (explicit): F^A, the slow row. */
     for (int c = 0; c < 2; c++) {

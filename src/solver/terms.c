@@ -483,12 +483,32 @@ ALWAYS_INLINE void flat_sym_k(const mrvi_terms *kc, const double *z, double *g,
   }
 }
 
-/* J cleared here by the library's memset (vector stores), not the
- * caller's (a fixed-size memset, which GCC inlines as `rep stos`: its
- * start-up costs more than the stores at this size). */
+/* J cleared here, not by the caller (a fixed-size memset, which GCC
+ * inlines as `rep stos`: its start-up costs more than the stores at this
+ * size): for ld <= 8 by vector stores in line (zero_k at constant sizes),
+ * else by the library's memset. */
+#if MRVI_SMALL_KERNELS
+#define ZERO_CASE(L)                                                           \
+  case L:                                                                      \
+    zero_k(J, (L) * (L));                                                      \
+    break;
+#else
+#define ZERO_CASE(L)
+#endif
 static __attribute__((noinline)) void
 flat_sym(const mrvi_terms *kc, const double *z, double *g, double *J, int ld) {
-  memset(J, 0, (size_t)ld * (size_t)ld * sizeof(double));
+  switch (ld) {
+    ZERO_CASE(1)
+    ZERO_CASE(2)
+    ZERO_CASE(3)
+    ZERO_CASE(4)
+    ZERO_CASE(5)
+    ZERO_CASE(6)
+    ZERO_CASE(7)
+    ZERO_CASE(8)
+  default:
+    memset(J, 0, (size_t)ld * (size_t)ld * sizeof(double));
+  }
   switch (kc->flat_k) {
   case -1:
     flat_sym_k(kc, z, g, J, ld, -1);
@@ -501,14 +521,20 @@ flat_sym(const mrvi_terms *kc, const double *z, double *g, double *J, int ld) {
   }
 }
 
-void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
-                         int ld) {
-  if (kc->sym) {
-    flat_sym(kc, z, g, J, ld);
-    return;
-  }
+static __attribute__((noinline)) void
+eval_set_any(mrvi_terms *kc, const double *z, double *g, double *J, int ld) {
   memset(J, 0, (size_t)ld * (size_t)ld * sizeof(double));
   mrvi_terms_eval(kc, z, 1.0, g, J, ld, 1.0);
+}
+
+/* (a dispatch that jumps to either: the registers the second saves were
+ * saved on the way to flat_sym as well) */
+void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
+                         int ld) {
+  if (kc->sym)
+    flat_sym(kc, z, g, J, ld);
+  else
+    eval_set_any(kc, z, g, J, ld);
 }
 
 int mrvi_terms_quadratic(const mrvi_terms *kc) {
