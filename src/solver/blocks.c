@@ -539,19 +539,19 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
 }
 
 /* Row block m of a dense sweep (sweep_row_k with nf <= 4) on locals: v
- * holds x_m on entry, x1 and x2 the solved x_{m-1}, x_{m-2}; on return x_m
- * is solved into v and stored, and x1, x2 move on.  Every value passes
- * from row block to row block in registers: loaded back from X, the
- * vector loads of a row block spanned two stores of the last one and
- * missed the store-to-load forwarding. */
+ * is read from src (x_m's right-hand side; src may be xm), x1 and x2 hold
+ * the solved x_{m-1}, x_{m-2}; x_m is solved into v and stored to xm, and
+ * x1, x2 move on.  Every value passes from row block to row block in
+ * registers: loaded back from X, the vector loads of a row block spanned
+ * two stores of the last one and missed the store-to-load forwarding. */
 ALWAYS_INLINE void
-row_regs_k(const int m, double *restrict xm, double *restrict x1,
+row_regs_k(const int m, const double *src, double *xm, double *restrict x1,
            double *restrict x2, const double *restrict L1,
            const double *restrict L2, const double *restrict D, const int *piv,
            const double *dinv, const int nf, const int nrhs) {
   double v[16]; /* (nf, nrhs <= 4: constant indices once unrolled) */
   UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++)
-      v[i * nrhs + c] = xm[i * nrhs + c];
+      v[i * nrhs + c] = src[i * nrhs + c];
   if (m >= 1)
     couple_k(m, v, x1, x2, L1, L2, nf, nrhs);
   lu_solve_k(nf, D, piv, dinv, v, nrhs);
@@ -563,14 +563,16 @@ row_regs_k(const int m, double *restrict xm, double *restrict x1,
   }
 }
 
-/* Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 z in one sweep: row
- * block m of Y, then of z (each as sweep_k alone: the same operations).
- * Both chains run from row block to row block, each waiting on its last
- * row block: in one loop the z chain overlaps the Y chains.  nf, ns in
- * 1..4 as constants (SMALL4): the row blocks in registers (row_regs_k). */
+/* With Y: Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 zs in one
+ * sweep, row block m of Y, then of z (each as sweep_k alone: the same
+ * operations); without, z alone.  Both chains run from row block to row
+ * block, each waiting on its last row block: in one loop the z chain
+ * overlaps the Y chains.  nf, ns in 1..4 as constants (SMALL4): the row
+ * blocks in registers (row_regs_k), z's right-hand side read from zs
+ * (a copy of p nf doubles first was a `rep movsb`). */
 ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
-                            double *restrict z, const int nf, const int ns,
-                            const int regs) {
+                            double *restrict z, const double *restrict zs,
+                            const int nf, const int ns, const int regs) {
   const size_t blk = (size_t)nf * (size_t)nf;
   const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
   double y1[16], y2[16], z1[4], z2[4]; /* (regs: the last two row blocks) */
@@ -579,6 +581,8 @@ ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
     zero_k(y2, 16);
     zero_k(z1, 4);
     zero_k(z2, 4);
+  } else {
+    memcpy(z, zs, (size_t)p * (size_t)nf * sizeof(double));
   }
   for (int m = 0; m < p; m++) {
     const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
@@ -586,11 +590,15 @@ ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
                  *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
     const int *piv = b->piv + (size_t)r * nf;
     if (regs) {
-      row_regs_k(m, Y + (size_t)m * nf * ns, y1, y2, L1, L2, D, piv, dinv, nf,
-                 ns);
-      row_regs_k(m, z + (size_t)m * nf, z1, z2, L1, L2, D, piv, dinv, nf, 1);
+      if (Y) {
+        double *ym = Y + (size_t)m * nf * ns;
+        row_regs_k(m, ym, ym, y1, y2, L1, L2, D, piv, dinv, nf, ns);
+      }
+      row_regs_k(m, zs + (size_t)m * nf, z + (size_t)m * nf, z1, z2, L1, L2, D,
+                 piv, dinv, nf, 1);
     } else {
-      sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
+      if (Y)
+        sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
       sweep_row_k(m, z, L1, L2, D, piv, dinv, nf, 1);
     }
   }
@@ -1040,10 +1048,8 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
                               const int nf) {
   const int p = b->p, nz = ns + nf;
   double *mps = st->mom_ps, *mpf = st->mom_pf;
-  if (mps) {
-    memset(mps, 0, (size_t)ns * sizeof(double));
-    memset(mpf, 0, (size_t)p * (size_t)nf * sizeof(double));
-  }
+  if (mps) /* (mpf cleared with the kinetic rows below) */
+    UNROLL for (int s = 0; s < ns; s++) mps[s] = 0.0;
   /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
@@ -1053,10 +1059,19 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   double *restrict vel = b->vel;
   velocities_k(d0, vel, p * nf, nf, dt);
   UNROLL for (int f = 0; f < nf; f++) R[ns + f] = st->pf0[f] - mf[f] * vel[f];
+  /* The momenta's potential parts cleared in the same loop, through a
+   * volatile pointer: GCC turns a loop of zero stores into a memset, and
+   * that of p nf doubles was a `rep stos` (p = 100: 2.4 kB, above the C
+   * library's threshold), whose start-up costs more than the stores. */
+  volatile double *mpv = mpf;
+  if (mpf)
+    UNROLL for (int f = 0; f < nf; f++) mpv[f] = 0.0;
   for (int mm = 1; mm < p; mm++) {
     const double *restrict vl = vel + (size_t)(mm - 1) * nf;
     double *restrict Rm = R + ns + (size_t)mm * nf;
     UNROLL for (int f = 0; f < nf; f++) Rm[f] = mf[f] * (vl[f] - vl[f + nf]);
+    if (mpf)
+      UNROLL for (int f = 0; f < nf; f++) mpv[(size_t)mm * nf + f] = 0.0;
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
    * the Hessian) of the class at the point's configuration, into the rows
@@ -1232,12 +1247,10 @@ static int factor_blocks(mrvi_blocks *b, const double *R) {
   if (bad)
     return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
-  if (R)
-    memcpy(b->z, R + ns, (size_t)p * (size_t)nf * sizeof(double));
   if (R && MRVI_SMALL_KERNELS && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
-    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, NF, NS, 1)));
+    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, R + ns, NF, NS, 1)));
   } else if (R) {
-    sweep2_k(b, b->Y, b->z, nf, ns, 0);
+    sweep2_k(b, ns > 0 ? b->Y : NULL, b->z, R + ns, nf, ns, 0);
   } else if (ns > 0) {
     sweep_solve(b, b->Y, ns);
   }
@@ -1295,9 +1308,14 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
 
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
   const int ns = b->ns, nF = b->p * b->nf;
-  /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds */
-  memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
-  sweep_solve(b, b->z, 1);
+  /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds; for
+   * small fast blocks through the register sweep */
+  if (MRVI_SMALL_KERNELS && b->nf >= 1 && b->nf <= 4) {
+    SMALL4(b->nf, NF, sweep2_k(b, NULL, b->z, R + ns, NF, 1, 1));
+  } else {
+    memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
+    sweep_solve(b, b->z, 1);
+  }
   SMALL(ns, NS, slow_solve_k(b, R, dx, NS));
 }
 
