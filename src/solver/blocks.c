@@ -563,6 +563,81 @@ row_regs_k(const int m, const double *src, double *xm, double *restrict x1,
   }
 }
 
+/* Two doubles as one vector (GCC's vector extension: each lane's
+ * arithmetic is the scalar one, IEEE, bit for bit). */
+typedef double v2d __attribute__((vector_size(16)));
+ALWAYS_INLINE v2d ld2(const double *p) {
+  v2d r;
+  memcpy(&r, p, sizeof r);
+  return r;
+}
+ALWAYS_INLINE void st2(double *p, v2d v) { memcpy(p, &v, sizeof v); }
+
+/* Row block m of Y (nf x ns, in place) and of z (from zs to zm) as the
+ * columns of one nf x (ns + 1) block [Y_m | z_m], ns + 1 = 2 np, in np
+ * vectors per row on locals (x1, x2: the last two row blocks): couple_k
+ * and lu_solve_k (n <= 4) on pairs of columns, each lane's operations
+ * those of row_regs_k on Y and on z alone in the same order (the same
+ * results, bit for bit), half the arithmetic instructions (ns = 3: the
+ * z column pairs with Y's third). */
+ALWAYS_INLINE void row_yz_k(const int m, double *restrict ym,
+                            const double *restrict zsm, double *restrict zm,
+                            v2d *restrict x1, v2d *restrict x2,
+                            const double *restrict L1,
+                            const double *restrict L2, const double *restrict D,
+                            const int *piv, const double *dinv, const int nf,
+                            const int np) {
+  const int ns = 2 * np - 1;
+  v2d v[8]; /* (nf <= 4, np <= 2) */
+  UNROLL for (int i = 0; i < nf; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++) v[i * np + c] =
+        ld2(ym + i * ns + 2 * c);
+    v[i * np + np - 1] = (v2d){ym[i * ns + ns - 1], zsm[i]};
+  }
+  if (m >= 1) /* couple_k */
+    UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < np; c++) {
+      v2d s1 = {0.0, 0.0}, s2 = {0.0, 0.0};
+      UNROLL for (int k = 0; k < nf; k++) s1 += L1[i * nf + k] * x1[k * np + c];
+      if (m >= 2)
+        UNROLL for (int k = 0; k < nf; k++) s2 +=
+            L2[i * nf + k] * x2[k * np + c];
+      v[i * np + c] -= s1 + s2;
+    }
+  /* lu_solve_k: the swaps by constant row indices, the substitutions */
+  UNROLL for (int k = 0; k + 1 < nf; k++)
+      UNROLL for (int r = k + 1; r < nf; r++) {
+    if (piv[k] == r)
+      UNROLL for (int c = 0; c < np; c++) {
+        const v2d t = v[r * np + c];
+        v[r * np + c] = v[k * np + c];
+        v[k * np + c] = t;
+      }
+  }
+  UNROLL for (int k = 0; k < nf; k++) UNROLL for (int i = k + 1; i < nf; i++) {
+    const double f = D[i * nf + k];
+    UNROLL for (int c = 0; c < np; c++) v[i * np + c] -= f * v[k * np + c];
+  }
+  UNROLL for (int i = nf - 1; i >= 0; i--) {
+    UNROLL for (int j = i + 1; j < nf; j++) {
+      const double a = D[i * nf + j];
+      UNROLL for (int c = 0; c < np; c++) v[i * np + c] -= a * v[j * np + c];
+    }
+    const double d = dinv[i];
+    UNROLL for (int c = 0; c < np; c++) v[i * np + c] *= d;
+  }
+  UNROLL for (int i = 0; i < nf; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++)
+        st2(ym + i * ns + 2 * c, v[i * np + c]);
+    const v2d t = v[i * np + np - 1];
+    ym[i * ns + ns - 1] = t[0];
+    zm[i] = t[1];
+  }
+  UNROLL for (int e = 0; e < nf * np; e++) {
+    x2[e] = x1[e];
+    x1[e] = v[e];
+  }
+}
+
 /* With Y: Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 zs in one
  * sweep, row block m of Y, then of z (each as sweep_k alone: the same
  * operations); without, z alone.  Both chains run from row block to row
@@ -576,11 +651,15 @@ ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
   const size_t blk = (size_t)nf * (size_t)nf;
   const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
   double y1[16], y2[16], z1[4], z2[4]; /* (regs: the last two row blocks) */
+  /* (regs, ns odd: Y and z as the column pairs of one block, row_yz_k) */
+  const int yz = regs && Y && ns % 2 == 1 && ns <= 3;
+  v2d w1[8], w2[8];
   if (regs) {
     zero_k(y1, 16); /* (unread at m <= 1, but copied on) */
     zero_k(y2, 16);
     zero_k(z1, 4);
     zero_k(z2, 4);
+    UNROLL_ALL for (int e = 0; e < 8; e++) w1[e] = w2[e] = (v2d){0.0, 0.0};
   } else {
     memcpy(z, zs, (size_t)p * (size_t)nf * sizeof(double));
   }
@@ -589,7 +668,11 @@ ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
     const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
                  *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
     const int *piv = b->piv + (size_t)r * nf;
-    if (regs) {
+    if (yz) {
+      row_yz_k(m, Y + (size_t)m * nf * ns, zs + (size_t)m * nf,
+               z + (size_t)m * nf, w1, w2, L1, L2, D, piv, dinv, nf,
+               (ns + 1) / 2);
+    } else if (regs) {
       if (Y) {
         double *ym = Y + (size_t)m * nf * ns;
         row_regs_k(m, ym, ym, y1, y2, L1, L2, D, piv, dinv, nf, ns);
