@@ -53,6 +53,8 @@ struct mrvi_blocks {
   int *piv;              /* p x nf (pivots of the factored D) */
   double *dinv, *sdinv;  /* p x nf, ns: reciprocal pivots of D and S */
   double *Y, *z, *S, *r; /* p nf x ns (in place of Afs), p nf, ns x ns, ns */
+  int r_done;            /* r = R_s - A_sf z made by the last factorisation
+                            (schur_r_k) */
   int *spiv;
   double **dst; /* block entry of every CSC entry (built on the first
                    factorisation: the pattern is fixed for the run) */
@@ -1315,6 +1317,39 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
   }
 }
 
+/* schur_k and, in the same pass, r = R_s - A_sf z (slow_solve_k's first
+ * part, into b->r) for ns = 1 or 3: the columns of S and r as pairs of
+ * lanes, [S_i0 S_i1 | S_i2 r_i] (ns = 3) or [S_00 r_0], each lane's sums
+ * those of schur_k and slow_solve_k in the same order (the same results,
+ * bit for bit), half the arithmetic instructions. */
+ALWAYS_INLINE void schur_r_k(mrvi_blocks *b, const double *R, const int ns) {
+  const int nF = b->p * b->nf, np = (ns + 1) / 2;
+  const double *restrict Y = b->Y, *restrict z = b->z, *restrict Asf = b->Asf;
+  v2d acc[3 * 2]; /* (ns <= 3: np <= 2) */
+  UNROLL for (int i = 0; i < ns; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++) acc[i * np + c] =
+        ld2(b->Ass + i * ns + 2 * c);
+    acc[i * np + np - 1] = (v2d){b->Ass[i * ns + ns - 1], R[i]};
+  }
+  UNROLL2 for (int k = 0; k < nF; k++) {
+    v2d y[2];
+    UNROLL for (int c = 0; c + 1 < np; c++) y[c] =
+        ld2(Y + (size_t)k * ns + 2 * c);
+    y[np - 1] = (v2d){Y[(size_t)k * ns + ns - 1], z[k]};
+    UNROLL for (int i = 0; i < ns; i++) {
+      const double a = Asf[(size_t)i * nF + k];
+      UNROLL for (int c = 0; c < np; c++) acc[i * np + c] -= a * y[c];
+    }
+  }
+  UNROLL for (int i = 0; i < ns; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++)
+        st2(b->S + i * ns + 2 * c, acc[i * np + c]);
+    const v2d t = acc[i * np + np - 1];
+    b->S[i * ns + ns - 1] = t[0];
+    b->r[i] = t[1];
+  }
+}
+
 /* Factorise the blocks as they are (scattered or assembled directly);
  * with R (n_unknowns), also z = A_ff^-1 R_f, in the sweep of Y. */
 static int factor_blocks(mrvi_blocks *b, const double *R) {
@@ -1337,7 +1372,15 @@ static int factor_blocks(mrvi_blocks *b, const double *R) {
   } else if (ns > 0) {
     sweep_solve(b, b->Y, ns);
   }
-  SMALL(ns, NS, schur_k(b, NS));
+  /* (with R and ns = 1 or 3: r = R_s - A_sf z too, b->r_done) */
+  b->r_done = R && MRVI_SMALL_KERNELS && (ns == 1 || ns == 3);
+  if (b->r_done && ns == 3) {
+    schur_r_k(b, R, 3);
+  } else if (b->r_done) {
+    schur_r_k(b, R, 1);
+  } else {
+    SMALL(ns, NS, schur_k(b, NS));
+  }
   if (ns > 0) {
     SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv, b->sdinv) < 0);
   }
@@ -1361,13 +1404,19 @@ int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
 
 /* ds = S^-1 (R_s - A_sf z), df = z - Y ds (after z = A_ff^-1 R_f). */
 ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
-                                double *restrict dx, const int ns) {
+                                double *restrict dx, const int rdone,
+                                const int ns) {
   const int nF = b->p * b->nf;
   const double *restrict z = b->z, *restrict Y = b->Y;
   double r[ns > 0 ? ns : 1];
   const double *restrict Asf = b->Asf;
-  UNROLL for (int i = 0; i < ns; i++) r[i] = R[i];
-  if (ns <= 4) /* the rows' sums side by side, each in its order */
+  if (rdone) /* (made with S: schur_r_k) */
+    UNROLL for (int i = 0; i < ns; i++) r[i] = b->r[i];
+  else
+    UNROLL for (int i = 0; i < ns; i++) r[i] = R[i];
+  if (rdone)
+    ;
+  else if (ns <= 4) /* the rows' sums side by side, each in its order */
     UNROLL2 for (int k = 0; k < nF; k++) {
       const double zk = z[k];
       UNROLL for (int i = 0; i < ns; i++) r[i] -= Asf[(size_t)i * nF + k] * zk;
@@ -1399,13 +1448,13 @@ void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
     memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
     sweep_solve(b, b->z, 1);
   }
-  SMALL(ns, NS, slow_solve_k(b, R, dx, NS));
+  SMALL(ns, NS, slow_solve_k(b, R, dx, 0, NS));
 }
 
 int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,
                              const double *R, double *dx) {
   const int s = factor(b, st, R);
   if (s == MRVI_OK)
-    SMALL(b->ns, NS, slow_solve_k(b, R, dx, NS));
+    SMALL(b->ns, NS, slow_solve_k(b, R, dx, b->r_done, NS));
   return s;
 }
