@@ -1410,24 +1410,22 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
   const double *restrict z = b->z, *restrict Y = b->Y;
   double r[ns > 0 ? ns : 1];
   const double *restrict Asf = b->Asf;
-  if (rdone) /* (made with S: schur_r_k) */
+  if (rdone) { /* (made with S: schur_r_k) */
     UNROLL for (int i = 0; i < ns; i++) r[i] = b->r[i];
-  else
+  } else if (ns <= 4) { /* the rows' sums side by side, each in its order */
     UNROLL for (int i = 0; i < ns; i++) r[i] = R[i];
-  if (rdone)
-    ;
-  else if (ns <= 4) /* the rows' sums side by side, each in its order */
     UNROLL2 for (int k = 0; k < nF; k++) {
       const double zk = z[k];
       UNROLL for (int i = 0; i < ns; i++) r[i] -= Asf[(size_t)i * nF + k] * zk;
     }
-  else /* (row by row: each row of A_sf read in order) */
+  } else { /* (row by row: each row of A_sf read in order) */
     for (int i = 0; i < ns; i++) {
       const double *restrict a = Asf + (size_t)i * (size_t)nF;
-      double s = r[i];
+      double s = R[i];
       UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
       r[i] = s;
     }
+  }
   if (ns > 0)
     lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
   UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];
