@@ -1171,12 +1171,32 @@ static void test_direct(void) {
       ok &= mrvi_model_add_term(m, MRVI_SLOW, 1, l1, a, 0.0, "power", pw) >= 0;
     CHECK(ok, "linear chain %d: %s", c, mrvi_model_errmsg(m));
   }
+  /* qs1 - qf1 - qf2, one slow coordinate (ns = 1: the sweep's Y and z
+   * in one vector per row, row_yz_k with one column pair), a quartic V
+   * spring on qf2 */
+  mrvi_model *one = mrvi_model_create();
+  {
+    const char *names[3] = {"qs1", "qf1", "qf2"};
+    for (int i = 0; i < 3; i++)
+      mrvi_model_add_coordinate(one, names[i], 1.0 + 0.5 * i,
+                                i < 1 ? MRVI_SLOW : MRVI_FAST, 0.1 * i,
+                                1.0 - 0.3 * i);
+    const int l1[2] = {0, 1}, l2[2] = {1, 2}, l3[1] = {1}, l4[1] = {2};
+    const double k1[1] = {3.0}, k2[1] = {400.0}, pw[2] = {100.0, 4.0};
+    int ok =
+        mrvi_model_add_term(one, MRVI_SLOW, 2, l1, a, 0.0, "linear", k1) >= 0;
+    ok &= mrvi_model_add_term(one, MRVI_FAST, 2, l2, a, 0.0, "linear", k2) >= 0;
+    ok &= mrvi_model_add_term(one, MRVI_FAST, 1, l3, a, 0.0, "linear", k2) >= 0;
+    ok &= mrvi_model_add_term(one, MRVI_SLOW, 1, l4, a, 0.0, "power", pw) >= 0;
+    CHECK(ok, "one slow coordinate: %s", mrvi_model_errmsg(one));
+  }
   const char *const schemes[3] = {"midpoint-midpoint", "trapezoidal-midpoint",
                                   "trapezoidal-trapezoidal"};
   for (int i = 0; i < 3; i++) {
     const int tt = i == 2;
     for (int p = 1; p <= 5; p += 4) {
       direct_case(fpu, "fpu", schemes[i], p, 0.03);
+      direct_case(one, "one slow coordinate", schemes[i], p, 0.03);
       direct_case(lin[0], "linear chain", schemes[i], p, 0.03);
       direct_case(lin[1], "chain with a quartic W", schemes[i], p + 1, 0.03);
       direct_case(lin[2], "decoupled chains, quartic slow spring", schemes[i],
@@ -1187,6 +1207,7 @@ static void test_direct(void) {
   mrvi_model_free(lin[0]);
   mrvi_model_free(lin[1]);
   mrvi_model_free(lin[2]);
+  mrvi_model_free(one);
   mrvi_model_free(fpu);
   mrvi_model_free(ring);
 }

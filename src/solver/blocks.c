@@ -53,6 +53,8 @@ struct mrvi_blocks {
   int *piv;              /* p x nf (pivots of the factored D) */
   double *dinv, *sdinv;  /* p x nf, ns: reciprocal pivots of D and S */
   double *Y, *z, *S, *r; /* p nf x ns (in place of Afs), p nf, ns x ns, ns */
+  int r_done;            /* r = R_s - A_sf z made by the last factorisation
+                            (schur_r_k) */
   int *spiv;
   double **dst; /* block entry of every CSC entry (built on the first
                    factorisation: the pattern is fixed for the run) */
@@ -539,19 +541,19 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
 }
 
 /* Row block m of a dense sweep (sweep_row_k with nf <= 4) on locals: v
- * holds x_m on entry, x1 and x2 the solved x_{m-1}, x_{m-2}; on return x_m
- * is solved into v and stored, and x1, x2 move on.  Every value passes
- * from row block to row block in registers: loaded back from X, the
- * vector loads of a row block spanned two stores of the last one and
- * missed the store-to-load forwarding. */
+ * is read from src (x_m's right-hand side; src may be xm), x1 and x2 hold
+ * the solved x_{m-1}, x_{m-2}; x_m is solved into v and stored to xm, and
+ * x1, x2 move on.  Every value passes from row block to row block in
+ * registers: loaded back from X, the vector loads of a row block spanned
+ * two stores of the last one and missed the store-to-load forwarding. */
 ALWAYS_INLINE void
-row_regs_k(const int m, double *restrict xm, double *restrict x1,
+row_regs_k(const int m, const double *src, double *xm, double *restrict x1,
            double *restrict x2, const double *restrict L1,
            const double *restrict L2, const double *restrict D, const int *piv,
            const double *dinv, const int nf, const int nrhs) {
   double v[16]; /* (nf, nrhs <= 4: constant indices once unrolled) */
   UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < nrhs; c++)
-      v[i * nrhs + c] = xm[i * nrhs + c];
+      v[i * nrhs + c] = src[i * nrhs + c];
   if (m >= 1)
     couple_k(m, v, x1, x2, L1, L2, nf, nrhs);
   lu_solve_k(nf, D, piv, dinv, v, nrhs);
@@ -563,34 +565,125 @@ row_regs_k(const int m, double *restrict xm, double *restrict x1,
   }
 }
 
-/* Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 z in one sweep: row
- * block m of Y, then of z (each as sweep_k alone: the same operations).
- * Both chains run from row block to row block, each waiting on its last
- * row block: in one loop the z chain overlaps the Y chains.  nf, ns in
- * 1..4 as constants (SMALL4): the row blocks in registers (row_regs_k). */
+/* Two doubles as one vector (GCC's vector extension: each lane's
+ * arithmetic is the scalar one, IEEE, bit for bit). */
+typedef double v2d __attribute__((vector_size(16)));
+ALWAYS_INLINE v2d ld2(const double *p) {
+  v2d r;
+  memcpy(&r, p, sizeof r);
+  return r;
+}
+ALWAYS_INLINE void st2(double *p, v2d v) { memcpy(p, &v, sizeof v); }
+
+/* Row block m of Y (nf x ns, in place) and of z (from zs to zm) as the
+ * columns of one nf x (ns + 1) block [Y_m | z_m], ns + 1 = 2 np, in np
+ * vectors per row on locals (x1, x2: the last two row blocks): couple_k
+ * and lu_solve_k (n <= 4) on pairs of columns, each lane's operations
+ * those of row_regs_k on Y and on z alone in the same order (the same
+ * results, bit for bit), half the arithmetic instructions (ns = 3: the
+ * z column pairs with Y's third). */
+ALWAYS_INLINE void row_yz_k(const int m, double *restrict ym,
+                            const double *restrict zsm, double *restrict zm,
+                            v2d *restrict x1, v2d *restrict x2,
+                            const double *restrict L1,
+                            const double *restrict L2, const double *restrict D,
+                            const int *piv, const double *dinv, const int nf,
+                            const int np) {
+  const int ns = 2 * np - 1;
+  v2d v[8]; /* (nf <= 4, np <= 2) */
+  UNROLL for (int i = 0; i < nf; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++) v[i * np + c] =
+        ld2(ym + i * ns + 2 * c);
+    v[i * np + np - 1] = (v2d){ym[i * ns + ns - 1], zsm[i]};
+  }
+  if (m >= 1) /* couple_k */
+    UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < np; c++) {
+      v2d s1 = {0.0, 0.0}, s2 = {0.0, 0.0};
+      UNROLL for (int k = 0; k < nf; k++) s1 += L1[i * nf + k] * x1[k * np + c];
+      if (m >= 2)
+        UNROLL for (int k = 0; k < nf; k++) s2 +=
+            L2[i * nf + k] * x2[k * np + c];
+      v[i * np + c] -= s1 + s2;
+    }
+  /* lu_solve_k: the swaps by constant row indices, the substitutions */
+  UNROLL for (int k = 0; k + 1 < nf; k++)
+      UNROLL for (int r = k + 1; r < nf; r++) {
+    if (piv[k] == r)
+      UNROLL for (int c = 0; c < np; c++) {
+        const v2d t = v[r * np + c];
+        v[r * np + c] = v[k * np + c];
+        v[k * np + c] = t;
+      }
+  }
+  UNROLL for (int k = 0; k < nf; k++) UNROLL for (int i = k + 1; i < nf; i++) {
+    const double f = D[i * nf + k];
+    UNROLL for (int c = 0; c < np; c++) v[i * np + c] -= f * v[k * np + c];
+  }
+  UNROLL for (int i = nf - 1; i >= 0; i--) {
+    UNROLL for (int j = i + 1; j < nf; j++) {
+      const double a = D[i * nf + j];
+      UNROLL for (int c = 0; c < np; c++) v[i * np + c] -= a * v[j * np + c];
+    }
+    const double d = dinv[i];
+    UNROLL for (int c = 0; c < np; c++) v[i * np + c] *= d;
+  }
+  UNROLL for (int i = 0; i < nf; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++)
+        st2(ym + i * ns + 2 * c, v[i * np + c]);
+    const v2d t = v[i * np + np - 1];
+    ym[i * ns + ns - 1] = t[0];
+    zm[i] = t[1];
+  }
+  UNROLL for (int e = 0; e < nf * np; e++) {
+    x2[e] = x1[e];
+    x1[e] = v[e];
+  }
+}
+
+/* With Y: Y (p nf x ns) <- A_ff^-1 Y and z (p nf) <- A_ff^-1 zs in one
+ * sweep, row block m of Y, then of z (each as sweep_k alone: the same
+ * operations); without, z alone.  Both chains run from row block to row
+ * block, each waiting on its last row block: in one loop the z chain
+ * overlaps the Y chains.  nf, ns in 1..4 as constants (SMALL4): the row
+ * blocks in registers (row_regs_k), z's right-hand side read from zs
+ * (a copy of p nf doubles first was a `rep movsb`). */
 ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
-                            double *restrict z, const int nf, const int ns,
-                            const int regs) {
+                            double *restrict z, const double *restrict zs,
+                            const int nf, const int ns, const int regs) {
   const size_t blk = (size_t)nf * (size_t)nf;
   const int p = b->p, last = b->uniform && p > 3 ? 3 : p;
   double y1[16], y2[16], z1[4], z2[4]; /* (regs: the last two row blocks) */
+  /* (regs, ns odd: Y and z as the column pairs of one block, row_yz_k) */
+  const int yz = regs && Y && ns % 2 == 1 && ns <= 3;
+  v2d w1[8], w2[8];
   if (regs) {
     zero_k(y1, 16); /* (unread at m <= 1, but copied on) */
     zero_k(y2, 16);
     zero_k(z1, 4);
     zero_k(z2, 4);
+    UNROLL_ALL for (int e = 0; e < 8; e++) w1[e] = w2[e] = (v2d){0.0, 0.0};
+  } else {
+    memcpy(z, zs, (size_t)p * (size_t)nf * sizeof(double));
   }
   for (int m = 0; m < p; m++) {
     const int r = m < last ? m : 2; /* (uniform: row block 2's from 2 on) */
     const double *L1 = b->L1 + r * blk, *L2 = b->L2 + r * blk,
                  *D = b->D + r * blk, *dinv = b->dinv + (size_t)r * nf;
     const int *piv = b->piv + (size_t)r * nf;
-    if (regs) {
-      row_regs_k(m, Y + (size_t)m * nf * ns, y1, y2, L1, L2, D, piv, dinv, nf,
-                 ns);
-      row_regs_k(m, z + (size_t)m * nf, z1, z2, L1, L2, D, piv, dinv, nf, 1);
+    if (yz) {
+      row_yz_k(m, Y + (size_t)m * nf * ns, zs + (size_t)m * nf,
+               z + (size_t)m * nf, w1, w2, L1, L2, D, piv, dinv, nf,
+               (ns + 1) / 2);
+    } else if (regs) {
+      if (Y) {
+        double *ym = Y + (size_t)m * nf * ns;
+        row_regs_k(m, ym, ym, y1, y2, L1, L2, D, piv, dinv, nf, ns);
+      }
+      row_regs_k(m, zs + (size_t)m * nf, z + (size_t)m * nf, z1, z2, L1, L2, D,
+                 piv, dinv, nf, 1);
     } else {
-      sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
+      if (Y)
+        sweep_row_k(m, Y, L1, L2, D, piv, dinv, nf, ns);
       sweep_row_k(m, z, L1, L2, D, piv, dinv, nf, 1);
     }
   }
@@ -1040,10 +1133,8 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
                               const int nf) {
   const int p = b->p, nz = ns + nf;
   double *mps = st->mom_ps, *mpf = st->mom_pf;
-  if (mps) {
-    memset(mps, 0, (size_t)ns * sizeof(double));
-    memset(mpf, 0, (size_t)p * (size_t)nf * sizeof(double));
-  }
+  if (mps) /* (mpf cleared with the kinetic rows below) */
+    UNROLL for (int s = 0; s < ns; s++) mps[s] = 0.0;
   /* Kinetic rows (step.c, assemble_kinetic) on the displacements x. */
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) R[s] = st->ps0[s] - b->ms[s] * x[s] / dT;
@@ -1053,10 +1144,19 @@ ALWAYS_INLINE void assemble_k(mrvi_blocks *b, const mrvi_step *st,
   double *restrict vel = b->vel;
   velocities_k(d0, vel, p * nf, nf, dt);
   UNROLL for (int f = 0; f < nf; f++) R[ns + f] = st->pf0[f] - mf[f] * vel[f];
+  /* The momenta's potential parts cleared in the same loop, through a
+   * volatile pointer: GCC turns a loop of zero stores into a memset, and
+   * that of p nf doubles was a `rep stos` (p = 100: 2.4 kB, above the C
+   * library's threshold), whose start-up costs more than the stores. */
+  volatile double *mpv = mpf;
+  if (mpf)
+    UNROLL for (int f = 0; f < nf; f++) mpv[f] = 0.0;
   for (int mm = 1; mm < p; mm++) {
     const double *restrict vl = vel + (size_t)(mm - 1) * nf;
     double *restrict Rm = R + ns + (size_t)mm * nf;
     UNROLL for (int f = 0; f < nf; f++) Rm[f] = mf[f] * (vl[f] - vl[f + nf]);
+    if (mpf)
+      UNROLL for (int f = 0; f < nf; f++) mpv[(size_t)mm * nf + f] = 0.0;
   }
   /* Potential points: gradient (and, for a Hessian that is not constant,
    * the Hessian) of the class at the point's configuration, into the rows
@@ -1217,6 +1317,39 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
   }
 }
 
+/* schur_k and, in the same pass, r = R_s - A_sf z (slow_solve_k's first
+ * part, into b->r) for ns = 1 or 3: the columns of S and r as pairs of
+ * lanes, [S_i0 S_i1 | S_i2 r_i] (ns = 3) or [S_00 r_0], each lane's sums
+ * those of schur_k and slow_solve_k in the same order (the same results,
+ * bit for bit), half the arithmetic instructions. */
+ALWAYS_INLINE void schur_r_k(mrvi_blocks *b, const double *R, const int ns) {
+  const int nF = b->p * b->nf, np = (ns + 1) / 2;
+  const double *restrict Y = b->Y, *restrict z = b->z, *restrict Asf = b->Asf;
+  v2d acc[3 * 2]; /* (ns <= 3: np <= 2) */
+  UNROLL for (int i = 0; i < ns; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++) acc[i * np + c] =
+        ld2(b->Ass + i * ns + 2 * c);
+    acc[i * np + np - 1] = (v2d){b->Ass[i * ns + ns - 1], R[i]};
+  }
+  UNROLL2 for (int k = 0; k < nF; k++) {
+    v2d y[2];
+    UNROLL for (int c = 0; c + 1 < np; c++) y[c] =
+        ld2(Y + (size_t)k * ns + 2 * c);
+    y[np - 1] = (v2d){Y[(size_t)k * ns + ns - 1], z[k]};
+    UNROLL for (int i = 0; i < ns; i++) {
+      const double a = Asf[(size_t)i * nF + k];
+      UNROLL for (int c = 0; c < np; c++) acc[i * np + c] -= a * y[c];
+    }
+  }
+  UNROLL for (int i = 0; i < ns; i++) {
+    UNROLL for (int c = 0; c + 1 < np; c++)
+        st2(b->S + i * ns + 2 * c, acc[i * np + c]);
+    const v2d t = acc[i * np + np - 1];
+    b->S[i * ns + ns - 1] = t[0];
+    b->r[i] = t[1];
+  }
+}
+
 /* Factorise the blocks as they are (scattered or assembled directly);
  * with R (n_unknowns), also z = A_ff^-1 R_f, in the sweep of Y. */
 static int factor_blocks(mrvi_blocks *b, const double *R) {
@@ -1232,16 +1365,22 @@ static int factor_blocks(mrvi_blocks *b, const double *R) {
   if (bad)
     return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
-  if (R)
-    memcpy(b->z, R + ns, (size_t)p * (size_t)nf * sizeof(double));
   if (R && MRVI_SMALL_KERNELS && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
-    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, NF, NS, 1)));
+    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, R + ns, NF, NS, 1)));
   } else if (R) {
-    sweep2_k(b, b->Y, b->z, nf, ns, 0);
+    sweep2_k(b, ns > 0 ? b->Y : NULL, b->z, R + ns, nf, ns, 0);
   } else if (ns > 0) {
     sweep_solve(b, b->Y, ns);
   }
-  SMALL(ns, NS, schur_k(b, NS));
+  /* (with R and ns = 1 or 3: r = R_s - A_sf z too, b->r_done) */
+  b->r_done = R && MRVI_SMALL_KERNELS && (ns == 1 || ns == 3);
+  if (b->r_done && ns == 3) {
+    schur_r_k(b, R, 3);
+  } else if (b->r_done) {
+    schur_r_k(b, R, 1);
+  } else {
+    SMALL(ns, NS, schur_k(b, NS));
+  }
   if (ns > 0) {
     SMALL(ns, NS, bad = lu_factor_k(NS, b->S, b->spiv, b->sdinv) < 0);
   }
@@ -1265,24 +1404,28 @@ int mrvi_blocks_factor(mrvi_blocks *b, const mrvi_step *st) {
 
 /* ds = S^-1 (R_s - A_sf z), df = z - Y ds (after z = A_ff^-1 R_f). */
 ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
-                                double *restrict dx, const int ns) {
+                                double *restrict dx, const int rdone,
+                                const int ns) {
   const int nF = b->p * b->nf;
   const double *restrict z = b->z, *restrict Y = b->Y;
   double r[ns > 0 ? ns : 1];
   const double *restrict Asf = b->Asf;
-  UNROLL for (int i = 0; i < ns; i++) r[i] = R[i];
-  if (ns <= 4) /* the rows' sums side by side, each in its order */
+  if (rdone) { /* (made with S: schur_r_k) */
+    UNROLL for (int i = 0; i < ns; i++) r[i] = b->r[i];
+  } else if (ns <= 4) { /* the rows' sums side by side, each in its order */
+    UNROLL for (int i = 0; i < ns; i++) r[i] = R[i];
     UNROLL2 for (int k = 0; k < nF; k++) {
       const double zk = z[k];
       UNROLL for (int i = 0; i < ns; i++) r[i] -= Asf[(size_t)i * nF + k] * zk;
     }
-  else /* (row by row: each row of A_sf read in order) */
+  } else { /* (row by row: each row of A_sf read in order) */
     for (int i = 0; i < ns; i++) {
       const double *restrict a = Asf + (size_t)i * (size_t)nF;
-      double s = r[i];
+      double s = R[i];
       UNROLL2 for (int k = 0; k < nF; k++) s -= a[k] * z[k];
       r[i] = s;
     }
+  }
   if (ns > 0)
     lu_solve_k(ns, b->S, b->spiv, b->sdinv, r, 1);
   UNROLL for (int j = 0; j < ns; j++) dx[j] = r[j];
@@ -1295,16 +1438,21 @@ ALWAYS_INLINE void slow_solve_k(const mrvi_blocks *b, const double *R,
 
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
   const int ns = b->ns, nF = b->p * b->nf;
-  /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds */
-  memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
-  sweep_solve(b, b->z, 1);
-  SMALL(ns, NS, slow_solve_k(b, R, dx, NS));
+  /* z = A_ff^-1 R_f, r = R_s - A_sf z, ds = S^-1 r, df = z - Y ds; for
+   * small fast blocks through the register sweep */
+  if (MRVI_SMALL_KERNELS && b->nf >= 1 && b->nf <= 4) {
+    SMALL4(b->nf, NF, sweep2_k(b, NULL, b->z, R + ns, NF, 1, 1));
+  } else {
+    memcpy(b->z, R + ns, (size_t)nF * sizeof(double));
+    sweep_solve(b, b->z, 1);
+  }
+  SMALL(ns, NS, slow_solve_k(b, R, dx, 0, NS));
 }
 
 int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,
                              const double *R, double *dx) {
   const int s = factor(b, st, R);
   if (s == MRVI_OK)
-    SMALL(b->ns, NS, slow_solve_k(b, R, dx, NS));
+    SMALL(b->ns, NS, slow_solve_k(b, R, dx, b->r_done, NS));
   return s;
 }
