@@ -111,7 +111,14 @@ struct mrvi_blocks {
    * (cf_status its factorisation's status). */
   mrvi_blocks *cf;
   int cf_status;
+  /* ... and on a step of at most MRVI_CCHORD_DENSE unknowns its inverse
+   * (n x n, by rows): a solve is then n independent dot products instead
+   * of the sweeps' chain. */
+  double *cinv;
+  int n_cinv;
 };
+
+#define MRVI_CCHORD_DENSE 16
 
 void mrvi_blocks_free(mrvi_blocks *b) {
   if (!b)
@@ -136,6 +143,7 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->cblk);
   free(b->Hp);
   mrvi_blocks_free(b->cf);
+  free(b->cinv);
   for (int c = 0; c < 2; c++) {
     free(b->rc[c]);
     free(b->fw[c]);
@@ -1340,13 +1348,42 @@ int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
   }
   memcpy(b->cf->blk, b->cblk, b->n_blk * sizeof(double));
   b->cf->assembled = 1; /* (factored as they are) */
-  return b->cf_status = mrvi_blocks_factor(b->cf, st);
+  if ((b->cf_status = mrvi_blocks_factor(b->cf, st)) < 0)
+    return b->cf_status;
+  /* Small steps: the inverse, column j the solve of the unit vector e_j. */
+  const int n = b->ns + b->p * b->nf;
+  if (n > MRVI_CCHORD_DENSE)
+    return MRVI_OK;
+  double e[MRVI_CCHORD_DENSE], col[MRVI_CCHORD_DENSE];
+  if (!(b->cinv = malloc((size_t)n * (size_t)n * sizeof(double))))
+    return b->cf_status = MRVI_ENOMEM;
+  for (int j = 0; j < n; j++) {
+    for (int i = 0; i < n; i++)
+      e[i] = i == j;
+    mrvi_blocks_solve(b->cf, e, col);
+    for (int i = 0; i < n; i++)
+      b->cinv[i * n + j] = col[i];
+  }
+  b->n_cinv = n;
+  return MRVI_OK;
 }
 
-/* Solve with the constant chord's factors (mrvi_blocks_const_factor). */
+/* Solve with the constant chord's factors (mrvi_blocks_const_factor): by
+ * its inverse on small steps (the same dx to round-off). */
 void mrvi_blocks_const_solve(const mrvi_blocks *b, const double *R,
                              double *dx) {
-  mrvi_blocks_solve(b->cf, R, dx);
+  const int n = b->n_cinv;
+  if (!n) {
+    mrvi_blocks_solve(b->cf, R, dx);
+    return;
+  }
+  const double *restrict A = b->cinv;
+  for (int i = 0; i < n; i++) {
+    double s = 0.0;
+    for (int j = 0; j < n; j++)
+      s += A[i * n + j] * R[j];
+    dx[i] = s;
+  }
 }
 
 /* 1 if a point of class c puts its Hessian into the Newton matrix: a row
