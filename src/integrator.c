@@ -609,12 +609,12 @@ static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
         mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
       else
         it->factors_ok = 1;
-    } else if (it->const_kept) {
-      mrvi_blocks_const_solve(it->blocks, it->R, it->dx);
+    } else if (it->const_kept) { /* (x -= dx inside) */
+      mrvi_blocks_const_solve(it->blocks, it->R, it->dx, it->x);
     } else {
       mrvi_blocks_solve(it->blocks, it->R, it->dx);
     }
-    if (s == MRVI_OK) {
+    if (s == MRVI_OK && !(it->const_kept && !fresh)) {
       for (int i = 0; i < st->n_total; i++)
         it->x[i] -= it->dx[i];
     }

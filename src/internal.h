@@ -573,9 +573,9 @@ double mrvi_blocks_chord_spread(mrvi_blocks *b, const mrvi_step *st,
  * factorisation's status (the same at every later call). */
 int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
                              const double *x);
-/* Solve J_const dx = R with those factors. */
+/* Solve J_const dx = R with those factors, and x -= dx (n_unknowns). */
 void mrvi_blocks_const_solve(const mrvi_blocks *b, const double *R,
-                             double *dx);
+                             double *dx, double *x);
 /* Largest row sum of |hess Z(q0)| over the classes whose Hessian is not
  * constant and enters the Newton matrix, at the model's initial
  * configuration, over the smallest mass (the a-priori measure of the

@@ -1233,7 +1233,11 @@ static void direct_case(mrvi_model *m, const char *label, const char *scheme,
       p == 1 ? (vquad || trap_v) && (wquad || trap_w) : vquad && wquad;
   CHECK(mrvi_blocks_const_factor(b[1], &st, x) == MRVI_OK, "%s: const factor",
         label);
-  mrvi_blocks_const_solve(b[1], R[0], dx2);
+  double *xc = calloc(nu, sizeof(double)); /* (x -= dx: -dx from 0) */
+  mrvi_blocks_const_solve(b[1], R[0], dx2, xc);
+  for (int i = 0; i < nu; i++)
+    CHECK(xc[i] == -dx2[i], "%s: const solve: x -= dx at %d", label, i);
+  free(xc);
   double ec = 0.0;
   for (int i = 0; i < nu; i++)
     ec = fmax(ec, fabs(dx2[i] - dx[0][i]));

@@ -1368,13 +1368,18 @@ int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
   return MRVI_OK;
 }
 
-/* Solve with the constant chord's factors (mrvi_blocks_const_factor): by
- * its inverse on small steps (the same dx to round-off). */
-void mrvi_blocks_const_solve(const mrvi_blocks *b, const double *R,
-                             double *dx) {
+/* dx = J_const^-1 R with the constant chord's factors
+ * (mrvi_blocks_const_factor), and x -= dx: by its inverse on small steps
+ * (the same dx to round-off), each entry of x updated as its dx is formed
+ * (a separate pass would load dx in pairs just stored one by one, which
+ * misses the store-to-load forwarding). */
+void mrvi_blocks_const_solve(const mrvi_blocks *b, const double *R, double *dx,
+                             double *x) {
   const int n = b->n_cinv;
   if (!n) {
     mrvi_blocks_solve(b->cf, R, dx);
+    for (int i = 0; i < b->ns + b->p * b->nf; i++)
+      x[i] -= dx[i];
     return;
   }
   const double *restrict A = b->cinv;
@@ -1383,6 +1388,7 @@ void mrvi_blocks_const_solve(const mrvi_blocks *b, const double *R,
     for (int j = 0; j < n; j++)
       s += A[i * n + j] * R[j];
     dx[i] = s;
+    x[i] -= s;
   }
 }
 
