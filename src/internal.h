@@ -565,11 +565,34 @@ void mrvi_blocks_chord(mrvi_blocks *b, int on);
  * before mrvi_blocks_chord(b, 1) at the predictor of every step). */
 double mrvi_blocks_chord_spread(mrvi_blocks *b, const mrvi_step *st,
                                 const double *x);
+/* Constant chord (doc/solver.md, "Newton details"): factor the constant
+ * part of the Newton matrix (kinetic rows, classes with a constant
+ * Hessian) once, at the first call (x: the step's displacements, if the
+ * constant part is not made yet), and keep its factors apart from the
+ * step's; MRVI_EINVAL where the direct assembly does not apply, or the
+ * factorisation's status (the same at every later call). */
+int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
+                             const double *x);
+/* Solve J_const dx = R with those factors, and x -= dx (n_unknowns). */
+void mrvi_blocks_const_solve(const mrvi_blocks *b, const double *R,
+                             double *dx, double *x);
+/* Largest row sum of |hess Z(q0)| over the classes whose Hessian is not
+ * constant and enters the Newton matrix, at the model's initial
+ * configuration, over the smallest mass (the a-priori measure of the
+ * constant chord's error, times dT^2; 0 where the constant part is the
+ * whole Newton matrix). */
+double mrvi_blocks_const_measure(mrvi_blocks *b, const mrvi_step *st);
 /* The integrator's choice of the chord matrix on the schur path (tests
  * force either): by its rule (auto, the default), never, or for the first
  * update of every step where the structure admits it. */
 enum { MRVI_CHORD_AUTO = 0, MRVI_CHORD_OFF = 1, MRVI_CHORD_ON = 2 };
 void mrvi_integrator_set_chord(mrvi_integrator *it, int mode);
+/* The same for the constant chord (mrvi_blocks_const_factor): by its rule
+ * (auto), never, or for the first update of every schur step. */
+void mrvi_integrator_set_const_chord(mrvi_integrator *it, int mode);
+/* Factorisations of the schur path so far (the constant chord's counted
+ * once). */
+long mrvi_integrator_factorisations(const mrvi_integrator *it);
 
 /* The same elimination with iterative solves for blocks beyond the dense
  * limit (solver/schur_krylov.c): GMRES on the Schur complement of the slow

@@ -136,6 +136,12 @@ static void restart(void) {
    * Newton steps and sweeps again (solver/predict.c, slow_newton). */
   s = test_settings("midpoint-midpoint", 1.0, 1000, 20.0, 1e-9);
   restart_case(m, &s, "fpu dT = 1, p = 1000, midpoint-midpoint");
+  /* dT = 0.001, p = 1 and 2: the constant chord (one factorisation per
+   * run, made on the restarted run's first step) */
+  s = test_settings("midpoint-midpoint", 0.001, 1, 1.0, 1e-9);
+  restart_case(m, &s, "fpu dT = 0.001, p = 1, midpoint-midpoint");
+  s = test_settings("midpoint-midpoint", 0.002, 2, 1.0, 1e-9);
+  restart_case(m, &s, "fpu dT = 0.002, p = 2, midpoint-midpoint");
   mrvi_model_free(m);
   mrvi_system *sys = NULL;
   const char *set[] = {"integrator.scheme=explicit-slow",

@@ -56,10 +56,12 @@ typedef struct run_out {
   int iters[N_STEPS];
   const char *path;
   int n, nmicro, ok;
+  long nfac; /* factorisations of the schur path */
 } run_out;
 
-/* The integrator's chord mode for run() (MRVI_CHORD_AUTO by default). */
-static int run_chord = MRVI_CHORD_AUTO;
+/* The integrator's chord and constant-chord modes for run()
+ * (MRVI_CHORD_AUTO by default). */
+static int run_chord = MRVI_CHORD_AUTO, run_cchord = MRVI_CHORD_AUTO;
 
 static void run(const mrvi_system *sys, run_out *o) {
   mrvi_integrator *it = NULL;
@@ -77,6 +79,7 @@ static void run(const mrvi_system *sys, run_out *o) {
     return;
   }
   mrvi_integrator_set_chord(it, run_chord);
+  mrvi_integrator_set_const_chord(it, run_cchord);
   o->path = mrvi_integrator_solver_path(it);
   memcpy(o->q[0], mrvi_integrator_q(it), (size_t)o->n * sizeof(double));
   memcpy(o->p[0], mrvi_integrator_p(it), (size_t)o->n * sizeof(double));
@@ -92,6 +95,7 @@ static void run(const mrvi_system *sys, run_out *o) {
            (size_t)o->nmicro * sizeof(double));
     o->iters[k] = mrvi_integrator_last_iterations(it);
   }
+  o->nfac = mrvi_integrator_factorisations(it);
   mrvi_integrator_free(it);
   o->ok = 1;
 }
@@ -1053,6 +1057,99 @@ static void test_chord(void) {
     }
 }
 
+/* The constant chord (doc/solver.md, "Newton details"): the Newton
+ * matrix without V's Hessian, factored once per run.  FPU, dt = 0.001,
+ * tolerance 1e-9, the three implicit schemes: at p = 1 and 2 the rule
+ * takes it (e = dT^2 |hess V(q0)| / m = 1.8e-5, 7.3e-5): one
+ * factorisation for the run, one update per step, and the trajectory of
+ * exact Newton (the constant chord off) within 1e-9 relative (both stop
+ * at a residual below 0.01 tol; measured up to 3e-11 over 20 steps);
+ * at p = 10 (e = 1.8e-3) the rule leaves it (auto equals off bit for
+ * bit).  Forced on at the FPU's dT = 0.03 (p = 1, 5; e = 1.6e-2), where
+ * one update contracts by about 1e-2, and at tolerance 1e-12: the exact
+ * refactorisation after a poor update is taken (more than one
+ * factorisation) and the trajectory is the general path's within 1e-10;
+ * except for the trapezoidal schemes at p = 1, whose Newton matrix is the
+ * constant part (e = 0): one factorisation, one update per step, and the
+ * rule takes it at that dT too (auto equals forced on, bit for bit). */
+static void test_const_chord(void) {
+  static const char *const schemes[] = {
+      "midpoint-midpoint", "trapezoidal-midpoint", "trapezoidal-trapezoidal"};
+  static run_out g, on, off, au;
+  for (int sc = 0; sc < 3; sc++)
+    for (int pi = 0; pi < 3; pi++) {
+      const int p = pi == 0 ? 1 : pi == 1 ? 2 : 10;
+      char dT[16];
+      snprintf(dT, sizeof dT, "%g", 0.001 * p);
+      mrvi_system *sys = fpu_at(schemes[sc], dT, p, "1e-9");
+      if (!sys)
+        continue;
+      run_cchord = MRVI_CHORD_OFF;
+      run(sys, &off);
+      run_cchord = MRVI_CHORD_AUTO;
+      run(sys, &au);
+      mrvi_system_free(sys);
+      if (!off.ok || !au.ok)
+        continue;
+      const int n_au = iters_total(&au);
+      const double d = rel_diff(&au, &off);
+      printf("fpu %s p=%d: constant chord %ld factorisations, %d updates in "
+             "%d steps, %.2e off exact Newton\n",
+             schemes[sc], p, au.nfac, n_au, N_STEPS, d);
+      CHECK(off.nfac >= N_STEPS, "fpu %s p=%d: %ld exact factorisations",
+            schemes[sc], p, off.nfac);
+      if (p == 10) {
+        CHECK(d == 0.0 && au.nfac == off.nfac,
+              "fpu %s p=10: the constant chord was taken", schemes[sc]);
+        continue;
+      }
+      CHECK(au.nfac == 1 && n_au == N_STEPS,
+            "fpu %s p=%d: constant chord: %ld factorisations, %d updates in "
+            "%d steps",
+            schemes[sc], p, au.nfac, n_au, N_STEPS);
+      CHECK(d <= 1e-9, "fpu %s p=%d: constant chord %.2e off exact Newton",
+            schemes[sc], p, d);
+    }
+  for (int sc = 0; sc < 3; sc++)
+    for (int pi = 0; pi < 2; pi++) {
+      const int p = pi ? 5 : 1;
+      mrvi_system *sg =
+          load("systems/fpu.yaml", schemes[sc], p, "multipliers", "general");
+      mrvi_system *sa =
+          load("systems/fpu.yaml", schemes[sc], p, "multipliers", "auto");
+      if (sg && sa) {
+        run(sg, &g);
+        run_cchord = MRVI_CHORD_ON;
+        run(sa, &on);
+        run_cchord = MRVI_CHORD_AUTO;
+        if (g.ok && on.ok) {
+          const double d = rel_diff(&g, &on);
+          printf("fpu %s p=%d dT=0.03: constant chord forced: %ld "
+                 "factorisations, %d updates in %d steps, %.2e off general\n",
+                 schemes[sc], p, on.nfac, iters_total(&on), N_STEPS, d);
+          CHECK(d <= 1e-10,
+                "fpu %s p=%d: forced constant chord %.2e off general",
+                schemes[sc], p, d);
+          /* (at p = 1 the trapezoidal V's Hessian is not in the Newton
+           * matrix: the constant chord is exact) */
+          if (p == 1 && sc > 0) {
+            CHECK(on.nfac == 1 && iters_total(&on) == N_STEPS,
+                  "fpu %s p=1: %ld factorisations, %d updates", schemes[sc],
+                  on.nfac, iters_total(&on));
+            run(sa, &au); /* (so the rule takes it at any dT) */
+            CHECK(au.ok && au.nfac == 1 && rel_diff(&au, &on) == 0.0,
+                  "fpu %s p=1 dT=0.03: the rule left the exact constant chord",
+                  schemes[sc]);
+          } else
+            CHECK(on.nfac > 1, "fpu %s p=%d: no exact refactorisation taken",
+                  schemes[sc], p);
+        }
+      }
+      mrvi_system_free(sg);
+      mrvi_system_free(sa);
+    }
+}
+
 /* The schur path's direct assembly (doc/solver.md, "Evaluation") against
  * the CSC matrix of step.c scattered into the same blocks: the Newton
  * update of the block elimination agrees to 1e-12 of its size.  This
@@ -1065,7 +1162,7 @@ static void test_chord(void) {
  * slow and fast inputs: slow couplings in the constant part), the chain
  * with a quartic fast spring, the spring ring (distance springs). */
 static void direct_case(mrvi_model *m, const char *label, const char *scheme,
-                        int p, double dT) {
+                        int p, double dT, int vquad, int wquad) {
   mrvi_settings s = test_settings(scheme, dT, p, 1.0, 1e-10);
   mrvi_step st;
   CHECK(mrvi_step_init(&st, m, &s) == 0, "%s: step init", label);
@@ -1126,6 +1223,36 @@ static void direct_case(mrvi_model *m, const char *label, const char *scheme,
   CHECK(memcmp(dx2, dx[1], nu * sizeof(double)) == 0,
         "%s %s p=%d: CSC factor_solve differs from factor, solve", label,
         scheme, p);
+  /* The constant chord's update (doc/solver.md, "Newton details"): where
+   * every class is quadratic the constant part is the whole Newton
+   * matrix, so its update is the exact one to round-off; also at p = 1 for
+   * a class on the trapezoidal rule (its points at nodes k and k + 1 feed
+   * no row with a Hessian in the unknowns: a0 a1 = cA cB = 0, and node
+   * k + 1's cB row is beyond the step).  Else it differs by about
+   * |A^-1 (A - A_const)|, the Hessians left out. */
+  const int trap_v = strncmp(scheme, "trapezoidal", 11) == 0,
+            trap_w = strcmp(scheme, "trapezoidal-trapezoidal") == 0;
+  const int exact =
+      p == 1 ? (vquad || trap_v) && (wquad || trap_w) : vquad && wquad;
+  CHECK(mrvi_blocks_const_factor(b[1], &st, x) == MRVI_OK, "%s: const factor",
+        label);
+  double *xc = calloc(nu, sizeof(double)); /* (x -= dx: -dx from 0) */
+  mrvi_blocks_const_solve(b[1], R[0], dx2, xc);
+  for (int i = 0; i < nu; i++)
+    CHECK(xc[i] == -dx2[i], "%s: const solve: x -= dx at %d", label, i);
+  free(xc);
+  double ec = 0.0;
+  for (int i = 0; i < nu; i++)
+    ec = fmax(ec, fabs(dx2[i] - dx[0][i]));
+  if (exact)
+    CHECK(ec <= 1e-12 * sc,
+          "%s %s p=%d: constant chord update %.2e (relative) off the exact",
+          label, scheme, p, ec / sc);
+  else
+    CHECK(ec > 1e-10 * sc,
+          "%s %s p=%d: constant chord update %.2e (relative) equals the "
+          "exact one",
+          label, scheme, p, ec / sc);
   free(dx2);
   for (int k = 0; k < 2; k++) {
     mrvi_blocks_free(b[k]);
@@ -1195,13 +1322,14 @@ static void test_direct(void) {
   for (int i = 0; i < 3; i++) {
     const int tt = i == 2;
     for (int p = 1; p <= 5; p += 4) {
-      direct_case(fpu, "fpu", schemes[i], p, 0.03);
-      direct_case(one, "one slow coordinate", schemes[i], p, 0.03);
-      direct_case(lin[0], "linear chain", schemes[i], p, 0.03);
-      direct_case(lin[1], "chain with a quartic W", schemes[i], p + 1, 0.03);
+      direct_case(fpu, "fpu", schemes[i], p, 0.03, 0, 1);
+      direct_case(one, "one slow coordinate", schemes[i], p, 0.03, 0, 1);
+      direct_case(lin[0], "linear chain", schemes[i], p, 0.03, 1, 1);
+      direct_case(lin[1], "chain with a quartic W", schemes[i], p + 1, 0.03, 1,
+                  0);
       direct_case(lin[2], "decoupled chains, quartic slow spring", schemes[i],
-                  p, 0.03);
-      direct_case(ring, "spring ring", schemes[i], p, tt ? 0.001 : 0.01);
+                  p, 0.03, 0, 1);
+      direct_case(ring, "spring ring", schemes[i], p, tt ? 0.001 : 0.01, 0, 0);
     }
   }
   mrvi_model_free(lin[0]);
@@ -1215,6 +1343,7 @@ static void test_direct(void) {
 int main(void) {
   test_direct();
   test_chord();
+  test_const_chord();
   test_linsolve_backends();
   test_predictor();
   test_predictor_large_steps();

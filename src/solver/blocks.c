@@ -108,7 +108,19 @@ struct mrvi_blocks {
    * points (mrvi_blocks_chord_spread; nz x nz each). */
   double *Hz[2];
   double m_min; /* the smallest mass (the chord rule's measure) */
+  /* Constant chord (mrvi_blocks_const_factor): blocks of the same step
+   * holding the factors of the constant part alone, made once per run
+   * (cf_status its factorisation's status). */
+  mrvi_blocks *cf;
+  int cf_status;
+  /* ... and on a step of at most MRVI_CCHORD_DENSE unknowns its inverse
+   * (n x n, by rows): a solve is then n independent dot products instead
+   * of the sweeps' chain. */
+  double *cinv;
+  int n_cinv;
 };
+
+#define MRVI_CCHORD_DENSE 16
 
 void mrvi_blocks_free(mrvi_blocks *b) {
   if (!b)
@@ -132,6 +144,8 @@ void mrvi_blocks_free(mrvi_blocks *b) {
   free(b->vel);
   free(b->cblk);
   free(b->Hp);
+  mrvi_blocks_free(b->cf);
+  free(b->cinv);
   for (int c = 0; c < 2; c++) {
     free(b->rc[c]);
     free(b->fw[c]);
@@ -1455,4 +1469,119 @@ int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,
   if (s == MRVI_OK)
     SMALL(b->ns, NS, slow_solve_k(b, R, dx, b->r_done, NS));
   return s;
+}
+
+/* Constant chord (doc/solver.md, "Newton details"): the Newton matrix
+ * without the Hessians of the classes whose Hessian is not constant --
+ * the kinetic rows and the quadratic classes alone, a run constant --
+ * factored once, into blocks of its own (b->cf, made on the first call:
+ * the exact factorisations of the step keep b's).  The constant part is
+ * made here if no assembly has made it yet (bitwise the same at every
+ * x). */
+int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
+                             const double *x) {
+  if (b->cf)
+    return b->cf_status;
+  if (!st->increments || st->n_lambda > 0 || st->extra)
+    return MRVI_EINVAL;
+  int s = mrvi_blocks_create(st, &b->cf);
+  if (s < 0)
+    return s;
+  if (!b->const_ok) { /* (as mrvi_blocks_assemble's first) */
+    constant_part(b, st, x);
+    copy_blocks(b, 1);
+    b->const_ok = 1;
+    b->const_uni = const_uniform(b);
+    b->assembled = 0;
+  }
+  memcpy(b->cf->blk, b->cblk, b->n_blk * sizeof(double));
+  b->cf->assembled = 1; /* (factored as they are) */
+  if ((b->cf_status = mrvi_blocks_factor(b->cf, st)) < 0)
+    return b->cf_status;
+  /* Small steps: the inverse, column j the solve of the unit vector e_j. */
+  const int n = b->ns + b->p * b->nf;
+  if (n > MRVI_CCHORD_DENSE)
+    return MRVI_OK;
+  double e[MRVI_CCHORD_DENSE], col[MRVI_CCHORD_DENSE];
+  if (!(b->cinv = malloc((size_t)n * (size_t)n * sizeof(double))))
+    return b->cf_status = MRVI_ENOMEM;
+  for (int j = 0; j < n; j++) {
+    for (int i = 0; i < n; i++)
+      e[i] = i == j;
+    mrvi_blocks_solve(b->cf, e, col);
+    for (int i = 0; i < n; i++)
+      b->cinv[i * n + j] = col[i];
+  }
+  b->n_cinv = n;
+  return MRVI_OK;
+}
+
+/* dx = J_const^-1 R with the constant chord's factors
+ * (mrvi_blocks_const_factor), and x -= dx: by its inverse on small steps
+ * (the same dx to round-off), each entry of x updated as its dx is formed
+ * (a separate pass would load dx in pairs just stored one by one, which
+ * misses the store-to-load forwarding). */
+void mrvi_blocks_const_solve(const mrvi_blocks *b, const double *R, double *dx,
+                             double *x) {
+  const int n = b->n_cinv;
+  if (!n) {
+    mrvi_blocks_solve(b->cf, R, dx);
+    for (int i = 0; i < b->ns + b->p * b->nf; i++)
+      x[i] -= dx[i];
+    return;
+  }
+  const double *restrict A = b->cinv;
+  for (int i = 0; i < n; i++) {
+    double s = 0.0;
+    for (int j = 0; j < n; j++)
+      s += A[i * n + j] * R[j];
+    dx[i] = s;
+    x[i] -= s;
+  }
+}
+
+/* 1 if a point of class c puts its Hessian into the Newton matrix: a row
+ * it feeds (slow by a0, fast node m by cA, node m + 1 <= p - 1 by cB) and
+ * a column it depends on (q_{k+1}^s by a1, node m >= 1 by cA, node m + 1
+ * by cB) both in the class's inputs.  Not at p = 1 on the trapezoidal
+ * rule: the point at node k has a1 = cB = 0, the one at node k + 1
+ * a0 = cA = 0 and no row m + 1. */
+static int class_feeds(const mrvi_blocks *b, const mrvi_step *st, int c) {
+  const int hs = b->has_s[c], hf = b->has_f[c];
+  for (int ip = 0; ip < st->n_pts[c]; ip++) {
+    const mrvi_point *pt = &st->pts[c][ip];
+    const int row =
+        (hs && pt->a0 != 0.0) ||
+        (hf && (pt->cA != 0.0 || (pt->cB != 0.0 && pt->m + 1 <= b->p - 1)));
+    const int col = (hs && pt->a1 != 0.0) ||
+                    (hf && ((pt->cA != 0.0 && pt->m >= 1) || pt->cB != 0.0));
+    if (row && col)
+      return 1;
+  }
+  return 0;
+}
+
+/* The a-priori measure of the constant chord's error: the largest row sum
+ * of |hess Z(q0)| over the classes whose Hessian is not constant and
+ * enters the Newton matrix (class_feeds), at the model's initial
+ * configuration q0 (a run constant), over the smallest mass; 0 where the
+ * constant part is the whole Newton matrix. */
+double mrvi_blocks_const_measure(mrvi_blocks *b, const mrvi_step *st) {
+  const mrvi_model *m = st->model;
+  const int nz = b->ns + b->nf;
+  for (int c = 0; c < m->n; c++)
+    b->zp[(m->rate[c] == MRVI_SLOW ? 0 : b->ns) + m->slot[c]] = m->q0[c];
+  double e = 0.0;
+  for (int c = 0; c < 2; c++) {
+    if (b->quad[c] || !class_feeds(b, st, c))
+      continue;
+    class_hessian(b, c, b->H);
+    for (int i = 0; i < nz; i++) {
+      double r = 0.0;
+      for (int j = 0; j < nz; j++)
+        r += fabs(b->H[i * nz + j]);
+      e = r > e ? r : e;
+    }
+  }
+  return e / b->m_min;
 }
