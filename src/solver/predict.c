@@ -698,14 +698,18 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
   const int wlo = pr->lo[1] == 0 ? 0 : ns;
   const double *restrict g0 = pr->g0[1], *restrict Hq = pr->Hq[1];
   if (!J && !both && pr->Hq[c]) { /* a class with a constant Hessian alone */
-    UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
-    if (c == 1 && pr->wdiag)
-      UNROLL for (int i = ns; i < nz; i++) g[i] +=
-          g0[i] + Hq[i * nz + i] * z[i];
-    else if (pr->lo[c] == 0) /* (each with constant bounds) */
-      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, 0, nz);
-    else
-      affine_grad_k(pr->g0[c], pr->Hq[c], z, g, ns, nz);
+    /* (written, not added to zeros just stored: the zeros went out as
+     * pairs, and reloading one entry of a pair missed store forwarding) */
+    if (c == 1 && pr->wdiag) {
+      UNROLL for (int i = 0; i < ns; i++) g[i] = 0.0;
+      UNROLL for (int i = ns; i < nz; i++) g[i] =
+          0.0 + (g0[i] + Hq[i * nz + i] * z[i]);
+    } else if (pr->lo[c] == 0) /* (each with constant bounds) */
+      affine_k(pr->g0[c], pr->Hq[c], z, g, 0, nz, 0);
+    else {
+      UNROLL for (int i = 0; i < ns; i++) g[i] = 0.0;
+      affine_k(pr->g0[c], pr->Hq[c], z, g, ns, nz, 0);
+    }
     return;
   }
   if (both && Hq && nz <= 8) { /* (each with constant bounds) */
