@@ -254,19 +254,14 @@ static double norm_inf(const double *v, int n) {
  * assignments GCC turns back into the memcpy call). */
 static void copy_pairs(double *restrict dst, const double *restrict src,
                        size_t n) {
-  typedef double v2d __attribute__((vector_size(16)));
   size_t i = 0;
   for (; i + 4 <= n; i += 4) {
-    v2d a, b;
-    memcpy(&a, src + i, sizeof a);
-    memcpy(&b, src + i + 2, sizeof b);
-    memcpy(dst + i, &a, sizeof a);
-    memcpy(dst + i + 2, &b, sizeof b);
+    const v2d a = ld2(src + i), b = ld2(src + i + 2);
+    st2(dst + i, a);
+    st2(dst + i + 2, b);
   }
   if (i + 2 <= n) {
-    v2d a;
-    memcpy(&a, src + i, sizeof a);
-    memcpy(dst + i, &a, sizeof a);
+    st2(dst + i, ld2(src + i));
     i += 2;
   }
   if (i < n)
@@ -674,7 +669,7 @@ static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
     } else {
       mrvi_blocks_solve(it->blocks, it->R, it->dx);
     }
-    if (s == MRVI_OK && !(it->const_kept && !fresh)) {
+    if (s == MRVI_OK && !it->const_kept) { /* (const_kept: done) */
       for (int i = 0; i < st->n_total; i++)
         it->x[i] -= it->dx[i];
     }

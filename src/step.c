@@ -617,7 +617,6 @@ ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
    * time as a pair of doubles (GCC's vector extension: one division for
    * two, the divisions set the pace; GCC -O2 left the loop scalar), two
    * nodes, nf pairs, per pass, with the masses of two nodes in M2. */
-  typedef double pair __attribute__((vector_size(16)));
   double M2[8] = {0};
   UNROLL for (int s = 0; s < nf; s++) M2[s] = M2[nf + s] =
       m->mass[m->fast_index[s]];
@@ -625,17 +624,12 @@ ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
   double *restrict pv = pf;
   UNROLL for (int s = 0; s < nf; s++) pv[s] += M2[s] * (d[s] - 0.0) / dt;
   const int n = p * nf;
-  const pair dt2 = {dt, dt};
+  const v2d dt2 = {dt, dt};
   int i = nf;
   for (; nf > 0 && i + 2 * nf <= n; i += 2 * nf)
     UNROLL for (int k = 0; k < 2 * nf; k += 2) {
-      pair mk, a, b, v;
-      memcpy(&mk, M2 + k, sizeof mk);
-      memcpy(&a, d + i + k, sizeof a);
-      memcpy(&b, d + i + k - nf, sizeof b);
-      memcpy(&v, pv + i + k, sizeof v);
-      v += mk * (a - b) / dt2;
-      memcpy(pv + i + k, &v, sizeof v);
+      const v2d a = ld2(d + i + k), b = ld2(d + i + k - nf);
+      st2(pv + i + k, ld2(pv + i + k) + ld2(M2 + k) * (a - b) / dt2);
     }
   for (int k = 0; i < n; i++, k++)
     pv[i] += M2[k] * (d[i] - d[i - nf]) / dt;

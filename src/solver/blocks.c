@@ -579,16 +579,6 @@ row_regs_k(const int m, const double *src, double *xm, double *restrict x1,
   }
 }
 
-/* Two doubles as one vector (GCC's vector extension: each lane's
- * arithmetic is the scalar one, IEEE, bit for bit). */
-typedef double v2d __attribute__((vector_size(16)));
-ALWAYS_INLINE v2d ld2(const double *p) {
-  v2d r;
-  memcpy(&r, p, sizeof r);
-  return r;
-}
-ALWAYS_INLINE void st2(double *p, v2d v) { memcpy(p, &v, sizeof v); }
-
 /* Row block m of Y (nf x ns, in place) and of z (from zs to zm) as the
  * columns of one nf x (ns + 1) block [Y_m | z_m], ns + 1 = 2 np, in np
  * vectors per row on locals (x1, x2: the last two row blocks): couple_k
@@ -1262,6 +1252,17 @@ static int const_uniform(const mrvi_blocks *b) {
   return 1;
 }
 
+/* The constant part of the Newton matrix into the blocks and saved to
+ * cblk, once per run (the first assembly with jac, or the constant
+ * chord's factorisation). */
+static void make_constant(mrvi_blocks *b, const mrvi_step *st,
+                          const double *x) {
+  constant_part(b, st, x);
+  copy_blocks(b, 1);
+  b->const_ok = 1;
+  b->const_uni = const_uniform(b);
+}
+
 int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac) {
   const int ns = b->ns, nf = b->nf;
@@ -1270,10 +1271,7 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
   b->assembled = jac;
   /* The constant part: computed and saved once, then restored. */
   if (jac && !b->const_ok) {
-    constant_part(b, st, x);
-    copy_blocks(b, 1);
-    b->const_ok = 1;
-    b->const_uni = const_uniform(b);
+    make_constant(b, st, x);
   } else if (jac) {
     b->restore = 1; /* (by assemble_k) */
   }
@@ -1488,10 +1486,7 @@ int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
   if (s < 0)
     return s;
   if (!b->const_ok) { /* (as mrvi_blocks_assemble's first) */
-    constant_part(b, st, x);
-    copy_blocks(b, 1);
-    b->const_ok = 1;
-    b->const_uni = const_uniform(b);
+    make_constant(b, st, x);
     b->assembled = 0;
   }
   memcpy(b->cf->blk, b->cblk, b->n_blk * sizeof(double));

@@ -3,6 +3,8 @@
 #ifndef MRVI_SOLVER_SMALL_H
 #define MRVI_SOLVER_SMALL_H
 
+#include <string.h>
+
 /* Small-block kernels.  SMALL(n, N, code) runs code with N an integer
  * constant equal to n for n = 1..4, so that the compiler unrolls the loops
  * over the tiny blocks of few-body systems (the FPU: ns = nf = 3), and with
@@ -102,5 +104,16 @@ ALWAYS_INLINE void affine_grad_k(const double *restrict g0,
                                  const int lo, const int nz) {
   affine_k(g0, Hq, z, G, lo, nz, 1);
 }
+
+/* Two doubles as one vector (GCC's vector extension, also clang's: each
+ * lane's arithmetic is the scalar one, IEEE, bit for bit), loaded and
+ * stored through memcpy (no alignment assumed). */
+typedef double v2d __attribute__((vector_size(16)));
+ALWAYS_INLINE v2d ld2(const double *p) {
+  v2d r;
+  memcpy(&r, p, sizeof r);
+  return r;
+}
+ALWAYS_INLINE void st2(double *p, v2d v) { memcpy(p, &v, sizeof v); }
 
 #endif
