@@ -940,10 +940,10 @@ int mrvi_integrator_step(mrvi_integrator *it) {
         to_positions(it);
         return finish_step(it);
       }
-    } else if (sh < 0) {
+    } else if (sh < 0 || shot == 0) {
       predict(it);
     }
-    /* (sh = 0: Newton from the last iterate) */
+    /* (else Newton from the last iterate) */
   }
   /* The constant chord: its factors stand for the kept ones of this
    * step, so that the first update uses them (prev = INFINITY: rate 0)
