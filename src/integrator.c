@@ -48,6 +48,10 @@ struct mrvi_integrator {
   double cchord_e;     /* its a-priori measure, a run constant */
   int cchord_made;     /* its factors are made (counted once) */
   int const_kept;      /* the kept factors are the constant chord's */
+  int shoot_mode;      /* shooting (mrvi_predict_shoot): MRVI_CHORD_AUTO,
+                          _OFF or _ON */
+  int shoot_ok;        /* the schur path's steps may shoot (a run constant) */
+  long n_shoot;        /* steps solved by shooting in the run */
   long n_factor;       /* factorisations of the schur path in the run */
   long roundoff_steps; /* steps accepted at the roundoff floor above tol */
   double last_residual;
@@ -87,6 +91,10 @@ static int fail(mrvi_integrator *it, int status, const char *fmt, ...)
  * (e = 7e-5 / 1.6e-4 / 2.9e-4 / 4.6e-4) 1.00 / 1.13 / 1.28 / 1.47 updates,
  * 42 / 31 / 22 / 8 % faster; at p = 10 (1.8e-3) 1.89, 8 % slower. */
 #define MRVI_CCHORD_MAX 3e-4
+
+/* Most slow updates of a shooting step (mrvi_predict_shoot) before Newton
+ * takes over from its iterate. */
+#define MRVI_SHOOT_MAX 4
 
 /* The assembly and solve times (mrvi_integrator_timing) are measured on
  * one step in MRVI_TIME_EVERY and scaled to all steps: a clock read costs
@@ -520,6 +528,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
       goto oom;
     it->cchord_e = it->step.dT * it->step.dT *
                    mrvi_blocks_const_measure(it->blocks, &it->step);
+    it->shoot_ok = mrvi_predictor_shoot_ok(it->predictor, &it->step);
     *out = it;
     return MRVI_OK;
   } else if (it->path == MRVI_PATH_SCHUR_KRYLOV) {
@@ -860,6 +869,28 @@ void mrvi_integrator_set_const_chord(mrvi_integrator *it, int mode) {
   it->cchord_mode = mode;
 }
 
+/* Whether a schur step starts by shooting (doc/solver.md, "Newton
+ * details"): where the predictor's sweep solves the fast rows exactly,
+ * without control forces (the sweep does not see them), and where the
+ * constant chord does not take the step (it is cheaper there). */
+static int use_shoot(const mrvi_integrator *it) {
+  const mrvi_step *st = &it->step;
+  if (it->shoot_mode == MRVI_CHORD_OFF || !it->shoot_ok || st->f_rows ||
+      st->f_end)
+    return 0;
+  return it->shoot_mode == MRVI_CHORD_ON ||
+         !(it->cchord_mode != MRVI_CHORD_OFF &&
+           it->cchord_e <= MRVI_CCHORD_MAX);
+}
+
+void mrvi_integrator_set_shoot(mrvi_integrator *it, int mode) {
+  it->shoot_mode = mode;
+}
+
+long mrvi_integrator_shoot_steps(const mrvi_integrator *it) {
+  return it->n_shoot;
+}
+
 long mrvi_integrator_factorisations(const mrvi_integrator *it) {
   return it->n_factor;
 }
@@ -879,10 +910,41 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   /* Predictor for x, the multipliers from zero.  Nothing is carried from
    * the last step (multipliers, factors), so a step depends on (q_k, p_k)
    * alone: a restarted or resumed run continues bit for bit. */
-  predict(it);
+  const int shoot = it->blocks && use_shoot(it);
+  if (!shoot)
+    predict(it);
   if (st->n_lambda > 0)
     memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;
+  /* Shooting on the slow unknowns: accepted where the exact residual is
+   * within the tolerance after it; else Newton goes on from its iterate
+   * (or from the predictor again after non-finite values). */
+  int shot = 0;
+  if (shoot) {
+    it->step.increments = 1;
+    const int sh =
+        mrvi_predict_shoot(it->predictor, st, it->x, MRVI_REUSE_TIGHTEN * tol,
+                           MRVI_SHOOT_MAX, &shot);
+    if (sh > 0) {
+      st->mom_ps = it->ps1;
+      st->mom_pf = it->micro_p;
+      int s0 = evaluate(it, 0, msg, sizeof msg);
+      st->mom_ps = st->mom_pf = NULL;
+      double r0, c0;
+      residual_norms(it, &r0, &c0);
+      if (s0 == MRVI_OK && r0 <= MRVI_REUSE_TIGHTEN * tol) {
+        it->n_shoot++;
+        it->last_iterations = shot;
+        it->last_residual = r0;
+        mrvi_step_momenta_finish(st, it->x, it->ps1, it->micro_p);
+        to_positions(it);
+        return finish_step(it);
+      }
+    } else if (sh < 0 || shot == 0) {
+      predict(it);
+    }
+    /* (else Newton from the last iterate) */
+  }
   /* The constant chord: its factors stand for the kept ones of this
    * step, so that the first update uses them (prev = INFINITY: rate 0)
    * and the reuse rule below decides the next; else the Jacobian at the
@@ -971,7 +1033,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     return fail(it, s, "step %ld (t = %.10g): %s, residual %.3e", it->k + 1,
                 it->t0 + (double)it->k * st->dT, msg, res);
   }
-  it->last_iterations = iter;
+  it->last_iterations = iter + shot;
   it->last_residual = res;
 
   /* Momenta at the new macro node and the fast micro nodes (eq:pkfm+):

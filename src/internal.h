@@ -505,6 +505,14 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol);
 /* The sweep, or free flight where the sweep would be unstable (see
  * predict.c) or produces non-finite values. */
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x);
+/* Shooting on the slow unknowns from the prediction in x (predict.c,
+ * mrvi_predict_shoot): 1 solved (*cycles updates; slow residual within
+ * target, the fast rows solved by the sweep), 0 not within max updates, -1
+ * non-finite.  Available where the sweep solves every fast row exactly
+ * (mrvi_predictor_shoot_ok). */
+int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                       double target, int max, int *cycles);
+int mrvi_predictor_shoot_ok(const mrvi_predictor *pr, const mrvi_step *st);
 /* Free flight: the momenta of node k held over the step (displacements). */
 void mrvi_predict_free_flight(const mrvi_step *st, double *x);
 /* The slow pre-solve (predict.c, pre_solve): whether the predictor uses
@@ -590,6 +598,11 @@ void mrvi_integrator_set_chord(mrvi_integrator *it, int mode);
 /* The same for the constant chord (mrvi_blocks_const_factor): by its rule
  * (auto), never, or for the first update of every schur step. */
 void mrvi_integrator_set_const_chord(mrvi_integrator *it, int mode);
+/* The same for shooting (mrvi_predict_shoot; auto: where the predictor
+ * admits it and the constant chord does not take the step), and the
+ * steps it solved in the run. */
+void mrvi_integrator_set_shoot(mrvi_integrator *it, int mode);
+long mrvi_integrator_shoot_steps(const mrvi_integrator *it);
 /* Factorisations of the schur path so far (the constant chord's counted
  * once). */
 long mrvi_integrator_factorisations(const mrvi_integrator *it);

@@ -73,6 +73,17 @@
  * (row-sum norm), is above this (FPU: 0.03 / 0.27 / 3.0 at dT = 0.1 /
  * 0.3 / 1). */
 #define MRVI_PRE_KAPPA 0.1
+/* Shooting (mrvi_predict_shoot) is offered where that contraction is at
+ * most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.00 / 1.06 / 1.56
+ * / 4 slow updates per step at dT = 0.03 / 0.1 / 0.3 / 1, where Newton
+ * takes one). */
+#define MRVI_SHOOT_KAPPA 30.0
+/* ... and its Jacobian takes the sampled Hessian where the contraction is
+ * above this (below, M / dT alone: FPU, dT = 0.01, kappa = 3e-4) */
+#define MRVI_SHOOT_KAPPA_M 1e-3
+/* ... and the Hessians of every point where it is above this (FPU: 1.00
+ * slow updates per step at dT = 1, kappa = 3) */
+#define MRVI_SHOOT_KAPPA_FULL 1.0
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -150,6 +161,10 @@ struct mrvi_predictor {
    * that is diagonal (a sum of one-coordinate quadratics, the FPU's): its
    * gradient g0 + H z by the diagonal alone. */
   int wdiag;
+  double kappa; /* slow_kappa (with H) */
+  /* The sweep adds every point's w a0 a1 hess_ss Z to H (shooting's
+   * Jacobian at large dT). */
+  int hsum;
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -337,12 +352,11 @@ static int linear_jumps(mrvi_predictor *pr, const mrvi_step *st) {
  * interval has the points of interval 0 and the fixed-point contraction
  * dT^2 |M_s^-1 hess_ss V(q0)| / 3 is above MRVI_PRE_KAPPA.  0, or
  * MRVI_ENOMEM. */
-static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
+/* The fixed-point update's contraction dT^2 |M_s^-1 hess_ss V(q0)|_inf / 3
+ * at the initial state (a run constant; pr->H as scratch). */
+static double slow_kappa(mrvi_predictor *pr, const mrvi_step *st) {
   const mrvi_model *m = pr->m;
-  const int ns = st->ns, nf = st->nf, nz = ns + nf;
-  if (!pr->Hq[1] || pr->lo[1] != ns || nf == 0 || ns == 0 || st->p < 1 ||
-      !uniform_intervals(pr, st, 0) || !uniform_intervals(pr, st, 1))
-    return 0;
+  const int ns = st->ns, nz = ns + st->nf;
   /* hess_ss V at q0 (packed columns: q0 into pr->z) */
   for (int c = 0; c < m->n; c++)
     pr->z[(m->rate[c] == MRVI_SLOW ? 0 : ns) + m->slot[c]] = m->q0[c];
@@ -356,7 +370,15 @@ static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
       r += fabs(pr->H[i * nz + j]);
     norm = fmax(norm, r * pr->minv[i]);
   }
-  if (!(st->dT * st->dT * norm / 3.0 > MRVI_PRE_KAPPA))
+  return st->dT * st->dT * norm / 3.0;
+}
+
+static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
+  const int ns = st->ns, nf = st->nf, nz = ns + nf;
+  if (!pr->Hq[1] || pr->lo[1] != ns || nf == 0 || ns == 0 || st->p < 1 ||
+      !uniform_intervals(pr, st, 0) || !uniform_intervals(pr, st, 1))
+    return 0;
+  if (!(pr->kappa > MRVI_PRE_KAPPA))
     return 0;
   /* Interval sums: W's w cA, w cA cA, w cA cB, w cB, w cB cA, w cB cB,
    * V's w cA, w cB. */
@@ -559,6 +581,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       return MRVI_ENOMEM;
     }
     choose_samples(pr, st);
+    pr->kappa = slow_kappa(pr, st);
     if (linear_sweep_setup(pr, st) < 0) {
       mrvi_predictor_free(pr);
       return MRVI_ENOMEM;
@@ -798,7 +821,7 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
       if (at_k && pt->a1 == 0.0)
         g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)(ns + nf);
       else
-        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL, pt->w * pt->a0 * pt->a1, same);
       if (fa && pt->cA != 0.0)
         axpy(nf, pt->w * pt->cA, g + ns, fa);
       if (fb && pt->cB != 0.0)
@@ -949,7 +972,7 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
       if (mm == 0 && pt->a1 == 0.0)
         g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)n;
       else
-        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL, pt->w * pt->a0 * pt->a1, same);
       const double wa = pt->w * pt->cA, w0 = pt->w * pt->a0;
       UNROLL for (int f = 0; f < nf; f++) fexp[f] += wa * g[ns + f];
       if (sum_slow && pt->a0 != 0.0)
@@ -965,7 +988,7 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
         if ((c == 0 ? k0 : k1) != INSIDE)
           continue;
         const mrvi_point *pt = &pts[c][mm];
-        point_gradient_k(pr, st, x, pt, c, ns, nf, NULL, 0.0, same);
+        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL, pt->w * pt->a0 * pt->a1, same);
         const double *g = pr->g;
         const double wa = pt->w * pt->cA, wb = pt->w * pt->cB,
                      w0 = pt->w * pt->a0;
@@ -1229,12 +1252,9 @@ static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   }
 }
 
-static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  pr->n_sweeps = 0;
-  if (!pr->sweep_ok) {
-    mrvi_predict_free_flight(st, x);
-    return;
-  }
+/* The prediction up to the sweep: the gradients at node k, the slow row
+ * with every point there and, where used, the pre-solve. */
+static void predict_start(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
   SMALL(st->ns, NS, SMALL(st->nf, NF, node_gradients_k(pr, st, NS, NF)));
@@ -1247,6 +1267,15 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   pr->presolved = 0;
   if (pr->pre && pr->slow_coupled)
     pre_solve(pr, st, x);
+}
+
+static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+  pr->n_sweeps = 0;
+  if (!pr->sweep_ok) {
+    mrvi_predict_free_flight(st, x);
+    return;
+  }
+  predict_start(pr, st, x);
   if (!pr->slow_coupled || st->ns == 0) {
     sweep(pr, st, x, 0);
     return;
@@ -1272,6 +1301,96 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const double bad = (b4[0] + b4[1]) + (b4[2] + b4[3]);
   if (bad != 0.0 || bad != bad)
     mrvi_predict_free_flight(st, x);
+}
+
+/* Shooting (doc/solver.md, "Newton details"): where the sweep solves
+ * every fast row exactly (no implicit points, mrvi_predictor_shoot_ok),
+ * the fast nodes are a function of the slow displacement x_s and the step
+ * reduces to the slow row G(x_s) = M x_s / dT - p_k^s + F(x_s) = 0, F the
+ * slow-row force of the points along the fast nodes swept for x_s.  From
+ * the prediction in x, each cycle sweeps the fast nodes along x_s (G
+ * exact, the fast rows solved to round-off) and, unless G is within
+ * target after at least one update, updates x_s by -J^-1 G: J = M / dT +
+ * the sampled Hessian of the slow force (as sampled_solve's first
+ * Jacobian: the response of the fast nodes left out), corrected by
+ * Broyden's rank-one update from each cycle's change of G, which brings
+ * that response in along the updates made.  Returns 1 with x solved
+ * (*cycles updates, the fast nodes swept for x's x_s), 0 after max
+ * updates without reaching target (x usable as a Newton iterate), -1 on
+ * non-finite values (x unusable). */
+int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                       double target, int max, int *cycles) {
+  const int ns = st->ns, n = ns + st->nf;
+  double *J = pr->A + (size_t)ns * (size_t)ns, *A = pr->A;
+  double *G = pr->b, *Gp = pr->b + ns, *ds = pr->b + 2 * ns;
+  *cycles = 0;
+  pr->n_sweeps = 0;
+  predict_start(pr, st, x);
+  /* The Hessian term: where the fixed-point update contracts enough, none
+   * (M / dT alone: the samples' Hessians cost as much as a sweep at
+   * p = 10); at large dT every point's, summed in the first sweep (the
+   * samples' misses the fast oscillation of hess V: 10 % of the update at
+   * dT = 1 on the FPU); else the samples'. */
+  const int hess = pr->kappa > MRVI_SHOOT_KAPPA_M,
+            full = pr->kappa > MRVI_SHOOT_KAPPA_FULL;
+  for (int c = 0;; c++) {
+    if (full && c == 0) {
+      memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
+      pr->hsum = 1;
+      sweep(pr, st, x, 1);
+      pr->hsum = 0;
+    } else
+      sweep(pr, st, x, 1);
+    if (c == 0 && hess && !full && !pr->h_ok) { /* (f scratch) */
+      sampled_force(pr, st, x, pr->xs + ns, NULL, 1);
+      pr->h_ok = 1;
+    }
+    if (c == 0)
+      for (int i = 0; i < ns; i++)
+        for (int j = 0; j < ns; j++)
+          J[i * ns + j] = (hess ? pr->H[i * n + j] : 0.0) +
+                          (i == j ? 1.0 / (st->dT * pr->minv[i]) : 0.0);
+    double r = 0.0;
+    for (int i = 0; i < ns; i++) {
+      G[i] = x[i] / (st->dT * pr->minv[i]) - st->ps0[i] + pr->fs[i];
+      r = fmax(r, fabs(G[i]));
+    }
+    if (!isfinite(r))
+      return -1;
+    *cycles = c;
+    if (c >= 1 && r <= target)
+      return 1;
+    if (c == max)
+      return 0;
+    if (c >= 1) { /* J += (G - Gp - J ds) ds^T / (ds^T ds) */
+      double dd = 0.0;
+      for (int i = 0; i < ns; i++)
+        dd += ds[i] * ds[i];
+      for (int i = 0; i < ns && dd > 0.0; i++) {
+        double u = G[i] - Gp[i];
+        for (int j = 0; j < ns; j++)
+          u -= J[i * ns + j] * ds[j];
+        for (int j = 0; j < ns; j++)
+          J[i * ns + j] += u * ds[j] / dd;
+      }
+    }
+    memcpy(A, J, (size_t)ns * (size_t)ns * sizeof(double));
+    for (int i = 0; i < ns; i++)
+      ds[i] = G[i];
+    if (mrvi_dense_solve(ns, A, ds) < 0)
+      return 0;
+    for (int i = 0; i < ns; i++) {
+      ds[i] = -ds[i];
+      x[i] += ds[i];
+      Gp[i] = G[i];
+    }
+  }
+}
+
+int mrvi_predictor_shoot_ok(const mrvi_predictor *pr, const mrvi_step *st) {
+  return pr->sweep_ok && pr->slow_coupled && pr->H && st->ns >= 1 &&
+         st->p >= 2 && !pr->has_kind[INSIDE] &&
+         pr->kappa <= MRVI_SHOOT_KAPPA;
 }
 
 void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
