@@ -965,6 +965,19 @@ static mrvi_system *fpu_at(const char *scheme, const char *dT, int p,
   return sys;
 }
 
+/* run() with *mode forced on, then off, then (au not NULL) by its rule;
+ * *mode is left at the rule. */
+static void run_modes(const mrvi_system *sys, int *mode, run_out *on,
+                      run_out *off, run_out *au) {
+  *mode = MRVI_CHORD_ON;
+  run(sys, on);
+  *mode = MRVI_CHORD_OFF;
+  run(sys, off);
+  *mode = MRVI_CHORD_AUTO;
+  if (au)
+    run(sys, au);
+}
+
 static int iters_total(const run_out *o) {
   int n = 0;
   for (int k = 0; k < N_STEPS; k++)
@@ -1003,11 +1016,7 @@ static void test_chord(void) {
         continue;
       }
       run(sg, &g);
-      run_chord = MRVI_CHORD_ON;
-      run(sa, &on);
-      run_chord = MRVI_CHORD_OFF;
-      run(sa, &off);
-      run_chord = MRVI_CHORD_AUTO;
+      run_modes(sa, &run_chord, &on, &off, NULL);
       if (g.ok && on.ok && off.ok) {
         CHECK(strcmp(on.path, "schur") == 0, "path %s", on.path);
         const double d_on = rel_diff(&g, &on), d_off = rel_diff(&g, &off);
@@ -1025,11 +1034,7 @@ static void test_chord(void) {
   mrvi_system *s1 =
       load("systems/fpu.yaml", "midpoint-midpoint", 1, "multipliers", "auto");
   if (s1) {
-    run_chord = MRVI_CHORD_ON;
-    run(s1, &on);
-    run_chord = MRVI_CHORD_OFF;
-    run(s1, &off);
-    run_chord = MRVI_CHORD_AUTO;
+    run_modes(s1, &run_chord, &on, &off, NULL);
     CHECK(on.ok && off.ok && rel_diff(&on, &off) == 0.0,
           "fpu p=1: the chord was used");
     mrvi_system_free(s1);
@@ -1040,12 +1045,7 @@ static void test_chord(void) {
           fpu_at(schemes[sc], big ? "0.1" : "0.01", big ? 100 : 10, "1e-9");
       if (!sys)
         continue;
-      run_chord = MRVI_CHORD_ON;
-      run(sys, &on);
-      run_chord = MRVI_CHORD_OFF;
-      run(sys, &off);
-      run_chord = MRVI_CHORD_AUTO;
-      run(sys, &au);
+      run_modes(sys, &run_chord, &on, &off, &au);
       mrvi_system_free(sys);
       if (!on.ok || !off.ok || !au.ok)
         continue;
@@ -1195,12 +1195,7 @@ static void test_shoot(void) {
           "fpu p=%d: %s", p, msg);
     if (sg && sa) {
       run(sg, &g);
-      run_shoot = MRVI_CHORD_ON;
-      run(sa, &on);
-      run_shoot = MRVI_CHORD_OFF;
-      run(sa, &off);
-      run_shoot = MRVI_CHORD_AUTO;
-      run(sa, &au);
+      run_modes(sa, &run_shoot, &on, &off, &au);
       if (g.ok && on.ok && off.ok && au.ok) {
         const double d_on = rel_diff(&g, &on), d_off = rel_diff(&g, &off);
         printf("fpu trapezoidal-trapezoidal p=%d: shooting %ld steps, %d "

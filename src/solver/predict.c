@@ -821,7 +821,8 @@ ALWAYS_INLINE void eval_points_k(mrvi_predictor *pr, const mrvi_step *st,
       if (at_k && pt->a1 == 0.0)
         g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)(ns + nf);
       else
-        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL, pt->w * pt->a0 * pt->a1, same);
+        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL,
+                         pt->w * pt->a0 * pt->a1, same);
       if (fa && pt->cA != 0.0)
         axpy(nf, pt->w * pt->cA, g + ns, fa);
       if (fb && pt->cB != 0.0)
@@ -972,7 +973,8 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
       if (mm == 0 && pt->a1 == 0.0)
         g = pr->gnode + (size_t)(same ? 2 : c) * (size_t)n;
       else
-        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL, pt->w * pt->a0 * pt->a1, same);
+        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL,
+                         pt->w * pt->a0 * pt->a1, same);
       const double wa = pt->w * pt->cA, w0 = pt->w * pt->a0;
       UNROLL for (int f = 0; f < nf; f++) fexp[f] += wa * g[ns + f];
       if (sum_slow && pt->a0 != 0.0)
@@ -988,7 +990,8 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
         if ((c == 0 ? k0 : k1) != INSIDE)
           continue;
         const mrvi_point *pt = &pts[c][mm];
-        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL, pt->w * pt->a0 * pt->a1, same);
+        point_gradient_k(pr, st, x, pt, c, ns, nf, pr->hsum ? pr->H : NULL,
+                         pt->w * pt->a0 * pt->a1, same);
         const double *g = pr->g;
         const double wa = pt->w * pt->cA, wb = pt->w * pt->cB,
                      w0 = pt->w * pt->a0;
@@ -1389,8 +1392,7 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
 
 int mrvi_predictor_shoot_ok(const mrvi_predictor *pr, const mrvi_step *st) {
   return pr->sweep_ok && pr->slow_coupled && pr->H && st->ns >= 1 &&
-         st->p >= 2 && !pr->has_kind[INSIDE] &&
-         pr->kappa <= MRVI_SHOOT_KAPPA;
+         st->p >= 2 && !pr->has_kind[INSIDE] && pr->kappa <= MRVI_SHOOT_KAPPA;
 }
 
 void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
