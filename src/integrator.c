@@ -637,6 +637,19 @@ static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
   return MRVI_OK;
 }
 
+/* The residual at x with the potential parts of the momenta (used if the
+ * step is accepted there), and its norms. */
+static int evaluate_momenta(mrvi_integrator *it, double *res, double *cres,
+                            char *msg, size_t len) {
+  mrvi_step *st = &it->step;
+  st->mom_ps = it->ps1;
+  st->mom_pf = it->micro_p;
+  const int s = evaluate(it, 0, msg, len);
+  st->mom_ps = st->mom_pf = NULL;
+  residual_norms(it, res, cres);
+  return s;
+}
+
 /* One Newton update dx (x -= dx) from the residual it->R at x: the full
  * saddle-point system in the multiplier form, the reduced one in the
  * null-space form (both factorised afresh at x: the general path is full
@@ -848,13 +861,19 @@ void mrvi_integrator_set_chord(mrvi_integrator *it, int mode) {
   it->chord_mode = mode;
 }
 
-/* Whether the first update of a schur step takes the constant chord
- * (doc/solver.md, "Newton details"): by a rule on run constants alone,
- * its factors made on the first step that takes it. */
-static int use_const_chord(mrvi_integrator *it) {
+/* Whether the constant chord's mode and rule take a schur step's first
+ * update (run constants alone). */
+static int const_chord_rule(const mrvi_integrator *it) {
   const int mode = it->cchord_mode;
-  if (mode == MRVI_CHORD_OFF ||
-      (mode == MRVI_CHORD_AUTO && !(it->cchord_e <= MRVI_CCHORD_MAX)))
+  return mode == MRVI_CHORD_ON ||
+         (mode == MRVI_CHORD_AUTO && it->cchord_e <= MRVI_CCHORD_MAX);
+}
+
+/* Whether the first update of a schur step takes the constant chord
+ * (doc/solver.md, "Newton details"): by const_chord_rule, its factors
+ * made on the first step that takes it. */
+static int use_const_chord(mrvi_integrator *it) {
+  if (!const_chord_rule(it))
     return 0;
   if (mrvi_blocks_const_factor(it->blocks, &it->step, it->x) != MRVI_OK)
     return 0;
@@ -878,9 +897,7 @@ static int use_shoot(const mrvi_integrator *it) {
   if (it->shoot_mode == MRVI_CHORD_OFF || !it->shoot_ok || st->f_rows ||
       st->f_end)
     return 0;
-  return it->shoot_mode == MRVI_CHORD_ON ||
-         !(it->cchord_mode != MRVI_CHORD_OFF &&
-           it->cchord_e <= MRVI_CCHORD_MAX);
+  return it->shoot_mode == MRVI_CHORD_ON || !const_chord_rule(it);
 }
 
 void mrvi_integrator_set_shoot(mrvi_integrator *it, int mode) {
@@ -893,6 +910,17 @@ long mrvi_integrator_shoot_steps(const mrvi_integrator *it) {
 
 long mrvi_integrator_factorisations(const mrvi_integrator *it) {
   return it->n_factor;
+}
+
+/* A Newton-path step converged at x after iters updates, residual res:
+ * the momenta at the new macro node and the fast micro nodes (eq:pkfm+;
+ * their potential parts came with the last residual), the new state. */
+static int accept_step(mrvi_integrator *it, int iters, double res) {
+  it->last_iterations = iters;
+  it->last_residual = res;
+  mrvi_step_momenta_finish(&it->step, it->x, it->ps1, it->micro_p);
+  to_positions(it);
+  return finish_step(it);
 }
 
 int mrvi_integrator_step(mrvi_integrator *it) {
@@ -926,19 +954,11 @@ int mrvi_integrator_step(mrvi_integrator *it) {
         mrvi_predict_shoot(it->predictor, st, it->x, MRVI_REUSE_TIGHTEN * tol,
                            MRVI_SHOOT_MAX, &shot);
     if (sh > 0) {
-      st->mom_ps = it->ps1;
-      st->mom_pf = it->micro_p;
-      int s0 = evaluate(it, 0, msg, sizeof msg);
-      st->mom_ps = st->mom_pf = NULL;
       double r0, c0;
-      residual_norms(it, &r0, &c0);
-      if (s0 == MRVI_OK && r0 <= MRVI_REUSE_TIGHTEN * tol) {
+      if (evaluate_momenta(it, &r0, &c0, msg, sizeof msg) == MRVI_OK &&
+          r0 <= MRVI_REUSE_TIGHTEN * tol) {
         it->n_shoot++;
-        it->last_iterations = shot;
-        it->last_residual = r0;
-        mrvi_step_momenta_finish(st, it->x, it->ps1, it->micro_p);
-        to_positions(it);
-        return finish_step(it);
+        return accept_step(it, shot, r0);
       }
     } else if (sh < 0 || shot == 0) {
       predict(it);
@@ -1018,12 +1038,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     iter++;
     /* The residual at the update, with the potential parts of the momenta
      * (used if it converges). */
-    st->mom_ps = it->ps1;
-    st->mom_pf = it->micro_p;
-    s = evaluate(it, 0, msg, sizeof msg);
-    st->mom_ps = st->mom_pf = NULL;
+    s = evaluate_momenta(it, &res, &cres, msg, sizeof msg);
     jac_at_x = 0;
-    residual_norms(it, &res, &cres);
   }
   if (s < 0) {
     it->last_iterations = iter;
@@ -1033,14 +1049,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     return fail(it, s, "step %ld (t = %.10g): %s, residual %.3e", it->k + 1,
                 it->t0 + (double)it->k * st->dT, msg, res);
   }
-  it->last_iterations = iter + shot;
-  it->last_residual = res;
-
-  /* Momenta at the new macro node and the fast micro nodes (eq:pkfm+):
-   * their potential parts came with the last residual. */
-  mrvi_step_momenta_finish(st, it->x, it->ps1, it->micro_p);
-  to_positions(it);
-  return finish_step(it);
+  return accept_step(it, iter + shot, res);
 }
 
 /* The new state (x, ps1 and xf, pf1: the last fast node) into q, p, the

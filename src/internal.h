@@ -505,10 +505,11 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol);
 /* The sweep, or free flight where the sweep would be unstable (see
  * predict.c) or produces non-finite values. */
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x);
-/* Shooting on the slow unknowns from the prediction in x (predict.c,
- * mrvi_predict_shoot): 1 solved (*cycles updates; slow residual within
- * target, the fast rows solved by the sweep), 0 not within max updates, -1
- * non-finite.  Available where the sweep solves every fast row exactly
+/* Shooting on the slow unknowns, from the predictor's start, into x
+ * (predict.c, mrvi_predict_shoot): 1 solved (*cycles updates; slow
+ * residual within target, the fast rows solved by the sweep), 0 not
+ * within max updates (x a Newton iterate if *cycles > 0), -1 non-finite.
+ * Available where the sweep solves every fast row exactly
  * (mrvi_predictor_shoot_ok). */
 int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
                        double target, int max, int *cycles);

@@ -74,9 +74,9 @@
  * 0.3 / 1). */
 #define MRVI_PRE_KAPPA 0.1
 /* Shooting (mrvi_predict_shoot) is offered where that contraction is at
- * most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.00 / 1.06 / 1.56
- * / 4 slow updates per step at dT = 0.03 / 0.1 / 0.3 / 1, where Newton
- * takes one). */
+ * most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.98 / 2.00 / 2.56
+ * / 2.90 slow updates per step at dT = 0.03 / 0.1 / 0.3 / 1, kappa = 3
+ * at dT = 1, where Newton takes one update and about the same time). */
 #define MRVI_SHOOT_KAPPA 30.0
 /* ... and its Jacobian takes the sampled Hessian where the contraction is
  * above this (below, M / dT alone: FPU, dT = 0.01, kappa = 3e-4) */
@@ -347,11 +347,6 @@ static int linear_jumps(mrvi_predictor *pr, const mrvi_step *st) {
   return 0;
 }
 
-/* The slow pre-solve (pre_solve) and its linear sweep: where W has a
- * constant Hessian and no slow input (Hq[1] on the fast columns), every
- * interval has the points of interval 0 and the fixed-point contraction
- * dT^2 |M_s^-1 hess_ss V(q0)| / 3 is above MRVI_PRE_KAPPA.  0, or
- * MRVI_ENOMEM. */
 /* The fixed-point update's contraction dT^2 |M_s^-1 hess_ss V(q0)|_inf / 3
  * at the initial state (a run constant; pr->H as scratch). */
 static double slow_kappa(mrvi_predictor *pr, const mrvi_step *st) {
@@ -373,6 +368,10 @@ static double slow_kappa(mrvi_predictor *pr, const mrvi_step *st) {
   return st->dT * st->dT * norm / 3.0;
 }
 
+/* The slow pre-solve (pre_solve) and its linear sweep: where W has a
+ * constant Hessian and no slow input (Hq[1] on the fast columns), every
+ * interval has the points of interval 0 and the fixed-point contraction
+ * (slow_kappa) is above MRVI_PRE_KAPPA.  0, or MRVI_ENOMEM. */
 static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
   const int ns = st->ns, nf = st->nf, nz = ns + nf;
   if (!pr->Hq[1] || pr->lo[1] != ns || nf == 0 || ns == 0 || st->p < 1 ||
@@ -1141,6 +1140,45 @@ static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
   return r;
 }
 
+/* J (ns x ns) = M / dT + (with hess) the slow block of pr->H: the first
+ * Jacobian of the slow row's secant solves (broyden, mrvi_predict_shoot). */
+static void slow_jacobian(const mrvi_predictor *pr, const mrvi_step *st,
+                          int hess, double *J) {
+  const int ns = st->ns, n = ns + st->nf;
+  for (int i = 0; i < ns; i++) {
+    const double mdt = 1.0 / (st->dT * pr->minv[i]);
+    for (int j = 0; j < ns; j++)
+      J[i * ns + j] = (hess ? pr->H[i * n + j] : 0.0) + (i == j ? mdt : 0.0);
+  }
+}
+
+/* Broyden's rank-one update of a row Ji (n) of the Jacobian from the
+ * change du of its residual over the step dy (dd = dy^T dy):
+ * Ji += (du - Ji dy) dy^T / dd; none for dd = 0. */
+static void broyden_row(double *Ji, double du, const double *dy, double dd,
+                        int n) {
+  if (!(dd > 0.0))
+    return;
+  double u = du;
+  for (int j = 0; j < n; j++)
+    u -= Ji[j] * dy[j];
+  for (int j = 0; j < n; j++)
+    Ji[j] += u * dy[j] / dd;
+}
+
+/* dy = -J^-1 r (ns; J copied to pr->A and factored there); -1 if J is
+ * singular. */
+static int secant_step(mrvi_predictor *pr, int ns, const double *J,
+                       const double *r, double *dy) {
+  memcpy(pr->A, J, (size_t)ns * (size_t)ns * sizeof(double));
+  memcpy(dy, r, (size_t)ns * sizeof(double));
+  if (mrvi_dense_solve(ns, pr->A, dy) < 0)
+    return -1;
+  for (int i = 0; i < ns; i++)
+    dy[i] = -dy[i];
+  return 0;
+}
+
 /* Broyden's method for the slow row with the fast nodes held, from
  * y = x[0..ns) (written to x): the Jacobian M / dT + H~ with the sampled
  * Hessian H~ evaluated once per step (at the first call's y, pr->h_ok),
@@ -1154,15 +1192,14 @@ static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
  * most stop (in M |dy| / dT). */
 static void broyden(mrvi_predictor *pr, const mrvi_step *st, double *x,
                     const double *xv, int pre, double stop) {
-  const int ns = st->ns, n = ns + st->nf;
+  const int ns = st->ns;
   double *f0 = pr->xs + ns, *f = pr->xs + 2 * ns;
   double *J = pr->A + ns * ns, *r = pr->b + 2 * ns, *dy = pr->b + 3 * ns;
   sampled_force(pr, st, x, f0, pre ? f : NULL, !pr->h_ok);
   pr->h_ok = 1;
+  slow_jacobian(pr, st, 1, J);
   for (int i = 0; i < ns; i++) {
     const double mdt = 1.0 / (st->dT * pr->minv[i]);
-    for (int j = 0; j < ns; j++)
-      J[i * ns + j] = pr->H[i * n + j] + (i == j ? mdt : 0.0);
     r[i] = mdt * (x[i] - xv[i]) + (pre ? f[i] - pr->fk[i] : 0.0);
   }
   for (int it = 0; it < MRVI_SLOW_NEWTON_MAX; it++) {
@@ -1176,22 +1213,14 @@ static void broyden(mrvi_predictor *pr, const mrvi_step *st, double *x,
         const double mdt = 1.0 / (st->dT * pr->minv[i]);
         const double rn =
             mdt * (x[i] - xv[i]) + f[i] - (pre ? pr->fk[i] : f0[i]);
-        double u = rn - r[i];
-        for (int j = 0; j < ns; j++)
-          u -= J[i * ns + j] * dy[j];
+        broyden_row(J + i * ns, rn - r[i], dy, dd, ns);
         r[i] = rn;
-        if (dd > 0.0)
-          for (int j = 0; j < ns; j++)
-            J[i * ns + j] += u * dy[j] / dd;
       }
     }
-    memcpy(pr->A, J, (size_t)ns * (size_t)ns * sizeof(double));
-    memcpy(dy, r, (size_t)ns * sizeof(double));
-    if (mrvi_dense_solve(ns, pr->A, dy) < 0)
+    if (secant_step(pr, ns, J, r, dy) < 0)
       return;
     double step = 0.0;
     for (int i = 0; i < ns; i++) {
-      dy[i] = -dy[i];
       x[i] += dy[i];
       step = fmax(step, fabs(dy[i]) / (st->dT * pr->minv[i]));
     }
@@ -1311,20 +1340,21 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * the fast nodes are a function of the slow displacement x_s and the step
  * reduces to the slow row G(x_s) = M x_s / dT - p_k^s + F(x_s) = 0, F the
  * slow-row force of the points along the fast nodes swept for x_s.  From
- * the prediction in x, each cycle sweeps the fast nodes along x_s (G
- * exact, the fast rows solved to round-off) and, unless G is within
+ * the predictor's start (predict_start: x_s the Stoermer-Verlet slow
+ * update, or the pre-solve's), each cycle sweeps the fast nodes along x_s
+ * (G exact, the fast rows solved to round-off) and, unless G is within
  * target after at least one update, updates x_s by -J^-1 G: J = M / dT +
- * the sampled Hessian of the slow force (as sampled_solve's first
- * Jacobian: the response of the fast nodes left out), corrected by
- * Broyden's rank-one update from each cycle's change of G, which brings
- * that response in along the updates made.  Returns 1 with x solved
- * (*cycles updates, the fast nodes swept for x's x_s), 0 after max
- * updates without reaching target (x usable as a Newton iterate), -1 on
- * non-finite values (x unusable). */
+ * a Hessian term chosen by kappa (below; the response of the fast nodes
+ * left out), corrected by Broyden's rank-one update from each cycle's
+ * change of G, which brings that response in along the updates made.
+ * Returns 1 with x solved (*cycles updates, the fast nodes swept for x's
+ * x_s), 0 after max updates without reaching target (x usable as a
+ * Newton iterate; *cycles 0: not predicted), -1 on non-finite values (x
+ * unusable). */
 int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
                        double target, int max, int *cycles) {
   const int ns = st->ns, n = ns + st->nf;
-  double *J = pr->A + (size_t)ns * (size_t)ns, *A = pr->A;
+  double *J = pr->A + (size_t)ns * (size_t)ns;
   double *G = pr->b, *Gp = pr->b + ns, *ds = pr->b + 2 * ns;
   *cycles = 0;
   pr->n_sweeps = 0;
@@ -1349,10 +1379,7 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
       pr->h_ok = 1;
     }
     if (c == 0)
-      for (int i = 0; i < ns; i++)
-        for (int j = 0; j < ns; j++)
-          J[i * ns + j] = (hess ? pr->H[i * n + j] : 0.0) +
-                          (i == j ? 1.0 / (st->dT * pr->minv[i]) : 0.0);
+      slow_jacobian(pr, st, hess, J);
     double r = 0.0;
     for (int i = 0; i < ns; i++) {
       G[i] = x[i] / (st->dT * pr->minv[i]) - st->ps0[i] + pr->fs[i];
@@ -1369,21 +1396,12 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
       double dd = 0.0;
       for (int i = 0; i < ns; i++)
         dd += ds[i] * ds[i];
-      for (int i = 0; i < ns && dd > 0.0; i++) {
-        double u = G[i] - Gp[i];
-        for (int j = 0; j < ns; j++)
-          u -= J[i * ns + j] * ds[j];
-        for (int j = 0; j < ns; j++)
-          J[i * ns + j] += u * ds[j] / dd;
-      }
+      for (int i = 0; i < ns; i++)
+        broyden_row(J + i * ns, G[i] - Gp[i], ds, dd, ns);
     }
-    memcpy(A, J, (size_t)ns * (size_t)ns * sizeof(double));
-    for (int i = 0; i < ns; i++)
-      ds[i] = G[i];
-    if (mrvi_dense_solve(ns, A, ds) < 0)
+    if (secant_step(pr, ns, J, G, ds) < 0)
       return 0;
     for (int i = 0; i < ns; i++) {
-      ds[i] = -ds[i];
       x[i] += ds[i];
       Gp[i] = G[i];
     }
