@@ -52,6 +52,7 @@ struct mrvi_integrator {
                           _OFF or _ON */
   int shoot_ok;        /* the schur path's steps may shoot (a run constant) */
   long n_shoot;        /* steps solved by shooting in the run */
+  long n_shoot_last;   /* ... of which with an unswept last update */
   long n_factor;       /* factorisations of the schur path in the run */
   long roundoff_steps; /* steps accepted at the roundoff floor above tol */
   double last_residual;
@@ -908,6 +909,10 @@ long mrvi_integrator_shoot_steps(const mrvi_integrator *it) {
   return it->n_shoot;
 }
 
+long mrvi_integrator_shoot_last_steps(const mrvi_integrator *it) {
+  return it->n_shoot_last;
+}
+
 long mrvi_integrator_factorisations(const mrvi_integrator *it) {
   return it->n_factor;
 }
@@ -958,6 +963,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
       if (evaluate_momenta(it, &r0, &c0, msg, sizeof msg) == MRVI_OK &&
           r0 <= MRVI_REUSE_TIGHTEN * tol) {
         it->n_shoot++;
+        it->n_shoot_last += sh == 2;
         return accept_step(it, shot, r0);
       }
     } else if (sh < 0 || shot == 0) {

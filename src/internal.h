@@ -477,6 +477,16 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
  * integer power on 2..4 inputs): 1 with one law for all, 2 with mixed laws,
  * 0 (the kernel per run) otherwise. */
 int mrvi_terms_flat(const mrvi_terms *kc);
+/* For a flat class (mrvi_terms_flat): the number of its terms; g +=
+ * grad Z(z) (mrvi_terms_grad's, bitwise) with dsum[r] += w phi_r''(z) for
+ * each term r; and J += sum_r dsum[r] a_r a_r^T over the columns below lim
+ * (ld x ld, row-major): a weighted sum of Hessians at many points from
+ * one scalar per term and point. */
+int mrvi_terms_count(const mrvi_terms *kc);
+void mrvi_terms_grad_d2(const mrvi_terms *kc, const double *z, double *g,
+                        double w, double *dsum);
+void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
+                        int ld, int lim);
 /* Whether every element of the class is quadratic
  * (mrvi_element_is_quadratic): its Hessian is constant. */
 int mrvi_terms_quadratic(const mrvi_terms *kc);
@@ -507,13 +517,19 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol);
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x);
 /* Shooting on the slow unknowns, from the predictor's start, into x
  * (predict.c, mrvi_predict_shoot): 1 solved (*cycles updates; slow
- * residual within target, the fast rows solved by the sweep), 0 not
- * within max updates (x a Newton iterate if *cycles > 0), -1 non-finite.
- * Available where the sweep solves every fast row exactly
- * (mrvi_predictor_shoot_ok). */
+ * residual within target, the fast rows solved by the sweep), 2 solved
+ * but for the last update, made without the sweep after it (the caller
+ * checks the exact residual), 0 not within max updates (x a Newton
+ * iterate if *cycles > 0), -1 non-finite.  Available where the sweep
+ * solves every fast row exactly (mrvi_predictor_shoot_ok). */
 int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
                        double target, int max, int *cycles);
 int mrvi_predictor_shoot_ok(const mrvi_predictor *pr, const mrvi_step *st);
+/* Whether the one-point sweep solves rows with points inside the micro
+ * intervals exactly (a W affine and diagonal in the fast nodes alone,
+ * inside; V not: predict.c, wexact), where the general sweep estimates
+ * their force. */
+int mrvi_predictor_exact_inside(const mrvi_predictor *pr);
 /* Free flight: the momenta of node k held over the step (displacements). */
 void mrvi_predict_free_flight(const mrvi_step *st, double *x);
 /* The slow pre-solve (predict.c, pre_solve): whether the predictor uses
@@ -600,10 +616,12 @@ void mrvi_integrator_set_chord(mrvi_integrator *it, int mode);
  * (auto), never, or for the first update of every schur step. */
 void mrvi_integrator_set_const_chord(mrvi_integrator *it, int mode);
 /* The same for shooting (mrvi_predict_shoot; auto: where the predictor
- * admits it and the constant chord does not take the step), and the
- * steps it solved in the run. */
+ * admits it and the constant chord does not take the step), the steps it
+ * solved in the run and, of those, the steps whose last update was made
+ * without its sweep. */
 void mrvi_integrator_set_shoot(mrvi_integrator *it, int mode);
 long mrvi_integrator_shoot_steps(const mrvi_integrator *it);
+long mrvi_integrator_shoot_last_steps(const mrvi_integrator *it);
 /* Factorisations of the schur path so far (the constant chord's counted
  * once). */
 long mrvi_integrator_factorisations(const mrvi_integrator *it);

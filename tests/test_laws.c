@@ -473,6 +473,64 @@ static void check_eval_set(mrvi_terms *kc, const double *z, int n, int ld,
   free(J2);
 }
 
+/* A weighted sum of Hessians from phi'' per term (mrvi_terms_grad_d2 at
+ * three configurations, mrvi_terms_hess_d2): each gradient bitwise
+ * mrvi_terms_grad's; the sum, over all columns, within 1e-13 of the sum of
+ * mrvi_terms_eval's Hessians; over the columns below lim = n - 1 the same
+ * entries and nothing at or beyond lim. */
+static void check_hess_d2(mrvi_terms *kc, const mrvi_model *m, int n, int c,
+                          const char *what) {
+  const int nt = mrvi_terms_count(kc);
+  double *dsum = calloc((size_t)nt + 1, sizeof *dsum);
+  double *q = calloc((size_t)n, sizeof *q), *g1 = calloc((size_t)n, sizeof *g1),
+         *g2 = calloc((size_t)n, sizeof *g2);
+  double *H = calloc((size_t)n * (size_t)n, sizeof *H),
+         *S = calloc((size_t)n * (size_t)n, sizeof *S),
+         *L = calloc((size_t)n * (size_t)n, sizeof *L);
+  const double w[3] = {0.25, -1.5, 3.0};
+  for (int r = 0; r < 3; r++) {
+    for (int i = 0; i < n; i++) {
+      q[i] = m->q0[i] + 0.1 * cos(2.0 * i + c + 1.3 * r);
+      g1[i] = g2[i] = 0.0;
+    }
+    memset(H, 0, (size_t)n * (size_t)n * sizeof *H);
+    mrvi_terms_eval(kc, q, 1.0, g1, H, n, 1.0);
+    for (int i = 0; i < n * n; i++)
+      S[i] += w[r] * H[i];
+    memset(g1, 0, (size_t)n * sizeof *g1);
+    mrvi_terms_grad(kc, q, g1);
+    mrvi_terms_grad_d2(kc, q, g2, w[r], dsum);
+    CHECK(memcmp(g1, g2, (size_t)n * sizeof *g1) == 0,
+          "%s class %d: grad_d2's gradient bitwise mrvi_terms_grad's", what, c);
+  }
+  memset(H, 0, (size_t)n * (size_t)n * sizeof *H);
+  mrvi_terms_hess_d2(kc, dsum, H, n, n);
+  mrvi_terms_hess_d2(kc, dsum, L, n, n - 1);
+  double err = 0.0, scale = 0.0, rest = 0.0, lerr = 0.0;
+  for (int i = 0; i < n; i++)
+    for (int j = 0; j < n; j++) {
+      err = fmax(err, fabs(H[i * n + j] - S[i * n + j]));
+      scale = fmax(scale, fabs(S[i * n + j]));
+      if (i < n - 1 && j < n - 1)
+        lerr = fmax(lerr, fabs(L[i * n + j] - H[i * n + j]));
+      else
+        rest = fmax(rest, fabs(L[i * n + j]));
+    }
+  CHECK(scale > 0.0 && err <= 1e-13 * scale,
+        "%s class %d: hess_d2 %.2e off the summed Hessians (max %.2e)", what, c,
+        err, scale);
+  CHECK(lerr == 0.0 && rest == 0.0,
+        "%s class %d: hess_d2 below lim: %.2e off, %.2e beyond", what, c, lerr,
+        rest);
+  free(dsum);
+  free(q);
+  free(g1);
+  free(g2);
+  free(H);
+  free(S);
+  free(L);
+}
+
 /* mrvi_terms_grad is mrvi_terms_eval at scale 1 without a Hessian, bitwise,
  * and both are the model's potential gradient (to rounding);
  * mrvi_terms_value is the model's potential value, bitwise;
@@ -538,6 +596,8 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
        * ld = 8, by memset beyond) */
       check_eval_set(kc, q, n, n + (r & 1) * 2 + (r == 2) * 5, unit, what);
     }
+    if (flat)
+      check_hess_d2(kc, m, n, c, what);
     mrvi_terms_free(kc);
   }
   free(elems);

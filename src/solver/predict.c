@@ -73,17 +73,32 @@
  * (row-sum norm), is above this (FPU: 0.03 / 0.27 / 3.0 at dT = 0.1 /
  * 0.3 / 1). */
 #define MRVI_PRE_KAPPA 0.1
+/* ... and before shooting (mrvi_predict_shoot) above this (FPU,
+ * trapezoidal-trapezoidal, dT = 0.1, kappa = 0.03: the first sweep's slow
+ * residual 5e-3..9e-3 -> 1e-5..3e-5, after the first update 1e-7 ->
+ * 2e-10..1e-9, from where the last update needs no sweep: 11.1 -> 9.4 us
+ * per step.  Newton's predictor saves no update there, and the pre-solve
+ * cost midpoint-midpoint 8 % at dT = 0.1.) */
+#define MRVI_SHOOT_PRE_KAPPA 0.01
 /* Shooting (mrvi_predict_shoot) is offered where that contraction is at
- * most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.98 / 2.00 / 2.56
+ * most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.98 / 1.94 / 2.56
  * / 2.90 slow updates per step at dT = 0.03 / 0.1 / 0.3 / 1, kappa = 3
- * at dT = 1, where Newton takes one update and about the same time). */
+ * at dT = 1, where it takes 0.7 of Newton's time). */
 #define MRVI_SHOOT_KAPPA 30.0
 /* ... and its Jacobian takes the sampled Hessian where the contraction is
  * above this (below, M / dT alone: FPU, dT = 0.01, kappa = 3e-4) */
 #define MRVI_SHOOT_KAPPA_M 1e-3
-/* ... and the Hessians of every point where it is above this (FPU: 1.00
- * slow updates per step at dT = 1, kappa = 3) */
+/* ... and the Hessians of every point where it is above this (FPU, dT =
+ * 1, kappa = 3: the sampled Hessian misses the fast oscillation of
+ * hess V, and 4 updates did not reach the target; summed from phi'' per
+ * term, mrvi_terms_grad_d2, the first sweep costs 1.2 of the others) */
 #define MRVI_SHOOT_KAPPA_FULL 1.0
+/* ... and its last update is made without the sweep after it where the
+ * last contraction, repeated, and the fast rows' share (3 kappa / p of
+ * |G|, below) leave at most this times the target (FPU, tol 1e-9: the
+ * third sweep at dT = 0.3 and 1, where the second left |G| 1e-11..3e-10,
+ * and the second at dT = 0.01 and 0.1; every such step accepted) */
+#define MRVI_SHOOT_LAST 0.1
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -161,10 +176,17 @@ struct mrvi_predictor {
    * that is diagonal (a sum of one-coordinate quadratics, the FPU's): its
    * gradient g0 + H z by the diagonal alone. */
   int wdiag;
+  /* With one: W's points are inside the intervals, V's are not, and W is
+   * wdiag: sweep1_k solves each row exactly (W's force affine in
+   * d^{m+1}), so that shooting applies. */
+  int wexact;
   double kappa; /* slow_kappa (with H) */
   /* The sweep adds every point's w a0 a1 hess_ss Z to H (shooting's
-   * Jacobian at large dT). */
-  int hsum;
+   * Jacobian at large dT); with hd2, a flat class's (dsum[c] not NULL,
+   * one entry per term) as w a0 a1 phi'' per term into dsum[c], formed
+   * into H after the sweep (mrvi_terms_hess_d2). */
+  int hsum, hd2;
+  double *dsum[2];
 };
 
 /* The points whose force on the slow row changes with q_{k+1}^s
@@ -377,7 +399,7 @@ static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
   if (!pr->Hq[1] || pr->lo[1] != ns || nf == 0 || ns == 0 || st->p < 1 ||
       !uniform_intervals(pr, st, 0) || !uniform_intervals(pr, st, 1))
     return 0;
-  if (!(pr->kappa > MRVI_PRE_KAPPA))
+  if (!(pr->kappa > fmin(MRVI_PRE_KAPPA, MRVI_SHOOT_PRE_KAPPA)))
     return 0;
   /* Interval sums: W's w cA, w cA cA, w cA cB, w cB, w cB cA, w cB cB,
    * V's w cA, w cB. */
@@ -544,6 +566,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
         pr->wdiag = 0;
   one_point(pr, st);
   pr->one_ok = pr->one;
+  pr->wexact = pr->one && !pr->same && pr->one_kind[1] == INSIDE &&
+               pr->one_kind[0] != INSIDE && pr->wdiag;
   for (int c = 0; c < 2; c++)
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
@@ -581,6 +605,13 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     }
     choose_samples(pr, st);
     pr->kappa = slow_kappa(pr, st);
+    for (int c = 0; c < 2; c++)
+      if (pr->kc[c] && mrvi_terms_flat(pr->kc[c]) &&
+          !(pr->dsum[c] = calloc((size_t)mrvi_terms_count(pr->kc[c]) + 1,
+                                 sizeof(double)))) {
+        mrvi_predictor_free(pr);
+        return MRVI_ENOMEM;
+      }
     if (linear_sweep_setup(pr, st) < 0) {
       mrvi_predictor_free(pr);
       return MRVI_ENOMEM;
@@ -618,6 +649,8 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->kinds[1]);
   free(pr->pend[0]);
   free(pr->pend[1]);
+  free(pr->dsum[0]);
+  free(pr->dsum[1]);
   for (int c = 0; c < 2; c++) {
     free(pr->g0[c]);
     free(pr->Hq[c]);
@@ -698,6 +731,8 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
   double *restrict z = pr->z, *restrict g = pr->g;
   const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
   const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  if (pr->Hq[c] && pr->lo[c] != 0)
+    J = NULL; /* (a constant Hessian without a slow block) */
   const int nz = ns + nf;
   /* (of constant size: a variable-length array cost a stack save and
    * restore per call on the sweep's chain; W has an affine map only with
@@ -744,8 +779,11 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
       affine_k(g0, Hq, z, tw, ns, nz, 0);
   }
   UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
-  if (J) { /* the slow solve's Hessian as well: at scale 1 (the flat
-            * kernels, mrvi_terms_eval), its slow block times hscale into J */
+  if (J && pr->hd2 && pr->dsum[c]) /* (the Hessian as phi'' per term) */
+    mrvi_terms_grad_d2(pr->kc[c], z, g, hscale, pr->dsum[c]);
+  else if (J) { /* the slow solve's Hessian as well: at scale 1 (the flat
+                 * kernels, mrvi_terms_eval), its slow block times hscale
+                 * into J */
     double *restrict Ht = pr->H + (size_t)nz * (size_t)nz;
     UNROLL for (int i = 0; i < nz * nz; i++) Ht[i] = 0.0;
     mrvi_terms_eval(pr->kc[c], z, 1.0, g, Ht, nz, 1.0);
@@ -959,6 +997,24 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     pm[f] = st->pf0[f];
     cm[f] = dt * minv[f]; /* dt / M */
   }
+  /* (wexact: W's w cA, cA, g0 and h (its diagonal) on the fast columns,
+   * and 1 / (1 + dt/M w cA cB h) per fast coordinate) */
+  const int wex = pr->wexact && loc; /* (one implies loc) */
+  double wg0[4] = {0}, wh[4] = {0}, rden[4] = {0}, wxa = 0.0, wxb = 0.0,
+         wxc = 0.0, wxd = 0.0;
+  const double *qf0 = st->qf0;
+  if (wex) {
+    const mrvi_point *pt = &pts[1][0];
+    wxa = pt->w * pt->cA;
+    wxb = pt->w * pt->cB;
+    wxc = pt->cA;
+    wxd = pt->cB;
+    UNROLL for (int f = 0; f < nf; f++) {
+      wg0[f] = pr->g0[1][ns + f];
+      wh[f] = pr->Hq[1][(ns + f) * n + ns + f];
+      rden[f] = 1.0 / (1.0 + cm[f] * wxa * pt->cB * wh[f]);
+    }
+  }
   for (int mm = 0; mm < p; mm++) {
     const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
     double *dn = x + ns + (size_t)mm * nf;
@@ -980,12 +1036,29 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
         UNROLL for (int s = 0; s < ns; s++) fs[s] += w0 * g[s];
     }
     if (implicit) {
-      /* The row at the estimate of the implicit force (sweep_k) */
-      extrapolate_k(mm, fimp, fimp1, nf);
-      UNROLL for (int f = 0; f < nf; f++) dn[f] =
-          (d ? d[f] : 0.0) + cm[f] * (pm[f] - fexp[f] - fimp[f]);
+      if (wex) {
+        /* W's point inside the interval, its gradient affine and
+         * diagonal in the fast nodes alone (pr->wexact): the row
+         * M (d^{m+1} - d^m) / dt = p^{f,m} - F^A_exp - w cA (g0 + h (q^f_0
+         * + cA d^m + cB d^{m+1})) solved for d^{m+1} exactly, and its
+         * forces F^A, F^B there (no slow row: no slow input) */
+        UNROLL for (int f = 0; f < nf; f++) {
+          const double dA = d ? d[f] : 0.0;
+          dn[f] = rden[f] *
+                  (dA + cm[f] * (pm[f] - fexp[f] -
+                                 wxa * (wg0[f] + wh[f] * (qf0[f] + wxc * dA))));
+          const double gw = wg0[f] + wh[f] * (qf0[f] + wxc * dA + wxd * dn[f]);
+          fi[f] = wxa * gw;
+          fb[f] = wxb * gw;
+        }
+      } else {
+        /* The row at the estimate of the implicit force (sweep_k) */
+        extrapolate_k(mm, fimp, fimp1, nf);
+        UNROLL for (int f = 0; f < nf; f++) dn[f] =
+            (d ? d[f] : 0.0) + cm[f] * (pm[f] - fexp[f] - fimp[f]);
+      }
       /* ... and the implicit points there: F^A, F^B, the slow row. */
-      for (int c = 0; c < 2; c++) {
+      for (int c = 0; c < 2 && !wex; c++) {
         if ((c == 0 ? k0 : k1) != INSIDE)
           continue;
         const mrvi_point *pt = &pts[c][mm];
@@ -1284,20 +1357,28 @@ static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   }
 }
 
+/* Whether the prediction for Newton (or, with shoot, for shooting) takes
+ * the pre-solve: where it is available (pr->pre) and the fixed-point
+ * contraction is above that one's threshold. */
+static int use_pre(const mrvi_predictor *pr, int shoot) {
+  return pr->pre && pr->kappa > (shoot ? MRVI_SHOOT_PRE_KAPPA : MRVI_PRE_KAPPA);
+}
+
 /* The prediction up to the sweep: the gradients at node k, the slow row
- * with every point there and, where used, the pre-solve. */
-static void predict_start(mrvi_predictor *pr, const mrvi_step *st, double *x) {
+ * with every point there and, with pre, the pre-solve. */
+static void predict_start(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                          int pre) {
   pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
   SMALL(st->ns, NS, SMALL(st->nf, NF, node_gradients_k(pr, st, NS, NF)));
-  if (pr->pre) { /* for pre_solve */
+  if (pre) { /* for pre_solve */
     const int n = st->ns + st->nf;
     for (int s = 0; s < st->ns; s++)
       pr->fk[s] = pr->wk[0] * pr->gnode[s] + pr->wk[1] * pr->gnode[n + s];
   }
   slow_update(pr, st, x, 0);
   pr->presolved = 0;
-  if (pr->pre && pr->slow_coupled)
+  if (pre && pr->slow_coupled)
     pre_solve(pr, st, x);
 }
 
@@ -1307,7 +1388,7 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     mrvi_predict_free_flight(st, x);
     return;
   }
-  predict_start(pr, st, x);
+  predict_start(pr, st, x, use_pre(pr, 0));
   if (!pr->slow_coupled || st->ns == 0) {
     sweep(pr, st, x, 0);
     return;
@@ -1336,7 +1417,8 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
 }
 
 /* Shooting (doc/solver.md, "Newton details"): where the sweep solves
- * every fast row exactly (no implicit points, mrvi_predictor_shoot_ok),
+ * every fast row exactly (no implicit points, or W's alone and affine
+ * (wexact); mrvi_predictor_shoot_ok),
  * the fast nodes are a function of the slow displacement x_s and the step
  * reduces to the slow row G(x_s) = M x_s / dT - p_k^s + F(x_s) = 0, F the
  * slow-row force of the points along the fast nodes swept for x_s.  From
@@ -1347,18 +1429,23 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * a Hessian term chosen by kappa (below; the response of the fast nodes
  * left out), corrected by Broyden's rank-one update from each cycle's
  * change of G, which brings that response in along the updates made.
+ * Where the last contraction says the next update lands an order below
+ * target, that update is made without its sweep: it moves x_s by so
+ * little that the fast rows it leaves change by about (3 kappa / p) |G|,
+ * far below target too; the caller accepts on the exact residual.
  * Returns 1 with x solved (*cycles updates, the fast nodes swept for x's
- * x_s), 0 after max updates without reaching target (x usable as a
- * Newton iterate; *cycles 0: not predicted), -1 on non-finite values (x
- * unusable). */
+ * x_s), 2 with the last update unswept, 0 after max updates without
+ * reaching target (x usable as a Newton iterate; *cycles 0: not
+ * predicted), -1 on non-finite values (x unusable). */
 int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
                        double target, int max, int *cycles) {
   const int ns = st->ns, n = ns + st->nf;
   double *J = pr->A + (size_t)ns * (size_t)ns;
   double *G = pr->b, *Gp = pr->b + ns, *ds = pr->b + 2 * ns;
+  double rp = INFINITY; /* the last cycle's |G| */
   *cycles = 0;
   pr->n_sweeps = 0;
-  predict_start(pr, st, x);
+  predict_start(pr, st, x, use_pre(pr, 1));
   /* The Hessian term: where the fixed-point update contracts enough, none
    * (M / dT alone: the samples' Hessians cost as much as a sweep at
    * p = 10); at large dT every point's, summed in the first sweep (the
@@ -1369,9 +1456,16 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
   for (int c = 0;; c++) {
     if (full && c == 0) {
       memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
-      pr->hsum = 1;
+      for (int k = 0; k < 2; k++)
+        if (pr->dsum[k])
+          memset(pr->dsum[k], 0,
+                 (size_t)mrvi_terms_count(pr->kc[k]) * sizeof(double));
+      pr->hsum = pr->hd2 = 1;
       sweep(pr, st, x, 1);
-      pr->hsum = 0;
+      pr->hsum = pr->hd2 = 0;
+      for (int k = 0; k < 2; k++)
+        if (pr->dsum[k])
+          mrvi_terms_hess_d2(pr->kc[k], pr->dsum[k], pr->H, n, ns);
     } else
       sweep(pr, st, x, 1);
     if (c == 0 && hess && !full && !pr->h_ok) { /* (f scratch) */
@@ -1392,6 +1486,12 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
       return 1;
     if (c == max)
       return 0;
+    /* The last update without its sweep (above): a fast row's residual
+     * changes by about dt |hess_fs Z| |ds| ~ 3 kappa |G| / p. */
+    const double fast = 3.0 * pr->kappa / st->p;
+    const int last =
+        c >= 1 && r * fmax(r / rp, fast) <= MRVI_SHOOT_LAST * target;
+    rp = r;
     if (c >= 1) { /* J += (G - Gp - J ds) ds^T / (ds^T ds) */
       double dd = 0.0;
       for (int i = 0; i < ns; i++)
@@ -1405,12 +1505,21 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
       x[i] += ds[i];
       Gp[i] = G[i];
     }
+    if (last) {
+      *cycles = c + 1;
+      return 2;
+    }
   }
+}
+
+int mrvi_predictor_exact_inside(const mrvi_predictor *pr) {
+  return pr->one && pr->wexact;
 }
 
 int mrvi_predictor_shoot_ok(const mrvi_predictor *pr, const mrvi_step *st) {
   return pr->sweep_ok && pr->slow_coupled && pr->H && st->ns >= 1 &&
-         st->p >= 2 && !pr->has_kind[INSIDE] && pr->kappa <= MRVI_SHOOT_KAPPA;
+         st->p >= 2 && (!pr->has_kind[INSIDE] || (pr->one && pr->wexact)) &&
+         pr->kappa <= MRVI_SHOOT_KAPPA;
 }
 
 void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
@@ -1427,7 +1536,7 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
 }
 
 int mrvi_predictor_presolve(mrvi_predictor *pr, int on) {
-  const int was = pr->pre;
+  const int was = use_pre(pr, 0);
   pr->pre = was && on;
   return was;
 }

@@ -579,6 +579,65 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
     terms_grad_any(kc, z, g);
 }
 
+int mrvi_terms_count(const mrvi_terms *kc) { return kc->n; }
+
+/* flat_grad with each record's phi'' weighted into dsum: the gradient's
+ * products and their order those of flat_grad (bitwise the same). */
+ALWAYS_INLINE void term4_grad_d2(const kterm4 *q, const double *z, double *g,
+                                 double w, double *dsum, const int n,
+                                 const int k) {
+  int col[4];
+  double a[4], d1, d2;
+  term4_derivs(q, z, col, a, &d1, &d2, n, k);
+  UNROLL for (int j = 0; j < n; j++) g[col[j]] += d1 * a[j];
+  *dsum += w * d2;
+}
+
+ALWAYS_INLINE void grad_d2_k(const kterm4 *q, int nr, const double *z,
+                             double *g, double w, double *dsum, const int k) {
+  for (int r = 0; r < nr; r++) {
+    switch (q[r].n) {
+    case 2:
+      term4_grad_d2(q + r, z, g, w, dsum + r, 2, k);
+      break;
+    case 3:
+      term4_grad_d2(q + r, z, g, w, dsum + r, 3, k);
+      break;
+    default:
+      term4_grad_d2(q + r, z, g, w, dsum + r, 4, k);
+    }
+  }
+}
+
+void mrvi_terms_grad_d2(const mrvi_terms *kc, const double *z, double *g,
+                        double w, double *dsum) {
+  switch (kc->flat_k) {
+  case -1:
+    grad_d2_k(kc->q4, kc->n, z, g, w, dsum, -1);
+    break;
+  case 4:
+    grad_d2_k(kc->q4, kc->n, z, g, w, dsum, 4);
+    break;
+  default:
+    grad_d2_k(kc->q4, kc->n, z, g, w, dsum, K_ANY);
+  }
+}
+
+void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
+                        int ld, int lim) {
+  for (int r = 0; r < kc->n; r++) {
+    const kterm4 *q = &kc->q4[r];
+    for (int j = 0; j < q->n; j++) {
+      if (q->col[j] >= lim)
+        continue;
+      const double u = dsum[r] * q->a[j];
+      for (int l = 0; l < q->n; l++)
+        if (q->col[l] < lim)
+          J[q->col[j] * ld + q->col[l]] += u * q->a[l];
+    }
+  }
+}
+
 /* c s^k for a small integer k: laws/power.c's phi (s^k by repeated
  * squaring, the same products). */
 static double power_phi(double c, int k, double s) {
