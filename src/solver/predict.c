@@ -997,22 +997,27 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     pm[f] = st->pf0[f];
     cm[f] = dt * minv[f]; /* dt / M */
   }
-  /* (wexact: W's w cA, cA, g0 and h (its diagonal) on the fast columns,
-   * and 1 / (1 + dt/M w cA cB h) per fast coordinate) */
+  /* (wexact: with W's gradient g0 + h z (h its diagonal) on the fast
+   * columns and a = dt/M, per fast coordinate the row's solution
+   * d^{m+1} = e0 d^m + e1 (p^{f,m} - F^A_exp - c0), e0 = (1 - a w cA h cA)
+   * / r, e1 = a / r, r = 1 + a w cA cB h, c0 = w cA (g0 + h q^f_0), and
+   * the gradient there k0 + kA d^m + kB d^{m+1}) */
   const int wex = pr->wexact && loc; /* (one implies loc) */
-  double wg0[4] = {0}, wh[4] = {0}, rden[4] = {0}, wxa = 0.0, wxb = 0.0,
-         wxc = 0.0, wxd = 0.0;
-  const double *qf0 = st->qf0;
+  double we0[4] = {0}, we1[4] = {0}, wc0[4] = {0}, wk0[4] = {0}, wkA[4] = {0},
+         wkB[4] = {0}, wxa = 0.0, wxb = 0.0;
   if (wex) {
     const mrvi_point *pt = &pts[1][0];
     wxa = pt->w * pt->cA;
     wxb = pt->w * pt->cB;
-    wxc = pt->cA;
-    wxd = pt->cB;
     UNROLL for (int f = 0; f < nf; f++) {
-      wg0[f] = pr->g0[1][ns + f];
-      wh[f] = pr->Hq[1][(ns + f) * n + ns + f];
-      rden[f] = 1.0 / (1.0 + cm[f] * wxa * pt->cB * wh[f]);
+      const double g0 = pr->g0[1][ns + f], h = pr->Hq[1][(ns + f) * n + ns + f];
+      const double r = 1.0 + cm[f] * wxa * pt->cB * h;
+      we0[f] = (1.0 - cm[f] * wxa * h * pt->cA) / r;
+      we1[f] = cm[f] / r;
+      wk0[f] = g0 + h * st->qf0[f];
+      wc0[f] = wxa * wk0[f];
+      wkA[f] = h * pt->cA;
+      wkB[f] = h * pt->cB;
     }
   }
   for (int mm = 0; mm < p; mm++) {
@@ -1044,10 +1049,8 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
          * forces F^A, F^B there (no slow row: no slow input) */
         UNROLL for (int f = 0; f < nf; f++) {
           const double dA = d ? d[f] : 0.0;
-          dn[f] = rden[f] *
-                  (dA + cm[f] * (pm[f] - fexp[f] -
-                                 wxa * (wg0[f] + wh[f] * (qf0[f] + wxc * dA))));
-          const double gw = wg0[f] + wh[f] * (qf0[f] + wxc * dA + wxd * dn[f]);
+          dn[f] = we0[f] * dA + we1[f] * (pm[f] - fexp[f] - wc0[f]);
+          const double gw = wk0[f] + wkA[f] * dA + wkB[f] * dn[f];
           fi[f] = wxa * gw;
           fb[f] = wxb * gw;
         }
