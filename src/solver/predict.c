@@ -182,10 +182,10 @@ struct mrvi_predictor {
   int wexact;
   double kappa; /* slow_kappa (with H) */
   /* The sweep adds every point's w a0 a1 hess_ss Z to H (shooting's
-   * Jacobian at large dT); with hd2, a flat class's (dsum[c] not NULL,
+   * Jacobian at large dT); a flat class's (dsum[c] not NULL,
    * one entry per term) as w a0 a1 phi'' per term into dsum[c], formed
    * into H after the sweep (mrvi_terms_hess_d2). */
-  int hsum, hd2;
+  int hsum;
   double *dsum[2];
 };
 
@@ -779,7 +779,7 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
       affine_k(g0, Hq, z, tw, ns, nz, 0);
   }
   UNROLL for (int i = 0; i < nz; i++) g[i] = 0.0;
-  if (J && pr->hd2 && pr->dsum[c]) /* (the Hessian as phi'' per term) */
+  if (J && pr->hsum && pr->dsum[c]) /* (the Hessian as phi'' per term) */
     mrvi_terms_grad_d2(pr->kc[c], z, g, hscale, pr->dsum[c]);
   else if (J) { /* the slow solve's Hessian as well: at scale 1 (the flat
                  * kernels, mrvi_terms_eval), its slow block times hscale
@@ -1463,9 +1463,9 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
         if (pr->dsum[k])
           memset(pr->dsum[k], 0,
                  (size_t)mrvi_terms_count(pr->kc[k]) * sizeof(double));
-      pr->hsum = pr->hd2 = 1;
+      pr->hsum = 1;
       sweep(pr, st, x, 1);
-      pr->hsum = pr->hd2 = 0;
+      pr->hsum = 0;
       for (int k = 0; k < 2; k++)
         if (pr->dsum[k])
           mrvi_terms_hess_d2(pr->kc[k], pr->dsum[k], pr->H, n, ns);
@@ -1521,7 +1521,8 @@ int mrvi_predictor_exact_inside(const mrvi_predictor *pr) {
 
 int mrvi_predictor_shoot_ok(const mrvi_predictor *pr, const mrvi_step *st) {
   return pr->sweep_ok && pr->slow_coupled && pr->H && st->ns >= 1 &&
-         st->p >= 2 && (!pr->has_kind[INSIDE] || (pr->one && pr->wexact)) &&
+         st->p >= 2 &&
+         (!pr->has_kind[INSIDE] || mrvi_predictor_exact_inside(pr)) &&
          pr->kappa <= MRVI_SHOOT_KAPPA;
 }
 
