@@ -14,7 +14,7 @@ set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 build=$(cd "${1:-$root/build}" && pwd)
 mrvi=$build/mrvi
-plot=$root/src/mrvi-plot
+plot=$root/src/cli/mrvi-plot
 work=$build/reproduction
 figs=$root/doc/figures
 results=$root/doc/results

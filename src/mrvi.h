@@ -248,7 +248,7 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q,
  * invariant under rotations about the axis e_a through the origin.  Pair
  * springs, angles and rods between particles keep both; anchors, gravity,
  * forces, terms, fixed, plane and linear constraints keep what their
- * direction allows (src/symmetry.c); user constraint types keep nothing
+ * direction allows (src/model/symmetry.c); user constraint types keep nothing
  * they touch.  Either pointer may be NULL. */
 int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular);
 /* Lines of a picture of the model: springs between two particles (kind 0

@@ -1,5 +1,5 @@
 #!/bin/bash
-# Test of the pictures of the motion (src/export.c, src/cli_export.c,
+# Test of the pictures of the motion (src/io/export.c, src/cli/cli_export.c,
 # doc/output.md "Viewing the motion"): the XDMF file `mrvi run` writes and
 # `mrvi export --format xdmf` rewrites is checked against the HDF5 file it
 # names (every referenced dataset exists with the stated shape and type,

@@ -1,4 +1,4 @@
-/* HDF5 output (src/hdf5_writer.c, doc/output.md).
+/* HDF5 output (src/io/hdf5_writer.c, doc/output.md).
  *
  * Every test keeps an in-memory copy of the records it hands to the writer,
  * reopens the file with the plain HDF5 API and asserts that it holds exactly
@@ -14,7 +14,7 @@
  *     none of it for unconstrained models;
  *   - an unwritable path fails with a message and prints nothing;
  *   - `mrvi run` on systems/fpu.yaml writes exactly the in-memory run. */
-#include "h5util.h"
+#include "io/h5util.h"
 #include "mrvi.h"
 #include "testlib.h"
 

@@ -1,5 +1,5 @@
 #!/bin/bash
-# Test of src/mrvi-plot: renders every figure from small runs and synthetic
+# Test of src/cli/mrvi-plot: renders every figure from small runs and synthetic
 # study tables and checks the PNG files.
 #
 #   test_plot.sh MRVI_BINARY SOURCE_ROOT
@@ -10,7 +10,7 @@ set -u
 
 mrvi=${1:?usage: test_plot.sh MRVI_BINARY SOURCE_ROOT}
 root=${2:?usage: test_plot.sh MRVI_BINARY SOURCE_ROOT}
-plot="$root/src/mrvi-plot"
+plot="$root/src/cli/mrvi-plot"
 
 # shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"

@@ -1,4 +1,4 @@
-/* Symmetries and bonds of a model (src/symmetry.c, src/bonds.c): which
+/* Symmetries and bonds of a model (src/model/symmetry.c, src/model/bonds.c): which
  * momentum components mrvi_model_conserved claims, checked against the
  * group action of every element kind and against runs (a claimed component
  * stays at its initial value to the Newton tolerance, a broken one moves by

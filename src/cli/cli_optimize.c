@@ -7,7 +7,7 @@
  * plus /control and /optimizer to HDF5 (doc/output.md).
  * Exit status: 0 optimum found with the terminal conditions met, 1 bad
  * input, 2 the optimiser failed or the terminal conditions are not met. */
-#include "h5util.h"
+#include "io/h5util.h"
 #include "internal.h"
 #include "ocp/ocp.h"
 
@@ -27,7 +27,7 @@ const char mrvi_usage_optimize[] =
     "gradient norm) and a summary; writes the optimal trajectory (/macro\n"
     "and /micro, as `mrvi run` writes them), /control and /optimizer to\n"
     "OUT.h5 (default: output.file with '.h5' replaced by '_opt.h5').\n"
-    "Figures: src/mrvi-plot optimize OUT.h5 -o DIR (controls, trajectory,\n"
+    "Figures: src/cli/mrvi-plot optimize OUT.h5 -o DIR (controls, trajectory,\n"
     "optimiser history).\n"
     "\n"
     "Options:\n"

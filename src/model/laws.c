@@ -1,4 +1,4 @@
-/* Registry of potential laws.  A law is one const table in src/laws/; adding
+/* Registry of potential laws.  A law is one const table in src/model/laws/; adding
  * a built-in law means adding its file and one line to `builtin` below. */
 #include "internal.h"
 

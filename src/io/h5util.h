@@ -1,4 +1,4 @@
-/* Helpers shared by the HDF5 readers and the writer (src/hdf5_reader.c). */
+/* Helpers shared by the HDF5 readers and the writer (src/io/hdf5_reader.c). */
 #ifndef MRVI_H5UTIL_H
 #define MRVI_H5UTIL_H
 
