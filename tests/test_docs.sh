@@ -122,4 +122,17 @@ else
   pass "no file refers to design notes or outside the repository ($(tr -cd '\0' <"$tmp/files" | wc -c) files)"
 fi
 
+# --- every source path the docs name exists (the layout moves with them) ---
+grep -ohE '(src|constraints|tests|bench)/[A-Za-z0-9_./-]+\.(c|h|sh|py)|src/cli/mrvi-plot|src/[a-z]+/[A-Za-z0-9_./-]*mrvi-plot' \
+  "${docs[@]}" | sort -u >"$tmp/paths.txt"
+missing=$(grep -v NAME "$tmp/paths.txt" | while read -r f; do [ -e "$root/$f" ] || echo "$f"; done)
+npaths=$(grep -c . "$tmp/paths.txt")
+if [ -n "$missing" ]; then
+  fail "source paths named in README.md or doc/*.md do not exist: $(echo $missing)"
+elif [ "$npaths" -lt 20 ]; then
+  fail "only $npaths source paths found in the docs (the pattern broke?)"
+else
+  pass "all $npaths source paths named in README.md and doc/*.md exist"
+fi
+
 test_finish
