@@ -96,35 +96,37 @@ int mrvi_ld_combination(loader *L, struct fy_node *comb, int *coords,
   return st;
 }
 
-/* Ends of a spring or distance constraint (`noun` in messages):
- * `between: [a, b]`, or `between: [a]` with `anchor:` (dim entries).
+/* Ends of a spring or constraint (`noun` in messages), under `key`:
+ * `between: [a, b]`, or `between: [a]` with `anchor_key` (`anchor:`, dim
+ * entries).
  * *ends is 1 or 2; pi gets the particle indices. */
 int mrvi_ld_ends(loader *L, struct fy_node *item, const char *where,
-                 const char *noun, int dim, int pi[2], int *ends,
-                 double *anchor) {
+                 const char *noun, const char *key, const char *anchor_key,
+                 int dim, int pi[2], int *ends, double *anchor) {
   struct fy_node *between, *anchor_node;
   int st;
-  if ((st = mrvi_ld_need(L, item, "between", where, &between)) ||
-      (st = mrvi_ld_want_list(L, between, "between")))
+  if ((st = mrvi_ld_need(L, item, key, where, &between)) ||
+      (st = mrvi_ld_want_list(L, between, key)))
     return st;
   *ends = fy_node_sequence_item_count(between);
   if (*ends != 1 && *ends != 2)
     return mrvi_ld_fail(L, between,
-                        "between must name one particle (with "
-                        "anchor) or two, got %d",
-                        *ends);
+                        "%s must name one particle (with %s) or two, got %d",
+                        key, anchor_key, *ends);
   for (int e = 0; e < *ends; e++)
     if ((st = mrvi_ld_find_particle(
-             L, fy_node_sequence_get_by_index(between, e), "between", &pi[e])))
+             L, fy_node_sequence_get_by_index(between, e), key, &pi[e])))
       return st;
-  anchor_node = mrvi_ld_get(item, "anchor");
+  anchor_node = mrvi_ld_get(item, anchor_key);
   if (*ends == 2 && anchor_node)
     return mrvi_ld_fail(L, anchor_node,
-                        "anchor given for a %s between two particles", noun);
-  if (*ends == 1 && !anchor_node)
-    return mrvi_ld_fail(L, between, "a %s on one particle needs an anchor",
+                        "%s given for a %s between two particles", anchor_key,
                         noun);
+  if (*ends == 1 && !anchor_node)
+    return mrvi_ld_fail(L, between, "a %s on one particle needs %s %s", noun,
+                        strchr("aeiou", anchor_key[0]) ? "an" : "a",
+                        anchor_key);
   if (anchor_node)
-    return mrvi_ld_as_vector(L, anchor_node, "anchor", dim, anchor);
+    return mrvi_ld_as_vector(L, anchor_node, anchor_key, dim, anchor);
   return MRVI_OK;
 }

@@ -13,7 +13,7 @@
  *   read.c         errors at marks, typed access to nodes, key checks
  *   names.c        coordinate and particle names
  *   elements.c     what potential elements share: law and parameters,
- *                  linear combinations, the ends of a spring
+ *                  linear combinations, the ends of a spring or rod
  *   overrides.c    --set KEY=VALUE applied to the document tree
  *   limits.c       limits on hostile input (text, aliases, depth)
  *
@@ -191,10 +191,11 @@ int mrvi_ld_law(loader *L, struct fy_node *item, const char *where,
 /* `combination: {coordinate: coefficient, ...}` (non-empty). */
 int mrvi_ld_combination(loader *L, struct fy_node *comb, int *coords,
                         double *coef, int *k);
-/* `between: [a, b]` or `between: [a]` with `anchor:`. */
+/* `key: [a, b]`, or `key: [a]` with `anchor_key:` (dim numbers), as
+ * `between:` and `anchor:` of a spring; *ends is 1 or 2. */
 int mrvi_ld_ends(loader *L, struct fy_node *item, const char *where,
-                 const char *noun, int dim, int pi[2], int *ends,
-                 double *anchor);
+                 const char *noun, const char *key, const char *anchor_key,
+                 int dim, int pi[2], int *ends, double *anchor);
 
 /* ---------------------------------------------------------------------------
  * Overrides (overrides.c) and limits on hostile input (limits.c)

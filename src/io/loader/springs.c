@@ -39,7 +39,8 @@ int mrvi_ld_springs(loader *L, struct fy_node *list, int dim) {
     if ((st = mrvi_ld_want_mapping(L, item, where)) ||
         (st = mrvi_ld_law(L, item, where, spring_keys, COUNT(spring_keys), &law,
                           params)) ||
-        (st = mrvi_ld_ends(L, item, where, "spring", dim, pi, &ends, anchor)) ||
+        (st = mrvi_ld_ends(L, item, where, "spring", "between", "anchor", dim,
+                           pi, &ends, anchor)) ||
         (st = spring_rest(L, item, pi, ends, anchor, &rest)) ||
         (st = mrvi_ld_as_rate(L, item, "potential", &potential)))
       return st;
