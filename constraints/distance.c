@@ -65,9 +65,42 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
   }
 }
 
+/* A length not given (NAN): the initial distance. */
+static int initial(int n_in, int n_params, double *par, const double *y0,
+                   char *msg, size_t len) {
+  const int pair = n_params == 1 && n_in % 2 == 0 && n_in >= 2 && n_in <= 6;
+  const int anchor = n_params == n_in + 1 && n_in >= 1 && n_in <= 3;
+  if ((!pair && !anchor) || !isnan(par[0]))
+    return 0; /* check() judges the rest */
+  const int d = anchor ? n_in : n_in / 2;
+  double rr = 0.0;
+  for (int a = 0; a < d; a++)
+    rr += (y0[a] - (anchor ? par[1 + a] : y0[d + a])) *
+          (y0[a] - (anchor ? par[1 + a] : y0[d + a]));
+  par[0] = sqrt(rr);
+  if (par[0] > 0.0)
+    return 0;
+  mrvi_fmt(msg, len,
+           anchor ? "the particle starts at the anchor, so the length must "
+                    "be given"
+                  : "the particles start at the same point, so the length "
+                    "must be given");
+  return MRVI_EINVAL;
+}
+
+/* {type: distance, between: [a, b] | [a] + anchor, length} */
+static const mrvi_constraint_key keys[] = {
+    {"between", MRVI_KEY_ENDS, MRVI_KEY_REQUIRED | MRVI_KEY_REPORT, 0},
+    {"anchor", MRVI_KEY_VECTOR, MRVI_KEY_ANCHOR, 2},
+    {"length", MRVI_KEY_SCALAR, MRVI_KEY_POSITIVE, 1},
+    {0},
+};
+
 const mrvi_constraint_type mrvi_constraint_distance = {
     .name = "distance",
     .summary = "rigid rod |x_i - x_j| = L (or |x_i - a| = L to an anchor)",
     .check = check,
     .eval = eval,
+    .initial = initial,
+    .keys = keys,
 };

@@ -34,9 +34,29 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
     memset(H, 0, (size_t)n_in * (size_t)n_in * (size_t)n_in * sizeof *H);
 }
 
+/* Targets not given (NAN): the initial values. */
+static int initial(int n_in, int n_params, double *par, const double *y0,
+                   char *msg, size_t len) {
+  (void)msg, (void)len;
+  for (int r = 0; r < n_in && r < n_params; r++)
+    if (isnan(par[r]))
+      par[r] = y0[r];
+  return 0;
+}
+
+/* {type: fixed, particle: a, axes: [x, z], position: [...]} */
+static const mrvi_constraint_key keys[] = {
+    {"particle", MRVI_KEY_PARTICLE, MRVI_KEY_REQUIRED, 0},
+    {"axes", MRVI_KEY_AXES, 0, 0},
+    {"position", MRVI_KEY_VECTOR, 0, 1},
+    {0},
+};
+
 const mrvi_constraint_type mrvi_constraint_fixed = {
     .name = "fixed",
     .summary = "pinned coordinates q_i = c_i (a particle, all or some axes)",
     .check = check,
     .eval = eval,
+    .initial = initial,
+    .keys = keys,
 };

@@ -43,9 +43,33 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
     memset(H, 0, (size_t)n_in * (size_t)n_in * sizeof *H);
 }
 
+/* A right-hand side not given (NAN): the initial value of a^T y (also the
+ * plane's offset, parameters (n, c)). */
+int mrvi_constraint_initial_rhs(int n_in, int n_params, double *par,
+                                const double *y0, char *msg, size_t len) {
+  (void)msg, (void)len;
+  if (n_in < 1 || n_params != n_in + 1 || !isnan(par[n_in]))
+    return 0;
+  double s = 0.0;
+  for (int j = 0; j < n_in; j++)
+    s += par[j] * y0[j];
+  par[n_in] = s;
+  return 0;
+}
+
+/* {type: linear, combination: {q1: 1, m1.x: -1}, value: b} */
+static const mrvi_constraint_key keys[] = {
+    {"combination", MRVI_KEY_COMBINATION, MRVI_KEY_REQUIRED | MRVI_KEY_REPORT,
+     1},
+    {"value", MRVI_KEY_SCALAR, 0, 2},
+    {0},
+};
+
 const mrvi_constraint_type mrvi_constraint_linear = {
     .name = "linear",
     .summary = "a^T q = b on generalised coordinates",
     .check = check,
     .eval = eval,
+    .initial = mrvi_constraint_initial_rhs,
+    .keys = keys,
 };

@@ -47,9 +47,24 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
     memset(H, 0, (size_t)n_in * (size_t)n_in * sizeof *H);
 }
 
+/* An offset not given (NAN): the plane through the initial position,
+ * n.x0 (linear.c). */
+int mrvi_constraint_initial_rhs(int n_in, int n_params, double *par,
+                                const double *y0, char *msg, size_t len);
+
+/* {type: plane, particle: a, normal: [...], offset: c} */
+static const mrvi_constraint_key keys[] = {
+    {"particle", MRVI_KEY_PARTICLE, MRVI_KEY_REQUIRED, 0},
+    {"normal", MRVI_KEY_VECTOR, MRVI_KEY_REQUIRED | MRVI_KEY_REPORT, 1},
+    {"offset", MRVI_KEY_SCALAR, 0, 2},
+    {0},
+};
+
 const mrvi_constraint_type mrvi_constraint_plane = {
     .name = "plane",
     .summary = "particle on the plane n.x = c (residual: signed distance)",
     .check = check,
     .eval = eval,
+    .initial = mrvi_constraint_initial_rhs,
+    .keys = keys,
 };

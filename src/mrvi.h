@@ -269,6 +269,44 @@ int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap);
  * follows from its inputs: on slow coordinates only at macro nodes, involving
  * a fast coordinate at every micro node (slow part interpolated).
  * ------------------------------------------------------------------------- */
+
+/* How the description file reads one key of a constraint entry
+ * (doc/constraints.md).  Names give the inputs, in the order of the keys;
+ * numbers give the parameters, in the order of the keys' `param` ranks. */
+typedef enum mrvi_key_kind {
+  /* Inputs. */
+  MRVI_KEY_PARTICLE = 1, /* a particle name: its d coordinates */
+  /* [a, b], or [a] with the entry's MRVI_KEY_ANCHOR vector as the other
+   * end: the particles' coordinates. */
+  MRVI_KEY_ENDS,
+  /* A subset of x, y, z: only those coordinates of the entry's particle, and
+   * those entries of its vectors, count (default: every axis). */
+  MRVI_KEY_AXES,
+  MRVI_KEY_COORDINATES, /* a list of coordinate names */
+  /* {coordinate: coefficient}: the coordinates are inputs, the coefficients
+   * parameters. */
+  MRVI_KEY_COMBINATION,
+  /* Parameters. */
+  MRVI_KEY_SCALAR, /* a number; absent: NAN (see `initial`) */
+  MRVI_KEY_VECTOR, /* d numbers (a point or a direction); absent: NAN */
+  MRVI_KEY_NUMBERS /* a list of numbers; absent: none */
+} mrvi_key_kind;
+
+/* Flags of a key. */
+#define MRVI_KEY_REQUIRED 1 /* the key must be given */
+#define MRVI_KEY_POSITIVE 2 /* SCALAR: > 0 */
+/* VECTOR: the fixed end of an ENDS key naming one particle (given then). */
+#define MRVI_KEY_ANCHOR 4
+/* The key the model's errors on the entry point at (default: the entry). */
+#define MRVI_KEY_REPORT 8
+
+typedef struct mrvi_constraint_key {
+  const char *name; /* the key, e.g. "between" */
+  mrvi_key_kind kind;
+  int flags; /* MRVI_KEY_* above */
+  int param; /* rank of its numbers among the parameters (1 first); 0 none */
+} mrvi_constraint_key;
+
 typedef struct mrvi_constraint_type {
   const char *name;     /* e.g. "distance" */
   const char *summary;  /* one line for `mrvi check` and docs */
@@ -280,6 +318,15 @@ typedef struct mrvi_constraint_type {
    * if H is not NULL, the second derivatives (rows x n_in x n_in). */
   void (*eval)(int n_in, int n_params, const double *params,
                const double *y, double *g, double *G, double *H);
+  /* Optional, before check: replace the parameters left NAN (not given) by
+   * values from the initial inputs y0 (n_in), e.g. a rod's length by the
+   * initial distance; 0, or a status < 0 with a message (the model puts the
+   * constraint's label before it). */
+  int (*initial)(int n_in, int n_params, double *params, const double *y0,
+                 char *msg, size_t msg_len);
+  /* Keys of an entry in a description file, ended by {NULL}; NULL: the
+   * generic {coordinates: [names], parameters: [numbers]}. */
+  const mrvi_constraint_key *keys;
 } mrvi_constraint_type;
 
 /* Add a type to the registry (the pointer must stay valid).  MRVI_EINVAL if
@@ -291,8 +338,8 @@ int mrvi_constraint_type_count(void);
 const mrvi_constraint_type *mrvi_constraint_type_get(int i);
 
 /* Generic instance: type by name on n_in model coordinates with n_params
- * parameters; label names it in messages (NULL: "<type> on <first
- * coordinate>, ...").
+ * parameters (NAN ones completed by the type's `initial`, if it has one);
+ * label names it in messages (NULL: "<type> on <first coordinate>, ...").
  * Returns the constraint index (>= 0) or a status < 0. */
 int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
                               const int *coords, int n_params,

@@ -645,6 +645,88 @@ static void test_user_constraint_type(void) {
         "user type unknown coordinate: %s", msg);
 }
 
+/* A user type with its own keys (mrvi_constraint_key): read by the loader
+ * with no code of its own.  height: a particle's last coordinate at a
+ * level, g = y[d-1] - level; the level defaults to the initial one. */
+static int height_check(int n_in, int n_params, const double *params, char *msg,
+                        size_t len) {
+  if (n_in < 1 || n_params != 1 || !(params[0] == params[0])) {
+    snprintf(msg, len, "height: one level, got %d parameters", n_params);
+    return MRVI_EINVAL;
+  }
+  return 1;
+}
+static void height_eval(int n_in, int n_params, const double *params,
+                        const double *y, double *g, double *G, double *H) {
+  (void)n_params;
+  g[0] = y[n_in - 1] - params[0];
+  for (int j = 0; j < n_in; j++)
+    G[j] = j == n_in - 1;
+  if (H)
+    memset(H, 0, (size_t)n_in * (size_t)n_in * sizeof *H);
+}
+static int height_initial(int n_in, int n_params, double *params,
+                          const double *y0, char *msg, size_t len) {
+  (void)n_params, (void)msg, (void)len;
+  if (params[0] != params[0]) /* NAN: not given */
+    params[0] = y0[n_in - 1];
+  return 0;
+}
+static const mrvi_constraint_key height_keys[] = {
+    {"body", MRVI_KEY_PARTICLE, MRVI_KEY_REQUIRED, 0},
+    {"level", MRVI_KEY_SCALAR, 0, 1},
+    {0},
+};
+static const mrvi_constraint_type height_type = {.name = "height",
+                                                 .summary = "y_d = level",
+                                                 .check = height_check,
+                                                 .eval = height_eval,
+                                                 .initial = height_initial,
+                                                 .keys = height_keys};
+
+static void test_user_constraint_keys(void) {
+  CHECK(mrvi_constraint_type_register(&height_type) == MRVI_OK,
+        "register a type with keys");
+  const char *text = "name: h\ndimension: 2\n"
+                     "particles: [{name: m, mass: 1, position: [1, 3]},\n"
+                     "            {name: n, mass: 1, position: [2, 5]}]\n"
+                     "constraints:\n"
+                     "  - {type: height, body: m, level: 3.00000000001}\n"
+                     "  - {type: height, body: n}\n";
+  mrvi_system *sys = load_text(text, NULL, 0);
+  if (sys) {
+    const mrvi_model *m = sys->model;
+    CHECK(mrvi_model_n_constraints(m) == 2, "keyed type count");
+    CHECK(!strcmp(mrvi_model_constraint_label(m, 0), "height m") &&
+              !strcmp(mrvi_model_constraint_label(m, 1), "height n"),
+          "keyed type labels '%s', '%s'", mrvi_model_constraint_label(m, 0),
+          mrvi_model_constraint_label(m, 1));
+    double q[4] = {0, 4, 0, 7}, g[2];
+    mrvi_model_constraint_eval(m, q, g, NULL);
+    CHECK_NEAR(g[0], 4.0 - 3.00000000001, 0.0, "keyed type: level read");
+    CHECK_NEAR(g[1], 2.0, 0.0, "keyed type: level from the initial position");
+    mrvi_system_free(sys);
+  }
+  /* Its keys in messages: a misspelt key, a missing one. */
+  char bad[512], msg[MSG];
+  snprintf(bad, sizeof bad, "%s", text);
+  memcpy(strstr(bad, "level:"), "lever:", 6);
+  sys = NULL;
+  int st =
+      mrvi_system_load_string(bad, "h.yaml", NULL, 0, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && strstr(msg, "h.yaml:6:") &&
+            strstr(msg, "unknown key 'lever' in constraints.0; did you mean "
+                        "'level'?"),
+        "keyed type unknown key: %s", msg);
+  snprintf(bad, sizeof bad, "%s", text);
+  memcpy(strstr(bad, "body: n"), "bod: n ", 7);
+  st = mrvi_system_load_string(bad, "h.yaml", NULL, 0, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && strstr(msg, "h.yaml:7:") &&
+            strstr(msg, "unknown key 'bod' in constraints.1; did you mean "
+                        "'body'?"),
+        "keyed type misspelt key: %s", msg);
+}
+
 /* Shipped constrained systems: constraint counts and where they act, initial
  * data consistent, no hidden-constraint residual after loading. */
 typedef struct constrained_file {
@@ -1375,6 +1457,7 @@ int main(void) {
   test_constraint_settings();
   test_velocity_projection();
   test_user_constraint_type();
+  test_user_constraint_keys();
   check_constrained_files();
   test_doc_example();
   test_hostile_input();

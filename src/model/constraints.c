@@ -1,6 +1,6 @@
-/* Holonomic constraints on a model (doc/constraints.md): the registry of constraint
- * types (one const table per file in constraints/), instances, and the
- * checks and projections of initial data. */
+/* Holonomic constraints on a model (doc/constraints.md): the registry of
+ * constraint types (one const table per file in constraints/), instances, and
+ * the checks and projections of initial data. */
 #include "internal.h"
 
 #include <math.h>
@@ -102,52 +102,68 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
                                "%s: coordinate '%s' appears twice", t->name,
                                m->names[coords[j]]);
   }
-  char msg[400];
-  const int rows = t->check(n_in, n_params, params, msg, sizeof msg);
-  if (rows < 0)
-    return mrvi_model_fail(m, rows, "%s", msg);
-  if (rows < 1 || rows > n_in)
-    return mrvi_model_fail(m, MRVI_EINVAL,
-                           "%s: check returned %d rows for %d inputs", t->name,
-                           rows, n_in);
-  mrvi_constraint c = {.type = t,
-                       .n_in = n_in,
-                       .n_params = n_params,
-                       .rows = rows,
-                       .first_row = m->constraint_rows,
-                       .where = MRVI_SLOW};
-  for (int j = 0; j < n_in; j++)
-    if (m->rate[coords[j]] == MRVI_FAST)
-      c.where = MRVI_FAST;
   char def[300];
   if (!label) {
     mrvi_fmt(def, sizeof def, "%s on %s%s", t->name, m->names[coords[0]],
              n_in > 1 ? ", ..." : "");
     label = def;
   }
+  mrvi_constraint c = {.type = t,
+                       .n_in = n_in,
+                       .n_params = n_params,
+                       .first_row = m->constraint_rows,
+                       .where = MRVI_SLOW};
+  c.params = malloc((size_t)(n_params > 0 ? n_params : 1) * sizeof *c.params);
+  if (!c.params)
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  if (n_params > 0)
+    memcpy(c.params, params, (size_t)n_params * sizeof *c.params);
+  /* Parameters not given (NAN) from the initial inputs, then the check. */
+  char msg[400];
+  double y0[MRVI_MAX_INPUTS];
+  for (int j = 0; j < n_in; j++)
+    y0[j] = m->q0[coords[j]];
+  int st = t->initial
+               ? t->initial(n_in, n_params, c.params, y0, msg, sizeof msg)
+               : 0;
+  if (st < 0) {
+    free(c.params);
+    return mrvi_model_fail(m, st, "%s: %s", label, msg);
+  }
+  c.rows = t->check(n_in, n_params, c.params, msg, sizeof msg);
+  if (c.rows < 1 || c.rows > n_in) {
+    free(c.params);
+    if (c.rows < 0)
+      return mrvi_model_fail(m, c.rows, "%s", msg);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: check returned %d rows for %d inputs", t->name,
+                           c.rows, n_in);
+  }
+  for (int j = 0; j < n_in; j++)
+    if (m->rate[coords[j]] == MRVI_FAST)
+      c.where = MRVI_FAST;
   if (m->n_constraints == m->cap_constraints) {
     const int cap = m->cap_constraints ? 2 * m->cap_constraints : 8;
     mrvi_constraint *p =
         realloc(m->constraints, (size_t)cap * sizeof *m->constraints);
-    if (!p)
+    if (!p) {
+      free(c.params);
       return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+    }
     m->constraints = p;
     m->cap_constraints = cap;
   }
   c.label = strdup(label);
   c.in = malloc((size_t)n_in * sizeof *c.in);
-  c.params = malloc((size_t)(n_params > 0 ? n_params : 1) * sizeof *c.params);
-  if (!c.label || !c.in || !c.params) {
+  if (!c.label || !c.in) {
     free(c.label);
     free(c.in);
     free(c.params);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   memcpy(c.in, coords, (size_t)n_in * sizeof *c.in);
-  if (n_params > 0)
-    memcpy(c.params, params, (size_t)n_params * sizeof *c.params);
   m->constraints[m->n_constraints] = c;
-  m->constraint_rows += rows;
+  m->constraint_rows += c.rows;
   if (n_in > m->max_constraint_in)
     m->max_constraint_in = n_in;
   return m->n_constraints++;
@@ -175,19 +191,6 @@ int mrvi_model_add_distance(mrvi_model *m, int particle_i, int particle_j,
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "distance: both ends are particle '%s'",
                            m->particles[particle_i].name);
-  if (isnan(length)) {
-    double rr = 0.0;
-    for (int a = 0; a < d; a++)
-      rr +=
-          (m->q0[in[a]] - m->q0[in[d + a]]) * (m->q0[in[a]] - m->q0[in[d + a]]);
-    length = sqrt(rr);
-    if (!(length > 0.0))
-      return mrvi_model_fail(
-          m, MRVI_EINVAL,
-          "distance %s-%s: the particles start at the same point, so "
-          "the length must be given",
-          m->particles[particle_i].name, m->particles[particle_j].name);
-  }
   char label[300];
   mrvi_fmt(label, sizeof label, "distance %s-%s", m->particles[particle_i].name,
            m->particles[particle_j].name);
@@ -203,22 +206,9 @@ int mrvi_model_add_distance_anchor(mrvi_model *m, int particle_i,
     return st;
   if (!anchor)
     return mrvi_model_fail(m, MRVI_EINVAL, "distance: anchor is NULL");
-  double par[4];
-  double rr = 0.0;
-  for (int a = 0; a < d; a++) {
+  double par[4] = {length};
+  for (int a = 0; a < d; a++)
     par[1 + a] = anchor[a];
-    rr += (m->q0[in[a]] - anchor[a]) * (m->q0[in[a]] - anchor[a]);
-  }
-  if (isnan(length)) {
-    length = sqrt(rr);
-    if (!(length > 0.0))
-      return mrvi_model_fail(
-          m, MRVI_EINVAL,
-          "distance %s-anchor: the particle starts at the anchor, so "
-          "the length must be given",
-          m->particles[particle_i].name);
-  }
-  par[0] = length;
   char label[300];
   mrvi_fmt(label, sizeof label, "distance %s-anchor",
            m->particles[particle_i].name);
@@ -239,7 +229,7 @@ int mrvi_model_add_fixed(mrvi_model *m, int particle_i, const int *axes,
   for (int a = 0; a < d; a++)
     if (!axes || axes[a]) {
       in[n] = all[a];
-      target[n] = position ? position[a] : m->q0[all[a]];
+      target[n] = position ? position[a] : NAN; /* NAN: initial */
       which[n] = axis_name[a];
       n++;
     }
@@ -262,12 +252,9 @@ int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
   if (!normal)
     return mrvi_model_fail(m, MRVI_EINVAL, "plane: normal is NULL");
   double par[4];
-  double s = 0.0;
-  for (int a = 0; a < d; a++) {
+  for (int a = 0; a < d; a++)
     par[a] = normal[a];
-    s += normal[a] * m->q0[in[a]];
-  }
-  par[d] = isnan(offset) ? s : offset;
+  par[d] = offset;
   char label[300];
   mrvi_fmt(label, sizeof label, "plane %s", m->particles[particle_i].name);
   return mrvi_model_add_constraint(m, "plane", d, in, d + 1, par, label);
@@ -281,16 +268,14 @@ int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
                            "linear: 1 to %d coordinates required",
                            MRVI_MAX_INPUTS);
   double par[MRVI_MAX_INPUTS + 1];
-  double s = 0.0;
   for (int j = 0; j < n_terms; j++) {
     if (coords[j] < 0 || coords[j] >= m->n)
       return mrvi_model_fail(m, MRVI_EINVAL,
                              "linear: coordinate index %d out of range",
                              coords[j]);
     par[j] = coef[j];
-    s += coef[j] * m->q0[coords[j]];
   }
-  par[n_terms] = isnan(rhs) ? s : rhs;
+  par[n_terms] = rhs; /* NAN: initial */
   char label[300];
   mrvi_fmt(label, sizeof label, "linear on %s%s", m->names[coords[0]],
            n_terms > 1 ? ", ..." : "");
