@@ -284,9 +284,8 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   if (st != 0)
     fprintf(stderr, "mrvi optimize: %s\n", mrvi_ocp_errmsg(o));
   /* The trajectory of the returned controls (re-evaluated by solve). */
-  if (mrvi_ocp_output_close(pr.out, u, &res,
-                            st == 0 ? "converged" : "failed", msg,
-                            sizeof msg) < 0) {
+  if (mrvi_ocp_output_close(pr.out, u, &res, st == 0 ? "converged" : "failed",
+                            msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi optimize: writing '%s' failed: %s\n", out, msg);
     rc = 2;
   } else {

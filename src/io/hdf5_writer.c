@@ -314,8 +314,8 @@ static int write_fixed_list(mrvi_writer *w, hid_t lcpl, const fixed_dataset *d,
       continue;
     const int str = d[i].ftype == H5I_INVALID_HID;
     if (mrvi_h5_write_fixed(w->file, d[i].path, lcpl, str ? st : d[i].ftype,
-                    str ? st : d[i].mtype, d[i].count, 0, d[i].scalar,
-                    d[i].data, d[i].long_name) < 0)
+                            str ? st : d[i].mtype, d[i].count, 0, d[i].scalar,
+                            d[i].data, d[i].long_name) < 0)
       rc = fail_dataset(w, d[i].path);
   }
   H5Tclose(st);
@@ -401,11 +401,11 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
        "1 where the symmetry of the model conserves that component"},
   };
   rc = write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
-  if (rc == 0 &&
-      mrvi_h5_write_fixed(w->file, "/model/edges", lcpl, H5T_STD_I32LE, H5T_NATIVE_INT,
-                  (hsize_t)ne, 2, 0, pairs,
-                  "particle indices of the springs and rods between two "
-                  "particles") < 0)
+  if (rc == 0 && mrvi_h5_write_fixed(
+                     w->file, "/model/edges", lcpl, H5T_STD_I32LE,
+                     H5T_NATIVE_INT, (hsize_t)ne, 2, 0, pairs,
+                     "particle indices of the springs and rods between two "
+                     "particles") < 0)
     rc = fail_dataset(w, "/model/edges");
 out:
   free(name);
@@ -488,7 +488,8 @@ static int create_output(mrvi_writer *w, int id, hid_t lcpl,
   if (dcpl >= 0)
     H5Pclose(dcpl);
   mrvi_h5_restore_errors(es);
-  if (o->id < 0 || mrvi_h5_attr_string(o->id, "long_name", info->long_name) < 0) {
+  if (o->id < 0 ||
+      mrvi_h5_attr_string(o->id, "long_name", info->long_name) < 0) {
     char what[128];
     mrvi_fmt(what, sizeof what, "creating %s", info->path);
     return fail_h5(w, MRVI_EIO, what);
@@ -596,8 +597,8 @@ static int flush(mrvi_writer *w, int final) {
    * during) the two leaves a counter that is at most the rows stored. */
   if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     rc = fail_h5(w, MRVI_EIO, "flushing the file");
-  if (rc == 0 &&
-      mrvi_h5_attr_long(w->file, "steps_completed", w->last_k > 0 ? w->last_k : 0) < 0)
+  if (rc == 0 && mrvi_h5_attr_long(w->file, "steps_completed",
+                                   w->last_k > 0 ? w->last_k : 0) < 0)
     rc = fail_h5(w, MRVI_EIO, "writing attribute steps_completed");
   if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     rc = fail_h5(w, MRVI_EIO, "flushing the file");
@@ -681,9 +682,10 @@ static int lock_and_check(mrvi_writer *w, int force) {
  * lock with it (mrvi_h5_part_commit). */
 static int move_into_place(mrvi_writer *w) {
   char msg[400];
-  if (mrvi_h5_part_commit(w->part_path, w->path, &w->lock_fd, msg,
-                          sizeof msg) < 0)
-    return fail(w, MRVI_EIO, "%s", msg);
+  const int rc =
+      mrvi_h5_part_commit(w->part_path, w->path, &w->lock_fd, msg, sizeof msg);
+  if (rc)
+    return fail(w, rc, "%s", msg);
   free(w->part_path);
   w->part_path = NULL;
   return 0;
@@ -870,7 +872,7 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   if (!solver_path)
     solver_path = "none";
 #define X_ATTR(name, kind, value, present)                                     \
-  if ((present) && mrvi_h5_attr_##kind(w->file, name, value) < 0)                      \
+  if ((present) && mrvi_h5_attr_##kind(w->file, name, value) < 0)              \
     return fail_h5(w, MRVI_EIO, "writing attribute " name);
   MRVI_ATTRIBUTE_LIST(X_ATTR)
 #undef X_ATTR
@@ -1139,7 +1141,8 @@ static herr_t write_energy_attributes(mrvi_writer *w) {
   const int k = e->energy_scale_kind >= 0 && e->energy_scale_kind <= 2
                     ? e->energy_scale_kind
                     : 2;
-  if (mrvi_h5_attr_double(w->file, "energy_error_max", e->max_rel_energy_error) < 0 ||
+  if (mrvi_h5_attr_double(w->file, "energy_error_max",
+                          e->max_rel_energy_error) < 0 ||
       mrvi_h5_attr_double(w->file, "energy_scale", e->energy_scale) < 0 ||
       mrvi_h5_attr_string(w->file, "energy_scale_kind", kind[k]) < 0 ||
       mrvi_h5_attr_double(w->file, "energy_warning", w->energy_warning) < 0 ||
