@@ -122,6 +122,30 @@ check "stability: midpoint p = 1 unconditionally stable" $?
 [ $? -eq 1 ] && grep -q "one slow coordinate" bad.err
 check "stability: a non-oscillator is refused" $?
 
+# --- writing a table (src/io/study_writer.c) ---------------------------------
+# Written beside the output and renamed to it: the replaced file keeps its
+# permissions and no temporary file stays behind.
+chmod 640 stab.h5
+"$mrvi" stability "$root/systems/oscillator.yaml" --p 2 -o stab.h5 -q
+[ $? -eq 0 ] && [ "$(stat -c %a stab.h5)" = 640 ] && [ -z "$(ls stab.h5.part* 2>/dev/null)" ]
+check "stability: table replaced in place (mode $(stat -c %a stab.h5), no .part file)" $?
+"$mrvi" stability "$root/systems/oscillator.yaml" --p 2 -o nodir/stab.h5 -q 2>nodir.err
+[ $? -eq 2 ] && grep -q '^mrvi stability: nodir/stab.h5: cannot create the file' nodir.err && [ ! -e nodir ]
+check "stability: an output in a missing directory is refused ($(cat nodir.err))" $?
+# A file locked by a live writer (flock, as `mrvi run` holds its output) is
+# not replaced.
+if command -v flock >/dev/null; then
+  printf 'data\n' >locked.h5
+  flock locked.h5 sleep 30 &
+  holder=$!
+  for _ in $(seq 100); do flock -n locked.h5 true || break; sleep 0.05; done
+  "$mrvi" stability "$root/systems/oscillator.yaml" --p 2 -o locked.h5 -q 2>locked.err
+  st=$?
+  kill "$holder"
+  [ $st -eq 2 ] && grep -q 'in use by another run' locked.err && [ "$(cat locked.h5)" = data ]
+  check "stability: a locked output is not touched ($(cat locked.err))" $?
+fi
+
 # --- timing ----------------------------------------------------------------
 "$mrvi" timing "$fpu" --p 1,10 --t-end 0.5 -o time.h5 --csv time.csv -q
 check "timing: exit status" $?

@@ -10,10 +10,10 @@
  * layouts are in doc/output.md. */
 #include "cli_study.h"
 
+#include "io/io.h"
 #include "mrvi.h"
 
 #include <errno.h>
-#include <hdf5.h>
 #include <math.h>
 #include <stddef.h>
 #include <stdio.h>
@@ -266,77 +266,6 @@ static mrvi_system *load(const char *cmd, const args *a) {
   return sys;
 }
 
-/* ---------------------------------------------------------------------------
- * HDF5 tables
- * ------------------------------------------------------------------------- */
-static int h5_vector(hid_t loc, const char *name, hid_t type, const void *v,
-                     hsize_t n) {
-  hid_t sp = H5Screate_simple(1, &n, NULL);
-  hid_t d = H5Dcreate2(loc, name, type, sp, H5P_DEFAULT, H5P_DEFAULT,
-                       H5P_DEFAULT);
-  herr_t rc = d < 0 ? -1 : H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, v);
-  if (d >= 0)
-    H5Dclose(d);
-  H5Sclose(sp);
-  return rc < 0 ? -1 : 0;
-}
-
-static int h5_matrix(hid_t loc, const char *name, const double *v, hsize_t r,
-                     hsize_t c) {
-  hsize_t dims[2] = {r, c};
-  hid_t sp = H5Screate_simple(2, dims, NULL);
-  hid_t d = H5Dcreate2(loc, name, H5T_NATIVE_DOUBLE, sp, H5P_DEFAULT,
-                       H5P_DEFAULT, H5P_DEFAULT);
-  herr_t rc = d < 0 ? -1
-                    : H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL,
-                               H5P_DEFAULT, v);
-  if (d >= 0)
-    H5Dclose(d);
-  H5Sclose(sp);
-  return rc < 0 ? -1 : 0;
-}
-
-/* Scalar attribute of a native numeric type. */
-static void h5_attr(hid_t loc, const char *name, hid_t type, const void *v) {
-  hid_t sp = H5Screate(H5S_SCALAR);
-  hid_t a = H5Acreate2(loc, name, type, sp, H5P_DEFAULT, H5P_DEFAULT);
-  if (a >= 0) {
-    H5Awrite(a, type, v);
-    H5Aclose(a);
-  }
-  H5Sclose(sp);
-}
-
-static void h5_attr_double(hid_t loc, const char *name, double v) {
-  h5_attr(loc, name, H5T_NATIVE_DOUBLE, &v);
-}
-
-static void h5_attr_int(hid_t loc, const char *name, int v) {
-  h5_attr(loc, name, H5T_NATIVE_INT, &v);
-}
-
-static void h5_attr_string(hid_t loc, const char *name, const char *v) {
-  hid_t t = H5Tcopy(H5T_C_S1);
-  H5Tset_size(t, H5T_VARIABLE);
-  H5Tset_cset(t, H5T_CSET_UTF8);
-  hid_t sp = H5Screate(H5S_SCALAR);
-  hid_t a = H5Acreate2(loc, name, t, sp, H5P_DEFAULT, H5P_DEFAULT);
-  if (a >= 0) {
-    H5Awrite(a, t, &v);
-    H5Aclose(a);
-  }
-  H5Sclose(sp);
-  H5Tclose(t);
-}
-
-static hid_t h5_create(const char *cmd, const char *path) {
-  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
-  hid_t f = H5Fcreate(path, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-  if (f < 0)
-    fprintf(stderr, "mrvi %s: cannot create '%s'\n", cmd, path);
-  return f;
-}
-
 static void default_output(char *buf, size_t len, const char *given,
                            const mrvi_system *sys, const char *what) {
   if (given)
@@ -543,51 +472,25 @@ static void print_conv(const conv_table *T, const mrvi_system *sys,
          fitted_order(T->rows, T->dT, eq), fitted_order(T->rows, T->dT, ep));
 }
 
-/* Column `c` of the error struct. */
-#define ERROR_COLUMNS(X)                                                     \
-  X(e_q_mac, q_mac)                                                          \
-  X(e_p_mac, p_mac)                                                          \
-  X(e_q_mic, q_mic)                                                          \
-  X(e_p_mic, p_mic)                                                          \
-  X(e_qs_mac, qs_mac)                                                        \
-  X(e_qf_mac, qf_mac)                                                        \
-  X(e_ps_mac, ps_mac)                                                        \
-  X(e_pf_mac, pf_mac)
-
+/* The table into path; 0, or -1 with the message printed. */
 static int write_conv(const char *cmd, const char *path, const conv_table *T,
                       int nt, const mrvi_system *sys, double t_end,
                       double h, const char *ref_scheme) {
-  hid_t f = h5_create(cmd, path);
-  if (f < 0)
-    return -1;
-  int rc = 0;
-  h5_attr_string(f, "system", sys->name);
-  h5_attr_string(f, "scheme", sys->settings.scheme);
-  h5_attr_double(f, "t_end", t_end);
-  h5_attr_double(f, "reference_step", h);
-  h5_attr_string(f, "reference_scheme", ref_scheme);
-  h5_attr_string(f, "mrvi_version", mrvi_version());
-  hid_t g = H5Gcreate2(f, "convergence", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-  for (int t = 0; t < nt && g >= 0; t++) {
-    char name[32];
-    snprintf(name, sizeof name, "p%d", T[t].p);
-    hid_t s = H5Gcreate2(g, name, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    h5_attr_int(s, "micro_steps", T[t].p);
-    double col[MAX_LIST];
-    rc |= h5_vector(s, "macro_step", H5T_NATIVE_DOUBLE, T[t].dT,
-                    (hsize_t)T[t].rows);
-#define WRITE_COLUMN(dset, field)                                            \
-  for (int r = 0; r < T[t].rows; r++)                                        \
-    col[r] = T[t].e[r].field;                                                \
-  rc |= h5_vector(s, #dset, H5T_NATIVE_DOUBLE, col, (hsize_t)T[t].rows);
-    ERROR_COLUMNS(WRITE_COLUMN)
-#undef WRITE_COLUMN
-    H5Gclose(s);
-  }
-  if (g >= 0)
-    H5Gclose(g);
-  if (H5Fclose(f) < 0 || g < 0 || rc) {
-    fprintf(stderr, "mrvi %s: writing '%s' failed\n", cmd, path);
+  mrvi_convergence_rows by_p[MAX_LIST];
+  for (int t = 0; t < nt; t++)
+    by_p[t] = (mrvi_convergence_rows){T[t].p, T[t].rows, T[t].dT, T[t].e};
+  const mrvi_convergence_table table = {
+      .system = sys->name,
+      .scheme = sys->settings.scheme,
+      .t_end = t_end,
+      .reference_step = h,
+      .reference_scheme = ref_scheme,
+      .n_p = nt,
+      .by_p = by_p,
+  };
+  char msg[1024];
+  if (mrvi_study_write_convergence(path, &table, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
     return -1;
   }
   return 0;
@@ -603,7 +506,7 @@ static int write_conv_csv(const char *cmd, const char *path,
   }
   fprintf(f, "p,macro_step");
 #define CSV_HEAD(dset, field) fprintf(f, "," #dset);
-  ERROR_COLUMNS(CSV_HEAD)
+  MRVI_ERROR_COLUMNS(CSV_HEAD)
 #undef CSV_HEAD
   fprintf(f, ",order_q_mac,order_p_mac\n");
   for (int t = 0; t < nt; t++)
@@ -611,7 +514,7 @@ static int write_conv_csv(const char *cmd, const char *path,
       const mrvi_errors *e = &T[t].e[r], *g = r ? &T[t].e[r - 1] : NULL;
       fprintf(f, "%d,%.17g", T[t].p, T[t].dT[r]);
 #define CSV_ROW(dset, field) fprintf(f, ",%.17g", e->field);
-      ERROR_COLUMNS(CSV_ROW)
+      MRVI_ERROR_COLUMNS(CSV_ROW)
 #undef CSV_ROW
       const double oq = g ? order(g->q_mac, e->q_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
       const double op = g ? order(g->p_mac, e->p_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
@@ -854,9 +757,9 @@ int mrvi_cmd_stability(int argc, char **argv) {
     goto out;
   }
   code = EXIT_RUN;
-  /* The two rules of the lemma for V on the micro grid. */
-  const char *rule_name[2] = {"trapezoidal", "midpoint"};
-  const mrvi_rule rules[2] = {{1.0, 1.0}, {0.5, 0.5}};
+  /* The two rules of the lemma for V on the micro grid, in the order of
+   * mrvi_stability_rule_name (trapezoidal, midpoint). */
+  const mrvi_rule rules[MRVI_STABILITY_RULES] = {{1.0, 1.0}, {0.5, 0.5}};
   double measured[2][MAX_LIST], analytic[2][MAX_LIST];
   enum { K = 400 };
   scan = malloc((size_t)2 * n_p * K * sizeof(double));
@@ -934,34 +837,22 @@ int mrvi_cmd_stability(int argc, char **argv) {
   }
   char out[2048];
   default_output(out, sizeof out, get(&a, "--output"), sys, "stability");
-  hid_t f = h5_create(cmd, out);
-  if (f < 0)
-    goto out;
   int pint[MAX_LIST];
   for (int j = 0; j < n_p; j++)
     pint[j] = (int)ps[j];
-  int rc = 0;
-  h5_attr_string(f, "system", sys->name);
-  h5_attr_double(f, "omega", omega);
-  h5_attr_string(f, "mrvi_version", mrvi_version());
-  hid_t g = H5Gcreate2(f, "stability", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-  rc |= h5_vector(g, "p", H5T_NATIVE_INT, pint, (hsize_t)n_p);
-  for (int r = 0; r < 2; r++) {
-    char name[64];
-    snprintf(name, sizeof name, "%s_measured", rule_name[r]);
-    rc |= h5_vector(g, name, H5T_NATIVE_DOUBLE, measured[r], (hsize_t)n_p);
-    snprintf(name, sizeof name, "%s_analytic", rule_name[r]);
-    rc |= h5_vector(g, name, H5T_NATIVE_DOUBLE, analytic[r], (hsize_t)n_p);
-  }
-  hid_t sg = H5Gcreate2(g, "scan", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-  rc |= h5_vector(sg, "omega_dT", H5T_NATIVE_DOUBLE, xs, K);
-  rc |= h5_vector(sg, "p", H5T_NATIVE_INT, pint, (hsize_t)n_p);
-  rc |= h5_matrix(sg, "trace_trapezoidal", scan, (hsize_t)n_p, K);
-  rc |= h5_matrix(sg, "trace_midpoint", scan + (size_t)n_p * K, (hsize_t)n_p, K);
-  H5Gclose(sg);
-  H5Gclose(g);
-  if (H5Fclose(f) < 0 || rc) {
-    fprintf(stderr, "mrvi %s: writing '%s' failed\n", cmd, out);
+  const mrvi_stability_table table = {
+      .system = sys->name,
+      .omega = omega,
+      .n_p = n_p,
+      .p = pint,
+      .measured = {measured[0], measured[1]},
+      .analytic = {analytic[0], analytic[1]},
+      .n_scan = K,
+      .omega_dT = xs,
+      .trace = scan,
+  };
+  if (mrvi_study_write_stability(out, &table, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
     goto out;
   }
   if (!a.quiet)
@@ -977,20 +868,7 @@ out:
 /* ---------------------------------------------------------------------------
  * timing
  * ------------------------------------------------------------------------- */
-#define TIMING_COLUMNS(X)                                                    \
-  X(total_time)                                                              \
-  X(iterations)                                                              \
-  X(time_per_step)                                                           \
-  X(assemble_per_step)                                                       \
-  X(solve_per_step)                                                          \
-  X(macro_steps)                                                             \
-  X(system_size)
-
-typedef struct timing_row {
-#define TIMING_FIELD(name) double name;
-  TIMING_COLUMNS(TIMING_FIELD)
-#undef TIMING_FIELD
-} timing_row;
+typedef mrvi_timing_row timing_row;
 
 int mrvi_cmd_timing(int argc, char **argv) {
   static const char *const names[] = {"--dt", "--p", "--schemes", "--t-end",
@@ -1058,7 +936,7 @@ int mrvi_cmd_timing(int argc, char **argv) {
         fprintf(stderr, "mrvi %s: %s, p = %d failed: %s\n", cmd, schemes[i],
                 (int)ps[j], sum.message);
 #define TIMING_NAN(name) r->name = NAN;
-        TIMING_COLUMNS(TIMING_NAN)
+        MRVI_TIMING_COLUMNS(TIMING_NAN)
 #undef TIMING_NAN
         failed++;
         continue;
@@ -1083,32 +961,22 @@ int mrvi_cmd_timing(int argc, char **argv) {
     }
   char out[2048];
   default_output(out, sizeof out, get(&a, "--output"), sys, "timing");
-  hid_t f = h5_create(cmd, out);
-  if (f < 0)
-    goto out;
-  int rc = 0, pint[MAX_LIST];
+  int pint[MAX_LIST];
   for (int j = 0; j < n_p; j++)
     pint[j] = (int)ps[j];
-  h5_attr_string(f, "system", sys->name);
-  h5_attr_double(f, "micro_step", dt);
-  h5_attr_double(f, "t_end", t_end);
-  h5_attr_string(f, "mrvi_version", mrvi_version());
-  hid_t g = H5Gcreate2(f, "timing", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-  rc |= h5_vector(g, "p", H5T_NATIVE_INT, pint, (hsize_t)n_p);
-  for (int i = 0; i < n_s; i++) {
-    hid_t sg = H5Gcreate2(g, schemes[i], H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    double col[MAX_LIST];
-#define TIMING_WRITE(name)                                                   \
-  for (int j = 0; j < n_p; j++)                                              \
-    col[j] = rows[i * n_p + j].name;                                         \
-  rc |= h5_vector(sg, #name, H5T_NATIVE_DOUBLE, col, (hsize_t)n_p);
-    TIMING_COLUMNS(TIMING_WRITE)
-#undef TIMING_WRITE
-    H5Gclose(sg);
-  }
-  H5Gclose(g);
-  if (H5Fclose(f) < 0 || rc) {
-    fprintf(stderr, "mrvi %s: writing '%s' failed\n", cmd, out);
+  const mrvi_timing_table table = {
+      .system = sys->name,
+      .micro_step = dt,
+      .t_end = t_end,
+      .n_p = n_p,
+      .n_schemes = n_s,
+      .p = pint,
+      .schemes = schemes,
+      .rows = rows,
+  };
+  char msg[1024];
+  if (mrvi_study_write_timing(out, &table, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
     goto out;
   }
   if (get(&a, "--csv")) {
@@ -1119,14 +987,14 @@ int mrvi_cmd_timing(int argc, char **argv) {
     }
     fprintf(csv, "scheme,p");
 #define TIMING_HEAD(name) fprintf(csv, "," #name);
-    TIMING_COLUMNS(TIMING_HEAD)
+    MRVI_TIMING_COLUMNS(TIMING_HEAD)
 #undef TIMING_HEAD
     fprintf(csv, "\n");
     for (int i = 0; i < n_s; i++)
       for (int j = 0; j < n_p; j++) {
         fprintf(csv, "%s,%d", schemes[i], (int)ps[j]);
 #define TIMING_CELL(name) fprintf(csv, ",%.9g", rows[i * n_p + j].name);
-        TIMING_COLUMNS(TIMING_CELL)
+        MRVI_TIMING_COLUMNS(TIMING_CELL)
 #undef TIMING_CELL
         fprintf(csv, "\n");
       }

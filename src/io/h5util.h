@@ -1,4 +1,8 @@
-/* Helpers shared by the HDF5 readers and the writer (src/io/hdf5_reader.c). */
+/* Helpers shared by the HDF5 readers and writers of src/io: opening a run
+ * file for reading (hdf5_reader.c), and for writing (h5util.c) HDF5's
+ * errors as messages, attributes, datasets written whole, files written in
+ * one go, and the output file's lock and temporary name (the crash-safety
+ * path of doc/output.md, "Crash safety"). */
 #ifndef MRVI_H5UTIL_H
 #define MRVI_H5UTIL_H
 
@@ -17,5 +21,128 @@ hid_t mrvi_h5_open_read(const char *path, hid_t fapl);
  * (writer killed)" unless a live run still holds the file's lock (then it
  * stays "running"). */
 void mrvi_h5_stop_reason(hid_t file, const char *path, char *buf, size_t len);
+
+/* ---------------------------------------------------------------------------
+ * HDF5 errors: no printing, messages instead (h5util.c).
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_h5_quiet {
+  H5E_auto2_t func;
+  void *data;
+  int saved;
+} mrvi_h5_quiet;
+
+/* Switch HDF5's automatic error printing off (remembering the caller's
+ * setting) and start from an empty error stack; _end restores it. */
+void mrvi_h5_quiet_begin(mrvi_h5_quiet *q);
+void mrvi_h5_quiet_end(const mrvi_h5_quiet *q);
+
+/* Every successful HDF5 call clears the error stack, so the stack of a
+ * failed call is set aside while the handles it leaves are closed:
+ *   es = mrvi_h5_keep_errors(rc); ...close...; mrvi_h5_restore_errors(es); */
+hid_t mrvi_h5_keep_errors(herr_t rc);
+void mrvi_h5_restore_errors(hid_t es);
+
+/* "path: what: reason" from the error stack into buf: the operating
+ * system's message when there is one ("No such file or directory", "File
+ * too large"), else HDF5's description at the API call and the most
+ * specific one; then clear the stack. */
+void mrvi_h5_error_message(char *buf, size_t len, const char *path,
+                           const char *what);
+
+/* ---------------------------------------------------------------------------
+ * Attributes and datasets written whole (h5util.c).  herr_t: < 0 on failure,
+ * with the reason on HDF5's error stack.
+ * ------------------------------------------------------------------------- */
+
+/* Variable-length UTF-8 string type (h5py reads it as str); close it. */
+hid_t mrvi_h5_string_type(void);
+
+/* Create or overwrite the scalar attribute `name` of obj. */
+herr_t mrvi_h5_attr_write(hid_t obj, const char *name, hid_t ftype, hid_t mtype,
+                          const void *value);
+/* Variable-length UTF-8 string (NULL: ""). */
+herr_t mrvi_h5_attr_string(hid_t obj, const char *name, const char *value);
+/* Fixed-length string of `size` bytes (value truncated, NUL-terminated and
+ * padded) in character set cset: rewritten in place in the object header,
+ * never in the global heap, so SWMR writing may change it. */
+herr_t mrvi_h5_attr_fixed(hid_t obj, const char *name, const char *value,
+                          size_t size, H5T_cset_t cset);
+/* The fixed-length string of MRVI_H5_FIXED_BYTES, UTF-8, that SWMR writing
+ * rewrites: the root attribute stop_reason of a run file. */
+#define MRVI_H5_FIXED_BYTES 1024
+herr_t mrvi_h5_attr_fixed_string(hid_t obj, const char *name,
+                                 const char *value);
+herr_t mrvi_h5_attr_double(hid_t obj, const char *name, double value);
+herr_t mrvi_h5_attr_int(hid_t obj, const char *name, int value);
+herr_t mrvi_h5_attr_long(hid_t obj, const char *name, long value);
+
+/* Dataset `path` of loc: count elements, or count x cols (cols > 0), or one
+ * scalar, of file type ftype from memory type mtype; with the attribute
+ * long_name unless long_name is NULL.  lcpl: link creation properties
+ * (H5P_DEFAULT, or one creating intermediate groups). */
+herr_t mrvi_h5_write_fixed(hid_t loc, const char *path, hid_t lcpl, hid_t ftype,
+                           hid_t mtype, hsize_t count, hsize_t cols, int scalar,
+                           const void *data, const char *long_name);
+
+/* ---------------------------------------------------------------------------
+ * A file written in one go (h5util.c): many objects, one error check.
+ * Every call below is a no-op once a call failed; the first failure stays
+ * as status, with "path: what: reason" in msg.
+ * ------------------------------------------------------------------------- */
+typedef struct mrvi_h5_batch {
+  const char *path; /* names the file in messages */
+  hid_t file;
+  int status; /* first failure (0 if none) */
+  char *msg;
+  size_t len;
+} mrvi_h5_batch;
+
+/* Record a failure: the reason from HDF5's error stack; _text: text as the
+ * reason.  Return the batch's status. */
+int mrvi_h5_batch_fail(mrvi_h5_batch *b, const char *what);
+int mrvi_h5_batch_fail_text(mrvi_h5_batch *b, int status, const char *text);
+/* Group `name` of loc (H5I_INVALID_HID after a failure); close it. */
+hid_t mrvi_h5_batch_group(mrvi_h5_batch *b, hid_t loc, const char *name);
+/* Dataset `name` of loc without attributes: n float64 or int32 values, or
+ * n x cols (cols > 0). */
+void mrvi_h5_batch_doubles(mrvi_h5_batch *b, hid_t loc, const char *name,
+                           const double *v, hsize_t n, hsize_t cols);
+void mrvi_h5_batch_ints(mrvi_h5_batch *b, hid_t loc, const char *name,
+                        const int *v, hsize_t n, hsize_t cols);
+/* Attributes, as mrvi_h5_attr_*. */
+void mrvi_h5_batch_attr_string(mrvi_h5_batch *b, hid_t loc, const char *name,
+                               const char *value);
+void mrvi_h5_batch_attr_double(mrvi_h5_batch *b, hid_t loc, const char *name,
+                               double value);
+void mrvi_h5_batch_attr_int(mrvi_h5_batch *b, hid_t loc, const char *name,
+                            int value);
+
+/* ---------------------------------------------------------------------------
+ * The output file (h5util.c): locked while written, set up under a
+ * temporary name beside it and renamed to it when complete, so that a
+ * second writer never destroys the file of a live one and a process killed
+ * before the rename leaves the previous file (or an empty one) at the path,
+ * never a half-built one.  Messages go into msg without the path.
+ * ------------------------------------------------------------------------- */
+
+/* Take an exclusive lock (flock, held on *fd until it is closed) on the
+ * output path, creating it empty when absent (*created = 1), before
+ * anything truncates it; refuse a file that is not a regular file, is
+ * locked by a live writer, or (unless force) is not empty and not an mrvi
+ * output (no root attribute mrvi_version).  MRVI_EIO with a message; on
+ * failure *fd is -1 and *created still says whether the file was created
+ * (the caller removes it). */
+int mrvi_h5_lock_output(const char *path, int force, int *fd, int *created,
+                        char *msg, size_t len);
+
+/* A new empty file beside path ("path.partXXXXXX") into *part (malloc'd,
+ * the caller frees); MRVI_EIO or MRVI_ENOMEM with a message. */
+int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len);
+
+/* Rename part to path, moving the lock with it: the new file is locked
+ * (on a new descriptor, which replaces *fd) before it gets the name, so a
+ * second writer never finds the path unlocked.  MRVI_EIO with a message. */
+int mrvi_h5_part_commit(const char *part, const char *path, int *fd, char *msg,
+                        size_t len);
 
 #endif

@@ -41,8 +41,6 @@
 #define BUFFER_BYTES ((size_t)8 << 20)
 /* Target size of one chunk (never more rows than the run will write). */
 #define CHUNK_BYTES ((size_t)64 << 10)
-/* Size of the fixed-length root attribute stop_reason. */
-#define STOP_REASON_BYTES 1024
 
 /* ---------------------------------------------------------------------------
  * Output table
@@ -254,82 +252,12 @@ static const void *output_row(const mrvi_writer *w, const mrvi_record *r,
 /* ---------------------------------------------------------------------------
  * HDF5 errors: no printing, messages instead.
  * ------------------------------------------------------------------------- */
-typedef struct quiet {
-  H5E_auto2_t func;
-  void *data;
-  int saved;
-} quiet;
-
-/* Switch HDF5's automatic error printing off (remembering the caller's
- * setting) and start from an empty error stack. */
-static void quiet_begin(quiet *q) {
-  q->saved = H5Eget_auto2(H5E_DEFAULT, &q->func, &q->data) >= 0;
-  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
-  H5Eclear2(H5E_DEFAULT);
-}
-
-static void quiet_end(const quiet *q) {
-  if (q->saved)
-    H5Eset_auto2(H5E_DEFAULT, q->func, q->data);
-}
-
-/* Every successful HDF5 call clears the error stack, so the stack of a
- * failed call is set aside while the handles it leaves are closed:
- *   es = keep_errors(rc); ...close...; restore_errors(es); */
-static hid_t keep_errors(herr_t rc) {
-  return rc < 0 ? H5Eget_current_stack() : H5I_INVALID_HID;
-}
-
-static void restore_errors(hid_t es) {
-  if (es >= 0)
-    H5Eset_current_stack(es); /* also releases es */
-}
-
-typedef struct h5_walk_data {
-  const char *outer;  /* description at the API function */
-  const char *inner;  /* most specific description */
-  const char *system; /* "error message = '...'" of a failed system call */
-  int system_len;
-} h5_walk_data;
-
-static herr_t h5_walk(unsigned n, const H5E_error2_t *e, void *data) {
-  h5_walk_data *d = data;
-  (void)n;
-  if (!e->desc || !e->desc[0])
-    return 0;
-  if (!d->outer)
-    d->outer = e->desc;
-  d->inner = e->desc;
-  const char *key = "error message = '", *s = strstr(e->desc, key);
-  if (s) {
-    s += strlen(key);
-    const char *end = strchr(s, '\'');
-    d->system = s;
-    d->system_len = end ? (int)(end - s) : (int)strlen(s);
-  }
-  return 0;
-}
-
-/* Record the first failure as "path: what: reason" from the error stack:
- * the operating system's message when there is one ("No such file or
- * directory", "File too large"), else HDF5's description at the API call
- * and the most specific one; then clear the stack.  Returns status. */
+/* Record the first failure as "path: what: reason" from the error stack
+ * (mrvi_h5_error_message).  Returns status. */
 static int fail_h5(mrvi_writer *w, int status, const char *what) {
   if (w->status)
     return w->status;
-  h5_walk_data d = {NULL, NULL, NULL, 0};
-  H5Ewalk2(H5E_DEFAULT, H5E_WALK_DOWNWARD, h5_walk, &d);
-  if (d.system)
-    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: %.*s", w->path, what,
-             d.system_len, d.system);
-  else if (d.outer && strcmp(d.outer, d.inner) != 0)
-    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: %s (%s)", w->path, what,
-             d.outer, d.inner);
-  else if (d.outer)
-    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: %s", w->path, what, d.outer);
-  else
-    mrvi_fmt(w->errmsg, sizeof w->errmsg, "%s: %s: HDF5 error", w->path, what);
-  H5Eclear2(H5E_DEFAULT);
+  mrvi_h5_error_message(w->errmsg, sizeof w->errmsg, w->path, what);
   w->status = status;
   return status;
 }
@@ -354,120 +282,6 @@ static int fail(mrvi_writer *w, int status, const char *fmt, ...) {
  * Attributes and fixed datasets
  * ------------------------------------------------------------------------- */
 
-/* Variable-length UTF-8 string type (h5py reads it as str). */
-static hid_t string_type(void) {
-  hid_t t = H5Tcopy(H5T_C_S1);
-  if (t < 0)
-    return t;
-  if (H5Tset_size(t, H5T_VARIABLE) < 0 || H5Tset_cset(t, H5T_CSET_UTF8) < 0) {
-    H5Tclose(t);
-    return H5I_INVALID_HID;
-  }
-  return t;
-}
-
-/* Create or overwrite the scalar attribute `name` of obj. */
-static herr_t attr_write(hid_t obj, const char *name, hid_t ftype, hid_t mtype,
-                         const void *value) {
-  hid_t a, es;
-  htri_t exists = H5Aexists(obj, name);
-  if (exists < 0)
-    return -1;
-  if (exists) {
-    a = H5Aopen(obj, name, H5P_DEFAULT);
-  } else {
-    hid_t space = H5Screate(H5S_SCALAR);
-    if (space < 0)
-      return -1;
-    a = H5Acreate2(obj, name, ftype, space, H5P_DEFAULT, H5P_DEFAULT);
-    es = keep_errors((herr_t)(a < 0 ? -1 : 0));
-    H5Sclose(space);
-    restore_errors(es);
-  }
-  if (a < 0)
-    return -1;
-  herr_t rc = H5Awrite(a, mtype, value);
-  es = keep_errors(rc);
-  if (H5Aclose(a) < 0)
-    rc = -1;
-  restore_errors(es);
-  return rc;
-}
-
-static herr_t attr_string(hid_t obj, const char *name, const char *value) {
-  hid_t t = string_type();
-  if (t < 0)
-    return -1;
-  const char *v = value ? value : "";
-  herr_t rc = attr_write(obj, name, t, t, &v);
-  hid_t es = keep_errors(rc);
-  H5Tclose(t);
-  restore_errors(es);
-  return rc;
-}
-
-/* Fixed-length string attribute (STOP_REASON_BYTES, truncated): rewritten
- * in place in the object header, never in the global heap, so SWMR writing
- * may change it (see flush). */
-static herr_t attr_fixed_string(hid_t obj, const char *name,
-                                const char *value) {
-  char buf[STOP_REASON_BYTES];
-  memset(buf, 0, sizeof buf);
-  mrvi_fmt(buf, sizeof buf, "%s", value ? value : "");
-  hid_t t = H5Tcopy(H5T_C_S1);
-  if (t < 0)
-    return -1;
-  herr_t rc = -1;
-  if (H5Tset_size(t, sizeof buf) >= 0 && H5Tset_cset(t, H5T_CSET_UTF8) >= 0 &&
-      H5Tset_strpad(t, H5T_STR_NULLTERM) >= 0)
-    rc = attr_write(obj, name, t, t, buf);
-  hid_t es = keep_errors(rc);
-  H5Tclose(t);
-  restore_errors(es);
-  return rc;
-}
-
-static herr_t attr_double(hid_t obj, const char *name, double value) {
-  return attr_write(obj, name, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, &value);
-}
-
-static herr_t attr_int(hid_t obj, const char *name, int value) {
-  return attr_write(obj, name, H5T_STD_I32LE, H5T_NATIVE_INT, &value);
-}
-
-static herr_t attr_long(hid_t obj, const char *name, long value) {
-  return attr_write(obj, name, H5T_STD_I64LE, H5T_NATIVE_LONG, &value);
-}
-
-/* Dataset of count elements, or count x cols (cols > 0), or one scalar,
- * with attribute long_name. */
-static herr_t write_fixed(hid_t file, const char *path, hid_t lcpl, hid_t ftype,
-                          hid_t mtype, hsize_t count, hsize_t cols, int scalar,
-                          const void *data, const char *long_name) {
-  const hsize_t dims[2] = {count, cols};
-  hid_t space = scalar ? H5Screate(H5S_SCALAR)
-                       : H5Screate_simple(cols > 0 ? 2 : 1, dims, NULL);
-  if (space < 0)
-    return -1;
-  hid_t d =
-      H5Dcreate2(file, path, ftype, space, lcpl, H5P_DEFAULT, H5P_DEFAULT);
-  hid_t es = keep_errors((herr_t)(d < 0 ? -1 : 0));
-  H5Sclose(space);
-  restore_errors(es);
-  if (d < 0)
-    return -1;
-  herr_t rc = 0;
-  if (scalar || count > 0)
-    rc = H5Dwrite(d, mtype, H5S_ALL, H5S_ALL, H5P_DEFAULT, data);
-  if (rc >= 0)
-    rc = attr_string(d, "long_name", long_name);
-  es = keep_errors(rc);
-  if (H5Dclose(d) < 0)
-    rc = -1;
-  restore_errors(es);
-  return rc;
-}
-
 /* Record a failure to write dataset `path`.  Returns the status. */
 static int fail_dataset(mrvi_writer *w, const char *path) {
   char what[128];
@@ -491,7 +305,7 @@ typedef struct fixed_dataset {
 /* Write the datasets d[0 .. count-1], stopping at the first failure. */
 static int write_fixed_list(mrvi_writer *w, hid_t lcpl, const fixed_dataset *d,
                             int count) {
-  hid_t st = string_type();
+  hid_t st = mrvi_h5_string_type();
   if (st < 0)
     return fail_h5(w, MRVI_EIO, "writing /model: string type");
   int rc = 0;
@@ -499,9 +313,9 @@ static int write_fixed_list(mrvi_writer *w, hid_t lcpl, const fixed_dataset *d,
     if (!d[i].data)
       continue;
     const int str = d[i].ftype == H5I_INVALID_HID;
-    if (write_fixed(w->file, d[i].path, lcpl, str ? st : d[i].ftype,
-                    str ? st : d[i].mtype, d[i].count, 0, d[i].scalar,
-                    d[i].data, d[i].long_name) < 0)
+    if (mrvi_h5_write_fixed(w->file, d[i].path, lcpl, str ? st : d[i].ftype,
+                            str ? st : d[i].mtype, d[i].count, 0, d[i].scalar,
+                            d[i].data, d[i].long_name) < 0)
       rc = fail_dataset(w, d[i].path);
   }
   H5Tclose(st);
@@ -587,11 +401,11 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
        "1 where the symmetry of the model conserves that component"},
   };
   rc = write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
-  if (rc == 0 &&
-      write_fixed(w->file, "/model/edges", lcpl, H5T_STD_I32LE, H5T_NATIVE_INT,
-                  (hsize_t)ne, 2, 0, pairs,
-                  "particle indices of the springs and rods between two "
-                  "particles") < 0)
+  if (rc == 0 && mrvi_h5_write_fixed(
+                     w->file, "/model/edges", lcpl, H5T_STD_I32LE,
+                     H5T_NATIVE_INT, (hsize_t)ne, 2, 0, pairs,
+                     "particle indices of the springs and rods between two "
+                     "particles") < 0)
     rc = fail_dataset(w, "/model/edges");
 out:
   free(name);
@@ -668,13 +482,14 @@ static int create_output(mrvi_writer *w, int id, hid_t lcpl,
   if (space >= 0 && dcpl >= 0 && H5Pset_chunk(dcpl, info->rank, chunk) >= 0)
     o->id =
         H5Dcreate2(w->file, info->path, ftype, space, lcpl, dcpl, H5P_DEFAULT);
-  hid_t es = keep_errors((herr_t)(o->id < 0 ? -1 : 0));
+  hid_t es = mrvi_h5_keep_errors((herr_t)(o->id < 0 ? -1 : 0));
   if (space >= 0)
     H5Sclose(space);
   if (dcpl >= 0)
     H5Pclose(dcpl);
-  restore_errors(es);
-  if (o->id < 0 || attr_string(o->id, "long_name", info->long_name) < 0) {
+  mrvi_h5_restore_errors(es);
+  if (o->id < 0 ||
+      mrvi_h5_attr_string(o->id, "long_name", info->long_name) < 0) {
     char what[128];
     mrvi_fmt(what, sizeof what, "creating %s", info->path);
     return fail_h5(w, MRVI_EIO, what);
@@ -701,12 +516,12 @@ static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
       H5Sselect_hyperslab(fspace, H5S_SELECT_SET, offset, NULL, count, NULL) >=
           0)
     rc = H5Dwrite(o->id, mtype, mspace, fspace, H5P_DEFAULT, buf);
-  hid_t es = keep_errors(rc);
+  hid_t es = mrvi_h5_keep_errors(rc);
   if (fspace >= 0)
     H5Sclose(fspace);
   if (mspace >= 0)
     H5Sclose(mspace);
-  restore_errors(es);
+  mrvi_h5_restore_errors(es);
   return rc;
 }
 
@@ -747,8 +562,8 @@ static int flush(mrvi_writer *w, int final) {
     w->rows[MACRO]++;
     w->pending = 0;
   }
-  quiet q;
-  quiet_begin(&q);
+  mrvi_h5_quiet q;
+  mrvi_h5_quiet_begin(&q);
   int rc = 0;
   /* Injected failure (tests of the error path): as if the disk filled up
    * before these rows reached the file. */
@@ -782,12 +597,12 @@ static int flush(mrvi_writer *w, int final) {
    * during) the two leaves a counter that is at most the rows stored. */
   if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     rc = fail_h5(w, MRVI_EIO, "flushing the file");
-  if (rc == 0 &&
-      attr_long(w->file, "steps_completed", w->last_k > 0 ? w->last_k : 0) < 0)
+  if (rc == 0 && mrvi_h5_attr_long(w->file, "steps_completed",
+                                   w->last_k > 0 ? w->last_k : 0) < 0)
     rc = fail_h5(w, MRVI_EIO, "writing attribute steps_completed");
   if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     rc = fail_h5(w, MRVI_EIO, "flushing the file");
-  quiet_end(&q);
+  mrvi_h5_quiet_end(&q);
   if (rc) {
     w->io_failed = 1;
     return rc;
@@ -853,80 +668,26 @@ static void writer_free(mrvi_writer *w) {
 
 /* Take an exclusive lock on the output file before anything truncates it,
  * and refuse a file that is not an earlier mrvi output unless force: a
- * second run must never destroy the file of a live run, nor a user's data.
- * The lock (flock on a descriptor of our own, held until close) is what a
- * second mrvi run, or mrvi_writer_open in another process, runs into. */
+ * second run must never destroy the file of a live run, nor a user's data
+ * (mrvi_h5_lock_output; the lock is held until close). */
 static int lock_and_check(mrvi_writer *w, int force) {
-  struct stat st;
-  int existed = stat(w->path, &st) == 0;
-  if (existed && !S_ISREG(st.st_mode))
-    return fail(w, MRVI_EIO, "not a regular file");
-  w->lock_fd = open(w->path, O_RDWR | O_CREAT | O_CLOEXEC, 0666);
-  w->new_file = !existed && w->lock_fd >= 0;
-  if (w->lock_fd < 0)
-    return fail(w, MRVI_EIO, "cannot create the file: %s", strerror(errno));
-  if (flock(w->lock_fd, LOCK_EX | LOCK_NB) < 0) {
-    int e = errno;
-    close(w->lock_fd);
-    w->lock_fd = -1;
-    if (e == EWOULDBLOCK)
-      return fail(w, MRVI_EIO,
-                  "the file is in use by another run (locked); "
-                  "not touched");
-    return fail(w, MRVI_EIO, "cannot lock the file: %s", strerror(e));
-  }
-  if (!existed || force || fstat(w->lock_fd, &st) < 0 || st.st_size == 0)
-    return check_space(w, 0);
-  /* An existing non-empty file: an mrvi output has the root attribute
-   * mrvi_version. */
-  int ours = 0;
-#if H5_VERSION_GE(1, 12, 0)
-  htri_t is_h5 = H5Fis_accessible(w->path, H5P_DEFAULT);
-#else
-  htri_t is_h5 = H5Fis_hdf5(w->path);
-#endif
-  if (is_h5 > 0) {
-    hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
-#if H5_VERSION_GE(1, 10, 7)
-    if (fapl >= 0)
-      H5Pset_file_locking(fapl, 0, 1);
-#endif
-    hid_t f = mrvi_h5_open_read(w->path, fapl >= 0 ? fapl : H5P_DEFAULT);
-    if (fapl >= 0)
-      H5Pclose(fapl);
-    if (f >= 0) {
-      ours = H5Aexists(f, "mrvi_version") > 0;
-      H5Fclose(f);
-    }
-  }
-  H5Eclear2(H5E_DEFAULT);
-  if (ours)
-    return check_space(w, 0);
-  close(w->lock_fd);
-  w->lock_fd = -1;
-  return fail(w, MRVI_EIO,
-              "exists and is not an mrvi output file; not overwritten "
-              "(use --force to replace it)");
+  char msg[400];
+  if (mrvi_h5_lock_output(w->path, force, &w->lock_fd, &w->new_file, msg,
+                          sizeof msg) < 0)
+    return fail(w, MRVI_EIO, "%s", msg);
+  return check_space(w, 0);
 }
 
 /* Rename the file set up under part_path to the output path, moving the
- * lock with it: the new file is locked before it gets the name, so a
- * second run never finds the output path unlocked. */
+ * lock with it (mrvi_h5_part_commit). */
 static int move_into_place(mrvi_writer *w) {
-  int fd = open(w->part_path, O_RDWR | O_CLOEXEC);
-  if (fd < 0 || flock(fd, LOCK_EX | LOCK_NB) < 0 ||
-      rename(w->part_path, w->path) < 0) {
-    int e = errno;
-    if (fd >= 0)
-      close(fd);
-    return fail(w, MRVI_EIO, "cannot rename %s to it: %s", w->part_path,
-                strerror(e));
-  }
+  char msg[400];
+  const int rc =
+      mrvi_h5_part_commit(w->part_path, w->path, &w->lock_fd, msg, sizeof msg);
+  if (rc)
+    return fail(w, rc, "%s", msg);
   free(w->part_path);
   w->part_path = NULL;
-  if (w->lock_fd >= 0)
-    close(w->lock_fd);
-  w->lock_fd = fd;
   return 0;
 }
 
@@ -990,8 +751,8 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
   }
   for (int s = 0; s < N_STREAMS; s++)
     w->written[s] = w->stream_on[s] ? keep[s] : 0;
-  if (attr_long(w->file, "steps_completed", k) < 0 ||
-      attr_fixed_string(w->file, "stop_reason", "running") < 0)
+  if (mrvi_h5_attr_long(w->file, "steps_completed", k) < 0 ||
+      mrvi_h5_attr_fixed_string(w->file, "stop_reason", "running") < 0)
     return fail_h5(w, MRVI_EIO,
                    "writing attributes steps_completed and stop_reason");
   if (H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
@@ -1088,30 +849,19 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
    * once it is complete and in SWMR mode: a run killed before leaves the
    * previous file (or an empty one) at the output path, never a half-built
    * one. */
-  const size_t plen = strlen(w->path) + 16;
-  w->part_path = malloc(plen);
-  if (!w->part_path) {
+  char msg[400];
+  rc = mrvi_h5_part_create(w->path, &w->part_path, msg, sizeof msg);
+  if (rc) {
     if (fapl >= 0)
       H5Pclose(fapl);
-    return fail(w, MRVI_ENOMEM, "out of memory");
+    return fail(w, rc, "%s", msg);
   }
-  mrvi_fmt(w->part_path, plen, "%s.partXXXXXX", w->path);
-  int part_fd = mkstemp(w->part_path);
-  if (part_fd < 0) {
-    int e = errno;
-    free(w->part_path);
-    w->part_path = NULL;
-    if (fapl >= 0)
-      H5Pclose(fapl);
-    return fail(w, MRVI_EIO, "cannot create a file beside it: %s", strerror(e));
-  }
-  close(part_fd);
   w->file = H5Fcreate(w->part_path, H5F_ACC_TRUNC, H5P_DEFAULT,
                       fapl >= 0 ? fapl : H5P_DEFAULT);
-  hid_t es = keep_errors((herr_t)(w->file < 0 ? -1 : 0));
+  hid_t es = mrvi_h5_keep_errors((herr_t)(w->file < 0 ? -1 : 0));
   if (fapl >= 0)
     H5Pclose(fapl);
-  restore_errors(es);
+  mrvi_h5_restore_errors(es);
   if (w->file < 0)
     return fail_h5(w, MRVI_EIO, "cannot create the file");
 
@@ -1122,7 +872,7 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   if (!solver_path)
     solver_path = "none";
 #define X_ATTR(name, kind, value, present)                                     \
-  if ((present) && attr_##kind(w->file, name, value) < 0)                      \
+  if ((present) && mrvi_h5_attr_##kind(w->file, name, value) < 0)              \
     return fail_h5(w, MRVI_EIO, "writing attribute " name);
   MRVI_ATTRIBUTE_LIST(X_ATTR)
 #undef X_ATTR
@@ -1223,8 +973,8 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   if (inject && *inject)
     w->fail_after = strtol(inject, NULL, 10);
 
-  quiet q;
-  quiet_begin(&q);
+  mrvi_h5_quiet q;
+  mrvi_h5_quiet_begin(&q);
   int rc = writer_setup(w, m, s, system_name, o.description, o.force,
                         o.resume ? (o.resume_k >= 0 ? o.resume_k : 0) : -1);
   if (rc) {
@@ -1240,10 +990,10 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
     if (created && lstat(path, &st) == 0 && S_ISREG(st.st_mode))
       remove(path);
     H5Eclear2(H5E_DEFAULT);
-    quiet_end(&q);
+    mrvi_h5_quiet_end(&q);
     return rc;
   }
-  quiet_end(&q);
+  mrvi_h5_quiet_end(&q);
   *out = w;
   return MRVI_OK;
 }
@@ -1391,11 +1141,12 @@ static herr_t write_energy_attributes(mrvi_writer *w) {
   const int k = e->energy_scale_kind >= 0 && e->energy_scale_kind <= 2
                     ? e->energy_scale_kind
                     : 2;
-  if (attr_double(w->file, "energy_error_max", e->max_rel_energy_error) < 0 ||
-      attr_double(w->file, "energy_scale", e->energy_scale) < 0 ||
-      attr_string(w->file, "energy_scale_kind", kind[k]) < 0 ||
-      attr_double(w->file, "energy_warning", w->energy_warning) < 0 ||
-      attr_string(w->file, "warning", e->warning) < 0)
+  if (mrvi_h5_attr_double(w->file, "energy_error_max",
+                          e->max_rel_energy_error) < 0 ||
+      mrvi_h5_attr_double(w->file, "energy_scale", e->energy_scale) < 0 ||
+      mrvi_h5_attr_string(w->file, "energy_scale_kind", kind[k]) < 0 ||
+      mrvi_h5_attr_double(w->file, "energy_warning", w->energy_warning) < 0 ||
+      mrvi_h5_attr_string(w->file, "warning", e->warning) < 0)
     return -1;
   return 0;
 }
@@ -1405,8 +1156,8 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
   mrvi_fmt(msg, len, "%s", "");
   if (!w)
     return MRVI_OK;
-  quiet q;
-  quiet_begin(&q);
+  mrvi_h5_quiet q;
+  mrvi_h5_quiet_begin(&q);
   flush(w, 1);
   /* The reason is written even after a failed write (best effort), but a
    * later failure never replaces the first message. */
@@ -1428,16 +1179,16 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
   }
   /* The counter first, stop_reason last: a stop_reason other than
    * "running" marks a run that closed. */
-  if (attr_long(w->file, "steps_completed", w->flushed_k) < 0 ||
+  if (mrvi_h5_attr_long(w->file, "steps_completed", w->flushed_k) < 0 ||
       H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0 ||
-      attr_fixed_string(w->file, "stop_reason", reason) < 0)
+      mrvi_h5_attr_fixed_string(w->file, "stop_reason", reason) < 0)
     fail_h5(w, MRVI_EIO, "writing attribute stop_reason");
   if (w->have_summary && write_energy_attributes(w) < 0)
     fail_h5(w, MRVI_EIO, "writing the energy error attributes");
   H5Eclear2(H5E_DEFAULT);
   close_handles(w);
   H5Eclear2(H5E_DEFAULT);
-  quiet_end(&q);
+  mrvi_h5_quiet_end(&q);
   int rc = w->status;
   if (rc)
     mrvi_fmt(msg, len, "%s", w->errmsg);

@@ -1,0 +1,361 @@
+/* Helpers shared by the HDF5 writers of src/io (hdf5_writer.c,
+ * study_writer.c, optimize_output.c): HDF5's errors as messages,
+ * attributes, datasets written whole, files written in one go, and the
+ * output file's lock and temporary name (h5util.h). */
+#define _DEFAULT_SOURCE /* flock */
+#include "h5util.h"
+#include "internal.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+/* ---------------------------------------------------------------------------
+ * HDF5 errors: no printing, messages instead.
+ * ------------------------------------------------------------------------- */
+void mrvi_h5_quiet_begin(mrvi_h5_quiet *q) {
+  q->saved = H5Eget_auto2(H5E_DEFAULT, &q->func, &q->data) >= 0;
+  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
+  H5Eclear2(H5E_DEFAULT);
+}
+
+void mrvi_h5_quiet_end(const mrvi_h5_quiet *q) {
+  if (q->saved)
+    H5Eset_auto2(H5E_DEFAULT, q->func, q->data);
+}
+
+hid_t mrvi_h5_keep_errors(herr_t rc) {
+  return rc < 0 ? H5Eget_current_stack() : H5I_INVALID_HID;
+}
+
+void mrvi_h5_restore_errors(hid_t es) {
+  if (es >= 0)
+    H5Eset_current_stack(es); /* also releases es */
+}
+
+typedef struct h5_walk_data {
+  const char *outer;  /* description at the API function */
+  const char *inner;  /* most specific description */
+  const char *system; /* "error message = '...'" of a failed system call */
+  int system_len;
+} h5_walk_data;
+
+static herr_t h5_walk(unsigned n, const H5E_error2_t *e, void *data) {
+  h5_walk_data *d = data;
+  (void)n;
+  if (!e->desc || !e->desc[0])
+    return 0;
+  if (!d->outer)
+    d->outer = e->desc;
+  d->inner = e->desc;
+  const char *key = "error message = '", *s = strstr(e->desc, key);
+  if (s) {
+    s += strlen(key);
+    const char *end = strchr(s, '\'');
+    d->system = s;
+    d->system_len = end ? (int)(end - s) : (int)strlen(s);
+  }
+  return 0;
+}
+
+void mrvi_h5_error_message(char *buf, size_t len, const char *path,
+                           const char *what) {
+  h5_walk_data d = {NULL, NULL, NULL, 0};
+  H5Ewalk2(H5E_DEFAULT, H5E_WALK_DOWNWARD, h5_walk, &d);
+  if (d.system)
+    mrvi_fmt(buf, len, "%s: %s: %.*s", path, what, d.system_len, d.system);
+  else if (d.outer && strcmp(d.outer, d.inner) != 0)
+    mrvi_fmt(buf, len, "%s: %s: %s (%s)", path, what, d.outer, d.inner);
+  else if (d.outer)
+    mrvi_fmt(buf, len, "%s: %s: %s", path, what, d.outer);
+  else
+    mrvi_fmt(buf, len, "%s: %s: HDF5 error", path, what);
+  H5Eclear2(H5E_DEFAULT);
+}
+
+/* ---------------------------------------------------------------------------
+ * Attributes and datasets written whole
+ * ------------------------------------------------------------------------- */
+hid_t mrvi_h5_string_type(void) {
+  hid_t t = H5Tcopy(H5T_C_S1);
+  if (t < 0)
+    return t;
+  if (H5Tset_size(t, H5T_VARIABLE) < 0 || H5Tset_cset(t, H5T_CSET_UTF8) < 0) {
+    H5Tclose(t);
+    return H5I_INVALID_HID;
+  }
+  return t;
+}
+
+herr_t mrvi_h5_attr_write(hid_t obj, const char *name, hid_t ftype, hid_t mtype,
+                          const void *value) {
+  hid_t a, es;
+  htri_t exists = H5Aexists(obj, name);
+  if (exists < 0)
+    return -1;
+  if (exists) {
+    a = H5Aopen(obj, name, H5P_DEFAULT);
+  } else {
+    hid_t space = H5Screate(H5S_SCALAR);
+    if (space < 0)
+      return -1;
+    a = H5Acreate2(obj, name, ftype, space, H5P_DEFAULT, H5P_DEFAULT);
+    es = mrvi_h5_keep_errors((herr_t)(a < 0 ? -1 : 0));
+    H5Sclose(space);
+    mrvi_h5_restore_errors(es);
+  }
+  if (a < 0)
+    return -1;
+  herr_t rc = H5Awrite(a, mtype, value);
+  es = mrvi_h5_keep_errors(rc);
+  if (H5Aclose(a) < 0)
+    rc = -1;
+  mrvi_h5_restore_errors(es);
+  return rc;
+}
+
+herr_t mrvi_h5_attr_string(hid_t obj, const char *name, const char *value) {
+  hid_t t = mrvi_h5_string_type();
+  if (t < 0)
+    return -1;
+  const char *v = value ? value : "";
+  herr_t rc = mrvi_h5_attr_write(obj, name, t, t, &v);
+  hid_t es = mrvi_h5_keep_errors(rc);
+  H5Tclose(t);
+  mrvi_h5_restore_errors(es);
+  return rc;
+}
+
+herr_t mrvi_h5_attr_fixed(hid_t obj, const char *name, const char *value,
+                          size_t size, H5T_cset_t cset) {
+  char *buf = calloc(size ? size : 1, 1);
+  hid_t t = buf ? H5Tcopy(H5T_C_S1) : H5I_INVALID_HID;
+  if (t < 0) {
+    free(buf);
+    return -1;
+  }
+  mrvi_fmt(buf, size, "%s", value ? value : "");
+  herr_t rc = -1;
+  if (H5Tset_size(t, size) >= 0 && H5Tset_cset(t, cset) >= 0 &&
+      H5Tset_strpad(t, H5T_STR_NULLTERM) >= 0)
+    rc = mrvi_h5_attr_write(obj, name, t, t, buf);
+  hid_t es = mrvi_h5_keep_errors(rc);
+  H5Tclose(t);
+  mrvi_h5_restore_errors(es);
+  free(buf);
+  return rc;
+}
+
+herr_t mrvi_h5_attr_fixed_string(hid_t obj, const char *name,
+                                 const char *value) {
+  return mrvi_h5_attr_fixed(obj, name, value, MRVI_H5_FIXED_BYTES,
+                            H5T_CSET_UTF8);
+}
+
+herr_t mrvi_h5_attr_double(hid_t obj, const char *name, double value) {
+  return mrvi_h5_attr_write(obj, name, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE,
+                            &value);
+}
+
+herr_t mrvi_h5_attr_int(hid_t obj, const char *name, int value) {
+  return mrvi_h5_attr_write(obj, name, H5T_STD_I32LE, H5T_NATIVE_INT, &value);
+}
+
+herr_t mrvi_h5_attr_long(hid_t obj, const char *name, long value) {
+  return mrvi_h5_attr_write(obj, name, H5T_STD_I64LE, H5T_NATIVE_LONG, &value);
+}
+
+herr_t mrvi_h5_write_fixed(hid_t loc, const char *path, hid_t lcpl, hid_t ftype,
+                           hid_t mtype, hsize_t count, hsize_t cols, int scalar,
+                           const void *data, const char *long_name) {
+  const hsize_t dims[2] = {count, cols};
+  hid_t space = scalar ? H5Screate(H5S_SCALAR)
+                       : H5Screate_simple(cols > 0 ? 2 : 1, dims, NULL);
+  if (space < 0)
+    return -1;
+  hid_t d = H5Dcreate2(loc, path, ftype, space, lcpl, H5P_DEFAULT, H5P_DEFAULT);
+  hid_t es = mrvi_h5_keep_errors((herr_t)(d < 0 ? -1 : 0));
+  H5Sclose(space);
+  mrvi_h5_restore_errors(es);
+  if (d < 0)
+    return -1;
+  herr_t rc = 0;
+  if (scalar || count > 0)
+    rc = H5Dwrite(d, mtype, H5S_ALL, H5S_ALL, H5P_DEFAULT, data);
+  if (rc >= 0 && long_name)
+    rc = mrvi_h5_attr_string(d, "long_name", long_name);
+  es = mrvi_h5_keep_errors(rc);
+  if (H5Dclose(d) < 0)
+    rc = -1;
+  mrvi_h5_restore_errors(es);
+  return rc;
+}
+
+/* ---------------------------------------------------------------------------
+ * A file written in one go
+ * ------------------------------------------------------------------------- */
+int mrvi_h5_batch_fail(mrvi_h5_batch *b, const char *what) {
+  if (b->status == 0) {
+    mrvi_h5_error_message(b->msg, b->len, b->path, what);
+    b->status = MRVI_EIO;
+  }
+  return b->status;
+}
+
+int mrvi_h5_batch_fail_text(mrvi_h5_batch *b, int status, const char *text) {
+  if (b->status == 0) {
+    mrvi_fmt(b->msg, b->len, "%s: %s", b->path, text);
+    b->status = status;
+  }
+  return b->status;
+}
+
+/* A failure to write object `name`. */
+static void batch_fail_writing(mrvi_h5_batch *b, const char *verb,
+                               const char *name) {
+  char what[160];
+  mrvi_fmt(what, sizeof what, "%s %s", verb, name);
+  mrvi_h5_batch_fail(b, what);
+}
+
+hid_t mrvi_h5_batch_group(mrvi_h5_batch *b, hid_t loc, const char *name) {
+  if (b->status || loc < 0)
+    return H5I_INVALID_HID;
+  hid_t g = H5Gcreate2(loc, name, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  if (g < 0)
+    batch_fail_writing(b, "creating group", name);
+  return g;
+}
+
+void mrvi_h5_batch_doubles(mrvi_h5_batch *b, hid_t loc, const char *name,
+                           const double *v, hsize_t n, hsize_t cols) {
+  if (b->status == 0 &&
+      mrvi_h5_write_fixed(loc, name, H5P_DEFAULT, H5T_IEEE_F64LE,
+                          H5T_NATIVE_DOUBLE, n, cols, 0, v, NULL) < 0)
+    batch_fail_writing(b, "writing", name);
+}
+
+void mrvi_h5_batch_ints(mrvi_h5_batch *b, hid_t loc, const char *name,
+                        const int *v, hsize_t n, hsize_t cols) {
+  if (b->status == 0 &&
+      mrvi_h5_write_fixed(loc, name, H5P_DEFAULT, H5T_STD_I32LE, H5T_NATIVE_INT,
+                          n, cols, 0, v, NULL) < 0)
+    batch_fail_writing(b, "writing", name);
+}
+
+void mrvi_h5_batch_attr_string(mrvi_h5_batch *b, hid_t loc, const char *name,
+                               const char *value) {
+  if (b->status == 0 && mrvi_h5_attr_string(loc, name, value) < 0)
+    batch_fail_writing(b, "writing attribute", name);
+}
+
+void mrvi_h5_batch_attr_double(mrvi_h5_batch *b, hid_t loc, const char *name,
+                               double value) {
+  if (b->status == 0 && mrvi_h5_attr_double(loc, name, value) < 0)
+    batch_fail_writing(b, "writing attribute", name);
+}
+
+void mrvi_h5_batch_attr_int(mrvi_h5_batch *b, hid_t loc, const char *name,
+                            int value) {
+  if (b->status == 0 && mrvi_h5_attr_int(loc, name, value) < 0)
+    batch_fail_writing(b, "writing attribute", name);
+}
+
+/* ---------------------------------------------------------------------------
+ * The output file: lock, temporary name, rename
+ * ------------------------------------------------------------------------- */
+int mrvi_h5_lock_output(const char *path, int force, int *fd, int *created,
+                        char *msg, size_t len) {
+  struct stat st;
+  int existed = stat(path, &st) == 0;
+  *fd = -1;
+  *created = 0;
+  if (existed && !S_ISREG(st.st_mode))
+    return mrvi_fail(msg, len, MRVI_EIO, "not a regular file");
+  *fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0666);
+  *created = !existed && *fd >= 0;
+  if (*fd < 0)
+    return mrvi_fail(msg, len, MRVI_EIO, "cannot create the file: %s",
+                     strerror(errno));
+  if (flock(*fd, LOCK_EX | LOCK_NB) < 0) {
+    int e = errno;
+    close(*fd);
+    *fd = -1;
+    if (e == EWOULDBLOCK)
+      return mrvi_fail(msg, len, MRVI_EIO,
+                       "the file is in use by another run (locked); "
+                       "not touched");
+    return mrvi_fail(msg, len, MRVI_EIO, "cannot lock the file: %s",
+                     strerror(e));
+  }
+  if (!existed || force || fstat(*fd, &st) < 0 || st.st_size == 0)
+    return MRVI_OK;
+  /* An existing non-empty file: an mrvi output has the root attribute
+   * mrvi_version. */
+  int ours = 0;
+#if H5_VERSION_GE(1, 12, 0)
+  htri_t is_h5 = H5Fis_accessible(path, H5P_DEFAULT);
+#else
+  htri_t is_h5 = H5Fis_hdf5(path);
+#endif
+  if (is_h5 > 0) {
+    hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
+#if H5_VERSION_GE(1, 10, 7)
+    if (fapl >= 0)
+      H5Pset_file_locking(fapl, 0, 1);
+#endif
+    hid_t f = mrvi_h5_open_read(path, fapl >= 0 ? fapl : H5P_DEFAULT);
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    if (f >= 0) {
+      ours = H5Aexists(f, "mrvi_version") > 0;
+      H5Fclose(f);
+    }
+  }
+  H5Eclear2(H5E_DEFAULT);
+  if (ours)
+    return MRVI_OK;
+  close(*fd);
+  *fd = -1;
+  return mrvi_fail(msg, len, MRVI_EIO,
+                   "exists and is not an mrvi output file; not overwritten "
+                   "(use --force to replace it)");
+}
+
+int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len) {
+  const size_t plen = strlen(path) + 16;
+  *part = malloc(plen);
+  if (!*part)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  mrvi_fmt(*part, plen, "%s.partXXXXXX", path);
+  int fd = mkstemp(*part);
+  if (fd < 0) {
+    int e = errno;
+    free(*part);
+    *part = NULL;
+    return mrvi_fail(msg, len, MRVI_EIO, "cannot create a file beside it: %s",
+                     strerror(e));
+  }
+  close(fd);
+  return MRVI_OK;
+}
+
+int mrvi_h5_part_commit(const char *part, const char *path, int *fd, char *msg,
+                        size_t len) {
+  int pfd = open(part, O_RDWR | O_CLOEXEC);
+  if (pfd < 0 || flock(pfd, LOCK_EX | LOCK_NB) < 0 || rename(part, path) < 0) {
+    int e = errno;
+    if (pfd >= 0)
+      close(pfd);
+    return mrvi_fail(msg, len, MRVI_EIO, "cannot rename %s to it: %s", part,
+                     strerror(e));
+  }
+  if (*fd >= 0)
+    close(*fd);
+  *fd = pfd;
+  return MRVI_OK;
+}

@@ -1,0 +1,143 @@
+/* What src/io offers the command-line tool beyond mrvi.h: the HDF5 files of
+ * the study commands (study_writer.c) and of `mrvi optimize`
+ * (optimize_output.c).  Layouts in doc/output.md.  Every function returns
+ * a status (0 or a negative MRVI_E*) with a message in msg; none prints. */
+#ifndef MRVI_IO_H
+#define MRVI_IO_H
+
+#include "mrvi.h"
+#include "ocp/ocp.h"
+
+#include <stddef.h>
+
+/* ---------------------------------------------------------------------------
+ * Study tables (study_writer.c): written whole under a temporary name and
+ * renamed to path when complete, with path locked meanwhile (h5util.h).
+ * ------------------------------------------------------------------------- */
+
+/* Error columns of `mrvi converge`, listed once: X(dataset, mrvi_errors
+ * field); the CSV table has the same columns. */
+#define MRVI_ERROR_COLUMNS(X)                                                  \
+  X(e_q_mac, q_mac)                                                            \
+  X(e_p_mac, p_mac)                                                            \
+  X(e_q_mic, q_mic)                                                            \
+  X(e_p_mic, p_mic)                                                            \
+  X(e_qs_mac, qs_mac)                                                          \
+  X(e_qf_mac, qf_mac)                                                          \
+  X(e_ps_mac, ps_mac)                                                          \
+  X(e_pf_mac, pf_mac)
+
+/* The rows of one p: group /convergence/p<p>. */
+typedef struct mrvi_convergence_rows {
+  int p, rows;
+  const double *macro_step;  /* rows */
+  const mrvi_errors *errors; /* rows */
+} mrvi_convergence_rows;
+
+typedef struct mrvi_convergence_table {
+  const char *system, *scheme; /* root attributes */
+  double t_end, reference_step;
+  const char *reference_scheme;
+  int n_p;
+  const mrvi_convergence_rows *by_p; /* n_p */
+} mrvi_convergence_table;
+
+int mrvi_study_write_convergence(const char *path,
+                                 const mrvi_convergence_table *t, char *msg,
+                                 size_t len);
+
+/* `mrvi stability`: the two rules of the slow potential on the micro grid
+ * of Lemma lemma:stability_slow, in this order (dataset name prefixes). */
+enum { MRVI_STABILITY_RULES = 2 };
+extern const char *const mrvi_stability_rule_name[MRVI_STABILITY_RULES];
+
+/* measured: the largest stable omega dT, analytic: the lemma's bound, per
+ * rule and p; trace: of the propagation matrix at each omega_dT. */
+typedef struct mrvi_stability_table {
+  const char *system;
+  double omega;
+  int n_p;
+  const int *p;                                 /* n_p */
+  const double *measured[MRVI_STABILITY_RULES]; /* n_p each */
+  const double *analytic[MRVI_STABILITY_RULES]; /* n_p each */
+  int n_scan;
+  const double *omega_dT; /* n_scan */
+  const double *trace;    /* rules x n_p x n_scan */
+} mrvi_stability_table;
+
+int mrvi_study_write_stability(const char *path, const mrvi_stability_table *t,
+                               char *msg, size_t len);
+
+/* Columns of `mrvi timing`, listed once (datasets, CSV columns, fields). */
+#define MRVI_TIMING_COLUMNS(X)                                                 \
+  X(total_time)                                                                \
+  X(iterations)                                                                \
+  X(time_per_step)                                                             \
+  X(assemble_per_step)                                                         \
+  X(solve_per_step)                                                            \
+  X(macro_steps)                                                               \
+  X(system_size)
+
+typedef struct mrvi_timing_row {
+#define MRVI_TIMING_FIELD(name) double name;
+  MRVI_TIMING_COLUMNS(MRVI_TIMING_FIELD)
+#undef MRVI_TIMING_FIELD
+} mrvi_timing_row;
+
+typedef struct mrvi_timing_table {
+  const char *system;
+  double micro_step, t_end;
+  int n_p, n_schemes;
+  const int *p;                /* n_p */
+  const char *const *schemes;  /* n_schemes: group names */
+  const mrvi_timing_row *rows; /* n_schemes x n_p */
+} mrvi_timing_table;
+
+int mrvi_study_write_timing(const char *path, const mrvi_timing_table *t,
+                            char *msg, size_t len);
+
+/* ---------------------------------------------------------------------------
+ * `mrvi optimize` (optimize_output.c)
+ * ------------------------------------------------------------------------- */
+
+/* The trajectory of o's last evaluation in the layout of `mrvi run`
+ * (/macro and, with output.micro, /micro; through the run writer,
+ * mrvi_writer_open), with the root attribute solver naming the forward
+ * pass's path: what `mrvi run --controls` writes. */
+int mrvi_ocp_trajectory_write(const char *path, const mrvi_system *sys,
+                              const mrvi_ocp *o, char *msg, size_t len);
+
+/* The controls /control/u stored by `mrvi optimize` at path into u (the
+ * control vector of o); MRVI_EIO with a message when the file has none or
+ * they do not fit o's actuators and steps. */
+int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, double *u,
+                           char *msg, size_t len);
+
+/* The output of `mrvi optimize`: the trajectory (as
+ * mrvi_ocp_trajectory_write), /control (the controls on the finest grid of
+ * the actuators, their names and the terminal conditions) and /optimizer
+ * (the history of cost, terminal violation and gradient norm per
+ * evaluation, the result).  Opened before optimising, given every
+ * evaluation, closed with the result:
+ *   mrvi_ocp_output_open -> mrvi_ocp_output_iteration ... ->
+ *   mrvi_ocp_output_close.
+ * The file itself is written whole at close (nothing touches path
+ * before). */
+typedef struct mrvi_ocp_output mrvi_ocp_output;
+
+/* sys and o must outlive the output. */
+int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
+                         const mrvi_ocp *o, mrvi_ocp_output **out, char *msg,
+                         size_t len);
+/* One evaluation: a row of /optimizer/history.  MRVI_ENOMEM when it cannot
+ * be kept. */
+int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
+                              double gradient_norm);
+/* Write the file for the controls u (o's last evaluation is theirs) and
+ * the result res; status is /optimizer's attribute status ("converged",
+ * "failed").  Frees w (also on failure); NULL is accepted. */
+int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
+                          const mrvi_ocp_result *res, const char *status,
+                          char *msg, size_t len);
+
+#endif

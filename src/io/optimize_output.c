@@ -1,0 +1,418 @@
+/* The HDF5 output of `mrvi optimize` and its replay (doc/output.md,
+ * doc/optimal-control.md):
+ *
+ *   the trajectory of the controls   layout of `mrvi run` (/macro, /micro),
+ *                                    through the run writer (hdf5_writer.c)
+ *   root attribute solver            the forward pass's step solver path
+ *   /control                         t, u on the finest grid of the
+ *                                    actuators; actuators; terminal
+ *                                    conditions
+ *   /optimizer                       history (cost, violation, gradient
+ *                                    norm per evaluation), result
+ *
+ * and the controls read back from /control/u (`mrvi run --controls`).
+ *
+ * The trajectory is written crash-safe by the run writer; the solver
+ * attribute, /control and /optimizer are added after it closed, in a
+ * second open of the file.  So a process killed while optimising leaves no
+ * output (or the previous file), and one killed in that second open may
+ * leave a trajectory without /control. */
+#include "h5util.h"
+#include "internal.h"
+#include "io.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ---------------------------------------------------------------------------
+ * The trajectory
+ * ------------------------------------------------------------------------- */
+
+/* Macro node k of o's last evaluation as a record of the run writer: the
+ * node, its energies and momenta, the micro nodes it completes (t_0 at
+ * k = 0, else m = 1..p of step k-1) and, with constraints, the multipliers
+ * of step k-1 and the residuals.  lam, g: n_lambda each; cres0: the
+ * residual of node 0. */
+static void node_record(const mrvi_system *sys, const mrvi_ocp *o, long k,
+                        double *lam, double *g, double *cres0, mrvi_record *r) {
+  const mrvi_model *m = sys->model;
+  const int n = mrvi_model_n(m), nr = mrvi_model_constraint_rows(m);
+  const int nf = mrvi_model_n_fast(m), p = sys->settings.micro_steps;
+  const double dT = sys->settings.macro_step, dt = dT / p;
+  memset(r, 0, sizeof *r);
+  r->k = k;
+  r->t = k * dT;
+  r->q = mrvi_ocp_q(o) + k * n;
+  r->p = mrvi_ocp_p(o) + k * n;
+  mrvi_model_energy(m, r->q, r->p, &r->kinetic, &r->potential_slow,
+                    &r->potential_fast);
+  r->energy = r->kinetic + r->potential_slow + r->potential_fast;
+  mrvi_model_momentum(m, r->q, r->p, r->linear_momentum, r->angular_momentum);
+  const long first = k == 0 ? 0 : (k - 1) * p + 1;
+  r->micro_count = k == 0 ? 1 : p;
+  r->micro_t0 = first * dt;
+  r->micro_dt = dt;
+  r->micro_q_fast = mrvi_ocp_micro_q(o) + first * nf;
+  r->micro_p_fast = mrvi_ocp_micro_p(o) + first * nf;
+  r->n_lambda = nr;
+  if (nr == 0)
+    return;
+  if (k >= 1) {
+    mrvi_ocp_lambda(o, k - 1, lam);
+    r->lambda_prev = lam;
+    r->micro_constraint_residual =
+        mrvi_ocp_micro_constraint_residual(o) + (k - 1) * p;
+    for (int j = 0; j < p; j++)
+      r->constraint_residual =
+          fmax(r->constraint_residual, r->micro_constraint_residual[j]);
+  } else {
+    mrvi_model_constraint_eval(m, r->q, g, NULL);
+    for (int i = 0; i < nr; i++)
+      *cres0 = fmax(*cres0, fabs(g[i]));
+    r->constraint_residual = *cres0;
+    r->micro_constraint_residual = cres0;
+  }
+  r->hidden_constraint_residual = mrvi_model_hidden_residual(m, r->q, r->p);
+}
+
+/* The trajectory through the run writer: macro nodes and, with
+ * output.micro, the fast coordinates at every micro node. */
+static int write_trajectory(const char *path, const mrvi_system *sys,
+                            const mrvi_ocp *o, char *msg, size_t len) {
+  const mrvi_model *m = sys->model;
+  mrvi_writer_options opt = {
+      .system_name = sys->name ? sys->name : mrvi_model_name(m),
+      .description = sys->description,
+      .every = 1,
+      .micro = sys->output_micro,
+      .micro_slow = sys->output_micro_slow,
+  };
+  mrvi_writer *w = NULL;
+  int st = mrvi_writer_open(path, m, &sys->settings, &opt, &w, msg, len);
+  if (st < 0)
+    return st;
+  const int nr = mrvi_model_constraint_rows(m);
+  double *lam = calloc((size_t)(nr > 0 ? nr : 1), sizeof *lam);
+  double *g = calloc((size_t)(nr > 0 ? nr : 1), sizeof *g);
+  double cres0 = 0.0;
+  if (!lam || !g)
+    st = mrvi_fail(msg, len, MRVI_ENOMEM, "%s: out of memory", path);
+  const long N = mrvi_ocp_n_steps(o);
+  for (long k = 0; k <= N && st == 0; k++) {
+    mrvi_record r;
+    node_record(sys, o, k, lam, g, &cres0, &r);
+    st = mrvi_writer_observe(w, &r);
+  }
+  free(lam);
+  free(g);
+  char cmsg[512] = "";
+  const int cst = mrvi_writer_close(w, st ? "writing failed" : "completed",
+                                    cmsg, sizeof cmsg);
+  if (st == 0 && cst < 0) {
+    mrvi_fmt(msg, len, "%s", cmsg);
+    st = cst;
+  }
+  return st;
+}
+
+/* ---------------------------------------------------------------------------
+ * Adding to the closed trajectory file
+ * ------------------------------------------------------------------------- */
+typedef struct addition {
+  mrvi_h5_batch b;
+  mrvi_h5_quiet q;
+} addition;
+
+/* Open the closed file again; add_close follows, also on failure. */
+static int add_open(addition *a, const char *path, char *msg, size_t len) {
+  *a = (addition){.b = {.path = path, .msg = msg, .len = len}};
+  mrvi_h5_quiet_begin(&a->q);
+  a->b.file = H5Fopen(path, H5F_ACC_RDWR, H5P_DEFAULT);
+  return a->b.file < 0 ? mrvi_h5_batch_fail(&a->b, "cannot open the file") : 0;
+}
+
+static int add_close(addition *a) {
+  if (a->b.file >= 0 && H5Fclose(a->b.file) < 0)
+    mrvi_h5_batch_fail(&a->b, "closing the file");
+  H5Eclear2(H5E_DEFAULT);
+  mrvi_h5_quiet_end(&a->q);
+  return a->b.status;
+}
+
+/* Fixed-length ASCII string attribute of the string's length. */
+static void attr_text(mrvi_h5_batch *b, hid_t loc, const char *name,
+                      const char *value) {
+  if (b->status == 0 && mrvi_h5_attr_fixed(loc, name, value, strlen(value) + 1,
+                                           H5T_CSET_ASCII) < 0)
+    mrvi_h5_batch_fail(b, name);
+}
+
+/* Dataset `name` of loc: n variable-length ASCII strings. */
+static void strings(mrvi_h5_batch *b, hid_t loc, const char *name,
+                    const char **v, hsize_t n) {
+  if (b->status)
+    return;
+  hid_t t = H5Tcopy(H5T_C_S1);
+  if (t < 0 || H5Tset_size(t, H5T_VARIABLE) < 0 ||
+      mrvi_h5_write_fixed(loc, name, H5P_DEFAULT, t, t, n, 0, 0, v, NULL) < 0)
+    mrvi_h5_batch_fail(b, name);
+  if (t >= 0)
+    H5Tclose(t);
+}
+
+/* Root attribute "solver": the step solver path of the forward pass (the
+ * run writer wrote the integrator's, which pair actuators change to
+ * general), fixed-length. */
+static void write_solver_path(mrvi_h5_batch *b, const mrvi_ocp *o) {
+  const char *path = mrvi_ocp_solver_path(o, NULL, 0);
+  if (b->status == 0 && H5Aexists(b->file, "solver") > 0 &&
+      H5Adelete(b->file, "solver") < 0)
+    mrvi_h5_batch_fail(b, "solver");
+  attr_text(b, b->file, "solver", path ? path : "none");
+}
+
+int mrvi_ocp_trajectory_write(const char *path, const mrvi_system *sys,
+                              const mrvi_ocp *o, char *msg, size_t len) {
+  int st = write_trajectory(path, sys, o, msg, len);
+  if (st < 0)
+    return st;
+  addition a;
+  if (add_open(&a, path, msg, len) == 0)
+    write_solver_path(&a.b, o);
+  return add_close(&a);
+}
+
+/* ---------------------------------------------------------------------------
+ * /control and /optimizer
+ * ------------------------------------------------------------------------- */
+struct mrvi_ocp_output {
+  char *path;
+  const mrvi_system *sys;
+  const mrvi_ocp *o;
+  int n, cap;
+  double *history; /* n x 3: cost, violation, gradient norm */
+};
+
+/* /control: t and u on the finest grid of the actuators (the micro grid if
+ * any actuator is on it), per actuator its name, grid, coordinate and pair,
+ * per terminal condition its coordinate, kind, target and penalty (for
+ * mrvi-plot optimize). */
+static void write_control(mrvi_h5_batch *b, const mrvi_system *sys,
+                          const mrvi_ocp *o, const double *u) {
+  const int na = mrvi_ocp_n_actuators(o), nterm = mrvi_ocp_n_terminals(o);
+  const long N = mrvi_ocp_n_steps(o);
+  int p = 1;
+  for (int k = 0; k < na; k++)
+    if (mrvi_ocp_actuator_grid(o, k) == MRVI_GRID_MICRO)
+      p = sys->settings.micro_steps;
+  const long nt = N * p;
+  const double h_t = sys->settings.macro_step / p;
+  const int nmax = na > nterm ? na : nterm;
+  double *t = malloc(((size_t)nt + 1) * sizeof *t);
+  double *U = malloc(((size_t)nt * (size_t)na + 1) * sizeof *U);
+  const char **sv = malloc((size_t)(nmax + 1) * sizeof *sv);
+  int *iv = malloc((size_t)(2 * nmax + 1) * sizeof *iv);
+  double *tv = malloc((size_t)(2 * nterm + 1) * sizeof *tv);
+  hid_t gc = H5I_INVALID_HID;
+  if (!t || !U || !sv || !iv || !tv) {
+    mrvi_h5_batch_fail_text(b, MRVI_ENOMEM, "out of memory");
+    goto out;
+  }
+  for (long j = 0; j < nt; j++) {
+    t[j] = j * h_t;
+    for (int k = 0; k < na; k++) {
+      const int micro = mrvi_ocp_actuator_grid(o, k) == MRVI_GRID_MICRO;
+      U[j * na + k] = u[mrvi_ocp_actuator_offset(o, k) + (micro ? j : j / p)];
+    }
+  }
+  gc = mrvi_h5_batch_group(b, b->file, "control");
+  mrvi_h5_batch_doubles(b, gc, "t", t, (hsize_t)nt, 0);
+  mrvi_h5_batch_doubles(b, gc, "u", U, (hsize_t)nt, (hsize_t)na);
+  for (int k = 0; k < na; k++)
+    sv[k] = mrvi_ocp_actuator_name(o, k);
+  strings(b, gc, "names", sv, (hsize_t)na);
+  for (int k = 0; k < na; k++) {
+    sv[k] = mrvi_ocp_actuator_grid(o, k) == MRVI_GRID_MICRO ? "micro" : "macro";
+    iv[k] = mrvi_ocp_actuator_coordinate(o, k);
+  }
+  strings(b, gc, "actuator_grid", sv, (hsize_t)na);
+  mrvi_h5_batch_ints(b, gc, "actuator_coordinate", iv, (hsize_t)na, 0);
+  for (int k = 0; k < na; k++)
+    mrvi_ocp_actuator_pair(o, k, &iv[2 * k], &iv[2 * k + 1]);
+  mrvi_h5_batch_ints(b, gc, "actuator_pair", iv, (hsize_t)na, 2);
+  for (int i = 0; i < nterm; i++) {
+    mrvi_ocp_terminal_kind kind;
+    mrvi_ocp_terminal(o, i, &kind, &iv[i], &tv[i], &tv[nterm + i]);
+    sv[i] = kind == MRVI_OCP_POSITION ? "position" : "velocity";
+  }
+  mrvi_h5_batch_ints(b, gc, "terminal_coordinate", iv, (hsize_t)nterm, 0);
+  strings(b, gc, "terminal_kind", sv, (hsize_t)nterm);
+  mrvi_h5_batch_doubles(b, gc, "terminal_target", tv, (hsize_t)nterm, 0);
+  mrvi_h5_batch_doubles(b, gc, "terminal_penalty", tv + nterm, (hsize_t)nterm,
+                        0);
+  attr_text(b, gc, "grid", p > 1 ? "micro" : "macro");
+out:
+  if (gc >= 0)
+    H5Gclose(gc);
+  free(t);
+  free(U);
+  free(sv);
+  free(iv);
+  free(tv);
+}
+
+/* /optimizer: the history and the result. */
+static void write_optimizer(mrvi_h5_batch *b, const mrvi_ocp_output *w,
+                            const mrvi_ocp_result *res, const char *status) {
+  const mrvi_ocp *o = w->o;
+  hid_t go = mrvi_h5_batch_group(b, b->file, "optimizer");
+  mrvi_h5_batch_doubles(b, go, "history", w->history, (hsize_t)w->n, 3);
+  attr_text(b, go, "columns", "cost, violation, gradient_norm");
+  attr_text(b, go, "algorithm",
+            mrvi_ocp_algorithm_name(mrvi_ocp_get_algorithm(o)));
+  attr_text(b, go, "status", status);
+  attr_text(b, go, "nlopt_result", res->nlopt_name);
+  mrvi_h5_batch_attr_double(b, go, "cost", res->cost);
+  mrvi_h5_batch_attr_double(b, go, "terminal_violation", res->violation);
+  mrvi_h5_batch_attr_double(b, go, "terminal_tolerance",
+                            mrvi_ocp_terminal_tolerance(o));
+  mrvi_h5_batch_attr_double(b, go, "evaluations", res->evaluations);
+  if (go >= 0)
+    H5Gclose(go);
+}
+
+int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
+                         const mrvi_ocp *o, mrvi_ocp_output **out, char *msg,
+                         size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (!out)
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "mrvi_ocp_output_open: no result pointer");
+  *out = NULL;
+  if (!path || !path[0] || !sys || !o)
+    return mrvi_fail(msg, len, MRVI_EINVAL, "mrvi_ocp_output_open: %s",
+                     !sys ? "no system"
+                     : !o ? "no problem"
+                          : "no file name");
+  mrvi_ocp_output *w = calloc(1, sizeof *w);
+  if (w)
+    w->path = strdup(path);
+  if (!w || !w->path) {
+    free(w);
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "%s: out of memory", path);
+  }
+  w->sys = sys;
+  w->o = o;
+  *out = w;
+  return MRVI_OK;
+}
+
+int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
+                              double gradient_norm) {
+  if (!w)
+    return MRVI_EINVAL;
+  if (w->n == w->cap) {
+    int cap = w->cap ? 2 * w->cap : 64;
+    double *r = realloc(w->history, (size_t)cap * 3 * sizeof *r);
+    if (!r)
+      return MRVI_ENOMEM;
+    w->history = r;
+    w->cap = cap;
+  }
+  w->history[3 * w->n] = cost;
+  w->history[3 * w->n + 1] = violation;
+  w->history[3 * w->n + 2] = gradient_norm;
+  w->n++;
+  return MRVI_OK;
+}
+
+int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
+                          const mrvi_ocp_result *res, const char *status,
+                          char *msg, size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (!w)
+    return MRVI_OK;
+  int st = MRVI_EINVAL;
+  if (!u || !res || !status)
+    mrvi_fmt(msg, len, "mrvi_ocp_output_close: no %s",
+             !u     ? "controls"
+             : !res ? "result"
+                    : "status");
+  else
+    st = write_trajectory(w->path, w->sys, w->o, msg, len);
+  if (st == 0) {
+    addition a;
+    if (add_open(&a, w->path, msg, len) == 0) {
+      write_solver_path(&a.b, w->o);
+      write_control(&a.b, w->sys, w->o, u);
+      write_optimizer(&a.b, w, res, status);
+    }
+    st = add_close(&a);
+  }
+  free(w->history);
+  free(w->path);
+  free(w);
+  return st;
+}
+
+/* ---------------------------------------------------------------------------
+ * Replay: the stored controls
+ * ------------------------------------------------------------------------- */
+int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, double *u,
+                           char *msg, size_t len) {
+  mrvi_h5_quiet q;
+  mrvi_h5_quiet_begin(&q);
+  hid_t f = mrvi_h5_open_read(path, H5P_DEFAULT);
+  if (f < 0) {
+    mrvi_h5_quiet_end(&q);
+    return mrvi_fail(msg, len, MRVI_EIO, "cannot open '%s'", path);
+  }
+  int rc = MRVI_EIO;
+  hid_t d = H5Dopen2(f, "/control/u", H5P_DEFAULT);
+  hid_t sp = d >= 0 ? H5Dget_space(d) : H5I_INVALID_HID;
+  hsize_t dims[2] = {0, 0};
+  const int na = mrvi_ocp_n_actuators(o);
+  const long N = mrvi_ocp_n_steps(o);
+  if (sp < 0 || H5Sget_simple_extent_ndims(sp) != 2 ||
+      H5Sget_simple_extent_dims(sp, dims, NULL) < 0) {
+    mrvi_fmt(msg, len, "'%s' has no 2-D /control/u", path);
+  } else if ((int)dims[1] != na || dims[0] == 0 || dims[0] % (hsize_t)N) {
+    mrvi_fmt(msg, len,
+             "/control/u of '%s' is %llu x %llu; the problem has %d "
+             "actuators on %ld macro steps",
+             path, (unsigned long long)dims[0], (unsigned long long)dims[1], na,
+             N);
+  } else {
+    double *U = malloc((size_t)(dims[0] * dims[1]) * sizeof *U);
+    if (U &&
+        H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, U) >= 0) {
+      const long pt = (long)dims[0] / N;
+      rc = MRVI_OK;
+      for (int k = 0; k < na && rc == MRVI_OK; k++) {
+        const int micro = mrvi_ocp_actuator_grid(o, k) == MRVI_GRID_MICRO;
+        const int size = mrvi_ocp_actuator_size(o, k);
+        if (micro && size != (int)dims[0]) {
+          mrvi_fmt(msg, len, "actuator '%s' needs %d values, '%s' has %llu",
+                   mrvi_ocp_actuator_name(o, k), size, path,
+                   (unsigned long long)dims[0]);
+          rc = MRVI_EIO;
+        }
+        for (int j = 0; rc == MRVI_OK && j < size; j++)
+          u[mrvi_ocp_actuator_offset(o, k) + j] =
+              U[(micro ? j : j * pt) * na + k];
+      }
+    } else {
+      mrvi_fmt(msg, len, "cannot read /control/u of '%s'", path);
+    }
+    free(U);
+  }
+  if (sp >= 0)
+    H5Sclose(sp);
+  if (d >= 0)
+    H5Dclose(d);
+  H5Fclose(f);
+  H5Eclear2(H5E_DEFAULT);
+  mrvi_h5_quiet_end(&q);
+  return rc;
+}
