@@ -6,7 +6,7 @@
  *
  * g vanishes exactly where |r| = L and equals |r| - L to first order, so the
  * residual reads as a length; unlike |r| - L it is smooth at r = 0. */
-#include "internal.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <string.h>

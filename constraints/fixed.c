@@ -1,6 +1,6 @@
 /* fixed: pin coordinates at given values (inputs: the pinned coordinates;
  * parameters: one target per input).  g_r = y_r - target_r, one row each. */
-#include "internal.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <string.h>

@@ -1,6 +1,6 @@
 /* linear: a^T q = b on generalised coordinates (inputs: the coordinates;
  * parameters a (n_in entries) and b).  g = a^T y - b. */
-#include "internal.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <string.h>

@@ -1,7 +1,7 @@
 /* plane: a particle on the plane n.x = c (inputs: the particle's d
  * coordinates; parameters n (d entries, not necessarily unit) and c).
  * g = (n.x - c) / |n|, the signed distance to the plane. */
-#include "internal.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <string.h>

@@ -1,6 +1,6 @@
 #include "models.h"
 
-#include "internal.h"
+#include "step/step.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -1,9 +1,9 @@
 /* Analysis functions: linear stability (Lemma lemma:stability_slow), the
  * propagation matrix against the paper's closed form, errors against a
  * reference (eq:err_mac, eq:err_mic). */
-#include "internal.h"
 #include "models.h"
 #include "testlib.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <stdlib.h>

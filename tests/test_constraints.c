@@ -1,7 +1,7 @@
 /* Constraint types (constraints/): G and the second derivatives against
  * central finite differences, sizes, parameter checks, registry. */
-#include "internal.h"
 #include "testlib.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <string.h>

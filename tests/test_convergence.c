@@ -10,7 +10,7 @@
  * (paper §6.2: "starts with a convergence order of two, but reduces for tiny
  * time steps to one"); its first-order slow error takes over below
  * dT ~ 1e-3 on both systems, so its range starts at 5e-4. */
-#include "internal.h"
+#include "model/model.h"
 #include "models.h"
 #include "testlib.h"
 

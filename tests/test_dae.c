@@ -1,8 +1,8 @@
 /* Constrained integration (doc/constraints.md): the multiplier and null-space forms
  * against an independent constrained midpoint integrator, against each
  * other, conservation laws, residuals and convergence order. */
-#include "internal.h"
 #include "models.h"
+#include "step/step.h"
 #include "testlib.h"
 
 #include <math.h>

@@ -1,7 +1,7 @@
 /* Derivatives of every law and every element kind against central finite
  * differences; model potential gradient and Hessian likewise. */
-#include "internal.h"
 #include "models.h"
+#include "solver/solver.h"
 #include "testlib.h"
 
 #include <math.h>

@@ -3,10 +3,10 @@
  * paper's set-ups (arXiv 2406.12991 §6, doc/reproduction.md), --set overrides reach the model and the
  * stored description, and constraints (doc/constraints.md) are parsed, checked and
  * their initial velocities projected. */
-#include "internal.h"
-#include "mrvi.h"
 #include "models.h"
+#include "mrvi.h"
 #include "testlib.h"
+#include "util/util.h"
 
 #include <dirent.h>
 #include <fcntl.h>

@@ -5,7 +5,7 @@
  * numbers allow; a micro-step matrix with non-positive curvature falls back
  * to a sparse LU with the reason, and the trajectory is still the general
  * path's. */
-#include "internal.h"
+#include "solver/solver.h"
 #include "testlib.h"
 
 #include <math.h>

@@ -9,7 +9,7 @@
  *   order 2 (midpoint) fitted from a halving sequence;
  * - p = 1 equals a few-line single-rate DMOC written here (midpoint L_d,
  *   f^+- = (h/2) u), to 1e-8 on the optimal controls. */
-#include "internal.h"
+#include "model/model.h"
 #include "models.h"
 #include "ocp/ocp.h"
 #include "testlib.h"

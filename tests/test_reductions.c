@@ -4,7 +4,7 @@
  * of the model's gradient and Hessian only; mrvi's multirate step with p = 1
  * must agree with it to 1e-12 over 100 steps, relative to max|q| and max|p|
  * (the spring ring's residual floor is about 1e-13 of its momenta). */
-#include "internal.h"
+#include "model/model.h"
 #include "models.h"
 #include "testlib.h"
 

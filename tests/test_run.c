@@ -1,6 +1,6 @@
 /* Run driver and integrator API: number of steps, failure messages,
  * interruption, observer stop, restart from a saved state, settings checks. */
-#include "internal.h"
+#include "model/model.h"
 #include "models.h"
 #include "testlib.h"
 

@@ -3,7 +3,7 @@
  * form; the explicit path without Newton iterations; path choice and its
  * refusal; solves with the step Jacobian and its transpose against the
  * assembled CSC matrix. */
-#include "internal.h"
+#include "integrator/integrator.h"
 #include "models.h"
 #include "testlib.h"
 

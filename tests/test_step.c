@@ -6,8 +6,8 @@
  * (eq:pkfm+);
  * - the assembled Newton matrix equals the finite-difference Jacobian of the
  *   residual, entry by entry, for every named scheme with p in {1, 3}. */
-#include "internal.h"
 #include "models.h"
+#include "step/step.h"
 #include "testlib.h"
 
 #include <math.h>

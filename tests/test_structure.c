@@ -5,7 +5,7 @@
  *   e3 is constant to 10 x the Newton tolerance (every scheme, p = 1, 5, 10);
  * - bounded energy error without drift on the FPU (midpoint-midpoint,
  *   dT = 0.3, p = 1, 5, 10, t = 200). */
-#include "internal.h"
+#include "model/model.h"
 #include "models.h"
 #include "testlib.h"
 

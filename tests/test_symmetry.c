@@ -4,9 +4,9 @@
  * stays at its initial value to the Newton tolerance, a broken one moves by
  * the impulse of the force that breaks it), and which springs and rods
  * mrvi_model_edges lists. */
-#include "internal.h"
 #include "models.h"
 #include "testlib.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <stdlib.h>

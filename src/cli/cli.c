@@ -12,7 +12,7 @@
  * leaves a valid HDF5 file with every completed step. */
 #include "cli_export.h"
 #include "cli_study.h"
-#include "internal.h"
+#include "io/io.h"
 
 #include <errno.h>
 #include <signal.h>

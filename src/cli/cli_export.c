@@ -6,7 +6,7 @@
  * output.  Exit status: 0 written, 1 bad arguments or a file that cannot
  * be exported (no particles, not a run file, cannot write). */
 #include "cli_export.h"
-#include "internal.h"
+#include "io/io.h"
 
 #include <stdio.h>
 #include <stdlib.h>

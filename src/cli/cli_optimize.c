@@ -7,7 +7,6 @@
  * plus /control and /optimizer to HDF5 (doc/output.md).
  * Exit status: 0 optimum found with the terminal conditions met, 1 bad
  * input, 2 the optimiser failed or the terminal conditions are not met. */
-#include "internal.h"
 #include "io/io.h"
 #include "ocp/ocp.h"
 

@@ -1,7 +1,7 @@
 /* Analysis on top of the integrator: trajectories kept in memory, errors
  * against a reference (paper §6.2), propagation matrices and linear
  * stability (paper §5, Lemma lemma:stability_slow). */
-#include "internal.h"
+#include "integrator/integrator.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -1,6 +1,6 @@
 /* The one-step map (q_k, p_k) -> (q_{k+1}, p_{k+1}) solved by Newton. */
-#include "internal.h"
-#include "solver/small.h"
+#include "integrator/integrator.h"
+#include "util/small.h"
 
 #include <float.h>
 #include <math.h>

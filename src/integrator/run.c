@@ -1,6 +1,6 @@
 /* Run driver: integrate a model to t_end and hand every macro node to an
  * observer (the HDF5 writer, a progress bar, a test). */
-#include "internal.h"
+#include "integrator/integrator.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -5,8 +5,8 @@
  * Both read only what the file holds, so they describe exactly the steps a
  * run stored, also when it stopped early or was killed. */
 #define _DEFAULT_SOURCE /* realpath */
-#include "h5util.h"
-#include "internal.h"
+#include "io/h5util.h"
+#include "io/io.h"
 
 #include <hdf5.h>
 

@@ -3,8 +3,8 @@
  * attributes, datasets written whole, files written in one go, and the
  * output file's lock and temporary name (h5util.h). */
 #define _DEFAULT_SOURCE /* flock */
-#include "h5util.h"
-#include "internal.h"
+#include "io/h5util.h"
+#include "io/io.h"
 
 #include <errno.h>
 #include <fcntl.h>

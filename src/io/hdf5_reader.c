@@ -1,8 +1,8 @@
 /* Reading a run back from an mrvi HDF5 file (doc/output.md) into a
  * trajectory, e.g. a cached reference solution of a convergence study. */
 #define _DEFAULT_SOURCE /* flock */
-#include "h5util.h"
-#include "internal.h"
+#include "io/h5util.h"
+#include "io/io.h"
 
 #include <hdf5.h>
 #include <errno.h>

@@ -18,8 +18,8 @@
  * around every HDF5 call we make (and restored after), and the error stack
  * is turned into a message instead. */
 #define _DEFAULT_SOURCE /* flock */
-#include "h5util.h"
-#include "internal.h"
+#include "io/h5util.h"
+#include "io/io.h"
 
 #include <hdf5.h>
 

@@ -1,12 +1,14 @@
 /* What src/io offers the command-line tool beyond mrvi.h: the HDF5 files of
  * the study commands (study_writer.c) and of `mrvi optimize`
  * (optimize_output.c).  Layouts in doc/output.md.  Every function returns
- * a status (0 or a negative MRVI_E*) with a message in msg; none prints. */
+ * a status (0 or a negative MRVI_E*) with a message in msg; none prints.
+ * It includes the layer below (ocp/ocp_internal.h), through which the
+ * files of src/io reach the model, the integrator and mrvi_ocp_parse; the
+ * HDF5 helpers they share are h5util.h. */
 #ifndef MRVI_IO_H
 #define MRVI_IO_H
 
-#include "mrvi.h"
-#include "ocp/ocp.h"
+#include "ocp/ocp_internal.h"
 
 #include <stddef.h>
 

@@ -17,9 +17,8 @@
  * second open of the file.  So a process killed while optimising leaves no
  * output (or the previous file), and one killed in that second open may
  * leave a trajectory without /control. */
-#include "h5util.h"
-#include "internal.h"
-#include "io.h"
+#include "io/h5util.h"
+#include "io/io.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -7,9 +7,8 @@
  * it when complete, so that a process killed while writing leaves the
  * previous file at the path, never a half-written one (h5util.h).  The
  * renamed file keeps the permissions the path had (or would get). */
-#include "h5util.h"
-#include "internal.h"
-#include "io.h"
+#include "io/h5util.h"
+#include "io/io.h"
 
 #include <stdlib.h>
 #include <sys/stat.h>

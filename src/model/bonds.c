@@ -3,7 +3,7 @@
  * two particles.  Anchored springs and rods have one end at a fixed point
  * that is no particle, and pair interactions (the `lennard-jones` and
  * `inverse` laws) are no bonds: they are left out. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <string.h>
 

@@ -1,7 +1,7 @@
 /* Holonomic constraints on a model (doc/constraints.md): the registry of
  * constraint types (one const table per file in constraints/), instances, and
  * the checks and projections of initial data. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -50,17 +50,6 @@ int mrvi_constraint_type_register(const mrvi_constraint_type *t) {
     return MRVI_EINVAL;
   user[n_user++] = t;
   return MRVI_OK;
-}
-
-void mrvi_model_free_constraints(mrvi_model *m) {
-  for (int c = 0; c < m->n_constraints; c++) {
-    free(m->constraints[c].label);
-    free(m->constraints[c].in);
-    free(m->constraints[c].params);
-  }
-  free(m->constraints);
-  m->constraints = NULL;
-  m->n_constraints = m->cap_constraints = 0;
 }
 
 void mrvi_constraint_eval_at(const mrvi_constraint *c, const double *y,

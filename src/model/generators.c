@@ -1,6 +1,6 @@
 /* Generators: chains, rings and lattices of particles with nearest-neighbour
  * springs and a slow/fast assignment by rule. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 #include <stdlib.h>

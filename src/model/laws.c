@@ -1,6 +1,6 @@
 /* Registry of potential laws.  A law is one const table in src/model/laws/; adding
  * a built-in law means adding its file and one line to `builtin` below. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <string.h>
 

@@ -1,5 +1,5 @@
 /* Model builder: coordinates, particles, potential elements, partition. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -41,6 +41,18 @@ mrvi_model *mrvi_model_create(void) {
   return m;
 }
 
+/* Release the constraint instances of m. */
+static void free_constraints(mrvi_model *m) {
+  for (int c = 0; c < m->n_constraints; c++) {
+    free(m->constraints[c].label);
+    free(m->constraints[c].in);
+    free(m->constraints[c].params);
+  }
+  free(m->constraints);
+  m->constraints = NULL;
+  m->n_constraints = m->cap_constraints = 0;
+}
+
 void mrvi_model_free(mrvi_model *m) {
   if (!m)
     return;
@@ -59,7 +71,7 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->rate);
   free(m->particles);
   free(m->elements);
-  mrvi_model_free_constraints(m);
+  free_constraints(m);
   free(m->slow_index);
   free(m->fast_index);
   free(m->slot);
@@ -848,7 +860,6 @@ static double eval_angle(const mrvi_element *e, int d, const double *y,
 }
 
 int mrvi_element_is_quadratic(const mrvi_element *e) {
-  extern const mrvi_law mrvi_law_power, mrvi_law_linear;
   switch (e->kind) {
   case MRVI_ELEMENT_GRAVITY:
   case MRVI_ELEMENT_FORCE:
@@ -860,6 +871,18 @@ int mrvi_element_is_quadratic(const mrvi_element *e) {
              e->params[1] == 2.0));
   default:
     return 0; /* distances and angles are not polynomial in positions */
+  }
+}
+
+void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2) {
+  if (e->law == &mrvi_law_linear) {
+    *d1 = e->params[0] * s;
+    *d2 = e->params[0];
+  } else if (mrvi_element_small_power(e)) {
+    mrvi_power_derivs(e->params[0], e->params[1], (int)e->params[1], s, d1, d2);
+  } else {
+    double phi;
+    e->law->eval(e->params, s, &phi, d1, d2);
   }
 }
 

@@ -25,7 +25,7 @@
  * count; constraint types registered by users: unknown, so nothing they touch
  * is claimed conserved. The tests are exact (a zero sum, zero components): the
  * answer concerns the model as written, not a numerical tolerance. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <stdlib.h>
 #include <string.h>

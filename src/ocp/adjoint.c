@@ -20,24 +20,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-int ocp_znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt, int *zi,
-               double *zc) {
-  const mrvi_model *m = o->model;
-  const int s = m->slot[idx], ns = o->ns, nf = o->nf;
-  if (m->rate[idx] == MRVI_SLOW) {
-    zi[0] = s;
-    zi[1] = ns + s;
-    zc[0] = pt->a0;
-    zc[1] = pt->a1;
-  } else {
-    zi[0] = 2 * ns + pt->m * nf + s;
-    zi[1] = zi[0] + nf;
-    zc[0] = pt->cA;
-    zc[1] = pt->cB;
-  }
-  return 2;
-}
-
 /* Constraint c at node point pt of step k: force -w G^T lambda (lambda at
  * variable lv, if lv >= 0) into the node rows with its derivatives, and the
  * equation g = 0 at row er (if er >= 0). */
@@ -134,7 +116,7 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
     ocp_pair_jacobian(o, k, J);
   if (o->nl == 0)
     return;
-  /* Constraints in the step's layout (internal.h, struct mrvi_step):
+  /* Constraints in the step's layout (step/step.h, struct mrvi_step):
    * slow-only: lambda at node 0 (weight dT), equation at q_{k+1}^s;
    * micro-node: lambda^m at nodes 0..p-1 (weight dt), equations at nodes
    * 1..p.  Variables and rows nz + (step index - n_unknowns). */
@@ -227,23 +209,6 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
     else
       gp[f * npn + ps] += scale * dv;
   }
-}
-
-void ocp_adjoint_free(mrvi_ocp *o) {
-  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val};
-  for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
-    free(*d[i]);
-    *d[i] = NULL;
-  }
-  free(o->gz);
-  free(o->h_of_a);
-  free(o->h_ptr);
-  free(o->h_col);
-  o->gz = NULL;
-  o->h_of_a = NULL;
-  o->h_ptr = NULL;
-  o->h_col = NULL;
-  o->nfun_alloc = 0;
 }
 
 /* Lazily sized adjoint workspace for nfun functionals. */

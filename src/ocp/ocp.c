@@ -190,6 +190,23 @@ oom:
   return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
 }
 
+void ocp_adjoint_free(mrvi_ocp *o) {
+  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val};
+  for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
+    free(*d[i]);
+    *d[i] = NULL;
+  }
+  free(o->gz);
+  free(o->h_of_a);
+  free(o->h_ptr);
+  free(o->h_col);
+  o->gz = NULL;
+  o->h_of_a = NULL;
+  o->h_ptr = NULL;
+  o->h_col = NULL;
+  o->nfun_alloc = 0;
+}
+
 void mrvi_ocp_free(mrvi_ocp *o) {
   if (!o)
     return;
@@ -434,16 +451,6 @@ mrvi_ocp_algorithm mrvi_ocp_get_algorithm(const mrvi_ocp *o) {
 }
 double mrvi_ocp_terminal_tolerance(const mrvi_ocp *o) {
   return o->terminal_tol;
-}
-
-long ocp_global(const mrvi_ocp *o, long k, int z) {
-  const int ns = o->ns, nf = o->nf;
-  if (z < ns)
-    return k * ns + z;
-  if (z < 2 * ns)
-    return (k + 1) * ns + (z - ns);
-  const int zf = z - 2 * ns, mm = zf / nf, s = zf % nf;
-  return (o->N + 1) * ns + (k * o->p + mm) * nf + s;
 }
 
 int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe) {

@@ -1,9 +1,21 @@
-/* Private layout of mrvi_ocp shared by ocp.c, adjoint.c and solve.c. */
+/* Private layout of mrvi_ocp shared by the files of src/ocp/, and what the
+ * folder offers the layers above it beyond ocp/ocp.h (the description
+ * file's `control:` node parsed for the loader). */
 #ifndef MRVI_OCP_INTERNAL_H
 #define MRVI_OCP_INTERNAL_H
 
-#include "internal.h"
+#include "integrator/integrator.h"
 #include "ocp/ocp.h"
+
+/* Optimal control (src/ocp/ocp_loader.c): build a problem from the
+ * `control:` node of a description (path for file:line:col messages;
+ * override_of, if not NULL, names the --set override that made a node). */
+struct fy_node;
+typedef const char *(*mrvi_override_of)(const void *ctx, struct fy_node *n);
+int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
+                   struct fy_node *control, const char *path,
+                   mrvi_override_of override_of, const void *ctx,
+                   mrvi_ocp **out, double **u0, char *msg, size_t len);
 
 typedef struct ocp_actuator {
   int coord;      /* model index (pair: particle i's first coordinate) */
@@ -97,12 +109,21 @@ struct mrvi_ocp {
 int mrvi_ocp_fail(mrvi_ocp *o, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 /* z index of step k -> global node index (times ns/nf offsets included). */
-long ocp_global(const mrvi_ocp *o, long k, int z);
+static inline long ocp_global(const mrvi_ocp *o, long k, int z) {
+  const int ns = o->ns, nf = o->nf;
+  if (z < ns)
+    return k * ns + z;
+  if (z < 2 * ns)
+    return (k + 1) * ns + (z - ns);
+  const int zf = z - 2 * ns, mm = zf / nf, s = zf % nf;
+  return (o->N + 1) * ns + (k * o->p + mm) * nf + s;
+}
 /* Step solver path of the forward pass (MRVI_PATH_*) and its reason: the
  * integrator's for the model and settings (mrvi_sweep_path), the general
  * one with pair actuators. */
 int ocp_path(const mrvi_ocp *o, char *why, size_t len);
-/* Free the adjoint workspace (adjoint.c; sized lazily per functional count). */
+/* Free the adjoint workspace (sized lazily per functional count by
+ * adjoint.c; freed with the problem by ocp.c). */
 void ocp_adjoint_free(mrvi_ocp *o);
 /* The step and trajectory buffers (once, at the first forward pass). */
 int ocp_alloc(mrvi_ocp *o);
@@ -119,8 +140,23 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J);
 
 /* z indices and coefficients of the (two) nodes that model coordinate idx
  * interpolates at point pt of a step. */
-int ocp_znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt, int *zi,
-               double *zc);
+static inline int ocp_znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt,
+                             int *zi, double *zc) {
+  const mrvi_model *m = o->model;
+  const int s = m->slot[idx], ns = o->ns, nf = o->nf;
+  if (m->rate[idx] == MRVI_SLOW) {
+    zi[0] = s;
+    zi[1] = ns + s;
+    zc[0] = pt->a0;
+    zc[1] = pt->a1;
+  } else {
+    zi[0] = 2 * ns + pt->m * nf + s;
+    zi[1] = zi[0] + nf;
+    zc[0] = pt->cA;
+    zc[1] = pt->cB;
+  }
+  return 2;
+}
 /* Pair-force actuators (pair.c, doc/optimal-control.md).  Step hook
  * (mrvi_step.extra): their forces f^- on the residual rows of step o->k_cur
  * at x and their derivatives. */

@@ -16,8 +16,8 @@
  * at O(p (nf^3 + nf^2 ns) + ns^3) per factorisation instead of a sparse LU
  * of the whole step, and O(p (nf^2 + nf ns) + ns^2) per solve with kept
  * factors (the integrator reuses them while Newton converges). */
-#include "internal.h"
-#include "small.h"
+#include "solver/solver.h"
+#include "util/small.h"
 
 #include <math.h>
 #include <stdlib.h>

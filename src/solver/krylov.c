@@ -4,7 +4,7 @@
  * Schur complement on the slow unknowns.  Both are matrix-free (the
  * operator is a callback) and work in caller-owned workspaces, so that a
  * solve allocates nothing. */
-#include "internal.h"
+#include "solver/solver.h"
 
 #include <math.h>
 #include <string.h>

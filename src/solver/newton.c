@@ -10,7 +10,7 @@
  *    (doc/performance.md, bench_ocp).
  * The factors are kept after a solve, so that the same matrix can be solved
  * again, transposed too (mrvi_linsolve_solve: adjoint solves). */
-#include "internal.h"
+#include "solver/solver.h"
 
 #include <math.h>
 #include <stdlib.h>

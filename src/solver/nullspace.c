@@ -26,7 +26,7 @@
  * multiplier system at lambda = lambda(x): no derivative of P is needed,
  * also at the unknown micro nodes.  lambda(x) solves the fast rows of each
  * node in the least-squares sense (exact at the solution). */
-#include "internal.h"
+#include "solver/solver.h"
 
 #include <math.h>
 #include <stdlib.h>

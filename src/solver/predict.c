@@ -39,8 +39,8 @@
  * initial state (omega_max the largest frequency of hess(V + W) in the mass
  * metric, by power iteration), else, and for a step where it produces
  * non-finite values, free flight is the predictor. */
-#include "internal.h"
-#include "small.h"
+#include "solver/solver.h"
+#include "util/small.h"
 
 /* No straight-line (SLP) vectorisation in this file (GCC): it pairs the
  * scalar entries of the sweep's short vectors into 16-byte loads of data

@@ -21,7 +21,7 @@
  * curvature in a block, or no convergence, falls back to a sparse LU of
  * the whole step (UMFPACK, symbolic analysis on the first fallback of the
  * run), kept for the further solves with the same Jacobian. */
-#include "internal.h"
+#include "solver/solver.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -10,7 +10,7 @@
  * J (UMFPACK: symbolic analysis on the first fallback of the run, numeric
  * per fallback), counted with its reason.  Memory O(nnz); nothing is
  * allocated after creation except UMFPACK's factors on a fallback. */
-#include "internal.h"
+#include "solver/solver.h"
 
 #include <math.h>
 #include <stdlib.h>

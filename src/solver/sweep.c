@@ -20,8 +20,8 @@
  * cA cB = 0), so q^{m+1} is explicit; for other rules (midpoint) row m is an
  * nf x nf Newton problem, solved by dense LU up to SWEEP_DENSE_MAX and by
  * CG on a sparse pattern beyond ("sweep-cg", solver/sparse_block.c). */
-#include "internal.h"
-#include "small.h"
+#include "solver/solver.h"
+#include "util/small.h"
 
 #include <float.h>
 #include <math.h>

@@ -6,8 +6,8 @@
  * their law table); every other element through mrvi_element_eval.  The
  * arithmetic is that of mrvi_element_eval and the laws, in the same order,
  * so the results are bitwise the same. */
-#include "internal.h"
-#include "small.h"
+#include "solver/solver.h"
+#include "util/small.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -30,7 +30,7 @@ typedef struct kterm4 {
   int col[4];
   double a[4];
   double c, e, shift;
-  double ce, ce1; /* c e and c e (e - 1) (power_derivs' products) */
+  double ce, ce1; /* c e and c e (e - 1) (mrvi_power_derivs' products) */
 } kterm4;
 
 struct mrvi_terms {
@@ -48,52 +48,6 @@ struct mrvi_terms {
   int sym;
 };
 
-/* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
- * phi, by repeated multiplication), from ce = c e and ce1 = c e (e - 1). */
-static inline void power_derivs_ce(double ce, double ce1, int k, double s,
-                                   double *d1, double *d2) {
-  double sk = 1.0; /* s^(k-2), the product order of laws/power.c */
-  switch (k) {
-  case 3:
-    sk = 1.0 * s;
-    break;
-  case 4:
-    sk = (1.0 * s) * s;
-    break;
-  default:
-    for (int i = 2; i < k; i++)
-      sk *= s;
-  }
-  *d1 = k >= 1 ? ce * (k >= 2 ? sk * s : 1.0) : 0.0;
-  *d2 = k >= 2 ? ce1 * sk : 0.0;
-}
-
-static inline void power_derivs(double c, double e, int k, double s, double *d1,
-                                double *d2) {
-  power_derivs_ce(c * e, c * e * (e - 1), k, s, d1, d2);
-}
-
-/* A power law with a small integer exponent (evaluated inline). */
-static int small_power(const mrvi_element *e) {
-  extern const mrvi_law mrvi_law_power;
-  const double x = e->params[1];
-  return e->law == &mrvi_law_power && x >= 0.0 && x <= 8.0 &&
-         (double)(int)x == x;
-}
-
-void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2) {
-  extern const mrvi_law mrvi_law_linear;
-  if (e->law == &mrvi_law_linear) {
-    *d1 = e->params[0] * s;
-    *d2 = e->params[0];
-  } else if (small_power(e)) {
-    power_derivs(e->params[0], e->params[1], (int)e->params[1], s, d1, d2);
-  } else {
-    double phi;
-    e->law->eval(e->params, s, &phi, d1, d2);
-  }
-}
-
 void mrvi_terms_free(mrvi_terms *kc) {
   if (!kc)
     return;
@@ -109,7 +63,6 @@ void mrvi_terms_free(mrvi_terms *kc) {
 
 int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, mrvi_terms **out) {
-  extern const mrvi_law mrvi_law_linear;
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
@@ -146,7 +99,7 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
       t->shift = e->shift;
       t->c = e->params[0];
       t->e = e->params[1];
-      if (small_power(e)) {
+      if (mrvi_element_small_power(e)) {
         t->kind = KT_POWER;
         t->k = (int)t->e;
       }
@@ -228,7 +181,7 @@ ALWAYS_INLINE void term_eval(const kterm *t, const int *col, const double *a,
     d1 = t->c * s;
     d2 = t->c;
   } else if (t->kind == KT_POWER) {
-    power_derivs(t->c, t->e, t->k, s, &d1, &d2);
+    mrvi_power_derivs(t->c, t->e, t->k, s, &d1, &d2);
   } else {
     t->el->law->eval(t->el->params, s, &phi, &d1, &d2);
   }
@@ -267,7 +220,7 @@ ALWAYS_INLINE void term4_derivs(const kterm4 *q, const double *z, int *col,
     *d1 = c * s;
     *d2 = c;
   } else {
-    power_derivs_ce(q->ce, q->ce1, k, s, d1, d2);
+    mrvi_power_derivs_ce(q->ce, q->ce1, k, s, d1, d2);
   }
 }
 

@@ -1,6 +1,6 @@
 /* Evaluation points of the generalised rule eq:Zapprox on the micro grid and
  * of the macro-node rule eq:slow_potential_affine (arXiv 2406.12991 §3.3). */
-#include "internal.h"
+#include "step/step.h"
 
 static int push(mrvi_point *pts, int n, double w, double tau, int m,
                 double theta) {

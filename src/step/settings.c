@@ -1,5 +1,5 @@
 /* Integrator settings and the named schemes of arXiv 2406.12991 §3.3. */
-#include "internal.h"
+#include "step/step.h"
 
 #include <math.h>
 #include <string.h>

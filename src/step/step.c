@@ -13,8 +13,8 @@
  * (quadrature.c); a point with weight w and node coefficients c contributes
  * -w c_a grad Z to D_{X_a} L_d and -w c_a c_b hess Z to its derivative.  The
  * same loop serves every rule: there is no scheme-specific derivative. */
-#include "internal.h"
-#include "solver/small.h"
+#include "step/step.h"
+#include "util/small.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -1,6 +1,6 @@
 /* Small dense linear algebra for constraint blocks (a few rows each):
  * Gaussian elimination and a Householder QR with explicit Q. */
-#include "internal.h"
+#include "util/util.h"
 
 #include <math.h>
 #include <string.h>

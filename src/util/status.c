@@ -1,5 +1,5 @@
 /* Status codes and small utilities shared by the library. */
-#include "internal.h"
+#include "util/util.h"
 
 #include <stdio.h>
 #include <time.h>

@@ -1,6 +1,6 @@
 /* Closest-name suggestions for misspelt keys, names and options ("did you
  * mean ...?"), shared by the description-file loader and the CLI. */
-#include "internal.h"
+#include "util/util.h"
 
 #include <string.h>
 

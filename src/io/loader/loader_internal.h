@@ -21,7 +21,7 @@
 #ifndef MRVI_LOADER_INTERNAL_H
 #define MRVI_LOADER_INTERNAL_H
 
-#include "internal.h"
+#include "io/io.h"
 
 #include <libfyaml.h>
 

@@ -2,7 +2,7 @@
  * on springs with rest length 0, so s is the distance r.  k > 0 repels
  * (like charges: k = q_i q_j / (4 pi eps_0)); k < 0 attracts (gravity:
  * k = -G m_i m_j). */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 

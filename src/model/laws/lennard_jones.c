@@ -5,7 +5,7 @@
  * lj/cut with `pair_modify shift yes`); the force jumps there by
  * phi_LJ'(r_c) (about 0.039 eps/sig at r_c = 2.5 sig).  Use it on springs
  * with rest length 0, so s is the distance r. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 

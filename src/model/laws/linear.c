@@ -1,5 +1,5 @@
 /* Linear (Hookean) law phi(s) = k s^2 / 2. */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 

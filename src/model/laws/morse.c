@@ -1,7 +1,7 @@
 /* Morse law phi(s) = D (1 - exp(-a s))^2 with s = r - r_e: on a spring the
  * rest length is the equilibrium distance r_e, D the well depth and a the
  * width parameter (curvature 2 D a^2 at the minimum). */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 

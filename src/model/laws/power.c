@@ -1,5 +1,5 @@
 /* Power law phi(s) = c s^e (springs: s = |d| - L0; terms: s = a^T q - b). */
-#include "internal.h"
+#include "model/model.h"
 
 #include <math.h>
 

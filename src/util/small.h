@@ -1,7 +1,7 @@
 /* Small-block kernels of the structured step solvers (doc/solver.md,
  * "Evaluation"). */
-#ifndef MRVI_SOLVER_SMALL_H
-#define MRVI_SOLVER_SMALL_H
+#ifndef MRVI_UTIL_SMALL_H
+#define MRVI_UTIL_SMALL_H
 
 #include <string.h>
 

@@ -1,0 +1,35 @@
+/* What src/integrator/ offers the layers above it beyond mrvi.h: the
+ * control forces of optimal control and the switches and counters of the
+ * step paths that the tests force and read (integrator.c). */
+#ifndef MRVI_INTEGRATOR_H
+#define MRVI_INTEGRATOR_H
+
+#include "solver/solver.h"
+
+/* Control forces of the next steps (optimal control, src/ocp/): f_rows
+ * (n_unknowns of the step) and f_end (ns + nf) as in struct mrvi_step, read
+ * at every step (the caller updates them in place between steps); NULL for
+ * none.  Every path honours them (doc/solver.md). */
+void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
+                                const double *f_end);
+
+/* The integrator's choice of the chord matrix on the schur path (tests
+ * force either): by its rule (auto, the default), never, or for the first
+ * update of every step where the structure admits it. */
+enum { MRVI_CHORD_AUTO = 0, MRVI_CHORD_OFF = 1, MRVI_CHORD_ON = 2 };
+void mrvi_integrator_set_chord(mrvi_integrator *it, int mode);
+/* The same for the constant chord (mrvi_blocks_const_factor): by its rule
+ * (auto), never, or for the first update of every schur step. */
+void mrvi_integrator_set_const_chord(mrvi_integrator *it, int mode);
+/* The same for shooting (mrvi_predict_shoot; auto: where the predictor
+ * admits it and the constant chord does not take the step), the steps it
+ * solved in the run and, of those, the steps whose last update was made
+ * without its sweep. */
+void mrvi_integrator_set_shoot(mrvi_integrator *it, int mode);
+long mrvi_integrator_shoot_steps(const mrvi_integrator *it);
+long mrvi_integrator_shoot_last_steps(const mrvi_integrator *it);
+/* Factorisations of the schur path so far (the constant chord's counted
+ * once). */
+long mrvi_integrator_factorisations(const mrvi_integrator *it);
+
+#endif

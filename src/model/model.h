@@ -1,0 +1,157 @@
+/* What src/model/ offers the layers above it: the model's layout (struct
+ * mrvi_model, its elements, particles and constraint instances), element
+ * and constraint evaluation, the built-in law tables (model.c,
+ * constraints.c, laws.c, laws/). */
+#ifndef MRVI_MODEL_H
+#define MRVI_MODEL_H
+
+#include "util/util.h"
+
+/* Largest number of inputs of a non-linear element (terms are limited to it).
+ */
+#define MRVI_MAX_INPUTS 64
+
+typedef enum mrvi_element_kind {
+  MRVI_ELEMENT_SPRING,  /* phi(|x_i - x_j| - L0) */
+  MRVI_ELEMENT_ANCHOR,  /* phi(|x_i - a| - L0) */
+  MRVI_ELEMENT_TERM,    /* phi(c^T y - b) */
+  MRVI_ELEMENT_GRAVITY, /* c^T y (linear, no law) */
+  MRVI_ELEMENT_ANGLE,   /* k [1 - cos(theta_ijk - theta0)], no law */
+  MRVI_ELEMENT_FORCE    /* c^T y with c = -f (constant force, no law) */
+} mrvi_element_kind;
+
+typedef struct mrvi_element {
+  mrvi_element_kind kind;
+  mrvi_rate potential; /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
+  const mrvi_law *law; /* NULL for gravity */
+  double params[MRVI_LAW_MAX_PARAMS];
+  double shift; /* rest length (springs) or offset b (terms) */
+  double anchor[3];
+  int particle_i, particle_j; /* springs; -1 if unused */
+  int particle_k;             /* angles: i-j-k with the vertex at j */
+  int n_in;                   /* number of input coordinates */
+  int *in;                    /* n_in model indices */
+  double *coef;               /* n_in coefficients (terms, gravity) */
+} mrvi_element;
+
+typedef struct mrvi_particle {
+  char *name;
+  int first; /* model index of its x coordinate */
+} mrvi_particle;
+
+/* A constraint instance: type applied to model coordinates `in`. */
+typedef struct mrvi_constraint {
+  const mrvi_constraint_type *type;
+  char *label;
+  int n_in, *in; /* model indices */
+  int n_params;
+  double *params;
+  int rows;        /* scalar equations */
+  int first_row;   /* offset in the model's constraint rows */
+  mrvi_rate where; /* MRVI_SLOW: macro nodes; MRVI_FAST: micro */
+} mrvi_constraint;
+
+struct mrvi_model {
+  char *name;
+  int dimension;
+  int n, cap; /* coordinates */
+  char **names;
+  double *mass, *q0, *v0;
+  mrvi_rate *rate;
+  int n_particles, cap_particles;
+  /* Name lookup (model.c): open-addressing tables of coordinate and
+   * particle indices by name, 0 = empty, else index + 1. */
+  int *coord_table, *particle_table;
+  int coord_table_cap, particle_table_cap;
+  mrvi_particle *particles;
+  int n_elements, cap_elements;
+  mrvi_element *elements;
+  /* Partition, extended by every add. */
+  int n_slow, n_fast;
+  int *slow_index, *fast_index; /* slot -> model index */
+  int *slot;                    /* model index -> slot within its rate block */
+  int max_in;                   /* largest n_in of a non-linear element */
+  int n_constraints, cap_constraints;
+  mrvi_constraint *constraints;
+  int constraint_rows;   /* sum of rows */
+  int max_constraint_in; /* largest n_in of a constraint */
+  char errmsg[512];
+};
+
+/* Energy, gradient (n_in) and Hessian (n_in x n_in row-major, may be NULL)
+ * of element e at its local inputs y (n_in). */
+double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
+                         const double *y, double *grad, double *hess);
+
+/* 1 if e's energy is a polynomial of degree <= 2 in its inputs (constant
+ * Hessian): terms with the linear law or the power law of exponent 0, 1, 2,
+ * gravity and constant forces (model.c). */
+int mrvi_element_is_quadratic(const mrvi_element *e);
+
+/* The laws that element kernels recognise by their table (laws/). */
+extern const mrvi_law mrvi_law_linear;
+extern const mrvi_law mrvi_law_power;
+
+/* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
+ * phi, by repeated multiplication), from ce = c e and ce1 = c e (e - 1). */
+static inline void mrvi_power_derivs_ce(double ce, double ce1, int k, double s,
+                                        double *d1, double *d2) {
+  double sk = 1.0; /* s^(k-2), the product order of laws/power.c */
+  switch (k) {
+  case 3:
+    sk = 1.0 * s;
+    break;
+  case 4:
+    sk = (1.0 * s) * s;
+    break;
+  default:
+    for (int i = 2; i < k; i++)
+      sk *= s;
+  }
+  *d1 = k >= 1 ? ce * (k >= 2 ? sk * s : 1.0) : 0.0;
+  *d2 = k >= 2 ? ce1 * sk : 0.0;
+}
+
+static inline void mrvi_power_derivs(double c, double e, int k, double s,
+                                     double *d1, double *d2) {
+  mrvi_power_derivs_ce(c * e, c * e * (e - 1), k, s, d1, d2);
+}
+
+/* Whether term element e has the power law with a small integer exponent
+ * (0..8: evaluated inline by mrvi_power_derivs). */
+static inline int mrvi_element_small_power(const mrvi_element *e) {
+  const double x = e->params[1];
+  return e->law == &mrvi_law_power && x >= 0.0 && x <= 8.0 &&
+         (double)(int)x == x;
+}
+
+/* phi'(s) and phi''(s) of term element e's law (the linear law and small
+ * integer powers without the law table; model.c). */
+void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2);
+
+/* Keep a message on m (mrvi_model_errmsg) and return status (model.c). */
+int mrvi_model_fail(mrvi_model *m, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+/* Evaluate constraint c at its inputs y: g (rows), G (rows x n_in), H
+ * (rows x n_in x n_in, may be NULL). */
+void mrvi_constraint_eval_at(const mrvi_constraint *c, const double *y,
+                             double *g, double *G, double *H);
+
+/* max |g(q)| within tol; otherwise MRVI_EMODEL and "<what> violate
+ * constraint '<label>': |g| = ..." in msg.  *worst (may be NULL) gets the
+ * constraint with the largest |g| (-1 without constraints). */
+int mrvi_constraints_check_positions(const mrvi_model *m, const double *q,
+                                     double tol, const char *what, int *worst,
+                                     char *msg, size_t len);
+/* M-orthogonal projection of momenta p (n) at q onto G M^-1 p = 0:
+ * p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p.  Workspace g (rows),
+ * G (rows x n), A (rows x rows); mu (rows) keeps the multiplier.
+ * MRVI_ESINGULAR if the gradients are dependent. */
+int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
+                             double *g, double *G, double *A, double *mu);
+/* Gradients of all constraints independent at q (model order); otherwise
+ * MRVI_ESINGULAR and a message naming the dependent constraints. */
+int mrvi_constraints_independent(const mrvi_model *m, const double *q,
+                                 char *msg, size_t len);
+
+#endif

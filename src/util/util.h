@@ -1,0 +1,62 @@
+/* What src/util/ offers every layer above it: messages and statuses,
+ * name suggestions, the clock and the machine's memory, limits, dense LU and
+ * QR (status.c, suggest.c, dense.c). */
+#ifndef MRVI_UTIL_H
+#define MRVI_UTIL_H
+
+#include "mrvi.h"
+
+#include <stdarg.h>
+
+#ifndef M_PI /* not in strict C11 */
+#define M_PI 3.14159265358979323846
+#endif
+
+/* printf into a caller buffer (NULL-safe, always terminated). */
+void mrvi_fmt(char *buf, size_t len, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+void mrvi_vfmt(char *buf, size_t len, const char *fmt, va_list ap);
+/* Write a message into msg and return status (for `return mrvi_fail(...)`). */
+int mrvi_fail(char *msg, size_t len, int status, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+/* The candidate (of n) closest to `word` by edit distance if it is close
+ * enough to be a likely typo, else NULL; ties go to the longer common
+ * prefix (suggest.c). */
+const char *mrvi_closest(const char *word, const char *const *cand, int n);
+
+/* Wall clock in seconds (monotonic). */
+double mrvi_clock(void);
+/* The machine's physical memory in bytes (0 when unknown): sizes needing
+ * more are refused before allocation.  A build may lower it with
+ * -DMRVI_MEMORY_CAP=BYTES (the fuzz build does, so that what the checks
+ * admit fits the fuzzer's memory limit; tests/fuzz/run.sh). */
+double mrvi_machine_memory(void);
+/* Particles one `generate:` entry may make (the fuzz build lowers it). */
+#ifndef MRVI_MAX_GENERATED
+#define MRVI_MAX_GENERATED 10000000
+#endif
+
+/* Dense helpers (dense.c).  Solve A x = b in place (A n x n row-major,
+ * overwritten; b becomes x); -1 if singular. */
+int mrvi_dense_solve(int n, double *A, double *b);
+/* LU with partial pivoting of A (n x n row-major) in place, pivots in piv
+ * (n); -1 if singular.  mrvi_dense_lu_solve: b (n x nrhs row-major)
+ * becomes A^-1 b.  The small blocks of the structured step solvers. */
+int mrvi_dense_lu_factor(int n, double *A, int *piv);
+/* Step k of that factorisation's pivoting: the largest |A_ik|, i >= k, its
+ * row in piv[k] and swapped with row k; -1 if that column is zero. */
+int mrvi_dense_lu_pivot(int n, double *A, int *piv, int k);
+void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
+                         int nrhs);
+/* The same with A^T: b (n x nrhs row-major) becomes A^-T b. */
+void mrvi_dense_lu_solve_transpose(int n, const double *A, const int *piv,
+                                   double *b, int nrhs);
+#define MRVI_DENSE_MAX 256
+/* Householder QR of A (m x n row-major, m <= MRVI_DENSE_MAX): A is
+ * overwritten with R in its upper triangle, Q (m x m row-major) is explicit
+ * and orthogonal; A = Q R.  Returns -1 if a column is (numerically) in the
+ * span of the previous ones. */
+int mrvi_dense_qr(int m, int n, double *A, double *Q);
+
+#endif
