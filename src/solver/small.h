@@ -9,8 +9,10 @@
  * constant equal to n for n = 1..4, so that the compiler unrolls the loops
  * over the tiny blocks of few-body systems (the FPU: ns = nf = 3), and with
  * N = n otherwise.  The kernels are inlined into each case. */
-/* -DMRVI_SMALL_KERNELS=0 keeps only the run-time-size case: the same
- * arithmetic, compiled in a fraction of the time.  clang with ASan + UBSan +
+/* -DMRVI_SMALL_KERNELS=0 (meson -Dsmall_kernels=false) keeps only the
+ * run-time-size case: the same arithmetic in the same order, so the same
+ * results bit for bit (tests/compare_builds.sh, in CI), compiled in a
+ * fraction of the time.  clang with ASan + UBSan +
  * libFuzzer instrumentation needs over 10 minutes and 2.6 GB for the
  * unrolled cases of blocks.c (1 s without them); tests/fuzz/run.sh sets it. */
 #ifndef MRVI_SMALL_KERNELS
@@ -24,6 +26,11 @@
 #define SMALL(n, N, ...)                                                       \
   do {                                                                         \
     const int N = (n);                                                         \
+    __VA_ARGS__;                                                               \
+  } while (0)
+#define SMALL2(ns, NS, nf, NF, ...)                                            \
+  do {                                                                         \
+    const int NS = (ns), NF = (nf);                                            \
     __VA_ARGS__;                                                               \
   } while (0)
 /* (the callers of SMALL4 test MRVI_SMALL_KERNELS: nothing to compile) */
@@ -64,6 +71,9 @@
     __VA_ARGS__;                                                               \
   } break;                                                                     \
   }
+/* SMALL2(ns, NS, nf, NF, code): a kernel of both block sizes, SMALL over
+ * each. */
+#define SMALL2(ns, NS, nf, NF, ...) SMALL(ns, NS, SMALL(nf, NF, __VA_ARGS__))
 /* SMALL for n = 1..4 only (nothing otherwise): the kernels whose local
  * arrays have the small sizes' bound (the caller checks n). */
 #define SMALL4(n, N, ...)                                                      \
@@ -104,16 +114,5 @@ ALWAYS_INLINE void affine_grad_k(const double *restrict g0,
                                  const int lo, const int nz) {
   affine_k(g0, Hq, z, G, lo, nz, 1);
 }
-
-/* Two doubles as one vector (GCC's vector extension, also clang's: each
- * lane's arithmetic is the scalar one, IEEE, bit for bit), loaded and
- * stored through memcpy (no alignment assumed). */
-typedef double v2d __attribute__((vector_size(16)));
-ALWAYS_INLINE v2d ld2(const double *p) {
-  v2d r;
-  memcpy(&r, p, sizeof r);
-  return r;
-}
-ALWAYS_INLINE void st2(double *p, v2d v) { memcpy(p, &v, sizeof v); }
 
 #endif
