@@ -653,9 +653,9 @@ ALWAYS_INLINE void row_yz_k(const int m, double *restrict ym,
  * sweep, row block m of Y, then of z (each as sweep_k alone: the same
  * operations); without, z alone.  Both chains run from row block to row
  * block, each waiting on its last row block: in one loop the z chain
- * overlaps the Y chains.  nf, ns in 1..4 as constants (SMALL4): the row
- * blocks in registers (row_regs_k), z's right-hand side read from zs
- * (a copy of p nf doubles first was a `rep movsb`). */
+ * overlaps the Y chains.  nf, ns as constants (SMALL2_ONLY, z alone SMALL4):
+ * the row blocks in registers (row_regs_k), z's right-hand side read from zs (a
+ * copy of p nf doubles first was a `rep movsb`). */
 ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
                             double *restrict z, const double *restrict zs,
                             const int nf, const int ns, const int regs) {
@@ -1377,8 +1377,8 @@ static int factor_blocks(mrvi_blocks *b, const double *R) {
   if (bad)
     return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
-  if (R && MRVI_SMALL_KERNELS && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
-    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, R + ns, NF, NS, 1)));
+  if (R && MRVI_SMALL_KERNELS && SMALL2_SIZE(ns, nf)) {
+    SMALL2_ONLY(ns, NS, nf, NF, sweep2_k(b, b->Y, b->z, R + ns, NF, NS, 1));
   } else if (R) {
     sweep2_k(b, ns > 0 ? b->Y : NULL, b->z, R + ns, nf, ns, 0);
   } else if (ns > 0) {

@@ -33,7 +33,12 @@
     const int NS = (ns), NF = (nf);                                            \
     __VA_ARGS__;                                                               \
   } while (0)
-/* (the callers of SMALL4 test MRVI_SMALL_KERNELS: nothing to compile) */
+/* (the callers of SMALL4 and SMALL2_ONLY test MRVI_SMALL_KERNELS: nothing
+ * to compile) */
+#define SMALL2_ONLY(ns, NS, nf, NF, ...)                                       \
+  do {                                                                         \
+  } while (0)
+#define SMALL2_SIZE(ns, nf) 0
 #define SMALL4(n, N, ...)                                                      \
   do {                                                                         \
   } while (0)
@@ -71,9 +76,35 @@
     __VA_ARGS__;                                                               \
   } break;                                                                     \
   }
-/* SMALL2(ns, NS, nf, NF, code): a kernel of both block sizes, SMALL over
- * each. */
-#define SMALL2(ns, NS, nf, NF, ...) SMALL(ns, NS, SMALL(nf, NF, __VA_ARGS__))
+/* SMALL2(ns, NS, nf, NF, code): a kernel of both block sizes, specialised
+ * for one size: NS and NF integer constants where ns = nf = 1 or 3 (the
+ * double integrator, the FPU), both at run time otherwise.  SMALL over each
+ * size (the product, 25 cases) cost compile time and code for no speed a
+ * benchmark measures (doc/performance.md, "Specialised kernels"). */
+#define SMALL2_CASE(K, NS, NF, ...)                                            \
+  case K: {                                                                    \
+    enum { NS = K, NF = K };                                                   \
+    __VA_ARGS__;                                                               \
+  } break;
+#define SMALL2(ns, NS, nf, NF, ...)                                            \
+  switch ((ns) == (nf) ? (nf) : 0) {                                           \
+    SMALL2_CASE(1, NS, NF, __VA_ARGS__)                                        \
+    SMALL2_CASE(3, NS, NF, __VA_ARGS__)                                        \
+  default: {                                                                   \
+    const int NS = (ns), NF = (nf);                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  }
+/* SMALL2's specialised cases only (nothing otherwise): the kernels whose
+ * local arrays need constant sizes (the caller checks SMALL2_SIZE). */
+#define SMALL2_SIZE(ns, nf) ((ns) == (nf) && ((nf) == 1 || (nf) == 3))
+#define SMALL2_ONLY(ns, NS, nf, NF, ...)                                       \
+  switch ((ns) == (nf) ? (nf) : 0) {                                           \
+    SMALL2_CASE(1, NS, NF, __VA_ARGS__)                                        \
+    SMALL2_CASE(3, NS, NF, __VA_ARGS__)                                        \
+  default:                                                                     \
+    break;                                                                     \
+  }
 /* SMALL for n = 1..4 only (nothing otherwise): the kernels whose local
  * arrays have the small sizes' bound (the caller checks n). */
 #define SMALL4(n, N, ...)                                                      \
