@@ -1,5 +1,6 @@
 /* The one-step map (q_k, p_k) -> (q_{k+1}, p_{k+1}) solved by Newton. */
 #include "integrator/integrator.h"
+#include "util/simd.h"
 #include "util/small.h"
 
 #include <float.h>
@@ -7,9 +8,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#ifdef __SSE2__
-#include <emmintrin.h>
-#endif
 
 struct mrvi_integrator {
   const mrvi_model *model;
@@ -195,7 +193,7 @@ ALWAYS_INLINE void to_positions_k(mrvi_integrator *it, const int ns,
 
 static void to_positions(mrvi_integrator *it) {
   mrvi_step *st = &it->step;
-  SMALL(st->ns, NS, SMALL(st->nf, NF, to_positions_k(it, NS, NF)));
+  SMALL2(st->ns, NS, st->nf, NF, to_positions_k(it, NS, NF));
   st->increments = 0;
 }
 
@@ -205,45 +203,22 @@ static double norm_inf(const double *v, int n) {
    * unless some v_i is not finite or a sum overflows: then the entries are
    * looked at again, one by one.  Four independent chains per pass (the
    * pass is latency bound: one chain of additions took 2 cycles an entry),
-   * on x86-64 in two SSE2 pairs (GCC keeps `a > r ? a : r` scalar: it may
+   * in two pairs (util/simd.h: GCC keeps `a > r ? a : r` scalar, it may
    * not reorder it as a maximum because of NaNs). */
   int i = 0;
-  double r, z; /* the maximum and the sum */
-#ifdef __SSE2__
-  const __m128d sign = _mm_set1_pd(-0.0);
-  __m128d ra = _mm_setzero_pd(), rb = ra, za = ra, zb = ra;
+  mrvi_v2 ra = v2_zero(), rb = ra, za = ra, zb = ra;
   for (; i + 3 < n; i += 4) {
-    const __m128d a = _mm_andnot_pd(sign, _mm_loadu_pd(v + i));
-    const __m128d b = _mm_andnot_pd(sign, _mm_loadu_pd(v + i + 2));
-    ra = _mm_max_pd(ra, a);
-    rb = _mm_max_pd(rb, b);
-    za = _mm_add_pd(za, a);
-    zb = _mm_add_pd(zb, b);
+    const mrvi_v2 a = v2_abs(v2_load(v + i)), b = v2_abs(v2_load(v + i + 2));
+    ra = v2_max(ra, a);
+    rb = v2_max(rb, b);
+    za = v2_add(za, a);
+    zb = v2_add(zb, b);
   }
-  ra = _mm_max_pd(ra, rb);
-  za = _mm_add_pd(za, zb);
-  r = _mm_cvtsd_f64(_mm_max_sd(ra, _mm_unpackhi_pd(ra, ra)));
-  z = _mm_cvtsd_f64(_mm_add_sd(za, _mm_unpackhi_pd(za, za)));
-#else
-  double r0 = 0.0, r1 = 0.0, r2 = 0.0, r3 = 0.0;
-  double z0 = 0.0, z1 = 0.0, z2 = 0.0, z3 = 0.0;
-  for (; i + 3 < n; i += 4) {
-    const double a0 = fabs(v[i]), a1 = fabs(v[i + 1]);
-    const double a2 = fabs(v[i + 2]), a3 = fabs(v[i + 3]);
-    r0 = a0 > r0 ? a0 : r0;
-    r1 = a1 > r1 ? a1 : r1;
-    r2 = a2 > r2 ? a2 : r2;
-    r3 = a3 > r3 ? a3 : r3;
-    z0 += a0;
-    z1 += a1;
-    z2 += a2;
-    z3 += a3;
-  }
-  r0 = r1 > r0 ? r1 : r0;
-  r2 = r3 > r2 ? r3 : r2;
-  r = r2 > r0 ? r2 : r0;
-  z = (z0 + z1) + (z2 + z3);
-#endif
+  ra = v2_max(ra, rb);
+  za = v2_add(za, zb);
+  const double r0 = v2_lo(ra), r1 = v2_hi(ra);
+  double r = r0 > r1 ? r0 : r1;     /* the maximum */
+  double z = v2_lo(za) + v2_hi(za); /* and the sum */
   for (; i < n; i++) {
     const double a = fabs(v[i]);
     r = a > r ? a : r;
@@ -265,12 +240,12 @@ static void copy_pairs(double *restrict dst, const double *restrict src,
                        size_t n) {
   size_t i = 0;
   for (; i + 4 <= n; i += 4) {
-    const v2d a = ld2(src + i), b = ld2(src + i + 2);
-    st2(dst + i, a);
-    st2(dst + i + 2, b);
+    const mrvi_v2 a = v2_load(src + i), b = v2_load(src + i + 2);
+    v2_store(dst + i, a);
+    v2_store(dst + i + 2, b);
   }
   if (i + 2 <= n) {
-    st2(dst + i, ld2(src + i));
+    v2_store(dst + i, v2_load(src + i));
     i += 2;
   }
   if (i < n)
@@ -1107,7 +1082,7 @@ static int finish_step_general(mrvi_integrator *it) {
   const double *xq = it->x, *xf = it->x + ns + (size_t)(p - 1) * nf;
   const double *pf1 = it->micro_p + (size_t)(p - 1) * (size_t)nf;
   if (it->packed) {
-    SMALL(ns, NS, SMALL(nf, NF, new_state_packed(it, xf, pf1, NS, NF)));
+    SMALL2(ns, NS, nf, NF, new_state_packed(it, xf, pf1, NS, NF));
   } else {
     for (int i = 0; i < ns; i++) {
       it->qs_prev[i] = it->qs[i];
@@ -1144,7 +1119,7 @@ ALWAYS_INLINE int finish_step(mrvi_integrator *it) {
   const int ns = st->ns, nf = st->nf, p = st->p;
   const double *xf = it->x + ns + (size_t)(p - 1) * nf;
   const double *pf1 = it->micro_p + (size_t)(p - 1) * (size_t)nf;
-  SMALL(ns, NS, SMALL(nf, NF, new_state_packed(it, xf, pf1, NS, NF)));
+  SMALL2(ns, NS, nf, NF, new_state_packed(it, xf, pf1, NS, NF));
   it->k++;
   it->jac_ready = 1;
   return MRVI_OK;

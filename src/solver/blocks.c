@@ -17,6 +17,7 @@
  * of the whole step, and O(p (nf^2 + nf ns) + ns^2) per solve with kept
  * factors (the integrator reuses them while Newton converges). */
 #include "solver/solver.h"
+#include "util/simd.h"
 #include "util/small.h"
 
 #include <math.h>
@@ -550,7 +551,7 @@ static void sweep_solve(const mrvi_blocks *b, double *X, int nrhs) {
   if (nrhs == 1) {
     SMALL(b->nf, NF, sweep_k(b, X, NF, 1));
   } else {
-    SMALL(b->nf, NF, SMALL(nrhs, NR, sweep_k(b, X, NF, NR)));
+    SMALL2(nrhs, NR, b->nf, NF, sweep_k(b, X, NF, NR));
   }
 }
 
@@ -588,55 +589,59 @@ row_regs_k(const int m, const double *src, double *xm, double *restrict x1,
  * z column pairs with Y's third). */
 ALWAYS_INLINE void row_yz_k(const int m, double *restrict ym,
                             const double *restrict zsm, double *restrict zm,
-                            v2d *restrict x1, v2d *restrict x2,
+                            mrvi_v2 *restrict x1, mrvi_v2 *restrict x2,
                             const double *restrict L1,
                             const double *restrict L2, const double *restrict D,
                             const int *piv, const double *dinv, const int nf,
                             const int np) {
   const int ns = 2 * np - 1;
-  v2d v[8]; /* (nf <= 4, np <= 2) */
+  mrvi_v2 v[8]; /* (nf <= 4, np <= 2) */
   UNROLL for (int i = 0; i < nf; i++) {
     UNROLL for (int c = 0; c + 1 < np; c++) v[i * np + c] =
-        ld2(ym + i * ns + 2 * c);
-    v[i * np + np - 1] = (v2d){ym[i * ns + ns - 1], zsm[i]};
+        v2_load(ym + i * ns + 2 * c);
+    v[i * np + np - 1] = v2_set(ym[i * ns + ns - 1], zsm[i]);
   }
   if (m >= 1) /* couple_k */
     UNROLL for (int i = 0; i < nf; i++) UNROLL for (int c = 0; c < np; c++) {
-      v2d s1 = {0.0, 0.0}, s2 = {0.0, 0.0};
-      UNROLL for (int k = 0; k < nf; k++) s1 += L1[i * nf + k] * x1[k * np + c];
+      mrvi_v2 s1 = v2_zero(), s2 = s1;
+      UNROLL for (int k = 0; k < nf; k++) s1 =
+          v2_add(s1, v2_scale(L1[i * nf + k], x1[k * np + c]));
       if (m >= 2)
-        UNROLL for (int k = 0; k < nf; k++) s2 +=
-            L2[i * nf + k] * x2[k * np + c];
-      v[i * np + c] -= s1 + s2;
+        UNROLL for (int k = 0; k < nf; k++) s2 =
+            v2_add(s2, v2_scale(L2[i * nf + k], x2[k * np + c]));
+      v[i * np + c] = v2_sub(v[i * np + c], v2_add(s1, s2));
     }
   /* lu_solve_k: the swaps by constant row indices, the substitutions */
   UNROLL for (int k = 0; k + 1 < nf; k++)
       UNROLL for (int r = k + 1; r < nf; r++) {
     if (piv[k] == r)
       UNROLL for (int c = 0; c < np; c++) {
-        const v2d t = v[r * np + c];
+        const mrvi_v2 t = v[r * np + c];
         v[r * np + c] = v[k * np + c];
         v[k * np + c] = t;
       }
   }
   UNROLL for (int k = 0; k < nf; k++) UNROLL for (int i = k + 1; i < nf; i++) {
     const double f = D[i * nf + k];
-    UNROLL for (int c = 0; c < np; c++) v[i * np + c] -= f * v[k * np + c];
+    UNROLL for (int c = 0; c < np; c++) v[i * np + c] =
+        v2_sub(v[i * np + c], v2_scale(f, v[k * np + c]));
   }
   UNROLL for (int i = nf - 1; i >= 0; i--) {
     UNROLL for (int j = i + 1; j < nf; j++) {
       const double a = D[i * nf + j];
-      UNROLL for (int c = 0; c < np; c++) v[i * np + c] -= a * v[j * np + c];
+      UNROLL for (int c = 0; c < np; c++) v[i * np + c] =
+          v2_sub(v[i * np + c], v2_scale(a, v[j * np + c]));
     }
     const double d = dinv[i];
-    UNROLL for (int c = 0; c < np; c++) v[i * np + c] *= d;
+    UNROLL for (int c = 0; c < np; c++) v[i * np + c] =
+        v2_scale(d, v[i * np + c]);
   }
   UNROLL for (int i = 0; i < nf; i++) {
     UNROLL for (int c = 0; c + 1 < np; c++)
-        st2(ym + i * ns + 2 * c, v[i * np + c]);
-    const v2d t = v[i * np + np - 1];
-    ym[i * ns + ns - 1] = t[0];
-    zm[i] = t[1];
+        v2_store(ym + i * ns + 2 * c, v[i * np + c]);
+    const mrvi_v2 t = v[i * np + np - 1];
+    ym[i * ns + ns - 1] = v2_lo(t);
+    zm[i] = v2_hi(t);
   }
   UNROLL for (int e = 0; e < nf * np; e++) {
     x2[e] = x1[e];
@@ -648,9 +653,9 @@ ALWAYS_INLINE void row_yz_k(const int m, double *restrict ym,
  * sweep, row block m of Y, then of z (each as sweep_k alone: the same
  * operations); without, z alone.  Both chains run from row block to row
  * block, each waiting on its last row block: in one loop the z chain
- * overlaps the Y chains.  nf, ns in 1..4 as constants (SMALL4): the row
- * blocks in registers (row_regs_k), z's right-hand side read from zs
- * (a copy of p nf doubles first was a `rep movsb`). */
+ * overlaps the Y chains.  nf, ns as constants (SMALL2_ONLY, z alone SMALL4):
+ * the row blocks in registers (row_regs_k), z's right-hand side read from zs (a
+ * copy of p nf doubles first was a `rep movsb`). */
 ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
                             double *restrict z, const double *restrict zs,
                             const int nf, const int ns, const int regs) {
@@ -659,13 +664,13 @@ ALWAYS_INLINE void sweep2_k(const mrvi_blocks *b, double *restrict Y,
   double y1[16], y2[16], z1[4], z2[4]; /* (regs: the last two row blocks) */
   /* (regs, ns odd: Y and z as the column pairs of one block, row_yz_k) */
   const int yz = regs && Y && ns % 2 == 1 && ns <= 3;
-  v2d w1[8], w2[8];
+  mrvi_v2 w1[8], w2[8];
   if (regs) {
     zero_k(y1, 16); /* (unread at m <= 1, but copied on) */
     zero_k(y2, 16);
     zero_k(z1, 4);
     zero_k(z2, 4);
-    UNROLL_ALL for (int e = 0; e < 8; e++) w1[e] = w2[e] = (v2d){0.0, 0.0};
+    UNROLL_ALL for (int e = 0; e < 8; e++) w1[e] = w2[e] = v2_zero();
   } else {
     memcpy(z, zs, (size_t)p * (size_t)nf * sizeof(double));
   }
@@ -910,15 +915,13 @@ interval_hessians(mrvi_blocks *b, int c, int has_s, int has_f, int fresh) {
   const row_coef *rc = b->rc[c];
   const double *H0 = b->Hp;
   if (fresh) {
-    SMALL(b->ns, NS,
-          SMALL(b->nf, NF,
-                interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF),
-                                    has_s, has_f, 1, NS, NF)));
+    SMALL2(b->ns, NS, b->nf, NF,
+           interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF), has_s,
+                               has_f, 1, NS, NF));
   } else {
-    SMALL(b->ns, NS,
-          SMALL(b->nf, NF,
-                interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF),
-                                    has_s, has_f, 0, NS, NF)));
+    SMALL2(b->ns, NS, b->nf, NF,
+           interval_hessians_k(b, rc, H0, (size_t)(NS + NF) * (NS + NF), has_s,
+                               has_f, 0, NS, NF));
   }
 }
 
@@ -961,15 +964,13 @@ ALWAYS_INLINE void frozen_hessian_k(mrvi_blocks *b, const double *restrict H,
 static void frozen_hessian(mrvi_blocks *b, const double *H,
                            const mrvi_point *pts, const double *fw, int has_s,
                            int has_f) {
-  SMALL(
-      b->ns, NS,
-      SMALL(b->nf, NF, frozen_hessian_k(b, H, pts, fw, has_s, has_f, NS, NF)));
+  SMALL2(b->ns, NS, b->nf, NF,
+         frozen_hessian_k(b, H, pts, fw, has_s, has_f, NS, NF));
 }
 
 static void point_hessian(mrvi_blocks *b, const mrvi_point *pt, int cls) {
-  SMALL(b->ns, NS,
-        SMALL(b->nf, NF,
-              point_hessian_k(b, pt, b->has_s[cls], b->has_f[cls], NS, NF)));
+  SMALL2(b->ns, NS, b->nf, NF,
+         point_hessian_k(b, pt, b->has_s[cls], b->has_f[cls], NS, NF));
 }
 
 /* Configuration zp of point pt at the displacements x (step.c, gather):
@@ -1000,8 +1001,7 @@ ALWAYS_INLINE void point_config_k(mrvi_blocks *b, const mrvi_step *st,
 
 static void point_config(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          const mrvi_point *pt) {
-  SMALL(b->ns, NS,
-        SMALL(b->nf, NF, point_config_k(b, st, x, pt, 1, 1, NS, NF)));
+  SMALL2(b->ns, NS, b->nf, NF, point_config_k(b, st, x, pt, 1, 1, NS, NF));
 }
 
 /* H (nz x nz) of class c at point pt's configuration (G is scratch
@@ -1017,9 +1017,8 @@ static void class_hessian(mrvi_blocks *b, int c, double *H) {
  * into the blocks (interval_row_k). */
 static void const_rows(mrvi_blocks *b, int c, const double *H, int has_s,
                        int has_f) {
-  SMALL(b->ns, NS,
-        SMALL(b->nf, NF,
-              interval_hessians_k(b, b->rc[c], H, 0, has_s, has_f, 0, NS, NF)));
+  SMALL2(b->ns, NS, b->nf, NF,
+         interval_hessians_k(b, b->rc[c], H, 0, has_s, has_f, 0, NS, NF));
 }
 
 /* The constant part of the Newton matrix into the blocks: the kinetic rows
@@ -1277,7 +1276,7 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
   }
   if (jac)
     b->uniform = b->chord && b->chord_st && b->const_uni;
-  SMALL(ns, NS, SMALL(nf, NF, assemble_k(b, st, x, R, jac, NS, NF)));
+  SMALL2(ns, NS, nf, NF, assemble_k(b, st, x, R, jac, NS, NF));
   if (st->f_rows) /* control forces: constants of the step */
     for (int i = 0; i < st->n_unknowns; i++)
       R[i] += st->f_rows[i];
@@ -1337,28 +1336,29 @@ ALWAYS_INLINE void schur_k(mrvi_blocks *b, const int ns) {
 ALWAYS_INLINE void schur_r_k(mrvi_blocks *b, const double *R, const int ns) {
   const int nF = b->p * b->nf, np = (ns + 1) / 2;
   const double *restrict Y = b->Y, *restrict z = b->z, *restrict Asf = b->Asf;
-  v2d acc[3 * 2]; /* (ns <= 3: np <= 2) */
+  mrvi_v2 acc[3 * 2]; /* (ns <= 3: np <= 2) */
   UNROLL for (int i = 0; i < ns; i++) {
     UNROLL for (int c = 0; c + 1 < np; c++) acc[i * np + c] =
-        ld2(b->Ass + i * ns + 2 * c);
-    acc[i * np + np - 1] = (v2d){b->Ass[i * ns + ns - 1], R[i]};
+        v2_load(b->Ass + i * ns + 2 * c);
+    acc[i * np + np - 1] = v2_set(b->Ass[i * ns + ns - 1], R[i]);
   }
   UNROLL2 for (int k = 0; k < nF; k++) {
-    v2d y[2];
+    mrvi_v2 y[2];
     UNROLL for (int c = 0; c + 1 < np; c++) y[c] =
-        ld2(Y + (size_t)k * ns + 2 * c);
-    y[np - 1] = (v2d){Y[(size_t)k * ns + ns - 1], z[k]};
+        v2_load(Y + (size_t)k * ns + 2 * c);
+    y[np - 1] = v2_set(Y[(size_t)k * ns + ns - 1], z[k]);
     UNROLL for (int i = 0; i < ns; i++) {
       const double a = Asf[(size_t)i * nF + k];
-      UNROLL for (int c = 0; c < np; c++) acc[i * np + c] -= a * y[c];
+      UNROLL for (int c = 0; c < np; c++) acc[i * np + c] =
+          v2_sub(acc[i * np + c], v2_scale(a, y[c]));
     }
   }
   UNROLL for (int i = 0; i < ns; i++) {
     UNROLL for (int c = 0; c + 1 < np; c++)
-        st2(b->S + i * ns + 2 * c, acc[i * np + c]);
-    const v2d t = acc[i * np + np - 1];
-    b->S[i * ns + ns - 1] = t[0];
-    b->r[i] = t[1];
+        v2_store(b->S + i * ns + 2 * c, acc[i * np + c]);
+    const mrvi_v2 t = acc[i * np + np - 1];
+    b->S[i * ns + ns - 1] = v2_lo(t);
+    b->r[i] = v2_hi(t);
   }
 }
 
@@ -1377,8 +1377,8 @@ static int factor_blocks(mrvi_blocks *b, const double *R) {
   if (bad)
     return MRVI_ESINGULAR;
   /* Y = A_ff^-1 A_fs (in place of A_fs), S = A_ss - A_sf Y (factored) */
-  if (R && MRVI_SMALL_KERNELS && nf >= 1 && nf <= 4 && ns >= 1 && ns <= 4) {
-    SMALL4(nf, NF, SMALL4(ns, NS, sweep2_k(b, b->Y, b->z, R + ns, NF, NS, 1)));
+  if (R && MRVI_SMALL_KERNELS && SMALL2_SIZE(ns, nf)) {
+    SMALL2_ONLY(ns, NS, nf, NF, sweep2_k(b, b->Y, b->z, R + ns, NF, NS, 1));
   } else if (R) {
     sweep2_k(b, ns > 0 ? b->Y : NULL, b->z, R + ns, nf, ns, 0);
   } else if (ns > 0) {

@@ -42,17 +42,6 @@
 #include "solver/solver.h"
 #include "util/small.h"
 
-/* No straight-line (SLP) vectorisation in this file (GCC): it pairs the
- * scalar entries of the sweep's short vectors into 16-byte loads of data
- * just stored as scalars (the configuration before W's affine gradient, the
- * gradient after V's call), whose store-to-load forwarding fails: a stall of
- * about a dozen cycles each on the chain from micro node to micro node
- * (perf annotate: 12 % and 15 % of the sweep's time on two such loads; FPU,
- * midpoint-midpoint, p = 100). */
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC optimize("no-tree-slp-vectorize")
-#endif
-
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1095,9 +1084,9 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
                   int sum_slow) {
   pr->n_sweeps++;
   if (pr->one) {
-    SMALL(st->ns, NS, SMALL(st->nf, NF, sweep1_k(pr, st, x, sum_slow, NS, NF)));
+    SMALL2(st->ns, NS, st->nf, NF, sweep1_k(pr, st, x, sum_slow, NS, NF));
   } else {
-    SMALL(st->ns, NS, SMALL(st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF)));
+    SMALL2(st->ns, NS, st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF));
   }
 }
 
@@ -1158,8 +1147,8 @@ ALWAYS_INLINE void sampled_force_k(mrvi_predictor *pr, const mrvi_step *st,
 
 static void sampled_force(mrvi_predictor *pr, const mrvi_step *st,
                           const double *x, double *f, double *fa, int hess) {
-  SMALL(st->ns, NS,
-        SMALL(st->nf, NF, sampled_force_k(pr, st, x, f, fa, hess, NS, NF)));
+  SMALL2(st->ns, NS, st->nf, NF,
+         sampled_force_k(pr, st, x, f, fa, hess, NS, NF));
 }
 
 /* The fast nodes the samples read (jnode) for the slow displacement x_s,
@@ -1203,7 +1192,7 @@ ALWAYS_INLINE void linear_nodes_k(mrvi_predictor *pr, const mrvi_step *st,
 }
 
 static void linear_nodes(mrvi_predictor *pr, const mrvi_step *st, double *x) {
-  SMALL(st->ns, NS, SMALL(st->nf, NF, linear_nodes_k(pr, st, x, NS, NF)));
+  SMALL2(st->ns, NS, st->nf, NF, linear_nodes_k(pr, st, x, NS, NF));
 }
 
 static double slow_change(const mrvi_predictor *pr, const mrvi_step *st,
@@ -1373,7 +1362,7 @@ static void predict_start(mrvi_predictor *pr, const mrvi_step *st, double *x,
                           int pre) {
   pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
-  SMALL(st->ns, NS, SMALL(st->nf, NF, node_gradients_k(pr, st, NS, NF)));
+  SMALL2(st->ns, NS, st->nf, NF, node_gradients_k(pr, st, NS, NF));
   if (pre) { /* for pre_solve */
     const int n = st->ns + st->nf;
     for (int s = 0; s < st->ns; s++)

@@ -1061,9 +1061,8 @@ int mrvi_sweep_tight(const mrvi_sweep *sw) { return sw->tight; }
 int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
                            double *ps1, double *pf, char *msg, size_t len) {
   int s = MRVI_OK;
-  SMALL(
-      sw->ns, NS,
-      SMALL(sw->nf, NF, s = explicit_p1(sw, st, x, ps1, pf, msg, len, NS, NF)));
+  SMALL2(sw->ns, NS, sw->nf, NF,
+         s = explicit_p1(sw, st, x, ps1, pf, msg, len, NS, NF));
   return s;
 }
 
@@ -1071,9 +1070,8 @@ int mrvi_sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x, double *ps1,
                     double *pf, int *iterations, double *residual, char *msg,
                     size_t len) {
   int s = MRVI_OK;
-  SMALL(sw->ns, NS,
-        SMALL(sw->nf, NF,
-              s = sweep_step(sw, st, x, ps1, pf, iterations, residual, msg, len,
-                             NS, NF)));
+  SMALL2(sw->ns, NS, sw->nf, NF,
+         s = sweep_step(sw, st, x, ps1, pf, iterations, residual, msg, len, NS,
+                        NF));
   return s;
 }

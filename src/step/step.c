@@ -14,6 +14,7 @@
  * -w c_a grad Z to D_{X_a} L_d and -w c_a c_b hess Z to its derivative.  The
  * same loop serves every rule: there is no scheme-specific derivative. */
 #include "step/step.h"
+#include "util/simd.h"
 #include "util/small.h"
 
 #include <math.h>
@@ -614,7 +615,7 @@ ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
     return;
   }
   /* The same sums over the fast entries i = mm nf + s in order, two at a
-   * time as a pair of doubles (GCC's vector extension: one division for
+   * time as a pair of doubles (util/simd.h: one division for
    * two, the divisions set the pace; GCC -O2 left the loop scalar), two
    * nodes, nf pairs, per pass, with the masses of two nodes in M2. */
   double M2[8] = {0};
@@ -624,12 +625,13 @@ ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
   double *restrict pv = pf;
   UNROLL for (int s = 0; s < nf; s++) pv[s] += M2[s] * (d[s] - 0.0) / dt;
   const int n = p * nf;
-  const v2d dt2 = {dt, dt};
+  const mrvi_v2 dt2 = v2_set(dt, dt);
   int i = nf;
   for (; nf > 0 && i + 2 * nf <= n; i += 2 * nf)
     UNROLL for (int k = 0; k < 2 * nf; k += 2) {
-      const v2d a = ld2(d + i + k), b = ld2(d + i + k - nf);
-      st2(pv + i + k, ld2(pv + i + k) + ld2(M2 + k) * (a - b) / dt2);
+      const mrvi_v2 a = v2_load(d + i + k), b = v2_load(d + i + k - nf);
+      const mrvi_v2 dp = v2_div(v2_mul(v2_load(M2 + k), v2_sub(a, b)), dt2);
+      v2_store(pv + i + k, v2_add(v2_load(pv + i + k), dp));
     }
   for (int k = 0; i < n; i++, k++)
     pv[i] += M2[k] * (d[i] - d[i - nf]) / dt;
@@ -644,7 +646,7 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
   const double dT = st->dT, dt = st->dt;
   if (st->increments) { /* the same sums without a test per entry (a
                            step's fixed cost at p = 1) */
-    SMALL(ns, NS, SMALL(nf, NF, kinetic_increments_k(st, x, ps1, pf, NS, NF)));
+    SMALL2(ns, NS, nf, NF, kinetic_increments_k(st, x, ps1, pf, NS, NF));
   } else {
     for (int s = 0; s < ns; s++)
       ps1[s] += m->mass[m->slow_index[s]] * slow_diff(st, x, s) / dT;

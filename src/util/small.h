@@ -9,8 +9,10 @@
  * constant equal to n for n = 1..4, so that the compiler unrolls the loops
  * over the tiny blocks of few-body systems (the FPU: ns = nf = 3), and with
  * N = n otherwise.  The kernels are inlined into each case. */
-/* -DMRVI_SMALL_KERNELS=0 keeps only the run-time-size case: the same
- * arithmetic, compiled in a fraction of the time.  clang with ASan + UBSan +
+/* -DMRVI_SMALL_KERNELS=0 (meson -Dsmall_kernels=false) keeps only the
+ * run-time-size case: the same arithmetic in the same order, so the same
+ * results bit for bit (tests/compare_builds.sh, in CI), compiled in a
+ * fraction of the time.  clang with ASan + UBSan +
  * libFuzzer instrumentation needs over 10 minutes and 2.6 GB for the
  * unrolled cases of blocks.c (1 s without them); tests/fuzz/run.sh sets it. */
 #ifndef MRVI_SMALL_KERNELS
@@ -26,7 +28,17 @@
     const int N = (n);                                                         \
     __VA_ARGS__;                                                               \
   } while (0)
-/* (the callers of SMALL4 test MRVI_SMALL_KERNELS: nothing to compile) */
+#define SMALL2(ns, NS, nf, NF, ...)                                            \
+  do {                                                                         \
+    const int NS = (ns), NF = (nf);                                            \
+    __VA_ARGS__;                                                               \
+  } while (0)
+/* (the callers of SMALL4 and SMALL2_ONLY test MRVI_SMALL_KERNELS: nothing
+ * to compile) */
+#define SMALL2_ONLY(ns, NS, nf, NF, ...)                                       \
+  do {                                                                         \
+  } while (0)
+#define SMALL2_SIZE(ns, nf) 0
 #define SMALL4(n, N, ...)                                                      \
   do {                                                                         \
   } while (0)
@@ -63,6 +75,35 @@
     const int N = (n);                                                         \
     __VA_ARGS__;                                                               \
   } break;                                                                     \
+  }
+/* SMALL2(ns, NS, nf, NF, code): a kernel of both block sizes, specialised
+ * for one size: NS and NF integer constants where ns = nf = 1 or 3 (the
+ * double integrator, the FPU), both at run time otherwise.  SMALL over each
+ * size (the product, 25 cases) cost compile time and code for no speed a
+ * benchmark measures (doc/performance.md, "Specialised kernels"). */
+#define SMALL2_CASE(K, NS, NF, ...)                                            \
+  case K: {                                                                    \
+    enum { NS = K, NF = K };                                                   \
+    __VA_ARGS__;                                                               \
+  } break;
+#define SMALL2(ns, NS, nf, NF, ...)                                            \
+  switch ((ns) == (nf) ? (nf) : 0) {                                           \
+    SMALL2_CASE(1, NS, NF, __VA_ARGS__)                                        \
+    SMALL2_CASE(3, NS, NF, __VA_ARGS__)                                        \
+  default: {                                                                   \
+    const int NS = (ns), NF = (nf);                                            \
+    __VA_ARGS__;                                                               \
+  } break;                                                                     \
+  }
+/* SMALL2's specialised cases only (nothing otherwise): the kernels whose
+ * local arrays need constant sizes (the caller checks SMALL2_SIZE). */
+#define SMALL2_SIZE(ns, nf) ((ns) == (nf) && ((nf) == 1 || (nf) == 3))
+#define SMALL2_ONLY(ns, NS, nf, NF, ...)                                       \
+  switch ((ns) == (nf) ? (nf) : 0) {                                           \
+    SMALL2_CASE(1, NS, NF, __VA_ARGS__)                                        \
+    SMALL2_CASE(3, NS, NF, __VA_ARGS__)                                        \
+  default:                                                                     \
+    break;                                                                     \
   }
 /* SMALL for n = 1..4 only (nothing otherwise): the kernels whose local
  * arrays have the small sizes' bound (the caller checks n). */
@@ -104,16 +145,5 @@ ALWAYS_INLINE void affine_grad_k(const double *restrict g0,
                                  const int lo, const int nz) {
   affine_k(g0, Hq, z, G, lo, nz, 1);
 }
-
-/* Two doubles as one vector (GCC's vector extension, also clang's: each
- * lane's arithmetic is the scalar one, IEEE, bit for bit), loaded and
- * stored through memcpy (no alignment assumed). */
-typedef double v2d __attribute__((vector_size(16)));
-ALWAYS_INLINE v2d ld2(const double *p) {
-  v2d r;
-  memcpy(&r, p, sizeof r);
-  return r;
-}
-ALWAYS_INLINE void st2(double *p, v2d v) { memcpy(p, &v, sizeof v); }
 
 #endif
