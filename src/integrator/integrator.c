@@ -65,37 +65,32 @@ struct mrvi_integrator {
 static int fail(mrvi_integrator *it, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 
-/* Largest residual ratio of an update with kept factors (schur path) for
- * which they are kept for the next update, and the factor below the
- * tolerance at which such updates stop. */
-#define MRVI_REUSE_RATE 0.1
-#define MRVI_REUSE_TIGHTEN 0.01
-
-/* Largest a-priori error measure dT^2 |H_last - H_first| / m_min of the
- * chord matrix (frozen Hessians, schur path) for which the first update of
- * a step uses it (doc/solver.md, "Newton details"): FPU, dt = 0.001, the
- * measure is 1e-5 at dT = 0.01, where one chord update contracts the
- * residual by 5e-7 (as exact Newton lands, below 0.01 tol), 2.7e-4..4.3e-4
- * at dT = 0.03, where 1.1-1.5 updates per step follow (a second update with
- * the kept factors costs about what the chord saves, so the chord pays up
- * to about 1.8), and 1e-2 at dT = 0.1, where it contracts by 1e-4..1e-3
- * and two updates are needed. */
-#define MRVI_CHORD_MAX 4e-4
-
-/* Largest a-priori measure e = dT^2 |hess Z(q0)|_inf / m_min of the
- * constant chord (the Newton matrix without the Hessians that are not
- * constant, factored once per run; doc/solver.md, "Newton details") for
- * which the first update of a step uses it.  FPU midpoint-midpoint, tol
- * 1e-9, dt = 0.001 (e = 1.8e-5 dT^2/dt^2): at p = 1 one update per step up
- * to dT = 0.0015 (e = 4e-5), 1.45 at 0.002 (still 15 % faster than exact
- * Newton), 2 from 0.003 (e = 1.6e-4, 3 % slower); at p = 2 / 3 / 4 / 5
- * (e = 7e-5 / 1.6e-4 / 2.9e-4 / 4.6e-4) 1.00 / 1.13 / 1.28 / 1.47 updates,
- * 42 / 31 / 22 / 8 % faster; at p = 10 (1.8e-3) 1.89, 8 % slower. */
-#define MRVI_CCHORD_MAX 3e-4
-
-/* Most slow updates of a shooting step (mrvi_predict_shoot) before Newton
- * takes over from its iterate. */
-#define MRVI_SHOOT_MAX 4
+/* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; tn
+ * below), with what their defaults were measured on:
+ *  - reuse_rate, reuse_tighten: the largest residual ratio of an update with
+ *    kept factors (schur path) for which they are kept for the next update,
+ *    and the factor below the tolerance at which such updates stop.
+ *  - chord_max: the largest a-priori error measure dT^2 |H_last - H_first|
+ *    / m_min of the chord matrix (frozen Hessians, schur path) for which the
+ *    first update of a step uses it (doc/solver.md, "Newton details"): FPU,
+ *    dt = 0.001, the measure is 1e-5 at dT = 0.01, where one chord update
+ *    contracts the residual by 5e-7 (as exact Newton lands, below 0.01
+ *    tol), 2.7e-4..4.3e-4 at dT = 0.03, where 1.1-1.5 updates per step
+ *    follow (a second update with the kept factors costs about what the
+ *    chord saves, so the chord pays up to about 1.8), and 1e-2 at dT = 0.1,
+ *    where it contracts by 1e-4..1e-3 and two updates are needed.
+ *  - const_chord_max: the largest a-priori measure e = dT^2 |hess Z(q0)|_inf
+ *    / m_min of the constant chord (the Newton matrix without the Hessians
+ *    that are not constant, factored once per run; doc/solver.md, "Newton
+ *    details") for which the first update of a step uses it.  FPU
+ *    midpoint-midpoint, tol 1e-9, dt = 0.001 (e = 1.8e-5 dT^2/dt^2): at p =
+ *    1 one update per step up to dT = 0.0015 (e = 4e-5), 1.45 at 0.002
+ *    (still 15 % faster than exact Newton), 2 from 0.003 (e = 1.6e-4, 3 %
+ *    slower); at p = 2 / 3 / 4 / 5 (e = 7e-5 / 1.6e-4 / 2.9e-4 / 4.6e-4)
+ *    1.00 / 1.13 / 1.28 / 1.47 updates, 42 / 31 / 22 / 8 % faster; at p =
+ *    10 (1.8e-3) 1.89, 8 % slower.
+ *  - shoot_max: the most slow updates of a shooting step
+ *    (mrvi_predict_shoot) before Newton takes over from its iterate. */
 
 /* The assembly and solve times (mrvi_integrator_timing) are measured on
  * one step in MRVI_TIME_EVERY and scaled to all steps: a clock read costs
@@ -855,7 +850,7 @@ static int use_chord(mrvi_integrator *it) {
   const double dT = it->step.dT;
   const double e =
       dT * dT * mrvi_blocks_chord_spread(it->blocks, &it->step, it->x);
-  return it->chord_mode == MRVI_CHORD_ON || e <= MRVI_CHORD_MAX;
+  return it->chord_mode == MRVI_CHORD_ON || e <= it->step.tuning.chord_max;
 }
 
 void mrvi_integrator_set_chord(mrvi_integrator *it, int mode) {
@@ -867,7 +862,8 @@ void mrvi_integrator_set_chord(mrvi_integrator *it, int mode) {
 static int const_chord_rule(const mrvi_integrator *it) {
   const int mode = it->cchord_mode;
   return mode == MRVI_CHORD_ON ||
-         (mode == MRVI_CHORD_AUTO && it->cchord_e <= MRVI_CCHORD_MAX);
+         (mode == MRVI_CHORD_AUTO &&
+          it->cchord_e <= it->step.tuning.const_chord_max);
 }
 
 /* Whether the first update of a schur step takes the constant chord
@@ -933,6 +929,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     return structured_step(it);
   mrvi_step *st = &it->step;
   const double tol = it->settings.newton_tol;
+  const mrvi_tuning *tn = &st->tuning;
   const double ctol = it->settings.constraint_tol;
   const int max_it = it->settings.newton_max_iter;
   char msg[400];
@@ -956,12 +953,12 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   if (shoot) {
     it->step.increments = 1;
     const int sh =
-        mrvi_predict_shoot(it->predictor, st, it->x, MRVI_REUSE_TIGHTEN * tol,
-                           MRVI_SHOOT_MAX, &shot);
+        mrvi_predict_shoot(it->predictor, st, it->x, tn->reuse_tighten * tol,
+                           tn->shoot_max, &shot);
     if (sh > 0) {
       double r0, c0;
       if (evaluate_momenta(it, &r0, &c0, msg, sizeof msg) == MRVI_OK &&
-          r0 <= MRVI_REUSE_TIGHTEN * tol) {
+          r0 <= tn->reuse_tighten * tol) {
         it->n_shoot++;
         it->n_shoot_last += sh == 2;
         return accept_step(it, shot, r0);
@@ -987,9 +984,9 @@ int mrvi_integrator_step(mrvi_integrator *it) {
    * never accepted), or stalled at the roundoff floor after one (counted:
    * mrvi_integrator_roundoff_steps).  On the schur path the factors of the
    * first update are kept for the further updates of the step while they
-   * contract the residual by MRVI_REUSE_RATE per update (simplified Newton;
+   * contract the residual by reuse_rate per update (simplified Newton;
    * the residual is exact, so the converged solution is the same) and
-   * refactorised otherwise.  Updates stop MRVI_REUSE_TIGHTEN below the
+   * refactorised otherwise.  Updates stop at reuse_tighten times the
    * tolerance, or when they stall at the roundoff floor (counted if that is
    * above the tolerance), or at the iteration limit if the tolerance itself
    * is met: a last update with kept factors is cheap, and it takes the
@@ -997,7 +994,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
    * lands. */
   while (s == MRVI_OK) {
     if (iter >= 1 && cres <= ctol) {
-      if (res <= MRVI_REUSE_TIGHTEN * tol)
+      if (res <= tn->reuse_tighten * tol)
         break;
       if (res <= residual_floor(it) && res > 0.5 * prev) {
         if (res > tol)
@@ -1033,8 +1030,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
       /* (the constant chord's factors: only if one more update reaches
        * the target at that rate; else an exact update from here costs
        * less than the kept factors' slow linear convergence) */
-      const double rate = res / prev, target = MRVI_REUSE_TIGHTEN * tol;
-      fresh = rate > MRVI_REUSE_RATE ||
+      const double rate = res / prev, target = tn->reuse_tighten * tol;
+      fresh = rate > tn->reuse_rate ||
               res * rate * (it->const_kept ? 1.0 : rate) > target;
     }
     prev = res;
