@@ -1442,6 +1442,49 @@ static void test_direct(void) {
   mrvi_model_free(ring);
 }
 
+/* The path names (MRVI_PATH_LIST, the one list): distinct, each a row of
+ * doc/solver.md's table of paths, and the name the integrator reports for
+ * the path it chose. */
+static void test_path_names(void) {
+  FILE *f = fopen(test_source_path("doc/solver.md"), "r");
+  static char doc[1 << 18];
+  const size_t n = f ? fread(doc, 1, sizeof doc - 1, f) : 0;
+  doc[n] = '\0';
+  if (f)
+    fclose(f);
+  for (int i = 0; i < MRVI_N_PATHS; i++) {
+    const char *name = mrvi_path_name(i);
+    char row[80];
+    snprintf(row, sizeof row, "\n| `%s` |", name);
+    CHECK(strstr(doc, row) != NULL, "doc/solver.md: no row for path %s",
+          name);
+    for (int j = 0; j < i; j++)
+      CHECK(strcmp(name, mrvi_path_name(j)) != 0, "path %d and %d: %s", i, j,
+            name);
+  }
+  CHECK(strcmp(mrvi_path_name(MRVI_N_PATHS), "unknown") == 0,
+        "path %d: %s", MRVI_N_PATHS, mrvi_path_name(MRVI_N_PATHS));
+  /* (the fpu by each scheme: schur, sweep, explicit; general forced) */
+  static const char *const schemes[] = {"midpoint-midpoint", "explicit-slow",
+                                        "fully-explicit", "midpoint-midpoint"};
+  static const char *const want[] = {"schur", "sweep", "explicit", "general"};
+  mrvi_model *m = test_fpu();
+  for (int k = 0; k < 4; k++) {
+    mrvi_settings s = test_settings(schemes[k], 0.01, 2, 0.02, 1e-9);
+    s.solver = k == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
+    mrvi_integrator *it = NULL;
+    char msg[300];
+    CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0 &&
+              strcmp(mrvi_integrator_solver_path(it), want[k]) == 0 &&
+              strcmp(mrvi_solver_path(m, &s, NULL, 0), want[k]) == 0 &&
+              mrvi_integrator_step(it) == 0,
+          "fpu %s: path %s, want %s (%s)", schemes[k],
+          it ? mrvi_integrator_solver_path(it) : "-", want[k], msg);
+    mrvi_integrator_free(it);
+  }
+  mrvi_model_free(m);
+}
+
 /* The tuning constants (mrvi.h, MRVI_TUNING_LIST; doc/solver.md,
  * "Tuning"): the defaults are the table's, every name can be set and read
  * back, unknown names and bad values are refused with a clear message, the
@@ -1560,6 +1603,7 @@ static void test_tuning(void) {
 
 int main(void) {
   test_tuning();
+  test_path_names();
   test_direct();
   test_chord();
   test_const_chord();

@@ -18,6 +18,7 @@ struct mrvi_integrator {
   mrvi_newton *newton;
   mrvi_nullspace *nullspace; /* null-space form only */
   int path;                  /* MRVI_PATH_* (doc/solver.md) */
+  const struct path_ops *ops; /* its row of `paths` (end of the file) */
   mrvi_sweep *sweep;         /* explicit, sweep and sweep-cg paths */
   int sweep_tight;           /* mrvi_sweep_tight(sweep) */
   mrvi_blocks *blocks;       /* schur path */
@@ -64,6 +65,25 @@ struct mrvi_integrator {
 
 static int fail(mrvi_integrator *it, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
+
+/* A step solver path (doc/solver.md) as the integrator drives it: its
+ * set-up after the common part of mrvi_integrator_create, its macro step
+ * and what it frees; the Newton paths also evaluate the residual (and
+ * Jacobian) their way and make one Newton update from it. */
+typedef struct path_ops {
+  int (*create)(mrvi_integrator *it, char *msg, size_t len);
+  int (*step)(mrvi_integrator *it);
+  /* The residual at x (and, if jac, the Jacobian) into it->R. */
+  int (*assemble)(mrvi_integrator *it, int jac, char *msg, size_t len);
+  /* One Newton update (x -= dx) from it->R at x, factorised afresh when
+   * `fresh`, else with the factors kept from an earlier iterate. */
+  int (*update)(mrvi_integrator *it, int fresh, char *msg, size_t len);
+  void (*free)(mrvi_integrator *it);
+  int keeps_factors; /* updates may reuse the factors (simplified Newton) */
+} path_ops;
+
+/* The row of MRVI_PATH_* (the table, `paths`, ends the file). */
+static const path_ops *path_ops_of(int path);
 
 /* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; tn
  * below), with what their defaults were measured on:
@@ -117,14 +137,10 @@ const char *mrvi_integrator_errmsg(const mrvi_integrator *it) {
 void mrvi_integrator_free(mrvi_integrator *it) {
   if (!it)
     return;
-  mrvi_newton_free(it->newton);
+  if (it->ops)
+    it->ops->free(it);
   mrvi_newton_free(it->jac_nw);
-  mrvi_sweep_free(it->sweep);
-  mrvi_blocks_free(it->blocks);
-  mrvi_skrylov_free(it->skrylov);
-  mrvi_predictor_free(it->predictor);
   free(it->qs_prev); /* qf_prev inside */
-  mrvi_nullspace_free(it->nullspace);
   free(it->rhs);
   mrvi_step_free(&it->step);
   free(it->q);
@@ -376,6 +392,97 @@ static void explain_micro(const mrvi_integrator *it, char *msg, size_t len) {
            names, st->r_micro, st->p);
 }
 
+/* The explicit, sweep and sweep-cg paths (solver/sweep.c): no Newton
+ * matrix of the whole step (the Jacobian pattern is built on demand by
+ * mrvi_integrator_jacobian_solve). */
+static int sweep_create(mrvi_integrator *it, char *msg, size_t len) {
+  if (mrvi_sweep_create(&it->step, &it->settings, &it->sweep) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  it->sweep_tight = mrvi_sweep_tight(it->sweep);
+  return MRVI_OK;
+}
+
+static void sweep_free(mrvi_integrator *it) { mrvi_sweep_free(it->sweep); }
+
+/* The Newton paths' common set-up: the predictor, the Jacobian pattern
+ * and the residual and Jacobian at the predictor (pattern and symbolic
+ * analysis once per run). */
+static int newton_paths_create(mrvi_integrator *it, char *msg, size_t len) {
+  if (mrvi_predictor_create(it->model, &it->step, &it->predictor) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  mrvi_predictor_set_tolerance(it->predictor, it->settings.newton_tol);
+  predict(it);
+  if (mrvi_step_build_pattern(&it->step, it->x) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  mrvi_step_assemble(&it->step, it->x, it->R, 1);
+  return MRVI_OK;
+}
+
+/* The general path: the sparse LU of the whole step's Jacobian, or in the
+ * null-space form (constraints only) of its reduced rows. */
+static int general_create(mrvi_integrator *it, char *msg, size_t len) {
+  mrvi_step *sp = &it->step;
+  int st = newton_paths_create(it, msg, len);
+  if (st < 0)
+    return st;
+  if (it->settings.constraint_form == MRVI_FORM_NULL_SPACE &&
+      sp->n_lambda > 0) {
+    /* Values for the symbolic analysis: lambda(x) and the reduced rows at
+     * the predictor. */
+    if ((st = mrvi_nullspace_create(sp, &it->nullspace, msg, len)) < 0 ||
+        (mrvi_step_assemble(sp, it->x, it->R, 0),
+         st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
+                                    len)) < 0)
+      return st;
+    mrvi_step_assemble(sp, it->x, it->R, 1);
+    mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
+    it->newton = mrvi_newton_create(sp->n_unknowns,
+                                    mrvi_nullspace_Ap(it->nullspace),
+                                    mrvi_nullspace_Ai(it->nullspace),
+                                    mrvi_nullspace_Ax(it->nullspace), msg, len);
+  } else {
+    it->newton =
+        mrvi_newton_create(sp->n_total, sp->Ap, sp->Ai, sp->Ax, msg, len);
+  }
+  return it->newton ? MRVI_OK : MRVI_ESINGULAR;
+}
+
+static void general_free(mrvi_integrator *it) {
+  mrvi_newton_free(it->newton);
+  mrvi_nullspace_free(it->nullspace);
+  mrvi_predictor_free(it->predictor);
+}
+
+/* The schur path (solver/blocks.c): its blocks, the constant chord's
+ * measure and whether its steps may shoot (run constants). */
+static int schur_create(mrvi_integrator *it, char *msg, size_t len) {
+  int st = newton_paths_create(it, msg, len);
+  if (st < 0)
+    return st;
+  if (mrvi_blocks_create(&it->step, &it->blocks) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  it->cchord_e = it->step.dT * it->step.dT *
+                 mrvi_blocks_const_measure(it->blocks, &it->step);
+  it->shoot_ok = mrvi_predictor_shoot_ok(it->predictor, &it->step);
+  return MRVI_OK;
+}
+
+static void schur_free(mrvi_integrator *it) {
+  mrvi_blocks_free(it->blocks);
+  mrvi_predictor_free(it->predictor);
+}
+
+/* The schur-krylov path (solver/schur_krylov.c). */
+static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
+  const int st = newton_paths_create(it, msg, len);
+  return st < 0 ? st : mrvi_skrylov_create(&it->step, &it->skrylov, msg, len);
+}
+
+static void skrylov_free(mrvi_integrator *it) {
+  mrvi_skrylov_free(it->skrylov);
+  mrvi_predictor_free(it->predictor);
+}
+
 int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
                            mrvi_integrator **out, char *msg, size_t len) {
   *out = NULL;
@@ -484,63 +591,10 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;
   it->step.pf0 = it->pf;
-  if (it->path == MRVI_PATH_EXPLICIT || it->path == MRVI_PATH_SWEEP ||
-      it->path == MRVI_PATH_SWEEP_CG) {
-    /* No Newton matrix of the whole step (the Jacobian pattern is built
-     * on demand by mrvi_integrator_jacobian_solve). */
-    if (mrvi_sweep_create(&it->step, s, &it->sweep) < 0)
-      goto oom;
-    it->sweep_tight = mrvi_sweep_tight(it->sweep);
-    *out = it;
-    return MRVI_OK;
-  }
-  /* Pattern and symbolic analysis once per run. */
-  if (mrvi_predictor_create(m, &it->step, &it->predictor) < 0)
-    goto oom;
-  mrvi_predictor_set_tolerance(it->predictor, s->newton_tol);
-  predict(it);
-  if ((st = mrvi_step_build_pattern(&it->step, it->x)) < 0)
-    goto oom;
-  mrvi_step_assemble(&it->step, it->x, it->R, 1);
-  if (s->constraint_form == MRVI_FORM_NULL_SPACE && it->step.n_lambda > 0) {
-    /* Values for the symbolic analysis: lambda(x) and the reduced rows at
-     * the predictor. */
-    mrvi_step *sp = &it->step;
-    if ((st = mrvi_nullspace_create(sp, &it->nullspace, msg, len)) < 0 ||
-        (mrvi_step_assemble(sp, it->x, it->R, 0),
-         st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
-                                    len)) < 0) {
-      mrvi_integrator_free(it);
-      return st;
-    }
-    mrvi_step_assemble(sp, it->x, it->R, 1);
-    mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
-    it->newton = mrvi_newton_create(it->step.n_unknowns,
-                                    mrvi_nullspace_Ap(it->nullspace),
-                                    mrvi_nullspace_Ai(it->nullspace),
-                                    mrvi_nullspace_Ax(it->nullspace), msg, len);
-  } else if (it->path == MRVI_PATH_SCHUR) {
-    if (mrvi_blocks_create(&it->step, &it->blocks) < 0)
-      goto oom;
-    it->cchord_e = it->step.dT * it->step.dT *
-                   mrvi_blocks_const_measure(it->blocks, &it->step);
-    it->shoot_ok = mrvi_predictor_shoot_ok(it->predictor, &it->step);
-    *out = it;
-    return MRVI_OK;
-  } else if (it->path == MRVI_PATH_SCHUR_KRYLOV) {
-    if ((st = mrvi_skrylov_create(&it->step, &it->skrylov, msg, len)) < 0) {
-      mrvi_integrator_free(it);
-      return st;
-    }
-    *out = it;
-    return MRVI_OK;
-  } else {
-    it->newton = mrvi_newton_create(it->step.n_total, it->step.Ap, it->step.Ai,
-                                    it->step.Ax, msg, len);
-  }
-  if (!it->newton) {
+  it->ops = path_ops_of(it->path);
+  if ((st = it->ops->create(it, msg, len)) < 0) {
     mrvi_integrator_free(it);
-    return MRVI_ESINGULAR;
+    return st;
   }
   *out = it;
   return MRVI_OK;
@@ -612,12 +666,11 @@ static void residual_norms(const mrvi_integrator *it, double *dyn,
       st->n_lambda > 0 ? norm_inf(it->R + st->n_unknowns, st->n_lambda) : 0.0;
 }
 
-/* Residual (and, if jac, the Jacobian) at the current x.  In the null-space
- * form the multipliers are first set to lambda(x) from the residual at
- * lambda = 0. */
-static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
+/* The general path's residual: in the null-space form the multipliers are
+ * first set to lambda(x) from the residual at lambda = 0. */
+static int general_assemble(mrvi_integrator *it, int jac, char *msg,
+                            size_t len) {
   mrvi_step *st = &it->step;
-  const double t = tick(it);
   if (it->nullspace) {
     memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
     mrvi_step_assemble(st, it->x, it->R, 0);
@@ -625,12 +678,34 @@ static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
     if (s < 0)
       return s;
   }
-  /* The schur path assembles its blocks directly (no CSC). */
-  if (!it->blocks ||
-      mrvi_blocks_assemble(it->blocks, st, it->x, it->R, jac) != MRVI_OK)
-    mrvi_step_assemble(st, it->x, it->R, jac);
-  it->t_assemble += tick(it) - t;
+  mrvi_step_assemble(st, it->x, it->R, jac);
   return MRVI_OK;
+}
+
+/* The schur path assembles its blocks directly (no CSC) where it can. */
+static int schur_assemble(mrvi_integrator *it, int jac, char *msg,
+                          size_t len) {
+  (void)msg, (void)len;
+  mrvi_step *st = &it->step;
+  if (mrvi_blocks_assemble(it->blocks, st, it->x, it->R, jac) != MRVI_OK)
+    mrvi_step_assemble(st, it->x, it->R, jac);
+  return MRVI_OK;
+}
+
+/* The schur-krylov path reads the CSC Jacobian. */
+static int csc_assemble(mrvi_integrator *it, int jac, char *msg, size_t len) {
+  (void)msg, (void)len;
+  mrvi_step_assemble(&it->step, it->x, it->R, jac);
+  return MRVI_OK;
+}
+
+/* Residual (and, if jac, the Jacobian) at the current x, by the path. */
+static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
+  const double t = tick(it);
+  const int s = it->ops->assemble(it, jac, msg, len);
+  if (s == MRVI_OK)
+    it->t_assemble += tick(it) - t;
+  return s;
 }
 
 /* The residual at x with the potential parts of the momenta (used if the
@@ -646,17 +721,77 @@ static int evaluate_momenta(mrvi_integrator *it, double *res, double *cres,
   return s;
 }
 
-/* One Newton update dx (x -= dx) from the residual it->R at x: the full
- * saddle-point system in the multiplier form, the reduced one in the
- * null-space form (both factorised afresh at x: the general path is full
- * Newton), the block elimination on the schur and schur-krylov paths
- * (factorised afresh when `fresh`, else with the factors kept from an
- * earlier iterate of the step: a simplified Newton update).  jac_at_x:
- * st->Ax already holds the Jacobian at x. */
-static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
-                         char *msg, size_t len) {
+/* x -= dx on the first n unknowns. */
+static void subtract_dx(mrvi_integrator *it, int n) {
+  for (int i = 0; i < n; i++)
+    it->x[i] -= it->dx[i];
+}
+
+/* The general path's update: the full saddle-point system in the
+ * multiplier form, the reduced one in the null-space form, both
+ * factorised afresh at x (the general path is full Newton). */
+static int general_update(mrvi_integrator *it, int fresh, char *msg,
+                          size_t len) {
+  (void)fresh;
+  mrvi_step *st = &it->step;
+  int s;
+  if (it->nullspace) {
+    mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
+    s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
+                          it->dx, msg, len);
+    if (s == MRVI_OK)
+      subtract_dx(it, st->n_unknowns);
+    return s;
+  }
+  s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
+  if (s == MRVI_OK)
+    subtract_dx(it, st->n_total);
+  return s;
+}
+
+/* The schur path's update: the block elimination, with the constant
+ * chord's factors where they are kept (x -= dx inside). */
+static int schur_update(mrvi_integrator *it, int fresh, char *msg,
+                        size_t len) {
   mrvi_step *st = &it->step;
   int s = MRVI_OK;
+  if (fresh) {
+    it->factors_ok = 0;
+    it->const_kept = 0;
+    it->n_factor++;
+    if ((s = mrvi_blocks_factor_solve(it->blocks, st, it->R, it->dx)) < 0)
+      mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
+    else
+      it->factors_ok = 1;
+  } else if (it->const_kept) {
+    mrvi_blocks_const_solve(it->blocks, it->R, it->dx, it->x);
+    return MRVI_OK;
+  } else {
+    mrvi_blocks_solve(it->blocks, it->R, it->dx);
+  }
+  if (s == MRVI_OK)
+    subtract_dx(it, st->n_total);
+  return s;
+}
+
+/* The schur-krylov path's update: GMRES on the slow unknowns. */
+static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
+                          size_t len) {
+  if (fresh)
+    mrvi_skrylov_factor(it->skrylov);
+  it->factors_ok = 1;
+  const int s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+  if (s == MRVI_OK)
+    subtract_dx(it, it->step.n_total);
+  return s;
+}
+
+/* One Newton update dx (x -= dx) from the residual it->R at x by the
+ * path, with the Jacobian at x first where `fresh` asks for it and
+ * st->Ax does not hold it yet (jac_at_x). */
+static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
+                         char *msg, size_t len) {
+  int s;
   if (fresh && !jac_at_x) {
     /* The Jacobian at x (the residual is recomputed with it); exact: a
      * refactorisation follows an update that did not contract enough. */
@@ -666,45 +801,7 @@ static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
       return s;
   }
   const double t = tick(it);
-  if (it->nullspace) {
-    mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
-    s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
-                          it->dx, msg, len);
-    if (s == MRVI_OK)
-      for (int i = 0; i < st->n_unknowns; i++)
-        it->x[i] -= it->dx[i];
-  } else if (it->blocks) {
-    if (fresh) {
-      it->factors_ok = 0;
-      it->const_kept = 0;
-      it->n_factor++;
-      if ((s = mrvi_blocks_factor_solve(it->blocks, st, it->R, it->dx)) < 0)
-        mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
-      else
-        it->factors_ok = 1;
-    } else if (it->const_kept) { /* (x -= dx inside) */
-      mrvi_blocks_const_solve(it->blocks, it->R, it->dx, it->x);
-    } else {
-      mrvi_blocks_solve(it->blocks, it->R, it->dx);
-    }
-    if (s == MRVI_OK && !it->const_kept) { /* (const_kept: done) */
-      for (int i = 0; i < st->n_total; i++)
-        it->x[i] -= it->dx[i];
-    }
-  } else if (it->skrylov) {
-    if (fresh)
-      mrvi_skrylov_factor(it->skrylov);
-    it->factors_ok = 1;
-    s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
-    if (s == MRVI_OK)
-      for (int i = 0; i < st->n_total; i++)
-        it->x[i] -= it->dx[i];
-  } else {
-    s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
-    if (s == MRVI_OK)
-      for (int i = 0; i < st->n_total; i++)
-        it->x[i] -= it->dx[i];
-  }
+  s = it->ops->update(it, fresh, msg, len);
   it->t_solve += tick(it) - t;
   return s;
 }
@@ -924,9 +1021,8 @@ static int accept_step(mrvi_integrator *it, int iters, double res) {
   return finish_step(it);
 }
 
-int mrvi_integrator_step(mrvi_integrator *it) {
-  if (it->sweep)
-    return structured_step(it);
+/* A step of the Newton paths. */
+static int newton_step(mrvi_integrator *it) {
   mrvi_step *st = &it->step;
   const double tol = it->settings.newton_tol;
   const mrvi_tuning *tn = &st->tuning;
@@ -1024,7 +1120,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     /* Refactorise unless the kept factors contracted well on the last
      * update and, at that rate, reach the target in two more (schur and
      * schur-krylov paths; the general path, the reference, is full Newton). */
-    if (!(it->blocks || it->skrylov) || !it->factors_ok)
+    if (!it->ops->keeps_factors || !it->factors_ok)
       fresh = 1;
     else {
       /* (the constant chord's factors: only if one more update reaches
@@ -1054,6 +1150,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   }
   return accept_step(it, iter + shot, res);
 }
+
+int mrvi_integrator_step(mrvi_integrator *it) { return it->ops->step(it); }
 
 /* The new state (x, ps1 and xf, pf1: the last fast node) into q, p, the
  * last one into qs_prev, qf_prev and the fast nodes into micro_q, for the
@@ -1251,3 +1349,21 @@ void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
 long mrvi_integrator_roundoff_steps(const mrvi_integrator *it) {
   return it->roundoff_steps;
 }
+
+/* The paths, by MRVI_PATH_* (their names: mrvi_path_name). */
+static const path_ops paths[MRVI_N_PATHS] = {
+    [MRVI_PATH_GENERAL] = {general_create, newton_step, general_assemble,
+                           general_update, general_free, 0},
+    [MRVI_PATH_EXPLICIT] = {sweep_create, structured_step, NULL, NULL,
+                            sweep_free, 0},
+    [MRVI_PATH_SWEEP] = {sweep_create, structured_step, NULL, NULL, sweep_free,
+                         0},
+    [MRVI_PATH_SCHUR] = {schur_create, newton_step, schur_assemble,
+                         schur_update, schur_free, 1},
+    [MRVI_PATH_SWEEP_CG] = {sweep_create, structured_step, NULL, NULL,
+                            sweep_free, 0},
+    [MRVI_PATH_SCHUR_KRYLOV] = {skrylov_create, newton_step, csc_assemble,
+                                skrylov_update, skrylov_free, 1},
+};
+
+static const path_ops *path_ops_of(int path) { return &paths[path]; }

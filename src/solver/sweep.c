@@ -147,9 +147,10 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
 }
 
 const char *mrvi_path_name(int path) {
-  static const char *const names[] = {"general", "explicit", "sweep",
-                                      "schur",   "sweep-cg", "schur-krylov"};
-  return names[path];
+#define PATH_NAME(id, name) name,
+  static const char *const names[] = {MRVI_PATH_LIST(PATH_NAME)};
+#undef PATH_NAME
+  return path >= 0 && path < MRVI_N_PATHS ? names[path] : "unknown";
 }
 
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
