@@ -66,6 +66,7 @@ typedef struct mrvi_element {
   mrvi_element_kind kind;
   mrvi_rate potential;          /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
   const mrvi_law *law;          /* NULL for gravity */
+  mrvi_law_form form;           /* law->form (set with the law) */
   double params[MRVI_LAW_MAX_PARAMS];
   double shift;                 /* rest length (springs) or offset b (terms) */
   double anchor[3];

@@ -63,6 +63,14 @@ const char *mrvi_version(void);
  * ------------------------------------------------------------------------- */
 #define MRVI_LAW_MAX_PARAMS 8
 
+/* Closed forms of phi a law may declare (mrvi_law.form): the solvers
+ * evaluate them inline, from the parameters, instead of calling eval. */
+typedef enum mrvi_law_form {
+  MRVI_LAW_FORM_NONE = 0,  /* phi by eval alone */
+  MRVI_LAW_FORM_HOOKE = 1, /* phi(s) = k s^2 / 2, k = params[0] */
+  MRVI_LAW_FORM_POWER = 2  /* phi(s) = c s^e, c = params[0], e = params[1] */
+} mrvi_law_form;
+
 typedef struct mrvi_law {
   const char *name;                /* e.g. "power", "linear" */
   const char *summary;             /* one line for `mrvi check` and docs */
@@ -73,6 +81,12 @@ typedef struct mrvi_law {
   /* phi(s), phi'(s), phi''(s). */
   void (*eval)(const double *params, double s, double *phi, double *dphi,
                double *ddphi);
+  /* Properties (optional: NULL / 0 declare none), read when a model is
+   * set up.  The degree of phi as a polynomial in s for these parameters,
+   * or -1 where it is none: a degree <= 2 is a constant Hessian (the
+   * element is quadratic in the coordinates, solved once per run). */
+  int (*degree)(const double *params);
+  mrvi_law_form form; /* consistent with eval and degree */
 } mrvi_law;
 
 /* Add a law to the registry (the pointer must stay valid).  Fails with

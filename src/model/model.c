@@ -333,6 +333,7 @@ static int set_law(mrvi_model *m, mrvi_element *e, const char *law,
   if (!e->law)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: unknown law '%s'", what,
                            law ? law : "(null)");
+  e->form = e->law->form;
   if (e->law->n_params > 0 && !params)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: law '%s' needs parameters",
                            what, law);
@@ -848,16 +849,14 @@ static double eval_angle(const mrvi_element *e, int d, const double *y,
 }
 
 int mrvi_element_is_quadratic(const mrvi_element *e) {
-  extern const mrvi_law mrvi_law_power, mrvi_law_linear;
   switch (e->kind) {
   case MRVI_ELEMENT_GRAVITY:
   case MRVI_ELEMENT_FORCE:
     return 1;
-  case MRVI_ELEMENT_TERM:
-    return e->law == &mrvi_law_linear ||
-           (e->law == &mrvi_law_power &&
-            (e->params[1] == 0.0 || e->params[1] == 1.0 ||
-             e->params[1] == 2.0));
+  case MRVI_ELEMENT_TERM: { /* phi(a^T q - b): quadratic with phi */
+    const int degree = e->law->degree ? e->law->degree(e->params) : -1;
+    return degree >= 0 && degree <= 2;
+  }
   default:
     return 0; /* distances and angles are not polynomial in positions */
   }

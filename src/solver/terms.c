@@ -75,15 +75,13 @@ static inline void power_derivs(double c, double e, int k, double s, double *d1,
 
 /* A power law with a small integer exponent (evaluated inline). */
 static int small_power(const mrvi_element *e) {
-  extern const mrvi_law mrvi_law_power;
   const double x = e->params[1];
-  return e->law == &mrvi_law_power && x >= 0.0 && x <= 8.0 &&
+  return e->form == MRVI_LAW_FORM_POWER && x >= 0.0 && x <= 8.0 &&
          (double)(int)x == x;
 }
 
 void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2) {
-  extern const mrvi_law mrvi_law_linear;
-  if (e->law == &mrvi_law_linear) {
+  if (e->form == MRVI_LAW_FORM_HOOKE) {
     *d1 = e->params[0] * s;
     *d2 = e->params[0];
   } else if (small_power(e)) {
@@ -109,7 +107,6 @@ void mrvi_terms_free(mrvi_terms *kc) {
 
 int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, mrvi_terms **out) {
-  extern const mrvi_law mrvi_law_linear;
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
@@ -142,7 +139,7 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     t->first = first;
     t->kind = KT_ELEMENT;
     if (e->kind == MRVI_ELEMENT_TERM) {
-      t->kind = e->law == &mrvi_law_linear ? KT_LINEAR : KT_LAW;
+      t->kind = e->form == MRVI_LAW_FORM_HOOKE ? KT_LINEAR : KT_LAW;
       t->shift = e->shift;
       t->c = e->params[0];
       t->e = e->params[1];
