@@ -358,16 +358,16 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
 /* The step solver paths (doc/solver.md), listed once: X(ID, name) gives
  * MRVI_PATH_ID and the name in output files, `mrvi check` and the
  * integrator's table of paths (integrator/integrator.c). */
-#define MRVI_PATH_LIST(X)                                                    \
-  X(GENERAL, "general")           /* Newton, sparse LU of the whole step */ \
-  X(EXPLICIT, "explicit")         /* no Newton (sweep.c) */                 \
-  X(SWEEP, "sweep")               /* explicit slow update, micro steps by  \
-                                     dense Newton (sweep.c) */              \
-  X(SCHUR, "schur")               /* Newton, Schur complement on the slow  \
-                                     unknowns (blocks.c) */                 \
-  X(SWEEP_CG, "sweep-cg")         /* sweep, micro steps by CG              \
-                                     (sparse_block.c) */                    \
-  X(SCHUR_KRYLOV, "schur-krylov") /* Newton, GMRES on the slow unknowns    \
+#define MRVI_PATH_LIST(X)                                                      \
+  X(GENERAL, "general")           /* Newton, sparse LU of the whole step */    \
+  X(EXPLICIT, "explicit")         /* no Newton (sweep.c) */                    \
+  X(SWEEP, "sweep")               /* explicit slow update, micro steps by      \
+                                     dense Newton (sweep.c) */                 \
+  X(SCHUR, "schur")               /* Newton, Schur complement on the slow      \
+                                     unknowns (blocks.c) */                    \
+  X(SWEEP_CG, "sweep-cg")         /* sweep, micro steps by CG                  \
+                                     (sparse_block.c) */                       \
+  X(SCHUR_KRYLOV, "schur-krylov") /* Newton, GMRES on the slow unknowns        \
                                      and CG block sweeps (schur_krylov.c) */
 #define MRVI_PATH_ENUM(id, name) MRVI_PATH_##id,
 enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };

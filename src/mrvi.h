@@ -448,58 +448,56 @@ typedef enum mrvi_solver {
  * (a description file: integrator.tuning: {name: value}), so that a
  * benchmark can vary them on systems other than the one they were tuned
  * on.  Integer rows take integral values alone. */
-#define MRVI_TUNING_LIST(X)                                                  \
-  X(double, pre_kappa, 0.1, 0.0, 1e300,                                      \
-    "the predictor solves the slow row before Newton where kappa exceeds "   \
-    "this")                                                                  \
-  X(double, shoot_pre_kappa, 0.01, 0.0, 1e300,                               \
-    "... and before shooting where kappa exceeds this")                      \
-  X(int, slow_newton_max, 8, 1, 1000,                                        \
-    "Broyden iterations of one slow solve of the predictor")                 \
-  X(int, slow_newton_n, 64, 0, 4096,                                         \
-    "largest model (coordinates) on which the predictor makes slow Newton "  \
-    "steps and shoots (dense Hessian sum)")                                  \
-  X(int, slow_samples, 16, 1, 1000000,                                       \
-    "points sampled for the slow row's force in the predictor")              \
-  X(int, slow_hess_samples, 8, 1, 1000000,                                   \
-    "samples whose Hessians make the slow solve's first Jacobian")           \
-  X(double, shoot_kappa, 30.0, 0.0, 1e300,                                   \
-    "schur steps shoot on the slow unknowns where kappa is at most this")    \
-  X(double, shoot_hess_kappa, 1e-3, 0.0, 1e300,                              \
-    "shooting's Jacobian takes the sampled Hessian where kappa exceeds "     \
-    "this (else M/dT alone)")                                                \
-  X(double, shoot_full_kappa, 1.0, 0.0, 1e300,                               \
-    "... and the Hessians of every point where kappa exceeds this")          \
-  X(double, shoot_last, 0.1, 0.0, 1e300,                                     \
-    "shooting's last update goes without its sweep where the predicted "     \
-    "slow residual is at most this times the target")                        \
-  X(int, shoot_max, 4, 0, 1000,                                              \
-    "slow updates of a shooting step before Newton takes over")              \
-  X(double, chord_max, 4e-4, 0.0, 1e300,                                     \
-    "the chord matrix (frozen Hessians) takes a schur step's first update "  \
-    "where dT^2 norm(H_last - H_first) / m_min is at most this")             \
-  X(double, const_chord_max, 3e-4, 0.0, 1e300,                               \
-    "the constant chord (factored once per run) takes it where dT^2 "        \
-    "norm(hess Z(q0)) / m_min is at most this")                              \
-  X(int, const_chord_dense, 16, 0, 4096,                                     \
-    "the constant chord's inverse is kept for steps of at most this many "   \
-    "unknowns")                                                              \
-  X(double, reuse_rate, 0.1, 0.0, 1.0,                                       \
-    "kept factors serve the next update while an update contracts the "      \
-    "residual by at most this")                                              \
-  X(double, reuse_tighten, 0.01, 0.0, 1.0,                                   \
-    "Newton and shooting stop at this times the Newton tolerance")           \
-  X(int, dense_max, 64, 0, 1000000,                                          \
-    "largest block (fast, and slow on schur) solved densely; beyond: "       \
-    "sweep-cg and schur-krylov")                                             \
-  X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                 \
-    "relative tolerance of schur-krylov's block CG solves")                  \
-  X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                              \
-    "relative tolerance of schur-krylov's GMRES on the slow unknowns")       \
-  X(int, krylov_restart, 20, 1, 10000,                                       \
-    "GMRES restart length of schur-krylov")                                  \
-  X(int, krylov_max_it, 100, 1, 1000000,                                     \
-    "GMRES iterations of schur-krylov")
+#define MRVI_TUNING_LIST(X)                                                    \
+  X(double, pre_kappa, 0.1, 0.0, 1e300,                                        \
+    "the predictor solves the slow row before Newton where kappa exceeds "     \
+    "this")                                                                    \
+  X(double, shoot_pre_kappa, 0.01, 0.0, 1e300,                                 \
+    "... and before shooting where kappa exceeds this")                        \
+  X(int, slow_newton_max, 8, 1, 1000,                                          \
+    "Broyden iterations of one slow solve of the predictor")                   \
+  X(int, slow_newton_n, 64, 0, 4096,                                           \
+    "largest model (coordinates) on which the predictor makes slow Newton "    \
+    "steps and shoots (dense Hessian sum)")                                    \
+  X(int, slow_samples, 16, 1, 1000000,                                         \
+    "points sampled for the slow row's force in the predictor")                \
+  X(int, slow_hess_samples, 8, 1, 1000000,                                     \
+    "samples whose Hessians make the slow solve's first Jacobian")             \
+  X(double, shoot_kappa, 30.0, 0.0, 1e300,                                     \
+    "schur steps shoot on the slow unknowns where kappa is at most this")      \
+  X(double, shoot_hess_kappa, 1e-3, 0.0, 1e300,                                \
+    "shooting's Jacobian takes the sampled Hessian where kappa exceeds "       \
+    "this (else M/dT alone)")                                                  \
+  X(double, shoot_full_kappa, 1.0, 0.0, 1e300,                                 \
+    "... and the Hessians of every point where kappa exceeds this")            \
+  X(double, shoot_last, 0.1, 0.0, 1e300,                                       \
+    "shooting's last update goes without its sweep where the predicted "       \
+    "slow residual is at most this times the target")                          \
+  X(int, shoot_max, 4, 0, 1000,                                                \
+    "slow updates of a shooting step before Newton takes over")                \
+  X(double, chord_max, 4e-4, 0.0, 1e300,                                       \
+    "the chord matrix (frozen Hessians) takes a schur step's first update "    \
+    "where dT^2 norm(H_last - H_first) / m_min is at most this")               \
+  X(double, const_chord_max, 3e-4, 0.0, 1e300,                                 \
+    "the constant chord (factored once per run) takes it where dT^2 "          \
+    "norm(hess Z(q0)) / m_min is at most this")                                \
+  X(int, const_chord_dense, 16, 0, 4096,                                       \
+    "the constant chord's inverse is kept for steps of at most this many "     \
+    "unknowns")                                                                \
+  X(double, reuse_rate, 0.1, 0.0, 1.0,                                         \
+    "kept factors serve the next update while an update contracts the "        \
+    "residual by at most this")                                                \
+  X(double, reuse_tighten, 0.01, 0.0, 1.0,                                     \
+    "Newton and shooting stop at this times the Newton tolerance")             \
+  X(int, dense_max, 64, 0, 1000000,                                            \
+    "largest block (fast, and slow on schur) solved densely; beyond: "         \
+    "sweep-cg and schur-krylov")                                               \
+  X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
+    "relative tolerance of schur-krylov's block CG solves")                    \
+  X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
+    "relative tolerance of schur-krylov's GMRES on the slow unknowns")         \
+  X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
+  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

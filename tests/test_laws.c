@@ -630,8 +630,7 @@ static void check_law_properties(void) {
         lo = fmin(lo, ddf);
         hi = fmax(hi, ddf);
         if (law->form == MRVI_LAW_FORM_HOOKE)
-          CHECK(f == 0.5 * par[0] * s * s && df == par[0] * s &&
-                    ddf == par[0],
+          CHECK(f == 0.5 * par[0] * s * s && df == par[0] * s && ddf == par[0],
                 "%s (%g): not k s^2 / 2 at s = %g", law->name, par[0], s);
         if (law->form == MRVI_LAW_FORM_POWER)
           CHECK_NEAR(f, par[0] * pow(s, par[1]), 1e-14 * fabs(f), law->name);

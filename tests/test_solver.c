@@ -1456,14 +1456,13 @@ static void test_path_names(void) {
     const char *name = mrvi_path_name(i);
     char row[80];
     snprintf(row, sizeof row, "\n| `%s` |", name);
-    CHECK(strstr(doc, row) != NULL, "doc/solver.md: no row for path %s",
-          name);
+    CHECK(strstr(doc, row) != NULL, "doc/solver.md: no row for path %s", name);
     for (int j = 0; j < i; j++)
       CHECK(strcmp(name, mrvi_path_name(j)) != 0, "path %d and %d: %s", i, j,
             name);
   }
-  CHECK(strcmp(mrvi_path_name(MRVI_N_PATHS), "unknown") == 0,
-        "path %d: %s", MRVI_N_PATHS, mrvi_path_name(MRVI_N_PATHS));
+  CHECK(strcmp(mrvi_path_name(MRVI_N_PATHS), "unknown") == 0, "path %d: %s",
+        MRVI_N_PATHS, mrvi_path_name(MRVI_N_PATHS));
   /* (the fpu by each scheme: schur, sweep, explicit; general forced) */
   static const char *const schemes[] = {"midpoint-midpoint", "explicit-slow",
                                         "fully-explicit", "midpoint-midpoint"};
@@ -1553,15 +1552,15 @@ static void test_tuning(void) {
     CHECK(sec != NULL, "doc/solver.md: no Tuning section");
     const char *end = sec ? strstr(sec + 1, "\n## ") : NULL;
     int rows = 0;
-    for (const char *l = sec; l && (l = strstr(l, "\n| `")) && (!end || l < end);
-         l++)
+    for (const char *l = sec;
+         l && (l = strstr(l, "\n| `")) && (!end || l < end); l++)
       rows++;
     CHECK(rows == count, "doc/solver.md, Tuning: %d rows, the code %d", rows,
           count);
     for (int i = 0; sec && i < count; i++) {
       char row[600];
-      snprintf(row, sizeof row, "\n| `%s` | %g | %s |\n", t[i].name,
-               t[i].value, t[i].meaning);
+      snprintf(row, sizeof row, "\n| `%s` | %g | %s |\n", t[i].name, t[i].value,
+               t[i].meaning);
       CHECK(strstr(sec, row) != NULL, "doc/solver.md, Tuning: no row%s", row);
     }
   }

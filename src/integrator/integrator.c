@@ -16,21 +16,21 @@ struct mrvi_integrator {
   mrvi_settings settings;
   mrvi_step step;
   mrvi_newton *newton;
-  mrvi_nullspace *nullspace; /* null-space form only */
-  int path;                  /* MRVI_PATH_* (doc/solver.md) */
+  mrvi_nullspace *nullspace;  /* null-space form only */
+  int path;                   /* MRVI_PATH_* (doc/solver.md) */
   const struct path_ops *ops; /* its row of `paths` (end of the file) */
-  mrvi_sweep *sweep;         /* explicit, sweep and sweep-cg paths */
-  int sweep_tight;           /* mrvi_sweep_tight(sweep) */
-  mrvi_blocks *blocks;       /* schur path */
-  mrvi_skrylov *skrylov;     /* schur-krylov path */
-  mrvi_predictor *predictor; /* Newton paths */
-  int factors_ok;            /* factors of this step's Jacobian are kept */
-  char why[240];             /* reason for the path */
-  double *qs_prev, *qf_prev; /* q_k^s, q_k^{f,0} of the last step (packed) */
-  mrvi_newton *jac_nw;       /* full-step factors for jacobian_solve */
-  int jac_ready;             /* jac_nw holds the last step's Jacobian */
-  double *rhs;               /* reduced right-hand side (null-space form) */
-  double t0;                 /* time of node k = 0 */
+  mrvi_sweep *sweep;          /* explicit, sweep and sweep-cg paths */
+  int sweep_tight;            /* mrvi_sweep_tight(sweep) */
+  mrvi_blocks *blocks;        /* schur path */
+  mrvi_skrylov *skrylov;      /* schur-krylov path */
+  mrvi_predictor *predictor;  /* Newton paths */
+  int factors_ok;             /* factors of this step's Jacobian are kept */
+  char why[240];              /* reason for the path */
+  double *qs_prev, *qf_prev;  /* q_k^s, q_k^{f,0} of the last step (packed) */
+  mrvi_newton *jac_nw;        /* full-step factors for jacobian_solve */
+  int jac_ready;              /* jac_nw holds the last step's Jacobian */
+  double *rhs;                /* reduced right-hand side (null-space form) */
+  double t0;                  /* time of node k = 0 */
   long k;
   double *q, *p;             /* model order, n */
   double *qs, *qf, *ps, *pf; /* rate blocks of the state */
@@ -436,10 +436,10 @@ static int general_create(mrvi_integrator *it, char *msg, size_t len) {
       return st;
     mrvi_step_assemble(sp, it->x, it->R, 1);
     mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
-    it->newton = mrvi_newton_create(sp->n_unknowns,
-                                    mrvi_nullspace_Ap(it->nullspace),
-                                    mrvi_nullspace_Ai(it->nullspace),
-                                    mrvi_nullspace_Ax(it->nullspace), msg, len);
+    it->newton =
+        mrvi_newton_create(sp->n_unknowns, mrvi_nullspace_Ap(it->nullspace),
+                           mrvi_nullspace_Ai(it->nullspace),
+                           mrvi_nullspace_Ax(it->nullspace), msg, len);
   } else {
     it->newton =
         mrvi_newton_create(sp->n_total, sp->Ap, sp->Ai, sp->Ax, msg, len);
@@ -683,8 +683,7 @@ static int general_assemble(mrvi_integrator *it, int jac, char *msg,
 }
 
 /* The schur path assembles its blocks directly (no CSC) where it can. */
-static int schur_assemble(mrvi_integrator *it, int jac, char *msg,
-                          size_t len) {
+static int schur_assemble(mrvi_integrator *it, int jac, char *msg, size_t len) {
   (void)msg, (void)len;
   mrvi_step *st = &it->step;
   if (mrvi_blocks_assemble(it->blocks, st, it->x, it->R, jac) != MRVI_OK)
@@ -751,8 +750,7 @@ static int general_update(mrvi_integrator *it, int fresh, char *msg,
 
 /* The schur path's update: the block elimination, with the constant
  * chord's factors where they are kept (x -= dx inside). */
-static int schur_update(mrvi_integrator *it, int fresh, char *msg,
-                        size_t len) {
+static int schur_update(mrvi_integrator *it, int fresh, char *msg, size_t len) {
   mrvi_step *st = &it->step;
   int s = MRVI_OK;
   if (fresh) {

@@ -105,7 +105,7 @@ static int kind(const mrvi_point *pt) {
 
 struct mrvi_predictor {
   const mrvi_model *m;
-  mrvi_tuning tn; /* the step's tuning constants */
+  mrvi_tuning tn;   /* the step's tuning constants */
   int sweep_ok;     /* dt omega_max small enough for the explicit sweep */
   int slow_coupled; /* the slow row sees the micro nodes */
   /* Vectors of n entries (model order in omega_max; packed (q^s, q^f) in

@@ -369,9 +369,10 @@ static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
     k->block = c;
     int it = 0;
     /* X_c is read: the solution goes there */
-    const int s = mrvi_pcg(
-        nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, xc,
-        k->st->tuning.krylov_cg_rtol, 0.0, MRVI_CG_MAX_IT, k->cgwork, &it, &k->curvature);
+    const int s =
+        mrvi_pcg(nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf,
+                 k->cgb, xc, k->st->tuning.krylov_cg_rtol, 0.0, MRVI_CG_MAX_IT,
+                 k->cgwork, &it, &k->curvature);
     k->stats.cg_solves++;
     k->stats.cg_iterations += it;
     if (it > k->stats.cg_max)

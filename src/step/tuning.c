@@ -16,7 +16,7 @@ typedef struct tuning_row {
 
 #define IS_INT_int 1
 #define IS_INT_double 0
-#define TUNING_ROW(type, name, def, lo, hi, meaning)                          \
+#define TUNING_ROW(type, name, def, lo, hi, meaning)                           \
   {{#name, def, lo, hi, IS_INT_##type, meaning}, offsetof(mrvi_tuning, name)},
 static const tuning_row rows[] = {MRVI_TUNING_LIST(TUNING_ROW)};
 #undef TUNING_ROW
@@ -79,10 +79,11 @@ int mrvi_settings_set_tuning(mrvi_settings *s, const char *name, double value,
     for (int i = 0; i < N_ROWS; i++)
       names[i] = rows[i].info.name;
     const char *hint = name ? mrvi_closest(name, names, N_ROWS) : NULL;
-    mrvi_fmt(msg, len, "unknown tuning constant '%s'%s%s%s (doc/solver.md, "
-             "\"Tuning\", lists them)", name ? name : "(null)",
-             hint ? " (did you mean '" : "", hint ? hint : "",
-             hint ? "'?)" : "");
+    mrvi_fmt(msg, len,
+             "unknown tuning constant '%s'%s%s%s (doc/solver.md, "
+             "\"Tuning\", lists them)",
+             name ? name : "(null)", hint ? " (did you mean '" : "",
+             hint ? hint : "", hint ? "'?)" : "");
     return MRVI_EINVAL;
   }
   if (!valid(r, value, msg, len))

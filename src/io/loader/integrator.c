@@ -6,9 +6,8 @@
 #include <string.h>
 
 static const char *const integrator_keys[] = {
-    "scheme", "slow",   "fast",        "macro_step", "micro_steps",
-    "t_end",  "newton", "constraints", "solver",     "energy_warning",
-    "tuning"};
+    "scheme", "slow",        "fast",   "macro_step",     "micro_steps", "t_end",
+    "newton", "constraints", "solver", "energy_warning", "tuning"};
 
 static const char *const slow_rule_keys[] = {"alpha", "gamma", "grid"};
 
