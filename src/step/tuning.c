@@ -8,27 +8,23 @@
 #include <stddef.h>
 #include <string.h>
 
-/* One row of the list with where its value lives in mrvi_tuning. */
-typedef struct tuning_row {
-  mrvi_tuning_info info;
-  size_t offset;
-} tuning_row;
-
+/* The rows of the list, and where each value lives in mrvi_tuning. */
 #define IS_INT_int 1
 #define IS_INT_double 0
-#define TUNING_ROW(type, name, def, lo, hi, meaning)                           \
-  {{#name, def, lo, hi, IS_INT_##type, meaning}, offsetof(mrvi_tuning, name)},
-static const tuning_row rows[] = {MRVI_TUNING_LIST(TUNING_ROW)};
-#undef TUNING_ROW
+#define TUNING_INFO(type, name, def, lo, hi, meaning)                          \
+  {#name, def, lo, hi, IS_INT_##type, meaning},
+#define TUNING_OFFSET(type, name, def, lo, hi, meaning)                        \
+  offsetof(mrvi_tuning, name),
+static const mrvi_tuning_info rows[] = {MRVI_TUNING_LIST(TUNING_INFO)};
+static const size_t offsets[] = {MRVI_TUNING_LIST(TUNING_OFFSET)};
+#undef TUNING_INFO
+#undef TUNING_OFFSET
 
 #define N_ROWS ((int)(sizeof rows / sizeof rows[0]))
 
 const mrvi_tuning_info *mrvi_tuning_table(int *count) {
-  static mrvi_tuning_info info[N_ROWS];
-  for (int i = 0; i < N_ROWS; i++)
-    info[i] = rows[i].info;
   *count = N_ROWS;
-  return info;
+  return rows;
 }
 
 void mrvi_tuning_default(mrvi_tuning *t) {
@@ -37,16 +33,18 @@ void mrvi_tuning_default(mrvi_tuning *t) {
 #undef TUNING_DEFAULT
 }
 
-static const tuning_row *find(const char *name) {
+/* The row named `name`, or -1. */
+static int find(const char *name) {
   for (int i = 0; name && i < N_ROWS; i++)
-    if (strcmp(rows[i].info.name, name) == 0)
-      return &rows[i];
-  return NULL;
+    if (strcmp(rows[i].name, name) == 0)
+      return i;
+  return -1;
 }
 
-static double get(const mrvi_tuning *t, const tuning_row *r) {
-  const char *p = (const char *)t + r->offset;
-  if (r->info.integer) {
+/* The value of row i in t. */
+static double get(const mrvi_tuning *t, int i) {
+  const char *p = (const char *)t + offsets[i];
+  if (rows[i].integer) {
     int v;
     memcpy(&v, p, sizeof v);
     return v;
@@ -56,16 +54,16 @@ static double get(const mrvi_tuning *t, const tuning_row *r) {
   return v;
 }
 
-/* Whether v is a value of row r: in its range, integral for an integer. */
-static int valid(const tuning_row *r, double v, char *msg, size_t len) {
-  if (!(v >= r->info.lowest && v <= r->info.highest)) {
-    mrvi_fmt(msg, len, "tuning %s must lie in [%g, %g] (got %g)", r->info.name,
-             r->info.lowest, r->info.highest, v);
+/* Whether v is a value of row i: in its range, integral for an integer. */
+static int valid(int i, double v, char *msg, size_t len) {
+  const mrvi_tuning_info *r = &rows[i];
+  if (!(v >= r->lowest && v <= r->highest)) {
+    mrvi_fmt(msg, len, "tuning %s must lie in [%g, %g] (got %g)", r->name,
+             r->lowest, r->highest, v);
     return 0;
   }
-  if (r->info.integer && v != floor(v)) {
-    mrvi_fmt(msg, len, "tuning %s must be an integer (got %g)", r->info.name,
-             v);
+  if (r->integer && v != floor(v)) {
+    mrvi_fmt(msg, len, "tuning %s must be an integer (got %g)", r->name, v);
     return 0;
   }
   return 1;
@@ -73,11 +71,11 @@ static int valid(const tuning_row *r, double v, char *msg, size_t len) {
 
 int mrvi_settings_set_tuning(mrvi_settings *s, const char *name, double value,
                              char *msg, size_t len) {
-  const tuning_row *r = find(name);
-  if (!r) {
+  const int i = find(name);
+  if (i < 0) {
     const char *names[N_ROWS];
-    for (int i = 0; i < N_ROWS; i++)
-      names[i] = rows[i].info.name;
+    for (int j = 0; j < N_ROWS; j++)
+      names[j] = rows[j].name;
     const char *hint = name ? mrvi_closest(name, names, N_ROWS) : NULL;
     mrvi_fmt(msg, len,
              "unknown tuning constant '%s'%s%s%s (doc/solver.md, "
@@ -86,10 +84,10 @@ int mrvi_settings_set_tuning(mrvi_settings *s, const char *name, double value,
              hint ? hint : "", hint ? "'?)" : "");
     return MRVI_EINVAL;
   }
-  if (!valid(r, value, msg, len))
+  if (!valid(i, value, msg, len))
     return MRVI_EINVAL;
-  char *p = (char *)&s->tuning + r->offset;
-  if (r->info.integer) {
+  char *p = (char *)&s->tuning + offsets[i];
+  if (rows[i].integer) {
     const int v = (int)value;
     memcpy(p, &v, sizeof v);
   } else {
@@ -100,16 +98,16 @@ int mrvi_settings_set_tuning(mrvi_settings *s, const char *name, double value,
 
 int mrvi_settings_get_tuning(const mrvi_settings *s, const char *name,
                              double *value) {
-  const tuning_row *r = find(name);
-  if (!r)
+  const int i = find(name);
+  if (i < 0)
     return MRVI_EINVAL;
-  *value = get(&s->tuning, r);
+  *value = get(&s->tuning, i);
   return MRVI_OK;
 }
 
 int mrvi_tuning_check(const mrvi_tuning *t, char *msg, size_t len) {
   for (int i = 0; i < N_ROWS; i++)
-    if (!valid(&rows[i], get(t, &rows[i]), msg, len))
+    if (!valid(i, get(t, i), msg, len))
       return MRVI_EINVAL;
   return MRVI_OK;
 }
