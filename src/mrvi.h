@@ -63,6 +63,14 @@ const char *mrvi_version(void);
  * ------------------------------------------------------------------------- */
 #define MRVI_LAW_MAX_PARAMS 8
 
+/* Closed forms of phi a law may declare (mrvi_law.form): the solvers
+ * evaluate them inline, from the parameters, instead of calling eval. */
+typedef enum mrvi_law_form {
+  MRVI_LAW_FORM_NONE = 0,  /* phi by eval alone */
+  MRVI_LAW_FORM_HOOKE = 1, /* phi(s) = k s^2 / 2, k = params[0] */
+  MRVI_LAW_FORM_POWER = 2  /* phi(s) = c s^e, c = params[0], e = params[1] */
+} mrvi_law_form;
+
 typedef struct mrvi_law {
   const char *name;                /* e.g. "power", "linear" */
   const char *summary;             /* one line for `mrvi check` and docs */
@@ -73,6 +81,12 @@ typedef struct mrvi_law {
   /* phi(s), phi'(s), phi''(s). */
   void (*eval)(const double *params, double s, double *phi, double *dphi,
                double *ddphi);
+  /* Properties (optional: NULL / 0 declare none), read when a model is
+   * set up.  The degree of phi as a polynomial in s for these parameters,
+   * or -1 where it is none: a degree <= 2 is a constant Hessian (the
+   * element is quadratic in the coordinates, solved once per run). */
+  int (*degree)(const double *params);
+  mrvi_law_form form; /* consistent with eval and degree */
 } mrvi_law;
 
 /* Add a law to the registry (the pointer must stay valid).  Fails with
@@ -424,6 +438,73 @@ typedef enum mrvi_solver {
   MRVI_SOLVER_GENERAL = 2
 } mrvi_solver;
 
+/* Tuning constants of the step solvers (doc/solver.md, "Tuning"): the
+ * thresholds, caps and tolerances their rules were measured with (the FPU
+ * chain of arXiv 2406.12991 §6), listed once, one row each:
+ *   X(type, name, default, lowest, highest, meaning)
+ * kappa is the slow fixed-point update's contraction dT^2 |M_s^-1 hess_ss
+ * V| / 3 at the initial state, m_min the smallest mass.  The defaults are
+ * set by mrvi_settings_default; mrvi_settings_set_tuning sets one by name
+ * (a description file: integrator.tuning: {name: value}), so that a
+ * benchmark can vary them on systems other than the one they were tuned
+ * on.  Integer rows take integral values alone. */
+#define MRVI_TUNING_LIST(X)                                                    \
+  X(double, pre_kappa, 0.1, 0.0, 1e300,                                        \
+    "the predictor solves the slow row before Newton where kappa exceeds "     \
+    "this")                                                                    \
+  X(double, shoot_pre_kappa, 0.01, 0.0, 1e300,                                 \
+    "... and before shooting where kappa exceeds this")                        \
+  X(int, slow_newton_max, 8, 1, 1000,                                          \
+    "Broyden iterations of one slow solve of the predictor")                   \
+  X(int, slow_newton_n, 64, 0, 4096,                                           \
+    "largest model (coordinates) on which the predictor makes slow Newton "    \
+    "steps and shoots (dense Hessian sum)")                                    \
+  X(int, slow_samples, 16, 1, 1000000,                                         \
+    "points sampled for the slow row's force in the predictor")                \
+  X(int, slow_hess_samples, 8, 1, 1000000,                                     \
+    "samples whose Hessians make the slow solve's first Jacobian")             \
+  X(double, shoot_kappa, 30.0, 0.0, 1e300,                                     \
+    "schur steps shoot on the slow unknowns where kappa is at most this")      \
+  X(double, shoot_hess_kappa, 1e-3, 0.0, 1e300,                                \
+    "shooting's Jacobian takes the sampled Hessian where kappa exceeds "       \
+    "this (else M/dT alone)")                                                  \
+  X(double, shoot_full_kappa, 1.0, 0.0, 1e300,                                 \
+    "... and the Hessians of every point where kappa exceeds this")            \
+  X(double, shoot_last, 0.1, 0.0, 1e300,                                       \
+    "shooting's last update goes without its sweep where the predicted "       \
+    "slow residual is at most this times the target")                          \
+  X(int, shoot_max, 4, 0, 1000,                                                \
+    "slow updates of a shooting step before Newton takes over")                \
+  X(double, chord_max, 4e-4, 0.0, 1e300,                                       \
+    "the chord matrix (frozen Hessians) takes a schur step's first update "    \
+    "where dT^2 norm(H_last - H_first) / m_min is at most this")               \
+  X(double, const_chord_max, 3e-4, 0.0, 1e300,                                 \
+    "the constant chord (factored once per run) takes it where dT^2 "          \
+    "norm(hess Z(q0)) / m_min is at most this")                                \
+  X(int, const_chord_dense, 16, 0, 4096,                                       \
+    "the constant chord's inverse is kept for steps of at most this many "     \
+    "unknowns")                                                                \
+  X(double, reuse_rate, 0.1, 0.0, 1.0,                                         \
+    "kept factors serve the next update while an update contracts the "        \
+    "residual by at most this")                                                \
+  X(double, reuse_tighten, 0.01, 0.0, 1.0,                                     \
+    "Newton and shooting stop at this times the Newton tolerance")             \
+  X(int, dense_max, 64, 0, 1000000,                                            \
+    "largest block (fast, and slow on schur) solved densely; beyond: "         \
+    "sweep-cg and schur-krylov")                                               \
+  X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
+    "relative tolerance of schur-krylov's block CG solves")                    \
+  X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
+    "relative tolerance of schur-krylov's GMRES on the slow unknowns")         \
+  X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
+  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")
+
+typedef struct mrvi_tuning {
+#define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;
+  MRVI_TUNING_LIST(MRVI_TUNING_FIELD)
+#undef MRVI_TUNING_FIELD
+} mrvi_tuning;
+
 typedef struct mrvi_settings {
   char scheme[48];      /* name of the scheme the rules came from */
   mrvi_rule slow;       /* rule for V */
@@ -442,6 +523,7 @@ typedef struct mrvi_settings {
   /* Warn when the run's maximal energy error (mrvi_summary) exceeds this
    * (default 0.1); 0 never warns. */
   double energy_warning;
+  mrvi_tuning tuning; /* MRVI_TUNING_LIST's defaults */
 } mrvi_settings;
 
 /* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it,
@@ -451,6 +533,24 @@ void mrvi_settings_default(mrvi_settings *s);
  * midpoint-midpoint, trapezoidal-midpoint, trapezoidal-trapezoidal,
  * explicit-slow, fully-explicit.  MRVI_EINVAL for an unknown name. */
 int mrvi_settings_set_scheme(mrvi_settings *s, const char *scheme);
+/* Set the tuning constant `name` of MRVI_TUNING_LIST to value: MRVI_EINVAL
+ * with a message (msg may be NULL) for an unknown name (naming the closest
+ * one), a value outside its range or a fraction for an integer constant. */
+int mrvi_settings_set_tuning(mrvi_settings *s, const char *name, double value,
+                             char *msg, size_t len);
+/* The tuning constant `name` into *value; MRVI_EINVAL for an unknown name. */
+int mrvi_settings_get_tuning(const mrvi_settings *s, const char *name,
+                             double *value);
+/* One row of MRVI_TUNING_LIST: its name, default, range and meaning
+ * (integer: 1 for an int constant). */
+typedef struct mrvi_tuning_info {
+  const char *name;
+  double value, lowest, highest;
+  int integer;
+  const char *meaning;
+} mrvi_tuning_info;
+/* The rows of MRVI_TUNING_LIST in its order; *count gets their number. */
+const mrvi_tuning_info *mrvi_tuning_table(int *count);
 /* Step solver path for model m and settings s (doc/solver.md): "explicit"
  * (no Newton), "sweep" (explicit slow update, forward sweep of p implicit
  * micro steps), "schur" (Newton, Schur complement on the slow block),

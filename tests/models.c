@@ -5,7 +5,9 @@
 #include <math.h>
 #include <stdlib.h>
 
-mrvi_model *test_fpu(void) {
+mrvi_model *test_fpu(void) { return test_fpu_laws("power", "linear"); }
+
+mrvi_model *test_fpu_laws(const char *power, const char *linear) {
   mrvi_model *m = mrvi_model_create();
   const char *names[6] = {"qs1", "qs2", "qs3", "qf1", "qf2", "qf3"};
   const double omega = 50.0;
@@ -21,15 +23,15 @@ mrvi_model *test_fpu(void) {
   const double a1[2] = {1, -1}, a4[2] = {1, 1};
   const int c2[4] = {1, 4, 0, 3}, c3[4] = {2, 5, 1, 4};
   const double a23[4] = {1, -1, -1, -1};
-  mrvi_model_add_term(m, MRVI_SLOW, 2, c1, a1, 0.0, "power", pw);
-  mrvi_model_add_term(m, MRVI_SLOW, 4, c2, a23, 0.0, "power", pw);
-  mrvi_model_add_term(m, MRVI_SLOW, 4, c3, a23, 0.0, "power", pw);
-  mrvi_model_add_term(m, MRVI_SLOW, 2, c4, a4, 0.0, "power", pw);
+  mrvi_model_add_term(m, MRVI_SLOW, 2, c1, a1, 0.0, power, pw);
+  mrvi_model_add_term(m, MRVI_SLOW, 4, c2, a23, 0.0, power, pw);
+  mrvi_model_add_term(m, MRVI_SLOW, 4, c3, a23, 0.0, power, pw);
+  mrvi_model_add_term(m, MRVI_SLOW, 2, c4, a4, 0.0, power, pw);
   /* W = omega^2/2 |qf|^2 */
   const double k[1] = {omega * omega};
   for (int i = 3; i < 6; i++) {
     const double one = 1.0;
-    mrvi_model_add_term(m, MRVI_FAST, 1, &i, &one, 0.0, "linear", k);
+    mrvi_model_add_term(m, MRVI_FAST, 1, &i, &one, 0.0, linear, k);
   }
   mrvi_model_set_name(m, "fpu");
   return m;

@@ -8,6 +8,9 @@
 
 /* FPU (§6): l = 3, unit masses, omega^2 = 2500. */
 mrvi_model *test_fpu(void);
+/* The same with the laws of V and W named (tables like power's and
+ * linear's). */
+mrvi_model *test_fpu_laws(const char *power, const char *linear);
 /* Spring ring (§6): 6 particles of mass 2 in 3-D, odd slow, even fast. */
 mrvi_model *test_spring_ring(void);
 /* Harmonic oscillator, slow only: V = omega^2 q^2 / 2, unit mass. */

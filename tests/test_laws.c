@@ -607,7 +607,131 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
   free(gm);
 }
 
+/* A law's properties are fields of its table (degree, form), and they
+ * agree with its eval: a degree <= 2 has a constant phi'', a form gives phi
+ * in closed form. */
+static void check_law_properties(void) {
+  const double params[][MRVI_LAW_MAX_PARAMS] = {
+      {1.25, 4}, {0.7, 2}, {-0.3, 3}, {2.0, 1}, {1.0, 2.5}, {0.5, 0}};
+  const double strains[] = {0.3, 0.7, 1.3, 1.9};
+  for (int i = 0; i < mrvi_law_count(); i++) {
+    const mrvi_law *law = mrvi_law_get(i);
+    for (size_t a = 0; a < sizeof params / sizeof params[0]; a++) {
+      const double *par = params[a];
+      char msg[128];
+      if (law->check && law->check(par, msg, sizeof msg) < 0)
+        continue;
+      const int d = law->degree ? law->degree(par) : -1;
+      double lo = INFINITY, hi = -INFINITY;
+      for (size_t b = 0; b < sizeof strains / sizeof strains[0]; b++) {
+        const double s = strains[b];
+        double f, df, ddf;
+        law->eval(par, s, &f, &df, &ddf);
+        lo = fmin(lo, ddf);
+        hi = fmax(hi, ddf);
+        if (law->form == MRVI_LAW_FORM_HOOKE)
+          CHECK(f == 0.5 * par[0] * s * s && df == par[0] * s && ddf == par[0],
+                "%s (%g): not k s^2 / 2 at s = %g", law->name, par[0], s);
+        if (law->form == MRVI_LAW_FORM_POWER)
+          CHECK_NEAR(f, par[0] * pow(s, par[1]), 1e-14 * fabs(f), law->name);
+      }
+      /* phi'' constant exactly where the degree says <= 2 */
+      const int flat = hi - lo <= 1e-14 * fabs(hi);
+      CHECK(flat == (d >= 0 && d <= 2),
+            "%s (%g, %g): degree %d, phi'' from %g to %g", law->name, par[0],
+            par[1], d, lo, hi);
+    }
+  }
+}
+
+/* The solvers read a law's fields, never which table it is: copies of the
+ * power and linear tables under other names give the FPU bitwise the same
+ * run on every path (schur with the constant chord and with shooting,
+ * sweep, explicit, general); a user law is quadratic by its degree; a form
+ * without the parameters it reads is refused. */
+static mrvi_law power_copy, linear_copy;
+static void cubic_like(const double *par, double s, double *phi, double *dphi,
+                       double *ddphi) {
+  *phi = par[0] * s * s;
+  *dphi = 2 * par[0] * s;
+  *ddphi = 2 * par[0];
+}
+static int degree_two(const double *par) {
+  (void)par;
+  return 2;
+}
+static void check_law_copies(void) {
+  power_copy = *mrvi_law_find("power");
+  power_copy.name = "power-copy";
+  linear_copy = *mrvi_law_find("linear");
+  linear_copy.name = "linear-copy";
+  CHECK(mrvi_law_register(&power_copy) == 0 &&
+            mrvi_law_register(&linear_copy) == 0,
+        "register the copies");
+  mrvi_model *a = test_fpu(), *b = test_fpu_laws("power-copy", "linear-copy");
+  static const struct {
+    const char *scheme;
+    double dT;
+    int p;
+    mrvi_solver solver;
+  } runs[] = {{"midpoint-midpoint", 0.002, 2, MRVI_SOLVER_AUTO},
+              {"trapezoidal-trapezoidal", 0.01, 10, MRVI_SOLVER_AUTO},
+              {"explicit-slow", 0.01, 5, MRVI_SOLVER_AUTO},
+              {"fully-explicit", 0.01, 5, MRVI_SOLVER_AUTO},
+              {"midpoint-midpoint", 0.01, 5, MRVI_SOLVER_GENERAL}};
+  for (size_t r = 0; a && b && r < sizeof runs / sizeof runs[0]; r++) {
+    mrvi_settings s =
+        test_settings(runs[r].scheme, runs[r].dT, runs[r].p, 1.0, 1e-10);
+    s.solver = runs[r].solver;
+    mrvi_integrator *ia = NULL, *ib = NULL;
+    char msg[300];
+    int ok = mrvi_integrator_create(a, &s, &ia, msg, sizeof msg) == 0 &&
+             mrvi_integrator_create(b, &s, &ib, msg, sizeof msg) == 0;
+    for (int k = 0; ok && k < 20; k++)
+      ok = mrvi_integrator_step(ia) == 0 && mrvi_integrator_step(ib) == 0 &&
+           memcmp(mrvi_integrator_q(ia), mrvi_integrator_q(ib),
+                  6 * sizeof(double)) == 0 &&
+           memcmp(mrvi_integrator_p(ia), mrvi_integrator_p(ib),
+                  6 * sizeof(double)) == 0;
+    CHECK(ok, "fpu %s (%s) with copied laws: not bitwise the same (%s)",
+          runs[r].scheme, ia ? mrvi_integrator_solver_path(ia) : "-", msg);
+    mrvi_integrator_free(ia);
+    mrvi_integrator_free(ib);
+  }
+  mrvi_model_free(a);
+  mrvi_model_free(b);
+
+  static const char *const names[] = {"c"};
+  static mrvi_law square = {.name = "square",
+                            .summary = "c s^2",
+                            .n_params = 1,
+                            .param_names = names,
+                            .eval = cubic_like};
+  CHECK(mrvi_law_register(&square) == 0, "register square");
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_add_coordinate(m, "q", 1, MRVI_SLOW, 0.5, 0);
+  const int c = 0;
+  const double one = 1, par[1] = {2.0};
+  CHECK(mrvi_model_add_term(m, MRVI_SLOW, 1, &c, &one, 0, "square", par) == 0,
+        "term with square");
+  CHECK(!mrvi_element_is_quadratic(&m->elements[0]),
+        "a law without a degree taken as quadratic");
+  square.degree = degree_two; /* (read when asked) */
+  CHECK(mrvi_element_is_quadratic(&m->elements[0]),
+        "a law of degree 2 not taken as quadratic");
+  mrvi_model_free(m);
+  static mrvi_law bad = {.name = "bad-power",
+                         .n_params = 1,
+                         .param_names = names,
+                         .eval = cubic_like,
+                         .form = MRVI_LAW_FORM_POWER};
+  CHECK(mrvi_law_register(&bad) == MRVI_EINVAL,
+        "a power form with one parameter registered");
+}
+
 int main(void) {
+  check_law_properties();
+  check_law_copies();
   check_laws();
   check_pair_laws();
   check_angles_forces();

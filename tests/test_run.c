@@ -326,8 +326,16 @@ static void cubic_eval(const double *par, double s, double *phi, double *dphi,
   *ddphi = 6 * par[0] * s;
 }
 static const char *const cubic_names[] = {"c"};
-static const mrvi_law cubic = {"cubic",     "c s^3", 1,
-                               cubic_names, NULL,    cubic_eval};
+static int cubic_degree(const double *par) {
+  (void)par;
+  return 3;
+}
+static const mrvi_law cubic = {.name = "cubic",
+                               .summary = "c s^3",
+                               .n_params = 1,
+                               .param_names = cubic_names,
+                               .eval = cubic_eval,
+                               .degree = cubic_degree};
 
 static void user_law(void) {
   CHECK(mrvi_law_register(&cubic) == 0, "register");

@@ -1442,7 +1442,167 @@ static void test_direct(void) {
   mrvi_model_free(ring);
 }
 
+/* The path names (MRVI_PATH_LIST, the one list): distinct, each a row of
+ * doc/solver.md's table of paths, and the name the integrator reports for
+ * the path it chose. */
+static void test_path_names(void) {
+  FILE *f = fopen(test_source_path("doc/solver.md"), "r");
+  static char doc[1 << 18];
+  const size_t n = f ? fread(doc, 1, sizeof doc - 1, f) : 0;
+  doc[n] = '\0';
+  if (f)
+    fclose(f);
+  for (int i = 0; i < MRVI_N_PATHS; i++) {
+    const char *name = mrvi_path_name(i);
+    char row[80];
+    snprintf(row, sizeof row, "\n| `%s` |", name);
+    CHECK(strstr(doc, row) != NULL, "doc/solver.md: no row for path %s", name);
+    for (int j = 0; j < i; j++)
+      CHECK(strcmp(name, mrvi_path_name(j)) != 0, "path %d and %d: %s", i, j,
+            name);
+  }
+  CHECK(strcmp(mrvi_path_name(MRVI_N_PATHS), "unknown") == 0, "path %d: %s",
+        MRVI_N_PATHS, mrvi_path_name(MRVI_N_PATHS));
+  /* (the fpu by each scheme: schur, sweep, explicit; general forced) */
+  static const char *const schemes[] = {"midpoint-midpoint", "explicit-slow",
+                                        "fully-explicit", "midpoint-midpoint"};
+  static const char *const want[] = {"schur", "sweep", "explicit", "general"};
+  mrvi_model *m = test_fpu();
+  for (int k = 0; k < 4; k++) {
+    mrvi_settings s = test_settings(schemes[k], 0.01, 2, 0.02, 1e-9);
+    s.solver = k == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
+    mrvi_integrator *it = NULL;
+    char msg[300];
+    CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0 &&
+              strcmp(mrvi_integrator_solver_path(it), want[k]) == 0 &&
+              strcmp(mrvi_solver_path(m, &s, NULL, 0), want[k]) == 0 &&
+              mrvi_integrator_step(it) == 0,
+          "fpu %s: path %s, want %s (%s)", schemes[k],
+          it ? mrvi_integrator_solver_path(it) : "-", want[k], msg);
+    mrvi_integrator_free(it);
+  }
+  mrvi_model_free(m);
+}
+
+/* The tuning constants (mrvi.h, MRVI_TUNING_LIST; doc/solver.md,
+ * "Tuning"): the defaults are the table's, every name can be set and read
+ * back, unknown names and bad values are refused with a clear message, the
+ * doc's table equals the code's, and changing a value changes the choice
+ * it governs: dense_max the path, shoot_kappa whether steps shoot. */
+static void test_tuning(void) {
+  int count;
+  const mrvi_tuning_info *t = mrvi_tuning_table(&count);
+  mrvi_settings s;
+  mrvi_settings_default(&s);
+  char msg[300];
+  CHECK(count >= 16, "%d tuning constants", count);
+  for (int i = 0; i < count; i++) {
+    double v = -1.0;
+    CHECK(mrvi_settings_get_tuning(&s, t[i].name, &v) == 0 && v == t[i].value,
+          "tuning %s: default %g, table %g", t[i].name, v, t[i].value);
+    /* (each end of the range, then back) */
+    const double ends[3] = {t[i].lowest, t[i].highest, t[i].value};
+    for (int e = 0; e < 3; e++) {
+      const int st =
+          mrvi_settings_set_tuning(&s, t[i].name, ends[e], msg, sizeof msg);
+      CHECK(st == 0 && mrvi_settings_get_tuning(&s, t[i].name, &v) == 0 &&
+                v == ends[e] && mrvi_settings_check(&s, msg, sizeof msg) == 0,
+            "tuning %s = %g: status %d, read %g (%s)", t[i].name, ends[e], st,
+            v, msg);
+    }
+    CHECK(mrvi_settings_set_tuning(&s, t[i].name, t[i].lowest - 1.0, msg,
+                                   sizeof msg) == MRVI_EINVAL &&
+              strstr(msg, t[i].name) && strstr(msg, "must lie in"),
+          "tuning %s below its range: '%s'", t[i].name, msg);
+    CHECK(mrvi_settings_set_tuning(&s, t[i].name, NAN, msg, sizeof msg) ==
+              MRVI_EINVAL,
+          "tuning %s = NaN accepted", t[i].name);
+    if (t[i].integer)
+      CHECK(mrvi_settings_set_tuning(&s, t[i].name, t[i].value + 0.5, msg,
+                                     sizeof msg) == MRVI_EINVAL &&
+                strstr(msg, "integer"),
+            "tuning %s = %g: '%s'", t[i].name, t[i].value + 0.5, msg);
+  }
+  mrvi_settings d;
+  mrvi_settings_default(&d);
+  CHECK(memcmp(&s.tuning, &d.tuning, sizeof d.tuning) == 0,
+        "tuning not back at its defaults");
+  CHECK(mrvi_settings_set_tuning(&s, "shoot_kapa", 1.0, msg, sizeof msg) ==
+                MRVI_EINVAL &&
+            strstr(msg, "unknown tuning constant 'shoot_kapa'") &&
+            strstr(msg, "did you mean 'shoot_kappa'"),
+        "unknown name: '%s'", msg);
+  double v;
+  CHECK(mrvi_settings_get_tuning(&s, "no_such_constant", &v) == MRVI_EINVAL,
+        "get of an unknown name");
+  s.tuning.dense_max = -1; /* (set directly: the check sees it) */
+  CHECK(mrvi_settings_check(&s, msg, sizeof msg) == MRVI_EINVAL &&
+            strstr(msg, "dense_max"),
+        "dense_max = -1 passed the check: '%s'", msg);
+
+  /* The doc's table: one row per constant, `name` | default | meaning. */
+  FILE *f = fopen(test_source_path("doc/solver.md"), "r");
+  CHECK(f != NULL, "doc/solver.md not found");
+  if (f) {
+    static char doc[1 << 18];
+    const size_t n = fread(doc, 1, sizeof doc - 1, f);
+    doc[n] = '\0';
+    fclose(f);
+    const char *sec = strstr(doc, "\n## Tuning\n");
+    CHECK(sec != NULL, "doc/solver.md: no Tuning section");
+    const char *end = sec ? strstr(sec + 1, "\n## ") : NULL;
+    int rows = 0;
+    for (const char *l = sec;
+         l && (l = strstr(l, "\n| `")) && (!end || l < end); l++)
+      rows++;
+    CHECK(rows == count, "doc/solver.md, Tuning: %d rows, the code %d", rows,
+          count);
+    for (int i = 0; sec && i < count; i++) {
+      char row[600];
+      snprintf(row, sizeof row, "\n| `%s` | %g | %s |\n", t[i].name, t[i].value,
+               t[i].meaning);
+      CHECK(strstr(sec, row) != NULL, "doc/solver.md, Tuning: no row%s", row);
+    }
+  }
+
+  /* dense_max: the fpu's blocks (3 slow, 3 fast) beyond it take the
+   * Krylov form of the schur path. */
+  mrvi_model *m = test_fpu();
+  mrvi_settings_default(&s);
+  CHECK(strcmp(mrvi_solver_path(m, &s, NULL, 0), "schur") == 0,
+        "fpu midpoint-midpoint: %s", mrvi_solver_path(m, &s, NULL, 0));
+  mrvi_settings_set_tuning(&s, "dense_max", 2, msg, sizeof msg);
+  CHECK(strcmp(mrvi_solver_path(m, &s, NULL, 0), "schur-krylov") == 0,
+        "fpu midpoint-midpoint, dense_max 2: %s",
+        mrvi_solver_path(m, &s, NULL, 0));
+  mrvi_settings_set_scheme(&s, "explicit-slow");
+  CHECK(strcmp(mrvi_solver_path(m, &s, NULL, 0), "sweep-cg") == 0,
+        "fpu explicit-slow, dense_max 2: %s", mrvi_solver_path(m, &s, NULL, 0));
+  mrvi_model_free(m);
+
+  /* shoot_kappa: trapezoidal-trapezoidal at p = 10 shoots every step by
+   * its rule (test_shoot); with shoot_kappa 0 below the run's kappa, none,
+   * and the same solution to the tolerance. */
+  mrvi_system *sys = fpu_at("trapezoidal-trapezoidal", "0.01", 10, "1e-12");
+  if (sys) {
+    static run_out au, no;
+    run(sys, &au);
+    CHECK(mrvi_settings_set_tuning(&sys->settings, "shoot_kappa", 0.0, msg,
+                                   sizeof msg) == 0,
+          "%s", msg);
+    run(sys, &no);
+    CHECK(au.ok && no.ok && au.nshoot == N_STEPS && no.nshoot == 0 &&
+              rel_diff(&au, &no) <= 1e-10,
+          "fpu trapezoidal-trapezoidal p=10: %ld steps shot by default, %ld "
+          "with shoot_kappa 0, %.2e apart",
+          au.nshoot, no.nshoot, rel_diff(&au, &no));
+    mrvi_system_free(sys);
+  }
+}
+
 int main(void) {
+  test_tuning();
+  test_path_names();
   test_direct();
   test_chord();
   test_const_chord();

@@ -359,6 +359,21 @@ static void print_names(const mrvi_model *m, const char *label,
   putchar('\n');
 }
 
+/* The tuning constants that differ from their defaults (doc/solver.md,
+ * "Tuning"). */
+static void print_tuning(const mrvi_settings *s) {
+  int count;
+  const mrvi_tuning_info *t = mrvi_tuning_table(&count);
+  const char *label = "tuning";
+  for (int i = 0; i < count; i++) {
+    double v;
+    if (mrvi_settings_get_tuning(s, t[i].name, &v) == 0 && v != t[i].value) {
+      printf("%-14s%s = %g (default %g)\n", label, t[i].name, v, t[i].value);
+      label = "";
+    }
+  }
+}
+
 static void print_rule(const char *label, mrvi_rule r, const char *grid) {
   printf("  %-12salpha = %g, gamma = %g, %s grid\n", label, r.alpha, r.gamma,
          grid);
@@ -451,6 +466,7 @@ static int cmd_check(int argc, char **argv) {
     printf("%-14s%s: %s\n", "solver", path ? path : "structured unavailable",
            why);
   }
+  print_tuning(s);
   if (nc > 0)
     printf("%-14s%s form, tolerance %g, momentum projection %s\n",
            "constraints",

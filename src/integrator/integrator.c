@@ -14,20 +14,21 @@ struct mrvi_integrator {
   mrvi_settings settings;
   mrvi_step step;
   mrvi_newton *newton;
-  mrvi_nullspace *nullspace; /* null-space form only */
-  int path;                  /* MRVI_PATH_* (doc/solver.md) */
-  mrvi_sweep *sweep;         /* explicit, sweep and sweep-cg paths */
-  int sweep_tight;           /* mrvi_sweep_tight(sweep) */
-  mrvi_blocks *blocks;       /* schur path */
-  mrvi_skrylov *skrylov;     /* schur-krylov path */
-  mrvi_predictor *predictor; /* Newton paths */
-  int factors_ok;            /* factors of this step's Jacobian are kept */
-  char why[240];             /* reason for the path */
-  double *qs_prev, *qf_prev; /* q_k^s, q_k^{f,0} of the last step (packed) */
-  mrvi_newton *jac_nw;       /* full-step factors for jacobian_solve */
-  int jac_ready;             /* jac_nw holds the last step's Jacobian */
-  double *rhs;               /* reduced right-hand side (null-space form) */
-  double t0;                 /* time of node k = 0 */
+  mrvi_nullspace *nullspace;  /* null-space form only */
+  int path;                   /* MRVI_PATH_* (doc/solver.md) */
+  const struct path_ops *ops; /* its row of `paths` (end of the file) */
+  mrvi_sweep *sweep;          /* explicit, sweep and sweep-cg paths */
+  int sweep_tight;            /* mrvi_sweep_tight(sweep) */
+  mrvi_blocks *blocks;        /* schur path */
+  mrvi_skrylov *skrylov;      /* schur-krylov path */
+  mrvi_predictor *predictor;  /* Newton paths */
+  int factors_ok;             /* factors of this step's Jacobian are kept */
+  char why[240];              /* reason for the path */
+  double *qs_prev, *qf_prev;  /* q_k^s, q_k^{f,0} of the last step (packed) */
+  mrvi_newton *jac_nw;        /* full-step factors for jacobian_solve */
+  int jac_ready;              /* jac_nw holds the last step's Jacobian */
+  double *rhs;                /* reduced right-hand side (null-space form) */
+  double t0;                  /* time of node k = 0 */
   long k;
   double *q, *p;             /* model order, n */
   double *qs, *qf, *ps, *pf; /* rate blocks of the state */
@@ -63,37 +64,51 @@ struct mrvi_integrator {
 static int fail(mrvi_integrator *it, int status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 
-/* Largest residual ratio of an update with kept factors (schur path) for
- * which they are kept for the next update, and the factor below the
- * tolerance at which such updates stop. */
-#define MRVI_REUSE_RATE 0.1
-#define MRVI_REUSE_TIGHTEN 0.01
+/* A step solver path (doc/solver.md) as the integrator drives it: its
+ * set-up after the common part of mrvi_integrator_create, its macro step
+ * and what it frees; the Newton paths also evaluate the residual (and
+ * Jacobian) their way and make one Newton update from it. */
+typedef struct path_ops {
+  int (*create)(mrvi_integrator *it, char *msg, size_t len);
+  int (*step)(mrvi_integrator *it);
+  /* The residual at x (and, if jac, the Jacobian) into it->R. */
+  int (*assemble)(mrvi_integrator *it, int jac, char *msg, size_t len);
+  /* One Newton update (x -= dx) from it->R at x, factorised afresh when
+   * `fresh`, else with the factors kept from an earlier iterate. */
+  int (*update)(mrvi_integrator *it, int fresh, char *msg, size_t len);
+  void (*free)(mrvi_integrator *it);
+  int keeps_factors; /* updates may reuse the factors (simplified Newton) */
+} path_ops;
 
-/* Largest a-priori error measure dT^2 |H_last - H_first| / m_min of the
- * chord matrix (frozen Hessians, schur path) for which the first update of
- * a step uses it (doc/solver.md, "Newton details"): FPU, dt = 0.001, the
- * measure is 1e-5 at dT = 0.01, where one chord update contracts the
- * residual by 5e-7 (as exact Newton lands, below 0.01 tol), 2.7e-4..4.3e-4
- * at dT = 0.03, where 1.1-1.5 updates per step follow (a second update with
- * the kept factors costs about what the chord saves, so the chord pays up
- * to about 1.8), and 1e-2 at dT = 0.1, where it contracts by 1e-4..1e-3
- * and two updates are needed. */
-#define MRVI_CHORD_MAX 4e-4
+/* The row of MRVI_PATH_* (the table, `paths`, ends the file). */
+static const path_ops *path_ops_of(int path);
 
-/* Largest a-priori measure e = dT^2 |hess Z(q0)|_inf / m_min of the
- * constant chord (the Newton matrix without the Hessians that are not
- * constant, factored once per run; doc/solver.md, "Newton details") for
- * which the first update of a step uses it.  FPU midpoint-midpoint, tol
- * 1e-9, dt = 0.001 (e = 1.8e-5 dT^2/dt^2): at p = 1 one update per step up
- * to dT = 0.0015 (e = 4e-5), 1.45 at 0.002 (still 15 % faster than exact
- * Newton), 2 from 0.003 (e = 1.6e-4, 3 % slower); at p = 2 / 3 / 4 / 5
- * (e = 7e-5 / 1.6e-4 / 2.9e-4 / 4.6e-4) 1.00 / 1.13 / 1.28 / 1.47 updates,
- * 42 / 31 / 22 / 8 % faster; at p = 10 (1.8e-3) 1.89, 8 % slower. */
-#define MRVI_CCHORD_MAX 3e-4
-
-/* Most slow updates of a shooting step (mrvi_predict_shoot) before Newton
- * takes over from its iterate. */
-#define MRVI_SHOOT_MAX 4
+/* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; tn
+ * below), with what their defaults were measured on:
+ *  - reuse_rate, reuse_tighten: the largest residual ratio of an update with
+ *    kept factors (schur path) for which they are kept for the next update,
+ *    and the factor below the tolerance at which such updates stop.
+ *  - chord_max: the largest a-priori error measure dT^2 |H_last - H_first|
+ *    / m_min of the chord matrix (frozen Hessians, schur path) for which the
+ *    first update of a step uses it (doc/solver.md, "Newton details"): FPU,
+ *    dt = 0.001, the measure is 1e-5 at dT = 0.01, where one chord update
+ *    contracts the residual by 5e-7 (as exact Newton lands, below 0.01
+ *    tol), 2.7e-4..4.3e-4 at dT = 0.03, where 1.1-1.5 updates per step
+ *    follow (a second update with the kept factors costs about what the
+ *    chord saves, so the chord pays up to about 1.8), and 1e-2 at dT = 0.1,
+ *    where it contracts by 1e-4..1e-3 and two updates are needed.
+ *  - const_chord_max: the largest a-priori measure e = dT^2 |hess Z(q0)|_inf
+ *    / m_min of the constant chord (the Newton matrix without the Hessians
+ *    that are not constant, factored once per run; doc/solver.md, "Newton
+ *    details") for which the first update of a step uses it.  FPU
+ *    midpoint-midpoint, tol 1e-9, dt = 0.001 (e = 1.8e-5 dT^2/dt^2): at p =
+ *    1 one update per step up to dT = 0.0015 (e = 4e-5), 1.45 at 0.002
+ *    (still 15 % faster than exact Newton), 2 from 0.003 (e = 1.6e-4, 3 %
+ *    slower); at p = 2 / 3 / 4 / 5 (e = 7e-5 / 1.6e-4 / 2.9e-4 / 4.6e-4)
+ *    1.00 / 1.13 / 1.28 / 1.47 updates, 42 / 31 / 22 / 8 % faster; at p =
+ *    10 (1.8e-3) 1.89, 8 % slower.
+ *  - shoot_max: the most slow updates of a shooting step
+ *    (mrvi_predict_shoot) before Newton takes over from its iterate. */
 
 /* The assembly and solve times (mrvi_integrator_timing) are measured on
  * one step in MRVI_TIME_EVERY and scaled to all steps: a clock read costs
@@ -120,14 +135,10 @@ const char *mrvi_integrator_errmsg(const mrvi_integrator *it) {
 void mrvi_integrator_free(mrvi_integrator *it) {
   if (!it)
     return;
-  mrvi_newton_free(it->newton);
+  if (it->ops)
+    it->ops->free(it);
   mrvi_newton_free(it->jac_nw);
-  mrvi_sweep_free(it->sweep);
-  mrvi_blocks_free(it->blocks);
-  mrvi_skrylov_free(it->skrylov);
-  mrvi_predictor_free(it->predictor);
   free(it->qs_prev); /* qf_prev inside */
-  mrvi_nullspace_free(it->nullspace);
   free(it->rhs);
   mrvi_step_free(&it->step);
   free(it->q);
@@ -356,6 +367,97 @@ static void explain_micro(const mrvi_integrator *it, char *msg, size_t len) {
            names, st->r_micro, st->p);
 }
 
+/* The explicit, sweep and sweep-cg paths (solver/sweep.c): no Newton
+ * matrix of the whole step (the Jacobian pattern is built on demand by
+ * mrvi_integrator_jacobian_solve). */
+static int sweep_create(mrvi_integrator *it, char *msg, size_t len) {
+  if (mrvi_sweep_create(&it->step, &it->settings, &it->sweep) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  it->sweep_tight = mrvi_sweep_tight(it->sweep);
+  return MRVI_OK;
+}
+
+static void sweep_free(mrvi_integrator *it) { mrvi_sweep_free(it->sweep); }
+
+/* The Newton paths' common set-up: the predictor, the Jacobian pattern
+ * and the residual and Jacobian at the predictor (pattern and symbolic
+ * analysis once per run). */
+static int newton_paths_create(mrvi_integrator *it, char *msg, size_t len) {
+  if (mrvi_predictor_create(it->model, &it->step, &it->predictor) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  mrvi_predictor_set_tolerance(it->predictor, it->settings.newton_tol);
+  predict(it);
+  if (mrvi_step_build_pattern(&it->step, it->x) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  mrvi_step_assemble(&it->step, it->x, it->R, 1);
+  return MRVI_OK;
+}
+
+/* The general path: the sparse LU of the whole step's Jacobian, or in the
+ * null-space form (constraints only) of its reduced rows. */
+static int general_create(mrvi_integrator *it, char *msg, size_t len) {
+  mrvi_step *sp = &it->step;
+  int st = newton_paths_create(it, msg, len);
+  if (st < 0)
+    return st;
+  if (it->settings.constraint_form == MRVI_FORM_NULL_SPACE &&
+      sp->n_lambda > 0) {
+    /* Values for the symbolic analysis: lambda(x) and the reduced rows at
+     * the predictor. */
+    if ((st = mrvi_nullspace_create(sp, &it->nullspace, msg, len)) < 0 ||
+        (mrvi_step_assemble(sp, it->x, it->R, 0),
+         st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
+                                    len)) < 0)
+      return st;
+    mrvi_step_assemble(sp, it->x, it->R, 1);
+    mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
+    it->newton =
+        mrvi_newton_create(sp->n_unknowns, mrvi_nullspace_Ap(it->nullspace),
+                           mrvi_nullspace_Ai(it->nullspace),
+                           mrvi_nullspace_Ax(it->nullspace), msg, len);
+  } else {
+    it->newton =
+        mrvi_newton_create(sp->n_total, sp->Ap, sp->Ai, sp->Ax, msg, len);
+  }
+  return it->newton ? MRVI_OK : MRVI_ESINGULAR;
+}
+
+static void general_free(mrvi_integrator *it) {
+  mrvi_newton_free(it->newton);
+  mrvi_nullspace_free(it->nullspace);
+  mrvi_predictor_free(it->predictor);
+}
+
+/* The schur path (solver/blocks.c): its blocks, the constant chord's
+ * measure and whether its steps may shoot (run constants). */
+static int schur_create(mrvi_integrator *it, char *msg, size_t len) {
+  int st = newton_paths_create(it, msg, len);
+  if (st < 0)
+    return st;
+  if (mrvi_blocks_create(&it->step, &it->blocks) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  it->cchord_e = it->step.dT * it->step.dT *
+                 mrvi_blocks_const_measure(it->blocks, &it->step);
+  it->shoot_ok = mrvi_predictor_shoot_ok(it->predictor, &it->step);
+  return MRVI_OK;
+}
+
+static void schur_free(mrvi_integrator *it) {
+  mrvi_blocks_free(it->blocks);
+  mrvi_predictor_free(it->predictor);
+}
+
+/* The schur-krylov path (solver/schur_krylov.c). */
+static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
+  const int st = newton_paths_create(it, msg, len);
+  return st < 0 ? st : mrvi_skrylov_create(&it->step, &it->skrylov, msg, len);
+}
+
+static void skrylov_free(mrvi_integrator *it) {
+  mrvi_skrylov_free(it->skrylov);
+  mrvi_predictor_free(it->predictor);
+}
+
 int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
                            mrvi_integrator **out, char *msg, size_t len) {
   *out = NULL;
@@ -464,63 +566,10 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;
   it->step.pf0 = it->pf;
-  if (it->path == MRVI_PATH_EXPLICIT || it->path == MRVI_PATH_SWEEP ||
-      it->path == MRVI_PATH_SWEEP_CG) {
-    /* No Newton matrix of the whole step (the Jacobian pattern is built
-     * on demand by mrvi_integrator_jacobian_solve). */
-    if (mrvi_sweep_create(&it->step, s, &it->sweep) < 0)
-      goto oom;
-    it->sweep_tight = mrvi_sweep_tight(it->sweep);
-    *out = it;
-    return MRVI_OK;
-  }
-  /* Pattern and symbolic analysis once per run. */
-  if (mrvi_predictor_create(m, &it->step, &it->predictor) < 0)
-    goto oom;
-  mrvi_predictor_set_tolerance(it->predictor, s->newton_tol);
-  predict(it);
-  if ((st = mrvi_step_build_pattern(&it->step, it->x)) < 0)
-    goto oom;
-  mrvi_step_assemble(&it->step, it->x, it->R, 1);
-  if (s->constraint_form == MRVI_FORM_NULL_SPACE && it->step.n_lambda > 0) {
-    /* Values for the symbolic analysis: lambda(x) and the reduced rows at
-     * the predictor. */
-    mrvi_step *sp = &it->step;
-    if ((st = mrvi_nullspace_create(sp, &it->nullspace, msg, len)) < 0 ||
-        (mrvi_step_assemble(sp, it->x, it->R, 0),
-         st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
-                                    len)) < 0) {
-      mrvi_integrator_free(it);
-      return st;
-    }
-    mrvi_step_assemble(sp, it->x, it->R, 1);
-    mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
-    it->newton = mrvi_newton_create(it->step.n_unknowns,
-                                    mrvi_nullspace_Ap(it->nullspace),
-                                    mrvi_nullspace_Ai(it->nullspace),
-                                    mrvi_nullspace_Ax(it->nullspace), msg, len);
-  } else if (it->path == MRVI_PATH_SCHUR) {
-    if (mrvi_blocks_create(&it->step, &it->blocks) < 0)
-      goto oom;
-    it->cchord_e = it->step.dT * it->step.dT *
-                   mrvi_blocks_const_measure(it->blocks, &it->step);
-    it->shoot_ok = mrvi_predictor_shoot_ok(it->predictor, &it->step);
-    *out = it;
-    return MRVI_OK;
-  } else if (it->path == MRVI_PATH_SCHUR_KRYLOV) {
-    if ((st = mrvi_skrylov_create(&it->step, &it->skrylov, msg, len)) < 0) {
-      mrvi_integrator_free(it);
-      return st;
-    }
-    *out = it;
-    return MRVI_OK;
-  } else {
-    it->newton = mrvi_newton_create(it->step.n_total, it->step.Ap, it->step.Ai,
-                                    it->step.Ax, msg, len);
-  }
-  if (!it->newton) {
+  it->ops = path_ops_of(it->path);
+  if ((st = it->ops->create(it, msg, len)) < 0) {
     mrvi_integrator_free(it);
-    return MRVI_ESINGULAR;
+    return st;
   }
   *out = it;
   return MRVI_OK;
@@ -592,12 +641,11 @@ static void residual_norms(const mrvi_integrator *it, double *dyn,
       st->n_lambda > 0 ? norm_inf(it->R + st->n_unknowns, st->n_lambda) : 0.0;
 }
 
-/* Residual (and, if jac, the Jacobian) at the current x.  In the null-space
- * form the multipliers are first set to lambda(x) from the residual at
- * lambda = 0. */
-static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
+/* The general path's residual: in the null-space form the multipliers are
+ * first set to lambda(x) from the residual at lambda = 0. */
+static int general_assemble(mrvi_integrator *it, int jac, char *msg,
+                            size_t len) {
   mrvi_step *st = &it->step;
-  const double t = tick(it);
   if (it->nullspace) {
     memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
     mrvi_step_assemble(st, it->x, it->R, 0);
@@ -605,12 +653,33 @@ static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
     if (s < 0)
       return s;
   }
-  /* The schur path assembles its blocks directly (no CSC). */
-  if (!it->blocks ||
-      mrvi_blocks_assemble(it->blocks, st, it->x, it->R, jac) != MRVI_OK)
-    mrvi_step_assemble(st, it->x, it->R, jac);
-  it->t_assemble += tick(it) - t;
+  mrvi_step_assemble(st, it->x, it->R, jac);
   return MRVI_OK;
+}
+
+/* The schur path assembles its blocks directly (no CSC) where it can. */
+static int schur_assemble(mrvi_integrator *it, int jac, char *msg, size_t len) {
+  (void)msg, (void)len;
+  mrvi_step *st = &it->step;
+  if (mrvi_blocks_assemble(it->blocks, st, it->x, it->R, jac) != MRVI_OK)
+    mrvi_step_assemble(st, it->x, it->R, jac);
+  return MRVI_OK;
+}
+
+/* The schur-krylov path reads the CSC Jacobian. */
+static int csc_assemble(mrvi_integrator *it, int jac, char *msg, size_t len) {
+  (void)msg, (void)len;
+  mrvi_step_assemble(&it->step, it->x, it->R, jac);
+  return MRVI_OK;
+}
+
+/* Residual (and, if jac, the Jacobian) at the current x, by the path. */
+static int evaluate(mrvi_integrator *it, int jac, char *msg, size_t len) {
+  const double t = tick(it);
+  const int s = it->ops->assemble(it, jac, msg, len);
+  if (s == MRVI_OK)
+    it->t_assemble += tick(it) - t;
+  return s;
 }
 
 /* The residual at x with the potential parts of the momenta (used if the
@@ -626,17 +695,76 @@ static int evaluate_momenta(mrvi_integrator *it, double *res, double *cres,
   return s;
 }
 
-/* One Newton update dx (x -= dx) from the residual it->R at x: the full
- * saddle-point system in the multiplier form, the reduced one in the
- * null-space form (both factorised afresh at x: the general path is full
- * Newton), the block elimination on the schur and schur-krylov paths
- * (factorised afresh when `fresh`, else with the factors kept from an
- * earlier iterate of the step: a simplified Newton update).  jac_at_x:
- * st->Ax already holds the Jacobian at x. */
-static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
-                         char *msg, size_t len) {
+/* x -= dx on the first n unknowns. */
+static void subtract_dx(mrvi_integrator *it, int n) {
+  for (int i = 0; i < n; i++)
+    it->x[i] -= it->dx[i];
+}
+
+/* The general path's update: the full saddle-point system in the
+ * multiplier form, the reduced one in the null-space form, both
+ * factorised afresh at x (the general path is full Newton). */
+static int general_update(mrvi_integrator *it, int fresh, char *msg,
+                          size_t len) {
+  (void)fresh;
+  mrvi_step *st = &it->step;
+  int s;
+  if (it->nullspace) {
+    mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
+    s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
+                          it->dx, msg, len);
+    if (s == MRVI_OK)
+      subtract_dx(it, st->n_unknowns);
+    return s;
+  }
+  s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
+  if (s == MRVI_OK)
+    subtract_dx(it, st->n_total);
+  return s;
+}
+
+/* The schur path's update: the block elimination, with the constant
+ * chord's factors where they are kept (x -= dx inside). */
+static int schur_update(mrvi_integrator *it, int fresh, char *msg, size_t len) {
   mrvi_step *st = &it->step;
   int s = MRVI_OK;
+  if (fresh) {
+    it->factors_ok = 0;
+    it->const_kept = 0;
+    it->n_factor++;
+    if ((s = mrvi_blocks_factor_solve(it->blocks, st, it->R, it->dx)) < 0)
+      mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
+    else
+      it->factors_ok = 1;
+  } else if (it->const_kept) {
+    mrvi_blocks_const_solve(it->blocks, it->R, it->dx, it->x);
+    return MRVI_OK;
+  } else {
+    mrvi_blocks_solve(it->blocks, it->R, it->dx);
+  }
+  if (s == MRVI_OK)
+    subtract_dx(it, st->n_total);
+  return s;
+}
+
+/* The schur-krylov path's update: GMRES on the slow unknowns. */
+static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
+                          size_t len) {
+  if (fresh)
+    mrvi_skrylov_factor(it->skrylov);
+  it->factors_ok = 1;
+  const int s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+  if (s == MRVI_OK)
+    subtract_dx(it, it->step.n_total);
+  return s;
+}
+
+/* One Newton update dx (x -= dx) from the residual it->R at x by the
+ * path, with the Jacobian at x first where `fresh` asks for it and
+ * st->Ax does not hold it yet (jac_at_x). */
+static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
+                         char *msg, size_t len) {
+  int s;
   if (fresh && !jac_at_x) {
     /* The Jacobian at x (the residual is recomputed with it); exact: a
      * refactorisation follows an update that did not contract enough. */
@@ -646,45 +774,7 @@ static int newton_update(mrvi_integrator *it, int fresh, int jac_at_x,
       return s;
   }
   const double t = tick(it);
-  if (it->nullspace) {
-    mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
-    s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
-                          it->dx, msg, len);
-    if (s == MRVI_OK)
-      for (int i = 0; i < st->n_unknowns; i++)
-        it->x[i] -= it->dx[i];
-  } else if (it->blocks) {
-    if (fresh) {
-      it->factors_ok = 0;
-      it->const_kept = 0;
-      it->n_factor++;
-      if ((s = mrvi_blocks_factor_solve(it->blocks, st, it->R, it->dx)) < 0)
-        mrvi_fmt(msg, len, "singular Newton matrix (block elimination)");
-      else
-        it->factors_ok = 1;
-    } else if (it->const_kept) { /* (x -= dx inside) */
-      mrvi_blocks_const_solve(it->blocks, it->R, it->dx, it->x);
-    } else {
-      mrvi_blocks_solve(it->blocks, it->R, it->dx);
-    }
-    if (s == MRVI_OK && !it->const_kept) { /* (const_kept: done) */
-      for (int i = 0; i < st->n_total; i++)
-        it->x[i] -= it->dx[i];
-    }
-  } else if (it->skrylov) {
-    if (fresh)
-      mrvi_skrylov_factor(it->skrylov);
-    it->factors_ok = 1;
-    s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
-    if (s == MRVI_OK)
-      for (int i = 0; i < st->n_total; i++)
-        it->x[i] -= it->dx[i];
-  } else {
-    s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
-    if (s == MRVI_OK)
-      for (int i = 0; i < st->n_total; i++)
-        it->x[i] -= it->dx[i];
-  }
+  s = it->ops->update(it, fresh, msg, len);
   it->t_solve += tick(it) - t;
   return s;
 }
@@ -830,7 +920,7 @@ static int use_chord(mrvi_integrator *it) {
   const double dT = it->step.dT;
   const double e =
       dT * dT * mrvi_blocks_chord_spread(it->blocks, &it->step, it->x);
-  return it->chord_mode == MRVI_CHORD_ON || e <= MRVI_CHORD_MAX;
+  return it->chord_mode == MRVI_CHORD_ON || e <= it->step.tuning.chord_max;
 }
 
 void mrvi_integrator_set_chord(mrvi_integrator *it, int mode) {
@@ -842,7 +932,8 @@ void mrvi_integrator_set_chord(mrvi_integrator *it, int mode) {
 static int const_chord_rule(const mrvi_integrator *it) {
   const int mode = it->cchord_mode;
   return mode == MRVI_CHORD_ON ||
-         (mode == MRVI_CHORD_AUTO && it->cchord_e <= MRVI_CCHORD_MAX);
+         (mode == MRVI_CHORD_AUTO &&
+          it->cchord_e <= it->step.tuning.const_chord_max);
 }
 
 /* Whether the first update of a schur step takes the constant chord
@@ -903,11 +994,11 @@ static int accept_step(mrvi_integrator *it, int iters, double res) {
   return finish_step(it);
 }
 
-int mrvi_integrator_step(mrvi_integrator *it) {
-  if (it->sweep)
-    return structured_step(it);
+/* A step of the Newton paths. */
+static int newton_step(mrvi_integrator *it) {
   mrvi_step *st = &it->step;
   const double tol = it->settings.newton_tol;
+  const mrvi_tuning *tn = &st->tuning;
   const double ctol = it->settings.constraint_tol;
   const int max_it = it->settings.newton_max_iter;
   char msg[400];
@@ -931,12 +1022,12 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   if (shoot) {
     it->step.increments = 1;
     const int sh =
-        mrvi_predict_shoot(it->predictor, st, it->x, MRVI_REUSE_TIGHTEN * tol,
-                           MRVI_SHOOT_MAX, &shot);
+        mrvi_predict_shoot(it->predictor, st, it->x, tn->reuse_tighten * tol,
+                           tn->shoot_max, &shot);
     if (sh > 0) {
       double r0, c0;
       if (evaluate_momenta(it, &r0, &c0, msg, sizeof msg) == MRVI_OK &&
-          r0 <= MRVI_REUSE_TIGHTEN * tol) {
+          r0 <= tn->reuse_tighten * tol) {
         it->n_shoot++;
         it->n_shoot_last += sh == 2;
         return accept_step(it, shot, r0);
@@ -962,9 +1053,9 @@ int mrvi_integrator_step(mrvi_integrator *it) {
    * never accepted), or stalled at the roundoff floor after one (counted:
    * mrvi_integrator_roundoff_steps).  On the schur path the factors of the
    * first update are kept for the further updates of the step while they
-   * contract the residual by MRVI_REUSE_RATE per update (simplified Newton;
+   * contract the residual by reuse_rate per update (simplified Newton;
    * the residual is exact, so the converged solution is the same) and
-   * refactorised otherwise.  Updates stop MRVI_REUSE_TIGHTEN below the
+   * refactorised otherwise.  Updates stop at reuse_tighten times the
    * tolerance, or when they stall at the roundoff floor (counted if that is
    * above the tolerance), or at the iteration limit if the tolerance itself
    * is met: a last update with kept factors is cheap, and it takes the
@@ -972,7 +1063,7 @@ int mrvi_integrator_step(mrvi_integrator *it) {
    * lands. */
   while (s == MRVI_OK) {
     if (iter >= 1 && cres <= ctol) {
-      if (res <= MRVI_REUSE_TIGHTEN * tol)
+      if (res <= tn->reuse_tighten * tol)
         break;
       if (res <= residual_floor(it) && res > 0.5 * prev) {
         if (res > tol)
@@ -1002,14 +1093,14 @@ int mrvi_integrator_step(mrvi_integrator *it) {
     /* Refactorise unless the kept factors contracted well on the last
      * update and, at that rate, reach the target in two more (schur and
      * schur-krylov paths; the general path, the reference, is full Newton). */
-    if (!(it->blocks || it->skrylov) || !it->factors_ok)
+    if (!it->ops->keeps_factors || !it->factors_ok)
       fresh = 1;
     else {
       /* (the constant chord's factors: only if one more update reaches
        * the target at that rate; else an exact update from here costs
        * less than the kept factors' slow linear convergence) */
-      const double rate = res / prev, target = MRVI_REUSE_TIGHTEN * tol;
-      fresh = rate > MRVI_REUSE_RATE ||
+      const double rate = res / prev, target = tn->reuse_tighten * tol;
+      fresh = rate > tn->reuse_rate ||
               res * rate * (it->const_kept ? 1.0 : rate) > target;
     }
     prev = res;
@@ -1032,6 +1123,8 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   }
   return accept_step(it, iter + shot, res);
 }
+
+int mrvi_integrator_step(mrvi_integrator *it) { return it->ops->step(it); }
 
 /* The new state (x, ps1 and xf, pf1: the last fast node) into q, p, the
  * last one into qs_prev, qf_prev and the fast nodes into micro_q, for the
@@ -1229,3 +1322,21 @@ void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
 long mrvi_integrator_roundoff_steps(const mrvi_integrator *it) {
   return it->roundoff_steps;
 }
+
+/* The paths, by MRVI_PATH_* (their names: mrvi_path_name). */
+static const path_ops paths[MRVI_N_PATHS] = {
+    [MRVI_PATH_GENERAL] = {general_create, newton_step, general_assemble,
+                           general_update, general_free, 0},
+    [MRVI_PATH_EXPLICIT] = {sweep_create, structured_step, NULL, NULL,
+                            sweep_free, 0},
+    [MRVI_PATH_SWEEP] = {sweep_create, structured_step, NULL, NULL, sweep_free,
+                         0},
+    [MRVI_PATH_SCHUR] = {schur_create, newton_step, schur_assemble,
+                         schur_update, schur_free, 1},
+    [MRVI_PATH_SWEEP_CG] = {sweep_create, structured_step, NULL, NULL,
+                            sweep_free, 0},
+    [MRVI_PATH_SCHUR_KRYLOV] = {skrylov_create, newton_step, csc_assemble,
+                                skrylov_update, skrylov_free, 1},
+};
+
+static const path_ops *path_ops_of(int path) { return &paths[path]; }

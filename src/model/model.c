@@ -345,6 +345,7 @@ static int set_law(mrvi_model *m, mrvi_element *e, const char *law,
   if (!e->law)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: unknown law '%s'", what,
                            law ? law : "(null)");
+  e->form = e->law->form;
   if (e->law->n_params > 0 && !params)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: law '%s' needs parameters",
                            what, law);
@@ -864,18 +865,17 @@ int mrvi_element_is_quadratic(const mrvi_element *e) {
   case MRVI_ELEMENT_GRAVITY:
   case MRVI_ELEMENT_FORCE:
     return 1;
-  case MRVI_ELEMENT_TERM:
-    return e->law == &mrvi_law_linear ||
-           (e->law == &mrvi_law_power &&
-            (e->params[1] == 0.0 || e->params[1] == 1.0 ||
-             e->params[1] == 2.0));
+  case MRVI_ELEMENT_TERM: { /* phi(a^T q - b): quadratic with phi */
+    const int degree = e->law->degree ? e->law->degree(e->params) : -1;
+    return degree >= 0 && degree <= 2;
+  }
   default:
     return 0; /* distances and angles are not polynomial in positions */
   }
 }
 
 void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2) {
-  if (e->law == &mrvi_law_linear) {
+  if (e->form == MRVI_LAW_FORM_HOOKE) {
     *d1 = e->params[0] * s;
     *d2 = e->params[0];
   } else if (mrvi_element_small_power(e)) {

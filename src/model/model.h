@@ -24,6 +24,7 @@ typedef struct mrvi_element {
   mrvi_element_kind kind;
   mrvi_rate potential; /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
   const mrvi_law *law; /* NULL for gravity */
+  mrvi_law_form form;  /* law->form (set with the law) */
   double params[MRVI_LAW_MAX_PARAMS];
   double shift; /* rest length (springs) or offset b (terms) */
   double anchor[3];
@@ -88,10 +89,6 @@ double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
  * gravity and constant forces (model.c). */
 int mrvi_element_is_quadratic(const mrvi_element *e);
 
-/* The laws that element kernels recognise by their table (laws/). */
-extern const mrvi_law mrvi_law_linear;
-extern const mrvi_law mrvi_law_power;
-
 /* phi' and phi'' of c s^e for a small integer e = k (laws/power.c without
  * phi, by repeated multiplication), from ce = c e and ce1 = c e (e - 1). */
 static inline void mrvi_power_derivs_ce(double ce, double ce1, int k, double s,
@@ -121,7 +118,7 @@ static inline void mrvi_power_derivs(double c, double e, int k, double s,
  * (0..8: evaluated inline by mrvi_power_derivs). */
 static inline int mrvi_element_small_power(const mrvi_element *e) {
   const double x = e->params[1];
-  return e->law == &mrvi_law_power && x >= 0.0 && x <= 8.0 &&
+  return e->form == MRVI_LAW_FORM_POWER && x >= 0.0 && x <= 8.0 &&
          (double)(int)x == x;
 }
 

@@ -114,14 +114,12 @@ struct mrvi_blocks {
    * (cf_status its factorisation's status). */
   mrvi_blocks *cf;
   int cf_status;
-  /* ... and on a step of at most MRVI_CCHORD_DENSE unknowns its inverse
-   * (n x n, by rows): a solve is then n independent dot products instead
-   * of the sweeps' chain. */
+  /* ... and on a step of at most const_chord_dense unknowns (mrvi.h,
+   * MRVI_TUNING_LIST) its inverse (n x n, by rows): a solve is then n
+   * independent dot products instead of the sweeps' chain. */
   double *cinv;
   int n_cinv;
 };
-
-#define MRVI_CCHORD_DENSE 16
 
 void mrvi_blocks_free(mrvi_blocks *b) {
   if (!b)
@@ -1495,11 +1493,13 @@ int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
     return b->cf_status;
   /* Small steps: the inverse, column j the solve of the unit vector e_j. */
   const int n = b->ns + b->p * b->nf;
-  if (n > MRVI_CCHORD_DENSE)
+  if (n > st->tuning.const_chord_dense)
     return MRVI_OK;
-  double e[MRVI_CCHORD_DENSE], col[MRVI_CCHORD_DENSE];
-  if (!(b->cinv = malloc((size_t)n * (size_t)n * sizeof(double))))
+  double *e = malloc(2 * (size_t)n * sizeof(double)), *col = e + n;
+  if (!e || !(b->cinv = malloc((size_t)n * (size_t)n * sizeof(double)))) {
+    free(e);
     return b->cf_status = MRVI_ENOMEM;
+  }
   for (int j = 0; j < n; j++) {
     for (int i = 0; i < n; i++)
       e[i] = i == j;
@@ -1507,6 +1507,7 @@ int mrvi_blocks_const_factor(mrvi_blocks *b, const mrvi_step *st,
     for (int i = 0; i < n; i++)
       b->cinv[i * n + j] = col[i];
   }
+  free(e);
   b->n_cinv = n;
   return MRVI_OK;
 }

@@ -46,48 +46,44 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Slow Newton steps of the predictor (slow_newton): at most this many
- * Broyden iterations per solve, on models of at most MRVI_SLOW_NEWTON_N
- * coordinates (the Hessian sum is dense), with at most MRVI_SLOW_SAMPLES
- * sampled points (FPU, dT = 1, p = 1000: 16 or 32 keep one Newton update
- * per step, 8 did not: 1.6; 16 since the pre-solve, 4 % fewer
- * instructions at p = 100) and the first Jacobian's Hessian from
- * MRVI_SLOW_HESS of them. */
-#define MRVI_SLOW_NEWTON_MAX 8
-#define MRVI_SLOW_NEWTON_N 64
-#define MRVI_SLOW_SAMPLES 16
-#define MRVI_SLOW_HESS 8
-/* The slow pre-solve (pre_solve) is used where dT^2 |M_s^-1 hess_ss V|
- * / 3 at the initial state, the fixed-point update's contraction factor
- * (row-sum norm), is above this (FPU: 0.03 / 0.27 / 3.0 at dT = 0.1 /
- * 0.3 / 1). */
-#define MRVI_PRE_KAPPA 0.1
-/* ... and before shooting (mrvi_predict_shoot) above this (FPU,
- * trapezoidal-trapezoidal, dT = 0.1, kappa = 0.03: the first sweep's slow
- * residual 5e-3..9e-3 -> 1e-5..3e-5, after the first update 1e-7 ->
- * 2e-10..1e-9, from where the last update needs no sweep: 11.1 -> 9.4 us
- * per step.  Newton's predictor saves no update there, and the pre-solve
- * cost midpoint-midpoint 8 % at dT = 0.1.) */
-#define MRVI_SHOOT_PRE_KAPPA 0.01
-/* Shooting (mrvi_predict_shoot) is offered where that contraction is at
- * most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.98 / 1.94 / 2.56
- * / 2.90 slow updates per step at dT = 0.03 / 0.1 / 0.3 / 1, kappa = 3
- * at dT = 1, where it takes 0.7 of Newton's time). */
-#define MRVI_SHOOT_KAPPA 30.0
-/* ... and its Jacobian takes the sampled Hessian where the contraction is
- * above this (below, M / dT alone: FPU, dT = 0.01, kappa = 3e-4) */
-#define MRVI_SHOOT_KAPPA_M 1e-3
-/* ... and the Hessians of every point where it is above this (FPU, dT =
- * 1, kappa = 3: the sampled Hessian misses the fast oscillation of
- * hess V, and 4 updates did not reach the target; summed from phi'' per
- * term, mrvi_terms_grad_d2, the first sweep costs 1.2 of the others) */
-#define MRVI_SHOOT_KAPPA_FULL 1.0
-/* ... and its last update is made without the sweep after it where the
- * last contraction, repeated, and the fast rows' share (3 kappa / p of
- * |G|, below) leave at most this times the target (FPU, tol 1e-9: the
- * third sweep at dT = 0.3 and 1, where the second left |G| 1e-11..3e-10,
- * and the second at dT = 0.01 and 0.1; every such step accepted) */
-#define MRVI_SHOOT_LAST 0.1
+/* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; pr->tn),
+ * with what their defaults were measured on:
+ *  - slow_newton_max, slow_newton_n, slow_samples, slow_hess_samples: slow
+ *    Newton steps of the predictor (slow_newton) take at most
+ *    slow_newton_max Broyden iterations per solve, on models of at most
+ *    slow_newton_n coordinates (the Hessian sum is dense), with at most
+ *    slow_samples sampled points (FPU, dT = 1, p = 1000: 16 or 32 keep one
+ *    Newton update per step, 8 did not: 1.6; 16 since the pre-solve, 4 %
+ *    fewer instructions at p = 100) and the first Jacobian's Hessian from
+ *    slow_hess_samples of them.
+ *  - pre_kappa: the slow pre-solve (pre_solve) is used where dT^2 |M_s^-1
+ *    hess_ss V| / 3 at the initial state, the fixed-point update's
+ *    contraction factor kappa (row-sum norm), is above this (FPU: 0.03 /
+ *    0.27 / 3.0 at dT = 0.1 / 0.3 / 1).
+ *  - shoot_pre_kappa: ... and before shooting (mrvi_predict_shoot) above
+ *    this (FPU, trapezoidal-trapezoidal, dT = 0.1, kappa = 0.03: the first
+ *    sweep's slow residual 5e-3..9e-3 -> 1e-5..3e-5, after the first update
+ *    1e-7 -> 2e-10..1e-9, from where the last update needs no sweep: 11.1
+ *    -> 9.4 us per step.  Newton's predictor saves no update there, and the
+ *    pre-solve cost midpoint-midpoint 8 % at dT = 0.1.)
+ *  - shoot_kappa: shooting (mrvi_predict_shoot) is offered where kappa is
+ *    at most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.98 / 1.94 /
+ *    2.56 / 2.90 slow updates per step at dT = 0.03 / 0.1 / 0.3 / 1, kappa
+ *    = 3 at dT = 1, where it takes 0.7 of Newton's time).
+ *  - shoot_hess_kappa: ... and its Jacobian takes the sampled Hessian
+ *    where kappa is above this (below, M / dT alone: FPU, dT = 0.01, kappa
+ *    = 3e-4)
+ *  - shoot_full_kappa: ... and the Hessians of every point where it is
+ *    above this (FPU, dT = 1, kappa = 3: the sampled Hessian misses the
+ *    fast oscillation of hess V, and 4 updates did not reach the target;
+ *    summed from phi'' per term, mrvi_terms_grad_d2, the first sweep costs
+ *    1.2 of the others)
+ *  - shoot_last: ... and its last update is made without the sweep after
+ *    it where the last contraction, repeated, and the fast rows' share (3
+ *    kappa / p of |G|, below) leave at most this times the target (FPU,
+ *    tol 1e-9: the third sweep at dT = 0.3 and 1, where the second left
+ *    |G| 1e-11..3e-10, and the second at dT = 0.01 and 0.1; every such step
+ *    accepted) */
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -98,6 +94,7 @@ static int kind(const mrvi_point *pt) {
 
 struct mrvi_predictor {
   const mrvi_model *m;
+  mrvi_tuning tn;   /* the step's tuning constants */
   int sweep_ok;     /* dt omega_max small enough for the explicit sweep */
   int slow_coupled; /* the slow row sees the micro nodes */
   /* Vectors of n entries (model order in omega_max; packed (q^s, q^f) in
@@ -106,7 +103,7 @@ struct mrvi_predictor {
   double *z, *g, *fs, *fexp, *fimp, *fb, *fimp1;
   double *pm;    /* p^{f,m} (nf) */
   double *H;     /* sum w a0 a1 hess Z along the sweep, packed (n x n, its
-                    slow block; NULL for n > MRVI_SLOW_NEWTON_N: no Newton
+                    slow block; NULL for n > slow_newton_n: no Newton
                     steps), then a point's Hessian (n x n, point_gradient_k) */
   double *xs;    /* swept slow displacement, sampled forces (3 ns) */
   double *A, *b; /* slow Newton matrix (ns x ns), right-hand side and
@@ -180,7 +177,7 @@ struct mrvi_predictor {
 
 /* The points whose force on the slow row changes with q_{k+1}^s
  * (a0 a1 != 0, of a class with a slow input), every stride-th of each
- * class, stride such that at most MRVI_SLOW_SAMPLES are taken in all; a
+ * class, stride such that at most slow_samples are taken in all; a
  * sample stands for the points around it by the ratio of the sums of
  * w a0 a1. */
 static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
@@ -195,7 +192,7 @@ static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
     for (int ip = 0; slow_in[c] && ip < st->n_pts[c]; ip++)
       count += st->pts[c][ip].a0 * st->pts[c][ip].a1 != 0.0;
   }
-  const int stride = (count + MRVI_SLOW_SAMPLES - 1) / MRVI_SLOW_SAMPLES;
+  const int stride = (count + pr->tn.slow_samples - 1) / pr->tn.slow_samples;
   pr->n_samples = 0;
   for (int c = 0; c < 2; c++) {
     /* (all, taken: sums of w a0 a1; fa, ft: of w a0, for sample_f) */
@@ -219,7 +216,8 @@ static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
   }
   /* The Hessian (the first Jacobian of sampled_solve) from every
    * hstride-th sample, scaled to the sum of all samples' w a0 a1. */
-  pr->hstride = (pr->n_samples + MRVI_SLOW_HESS - 1) / MRVI_SLOW_HESS;
+  pr->hstride =
+      (pr->n_samples + pr->tn.slow_hess_samples - 1) / pr->tn.slow_hess_samples;
   if (pr->hstride < 1)
     pr->hstride = 1;
   double all = 0.0, taken = 0.0;
@@ -382,13 +380,13 @@ static double slow_kappa(mrvi_predictor *pr, const mrvi_step *st) {
 /* The slow pre-solve (pre_solve) and its linear sweep: where W has a
  * constant Hessian and no slow input (Hq[1] on the fast columns), every
  * interval has the points of interval 0 and the fixed-point contraction
- * (slow_kappa) is above MRVI_PRE_KAPPA.  0, or MRVI_ENOMEM. */
+ * (slow_kappa) is above pre_kappa.  0, or MRVI_ENOMEM. */
 static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
   const int ns = st->ns, nf = st->nf, nz = ns + nf;
   if (!pr->Hq[1] || pr->lo[1] != ns || nf == 0 || ns == 0 || st->p < 1 ||
       !uniform_intervals(pr, st, 0) || !uniform_intervals(pr, st, 1))
     return 0;
-  if (!(pr->kappa > fmin(MRVI_PRE_KAPPA, MRVI_SHOOT_PRE_KAPPA)))
+  if (!(pr->kappa > fmin(pr->tn.pre_kappa, pr->tn.shoot_pre_kappa)))
     return 0;
   /* Interval sums: W's w cA, w cA cA, w cA cB, w cB, w cB cA, w cB cB,
    * V's w cA, w cB. */
@@ -409,8 +407,8 @@ static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
         L[7] += pt->w * pt->cB;
       }
     }
-  /* K = (M^f/dt + S_AB H_ff)^-1, column by column */
-  double *A = malloc((size_t)nf * (size_t)nf * sizeof(double));
+  /* K = (M^f/dt + S_AB H_ff)^-1, column by column (e after A) */
+  double *A = malloc(((size_t)nf * (size_t)nf + (size_t)nf) * sizeof(double));
   int *piv = malloc((size_t)nf * sizeof(int));
   pr->K = malloc((size_t)nf * (size_t)nf * sizeof(double));
   if (!A || !piv || !pr->K) {
@@ -425,7 +423,7 @@ static int linear_sweep_setup(mrvi_predictor *pr, const mrvi_step *st) {
                       (i == j ? 1.0 / (st->dt * pr->minv[ns + i]) : 0.0);
   int ok = mrvi_dense_lu_factor(nf, A, piv) == 0;
   for (int j = 0; ok && j < nf; j++) {
-    double e[MRVI_SLOW_NEWTON_N];
+    double *e = A + (size_t)nf * (size_t)nf;
     for (int i = 0; i < nf; i++)
       e[i] = i == j;
     mrvi_dense_lu_solve(nf, A, piv, e, 1);
@@ -473,6 +471,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     return MRVI_ENOMEM;
   const size_t n = (size_t)(m->n > 0 ? m->n : 1);
   pr->m = m;
+  pr->tn = st->tuning;
   double **vec[] = {&pr->z,    &pr->g,  &pr->fs,    &pr->fexp,
                     &pr->fimp, &pr->fb, &pr->fimp1, &pr->fimp0};
   for (size_t i = 0; i < sizeof vec / sizeof *vec; i++)
@@ -582,7 +581,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     }
   pr->sweep_ok = st->dt * mrvi_predictor_omega_max(pr) <= 0.5;
   pr->rstop = pr->rsweep = INFINITY;
-  if (pr->slow_coupled && m->n <= MRVI_SLOW_NEWTON_N) {
+  if (pr->slow_coupled && m->n <= pr->tn.slow_newton_n) {
     const size_t ns = (size_t)(m->n_slow > 0 ? m->n_slow : 1);
     pr->H = malloc(2 * n * n * sizeof(double)); /* (and a point's, Ht) */
     pr->A = malloc(2 * ns * ns * sizeof(double));
@@ -1267,7 +1266,7 @@ static void broyden(mrvi_predictor *pr, const mrvi_step *st, double *x,
     const double mdt = 1.0 / (st->dT * pr->minv[i]);
     r[i] = mdt * (x[i] - xv[i]) + (pre ? f[i] - pr->fk[i] : 0.0);
   }
-  for (int it = 0; it < MRVI_SLOW_NEWTON_MAX; it++) {
+  for (int it = 0; it < pr->tn.slow_newton_max; it++) {
     if (it > 0) {
       /* r at the new y; J += (r_new - r - J dy) dy^T / (dy^T dy) */
       sampled_force(pr, st, x, pre ? f0 : f, pre ? f : NULL, 0);
@@ -1340,9 +1339,10 @@ static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
    * tolerance: always solved) */
   if (!pr->H || !(r > (pr->presolved ? 0.0 : pr->rstop)))
     return;
-  for (int k = 0; k < MRVI_SLOW_NEWTON_MAX; k++) {
+  for (int k = 0; k < pr->tn.slow_newton_max; k++) {
     sampled_solve(pr, st, x);
-    if (!(slow_change(pr, st, x) > pr->rsweep) || k == MRVI_SLOW_NEWTON_MAX - 1)
+    if (!(slow_change(pr, st, x) > pr->rsweep) ||
+        k == pr->tn.slow_newton_max - 1)
       return;
     sweep(pr, st, x, 1);
     slow_update(pr, st, x, 1);
@@ -1353,7 +1353,8 @@ static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * the pre-solve: where it is available (pr->pre) and the fixed-point
  * contraction is above that one's threshold. */
 static int use_pre(const mrvi_predictor *pr, int shoot) {
-  return pr->pre && pr->kappa > (shoot ? MRVI_SHOOT_PRE_KAPPA : MRVI_PRE_KAPPA);
+  return pr->pre &&
+         pr->kappa > (shoot ? pr->tn.shoot_pre_kappa : pr->tn.pre_kappa);
 }
 
 /* The prediction up to the sweep: the gradients at node k, the slow row
@@ -1443,8 +1444,8 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
    * p = 10); at large dT every point's, summed in the first sweep (the
    * samples' misses the fast oscillation of hess V: 10 % of the update at
    * dT = 1 on the FPU); else the samples'. */
-  const int hess = pr->kappa > MRVI_SHOOT_KAPPA_M,
-            full = pr->kappa > MRVI_SHOOT_KAPPA_FULL;
+  const int hess = pr->kappa > pr->tn.shoot_hess_kappa,
+            full = pr->kappa > pr->tn.shoot_full_kappa;
   for (int c = 0;; c++) {
     if (full && c == 0) {
       memset(pr->H, 0, (size_t)n * (size_t)n * sizeof(double));
@@ -1482,7 +1483,7 @@ int mrvi_predict_shoot(mrvi_predictor *pr, const mrvi_step *st, double *x,
      * changes by about dt |hess_fs Z| |ds| ~ 3 kappa |G| / p. */
     const double fast = 3.0 * pr->kappa / st->p;
     const int last =
-        c >= 1 && r * fmax(r / rp, fast) <= MRVI_SHOOT_LAST * target;
+        c >= 1 && r * fmax(r / rp, fast) <= pr->tn.shoot_last * target;
     rp = r;
     if (c >= 1) { /* J += (G - Gp - J ds) ds^T / (ds^T ds) */
       double dd = 0.0;
@@ -1512,7 +1513,7 @@ int mrvi_predictor_shoot_ok(const mrvi_predictor *pr, const mrvi_step *st) {
   return pr->sweep_ok && pr->slow_coupled && pr->H && st->ns >= 1 &&
          st->p >= 2 &&
          (!pr->has_kind[INSIDE] || mrvi_predictor_exact_inside(pr)) &&
-         pr->kappa <= MRVI_SHOOT_KAPPA;
+         pr->kappa <= pr->tn.shoot_kappa;
 }
 
 void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {

@@ -27,12 +27,10 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Relative tolerances of the block CG solves and of GMRES (2-norm), and
- * GMRES's restart length and iteration cap. */
-#define SK_CG_RTOL 1e-13
-#define SK_GMRES_RTOL 1e-11
-#define SK_RESTART 20
-#define SK_GMRES_MAX_IT 100
+/* The relative tolerances of the block CG solves and of GMRES (2-norm),
+ * and GMRES's restart length and iteration cap, are the tuning constants
+ * krylov_cg_rtol, krylov_gmres_rtol, krylov_restart and krylov_max_it
+ * (mrvi.h, MRVI_TUNING_LIST). */
 /* Sweeps of the S operator kept for the final one (T below). */
 #define SK_KEEP 6
 
@@ -227,12 +225,12 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->dinv_s, ns);
   ALLOC(k->t, nF);
   ALLOC(k->T, SK_KEEP * nF);
-  ALLOC(k->gy, SK_RESTART);
+  ALLOC(k->gy, (size_t)st->tuning.krylov_restart);
   ALLOC(k->rs, ns);
   ALLOC(k->ds, ns);
   ALLOC(k->cgb, nf);
   ALLOC(k->cgwork, 3 * nf);
-  ALLOC(k->gwork, mrvi_gmres_work(k->ns, SK_RESTART));
+  ALLOC(k->gwork, mrvi_gmres_work(k->ns, st->tuning.krylov_restart));
 #undef ALLOC
   if (!k->s1 || !k->s2 || !k->dg || !k->sdiv || !k->dinv || !k->dinv_s ||
       !k->t || !k->T || !k->gy || !k->rs || !k->ds || !k->cgb || !k->cgwork ||
@@ -371,9 +369,10 @@ static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
     k->block = c;
     int it = 0;
     /* X_c is read: the solution goes there */
-    const int s = mrvi_pcg(
-        nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, xc,
-        SK_CG_RTOL, 0.0, MRVI_CG_MAX_IT, k->cgwork, &it, &k->curvature);
+    const int s =
+        mrvi_pcg(nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf,
+                 k->cgb, xc, k->st->tuning.krylov_cg_rtol, 0.0, MRVI_CG_MAX_IT,
+                 k->cgwork, &it, &k->curvature);
     k->stats.cg_solves++;
     k->stats.cg_iterations += it;
     if (it > k->stats.cg_max)
@@ -427,8 +426,10 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
     return MRVI_CG_OK;
   int it = 0, ny = -1;
   k->calls = 0;
-  s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds, SK_GMRES_RTOL, 0.0,
-                 SK_RESTART, SK_GMRES_MAX_IT, k->gwork, &it, k->gy, &ny);
+  const mrvi_tuning *tn = &k->st->tuning;
+  s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds,
+                 tn->krylov_gmres_rtol, 0.0, tn->krylov_restart,
+                 tn->krylov_max_it, k->gwork, &it, k->gy, &ny);
   k->stats.gmres_solves++;
   k->stats.gmres_iterations += it;
   if (it > k->stats.gmres_max)

@@ -53,15 +53,23 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).
  * ------------------------------------------------------------------------- */
-enum {
-  MRVI_PATH_GENERAL = 0,
-  MRVI_PATH_EXPLICIT = 1,
-  MRVI_PATH_SWEEP = 2,
-  MRVI_PATH_SCHUR = 3,
-  MRVI_PATH_SWEEP_CG = 4,    /* sweep, micro steps by CG (sparse_block.c) */
-  MRVI_PATH_SCHUR_KRYLOV = 5 /* Newton, GMRES on the slow unknowns and
-                                CG block sweeps (schur_krylov.c) */
-};
+/* The step solver paths (doc/solver.md), listed once: X(ID, name) gives
+ * MRVI_PATH_ID and the name in output files, `mrvi check` and the
+ * integrator's table of paths (integrator/integrator.c). */
+#define MRVI_PATH_LIST(X)                                                      \
+  X(GENERAL, "general")           /* Newton, sparse LU of the whole step */    \
+  X(EXPLICIT, "explicit")         /* no Newton (sweep.c) */                    \
+  X(SWEEP, "sweep")               /* explicit slow update, micro steps by      \
+                                     dense Newton (sweep.c) */                 \
+  X(SCHUR, "schur")               /* Newton, Schur complement on the slow      \
+                                     unknowns (blocks.c) */                    \
+  X(SWEEP_CG, "sweep-cg")         /* sweep, micro steps by CG                  \
+                                     (sparse_block.c) */                       \
+  X(SCHUR_KRYLOV, "schur-krylov") /* Newton, GMRES on the slow unknowns        \
+                                     and CG block sweeps (schur_krylov.c) */
+#define MRVI_PATH_ENUM(id, name) MRVI_PATH_##id,
+enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };
+#undef MRVI_PATH_ENUM
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len);

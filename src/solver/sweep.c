@@ -18,8 +18,9 @@
  *   -(M^f/dt + sum w cA cB hess W(z)):
  * constant for the trapezoidal family (gamma in {0, 1}: every point has
  * cA cB = 0), so q^{m+1} is explicit; for other rules (midpoint) row m is an
- * nf x nf Newton problem, solved by dense LU up to SWEEP_DENSE_MAX and by
- * CG on a sparse pattern beyond ("sweep-cg", solver/sparse_block.c). */
+ * nf x nf Newton problem, solved by dense LU up to dense_max (mrvi.h,
+ * MRVI_TUNING_LIST) and by CG on a sparse pattern beyond ("sweep-cg",
+ * solver/sparse_block.c). */
 #include "solver/solver.h"
 #include "util/small.h"
 
@@ -27,9 +28,6 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-
-/* Largest fast block solved densely. */
-#define SWEEP_DENSE_MAX 64
 
 struct mrvi_sweep {
   const mrvi_step *st;
@@ -73,7 +71,7 @@ struct mrvi_sweep {
   double *J;              /* nf x nf */
   double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
-  mrvi_sblock *sb;   /* sparse J instead (nf > SWEEP_DENSE_MAX) */
+  mrvi_sblock *sb;   /* sparse J instead (nf > dense_max) */
   double *y, *g, *H; /* element workspace */
 };
 
@@ -90,8 +88,8 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
              "handle constraints yet");
     return MRVI_PATH_GENERAL;
   }
-  const int small =
-      m->n_fast <= SWEEP_DENSE_MAX && m->n_slow <= SWEEP_DENSE_MAX;
+  const int dense_max = s->tuning.dense_max;
+  const int small = m->n_fast <= dense_max && m->n_slow <= dense_max;
   if (s->slow_grid != MRVI_GRID_MACRO) {
     if (!small) {
       mrvi_fmt(why, len,
@@ -99,7 +97,7 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                "micro node, blocks beyond the dense limit %d: Newton with "
                "GMRES on the Schur complement of the %d slow unknowns and "
                "block sweeps over %d micro nodes solved by CG",
-               SWEEP_DENSE_MAX, m->n_slow, s->micro_steps);
+               dense_max, m->n_slow, s->micro_steps);
       return MRVI_PATH_SCHUR_KRYLOV;
     }
     mrvi_fmt(why, len,
@@ -133,12 +131,12 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
              "every node is explicit");
     return MRVI_PATH_EXPLICIT;
   }
-  if (m->n_fast > SWEEP_DENSE_MAX) {
+  if (m->n_fast > dense_max) {
     mrvi_fmt(why, len,
              "macro-grid slow rule: explicit slow update and a sweep of %d "
              "implicit micro steps of size %d (beyond the dense limit %d), "
              "each solved by Newton with Jacobi-preconditioned CG",
-             s->micro_steps, m->n_fast, SWEEP_DENSE_MAX);
+             s->micro_steps, m->n_fast, dense_max);
     return MRVI_PATH_SWEEP_CG;
   }
   mrvi_fmt(why, len,
@@ -149,9 +147,10 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
 }
 
 const char *mrvi_path_name(int path) {
-  static const char *const names[] = {"general", "explicit", "sweep",
-                                      "schur",   "sweep-cg", "schur-krylov"};
-  return names[path];
+#define PATH_NAME(id, name) name,
+  static const char *const names[] = {MRVI_PATH_LIST(PATH_NAME)};
+#undef PATH_NAME
+  return path >= 0 && path < MRVI_N_PATHS ? names[path] : "unknown";
 }
 
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
@@ -280,7 +279,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->F = dalloc(nf);
   sw->fimp = dalloc(nf);
   sw->dn = dalloc(nf);
-  const int sparse = sw->implicit && sw->nf > SWEEP_DENSE_MAX;
+  const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
   if (sparse &&
       mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
                          st->n_elem_of_class[MRVI_FAST], &sw->sb) < 0) {
@@ -445,7 +444,7 @@ static int factor_linear(mrvi_sweep *sw, const double *qm, const double *dn,
     mrvi_fmt(msg, len, "singular micro-step matrix");
     return MRVI_ESINGULAR;
   }
-  /* The inverse (nf <= SWEEP_DENSE_MAX): a micro step's solve is then one
+  /* The inverse (nf <= dense_max): a micro step's solve is then one
    * matrix-vector product. */
   memset(sw->Jinv, 0, (size_t)nf * (size_t)nf * sizeof(double));
   for (int f = 0; f < nf; f++)

@@ -95,7 +95,7 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     t->first = first;
     t->kind = KT_ELEMENT;
     if (e->kind == MRVI_ELEMENT_TERM) {
-      t->kind = e->law == &mrvi_law_linear ? KT_LINEAR : KT_LAW;
+      t->kind = e->form == MRVI_LAW_FORM_HOOKE ? KT_LINEAR : KT_LAW;
       t->shift = e->shift;
       t->c = e->params[0];
       t->e = e->params[1];

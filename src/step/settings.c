@@ -61,6 +61,7 @@ void mrvi_settings_default(mrvi_settings *s) {
   s->project_momenta = 1;
   s->solver = MRVI_SOLVER_AUTO;
   s->energy_warning = 0.1;
+  mrvi_tuning_default(&s->tuning);
 }
 
 static int unit(double v) { return isfinite(v) && v >= 0.0 && v <= 1.0; }
@@ -130,7 +131,7 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len) {
              s->constraint_tol);
     return MRVI_EINVAL;
   }
-  return MRVI_OK;
+  return mrvi_tuning_check(&s->tuning, msg, len);
 }
 
 long mrvi_settings_n_steps(const mrvi_settings *s) {

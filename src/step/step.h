@@ -6,6 +6,11 @@
 
 #include "model/model.h"
 
+/* Tuning constants (step/tuning.c, MRVI_TUNING_LIST): the defaults, and
+ * MRVI_EINVAL with a message if one is out of its range. */
+void mrvi_tuning_default(mrvi_tuning *t);
+int mrvi_tuning_check(const mrvi_tuning *t, char *msg, size_t len);
+
 /* ---------------------------------------------------------------------------
  * Quadrature (eq:Zapprox and eq:slow_potential_affine as evaluation points)
  *
@@ -34,6 +39,7 @@ typedef struct mrvi_step {
   int p, ns, nf;
   double dT, dt;
   int n_unknowns;     /* ns + p nf */
+  mrvi_tuning tuning;  /* the settings' (read at setup) */
   mrvi_point *pts[2]; /* [MRVI_SLOW] points of V, [MRVI_FAST] of W */
   int n_pts[2];
   int *elem_of_class[2]; /* element indices of V and W */

@@ -6,8 +6,8 @@
 #include <string.h>
 
 static const char *const integrator_keys[] = {
-    "scheme", "slow",   "fast",        "macro_step", "micro_steps",
-    "t_end",  "newton", "constraints", "solver",     "energy_warning"};
+    "scheme", "slow",        "fast",   "macro_step",     "micro_steps", "t_end",
+    "newton", "constraints", "solver", "energy_warning", "tuning"};
 
 static const char *const slow_rule_keys[] = {"alpha", "gamma", "grid"};
 
@@ -61,6 +61,34 @@ static int load_constraint_settings(loader *L, struct fy_node *map) {
     return st;
   if ((v = mrvi_ld_get(map, "projection")))
     return mrvi_ld_as_bool(L, v, "projection", &s->project_momenta);
+  return MRVI_OK;
+}
+
+/* integrator.tuning: {name: value} of MRVI_TUNING_LIST (mrvi.h;
+ * doc/solver.md, "Tuning"). */
+static int load_tuning(loader *L, struct fy_node *map) {
+  int count, st;
+  const mrvi_tuning_info *t = mrvi_tuning_table(&count);
+  const char *names[MAX_KEYS];
+  const int n_names = count < MAX_KEYS ? count : MAX_KEYS;
+  for (int i = 0; i < n_names; i++)
+    names[i] = t[i].name;
+  if ((st = mrvi_ld_want_mapping(L, map, "integrator.tuning")) ||
+      (st = mrvi_ld_check_keys(L, map, "integrator.tuning", names, n_names,
+                               NULL, 0)))
+    return st;
+  for (int i = 0; i < count; i++) {
+    struct fy_node *v = mrvi_ld_get(map, t[i].name);
+    double value;
+    char msg[200];
+    if (!v)
+      continue;
+    if ((st = mrvi_ld_as_number(L, v, t[i].name, &value)))
+      return st;
+    if (mrvi_settings_set_tuning(&L->sys->settings, t[i].name, value, msg,
+                                 sizeof msg) < 0)
+      return mrvi_ld_fail(L, v, "%s", msg);
+  }
   return MRVI_OK;
 }
 
@@ -153,6 +181,8 @@ int mrvi_ld_integrator(loader *L, struct fy_node *in) {
       return st;
     s->solver = (mrvi_solver)which;
   }
+  if ((n = mrvi_ld_get(in, "tuning")) && (st = load_tuning(L, n)))
+    return st;
   if ((n = mrvi_ld_get(in, "constraints")))
     return load_constraint_settings(L, n);
   return MRVI_OK;

@@ -21,6 +21,11 @@ static void eval(const double *par, double s, double *phi, double *dphi,
   *ddphi = k;
 }
 
+static int degree(const double *par) {
+  (void)par;
+  return 2;
+}
+
 const mrvi_law mrvi_law_linear = {
     .name = "linear",
     .summary = "k s^2 / 2 with stiffness k",
@@ -28,4 +33,6 @@ const mrvi_law mrvi_law_linear = {
     .param_names = names,
     .check = check,
     .eval = eval,
+    .degree = degree,
+    .form = MRVI_LAW_FORM_HOOKE,
 };

@@ -45,6 +45,12 @@ static void eval(const double *par, double s, double *phi, double *dphi,
   }
 }
 
+/* A polynomial of degree e for an integer exponent e. */
+static int degree(const double *par) {
+  const double e = par[1];
+  return e == floor(e) && e >= 0 && e <= 1e6 ? (int)e : -1;
+}
+
 const mrvi_law mrvi_law_power = {
     .name = "power",
     .summary = "c s^e with coefficient c, exponent e",
@@ -52,4 +58,6 @@ const mrvi_law mrvi_law_power = {
     .param_names = names,
     .check = check,
     .eval = eval,
+    .degree = degree,
+    .form = MRVI_LAW_FORM_POWER,
 };
