@@ -84,35 +84,27 @@ typedef struct path_ops {
 static const path_ops *path_ops_of(int path);
 
 /* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; tn
- * below), with what their defaults were measured on:
+ * below); what their defaults were measured on is in doc/performance.md,
+ * "Tuning constants: what the defaults were measured on":
  *  - reuse_rate, reuse_tighten: the largest residual ratio of an update with
  *    kept factors (schur path) for which they are kept for the next update,
  *    and the factor below the tolerance at which such updates stop.
  *  - chord_max: the largest a-priori error measure dT^2 |H_last - H_first|
  *    / m_min of the chord matrix (frozen Hessians, schur path) for which the
- *    first update of a step uses it (doc/solver.md, "Newton details"): FPU,
- *    dt = 0.001, the measure is 1e-5 at dT = 0.01, where one chord update
- *    contracts the residual by 5e-7 (as exact Newton lands, below 0.01
- *    tol), 2.7e-4..4.3e-4 at dT = 0.03, where 1.1-1.5 updates per step
- *    follow (a second update with the kept factors costs about what the
- *    chord saves, so the chord pays up to about 1.8), and 1e-2 at dT = 0.1,
- *    where it contracts by 1e-4..1e-3 and two updates are needed.
+ *    first update of a step uses it (doc/solver.md, "Newton details"): a
+ *    second update with the kept factors costs about what the chord saves.
  *  - const_chord_max: the largest a-priori measure e = dT^2 |hess Z(q0)|_inf
  *    / m_min of the constant chord (the Newton matrix without the Hessians
  *    that are not constant, factored once per run; doc/solver.md, "Newton
- *    details") for which the first update of a step uses it.  FPU
- *    midpoint-midpoint, tol 1e-9, dt = 0.001 (e = 1.8e-5 dT^2/dt^2): at p =
- *    1 one update per step up to dT = 0.0015 (e = 4e-5), 1.45 at 0.002
- *    (still 15 % faster than exact Newton), 2 from 0.003 (e = 1.6e-4, 3 %
- *    slower); at p = 2 / 3 / 4 / 5 (e = 7e-5 / 1.6e-4 / 2.9e-4 / 4.6e-4)
- *    1.00 / 1.13 / 1.28 / 1.47 updates, 42 / 31 / 22 / 8 % faster; at p =
- *    10 (1.8e-3) 1.89, 8 % slower.
+ *    details") for which the first update of a step uses it: above it the
+ *    extra updates cost more than the factorisations saved.
  *  - shoot_max: the most slow updates of a shooting step
  *    (mrvi_predict_shoot) before Newton takes over from its iterate. */
 
 /* The assembly and solve times (mrvi_integrator_timing) are measured on
  * one step in MRVI_TIME_EVERY and scaled to all steps: a clock read costs
- * about 20 ns, as much as a micro step of the explicit paths. */
+ * as much as a micro step of the explicit paths (doc/performance.md,
+ * "Tuning constants"). */
 #define MRVI_TIME_EVERY 64
 
 /* The clock on timed steps, else 0. */

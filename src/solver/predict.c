@@ -46,44 +46,32 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; pr->tn),
- * with what their defaults were measured on:
+/* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; pr->tn);
+ * what their defaults were measured on is in doc/performance.md, "Tuning
+ * constants: what the defaults were measured on":
  *  - slow_newton_max, slow_newton_n, slow_samples, slow_hess_samples: slow
  *    Newton steps of the predictor (slow_newton) take at most
  *    slow_newton_max Broyden iterations per solve, on models of at most
  *    slow_newton_n coordinates (the Hessian sum is dense), with at most
- *    slow_samples sampled points (FPU, dT = 1, p = 1000: 16 or 32 keep one
- *    Newton update per step, 8 did not: 1.6; 16 since the pre-solve, 4 %
- *    fewer instructions at p = 100) and the first Jacobian's Hessian from
- *    slow_hess_samples of them.
+ *    slow_samples sampled points (enough to keep one Newton update per step
+ *    at dT = 1) and the first Jacobian's Hessian from slow_hess_samples of
+ *    them.
  *  - pre_kappa: the slow pre-solve (pre_solve) is used where dT^2 |M_s^-1
  *    hess_ss V| / 3 at the initial state, the fixed-point update's
- *    contraction factor kappa (row-sum norm), is above this (FPU: 0.03 /
- *    0.27 / 3.0 at dT = 0.1 / 0.3 / 1).
+ *    contraction factor kappa (row-sum norm), is above this.
  *  - shoot_pre_kappa: ... and before shooting (mrvi_predict_shoot) above
- *    this (FPU, trapezoidal-trapezoidal, dT = 0.1, kappa = 0.03: the first
- *    sweep's slow residual 5e-3..9e-3 -> 1e-5..3e-5, after the first update
- *    1e-7 -> 2e-10..1e-9, from where the last update needs no sweep: 11.1
- *    -> 9.4 us per step.  Newton's predictor saves no update there, and the
- *    pre-solve cost midpoint-midpoint 8 % at dT = 0.1.)
+ *    this: the pre-solve lets the last update go without a sweep, where
+ *    Newton's predictor saves no update by it.
  *  - shoot_kappa: shooting (mrvi_predict_shoot) is offered where kappa is
- *    at most this (FPU, trapezoidal-trapezoidal, dt = 0.001: 1.98 / 1.94 /
- *    2.56 / 2.90 slow updates per step at dT = 0.03 / 0.1 / 0.3 / 1, kappa
- *    = 3 at dT = 1, where it takes 0.7 of Newton's time).
+ *    at most this.
  *  - shoot_hess_kappa: ... and its Jacobian takes the sampled Hessian
- *    where kappa is above this (below, M / dT alone: FPU, dT = 0.01, kappa
- *    = 3e-4)
+ *    where kappa is above this (below, M / dT alone)
  *  - shoot_full_kappa: ... and the Hessians of every point where it is
- *    above this (FPU, dT = 1, kappa = 3: the sampled Hessian misses the
- *    fast oscillation of hess V, and 4 updates did not reach the target;
- *    summed from phi'' per term, mrvi_terms_grad_d2, the first sweep costs
- *    1.2 of the others)
+ *    above this: the sampled Hessian misses the fast oscillation of hess V
+ *    (summed from phi'' per term, mrvi_terms_grad_d2).
  *  - shoot_last: ... and its last update is made without the sweep after
  *    it where the last contraction, repeated, and the fast rows' share (3
- *    kappa / p of |G|, below) leave at most this times the target (FPU,
- *    tol 1e-9: the third sweep at dT = 0.3 and 1, where the second left
- *    |G| 1e-11..3e-10, and the second at dT = 0.01 and 0.1; every such step
- *    accepted) */
+ *    kappa / p of |G|, below) leave at most this times the target. */
 
 /* Point kinds within an interval: at node m (cB = 0, explicit), inside
  * (cA cB != 0, implicit), at node m + 1 (cA = 0, momentum only). */
@@ -1331,8 +1319,8 @@ static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * p); where that moves x_s by more than rsweep (same measure), the fast nodes
  * are swept again along the new slow path and the slow row solved again.  What
  * the sampled solve leaves out, the response of the fast nodes to x_s and the
- * sample's quadrature error, is a small fraction of its change (FPU: about
- * 1e-3).  Every step of this depends on (q_k, p_k) only. */
+ * sample's quadrature error, is a small fraction of its change (about 1e-3
+ * of it on the FPU chain; doc/performance.md, "Tuning constants").  Every step of this depends on (q_k, p_k) only. */
 static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const double r = slow_update(pr, st, x, 1);
   /* (after the pre-solve the slow row is close, but not to the
@@ -1387,8 +1375,8 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
     return;
   }
   /* The slow row again with its points along the swept path.  (Sweeping
-   * the fast nodes once more along the corrected slow path does not save
-   * a Newton update on the FPU: measured, it only costs a sweep.) */
+   * the fast nodes once more along the corrected slow path saves no Newton
+   * update: doc/performance.md, "Tuning constants".) */
   sweep(pr, st, x, 1);
   slow_newton(pr, st, x);
 }
@@ -1522,9 +1510,9 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
    * above rstop = (0.01 tol)^(1/4), a fixed-point update would leave more
    * than sqrt(0.01 tol), from where one Newton update of the step lands at
    * the 0.01 tol where the updates stop (integrator.c).  The fast path,
-   * swept along the old slow path, lags a sampled solve's change by about
-   * 1e-3 of it (FPU), hence a new sweep only above 10 rstop (measured on
-   * bench_fpu: 1.8e-2 at tol = 1e-9 is the fastest of 3e-3 .. 5e-2). */
+   * swept along the old slow path, lags a sampled solve's change by a
+   * small fraction of it, hence a new sweep only above 10 rstop (the factor
+   * and its measurement: doc/performance.md, "Tuning constants"). */
   pr->rstop = pow(0.01 * tol, 0.25);
   pr->rsweep = 10.0 * pr->rstop;
 }
