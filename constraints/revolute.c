@@ -24,8 +24,8 @@ static int check(int n_in, int n_params, const double *par, char *msg,
                             len) < 0
                ? MRVI_EINVAL
                : 2;
-  const int d =
-      mrvi_joint_check("revolute", (1 << 2) | (1 << 3), 9, n_in, n_params, par, msg, len);
+  const int d = mrvi_joint_check("revolute", (1 << 2) | (1 << 3), 9, n_in,
+                                 n_params, par, msg, len);
   if (d < 0)
     return d;
   const double *a = par + MRVI_JOINT_HEAD + 6;

@@ -29,20 +29,20 @@ static void test_types(void) {
   for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
     par[0] = cases[i].d, par[1] = cases[i].nb;
     par[8] = par[11] = par[15] = 1.0; /* revolute 3-D: a, u, w nonzero */
-    const int rows = mrvi_constraint_type_find(cases[i].type)
-                         ->check(cases[i].n_in, cases[i].n_par, par, msg,
-                                 sizeof msg);
+    const int rows =
+        mrvi_constraint_type_find(cases[i].type)
+            ->check(cases[i].n_in, cases[i].n_par, par, msg, sizeof msg);
     CHECK(rows == cases[i].rows, "%s on %d inputs: %d rows (want %d) %s",
           cases[i].type, cases[i].n_in, rows, cases[i].rows, msg);
   }
   par[0] = 3, par[1] = 2;
-  CHECK(mrvi_constraint_type_find("spherical")->check(12, 8, par, msg,
-                                                      sizeof msg) < 0 &&
+  CHECK(mrvi_constraint_type_find("spherical")
+                    ->check(12, 8, par, msg, sizeof msg) < 0 &&
             strstr(msg, "need 24 inputs"),
         "spherical with too few inputs refused: %s", msg);
   par[0] = 2;
-  CHECK(mrvi_constraint_type_find("spherical")->check(12, 6, par, msg,
-                                                      sizeof msg) < 0 &&
+  CHECK(mrvi_constraint_type_find("spherical")
+                    ->check(12, 6, par, msg, sizeof msg) < 0 &&
             strstr(msg, "needs 3-D bodies"),
         "2-D spherical refused: %s", msg);
 }
@@ -103,8 +103,8 @@ static mrvi_model *free_body(const double *J, const double *omega) {
   double R[9];
   const double axis[3] = {0.3, 0.4, -0.2};
   rodrigues(axis, 1.0, R);
-  const int b = mrvi_model_add_body(m, "B", 3, MRVI_SLOW, 2.0, J, x0, R, v0,
-                                    omega);
+  const int b =
+      mrvi_model_add_body(m, "B", 3, MRVI_SLOW, 2.0, J, x0, R, v0, omega);
   CHECK(b == 0, "free body added: %s", mrvi_model_errmsg(m));
   return m;
 }
@@ -186,8 +186,10 @@ static void test_isotropic(void) {
   CHECK(fabs(o2 - 2.0) < 0.05, "isotropic body: order %.3f (want 2)", o2);
   CHECK(e3 < 1e-3, "isotropic body: error %.3g at dT 0.01", e3);
   const double en = isotropic_error(0.02, MRVI_FORM_NULL_SPACE);
-  CHECK(fabs(en - e2) < 1e-9, "isotropic body: null-space error %.6g vs "
-        "multipliers %.6g", en, e2);
+  CHECK(fabs(en - e2) < 1e-9,
+        "isotropic body: null-space error %.6g vs "
+        "multipliers %.6g",
+        en, e2);
 }
 
 /* ---------------------------------------------------------------------------
@@ -201,9 +203,9 @@ static const double top_M = 1.0, top_l = 0.5, top_g = 9.81, top_J1 = 0.2,
 
 /* One body joined to the ground at the origin by `type`, under gravity g. */
 static mrvi_model *grounded(const char *type, int D, double M, const double *J,
-                            const double *x0, const double *R,
-                            const double *v0, const double *w,
-                            const double *axis, const double *g) {
+                            const double *x0, const double *R, const double *v0,
+                            const double *w, const double *axis,
+                            const double *g) {
   mrvi_model *m = mrvi_model_create();
   const double pivot[3] = {0, 0, 0};
   int st = mrvi_model_add_body(m, "b", D, MRVI_SLOW, M, J, x0, R, v0, w);
@@ -220,9 +222,9 @@ static mrvi_model *heavy_top(void) {
   /* Columns d1 = (cos a, 0, -sin a), d2 = e2, d3 = (sin a, 0, cos a). */
   const double R[9] = {ca, 0, sa, 0, 1, 0, -sa, 0, ca};
   const double d3[3] = {sa, 0, ca};
-  const double ws = top_M * top_g * top_l / (top_J3 * top_wp) +
-                    (top_J1 + top_M * top_l * top_l - top_J3) / top_J3 *
-                        top_wp * ca;
+  const double ws =
+      top_M * top_g * top_l / (top_J3 * top_wp) +
+      (top_J1 + top_M * top_l * top_l - top_J3) / top_J3 * top_wp * ca;
   double w[3], x0[3], v0[3];
   for (int a = 0; a < 3; a++) {
     w[a] = ws * d3[a] + (a == 2 ? top_wp : 0.0);
@@ -286,8 +288,7 @@ static void test_top(void) {
          z[0], z[1], z[2], oz, f[0], f[1], f[2], of, L[0], L[1], L[2]);
   CHECK(fabs(of - 2.0) < 0.1, "heavy top: precession order %.3f", of);
   CHECK(fabs(oz - 2.0) < 0.1, "heavy top: tilt order %.3f", oz);
-  CHECK(f[2] < 1e-3 && z[2] < 1e-3, "heavy top: errors %.3g %.3g", f[2],
-        z[2]);
+  CHECK(f[2] < 1e-3 && z[2] < 1e-3, "heavy top: errors %.3g %.3g", f[2], z[2]);
   CHECK(L[2] < 1e-9, "heavy top: L.e3 and L.d3 conserved to %.3g", L[2]);
   double zn, fn, Ln;
   top_errors(0.01, MRVI_FORM_NULL_SPACE, &zn, &fn, &Ln);
@@ -385,20 +386,19 @@ static void test_bad_input(void) {
   mrvi_model *m = mrvi_model_create();
   const double x0[3] = {0, 0, 0};
   const double rod[3] = {1.0, 1.0, 2.0}, ok[3] = {1, 1, 1};
-  expect_fail(m,
-              mrvi_model_add_body(m, "rod", 3, MRVI_SLOW, 1, rod, x0, NULL,
-                                  NULL, NULL),
-              "triangle inequality", "strict triangle inequality J3 < J1 + J2");
+  expect_fail(
+      m,
+      mrvi_model_add_body(m, "rod", 3, MRVI_SLOW, 1, rod, x0, NULL, NULL, NULL),
+      "triangle inequality", "strict triangle inequality J3 < J1 + J2");
   const double mirror[9] = {1, 0, 0, 0, 1, 0, 0, 0, -1};
-  expect_fail(m,
-              mrvi_model_add_body(m, "m", 3, MRVI_SLOW, 1, ok, x0, mirror,
-                                  NULL, NULL),
-              "det -1", "reflection");
+  expect_fail(
+      m,
+      mrvi_model_add_body(m, "m", 3, MRVI_SLOW, 1, ok, x0, mirror, NULL, NULL),
+      "det -1", "reflection");
   const double skew[9] = {1, 0.1, 0, 0, 1, 0, 0, 0, 1};
-  expect_fail(m,
-              mrvi_model_add_body(m, "s", 3, MRVI_SLOW, 1, ok, x0, skew, NULL,
-                                  NULL),
-              "not orthonormal", "not a rotation matrix");
+  expect_fail(
+      m, mrvi_model_add_body(m, "s", 3, MRVI_SLOW, 1, ok, x0, skew, NULL, NULL),
+      "not orthonormal", "not a rotation matrix");
   CHECK(mrvi_model_add_body(m, "a", 3, MRVI_SLOW, 1, ok, x0, NULL, NULL,
                             NULL) == 0,
         "good body: %s", mrvi_model_errmsg(m));
@@ -410,11 +410,11 @@ static void test_bad_input(void) {
               "unknown joint type", "unknown joint type 'hinge'");
   expect_fail(m, mrvi_model_add_joint(m, "revolute", 0, -1, x0, NULL),
               "revolute without axis", "axis must be a nonzero");
-  expect_fail(m,
-              mrvi_model_add_body(m, "b", 2, MRVI_SLOW, 1, ok, x0, NULL, NULL,
-                                  NULL),
-              "2-D body in a 3-D model", "of dimension 2 in a model of "
-                                         "dimension 3");
+  expect_fail(
+      m, mrvi_model_add_body(m, "b", 2, MRVI_SLOW, 1, ok, x0, NULL, NULL, NULL),
+      "2-D body in a 3-D model",
+      "of dimension 2 in a model of "
+      "dimension 3");
   mrvi_model_free(m);
 }
 
@@ -448,13 +448,13 @@ static void test_layout(void) {
   mrvi_model_free(m);
   const double J[3] = {1.0, 2.0, 2.5}, w[3] = {0.5, 1.2, -0.7};
   m = free_body(J, w);
-  CHECK(mrvi_model_conserved(m, lin, ang) == 0 && lin[0] && lin[1] &&
-            lin[2] && ang[0] && ang[1] && ang[2],
+  CHECK(mrvi_model_conserved(m, lin, ang) == 0 && lin[0] && lin[1] && lin[2] &&
+            ang[0] && ang[1] && ang[2],
         "free body: every momentum component conserved");
   const double g[3] = {0, 0, -1};
   mrvi_model_set_gravity(m, g);
-  CHECK(mrvi_model_conserved(m, lin, ang) == 0 && lin[0] && lin[1] &&
-            !lin[2] && !ang[0] && !ang[1] && ang[2],
+  CHECK(mrvi_model_conserved(m, lin, ang) == 0 && lin[0] && lin[1] && !lin[2] &&
+            !ang[0] && !ang[1] && ang[2],
         "free body in gravity: p_x, p_y, L_z (%d %d %d, %d %d %d)", lin[0],
         lin[1], lin[2], ang[0], ang[1], ang[2]);
   mrvi_model_free(m);

@@ -121,11 +121,10 @@ static int rotation(mrvi_model *m, const char *name, int D, const double *R,
       }
       worst = fmax(worst, fabs(s - (i == j)));
     }
-  const double det =
-      D == 2 ? R[0] * R[3] - R[1] * R[2]
-             : R[0] * (R[4] * R[8] - R[5] * R[7]) -
-                   R[1] * (R[3] * R[8] - R[5] * R[6]) +
-                   R[2] * (R[3] * R[7] - R[4] * R[6]);
+  const double det = D == 2 ? R[0] * R[3] - R[1] * R[2]
+                            : R[0] * (R[4] * R[8] - R[5] * R[7]) -
+                                  R[1] * (R[3] * R[8] - R[5] * R[6]) +
+                                  R[2] * (R[3] * R[7] - R[4] * R[6]);
   if (!(worst <= 1e-6))
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "body '%s': the orientation is not a rotation "
@@ -188,8 +187,8 @@ int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
       return mrvi_model_fail(m, MRVI_EINVAL,
                              "body '%s': a particle has that name", name);
   if (rate != MRVI_SLOW && rate != MRVI_FAST)
-    return mrvi_model_fail(m, MRVI_EINVAL, "body '%s': rate must be slow or fast",
-                           name);
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s': rate must be slow or fast", name);
   if (!(isfinite(mass) && mass > 0.0))
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "body '%s': mass must be positive (got %g)", name,
@@ -202,7 +201,11 @@ int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
   const double eye2[4] = {1, 0, 0, 1};
   int st;
   if ((st = second_moments(m, name, D, inertia, E)) < 0 ||
-      (st = rotation(m, name, D, R0 ? R0 : D == 3 ? identity : eye2, d)) < 0)
+      (st = rotation(m, name, D,
+                     R0       ? R0
+                     : D == 3 ? identity
+                              : eye2,
+                     d)) < 0)
     return st;
   /* Coordinates and their initial data: phi, phi' = v0; d_i, d_i' = w x d_i. */
   double q[12], v[12], mass_of[12];
@@ -264,8 +267,8 @@ int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
     in[j] = body.first + D + j;
   char label[300];
   mrvi_fmt(label, sizeof label, "body %s", name);
-  body.constraint = mrvi_model_add_constraint(m, "body", D * D, in, 0, NULL,
-                                              label);
+  body.constraint =
+      mrvi_model_add_constraint(m, "body", D * D, in, 0, NULL, label);
   if (body.constraint < 0) {
     free(body.name);
     return body.constraint;
@@ -281,8 +284,8 @@ int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
  * ------------------------------------------------------------------------- */
 typedef struct joint_kind {
   const char *type;
-  int dims;  /* bit mask 1 << D */
-  int axis;  /* needs an axis (3-D revolute) */
+  int dims; /* bit mask 1 << D */
+  int axis; /* needs an axis (3-D revolute) */
 } joint_kind;
 
 static const joint_kind joint_kinds[] = {
@@ -333,9 +336,9 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                            "revolute)",
                            type ? type : "(null)");
   if (body_a < 0 || body_a >= m->n_bodies || body_b >= m->n_bodies)
-    return mrvi_model_fail(m, MRVI_EINVAL, "%s joint: unknown body (index %d)",
-                           type, body_a < 0 || body_a >= m->n_bodies ? body_a
-                                                                     : body_b);
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "%s joint: unknown body (index %d)", type,
+        body_a < 0 || body_a >= m->n_bodies ? body_a : body_b);
   const char *na = m->bodies[body_a].name,
              *nb = body_b >= 0 ? m->bodies[body_b].name : "ground";
   if (body_a == body_b)
@@ -343,14 +346,13 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                            "%s joint between body '%s' and itself", type, na);
   const int D = m->bodies[body_a].dim;
   if (!(kind->dims & (1 << D)))
-    return mrvi_model_fail(m, MRVI_EINVAL,
-                           "%s joint %s-%s: no %s joint in %d-D (%s)", type,
-                           na, nb, type, D,
-                           D == 2 ? "a 2-D hinge is the revolute joint"
-                                  : "use a 2-D model");
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "%s joint %s-%s: no %s joint in %d-D (%s)", type, na,
+        nb, type, D,
+        D == 2 ? "a 2-D hinge is the revolute joint" : "use a 2-D model");
   if (!point)
-    return mrvi_model_fail(m, MRVI_EINVAL, "%s joint %s-%s: no point", type,
-                           na, nb);
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s joint %s-%s: no point", type, na,
+                           nb);
   double par[MRVI_MAX_INPUTS];
   int n_par = 0, in[24], n_in = 0;
   par[n_par++] = D;
