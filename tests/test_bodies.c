@@ -7,6 +7,7 @@
 #include "models.h"
 #include "testlib.h"
 
+#include <hdf5.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -460,6 +461,87 @@ static void test_layout(void) {
   mrvi_model_free(m);
 }
 
+/* ---------------------------------------------------------------------------
+ * Output (doc/output.md): /bodies/position and /bodies/rotation are phi and
+ * [d_1 d_2 d_3] of /macro/q; /macro/angular_momentum includes the bodies.
+ * ------------------------------------------------------------------------- */
+static int read_all(hid_t f, const char *path, double *buf, size_t cap,
+                    hsize_t *dims, int *rank) {
+  hid_t d = H5Dopen2(f, path, H5P_DEFAULT);
+  if (d < 0)
+    return -1;
+  hid_t sp = H5Dget_space(d);
+  *rank = H5Sget_simple_extent_ndims(sp);
+  H5Sget_simple_extent_dims(sp, dims, NULL);
+  size_t count = 1;
+  for (int a = 0; a < *rank; a++)
+    count *= dims[a];
+  int rc = count <= cap ? H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL,
+                                  H5P_DEFAULT, buf)
+                        : -1;
+  H5Sclose(sp);
+  H5Dclose(d);
+  return rc;
+}
+
+static void test_output(void) {
+  mrvi_model *m = heavy_top();
+  mrvi_settings s = settings(0.01, 0.1, MRVI_FORM_MULTIPLIERS);
+  mrvi_writer_options opt = {
+      .system_name = "top", .every = 1, .micro = 1, .force = 1};
+  mrvi_writer *w = NULL;
+  char msg[1024];
+  const char *path = "bodies_output.h5";
+  CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == 0, "%s",
+        msg);
+  mrvi_summary sum;
+  CHECK(w && mrvi_run(m, &s, mrvi_writer_observe, w, NULL, &sum) == 0, "%s",
+        sum.message);
+  if (w)
+    mrvi_writer_close(w, "completed", msg, sizeof msg);
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  CHECK(f >= 0, "output opens");
+  if (f < 0) {
+    mrvi_model_free(m);
+    return;
+  }
+  static double q[11 * 12], pos[11 * 3], rot[11 * 9], L[11 * 3], p[11 * 12];
+  hsize_t dq[4], dp[4], dr[4], dl[4], dpp[4];
+  int rq, rp, rr, rl, rpp;
+  CHECK(read_all(f, "/macro/q", q, 132, dq, &rq) >= 0 &&
+            read_all(f, "/macro/p", p, 132, dpp, &rpp) >= 0 &&
+            read_all(f, "/bodies/position", pos, 33, dp, &rp) >= 0 &&
+            read_all(f, "/bodies/rotation", rot, 99, dr, &rr) >= 0 &&
+            read_all(f, "/macro/angular_momentum", L, 33, dl, &rl) >= 0,
+        "body datasets read");
+  CHECK(rp == 3 && dp[0] == 11 && dp[1] == 1 && dp[2] == 3,
+        "/bodies/position is 11 x 1 x 3 (rank %d)", rp);
+  CHECK(rr == 4 && dr[0] == 11 && dr[1] == 1 && dr[2] == 3 && dr[3] == 3,
+        "/bodies/rotation is 11 x 1 x 3 x 3 (rank %d)", rr);
+  double e = 0.0, eL = 0.0;
+  for (int k = 0; k < 11; k++) {
+    double R[9], x[3], P[3], Lk[3];
+    mrvi_model_body_pose(m, 0, q + k * 12, x, R);
+    for (int a = 0; a < 3; a++)
+      e = fmax(e, fabs(x[a] - pos[k * 3 + a]));
+    for (int a = 0; a < 9; a++)
+      e = fmax(e, fabs(R[a] - rot[k * 9 + a]));
+    mrvi_model_momentum(m, q + k * 12, p + k * 12, P, Lk);
+    for (int a = 0; a < 3; a++)
+      eL = fmax(eL, fabs(Lk[a] - L[k * 3 + a]));
+  }
+  CHECK(e == 0.0 && eL == 0.0,
+        "positions, rotations, angular momentum as q "
+        "says (%.3g, %.3g)",
+        e, eL);
+  /* Column 2 of the rotation is d3 = q[9..11]. */
+  CHECK(rot[9 * 10 + 2] == q[12 * 10 + 9] && rot[9 * 10 + 5] == q[12 * 10 + 10],
+        "rotation column 3 is d3");
+  H5Fclose(f);
+  remove(path);
+  mrvi_model_free(m);
+}
+
 int main(void) {
   test_types();
   test_bad_input();
@@ -469,5 +551,6 @@ int main(void) {
   test_isotropic();
   test_top();
   test_pendulum();
+  test_output();
   return test_finish();
 }
