@@ -542,6 +542,33 @@ static void test_output(void) {
   mrvi_model_free(m);
 }
 
+/* The shipped heavy top (systems/heavy_top.yaml: orientation as axis and
+ * angle) is the model built here from the rotation matrix. */
+static void test_loader(void) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  int st = mrvi_system_load(test_source_path("systems/heavy_top.yaml"), NULL, 0,
+                            &sys, msg, sizeof msg);
+  CHECK(st == 0, "systems/heavy_top.yaml loads: %s", msg);
+  if (st)
+    return;
+  mrvi_model *m = heavy_top();
+  const double *a = mrvi_model_q0(sys->model), *b = mrvi_model_q0(m);
+  const double *va = mrvi_model_v0(sys->model), *vb = mrvi_model_v0(m);
+  double e = 0.0;
+  CHECK(mrvi_model_n(sys->model) == 12 &&
+            mrvi_model_constraint_rows(sys->model) == 9,
+        "loaded top: 12 coordinates, 9 rows");
+  for (int i = 0; i < 12 && mrvi_model_n(sys->model) == 12; i++) {
+    e = fmax(e, fabs(a[i] - b[i]) + fabs(va[i] - vb[i]));
+    CHECK(mrvi_model_mass(sys->model, i) == mrvi_model_mass(m, i), "mass of %s",
+          mrvi_model_coordinate_name(m, i));
+  }
+  CHECK(e < 1e-14, "loaded initial data as built in C (%.3g)", e);
+  mrvi_model_free(m);
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   test_types();
   test_bad_input();
@@ -552,5 +579,6 @@ int main(void) {
   test_top();
   test_pendulum();
   test_output();
+  test_loader();
   return test_finish();
 }
