@@ -443,17 +443,25 @@ int mrvi_model_body_first(const mrvi_model *m, int b);
 void mrvi_model_body_pose(const mrvi_model *m, int b, const double *q,
                           double *position, double *R);
 
-/* Joint of constraint type `type` ("spherical" 3-D, "revolute" 2-D and
- * 3-D; doc/multibody.md) between body_a and body_b, or body_a and the
- * ground (body_b < 0).  point: the joint's point in space at the initial
- * configuration (D entries), stored in each body's frame so that the
- * initial positions meet the joint; axis: the hinge axis in space at the
- * initial configuration (3-D revolute: 3 entries, not zero; NULL for the
- * others).  Refused with a message: unknown body, a body joined to itself,
- * a type that is not a joint or not of the bodies' dimension.  Returns the
+/* Joint of constraint type `type` (doc/multibody.md, "Joints") between
+ * body_a and body_b, or body_a and the ground (body_b < 0):
+ *   spherical    3-D, 3 rows; no axis
+ *   revolute     2-D 2 rows (no axis), 3-D 5 rows (axis: the hinge)
+ *   weld         2-D 3 rows, 3-D 6 rows; no axis
+ *   prismatic    2-D 2 rows, 3-D 5 rows; axis: the sliding direction
+ *   cylindrical  3-D, 4 rows; axis: of rotation and sliding
+ *   planar       3-D, 3 rows; axis: the plane's normal
+ * point: the joint's point in space at the initial configuration (D
+ * entries), stored in each body's frame so that the initial positions meet
+ * the joint; axis: in space at the initial configuration (D entries, not
+ * zero), NULL for the types that take none.  Refused with a message:
+ * unknown body, a body joined to itself, an unknown type or one not of the
+ * bodies' dimension, an axis missing, zero or not taken.  Returns the
  * constraint index (>= 0) or a status < 0. */
 int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                          int body_b, const double *point, const double *axis);
+/* Names of the joint types above, NULL-terminated. */
+const char *const *mrvi_joint_type_names(void);
 
 /* ---------------------------------------------------------------------------
  * Integrator settings (arXiv 2406.12991 §3.3): rule (alpha, gamma) of eq:Zapprox for the

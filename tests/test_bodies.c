@@ -21,15 +21,19 @@ static void test_types(void) {
   const struct {
     const char *type;
     int n_in, n_par, d, nb, rows;
-  } cases[] = {{"body", 9, 0, 0, 0, 6},       {"body", 4, 0, 0, 0, 3},
-               {"spherical", 24, 8, 3, 2, 3}, {"spherical", 12, 8, 3, 1, 3},
-               {"revolute", 24, 17, 3, 2, 5}, {"revolute", 12, 17, 3, 1, 5},
-               {"revolute", 12, 6, 2, 2, 2},  {"revolute", 6, 6, 2, 1, 2}};
-  double par[17] = {0};
+  } cases[] = {{"body", 9, 0, 0, 0, 6},          {"body", 4, 0, 0, 0, 3},
+               {"spherical", 24, 8, 3, 2, 3},    {"spherical", 12, 8, 3, 1, 3},
+               {"revolute", 24, 26, 3, 2, 5},    {"revolute", 12, 26, 3, 1, 5},
+               {"revolute", 12, 14, 2, 2, 2},    {"revolute", 6, 14, 2, 1, 2},
+               {"weld", 24, 26, 3, 2, 6},        {"weld", 6, 14, 2, 1, 3},
+               {"prismatic", 24, 26, 3, 2, 5},   {"prismatic", 12, 14, 2, 2, 2},
+               {"cylindrical", 12, 26, 3, 1, 4}, {"planar", 24, 26, 3, 2, 3}};
+  double par[26];
+  for (int i = 0; i < 26; i++)
+    par[i] = 1.0;
   char msg[400] = "";
   for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
     par[0] = cases[i].d, par[1] = cases[i].nb;
-    par[8] = par[11] = par[15] = 1.0; /* revolute 3-D: a, u, w nonzero */
     const int rows =
         mrvi_constraint_type_find(cases[i].type)
             ->check(cases[i].n_in, cases[i].n_par, par, msg, sizeof msg);
@@ -110,28 +114,40 @@ static mrvi_model *free_body(const double *J, const double *omega) {
   return m;
 }
 
+/* Over a run: max |H - H0|/|H0| (H = T + V + W), max |L - L0| of the
+ * angular momentum and max |g|. */
+static void invariants(const mrvi_model *m, const mrvi_trajectory *tr,
+                       double *eH, double *eL, double *eg) {
+  const int n = tr->n, R = mrvi_model_constraint_rows(m);
+  double H0 = 0.0, L0[3] = {0, 0, 0}, P[3];
+  double *g = malloc((size_t)R * sizeof *g);
+  *eH = *eL = *eg = 0.0;
+  for (long k = 0; k < tr->n_macro; k++) {
+    double T, V, W, L[3] = {0, 0, 0};
+    mrvi_model_energy(m, tr->q + k * n, tr->p + k * n, &T, &V, &W);
+    mrvi_model_momentum(m, tr->q + k * n, tr->p + k * n, P, L);
+    if (k == 0) {
+      H0 = T + V + W;
+      memcpy(L0, L, sizeof L);
+    }
+    *eH = fmax(*eH, fabs(T + V + W - H0) / fabs(H0));
+    for (int a = 0; a < 3; a++)
+      *eL = fmax(*eL, fabs(L[a] - L0[a]));
+    mrvi_model_constraint_eval(m, tr->q + k * n, g, NULL);
+    for (int r = 0; r < R; r++)
+      *eg = fmax(*eg, fabs(g[r]));
+  }
+  free(g);
+}
+
 static void test_free_body(mrvi_constraint_form form) {
   const double J[3] = {1.0, 2.0, 2.5}, w[3] = {0.5, 1.2, -0.7};
   mrvi_model *m = free_body(J, w);
   const mrvi_settings s = settings(0.05, 10.0, form);
   mrvi_trajectory *tr = run("free body", m, &s);
   if (tr) {
-    const int n = tr->n, R = mrvi_model_constraint_rows(m);
-    double T0, L0[3], P0[3], eH = 0.0, eL = 0.0, eg = 0.0;
-    double *g = malloc((size_t)R * sizeof *g);
-    mrvi_model_energy(m, tr->q, tr->p, &T0, NULL, NULL);
-    mrvi_model_momentum(m, tr->q, tr->p, P0, L0);
-    for (long k = 1; k < tr->n_macro; k++) {
-      double T, L[3], P[3];
-      mrvi_model_energy(m, tr->q + k * n, tr->p + k * n, &T, NULL, NULL);
-      mrvi_model_momentum(m, tr->q + k * n, tr->p + k * n, P, L);
-      eH = fmax(eH, fabs(T - T0) / T0);
-      for (int a = 0; a < 3; a++)
-        eL = fmax(eL, fabs(L[a] - L0[a]));
-      mrvi_model_constraint_eval(m, tr->q + k * n, g, NULL);
-      for (int r = 0; r < R; r++)
-        eg = fmax(eg, fabs(g[r]));
-    }
+    double eH, eL, eg;
+    invariants(m, tr, &eH, &eL, &eg);
     printf("free body (%s): 200 steps, max |T - T0|/T0 %.3g, max |L - L0| "
            "%.3g, max |g| %.3g\n",
            form_name(form), eH, eL, eg);
@@ -142,7 +158,118 @@ static void test_free_body(mrvi_constraint_form form) {
           eL);
     CHECK(eg <= 1e-13, "free body (%s): internal constraints %.3g",
           form_name(form), eg);
-    free(g);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
+ * The other joints, with answers known exactly:
+ *   weld: two free bodies welded are one free rigid body, whose discrete
+ *     map is again Moser-Veselov's: energy and angular momentum exact;
+ *   planar: a body on a horizontal plane under gravity moves as a free
+ *     planar body: energy exact, height constant;
+ *   prismatic, cylindrical: a body sliding down an incline (axis t) under
+ *     gravity: phi(t) = phi0 + (g.t) t t^2/2, which the midpoint rule
+ *     integrates exactly (constant force along the axis).
+ * ------------------------------------------------------------------------- */
+static void test_weld(int D, mrvi_constraint_form form) {
+  mrvi_model *m = mrvi_model_create();
+  const double J3[3] = {1.0, 2.0, 2.5}, K3[3] = {0.5, 0.4, 0.3}, J2 = 0.7,
+               K2 = 0.3;
+  const double xa[3] = {0, 0, 0}, xb[3] = {1, 0.5, -0.2};
+  const double va[3] = {0.1, 0.2, 0.3}, wa[3] = {0.4, -0.3, 0.8}, w2 = 0.9;
+  double vb[3] = {0, 0, 0}, R[9];
+  const double axis[3] = {0.2, -0.4, 0.5};
+  rodrigues(axis, 1.0, R);
+  const double R2[4] = {cos(0.3), -sin(0.3), sin(0.3), cos(0.3)};
+  /* B moves with A: v_B = v_A + w x (x_B - x_A). */
+  if (D == 3) {
+    vb[0] = va[0] + wa[1] * xb[2] - wa[2] * xb[1];
+    vb[1] = va[1] + wa[2] * xb[0] - wa[0] * xb[2];
+    vb[2] = va[2] + wa[0] * xb[1] - wa[1] * xb[0];
+  } else {
+    vb[0] = va[0] - w2 * xb[1];
+    vb[1] = va[1] + w2 * xb[0];
+  }
+  int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 2.0, D == 3 ? J3 : &J2, xa,
+                               D == 3 ? R : R2, va, D == 3 ? wa : &w2);
+  st |= mrvi_model_add_body(m, "b", D, MRVI_SLOW, 1.0, D == 3 ? K3 : &K2, xb,
+                            NULL, vb, D == 3 ? wa : &w2);
+  const double pt[3] = {0.5, 0.2, 0.1};
+  CHECK(st == 1 && mrvi_model_add_joint(m, "weld", 0, 1, pt, NULL) >= 0,
+        "weld %d-D: %s", D, mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 5.0, form);
+  mrvi_trajectory *tr = run("weld", m, &s);
+  if (tr) {
+    double eH, eL, eg;
+    invariants(m, tr, &eH, &eL, &eg);
+    printf("weld %d-D (%s): max |H - H0|/H0 %.3g, |L - L0| %.3g, |g| %.3g\n", D,
+           form_name(form), eH, eL, eg);
+    CHECK(eH < 1e-12 && eL < 1e-12 && eg <= 1e-13,
+          "weld %d-D (%s): energy %.3g, angular momentum %.3g, g %.3g", D,
+          form_name(form), eH, eL, eg);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+static void test_planar(void) {
+  mrvi_model *m = mrvi_model_create();
+  const double J[3] = {1.0, 2.0, 2.5}, x0[3] = {0.3, -0.1, 0.5};
+  const double v0[3] = {0.4, -0.2, 0}, w0[3] = {0, 0, 1.3},
+               g[3] = {0, 0, -9.81};
+  const double normal[3] = {0, 0, 1};
+  double R[9];
+  const double axis[3] = {0.1, 0.7, -0.3};
+  rodrigues(axis, 1.0, R);
+  CHECK(mrvi_model_add_body(m, "puck", 3, MRVI_SLOW, 1.5, J, x0, R, v0, w0) ==
+                0 &&
+            mrvi_model_add_joint(m, "planar", 0, -1, x0, normal) >= 0 &&
+            mrvi_model_set_gravity(m, g) >= 0,
+        "planar: %s", mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 5.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *tr = run("planar", m, &s);
+  if (tr) {
+    double eH, eL, eg, ez = 0.0;
+    invariants(m, tr, &eH, &eL, &eg);
+    for (long k = 0; k < tr->n_macro; k++)
+      ez = fmax(ez, fabs(tr->q[k * tr->n + 2] - x0[2]));
+    printf("planar: max |H - H0|/H0 %.3g, height %.3g, |g| %.3g\n", eH, ez, eg);
+    CHECK(eH < 1e-12 && ez < 1e-13 && eg <= 1e-13,
+          "planar: energy %.3g, height %.3g, g %.3g", eH, ez, eg);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+static void test_slider(const char *type, int D) {
+  mrvi_model *m = mrvi_model_create();
+  const double J[3] = {1.0, 2.0, 2.5}, J2 = 0.4, x0[3] = {0.2, 0.1, 0.3};
+  const double g[3] = {0, D == 2 ? -9.81 : 0, D == 3 ? -9.81 : 0};
+  double t[3] = {0.6, D == 2 ? 0.8 : 0.0, D == 3 ? 0.8 : 0.0}, v0[3], gt = 0;
+  const double c = 0.5; /* initial speed along the axis */
+  for (int a = 0; a < D; a++) {
+    v0[a] = c * t[a];
+    gt += g[a] * t[a];
+  }
+  CHECK(mrvi_model_add_body(m, "slide", D, MRVI_SLOW, 1.5, D == 3 ? J : &J2, x0,
+                            NULL, v0, NULL) == 0 &&
+            mrvi_model_add_joint(m, type, 0, -1, x0, t) >= 0 &&
+            mrvi_model_set_gravity(m, g) >= 0,
+        "%s %d-D: %s", type, D, mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 2.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *tr = run(type, m, &s);
+  if (tr) {
+    double e = 0.0;
+    for (long k = 0; k < tr->n_macro; k++) {
+      const double tk = tr->t[k], sk = c * tk + 0.5 * gt * tk * tk;
+      for (int a = 0; a < D; a++)
+        e = fmax(e, fabs(tr->q[k * tr->n + a] - (x0[a] + sk * t[a])));
+    }
+    printf("%s %d-D: sliding down the incline, max |phi - exact| %.3g\n", type,
+           D, e);
+    CHECK(e < 1e-11, "%s %d-D: position error %.3g", type, D, e);
   }
   mrvi_trajectory_free(tr);
   mrvi_model_free(m);
@@ -410,7 +537,7 @@ static void test_bad_input(void) {
   expect_fail(m, mrvi_model_add_joint(m, "hinge", 0, -1, x0, NULL),
               "unknown joint type", "unknown joint type 'hinge'");
   expect_fail(m, mrvi_model_add_joint(m, "revolute", 0, -1, x0, NULL),
-              "revolute without axis", "axis must be a nonzero");
+              "revolute without axis", "a 3-D revolute joint needs an axis");
   expect_fail(
       m, mrvi_model_add_body(m, "b", 2, MRVI_SLOW, 1, ok, x0, NULL, NULL, NULL),
       "2-D body in a 3-D model",
@@ -580,5 +707,12 @@ int main(void) {
   test_pendulum();
   test_output();
   test_loader();
+  for (int D = 2; D <= 3; D++) {
+    test_weld(D, MRVI_FORM_MULTIPLIERS);
+    test_weld(D, MRVI_FORM_NULL_SPACE);
+    test_slider("prismatic", D);
+  }
+  test_slider("cylindrical", 3);
+  test_planar();
   return test_finish();
 }

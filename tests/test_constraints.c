@@ -67,19 +67,24 @@ static void test_derivatives(void) {
   check_type("linear", 3, 4, li, y6);
   /* Rigid bodies and joints (doc/multibody.md): inputs phi, d_1.., d_D of
    * one or two bodies; joint parameters D, bodies, two points, [axes]. */
-  double y24[24], jp[17];
+  double y24[24], jp[26];
   for (int i = 0; i < 24; i++)
     y24[i] = sin(1.7 * i + 0.3);
-  for (int i = 0; i < 17; i++)
+  for (int i = 0; i < 26; i++)
     jp[i] = cos(2.3 * i);
   check_type("body", 9, 0, jp, y24);
   check_type("body", 4, 0, jp, y24);
+  /* Parameters: D, bodies, two points and (but spherical) two frames. */
+  const char *const framed[] = {"revolute", "weld", "prismatic",
+                                "cylindrical", "planar"};
   for (int nb = 1; nb <= 2; nb++) {
     jp[0] = 3, jp[1] = nb;
     check_type("spherical", 12 * nb, 8, jp, y24);
-    check_type("revolute", 12 * nb, 17, jp, y24);
+    for (int t = 0; t < 5; t++)
+      check_type(framed[t], 12 * nb, 26, jp, y24);
     jp[0] = 2;
-    check_type("revolute", 6 * nb, 6, jp, y24);
+    for (int t = 0; t < 3; t++)
+      check_type(framed[t], 6 * nb, 14, jp, y24);
   }
 }
 

@@ -284,14 +284,27 @@ int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
  * ------------------------------------------------------------------------- */
 typedef struct joint_kind {
   const char *type;
-  int dims; /* bit mask 1 << D */
-  int axis; /* needs an axis (3-D revolute) */
+  int dims;  /* bit mask 1 << D */
+  int frame; /* its parameters carry the joint's frame (constraints/joint.h) */
+  int axis;  /* bit mask 1 << D: dimensions in which it needs an axis */
 } joint_kind;
 
 static const joint_kind joint_kinds[] = {
-    {"spherical", 1 << 3, 0},
-    {"revolute", (1 << 2) | (1 << 3), 1},
+    {"spherical", 1 << 3, 0, 0},
+    {"revolute", (1 << 2) | (1 << 3), 1, 1 << 3},
+    {"weld", (1 << 2) | (1 << 3), 1, 0},
+    {"prismatic", (1 << 2) | (1 << 3), 1, (1 << 2) | (1 << 3)},
+    {"cylindrical", 1 << 3, 1, 1 << 3},
+    {"planar", 1 << 3, 1, 1 << 3},
 };
+#define N_JOINT_KINDS ((int)(sizeof joint_kinds / sizeof joint_kinds[0]))
+
+const char *const *mrvi_joint_type_names(void) {
+  static const char *names[N_JOINT_KINDS + 1];
+  for (int i = 0; i < N_JOINT_KINDS; i++)
+    names[i] = joint_kinds[i].type;
+  return names;
+}
 
 /* Body-frame components R^T v of the space vector v (D entries) for body
  * b at the initial configuration. */
@@ -305,35 +318,48 @@ static void to_body(const mrvi_model *m, int b, const double *v, double *out) {
   }
 }
 
-/* Unit vectors u, w normal to the unit vector t with (t, u, w) right-handed. */
-static void normals(const double *t, double *u, double *w) {
-  int k = 0; /* the coordinate axis least aligned with t */
+/* The joint's frame t_1..t_D in space (D x D, row m = t_m): t_1 along the
+ * axis (e_1 without one), then unit normals with (t_1, t_2, t_3)
+ * right-handed (2-D: t_2 = t_1 turned by +90 degrees).  t_2 is along the
+ * coordinate axis least aligned with t_1, made normal to it. */
+static void joint_frame(int D, const double *axis, double *t) {
+  double n = 0.0;
+  for (int a = 0; a < D; a++) {
+    t[a] = axis ? axis[a] : a == 0;
+    n += t[a] * t[a];
+  }
+  for (int a = 0; a < D; a++)
+    t[a] /= sqrt(n);
+  if (D == 2) {
+    t[2] = -t[1], t[3] = t[0];
+    return;
+  }
+  int k = 0;
   for (int a = 1; a < 3; a++)
     if (fabs(t[a]) < fabs(t[k]))
       k = a;
-  double n = 0.0;
+  n = 0.0;
   for (int a = 0; a < 3; a++) {
-    u[a] = (a == k) - t[k] * t[a];
-    n += u[a] * u[a];
+    t[3 + a] = (a == k) - t[k] * t[a];
+    n += t[3 + a] * t[3 + a];
   }
-  n = sqrt(n);
   for (int a = 0; a < 3; a++)
-    u[a] /= n;
-  w[0] = t[1] * u[2] - t[2] * u[1];
-  w[1] = t[2] * u[0] - t[0] * u[2];
-  w[2] = t[0] * u[1] - t[1] * u[0];
+    t[3 + a] /= sqrt(n);
+  t[6] = t[1] * t[5] - t[2] * t[4];
+  t[7] = t[2] * t[3] - t[0] * t[5];
+  t[8] = t[0] * t[4] - t[1] * t[3];
 }
 
 int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                          int body_b, const double *point, const double *axis) {
   const joint_kind *kind = NULL;
-  for (size_t i = 0; i < sizeof joint_kinds / sizeof joint_kinds[0]; i++)
+  for (int i = 0; i < N_JOINT_KINDS; i++)
     if (type && strcmp(type, joint_kinds[i].type) == 0)
       kind = &joint_kinds[i];
   if (!kind)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "unknown joint type '%s' (joints: spherical, "
-                           "revolute)",
+                           "revolute, weld, prismatic, cylindrical, planar)",
                            type ? type : "(null)");
   if (body_a < 0 || body_a >= m->n_bodies || body_b >= m->n_bodies)
     return mrvi_model_fail(
@@ -353,6 +379,14 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
   if (!point)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s joint %s-%s: no point", type, na,
                            nb);
+  const int needs_axis = (kind->axis >> D) & 1;
+  if (needs_axis != (axis != NULL))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           needs_axis ? "%s joint %s-%s: a %d-D %s joint needs "
+                                        "an axis"
+                                      : "%s joint %s-%s: a %d-D %s joint takes "
+                                        "no axis",
+                           type, na, nb, D, type);
   double par[MRVI_MAX_INPUTS];
   int n_par = 0, in[24], n_in = 0;
   par[n_par++] = D;
@@ -378,30 +412,23 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
     for (int j = 0; j < D * (D + 1); j++)
       in[n_in++] = bd->first + j;
   }
-  if (kind->axis && D == 3) {
-    double t[3], nn = 0.0;
-    for (int a = 0; a < 3; a++) {
-      t[a] = axis ? axis[a] : 0.0;
-      nn += t[a] * t[a];
-    }
-    if (!(isfinite(nn) && nn > 0.0))
+  if (kind->frame) {
+    double nn = 0.0, t[9];
+    for (int a = 0; axis && a < (D == 3 ? 3 : 2); a++)
+      nn += axis[a] * axis[a];
+    if (axis && !(isfinite(nn) && nn > 0.0))
       return mrvi_model_fail(m, MRVI_EINVAL,
                              "%s joint %s-%s: the axis must be a nonzero "
                              "finite vector",
                              type, na, nb);
-    for (int a = 0; a < 3; a++)
-      t[a] /= sqrt(nn);
-    to_body(m, body_a, t, par + n_par);
-    n_par += 3;
-    double tb[3], u[3], w[3];
-    if (body_b >= 0)
-      to_body(m, body_b, t, tb);
-    else
-      memcpy(tb, t, sizeof tb);
-    normals(tb, u, w);
-    memcpy(par + n_par, u, sizeof u);
-    memcpy(par + n_par + 3, w, sizeof w);
-    n_par += 6;
+    joint_frame(D, axis, t);
+    /* t_m in A's frame, then in B's frame (in space for the ground). */
+    for (int s = 0; s < 2; s++)
+      for (int k = 0; k < D; k++, n_par += D)
+        if (bodies[s] >= 0)
+          to_body(m, bodies[s], t + D * k, par + n_par);
+        else
+          memcpy(par + n_par, t + D * k, (size_t)D * sizeof *t);
   }
   char label[300];
   mrvi_fmt(label, sizeof label, "%s %s-%s", type, na, nb);

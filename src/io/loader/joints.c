@@ -9,7 +9,6 @@
 
 static const char *const joint_keys[] = {"type", "bodies", "point", "axis",
                                          "name"};
-static const char *const joint_types[] = {"spherical", "revolute"};
 
 /* Body named by the string node n. */
 static int find_body(loader *L, struct fy_node *n, int *b) {
@@ -37,13 +36,15 @@ static int load_joint(loader *L, struct fy_node *item, int i, int dim) {
   mrvi_fmt(where, sizeof where, "joints.%d", i);
   struct fy_node *tn, *bn, *pn, *an, *nn;
   double point[3], axis[3];
-  int type, b[2] = {-1, -1}, st;
+  const char *const *types = mrvi_joint_type_names();
+  int n_types = 0, type, b[2] = {-1, -1}, st;
+  while (types[n_types])
+    n_types++;
   if ((st = mrvi_ld_want_mapping(L, item, where)) ||
       (st = mrvi_ld_check_keys(L, item, where, joint_keys, COUNT(joint_keys),
                                NULL, 0)) ||
       (st = mrvi_ld_need(L, item, "type", where, &tn)) ||
-      (st = mrvi_ld_as_choice(L, tn, "joint type", joint_types,
-                              COUNT(joint_types), &type)) ||
+      (st = mrvi_ld_as_choice(L, tn, "joint type", types, n_types, &type)) ||
       (st = mrvi_ld_need(L, item, "bodies", where, &bn)) ||
       (st = mrvi_ld_want_list(L, bn, "bodies")))
     return st;
@@ -62,19 +63,12 @@ static int load_joint(loader *L, struct fy_node *item, int i, int dim) {
   if ((st = mrvi_ld_need(L, item, "point", where, &pn)) ||
       (st = mrvi_ld_as_vector(L, pn, "point", dim, point)))
     return st;
-  an = mrvi_ld_get(item, "axis");
-  const int needs_axis = type == 1 && dim == 3;
-  if (needs_axis && !an)
-    return mrvi_ld_fail(L, item, "%s: a 3-D revolute joint needs 'axis'",
-                        where);
-  if (an && !needs_axis)
-    return mrvi_ld_fail(L, an, "a %s joint in %d-D takes no axis",
-                        joint_types[type], dim);
-  if (an && (st = mrvi_ld_as_vector(L, an, "axis", 3, axis)))
+  if ((an = mrvi_ld_get(item, "axis")) &&
+      (st = mrvi_ld_as_vector(L, an, "axis", dim, axis)))
     return st;
   mrvi_model *m = L->sys->model;
-  const int c = mrvi_model_add_joint(m, joint_types[type], b[0], b[1], point,
-                                     an ? axis : NULL);
+  const int c =
+      mrvi_model_add_joint(m, types[type], b[0], b[1], point, an ? axis : NULL);
   if (c < 0)
     return mrvi_ld_fail_model(
         L, an && strstr(mrvi_model_errmsg(m), "axis") ? an : item, c);
