@@ -75,8 +75,8 @@ static void test_derivatives(void) {
   check_type("body", 9, 0, jp, y24);
   check_type("body", 4, 0, jp, y24);
   /* Parameters: D, bodies, two points and (but spherical) two frames. */
-  const char *const framed[] = {"revolute", "weld", "prismatic",
-                                "cylindrical", "planar"};
+  const char *const framed[] = {"revolute", "weld", "prismatic", "cylindrical",
+                                "planar"};
   for (int nb = 1; nb <= 2; nb++) {
     jp[0] = 3, jp[1] = nb;
     check_type("spherical", 12 * nb, 8, jp, y24);

@@ -89,7 +89,7 @@ enum elem { F64, I32 };
     r->linear_momentum, "linear momentum sum_i p_i of the particles")          \
   X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \
     w->n_ang, r->angular_momentum,                                             \
-    "angular momentum sum_i x_i x p_i of the particles plus, of each body, "    \
+    "angular momentum sum_i x_i x p_i of the particles plus, of each body, "   \
     "phi x p_phi + sum_i d_i x p_{d_i}")                                       \
   X(MACRO_CONSTRAINT_RESIDUAL, "/macro/constraint_residual", F64, MACRO, 1,    \
     w->n_lambda > 0, &r->constraint_residual,                                  \
