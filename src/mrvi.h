@@ -411,6 +411,73 @@ int mrvi_model_check_independent(mrvi_model *m, const double *q);
 int mrvi_model_project_velocities(mrvi_model *m, double *correction);
 
 /* ---------------------------------------------------------------------------
+ * Rigid bodies and joints (doc/multibody.md).
+ *
+ * A rigid body of dimension D (2 or 3) is its centre of mass phi and its
+ * directors d_1..d_D, the columns of its rotation matrix (Betsch &
+ * Leyendecker 2006, Part II; Leyendecker, Marsden & Ortiz 2008): D (D + 1)
+ * coordinates in model order NAME.x NAME.y [NAME.z] NAME.d1x NAME.d1y
+ * [NAME.d1z] NAME.d2x ... with the constant masses M (phi) and
+ * E_i = (J_j + J_k - J_i)/2 (d_i; 2-D: E_1 = E_2 = J/2), so that the
+ * kinetic energy 1/2 M |phi'|^2 + 1/2 sum_i E_i |d_i'|^2 is that of the
+ * body, and the D (D + 1)/2 internal constraints (d_i.d_i - 1)/2 = 0,
+ * d_i.d_j = 0 (constraint type "body", labelled "body NAME"), enforced at
+ * the nodes of the body's rate.  A body point with body-frame components
+ * rho is x = phi + sum_i rho^i d_i.  Gravity (mrvi_model_set_gravity)
+ * acts on bodies as -M g.phi.
+ * ------------------------------------------------------------------------- */
+
+/* Add a rigid body of `dimension` (2 or 3; the model's dimension, which the
+ * first particle or body sets) and one rate as a whole.
+ *   mass     M > 0
+ *   inertia  principal moments about the centre of mass along d_1..d_D:
+ *            3-D J_1, J_2, J_3 > 0 with the strict triangle inequality
+ *            J_i < J_j + J_k (every E_i > 0); 2-D J > 0 (1 entry)
+ *   x0       initial centre of mass (D entries)
+ *   R0       initial rotation (D x D, row-major; column i is d_i in space)
+ *            with det +1 and R0^T R0 = I within 1e-6 (then orthonormalised
+ *            to round-off); NULL: identity
+ *   v0       initial velocity of the centre of mass (D entries; NULL: 0)
+ *   omega0   initial angular velocity in space (3 entries in 3-D, 1 in
+ *            2-D; NULL: 0); d_i' = omega x d_i
+ * Returns the body index (>= 0) or a status < 0 with the reason. */
+int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
+                        mrvi_rate rate, double mass, const double *inertia,
+                        const double *x0, const double *R0, const double *v0,
+                        const double *omega0);
+int mrvi_model_n_bodies(const mrvi_model *m);
+/* Body index by name, or -1. */
+int mrvi_model_find_body(const mrvi_model *m, const char *name);
+const char *mrvi_model_body_name(const mrvi_model *m, int b);
+/* Model index of the body's first coordinate (NAME.x); its D (D + 1)
+ * coordinates follow in the order above.  -1 for an invalid index. */
+int mrvi_model_body_first(const mrvi_model *m, int b);
+/* Position (D entries) and rotation R = [d_1 .. d_D] (D x D row-major) of
+ * body b at the coordinates q (model order). */
+void mrvi_model_body_pose(const mrvi_model *m, int b, const double *q,
+                          double *position, double *R);
+
+/* Joint of constraint type `type` (doc/multibody.md, "Joints") between
+ * body_a and body_b, or body_a and the ground (body_b < 0):
+ *   spherical    3-D, 3 rows; no axis
+ *   revolute     2-D 2 rows (no axis), 3-D 5 rows (axis: the hinge)
+ *   weld         2-D 3 rows, 3-D 6 rows; no axis
+ *   prismatic    2-D 2 rows, 3-D 5 rows; axis: the sliding direction
+ *   cylindrical  3-D, 4 rows; axis: of rotation and sliding
+ *   planar       3-D, 3 rows; axis: the plane's normal
+ * point: the joint's point in space at the initial configuration (D
+ * entries), stored in each body's frame so that the initial positions meet
+ * the joint; axis: in space at the initial configuration (D entries, not
+ * zero), NULL for the types that take none.  Refused with a message:
+ * unknown body, a body joined to itself, an unknown type or one not of the
+ * bodies' dimension, an axis missing, zero or not taken.  Returns the
+ * constraint index (>= 0) or a status < 0. */
+int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
+                         int body_b, const double *point, const double *axis);
+/* Names of the joint types above, NULL-terminated. */
+const char *const *mrvi_joint_type_names(void);
+
+/* ---------------------------------------------------------------------------
  * Integrator settings (arXiv 2406.12991 §3.3): rule (alpha, gamma) of eq:Zapprox for the
  * slow potential V and the fast potential W, the grid V is evaluated on.
  * ------------------------------------------------------------------------- */

@@ -18,7 +18,7 @@ static void check_type(const char *name, int n_in, int n_params,
   CHECK(rows >= 1 && rows <= n_in, "%s: rows %d (%s)", name, rows, msg);
   if (rows < 1)
     return;
-  double y[16], g[16], G[256], H[4096], gp[16], gm[16], Gp[256], Gm[256];
+  double y[24], g[16], G[256], H[4096], gp[16], gm[16], Gp[256], Gm[256];
   memcpy(y, y0, (size_t)n_in * sizeof *y);
   t->eval(n_in, n_params, par, y, g, G, H);
   double errG = 0.0, errH = 0.0, scale = 1.0;
@@ -65,6 +65,27 @@ static void test_derivatives(void) {
   check_type("plane", 3, 4, pl, y6);
   const double li[4] = {1.0, -3.0, 0.5, 2.0};
   check_type("linear", 3, 4, li, y6);
+  /* Rigid bodies and joints (doc/multibody.md): inputs phi, d_1.., d_D of
+   * one or two bodies; joint parameters D, bodies, two points, [axes]. */
+  double y24[24], jp[26];
+  for (int i = 0; i < 24; i++)
+    y24[i] = sin(1.7 * i + 0.3);
+  for (int i = 0; i < 26; i++)
+    jp[i] = cos(2.3 * i);
+  check_type("body", 9, 0, jp, y24);
+  check_type("body", 4, 0, jp, y24);
+  /* Parameters: D, bodies, two points and (but spherical) two frames. */
+  const char *const framed[] = {"revolute", "weld", "prismatic", "cylindrical",
+                                "planar"};
+  for (int nb = 1; nb <= 2; nb++) {
+    jp[0] = 3, jp[1] = nb;
+    check_type("spherical", 12 * nb, 8, jp, y24);
+    for (int t = 0; t < 5; t++)
+      check_type(framed[t], 12 * nb, 26, jp, y24);
+    jp[0] = 2;
+    for (int t = 0; t < 3; t++)
+      check_type(framed[t], 6 * nb, 14, jp, y24);
+  }
 }
 
 /* Values that are known exactly. */

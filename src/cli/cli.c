@@ -415,6 +415,9 @@ static int cmd_check(int argc, char **argv) {
     printf("%-14s%d in %d-D\n", "particles", np, mrvi_model_dimension(m));
   else
     printf("%-14s0\n", "particles");
+  if (mrvi_model_n_bodies(m) > 0)
+    printf("%-14s%d rigid in %d-D (doc/multibody.md)\n", "bodies",
+           mrvi_model_n_bodies(m), mrvi_model_dimension(m));
   print_names(m, "slow", mrvi_model_slow_index(m), ns);
   print_names(m, "fast", mrvi_model_fast_index(m), nf);
 

@@ -60,7 +60,9 @@ enum elem { F64, I32 };
  *   X(id, path, type, stream, rank, columns, row, long_name)
  * columns: row width as a function of the writer w; 0 omits the dataset.
  * row:     address of row i of record r (i < rows r adds to the stream).
- * rank 1:  shape (rows) and columns must be 1; rank 2: (rows, columns).
+ * rank 1:  shape (rows) and columns must be 1; rank 2: (rows, columns);
+ *          rank 3 and 4: (rows, columns / d^(rank-2), d [, d]), d the
+ *          model's dimension (output_shape).
  * long_name is also stored as the dataset attribute `long_name`.
  * The constraint datasets exist only for a model with constraints
  * (n_lambda rows of g).  The multipliers of a node come with the next
@@ -87,7 +89,8 @@ enum elem { F64, I32 };
     r->linear_momentum, "linear momentum sum_i p_i of the particles")          \
   X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \
     w->n_ang, r->angular_momentum,                                             \
-    "angular momentum sum_i x_i x p_i of the particles")                       \
+    "angular momentum sum_i x_i x p_i of the particles plus, of each body, "   \
+    "phi x p_phi + sum_i d_i x p_{d_i}")                                       \
   X(MACRO_CONSTRAINT_RESIDUAL, "/macro/constraint_residual", F64, MACRO, 1,    \
     w->n_lambda > 0, &r->constraint_residual,                                  \
     "max |g| over the nodes completed at macro node k")                        \
@@ -96,6 +99,12 @@ enum elem { F64, I32 };
     "max |G M^-1 p| at macro node k")                                          \
   X(MACRO_LAMBDA, "/macro/lambda", F64, MACRO, 2, w->n_lambda, w->nan_row,     \
     "constraint multipliers at macro node k (NaN at the last node)")           \
+  X(BODIES_POSITION, "/bodies/position", F64, MACRO, 3, w->nb * w->dim,        \
+    w->body_rows, "centre of mass phi of each rigid body at macro node k")     \
+  X(BODIES_ROTATION, "/bodies/rotation", F64, MACRO, 4,                        \
+    w->nb * w->dim * w->dim, w->body_rows + (size_t)w->nb * (size_t)w->dim,    \
+    "rotation matrix of each rigid body at macro node k: its columns are "     \
+    "the directors d_1 .. d_D in space")                                       \
   X(MICRO_T, "/micro/t", F64, MICRO, 1, 1, &w->micro_t[i],                     \
     "time of the fast micro node")                                             \
   X(MICRO_Q_FAST, "/micro/q_fast", F64, MICRO, 2, w->nf,                       \
@@ -191,6 +200,9 @@ struct mrvi_writer {
   double *prev_slow; /* ns: slow coordinates of the previous record */
   double *slow_rows; /* p x ns: /micro/q_slow rows of the current record */
   int n_lambda;      /* constraint rows (0: no constraint outputs) */
+  int nb;            /* rigid bodies (0: no /bodies datasets) */
+  int *body_first;   /* nb: model index of each body's first coordinate */
+  double *body_rows; /* nb d positions, then nb d^2 rotations (row-major) */
   int stream_on[N_STREAMS];
   long flush_records;         /* records per flush (<= FLUSH_RECORDS) */
   size_t cap[N_STREAMS];      /* buffer capacity in rows */
@@ -247,6 +259,20 @@ static const void *output_row(const mrvi_writer *w, const mrvi_record *r,
   default:
     return NULL;
   }
+}
+
+/* Shape of dataset id with `rows` rows (rank entries of shape); returns
+ * the rank.  Ranks 3 and 4 split the columns as (bodies, d [, d]). */
+static int output_shape(const mrvi_writer *w, int id, hsize_t rows,
+                        hsize_t *shape) {
+  const int rank = output_info[id].rank;
+  const hsize_t cols = w->out[id].cols, d = (hsize_t)(w->dim > 0 ? w->dim : 1);
+  shape[0] = rows;
+  if (rank >= 2)
+    shape[1] = rank == 2 ? cols : rank == 3 ? cols / d : cols / (d * d);
+  for (int a = 2; a < rank; a++)
+    shape[a] = d;
+  return rank;
 }
 
 /* ---------------------------------------------------------------------------
@@ -460,6 +486,30 @@ out:
   return rc;
 }
 
+/* /bodies/name and /bodies/column of a model with rigid bodies (nothing
+ * without; doc/multibody.md). */
+static int write_bodies(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
+  if (w->nb <= 0)
+    return 0;
+  const char **name = malloc((size_t)w->nb * sizeof *name);
+  if (!name)
+    return fail(w, MRVI_ENOMEM, "writing /bodies: out of memory");
+  for (int b = 0; b < w->nb; b++)
+    name[b] = mrvi_model_body_name(m, b);
+  const fixed_dataset list[] = {
+      {"/bodies/name", STRINGS, (hsize_t)w->nb, 0, name,
+       "name of each rigid body"},
+      {"/bodies/column", H5T_STD_I32LE, H5T_NATIVE_INT, (hsize_t)w->nb, 0,
+       w->body_first,
+       "column of /macro/q holding the body's phi_x (phi, then the "
+       "directors d_1 .. d_D, D entries each)"},
+  };
+  const int rc =
+      write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
+  free(name);
+  return rc;
+}
+
 /* ---------------------------------------------------------------------------
  * Appended datasets
  * ------------------------------------------------------------------------- */
@@ -469,13 +519,15 @@ static int create_output(mrvi_writer *w, int id, hid_t lcpl,
                          hsize_t expected_rows) {
   const struct output_info *info = &output_info[id];
   output *o = &w->out[id];
-  hsize_t dims[2] = {0, o->cols}, maxdims[2] = {H5S_UNLIMITED, o->cols};
+  hsize_t dims[4], maxdims[4], chunk[4];
   hsize_t chunk_rows = CHUNK_BYTES / o->row_bytes;
   if (chunk_rows > expected_rows)
     chunk_rows = expected_rows;
   if (chunk_rows < 1)
     chunk_rows = 1;
-  hsize_t chunk[2] = {chunk_rows, o->cols};
+  output_shape(w, id, 0, dims);
+  output_shape(w, id, H5S_UNLIMITED, maxdims);
+  output_shape(w, id, chunk_rows, chunk);
   hid_t space = H5Screate_simple(info->rank, dims, maxdims);
   hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
   hid_t ftype = info->type == F64 ? H5T_IEEE_F64LE : H5T_STD_I32LE;
@@ -503,9 +555,9 @@ static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
                          const void *buf) {
   const struct output_info *info = &output_info[id];
   output *o = &w->out[id];
-  hsize_t offset[2] = {start, 0};
-  hsize_t count[2] = {(hsize_t)rows, o->cols};
-  hsize_t size[2] = {start + count[0], o->cols};
+  hsize_t offset[4] = {start, 0, 0, 0}, count[4], size[4];
+  output_shape(w, id, (hsize_t)rows, count);
+  output_shape(w, id, start + count[0], size);
   hid_t mtype = info->type == F64 ? H5T_NATIVE_DOUBLE : H5T_NATIVE_INT;
   if (size[0] > w->written[info->stream] && H5Dset_extent(o->id, size) < 0)
     return -1;
@@ -659,6 +711,8 @@ static void writer_free(mrvi_writer *w) {
   free(w->slow_col);
   free(w->prev_slow);
   free(w->slow_rows);
+  free(w->body_first);
+  free(w->body_rows);
   free(w->nan_row);
   free(w->lambda_patch);
   free(w->path);
@@ -726,15 +780,21 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
       continue;
     const struct output_info *info = &output_info[id];
     o->id = H5Dopen2(w->file, info->path, H5P_DEFAULT);
-    hsize_t dims[2] = {0, 1};
+    hsize_t dims[4] = {0, 1, 1, 1}, want[4];
     hid_t sp = o->id >= 0 ? H5Dget_space(o->id) : H5I_INVALID_HID;
     const int rank = sp >= 0 ? H5Sget_simple_extent_ndims(sp) : -1;
-    if (sp >= 0)
+    if (sp >= 0 && rank >= 1 && rank <= 4)
       H5Sget_simple_extent_dims(sp, dims, NULL);
     if (sp >= 0)
       H5Sclose(sp);
-    const hsize_t cols = rank == 2 ? dims[1] : 1;
-    if (rank != info->rank || cols != o->cols || dims[0] < keep[info->stream]) {
+    output_shape(w, id, dims[0], want);
+    hsize_t cols = 1;
+    for (int a = 1; a < rank && a < 4; a++)
+      cols *= dims[a];
+    int same = rank == info->rank;
+    for (int a = 1; same && a < rank; a++)
+      same = dims[a] == want[a];
+    if (!same || dims[0] < keep[info->stream]) {
       H5Eclear2(H5E_DEFAULT);
       return fail(w, MRVI_EIO,
                   "%s: %s (%llu rows of %llu) does not fit macro node %ld of "
@@ -742,7 +802,8 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
                   info->path, o->id < 0 ? "missing" : "shape",
                   (unsigned long long)dims[0], (unsigned long long)cols, k);
     }
-    hsize_t size[2] = {keep[info->stream], o->cols};
+    hsize_t size[4];
+    output_shape(w, id, keep[info->stream], size);
     if (H5Dset_extent(o->id, size) < 0) {
       char what[128];
       mrvi_fmt(what, sizeof what, "cutting %s back", info->path);
@@ -810,6 +871,15 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
       return fail(w, MRVI_ENOMEM, "out of memory");
     memcpy(w->slow_col, mrvi_model_slow_index(m),
            (size_t)w->ns * sizeof *w->slow_col);
+  }
+  if (w->nb > 0) {
+    w->body_first = malloc((size_t)w->nb * sizeof *w->body_first);
+    w->body_rows = malloc((size_t)w->nb * (size_t)(w->dim + w->dim * w->dim) *
+                          sizeof *w->body_rows);
+    if (!w->body_first || !w->body_rows)
+      return fail(w, MRVI_ENOMEM, "out of memory");
+    for (int b = 0; b < w->nb; b++)
+      w->body_first[b] = mrvi_model_body_first(m, b);
   }
   const size_t nl = (size_t)w->n_lambda + 1;
   w->nan_row = malloc(nl * sizeof *w->nan_row);
@@ -890,6 +960,8 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
     rc = write_particles(w, m, lcpl);
   if (rc == 0)
     rc = write_constraints(w, m, lcpl);
+  if (rc == 0)
+    rc = write_bodies(w, m, lcpl);
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++)
     if (w->out[id].cols > 0)
       rc = create_output(w, id, lcpl, expected[output_info[id].stream]);
@@ -960,6 +1032,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->every = o.every;
   w->energy_warning = s->energy_warning;
   w->n_lambda = mrvi_model_constraint_rows(m);
+  w->nb = mrvi_model_n_bodies(m);
   w->stream_on[MACRO] = 1;
   w->stream_on[MICRO] = o.micro && w->nf > 0;
   w->micro_slow = o.micro_slow && w->stream_on[MICRO] && w->ns > 0;
@@ -1038,6 +1111,21 @@ static void interpolate_slow(mrvi_writer *w, const mrvi_record *r,
     w->prev_slow[j] = r->q[slow[j]];
 }
 
+/* /bodies/position and /bodies/rotation rows of record r: phi and
+ * R = [d_1 .. d_D] (row-major, R_ai = d_i[a]) of every body from q. */
+static void body_poses(mrvi_writer *w, const mrvi_record *r) {
+  const int D = w->dim;
+  double *pos = w->body_rows, *rot = w->body_rows + (size_t)w->nb * D;
+  for (int b = 0; b < w->nb; b++) {
+    const double *y = r->q + w->body_first[b];
+    for (int a = 0; a < D; a++) {
+      pos[b * D + a] = y[a];
+      for (int i = 0; i < D; i++)
+        rot[(b * D + a) * D + i] = y[D * (1 + i) + a];
+    }
+  }
+}
+
 int mrvi_writer_observe(void *writer, const mrvi_record *r) {
   mrvi_writer *w = writer;
   if (!w)
@@ -1097,6 +1185,7 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
     w->micro_t[i] = r->micro_t0 + (double)i * r->micro_dt;
   if (w->micro_slow)
     interpolate_slow(w, r, add[MICRO]);
+  body_poses(w, r);
   /* Copy the rows; the macro row goes to rows[MACRO] (over a pending row). */
   for (int id = 0; id < N_OUTPUTS; id++) {
     output *o = &w->out[id];

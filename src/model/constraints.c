@@ -12,12 +12,26 @@ extern const mrvi_constraint_type mrvi_constraint_distance;
 extern const mrvi_constraint_type mrvi_constraint_fixed;
 extern const mrvi_constraint_type mrvi_constraint_plane;
 extern const mrvi_constraint_type mrvi_constraint_linear;
+extern const mrvi_constraint_type mrvi_constraint_body;
+extern const mrvi_constraint_type mrvi_constraint_spherical;
+extern const mrvi_constraint_type mrvi_constraint_revolute;
+extern const mrvi_constraint_type mrvi_constraint_weld;
+extern const mrvi_constraint_type mrvi_constraint_prismatic;
+extern const mrvi_constraint_type mrvi_constraint_cylindrical;
+extern const mrvi_constraint_type mrvi_constraint_planar;
 
 static const mrvi_constraint_type *const builtin[] = {
     &mrvi_constraint_distance,
     &mrvi_constraint_fixed,
     &mrvi_constraint_plane,
     &mrvi_constraint_linear,
+    &mrvi_constraint_body,
+    &mrvi_constraint_spherical,
+    &mrvi_constraint_revolute,
+    &mrvi_constraint_weld,
+    &mrvi_constraint_prismatic,
+    &mrvi_constraint_cylindrical,
+    &mrvi_constraint_planar,
 };
 
 #define N_BUILTIN ((int)(sizeof builtin / sizeof builtin[0]))

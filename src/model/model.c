@@ -72,6 +72,7 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->particles);
   free(m->elements);
   free_constraints(m);
+  mrvi_model_free_bodies(m);
   free(m->slow_index);
   free(m->fast_index);
   free(m->slot);
@@ -100,9 +101,10 @@ int mrvi_model_set_dimension(mrvi_model *m, int dimension) {
   if (dimension < 1 || dimension > 3)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "dimension must be 1, 2 or 3 (got %d)", dimension);
-  if (m->n_particles > 0 && dimension != m->dimension)
-    return mrvi_model_fail(
-        m, MRVI_EINVAL, "dimension cannot change after particles were added");
+  if ((m->n_particles > 0 || m->n_bodies > 0) && dimension != m->dimension)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "dimension cannot change after particles or bodies "
+                           "were added");
   m->dimension = dimension;
   return MRVI_OK;
 }
@@ -275,6 +277,9 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
                  m) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
                            name);
+  if (mrvi_model_find_body(m, name) >= 0)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "particle '%s': a body has that name", name);
   if (table_reserve(&m->particle_table, &m->particle_table_cap, m->n_particles,
                     particle_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
@@ -488,8 +493,8 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
 int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
   if (!g)
     return mrvi_model_fail(m, MRVI_EINVAL, "gravity is NULL");
-  if (m->n_particles == 0 || m->dimension < 1)
-    return mrvi_model_fail(m, MRVI_EINVAL, "gravity needs particles");
+  if ((m->n_particles == 0 && m->n_bodies == 0) || m->dimension < 1)
+    return mrvi_model_fail(m, MRVI_EINVAL, "gravity needs particles or bodies");
   for (int k = 0; k < m->dimension; k++)
     if (!isfinite(g[k]))
       return mrvi_model_fail(m, MRVI_EINVAL, "gravity must be finite");
@@ -501,7 +506,7 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
                     .potential = MRVI_SLOW,
                     .particle_i = -1,
                     .particle_j = -1,
-                    .n_in = m->n_particles * d};
+                    .n_in = (m->n_particles + m->n_bodies) * d};
   e.in = malloc((size_t)e.n_in * sizeof *e.in);
   e.coef = malloc((size_t)e.n_in * sizeof *e.coef);
   if (!e.in || !e.coef) {
@@ -509,10 +514,13 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
     free(e.coef);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
-  /* -sum_i m_i g^T x_i */
-  for (int i = 0; i < m->n_particles; i++)
+  /* -sum_i m_i g^T x_i, bodies at their centres of mass: -M g^T phi
+   * (doc/multibody.md) */
+  for (int i = 0; i < m->n_particles + m->n_bodies; i++)
     for (int k = 0; k < d; k++) {
-      int c = m->particles[i].first + k;
+      int c = (i < m->n_particles ? m->particles[i].first
+                                  : m->bodies[i - m->n_particles].first) +
+              k;
       e.in[i * d + k] = c;
       e.coef[i * d + k] = -m->mass[c] * g[k];
     }
@@ -644,7 +652,7 @@ int mrvi_model_n(const mrvi_model *m) { return m->n; }
 int mrvi_model_n_slow(const mrvi_model *m) { return m->n_slow; }
 int mrvi_model_n_fast(const mrvi_model *m) { return m->n_fast; }
 int mrvi_model_dimension(const mrvi_model *m) {
-  return m->n_particles > 0 ? m->dimension : 0;
+  return m->n_particles > 0 || m->n_bodies > 0 ? m->dimension : 0;
 }
 int mrvi_model_n_particles(const mrvi_model *m) { return m->n_particles; }
 int mrvi_model_n_elements(const mrvi_model *m) { return m->n_elements; }
@@ -706,7 +714,11 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     break;
   }
   case MRVI_ELEMENT_GRAVITY:
-    mrvi_fmt(buf, len, "slow gravity on %d particles", m->n_particles);
+    if (m->n_bodies > 0)
+      mrvi_fmt(buf, len, "slow gravity on %d particles and %d bodies",
+               m->n_particles, m->n_bodies);
+    else
+      mrvi_fmt(buf, len, "slow gravity on %d particles", m->n_particles);
     break;
   case MRVI_ELEMENT_ANGLE:
     mrvi_fmt(buf, len, "%s angle %s-%s-%s, stiffness %g, rest angle %g rad",
@@ -984,6 +996,17 @@ void mrvi_model_energy(const mrvi_model *m, const double *q, const double *p,
     *fast = mrvi_model_potential(m, MRVI_FAST, q, NULL, NULL);
 }
 
+/* x (dimension entries) cross p added to J (3 entries; 2-D: J[0]). */
+static void add_cross(int d, const double *x, const double *v, double *J) {
+  if (d == 3) {
+    J[0] += x[1] * v[2] - x[2] * v[1];
+    J[1] += x[2] * v[0] - x[0] * v[2];
+    J[2] += x[0] * v[1] - x[1] * v[0];
+  } else if (d == 2) {
+    J[0] += x[0] * v[1] - x[1] * v[0];
+  }
+}
+
 void mrvi_model_momentum(const mrvi_model *m, const double *q, const double *p,
                          double *linear, double *angular) {
   const int d = m->dimension;
@@ -993,13 +1016,16 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q, const double *p,
     const double *v = p + m->particles[i].first;
     for (int k = 0; k < d; k++)
       L[k] += v[k];
-    if (d == 3) {
-      J[0] += x[1] * v[2] - x[2] * v[1];
-      J[1] += x[2] * v[0] - x[0] * v[2];
-      J[2] += x[0] * v[1] - x[1] * v[0];
-    } else if (d == 2) {
-      J[0] += x[0] * v[1] - x[1] * v[0];
-    }
+    add_cross(d, x, v, J);
+  }
+  /* Bodies (doc/multibody.md): p_phi and phi x p_phi + sum_i d_i x p_{d_i},
+   * the momentum maps of translations and rotations of (phi, d_i). */
+  for (int b = 0; b < m->n_bodies; b++) {
+    const int f = m->bodies[b].first;
+    for (int k = 0; k < d; k++)
+      L[k] += p[f + k];
+    for (int i = 0; i <= d; i++)
+      add_cross(d, q + f + d * i, p + f + d * i, J);
   }
   if (linear)
     for (int k = 0; k < d; k++)

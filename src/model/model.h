@@ -76,8 +76,24 @@ struct mrvi_model {
   mrvi_constraint *constraints;
   int constraint_rows;   /* sum of rows */
   int max_constraint_in; /* largest n_in of a constraint */
+  int n_bodies, cap_bodies;     /* rigid bodies (model/bodies.c) */
+  struct mrvi_body *bodies;
   char errmsg[512];
 };
+
+/* A rigid body (model/bodies.c, doc/multibody.md): dimension d (d + 1)
+ * consecutive coordinates from `first`: phi (d), then d_1 .. d_d (d each). */
+typedef struct mrvi_body {
+  char *name;
+  int first;
+  int dim;
+  double mass, inertia[3]; /* M; J_1..J_3 (2-D: J in inertia[0]) */
+  int constraint;          /* its internal constraint ("body") */
+} mrvi_body;
+/* Release the bodies of m (bodies.c). */
+void mrvi_model_free_bodies(mrvi_model *m);
+/* Body owning model coordinate c, or -1. */
+int mrvi_model_body_of(const mrvi_model *m, int c);
 
 /* Energy, gradient (n_in) and Hessian (n_in x n_in row-major, may be NULL)
  * of element e at its local inputs y (n_in). */

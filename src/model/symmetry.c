@@ -23,7 +23,10 @@
  * 0, and under rotation about e_a iff every c_i is parallel to e_a (c_i x e_a =
  * 0).  Coordinates that are not particle coordinates do not move and do not
  * count; constraint types registered by users: unknown, so nothing they touch
- * is claimed conserved. The tests are exact (a zero sum, zero components): the
+ * is claimed conserved.  Rigid bodies (doc/multibody.md): the centre of mass
+ * phi translates and rotates like a particle, the directors d_i only rotate
+ * (a translation leaves them); their internal constraints d_i.d_j are
+ * invariant under both; joints are not analysed (as unknown types). The tests are exact (a zero sum, zero components): the
  * answer concerns the model as written, not a numerical tolerance. */
 #include "model/model.h"
 
@@ -39,24 +42,27 @@ typedef struct sym {
 /* Rotation axes that exist in dimension d: 3-D all three, 2-D e_3. */
 static int has_axis(int d, int a) { return d == 3 || (d == 2 && a == 2); }
 
-/* Particle-relative position of model coordinate c: particle index or -1,
- * and its axis. */
-static int owner(const mrvi_model *m, const int *part, int c, int *axis) {
-  const int i = part[c];
-  if (i >= 0)
-    *axis = c - m->particles[i].first;
-  return i;
+/* part[c] for model coordinate c: -1 if it does not move under the groups,
+ * else its axis, plus 3 for a director (rotates, does not translate). */
+#define DIRECTOR 3
+static int owner(const int *part, int c, int *axis) {
+  if (part[c] < 0)
+    return -1;
+  *axis = part[c] % DIRECTOR;
+  return part[c] >= DIRECTOR ? DIRECTOR : 0;
 }
 
 /* c^T y over model coordinates in (n entries, coefficients coef). */
-static void linear_row(const mrvi_model *m, const int *part, sym *s, int n,
+static void linear_row(const int *part, sym *s, int n,
                        const int *in, const double *coef) {
   double sum[3] = {0, 0, 0};
   for (int j = 0; j < n; j++) {
     int a = 0;
-    if (owner(m, part, in[j], &a) < 0 || coef[j] == 0.0)
+    const int who = owner(part, in[j], &a);
+    if (who < 0 || coef[j] == 0.0)
       continue;
-    sum[a] += coef[j];
+    if (who != DIRECTOR)
+      sum[a] += coef[j];
     /* c_i has a component along e_a: not parallel to any other axis. */
     for (int b = 0; b < 3; b++)
       if (b != a)
@@ -79,7 +85,7 @@ static void anchored(sym *s, const double *a) {
 
 /* One element; gravity and forces are added to the linear potential
  * lin (n coefficients). */
-static void element(const mrvi_model *m, const int *part, sym *s,
+static void element(const int *part, sym *s,
                     const mrvi_element *e, double *lin) {
   switch (e->kind) {
   case MRVI_ELEMENT_SPRING:
@@ -89,7 +95,7 @@ static void element(const mrvi_model *m, const int *part, sym *s,
     anchored(s, e->anchor);
     break;
   case MRVI_ELEMENT_TERM:
-    linear_row(m, part, s, e->n_in, e->in, e->coef);
+    linear_row(part, s, e->n_in, e->in, e->coef);
     break;
   case MRVI_ELEMENT_GRAVITY:
   case MRVI_ELEMENT_FORCE:
@@ -99,12 +105,13 @@ static void element(const mrvi_model *m, const int *part, sym *s,
   }
 }
 
-static void constraint(const mrvi_model *m, const int *part, sym *s,
+static void constraint(const int *part, sym *s,
                        const mrvi_constraint *c) {
   const char *type = c->type->name;
   const int d = s->d;
-  if (!strcmp(type, "distance") && c->n_params == 1)
-    return; /* between two particles */
+  if ((!strcmp(type, "distance") && c->n_params == 1) ||
+      !strcmp(type, "body"))
+    return; /* between two particles; a body's directors */
   if (!strcmp(type, "distance") && c->n_params == c->n_in + 1) {
     anchored(s, c->params + 1);
     return;
@@ -112,17 +119,17 @@ static void constraint(const mrvi_model *m, const int *part, sym *s,
   if (!strcmp(type, "fixed")) {
     const double one = 1.0;
     for (int j = 0; j < c->n_in; j++)
-      linear_row(m, part, s, 1, c->in + j, &one);
+      linear_row(part, s, 1, c->in + j, &one);
     return;
   }
   if ((!strcmp(type, "plane") && c->n_in == d) || !strcmp(type, "linear")) {
-    linear_row(m, part, s, c->n_in, c->in, c->params);
+    linear_row(part, s, c->n_in, c->in, c->params);
     return;
   }
   /* Unknown type: every component it touches is lost. */
   for (int j = 0; j < c->n_in; j++) {
     int a = 0;
-    if (owner(m, part, c->in[j], &a) >= 0) {
+    if (owner(part, c->in[j], &a) >= 0) {
       memset(s->lin, 0, sizeof s->lin);
       memset(s->ang, 0, sizeof s->ang);
       return;
@@ -133,7 +140,7 @@ static void constraint(const mrvi_model *m, const int *part, sym *s,
 int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular) {
   if (!m)
     return MRVI_EINVAL;
-  const int d = m->n_particles > 0 ? m->dimension : 0;
+  const int d = mrvi_model_dimension(m);
   sym s = {d, {0, 0, 0}, {0, 0, 0}};
   for (int a = 0; a < 3; a++) {
     s.lin[a] = a < d;
@@ -154,12 +161,15 @@ int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular) {
   }
   for (int i = 0; i < m->n_particles; i++)
     for (int a = 0; a < d; a++)
-      part[m->particles[i].first + a] = i;
+      part[m->particles[i].first + a] = a;
+  for (int b = 0; b < m->n_bodies; b++)
+    for (int c = 0; c < d * (d + 1); c++)
+      part[m->bodies[b].first + c] = c % d + (c < d ? 0 : DIRECTOR);
   for (int e = 0; e < m->n_elements; e++)
-    element(m, part, &s, &m->elements[e], lin);
-  linear_row(m, part, &s, m->n, all, lin);
+    element(part, &s, &m->elements[e], lin);
+  linear_row(part, &s, m->n, all, lin);
   for (int c = 0; c < m->n_constraints; c++)
-    constraint(m, part, &s, &m->constraints[c]);
+    constraint(part, &s, &m->constraints[c]);
   free(part);
   free(all);
   free(lin);

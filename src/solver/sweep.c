@@ -84,8 +84,11 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
   }
   if (m->n_constraints > 0) {
     mrvi_fmt(why, len,
-             "constrained model: the structured paths do not "
-             "handle constraints yet");
+             "constrained model%s: the structured paths do not "
+             "handle constraints yet",
+             mrvi_model_n_bodies(m) > 0
+                 ? " (rigid bodies carry their internal constraints)"
+                 : "");
     return MRVI_PATH_GENERAL;
   }
   const int dense_max = s->tuning.dense_max;

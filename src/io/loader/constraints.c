@@ -401,19 +401,33 @@ static int load_constraint(loader *L, struct fy_node *item, int i, int dim) {
   const int c = load_entry(L, item, where, t, dim);
   if (c < 0)
     return c;
-  L->constraint_items[c] = item;
+  if ((st = mrvi_ld_constraint_item(L, c, item)))
+    return st;
   return label_constraint(L, item, where, c);
+}
+
+int mrvi_ld_constraint_item(loader *L, int c, struct fy_node *item) {
+  if (c >= L->cap_constraint_items) {
+    const int cap = c + 1 > 2 * L->cap_constraint_items
+                        ? c + 8
+                        : 2 * L->cap_constraint_items;
+    struct fy_node **p = realloc(L->constraint_items, (size_t)cap * sizeof *p);
+    if (!p)
+      return mrvi_ld_fail_nomem(L);
+    memset(p + L->cap_constraint_items, 0,
+           (size_t)(cap - L->cap_constraint_items) * sizeof *p);
+    L->constraint_items = p;
+    L->cap_constraint_items = cap;
+  }
+  L->constraint_items[c] = item;
+  return MRVI_OK;
 }
 
 int mrvi_ld_constraints(loader *L, struct fy_node *list, int dim) {
   int st = mrvi_ld_want_list(L, list, "constraints");
   if (st)
     return st;
-  const int count = fy_node_sequence_item_count(list);
   L->constraint_list = list;
-  L->constraint_items = calloc((size_t)count + 1, sizeof *L->constraint_items);
-  if (!L->constraint_items)
-    return mrvi_ld_fail_nomem(L);
   void *it = NULL;
   struct fy_node *item;
   for (int i = 0; !st && (item = fy_node_sequence_iterate(list, &it)); i++)
@@ -450,6 +464,8 @@ int mrvi_ld_check_constraints(loader *L) {
       if (strstr(msg, quoted))
         at = L->constraint_items[c];
     }
+    if (!at) /* only bodies and joints: at the last of them */
+      at = L->constraint_items[n_c - 1];
     return st == MRVI_ENOMEM ? mrvi_ld_fail_nomem(L)
                              : mrvi_ld_fail(L, at, "%s", msg);
   }

@@ -22,7 +22,7 @@ static const char *loader_override_of(const void *L, struct fy_node *n) {
 static const char *const top_keys[] = {
     "name",        "dimension", "gravity",     "particles",  "springs",
     "coordinates", "terms",     "constraints", "integrator", "output",
-    "angles",      "forces",    "generate",
+    "angles",      "forces",    "generate",    "bodies",     "joints",
     "control" /* optimal control, read by src/ocp/ocp_loader.c */};
 
 static int load_model(loader *L, struct fy_node *root) {
@@ -39,11 +39,13 @@ static int load_model(loader *L, struct fy_node *root) {
       return mrvi_ld_fail(L, n, "dimension must be 1, 2 or 3, got %d", dim);
     if ((st = mrvi_model_set_dimension(m, dim)))
       return mrvi_ld_fail_model(L, n, st);
-  } else if (particles || gravity || mrvi_ld_get(root, "generate")) {
+  } else if (particles || gravity || mrvi_ld_get(root, "generate") ||
+             mrvi_ld_get(root, "bodies")) {
     return mrvi_ld_fail(L, root, "missing key 'dimension' (needed by %s)",
-                        particles ? "particles"
-                        : gravity ? "gravity"
-                                  : "generate");
+                        particles                       ? "particles"
+                        : gravity                       ? "gravity"
+                        : mrvi_ld_get(root, "generate") ? "generate"
+                                                        : "bodies");
   }
   /* Model order: coordinates first, then particles as declared (names by
    * hash, the partition extended by each add: linear in the file). */
@@ -55,10 +57,12 @@ static int load_model(loader *L, struct fy_node *root) {
   if ((n = mrvi_ld_get(root, "generate")) &&
       (st = mrvi_ld_generators(L, n, dim)))
     return st;
+  if ((n = mrvi_ld_get(root, "bodies")) && (st = mrvi_ld_bodies(L, n, dim)))
+    return st;
   if (mrvi_model_n(m) == 0)
     return mrvi_ld_fail(L, root,
-                        "the system has no coordinates: add 'coordinates' "
-                        "or 'particles'");
+                        "the system has no coordinates: add 'coordinates', "
+                        "'particles' or 'bodies'");
   if (gravity) {
     double g[3] = {0, 0, 0};
     if ((st = mrvi_ld_as_vector(L, gravity, "gravity", dim, g)))
@@ -76,6 +80,8 @@ static int load_model(loader *L, struct fy_node *root) {
     return st;
   if ((n = mrvi_ld_get(root, "constraints")) &&
       (st = mrvi_ld_constraints(L, n, dim)))
+    return st;
+  if ((n = mrvi_ld_get(root, "joints")) && (st = mrvi_ld_joints(L, n, dim)))
     return st;
   return MRVI_OK;
 }

@@ -7,7 +7,8 @@
  *                  reads the top level (name, dimension, gravity) and
  *                  dispatches the sections
  *   coordinates.c  particles.c  springs.c  terms.c  angles.c  forces.c
- *   generate.c     constraints.c  integrator.c  output.c
+ *   generate.c     constraints.c  integrator.c  output.c  bodies.c
+ *   joints.c
  *                  the section of the same name (`control:` is read in
  *                  src/ocp/ocp_loader.c)
  *   read.c         errors at marks, typed access to nodes, key checks
@@ -78,6 +79,7 @@ typedef struct loader {
   name_hash model_hash;              /* model coordinate name -> index */
   struct fy_node *constraint_list;   /* `constraints:`, NULL if absent */
   struct fy_node **constraint_items; /* entry of each model constraint */
+  int cap_constraint_items;
   mrvi_system *sys;
 } loader;
 
@@ -92,6 +94,10 @@ int mrvi_ld_terms(loader *L, struct fy_node *list);
 int mrvi_ld_angles(loader *L, struct fy_node *list);
 int mrvi_ld_forces(loader *L, struct fy_node *list, int dim);
 int mrvi_ld_constraints(loader *L, struct fy_node *list, int dim);
+int mrvi_ld_bodies(loader *L, struct fy_node *list, int dim);
+int mrvi_ld_joints(loader *L, struct fy_node *list, int dim);
+/* Remember the entry that made model constraint c (messages point at it). */
+int mrvi_ld_constraint_item(loader *L, int c, struct fy_node *item);
 /* Initial data against the constraints, once the settings are known. */
 int mrvi_ld_check_constraints(loader *L);
 int mrvi_ld_integrator(loader *L, struct fy_node *in);

@@ -1,0 +1,436 @@
+/* Rigid bodies as directors and the joints between them (doc/multibody.md).
+ *
+ * Director formulation (Betsch & Leyendecker 2006, Part II; Leyendecker,
+ * Marsden & Ortiz 2008): a body point with body-frame components X is
+ * x = phi + sum_i X^i d_i, phi the centre of mass and d_i the orthonormal
+ * directors along the principal axes.  Its kinetic energy
+ *
+ *   T = 1/2 int |x'|^2 dm = 1/2 M |phi'|^2 + 1/2 sum_ij E_ij d_i'.d_j'
+ *
+ * (the cross terms vanish since int X dm = 0 about the centre of mass),
+ * E_ij = int X^i X^j dm the second moments, diagonal along the principal
+ * axes: E_i = int (X^i)^2 dm.  The principal moments of inertia are
+ * J_i = int (|X|^2 - (X^i)^2) dm = E_j + E_k, so E_i = (J_j + J_k - J_i)/2,
+ * positive for a body of positive volume exactly when J_i < J_j + J_k.  In
+ * 2-D only J = E_1 + E_2 enters the rigid motion (|d_1'| = |d_2'| = theta');
+ * E_1 = E_2 = J/2.  The mass matrix diag(M I, E_1 I, .., E_D I) is constant,
+ * as the paper's Lagrangians require; the rigidity is the internal
+ * constraint type "body" (constraints/body.c). */
+#include "model/model.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+void mrvi_model_free_bodies(mrvi_model *m) {
+  for (int b = 0; b < m->n_bodies; b++)
+    free(m->bodies[b].name);
+  free(m->bodies);
+  m->bodies = NULL;
+  m->n_bodies = m->cap_bodies = 0;
+}
+
+int mrvi_model_n_bodies(const mrvi_model *m) { return m->n_bodies; }
+
+int mrvi_model_find_body(const mrvi_model *m, const char *name) {
+  for (int b = 0; name && b < m->n_bodies; b++)
+    if (strcmp(m->bodies[b].name, name) == 0)
+      return b;
+  return -1;
+}
+
+const char *mrvi_model_body_name(const mrvi_model *m, int b) {
+  return b >= 0 && b < m->n_bodies ? m->bodies[b].name : NULL;
+}
+
+int mrvi_model_body_first(const mrvi_model *m, int b) {
+  return b >= 0 && b < m->n_bodies ? m->bodies[b].first : -1;
+}
+
+int mrvi_model_body_of(const mrvi_model *m, int c) {
+  for (int b = 0; b < m->n_bodies; b++) {
+    const int D = m->bodies[b].dim;
+    if (c >= m->bodies[b].first && c < m->bodies[b].first + D * (D + 1))
+      return b;
+  }
+  return -1;
+}
+
+void mrvi_model_body_pose(const mrvi_model *m, int b, const double *q,
+                          double *position, double *R) {
+  const mrvi_body *bd = &m->bodies[b];
+  const int D = bd->dim;
+  const double *y = q + bd->first;
+  for (int a = 0; a < D; a++) {
+    if (position)
+      position[a] = y[a];
+    if (R)
+      for (int i = 0; i < D; i++)
+        R[a * D + i] = y[D * (1 + i) + a]; /* column i = d_i */
+  }
+}
+
+/* ---------------------------------------------------------------------------
+ * Adding a body
+ * ------------------------------------------------------------------------- */
+
+/* Second moments E_i from the principal moments J (D entries), or a status
+ * with the reason in m's message. */
+static int second_moments(mrvi_model *m, const char *name, int D,
+                          const double *J, double *E) {
+  for (int i = 0; i < (D == 3 ? 3 : 1); i++)
+    if (!(isfinite(J[i]) && J[i] > 0.0))
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "body '%s': the principal inertia must be "
+                             "positive and finite (J%d = %g)",
+                             name, i + 1, J[i]);
+  if (D == 2) {
+    E[0] = E[1] = 0.5 * J[0];
+    return MRVI_OK;
+  }
+  for (int i = 0; i < 3; i++) {
+    const int j = (i + 1) % 3, k = (i + 2) % 3;
+    E[i] = 0.5 * (J[j] + J[k] - J[i]);
+    if (!(J[i] < J[j] + J[k]))
+      return mrvi_model_fail(
+          m, MRVI_EINVAL,
+          "body '%s': the principal inertia violates the strict triangle "
+          "inequality J%d < J%d + J%d (J%d = %g, J%d + J%d = %g): the second "
+          "moment E%d = (J%d + J%d - J%d)/2 = %g must be positive (a slender "
+          "rod with E = 0 has no director form; give it a small thickness)",
+          name, i + 1, j + 1, k + 1, i + 1, J[i], j + 1, k + 1, J[j] + J[k],
+          i + 1, j + 1, k + 1, i + 1, E[i]);
+  }
+  return MRVI_OK;
+}
+
+/* Check R (D x D row-major) for a rotation within 1e-6 and write its
+ * columns, orthonormalised by Gram-Schmidt (d_3 = d_1 x d_2), into d
+ * (D vectors of D entries). */
+static int rotation(mrvi_model *m, const char *name, int D, const double *R,
+                    double *d) {
+  double worst = 0.0;
+  for (int i = 0; i < D; i++)
+    for (int j = 0; j < D; j++) {
+      double s = 0.0;
+      for (int a = 0; a < D; a++) {
+        if (!isfinite(R[a * D + i]))
+          return mrvi_model_fail(m, MRVI_EINVAL,
+                                 "body '%s': orientation must be finite", name);
+        s += R[a * D + i] * R[a * D + j];
+      }
+      worst = fmax(worst, fabs(s - (i == j)));
+    }
+  const double det = D == 2 ? R[0] * R[3] - R[1] * R[2]
+                            : R[0] * (R[4] * R[8] - R[5] * R[7]) -
+                                  R[1] * (R[3] * R[8] - R[5] * R[6]) +
+                                  R[2] * (R[3] * R[7] - R[4] * R[6]);
+  if (!(worst <= 1e-6))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s': the orientation is not a rotation "
+                           "matrix: max |R^T R - I| = %.3g exceeds 1e-6",
+                           name, worst);
+  if (!(det > 0.0))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s': the orientation has det %.6g, a "
+                           "reflection, not a rotation (det must be +1: "
+                           "swap two columns or negate one)",
+                           name, det);
+  for (int i = 0; i < D; i++)
+    for (int a = 0; a < D; a++)
+      d[i * D + a] = R[a * D + i];
+  double n = sqrt(d[0] * d[0] + d[1] * d[1] + (D == 3 ? d[2] * d[2] : 0.0));
+  for (int a = 0; a < D; a++)
+    d[a] /= n;
+  double *d2 = d + D, s = 0.0;
+  for (int a = 0; a < D; a++)
+    s += d[a] * d2[a];
+  n = 0.0;
+  for (int a = 0; a < D; a++) {
+    d2[a] -= s * d[a];
+    n += d2[a] * d2[a];
+  }
+  n = sqrt(n);
+  for (int a = 0; a < D; a++)
+    d2[a] /= n;
+  if (D == 3) {
+    d[6] = d[1] * d2[2] - d[2] * d2[1];
+    d[7] = d[2] * d2[0] - d[0] * d2[2];
+    d[8] = d[0] * d2[1] - d[1] * d2[0];
+  }
+  return MRVI_OK;
+}
+
+int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
+                        mrvi_rate rate, double mass, const double *inertia,
+                        const double *x0, const double *R0, const double *v0,
+                        const double *omega0) {
+  static const char axis[3] = {'x', 'y', 'z'};
+  const int D = dimension;
+  if (!name || !*name || strchr(name, '.'))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body name '%s' is empty or contains '.'",
+                           name ? name : "");
+  if (D != 2 && D != 3)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s': dimension must be 2 or 3 (got %d)", name,
+                           D);
+  if ((m->n_particles > 0 || m->n_bodies > 0) && m->dimension != D)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s' of dimension %d in a model of dimension "
+                           "%d",
+                           name, D, m->dimension);
+  if (mrvi_model_find_body(m, name) >= 0)
+    return mrvi_model_fail(m, MRVI_EINVAL, "duplicate body name '%s'", name);
+  for (int i = 0; i < m->n_particles; i++)
+    if (strcmp(m->particles[i].name, name) == 0)
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "body '%s': a particle has that name", name);
+  if (rate != MRVI_SLOW && rate != MRVI_FAST)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s': rate must be slow or fast", name);
+  if (!(isfinite(mass) && mass > 0.0))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s': mass must be positive (got %g)", name,
+                           mass);
+  if (!inertia || !x0)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s' needs its inertia and position", name);
+  double E[3], d[9];
+  static const double identity[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  const double eye2[4] = {1, 0, 0, 1};
+  int st;
+  if ((st = second_moments(m, name, D, inertia, E)) < 0 ||
+      (st = rotation(m, name, D,
+                     R0       ? R0
+                     : D == 3 ? identity
+                              : eye2,
+                     d)) < 0)
+    return st;
+  /* Coordinates and their initial data: phi, phi' = v0; d_i, d_i' = w x d_i. */
+  double q[12], v[12], mass_of[12];
+  const double w[3] = {omega0 && D == 3 ? omega0[0] : 0.0,
+                       omega0 && D == 3 ? omega0[1] : 0.0,
+                       omega0 ? omega0[D == 3 ? 2 : 0] : 0.0};
+  for (int a = 0; a < D; a++) {
+    q[a] = x0[a];
+    v[a] = v0 ? v0[a] : 0.0;
+    mass_of[a] = mass;
+  }
+  for (int i = 0; i < D; i++) {
+    const double *di = d + D * i;
+    double *vi = v + D * (1 + i);
+    if (D == 3) {
+      vi[0] = w[1] * di[2] - w[2] * di[1];
+      vi[1] = w[2] * di[0] - w[0] * di[2];
+      vi[2] = w[0] * di[1] - w[1] * di[0];
+    } else {
+      vi[0] = -w[2] * di[1];
+      vi[1] = w[2] * di[0];
+    }
+    for (int a = 0; a < D; a++) {
+      q[D * (1 + i) + a] = di[a];
+      mass_of[D * (1 + i) + a] = E[i];
+    }
+  }
+  if (m->n_bodies == m->cap_bodies) {
+    const int cap = m->cap_bodies ? 2 * m->cap_bodies : 4;
+    mrvi_body *p = realloc(m->bodies, (size_t)cap * sizeof *p);
+    if (!p)
+      return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+    m->bodies = p;
+    m->cap_bodies = cap;
+  }
+  mrvi_body body = {.name = strdup(name),
+                    .first = m->n,
+                    .dim = D,
+                    .mass = mass,
+                    .inertia = {inertia[0], D == 3 ? inertia[1] : 0.0,
+                                D == 3 ? inertia[2] : 0.0}};
+  if (!body.name)
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  m->dimension = D;
+  for (int c = 0; c < D * (D + 1); c++) {
+    char cname[300];
+    if (c < D)
+      mrvi_fmt(cname, sizeof cname, "%s.%c", name, axis[c]);
+    else
+      mrvi_fmt(cname, sizeof cname, "%s.d%d%c", name, c / D, axis[c % D]);
+    if ((st = mrvi_model_add_coordinate(m, cname, mass_of[c], rate, q[c],
+                                        v[c])) < 0) {
+      free(body.name);
+      return st;
+    }
+  }
+  int in[9];
+  for (int j = 0; j < D * D; j++)
+    in[j] = body.first + D + j;
+  char label[300];
+  mrvi_fmt(label, sizeof label, "body %s", name);
+  body.constraint =
+      mrvi_model_add_constraint(m, "body", D * D, in, 0, NULL, label);
+  if (body.constraint < 0) {
+    free(body.name);
+    return body.constraint;
+  }
+  m->bodies[m->n_bodies] = body;
+  return m->n_bodies++;
+}
+
+/* ---------------------------------------------------------------------------
+ * Joints: the builder turns a point and an axis given in space at the
+ * initial configuration into the body-frame parameters of the constraint
+ * types (constraints/joint.h), so that the initial positions meet them.
+ * ------------------------------------------------------------------------- */
+typedef struct joint_kind {
+  const char *type;
+  int dims;  /* bit mask 1 << D */
+  int frame; /* its parameters carry the joint's frame (constraints/joint.h) */
+  int axis;  /* bit mask 1 << D: dimensions in which it needs an axis */
+} joint_kind;
+
+static const joint_kind joint_kinds[] = {
+    {"spherical", 1 << 3, 0, 0},
+    {"revolute", (1 << 2) | (1 << 3), 1, 1 << 3},
+    {"weld", (1 << 2) | (1 << 3), 1, 0},
+    {"prismatic", (1 << 2) | (1 << 3), 1, (1 << 2) | (1 << 3)},
+    {"cylindrical", 1 << 3, 1, 1 << 3},
+    {"planar", 1 << 3, 1, 1 << 3},
+};
+#define N_JOINT_KINDS ((int)(sizeof joint_kinds / sizeof joint_kinds[0]))
+
+const char *const *mrvi_joint_type_names(void) {
+  static const char *names[N_JOINT_KINDS + 1];
+  for (int i = 0; i < N_JOINT_KINDS; i++)
+    names[i] = joint_kinds[i].type;
+  return names;
+}
+
+/* Body-frame components R^T v of the space vector v (D entries) for body
+ * b at the initial configuration. */
+static void to_body(const mrvi_model *m, int b, const double *v, double *out) {
+  const int D = m->bodies[b].dim;
+  const double *y = m->q0 + m->bodies[b].first;
+  for (int i = 0; i < D; i++) {
+    out[i] = 0.0;
+    for (int a = 0; a < D; a++)
+      out[i] += y[D * (1 + i) + a] * v[a];
+  }
+}
+
+/* The joint's frame t_1..t_D in space (D x D, row m = t_m): t_1 along the
+ * axis (e_1 without one), then unit normals with (t_1, t_2, t_3)
+ * right-handed (2-D: t_2 = t_1 turned by +90 degrees).  t_2 is along the
+ * coordinate axis least aligned with t_1, made normal to it. */
+static void joint_frame(int D, const double *axis, double *t) {
+  double n = 0.0;
+  for (int a = 0; a < D; a++) {
+    t[a] = axis ? axis[a] : a == 0;
+    n += t[a] * t[a];
+  }
+  for (int a = 0; a < D; a++)
+    t[a] /= sqrt(n);
+  if (D == 2) {
+    t[2] = -t[1], t[3] = t[0];
+    return;
+  }
+  int k = 0;
+  for (int a = 1; a < 3; a++)
+    if (fabs(t[a]) < fabs(t[k]))
+      k = a;
+  n = 0.0;
+  for (int a = 0; a < 3; a++) {
+    t[3 + a] = (a == k) - t[k] * t[a];
+    n += t[3 + a] * t[3 + a];
+  }
+  for (int a = 0; a < 3; a++)
+    t[3 + a] /= sqrt(n);
+  t[6] = t[1] * t[5] - t[2] * t[4];
+  t[7] = t[2] * t[3] - t[0] * t[5];
+  t[8] = t[0] * t[4] - t[1] * t[3];
+}
+
+int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
+                         int body_b, const double *point, const double *axis) {
+  const joint_kind *kind = NULL;
+  for (int i = 0; i < N_JOINT_KINDS; i++)
+    if (type && strcmp(type, joint_kinds[i].type) == 0)
+      kind = &joint_kinds[i];
+  if (!kind)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "unknown joint type '%s' (joints: spherical, "
+                           "revolute, weld, prismatic, cylindrical, planar)",
+                           type ? type : "(null)");
+  if (body_a < 0 || body_a >= m->n_bodies || body_b >= m->n_bodies)
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "%s joint: unknown body (index %d)", type,
+        body_a < 0 || body_a >= m->n_bodies ? body_a : body_b);
+  const char *na = m->bodies[body_a].name,
+             *nb = body_b >= 0 ? m->bodies[body_b].name : "ground";
+  if (body_a == body_b)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s joint between body '%s' and itself", type, na);
+  const int D = m->bodies[body_a].dim;
+  if (!(kind->dims & (1 << D)))
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "%s joint %s-%s: no %s joint in %d-D (%s)", type, na,
+        nb, type, D,
+        D == 2 ? "a 2-D hinge is the revolute joint" : "use a 2-D model");
+  if (!point)
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s joint %s-%s: no point", type, na,
+                           nb);
+  const int needs_axis = (kind->axis >> D) & 1;
+  if (needs_axis != (axis != NULL))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           needs_axis ? "%s joint %s-%s: a %d-D %s joint needs "
+                                        "an axis"
+                                      : "%s joint %s-%s: a %d-D %s joint takes "
+                                        "no axis",
+                           type, na, nb, D, type);
+  double par[MRVI_MAX_INPUTS];
+  int n_par = 0, in[24], n_in = 0;
+  par[n_par++] = D;
+  par[n_par++] = body_b >= 0 ? 2 : 1;
+  const int bodies[2] = {body_a, body_b};
+  for (int s = 0; s < 2; s++) {
+    if (bodies[s] < 0) { /* the ground point, in space */
+      for (int a = 0; a < D; a++)
+        par[n_par++] = point[a];
+      continue;
+    }
+    const mrvi_body *bd = &m->bodies[bodies[s]];
+    double r[3];
+    for (int a = 0; a < D; a++) {
+      if (!isfinite(point[a]))
+        return mrvi_model_fail(m, MRVI_EINVAL,
+                               "%s joint %s-%s: point must be finite", type, na,
+                               nb);
+      r[a] = point[a] - m->q0[bd->first + a];
+    }
+    to_body(m, bodies[s], r, par + n_par);
+    n_par += D;
+    for (int j = 0; j < D * (D + 1); j++)
+      in[n_in++] = bd->first + j;
+  }
+  if (kind->frame) {
+    double nn = 0.0, t[9];
+    for (int a = 0; axis && a < (D == 3 ? 3 : 2); a++)
+      nn += axis[a] * axis[a];
+    if (axis && !(isfinite(nn) && nn > 0.0))
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "%s joint %s-%s: the axis must be a nonzero "
+                             "finite vector",
+                             type, na, nb);
+    joint_frame(D, axis, t);
+    /* t_m in A's frame, then in B's frame (in space for the ground). */
+    for (int s = 0; s < 2; s++)
+      for (int k = 0; k < D; k++, n_par += D)
+        if (bodies[s] >= 0)
+          to_body(m, bodies[s], t + D * k, par + n_par);
+        else
+          memcpy(par + n_par, t + D * k, (size_t)D * sizeof *t);
+  }
+  char label[300];
+  mrvi_fmt(label, sizeof label, "%s %s-%s", type, na, nb);
+  return mrvi_model_add_constraint(m, type, n_in, in, n_par, par, label);
+}

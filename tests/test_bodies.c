@@ -1,0 +1,718 @@
+/* Rigid bodies and joints (doc/multibody.md): the constraint types against
+ * finite differences, bad input, and runs with exact answers: a free body
+ * conserves energy and angular momentum, an isotropic body rotates
+ * uniformly, a heavy symmetric top precesses steadily, a rigid pendulum is
+ * the simple pendulum of length I/(M l). */
+#include "io/io.h"
+#include "models.h"
+#include "testlib.h"
+
+#include <hdf5.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ---------------------------------------------------------------------------
+ * Constraint types (their derivatives are checked in test_constraints.c):
+ * rows, and wrong sizes refused with a message.
+ * ------------------------------------------------------------------------- */
+static void test_types(void) {
+  const struct {
+    const char *type;
+    int n_in, n_par, d, nb, rows;
+  } cases[] = {{"body", 9, 0, 0, 0, 6},          {"body", 4, 0, 0, 0, 3},
+               {"spherical", 24, 8, 3, 2, 3},    {"spherical", 12, 8, 3, 1, 3},
+               {"revolute", 24, 26, 3, 2, 5},    {"revolute", 12, 26, 3, 1, 5},
+               {"revolute", 12, 14, 2, 2, 2},    {"revolute", 6, 14, 2, 1, 2},
+               {"weld", 24, 26, 3, 2, 6},        {"weld", 6, 14, 2, 1, 3},
+               {"prismatic", 24, 26, 3, 2, 5},   {"prismatic", 12, 14, 2, 2, 2},
+               {"cylindrical", 12, 26, 3, 1, 4}, {"planar", 24, 26, 3, 2, 3}};
+  double par[26];
+  for (int i = 0; i < 26; i++)
+    par[i] = 1.0;
+  char msg[400] = "";
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    par[0] = cases[i].d, par[1] = cases[i].nb;
+    const int rows =
+        mrvi_constraint_type_find(cases[i].type)
+            ->check(cases[i].n_in, cases[i].n_par, par, msg, sizeof msg);
+    CHECK(rows == cases[i].rows, "%s on %d inputs: %d rows (want %d) %s",
+          cases[i].type, cases[i].n_in, rows, cases[i].rows, msg);
+  }
+  par[0] = 3, par[1] = 2;
+  CHECK(mrvi_constraint_type_find("spherical")
+                    ->check(12, 8, par, msg, sizeof msg) < 0 &&
+            strstr(msg, "need 24 inputs"),
+        "spherical with too few inputs refused: %s", msg);
+  par[0] = 2;
+  CHECK(mrvi_constraint_type_find("spherical")
+                    ->check(12, 6, par, msg, sizeof msg) < 0 &&
+            strstr(msg, "needs 3-D bodies"),
+        "2-D spherical refused: %s", msg);
+}
+
+/* ---------------------------------------------------------------------------
+ * Helpers
+ * ------------------------------------------------------------------------- */
+/* Rotation by angle |w| t about w: R = I + sin(a) K + (1 - cos a) K^2. */
+static void rodrigues(const double *w, double t, double *R) {
+  const double a = t * sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  double k[3] = {0, 0, 0};
+  if (a > 0)
+    for (int i = 0; i < 3; i++)
+      k[i] = w[i] * t / a;
+  const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
+  for (int i = 0; i < 3; i++)
+    for (int j = 0; j < 3; j++) {
+      double K2 = 0.0;
+      for (int l = 0; l < 3; l++)
+        K2 += K[i * 3 + l] * K[l * 3 + j];
+      R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
+    }
+}
+
+static mrvi_settings settings(double dT, double t_end,
+                              mrvi_constraint_form form) {
+  mrvi_settings s = test_settings("midpoint-midpoint", dT, 1, t_end, 1e-12);
+  s.constraint_form = form;
+  s.constraint_tol = 1e-13;
+  return s;
+}
+
+/* Run; NULL with a failed check when the run fails. */
+static mrvi_trajectory *run(const char *what, const mrvi_model *m,
+                            const mrvi_settings *s) {
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m, s, &tr, &sum) != 0) {
+    CHECK(0, "%s: %s", what, sum.message);
+    return NULL;
+  }
+  return tr;
+}
+
+static const char *form_name(mrvi_constraint_form f) {
+  return f == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers";
+}
+
+/* ---------------------------------------------------------------------------
+ * Free rigid body: the midpoint rule with the internal constraints at the
+ * nodes is RATTLE on the directors, which for the free body is the discrete
+ * Moser-Veselov map: energy and spatial angular momentum exact up to the
+ * Newton tolerance (doc/multibody.md).
+ * ------------------------------------------------------------------------- */
+static mrvi_model *free_body(const double *J, const double *omega) {
+  mrvi_model *m = mrvi_model_create();
+  const double x0[3] = {0.1, -0.2, 0.3}, v0[3] = {0.5, 0.0, -0.25};
+  double R[9];
+  const double axis[3] = {0.3, 0.4, -0.2};
+  rodrigues(axis, 1.0, R);
+  const int b =
+      mrvi_model_add_body(m, "B", 3, MRVI_SLOW, 2.0, J, x0, R, v0, omega);
+  CHECK(b == 0, "free body added: %s", mrvi_model_errmsg(m));
+  return m;
+}
+
+/* Over a run: max |H - H0|/|H0| (H = T + V + W), max |L - L0| of the
+ * angular momentum and max |g|. */
+static void invariants(const mrvi_model *m, const mrvi_trajectory *tr,
+                       double *eH, double *eL, double *eg) {
+  const int n = tr->n, R = mrvi_model_constraint_rows(m);
+  double H0 = 0.0, L0[3] = {0, 0, 0}, P[3];
+  double *g = malloc((size_t)R * sizeof *g);
+  *eH = *eL = *eg = 0.0;
+  for (long k = 0; k < tr->n_macro; k++) {
+    double T, V, W, L[3] = {0, 0, 0};
+    mrvi_model_energy(m, tr->q + k * n, tr->p + k * n, &T, &V, &W);
+    mrvi_model_momentum(m, tr->q + k * n, tr->p + k * n, P, L);
+    if (k == 0) {
+      H0 = T + V + W;
+      memcpy(L0, L, sizeof L);
+    }
+    *eH = fmax(*eH, fabs(T + V + W - H0) / fabs(H0));
+    for (int a = 0; a < 3; a++)
+      *eL = fmax(*eL, fabs(L[a] - L0[a]));
+    mrvi_model_constraint_eval(m, tr->q + k * n, g, NULL);
+    for (int r = 0; r < R; r++)
+      *eg = fmax(*eg, fabs(g[r]));
+  }
+  free(g);
+}
+
+static void test_free_body(mrvi_constraint_form form) {
+  const double J[3] = {1.0, 2.0, 2.5}, w[3] = {0.5, 1.2, -0.7};
+  mrvi_model *m = free_body(J, w);
+  const mrvi_settings s = settings(0.05, 10.0, form);
+  mrvi_trajectory *tr = run("free body", m, &s);
+  if (tr) {
+    double eH, eL, eg;
+    invariants(m, tr, &eH, &eL, &eg);
+    printf("free body (%s): 200 steps, max |T - T0|/T0 %.3g, max |L - L0| "
+           "%.3g, max |g| %.3g\n",
+           form_name(form), eH, eL, eg);
+    /* Exact for the discrete map: what is left is the solver's tolerance
+     * (1e-12 on the dynamic rows, 1e-13 on g) and round-off. */
+    CHECK(eH < 1e-12, "free body (%s): energy %.3g", form_name(form), eH);
+    CHECK(eL < 1e-12, "free body (%s): angular momentum %.3g", form_name(form),
+          eL);
+    CHECK(eg <= 1e-13, "free body (%s): internal constraints %.3g",
+          form_name(form), eg);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
+ * The other joints, with answers known exactly:
+ *   weld: two free bodies welded are one free rigid body, whose discrete
+ *     map is again Moser-Veselov's: energy and angular momentum exact;
+ *   planar: a body on a horizontal plane under gravity moves as a free
+ *     planar body: energy exact, height constant;
+ *   prismatic, cylindrical: a body sliding down an incline (axis t) under
+ *     gravity: phi(t) = phi0 + (g.t) t t^2/2, which the midpoint rule
+ *     integrates exactly (constant force along the axis).
+ * ------------------------------------------------------------------------- */
+static void test_weld(int D, mrvi_constraint_form form) {
+  mrvi_model *m = mrvi_model_create();
+  const double J3[3] = {1.0, 2.0, 2.5}, K3[3] = {0.5, 0.4, 0.3}, J2 = 0.7,
+               K2 = 0.3;
+  const double xa[3] = {0, 0, 0}, xb[3] = {1, 0.5, -0.2};
+  const double va[3] = {0.1, 0.2, 0.3}, wa[3] = {0.4, -0.3, 0.8}, w2 = 0.9;
+  double vb[3] = {0, 0, 0}, R[9];
+  const double axis[3] = {0.2, -0.4, 0.5};
+  rodrigues(axis, 1.0, R);
+  const double R2[4] = {cos(0.3), -sin(0.3), sin(0.3), cos(0.3)};
+  /* B moves with A: v_B = v_A + w x (x_B - x_A). */
+  if (D == 3) {
+    vb[0] = va[0] + wa[1] * xb[2] - wa[2] * xb[1];
+    vb[1] = va[1] + wa[2] * xb[0] - wa[0] * xb[2];
+    vb[2] = va[2] + wa[0] * xb[1] - wa[1] * xb[0];
+  } else {
+    vb[0] = va[0] - w2 * xb[1];
+    vb[1] = va[1] + w2 * xb[0];
+  }
+  int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 2.0, D == 3 ? J3 : &J2, xa,
+                               D == 3 ? R : R2, va, D == 3 ? wa : &w2);
+  st |= mrvi_model_add_body(m, "b", D, MRVI_SLOW, 1.0, D == 3 ? K3 : &K2, xb,
+                            NULL, vb, D == 3 ? wa : &w2);
+  const double pt[3] = {0.5, 0.2, 0.1};
+  CHECK(st == 1 && mrvi_model_add_joint(m, "weld", 0, 1, pt, NULL) >= 0,
+        "weld %d-D: %s", D, mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 5.0, form);
+  mrvi_trajectory *tr = run("weld", m, &s);
+  if (tr) {
+    double eH, eL, eg;
+    invariants(m, tr, &eH, &eL, &eg);
+    printf("weld %d-D (%s): max |H - H0|/H0 %.3g, |L - L0| %.3g, |g| %.3g\n", D,
+           form_name(form), eH, eL, eg);
+    CHECK(eH < 1e-12 && eL < 1e-12 && eg <= 1e-13,
+          "weld %d-D (%s): energy %.3g, angular momentum %.3g, g %.3g", D,
+          form_name(form), eH, eL, eg);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+static void test_planar(void) {
+  mrvi_model *m = mrvi_model_create();
+  const double J[3] = {1.0, 2.0, 2.5}, x0[3] = {0.3, -0.1, 0.5};
+  const double v0[3] = {0.4, -0.2, 0}, w0[3] = {0, 0, 1.3},
+               g[3] = {0, 0, -9.81};
+  const double normal[3] = {0, 0, 1};
+  double R[9];
+  const double axis[3] = {0.1, 0.7, -0.3};
+  rodrigues(axis, 1.0, R);
+  CHECK(mrvi_model_add_body(m, "puck", 3, MRVI_SLOW, 1.5, J, x0, R, v0, w0) ==
+                0 &&
+            mrvi_model_add_joint(m, "planar", 0, -1, x0, normal) >= 0 &&
+            mrvi_model_set_gravity(m, g) >= 0,
+        "planar: %s", mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 5.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *tr = run("planar", m, &s);
+  if (tr) {
+    double eH, eL, eg, ez = 0.0;
+    invariants(m, tr, &eH, &eL, &eg);
+    for (long k = 0; k < tr->n_macro; k++)
+      ez = fmax(ez, fabs(tr->q[k * tr->n + 2] - x0[2]));
+    printf("planar: max |H - H0|/H0 %.3g, height %.3g, |g| %.3g\n", eH, ez, eg);
+    CHECK(eH < 1e-12 && ez < 1e-13 && eg <= 1e-13,
+          "planar: energy %.3g, height %.3g, g %.3g", eH, ez, eg);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+static void test_slider(const char *type, int D) {
+  mrvi_model *m = mrvi_model_create();
+  const double J[3] = {1.0, 2.0, 2.5}, J2 = 0.4, x0[3] = {0.2, 0.1, 0.3};
+  const double g[3] = {0, D == 2 ? -9.81 : 0, D == 3 ? -9.81 : 0};
+  double t[3] = {0.6, D == 2 ? 0.8 : 0.0, D == 3 ? 0.8 : 0.0}, v0[3], gt = 0;
+  const double c = 0.5; /* initial speed along the axis */
+  for (int a = 0; a < D; a++) {
+    v0[a] = c * t[a];
+    gt += g[a] * t[a];
+  }
+  CHECK(mrvi_model_add_body(m, "slide", D, MRVI_SLOW, 1.5, D == 3 ? J : &J2, x0,
+                            NULL, v0, NULL) == 0 &&
+            mrvi_model_add_joint(m, type, 0, -1, x0, t) >= 0 &&
+            mrvi_model_set_gravity(m, g) >= 0,
+        "%s %d-D: %s", type, D, mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 2.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *tr = run(type, m, &s);
+  if (tr) {
+    double e = 0.0;
+    for (long k = 0; k < tr->n_macro; k++) {
+      const double tk = tr->t[k], sk = c * tk + 0.5 * gt * tk * tk;
+      for (int a = 0; a < D; a++)
+        e = fmax(e, fabs(tr->q[k * tr->n + a] - (x0[a] + sk * t[a])));
+    }
+    printf("%s %d-D: sliding down the incline, max |phi - exact| %.3g\n", type,
+           D, e);
+    CHECK(e < 1e-11, "%s %d-D: position error %.3g", type, D, e);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+/* Isotropic body J = j I: R(t) = exp(t omega^) R0 exactly; the discrete
+ * rotation rate differs at O(dT^2). */
+static double isotropic_error(double dT, mrvi_constraint_form form) {
+  const double J[3] = {1.5, 1.5, 1.5}, w[3] = {0.3, -0.5, 1.1};
+  mrvi_model *m = free_body(J, w);
+  const double T = 2.0;
+  const mrvi_settings s = settings(dT, T, form);
+  mrvi_trajectory *tr = run("isotropic body", m, &s);
+  double err = NAN;
+  if (tr) {
+    double R0[9], RT[9], E[9];
+    mrvi_model_body_pose(m, 0, tr->q, NULL, R0);
+    mrvi_model_body_pose(m, 0, tr->q + (tr->n_macro - 1) * tr->n, NULL, RT);
+    rodrigues(w, tr->t[tr->n_macro - 1], E);
+    err = 0.0;
+    for (int i = 0; i < 3; i++)
+      for (int j = 0; j < 3; j++) {
+        double x = 0.0;
+        for (int l = 0; l < 3; l++)
+          x += E[i * 3 + l] * R0[l * 3 + j];
+        err = fmax(err, fabs(x - RT[i * 3 + j]));
+      }
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+  return err;
+}
+
+static void test_isotropic(void) {
+  const double e1 = isotropic_error(0.04, MRVI_FORM_MULTIPLIERS),
+               e2 = isotropic_error(0.02, MRVI_FORM_MULTIPLIERS),
+               e3 = isotropic_error(0.01, MRVI_FORM_MULTIPLIERS);
+  const double o1 = log2(e1 / e2), o2 = log2(e2 / e3);
+  printf("isotropic body: errors %.3g %.3g %.3g at dT 0.04 0.02 0.01, "
+         "orders %.3f %.3f\n",
+         e1, e2, e3, o1, o2);
+  CHECK(fabs(o2 - 2.0) < 0.05, "isotropic body: order %.3f (want 2)", o2);
+  CHECK(e3 < 1e-3, "isotropic body: error %.3g at dT 0.01", e3);
+  const double en = isotropic_error(0.02, MRVI_FORM_NULL_SPACE);
+  CHECK(fabs(en - e2) < 1e-9,
+        "isotropic body: null-space error %.6g vs "
+        "multipliers %.6g",
+        en, e2);
+}
+
+/* ---------------------------------------------------------------------------
+ * Heavy symmetric top on a spherical joint at the origin, e3 up, tilt alpha,
+ * centre of mass at l d3, initial omega = w_p e3 + w_s d3 with
+ * w_s = M g l/(J3 w_p) + ((J1 + M l^2 - J3)/J3) w_p cos(alpha): steady
+ * precession, d3.e3 = cos(alpha), azimuth of d3 = w_p t.
+ * ------------------------------------------------------------------------- */
+static const double top_M = 1.0, top_l = 0.5, top_g = 9.81, top_J1 = 0.2,
+                    top_J3 = 0.3, top_alpha = 0.5, top_wp = 2.0;
+
+/* One body joined to the ground at the origin by `type`, under gravity g. */
+static mrvi_model *grounded(const char *type, int D, double M, const double *J,
+                            const double *x0, const double *R, const double *v0,
+                            const double *w, const double *axis,
+                            const double *g) {
+  mrvi_model *m = mrvi_model_create();
+  const double pivot[3] = {0, 0, 0};
+  int st = mrvi_model_add_body(m, "b", D, MRVI_SLOW, M, J, x0, R, v0, w);
+  CHECK(st == 0, "%s body: %s", type, mrvi_model_errmsg(m));
+  st = mrvi_model_add_joint(m, type, 0, -1, pivot, axis);
+  CHECK(st >= 0, "%s joint: %s", type, mrvi_model_errmsg(m));
+  st = mrvi_model_set_gravity(m, g);
+  CHECK(st >= 0, "%s gravity: %s", type, mrvi_model_errmsg(m));
+  return m;
+}
+
+static mrvi_model *heavy_top(void) {
+  const double ca = cos(top_alpha), sa = sin(top_alpha);
+  /* Columns d1 = (cos a, 0, -sin a), d2 = e2, d3 = (sin a, 0, cos a). */
+  const double R[9] = {ca, 0, sa, 0, 1, 0, -sa, 0, ca};
+  const double d3[3] = {sa, 0, ca};
+  const double ws =
+      top_M * top_g * top_l / (top_J3 * top_wp) +
+      (top_J1 + top_M * top_l * top_l - top_J3) / top_J3 * top_wp * ca;
+  double w[3], x0[3], v0[3];
+  for (int a = 0; a < 3; a++) {
+    w[a] = ws * d3[a] + (a == 2 ? top_wp : 0.0);
+    x0[a] = top_l * d3[a];
+  }
+  v0[0] = w[1] * x0[2] - w[2] * x0[1];
+  v0[1] = w[2] * x0[0] - w[0] * x0[2];
+  v0[2] = w[0] * x0[1] - w[1] * x0[0];
+  const double J[3] = {top_J1, top_J1, top_J3}, g[3] = {0, 0, -top_g};
+  return grounded("spherical", 3, top_M, J, x0, R, v0, w, NULL, g);
+}
+
+/* Largest |d3.e3 - cos(alpha)| and |azimuth - w_p t| over the run. */
+static void top_errors(double dT, mrvi_constraint_form form, double *ez,
+                       double *ephi, double *eL) {
+  mrvi_model *m = heavy_top();
+  const mrvi_settings s = settings(dT, 2.0, form);
+  mrvi_trajectory *tr = run("heavy top", m, &s);
+  *ez = *ephi = *eL = NAN;
+  if (tr) {
+    double prev = 0.0, turns = 0.0, L0[3], Ls0 = 0.0;
+    *ez = *ephi = *eL = 0.0;
+    for (long k = 0; k < tr->n_macro; k++) {
+      const double *q = tr->q + k * tr->n, *p = tr->p + k * tr->n;
+      double R[9], P[3], L[3];
+      mrvi_model_body_pose(m, 0, q, NULL, R);
+      *ez = fmax(*ez, fabs(R[8] - cos(top_alpha)));
+      double az = atan2(R[5], R[2]);
+      if (k > 0 && az - prev < -M_PI)
+        turns += 2 * M_PI;
+      if (k > 0 && az - prev > M_PI)
+        turns -= 2 * M_PI;
+      prev = az;
+      *ephi = fmax(*ephi, fabs(az + turns - top_wp * tr->t[k]));
+      /* Momentum maps of the symmetries: L.e3 and L.d3 = p_d1.d2 - p_d2.d1
+       * (mrvi's momenta p_{d_i} at q + 3 + 3 i). */
+      mrvi_model_momentum(m, q, p, P, L);
+      double Ls = 0.0;
+      for (int a = 0; a < 3; a++)
+        Ls += p[3 + a] * q[6 + a] - p[6 + a] * q[3 + a];
+      if (k == 0) {
+        memcpy(L0, L, sizeof L);
+        Ls0 = Ls;
+      }
+      *eL = fmax(*eL, fmax(fabs(L[2] - L0[2]), fabs(Ls - Ls0)));
+    }
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+static void test_top(void) {
+  double z[3], f[3], L[3];
+  const double dT[3] = {0.02, 0.01, 0.005};
+  for (int i = 0; i < 3; i++)
+    top_errors(dT[i], MRVI_FORM_MULTIPLIERS, &z[i], &f[i], &L[i]);
+  const double oz = log2(z[1] / z[2]), of = log2(f[1] / f[2]);
+  printf("heavy top: max |d3.e3 - cos a| %.3g %.3g %.3g (order %.3f), "
+         "precession error %.3g %.3g %.3g (order %.3f), momentum maps %.3g "
+         "%.3g %.3g\n",
+         z[0], z[1], z[2], oz, f[0], f[1], f[2], of, L[0], L[1], L[2]);
+  CHECK(fabs(of - 2.0) < 0.1, "heavy top: precession order %.3f", of);
+  CHECK(fabs(oz - 2.0) < 0.1, "heavy top: tilt order %.3f", oz);
+  CHECK(f[2] < 1e-3 && z[2] < 1e-3, "heavy top: errors %.3g %.3g", f[2], z[2]);
+  CHECK(L[2] < 1e-9, "heavy top: L.e3 and L.d3 conserved to %.3g", L[2]);
+  double zn, fn, Ln;
+  top_errors(0.01, MRVI_FORM_NULL_SPACE, &zn, &fn, &Ln);
+  CHECK(fabs(fn - f[1]) < 1e-8 && fabs(zn - z[1]) < 1e-8,
+        "heavy top: null-space form %.6g %.6g vs %.6g %.6g", fn, zn, f[1],
+        z[1]);
+}
+
+/* ---------------------------------------------------------------------------
+ * Rigid pendulum on a revolute joint: theta'' = -(M g l/I) sin(theta), I
+ * about the pivot, the simple pendulum of length I/(M l).  Reference: RK4
+ * with a step far below the run's.
+ * ------------------------------------------------------------------------- */
+static const double pen_M = 2.0, pen_l = 0.4, pen_J = 0.05, pen_th0 = 1.0,
+                    pen_g = 9.81, pen_T = 2.0;
+
+static double pendulum_reference(void) {
+  const double k = pen_M * pen_g * pen_l / (pen_J + pen_M * pen_l * pen_l);
+  const int N = 200000;
+  const double h = pen_T / N;
+  double th = pen_th0, w = 0.0;
+  for (int i = 0; i < N; i++) {
+    const double k1t = w, k1w = -k * sin(th);
+    const double k2t = w + 0.5 * h * k1w, k2w = -k * sin(th + 0.5 * h * k1t);
+    const double k3t = w + 0.5 * h * k2w, k3w = -k * sin(th + 0.5 * h * k2t);
+    const double k4t = w + h * k3w, k4w = -k * sin(th + h * k3t);
+    th += h / 6 * (k1t + 2 * k2t + 2 * k3t + k4t);
+    w += h / 6 * (k1w + 2 * k2w + 2 * k3w + k4w);
+  }
+  return th;
+}
+
+/* D = 3: body swinging about e2 (hinge axis e2); D = 2: planar body. */
+static mrvi_model *rigid_pendulum(int D) {
+  const double c = cos(pen_th0), s = sin(pen_th0);
+  const double axis[3] = {0, 1, 0};
+  if (D == 3) {
+    /* Rotated by theta0 about the hinge axis e2 = d2 (J2 = pen_J about it). */
+    const double R[9] = {c, 0, s, 0, 1, 0, -s, 0, c};
+    const double x0[3] = {pen_l * s, 0, -pen_l * c};
+    const double J[3] = {pen_J, pen_J, 0.03}, g[3] = {0, 0, -pen_g};
+    return grounded("revolute", 3, pen_M, J, x0, R, NULL, NULL, axis, g);
+  }
+  const double R[4] = {c, -s, s, c};
+  const double x0[2] = {pen_l * s, -pen_l * c};
+  const double J = pen_J, g[2] = {0, -pen_g};
+  return grounded("revolute", 2, pen_M, &J, x0, R, NULL, NULL, NULL, g);
+}
+
+static double pendulum_error(int D, double dT, mrvi_constraint_form form,
+                             double ref) {
+  mrvi_model *m = rigid_pendulum(D);
+  const mrvi_settings s = settings(dT, pen_T, form);
+  mrvi_trajectory *tr = run("rigid pendulum", m, &s);
+  double err = NAN;
+  if (tr) {
+    const double *q = tr->q + (tr->n_macro - 1) * tr->n;
+    /* theta from the downward vertical: phi = l (sin th, [0,] -cos th). */
+    const double th = atan2(q[0], -q[D - 1]);
+    err = fabs(th - ref);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+  return err;
+}
+
+static void test_pendulum(void) {
+  const double ref = pendulum_reference();
+  for (int D = 2; D <= 3; D++) {
+    const double e1 = pendulum_error(D, 0.02, MRVI_FORM_MULTIPLIERS, ref),
+                 e2 = pendulum_error(D, 0.01, MRVI_FORM_MULTIPLIERS, ref),
+                 e3 = pendulum_error(D, 0.005, MRVI_FORM_MULTIPLIERS, ref);
+    const double o = log2(e2 / e3);
+    printf("rigid pendulum %d-D: |theta - theta_ref| at t = 2: %.3g %.3g %.3g "
+           "(dT 0.02 0.01 0.005), order %.3f\n",
+           D, e1, e2, e3, o);
+    CHECK(fabs(o - 2.0) < 0.1, "rigid pendulum %d-D: order %.3f", D, o);
+    CHECK(e3 < 1e-3, "rigid pendulum %d-D: error %.3g", D, e3);
+    const double en = pendulum_error(D, 0.01, MRVI_FORM_NULL_SPACE, ref);
+    CHECK(fabs(en - e2) < 1e-8, "rigid pendulum %d-D: null-space %.6g vs %.6g",
+          D, en, e2);
+  }
+}
+
+/* ---------------------------------------------------------------------------
+ * Bad input: each refused with its reason.
+ * ------------------------------------------------------------------------- */
+static void expect_fail(mrvi_model *m, int st, const char *what,
+                        const char *needle) {
+  const char *msg = mrvi_model_errmsg(m);
+  CHECK(st < 0 && strstr(msg, needle), "%s refused (%d): %s", what, st, msg);
+}
+
+static void test_bad_input(void) {
+  mrvi_model *m = mrvi_model_create();
+  const double x0[3] = {0, 0, 0};
+  const double rod[3] = {1.0, 1.0, 2.0}, ok[3] = {1, 1, 1};
+  expect_fail(
+      m,
+      mrvi_model_add_body(m, "rod", 3, MRVI_SLOW, 1, rod, x0, NULL, NULL, NULL),
+      "triangle inequality", "strict triangle inequality J3 < J1 + J2");
+  const double mirror[9] = {1, 0, 0, 0, 1, 0, 0, 0, -1};
+  expect_fail(
+      m,
+      mrvi_model_add_body(m, "m", 3, MRVI_SLOW, 1, ok, x0, mirror, NULL, NULL),
+      "det -1", "reflection");
+  const double skew[9] = {1, 0.1, 0, 0, 1, 0, 0, 0, 1};
+  expect_fail(
+      m, mrvi_model_add_body(m, "s", 3, MRVI_SLOW, 1, ok, x0, skew, NULL, NULL),
+      "not orthonormal", "not a rotation matrix");
+  CHECK(mrvi_model_add_body(m, "a", 3, MRVI_SLOW, 1, ok, x0, NULL, NULL,
+                            NULL) == 0,
+        "good body: %s", mrvi_model_errmsg(m));
+  expect_fail(m, mrvi_model_add_joint(m, "spherical", 0, 0, x0, NULL),
+              "joint to itself", "between body 'a' and itself");
+  expect_fail(m, mrvi_model_add_joint(m, "spherical", 0, 5, x0, NULL),
+              "unknown body", "unknown body");
+  expect_fail(m, mrvi_model_add_joint(m, "hinge", 0, -1, x0, NULL),
+              "unknown joint type", "unknown joint type 'hinge'");
+  expect_fail(m, mrvi_model_add_joint(m, "revolute", 0, -1, x0, NULL),
+              "revolute without axis", "a 3-D revolute joint needs an axis");
+  expect_fail(
+      m, mrvi_model_add_body(m, "b", 2, MRVI_SLOW, 1, ok, x0, NULL, NULL, NULL),
+      "2-D body in a 3-D model",
+      "of dimension 2 in a model of "
+      "dimension 3");
+  mrvi_model_free(m);
+}
+
+/* Gravity, names and coordinates of a body. */
+static void test_layout(void) {
+  mrvi_model *m = heavy_top();
+  CHECK(mrvi_model_n(m) == 12 && mrvi_model_n_bodies(m) == 1 &&
+            mrvi_model_constraint_rows(m) == 9,
+        "top: 12 coordinates, 9 constraint rows (%d, %d)", mrvi_model_n(m),
+        mrvi_model_constraint_rows(m));
+  CHECK(!strcmp(mrvi_model_coordinate_name(m, 5), "b.d1z") &&
+            !strcmp(mrvi_model_coordinate_name(m, 11), "b.d3z"),
+        "coordinate names %s %s", mrvi_model_coordinate_name(m, 5),
+        mrvi_model_coordinate_name(m, 11));
+  /* E_1 = J3/2, E_3 = J1 - J3/2 for J1 = J2. */
+  CHECK_NEAR(mrvi_model_mass(m, 3), 0.5 * top_J3, 1e-15, "E1");
+  CHECK_NEAR(mrvi_model_mass(m, 9), top_J1 - 0.5 * top_J3, 1e-15, "E3");
+  double grad[12] = {0};
+  mrvi_model_potential(m, MRVI_SLOW, mrvi_model_q0(m), grad, NULL);
+  CHECK(grad[2] == top_M * top_g && grad[0] == 0 && grad[5] == 0,
+        "gravity acts on phi only: %g %g %g", grad[2], grad[0], grad[5]);
+  int worst;
+  CHECK(mrvi_model_check_initial_positions(m, 1e-14, &worst) == 0,
+        "initial positions meet the joint and the directors: %s",
+        mrvi_model_errmsg(m));
+  /* Symmetries: gravity along e3 keeps the rotations about e3 and the
+   * translations across it, but the joint is not analysed: nothing kept. */
+  int lin[3], ang[3];
+  CHECK(mrvi_model_conserved(m, lin, ang) == 0 && !lin[0] && !ang[2],
+        "top: no momentum claimed (%d %d)", lin[0], ang[2]);
+  mrvi_model_free(m);
+  const double J[3] = {1.0, 2.0, 2.5}, w[3] = {0.5, 1.2, -0.7};
+  m = free_body(J, w);
+  CHECK(mrvi_model_conserved(m, lin, ang) == 0 && lin[0] && lin[1] && lin[2] &&
+            ang[0] && ang[1] && ang[2],
+        "free body: every momentum component conserved");
+  const double g[3] = {0, 0, -1};
+  mrvi_model_set_gravity(m, g);
+  CHECK(mrvi_model_conserved(m, lin, ang) == 0 && lin[0] && lin[1] && !lin[2] &&
+            !ang[0] && !ang[1] && ang[2],
+        "free body in gravity: p_x, p_y, L_z (%d %d %d, %d %d %d)", lin[0],
+        lin[1], lin[2], ang[0], ang[1], ang[2]);
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
+ * Output (doc/output.md): /bodies/position and /bodies/rotation are phi and
+ * [d_1 d_2 d_3] of /macro/q; /macro/angular_momentum includes the bodies.
+ * ------------------------------------------------------------------------- */
+static int read_all(hid_t f, const char *path, double *buf, size_t cap,
+                    hsize_t *dims, int *rank) {
+  hid_t d = H5Dopen2(f, path, H5P_DEFAULT);
+  if (d < 0)
+    return -1;
+  hid_t sp = H5Dget_space(d);
+  *rank = H5Sget_simple_extent_ndims(sp);
+  H5Sget_simple_extent_dims(sp, dims, NULL);
+  size_t count = 1;
+  for (int a = 0; a < *rank; a++)
+    count *= dims[a];
+  int rc = count <= cap ? H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL,
+                                  H5P_DEFAULT, buf)
+                        : -1;
+  H5Sclose(sp);
+  H5Dclose(d);
+  return rc;
+}
+
+static void test_output(void) {
+  mrvi_model *m = heavy_top();
+  mrvi_settings s = settings(0.01, 0.1, MRVI_FORM_MULTIPLIERS);
+  mrvi_writer_options opt = {
+      .system_name = "top", .every = 1, .micro = 1, .force = 1};
+  mrvi_writer *w = NULL;
+  char msg[1024];
+  const char *path = "bodies_output.h5";
+  CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == 0, "%s",
+        msg);
+  mrvi_summary sum;
+  CHECK(w && mrvi_run(m, &s, mrvi_writer_observe, w, NULL, &sum) == 0, "%s",
+        sum.message);
+  if (w)
+    mrvi_writer_close(w, "completed", msg, sizeof msg);
+  hid_t f = H5Fopen(path, H5F_ACC_RDONLY, H5P_DEFAULT);
+  CHECK(f >= 0, "output opens");
+  if (f < 0) {
+    mrvi_model_free(m);
+    return;
+  }
+  static double q[11 * 12], pos[11 * 3], rot[11 * 9], L[11 * 3], p[11 * 12];
+  hsize_t dq[4], dp[4], dr[4], dl[4], dpp[4];
+  int rq, rp, rr, rl, rpp;
+  CHECK(read_all(f, "/macro/q", q, 132, dq, &rq) >= 0 &&
+            read_all(f, "/macro/p", p, 132, dpp, &rpp) >= 0 &&
+            read_all(f, "/bodies/position", pos, 33, dp, &rp) >= 0 &&
+            read_all(f, "/bodies/rotation", rot, 99, dr, &rr) >= 0 &&
+            read_all(f, "/macro/angular_momentum", L, 33, dl, &rl) >= 0,
+        "body datasets read");
+  CHECK(rp == 3 && dp[0] == 11 && dp[1] == 1 && dp[2] == 3,
+        "/bodies/position is 11 x 1 x 3 (rank %d)", rp);
+  CHECK(rr == 4 && dr[0] == 11 && dr[1] == 1 && dr[2] == 3 && dr[3] == 3,
+        "/bodies/rotation is 11 x 1 x 3 x 3 (rank %d)", rr);
+  double e = 0.0, eL = 0.0;
+  for (int k = 0; k < 11; k++) {
+    double R[9], x[3], P[3], Lk[3];
+    mrvi_model_body_pose(m, 0, q + k * 12, x, R);
+    for (int a = 0; a < 3; a++)
+      e = fmax(e, fabs(x[a] - pos[k * 3 + a]));
+    for (int a = 0; a < 9; a++)
+      e = fmax(e, fabs(R[a] - rot[k * 9 + a]));
+    mrvi_model_momentum(m, q + k * 12, p + k * 12, P, Lk);
+    for (int a = 0; a < 3; a++)
+      eL = fmax(eL, fabs(Lk[a] - L[k * 3 + a]));
+  }
+  CHECK(e == 0.0 && eL == 0.0,
+        "positions, rotations, angular momentum as q "
+        "says (%.3g, %.3g)",
+        e, eL);
+  /* Column 2 of the rotation is d3 = q[9..11]. */
+  CHECK(rot[9 * 10 + 2] == q[12 * 10 + 9] && rot[9 * 10 + 5] == q[12 * 10 + 10],
+        "rotation column 3 is d3");
+  H5Fclose(f);
+  remove(path);
+  mrvi_model_free(m);
+}
+
+/* The shipped heavy top (systems/heavy_top.yaml: orientation as axis and
+ * angle) is the model built here from the rotation matrix. */
+static void test_loader(void) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  int st = mrvi_system_load(test_source_path("systems/heavy_top.yaml"), NULL, 0,
+                            &sys, msg, sizeof msg);
+  CHECK(st == 0, "systems/heavy_top.yaml loads: %s", msg);
+  if (st)
+    return;
+  mrvi_model *m = heavy_top();
+  const double *a = mrvi_model_q0(sys->model), *b = mrvi_model_q0(m);
+  const double *va = mrvi_model_v0(sys->model), *vb = mrvi_model_v0(m);
+  double e = 0.0;
+  CHECK(mrvi_model_n(sys->model) == 12 &&
+            mrvi_model_constraint_rows(sys->model) == 9,
+        "loaded top: 12 coordinates, 9 rows");
+  for (int i = 0; i < 12 && mrvi_model_n(sys->model) == 12; i++) {
+    e = fmax(e, fabs(a[i] - b[i]) + fabs(va[i] - vb[i]));
+    CHECK(mrvi_model_mass(sys->model, i) == mrvi_model_mass(m, i), "mass of %s",
+          mrvi_model_coordinate_name(m, i));
+  }
+  CHECK(e < 1e-14, "loaded initial data as built in C (%.3g)", e);
+  mrvi_model_free(m);
+  mrvi_system_free(sys);
+}
+
+int main(void) {
+  test_types();
+  test_bad_input();
+  test_layout();
+  test_free_body(MRVI_FORM_MULTIPLIERS);
+  test_free_body(MRVI_FORM_NULL_SPACE);
+  test_isotropic();
+  test_top();
+  test_pendulum();
+  test_output();
+  test_loader();
+  for (int D = 2; D <= 3; D++) {
+    test_weld(D, MRVI_FORM_MULTIPLIERS);
+    test_weld(D, MRVI_FORM_NULL_SPACE);
+    test_slider("prismatic", D);
+  }
+  test_slider("cylindrical", 3);
+  test_planar();
+  return test_finish();
+}
