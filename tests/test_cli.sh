@@ -118,6 +118,19 @@ run_mrvi help run
 expect_rc 0 "help run"
 contains "$out" '--set KEY=VALUE' "help run documents --set"
 contains "$out" '130' "help run documents the interrupt status"
+# Every option `run` accepts is in its help: the options of the parser's
+# table run_options in cli.c and those the --controls replay accepts in
+# cli_optimize.c (is_run branches), read from the source so that a new
+# option without help fails here.
+run_opts=$( (sed -n '/run_options\[\] = {/,/NULL};/p' "$root/src/cli/cli.c" |
+  grep -o '"--[a-z-]*"'
+  grep -o 'is_run && !strn*cmp(a, "--[a-z-]*' "$root/src/cli/cli_optimize.c" |
+    grep -o '"--[a-z-]*') | tr -d '"' | sort -u)
+check "run options found in the source ($(echo $run_opts))" \
+  [ "$(echo "$run_opts" | wc -l)" -ge 8 ]
+for o in $run_opts; do
+  contains "$out" "(^|[ ,])$o( |=|\$)" "help run documents $o"
+done
 
 run_mrvi run --help
 expect_rc 0 "run --help"
