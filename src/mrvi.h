@@ -557,11 +557,16 @@ const double *mrvi_integrator_lambda(const mrvi_integrator *it);
 const double *mrvi_integrator_micro_constraint_residual(
     const mrvi_integrator *it);
 /* Accumulated wall time in seconds spent assembling residual+Jacobian and
- * in the linear solves (UMFPACK numeric + solve): measured on every 16th
- * step (the first included) and scaled to all steps, since reading the
- * clock costs as much as a micro step of the explicit paths. */
-void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
-                            double *solve);
+ * in the linear solves (UMFPACK numeric + solve).  Measured on each of the
+ * first 64 steps; later steps come in blocks of 64 whose first step is
+ * timed: a block whose first step took 50 us or more is timed on every
+ * step, else its first step's times stand for all its steps (reading the
+ * clock costs as much as a micro step of the explicit paths), at most the
+ * block's elapsed time, so that the sum never exceeds the wall time of the
+ * steps.  Returns 1 when part of the times is such an estimate, 0 when
+ * every step was measured. */
+int mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
+                           double *solve);
 
 /* ---------------------------------------------------------------------------
  * Run driver: integrate to t_end, calling an observer at every macro node.
@@ -615,7 +620,11 @@ typedef struct mrvi_summary {
    * the error is and what to do ("" otherwise).  The run still completes. */
   char warning[512];
   double wall_time;            /* seconds */
+  /* Time spent assembling and solving (mrvi_integrator_timing): measured
+   * when timing_estimated is 0, else partly estimated from sampled steps;
+   * their sum is at most wall_time. */
   double assemble_time, solve_time;
+  int timing_estimated;
   long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
                           tolerance (doc/solver.md) */
   mrvi_krylov_stats krylov; /* iterative solves (sweep-cg, schur-krylov) */

@@ -625,8 +625,15 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
             "Newton tolerance %g (see doc/solver.md)\n",
             sum->roundoff_steps, sum->roundoff_steps == 1 ? "" : "s",
             s->newton_tol);
-  printf("  %-23s%.3f s (assemble %.3f s, solve %.3f s)\n", "wall time",
-         sum->wall_time, sum->assemble_time, sum->solve_time);
+  /* Assembly and solve are measured on every step of short runs, else
+   * estimated from sampled steps (mrvi_integrator_timing): say which. */
+  if (sum->timing_estimated)
+    printf("  %-23s%.3f s (assemble \u2248%.3f s, solve \u2248%.3f s: "
+           "partly estimated from sampled steps)\n",
+           "wall time", sum->wall_time, sum->assemble_time, sum->solve_time);
+  else
+    printf("  %-23s%.3f s (assemble %.3f s, solve %.3f s)\n", "wall time",
+           sum->wall_time, sum->assemble_time, sum->solve_time);
   printf("  %-23s%s\n", "output", out);
   /* Why it stopped is printed once, on stderr, by cmd_run. */
   fflush(stdout);
