@@ -780,20 +780,28 @@ void mrvi_stored_node_free(mrvi_stored_node *node);
 int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
                      size_t len);
 
-enum { MRVI_XYZ_SPECIES_RATE = 0, MRVI_XYZ_SPECIES_NAME = 1 };
+/* What the species column holds: X (ASE's dummy element, a chemical symbol
+ * every reader takes), slow/fast, or the particle name (OVITO and VMD take
+ * any word there, ASE only chemical symbols). */
+enum {
+  MRVI_XYZ_SPECIES_X = 0,
+  MRVI_XYZ_SPECIES_RATE = 1,
+  MRVI_XYZ_SPECIES_NAME = 2
+};
 
 typedef struct mrvi_xyz_options {
   int every;   /* write every every-th frame (>= 1) */
   int micro;   /* frames at the micro nodes (/micro; slow particles need
                   /micro/q_slow, output.micro_slow) instead of macro nodes */
-  int species; /* MRVI_XYZ_SPECIES_RATE: "slow"/"fast"; _NAME: the name */
+  int species; /* MRVI_XYZ_SPECIES_X, _RATE or _NAME */
 } mrvi_xyz_options;
 
 /* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of particles,
- * a comment line "Properties=species:S:1:pos:R:3 Time=t pbc="F F F"" and a
- * line "species x y z" per particle (2-D and 1-D padded with zeros), all
- * values with 17 significant digits.  opt may be NULL (every frame, macro
- * nodes, species by rate). */
+ * a comment line "Properties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=t
+ * pbc="F F F"" and a line "species x y z rate name" per particle (2-D and
+ * 1-D padded with zeros; rate 0 slow, 1 fast; name with blanks as '_'),
+ * values with at most 17 significant digits.  opt may be NULL (every
+ * frame, macro nodes, species X). */
 int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                     const mrvi_xyz_options *opt, char *msg, size_t len);
 
