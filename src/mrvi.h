@@ -724,11 +724,16 @@ const double *mrvi_integrator_lambda(const mrvi_integrator *it);
 const double *mrvi_integrator_micro_constraint_residual(
     const mrvi_integrator *it);
 /* Accumulated wall time in seconds spent assembling residual+Jacobian and
- * in the linear solves (UMFPACK numeric + solve): measured on every 16th
- * step (the first included) and scaled to all steps, since reading the
- * clock costs as much as a micro step of the explicit paths. */
-void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
-                            double *solve);
+ * in the linear solves (UMFPACK numeric + solve).  Measured on each of the
+ * first 64 steps; later steps come in blocks of 64 whose first step is
+ * timed: a block whose first step took 50 us or more is timed on every
+ * step, else its first step's times stand for all its steps (reading the
+ * clock costs as much as a micro step of the explicit paths), at most the
+ * block's elapsed time, so that the sum never exceeds the wall time of the
+ * steps.  Returns 1 when part of the times is such an estimate, 0 when
+ * every step was measured. */
+int mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
+                           double *solve);
 
 /* ---------------------------------------------------------------------------
  * Run driver: integrate to t_end, calling an observer at every macro node.
@@ -782,7 +787,11 @@ typedef struct mrvi_summary {
    * the error is and what to do ("" otherwise).  The run still completes. */
   char warning[512];
   double wall_time;            /* seconds */
+  /* Time spent assembling and solving (mrvi_integrator_timing): measured
+   * when timing_estimated is 0, else partly estimated from sampled steps;
+   * their sum is at most wall_time. */
   double assemble_time, solve_time;
+  int timing_estimated;
   long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
                           tolerance (doc/solver.md) */
   mrvi_krylov_stats krylov; /* iterative solves (sweep-cg, schur-krylov) */
@@ -938,20 +947,28 @@ void mrvi_stored_node_free(mrvi_stored_node *node);
 int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
                      size_t len);
 
-enum { MRVI_XYZ_SPECIES_RATE = 0, MRVI_XYZ_SPECIES_NAME = 1 };
+/* What the species column holds: X (ASE's dummy element, a chemical symbol
+ * every reader takes), slow/fast, or the particle name (OVITO and VMD take
+ * any word there, ASE only chemical symbols). */
+enum {
+  MRVI_XYZ_SPECIES_X = 0,
+  MRVI_XYZ_SPECIES_RATE = 1,
+  MRVI_XYZ_SPECIES_NAME = 2
+};
 
 typedef struct mrvi_xyz_options {
   int every;   /* write every every-th frame (>= 1) */
   int micro;   /* frames at the micro nodes (/micro; slow particles need
                   /micro/q_slow, output.micro_slow) instead of macro nodes */
-  int species; /* MRVI_XYZ_SPECIES_RATE: "slow"/"fast"; _NAME: the name */
+  int species; /* MRVI_XYZ_SPECIES_X, _RATE or _NAME */
 } mrvi_xyz_options;
 
 /* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of particles,
- * a comment line "Properties=species:S:1:pos:R:3 Time=t pbc="F F F"" and a
- * line "species x y z" per particle (2-D and 1-D padded with zeros), all
- * values with 17 significant digits.  opt may be NULL (every frame, macro
- * nodes, species by rate). */
+ * a comment line "Properties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=t
+ * pbc="F F F"" and a line "species x y z rate name" per particle (2-D and
+ * 1-D padded with zeros; rate 0 slow, 1 fast; name with blanks as '_'),
+ * values with at most 17 significant digits.  opt may be NULL (every
+ * frame, macro nodes, species X). */
 int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                     const mrvi_xyz_options *opt, char *msg, size_t len);
 

@@ -118,6 +118,19 @@ run_mrvi help run
 expect_rc 0 "help run"
 contains "$out" '--set KEY=VALUE' "help run documents --set"
 contains "$out" '130' "help run documents the interrupt status"
+# Every option `run` accepts is in its help: the options of the parser's
+# table run_options in cli.c and those the --controls replay accepts in
+# cli_optimize.c (is_run branches), read from the source so that a new
+# option without help fails here.
+run_opts=$( (sed -n '/run_options\[\] = {/,/NULL};/p' "$root/src/cli/cli.c" |
+  grep -o '"--[a-z-]*"'
+  grep -o 'is_run && !strn*cmp(a, "--[a-z-]*' "$root/src/cli/cli_optimize.c" |
+    grep -o '"--[a-z-]*') | tr -d '"' | sort -u)
+check "run options found in the source ($(echo $run_opts))" \
+  [ "$(echo "$run_opts" | wc -l)" -ge 8 ]
+for o in $run_opts; do
+  contains "$out" "(^|[ ,])$o( |=|\$)" "help run documents $o"
+done
 
 run_mrvi run --help
 expect_rc 0 "run --help"
@@ -302,9 +315,26 @@ check "run (--output=) creates the file" [ -s "$y" ]
 contains "$out" 'completed 10 of 10 macro steps' "summary: macro steps"
 contains "$out" 'Newton iterations +[0-9]+ total, max [0-9]+ per step' "summary: Newton iterations"
 contains "$out" 'max rel\. energy error +[0-9.]+e[-+][0-9]+' "summary: energy error"
-contains "$out" 'wall time +[0-9.]+ s' "summary: wall time"
+contains "$out" 'wall time +[0-9.]+ s \(assemble [0-9.]+ s, solve [0-9.]+ s\)$' \
+  "summary: wall time, 10 steps: assembly and solve measured (no estimate)"
 contains "$out" "output +$y\$" "summary: output file"
 check "no progress bar when stderr is not a terminal (got '$err')" [ -z "$err" ]
+# Assembly and solve never above the wall time: cart_pendulum's costly
+# first step, scaled to every step, once made the solve time 14 times the
+# wall time.  (Measured or estimated, depending on the machine's speed.)
+run_mrvi run "$root/systems/cart_pendulum.yaml" -o "$tmp/o/cp.h5" --set output.xdmf=false
+line=$(printf '%s\n' "$out" | grep 'wall time')
+read -r w a s < <(printf '%s\n' "$line" |
+  sed -n 's/.*wall time *\([0-9.]*\) s (assemble ≈*\([0-9.]*\) s, solve ≈*\([0-9.]*\) s.*/\1 \2 \3/p')
+# (printed to 1 ms: each rounded by at most 0.0005)
+check "summary: assemble + solve <= wall time ($line)" \
+  awk -v w="${w:-}" -v a="${a:-}" -v s="${s:-}" 'BEGIN { exit !(w != "" && a + s <= w + 0.001) }'
+# 1000 explicit FPU steps of a few microseconds (also under ASan): timed
+# on one step in 64, said so.
+run_mrvi run "$fpu" -o "$tmp/o/fpu-long.h5" --set integrator.scheme=fully-explicit \
+  --set integrator.micro_steps=1 --set integrator.macro_step=0.01 --set integrator.t_end=10
+contains "$out" 'wall time +[0-9.]+ s \(assemble ≈[0-9.]+ s, solve ≈[0-9.]+ s: partly estimated from sampled steps\)$' \
+  "summary: an estimate says so"
 
 # Default output name from the description, written to the working directory.
 run_mrvi run "$fpu" --set integrator.t_end=0.6 --set output.file=named.h5 -q

@@ -22,6 +22,8 @@ root=${2:?usage: test_export.sh MRVI_BINARY SOURCE_ROOT}
 # shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
 need_python h5py numpy xml.etree.ElementTree
+export MRVI_TESTS
+MRVI_TESTS=$(cd "$(dirname "$0")" && pwd)
 cd "$tmp" || exit 1
 
 # fails_with NAME PATTERN CMD...: exit 1 and PATTERN on stderr
@@ -206,27 +208,17 @@ EOF
 cat >check_xyz.py <<'EOF'
 """check_xyz.py FILE.xyz FILE.h5 EVERY GRID SPECIES: read the extended XYZ
 frames back and compare them with the run file (GRID macro or micro)."""
+import os
 import sys
 
-import h5py
 import numpy as np
+
+sys.path.insert(0, os.environ["MRVI_TESTS"])
+from run_positions import run_positions  # noqa: E402
 
 xyz, h5, every, grid, species = sys.argv[1:6]
 every = int(every)
-f = h5py.File(h5, "r")
-col = f["model/particle_column"][()]
-rate = f["model/rate"][()]
-d = int(f["model/dimension"][()])
-if grid == "macro":
-    t = f["macro/t"][()]
-    q = f["macro/q"][()]
-else:
-    t = f["micro/t"][()]
-    q = np.zeros((t.size, rate.size))
-    q[:, rate == 1] = f["micro/q_fast"][()]
-    if "micro/q_slow" in f:
-        q[:, rate == 0] = f["micro/q_slow"][()]
-names = list(f["model/particle_name"].asstr()[()])
+t, pos, rate, names = run_positions(h5, grid)
 lines = open(xyz).read().split("\n")
 frames = []
 i = 0
@@ -242,21 +234,22 @@ assert len(frames) == len(rows), "%d frames, expected %d" % (len(frames),
 worst = 0.0
 for (head, body), k in zip(frames, rows):
     keys = dict(kv.split("=", 1) for kv in head.replace('"F F F"', "F").split())
-    assert keys["Properties"] == "species:S:1:pos:R:3", head
+    assert keys["Properties"] == \
+        "species:S:1:pos:R:3:rate:I:1:name:S:1", head
     assert float(keys["Time"]) == t[k], (head, t[k])
     assert "Lattice" not in keys
-    assert len(body) == col.size
+    assert len(body) == len(names)
     for j, fields in enumerate(body):
-        want_species = names[j] if species == "name" else \
-            ("fast" if rate[col[j]] == 1 else "slow")
-        assert fields[0] == want_species, (fields[0], want_species)
+        want_species = {"name": names[j], "x": "X",
+                        "rate": "fast" if rate[j] == 1 else "slow"}
+        assert fields[0] == want_species[species], (fields[0], species)
+        assert len(fields) == 6 and int(fields[4]) == rate[j] and \
+            fields[5] == names[j], fields
         x = np.array(fields[1:4], dtype=float)
-        want = np.zeros(3)
-        want[:d] = q[k, col[j]:col[j] + d]
-        worst = max(worst, float(np.max(np.abs(x - want))))
+        worst = max(worst, float(np.max(np.abs(x - pos[k, j]))))
 assert worst == 0.0, "positions differ from the file by %g" % worst
 print("ok %d frames of %d particles equal to %s to the last digit"
-      % (len(frames), col.size, "/macro/q" if grid == "macro" else
+      % (len(frames), len(names), "/macro/q" if grid == "macro" else
          "/micro (q_slow, q_fast)"))
 EOF
 
@@ -371,15 +364,15 @@ run_ok "mrvi export --format xyz" "$mrvi" export lattice.h5 --format xyz
 [ "$(cat out.txt)" = lattice.xyz ] && pass "prints lattice.xyz" ||
   fail "prints the output name: $(cat out.txt)"
 py_ok "XYZ round trip (macro nodes)" check_xyz.py lattice.xyz lattice.h5 1 \
-  macro rate
+  macro x
 run_ok "xyz --every 3 --species name" "$mrvi" export lattice.h5 -f xyz \
   --every 3 --species name -o every3.xyz
 py_ok "XYZ every 3rd frame with names" check_xyz.py every3.xyz lattice.h5 3 \
   macro name
 run_ok "xyz --micro" "$mrvi" export lattice.h5 -f xyz --micro -o micro.xyz
 py_ok "XYZ on the micro grid (q_slow, q_fast)" check_xyz.py micro.xyz \
-  lattice.h5 1 micro rate
-run_ok "xyz 3-D" "$mrvi" export ring.h5 -f xyz
+  lattice.h5 1 micro x
+run_ok "xyz 3-D --species rate" "$mrvi" export ring.h5 -f xyz --species rate
 py_ok "XYZ round trip 3-D" check_xyz.py ring.xyz ring.h5 1 macro rate
 fails_with "--micro without /micro/q_slow" "output.micro_slow: true" \
   "$mrvi" export ring.h5 -f xyz --micro
@@ -388,6 +381,8 @@ fails_with "--micro without /micro/q_slow" "output.micro_slow: true" \
 fails_with "missing --format" "missing --format" "$mrvi" export lattice.h5
 fails_with "unknown format" "unknown format 'pdb'" "$mrvi" export lattice.h5 \
   --format pdb
+fails_with "--species pdb" "--species x, rate or name" "$mrvi" export \
+  lattice.h5 -f xyz --species pdb
 fails_with "--every 0" "positive integer" "$mrvi" export lattice.h5 -f xyz \
   --every 0
 fails_with "misspelt option" "did you mean '--every'" "$mrvi" export \

@@ -153,6 +153,21 @@ check "timing: exit status" $?
 check "timing: 3 schemes x 2 p rows" $?
 awk -F, 'NR > 1 && $1 == "midpoint-midpoint" && $2 == 10 { exit !($8 == 50 && $9 == 33) }' time.csv
 check "timing: p = 10 takes 50 macro steps on a 33-unknown system" $?
+# --repeat: medians of N runs, said in the header and the file; the
+# iterations and steps of every row equal the single run's.
+"$mrvi" timing "$fpu" --p 1,10 --t-end 0.5 --repeat 3 -o time3.h5 --csv time3.csv >time3.out
+check "timing --repeat 3: exit status" $?
+grep -q '^computing time of fpu, .*, times: medians of 3 runs$' time3.out
+check "timing --repeat 3: the header says medians of 3 runs" $?
+[ "$(cut -d, -f1,2,4,8,9 time3.csv)" = "$(cut -d, -f1,2,4,8,9 time.csv)" ]
+check "timing --repeat 3: iterations, steps and sizes of the single run" $?
+if command -v h5dump >/dev/null 2>&1; then
+  h5dump -a /repeat time3.h5 | grep -q '(0): 3$'
+  check "timing --repeat 3: root attribute repeat = 3" $?
+fi
+"$mrvi" timing "$fpu" --repeat 0 -q 2>rep.err
+[ $? -eq 1 ] && grep -q "not a positive integer" rep.err
+check "timing --repeat 0 is refused" $?
 # p = 1000 (dT = 1) goes unstable on the FPU before t = 100: a NaN row, exit 2.
 "$mrvi" timing "$fpu" --p 1000 --schemes midpoint-midpoint --t-end 100 --csv fail.csv -o fail.h5 -q 2>fail.err
 [ $? -eq 2 ] && grep -q "failed" fail.err && grep -q ",nan," fail.csv

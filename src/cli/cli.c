@@ -63,6 +63,7 @@ static const char usage_run[] =
     "[--force]\n"
     "                [--from RUN.h5[:K]]\n"
     "       mrvi run --resume OUT.h5 [--quiet]\n"
+    "       mrvi run FILE --controls OPT.h5 [-o OUT.h5] [--set KEY=VALUE]...\n"
     "\n"
     "Integrate the system described in FILE (YAML) and write macro and micro\n"
     "trajectories, energies and solver statistics to an HDF5 file.  For a\n"
@@ -93,6 +94,11 @@ static const char usage_run[] =
     "                        its last node); FILE must have the same\n"
     "                        coordinates and macro_step, and steps K+1 .. N\n"
     "                        are taken (e.g. a later t_end extends a run)\n"
+    "      --controls OPT.h5 replay an optimum: run the controls /control/u\n"
+    "                        that 'mrvi optimize FILE' stored in OPT.h5\n"
+    "                        through the discrete equations of FILE, write\n"
+    "                        the trajectory and check the terminal\n"
+    "                        conditions (with -o, --set, --quiet only)\n"
     "  -h, --help            show this help\n"
     "\n"
     "Notes about the input, such as initial velocities projected onto the\n"
@@ -166,10 +172,11 @@ typedef struct cli_args {
   const char *from;   /* --from OUT.h5[:k] */
 } cli_args;
 
-/* Options accepted by a command, for the parser and for suggestions. */
-static const char *const run_options[] = {"--output", "--set",  "--quiet",
-                                          "--force",  "--help", "--resume",
-                                          "--from",   NULL};
+/* Options accepted by a command, for the parser and for suggestions
+ * (--controls is handled by the replay of cli_optimize.c). */
+static const char *const run_options[] = {"--output", "--set",      "--quiet",
+                                          "--force",  "--help",     "--resume",
+                                          "--from",   "--controls", NULL};
 static const char *const check_options[] = {"--set", "--help", NULL};
 
 static void usage_error(const char *usage) { fputs(usage, stderr); }
@@ -637,8 +644,15 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
             "Newton tolerance %g (see doc/solver.md)\n",
             sum->roundoff_steps, sum->roundoff_steps == 1 ? "" : "s",
             s->newton_tol);
-  printf("  %-23s%.3f s (assemble %.3f s, solve %.3f s)\n", "wall time",
-         sum->wall_time, sum->assemble_time, sum->solve_time);
+  /* Assembly and solve are measured on every step of short runs, else
+   * estimated from sampled steps (mrvi_integrator_timing): say which. */
+  if (sum->timing_estimated)
+    printf("  %-23s%.3f s (assemble \u2248%.3f s, solve \u2248%.3f s: "
+           "partly estimated from sampled steps)\n",
+           "wall time", sum->wall_time, sum->assemble_time, sum->solve_time);
+  else
+    printf("  %-23s%.3f s (assemble %.3f s, solve %.3f s)\n", "wall time",
+           sum->wall_time, sum->assemble_time, sum->solve_time);
   printf("  %-23s%s\n", "output", out);
   /* Why it stopped is printed once, on stderr, by cmd_run. */
   fflush(stdout);

@@ -1,5 +1,5 @@
 /* mrvi export FILE.h5 --format xyz|xdmf [-o OUT] [--every N] [--micro]
- *                     [--species rate|name]
+ *                     [--species x|rate|name]
  *
  * Files for viewers from the particles of a run file (doc/output.md,
  * "Viewing the motion"), and the XDMF file `mrvi run` writes beside its
@@ -14,12 +14,13 @@
 
 const char mrvi_usage_export[] =
     "Usage: mrvi export FILE.h5 --format xyz|xdmf [-o OUT] [--every N]\n"
-    "                   [--micro] [--species rate|name]\n"
+    "                   [--micro] [--species x|rate|name]\n"
     "\n"
     "Write the particles of a run file (mrvi run) for a viewer:\n"
     "  xyz    extended XYZ frames for OVITO, VMD or ASE: a frame per stored\n"
     "         macro node with the time (Time=...), each particle as\n"
-    "         'species x y z' (2-D and 1-D padded with zeros), 17 digits\n"
+    "         'species x y z rate name' (2-D and 1-D padded with zeros; rate\n"
+    "         0 slow, 1 fast), 17 digits\n"
     "  xdmf   the XDMF file for ParaView or VisIt that `mrvi run` writes\n"
     "         beside its output: particles as points and springs and rods as\n"
     "         lines over time, pointing into FILE.h5 (no copy); rewrite it\n"
@@ -33,8 +34,10 @@ const char mrvi_usage_export[] =
     "      --every N         xyz: every N-th frame (default 1)\n"
     "      --micro           xyz: a frame per micro node (/micro; slow\n"
     "                        particles need output.micro_slow: true)\n"
-    "      --species KIND    xyz: rate (slow/fast, default) or name (the\n"
-    "                        particle names)\n"
+    "      --species KIND    xyz: the species column: x (ASE's dummy\n"
+    "                        element X, default), rate (slow/fast) or name\n"
+    "                        (the particle names); OVITO and VMD read all\n"
+    "                        three, ASE only x\n"
     "  -h, --help            show this help\n"
     "\n"
     "Exit status: 0 written, 1 bad arguments or FILE cannot be exported.\n";
@@ -93,8 +96,8 @@ static int positive(const char *opt, const char *v) {
 }
 
 int mrvi_cmd_export(int argc, char **argv) {
-  const char *file = NULL, *format = NULL, *out = NULL, *species = "rate";
-  mrvi_xyz_options opt = {1, 0, MRVI_XYZ_SPECIES_RATE};
+  const char *file = NULL, *format = NULL, *out = NULL, *species = "x";
+  mrvi_xyz_options opt = {1, 0, MRVI_XYZ_SPECIES_X};
   for (int i = 1; i < argc; i++) {
     const char *arg = argv[i], *value = NULL;
     if (!strcmp(arg, "-h") || !strcmp(arg, "--help")) {
@@ -163,8 +166,11 @@ int mrvi_cmd_export(int argc, char **argv) {
   }
   if (!strcmp(species, "name"))
     opt.species = MRVI_XYZ_SPECIES_NAME;
-  else if (strcmp(species, "rate") != 0) {
-    fprintf(stderr, "mrvi export: --species rate or name, got '%s'\n", species);
+  else if (!strcmp(species, "rate"))
+    opt.species = MRVI_XYZ_SPECIES_RATE;
+  else if (strcmp(species, "x") != 0) {
+    fprintf(stderr, "mrvi export: --species x, rate or name, got '%s'\n",
+            species);
     return 1;
   }
   if (!xyz && (opt.every != 1 || opt.micro)) {

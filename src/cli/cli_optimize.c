@@ -208,7 +208,8 @@ int mrvi_cmd_optimize(int argc, char **argv) {
     } else if (!strncmp(a, "--set=", 6)) {
       ov[n_ov++] = a + 6;
     } else if (a[0] == '-' && a[1]) {
-      fprintf(stderr, "mrvi optimize: unknown option '%s'\n%s", a,
+      fprintf(stderr, "mrvi %s: unknown option '%s'%s\n%s", argv[0], a,
+              is_run ? " (with --controls: -o, --set, --quiet)" : "",
               mrvi_usage_optimize);
       free(ov);
       return 1;

@@ -94,7 +94,9 @@ const char mrvi_usage_timing[] =
     "Computing-time study (paper §6.3): the micro step is fixed and p grows,\n"
     "so dT = p dt grows and the number of macro steps falls.  Prints total\n"
     "time, Newton iterations and the time per macro step spent assembling\n"
-    "and solving, for each scheme and p.\n"
+    "and solving, for each scheme and p.  Total time is measured; assembly\n"
+    "and solve are estimated from sampled steps where the steps are short\n"
+    "(doc/output.md).  On a loaded machine take --repeat 5: medians.\n"
     "\n"
     "Options:\n"
     "  --dt X              micro step (default 0.001)\n"
@@ -102,6 +104,8 @@ const char mrvi_usage_timing[] =
     "  --schemes LIST      (default midpoint-midpoint,trapezoidal-midpoint,\n"
     "                      trapezoidal-trapezoidal)\n"
     "  --t-end T           horizon (default integrator.t_end of FILE)\n"
+    "  --repeat N          run each scheme and p N times and report the\n"
+    "                      median of each time (default 1)\n"
     "                      A run that fails (e.g. unstable at a large dT)\n"
     "                      gives a row of NaN and exit status 2.\n"
     "  -o, --output OUT.h5 table file (default <name>-timing.h5)\n"
@@ -870,9 +874,23 @@ out:
  * ------------------------------------------------------------------------- */
 typedef mrvi_timing_row timing_row;
 
+#define MAX_REPEAT 99
+
+static int compare_double(const void *x, const void *y) {
+  const double a = *(const double *)x, b = *(const double *)y;
+  return (a > b) - (a < b);
+}
+
+/* Median of v[0..n-1] (reordered). */
+static double median(double *v, int n) {
+  qsort(v, (size_t)n, sizeof *v, compare_double);
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
 int mrvi_cmd_timing(int argc, char **argv) {
-  static const char *const names[] = {"--dt", "--p", "--schemes", "--t-end",
-                                      "--output", "--csv", NULL};
+  static const char *const names[] = {"--dt",     "--p",   "--schemes",
+                                      "--t-end",  "--csv", "--repeat",
+                                      "--output", NULL};
   args a;
   int pr = parse(argc, argv, mrvi_usage_timing, names, &a);
   if (pr <= 0) {
@@ -882,7 +900,7 @@ int mrvi_cmd_timing(int argc, char **argv) {
   const char *cmd = "timing";
   int code = EXIT_INPUT;
   double ps[MAX_LIST] = {1, 5, 10, 20, 50, 100, 200, 500, 1000}, dt = 0.001;
-  int n_p = 9, n_s = 0, failed = 0;
+  int n_p = 9, n_s = 0, failed = 0, repeat = 1;
   char schemes_buf[1024] =
       "midpoint-midpoint,trapezoidal-midpoint,trapezoidal-trapezoidal";
   const char *schemes[16];
@@ -896,6 +914,16 @@ int mrvi_cmd_timing(int argc, char **argv) {
       (get(&a, "--dt") && parse_double(cmd, "--dt", get(&a, "--dt"), &dt) < 0) ||
       (get(&a, "--t-end") && parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0))
     goto out;
+  if (get(&a, "--repeat")) {
+    double r;
+    if (parse_list(cmd, "--repeat", get(&a, "--repeat"), &r, 1, 1) < 0)
+      goto out;
+    if (r > MAX_REPEAT) {
+      fprintf(stderr, "mrvi %s: --repeat: at most %d\n", cmd, MAX_REPEAT);
+      goto out;
+    }
+    repeat = (int)r;
+  }
   if (get(&a, "--schemes"))
     snprintf(schemes_buf, sizeof schemes_buf, "%s", get(&a, "--schemes"));
   for (char *tok = strtok(schemes_buf, ","); tok && n_s < 16;
@@ -916,11 +944,14 @@ int mrvi_cmd_timing(int argc, char **argv) {
   if (!rows)
     goto out;
   code = EXIT_RUN;
-  if (!a.quiet)
-    printf("computing time of %s, dt = %g, t_end = %g\n%-24s %5s %8s %8s %6s "
-           "%9s %9s %11s %11s %11s\n",
-           sys->name, dt, t_end, "scheme", "p", "dT", "steps", "size",
-           "Newton it", "total [s]", "step [ms]", "assemble", "solve");
+  if (!a.quiet) {
+    printf("computing time of %s, dt = %g, t_end = %g", sys->name, dt, t_end);
+    if (repeat > 1)
+      printf(", times: medians of %d runs", repeat);
+    printf("\n%-24s %5s %8s %8s %6s %9s %9s %11s %11s %11s\n", "scheme", "p",
+           "dT", "steps", "size", "Newton it", "total [s]", "step [ms]",
+           "assemble", "solve");
+  }
   for (int i = 0; i < n_s; i++)
     for (int j = 0; j < n_p; j++) {
       mrvi_settings s = sys->settings;
@@ -930,7 +961,15 @@ int mrvi_cmd_timing(int argc, char **argv) {
       s.t_end = fmax(t_end, s.macro_step);
       mrvi_summary sum;
       timing_row *r = &rows[i * n_p + j];
-      if (mrvi_run(sys->model, &s, NULL, NULL, NULL, &sum) < 0) {
+      double times[3][MAX_REPEAT]; /* wall, assemble, solve per run */
+      int st = MRVI_OK;
+      for (int k = 0; k < repeat && st == MRVI_OK; k++) {
+        st = mrvi_run(sys->model, &s, NULL, NULL, NULL, &sum);
+        times[0][k] = sum.wall_time;
+        times[1][k] = sum.assemble_time;
+        times[2][k] = sum.solve_time;
+      }
+      if (st < 0) {
         /* A failed run (e.g. unstable at a large dT) is a row of NaN; the
          * study goes on and the exit status reports it. */
         fprintf(stderr, "mrvi %s: %s, p = %d failed: %s\n", cmd, schemes[i],
@@ -941,12 +980,14 @@ int mrvi_cmd_timing(int argc, char **argv) {
         failed++;
         continue;
       }
-      r->total_time = sum.wall_time;
+      /* Iterations and steps are the same in every run (a run depends on
+       * its input alone); the times are medians. */
+      r->total_time = median(times[0], repeat);
       r->iterations = (double)sum.iterations_total;
       r->macro_steps = (double)sum.steps;
-      r->time_per_step = sum.wall_time / sum.steps;
-      r->assemble_per_step = sum.assemble_time / sum.steps;
-      r->solve_per_step = sum.solve_time / sum.steps;
+      r->time_per_step = r->total_time / sum.steps;
+      r->assemble_per_step = median(times[1], repeat) / sum.steps;
+      r->solve_per_step = median(times[2], repeat) / sum.steps;
       r->system_size = mrvi_model_n_slow(sys->model) +
                        ps[j] * mrvi_model_n_fast(sys->model);
       if (!a.quiet) {
@@ -968,6 +1009,7 @@ int mrvi_cmd_timing(int argc, char **argv) {
       .system = sys->name,
       .micro_step = dt,
       .t_end = t_end,
+      .repeat = repeat,
       .n_p = n_p,
       .n_schemes = n_s,
       .p = pint,

@@ -55,9 +55,17 @@ struct mrvi_integrator {
   long n_factor;       /* factorisations of the schur path in the run */
   long roundoff_steps; /* steps accepted at the roundoff floor above tol */
   double last_residual;
-  double t_assemble, t_solve; /* over the timed steps */
-  long n_steps, n_timed;      /* steps taken, steps timed */
-  int timed;                  /* this step is timed */
+  /* Timing (mrvi_integrator_timing): the sums over the timed steps and
+   * the estimated blocks that ended; the block of steps under way. */
+  double t_assemble, t_solve;
+  long n_steps;          /* steps taken */
+  int timed;             /* this step is timed */
+  int block_exact;       /* every step of the block is timed */
+  int timing_estimated;  /* an ended block was estimated */
+  long block_n;          /* steps of the block so far */
+  double block_t0;       /* clock at its start */
+  double block_mark[2];  /* t_assemble, t_solve at its start */
+  double block_sample[2]; /* its first step's times (estimated block) */
   char errmsg[512];
 };
 
@@ -102,10 +110,18 @@ static const path_ops *path_ops_of(int path);
  *    (mrvi_predict_shoot) before Newton takes over from its iterate. */
 
 /* The assembly and solve times (mrvi_integrator_timing) are measured on
- * one step in MRVI_TIME_EVERY and scaled to all steps: a clock read costs
- * as much as a micro step of the explicit paths (doc/performance.md,
- * "Tuning constants"). */
+ * each of the first MRVI_TIME_ALL steps, which carry the run's one-time
+ * work (first factorisations, a constant chord).  The later steps come in
+ * blocks of MRVI_TIME_EVERY: the first step of a block is timed; when it
+ * took MRVI_TIME_STEP_MIN seconds or more, so are the others (a Newton
+ * step's clock reads are then below 1 % of it), else it stands for every
+ * step of its block, at most the block's elapsed time (read at the block's
+ * ends): a clock read costs as much as a micro step of the explicit paths,
+ * and a sampled step slowed by the machine's load must not count 64 times.
+ * (doc/performance.md, "Tuning constants"). */
+#define MRVI_TIME_ALL 64
 #define MRVI_TIME_EVERY 64
+#define MRVI_TIME_STEP_MIN 50e-6
 
 /* The clock on timed steps, else 0. */
 static double tick(const mrvi_integrator *it) {
@@ -869,10 +885,51 @@ static int project_micro(mrvi_integrator *it) {
 
 ALWAYS_INLINE int finish_step(mrvi_integrator *it);
 
-/* Which steps are timed (mrvi_integrator_timing). */
+/* Times of an estimated block at the clock `now`: its first step's times
+ * for each of its steps, scaled down to its elapsed time if above. */
+static void block_estimate(const mrvi_integrator *it, double now, double *a,
+                           double *s) {
+  *a = it->block_sample[0] * (double)it->block_n;
+  *s = it->block_sample[1] * (double)it->block_n;
+  const double elapsed = now - it->block_t0, sum = *a + *s;
+  if (sum > elapsed && sum > 0.0) {
+    *a *= elapsed / sum;
+    *s *= elapsed / sum;
+  }
+}
+
+/* Which steps are timed, called as a step starts (mrvi_integrator_timing). */
 static void count_step(mrvi_integrator *it) {
-  it->timed = (unsigned long)it->n_steps++ % MRVI_TIME_EVERY == 0;
-  it->n_timed += it->timed;
+  const long k = it->n_steps++;
+  it->timed = 1;
+  if (k < MRVI_TIME_ALL)
+    return;
+  const long j = (k - MRVI_TIME_ALL) % MRVI_TIME_EVERY; /* in its block */
+  if (j == 1) { /* the block's first step ended: time the others? */
+    it->block_sample[0] = it->t_assemble - it->block_mark[0];
+    it->block_sample[1] = it->t_solve - it->block_mark[1];
+    if (it->block_sample[0] + it->block_sample[1] < MRVI_TIME_STEP_MIN) {
+      it->block_exact = 0; /* its sample is added when the block ends */
+      it->t_assemble = it->block_mark[0];
+      it->t_solve = it->block_mark[1];
+    }
+  } else if (j == 0) { /* a block ends, the next starts */
+    const double now = mrvi_clock();
+    if (!it->block_exact && it->block_n > 1) {
+      double a, s;
+      block_estimate(it, now, &a, &s);
+      it->t_assemble += a;
+      it->t_solve += s;
+      it->timing_estimated = 1;
+    }
+    it->block_exact = 1;
+    it->block_n = 0;
+    it->block_t0 = now;
+    it->block_mark[0] = it->t_assemble;
+    it->block_mark[1] = it->t_solve;
+  }
+  it->block_n++;
+  it->timed = it->block_exact;
 }
 
 /* A step of the structured paths (solver/sweep.c): solution and momenta at
@@ -1241,14 +1298,22 @@ int mrvi_integrator_system_size(const mrvi_integrator *it) {
 long mrvi_integrator_system_nnz(const mrvi_integrator *it) {
   return it->nullspace ? mrvi_nullspace_nnz(it->nullspace) : it->step.nnz;
 }
-void mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
-                            double *solve) {
-  const double f =
-      it->n_timed > 0 ? (double)it->n_steps / (double)it->n_timed : 0.0;
+int mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
+                           double *solve) {
+  double a = it->t_assemble, s = it->t_solve;
+  int estimated = it->timing_estimated;
+  if (!it->block_exact && it->block_n > 1) { /* the block under way */
+    double ba, bs;
+    block_estimate(it, mrvi_clock(), &ba, &bs);
+    a += ba;
+    s += bs;
+    estimated = 1;
+  }
   if (assemble)
-    *assemble = it->t_assemble * f;
+    *assemble = a;
   if (solve)
-    *solve = it->t_solve * f;
+    *solve = s;
+  return estimated;
 }
 
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it) {

@@ -304,7 +304,8 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
                "stopped by the observer at t = %g (%s)", r.t,
                mrvi_strerror(st));
   }
-  mrvi_integrator_timing(it, &sum->assemble_time, &sum->solve_time);
+  sum->timing_estimated =
+      mrvi_integrator_timing(it, &sum->assemble_time, &sum->solve_time);
   sum->roundoff_steps = mrvi_integrator_roundoff_steps(it);
   mrvi_integrator_krylov_stats(it, &sum->krylov);
   mrvi_integrator_free(it);

@@ -1,6 +1,7 @@
 /* Pictures of the motion from a run file (doc/output.md, "Viewing the
  * motion"): an XDMF description of the particles over time that points into
- * the HDF5 datasets (ParaView, VisIt), and extended XYZ frames (OVITO, VMD).
+ * the HDF5 datasets (ParaView, VisIt), and extended XYZ frames (OVITO, VMD,
+ * ASE).
  *
  * Both read only what the file holds, so they describe exactly the steps a
  * run stored, also when it stopped early or was killed. */
@@ -477,6 +478,14 @@ static int micro_setup(const run_file *r, micro_map *mm, char *msg,
   return MRVI_OK;
 }
 
+/* A particle name as one column: blanks become '_', "" becomes "_". */
+static void put_name(FILE *f, const char *name) {
+  if (!*name)
+    fputc('_', f);
+  for (const char *c = name; *c; c++)
+    fputc(*c == ' ' || *c == '\t' ? '_' : *c, f);
+}
+
 int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                     const mrvi_xyz_options *opt, char *msg, size_t len) {
   mrvi_fmt(msg, len, "%s", "");
@@ -530,20 +539,25 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                      h5_path, (unsigned long long)k);
       break;
     }
-    fprintf(f, "%d\nProperties=species:S:1:pos:R:3 Time=", r.np);
+    fprintf(f, "%d\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=",
+            r.np);
     put_double(f, o.micro ? mt[k] : r.t[k]);
     fputs(" pbc=\"F F F\"\n", f);
     for (int i = 0; i < r.np; i++) {
       const double *x = row + r.column[i];
+      const int fast_particle = r.rate[r.column[i]] == 1;
       if (o.species == MRVI_XYZ_SPECIES_NAME)
-        for (const char *c = r.name[i]; *c; c++) /* one column */
-          fputc(*c == ' ' || *c == '\t' ? '_' : *c, f);
+        put_name(f, r.name[i]);
+      else if (o.species == MRVI_XYZ_SPECIES_RATE)
+        fputs(fast_particle ? "fast" : "slow", f);
       else
-        fputs(r.rate[r.column[i]] == 1 ? "fast" : "slow", f);
+        fputc('X', f); /* a chemical symbol: ASE's dummy element */
       for (int a = 0; a < 3; a++) {
         fputc(' ', f);
         put_double(f, a < r.d ? x[a] : 0.0);
       }
+      fprintf(f, " %d ", fast_particle);
+      put_name(f, r.name[i]);
       fputc('\n', f);
     }
   }

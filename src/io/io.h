@@ -89,6 +89,7 @@ typedef struct mrvi_timing_row {
 typedef struct mrvi_timing_table {
   const char *system;
   double micro_step, t_end;
+  int repeat;                  /* runs per row (times: medians) */
   int n_p, n_schemes;
   const int *p;                /* n_p */
   const char *const *schemes;  /* n_schemes: group names */

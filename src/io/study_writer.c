@@ -166,6 +166,7 @@ int mrvi_study_write_timing(const char *path, const mrvi_timing_table *tm,
     mrvi_h5_batch_attr_string(b, b->file, "system", tm->system);
     mrvi_h5_batch_attr_double(b, b->file, "micro_step", tm->micro_step);
     mrvi_h5_batch_attr_double(b, b->file, "t_end", tm->t_end);
+    mrvi_h5_batch_attr_int(b, b->file, "repeat", tm->repeat);
     mrvi_h5_batch_attr_string(b, b->file, "mrvi_version", mrvi_version());
     hid_t g = mrvi_h5_batch_group(b, b->file, "timing");
     mrvi_h5_batch_ints(b, g, "p", tm->p, (hsize_t)n_p, 0);
