@@ -622,9 +622,9 @@ const mrvi_tuning_info *mrvi_tuning_table(int *count);
  * (no Newton), "sweep" (explicit slow update, forward sweep of p implicit
  * micro steps), "schur" (Newton, Schur complement on the slow block),
  * "sweep-cg" and "schur-krylov" (the same with CG and GMRES for blocks
- * beyond 64 coordinates) or "general" (Newton with sparse LU on the whole
- * step).  why (may be NULL)
- * gets the reason for the choice.  With s->solver = structured and no
+ * beyond tuning.dense_max, 64, coordinates) or "general" (Newton with
+ * sparse LU on the whole step).  why (may be NULL) gets the reason for the
+ * choice.  With s->solver = structured and no
  * structured path, returns NULL (why says why). */
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
                              char *why, size_t len);

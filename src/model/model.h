@@ -101,7 +101,7 @@ double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
                          const double *y, double *grad, double *hess);
 
 /* 1 if e's energy is a polynomial of degree <= 2 in its inputs (constant
- * Hessian): terms with the linear law or the power law of exponent 0, 1, 2,
+ * Hessian): terms whose law's degree (mrvi_law.degree) is 0, 1 or 2,
  * gravity and constant forces (model.c). */
 int mrvi_element_is_quadratic(const mrvi_element *e);
 
@@ -130,16 +130,16 @@ static inline void mrvi_power_derivs(double c, double e, int k, double s,
   mrvi_power_derivs_ce(c * e, c * e * (e - 1), k, s, d1, d2);
 }
 
-/* Whether term element e has the power law with a small integer exponent
- * (0..8: evaluated inline by mrvi_power_derivs). */
+/* Whether term element e's law has the power form (mrvi_law.form) with a
+ * small integer exponent (0..8: evaluated inline by mrvi_power_derivs). */
 static inline int mrvi_element_small_power(const mrvi_element *e) {
   const double x = e->params[1];
   return e->form == MRVI_LAW_FORM_POWER && x >= 0.0 && x <= 8.0 &&
          (double)(int)x == x;
 }
 
-/* phi'(s) and phi''(s) of term element e's law (the linear law and small
- * integer powers without the law table; model.c). */
+/* phi'(s) and phi''(s) of term element e's law (the Hooke and small
+ * integer power forms without calling eval; model.c). */
 void mrvi_term_derivs(const mrvi_element *e, double s, double *d1, double *d2);
 
 /* Keep a message on m (mrvi_model_errmsg) and return status (model.c). */
