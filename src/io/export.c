@@ -109,9 +109,9 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
                      "%s: /model/dimension = %d does not fit %d particles "
                      "in %d coordinates",
                      path, d, r->np, r->n);
-  if ((st = mrvi_h5in_read_new(&in, "/model/particle_column", H5T_NATIVE_INT,
-                               1, dc, MRVI_H5_ANY, (void **)&r->column,
-                               NULL)) < 0 ||
+  if ((st = mrvi_h5in_read_new(&in, "/model/particle_column", H5T_NATIVE_INT, 1,
+                               dc, MRVI_H5_ANY, (void **)&r->column, NULL)) <
+          0 ||
       (st = mrvi_h5in_strings(&in, "/model/particle_name", 1, dc[0], 4096,
                               &r->name)) < 0 ||
       (st = mrvi_h5in_read_new(&in, "/macro/t", H5T_NATIVE_DOUBLE, 1, NULL,
@@ -389,11 +389,10 @@ static int micro_setup(const run_file *r, micro_map *mm, char *msg,
   int st;
   if ((st = mrvi_h5in_shape(&in, "/micro/t", MRVI_H5_NUMBER, 1, NULL, dt)) <
           0 ||
-      (st = mrvi_h5in_shape(&in, "/micro/q_fast", MRVI_H5_NUMBER, 2,
-                            want_fast, df)) < 0 ||
-      (have_slow && (st = mrvi_h5in_shape(&in, "/micro/q_slow",
-                                          MRVI_H5_NUMBER, 2, want_slow, ds)) <
-                        0))
+      (st = mrvi_h5in_shape(&in, "/micro/q_fast", MRVI_H5_NUMBER, 2, want_fast,
+                            df)) < 0 ||
+      (have_slow && (st = mrvi_h5in_shape(&in, "/micro/q_slow", MRVI_H5_NUMBER,
+                                          2, want_slow, ds)) < 0))
     return st;
   mm->have_slow = have_slow;
   mm->rows = dt[0] < df[0] ? dt[0] : df[0];

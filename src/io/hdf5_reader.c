@@ -88,8 +88,8 @@ static int coordinates(const mrvi_h5in *in, int n, int *nq, hsize_t *rows) {
                      "1 to %llu",
                      in->path, (unsigned long long)dq[1],
                      (unsigned long long)max_coordinates());
-  if ((st = mrvi_h5in_shape(in, "/model/rate", MRVI_H5_NUMBER, 1, &dq[1],
-                            dr)) < 0)
+  if ((st = mrvi_h5in_shape(in, "/model/rate", MRVI_H5_NUMBER, 1, &dq[1], dr)) <
+      0)
     return st;
   *nq = (int)dq[1];
   if (rows)
@@ -160,8 +160,7 @@ int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
       mrvi_h5in_exists(&in, "/micro/q_fast") &&
       mrvi_h5in_exists(&in, "/micro/p_fast")) {
     if ((st = mrvi_h5in_read_new(&in, "/micro/t", H5T_NATIVE_DOUBLE, 1, NULL,
-                                 MRVI_H5_ANY, (void **)&tr->micro_t, dims)) <
-        0)
+                                 MRVI_H5_ANY, (void **)&tr->micro_t, dims)) < 0)
       goto done;
     const hsize_t micro[2] = {dims[0], (hsize_t)tr->n_fast};
     tr->n_micro = (long)dims[0];
@@ -243,8 +242,8 @@ static int resume_row(const mrvi_h5in *in, long K, long e, hsize_t rows,
     return mrvi_fail(in->msg, in->len, MRVI_ENOMEM, "out of memory");
   /* Rows past the end of /macro/lambda have no multipliers. */
   for (; *row > 0; --*row) {
-    int finite = *row < dl[0] && read_row(in, "/macro/lambda", *row, nl,
-                                          lam) == MRVI_OK;
+    int finite =
+        *row < dl[0] && read_row(in, "/macro/lambda", *row, nl, lam) == MRVI_OK;
     for (int i = 0; i < nl && finite; i++)
       finite = lam[i] == lam[i];
     if (finite)
@@ -296,8 +295,8 @@ static int stored_node_read(const mrvi_h5in *in, long which, int n,
                                   &node->macro_step)) < 0 ||
       (st = mrvi_h5in_attr_number(in, "steps_completed", 0, 0x1p53, 1,
                                   &steps)) < 0 ||
-      (st = mrvi_h5in_attr_number(in, "output_every", 1, INT_MAX, 1,
-                                  &every)) < 0)
+      (st = mrvi_h5in_attr_number(in, "output_every", 1, INT_MAX, 1, &every)) <
+          0)
     return st;
   if (!(node->macro_step > 0) || isinf(node->macro_step))
     return mrvi_fail(msg, len, MRVI_EIO,
@@ -307,8 +306,8 @@ static int stored_node_read(const mrvi_h5in *in, long which, int n,
   node->every = (int)every;
   node->steps_completed = K;
   char **text = NULL;
-  if ((st = mrvi_h5in_strings(in, "/model/description", 0, 1,
-                              MRVI_H5_MAX_TEXT, &text)) < 0)
+  if ((st = mrvi_h5in_strings(in, "/model/description", 0, 1, MRVI_H5_MAX_TEXT,
+                              &text)) < 0)
     return st;
   node->description = text[0];
   free(text);

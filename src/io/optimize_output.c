@@ -358,8 +358,8 @@ int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
 /* ---------------------------------------------------------------------------
  * Replay: the stored controls
  * ------------------------------------------------------------------------- */
-int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o,
-                           int micro_steps, double *u, char *msg, size_t len) {
+int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
+                           double *u, char *msg, size_t len) {
   mrvi_h5_quiet q;
   mrvi_h5_quiet_begin(&q);
   hid_t f = mrvi_h5_open_read(path, H5P_DEFAULT);
@@ -368,7 +368,8 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o,
   const long N = mrvi_ocp_n_steps(o);
   /* Rows: one per macro step, or one per micro step when an actuator of
    * the run that stored them was on the micro grid (cli_optimize.c). */
-  const hsize_t most = (hsize_t)N * (hsize_t)(micro_steps > 1 ? micro_steps : 1);
+  const hsize_t most =
+      (hsize_t)N * (hsize_t)(micro_steps > 1 ? micro_steps : 1);
   const hsize_t want[2] = {MRVI_H5_ANY, (hsize_t)na};
   hsize_t dims[2] = {0, 0};
   double *U = NULL;
@@ -400,8 +401,7 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o,
                      path, mrvi_ocp_actuator_name(o, a), size,
                      (unsigned long long)dims[0]);
     for (int j = 0; st == MRVI_OK && j < size; j++)
-      u[mrvi_ocp_actuator_offset(o, a) + j] =
-          U[(micro ? j : j * pt) * na + a];
+      u[mrvi_ocp_actuator_offset(o, a) + j] = U[(micro ? j : j * pt) * na + a];
   }
   free(U);
   if (f >= 0)
