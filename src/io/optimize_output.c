@@ -367,7 +367,7 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
   const int na = mrvi_ocp_n_actuators(o);
   const long N = mrvi_ocp_n_steps(o);
   /* Rows: one per macro step, or one per micro step when an actuator of
-   * the run that stored them was on the micro grid (cli_optimize.c). */
+   * the run that stored them was on the micro grid (as written above). */
   const hsize_t most =
       (hsize_t)N * (hsize_t)(micro_steps > 1 ? micro_steps : 1);
   const hsize_t want[2] = {MRVI_H5_ANY, (hsize_t)na};
@@ -381,7 +381,7 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
   else if ((st = mrvi_h5in_shape(&in, "/control/u", MRVI_H5_NUMBER, 2, want,
                                  dims)) < 0)
     ;
-  else if (dims[0] != (hsize_t)N && dims[0] != most)
+  else if (N < 1 || (dims[0] != (hsize_t)N && dims[0] != most))
     st = mrvi_fail(msg, len, MRVI_EIO,
                    "%s: /control/u has %llu rows, expected %ld (one per "
                    "macro step) or %llu (one per micro step)",
