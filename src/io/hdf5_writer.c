@@ -974,11 +974,8 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   mrvi_fmt(msg, len, "%s", "");
   if (out)
     *out = NULL;
-  /* No H5close at exit: after a failed flush (disk full) HDF5 1.10 cannot
-   * shut down cleanly and prints "infinite loop closing library" (or
-   * crashes); files are complete when H5Fclose returns, so nothing is lost
-   * by leaving the library's memory to the process exit.  Has an effect
-   * only before the library's first use. */
+  /* No H5close at exit (mrvi_h5_quiet_begin says why): before the
+   * library's first use. */
   H5dont_atexit();
   if (!path || !path[0] || !m || !s || !out) {
     mrvi_fmt(msg, len, "mrvi_writer_open: %s",
