@@ -22,8 +22,8 @@
  * dataset and what was expected and found; the caller's status.  HDF5's
  * automatic printing of its error stack is switched off around every read
  * by the callers (mrvi_h5_quiet_begin): the library never prints. */
-#include "h5util.h"
-#include "internal.h"
+#include "io/h5util.h"
+#include "util/util.h"
 
 #include <limits.h>
 #include <math.h>
