@@ -6,6 +6,7 @@ controls, crafted from nothing).  Prints one line per file: CASE FILE.
 KIND:
   export    BASE: a 2-D run with particles and /micro/q_slow (lattice)
   resume    BASE: a run with /macro/lambda (cart pendulum), completed
+  bodies    BASE: a completed run with rigid bodies (/bodies, ranks 3, 4)
   from      BASE: a run without particles (fpu)
   controls  BASE: ignored; /control/u files for ocp_double_integrator.yaml
             (1 actuator on the macro grid, 10 macro steps)
@@ -133,6 +134,24 @@ def resume_cases(base, out):
         f.attrs["stop_reason"] = strings(["interrupted"] * 64)
 
 
+def bodies_cases(base, out):
+    with copy(base, out, "ok") as f:
+        resumable(f, 5)
+    with copy(base, out, "rotation_rank5") as f:
+        resumable(f, 5)
+        rows = f["bodies/rotation"].shape[0]
+        replace(f, "bodies/rotation", data=np.zeros((rows, 1, 2, 2, 1)),
+                maxshape=(None, 1, 2, 2, 1))
+    with copy(base, out, "rotation_wider") as f:
+        resumable(f, 5)
+        rows = f["bodies/rotation"].shape[0]
+        replace(f, "bodies/rotation", data=np.zeros((rows, 1, 2, 3)),
+                maxshape=(None, 1, 2, 3))
+    with copy(base, out, "position_huge") as f:
+        resumable(f, 5)
+        huge(f, "bodies/position", (f["macro/t"].shape[0], 1, 2**40))
+
+
 def from_cases(base, out):
     with copy(base, out, "rate_huge") as f:
         huge(f, "model/rate", (200000000,), "i4")
@@ -192,6 +211,7 @@ def main():
     base, out = sys.argv[2], sys.argv[3]
     os.makedirs(out, exist_ok=True)
     {"export": export_cases, "resume": resume_cases, "from": from_cases,
+     "bodies": bodies_cases,
      "controls": lambda b, o: controls_cases(o)}[kind](base, out)
 
 

@@ -88,7 +88,10 @@ run_ok "cart pendulum (multipliers)" "$mrvi" run "$sys/cart_pendulum.yaml" \
   -o cart.h5 --set integrator.t_end=0.2 --set output.xdmf=false -q
 run_ok "fpu (no particles)" "$mrvi" run "$sys/fpu.yaml" -o fpu.h5 \
   --set integrator.t_end=1 -q
-for kind in export:lat.h5 resume:cart.h5 from:fpu.h5 controls:-; do
+run_ok "rigid pendulum (bodies)" "$mrvi" run "$sys/rigid_pendulum.yaml" \
+  -o body.h5 --set integrator.t_end=0.2 --set output.xdmf=false -q
+for kind in export:lat.h5 resume:cart.h5 from:fpu.h5 controls:- \
+  bodies:body.h5; do
   "$py" "$craft" "${kind%%:*}" "${kind#*:}" "${kind%%:*}" >/dev/null ||
     fail "crafting the ${kind%%:*} cases"
 done
@@ -138,6 +141,17 @@ steps_nan steps_completed
 every_huge output_every
 description_array /model/description
 stop_reason_array stop_reason
+EOF
+
+# The writer reopens every dataset to append, /bodies of ranks 3 and 4 too.
+accepts "resume the uncrafted body file (stopped at node 5)" "$mrvi" run \
+  --resume bodies/ok.h5 -q
+while read -r case pattern; do
+  refuses "resume: $case" "$pattern" "$mrvi" run --resume "bodies/$case.h5" -q
+done <<'EOF'
+rotation_rank5 /bodies/rotation
+rotation_wider /bodies/rotation
+position_huge /bodies/position
 EOF
 
 # --- mrvi run --from -------------------------------------------------------
