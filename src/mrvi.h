@@ -925,9 +925,13 @@ typedef struct mrvi_stored_node {
  * the two above) of the mrvi output at path.  MRVI_NODE_RESUME: the last
  * stored node k <= steps_completed with k a multiple of `every` whose
  * multipliers (/macro/lambda) are in the file; a completed run or a file a
- * live run holds is refused.  Errors (MRVI_EIO, MRVI_EINVAL) with a
- * message: not an mrvi output, node not stored or out of range. */
-int mrvi_stored_node_read(const char *path, long which,
+ * live run holds is refused.  n: the coordinates of the model the node
+ * is for (/macro/q and /model/rate must have n; 0 when the model is the
+ * file's own, as for a resume: any count whose vectors fit in memory).
+ * Every dataset and attribute is checked before it is read (the file is
+ * untrusted).  Errors (MRVI_EIO, MRVI_EINVAL) with a message: not an mrvi
+ * output, a dataset of another shape, node not stored or out of range. */
+int mrvi_stored_node_read(const char *path, long which, int n,
                           mrvi_stored_node **out, char *msg, size_t len);
 void mrvi_stored_node_free(mrvi_stored_node *node);
 

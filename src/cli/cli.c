@@ -668,7 +668,7 @@ static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node) {
                     "--from with it\n");
     return NULL;
   }
-  if (mrvi_stored_node_read(a->resume, MRVI_NODE_RESUME, node, msg,
+  if (mrvi_stored_node_read(a->resume, MRVI_NODE_RESUME, 0, node, msg,
                             sizeof msg) < 0) {
     fprintf(stderr, "mrvi run: --resume %s\n", msg);
     return NULL;
@@ -710,7 +710,8 @@ static mrvi_stored_node *load_from(const char *spec, const mrvi_system *sys,
     }
   }
   mrvi_stored_node *node = NULL;
-  if (mrvi_stored_node_read(path, which, &node, msg, sizeof msg) < 0) {
+  if (mrvi_stored_node_read(path, which, mrvi_model_n(sys->model), &node, msg,
+                            sizeof msg) < 0) {
     fprintf(stderr, "mrvi run: --from %s\n", msg);
     return NULL;
   }

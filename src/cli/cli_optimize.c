@@ -146,7 +146,8 @@ static int replay(const char *file, const char *controls, const char *out,
   double *u = NULL;
   int rc = 1;
   if (mrvi_ocp_load(sys, &o, &u, msg, sizeof msg) < 0 ||
-      mrvi_ocp_controls_read(controls, o, u, msg, sizeof msg) < 0) {
+      mrvi_ocp_controls_read(controls, o, sys->settings.micro_steps, u, msg,
+                             sizeof msg) < 0) {
     fprintf(stderr, "mrvi run: %s\n", msg);
     goto done;
   }

@@ -37,103 +37,22 @@ typedef struct run_file {
   int n_edges;  /* rows of /model/edges */
 } run_file;
 
-/* Shape of dataset `name` (dims[1] = 1 for rank 1); its rank, or -1. */
-static int shape(hid_t file, const char *name, hsize_t dims[2]) {
-  dims[0] = dims[1] = 1;
-  if (H5Lexists(file, name, H5P_DEFAULT) <= 0)
-    return -1;
-  hid_t ds = H5Dopen2(file, name, H5P_DEFAULT);
-  if (ds < 0)
-    return -1;
-  hid_t sp = H5Dget_space(ds);
-  int rank = sp >= 0 ? H5Sget_simple_extent_ndims(sp) : -1;
-  if (rank < 1 || rank > 2 || H5Sget_simple_extent_dims(sp, dims, NULL) < 0)
-    rank = -1;
-  if (sp >= 0)
-    H5Sclose(sp);
-  H5Dclose(ds);
-  return rank;
-}
-
-/* Read `count` elements of dataset name as mtype into a new array, or rows
- * [row, row + 1) of a rank-2 dataset when row >= 0 (into buf, count = its
- * columns).  0 or -1. */
-static int read_data(hid_t file, const char *name, hid_t mtype, hssize_t row,
-                     void *buf) {
-  hid_t ds = H5Dopen2(file, name, H5P_DEFAULT);
-  if (ds < 0)
-    return -1;
-  herr_t rc;
-  if (row < 0) {
-    rc = H5Dread(ds, mtype, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf);
-  } else {
-    hid_t fs = H5Dget_space(ds);
-    hsize_t dims[2] = {0, 0};
-    H5Sget_simple_extent_dims(fs, dims, NULL);
-    hsize_t start[2] = {(hsize_t)row, 0}, count[2] = {1, dims[1]};
-    hid_t ms = H5Screate_simple(1, &count[1], NULL);
-    rc = H5Sselect_hyperslab(fs, H5S_SELECT_SET, start, NULL, count, NULL);
-    if (rc >= 0)
-      rc = H5Dread(ds, mtype, ms, fs, H5P_DEFAULT, buf);
-    H5Sclose(ms);
-    H5Sclose(fs);
-  }
-  H5Dclose(ds);
-  return rc < 0 ? -1 : 0;
-}
-
-/* A whole dataset of `count` elements of size `size` as mtype, or NULL. */
-static void *read_all(hid_t file, const char *name, hid_t mtype, size_t count,
-                      size_t size) {
-  void *buf = malloc((count ? count : 1) * size);
-  if (buf && read_data(file, name, mtype, -1, buf) < 0) {
-    free(buf);
-    buf = NULL;
-  }
-  return buf;
-}
-
-/* Variable-length string dataset of count entries as malloc'ed copies. */
-static char **read_strings(hid_t file, const char *name, size_t count) {
-  char **raw = calloc(count ? count : 1, sizeof *raw);
-  char **out = calloc(count ? count : 1, sizeof *out);
-  hid_t st = H5Tcopy(H5T_C_S1);
-  int ok = raw && out && st >= 0 && H5Tset_size(st, H5T_VARIABLE) >= 0 &&
-           H5Tset_cset(st, H5T_CSET_UTF8) >= 0 &&
-           read_data(file, name, st, -1, raw) == 0;
-  for (size_t i = 0; ok && i < count; i++)
-    ok = (out[i] = strdup(raw[i] ? raw[i] : "")) != NULL;
-  if (raw) {
-    for (size_t i = 0; i < count; i++)
-      H5free_memory(raw[i]);
-    free(raw);
-  }
-  if (st >= 0)
-    H5Tclose(st);
-  if (!ok && out) {
-    for (size_t i = 0; i < count; i++)
-      free(out[i]);
-    free(out);
-    out = NULL;
-  }
-  return out;
-}
-
 static void run_close(run_file *r) {
   if (r->file >= 0)
     H5Fclose(r->file);
   r->file = H5I_INVALID_HID;
-  if (r->name)
-    for (int i = 0; i < r->np; i++)
-      free(r->name[i]);
-  free(r->name);
+  mrvi_h5_strings_free(r->name, (size_t)r->np);
+  r->name = NULL;
   free(r->column);
   free(r->rate);
   free(r->t);
 }
 
-/* Open a run file and read its particles; a message naming what is wrong
- * otherwise (no particles: MRVI_EINVAL). */
+/* Open a run file and read its particles, every dataset checked against
+ * the others: /macro/q gives the coordinates n, /model/rate has n entries,
+ * /model/particle_column at most n, /model/particle_name one per particle,
+ * /model/dimension one value.  A message naming what is wrong otherwise
+ * (no particles: MRVI_EINVAL). */
 static int run_open(run_file *r, const char *path, char *msg, size_t len) {
   memset(r, 0, sizeof *r);
   r->path = path;
@@ -144,50 +63,63 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
                      "%s: cannot open as an HDF5 file (missing, not HDF5, or "
                      "still being written by a run)",
                      path);
-  hsize_t dq[2], dt[2], dr[2], dc[2], de[2];
-  if (shape(r->file, "/macro/q", dq) != 2 ||
-      shape(r->file, "/macro/t", dt) != 1 ||
-      shape(r->file, "/model/rate", dr) != 1 || dr[0] != dq[1])
-    return mrvi_fail(msg, len, MRVI_EIO,
-                     "%s: not an mrvi run file (/macro/q, /macro/t or "
-                     "/model/rate missing or inconsistent)",
-                     path);
-  if (shape(r->file, "/model/particle_column", dc) != 1)
+  const mrvi_h5in in = {r->file, path, msg, len};
+  hsize_t dq[2], dt[1], dc[1], de[2];
+  int st;
+  if ((st = mrvi_h5in_shape(&in, "/macro/q", MRVI_H5_NUMBER, 2, NULL, dq)) <
+          0 ||
+      (st = mrvi_h5in_shape(&in, "/macro/t", MRVI_H5_NUMBER, 1, NULL, dt)) <
+          0 ||
+      (st = mrvi_h5in_read_new(&in, "/model/rate", H5T_NATIVE_INT, 1, &dq[1],
+                               MRVI_H5_ANY, (void **)&r->rate, NULL)) < 0)
+    return st;
+  r->n = (int)dq[1];
+  if (!mrvi_h5in_exists(&in, "/model/particle_column"))
     return mrvi_fail(msg, len, MRVI_EINVAL,
                      "%s: the model has no particles (generalised coordinates "
                      "only, or a file written before mrvi stored "
                      "/model/particle_column): nothing to show as points",
                      path);
-  int d = 0;
-  if (H5Lexists(r->file, "/model/dimension", H5P_DEFAULT) <= 0 ||
-      read_data(r->file, "/model/dimension", H5T_NATIVE_INT, -1, &d) < 0)
-    d = 0;
-  r->d = d;
-  r->n = (int)dq[1];
+  if ((st = mrvi_h5in_shape(&in, "/model/particle_column", MRVI_H5_NUMBER, 1,
+                            NULL, dc)) < 0)
+    return st;
+  if (dc[0] > (hsize_t)r->n)
+    return mrvi_fail(msg, len, MRVI_EIO,
+                     "%s: /model/particle_column has %llu entries, more than "
+                     "the %d coordinates of /macro/q",
+                     path, (unsigned long long)dc[0], r->n);
   r->np = (int)dc[0];
+  int d = 0;
+  if ((st = mrvi_h5in_read(&in, "/model/dimension", H5T_NATIVE_INT, 0, NULL, 0,
+                           1, &d, 1)) < 0)
+    return st;
+  r->d = d;
   r->rows = dt[0] < dq[0] ? dt[0] : dq[0];
-  r->n_edges =
-      shape(r->file, "/model/edges", de) == 2 && de[1] == 2 ? (int)de[0] : 0;
+  /* Bonds are optional: a missing or malformed /model/edges shows none. */
+  const hsize_t two[2] = {MRVI_H5_ANY, 2};
+  r->n_edges = mrvi_h5in_exists(&in, "/model/edges") &&
+                       mrvi_h5in_shape(&in, "/model/edges", MRVI_H5_NUMBER, 2,
+                                       two, de) == MRVI_OK &&
+                       de[0] <= INT_MAX
+                   ? (int)de[0]
+                   : 0;
+  mrvi_fmt(msg, len, "%s", "");
   if (d < 1 || d > 3 || (size_t)r->np * (size_t)d > (size_t)r->n)
     return mrvi_fail(msg, len, MRVI_EIO,
                      "%s: /model/dimension = %d does not fit %d particles "
                      "in %d coordinates",
                      path, d, r->np, r->n);
-  r->column = read_all(r->file, "/model/particle_column", H5T_NATIVE_INT,
-                       (size_t)r->np, sizeof *r->column);
-  r->rate = read_all(r->file, "/model/rate", H5T_NATIVE_INT, (size_t)r->n,
-                     sizeof *r->rate);
-  r->name = read_strings(r->file, "/model/particle_name", (size_t)r->np);
-  r->t = read_all(r->file, "/macro/t", H5T_NATIVE_DOUBLE, (size_t)dt[0],
-                  sizeof *r->t);
-  if (!r->column || !r->rate || !r->name || !r->t)
-    return mrvi_fail(msg, len, MRVI_EIO,
-                     "%s: cannot read /model/particle_column, "
-                     "/model/particle_name, /model/rate or /macro/t",
-                     path);
+  if ((st = mrvi_h5in_read_new(&in, "/model/particle_column", H5T_NATIVE_INT, 1,
+                               dc, MRVI_H5_ANY, (void **)&r->column, NULL)) <
+          0 ||
+      (st = mrvi_h5in_strings(&in, "/model/particle_name", 1, dc[0], 4096,
+                              &r->name)) < 0 ||
+      (st = mrvi_h5in_read_new(&in, "/macro/t", H5T_NATIVE_DOUBLE, 1, NULL,
+                               r->rows, (void **)&r->t, NULL)) < 0)
+    return st;
   int consecutive = 1;
   for (int i = 0; i < r->np; i++) {
-    if (r->column[i] < 0 || r->column[i] + d > r->n)
+    if (r->column[i] < 0 || r->column[i] > r->n - d)
       return mrvi_fail(msg, len, MRVI_EIO,
                        "%s: /model/particle_column[%d] = %d out of range", path,
                        i, r->column[i]);
@@ -195,22 +127,6 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
   }
   r->first = consecutive ? r->column[0] : -1;
   return MRVI_OK;
-}
-
-/* Quiet HDF5 around an export: messages instead of printing. */
-typedef struct quiet {
-  H5E_auto2_t func;
-  void *data;
-} quiet;
-
-static void quiet_begin(quiet *q) {
-  H5Eget_auto2(H5E_DEFAULT, &q->func, &q->data);
-  H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
-}
-
-static void quiet_end(const quiet *q) {
-  H5Eclear2(H5E_DEFAULT);
-  H5Eset_auto2(H5E_DEFAULT, q->func, q->data);
 }
 
 /* ---------------------------------------------------------------------------
@@ -392,8 +308,8 @@ int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
   mrvi_fmt(msg, len, "%s", "");
   if (!h5_path || !xdmf_path)
     return mrvi_fail(msg, len, MRVI_EINVAL, "mrvi_export_xdmf: no file name");
-  quiet q;
-  quiet_begin(&q);
+  mrvi_h5_quiet q;
+  mrvi_h5_quiet_begin(&q);
   run_file r;
   int st = run_open(&r, h5_path, msg, len);
   char h5[PATH_MAX + 8];
@@ -427,7 +343,7 @@ int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
                      strerror(errno));
   }
   run_close(&r);
-  quiet_end(&q);
+  mrvi_h5_quiet_end(&q);
   return st;
 }
 
@@ -444,21 +360,21 @@ typedef struct micro_map {
   hsize_t rows;
 } micro_map;
 
+/* The micro datasets of a run: /micro/t, /micro/q_fast with a column per
+ * fast coordinate of /model/rate and, when present, /micro/q_slow with one
+ * per slow coordinate; the frames are the rows all of them have (a killed
+ * run may have flushed one dataset further than another). */
 static int micro_setup(const run_file *r, micro_map *mm, char *msg,
                        size_t len) {
-  hsize_t df[2], ds[2], dt[2];
+  const mrvi_h5in in = {r->file, r->path, msg, len};
+  hsize_t df[2], ds[2], dt[1];
   memset(mm, 0, sizeof *mm);
-  if (shape(r->file, "/micro/t", dt) != 1 ||
-      shape(r->file, "/micro/q_fast", df) != 2)
+  if (!mrvi_h5in_exists(&in, "/micro/t") ||
+      !mrvi_h5in_exists(&in, "/micro/q_fast"))
     return mrvi_fail(msg, len, MRVI_EINVAL,
                      "%s: no micro nodes (/micro; a model without fast "
                      "coordinates or output.micro: false)",
                      r->path);
-  const int have_slow = shape(r->file, "/micro/q_slow", ds) == 2;
-  mm->have_slow = have_slow;
-  mm->rows = dt[0] < df[0] ? dt[0] : df[0];
-  if (have_slow && ds[0] < mm->rows)
-    mm->rows = ds[0];
   mm->src = malloc((size_t)r->n * sizeof *mm->src);
   mm->col = malloc((size_t)r->n * sizeof *mm->col);
   if (!mm->src || !mm->col)
@@ -467,6 +383,21 @@ static int micro_setup(const run_file *r, micro_map *mm, char *msg,
     mm->src[c] = r->rate[c] == 1 ? 0 : 1;
     mm->col[c] = r->rate[c] == 1 ? mm->n_fast++ : mm->n_slow++;
   }
+  const hsize_t want_fast[2] = {MRVI_H5_ANY, (hsize_t)mm->n_fast},
+                want_slow[2] = {MRVI_H5_ANY, (hsize_t)mm->n_slow};
+  const int have_slow = mrvi_h5in_exists(&in, "/micro/q_slow");
+  int st;
+  if ((st = mrvi_h5in_shape(&in, "/micro/t", MRVI_H5_NUMBER, 1, NULL, dt)) <
+          0 ||
+      (st = mrvi_h5in_shape(&in, "/micro/q_fast", MRVI_H5_NUMBER, 2, want_fast,
+                            df)) < 0 ||
+      (have_slow && (st = mrvi_h5in_shape(&in, "/micro/q_slow", MRVI_H5_NUMBER,
+                                          2, want_slow, ds)) < 0))
+    return st;
+  mm->have_slow = have_slow;
+  mm->rows = dt[0] < df[0] ? dt[0] : df[0];
+  if (have_slow && ds[0] < mm->rows)
+    mm->rows = ds[0];
   int slow_particles = 0;
   for (int i = 0; i < r->np; i++)
     slow_particles |= r->rate[r->column[i]] != 1;
@@ -486,6 +417,15 @@ static void put_name(FILE *f, const char *name) {
     fputc(*c == ' ' || *c == '\t' ? '_' : *c, f);
 }
 
+/* Row k of the rank-2 dataset name, cols wide, into buf (cols values). */
+static int read_row(const run_file *r, const char *name, hsize_t k, int cols,
+                    double *buf, char *msg, size_t len) {
+  const mrvi_h5in in = {r->file, r->path, msg, len};
+  const hsize_t want[2] = {MRVI_H5_ANY, (hsize_t)cols};
+  return mrvi_h5in_read(&in, name, H5T_NATIVE_DOUBLE, 2, want, k, 1, buf,
+                        (size_t)cols);
+}
+
 int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                     const mrvi_xyz_options *opt, char *msg, size_t len) {
   mrvi_fmt(msg, len, "%s", "");
@@ -496,8 +436,8 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
     return mrvi_fail(msg, len, MRVI_EINVAL, "mrvi_export_xyz: no file name");
   if (o.every < 1)
     return mrvi_fail(msg, len, MRVI_EINVAL, "every %d: must be >= 1", o.every);
-  quiet q;
-  quiet_begin(&q);
+  mrvi_h5_quiet q;
+  mrvi_h5_quiet_begin(&q);
   run_file r;
   micro_map mm = {0};
   double *row = NULL, *fast = NULL, *slow = NULL, *mt = NULL;
@@ -510,12 +450,12 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
     row = malloc((size_t)r.n * sizeof *row);
     fast = malloc((size_t)(mm.n_fast + 1) * sizeof *fast);
     slow = malloc((size_t)(mm.n_slow + 1) * sizeof *slow);
-    mt = o.micro ? read_all(r.file, "/micro/t", H5T_NATIVE_DOUBLE,
-                            (size_t)frames, sizeof *mt)
-                 : NULL;
-    if (!row || !fast || !slow || (o.micro && !mt))
-      st =
-          mrvi_fail(msg, len, MRVI_ENOMEM, "%s: cannot read /micro/t", h5_path);
+    if (!row || !fast || !slow)
+      st = mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+    else if (o.micro)
+      st = mrvi_h5in_read_new(&(mrvi_h5in){r.file, h5_path, msg, len},
+                              "/micro/t", H5T_NATIVE_DOUBLE, 1, NULL, frames,
+                              (void **)&mt, NULL);
   }
   if (st == 0 && !(f = fopen(xyz_path, "w")))
     st = mrvi_fail(msg, len, MRVI_EIO, "%s: cannot write: %s", xyz_path,
@@ -523,20 +463,14 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
   for (hsize_t k = 0; st == 0 && k < frames; k += (hsize_t)o.every) {
     /* Coordinates of frame k in model order. */
     if (o.micro) {
-      if (read_data(r.file, "/micro/q_fast", H5T_NATIVE_DOUBLE, (hssize_t)k,
-                    fast) < 0 ||
-          (mm.have_slow && read_data(r.file, "/micro/q_slow", H5T_NATIVE_DOUBLE,
-                                     (hssize_t)k, slow) < 0)) {
-        st = mrvi_fail(msg, len, MRVI_EIO, "%s: cannot read micro row %llu",
-                       h5_path, (unsigned long long)k);
+      if ((st = read_row(&r, "/micro/q_fast", k, mm.n_fast, fast, msg, len)) <
+              0 ||
+          (mm.have_slow && (st = read_row(&r, "/micro/q_slow", k, mm.n_slow,
+                                          slow, msg, len)) < 0))
         break;
-      }
       for (int c = 0; c < r.n; c++)
         row[c] = mm.src[c] == 0 ? fast[mm.col[c]] : slow[mm.col[c]];
-    } else if (read_data(r.file, "/macro/q", H5T_NATIVE_DOUBLE, (hssize_t)k,
-                         row) < 0) {
-      st = mrvi_fail(msg, len, MRVI_EIO, "%s: cannot read /macro/q row %llu",
-                     h5_path, (unsigned long long)k);
+    } else if ((st = read_row(&r, "/macro/q", k, r.n, row, msg, len)) < 0) {
       break;
     }
     fprintf(f, "%d\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=",
@@ -571,6 +505,6 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
   free(mm.src);
   free(mm.col);
   run_close(&r);
-  quiet_end(&q);
+  mrvi_h5_quiet_end(&q);
   return st;
 }

@@ -18,6 +18,13 @@
  * HDF5 errors: no printing, messages instead.
  * ------------------------------------------------------------------------- */
 void mrvi_h5_quiet_begin(mrvi_h5_quiet *q) {
+  /* No H5close at exit: after a failed flush (disk full) or on a corrupted
+   * input file HDF5 1.10 cannot shut down cleanly and prints "infinite
+   * loop closing library" (or crashes); files are complete when H5Fclose
+   * returns, so nothing is lost by leaving the library's memory to the
+   * process exit.  Has an effect only before the library's first use:
+   * this is the first HDF5 call of every reader and writer of src/io. */
+  H5dont_atexit();
   q->saved = H5Eget_auto2(H5E_DEFAULT, &q->func, &q->data) >= 0;
   H5Eset_auto2(H5E_DEFAULT, NULL, NULL);
   H5Eclear2(H5E_DEFAULT);

@@ -17,9 +17,9 @@
 hid_t mrvi_h5_open_read(const char *path, hid_t fapl);
 
 /* The root attribute stop_reason of an open mrvi output into buf ("" when
- * absent), variable- or fixed-length.  "running" becomes "incomplete
- * (writer killed)" unless a live run still holds the file's lock (then it
- * stays "running"). */
+ * absent or not one string), variable- or fixed-length.  "running" becomes
+ * "incomplete (writer killed)" unless a live run still holds the file's lock
+ * (then it stays "running"). */
 void mrvi_h5_stop_reason(hid_t file, const char *path, char *buf, size_t len);
 
 /* ---------------------------------------------------------------------------
@@ -48,6 +48,79 @@ void mrvi_h5_restore_errors(hid_t es);
  * specific one; then clear the stack. */
 void mrvi_h5_error_message(char *buf, size_t len, const char *path,
                            const char *what);
+
+/* ---------------------------------------------------------------------------
+ * Validated reading (h5read.c): every HDF5 read of mrvi goes through these.
+ * Files are untrusted; before any data is read a dataset's type class,
+ * exact rank and every dimension are checked, sizes computed with overflow
+ * checks and capped, and buffers sized from the checked shape.
+ * ------------------------------------------------------------------------- */
+
+/* Bytes one read of a file may allocate: a quarter of the machine's memory
+ * (mrvi_machine_memory; 1 GiB when unknown). */
+size_t mrvi_h5_read_cap(void);
+
+/* A dimension the file decides (e.g. the rows a run stored). */
+#define MRVI_H5_ANY ((hsize_t)-1)
+/* Highest rank mrvi reads (/bodies/rotation: rows x bodies x d x d). */
+#define MRVI_H5_MAX_RANK 4
+/* Longest string attribute read (stop_reason, versions, settings). */
+#define MRVI_H5_MAX_ATTR ((size_t)65536)
+/* Longest /model/description read. */
+#define MRVI_H5_MAX_TEXT ((size_t)64 << 20)
+
+/* An input file: the open file, its name and the caller's message buffer,
+ * which every failure below fills with "PATH: DATASET ... expected ..."
+ * and a negative status. */
+typedef struct mrvi_h5in {
+  hid_t file;
+  const char *path;
+  char *msg;
+  size_t len;
+} mrvi_h5in;
+
+enum { MRVI_H5_NUMBER = 0, MRVI_H5_STRING = 1 };
+
+/* 1 when the absolute path name leads to an object through hard links. */
+int mrvi_h5in_exists(const mrvi_h5in *in, const char *name);
+/* Open dataset name, checked: type class kind (MRVI_H5_NUMBER: integer or
+ * float; MRVI_H5_STRING), rank exactly `rank` (0: scalar, up to
+ * MRVI_H5_MAX_RANK), each dimension equal to want[i] unless MRVI_H5_ANY
+ * (want NULL: any), every dimension after the first at most INT_MAX.  dims
+ * (rank entries) gets the shape.  The dataset id, or H5I_INVALID_HID with
+ * the message. */
+hid_t mrvi_h5in_open(const mrvi_h5in *in, const char *name, int kind, int rank,
+                     const hsize_t *want, hsize_t *dims);
+/* As mrvi_h5in_open, closing the dataset: MRVI_OK or MRVI_EIO. */
+int mrvi_h5in_shape(const mrvi_h5in *in, const char *name, int kind, int rank,
+                    const hsize_t *want, hsize_t *dims);
+/* Rows [row, row + rows) of the numeric dataset name (checked as above) as
+ * mtype into buf, which has room for cap elements (rows times the product
+ * of the other dimensions must fit; rank 0: row 0, rows 1). */
+int mrvi_h5in_read(const mrvi_h5in *in, const char *name, hid_t mtype, int rank,
+                   const hsize_t *want, hsize_t row, hsize_t rows, void *buf,
+                   size_t cap);
+/* The first `rows` rows (MRVI_H5_ANY: all) of the numeric dataset name as
+ * mtype into a new array (*out, free()), sized from the checked shape and
+ * at most mrvi_h5_read_cap() bytes; dims (may be NULL) gets the shape. */
+int mrvi_h5in_read_new(const mrvi_h5in *in, const char *name, hid_t mtype,
+                       int rank, const hsize_t *want, hsize_t rows, void **out,
+                       hsize_t *dims);
+/* The strings of dataset name: rank 1 with `count` entries (MRVI_H5_ANY:
+ * any) or rank 0 (one string), variable- or fixed-length, each at most
+ * max_len bytes; *out gets malloc'ed copies (mrvi_h5_strings_free). */
+int mrvi_h5in_strings(const mrvi_h5in *in, const char *name, int rank,
+                      hsize_t count, size_t max_len, char ***out);
+void mrvi_h5_strings_free(char **s, size_t count);
+
+/* Root attributes: exactly one value each. */
+int mrvi_h5in_has_attr(const mrvi_h5in *in, const char *name);
+/* A number in [lo, hi] (an integer if `integer`) into *v. */
+int mrvi_h5in_attr_number(const mrvi_h5in *in, const char *name, double lo,
+                          double hi, int integer, double *v);
+/* A string of at most MRVI_H5_MAX_ATTR bytes into buf ("" on failure). */
+int mrvi_h5in_attr_string(const mrvi_h5in *in, const char *name, char *buf,
+                          size_t len);
 
 /* ---------------------------------------------------------------------------
  * Attributes and datasets written whole (h5util.c).  herr_t: < 0 on failure,

@@ -82,9 +82,9 @@ enum elem { F64, I32 };
     &r->potential_fast, "fast potential W(q)")                                 \
   X(MACRO_ENERGY, "/macro/energy", F64, MACRO, 1, 1, &r->energy,               \
     "total energy H = kinetic + V + W")                                        \
-  X(MACRO_ENERGY_RUNNING, "/macro/energy_running", F64, MACRO, 2, 2,         \
+  X(MACRO_ENERGY_RUNNING, "/macro/energy_running", F64, MACRO, 2, 2,           \
     r->energy_running,                                                         \
-    "max |H_j - H_0| and max T_j + |V_j| + |W_j| over all nodes j <= k")      \
+    "max |H_j - H_0| and max T_j + |V_j| + |W_j| over all nodes j <= k")       \
   X(MACRO_LINEAR_MOMENTUM, "/macro/linear_momentum", F64, MACRO, 2, w->dim,    \
     r->linear_momentum, "linear momentum sum_i p_i of the particles")          \
   X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \
@@ -779,30 +779,23 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
     if (o->cols == 0)
       continue;
     const struct output_info *info = &output_info[id];
-    o->id = H5Dopen2(w->file, info->path, H5P_DEFAULT);
-    hsize_t dims[4] = {0, 1, 1, 1}, want[4];
-    hid_t sp = o->id >= 0 ? H5Dget_space(o->id) : H5I_INVALID_HID;
-    const int rank = sp >= 0 ? H5Sget_simple_extent_ndims(sp) : -1;
-    if (sp >= 0 && rank >= 1 && rank <= 4)
-      H5Sget_simple_extent_dims(sp, dims, NULL);
-    if (sp >= 0)
-      H5Sclose(sp);
-    output_shape(w, id, dims[0], want);
-    hsize_t cols = 1;
-    for (int a = 1; a < rank && a < 4; a++)
-      cols *= dims[a];
-    int same = rank == info->rank;
-    for (int a = 1; same && a < rank; a++)
-      same = dims[a] == want[a];
-    if (!same || dims[0] < keep[info->stream]) {
-      H5Eclear2(H5E_DEFAULT);
-      return fail(w, MRVI_EIO,
-                  "%s: %s (%llu rows of %llu) does not fit macro node %ld of "
-                  "this model and settings",
-                  info->path, o->id < 0 ? "missing" : "shape",
-                  (unsigned long long)dims[0], (unsigned long long)cols, k);
+    /* The file is untrusted: rank and shape checked before use. */
+    char why[400];
+    const mrvi_h5in in = {w->file, w->path, why, sizeof why};
+    hsize_t want[MRVI_H5_MAX_RANK], dims[MRVI_H5_MAX_RANK] = {0, 1, 1, 1};
+    output_shape(w, id, MRVI_H5_ANY, want);
+    o->id =
+        mrvi_h5in_open(&in, info->path, MRVI_H5_NUMBER, info->rank, want, dims);
+    if (o->id < 0) {
+      if (!w->status)
+        mrvi_fmt(w->errmsg, sizeof w->errmsg,
+                 "%s (does not fit this model and settings)", why);
+      return w->status ? w->status : (w->status = MRVI_EIO);
     }
-    hsize_t size[4];
+    if (dims[0] < keep[info->stream])
+      return fail(w, MRVI_EIO, "%s: %llu rows do not reach macro node %ld",
+                  info->path, (unsigned long long)dims[0], k);
+    hsize_t size[MRVI_H5_MAX_RANK];
     output_shape(w, id, keep[info->stream], size);
     if (H5Dset_extent(o->id, size) < 0) {
       char what[128];
@@ -981,11 +974,8 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   mrvi_fmt(msg, len, "%s", "");
   if (out)
     *out = NULL;
-  /* No H5close at exit: after a failed flush (disk full) HDF5 1.10 cannot
-   * shut down cleanly and prints "infinite loop closing library" (or
-   * crashes); files are complete when H5Fclose returns, so nothing is lost
-   * by leaving the library's memory to the process exit.  Has an effect
-   * only before the library's first use. */
+  /* No H5close at exit (mrvi_h5_quiet_begin says why): before the
+   * library's first use. */
   H5dont_atexit();
   if (!path || !path[0] || !m || !s || !out) {
     mrvi_fmt(msg, len, "mrvi_writer_open: %s",

@@ -111,10 +111,12 @@ int mrvi_ocp_trajectory_write(const char *path, const mrvi_system *sys,
                               const mrvi_ocp *o, char *msg, size_t len);
 
 /* The controls /control/u stored by `mrvi optimize` at path into u (the
- * control vector of o); MRVI_EIO with a message when the file has none or
- * they do not fit o's actuators and steps. */
-int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, double *u,
-                           char *msg, size_t len);
+ * control vector of o): a column per actuator, a row per macro step or per
+ * micro step (micro_steps per macro step), checked before they are read
+ * (h5read.c); MRVI_EIO with a message when the file has none or they do
+ * not fit o's actuators and steps. */
+int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
+                           double *u, char *msg, size_t len);
 
 /* The output of `mrvi optimize`: the trajectory (as
  * mrvi_ocp_trajectory_write), /control (the controls on the finest grid of

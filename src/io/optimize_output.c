@@ -358,60 +358,54 @@ int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
 /* ---------------------------------------------------------------------------
  * Replay: the stored controls
  * ------------------------------------------------------------------------- */
-int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, double *u,
-                           char *msg, size_t len) {
+int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
+                           double *u, char *msg, size_t len) {
   mrvi_h5_quiet q;
   mrvi_h5_quiet_begin(&q);
   hid_t f = mrvi_h5_open_read(path, H5P_DEFAULT);
-  if (f < 0) {
-    mrvi_h5_quiet_end(&q);
-    return mrvi_fail(msg, len, MRVI_EIO, "cannot open '%s'", path);
-  }
-  int rc = MRVI_EIO;
-  hid_t d = H5Dopen2(f, "/control/u", H5P_DEFAULT);
-  hid_t sp = d >= 0 ? H5Dget_space(d) : H5I_INVALID_HID;
-  hsize_t dims[2] = {0, 0};
+  const mrvi_h5in in = {f, path, msg, len};
   const int na = mrvi_ocp_n_actuators(o);
   const long N = mrvi_ocp_n_steps(o);
-  if (sp < 0 || H5Sget_simple_extent_ndims(sp) != 2 ||
-      H5Sget_simple_extent_dims(sp, dims, NULL) < 0) {
-    mrvi_fmt(msg, len, "'%s' has no 2-D /control/u", path);
-  } else if ((int)dims[1] != na || dims[0] == 0 || dims[0] % (hsize_t)N) {
-    mrvi_fmt(msg, len,
-             "/control/u of '%s' is %llu x %llu; the problem has %d "
-             "actuators on %ld macro steps",
-             path, (unsigned long long)dims[0], (unsigned long long)dims[1], na,
-             N);
-  } else {
-    double *U = malloc((size_t)(dims[0] * dims[1]) * sizeof *U);
-    if (U &&
-        H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, U) >= 0) {
-      const long pt = (long)dims[0] / N;
-      rc = MRVI_OK;
-      for (int k = 0; k < na && rc == MRVI_OK; k++) {
-        const int micro = mrvi_ocp_actuator_grid(o, k) == MRVI_GRID_MICRO;
-        const int size = mrvi_ocp_actuator_size(o, k);
-        if (micro && size != (int)dims[0]) {
-          mrvi_fmt(msg, len, "actuator '%s' needs %d values, '%s' has %llu",
-                   mrvi_ocp_actuator_name(o, k), size, path,
-                   (unsigned long long)dims[0]);
-          rc = MRVI_EIO;
-        }
-        for (int j = 0; rc == MRVI_OK && j < size; j++)
-          u[mrvi_ocp_actuator_offset(o, k) + j] =
-              U[(micro ? j : j * pt) * na + k];
-      }
-    } else {
-      mrvi_fmt(msg, len, "cannot read /control/u of '%s'", path);
-    }
-    free(U);
+  /* Rows: one per macro step, or one per micro step when an actuator of
+   * the run that stored them was on the micro grid (as written above). */
+  const hsize_t most =
+      (hsize_t)N * (hsize_t)(micro_steps > 1 ? micro_steps : 1);
+  const hsize_t want[2] = {MRVI_H5_ANY, (hsize_t)na};
+  hsize_t dims[2] = {0, 0};
+  double *U = NULL;
+  int st = MRVI_OK;
+  if (f < 0)
+    st = mrvi_fail(msg, len, MRVI_EIO,
+                   "%s: cannot open as an HDF5 file (missing or not HDF5)",
+                   path);
+  else if ((st = mrvi_h5in_shape(&in, "/control/u", MRVI_H5_NUMBER, 2, want,
+                                 dims)) < 0)
+    ;
+  else if (N < 1 || (dims[0] != (hsize_t)N && dims[0] != most))
+    st = mrvi_fail(msg, len, MRVI_EIO,
+                   "%s: /control/u has %llu rows, expected %ld (one per "
+                   "macro step) or %llu (one per micro step)",
+                   path, (unsigned long long)dims[0], N,
+                   (unsigned long long)most);
+  else
+    st = mrvi_h5in_read_new(&in, "/control/u", H5T_NATIVE_DOUBLE, 2, dims,
+                            MRVI_H5_ANY, (void **)&U, NULL);
+  const long pt = st == MRVI_OK ? (long)dims[0] / N : 0;
+  for (int a = 0; a < na && st == MRVI_OK; a++) {
+    const int micro = mrvi_ocp_actuator_grid(o, a) == MRVI_GRID_MICRO;
+    const int size = mrvi_ocp_actuator_size(o, a);
+    const hsize_t need = micro ? (hsize_t)size : (hsize_t)size * (hsize_t)pt;
+    if ((micro && (hsize_t)size != dims[0]) || need > dims[0])
+      st = mrvi_fail(msg, len, MRVI_EIO,
+                     "%s: actuator '%s' needs %d values, /control/u has %llu",
+                     path, mrvi_ocp_actuator_name(o, a), size,
+                     (unsigned long long)dims[0]);
+    for (int j = 0; st == MRVI_OK && j < size; j++)
+      u[mrvi_ocp_actuator_offset(o, a) + j] = U[(micro ? j : j * pt) * na + a];
   }
-  if (sp >= 0)
-    H5Sclose(sp);
-  if (d >= 0)
-    H5Dclose(d);
-  H5Fclose(f);
-  H5Eclear2(H5E_DEFAULT);
+  free(U);
+  if (f >= 0)
+    H5Fclose(f);
   mrvi_h5_quiet_end(&q);
-  return rc;
+  return st;
 }

@@ -1,0 +1,218 @@
+"""craft_hostile_h5.py KIND BASE.h5 OUT_DIR: hostile HDF5 inputs for
+tests/test_hostile_h5.sh, one file per case, each a copy of a real mrvi
+output BASE.h5 with one dataset or attribute replaced (or, for KIND
+controls, crafted from nothing).  Prints one line per file: CASE FILE.
+
+KIND:
+  export    BASE: a 2-D run with particles and /micro/q_slow (lattice)
+  resume    BASE: a run with /macro/lambda (cart pendulum), completed
+  bodies    BASE: a completed run with rigid bodies (/bodies, ranks 3, 4)
+  from      BASE: a run without particles (fpu)
+  controls  BASE: ignored; /control/u files for ocp_double_integrator.yaml
+            (1 actuator on the macro grid, 10 macro steps)
+  flip SEED COUNT BASE OUT_DIR: COUNT copies of BASE with bytes flipped
+
+Huge dimensions are declared on chunked datasets with no chunk written,
+so a file that asks for 2^32 or 2^61 entries stays a few kB."""
+import os
+import random
+import shutil
+import sys
+
+import h5py
+import numpy as np
+
+
+def copy(base, out, case):
+    path = os.path.join(out, case + ".h5")
+    shutil.copyfile(base, path)
+    print(case, path)
+    return h5py.File(path, "r+")
+
+
+def replace(f, name, **kw):
+    """Dataset name replaced by h5py's create_dataset(**kw)."""
+    del f[name]
+    return f.create_dataset(name, **kw)
+
+
+def huge(f, name, shape, dtype="f8"):
+    """Dataset name declared with shape, chunked, no data written."""
+    if name in f:
+        del f[name]
+    chunks = tuple(1 for _ in shape)
+    return f.create_dataset(name, shape=shape, dtype=dtype, chunks=chunks)
+
+
+def strings(values):
+    return np.array(values, dtype=h5py.string_dtype("utf-8"))
+
+
+def rank(k):
+    """A float64 array of rank k, every dimension 1."""
+    return np.zeros((1,) * k)
+
+
+def resumable(f, steps):
+    """A completed run turned into one stopped at node `steps`."""
+    f.attrs.modify("stop_reason", "interrupted (SIGINT)")
+    f.attrs.modify("steps_completed", steps)
+
+
+def export_cases(base, out):
+    with copy(base, out, "names_longer") as f:
+        np_ = f["model/particle_column"].shape[0]
+        replace(f, "model/particle_name",
+                data=strings(["p%d" % i for i in range(np_ + 5)]))
+    with copy(base, out, "names_huge") as f:
+        huge(f, "model/particle_name", (2**32,), h5py.string_dtype())
+    with copy(base, out, "names_matrix") as f:
+        np_ = f["model/particle_column"].shape[0]
+        replace(f, "model/particle_name",
+                data=strings([["a", "b"]] * np_))
+    with copy(base, out, "qfast_wider") as f:
+        q = f["micro/q_fast"][...]
+        replace(f, "micro/q_fast",
+                data=np.hstack([q, np.zeros((q.shape[0], 7))]))
+    with copy(base, out, "qslow_narrower") as f:
+        q = f["micro/q_slow"][...]
+        replace(f, "micro/q_slow", data=q[:, :3])
+    with copy(base, out, "dimension_array") as f:
+        replace(f, "model/dimension", data=np.array([2, 2, 2, 2], "i4"))
+    with copy(base, out, "column_huge") as f:
+        huge(f, "model/particle_column", (2**32 + 1,), "i4")
+    with copy(base, out, "coordinates_huge") as f:
+        n = 2**32 + f["model/rate"].shape[0]
+        rows = f["macro/q"].shape[0]
+        huge(f, "model/rate", (n,), "i4")
+        huge(f, "macro/q", (rows, n))
+    with copy(base, out, "rate_rank32") as f:
+        replace(f, "model/rate", data=rank(32))
+    with copy(base, out, "stop_reason_array") as f:
+        f.attrs["stop_reason"] = strings(["completed"] * 64)
+
+
+def resume_cases(base, out):
+    with copy(base, out, "ok") as f:
+        resumable(f, 5)
+    for k in (3, 32):
+        with copy(base, out, "lambda_rank%d" % k) as f:
+            resumable(f, 5)
+            rows = f["macro/lambda"].shape[0]
+            replace(f, "macro/lambda", data=np.zeros((rows,) + (1,) * (k - 1)),
+                    maxshape=(None,) + (1,) * (k - 1))
+    with copy(base, out, "lambda_wider") as f:
+        resumable(f, 5)
+        lam = f["macro/lambda"][...]
+        replace(f, "macro/lambda",
+                data=np.hstack([lam, np.zeros((lam.shape[0], 9))]),
+                maxshape=(None, lam.shape[1] + 9), chunks=True)
+    with copy(base, out, "lambda_huge") as f:
+        resumable(f, 5)
+        huge(f, "macro/lambda", (f["macro/t"].shape[0], 2**40))
+    with copy(base, out, "residual_rank32") as f:
+        resumable(f, 5)
+        replace(f, "solver/residual", data=rank(32), maxshape=(None,) + (1,) * 31)
+    with copy(base, out, "q_rank32") as f:
+        resumable(f, 5)
+        replace(f, "macro/q", data=rank(32))
+    with copy(base, out, "steps_array") as f:
+        resumable(f, 5)
+        f.attrs["steps_completed"] = np.arange(1000.0)
+    with copy(base, out, "steps_nan") as f:
+        resumable(f, 5)
+        f.attrs["steps_completed"] = np.nan
+    with copy(base, out, "every_huge") as f:
+        resumable(f, 5)
+        f.attrs["output_every"] = 1e300
+    with copy(base, out, "description_array") as f:
+        resumable(f, 5)
+        d = f["model/description"][()]
+        replace(f, "model/description", data=strings([d] * 16))
+    with copy(base, out, "stop_reason_array") as f:
+        resumable(f, 5)
+        f.attrs["stop_reason"] = strings(["interrupted"] * 64)
+
+
+def bodies_cases(base, out):
+    with copy(base, out, "ok") as f:
+        resumable(f, 5)
+    with copy(base, out, "rotation_rank5") as f:
+        resumable(f, 5)
+        rows = f["bodies/rotation"].shape[0]
+        replace(f, "bodies/rotation", data=np.zeros((rows, 1, 2, 2, 1)),
+                maxshape=(None, 1, 2, 2, 1))
+    with copy(base, out, "rotation_wider") as f:
+        resumable(f, 5)
+        rows = f["bodies/rotation"].shape[0]
+        replace(f, "bodies/rotation", data=np.zeros((rows, 1, 2, 3)),
+                maxshape=(None, 1, 2, 3))
+    with copy(base, out, "position_huge") as f:
+        resumable(f, 5)
+        huge(f, "bodies/position", (f["macro/t"].shape[0], 1, 2**40))
+
+
+def from_cases(base, out):
+    with copy(base, out, "rate_huge") as f:
+        huge(f, "model/rate", (200000000,), "i4")
+    with copy(base, out, "q_rank3") as f:
+        q = f["macro/q"][...]
+        replace(f, "macro/q", data=q[:, :, None])
+    with copy(base, out, "t_rank32") as f:
+        replace(f, "macro/t", data=rank(32))
+    with copy(base, out, "q_wider") as f:
+        q = f["macro/q"][...]
+        replace(f, "macro/q", data=np.hstack([q, q]))
+
+
+def control_file(out, case):
+    path = os.path.join(out, case + ".h5")
+    print(case, path)
+    return h5py.File(path, "w")
+
+
+def controls_cases(out):
+    with control_file(out, "ok") as f:
+        f["control/u"] = np.full((10, 1), 0.25)
+    with control_file(out, "u_wrapping") as f:
+        huge(f, "control/u", (10, 2**61 + 1))
+    with control_file(out, "u_rows_huge") as f:
+        huge(f, "control/u", (10 * 2**40, 1))
+    with control_file(out, "u_rank3") as f:
+        f["control/u"] = np.zeros((10, 1, 1))
+    with control_file(out, "u_strings") as f:
+        f["control/u"] = strings([["a"]] * 10)
+    with control_file(out, "u_missing") as f:
+        f["control/v"] = np.zeros((10, 1))
+    path = os.path.join(out, "not_hdf5.h5")
+    with open(path, "w") as t:
+        t.write("not an HDF5 file\n")
+    print("not_hdf5", path)
+
+
+def flips(seed, count, base, out):
+    """count copies of base, each with 1 to 8 bytes set to random values."""
+    data = open(base, "rb").read()
+    rng = random.Random(seed)
+    for i in range(count):
+        b = bytearray(data)
+        for _ in range(rng.randint(1, 8)):
+            b[rng.randrange(len(b))] = rng.randrange(256)
+        path = os.path.join(out, "flip%03d.h5" % i)
+        open(path, "wb").write(b)
+        print("flip%03d" % i, path)
+
+
+def main():
+    kind = sys.argv[1]
+    if kind == "flip":
+        flips(int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5])
+        return
+    base, out = sys.argv[2], sys.argv[3]
+    os.makedirs(out, exist_ok=True)
+    {"export": export_cases, "resume": resume_cases, "from": from_cases,
+     "bodies": bodies_cases,
+     "controls": lambda b, o: controls_cases(o)}[kind](base, out)
+
+
+main()

@@ -1,0 +1,280 @@
+#!/bin/bash
+# Hostile HDF5 inputs (issue 26, classes 1 and 4): every reader of an HDF5
+# file -- mrvi export, run --resume, run --from, run --controls -- given
+# files crafted from real outputs by tests/craft_hostile_h5.py (a dataset
+# longer, wider or of another rank than the model implies, rank 32, an
+# attribute that is an array, sizes of 2^32 to 2^61 declared on chunked
+# datasets of a few kB) refuses each with an exit status in 1..127 and a
+# message naming the dataset or attribute; no HDF5 error stack on stderr,
+# no sanitizer report (the ASan + UBSan build runs this script too).  Then
+# bytes of real outputs are flipped (fixed seeds) and export and resume run
+# on each: no sanitizer report, no death by a signal.
+#
+#   test_hostile_h5.sh MRVI_BINARY SOURCE_ROOT [FLIPS]
+#
+# FLIPS: mutated files per base file (default: 20 in an ASan build, none
+# otherwise; a longer run: tests/test_hostile_h5.sh build-san/mrvi . 500).
+# Skipped (exit 77) when Debian's /usr/bin/python3 lacks h5py.
+
+set -u
+
+mrvi=${1:?usage: test_hostile_h5.sh MRVI_BINARY SOURCE_ROOT [FLIPS]}
+root=${2:?usage: test_hostile_h5.sh MRVI_BINARY SOURCE_ROOT [FLIPS]}
+flips=${3:-20}
+
+# shellcheck source=tests/testlib.sh
+. "$(dirname "$0")/testlib.sh"
+need_python h5py numpy
+craft=$root/tests/craft_hostile_h5.py
+sys=$root/systems
+cd "$tmp" || exit 1
+
+# What no input may cause: a sanitizer report, an HDF5 error stack.
+sanitizer='ERROR: AddressSanitizer\|ERROR: LeakSanitizer\|runtime error:'
+
+# clean NAME RC: 0 if the last command (stderr in err.txt) ended by itself
+# (RC < 128, no timeout) without a sanitizer report or HDF5 error stack;
+# else records the failure and returns 1.
+clean() {
+  local name=$1 rc=$2
+  if [ "$rc" -ge 124 ]; then
+    fail "$name: exit $rc (signal or timeout): $(grep -m1 . err.txt)"
+  elif grep -q "$sanitizer" err.txt; then
+    fail "$name: $(grep -m1 "$sanitizer" err.txt)"
+    grep -m8 '^ *#[0-9]' err.txt | sed 's/^/     /'
+  elif grep -q 'HDF5-DIAG' err.txt; then
+    fail "$name: HDF5 error stack printed: $(grep -m1 'HDF5-DIAG' err.txt)"
+  else
+    return 0
+  fi
+  return 1
+}
+
+# refuses NAME PATTERN CMD...: exit 1..123 with PATTERN on stderr, clean.
+refuses() {
+  local name=$1 pattern=$2
+  shift 2
+  timeout 60 "$@" >out.txt 2>err.txt
+  local rc=$?
+  clean "$name" $rc || return
+  if [ $rc -eq 0 ]; then
+    fail "$name: accepted (exit 0)"
+  elif ! grep -q -- "$pattern" err.txt; then
+    fail "$name: exit $rc, no '$pattern' in: $(head -c 300 err.txt)"
+  else
+    pass "$name ($(head -1 err.txt | cut -c1-160))"
+  fi
+}
+
+# accepts NAME CMD...: exit 0, clean.
+accepts() {
+  local name=$1
+  shift
+  timeout 60 "$@" >out.txt 2>err.txt
+  local rc=$?
+  clean "$name" $rc || return
+  if [ $rc -ne 0 ]; then
+    fail "$name: exit $rc: $(head -c 300 err.txt)"
+  else
+    pass "$name"
+  fi
+}
+
+# --- real outputs to craft from --------------------------------------------
+run_ok "lattice (2-D particles, micro_slow)" "$mrvi" run "$sys/lattice.yaml" \
+  -o lat.h5 --set integrator.t_end=0.1 --set output.micro_slow=true \
+  --set output.xdmf=false -q
+run_ok "cart pendulum (multipliers)" "$mrvi" run "$sys/cart_pendulum.yaml" \
+  -o cart.h5 --set integrator.t_end=0.2 --set output.xdmf=false -q
+run_ok "fpu (no particles)" "$mrvi" run "$sys/fpu.yaml" -o fpu.h5 \
+  --set integrator.t_end=1 -q
+run_ok "rigid pendulum (bodies)" "$mrvi" run "$sys/rigid_pendulum.yaml" \
+  -o body.h5 --set integrator.t_end=0.2 --set output.xdmf=false -q
+for kind in export:lat.h5 resume:cart.h5 from:fpu.h5 controls:- \
+  bodies:body.h5; do
+  "$py" "$craft" "${kind%%:*}" "${kind#*:}" "${kind%%:*}" >/dev/null ||
+    fail "crafting the ${kind%%:*} cases"
+done
+
+# --- mrvi export -----------------------------------------------------------
+accepts "export the uncrafted file (xyz --micro)" "$mrvi" export lat.h5 \
+  --format xyz --micro --species name -o lat.xyz
+accepts "export the uncrafted file (xdmf)" "$mrvi" export lat.h5 \
+  --format xdmf -o lat.xdmf
+xyz=(--format xyz --micro --species name -o x.xyz)
+while read -r case pattern formats; do
+  for fmt in $formats; do
+    args=("${xyz[@]}")
+    [ "$fmt" = xdmf ] && args=(--format xdmf -o x.xdmf)
+    refuses "export $fmt: $case" "$pattern" "$mrvi" export "export/$case.h5" \
+      "${args[@]}"
+  done
+done <<'EOF'
+names_longer /model/particle_name xyz xdmf
+names_huge /model/particle_name xyz
+names_matrix /model/particle_name xyz
+qfast_wider /micro/q_fast xyz
+qslow_narrower /micro/q_slow xyz
+dimension_array /model/dimension xyz xdmf
+column_huge /model/particle_column xyz xdmf
+coordinates_huge /macro/q xyz xdmf
+rate_rank32 /model/rate xyz xdmf
+EOF
+# stop_reason is only read for the closing note: exported, the note left out.
+accepts "export: stop_reason an array of 64" "$mrvi" export \
+  export/stop_reason_array.h5 "${xyz[@]}"
+
+# --- mrvi run --resume -----------------------------------------------------
+accepts "resume the uncrafted file (stopped at node 5)" "$mrvi" run \
+  --resume resume/ok.h5 -q
+while read -r case pattern; do
+  refuses "resume: $case" "$pattern" "$mrvi" run --resume "resume/$case.h5" -q
+done <<'EOF'
+lambda_rank3 /macro/lambda
+lambda_rank32 /macro/lambda
+lambda_wider /macro/lambda
+lambda_huge /macro/lambda
+residual_rank32 /solver/residual
+q_rank32 /macro/q
+steps_array steps_completed
+steps_nan steps_completed
+every_huge output_every
+description_array /model/description
+stop_reason_array stop_reason
+EOF
+
+# The writer reopens every dataset to append, /bodies of ranks 3 and 4 too.
+accepts "resume the uncrafted body file (stopped at node 5)" "$mrvi" run \
+  --resume bodies/ok.h5 -q
+while read -r case pattern; do
+  refuses "resume: $case" "$pattern" "$mrvi" run --resume "bodies/$case.h5" -q
+done <<'EOF'
+rotation_rank5 /bodies/rotation
+rotation_wider /bodies/rotation
+position_huge /bodies/position
+EOF
+
+# --- mrvi run --from -------------------------------------------------------
+accepts "--from the uncrafted file" "$mrvi" run "$sys/fpu.yaml" \
+  --set integrator.t_end=2 --from fpu.h5 -o from.h5 -q
+while read -r case pattern; do
+  refuses "--from: $case" "$pattern" "$mrvi" run "$sys/fpu.yaml" \
+    --set integrator.t_end=2 --from "from/$case.h5" -o from.h5 -q
+done <<'EOF'
+rate_huge /model/rate
+q_rank3 /macro/q
+t_rank32 /macro/t
+q_wider /macro/q
+EOF
+# The refusal of a declared 2e8-entry /model/rate reads none of it.
+if [ -x /usr/bin/time ] && ! grep -q asan <<<"$(ldd "$mrvi" 2>/dev/null)"; then
+  /usr/bin/time -f %M -o rss.txt "$mrvi" run "$sys/fpu.yaml" \
+    --from from/rate_huge.h5 -o from.h5 -q >/dev/null 2>&1
+  kb=$(tail -1 rss.txt)
+  [ "$kb" -lt 100000 ] && pass "--from a 2e8-entry /model/rate: $kb kB" ||
+    fail "--from a 2e8-entry /model/rate used $kb kB"
+fi
+
+# --- mrvi run --controls ---------------------------------------------------
+ocp=$sys/ocp_double_integrator.yaml
+# Replayed (exit 2: these controls miss the terminal conditions).
+timeout 60 "$mrvi" run "$ocp" --controls controls/ok.h5 -o replay.h5 \
+  >out.txt 2>err.txt
+rc=$?
+if clean "--controls: a 10 x 1 /control/u" $rc; then
+  { [ $rc = 0 ] || [ $rc = 2 ]; } && grep -q "replayed the controls" out.txt &&
+    pass "--controls: a 10 x 1 /control/u replayed" ||
+    fail "--controls: a 10 x 1 /control/u: exit $rc: $(head -c 300 err.txt)"
+fi
+while read -r case pattern; do
+  refuses "--controls: $case" "$pattern" "$mrvi" run "$ocp" \
+    --controls "controls/$case.h5" -o replay.h5 -q
+done <<'EOF'
+u_wrapping /control/u
+u_rows_huge /control/u
+u_rank3 /control/u
+u_strings /control/u
+u_missing /control/u
+not_hdf5 not_hdf5.h5
+EOF
+
+# --- flipped bytes ---------------------------------------------------------
+# Each mutated file: export xyz --micro and xdmf (lattice), resume (cart).
+# A refusal is fine; a sanitizer report in mrvi's code or a death by a
+# signal is not.  They run by default in the ASan build only, where a report
+# tells whose code it was (a plain build sees only the signal).  Found in
+# libhdf5 itself and counted, shown, not failed (issue 26):
+#   - sanitizer reports with no frame in mrvi's sources: Debian 12's HDF5
+#     1.10.8 overruns its global heap in H5HG_read (vlen strings, e.g.
+#     /model/particle_name) on some corrupted files, and leaks a file it
+#     cannot close ("HDF5: infinite loop closing library");
+#   - hangs: on a corrupted superblock HDF5 retries checksum failures for
+#     minutes and mrvi's SIGTERM handler only raises a flag (killed here
+#     after 8 s).
+# MRVI_HOSTILE_KEEP=DIR keeps each file that failed or was counted.
+# hdf5_own: 0 when the sanitizer report in err.txt is libhdf5's own: in
+# every stack it shows (the access, the allocation of the memory, each
+# leak) the first frame outside the sanitizer runtime is in libhdf5.  A
+# buffer mrvi passed to HDF5 too small shows mrvi's allocation; UBSan
+# reports come from mrvi's code only.
+hdf5_own() {
+  awk '/runtime error:/ { ours = 1 }
+    /^ *#[0-9]+ / {
+      if (!stack) { stack = 1; decided = 0 }
+      if (!decided && $0 !~ /libsanitizer|asan_|interceptor/) {
+        decided = 1
+        if ($0 !~ /libhdf5/) ours = 1
+      }
+      next
+    }
+    { stack = 0 }
+    END { exit ours }' err.txt
+}
+hangs=""
+hdf5_own=""
+# flip_check NAME FILE CMD...: run CMD on the mutated FILE and judge it.
+flip_check() {
+  local name=$1 file=$2
+  shift 2
+  timeout -k 2 8 "$@" >/dev/null 2>err.txt
+  local rc=$?
+  local before=$failed
+  if [ $rc -eq 124 ] || [ $rc -eq 137 ]; then
+    hangs="$hangs $name"
+  elif grep -q "$sanitizer" err.txt && hdf5_own; then
+    local what where
+    what=$(grep -m1 -o 'LeakSanitizer\|AddressSanitizer: [a-z-]*' err.txt)
+    where=$(grep -m1 -o ' in H5[A-Za-z_0-9]*' err.txt)
+    hdf5_own="$hdf5_own $name (${what#AddressSanitizer: }$where);"
+  else
+    clean "$name" $rc && return
+  fi
+  if [ -n "${MRVI_HOSTILE_KEEP:-}" ]; then
+    mkdir -p "$MRVI_HOSTILE_KEEP" && cp "$file" "$MRVI_HOSTILE_KEEP/"
+  fi
+  return 0
+}
+[ -z "${3:-}" ] && ! ldd "$mrvi" 2>/dev/null | grep -q libasan && flips=0
+if [ "$flips" -gt 0 ]; then
+  mkdir -p flip/lat flip/cart
+  "$py" "$craft" flip 26 "$flips" lat.h5 flip/lat >/dev/null
+  "$py" "$craft" flip 62 "$flips" resume/ok.h5 flip/cart >/dev/null
+  before=$failed
+  for f in flip/lat/*.h5; do
+    flip_check "$f: export xyz" "$f" "$mrvi" export "$f" "${xyz[@]}"
+    flip_check "$f: export xdmf" "$f" "$mrvi" export "$f" --format xdmf \
+      -o x.xdmf
+  done
+  for f in flip/cart/*.h5; do
+    cp "$f" resumed.h5
+    flip_check "$f: resume" "$f" "$mrvi" run --resume resumed.h5 -q
+  done
+  [ "$failed" -eq "$before" ] &&
+    pass "$((2 * flips)) files with flipped bytes: no signal, no sanitizer report in mrvi's code"
+  [ -n "$hangs" ] && echo "note: HDF5 spun on (killed after 8 s):$hangs"
+  [ -n "$hdf5_own" ] && echo "note: sanitizer reports inside libhdf5:$hdf5_own"
+else
+  echo "note: no flipped files (a build without ASan; give FLIPS to run them)"
+fi
+
+test_finish
