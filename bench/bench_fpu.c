@@ -230,6 +230,7 @@ int main(int argc, char **argv) {
   printf("# mrvi %s  %s  dt = %g  t_end = %g  micro steps = %ld  n = %d  "
          "CPU time, median of %d\n",
          mrvi_version(), file, dt, t_end, n_micro, mrvi_model_n(m), repeats);
+  printf("# build: %s\n", bench_build());
   printf("# Stoermer-Verlet (same forces, step dt): %.3e s  (%.1f ns per "
          "micro step; H_end = %.6f)\n\n",
          t_verlet, 1e9 * t_verlet / (double)n_micro, verlet_energy);

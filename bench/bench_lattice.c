@@ -33,7 +33,7 @@ enum { MAX_OVERRIDES = 16 };
 #include <sys/wait.h>
 #include <unistd.h>
 
-enum { MAX_N = 16, N_SCHEMES = 2 };
+enum { MAX_N = 16, N_SCHEMES = 3 };
 #define MIN_CPU 0.5 /* seconds of stepping per case, at least */
 
 static const char usage[] =
@@ -45,23 +45,23 @@ static const char usage[] =
     "fast rows) with about N coordinates each (default 100,300,...,100000):\n"
     "load time, time per macro step (at least K steps, default 3, and 0.5 s\n"
     "of CPU time; dT = 0.01, P = 10), the solver path with its CG / GMRES\n"
-    "iterations per solve, and peak memory for midpoint-midpoint and\n"
-    "explicit-slow, each case in a child process limited to SECONDS of CPU\n"
-    "time (default 120); larger N\n"
+    "iterations per solve, and peak memory for midpoint-midpoint,\n"
+    "explicit-slow and fully-explicit, each case in a child process\n"
+    "limited to SECONDS of CPU time (default 120); larger N\n"
     "are skipped after a case exceeds it; address space capped at GB\n"
     "(default 6; a case that runs out of memory also ends the scheme).\n"
     "Fitted exponents over N >= 1000.\n"
     "--quick: N = 100,300,1000, K = 2, budget 20 s.  --set applies a\n"
     "description override to every lattice (repeatable).  --scheme runs\n"
-    "only midpoint-midpoint or only explicit-slow.\n";
+    "only one of them.\n";
 
 static int bad_usage_lattice(void) {
   fputs(usage, stderr);
   return 1;
 }
 
-static const char *const schemes[N_SCHEMES] = {"midpoint-midpoint",
-                                               "explicit-slow"};
+static const char *const schemes[N_SCHEMES] = {
+    "midpoint-midpoint", "explicit-slow", "fully-explicit"};
 
 /* Deterministic uniform numbers in [-1, 1). */
 static double uniform(unsigned long long *state) {
@@ -346,7 +346,8 @@ int main(int argc, char **argv) {
       overrides[n_over++] = argv[++i];
     } else if (!strcmp(a, "--scheme") && has_value) {
       only = argv[++i];
-      if (strcmp(only, schemes[0]) && strcmp(only, schemes[1]))
+      if (strcmp(only, schemes[0]) && strcmp(only, schemes[1]) &&
+          strcmp(only, schemes[2]))
         return bad_usage_lattice();
     } else if (!strcmp(a, "--mem") && has_value) {
       if (bench_parse_positive(argv[++i], &mem_gb) < 0)
@@ -376,6 +377,7 @@ int main(int argc, char **argv) {
   printf("# mrvi %s  planar lattices  dT = %g  p = %d  at least %d macro "
          "steps and %g s CPU  CPU budget %g s per case\n\n",
          mrvi_version(), dT, p, steps, MIN_CPU, budget);
+  printf("# build: %s\n\n", bench_build());
   printf("| %-17s | %7s | %9s | %9s | %10s | %11s | %9s | %-12s | %7s | "
          "%7s | %9s |\n",
          "scheme", "n", "springs", "load_s", "create_s", "step_s", "newton/st",

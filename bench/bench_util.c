@@ -146,3 +146,8 @@ double bench_fpu_energy(const double *q, const double *v) {
     e += 0.5 * v[i] * v[i];
   return e;
 }
+
+#ifndef MRVI_BENCH_BUILD
+#define MRVI_BENCH_BUILD "unknown"
+#endif
+const char *bench_build(void) { return MRVI_BENCH_BUILD; }

@@ -8,6 +8,9 @@
 
 /* CPU time of the process in seconds (CLOCK_PROCESS_CPUTIME_ID). */
 double bench_cpu(void);
+/* The compiler, build type and flags of this build (bench/meson.build),
+ * printed with each table. */
+const char *bench_build(void);
 /* Median of x[0..n) (sorts x in place). */
 double bench_median(double *x, int n);
 /* Least-squares slope of log y against log x over the n pairs with

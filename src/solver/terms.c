@@ -3,12 +3,17 @@
  * packed configuration z, so that the step loops evaluate the gradient (and
  * Hessian) without looking up rates and slots per input.  Terms phi(s),
  * s = a^T q - b, are evaluated here (the linear law inline, others through
- * their law table); every other element through mrvi_element_eval.  The
+ * their law table), and so are springs and anchors phi(|d| - L0), d =
+ * x_i - x_j or x_i - a (the Hooke and small power forms inline, others
+ * through their law table: the gradient phi' n on x_i, -phi' n on x_j with
+ * n = d / |d|, the Hessian phi'' n n^T + phi'/|d| (I - n n^T) in blocks
+ * of +-1); every other element through mrvi_element_eval.  The
  * arithmetic is that of mrvi_element_eval and the laws, in the same order,
  * so the results are bitwise the same. */
 #include "solver/solver.h"
 #include "util/small.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -22,7 +27,22 @@ typedef struct kterm {
   const mrvi_element *el;
   int run4, q4; /* KT_LINEAR or KT_POWER with 2..4 inputs: the number of
                    such terms from here, their first record in q4 */
+  int runs, qs; /* a spring or anchor: the number of such elements of one
+                   law code (kspring.k) from here, their first record in qs */
 } kterm;
+
+/* Springs and anchors compact and contiguous (kspring runs): the columns of
+ * x_i and x_j (x_j's unused for an anchor, whose point is a) and the law:
+ * k = KS_HOOKE (phi' = c s), 0..8 (c s^k, mrvi_power_derivs_ce from ce and
+ * ce1) or KS_LAW (the law table of el). */
+enum { KS_HOOKE = -1, KS_LAW = -3 };
+typedef struct kspring {
+  int two, k;
+  int ci[3], cj[3];
+  double a[3];
+  double c, shift, ce, ce1;
+  const mrvi_element *el;
+} kspring;
 
 /* The few-input terms compact and contiguous (kterm4 runs). */
 typedef struct kterm4 {
@@ -41,6 +61,9 @@ struct mrvi_terms {
   double *coef;
   double *y, *g, *H; /* element workspace */
   kterm4 *q4;
+  kspring *qs;
+  int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
+              dim) */
   /* Every term a compact record (q4[0..n)): gradients by one loop over
    * them (flat_grad), with the law flat_k (K_ANY: each record's). */
   int flat, flat_k;
@@ -58,7 +81,60 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->g);
   free(kc->H);
   free(kc->q4);
+  free(kc->qs);
   free(kc);
+}
+
+static int spring_law(const mrvi_element *e) {
+  if (e->form == MRVI_LAW_FORM_HOOKE)
+    return KS_HOOKE;
+  const double x = e->params[1];
+  if (e->form == MRVI_LAW_FORM_POWER && x >= 0.0 && x <= 8.0 &&
+      (double)(int)x == x)
+    return (int)x;
+  return KS_LAW;
+}
+
+/* The springs and anchors of kc as compact records, in runs of one kind
+ * (spring or anchor) and one law code. */
+static int terms_springs(mrvi_terms *kc) {
+  const int dim = kc->dim = kc->m->dimension;
+  int ns = 0;
+  for (int ie = kc->n - 1; ie >= 0; ie--) {
+    kterm *t = &kc->t[ie];
+    const mrvi_element *e = t->el;
+    const int two = e->kind == MRVI_ELEMENT_SPRING;
+    if (!(two || e->kind == MRVI_ELEMENT_ANCHOR) || dim < 1 || dim > 3 ||
+        e->n_in != (two ? 2 : 1) * dim)
+      continue;
+    const kterm *u = ie + 1 < kc->n ? &kc->t[ie + 1] : NULL;
+    const int same = u && u->runs > 0 && u->el->kind == e->kind &&
+                     spring_law(u->el) == spring_law(e);
+    t->runs = 1 + (same ? u->runs : 0);
+    ns++;
+  }
+  if (!(kc->qs = calloc((size_t)(ns > 0 ? ns : 1), sizeof *kc->qs)))
+    return MRVI_ENOMEM;
+  for (int ie = 0, is = 0; ie < kc->n; ie++) {
+    kterm *t = &kc->t[ie];
+    if (t->runs == 0)
+      continue;
+    const mrvi_element *e = t->el;
+    kspring *q = &kc->qs[t->qs = is++];
+    q->two = e->kind == MRVI_ELEMENT_SPRING;
+    q->k = spring_law(e);
+    q->el = e;
+    q->c = e->params[0];
+    q->shift = e->shift;
+    q->ce = e->params[0] * e->params[1];
+    q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
+    for (int k = 0; k < dim; k++) {
+      q->ci[k] = kc->col[t->first + k];
+      q->cj[k] = q->two ? kc->col[t->first + dim + k] : 0;
+      q->a[k] = e->anchor[k];
+    }
+  }
+  return MRVI_OK;
 }
 
 int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
@@ -151,6 +227,10 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
       q->col[j] = kc->col[t->first + j];
       q->a[j] = kc->coef[t->first + j];
     }
+  }
+  if (terms_springs(kc) < 0) {
+    mrvi_terms_free(kc);
+    return MRVI_ENOMEM;
   }
   kc->flat = n_elems > 0 && n4 == n_elems;
   kc->flat_k = n_elems > 0 ? kc->q4[0].k : 0;
@@ -288,6 +368,101 @@ ALWAYS_INLINE void run1_eval(const kterm *t, int nr, const int *col,
   }
 }
 
+/* One spring (two) or anchor of dimension dim and law code k (K_ANY: the
+ * record's): mrvi_element_eval's distance arithmetic in its order, the
+ * gradient added to g and the Hessian to J as eval_k adds an element's
+ * (bitwise the same). */
+ALWAYS_INLINE void spring_eval(const kspring *q, const double *z, double scale,
+                               double *g, double *J, int ld, double hscale,
+                               const int dim, const int two, const int kk,
+                               const int unit) {
+  double d[3], r2 = 0.0;
+  UNROLL for (int k = 0; k < dim; k++) {
+    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->a[k]);
+    r2 += d[k] * d[k];
+  }
+  const double r = sqrt(r2), s = r - q->shift;
+  const int k = kk == K_ANY ? q->k : kk;
+  double phi, d1, d2;
+  if (k == KS_HOOKE) {
+    d1 = q->c * s;
+    d2 = q->c;
+  } else if (k >= 0) {
+    mrvi_power_derivs_ce(q->ce, q->ce1, k, s, &d1, &d2);
+  } else {
+    q->el->law->eval(q->el->params, s, &phi, &d1, &d2);
+  }
+  double u[3] = {0, 0, 0}, a = 0.0, b; /* Hessian blocks a u u^T + b I */
+  if (r > 0.0) {
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / r;
+    a = d2 - d1 / r;
+    b = d1 / r;
+  } else {
+    b = d2; /* (the limit at r = 0, as model.c) */
+  }
+  UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] +=
+      unit ? d1 * u[k] : scale * (d1 * u[k]);
+  if (two)
+    UNROLL for (int k = 0; k < dim; k++) g[q->cj[k]] +=
+        unit ? -d1 * u[k] : scale * (-d1 * u[k]);
+  if (!J)
+    return;
+  UNROLL for (int i = 0; i < dim; i++) {
+    double *Ji = J + (size_t)q->ci[i] * (size_t)ld;
+    double *Jj = two ? J + (size_t)q->cj[i] * (size_t)ld : NULL;
+    UNROLL for (int j = 0; j < dim; j++) {
+      const double A = a * u[i] * u[j] + (i == j ? b : 0.0);
+      Ji[q->ci[j]] += unit ? A : hscale * A;
+      if (two) {
+        Ji[q->cj[j]] += unit ? -A : hscale * -A;
+        Jj[q->ci[j]] += unit ? -A : hscale * -A;
+        Jj[q->cj[j]] += unit ? A : hscale * A;
+      }
+    }
+  }
+}
+
+ALWAYS_INLINE void springs_k(const kspring *q, int nr, const double *z,
+                             double scale, double *g, double *J, int ld,
+                             double hscale, const int dim, const int two,
+                             const int unit) {
+  switch (q->k) {
+  case KS_HOOKE:
+    for (int r = 0; r < nr; r++)
+      spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, KS_HOOKE, unit);
+    break;
+  case KS_LAW:
+    for (int r = 0; r < nr; r++)
+      spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, KS_LAW, unit);
+    break;
+  default:
+    for (int r = 0; r < nr; r++)
+      spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, K_ANY, unit);
+  }
+}
+
+/* A run of nr springs or anchors of one law code (a loop per dimension,
+ * kind and law code). */
+static __attribute__((noinline)) void
+springs_eval(const kspring *q, int nr, const double *z, double scale,
+             double *g, double *J, int ld, double hscale, int dim) {
+  const int unit = scale == 1.0 && (!J || hscale == 1.0);
+#define SPRINGS(D, T)                                                            do {                                                                             if (unit)                                                                        springs_k(q, nr, z, scale, g, J, ld, hscale, D, T, 1);                       else                                                                             springs_k(q, nr, z, scale, g, J, ld, hscale, D, T, 0);                     } while (0)
+  if (dim == 2 && q->two)
+    SPRINGS(2, 1);
+  else if (dim == 2)
+    SPRINGS(2, 0);
+  else if (dim == 3 && q->two)
+    SPRINGS(3, 1);
+  else if (dim == 3)
+    SPRINGS(3, 0);
+  else if (q->two)
+    SPRINGS(1, 1);
+  else
+    SPRINGS(1, 0);
+#undef SPRINGS
+}
+
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
                           double *g, double *J, int ld, double hscale,
                           const int unit) {
@@ -296,6 +471,12 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
     if (t->run4 > 0) {
       run4_eval(kc->q4 + t->q4, t->run4, z, scale, g, J, ld, hscale, unit);
       it += t->run4 - 1;
+      continue;
+    }
+    if (t->runs > 0) {
+      springs_eval(kc->qs + t->qs, t->runs, z, scale, g, J, ld, hscale,
+                   kc->dim);
+      it += t->runs - 1;
       continue;
     }
     const int n = t->n, *col = kc->col + t->first;

@@ -1,0 +1,197 @@
+/* The compiled element kernels of solver/terms.c against the generic
+ * evaluation (mrvi_element_eval): springs and anchors of every registered
+ * law (the Hooke and small power forms inline, the others through the law
+ * table), in dimensions 1, 2 and 3, on random configurations: the gradient
+ * (mrvi_terms_grad and mrvi_terms_eval, scaled and unscaled) and the
+ * Hessian, and so Hessian-vector products, to 1e-13 relative; the value
+ * (mrvi_terms_value) likewise.  The kernels do mrvi_element_eval's
+ * arithmetic in its order, so the check is also made bitwise. */
+#include "solver/solver.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+enum { N_PART = 7 };
+
+/* Parameters of each registered law for a spring of rest length ~1 (the
+ * power law with an integer exponent, inline, and one beyond 8, through
+ * its table). */
+typedef struct law_case {
+  const char *law;
+  double params[MRVI_LAW_MAX_PARAMS];
+} law_case;
+
+static const law_case cases[] = {
+    {"linear", {2.5}},           {"power", {1.25, 4}},
+    {"power", {-0.3, 3}},        {"power", {0.7, 2}},
+    {"power", {0.05, 10}},       {"morse", {0.8, 1.3}},
+    {"lennard-jones", {0.6, 0.9, 3.0}}, {"inverse", {0.4}},
+};
+
+static double uniform(unsigned long long *state) {
+  *state = *state * 6364136223846793005ULL + 1442695040888963407ULL;
+  return (double)(*state >> 11) / 4503599627370496.0 - 1.0;
+}
+
+/* A model of N_PART particles in dimension d joined by springs of law lc
+ * (a chain and a few chords) and anchored by anchors of the same law, all
+ * slow; NULL if the law is not registered. */
+static mrvi_model *spring_model(int d, const law_case *lc,
+                                unsigned long long *rng) {
+  mrvi_model *m = mrvi_model_create();
+  if (!m || mrvi_model_set_dimension(m, d) < 0) {
+    mrvi_model_free(m);
+    return NULL;
+  }
+  for (int i = 0; i < N_PART; i++) {
+    double x[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+    x[0] = 1.1 * i;
+    char name[16];
+    snprintf(name, sizeof name, "p%d", i);
+    CHECK(mrvi_model_add_particle(m, name, 1.0, MRVI_SLOW, x, v) >= 0,
+          "add particle: %s", mrvi_model_errmsg(m));
+  }
+  int ok = 1;
+  for (int i = 0; i + 1 < N_PART; i++)
+    ok = ok && mrvi_model_add_spring(m, MRVI_SLOW, i, i + 1, lc->law,
+                                     lc->params, 1.0 + 0.1 * uniform(rng)) >= 0;
+  for (int i = 0; i + 3 < N_PART; i += 2) /* chords */
+    ok = ok && mrvi_model_add_spring(m, MRVI_SLOW, i + 3, i, lc->law,
+                                     lc->params, 2.9) >= 0;
+  for (int i = 0; i < N_PART; i += 3) { /* anchors, then a spring again */
+    const double a[3] = {1.1 * i + 0.3, 0.5, -0.2};
+    ok = ok && mrvi_model_add_anchor_spring(m, MRVI_SLOW, i, a, lc->law,
+                                            lc->params, 0.6) >= 0;
+  }
+  ok = ok && mrvi_model_add_spring(m, MRVI_SLOW, 1, N_PART - 1, lc->law,
+                                   lc->params, 5.0) >= 0;
+  CHECK(ok, "%s: springs: %s", lc->law, mrvi_model_errmsg(m));
+  return m;
+}
+
+/* Relative difference of x and y (n entries) in the max norm. */
+static double rel_diff(const double *x, const double *y, size_t n) {
+  double e = 0.0, s = 0.0;
+  for (size_t i = 0; i < n; i++) {
+    e = fmax(e, fabs(x[i] - y[i]));
+    s = fmax(s, fabs(y[i]));
+  }
+  return s > 0.0 ? e / s : e;
+}
+
+static void check_case(int d, const law_case *lc, unsigned long long *rng) {
+  mrvi_model *m = spring_model(d, lc, rng);
+  if (!m)
+    return;
+  const int n = m->n, ne = m->n_elements;
+  const size_t nn = (size_t)n * (size_t)n;
+  int *elems = calloc((size_t)ne, sizeof *elems);
+  double *q = calloc((size_t)n, sizeof *q), *g = calloc((size_t)n, sizeof *g);
+  double *gr = calloc((size_t)n, sizeof *gr), *gs = calloc((size_t)n, sizeof *gs);
+  double *gs_ref = calloc((size_t)n, sizeof *gs_ref);
+  double *H = calloc(nn, sizeof *H), *Hr = calloc(nn, sizeof *Hr);
+  double *Hs = calloc(nn, sizeof *Hs), *Hs_ref = calloc(nn, sizeof *Hs_ref);
+  double *v = calloc((size_t)n, sizeof *v), *Hv = calloc((size_t)n, sizeof *Hv);
+  double *Hv_ref = calloc((size_t)n, sizeof *Hv_ref);
+  for (int e = 0; e < ne; e++)
+    elems[e] = e;
+  mrvi_terms *kc = NULL;
+  CHECK(mrvi_terms_create(m, elems, ne, NULL, &kc) == MRVI_OK,
+        "d %d %s: create", d, lc->law);
+  for (int r = 0; kc && r < 6; r++) {
+    for (int i = 0; i < n; i++) {
+      q[i] = m->q0[i] + 0.3 * uniform(rng);
+      v[i] = uniform(rng);
+      g[i] = gr[i] = gs[i] = gs_ref[i] = Hv[i] = Hv_ref[i] = 0.0;
+    }
+    memset(H, 0, nn * sizeof *H);
+    memset(Hs, 0, nn * sizeof *Hs);
+    memset(Hs_ref, 0, nn * sizeof *Hs_ref);
+    memset(Hr, 0, nn * sizeof *Hr);
+    /* The reference: the generic element evaluation, scattered. */
+    const double val_ref = mrvi_model_potential(m, MRVI_SLOW, q, gr, Hr);
+    const double scale = 0.37, hscale = -1.9;
+    for (int e = 0; e < ne; e++) {
+      const mrvi_element *el = &m->elements[e];
+      double y[6], ge[6], He[36];
+      for (int j = 0; j < el->n_in; j++)
+        y[j] = q[el->in[j]];
+      mrvi_element_eval(m, el, y, ge, He);
+      for (int j = 0; j < el->n_in; j++) {
+        gs_ref[el->in[j]] += scale * ge[j];
+        for (int l = 0; l < el->n_in; l++)
+          Hs_ref[(size_t)el->in[j] * (size_t)n + (size_t)el->in[l]] +=
+              hscale * He[j * el->n_in + l];
+      }
+    }
+    mrvi_terms_grad(kc, q, g);
+    mrvi_terms_eval(kc, q, 1.0, gs, H, n, 1.0);
+    double e_g = rel_diff(g, gr, (size_t)n), e_H = rel_diff(H, Hr, nn);
+    CHECK(e_g <= 1e-13, "d %d %s (%g): gradient %.2e relative", d, lc->law,
+          lc->params[1], e_g);
+    CHECK(e_H <= 1e-13, "d %d %s (%g): Hessian %.2e relative", d, lc->law,
+          lc->params[1], e_H);
+    CHECK(memcmp(g, gr, (size_t)n * sizeof *g) == 0 &&
+              memcmp(gs, gr, (size_t)n * sizeof *g) == 0 &&
+              memcmp(H, Hr, nn * sizeof *H) == 0,
+          "d %d %s (%g): bitwise the generic gradient and Hessian", d,
+          lc->law, lc->params[1]);
+    /* Hessian-vector products. */
+    for (int i = 0; i < n; i++)
+      for (int j = 0; j < n; j++) {
+        Hv[i] += H[(size_t)i * (size_t)n + (size_t)j] * v[j];
+        Hv_ref[i] += Hr[(size_t)i * (size_t)n + (size_t)j] * v[j];
+      }
+    const double e_Hv = rel_diff(Hv, Hv_ref, (size_t)n);
+    CHECK(e_Hv <= 1e-13, "d %d %s (%g): Hessian-vector %.2e relative", d,
+          lc->law, lc->params[1], e_Hv);
+    /* Scaled gradient and Hessian (the implicit paths' weights). */
+    memset(gs, 0, (size_t)n * sizeof *gs);
+    mrvi_terms_eval(kc, q, scale, gs, Hs, n, hscale);
+    const double e_gs = rel_diff(gs, gs_ref, (size_t)n),
+                 e_Hs = rel_diff(Hs, Hs_ref, nn);
+    CHECK(e_gs <= 1e-13 && e_Hs <= 1e-13,
+          "d %d %s (%g): scaled gradient %.2e, Hessian %.2e relative", d,
+          lc->law, lc->params[1], e_gs, e_Hs);
+    const double val = mrvi_terms_value(kc, q);
+    CHECK(fabs(val - val_ref) <= 1e-13 * fabs(val_ref),
+          "d %d %s: value %.17g vs %.17g", d, lc->law, val, val_ref);
+  }
+  mrvi_terms_free(kc);
+  free(elems);
+  free(q);
+  free(g);
+  free(gr);
+  free(gs);
+  free(gs_ref);
+  free(H);
+  free(Hr);
+  free(Hs);
+  free(Hs_ref);
+  free(v);
+  free(Hv);
+  free(Hv_ref);
+  mrvi_model_free(m);
+}
+
+/* Every registered law has a case (a new law must be added above). */
+static void check_coverage(void) {
+  for (int i = 0; i < mrvi_law_count(); i++) {
+    const char *name = mrvi_law_get(i)->name;
+    int found = 0;
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++)
+      found = found || strcmp(cases[c].law, name) == 0;
+    CHECK(found, "law %s has a kernel case", name);
+  }
+}
+
+int main(void) {
+  unsigned long long rng = 12345;
+  check_coverage();
+  for (int d = 1; d <= 3; d++)
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++)
+      check_case(d, &cases[c], &rng);
+  return test_finish();
+}
