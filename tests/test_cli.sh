@@ -292,6 +292,14 @@ run_mrvi run "$fpu" --set integrator.t_end=3 -o "$x" --quiet
 expect_rc 0 "run --quiet"
 check "run creates the output file" [ -s "$x" ]
 check "--quiet prints nothing on stdout (got '$out')" [ -z "$out" ]
+# The output follows the umask, like the .xdmf beside it (not mkstemp's 0600).
+for mask in 022 077; do
+  (umask $mask && "$mrvi" run "$fpu" --set integrator.t_end=0.6 -o "$tmp/m$mask.h5" -q)
+  m=$(stat -c %a "$tmp/m$mask.h5" 2>/dev/null)
+  want=$(printf '%o' $((0666 & ~0$mask)))
+  check "umask $mask: output mode $want (got '$m')" \
+    [ "$m" = "$want" ]
+done
 check "--quiet prints nothing on stderr (got '$err')" [ -z "$err" ]
 if [ "$h5tool" = none ]; then
   printf 'note: neither h5dump nor h5py found; HDF5 contents not inspected\n' >&2
