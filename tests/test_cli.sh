@@ -163,6 +163,9 @@ check "unknown option writes no output" no_h5_files
 run_mrvi run
 expect_rc 1 "run without FILE"
 contains "$err" 'missing FILE' "run without FILE says so"
+check "run without FILE: the usage lines, not the whole help ($(printf '%s\n' "$err" | wc -l) lines)" \
+  [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
+contains "$err" 'mrvi help run' "run without FILE points at 'mrvi help run'"
 
 run_mrvi run "$fpu" --set integrator.micro_steps
 expect_rc 1 "--set without '='"
