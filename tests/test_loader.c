@@ -1520,6 +1520,31 @@ static void test_generated_gravity(void) {
   mrvi_system_free(l0);
 }
 
+/* mrvi check writes a term as one would: no "1*", "+ -" or "- 0". */
+static void test_term_description(void) {
+  mrvi_system *sys = load_text(
+      "name: t\n"
+      "coordinates:\n  - {name: a, mass: 1, position: 0}\n"
+      "  - {name: b, mass: 1, position: 0}\n"
+      "terms:\n"
+      "  - {combination: {a: 1, b: -1}, law: linear, stiffness: 1}\n"
+      "  - {combination: {a: -2, b: 0.5}, offset: -1, law: linear, "
+      "stiffness: 1}\n"
+      "  - {combination: {b: 1}, offset: 3, law: linear, stiffness: 1}\n"
+      "integrator: {macro_step: 0.1, t_end: 1}\n",
+      NULL, 0);
+  static const char *const want[] = {"slow term on a - b, ",
+                                     "slow term on -2*a + 0.5*b + 1, ",
+                                     "slow term on b - 3, "};
+  for (int e = 0; sys && e < 3; e++) {
+    char buf[256];
+    mrvi_model_describe_element(sys->model, e, buf, sizeof buf);
+    CHECK(strncmp(buf, want[e], strlen(want[e])) == 0,
+          "term %d described as '%s', want '%s...'", e, buf, want[e]);
+  }
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_bad_files(&files);
@@ -1548,6 +1573,7 @@ int main(void) {
   test_generators();
   test_generated_equals_hand();
   test_generated_gravity();
+  test_term_description();
   test_angles_forces_rest();
   test_cli_bad_files(files, n);
   for (int i = 0; i < n; i++)
