@@ -144,7 +144,9 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
                         const char *law, const double *params);
 
 /* Uniform gravity: slow potential -sum_i m_i g^T x_i over all particles
- * (dimension entries).  Call after adding the particles. */
+ * (dimension entries).  Call after adding the particles.  Returns the
+ * element's index (>= 0), like the mrvi_model_add_* functions, or a
+ * negative status. */
 int mrvi_model_set_gravity(mrvi_model *m, const double *g);
 
 /* Bending term on the angle theta at particle j between particles i and k

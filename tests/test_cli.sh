@@ -163,6 +163,9 @@ check "unknown option writes no output" no_h5_files
 run_mrvi run
 expect_rc 1 "run without FILE"
 contains "$err" 'missing FILE' "run without FILE says so"
+check "run without FILE: the usage lines, not the whole help ($(printf '%s\n' "$err" | wc -l) lines)" \
+  [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
+contains "$err" 'mrvi help run' "run without FILE points at 'mrvi help run'"
 
 run_mrvi run "$fpu" --set integrator.micro_steps
 expect_rc 1 "--set without '='"
@@ -292,6 +295,14 @@ run_mrvi run "$fpu" --set integrator.t_end=3 -o "$x" --quiet
 expect_rc 0 "run --quiet"
 check "run creates the output file" [ -s "$x" ]
 check "--quiet prints nothing on stdout (got '$out')" [ -z "$out" ]
+# The output follows the umask, like the .xdmf beside it (not mkstemp's 0600).
+for mask in 022 077; do
+  (umask $mask && "$mrvi" run "$fpu" --set integrator.t_end=0.6 -o "$tmp/m$mask.h5" -q)
+  m=$(stat -c %a "$tmp/m$mask.h5" 2>/dev/null)
+  want=$(printf '%o' $((0666 & ~0$mask)))
+  check "umask $mask: output mode $want (got '$m')" \
+    [ "$m" = "$want" ]
+done
 check "--quiet prints nothing on stderr (got '$err')" [ -z "$err" ]
 if [ "$h5tool" = none ]; then
   printf 'note: neither h5dump nor h5py found; HDF5 contents not inspected\n' >&2

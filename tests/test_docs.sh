@@ -10,7 +10,11 @@
 #   - doc/*.md cite the paper by equation number, not by LaTeX label
 #     (doc/theory.md's translation table excepted);
 #   - no file of the repository refers to design notes or directories
-#     outside it (the repository must stand alone).
+#     outside it (the repository must stand alone);
+#   - every command and program whose output README.md and doc/*.md show is
+#     re-run and its output compared, numbers within the tolerances stated
+#     in tests/doc_outputs.py (timings excepted); the checker is first shown
+#     to fail on a changed energy error and to ignore a changed wall time.
 #
 #   test_docs.sh MRVI_BINARY SOURCE_ROOT
 #
@@ -133,6 +137,34 @@ elif [ "$npaths" -lt 20 ]; then
   fail "only $npaths source paths found in the docs (the pattern broke?)"
 else
   pass "all $npaths source paths named in README.md and doc/*.md exist"
+fi
+
+# --- shown outputs equal what the tool prints (tests/doc_outputs.py) ---
+py=/usr/bin/python3
+[ -x "$py" ] || py=python3
+sed 's/max rel\. energy error  2\.707e-04/max rel. energy error  2.859e-04/' \
+  "$root/doc/tutorial.md" >"$tmp/drift.md"
+sed 's/wall time              0\.[0-9]* s/wall time              9.999 s/' \
+  "$root/doc/tutorial.md" >"$tmp/timing.md"
+if cmp -s "$root/doc/tutorial.md" "$tmp/drift.md"; then
+  fail "doc/tutorial.md no longer shows the energy error 2.707e-04 the checker's self-test changes"
+elif "$py" "$root/tests/doc_outputs.py" "$mrvi" "$root" "$tmp/drift.md" >"$tmp/drift.txt" 2>&1; then
+  fail "doc_outputs.py missed a drifted energy error"
+else
+  pass "doc_outputs.py catches a drifted energy error"
+fi
+if cmp -s "$root/doc/tutorial.md" "$tmp/timing.md"; then
+  fail "the checker's self-test found no wall time in doc/tutorial.md"
+elif "$py" "$root/tests/doc_outputs.py" "$mrvi" "$root" "$tmp/timing.md" >"$tmp/timing.txt" 2>&1; then
+  pass "doc_outputs.py ignores timings"
+else
+  fail "doc_outputs.py compared a timing: $(grep FAIL "$tmp/timing.txt")"
+fi
+if "$py" "$root/tests/doc_outputs.py" "$mrvi" "$root" >"$tmp/outputs.txt" 2>&1; then
+  pass "$(tail -1 "$tmp/outputs.txt")"
+else
+  fail "outputs shown in the docs differ from the tool's:"
+  grep -A2 '^FAIL' "$tmp/outputs.txt" | sed 's/^/     /'
 fi
 
 test_finish

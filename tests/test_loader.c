@@ -1438,6 +1438,113 @@ static void test_angles_forces_rest(void) {
   mrvi_system_free(sys);
 }
 
+/* Gravity acts on generated particles (doc/description-files.md,
+ * generate): a generated lattice with gravity equals the same particles
+ * written out by hand, its slow potential gains -sum_i m_i g.x_i over every
+ * generated particle, and it runs.  Also through --set on
+ * systems/lattice.yaml, which once failed with an empty message. */
+static void test_generated_gravity(void) {
+  static const char gen[] =
+      "name: g\ndimension: 2\ngravity: [0.5, -9.81]\n"
+      "generate:\n"
+      "  - kind: lattice2d\n    name: p\n    count: [2, 2]\n    spacing: 1.5\n"
+      "    mass: 2\n    rates: {every: 2}\n"
+      "    slow_spring: {law: linear, stiffness: 10}\n"
+      "    fast_spring: {law: linear, stiffness: 100}\n"
+      "integrator: {macro_step: 0.01, micro_steps: 2, t_end: 0.2}\n";
+  static const char hand[] =
+      "name: g\ndimension: 2\ngravity: [0.5, -9.81]\n"
+      "particles:\n"
+      "  - {name: p0_0, mass: 2, position: [0, 0], rate: slow}\n"
+      "  - {name: p1_0, mass: 2, position: [1.5, 0], rate: fast}\n"
+      "  - {name: p0_1, mass: 2, position: [0, 1.5], rate: slow}\n"
+      "  - {name: p1_1, mass: 2, position: [1.5, 1.5], rate: fast}\n"
+      "springs:\n"
+      "  - {between: [p0_0, p1_0], law: linear, stiffness: 10, "
+      "rest_length: 1.5}\n"
+      "  - {between: [p0_0, p0_1], law: linear, stiffness: 10, "
+      "rest_length: 1.5}\n"
+      "  - {between: [p1_0, p1_1], law: linear, stiffness: 100, "
+      "rest_length: 1.5, potential: fast}\n"
+      "  - {between: [p0_1, p1_1], law: linear, stiffness: 10, "
+      "rest_length: 1.5}\n"
+      "integrator: {macro_step: 0.01, micro_steps: 2, t_end: 0.2}\n";
+  mrvi_system *a = load_text(gen, NULL, 0), *b = load_text(hand, NULL, 0);
+  CHECK(a && b, "gravity with generate loads");
+  if (a && b) {
+    const mrvi_model *m = a->model;
+    int n = mrvi_model_n(m);
+    const double *q = mrvi_model_q0(m);
+    /* Springs at rest length: V(q0) is the gravity potential alone. */
+    double want = 0, g[2] = {0.5, -9.81};
+    for (int i = 0; i < n; i++)
+      want -= mrvi_model_mass(m, i) * g[i % 2] * q[i];
+    double v = mrvi_model_potential(m, MRVI_SLOW, q, NULL, NULL);
+    CHECK(n == 8 && fabs(v - want) <= 1e-12 * fabs(want) && want != 0,
+          "V(q0) = %.17g, -sum m g.x = %.17g", v, want);
+    /* Same elements; gravity comes after the generated springs (the hand
+     * file puts it before them), so V sums in another order: the runs agree
+     * to roundoff, not bitwise. */
+    CHECK(mrvi_model_n_elements(m) == 5 &&
+              mrvi_model_n_elements(b->model) == 5,
+          "4 springs and gravity");
+    mrvi_summary sa, sb;
+    int ra = mrvi_run(m, &a->settings, NULL, NULL, NULL, &sa);
+    int rb = mrvi_run(b->model, &b->settings, NULL, NULL, NULL, &sb);
+    CHECK(ra == MRVI_OK && rb == MRVI_OK && sa.steps == 20 &&
+              fabs(sa.energy_last - sb.energy_last) <=
+                  1e-12 * fabs(sb.energy_last) &&
+              fabs(sa.max_rel_energy_error - sb.max_rel_energy_error) <= 1e-9,
+          "runs: %d %d, %ld steps, H %.17g vs %.17g", ra, rb, sa.steps,
+          sa.energy_last, sb.energy_last);
+  }
+  mrvi_system_free(a);
+  mrvi_system_free(b);
+  const char *ov[] = {"gravity=[0,-9.81]"};
+  mrvi_system *l = load("systems/lattice.yaml", ov, 1);
+  mrvi_system *l0 = load("systems/lattice.yaml", NULL, 0);
+  if (l && l0) {
+    const mrvi_model *m = l->model;
+    const double *q = mrvi_model_q0(m);
+    double want = 0; /* -sum m g.x = sum m 9.81 y over the 30 particles */
+    for (int i = 1; i < mrvi_model_n(m); i += 2)
+      want += mrvi_model_mass(m, i) * 9.81 * q[i];
+    double v = mrvi_model_potential(m, MRVI_SLOW, q, NULL, NULL) -
+               mrvi_model_potential(l0->model, MRVI_SLOW, q, NULL, NULL);
+    CHECK(mrvi_model_n(m) == 60 && fabs(v - want) <= 1e-12 * fabs(want) &&
+              want > 0,
+          "lattice: V with gravity - V without = %.17g, sum m g y = %.17g", v,
+          want);
+  }
+  mrvi_system_free(l);
+  mrvi_system_free(l0);
+}
+
+/* mrvi check writes a term as one would: no "1*", "+ -" or "- 0". */
+static void test_term_description(void) {
+  mrvi_system *sys = load_text(
+      "name: t\n"
+      "coordinates:\n  - {name: a, mass: 1, position: 0}\n"
+      "  - {name: b, mass: 1, position: 0}\n"
+      "terms:\n"
+      "  - {combination: {a: 1, b: -1}, law: linear, stiffness: 1}\n"
+      "  - {combination: {a: -2, b: 0.5}, offset: -1, law: linear, "
+      "stiffness: 1}\n"
+      "  - {combination: {b: 1}, offset: 3, law: linear, stiffness: 1}\n"
+      "integrator: {macro_step: 0.1, t_end: 1}\n",
+      NULL, 0);
+  static const char *const want[] = {"slow term on a - b, ",
+                                     "slow term on -2*a + 0.5*b + 1, ",
+                                     "slow term on b - 3, "};
+  for (int e = 0; sys && e < 3; e++) {
+    char buf[256];
+    mrvi_model_describe_element(sys->model, e, buf, sizeof buf);
+    CHECK(strncmp(buf, want[e], strlen(want[e])) == 0,
+          "term %d described as '%s', want '%s...'", e, buf, want[e]);
+  }
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_bad_files(&files);
@@ -1465,6 +1572,8 @@ int main(void) {
   test_long_set_path();
   test_generators();
   test_generated_equals_hand();
+  test_generated_gravity();
+  test_term_description();
   test_angles_forces_rest();
   test_cli_bad_files(files, n);
   for (int i = 0; i < n; i++)

@@ -16,6 +16,7 @@
 
 #include <errno.h>
 #include <signal.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -181,6 +182,14 @@ static const char *const check_options[] = {"--set", "--help", NULL};
 
 static void usage_error(const char *usage) { fputs(usage, stderr); }
 
+/* After a mistake in a command's arguments: only its "Usage:" lines (the
+ * help text up to the first blank line) and where the rest is. */
+static void usage_short(const char *cmd, const char *usage) {
+  const char *end = strstr(usage, "\n\n");
+  fprintf(stderr, "%.*s\nOptions and details: mrvi help %s\n",
+          (int)(end ? end - usage : (ptrdiff_t)strlen(usage)), usage, cmd);
+}
+
 /* The value of an option that takes one: "--opt=V", "-oV" or the next
  * argument.  Returns NULL (with a message) if it is missing. */
 static const char *option_value(const char *cmd, const char *arg,
@@ -213,7 +222,7 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
       if (a->file) {
         fprintf(stderr, "mrvi %s: unexpected argument '%s' (one FILE only)\n",
                 cmd, arg);
-        usage_error(usage);
+        usage_short(cmd, usage);
         return EXIT_INPUT;
       }
       a->file = arg;
@@ -297,13 +306,13 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
       if (hint)
         fprintf(stderr, "; did you mean '%s'?", hint);
       fputc('\n', stderr);
-      usage_error(usage);
+      usage_short(cmd, usage);
       return EXIT_INPUT;
     }
   }
   if (!a->help && !a->file && !a->resume) {
     fprintf(stderr, "mrvi %s: missing FILE\n", cmd);
-    usage_error(usage);
+    usage_short(cmd, usage);
     return EXIT_INPUT;
   }
   return 0;

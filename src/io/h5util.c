@@ -12,6 +12,7 @@
 #include <string.h>
 #include <sys/file.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 /* ---------------------------------------------------------------------------
@@ -333,15 +334,37 @@ int mrvi_h5_lock_output(const char *path, int force, int *fd, int *created,
                    "(use --force to replace it)");
 }
 
+/* The temporary file is created with mode 0666 less the umask, as the
+ * final output should be (and as fopen makes the .xdmf and .xyz beside
+ * it); mkstemp would make it 0600.  Names OUT.partXXXXXX with six
+ * characters mixed from the process id, the clock and a counter; a name
+ * already taken is tried again. */
 int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len) {
+  static const char chars[] =
+      "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789";
+  static unsigned long counter;
   const size_t plen = strlen(path) + 16;
   *part = malloc(plen);
   if (!*part)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
-  mrvi_fmt(*part, plen, "%s.partXXXXXX", path);
-  int fd = mkstemp(*part);
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  unsigned long long x = (unsigned long long)getpid() * 0x9E3779B97F4A7C15ull ^
+                         (unsigned long long)ts.tv_nsec ^
+                         (unsigned long long)ts.tv_sec << 20;
+  int fd = -1, e = EEXIST;
+  for (int attempt = 0; attempt < 100 && fd < 0 && e == EEXIST; attempt++) {
+    x = (x ^ ++counter) * 0x2545F4914F6CDD1Dull;
+    char suffix[7];
+    unsigned long long y = x >> 16;
+    for (int i = 0; i < 6; i++, y /= 62)
+      suffix[i] = chars[y % 62];
+    suffix[6] = '\0';
+    mrvi_fmt(*part, plen, "%s.part%s", path, suffix);
+    fd = open(*part, O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    e = fd < 0 ? errno : 0;
+  }
   if (fd < 0) {
-    int e = errno;
     free(*part);
     *part = NULL;
     return mrvi_fail(msg, len, MRVI_EIO, "cannot create a file beside it: %s",

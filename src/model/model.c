@@ -707,10 +707,22 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     char comb[512];
     size_t used = 0;
     comb[0] = '\0';
-    for (int j = 0; j < e->n_in && used < sizeof comb; j++)
-      used += (size_t)snprintf(comb + used, sizeof comb - used, "%s%g*%s",
-                               j ? " + " : "", e->coef[j], m->names[e->in[j]]);
-    mrvi_fmt(buf, len, "%s term on %s - %g, %s", rate, comb, e->shift, law);
+    /* As one writes it: "qs1 - qf1", "2*q1 + 0.5*q2 - 1"; no "1*", no
+     * "+ -", no "- 0". */
+    for (int j = 0; j < e->n_in && used < sizeof comb; j++) {
+      const double c = e->coef[j], a = fabs(c);
+      const char *sign = c < 0 ? (j ? " - " : "-") : (j ? " + " : "");
+      char k[32] = "";
+      if (a != 1)
+        mrvi_fmt(k, sizeof k, "%g*", a);
+      used += (size_t)snprintf(comb + used, sizeof comb - used, "%s%s%s", sign,
+                               k, m->names[e->in[j]]);
+    }
+    char off[40] = "";
+    if (e->shift != 0)
+      mrvi_fmt(off, sizeof off, " %c %g", e->shift > 0 ? '-' : '+',
+               fabs(e->shift));
+    mrvi_fmt(buf, len, "%s term on %s%s, %s", rate, comb, off, law);
     break;
   }
   case MRVI_ELEMENT_GRAVITY:

@@ -67,7 +67,7 @@ static int load_model(loader *L, struct fy_node *root) {
     double g[3] = {0, 0, 0};
     if ((st = mrvi_ld_as_vector(L, gravity, "gravity", dim, g)))
       return st;
-    if ((st = mrvi_model_set_gravity(m, g)))
+    if ((st = mrvi_model_set_gravity(m, g)) < 0)
       return mrvi_ld_fail_model(L, gravity, st);
   }
   if ((n = mrvi_ld_get(root, "springs")) && (st = mrvi_ld_springs(L, n, dim)))

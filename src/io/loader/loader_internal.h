@@ -119,8 +119,13 @@ int mrvi_ld_node_position(struct fy_node *n, int *line, int *col);
 int mrvi_ld_fail(loader *L, struct fy_node *at, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 int mrvi_ld_fail_nomem(loader *L);
-/* Builder failure: the model's message at the element's node. */
-int mrvi_ld_fail_model(loader *L, struct fy_node *at, int status);
+/* Builder failure: the model's message at the element's node.  Never an
+ * empty message: without one from the model (or for a status that is not
+ * an error) it names the loader function `fn` and the status. */
+int mrvi_ld_fail_model_in(loader *L, struct fy_node *at, int status,
+                          const char *fn);
+#define mrvi_ld_fail_model(L, at, status)                                      \
+  mrvi_ld_fail_model_in(L, at, status, __func__)
 /* First collected libfyaml error, as file:line:col: message. */
 int mrvi_ld_syntax_error(loader *L);
 /* "; did you mean 'x'?" or "; known: a, b, c" into buf. */

@@ -111,10 +111,17 @@ int mrvi_ld_fail_nomem(loader *L) {
 }
 
 /* Builder failure: the model's message at the element's node. */
-int mrvi_ld_fail_model(loader *L, struct fy_node *at, int status) {
+int mrvi_ld_fail_model_in(loader *L, struct fy_node *at, int status,
+                          const char *fn) {
   if (status == MRVI_ENOMEM)
     return mrvi_ld_fail_nomem(L);
-  return mrvi_ld_fail(L, at, "%s", mrvi_model_errmsg(L->sys->model));
+  const char *msg = mrvi_model_errmsg(L->sys->model);
+  if (status >= 0 || !msg || !msg[0])
+    return mrvi_ld_fail(L, at,
+                        "internal error: a model builder called by %s "
+                        "returned %d (%s) without a message",
+                        fn, status, mrvi_strerror(status));
+  return mrvi_ld_fail(L, at, "%s", msg);
 }
 
 /* "; did you mean 'x'?" or "; known: a, b, c" into buf. */
