@@ -11,6 +11,8 @@
 #   as root, who may write anyway) and a file that is not an mrvi output
 #   fail with exit 1 before any evaluation (no iteration line printed) and
 #   leave the locked or foreign file untouched;
+# - .inf bounds (allowed by doc/description-files.md) are accepted, in the
+#   file and by --set;
 # - SIGINT or SIGTERM during the optimisation: exit 130/143, a readable file
 #   with status interrupted, /control/u of the problem's shape (N x 1),
 #   one history row per evaluation, and the best iterate (the lowest cost
@@ -52,6 +54,20 @@ s=$(attr full.h5 status)
 [ $rc -eq 0 ] && [ "$s" = converged ] && grep -q 'optimum found' out.txt &&
   pass "full run: exit 0, status converged" ||
   fail "full run: exit $rc, status '$s'"
+
+# --- .inf bounds (doc/description-files.md: allowed) ------------------------
+sed 's/weight: 1}/weight: 1, lower: -.inf, upper: .inf}/' "$di" >inf.yaml
+grep -q 'upper: .inf' inf.yaml || fail "inf.yaml: the sed found no actuator"
+"$mrvi" optimize inf.yaml -o inf.h5 -q >out.txt 2>err.txt
+rc=$?
+[ $rc -eq 0 ] && grep -q 'status converged' out.txt &&
+  pass ".inf bounds in the file accepted, converged" ||
+  fail ".inf bounds in the file: exit $rc ($(cat err.txt))"
+"$mrvi" optimize "$di" -o inf.h5 -q --set control.actuators.0.lower=-.INF \
+  --set control.actuators.0.upper=.Inf >out.txt 2>err.txt
+rc=$?
+[ $rc -eq 0 ] && pass ".inf bounds by --set accepted" ||
+  fail ".inf bounds by --set: exit $rc ($(cat err.txt))"
 
 # --- the output path is checked before optimising --------------------------
 # refused NAME OUT PATTERN: exit 1, the message matches, no evaluation ran
