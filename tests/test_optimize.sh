@@ -11,6 +11,9 @@
 #   as root, who may write anyway) and a file that is not an mrvi output
 #   fail with exit 1 before any evaluation (no iteration line printed) and
 #   leave the locked or foreign file untouched;
+# - when the file cannot be written (MRVI_TEST_WRITE_FAIL_AFTER, as on a
+#   full disk) the message names the reason and the controls are printed,
+#   equal to the converged ones;
 # - .inf bounds (allowed by doc/description-files.md) are accepted, in the
 #   file and by --set;
 # - SIGINT or SIGTERM during the optimisation: exit 130/143, a readable file
@@ -54,6 +57,21 @@ s=$(attr full.h5 status)
 [ $rc -eq 0 ] && [ "$s" = converged ] && grep -q 'optimum found' out.txt &&
   pass "full run: exit 0, status converged" ||
   fail "full run: exit $rc, status '$s'"
+
+# --- the file cannot be written (full disk, injected): the controls printed ---
+MRVI_TEST_WRITE_FAIL_AFTER=1 "$mrvi" optimize "$di" -o wfail.h5 -q \
+  >out.txt 2>err.txt
+rc=$?
+cmp=$("$py" -c 'import sys, h5py
+u = h5py.File(sys.argv[1], "r")["control/u"][:, 0]
+lines = open(sys.argv[2]).read().split("controls NOT SAVED")[1].splitlines()[1:]
+print([float(x) for x in lines] == list(u))' full.h5 out.txt 2>&1)
+if [ $rc -eq 2 ] && grep -q "writing 'wfail.h5' failed: .*injected write failure" err.txt &&
+  [ "$cmp" = True ]; then
+  pass "write failure: exit 2, the reason given, the controls printed exactly"
+else
+  fail "write failure: exit $rc, controls '$cmp' ($(cat err.txt))"
+fi
 
 # --- .inf bounds (doc/description-files.md: allowed) ------------------------
 sed 's/weight: 1}/weight: 1, lower: -.inf, upper: .inf}/' "$di" >inf.yaml

@@ -8,7 +8,8 @@
  * is checked (created, lockable, its directory writable) before the
  * optimisation starts.  SIGINT and SIGTERM stop the optimiser after the
  * evaluation in progress; the best iterate is written with status
- * interrupted.
+ * interrupted.  When the file cannot be written (a full disk) the
+ * controls are printed instead.
  * Exit status (doc/optimal-control.md, "Status"): 0 converged, 1 bad
  * input or an unusable output path, 2 not converged (every other status;
  * the file is written), 130/143 interrupted by SIGINT/SIGTERM (written). */
@@ -321,6 +322,15 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   if (mrvi_ocp_output_close(pr.out, u, &res, res.status, msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi optimize: writing '%s' failed: %s\n", out,
             msg[0] ? msg : "unknown error");
+    /* The controls are not lost with the file (a full disk): printed
+     * exactly, actuator by actuator. */
+    const int n = mrvi_ocp_n_controls(o);
+    printf("controls NOT SAVED (%d values, actuator by actuator in the "
+           "order of control.actuators, each over its grid):\n",
+           n);
+    for (int i = 0; i < n; i++)
+      printf("%.17g\n", u[i]);
+    fflush(stdout);
     if (rc == 0)
       rc = 2;
   } else {
