@@ -509,15 +509,16 @@ static int cmd_check(int argc, char **argv) {
  * ------------------------------------------------------------------------- */
 
 /* Set by the signal handler: the signal number, 0 while running.  mrvi_run
- * polls it between steps.  The handler only stores to it (async-signal
+ * polls it between steps, mrvi optimize after every evaluation
+ * (cli_optimize.c).  The handler only stores to it (async-signal
  * safe); SA_RESETHAND makes a second Ctrl-C terminate at once. */
 _Static_assert(_Generic((sig_atomic_t)0, int : 1, default : 0),
                "mrvi_run takes the stop flag as volatile int");
-static volatile sig_atomic_t stop_signal = 0;
+volatile sig_atomic_t mrvi_cli_stop_signal = 0;
 
-static void on_signal(int sig) { stop_signal = sig; }
+static void on_signal(int sig) { mrvi_cli_stop_signal = sig; }
 
-static void install_handlers(void) {
+void mrvi_cli_install_handlers(void) {
   struct sigaction sa;
   memset(&sa, 0, sizeof sa);
   sa.sa_handler = on_signal;
@@ -761,7 +762,7 @@ static int cmd_run(int argc, char **argv) {
     return rc;
   }
   /* From here on Ctrl-C only raises the stop flag. */
-  install_handlers();
+  mrvi_cli_install_handlers();
   mrvi_stored_node *node = NULL;
   mrvi_system *sys = a.resume ? load_resume(&a, &node) : load_system(&a);
   free(a.overrides);
@@ -773,10 +774,10 @@ static int cmd_run(int argc, char **argv) {
   }
   if (!sys)
     return EXIT_INPUT;
-  if (stop_signal) { /* interrupted while loading: write nothing */
+  if (mrvi_cli_stop_signal) { /* interrupted while loading: write nothing */
     mrvi_system_free(sys);
     mrvi_stored_node_free(node);
-    return 128 + (int)stop_signal;
+    return 128 + (int)mrvi_cli_stop_signal;
   }
   if (!a.resume)
     print_notes(stderr, a.file, sys->notes);
@@ -883,7 +884,7 @@ static int cmd_run(int argc, char **argv) {
                       a.resume && node ? node->energy : NULL};
   int st = mrvi_run_from(sys->model, &sys->settings,
                          node && (a.from || node->k > 0) ? &start : NULL,
-                         run_observe, &ctx, &stop_signal, &sum);
+                         run_observe, &ctx, &mrvi_cli_stop_signal, &sum);
   mrvi_stored_node_free(node);
   node = NULL;
   if (st < 0 && sum.status == MRVI_OK)
@@ -909,7 +910,7 @@ static int cmd_run(int argc, char **argv) {
     fprintf(stderr, "mrvi run: warning: %s\n", sum.warning);
   if (st == MRVI_EINTERRUPTED)
     fprintf(stderr, "mrvi run: %s: %s\n",
-            stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);
+            mrvi_cli_stop_signal == SIGTERM ? "SIGTERM" : "SIGINT", reason);
   else if (st < 0 && !(st == MRVI_EIO && cst < 0)) /* else: the writer's */
     fprintf(stderr, "mrvi run: error: %s\n", reason);
   if (cst < 0)
@@ -919,7 +920,7 @@ static int cmd_run(int argc, char **argv) {
   mrvi_system_free(sys);
 
   if (st == MRVI_EINTERRUPTED)
-    return 128 + (stop_signal ? (int)stop_signal : SIGINT);
+    return 128 + (mrvi_cli_stop_signal ? (int)mrvi_cli_stop_signal : SIGINT);
   return st < 0 || cst < 0 ? EXIT_RUN : 0;
 }
 

@@ -4,13 +4,20 @@
  * `control:` section, optimise the controls with NLopt (single shooting,
  * exact discrete adjoint), print a line per iteration and a summary, and
  * write the optimal trajectory (layout of `mrvi run`, /micro included)
- * plus /control and /optimizer to HDF5 (doc/output.md).
- * Exit status: 0 optimum found with the terminal conditions met, 1 bad
- * input, 2 the optimiser failed or the terminal conditions are not met. */
+ * plus /control and /optimizer to HDF5 (doc/output.md).  The output path
+ * is checked (created, lockable, its directory writable) before the
+ * optimisation starts.  SIGINT and SIGTERM stop the optimiser after the
+ * evaluation in progress; the best iterate is written with status
+ * interrupted.  When the file cannot be written (a full disk) the
+ * controls are printed instead.
+ * Exit status (doc/optimal-control.md, "Status"): 0 converged, 1 bad
+ * input or an unusable output path, 2 not converged (every other status;
+ * the file is written), 130/143 interrupted by SIGINT/SIGTERM (written). */
 #include "io/io.h"
 #include "ocp/ocp.h"
 
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,26 +45,42 @@ const char mrvi_usage_optimize[] =
     "controls /control/u of OPT.h5 through the discrete equations of FILE,\n"
     "writes the trajectory and checks the terminal conditions.\n"
     "\n"
-    "Exit status: 0 success, 1 invalid input, 2 the optimiser failed or the\n"
-    "terminal conditions are not met to control.solver.terminal_tolerance.\n";
+    "The output path is checked before the optimisation starts.  Ctrl-C\n"
+    "(SIGINT) or SIGTERM stops the optimiser after the evaluation in\n"
+    "progress and writes the best iterate so far (status interrupted).\n"
+    "\n"
+    "Exit status: 0 converged (NLopt reached its tolerance and the terminal\n"
+    "conditions hold to control.solver.terminal_tolerance), 1 invalid input\n"
+    "or an unusable output path, 2 not converged (evaluation limit,\n"
+    "terminal conditions not met, roundoff, failure; the file is written\n"
+    "with that status), 130/143 interrupted by SIGINT/SIGTERM.\n";
 
-/* Per evaluation: a row of /optimizer/history and, unless quiet, a line. */
+/* cli.c: the signal number of SIGINT or SIGTERM once received (0 before),
+ * polled after every evaluation; the handlers that set it (a second Ctrl-C
+ * terminates at once). */
+extern volatile sig_atomic_t mrvi_cli_stop_signal;
+void mrvi_cli_install_handlers(void);
+
+/* Per evaluation: a row of /optimizer/history and, unless quiet, a line;
+ * stop (non-zero) on a signal or when the history cannot grow. */
 typedef struct progress {
   mrvi_ocp_output *out;
-  int quiet;
+  int quiet, no_memory;
 } progress;
 
 static int on_iteration(void *data, int it, double cost, double viol,
                         double gnorm) {
   progress *pr = data;
-  if (mrvi_ocp_output_iteration(pr->out, cost, viol, gnorm) < 0)
+  if (mrvi_ocp_output_iteration(pr->out, cost, viol, gnorm) < 0) {
+    pr->no_memory = 1;
     return 1;
+  }
   if (!pr->quiet) {
     printf("%5d  cost %.12e  violation %.3e  |grad| %.3e\n", it, cost, viol,
            gnorm);
     fflush(stdout);
   }
-  return 0;
+  return mrvi_cli_stop_signal != 0;
 }
 
 /* `mrvi check`: the problem of the `control:` section, if any (actuators,
@@ -260,6 +283,7 @@ int mrvi_cmd_optimize(int argc, char **argv) {
     return 1;
   }
   mrvi_ocp_set_callback(o, on_iteration, &pr);
+  mrvi_cli_install_handlers();
   printf("%s: %d controls, %d terminal constraints, %ld macro steps, p = %d, "
          "%s\n",
          file, mrvi_ocp_n_controls(o), mrvi_ocp_n_constraints(o),
@@ -269,8 +293,15 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   mrvi_ocp_result res;
   st = mrvi_ocp_solve(o, u, &res);
   const double wall = mrvi_clock() - t0;
-  int rc = st == 0 ? 0 : 2;
-  printf("%s\n", st == 0 ? "optimum found" : "optimisation FAILED");
+  if (!res.status[0]) /* failed before NLopt started: nothing to write */
+    mrvi_fmt(res.status, sizeof res.status, "%s", "failed");
+  const int sig = (int)mrvi_cli_stop_signal;
+  int rc = st == 0 ? 0 : sig ? 128 + sig : 2;
+  printf("%s (status %s)\n",
+         st == 0 ? "optimum found"
+         : sig   ? "optimisation INTERRUPTED"
+                 : "NOT CONVERGED",
+         res.status);
   printf("  %-22s%.12e\n", "cost", res.cost);
   printf("  %-22s%.3e (tolerance %.1e)\n", "terminal violation", res.violation,
          mrvi_ocp_terminal_tolerance(o));
@@ -283,12 +314,25 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   }
   printf("  %-22s%.3f s\n", "wall time", wall);
   if (st != 0)
-    fprintf(stderr, "mrvi optimize: %s\n", mrvi_ocp_errmsg(o));
+    fprintf(stderr, "mrvi optimize: %s%s%s\n",
+            sig == SIGTERM ? "SIGTERM: " : sig ? "SIGINT: " : "",
+            pr.no_memory ? "out of memory for the history; " : "",
+            mrvi_ocp_errmsg(o));
   /* The trajectory of the returned controls (re-evaluated by solve). */
-  if (mrvi_ocp_output_close(pr.out, u, &res, st == 0 ? "converged" : "failed",
-                            msg, sizeof msg) < 0) {
-    fprintf(stderr, "mrvi optimize: writing '%s' failed: %s\n", out, msg);
-    rc = 2;
+  if (mrvi_ocp_output_close(pr.out, u, &res, res.status, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi optimize: writing '%s' failed: %s\n", out,
+            msg[0] ? msg : "unknown error");
+    /* The controls are not lost with the file (a full disk): printed
+     * exactly, actuator by actuator. */
+    const int n = mrvi_ocp_n_controls(o);
+    printf("controls NOT SAVED (%d values, actuator by actuator in the "
+           "order of control.actuators, each over its grid):\n",
+           n);
+    for (int i = 0; i < n; i++)
+      printf("%.17g\n", u[i]);
+    fflush(stdout);
+    if (rc == 0)
+      rc = 2;
   } else {
     printf("  %-22s%s\n", "output", out);
   }

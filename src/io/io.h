@@ -126,11 +126,14 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
  * evaluation, closed with the result:
  *   mrvi_ocp_output_open -> mrvi_ocp_output_iteration ... ->
  *   mrvi_ocp_output_close.
- * The file itself is written whole at close (nothing touches path
- * before). */
+ * Open checks the path as the writer at close will take it (created or an
+ * earlier mrvi output, not locked by a live writer, a temporary file
+ * creatable beside it) and leaves it as it was; the file itself is written
+ * whole at close. */
 typedef struct mrvi_ocp_output mrvi_ocp_output;
 
-/* sys and o must outlive the output. */
+/* sys and o must outlive the output.  MRVI_EIO with "path: reason" when
+ * the path is unusable. */
 int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
                          const mrvi_ocp *o, mrvi_ocp_output **out, char *msg,
                          size_t len);
@@ -139,8 +142,8 @@ int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
 int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
                               double gradient_norm);
 /* Write the file for the controls u (o's last evaluation is theirs) and
- * the result res; status is /optimizer's attribute status ("converged",
- * "failed").  Frees w (also on failure); NULL is accepted. */
+ * the result res; status is /optimizer's attribute status (res->status:
+ * "converged", "max_evaluations", "interrupted", ...).  Frees w (also on failure); NULL is accepted. */
 int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
                           const mrvi_ocp_result *res, const char *status,
                           char *msg, size_t len);

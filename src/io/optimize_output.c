@@ -12,17 +12,27 @@
  *
  * and the controls read back from /control/u (`mrvi run --controls`).
  *
+ * mrvi_ocp_output_open checks the path before the optimisation starts:
+ * the file can be created (or is an earlier mrvi output), is not locked by
+ * a live writer, and its directory takes the temporary file of the
+ * crash-safe write; so a read-only target or a locked file fails at once.
+ * The lock is not held during the optimisation (the run writer takes it
+ * again at close), so a writer starting on the same path meanwhile is
+ * found only at close.
+ *
  * The trajectory is written crash-safe by the run writer; the solver
  * attribute, /control and /optimizer are added after it closed, in a
- * second open of the file.  So a process killed while optimising leaves no
- * output (or the previous file), and one killed in that second open may
- * leave a trajectory without /control. */
+ * second open of the file.  So a process killed (SIGKILL) while optimising
+ * leaves no output (or the previous file), and one killed in that second
+ * open may leave a trajectory without /control.  SIGINT and SIGTERM are
+ * turned into status interrupted by the caller (cli_optimize.c). */
 #include "io/h5util.h"
 #include "io/io.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 /* ---------------------------------------------------------------------------
  * The trajectory
@@ -294,6 +304,24 @@ int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
                      !sys ? "no system"
                      : !o ? "no problem"
                           : "no file name");
+  /* The path as the run writer will take it: lock (creating the file when
+   * absent), then a temporary file beside it; both undone. */
+  int fd = -1, created = 0;
+  char why[400];
+  int st = mrvi_h5_lock_output(path, 0, &fd, &created, why, sizeof why);
+  if (st == 0) {
+    char *part = NULL;
+    st = mrvi_h5_part_create(path, &part, why, sizeof why);
+    if (part)
+      unlink(part);
+    free(part);
+  }
+  if (fd >= 0)
+    close(fd);
+  if (created)
+    unlink(path);
+  if (st < 0)
+    return mrvi_fail(msg, len, st, "%s: %s", path, why);
   mrvi_ocp_output *w = calloc(1, sizeof *w);
   if (w)
     w->path = strdup(path);

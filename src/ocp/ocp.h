@@ -108,11 +108,21 @@ typedef struct mrvi_ocp_result {
   double cost;         /* J at the returned controls */
   double violation;    /* max |c_i| re-checked at the returned controls */
   int evaluations;     /* cost+gradient evaluations */
+  /* The outcome (doc/optimal-control.md, "Status"): "converged" (NLopt
+   * reached its tolerance and the terminal conditions hold to the terminal
+   * tolerance), "terminal_not_met" (tolerance reached, conditions not
+   * met), "max_evaluations", "max_time", "roundoff_limited", "failed"
+   * (NLopt failed or the re-check's forward pass failed), "interrupted"
+   * (the callback asked to stop: u is the best iterate so far). */
+  char status[24];
 } mrvi_ocp_result;
 
 /* Optimise: u (n_controls) holds the initial guess and receives the result.
- * MRVI_OK when NLopt succeeds and the terminal conditions hold to the
- * terminal tolerance; MRVI_EOPTIMIZE otherwise (u and res are still set). */
+ * MRVI_OK only when res->status is "converged"; MRVI_EINTERRUPTED when the
+ * callback stopped it (u: the best iterate so far, the lowest cost among
+ * iterates meeting the terminal conditions, else the lowest violation);
+ * MRVI_EOPTIMIZE otherwise.  u and res are set in every case except a
+ * failure before NLopt starts (res->status "" then). */
 int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res);
 
 /* Trajectory of the last evaluation: macro-node positions and momenta

@@ -26,7 +26,24 @@ typedef struct parser {
   const void *ctx;
 } parser;
 
-/* 1-based position of n: its token, or its first key / item. */
+static int position(struct fy_node *n, int *line, int *col);
+
+/* Position of the key (or, in a list, the item before) holding n: an empty
+ * list or mapping has no token of its own. */
+static int holder_position(struct fy_node *n, int *line, int *col) {
+  struct fy_node *parent = fy_node_get_parent(n);
+  if (!parent || !fy_node_is_mapping(parent))
+    return 0;
+  void *it = NULL;
+  struct fy_node_pair *p;
+  while ((p = fy_node_mapping_iterate(parent, &it)))
+    if (fy_node_pair_value(p) == n)
+      return position(fy_node_pair_key(p), line, col);
+  return 0;
+}
+
+/* 1-based position of n: its token, or its first key / item, or (empty)
+ * the key holding it. */
 static int position(struct fy_node *n, int *line, int *col) {
   if (!n)
     return 0;
@@ -42,9 +59,19 @@ static int position(struct fy_node *n, int *line, int *col) {
   void *it = NULL;
   if (fy_node_is_mapping(n)) {
     struct fy_node_pair *p = fy_node_mapping_iterate(n, &it);
-    return p && position(fy_node_pair_key(p), line, col);
+    if (p)
+      return position(fy_node_pair_key(p), line, col);
+  } else {
+    struct fy_node *first = fy_node_sequence_iterate(n, &it);
+    if (first)
+      return position(first, line, col);
   }
-  return position(fy_node_sequence_iterate(n, &it), line, col);
+  return holder_position(n, line, col);
+}
+
+/* a, or b when a is NULL (an optional key left out: the item instead). */
+static struct fy_node *or_item(struct fy_node *a, struct fy_node *b) {
+  return a ? a : b;
 }
 
 __attribute__((format(printf, 3, 4))) static int
@@ -93,19 +120,37 @@ static int check_keys(parser *P, struct fy_node *map, const char *where,
   return MRVI_OK;
 }
 
-/* Optional number at map[key] (default kept); "inf", "-inf" allowed. */
-static int number(parser *P, struct fy_node *map, const char *key,
-                  const char *where, double *out) {
+/* Optional number at map[key] (default kept): finite, or with infinite =
+ * 1 also YAML's .inf, -.inf (any case of .inf / .Inf / .INF, as YAML 1.2
+ * spells them) and C's inf, -inf. */
+static int number_of(parser *P, struct fy_node *map, const char *key,
+                     const char *where, int infinite, double *out) {
   struct fy_node *n = get(map, key);
   if (!n)
     return MRVI_OK;
   const char *s = fy_node_is_scalar(n) ? fy_node_get_scalar0(n) : NULL;
-  char *end = NULL;
-  const double v = s ? strtod(s, &end) : NAN;
-  if (!s || end == s || *end || isnan(v))
-    return fail(P, n, "%s.%s must be a number", where, key);
+  double v = NAN;
+  if (s) {
+    const char *t = s + (*s == '+' || *s == '-');
+    char *end = NULL;
+    if (!strcmp(t, ".inf") || !strcmp(t, ".Inf") || !strcmp(t, ".INF"))
+      v = *s == '-' ? -HUGE_VAL : HUGE_VAL;
+    else if (!(v = strtod(s, &end), end != s && !*end))
+      v = NAN;
+  }
+  if (isnan(v))
+    return fail(P, n, "%s.%s must be a number, got '%s'", where, key,
+                s ? s : "a list or mapping");
+  if (isinf(v) && !infinite)
+    return fail(P, n, "%s.%s must be a finite number, got '%s'", where, key,
+                s);
   *out = v;
   return MRVI_OK;
+}
+
+static int number(parser *P, struct fy_node *map, const char *key,
+                  const char *where, double *out) {
+  return number_of(P, map, key, where, 0, out);
 }
 
 /* Coordinate named at map["coordinate"] (required). */
@@ -232,8 +277,8 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
     if ((st = get(item, "pair") ? pair(P, item, where, &pi, &pj)
                                 : coordinate(P, item, where, &c)) ||
         (st = number(P, item, "weight", where, &w)) ||
-        (st = number(P, item, "lower", where, &lo)) ||
-        (st = number(P, item, "upper", where, &hi)) ||
+        (st = number_of(P, item, "lower", where, 1, &lo)) ||
+        (st = number_of(P, item, "upper", where, 1, &hi)) ||
         (st = number(P, item, "initial", where, &u0)))
       return st;
     mrvi_grid grid = MRVI_GRID_MACRO;
@@ -248,11 +293,13 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
     }
     if (!(w > 0.0) || !isfinite(w))
       return fail(P, get(item, "weight"), "%s.weight must be > 0", where);
-    if (lo > hi)
-      return fail(P, get(item, "lower"), "%s: lower bound %g > upper bound %g",
+    if (lo > hi || lo == HUGE_VAL || hi == -HUGE_VAL)
+      return fail(P, or_item(get(item, "lower"), item),
+                  "%s: lower bound %g > upper bound %g, or no finite value "
+                  "between them",
                   where, lo, hi);
     if (u0 < lo || u0 > hi)
-      return fail(P, get(item, "initial"),
+      return fail(P, or_item(get(item, "initial"), item),
                   "%s: initial value %g outside [%g, %g]", where, u0, lo, hi);
     const int a = pi >= 0
                       ? mrvi_ocp_add_pair_actuator(o, pi, pj, grid, w, lo, hi)
@@ -263,6 +310,16 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
     if (nn && fy_node_is_scalar(nn))
       mrvi_fmt(o->act[a].name, sizeof o->act[a].name, "%s",
                fy_node_get_scalar0(nn));
+    /* /control/names and the replay's messages tell actuators apart by
+     * name (the default name is the coordinate's). */
+    for (int b = 0; b < a; b++)
+      if (!strcmp(o->act[b].name, o->act[a].name))
+        return fail(P, or_item(nn, item),
+                    "%s: actuator name '%s' is already used by "
+                    "control.actuators[%d]%s",
+                    where, o->act[a].name, b,
+                    nn ? "" : " (the default name is the coordinate's; give "
+                              "a 'name')");
     initial[a] = u0;
     i++;
   }
@@ -291,6 +348,27 @@ static int load_tracking(parser *P, struct fy_node *list, mrvi_ocp *o) {
     if (mrvi_ocp_add_tracking(o, c, w, ref) < 0)
       return fail(P, item, "%s: %s", where, mrvi_ocp_errmsg(o));
   }
+  return MRVI_OK;
+}
+
+/* A second terminal condition of the same kind on coordinate c (target
+ * NaN: none): with another target the problem has no solution, with the
+ * same one the constraint Jacobian loses rank; both are refused. */
+static int conflict(parser *P, const mrvi_ocp *o, struct fy_node *item,
+                    const char *where, mrvi_ocp_terminal_kind kind, int c,
+                    double target) {
+  if (isnan(target))
+    return MRVI_OK;
+  const char *what = kind == MRVI_OCP_POSITION ? "position" : "velocity";
+  for (int i = 0; i < o->n_term; i++)
+    if (o->term[i].kind == kind && o->term[i].coord == c)
+      return fail(P, or_item(get(item, what), item),
+                  "%s: a second terminal %s of '%s' (%g; an earlier "
+                  "condition asks %g)%s",
+                  where, what, P->m->names[c], target, o->term[i].target,
+                  o->term[i].target == target
+                      ? ": a duplicate makes the conditions redundant"
+                      : ": the conditions conflict");
   return MRVI_OK;
 }
 
@@ -324,6 +402,9 @@ static int load_terminal(parser *P, struct fy_node *list, mrvi_ocp *o) {
                   "%s: coordinate '%s' is fixed by constraint '%s'; a "
                   "terminal condition on it is redundant",
                   where, P->m->names[c], P->m->constraints[k].label);
+    if ((st = conflict(P, o, item, where, MRVI_OCP_POSITION, c, pos)) ||
+        (st = conflict(P, o, item, where, MRVI_OCP_VELOCITY, c, vel)))
+      return st;
     if (!isnan(pos) &&
         mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, c, pos, pen) < 0)
       return fail(P, item, "%s: %s", where, mrvi_ocp_errmsg(o));

@@ -1,7 +1,10 @@
 /* NLopt driver: single shooting over the controls with adjoint gradients.
  * NLopt asks for the cost and the constraints separately at the same
  * point, so the last evaluation is cached.  SLSQP can report success with
- * violated constraints: the terminal residuals are re-checked here. */
+ * violated constraints: the terminal residuals are re-checked here, and
+ * the outcome is one status of mrvi_ocp_result (doc/optimal-control.md,
+ * "Status"): converged only for a tolerance reached with the terminal
+ * conditions met. */
 #include "ocp/ocp_internal.h"
 
 #include <math.h>
@@ -14,6 +17,12 @@ typedef struct cache {
   double *u, *grad, *c, *cgrad;
   double J;
   int valid, status, evaluations, stop;
+  nlopt_opt opt; /* for nlopt_force_stop */
+  /* The best iterate so far (the result of an interruption): the lowest
+   * cost among the iterates meeting the terminal conditions, else the
+   * lowest violation; have_best = 0 before the first evaluation. */
+  double *best_u, best_J, best_violation;
+  int have_best;
 } cache;
 
 static int cached_eval(cache *cc, const double *u) {
@@ -33,12 +42,27 @@ static double violation(const cache *cc) {
   return v;
 }
 
+/* Keep u (just evaluated) if it is better than the best so far. */
+static void keep_best(cache *cc, const double *u) {
+  const double tol = cc->o->terminal_tol, v = violation(cc);
+  const int met = v <= tol, best_met = cc->best_violation <= tol;
+  const int better = !cc->have_best || (met && (!best_met || cc->J < cc->best_J)) ||
+                     (!met && !best_met && v < cc->best_violation);
+  if (!better)
+    return;
+  memcpy(cc->best_u, u, (size_t)cc->o->n_u * sizeof *u);
+  cc->best_J = cc->J;
+  cc->best_violation = v;
+  cc->have_best = 1;
+}
+
 static double objective(unsigned n, const double *u, double *grad, void *data) {
   cache *cc = data;
   if (cached_eval(cc, u) < 0) {
     cc->stop = 1;
     return HUGE_VAL;
   }
+  keep_best(cc, u);
   if (grad)
     memcpy(grad, cc->grad, n * sizeof *grad);
   cc->evaluations++;
@@ -47,8 +71,10 @@ static double objective(unsigned n, const double *u, double *grad, void *data) {
     double g2 = 0.0;
     for (unsigned i = 0; i < n; i++)
       g2 += cc->grad[i] * cc->grad[i];
-    if (o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc), sqrt(g2)))
+    if (o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc), sqrt(g2))) {
       cc->stop = 2;
+      nlopt_force_stop(cc->opt);
+    }
   }
   return cc->J;
 }
@@ -67,6 +93,54 @@ static void constraints(unsigned m, double *result, unsigned n, const double *u,
     memcpy(grad, cc->cgrad, (size_t)m * n * sizeof *grad);
 }
 
+/* The status of NLopt's outcome r at the re-checked result res (cost,
+ * violation set) into res->status; MRVI_OK only for "converged".  stop
+ * = 2: the callback asked to stop.  (An evaluation that failed, stop = 1,
+ * is a step NLopt may back off from; the re-check judges the result.) */
+static int classify(mrvi_ocp *o, nlopt_result r, int stop,
+                    mrvi_ocp_result *res) {
+  const char *s;
+  const int met = res->violation <= o->terminal_tol;
+  int st = MRVI_EOPTIMIZE;
+  if (stop == 2) {
+    s = "interrupted";
+    st = mrvi_ocp_fail(o, MRVI_EINTERRUPTED,
+                       "optimisation interrupted after %d evaluations; the "
+                       "best iterate is returned",
+                       res->evaluations);
+  } else if (r == NLOPT_MAXEVAL_REACHED || r == NLOPT_MAXTIME_REACHED) {
+    s = r == NLOPT_MAXEVAL_REACHED ? "max_evaluations" : "max_time";
+    st = mrvi_ocp_fail(
+        o, MRVI_EOPTIMIZE,
+        "not converged: NLopt stopped at its %s (%d evaluations; raise "
+        "control.solver.max_evaluations); terminal violation %.3e",
+        r == NLOPT_MAXEVAL_REACHED ? "evaluation limit" : "time limit",
+        res->evaluations, res->violation);
+  } else if (r == NLOPT_ROUNDOFF_LIMITED) {
+    s = "roundoff_limited";
+    st = mrvi_ocp_fail(o, MRVI_EOPTIMIZE,
+                       "not converged: NLopt stopped by roundoff before its "
+                       "tolerance; terminal violation %.3e%s",
+                       res->violation, met ? " (met)" : " (NOT met)");
+  } else if (r < 0) {
+    s = "failed";
+    st = mrvi_ocp_fail(o, MRVI_EOPTIMIZE, "NLopt failed: %s", res->nlopt_name);
+  } else if (!met) {
+    /* NLOPT_SUCCESS, STOPVAL, FTOL or XTOL reached, constraints violated. */
+    s = "terminal_not_met";
+    st = mrvi_ocp_fail(
+        o, MRVI_EOPTIMIZE,
+        "terminal conditions not met: max violation %.3e > tolerance %.3e "
+        "(NLopt: %s)",
+        res->violation, o->terminal_tol, res->nlopt_name);
+  } else {
+    s = "converged";
+    st = MRVI_OK;
+  }
+  mrvi_fmt(res->status, sizeof res->status, "%s", s);
+  return st;
+}
+
 int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res) {
   memset(res, 0, sizeof *res);
   const int n = o->n_u, m = o->n_con;
@@ -77,12 +151,13 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res) {
   cc.grad = calloc((size_t)n, sizeof(double));
   cc.c = calloc((size_t)m + 1, sizeof(double));
   cc.cgrad = calloc((size_t)m * (size_t)n + 1, sizeof(double));
+  cc.best_u = calloc((size_t)n, sizeof(double));
   double *lb = calloc((size_t)n, sizeof(double));
   double *ub = calloc((size_t)n, sizeof(double));
   double *tol = calloc((size_t)m + 1, sizeof(double));
   nlopt_opt opt = NULL, local = NULL;
   int status = MRVI_OK;
-  if (!cc.u || !cc.grad || !cc.c || !cc.cgrad || !lb || !ub || !tol) {
+  if (!cc.u || !cc.grad || !cc.c || !cc.cgrad || !cc.best_u || !lb || !ub || !tol) {
     status = mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
     goto done;
   }
@@ -112,6 +187,7 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res) {
     status = mrvi_ocp_fail(o, MRVI_ENOMEM, "NLopt could not be created");
     goto done;
   }
+  cc.opt = opt;
   nlopt_set_lower_bounds(opt, lb);
   nlopt_set_upper_bounds(opt, ub);
   nlopt_set_min_objective(opt, objective, &cc);
@@ -126,26 +202,21 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res) {
   mrvi_fmt(res->nlopt_name, sizeof res->nlopt_name, "%s",
            nlopt_result_to_string(r));
   res->evaluations = cc.evaluations;
+  /* An interrupted optimisation returns its best iterate (NLopt's x after
+   * a forced stop is not documented to be one). */
+  if (cc.stop == 2 && cc.have_best)
+    memcpy(u, cc.best_u, (size_t)n * sizeof *u);
   /* Re-check at the returned controls. */
   cc.valid = 0;
   const int se = cached_eval(&cc, u);
   if (se < 0) {
     status = se;
+    mrvi_fmt(res->status, sizeof res->status, "%s", "failed");
     goto done;
   }
   res->cost = cc.J;
   res->violation = violation(&cc);
-  if (cc.stop == 2)
-    status = mrvi_ocp_fail(o, MRVI_EINTERRUPTED, "optimisation interrupted");
-  else if (r < 0 && r != NLOPT_ROUNDOFF_LIMITED)
-    status =
-        mrvi_ocp_fail(o, MRVI_EOPTIMIZE, "NLopt failed: %s", res->nlopt_name);
-  else if (!(res->violation <= o->terminal_tol))
-    status = mrvi_ocp_fail(
-        o, MRVI_EOPTIMIZE,
-        "terminal conditions not met: max violation %.3e > tolerance %.3e "
-        "(NLopt: %s)",
-        res->violation, o->terminal_tol, res->nlopt_name);
+  status = classify(o, r, cc.stop, res);
 done:
   nlopt_destroy(local);
   nlopt_destroy(opt);
@@ -153,6 +224,7 @@ done:
   free(cc.grad);
   free(cc.c);
   free(cc.cgrad);
+  free(cc.best_u);
   free(lb);
   free(ub);
   free(tol);

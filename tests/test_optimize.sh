@@ -1,0 +1,172 @@
+#!/bin/bash
+# mrvi optimize says what it knows and keeps its work (doc/optimal-control.md,
+# "Status"; doc/output.md, /optimizer):
+#
+# - an evaluation limit is never "converged": the double integrator (which
+#   converges in 3 evaluations) stopped after 2 exits 2, prints NOT
+#   CONVERGED and stores status max_evaluations; the full run stores
+#   converged and exits 0;
+# - the output path is checked before the optimisation starts: a missing
+#   directory, a file locked by another writer, a read-only directory (not
+#   as root, who may write anyway) and a file that is not an mrvi output
+#   fail with exit 1 before any evaluation (no iteration line printed) and
+#   leave the locked or foreign file untouched;
+# - when the file cannot be written (MRVI_TEST_WRITE_FAIL_AFTER, as on a
+#   full disk) the message names the reason and the controls are printed,
+#   equal to the converged ones;
+# - .inf bounds (allowed by doc/description-files.md) are accepted, in the
+#   file and by --set;
+# - SIGINT or SIGTERM during the optimisation: exit 130/143, a readable file
+#   with status interrupted, /control/u of the problem's shape (N x 1),
+#   one history row per evaluation, and the best iterate (the lowest cost
+#   meeting the terminal tolerance, else the lowest violation) written.  A run that ends before the signal
+#   proves nothing, so the problem is made longer and the run repeated.
+#
+#   test_optimize.sh MRVI SOURCE_ROOT
+set -u
+mrvi=${1:?usage: test_optimize.sh MRVI SOURCE_ROOT}
+root=${2:?usage: test_optimize.sh MRVI SOURCE_ROOT}
+# shellcheck source=tests/testlib.sh
+. "$(dirname "$0")/testlib.sh"
+need_python h5py
+cd "$tmp" || exit 1
+di=$root/systems/ocp_double_integrator.yaml
+
+# attr FILE NAME: the attribute NAME of /optimizer
+attr() {
+  "$py" -c 'import sys, h5py
+v = h5py.File(sys.argv[1], "r")["optimizer"].attrs[sys.argv[2]]
+print(v.decode() if isinstance(v, bytes) else v)' "$1" "$2" 2>&1
+}
+
+# --- an evaluation limit is never converged --------------------------------
+"$mrvi" optimize "$di" -o limit.h5 -q --set control.solver.max_evaluations=2 \
+  >out.txt 2>err.txt
+rc=$?
+s=$(attr limit.h5 status)
+if [ $rc -eq 2 ] && [ "$s" = max_evaluations ] &&
+  grep -q 'NOT CONVERGED (status max_evaluations)' out.txt &&
+  ! grep -q 'optimum found' out.txt && grep -q 'evaluation limit' err.txt; then
+  pass "evaluation limit: exit 2, status max_evaluations, not 'optimum found'"
+else
+  fail "evaluation limit: exit $rc, status '$s' ($(cat out.txt err.txt))"
+fi
+"$mrvi" optimize "$di" -o full.h5 -q >out.txt 2>err.txt
+rc=$?
+s=$(attr full.h5 status)
+[ $rc -eq 0 ] && [ "$s" = converged ] && grep -q 'optimum found' out.txt &&
+  pass "full run: exit 0, status converged" ||
+  fail "full run: exit $rc, status '$s'"
+
+# --- the file cannot be written (full disk, injected): the controls printed ---
+MRVI_TEST_WRITE_FAIL_AFTER=1 "$mrvi" optimize "$di" -o wfail.h5 -q \
+  >out.txt 2>err.txt
+rc=$?
+cmp=$("$py" -c 'import sys, h5py
+u = h5py.File(sys.argv[1], "r")["control/u"][:, 0]
+lines = open(sys.argv[2]).read().split("controls NOT SAVED")[1].splitlines()[1:]
+print([float(x) for x in lines] == list(u))' full.h5 out.txt 2>&1)
+if [ $rc -eq 2 ] && grep -q "writing 'wfail.h5' failed: .*injected write failure" err.txt &&
+  [ "$cmp" = True ]; then
+  pass "write failure: exit 2, the reason given, the controls printed exactly"
+else
+  fail "write failure: exit $rc, controls '$cmp' ($(cat err.txt))"
+fi
+
+# --- .inf bounds (doc/description-files.md: allowed) ------------------------
+sed 's/weight: 1}/weight: 1, lower: -.inf, upper: .inf}/' "$di" >inf.yaml
+grep -q 'upper: .inf' inf.yaml || fail "inf.yaml: the sed found no actuator"
+"$mrvi" optimize inf.yaml -o inf.h5 -q >out.txt 2>err.txt
+rc=$?
+[ $rc -eq 0 ] && grep -q 'status converged' out.txt &&
+  pass ".inf bounds in the file accepted, converged" ||
+  fail ".inf bounds in the file: exit $rc ($(cat err.txt))"
+"$mrvi" optimize "$di" -o inf.h5 -q --set control.actuators.0.lower=-.INF \
+  --set control.actuators.0.upper=.Inf >out.txt 2>err.txt
+rc=$?
+[ $rc -eq 0 ] && pass ".inf bounds by --set accepted" ||
+  fail ".inf bounds by --set: exit $rc ($(cat err.txt))"
+
+# --- the output path is checked before optimising --------------------------
+# refused NAME OUT PATTERN: exit 1, the message matches, no evaluation ran
+refused() {
+  "$mrvi" optimize "$di" -o "$2" >out.txt 2>err.txt
+  local rc=$?
+  if [ $rc -eq 1 ] && grep -q "$3" err.txt && ! grep -q 'cost' out.txt; then
+    pass "$1: refused before any evaluation"
+  else
+    fail "$1: exit $rc ($(cat out.txt err.txt))"
+  fi
+}
+refused "missing directory" nodir/x.h5 'nodir/x.h5: cannot create the file'
+printf 'not hdf5\n' >foreign.h5
+refused "foreign file" foreign.h5 'not an mrvi output'
+[ "$(cat foreign.h5)" = "not hdf5" ] && pass "foreign file untouched" ||
+  fail "foreign file changed"
+cp full.h5 locked.h5
+if command -v flock >/dev/null; then
+  exec 9<>locked.h5 # the lock held by this shell: no process left behind
+  flock -x 9
+  refused "locked file" locked.h5 'locked'
+  flock -u 9
+  exec 9>&-
+  cmp -s full.h5 locked.h5 && pass "locked file untouched" ||
+    fail "locked file changed"
+fi
+if [ "$(id -u)" -ne 0 ]; then
+  mkdir ro && chmod 555 ro
+  refused "read-only directory" ro/x.h5 'cannot create the file'
+  chmod 755 ro
+fi
+
+# --- SIGINT / SIGTERM: the best iterate, status interrupted -----------------
+fpu=$root/systems/ocp_fpu.yaml
+for sig in INT TERM; do
+  want=$([ $sig = INT ] && echo 130 || echo 143)
+  t_end=20
+  done_ok=0
+  for _ in 1 2 3; do
+    N=$((t_end * 10)) # macro_step 0.1
+    rm -f sig.h5
+    "$mrvi" optimize "$fpu" -o sig.h5 --set integrator.t_end=$t_end \
+      >out.txt 2>err.txt &
+    pid=$!
+    sleep 1
+    kill -$sig $pid
+    wait $pid
+    rc=$?
+    if [ $rc -ne "$want" ] && grep -q 'optimum found\|NOT CONVERGED' out.txt; then
+      t_end=$((t_end * 3)) # finished before the signal: a longer problem
+      continue
+    fi
+    done_ok=1
+    break
+  done
+  if [ $done_ok -eq 0 ]; then
+    fail "SIG$sig: the optimisation always ended before the signal"
+    continue
+  fi
+  evals=$(grep -c '^ *[0-9][0-9]*  cost' out.txt)
+  check=$("$py" -c 'import sys, h5py
+f = h5py.File(sys.argv[1], "r")
+o = f["optimizer"]
+s = o.attrs["status"]
+s = s.decode() if isinstance(s, bytes) else s
+print(s, f["control/u"].shape == (int(sys.argv[2]), 1),
+      o["history"].shape[0] == int(sys.argv[3]) and int(o.attrs["evaluations"]) == int(sys.argv[3]),
+      f["macro/t"].shape[0] == int(sys.argv[2]) + 1, end=" ")
+# the best iterate: the lowest cost among rows meeting the tolerance, else
+# the lowest violation (the file re-evaluates those controls: equal bits)
+h, tol = o["history"][:], o.attrs["terminal_tolerance"]
+met = h[h[:, 1] <= tol]
+print(o.attrs["cost"] == met[:, 0].min() if len(met)
+      else o.attrs["terminal_violation"] == h[:, 1].min())' sig.h5 $N "$evals" 2>&1)
+  if [ $rc -eq "$want" ] && [ "$check" = "interrupted True True True True" ] &&
+    grep -q "SIG$sig: optimisation interrupted" err.txt; then
+    pass "SIG$sig: exit $rc, status interrupted, /control/u $N x 1, $evals evaluations kept"
+  else
+    fail "SIG$sig: exit $rc, check '$check' ($(cat err.txt))"
+  fi
+done
+
+test_finish
