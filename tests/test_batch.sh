@@ -151,8 +151,10 @@ for _ in $(seq 1 200); do
   [ "${n:-0}" -ge 1 ] && break
   sleep 0.05
 done
-kill -9 $pid
-wait $pid 2>/dev/null
+{
+  kill -9 $pid
+  wait $pid
+} 2>/dev/null
 sleep 0.3 # the workers die with the parent
 done_before=$(column k.h5 status | grep -c '^1$')
 if [ "$done_before" -ge 1 ] && [ "$done_before" -lt 8 ]; then
