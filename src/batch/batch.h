@@ -38,8 +38,8 @@ void mrvi_batch_axis_clear(mrvi_batch_axis *axis);
  * (seed fastest).  The plan owns copies of everything. */
 int mrvi_batch_plan_build(mrvi_batch_plan *plan, const char *description,
                           const char *source, const mrvi_batch_axis *axes,
-                          int n_axes, int zip, int n_seeds,
-                          double velocity_std, char *msg, size_t len);
+                          int n_axes, int zip, int n_seeds, double velocity_std,
+                          char *msg, size_t len);
 
 /* Load every case's description with its overrides (and perturbation)
  * before any case runs: the first refused case gives MRVI_EPARSE with
@@ -47,8 +47,8 @@ int mrvi_batch_plan_build(mrvi_batch_plan *plan, const char *description,
 int mrvi_batch_plan_check(const mrvi_batch_plan *plan, char *msg, size_t len);
 
 /* The system of case c: the plan's description with the case's overrides. */
-int mrvi_batch_case_load(const mrvi_batch_plan *plan, int c,
-                         mrvi_system **out, char *msg, size_t len);
+int mrvi_batch_case_load(const mrvi_batch_plan *plan, int c, mrvi_system **out,
+                         char *msg, size_t len);
 
 /* ---------------------------------------------------------------------------
  * Ensembles (plan.c): a counter-based generator, so that a case's random

@@ -69,8 +69,9 @@ int mrvi_batch_axis_parse(const char *spec, mrvi_batch_axis *a, char *msg,
   memset(a, 0, sizeof *a);
   const char *eq = strchr(spec, '=');
   if (!eq || eq == spec || !eq[1]) {
-    mrvi_fmt(msg, len, "--vary %s: expected KEY=V1,V2,... or "
-                       "KEY=linspace(a,b,n) or KEY=logspace(a,b,n)",
+    mrvi_fmt(msg, len,
+             "--vary %s: expected KEY=V1,V2,... or "
+             "KEY=linspace(a,b,n) or KEY=logspace(a,b,n)",
              spec);
     return MRVI_EINVAL;
   }
@@ -133,8 +134,9 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
   }
   if (n_seeds < 0 || n_seeds > 1000000 || (velocity_std != 0 && n_seeds == 0) ||
       !(velocity_std >= 0) || !isfinite(velocity_std)) {
-    mrvi_fmt(msg, len, "--seeds N (0..1000000) and a finite --velocity-std >= "
-                       "0, which needs --seeds");
+    mrvi_fmt(msg, len,
+             "--seeds N (0..1000000) and a finite --velocity-std >= "
+             "0, which needs --seeds");
     return MRVI_EINVAL;
   }
   const long per = n_seeds > 0 ? n_seeds : 1;
@@ -149,7 +151,8 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
   p->description = strdup(description);
   p->source = strdup(source);
   p->keys = calloc((size_t)n_axes + 1, sizeof *p->keys);
-  p->values = calloc((size_t)p->n_cases * (size_t)n_axes + 1, sizeof *p->values);
+  p->values =
+      calloc((size_t)p->n_cases * (size_t)n_axes + 1, sizeof *p->values);
   p->seed = calloc((size_t)p->n_cases, sizeof *p->seed);
   int bad = !p->description || !p->source || !p->keys || !p->values || !p->seed;
   for (int j = 0; !bad && j < n_axes; j++)

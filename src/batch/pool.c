@@ -67,8 +67,8 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
   }
   mrvi_summary sum;
   memset(&sum, 0, sizeof sum);
-  int st = mrvi_run(sys->model, &sys->settings, mrvi_writer_observe, w, NULL,
-                    &sum);
+  int st =
+      mrvi_run(sys->model, &sys->settings, mrvi_writer_observe, w, NULL, &sum);
   mrvi_writer_set_summary(w, &sum);
   const char *reason = "completed";
   if (st < 0)

@@ -929,10 +929,9 @@ static int cmd_run(int argc, char **argv) {
 /* ---------------------------------------------------------------------------
  * main
  * ------------------------------------------------------------------------- */
-static const char *const commands[] = {"run",      "check",     "help",
-                                       "converge", "stability", "timing",
-                                       "optimize", "export",    "batch",
-                                       NULL};
+static const char *const commands[] = {
+    "run",    "check",    "help",   "converge", "stability",
+    "timing", "optimize", "export", "batch",    NULL};
 /* Optimal control (cli_optimize.c). */
 int mrvi_cmd_optimize(int argc, char **argv);
 extern const char mrvi_usage_optimize[];

@@ -14,7 +14,8 @@ enum { EXIT_INPUT = 1, EXIT_RUN = 2, MSG_LEN = 8192 };
 
 const char mrvi_usage_batch[] =
     "Usage: mrvi batch FILE -o OUT.h5 [--vary KEY=V1,V2,...]...\n"
-    "                  [--vary KEY=linspace(a,b,n)|logspace(a,b,n)]... [--zip]\n"
+    "                  [--vary KEY=linspace(a,b,n)|logspace(a,b,n)]... "
+    "[--zip]\n"
     "                  [--seeds N [--velocity-std S]] [--jobs N] [--quiet]\n"
     "       mrvi batch --resume OUT.h5 [--jobs N] [--quiet]\n"
     "\n"
@@ -82,8 +83,9 @@ static int on_done(void *user, const mrvi_batch_result *res) {
   b->failed += res->status == MRVI_BATCH_FAILED;
   b->unfinished += res->status == MRVI_BATCH_PENDING;
   if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
-    fprintf(stderr, "mrvi batch: [%d/%d] case %d: %s (%ld steps, %.3f s, "
-                    "energy error %.3e)\n",
+    fprintf(stderr,
+            "mrvi batch: [%d/%d] case %d: %s (%ld steps, %.3f s, "
+            "energy error %.3e)\n",
             b->finished, b->total, res->c, res->reason, res->steps,
             res->wall_time, res->energy_error);
   return 0;

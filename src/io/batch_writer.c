@@ -72,8 +72,9 @@ int mrvi_batch_case_file(const char *master, int c, int relative, char *buf,
 /* Fixed-length string type of `size` bytes; close it. */
 static hid_t fixed_string(size_t size) {
   hid_t t = H5Tcopy(H5T_C_S1);
-  if (t >= 0 && (H5Tset_size(t, size) < 0 || H5Tset_strpad(t, H5T_STR_NULLTERM) < 0 ||
-                 H5Tset_cset(t, H5T_CSET_UTF8) < 0)) {
+  if (t >= 0 &&
+      (H5Tset_size(t, size) < 0 || H5Tset_strpad(t, H5T_STR_NULLTERM) < 0 ||
+       H5Tset_cset(t, H5T_CSET_UTF8) < 0)) {
     H5Tclose(t);
     return H5I_INVALID_HID;
   }
@@ -160,8 +161,8 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
     mrvi_h5_batch_fail_text(b, MRVI_ENOMEM, "out of memory");
   hid_t cases = mrvi_h5_batch_group(b, root, "cases");
   hid_t runs = mrvi_h5_batch_group(b, root, "runs");
-  hid_t values = b->status ? H5I_INVALID_HID
-                           : mrvi_h5_batch_group(b, cases, "values");
+  hid_t values =
+      b->status ? H5I_INVALID_HID : mrvi_h5_batch_group(b, cases, "values");
   for (int c = 0; b->status == 0 && c < p->n_cases; c++) {
     case_overrides(p, c, over + (size_t)c * OVERRIDES_BYTES, OVERRIDES_BYTES);
     char rel[FILE_BYTES], link[32];
@@ -288,7 +289,8 @@ static char *read_strings(hid_t g, const char *name, size_t *size,
     *size = H5Tget_size(t);
     buf = calloc(count + 1, *size);
     hid_t mt = fixed_string(*size);
-    if (buf && (mt < 0 || H5Dread(d, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf) < 0)) {
+    if (buf &&
+        (mt < 0 || H5Dread(d, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf) < 0)) {
       free(buf);
       buf = NULL;
     }

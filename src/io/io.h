@@ -166,7 +166,7 @@ typedef struct mrvi_batch_plan {
   char *description; /* the input text (before overrides) */
   char *source;      /* the file it came from (messages, root attribute) */
   int n_keys;
-  char **keys;   /* n_keys */
+  char **keys; /* n_keys */
   int n_cases;
   char **values; /* n_cases x n_keys, row-major */
   long *seed;    /* n_cases; -1: no perturbation */
@@ -201,9 +201,8 @@ int mrvi_batch_file_create(const char *path, const mrvi_batch_plan *plan,
 /* Reopen a master file for writing rows and, unless plan is NULL (for
  * --resume), read its plan and each case's status (*status: n_cases
  * entries, malloc'd). */
-int mrvi_batch_file_open(const char *path, mrvi_batch_plan *plan,
-                         int **status, mrvi_batch_file **out, char *msg,
-                         size_t len);
+int mrvi_batch_file_open(const char *path, mrvi_batch_plan *plan, int **status,
+                         mrvi_batch_file **out, char *msg, size_t len);
 /* Write the row of res->c and flush the file: rows are raw data of
  * fixed-size datasets allocated at creation, so a row written is on disk
  * and a batch killed at any instant leaves a readable table. */
