@@ -199,6 +199,10 @@ run_ok "--resume after a killed worker" "$mrvi" batch --resume w.h5 -q
 seq 0 7 | sed 's/.*/&:&/' | same_runs w.h5 full.h5 && same_table w.h5 full.h5 &&
   pass "batch with a killed worker, resumed, equals the uninterrupted one" ||
   fail "batch with a killed worker, resumed, equals the uninterrupted one"
+"$mrvi" batch --resume run0.h5 2>err.txt
+[ $? = 1 ] && grep -q "not an mrvi batch file" err.txt &&
+  pass "--resume of a run file is refused" ||
+  fail "--resume of a run file is refused: $(cat err.txt)"
 "$mrvi" batch --resume full.h5 -q 2>err.txt
 [ $? = 0 ] && pass "--resume of a finished batch runs nothing" ||
   fail "--resume of a finished batch"

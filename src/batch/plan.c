@@ -79,6 +79,11 @@ int mrvi_batch_axis_parse(const char *spec, mrvi_batch_axis *a, char *msg,
     mrvi_fmt(msg, len, "out of memory");
     return MRVI_ENOMEM;
   }
+  if (strchr(spec, '\n')) { /* the master file separates lines by it */
+    mrvi_fmt(msg, len, "--vary: a key or value contains a newline");
+    mrvi_batch_axis_clear(a);
+    return MRVI_EINVAL;
+  }
   int rc = axis_range(a, eq + 1, msg, len);
   if (rc < 0) {
     mrvi_batch_axis_clear(a);

@@ -24,6 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #define OVERRIDES_BYTES 1024
 #define FILE_BYTES 512
@@ -81,19 +82,21 @@ static hid_t fixed_string(size_t size) {
   return t;
 }
 
-/* "KEY=VALUE\n..." of case c into buf (size bytes, zero-padded). */
-static void case_overrides(const mrvi_batch_plan *p, int c, char *buf,
-                           size_t size) {
+/* "KEY=VALUE\n..." of case c into buf (size bytes, zero-padded); -1 when
+ * it does not fit. */
+static int case_overrides(const mrvi_batch_plan *p, int c, char *buf,
+                          size_t size) {
   memset(buf, 0, size);
   size_t at = 0;
   for (int j = 0; j < p->n_keys && at < size; j++) {
     int n = snprintf(buf + at, size - at, "%s%s=%s", j ? "\n" : "", p->keys[j],
                      p->values[(long)c * p->n_keys + j]);
     if (n < 0)
-      break;
+      return -1;
     at += (size_t)n;
   }
   buf[size - 1] = '\0';
+  return at < size ? 0 : -1;
 }
 
 /* The keys '\n'-joined (malloc'd). */
@@ -164,7 +167,12 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   hid_t values =
       b->status ? H5I_INVALID_HID : mrvi_h5_batch_group(b, cases, "values");
   for (int c = 0; b->status == 0 && c < p->n_cases; c++) {
-    case_overrides(p, c, over + (size_t)c * OVERRIDES_BYTES, OVERRIDES_BYTES);
+    if (case_overrides(p, c, over + (size_t)c * OVERRIDES_BYTES,
+                       OVERRIDES_BYTES) < 0) {
+      mrvi_h5_batch_fail_text(b, MRVI_EINVAL,
+                              "a case's KEY=VALUE overrides exceed 1023 bytes");
+      break;
+    }
     char rel[FILE_BYTES], link[32];
     if (mrvi_batch_case_file(path, c, 1, rel, sizeof rel) < 0) {
       mrvi_h5_batch_fail_text(b, MRVI_EINVAL, "case file name too long");
@@ -264,8 +272,10 @@ int mrvi_batch_file_create(const char *path, const mrvi_batch_plan *plan,
   write_plan(&b, path, plan);
   if (b.status == 0 && H5Fflush(f->file, H5F_SCOPE_GLOBAL) < 0)
     mrvi_h5_batch_fail(&b, "flushing");
-  if (b.status) {
+  if (b.status) { /* no half-written table stays behind */
     file_free(f);
+    if (b.file >= 0)
+      unlink(path);
     return b.status;
   }
   *out = f;
@@ -437,8 +447,9 @@ static int read_plan(hid_t file, mrvi_batch_plan *p, int **status, char *msg,
   }
   H5Aclose(a);
   a = H5Aopen(file, "velocity_std", H5P_DEFAULT);
-  if (a < 0 || H5Aread(a, H5T_NATIVE_DOUBLE, &p->velocity_std) < 0) {
-    mrvi_fmt(msg, len, "no velocity_std attribute");
+  if (a < 0 || H5Aread(a, H5T_NATIVE_DOUBLE, &p->velocity_std) < 0 ||
+      !(p->velocity_std >= 0 && p->velocity_std <= 1e300)) {
+    mrvi_fmt(msg, len, "no velocity_std attribute, or not a number >= 0");
     goto done;
   }
   rc = 0;
