@@ -200,7 +200,7 @@ seq 0 7 | sed 's/.*/&:&/' | same_runs w.h5 full.h5 && same_table w.h5 full.h5 &&
   pass "batch with a killed worker, resumed, equals the uninterrupted one" ||
   fail "batch with a killed worker, resumed, equals the uninterrupted one"
 "$mrvi" batch --resume run0.h5 2>err.txt
-[ $? = 1 ] && grep -q "not an mrvi batch file" err.txt &&
+[ $? = 1 ] && grep -q "batch_version" err.txt &&
   pass "--resume of a run file is refused" ||
   fail "--resume of a run file is refused: $(cat err.txt)"
 "$mrvi" batch --resume full.h5 -q 2>err.txt

@@ -10,12 +10,12 @@
  * metadata is that of creation and whose rows are those written: readable,
  * each row either pending or complete (the status entry is written last).
  *
- * Layout: root attributes mrvi_version, batch_version, source,
- * description, keys ('\n'-separated), n_seeds, velocity_std; /cases/
- * overrides (fixed strings "KEY=VALUE" '\n'-separated), /cases/values/KEY
- * (the value as a number, NAN when it is not one), seed, status, steps,
- * wall_time, energy_error, stop_reason, file; /runs/case_CCCC external
- * links to "/" of each case file. */
+ * Layout: root attributes mrvi_version, batch_version, source, keys
+ * ('\n'-separated), n_seeds, velocity_std; /cases/ overrides (fixed strings
+ * "KEY=VALUE" '\n'-separated), /cases/values/KEY (the value as a number, NAN
+ * when it is not one), seed, status, steps, wall_time, energy_error,
+ * stop_reason, file; /description (the text before overrides); /runs/case_CCCC
+ * external links to "/" of each case file. */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -144,7 +144,14 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   mrvi_h5_batch_attr_string(b, root, "mrvi_version", MRVI_VERSION);
   mrvi_h5_batch_attr_int(b, root, "batch_version", 1);
   mrvi_h5_batch_attr_string(b, root, "source", p->source);
-  mrvi_h5_batch_attr_string(b, root, "description", p->description);
+  hid_t vls = mrvi_h5_string_type();
+  if (b->status == 0 &&
+      (vls < 0 || mrvi_h5_write_fixed(root, "description", H5P_DEFAULT, vls,
+                                      vls, 0, 0, 1, &p->description,
+                                      "the description, before overrides") < 0))
+    mrvi_h5_batch_fail(b, "description");
+  if (vls >= 0)
+    H5Tclose(vls);
   char *keys = join_keys(p);
   if (!keys)
     mrvi_h5_batch_fail_text(b, MRVI_ENOMEM, "out of memory");
@@ -282,184 +289,94 @@ int mrvi_batch_file_create(const char *path, const mrvi_batch_plan *plan,
   return 0;
 }
 
-/* Fixed-string dataset name of g into a malloc'd buffer of count strings
- * of *size bytes each, back to back. */
-static char *read_strings(hid_t g, const char *name, size_t *size,
-                          hsize_t count) {
-  hid_t d = H5Dopen2(g, name, H5P_DEFAULT);
-  if (d < 0)
-    return NULL;
-  hid_t t = H5Dget_type(d);
-  hid_t s = H5Dget_space(d);
-  hsize_t dims[1] = {0};
-  char *buf = NULL;
-  if (t >= 0 && s >= 0 && H5Tget_class(t) == H5T_STRING &&
-      !H5Tis_variable_str(t) && H5Sget_simple_extent_ndims(s) == 1 &&
-      H5Sget_simple_extent_dims(s, dims, NULL) == 1 && dims[0] == count) {
-    *size = H5Tget_size(t);
-    buf = calloc(count + 1, *size);
-    hid_t mt = fixed_string(*size);
-    if (buf &&
-        (mt < 0 || H5Dread(d, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf) < 0)) {
-      free(buf);
-      buf = NULL;
-    }
-    if (mt >= 0)
-      H5Tclose(mt);
-  }
-  if (s >= 0)
-    H5Sclose(s);
-  if (t >= 0)
-    H5Tclose(t);
-  H5Dclose(d);
-  return buf;
-}
+/* Longest case table read back (mrvi_batch_plan_build's limit too). */
+#define MAX_CASES 1000000
 
-/* A 1-D dataset of count entries read as mtype into v. */
-static int read_numbers(hid_t g, const char *name, hid_t mtype, void *v,
-                        hsize_t count) {
-  hid_t d = H5Dopen2(g, name, H5P_DEFAULT);
-  if (d < 0)
-    return -1;
-  hid_t s = H5Dget_space(d);
-  hsize_t dims[1] = {0};
-  int ok = s >= 0 && H5Sget_simple_extent_ndims(s) == 1 &&
-           H5Sget_simple_extent_dims(s, dims, NULL) == 1 && dims[0] == count &&
-           H5Dread(d, mtype, H5S_ALL, H5S_ALL, H5P_DEFAULT, v) >= 0;
-  if (s >= 0)
-    H5Sclose(s);
-  H5Dclose(d);
-  return ok ? 0 : -1;
-}
-
-/* A variable-length string attribute of the root (malloc'd), or NULL. */
-static char *read_attr_string(hid_t file, const char *name) {
-  if (H5Aexists(file, name) <= 0)
-    return NULL;
-  hid_t a = H5Aopen(file, name, H5P_DEFAULT);
-  hid_t t = a >= 0 ? H5Aget_type(a) : H5I_INVALID_HID;
-  char *out = NULL;
-  if (t >= 0 && H5Tget_class(t) == H5T_STRING && H5Tis_variable_str(t) > 0) {
-    hid_t mt = mrvi_h5_string_type();
-    char *v = NULL;
-    if (mt >= 0 && H5Aread(a, mt, &v) >= 0 && v) {
-      out = strdup(v);
-      H5free_memory(v);
-    }
-    if (mt >= 0)
-      H5Tclose(mt);
-  }
-  if (t >= 0)
-    H5Tclose(t);
-  if (a >= 0)
-    H5Aclose(a);
-  return out;
-}
-
-/* The plan stored in an open master file; 0 or MRVI_EIO / MRVI_ENOMEM with
- * the reason in msg (without the path). */
-static int read_plan(hid_t file, mrvi_batch_plan *p, int **status, char *msg,
-                     size_t len) {
+/* The plan stored in a master file, read through the validated layer
+ * (h5util.h: every shape and size checked before a read); 0, or a status
+ * with "PATH: ..." in in->msg. */
+static int read_plan(const mrvi_h5in *in, mrvi_batch_plan *p, int **status) {
   memset(p, 0, sizeof *p);
-  int rc = MRVI_EIO;
-  hid_t cases = H5I_INVALID_HID;
-  char *keys = NULL, *over = NULL;
-  int version = 0;
-  hid_t a = H5Aexists(file, "batch_version") > 0
-                ? H5Aopen(file, "batch_version", H5P_DEFAULT)
-                : H5I_INVALID_HID;
-  if (a < 0 || H5Aread(a, H5T_NATIVE_INT, &version) < 0 || version != 1) {
-    mrvi_fmt(msg, len, "not an mrvi batch file (no batch_version 1)");
-    goto done;
+  *status = NULL;
+  char **over = NULL, **text = NULL;
+  hsize_t dims[1] = {0}, n = 0;
+  double v;
+  char *keys = malloc(MRVI_H5_MAX_ATTR + 1);
+  p->source = malloc(MRVI_H5_MAX_ATTR + 1);
+  int rc = keys && p->source ? 0 : MRVI_ENOMEM;
+  if (rc == 0 &&
+      (mrvi_h5in_attr_number(in, "batch_version", 1, 1, 1, &v) < 0 ||
+       mrvi_h5in_attr_string(in, "source", p->source, MRVI_H5_MAX_ATTR + 1) <
+           0 ||
+       mrvi_h5in_attr_string(in, "keys", keys, MRVI_H5_MAX_ATTR + 1) < 0 ||
+       mrvi_h5in_strings(in, "/description", 0, 0, MRVI_H5_MAX_TEXT, &text) <
+           0))
+    rc = MRVI_EIO;
+  if (rc == 0 && mrvi_h5in_attr_number(in, "n_seeds", 0, MAX_CASES, 1, &v) < 0)
+    rc = MRVI_EIO;
+  p->n_seeds = (int)v;
+  if (rc == 0 && mrvi_h5in_attr_number(in, "velocity_std", 0, 1e300, 0,
+                                       &p->velocity_std) < 0)
+    rc = MRVI_EIO;
+  if (rc == 0 &&
+      mrvi_h5in_read_new(in, "/cases/status", H5T_NATIVE_INT, 1, NULL,
+                         MRVI_H5_ANY, (void **)status, dims) < 0)
+    rc = MRVI_EIO;
+  n = dims[0];
+  if (rc == 0 && (n < 1 || n > MAX_CASES)) {
+    mrvi_fmt(in->msg, in->len, "%s: /cases/status: %llu cases (1..%d)",
+             in->path, (unsigned long long)n, MAX_CASES);
+    rc = MRVI_EIO;
   }
-  p->description = read_attr_string(file, "description");
-  p->source = read_attr_string(file, "source");
-  keys = read_attr_string(file, "keys");
-  cases = H5Gopen2(file, "cases", H5P_DEFAULT);
-  hid_t st = cases >= 0 ? H5Dopen2(cases, "status", H5P_DEFAULT) : -1;
-  hsize_t n = 0;
-  if (st >= 0) {
-    hid_t s = H5Dget_space(st);
-    if (s >= 0 && H5Sget_simple_extent_ndims(s) == 1)
-      H5Sget_simple_extent_dims(s, &n, NULL);
-    if (s >= 0)
-      H5Sclose(s);
-    H5Dclose(st);
-  }
-  if (!p->description || !p->source || !keys || n < 1 || n > 100000000) {
-    mrvi_fmt(msg, len, "the batch file lacks its description, keys or table");
-    goto done;
-  }
-  p->n_cases = (int)n;
-  p->n_keys = 0;
-  if (keys[0]) {
-    p->n_keys = 1;
-    for (const char *k = keys; *k; k++)
-      p->n_keys += *k == '\n';
-  }
-  p->keys = calloc((size_t)p->n_keys + 1, sizeof *p->keys);
-  p->values = calloc(n * (size_t)p->n_keys + 1, sizeof *p->values);
-  p->seed = calloc(n, sizeof *p->seed);
-  *status = calloc(n, sizeof **status);
-  size_t osize = 0;
-  over = read_strings(cases, "overrides", &osize, n);
-  if (!p->keys || !p->values || !p->seed || !*status) {
-    rc = MRVI_ENOMEM;
-    mrvi_fmt(msg, len, "out of memory");
-    goto done;
-  }
-  if (!over || read_numbers(cases, "seed", H5T_NATIVE_LONG, p->seed, n) < 0 ||
-      read_numbers(cases, "status", H5T_NATIVE_INT, *status, n) < 0) {
-    mrvi_fmt(msg, len, "cannot read the case table");
-    goto done;
+  const hsize_t want[1] = {n};
+  if (rc == 0 &&
+      (mrvi_h5in_read_new(in, "/cases/seed", H5T_NATIVE_LONG, 1, want,
+                          MRVI_H5_ANY, (void **)&p->seed, NULL) < 0 ||
+       mrvi_h5in_strings(in, "/cases/overrides", 1, n, OVERRIDES_BYTES, &over) <
+           0))
+    rc = MRVI_EIO;
+  if (rc == 0) {
+    p->n_cases = (int)n;
+    p->description = strdup(text[0]);
+    p->n_keys = 0;
+    if (keys[0]) {
+      p->n_keys = 1;
+      for (const char *k = keys; *k; k++)
+        p->n_keys += *k == '\n';
+    }
+    p->keys = calloc((size_t)p->n_keys + 1, sizeof *p->keys);
+    p->values = calloc(n * (size_t)p->n_keys + 1, sizeof *p->values);
+    if (!p->description || !p->keys || !p->values)
+      rc = MRVI_ENOMEM;
   }
   char *save = NULL;
-  char *k = strtok_r(keys, "\n", &save);
-  for (int j = 0; j < p->n_keys && k; j++, k = strtok_r(NULL, "\n", &save))
-    p->keys[j] = strdup(k);
-  for (hsize_t c = 0; c < n; c++) {
-    /* Row c: "KEY=VALUE" lines in the order of keys. */
-    char *row = strndup(over + c * osize, osize);
-    if (!row) {
-      rc = MRVI_ENOMEM;
-      mrvi_fmt(msg, len, "out of memory");
-      goto done;
-    }
-    char *line = strtok_r(row, "\n", &save);
-    for (int j = 0; j < p->n_keys; j++, line = strtok_r(NULL, "\n", &save)) {
-      size_t kl = p->keys[j] ? strlen(p->keys[j]) : 0;
-      if (!line || !p->keys[j] || strncmp(line, p->keys[j], kl) ||
-          line[kl] != '=') {
-        mrvi_fmt(msg, len, "case %d: overrides do not match the keys", (int)c);
-        free(row);
-        goto done;
+  char *k = rc == 0 ? strtok_r(keys, "\n", &save) : NULL;
+  for (int j = 0; rc == 0 && j < p->n_keys;
+       j++, k = strtok_r(NULL, "\n", &save))
+    if (!k || !(p->keys[j] = strdup(k)))
+      rc = k ? MRVI_ENOMEM : MRVI_EIO;
+  for (hsize_t c = 0; rc == 0 && c < n; c++) {
+    /* Row c: "KEY=VALUE" lines in the order of the keys. */
+    char *line = strtok_r(over[c], "\n", &save);
+    for (int j = 0; rc == 0 && j < p->n_keys;
+         j++, line = strtok_r(NULL, "\n", &save)) {
+      size_t kl = strlen(p->keys[j]);
+      if (!line || strncmp(line, p->keys[j], kl) || line[kl] != '=') {
+        mrvi_fmt(in->msg, in->len,
+                 "%s: /cases/overrides: case %d does not match the keys",
+                 in->path, (int)c);
+        rc = MRVI_EIO;
+      } else if (!(p->values[c * (size_t)p->n_keys + (size_t)j] =
+                       strdup(line + kl + 1))) {
+        rc = MRVI_ENOMEM;
       }
-      p->values[c * (size_t)p->n_keys + (size_t)j] = strdup(line + kl + 1);
     }
-    free(row);
   }
-  if (a >= 0)
-    H5Aclose(a);
-  a = H5Aopen(file, "n_seeds", H5P_DEFAULT);
-  if (a < 0 || H5Aread(a, H5T_NATIVE_INT, &p->n_seeds) < 0) {
-    mrvi_fmt(msg, len, "no n_seeds attribute");
-    goto done;
-  }
-  H5Aclose(a);
-  a = H5Aopen(file, "velocity_std", H5P_DEFAULT);
-  if (a < 0 || H5Aread(a, H5T_NATIVE_DOUBLE, &p->velocity_std) < 0 ||
-      !(p->velocity_std >= 0 && p->velocity_std <= 1e300)) {
-    mrvi_fmt(msg, len, "no velocity_std attribute, or not a number >= 0");
-    goto done;
-  }
-  rc = 0;
-done:
-  if (a >= 0)
-    H5Aclose(a);
-  if (cases >= 0)
-    H5Gclose(cases);
+  if (rc == MRVI_ENOMEM)
+    mrvi_fmt(in->msg, in->len, "%s: out of memory", in->path);
+  mrvi_h5_strings_free(text, 1);
+  mrvi_h5_strings_free(over, n);
   free(keys);
-  free(over);
   if (rc) {
     mrvi_batch_plan_free(p);
     free(*status);
@@ -486,10 +403,9 @@ int mrvi_batch_file_open(const char *path, mrvi_batch_plan *plan, int **status,
     file_free(f);
     return MRVI_EIO;
   }
-  char text[512];
-  int rc = plan ? read_plan(f->file, plan, status, text, sizeof text) : 0;
+  mrvi_h5in in = {.file = f->file, .path = path, .msg = msg, .len = len};
+  int rc = plan ? read_plan(&in, plan, status) : 0;
   if (rc) {
-    mrvi_fmt(msg, len, "%s: %s", path, text);
     file_free(f);
     return rc;
   }
