@@ -3,7 +3,7 @@
 # `#include "..."` of src/**/*.c|h and constraints/*.c|h names a header of
 # its own layer or of a lower one, in the order
 #   util  <  constraints  <  model  <  step  <  solver  <  integrator
-#         <  ocp  <  io  <  cli
+#         <  ocp  <  io  <  batch  <  cli
 # (src/mrvi.h, the public header, counts as util; cli may include anything;
 # tests/ and bench/ are exempt).  A file of src/ in no layer, or an include
 # that names no file (looked up beside the file, then in src/), fails too.
@@ -19,7 +19,7 @@ root=${1:?usage: test_layers.sh SOURCE_ROOT}
 # shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
 
-layers=(util constraints model step solver integrator ocp io cli)
+layers=(util constraints model step solver integrator ocp io batch cli)
 
 # layer_of PATH (relative to the tree's root): the index of its layer in
 # $layers, or -1.

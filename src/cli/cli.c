@@ -10,6 +10,7 @@
  * (Newton, non-finite values, writing output), 128 + signal when interrupted
  * (130 for Ctrl-C, 143 for SIGTERM); an interrupted or failed run still
  * leaves a valid HDF5 file with every completed step. */
+#include "cli_batch.h"
 #include "cli_export.h"
 #include "cli_study.h"
 #include "io/io.h"
@@ -45,6 +46,8 @@ static const char usage_main[] =
     "  optimize FILE    optimal control of the `control:` section (NLopt)\n"
     "  export FILE.h5   particles of a run for OVITO/VMD (xyz) or ParaView\n"
     "                   (xdmf)\n"
+    "  batch FILE       many runs: parameter studies and ensembles on all\n"
+    "                   cores, resumable (doc/batch.md)\n"
     "  help [COMMAND]   show this help or the help of a command\n"
     "\n"
     "Studies (paper §5-§6; each prints a table and writes it to HDF5):\n"
@@ -927,9 +930,9 @@ static int cmd_run(int argc, char **argv) {
 /* ---------------------------------------------------------------------------
  * main
  * ------------------------------------------------------------------------- */
-static const char *const commands[] = {"run",      "check",     "help",
-                                       "converge", "stability", "timing",
-                                       "optimize", "export",    NULL};
+static const char *const commands[] = {
+    "run",    "check",    "help",   "converge", "stability",
+    "timing", "optimize", "export", "batch",    NULL};
 /* Optimal control (cli_optimize.c). */
 int mrvi_cmd_optimize(int argc, char **argv);
 extern const char mrvi_usage_optimize[];
@@ -964,6 +967,8 @@ static const char *command_usage(const char *cmd) {
     return mrvi_usage_optimize;
   if (!strcmp(cmd, "export"))
     return mrvi_usage_export;
+  if (!strcmp(cmd, "batch"))
+    return mrvi_usage_batch;
   return NULL;
 }
 
@@ -1015,5 +1020,7 @@ int main(int argc, char **argv) {
     return mrvi_cmd_optimize(argc - 1, argv + 1);
   if (!strcmp(cmd, "export"))
     return mrvi_cmd_export(argc - 1, argv + 1);
+  if (!strcmp(cmd, "batch"))
+    return mrvi_cmd_batch(argc - 1, argv + 1);
   return unknown_command(cmd);
 }

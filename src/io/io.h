@@ -148,4 +148,70 @@ int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
                           const mrvi_ocp_result *res, const char *status,
                           char *msg, size_t len);
 
+/* ---------------------------------------------------------------------------
+ * `mrvi batch` (batch_writer.c; doc/batch.md).  The plan and the results
+ * live here because the master file stores them; src/batch builds and runs
+ * them.
+ * ------------------------------------------------------------------------- */
+
+/* A case's status in the master table. */
+enum {
+  MRVI_BATCH_PENDING = 0,   /* not run yet (or killed while running) */
+  MRVI_BATCH_COMPLETED = 1, /* the run completed */
+  MRVI_BATCH_FAILED = 2     /* it ran and stopped: stop_reason says why */
+};
+#define MRVI_BATCH_REASON_BYTES 1024
+
+/* The case table: case c is the description with the overrides
+ * keys[j]=values[c * n_keys + j] and, when seed[c] >= 0, the initial
+ * velocities perturbed by seed seed[c] with std velocity_std. */
+typedef struct mrvi_batch_plan {
+  char *description; /* the input text (before overrides) */
+  char *source;      /* the file it came from (messages, root attribute) */
+  int n_keys;
+  char **keys; /* n_keys */
+  int n_cases;
+  char **values; /* n_cases x n_keys, row-major */
+  long *seed;    /* n_cases; -1: no perturbation */
+  int n_seeds;   /* --seeds (0: none) */
+  double velocity_std;
+} mrvi_batch_plan;
+void mrvi_batch_plan_free(mrvi_batch_plan *plan); /* the contents; NULL ok */
+
+/* What a case's run gave: a row of the table. */
+typedef struct mrvi_batch_result {
+  int c;      /* case index */
+  int status; /* MRVI_BATCH_COMPLETED or MRVI_BATCH_FAILED */
+  long steps; /* macro steps completed */
+  double wall_time, energy_error; /* s; max rel. energy error (mrvi_summary) */
+  char reason[MRVI_BATCH_REASON_BYTES]; /* stop reason ("completed") */
+} mrvi_batch_result;
+
+/* The run file of case c of the batch whose master file is `master`:
+ * "STEM.cases/case_CCCC.h5" beside it (STEM: master without ".h5").
+ * relative: the name from the master's directory (the external link's
+ * target), else the path to open.  MRVI_EINVAL when it does not fit. */
+int mrvi_batch_case_file(const char *master, int c, int relative, char *buf,
+                         size_t len);
+
+/* The master file, open for writing rows. */
+typedef struct mrvi_batch_file mrvi_batch_file;
+
+/* Create the master file for plan (every case pending, external links
+ * /runs/case_CCCC to the case files) and the case folder. */
+int mrvi_batch_file_create(const char *path, const mrvi_batch_plan *plan,
+                           mrvi_batch_file **out, char *msg, size_t len);
+/* Reopen a master file for writing rows and, unless plan is NULL (for
+ * --resume), read its plan and each case's status (*status: n_cases
+ * entries, malloc'd). */
+int mrvi_batch_file_open(const char *path, mrvi_batch_plan *plan, int **status,
+                         mrvi_batch_file **out, char *msg, size_t len);
+/* Write the row of res->c and flush the file: rows are raw data of
+ * fixed-size datasets allocated at creation, so a row written is on disk
+ * and a batch killed at any instant leaves a readable table. */
+int mrvi_batch_file_row(mrvi_batch_file *f, const mrvi_batch_result *res,
+                        char *msg, size_t len);
+/* Close; NULL is accepted. */
+int mrvi_batch_file_close(mrvi_batch_file *f, char *msg, size_t len);
+
 #endif

@@ -1,0 +1,95 @@
+/* What src/batch offers the command-line tool: `mrvi batch` (doc/batch.md).
+ * A batch is a table of cases, each a `mrvi run` of one description with
+ * its own overrides ("KEY=VALUE", as `--set`) and, for an ensemble, a seed
+ * that perturbs the initial velocities.  plan.c builds and checks the
+ * table, pool.c runs cases in worker processes (fork, before any thread)
+ * and reports each result back through a pipe.  The master file (case
+ * table and links to the case files) is written by src/io (io.h).  Nothing
+ * here prints or exits; every function returns a status with a message. */
+#ifndef MRVI_BATCH_H
+#define MRVI_BATCH_H
+
+#include "io/io.h"
+
+#include <stddef.h>
+#include <stdint.h>
+
+/* ---------------------------------------------------------------------------
+ * The plan (plan.c)
+ * ------------------------------------------------------------------------- */
+
+/* One --vary: a key and its values (text, as --set takes them). */
+typedef struct mrvi_batch_axis {
+  char *key;
+  int n;
+  char **values;
+} mrvi_batch_axis;
+
+/* Parse "KEY=V1,V2,..." or "KEY=linspace(a,b,n)" / "KEY=logspace(a,b,n)"
+ * (n values from a to b, resp. from 10^a to 10^b, printed with %.17g).
+ * MRVI_EINVAL with a message. */
+int mrvi_batch_axis_parse(const char *spec, mrvi_batch_axis *axis, char *msg,
+                          size_t len);
+void mrvi_batch_axis_clear(mrvi_batch_axis *axis);
+
+/* Build the case table: the Cartesian product of the axes (the last axis
+ * varies fastest), or with zip the i-th values of every axis together
+ * (equal lengths), each repeated for seeds 0..n_seeds-1 when n_seeds > 0
+ * (seed fastest).  The plan owns copies of everything. */
+int mrvi_batch_plan_build(mrvi_batch_plan *plan, const char *description,
+                          const char *source, const mrvi_batch_axis *axes,
+                          int n_axes, int zip, int n_seeds, double velocity_std,
+                          char *msg, size_t len);
+
+/* Load every case's description with its overrides (and perturbation)
+ * before any case runs: the first refused case gives MRVI_EPARSE with
+ * "case C (KEY=VALUE ...): loader message" in msg. */
+int mrvi_batch_plan_check(const mrvi_batch_plan *plan, char *msg, size_t len);
+
+/* The system of case c: the plan's description with the case's overrides. */
+int mrvi_batch_case_load(const mrvi_batch_plan *plan, int c, mrvi_system **out,
+                         char *msg, size_t len);
+
+/* ---------------------------------------------------------------------------
+ * Ensembles (plan.c): a counter-based generator, so that a case's random
+ * numbers depend on its seed alone (not on the job that runs it, nor on the
+ * other cases).  Number i of seed s is splitmix64 applied to
+ * (s + 1) * 0x9E3779B97F4A7C15 + i (Steele, Lea, Flood 2014); normals by
+ * Box-Muller from numbers 2j and 2j+1.
+ * ------------------------------------------------------------------------- */
+uint64_t mrvi_batch_random(uint64_t seed, uint64_t i);
+/* Standard normal number j of seed s. */
+double mrvi_batch_normal(uint64_t seed, uint64_t j);
+
+/* ---------------------------------------------------------------------------
+ * Running cases (pool.c)
+ * ------------------------------------------------------------------------- */
+
+/* Run case c of the plan into the run file `path` (the layout of `mrvi
+ * run`, written by mrvi_writer) and fill *res.  A case that fails (load,
+ * Newton, non-finite state) is a result with status MRVI_BATCH_FAILED and
+ * its reason, not an error of the batch. */
+void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
+                         mrvi_batch_result *res);
+
+/* Called by the pool in the parent for every finished case; a status < 0
+ * stops the batch (no new cases are handed out). */
+typedef int (*mrvi_batch_done)(void *user, const mrvi_batch_result *res);
+
+/* Run the cases todo[0..n_todo) on `jobs` worker processes forked at
+ * once (call before any thread is started and with no HDF5 file open), a
+ * case handed to the next free worker, into the run file
+ * mrvi_batch_case_file(master, c).  A worker that dies mid-case (killed)
+ * gives that case a result with status MRVI_BATCH_PENDING (for --resume);
+ * the cases left go to the workers left.  The
+ * parent calls done for each result as it arrives. */
+int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
+                        const int *todo, int n_todo, int jobs,
+                        mrvi_batch_done done, void *user, char *msg,
+                        size_t len);
+
+/* The cores this process may run on (sched_getaffinity, else
+ * sysconf(_SC_NPROCESSORS_ONLN)), at least 1. */
+int mrvi_batch_cores(void);
+
+#endif

@@ -1,0 +1,280 @@
+/* The case table of `mrvi batch` (doc/batch.md): --vary axes, their
+ * Cartesian product or zip, seeds; every case loaded before any runs; the
+ * counter-based generator of ensembles. */
+#include "batch/batch.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+void mrvi_batch_axis_clear(mrvi_batch_axis *a) {
+  if (!a)
+    return;
+  for (int i = 0; i < a->n; i++)
+    free(a->values[i]);
+  free(a->values);
+  free(a->key);
+  memset(a, 0, sizeof *a);
+}
+
+/* Append value text to the axis. */
+static int axis_add(mrvi_batch_axis *a, const char *v, size_t n) {
+  char **grown = realloc(a->values, (size_t)(a->n + 1) * sizeof *grown);
+  if (!grown)
+    return MRVI_ENOMEM;
+  a->values = grown;
+  if (!(a->values[a->n] = strndup(v, n)))
+    return MRVI_ENOMEM;
+  a->n++;
+  return 0;
+}
+
+/* "linspace(a,b,n)" or "logspace(a,b,n)" after the '='; 1 when it is one
+ * (0 when not), MRVI_EINVAL when malformed. */
+static int axis_range(mrvi_batch_axis *a, const char *v, char *msg,
+                      size_t len) {
+  int log = !strncmp(v, "logspace(", 9);
+  if (!log && strncmp(v, "linspace(", 9))
+    return 0;
+  double lo, hi;
+  int n, used = 0;
+  if (sscanf(v + 9, "%lf ,%lf ,%d )%n", &lo, &hi, &n, &used) != 3 || !used ||
+      v[9 + used] != '\0' || n < 1 || n > 1000000 || !isfinite(lo) ||
+      !isfinite(hi) || (n == 1 && lo != hi)) {
+    mrvi_fmt(msg, len,
+             "--vary %s=%s: expected %s(a,b,n) with finite a, b and "
+             "1 <= n <= 1000000 (n = 1 only for a = b)",
+             a->key, v, log ? "logspace" : "linspace");
+    return MRVI_EINVAL;
+  }
+  for (int i = 0; i < n; i++) {
+    /* Ends exactly a and b. */
+    double x = i == n - 1 ? hi : lo + (hi - lo) * (double)i / (double)(n - 1);
+    if (log)
+      x = pow(10.0, x);
+    char buf[40];
+    snprintf(buf, sizeof buf, "%.17g", x);
+    if (axis_add(a, buf, strlen(buf)) < 0) {
+      mrvi_fmt(msg, len, "out of memory");
+      return MRVI_ENOMEM;
+    }
+  }
+  return 1;
+}
+
+int mrvi_batch_axis_parse(const char *spec, mrvi_batch_axis *a, char *msg,
+                          size_t len) {
+  memset(a, 0, sizeof *a);
+  const char *eq = strchr(spec, '=');
+  if (!eq || eq == spec || !eq[1]) {
+    mrvi_fmt(msg, len,
+             "--vary %s: expected KEY=V1,V2,... or "
+             "KEY=linspace(a,b,n) or KEY=logspace(a,b,n)",
+             spec);
+    return MRVI_EINVAL;
+  }
+  if (!(a->key = strndup(spec, (size_t)(eq - spec)))) {
+    mrvi_fmt(msg, len, "out of memory");
+    return MRVI_ENOMEM;
+  }
+  if (strchr(spec, '\n')) { /* the master file separates lines by it */
+    mrvi_fmt(msg, len, "--vary: a key or value contains a newline");
+    mrvi_batch_axis_clear(a);
+    return MRVI_EINVAL;
+  }
+  int rc = axis_range(a, eq + 1, msg, len);
+  if (rc < 0) {
+    mrvi_batch_axis_clear(a);
+    return rc;
+  }
+  if (rc == 0) {
+    /* A list: values between commas, none empty. */
+    for (const char *v = eq + 1;;) {
+      const char *comma = strchr(v, ',');
+      size_t n = comma ? (size_t)(comma - v) : strlen(v);
+      if (n == 0) {
+        mrvi_fmt(msg, len, "--vary %s: empty value", spec);
+        mrvi_batch_axis_clear(a);
+        return MRVI_EINVAL;
+      }
+      if (axis_add(a, v, n) < 0) {
+        mrvi_fmt(msg, len, "out of memory");
+        mrvi_batch_axis_clear(a);
+        return MRVI_ENOMEM;
+      }
+      if (!comma)
+        break;
+      v = comma + 1;
+    }
+  }
+  return 0;
+}
+
+int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
+                          const char *source, const mrvi_batch_axis *axes,
+                          int n_axes, int zip, int n_seeds, double velocity_std,
+                          char *msg, size_t len) {
+  memset(p, 0, sizeof *p);
+  /* Number of parameter points: product, or the common length. */
+  long points = 1;
+  for (int j = 0; j < n_axes; j++) {
+    for (int i = 0; i < j; i++)
+      if (!strcmp(axes[i].key, axes[j].key)) {
+        mrvi_fmt(msg, len, "--vary %s given twice", axes[j].key);
+        return MRVI_EINVAL;
+      }
+    if (zip && j > 0 && axes[j].n != axes[0].n) {
+      mrvi_fmt(msg, len,
+               "--zip needs equal lengths: --vary %s has %d values, %s %d",
+               axes[0].key, axes[0].n, axes[j].key, axes[j].n);
+      return MRVI_EINVAL;
+    }
+    points = zip ? axes[0].n : points * axes[j].n;
+    if (points > 1000000) {
+      mrvi_fmt(msg, len, "more than 1000000 cases");
+      return MRVI_EINVAL;
+    }
+  }
+  if (n_seeds < 0 || n_seeds > 1000000 || (velocity_std != 0 && n_seeds == 0) ||
+      !(velocity_std >= 0) || !isfinite(velocity_std)) {
+    mrvi_fmt(msg, len,
+             "--seeds N (0..1000000) and a finite --velocity-std >= "
+             "0, which needs --seeds");
+    return MRVI_EINVAL;
+  }
+  const long per = n_seeds > 0 ? n_seeds : 1;
+  if (points * per > 1000000) {
+    mrvi_fmt(msg, len, "more than 1000000 cases");
+    return MRVI_EINVAL;
+  }
+  p->n_cases = (int)(points * per);
+  p->n_keys = n_axes;
+  p->n_seeds = n_seeds;
+  p->velocity_std = velocity_std;
+  p->description = strdup(description);
+  p->source = strdup(source);
+  p->keys = calloc((size_t)n_axes + 1, sizeof *p->keys);
+  p->values =
+      calloc((size_t)p->n_cases * (size_t)n_axes + 1, sizeof *p->values);
+  p->seed = calloc((size_t)p->n_cases, sizeof *p->seed);
+  int bad = !p->description || !p->source || !p->keys || !p->values || !p->seed;
+  for (int j = 0; !bad && j < n_axes; j++)
+    bad = !(p->keys[j] = strdup(axes[j].key));
+  for (int c = 0; !bad && c < p->n_cases; c++) {
+    long point = c / per, rest = point;
+    p->seed[c] = n_seeds > 0 ? c % per : -1;
+    /* Product: the last axis fastest; zip: index `point` of every axis. */
+    for (int j = n_axes - 1; !bad && j >= 0; j--) {
+      long i = zip ? point : rest % axes[j].n;
+      rest = zip ? rest : rest / axes[j].n;
+      bad = !(p->values[(long)c * n_axes + j] = strdup(axes[j].values[i]));
+    }
+  }
+  if (bad) {
+    mrvi_batch_plan_free(p);
+    mrvi_fmt(msg, len, "out of memory");
+    return MRVI_ENOMEM;
+  }
+  return 0;
+}
+
+/* ---------------------------------------------------------------------------
+ * Generator
+ * ------------------------------------------------------------------------- */
+uint64_t mrvi_batch_random(uint64_t seed, uint64_t i) {
+  /* splitmix64's output function on the counter (seed + 1) * golden + i. */
+  uint64_t z = (seed + 1) * 0x9E3779B97F4A7C15ull + i;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+double mrvi_batch_normal(uint64_t seed, uint64_t j) {
+  /* Box-Muller: u1 in (0, 1], u2 in [0, 1) from 53 random bits each. */
+  const double scale = 1.0 / 9007199254740992.0; /* 2^-53 */
+  double u1 = (double)((mrvi_batch_random(seed, 2 * j) >> 11) + 1) * scale;
+  double u2 = (double)(mrvi_batch_random(seed, 2 * j + 1) >> 11) * scale;
+  return sqrt(-2.0 * log(u1)) * cos(6.283185307179586 * u2);
+}
+
+/* ---------------------------------------------------------------------------
+ * Loading a case
+ * ------------------------------------------------------------------------- */
+
+/* "case C (KEY=VALUE, ...)" into buf. */
+static void case_name(const mrvi_batch_plan *p, int c, char *buf, size_t len) {
+  size_t at = 0;
+  int n = snprintf(buf, len, "case %d", c);
+  at = n > 0 ? (size_t)n : 0;
+  for (int j = 0; j < p->n_keys && at + 1 < len; j++) {
+    n = snprintf(buf + at, len - at, "%s%s=%s", j ? ", " : " (", p->keys[j],
+                 p->values[(long)c * p->n_keys + j]);
+    at += n > 0 ? (size_t)n : 0;
+  }
+  if (p->n_keys > 0 && at + 1 < len)
+    snprintf(buf + at, len - at, ")");
+}
+
+/* Add seed s's perturbation to the initial velocities: v0_i += std z_i,
+ * z_i the normal number i of the seed, then onto the constraints' tangent
+ * space when the model has constraints. */
+static int perturb(mrvi_model *m, long seed, double std) {
+  if (seed < 0 || std == 0)
+    return 0;
+  for (int i = 0; i < m->n; i++)
+    m->v0[i] += std * mrvi_batch_normal((uint64_t)seed, (uint64_t)i);
+  return mrvi_model_project_velocities(m, NULL);
+}
+
+int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
+                         char *msg, size_t len) {
+  *out = NULL;
+  char **over = calloc((size_t)p->n_keys + 1, sizeof *over);
+  int rc = over ? 0 : MRVI_ENOMEM;
+  for (int j = 0; rc == 0 && j < p->n_keys; j++) {
+    const char *v = p->values[(long)c * p->n_keys + j];
+    size_t n = strlen(p->keys[j]) + strlen(v) + 2;
+    if (!(over[j] = malloc(n)))
+      rc = MRVI_ENOMEM;
+    else
+      snprintf(over[j], n, "%s=%s", p->keys[j], v);
+  }
+  char name[256];
+  case_name(p, c, name, sizeof name);
+  char text[4096];
+  text[0] = '\0';
+  if (rc == 0)
+    rc = mrvi_system_load_string(p->description, p->source,
+                                 (const char *const *)over, p->n_keys, out,
+                                 text, sizeof text);
+  if (rc == 0 && *out &&
+      perturb((*out)->model, p->seed[c], p->velocity_std) < 0) {
+    mrvi_fmt(text, sizeof text, "velocity perturbation: %s",
+             mrvi_model_errmsg((*out)->model));
+    mrvi_system_free(*out);
+    *out = NULL;
+    rc = MRVI_EINVAL;
+  }
+  if (rc < 0 || !*out) {
+    mrvi_fmt(msg, len, "%s: %s", name,
+             text[0] ? text : mrvi_strerror(rc < 0 ? rc : MRVI_EPARSE));
+    rc = rc < 0 ? rc : MRVI_EPARSE;
+  }
+  for (int j = 0; over && j < p->n_keys; j++)
+    free(over[j]);
+  free(over);
+  return rc;
+}
+
+int mrvi_batch_plan_check(const mrvi_batch_plan *p, char *msg, size_t len) {
+  for (int c = 0; c < p->n_cases; c++) {
+    mrvi_system *sys = NULL;
+    int rc = mrvi_batch_case_load(p, c, &sys, msg, len);
+    mrvi_system_free(sys);
+    if (rc < 0)
+      return rc;
+  }
+  return 0;
+}

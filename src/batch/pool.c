@@ -1,0 +1,298 @@
+/* Running the cases of `mrvi batch` (doc/batch.md): one case into its run
+ * file, and a pool of worker processes fed case by case.
+ *
+ * Workers are forked before the parent starts any thread or opens any HDF5
+ * file, so a worker inherits no lock and no half-written state; each
+ * reads case indices from its task pipe, runs them and writes one
+ * fixed-size result (smaller than PIPE_BUF: written at once) per case to
+ * its result pipe, and leaves with _exit (no atexit handler of the parent's
+ * libraries runs in it).  The parent hands a case to whichever worker
+ * answers first (cases differ in cost by orders of magnitude: a queue, not
+ * a static split) and closes a worker's task pipe when none are left. */
+#define _GNU_SOURCE
+#include "batch/batch.h"
+
+#include <errno.h>
+#include <math.h>
+#include <poll.h>
+#include <sched.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#ifdef __linux__
+#include <sys/prctl.h>
+#endif
+#include <unistd.h>
+
+int mrvi_batch_cores(void) {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof set, &set) == 0 && CPU_COUNT(&set) > 0)
+    return CPU_COUNT(&set);
+  long n = sysconf(_SC_NPROCESSORS_ONLN);
+  return n > 0 ? (int)n : 1;
+}
+
+void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
+                         mrvi_batch_result *res) {
+  memset(res, 0, sizeof *res);
+  res->c = c;
+  res->status = MRVI_BATCH_FAILED;
+  res->energy_error = NAN;
+  char msg[4096];
+  mrvi_system *sys = NULL;
+  if (mrvi_batch_case_load(plan, c, &sys, msg, sizeof msg) < 0) {
+    mrvi_fmt(res->reason, sizeof res->reason, "%s", msg);
+    return;
+  }
+  /* The options of `mrvi run` for this description. */
+  mrvi_writer_options opt = {
+      .system_name = sys->name ? sys->name : mrvi_model_name(sys->model),
+      .description = sys->description,
+      .every = sys->output_every > 0 ? sys->output_every : 1,
+      .micro = sys->output_micro,
+      .flush_interval = sys->output_flush_interval,
+      .force = 1,
+      .micro_slow = sys->output_micro_slow,
+  };
+  mrvi_writer *w = NULL;
+  if (mrvi_writer_open(path, sys->model, &sys->settings, &opt, &w, msg,
+                       sizeof msg) < 0 ||
+      !w) {
+    mrvi_fmt(res->reason, sizeof res->reason, "%s", msg);
+    mrvi_system_free(sys);
+    return;
+  }
+  mrvi_summary sum;
+  memset(&sum, 0, sizeof sum);
+  int st =
+      mrvi_run(sys->model, &sys->settings, mrvi_writer_observe, w, NULL, &sum);
+  mrvi_writer_set_summary(w, &sum);
+  const char *reason = "completed";
+  if (st < 0)
+    reason = sum.message[0] ? sum.message : mrvi_strerror(st);
+  char close_msg[1024] = "";
+  int cst = mrvi_writer_close(w, reason, close_msg, sizeof close_msg);
+  res->steps = sum.steps;
+  res->wall_time = sum.wall_time;
+  res->energy_error = sum.max_rel_energy_error;
+  if (st == 0 && cst == 0)
+    res->status = MRVI_BATCH_COMPLETED;
+  mrvi_fmt(res->reason, sizeof res->reason, "%s",
+           cst < 0 && st == 0 ? close_msg : reason);
+  mrvi_system_free(sys);
+}
+
+/* Read or write all of n bytes (EINTR retried); 0, or -1 (short, EOF). */
+static int read_all(int fd, void *buf, size_t n) {
+  char *b = buf;
+  while (n > 0) {
+    ssize_t r = read(fd, b, n);
+    if (r < 0 && errno == EINTR)
+      continue;
+    if (r <= 0)
+      return -1;
+    b += r;
+    n -= (size_t)r;
+  }
+  return 0;
+}
+
+static int write_all(int fd, const void *buf, size_t n) {
+  const char *b = buf;
+  while (n > 0) {
+    ssize_t r = write(fd, b, n);
+    if (r < 0 && errno == EINTR)
+      continue;
+    if (r <= 0)
+      return -1;
+    b += r;
+    n -= (size_t)r;
+  }
+  return 0;
+}
+
+/* A worker: cases from fd_in until it closes, results to fd_out. */
+static void worker(const mrvi_batch_plan *plan, const char *master, int fd_in,
+                   int fd_out) {
+  int c;
+  while (read_all(fd_in, &c, sizeof c) == 0) {
+    char path[4096];
+    mrvi_batch_result res;
+    if (mrvi_batch_case_file(master, c, 0, path, sizeof path) < 0) {
+      memset(&res, 0, sizeof res);
+      res.c = c;
+      res.status = MRVI_BATCH_FAILED;
+      snprintf(res.reason, sizeof res.reason, "case file name too long");
+    } else {
+      mrvi_batch_case_run(plan, c, path, &res);
+    }
+    if (write_all(fd_out, &res, sizeof res) < 0)
+      break;
+  }
+}
+
+typedef struct slot {
+  pid_t pid;
+  int task, result; /* the parent's ends */
+  int busy;         /* case being run, or -1 */
+} slot;
+
+/* Close a worker's task pipe: it leaves after its current case. */
+static void slot_retire(slot *s) {
+  if (s->task >= 0)
+    close(s->task);
+  s->task = -1;
+}
+
+int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
+                        const int *todo, int n_todo, int jobs,
+                        mrvi_batch_done done, void *user, char *msg,
+                        size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (n_todo <= 0)
+    return 0;
+  if (jobs > n_todo)
+    jobs = n_todo;
+  if (jobs < 1)
+    jobs = 1;
+  slot *w = calloc((size_t)jobs, sizeof *w);
+  if (!w) {
+    mrvi_fmt(msg, len, "out of memory");
+    return MRVI_ENOMEM;
+  }
+  /* A worker that died closes its pipe: writing to it must fail, not kill
+   * the parent. */
+  struct sigaction ign = {.sa_handler = SIG_IGN}, old_pipe;
+  sigemptyset(&ign.sa_mask);
+  sigaction(SIGPIPE, &ign, &old_pipe);
+  fflush(NULL); /* nothing buffered is written twice */
+  int rc = 0, started = 0;
+  for (int i = 0; i < jobs; i++) {
+    int tp[2], rp[2];
+    w[i] = (slot){.pid = -1, .task = -1, .result = -1, .busy = -1};
+    if (pipe(tp) < 0) {
+      rc = MRVI_EIO;
+      break;
+    }
+    if (pipe(rp) < 0) {
+      close(tp[0]), close(tp[1]);
+      rc = MRVI_EIO;
+      break;
+    }
+    const pid_t parent = getpid();
+    pid_t pid = fork();
+    if (pid == 0) {
+#ifdef __linux__
+      /* A worker dies with the parent (SIGKILL of the batch): no orphan
+       * goes on writing a case that --resume runs again. */
+      if (prctl(PR_SET_PDEATHSIG, SIGKILL) < 0 || getppid() != parent)
+        _exit(1);
+#endif
+      for (int k = 0; k < i; k++) /* the other workers' pipes */
+        close(w[k].task), close(w[k].result);
+      close(tp[1]), close(rp[0]);
+      worker(plan, master, tp[0], rp[1]);
+      _exit(0);
+    }
+    close(tp[0]), close(rp[1]);
+    if (pid < 0) {
+      close(tp[1]), close(rp[0]);
+      rc = MRVI_EIO;
+      break;
+    }
+    w[i] = (slot){.pid = pid, .task = tp[1], .result = rp[0], .busy = -1};
+    started++;
+  }
+  if (rc < 0 && started == 0)
+    mrvi_fmt(msg, len, "cannot start a worker process: %s", strerror(errno));
+  if (started > 0)
+    rc = 0;
+
+  struct pollfd *pfd = calloc((size_t)jobs, sizeof *pfd);
+  int next = 0, stop = rc < 0 || !pfd;
+  for (;;) {
+    /* Hand out cases to idle workers. */
+    int running = 0;
+    for (int i = 0; i < started; i++) {
+      slot *s = &w[i];
+      if (s->busy < 0 && s->task >= 0) {
+        if (!stop && next < n_todo &&
+            write_all(s->task, &todo[next], sizeof todo[next]) == 0)
+          s->busy = todo[next++];
+        else
+          slot_retire(s);
+      }
+      running += s->busy >= 0;
+    }
+    if (running == 0)
+      break;
+    int np = 0;
+    for (int i = 0; i < started; i++)
+      if (w[i].busy >= 0)
+        pfd[np++] = (struct pollfd){.fd = w[i].result, .events = POLLIN};
+    if (poll(pfd, (nfds_t)np, -1) < 0) {
+      if (errno == EINTR)
+        continue;
+      mrvi_fmt(msg, len, "poll: %s", strerror(errno));
+      rc = MRVI_EIO;
+      break;
+    }
+    for (int i = 0, k = 0; i < started; i++) {
+      slot *s = &w[i];
+      if (s->busy < 0)
+        continue;
+      short ev = pfd[k++].revents;
+      if (!ev)
+        continue;
+      mrvi_batch_result res;
+      if (read_all(s->result, &res, sizeof res) < 0 || res.c != s->busy) {
+        /* The worker died mid-case (killed): the case stays pending, to
+         * be run by --resume; the worker is gone. */
+        int ws = 0;
+        waitpid(s->pid, &ws, 0);
+        memset(&res, 0, sizeof res);
+        res.c = s->busy;
+        res.status = MRVI_BATCH_PENDING;
+        res.energy_error = NAN;
+        if (WIFSIGNALED(ws))
+          snprintf(res.reason, sizeof res.reason,
+                   "worker process killed by signal %d (not run: --resume "
+                   "runs it)",
+                   WTERMSIG(ws));
+        else
+          snprintf(res.reason, sizeof res.reason,
+                   "worker process exited with status %d (not run: --resume "
+                   "runs it)",
+                   WEXITSTATUS(ws));
+        slot_retire(s);
+        close(s->result);
+        s->result = -1;
+        s->pid = -1;
+      }
+      s->busy = -1;
+      if (!stop && done(user, &res) < 0) {
+        stop = 1;
+        rc = MRVI_EIO;
+      }
+    }
+  }
+  for (int i = 0; i < started; i++) {
+    slot_retire(&w[i]);
+    if (w[i].result >= 0)
+      close(w[i].result);
+    if (w[i].pid > 0)
+      waitpid(w[i].pid, NULL, 0);
+  }
+  sigaction(SIGPIPE, &old_pipe, NULL);
+  free(pfd);
+  free(w);
+  if (rc == 0 && next < n_todo) {
+    mrvi_fmt(msg, len, "every worker process died; %d cases not run",
+             n_todo - next);
+    rc = MRVI_EIO;
+  }
+  return rc;
+}

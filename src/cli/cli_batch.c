@@ -1,0 +1,251 @@
+/* `mrvi batch`: many runs of one description (doc/batch.md).  The case
+ * table, the worker processes and the master file are src/batch and
+ * src/io; this file reads the command line and prints. */
+#include "batch/batch.h"
+#include "cli_batch.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+enum { EXIT_INPUT = 1, EXIT_RUN = 2, MSG_LEN = 8192 };
+
+const char mrvi_usage_batch[] =
+    "Usage: mrvi batch FILE -o OUT.h5 [--vary KEY=V1,V2,...]...\n"
+    "                  [--vary KEY=linspace(a,b,n)|logspace(a,b,n)]... "
+    "[--zip]\n"
+    "                  [--seeds N [--velocity-std S]] [--jobs N] [--quiet]\n"
+    "       mrvi batch --resume OUT.h5 [--jobs N] [--quiet]\n"
+    "\n"
+    "Run FILE once per case: a case is 'mrvi run FILE --set KEY=VALUE' for\n"
+    "one value of every --vary.  Several --vary form the Cartesian product\n"
+    "(the last one varies fastest); --zip pairs their values instead (equal\n"
+    "lengths).  Every case is loaded and checked before the first one runs.\n"
+    "Case C is written to OUT.cases/case_CCCC.h5 in the layout of 'mrvi run';\n"
+    "OUT.h5 holds the case table (/cases: overrides, values, seed, status,\n"
+    "stop_reason, steps, wall_time, energy_error) and external links\n"
+    "/runs/case_CCCC to the case files (doc/batch.md).\n"
+    "\n"
+    "Options:\n"
+    "  -o, --output OUT.h5   the master file\n"
+    "      --vary KEY=VALUES a key of FILE (dotted path, as --set) and its\n"
+    "                        values: a comma-separated list, linspace(a,b,n)\n"
+    "                        or logspace(a,b,n) (10^a .. 10^b)\n"
+    "      --zip             pair the --vary lists instead of their product\n"
+    "      --seeds N         an ensemble: every parameter case N times, with\n"
+    "                        seeds 0..N-1 (the seed column of the table)\n"
+    "      --velocity-std S  perturb the initial velocities of a seeded case\n"
+    "                        by S times standard normal numbers of its seed\n"
+    "                        (projected onto the constraints); the numbers\n"
+    "                        depend on the seed alone (doc/batch.md)\n"
+    "  -j, --jobs N          worker processes (default: the cores available)\n"
+    "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
+    "                        killed or interrupted batch)\n"
+    "  -q, --quiet           no line per finished case\n"
+    "  -h, --help            show this help\n"
+    "\n"
+    "A case that fails (Newton failure, non-finite state) is recorded with\n"
+    "its reason and the others go on.  Not yet: MPI ranks, optimize cases.\n"
+    "\n"
+    "Exit status:\n"
+    "  0    every case completed\n"
+    "  1    nothing was run: bad arguments, a case refused by the loader\n"
+    "  2    the batch ran and at least one case failed or was not run (a\n"
+    "       worker process killed: --resume runs it)\n";
+
+typedef struct batch_ctx {
+  const char *out;
+  int quiet, finished, failed, unfinished, total;
+} batch_ctx;
+
+/* A finished case: its row of the table, and a line. */
+static int on_done(void *user, const mrvi_batch_result *res) {
+  batch_ctx *b = user;
+  char msg[MSG_LEN];
+  /* Open for this row only: between rows the file is closed, so readers
+   * (h5py, h5dump: HDF5 locks a file open for writing) see the table. */
+  mrvi_batch_file *f = NULL;
+  int st = mrvi_batch_file_open(b->out, NULL, NULL, &f, msg, sizeof msg);
+  if (st == 0)
+    st = mrvi_batch_file_row(f, res, msg, sizeof msg);
+  char close_msg[MSG_LEN];
+  if (mrvi_batch_file_close(f, close_msg, sizeof close_msg) < 0 && st == 0) {
+    st = MRVI_EIO;
+    snprintf(msg, sizeof msg, "%s", close_msg);
+  }
+  if (st < 0) {
+    fprintf(stderr, "mrvi batch: %s\n", msg);
+    return -1;
+  }
+  b->finished++;
+  b->failed += res->status == MRVI_BATCH_FAILED;
+  b->unfinished += res->status == MRVI_BATCH_PENDING;
+  if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
+    fprintf(stderr,
+            "mrvi batch: [%d/%d] case %d: %s (%ld steps, %.3f s, "
+            "energy error %.3e)\n",
+            b->finished, b->total, res->c, res->reason, res->steps,
+            res->wall_time, res->energy_error);
+  return 0;
+}
+
+/* A positive int argument, or -1. */
+static int parse_count(const char *s, int zero_ok) {
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 10);
+  if (errno || *end || end == s || v < (zero_ok ? 0 : 1) || v > 1000000)
+    return -1;
+  return (int)v;
+}
+
+static int usage_fail(const char *what) {
+  fprintf(stderr, "mrvi batch: %s\n\n%s", what, mrvi_usage_batch);
+  return EXIT_INPUT;
+}
+
+int mrvi_cmd_batch(int argc, char **argv) {
+  const char *file = NULL, *out = NULL, *resume = NULL;
+  int zip = 0, seeds = 0, jobs = mrvi_batch_cores(), quiet = 0, n_axes = 0;
+  double vstd = 0.0;
+  char msg[MSG_LEN];
+  mrvi_batch_axis *axes = calloc((size_t)argc + 1, sizeof *axes);
+  int rc = axes ? 0 : EXIT_INPUT;
+  for (int i = 1; rc == 0 && i < argc; i++) {
+    const char *a = argv[i];
+    const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+    int takes = !strcmp(a, "-o") || !strcmp(a, "--output") ||
+                !strcmp(a, "--vary") || !strcmp(a, "--seeds") ||
+                !strcmp(a, "--velocity-std") || !strcmp(a, "-j") ||
+                !strcmp(a, "--jobs") || !strcmp(a, "--resume");
+    if (takes && !v) {
+      snprintf(msg, sizeof msg, "%s needs a value", a);
+      rc = usage_fail(msg);
+      break;
+    }
+    i += takes;
+    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+      fputs(mrvi_usage_batch, stdout);
+      rc = -1;
+    } else if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
+      out = v;
+    } else if (!strcmp(a, "--resume")) {
+      resume = v;
+    } else if (!strcmp(a, "--vary")) {
+      if (mrvi_batch_axis_parse(v, &axes[n_axes], msg, sizeof msg) < 0)
+        rc = usage_fail(msg);
+      else
+        n_axes++;
+    } else if (!strcmp(a, "--zip")) {
+      zip = 1;
+    } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
+      quiet = 1;
+    } else if (!strcmp(a, "--seeds")) {
+      if ((seeds = parse_count(v, 0)) < 0)
+        rc = usage_fail("--seeds takes a count 0..1000000");
+    } else if (!strcmp(a, "-j") || !strcmp(a, "--jobs")) {
+      if ((jobs = parse_count(v, 0)) < 1)
+        rc = usage_fail("--jobs takes a count 1..1000000");
+    } else if (!strcmp(a, "--velocity-std")) {
+      char *end;
+      vstd = strtod(v, &end);
+      if (*end || end == v)
+        rc = usage_fail("--velocity-std takes a number");
+    } else if (a[0] == '-') {
+      snprintf(msg, sizeof msg, "unknown option '%s'", a);
+      rc = usage_fail(msg);
+    } else if (!file) {
+      file = a;
+    } else {
+      snprintf(msg, sizeof msg, "unexpected argument '%s'", a);
+      rc = usage_fail(msg);
+    }
+  }
+  if (rc == 0 && resume && (file || out || n_axes || zip || seeds || vstd))
+    rc = usage_fail("--resume takes the cases from OUT.h5: give no FILE, -o, "
+                    "--vary, --zip, --seeds or --velocity-std with it");
+  if (rc == 0 && !resume && (!file || !out))
+    rc = usage_fail("give FILE and -o OUT.h5 (or --resume OUT.h5)");
+  if (rc == 0 && file && out) {
+    struct stat sa, sb;
+    if (stat(file, &sa) == 0 && stat(out, &sb) == 0 && sa.st_dev == sb.st_dev &&
+        sa.st_ino == sb.st_ino)
+      rc = usage_fail("the output file is the description file");
+  }
+
+  mrvi_batch_plan plan;
+  memset(&plan, 0, sizeof plan);
+  int *status = NULL;
+  /* The plan: from FILE and the options, or from OUT.h5. */
+  if (rc == 0 && resume) {
+    mrvi_batch_file *f = NULL;
+    out = resume;
+    if (mrvi_batch_file_open(resume, &plan, &status, &f, msg, sizeof msg) < 0) {
+      fprintf(stderr, "mrvi batch: --resume %s\n", msg);
+      rc = EXIT_INPUT;
+    }
+    mrvi_batch_file_close(f, msg, sizeof msg);
+  } else if (rc == 0) {
+    mrvi_system *base = NULL;
+    if (mrvi_system_load(file, NULL, 0, &base, msg, sizeof msg) < 0 || !base) {
+      fprintf(stderr, "%s\n", msg);
+      rc = EXIT_INPUT;
+    } else if (mrvi_batch_plan_build(&plan, base->description, file, axes,
+                                     n_axes, zip, seeds, vstd, msg,
+                                     sizeof msg) < 0) {
+      rc = usage_fail(msg);
+    }
+    mrvi_system_free(base);
+  }
+  for (int i = 0; axes && i < n_axes; i++)
+    mrvi_batch_axis_clear(&axes[i]);
+  free(axes);
+  /* Every case is checked before any runs. */
+  if (rc == 0 && mrvi_batch_plan_check(&plan, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi batch: %s\n", msg);
+    rc = EXIT_INPUT;
+  }
+  if (rc == 0 && !resume) {
+    mrvi_batch_file *f = NULL;
+    if (mrvi_batch_file_create(out, &plan, &f, msg, sizeof msg) < 0 ||
+        mrvi_batch_file_close(f, msg, sizeof msg) < 0) {
+      fprintf(stderr, "mrvi batch: %s\n", msg);
+      rc = EXIT_INPUT;
+    }
+  }
+  /* The cases left to run: all, or the pending ones. */
+  int *todo = rc == 0 ? malloc((size_t)plan.n_cases * sizeof *todo) : NULL;
+  int n_todo = 0;
+  if (rc == 0 && !todo) {
+    fprintf(stderr, "mrvi batch: out of memory\n");
+    rc = EXIT_INPUT;
+  }
+  for (int c = 0; rc == 0 && c < plan.n_cases; c++)
+    if (!status || status[c] == MRVI_BATCH_PENDING)
+      todo[n_todo++] = c;
+
+  batch_ctx ctx = {.out = out, .quiet = quiet, .total = n_todo};
+  if (rc == 0) {
+    if (!quiet)
+      fprintf(stderr, "mrvi batch: %d case%s%s on %d job%s -> %s\n", n_todo,
+              n_todo == 1 ? "" : "s", resume ? " left" : "",
+              jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s", out);
+    int st = mrvi_batch_pool_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
+                                 msg, sizeof msg);
+    if (st < 0 && msg[0])
+      fprintf(stderr, "mrvi batch: %s\n", msg);
+    if (!quiet)
+      printf("%s: %d of %d cases completed, %d failed, %d not run\n", out,
+             ctx.finished - ctx.failed - ctx.unfinished, n_todo, ctx.failed,
+             n_todo - (ctx.finished - ctx.unfinished));
+    rc = st < 0 || ctx.failed > 0 || ctx.unfinished > 0 || ctx.finished < n_todo
+             ? EXIT_RUN
+             : 0;
+  }
+  free(todo);
+  free(status);
+  mrvi_batch_plan_free(&plan);
+  return rc < 0 ? 0 : rc;
+}

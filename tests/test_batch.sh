@@ -1,0 +1,249 @@
+#!/usr/bin/env bash
+# mrvi batch (doc/batch.md): a 3 x 2 batch equals the six `mrvi run --set`
+# results bit for bit; --jobs 2 equals --jobs 1; --zip pairs; a bad value
+# in one case is refused before any case runs, naming the case and key; a
+# failing case is recorded and the others complete; SIGKILL of the parent
+# and of a worker mid-batch, then --resume, gives every case completed once
+# and the results of an uninterrupted batch; seeded cases are the same in
+# another batch and on any number of jobs, and perturbed velocities of a
+# constrained model stay on the constraints.
+#
+#   test_batch.sh MRVI_BINARY SOURCE_ROOT
+#
+# Prints "N passed, M failed" and exits non-zero on any failure.
+set -u
+
+mrvi=${1:?usage: test_batch.sh MRVI_BINARY SOURCE_ROOT}
+root=${2:?usage: test_batch.sh MRVI_BINARY SOURCE_ROOT}
+fpu=$root/systems/fpu.yaml
+
+# shellcheck source=tests/testlib.sh
+. "$(dirname "$0")/testlib.sh"
+
+if ! command -v h5diff >/dev/null || ! command -v h5dump >/dev/null; then
+  echo "skipped: needs h5diff and h5dump"
+  exit 77
+fi
+cd "$tmp" || exit 1
+
+# column FILE NAME: the values of /cases/NAME, one per line.
+column() {
+  h5dump -y -d "/cases/$2" "$1" 2>/dev/null |
+    sed -n '/DATA {/,/}/p' | sed '1d;$d' | tr ',' '\n' |
+    sed 's/^ *//;s/ *$//;/^$/d'
+}
+
+# same_runs A B: case files of masters A and B equal (h5diff, every dataset
+# and attribute) for case numbers given as "a:b" pairs on stdin.
+same_runs() {
+  local a=$1 b=$2 pair ok=1
+  while read -r pair; do
+    h5diff "${a%.h5}.cases/case_$(printf %04d "${pair%%:*}").h5" \
+      "${b%.h5}.cases/case_$(printf %04d "${pair##*:}").h5" >/dev/null 2>&1 ||
+      ok=0
+  done
+  [ "$ok" = 1 ]
+}
+
+# The table columns that do not hold wall-clock times.
+same_table() {
+  local d
+  for d in status steps energy_error stop_reason overrides seed; do
+    h5diff "$1" "$2" "/cases/$d" "/cases/$d" >/dev/null 2>&1 || return 1
+  done
+}
+
+short=integrator.t_end=20
+
+# --- help ---
+run_ok "mrvi help batch" "$mrvi" help batch
+grep -q -- "--resume OUT.h5" "$tmp/out.txt" && pass || fail "help names --resume"
+
+# --- 3 x 2 product equals six runs ---
+run_ok "batch 3 x 2, --jobs 2" "$mrvi" batch "$fpu" -o b.h5 -q -j 2 \
+  --vary integrator.micro_steps=1,2,4 --vary integrator.macro_step=0.01,0.02 \
+  --vary "$short"
+if [ "$(column b.h5 status | tr '\n' ' ')" = "1 1 1 1 1 1 " ]; then
+  pass "six cases completed"
+else
+  fail "six cases completed: $(column b.h5 status | tr '\n' ' ')"
+fi
+c=0 ok=1
+for p in 1 2 4; do
+  for dt in 0.01 0.02; do
+    "$mrvi" run "$fpu" -q -o "run$c.h5" --set integrator.micro_steps=$p \
+      --set integrator.macro_step=$dt --set "$short" >/dev/null 2>&1 || ok=0
+    h5diff "b.cases/case_000$c.h5" "run$c.h5" >/dev/null 2>&1 || ok=0
+    c=$((c + 1))
+  done
+done
+[ "$ok" = 1 ] && pass "each case equals mrvi run --set (h5diff)" ||
+  fail "each case equals mrvi run --set (h5diff)"
+h5dump -d /runs/case_0005/macro/t b.h5 >/dev/null 2>&1 &&
+  pass "external link /runs/case_0005 reads the case file" ||
+  fail "external link /runs/case_0005 reads the case file"
+grep -q "H5" "$root/src/cli/cli_batch.c" && fail "cli_batch.c makes H5 calls" ||
+  pass "cli_batch.c makes no H5 calls"
+
+# --- --jobs 1 equals --jobs 2 ---
+run_ok "batch --jobs 1" "$mrvi" batch "$fpu" -o j1.h5 -q -j 1 \
+  --vary integrator.micro_steps=1,2,4 --vary integrator.macro_step=0.01,0.02 \
+  --vary "$short"
+printf '%s\n' 0:0 1:1 2:2 3:3 4:4 5:5 | same_runs b.h5 j1.h5 &&
+  same_table b.h5 j1.h5 && pass "--jobs 2 equals --jobs 1" ||
+  fail "--jobs 2 equals --jobs 1"
+
+# --- --zip ---
+run_ok "batch --zip" "$mrvi" batch "$fpu" -o z.h5 -q --zip \
+  --vary integrator.micro_steps=1,4 --vary integrator.macro_step=0.01,0.02 \
+  --vary integrator.t_end=20,20
+printf '%s\n' 0:0 1:5 | same_runs z.h5 b.h5 && pass "--zip pairs the values" ||
+  fail "--zip pairs the values"
+"$mrvi" batch "$fpu" -o z2.h5 --zip --vary integrator.micro_steps=1,2 \
+  --vary integrator.macro_step=0.01 2>err.txt
+[ $? = 1 ] && grep -q "equal lengths" err.txt && pass "--zip needs equal lengths" ||
+  fail "--zip needs equal lengths"
+
+# --- a bad value in case 4 is refused before any case runs ---
+"$mrvi" batch "$fpu" -o bad.h5 --vary integrator.micro_steps=1,2,x \
+  --vary integrator.macro_step=0.01,0.02 2>err.txt
+rc=$?
+if [ $rc = 1 ] && grep -q "case 4 (integrator.micro_steps=x" err.txt &&
+  [ ! -e bad.h5 ] && [ ! -e bad.cases ]; then
+  pass "bad override refused before any case, naming case and key"
+else
+  fail "bad override refused before any case (exit $rc): $(cat err.txt)"
+fi
+"$mrvi" batch "$fpu" -o bad.h5 --vary 'integrator.macro_step=linspace(1,2)' \
+  2>err.txt
+[ $? = 1 ] && grep -q "linspace(a,b,n)" err.txt && pass "malformed linspace" ||
+  fail "malformed linspace"
+
+# --- linspace / logspace values ---
+run_ok "linspace" "$mrvi" batch "$fpu" -o lin.h5 -q \
+  --vary 'integrator.macro_step=logspace(-2,-1,3)' --vary "$short"
+if [ "$(column lin.h5 'values/integrator.macro_step' | tr '\n' ' ')" = \
+  "0.01 0.0316228 0.1 " ]; then
+  pass "logspace(-2,-1,3) values"
+else
+  fail "logspace values: $(column lin.h5 'values/integrator.macro_step')"
+fi
+
+# --- a failing case is recorded, the others complete ---
+"$mrvi" batch "$fpu" -o f.h5 -q -j 2 --vary integrator.macro_step=0.02,2,0.01 \
+  --vary integrator.t_end=40 2>err.txt
+rc=$?
+if [ $rc = 2 ] && [ "$(column f.h5 status | tr '\n' ' ')" = "1 2 1 " ] &&
+  column f.h5 stop_reason | sed -n 2p | grep -q "Newton did not converge"; then
+  pass "failing case recorded with its reason, others completed"
+else
+  fail "failing case recorded (exit $rc): $(column f.h5 status | tr '\n' ' ')"
+fi
+
+# --- SIGKILL of the parent, then --resume ---
+long=(--vary integrator.micro_steps=1,2,3,4 --vary integrator.macro_step=0.01,0.02
+  --vary integrator.t_end=300)
+run_ok "uninterrupted batch" "$mrvi" batch "$fpu" -o full.h5 -q -j 2 "${long[@]}"
+"$mrvi" batch "$fpu" -o k.h5 -q -j 2 "${long[@]}" 2>/dev/null &
+pid=$!
+# Kill once some but not all cases are done.
+for _ in $(seq 1 200); do
+  n=$(column k.h5 status 2>/dev/null | grep -c '^1$')
+  [ "${n:-0}" -ge 1 ] && break
+  sleep 0.05
+done
+{
+  kill -9 $pid
+  wait $pid
+} 2>/dev/null
+sleep 0.3 # the workers die with the parent
+done_before=$(column k.h5 status | grep -c '^1$')
+if [ "$done_before" -ge 1 ] && [ "$done_before" -lt 8 ]; then
+  pass "killed mid-batch: table readable, $done_before of 8 completed"
+else
+  fail "killed mid-batch: $done_before of 8 completed"
+fi
+"$mrvi" batch --resume k.h5 -j 2 >out.txt 2>err.txt
+rc=$?
+left=$(sed -n 's/.*: \([0-9]*\) cases* left.*/\1/p' err.txt)
+if [ $rc = 0 ] && [ "$left" = $((8 - done_before)) ] &&
+  [ "$(column k.h5 status | grep -c '^1$')" = 8 ]; then
+  pass "--resume ran only the $left unfinished cases"
+else
+  fail "--resume (exit $rc, left '$left', done before $done_before)"
+fi
+seq 0 7 | sed 's/.*/&:&/' | same_runs k.h5 full.h5 && same_table k.h5 full.h5 &&
+  pass "resumed batch equals the uninterrupted one" ||
+  fail "resumed batch equals the uninterrupted one"
+
+# --- SIGKILL of a worker: its case stays pending, --resume runs it ---
+"$mrvi" batch "$fpu" -o w.h5 -q -j 2 "${long[@]}" 2>err.txt &
+pid=$!
+worker=
+for _ in $(seq 1 200); do
+  worker=$(pgrep -P $pid | head -n 1)
+  [ -n "$worker" ] && break
+  sleep 0.02
+done
+sleep 0.2
+[ -n "$worker" ] && kill -9 "$worker"
+wait $pid
+rc=$?
+pending=$(column w.h5 status | grep -c '^0$')
+if [ $rc = 2 ] && [ "$pending" -ge 1 ] && grep -q "killed by signal 9" err.txt; then
+  pass "killed worker: its case pending, the others ran ($pending pending)"
+else
+  fail "killed worker (exit $rc, $pending pending)"
+fi
+run_ok "--resume after a killed worker" "$mrvi" batch --resume w.h5 -q
+seq 0 7 | sed 's/.*/&:&/' | same_runs w.h5 full.h5 && same_table w.h5 full.h5 &&
+  pass "batch with a killed worker, resumed, equals the uninterrupted one" ||
+  fail "batch with a killed worker, resumed, equals the uninterrupted one"
+"$mrvi" batch --resume run0.h5 2>err.txt
+[ $? = 1 ] && grep -q "batch_version" err.txt &&
+  pass "--resume of a run file is refused" ||
+  fail "--resume of a run file is refused: $(cat err.txt)"
+"$mrvi" batch --resume full.h5 -q 2>err.txt
+[ $? = 0 ] && pass "--resume of a finished batch runs nothing" ||
+  fail "--resume of a finished batch"
+
+# --- ensembles: seeds ---
+ens=(--seeds 3 --velocity-std 0.05 --vary "$short")
+run_ok "ensemble, --jobs 1" "$mrvi" batch "$fpu" -o e1.h5 -q -j 1 \
+  --vary integrator.micro_steps=1,2 "${ens[@]}"
+run_ok "ensemble, --jobs 2" "$mrvi" batch "$fpu" -o e2.h5 -q -j 2 \
+  --vary integrator.micro_steps=1,2 "${ens[@]}"
+run_ok "ensemble, one parameter point" "$mrvi" batch "$fpu" -o e3.h5 -q -j 1 \
+  --vary integrator.micro_steps=2 "${ens[@]}"
+[ "$(column e1.h5 seed | tr '\n' ' ')" = "0 1 2 0 1 2 " ] &&
+  pass "seed column" || fail "seed column: $(column e1.h5 seed)"
+seq 0 5 | sed 's/.*/&:&/' | same_runs e1.h5 e2.h5 &&
+  pass "seeded cases equal on 1 and 2 jobs" ||
+  fail "seeded cases equal on 1 and 2 jobs"
+printf '%s\n' 3:0 4:1 5:2 | same_runs e1.h5 e3.h5 &&
+  pass "a seeded case equals itself run in another batch" ||
+  fail "a seeded case equals itself run in another batch"
+printf '%s\n' 3:4 | same_runs e1.h5 e1.h5 &&
+  fail "seeds 0 and 1 give different perturbations" ||
+  pass "seeds 0 and 1 give different perturbations"
+h5diff "e3.cases/case_0000.h5" run2.h5 >/dev/null 2>&1 &&
+  fail "a perturbed case differs from the unperturbed run" ||
+  pass "a perturbed case differs from the unperturbed run"
+
+# A perturbed constrained model: the velocities stay on the constraints'
+# tangent space (|G M^-1 p| at node 0 at roundoff level), and differ by seed.
+run_ok "ensemble of a constrained model" "$mrvi" batch \
+  "$root/systems/pendulum_chain.yaml" -o pc.h5 -q --seeds 2 \
+  --velocity-std 0.1 --vary integrator.t_end=0.2
+ok=1
+for c in 0 1; do
+  h=$(h5dump -y -d "/macro/hidden_constraint_residual[0;;1;]" \
+    "pc.cases/case_000$c.h5" | sed -n '/DATA {/,/}/p' | sed '1d;$d' | tr -d ' ')
+  awk -v h="$h" 'BEGIN { exit !(h != "" && h + 0 < 1e-12) }' || ok=0
+done
+h5diff pc.cases/case_0000.h5 pc.cases/case_0001.h5 "/macro/p" "/macro/p" \
+  >/dev/null 2>&1 && ok=0
+[ "$ok" = 1 ] && pass "perturbed velocities satisfy the constraints" ||
+  fail "perturbed velocities satisfy the constraints"
+
+test_finish
