@@ -141,8 +141,10 @@ else
 fi
 
 # --- SIGKILL of the parent, then --resume ---
+# Cases long enough (a few tenths of a second each in the plain build) that
+# a kill lands while cases run, however fast the machine.
 long=(--vary integrator.micro_steps=1,2,3,4 --vary integrator.macro_step=0.01,0.02
-  --vary integrator.t_end=300)
+  --vary integrator.t_end=3000 --vary output.every=100 --vary output.micro=false)
 run_ok "uninterrupted batch" "$mrvi" batch "$fpu" -o full.h5 -q -j 2 "${long[@]}"
 "$mrvi" batch "$fpu" -o k.h5 -q -j 2 "${long[@]}" 2>/dev/null &
 pid=$!
@@ -179,13 +181,16 @@ seq 0 7 | sed 's/.*/&:&/' | same_runs k.h5 full.h5 && same_table k.h5 full.h5 &&
 # --- SIGKILL of a worker: its case stays pending, --resume runs it ---
 "$mrvi" batch "$fpu" -o w.h5 -q -j 2 "${long[@]}" 2>err.txt &
 pid=$!
+# Kill a worker as soon as a case has started (its file exists): both
+# workers are then inside a case.
 worker=
-for _ in $(seq 1 200); do
-  worker=$(pgrep -P $pid | head -n 1)
-  [ -n "$worker" ] && break
-  sleep 0.02
+for _ in $(seq 1 400); do
+  if compgen -G 'w.cases/case_*.h5' >/dev/null; then
+    worker=$(pgrep -P $pid | head -n 1)
+    [ -n "$worker" ] && break
+  fi
+  sleep 0.01
 done
-sleep 0.2
 [ -n "$worker" ] && kill -9 "$worker"
 wait $pid
 rc=$?
