@@ -138,6 +138,34 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
                                  const char *law, const double *params,
                                  double rest_length);
 
+/* An end of a spring: particle `particle` (>= 0), or (particle < 0) the
+ * point of body `body` with body-frame components `at` (dimension entries,
+ * relative to its centre of mass along its principal axes), at
+ * x = phi + sum_i at[i] d_i, affine in the body's coordinates
+ * (doc/multibody.md, "Body points"). */
+typedef struct mrvi_end {
+  int particle;
+  int body;
+  double at[3];
+} mrvi_end;
+
+/* Spring with energy phi(|x_a - x_b| - rest_length) between two ends, or
+ * (b NULL) between end a and the fixed point `anchor`.  Two particles give
+ * the element of mrvi_model_add_spring (mrvi_model_add_anchor_spring);
+ * with a body point the element's inputs are the coordinates of its ends
+ * with the constant coefficients of x (1 for a particle or phi, at[i] for
+ * d_i).  The rate rule is the particles': a fast spring may touch fast
+ * coordinates only.  rest_length NAN: the initial distance. */
+int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
+                              const mrvi_end *a, const mrvi_end *b,
+                              const double *anchor, const char *law,
+                              const double *params, double rest_length);
+
+/* Position x (dimension entries) of end e at the coordinates q (model
+ * order); MRVI_EINVAL for an invalid end. */
+int mrvi_model_end_position(const mrvi_model *m, const mrvi_end *e,
+                            const double *q, double *x);
+
 /* Term phi(sum_j coef[j] q[coords[j]] - offset) on n_terms coordinates. */
 int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
                         const int *coords, const double *coef, double offset,

@@ -164,6 +164,124 @@ static void test_free_body(mrvi_constraint_form form) {
 }
 
 /* ---------------------------------------------------------------------------
+ * Body points (doc/multibody.md, "Body points"): springs between body points
+ * and particles are elements whose inputs carry the constant coefficients of
+ * x = phi + sum_i X^i d_i.  Their gradient and Hessian against central
+ * differences of the energy; on a free system of two bodies and a particle
+ * joined by springs, the linear and angular momentum to the Newton
+ * tolerance, the energy bounded with an O(dT^2) error.
+ * ------------------------------------------------------------------------- */
+static mrvi_model *sprung_bodies(int D) {
+  mrvi_model *m = mrvi_model_create();
+  const double J3[3] = {1.0, 2.0, 2.5}, K3[3] = {1.5, 1.0, 2.0}, J2 = 0.7,
+               K2 = 0.4;
+  const double xa[3] = {0, 0, 0}, xb[3] = {2, 0.5, 0.3}, xp[3] = {0.5, 1.5, 0};
+  const double va[3] = {0.1, 0, 0.2}, wa[3] = {0.3, 0.2, -0.5},
+               wb[3] = {-0.2, 0.4, 0.1}, vp[3] = {0, -0.3, 0.1}, w2a = 0.8,
+               w2b = -0.5;
+  double R[9];
+  const double axis[3] = {0.2, -0.4, 0.5};
+  rodrigues(axis, 1.0, R);
+  const double R2[4] = {cos(0.3), -sin(0.3), sin(0.3), cos(0.3)};
+  mrvi_model_set_dimension(m, D);
+  int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 1.0, D == 3 ? J3 : &J2,
+                               xa, D == 3 ? R : R2, va, D == 3 ? wa : &w2a);
+  st |= mrvi_model_add_body(m, "b", D, MRVI_SLOW, 2.0, D == 3 ? K3 : &K2, xb,
+                            NULL, NULL, D == 3 ? wb : &w2b);
+  st |= mrvi_model_add_particle(m, "p", 0.5, MRVI_SLOW, xp, vp);
+  const mrvi_end a = {.particle = -1, .body = 0, .at = {0.5, 0.2, -0.1}},
+                 b = {.particle = -1, .body = 1, .at = {-0.3, 0.1, 0.4}},
+                 p = {.particle = 0, .body = -1};
+  const double k = 20.0, morse[3] = {2.0, 1.5, 1.0};
+  CHECK(st == 1 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &a, &b, NULL, "linear", &k,
+                                      1.0) >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &p, &b, NULL, "morse",
+                                      morse, NAN) >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &a, &p, NULL, "linear", &k,
+                                      0.5) >= 0,
+        "sprung bodies %d-D: %s", D, mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_point_derivatives(int D) {
+  mrvi_model *m = sprung_bodies(D);
+  const double anchor[3] = {0.3, -1.0, 0.2}, k = 3.0;
+  const mrvi_end a = {.particle = -1, .body = 0, .at = {-0.4, 0.3, 0.2}};
+  CHECK(mrvi_model_add_end_spring(m, MRVI_SLOW, &a, NULL, anchor, "linear", &k,
+                                  0.25) >= 0,
+        "anchored body point: %s", mrvi_model_errmsg(m));
+  const int n = mrvi_model_n(m);
+  double *q = malloc((size_t)n * sizeof *q), *g = calloc((size_t)n, sizeof *g),
+         *H = calloc((size_t)n * n, sizeof *H), *gp = malloc(n * sizeof *gp),
+         *gm = malloc(n * sizeof *gm);
+  /* Off the constraint manifold on purpose: the energy is defined on R^n. */
+  for (int i = 0; i < n; i++)
+    q[i] = mrvi_model_q0(m)[i] + 0.05 * sin(1.7 * i + 0.3);
+  mrvi_model_potential(m, MRVI_SLOW, q, g, H);
+  const double h = 1e-5;
+  double eg = 0.0, eh = 0.0, scale = 0.0;
+  for (int i = 0; i < n; i++) {
+    const double qi = q[i];
+    memset(gp, 0, n * sizeof *gp);
+    memset(gm, 0, n * sizeof *gm);
+    q[i] = qi + h;
+    const double Vp = mrvi_model_potential(m, MRVI_SLOW, q, gp, NULL);
+    q[i] = qi - h;
+    const double Vm = mrvi_model_potential(m, MRVI_SLOW, q, gm, NULL);
+    q[i] = qi;
+    eg = fmax(eg, fabs((Vp - Vm) / (2 * h) - g[i]));
+    scale = fmax(scale, fabs(g[i]));
+    for (int j = 0; j < n; j++)
+      eh = fmax(eh, fabs((gp[j] - gm[j]) / (2 * h) - H[i * n + j]));
+  }
+  printf("body points %d-D: gradient vs central differences %.3g (max |grad| "
+         "%.3g), Hessian %.3g\n",
+         D, eg, scale, eh);
+  CHECK(scale > 1.0 && eg < 1e-7 && eh < 1e-6,
+        "body points %d-D: gradient %.3g, Hessian %.3g", D, eg, eh);
+  free(q), free(g), free(H), free(gp), free(gm);
+  mrvi_model_free(m);
+}
+
+static void test_point_springs(int D, mrvi_constraint_form form) {
+  mrvi_model *m = sprung_bodies(D);
+  double eH[2] = {0, 0};
+  for (int r = 0; r < 2; r++) {
+    const mrvi_settings s = settings(r ? 0.01 : 0.02, 4.0, form);
+    mrvi_trajectory *tr = run("body points", m, &s);
+    if (!tr)
+      break;
+    const int n = tr->n;
+    double eL, eg, P0[3] = {0, 0, 0}, eP = 0.0;
+    invariants(m, tr, &eH[r], &eL, &eg);
+    for (long k = 0; k < tr->n_macro; k++) {
+      double P[3] = {0, 0, 0}, L[3];
+      mrvi_model_momentum(m, tr->q + k * n, tr->p + k * n, P, L);
+      for (int c = 0; c < 3; c++) {
+        if (k == 0)
+          P0[c] = P[c];
+        eP = fmax(eP, fabs(P[c] - P0[c]));
+      }
+    }
+    printf("body points %d-D (%s), dT = %g: max |H - H0|/H0 %.3g, |P - P0| "
+           "%.3g, |L - L0| %.3g, |g| %.3g\n",
+           D, form_name(form), r ? 0.01 : 0.02, eH[r], eP, eL, eg);
+    CHECK(eP < 1e-11 && eL < 1e-11 && eg <= 1e-13,
+          "body points %d-D (%s): momentum %.3g, angular momentum %.3g, g "
+          "%.3g",
+          D, form_name(form), eP, eL, eg);
+    mrvi_trajectory_free(tr);
+  }
+  /* Bounded, second order: halving dT divides the error by about 4. */
+  CHECK(eH[0] < 1e-2 && eH[1] > 0 && eH[0] / eH[1] > 3.0 &&
+            eH[0] / eH[1] < 5.0,
+        "body points %d-D (%s): energy errors %.3g, %.3g", D, form_name(form),
+        eH[0], eH[1]);
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
  * The other joints, with answers known exactly:
  *   weld: two free bodies welded are one free rigid body, whose discrete
  *     map is again Moser-Veselov's: energy and angular momentum exact;
@@ -714,5 +832,10 @@ int main(void) {
   }
   test_slider("cylindrical", 3);
   test_planar();
+  for (int D = 2; D <= 3; D++) {
+    test_point_derivatives(D);
+    test_point_springs(D, MRVI_FORM_MULTIPLIERS);
+    test_point_springs(D, MRVI_FORM_NULL_SPACE);
+  }
   return test_finish();
 }

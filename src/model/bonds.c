@@ -41,7 +41,8 @@ int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap) {
   int count = 0;
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
-    if (el->kind == MRVI_ELEMENT_SPRING && !pair_law(el->law))
+    if (el->kind == MRVI_ELEMENT_SPRING && el->particle_i >= 0 &&
+        !pair_law(el->law))
       push(pairs, kind, cap, &count, el->particle_i, el->particle_j,
            el->potential == MRVI_FAST ? 1 : 0);
   }

@@ -343,6 +343,17 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   return m->n_elements++;
 }
 
+/* Allocate e->in and e->coef (e->n_in entries each). */
+static int alloc_inputs(mrvi_model *m, mrvi_element *e) {
+  e->in = malloc((size_t)e->n_in * sizeof *e->in);
+  e->coef = malloc((size_t)e->n_in * sizeof *e->coef);
+  if (e->in && e->coef)
+    return MRVI_OK;
+  free(e->in);
+  free(e->coef);
+  return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+}
+
 /* Look up the law and copy and check its parameters. */
 static int set_law(mrvi_model *m, mrvi_element *e, const char *law,
                    const double *params, const char *what) {
@@ -441,6 +452,159 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
   return push_element(m, &e, what);
 }
 
+/* ---------------------------------------------------------------------------
+ * Springs between ends: particles and body points
+ * ------------------------------------------------------------------------- */
+
+static int check_end(mrvi_model *m, const mrvi_end *e, const char *what) {
+  if (!e)
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: end is NULL", what);
+  if (e->particle >= 0) {
+    if (e->particle >= m->n_particles)
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "%s: particle index out of range", what);
+    return MRVI_OK;
+  }
+  if (e->body < 0 || e->body >= m->n_bodies)
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: body index out of range",
+                           what);
+  for (int k = 0; k < m->dimension; k++)
+    if (!isfinite(e->at[k]))
+      return mrvi_model_fail(m, MRVI_EINVAL,
+                             "%s: the point on body '%s' must be finite", what,
+                             m->bodies[e->body].name);
+  return MRVI_OK;
+}
+
+static void end_name(const mrvi_model *m, const mrvi_end *e, char *buf,
+                     size_t len) {
+  if (e->particle >= 0) {
+    mrvi_fmt(buf, len, "%s", m->particles[e->particle].name);
+    return;
+  }
+  const double *a = e->at;
+  if (m->dimension == 2)
+    mrvi_fmt(buf, len, "%s@[%g, %g]", m->bodies[e->body].name, a[0], a[1]);
+  else
+    mrvi_fmt(buf, len, "%s@[%g, %g, %g]", m->bodies[e->body].name, a[0], a[1],
+             a[2]);
+}
+
+/* The end's position as blocks of D consecutive coordinates with constant
+ * weights, x = sum_b w[b] q[first[b] .. first[b] + D): a particle is one
+ * block of weight 1, a body point phi (1) and d_i (at[i]).  Returns the
+ * number of blocks (at most 4). */
+static int end_blocks(const mrvi_model *m, const mrvi_end *e, int *first,
+                      double *w) {
+  if (e->particle >= 0) {
+    first[0] = m->particles[e->particle].first;
+    w[0] = 1.0;
+    return 1;
+  }
+  const mrvi_body *bd = &m->bodies[e->body];
+  first[0] = bd->first;
+  w[0] = 1.0;
+  for (int i = 0; i < bd->dim; i++) {
+    first[1 + i] = bd->first + bd->dim * (1 + i);
+    w[1 + i] = e->at[i];
+  }
+  return 1 + bd->dim;
+}
+
+int mrvi_model_end_position(const mrvi_model *m, const mrvi_end *e,
+                            const double *q, double *x) {
+  if (!e || !q || !x || (e->particle >= m->n_particles) ||
+      (e->particle < 0 && (e->body < 0 || e->body >= m->n_bodies)))
+    return MRVI_EINVAL;
+  int first[4];
+  double w[4];
+  const int nb = end_blocks(m, e, first, w), D = m->dimension;
+  for (int k = 0; k < D; k++) {
+    x[k] = 0.0;
+    for (int b = 0; b < nb; b++)
+      x[k] += w[b] * q[first[b] + k];
+  }
+  return MRVI_OK;
+}
+
+int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
+                              const mrvi_end *a, const mrvi_end *b,
+                              const double *anchor, const char *law,
+                              const double *params, double rest_length) {
+  int st;
+  if ((st = check_end(m, a, "spring")) < 0 ||
+      (b && (st = check_end(m, b, "spring")) < 0))
+    return st;
+  if (!b && !anchor)
+    return mrvi_model_fail(m, MRVI_EINVAL, "spring: anchor is NULL");
+  const int D = m->dimension;
+  double xa[3], xb[3] = {0, 0, 0};
+  mrvi_model_end_position(m, a, m->q0, xa);
+  if (b)
+    mrvi_model_end_position(m, b, m->q0, xb);
+  for (int k = 0; !b && k < D; k++)
+    xb[k] = anchor[k];
+  if (isnan(rest_length)) {
+    rest_length = 0.0;
+    for (int k = 0; k < D; k++)
+      rest_length += (xa[k] - xb[k]) * (xa[k] - xb[k]);
+    rest_length = sqrt(rest_length);
+  }
+  if (a->particle >= 0 && (!b || b->particle >= 0))
+    return b ? mrvi_model_add_spring(m, potential, a->particle, b->particle,
+                                     law, params, rest_length)
+             : mrvi_model_add_anchor_spring(m, potential, a->particle, anchor,
+                                            law, params, rest_length);
+  char na[128], nb[128] = "anchor", what[300];
+  end_name(m, a, na, sizeof na);
+  if (b)
+    end_name(m, b, nb, sizeof nb);
+  mrvi_fmt(what, sizeof what, "spring %s-%s", na, nb);
+  if (b && a->particle < 0 && b->particle < 0 && a->body == b->body)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: both ends are on body '%s' (their distance is "
+                           "constant)",
+                           what, m->bodies[a->body].name);
+  if (!isfinite(rest_length))
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: rest length must be finite",
+                           what);
+  mrvi_element e = {.kind = b ? MRVI_ELEMENT_SPRING : MRVI_ELEMENT_ANCHOR,
+                    .potential = potential,
+                    .shift = rest_length,
+                    .particle_i = -1,
+                    .particle_j = -1};
+  for (int k = 0; !b && k < D; k++) {
+    if (!isfinite(anchor[k]))
+      return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
+    e.anchor[k] = anchor[k];
+  }
+  if ((st = set_law(m, &e, law, params, what)) < 0)
+    return st;
+  /* Inputs: the blocks of a with their weights, then those of b negated
+   * (x_a - x_b); blocks of weight 0 (a point on an axis) are left out. */
+  int first[8], n_blocks = 0;
+  double w[8];
+  for (int s = 0; s < (b ? 2 : 1); s++) {
+    int f[4];
+    double wt[4];
+    const int nb_end = end_blocks(m, s ? b : a, f, wt);
+    for (int i = 0; i < nb_end; i++)
+      if (wt[i] != 0.0) {
+        first[n_blocks] = f[i];
+        w[n_blocks++] = s ? -wt[i] : wt[i];
+      }
+  }
+  e.n_in = n_blocks * D;
+  if (alloc_inputs(m, &e) < 0)
+    return MRVI_ENOMEM;
+  for (int i = 0; i < n_blocks; i++)
+    for (int k = 0; k < D; k++) {
+      e.in[i * D + k] = first[i] + k;
+      e.coef[i * D + k] = w[i];
+    }
+  return push_element(m, &e, what);
+}
+
 int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
                         const int *coords, const double *coef, double offset,
                         const char *law, const double *params) {
@@ -507,13 +671,8 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
                     .particle_i = -1,
                     .particle_j = -1,
                     .n_in = (m->n_particles + m->n_bodies) * d};
-  e.in = malloc((size_t)e.n_in * sizeof *e.in);
-  e.coef = malloc((size_t)e.n_in * sizeof *e.coef);
-  if (!e.in || !e.coef) {
-    free(e.in);
-    free(e.coef);
-    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  }
+  if (alloc_inputs(m, &e) < 0)
+    return MRVI_ENOMEM;
   /* -sum_i m_i g^T x_i, bodies at their centres of mass: -M g^T phi
    * (doc/multibody.md) */
   for (int i = 0; i < m->n_particles + m->n_bodies; i++)
@@ -686,11 +845,22 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
   }
   switch (e->kind) {
   case MRVI_ELEMENT_SPRING:
+  case MRVI_ELEMENT_ANCHOR:
+    if (e->particle_i < 0) { /* body points: name the coordinates' range */
+      mrvi_fmt(buf, len,
+               "%s spring between points (%d inputs, %s .. %s), rest length "
+               "%g, %s",
+               rate, e->n_in, m->names[e->in[0]], m->names[e->in[e->n_in - 1]],
+               e->shift, law);
+      break;
+    }
+    if (e->kind == MRVI_ELEMENT_ANCHOR)
+      goto anchor;
     mrvi_fmt(buf, len, "%s spring %s-%s, rest length %g, %s", rate,
              m->particles[e->particle_i].name, m->particles[e->particle_j].name,
              e->shift, law);
     break;
-  case MRVI_ELEMENT_ANCHOR: {
+  anchor: {
     char a[96];
     if (m->dimension == 1)
       mrvi_fmt(a, sizeof a, "[%g]", e->anchor[0]);
@@ -756,6 +926,45 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
  * Element evaluation
  * ------------------------------------------------------------------------- */
 
+/* Distance between body points (doc/multibody.md, "Body points"): the
+ * inputs are blocks of dim coordinates with weights coef, so that
+ * d = sum_j coef[j] y[j] (input j along axis j % dim) - anchor, and with
+ * A = phi'' u u^T + phi'/r (I - u u^T) the chain rule with constant
+ * coefficients gives grad_j = coef[j] phi' u[j % dim] and
+ * H_jl = coef[j] coef[l] A[j % dim][l % dim]. */
+static double eval_points(const mrvi_element *e, int dim, const double *y,
+                          double *grad, double *hess) {
+  const int n = e->n_in, anchored = e->kind == MRVI_ELEMENT_ANCHOR;
+  double d[3], r2 = 0.0;
+  for (int k = 0; k < dim; k++)
+    d[k] = anchored ? -e->anchor[k] : 0.0;
+  for (int j = 0; j < n; j++)
+    d[j % dim] += e->coef[j] * y[j];
+  for (int k = 0; k < dim; k++)
+    r2 += d[k] * d[k];
+  const double r = sqrt(r2);
+  double phi, dphi, ddphi;
+  e->law->eval(e->params, r - e->shift, &phi, &dphi, &ddphi);
+  double u[3] = {0, 0, 0}, a = 0.0, b = ddphi; /* A = a u u^T + b I */
+  if (r > 0.0) {
+    for (int k = 0; k < dim; k++)
+      u[k] = d[k] / r;
+    a = ddphi - dphi / r;
+    b = dphi / r;
+  }
+  if (grad)
+    for (int j = 0; j < n; j++)
+      grad[j] = e->coef[j] * dphi * u[j % dim];
+  if (hess)
+    for (int i = 0; i < n; i++)
+      for (int j = 0; j < n; j++) {
+        const int p = i % dim, q = j % dim;
+        hess[i * n + j] = e->coef[i] * e->coef[j] *
+                          (a * u[p] * u[q] + (p == q ? b : 0.0));
+      }
+  return phi;
+}
+
 /* Distance-type element: inputs x (d) [and y (d)], d = x - (y or anchor).
  * Gradient wrt x is phi' u, Hessian block A = phi'' u u^T + phi'/r (I - u u^T);
  * for a two-particle spring the blocks are [A -A; -A A]. */
@@ -763,6 +972,8 @@ static double eval_distance(const mrvi_element *e, int dim, const double *y,
                             double *grad, double *hess) {
   double d[3], r2 = 0.0;
   const int two = e->kind == MRVI_ELEMENT_SPRING;
+  if (e->coef)
+    return eval_points(e, dim, y, grad, hess);
   for (int k = 0; k < dim; k++) {
     d[k] = y[k] - (two ? y[dim + k] : e->anchor[k]);
     r2 += d[k] * d[k];

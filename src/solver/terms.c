@@ -105,7 +105,7 @@ static int terms_springs(mrvi_terms *kc) {
     const mrvi_element *e = t->el;
     const int two = e->kind == MRVI_ELEMENT_SPRING;
     if (!(two || e->kind == MRVI_ELEMENT_ANCHOR) || dim < 1 || dim > 3 ||
-        e->n_in != (two ? 2 : 1) * dim)
+        e->n_in != (two ? 2 : 1) * dim || e->coef) /* coef: body points */
       continue;
     const kterm *u = ie + 1 < kc->n ? &kc->t[ie + 1] : NULL;
     const int same = u && u->runs > 0 && u->el->kind == e->kind &&

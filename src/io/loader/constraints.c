@@ -84,7 +84,7 @@ static int read_ends(loader *L, entry *e, const mrvi_constraint_key *key) {
   int pi[2], ends, st;
   mrvi_fmt(noun, sizeof noun, "%s constraint", e->type->name);
   if ((st = mrvi_ld_ends(L, e->item, e->where, noun, key->name, anchor_key,
-                         e->dim, pi, &ends, anchor)))
+                         e->dim, pi, NULL, &ends, anchor)))
     return st;
   if (ends == 2 && pi[0] == pi[1])
     return mrvi_ld_fail(L, mrvi_ld_get(e->item, key->name),

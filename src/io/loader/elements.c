@@ -100,9 +100,48 @@ int mrvi_ld_combination(loader *L, struct fy_node *comb, int *coords,
  * `between: [a, b]`, or `between: [a]` with `anchor_key` (`anchor:`, dim
  * entries).
  * *ends is 1 or 2; pi gets the particle indices. */
+/* A body point as an end (doc/description-files.md, "Body points"):
+ * `{body: NAME, at: [X1, X2, X3]}` (body-frame components about the centre
+ * of mass) or a body's name alone (its centre of mass).  A scalar naming no
+ * body is left to mrvi_ld_find_particle (p->particle = 0 then). */
+static int end_point(loader *L, struct fy_node *n, const char *key, int dim,
+                     mrvi_end *p) {
+  static const char *const point_keys[] = {"body", "at"};
+  const mrvi_model *m = L->sys->model;
+  struct fy_node *bn, *at;
+  *p = (mrvi_end){.particle = 0, .body = -1};
+  if (fy_node_is_scalar(n)) {
+    if ((p->body = mrvi_model_find_body(m, mrvi_ld_scalar0(n))) >= 0)
+      p->particle = -1;
+    return MRVI_OK;
+  }
+  int st;
+  const char *name;
+  if ((st = mrvi_ld_want_mapping(L, n, key)) ||
+      (st = mrvi_ld_check_keys(L, n, key, point_keys, 2, NULL, 0)) ||
+      (st = mrvi_ld_need(L, n, "body", key, &bn)) ||
+      (st = mrvi_ld_as_string(L, bn, "body", &name)))
+    return st;
+  p->particle = -1;
+  if ((p->body = mrvi_model_find_body(m, name)) < 0) {
+    const char *names[64];
+    const int count = mrvi_model_n_bodies(m) < 64 ? mrvi_model_n_bodies(m) : 64;
+    for (int b = 0; b < count; b++)
+      names[b] = mrvi_model_body_name(m, b);
+    char hint[512];
+    mrvi_ld_suggest(hint, sizeof hint, name, names, count);
+    return mrvi_ld_fail(L, bn, "unknown body '%s'%s", name, hint);
+  }
+  at = mrvi_ld_get(n, "at");
+  return at ? mrvi_ld_as_vector(L, at, "at (the point in the body's frame)",
+                                dim, p->at)
+            : MRVI_OK;
+}
+
 int mrvi_ld_ends(loader *L, struct fy_node *item, const char *where,
                  const char *noun, const char *key, const char *anchor_key,
-                 int dim, int pi[2], int *ends, double *anchor) {
+                 int dim, int pi[2], mrvi_end *points, int *ends,
+                 double *anchor) {
   struct fy_node *between, *anchor_node;
   int st;
   if ((st = mrvi_ld_need(L, item, key, where, &between)) ||
@@ -113,10 +152,17 @@ int mrvi_ld_ends(loader *L, struct fy_node *item, const char *where,
     return mrvi_ld_fail(L, between,
                         "%s must name one particle (with %s) or two, got %d",
                         key, anchor_key, *ends);
-  for (int e = 0; e < *ends; e++)
-    if ((st = mrvi_ld_find_particle(
-             L, fy_node_sequence_get_by_index(between, e), key, &pi[e])))
+  for (int e = 0; e < *ends; e++) {
+    struct fy_node *n = fy_node_sequence_get_by_index(between, e);
+    if (points && (st = end_point(L, n, key, dim, &points[e])))
       return st;
+    if (points && (pi[e] = points[e].particle) < 0)
+      continue;
+    if ((st = mrvi_ld_find_particle(L, n, key, &pi[e])))
+      return st;
+    if (points)
+      points[e].particle = pi[e];
+  }
   anchor_node = mrvi_ld_get(item, anchor_key);
   if (*ends == 2 && anchor_node)
     return mrvi_ld_fail(L, anchor_node,

@@ -203,10 +203,14 @@ int mrvi_ld_law(loader *L, struct fy_node *item, const char *where,
 int mrvi_ld_combination(loader *L, struct fy_node *comb, int *coords,
                         double *coef, int *k);
 /* `key: [a, b]`, or `key: [a]` with `anchor_key:` (dim numbers), as
- * `between:` and `anchor:` of a spring; *ends is 1 or 2. */
+ * `between:` and `anchor:` of a spring; *ends is 1 or 2.  With points
+ * (2 entries, may be NULL: particles only) an end may also be a body point
+ * (`{body: NAME, at: [..]}` or a body's name): points[e] gets every end and
+ * pi[e] is -1 for a body point. */
 int mrvi_ld_ends(loader *L, struct fy_node *item, const char *where,
                  const char *noun, const char *key, const char *anchor_key,
-                 int dim, int pi[2], int *ends, double *anchor);
+                 int dim, int pi[2], mrvi_end *points, int *ends,
+                 double *anchor);
 
 /* ---------------------------------------------------------------------------
  * Overrides (overrides.c) and limits on hostile input (limits.c)

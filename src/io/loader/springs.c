@@ -1,21 +1,20 @@
 /* `springs:` of a description file: a law on the distance between two
- * particles, or between a particle and an anchor. */
+ * ends (particles or body points), or between an end and an anchor. */
 #include "io/loader/loader_internal.h"
 
+#include <math.h>
 #include <string.h>
 
 static const char *const spring_keys[] = {"between", "anchor", "law",
                                           "rest_length", "potential"};
 
-/* `rest_length:` of a spring: a number, `initial` (the initial distance)
- * or absent (0). */
-static int spring_rest(loader *L, struct fy_node *item, const int pi[2],
-                       int ends, const double *anchor, double *rest) {
+/* `rest_length:` of a spring: a number, `initial` (the initial distance:
+ * NAN for mrvi_model_add_end_spring) or absent (0). */
+static int spring_rest(loader *L, struct fy_node *item, double *rest) {
   struct fy_node *n = mrvi_ld_get(item, "rest_length");
   *rest = 0.0;
   if (n && fy_node_is_scalar(n) && !strcmp(mrvi_ld_scalar0(n), "initial")) {
-    *rest = mrvi_model_initial_distance(L->sys->model, pi[0],
-                                        ends == 2 ? pi[1] : -1, anchor);
+    *rest = NAN;
     return MRVI_OK;
   }
   return n ? mrvi_ld_as_number(L, n, "rest_length (a number or 'initial')",
@@ -35,20 +34,19 @@ int mrvi_ld_springs(loader *L, struct fy_node *list, int dim) {
     const mrvi_law *law = NULL;
     double params[MRVI_LAW_MAX_PARAMS] = {0}, rest, anchor[3] = {0, 0, 0};
     int pi[2], ends;
+    mrvi_end pt[2];
     mrvi_rate potential;
     if ((st = mrvi_ld_want_mapping(L, item, where)) ||
         (st = mrvi_ld_law(L, item, where, spring_keys, COUNT(spring_keys), &law,
                           params)) ||
         (st = mrvi_ld_ends(L, item, where, "spring", "between", "anchor", dim,
-                           pi, &ends, anchor)) ||
-        (st = spring_rest(L, item, pi, ends, anchor, &rest)) ||
+                           pi, pt, &ends, anchor)) ||
+        (st = spring_rest(L, item, &rest)) ||
         (st = mrvi_ld_as_rate(L, item, "potential", &potential)))
       return st;
-    int e = ends == 2
-                ? mrvi_model_add_spring(L->sys->model, potential, pi[0], pi[1],
-                                        law->name, params, rest)
-                : mrvi_model_add_anchor_spring(L->sys->model, potential, pi[0],
-                                               anchor, law->name, params, rest);
+    int e = mrvi_model_add_end_spring(L->sys->model, potential, &pt[0],
+                                      ends == 2 ? &pt[1] : NULL, anchor,
+                                      law->name, params, rest);
     if (e < 0)
       return mrvi_ld_fail_model(L, item, e);
   }
