@@ -154,11 +154,19 @@ for _ in $(seq 1 200); do
   [ "${n:-0}" -ge 1 ] && break
   sleep 0.05
 done
+workers=$(pgrep -P $pid)
 {
   kill -9 $pid
   wait $pid
 } 2>/dev/null
-sleep 0.3 # the workers die with the parent
+# The workers die with the parent; wait until they are gone (a loaded
+# machine may take a while), so that none still holds a case file.
+for _ in $(seq 1 500); do
+  alive=0
+  for w in $workers; do kill -0 "$w" 2>/dev/null && alive=1; done
+  [ $alive = 0 ] && break
+  sleep 0.02
+done
 done_before=$(column k.h5 status | grep -c '^1$')
 if [ "$done_before" -ge 1 ] && [ "$done_before" -lt 8 ]; then
   pass "killed mid-batch: table readable, $done_before of 8 completed"
