@@ -1,6 +1,6 @@
-/* Cost of the two constraint forms (doc/constraints.md) on the shipped constrained
- * systems: for every system, form and p the table gives the size and
- * nonzeros of the Newton matrix, the Newton iterations and the time per
+/* Cost of the two constraint forms (doc/constraints.md) on the shipped
+ * constrained systems: for every system, form and p the table gives the size
+ * and nonzeros of the Newton matrix, the Newton iterations and the time per
  * macro step (assembly + solve).  The macro step of the description file is
  * kept and p varies, so larger p resolves the fast motion more finely at the
  * same macro step.  A measurement, not a test: no thresholds.

@@ -28,17 +28,17 @@ extern "C" {
 /* ---------------------------------------------------------------------------
  * Status codes: one list pairs every code with its message.
  * ------------------------------------------------------------------------- */
-#define MRVI_STATUS_LIST(X)                                                  \
-  X(MRVI_OK, 0, "success")                                                   \
-  X(MRVI_ENOMEM, -1, "out of memory")                                        \
-  X(MRVI_EINVAL, -2, "invalid argument")                                     \
-  X(MRVI_EMODEL, -3, "invalid model")                                        \
-  X(MRVI_EPARSE, -4, "invalid description file")                             \
-  X(MRVI_ENEWTON, -5, "Newton iteration did not converge")                   \
-  X(MRVI_ESINGULAR, -6, "singular Newton matrix")                            \
-  X(MRVI_EIO, -7, "input/output error")                                      \
-  X(MRVI_EINTERRUPTED, -8, "run interrupted")                                \
-  X(MRVI_ENONFINITE, -9, "non-finite value")                                \
+#define MRVI_STATUS_LIST(X)                                                    \
+  X(MRVI_OK, 0, "success")                                                     \
+  X(MRVI_ENOMEM, -1, "out of memory")                                          \
+  X(MRVI_EINVAL, -2, "invalid argument")                                       \
+  X(MRVI_EMODEL, -3, "invalid model")                                          \
+  X(MRVI_EPARSE, -4, "invalid description file")                               \
+  X(MRVI_ENEWTON, -5, "Newton iteration did not converge")                     \
+  X(MRVI_ESINGULAR, -6, "singular Newton matrix")                              \
+  X(MRVI_EIO, -7, "input/output error")                                        \
+  X(MRVI_EINTERRUPTED, -8, "run interrupted")                                  \
+  X(MRVI_ENONFINITE, -9, "non-finite value")                                   \
   X(MRVI_EOPTIMIZE, -10, "optimisation failed")
 
 enum mrvi_status {
@@ -72,10 +72,11 @@ typedef enum mrvi_law_form {
 } mrvi_law_form;
 
 typedef struct mrvi_law {
-  const char *name;                /* e.g. "power", "linear" */
-  const char *summary;             /* one line for `mrvi check` and docs */
-  int n_params;                    /* <= MRVI_LAW_MAX_PARAMS */
-  const char *const *param_names;  /* n_params names, e.g. {"coefficient", "exponent"} */
+  const char *name;    /* e.g. "power", "linear" */
+  const char *summary; /* one line for `mrvi check` and docs */
+  int n_params;        /* <= MRVI_LAW_MAX_PARAMS */
+  const char *const
+      *param_names; /* n_params names, e.g. {"coefficient", "exponent"} */
   /* Validate parameter values; on failure write a message and return < 0. */
   int (*check)(const double *params, char *msg, size_t msg_len);
   /* phi(s), phi'(s), phi''(s). */
@@ -129,10 +130,11 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
  * element touching a slow coordinate is rejected.  params has law->n_params
  * entries.  Returns the element index or a status < 0. */
 int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
-                          int particle_j, const char *law,
-                          const double *params, double rest_length);
+                          int particle_j, const char *law, const double *params,
+                          double rest_length);
 
-/* Spring between particle i and the fixed point `anchor` (dimension entries). */
+/* Spring between particle i and the fixed point `anchor` (dimension entries).
+ */
 int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
                                  int particle_i, const double *anchor,
                                  const char *law, const double *params,
@@ -227,13 +229,13 @@ typedef struct mrvi_spring_spec {
 
 typedef struct mrvi_generator {
   mrvi_generator_kind kind;
-  const char *prefix;   /* names prefix0.. (chain, ring), prefixI_J(_K) */
-  int count[3];         /* chain/ring: count[0]; lattices: per axis */
-  double spacing;       /* nearest-neighbour distance > 0 */
-  double origin[3];     /* position of particle 0 (ring: its centre) */
-  double mass;          /* > 0, every particle */
+  const char *prefix; /* names prefix0.. (chain, ring), prefixI_J(_K) */
+  int count[3];       /* chain/ring: count[0]; lattices: per axis */
+  double spacing;     /* nearest-neighbour distance > 0 */
+  double origin[3];   /* position of particle 0 (ring: its centre) */
+  double mass;        /* > 0, every particle */
   mrvi_rate_rule rates;
-  int every;            /* for MRVI_RATES_EVERY, >= 1 */
+  int every; /* for MRVI_RATES_EVERY, >= 1 */
   mrvi_spring_spec slow, fast;
   /* Optional (may be NULL): per particle (linear index, x fastest) and
    * dimension entries: displacement from the lattice site, velocity. */
@@ -253,10 +255,10 @@ int mrvi_model_generate(mrvi_model *m, const mrvi_generator *g, int counts[4]);
 int mrvi_model_set_name(mrvi_model *m, const char *name);
 
 /* Sizes and read access. */
-int mrvi_model_n(const mrvi_model *m);          /* all coordinates */
+int mrvi_model_n(const mrvi_model *m); /* all coordinates */
 int mrvi_model_n_slow(const mrvi_model *m);
 int mrvi_model_n_fast(const mrvi_model *m);
-int mrvi_model_dimension(const mrvi_model *m);  /* 0 if no particles */
+int mrvi_model_dimension(const mrvi_model *m); /* 0 if no particles */
 int mrvi_model_n_particles(const mrvi_model *m);
 int mrvi_model_n_elements(const mrvi_model *m);
 const char *mrvi_model_name(const mrvi_model *m);
@@ -283,8 +285,8 @@ double mrvi_model_potential(const mrvi_model *m, mrvi_rate potential,
                             const double *q, double *grad, double *hess);
 /* Momentum maps of the particles: linear (dimension entries) and angular
  * momentum sum_i x_i x p_i (3 entries in 3-D, 1 in 2-D, 0 in 1-D). */
-void mrvi_model_momentum(const mrvi_model *m, const double *q,
-                         const double *p, double *linear, double *angular);
+void mrvi_model_momentum(const mrvi_model *m, const double *q, const double *p,
+                         double *linear, double *angular);
 /* Which components of those momentum maps the model's symmetries conserve
  * (1) or not (0): linear (dimension entries) is conserved along e_a when
  * every potential element and constraint is invariant under translations
@@ -352,16 +354,16 @@ typedef struct mrvi_constraint_key {
 } mrvi_constraint_key;
 
 typedef struct mrvi_constraint_type {
-  const char *name;     /* e.g. "distance" */
-  const char *summary;  /* one line for `mrvi check` and docs */
+  const char *name;    /* e.g. "distance" */
+  const char *summary; /* one line for `mrvi check` and docs */
   /* Validate sizes and parameters of an instance; return its number of rows
    * (1 <= rows <= n_in) or a status < 0 with a message. */
   int (*check)(int n_in, int n_params, const double *params, char *msg,
                size_t msg_len);
   /* At inputs y (n_in): g (rows), G = dg/dy (rows x n_in, row-major) and,
    * if H is not NULL, the second derivatives (rows x n_in x n_in). */
-  void (*eval)(int n_in, int n_params, const double *params,
-               const double *y, double *g, double *G, double *H);
+  void (*eval)(int n_in, int n_params, const double *params, const double *y,
+               double *g, double *G, double *H);
   /* Optional, before check: replace the parameters left NAN (not given) by
    * values from the initial inputs y0 (n_in), e.g. a rod's length by the
    * initial distance; 0, or a status < 0 with a message (the model puts the
@@ -424,8 +426,8 @@ int mrvi_model_describe_constraint(const mrvi_model *m, int c, char *buf,
                                    size_t len);
 /* g(q) of every constraint in order (constraint_rows entries) and, if G is
  * not NULL, the dense gradient (constraint_rows x n, row-major). */
-void mrvi_model_constraint_eval(const mrvi_model *m, const double *q,
-                                double *g, double *G);
+void mrvi_model_constraint_eval(const mrvi_model *m, const double *q, double *g,
+                                double *G);
 /* max_i |(G M^-1 p)_i|: the hidden (velocity) constraint at (q, p). */
 double mrvi_model_hidden_residual(const mrvi_model *m, const double *q,
                                   const double *p);
@@ -508,8 +510,9 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
 const char *const *mrvi_joint_type_names(void);
 
 /* ---------------------------------------------------------------------------
- * Integrator settings (arXiv 2406.12991 §3.3): rule (alpha, gamma) of eq:Zapprox for the
- * slow potential V and the fast potential W, the grid V is evaluated on.
+ * Integrator settings (arXiv 2406.12991 §3.3): rule (alpha, gamma) of
+ * eq:Zapprox for the slow potential V and the fast potential W, the grid V is
+ * evaluated on.
  * ------------------------------------------------------------------------- */
 typedef enum mrvi_grid { MRVI_GRID_MICRO = 0, MRVI_GRID_MACRO = 1 } mrvi_grid;
 
@@ -603,15 +606,16 @@ typedef struct mrvi_tuning {
 } mrvi_tuning;
 
 typedef struct mrvi_settings {
-  char scheme[48];      /* name of the scheme the rules came from */
-  mrvi_rule slow;       /* rule for V */
-  mrvi_grid slow_grid;  /* grid for V; macro: V_d = dT[a V(q_k) + (1-a) V(q_k+1)] */
-  mrvi_rule fast;       /* rule for W (always micro grid) */
-  double macro_step;    /* Delta T > 0 */
-  int micro_steps;      /* p >= 1 */
-  double t_end;         /* >= macro_step; N = ceil(t_end/dT - 1e-9) steps */
-  double newton_tol;    /* stop when ||R||_inf <= tol (default 1e-9) */
-  int newton_max_iter;  /* default 20 */
+  char scheme[48]; /* name of the scheme the rules came from */
+  mrvi_rule slow;  /* rule for V */
+  mrvi_grid
+      slow_grid;  /* grid for V; macro: V_d = dT[a V(q_k) + (1-a) V(q_k+1)] */
+  mrvi_rule fast; /* rule for W (always micro grid) */
+  double macro_step;   /* Delta T > 0 */
+  int micro_steps;     /* p >= 1 */
+  double t_end;        /* >= macro_step; N = ceil(t_end/dT - 1e-9) steps */
+  double newton_tol;   /* stop when ||R||_inf <= tol (default 1e-9) */
+  int newton_max_iter; /* default 20 */
   /* Constraints (doc/constraints.md). */
   mrvi_constraint_form constraint_form; /* default MRVI_FORM_MULTIPLIERS */
   double constraint_tol;                /* max |g| at enforced nodes (1e-10) */
@@ -667,8 +671,9 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len);
 long mrvi_settings_n_steps(const mrvi_settings *s);
 
 /* ---------------------------------------------------------------------------
- * Integrator: one-step position-momentum map (arXiv 2406.12991 §3.1, doc/solver.md), solved by Newton
- * with UMFPACK (pattern and symbolic analysis once, numeric per iteration).
+ * Integrator: one-step position-momentum map (arXiv 2406.12991 §3.1,
+ * doc/solver.md), solved by Newton with UMFPACK (pattern and symbolic analysis
+ * once, numeric per iteration).
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_integrator mrvi_integrator;
 
@@ -751,8 +756,8 @@ const double *mrvi_integrator_lambda(const mrvi_integrator *it);
  * last step (p entries): the micro-node constraints at every node and, at
  * m = p (the new macro node), the slow-only ones too; zeros without
  * constraints. */
-const double *mrvi_integrator_micro_constraint_residual(
-    const mrvi_integrator *it);
+const double *
+mrvi_integrator_micro_constraint_residual(const mrvi_integrator *it);
 /* Accumulated wall time in seconds spent assembling residual+Jacobian and
  * in the linear solves (UMFPACK numeric + solve).  Measured on each of the
  * first 64 steps; later steps come in blocks of 64 whose first step is
@@ -769,27 +774,27 @@ int mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
  * Run driver: integrate to t_end, calling an observer at every macro node.
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_record {
-  long k;                      /* macro node index */
-  double t;                    /* t_k */
-  const double *q, *p;         /* n, model order */
+  long k;              /* macro node index */
+  double t;            /* t_k */
+  const double *q, *p; /* n, model order */
   double kinetic, potential_slow, potential_fast, energy;
-  double linear_momentum[3];   /* dimension entries used */
-  double angular_momentum[3];  /* 3 in 3-D, 1 in 2-D */
-  int iterations;              /* Newton iterations of the step ending here (0 at k = 0) */
-  double residual;             /* final ||R||_inf of that step (0 at k = 0) */
+  double linear_momentum[3];  /* dimension entries used */
+  double angular_momentum[3]; /* 3 in 3-D, 1 in 2-D */
+  int iterations;  /* Newton iterations of the step ending here (0 at k = 0) */
+  double residual; /* final ||R||_inf of that step (0 at k = 0) */
   /* Fast micro nodes that this record completes: at k = 0 the single node
    * t_0; otherwise nodes m = 1..p of step k-1.  micro_count x n_fast. */
   int micro_count;
-  double micro_t0;             /* time of the first of them */
-  double micro_dt;             /* spacing */
+  double micro_t0; /* time of the first of them */
+  double micro_dt; /* spacing */
   const double *micro_q_fast, *micro_p_fast;
   /* Constraints (all 0 / NULL without them). */
-  int n_lambda;                /* constraint rows */
+  int n_lambda; /* constraint rows */
   /* Multipliers of node k-1 (computed by the step k-1 -> k that ends here;
    * NULL at k = 0): a node's multipliers are known one record late. */
   const double *lambda_prev;
-  double constraint_residual;  /* max |g| over the nodes this record completes */
-  double hidden_constraint_residual; /* max |G M^-1 p| at node k */
+  double constraint_residual; /* max |g| over the nodes this record completes */
+  double hidden_constraint_residual;       /* max |G M^-1 p| at node k */
   const double *micro_constraint_residual; /* micro_count entries */
   /* The run's energy error so far, over every node j <= k (stored or not):
    * max |H_j - H_0| and max T_j + |V_j| + |W_j| (mrvi_summary's error and
@@ -801,9 +806,9 @@ typedef struct mrvi_record {
 typedef int (*mrvi_observer)(void *user, const mrvi_record *r);
 
 typedef struct mrvi_summary {
-  long steps;                  /* macro steps completed */
+  long steps; /* macro steps completed */
   long iterations_total;
-  int iterations_max;          /* max per step */
+  int iterations_max; /* max per step */
   /* Energy error (doc/output.md, Energy error): max_k |H_k - H_0| / E, with
    * E = T_0 + |V_0| + |W_0| (= |H_0| unless an energy part is negative)
    * when that is nonzero, else the largest T_k + |V_k| + |W_k| of the run
@@ -816,7 +821,7 @@ typedef struct mrvi_summary {
   /* Set when max_rel_energy_error exceeds settings.energy_warning: what
    * the error is and what to do ("" otherwise).  The run still completes. */
   char warning[512];
-  double wall_time;            /* seconds */
+  double wall_time; /* seconds */
   /* Time spent assembling and solving (mrvi_integrator_timing): measured
    * when timing_estimated is 0, else partly estimated from sampled steps;
    * their sum is at most wall_time. */
@@ -825,7 +830,7 @@ typedef struct mrvi_summary {
   long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
                           tolerance (doc/solver.md) */
   mrvi_krylov_stats krylov; /* iterative solves (sweep-cg, schur-krylov) */
-  int status;                  /* final status */
+  int status;               /* final status */
   /* Why it stopped ("" when completed).  A failed step after an energy
    * error above settings.energy_warning adds that the macro step is
    * probably beyond the stability limit of the scheme. */
@@ -837,8 +842,8 @@ typedef struct mrvi_summary {
  * e.g. a signal handler, giving MRVI_EINTERRUPTED).  stop_flag may be NULL.
  * The summary is filled in every case. */
 int mrvi_run(const mrvi_model *m, const mrvi_settings *s,
-             mrvi_observer observer, void *user,
-             volatile const int *stop_flag, mrvi_summary *summary);
+             mrvi_observer observer, void *user, volatile const int *stop_flag,
+             mrvi_summary *summary);
 /* Macro node a run starts from: node k with state (q, p), model order. */
 typedef struct mrvi_start {
   long k;
@@ -860,17 +865,17 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
  * Description files (YAML 1.2, doc/description-files.md).
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_system {
-  char *name;            /* `name:` */
-  char *path;            /* file it came from ("<string>" for text) */
+  char *name; /* `name:` */
+  char *path; /* file it came from ("<string>" for text) */
   mrvi_model *model;
   mrvi_settings settings;
-  char *output_file;     /* output.file (default: <name>.h5) */
-  int output_every;      /* output.every (default 1) */
-  int output_micro;      /* output.micro (default 1) */
-  int output_micro_slow; /* output.micro_slow (default 0) */
-  int output_xdmf;       /* output.xdmf: write OUT.xdmf (default 1) */
+  char *output_file;            /* output.file (default: <name>.h5) */
+  int output_every;             /* output.every (default 1) */
+  int output_micro;             /* output.micro (default 1) */
+  int output_micro_slow;        /* output.micro_slow (default 0) */
+  int output_xdmf;              /* output.xdmf: write OUT.xdmf (default 1) */
   double output_flush_interval; /* output.flush_interval, s (0: default) */
-  char *description;     /* the input text after overrides */
+  char *description;            /* the input text after overrides */
   /* What the loader changed or wants the user to know, one note per line
    * ('\n'-separated, no trailing newline), e.g. that the initial velocities
    * were projected onto the constraints' tangent space; NULL when there is
@@ -883,8 +888,7 @@ typedef struct mrvi_system {
  * On failure returns MRVI_EPARSE (or MRVI_EIO / MRVI_ENOMEM) and writes
  * "file:line:col: message" into msg; *out is NULL. */
 int mrvi_system_load(const char *path, const char *const *overrides,
-                     int n_overrides, mrvi_system **out, char *msg,
-                     size_t len);
+                     int n_overrides, mrvi_system **out, char *msg, size_t len);
 /* Same from text in memory; `display_name` stands in for the file name. */
 int mrvi_system_load_string(const char *text, const char *display_name,
                             const char *const *overrides, int n_overrides,
@@ -898,18 +902,18 @@ void mrvi_system_free(mrvi_system *sys);
 typedef struct mrvi_writer mrvi_writer;
 
 typedef struct mrvi_writer_options {
-  const char *system_name;  /* root attribute `system` */
-  const char *description;  /* /model/description (may be NULL) */
-  int every;                /* write every `every`-th macro node (>= 1) */
-  int micro;                /* write /micro datasets */
-  double flush_interval;    /* seconds between flushes (<= 0: default 2) */
-  int force;                /* replace an existing non-mrvi file */
-  int micro_slow;           /* with micro: also /micro/q_slow, the slow
-                               coordinates interpolated at the micro nodes */
-  int resume;               /* append to the existing output (mrvi run
-                               --resume): cut its datasets back to macro node
-                               resume_k, which the first record repeats and
-                               is not written again */
+  const char *system_name; /* root attribute `system` */
+  const char *description; /* /model/description (may be NULL) */
+  int every;               /* write every `every`-th macro node (>= 1) */
+  int micro;               /* write /micro datasets */
+  double flush_interval;   /* seconds between flushes (<= 0: default 2) */
+  int force;               /* replace an existing non-mrvi file */
+  int micro_slow;          /* with micro: also /micro/q_slow, the slow
+                              coordinates interpolated at the micro nodes */
+  int resume;              /* append to the existing output (mrvi run
+                              --resume): cut its datasets back to macro node
+                              resume_k, which the first record repeats and
+                              is not written again */
   long resume_k;
 } mrvi_writer_options;
 
@@ -942,11 +946,11 @@ typedef struct mrvi_stored_node {
   int every;            /* output_every of the file */
   int n;                /* coordinates */
   double t, macro_step;
-  double *q, *p;        /* n each, model order */
+  double *q, *p; /* n each, model order */
   /* H_0, T_0 + |V_0| + |W_0| (row 0) and /macro/energy_running of node k:
    * mrvi_start.energy of a resumed run. */
   double energy[4];
-  char *description;    /* /model/description: the input after overrides */
+  char *description;      /* /model/description: the input after overrides */
   char stop_reason[1024]; /* as mrvi_run_file_status */
 } mrvi_stored_node;
 #define MRVI_NODE_LAST (-1L)   /* the last stored macro node */
@@ -1016,10 +1020,10 @@ typedef struct mrvi_trajectory {
   int n, n_fast;
   double macro_step;
   int micro_steps;
-  long n_macro;          /* N + 1 */
-  long n_micro;          /* N p + 1 */
-  double *t, *q, *p;     /* n_macro; n_macro x n; n_macro x n */
-  double *micro_t;       /* n_micro */
+  long n_macro;              /* N + 1 */
+  long n_micro;              /* N p + 1 */
+  double *t, *q, *p;         /* n_macro; n_macro x n; n_macro x n */
+  double *micro_t;           /* n_micro */
   double *micro_q, *micro_p; /* n_micro x n_fast */
 } mrvi_trajectory;
 

@@ -184,8 +184,8 @@ static mrvi_model *sprung_bodies(int D) {
   rodrigues(axis, 1.0, R);
   const double R2[4] = {cos(0.3), -sin(0.3), sin(0.3), cos(0.3)};
   mrvi_model_set_dimension(m, D);
-  int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 1.0, D == 3 ? J3 : &J2,
-                               xa, D == 3 ? R : R2, va, D == 3 ? wa : &w2a);
+  int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 1.0, D == 3 ? J3 : &J2, xa,
+                               D == 3 ? R : R2, va, D == 3 ? wa : &w2a);
   st |= mrvi_model_add_body(m, "b", D, MRVI_SLOW, 2.0, D == 3 ? K3 : &K2, xb,
                             NULL, NULL, D == 3 ? wb : &w2b);
   st |= mrvi_model_add_particle(m, "p", 0.5, MRVI_SLOW, xp, vp);
@@ -274,8 +274,7 @@ static void test_point_springs(int D, mrvi_constraint_form form) {
     mrvi_trajectory_free(tr);
   }
   /* Bounded, second order: halving dT divides the error by about 4. */
-  CHECK(eH[0] < 1e-2 && eH[1] > 0 && eH[0] / eH[1] > 3.0 &&
-            eH[0] / eH[1] < 5.0,
+  CHECK(eH[0] < 1e-2 && eH[1] > 0 && eH[0] / eH[1] > 3.0 && eH[0] / eH[1] < 5.0,
         "body points %d-D (%s): energy errors %.3g, %.3g", D, form_name(form),
         eH[0], eH[1]);
   mrvi_model_free(m);

@@ -41,8 +41,8 @@ static traj run(const mrvi_model *m, mrvi_settings s) {
   traj T = {.n = m->n};
   mrvi_summary sum;
   int st = mrvi_run(m, &s, keep, &T, NULL, &sum);
-  CHECK(st == 0, "run %s dT=%g p=%d: %s", s.scheme, s.macro_step,
-        s.micro_steps, sum.message);
+  CHECK(st == 0, "run %s dT=%g p=%d: %s", s.scheme, s.macro_step, s.micro_steps,
+        sum.message);
   return T;
 }
 

@@ -1,5 +1,5 @@
-/* Constrained integration (doc/constraints.md): the multiplier and null-space forms
- * against an independent constrained midpoint integrator, against each
+/* Constrained integration (doc/constraints.md): the multiplier and null-space
+ * forms against an independent constrained midpoint integrator, against each
  * other, conservation laws, residuals and convergence order. */
 #include "models.h"
 #include "step/step.h"

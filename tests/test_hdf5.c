@@ -869,7 +869,8 @@ static void synthetic_case_s(const char *name, mrvi_model *m,
   const mrvi_settings s = *sp;
   char path[64];
   snprintf(path, sizeof path, "synthetic_%s.h5", name);
-  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0, 0, 0, 0, 0};
+  mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0,
+                             0,           0,           0,     0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg);
@@ -1381,7 +1382,8 @@ static void run_case(const char *name, mrvi_model *m, const mrvi_settings *s,
                      int every, long stop_at) {
   char path[64];
   snprintf(path, sizeof path, "run_%s.h5", name);
-  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0, 0, 0, 0};
+  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0, 0, 0,
+                             0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, s, &opt, &w, msg, sizeof msg);

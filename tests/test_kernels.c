@@ -24,10 +24,14 @@ typedef struct law_case {
 } law_case;
 
 static const law_case cases[] = {
-    {"linear", {2.5}},           {"power", {1.25, 4}},
-    {"power", {-0.3, 3}},        {"power", {0.7, 2}},
-    {"power", {0.05, 10}},       {"morse", {0.8, 1.3}},
-    {"lennard-jones", {0.6, 0.9, 3.0}}, {"inverse", {0.4}},
+    {"linear", {2.5}},
+    {"power", {1.25, 4}},
+    {"power", {-0.3, 3}},
+    {"power", {0.7, 2}},
+    {"power", {0.05, 10}},
+    {"morse", {0.8, 1.3}},
+    {"lennard-jones", {0.6, 0.9, 3.0}},
+    {"inverse", {0.4}},
 };
 
 static double uniform(unsigned long long *state) {
@@ -89,7 +93,8 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
   const size_t nn = (size_t)n * (size_t)n;
   int *elems = calloc((size_t)ne, sizeof *elems);
   double *q = calloc((size_t)n, sizeof *q), *g = calloc((size_t)n, sizeof *g);
-  double *gr = calloc((size_t)n, sizeof *gr), *gs = calloc((size_t)n, sizeof *gs);
+  double *gr = calloc((size_t)n, sizeof *gr),
+         *gs = calloc((size_t)n, sizeof *gs);
   double *gs_ref = calloc((size_t)n, sizeof *gs_ref);
   double *H = calloc(nn, sizeof *H), *Hr = calloc(nn, sizeof *Hr);
   double *Hs = calloc(nn, sizeof *Hs), *Hs_ref = calloc(nn, sizeof *Hs_ref);
@@ -136,8 +141,8 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
     CHECK(memcmp(g, gr, (size_t)n * sizeof *g) == 0 &&
               memcmp(gs, gr, (size_t)n * sizeof *g) == 0 &&
               memcmp(H, Hr, nn * sizeof *H) == 0,
-          "d %d %s (%g): bitwise the generic gradient and Hessian", d,
-          lc->law, lc->params[1]);
+          "d %d %s (%g): bitwise the generic gradient and Hessian", d, lc->law,
+          lc->params[1]);
     /* Hessian-vector products. */
     for (int i = 0; i < n; i++)
       for (int j = 0; j < n; j++) {

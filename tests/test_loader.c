@@ -1,8 +1,9 @@
 /* Description files: every broken file in tests/bad_input/ fails with
  * "file:line:col: message" (library and CLI), the shipped systems hold the
- * paper's set-ups (arXiv 2406.12991 §6, doc/reproduction.md), --set overrides reach the model and the
- * stored description, and constraints (doc/constraints.md) are parsed, checked and
- * their initial velocities projected. */
+ * paper's set-ups (arXiv 2406.12991 §6, doc/reproduction.md), --set overrides
+ * reach the model and the stored description, and constraints
+ * (doc/constraints.md) are parsed, checked and their initial velocities
+ * projected. */
 #include "models.h"
 #include "mrvi.h"
 #include "testlib.h"
@@ -288,8 +289,9 @@ static void check_spring_ring_file(void) {
   CHECK(mrvi_model_n_elements(m) == 13, "ring elements = %d",
         mrvi_model_n_elements(m));
   /* Initial data equal to the C-API build of the paper's set-up
-   * (tests/models.c, arXiv 2406.12991 §6, doc/reproduction.md): positions to the 17 digits written in the
-   * file, velocities to rounding of the normalisations. */
+   * (tests/models.c, arXiv 2406.12991 §6, doc/reproduction.md): positions to
+   * the 17 digits written in the file, velocities to rounding of the
+   * normalisations. */
   mrvi_model *ref = test_spring_ring();
   double x[6][3];
   for (int i = 0; i < 6; i++)
@@ -1485,8 +1487,7 @@ static void test_generated_gravity(void) {
     /* Same elements; gravity comes after the generated springs (the hand
      * file puts it before them), so V sums in another order: the runs agree
      * to roundoff, not bitwise. */
-    CHECK(mrvi_model_n_elements(m) == 5 &&
-              mrvi_model_n_elements(b->model) == 5,
+    CHECK(mrvi_model_n_elements(m) == 5 && mrvi_model_n_elements(b->model) == 5,
           "4 springs and gravity");
     mrvi_summary sa, sb;
     int ra = mrvi_run(m, &a->settings, NULL, NULL, NULL, &sa);

@@ -1,9 +1,10 @@
-/* p = 1 reductions to classical one-step schemes (arXiv 2406.12991 §3.3, remarks after
- * th:midfmids, th:midftraps, th:trapftraps and Examples ex:slow_ex__fast_im,
- * ex:fully_ex).  Each classical scheme is written here in a few lines on top
- * of the model's gradient and Hessian only; mrvi's multirate step with p = 1
- * must agree with it to 1e-12 over 100 steps, relative to max|q| and max|p|
- * (the spring ring's residual floor is about 1e-13 of its momenta). */
+/* p = 1 reductions to classical one-step schemes (arXiv 2406.12991 §3.3,
+ * remarks after th:midfmids, th:midftraps, th:trapftraps and Examples
+ * ex:slow_ex__fast_im, ex:fully_ex).  Each classical scheme is written here in
+ * a few lines on top of the model's gradient and Hessian only; mrvi's multirate
+ * step with p = 1 must agree with it to 1e-12 over 100 steps, relative to
+ * max|q| and max|p| (the spring ring's residual floor is about 1e-13 of its
+ * momenta). */
 #include "model/model.h"
 #include "models.h"
 #include "testlib.h"
@@ -83,12 +84,13 @@ static void midpoint(const sys *S, int which, const int *mask, double h,
     hess(S, which, mid, H);
     /* F(q1) = M (q1 - q0)/h - p0 + h/2 grad U(mid) = 0 on the mask */
     for (int i = 0; i < n; i++) {
-      F[i] = mask[i] ? S->m->mass[i] * (q1[i] - q[i]) / h - p[i] + 0.5 * h * g[i]
-                     : 0.0;
+      F[i] = mask[i]
+                 ? S->m->mass[i] * (q1[i] - q[i]) / h - p[i] + 0.5 * h * g[i]
+                 : 0.0;
       for (int j = 0; j < n; j++)
-        A[i * n + j] = mask[i] && mask[j]
-                           ? (i == j ? S->m->mass[i] / h : 0.0) + 0.25 * h * H[i * n + j]
-                           : (i == j ? 1.0 : 0.0);
+        A[i * n + j] = mask[i] && mask[j] ? (i == j ? S->m->mass[i] / h : 0.0) +
+                                                0.25 * h * H[i * n + j]
+                                          : (i == j ? 1.0 : 0.0);
     }
     solve(n, A, F);
     for (int i = 0; i < n; i++)
@@ -124,10 +126,12 @@ typedef enum {
   IMPLICIT_MIDPOINT,  /* midpoint-midpoint */
   STORMER_VERLET,     /* trapezoidal alpha = 1/2 for V and W */
   VELOCITY_VERLET,    /* fully-explicit */
-  SYMPLECTIC_EULER_A, /* left rectangle: p1 = p0 - h grad U(q0), q1 = q0 + h p1 */
-  SYMPLECTIC_EULER_B, /* right rectangle: q1 = q0 + h p0, p1 = p0 - h grad U(q1) */
-  KICK_MIDPOINT,      /* trapezoidal-midpoint: slow left rectangle, fast midpoint */
-  IMEX                /* explicit-slow: half kicks of V around a midpoint W step */
+  SYMPLECTIC_EULER_A, /* left rectangle: p1 = p0 - h grad U(q0), q1 = q0 + h p1
+                       */
+  SYMPLECTIC_EULER_B, /* right rectangle: q1 = q0 + h p0, p1 = p0 - h grad U(q1)
+                       */
+  KICK_MIDPOINT, /* trapezoidal-midpoint: slow left rectangle, fast midpoint */
+  IMEX           /* explicit-slow: half kicks of V around a midpoint W step */
 } classical;
 
 static void classical_step(const sys *S, classical c, double h, double *q,
@@ -223,12 +227,12 @@ int main(void) {
     const char *name = k ? "spring ring" : "fpu";
     char what[128];
     mrvi_settings s;
-#define CASE(scheme, cls, label, ...)                                         \
-  do {                                                                        \
-    s = test_settings(scheme, h[k], 1, 1.0, 1e-12);                          \
-    __VA_ARGS__;                                                              \
-    snprintf(what, sizeof what, "%s: %s", name, label);                       \
-    compare(m, s, cls, what);                                                 \
+#define CASE(scheme, cls, label, ...)                                          \
+  do {                                                                         \
+    s = test_settings(scheme, h[k], 1, 1.0, 1e-12);                            \
+    __VA_ARGS__;                                                               \
+    snprintf(what, sizeof what, "%s: %s", name, label);                        \
+    compare(m, s, cls, what);                                                  \
   } while (0)
     CASE("midpoint-midpoint", IMPLICIT_MIDPOINT,
          "midpoint-midpoint = implicit midpoint", (void)0);

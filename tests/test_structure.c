@@ -53,7 +53,9 @@ static void symplecticity(const char *scheme) {
       for (int i = 0; i < n; i++)
         v += Phi[i * d + a] * Phi[(n + i) * d + b] -
              Phi[(n + i) * d + a] * Phi[i * d + b];
-      const double Jab = (a < n && b == a + n) ? 1.0 : (a >= n && b == a - n) ? -1.0 : 0.0;
+      const double Jab = (a < n && b == a + n)    ? 1.0
+                         : (a >= n && b == a - n) ? -1.0
+                                                  : 0.0;
       worst = fmax(worst, fabs(v - Jab));
     }
   CHECK(worst <= 1e-6, "%s p=5: ||Phi^T J Phi - J|| = %.3e", scheme, worst);
@@ -107,8 +109,8 @@ static void noether(const char *scheme, int p) {
   CHECK(T.n == 201, "%s p=%d: 201 macro nodes (got %ld)", scheme, p, T.n);
   CHECK(drift <= 10 * tol, "%s p=%d: angular momentum about e3 drifts %.3e",
         scheme, p, drift);
-  printf("noether %-24s p=%-2d max|J3 - J3(0)| = %.2e (J3 = %.6g)\n", scheme,
-         p, drift, T.Jz[0]);
+  printf("noether %-24s p=%-2d max|J3 - J3(0)| = %.2e (J3 = %.6g)\n", scheme, p,
+         drift, T.Jz[0]);
   trace_free(&T);
   mrvi_model_free(m);
 }

@@ -1,5 +1,5 @@
-/* Symmetries and bonds of a model (src/model/symmetry.c, src/model/bonds.c): which
- * momentum components mrvi_model_conserved claims, checked against the
+/* Symmetries and bonds of a model (src/model/symmetry.c, src/model/bonds.c):
+ * which momentum components mrvi_model_conserved claims, checked against the
  * group action of every element kind and against runs (a claimed component
  * stays at its initial value to the Newton tolerance, a broken one moves by
  * the impulse of the force that breaks it), and which springs and rods

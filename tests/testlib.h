@@ -14,11 +14,11 @@ void test_check(int ok, const char *file, int line, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 
 #define CHECK(cond, ...) test_check(!!(cond), __FILE__, __LINE__, __VA_ARGS__)
-#define CHECK_NEAR(a, b, tol, what)                                          \
-  do {                                                                       \
-    double a_ = (a), b_ = (b), t_ = (tol);                                   \
-    test_check(a_ - b_ <= t_ && b_ - a_ <= t_, __FILE__, __LINE__,          \
-               "%s: %.17g vs %.17g (tol %.3g)", (what), a_, b_, t_);        \
+#define CHECK_NEAR(a, b, tol, what)                                            \
+  do {                                                                         \
+    double a_ = (a), b_ = (b), t_ = (tol);                                     \
+    test_check(a_ - b_ <= t_ && b_ - a_ <= t_, __FILE__, __LINE__,             \
+               "%s: %.17g vs %.17g (tol %.3g)", (what), a_, b_, t_);           \
   } while (0)
 
 int test_finish(void);

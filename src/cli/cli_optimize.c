@@ -315,7 +315,9 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   printf("  %-22s%.3f s\n", "wall time", wall);
   if (st != 0)
     fprintf(stderr, "mrvi optimize: %s%s%s\n",
-            sig == SIGTERM ? "SIGTERM: " : sig ? "SIGINT: " : "",
+            sig == SIGTERM ? "SIGTERM: "
+            : sig          ? "SIGINT: "
+                           : "",
             pr.no_memory ? "out of memory for the history; " : "",
             mrvi_ocp_errmsg(o));
   /* The trajectory of the returned controls (re-evaluated by solve). */

@@ -241,8 +241,8 @@ static int parse_list(const char *cmd, const char *opt, const char *s,
     if (parse_double(cmd, opt, tok, &v[n]) < 0)
       return -1;
     if (integer && (v[n] != floor(v[n]) || v[n] < 1)) {
-      fprintf(stderr, "mrvi %s: %s: '%s' is not a positive integer\n", cmd,
-              opt, tok);
+      fprintf(stderr, "mrvi %s: %s: '%s' is not a positive integer\n", cmd, opt,
+              tok);
       return -1;
     }
     if (!integer && !(v[n] > 0)) {
@@ -356,7 +356,8 @@ static double order_spread(const conv_table *T, int a, int b,
   return worst;
 }
 
-/* Reference run: read from `given`, from the cache, or computed (and cached). */
+/* Reference run: read from `given`, from the cache, or computed (and cached).
+ */
 static mrvi_trajectory *reference(const char *cmd, const args *a,
                                   const mrvi_system *sys, const char *scheme,
                                   double h, double t_ref, int quiet) {
@@ -397,8 +398,10 @@ static mrvi_trajectory *reference(const char *cmd, const args *a,
   mrvi_summary sum;
   if (!path[0] || (mkdir(dir, 0777) < 0 && errno != EEXIST)) {
     if (path[0])
-      fprintf(stderr, "mrvi %s: cannot create cache directory '%s'; the "
-                      "reference is not cached\n", cmd, dir);
+      fprintf(stderr,
+              "mrvi %s: cannot create cache directory '%s'; the "
+              "reference is not cached\n",
+              cmd, dir);
     if (mrvi_trajectory_run(sys->model, &s, &ref, &sum) < 0) {
       fprintf(stderr, "mrvi %s: reference run failed: %s\n", cmd, sum.message);
       return NULL;
@@ -478,8 +481,8 @@ static void print_conv(const conv_table *T, const mrvi_system *sys,
 
 /* The table into path; 0, or -1 with the message printed. */
 static int write_conv(const char *cmd, const char *path, const conv_table *T,
-                      int nt, const mrvi_system *sys, double t_end,
-                      double h, const char *ref_scheme) {
+                      int nt, const mrvi_system *sys, double t_end, double h,
+                      const char *ref_scheme) {
   mrvi_convergence_rows by_p[MAX_LIST];
   for (int t = 0; t < nt; t++)
     by_p[t] = (mrvi_convergence_rows){T[t].p, T[t].rows, T[t].dT, T[t].e};
@@ -520,8 +523,10 @@ static int write_conv_csv(const char *cmd, const char *path,
 #define CSV_ROW(dset, field) fprintf(f, ",%.17g", e->field);
       MRVI_ERROR_COLUMNS(CSV_ROW)
 #undef CSV_ROW
-      const double oq = g ? order(g->q_mac, e->q_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
-      const double op = g ? order(g->p_mac, e->p_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
+      const double oq =
+          g ? order(g->q_mac, e->q_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
+      const double op =
+          g ? order(g->p_mac, e->p_mac, T[t].dT[r - 1], T[t].dT[r]) : NAN;
       fprintf(f, ",%.6g,%.6g\n", oq, op);
     }
   if (fclose(f) != 0) {
@@ -534,10 +539,10 @@ static int write_conv_csv(const char *cmd, const char *path,
 static long gcd(long a, long b) { return b ? gcd(b, a % b) : a; }
 
 int mrvi_cmd_converge(int argc, char **argv) {
-  static const char *const names[] = {"--dt", "--dt0", "--levels", "--p",
-                                      "--t-end", "--reference", "--ref-step",
-                                      "--ref-scheme", "--cache", "--output",
-                                      "--csv", NULL};
+  static const char *const names[] = {
+      "--dt",    "--dt0",       "--levels",   "--p",
+      "--t-end", "--reference", "--ref-step", "--ref-scheme",
+      "--cache", "--output",    "--csv",      NULL};
   args a;
   int pr = parse(argc, argv, mrvi_usage_converge, names, &a);
   if (pr <= 0) {
@@ -553,16 +558,19 @@ int mrvi_cmd_converge(int argc, char **argv) {
     goto out;
   /* Macro steps, p, horizon. */
   double dts[MAX_LIST], ps[MAX_LIST], t_end = 0.5, levels = 4,
-         dt0 = sys->settings.macro_step;
+                                      dt0 = sys->settings.macro_step;
   int n_dt, n_p = 1;
   const int adaptive = !get(&a, "--dt") && !get(&a, "--dt0");
   ps[0] = sys->settings.micro_steps;
-  if (get(&a, "--t-end") && parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0)
+  if (get(&a, "--t-end") &&
+      parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0)
     goto out;
-  if (get(&a, "--dt0") && parse_double(cmd, "--dt0", get(&a, "--dt0"), &dt0) < 0)
+  if (get(&a, "--dt0") &&
+      parse_double(cmd, "--dt0", get(&a, "--dt0"), &dt0) < 0)
     goto out;
-  if (get(&a, "--levels") && (parse_double(cmd, "--levels", get(&a, "--levels"), &levels) < 0 ||
-                              levels < 2 || levels > MAX_LIST || levels != floor(levels))) {
+  if (get(&a, "--levels") &&
+      (parse_double(cmd, "--levels", get(&a, "--levels"), &levels) < 0 ||
+       levels < 2 || levels > MAX_LIST || levels != floor(levels))) {
     fprintf(stderr, "mrvi %s: --levels must be an integer in [2, %d]\n", cmd,
             MAX_LIST);
     goto out;
@@ -579,7 +587,8 @@ int mrvi_cmd_converge(int argc, char **argv) {
     for (int i = 0; i < n_dt; i++)
       dts[i] = dt0 / (double)(1L << i);
   }
-  if (get(&a, "--p") && (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0)
+  if (get(&a, "--p") &&
+      (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0)
     goto out;
   if (!(t_end > 0)) {
     fprintf(stderr, "mrvi %s: --t-end must be positive\n", cmd);
@@ -709,7 +718,8 @@ int mrvi_cmd_converge(int argc, char **argv) {
   char out[2048];
   default_output(out, sizeof out, get(&a, "--output"), sys, "convergence");
   if (write_conv(cmd, out, T, n_p, sys, t_end, ref->macro_step,
-                 get(&a, "--reference") ? get(&a, "--reference") : ref_scheme) < 0)
+                 get(&a, "--reference") ? get(&a, "--reference") : ref_scheme) <
+      0)
     goto out;
   if (get(&a, "--csv") && write_conv_csv(cmd, get(&a, "--csv"), T, n_p) < 0)
     goto out;
@@ -729,8 +739,8 @@ out:
  * stability
  * ------------------------------------------------------------------------- */
 int mrvi_cmd_stability(int argc, char **argv) {
-  static const char *const names[] = {"--p", "--max", "--step", "--at",
-                                      "--output", NULL};
+  static const char *const names[] = {"--p",  "--max",    "--step",
+                                      "--at", "--output", NULL};
   args a;
   int pr = parse(argc, argv, mrvi_usage_stability, names, &a);
   if (pr <= 0) {
@@ -746,9 +756,12 @@ int mrvi_cmd_stability(int argc, char **argv) {
   mrvi_system *sys = load(cmd, &a);
   if (!sys)
     goto out;
-  if ((get(&a, "--p") && (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0) ||
-      (get(&a, "--max") && parse_double(cmd, "--max", get(&a, "--max"), &x_max) < 0) ||
-      (get(&a, "--step") && parse_double(cmd, "--step", get(&a, "--step"), &step) < 0) ||
+  if ((get(&a, "--p") &&
+       (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0) ||
+      (get(&a, "--max") &&
+       parse_double(cmd, "--max", get(&a, "--max"), &x_max) < 0) ||
+      (get(&a, "--step") &&
+       parse_double(cmd, "--step", get(&a, "--step"), &step) < 0) ||
       (get(&a, "--at") && parse_double(cmd, "--at", get(&a, "--at"), &at) < 0))
     goto out;
   if (!(x_max > 0) || !(step > 0) || step > x_max) {
@@ -829,7 +842,8 @@ int mrvi_cmd_stability(int argc, char **argv) {
         s.micro_steps = (int)ps[j];
         s.newton_tol = 1e-12;
         double det, tr;
-        if (mrvi_stability_at(sys->model, &s, at, &det, &tr, msg, sizeof msg) < 0) {
+        if (mrvi_stability_at(sys->model, &s, at, &det, &tr, msg, sizeof msg) <
+            0) {
           fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
           goto out;
         }
@@ -910,9 +924,12 @@ int mrvi_cmd_timing(int argc, char **argv) {
   if (!sys)
     goto out;
   double t_end = sys->settings.t_end;
-  if ((get(&a, "--p") && (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0) ||
-      (get(&a, "--dt") && parse_double(cmd, "--dt", get(&a, "--dt"), &dt) < 0) ||
-      (get(&a, "--t-end") && parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0))
+  if ((get(&a, "--p") &&
+       (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0) ||
+      (get(&a, "--dt") &&
+       parse_double(cmd, "--dt", get(&a, "--dt"), &dt) < 0) ||
+      (get(&a, "--t-end") &&
+       parse_double(cmd, "--t-end", get(&a, "--t-end"), &t_end) < 0))
     goto out;
   if (get(&a, "--repeat")) {
     double r;
@@ -988,8 +1005,8 @@ int mrvi_cmd_timing(int argc, char **argv) {
       r->time_per_step = r->total_time / sum.steps;
       r->assemble_per_step = median(times[1], repeat) / sum.steps;
       r->solve_per_step = median(times[2], repeat) / sum.steps;
-      r->system_size = mrvi_model_n_slow(sys->model) +
-                       ps[j] * mrvi_model_n_fast(sys->model);
+      r->system_size =
+          mrvi_model_n_slow(sys->model) + ps[j] * mrvi_model_n_fast(sys->model);
       if (!a.quiet) {
         printf("%-24s %5d %8.4g %8.0f %6.0f %9.0f %9.3f %11.4f %11.4f "
                "%11.4f\n",

@@ -58,13 +58,13 @@ struct mrvi_integrator {
   /* Timing (mrvi_integrator_timing): the sums over the timed steps and
    * the estimated blocks that ended; the block of steps under way. */
   double t_assemble, t_solve;
-  long n_steps;          /* steps taken */
-  int timed;             /* this step is timed */
-  int block_exact;       /* every step of the block is timed */
-  int timing_estimated;  /* an ended block was estimated */
-  long block_n;          /* steps of the block so far */
-  double block_t0;       /* clock at its start */
-  double block_mark[2];  /* t_assemble, t_solve at its start */
+  long n_steps;           /* steps taken */
+  int timed;              /* this step is timed */
+  int block_exact;        /* every step of the block is timed */
+  int timing_estimated;   /* an ended block was estimated */
+  long block_n;           /* steps of the block so far */
+  double block_t0;        /* clock at its start */
+  double block_mark[2];   /* t_assemble, t_solve at its start */
   double block_sample[2]; /* its first step's times (estimated block) */
   char errmsg[512];
 };

@@ -473,8 +473,8 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
     } else if ((st = read_row(&r, "/macro/q", k, r.n, row, msg, len)) < 0) {
       break;
     }
-    fprintf(f, "%d\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=",
-            r.np);
+    fprintf(f,
+            "%d\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=", r.np);
     put_double(f, o.micro ? mt[k] : r.t[k]);
     fputs(" pbc=\"F F F\"\n", f);
     for (int i = 0; i < r.np; i++) {

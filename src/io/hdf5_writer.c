@@ -787,8 +787,7 @@ static int stop_reason_form(const char *path, const char *value, int fixed) {
       return H5Fclose(f) < 0 ? -1 : 0;
   }
   int rc = 0;
-  if (H5Aexists(f, "stop_reason") > 0 &&
-      H5Adelete(f, "stop_reason") < 0)
+  if (H5Aexists(f, "stop_reason") > 0 && H5Adelete(f, "stop_reason") < 0)
     rc = -1;
   if (rc == 0)
     rc = (fixed ? mrvi_h5_attr_fixed_string(f, "stop_reason", value)

@@ -89,7 +89,7 @@ typedef struct mrvi_timing_row {
 typedef struct mrvi_timing_table {
   const char *system;
   double micro_step, t_end;
-  int repeat;                  /* runs per row (times: medians) */
+  int repeat; /* runs per row (times: medians) */
   int n_p, n_schemes;
   const int *p;                /* n_p */
   const char *const *schemes;  /* n_schemes: group names */
@@ -143,7 +143,8 @@ int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
                               double gradient_norm);
 /* Write the file for the controls u (o's last evaluation is theirs) and
  * the result res; status is /optimizer's attribute status (res->status:
- * "converged", "max_evaluations", "interrupted", ...).  Frees w (also on failure); NULL is accepted. */
+ * "converged", "max_evaluations", "interrupted", ...).  Frees w (also on
+ * failure); NULL is accepted. */
 int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
                           const mrvi_ocp_result *res, const char *status,
                           char *msg, size_t len);

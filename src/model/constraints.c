@@ -21,16 +21,11 @@ extern const mrvi_constraint_type mrvi_constraint_cylindrical;
 extern const mrvi_constraint_type mrvi_constraint_planar;
 
 static const mrvi_constraint_type *const builtin[] = {
-    &mrvi_constraint_distance,
-    &mrvi_constraint_fixed,
-    &mrvi_constraint_plane,
-    &mrvi_constraint_linear,
-    &mrvi_constraint_body,
-    &mrvi_constraint_spherical,
-    &mrvi_constraint_revolute,
-    &mrvi_constraint_weld,
-    &mrvi_constraint_prismatic,
-    &mrvi_constraint_cylindrical,
+    &mrvi_constraint_distance,  &mrvi_constraint_fixed,
+    &mrvi_constraint_plane,     &mrvi_constraint_linear,
+    &mrvi_constraint_body,      &mrvi_constraint_spherical,
+    &mrvi_constraint_revolute,  &mrvi_constraint_weld,
+    &mrvi_constraint_prismatic, &mrvi_constraint_cylindrical,
     &mrvi_constraint_planar,
 };
 

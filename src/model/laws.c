@@ -1,5 +1,6 @@
-/* Registry of potential laws.  A law is one const table in src/model/laws/; adding
- * a built-in law means adding its file and one line to `builtin` below. */
+/* Registry of potential laws.  A law is one const table in src/model/laws/;
+ * adding a built-in law means adding its file and one line to `builtin` below.
+ */
 #include "model/model.h"
 
 #include <string.h>
@@ -11,11 +12,8 @@ extern const mrvi_law mrvi_law_lennard_jones;
 extern const mrvi_law mrvi_law_inverse;
 
 static const mrvi_law *const builtin[] = {
-    &mrvi_law_power,
-    &mrvi_law_linear,
-    &mrvi_law_morse,
-    &mrvi_law_lennard_jones,
-    &mrvi_law_inverse,
+    &mrvi_law_power,         &mrvi_law_linear,  &mrvi_law_morse,
+    &mrvi_law_lennard_jones, &mrvi_law_inverse,
 };
 
 #define N_BUILTIN ((int)(sizeof builtin / sizeof builtin[0]))

@@ -461,13 +461,12 @@ static int check_end(mrvi_model *m, const mrvi_end *e, const char *what) {
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: end is NULL", what);
   if (e->particle >= 0) {
     if (e->particle >= m->n_particles)
-      return mrvi_model_fail(m, MRVI_EINVAL,
-                             "%s: particle index out of range", what);
+      return mrvi_model_fail(m, MRVI_EINVAL, "%s: particle index out of range",
+                             what);
     return MRVI_OK;
   }
   if (e->body < 0 || e->body >= m->n_bodies)
-    return mrvi_model_fail(m, MRVI_EINVAL, "%s: body index out of range",
-                           what);
+    return mrvi_model_fail(m, MRVI_EINVAL, "%s: body index out of range", what);
   for (int k = 0; k < m->dimension; k++)
     if (!isfinite(e->at[k]))
       return mrvi_model_fail(m, MRVI_EINVAL,
@@ -860,7 +859,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
              m->particles[e->particle_i].name, m->particles[e->particle_j].name,
              e->shift, law);
     break;
-  anchor: {
+  anchor : {
     char a[96];
     if (m->dimension == 1)
       mrvi_fmt(a, sizeof a, "[%g]", e->anchor[0]);
@@ -959,8 +958,8 @@ static double eval_points(const mrvi_element *e, int dim, const double *y,
     for (int i = 0; i < n; i++)
       for (int j = 0; j < n; j++) {
         const int p = i % dim, q = j % dim;
-        hess[i * n + j] = e->coef[i] * e->coef[j] *
-                          (a * u[p] * u[q] + (p == q ? b : 0.0));
+        hess[i * n + j] =
+            e->coef[i] * e->coef[j] * (a * u[p] * u[q] + (p == q ? b : 0.0));
       }
   return phi;
 }

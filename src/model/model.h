@@ -74,9 +74,9 @@ struct mrvi_model {
   int max_in;                   /* largest n_in of a non-linear element */
   int n_constraints, cap_constraints;
   mrvi_constraint *constraints;
-  int constraint_rows;   /* sum of rows */
-  int max_constraint_in; /* largest n_in of a constraint */
-  int n_bodies, cap_bodies;     /* rigid bodies (model/bodies.c) */
+  int constraint_rows;      /* sum of rows */
+  int max_constraint_in;    /* largest n_in of a constraint */
+  int n_bodies, cap_bodies; /* rigid bodies (model/bodies.c) */
   struct mrvi_body *bodies;
   char errmsg[512];
 };

@@ -26,8 +26,9 @@
  * is claimed conserved.  Rigid bodies (doc/multibody.md): the centre of mass
  * phi translates and rotates like a particle, the directors d_i only rotate
  * (a translation leaves them); their internal constraints d_i.d_j are
- * invariant under both; joints are not analysed (as unknown types). The tests are exact (a zero sum, zero components): the
- * answer concerns the model as written, not a numerical tolerance. */
+ * invariant under both; joints are not analysed (as unknown types). The tests
+ * are exact (a zero sum, zero components): the answer concerns the model as
+ * written, not a numerical tolerance. */
 #include "model/model.h"
 
 #include <stdlib.h>
@@ -53,8 +54,8 @@ static int owner(const int *part, int c, int *axis) {
 }
 
 /* c^T y over model coordinates in (n entries, coefficients coef). */
-static void linear_row(const int *part, sym *s, int n,
-                       const int *in, const double *coef) {
+static void linear_row(const int *part, sym *s, int n, const int *in,
+                       const double *coef) {
   double sum[3] = {0, 0, 0};
   for (int j = 0; j < n; j++) {
     int a = 0;
@@ -85,8 +86,8 @@ static void anchored(sym *s, const double *a) {
 
 /* One element; gravity and forces are added to the linear potential
  * lin (n coefficients). */
-static void element(const int *part, sym *s,
-                    const mrvi_element *e, double *lin) {
+static void element(const int *part, sym *s, const mrvi_element *e,
+                    double *lin) {
   switch (e->kind) {
   case MRVI_ELEMENT_SPRING:
   case MRVI_ELEMENT_ANGLE:
@@ -105,12 +106,10 @@ static void element(const int *part, sym *s,
   }
 }
 
-static void constraint(const int *part, sym *s,
-                       const mrvi_constraint *c) {
+static void constraint(const int *part, sym *s, const mrvi_constraint *c) {
   const char *type = c->type->name;
   const int d = s->d;
-  if ((!strcmp(type, "distance") && c->n_params == 1) ||
-      !strcmp(type, "body"))
+  if ((!strcmp(type, "distance") && c->n_params == 1) || !strcmp(type, "body"))
     return; /* between two particles; a body's directors */
   if (!strcmp(type, "distance") && c->n_params == c->n_in + 1) {
     anchored(s, c->params + 1);

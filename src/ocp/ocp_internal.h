@@ -91,9 +91,9 @@ struct mrvi_ocp {
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
-  long *gz;       /* global node of every z of the step (nz) */
-  int *h_of_a;    /* entry of H of every CSC entry of A_k (step nnz) */
-  double *Ak;     /* A_k on the step's CSC pattern, gathered from H */
+  long *gz;           /* global node of every z of the step (nz) */
+  int *h_of_a;        /* entry of H of every CSC entry of A_k (step nnz) */
+  double *Ak;         /* A_k on the step's CSC pattern, gathered from H */
   int *h_ptr, *h_col; /* nonzeros of H's rows in the node columns (CSR) */
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */

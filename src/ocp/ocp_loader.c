@@ -142,8 +142,7 @@ static int number_of(parser *P, struct fy_node *map, const char *key,
     return fail(P, n, "%s.%s must be a number, got '%s'", where, key,
                 s ? s : "a list or mapping");
   if (isinf(v) && !infinite)
-    return fail(P, n, "%s.%s must be a finite number, got '%s'", where, key,
-                s);
+    return fail(P, n, "%s.%s must be a finite number, got '%s'", where, key, s);
   *out = v;
   return MRVI_OK;
 }
@@ -318,8 +317,9 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
                     "%s: actuator name '%s' is already used by "
                     "control.actuators[%d]%s",
                     where, o->act[a].name, b,
-                    nn ? "" : " (the default name is the coordinate's; give "
-                              "a 'name')");
+                    nn ? ""
+                       : " (the default name is the coordinate's; give "
+                         "a 'name')");
     initial[a] = u0;
     i++;
   }

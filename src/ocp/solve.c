@@ -46,7 +46,8 @@ static double violation(const cache *cc) {
 static void keep_best(cache *cc, const double *u) {
   const double tol = cc->o->terminal_tol, v = violation(cc);
   const int met = v <= tol, best_met = cc->best_violation <= tol;
-  const int better = !cc->have_best || (met && (!best_met || cc->J < cc->best_J)) ||
+  const int better = !cc->have_best ||
+                     (met && (!best_met || cc->J < cc->best_J)) ||
                      (!met && !best_met && v < cc->best_violation);
   if (!better)
     return;
@@ -157,7 +158,8 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res) {
   double *tol = calloc((size_t)m + 1, sizeof(double));
   nlopt_opt opt = NULL, local = NULL;
   int status = MRVI_OK;
-  if (!cc.u || !cc.grad || !cc.c || !cc.cgrad || !cc.best_u || !lb || !ub || !tol) {
+  if (!cc.u || !cc.grad || !cc.c || !cc.cgrad || !cc.best_u || !lb || !ub ||
+      !tol) {
     status = mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
     goto done;
   }

@@ -99,9 +99,9 @@ static int rec_push(mrvi_nullspace *z, long *cap, int row) {
   return 0;
 }
 
-/* Source rows of every reduced row, fixed by structure (doc/constraints.md, null-space basis):
- * slow basis rows, then the local rows of nodes 0..p-1, then the
- * constraint equations. */
+/* Source rows of every reduced row, fixed by structure (doc/constraints.md,
+ * null-space basis): slow basis rows, then the local rows of nodes 0..p-1, then
+ * the constraint equations. */
 static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
   const int nu = st->n_unknowns;
   long cap = 0;

@@ -1320,7 +1320,8 @@ static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * are swept again along the new slow path and the slow row solved again.  What
  * the sampled solve leaves out, the response of the fast nodes to x_s and the
  * sample's quadrature error, is a small fraction of its change (about 1e-3
- * of it on the FPU chain; doc/performance.md, "Tuning constants").  Every step of this depends on (q_k, p_k) only. */
+ * of it on the FPU chain; doc/performance.md, "Tuning constants").  Every step
+ * of this depends on (q_k, p_k) only. */
 static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const double r = slow_update(pr, st, x, 1);
   /* (after the pre-solve the slow row is close, but not to the

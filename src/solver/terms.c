@@ -444,10 +444,16 @@ ALWAYS_INLINE void springs_k(const kspring *q, int nr, const double *z,
 /* A run of nr springs or anchors of one law code (a loop per dimension,
  * kind and law code). */
 static __attribute__((noinline)) void
-springs_eval(const kspring *q, int nr, const double *z, double scale,
-             double *g, double *J, int ld, double hscale, int dim) {
+springs_eval(const kspring *q, int nr, const double *z, double scale, double *g,
+             double *J, int ld, double hscale, int dim) {
   const int unit = scale == 1.0 && (!J || hscale == 1.0);
-#define SPRINGS(D, T)                                                            do {                                                                             if (unit)                                                                        springs_k(q, nr, z, scale, g, J, ld, hscale, D, T, 1);                       else                                                                             springs_k(q, nr, z, scale, g, J, ld, hscale, D, T, 0);                     } while (0)
+#define SPRINGS(D, T)                                                          \
+  do {                                                                         \
+    if (unit)                                                                  \
+      springs_k(q, nr, z, scale, g, J, ld, hscale, D, T, 1);                   \
+    else                                                                       \
+      springs_k(q, nr, z, scale, g, J, ld, hscale, D, T, 0);                   \
+  } while (0)
   if (dim == 2 && q->two)
     SPRINGS(2, 1);
   else if (dim == 2)

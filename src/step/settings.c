@@ -86,8 +86,8 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len) {
     return MRVI_EINVAL;
   }
   if (!(isfinite(s->t_end) && s->t_end >= s->macro_step)) {
-    mrvi_fmt(msg, len, "t_end (%g) must be at least macro_step (%g)",
-             s->t_end, s->macro_step);
+    mrvi_fmt(msg, len, "t_end (%g) must be at least macro_step (%g)", s->t_end,
+             s->macro_step);
     return MRVI_EINVAL;
   }
   /* N = ceil(t_end / macro_step) and N p stay exact integers in a double
