@@ -917,6 +917,11 @@ typedef struct mrvi_writer_options {
   long resume_k;
 } mrvi_writer_options;
 
+/* The writer options a description's `output:` section asks for (name,
+ * description, every, micro, flush interval, micro_slow); force and resume
+ * are left 0 for the caller to set. */
+mrvi_writer_options mrvi_system_writer_options(const mrvi_system *sys);
+
 /* Create (truncate) the file and write attributes and /model. */
 int mrvi_writer_open(const char *path, const mrvi_model *m,
                      const mrvi_settings *s, const mrvi_writer_options *opt,

@@ -48,15 +48,8 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
     return;
   }
   /* The options of `mrvi run` for this description. */
-  mrvi_writer_options opt = {
-      .system_name = sys->name ? sys->name : mrvi_model_name(sys->model),
-      .description = sys->description,
-      .every = sys->output_every > 0 ? sys->output_every : 1,
-      .micro = sys->output_micro,
-      .flush_interval = sys->output_flush_interval,
-      .force = 1,
-      .micro_slow = sys->output_micro_slow,
-  };
+  mrvi_writer_options opt = mrvi_system_writer_options(sys);
+  opt.force = 1;
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(path, sys->model, &sys->settings, &opt, &w, msg,
                        sizeof msg) < 0 ||

@@ -849,17 +849,10 @@ static int cmd_run(int argc, char **argv) {
 
   char msg[MSG_LEN];
   msg[0] = '\0';
-  mrvi_writer_options opt = {
-      .system_name = sys->name ? sys->name : mrvi_model_name(sys->model),
-      .description = sys->description,
-      .every = sys->output_every > 0 ? sys->output_every : 1,
-      .micro = sys->output_micro,
-      .flush_interval = sys->output_flush_interval,
-      .force = a.force,
-      .micro_slow = sys->output_micro_slow,
-      .resume = a.resume != NULL,
-      .resume_k = node ? node->k : 0,
-  };
+  mrvi_writer_options opt = mrvi_system_writer_options(sys);
+  opt.force = a.force;
+  opt.resume = a.resume != NULL;
+  opt.resume_k = node ? node->k : 0;
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(out, sys->model, &sys->settings, &opt, &w, msg,
                        sizeof msg) < 0 ||

@@ -1026,6 +1026,18 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   return rc ? rc : move_into_place(w);
 }
 
+mrvi_writer_options mrvi_system_writer_options(const mrvi_system *sys) {
+  mrvi_writer_options opt = {
+      .system_name = sys->name ? sys->name : mrvi_model_name(sys->model),
+      .description = sys->description,
+      .every = sys->output_every > 0 ? sys->output_every : 1,
+      .micro = sys->output_micro,
+      .flush_interval = sys->output_flush_interval,
+      .micro_slow = sys->output_micro_slow,
+  };
+  return opt;
+}
+
 int mrvi_writer_open(const char *path, const mrvi_model *m,
                      const mrvi_settings *s, const mrvi_writer_options *opt,
                      mrvi_writer **out, char *msg, size_t len) {
