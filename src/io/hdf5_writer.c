@@ -745,60 +745,6 @@ static int move_into_place(mrvi_writer *w) {
   return 0;
 }
 
-/* stop_reason's two forms (doc/output.md, "Crash safety").  While a run
- * writes, it is a fixed-length string that SWMR rewrites in place; when the
- * run closes its file, it becomes a variable-length UTF-8 string, which
- * h5py and other readers return as text (a fixed-length one reads as
- * bytes).  The file is reopened without SWMR for this; our lock still
- * guards it.  fixed: the other way round (a closed run resumed), only
- * when the attribute is variable-length (a killed run's is not).  A killed
- * writer leaves the end of allocation behind its data: raised first (see
- * resume_open).  Returns < 0 on failure; the attribute is then unchanged or
- * absent only if HDF5 failed between the delete and the create. */
-static int stop_reason_form(const char *path, const char *value, int fixed) {
-  hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
-  if (fapl < 0)
-    return -1;
-#if H5_VERSION_GE(1, 10, 7)
-  H5Pset_file_locking(fapl, 0, 1); /* our lock guards the file */
-#endif
-  hbool_t clear = 1;
-  H5Pset(fapl, "clear_status_flags", &clear);
-  H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST);
-  hid_t f = H5Fopen(path, H5F_ACC_RDWR, fapl);
-  H5Pclose(fapl);
-  if (f < 0)
-    return -1;
-  if (H5Fincrement_filesize(f, 0) < 0) {
-    H5Fclose(f);
-    return -1;
-  }
-  if (fixed) {
-    hid_t a = H5Aexists(f, "stop_reason") > 0
-                  ? H5Aopen(f, "stop_reason", H5P_DEFAULT)
-                  : H5I_INVALID_HID;
-    hid_t t = a >= 0 ? H5Aget_type(a) : H5I_INVALID_HID;
-    const int variable = t >= 0 && H5Tis_variable_str(t) > 0;
-    if (t >= 0)
-      H5Tclose(t);
-    if (a >= 0)
-      H5Aclose(a);
-    if (!variable)
-      return H5Fclose(f) < 0 ? -1 : 0;
-  }
-  int rc = 0;
-  if (H5Aexists(f, "stop_reason") > 0 && H5Adelete(f, "stop_reason") < 0)
-    rc = -1;
-  if (rc == 0)
-    rc = (fixed ? mrvi_h5_attr_fixed_string(f, "stop_reason", value)
-                : mrvi_h5_attr_string(f, "stop_reason", value)) < 0
-             ? -1
-             : 0;
-  if (H5Fclose(f) < 0)
-    rc = -1;
-  return rc;
-}
-
 /* Appending (mrvi run --resume): open the existing output for SWMR writing
  * and cut every dataset back to macro node k, as a run that stopped after
  * node k would have left it.  The file keeps HDF5's "open for writing" flag
@@ -812,10 +758,6 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
                 errno == EWOULDBLOCK
                     ? "the file is in use by another run (locked); not touched"
                     : "cannot lock the file");
-  /* A run that closed has the variable-length form, which SWMR writing
-   * cannot rewrite: back to the fixed one ("running") first. */
-  if (stop_reason_form(w->path, "running", 1) < 0)
-    return fail_h5(w, MRVI_EIO, "rewriting attribute stop_reason");
   hbool_t clear = 1;
   H5Pset(fapl, "clear_status_flags", &clear);
   w->file = H5Fopen(w->path, H5F_ACC_RDWR | H5F_ACC_SWMR_WRITE, fapl);
@@ -1335,12 +1277,7 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
   if (w->have_summary && write_energy_attributes(w) < 0)
     fail_h5(w, MRVI_EIO, "writing the energy error attributes");
   H5Eclear2(H5E_DEFAULT);
-  const int had_file = w->file >= 0;
   close_handles(w);
-  /* The file is complete and closed: stop_reason in its final form, read as
-   * text.  Failing leaves the fixed form, which every reader decodes. */
-  if (had_file && !w->io_failed && stop_reason_form(w->path, reason, 0) < 0)
-    fail_h5(w, MRVI_EIO, "writing attribute stop_reason");
   H5Eclear2(H5E_DEFAULT);
   mrvi_h5_quiet_end(&q);
   int rc = w->status;
