@@ -466,9 +466,8 @@ static void skrylov_free(mrvi_integrator *it) {
   mrvi_predictor_free(it->predictor);
 }
 
-int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
-                           mrvi_integrator **out, char *msg, size_t len) {
-  *out = NULL;
+int mrvi_integrator_check_inputs(const mrvi_model *m, const mrvi_settings *s,
+                                 char *msg, size_t len) {
   if (!m || !s) {
     mrvi_fmt(msg, len, "model and settings are required");
     return MRVI_EINVAL;
@@ -480,6 +479,15 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     mrvi_fmt(msg, len, "the model has no coordinates");
     return MRVI_EMODEL;
   }
+  return MRVI_OK;
+}
+
+int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
+                           mrvi_integrator **out, char *msg, size_t len) {
+  *out = NULL;
+  int st = mrvi_integrator_check_inputs(m, s, msg, len);
+  if (st < 0)
+    return st;
   mrvi_integrator *it = calloc(1, sizeof *it);
   if (!it) {
     mrvi_fmt(msg, len, "out of memory");

@@ -32,4 +32,10 @@ long mrvi_integrator_shoot_last_steps(const mrvi_integrator *it);
  * once). */
 long mrvi_integrator_factorisations(const mrvi_integrator *it);
 
+/* The checks every user of a model and settings starts with (integrator,
+ * optimal control): both given, the settings valid, at least one
+ * coordinate; MRVI_OK or a status with the message. */
+int mrvi_integrator_check_inputs(const mrvi_model *m, const mrvi_settings *s,
+                                 char *msg, size_t len);
+
 #endif

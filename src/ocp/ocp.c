@@ -78,17 +78,9 @@ static int ocp_check_sizes(const mrvi_model *m, const mrvi_settings *s,
 int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
                     char *msg, size_t len) {
   *out = NULL;
-  if (!m || !s) {
-    mrvi_fmt(msg, len, "model and settings are required");
-    return MRVI_EINVAL;
-  }
-  int st = mrvi_settings_check(s, msg, len);
+  int st = mrvi_integrator_check_inputs(m, s, msg, len);
   if (st < 0)
     return st;
-  if (m->n == 0) {
-    mrvi_fmt(msg, len, "the model has no coordinates");
-    return MRVI_EMODEL;
-  }
   if (m->n_constraints > 0) {
     st = mrvi_constraints_check_positions(m, m->q0, s->constraint_tol,
                                           "initial positions", NULL, msg, len);
