@@ -167,6 +167,26 @@ check "run without FILE: the usage lines, not the whole help ($(printf '%s\n' "$
   [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
 contains "$err" 'mrvi help run' "run without FILE points at 'mrvi help run'"
 
+# Every command, given no FILE or an unknown option: its usage lines and a
+# pointer to `mrvi help CMD`, never the whole help text.
+for cmd in check optimize converge stability timing export batch; do
+  run_mrvi "$cmd"
+  expect_rc 1 "$cmd without FILE"
+  contains "$err" "^Usage: mrvi $cmd" "$cmd without FILE: its usage line"
+  contains "$err" "mrvi help $cmd" "$cmd without FILE points at 'mrvi help $cmd'"
+  check "$cmd without FILE: not the whole help ($(printf '%s\n' "$err" | wc -l) lines)" \
+    [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
+  run_mrvi "$cmd" "$fpu" --no-such-option
+  expect_rc 1 "$cmd with an unknown option"
+  contains "$err" "no-such-option" "$cmd names the unknown option"
+  contains "$err" "mrvi help $cmd" "$cmd unknown option points at 'mrvi help $cmd'"
+  check "$cmd unknown option: not the whole help ($(printf '%s\n' "$err" | wc -l) lines)" \
+    [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
+done
+run_mrvi run "$fpu" --controls
+expect_rc 1 "run --controls without a value"
+contains "$err" "'--controls' needs a value" "run --controls without a value says so"
+
 run_mrvi run "$fpu" --set integrator.micro_steps
 expect_rc 1 "--set without '='"
 contains "$err" 'KEY=VALUE' "--set without '=' explains the form"

@@ -13,6 +13,7 @@
  * Exit status (doc/optimal-control.md, "Status"): 0 converged, 1 bad
  * input or an unusable output path, 2 not converged (every other status;
  * the file is written), 130/143 interrupted by SIGINT/SIGTERM (written). */
+#include "cli.h"
 #include "io/io.h"
 #include "ocp/ocp.h"
 
@@ -55,11 +56,6 @@ const char mrvi_usage_optimize[] =
     "terminal conditions not met, roundoff, failure; the file is written\n"
     "with that status), 130/143 interrupted by SIGINT/SIGTERM.\n";
 
-/* cli.c: the signal number of SIGINT or SIGTERM once received (0 before),
- * polled after every evaluation; the handlers that set it (a second Ctrl-C
- * terminates at once). */
-extern volatile sig_atomic_t mrvi_cli_stop_signal;
-void mrvi_cli_install_handlers(void);
 
 /* Per evaluation: a row of /optimizer/history and, unless quiet, a line;
  * stop (non-zero) on a signal or when the history cannot grow. */
@@ -231,10 +227,17 @@ int mrvi_cmd_optimize(int argc, char **argv) {
       controls = a + 11;
     } else if (!strncmp(a, "--set=", 6)) {
       ov[n_ov++] = a + 6;
+    } else if (i + 1 == argc &&
+               (!strcmp(a, "-o") || !strcmp(a, "--output") ||
+                !strcmp(a, "-s") || !strcmp(a, "--set") ||
+                (is_run && !strcmp(a, "--controls")))) {
+      fprintf(stderr, "mrvi %s: option '%s' needs a value\n", argv[0], a);
+      free(ov);
+      return 1;
     } else if (a[0] == '-' && a[1]) {
-      fprintf(stderr, "mrvi %s: unknown option '%s'%s\n%s", argv[0], a,
-              is_run ? " (with --controls: -o, --set, --quiet)" : "",
-              mrvi_usage_optimize);
+      fprintf(stderr, "mrvi %s: unknown option '%s'%s\n", argv[0], a,
+              is_run ? " (with --controls: -o, --set, --quiet)" : "");
+      mrvi_cli_usage_short(argv[0], is_run ? "" : mrvi_usage_optimize);
       free(ov);
       return 1;
     } else if (!file) {
@@ -246,7 +249,8 @@ int mrvi_cmd_optimize(int argc, char **argv) {
     }
   }
   if (!file) {
-    fprintf(stderr, "mrvi optimize: missing FILE\n%s", mrvi_usage_optimize);
+    fprintf(stderr, "mrvi optimize: missing FILE\n");
+    mrvi_cli_usage_short("optimize", mrvi_usage_optimize);
     free(ov);
     return 1;
   }
