@@ -232,6 +232,10 @@ run_mrvi check "$root/systems/ocp_gantry_crane.yaml"
 expect_rc 0 "check ocp_gantry_crane.yaml"
 contains "$out" '^control +40 controls, 4 terminal constraints, slsqp$' \
   "check lists the control problem (40 controls, 4 terminal constraints)"
+contains "$out" '^estimate +one cost \+ gradient: wall time [0-9.e+-]+ s \(measured' \
+  "check measures one cost + gradient evaluation"
+contains "$out" 'at most 2000 \(control.solver.max_evaluations\): wall time up to [0-9.e+-]+ s$' \
+  "check bounds the optimisation's time by the evaluation cap"
 contains "$out" '^ +0  cart_force \(on cart\.x; macro grid, 40 values\)$' \
   "check lists the actuator, its coordinate and grid"
 contains "$out" '^ +3  velocity of load\.x = 0$' "check lists terminal velocities"

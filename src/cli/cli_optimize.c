@@ -133,6 +133,28 @@ int mrvi_cli_check_control(const mrvi_system *sys) {
       printf(" (penalty %g)", penalty);
     putchar('\n');
   }
+  /* What one evaluation costs, measured: an optimisation takes as many of
+   * them as NLopt needs, at most the cap. */
+  const int nc = mrvi_ocp_n_controls(o), ncon = mrvi_ocp_n_constraints(o);
+  double J, *grad = malloc(((size_t)nc + (size_t)ncon * ((size_t)nc + 1) + 1) *
+                           sizeof *grad);
+  if (grad) {
+    const double t0 = mrvi_clock();
+    const int st = mrvi_ocp_evaluate(o, u, &J, grad, ncon ? grad + nc : NULL,
+                                     ncon ? grad + nc + ncon : NULL);
+    const double t = mrvi_clock() - t0;
+    if (st == MRVI_OK)
+      printf("%-14sone cost + gradient: wall time %.3g s (measured at the "
+             "initial guess)\n%-14san optimisation takes as many as NLopt "
+             "needs (3 to 24 on the shipped problems), at most %d "
+             "(control.solver.max_evaluations): wall time up to %.3g s\n",
+             "estimate", t, "", mrvi_ocp_max_evaluations(o),
+             t * mrvi_ocp_max_evaluations(o));
+    else
+      printf("%-14sthe evaluation at the initial guess failed: %s\n",
+             "estimate", mrvi_ocp_errmsg(o));
+  }
+  free(grad);
   free(u);
   mrvi_ocp_free(o);
   return 0;
