@@ -396,7 +396,6 @@ static void print_rule(const char *label, mrvi_rule r, const char *grid) {
          grid);
 }
 
-
 static int cmd_check(int argc, char **argv) {
   cli_args a;
   int rc = parse_args("check", usage_check, 0, argc, argv, &a);

@@ -56,7 +56,6 @@ const char mrvi_usage_optimize[] =
     "terminal conditions not met, roundoff, failure; the file is written\n"
     "with that status), 130/143 interrupted by SIGINT/SIGTERM.\n";
 
-
 /* Per evaluation: a row of /optimizer/history and, unless quiet, a line;
  * stop (non-zero) on a signal or when the history cannot grow. */
 typedef struct progress {
@@ -249,10 +248,9 @@ int mrvi_cmd_optimize(int argc, char **argv) {
       controls = a + 11;
     } else if (!strncmp(a, "--set=", 6)) {
       ov[n_ov++] = a + 6;
-    } else if (i + 1 == argc &&
-               (!strcmp(a, "-o") || !strcmp(a, "--output") ||
-                !strcmp(a, "-s") || !strcmp(a, "--set") ||
-                (is_run && !strcmp(a, "--controls")))) {
+    } else if (i + 1 == argc && (!strcmp(a, "-o") || !strcmp(a, "--output") ||
+                                 !strcmp(a, "-s") || !strcmp(a, "--set") ||
+                                 (is_run && !strcmp(a, "--controls")))) {
       fprintf(stderr, "mrvi %s: option '%s' needs a value\n", argv[0], a);
       free(ov);
       return 1;
