@@ -167,6 +167,26 @@ check "run without FILE: the usage lines, not the whole help ($(printf '%s\n' "$
   [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
 contains "$err" 'mrvi help run' "run without FILE points at 'mrvi help run'"
 
+# Every command, given no FILE or an unknown option: its usage lines and a
+# pointer to `mrvi help CMD`, never the whole help text.
+for cmd in check optimize converge stability timing export batch; do
+  run_mrvi "$cmd"
+  expect_rc 1 "$cmd without FILE"
+  contains "$err" "^Usage: mrvi $cmd" "$cmd without FILE: its usage line"
+  contains "$err" "mrvi help $cmd" "$cmd without FILE points at 'mrvi help $cmd'"
+  check "$cmd without FILE: not the whole help ($(printf '%s\n' "$err" | wc -l) lines)" \
+    [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
+  run_mrvi "$cmd" "$fpu" --no-such-option
+  expect_rc 1 "$cmd with an unknown option"
+  contains "$err" "no-such-option" "$cmd names the unknown option"
+  contains "$err" "mrvi help $cmd" "$cmd unknown option points at 'mrvi help $cmd'"
+  check "$cmd unknown option: not the whole help ($(printf '%s\n' "$err" | wc -l) lines)" \
+    [ "$(printf '%s\n' "$err" | wc -l)" -le 8 ]
+done
+run_mrvi run "$fpu" --controls
+expect_rc 1 "run --controls without a value"
+contains "$err" "'--controls' needs a value" "run --controls without a value says so"
+
 run_mrvi run "$fpu" --set integrator.micro_steps
 expect_rc 1 "--set without '='"
 contains "$err" 'KEY=VALUE' "--set without '=' explains the form"
@@ -212,6 +232,10 @@ run_mrvi check "$root/systems/ocp_gantry_crane.yaml"
 expect_rc 0 "check ocp_gantry_crane.yaml"
 contains "$out" '^control +40 controls, 4 terminal constraints, slsqp$' \
   "check lists the control problem (40 controls, 4 terminal constraints)"
+contains "$out" '^estimate +one cost \+ gradient: wall time [0-9.e+-]+ s \(measured' \
+  "check measures one cost + gradient evaluation"
+contains "$out" 'at most 2000 \(control.solver.max_evaluations\): wall time up to [0-9.e+-]+ s$' \
+  "check bounds the optimisation's time by the evaluation cap"
 contains "$out" '^ +0  cart_force \(on cart\.x; macro grid, 40 values\)$' \
   "check lists the actuator, its coordinate and grid"
 contains "$out" '^ +3  velocity of load\.x = 0$' "check lists terminal velocities"

@@ -10,9 +10,7 @@
  * (Newton, non-finite values, writing output), 128 + signal when interrupted
  * (130 for Ctrl-C, 143 for SIGTERM); an interrupted or failed run still
  * leaves a valid HDF5 file with every completed step. */
-#include "cli_batch.h"
-#include "cli_export.h"
-#include "cli_study.h"
+#include "cli.h"
 #include "io/io.h"
 
 #include <errno.h>
@@ -185,12 +183,12 @@ static const char *const check_options[] = {"--set", "--help", NULL};
 
 static void usage_error(const char *usage) { fputs(usage, stderr); }
 
-/* After a mistake in a command's arguments: only its "Usage:" lines (the
- * help text up to the first blank line) and where the rest is. */
-static void usage_short(const char *cmd, const char *usage) {
+void mrvi_cli_usage_short(const char *cmd, const char *usage) {
   const char *end = strstr(usage, "\n\n");
-  fprintf(stderr, "%.*s\nOptions and details: mrvi help %s\n",
-          (int)(end ? end - usage : (ptrdiff_t)strlen(usage)), usage, cmd);
+  if (*usage)
+    fprintf(stderr, "%.*s\n",
+            (int)(end ? end - usage : (ptrdiff_t)strlen(usage)), usage);
+  fprintf(stderr, "Options and details: mrvi help %s\n", cmd);
 }
 
 /* The value of an option that takes one: "--opt=V", "-oV" or the next
@@ -225,7 +223,7 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
       if (a->file) {
         fprintf(stderr, "mrvi %s: unexpected argument '%s' (one FILE only)\n",
                 cmd, arg);
-        usage_short(cmd, usage);
+        mrvi_cli_usage_short(cmd, usage);
         return EXIT_INPUT;
       }
       a->file = arg;
@@ -309,13 +307,13 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
       if (hint)
         fprintf(stderr, "; did you mean '%s'?", hint);
       fputc('\n', stderr);
-      usage_short(cmd, usage);
+      mrvi_cli_usage_short(cmd, usage);
       return EXIT_INPUT;
     }
   }
   if (!a->help && !a->file && !a->resume) {
     fprintf(stderr, "mrvi %s: missing FILE\n", cmd);
-    usage_short(cmd, usage);
+    mrvi_cli_usage_short(cmd, usage);
     return EXIT_INPUT;
   }
   return 0;
@@ -397,8 +395,6 @@ static void print_rule(const char *label, mrvi_rule r, const char *grid) {
   printf("  %-12salpha = %g, gamma = %g, %s grid\n", label, r.alpha, r.gamma,
          grid);
 }
-
-int mrvi_cli_check_control(const mrvi_system *sys); /* cli_optimize.c */
 
 static int cmd_check(int argc, char **argv) {
   cli_args a;
@@ -926,9 +922,6 @@ static int cmd_run(int argc, char **argv) {
 static const char *const commands[] = {
     "run",    "check",    "help",   "converge", "stability",
     "timing", "optimize", "export", "batch",    NULL};
-/* Optimal control (cli_optimize.c). */
-int mrvi_cmd_optimize(int argc, char **argv);
-extern const char mrvi_usage_optimize[];
 static const char *const global_options[] = {"--help", "--version", NULL};
 
 static int unknown_command(const char *cmd) {

@@ -2,7 +2,7 @@
  * table, the worker processes and the master file are src/batch and
  * src/io; this file reads the command line and prints. */
 #include "batch/batch.h"
-#include "cli_batch.h"
+#include "cli.h"
 
 #include <errno.h>
 #include <stdio.h>
@@ -102,7 +102,8 @@ static int parse_count(const char *s, int zero_ok) {
 }
 
 static int usage_fail(const char *what) {
-  fprintf(stderr, "mrvi batch: %s\n\n%s", what, mrvi_usage_batch);
+  fprintf(stderr, "mrvi batch: %s\n", what);
+  mrvi_cli_usage_short("batch", mrvi_usage_batch);
   return EXIT_INPUT;
 }
 

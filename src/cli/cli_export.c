@@ -5,7 +5,7 @@
  * "Viewing the motion"), and the XDMF file `mrvi run` writes beside its
  * output.  Exit status: 0 written, 1 bad arguments or a file that cannot
  * be exported (no particles, not a run file, cannot write). */
-#include "cli_export.h"
+#include "cli.h"
 #include "io/io.h"
 
 #include <stdio.h>
@@ -131,9 +131,10 @@ int mrvi_cmd_export(int argc, char **argv) {
       static const char *const all[] = {"--format",  "--output", "--every",
                                         "--species", "--micro",  "--help"};
       const char *hint = mrvi_closest(name, all, 6);
-      fprintf(stderr, "mrvi export: unknown option '%s'%s%s%s\n\n%s", arg,
+      fprintf(stderr, "mrvi export: unknown option '%s'%s%s%s\n", arg,
               hint ? "; did you mean '" : "", hint ? hint : "",
-              hint ? "'?" : "", mrvi_usage_export);
+              hint ? "'?" : "");
+      mrvi_cli_usage_short("export", mrvi_usage_export);
       return 1;
     }
     if (eq)
@@ -155,8 +156,9 @@ int mrvi_cmd_export(int argc, char **argv) {
       species = value;
   }
   if (!file || !format) {
-    fprintf(stderr, "mrvi export: missing %s\n\n%s",
-            !file ? "FILE.h5" : "--format xyz|xdmf", mrvi_usage_export);
+    fprintf(stderr, "mrvi export: missing %s\n",
+            !file ? "FILE.h5" : "--format xyz|xdmf");
+    mrvi_cli_usage_short("export", mrvi_usage_export);
     return 1;
   }
   const int xyz = !strcmp(format, "xyz");

@@ -8,7 +8,7 @@
  *
  * Each prints a table and writes it to HDF5 (and CSV on request); the
  * layouts are in doc/output.md. */
-#include "cli_study.h"
+#include "cli.h"
 
 #include "io/io.h"
 #include "mrvi.h"
@@ -172,8 +172,8 @@ static int parse(int argc, char **argv, const char *usage,
     } else
       snprintf(name, sizeof name, "%s", arg);
     if (strcmp(name, "--set") && !takes_value(name, names)) {
-      fprintf(stderr, "mrvi %s: unknown option '%s'\n\n%s", argv[0], arg,
-              usage);
+      fprintf(stderr, "mrvi %s: unknown option '%s'\n", argv[0], arg);
+      mrvi_cli_usage_short(argv[0], usage);
       return -1;
     }
     if (!value) {
@@ -196,7 +196,8 @@ static int parse(int argc, char **argv, const char *usage,
     }
   }
   if (!a->file) {
-    fprintf(stderr, "mrvi %s: missing FILE\n\n%s", argv[0], usage);
+    fprintf(stderr, "mrvi %s: missing FILE\n", argv[0]);
+    mrvi_cli_usage_short(argv[0], usage);
     return -1;
   }
   return 1;

@@ -386,6 +386,8 @@ void mrvi_ocp_set_tolerances(mrvi_ocp *o, double ftol_rel,
 void mrvi_ocp_set_max_evaluations(mrvi_ocp *o, int max_eval) {
   o->max_eval = max_eval;
 }
+
+int mrvi_ocp_max_evaluations(const mrvi_ocp *o) { return o->max_eval; }
 void mrvi_ocp_set_callback(mrvi_ocp *o, mrvi_ocp_callback cb, void *data) {
   o->cb = cb;
   o->cb_data = data;

@@ -82,6 +82,8 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
 void mrvi_ocp_set_algorithm(mrvi_ocp *o, mrvi_ocp_algorithm a);
 void mrvi_ocp_set_tolerances(mrvi_ocp *o, double ftol_rel, double terminal_tol);
 void mrvi_ocp_set_max_evaluations(mrvi_ocp *o, int max_eval);
+/* The cap on cost + gradient evaluations (default 2000). */
+int mrvi_ocp_max_evaluations(const mrvi_ocp *o);
 /* Called after every cost evaluation of the optimiser with its count, cost,
  * largest terminal violation and gradient norm; a non-zero return stops the
  * optimisation (MRVI_EINTERRUPTED). */

@@ -1,0 +1,58 @@
+/* The mrvi command-line tool: one function per command (argv[0] is the
+ * command name; each returns the process exit status), the help text of
+ * each, and the helpers the commands share.
+ *
+ *   cli.c           main, run, check, help
+ *   cli_study.c     converge, stability, timing
+ *   cli_optimize.c  optimize, and run --controls (replay)
+ *   cli_export.c    export, and the XDMF file beside a run
+ *   cli_batch.c     batch
+ */
+#ifndef MRVI_CLI_H
+#define MRVI_CLI_H
+
+#include "mrvi.h"
+
+#include <signal.h>
+#include <stddef.h>
+
+extern const char mrvi_usage_converge[];
+extern const char mrvi_usage_stability[];
+extern const char mrvi_usage_timing[];
+extern const char mrvi_usage_optimize[];
+extern const char mrvi_usage_export[];
+extern const char mrvi_usage_batch[];
+
+int mrvi_cmd_converge(int argc, char **argv);
+int mrvi_cmd_stability(int argc, char **argv);
+int mrvi_cmd_timing(int argc, char **argv);
+int mrvi_cmd_optimize(int argc, char **argv);
+int mrvi_cmd_export(int argc, char **argv);
+int mrvi_cmd_batch(int argc, char **argv);
+
+/* cli.c: the signal number of SIGINT or SIGTERM once received (0 before),
+ * polled by run and optimize; the handlers that set it (a second Ctrl-C
+ * terminates at once). */
+extern volatile sig_atomic_t mrvi_cli_stop_signal;
+void mrvi_cli_install_handlers(void);
+
+/* cli_optimize.c, for `mrvi check`: print the problem of the system's
+ * `control:` section, if any (actuators, terminal conditions, algorithm).
+ * 0, or 1 when the section is invalid (its message printed). */
+int mrvi_cli_check_control(const mrvi_system *sys);
+
+/* After a mistake in a command's arguments: print to stderr only the
+ * "Usage:" lines of its help text (up to the first blank line) and where
+ * the rest is ("mrvi help CMD"), not the whole help. */
+void mrvi_cli_usage_short(const char *cmd, const char *usage);
+
+/* path with a trailing ".h5" replaced by ext (or ext appended) into buf. */
+void mrvi_cli_replace_extension(const char *path, const char *ext, char *buf,
+                                size_t len);
+
+/* Write OUT.xdmf beside the run file OUT.h5 (a line in the summary unless
+ * quiet; a warning on stderr when it cannot be written, or when OUT.xdmf
+ * is a file mrvi did not write and force is 0).  0 or -1. */
+int mrvi_cli_write_xdmf(const char *h5_path, int quiet, int force);
+
+#endif
