@@ -55,7 +55,10 @@ def rank(k):
 
 def resumable(f, steps):
     """A completed run turned into one stopped at node `steps`."""
-    f.attrs.modify("stop_reason", "interrupted (SIGINT)")
+    # The fixed-length form a stopped run has (a completed run's is
+    # variable-length, which resume refuses): 1024 bytes, UTF-8.
+    f.attrs.create("stop_reason", "interrupted (SIGINT)",
+                   dtype=h5py.string_dtype("utf-8", 1024))
     f.attrs.modify("steps_completed", steps)
 
 
@@ -116,6 +119,9 @@ def resume_cases(base, out):
     with copy(base, out, "q_rank32") as f:
         resumable(f, 5)
         replace(f, "macro/q", data=rank(32))
+    with copy(base, out, "stop_reason_text") as f:
+        resumable(f, 5)  # then edited: the variable-length form
+        f.attrs["stop_reason"] = "interrupted (SIGINT)"
     with copy(base, out, "steps_array") as f:
         resumable(f, 5)
         f.attrs["steps_completed"] = np.arange(1000.0)

@@ -141,6 +141,7 @@ steps_nan steps_completed
 every_huge output_every
 description_array /model/description
 stop_reason_array stop_reason
+stop_reason_text stop_reason is not the fixed-length
 EOF
 
 # The writer reopens every dataset to append, /bodies of ranks 3 and 4 too.

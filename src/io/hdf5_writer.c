@@ -17,7 +17,7 @@
  * The library never prints: HDF5's automatic error printer is switched off
  * around every HDF5 call we make (and restored after), and the error stack
  * is turned into a message instead. */
-#define _DEFAULT_SOURCE /* flock */
+#define _GNU_SOURCE /* flock, copy_file_range */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -745,6 +745,90 @@ static int move_into_place(mrvi_writer *w) {
   return 0;
 }
 
+/* Copy the closed file at path into the empty file part, byte for byte,
+ * and force it to the disk.  0 or -1 (errno set). */
+static int copy_file(const char *path, const char *part) {
+  int in = open(path, O_RDONLY | O_CLOEXEC);
+  int out = in >= 0 ? open(part, O_WRONLY | O_TRUNC | O_CLOEXEC) : -1;
+  int rc = in >= 0 && out >= 0 ? 0 : -1;
+  int kernel_copy = 1;
+  char buf[1 << 16];
+  while (rc == 0) {
+    ssize_t n = kernel_copy
+                    ? copy_file_range(in, NULL, out, NULL, (size_t)1 << 30, 0)
+                    : read(in, buf, sizeof buf);
+    if (n < 0 && kernel_copy && errno != EINTR) {
+      kernel_copy = 0; /* another file system or no kernel support */
+      continue;
+    }
+    if (n < 0 && errno == EINTR)
+      continue;
+    if (n <= 0) {
+      rc = n < 0 ? -1 : 0;
+      break;
+    }
+    for (ssize_t done = 0; !kernel_copy && done < n;) {
+      ssize_t m = write(out, buf + done, (size_t)(n - done));
+      if (m < 0 && errno != EINTR) {
+        rc = -1;
+        break;
+      }
+      done += m > 0 ? m : 0;
+    }
+  }
+  if (rc == 0 && fsync(out) < 0)
+    rc = -1;
+  const int e = errno;
+  if (out >= 0)
+    close(out);
+  if (in >= 0)
+    close(in);
+  errno = e;
+  return rc;
+}
+
+/* A completed run's stop_reason as a variable-length UTF-8 string, which
+ * h5py and other readers return as text (the fixed-length one that SWMR
+ * rewrote in place during the run reads as bytes).  Crash-safe: the closed
+ * file is copied beside itself (mrvi_h5_part_create), the attribute is
+ * replaced in the copy, and the copy is renamed over the output with the
+ * lock moved to it (mrvi_h5_part_commit).  Killed at any point before the
+ * rename, the output is the complete file with the fixed form and a
+ * "path.partXXXXXX" copy may remain beside it; after, the new one.  A
+ * failure (a full disk) keeps the fixed form, which every reader of ours
+ * decodes: the run's data are never at stake, so it is not an error. */
+static void text_stop_reason(mrvi_writer *w, const char *reason) {
+  char msg[400], *part = NULL;
+  if (mrvi_h5_part_create(w->path, &part, msg, sizeof msg) != MRVI_OK)
+    return;
+  int ok = copy_file(w->path, part) == 0;
+  if (ok) {
+    hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
+#if H5_VERSION_GE(1, 10, 7)
+    if (fapl >= 0)
+      H5Pset_file_locking(fapl, 0, 1); /* no one else knows the copy */
+#endif
+    hid_t f = H5Fopen(part, H5F_ACC_RDWR, fapl >= 0 ? fapl : H5P_DEFAULT);
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    ok = f >= 0 && H5Adelete(f, "stop_reason") >= 0 &&
+         mrvi_h5_attr_string(f, "stop_reason", reason) >= 0;
+    if (f >= 0 && H5Fclose(f) < 0)
+      ok = 0;
+  }
+  if (ok) {
+    int fd = open(part, O_RDWR | O_CLOEXEC);
+    ok = fd >= 0 && fsync(fd) == 0;
+    if (fd >= 0)
+      close(fd);
+  }
+  if (!ok || mrvi_h5_part_commit(part, w->path, &w->lock_fd, msg, sizeof msg) !=
+                 MRVI_OK)
+    unlink(part);
+  H5Eclear2(H5E_DEFAULT);
+  free(part);
+}
+
 /* Appending (mrvi run --resume): open the existing output for SWMR writing
  * and cut every dataset back to macro node k, as a run that stopped after
  * node k would have left it.  The file keeps HDF5's "open for writing" flag
@@ -769,6 +853,27 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
    * h5clear --increment does). */
   if (H5Fincrement_filesize(w->file, 0) < 0)
     return fail_h5(w, MRVI_EIO, "cannot extend the file's end of allocation");
+  /* stop_reason is rewritten in place, which SWMR can do only to the
+   * fixed-length form of a run that stopped; a completed run has the
+   * variable-length one (text_stop_reason), and so has a file edited by a
+   * tool that replaced it. */
+  {
+    hid_t a = H5Aexists(w->file, "stop_reason") > 0
+                  ? H5Aopen(w->file, "stop_reason", H5P_DEFAULT)
+                  : H5I_INVALID_HID;
+    hid_t t = a >= 0 ? H5Aget_type(a) : H5I_INVALID_HID;
+    const int fixed =
+        t >= 0 && H5Tget_class(t) == H5T_STRING && H5Tis_variable_str(t) == 0;
+    if (t >= 0)
+      H5Tclose(t);
+    if (a >= 0)
+      H5Aclose(a);
+    if (!fixed)
+      return fail(w, MRVI_EIO,
+                  "attribute stop_reason is not the fixed-length string of "
+                  "a run that stopped (a completed run's, or the file was "
+                  "edited): not resumed");
+  }
   /* From node 0 the run starts afresh: every row is written again. */
   hsize_t keep[N_STREAMS];
   keep[MACRO] = k > 0 ? (hsize_t)(k / w->every) + 1 : 0;
@@ -1277,7 +1382,11 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
   if (w->have_summary && write_energy_attributes(w) < 0)
     fail_h5(w, MRVI_EIO, "writing the energy error attributes");
   H5Eclear2(H5E_DEFAULT);
+  const int had_file = w->file >= 0;
   close_handles(w);
+  if (had_file && w->status == MRVI_OK && !w->io_failed &&
+      !strcmp(reason, "completed"))
+    text_stop_reason(w, reason);
   H5Eclear2(H5E_DEFAULT);
   mrvi_h5_quiet_end(&q);
   int rc = w->status;
