@@ -11,6 +11,7 @@
 #     (doc/theory.md's translation table excepted);
 #   - no file of the repository refers to design notes or directories
 #     outside it (the repository must stand alone);
+#   - doc/gallery.md has an entry with figures for every systems/*.yaml;
 #   - every command and program whose output README.md and doc/*.md show is
 #     re-run and its output compared, numbers within the tolerances stated
 #     in tests/doc_outputs.py (timings excepted); the checker is first shown
@@ -137,6 +138,30 @@ elif [ "$npaths" -lt 20 ]; then
   fail "only $npaths source paths found in the docs (the pattern broke?)"
 else
   pass "all $npaths source paths named in README.md and doc/*.md exist"
+fi
+
+# --- the gallery has every shipped system, with its figures ---
+# (doc/gallery.sh regenerates it; a new system without an entry fails here.)
+gallery=$root/doc/gallery.md
+absent=""
+for f in "$root"/systems/*.yaml; do
+  n=$(basename "$f" .yaml)
+  if ! grep -q "^## $n\$" "$gallery" ||
+    ! grep -q "](gallery/${n}_[a-z]*\.png)" "$gallery"; then
+    absent="$absent $n"
+  fi
+done
+if [ -n "$absent" ]; then
+  fail "doc/gallery.md lacks (run doc/gallery.sh):$absent"
+else
+  pass "doc/gallery.md shows every system of systems/"
+fi
+images=$(grep -oE '\(gallery/[A-Za-z0-9_.-]+\.png\)' "$gallery" | tr -d '()')
+gone=$(for i in $images; do [ -s "$root/doc/$i" ] || echo "$i"; done)
+if [ -z "$images" ] || [ -n "$gone" ]; then
+  fail "doc/gallery.md: missing figures: $(echo $gone)"
+else
+  pass "doc/gallery.md: its $(echo "$images" | wc -w) figures exist"
 fi
 
 # --- shown outputs equal what the tool prints (tests/doc_outputs.py) ---

@@ -763,6 +763,61 @@ run_ok "mrvi-plot all" "$py" "$plot" all "$tmp/fpu.h5" "$tmp/stab.h5" \
 png_ok "$tmp/all/fpu_energy.png"
 png_ok "$tmp/all/stab_trace.png"
 
+# --- still: a picture of the motion ---
+# Particles (pendulum_chain, 2-D) and a rigid body (heavy_top, 3-D): the
+# traces drawn are the stored positions, the body's director segments start
+# at its centre of mass along the stored rotation's columns, and 3-D axes
+# have equal scales.  A model of coordinates only is refused with a reason.
+run_ok "mrvi run heavy_top" "$mrvi" run "$root/systems/heavy_top.yaml" \
+  -o "$tmp/top.h5" -q --set integrator.t_end=1
+run_ok "mrvi-plot still pendulum_chain" "$py" "$plot" still \
+  "$tmp/chain.h5" -o "$out"
+png_ok "$out/chain_still.png"
+run_ok "mrvi-plot still heavy_top" "$py" "$plot" still "$tmp/top.h5" -o "$out"
+png_ok "$out/top_still.png"
+still=$("$py" - "$plot" "$tmp/chain.h5" "$tmp/top.h5" <<'PY' 2>&1
+import sys
+import numpy as np, h5py
+from importlib.machinery import SourceFileLoader
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+ok = []
+with h5py.File(sys.argv[2], "r") as h5:
+    run = mod.Run(h5)
+    fig = mod.still_figure(run, 6)
+    q = h5["macro/q"][()]
+    traces = [l for l in fig.axes[0].lines if l.get_xdata().size == q.shape[0]]
+    want = [q[:, c] for c in run.columns]
+    ok.append(len(traces) == run.columns.size and all(
+        np.array_equal(l.get_xdata(), w) for l, w in zip(traces, want)))
+with h5py.File(sys.argv[3], "r") as h5:
+    run = mod.Run(h5)
+    fig = mod.still_figure(run, 6)
+    ax = fig.axes[0]
+    pos, rot = h5["bodies/position"][()], h5["bodies/rotation"][()]
+    trace = [l for l in ax.lines if len(l.get_data_3d()[0]) == pos.shape[0]]
+    ok.append(len(trace) == 1 and np.array_equal(
+        np.array(trace[0].get_data_3d()).T, pos[:, 0]))
+    segs = [np.array(l.get_data_3d()).T for l in ax.lines
+            if len(l.get_data_3d()[0]) == 2]
+    k = pos.shape[0] - 1  # the last instant drawn: its three directors
+    last = segs[-3:]
+    arm = np.linalg.norm(last[0][1] - last[0][0])
+    ok.append(len(segs) == 18 and all(
+        np.allclose(s[0], pos[k, 0]) and
+        np.allclose((s[1] - s[0]) / arm, rot[k, 0][:, a], atol=1e-12)
+        for a, s in enumerate(last)))
+    lim = [ax.get_xlim(), ax.get_ylim(), ax.get_zlim()]
+    ok.append(np.allclose([b - a for a, b in lim], lim[0][1] - lim[0][0]))
+print(" ".join(str(v) for v in ok))
+PY
+)
+case $still in
+"True True True True") pass "still: traces are the stored positions, directors the stored rotation, equal 3-D scales" ;;
+*) fail "still: traces, directors or scales (got: $still)" ;;
+esac
+fails_with "still: a model of coordinates only" "no particles or bodies\|needs particles" \
+  "$py" "$plot" still "$tmp/fpu.h5" -o "$out"
+
 # --- errors ---
 fails_with "missing input file" "no such file" \
   "$py" "$plot" run "$tmp/does-not-exist.h5" -o "$out"
