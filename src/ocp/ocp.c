@@ -664,6 +664,18 @@ void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj) {
   *pj = o->act[a].pj;
 }
 int mrvi_ocp_n_terminals(const mrvi_ocp *o) { return o->n_term; }
+const char *mrvi_ocp_terminal_kind_name(mrvi_ocp_terminal_kind kind) {
+  static const char *const names[] = {"position", "velocity", "attitude",
+                                      "angular_velocity",
+                                      "angular_velocity_body"};
+  return kind >= 0 && kind <= MRVI_OCP_ANGULAR_VELOCITY_BODY ? names[kind]
+                                                             : "unknown";
+}
+int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row) {
+  if (row)
+    *row = o->term[i].row;
+  return o->term[i].body;
+}
 void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
                        int *coordinate, double *target, double *penalty) {
   const ocp_terminal *t = &o->term[i];

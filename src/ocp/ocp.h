@@ -209,6 +209,11 @@ int mrvi_ocp_actuator_body(const mrvi_ocp *o, int a);
 int mrvi_ocp_n_terminals(const mrvi_ocp *o);
 void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
                        int *coordinate, double *target, double *penalty);
+/* Name of a terminal kind ("position", "velocity", "attitude",
+ * "angular_velocity", "angular_velocity_body"); body of terminal condition
+ * i (-1 for a coordinate) and its row (0..2) in the body's condition. */
+const char *mrvi_ocp_terminal_kind_name(mrvi_ocp_terminal_kind kind);
+int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row);
 /* Name of an algorithm ("slsqp", "auglag-lbfgs", "auglag-mma",
  * "auglag-ccsaq"); the problem's algorithm and terminal tolerance. */
 const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);
