@@ -1,22 +1,27 @@
-/* Pair-force actuators: equal and opposite forces of magnitude u along the
- * line between particles i and j (u > 0 pushes them apart), derivation in
- * doc/optimal-control.md.
- *
- * With u frozen the force is conservative, F = u grad r, r = |x_i - x_j|,
- * so its virtual work along the interpolated path is u delta int r dt.  On
- * every micro interval m of a step (length dt, control u_m: u_k for a
- * macro-grid actuator) the integral is taken by the midpoint rule at
- * t_k + (m + 1/2) dt, where every coordinate is interpolated on its own
- * grid (slow: weights 1 - theta, theta with theta = (m + 1/2)/p; fast: 1/2,
- * 1/2 between nodes m and m + 1):
- *   f_z = dt u_m d r(y_m(z)) / dz,   y_m(z) the interpolated positions.
+/* State-dependent actuators (doc/optimal-control.md, "Pair forces" and
+ * "Bodies"): forces whose direction depends on the configuration.  Each
+ * actuator has model input coordinates y and a generalised force per unit
+ * control F(y) with its derivative dF/dy:
+ *   pair      equal and opposite forces along the line between particles
+ *             i and j: F = +-e, e = (y_i - y_j)/r, dF/dy = +-(I - e e^T)/r
+ *             (u > 0 pushes them apart; with u frozen F = grad r);
+ *   torque    on a body's directors, F_{d_i} = 1/2 tau x d_i with tau fixed
+ *             in space or in a body (2-D: 1/2 tau J d_i), whose virtual work
+ *             on d_i' = w x d_i is tau . w;
+ *   force     at a body point x = phi + sum rho^i d_i: F_phi = e,
+ *             F_{d_i} = rho^i e (constant);
+ *   joint     a revolute joint's motor torque: +u about the hinge on the
+ *             second body, -u on the first (two torque terms).
+ * On every micro interval m of a step (length dt, control u_m: u_k for a
+ * macro-grid actuator) the virtual work along the interpolated path is
+ * taken by the midpoint rule at t_k + (m + 1/2) dt, every coordinate
+ * interpolated on its own grid (slow: weights 1 - theta, theta with
+ * theta = (m + 1/2)/p; fast: 1/2, 1/2 between nodes m and m + 1):
+ *   f_z = dt u_m c_z F(y_m),   df_z/dz' = dt u_m c_z c_z' dF/dy(y_m).
  * For a force of constant direction this is exactly the rule of the
  * coordinate actuators (ocp.c); here f depends on the nodes, so the step
- * residual gets its derivatives (through the step hook), and so do the
- * adjoint's step Jacobians and the control gradient.  The discrete forcing
- * is a function of the relative position only and invariant under
- * rotations, so the pair's internal forces keep the total linear and
- * angular momentum of the discrete flow. */
+ * residual gets it and its derivatives (through the step hook), and so do
+ * the adjoint's step Jacobians and the control gradient. */
 #include "ocp/ocp_internal.h"
 
 #include <math.h>
