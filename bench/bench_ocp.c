@@ -26,7 +26,7 @@ typedef struct row {
   int n_u, evals, ok;
   double t_eval, ratio, total, cost;
   double ratio_opt; /* eval/fwd at the returned controls */
-  char path[16]; /* step solver path of the forward pass */
+  char path[16];    /* step solver path of the forward pass */
 } row;
 
 /* Best of three: forward sweep alone (tf) and cost+gradient with the
@@ -112,18 +112,21 @@ int main(int argc, char **argv) {
   /* The shipped problems (their scheme), and the FPU problem with the
    * schemes of the sweep and explicit paths. */
   enum { NP = 6 };
-  const char *names[NP] = {"ocp_double_integrator", "ocp_gantry_crane",
-                           "ocp_fpu",   "ocp_fpu",
-                           "ocp_fpu",   "ocp_reorient"};
-  const char *scheme[NP] = {NULL, NULL, NULL, "explicit-slow",
-                            "fully-explicit", NULL};
+  const char *names[NP] = {"ocp_double_integrator",
+                           "ocp_gantry_crane",
+                           "ocp_fpu",
+                           "ocp_fpu",
+                           "ocp_fpu",
+                           "ocp_reorient"};
+  const char *scheme[NP] = {NULL, NULL, NULL, "explicit-slow", "fully-explicit",
+                            NULL};
   char files[NP][1024];
   for (int i = 0; i < NP; i++)
     snprintf(files[i], sizeof files[i], "%s/systems/%s.yaml", root ? root : ".",
              names[i]);
   printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %8s %9s %-8s %s\n", "problem",
-         "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd",
-         "at opt", "total [s]", "path", "status");
+         "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd", "at opt",
+         "total [s]", "path", "status");
   const double T[NP] = {2.0, 2.0, 6.0, 6.0, 6.0, 5.0};
   const int Ns[3] = {20, 40, 80}, ps[2] = {1, 5};
   for (int f = 0; f < NP; f++)

@@ -143,8 +143,8 @@ static void test_free_body(mrvi_constraint_form form) {
             mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
             mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 0, om,
                                        0.0) == 3 &&
-            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY_BODY, 0,
-                                       om, 3.0) == 0,
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY_BODY, 0, om,
+                                       3.0) == 0,
         "free body actuators and terminals: %s", mrvi_ocp_errmsg(o));
   CHECK(!strcmp(mrvi_ocp_actuator_kind(o, 0), "torque") &&
             !strcmp(mrvi_ocp_actuator_kind(o, 2), "force") &&
@@ -252,8 +252,8 @@ static void test_chain(mrvi_constraint_form form) {
   const double z[3] = {0, 0, 1}, y[3] = {0, 1, 0};
   CHECK(mrvi_model_add_body(m, "arm", 3, MRVI_SLOW, 1.0, J1, x1, NULL, NULL,
                             w1) == 0 &&
-            mrvi_model_add_body(m, "tip", 3, MRVI_FAST, 0.2, J2, x2, NULL,
-                                NULL, w2) == 1,
+            mrvi_model_add_body(m, "tip", 3, MRVI_FAST, 0.2, J2, x2, NULL, NULL,
+                                w2) == 1,
         "chain bodies: %s", mrvi_model_errmsg(m));
   const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, z);
   const int j1 = mrvi_model_add_joint(m, "revolute", 0, 1, o1, y);
@@ -276,10 +276,9 @@ static void test_chain(mrvi_constraint_form form) {
                                                -HUGE_VAL, HUGE_VAL) == 1 &&
             mrvi_ocp_add_torque_actuator(o, 1, tx, 1, MRVI_GRID_MICRO, 1.0,
                                          -HUGE_VAL, HUGE_VAL) == 2 &&
-            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) ==
-                0 &&
-            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY_BODY, 1,
-                                       om, 0.0) == 3,
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY_BODY, 1, om,
+                                       0.0) == 3,
         "chain actuators and terminals: %s", mrvi_ocp_errmsg(o));
   CHECK(!strcmp(mrvi_ocp_actuator_kind(o, 0), "joint_torque"),
         "joint torque kind");
@@ -318,8 +317,7 @@ static void test_planar(mrvi_constraint_form form) {
                                            -HUGE_VAL, HUGE_VAL) == 0 &&
             mrvi_ocp_add_torque_actuator(o, 0, ax, 0, MRVI_GRID_MICRO, 1.0,
                                          -HUGE_VAL, HUGE_VAL) == 1 &&
-            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) ==
-                0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
             mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 0, &om,
                                        0.0) == 1,
         "pendulum actuators and terminals: %s", mrvi_ocp_errmsg(o));

@@ -20,7 +20,8 @@
 #include <math.h>
 #include <string.h>
 
-/* Rotation vector row r of A (3 x 3) and its derivative GA[a b] = dv_r/dA_ab. */
+/* Rotation vector row r of A (3 x 3) and its derivative GA[a b] = dv_r/dA_ab.
+ */
 static double rotvec_row(const double *A, int r, double *GA) {
   const double c = 0.5 * (A[0] + A[4] + A[8] - 1.0);
   const double s[3] = {0.5 * (A[7] - A[5]), 0.5 * (A[2] - A[6]),

@@ -120,7 +120,8 @@ int ocp_path(const mrvi_ocp *o, char *why, size_t len) {
   /* Their forces depend on the positions (the step hook mrvi_step.extra),
    * which only the general path's assembly takes. */
   mrvi_fmt(why, len,
-           "pair actuators: their forces depend on the positions, which "
+           "pair, torque or body-force actuators: their forces depend on "
+           "the positions, which "
            "only the general path assembles");
   return MRVI_PATH_GENERAL;
 }
@@ -411,8 +412,8 @@ int mrvi_ocp_add_torque_actuator(mrvi_ocp *o, int body, const double *axis,
                          D == 2 ? " and along z (a 2-D body turns about the "
                                   "normal only)"
                                 : "");
-  const int ia = add_state_actuator(o, mrvi_model_body_first(m, body),
-                                    "torque", grid, weight, lower, upper);
+  const int ia = add_state_actuator(o, mrvi_model_body_first(m, body), "torque",
+                                    grid, weight, lower, upper);
   if (ia < 0)
     return ia;
   ocp_actuator *A = &o->act[ia];
@@ -476,9 +477,9 @@ int mrvi_ocp_add_joint_torque_actuator(mrvi_ocp *o, int joint, mrvi_grid grid,
                          joint);
   const mrvi_constraint *C = &m->constraints[joint];
   const int D = m->dimension, nb = (int)C->params[1];
-  const int bodies[2] = {
-      mrvi_model_body_of(m, C->in[0]),
-      nb == 2 ? mrvi_model_body_of(m, C->in[D * (D + 1)]) : -1};
+  const int bodies[2] = {mrvi_model_body_of(m, C->in[0]),
+                         nb == 2 ? mrvi_model_body_of(m, C->in[D * (D + 1)])
+                                 : -1};
   const int ia = add_state_actuator(o, C->in[0], "joint torque", grid, weight,
                                     lower, upper);
   if (ia < 0)
@@ -534,15 +535,16 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind, int c,
   if (!t)
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
   o->term = t;
-  o->term[o->n_term++] =
-      (ocp_terminal){.kind = kind, .coord = c, .target = target,
-                     .penalty = penalty, .body = -1};
+  o->term[o->n_term++] = (ocp_terminal){.kind = kind,
+                                        .coord = c,
+                                        .target = target,
+                                        .penalty = penalty,
+                                        .body = -1};
   return penalty > 0.0 ? 0 : o->n_con++;
 }
 
 int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
-                               int body, const double *target,
-                               double penalty) {
+                               int body, const double *target, double penalty) {
   const mrvi_model *m = o->model;
   int st = check_body(o, body, "body terminal condition");
   if (st < 0)

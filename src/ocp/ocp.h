@@ -7,7 +7,8 @@
  *   p_{k+1} = D_2 L_d + f_k^+.
  * Controls are piecewise constant on the macro grid (slow actuator) or the
  * micro grid (fast actuator) and act along one generalised coordinate (or,
- * pair actuators, along the line between two particles); the
+ * pair actuators, along the line between two particles; or as torques and
+ * forces on rigid bodies); the
  * discrete forces f^+- are the exact virtual work of that force along the
  * linearly interpolated path of the coordinate.  Single shooting over the
  * controls with gradients from the exact discrete adjoint, optimised with
@@ -84,8 +85,7 @@ int mrvi_ocp_add_torque_actuator(mrvi_ocp *o, int body, const double *axis,
  * Default name "BODY.force". */
 int mrvi_ocp_add_body_force_actuator(mrvi_ocp *o, int body, const double *at,
                                      const double *direction, mrvi_grid grid,
-                                     double weight, double lower,
-                                     double upper);
+                                     double weight, double lower, double upper);
 /* Torque u about the hinge of revolute joint `joint` (its constraint
  * index): +u on the second body, -u on the first (to the ground: +u on the
  * body), the hinge fixed in the first body.  Default name: the joint's. */

@@ -41,7 +41,7 @@ typedef struct ocp_actuator {
   ocp_torque torque[2];
   double at[3], dir[3];
   int body, joint; /* body (torque, force) or joint constraint; -1 */
-  mrvi_grid grid; /* MRVI_GRID_MACRO or MRVI_GRID_MICRO */
+  mrvi_grid grid;  /* MRVI_GRID_MACRO or MRVI_GRID_MICRO */
   double weight, lower, upper;
   int offset, size; /* in the control vector */
   char name[64];    /* default: the coordinate's name */
@@ -84,8 +84,8 @@ struct mrvi_ocp {
   /* Forces of a step (same template every step). */
   int n_force;
   ocp_force *force;
-  /* State-dependent actuators (state_forces.c): their number, and the controls and step of
-   * the forward sweep for the step hook. */
+  /* State-dependent actuators (state_forces.c): their number, and the controls
+   * and step of the forward sweep for the step hook. */
   int n_state;
   const double *u_cur;
   long k_cur;
@@ -187,7 +187,7 @@ static inline int ocp_znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt,
  * (mrvi_step.extra): their forces f^- on the residual rows of step o->k_cur
  * at x and their derivatives. */
 void ocp_state_hook(void *ctx, mrvi_step *st, const double *x, double *R,
-                   int jac);
+                    int jac);
 /* After convergence of step k at o->x under controls u: their f^+ into
  * o->f_end (end nodes) and o->f_plus (fast nodes 1..p). */
 void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u);
@@ -204,6 +204,6 @@ double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
 /* out[control] -= mu^T d(forces of step k)/du for every state control of
  * step k (mu: global node adjoints). */
 void ocp_state_gradient(const mrvi_ocp *o, long k, const double *mu,
-                       double *out);
+                        double *out);
 
 #endif

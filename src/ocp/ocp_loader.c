@@ -303,8 +303,8 @@ static int body_named(parser *P, struct fy_node *map, const char *where,
     mrvi_fmt(hint, sizeof hint, "; did you mean '%s'?", close);
   else if (nb == 0)
     mrvi_fmt(hint, sizeof hint, " (the model has no bodies)");
-  const int st = fail(P, n, "unknown body '%s' in %s%s", s ? s : "?", where,
-                      hint);
+  const int st =
+      fail(P, n, "unknown body '%s' in %s%s", s ? s : "?", where, hint);
   free(names);
   return st;
 }
@@ -320,11 +320,13 @@ static int joint_named(parser *P, struct fy_node *map, const char *where,
     if (!strcmp(s, m->constraints[c].label))
       *j = c;
   if (*j < 0)
-    return fail(P, n, "unknown joint '%s' in %s.joint (a joint's name, or "
+    return fail(P, n,
+                "unknown joint '%s' in %s.joint (a joint's name, or "
                 "its label 'revolute A-B' as `mrvi check` lists it)",
                 s ? s : "?", where);
   if (strcmp(m->constraints[*j].type->name, "revolute"))
-    return fail(P, n, "%s.joint: '%s' is a %s joint; a joint torque needs a "
+    return fail(P, n,
+                "%s.joint: '%s' is a %s joint; a joint torque needs a "
                 "revolute joint",
                 where, s, m->constraints[*j].type->name);
   return MRVI_OK;
@@ -378,8 +380,9 @@ static int body_actuator(parser *P, struct fy_node *item, const char *where,
   int st, b = -1, frame = 0;
   if (joint) {
     if (get(item, "body") || get(item, "frame") || get(item, "at"))
-      return fail(P, or_item(get(item, "body"),
-                             or_item(get(item, "frame"), get(item, "at"))),
+      return fail(P,
+                  or_item(get(item, "body"),
+                          or_item(get(item, "frame"), get(item, "at"))),
                   "%s: a joint torque takes the joint's bodies and hinge; "
                   "no 'body', 'frame' or 'at'",
                   where);
@@ -397,8 +400,8 @@ static int body_actuator(parser *P, struct fy_node *item, const char *where,
     if ((st = body_named(P, item, where, &b)) ||
         (st = frame_of(P, item, where, &frame)) ||
         (st = D == 3 ? vector(P, get(item, "torque"), where, "torque", 3, ax)
-                     : number_or_vector(P, get(item, "torque"), where,
-                                        "torque", 1, ax + 2)))
+                     : number_or_vector(P, get(item, "torque"), where, "torque",
+                                        1, ax + 2)))
       return st;
     *a = mrvi_ocp_add_torque_actuator(o, b, ax, frame, grid, w, lo, hi);
     if (*a < 0)
@@ -407,8 +410,7 @@ static int body_actuator(parser *P, struct fy_node *item, const char *where,
     double dir[3], at[3] = {0, 0, 0};
     if (get(item, "frame"))
       return fail(P, get(item, "frame"),
-                  "%s.frame: a force actuator's direction is in space",
-                  where);
+                  "%s.frame: a force actuator's direction is in space", where);
     if ((st = body_named(P, item, where, &b)) ||
         (st = vector(P, get(item, "force"), where, "force", D, dir)) ||
         (get(item, "at") &&
@@ -426,12 +428,12 @@ static int body_actuator(parser *P, struct fy_node *item, const char *where,
 static const char *const control_keys[] = {"actuators", "tracking", "terminal",
                                            "solver"};
 static const char *const actuator_keys[] = {
-    "name",  "coordinate", "pair",  "grid",  "weight", "lower", "upper",
-    "initial", "body",     "torque", "frame", "force", "at",    "joint"};
+    "name",    "coordinate", "pair",   "grid",  "weight", "lower", "upper",
+    "initial", "body",       "torque", "frame", "force",  "at",    "joint"};
 static const char *const tracking_keys[] = {"coordinate", "weight",
                                             "reference"};
 static const char *const terminal_keys[] = {
-    "coordinate", "position", "velocity", "penalty",
+    "coordinate", "position", "velocity",         "penalty",
     "body",       "attitude", "angular_velocity", "frame"};
 static const char *const solver_keys[] = {
     "algorithm", "tolerance", "terminal_tolerance", "max_evaluations"};
@@ -455,7 +457,7 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
     double w = 1.0, lo = -HUGE_VAL, hi = HUGE_VAL, u0 = 0.0;
     const int on_body = get(item, "torque") || get(item, "force") ||
                         get(item, "joint") || get(item, "body");
-    if ((st = on_body              ? MRVI_OK
+    if ((st = on_body             ? MRVI_OK
               : get(item, "pair") ? pair(P, item, where, &pi, &pj)
                                   : coordinate(P, item, where, &c)) ||
         (st = number(P, item, "weight", where, &w)) ||
@@ -626,7 +628,8 @@ static int body_terminal(parser *P, struct fy_node *item, const char *where,
   const int D = P->m->dimension;
   int b, frame = 0, st;
   double pen = 0.0, R[9], w[3];
-  struct fy_node *an = get(item, "attitude"), *wn = get(item, "angular_velocity");
+  struct fy_node *an = get(item, "attitude"),
+                 *wn = get(item, "angular_velocity");
   if ((st = body_named(P, item, where, &b)) ||
       (st = frame_of(P, item, where, &frame)) ||
       (st = number(P, item, "penalty", where, &pen)))
@@ -658,8 +661,8 @@ static int body_terminal(parser *P, struct fy_node *item, const char *where,
       return fail(P, an, "%s: %s", where, mrvi_ocp_errmsg(o));
   }
   if (wn) {
-    if ((st = number_or_vector(P, wn, where, "angular_velocity",
-                               D == 3 ? 3 : 1, w)))
+    if ((st = number_or_vector(P, wn, where, "angular_velocity", D == 3 ? 3 : 1,
+                               w)))
       return st;
     if (mrvi_ocp_add_body_terminal(o,
                                    frame ? MRVI_OCP_ANGULAR_VELOCITY_BODY
@@ -683,8 +686,7 @@ static int load_terminal(parser *P, struct fy_node *list, mrvi_ocp *o) {
     mrvi_fmt(where, sizeof where, "control.terminal[%d]", i++);
     int c;
     double pos = NAN, vel = NAN, pen = 0.0;
-    if ((st = check_keys(P, item, where, terminal_keys,
-                         NKEYS(terminal_keys))))
+    if ((st = check_keys(P, item, where, terminal_keys, NKEYS(terminal_keys))))
       return st;
     if (get(item, "body")) {
       if ((st = body_terminal(P, item, where, o)))

@@ -128,8 +128,8 @@ static void torque_force(int D, const ocp_torque *T, const double *y,
 }
 
 /* F and Dm of actuator A at the interpolated inputs y. */
-static void act_force(const mrvi_ocp *o, const ocp_actuator *A,
-                      const double *y, act_point *ap) {
+static void act_force(const mrvi_ocp *o, const ocp_actuator *A, const double *y,
+                      act_point *ap) {
   const int D = o->model->dimension, n = ap->n;
   if (A->pi >= 0) {
     pair_force(D, y, ap);
@@ -243,15 +243,15 @@ static void hook_visit(const mrvi_ocp *o, void *ctx, long k,
 }
 
 void ocp_state_hook(void *ctx, mrvi_step *st, const double *x, double *R,
-                   int jac) {
+                    int jac) {
   const mrvi_ocp *o = ctx;
   hook_ctx h = {st, R, jac};
   each_act(o, st, x, o->k_cur, hook_visit, &h);
 }
 
 /* f^+: the later node of each input (q_{k+1}^s, fast node m + 1). */
-static void end_visit(const mrvi_ocp *o, void *ctx, long k,
-                      const act_point *ap, double w, int ic) {
+static void end_visit(const mrvi_ocp *o, void *ctx, long k, const act_point *ap,
+                      double w, int ic) {
   mrvi_ocp *ow = ctx;
   const int ns = o->ns, nf = o->nf;
   const double wu = w * o->u_cur[ic];
@@ -309,7 +309,7 @@ static void gradient_visit(const mrvi_ocp *o, void *ctx, long k,
 }
 
 void ocp_state_gradient(const mrvi_ocp *o, long k, const double *mu,
-                       double *out) {
+                        double *out) {
   gradient_ctx g = {mu, out};
   each_act(o, NULL, NULL, k, gradient_visit, &g);
 }
