@@ -120,9 +120,8 @@ int ocp_path(const mrvi_ocp *o, char *why, size_t len) {
   /* Their forces depend on the positions (the step hook mrvi_step.extra),
    * which only the general path's assembly takes. */
   mrvi_fmt(why, len,
-           "pair, torque or body-force actuators: their forces depend on "
-           "the positions, which "
-           "only the general path assembles");
+           "pair actuators (or actuators on bodies): their forces depend "
+           "on the positions, which only the general path assembles");
   return MRVI_PATH_GENERAL;
 }
 
