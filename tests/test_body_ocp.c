@@ -6,8 +6,9 @@
  *   body point, with terminal attitude, angular velocity in space and (a
  *   penalty) in the body frame; a slow body on a revolute joint to the
  *   ground carrying a fast body on a second revolute joint (p = 3), with a
- *   joint torque on the micro grid; a 2-D pendulum driven by a joint torque
- *   and a body torque;
+ *   joint torque on the micro grid and penalties on attitude and angular
+ *   velocity (as equalities they repeat joint rows and are refused); a 2-D
+ *   pendulum driven by a joint torque and a body torque;
  * - the terminal values: the attitude rows are the rotation vector of
  *   R_target^T R_N, the angular velocity rows J^-1 R^T L from the final
  *   momenta (computed here independently);
@@ -276,10 +277,20 @@ static void test_chain(mrvi_constraint_form form) {
                                                -HUGE_VAL, HUGE_VAL) == 1 &&
             mrvi_ocp_add_torque_actuator(o, 1, tx, 1, MRVI_GRID_MICRO, 1.0,
                                          -HUGE_VAL, HUGE_VAL) == 2 &&
-            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 2.0) == 0 &&
             mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY_BODY, 1, om,
-                                       0.0) == 3,
+                                       3.0) == 0,
         "chain actuators and terminals: %s", mrvi_ocp_errmsg(o));
+  /* As equalities both repeat joint rows (the chain has two degrees of
+   * freedom): refused, naming the joints, and nothing added. */
+  CHECK(mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "implied by its joints") &&
+            strstr(mrvi_ocp_errmsg(o), "revolute arm-ground") &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 1, om,
+                                       0.0) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "angular velocit") &&
+            mrvi_ocp_n_constraints(o) == 0 && mrvi_ocp_n_terminals(o) == 6,
+        "redundant body terminal equalities refused: %s", mrvi_ocp_errmsg(o));
   CHECK(!strcmp(mrvi_ocp_actuator_kind(o, 0), "joint_torque"),
         "joint torque kind");
   char what[80];

@@ -18,6 +18,7 @@
 #include "ocp/ocp_internal.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 /* Rotation vector row r of A (3 x 3) and its derivative GA[a b] = dv_r/dA_ab.
@@ -163,4 +164,95 @@ double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
     gp[3 + 2 * i] = iJ * di[0];
   }
   return iJ * L - T->target;
+}
+
+/* Add row v (n entries) to the orthonormal basis B (k rows) if its part
+ * outside span(B) is larger than 1e-8 |v| (Gram-Schmidt, twice); returns
+ * 0 when v is (numerically) in the span. */
+static int extend_basis(int n, double *B, int *k, double *v) {
+  double n0 = 0.0;
+  for (int j = 0; j < n; j++)
+    n0 += v[j] * v[j];
+  n0 = sqrt(n0);
+  if (!(n0 > 0.0))
+    return 0;
+  for (int pass = 0; pass < 2; pass++)
+    for (int i = 0; i < *k; i++) {
+      const double *b = B + (size_t)i * (size_t)n;
+      double d = 0.0;
+      for (int j = 0; j < n; j++)
+        d += b[j] * v[j];
+      for (int j = 0; j < n; j++)
+        v[j] -= d * b[j];
+    }
+  double nr = 0.0;
+  for (int j = 0; j < n; j++)
+    nr += v[j] * v[j];
+  nr = sqrt(nr);
+  if (nr <= 1e-8 * n0)
+    return 0;
+  double *b = B + (size_t)(*k)++ * (size_t)n;
+  for (int j = 0; j < n; j++)
+    b[j] = v[j] / nr;
+  return 1;
+}
+
+int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
+  const mrvi_model *m = o->model;
+  const int n = m->n, R = mrvi_model_constraint_rows(m);
+  const int rows = R + o->n_term;
+  double *G = malloc(((size_t)R * (size_t)n + 1) * sizeof *G);
+  double *Bq = malloc(((size_t)rows * (size_t)n + 1) * sizeof *Bq);
+  double *Bp = malloc(((size_t)rows * (size_t)n + 1) * sizeof *Bp);
+  double *v = malloc(((size_t)n + 1) * sizeof *v);
+  double *g = malloc(((size_t)R + 1) * sizeof *g);
+  double *p0 = malloc(((size_t)n + 1) * sizeof *p0);
+  int kq = 0, kp = 0, bad = -2;
+  if (!G || !Bq || !Bp || !v || !g || !p0)
+    goto out;
+  bad = -1;
+  for (int i = 0; i < n; i++)
+    p0[i] = m->mass[i] * m->v0[i];
+  /* Positions: the rows of G; momenta: the hidden constraints G M^-1 p. */
+  mrvi_model_constraint_eval(m, m->q0, g, G);
+  for (int r = 0; r < R; r++) {
+    memcpy(v, G + (size_t)r * (size_t)n, (size_t)n * sizeof *v);
+    extend_basis(n, Bq, &kq, v);
+    for (int j = 0; j < n; j++)
+      v[j] = G[(size_t)r * (size_t)n + j] / m->mass[j];
+    extend_basis(n, Bp, &kp, v);
+  }
+  /* The equality conditions in order: the first from `first` on that is
+   * implied by the constraints and the earlier conditions. */
+  const int D = m->dimension, nb = D * (D + 1);
+  for (int t = 0; t < o->n_term && bad < 0; t++) {
+    const ocp_terminal *T = &o->term[t];
+    if (T->penalty > 0.0)
+      continue;
+    double gq[12], gp[12];
+    int pos;
+    memset(v, 0, (size_t)n * sizeof *v);
+    if (T->body >= 0) {
+      ocp_body_terminal(o, T, m->q0 + T->coord, p0 + T->coord, gq, gp);
+      pos = T->kind == MRVI_OCP_ATTITUDE;
+      for (int j = 0; j < nb; j++)
+        v[T->coord + j] = pos ? gq[j] : gp[j];
+    } else {
+      pos = T->kind == MRVI_OCP_POSITION;
+      v[T->coord] = 1.0;
+    }
+    int ok = 1;
+    for (int j = 0; j < n; j++)
+      ok &= isfinite(v[j]);
+    if (ok && !extend_basis(n, pos ? Bq : Bp, pos ? &kq : &kp, v) && t >= first)
+      bad = t;
+  }
+out:
+  free(G);
+  free(Bq);
+  free(Bp);
+  free(v);
+  free(g);
+  free(p0);
+  return bad;
 }

@@ -18,6 +18,7 @@
 #include <float.h>
 #include <limits.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -603,7 +604,38 @@ int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
     if (penalty == 0.0)
       o->n_con++;
   }
-  return penalty > 0.0 ? 0 : first;
+  if (penalty > 0.0)
+    return 0;
+  /* Rows the constraints already impose (a jointed body has fewer than
+   * three rotations) would make the constraint Jacobian of the optimiser
+   * rank-deficient: refused, with the joints of the body named. */
+  const int bad = ocp_terminal_redundant(o, o->n_term - rows);
+  if (bad == -1)
+    return first;
+  o->n_term -= rows;
+  o->n_con = first;
+  if (bad == -2)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  char names[300] = "";
+  size_t used = 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *C = &m->constraints[c];
+    int touches = 0;
+    for (int j = 0; j < C->n_in && !touches; j++)
+      touches = mrvi_model_body_of(m, C->in[j]) == body;
+    if (touches && c != m->bodies[body].constraint && used < sizeof names)
+      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                               used ? ", " : "", C->label);
+  }
+  return mrvi_ocp_fail(
+      o, MRVI_EINVAL,
+      "terminal %s of body '%s': row %d is implied by %s%s and the "
+      "conditions before it (redundant: the body has fewer free %s); give "
+      "it a penalty instead",
+      kind == MRVI_OCP_ATTITUDE ? "attitude" : "angular velocity",
+      mrvi_model_body_name(m, body), o->term[bad].row,
+      used ? "its joints " : "the constraints", names,
+      kind == MRVI_OCP_ATTITUDE ? "rotations" : "angular velocities");
 }
 
 void mrvi_ocp_set_algorithm(mrvi_ocp *o, mrvi_ocp_algorithm a) {

@@ -201,6 +201,11 @@ void ocp_state_jacobian(const mrvi_ocp *o, long k, double *J);
 double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
                          const double *q, const double *p, double *gq,
                          double *gp);
+/* The first equality terminal condition at index >= first implied, to first
+ * order at the initial state, by the model's constraints (positions: G q' =
+ * 0; momenta: the hidden constraints G M^-1 p = 0) and the conditions before
+ * it, or -1 (-2: out of memory) (body_terminal.c). */
+int ocp_terminal_redundant(const mrvi_ocp *o, int first);
 /* out[control] -= mu^T d(forces of step k)/du for every state control of
  * step k (mu: global node adjoints). */
 void ocp_state_gradient(const mrvi_ocp *o, long k, const double *mu,
