@@ -5,8 +5,9 @@
  *   2. the largest number of controls each algorithm solves within a time
  *      budget (default 60 s per solve), doubling N on the double
  *      integrator.
- * Usage: bench_ocp [--budget SECONDS]   (run from the source root, or set
- * MRVI_SOURCE_ROOT). */
+ * Usage: bench_ocp [--budget SECONDS] [--only PROBLEM]   (run from the
+ * source root, or set MRVI_SOURCE_ROOT; --only: part 1 for one problem,
+ * e.g. ocp_reorient, and no part 2). */
 #include "mrvi.h"
 #include "ocp/ocp.h"
 
@@ -24,8 +25,25 @@ static double now(void) {
 typedef struct row {
   int n_u, evals, ok;
   double t_eval, ratio, total, cost;
-  char path[16]; /* step solver path of the forward pass */
+  double ratio_opt; /* eval/fwd at the returned controls */
+  char path[16];    /* step solver path of the forward pass */
 } row;
+
+/* Best of three: forward sweep alone (tf) and cost+gradient with the
+ * constraint gradients (ta) at u. */
+static void time_eval(mrvi_ocp *o, const double *u, double *g, double *c,
+                      double *cg, double *tf, double *ta) {
+  double J;
+  *tf = *ta = 1e30;
+  for (int i = 0; i < 3; i++) {
+    double t0 = now();
+    mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+    *tf = *tf < now() - t0 ? *tf : now() - t0;
+    t0 = now();
+    mrvi_ocp_evaluate(o, u, &J, g, c, cg);
+    *ta = *ta < now() - t0 ? *ta : now() - t0;
+  }
+}
 
 /* Load FILE with overrides, time evaluations and solve. */
 static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
@@ -48,16 +66,9 @@ static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
   const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
   double *g = malloc((size_t)n * sizeof *g);
   double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
-  double *c = malloc((size_t)(m + 1) * sizeof *c), J;
-  double tf = 1e30, ta = 1e30;
-  for (int i = 0; i < 3; i++) {
-    double t0 = now();
-    mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
-    tf = tf < now() - t0 ? tf : now() - t0;
-    t0 = now();
-    mrvi_ocp_evaluate(o, u, &J, g, c, cg);
-    ta = ta < now() - t0 ? ta : now() - t0;
-  }
+  double *c = malloc((size_t)(m + 1) * sizeof *c);
+  double tf, ta;
+  time_eval(o, u, g, c, cg, &tf, &ta);
   const char *path = mrvi_ocp_solver_path(o, NULL, 0);
   snprintf(r->path, sizeof r->path, "%s", path ? path : "none");
   mrvi_ocp_result res;
@@ -70,6 +81,11 @@ static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
   r->t_eval = ta;
   r->ratio = ta / tf;
   r->cost = res.cost;
+  /* At the returned controls (the forward Newton iterations of a problem
+   * at rest under u = 0 are fewer than along a controlled motion). */
+  double tf1, ta1;
+  time_eval(o, u, g, c, cg, &tf1, &ta1);
+  r->ratio_opt = ta1 / tf1;
   free(g);
   free(cg);
   free(c);
@@ -81,33 +97,40 @@ static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
 
 int main(int argc, char **argv) {
   double budget = 60.0;
+  const char *only = NULL;
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--budget") && i + 1 < argc) {
       budget = atof(argv[++i]);
+    } else if (!strcmp(argv[i], "--only") && i + 1 < argc) {
+      only = argv[++i];
     } else {
-      fputs("usage: bench_ocp [--budget SECONDS]\n", stderr);
+      fputs("usage: bench_ocp [--budget SECONDS] [--only PROBLEM]\n", stderr);
       return !!strcmp(argv[i], "--help");
     }
   }
   const char *root = getenv("MRVI_SOURCE_ROOT");
   /* The shipped problems (their scheme), and the FPU problem with the
    * schemes of the sweep and explicit paths. */
-  enum { NP = 5 };
-  const char *names[NP] = {"ocp_double_integrator", "ocp_gantry_crane",
-                           "ocp_fpu", "ocp_fpu", "ocp_fpu"};
-  const char *scheme[NP] = {NULL, NULL, NULL, "explicit-slow",
-                            "fully-explicit"};
+  enum { NP = 6 };
+  const char *names[NP] = {"ocp_double_integrator",
+                           "ocp_gantry_crane",
+                           "ocp_fpu",
+                           "ocp_fpu",
+                           "ocp_fpu",
+                           "ocp_reorient"};
+  const char *scheme[NP] = {NULL, NULL, NULL, "explicit-slow", "fully-explicit",
+                            NULL};
   char files[NP][1024];
   for (int i = 0; i < NP; i++)
     snprintf(files[i], sizeof files[i], "%s/systems/%s.yaml", root ? root : ".",
              names[i]);
-  printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %9s %-8s %s\n", "problem",
-         "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd",
+  printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %8s %9s %-8s %s\n", "problem",
+         "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd", "at opt",
          "total [s]", "path", "status");
-  const double T[NP] = {2.0, 2.0, 6.0, 6.0, 6.0};
+  const double T[NP] = {2.0, 2.0, 6.0, 6.0, 6.0, 5.0};
   const int Ns[3] = {20, 40, 80}, ps[2] = {1, 5};
   for (int f = 0; f < NP; f++)
-    for (int in = 0; in < 3; in++)
+    for (int in = 0; in < 3 && (!only || !strcmp(only, names[f])); in++)
       for (int ip = 0; ip < 2; ip++) {
         char a[64], b[64], c[64];
         snprintf(a, sizeof a, "integrator.macro_step=%.17g", T[f] / Ns[in]);
@@ -118,12 +141,15 @@ int main(int argc, char **argv) {
         row r;
         if (bench(files[f], ov, 3, -1, &r) < 0)
           return 1;
-        printf("%-22s %-15s %4d %2d %5d %5d %9.3f %8.2f %9.3f %-8s %s\n",
+        printf("%-22s %-15s %4d %2d %5d %5d %9.3f %8.2f %8.2f %9.3f %-8s "
+               "%s\n",
                names[f], scheme[f] ? scheme[f] : "midpoint-midpoint", Ns[in],
-               ps[ip], r.n_u, r.evals, 1e3 * r.t_eval, r.ratio, r.total, r.path,
-               r.ok ? "ok" : "FAILED");
+               ps[ip], r.n_u, r.evals, 1e3 * r.t_eval, r.ratio, r.ratio_opt,
+               r.total, r.path, r.ok ? "ok" : "FAILED");
         fflush(stdout);
       }
+  if (only)
+    return 0;
   printf("\nlargest N (double integrator, p = 1, terminal tolerance 1e-8) "
          "solved within %.0f s:\n",
          budget);

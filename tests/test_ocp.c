@@ -385,7 +385,7 @@ static mrvi_model *four_particles(void) {
   return m;
 }
 
-/* Pair-force actuators (src/ocp/pair.c):
+/* Pair-force actuators (src/ocp/state_forces.c):
  * - adjoint gradients of the cost and the terminal constraints against
  *   central differences (relative 1e-6), every scheme, p in {1, 5}, pairs
  *   slow-slow (macro grid), fast-fast (micro), slow-fast (macro, micro);

@@ -169,4 +169,38 @@ print(o.attrs["cost"] == met[:, 0].min() if len(met)
   fi
 done
 
+# --- rigid body reoriented by torques (systems/ocp_reorient.yaml), both
+# constraint forms: converged; the replay of the controls meets the terminal
+# attitude (rotation vector of R_target^T R_N from /bodies/rotation, computed
+# here) and rest (/bodies/angular_velocity when written, else the replay's
+# violation) to the terminal tolerance -------------------------------------
+ro=$root/systems/ocp_reorient.yaml
+for form in multipliers null-space; do
+  "$mrvi" optimize "$ro" -o reo.h5 -q \
+    --set integrator.constraints.form=$form >out.txt 2>err.txt
+  rc=$?
+  s=$(attr reo.h5 status)
+  "$mrvi" run "$ro" --controls reo.h5 -o replay.h5 \
+    --set integrator.constraints.form=$form >rep.txt 2>&1
+  rr=$?
+  att=$("$py" -c 'import sys, h5py, numpy as np
+f = h5py.File(sys.argv[1], "r")
+R = f["bodies/rotation"][-1, 0]
+k = np.ones(3) / np.sqrt(3.0); a = 2.0
+K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+Rt = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+A = Rt.T @ R
+s = 0.5 * np.array([A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1]])
+n, c = np.linalg.norm(s), (np.trace(A) - 1) / 2
+v = s * (np.arctan2(n, c) / n if n > 0 else 1.0)
+print("%.3e" % max(np.abs(v).max(), 1e-300 if c > 0 else 1.0))' replay.h5 2>&1)
+  viol=$(sed -n 's/.*terminal violation *\([^ ]*\).*/\1/p' rep.txt)
+  if [ $rc -eq 0 ] && [ "$s" = converged ] && [ $rr -eq 0 ] &&
+    "$py" -c 'import sys; sys.exit(not (float(sys.argv[1]) <= 1e-9 and float(sys.argv[2]) <= 1e-9))' "$att" "$viol" 2>/dev/null; then
+    pass "ocp_reorient ($form): converged, replay meets the attitude ($att) and rest (violation $viol)"
+  else
+    fail "ocp_reorient ($form): exit $rc, status '$s', replay exit $rr, attitude '$att', violation '$viol' ($(cat err.txt rep.txt))"
+  fi
+done
+
 test_finish

@@ -105,8 +105,12 @@ int mrvi_cli_check_control(const mrvi_system *sys) {
   for (int a = 0; a < na; a++) {
     const int c = mrvi_ocp_actuator_coordinate(o, a);
     char on[300];
+    const char *kind = mrvi_ocp_actuator_kind(o, a);
     if (c >= 0) {
       snprintf(on, sizeof on, "on %s", mrvi_model_coordinate_name(m, c));
+    } else if (strcmp(kind, "pair")) {
+      snprintf(on, sizeof on, "%s on %s", kind,
+               mrvi_model_body_name(m, mrvi_ocp_actuator_body(o, a)));
     } else {
       int pi, pj;
       mrvi_ocp_actuator_pair(o, a, &pi, &pj);
@@ -125,9 +129,15 @@ int mrvi_cli_check_control(const mrvi_system *sys) {
     int c;
     double target, penalty;
     mrvi_ocp_terminal(o, i, &kind, &c, &target, &penalty);
-    printf("  %3d  %s of %s = %g", i,
-           kind == MRVI_OCP_POSITION ? "position" : "velocity",
-           mrvi_model_coordinate_name(m, c), target);
+    int row;
+    const int b = mrvi_ocp_terminal_body(o, i, &row);
+    if (b >= 0)
+      printf("  %3d  %s of body %s, row %d", i,
+             mrvi_ocp_terminal_kind_name(kind), mrvi_model_body_name(m, b),
+             row);
+    else
+      printf("  %3d  %s of %s = %g", i, mrvi_ocp_terminal_kind_name(kind),
+             mrvi_model_coordinate_name(m, c), target);
     if (penalty > 0)
       printf(" (penalty %g)", penalty);
     putchar('\n');

@@ -253,7 +253,7 @@ static void write_control(mrvi_h5_batch *b, const mrvi_system *sys,
   for (int i = 0; i < nterm; i++) {
     mrvi_ocp_terminal_kind kind;
     mrvi_ocp_terminal(o, i, &kind, &iv[i], &tv[i], &tv[nterm + i]);
-    sv[i] = kind == MRVI_OCP_POSITION ? "position" : "velocity";
+    sv[i] = mrvi_ocp_terminal_kind_name(kind);
   }
   mrvi_h5_batch_ints(b, gc, "terminal_coordinate", iv, (hsize_t)nterm, 0);
   strings(b, gc, "terminal_kind", sv, (hsize_t)nterm);

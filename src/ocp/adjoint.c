@@ -112,8 +112,8 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
           }
       }
     }
-  if (o->n_pair > 0)
-    ocp_pair_jacobian(o, k, J);
+  if (o->n_state > 0)
+    ocp_state_jacobian(o, k, J);
   if (o->nl == 0)
     return;
   /* Constraints in the step's layout (step/step.h, struct mrvi_step):
@@ -151,6 +151,31 @@ static long final_node(const mrvi_ocp *o, int c, int *pslot) {
   }
   *pslot = o->ns + s;
   return (o->N + 1) * o->ns + o->N * o->p * o->nf + s;
+}
+
+/* Body terminal condition T (one row): its value into val and its
+ * derivatives in the body's final nodes and momenta into gQ, gp (row 0, the
+ * cost, for a penalty; else constraint row 1 + (*ic)++). */
+static void body_terminal(const mrvi_ocp *o, const ocp_terminal *T, long nn,
+                          int npn, int *ic, double *val, double *gQ,
+                          double *gp) {
+  const int D = o->model->dimension, n = D * (D + 1);
+  double q[12], p[12], gq[12], gpv[12];
+  long g[12];
+  int ps[12];
+  for (int k = 0; k < n; k++) {
+    g[k] = final_node(o, T->coord + k, &ps[k]);
+    q[k] = o->Q[g[k]];
+    p[k] = o->pN[ps[k]];
+  }
+  const double v = ocp_body_terminal(o, T, q, p, gq, gpv);
+  const int f = T->penalty > 0.0 ? 0 : 1 + (*ic)++;
+  const double scale = f == 0 ? T->penalty * v : 1.0;
+  val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
+  for (int k = 0; k < n; k++) {
+    gQ[(size_t)f * (size_t)nn + (size_t)g[k]] += scale * gq[k];
+    gp[f * npn + ps[k]] += scale * gpv[k];
+  }
 }
 
 /* Cost and constraints with their direct partial derivatives: rows
@@ -195,6 +220,10 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
   int ic = 0;
   for (int t = 0; t < o->n_term; t++) {
     const ocp_terminal *T = &o->term[t];
+    if (T->body >= 0) {
+      body_terminal(o, T, nn, npn, &ic, val, gQ, gp);
+      continue;
+    }
     int ps;
     const long g = final_node(o, T->coord, &ps);
     const double M = m->mass[T->coord];
@@ -373,9 +402,9 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         out[ocp_control_index(o, k, fe)] -=
             fe->coef * mu[ocp_global(o, k, fe->z)];
       }
-    if (o->n_pair > 0)
+    if (o->n_state > 0)
       for (long k = 0; k < N; k++)
-        ocp_pair_gradient(o, k, mu, out);
+        ocp_state_gradient(o, k, mu, out);
   }
   return MRVI_OK;
 }

@@ -18,6 +18,7 @@
 #include <float.h>
 #include <limits.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -115,13 +116,13 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
 
 int ocp_path(const mrvi_ocp *o, char *why, size_t len) {
   const int path = mrvi_sweep_path(o->model, &o->settings, why, len);
-  if (o->n_pair == 0 || path == MRVI_PATH_GENERAL)
+  if (o->n_state == 0 || path == MRVI_PATH_GENERAL)
     return path;
   /* Their forces depend on the positions (the step hook mrvi_step.extra),
    * which only the general path's assembly takes. */
   mrvi_fmt(why, len,
-           "pair actuators: their forces depend on the positions, which "
-           "only the general path assembles");
+           "pair actuators (or actuators on bodies): their forces depend "
+           "on the positions, which only the general path assembles");
   return MRVI_PATH_GENERAL;
 }
 
@@ -172,8 +173,8 @@ int ocp_alloc(mrvi_ocp *o) {
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
-  if (o->n_pair > 0) {
-    o->step.extra = ocp_pair_hook;
+  if (o->n_state > 0) {
+    o->step.extra = ocp_state_hook;
     o->step.extra_ctx = o;
   }
   o->allocated = 1;
@@ -276,6 +277,8 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
   o->act[ia] = (ocp_actuator){.coord = c,
                               .pi = -1,
                               .pj = -1,
+                              .body = -1,
+                              .joint = -1,
                               .grid = grid,
                               .weight = weight,
                               .lower = lower,
@@ -339,9 +342,170 @@ int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
   o->n_force = n_force;
   o->act[ia].pi = pi;
   o->act[ia].pj = pj;
+  const int d = m->dimension;
+  o->act[ia].n_in = 2 * d;
+  for (int k = 0; k < d; k++) {
+    o->act[ia].in[k] = m->particles[pi].first + k;
+    o->act[ia].in[d + k] = m->particles[pj].first + k;
+  }
   mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s",
            m->particles[pi].name, m->particles[pj].name);
-  o->n_pair++; /* the step hook is set in ocp_alloc */
+  o->n_state++; /* the step hook is set in ocp_alloc */
+  return ia;
+}
+
+/* A state-dependent actuator on bodies: the coordinate actuator's
+ * bookkeeping (sizes, bounds, weight) on coordinate c without its force
+ * template; the caller fills the inputs and terms. */
+static int add_state_actuator(mrvi_ocp *o, int c, const char *what,
+                              mrvi_grid grid, double weight, double lower,
+                              double upper) {
+  if (o->ready)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "%s actuators must be added before the first "
+                         "evaluation",
+                         what);
+  const int n_force = o->n_force;
+  const int ia = mrvi_ocp_add_actuator(o, c, grid, weight, lower, upper);
+  if (ia < 0)
+    return ia;
+  o->n_force = n_force;
+  o->n_state++;
+  return ia;
+}
+
+/* Append the D^2 director coordinates of body b to the inputs of A; their
+ * offset in the inputs. */
+static int push_directors(const mrvi_model *m, ocp_actuator *A, int b) {
+  const int D = m->dimension, first = mrvi_model_body_first(m, b) + D;
+  const int off = A->n_in;
+  for (int k = 0; k < D * D; k++)
+    A->in[A->n_in++] = first + k;
+  return off;
+}
+
+static int check_body(mrvi_ocp *o, int b, const char *what) {
+  if (b < 0 || b >= mrvi_model_n_bodies(o->model))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "%s: body index %d out of range (the model has %d)",
+                         what, b, mrvi_model_n_bodies(o->model));
+  return MRVI_OK;
+}
+
+int mrvi_ocp_add_torque_actuator(mrvi_ocp *o, int body, const double *axis,
+                                 int body_frame, mrvi_grid grid, double weight,
+                                 double lower, double upper) {
+  const mrvi_model *m = o->model;
+  int st = check_body(o, body, "torque actuator");
+  if (st < 0)
+    return st;
+  const int D = m->dimension;
+  double n2 = 0.0;
+  for (int k = 0; k < 3; k++) {
+    if (!isfinite(axis[k]))
+      return mrvi_ocp_fail(o, MRVI_EINVAL, "torque actuator: axis not finite");
+    n2 += axis[k] * axis[k];
+  }
+  if (!(n2 > 0.0) || (D == 2 && (axis[0] != 0.0 || axis[1] != 0.0)))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "torque actuator: the axis must be nonzero%s",
+                         D == 2 ? " and along z (a 2-D body turns about the "
+                                  "normal only)"
+                                : "");
+  const int ia = add_state_actuator(o, mrvi_model_body_first(m, body), "torque",
+                                    grid, weight, lower, upper);
+  if (ia < 0)
+    return ia;
+  ocp_actuator *A = &o->act[ia];
+  A->body = body;
+  const int xo = push_directors(m, A, body);
+  A->n_torque = 1;
+  A->torque[0] = (ocp_torque){.x_off = xo, .y_off = -1, .s = 1.0};
+  memcpy(A->torque[0].axis, axis, 3 * sizeof *axis);
+  if (body_frame && D == 3)
+    A->torque[0].y_off = xo;
+  mrvi_fmt(A->name, sizeof A->name, "%s.torque", mrvi_model_body_name(m, body));
+  return ia;
+}
+
+int mrvi_ocp_add_body_force_actuator(mrvi_ocp *o, int body, const double *at,
+                                     const double *direction, mrvi_grid grid,
+                                     double weight, double lower,
+                                     double upper) {
+  const mrvi_model *m = o->model;
+  int st = check_body(o, body, "force actuator");
+  if (st < 0)
+    return st;
+  const int D = m->dimension;
+  double n2 = 0.0;
+  for (int k = 0; k < D; k++) {
+    if (!isfinite(direction[k]) || !isfinite(at ? at[k] : 0.0))
+      return mrvi_ocp_fail(o, MRVI_EINVAL,
+                           "force actuator: point and direction must be "
+                           "finite");
+    n2 += direction[k] * direction[k];
+  }
+  if (!(n2 > 0.0))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "force actuator: the direction must be nonzero");
+  const int first = mrvi_model_body_first(m, body);
+  const int ia =
+      add_state_actuator(o, first, "force", grid, weight, lower, upper);
+  if (ia < 0)
+    return ia;
+  ocp_actuator *A = &o->act[ia];
+  A->body = body;
+  for (int k = 0; k < D * (D + 1); k++)
+    A->in[A->n_in++] = first + k;
+  for (int k = 0; k < D; k++) {
+    A->at[k] = at ? at[k] : 0.0;
+    A->dir[k] = direction[k];
+  }
+  mrvi_fmt(A->name, sizeof A->name, "%s.force", mrvi_model_body_name(m, body));
+  return ia;
+}
+
+int mrvi_ocp_add_joint_torque_actuator(mrvi_ocp *o, int joint, mrvi_grid grid,
+                                       double weight, double lower,
+                                       double upper) {
+  const mrvi_model *m = o->model;
+  if (joint < 0 || joint >= m->n_constraints ||
+      strcmp(m->constraints[joint].type->name, "revolute"))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "joint torque actuator: constraint %d is not a "
+                         "revolute joint",
+                         joint);
+  const mrvi_constraint *C = &m->constraints[joint];
+  const int D = m->dimension, nb = (int)C->params[1];
+  const int bodies[2] = {mrvi_model_body_of(m, C->in[0]),
+                         nb == 2 ? mrvi_model_body_of(m, C->in[D * (D + 1)])
+                                 : -1};
+  const int ia = add_state_actuator(o, C->in[0], "joint torque", grid, weight,
+                                    lower, upper);
+  if (ia < 0)
+    return ia;
+  ocp_actuator *A = &o->act[ia];
+  A->joint = joint;
+  A->body = bodies[0];
+  /* The hinge t_1 in A's frame (parameters of constraints/joint.h: D, the
+   * number of bodies, the two points, then the frame in A's frame). */
+  const double *t1 = C->params + 2 + 2 * D;
+  const int xa = push_directors(m, A, bodies[0]);
+  if (bodies[1] < 0) {
+    /* To the ground: u about the hinge on the body. */
+    A->n_torque = 1;
+    A->torque[0] = (ocp_torque){.x_off = xa, .y_off = xa, .s = 1.0};
+  } else {
+    /* Between A and B: +u on B, -u on A, about the hinge fixed in A. */
+    const int xb = push_directors(m, A, bodies[1]);
+    A->n_torque = 2;
+    A->torque[0] = (ocp_torque){.x_off = xb, .y_off = xa, .s = 1.0};
+    A->torque[1] = (ocp_torque){.x_off = xa, .y_off = xa, .s = -1.0};
+  }
+  for (int t = 0; t < A->n_torque; t++)
+    for (int k = 0; k < D; k++)
+      A->torque[t].axis[D == 3 ? k : 2] = D == 3 ? t1[k] : 1.0;
+  mrvi_fmt(A->name, sizeof A->name, "%s", C->label);
   return ia;
 }
 
@@ -371,8 +535,107 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind, int c,
   if (!t)
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
   o->term = t;
-  o->term[o->n_term++] = (ocp_terminal){kind, c, target, penalty};
+  o->term[o->n_term++] = (ocp_terminal){.kind = kind,
+                                        .coord = c,
+                                        .target = target,
+                                        .penalty = penalty,
+                                        .body = -1};
   return penalty > 0.0 ? 0 : o->n_con++;
+}
+
+int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
+                               int body, const double *target, double penalty) {
+  const mrvi_model *m = o->model;
+  int st = check_body(o, body, "body terminal condition");
+  if (st < 0)
+    return st;
+  const int D = m->dimension, rows = D == 3 ? 3 : 1;
+  if (kind != MRVI_OCP_ATTITUDE && kind != MRVI_OCP_ANGULAR_VELOCITY &&
+      kind != MRVI_OCP_ANGULAR_VELOCITY_BODY)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "body terminal condition: kind %d is not attitude "
+                         "or angular velocity",
+                         (int)kind);
+  const int nt = kind == MRVI_OCP_ATTITUDE ? D * D : rows;
+  for (int k = 0; k < nt; k++)
+    if (!isfinite(target[k]))
+      return mrvi_ocp_fail(o, MRVI_EINVAL,
+                           "body terminal condition: target not finite");
+  if (!(penalty >= 0.0))
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "terminal penalty must be >= 0");
+  if (kind == MRVI_OCP_ATTITUDE) {
+    /* A rotation: R^T R = I within 1e-6, det +1. */
+    double err = 0.0, det;
+    for (int a = 0; a < D; a++)
+      for (int b = 0; b < D; b++) {
+        double s = 0.0;
+        for (int k = 0; k < D; k++)
+          s += target[k * D + a] * target[k * D + b];
+        err = fmax(err, fabs(s - (a == b)));
+      }
+    if (D == 2)
+      det = target[0] * target[3] - target[1] * target[2];
+    else
+      det = target[0] * (target[4] * target[8] - target[5] * target[7]) -
+            target[1] * (target[3] * target[8] - target[5] * target[6]) +
+            target[2] * (target[3] * target[7] - target[4] * target[6]);
+    if (err > 1e-6 || !(det > 0.0))
+      return mrvi_ocp_fail(o, MRVI_EINVAL,
+                           "body terminal attitude: the target is not a "
+                           "rotation (|R^T R - I| = %.3g, det %.6g)",
+                           err, det);
+  }
+  ocp_terminal *t = realloc(o->term, (size_t)(o->n_term + rows) * sizeof *t);
+  if (!t)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  o->term = t;
+  const int first = o->n_con;
+  for (int r = 0; r < rows; r++) {
+    ocp_terminal T = {.kind = kind,
+                      .coord = mrvi_model_body_first(m, body),
+                      .penalty = penalty,
+                      .body = body,
+                      .row = r};
+    if (kind == MRVI_OCP_ATTITUDE)
+      memcpy(T.R_target, target, (size_t)(D * D) * sizeof *target);
+    else
+      T.target = target[r];
+    o->term[o->n_term++] = T;
+    if (penalty == 0.0)
+      o->n_con++;
+  }
+  if (penalty > 0.0)
+    return 0;
+  /* Rows the constraints already impose (a jointed body has fewer than
+   * three rotations) would make the constraint Jacobian of the optimiser
+   * rank-deficient: refused, with the joints of the body named. */
+  const int bad = ocp_terminal_redundant(o, o->n_term - rows);
+  if (bad == -1)
+    return first;
+  o->n_term -= rows;
+  o->n_con = first;
+  if (bad == -2)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  char names[300] = "";
+  size_t used = 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *C = &m->constraints[c];
+    int touches = 0;
+    for (int j = 0; j < C->n_in && !touches; j++)
+      touches = mrvi_model_body_of(m, C->in[j]) == body;
+    if (touches && c != m->bodies[body].constraint && used < sizeof names)
+      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                               used ? ", " : "", C->label);
+  }
+  return mrvi_ocp_fail(
+      o, MRVI_EINVAL,
+      "terminal %s of body '%s': row %d is implied by %s%s and the "
+      "conditions before it (redundant: the body has fewer free %s); give "
+      "it a penalty instead",
+      kind == MRVI_OCP_ATTITUDE ? "attitude" : "angular velocity",
+      mrvi_model_body_name(m, body), o->term[bad].row,
+      used ? "its joints " : "the constraints", names,
+      kind == MRVI_OCP_ATTITUDE ? "rotations" : "angular velocities");
 }
 
 void mrvi_ocp_set_algorithm(mrvi_ocp *o, mrvi_ocp_algorithm a) {
@@ -416,13 +679,36 @@ int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a) {
   return (int)o->act[a].grid;
 }
 int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a) {
-  return o->act[a].pi >= 0 ? -1 : o->act[a].coord;
+  return o->act[a].n_in > 0 ? -1 : o->act[a].coord;
 }
+const char *mrvi_ocp_actuator_kind(const mrvi_ocp *o, int a) {
+  const ocp_actuator *A = &o->act[a];
+  if (A->n_in == 0)
+    return "coordinate";
+  if (A->pi >= 0)
+    return "pair";
+  if (A->joint >= 0)
+    return "joint_torque";
+  return A->n_torque > 0 ? "torque" : "force";
+}
+int mrvi_ocp_actuator_body(const mrvi_ocp *o, int a) { return o->act[a].body; }
 void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj) {
   *pi = o->act[a].pi;
   *pj = o->act[a].pj;
 }
 int mrvi_ocp_n_terminals(const mrvi_ocp *o) { return o->n_term; }
+const char *mrvi_ocp_terminal_kind_name(mrvi_ocp_terminal_kind kind) {
+  static const char *const names[] = {"position", "velocity", "attitude",
+                                      "angular_velocity",
+                                      "angular_velocity_body"};
+  return kind >= 0 && kind <= MRVI_OCP_ANGULAR_VELOCITY_BODY ? names[kind]
+                                                             : "unknown";
+}
+int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row) {
+  if (row)
+    *row = o->term[i].row;
+  return o->term[i].body;
+}
 void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
                        int *coordinate, double *target, double *penalty) {
   const ocp_terminal *t = &o->term[i];
@@ -723,8 +1009,8 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     }
     memcpy(o->Lam + k * o->nl, o->x + st->n_unknowns,
            (size_t)o->nl * sizeof(double));
-    if (o->n_pair > 0)
-      ocp_pair_end_forces(o, k, u);
+    if (o->n_state > 0)
+      ocp_state_end_forces(o, k, u);
     mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
     mrvi_step_micro_residuals(st, o->R, o->cres_micro + k * p);
     store_step(o, k, o->x, o->x + ns, o->ps1, o->pf1);

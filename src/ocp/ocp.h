@@ -7,7 +7,8 @@
  *   p_{k+1} = D_2 L_d + f_k^+.
  * Controls are piecewise constant on the macro grid (slow actuator) or the
  * micro grid (fast actuator) and act along one generalised coordinate (or,
- * pair actuators, along the line between two particles); the
+ * pair actuators, along the line between two particles; or as torques and
+ * forces on rigid bodies); the
  * discrete forces f^+- are the exact virtual work of that force along the
  * linearly interpolated path of the coordinate.  Single shooting over the
  * controls with gradients from the exact discrete adjoint, optimised with
@@ -34,10 +35,14 @@ typedef enum mrvi_ocp_algorithm {
   MRVI_OCP_AUGLAG_CCSAQ = 3  /* augmented Lagrangian, CCSAQ inner solver */
 } mrvi_ocp_algorithm;
 
-/* Terminal quantity of a coordinate. */
+/* Terminal quantity of a coordinate or (mrvi_ocp_add_body_terminal) of a
+ * rigid body. */
 typedef enum mrvi_ocp_terminal_kind {
-  MRVI_OCP_POSITION = 0, /* q_N */
-  MRVI_OCP_VELOCITY = 1  /* p_N / M (final discrete momentum) */
+  MRVI_OCP_POSITION = 0,             /* q_N */
+  MRVI_OCP_VELOCITY = 1,             /* p_N / M (final discrete momentum) */
+  MRVI_OCP_ATTITUDE = 2,             /* rotation vector of R_target^T R_N */
+  MRVI_OCP_ANGULAR_VELOCITY = 3,     /* omega_N in space */
+  MRVI_OCP_ANGULAR_VELOCITY_BODY = 4 /* Omega_N = R_N^T omega_N */
 } mrvi_ocp_terminal_kind;
 
 /* Create a problem on model m (must outlive it; no constraints yet) with the
@@ -65,6 +70,28 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int coordinate, mrvi_grid grid,
 int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int particle_i, int particle_j,
                                mrvi_grid grid, double weight, double lower,
                                double upper);
+/* Actuators on rigid bodies (doc/optimal-control.md, "Bodies"); weight,
+ * bounds and grid as for mrvi_ocp_add_actuator, added before the first
+ * evaluation; they return the actuator index.
+ * Torque u axis on body `body`: axis (3 entries, nonzero) in space, or
+ * (body_frame = 1) fixed in the body, components along d_1 d_2 d_3; 2-D:
+ * axis = (0, 0, a), the torque u a about the normal.  It acts on the
+ * directors as f_{d_i} = 1/2 tau x d_i.  Default name "BODY.torque". */
+int mrvi_ocp_add_torque_actuator(mrvi_ocp *o, int body, const double *axis,
+                                 int body_frame, mrvi_grid grid, double weight,
+                                 double lower, double upper);
+/* Force u direction (space, D entries, nonzero) at the body point with
+ * body-frame components `at` (D entries; NULL: the centre of mass).
+ * Default name "BODY.force". */
+int mrvi_ocp_add_body_force_actuator(mrvi_ocp *o, int body, const double *at,
+                                     const double *direction, mrvi_grid grid,
+                                     double weight, double lower, double upper);
+/* Torque u about the hinge of revolute joint `joint` (its constraint
+ * index): +u on the second body, -u on the first (to the ground: +u on the
+ * body), the hinge fixed in the first body.  Default name: the joint's. */
+int mrvi_ocp_add_joint_torque_actuator(mrvi_ocp *o, int joint, mrvi_grid grid,
+                                       double weight, double lower,
+                                       double upper);
 /* Running tracking term 1/2 int weight (q_c - ref)^2 dt, integrated exactly
  * along the linearly interpolated path on the coordinate's grid. */
 int mrvi_ocp_add_tracking(mrvi_ocp *o, int coordinate, double weight,
@@ -75,6 +102,16 @@ int mrvi_ocp_add_tracking(mrvi_ocp *o, int coordinate, double weight,
  * constraint index (>= 0) or, for a penalty, 0. */
 int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
                           int coordinate, double target, double penalty);
+
+/* Terminal condition on rigid body `body`: kind MRVI_OCP_ATTITUDE (target
+ * a rotation, D x D row-major; the rows are the rotation vector of
+ * R_target^T R_N, defined for angles below pi) or MRVI_OCP_ANGULAR_VELOCITY
+ * (_BODY) (target: omega in space, or in the body frame; 3 entries, 2-D:
+ * 1), with omega from the final discrete momenta.  Three rows in 3-D, one
+ * in 2-D, each an equality (penalty = 0) or a penalty term.  Returns the
+ * index of the first constraint row, or 0 for penalties. */
+int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
+                               int body, const double *target, double penalty);
 
 /* Solver settings: algorithm, relative tolerance on the cost (default
  * 1e-12), terminal tolerance (default 1e-8, also the NLopt constraint
@@ -159,12 +196,24 @@ int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a);
  * particles of a pair actuator (-1, -1 otherwise). */
 int mrvi_ocp_actuator_coordinate(const mrvi_ocp *o, int a);
 void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj);
-/* Terminal conditions (equalities and penalties, in the order added): their
- * number, and kind, coordinate, target and penalty (0: equality) of
- * condition i (any output pointer may be NULL). */
+/* Kind of actuator a: "coordinate", "pair", "torque", "force",
+ * "joint_torque"; the body of a torque or force actuator and the first
+ * body of a joint torque (-1 otherwise). */
+const char *mrvi_ocp_actuator_kind(const mrvi_ocp *o, int a);
+int mrvi_ocp_actuator_body(const mrvi_ocp *o, int a);
+/* Terminal conditions (equalities and penalties, in the order added, one
+ * per row of a body condition): their number, and kind, coordinate (a
+ * body's first coordinate for the body kinds), target (0 for an attitude
+ * row) and penalty (0: equality) of condition i (any output pointer may be
+ * NULL). */
 int mrvi_ocp_n_terminals(const mrvi_ocp *o);
 void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
                        int *coordinate, double *target, double *penalty);
+/* Name of a terminal kind ("position", "velocity", "attitude",
+ * "angular_velocity", "angular_velocity_body"); body of terminal condition
+ * i (-1 for a coordinate) and its row (0..2) in the body's condition. */
+const char *mrvi_ocp_terminal_kind_name(mrvi_ocp_terminal_kind kind);
+int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row);
 /* Name of an algorithm ("slsqp", "auglag-lbfgs", "auglag-mma",
  * "auglag-ccsaq"); the problem's algorithm and terminal tolerance. */
 const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);

@@ -17,10 +17,31 @@ int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
                    mrvi_override_of override_of, const void *ctx,
                    mrvi_ocp **out, double **u0, char *msg, size_t len);
 
+/* Inputs of a state-dependent actuator (at most two 3-D bodies). */
+#define OCP_MAX_IN 24
+
+/* A torque term (state_forces.c) on the directors at inputs x_off.. of an
+ * actuator: sign s, axis in space (y_off < 0) or fixed in the body whose
+ * directors are at inputs y_off.. (axis = its components along them);
+ * 2-D: the scalar torque s axis[2]. */
+typedef struct ocp_torque {
+  int x_off, y_off;
+  double s, axis[3];
+} ocp_torque;
+
 typedef struct ocp_actuator {
-  int coord;      /* model index (pair: particle i's first coordinate) */
-  int pi, pj;     /* pair actuator: particles i, j; -1 otherwise */
-  mrvi_grid grid; /* MRVI_GRID_MACRO or MRVI_GRID_MICRO */
+  int coord;  /* model index (pair: particle i's first coordinate) */
+  int pi, pj; /* pair actuator: particles i, j; -1 otherwise */
+  /* State-dependent actuators (pair, torque, body force, joint torque;
+   * state_forces.c): their model input coordinates (n_in = 0: a
+   * coordinate actuator), torque terms, or (no torque term) the body
+   * force's point `at` (body frame) and direction `dir` (space). */
+  int n_in, in[OCP_MAX_IN];
+  int n_torque;
+  ocp_torque torque[2];
+  double at[3], dir[3];
+  int body, joint; /* body (torque, force) or joint constraint; -1 */
+  mrvi_grid grid;  /* MRVI_GRID_MACRO or MRVI_GRID_MICRO */
   double weight, lower, upper;
   int offset, size; /* in the control vector */
   char name[64];    /* default: the coordinate's name */
@@ -33,8 +54,12 @@ typedef struct ocp_tracking {
 
 typedef struct ocp_terminal {
   mrvi_ocp_terminal_kind kind;
-  int coord;
+  int coord;              /* coordinate; a body's first for body kinds */
   double target, penalty; /* penalty 0: equality constraint */
+  /* Body kinds (attitude, angular velocity): body, row (0..2), target
+   * rotation (D x D row-major; attitude). */
+  int body, row;
+  double R_target[9];
 } ocp_terminal;
 
 /* One entry of the linear map u -> node forces of a step: z index (layout
@@ -59,9 +84,9 @@ struct mrvi_ocp {
   /* Forces of a step (same template every step). */
   int n_force;
   ocp_force *force;
-  /* Pair actuators (pair.c): their number, and the controls and step of
-   * the forward sweep for the step hook. */
-  int n_pair;
+  /* State-dependent actuators (state_forces.c): their number, and the controls
+   * and step of the forward sweep for the step hook. */
+  int n_state;
   const double *u_cur;
   long k_cur;
   /* Step solver.  The forward pass takes the path the integrator would
@@ -157,21 +182,33 @@ static inline int ocp_znodes(const mrvi_ocp *o, int idx, const mrvi_point *pt,
   }
   return 2;
 }
-/* Pair-force actuators (pair.c, doc/optimal-control.md).  Step hook
+/* State-dependent actuators: pair forces, body torques and forces, joint
+ * torques (state_forces.c, doc/optimal-control.md).  Step hook
  * (mrvi_step.extra): their forces f^- on the residual rows of step o->k_cur
  * at x and their derivatives. */
-void ocp_pair_hook(void *ctx, mrvi_step *st, const double *x, double *R,
-                   int jac);
+void ocp_state_hook(void *ctx, mrvi_step *st, const double *x, double *R,
+                    int jac);
 /* After convergence of step k at o->x under controls u: their f^+ into
  * o->f_end (end nodes) and o->f_plus (fast nodes 1..p). */
-void ocp_pair_end_forces(mrvi_ocp *o, long k, const double *u);
+void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u);
 /* Their second derivatives in the step's nodes added to the dense step
  * Jacobian J (nv x nv) of step k at the stored trajectory (controls
  * o->u_cur). */
-void ocp_pair_jacobian(const mrvi_ocp *o, long k, double *J);
-/* out[control] -= mu^T d(forces of step k)/du for every pair control of
+void ocp_state_jacobian(const mrvi_ocp *o, long k, double *J);
+/* Value of body terminal condition T at the final nodes; its derivatives in
+ * the final positions gq and momenta gp of the body's D (D + 1)
+ * coordinates (body_terminal.c). */
+double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
+                         const double *q, const double *p, double *gq,
+                         double *gp);
+/* The first equality terminal condition at index >= first implied, to first
+ * order at the initial state, by the model's constraints (positions: G q' =
+ * 0; momenta: the hidden constraints G M^-1 p = 0) and the conditions before
+ * it, or -1 (-2: out of memory) (body_terminal.c). */
+int ocp_terminal_redundant(const mrvi_ocp *o, int first);
+/* out[control] -= mu^T d(forces of step k)/du for every state control of
  * step k (mu: global node adjoints). */
-void ocp_pair_gradient(const mrvi_ocp *o, long k, const double *mu,
-                       double *out);
+void ocp_state_gradient(const mrvi_ocp *o, long k, const double *mu,
+                        double *out);
 
 #endif

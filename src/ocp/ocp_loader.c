@@ -2,10 +2,13 @@
  * keys in doc/description-files.md):
  *
  *   control:
- *     actuators:    [{name, coordinate | pair: [particle, particle],
- *                     grid: macro|micro, weight, lower, upper, initial}]
+ *     actuators:    [{name, coordinate | pair: [particle, particle] |
+ *                     body + torque [+ frame] | body + force [+ at] |
+ *                     joint, grid: macro|micro, weight, lower, upper,
+ *                     initial}]
  *     tracking:     [{coordinate, weight, reference}]
- *     terminal:     [{coordinate, position, velocity, penalty}]
+ *     terminal:     [{coordinate, position, velocity, penalty} |
+ *                    {body, attitude, angular_velocity, frame, penalty}]
  *     solver:       {algorithm, tolerance, terminal_tolerance,
  *                    max_evaluations}
  *
@@ -244,15 +247,194 @@ static int pair(parser *P, struct fy_node *map, const char *where, int *pi,
   return st;
 }
 
+/* A list of n finite numbers at node v. */
+static int vector(parser *P, struct fy_node *v, const char *where,
+                  const char *key, int n, double *out) {
+  if (!v || !fy_node_is_sequence(v) || fy_node_sequence_item_count(v) != n)
+    return fail(P, v, "%s.%s must be a list of %d numbers", where, key, n);
+  for (int i = 0; i < n; i++) {
+    struct fy_node *e = fy_node_sequence_get_by_index(v, i);
+    const char *s = fy_node_is_scalar(e) ? fy_node_get_scalar0(e) : NULL;
+    char *end = NULL;
+    out[i] = s ? strtod(s, &end) : NAN;
+    if (!s || end == s || *end || !isfinite(out[i]))
+      return fail(P, e, "%s.%s: entry %d must be a finite number", where, key,
+                  i);
+  }
+  return MRVI_OK;
+}
+
+/* A number, or a list of n numbers, at node v (a 2-D torque or angular
+ * velocity may be written as a number). */
+static int number_or_vector(parser *P, struct fy_node *v, const char *where,
+                            const char *key, int n, double *out) {
+  if (v && fy_node_is_scalar(v) && n == 1) {
+    char *end = NULL;
+    const char *s = fy_node_get_scalar0(v);
+    out[0] = strtod(s, &end);
+    if (end == s || *end || !isfinite(out[0]))
+      return fail(P, v, "%s.%s must be a finite number", where, key);
+    return MRVI_OK;
+  }
+  return vector(P, v, where, key, n, out);
+}
+
+/* The body named at map["body"] (required). */
+static int body_named(parser *P, struct fy_node *map, const char *where,
+                      int *b) {
+  struct fy_node *n = get(map, "body");
+  const char *s = n && fy_node_is_scalar(n) ? fy_node_get_scalar0(n) : NULL;
+  if (!n)
+    return fail(P, map, "%s needs a 'body'", where);
+  const mrvi_model *m = P->m;
+  *b = s ? mrvi_model_find_body(m, s) : -1;
+  if (*b >= 0)
+    return MRVI_OK;
+  const int nb = mrvi_model_n_bodies(m);
+  const char **names = malloc((size_t)(nb + 1) * sizeof *names);
+  const char *close = NULL;
+  if (names) {
+    for (int i = 0; i < nb; i++)
+      names[i] = mrvi_model_body_name(m, i);
+    close = s && nb ? mrvi_closest(s, names, nb) : NULL;
+  }
+  char hint[160] = "";
+  if (close)
+    mrvi_fmt(hint, sizeof hint, "; did you mean '%s'?", close);
+  else if (nb == 0)
+    mrvi_fmt(hint, sizeof hint, " (the model has no bodies)");
+  const int st =
+      fail(P, n, "unknown body '%s' in %s%s", s ? s : "?", where, hint);
+  free(names);
+  return st;
+}
+
+/* The revolute joint named at map["joint"]: its constraint index. */
+static int joint_named(parser *P, struct fy_node *map, const char *where,
+                       int *j) {
+  struct fy_node *n = get(map, "joint");
+  const char *s = fy_node_is_scalar(n) ? fy_node_get_scalar0(n) : NULL;
+  const mrvi_model *m = P->m;
+  *j = -1;
+  for (int c = 0; s && c < m->n_constraints && *j < 0; c++)
+    if (!strcmp(s, m->constraints[c].label))
+      *j = c;
+  if (*j < 0)
+    return fail(P, n,
+                "unknown joint '%s' in %s.joint (a joint's name, or "
+                "its label 'revolute A-B' as `mrvi check` lists it)",
+                s ? s : "?", where);
+  if (strcmp(m->constraints[*j].type->name, "revolute"))
+    return fail(P, n,
+                "%s.joint: '%s' is a %s joint; a joint torque needs a "
+                "revolute joint",
+                where, s, m->constraints[*j].type->name);
+  return MRVI_OK;
+}
+
+/* A frame key: "space" (default) or "body"; *body gets 1 for "body". */
+static int frame_of(parser *P, struct fy_node *map, const char *where,
+                    int *body) {
+  struct fy_node *n = get(map, "frame");
+  const char *s = n && fy_node_is_scalar(n) ? fy_node_get_scalar0(n) : "";
+  *body = 0;
+  if (!n || !strcmp(s, "space"))
+    return MRVI_OK;
+  if (!strcmp(s, "body")) {
+    *body = 1;
+    return MRVI_OK;
+  }
+  return fail(P, n, "%s.frame must be 'space' or 'body', not '%s'", where, s);
+}
+
+/* A state-dependent actuator on bodies (torque, force or joint torque);
+ * -1 (no failure) when the item is a coordinate or pair actuator. */
+static int body_actuator(parser *P, struct fy_node *item, const char *where,
+                         mrvi_ocp *o, mrvi_grid grid, double w, double lo,
+                         double hi, int *a) {
+  static const char *const kinds[] = {"coordinate", "pair", "torque", "force",
+                                      "joint"};
+  int n_given = 0;
+  for (int k = 0; k < 5; k++)
+    if (get(item, kinds[k])) {
+      if (n_given++)
+        return fail(P, get(item, kinds[k]),
+                    "%s: give one of 'coordinate', 'pair', 'torque' (with "
+                    "'body'), 'force' (with 'body') or 'joint'",
+                    where);
+    }
+  const int torque = get(item, "torque") != NULL;
+  const int force = get(item, "force") != NULL;
+  const int joint = get(item, "joint") != NULL;
+  if (!torque && !force && !joint) {
+    static const char *const only[] = {"body", "frame", "at"};
+    for (int k = 0; k < 3; k++)
+      if (get(item, only[k]))
+        return fail(P, get(item, only[k]),
+                    "%s.%s belongs to a 'torque' or 'force' actuator", where,
+                    only[k]);
+    *a = -1;
+    return MRVI_OK;
+  }
+  const int D = P->m->dimension;
+  int st, b = -1, frame = 0;
+  if (joint) {
+    if (get(item, "body") || get(item, "frame") || get(item, "at"))
+      return fail(P,
+                  or_item(get(item, "body"),
+                          or_item(get(item, "frame"), get(item, "at"))),
+                  "%s: a joint torque takes the joint's bodies and hinge; "
+                  "no 'body', 'frame' or 'at'",
+                  where);
+    int j;
+    if ((st = joint_named(P, item, where, &j)))
+      return st;
+    *a = mrvi_ocp_add_joint_torque_actuator(o, j, grid, w, lo, hi);
+  } else if (torque) {
+    double ax[3] = {0, 0, 0};
+    if (get(item, "at"))
+      return fail(P, get(item, "at"),
+                  "%s.at belongs to a 'force' actuator (a torque acts on the "
+                  "body as a whole)",
+                  where);
+    if ((st = body_named(P, item, where, &b)) ||
+        (st = frame_of(P, item, where, &frame)) ||
+        (st = D == 3 ? vector(P, get(item, "torque"), where, "torque", 3, ax)
+                     : number_or_vector(P, get(item, "torque"), where, "torque",
+                                        1, ax + 2)))
+      return st;
+    *a = mrvi_ocp_add_torque_actuator(o, b, ax, frame, grid, w, lo, hi);
+    if (*a < 0)
+      return fail(P, get(item, "torque"), "%s: %s", where, mrvi_ocp_errmsg(o));
+  } else {
+    double dir[3], at[3] = {0, 0, 0};
+    if (get(item, "frame"))
+      return fail(P, get(item, "frame"),
+                  "%s.frame: a force actuator's direction is in space", where);
+    if ((st = body_named(P, item, where, &b)) ||
+        (st = vector(P, get(item, "force"), where, "force", D, dir)) ||
+        (get(item, "at") &&
+         (st = vector(P, get(item, "at"), where, "at", D, at))))
+      return st;
+    *a = mrvi_ocp_add_body_force_actuator(o, b, at, dir, grid, w, lo, hi);
+    if (*a < 0)
+      return fail(P, get(item, "force"), "%s: %s", where, mrvi_ocp_errmsg(o));
+  }
+  if (*a < 0)
+    return fail(P, item, "%s: %s", where, mrvi_ocp_errmsg(o));
+  return MRVI_OK;
+}
+
 static const char *const control_keys[] = {"actuators", "tracking", "terminal",
                                            "solver"};
-static const char *const actuator_keys[] = {"name",  "coordinate", "pair",
-                                            "grid",  "weight",     "lower",
-                                            "upper", "initial"};
+static const char *const actuator_keys[] = {
+    "name",    "coordinate", "pair",   "grid",  "weight", "lower", "upper",
+    "initial", "body",       "torque", "frame", "force",  "at",    "joint"};
 static const char *const tracking_keys[] = {"coordinate", "weight",
                                             "reference"};
-static const char *const terminal_keys[] = {"coordinate", "position",
-                                            "velocity", "penalty"};
+static const char *const terminal_keys[] = {
+    "coordinate", "position", "velocity",         "penalty",
+    "body",       "attitude", "angular_velocity", "frame"};
 static const char *const solver_keys[] = {
     "algorithm", "tolerance", "terminal_tolerance", "max_evaluations"};
 
@@ -273,8 +455,11 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
       return st;
     int c = -1, pi = -1, pj = -1;
     double w = 1.0, lo = -HUGE_VAL, hi = HUGE_VAL, u0 = 0.0;
-    if ((st = get(item, "pair") ? pair(P, item, where, &pi, &pj)
-                                : coordinate(P, item, where, &c)) ||
+    const int on_body = get(item, "torque") || get(item, "force") ||
+                        get(item, "joint") || get(item, "body");
+    if ((st = on_body             ? MRVI_OK
+              : get(item, "pair") ? pair(P, item, where, &pi, &pj)
+                                  : coordinate(P, item, where, &c)) ||
         (st = number(P, item, "weight", where, &w)) ||
         (st = number_of(P, item, "lower", where, 1, &lo)) ||
         (st = number_of(P, item, "upper", where, 1, &hi)) ||
@@ -300,9 +485,12 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
     if (u0 < lo || u0 > hi)
       return fail(P, or_item(get(item, "initial"), item),
                   "%s: initial value %g outside [%g, %g]", where, u0, lo, hi);
-    const int a = pi >= 0
-                      ? mrvi_ocp_add_pair_actuator(o, pi, pj, grid, w, lo, hi)
-                      : mrvi_ocp_add_actuator(o, c, grid, w, lo, hi);
+    int a = -1;
+    if ((st = body_actuator(P, item, where, o, grid, w, lo, hi, &a)))
+      return st;
+    if (a < 0)
+      a = pi >= 0 ? mrvi_ocp_add_pair_actuator(o, pi, pj, grid, w, lo, hi)
+                  : mrvi_ocp_add_actuator(o, c, grid, w, lo, hi);
     if (a < 0)
       return fail(P, item, "%s: %s", where, mrvi_ocp_errmsg(o));
     struct fy_node *nn = get(item, "name");
@@ -318,8 +506,8 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
                     "control.actuators[%d]%s",
                     where, o->act[a].name, b,
                     nn ? ""
-                       : " (the default name is the coordinate's; give "
-                         "a 'name')");
+                       : " (a default name: the coordinate's, 'BODY.torque', "
+                         "'BODY.force' or the joint's; give a 'name')");
     initial[a] = u0;
     i++;
   }
@@ -372,6 +560,119 @@ static int conflict(parser *P, const mrvi_ocp *o, struct fy_node *item,
   return MRVI_OK;
 }
 
+/* A target attitude: 3-D the rows of a rotation matrix or {axis, angle};
+ * 2-D an angle or the rows of a 2 x 2 rotation matrix. */
+static int attitude_target(parser *P, struct fy_node *n, const char *where,
+                           int D, double *R) {
+  if (D == 2 && fy_node_is_scalar(n)) {
+    double a;
+    int st = number_or_vector(P, n, where, "attitude", 1, &a);
+    if (st)
+      return st;
+    R[0] = cos(a), R[1] = -sin(a), R[2] = sin(a), R[3] = cos(a);
+    return MRVI_OK;
+  }
+  if (D == 3 && fy_node_is_mapping(n)) {
+    static const char *const keys[] = {"axis", "angle"};
+    double k[3], a = NAN;
+    char w2[80];
+    mrvi_fmt(w2, sizeof w2, "%s.attitude", where);
+    int st = check_keys(P, n, w2, keys, 2);
+    if (st || (st = vector(P, get(n, "axis"), w2, "axis", 3, k)) ||
+        (st = number(P, n, "angle", w2, &a)))
+      return st;
+    const double nk = sqrt(k[0] * k[0] + k[1] * k[1] + k[2] * k[2]);
+    if (!(nk > 0.0))
+      return fail(P, get(n, "axis"), "%s.axis must not be zero", w2);
+    if (isnan(a))
+      return fail(P, n, "%s needs an 'angle' (radians)", w2);
+    for (int i = 0; i < 3; i++)
+      k[i] /= nk;
+    const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
+    for (int i = 0; i < 3; i++)
+      for (int j = 0; j < 3; j++) {
+        double K2 = 0.0;
+        for (int l = 0; l < 3; l++)
+          K2 += K[i * 3 + l] * K[l * 3 + j];
+        R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
+      }
+    return MRVI_OK;
+  }
+  if (!fy_node_is_sequence(n) || fy_node_sequence_item_count(n) != D)
+    return fail(P, n,
+                "%s.attitude: a %d x %d rotation matrix is %d rows of %d "
+                "numbers, or %s",
+                where, D, D, D, D,
+                D == 3 ? "{axis: [x, y, z], angle: radians}"
+                       : "an angle in radians");
+  for (int i = 0; i < D; i++) {
+    int st = vector(P, fy_node_sequence_get_by_index(n, i), where,
+                    "attitude row", D, R + i * D);
+    if (st)
+      return st;
+  }
+  return MRVI_OK;
+}
+
+/* {body, attitude, angular_velocity, frame, penalty}. */
+static int body_terminal(parser *P, struct fy_node *item, const char *where,
+                         mrvi_ocp *o) {
+  static const char *const coord_only[] = {"coordinate", "position",
+                                           "velocity"};
+  for (int k = 0; k < 3; k++)
+    if (get(item, coord_only[k]))
+      return fail(P, get(item, coord_only[k]),
+                  "%s: '%s' is a condition on a coordinate; a body takes "
+                  "'attitude' and 'angular_velocity'",
+                  where, coord_only[k]);
+  const int D = P->m->dimension;
+  int b, frame = 0, st;
+  double pen = 0.0, R[9], w[3];
+  struct fy_node *an = get(item, "attitude"),
+                 *wn = get(item, "angular_velocity");
+  if ((st = body_named(P, item, where, &b)) ||
+      (st = frame_of(P, item, where, &frame)) ||
+      (st = number(P, item, "penalty", where, &pen)))
+    return st;
+  if (!an && !wn)
+    return fail(P, item, "%s needs 'attitude' and/or 'angular_velocity'",
+                where);
+  if (get(item, "frame") && !wn)
+    return fail(P, get(item, "frame"),
+                "%s.frame is the frame of 'angular_velocity'", where);
+  if (!(pen >= 0.0))
+    return fail(P, get(item, "penalty"), "%s.penalty must be >= 0", where);
+  /* A second condition of a kind on the same body (either frame for the
+   * angular velocity) repeats or contradicts the first. */
+  for (int i = 0; i < o->n_term; i++) {
+    const ocp_terminal *T = &o->term[i];
+    const int att = T->kind == MRVI_OCP_ATTITUDE;
+    if (T->body == b && ((att && an) || (!att && wn)))
+      return fail(P, att ? an : wn,
+                  "%s: a second terminal %s of body '%s': the conditions "
+                  "are redundant or conflict",
+                  where, att ? "attitude" : "angular velocity",
+                  mrvi_model_body_name(P->m, b));
+  }
+  if (an) {
+    if ((st = attitude_target(P, an, where, D, R)))
+      return st;
+    if (mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, b, R, pen) < 0)
+      return fail(P, an, "%s: %s", where, mrvi_ocp_errmsg(o));
+  }
+  if (wn) {
+    if ((st = number_or_vector(P, wn, where, "angular_velocity", D == 3 ? 3 : 1,
+                               w)))
+      return st;
+    if (mrvi_ocp_add_body_terminal(o,
+                                   frame ? MRVI_OCP_ANGULAR_VELOCITY_BODY
+                                         : MRVI_OCP_ANGULAR_VELOCITY,
+                                   b, w, pen) < 0)
+      return fail(P, wn, "%s: %s", where, mrvi_ocp_errmsg(o));
+  }
+  return MRVI_OK;
+}
+
 static int load_terminal(parser *P, struct fy_node *list, mrvi_ocp *o) {
   if (!list)
     return MRVI_OK;
@@ -385,9 +686,21 @@ static int load_terminal(parser *P, struct fy_node *list, mrvi_ocp *o) {
     mrvi_fmt(where, sizeof where, "control.terminal[%d]", i++);
     int c;
     double pos = NAN, vel = NAN, pen = 0.0;
-    if ((st =
-             check_keys(P, item, where, terminal_keys, NKEYS(terminal_keys))) ||
-        (st = coordinate(P, item, where, &c)) ||
+    if ((st = check_keys(P, item, where, terminal_keys, NKEYS(terminal_keys))))
+      return st;
+    if (get(item, "body")) {
+      if ((st = body_terminal(P, item, where, o)))
+        return st;
+      continue;
+    }
+    static const char *const body_only[] = {"attitude", "angular_velocity",
+                                            "frame"};
+    for (int k = 0; k < 3; k++)
+      if (get(item, body_only[k]))
+        return fail(P, get(item, body_only[k]),
+                    "%s.%s is a terminal condition on a body: give 'body'",
+                    where, body_only[k]);
+    if ((st = coordinate(P, item, where, &c)) ||
         (st = number(P, item, "position", where, &pos)) ||
         (st = number(P, item, "velocity", where, &vel)) ||
         (st = number(P, item, "penalty", where, &pen)))

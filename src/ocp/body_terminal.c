@@ -1,0 +1,258 @@
+/* Terminal conditions on rigid bodies (doc/optimal-control.md, "Bodies"):
+ * the attitude as the rotation vector of R_target^T R_N (three rows; 2-D:
+ * the angle) and the angular velocity from the final discrete momenta
+ * (three rows in space or in the body frame; 2-D: one), with their exact
+ * derivatives in the final positions and momenta for the adjoint.
+ *
+ * Attitude: A = R_target^T R with A_ab = t_a . d_b (t_a the columns of
+ * R_target).  With c = (tr A - 1)/2 = cos(theta) and s = vee(A - A^T)/2 =
+ * sin(theta) n, the rotation vector is v = k s, k = atan2(|s|, c)/|s|,
+ * defined as a function of A alone (smooth for angles below pi), so
+ *   dv = k ds + s ((dk/dsigma)/sigma (s . ds) + dk/dc dc),  sigma = |s|.
+ *
+ * Angular velocity: the body's angular momentum about its centre of mass
+ * L = sum_i d_i x p_{d_i} is the momentum map of the rotations (blind to
+ * the internal constraints' forces), and L = R J Omega for a rigid motion
+ * (d_i' = omega x d_i, p_{d_i} = E_i d_i', J_i = E_j + E_k), hence
+ *   Omega_r = d_r . L / J_r (body frame),  omega = sum_r Omega_r d_r. */
+#include "ocp/ocp_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Rotation vector row r of A (3 x 3) and its derivative GA[a b] = dv_r/dA_ab.
+ */
+static double rotvec_row(const double *A, int r, double *GA) {
+  const double c = 0.5 * (A[0] + A[4] + A[8] - 1.0);
+  const double s[3] = {0.5 * (A[7] - A[5]), 0.5 * (A[2] - A[6]),
+                       0.5 * (A[3] - A[1])};
+  const double sig = sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+  const double rho2 = sig * sig + c * c, th = atan2(sig, c);
+  double k, ks, kc = -1.0 / rho2; /* ks = (dk/dsigma)/sigma */
+  if (sig < 1e-3 && c > 0.0) {
+    /* Series in sigma (the closed form cancels): k = 1/c - sigma^2/(3c^3). */
+    k = 1.0 / c - sig * sig / (3.0 * c * c * c);
+    ks = -2.0 / (3.0 * c * c * c);
+  } else {
+    k = th / sig;
+    ks = (c * sig / rho2 - th) / (sig * sig * sig);
+  }
+  double w[3];
+  for (int q = 0; q < 3; q++)
+    w[q] = (q == r ? k : 0.0) + s[r] * ks * s[q];
+  memset(GA, 0, 9 * sizeof *GA);
+  GA[7] += 0.5 * w[0];
+  GA[5] -= 0.5 * w[0];
+  GA[2] += 0.5 * w[1];
+  GA[6] -= 0.5 * w[1];
+  GA[3] += 0.5 * w[2];
+  GA[1] -= 0.5 * w[2];
+  for (int a = 0; a < 3; a++)
+    GA[4 * a] += 0.5 * s[r] * kc;
+  return k * s[r];
+}
+
+/* 2-D: the angle of A (2 x 2) and dtheta/dA. */
+static double angle_2d(const double *A, double *GA) {
+  const double S = 0.5 * (A[2] - A[1]), C = 0.5 * (A[0] + A[3]);
+  const double rho2 = S * S + C * C;
+  GA[2] = 0.5 * C / rho2;
+  GA[1] = -0.5 * C / rho2;
+  GA[0] = GA[3] = -0.5 * S / rho2;
+  return atan2(S, C);
+}
+
+static double attitude(int D, const ocp_terminal *T, const double *q,
+                       double *gq) {
+  const double *Rt = T->R_target, *d = q + D;
+  double A[9], GA[9];
+  for (int a = 0; a < D; a++)
+    for (int b = 0; b < D; b++) {
+      A[a * D + b] = 0.0;
+      for (int j = 0; j < D; j++)
+        A[a * D + b] += Rt[j * D + a] * d[D * b + j];
+    }
+  const double v = D == 3 ? rotvec_row(A, T->row, GA) : angle_2d(A, GA);
+  for (int b = 0; b < D; b++)
+    for (int j = 0; j < D; j++) {
+      double g = 0.0;
+      for (int a = 0; a < D; a++)
+        g += GA[a * D + b] * Rt[j * D + a];
+      gq[D + D * b + j] = g;
+    }
+  return v;
+}
+
+static void cross(const double *a, const double *b, double *out) {
+  out[0] = a[1] * b[2] - a[2] * b[1];
+  out[1] = a[2] * b[0] - a[0] * b[2];
+  out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static double angular_velocity(const mrvi_body *B, const ocp_terminal *T,
+                               const double *q, const double *p, double *gq,
+                               double *gp) {
+  const double *d = q + 3, *pd = p + 3;
+  double L[3] = {0, 0, 0}, Om[3], dOm[3][2][3][3]; /* [r][q|p][i][j] */
+  for (int i = 0; i < 3; i++) {
+    double x[3];
+    cross(d + 3 * i, pd + 3 * i, x);
+    for (int a = 0; a < 3; a++)
+      L[a] += x[a];
+  }
+  for (int r = 0; r < 3; r++) {
+    const double *dr = d + 3 * r, iJ = 1.0 / B->inertia[r];
+    Om[r] = iJ * (dr[0] * L[0] + dr[1] * L[1] + dr[2] * L[2]);
+    for (int i = 0; i < 3; i++) {
+      double x[3], y[3];
+      cross(pd + 3 * i, dr, x); /* d/dd_i */
+      cross(dr, d + 3 * i, y);  /* d/dp_i */
+      for (int j = 0; j < 3; j++) {
+        dOm[r][0][i][j] = iJ * (x[j] + (i == r ? L[j] : 0.0));
+        dOm[r][1][i][j] = iJ * y[j];
+      }
+    }
+  }
+  const int r = T->row;
+  if (T->kind == MRVI_OCP_ANGULAR_VELOCITY_BODY) {
+    for (int i = 0; i < 3; i++)
+      for (int j = 0; j < 3; j++) {
+        gq[3 + 3 * i + j] = dOm[r][0][i][j];
+        gp[3 + 3 * i + j] = dOm[r][1][i][j];
+      }
+    return Om[r];
+  }
+  /* Space: omega_r = sum_s d_s[r] Omega_s. */
+  double w = 0.0;
+  for (int s = 0; s < 3; s++)
+    w += d[3 * s + r] * Om[s];
+  for (int i = 0; i < 3; i++)
+    for (int j = 0; j < 3; j++) {
+      double gqv = j == r ? Om[i] : 0.0, gpv = 0.0;
+      for (int s = 0; s < 3; s++) {
+        gqv += d[3 * s + r] * dOm[s][0][i][j];
+        gpv += d[3 * s + r] * dOm[s][1][i][j];
+      }
+      gq[3 + 3 * i + j] = gqv;
+      gp[3 + 3 * i + j] = gpv;
+    }
+  return w;
+}
+
+double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
+                         const double *q, const double *p, double *gq,
+                         double *gp) {
+  const mrvi_model *m = o->model;
+  const mrvi_body *B = &m->bodies[T->body];
+  const int D = m->dimension, n = D * (D + 1);
+  memset(gq, 0, (size_t)n * sizeof *gq);
+  memset(gp, 0, (size_t)n * sizeof *gp);
+  if (T->kind == MRVI_OCP_ATTITUDE)
+    return attitude(D, T, q, gq);
+  if (D == 3)
+    return angular_velocity(B, T, q, p, gq, gp) - T->target;
+  /* 2-D: L = sum_i d_i x p_i (scalar), omega = L / J. */
+  const double iJ = 1.0 / B->inertia[0];
+  double L = 0.0;
+  for (int i = 0; i < 2; i++) {
+    const double *di = q + 2 + 2 * i, *pi = p + 2 + 2 * i;
+    L += di[0] * pi[1] - di[1] * pi[0];
+    gq[2 + 2 * i] = iJ * pi[1];
+    gq[3 + 2 * i] = -iJ * pi[0];
+    gp[2 + 2 * i] = -iJ * di[1];
+    gp[3 + 2 * i] = iJ * di[0];
+  }
+  return iJ * L - T->target;
+}
+
+/* Add row v (n entries) to the orthonormal basis B (k rows) if its part
+ * outside span(B) is larger than 1e-8 |v| (Gram-Schmidt, twice); returns
+ * 0 when v is (numerically) in the span. */
+static int extend_basis(int n, double *B, int *k, double *v) {
+  double n0 = 0.0;
+  for (int j = 0; j < n; j++)
+    n0 += v[j] * v[j];
+  n0 = sqrt(n0);
+  if (!(n0 > 0.0))
+    return 0;
+  for (int pass = 0; pass < 2; pass++)
+    for (int i = 0; i < *k; i++) {
+      const double *b = B + (size_t)i * (size_t)n;
+      double d = 0.0;
+      for (int j = 0; j < n; j++)
+        d += b[j] * v[j];
+      for (int j = 0; j < n; j++)
+        v[j] -= d * b[j];
+    }
+  double nr = 0.0;
+  for (int j = 0; j < n; j++)
+    nr += v[j] * v[j];
+  nr = sqrt(nr);
+  if (nr <= 1e-8 * n0)
+    return 0;
+  double *b = B + (size_t)(*k)++ * (size_t)n;
+  for (int j = 0; j < n; j++)
+    b[j] = v[j] / nr;
+  return 1;
+}
+
+int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
+  const mrvi_model *m = o->model;
+  const int n = m->n, R = mrvi_model_constraint_rows(m);
+  const int rows = R + o->n_term;
+  double *G = malloc(((size_t)R * (size_t)n + 1) * sizeof *G);
+  double *Bq = malloc(((size_t)rows * (size_t)n + 1) * sizeof *Bq);
+  double *Bp = malloc(((size_t)rows * (size_t)n + 1) * sizeof *Bp);
+  double *v = malloc(((size_t)n + 1) * sizeof *v);
+  double *g = malloc(((size_t)R + 1) * sizeof *g);
+  double *p0 = malloc(((size_t)n + 1) * sizeof *p0);
+  int kq = 0, kp = 0, bad = -2;
+  if (!G || !Bq || !Bp || !v || !g || !p0)
+    goto out;
+  bad = -1;
+  for (int i = 0; i < n; i++)
+    p0[i] = m->mass[i] * m->v0[i];
+  /* Positions: the rows of G; momenta: the hidden constraints G M^-1 p. */
+  mrvi_model_constraint_eval(m, m->q0, g, G);
+  for (int r = 0; r < R; r++) {
+    memcpy(v, G + (size_t)r * (size_t)n, (size_t)n * sizeof *v);
+    extend_basis(n, Bq, &kq, v);
+    for (int j = 0; j < n; j++)
+      v[j] = G[(size_t)r * (size_t)n + j] / m->mass[j];
+    extend_basis(n, Bp, &kp, v);
+  }
+  /* The equality conditions in order: the first from `first` on that is
+   * implied by the constraints and the earlier conditions. */
+  const int D = m->dimension, nb = D * (D + 1);
+  for (int t = 0; t < o->n_term && bad < 0; t++) {
+    const ocp_terminal *T = &o->term[t];
+    if (T->penalty > 0.0)
+      continue;
+    double gq[12], gp[12];
+    int pos;
+    memset(v, 0, (size_t)n * sizeof *v);
+    if (T->body >= 0) {
+      ocp_body_terminal(o, T, m->q0 + T->coord, p0 + T->coord, gq, gp);
+      pos = T->kind == MRVI_OCP_ATTITUDE;
+      for (int j = 0; j < nb; j++)
+        v[T->coord + j] = pos ? gq[j] : gp[j];
+    } else {
+      pos = T->kind == MRVI_OCP_POSITION;
+      v[T->coord] = 1.0;
+    }
+    int ok = 1;
+    for (int j = 0; j < n; j++)
+      ok &= isfinite(v[j]);
+    if (ok && !extend_basis(n, pos ? Bq : Bp, pos ? &kq : &kp, v) && t >= first)
+      bad = t;
+  }
+out:
+  free(G);
+  free(Bq);
+  free(Bp);
+  free(v);
+  free(g);
+  free(p0);
+  return bad;
+}

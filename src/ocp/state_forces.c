@@ -1,0 +1,315 @@
+/* State-dependent actuators (doc/optimal-control.md, "Pair forces" and
+ * "Bodies"): forces whose direction depends on the configuration.  Each
+ * actuator has model input coordinates y and a generalised force per unit
+ * control F(y) with its derivative dF/dy:
+ *   pair      equal and opposite forces along the line between particles
+ *             i and j: F = +-e, e = (y_i - y_j)/r, dF/dy = +-(I - e e^T)/r
+ *             (u > 0 pushes them apart; with u frozen F = grad r);
+ *   torque    on a body's directors, F_{d_i} = 1/2 tau x d_i with tau fixed
+ *             in space or in a body (2-D: 1/2 tau J d_i), whose virtual work
+ *             on d_i' = w x d_i is tau . w;
+ *   force     at a body point x = phi + sum rho^i d_i: F_phi = e,
+ *             F_{d_i} = rho^i e (constant);
+ *   joint     a revolute joint's motor torque: +u about the hinge on the
+ *             second body, -u on the first (two torque terms).
+ * On every micro interval m of a step (length dt, control u_m: u_k for a
+ * macro-grid actuator) the virtual work along the interpolated path is
+ * taken by the midpoint rule at t_k + (m + 1/2) dt, every coordinate
+ * interpolated on its own grid (slow: weights 1 - theta, theta with
+ * theta = (m + 1/2)/p; fast: 1/2, 1/2 between nodes m and m + 1):
+ *   f_z = dt u_m c_z F(y_m),   df_z/dz' = dt u_m c_z c_z' dF/dy(y_m).
+ * For a force of constant direction this is exactly the rule of the
+ * coordinate actuators (ocp.c); here f depends on the nodes, so the step
+ * residual gets it and its derivatives (through the step hook), and so do
+ * the adjoint's step Jacobians and the control gradient. */
+#include "ocp/ocp_internal.h"
+
+#include <math.h>
+#include <string.h>
+
+/* Inputs of a state-dependent actuator at one point: n model coordinates,
+ * the two step nodes of each with coefficients; the force per unit
+ * control F (n) and its derivative Dm[a n + b] = dF_a/dy_b at the
+ * interpolated inputs y. */
+typedef struct act_point {
+  int n;
+  int z[OCP_MAX_IN][2];
+  double c[OCP_MAX_IN][2];
+  double F[OCP_MAX_IN], Dm[OCP_MAX_IN * OCP_MAX_IN];
+} act_point;
+
+/* Midpoint of micro interval m (weight dt). */
+static mrvi_point mid_point(const mrvi_ocp *o, int m) {
+  const double th = (m + 0.5) / o->p;
+  return (mrvi_point){.w = o->settings.macro_step / o->p,
+                      .a0 = 1.0 - th,
+                      .a1 = th,
+                      .cA = 0.5,
+                      .cB = 0.5,
+                      .m = m};
+}
+
+static void act_nodes(const mrvi_ocp *o, const ocp_actuator *A,
+                      const mrvi_point *pt, act_point *ap) {
+  ap->n = A->n_in;
+  for (int k = 0; k < ap->n; k++)
+    ocp_znodes(o, A->in[k], pt, ap->z[k], ap->c[k]);
+}
+
+/* Pair: inputs x_i then x_j (d each); F = +-e, Dm = +-P with
+ * e = (y_i - y_j)/r and P = (I - e e^T)/r. */
+static void pair_force(int d, const double *y, act_point *ap) {
+  double e[3], r2 = 0.0;
+  for (int a = 0; a < d; a++) {
+    e[a] = y[a] - y[d + a];
+    r2 += e[a] * e[a];
+  }
+  const double r = sqrt(r2);
+  /* Coincident particles: no direction, no force (documented). */
+  const double inv = r > 0.0 ? 1.0 / r : 0.0;
+  for (int a = 0; a < d; a++)
+    e[a] *= inv;
+  const int n = 2 * d;
+  for (int k = 0; k < n; k++) {
+    const double sk = k < d ? 1.0 : -1.0;
+    ap->F[k] = sk * e[k % d];
+    for (int l = 0; l < n; l++) {
+      const double sl = l < d ? 1.0 : -1.0;
+      const int a = k % d, b = l % d;
+      ap->Dm[k * n + l] = sk * sl * ((a == b) - e[a] * e[b]) * inv;
+    }
+  }
+}
+
+/* Torque term of an actuator on the directors of body block X (inputs
+ * xo.., D^2 of them): f_{d_i} = 1/2 a x d_i (3-D), 1/2 a J d_i (2-D, J the
+ * rotation by +90 degrees, a = the scalar torque), with a = s axis (space)
+ * or a = s sum_j t^j d_Y^j (axis fixed in body block Y at inputs yo).
+ * Its virtual work on d_i' = w x d_i is a . w (doc/optimal-control.md). */
+static void torque_force(int D, const ocp_torque *T, const double *y,
+                         act_point *ap) {
+  const int n = ap->n, xo = T->x_off;
+  double a[3] = {T->s * T->axis[0], T->s * T->axis[1], T->s * T->axis[2]};
+  if (D == 3 && T->y_off >= 0)
+    for (int c = 0; c < 3; c++) {
+      a[c] = 0.0;
+      for (int j = 0; j < 3; j++)
+        a[c] += T->s * T->axis[j] * y[T->y_off + 3 * j + c];
+    }
+  for (int i = 0; i < D; i++) {
+    const double *d = y + xo + D * i;
+    const int r = xo + D * i;
+    if (D == 2) {
+      const double h = 0.5 * T->s * T->axis[2];
+      ap->F[r] += -h * d[1];
+      ap->F[r + 1] += h * d[0];
+      ap->Dm[r * n + r + 1] += -h;
+      ap->Dm[(r + 1) * n + r] += h;
+      continue;
+    }
+    ap->F[r] += 0.5 * (a[1] * d[2] - a[2] * d[1]);
+    ap->F[r + 1] += 0.5 * (a[2] * d[0] - a[0] * d[2]);
+    ap->F[r + 2] += 0.5 * (a[0] * d[1] - a[1] * d[0]);
+    /* d(a x d)/dd = [a]x */
+    const double ax[9] = {0, -a[2], a[1], a[2], 0, -a[0], -a[1], a[0], 0};
+    for (int p = 0; p < 3; p++)
+      for (int q = 0; q < 3; q++)
+        ap->Dm[(r + p) * n + r + q] += 0.5 * ax[p * 3 + q];
+    if (T->y_off < 0)
+      continue;
+    /* d(a x d)/da = -[d]x, da/dd_Y^j = s t^j I */
+    const double dx[9] = {0, -d[2], d[1], d[2], 0, -d[0], -d[1], d[0], 0};
+    for (int j = 0; j < 3; j++)
+      for (int p = 0; p < 3; p++)
+        for (int q = 0; q < 3; q++)
+          ap->Dm[(r + p) * n + T->y_off + 3 * j + q] +=
+              -0.5 * T->s * T->axis[j] * dx[p * 3 + q];
+  }
+}
+
+/* F and Dm of actuator A at the interpolated inputs y. */
+static void act_force(const mrvi_ocp *o, const ocp_actuator *A, const double *y,
+                      act_point *ap) {
+  const int D = o->model->dimension, n = ap->n;
+  if (A->pi >= 0) {
+    pair_force(D, y, ap);
+    return;
+  }
+  memset(ap->F, 0, (size_t)n * sizeof *ap->F);
+  memset(ap->Dm, 0, (size_t)n * (size_t)n * sizeof *ap->Dm);
+  if (A->n_torque == 0) {
+    /* Body force at a body point: x = phi + sum rho^i d_i, direction e
+     * fixed in space: F_phi = e, F_{d_i} = rho^i e (constant). */
+    for (int k = 0; k < n; k++)
+      ap->F[k] = (k < D ? 1.0 : A->at[k / D - 1]) * A->dir[k % D];
+    return;
+  }
+  for (int t = 0; t < A->n_torque; t++)
+    torque_force(D, &A->torque[t], y, ap);
+}
+
+/* Control index of actuator A in step k, micro interval m. */
+static int control(const mrvi_ocp *o, const ocp_actuator *A, long k, int m) {
+  return A->grid == MRVI_GRID_MACRO ? A->offset + (int)k
+                                    : A->offset + (int)(k * o->p) + m;
+}
+
+/* Residual row of step node z (-1: an end node, no row) and unknown column
+ * (-1: a known start node); value of z at the step unknowns x. */
+static int zrow(const mrvi_ocp *o, int z) {
+  if (z < o->ns)
+    return z;
+  if (z < 2 * o->ns)
+    return -1;
+  return z - 2 * o->ns < o->p * o->nf ? z - o->ns : -1;
+}
+static int zcol(const mrvi_ocp *o, int z) {
+  if (z < o->ns)
+    return -1;
+  if (z < 2 * o->ns)
+    return z - o->ns;
+  return z - 2 * o->ns < o->nf ? -1 : z - o->ns - o->nf;
+}
+static double zval(const mrvi_ocp *o, const mrvi_step *st, const double *x,
+                   int z) {
+  if (z < o->ns)
+    return st->qs0[z];
+  const int c = zcol(o, z);
+  return c >= 0 ? x[c] : st->qf0[z - 2 * o->ns];
+}
+
+/* Visitor of one (state-dependent actuator, micro interval m) of step k
+ * with its forces ap, weight w = dt and control index. */
+typedef void act_visit(const mrvi_ocp *o, void *ctx, long k,
+                       const act_point *ap, double w, int control);
+
+/* Visit every state-dependent actuator and micro interval of step k, the
+ * forces at the step unknowns x (with st's known nodes) or, x = NULL, at
+ * the stored trajectory. */
+static void each_act(const mrvi_ocp *o, const mrvi_step *st, const double *x,
+                     long k, act_visit *fn, void *ctx) {
+  for (int ia = 0; ia < o->n_act; ia++) {
+    const ocp_actuator *A = &o->act[ia];
+    if (A->n_in == 0)
+      continue;
+    for (int m = 0; m < o->p; m++) {
+      const mrvi_point pt = mid_point(o, m);
+      act_point ap;
+      double y[OCP_MAX_IN];
+      act_nodes(o, A, &pt, &ap);
+      for (int i = 0; i < ap.n; i++)
+        for (int a = 0; a < 2; a++) {
+          const int z = ap.z[i][a];
+          const double v = x ? zval(o, st, x, z) : o->Q[ocp_global(o, k, z)];
+          y[i] = a ? y[i] + ap.c[i][a] * v : ap.c[i][a] * v;
+        }
+      act_force(o, A, y, &ap);
+      fn(o, ctx, k, &ap, pt.w, control(o, A, k, m));
+    }
+  }
+}
+
+typedef struct hook_ctx {
+  mrvi_step *st;
+  double *R;
+  int jac;
+} hook_ctx;
+
+/* f^- on the residual rows (both nodes of an input that are rows) and its
+ * derivatives in the unknown columns. */
+static void hook_visit(const mrvi_ocp *o, void *ctx, long k,
+                       const act_point *ap, double w, int ic) {
+  hook_ctx *h = ctx;
+  (void)k;
+  const double wu = w * o->u_cur[ic];
+  for (int i = 0; i < ap->n; i++)
+    for (int a = 0; a < 2; a++) {
+      const int row = zrow(o, ap->z[i][a]);
+      if (row < 0)
+        continue;
+      const double ci = wu * ap->c[i][a];
+      h->R[row] += ci * ap->F[i];
+      if (!h->jac)
+        continue;
+      /* Same calls on every pass (the pattern): no value tests. */
+      for (int j = 0; j < ap->n; j++)
+        for (int b = 0; b < 2; b++) {
+          const int col = zcol(o, ap->z[j][b]);
+          if (col >= 0)
+            mrvi_step_jac_add(h->st, row, col,
+                              ci * ap->c[j][b] * ap->Dm[i * ap->n + j]);
+        }
+    }
+}
+
+void ocp_state_hook(void *ctx, mrvi_step *st, const double *x, double *R,
+                    int jac) {
+  const mrvi_ocp *o = ctx;
+  hook_ctx h = {st, R, jac};
+  each_act(o, st, x, o->k_cur, hook_visit, &h);
+}
+
+/* f^+: the later node of each input (q_{k+1}^s, fast node m + 1). */
+static void end_visit(const mrvi_ocp *o, void *ctx, long k, const act_point *ap,
+                      double w, int ic) {
+  mrvi_ocp *ow = ctx;
+  const int ns = o->ns, nf = o->nf;
+  const double wu = w * o->u_cur[ic];
+  (void)k;
+  for (int i = 0; i < ap->n; i++) {
+    const int z = ap->z[i][1];
+    const double f = wu * ap->c[i][1] * ap->F[i];
+    if (z < 2 * ns) {
+      ow->f_end[z - ns] += f;
+    } else {
+      const int zf = z - 2 * ns, mm = zf / nf, s = zf % nf;
+      ow->f_plus[(mm - 1) * nf + s] += f;
+      if (mm == o->p)
+        ow->f_end[ns + s] += f;
+    }
+  }
+}
+
+void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u) {
+  o->u_cur = u;
+  each_act(o, &o->step, o->x, k, end_visit, o);
+}
+
+static void jacobian_visit(const mrvi_ocp *o, void *ctx, long k,
+                           const act_point *ap, double w, int ic) {
+  double *J = ctx;
+  const int nv = o->nv;
+  const double wu = w * o->u_cur[ic];
+  (void)k;
+  for (int i = 0; i < ap->n; i++)
+    for (int a = 0; a < 2; a++)
+      for (int j = 0; j < ap->n; j++)
+        for (int b = 0; b < 2; b++)
+          J[ap->z[i][a] * nv + ap->z[j][b]] +=
+              wu * ap->c[i][a] * ap->c[j][b] * ap->Dm[i * ap->n + j];
+}
+
+void ocp_state_jacobian(const mrvi_ocp *o, long k, double *J) {
+  each_act(o, NULL, NULL, k, jacobian_visit, J);
+}
+
+typedef struct gradient_ctx {
+  const double *mu;
+  double *out;
+} gradient_ctx;
+
+static void gradient_visit(const mrvi_ocp *o, void *ctx, long k,
+                           const act_point *ap, double w, int ic) {
+  gradient_ctx *g = ctx;
+  double sum = 0.0;
+  for (int i = 0; i < ap->n; i++)
+    for (int a = 0; a < 2; a++)
+      sum += g->mu[ocp_global(o, k, ap->z[i][a])] * w * ap->c[i][a] * ap->F[i];
+  g->out[ic] -= sum;
+}
+
+void ocp_state_gradient(const mrvi_ocp *o, long k, const double *mu,
+                        double *out) {
+  gradient_ctx g = {mu, out};
+  each_act(o, NULL, NULL, k, gradient_visit, &g);
+}

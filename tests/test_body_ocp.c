@@ -1,0 +1,379 @@
+/* Optimal control on rigid bodies (src/ocp/state_forces.c,
+ * src/ocp/body_terminal.c; doc/optimal-control.md, "Bodies"):
+ * - adjoint gradients of the cost and of every terminal constraint against
+ *   central differences (relative 1e-6) in both constraint forms: a free
+ *   3-D body under torques in space and in the body frame and a force at a
+ *   body point, with terminal attitude, angular velocity in space and (a
+ *   penalty) in the body frame; a slow body on a revolute joint to the
+ *   ground carrying a fast body on a second revolute joint (p = 3), with a
+ *   joint torque on the micro grid and penalties on attitude and angular
+ *   velocity (as equalities they repeat joint rows and are refused); a 2-D
+ *   pendulum driven by a joint torque and a body torque;
+ * - the terminal values: the attitude rows are the rotation vector of
+ *   R_target^T R_N, the angular velocity rows J^-1 R^T L from the final
+ *   momenta (computed here independently);
+ * - a constant torque tau on a body at rest gives it the angular momentum
+ *   tau T up to the truncation error. */
+#include "model/model.h"
+#include "models.h"
+#include "ocp/ocp.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Rotation by angle |w| about w (Rodrigues), row-major. */
+static void rotation(const double *w, double *R) {
+  const double a = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  double k[3] = {0, 0, 0};
+  if (a > 0)
+    for (int i = 0; i < 3; i++)
+      k[i] = w[i] / a;
+  const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
+  for (int i = 0; i < 3; i++)
+    for (int j = 0; j < 3; j++) {
+      double K2 = 0.0;
+      for (int l = 0; l < 3; l++)
+        K2 += K[i * 3 + l] * K[l * 3 + j];
+      R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
+    }
+}
+
+static mrvi_settings settings(double dT, int p, double t_end,
+                              mrvi_constraint_form form) {
+  mrvi_settings s = test_settings("midpoint-midpoint", dT, p, t_end, 1e-13);
+  s.constraint_form = form;
+  s.constraint_tol = 1e-13;
+  return s;
+}
+
+static const char *form_name(mrvi_constraint_form f) {
+  return f == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers";
+}
+
+/* Central differences of the cost and constraint gradients at
+ * u_i = 0.4 sin(1.7 i + 0.3). */
+static void check_gradients(mrvi_ocp *o, const char *what) {
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  double *u = malloc((size_t)n * sizeof *u), *g = malloc((size_t)n * sizeof *g);
+  double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
+  double *cp = malloc((size_t)(m + 1) * sizeof *cp);
+  double *cm = malloc((size_t)(m + 1) * sizeof *cm);
+  for (int i = 0; i < n; i++)
+    u[i] = 0.4 * sin(1.7 * i + 0.3);
+  double J;
+  int st = mrvi_ocp_evaluate(o, u, &J, g, cp, cg);
+  CHECK(st == 0, "%s: evaluate: %s", what, mrvi_ocp_errmsg(o));
+  double errJ = 0, scJ = 0, errC = 0, scC = 0;
+  for (int i = 0; i < n && st == 0; i++) {
+    const double h = 1e-5, ui = u[i];
+    double Jp, Jm;
+    u[i] = ui + h;
+    st |= mrvi_ocp_evaluate(o, u, &Jp, NULL, cp, NULL);
+    u[i] = ui - h;
+    st |= mrvi_ocp_evaluate(o, u, &Jm, NULL, cm, NULL);
+    u[i] = ui;
+    const double fd = (Jp - Jm) / (2 * h);
+    errJ = fmax(errJ, fabs(fd - g[i]));
+    scJ = fmax(scJ, fabs(fd));
+    for (int j = 0; j < m; j++) {
+      const double fc = (cp[j] - cm[j]) / (2 * h);
+      errC = fmax(errC, fabs(fc - cg[j * n + i]));
+      scC = fmax(scC, fabs(fc));
+    }
+  }
+  printf("%s: %d controls, %d constraints: gradient error cost %.2e, "
+         "constraints %.2e (relative)\n",
+         what, n, m, errJ / scJ, m ? errC / scC : 0.0);
+  CHECK(st == 0 && scJ > 0 && errJ <= 1e-6 * scJ,
+        "%s: cost gradient error %.3e (scale %.3e)", what, errJ, scJ);
+  CHECK(m == 0 || (scC > 0 && errC <= 1e-6 * scC),
+        "%s: constraint gradient error %.3e (scale %.3e)", what, errC, scC);
+  free(u);
+  free(g);
+  free(cg);
+  free(cp);
+  free(cm);
+}
+
+static mrvi_ocp *create(const mrvi_model *m, const mrvi_settings *s) {
+  mrvi_ocp *o = NULL;
+  char msg[300];
+  const int st = mrvi_ocp_create(m, s, &o, msg, sizeof msg);
+  CHECK(st == 0, "create: %s", msg);
+  return st == 0 ? o : NULL;
+}
+
+/* ---------------------------------------------------------------------------
+ * A free 3-D body.
+ * ------------------------------------------------------------------------- */
+static const double free_J[3] = {1.0, 2.0, 2.5};
+
+static mrvi_model *free_body(const double *omega) {
+  mrvi_model *m = mrvi_model_create();
+  const double x0[3] = {0.1, -0.2, 0.3}, w[3] = {0.3, 0.4, -0.2};
+  double R[9];
+  rotation(w, R);
+  CHECK(mrvi_model_add_body(m, "B", 3, MRVI_SLOW, 2.0, free_J, x0, R, NULL,
+                            omega) == 0,
+        "free body: %s", mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_free_body(mrvi_constraint_form form) {
+  const double w0[3] = {0.4, -0.3, 0.8};
+  mrvi_model *m = free_body(w0);
+  const mrvi_settings s = settings(0.1, 1, 0.8, form);
+  mrvi_ocp *o = create(m, &s);
+  if (!o) {
+    mrvi_model_free(m);
+    return;
+  }
+  const double ax[3] = {0.3, -0.2, 1.0}, bx[3] = {1.0, 0.5, 0.0};
+  const double at[3] = {0.2, 0.1, -0.3}, dir[3] = {0.0, 1.0, 0.5};
+  const double wt[3] = {-0.5, 0.2, 0.9}, om[3] = {0.1, 0.0, -0.2};
+  double Rt[9];
+  rotation(wt, Rt);
+  CHECK(mrvi_ocp_add_torque_actuator(o, 0, ax, 0, MRVI_GRID_MACRO, 1.0,
+                                     -HUGE_VAL, HUGE_VAL) == 0 &&
+            mrvi_ocp_add_torque_actuator(o, 0, bx, 1, MRVI_GRID_MACRO, 2.0,
+                                         -HUGE_VAL, HUGE_VAL) == 1 &&
+            mrvi_ocp_add_body_force_actuator(o, 0, at, dir, MRVI_GRID_MACRO,
+                                             1.0, -HUGE_VAL, HUGE_VAL) == 2 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 0, om,
+                                       0.0) == 3 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY_BODY, 0, om,
+                                       3.0) == 0,
+        "free body actuators and terminals: %s", mrvi_ocp_errmsg(o));
+  CHECK(!strcmp(mrvi_ocp_actuator_kind(o, 0), "torque") &&
+            !strcmp(mrvi_ocp_actuator_kind(o, 2), "force") &&
+            mrvi_ocp_actuator_body(o, 1) == 0 &&
+            !strcmp(mrvi_ocp_actuator_name(o, 0), "B.torque"),
+        "actuator kinds and names");
+  char what[80];
+  snprintf(what, sizeof what, "free body, torques and a force, %s",
+           form_name(form));
+  check_gradients(o, what);
+
+  /* The terminal values against their definitions, computed here from the
+   * trajectory of the last evaluation. */
+  const int n = m->n, nc = mrvi_ocp_n_constraints(o);
+  const double *q = mrvi_ocp_q(o) + mrvi_ocp_n_steps(o) * n;
+  const double *p = mrvi_ocp_p(o) + mrvi_ocp_n_steps(o) * n;
+  double c[6], u[24], J;
+  for (int i = 0; i < mrvi_ocp_n_controls(o); i++)
+    u[i] = 0.4 * sin(1.7 * i + 0.3);
+  mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+  CHECK(nc == 6, "six constraint rows (got %d)", nc);
+  /* A = Rt^T R, angle from the trace, axis from the skew part. */
+  double A[9], L[3] = {0, 0, 0};
+  for (int a = 0; a < 3; a++)
+    for (int b = 0; b < 3; b++) {
+      A[a * 3 + b] = 0.0;
+      for (int j = 0; j < 3; j++)
+        A[a * 3 + b] += Rt[j * 3 + a] * q[3 + 3 * b + j];
+    }
+  const double th = acos(0.5 * (A[0] + A[4] + A[8] - 1.0));
+  const double v[3] = {th / (2 * sin(th)) * (A[7] - A[5]),
+                       th / (2 * sin(th)) * (A[2] - A[6]),
+                       th / (2 * sin(th)) * (A[3] - A[1])};
+  for (int i = 0; i < 3; i++) {
+    const double *d = q + 3 + 3 * i, *pd = p + 3 + 3 * i;
+    L[0] += d[1] * pd[2] - d[2] * pd[1];
+    L[1] += d[2] * pd[0] - d[0] * pd[2];
+    L[2] += d[0] * pd[1] - d[1] * pd[0];
+  }
+  double ev = 0.0, ew = 0.0;
+  for (int a = 0; a < 3; a++) {
+    double w = 0.0; /* omega = R J^-1 R^T L */
+    for (int r = 0; r < 3; r++) {
+      const double *dr = q + 3 + 3 * r;
+      w += dr[a] * (dr[0] * L[0] + dr[1] * L[1] + dr[2] * L[2]) / free_J[r];
+    }
+    ev = fmax(ev, fabs(c[a] - v[a]));
+    ew = fmax(ew, fabs(c[3 + a] - (w - om[a])));
+  }
+  printf("  terminal values against their definitions: attitude %.2e, "
+         "angular velocity %.2e (angle %.3f)\n",
+         ev, ew, th);
+  CHECK(ev < 1e-12 && ew < 1e-12, "terminal values: attitude %.3e, omega %.3e",
+        ev, ew);
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+/* A constant torque tau (space) on a body at rest for T: L_N = tau T up to
+ * the truncation error (the discrete forcing is the midpoint rule of the
+ * torque's virtual work). */
+static void test_torque_impulse(void) {
+  const double zero[3] = {0, 0, 0}, tau[3] = {0.2, -0.1, 0.3};
+  double err[2];
+  for (int r = 0; r < 2; r++) {
+    mrvi_model *m = free_body(zero);
+    const mrvi_settings s =
+        settings(r ? 0.05 : 0.1, 1, 2.0, MRVI_FORM_MULTIPLIERS);
+    mrvi_ocp *o = create(m, &s);
+    mrvi_ocp_add_torque_actuator(o, 0, tau, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
+                                 HUGE_VAL);
+    const int nu = mrvi_ocp_n_controls(o);
+    double *u = malloc((size_t)nu * sizeof *u), J, P[3], L[3];
+    for (int i = 0; i < nu; i++)
+      u[i] = 1.0;
+    CHECK(mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL) == 0, "impulse: %s",
+          mrvi_ocp_errmsg(o));
+    const long N = mrvi_ocp_n_steps(o);
+    mrvi_model_momentum(m, mrvi_ocp_q(o) + N * m->n, mrvi_ocp_p(o) + N * m->n,
+                        P, L);
+    err[r] = 0.0;
+    for (int a = 0; a < 3; a++)
+      err[r] = fmax(err[r], fabs(L[a] - 2.0 * tau[a]));
+    free(u);
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+  printf("constant torque on a body at rest: max |L_N - tau T| %.3e, %.3e "
+         "(dT = 0.1, 0.05): order %.2f\n",
+         err[0], err[1], log2(err[0] / err[1]));
+  CHECK(err[0] < 1e-2 && err[1] < err[0] * 0.3,
+        "torque impulse: %.3e, %.3e (order 2 expected)", err[0], err[1]);
+}
+
+/* ---------------------------------------------------------------------------
+ * A slow body on a revolute joint to the ground carrying a fast body on a
+ * second revolute joint (the joint between them on the micro grid).
+ * ------------------------------------------------------------------------- */
+static void test_chain(mrvi_constraint_form form) {
+  mrvi_model *m = mrvi_model_create();
+  const double J1[3] = {0.5, 0.6, 0.3}, J2[3] = {0.1, 0.12, 0.05};
+  const double x1[3] = {0.5, 0.0, 0.0}, x2[3] = {1.3, 0.0, 0.0};
+  const double w1[3] = {0.0, 0.0, 0.3}, w2[3] = {0.0, 0.2, 0.5};
+  const double o0[3] = {0, 0, 0}, o1[3] = {1.0, 0.0, 0.0};
+  const double z[3] = {0, 0, 1}, y[3] = {0, 1, 0};
+  CHECK(mrvi_model_add_body(m, "arm", 3, MRVI_SLOW, 1.0, J1, x1, NULL, NULL,
+                            w1) == 0 &&
+            mrvi_model_add_body(m, "tip", 3, MRVI_FAST, 0.2, J2, x2, NULL, NULL,
+                                w2) == 1,
+        "chain bodies: %s", mrvi_model_errmsg(m));
+  const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, z);
+  const int j1 = mrvi_model_add_joint(m, "revolute", 0, 1, o1, y);
+  CHECK(j0 >= 0 && j1 >= 0, "chain joints: %s", mrvi_model_errmsg(m));
+  double one = 0.0;
+  CHECK(mrvi_model_project_velocities(m, &one) == 0, "projection");
+  const mrvi_settings s = settings(0.1, 3, 0.6, form);
+  mrvi_ocp *o = create(m, &s);
+  if (!o) {
+    mrvi_model_free(m);
+    return;
+  }
+  const double tx[3] = {1.0, 0.0, 0.2}, wt[3] = {0.0, 0.0, 0.4};
+  double Rt[9];
+  rotation(wt, Rt);
+  const double om[3] = {0.0, 0.0, 0.1};
+  CHECK(mrvi_ocp_add_joint_torque_actuator(o, j0, MRVI_GRID_MACRO, 1.0,
+                                           -HUGE_VAL, HUGE_VAL) == 0 &&
+            mrvi_ocp_add_joint_torque_actuator(o, j1, MRVI_GRID_MICRO, 0.5,
+                                               -HUGE_VAL, HUGE_VAL) == 1 &&
+            mrvi_ocp_add_torque_actuator(o, 1, tx, 1, MRVI_GRID_MICRO, 1.0,
+                                         -HUGE_VAL, HUGE_VAL) == 2 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 2.0) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY_BODY, 1, om,
+                                       3.0) == 0,
+        "chain actuators and terminals: %s", mrvi_ocp_errmsg(o));
+  /* As equalities both repeat joint rows (the chain has two degrees of
+   * freedom): refused, naming the joints, and nothing added. */
+  CHECK(mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "implied by its joints") &&
+            strstr(mrvi_ocp_errmsg(o), "revolute arm-ground") &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 1, om,
+                                       0.0) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "angular velocit") &&
+            mrvi_ocp_n_constraints(o) == 0 && mrvi_ocp_n_terminals(o) == 6,
+        "redundant body terminal equalities refused: %s", mrvi_ocp_errmsg(o));
+  CHECK(!strcmp(mrvi_ocp_actuator_kind(o, 0), "joint_torque"),
+        "joint torque kind");
+  char what[80];
+  snprintf(what, sizeof what, "slow-fast chain, joint torques (p = 3), %s",
+           form_name(form));
+  check_gradients(o, what);
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
+ * 2-D pendulum: a joint torque and a body torque.
+ * ------------------------------------------------------------------------- */
+static void test_planar(mrvi_constraint_form form) {
+  mrvi_model *m = mrvi_model_create();
+  const double J = 1.0 / 12, x0[2] = {0.5, 0.0}, g[2] = {0, -9.81};
+  const double R0[4] = {1, 0, 0, 1}, w0 = 0.5, o0[2] = {0, 0};
+  CHECK(mrvi_model_add_body(m, "link", 2, MRVI_SLOW, 1.0, &J, x0, R0, NULL,
+                            &w0) == 0 &&
+            mrvi_model_set_gravity(m, g) >= 0,
+        "pendulum: %s", mrvi_model_errmsg(m));
+  const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, NULL);
+  double corr;
+  CHECK(j0 >= 0 && mrvi_model_project_velocities(m, &corr) == 0,
+        "pendulum joint: %s", mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 2, 0.5, form);
+  mrvi_ocp *o = create(m, &s);
+  if (!o) {
+    mrvi_model_free(m);
+    return;
+  }
+  const double ax[3] = {0, 0, 1}, th = -0.7, om = 0.2;
+  const double Rt[4] = {cos(th), -sin(th), sin(th), cos(th)};
+  CHECK(mrvi_ocp_add_joint_torque_actuator(o, j0, MRVI_GRID_MACRO, 1.0,
+                                           -HUGE_VAL, HUGE_VAL) == 0 &&
+            mrvi_ocp_add_torque_actuator(o, 0, ax, 0, MRVI_GRID_MICRO, 1.0,
+                                         -HUGE_VAL, HUGE_VAL) == 1 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 0, &om,
+                                       0.0) == 1,
+        "pendulum actuators and terminals: %s", mrvi_ocp_errmsg(o));
+  char what[80];
+  snprintf(what, sizeof what, "2-D pendulum, joint and body torque, %s",
+           form_name(form));
+  check_gradients(o, what);
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+/* Refusals with their reasons. */
+static void test_refusals(void) {
+  const double zero[3] = {0, 0, 0};
+  mrvi_model *m = free_body(zero);
+  const mrvi_settings s = settings(0.1, 1, 0.5, MRVI_FORM_MULTIPLIERS);
+  mrvi_ocp *o = create(m, &s);
+  const double bad[9] = {1, 0, 0, 0, 1, 0, 0, 0, -1};
+  CHECK(mrvi_ocp_add_torque_actuator(o, 0, zero, 0, MRVI_GRID_MACRO, 1.0,
+                                     -HUGE_VAL, HUGE_VAL) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "nonzero"),
+        "zero torque axis refused: %s", mrvi_ocp_errmsg(o));
+  CHECK(mrvi_ocp_add_torque_actuator(o, 3, zero, 0, MRVI_GRID_MACRO, 1.0,
+                                     -HUGE_VAL, HUGE_VAL) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "out of range"),
+        "unknown body refused: %s", mrvi_ocp_errmsg(o));
+  CHECK(mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, bad, 0.0) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "not a rotation"),
+        "reflection as a target refused: %s", mrvi_ocp_errmsg(o));
+  CHECK(mrvi_ocp_add_joint_torque_actuator(o, 0, MRVI_GRID_MACRO, 1.0,
+                                           -HUGE_VAL, HUGE_VAL) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "not a revolute joint"),
+        "joint torque on the body constraint refused: %s", mrvi_ocp_errmsg(o));
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+int main(void) {
+  test_free_body(MRVI_FORM_MULTIPLIERS);
+  test_free_body(MRVI_FORM_NULL_SPACE);
+  test_torque_impulse();
+  test_chain(MRVI_FORM_MULTIPLIERS);
+  test_chain(MRVI_FORM_NULL_SPACE);
+  test_planar(MRVI_FORM_MULTIPLIERS);
+  test_planar(MRVI_FORM_NULL_SPACE);
+  test_refusals();
+  return test_finish();
+}
