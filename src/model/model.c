@@ -63,6 +63,7 @@ void mrvi_model_free(mrvi_model *m) {
   for (int e = 0; e < m->n_elements; e++) {
     free(m->elements[e].in);
     free(m->elements[e].coef);
+    free(m->elements[e].axes);
   }
   free(m->names);
   free(m->mass);
@@ -308,11 +309,17 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   return m->n_particles++;
 }
 
+/* Release what element e (not yet pushed) owns. */
+static void drop_element(mrvi_element *e) {
+  free(e->in);
+  free(e->coef);
+  free(e->axes);
+}
+
 /* Append an element whose inputs are already set; checks the rate rule. */
 static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   if (e->potential != MRVI_SLOW && e->potential != MRVI_FAST) {
-    free(e->in);
-    free(e->coef);
+    drop_element(e);
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: potential must be slow or fast",
                            what);
   }
@@ -320,8 +327,7 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
     for (int j = 0; j < e->n_in; j++)
       if (m->rate[e->in[j]] == MRVI_SLOW) {
         int c = e->in[j];
-        free(e->in);
-        free(e->coef);
+        drop_element(e);
         return mrvi_model_fail(
             m, MRVI_EMODEL,
             "fast %s touches slow coordinate '%s': the fast potential "
@@ -333,14 +339,17 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
       }
   if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
            sizeof *m->elements)) {
-    free(e->in);
-    free(e->coef);
+    drop_element(e);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   if (e->kind != MRVI_ELEMENT_GRAVITY && e->n_in > m->max_in)
     m->max_in = e->n_in;
   m->elements[m->n_elements] = *e;
   return m->n_elements++;
+}
+
+int mrvi_model_push_element(mrvi_model *m, mrvi_element *e, const char *what) {
+  return push_element(m, e, what);
 }
 
 /* Allocate e->in and e->coef (e->n_in entries each). */
@@ -355,8 +364,8 @@ static int alloc_inputs(mrvi_model *m, mrvi_element *e) {
 }
 
 /* Look up the law and copy and check its parameters. */
-static int set_law(mrvi_model *m, mrvi_element *e, const char *law,
-                   const double *params, const char *what) {
+int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
+                       const double *params, const char *what) {
   e->law = mrvi_law_find(law);
   if (!e->law)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: unknown law '%s'", what,
@@ -410,7 +419,7 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
                     .shift = rest_length,
                     .particle_i = particle_i,
                     .particle_j = particle_j};
-  int st = set_law(m, &e, law, params, what);
+  int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
   int parts[2] = {particle_i, particle_j};
@@ -444,7 +453,7 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
     e.anchor[k] = anchor[k];
   }
-  int st = set_law(m, &e, law, params, what);
+  int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
   if ((st = particle_inputs(m, &e, 1, &particle_i)) < 0)
@@ -577,7 +586,7 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
     e.anchor[k] = anchor[k];
   }
-  if ((st = set_law(m, &e, law, params, what)) < 0)
+  if ((st = mrvi_model_set_law(m, &e, law, params, what)) < 0)
     return st;
   /* Inputs: the blocks of a with their weights, then those of b negated
    * (x_a - x_b); blocks of weight 0 (a point on an axis) are left out. */
@@ -638,7 +647,7 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
                     .particle_i = -1,
                     .particle_j = -1,
                     .n_in = n_terms};
-  int st = set_law(m, &e, law, params, what);
+  int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
   e.in = malloc((size_t)n_terms * sizeof *e.in);
@@ -917,6 +926,15 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     mrvi_fmt(buf, len, "%s constant force: %s", rate, f);
     break;
   }
+  case MRVI_ELEMENT_TORSION: {
+    const int D = m->dimension, body = mrvi_model_body_of(m, e->in[0]),
+              other =
+                  e->n_in > D * D ? mrvi_model_body_of(m, e->in[D * D]) : -1;
+    mrvi_fmt(buf, len, "%s torsional spring %s-%s, rest angle %g rad, %s", rate,
+             m->bodies[body].name,
+             other >= 0 ? m->bodies[other].name : "ground", e->shift, law);
+    break;
+  }
   }
   return MRVI_OK;
 }
@@ -1125,6 +1143,8 @@ double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
   switch (e->kind) {
   case MRVI_ELEMENT_ANGLE:
     return eval_angle(e, m->dimension, y, grad, hess);
+  case MRVI_ELEMENT_TORSION:
+    return mrvi_torsion_eval(e, m->dimension, y, grad, hess);
   case MRVI_ELEMENT_FORCE: {
     double v = 0.0;
     for (int j = 0; j < e->n_in; j++) {
@@ -1294,6 +1314,8 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
     if (el->coef)
       fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);
+    if (el->axes)
+      fnv(&h, el->axes, (size_t)(3 * m->dimension) * sizeof *el->axes);
   }
   for (int c = 0; c < m->n_constraints; c++) {
     const mrvi_constraint *k = &m->constraints[c];
