@@ -405,6 +405,19 @@ int mrvi_model_add_fixed(mrvi_model *m, int particle_i, const int *axes,
  * the initial position). */
 int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
                          double offset);
+/* The same three on ends (mrvi_end: a particle or a body point; doc/
+ * multibody.md, "Constraints on body points"): the particles' types for
+ * particles, else the type "point" on x = phi + sum_i at[i] d_i.
+ * distance: between a and b, or (b NULL) a and `anchor`; NAN length: the
+ * initial distance.  fixed: axes and position as mrvi_model_add_fixed
+ * (NULL position: the initial one).  plane: as mrvi_model_add_plane. */
+int mrvi_model_add_end_distance(mrvi_model *m, const mrvi_end *a,
+                                const mrvi_end *b, const double *anchor,
+                                double length);
+int mrvi_model_add_end_fixed(mrvi_model *m, const mrvi_end *a, const int *axes,
+                             const double *position);
+int mrvi_model_add_end_plane(mrvi_model *m, const mrvi_end *a,
+                             const double *normal, double offset);
 /* sum_j coef[j] q[coords[j]] = rhs (NAN rhs: the initial value). */
 int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
                                      const int *coords, const double *coef,

@@ -121,10 +121,10 @@ static void test_derivatives(void) {
       const double th = ref[0];
       ref[0] += 6 * M_PI;
       mrvi_model_torsion_set(m, ref);
-      mrvi_fmt(what, sizeof what, "torsion %d-D, %s, 3 turns", D,
-               laws[l].law);
+      mrvi_fmt(what, sizeof what, "torsion %d-D, %s, 3 turns", D, laws[l].law);
       fd_check(m, q, what);
-      double V3 = mrvi_model_potential(m, MRVI_SLOW, q, NULL, NULL), phi, d1, d2;
+      double V3 = mrvi_model_potential(m, MRVI_SLOW, q, NULL, NULL), phi, d1,
+             d2;
       const mrvi_law *law = mrvi_law_find(laws[l].law);
       double lp[MRVI_LAW_MAX_PARAMS];
       memcpy(lp, laws[l].par, (size_t)law->n_params * sizeof *lp);
@@ -149,7 +149,7 @@ static void test_derivatives(void) {
  * theta(t) follows omega0/Omega sin(Omega t) to the truncation error.
  * ------------------------------------------------------------------------- */
 typedef struct spin {
-  long crossings;          /* passages of the followed angle through +-pi */
+  long crossings;             /* passages of the followed angle through +-pi */
   double amax, eth, eH, jump; /* max |theta|, max |theta - exact|, energy */
 } spin;
 
@@ -191,8 +191,8 @@ static int spin_run(int D, mrvi_constraint_form form, double dT, spin *r) {
     const double prev = ref;
     mrvi_model_torsion_follow(m, tr->q + j * n, &ref, NULL);
     r->jump = fmax(r->jump, fabs(ref - prev));
-    if (j > 0 && floor((prev + M_PI) / (2 * M_PI)) !=
-                     floor((ref + M_PI) / (2 * M_PI)))
+    if (j > 0 &&
+        floor((prev + M_PI) / (2 * M_PI)) != floor((ref + M_PI) / (2 * M_PI)))
       r->crossings++;
     double Tk, V, W;
     mrvi_model_energy(m, tr->q + j * n, tr->p + j * n, &Tk, &V, &W);
@@ -229,8 +229,206 @@ static void test_spin(int D, mrvi_constraint_form form) {
         D, r[0].crossings, r[0].amax, r[0].eH, oth, oH);
 }
 
+/* ---------------------------------------------------------------------------
+ * Constraints on body points (constraint type "point"): g, G and H of a
+ * distance between two body points, a body point and a particle, a body
+ * point and an anchor, a fixed body point and one on a plane, against
+ * central differences at a point off the manifold; the initial data meet
+ * them (g = 0 at q0).
+ * ------------------------------------------------------------------------- */
+static void test_point_constraints(int D) {
+  mrvi_model *m = sprung_pair(D, "linear", (const double[]){1.0});
+  const double xp[3] = {0.5, -1.0, 0.2};
+  const double vp[3] = {0, 0, 0};
+  const int p = mrvi_model_add_particle(m, "p", 0.5, MRVI_SLOW, xp, vp);
+  CHECK(p >= 0, "particle: %s", mrvi_model_errmsg(m));
+  const mrvi_end a = {.particle = -1, .body = 0, .at = {0.4, -0.2, 0.3}},
+                 b = {.particle = -1, .body = 1, .at = {-0.3, 0.5, 0.1}},
+                 pe = {.particle = p, .body = -1};
+  const double anchor[3] = {0.2, 0.9, -0.4}, normal[3] = {0.3, -1.0, 0.5};
+  const int axes[3] = {1, 0, 1};
+  int c[6];
+  c[0] = mrvi_model_add_end_distance(m, &a, &b, NULL, NAN);
+  c[1] = mrvi_model_add_end_distance(m, &pe, &b, NULL, NAN);
+  c[2] = mrvi_model_add_end_distance(m, &a, NULL, anchor, NAN);
+  c[3] = mrvi_model_add_end_fixed(m, &b, axes, NULL);
+  c[4] = mrvi_model_add_end_plane(m, &a, normal, NAN);
+  CHECK(c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[3] >= 0 && c[4] >= 0,
+        "constraints on body points %d-D: %s", D, mrvi_model_errmsg(m));
+  c[5] = mrvi_model_add_end_distance(m, &a, &a, NULL, 1.0);
+  CHECK(c[5] < 0 && strstr(mrvi_model_errmsg(m), "both ends are on body 'a'"),
+        "distance between two points of one body refused: %s",
+        mrvi_model_errmsg(m));
+  const int R = mrvi_model_constraint_rows(m), n = mrvi_model_n(m);
+  double *g = malloc((size_t)R * sizeof *g);
+  mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
+  double g0 = 0.0;
+  for (int r = 0; r < R; r++)
+    g0 = fmax(g0, fabs(g[r]));
+  CHECK(R == D * (D + 1) + 3 + (D == 3 ? 2 : 1) + 1 && g0 < 1e-14,
+        "body-point constraints %d-D: %d rows, max |g(q0)| %.3g", D, R, g0);
+  free(g);
+  double eG = 0.0, eH = 0.0;
+  const double h = 1e-5;
+  for (int k = 0; k < 5; k++) {
+    const mrvi_constraint *con = &m->constraints[c[k]];
+    const int ni = con->n_in, rows = con->rows;
+    double y[MRVI_MAX_INPUTS], gp[8], gm[8], G[8 * MRVI_MAX_INPUTS],
+        Gp[8 * MRVI_MAX_INPUTS], Gm[8 * MRVI_MAX_INPUTS];
+    double *H = malloc((size_t)rows * ni * ni * sizeof *H);
+    for (int j = 0; j < ni; j++)
+      y[j] = mrvi_model_q0(m)[con->in[j]] + 0.05 * sin(2.3 * j + k);
+    mrvi_constraint_eval_at(con, y, gp, G, H);
+    for (int j = 0; j < ni; j++) {
+      const double yj = y[j];
+      y[j] = yj + h;
+      mrvi_constraint_eval_at(con, y, gp, Gp, NULL);
+      y[j] = yj - h;
+      mrvi_constraint_eval_at(con, y, gm, Gm, NULL);
+      y[j] = yj;
+      for (int r = 0; r < rows; r++) {
+        eG = fmax(eG, fabs((gp[r] - gm[r]) / (2 * h) - G[r * ni + j]));
+        for (int l = 0; l < ni; l++)
+          eH = fmax(eH, fabs((Gp[r * ni + l] - Gm[r * ni + l]) / (2 * h) -
+                             H[(size_t)r * ni * ni + (size_t)l * ni + j]));
+      }
+    }
+    free(H);
+  }
+  printf("constraints on body points %d-D: %d rows, G vs central differences "
+         "%.3g, H %.3g\n",
+         D, R, eG, eH);
+  CHECK(eG < 1e-9 && eH < 1e-8, "body-point constraints %d-D: G %.3g, H %.3g",
+        D, eG, eH);
+  (void)n;
+  mrvi_model_free(m);
+}
+
+/* Run system `sys` with the constraint form and p given, t_end = N dT;
+ * NULL with a failed check on failure. */
+static mrvi_trajectory *run_system(const mrvi_system *sys,
+                                   mrvi_constraint_form form, int p, long N,
+                                   double dT, const char *what) {
+  mrvi_settings s = sys->settings;
+  s.constraint_form = form;
+  s.micro_steps = p;
+  s.macro_step = dT;
+  s.t_end = (double)N * dT;
+  s.newton_tol = 1e-12;
+  s.constraint_tol = 1e-12;
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(sys->model, &s, &tr, &sum) != 0) {
+    CHECK(0, "%s: %s", what, sum.message);
+    return NULL;
+  }
+  return tr;
+}
+
+/* max |q_a - q_b| over the macro nodes. */
+static double max_diff(const mrvi_trajectory *a, const mrvi_trajectory *b) {
+  double e = 0.0;
+  for (long i = 0; i < a->n_macro * a->n && a->n_macro == b->n_macro; i++)
+    e = fmax(e, fabs(a->q[i] - b->q[i]));
+  return a->n_macro == b->n_macro ? e : INFINITY;
+}
+
+static mrvi_system *load(const char *path, const char *text) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  const int st =
+      text ? mrvi_system_load_string(text, path, NULL, 0, &sys, msg, sizeof msg)
+           : mrvi_system_load(test_source_path(path), NULL, 0, &sys, msg,
+                              sizeof msg);
+  CHECK(st == 0, "%s loads: %s", path, msg);
+  return st == 0 ? sys : NULL;
+}
+
+/* The rigid pendulum pinned by `fixed` on a body point is the one on a
+ * revolute joint (the same rows r = x_A - p); a bar hung from an anchor by
+ * a rod to a body point and kept on a plane through another. */
+static const char *pinned_yaml =
+    "name: pinned\n"
+    "dimension: 2\n"
+    "gravity: [0, -9.81]\n"
+    "bodies:\n"
+    "  - {name: link, mass: 1, inertia: 0.08333333333333333,\n"
+    "     position: [0.4330127018922193, -0.25], orientation: "
+    "1.0471975511965976}\n"
+    "constraints:\n"
+    "  - {type: fixed, particle: {body: link, at: [0, 0.5]}}\n"
+    "integrator: {scheme: midpoint-midpoint, macro_step: 0.01, t_end: 1}\n";
+
+static const char *rod_yaml =
+    "name: rod\n"
+    "dimension: 3\n"
+    "gravity: [0, 0, -9.81]\n"
+    "bodies:\n"
+    "  - {name: bar, mass: 1, inertia: [0.1, 0.12, 0.05], position: [1, 0, "
+    "0], angular_velocity: [0.3, -0.2, 0.5]}\n"
+    "particles: [{name: bob, mass: 0.3, position: [1.5, 0.2, -0.4]}]\n"
+    "constraints:\n"
+    "  - {type: distance, between: [{body: bar, at: [-0.3, 0, 0]}], anchor: "
+    "[0, 0, 0]}\n"
+    "  - {type: distance, between: [bob, {body: bar, at: [0.3, 0.1, 0]}]}\n"
+    "  - {type: plane, particle: {body: bar, at: [0, 0.2, 0]}, normal: [0, "
+    "1, 0]}\n"
+    "integrator: {scheme: midpoint-midpoint, macro_step: 0.01, t_end: 1}\n";
+
+static void test_point_runs(void) {
+  mrvi_system *a = load("systems/rigid_pendulum.yaml", NULL),
+              *b = load("pinned.yaml", pinned_yaml),
+              *c = load("rod.yaml", rod_yaml);
+  if (a && b) {
+    mrvi_trajectory *ta = run_system(a, MRVI_FORM_MULTIPLIERS, 1, 100, 0.01,
+                                     "rigid pendulum"),
+                    *tb = run_system(b, MRVI_FORM_MULTIPLIERS, 1, 100, 0.01,
+                                     "pinned by a body point");
+    if (ta && tb) {
+      const double e = max_diff(ta, tb);
+      printf("pendulum pinned by a fixed body point vs on a revolute joint, "
+             "100 steps: max |q - q_joint| %.3g\n",
+             e);
+      CHECK(e < 1e-10, "pinned pendulum vs revolute joint: %.3g", e);
+    }
+    mrvi_trajectory_free(ta);
+    mrvi_trajectory_free(tb);
+  }
+  if (c) {
+    const int R = mrvi_model_constraint_rows(c->model);
+    CHECK(R == 6 + 3, "rod system: %d rows (want 9)", R);
+    mrvi_trajectory *t[2];
+    for (int f = 0; f < 2; f++)
+      t[f] = run_system(c, f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS, 1,
+                        100, 0.01, "rod system");
+    if (t[0] && t[1]) {
+      double eg = 0.0, *g = malloc((size_t)R * sizeof *g);
+      for (long k = 0; k < t[0]->n_macro; k++) {
+        mrvi_model_constraint_eval(c->model, t[0]->q + k * t[0]->n, g, NULL);
+        for (int r = 0; r < R; r++)
+          eg = fmax(eg, fabs(g[r]));
+      }
+      free(g);
+      const double e = max_diff(t[0], t[1]);
+      printf("bar on a rod, a plane and a rod to a particle (3-D), 100 "
+             "steps: max |g| %.3g, forms agree to %.3g\n",
+             eg, e);
+      CHECK(eg <= 1e-12 && e < 1e-10, "rod system: |g| %.3g, forms %.3g", eg,
+            e);
+    }
+    mrvi_trajectory_free(t[0]);
+    mrvi_trajectory_free(t[1]);
+  }
+  mrvi_system_free(a);
+  mrvi_system_free(b);
+  mrvi_system_free(c);
+}
+
 int main(void) {
   test_derivatives();
+  test_point_constraints(2);
+  test_point_constraints(3);
+  test_point_runs();
   for (int D = 2; D <= 3; D++) {
     test_spin(D, MRVI_FORM_MULTIPLIERS);
     test_spin(D, MRVI_FORM_NULL_SPACE);

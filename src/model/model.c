@@ -613,6 +613,133 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
   return push_element(m, &e, what);
 }
 
+/* ---------------------------------------------------------------------------
+ * Constraints on ends (constraint type "point", constraints/point.c): the
+ * blocks of the ends with their weights, the second end's negated, then
+ * the kind and its own parameters.  Particles alone keep their own types.
+ * ------------------------------------------------------------------------- */
+static int add_point_constraint(mrvi_model *m, const mrvi_end *a,
+                                const mrvi_end *b, int kind, int n_own,
+                                const double *own, const char *label) {
+  const int D = m->dimension;
+  int first[8], n_blocks = 0, in[MRVI_MAX_INPUTS];
+  double w[8], par[MRVI_MAX_INPUTS];
+  for (int s = 0; s < (b ? 2 : 1); s++) {
+    int f[4];
+    double wt[4];
+    const int nb_end = end_blocks(m, s ? b : a, f, wt);
+    for (int i = 0; i < nb_end; i++)
+      if (wt[i] != 0.0) {
+        first[n_blocks] = f[i];
+        w[n_blocks++] = s ? -wt[i] : wt[i];
+      }
+  }
+  int n_par = 0;
+  par[n_par++] = D;
+  par[n_par++] = n_blocks;
+  for (int i = 0; i < n_blocks; i++) {
+    par[n_par++] = w[i];
+    for (int k = 0; k < D; k++)
+      in[i * D + k] = first[i] + k;
+  }
+  par[n_par++] = kind;
+  for (int i = 0; i < n_own; i++)
+    par[n_par++] = own[i];
+  return mrvi_model_add_constraint(m, "point", n_blocks * D, in, n_par, par,
+                                   label);
+}
+
+int mrvi_model_add_end_distance(mrvi_model *m, const mrvi_end *a,
+                                const mrvi_end *b, const double *anchor,
+                                double length) {
+  int st;
+  if ((st = check_end(m, a, "distance")) < 0 ||
+      (b && (st = check_end(m, b, "distance")) < 0))
+    return st;
+  if (!b && !anchor)
+    return mrvi_model_fail(m, MRVI_EINVAL, "distance: anchor is NULL");
+  if (a->particle >= 0 && (!b || b->particle >= 0))
+    return b ? mrvi_model_add_distance(m, a->particle, b->particle, length)
+             : mrvi_model_add_distance_anchor(m, a->particle, anchor, length);
+  const int D = m->dimension;
+  char na[128], nb[128] = "anchor", label[300];
+  end_name(m, a, na, sizeof na);
+  if (b)
+    end_name(m, b, nb, sizeof nb);
+  mrvi_fmt(label, sizeof label, "distance %s-%s", na, nb);
+  if (b && a->particle < 0 && b->particle < 0 && a->body == b->body)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: both ends are on body '%s' (their distance is "
+                           "constant)",
+                           label, m->bodies[a->body].name);
+  double own[4] = {length, 0, 0, 0}, xa[3], xb[3] = {0, 0, 0};
+  for (int k = 0; !b && k < D; k++)
+    xb[k] = own[1 + k] = anchor[k];
+  if (isnan(length)) { /* the initial distance */
+    mrvi_model_end_position(m, a, m->q0, xa);
+    if (b)
+      mrvi_model_end_position(m, b, m->q0, xb);
+    double rr = 0.0;
+    for (int k = 0; k < D; k++)
+      rr += (xa[k] - xb[k]) * (xa[k] - xb[k]);
+    own[0] = sqrt(rr);
+  }
+  return add_point_constraint(m, a, b, 0, 1 + D, own, label);
+}
+
+int mrvi_model_add_end_fixed(mrvi_model *m, const mrvi_end *a, const int *axes,
+                             const double *position) {
+  int st = check_end(m, a, "fixed");
+  if (st < 0)
+    return st;
+  if (a->particle >= 0)
+    return mrvi_model_add_fixed(m, a->particle, axes, position);
+  const int D = m->dimension;
+  double own[6], x0[3];
+  mrvi_model_end_position(m, a, m->q0, x0);
+  static const char axis_name[] = "xyz";
+  char which[8] = "", na[128], label[300];
+  int n = 0;
+  for (int k = 0; k < D; k++) {
+    own[k] = !axes || axes[k];
+    own[D + k] = position ? position[k] : x0[k];
+    if (own[k] != 0.0)
+      which[n++] = axis_name[k];
+  }
+  end_name(m, a, na, sizeof na);
+  mrvi_fmt(label, sizeof label, "fixed %s%s%s", na, n < D ? "." : "",
+           n < D ? which : "");
+  return add_point_constraint(m, a, NULL, 1, 2 * D, own, label);
+}
+
+int mrvi_model_add_end_plane(mrvi_model *m, const mrvi_end *a,
+                             const double *normal, double offset) {
+  int st = check_end(m, a, "plane");
+  if (st < 0)
+    return st;
+  if (!normal)
+    return mrvi_model_fail(m, MRVI_EINVAL, "plane: normal is NULL");
+  if (a->particle >= 0)
+    return mrvi_model_add_plane(m, a->particle, normal, offset);
+  const int D = m->dimension;
+  double own[4], x0[3], nn = 0.0;
+  for (int k = 0; k < D; k++)
+    nn += normal[k] * normal[k];
+  nn = sqrt(nn);
+  mrvi_model_end_position(m, a, m->q0, x0);
+  own[D] = 0.0;
+  for (int k = 0; k < D; k++) {
+    own[k] = nn > 0.0 ? normal[k] / nn : normal[k];
+    own[D] += own[k] * x0[k];
+  }
+  if (!isnan(offset))
+    own[D] = nn > 0.0 ? offset / nn : offset;
+  char na[128], label[300];
+  end_name(m, a, na, sizeof na);
+  mrvi_fmt(label, sizeof label, "plane %s", na);
+  return add_point_constraint(m, a, NULL, 2, D + 1, own, label);
+}
+
 int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
                         const int *coords, const double *coef, double offset,
                         const char *law, const double *params) {

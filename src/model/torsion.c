@@ -120,9 +120,8 @@ double mrvi_torsion_eval(const mrvi_element *e, int D, const double *y,
   for (int a = 0; a < n; a++)
     for (int b = 0; b < n; b++)
       hess[a * n + b] =
-          d2 * gt[a] * gt[b] +
-          d1 * (hcc * (gc[a] * gc[b] - gs[a] * gs[b]) +
-                hcs * (gc[a] * gs[b] + gs[a] * gc[b]));
+          d2 * gt[a] * gt[b] + d1 * (hcc * (gc[a] * gc[b] - gs[a] * gs[b]) +
+                                     hcs * (gc[a] * gs[b] + gs[a] * gc[b]));
   for (int i = 0; two && i < D; i++)
     for (int j = 0; j < D; j++) {
       const double w = d1 * (tc * tu[i] + ts * tv[i]) * tm[j];
@@ -189,8 +188,9 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
                            int body_b, const double *axis, const char *law,
                            const double *params, double rest_angle) {
   if (body_a < 0 || body_a >= m->n_bodies || body_b >= m->n_bodies)
-    return mrvi_model_fail(m, MRVI_EINVAL, "torsional spring: unknown body "
-                                           "(index %d)",
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "torsional spring: unknown body "
+                           "(index %d)",
                            body_a < 0 || body_a >= m->n_bodies ? body_a
                                                                : body_b);
   const char *na = m->bodies[body_a].name,
@@ -210,9 +210,8 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
   for (int k = 0; axis && k < 3; k++)
     nn += axis[k] * axis[k];
   if (axis && !(isfinite(nn) && nn > 0.0))
-    return mrvi_model_fail(m, MRVI_EINVAL,
-                           "%s: the axis must be a nonzero finite vector",
-                           what);
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "%s: the axis must be a nonzero finite vector", what);
   if (!isfinite(rest_angle))
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: rest angle must be finite",
                            what);
@@ -227,7 +226,8 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
   /* The reference is body A (the ground with one body), the moving body B
    * (A with the ground): theta turns the mover relative to the reference
    * about the axis, counter-clockwise seen from its tip. */
-  const int ref = body_b >= 0 ? body_a : -1, mov = body_b >= 0 ? body_b : body_a;
+  const int ref = body_b >= 0 ? body_a : -1,
+            mov = body_b >= 0 ? body_b : body_a;
   double t[9];
   mrvi_joint_frame(D, axis, t);
   const int u = D == 3 ? 1 : 0, v = D == 3 ? 2 : 1;
