@@ -38,7 +38,9 @@ static int layout(int n_params, const double *par, int *d, int *nb, int *kind,
   *own = 3 + *nb;
   if ((double)*kind != k || *kind < DISTANCE || *kind > PLANE)
     return -1;
-  const int want = *kind == DISTANCE ? 1 + *d : *kind == FIXED ? 2 * *d : *d + 1;
+  const int want = *kind == DISTANCE ? 1 + *d
+                   : *kind == FIXED  ? 2 * *d
+                                     : *d + 1;
   return n_params == *own + want ? 0 : -1;
 }
 
