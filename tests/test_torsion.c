@@ -522,10 +522,41 @@ static void test_orders(void) {
   mrvi_system_free(sys);
 }
 
+/* A step that turns a torsional spring by pi/2 or more is refused with
+ * its name: two wheels on one axle (2-D, a revolute joint at their common
+ * centre) counter-rotating at +-2 rad/s with dT = 0.4, which the midpoint
+ * rule (RATTLE on the directors: the sine of the turn a step is omega dT)
+ * turns by asin(0.8) = 0.93 rad each, 1.85 rad relative to each other, a
+ * step.  (The general path's Newton iteration does not converge
+ * beyond about 1.2 rad of absolute rotation a step, so the relative turn
+ * of two bodies is the way to reach the limit.) */
+static void test_turn_refused(void) {
+  mrvi_model *m = mrvi_model_create();
+  const double J = 1.0, wa = 2.0, wb = -2.0, x0[2] = {0, 0}, k = 0.01;
+  mrvi_model_set_dimension(m, 2);
+  mrvi_model_add_body(m, "a", 2, MRVI_SLOW, 1.0, &J, x0, NULL, NULL, &wa);
+  mrvi_model_add_body(m, "b", 2, MRVI_SLOW, 1.0, &J, x0, NULL, NULL, &wb);
+  mrvi_model_add_joint(m, "revolute", 0, 1, x0, NULL);
+  mrvi_model_add_torsion(m, MRVI_SLOW, 0, 1, NULL, "linear", &k, 0.0);
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.4, 1, 2.0, 1e-12);
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  const int st = mrvi_trajectory_run(m, &s, &tr, &sum);
+  printf("wheels turning 1.85 rad apart a step: %s\n", sum.message);
+  CHECK(st < 0 && strstr(sum.message, "torsional spring a-b") &&
+            strstr(sum.message, "turned by 1.85 rad") &&
+            strstr(sum.message, "reduce integrator.macro_step"),
+        "a step turning a torsional spring by pi/2 or more refused: %s",
+        sum.message);
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
 int main(void) {
   test_derivatives();
   test_point_constraints(2);
   test_point_constraints(3);
+  test_turn_refused();
   test_point_runs();
   test_forms("systems/flexible_pendulum.yaml", 0.01, 0);
   test_forms("systems/spacecraft.yaml", 0.05, 1);
