@@ -527,9 +527,9 @@ static void test_orders(void) {
  * centre) counter-rotating at +-2 rad/s with dT = 0.4, which the midpoint
  * rule (RATTLE on the directors: the sine of the turn a step is omega dT)
  * turns by asin(0.8) = 0.93 rad each, 1.85 rad relative to each other, a
- * step.  (The general path's Newton iteration does not converge
- * beyond about 1.2 rad of absolute rotation a step, so the relative turn
- * of two bodies is the way to reach the limit.) */
+ * step.  (One body turns by at most a quarter turn a step: no step
+ * exists beyond omega dT = 1, so the relative turn of two bodies is the
+ * way to reach the limit.) */
 static void test_turn_refused(void) {
   mrvi_model *m = mrvi_model_create();
   const double J = 1.0, wa = 2.0, wb = -2.0, x0[2] = {0, 0}, k = 0.01;
