@@ -405,6 +405,19 @@ int mrvi_model_add_fixed(mrvi_model *m, int particle_i, const int *axes,
  * the initial position). */
 int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
                          double offset);
+/* The same three on ends (mrvi_end: a particle or a body point; doc/
+ * multibody.md, "Constraints on body points"): the particles' types for
+ * particles, else the type "point" on x = phi + sum_i at[i] d_i.
+ * distance: between a and b, or (b NULL) a and `anchor`; NAN length: the
+ * initial distance.  fixed: axes and position as mrvi_model_add_fixed
+ * (NULL position: the initial one).  plane: as mrvi_model_add_plane. */
+int mrvi_model_add_end_distance(mrvi_model *m, const mrvi_end *a,
+                                const mrvi_end *b, const double *anchor,
+                                double length);
+int mrvi_model_add_end_fixed(mrvi_model *m, const mrvi_end *a, const int *axes,
+                             const double *position);
+int mrvi_model_add_end_plane(mrvi_model *m, const mrvi_end *a,
+                             const double *normal, double offset);
 /* sum_j coef[j] q[coords[j]] = rhs (NAN rhs: the initial value). */
 int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
                                      const int *coords, const double *coef,
@@ -506,6 +519,19 @@ void mrvi_model_body_pose(const mrvi_model *m, int b, const double *q,
  * constraint index (>= 0) or a status < 0. */
 int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                          int body_b, const double *point, const double *axis);
+/* Torsional spring (doc/multibody.md, "Torsional springs"): energy
+ * phi(theta - rest_angle) with law `law` (params: law->n_params entries) of
+ * the angle theta by which body_b turns relative to body_a (body_b < 0:
+ * body_a relative to the ground) about `axis` (3-D: in space at the initial
+ * configuration, as a revolute joint's; 2-D: NULL, the plane's normal).
+ * theta is 0 at the initial configuration and counted continuously through
+ * +-pi over any number of turns: the integrator follows its branch from
+ * node to node (a step may turn it by less than pi/2).  The rate rule is
+ * the springs': a fast torsional spring may join fast bodies (or a fast
+ * body and the ground) only.  Returns the element index or a status < 0. */
+int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
+                           int body_b, const double *axis, const char *law,
+                           const double *params, double rest_angle);
 /* Names of the joint types above, NULL-terminated. */
 const char *const *mrvi_joint_type_names(void);
 

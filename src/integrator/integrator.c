@@ -40,6 +40,8 @@ struct mrvi_integrator {
   double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
   double *mu_h;                /* projection impulse / h at the current node */
+  int n_torsion;               /* torsional springs of the model */
+  double *torsion; /* their branches: unwrapped angles at node k (torsion.c) */
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;
   int chord_mode;      /* schur path: MRVI_CHORD_AUTO, _OFF or _ON */
@@ -151,6 +153,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   mrvi_step_free(&it->step);
   free(it->q);
   free(it->p);
+  free(it->torsion);
   if (!it->packed) {
     free(it->qs);
     free(it->qf);
@@ -577,6 +580,11 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     mrvi_integrator_free(it);
     return st;
   }
+  /* Torsional springs: their branches at q0, nearest their rest angles. */
+  it->n_torsion = mrvi_model_n_torsions(m);
+  if (!(it->torsion = alloc((size_t)it->n_torsion)))
+    goto oom;
+  mrvi_model_torsion_init(m, it->q, it->torsion);
   split_state(it);
   it->step.qs0 = it->qs;
   it->step.qf0 = it->qf;
@@ -603,6 +611,7 @@ int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,
       return fail(it, MRVI_ENONFINITE, "state is not finite");
   memcpy(it->q, q, (size_t)n * sizeof *q);
   memcpy(it->p, p, (size_t)n * sizeof *p);
+  mrvi_model_torsion_init(it->model, q, it->torsion);
   memset(it->mu_h, 0, (size_t)it->model->constraint_rows * sizeof(double));
   if (it->model->n_constraints > 0) {
     char msg[400];
@@ -637,7 +646,10 @@ int mrvi_integrator_resume_state(mrvi_integrator *it, long k, const double *q,
   memcpy(it->q, q, (size_t)n * sizeof *q);
   memcpy(it->p, p, (size_t)n * sizeof *p);
   /* No projection: p_k of a stored node is projected already, and
-   * projecting again would change its last bits. */
+   * projecting again would change its last bits.  Torsional springs
+   * resume on the branch nearest their rest angle: the output does not
+   * keep their winding (doc/multibody.md, "Torsional springs"). */
+  mrvi_model_torsion_init(it->model, q, it->torsion);
   memset(it->mu_h, 0, (size_t)it->model->constraint_rows * sizeof(double));
   split_state(it);
   mrvi_sweep_reset(it->sweep);
@@ -1181,7 +1193,30 @@ static int newton_step(mrvi_integrator *it) {
   return accept_step(it, iter + shot, res);
 }
 
-int mrvi_integrator_step(mrvi_integrator *it) { return it->ops->step(it); }
+/* A macro step.  Torsional springs are evaluated on this integrator's
+ * branches (the model's elements are shared by every integrator of the
+ * model), which then follow the new node; a step that turns one by pi/2
+ * or more could have jumped a branch and is refused. */
+int mrvi_integrator_step(mrvi_integrator *it) {
+  if (it->n_torsion == 0)
+    return it->ops->step(it);
+  const mrvi_model *m = it->model;
+  mrvi_model_torsion_set(m, it->torsion);
+  const int st = it->ops->step(it);
+  if (st < 0)
+    return st;
+  int worst;
+  const double turn = mrvi_model_torsion_follow(m, it->q, it->torsion, &worst);
+  if (turn >= 0.5 * M_PI) {
+    char what[300];
+    mrvi_model_describe_element(m, worst, what, sizeof what);
+    return fail(it, MRVI_ENEWTON,
+                "step %ld: the %s turned by %.3g rad in one macro step (at "
+                "most pi/2 are followed: reduce integrator.macro_step)",
+                it->k, what, turn);
+  }
+  return MRVI_OK;
+}
 
 /* The new state (x, ps1 and xf, pf1: the last fast node) into q, p, the
  * last one into qs_prev, qf_prev and the fast nodes into micro_q, for the

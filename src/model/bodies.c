@@ -308,7 +308,8 @@ const char *const *mrvi_joint_type_names(void) {
 
 /* Body-frame components R^T v of the space vector v (D entries) for body
  * b at the initial configuration. */
-static void to_body(const mrvi_model *m, int b, const double *v, double *out) {
+void mrvi_body_frame_of(const mrvi_model *m, int b, const double *v,
+                        double *out) {
   const int D = m->bodies[b].dim;
   const double *y = m->q0 + m->bodies[b].first;
   for (int i = 0; i < D; i++) {
@@ -322,7 +323,7 @@ static void to_body(const mrvi_model *m, int b, const double *v, double *out) {
  * axis (e_1 without one), then unit normals with (t_1, t_2, t_3)
  * right-handed (2-D: t_2 = t_1 turned by +90 degrees).  t_2 is along the
  * coordinate axis least aligned with t_1, made normal to it. */
-static void joint_frame(int D, const double *axis, double *t) {
+void mrvi_joint_frame(int D, const double *axis, double *t) {
   double n = 0.0;
   for (int a = 0; a < D; a++) {
     t[a] = axis ? axis[a] : a == 0;
@@ -407,7 +408,7 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                                nb);
       r[a] = point[a] - m->q0[bd->first + a];
     }
-    to_body(m, bodies[s], r, par + n_par);
+    mrvi_body_frame_of(m, bodies[s], r, par + n_par);
     n_par += D;
     for (int j = 0; j < D * (D + 1); j++)
       in[n_in++] = bd->first + j;
@@ -421,12 +422,12 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                              "%s joint %s-%s: the axis must be a nonzero "
                              "finite vector",
                              type, na, nb);
-    joint_frame(D, axis, t);
+    mrvi_joint_frame(D, axis, t);
     /* t_m in A's frame, then in B's frame (in space for the ground). */
     for (int s = 0; s < 2; s++)
       for (int k = 0; k < D; k++, n_par += D)
         if (bodies[s] >= 0)
-          to_body(m, bodies[s], t + D * k, par + n_par);
+          mrvi_body_frame_of(m, bodies[s], t + D * k, par + n_par);
         else
           memcpy(par + n_par, t + D * k, (size_t)D * sizeof *t);
   }

@@ -19,6 +19,7 @@ extern const mrvi_constraint_type mrvi_constraint_weld;
 extern const mrvi_constraint_type mrvi_constraint_prismatic;
 extern const mrvi_constraint_type mrvi_constraint_cylindrical;
 extern const mrvi_constraint_type mrvi_constraint_planar;
+extern const mrvi_constraint_type mrvi_constraint_point;
 
 static const mrvi_constraint_type *const builtin[] = {
     &mrvi_constraint_distance,  &mrvi_constraint_fixed,
@@ -26,7 +27,7 @@ static const mrvi_constraint_type *const builtin[] = {
     &mrvi_constraint_body,      &mrvi_constraint_spherical,
     &mrvi_constraint_revolute,  &mrvi_constraint_weld,
     &mrvi_constraint_prismatic, &mrvi_constraint_cylindrical,
-    &mrvi_constraint_planar,
+    &mrvi_constraint_planar,    &mrvi_constraint_point,
 };
 
 #define N_BUILTIN ((int)(sizeof builtin / sizeof builtin[0]))

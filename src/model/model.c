@@ -63,6 +63,7 @@ void mrvi_model_free(mrvi_model *m) {
   for (int e = 0; e < m->n_elements; e++) {
     free(m->elements[e].in);
     free(m->elements[e].coef);
+    free(m->elements[e].axes);
   }
   free(m->names);
   free(m->mass);
@@ -308,11 +309,17 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   return m->n_particles++;
 }
 
+/* Release what element e (not yet pushed) owns. */
+static void drop_element(mrvi_element *e) {
+  free(e->in);
+  free(e->coef);
+  free(e->axes);
+}
+
 /* Append an element whose inputs are already set; checks the rate rule. */
 static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   if (e->potential != MRVI_SLOW && e->potential != MRVI_FAST) {
-    free(e->in);
-    free(e->coef);
+    drop_element(e);
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: potential must be slow or fast",
                            what);
   }
@@ -320,8 +327,7 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
     for (int j = 0; j < e->n_in; j++)
       if (m->rate[e->in[j]] == MRVI_SLOW) {
         int c = e->in[j];
-        free(e->in);
-        free(e->coef);
+        drop_element(e);
         return mrvi_model_fail(
             m, MRVI_EMODEL,
             "fast %s touches slow coordinate '%s': the fast potential "
@@ -333,14 +339,17 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
       }
   if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
            sizeof *m->elements)) {
-    free(e->in);
-    free(e->coef);
+    drop_element(e);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   if (e->kind != MRVI_ELEMENT_GRAVITY && e->n_in > m->max_in)
     m->max_in = e->n_in;
   m->elements[m->n_elements] = *e;
   return m->n_elements++;
+}
+
+int mrvi_model_push_element(mrvi_model *m, mrvi_element *e, const char *what) {
+  return push_element(m, e, what);
 }
 
 /* Allocate e->in and e->coef (e->n_in entries each). */
@@ -355,8 +364,8 @@ static int alloc_inputs(mrvi_model *m, mrvi_element *e) {
 }
 
 /* Look up the law and copy and check its parameters. */
-static int set_law(mrvi_model *m, mrvi_element *e, const char *law,
-                   const double *params, const char *what) {
+int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
+                       const double *params, const char *what) {
   e->law = mrvi_law_find(law);
   if (!e->law)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: unknown law '%s'", what,
@@ -410,7 +419,7 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
                     .shift = rest_length,
                     .particle_i = particle_i,
                     .particle_j = particle_j};
-  int st = set_law(m, &e, law, params, what);
+  int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
   int parts[2] = {particle_i, particle_j};
@@ -444,7 +453,7 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
     e.anchor[k] = anchor[k];
   }
-  int st = set_law(m, &e, law, params, what);
+  int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
   if ((st = particle_inputs(m, &e, 1, &particle_i)) < 0)
@@ -577,7 +586,7 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
     e.anchor[k] = anchor[k];
   }
-  if ((st = set_law(m, &e, law, params, what)) < 0)
+  if ((st = mrvi_model_set_law(m, &e, law, params, what)) < 0)
     return st;
   /* Inputs: the blocks of a with their weights, then those of b negated
    * (x_a - x_b); blocks of weight 0 (a point on an axis) are left out. */
@@ -602,6 +611,133 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
       e.coef[i * D + k] = w[i];
     }
   return push_element(m, &e, what);
+}
+
+/* ---------------------------------------------------------------------------
+ * Constraints on ends (constraint type "point", constraints/point.c): the
+ * blocks of the ends with their weights, the second end's negated, then
+ * the kind and its own parameters.  Particles alone keep their own types.
+ * ------------------------------------------------------------------------- */
+static int add_point_constraint(mrvi_model *m, const mrvi_end *a,
+                                const mrvi_end *b, int kind, int n_own,
+                                const double *own, const char *label) {
+  const int D = m->dimension;
+  int first[8], n_blocks = 0, in[MRVI_MAX_INPUTS];
+  double w[8], par[MRVI_MAX_INPUTS];
+  for (int s = 0; s < (b ? 2 : 1); s++) {
+    int f[4];
+    double wt[4];
+    const int nb_end = end_blocks(m, s ? b : a, f, wt);
+    for (int i = 0; i < nb_end; i++)
+      if (wt[i] != 0.0) {
+        first[n_blocks] = f[i];
+        w[n_blocks++] = s ? -wt[i] : wt[i];
+      }
+  }
+  int n_par = 0;
+  par[n_par++] = D;
+  par[n_par++] = n_blocks;
+  for (int i = 0; i < n_blocks; i++) {
+    par[n_par++] = w[i];
+    for (int k = 0; k < D; k++)
+      in[i * D + k] = first[i] + k;
+  }
+  par[n_par++] = kind;
+  for (int i = 0; i < n_own; i++)
+    par[n_par++] = own[i];
+  return mrvi_model_add_constraint(m, "point", n_blocks * D, in, n_par, par,
+                                   label);
+}
+
+int mrvi_model_add_end_distance(mrvi_model *m, const mrvi_end *a,
+                                const mrvi_end *b, const double *anchor,
+                                double length) {
+  int st;
+  if ((st = check_end(m, a, "distance")) < 0 ||
+      (b && (st = check_end(m, b, "distance")) < 0))
+    return st;
+  if (!b && !anchor)
+    return mrvi_model_fail(m, MRVI_EINVAL, "distance: anchor is NULL");
+  if (a->particle >= 0 && (!b || b->particle >= 0))
+    return b ? mrvi_model_add_distance(m, a->particle, b->particle, length)
+             : mrvi_model_add_distance_anchor(m, a->particle, anchor, length);
+  const int D = m->dimension;
+  char na[128], nb[128] = "anchor", label[300];
+  end_name(m, a, na, sizeof na);
+  if (b)
+    end_name(m, b, nb, sizeof nb);
+  mrvi_fmt(label, sizeof label, "distance %s-%s", na, nb);
+  if (b && a->particle < 0 && b->particle < 0 && a->body == b->body)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: both ends are on body '%s' (their distance is "
+                           "constant)",
+                           label, m->bodies[a->body].name);
+  double own[4] = {length, 0, 0, 0}, xa[3], xb[3] = {0, 0, 0};
+  for (int k = 0; !b && k < D; k++)
+    xb[k] = own[1 + k] = anchor[k];
+  if (isnan(length)) { /* the initial distance */
+    mrvi_model_end_position(m, a, m->q0, xa);
+    if (b)
+      mrvi_model_end_position(m, b, m->q0, xb);
+    double rr = 0.0;
+    for (int k = 0; k < D; k++)
+      rr += (xa[k] - xb[k]) * (xa[k] - xb[k]);
+    own[0] = sqrt(rr);
+  }
+  return add_point_constraint(m, a, b, 0, 1 + D, own, label);
+}
+
+int mrvi_model_add_end_fixed(mrvi_model *m, const mrvi_end *a, const int *axes,
+                             const double *position) {
+  int st = check_end(m, a, "fixed");
+  if (st < 0)
+    return st;
+  if (a->particle >= 0)
+    return mrvi_model_add_fixed(m, a->particle, axes, position);
+  const int D = m->dimension;
+  double own[6], x0[3];
+  mrvi_model_end_position(m, a, m->q0, x0);
+  static const char axis_name[] = "xyz";
+  char which[8] = "", na[128], label[300];
+  int n = 0;
+  for (int k = 0; k < D; k++) {
+    own[k] = !axes || axes[k];
+    own[D + k] = position ? position[k] : x0[k];
+    if (own[k] != 0.0)
+      which[n++] = axis_name[k];
+  }
+  end_name(m, a, na, sizeof na);
+  mrvi_fmt(label, sizeof label, "fixed %s%s%s", na, n < D ? "." : "",
+           n < D ? which : "");
+  return add_point_constraint(m, a, NULL, 1, 2 * D, own, label);
+}
+
+int mrvi_model_add_end_plane(mrvi_model *m, const mrvi_end *a,
+                             const double *normal, double offset) {
+  int st = check_end(m, a, "plane");
+  if (st < 0)
+    return st;
+  if (!normal)
+    return mrvi_model_fail(m, MRVI_EINVAL, "plane: normal is NULL");
+  if (a->particle >= 0)
+    return mrvi_model_add_plane(m, a->particle, normal, offset);
+  const int D = m->dimension;
+  double own[4], x0[3], nn = 0.0;
+  for (int k = 0; k < D; k++)
+    nn += normal[k] * normal[k];
+  nn = sqrt(nn);
+  mrvi_model_end_position(m, a, m->q0, x0);
+  own[D] = 0.0;
+  for (int k = 0; k < D; k++) {
+    own[k] = nn > 0.0 ? normal[k] / nn : normal[k];
+    own[D] += own[k] * x0[k];
+  }
+  if (!isnan(offset))
+    own[D] = nn > 0.0 ? offset / nn : offset;
+  char na[128], label[300];
+  end_name(m, a, na, sizeof na);
+  mrvi_fmt(label, sizeof label, "plane %s", na);
+  return add_point_constraint(m, a, NULL, 2, D + 1, own, label);
 }
 
 int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
@@ -638,7 +774,7 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
                     .particle_i = -1,
                     .particle_j = -1,
                     .n_in = n_terms};
-  int st = set_law(m, &e, law, params, what);
+  int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
   e.in = malloc((size_t)n_terms * sizeof *e.in);
@@ -917,6 +1053,15 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     mrvi_fmt(buf, len, "%s constant force: %s", rate, f);
     break;
   }
+  case MRVI_ELEMENT_TORSION: {
+    const int D = m->dimension, body = mrvi_model_body_of(m, e->in[0]),
+              other =
+                  e->n_in > D * D ? mrvi_model_body_of(m, e->in[D * D]) : -1;
+    mrvi_fmt(buf, len, "%s torsional spring %s-%s, rest angle %g rad, %s", rate,
+             m->bodies[body].name,
+             other >= 0 ? m->bodies[other].name : "ground", e->shift, law);
+    break;
+  }
   }
   return MRVI_OK;
 }
@@ -1125,6 +1270,8 @@ double mrvi_element_eval(const mrvi_model *m, const mrvi_element *e,
   switch (e->kind) {
   case MRVI_ELEMENT_ANGLE:
     return eval_angle(e, m->dimension, y, grad, hess);
+  case MRVI_ELEMENT_TORSION:
+    return mrvi_torsion_eval(e, m->dimension, y, grad, hess);
   case MRVI_ELEMENT_FORCE: {
     double v = 0.0;
     for (int j = 0; j < e->n_in; j++) {
@@ -1294,6 +1441,8 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
     if (el->coef)
       fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);
+    if (el->axes)
+      fnv(&h, el->axes, (size_t)(3 * m->dimension) * sizeof *el->axes);
   }
   for (int c = 0; c < m->n_constraints; c++) {
     const mrvi_constraint *k = &m->constraints[c];

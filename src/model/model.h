@@ -17,7 +17,9 @@ typedef enum mrvi_element_kind {
   MRVI_ELEMENT_TERM,    /* phi(c^T y - b) */
   MRVI_ELEMENT_GRAVITY, /* c^T y (linear, no law) */
   MRVI_ELEMENT_ANGLE,   /* k [1 - cos(theta_ijk - theta0)], no law */
-  MRVI_ELEMENT_FORCE    /* c^T y with c = -f (constant force, no law) */
+  MRVI_ELEMENT_FORCE,   /* c^T y with c = -f (constant force, no law) */
+  MRVI_ELEMENT_TORSION  /* phi(theta - theta0), theta the unwrapped relative
+                           angle of two bodies about an axis (bodies.c) */
 } mrvi_element_kind;
 
 typedef struct mrvi_element {
@@ -33,6 +35,13 @@ typedef struct mrvi_element {
   int n_in;                   /* number of input coordinates */
   int *in;                    /* n_in model indices */
   double *coef;               /* n_in coefficients (terms, gravity) */
+  /* Torsion (bodies.c): the frame vectors r_u, r_v of the reference (body A
+   * in its frame, or the ground in space) and m_u of the moving body (its
+   * frame), dimension entries each; NULL for other kinds. */
+  double *axes;
+  /* Torsion: the branch of the angle, the unwrapped angle at the last
+   * accepted node (run state: mrvi_model_torsion_set). */
+  double unwrap;
 } mrvi_element;
 
 typedef struct mrvi_particle {
@@ -90,6 +99,37 @@ typedef struct mrvi_body {
   double mass, inertia[3]; /* M; J_1..J_3 (2-D: J in inertia[0]) */
   int constraint;          /* its internal constraint ("body") */
 } mrvi_body;
+/* Torsional springs (bodies.c, doc/multibody.md "Torsional springs"): the
+ * unwrapped angle is a function of the path, not of q, so its branch is run
+ * state kept by the integrator (ref: one entry per torsion element, in
+ * element order) and handed to the elements before each step.  The
+ * elements' energy is evaluated on the branch nearest their `unwrap`. */
+int mrvi_model_n_torsions(const mrvi_model *m);
+/* ref <- each torsion's angle at q on the branch nearest its rest angle. */
+void mrvi_model_torsion_init(const mrvi_model *m, const double *q, double *ref);
+/* The elements' branches <- ref (writes the elements' run state `unwrap`:
+ * the one field of a model that a run changes). */
+void mrvi_model_torsion_set(const mrvi_model *m, const double *ref);
+/* ref <- each torsion's angle at q on the branch nearest ref; returns the
+ * largest |change| (the relative rotation across one step), *worst (may be
+ * NULL) its element index. */
+double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
+                                 double *ref, int *worst);
+/* Energy of torsion element e at its inputs y (bodies.c). */
+double mrvi_torsion_eval(const mrvi_element *e, int dim, const double *y,
+                         double *grad, double *hess);
+/* Append element e (its inputs set) after the rate rule's check; on
+ * failure e's arrays are freed (model.c).  Returns its index. */
+int mrvi_model_push_element(mrvi_model *m, mrvi_element *e, const char *what);
+/* e's law `law` with params, checked (model.c). */
+int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
+                       const double *params, const char *what);
+/* The frame t_1..t_D (D x D, row m = t_m) of a joint with `axis` (NULL:
+ * e_1), and the body-frame components R^T v of body b at the initial
+ * configuration (bodies.c). */
+void mrvi_joint_frame(int D, const double *axis, double *t);
+void mrvi_body_frame_of(const mrvi_model *m, int b, const double *v,
+                        double *out);
 /* Release the bodies of m (bodies.c). */
 void mrvi_model_free_bodies(mrvi_model *m);
 /* Body owning model coordinate c, or -1. */

@@ -26,7 +26,8 @@
  * is claimed conserved.  Rigid bodies (doc/multibody.md): the centre of mass
  * phi translates and rotates like a particle, the directors d_i only rotate
  * (a translation leaves them); their internal constraints d_i.d_j are
- * invariant under both; joints are not analysed (as unknown types). The tests
+ * invariant under both, and so is a torsional spring between two bodies;
+ * joints are not analysed (as unknown types). The tests
  * are exact (a zero sum, zero components): the answer concerns the model as
  * written, not a numerical tolerance. */
 #include "model/model.h"
@@ -94,6 +95,13 @@ static void element(const int *part, sym *s, const mrvi_element *e,
     break;
   case MRVI_ELEMENT_ANCHOR:
     anchored(s, e->anchor);
+    break;
+  case MRVI_ELEMENT_TORSION:
+    /* Between two bodies: dot products of directors, invariant under
+     * both groups; to the ground: the ground's frame breaks rotations. */
+    if (e->n_in == s->d * s->d)
+      for (int a = 0; a < 3; a++)
+        s->ang[a] = 0;
     break;
   case MRVI_ELEMENT_TERM:
     linear_row(part, s, e->n_in, e->in, e->coef);

@@ -374,6 +374,85 @@ static int label_constraint(loader *L, struct fy_node *item, const char *where,
   return MRVI_OK;
 }
 
+/* Whether node n is a body point: a mapping, or a scalar naming a body. */
+static int is_body_point(loader *L, struct fy_node *n) {
+  return n && (fy_node_is_mapping(n) ||
+               (fy_node_is_scalar(n) &&
+                mrvi_model_find_body(L->sys->model, mrvi_ld_scalar0(n)) >= 0));
+}
+
+/* Whether entry `item` of type t is a distance, fixed or plane constraint
+ * with a body point as an end (doc/multibody.md, "Constraints on body
+ * points"). */
+static int on_body_points(loader *L, struct fy_node *item,
+                          const mrvi_constraint_type *t) {
+  if (!strcmp(t->name, "fixed") || !strcmp(t->name, "plane"))
+    return is_body_point(L, mrvi_ld_get(item, "particle"));
+  struct fy_node *ends = mrvi_ld_get(item, "between");
+  if (strcmp(t->name, "distance") || !ends || !fy_node_is_sequence(ends))
+    return 0;
+  for (int i = 0; i < fy_node_sequence_item_count(ends); i++)
+    if (is_body_point(L, fy_node_sequence_get_by_index(ends, i)))
+      return 1;
+  return 0;
+}
+
+/* Such an entry, with the same keys as on particles, through
+ * mrvi_model_add_end_distance, _fixed or _plane; returns the constraint
+ * index (>= 0) or a status < 0. */
+static int load_point_entry(loader *L, struct fy_node *item, const char *where,
+                            const mrvi_constraint_type *t, int dim) {
+  mrvi_model *m = L->sys->model;
+  int st, c;
+  if (!strcmp(t->name, "distance")) {
+    mrvi_end pt[2];
+    int pi[2], ends;
+    double anchor[3] = {0, 0, 0}, length = NAN;
+    if ((st = mrvi_ld_ends(L, item, where, "distance constraint", "between",
+                           "anchor", dim, pi, pt, &ends, anchor)) ||
+        (st = mrvi_ld_opt_positive(L, item, "length", "length", &length, NULL)))
+      return st;
+    c = mrvi_model_add_end_distance(m, &pt[0], ends == 2 ? &pt[1] : NULL,
+                                    anchor, length);
+    return c < 0 ? mrvi_ld_fail_model(L, mrvi_ld_get(item, "between"), c) : c;
+  }
+  mrvi_end pt;
+  struct fy_node *n;
+  if ((st = mrvi_ld_end_point(L, mrvi_ld_get(item, "particle"), "particle", dim,
+                              &pt)))
+    return st;
+  if (!strcmp(t->name, "fixed")) {
+    int in[3] = {0, 1, 2};
+    entry e = {.type = t,
+               .item = item,
+               .where = where,
+               .dim = dim,
+               .on = {1, 1, 1},
+               .n_on = dim};
+    double pos[3];
+    if ((n = mrvi_ld_get(item, "axes")) &&
+        ((st = add_inputs(L, &e, in, dim)) ||
+         (st = read_axes(L, &e, "axes", n)))) {
+      free(e.in);
+      return st;
+    }
+    free(e.in);
+    if ((n = mrvi_ld_get(item, "position")) &&
+        (st = mrvi_ld_as_vector(L, n, "position", dim, pos)))
+      return st;
+    c = mrvi_model_add_end_fixed(m, &pt, e.on, n ? pos : NULL);
+  } else {
+    double normal[3], offset = NAN;
+    if ((st = mrvi_ld_need(L, item, "normal", where, &n)) ||
+        (st = mrvi_ld_as_vector(L, n, "normal", dim, normal)) ||
+        ((n = mrvi_ld_get(item, "offset")) &&
+         (st = mrvi_ld_as_number(L, n, "offset", &offset))))
+      return st;
+    c = mrvi_model_add_end_plane(m, &pt, normal, offset);
+  }
+  return c < 0 ? mrvi_ld_fail_model(L, item, c) : c;
+}
+
 static int load_constraint(loader *L, struct fy_node *item, int i, int dim) {
   const char *keys[MAX_KEYS], *type_names[64];
   char where[64];
@@ -398,7 +477,9 @@ static int load_constraint(loader *L, struct fy_node *item, int i, int dim) {
   if ((st = mrvi_ld_check_keys(L, item, where, keys, entry_keys(t, keys), NULL,
                                0)))
     return st;
-  const int c = load_entry(L, item, where, t, dim);
+  const int c = on_body_points(L, item, t)
+                    ? load_point_entry(L, item, where, t, dim)
+                    : load_entry(L, item, where, t, dim);
   if (c < 0)
     return c;
   if ((st = mrvi_ld_constraint_item(L, c, item)))

@@ -104,8 +104,8 @@ int mrvi_ld_combination(loader *L, struct fy_node *comb, int *coords,
  * `{body: NAME, at: [X1, X2, X3]}` (body-frame components about the centre
  * of mass) or a body's name alone (its centre of mass).  A scalar naming no
  * body is left to mrvi_ld_find_particle (p->particle = 0 then). */
-static int end_point(loader *L, struct fy_node *n, const char *key, int dim,
-                     mrvi_end *p) {
+int mrvi_ld_end_point(loader *L, struct fy_node *n, const char *key, int dim,
+                      mrvi_end *p) {
   static const char *const point_keys[] = {"body", "at"};
   const mrvi_model *m = L->sys->model;
   struct fy_node *bn, *at;
@@ -154,7 +154,7 @@ int mrvi_ld_ends(loader *L, struct fy_node *item, const char *where,
                         key, anchor_key, *ends);
   for (int e = 0; e < *ends; e++) {
     struct fy_node *n = fy_node_sequence_get_by_index(between, e);
-    if (points && (st = end_point(L, n, key, dim, &points[e])))
+    if (points && (st = mrvi_ld_end_point(L, n, key, dim, &points[e])))
       return st;
     if (points && (pi[e] = points[e].particle) < 0)
       continue;

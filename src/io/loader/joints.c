@@ -1,14 +1,44 @@
 /* `joints:` of a description file (doc/multibody.md): {type, bodies,
- * point, axis, name}; one body joins it to the ground, two join them.
- * point and axis are in space at the initial configuration
- * (mrvi_model_add_joint stores them in the bodies' frames). */
+ * point, axis, name, spring}; one body joins it to the ground, two join
+ * them.  point and axis are in space at the initial configuration
+ * (mrvi_model_add_joint stores them in the bodies' frames).  `spring:` on
+ * a revolute joint is a torsional spring about its axis
+ * (mrvi_model_add_torsion): {law, the law's parameters, rest_angle,
+ * potential}. */
 #include "io/loader/loader_internal.h"
 
 #include <stdlib.h>
 #include <string.h>
 
-static const char *const joint_keys[] = {"type", "bodies", "point", "axis",
-                                         "name"};
+static const char *const joint_keys[] = {"type", "bodies", "point",
+                                         "axis", "name",   "spring"};
+static const char *const torsion_keys[] = {"law", "rest_angle", "potential"};
+
+/* `spring:` of joint `where` between bodies b (b[1] < 0: the ground). */
+static int load_torsion(loader *L, struct fy_node *sn, const char *type,
+                        const char *where, const int *b, const double *axis) {
+  char at[96];
+  mrvi_fmt(at, sizeof at, "%s.spring", where);
+  if (strcmp(type, "revolute"))
+    return mrvi_ld_fail(L, sn,
+                        "%s: a torsional spring needs a revolute joint (this "
+                        "one is %s)",
+                        at, type);
+  const mrvi_law *law = NULL;
+  double params[MRVI_LAW_MAX_PARAMS] = {0}, rest = 0.0;
+  mrvi_rate potential;
+  int st;
+  if ((st = mrvi_ld_want_mapping(L, sn, at)) ||
+      (st = mrvi_ld_law(L, sn, at, torsion_keys, COUNT(torsion_keys), &law,
+                        params)) ||
+      (st = mrvi_ld_opt_number(L, sn, "rest_angle", 0.0, &rest)) ||
+      (st = mrvi_ld_as_rate(L, sn, "potential", &potential)))
+    return st;
+  mrvi_model *m = L->sys->model;
+  const int e = mrvi_model_add_torsion(m, potential, b[0], b[1], axis,
+                                       law->name, params, rest);
+  return e < 0 ? mrvi_ld_fail_model(L, sn, e) : MRVI_OK;
+}
 
 /* Body named by the string node n. */
 static int find_body(loader *L, struct fy_node *n, int *b) {
@@ -82,6 +112,9 @@ static int load_joint(loader *L, struct fy_node *item, int i, int dim) {
     if (mrvi_model_set_constraint_label(m, c, label) < 0)
       return mrvi_ld_fail_nomem(L);
   }
+  struct fy_node *sn = mrvi_ld_get(item, "spring");
+  if (sn && (st = load_torsion(L, sn, types[type], where, b, an ? axis : NULL)))
+    return st;
   return mrvi_ld_constraint_item(L, c, item);
 }
 

@@ -207,6 +207,11 @@ int mrvi_ld_combination(loader *L, struct fy_node *comb, int *coords,
  * (2 entries, may be NULL: particles only) an end may also be a body point
  * (`{body: NAME, at: [..]}` or a body's name): points[e] gets every end and
  * pi[e] is -1 for a body point. */
+/* One end at node n that may be a body point (`{body: NAME, at: [..]}` or
+ * a body's name); a scalar naming no body leaves p->particle = 0 for
+ * mrvi_ld_find_particle. */
+int mrvi_ld_end_point(loader *L, struct fy_node *n, const char *key, int dim,
+                      mrvi_end *p);
 int mrvi_ld_ends(loader *L, struct fy_node *item, const char *where,
                  const char *noun, const char *key, const char *anchor_key,
                  int dim, int pi[2], mrvi_end *points, int *ends,

@@ -1,0 +1,180 @@
+/* Multirate pays on a multibody system (doc/performance.md, "Multibody";
+ * doc/multibody.md): systems/flexible_pendulum.yaml, a heavy slow arm
+ * carrying two light fast links joined by a stiff torsional spring, with
+ * the midpoint-midpoint scheme at p micro steps against p = 1 (the same
+ * scheme single-rate).  Each run's error is max |q(T) - q_ref(T)| at a fixed
+ * time T against a fine single-rate reference, its cost the process CPU
+ * time of creating the integrator and taking the steps (the best of
+ * `repeat` runs).  The table lists every run; the summary matches errors:
+ * for each multirate run, the CPU time p = 1 needs for the same error,
+ * interpolated log-log between the two single-rate runs that bracket it,
+ * and the ratio.  A measurement, not a test: no thresholds.
+ *
+ *   bench_multibody [--quick] [--p P] [--t T] [--repeat R]
+ *                   [--set KEY=VALUE]... [FILE.yaml]
+ *
+ * Defaults: p = 10, T = 1, R = 3, systems/flexible_pendulum.yaml (through
+ * $MRVI_SOURCE_ROOT or ".."); --quick: T = 0.2, R = 1, fewer steps. */
+#include "bench_util.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const char usage[] =
+    "Usage: bench_multibody [--quick] [--p P] [--t T] [--repeat R] "
+    "[--set KEY=VALUE]... [FILE.yaml]\n"
+    "\n"
+    "Error at time T against a fine reference and CPU time of the\n"
+    "midpoint-midpoint scheme with p micro steps and with p = 1, and the\n"
+    "CPU ratio at matched error; default p = 10, T = 1, R = 3 repeats,\n"
+    "systems/flexible_pendulum.yaml; --set applies a description-file\n"
+    "override (e.g. integrator.constraints.form=null-space).\n";
+
+/* N steps of dT with p micro steps from the file's initial state; q (n)
+ * gets the last node; returns the CPU time or a negative value. */
+static double run(const mrvi_system *sys, int p, double dT, long N, double *q) {
+  mrvi_settings s = sys->settings;
+  s.micro_steps = p;
+  s.macro_step = dT;
+  s.t_end = (double)N * dT;
+  const double t0 = bench_cpu();
+  mrvi_integrator *it = NULL;
+  char msg[512];
+  if (mrvi_integrator_create(sys->model, &s, &it, msg, sizeof msg) != 0) {
+    fprintf(stderr, "p = %d, dT = %g: %s\n", p, dT, msg);
+    return -1.0;
+  }
+  for (long k = 0; k < N; k++)
+    if (mrvi_integrator_step(it) != 0) {
+      fprintf(stderr, "p = %d, dT = %g: %s\n", p, dT,
+              mrvi_integrator_errmsg(it));
+      mrvi_integrator_free(it);
+      return -1.0;
+    }
+  const double t = bench_cpu() - t0;
+  memcpy(q, mrvi_integrator_q(it),
+         (size_t)mrvi_model_n(sys->model) * sizeof *q);
+  mrvi_integrator_free(it);
+  return t;
+}
+
+typedef struct row {
+  int p;
+  double dT, err, cpu;
+} row;
+
+/* Best CPU time of `repeat` runs and the error against q_ref. */
+static int measure(const mrvi_system *sys, int p, double dT, double T,
+                   int repeat, const double *q_ref, double *q, row *r) {
+  const long N = lround(T / dT);
+  const int n = mrvi_model_n(sys->model);
+  r->p = p, r->dT = dT, r->cpu = INFINITY, r->err = 0.0;
+  for (int i = 0; i < repeat; i++) {
+    const double t = run(sys, p, dT, N, q);
+    if (t < 0)
+      return -1;
+    r->cpu = fmin(r->cpu, t);
+  }
+  for (int i = 0; i < n; i++)
+    r->err = fmax(r->err, fabs(q[i] - q_ref[i]));
+  printf("%5d %12.6g %6ld %12.3e %12.4f\n", p, dT, N, r->err, r->cpu);
+  fflush(stdout);
+  return 0;
+}
+
+/* CPU time of the single-rate runs s (ns, dT decreasing) at error e:
+ * log-log interpolation between the two that bracket e; NAN outside. */
+static double cpu_at(const row *s, int ns, double e) {
+  for (int i = 0; i + 1 < ns; i++) {
+    const double a = s[i].err, b = s[i + 1].err;
+    if ((a >= e && b <= e) || (a <= e && b >= e)) {
+      const double w = a == b ? 0.0 : log(e / a) / log(b / a);
+      return exp(log(s[i].cpu) + w * log(s[i + 1].cpu / s[i].cpu));
+    }
+  }
+  return NAN;
+}
+
+int main(int argc, char **argv) {
+  int p = 10, repeat = 3, quick = 0;
+  double T = 1.0;
+  const char *file = NULL, *sets[16];
+  int n_sets = 0;
+  for (int i = 1; i < argc; i++) {
+    if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+      fputs(usage, stdout);
+      return 0;
+    } else if (!strcmp(argv[i], "--quick")) {
+      quick = 1, T = 0.2, repeat = 1;
+    } else if (!strcmp(argv[i], "--p") && i + 1 < argc) {
+      p = atoi(argv[++i]);
+    } else if (!strcmp(argv[i], "--t") && i + 1 < argc) {
+      if (bench_parse_positive(argv[++i], &T) < 0)
+        return fputs(usage, stderr), 2;
+    } else if (!strcmp(argv[i], "--set") && i + 1 < argc && n_sets < 16) {
+      sets[n_sets++] = argv[++i];
+    } else if (!strcmp(argv[i], "--repeat") && i + 1 < argc) {
+      repeat = atoi(argv[++i]);
+    } else if (argv[i][0] != '-' && !file) {
+      file = argv[i];
+    } else {
+      fputs(usage, stderr);
+      return 2;
+    }
+  }
+  if (p < 2 || repeat < 1)
+    return fputs(usage, stderr), 2;
+  if (!file)
+    file = bench_system_path("flexible_pendulum.yaml");
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  if (mrvi_system_load(file, sets, n_sets, &sys, msg, sizeof msg) != 0) {
+    fprintf(stderr, "%s\n", msg);
+    return 1;
+  }
+  const int n = mrvi_model_n(sys->model);
+  double *q_ref = malloc((size_t)n * sizeof *q_ref),
+         *q = malloc((size_t)n * sizeof *q);
+  /* The reference: p = 1 at a step 2^-4 of the finest single-rate run. */
+  const double ref_dT = 1.5625e-5;
+  printf("# %s, midpoint-midpoint, T = %g, %s form; %s\n", sys->name, T,
+         sys->settings.constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
+                                                               : "multiplier",
+         bench_build());
+  printf("# reference: p = 1, dT = %g (%ld steps)\n", ref_dT,
+         lround(T / ref_dT));
+  if (run(sys, 1, ref_dT, lround(T / ref_dT), q_ref) < 0)
+    return 1;
+  printf("%5s %12s %6s %12s %12s\n", "p", "dT", "steps", "error", "cpu [s]");
+  /* Multirate from dT = 0.04 down; single-rate from 0.02 down to where it
+   * resolves the fast links (its error falls as dT^2 from dT = 6.25e-4 on,
+   * not monotonically above). */
+  const double mr_dT[] = {0.04, 0.02, 0.01, 0.005},
+               sr_dT[] = {0.02,    0.01,     0.005,     0.0025,
+                          0.00125, 0.000625, 0.0003125, 0.00015625};
+  const int n_mr = quick ? 3 : 4, n_sr = quick ? 6 : 8;
+  row mr[4], sr[8];
+  int st = 0;
+  for (int i = 0; i < n_mr && !st; i++)
+    st = measure(sys, p, mr_dT[i], T, repeat, q_ref, q, &mr[i]);
+  for (int i = 0; i < n_sr && !st; i++)
+    st = measure(sys, 1, sr_dT[i], T, repeat, q_ref, q, &sr[i]);
+  if (!st) {
+    printf("\n# matched error: p = 1's CPU time for each p = %d run's error "
+           "(log-log between the bracketing p = 1 runs)\n",
+           p);
+    printf("%12s %12s %12s %14s %8s\n", "dT", "error", "cpu p", "cpu p=1 same",
+           "ratio");
+    for (int i = 0; i < n_mr; i++) {
+      const double c1 = cpu_at(sr, n_sr, mr[i].err);
+      printf("%12.6g %12.3e %12.4f %14.4f %8.2f\n", mr[i].dT, mr[i].err,
+             mr[i].cpu, c1, c1 / mr[i].cpu);
+    }
+  }
+  free(q_ref);
+  free(q);
+  mrvi_system_free(sys);
+  return st ? 1 : 0;
+}
