@@ -40,14 +40,20 @@ const char mrvi_usage_batch[] =
     "                        by S times standard normal numbers of its seed\n"
     "                        (projected onto the constraints); the numbers\n"
     "                        depend on the seed alone (doc/batch.md)\n"
-    "  -j, --jobs N          worker processes (default: the cores available)\n"
+    "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
+    "                        cores available)\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
     "                        killed or interrupted batch)\n"
     "  -q, --quiet           no line per finished case\n"
     "  -h, --help            show this help\n"
     "\n"
     "A case that fails (Newton failure, non-finite state) is recorded with\n"
-    "its reason and the others go on.  Not yet: MPI ranks, optimize cases.\n"
+    "its reason and the others go on.  Not yet: optimize cases.\n"
+    "\n"
+    "MPI (built with meson -Dmpi=enabled): 'mpiexec -n R mrvi batch ...'\n"
+    "hands the cases out over R ranks, each with its own --jobs workers\n"
+    "(default: its share of the machine's cores); the files are those of one\n"
+    "process (doc/batch.md).\n"
     "\n"
     "Exit status:\n"
     "  0    every case completed\n"
@@ -57,7 +63,7 @@ const char mrvi_usage_batch[] =
 
 typedef struct batch_ctx {
   const char *out;
-  int quiet, finished, failed, unfinished, total;
+  int quiet, ranks, finished, failed, unfinished, total;
 } batch_ctx;
 
 /* A finished case: its row of the table, and a line. */
@@ -82,11 +88,14 @@ static int on_done(void *user, const mrvi_batch_result *res) {
   b->finished++;
   b->failed += res->status == MRVI_BATCH_FAILED;
   b->unfinished += res->status == MRVI_BATCH_PENDING;
+  char where[32] = "";
+  if (b->ranks > 1)
+    snprintf(where, sizeof where, " (rank %d)", res->rank);
   if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
     fprintf(stderr,
-            "mrvi batch: [%d/%d] case %d: %s (%ld steps, %.3f s, "
+            "mrvi batch: [%d/%d] case %d%s: %s (%ld steps, %.3f s, "
             "energy error %.3e)\n",
-            b->finished, b->total, res->c, res->reason, res->steps,
+            b->finished, b->total, res->c, where, res->reason, res->steps,
             res->wall_time, res->energy_error);
   return 0;
 }
@@ -107,11 +116,40 @@ static int usage_fail(const char *what) {
   return EXIT_INPUT;
 }
 
+/* A rank other than 0 of an MPI batch: the plan from rank 0, then its
+ * cases (cli_batch_mpi.c). */
+static int batch_follow(void) {
+  mrvi_batch_plan plan;
+  memset(&plan, 0, sizeof plan);
+  const char *master = NULL;
+  int jobs = 0;
+  char msg[MSG_LEN];
+  if (mrvi_batch_mpi_share(0, &plan, &master, &jobs)) {
+    if (jobs == 0)
+      jobs = mrvi_batch_mpi_jobs();
+    if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, NULL, NULL, msg,
+                           sizeof msg) < 0 &&
+        msg[0])
+      fprintf(stderr, "mrvi batch: %s\n", msg);
+  }
+  free((char *)master);
+  mrvi_batch_plan_free(&plan);
+  return mrvi_batch_mpi_end(0);
+}
+
 int mrvi_cmd_batch(int argc, char **argv) {
   const char *file = NULL, *out = NULL, *resume = NULL;
-  int zip = 0, seeds = 0, jobs = mrvi_batch_cores(), quiet = 0, n_axes = 0;
+  int zip = 0, seeds = 0, jobs = 0, quiet = 0, n_axes = 0;
   double vstd = 0.0;
   char msg[MSG_LEN];
+  int rank = 0, ranks = 1;
+  if (mrvi_batch_mpi_begin(&rank, &ranks, msg, sizeof msg) < 0) {
+    if (msg[0])
+      fprintf(stderr, "mrvi batch: %s\n", msg);
+    return EXIT_INPUT;
+  }
+  if (rank > 0)
+    return batch_follow();
   mrvi_batch_axis *axes = calloc((size_t)argc + 1, sizeof *axes);
   int rc = axes ? 0 : EXIT_INPUT;
   for (int i = 1; rc == 0 && i < argc; i++) {
@@ -226,15 +264,25 @@ int mrvi_cmd_batch(int argc, char **argv) {
   for (int c = 0; rc == 0 && c < plan.n_cases; c++)
     if (!status || status[c] == MRVI_BATCH_PENDING)
       todo[n_todo++] = c;
+  /* MPI: the other ranks get the plan (or leave), and each rank takes the
+   * cores of its share of the machine unless --jobs says. */
+  int jobs_given = jobs;
+  mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
+  if (rc == 0 && jobs == 0)
+    jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
 
-  batch_ctx ctx = {.out = out, .quiet = quiet, .total = n_todo};
+  batch_ctx ctx = {.out = out, .quiet = quiet, .ranks = ranks, .total = n_todo};
   if (rc == 0) {
-    if (!quiet)
+    if (!quiet && ranks > 1)
+      fprintf(stderr, "mrvi batch: %d case%s%s on %d ranks x %d job%s -> %s\n",
+              n_todo, n_todo == 1 ? "" : "s", resume ? " left" : "", ranks,
+              jobs, jobs == 1 ? "" : "s", out);
+    else if (!quiet)
       fprintf(stderr, "mrvi batch: %d case%s%s on %d job%s -> %s\n", n_todo,
               n_todo == 1 ? "" : "s", resume ? " left" : "",
               jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s", out);
-    int st = mrvi_batch_pool_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
-                                 msg, sizeof msg);
+    int st = mrvi_batch_mpi_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
+                                msg, sizeof msg);
     if (st < 0 && msg[0])
       fprintf(stderr, "mrvi batch: %s\n", msg);
     if (!quiet)
@@ -248,5 +296,5 @@ int mrvi_cmd_batch(int argc, char **argv) {
   free(todo);
   free(status);
   mrvi_batch_plan_free(&plan);
-  return rc < 0 ? 0 : rc;
+  return mrvi_batch_mpi_end(rc < 0 ? 0 : rc);
 }

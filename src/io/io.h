@@ -183,6 +183,7 @@ void mrvi_batch_plan_free(mrvi_batch_plan *plan); /* the contents; NULL ok */
 typedef struct mrvi_batch_result {
   int c;      /* case index */
   int status; /* MRVI_BATCH_COMPLETED or MRVI_BATCH_FAILED */
+  int rank;   /* the MPI rank that ran it (0 without MPI; not in the table) */
   long steps; /* macro steps completed */
   double wall_time, energy_error; /* s; max rel. energy error (mrvi_summary) */
   char reason[MRVI_BATCH_REASON_BYTES]; /* stop reason ("completed") */
