@@ -2,7 +2,8 @@
 # mrvi batch (doc/batch.md): a 3 x 2 batch equals the six `mrvi run --set`
 # results bit for bit; --jobs 2 equals --jobs 1; --zip pairs; a bad value
 # in one case is refused before any case runs, naming the case and key; a
-# failing case is recorded and the others complete; SIGKILL of the parent
+# failing case is recorded and the others complete; a reader holding the
+# master file open does not stop the batch; SIGKILL of the parent
 # and of a worker mid-batch, then --resume, gives every case completed once
 # and the results of an uninterrupted batch; seeded cases are the same in
 # another batch and on any number of jobs, and perturbed velocities of a
@@ -109,6 +110,30 @@ if [ $rc = 2 ] && [ "$(column f.h5 status | tr '\n' ' ')" = "1 2 1 " ] &&
   pass "failing case recorded with its reason, others completed"
 else
   fail "failing case recorded (exit $rc): $(column f.h5 status | tr '\n' ' ')"
+fi
+
+# --- a reader holding the master file open does not stop the batch ---
+# HDF5 readers (h5py, h5dump) hold a shared flock on the file; the rows are
+# written without HDF5's lock, so they are written all the same (before,
+# the row failed with "Resource temporarily unavailable", the batch stopped
+# and the finished case's row was lost).
+"$mrvi" batch "$fpu" -o rd.h5 -q -j 1 --vary integrator.micro_steps=1,2 \
+  --vary integrator.t_end=3000 --vary output.every=100 2>err.txt &
+pid=$!
+for _ in $(seq 1 200); do
+  [ -s rd.h5 ] && break
+  sleep 0.01
+done
+(
+  flock -s 9
+  while kill -0 $pid 2>/dev/null; do sleep 0.02; done
+) 9<rd.h5
+wait $pid
+rc=$?
+if [ $rc = 0 ] && [ "$(column rd.h5 status | tr '\n' ' ')" = "1 1 " ]; then
+  pass "rows written while a reader holds the master file"
+else
+  fail "rows written while a reader holds the master file (exit $rc): $(cat err.txt)"
 fi
 
 # --- SIGKILL of the parent, then --resume ---

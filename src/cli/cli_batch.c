@@ -70,8 +70,9 @@ typedef struct batch_ctx {
 static int on_done(void *user, const mrvi_batch_result *res) {
   batch_ctx *b = user;
   char msg[MSG_LEN];
-  /* Open for this row only: between rows the file is closed, so readers
-   * (h5py, h5dump: HDF5 locks a file open for writing) see the table. */
+  /* Open for this row only, without HDF5's file lock (batch_writer.c):
+   * readers (h5py, h5dump) see the table while the batch runs, and a
+   * reader holding it open does not block the row. */
   mrvi_batch_file *f = NULL;
   int st = mrvi_batch_file_open(b->out, NULL, NULL, &f, msg, sizeof msg);
   if (st == 0)
