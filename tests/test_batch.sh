@@ -2,7 +2,10 @@
 # mrvi batch (doc/batch.md): a 3 x 2 batch equals the six `mrvi run --set`
 # results bit for bit; --jobs 2 equals --jobs 1; --zip pairs; a bad value
 # in one case is refused before any case runs, naming the case and key; a
-# failing case is recorded and the others complete; a reader holding the
+# failing case is recorded and the others complete; the batch: section of
+# the description gives the command line's batch, the command line
+# overrides or extends it, and its errors carry file:line:col; a reader
+# holding the
 # master file open does not stop the batch; SIGKILL of the parent
 # and of a worker mid-batch, then --resume, gives every case completed once
 # and the results of an uninterrupted batch; seeded cases are the same in
@@ -56,6 +59,62 @@ h5dump -d /runs/case_0005/macro/t b.h5 >/dev/null 2>&1 &&
   fail "external link /runs/case_0005 reads the case file"
 grep -q "H5" "$root/src/cli/cli_batch.c" && fail "cli_batch.c makes H5 calls" ||
   pass "cli_batch.c makes no H5 calls"
+
+# --- the batch: section: the same batch from the file ---
+cp "$fpu" sec.yaml
+cat >>sec.yaml <<'EOF'
+batch:
+  vary:
+    integrator.micro_steps: [1, 2, 4]
+    integrator.macro_step: 0.01,0.02
+    integrator.t_end: 20
+  jobs: 2
+EOF
+run_ok "batch from the batch: section" "$mrvi" batch sec.yaml -o sec.h5 -q
+same_table sec.h5 b.h5 && pass "the section's cases equal the command line's" ||
+  fail "the section's cases equal the command line's"
+"$mrvi" run sec.yaml -q -o sec5.h5 --set integrator.micro_steps=4 \
+  --set integrator.macro_step=0.02 --set integrator.t_end=20 >/dev/null 2>&1
+h5diff sec.cases/case_0005.h5 sec5.h5 >/dev/null 2>&1 &&
+  pass "a section case equals mrvi run --set of the file" ||
+  fail "a section case equals mrvi run --set of the file"
+# The command line over the file: a --vary of a file key replaces it in
+# place, a new key follows, --seeds over the file's.
+run_ok "command line over the section" "$mrvi" batch sec.yaml -o over.h5 -q \
+  --vary integrator.micro_steps=4,1 --vary output.micro=false --seeds 2
+if [ "$(column over.h5 'values/integrator.micro_steps' | tr '\n' ' ')" = \
+  "4 4 4 4 1 1 1 1 " ] && [ "$(column over.h5 seed | tr '\n' ' ')" = \
+  "0 1 0 1 0 1 0 1 " ] && h5dump -a keys over.h5 | tr -d '\n' |
+  grep -q 'integrator.micro_steps.*integrator.macro_step.*integrator.t_end.*output.micro'; then
+  pass "--vary replaces the file's key in place, new keys follow, --seeds"
+else
+  fail "command line over the section: $(column over.h5 'values/integrator.micro_steps' | tr '\n' ' ')"
+fi
+# Errors in the section: file:line:col, before anything is written.
+bad_section() { # NAME SED-EXPRESSION EXPECTED-MESSAGE
+  sed "$2" sec.yaml >bs.yaml
+  "$mrvi" batch bs.yaml -o bs.h5 -q 2>err.txt
+  local rc=$?
+  if [ $rc = 1 ] && grep -q -F -- "$3" err.txt && [ ! -e bs.h5 ]; then
+    pass "batch: section, $1"
+  else
+    fail "batch: section, $1 (exit $rc): $(cat err.txt)"
+  fi
+}
+line=$(grep -n '^  jobs: 2' sec.yaml | cut -d: -f1)
+bad_section "unknown key" 's/^  jobs: 2/  sedes: 2/' \
+  "bs.yaml:$line:3: unknown key 'sedes' in batch; did you mean 'seeds'?"
+bad_section "seeds out of range" 's/^  jobs: 2/  seeds: -3/' \
+  "bs.yaml:$line:10: batch.seeds must be 0..1000000, got -3"
+line=$(grep -n 'macro_step: 0.01,0.02' sec.yaml | cut -d: -f1)
+bad_section "malformed linspace" 's/0.01,0.02/linspace(1,2)/' \
+  "bs.yaml:$line:28: batch.vary: --vary integrator.macro_step=linspace(1,2): expected linspace(a,b,n)"
+bad_section "a list item not a value" 's/\[1, 2, 4\]/[1, {a: 2}]/' \
+  "batch.vary.integrator.micro_steps: a value must be a number or a word"
+"$mrvi" check bs.yaml >/dev/null 2>err.txt
+[ $? != 0 ] && grep -q "a value must be a number or a word" err.txt &&
+  pass "mrvi check refuses a bad batch: section too" ||
+  fail "mrvi check refuses a bad batch: section too: $(cat err.txt)"
 
 # --- --jobs 1 equals --jobs 2 ---
 run_ok "batch --jobs 1" "$mrvi" batch "$fpu" -o j1.h5 -q -j 1 \

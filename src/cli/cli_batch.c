@@ -5,6 +5,7 @@
 #include "cli.h"
 
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -27,6 +28,10 @@ const char mrvi_usage_batch[] =
     "OUT.h5 holds the case table (/cases: overrides, values, seed, status,\n"
     "stop_reason, steps, wall_time, energy_error) and external links\n"
     "/runs/case_CCCC to the case files (doc/batch.md).\n"
+    "\n"
+    "The description's batch: section may hold vary, zip, seeds, velocity_std\n"
+    "and jobs in the same vocabulary; the command line overrides or extends\n"
+    "it (a --vary of a key the file varies replaces the file's values).\n"
     "\n"
     "Options:\n"
     "  -o, --output OUT.h5   the master file\n"
@@ -117,6 +122,60 @@ static int usage_fail(const char *what) {
   return EXIT_INPUT;
 }
 
+/* The description's `batch:` section under the command line: the file's
+ * --vary entries in its order, a --vary of the same key on the command
+ * line in place of the file's, the other --vary after them; --zip,
+ * --seeds, --velocity-std and --jobs over the file's (doc/batch.md).  On
+ * return *axes holds every axis (the command line's moved into it). */
+static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
+                        int *n_axes, int *zip, int *seeds, double *vstd,
+                        int *jobs, char *msg, size_t len) {
+  mrvi_batch_section sec;
+  if (mrvi_batch_section_read(base, &sec, msg, len) < 0)
+    return -1;
+  mrvi_batch_axis *all =
+      calloc((size_t)(sec.n_vary + *n_axes) + 1, sizeof *all);
+  int n = 0, rc = all ? 0 : -1;
+  if (!all)
+    snprintf(msg, len, "out of memory");
+  char text[1024];
+  for (int i = 0; rc == 0 && i < sec.n_vary; i++, n++)
+    if (mrvi_batch_axis_parse(sec.vary[i], &all[n], text, sizeof text) < 0) {
+      snprintf(msg, len, "%s: batch.vary: %s", sec.where[i], text);
+      rc = -1;
+    }
+  const int n_file = n;
+  for (int j = 0; rc == 0 && j < *n_axes; j++) {
+    int k = 0;
+    while (k < n_file && strcmp(all[k].key, (*axes)[j].key))
+      k++;
+    if (k < n_file)
+      mrvi_batch_axis_clear(&all[k]);
+    else
+      k = n++;
+    all[k] = (*axes)[j];
+    memset(&(*axes)[j], 0, sizeof **axes);
+  }
+  if (rc == 0) {
+    free(*axes);
+    *axes = all;
+    *n_axes = n;
+    *zip = *zip || sec.zip == 1;
+    if (*seeds < 0)
+      *seeds = sec.seeds > 0 ? sec.seeds : 0;
+    if (isnan(*vstd))
+      *vstd = isnan(sec.velocity_std) ? 0.0 : sec.velocity_std;
+    if (*jobs == 0 && sec.jobs > 0)
+      *jobs = sec.jobs;
+  } else {
+    for (int i = 0; all && i < n; i++)
+      mrvi_batch_axis_clear(&all[i]);
+    free(all);
+  }
+  mrvi_batch_section_free(&sec);
+  return rc;
+}
+
 /* A rank other than 0 of an MPI batch: the plan from rank 0, then its
  * cases (cli_batch_mpi.c). */
 static int batch_follow(void) {
@@ -140,8 +199,8 @@ static int batch_follow(void) {
 
 int mrvi_cmd_batch(int argc, char **argv) {
   const char *file = NULL, *out = NULL, *resume = NULL;
-  int zip = 0, seeds = 0, jobs = 0, quiet = 0, n_axes = 0;
-  double vstd = 0.0;
+  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0;
+  double vstd = NAN; /* seeds -1, vstd NAN, jobs 0: not given */
   char msg[MSG_LEN];
   int rank = 0, ranks = 1;
   if (mrvi_batch_mpi_begin(&rank, &ranks, msg, sizeof msg) < 0) {
@@ -191,7 +250,7 @@ int mrvi_cmd_batch(int argc, char **argv) {
     } else if (!strcmp(a, "--velocity-std")) {
       char *end;
       vstd = strtod(v, &end);
-      if (*end || end == v)
+      if (*end || end == v || isnan(vstd))
         rc = usage_fail("--velocity-std takes a number");
     } else if (a[0] == '-') {
       snprintf(msg, sizeof msg, "unknown option '%s'", a);
@@ -203,7 +262,8 @@ int mrvi_cmd_batch(int argc, char **argv) {
       rc = usage_fail(msg);
     }
   }
-  if (rc == 0 && resume && (file || out || n_axes || zip || seeds || vstd))
+  if (rc == 0 && resume &&
+      (file || out || n_axes || zip || seeds >= 0 || !isnan(vstd)))
     rc = usage_fail("--resume takes the cases from OUT.h5: give no FILE, -o, "
                     "--vary, --zip, --seeds or --velocity-std with it");
   if (rc == 0 && !resume && (!file || !out))
@@ -231,6 +291,10 @@ int mrvi_cmd_batch(int argc, char **argv) {
     mrvi_system *base = NULL;
     if (mrvi_system_load(file, NULL, 0, &base, msg, sizeof msg) < 0 || !base) {
       fprintf(stderr, "%s\n", msg);
+      rc = EXIT_INPUT;
+    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd, &jobs,
+                            msg, sizeof msg) < 0) {
+      fprintf(stderr, "mrvi batch: %s\n", msg);
       rc = EXIT_INPUT;
     } else if (mrvi_batch_plan_build(&plan, base->description, file, axes,
                                      n_axes, zip, seeds, vstd, msg,
