@@ -19,12 +19,13 @@ static const char *loader_override_of(const void *L, struct fy_node *n) {
   return mrvi_ld_override_of(L, n);
 }
 
+/* "control" is read by src/ocp/ocp_loader.c (optimal control), "batch" by
+ * batch.c (mrvi batch). */
 static const char *const top_keys[] = {
     "name",        "dimension", "gravity",     "particles",  "springs",
     "coordinates", "terms",     "constraints", "integrator", "output",
     "angles",      "forces",    "generate",    "bodies",     "joints",
-    "control" /* optimal control, read by src/ocp/ocp_loader.c */,
-    "batch" /* mrvi batch, read by batch.c */};
+    "control",     "batch"};
 
 static int load_model(loader *L, struct fy_node *root) {
   mrvi_model *m = L->sys->model;
