@@ -305,6 +305,14 @@ printf '%s\n' 3:0 4:1 5:2 | same_runs e1.h5 e3.h5 &&
 printf '%s\n' 3:4 | same_runs e1.h5 e1.h5 &&
   fail "seeds 0 and 1 give different perturbations" ||
   pass "seeds 0 and 1 give different perturbations"
+# The case file says how its velocities differ from its description text.
+if h5dump -d /model/description e1.cases/case_0004.h5 |
+  grep -q "mrvi batch, seed 1: the initial velocities are the above plus 0.05" &&
+  ! h5dump -d /model/description b.cases/case_0000.h5 | grep -q "mrvi batch"; then
+  pass "the perturbation is noted in a seeded case's /model/description"
+else
+  fail "the perturbation is noted in a seeded case's /model/description"
+fi
 h5diff "e3.cases/case_0000.h5" run2.h5 >/dev/null 2>&1 &&
   fail "a perturbed case differs from the unperturbed run" ||
   pass "a perturbed case differs from the unperturbed run"

@@ -228,6 +228,35 @@ static int perturb(mrvi_model *m, long seed, double std) {
   return mrvi_model_project_velocities(m, NULL);
 }
 
+/* Say in the case's description (its run file's /model/description) how
+ * its initial velocities differ from the text: a YAML comment appended. */
+static int note_perturbation(mrvi_system *sys, long seed, double std) {
+  if (seed < 0 || std == 0 || !sys->description)
+    return 0;
+  /* std in the fewest digits that read back exactly. */
+  char num[32];
+  for (int prec = 15; prec <= 17; prec++) {
+    snprintf(num, sizeof num, "%.*g", prec, std);
+    if (strtod(num, NULL) == std)
+      break;
+  }
+  char note[512];
+  size_t n = strlen(sys->description);
+  int k = snprintf(note, sizeof note,
+                   "%s# mrvi batch, seed %ld: the initial velocities are the "
+                   "above plus %s\n# times the standard normal numbers of "
+                   "seed %ld (doc/batch.md, Ensembles),\n# projected onto "
+                   "the constraints.\n",
+                   n > 0 && sys->description[n - 1] != '\n' ? "\n" : "", seed,
+                   num, seed);
+  char *grown = realloc(sys->description, n + (size_t)k + 1);
+  if (!grown)
+    return MRVI_ENOMEM;
+  memcpy(grown + n, note, (size_t)k + 1);
+  sys->description = grown;
+  return 0;
+}
+
 int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
                          char *msg, size_t len) {
   *out = NULL;
@@ -249,6 +278,13 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
     rc = mrvi_system_load_string(p->description, p->source,
                                  (const char *const *)over, p->n_keys, out,
                                  text, sizeof text);
+  if (rc == 0 && *out &&
+      note_perturbation(*out, p->seed[c], p->velocity_std) < 0) {
+    mrvi_fmt(text, sizeof text, "out of memory");
+    mrvi_system_free(*out);
+    *out = NULL;
+    rc = MRVI_ENOMEM;
+  }
   if (rc == 0 && *out &&
       perturb((*out)->model, p->seed[c], p->velocity_std) < 0) {
     mrvi_fmt(text, sizeof text, "velocity perturbation: %s",
