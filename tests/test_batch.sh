@@ -2,7 +2,11 @@
 # mrvi batch (doc/batch.md): a 3 x 2 batch equals the six `mrvi run --set`
 # results bit for bit; --jobs 2 equals --jobs 1; --zip pairs; a bad value
 # in one case is refused before any case runs, naming the case and key; a
-# failing case is recorded and the others complete; SIGKILL of the parent
+# failing case is recorded and the others complete; the batch: section of
+# the description gives the command line's batch, the command line
+# overrides or extends it, and its errors carry file:line:col; a reader
+# holding the
+# master file open does not stop the batch; SIGKILL of the parent
 # and of a worker mid-batch, then --resume, gives every case completed once
 # and the results of an uninterrupted batch; seeded cases are the same in
 # another batch and on any number of jobs, and perturbed velocities of a
@@ -19,39 +23,10 @@ fpu=$root/systems/fpu.yaml
 
 # shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
+# shellcheck source=tests/batchlib.sh
+. "$(dirname "$0")/batchlib.sh"
 
-if ! command -v h5diff >/dev/null || ! command -v h5dump >/dev/null; then
-  echo "skipped: needs h5diff and h5dump"
-  exit 77
-fi
 cd "$tmp" || exit 1
-
-# column FILE NAME: the values of /cases/NAME, one per line.
-column() {
-  h5dump -y -d "/cases/$2" "$1" 2>/dev/null |
-    sed -n '/DATA {/,/}/p' | sed '1d;$d' | tr ',' '\n' |
-    sed 's/^ *//;s/ *$//;/^$/d'
-}
-
-# same_runs A B: case files of masters A and B equal (h5diff, every dataset
-# and attribute) for case numbers given as "a:b" pairs on stdin.
-same_runs() {
-  local a=$1 b=$2 pair ok=1
-  while read -r pair; do
-    h5diff "${a%.h5}.cases/case_$(printf %04d "${pair%%:*}").h5" \
-      "${b%.h5}.cases/case_$(printf %04d "${pair##*:}").h5" >/dev/null 2>&1 ||
-      ok=0
-  done
-  [ "$ok" = 1 ]
-}
-
-# The table columns that do not hold wall-clock times.
-same_table() {
-  local d
-  for d in status steps energy_error stop_reason overrides seed; do
-    h5diff "$1" "$2" "/cases/$d" "/cases/$d" >/dev/null 2>&1 || return 1
-  done
-}
 
 short=integrator.t_end=20
 
@@ -84,6 +59,62 @@ h5dump -d /runs/case_0005/macro/t b.h5 >/dev/null 2>&1 &&
   fail "external link /runs/case_0005 reads the case file"
 grep -q "H5" "$root/src/cli/cli_batch.c" && fail "cli_batch.c makes H5 calls" ||
   pass "cli_batch.c makes no H5 calls"
+
+# --- the batch: section: the same batch from the file ---
+cp "$fpu" sec.yaml
+cat >>sec.yaml <<'EOF'
+batch:
+  vary:
+    integrator.micro_steps: [1, 2, 4]
+    integrator.macro_step: 0.01,0.02
+    integrator.t_end: 20
+  jobs: 2
+EOF
+run_ok "batch from the batch: section" "$mrvi" batch sec.yaml -o sec.h5 -q
+same_table sec.h5 b.h5 && pass "the section's cases equal the command line's" ||
+  fail "the section's cases equal the command line's"
+"$mrvi" run sec.yaml -q -o sec5.h5 --set integrator.micro_steps=4 \
+  --set integrator.macro_step=0.02 --set integrator.t_end=20 >/dev/null 2>&1
+h5diff sec.cases/case_0005.h5 sec5.h5 >/dev/null 2>&1 &&
+  pass "a section case equals mrvi run --set of the file" ||
+  fail "a section case equals mrvi run --set of the file"
+# The command line over the file: a --vary of a file key replaces it in
+# place, a new key follows, --seeds over the file's.
+run_ok "command line over the section" "$mrvi" batch sec.yaml -o over.h5 -q \
+  --vary integrator.micro_steps=4,1 --vary output.micro=false --seeds 2
+if [ "$(column over.h5 'values/integrator.micro_steps' | tr '\n' ' ')" = \
+  "4 4 4 4 1 1 1 1 " ] && [ "$(column over.h5 seed | tr '\n' ' ')" = \
+  "0 1 0 1 0 1 0 1 " ] && h5dump -a keys over.h5 | tr -d '\n' |
+  grep -q 'integrator.micro_steps.*integrator.macro_step.*integrator.t_end.*output.micro'; then
+  pass "--vary replaces the file's key in place, new keys follow, --seeds"
+else
+  fail "command line over the section: $(column over.h5 'values/integrator.micro_steps' | tr '\n' ' ')"
+fi
+# Errors in the section: file:line:col, before anything is written.
+bad_section() { # NAME SED-EXPRESSION EXPECTED-MESSAGE
+  sed "$2" sec.yaml >bs.yaml
+  "$mrvi" batch bs.yaml -o bs.h5 -q 2>err.txt
+  local rc=$?
+  if [ $rc = 1 ] && grep -q -F -- "$3" err.txt && [ ! -e bs.h5 ]; then
+    pass "batch: section, $1"
+  else
+    fail "batch: section, $1 (exit $rc): $(cat err.txt)"
+  fi
+}
+line=$(grep -n '^  jobs: 2' sec.yaml | cut -d: -f1)
+bad_section "unknown key" 's/^  jobs: 2/  sedes: 2/' \
+  "bs.yaml:$line:3: unknown key 'sedes' in batch; did you mean 'seeds'?"
+bad_section "seeds out of range" 's/^  jobs: 2/  seeds: -3/' \
+  "bs.yaml:$line:10: batch.seeds must be 0..1000000, got -3"
+line=$(grep -n 'macro_step: 0.01,0.02' sec.yaml | cut -d: -f1)
+bad_section "malformed linspace" 's/0.01,0.02/linspace(1,2)/' \
+  "bs.yaml:$line:28: batch.vary: --vary integrator.macro_step=linspace(1,2): expected linspace(a,b,n)"
+bad_section "a list item not a value" 's/\[1, 2, 4\]/[1, {a: 2}]/' \
+  "batch.vary.integrator.micro_steps: a value must be a number or a word"
+"$mrvi" check bs.yaml >/dev/null 2>err.txt
+[ $? != 0 ] && grep -q "a value must be a number or a word" err.txt &&
+  pass "mrvi check refuses a bad batch: section too" ||
+  fail "mrvi check refuses a bad batch: section too: $(cat err.txt)"
 
 # --- --jobs 1 equals --jobs 2 ---
 run_ok "batch --jobs 1" "$mrvi" batch "$fpu" -o j1.h5 -q -j 1 \
@@ -138,6 +169,30 @@ if [ $rc = 2 ] && [ "$(column f.h5 status | tr '\n' ' ')" = "1 2 1 " ] &&
   pass "failing case recorded with its reason, others completed"
 else
   fail "failing case recorded (exit $rc): $(column f.h5 status | tr '\n' ' ')"
+fi
+
+# --- a reader holding the master file open does not stop the batch ---
+# HDF5 readers (h5py, h5dump) hold a shared flock on the file; the rows are
+# written without HDF5's lock, so they are written all the same (before,
+# the row failed with "Resource temporarily unavailable", the batch stopped
+# and the finished case's row was lost).
+"$mrvi" batch "$fpu" -o rd.h5 -q -j 1 --vary integrator.micro_steps=1,2 \
+  --vary integrator.t_end=3000 --vary output.every=100 2>err.txt &
+pid=$!
+for _ in $(seq 1 200); do
+  [ -s rd.h5 ] && break
+  sleep 0.01
+done
+(
+  flock -s 9
+  while kill -0 $pid 2>/dev/null; do sleep 0.02; done
+) 9<rd.h5
+wait $pid
+rc=$?
+if [ $rc = 0 ] && [ "$(column rd.h5 status | tr '\n' ' ')" = "1 1 " ]; then
+  pass "rows written while a reader holds the master file"
+else
+  fail "rows written while a reader holds the master file (exit $rc): $(cat err.txt)"
 fi
 
 # --- SIGKILL of the parent, then --resume ---
@@ -250,6 +305,14 @@ printf '%s\n' 3:0 4:1 5:2 | same_runs e1.h5 e3.h5 &&
 printf '%s\n' 3:4 | same_runs e1.h5 e1.h5 &&
   fail "seeds 0 and 1 give different perturbations" ||
   pass "seeds 0 and 1 give different perturbations"
+# The case file says how its velocities differ from its description text.
+if h5dump -d /model/description e1.cases/case_0004.h5 |
+  grep -q "mrvi batch, seed 1: the initial velocities are the above plus 0.05" &&
+  ! h5dump -d /model/description b.cases/case_0000.h5 | grep -q "mrvi batch"; then
+  pass "the perturbation is noted in a seeded case's /model/description"
+else
+  fail "the perturbation is noted in a seeded case's /model/description"
+fi
 h5diff "e3.cases/case_0000.h5" run2.h5 >/dev/null 2>&1 &&
   fail "a perturbed case differs from the unperturbed run" ||
   pass "a perturbed case differs from the unperturbed run"

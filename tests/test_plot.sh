@@ -58,7 +58,7 @@ out="$tmp/figs"
 
 # --- help ---
 run_ok "mrvi-plot --help" "$py" "$plot" --help
-for sub in run optimize convergence stability timing animate all; do
+for sub in run optimize convergence stability timing animate batch all; do
   run_ok "mrvi-plot $sub --help" "$py" "$plot" "$sub" --help
 done
 
@@ -426,6 +426,67 @@ for n in crane di2 pair; do
     *) fail "optimize $n: drawn steps vs /control/u, panels ($ocp)" ;;
   esac
 done
+
+# --- batch master file (mrvi batch): a column against a varied key ---
+# 3 macro steps x 2 micro step counts; the step 2 fails (Newton: t_end 40),
+# so two cases are not drawn.
+"$mrvi" batch "$root/systems/fpu.yaml" -o "$tmp/bt.h5" -q -j 1 \
+  --vary integrator.macro_step=0.01,0.02,2 --vary integrator.micro_steps=5,10 \
+  --vary integrator.t_end=40 >/dev/null 2>&1
+[ $? = 2 ] && pass "mrvi batch for mrvi-plot batch (two cases fail)" ||
+  fail "mrvi batch for mrvi-plot batch (two cases fail)"
+run_ok "mrvi-plot batch" "$py" "$plot" batch "$tmp/bt.h5" -o "$out" \
+  --x integrator.macro_step --y energy_error
+png_ok "$out/bt_energy_error_vs_integrator.macro_step.png"
+run_ok "mrvi-plot batch --data" "$py" "$plot" batch "$tmp/bt.h5" -o "$out" \
+  --x integrator.micro_steps --y steps --data
+# The drawn lines are the table: one per micro step count, x the completed
+# macro steps ascending, y /cases/energy_error of the matching case; the
+# --data lines are the same points.
+bt=$("$py" - "$plot" "$tmp/bt.h5" "$tmp/out.txt" <<'PYEOF'
+import sys
+from importlib.machinery import SourceFileLoader
+import h5py
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+h5 = h5py.File(sys.argv[2], "r")
+dt = h5["cases/values/integrator.macro_step"][()]
+p = h5["cases/values/integrator.micro_steps"][()]
+err = h5["cases/energy_error"][()]
+steps = h5["cases/steps"][()]
+ok_status = h5["cases/status"][()] == 1
+table = mod.BatchTable(h5)
+group = mod.batch_group(table, "integrator.macro_step", None)
+fig, _ = mod.batch_figure(table, "integrator.macro_step", "energy_error", group)
+lines = fig.axes[0].get_lines()
+ok = group == "integrator.micro_steps" and len(lines) == 2
+for line, pv in zip(lines, (5, 10)):
+    sel = ok_status & (p == pv)
+    order = np.argsort(dt[sel])
+    ok = ok and line.get_label() == "integrator.micro_steps = %d" % pv and \
+        np.array_equal(line.get_xdata(), dt[sel][order]) and \
+        np.array_equal(line.get_ydata(), err[sel][order]) and \
+        line.get_xdata().size == 2
+# --data of --x integrator.micro_steps --y steps: group, x, y per point.
+rows = [l.split("\t") for l in open(sys.argv[3]) if "\t" in l]
+want = sorted((float(d), float(q), float(s)) for d, q, s, c in
+              zip(dt, p, steps, ok_status) if c)
+got = sorted(tuple(float(v) for v in r) for r in rows)
+ok = ok and got == want and len(got) == 4
+print(ok)
+PYEOF
+)
+[ "$bt" = True ] && pass "batch: drawn lines and --data equal the case table" ||
+  fail "batch: drawn lines and --data equal the case table ($bt)"
+fails_with "batch: not a master file" "not the master file of mrvi batch" \
+  "$py" "$plot" batch "$tmp/fpu.h5" --x integrator.macro_step -o "$out"
+fails_with "batch: --x not a varied key" "'integrator.dt' is not a varied key" \
+  "$py" "$plot" batch "$tmp/bt.h5" --x integrator.dt -o "$out"
+run_ok "mrvi batch, three varied keys" "$mrvi" batch "$root/systems/fpu.yaml" \
+  -o "$tmp/bt3.h5" -q -j 1 --vary integrator.macro_step=0.01,0.02 \
+  --vary integrator.micro_steps=1,2 --vary integrator.t_end=10,20
+fails_with "batch: two other varied keys need --group" "also varies" \
+  "$py" "$plot" batch "$tmp/bt3.h5" --x integrator.macro_step -o "$out"
 
 # --- synthetic study tables in the formats of mrvi converge / stability /
 # timing ---

@@ -50,6 +50,12 @@ int mrvi_batch_plan_check(const mrvi_batch_plan *plan, char *msg, size_t len);
 int mrvi_batch_case_load(const mrvi_batch_plan *plan, int c, mrvi_system **out,
                          char *msg, size_t len);
 
+/* The plan as one buffer (malloc'd, *size bytes) and back, to hand it to
+ * other processes of the same program (MPI ranks).  unpack checks every
+ * count and string against the buffer's size: MRVI_EINVAL otherwise. */
+int mrvi_batch_plan_pack(const mrvi_batch_plan *plan, char **buf, size_t *size);
+int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *plan);
+
 /* ---------------------------------------------------------------------------
  * Ensembles (plan.c): a counter-based generator, so that a case's random
  * numbers depend on its seed alone (not on the job that runs it, nor on the
@@ -87,6 +93,28 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
                         const int *todo, int n_todo, int jobs,
                         mrvi_batch_done done, void *user, char *msg,
                         size_t len);
+
+/* Where the pool's cases come from and where their results go, for a pool
+ * that does not own its list of cases (an MPI rank asks its manager for
+ * each case: src/cli/cli_batch_mpi.c). */
+typedef struct mrvi_batch_queue {
+  /* The next case to run, or -1: none left (not asked again). */
+  int (*next)(void *user);
+  /* A finished case (as mrvi_batch_done); < 0 stops the batch. */
+  int (*done)(void *user, const mrvi_batch_result *res);
+  /* When set: called at least every idle_ms milliseconds while workers
+   * run (to serve other ranks); < 0 stops the batch. */
+  int (*idle)(void *user);
+  int idle_ms;
+  void *user;
+} mrvi_batch_queue;
+
+/* mrvi_batch_pool_run with cases from q->next: `jobs` workers forked at
+ * once, each handed q->next() whenever it is free, until q->next() says
+ * none are left and every worker is idle. */
+int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
+                          int jobs, const mrvi_batch_queue *q, char *msg,
+                          size_t len);
 
 /* The cores this process may run on (sched_getaffinity, else
  * sysconf(_SC_NPROCESSORS_ONLN)), at least 1. */

@@ -228,6 +228,35 @@ static int perturb(mrvi_model *m, long seed, double std) {
   return mrvi_model_project_velocities(m, NULL);
 }
 
+/* Say in the case's description (its run file's /model/description) how
+ * its initial velocities differ from the text: a YAML comment appended. */
+static int note_perturbation(mrvi_system *sys, long seed, double std) {
+  if (seed < 0 || std == 0 || !sys->description)
+    return 0;
+  /* std in the fewest digits that read back exactly. */
+  char num[32];
+  for (int prec = 15; prec <= 17; prec++) {
+    snprintf(num, sizeof num, "%.*g", prec, std);
+    if (strtod(num, NULL) == std)
+      break;
+  }
+  char note[512];
+  size_t n = strlen(sys->description);
+  int k = snprintf(note, sizeof note,
+                   "%s# mrvi batch, seed %ld: the initial velocities are the "
+                   "above plus %s\n# times the standard normal numbers of "
+                   "seed %ld (doc/batch.md, Ensembles),\n# projected onto "
+                   "the constraints.\n",
+                   n > 0 && sys->description[n - 1] != '\n' ? "\n" : "", seed,
+                   num, seed);
+  char *grown = realloc(sys->description, n + (size_t)k + 1);
+  if (!grown)
+    return MRVI_ENOMEM;
+  memcpy(grown + n, note, (size_t)k + 1);
+  sys->description = grown;
+  return 0;
+}
+
 int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
                          char *msg, size_t len) {
   *out = NULL;
@@ -249,6 +278,13 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
     rc = mrvi_system_load_string(p->description, p->source,
                                  (const char *const *)over, p->n_keys, out,
                                  text, sizeof text);
+  if (rc == 0 && *out &&
+      note_perturbation(*out, p->seed[c], p->velocity_std) < 0) {
+    mrvi_fmt(text, sizeof text, "out of memory");
+    mrvi_system_free(*out);
+    *out = NULL;
+    rc = MRVI_ENOMEM;
+  }
   if (rc == 0 && *out &&
       perturb((*out)->model, p->seed[c], p->velocity_std) < 0) {
     mrvi_fmt(text, sizeof text, "velocity perturbation: %s",
@@ -275,6 +311,97 @@ int mrvi_batch_plan_check(const mrvi_batch_plan *p, char *msg, size_t len) {
     mrvi_system_free(sys);
     if (rc < 0)
       return rc;
+  }
+  return 0;
+}
+
+/* ---------------------------------------------------------------------------
+ * The plan as bytes: "MRVIPLN1", int32 n_cases, n_keys, n_seeds, double
+ * velocity_std, int64 seed[n_cases], then '\0'-terminated strings:
+ * description, source, keys, values (row-major).
+ * ------------------------------------------------------------------------- */
+static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '1'};
+
+int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
+  const long nv = (long)p->n_cases * p->n_keys;
+  size_t n = sizeof plan_magic + 3 * sizeof(int32_t) + sizeof(double) +
+             (size_t)p->n_cases * sizeof(int64_t) + strlen(p->description) +
+             strlen(p->source) + 2;
+  for (int j = 0; j < p->n_keys; j++)
+    n += strlen(p->keys[j]) + 1;
+  for (long i = 0; i < nv; i++)
+    n += strlen(p->values[i]) + 1;
+  char *b = malloc(n), *at = b;
+  if (!b)
+    return MRVI_ENOMEM;
+  const int32_t counts[3] = {p->n_cases, p->n_keys, p->n_seeds};
+  memcpy(at, plan_magic, sizeof plan_magic), at += sizeof plan_magic;
+  memcpy(at, counts, sizeof counts), at += sizeof counts;
+  memcpy(at, &p->velocity_std, sizeof(double)), at += sizeof(double);
+  for (int c = 0; c < p->n_cases; c++) {
+    int64_t s = p->seed[c];
+    memcpy(at, &s, sizeof s), at += sizeof s;
+  }
+#define PUT(str) (at = stpcpy(at, (str)) + 1)
+  PUT(p->description);
+  PUT(p->source);
+  for (int j = 0; j < p->n_keys; j++)
+    PUT(p->keys[j]);
+  for (long i = 0; i < nv; i++)
+    PUT(p->values[i]);
+#undef PUT
+  *buf = b;
+  *size = n;
+  return 0;
+}
+
+/* The next '\0'-terminated string of [*at, end), copied; NULL when none. */
+static char *take_string(const char **at, const char *end) {
+  const char *z = memchr(*at, '\0', (size_t)(end - *at));
+  if (!z)
+    return NULL;
+  char *s = strdup(*at);
+  *at = z + 1;
+  return s;
+}
+
+int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *p) {
+  memset(p, 0, sizeof *p);
+  int32_t counts[3];
+  const size_t head = sizeof plan_magic + sizeof counts + sizeof(double);
+  if (size < head || memcmp(buf, plan_magic, sizeof plan_magic))
+    return MRVI_EINVAL;
+  memcpy(counts, buf + sizeof plan_magic, sizeof counts);
+  memcpy(&p->velocity_std, buf + sizeof plan_magic + sizeof counts,
+         sizeof(double));
+  if (counts[0] < 1 || counts[0] > 1000000 || counts[1] < 0 ||
+      counts[1] > 1000000 || counts[2] < 0 ||
+      (size - head) / sizeof(int64_t) < (size_t)counts[0] ||
+      (long)counts[0] * counts[1] > (long)(size - head))
+    return MRVI_EINVAL;
+  p->n_cases = counts[0];
+  p->n_keys = counts[1];
+  p->n_seeds = counts[2];
+  const long nv = (long)p->n_cases * p->n_keys;
+  p->seed = malloc((size_t)p->n_cases * sizeof *p->seed);
+  p->keys = calloc((size_t)p->n_keys + 1, sizeof *p->keys);
+  p->values = calloc((size_t)nv + 1, sizeof *p->values);
+  const char *at = buf + head, *end = buf + size;
+  int bad = !p->seed || !p->keys || !p->values;
+  for (int c = 0; !bad && c < p->n_cases; c++) {
+    int64_t s;
+    memcpy(&s, at, sizeof s), at += sizeof s;
+    p->seed[c] = (long)s;
+  }
+  bad = bad || !(p->description = take_string(&at, end)) ||
+        !(p->source = take_string(&at, end));
+  for (int j = 0; !bad && j < p->n_keys; j++)
+    bad = !(p->keys[j] = take_string(&at, end));
+  for (long i = 0; !bad && i < nv; i++)
+    bad = !(p->values[i] = take_string(&at, end));
+  if (bad || at != end) {
+    mrvi_batch_plan_free(p);
+    return MRVI_EINVAL;
   }
   return 0;
 }

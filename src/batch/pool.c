@@ -140,15 +140,22 @@ static void slot_retire(slot *s) {
   s->task = -1;
 }
 
-int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
-                        const int *todo, int n_todo, int jobs,
-                        mrvi_batch_done done, void *user, char *msg,
-                        size_t len) {
+/* A result for case c that did not run: "WHY CODE (not run: ...)". */
+static mrvi_batch_result not_run(int c, const char *why, int code) {
+  mrvi_batch_result res;
+  memset(&res, 0, sizeof res);
+  res.c = c;
+  res.status = MRVI_BATCH_PENDING;
+  res.energy_error = NAN;
+  snprintf(res.reason, sizeof res.reason, "%s %d (not run: --resume runs it)",
+           why, code);
+  return res;
+}
+
+int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
+                          int jobs, const mrvi_batch_queue *q, char *msg,
+                          size_t len) {
   mrvi_fmt(msg, len, "%s", "");
-  if (n_todo <= 0)
-    return 0;
-  if (jobs > n_todo)
-    jobs = n_todo;
   if (jobs < 1)
     jobs = 1;
   slot *w = calloc((size_t)jobs, sizeof *w);
@@ -205,18 +212,22 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
     rc = 0;
 
   struct pollfd *pfd = calloc((size_t)jobs, sizeof *pfd);
-  int next = 0, stop = rc < 0 || !pfd;
+  int stop = rc < 0 || !pfd, exhausted = 0;
+  int carry = -1; /* a case taken from q whose worker was gone */
   for (;;) {
     /* Hand out cases to idle workers. */
     int running = 0;
     for (int i = 0; i < started; i++) {
       slot *s = &w[i];
       if (s->busy < 0 && s->task >= 0) {
-        if (!stop && next < n_todo &&
-            write_all(s->task, &todo[next], sizeof todo[next]) == 0)
-          s->busy = todo[next++];
+        int c = carry;
+        if (c < 0 && !stop && !exhausted && (c = q->next(q->user)) < 0)
+          exhausted = 1;
+        carry = -1;
+        if (c >= 0 && write_all(s->task, &c, sizeof c) == 0)
+          s->busy = c;
         else
-          slot_retire(s);
+          carry = c, slot_retire(s);
       }
       running += s->busy >= 0;
     }
@@ -226,13 +237,18 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
     for (int i = 0; i < started; i++)
       if (w[i].busy >= 0)
         pfd[np++] = (struct pollfd){.fd = w[i].result, .events = POLLIN};
-    if (poll(pfd, (nfds_t)np, -1) < 0) {
-      if (errno == EINTR)
-        continue;
+    int ready = poll(pfd, (nfds_t)np, q->idle ? q->idle_ms : -1);
+    if (ready < 0 && errno != EINTR) {
       mrvi_fmt(msg, len, "poll: %s", strerror(errno));
       rc = MRVI_EIO;
       break;
     }
+    if (q->idle && !stop && q->idle(q->user) < 0) {
+      stop = 1;
+      rc = MRVI_EIO;
+    }
+    if (ready <= 0)
+      continue;
     for (int i = 0, k = 0; i < started; i++) {
       slot *s = &w[i];
       if (s->busy < 0)
@@ -246,31 +262,28 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
          * be run by --resume; the worker is gone. */
         int ws = 0;
         waitpid(s->pid, &ws, 0);
-        memset(&res, 0, sizeof res);
-        res.c = s->busy;
-        res.status = MRVI_BATCH_PENDING;
-        res.energy_error = NAN;
-        if (WIFSIGNALED(ws))
-          snprintf(res.reason, sizeof res.reason,
-                   "worker process killed by signal %d (not run: --resume "
-                   "runs it)",
-                   WTERMSIG(ws));
-        else
-          snprintf(res.reason, sizeof res.reason,
-                   "worker process exited with status %d (not run: --resume "
-                   "runs it)",
-                   WEXITSTATUS(ws));
+        res = WIFSIGNALED(ws)
+                  ? not_run(s->busy, "worker process killed by signal",
+                            WTERMSIG(ws))
+                  : not_run(s->busy, "worker process exited with status",
+                            WEXITSTATUS(ws));
         slot_retire(s);
         close(s->result);
         s->result = -1;
         s->pid = -1;
       }
       s->busy = -1;
-      if (!stop && done(user, &res) < 0) {
+      if (!stop && q->done(q->user, &res) < 0) {
         stop = 1;
         rc = MRVI_EIO;
       }
     }
+  }
+  /* A case taken and never started: every worker was gone. */
+  if (carry >= 0 && !stop) {
+    mrvi_batch_result res = not_run(carry, "worker processes gone:", started);
+    if (q->done(q->user, &res) < 0)
+      rc = MRVI_EIO;
   }
   for (int i = 0; i < started; i++) {
     slot_retire(&w[i]);
@@ -282,9 +295,41 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
   sigaction(SIGPIPE, &old_pipe, NULL);
   free(pfd);
   free(w);
-  if (rc == 0 && next < n_todo) {
+  return rc;
+}
+
+/* The serial queue: todo[0..n) in order. */
+typedef struct todo_queue {
+  const int *todo;
+  int n, next;
+  mrvi_batch_done done;
+  void *user;
+} todo_queue;
+
+static int todo_next(void *user) {
+  todo_queue *t = user;
+  return t->next < t->n ? t->todo[t->next++] : -1;
+}
+
+static int todo_done(void *user, const mrvi_batch_result *res) {
+  todo_queue *t = user;
+  return t->done(t->user, res);
+}
+
+int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
+                        const int *todo, int n_todo, int jobs,
+                        mrvi_batch_done done, void *user, char *msg,
+                        size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (n_todo <= 0)
+    return 0;
+  todo_queue t = {.todo = todo, .n = n_todo, .done = done, .user = user};
+  mrvi_batch_queue q = {.next = todo_next, .done = todo_done, .user = &t};
+  int rc = mrvi_batch_pool_serve(plan, master, jobs < n_todo ? jobs : n_todo,
+                                 &q, msg, len);
+  if (rc == 0 && t.next < n_todo) {
     mrvi_fmt(msg, len, "every worker process died; %d cases not run",
-             n_todo - next);
+             n_todo - t.next);
     rc = MRVI_EIO;
   }
   return rc;

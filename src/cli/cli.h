@@ -7,10 +7,12 @@
  *   cli_optimize.c  optimize, and run --controls (replay)
  *   cli_export.c    export, and the XDMF file beside a run
  *   cli_batch.c     batch
+ *   cli_batch_mpi.c batch over MPI ranks
  */
 #ifndef MRVI_CLI_H
 #define MRVI_CLI_H
 
+#include "batch/batch.h"
 #include "mrvi.h"
 
 #include <signal.h>
@@ -54,5 +56,28 @@ void mrvi_cli_replace_extension(const char *path, const char *ext, char *buf,
  * quiet; a warning on stderr when it cannot be written, or when OUT.xdmf
  * is a file mrvi did not write and force is 0).  0 or -1. */
 int mrvi_cli_write_xdmf(const char *h5_path, int quiet, int force);
+
+/* MPI ranks (cli_batch_mpi.c; without MPI they run one process).
+ *
+ * begin: under an MPI launcher with more than one rank, MPI_Init and this
+ * rank and the number of ranks (else 0 of 1); -1 with a message where the
+ * launcher gave ranks and mrvi was built without MPI. */
+int mrvi_batch_mpi_begin(int *rank, int *size, char *msg, size_t len);
+/* The default --jobs of a rank: the cores available over the ranks on this
+ * machine, at least 1. */
+int mrvi_batch_mpi_jobs(void);
+/* Rank 0 sends go (0: every rank ends) and, when go, the plan, the master
+ * file's path (malloc'd on the other ranks) and --jobs (0: each rank's
+ * default) to the other ranks, which receive them; returns go. */
+int mrvi_batch_mpi_share(int go, mrvi_batch_plan *plan, const char **master,
+                         int *jobs);
+/* Run the cases over the ranks: rank 0 hands todo[0..n_todo) out and calls
+ * done for every result (its own workers' and the other ranks'); the other
+ * ranks run what it hands them. */
+int mrvi_batch_mpi_run(const mrvi_batch_plan *plan, const char *master,
+                       const int *todo, int n_todo, int jobs,
+                       mrvi_batch_done done, void *user, char *msg, size_t len);
+/* Every rank leaves with rank 0's exit status rc (MPI_Finalize). */
+int mrvi_batch_mpi_end(int rc);
 
 #endif

@@ -5,6 +5,7 @@
 #include "cli.h"
 
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -28,6 +29,10 @@ const char mrvi_usage_batch[] =
     "stop_reason, steps, wall_time, energy_error) and external links\n"
     "/runs/case_CCCC to the case files (doc/batch.md).\n"
     "\n"
+    "The description's batch: section may hold vary, zip, seeds, velocity_std\n"
+    "and jobs in the same vocabulary; the command line overrides or extends\n"
+    "it (a --vary of a key the file varies replaces the file's values).\n"
+    "\n"
     "Options:\n"
     "  -o, --output OUT.h5   the master file\n"
     "      --vary KEY=VALUES a key of FILE (dotted path, as --set) and its\n"
@@ -40,14 +45,20 @@ const char mrvi_usage_batch[] =
     "                        by S times standard normal numbers of its seed\n"
     "                        (projected onto the constraints); the numbers\n"
     "                        depend on the seed alone (doc/batch.md)\n"
-    "  -j, --jobs N          worker processes (default: the cores available)\n"
+    "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
+    "                        cores available)\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
     "                        killed or interrupted batch)\n"
     "  -q, --quiet           no line per finished case\n"
     "  -h, --help            show this help\n"
     "\n"
     "A case that fails (Newton failure, non-finite state) is recorded with\n"
-    "its reason and the others go on.  Not yet: MPI ranks, optimize cases.\n"
+    "its reason and the others go on.  Not yet: optimize cases.\n"
+    "\n"
+    "MPI (built with meson -Dmpi=enabled): 'mpiexec -n R mrvi batch ...'\n"
+    "hands the cases out over R ranks, each with its own --jobs workers\n"
+    "(default: its share of the machine's cores); the files are those of one\n"
+    "process (doc/batch.md).\n"
     "\n"
     "Exit status:\n"
     "  0    every case completed\n"
@@ -57,15 +68,16 @@ const char mrvi_usage_batch[] =
 
 typedef struct batch_ctx {
   const char *out;
-  int quiet, finished, failed, unfinished, total;
+  int quiet, ranks, finished, failed, unfinished, total;
 } batch_ctx;
 
 /* A finished case: its row of the table, and a line. */
 static int on_done(void *user, const mrvi_batch_result *res) {
   batch_ctx *b = user;
   char msg[MSG_LEN];
-  /* Open for this row only: between rows the file is closed, so readers
-   * (h5py, h5dump: HDF5 locks a file open for writing) see the table. */
+  /* Open for this row only, without HDF5's file lock (batch_writer.c):
+   * readers (h5py, h5dump) see the table while the batch runs, and a
+   * reader holding it open does not block the row. */
   mrvi_batch_file *f = NULL;
   int st = mrvi_batch_file_open(b->out, NULL, NULL, &f, msg, sizeof msg);
   if (st == 0)
@@ -82,11 +94,14 @@ static int on_done(void *user, const mrvi_batch_result *res) {
   b->finished++;
   b->failed += res->status == MRVI_BATCH_FAILED;
   b->unfinished += res->status == MRVI_BATCH_PENDING;
+  char where[32] = "";
+  if (b->ranks > 1)
+    snprintf(where, sizeof where, " (rank %d)", res->rank);
   if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
     fprintf(stderr,
-            "mrvi batch: [%d/%d] case %d: %s (%ld steps, %.3f s, "
+            "mrvi batch: [%d/%d] case %d%s: %s (%ld steps, %.3f s, "
             "energy error %.3e)\n",
-            b->finished, b->total, res->c, res->reason, res->steps,
+            b->finished, b->total, res->c, where, res->reason, res->steps,
             res->wall_time, res->energy_error);
   return 0;
 }
@@ -107,11 +122,94 @@ static int usage_fail(const char *what) {
   return EXIT_INPUT;
 }
 
+/* The description's `batch:` section under the command line: the file's
+ * --vary entries in its order, a --vary of the same key on the command
+ * line in place of the file's, the other --vary after them; --zip,
+ * --seeds, --velocity-std and --jobs over the file's (doc/batch.md).  On
+ * return *axes holds every axis (the command line's moved into it). */
+static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
+                        int *n_axes, int *zip, int *seeds, double *vstd,
+                        int *jobs, char *msg, size_t len) {
+  mrvi_batch_section sec;
+  if (mrvi_batch_section_read(base, &sec, msg, len) < 0)
+    return -1;
+  mrvi_batch_axis *all =
+      calloc((size_t)(sec.n_vary + *n_axes) + 1, sizeof *all);
+  int n = 0, rc = all ? 0 : -1;
+  if (!all)
+    snprintf(msg, len, "out of memory");
+  char text[1024];
+  for (int i = 0; rc == 0 && i < sec.n_vary; i++, n++)
+    if (mrvi_batch_axis_parse(sec.vary[i], &all[n], text, sizeof text) < 0) {
+      snprintf(msg, len, "%s: batch.vary: %s", sec.where[i], text);
+      rc = -1;
+    }
+  const int n_file = n;
+  for (int j = 0; rc == 0 && j < *n_axes; j++) {
+    int k = 0;
+    while (k < n_file && strcmp(all[k].key, (*axes)[j].key))
+      k++;
+    if (k < n_file)
+      mrvi_batch_axis_clear(&all[k]);
+    else
+      k = n++;
+    all[k] = (*axes)[j];
+    memset(&(*axes)[j], 0, sizeof **axes);
+  }
+  if (rc == 0) {
+    free(*axes);
+    *axes = all;
+    *n_axes = n;
+    *zip = *zip || sec.zip == 1;
+    if (*seeds < 0)
+      *seeds = sec.seeds > 0 ? sec.seeds : 0;
+    if (isnan(*vstd))
+      *vstd = isnan(sec.velocity_std) ? 0.0 : sec.velocity_std;
+    if (*jobs == 0 && sec.jobs > 0)
+      *jobs = sec.jobs;
+  } else {
+    for (int i = 0; all && i < n; i++)
+      mrvi_batch_axis_clear(&all[i]);
+    free(all);
+  }
+  mrvi_batch_section_free(&sec);
+  return rc;
+}
+
+/* A rank other than 0 of an MPI batch: the plan from rank 0, then its
+ * cases (cli_batch_mpi.c). */
+static int batch_follow(void) {
+  mrvi_batch_plan plan;
+  memset(&plan, 0, sizeof plan);
+  const char *master = NULL;
+  int jobs = 0;
+  char msg[MSG_LEN];
+  if (mrvi_batch_mpi_share(0, &plan, &master, &jobs)) {
+    if (jobs == 0)
+      jobs = mrvi_batch_mpi_jobs();
+    if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, NULL, NULL, msg,
+                           sizeof msg) < 0 &&
+        msg[0])
+      fprintf(stderr, "mrvi batch: %s\n", msg);
+  }
+  free((char *)master);
+  mrvi_batch_plan_free(&plan);
+  return mrvi_batch_mpi_end(0);
+}
+
 int mrvi_cmd_batch(int argc, char **argv) {
   const char *file = NULL, *out = NULL, *resume = NULL;
-  int zip = 0, seeds = 0, jobs = mrvi_batch_cores(), quiet = 0, n_axes = 0;
-  double vstd = 0.0;
+  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0;
+  double vstd = NAN; /* seeds -1, vstd NAN, jobs 0: not given */
   char msg[MSG_LEN];
+  int rank = 0, ranks = 1;
+  if (mrvi_batch_mpi_begin(&rank, &ranks, msg, sizeof msg) < 0) {
+    if (msg[0])
+      fprintf(stderr, "mrvi batch: %s\n", msg);
+    return EXIT_INPUT;
+  }
+  if (rank > 0)
+    return batch_follow();
   mrvi_batch_axis *axes = calloc((size_t)argc + 1, sizeof *axes);
   int rc = axes ? 0 : EXIT_INPUT;
   for (int i = 1; rc == 0 && i < argc; i++) {
@@ -152,7 +250,7 @@ int mrvi_cmd_batch(int argc, char **argv) {
     } else if (!strcmp(a, "--velocity-std")) {
       char *end;
       vstd = strtod(v, &end);
-      if (*end || end == v)
+      if (*end || end == v || isnan(vstd))
         rc = usage_fail("--velocity-std takes a number");
     } else if (a[0] == '-') {
       snprintf(msg, sizeof msg, "unknown option '%s'", a);
@@ -164,7 +262,8 @@ int mrvi_cmd_batch(int argc, char **argv) {
       rc = usage_fail(msg);
     }
   }
-  if (rc == 0 && resume && (file || out || n_axes || zip || seeds || vstd))
+  if (rc == 0 && resume &&
+      (file || out || n_axes || zip || seeds >= 0 || !isnan(vstd)))
     rc = usage_fail("--resume takes the cases from OUT.h5: give no FILE, -o, "
                     "--vary, --zip, --seeds or --velocity-std with it");
   if (rc == 0 && !resume && (!file || !out))
@@ -192,6 +291,10 @@ int mrvi_cmd_batch(int argc, char **argv) {
     mrvi_system *base = NULL;
     if (mrvi_system_load(file, NULL, 0, &base, msg, sizeof msg) < 0 || !base) {
       fprintf(stderr, "%s\n", msg);
+      rc = EXIT_INPUT;
+    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd, &jobs,
+                            msg, sizeof msg) < 0) {
+      fprintf(stderr, "mrvi batch: %s\n", msg);
       rc = EXIT_INPUT;
     } else if (mrvi_batch_plan_build(&plan, base->description, file, axes,
                                      n_axes, zip, seeds, vstd, msg,
@@ -226,15 +329,25 @@ int mrvi_cmd_batch(int argc, char **argv) {
   for (int c = 0; rc == 0 && c < plan.n_cases; c++)
     if (!status || status[c] == MRVI_BATCH_PENDING)
       todo[n_todo++] = c;
+  /* MPI: the other ranks get the plan (or leave), and each rank takes the
+   * cores of its share of the machine unless --jobs says. */
+  int jobs_given = jobs;
+  mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
+  if (rc == 0 && jobs == 0)
+    jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
 
-  batch_ctx ctx = {.out = out, .quiet = quiet, .total = n_todo};
+  batch_ctx ctx = {.out = out, .quiet = quiet, .ranks = ranks, .total = n_todo};
   if (rc == 0) {
-    if (!quiet)
+    if (!quiet && ranks > 1)
+      fprintf(stderr, "mrvi batch: %d case%s%s on %d ranks x %d job%s -> %s\n",
+              n_todo, n_todo == 1 ? "" : "s", resume ? " left" : "", ranks,
+              jobs, jobs == 1 ? "" : "s", out);
+    else if (!quiet)
       fprintf(stderr, "mrvi batch: %d case%s%s on %d job%s -> %s\n", n_todo,
               n_todo == 1 ? "" : "s", resume ? " left" : "",
               jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s", out);
-    int st = mrvi_batch_pool_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
-                                 msg, sizeof msg);
+    int st = mrvi_batch_mpi_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
+                                msg, sizeof msg);
     if (st < 0 && msg[0])
       fprintf(stderr, "mrvi batch: %s\n", msg);
     if (!quiet)
@@ -248,5 +361,5 @@ int mrvi_cmd_batch(int argc, char **argv) {
   free(todo);
   free(status);
   mrvi_batch_plan_free(&plan);
-  return rc < 0 ? 0 : rc;
+  return mrvi_batch_mpi_end(rc < 0 ? 0 : rc);
 }

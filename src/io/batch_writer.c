@@ -397,7 +397,16 @@ int mrvi_batch_file_open(const char *path, mrvi_batch_plan *plan, int **status,
     mrvi_fmt(msg, len, "out of memory");
     return MRVI_ENOMEM;
   }
-  f->file = H5Fopen(path, H5F_ACC_RDWR, H5P_DEFAULT);
+  /* Without HDF5's file lock: a reader of the table (h5py, h5dump, holding
+   * its shared lock) must not make a row unwritable, nor the batch stop.
+   * Rows change raw data in place only (see the top), so a reader sees
+   * each entry old or new. */
+  hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
+  if (fapl >= 0)
+    H5Pset_file_locking(fapl, 0, 1);
+  f->file = H5Fopen(path, H5F_ACC_RDWR, fapl >= 0 ? fapl : H5P_DEFAULT);
+  if (fapl >= 0)
+    H5Pclose(fapl);
   if (f->file < 0) {
     mrvi_h5_error_message(msg, len, path, "cannot open");
     file_free(f);

@@ -155,6 +155,23 @@ int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
  * them.
  * ------------------------------------------------------------------------- */
 
+/* The `batch:` section of a description file (io/loader/batch.c): what
+ * the command line of `mrvi batch` says, in the file.  Absent entries are
+ * -1 (zip, seeds, jobs) or NAN (velocity_std). */
+typedef struct mrvi_batch_section {
+  int n_vary;
+  char **vary;  /* n_vary: "KEY=VALUES" as --vary takes it */
+  char **where; /* n_vary: "file:line:col" of the entry, for messages */
+  int zip, seeds, jobs;
+  double velocity_std;
+} mrvi_batch_section;
+/* Read the `batch:` section of sys's description (every key, type and
+ * range checked: "file:line:col: message" otherwise); no section: n_vary
+ * 0 and every entry absent. */
+int mrvi_batch_section_read(const mrvi_system *sys, mrvi_batch_section *out,
+                            char *msg, size_t len);
+void mrvi_batch_section_free(mrvi_batch_section *sec); /* contents; NULL ok */
+
 /* A case's status in the master table. */
 enum {
   MRVI_BATCH_PENDING = 0,   /* not run yet (or killed while running) */
@@ -183,6 +200,7 @@ void mrvi_batch_plan_free(mrvi_batch_plan *plan); /* the contents; NULL ok */
 typedef struct mrvi_batch_result {
   int c;      /* case index */
   int status; /* MRVI_BATCH_COMPLETED or MRVI_BATCH_FAILED */
+  int rank;   /* the MPI rank that ran it (0 without MPI; not in the table) */
   long steps; /* macro steps completed */
   double wall_time, energy_error; /* s; max rel. energy error (mrvi_summary) */
   char reason[MRVI_BATCH_REASON_BYTES]; /* stop reason ("completed") */

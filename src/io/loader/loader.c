@@ -19,11 +19,13 @@ static const char *loader_override_of(const void *L, struct fy_node *n) {
   return mrvi_ld_override_of(L, n);
 }
 
+/* "control" is read by src/ocp/ocp_loader.c (optimal control), "batch" by
+ * batch.c (mrvi batch). */
 static const char *const top_keys[] = {
     "name",        "dimension", "gravity",     "particles",  "springs",
     "coordinates", "terms",     "constraints", "integrator", "output",
     "angles",      "forces",    "generate",    "bodies",     "joints",
-    "control" /* optimal control, read by src/ocp/ocp_loader.c */};
+    "control",     "batch"};
 
 static int load_model(loader *L, struct fy_node *root) {
   mrvi_model *m = L->sys->model;
@@ -130,6 +132,8 @@ static int interpret(loader *L) {
   if ((st = mrvi_ld_check_constraints(L)))
     return st;
   if ((n = mrvi_ld_get(root, "output")) && (st = mrvi_ld_output(L, n)))
+    return st;
+  if ((n = mrvi_ld_get(root, "batch")) && (st = mrvi_ld_batch(L, n)))
     return st;
   return MRVI_OK;
 }

@@ -8,7 +8,7 @@
  *                  dispatches the sections
  *   coordinates.c  particles.c  springs.c  terms.c  angles.c  forces.c
  *   generate.c     constraints.c  integrator.c  output.c  bodies.c
- *   joints.c
+ *   joints.c       batch.c
  *                  the section of the same name (`control:` is read in
  *                  src/ocp/ocp_loader.c)
  *   read.c         errors at marks, typed access to nodes, key checks
@@ -104,6 +104,8 @@ int mrvi_ld_integrator(loader *L, struct fy_node *in);
 /* Sizes the integrator allocates per macro step, against the machine. */
 int mrvi_ld_check_sizes(loader *L, struct fy_node *at);
 int mrvi_ld_output(loader *L, struct fy_node *out);
+/* `batch:` checked (every load), read by mrvi_batch_section_read. */
+int mrvi_ld_batch(loader *L, struct fy_node *batch);
 
 /* ---------------------------------------------------------------------------
  * Errors at marks (read.c)
