@@ -142,6 +142,26 @@ every_huge output_every
 description_array /model/description
 stop_reason_array stop_reason
 stop_reason_text stop_reason is not the fixed-length
+desc_macro_step attribute macro_step = 0.02 but /model/description says 0.01
+desc_micro_steps attribute micro_steps = 5 but /model/description says 3
+desc_every attribute output_every = 1 but /model/description says 2
+desc_scheme attribute scheme = 'midpoint-midpoint' but /model/description
+desc_t_end attribute t_end
+desc_particle /model/name\[3\] = 'bob.x' but /model/description
+desc_rate /model/rate\[3\] = 1 but /model/description makes 'bob.x' slow
+desc_constraint /macro/lambda has 2 columns but the model of /model/description
+macro_step_nan attribute macro_step = nan
+macro_step_huge macro_step
+micro_steps_huge attribute micro_steps = 1e+30
+every_nan attribute output_every = nan
+every_1e30 attribute output_every = 1e+30
+steps_huge attribute steps_completed = 1.0000000000000001e+300
+t_end_inf attribute t_end = inf
+scheme_other attribute scheme = 'fully-explicit'
+name_renamed /model/name\[5\] = 'other.z'
+rate_flipped /model/rate\[0\] = 1
+t_backwards /macro/t\[5\] = -0.1
+controlled resuming a controlled run is not supported
 EOF
 
 # The writer reopens every dataset to append, /bodies of ranks 3 and 4 too.
@@ -166,6 +186,9 @@ rate_huge /model/rate
 q_rank3 /macro/q
 t_rank32 /macro/t
 q_wider /macro/q
+desc_macro_step attribute macro_step = 0.29999999999999999 but /model/description says 0.2
+every_nan attribute output_every = nan
+macro_step_nan attribute macro_step = nan
 EOF
 # The refusal of a declared 2e8-entry /model/rate reads none of it.
 if [ -x /usr/bin/time ] && ! grep -q asan <<<"$(ldd "$mrvi" 2>/dev/null)"; then

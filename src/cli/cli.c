@@ -694,7 +694,31 @@ static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node) {
     *node = NULL;
     return NULL;
   }
+  if (mrvi_stored_run_check(a->resume, sys, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi run: --resume %s; not resumed\n", msg);
+    mrvi_system_free(sys);
+    mrvi_stored_node_free(*node);
+    *node = NULL;
+    return NULL;
+  }
   return sys;
+}
+
+/* The --from file against its own /model/description, loaded here. */
+static int from_file_consistent(const char *path, const char *description) {
+  char msg[MSG_LEN], name[4200];
+  snprintf(name, sizeof name, "%s:/model/description", path);
+  mrvi_system *own = NULL;
+  int st = mrvi_system_load_string(description, name, NULL, 0, &own, msg,
+                                   sizeof msg);
+  if (st == MRVI_OK && own)
+    st = mrvi_stored_run_check(path, own, msg, sizeof msg);
+  else if (st == MRVI_OK)
+    st = MRVI_EINVAL;
+  if (st < 0)
+    fprintf(stderr, "mrvi run: --from %s\n", msg);
+  mrvi_system_free(own);
+  return st;
 }
 
 /* --from OUT.h5[:k]: stored node k (default: the last) of an earlier run,
@@ -722,6 +746,10 @@ static mrvi_stored_node *load_from(const char *spec, const mrvi_system *sys,
   if (mrvi_stored_node_read(path, which, mrvi_model_n(sys->model), &node, msg,
                             sizeof msg) < 0) {
     fprintf(stderr, "mrvi run: --from %s\n", msg);
+    return NULL;
+  }
+  if (from_file_consistent(path, node->description) < 0) {
+    mrvi_stored_node_free(node);
     return NULL;
   }
   const mrvi_settings *s = &sys->settings;
