@@ -222,7 +222,95 @@ u_missing /control/u
 not_hdf5 not_hdf5.h5
 EOF
 
-# --- flipped bytes ---------------------------------------------------------
+# --- mrvi-plot (class 9) ---------------------------------------------------
+# Crafted run files: drawn (exit 0) or refused with one line naming the
+# file (exit 1), never a Python traceback (TypeError, IndexError,
+# MemoryError before); the shape refusals name the dataset or attribute,
+# before anything is read (8 TiB declared).
+plot=$root/src/cli/mrvi-plot
+if "$py" -c "import matplotlib" 2>/dev/null; then
+  mkdir -p figs
+  traced=""
+  # Drawn whole (seconds each on a loaded machine): the crafted files whose
+  # crafted part mrvi-plot does not read or can draw; the refusals below.
+  for f in resume/{ok,lambda_wider,lambda_rank32,residual_rank32}.h5 \
+    resume/{every_huge,description_array,t_backwards}.h5 \
+    bodies/{rotation_rank5,position_huge}.h5 from/every_nan.h5; do
+    timeout 120 "$py" "$plot" run "$f" -o figs >/dev/null 2>err.txt
+    rc=$?
+    if [ $rc -ne 0 ] && [ $rc -ne 1 ] || grep -q Traceback err.txt ||
+      { [ $rc -eq 1 ] && ! grep -q "^mrvi-plot: error: $f" err.txt; }; then
+      traced="$traced $f(exit $rc: $(grep -m1 'Error' err.txt))"
+    fi
+  done
+  [ -z "$traced" ] && pass "mrvi-plot run on every crafted file: no traceback" ||
+    fail "mrvi-plot run:$traced"
+  while read -r case pattern; do
+    refuses "mrvi-plot: $case" "$pattern" "$py" "$plot" run "$case" -o figs
+  done <<'EOF'
+export/names_longer.h5 /model/particle_name' does not have one entry
+export/names_huge.h5 /model/particle_name' declares 4294967296 values
+export/names_matrix.h5 /model/particle_name' has rank 2
+export/qfast_wider.h5 /micro/q_fast' has 37 columns, expected 30
+export/qslow_narrower.h5 /micro/q_slow' has 3 columns, expected 30
+export/dimension_array.h5 /model/dimension' is not one number
+export/column_huge.h5 /model/particle_column' declares 4294967297 values
+export/coordinates_huge.h5 /model/rate' declares 4294967356 values
+export/rate_rank32.h5 /model/rate' has shape
+export/stop_reason_array.h5 attribute stop_reason holds 64 values
+resume/q_rank32.h5 /macro/q' has rank 32
+resume/steps_array.h5 attribute steps_completed holds 1000 values
+from/q_wider.h5 /macro/q' has 12 columns, expected 6
+from/rate_huge.h5 /macro/q' has 6 columns, expected 200000000
+from/t_rank32.h5 /macro/t' has rank 32
+EOF
+else
+  echo "note: mrvi-plot not run (no matplotlib for $py)"
+fi
+
+# --- live reading (class 5) --------------------------------------------------
+# While mrvi run writes, a reader with HDF5's default file locking opens the
+# file as a user would (h5py, swmr=True) and sees it grow, mrvi-plot draws
+# it, and a second writer and a resume are still refused.  mrvi's own lock
+# is an OFD lock (fcntl), HDF5's an flock: they no longer collide.
+"$mrvi" run "$sys/fpu.yaml" --set integrator.t_end=1e7 -o live.h5 -q \
+  2>live.err &
+writer=$!
+for _ in $(seq 100); do
+  [ -s live.h5 ] && "$py" -c 'import h5py, sys
+f = h5py.File(sys.argv[1], "r", swmr=True)
+sys.exit(f["macro/t"].shape[0] < 2)' live.h5 2>/dev/null && break
+  sleep 0.1
+done
+env -u HDF5_USE_FILE_LOCKING "$py" -c 'import h5py, sys, time
+f = h5py.File(sys.argv[1], "r", swmr=True)
+t = f["macro/t"]
+n0 = t.shape[0]
+for _ in range(100):
+    time.sleep(0.1)
+    t.refresh()
+    if t.shape[0] > n0:
+        break
+print(n0, t.shape[0], f.attrs["stop_reason"].decode())
+sys.exit(0 if t.shape[0] > n0 else 1)' live.h5 >out.txt 2>err.txt
+[ $? -eq 0 ] && pass "h5py.File(live, 'r', swmr=True) during mrvi run: /macro/t rows $(cut -d' ' -f1,2 out.txt | tr ' ' '>') ($(cut -d' ' -f3 out.txt))" ||
+  fail "h5py SWMR read of a live file: $(tail -1 err.txt)"
+if "$py" -c "import matplotlib" 2>/dev/null; then
+  accepts "mrvi-plot run on the live file" env -u HDF5_USE_FILE_LOCKING \
+    "$py" "$plot" run live.h5 -o figs
+fi
+refuses "a second writer on the live file" "in use by another run" \
+  "$mrvi" run "$sys/fpu.yaml" -o live.h5 -q
+refuses "--resume of the live file" "in use by another run" \
+  "$mrvi" run --resume live.h5 -q
+kill -INT $writer
+wait $writer
+rc=$?
+[ $rc -eq 130 ] && pass "the writer stops at SIGINT (exit 130)" ||
+  fail "the writer: exit $rc: $(tail -1 live.err)"
+left=$(ls -a | grep -c '^live\.h5\..*')
+[ "$left" -eq 0 ] && pass "no lock or temporary file left beside live.h5" ||
+  fail "files left beside live.h5: $(ls -a | grep '^live\.h5\.')"
 # Each mutated file: export xyz --micro and xdmf (lattice), resume (cart).
 # A refusal is fine; a sanitizer report in mrvi's code or a death by a
 # signal is not.  They run by default in the ASan build only, where a report

@@ -2,7 +2,6 @@
  * (e.g. a cached reference solution of a convergence study), a stored
  * macro node to resume or continue from.  Every
  * read goes through the validated layer of h5read.c. */
-#define _DEFAULT_SOURCE /* flock */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -13,7 +12,6 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/file.h>
 #include <unistd.h>
 
 hid_t mrvi_h5_open_read(const char *path, hid_t fapl) {
@@ -25,16 +23,6 @@ hid_t mrvi_h5_open_read(const char *path, hid_t fapl) {
   return f;
 }
 
-/* A live run holds flock(LOCK_EX) on its output (hdf5_writer.c). */
-static int held_by_live_run(const char *path) {
-  int fd = open(path, O_RDONLY | O_CLOEXEC);
-  int live =
-      fd >= 0 && flock(fd, LOCK_SH | LOCK_NB) < 0 && errno == EWOULDBLOCK;
-  if (fd >= 0)
-    close(fd);
-  return live;
-}
-
 void mrvi_h5_stop_reason(hid_t file, const char *path, char *buf, size_t len) {
   char scratch[256];
   const mrvi_h5in in = {file, path, scratch, sizeof scratch};
@@ -42,7 +30,7 @@ void mrvi_h5_stop_reason(hid_t file, const char *path, char *buf, size_t len) {
     mrvi_h5in_attr_string(&in, "stop_reason", buf, len);
   else
     buf[0] = '\0';
-  if (!strcmp(buf, "running") && !held_by_live_run(path))
+  if (!strcmp(buf, "running") && !mrvi_h5_held(path))
     mrvi_fmt(buf, len, "%s", "incomplete (writer killed)");
 }
 
@@ -383,7 +371,7 @@ int mrvi_stored_node_read(const char *path, long which, int n,
   mrvi_h5_quiet q;
   mrvi_h5_quiet_begin(&q);
   mrvi_stored_node *node = calloc(1, sizeof *node);
-  const int live = held_by_live_run(path);
+  const int live = mrvi_h5_held(path);
   hid_t f =
       node && !live ? mrvi_h5_open_read(path, H5P_DEFAULT) : H5I_INVALID_HID;
   const mrvi_h5in in = {f, path, msg, len};
