@@ -10,6 +10,9 @@ KIND:
   from      BASE: a run without particles (fpu)
   controls  BASE: ignored; /control/u files for ocp_double_integrator.yaml
             (1 actuator on the macro grid, 10 macro steps)
+  hang      BASE: a run file (written by mrvi, superblock version 3):
+            truncated to 34 bytes, a superblock byte flipped, and both with
+            the superblock flagged as open for writing (a killed writer's)
   flip SEED COUNT BASE OUT_DIR: COUNT copies of BASE with bytes flipped
 
 Huge dimensions are declared on chunked datasets with no chunk written,
@@ -259,6 +262,25 @@ def controls_cases(out):
     print("not_hdf5", path)
 
 
+def hang_cases(base, out):
+    """Files on which HDF5's SWMR-read retries spun for tens of minutes."""
+    data = open(base, "rb").read()
+    assert data[:8] == b"\x89HDF\r\n\x1a\n" and data[8] in (2, 3)
+    cases = {"truncated34": bytearray(data[:34])}
+    for at in (20, 44):          # end-of-file address, checksum
+        b = bytearray(data)
+        b[at] ^= 0x5A
+        cases["superblock%d" % at] = b
+    for name in list(cases):
+        b = bytearray(cases[name])
+        b[11] |= 0x05            # open for writing, SWMR writing
+        cases[name + "_flagged"] = b
+    for name, b in sorted(cases.items()):
+        path = os.path.join(out, name + ".h5")
+        open(path, "wb").write(b)
+        print(name, path)
+
+
 def flips(seed, count, base, out):
     """count copies of base, each with 1 to 8 bytes set to random values."""
     data = open(base, "rb").read()
@@ -280,7 +302,7 @@ def main():
     base, out = sys.argv[2], sys.argv[3]
     os.makedirs(out, exist_ok=True)
     {"export": export_cases, "resume": resume_cases, "from": from_cases,
-     "bodies": bodies_cases,
+     "bodies": bodies_cases, "hang": hang_cases,
      "controls": lambda b, o: controls_cases(o)}[kind](base, out)
 
 

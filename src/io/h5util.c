@@ -8,6 +8,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <limits.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -309,6 +310,11 @@ int mrvi_h5_lock_output(const char *path, int force, int *fd, int *created,
   int existed = stat(path, &st) == 0;
   *fd = -1;
   *created = 0;
+  /* A symbolic link to nowhere: open(O_CREAT) would create its target,
+   * wherever it points. */
+  if (!existed && lstat(path, &st) == 0 && S_ISLNK(st.st_mode))
+    return mrvi_fail(msg, len, MRVI_EIO,
+                     "a symbolic link to a missing file; not followed");
   if (existed && !S_ISREG(st.st_mode))
     return mrvi_fail(msg, len, MRVI_EIO, "not a regular file");
   *fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0666);
@@ -374,6 +380,13 @@ int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len) {
   *part = malloc(plen);
   if (!*part)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  /* The file name with ".partXXXXXX" (11 bytes) must stay within NAME_MAX:
+   * a longer name is cut for the temporary file only. */
+  const char *slash = strrchr(path, '/');
+  const size_t dir = slash ? (size_t)(slash - path) + 1 : 0;
+  size_t keep = strlen(path) - dir;
+  if (keep + 11 > NAME_MAX)
+    keep = NAME_MAX - 11;
   struct timespec ts;
   clock_gettime(CLOCK_REALTIME, &ts);
   unsigned long long x = (unsigned long long)getpid() * 0x9E3779B97F4A7C15ull ^
@@ -387,7 +400,7 @@ int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len) {
     for (int i = 0; i < 6; i++, y /= 62)
       suffix[i] = chars[y % 62];
     suffix[6] = '\0';
-    mrvi_fmt(*part, plen, "%s.part%s", path, suffix);
+    mrvi_fmt(*part, plen, "%.*s.part%s", (int)(dir + keep), path, suffix);
     fd = open(*part, O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
     e = fd < 0 ? errno : 0;
   }
