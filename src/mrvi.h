@@ -999,6 +999,15 @@ typedef struct mrvi_stored_node {
 int mrvi_stored_node_read(const char *path, long which, int n,
                           mrvi_stored_node **out, char *msg, size_t len);
 void mrvi_stored_node_free(mrvi_stored_node *node);
+/* The run file at path against sys, the system of its own
+ * /model/description: the root attributes macro_step, micro_steps,
+ * output_every, t_end, scheme, alpha/gamma and slow_grid, the coordinates
+ * (/macro/q's width, /model/name, /model/rate) and /macro/lambda's width must
+ * be what that description gives.  MRVI_EINVAL naming the first disagreement
+ * (a file edited or crafted after it was written must not be continued:
+ * mrvi run --resume and --from check it before they read a node). */
+int mrvi_stored_run_check(const char *path, const mrvi_system *sys, char *msg,
+                          size_t len);
 
 /* ---------------------------------------------------------------------------
  * Viewing the motion (doc/output.md): files for ParaView, OVITO, VMD made

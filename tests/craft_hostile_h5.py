@@ -10,6 +10,9 @@ KIND:
   from      BASE: a run without particles (fpu)
   controls  BASE: ignored; /control/u files for ocp_double_integrator.yaml
             (1 actuator on the macro grid, 10 macro steps)
+  hang      BASE: a run file (written by mrvi, superblock version 3):
+            truncated to 34 bytes, a superblock byte flipped, and both with
+            the superblock flagged as open for writing (a killed writer's)
   flip SEED COUNT BASE OUT_DIR: COUNT copies of BASE with bytes flipped
 
 Huge dimensions are declared on chunked datasets with no chunk written,
@@ -95,6 +98,39 @@ def export_cases(base, out):
         f.attrs["stop_reason"] = strings(["completed"] * 64)
 
 
+# (case, text in /model/description, replacement): the description says
+# another run than the attributes and data (cart_pendulum.yaml's values).
+DESCRIPTION_EDITS = [
+    ("desc_macro_step", "macro_step: 0.02", "macro_step: 0.01"),
+    ("desc_micro_steps", "micro_steps: 5", "micro_steps: 3"),
+    ("desc_every", "every: 1", "every: 2"),
+    ("desc_scheme", "scheme: midpoint-midpoint",
+     "scheme: trapezoidal-trapezoidal"),
+    ("desc_t_end", "t_end: 0.2", "t_end: 0.4"),
+    ("desc_particle", "bob", "ball"),
+    ("desc_rate", "rate: fast", "rate: slow"),
+    ("desc_constraint", "- type: plane", "- type: plane\n  name: floor2\n"
+     "  particle: bob\n  normal: [1, 0, 0]\n- type: plane"),
+]
+# (case, root attribute, value): a number no run writes.
+ATTRIBUTE_EDITS = [
+    ("macro_step_nan", "macro_step", np.nan),
+    ("macro_step_huge", "macro_step", 1e300),
+    ("micro_steps_huge", "micro_steps", 1e30),
+    ("every_nan", "output_every", np.nan),
+    ("every_1e30", "output_every", 1e30),
+    ("steps_huge", "steps_completed", 1e300),
+    ("t_end_inf", "t_end", np.inf),
+    ("scheme_other", "scheme", "fully-explicit"),
+]
+
+
+def edit_description(f, old, new):
+    text = f["model/description"][()].decode()
+    assert old in text, old
+    f["model/description"][()] = text.replace(old, new)
+
+
 def resume_cases(base, out):
     with copy(base, out, "ok") as f:
         resumable(f, 5)
@@ -138,6 +174,30 @@ def resume_cases(base, out):
     with copy(base, out, "stop_reason_array") as f:
         resumable(f, 5)
         f.attrs["stop_reason"] = strings(["interrupted"] * 64)
+    # Class 2: description, attributes and data that disagree.
+    for case, old, new in DESCRIPTION_EDITS:
+        with copy(base, out, case) as f:
+            resumable(f, 5)
+            edit_description(f, old, new)
+    for case, name, value in ATTRIBUTE_EDITS:
+        with copy(base, out, case) as f:
+            resumable(f, 5)
+            f.attrs[name] = value
+    with copy(base, out, "name_renamed") as f:
+        resumable(f, 5)
+        names = [s.decode() for s in f["model/name"][...]]
+        names[-1] = "other.z"
+        replace(f, "model/name", data=strings(names))
+    with copy(base, out, "rate_flipped") as f:
+        resumable(f, 5)
+        f["model/rate"][0] = 1 - f["model/rate"][0]
+    with copy(base, out, "t_backwards") as f:
+        resumable(f, 5)
+        f["macro/t"][5] = -f["macro/t"][5]
+    with copy(base, out, "controlled") as f:
+        # A run of mrvi optimize killed while writing: it carries /control.
+        resumable(f, 5)
+        f["control/u"] = np.zeros((10, 1))
 
 
 def bodies_cases(base, out):
@@ -159,6 +219,12 @@ def bodies_cases(base, out):
 
 
 def from_cases(base, out):
+    with copy(base, out, "desc_macro_step") as f:
+        edit_description(f, "macro_step: 0.3", "macro_step: 0.2")
+    with copy(base, out, "every_nan") as f:
+        f.attrs["output_every"] = np.nan
+    with copy(base, out, "macro_step_nan") as f:
+        f.attrs["macro_step"] = np.nan
     with copy(base, out, "rate_huge") as f:
         huge(f, "model/rate", (200000000,), "i4")
     with copy(base, out, "q_rank3") as f:
@@ -196,6 +262,25 @@ def controls_cases(out):
     print("not_hdf5", path)
 
 
+def hang_cases(base, out):
+    """Files on which HDF5's SWMR-read retries spun for tens of minutes."""
+    data = open(base, "rb").read()
+    assert data[:8] == b"\x89HDF\r\n\x1a\n" and data[8] in (2, 3)
+    cases = {"truncated34": bytearray(data[:34])}
+    for at in (20, 44):          # end-of-file address, checksum
+        b = bytearray(data)
+        b[at] ^= 0x5A
+        cases["superblock%d" % at] = b
+    for name in list(cases):
+        b = bytearray(cases[name])
+        b[11] |= 0x05            # open for writing, SWMR writing
+        cases[name + "_flagged"] = b
+    for name, b in sorted(cases.items()):
+        path = os.path.join(out, name + ".h5")
+        open(path, "wb").write(b)
+        print(name, path)
+
+
 def flips(seed, count, base, out):
     """count copies of base, each with 1 to 8 bytes set to random values."""
     data = open(base, "rb").read()
@@ -217,7 +302,7 @@ def main():
     base, out = sys.argv[2], sys.argv[3]
     os.makedirs(out, exist_ok=True)
     {"export": export_cases, "resume": resume_cases, "from": from_cases,
-     "bodies": bodies_cases,
+     "bodies": bodies_cases, "hang": hang_cases,
      "controls": lambda b, o: controls_cases(o)}[kind](base, out)
 
 

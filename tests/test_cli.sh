@@ -610,18 +610,65 @@ expect_rc 0 "an earlier mrvi output is replaced"
 rm -f "$tmp/o/foreign.h5" "$tmp/o/again.h5"
 # name: gives the default output name; it must not leave the directory.
 mkdir -p "$tmp/o/nm"
-sed '/^output:/d' "$root/systems/oscillator.yaml" >"$tmp/noout.yaml"
-for bad in '../../escape' 'a/b' '"two\\nlines"'; do
-  sed "s|^name:.*|name: $bad|" "$tmp/noout.yaml" >"$tmp/named.yaml"
+run_in_nm() { # mrvi run $tmp/named.yaml in $tmp/o/nm: rc, err
   (cd "$tmp/o/nm" && "$mrvi" run "$tmp/named.yaml" -q >"$tmp/out" 2>"$tmp/err")
   rc=$?
   err=$(cat "$tmp/err")
+}
+sed '/^output:/d' "$root/systems/oscillator.yaml" >"$tmp/noout.yaml"
+for bad in '../../escape' 'a/b' '"two\\nlines"'; do
+  sed "s|^name:.*|name: $bad|" "$tmp/noout.yaml" >"$tmp/named.yaml"
+  run_in_nm
   expect_rc 1 "name '$bad' as output name"
-  contains "$err" 'directory part or control characters' "name '$bad' refused"
+  contains "$err" 'leaves the current directory or contains control' "name '$bad' refused"
 done
 check "bad names wrote nothing" [ -z "$(ls -A "$tmp/o/nm")" ] && \
   ! ls "$tmp"/escape.h5 "$tmp"/o/escape.h5 >/dev/null 2>&1
-rm -rf "$tmp/o/nm"
+# output.file from a description is confined the same way: not absolute, no
+# "..", and an earlier mrvi output there is not replaced.
+"$mrvi" run "$root/systems/oscillator.yaml" -o "$tmp/o/earlier.h5" -q
+cp "$tmp/o/earlier.h5" "$tmp/o/earlier.copy"
+for bad in '../../o/earlier.h5' "$tmp/o/earlier.h5" 'sub/../../earlier.h5'; do
+  sed "s|^output:.*|output: {file: '$bad'}|" "$root/systems/oscillator.yaml" \
+    >"$tmp/named.yaml"
+  run_in_nm
+  expect_rc 1 "output.file '$bad'"
+  contains "$err" 'is absolute, leaves the current directory' "output.file '$bad' refused"
+done
+check "an earlier output outside the directory is untouched" \
+  cmp -s "$tmp/o/earlier.h5" "$tmp/o/earlier.copy"
+sed "s|^output:.*|output: {file: 'sub/x.h5'}|" "$root/systems/oscillator.yaml" \
+  >"$tmp/named.yaml"
+mkdir -p "$tmp/o/nm/sub"
+run_in_nm
+expect_rc 0 "output.file 'sub/x.h5' (below the directory) is written"
+rm -rf "$tmp/o/nm" "$tmp/o/earlier.h5" "$tmp/o/earlier.copy"
+
+# --- paths: symbolic links, long names (issue 26, class 8) ----------------------
+# A dangling symbolic link as -o: refused, its target not created.
+ln -s "$tmp/o/nowhere/target.h5" "$tmp/o/dangling.h5"
+ln -s "$tmp/o/target.h5" "$tmp/o/dangling2.h5"
+for link in dangling dangling2; do
+  run_mrvi run "$root/systems/oscillator.yaml" -o "$tmp/o/$link.h5" -q
+  expect_rc 1 "-o a dangling symbolic link ($link)"
+  contains "$err" 'symbolic link to a missing file' "$link: refusal names the link"
+done
+check "a dangling link's target is not created" [ ! -e "$tmp/o/target.h5" ]
+check "the dangling links stay links" [ -L "$tmp/o/dangling2.h5" ]
+rm -f "$tmp/o/dangling.h5" "$tmp/o/dangling2.h5"
+# A 254-byte file name is written: its temporary name is cut so that it
+# stays within NAME_MAX = 255 with ".partXXXXXX".
+long=$(printf 'L%.0s' $(seq 251)).h5
+run_mrvi run "$root/systems/oscillator.yaml" -o "$tmp/o/$long" -q
+expect_rc 0 "a 254-byte output file name ($err)"
+check "the 254-byte file exists, no temporary file left" \
+  [ -s "$tmp/o/$long" ] && [ -z "$(ls "$tmp/o" | grep -F '.part')" ]
+rm -f "$tmp/o/$long"
+# A --from path longer than PATH_MAX is refused, not cut.
+deep=$(printf 'd/%.0s' $(seq 2100))x.h5
+run_mrvi run "$root/systems/oscillator.yaml" --from "$deep" -o "$tmp/o/x.h5" -q
+expect_rc 1 "--from a path of ${#deep} bytes"
+contains "$err" "a path of ${#deep} bytes, longer than" "--from: a long path refused"
 
 # --- interrupt: valid file with stop_reason, exit 128 + signal ----------------
 interrupt() { # interrupt SIGNAL WANT_RC

@@ -132,18 +132,18 @@ check "stability: table replaced in place (mode $(stat -c %a stab.h5), no .part 
 "$mrvi" stability "$root/systems/oscillator.yaml" --p 2 -o nodir/stab.h5 -q 2>nodir.err
 [ $? -eq 2 ] && grep -q '^mrvi stability: nodir/stab.h5: cannot create the file' nodir.err && [ ! -e nodir ]
 check "stability: an output in a missing directory is refused ($(cat nodir.err))" $?
-# A file locked by a live writer (flock, as `mrvi run` holds its output) is
-# not replaced.
-if command -v flock >/dev/null; then
-  printf 'data\n' >locked.h5
-  flock locked.h5 sleep 30 &
-  holder=$!
-  for _ in $(seq 100); do flock -n locked.h5 true || break; sleep 0.05; done
+# A file locked by a live writer (as `mrvi run` holds its output) is not
+# replaced.
+printf 'data\n' >locked.h5
+if hold_lock locked.h5; then
   "$mrvi" stability "$root/systems/oscillator.yaml" --p 2 -o locked.h5 -q 2>locked.err
   st=$?
-  kill "$holder"
+  kill "$lock_holder"
+  wait "$lock_holder" 2>/dev/null
   [ $st -eq 2 ] && grep -q 'in use by another run' locked.err && [ "$(cat locked.h5)" = data ]
   check "stability: a locked output is not touched ($(cat locked.err))" $?
+else
+  check "stability: could not hold a lock on locked.h5" 1
 fi
 
 # --- timing ----------------------------------------------------------------

@@ -39,6 +39,25 @@ run_ok() {
   fi
 }
 
+# hold_lock FILE: a background process holds a write lock on FILE as a live
+# mrvi writer does (a POSIX record lock, which conflicts with the OFD lock of
+# mrvi_h5_lock_fd); its pid in $lock_holder (kill it to release).  Returns
+# when the lock is held (1 if not within 5 s).
+hold_lock() {
+  rm -f "$tmp/lock.ready"
+  python3 -c 'import fcntl, sys, time
+f = open(sys.argv[1], "r+")
+fcntl.lockf(f, fcntl.LOCK_EX)
+print(flush=True)
+time.sleep(60)' "$1" >"$tmp/lock.ready" &
+  lock_holder=$!
+  for _ in $(seq 100); do
+    [ -s "$tmp/lock.ready" ] && return 0
+    sleep 0.05
+  done
+  return 1
+}
+
 test_finish() {
   echo "$passed passed, $failed failed"
   [ "$failed" -eq 0 ] && [ "$passed" -gt 0 ]

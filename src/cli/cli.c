@@ -515,7 +515,17 @@ _Static_assert(_Generic((sig_atomic_t)0, int : 1, default : 0),
                "mrvi_run takes the stop flag as volatile int");
 volatile sig_atomic_t mrvi_cli_stop_signal = 0;
 
-static void on_signal(int sig) { mrvi_cli_stop_signal = sig; }
+/* Set while mrvi run loads its inputs (description, --resume, --from,
+ * --controls), before anything is written: a signal then ends the process
+ * at once, since a read inside HDF5 (a damaged file) never looks at the
+ * flag. */
+static volatile sig_atomic_t loading = 0;
+
+static void on_signal(int sig) {
+  if (loading)
+    _exit(128 + sig);
+  mrvi_cli_stop_signal = sig;
+}
 
 void mrvi_cli_install_handlers(void) {
   struct sigaction sa;
@@ -694,7 +704,31 @@ static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node) {
     *node = NULL;
     return NULL;
   }
+  if (mrvi_stored_run_check(a->resume, sys, msg, sizeof msg) < 0) {
+    fprintf(stderr, "mrvi run: --resume %s; not resumed\n", msg);
+    mrvi_system_free(sys);
+    mrvi_stored_node_free(*node);
+    *node = NULL;
+    return NULL;
+  }
   return sys;
+}
+
+/* The --from file against its own /model/description, loaded here. */
+static int from_file_consistent(const char *path, const char *description) {
+  char msg[MSG_LEN], name[4200];
+  snprintf(name, sizeof name, "%s:/model/description", path);
+  mrvi_system *own = NULL;
+  int st = mrvi_system_load_string(description, name, NULL, 0, &own, msg,
+                                   sizeof msg);
+  if (st == MRVI_OK && own)
+    st = mrvi_stored_run_check(path, own, msg, sizeof msg);
+  else if (st == MRVI_OK)
+    st = MRVI_EINVAL;
+  if (st < 0)
+    fprintf(stderr, "mrvi run: --from %s\n", msg);
+  mrvi_system_free(own);
+  return st;
 }
 
 /* --from OUT.h5[:k]: stored node k (default: the last) of an earlier run,
@@ -702,6 +736,13 @@ static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node) {
 static mrvi_stored_node *load_from(const char *spec, const mrvi_system *sys,
                                    char *path, size_t path_len) {
   char msg[MSG_LEN];
+  if (strlen(spec) >= path_len) {
+    fprintf(stderr,
+            "mrvi run: --from: a path of %zu bytes, longer than "
+            "the system's limit (%zu); not read\n",
+            strlen(spec), path_len - 1);
+    return NULL;
+  }
   snprintf(path, path_len, "%s", spec);
   long which = MRVI_NODE_LAST;
   char *colon = strrchr(path, ':');
@@ -722,6 +763,10 @@ static mrvi_stored_node *load_from(const char *spec, const mrvi_system *sys,
   if (mrvi_stored_node_read(path, which, mrvi_model_n(sys->model), &node, msg,
                             sizeof msg) < 0) {
     fprintf(stderr, "mrvi run: --from %s\n", msg);
+    return NULL;
+  }
+  if (from_file_consistent(path, node->description) < 0) {
+    mrvi_stored_node_free(node);
     return NULL;
   }
   const mrvi_settings *s = &sys->settings;
@@ -760,7 +805,9 @@ static int cmd_run(int argc, char **argv) {
     free(a.overrides);
     return rc;
   }
-  /* From here on Ctrl-C only raises the stop flag. */
+  /* Loading: Ctrl-C and SIGTERM end the process (nothing is written yet);
+   * from the output's creation on they only raise the stop flag. */
+  loading = 1;
   mrvi_cli_install_handlers();
   mrvi_stored_node *node = NULL;
   mrvi_system *sys = a.resume ? load_resume(&a, &node) : load_system(&a);
@@ -771,6 +818,7 @@ static int cmd_run(int argc, char **argv) {
     mrvi_system_free(sys);
     sys = NULL;
   }
+  loading = 0;
   if (!sys)
     return EXIT_INPUT;
   if (mrvi_cli_stop_signal) { /* interrupted while loading: write nothing */
@@ -804,21 +852,26 @@ static int cmd_run(int argc, char **argv) {
     return EXIT_INPUT;
   }
   /* An output name taken from the description (output.file, or name + .h5)
-   * must be a plain file name: no control characters, and a name-derived
-   * one no directory part ("../../x" in `name:` writes nowhere else). */
+   * stays below the current directory: no control characters, not
+   * absolute, no ".." component (a description from elsewhere must not
+   * replace an earlier output in ../../x.h5 or /abs/x.h5), and a
+   * name-derived one no directory part at all. */
   if (!a.output && !a.resume) {
-    int bad = 0;
-    for (const char *c = out; *c; c++)
+    int bad = out[0] == '/';
+    for (const char *c = out; *c; c++) {
       bad |= (unsigned char)*c < 0x20 || *c == 0x7f;
+      bad |= (c == out || c[-1] == '/') && c[0] == '.' && c[1] == '.' &&
+             (c[2] == '/' || c[2] == '\0');
+    }
     const char *nm = sys->name ? sys->name : "";
     size_t ln = strlen(nm);
     if (!bad && ln > 0 && !strncmp(out, nm, ln) && !strcmp(out + ln, ".h5"))
       bad = strchr(nm, '/') != NULL || nm[0] == '.';
     if (bad) {
       fprintf(stderr,
-              "%s: output file name '%s' (from the description) contains a "
-              "directory part or control characters; give -o OUT.h5 or a "
-              "plain output.file\n",
+              "%s: output file name '%s' (from the description) is absolute, "
+              "leaves the current directory or contains control "
+              "characters; give -o OUT.h5 or a plain output.file\n",
               a.file, out);
       mrvi_system_free(sys);
       return EXIT_INPUT;

@@ -2,15 +2,15 @@
  * study_writer.c, optimize_output.c): HDF5's errors as messages,
  * attributes, datasets written whole, files written in one go, and the
  * output file's lock and temporary name (h5util.h). */
-#define _DEFAULT_SOURCE /* flock */
+#define _GNU_SOURCE /* F_OFD_SETLK */
 #include "io/h5util.h"
 #include "io/io.h"
 
 #include <errno.h>
 #include <fcntl.h>
+#include <limits.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/file.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -276,12 +276,45 @@ void mrvi_h5_batch_attr_int(mrvi_h5_batch *b, hid_t loc, const char *name,
 /* ---------------------------------------------------------------------------
  * The output file: lock, temporary name, rename
  * ------------------------------------------------------------------------- */
+/* The whole file, for an open-file-description lock (fcntl F_OFD_*). */
+static struct flock whole_file(short type) {
+  struct flock l;
+  memset(&l, 0, sizeof l);
+  l.l_type = type;
+  l.l_whence = SEEK_SET; /* l_start = l_len = 0: from 0 to any end */
+  return l;
+}
+
+int mrvi_h5_lock_fd(int fd) {
+  struct flock l = whole_file(F_WRLCK);
+  if (fcntl(fd, F_OFD_SETLK, &l) == 0)
+    return 0;
+  if (errno == EACCES)
+    errno = EAGAIN;
+  return -1;
+}
+
+int mrvi_h5_held(const char *path) {
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  if (fd < 0)
+    return 0;
+  struct flock l = whole_file(F_RDLCK);
+  const int held = fcntl(fd, F_OFD_GETLK, &l) == 0 && l.l_type != F_UNLCK;
+  close(fd);
+  return held;
+}
+
 int mrvi_h5_lock_output(const char *path, int force, int *fd, int *created,
                         char *msg, size_t len) {
   struct stat st;
   int existed = stat(path, &st) == 0;
   *fd = -1;
   *created = 0;
+  /* A symbolic link to nowhere: open(O_CREAT) would create its target,
+   * wherever it points. */
+  if (!existed && lstat(path, &st) == 0 && S_ISLNK(st.st_mode))
+    return mrvi_fail(msg, len, MRVI_EIO,
+                     "a symbolic link to a missing file; not followed");
   if (existed && !S_ISREG(st.st_mode))
     return mrvi_fail(msg, len, MRVI_EIO, "not a regular file");
   *fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0666);
@@ -289,11 +322,11 @@ int mrvi_h5_lock_output(const char *path, int force, int *fd, int *created,
   if (*fd < 0)
     return mrvi_fail(msg, len, MRVI_EIO, "cannot create the file: %s",
                      strerror(errno));
-  if (flock(*fd, LOCK_EX | LOCK_NB) < 0) {
+  if (mrvi_h5_lock_fd(*fd) < 0) {
     int e = errno;
     close(*fd);
     *fd = -1;
-    if (e == EWOULDBLOCK)
+    if (e == EAGAIN)
       return mrvi_fail(msg, len, MRVI_EIO,
                        "the file is in use by another run (locked); "
                        "not touched");
@@ -347,6 +380,13 @@ int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len) {
   *part = malloc(plen);
   if (!*part)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  /* The file name with ".partXXXXXX" (11 bytes) must stay within NAME_MAX:
+   * a longer name is cut for the temporary file only. */
+  const char *slash = strrchr(path, '/');
+  const size_t dir = slash ? (size_t)(slash - path) + 1 : 0;
+  size_t keep = strlen(path) - dir;
+  if (keep + 11 > NAME_MAX)
+    keep = NAME_MAX - 11;
   struct timespec ts;
   clock_gettime(CLOCK_REALTIME, &ts);
   unsigned long long x = (unsigned long long)getpid() * 0x9E3779B97F4A7C15ull ^
@@ -360,7 +400,7 @@ int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len) {
     for (int i = 0; i < 6; i++, y /= 62)
       suffix[i] = chars[y % 62];
     suffix[6] = '\0';
-    mrvi_fmt(*part, plen, "%s.part%s", path, suffix);
+    mrvi_fmt(*part, plen, "%.*s.part%s", (int)(dir + keep), path, suffix);
     fd = open(*part, O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
     e = fd < 0 ? errno : 0;
   }
@@ -377,7 +417,7 @@ int mrvi_h5_part_create(const char *path, char **part, char *msg, size_t len) {
 int mrvi_h5_part_commit(const char *part, const char *path, int *fd, char *msg,
                         size_t len) {
   int pfd = open(part, O_RDWR | O_CLOEXEC);
-  if (pfd < 0 || flock(pfd, LOCK_EX | LOCK_NB) < 0 || rename(part, path) < 0) {
+  if (pfd < 0 || mrvi_h5_lock_fd(pfd) < 0 || rename(part, path) < 0) {
     int e = errno;
     if (pfd >= 0)
       close(pfd);

@@ -198,8 +198,22 @@ void mrvi_h5_batch_attr_int(mrvi_h5_batch *b, hid_t loc, const char *name,
  * never a half-built one.  Messages go into msg without the path.
  * ------------------------------------------------------------------------- */
 
-/* Take an exclusive lock (flock, held on *fd until it is closed) on the
- * output path, creating it empty when absent (*created = 1), before
+/* mrvi's own lock on an output file: an open-file-description write lock
+ * over the whole file (fcntl F_OFD_SETLK), held until fd is closed.  Not
+ * flock: HDF5 1.10 flocks the files it opens (a reader LOCK_SH), and an
+ * flock(LOCK_EX) of the writer kept every reader with HDF5's default file
+ * locking out ("unable to lock file" in h5py.File(f, "r", swmr=True)).  On
+ * Linux flock and fcntl locks are independent (not on NFS, where flock is
+ * emulated by byte-range locks); an OFD lock belongs to its open file
+ * description, so HDF5 opening and closing the same file does not release
+ * it (as it would a classic POSIX lock).  -1 with errno EAGAIN when another
+ * open file description holds a lock on it. */
+int mrvi_h5_lock_fd(int fd);
+/* 1 when a live writer holds mrvi_h5_lock_fd's lock on path. */
+int mrvi_h5_held(const char *path);
+
+/* Take an exclusive lock (mrvi_h5_lock_fd, held on *fd until it is closed) on
+ * the output path, creating it empty when absent (*created = 1), before
  * anything truncates it; refuse a file that is not a regular file, is
  * locked by a live writer, or (unless force) is not empty and not an mrvi
  * output (no root attribute mrvi_version).  MRVI_EIO with a message; on

@@ -2,7 +2,6 @@
  * (e.g. a cached reference solution of a convergence study), a stored
  * macro node to resume or continue from.  Every
  * read goes through the validated layer of h5read.c. */
-#define _DEFAULT_SOURCE /* flock */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -13,26 +12,40 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/file.h>
 #include <unistd.h>
+
+/* Metadata read attempts of a SWMR read (HDF5's default: 100, each
+ * retrying the checksum failures of a whole metadata cache load, which on a
+ * corrupted superblock or a truncated file spins for tens of minutes). */
+#define SWMR_READ_ATTEMPTS 10
+
+/* 1 when the superblock at the start of the file (versions 2 and 3, those
+ * of SWMR files) says it is open for writing or SWMR writing: its file
+ * consistency flags (byte 11) have bit 0 or 2 set.  A file without them
+ * was closed and is not opened for SWMR reading at all. */
+static int flagged_open_for_writing(const char *path) {
+  unsigned char sb[12];
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  if (fd < 0)
+    return 0;
+  const ssize_t got = read(fd, sb, sizeof sb);
+  close(fd);
+  return got == (ssize_t)sizeof sb && !memcmp(sb, "\x89HDF\r\n\x1a\n", 8) &&
+         sb[8] >= 2 && sb[8] <= 3 && (sb[11] & 0x05) != 0;
+}
 
 hid_t mrvi_h5_open_read(const char *path, hid_t fapl) {
   hid_t f = H5Fopen(path, H5F_ACC_RDONLY, fapl);
-  if (f < 0)
-    f = H5Fopen(path, H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, fapl);
-  if (f >= 0)
-    H5Eclear2(H5E_DEFAULT);
+  if (f < 0 && flagged_open_for_writing(path)) {
+    hid_t swmr = H5Pcopy(fapl == H5P_DEFAULT ? H5P_FILE_ACCESS_DEFAULT : fapl);
+    if (swmr >= 0 &&
+        H5Pset_metadata_read_attempts(swmr, SWMR_READ_ATTEMPTS) >= 0)
+      f = H5Fopen(path, H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, swmr);
+    if (swmr >= 0)
+      H5Pclose(swmr);
+  }
+  H5Eclear2(H5E_DEFAULT);
   return f;
-}
-
-/* A live run holds flock(LOCK_EX) on its output (hdf5_writer.c). */
-static int held_by_live_run(const char *path) {
-  int fd = open(path, O_RDONLY | O_CLOEXEC);
-  int live =
-      fd >= 0 && flock(fd, LOCK_SH | LOCK_NB) < 0 && errno == EWOULDBLOCK;
-  if (fd >= 0)
-    close(fd);
-  return live;
 }
 
 void mrvi_h5_stop_reason(hid_t file, const char *path, char *buf, size_t len) {
@@ -42,7 +55,7 @@ void mrvi_h5_stop_reason(hid_t file, const char *path, char *buf, size_t len) {
     mrvi_h5in_attr_string(&in, "stop_reason", buf, len);
   else
     buf[0] = '\0';
-  if (!strcmp(buf, "running") && !held_by_live_run(path))
+  if (!strcmp(buf, "running") && !mrvi_h5_held(path))
     mrvi_fmt(buf, len, "%s", "incomplete (writer killed)");
 }
 
@@ -383,7 +396,7 @@ int mrvi_stored_node_read(const char *path, long which, int n,
   mrvi_h5_quiet q;
   mrvi_h5_quiet_begin(&q);
   mrvi_stored_node *node = calloc(1, sizeof *node);
-  const int live = held_by_live_run(path);
+  const int live = mrvi_h5_held(path);
   hid_t f =
       node && !live ? mrvi_h5_open_read(path, H5P_DEFAULT) : H5I_INVALID_HID;
   const mrvi_h5in in = {f, path, msg, len};
@@ -421,4 +434,125 @@ void mrvi_stored_node_free(mrvi_stored_node *node) {
   free(node->p);
   free(node->description);
   free(node);
+}
+
+/* ---------------------------------------------------------------------------
+ * A run file against its own description (issue: a file whose attributes or
+ * data say another run than /model/description must not be continued)
+ * ------------------------------------------------------------------------- */
+
+/* The root attribute name against the number `want`: MRVI_OK when equal
+ * (bitwise for doubles written by the writer), else the disagreement. */
+static int same_number(const mrvi_h5in *in, const char *name, double want) {
+  double v = 0;
+  const int st = mrvi_h5in_attr_number(in, name, -HUGE_VAL, HUGE_VAL, 0, &v);
+  if (st < 0)
+    return st;
+  if (v != want)
+    return mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: attribute %s = %.17g but /model/description says "
+                     "%.17g",
+                     in->path, name, v, want);
+  return MRVI_OK;
+}
+
+static int same_string(const mrvi_h5in *in, const char *name,
+                       const char *want) {
+  char v[256];
+  const int st = mrvi_h5in_attr_string(in, name, v, sizeof v);
+  if (st < 0)
+    return st;
+  if (strcmp(v, want) != 0)
+    return mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: attribute %s = '%s' but /model/description says "
+                     "'%s'",
+                     in->path, name, v, want);
+  return MRVI_OK;
+}
+
+/* /model/rate and /model/name against the model, /macro/lambda's width
+ * against its constraint rows. */
+static int same_coordinates(const mrvi_h5in *in, const mrvi_model *m) {
+  const int n = mrvi_model_n(m);
+  int nq = 0, st;
+  if ((st = coordinates(in, 0, &nq, NULL)) < 0)
+    return st;
+  if (nq != n)
+    return mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: /macro/q has %d coordinates but the model of "
+                     "/model/description %d",
+                     in->path, nq, n);
+  int *rate = NULL;
+  char **name = NULL;
+  const hsize_t dn = (hsize_t)n;
+  if ((st = mrvi_h5in_read_new(in, "/model/rate", H5T_NATIVE_INT, 1, &dn,
+                               MRVI_H5_ANY, (void **)&rate, NULL)) < 0 ||
+      (st = mrvi_h5in_strings(in, "/model/name", 1, dn, MRVI_H5_MAX_ATTR,
+                              &name)) < 0) {
+    free(rate);
+    return st;
+  }
+  for (int i = 0; i < n && st == MRVI_OK; i++) {
+    const char *want = mrvi_model_coordinate_name(m, i);
+    const int fast = mrvi_model_rate(m, i) == MRVI_FAST;
+    if (strcmp(name[i], want ? want : "") != 0)
+      st = mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: /model/name[%d] = '%s' but /model/description "
+                     "names coordinate %d '%s'",
+                     in->path, i, name[i], i, want ? want : "");
+    else if (rate[i] != fast)
+      st = mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: /model/rate[%d] = %d but /model/description makes "
+                     "'%s' %s",
+                     in->path, i, rate[i], name[i], fast ? "fast" : "slow");
+  }
+  free(rate);
+  mrvi_h5_strings_free(name, (size_t)n);
+  if (st < 0)
+    return st;
+  const int rows = mrvi_model_constraint_rows(m);
+  hsize_t dl[2];
+  if (mrvi_h5in_exists(in, "/macro/lambda") &&
+      ((st = mrvi_h5in_shape(in, "/macro/lambda", MRVI_H5_NUMBER, 2, NULL,
+                             dl)) < 0 ||
+       dl[1] != (hsize_t)rows))
+    return st < 0 ? st
+                  : mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                              "%s: /macro/lambda has %llu columns but the "
+                              "model of /model/description %d constraint rows",
+                              in->path, (unsigned long long)dl[1], rows);
+  return MRVI_OK;
+}
+
+int mrvi_stored_run_check(const char *path, const mrvi_system *sys, char *msg,
+                          size_t len) {
+  mrvi_h5_quiet q;
+  mrvi_h5_quiet_begin(&q);
+  hid_t f = mrvi_h5_open_read(path, H5P_DEFAULT);
+  const mrvi_h5in in = {f, path, msg, len};
+  const mrvi_settings *s = &sys->settings;
+  const mrvi_writer_options o = mrvi_system_writer_options(sys);
+  char scheme[sizeof s->scheme + 1];
+  mrvi_fmt(scheme, sizeof scheme, "%.*s", (int)sizeof s->scheme, s->scheme);
+  int st;
+  if (f < 0)
+    st = mrvi_fail(msg, len, MRVI_EIO, "%s: cannot open as an HDF5 file", path);
+  else if ((st = same_number(&in, "macro_step", s->macro_step)) == MRVI_OK &&
+           (st = same_number(&in, "micro_steps", s->micro_steps)) == MRVI_OK &&
+           (st = same_number(&in, "output_every", o.every)) == MRVI_OK &&
+           (st = same_number(&in, "t_end", s->t_end)) == MRVI_OK &&
+           (st = same_string(&in, "scheme", scheme)) == MRVI_OK &&
+           (st = same_number(&in, "alpha_slow", s->slow.alpha)) == MRVI_OK &&
+           (st = same_number(&in, "gamma_slow", s->slow.gamma)) == MRVI_OK &&
+           (st = same_number(&in, "alpha_fast", s->fast.alpha)) == MRVI_OK &&
+           (st = same_number(&in, "gamma_fast", s->fast.gamma)) == MRVI_OK &&
+           (st = same_string(&in, "slow_grid",
+                             s->slow_grid == MRVI_GRID_MACRO ? "macro"
+                                                             : "micro")) ==
+               MRVI_OK)
+    st = same_coordinates(&in, sys->model);
+  if (f >= 0)
+    H5Fclose(f);
+  mrvi_h5_quiet_end(&q);
+  return st;
 }

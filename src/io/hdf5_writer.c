@@ -17,7 +17,7 @@
  * The library never prints: HDF5's automatic error printer is switched off
  * around every HDF5 call we make (and restored after), and the error stack
  * is turned into a message instead. */
-#define _GNU_SOURCE /* flock, copy_file_range */
+#define _GNU_SOURCE /* copy_file_range */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -29,7 +29,6 @@
 #include <string.h>
 #include <errno.h>
 #include <fcntl.h>
-#include <sys/file.h>
 #include <sys/stat.h>
 #include <sys/statvfs.h>
 #include <unistd.h>
@@ -217,7 +216,7 @@ struct mrvi_writer {
   long flushed_k;        /* steps_completed in the file */
   int new_file;          /* lock_and_check created the file */
   char *part_path;       /* the file while it is set up (writer_setup) */
-  int lock_fd;           /* holds flock(LOCK_EX) on the file, -1 when none */
+  int lock_fd;           /* holds mrvi_h5_lock_fd's lock, -1 when none */
   long fail_after;       /* MRVI_TEST_WRITE_FAIL_AFTER: fail the first flush
                             after this many records (testing), -1: never */
   long last_k;           /* k of the last record, -1 before the first */
@@ -837,9 +836,9 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
   w->lock_fd = open(w->path, O_RDWR | O_CLOEXEC);
   if (w->lock_fd < 0)
     return fail(w, MRVI_EIO, "cannot open: %s", strerror(errno));
-  if (flock(w->lock_fd, LOCK_EX | LOCK_NB) < 0)
+  if (mrvi_h5_lock_fd(w->lock_fd) < 0)
     return fail(w, MRVI_EIO, "%s",
-                errno == EWOULDBLOCK
+                errno == EAGAIN
                     ? "the file is in use by another run (locked); not touched"
                     : "cannot lock the file");
   hbool_t clear = 1;
