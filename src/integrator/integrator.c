@@ -39,6 +39,7 @@ struct mrvi_integrator {
   double *lambda; /* constraint rows: multipliers at node k of the last step */
   double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
+  mrvi_gram *gram; /* sparse Gram (more than MRVI_GRAM_DENSE_MAX rows) */
   double *mu_h;                /* projection impulse / h at the current node */
   int n_torsion;               /* torsional springs of the model */
   double *torsion; /* their branches: unwrapped angles at node k (torsion.c) */
@@ -171,6 +172,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->cg);
   free(it->cGd);
   free(it->cA);
+  mrvi_gram_free(it->gram);
   free(it->cmu);
   free(it->mu_h);
   free(it->pGf);
@@ -313,9 +315,14 @@ static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
  * the node, so the next step's lambda absorbs it: positions are unchanged. */
 static int project(mrvi_integrator *it) {
   const int R = it->model->constraint_rows;
-  if (mrvi_constraints_project(it->model, it->q, it->p, it->cg, it->cGd, it->cA,
-                               it->cmu) < 0)
+  if (it->gram) {
+    if (mrvi_gram_factor(it->gram, it->model, it->q) < 0)
+      return MRVI_ESINGULAR;
+    mrvi_gram_project(it->gram, it->model, it->p, it->cmu);
+  } else if (mrvi_constraints_project(it->model, it->q, it->p, it->cg, it->cGd,
+                                      it->cA, it->cmu) < 0) {
     return MRVI_ESINGULAR;
+  }
   /* The impulse G^T mu belongs to the node's multipliers: the next step
    * reports its multipliers (an impulse over dT) plus mu / dT, which equals
    * what it reports without projection. */
@@ -542,8 +549,14 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->rhs = alloc((size_t)it->step.n_unknowns);
   const size_t R = (size_t)m->constraint_rows;
   it->cg = alloc(R);
-  it->cGd = alloc(R * n);
-  it->cA = alloc(R * R);
+  /* Dense G and Gram up to MRVI_GRAM_DENSE_MAX rows, the sparse Gram
+   * beyond (cGd then holds one constraint's gradient). */
+  const size_t cmax = (size_t)m->max_constraint_in;
+  const int sparse_gram = m->constraint_rows > MRVI_GRAM_DENSE_MAX;
+  it->cGd = alloc(sparse_gram ? cmax * cmax : R * n);
+  it->cA = alloc(sparse_gram ? 1 : R * R);
+  if (sparse_gram && mrvi_gram_create(m, &it->gram) < 0)
+    goto oom;
   it->cmu = alloc(R);
   it->mu_h = alloc(R);
   const size_t rm = (size_t)it->step.r_micro;
