@@ -21,6 +21,7 @@ struct mrvi_integrator {
   int sweep_tight;            /* mrvi_sweep_tight(sweep) */
   mrvi_blocks *blocks;        /* schur path */
   mrvi_skrylov *skrylov;      /* schur-krylov path */
+  mrvi_bordered *bordered;    /* schur-bordered path */
   mrvi_predictor *predictor;  /* Newton paths */
   int factors_ok;             /* factors of this step's Jacobian are kept */
   char why[240];              /* reason for the path */
@@ -471,6 +472,21 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
   return st < 0 ? st : mrvi_skrylov_create(&it->step, &it->skrylov, msg, len);
 }
 
+/* The schur-bordered path (solver/bordered.c) on the CSC Jacobian. */
+static int bordered_create(mrvi_integrator *it, char *msg, size_t len) {
+  const int st = newton_paths_create(it, msg, len);
+  if (st < 0)
+    return st;
+  return mrvi_bordered_create(&it->step, &it->bordered) < 0
+             ? mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory")
+             : MRVI_OK;
+}
+
+static void bordered_free(mrvi_integrator *it) {
+  mrvi_bordered_free(it->bordered);
+  mrvi_predictor_free(it->predictor);
+}
+
 static void skrylov_free(mrvi_integrator *it) {
   mrvi_skrylov_free(it->skrylov);
   mrvi_predictor_free(it->predictor);
@@ -795,6 +811,17 @@ static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
     mrvi_skrylov_factor(it->skrylov);
   it->factors_ok = 1;
   const int s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+  if (s == MRVI_OK)
+    subtract_dx(it, it->step.n_total);
+  return s;
+}
+
+/* The schur-bordered path's update: full Newton, as the general path. */
+static int bordered_update(mrvi_integrator *it, int fresh, char *msg,
+                           size_t len) {
+  (void)fresh;
+  const int s = mrvi_bordered_factor_solve(it->bordered, &it->step, it->R,
+                                           it->dx, msg, len);
   if (s == MRVI_OK)
     subtract_dx(it, it->step.n_total);
   return s;
@@ -1450,6 +1477,8 @@ static const path_ops paths[MRVI_N_PATHS] = {
                             sweep_free, 0},
     [MRVI_PATH_SCHUR_KRYLOV] = {skrylov_create, newton_step, csc_assemble,
                                 skrylov_update, skrylov_free, 1},
+    [MRVI_PATH_SCHUR_BORDERED] = {bordered_create, newton_step, csc_assemble,
+                                  bordered_update, bordered_free, 0},
 };
 
 static const path_ops *path_ops_of(int path) { return &paths[path]; }
