@@ -682,10 +682,11 @@ const mrvi_tuning_info *mrvi_tuning_table(int *count);
  * (no Newton), "sweep" (explicit slow update, forward sweep of p implicit
  * micro steps), "schur" (Newton, Schur complement on the slow block),
  * "sweep-cg" and "schur-krylov" (the same with CG and GMRES for blocks
- * beyond tuning.dense_max, 64, coordinates) or "general" (Newton with
- * sparse LU on the whole step).  why (may be NULL) gets the reason for the
- * choice.  With s->solver = structured and no
- * structured path, returns NULL (why says why). */
+ * beyond tuning.dense_max, 64, coordinates), "schur-bordered" (constrained,
+ * multiplier form: the schur elimination bordered by the multipliers) or
+ * "general" (Newton with sparse LU on the whole step).  why (may be NULL) gets
+ * the reason for the choice.  With s->solver = structured and no structured
+ * path, returns NULL (why says why). */
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
                              char *why, size_t len);
 /* Names of the schemes, NULL-terminated. */
@@ -744,7 +745,7 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
                                    const double *b, double *x);
 int mrvi_integrator_jacobian_size(const mrvi_integrator *it);
 /* Step solver path of the integrator ("explicit", "sweep", "schur",
- * "sweep-cg", "schur-krylov", "general"). */
+ * "sweep-cg", "schur-krylov", "schur-bordered", "general"). */
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it);
 /* Iterative linear solves of the sweep-cg and schur-krylov paths
  * (doc/solver.md), accumulated since creation; zero on the other paths. */

@@ -17,9 +17,9 @@
 #define N_STEPS 100
 
 static const char *const systems[] = {
-    "systems/cart_pendulum.yaml",  "systems/pendulum_chain.yaml",
+    "systems/cart_pendulum.yaml",   "systems/pendulum_chain.yaml",
     "systems/spring_ring_rod.yaml", "systems/triatomic.yaml",
-    "systems/tutorial_rod.yaml",   "systems/rigid_pendulum.yaml",
+    "systems/tutorial_rod.yaml",    "systems/rigid_pendulum.yaml",
     "systems/heavy_top.yaml"};
 #define N_SYSTEMS ((int)(sizeof systems / sizeof systems[0]))
 
@@ -116,8 +116,8 @@ static void test_shipped(void) {
     for (int sc = 0; schemes[sc]; sc++)
       for (int pi = 0; pi < 2; pi++) {
         const int p = pi ? 5 : 1;
-        mrvi_system *sa = load(systems[sy], schemes[sc], p, "multipliers",
-                               "structured");
+        mrvi_system *sa =
+            load(systems[sy], schemes[sc], p, "multipliers", "structured");
         if (!sa)
           continue;
         CHECK(mrvi_model_constraint_rows(sa->model) > 0, "%s is constrained",
@@ -135,17 +135,21 @@ static void test_shipped(void) {
          * system), or neither. */
         for (int f = 0; f < 2; f++) {
           if (f == 0)
-            CHECK(a.ok == g[0].ok, "%s %s p=%d: schur-bordered ok %d, general "
-                  "ok %d", systems[sy], schemes[sc], p, a.ok, g[0].ok);
+            CHECK(a.ok == g[0].ok,
+                  "%s %s p=%d: schur-bordered ok %d, general "
+                  "ok %d",
+                  systems[sy], schemes[sc], p, a.ok, g[0].ok);
           if (a.ok && g[f].ok) {
             CHECK(strcmp(a.path, "schur-bordered") == 0, "%s %s: path %s",
                   systems[sy], schemes[sc], a.path);
             CHECK(strcmp(g[f].path, "general") == 0, "general requested");
             const double d = rel_diff(&g[f], &a, N_STEPS);
             worst = fmax(worst, d);
-            CHECK(d <= 1e-10, "%s %s p=%d: schur-bordered vs general (%s): "
-                  "%.2e", systems[sy], schemes[sc], p,
-                  f ? "null-space" : "multipliers", d);
+            CHECK(d <= 1e-10,
+                  "%s %s p=%d: schur-bordered vs general (%s): "
+                  "%.2e",
+                  systems[sy], schemes[sc], p, f ? "null-space" : "multipliers",
+                  d);
             compared++;
           }
         }
@@ -159,8 +163,8 @@ static void test_shipped(void) {
    * scheme's stability. */
   CHECK(compared >= 110, "compared %d runs (%d not completed)", compared,
         failed_runs);
-  printf("shipped systems: %d comparisons, largest difference %.2e\n",
-         compared, worst);
+  printf("shipped systems: %d comparisons, largest difference %.2e\n", compared,
+         worst);
 }
 
 /* The pendulum chain of systems/pendulum_chain.yaml grown to n links in
@@ -206,8 +210,8 @@ static mrvi_model *chain(int n, int reverse) {
 static mrvi_settings chain_settings(int p, const char *solver) {
   mrvi_settings s = test_settings("midpoint-midpoint", 0.01, p, 1.0, 1e-12);
   s.constraint_tol = 1e-12;
-  s.solver = strcmp(solver, "general") == 0 ? MRVI_SOLVER_GENERAL
-                                            : MRVI_SOLVER_AUTO;
+  s.solver =
+      strcmp(solver, "general") == 0 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
   return s;
 }
 
@@ -233,16 +237,15 @@ static void test_chains(void) {
       CHECK(path && strcmp(path, want) == 0, "chain of %d (%s): path %s (%s)",
             n, c == 2 ? "dense_max 128" : "auto", path ? path : "none", why);
       if (c == 1)
-        CHECK(strstr(why, "beyond the dense limit") != NULL, "reason: %s",
-              why);
+        CHECK(strstr(why, "beyond the dense limit") != NULL, "reason: %s", why);
       run_out a = {0}, g = {0};
       run(m, &sa, steps, &a);
       run(m, &sg, steps, &g);
       CHECK(a.ok && g.ok, "chain of %d, p = %d: runs completed", n, p);
       if (a.ok && g.ok) {
         const double d = rel_diff(&g, &a, steps);
-        CHECK(d <= 1e-10, "chain of %d p=%d: %s vs general: %.2e", n, p,
-              a.path, d);
+        CHECK(d <= 1e-10, "chain of %d p=%d: %s vs general: %.2e", n, p, a.path,
+              d);
       }
       run_free(&a);
       run_free(&g);

@@ -171,7 +171,7 @@ static void test_paths_agree(void) {
             /* Constrained: schur-bordered in the multiplier form (the
              * shipped systems fit the dense limit), general in the
              * null-space form. */
-            const char *want = constrained   ? (f ? "general" : "schur-bordered")
+            const char *want = constrained ? (f ? "general" : "schur-bordered")
                                : !slow_macro ? "schur"
                                : expl        ? "explicit"
                                              : "sweep";

@@ -41,8 +41,8 @@ struct mrvi_integrator {
   double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
   mrvi_gram *gram; /* sparse Gram (more than MRVI_GRAM_DENSE_MAX rows) */
-  double *mu_h;                /* projection impulse / h at the current node */
-  int n_torsion;               /* torsional springs of the model */
+  double *mu_h;    /* projection impulse / h at the current node */
+  int n_torsion;   /* torsional springs of the model */
   double *torsion; /* their branches: unwrapped angles at node k (torsion.c) */
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;

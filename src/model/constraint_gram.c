@@ -75,8 +75,7 @@ int mrvi_gram_create(const mrvi_model *m, mrvi_gram **out) {
   gr->y = malloc(((size_t)m->max_constraint_in + 1) * sizeof *gr->y);
   int *low = malloc(((size_t)n + 1) * sizeof *low);
   if (!gr->first || !gr->start || !gr->grad || !gr->coord_ptr ||
-      !gr->entry_row || !gr->entry_grad || !gr->entry_coord || !gr->y ||
-      !low) {
+      !gr->entry_row || !gr->entry_grad || !gr->entry_coord || !gr->y || !low) {
     free(low);
     mrvi_gram_free(gr);
     return MRVI_ENOMEM;

@@ -23,13 +23,13 @@
  * unknowns alone, E = 0), the slow block of A^-1 is S^-1, S the kept
  * Schur complement, so C Y = C_s S^-1 B_s costs n_lambda solves with S
  * (n_s^2 each) instead of block solves, and
- * dx = A^-1 (R_x - B dlambda) takes one more block solve.  The path is chosen where n_s, n_f and
- * n_lambda are at most dense_max (solver/sweep.c, mrvi_sweep_path); larger
- * steps keep the sparse LU of the general path, whose fill on chains and
- * trees grows linearly with the length (doc/solver.md).  The Jacobian is
- * the general path's (the CSC assembled by step.c), every update is a full
- * Newton update with fresh factors: the iterates are the general path's up
- * to the round-off of the linear solve. */
+ * dx = A^-1 (R_x - B dlambda) takes one more block solve.  The path is chosen
+ * where n_s, n_f and n_lambda are at most dense_max (solver/sweep.c,
+ * mrvi_sweep_path); larger steps keep the sparse LU of the general path, whose
+ * fill on chains and trees grows linearly with the length (doc/solver.md).  The
+ * Jacobian is the general path's (the CSC assembled by step.c), every update is
+ * a full Newton update with fresh factors: the iterates are the general path's
+ * up to the round-off of the linear solve. */
 #include "solver/solver.h"
 
 #include <stdlib.h>
@@ -38,11 +38,11 @@
 struct mrvi_bordered {
   mrvi_blocks *blocks;
   int nu, nl;
-  double *Y;  /* nl x nu: A^-1 B by columns of B (B itself first) */
-  double *K;  /* nl x nl: E - C Y, then its LU */
-  int *piv;   /* nl */
-  double *r;  /* nl */
-  double *dz; /* nu */
+  double *Y;     /* nl x nu: A^-1 B by columns of B (B itself first) */
+  double *K;     /* nl x nl: E - C Y, then its LU */
+  int *piv;      /* nl */
+  double *r;     /* nl */
+  double *dz;    /* nu */
   int slow_only; /* B, C on the slow unknowns only, E = 0 */
   int ns;
   double *W; /* ns x nl: S^-1 B_s (slow_only) */
@@ -99,8 +99,7 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
  * is factored: K = -C_s S^-1 B_s, z = A^-1 R_x, K dlambda = R_c - C_s z_s,
  * dx = A^-1 (R_x - B dlambda). */
 static int slow_only_solve(mrvi_bordered *bd, const mrvi_step *st,
-                           const double *R, double *dx, char *msg,
-                           size_t len) {
+                           const double *R, double *dx, char *msg, size_t len) {
   const int nu = bd->nu, nl = bd->nl, ns = bd->ns;
   const int *Ap = st->Ap, *Ai = st->Ai;
   const double *Ax = st->Ax;

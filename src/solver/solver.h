@@ -66,9 +66,9 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
   X(SWEEP_CG, "sweep-cg")         /* sweep, micro steps by CG                  \
                                      (sparse_block.c) */                       \
   X(SCHUR_KRYLOV, "schur-krylov") /* Newton, GMRES on the slow unknowns        \
-                                     and CG block sweeps (schur_krylov.c) */ \
-  X(SCHUR_BORDERED, "schur-bordered") /* constrained: Newton, the schur      \
-                                         elimination bordered by the         \
+                                     and CG block sweeps (schur_krylov.c) */   \
+  X(SCHUR_BORDERED, "schur-bordered") /* constrained: Newton, the schur        \
+                                         elimination bordered by the           \
                                          constraint rows (bordered.c) */
 #define MRVI_PATH_ENUM(id, name) MRVI_PATH_##id,
 enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };
