@@ -618,6 +618,9 @@ typedef enum mrvi_solver {
   X(int, dense_max, 64, 0, 1000000,                                            \
     "largest block (fast, and slow on schur) solved densely; beyond: "         \
     "sweep-cg and schur-krylov")                                               \
+  X(int, bordered_max, 32, 0, 1000000,                                         \
+    "largest slow block, fast block and number of multipliers of a "           \
+    "constrained step solved by schur-bordered; beyond: general")              \
   X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
     "relative tolerance of schur-krylov's block CG solves")                    \
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \

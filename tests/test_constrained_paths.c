@@ -3,7 +3,7 @@
  * against the general path (both constraint forms) on every shipped
  * constrained system, scheme and p in {1, 5} over 100 macro steps, on
  * generated pendulum chains where the automatic choice takes it and where
- * it is forced by the dense limit; the path chosen and its reason; the
+ * it is forced by bordered_max; the path chosen and its reason; the
  * sparse Gram matrix of the projection against the dense one. */
 #include "integrator/integrator.h"
 #include "models.h"
@@ -216,8 +216,8 @@ static mrvi_settings chain_settings(int p, const char *solver) {
 }
 
 /* Chains: 8 links take schur-bordered automatically; 40 links take general
- * (beyond the dense limit) and schur-bordered where the limit is raised;
- * both agree with general. */
+ * (beyond bordered_max) and schur-bordered where it is raised; both agree
+ * with general. */
 static void test_chains(void) {
   for (int c = 0; c < 3; c++) {
     const int n = c == 0 ? 8 : 40, steps = c == 0 ? N_STEPS : 20;
@@ -228,14 +228,14 @@ static void test_chains(void) {
                     sg = chain_settings(p, "general");
       char msg[200];
       if (c == 2)
-        CHECK(mrvi_settings_set_tuning(&sa, "dense_max", 128, msg,
+        CHECK(mrvi_settings_set_tuning(&sa, "bordered_max", 128, msg,
                                        sizeof msg) == 0,
               "%s", msg);
       char why[400] = "";
       const char *path = mrvi_solver_path(m, &sa, why, sizeof why);
       const char *want = c == 1 ? "general" : "schur-bordered";
       CHECK(path && strcmp(path, want) == 0, "chain of %d (%s): path %s (%s)",
-            n, c == 2 ? "dense_max 128" : "auto", path ? path : "none", why);
+            n, c == 2 ? "bordered_max 128" : "auto", path ? path : "none", why);
       if (c == 1)
         CHECK(strstr(why, "beyond the dense limit") != NULL, "reason: %s", why);
       run_out a = {0}, g = {0};

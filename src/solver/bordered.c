@@ -24,12 +24,12 @@
  * Schur complement, so C Y = C_s S^-1 B_s costs n_lambda solves with S
  * (n_s^2 each) instead of block solves, and
  * dx = A^-1 (R_x - B dlambda) takes one more block solve.  The path is chosen
- * where n_s, n_f and n_lambda are at most dense_max (solver/sweep.c,
+ * where n_s, n_f and n_lambda are at most bordered_max (solver/sweep.c,
  * mrvi_sweep_path); larger steps keep the sparse LU of the general path, whose
  * fill on chains and trees grows linearly with the length (doc/solver.md).  The
- * Jacobian is the general path's (the CSC assembled by step.c), every update is
- * a full Newton update with fresh factors: the iterates are the general path's
- * up to the round-off of the linear solve. */
+ * Jacobian is the general path's (the CSC assembled by step.c), factored
+ * afresh at every update as on the general path: the iterates are the general
+ * path's up to the round-off of the linear solve. */
 #include "solver/solver.h"
 
 #include <stdlib.h>
@@ -95,59 +95,14 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
   return MRVI_OK;
 }
 
-/* The update where the constraints touch the slow unknowns only, after A
- * is factored: K = -C_s S^-1 B_s, z = A^-1 R_x, K dlambda = R_c - C_s z_s,
- * dx = A^-1 (R_x - B dlambda). */
-static int slow_only_solve(mrvi_bordered *bd, const mrvi_step *st,
-                           const double *R, double *dx, char *msg, size_t len) {
+/* The factors: A by block elimination (the constraint rows of x's columns
+ * skipped), Y = A^-1 B (or W = S^-1 B_s where the constraints touch the
+ * slow unknowns only), K = E - C Y and its LU. */
+static int factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
+                  size_t len) {
   const int nu = bd->nu, nl = bd->nl, ns = bd->ns;
   const int *Ap = st->Ap, *Ai = st->Ai;
   const double *Ax = st->Ax;
-  /* W = S^-1 B_s (ns x nl row-major) */
-  memset(bd->W, 0, (size_t)ns * (size_t)nl * sizeof *bd->W);
-  for (int l = 0; l < nl; l++)
-    for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
-      bd->W[(size_t)Ai[q] * (size_t)nl + (size_t)l] += Ax[q];
-  mrvi_blocks_slow_solve(bd->blocks, bd->W, nl);
-  mrvi_blocks_solve(bd->blocks, R, bd->dz);
-  memset(bd->K, 0, (size_t)nl * (size_t)nl * sizeof *bd->K);
-  for (int a = 0; a < nl; a++)
-    bd->r[a] = R[nu + a];
-  for (int j = 0; j < ns; j++)
-    for (int q = Ap[j]; q < Ap[j + 1]; q++) {
-      if (Ai[q] < nu)
-        continue;
-      const int a = Ai[q] - nu;
-      const double c = Ax[q];
-      double *ka = bd->K + (size_t)a * (size_t)nl;
-      const double *wj = bd->W + (size_t)j * (size_t)nl;
-      for (int l = 0; l < nl; l++)
-        ka[l] -= c * wj[l];
-      bd->r[a] -= c * bd->dz[j];
-    }
-  if (mrvi_dense_lu_factor(nl, bd->K, bd->piv) < 0)
-    return mrvi_fail(msg, len, MRVI_ESINGULAR,
-                     "singular Newton matrix (constraint rows)");
-  mrvi_dense_lu_solve(nl, bd->K, bd->piv, bd->r, 1);
-  /* R_x - B dlambda into dz, then dx = A^-1 dz */
-  for (int i = 0; i < nu; i++)
-    bd->dz[i] = R[i];
-  for (int l = 0; l < nl; l++) {
-    for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
-      bd->dz[Ai[q]] -= Ax[q] * bd->r[l];
-    dx[nu + l] = bd->r[l];
-  }
-  mrvi_blocks_solve(bd->blocks, bd->dz, dx);
-  return MRVI_OK;
-}
-
-int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
-                               const double *R, double *dx, char *msg,
-                               size_t len) {
-  const int nu = bd->nu, nl = bd->nl;
-  const int *Ap = st->Ap, *Ai = st->Ai;
-  const double *Ax = st->Ax;
-  /* A by block elimination (the constraint rows of x's columns skipped). */
   int s = mrvi_blocks_factor(bd->blocks, st);
   if (s == MRVI_EINVAL)
     return mrvi_fail(msg, len, MRVI_EINVAL,
@@ -156,49 +111,93 @@ int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
   if (s < 0)
     return mrvi_fail(msg, len, MRVI_ESINGULAR,
                      "singular Newton matrix (block elimination)");
-  if (bd->slow_only)
-    return slow_only_solve(bd, st, R, dx, msg, len);
-  /* Y = A^-1 B, column by column; K = E. */
   memset(bd->K, 0, (size_t)nl * (size_t)nl * sizeof *bd->K);
-  for (int l = 0; l < nl; l++) {
-    double *y = bd->Y + (size_t)l * (size_t)nu;
-    memset(bd->dz, 0, (size_t)nu * sizeof *bd->dz);
-    for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++) {
-      if (Ai[q] < nu)
-        bd->dz[Ai[q]] += Ax[q];
-      else
-        bd->K[(size_t)(Ai[q] - nu) * (size_t)nl + (size_t)l] += Ax[q];
+  if (bd->slow_only) {
+    /* W = S^-1 B_s (ns x nl row-major), K = -C_s W */
+    memset(bd->W, 0, (size_t)ns * (size_t)nl * sizeof *bd->W);
+    for (int l = 0; l < nl; l++)
+      for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
+        bd->W[(size_t)Ai[q] * (size_t)nl + (size_t)l] += Ax[q];
+    mrvi_blocks_slow_solve(bd->blocks, bd->W, nl);
+    for (int j = 0; j < ns; j++)
+      for (int q = Ap[j]; q < Ap[j + 1]; q++) {
+        if (Ai[q] < nu)
+          continue;
+        double *ka = bd->K + (size_t)(Ai[q] - nu) * (size_t)nl;
+        const double *wj = bd->W + (size_t)j * (size_t)nl;
+        for (int l = 0; l < nl; l++)
+          ka[l] -= Ax[q] * wj[l];
+      }
+  } else {
+    /* Y = A^-1 B column by column, K = E - C Y */
+    for (int l = 0; l < nl; l++) {
+      double *y = bd->Y + (size_t)l * (size_t)nu;
+      memset(bd->dz, 0, (size_t)nu * sizeof *bd->dz);
+      for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++) {
+        if (Ai[q] < nu)
+          bd->dz[Ai[q]] += Ax[q];
+        else
+          bd->K[(size_t)(Ai[q] - nu) * (size_t)nl + (size_t)l] += Ax[q];
+      }
+      mrvi_blocks_solve(bd->blocks, bd->dz, y);
     }
-    mrvi_blocks_solve(bd->blocks, bd->dz, y);
+    for (int j = 0; j < nu; j++)
+      for (int q = Ap[j]; q < Ap[j + 1]; q++) {
+        if (Ai[q] < nu)
+          continue;
+        double *ka = bd->K + (size_t)(Ai[q] - nu) * (size_t)nl;
+        for (int l = 0; l < nl; l++)
+          ka[l] -= Ax[q] * bd->Y[(size_t)l * (size_t)nu + (size_t)j];
+      }
   }
-  /* K = E - C Y and r = R_c - C z with z = A^-1 R_x: C's entries are the
-   * constraint rows of x's columns. */
+  if (mrvi_dense_lu_factor(nl, bd->K, bd->piv) < 0)
+    return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                     "singular Newton matrix (constraint rows)");
+  return MRVI_OK;
+}
+
+/* J dx = R with the factors. */
+static void solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
+                  double *dx) {
+  const int nu = bd->nu, nl = bd->nl;
+  const int *Ap = st->Ap, *Ai = st->Ai;
+  const double *Ax = st->Ax;
+  /* z = A^-1 R_x, K dlambda = R_c - C z */
   mrvi_blocks_solve(bd->blocks, R, bd->dz);
   for (int a = 0; a < nl; a++)
     bd->r[a] = R[nu + a];
   for (int j = 0; j < nu; j++)
-    for (int q = Ap[j]; q < Ap[j + 1]; q++) {
-      if (Ai[q] < nu)
-        continue;
-      const int a = Ai[q] - nu;
-      const double c = Ax[q];
-      double *ka = bd->K + (size_t)a * (size_t)nl;
-      for (int l = 0; l < nl; l++)
-        ka[l] -= c * bd->Y[(size_t)l * (size_t)nu + (size_t)j];
-      bd->r[a] -= c * bd->dz[j];
-    }
-  if (mrvi_dense_lu_factor(nl, bd->K, bd->piv) < 0)
-    return mrvi_fail(msg, len, MRVI_ESINGULAR,
-                     "singular Newton matrix (constraint rows)");
+    for (int q = Ap[j]; q < Ap[j + 1]; q++)
+      if (Ai[q] >= nu)
+        bd->r[Ai[q] - nu] -= Ax[q] * bd->dz[j];
   mrvi_dense_lu_solve(nl, bd->K, bd->piv, bd->r, 1);
-  /* dlambda = r, dx = z - Y dlambda */
-  for (int i = 0; i < nu; i++)
-    dx[i] = bd->dz[i];
-  for (int l = 0; l < nl; l++) {
-    const double *y = bd->Y + (size_t)l * (size_t)nu, d = bd->r[l];
+  for (int l = 0; l < nl; l++)
+    dx[nu + l] = bd->r[l];
+  if (bd->slow_only) {
+    /* dx = A^-1 (R_x - B dlambda) */
     for (int i = 0; i < nu; i++)
-      dx[i] -= y[i] * d;
-    dx[nu + l] = d;
+      bd->dz[i] = R[i];
+    for (int l = 0; l < nl; l++)
+      for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
+        bd->dz[Ai[q]] -= Ax[q] * bd->r[l];
+    mrvi_blocks_solve(bd->blocks, bd->dz, dx);
+  } else {
+    /* dx = z - Y dlambda */
+    for (int i = 0; i < nu; i++)
+      dx[i] = bd->dz[i];
+    for (int l = 0; l < nl; l++) {
+      const double *y = bd->Y + (size_t)l * (size_t)nu, d = bd->r[l];
+      for (int i = 0; i < nu; i++)
+        dx[i] -= y[i] * d;
+    }
   }
-  return MRVI_OK;
+}
+
+int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
+                               const double *R, double *dx, char *msg,
+                               size_t len) {
+  const int s = factor(bd, st, msg, len);
+  if (s == MRVI_OK)
+    solve(bd, st, R, dx);
+  return s;
 }

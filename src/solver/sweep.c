@@ -78,7 +78,9 @@ struct mrvi_sweep {
 /* The structure the sweep needs, or the reason it is missing. */
 /* Path of a constrained model (doc/solver.md): schur-bordered in the
  * multiplier form where the slow and fast blocks and the multipliers of a
- * step fit the dense limit, else general. */
+ * step are at most bordered_max (mrvi.h, MRVI_TUNING_LIST; beyond it the
+ * dense blocks cost more than the sparse LU of chains: doc/performance.md,
+ * "Constrained chains on structured paths"), else general. */
 static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
                             char *why, size_t len) {
   const char *bodies = mrvi_model_n_bodies(m) > 0
@@ -89,7 +91,7 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
     *(m->constraints[c].where == MRVI_SLOW ? &r_slow : &r_micro) +=
         m->constraints[c].rows;
   const long n_lambda = r_slow + (long)s->micro_steps * r_micro;
-  const int dense_max = s->tuning.dense_max;
+  const int bmax = s->tuning.bordered_max;
   if (s->constraint_form == MRVI_FORM_NULL_SPACE) {
     mrvi_fmt(why, len,
              "constrained model%s in the null-space form: Newton with a "
@@ -98,12 +100,12 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
              bodies);
     return MRVI_PATH_GENERAL;
   }
-  if (m->n_slow > dense_max || m->n_fast > dense_max || n_lambda > dense_max) {
+  if (m->n_slow > bmax || m->n_fast > bmax || n_lambda > bmax) {
     mrvi_fmt(why, len,
              "constrained model%s: %d slow and %d fast unknowns per node and "
-             "%ld multipliers, beyond the dense limit %d: Newton with a "
-             "sparse LU of the whole step",
-             bodies, m->n_slow, m->n_fast, n_lambda, dense_max);
+             "%ld multipliers, beyond the dense limit %d (bordered_max): "
+             "Newton with a sparse LU of the whole step",
+             bodies, m->n_slow, m->n_fast, n_lambda, bmax);
     return MRVI_PATH_GENERAL;
   }
   mrvi_fmt(why, len,
