@@ -816,9 +816,8 @@ static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
   return s;
 }
 
-/* The schur-bordered path's update: full Newton, as the general path (kept
- * factors, measured, stop with the constraint residual just below its
- * tolerance and leave differences of 1e-9 from general after 20 steps). */
+/* The schur-bordered path's update: full Newton, as the general path (why
+ * not kept factors: doc/solver.md, "schur-bordered"). */
 static int bordered_update(mrvi_integrator *it, int fresh, char *msg,
                            size_t len) {
   (void)fresh;

@@ -3,9 +3,9 @@
  * The momentum projection (doc/constraints.md, "Momentum projection")
  * solves A mu = G M^-1 p at every macro node, and the independence check
  * asks whether G has full row rank.  In dense storage both cost
- * O(R^2 n) (R rows, n coordinates): at R = 1000 that is seconds per macro
- * node.  Rows a and b couple in A only where their constraints share a
- * coordinate, so for chains and trees A is banded in the rows' natural
+ * O(R^2 n) (R rows, n coordinates; doc/performance.md, "Constrained chains
+ * on structured paths").  Rows a and b couple in A only where their constraints
+ * share a coordinate, so for chains and trees A is banded in the rows' natural
  * order.  Here A is kept in skyline (envelope) storage in that order: row r
  * holds the entries first[r] .. r, first[r] the smallest row that shares a
  * coordinate with row r; the Cholesky factor A = L L^T fills only the
