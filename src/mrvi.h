@@ -618,6 +618,9 @@ typedef enum mrvi_solver {
   X(int, dense_max, 64, 0, 1000000,                                            \
     "largest block (fast, and slow on schur) solved densely; beyond: "         \
     "sweep-cg and schur-krylov")                                               \
+  X(int, bordered_max, 32, 0, 1000000,                                         \
+    "largest slow block, fast block and number of multipliers of a "           \
+    "constrained step solved by schur-bordered; beyond: general")              \
   X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
     "relative tolerance of schur-krylov's block CG solves")                    \
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
@@ -682,10 +685,11 @@ const mrvi_tuning_info *mrvi_tuning_table(int *count);
  * (no Newton), "sweep" (explicit slow update, forward sweep of p implicit
  * micro steps), "schur" (Newton, Schur complement on the slow block),
  * "sweep-cg" and "schur-krylov" (the same with CG and GMRES for blocks
- * beyond tuning.dense_max, 64, coordinates) or "general" (Newton with
- * sparse LU on the whole step).  why (may be NULL) gets the reason for the
- * choice.  With s->solver = structured and no
- * structured path, returns NULL (why says why). */
+ * beyond tuning.dense_max, 64, coordinates), "schur-bordered" (constrained,
+ * multiplier form: the schur elimination bordered by the multipliers) or
+ * "general" (Newton with sparse LU on the whole step).  why (may be NULL) gets
+ * the reason for the choice.  With s->solver = structured and no structured
+ * path, returns NULL (why says why). */
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
                              char *why, size_t len);
 /* Names of the schemes, NULL-terminated. */
@@ -744,7 +748,7 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
                                    const double *b, double *x);
 int mrvi_integrator_jacobian_size(const mrvi_integrator *it);
 /* Step solver path of the integrator ("explicit", "sweep", "schur",
- * "sweep-cg", "schur-krylov", "general"). */
+ * "sweep-cg", "schur-krylov", "schur-bordered", "general"). */
 const char *mrvi_integrator_solver_path(const mrvi_integrator *it);
 /* Iterative linear solves of the sweep-cg and schur-krylov paths
  * (doc/solver.md), accumulated since creation; zero on the other paths. */

@@ -135,7 +135,7 @@ static double rel_diff(const run_out *a, const run_out *b) {
 static void test_paths_agree(void) {
   const char *const *schemes = mrvi_scheme_names();
   static run_out a, b;
-  int n_explicit = 0, n_sweep = 0, n_schur = 0;
+  int n_explicit = 0, n_sweep = 0, n_schur = 0, n_bordered = 0;
   for (int sy = 0; sy < N_SYSTEMS; sy++)
     for (int sc = 0; schemes[sc]; sc++)
       for (int pi = 0; pi < 2; pi++)
@@ -168,7 +168,10 @@ static void test_paths_agree(void) {
              * macro-grid schemes. */
             const int expl = strcmp(schemes[sc], "fully-explicit") == 0 ||
                              sa->model->n_fast == 0;
-            const char *want = constrained   ? "general"
+            /* Constrained: schur-bordered in the multiplier form (the
+             * shipped systems fit the dense limit), general in the
+             * null-space form. */
+            const char *want = constrained ? (f ? "general" : "schur-bordered")
                                : !slow_macro ? "schur"
                                : expl        ? "explicit"
                                              : "sweep";
@@ -185,20 +188,24 @@ static void test_paths_agree(void) {
               n_sweep++;
             if (strcmp(b.path, "schur") == 0)
               n_schur++;
+            if (strcmp(b.path, "schur-bordered") == 0)
+              n_bordered++;
           }
           mrvi_system_free(sg);
           mrvi_system_free(sa);
         }
-  CHECK(n_explicit >= 8 && n_sweep >= 4 && n_schur >= 18,
-        "structured paths exercised: %d explicit, %d sweep, %d schur",
-        n_explicit, n_sweep, n_schur);
+  CHECK(n_explicit >= 8 && n_sweep >= 4 && n_schur >= 18 && n_bordered >= 10,
+        "structured paths exercised: %d explicit, %d sweep, %d schur, %d "
+        "schur-bordered",
+        n_explicit, n_sweep, n_schur, n_bordered);
 }
 
 /* integrator.solver = structured refuses schemes without a structured path
- * and names the reason; mrvi_solver_path agrees. */
+ * (a constrained model in the null-space form) and names the reason;
+ * mrvi_solver_path agrees. */
 static void test_choice(void) {
   mrvi_system *s = load("systems/triatomic.yaml", "midpoint-midpoint", 5,
-                        "multipliers", "structured");
+                        "null-space", "structured");
   if (!s)
     return;
   char why[300] = "", msg[400] = "";
@@ -217,8 +224,9 @@ static void test_choice(void) {
   if (!s)
     return;
   const char *path = mrvi_solver_path(s->model, &s->settings, why, sizeof why);
-  CHECK(path && strcmp(path, "general") == 0 && strstr(why, "constrain"),
-        "constrained model falls back to general: %s", why);
+  CHECK(path && strcmp(path, "schur-bordered") == 0 &&
+            strstr(why, "constrain") && strstr(why, "multipliers"),
+        "constrained model in the multiplier form: %s", why);
   mrvi_system_free(s);
 }
 

@@ -21,6 +21,7 @@ struct mrvi_integrator {
   int sweep_tight;            /* mrvi_sweep_tight(sweep) */
   mrvi_blocks *blocks;        /* schur path */
   mrvi_skrylov *skrylov;      /* schur-krylov path */
+  mrvi_bordered *bordered;    /* schur-bordered path */
   mrvi_predictor *predictor;  /* Newton paths */
   int factors_ok;             /* factors of this step's Jacobian are kept */
   char why[240];              /* reason for the path */
@@ -39,8 +40,9 @@ struct mrvi_integrator {
   double *lambda; /* constraint rows: multipliers at node k of the last step */
   double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
-  double *mu_h;                /* projection impulse / h at the current node */
-  int n_torsion;               /* torsional springs of the model */
+  mrvi_gram *gram; /* sparse Gram (more than MRVI_GRAM_DENSE_MAX rows) */
+  double *mu_h;    /* projection impulse / h at the current node */
+  int n_torsion;   /* torsional springs of the model */
   double *torsion; /* their branches: unwrapped angles at node k (torsion.c) */
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;
@@ -54,7 +56,7 @@ struct mrvi_integrator {
   int shoot_ok;        /* the schur path's steps may shoot (a run constant) */
   long n_shoot;        /* steps solved by shooting in the run */
   long n_shoot_last;   /* ... of which with an unswept last update */
-  long n_factor;       /* factorisations of the schur path in the run */
+  long n_factor;       /* factorisations of the schur paths in the run */
   long roundoff_steps; /* steps accepted at the roundoff floor above tol */
   double last_residual;
   /* Timing (mrvi_integrator_timing): the sums over the timed steps and
@@ -171,6 +173,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->cg);
   free(it->cGd);
   free(it->cA);
+  mrvi_gram_free(it->gram);
   free(it->cmu);
   free(it->mu_h);
   free(it->pGf);
@@ -313,9 +316,14 @@ static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
  * the node, so the next step's lambda absorbs it: positions are unchanged. */
 static int project(mrvi_integrator *it) {
   const int R = it->model->constraint_rows;
-  if (mrvi_constraints_project(it->model, it->q, it->p, it->cg, it->cGd, it->cA,
-                               it->cmu) < 0)
+  if (it->gram) {
+    if (mrvi_gram_factor(it->gram, it->model, it->q) < 0)
+      return MRVI_ESINGULAR;
+    mrvi_gram_project(it->gram, it->model, it->p, it->cmu);
+  } else if (mrvi_constraints_project(it->model, it->q, it->p, it->cg, it->cGd,
+                                      it->cA, it->cmu) < 0) {
     return MRVI_ESINGULAR;
+  }
   /* The impulse G^T mu belongs to the node's multipliers: the next step
    * reports its multipliers (an impulse over dT) plus mu / dT, which equals
    * what it reports without projection. */
@@ -464,6 +472,21 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
   return st < 0 ? st : mrvi_skrylov_create(&it->step, &it->skrylov, msg, len);
 }
 
+/* The schur-bordered path (solver/bordered.c) on the CSC Jacobian. */
+static int bordered_create(mrvi_integrator *it, char *msg, size_t len) {
+  const int st = newton_paths_create(it, msg, len);
+  if (st < 0)
+    return st;
+  return mrvi_bordered_create(&it->step, &it->bordered) < 0
+             ? mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory")
+             : MRVI_OK;
+}
+
+static void bordered_free(mrvi_integrator *it) {
+  mrvi_bordered_free(it->bordered);
+  mrvi_predictor_free(it->predictor);
+}
+
 static void skrylov_free(mrvi_integrator *it) {
   mrvi_skrylov_free(it->skrylov);
   mrvi_predictor_free(it->predictor);
@@ -542,8 +565,14 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->rhs = alloc((size_t)it->step.n_unknowns);
   const size_t R = (size_t)m->constraint_rows;
   it->cg = alloc(R);
-  it->cGd = alloc(R * n);
-  it->cA = alloc(R * R);
+  /* Dense G and Gram up to MRVI_GRAM_DENSE_MAX rows, the sparse Gram
+   * beyond (cGd then holds one constraint's gradient). */
+  const size_t cmax = (size_t)m->max_constraint_in;
+  const int sparse_gram = m->constraint_rows > MRVI_GRAM_DENSE_MAX;
+  it->cGd = alloc(sparse_gram ? cmax * cmax : R * n);
+  it->cA = alloc(sparse_gram ? 1 : R * R);
+  if (sparse_gram && mrvi_gram_create(m, &it->gram) < 0)
+    goto oom;
   it->cmu = alloc(R);
   it->mu_h = alloc(R);
   const size_t rm = (size_t)it->step.r_micro;
@@ -782,6 +811,19 @@ static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
     mrvi_skrylov_factor(it->skrylov);
   it->factors_ok = 1;
   const int s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+  if (s == MRVI_OK)
+    subtract_dx(it, it->step.n_total);
+  return s;
+}
+
+/* The schur-bordered path's update: full Newton, as the general path (why
+ * not kept factors: doc/solver.md, "schur-bordered"). */
+static int bordered_update(mrvi_integrator *it, int fresh, char *msg,
+                           size_t len) {
+  (void)fresh;
+  it->n_factor++;
+  const int s = mrvi_bordered_factor_solve(it->bordered, &it->step, it->R,
+                                           it->dx, msg, len);
   if (s == MRVI_OK)
     subtract_dx(it, it->step.n_total);
   return s;
@@ -1437,6 +1479,8 @@ static const path_ops paths[MRVI_N_PATHS] = {
                             sweep_free, 0},
     [MRVI_PATH_SCHUR_KRYLOV] = {skrylov_create, newton_step, csc_assemble,
                                 skrylov_update, skrylov_free, 1},
+    [MRVI_PATH_SCHUR_BORDERED] = {bordered_create, newton_step, csc_assemble,
+                                  bordered_update, bordered_free, 0},
 };
 
 static const path_ops *path_ops_of(int path) { return &paths[path]; }

@@ -28,8 +28,8 @@ void mrvi_integrator_set_const_chord(mrvi_integrator *it, int mode);
 void mrvi_integrator_set_shoot(mrvi_integrator *it, int mode);
 long mrvi_integrator_shoot_steps(const mrvi_integrator *it);
 long mrvi_integrator_shoot_last_steps(const mrvi_integrator *it);
-/* Factorisations of the schur path so far (the constant chord's counted
- * once). */
+/* Factorisations of the schur and schur-bordered paths so far (the
+ * constant chord's counted once). */
 long mrvi_integrator_factorisations(const mrvi_integrator *it);
 
 /* The checks every user of a model and settings starts with (integrator,

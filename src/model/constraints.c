@@ -427,6 +427,16 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
         "%d constraint equations on %d coordinates: the constraints "
         "are redundant",
         R, n);
+  /* The sparse Cholesky of the Gram matrix proves independence in O(R)
+   * for chains and trees; where it cannot, Gram-Schmidt below decides and
+   * names the dependent constraints. */
+  mrvi_gram *gr = NULL;
+  if (mrvi_gram_create(m, &gr) == MRVI_OK) {
+    const int ok = mrvi_gram_factor(gr, m, q) == MRVI_OK;
+    mrvi_gram_free(gr);
+    if (ok)
+      return MRVI_OK;
+  }
   double *g = malloc((size_t)R * sizeof *g);
   double *G = malloc((size_t)R * (size_t)n * sizeof *G);
   /* Orthonormal basis E (rank x n) of the rows seen so far, in the metric
@@ -535,6 +545,19 @@ int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
   return MRVI_OK;
 }
 
+/* v0 <- M^-1 p; *correction (may be NULL) gets the largest change. */
+static void store_velocities(mrvi_model *m, const double *p,
+                             double *correction) {
+  double worst = 0.0;
+  for (int j = 0; j < m->n; j++) {
+    const double v = p[j] / m->mass[j];
+    worst = fmax(worst, fabs(v - m->v0[j]));
+    m->v0[j] = v;
+  }
+  if (correction)
+    *correction = worst;
+}
+
 int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
   const int R = m->constraint_rows, n = m->n;
   if (correction)
@@ -544,6 +567,28 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
   int st = mrvi_model_check_independent(m, m->q0);
   if (st < 0)
     return st;
+  if (R > MRVI_GRAM_DENSE_MAX) {
+    /* Sparse: p0 = M v0 projected, the velocities read back. */
+    mrvi_gram *gr = NULL;
+    double *p = malloc((size_t)n * sizeof *p);
+    double *mu = malloc((size_t)R * sizeof *mu);
+    if (!p || !mu || mrvi_gram_create(m, &gr) < 0) {
+      free(p), free(mu);
+      return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+    }
+    if (mrvi_gram_factor(gr, m, m->q0) < 0) {
+      st = mrvi_model_fail(m, MRVI_ESINGULAR,
+                           "constraint gradients are dependent");
+    } else {
+      for (int j = 0; j < n; j++)
+        p[j] = m->mass[j] * m->v0[j];
+      mrvi_gram_project(gr, m, p, mu);
+      store_velocities(m, p, correction);
+    }
+    mrvi_gram_free(gr);
+    free(p), free(mu);
+    return st;
+  }
   double *g = malloc((size_t)R * sizeof *g);
   double *G = malloc((size_t)R * (size_t)n * sizeof *G);
   double *A = malloc((size_t)R * (size_t)R * sizeof *A);
@@ -560,14 +605,7 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
     st = mrvi_model_fail(m, MRVI_ESINGULAR,
                          "constraint gradients are dependent");
   } else {
-    double worst = 0.0;
-    for (int j = 0; j < n; j++) {
-      const double v = p[j] / m->mass[j];
-      worst = fmax(worst, fabs(v - m->v0[j]));
-      m->v0[j] = v;
-    }
-    if (correction)
-      *correction = worst;
+    store_velocities(m, p, correction);
   }
   free(g), free(G), free(A), free(mu), free(p);
   return st;

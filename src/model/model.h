@@ -207,4 +207,23 @@ int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
 int mrvi_constraints_independent(const mrvi_model *m, const double *q,
                                  char *msg, size_t len);
 
+/* The Gram matrix G M^-1 G^T of the constraint rows in sparse (envelope)
+ * storage with its Cholesky factor (constraint_gram.c): the momentum
+ * projection and the independence check in O(R) for chains and trees,
+ * where the dense ones cost O(R^2 n).  The projection takes it above
+ * MRVI_GRAM_DENSE_MAX rows (below, the dense solve keeps the shipped
+ * systems' numbers). */
+#define MRVI_GRAM_DENSE_MAX 32
+typedef struct mrvi_gram mrvi_gram;
+int mrvi_gram_create(const mrvi_model *m, mrvi_gram **out);
+void mrvi_gram_free(mrvi_gram *gr);
+/* Gradients at q, the Gram matrix and its factor; MRVI_ESINGULAR where a
+ * pivot is not clearly above round-off (the rows may be dependent: the
+ * dense check decides and names them). */
+int mrvi_gram_factor(mrvi_gram *gr, const mrvi_model *m, const double *q);
+/* After mrvi_gram_factor at q: p <- p - G^T mu with (G M^-1 G^T) mu =
+ * G M^-1 p; mu (rows) gets the multiplier. */
+void mrvi_gram_project(mrvi_gram *gr, const mrvi_model *m, double *p,
+                       double *mu);
+
 #endif

@@ -116,6 +116,13 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
 
 int ocp_path(const mrvi_ocp *o, char *why, size_t len) {
   const int path = mrvi_sweep_path(o->model, &o->settings, why, len);
+  if (path == MRVI_PATH_SCHUR_BORDERED) {
+    /* The structured forward pass keeps no multipliers. */
+    mrvi_fmt(why, len,
+             "constrained model: optimal control solves it on the general "
+             "path");
+    return MRVI_PATH_GENERAL;
+  }
   if (o->n_state == 0 || path == MRVI_PATH_GENERAL)
     return path;
   /* Their forces depend on the positions (the step hook mrvi_step.extra),

@@ -60,6 +60,7 @@ struct mrvi_blocks {
   double **dst; /* block entry of every CSC entry (built on the first
                    factorisation: the pattern is fixed for the run) */
   long n_dst;
+  double sink; /* where the constraint rows of x's columns go (bordered.c) */
   /* Direct assembly (mrvi_blocks_assemble): V and W compiled on the packed
    * point configuration zp = (z_s, z_f), its gradient G and Hessian H
    * (nz x nz, nz = ns + nf), the masses, and whether a class has slow and
@@ -373,7 +374,8 @@ static double *block_entry(mrvi_blocks *b, int i, int j) {
 
 /* Scatter the CSC values of st into the blocks through the entry map (built
  * on the first call); MRVI_EINVAL if an entry lies outside the block
- * structure, MRVI_ENOMEM. */
+ * structure, MRVI_ENOMEM.  The constraint rows of a constrained step
+ * (bordered.c) go to a sink. */
 static int scatter(mrvi_blocks *b, const mrvi_step *st) {
   const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
   const long nnz = st->Ap[ns + nF];
@@ -385,7 +387,9 @@ static int scatter(mrvi_blocks *b, const mrvi_step *st) {
       return MRVI_ENOMEM;
     for (int j = 0; j < ns + nF; j++)
       for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
-        if (!(b->dst[q] = block_entry(b, st->Ai[q], j))) {
+        if (!(b->dst[q] = st->Ai[q] >= ns + nF
+                              ? &b->sink
+                              : block_entry(b, st->Ai[q], j))) {
           free(b->dst);
           b->dst = NULL;
           return MRVI_EINVAL;
@@ -1457,6 +1461,11 @@ void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx) {
     sweep_solve(b, b->z, 1);
   }
   SMALL(ns, NS, slow_solve_k(b, R, dx, 0, NS));
+}
+
+void mrvi_blocks_slow_solve(const mrvi_blocks *b, double *r, int nrhs) {
+  if (b->ns > 0)
+    lu_solve_k(b->ns, b->S, b->spiv, b->sdinv, r, nrhs);
 }
 
 int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,

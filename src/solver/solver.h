@@ -66,7 +66,10 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
   X(SWEEP_CG, "sweep-cg")         /* sweep, micro steps by CG                  \
                                      (sparse_block.c) */                       \
   X(SCHUR_KRYLOV, "schur-krylov") /* Newton, GMRES on the slow unknowns        \
-                                     and CG block sweeps (schur_krylov.c) */
+                                     and CG block sweeps (schur_krylov.c) */   \
+  X(SCHUR_BORDERED, "schur-bordered") /* constrained: Newton, the schur        \
+                                         elimination bordered by the           \
+                                         constraint rows (bordered.c) */
 #define MRVI_PATH_ENUM(id, name) MRVI_PATH_##id,
 enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };
 #undef MRVI_PATH_ENUM
@@ -252,6 +255,18 @@ int mrvi_predictor_one_point(mrvi_predictor *pr, int on);
  * by power iteration (0 if not positive). */
 double mrvi_predictor_omega_max(mrvi_predictor *pr);
 
+/* The schur-bordered path (solver/bordered.c): a constrained step's
+ * Newton matrix [A B; C E] in the multiplier form by the block elimination
+ * of A (blocks.c) bordered by the multipliers. */
+typedef struct mrvi_bordered mrvi_bordered;
+int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out);
+void mrvi_bordered_free(mrvi_bordered *bd);
+/* Factorise the CSC Jacobian st->Ax (n_total) and solve J dx = R
+ * (n_total); MRVI_ESINGULAR with a message if it is singular. */
+int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
+                               const double *R, double *dx, char *msg,
+                               size_t len);
+
 /* Newton matrix of an unconstrained step by block elimination
  * (solver/blocks.c): Schur complement on the slow block, block forward
  * sweeps over the micro nodes for the fast block. */
@@ -272,6 +287,9 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
+/* r (ns x nrhs row-major) becomes S^-1 r, S = A_ss - A_sf A_ff^-1 A_fs the
+ * kept Schur complement: the slow block of J^-1 (bordered.c). */
+void mrvi_blocks_slow_solve(const mrvi_blocks *b, double *r, int nrhs);
 /* mrvi_blocks_factor, then mrvi_blocks_solve of R: the same dx, with
  * A_ff^-1 R_f computed in the forward sweep of the factorisation. */
 int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,

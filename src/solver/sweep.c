@@ -76,22 +76,55 @@ struct mrvi_sweep {
 };
 
 /* The structure the sweep needs, or the reason it is missing. */
+/* Path of a constrained model (doc/solver.md): schur-bordered in the
+ * multiplier form where the slow and fast blocks and the multipliers of a
+ * step are at most bordered_max (mrvi.h, MRVI_TUNING_LIST; beyond it the
+ * dense blocks cost more than the sparse LU of chains: doc/performance.md,
+ * "Constrained chains on structured paths"), else general. */
+static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
+                            char *why, size_t len) {
+  const char *bodies = mrvi_model_n_bodies(m) > 0
+                           ? " (rigid bodies carry their internal constraints)"
+                           : "";
+  int r_slow = 0, r_micro = 0;
+  for (int c = 0; c < m->n_constraints; c++)
+    *(m->constraints[c].where == MRVI_SLOW ? &r_slow : &r_micro) +=
+        m->constraints[c].rows;
+  const long n_lambda = r_slow + (long)s->micro_steps * r_micro;
+  const int bmax = s->tuning.bordered_max;
+  if (s->constraint_form == MRVI_FORM_NULL_SPACE) {
+    mrvi_fmt(why, len,
+             "constrained model%s in the null-space form: Newton with a "
+             "sparse LU of the reduced step (the structured path takes the "
+             "multiplier form)",
+             bodies);
+    return MRVI_PATH_GENERAL;
+  }
+  if (m->n_slow > bmax || m->n_fast > bmax || n_lambda > bmax) {
+    mrvi_fmt(why, len,
+             "constrained model%s: %d slow and %d fast unknowns per node and "
+             "%ld multipliers, beyond the dense limit %d (bordered_max): "
+             "Newton with a sparse LU of the whole step",
+             bodies, m->n_slow, m->n_fast, n_lambda, bmax);
+    return MRVI_PATH_GENERAL;
+  }
+  mrvi_fmt(why, len,
+           "constrained model%s: Newton with a Schur complement on the %d "
+           "slow unknowns and block sweeps over %d micro nodes, bordered by "
+           "the %ld multipliers",
+           bodies, m->n_slow, s->micro_steps, n_lambda);
+  return MRVI_PATH_SCHUR_BORDERED;
+}
+
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len) {
   if (s->solver == MRVI_SOLVER_GENERAL) {
     mrvi_fmt(why, len, "requested (integrator.solver = general)");
     return MRVI_PATH_GENERAL;
   }
-  if (m->n_constraints > 0) {
-    mrvi_fmt(why, len,
-             "constrained model%s: the structured paths do not "
-             "handle constraints yet",
-             mrvi_model_n_bodies(m) > 0
-                 ? " (rigid bodies carry their internal constraints)"
-                 : "");
-    return MRVI_PATH_GENERAL;
-  }
   const int dense_max = s->tuning.dense_max;
+  if (m->n_constraints > 0)
+    return constrained_path(m, s, why, len);
   const int small = m->n_fast <= dense_max && m->n_slow <= dense_max;
   if (s->slow_grid != MRVI_GRID_MACRO) {
     if (!small) {

@@ -1,0 +1,325 @@
+/* Constrained models on structured paths (doc/solver.md, "schur-bordered";
+ * doc/constraints.md, "Momentum projection"): the schur-bordered path
+ * against the general path (both constraint forms) on every shipped
+ * constrained system, scheme and p in {1, 5} over 100 macro steps, on
+ * generated pendulum chains where the automatic choice takes it and where
+ * it is forced by bordered_max; the path chosen and its reason; the
+ * sparse Gram matrix of the projection against the dense one. */
+#include "integrator/integrator.h"
+#include "models.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define N_STEPS 100
+
+static const char *const systems[] = {
+    "systems/cart_pendulum.yaml",   "systems/pendulum_chain.yaml",
+    "systems/spring_ring_rod.yaml", "systems/triatomic.yaml",
+    "systems/tutorial_rod.yaml",    "systems/rigid_pendulum.yaml",
+    "systems/heavy_top.yaml",       "systems/flexible_pendulum.yaml",
+    "systems/spacecraft.yaml"};
+#define N_SYSTEMS ((int)(sizeof systems / sizeof systems[0]))
+
+static mrvi_system *load(const char *rel, const char *scheme, int p,
+                         const char *form, const char *solver) {
+  char ov[8][96];
+  const char *ovp[8];
+  snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", scheme);
+  snprintf(ov[1], sizeof ov[1], "integrator.micro_steps=%d", p);
+  snprintf(ov[2], sizeof ov[2], "integrator.newton.tolerance=1e-12");
+  snprintf(ov[3], sizeof ov[3], "integrator.solver=%s", solver);
+  snprintf(ov[4], sizeof ov[4], "integrator.constraints.form=%s", form);
+  snprintf(ov[5], sizeof ov[5], "integrator.constraints.tolerance=1e-12");
+  /* schur-bordered forced on the systems whose multipliers exceed its
+   * default limit (flexible_pendulum, spacecraft) */
+  snprintf(ov[6], sizeof ov[6], "integrator.tuning.bordered_max=100000");
+  /* The pendulum chain's stiff attachments at p = 1 need dT below
+   * 2/omega for the explicit fast rules (as in test_solver). */
+  const int chain = strstr(rel, "pendulum_chain") != NULL;
+  snprintf(ov[7], sizeof ov[7], "integrator.macro_step=0.002");
+  for (int i = 0; i < 8; i++)
+    ovp[i] = ov[i];
+  mrvi_system *sys = NULL;
+  char msg[512];
+  if (mrvi_system_load(test_source_path(rel), ovp, chain ? 8 : 7, &sys, msg,
+                       sizeof msg) < 0) {
+    CHECK(0, "load %s: %s", rel, msg);
+    return NULL;
+  }
+  return sys;
+}
+
+typedef struct run_out {
+  int n, ok;
+  double *q, *p; /* (N_STEPS + 1) x n */
+  char path[32];
+} run_out;
+
+/* Run m with s for `steps` macro steps; the macro q and p. */
+static void run(const mrvi_model *m, const mrvi_settings *s, int steps,
+                run_out *o) {
+  mrvi_integrator *it = NULL;
+  char msg[512];
+  o->ok = 0;
+  o->n = mrvi_model_n(m);
+  o->q = calloc((size_t)(steps + 1) * (size_t)o->n, sizeof *o->q);
+  o->p = calloc((size_t)(steps + 1) * (size_t)o->n, sizeof *o->p);
+  if (!o->q || !o->p || mrvi_integrator_create(m, s, &it, msg, sizeof msg) < 0)
+    return;
+  snprintf(o->path, sizeof o->path, "%s", mrvi_integrator_solver_path(it));
+  const size_t n = (size_t)o->n;
+  memcpy(o->q, mrvi_integrator_q(it), n * sizeof(double));
+  memcpy(o->p, mrvi_integrator_p(it), n * sizeof(double));
+  for (int k = 0; k < steps; k++) {
+    if (mrvi_integrator_step(it) < 0) {
+      mrvi_integrator_free(it);
+      return;
+    }
+    memcpy(o->q + (size_t)(k + 1) * n, mrvi_integrator_q(it),
+           n * sizeof(double));
+    memcpy(o->p + (size_t)(k + 1) * n, mrvi_integrator_p(it),
+           n * sizeof(double));
+  }
+  mrvi_integrator_free(it);
+  o->ok = 1;
+}
+
+static void run_free(run_out *o) {
+  free(o->q);
+  free(o->p);
+  o->q = o->p = NULL;
+}
+
+/* max |a - b| / max |a| over the run, q and p separately. */
+static double rel_diff(const run_out *a, const run_out *b, int steps) {
+  double worst = 0.0;
+  for (int w = 0; w < 2; w++) {
+    const double *x = w ? a->p : a->q, *y = w ? b->p : b->q;
+    double d = 0.0, s = 0.0;
+    for (size_t i = 0; i < (size_t)(steps + 1) * (size_t)a->n; i++) {
+      d = fmax(d, fabs(x[i] - y[i]));
+      s = fmax(s, fabs(x[i]));
+    }
+    if (s > 0)
+      worst = fmax(worst, d / s);
+  }
+  return worst;
+}
+
+/* schur-bordered (auto, multiplier form) against general in both forms,
+ * every shipped constrained system, scheme and p in {1, 5}. */
+static void test_shipped(void) {
+  const char *const *schemes = mrvi_scheme_names();
+  int compared = 0, failed_runs = 0;
+  double worst = 0.0;
+  for (int sy = 0; sy < N_SYSTEMS; sy++)
+    for (int sc = 0; schemes[sc]; sc++)
+      for (int pi = 0; pi < 2; pi++) {
+        const int p = pi ? 5 : 1;
+        mrvi_system *sa =
+            load(systems[sy], schemes[sc], p, "multipliers", "structured");
+        if (!sa)
+          continue;
+        CHECK(mrvi_model_constraint_rows(sa->model) > 0, "%s is constrained",
+              systems[sy]);
+        run_out a = {0}, g[2] = {{0}, {0}};
+        run(sa->model, &sa->settings, N_STEPS, &a);
+        for (int f = 0; f < 2; f++) {
+          mrvi_system *sg = load(systems[sy], schemes[sc], p,
+                                 f ? "null-space" : "multipliers", "general");
+          if (sg)
+            run(sg->model, &sg->settings, N_STEPS, &g[f]);
+          mrvi_system_free(sg);
+        }
+        /* Both paths fail together (a scheme beyond its stability on a
+         * system), or neither. */
+        for (int f = 0; f < 2; f++) {
+          if (f == 0)
+            CHECK(a.ok == g[0].ok,
+                  "%s %s p=%d: schur-bordered ok %d, general "
+                  "ok %d",
+                  systems[sy], schemes[sc], p, a.ok, g[0].ok);
+          if (a.ok && g[f].ok) {
+            CHECK(strcmp(a.path, "schur-bordered") == 0, "%s %s: path %s",
+                  systems[sy], schemes[sc], a.path);
+            CHECK(strcmp(g[f].path, "general") == 0, "general requested");
+            const double d = rel_diff(&g[f], &a, N_STEPS);
+            worst = fmax(worst, d);
+            CHECK(d <= 1e-10,
+                  "%s %s p=%d: schur-bordered vs general (%s): "
+                  "%.2e",
+                  systems[sy], schemes[sc], p, f ? "null-space" : "multipliers",
+                  d);
+            compared++;
+          }
+        }
+        failed_runs += !a.ok;
+        run_free(&a);
+        run_free(&g[0]);
+        run_free(&g[1]);
+        mrvi_system_free(sa);
+      }
+  /* 9 systems x 5 schemes x 2 p x 2 forms, less the few runs beyond a
+   * scheme's stability. */
+  CHECK(compared >= 140, "compared %d runs (%d not completed)", compared,
+        failed_runs);
+  printf("shipped systems: %d comparisons, largest difference %.2e\n", compared,
+         worst);
+}
+
+/* The pendulum chain of systems/pendulum_chain.yaml grown to n links in
+ * 2-D: slow links (mass 2) on rods from the pivot, each carrying a fast
+ * light mass (0.05) on a stiff slow spring, the light masses joined by
+ * stiff fast springs, gravity; straight at 45 degrees, at rest.  The rods
+ * are added in the given order (reverse: the last first). */
+static mrvi_model *chain(int n, int reverse) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double gr[2] = {0, -9.81}, c = sqrt(0.5), v0[2] = {0, 0};
+  mrvi_model_set_gravity(m, gr);
+  char name[16];
+  for (int i = 0; i < n; i++) {
+    const double x[2] = {(i + 1) * c, -(i + 1) * c};
+    snprintf(name, sizeof name, "h%d", i + 1);
+    mrvi_model_add_particle(m, name, 2.0, MRVI_SLOW, x, v0);
+  }
+  for (int i = 0; i < n; i++) {
+    /* a small initial velocity, so that the projection has work */
+    const double x[2] = {(i + 1) * c, -(i + 1) * c - 0.1},
+                 v[2] = {0.3 * sin(i), 0.2 * cos(i)};
+    snprintf(name, sizeof name, "l%d", i + 1);
+    mrvi_model_add_particle(m, name, 0.05, MRVI_FAST, x, v);
+  }
+  const double k[1] = {2000};
+  for (int i = 0; i < n; i++)
+    mrvi_model_add_spring(m, MRVI_SLOW, i, n + i, "linear", k, 0.1);
+  for (int i = 0; i + 1 < n; i++)
+    mrvi_model_add_spring(m, MRVI_FAST, n + i, n + i + 1, "linear", k, NAN);
+  const double pivot[2] = {0, 0};
+  for (int r = 0; r < n; r++) {
+    const int i = reverse ? n - 1 - r : r;
+    if (i == 0)
+      mrvi_model_add_distance_anchor(m, 0, pivot, NAN);
+    else
+      mrvi_model_add_distance(m, i - 1, i, NAN);
+  }
+  mrvi_model_project_velocities(m, NULL);
+  return m;
+}
+
+static mrvi_settings chain_settings(int p, const char *solver) {
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.01, p, 1.0, 1e-12);
+  s.constraint_tol = 1e-12;
+  s.solver =
+      strcmp(solver, "general") == 0 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
+  return s;
+}
+
+/* Chains: 8 links take schur-bordered automatically; 40 links take general
+ * (beyond bordered_max) and schur-bordered where it is raised; both agree
+ * with general. */
+static void test_chains(void) {
+  for (int c = 0; c < 3; c++) {
+    const int n = c == 0 ? 8 : 40, steps = c == 0 ? N_STEPS : 20;
+    mrvi_model *m = chain(n, 0);
+    for (int pi = 0; pi < 2; pi++) {
+      const int p = pi ? 5 : 1;
+      mrvi_settings sa = chain_settings(p, "auto"),
+                    sg = chain_settings(p, "general");
+      char msg[200];
+      if (c == 2)
+        CHECK(mrvi_settings_set_tuning(&sa, "bordered_max", 128, msg,
+                                       sizeof msg) == 0,
+              "%s", msg);
+      char why[400] = "";
+      const char *path = mrvi_solver_path(m, &sa, why, sizeof why);
+      const char *want = c == 1 ? "general" : "schur-bordered";
+      CHECK(path && strcmp(path, want) == 0, "chain of %d (%s): path %s (%s)",
+            n, c == 2 ? "bordered_max 128" : "auto", path ? path : "none", why);
+      if (c == 1)
+        CHECK(strstr(why, "beyond the dense limit") != NULL, "reason: %s", why);
+      run_out a = {0}, g = {0};
+      run(m, &sa, steps, &a);
+      run(m, &sg, steps, &g);
+      CHECK(a.ok && g.ok, "chain of %d, p = %d: runs completed", n, p);
+      if (a.ok && g.ok) {
+        const double d = rel_diff(&g, &a, steps);
+        CHECK(d <= 1e-10, "chain of %d p=%d: %s vs general: %.2e", n, p, a.path,
+              d);
+      }
+      run_free(&a);
+      run_free(&g);
+    }
+    mrvi_model_free(m);
+  }
+}
+
+/* The sparse Gram matrix (more than MRVI_GRAM_DENSE_MAX rows) against the
+ * dense projection, rods in order and reversed (a wide envelope); a
+ * redundant rod still refused with its name by the dense check. */
+static void test_gram(void) {
+  for (int reverse = 0; reverse < 2; reverse++) {
+    const int n = 40;
+    mrvi_model *m = chain(n, reverse);
+    const int R = m->constraint_rows, nn = m->n;
+    CHECK(R > MRVI_GRAM_DENSE_MAX, "%d rows take the sparse Gram", R);
+    double *p = malloc((size_t)nn * sizeof *p), *pd = malloc((size_t)nn * 8),
+           *g = malloc((size_t)R * 8), *G = malloc((size_t)R * nn * 8),
+           *A = malloc((size_t)R * R * 8), *mu = malloc((size_t)R * 8),
+           *mus = malloc((size_t)R * 8);
+    for (int j = 0; j < nn; j++)
+      p[j] = pd[j] = sin(1.7 * j + 0.3) * m->mass[j];
+    mrvi_gram *gr = NULL;
+    CHECK(mrvi_gram_create(m, &gr) == 0, "gram created");
+    CHECK(mrvi_gram_factor(gr, m, m->q0) == 0, "gram factored");
+    mrvi_gram_project(gr, m, p, mus);
+    CHECK(mrvi_constraints_project(m, m->q0, pd, g, G, A, mu) == 0,
+          "dense projection");
+    double dp = 0.0, pm = 0.0, dm = 0.0, mm = 0.0;
+    for (int j = 0; j < nn; j++) {
+      dp = fmax(dp, fabs(p[j] - pd[j]));
+      pm = fmax(pm, fabs(pd[j]));
+    }
+    for (int r = 0; r < R; r++) {
+      dm = fmax(dm, fabs(mus[r] - mu[r]));
+      mm = fmax(mm, fabs(mu[r]));
+    }
+    CHECK(dp <= 1e-12 * pm && dm <= 1e-11 * mm,
+          "sparse vs dense projection (reverse %d): p %.2e, mu %.2e", reverse,
+          dp / pm, dm / mm);
+    CHECK(mrvi_model_hidden_residual(m, m->q0, p) <= 1e-13 * pm,
+          "hidden constraint after the sparse projection: %.2e",
+          mrvi_model_hidden_residual(m, m->q0, p));
+    mrvi_gram_free(gr);
+    free(p), free(pd), free(g), free(G), free(A), free(mu), free(mus);
+    char msg[300] = "";
+    CHECK(mrvi_constraints_independent(m, m->q0, msg, sizeof msg) == 0,
+          "independent: %s", msg);
+    /* A second rod between h3 and h4: the Gram matrix is singular, the
+     * dense check names both. */
+    mrvi_model_add_distance(m, 2, 3, NAN);
+    mrvi_model_set_constraint_label(m, m->n_constraints - 1, "twin rod");
+    gr = NULL;
+    CHECK(mrvi_gram_create(m, &gr) == 0 &&
+              mrvi_gram_factor(gr, m, m->q0) == MRVI_ESINGULAR,
+          "redundant rows: a pivot at round-off");
+    mrvi_gram_free(gr);
+    msg[0] = '\0';
+    CHECK(mrvi_constraints_independent(m, m->q0, msg, sizeof msg) ==
+                  MRVI_ESINGULAR &&
+              strstr(msg, "twin rod") && strstr(msg, "redundant"),
+          "redundant rod refused: %s", msg);
+    mrvi_model_free(m);
+  }
+}
+
+int main(void) {
+  test_gram();
+  test_chains();
+  test_shipped();
+  return test_finish();
+}
