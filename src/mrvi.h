@@ -553,6 +553,11 @@ int mrvi_model_joint_constraint(const mrvi_model *m, int j);
  * NULL.  MRVI_EINVAL for an invalid j. */
 int mrvi_model_joint_bodies(const mrvi_model *m, int j, int *body_a,
                             int *body_b);
+/* Point of joint j on its first body in space at the coordinates q
+ * (D entries): x_A = phi_A + sum_i rho_A^i d_i.  MRVI_EINVAL for an
+ * invalid j. */
+int mrvi_model_joint_point(const mrvi_model *m, int j, const double *q,
+                           double *x);
 /* Reaction of joint j on its first body at the coordinates q (model order)
  * from the multipliers lambda (all constraint rows of the model, the
  * columns of /macro/lambda): the constraint force -G^T lambda on that

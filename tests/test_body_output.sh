@@ -100,11 +100,14 @@ for path in sys.argv[1:]:
     d3 = np.stack([np.sin(a) * np.cos(wp * t), np.sin(a) * np.sin(wp * t),
                    np.cos(a) * np.ones_like(t)], 1)
     errs.append(np.abs(w - (wp * np.array([0, 0, 1.0]) + ws * d3)).max())
+    xp = np.abs(f["joints/position"][:]).max()  # the pivot: the origin
+    if xp > 1e-10:
+        print("joint point %.1e from the pivot" % xp); sys.exit(1)
     tq = np.abs(f["joints/torque"][:-1]).max()
     if tq > 1e-12 or not np.isnan(f["joints/torque"][-1]).all():
         print("spherical torque %.1e (last row must be NaN)" % tq); sys.exit(1)
 orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
-print("errors %s, orders %s; spherical torque 0" % (
+print("errors %s, orders %s; spherical torque 0, joint point at the pivot" % (
     " ".join("%.2e" % e for e in errs), " ".join("%.2f" % o for o in orders)))
 sys.exit(0 if all(abs(o - 2) < 0.1 for o in orders) and errs[-1] < 3e-3 else 1)
 ' "$tmp/top0.02.h5" "$tmp/top0.01.h5" "$tmp/top0.005.h5"

@@ -108,6 +108,8 @@ enum elem { F64, I32 };
     w->nb * w->n_ang, w->body_omega,                                           \
     "angular velocity in space of each rigid body at macro node k, "           \
     "(R J R^T)^-1 sum_i d_i x p_{d_i}")                                        \
+  X(JOINTS_POSITION, "/joints/position", F64, MACRO, 3, w->nj * w->dim,        \
+    w->joint_point, "point of each joint on its first body at macro node k")   \
   X(JOINTS_FORCE, "/joints/force", F64, MACRO, 3, w->nj * w->dim, w->nan_row,  \
     "force of each joint on its first body at macro node k, from the "         \
     "multipliers (NaN at the last node)")                                      \
@@ -238,6 +240,7 @@ struct mrvi_writer {
   const mrvi_model *model;
   int nj;                  /* joints (0: no /joints datasets) */
   double *joint_rows;      /* nj d forces, then nj n_ang torques */
+  double *joint_point;     /* nj d: joint points of the current record */
   double *lambda_q;        /* n: q of the last record (its multipliers come
                               with the next one: fill_lambda) */
   int nfb;                 /* fast bodies with micro output (/micro/bodies) */
@@ -827,6 +830,7 @@ static void writer_free(mrvi_writer *w) {
   free(w->body_rows);
   free(w->body_omega);
   free(w->joint_rows);
+  free(w->joint_point);
   free(w->lambda_q);
   free(w->fast_body);
   free(w->fast_slot);
@@ -1102,7 +1106,9 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
     w->lambda_q = malloc((size_t)w->n * sizeof *w->lambda_q);
     w->joint_rows = malloc(((size_t)w->nj * (size_t)(w->dim + w->n_ang) + 1) *
                            sizeof *w->joint_rows);
-    if (!w->body_omega || !w->lambda_q || !w->joint_rows)
+    w->joint_point =
+        malloc(((size_t)w->nj * (size_t)w->dim + 1) * sizeof *w->joint_point);
+    if (!w->body_omega || !w->lambda_q || !w->joint_rows || !w->joint_point)
       return fail(w, MRVI_ENOMEM, "out of memory");
   }
   if (w->nfb > 0) {
@@ -1406,6 +1412,8 @@ static void body_poses(mrvi_writer *w, const mrvi_record *r) {
     mrvi_model_body_angular_velocity(w->model, b, r->q, r->p,
                                      w->body_omega + b * w->n_ang);
   }
+  for (int j = 0; j < w->nj; j++)
+    mrvi_model_joint_point(w->model, j, r->q, w->joint_point + j * D);
   if (w->nj > 0)
     memcpy(w->lambda_q, r->q, (size_t)w->n * sizeof *w->lambda_q);
 }

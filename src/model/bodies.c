@@ -562,3 +562,19 @@ int mrvi_model_joint_reaction(const mrvi_model *m, int j, const double *q,
   memcpy(torque, t, sizeof t);
   return MRVI_OK;
 }
+
+int mrvi_model_joint_point(const mrvi_model *m, int j, const double *q,
+                           double *x) {
+  const int c = mrvi_model_joint_constraint(m, j);
+  if (c < 0)
+    return MRVI_EINVAL;
+  const mrvi_constraint *k = &m->constraints[c];
+  const int first = k->in[0], D = m->bodies[mrvi_model_body_of(m, first)].dim;
+  const double *rho = k->params + 2; /* constraints/joint.h */
+  for (int a = 0; a < D; a++) {
+    x[a] = q[first + a];
+    for (int i = 0; i < D; i++)
+      x[a] += rho[i] * q[first + D * (1 + i) + a];
+  }
+  return MRVI_OK;
+}
