@@ -188,4 +188,33 @@ sys.exit(0 if shapes == [(401, 1, 3), (401, 1, 3, 3), (401, 1, 3)]
          and list(f["bodies/fast"][:]) == [0] and e == 0 and e2 == 0 else 1)
 ' "$tmp/fast.h5"
 
+# --- XDMF: each body as its frame, each joint as lines ---
+run_ok "heavy top with XDMF" "$mrvi" run "$top" -o "$tmp/x.h5" -q \
+  --set integrator.t_end=0.5
+check "XDMF bodies: frames and joint lines match /bodies and /joints" '
+import sys, h5py, numpy as np, xml.etree.ElementTree as ET
+f = h5py.File(sys.argv[1]); root = ET.parse(sys.argv[2]).getroot()
+grids = [g for g in root.iter("Grid") if g.get("GridType") == "Uniform"]
+pos, rot = f["bodies/position"][:], f["bodies/rotation"][:]
+jp = f["joints/position"][:]
+ok, err = len(grids) == len(f["macro/t"]), 0.0
+for k, g in enumerate(grids):
+    conn = np.array(g.find("Topology/DataItem").text.split(), int).reshape(-1, 2)
+    x = np.array(g.find("Geometry/DataItem").text.split(), float).reshape(-1, 3)
+    part = np.array(g.find("Attribute/DataItem").text.split(), int)
+    s = np.linalg.norm(x[1] - x[0])  # the segment length
+    want = np.vstack([pos[k, 0], pos[k, 0] + s * rot[k, 0].T, jp[k, 0]])
+    err = max(err, np.abs(x - want).max(), abs(float(g.find("Time").get("Value")) - f["macro/t"][k]))
+    ok &= conn.tolist() == [[0, 1], [0, 2], [0, 3], [0, 4]] and part.tolist() == [1, 2, 3, 0]
+print("%d grids, max |point - (phi, phi + s d_i, x_joint)| = %.1e, s = %g" % (len(grids), err, s))
+sys.exit(0 if ok and err < 1e-14 and abs(s - 0.25) < 1e-12 else 1)
+' "$tmp/x.h5" "$tmp/x.xdmf"
+if "$mrvi" export "$tmp/x.h5" -f xyz -o "$tmp/x.xyz" 2>"$tmp/err.txt"; then
+  fail "XYZ of a model without particles: accepted"
+else
+  grep -q "no particles" "$tmp/err.txt" &&
+    pass "XYZ of a model without particles refused: $(head -1 "$tmp/err.txt")" ||
+    fail "XYZ refusal: $(head -1 "$tmp/err.txt")"
+fi
+
 test_finish
