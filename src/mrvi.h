@@ -535,6 +535,39 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
 /* Names of the joint types above, NULL-terminated. */
 const char *const *mrvi_joint_type_names(void);
 
+/* Angular velocity in space of body b (3 entries in 3-D, 1 in 2-D) from
+ * the coordinates q and the discrete momenta p (model order):
+ * omega = (R J R^T)^-1 sum_i d_i x p_{d_i}, J = diag(J_1..J_D) the principal
+ * inertia (2-D: omega = (d_1 x p_{d_1} + d_2 x p_{d_2}) / J); the internal
+ * constraint forces drop out of the sum (doc/multibody.md, "Angular
+ * velocity"). */
+void mrvi_model_body_angular_velocity(const mrvi_model *m, int b,
+                                      const double *q, const double *p,
+                                      double *omega);
+/* Joints of the model: the constraints of a joint type above, in the order
+ * they were added; joint j is constraint mrvi_model_joint_constraint(m, j)
+ * (-1 for an invalid j). */
+int mrvi_model_n_joints(const mrvi_model *m);
+int mrvi_model_joint_constraint(const mrvi_model *m, int j);
+/* Bodies of joint j: *body_a, *body_b (-1: the ground); either may be
+ * NULL.  MRVI_EINVAL for an invalid j. */
+int mrvi_model_joint_bodies(const mrvi_model *m, int j, int *body_a,
+                            int *body_b);
+/* Point of joint j on its first body in space at the coordinates q
+ * (D entries): x_A = phi_A + sum_i rho_A^i d_i.  MRVI_EINVAL for an
+ * invalid j. */
+int mrvi_model_joint_point(const mrvi_model *m, int j, const double *q,
+                           double *x);
+/* Reaction of joint j on its first body at the coordinates q (model order)
+ * from the multipliers lambda (all constraint rows of the model, the
+ * columns of /macro/lambda): the constraint force -G^T lambda on that
+ * body's coordinates, as the force on its centre of mass (D entries) and
+ * the torque about the joint's point on it (3 entries in 3-D, 1 in 2-D;
+ * doc/multibody.md, "Joint reactions").  MRVI_EINVAL for an invalid j. */
+int mrvi_model_joint_reaction(const mrvi_model *m, int j, const double *q,
+                              const double *lambda, double *force,
+                              double *torque);
+
 /* ---------------------------------------------------------------------------
  * Integrator settings (arXiv 2406.12991 §3.3): rule (alpha, gamma) of
  * eq:Zapprox for the slow potential V and the fast potential W, the grid V is
@@ -952,7 +985,9 @@ typedef struct mrvi_writer_options {
  * are left 0 for the caller to set. */
 mrvi_writer_options mrvi_system_writer_options(const mrvi_system *sys);
 
-/* Create (truncate) the file and write attributes and /model. */
+/* Create (truncate) the file and write attributes and /model.  The model
+ * must outlive the writer: the body and joint outputs are computed from it
+ * at every record. */
 int mrvi_writer_open(const char *path, const mrvi_model *m,
                      const mrvi_settings *s, const mrvi_writer_options *opt,
                      mrvi_writer **out, char *msg, size_t len);

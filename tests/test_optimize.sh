@@ -203,4 +203,26 @@ print("%.3e" % max(np.abs(v).max(), 1e-300 if c > 0 else 1.0))' replay.h5 2>&1)
   fi
 done
 
+# The history's KKT residual (column 3): at the gantry crane's constrained
+# optimum the cost gradient stays large while the projected gradient of
+# the Lagrangian vanishes.
+if "$mrvi" optimize "$root/systems/ocp_gantry_crane.yaml" -o kkt.h5 -q \
+  >/dev/null 2>err.txt; then
+  check=$("$py" -c 'import sys, h5py
+o = h5py.File(sys.argv[1], "r")["optimizer"]
+h = o["history"][:]
+c = o.attrs["columns"]
+c = c.decode() if isinstance(c, bytes) else c
+print("%s |grad J| %.2e KKT %.2e" % (c.split(", ")[-1], h[-1, 2], h[-1, 3]))
+sys.exit(0 if h.shape[1] == 4 and c.endswith("kkt_residual") and
+         h[-1, 2] > 0.1 and h[-1, 3] < 1e-6 else 1)' kkt.h5 2>&1)
+  if [ $? -eq 0 ]; then
+    pass "gantry crane: KKT residual vanishes at the optimum ($check)"
+  else
+    fail "gantry crane KKT residual: $check"
+  fi
+else
+  fail "gantry crane optimize: $(head -1 err.txt)"
+fi
+
 test_finish

@@ -947,8 +947,11 @@ static int cmd_run(int argc, char **argv) {
 
   if (!a.quiet)
     print_summary(sys, &sum, ctx.n_steps, start.k, out);
-  /* The XDMF file for ParaView: the steps the file holds (particles only). */
-  if (sys->output_xdmf && mrvi_model_n_particles(sys->model) > 0 &&
+  /* The XDMF file for ParaView: the steps the file holds (particles and
+   * rigid bodies). */
+  if (sys->output_xdmf &&
+      (mrvi_model_n_particles(sys->model) > 0 ||
+       mrvi_model_n_bodies(sys->model) > 0) &&
       cst == MRVI_OK)
     mrvi_cli_write_xdmf(out, a.quiet, a.force);
   if (sum.warning[0])

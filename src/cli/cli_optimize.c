@@ -64,9 +64,9 @@ typedef struct progress {
 } progress;
 
 static int on_iteration(void *data, int it, double cost, double viol,
-                        double gnorm) {
+                        double gnorm, double kkt) {
   progress *pr = data;
-  if (mrvi_ocp_output_iteration(pr->out, cost, viol, gnorm) < 0) {
+  if (mrvi_ocp_output_iteration(pr->out, cost, viol, gnorm, kkt) < 0) {
     pr->no_memory = 1;
     return 1;
   }

@@ -13,6 +13,7 @@
 
 #include <errno.h>
 #include <limits.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -35,6 +36,12 @@ typedef struct run_file {
   int first;    /* column of particle 0 if the particles fill consecutive
                    columns (c, c + d, ...), else -1 */
   int n_edges;  /* rows of /model/edges */
+  /* Rigid bodies and joints (NULL / 0 without; read_bodies). */
+  int nb, nj;
+  double *body_pos;       /* rows x nb x d: /bodies/position */
+  double *body_rot;       /* rows x nb x d x d: /bodies/rotation */
+  double *joint_pos;      /* rows x nj x d: /joints/position */
+  int *joint_a, *joint_b; /* nj: /joints/body_a, /joints/body_b */
 } run_file;
 
 static void run_close(run_file *r) {
@@ -46,6 +53,32 @@ static void run_close(run_file *r) {
   free(r->column);
   free(r->rate);
   free(r->t);
+  free(r->body_pos);
+  free(r->body_rot);
+  free(r->joint_pos);
+  free(r->joint_a);
+  free(r->joint_b);
+}
+
+/* A run file with rigid bodies and no particles: the dimension (the last
+ * one of /bodies/position; /model/dimension is a particles' dataset) and
+ * the times (read_bodies reads the rest). */
+static int run_open_bodies_only(run_file *r, const mrvi_h5in *in) {
+  hsize_t dt[1], dp[3];
+  int st;
+  if ((st = mrvi_h5in_shape(in, "/macro/t", MRVI_H5_NUMBER, 1, NULL, dt)) < 0 ||
+      (st = mrvi_h5in_shape(in, "/bodies/position", MRVI_H5_NUMBER, 3, NULL,
+                            dp)) < 0)
+    return st;
+  const int d = (int)dp[2];
+  if (d < 2 || d > 3)
+    return mrvi_fail(in->msg, in->len, MRVI_EIO,
+                     "%s: /model/dimension = %d: rigid bodies are 2-D or 3-D",
+                     r->path, d);
+  r->d = d;
+  r->rows = dt[0];
+  return mrvi_h5in_read_new(in, "/macro/t", H5T_NATIVE_DOUBLE, 1, NULL, r->rows,
+                            (void **)&r->t, NULL);
 }
 
 /* Open a run file and read its particles, every dataset checked against
@@ -74,6 +107,9 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
                                MRVI_H5_ANY, (void **)&r->rate, NULL)) < 0)
     return st;
   r->n = (int)dq[1];
+  if (!mrvi_h5in_exists(&in, "/model/particle_column") &&
+      mrvi_h5in_exists(&in, "/bodies/position"))
+    return run_open_bodies_only(r, &in);
   if (!mrvi_h5in_exists(&in, "/model/particle_column"))
     return mrvi_fail(msg, len, MRVI_EINVAL,
                      "%s: the model has no particles (generalised coordinates "
@@ -126,6 +162,65 @@ static int run_open(run_file *r, const char *path, char *msg, size_t len) {
     consecutive &= r->column[i] == r->column[0] + d * i;
   }
   r->first = consecutive ? r->column[0] : -1;
+  return MRVI_OK;
+}
+
+/* The bodies and joints of an open run file (nothing without /bodies):
+ * /bodies/position (rows, B, d) and /bodies/rotation (rows, B, d, d), with
+ * /joints/position (rows, J, d), /joints/body_a and /joints/body_b (J,
+ * bodies in [-1, B)) when the model has joints; the rows are those every
+ * dataset has (a killed run may have flushed one further). */
+static int read_bodies(run_file *r, char *msg, size_t len) {
+  const mrvi_h5in in = {r->file, r->path, msg, len};
+  if (!mrvi_h5in_exists(&in, "/bodies/position"))
+    return MRVI_OK;
+  const hsize_t d = (hsize_t)r->d;
+  hsize_t dp[3], dr[4], dj[3];
+  const hsize_t want_p[3] = {MRVI_H5_ANY, MRVI_H5_ANY, d};
+  int st;
+  if ((st = mrvi_h5in_shape(&in, "/bodies/position", MRVI_H5_NUMBER, 3, want_p,
+                            dp)) < 0)
+    return st;
+  const hsize_t want_r[4] = {MRVI_H5_ANY, dp[1], d, d};
+  if ((st = mrvi_h5in_shape(&in, "/bodies/rotation", MRVI_H5_NUMBER, 4, want_r,
+                            dr)) < 0)
+    return st;
+  hsize_t rows = r->rows < dp[0] ? r->rows : dp[0];
+  rows = rows < dr[0] ? rows : dr[0];
+  const int joints = mrvi_h5in_exists(&in, "/joints/position");
+  if (joints) {
+    if ((st = mrvi_h5in_shape(&in, "/joints/position", MRVI_H5_NUMBER, 3,
+                              want_p, dj)) < 0)
+      return st;
+    rows = rows < dj[0] ? rows : dj[0];
+    r->nj = (int)dj[1];
+  }
+  r->nb = (int)dp[1];
+  r->rows = rows;
+  if ((st = mrvi_h5in_read_new(&in, "/bodies/position", H5T_NATIVE_DOUBLE, 3,
+                               want_p, rows, (void **)&r->body_pos, NULL)) <
+          0 ||
+      (st = mrvi_h5in_read_new(&in, "/bodies/rotation", H5T_NATIVE_DOUBLE, 4,
+                               want_r, rows, (void **)&r->body_rot, NULL)) < 0)
+    return st;
+  if (!joints || r->nj == 0)
+    return MRVI_OK;
+  const hsize_t nj = (hsize_t)r->nj;
+  if ((st = mrvi_h5in_read_new(&in, "/joints/position", H5T_NATIVE_DOUBLE, 3,
+                               want_p, rows, (void **)&r->joint_pos, NULL)) <
+          0 ||
+      (st = mrvi_h5in_read_new(&in, "/joints/body_a", H5T_NATIVE_INT, 1, &nj,
+                               MRVI_H5_ANY, (void **)&r->joint_a, NULL)) < 0 ||
+      (st = mrvi_h5in_read_new(&in, "/joints/body_b", H5T_NATIVE_INT, 1, &nj,
+                               MRVI_H5_ANY, (void **)&r->joint_b, NULL)) < 0)
+    return st;
+  for (int j = 0; j < r->nj; j++)
+    if (r->joint_a[j] < 0 || r->joint_a[j] >= r->nb || r->joint_b[j] < -1 ||
+        r->joint_b[j] >= r->nb)
+      return mrvi_fail(msg, len, MRVI_EIO,
+                       "%s: /joints/body_a[%d] = %d, body_b = %d: not bodies "
+                       "of /bodies/position (%d)",
+                       r->path, j, r->joint_a[j], r->joint_b[j], r->nb);
   return MRVI_OK;
 }
 
@@ -303,6 +398,101 @@ static void collection(FILE *f, const run_file *r, const char *h5, int bonds) {
   fputs("    </Grid>\n", f);
 }
 
+/* Length of the director segments of the bodies collection: half the
+ * largest distance from a body's centre of mass to a joint point on it at
+ * the first node, or 0.5 without joints. */
+static double frame_scale(const run_file *r) {
+  double s = 0.0;
+  const int d = r->d;
+  for (int j = 0; r->rows > 0 && j < r->nj; j++) {
+    const double *x = r->joint_pos + j * d,
+                 *c = r->body_pos + r->joint_a[j] * d;
+    double a = 0.0;
+    for (int i = 0; i < d; i++)
+      a += (x[i] - c[i]) * (x[i] - c[i]);
+    s = sqrt(a) > s ? sqrt(a) : s;
+  }
+  return s > 0.0 ? 0.5 * s : 0.5;
+}
+
+/* The bodies collection: per stored macro node a Polyline grid of the
+ * bodies' frames (segments phi -> phi + s d_i) and the joints (phi_A -> x_A
+ * and x_A -> phi_B, x_A = /joints/position); attribute `part` per line: i
+ * for director d_i, 0 for a joint.  The points are computed from
+ * /bodies/position, /bodies/rotation and /joints/position and written
+ * inline. */
+static void bodies_collection(FILE *f, const run_file *r) {
+  const int d = r->d, nb = r->nb, nj = r->nj;
+  int lines = nb * d, points = nb * (1 + d) + nj;
+  for (int j = 0; j < nj; j++)
+    lines += r->joint_b[j] >= 0 ? 2 : 1;
+  const double s = frame_scale(r);
+  fputs("    <Grid Name=\"bodies\" GridType=\"Collection\" "
+        "CollectionType=\"Temporal\">\n",
+        f);
+  for (hsize_t k = 0; k < r->rows; k++) {
+    fprintf(f, "      <Grid Name=\"bodies %llu\" GridType=\"Uniform\">\n",
+            (unsigned long long)k);
+    fputs("        <Time Value=\"", f);
+    put_double(f, r->t[k]);
+    fputs("\"/>\n", f);
+    /* Lines: body b's centre is point b (1 + d), its frame tips follow;
+     * joint j's point is nb (1 + d) + j. */
+    fprintf(f,
+            "        <Topology TopologyType=\"Polyline\" "
+            "NumberOfElements=\"%d\" NodesPerElement=\"2\">\n"
+            "          <DataItem Dimensions=\"%d 2\" NumberType=\"Int\" "
+            "Format=\"XML\">",
+            lines, lines);
+    for (int b = 0; b < nb; b++)
+      for (int i = 1; i <= d; i++)
+        fprintf(f, " %d %d", b * (1 + d), b * (1 + d) + i);
+    for (int j = 0; j < nj; j++) {
+      const int x = nb * (1 + d) + j;
+      fprintf(f, " %d %d", r->joint_a[j] * (1 + d), x);
+      if (r->joint_b[j] >= 0)
+        fprintf(f, " %d %d", x, r->joint_b[j] * (1 + d));
+    }
+    fputs("</DataItem>\n        </Topology>\n", f);
+    fprintf(f,
+            "        <Geometry GeometryType=\"%s\">\n"
+            "          <DataItem Dimensions=\"%d %d\" NumberType=\"Float\" "
+            "Precision=\"8\" Format=\"XML\">",
+            d == 3 ? "XYZ" : "XY", points, d);
+    const double *pos = r->body_pos + k * (hsize_t)(nb * d);
+    const double *rot = r->body_rot + k * (hsize_t)(nb * d * d);
+    for (int b = 0; b < nb; b++)
+      for (int i = 0; i <= d; i++)
+        for (int a = 0; a < d; a++) {
+          /* i = 0: the centre; i >= 1: the tip of d_i (column i - 1). */
+          const double x =
+              pos[b * d + a] + (i ? s * rot[(b * d + a) * d + (i - 1)] : 0.0);
+          fputc(' ', f);
+          put_double(f, x);
+        }
+    for (int j = 0; j < nj; j++)
+      for (int a = 0; a < d; a++) {
+        fputc(' ', f);
+        put_double(f, r->joint_pos[(k * (hsize_t)nj + (hsize_t)j) * (hsize_t)d +
+                                   (hsize_t)a]);
+      }
+    fputs("</DataItem>\n        </Geometry>\n", f);
+    fprintf(f,
+            "        <Attribute Name=\"part\" AttributeType=\"Scalar\" "
+            "Center=\"Cell\">\n"
+            "          <DataItem Dimensions=\"%d\" NumberType=\"Int\" "
+            "Format=\"XML\">",
+            lines);
+    for (int b = 0; b < nb; b++)
+      for (int i = 1; i <= d; i++)
+        fprintf(f, " %d", i);
+    for (int j = 0; j < nj; j++)
+      fputs(r->joint_b[j] >= 0 ? " 0 0" : " 0", f);
+    fputs("</DataItem>\n        </Attribute>\n      </Grid>\n", f);
+  }
+  fputs("    </Grid>\n", f);
+}
+
 int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
                      size_t len) {
   mrvi_fmt(msg, len, "%s", "");
@@ -312,8 +502,10 @@ int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
   mrvi_h5_quiet_begin(&q);
   run_file r;
   int st = run_open(&r, h5_path, msg, len);
+  if (st == 0)
+    st = read_bodies(&r, msg, len);
   char h5[PATH_MAX + 8];
-  if (st == 0 && r.first < 0)
+  if (st == 0 && r.np > 0 && r.first < 0)
     st = mrvi_fail(msg, len, MRVI_EINVAL,
                    "%s: the particles do not occupy consecutive columns of "
                    "/macro/q (a generalised coordinate was declared between "
@@ -327,16 +519,22 @@ int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
                    strerror(errno));
   if (f) {
     fputs("<?xml version=\"1.0\" ?>\n", f);
-    fprintf(f, "<!-- mrvi %s: the particles of ", MRVI_VERSION);
+    fprintf(f, "<!-- mrvi %s: the %s of ", MRVI_VERSION,
+            r.np > 0 && r.nb > 0 ? "particles and bodies"
+            : r.nb > 0           ? "bodies"
+                                 : "particles");
     xml_escape(f, h5);
     fprintf(f,
             " over the %llu stored macro nodes (doc/output.md).  Open in "
             "ParaView (XDMF reader) or VisIt. -->\n",
             (unsigned long long)r.rows);
     fputs("<Xdmf Version=\"2.0\">\n  <Domain>\n", f);
-    collection(f, &r, h5, 0);
-    if (r.n_edges > 0)
+    if (r.np > 0)
+      collection(f, &r, h5, 0);
+    if (r.np > 0 && r.n_edges > 0)
       collection(f, &r, h5, 1);
+    if (r.nb > 0)
+      bodies_collection(f, &r);
     fputs("  </Domain>\n</Xdmf>\n", f);
     if (ferror(f) | fclose(f))
       st = mrvi_fail(msg, len, MRVI_EIO, "%s: write error: %s", xdmf_path,
@@ -443,6 +641,12 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
   double *row = NULL, *fast = NULL, *slow = NULL, *mt = NULL;
   FILE *f = NULL;
   int st = run_open(&r, h5_path, msg, len);
+  if (st == 0 && r.np == 0)
+    st = mrvi_fail(msg, len, MRVI_EINVAL,
+                   "%s: the model has rigid bodies and no particles: nothing "
+                   "to write as XYZ points (the XDMF file and mrvi-plot "
+                   "animate show the bodies)",
+                   h5_path);
   if (st == 0 && o.micro)
     st = micro_setup(&r, &mm, msg, len);
   const hsize_t frames = o.micro ? mm.rows : r.rows;

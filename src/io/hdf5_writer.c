@@ -104,6 +104,19 @@ enum elem { F64, I32 };
     w->nb * w->dim * w->dim, w->body_rows + (size_t)w->nb * (size_t)w->dim,    \
     "rotation matrix of each rigid body at macro node k: its columns are "     \
     "the directors d_1 .. d_D in space")                                       \
+  X(BODIES_ANGULAR_VELOCITY, "/bodies/angular_velocity", F64, MACRO, 3,        \
+    w->nb * w->n_ang, w->body_omega,                                           \
+    "angular velocity in space of each rigid body at macro node k, "           \
+    "(R J R^T)^-1 sum_i d_i x p_{d_i}")                                        \
+  X(JOINTS_POSITION, "/joints/position", F64, MACRO, 3, w->nj * w->dim,        \
+    w->joint_point, "point of each joint on its first body at macro node k")   \
+  X(JOINTS_FORCE, "/joints/force", F64, MACRO, 3, w->nj * w->dim, w->nan_row,  \
+    "force of each joint on its first body at macro node k, from the "         \
+    "multipliers (NaN at the last node)")                                      \
+  X(JOINTS_TORQUE, "/joints/torque", F64, MACRO, 3, w->nj * w->n_ang,          \
+    w->nan_row,                                                                \
+    "torque of each joint on its first body about the joint's point at "       \
+    "macro node k, from the multipliers (NaN at the last node)")               \
   X(MICRO_T, "/micro/t", F64, MICRO, 1, 1, &w->micro_t[i],                     \
     "time of the fast micro node")                                             \
   X(MICRO_Q_FAST, "/micro/q_fast", F64, MICRO, 2, w->nf,                       \
@@ -116,6 +129,19 @@ enum elem { F64, I32 };
   X(MICRO_P_FAST, "/micro/p_fast", F64, MICRO, 2, w->nf,                       \
     r->micro_p_fast + (size_t)i * (size_t)w->nf,                               \
     "fast micro momenta (eq:pkfm-), model order")                              \
+  X(MICRO_BODIES_POSITION, "/micro/bodies/position", F64, MICRO, 3,            \
+    w->nfb * w->dim, w->micro_body_rows + (size_t)i * w->micro_body_width,     \
+    "centre of mass of each fast rigid body at the micro node")                \
+  X(MICRO_BODIES_ROTATION, "/micro/bodies/rotation", F64, MICRO, 4,            \
+    w->nfb * w->dim * w->dim,                                                  \
+    w->micro_body_rows + (size_t)i * w->micro_body_width +                     \
+        (size_t)(w->nfb * w->dim),                                             \
+    "rotation matrix of each fast rigid body at the micro node")               \
+  X(MICRO_BODIES_ANGULAR_VELOCITY, "/micro/bodies/angular_velocity", F64,      \
+    MICRO, 3, w->nfb * w->n_ang,                                               \
+    w->micro_body_rows + (size_t)i * w->micro_body_width +                     \
+        (size_t)(w->nfb * (w->dim + w->dim * w->dim)),                         \
+    "angular velocity in space of each fast rigid body at the micro node")     \
   X(MICRO_CONSTRAINT_RESIDUAL, "/micro/constraint_residual", F64, MICRO, 1,    \
     w->n_lambda > 0, r->micro_constraint_residual + i,                         \
     "max |g| at the micro node")                                               \
@@ -145,6 +171,12 @@ static const struct output_info {
     MRVI_OUTPUT_LIST(X_INFO)
 #undef X_INFO
 };
+
+/* The macro datasets whose row of node k comes with record k+1: the
+ * multipliers and the joint reactions computed from them (fill_lambda). */
+static const int lambda_outputs[] = {MACRO_LAMBDA, JOINTS_FORCE, JOINTS_TORQUE};
+#define N_LAMBDA_OUTPUTS                                                       \
+  ((int)(sizeof lambda_outputs / sizeof lambda_outputs[0]))
 
 /* Root attributes written at open, listed once; doc/output.md mirrors it.
  *   X(name, kind, value, present), kind: string, double, int or long.
@@ -194,14 +226,29 @@ struct mrvi_writer {
   double energy_warning; /* settings.energy_warning */
   hid_t file;
   int n, nf, ns, dim, n_ang, p, every;
-  int micro_slow;    /* write /micro/q_slow (ns > 0, micro output on) */
-  int *slow_col;     /* ns: model index of each slow coordinate */
-  double *prev_slow; /* ns: slow coordinates of the previous record */
-  double *slow_rows; /* p x ns: /micro/q_slow rows of the current record */
-  int n_lambda;      /* constraint rows (0: no constraint outputs) */
-  int nb;            /* rigid bodies (0: no /bodies datasets) */
-  int *body_first;   /* nb: model index of each body's first coordinate */
-  double *body_rows; /* nb d positions, then nb d^2 rotations (row-major) */
+  int micro_slow;     /* write /micro/q_slow (ns > 0, micro output on) */
+  int *slow_col;      /* ns: model index of each slow coordinate */
+  double *prev_slow;  /* ns: slow coordinates of the previous record */
+  double *slow_rows;  /* p x ns: /micro/q_slow rows of the current record */
+  int n_lambda;       /* constraint rows (0: no constraint outputs) */
+  int nb;             /* rigid bodies (0: no /bodies datasets) */
+  int *body_first;    /* nb: model index of each body's first coordinate */
+  double *body_rows;  /* nb d positions, then nb d^2 rotations (row-major) */
+  double *body_omega; /* nb n_ang: angular velocities */
+  /* Derived body and joint outputs read the model at every record (it
+   * outlives the writer, mrvi_writer_open). */
+  const mrvi_model *model;
+  int nj;                  /* joints (0: no /joints datasets) */
+  double *joint_rows;      /* nj d forces, then nj n_ang torques */
+  double *joint_point;     /* nj d: joint points of the current record */
+  double *lambda_q;        /* n: q of the last record (its multipliers come
+                              with the next one: fill_lambda) */
+  int nfb;                 /* fast bodies with micro output (/micro/bodies) */
+  int *fast_body;          /* nfb: body index of each */
+  int *fast_slot;          /* nfb: column of /micro/q_fast of its phi_x */
+  size_t micro_body_width; /* nfb (d + d^2 + n_ang): one micro node */
+  double *micro_body_rows; /* p micro nodes of micro_body_width */
+  double *scratch;         /* 2 n: q and p of a fast body in model order */
   int stream_on[N_STREAMS];
   long flush_records;         /* records per flush (<= FLUSH_RECORDS) */
   size_t cap[N_STREAMS];      /* buffer capacity in rows */
@@ -260,17 +307,28 @@ static const void *output_row(const mrvi_writer *w, const mrvi_record *r,
   }
 }
 
+/* Last dimension of a rank-3 dataset: the angular quantities have n_ang
+ * components (3 in 3-D, 1 in 2-D), the others d. */
+static hsize_t output_inner(const mrvi_writer *w, int id) {
+  const int angular = id == BODIES_ANGULAR_VELOCITY || id == JOINTS_TORQUE ||
+                      id == MICRO_BODIES_ANGULAR_VELOCITY;
+  const int k = angular ? w->n_ang : w->dim;
+  return (hsize_t)(k > 0 ? k : 1);
+}
+
 /* Shape of dataset id with `rows` rows (rank entries of shape); returns
- * the rank.  Ranks 3 and 4 split the columns as (bodies, d [, d]). */
+ * the rank.  Rank 3 splits the columns as (bodies or joints, inner),
+ * rank 4 as (bodies, d, d). */
 static int output_shape(const mrvi_writer *w, int id, hsize_t rows,
                         hsize_t *shape) {
   const int rank = output_info[id].rank;
   const hsize_t cols = w->out[id].cols, d = (hsize_t)(w->dim > 0 ? w->dim : 1);
+  const hsize_t inner = rank == 3 ? output_inner(w, id) : d;
   shape[0] = rows;
   if (rank >= 2)
-    shape[1] = rank == 2 ? cols : rank == 3 ? cols / d : cols / (d * d);
+    shape[1] = rank == 2 ? cols : rank == 3 ? cols / inner : cols / (d * d);
   for (int a = 2; a < rank; a++)
-    shape[a] = d;
+    shape[a] = inner;
   return rank;
 }
 
@@ -485,6 +543,47 @@ out:
   return rc;
 }
 
+/* /joints/name, type, constraint, body_a and body_b of a model with
+ * joints (nothing without; doc/multibody.md). */
+static int write_joints(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
+  const int nj = w->nj;
+  if (nj <= 0)
+    return 0;
+  const char **name = malloc((size_t)nj * sizeof *name);
+  const char **type = malloc((size_t)nj * sizeof *type);
+  int *idx = malloc(3 * (size_t)nj * sizeof *idx);
+  int rc = 0;
+  if (!name || !type || !idx) {
+    rc = fail(w, MRVI_ENOMEM, "writing /joints: out of memory");
+    goto out;
+  }
+  for (int j = 0; j < nj; j++) {
+    const int c = mrvi_model_joint_constraint(m, j);
+    idx[j] = c;
+    mrvi_model_joint_bodies(m, j, idx + nj + j, idx + 2 * nj + j);
+    name[j] = mrvi_model_constraint_label(m, c);
+    type[j] = mrvi_model_constraint_type_name(m, c);
+  }
+  const hsize_t count = (hsize_t)nj;
+  const fixed_dataset list[] = {
+      {"/joints/name", STRINGS, count, 0, name, "name (label) of each joint"},
+      {"/joints/type", STRINGS, count, 0, type, "type of each joint"},
+      {"/joints/constraint", H5T_STD_I32LE, H5T_NATIVE_INT, count, 0, idx,
+       "constraint index of each joint (/model/constraint_label)"},
+      {"/joints/body_a", H5T_STD_I32LE, H5T_NATIVE_INT, count, 0, idx + nj,
+       "first body of each joint (/bodies/name): the body the reaction "
+       "acts on"},
+      {"/joints/body_b", H5T_STD_I32LE, H5T_NATIVE_INT, count, 0, idx + 2 * nj,
+       "second body of each joint, -1 for the ground"},
+  };
+  rc = write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
+out:
+  free(name);
+  free(type);
+  free(idx);
+  return rc;
+}
+
 /* /bodies/name and /bodies/column of a model with rigid bodies (nothing
  * without; doc/multibody.md). */
 static int write_bodies(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
@@ -503,10 +602,21 @@ static int write_bodies(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
        "column of /macro/q holding the body's phi_x (phi, then the "
        "directors d_1 .. d_D, D entries each)"},
   };
-  const int rc =
-      write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
+  int rc = write_fixed_list(w, lcpl, list, (int)(sizeof list / sizeof *list));
   free(name);
-  return rc;
+  if (rc == 0 && w->nfb > 0) {
+    const fixed_dataset fast = {
+        "/bodies/fast",
+        H5T_STD_I32LE,
+        H5T_NATIVE_INT,
+        (hsize_t)w->nfb,
+        0,
+        w->fast_body,
+        "index of each fast body (in /bodies/name): the columns of "
+        "/micro/bodies"};
+    rc = write_fixed_list(w, lcpl, &fast, 1);
+  }
+  return rc == 0 ? write_joints(w, m, lcpl) : rc;
 }
 
 /* ---------------------------------------------------------------------------
@@ -629,11 +739,17 @@ static int flush(mrvi_writer *w, int final) {
         bytes += w->rows[output_info[id].stream] * w->out[id].row_bytes;
     rc = check_space(w, bytes);
   }
-  /* The multipliers of the last row already in the file (fill_lambda). */
-  if (rc == 0 && w->patch &&
-      write_rows(w, MACRO_LAMBDA, w->written[MACRO] - 1, 1, w->lambda_patch) <
-          0)
-    rc = fail_dataset(w, output_info[MACRO_LAMBDA].path);
+  /* The multipliers and joint reactions of the last row already in the
+   * file (fill_lambda). */
+  const unsigned char *patch = (const unsigned char *)w->lambda_patch;
+  for (int i = 0; i < N_LAMBDA_OUTPUTS && rc == 0 && w->patch; i++) {
+    const int id = lambda_outputs[i];
+    if (w->out[id].cols == 0)
+      continue;
+    if (write_rows(w, id, w->written[MACRO] - 1, 1, patch) < 0)
+      rc = fail_dataset(w, output_info[id].path);
+    patch += w->out[id].row_bytes;
+  }
   w->patch = 0;
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++) {
     const enum stream st = output_info[id].stream;
@@ -712,6 +828,14 @@ static void writer_free(mrvi_writer *w) {
   free(w->slow_rows);
   free(w->body_first);
   free(w->body_rows);
+  free(w->body_omega);
+  free(w->joint_rows);
+  free(w->joint_point);
+  free(w->lambda_q);
+  free(w->fast_body);
+  free(w->fast_slot);
+  free(w->micro_body_rows);
+  free(w->scratch);
   free(w->nan_row);
   free(w->lambda_patch);
   free(w->path);
@@ -977,8 +1101,44 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
       return fail(w, MRVI_ENOMEM, "out of memory");
     for (int b = 0; b < w->nb; b++)
       w->body_first[b] = mrvi_model_body_first(m, b);
+    w->body_omega =
+        malloc((size_t)w->nb * (size_t)w->n_ang * sizeof *w->body_omega);
+    w->lambda_q = malloc((size_t)w->n * sizeof *w->lambda_q);
+    w->joint_rows = malloc(((size_t)w->nj * (size_t)(w->dim + w->n_ang) + 1) *
+                           sizeof *w->joint_rows);
+    w->joint_point =
+        malloc(((size_t)w->nj * (size_t)w->dim + 1) * sizeof *w->joint_point);
+    if (!w->body_omega || !w->lambda_q || !w->joint_rows || !w->joint_point)
+      return fail(w, MRVI_ENOMEM, "out of memory");
   }
-  const size_t nl = (size_t)w->n_lambda + 1;
+  if (w->nfb > 0) {
+    w->fast_body = malloc((size_t)w->nfb * sizeof *w->fast_body);
+    w->fast_slot = malloc((size_t)w->nfb * sizeof *w->fast_slot);
+    if (!w->fast_body || !w->fast_slot)
+      return fail(w, MRVI_ENOMEM, "out of memory");
+    /* A body's coordinates are consecutive in the fast block too (a body
+     * is added with one rate as a whole). */
+    const int *fast = mrvi_model_fast_index(m);
+    for (int b = 0, f = 0; b < w->nb; b++) {
+      const int first = mrvi_model_body_first(m, b);
+      if (mrvi_model_rate(m, first) != MRVI_FAST)
+        continue;
+      w->fast_body[f] = b;
+      for (int j = 0; j < w->nf; j++)
+        if (fast[j] == first)
+          w->fast_slot[f] = j;
+      f++;
+    }
+    w->micro_body_rows =
+        malloc((size_t)w->p * w->micro_body_width * sizeof *w->micro_body_rows);
+    w->scratch = calloc(2 * (size_t)w->n, sizeof *w->scratch);
+    if (!w->micro_body_rows || !w->scratch)
+      return fail(w, MRVI_ENOMEM, "out of memory");
+  }
+  /* The multipliers and the joint reactions computed from them share the
+   * NaN placeholder and the patch of the last row in the file. */
+  const size_t nl =
+      (size_t)w->n_lambda + (size_t)w->nj * (size_t)(w->dim + w->n_ang) + 1;
   w->nan_row = malloc(nl * sizeof *w->nan_row);
   w->lambda_patch = malloc(nl * sizeof *w->lambda_patch);
   if (!w->micro_t || !w->nan_row || !w->lambda_patch)
@@ -1139,8 +1299,14 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->energy_warning = s->energy_warning;
   w->n_lambda = mrvi_model_constraint_rows(m);
   w->nb = mrvi_model_n_bodies(m);
+  w->model = m;
+  w->nj = mrvi_model_n_joints(m);
   w->stream_on[MACRO] = 1;
   w->stream_on[MICRO] = o.micro && w->nf > 0;
+  for (int b = 0; w->stream_on[MICRO] && b < w->nb; b++)
+    w->nfb += mrvi_model_rate(m, mrvi_model_body_first(m, b)) == MRVI_FAST;
+  w->micro_body_width =
+      (size_t)w->nfb * (size_t)(w->dim + w->dim * w->dim + w->n_ang);
   w->micro_slow = o.micro_slow && w->stream_on[MICRO] && w->ns > 0;
   w->stream_on[SOLVER] = 1;
   w->last_k = -1;
@@ -1182,20 +1348,34 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
  * replaces.  That row is the last buffered macro row or, right after a
  * flush, the last row in the file, which the next flush rewrites. */
 static void fill_lambda(mrvi_writer *w, const mrvi_record *r) {
-  output *o = &w->out[MACRO_LAMBDA];
-  if (o->cols == 0 || w->last_k < 0 || w->pending)
+  if (w->out[MACRO_LAMBDA].cols == 0 || w->last_k < 0 || w->pending)
     return;
   if (w->keep_lambda) {
     w->keep_lambda = 0;
     return;
   }
-  if (w->rows[MACRO] > 0) {
-    memcpy(o->buf + (w->rows[MACRO] - 1) * o->row_bytes, r->lambda_prev,
-           o->row_bytes);
-  } else {
-    memcpy(w->lambda_patch, r->lambda_prev, o->row_bytes);
-    w->patch = 1;
+  /* The joint reactions of node k-1: its q (lambda_q) and multipliers. */
+  const int D = w->dim;
+  for (int j = 0; j < w->nj; j++)
+    mrvi_model_joint_reaction(
+        w->model, j, w->lambda_q, r->lambda_prev, w->joint_rows + j * D,
+        w->joint_rows + (size_t)w->nj * (size_t)D + (size_t)(j * w->n_ang));
+  const void *src[N_LAMBDA_OUTPUTS] = {
+      r->lambda_prev, w->joint_rows, w->joint_rows + (size_t)w->nj * (size_t)D};
+  unsigned char *patch = (unsigned char *)w->lambda_patch;
+  for (int i = 0; i < N_LAMBDA_OUTPUTS; i++) {
+    output *o = &w->out[lambda_outputs[i]];
+    if (o->cols == 0)
+      continue;
+    if (w->rows[MACRO] > 0)
+      memcpy(o->buf + (w->rows[MACRO] - 1) * o->row_bytes, src[i],
+             o->row_bytes);
+    else
+      memcpy(patch, src[i], o->row_bytes);
+    patch += o->row_bytes;
   }
+  if (w->rows[MACRO] == 0)
+    w->patch = 1;
 }
 
 /* /micro/q_slow rows of record r (rows of them): the slow coordinates as
@@ -1228,6 +1408,33 @@ static void body_poses(mrvi_writer *w, const mrvi_record *r) {
       pos[b * D + a] = y[a];
       for (int i = 0; i < D; i++)
         rot[(b * D + a) * D + i] = y[D * (1 + i) + a];
+    }
+    mrvi_model_body_angular_velocity(w->model, b, r->q, r->p,
+                                     w->body_omega + b * w->n_ang);
+  }
+  for (int j = 0; j < w->nj; j++)
+    mrvi_model_joint_point(w->model, j, r->q, w->joint_point + j * D);
+  if (w->nj > 0)
+    memcpy(w->lambda_q, r->q, (size_t)w->n * sizeof *w->lambda_q);
+}
+
+/* /micro/bodies/... rows of record r (rows of them): position, rotation
+ * and angular velocity of every fast body at each micro node, from the
+ * micro coordinates and momenta (copied into model order in scratch). */
+static void micro_body_poses(mrvi_writer *w, const mrvi_record *r,
+                             size_t rows) {
+  const int D = w->dim, nc = D * (D + 1), F = w->nfb;
+  double *q = w->scratch, *p = w->scratch + w->n;
+  for (size_t i = 0; i < rows; i++) {
+    double *row = w->micro_body_rows + i * w->micro_body_width;
+    double *pos = row, *rot = row + F * D, *om = row + F * (D + D * D);
+    for (int f = 0; f < F; f++) {
+      const int b = w->fast_body[f], first = w->body_first[b];
+      const size_t at = i * (size_t)w->nf + (size_t)w->fast_slot[f];
+      memcpy(q + first, r->micro_q_fast + at, (size_t)nc * sizeof *q);
+      memcpy(p + first, r->micro_p_fast + at, (size_t)nc * sizeof *p);
+      mrvi_model_body_pose(w->model, b, q, pos + f * D, rot + f * D * D);
+      mrvi_model_body_angular_velocity(w->model, b, q, p, om + f * w->n_ang);
     }
   }
 }
@@ -1274,6 +1481,8 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
     /* Appending: node resume_k is in the file already. */
     if (w->micro_slow)
       interpolate_slow(w, r, 0);
+    if (w->nj > 0)
+      memcpy(w->lambda_q, r->q, (size_t)w->n * sizeof *w->lambda_q);
     w->last_k = r->k;
     return MRVI_OK;
   }
@@ -1291,7 +1500,10 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
     w->micro_t[i] = r->micro_t0 + (double)i * r->micro_dt;
   if (w->micro_slow)
     interpolate_slow(w, r, add[MICRO]);
-  body_poses(w, r);
+  if (w->nb > 0)
+    body_poses(w, r);
+  if (w->nfb > 0)
+    micro_body_poses(w, r, add[MICRO]);
   /* Copy the rows; the macro row goes to rows[MACRO] (over a pending row). */
   for (int id = 0; id < N_OUTPUTS; id++) {
     output *o = &w->out[id];
@@ -1366,7 +1578,8 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
     for (int id = 0; id < N_OUTPUTS; id++) {
       if (w->out[id].id < 0)
         continue;
-      hsize_t size[2] = {w->written[output_info[id].stream], w->out[id].cols};
+      hsize_t size[MRVI_H5_MAX_RANK];
+      output_shape(w, id, w->written[output_info[id].stream], size);
       H5Dset_extent(w->out[id].id, size);
     }
     mrvi_fmt(why, sizeof why, "output error: %s", w->errmsg);

@@ -121,8 +121,8 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
 /* The output of `mrvi optimize`: the trajectory (as
  * mrvi_ocp_trajectory_write), /control (the controls on the finest grid of
  * the actuators, their names and the terminal conditions) and /optimizer
- * (the history of cost, terminal violation and gradient norm per
- * evaluation, the result).  Opened before optimising, given every
+ * (the history of cost, terminal violation, gradient norm and KKT
+ * residual per evaluation, the result).  Opened before optimising, given every
  * evaluation, closed with the result:
  *   mrvi_ocp_output_open -> mrvi_ocp_output_iteration ... ->
  *   mrvi_ocp_output_close.
@@ -140,7 +140,7 @@ int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
 /* One evaluation: a row of /optimizer/history.  MRVI_ENOMEM when it cannot
  * be kept. */
 int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
-                              double gradient_norm);
+                              double gradient_norm, double kkt_residual);
 /* Write the file for the controls u (o's last evaluation is theirs) and
  * the result res; status is /optimizer's attribute status (res->status:
  * "converged", "max_evaluations", "interrupted", ...).  Frees w (also on

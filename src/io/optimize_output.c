@@ -8,7 +8,8 @@
  *                                    actuators; actuators; terminal
  *                                    conditions
  *   /optimizer                       history (cost, violation, gradient
- *                                    norm per evaluation), result
+ *                                    norm, KKT residual per evaluation),
+ *                                    result
  *
  * and the controls read back from /control/u (`mrvi run --controls`).
  *
@@ -200,7 +201,7 @@ struct mrvi_ocp_output {
   const mrvi_system *sys;
   const mrvi_ocp *o;
   int n, cap;
-  double *history; /* n x 3: cost, violation, gradient norm */
+  double *history; /* n x 4: cost, violation, gradient norm, KKT residual */
 };
 
 /* /control: t and u on the finest grid of the actuators (the micro grid if
@@ -276,8 +277,8 @@ static void write_optimizer(mrvi_h5_batch *b, const mrvi_ocp_output *w,
                             const mrvi_ocp_result *res, const char *status) {
   const mrvi_ocp *o = w->o;
   hid_t go = mrvi_h5_batch_group(b, b->file, "optimizer");
-  mrvi_h5_batch_doubles(b, go, "history", w->history, (hsize_t)w->n, 3);
-  attr_text(b, go, "columns", "cost, violation, gradient_norm");
+  mrvi_h5_batch_doubles(b, go, "history", w->history, (hsize_t)w->n, 4);
+  attr_text(b, go, "columns", "cost, violation, gradient_norm, kkt_residual");
   attr_text(b, go, "algorithm",
             mrvi_ocp_algorithm_name(mrvi_ocp_get_algorithm(o)));
   attr_text(b, go, "status", status);
@@ -336,20 +337,21 @@ int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
 }
 
 int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
-                              double gradient_norm) {
+                              double gradient_norm, double kkt_residual) {
   if (!w)
     return MRVI_EINVAL;
   if (w->n == w->cap) {
     int cap = w->cap ? 2 * w->cap : 64;
-    double *r = realloc(w->history, (size_t)cap * 3 * sizeof *r);
+    double *r = realloc(w->history, (size_t)cap * 4 * sizeof *r);
     if (!r)
       return MRVI_ENOMEM;
     w->history = r;
     w->cap = cap;
   }
-  w->history[3 * w->n] = cost;
-  w->history[3 * w->n + 1] = violation;
-  w->history[3 * w->n + 2] = gradient_norm;
+  w->history[4 * w->n] = cost;
+  w->history[4 * w->n + 1] = violation;
+  w->history[4 * w->n + 2] = gradient_norm;
+  w->history[4 * w->n + 3] = kkt_residual;
   w->n++;
   return MRVI_OK;
 }

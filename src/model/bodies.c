@@ -435,3 +435,146 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
   mrvi_fmt(label, sizeof label, "%s %s-%s", type, na, nb);
   return mrvi_model_add_constraint(m, type, n_in, in, n_par, par, label);
 }
+
+/* ---------------------------------------------------------------------------
+ * Derived outputs: angular velocity and joint reactions (doc/multibody.md,
+ * "Angular velocity" and "Joint reactions")
+ * ------------------------------------------------------------------------- */
+
+void mrvi_model_body_angular_velocity(const mrvi_model *m, int b,
+                                      const double *q, const double *p,
+                                      double *omega) {
+  const mrvi_body *bd = &m->bodies[b];
+  const int D = bd->dim;
+  const double *d = q + bd->first + D, *pd = p + bd->first + D;
+  if (D == 2) {
+    /* L = sum_i d_i x p_{d_i} (scalar), J = E_1 + E_2. */
+    double L = 0.0;
+    for (int i = 0; i < 2; i++)
+      L += d[2 * i] * pd[2 * i + 1] - d[2 * i + 1] * pd[2 * i];
+    omega[0] = L / bd->inertia[0];
+    return;
+  }
+  /* L = sum_i d_i x p_{d_i} in space; omega = R J^-1 R^T L. */
+  double L[3] = {0.0, 0.0, 0.0};
+  for (int i = 0; i < 3; i++) {
+    const double *u = d + 3 * i, *v = pd + 3 * i;
+    L[0] += u[1] * v[2] - u[2] * v[1];
+    L[1] += u[2] * v[0] - u[0] * v[2];
+    L[2] += u[0] * v[1] - u[1] * v[0];
+  }
+  for (int a = 0; a < 3; a++)
+    omega[a] = 0.0;
+  for (int i = 0; i < 3; i++) {
+    const double *u = d + 3 * i;
+    const double w = (u[0] * L[0] + u[1] * L[1] + u[2] * L[2]) / bd->inertia[i];
+    for (int a = 0; a < 3; a++)
+      omega[a] += w * u[a];
+  }
+}
+
+/* Joint kind of constraint c, or NULL when c is not a joint. */
+static const joint_kind *joint_kind_of(const mrvi_constraint *c) {
+  for (int i = 0; i < N_JOINT_KINDS; i++)
+    if (strcmp(c->type->name, joint_kinds[i].type) == 0)
+      return &joint_kinds[i];
+  return NULL;
+}
+
+int mrvi_model_n_joints(const mrvi_model *m) {
+  int n = 0;
+  for (int c = 0; c < m->n_constraints; c++)
+    n += joint_kind_of(&m->constraints[c]) != NULL;
+  return n;
+}
+
+int mrvi_model_joint_constraint(const mrvi_model *m, int j) {
+  for (int c = 0; c < m->n_constraints && j >= 0; c++)
+    if (joint_kind_of(&m->constraints[c]) && j-- == 0)
+      return c;
+  return -1;
+}
+
+int mrvi_model_joint_bodies(const mrvi_model *m, int j, int *body_a,
+                            int *body_b) {
+  const int c = mrvi_model_joint_constraint(m, j);
+  if (c < 0)
+    return MRVI_EINVAL;
+  const mrvi_constraint *k = &m->constraints[c];
+  const int a = mrvi_model_body_of(m, k->in[0]);
+  const int D = m->bodies[a].dim, nb = D * (D + 1);
+  if (body_a)
+    *body_a = a;
+  if (body_b)
+    *body_b = k->n_in > nb ? mrvi_model_body_of(m, k->in[nb]) : -1;
+  return MRVI_OK;
+}
+
+int mrvi_model_joint_reaction(const mrvi_model *m, int j, const double *q,
+                              const double *lambda, double *force,
+                              double *torque) {
+  const int c = mrvi_model_joint_constraint(m, j);
+  if (c < 0)
+    return MRVI_EINVAL;
+  const mrvi_constraint *k = &m->constraints[c];
+  const mrvi_body *bd = &m->bodies[mrvi_model_body_of(m, k->in[0])];
+  const int D = bd->dim, n_in = k->n_in;
+  double y[24], g[6], G[6 * 24];
+  for (int i = 0; i < n_in; i++)
+    y[i] = q[k->in[i]];
+  mrvi_constraint_eval_at(k, y, g, G, NULL);
+  /* Generalised force on body A's inputs (the first D (D + 1)):
+   * f = -G_A^T lambda. */
+  double f[12];
+  for (int i = 0; i < D * (D + 1); i++) {
+    f[i] = 0.0;
+    for (int r = 0; r < k->rows; r++)
+      f[i] -= G[r * n_in + i] * lambda[k->first_row + r];
+  }
+  /* Force: the phi block.  Torque about the joint point x_A = phi_A +
+   * sum_i rho_A^i d_i (rho_A: params 2 .. 2 + D, constraints/joint.h):
+   * sum_i d_i x f_{d_i} about phi_A, minus (x_A - phi_A) x force. */
+  const double *rho = k->params + 2, *d = y + D;
+  double arm[3] = {0.0, 0.0, 0.0};
+  for (int i = 0; i < D; i++)
+    for (int a = 0; a < D; a++)
+      arm[a] += rho[i] * d[D * i + a];
+  for (int a = 0; a < D; a++)
+    force[a] = f[a];
+  if (D == 2) {
+    double t = -(arm[0] * f[1] - arm[1] * f[0]);
+    for (int i = 0; i < 2; i++) {
+      const double *u = d + 2 * i, *v = f + 2 + 2 * i;
+      t += u[0] * v[1] - u[1] * v[0];
+    }
+    torque[0] = t;
+    return MRVI_OK;
+  }
+  double t[3] = {-(arm[1] * f[2] - arm[2] * f[1]),
+                 -(arm[2] * f[0] - arm[0] * f[2]),
+                 -(arm[0] * f[1] - arm[1] * f[0])};
+  for (int i = 0; i < 3; i++) {
+    const double *u = d + 3 * i, *v = f + 3 + 3 * i;
+    t[0] += u[1] * v[2] - u[2] * v[1];
+    t[1] += u[2] * v[0] - u[0] * v[2];
+    t[2] += u[0] * v[1] - u[1] * v[0];
+  }
+  memcpy(torque, t, sizeof t);
+  return MRVI_OK;
+}
+
+int mrvi_model_joint_point(const mrvi_model *m, int j, const double *q,
+                           double *x) {
+  const int c = mrvi_model_joint_constraint(m, j);
+  if (c < 0)
+    return MRVI_EINVAL;
+  const mrvi_constraint *k = &m->constraints[c];
+  const int first = k->in[0], D = m->bodies[mrvi_model_body_of(m, first)].dim;
+  const double *rho = k->params + 2; /* constraints/joint.h */
+  for (int a = 0; a < D; a++) {
+    x[a] = q[first + a];
+    for (int i = 0; i < D; i++)
+      x[a] += rho[i] * q[first + D * (1 + i) + a];
+  }
+  return MRVI_OK;
+}

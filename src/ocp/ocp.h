@@ -122,10 +122,14 @@ void mrvi_ocp_set_max_evaluations(mrvi_ocp *o, int max_eval);
 /* The cap on cost + gradient evaluations (default 2000). */
 int mrvi_ocp_max_evaluations(const mrvi_ocp *o);
 /* Called after every cost evaluation of the optimiser with its count, cost,
- * largest terminal violation and gradient norm; a non-zero return stops the
- * optimisation (MRVI_EINTERRUPTED). */
+ * largest terminal violation, gradient norm |grad J| and KKT residual (the
+ * norm of the projected gradient of the Lagrangian with least-squares
+ * multipliers of the terminal conditions and the active bounds: 0 at a
+ * constrained optimum, where |grad J| need not be; doc/optimal-control.md);
+ * a non-zero return stops the optimisation (MRVI_EINTERRUPTED). */
 typedef int (*mrvi_ocp_callback)(void *data, int evaluation, double cost,
-                                 double violation, double grad_norm);
+                                 double violation, double grad_norm,
+                                 double kkt_residual);
 void mrvi_ocp_set_callback(mrvi_ocp *o, mrvi_ocp_callback cb, void *data);
 
 /* Sizes: controls, terminal equality constraints, macro steps N. */

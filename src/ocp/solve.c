@@ -23,6 +23,9 @@ typedef struct cache {
    * lowest violation; have_best = 0 before the first evaluation. */
   double *best_u, best_J, best_violation;
   int have_best;
+  /* Bounds and workspace of the KKT residual (stationarity). */
+  const double *lb, *ub;
+  double *kkt; /* n + m (m + 1) */
 } cache;
 
 static int cached_eval(cache *cc, const double *u) {
@@ -57,6 +60,54 @@ static void keep_best(cache *cc, const double *u) {
   cc->have_best = 1;
 }
 
+/* KKT residual of the last evaluation at u: the norm of the projected
+ * gradient of the Lagrangian,
+ *   r = grad J + A^T mu,   A = d(terminal conditions)/du (m x n),
+ * with the least-squares multipliers mu of the free controls F (those
+ * strictly inside their bounds): (A_F A_F^T) mu = -A_F (grad J)_F.  A
+ * control at its lower bound counts with min(r_i, 0), at its upper bound
+ * with max(r_i, 0) (the sign the bound's own multiplier cannot absorb).
+ * 0 at a KKT point of the bound- and equality-constrained problem, where
+ * |grad J| itself need not vanish; |grad J| without constraints and
+ * active bounds.  (A dependent A_F gets a relative ridge of 1e-14.) */
+static double stationarity(cache *cc, const double *u) {
+  const int n = cc->o->n_u, m = cc->o->n_con;
+  const double *g = cc->grad, *A = cc->cgrad;
+  double *r = cc->kkt, *N = cc->kkt + n, *mu = N + (size_t)m * (size_t)m;
+  for (int a = 0; a < m; a++) {
+    mu[a] = 0.0;
+    for (int i = 0; i < n; i++)
+      if (u[i] > cc->lb[i] && u[i] < cc->ub[i])
+        mu[a] -= A[(size_t)a * n + i] * g[i];
+    for (int b = 0; b < m; b++) {
+      double s = 0.0;
+      for (int i = 0; i < n; i++)
+        if (u[i] > cc->lb[i] && u[i] < cc->ub[i])
+          s += A[(size_t)a * n + i] * A[(size_t)b * n + i];
+      N[a * m + b] = s;
+    }
+  }
+  double trace = 0.0;
+  for (int a = 0; a < m; a++)
+    trace += N[a * m + a];
+  for (int a = 0; a < m; a++)
+    N[a * m + a] += 1e-14 * (trace > 0.0 ? trace / m : 1.0);
+  if (m > 0 && mrvi_dense_solve(m, N, mu) < 0)
+    for (int a = 0; a < m; a++)
+      mu[a] = 0.0;
+  double r2 = 0.0;
+  for (int i = 0; i < n; i++) {
+    r[i] = g[i];
+    for (int a = 0; a < m; a++)
+      r[i] += A[(size_t)a * n + i] * mu[a];
+    const double v = u[i] <= cc->lb[i]   ? fmin(r[i], 0.0)
+                     : u[i] >= cc->ub[i] ? fmax(r[i], 0.0)
+                                         : r[i];
+    r2 += v * v;
+  }
+  return sqrt(r2);
+}
+
 static double objective(unsigned n, const double *u, double *grad, void *data) {
   cache *cc = data;
   if (cached_eval(cc, u) < 0) {
@@ -72,7 +123,8 @@ static double objective(unsigned n, const double *u, double *grad, void *data) {
     double g2 = 0.0;
     for (unsigned i = 0; i < n; i++)
       g2 += cc->grad[i] * cc->grad[i];
-    if (o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc), sqrt(g2))) {
+    if (o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc), sqrt(g2),
+              stationarity(cc, u))) {
       cc->stop = 2;
       nlopt_force_stop(cc->opt);
     }
@@ -156,10 +208,13 @@ int mrvi_ocp_solve(mrvi_ocp *o, double *u, mrvi_ocp_result *res) {
   double *lb = calloc((size_t)n, sizeof(double));
   double *ub = calloc((size_t)n, sizeof(double));
   double *tol = calloc((size_t)m + 1, sizeof(double));
+  cc.kkt = calloc((size_t)n + (size_t)m * (size_t)(m + 1) + 1, sizeof(double));
+  cc.lb = lb;
+  cc.ub = ub;
   nlopt_opt opt = NULL, local = NULL;
   int status = MRVI_OK;
   if (!cc.u || !cc.grad || !cc.c || !cc.cgrad || !cc.best_u || !lb || !ub ||
-      !tol) {
+      !tol || !cc.kkt) {
     status = mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
     goto done;
   }
@@ -227,6 +282,7 @@ done:
   free(cc.c);
   free(cc.cgrad);
   free(cc.best_u);
+  free(cc.kkt);
   free(lb);
   free(ub);
   free(tol);
