@@ -247,17 +247,10 @@ int main(int argc, char **argv) {
     repeats = 1;
     steps = 2;
   }
-  double load = NAN;
-  FILE *lf = fopen("/proc/loadavg", "r");
-  if (lf) {
-    if (fscanf(lf, "%lf", &load) != 1)
-      load = NAN;
-    fclose(lf);
-  }
   printf("# mrvi %s  pendulum chains  dT = %g  p = %d  at least %d macro "
          "steps and %g s  best of %d alternating rounds  load average %.2f "
          "at the start\n",
-         mrvi_version(), dT, p, steps, MIN_CPU, repeats, load);
+         mrvi_version(), dT, p, steps, MIN_CPU, repeats, bench_load());
   printf("# build: %s\n\n", bench_build());
 
   static result res[N_SCHEMES][N_CASES][MAX_N];
@@ -326,11 +319,6 @@ int main(int argc, char **argv) {
         printf("| %-20s | %-18s | %8.3f | %8d |\n", scheme_names[si],
                case_names[c], bench_exponent(x, y, k), k);
     }
-  if ((lf = fopen("/proc/loadavg", "r"))) {
-    if (fscanf(lf, "%lf", &load) != 1)
-      load = NAN;
-    fclose(lf);
-  }
-  printf("\n# load average %.2f at the end\n", load);
+  printf("\n# load average %.2f at the end\n", bench_load());
   return 0;
 }

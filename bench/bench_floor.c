@@ -121,11 +121,6 @@ typedef struct network {
   long n_slow, n_fast;
 } network;
 
-static double uniform(unsigned long long *state) {
-  *state = *state * 6364136223846793005ULL + 1442695040888963407ULL;
-  return (double)(*state >> 11) / 4503599627370496.0 - 1.0;
-}
-
 static void network_free(network *w) {
   free(w->x0);
   free(w->v0);
@@ -191,12 +186,12 @@ static int network_make(network *w, int kind, int n) {
     int idx[3] = {i % w->nx[0], i / w->nx[0] % w->nx[1],
                   i / (w->nx[0] * w->nx[1])};
     for (int a = 0; a < d; a++) {
-      double jit = kind == 2 ? 0.2 * uniform(&rseed) : 0.0;
-      w->x0[i * d + a] = idx[a] + jit + 0.05 * uniform(&seed);
-      w->v0[i * d + a] = 0.1 * uniform(&seed);
+      double jit = kind == 2 ? 0.2 * bench_uniform(&rseed) : 0.0;
+      w->x0[i * d + a] = idx[a] + jit + 0.05 * bench_uniform(&seed);
+      w->v0[i * d + a] = 0.1 * bench_uniform(&seed);
     }
     /* lattices: the generator's `every: 2`; random: probability 1/2 */
-    w->fast[i] = kind == 2 ? uniform(&rseed) > 0.0 : i % 2 == 1;
+    w->fast[i] = kind == 2 ? bench_uniform(&rseed) > 0.0 : i % 2 == 1;
   }
   long cap_s = 0, cap_f = 0;
   const int *nx = w->nx;
@@ -666,19 +661,6 @@ typedef struct result {
   char message[200];
 } result;
 
-static long status_kb(const char *key) {
-  FILE *f = fopen("/proc/self/status", "r");
-  char line[256];
-  long kb = -1;
-  size_t len = strlen(key);
-  while (f && fgets(line, sizeof line, f))
-    if (!strncmp(line, key, len))
-      kb = strtol(line + len, NULL, 10);
-  if (f)
-    fclose(f);
-  return kb;
-}
-
 typedef struct options {
   double dT, budget, mem_gb;
   int p, steps, big;
@@ -707,7 +689,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   s.energy_warning = 0;
   r->n = mrvi_model_n(m);
   reset_peak();
-  r->rss_before_kb = status_kb("VmRSS:");
+  r->rss_before_kb = bench_status_kb("VmRSS:");
   mrvi_integrator *it = NULL;
   double t0 = bench_cpu();
   if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
@@ -743,7 +725,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
 static void floor_case(floor_sys *f, method me, const options *o, result *r) {
   r->n = f->n;
   reset_peak();
-  r->rss_before_kb = status_kb("VmRSS:");
+  r->rss_before_kb = bench_status_kb("VmRSS:");
   double t0 = bench_cpu();
   me == M_RESPA ? floor_forces(f) : verlet_forces(f);
   double t1 = bench_cpu();
@@ -787,7 +769,7 @@ static void child_case(int fd, int kind, int n, method me, const options *o) {
     floor_case(&f, me, o, &r);
   else if (ok)
     mrvi_case(m, me, o, &r);
-  r.peak_kb = status_kb("VmHWM:");
+  r.peak_kb = bench_status_kb("VmHWM:");
   ssize_t wr = write(fd, &r, sizeof r);
   (void)wr;
   if (ok && fl)
@@ -1092,17 +1074,10 @@ int main(int argc, char **argv) {
     return 1;
   }
 
-  double load[3] = {NAN, NAN, NAN};
-  FILE *lf = fopen("/proc/loadavg", "r");
-  if (lf) {
-    if (fscanf(lf, "%lf %lf %lf", load, load + 1, load + 2) != 3)
-      load[0] = NAN;
-    fclose(lf);
-  }
   printf("# mrvi %s  networks  dT = %g  p = %d  at least %d macro steps and "
          "%g s  best of %d alternating rounds  load average %.2f at the "
          "start\n",
-         mrvi_version(), o.dT, o.p, o.steps, MIN_CPU, repeats, load[0]);
+         mrvi_version(), o.dT, o.p, o.steps, MIN_CPU, repeats, bench_load());
   printf("# build: %s\n", bench_build());
   printf("# LAMMPS: %s\n\n",
          no_lammps ? "off (--no-lammps)"
@@ -1238,14 +1213,7 @@ int main(int argc, char **argv) {
     }
     printf("\n");
   }
-  lf = fopen("/proc/loadavg", "r");
-  if (lf) {
-    if (fscanf(lf, "%lf %lf %lf", load, load + 1, load + 2) != 3)
-      load[0] = NAN;
-    fclose(lf);
-  }
-  printf("# load average %.2f %.2f %.2f at the end\n", load[0], load[1],
-         load[2]);
+  printf("# load average %.2f at the end\n", bench_load());
   if (lammps) {
     char cmd[300];
     snprintf(cmd, sizeof cmd, "%s/in", o.tmpdir);

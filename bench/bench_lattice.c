@@ -63,12 +63,6 @@ static int bad_usage_lattice(void) {
 static const char *const schemes[N_SCHEMES] = {
     "midpoint-midpoint", "explicit-slow", "fully-explicit"};
 
-/* Deterministic uniform numbers in [-1, 1). */
-static double uniform(unsigned long long *state) {
-  *state = *state * 6364136223846793005ULL + 1442695040888963407ULL;
-  return (double)(*state >> 11) / 4503599627370496.0 - 1.0;
-}
-
 typedef struct buffer {
   char *text;
   size_t len, cap;
@@ -116,8 +110,8 @@ static char *lattice_text(int nx, int ny, double dT, int p) {
                   nx, ny) == 0;
   for (int j = 0; j < ny && ok; j++)
     for (int i = 0; i < nx && ok; i++) {
-      double dx = 0.05 * uniform(&seed), dy = 0.05 * uniform(&seed);
-      double vx = 0.1 * uniform(&seed), vy = 0.1 * uniform(&seed);
+      double dx = 0.05 * bench_uniform(&seed), dy = 0.05 * bench_uniform(&seed);
+      double vx = 0.1 * bench_uniform(&seed), vy = 0.1 * bench_uniform(&seed);
       ok = append(&b,
                   "  - {name: p%d_%d, mass: 1, rate: %s, position: [%.6f, "
                   "%.6f], velocity: [%.6f, %.6f]}\n",
@@ -147,19 +141,6 @@ static char *lattice_text(int nx, int ny, double dT, int p) {
     return NULL;
   }
   return b.text;
-}
-
-/* Peak resident memory of this process in kB (VmHWM), -1 if unknown. */
-static long peak_kb(void) {
-  FILE *f = fopen("/proc/self/status", "r");
-  char line[256];
-  long kb = -1;
-  while (f && fgets(line, sizeof line, f))
-    if (!strncmp(line, "VmHWM:", 6))
-      kb = strtol(line + 6, NULL, 10);
-  if (f)
-    fclose(f);
-  return kb;
 }
 
 typedef struct result {
@@ -195,7 +176,7 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
     r.n = mrvi_model_n(sys->model);
     /* A first record with the load time, in case stepping is stopped. */
     r.status = 3;
-    r.peak_kb = peak_kb();
+    r.peak_kb = bench_status_kb("VmHWM:");
     ssize_t w0 = write(fd, &r, sizeof r);
     (void)w0;
     r.status = 1;
@@ -233,7 +214,7 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
       }
     }
   }
-  r.peak_kb = peak_kb();
+  r.peak_kb = bench_status_kb("VmHWM:");
   ssize_t w = write(fd, &r, sizeof r);
   (void)w;
   mrvi_integrator_free(it);

@@ -87,6 +87,35 @@ int bench_parse_positive(const char *s, double *out) {
   return 0;
 }
 
+double bench_uniform(unsigned long long *state) {
+  *state = *state * 6364136223846793005ULL + 1442695040888963407ULL;
+  return (double)(*state >> 11) / 4503599627370496.0 - 1.0;
+}
+
+long bench_status_kb(const char *key) {
+  FILE *f = fopen("/proc/self/status", "r");
+  char line[256];
+  long kb = -1;
+  const size_t len = strlen(key);
+  while (f && fgets(line, sizeof line, f))
+    if (!strncmp(line, key, len))
+      kb = strtol(line + len, NULL, 10);
+  if (f)
+    fclose(f);
+  return kb;
+}
+
+double bench_load(void) {
+  double load = NAN;
+  FILE *f = fopen("/proc/loadavg", "r");
+  if (f) {
+    if (fscanf(f, "%lf", &load) != 1)
+      load = NAN;
+    fclose(f);
+  }
+  return load;
+}
+
 const char *bench_system_path(const char *name) {
   static char buf[4096];
   const char *root = getenv("MRVI_SOURCE_ROOT");

@@ -23,6 +23,14 @@ int bench_parse_doubles(const char *s, double *out, int max);
 /* Parse a positive double; 0 or -1. */
 int bench_parse_positive(const char *s, double *out);
 
+/* Deterministic uniform numbers in [-1, 1) from *state (an LCG). */
+double bench_uniform(unsigned long long *state);
+/* The value in kB of the /proc/self/status line starting with key (e.g.
+ * "VmHWM:", the peak resident set), -1 if unknown. */
+long bench_status_kb(const char *key);
+/* The 1-minute load average (/proc/loadavg), NAN if unknown. */
+double bench_load(void);
+
 /* Path of systems/NAME: $MRVI_SOURCE_ROOT/systems/NAME, else the first of
  * systems/NAME and ../systems/NAME that exists (static buffer). */
 const char *bench_system_path(const char *name);
