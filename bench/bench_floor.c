@@ -777,49 +777,24 @@ static void child_case(int fd, int kind, int n, method me, const options *o) {
   mrvi_model_free(m);
 }
 
+typedef struct case_args {
+  int kind, n;
+  method me;
+  const options *o;
+} case_args;
+
+static void child_fn(int fd, void *arg) {
+  const case_args *a = arg;
+  child_case(fd, a->kind, a->n, a->me, a->o);
+}
+
 static result run_case(int kind, int n, method me, const options *o) {
+  case_args a = {kind, n, me, o};
   result r;
   memset(&r, 0, sizeof r);
-  r.status = 1;
-  int fds[2];
-  fflush(stdout);
-  if (pipe(fds) < 0) {
-    snprintf(r.message, sizeof r.message, "pipe failed");
-    return r;
-  }
-  pid_t pid = fork();
-  if (pid < 0) {
-    close(fds[0]);
-    close(fds[1]);
-    snprintf(r.message, sizeof r.message, "fork failed");
-    return r;
-  }
-  if (pid == 0) {
-    close(fds[0]);
-    struct rlimit lim = {(rlim_t)ceil(o->budget), (rlim_t)ceil(o->budget) + 5};
-    setrlimit(RLIMIT_CPU, &lim);
-#ifndef __SANITIZE_ADDRESS__ /* AddressSanitizer reserves terabytes */
-    rlim_t bytes = (rlim_t)(o->mem_gb * 1073741824.0);
-    struct rlimit as = {bytes, bytes};
-    setrlimit(RLIMIT_AS, &as);
-#endif
-    alarm((unsigned)(4 * ceil(o->budget) + 60));
-    child_case(fds[1], kind, n, me, o);
-    close(fds[1]);
-    _exit(0);
-  }
-  close(fds[1]);
-  size_t got = 0;
-  while (got < sizeof r) {
-    ssize_t k = read(fds[0], (char *)&r + got, sizeof r - got);
-    if (k <= 0)
-      break;
-    got += (size_t)k;
-  }
-  close(fds[0]);
   int ws = 0;
-  waitpid(pid, &ws, 0);
-  if (got < sizeof r) {
+  if (bench_run_child(child_fn, &a, &r, sizeof r, o->budget, o->mem_gb, &ws) ==
+      0) {
     memset(&r, 0, sizeof r);
     r.status = 2;
     snprintf(r.message, sizeof r.message, "child %s %d",

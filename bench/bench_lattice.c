@@ -222,62 +222,30 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
   free(text);
 }
 
+typedef struct case_args {
+  int nx, ny, p, steps, n_over;
+  const char *scheme;
+  double dT;
+  const char *const *overrides;
+} case_args;
+
+static void child_fn(int fd, void *arg) {
+  const case_args *a = arg;
+  child(fd, a->nx, a->ny, a->scheme, a->dT, a->p, a->steps, a->overrides,
+        a->n_over);
+}
+
 /* Run one case in a child limited to `budget` CPU seconds. */
 static result run_case(int nx, int ny, const char *scheme, double dT, int p,
                        int steps, double budget, double mem_gb,
                        const char *const *overrides, int n_over) {
+  case_args a = {nx, ny, p, steps, n_over, scheme, dT, overrides};
   result r;
   memset(&r, 0, sizeof r);
-  r.status = 1;
-  int fds[2];
-  fflush(stdout);
-  if (pipe(fds) < 0) {
-    snprintf(r.message, sizeof r.message, "pipe failed");
-    return r;
-  }
-  pid_t pid = fork();
-  if (pid < 0) {
-    snprintf(r.message, sizeof r.message, "fork failed");
-    close(fds[0]);
-    close(fds[1]);
-    return r;
-  }
-  if (pid == 0) {
-    close(fds[0]);
-    struct rlimit lim = {(rlim_t)ceil(budget), (rlim_t)ceil(budget) + 5};
-    setrlimit(RLIMIT_CPU, &lim);
-#ifndef __SANITIZE_ADDRESS__ /* AddressSanitizer reserves terabytes */
-    rlim_t bytes = (rlim_t)(mem_gb * 1073741824.0);
-    struct rlimit as = {bytes, bytes};
-    setrlimit(RLIMIT_AS, &as);
-#else
-    (void)mem_gb;
-#endif
-    alarm((unsigned)(4 * ceil(budget) + 60)); /* wall-clock safety */
-    child(fds[1], nx, ny, scheme, dT, p, steps, overrides, n_over);
-    close(fds[1]);
-    _exit(0);
-  }
-  close(fds[1]);
-  /* Records: the load record (status 3), then the final one. */
-  result rec;
-  int have = 0;
-  for (;;) {
-    size_t got = 0;
-    while (got < sizeof rec) {
-      ssize_t k = read(fds[0], (char *)&rec + got, sizeof rec - got);
-      if (k <= 0)
-        break;
-      got += (size_t)k;
-    }
-    if (got < sizeof rec)
-      break;
-    r = rec;
-    have = 1;
-  }
-  close(fds[0]);
   int wstatus = 0;
-  waitpid(pid, &wstatus, 0);
+  /* Records: the load record (status 3), then the final one. */
+  int have =
+      bench_run_child(child_fn, &a, &r, sizeof r, budget, mem_gb, &wstatus) > 0;
   if (!have || r.status == 3) {
     double load = have ? r.load : NAN;
     int n = have ? r.n : 0;
