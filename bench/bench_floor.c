@@ -1112,11 +1112,7 @@ int main(int argc, char **argv) {
       if (have_w)
         network_free(&w);
     }
-  }
-
-  for (int k = 0; k < N_NETS; k++) {
-    if (!nets[k])
-      continue;
+    /* The network's tables as soon as it is measured. */
     printf("## %s\n\nTimes: CPU seconds per macro step (dT = %g; Verlet: p "
            "steps of dt), best of %d; creation: integrator set-up (floors: "
            "first force evaluation); memory: the child's peak resident set "
@@ -1187,6 +1183,7 @@ int main(int argc, char **argv) {
                bench_exponent(x, y, c));
     }
     printf("\n");
+    fflush(stdout);
   }
   printf("# load average %.2f at the end\n", bench_load());
   if (lammps) {
