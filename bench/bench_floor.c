@@ -1120,12 +1120,12 @@ int main(int argc, char **argv) {
            "creation (LAMMPS: the process' peak)\n\n",
            net_names[k], o.dT, repeats);
     printf("| %-20s | %8s | %-12s | %11s | %9s | %10s | %9s | %9s | %8s | "
-           "%8s | %9s |\n",
+           "%8s | %8s | %9s |\n",
            "method", "n", "path", "step_s", "create_s", "create/st", "B/coord",
-           "dB/coord", "newton/st", "cg/micro", "nnz/coord");
+           "dB/coord", "newton/st", "cg/micro", "gmres/st", "nnz/coord");
     printf("|----------------------|---------:|--------------|------------:|"
            "----------:|-----------:|----------:|----------:|---------:|"
-           "---------:|----------:|\n");
+           "---------:|---------:|----------:|\n");
     for (int me = 0; me < N_METHODS; me++)
       for (int ni = 0; ni < n_n; ni++) {
         const result *r = &res[k][ni][me];
@@ -1137,13 +1137,13 @@ int main(int argc, char **argv) {
           continue;
         }
         printf("| %-20s | %8d | %-12s | %11.4g | %9.3g | %10.2f | %9.0f | "
-               "%9.0f | %8.2f | %8.2f | %9.1f |\n",
+               "%9.0f | %8.2f | %8.2f | %8.2f | %9.1f |\n",
                method_names[me], r->n, r->path, r->step, r->create,
                r->create / r->step, 1024.0 * r->peak_kb / r->n,
                r->rss_before_kb > 0
                    ? 1024.0 * (r->peak_kb - r->rss_before_kb) / r->n
                    : NAN,
-               r->newton, r->cg, (double)r->nnz / r->n);
+               r->newton, r->cg, r->gmres, (double)r->nnz / r->n);
       }
     printf("\nRatios (one run), issue-24 goals: fully-explicit <= 1.3 x "
            "r-RESPA, explicit-slow <= 4 x r-RESPA and faster than LAMMPS "
