@@ -84,7 +84,7 @@ static const char usage[] =
     "Usage: bench_floor [--quick] [--n N1,N2,...] [--net NAME,...]\n"
     "                   [--repeats R] [--steps K] [--dT DT] [--p P]\n"
     "                   [--budget SECONDS] [--mem GB] [--big N]\n"
-    "                   [--no-lammps] [--set KEY=VALUE]...\n"
+    "                   [--no-lammps]\n"
     "\n"
     "The r-RESPA and Stoermer-Verlet floors, mrvi's fully-explicit,\n"
     "explicit-slow, midpoint-midpoint and trapezoidal-midpoint, and LAMMPS\n"
