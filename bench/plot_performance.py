@@ -37,13 +37,16 @@ def rows(path, first_header):
 
 
 def sections(path):
-    """{section: {first header: rows}} of a file whose tables follow
-    '## NAME' lines (bench_floor: one section per network)."""
-    out, name, header = {}, None, None
+    """{section: {key: rows}} of a file whose tables follow '## NAME' lines
+    (bench_floor: one section per network).  A table is keyed by its first
+    header, a later one whose first two headers differ by those two; a
+    section or table that comes again (a second run appended) adds its
+    rows."""
+    out, heads, name, header = {}, {}, None, None
     for line in open(path, encoding="utf-8"):
         if line.startswith("## "):
             name, header = line[3:].strip(), None
-            out[name] = {}
+            out.setdefault(name, {})
             continue
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if name is None or not line.startswith("|"):
@@ -51,9 +54,13 @@ def sections(path):
             continue
         if header is None:
             header = cells
-            out[name][cells[0]] = []
+            key = cells[0]
+            if key in out[name] and heads[(name, key)][:2] != cells[:2]:
+                key = " ".join(cells[:2])
+            heads[(name, key)] = cells
+            out[name].setdefault(key, [])
         elif not set(cells[0]) <= set("-:"):
-            out[name][header[0]].append(dict(zip(header, cells)))
+            out[name][key].append(dict(zip(header, cells)))
     return out
 
 
@@ -162,7 +169,7 @@ def main():
             fig_, ax = plt.subplots(1, len(nets), figsize=(4.2 * len(nets), 3.8),
                                     squeeze=False)
             goals = {"FE/RESPA": 1.3, "ES/RESPA": 4, "MM/Verlet": 15,
-                     "TM/Verlet": 15, "ES/LMP-R": 1}
+                     "TM/Verlet": 15, "FE/LMP-R": 1, "ES/LMP-R": None}
             for col, (net, tables) in enumerate(nets.items()):
                 table = tables["n"]
                 for key in goals:
@@ -170,8 +177,9 @@ def main():
                            for r in table if number(r.get(key, ""))]
                     if pts:
                         line, = ax[0][col].loglog(*zip(*pts), "o-", label=key)
-                        ax[0][col].axhline(goals[key], color=line.get_color(),
-                                           ls=":", lw=0.8)
+                        if goals[key]:
+                            ax[0][col].axhline(goals[key], ls=":", lw=0.8,
+                                               color=line.get_color())
                 ax[0][col].set_title(net + " (dotted: goals)")
                 ax[0][col].set_xlabel("coordinates n")
             ax[0][0].set_ylabel("ratio of CPU time per macro step")
