@@ -84,7 +84,7 @@ static const char usage[] =
     "Usage: bench_floor [--quick] [--n N1,N2,...] [--net NAME,...]\n"
     "                   [--repeats R] [--steps K] [--dT DT] [--p P]\n"
     "                   [--budget SECONDS] [--mem GB] [--big N]\n"
-    "                   [--no-lammps]\n"
+    "                   [--no-lammps] [--method NAME]\n"
     "\n"
     "The r-RESPA and Stoermer-Verlet floors, mrvi's fully-explicit,\n"
     "explicit-slow, midpoint-midpoint and trapezoidal-midpoint, and LAMMPS\n"
@@ -95,7 +95,9 @@ static const char usage[] =
     "R rounds alternating the methods (default 3), best of them; at least\n"
     "K macro steps (default 3) and 0.3 s; dT = 0.05, P = 10.  Implicit\n"
     "schemes run only up to --big N coordinates (default 1000000).\n"
-    "--quick: N = 300,1000, R = 1, K = 2, lattice2d only.\n";
+    "--method runs one method alone (as the tables name it, e.g.\n"
+    "midpoint-midpoint).  --quick: N = 300,1000, R = 1, K = 2, lattice2d\n"
+    "only.\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
@@ -986,6 +988,7 @@ int main(int argc, char **argv) {
   o.big = 1000000;
   int n_list[MAX_N] = {1000, 10000, 100000}, n_n = 3, repeats = 3;
   int nets[N_NETS] = {1, 1, 1}, quick = 0, no_lammps = 0, n_set = 0;
+  const char *only = NULL;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
     int has = i + 1 < argc;
@@ -1025,6 +1028,13 @@ int main(int argc, char **argv) {
         return bad_usage();
     } else if (!strcmp(a, "--mem") && has) {
       if (bench_parse_positive(argv[++i], &o.mem_gb) < 0)
+        return bad_usage();
+    } else if (!strcmp(a, "--method") && has) {
+      only = argv[++i];
+      int known = 0;
+      for (int me = 0; me < N_METHODS; me++)
+        known |= !strcmp(only, method_names[me]);
+      if (!known)
         return bad_usage();
     } else if (!strcmp(a, "--no-lammps")) {
       no_lammps = 1;
@@ -1085,6 +1095,7 @@ int main(int argc, char **argv) {
           int is_lmp = me >= M_LMP_RESPA;
           int implicit = me == M_MM || me == M_TM;
           if (dead[me] || (is_lmp && (!lammps || k == 2)) ||
+              (only && strcmp(only, method_names[me])) ||
               (implicit && n_list[ni] > o.big))
             continue;
           result x;
@@ -1156,7 +1167,7 @@ int main(int argc, char **argv) {
            "-----------:|-----------:|-----------:|\n");
     for (int ni = 0; ni < n_n; ni++) {
       const result *r = res[k][ni];
-      printf("| %8d |", r[M_RESPA].n);
+      printf("| %8d |", r[M_RESPA].n ? r[M_RESPA].n : n_list[ni]);
       print_ratio(&r[M_FE], &r[M_RESPA]);
       print_ratio(&r[M_ES], &r[M_RESPA]);
       print_ratio(&r[M_MM], &r[M_VERLET]);
