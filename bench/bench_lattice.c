@@ -63,12 +63,6 @@ static int bad_usage_lattice(void) {
 static const char *const schemes[N_SCHEMES] = {
     "midpoint-midpoint", "explicit-slow", "fully-explicit"};
 
-/* Deterministic uniform numbers in [-1, 1). */
-static double uniform(unsigned long long *state) {
-  *state = *state * 6364136223846793005ULL + 1442695040888963407ULL;
-  return (double)(*state >> 11) / 4503599627370496.0 - 1.0;
-}
-
 typedef struct buffer {
   char *text;
   size_t len, cap;
@@ -116,8 +110,8 @@ static char *lattice_text(int nx, int ny, double dT, int p) {
                   nx, ny) == 0;
   for (int j = 0; j < ny && ok; j++)
     for (int i = 0; i < nx && ok; i++) {
-      double dx = 0.05 * uniform(&seed), dy = 0.05 * uniform(&seed);
-      double vx = 0.1 * uniform(&seed), vy = 0.1 * uniform(&seed);
+      double dx = 0.05 * bench_uniform(&seed), dy = 0.05 * bench_uniform(&seed);
+      double vx = 0.1 * bench_uniform(&seed), vy = 0.1 * bench_uniform(&seed);
       ok = append(&b,
                   "  - {name: p%d_%d, mass: 1, rate: %s, position: [%.6f, "
                   "%.6f], velocity: [%.6f, %.6f]}\n",
@@ -147,19 +141,6 @@ static char *lattice_text(int nx, int ny, double dT, int p) {
     return NULL;
   }
   return b.text;
-}
-
-/* Peak resident memory of this process in kB (VmHWM), -1 if unknown. */
-static long peak_kb(void) {
-  FILE *f = fopen("/proc/self/status", "r");
-  char line[256];
-  long kb = -1;
-  while (f && fgets(line, sizeof line, f))
-    if (!strncmp(line, "VmHWM:", 6))
-      kb = strtol(line + 6, NULL, 10);
-  if (f)
-    fclose(f);
-  return kb;
 }
 
 typedef struct result {
@@ -195,7 +176,7 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
     r.n = mrvi_model_n(sys->model);
     /* A first record with the load time, in case stepping is stopped. */
     r.status = 3;
-    r.peak_kb = peak_kb();
+    r.peak_kb = bench_status_kb("VmHWM:");
     ssize_t w0 = write(fd, &r, sizeof r);
     (void)w0;
     r.status = 1;
@@ -233,7 +214,7 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
       }
     }
   }
-  r.peak_kb = peak_kb();
+  r.peak_kb = bench_status_kb("VmHWM:");
   ssize_t w = write(fd, &r, sizeof r);
   (void)w;
   mrvi_integrator_free(it);
@@ -241,62 +222,30 @@ static void child(int fd, int nx, int ny, const char *scheme, double dT, int p,
   free(text);
 }
 
+typedef struct case_args {
+  int nx, ny, p, steps, n_over;
+  const char *scheme;
+  double dT;
+  const char *const *overrides;
+} case_args;
+
+static void child_fn(int fd, void *arg) {
+  const case_args *a = arg;
+  child(fd, a->nx, a->ny, a->scheme, a->dT, a->p, a->steps, a->overrides,
+        a->n_over);
+}
+
 /* Run one case in a child limited to `budget` CPU seconds. */
 static result run_case(int nx, int ny, const char *scheme, double dT, int p,
                        int steps, double budget, double mem_gb,
                        const char *const *overrides, int n_over) {
+  case_args a = {nx, ny, p, steps, n_over, scheme, dT, overrides};
   result r;
   memset(&r, 0, sizeof r);
-  r.status = 1;
-  int fds[2];
-  fflush(stdout);
-  if (pipe(fds) < 0) {
-    snprintf(r.message, sizeof r.message, "pipe failed");
-    return r;
-  }
-  pid_t pid = fork();
-  if (pid < 0) {
-    snprintf(r.message, sizeof r.message, "fork failed");
-    close(fds[0]);
-    close(fds[1]);
-    return r;
-  }
-  if (pid == 0) {
-    close(fds[0]);
-    struct rlimit lim = {(rlim_t)ceil(budget), (rlim_t)ceil(budget) + 5};
-    setrlimit(RLIMIT_CPU, &lim);
-#ifndef __SANITIZE_ADDRESS__ /* AddressSanitizer reserves terabytes */
-    rlim_t bytes = (rlim_t)(mem_gb * 1073741824.0);
-    struct rlimit as = {bytes, bytes};
-    setrlimit(RLIMIT_AS, &as);
-#else
-    (void)mem_gb;
-#endif
-    alarm((unsigned)(4 * ceil(budget) + 60)); /* wall-clock safety */
-    child(fds[1], nx, ny, scheme, dT, p, steps, overrides, n_over);
-    close(fds[1]);
-    _exit(0);
-  }
-  close(fds[1]);
-  /* Records: the load record (status 3), then the final one. */
-  result rec;
-  int have = 0;
-  for (;;) {
-    size_t got = 0;
-    while (got < sizeof rec) {
-      ssize_t k = read(fds[0], (char *)&rec + got, sizeof rec - got);
-      if (k <= 0)
-        break;
-      got += (size_t)k;
-    }
-    if (got < sizeof rec)
-      break;
-    r = rec;
-    have = 1;
-  }
-  close(fds[0]);
   int wstatus = 0;
-  waitpid(pid, &wstatus, 0);
+  /* Records: the load record (status 3), then the final one. */
+  int have =
+      bench_run_child(child_fn, &a, &r, sizeof r, budget, mem_gb, &wstatus) > 0;
   if (!have || r.status == 3) {
     double load = have ? r.load : NAN;
     int n = have ? r.n : 0;

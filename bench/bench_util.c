@@ -1,9 +1,12 @@
 #include "bench_util.h"
 
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -85,6 +88,86 @@ int bench_parse_positive(const char *s, double *out) {
     return -1;
   *out = v;
   return 0;
+}
+
+double bench_uniform(unsigned long long *state) {
+  *state = *state * 6364136223846793005ULL + 1442695040888963407ULL;
+  return (double)(*state >> 11) / 4503599627370496.0 - 1.0;
+}
+
+long bench_status_kb(const char *key) {
+  FILE *f = fopen("/proc/self/status", "r");
+  char line[256];
+  long kb = -1;
+  const size_t len = strlen(key);
+  while (f && fgets(line, sizeof line, f))
+    if (!strncmp(line, key, len))
+      kb = strtol(line + len, NULL, 10);
+  if (f)
+    fclose(f);
+  return kb;
+}
+
+double bench_load(void) {
+  double load = NAN;
+  FILE *f = fopen("/proc/loadavg", "r");
+  if (f) {
+    if (fscanf(f, "%lf", &load) != 1)
+      load = NAN;
+    fclose(f);
+  }
+  return load;
+}
+
+int bench_run_child(void (*fn)(int fd, void *arg), void *arg, void *rec,
+                    size_t size, double budget, double mem_gb, int *wstatus) {
+  int fds[2];
+  *wstatus = 0;
+  fflush(stdout);
+  if (pipe(fds) < 0)
+    return 0;
+  pid_t pid = fork();
+  if (pid < 0) {
+    close(fds[0]);
+    close(fds[1]);
+    return 0;
+  }
+  if (pid == 0) {
+    close(fds[0]);
+    struct rlimit lim = {(rlim_t)ceil(budget), (rlim_t)ceil(budget) + 5};
+    setrlimit(RLIMIT_CPU, &lim);
+#ifndef __SANITIZE_ADDRESS__ /* AddressSanitizer reserves terabytes */
+    rlim_t bytes = (rlim_t)(mem_gb * 1073741824.0);
+    struct rlimit as = {bytes, bytes};
+    setrlimit(RLIMIT_AS, &as);
+#else
+    (void)mem_gb;
+#endif
+    alarm((unsigned)(4 * ceil(budget) + 60)); /* wall-clock safety */
+    fn(fds[1], arg);
+    close(fds[1]);
+    _exit(0);
+  }
+  close(fds[1]);
+  char *buf = malloc(size);
+  int records = 0;
+  for (;;) {
+    size_t got = 0;
+    while (buf && got < size) {
+      ssize_t k = read(fds[0], buf + got, size - got);
+      if (k <= 0)
+        break;
+      got += (size_t)k;
+    }
+    if (!buf || got < size)
+      break;
+    memcpy(rec, buf, size);
+    records++;
+  }
+  free(buf);
+  close(fds[0]);
+  waitpid(pid, wstatus, 0);
+  return records;
 }
 
 const char *bench_system_path(const char *name) {

@@ -23,6 +23,23 @@ int bench_parse_doubles(const char *s, double *out, int max);
 /* Parse a positive double; 0 or -1. */
 int bench_parse_positive(const char *s, double *out);
 
+/* Deterministic uniform numbers in [-1, 1) from *state (an LCG). */
+double bench_uniform(unsigned long long *state);
+/* The value in kB of the /proc/self/status line starting with key (e.g.
+ * "VmHWM:", the peak resident set), -1 if unknown. */
+long bench_status_kb(const char *key);
+/* The 1-minute load average (/proc/loadavg), NAN if unknown. */
+double bench_load(void);
+
+/* Run fn(fd, arg) in a forked child limited to `budget` seconds of CPU
+ * (RLIMIT_CPU; four times that plus a minute of wall time) and mem_gb of
+ * address space (RLIMIT_AS; not under AddressSanitizer); fn writes records
+ * of `size` bytes to fd.  The last complete record goes to rec; returns the
+ * number of complete records read (0: none, e.g. the child was killed
+ * first), with the child's wait status in *wstatus. */
+int bench_run_child(void (*fn)(int fd, void *arg), void *arg, void *rec,
+                    size_t size, double budget, double mem_gb, int *wstatus);
+
 /* Path of systems/NAME: $MRVI_SOURCE_ROOT/systems/NAME, else the first of
  * systems/NAME and ../systems/NAME that exists (static buffer). */
 const char *bench_system_path(const char *name);

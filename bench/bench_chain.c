@@ -1,0 +1,324 @@
+/* Chains: cost per macro step against the number of links, constrained and
+ * unconstrained.
+ *
+ * The chain of systems/pendulum_chain.yaml grown to n links (2-D, gravity
+ * (0, -9.81)): heavy links h_i (mass 2, slow) one apart along a line 45
+ * degrees from the downward vertical, h_1 on a rod to the pivot at the
+ * origin and h_{i+1} on a rod to h_i; each link carries a light mass l_i
+ * (0.05, fast) 0.1 below it on a stiff slow spring (k = 2000; it touches a
+ * slow particle), and consecutive light masses are joined by fast springs
+ * (k = 2000, rest length the initial distance).  Three models:
+ *   rods     the rods as distance constraints (particles + rods),
+ *   springs  the same chain with stiff slow springs (k = 10^5, rest length
+ *            1) in place of the rods: the unconstrained twin,
+ *   rigid    n rigid bars (2-D bodies, length 1, mass 2, slow) on revolute
+ *            joints, the first to the ground at the origin, each carrying
+ *            a light mass on a spring to its lower end (a body point) and
+ *            the light masses joined by fast springs.
+ * Every model is run with midpoint-midpoint and trapezoidal-midpoint on the
+ * path mrvi_solver_path picks (listed), rods also in the null-space form,
+ * springs also on the general path (the one the constrained chains take).
+ * (explicit-slow is unstable here: the attachments' slow springs have
+ * omega dT = 2.)  dT = 0.01, p = 10 by default.  The cases of one n
+ * alternate, --repeats rounds, best of them; each times blocks of 20 macro
+ * steps from the initial state (the integrator set back to it, so that the
+ * falling chain stays in its first 0.2 s) until --steps steps and 0.3 s.  Then
+ * the exponent of the time per macro step in n and the ratio rods / springs.  A
+ * measurement: no thresholds (doc/performance.md, "Chains"). */
+#include "bench_util.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 5, N_SCHEMES = 2 };
+enum { HORIZON = 20 }; /* macro steps from the initial state, repeated */
+#define MIN_CPU 0.3
+
+/* Case c builds chain kind chain_of[c]. */
+static const char *const case_names[N_CASES] = {
+    "rods (multipliers)", "rods (null space)", "springs", "springs (general)",
+    "rigid bars"};
+static const int chain_of[N_CASES] = {0, 1, 2, 2, 3};
+static const char *const scheme_names[N_SCHEMES] = {"midpoint-midpoint",
+                                                    "trapezoidal-midpoint"};
+
+static const char usage[] =
+    "Usage: bench_chain [--quick] [--n N1,N2,...] [--repeats R]\n"
+    "                   [--steps K] [--dT DT] [--p P] [--budget SECONDS]\n"
+    "\n"
+    "Pendulum chains of N links (default 10,30,100,300,1000): rods,\n"
+    "the same with stiff springs in place of the rods, and rigid bars on\n"
+    "revolute joints; midpoint-midpoint and trapezoidal-midpoint on the\n"
+    "path chosen automatically (springs also on the general path); CPU\n"
+    "time per macro step (at least K steps, default 3, and 0.3 s), best\n"
+    "of R alternating rounds (default 3).\n"
+    "A case slower than SECONDS per macro step (default 5) ends the larger\n"
+    "N of that case.  --quick: N = 10,30, R = 1, K = 2.\n";
+
+static int bad_usage(void) {
+  fputs(usage, stderr);
+  return 1;
+}
+
+/* The chain of kind c (0, 1 rods, 2 springs, 3 rigid) with n links. */
+static mrvi_model *chain_model(int c, int n, char *msg, size_t len) {
+  mrvi_model *m = mrvi_model_create();
+  const double g[2] = {0.0, -9.81}, e[2] = {sqrt(0.5), -sqrt(0.5)};
+  const double zero[2] = {0.0, 0.0};
+  int st = m ? mrvi_model_set_dimension(m, 2) : MRVI_ENOMEM;
+  int prev_h = -1, prev_l = -1;
+  for (int i = 0; i < n && st >= 0; i++) {
+    const double h[2] = {(i + 1) * e[0], (i + 1) * e[1]};
+    const double l[2] = {h[0], h[1] - 0.1};
+    char name[32];
+    double k_soft[1] = {2000.0}, k_rod[1] = {1e5};
+    int hi = -1, li = -1;
+    mrvi_end end_h = {-1, -1, {0, 0, 0}};
+    if (c < 3) {
+      snprintf(name, sizeof name, "h%d", i);
+      hi = st = mrvi_model_add_particle(m, name, 2.0, MRVI_SLOW, h, zero);
+      end_h.particle = hi;
+    } else {
+      /* a bar from the previous joint to h along e: centre halfway */
+      const double x[2] = {h[0] - 0.5 * e[0], h[1] - 0.5 * e[1]};
+      const double R[4] = {e[0], -e[1], e[1], e[0]}; /* d1 along e */
+      const double J[1] = {2.0 / 12.0};
+      snprintf(name, sizeof name, "b%d", i);
+      int b = st =
+          mrvi_model_add_body(m, name, 2, MRVI_SLOW, 2.0, J, x, R, NULL, NULL);
+      if (st >= 0) {
+        const double pivot[2] = {i * e[0], i * e[1]};
+        st = mrvi_model_add_joint(m, "revolute", b, prev_h, pivot, NULL);
+      }
+      end_h.body = b;
+      end_h.at[0] = 0.5; /* the lower end along d1 */
+      hi = b;
+    }
+    if (st < 0)
+      break;
+    snprintf(name, sizeof name, "l%d", i);
+    li = st = mrvi_model_add_particle(m, name, 0.05, MRVI_FAST, l, zero);
+    if (st < 0)
+      break;
+    mrvi_end end_l = {li, -1, {0, 0, 0}};
+    st = mrvi_model_add_end_spring(m, MRVI_SLOW, &end_h, &end_l, NULL, "linear",
+                                   k_soft, 0.1);
+    if (st >= 0 && prev_l >= 0)
+      st = mrvi_model_add_spring(m, MRVI_FAST, prev_l, li, "linear", k_soft,
+                                 1.0);
+    if (st >= 0 && c < 2)
+      st = prev_h < 0 ? mrvi_model_add_distance_anchor(m, hi, zero, 1.0)
+                      : mrvi_model_add_distance(m, prev_h, hi, 1.0);
+    if (st >= 0 && c == 2)
+      st = prev_h < 0 ? mrvi_model_add_anchor_spring(m, MRVI_SLOW, hi, zero,
+                                                     "linear", k_rod, 1.0)
+                      : mrvi_model_add_spring(m, MRVI_SLOW, prev_h, hi,
+                                              "linear", k_rod, 1.0);
+    prev_h = hi;
+    prev_l = li;
+  }
+  if (st >= 0)
+    st = mrvi_model_set_gravity(m, g);
+  if (st < 0) {
+    snprintf(msg, len, "%s", m ? mrvi_model_errmsg(m) : "out of memory");
+    mrvi_model_free(m);
+    return NULL;
+  }
+  return m;
+}
+
+typedef struct result {
+  int status; /* 0 ok, 1 failed, 3 not run */
+  int n;      /* coordinates */
+  double step, newton;
+  char path[16];
+  char message[200];
+} result;
+
+static result run_one(int cs, int links, const char *scheme, double dT, int p,
+                      int steps) {
+  result r;
+  memset(&r, 0, sizeof r);
+  r.status = 1;
+  char msg[512];
+  const int c = chain_of[cs];
+  mrvi_model *m = chain_model(c, links, msg, sizeof msg);
+  if (!m) {
+    snprintf(r.message, sizeof r.message, "%.190s", msg);
+    return r;
+  }
+  mrvi_settings s;
+  mrvi_settings_default(&s);
+  mrvi_settings_set_scheme(&s, scheme);
+  s.macro_step = dT;
+  s.micro_steps = p;
+  s.t_end = 1e6 * dT;
+  s.newton_tol = 1e-10;
+  s.energy_warning = 0;
+  s.constraint_form = c == 1 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+  s.solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
+  r.n = mrvi_model_n(m);
+  mrvi_integrator *it = NULL;
+  if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
+    snprintf(r.message, sizeof r.message, "%.190s", msg);
+    mrvi_model_free(m);
+    return r;
+  }
+  const int nc = r.n;
+  double *p0 = malloc((size_t)nc * sizeof *p0);
+  const double *q0 = mrvi_model_q0(m), *v0 = mrvi_model_v0(m);
+  for (int i = 0; p0 && i < nc; i++)
+    p0[i] = mrvi_model_mass(m, i) * v0[i];
+  long newton = 0, k = 0;
+  double t0 = bench_cpu();
+  while (p0 && (k < steps || (bench_cpu() - t0 < MIN_CPU && k < 100000))) {
+    if (k % HORIZON == 0 && k > 0 &&
+        mrvi_integrator_set_state(it, 0.0, q0, p0) < 0) {
+      snprintf(r.message, sizeof r.message, "%.190s",
+               mrvi_integrator_errmsg(it));
+      break;
+    }
+    if (mrvi_integrator_step(it) < 0) {
+      snprintf(r.message, sizeof r.message, "%.190s",
+               mrvi_integrator_errmsg(it));
+      break;
+    }
+    newton += mrvi_integrator_last_iterations(it);
+    k++;
+  }
+  if (!p0)
+    snprintf(r.message, sizeof r.message, "out of memory");
+  free(p0);
+  if (!r.message[0]) {
+    r.step = (bench_cpu() - t0) / k;
+    r.newton = (double)newton / k;
+    r.status = 0;
+  }
+  snprintf(r.path, sizeof r.path, "%s", mrvi_integrator_solver_path(it));
+  mrvi_integrator_free(it);
+  mrvi_model_free(m);
+  return r;
+}
+
+int main(int argc, char **argv) {
+  int n_list[MAX_N] = {10, 30, 100, 300, 1000}, n_n = 5, repeats = 3, steps = 3,
+      p = 10, quick = 0, n_set = 0;
+  double dT = 0.01, budget = 5.0;
+  for (int i = 1; i < argc; i++) {
+    const char *a = argv[i];
+    int has = i + 1 < argc;
+    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+      fputs(usage, stdout);
+      return 0;
+    } else if (!strcmp(a, "--quick")) {
+      quick = 1;
+    } else if (!strcmp(a, "--n") && has) {
+      if ((n_n = bench_parse_ints(argv[++i], n_list, MAX_N)) <= 0)
+        return bad_usage();
+      n_set = 1;
+    } else if (!strcmp(a, "--repeats") && has) {
+      repeats = atoi(argv[++i]);
+      if (repeats < 1 || repeats > MAX_REPEATS)
+        return bad_usage();
+    } else if (!strcmp(a, "--steps") && has) {
+      if ((steps = atoi(argv[++i])) < 1)
+        return bad_usage();
+    } else if (!strcmp(a, "--p") && has) {
+      if ((p = atoi(argv[++i])) < 1)
+        return bad_usage();
+    } else if (!strcmp(a, "--dT") && has) {
+      if (bench_parse_positive(argv[++i], &dT) < 0)
+        return bad_usage();
+    } else if (!strcmp(a, "--budget") && has) {
+      if (bench_parse_positive(argv[++i], &budget) < 0)
+        return bad_usage();
+    } else {
+      return bad_usage();
+    }
+  }
+  if (quick) {
+    if (!n_set) {
+      n_n = 2;
+      n_list[0] = 10;
+      n_list[1] = 30;
+    }
+    repeats = 1;
+    steps = 2;
+  }
+  printf("# mrvi %s  pendulum chains  dT = %g  p = %d  at least %d macro "
+         "steps and %g s  best of %d alternating rounds  load average %.2f "
+         "at the start\n",
+         mrvi_version(), dT, p, steps, MIN_CPU, repeats, bench_load());
+  printf("# build: %s\n\n", bench_build());
+
+  static result res[N_SCHEMES][N_CASES][MAX_N];
+  int dead[N_SCHEMES][N_CASES] = {{0}};
+  for (int ni = 0; ni < n_n; ni++) {
+    for (int si = 0; si < N_SCHEMES; si++)
+      for (int c = 0; c < N_CASES; c++)
+        res[si][c][ni].status = 3;
+    for (int r = 0; r < repeats; r++)
+      for (int si = 0; si < N_SCHEMES; si++)
+        for (int c = 0; c < N_CASES; c++) {
+          if (dead[si][c])
+            continue;
+          result x = run_one(c, n_list[ni], scheme_names[si], dT, p, steps);
+          result *b = &res[si][c][ni];
+          if (b->status != 0 || (x.status == 0 && x.step < b->step))
+            *b = x;
+          if (x.status != 0) {
+            fprintf(stderr, "%s %s n = %d: %s\n", scheme_names[si],
+                    case_names[c], n_list[ni], x.message);
+            dead[si][c] = 1;
+          } else if (x.step > budget) {
+            dead[si][c] = 1; /* larger n would take too long */
+          }
+        }
+  }
+
+  printf("| %-20s | %-18s | %6s | %6s | %-12s | %11s | %9s | %11s |\n",
+         "scheme", "chain", "links", "n", "path", "step_s", "newton/st",
+         "vs springs");
+  printf("|----------------------|--------------------|-------:|-------:|"
+         "--------------|------------:|----------:|------------:|\n");
+  for (int si = 0; si < N_SCHEMES; si++)
+    for (int c = 0; c < N_CASES; c++)
+      for (int ni = 0; ni < n_n; ni++) {
+        const result *x = &res[si][c][ni], *u = &res[si][2][ni];
+        if (x->status == 3)
+          continue;
+        if (x->status != 0) {
+          printf("| %-20s | %-18s | %6d | failed: %s |\n", scheme_names[si],
+                 case_names[c], n_list[ni], x->message);
+          continue;
+        }
+        double ratio = u->status == 0 ? x->step / u->step : NAN;
+        printf("| %-20s | %-18s | %6d | %6d | %-12s | %11.4g | %9.2f | %11.2f "
+               "|\n",
+               scheme_names[si], case_names[c], n_list[ni], x->n, x->path,
+               x->step, x->newton, ratio);
+      }
+  printf("\nExponents of the time per macro step in the number of links "
+         "(least squares on log-log over the completed n; goal <= 1.1 and "
+         "rods within 3x of springs)\n\n");
+  printf("| %-20s | %-18s | %8s | %8s |\n|----------------------|----------"
+         "----------|---------:|---------:|\n",
+         "scheme", "chain", "exponent", "n fitted");
+  for (int si = 0; si < N_SCHEMES; si++)
+    for (int c = 0; c < N_CASES; c++) {
+      double x[MAX_N], y[MAX_N];
+      int k = 0;
+      for (int ni = 0; ni < n_n; ni++)
+        if (res[si][c][ni].status == 0) {
+          x[k] = n_list[ni];
+          y[k++] = res[si][c][ni].step;
+        }
+      if (k >= 2)
+        printf("| %-20s | %-18s | %8.3f | %8d |\n", scheme_names[si],
+               case_names[c], bench_exponent(x, y, k), k);
+    }
+  printf("\n# load average %.2f at the end\n", bench_load());
+  return 0;
+}

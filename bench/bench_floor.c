@@ -1,0 +1,1211 @@
+/* Floors and peers on spring networks of 10^3 to 10^6 coordinates.
+ *
+ * Three networks, each with soft slow springs (V) and stiff fast springs
+ * (W) between fast particles, unit masses:
+ *   lattice2d  the planar lattice of systems/lattice.yaml grown to n
+ *              coordinates (mrvi_model_generate, lattice2d, rates every 2
+ *              with an even row length: every second column fast; slow
+ *              linear k = 10, fast linear k = 1000, rest length 1),
+ *   lattice3d  the same on a cubic lattice (lattice3d),
+ *   random3d   particles on a jittered cubic grid, each fast with
+ *              probability 1/2, a bond between every two within 1.45 of
+ *              each other with its initial length as rest length: fast
+ *              harmonic (k = 1000) between two fast particles, slow Morse
+ *              (depth 5, width 1: stiffness 10 at rest) otherwise.
+ * Every particle starts displaced by up to 0.05 per axis and moving with up
+ * to 0.1 (deterministic).  dT = 0.05, p = 10 by default.
+ *
+ * Methods, all single-threaded on the same forces (the spring force
+ * phi'(s) (x_i - x_j)/|x_i - x_j|, s = |x_i - x_j| - L0, written out here):
+ *   respa    the r-RESPA floor: impulse method, dT/2 kicks of the slow force
+ *            at the macro nodes around p velocity-Verlet steps of dt = dT/p
+ *            with the fast force (fast particles stored first; the slow
+ *            ones drift once per macro step, which they may since no fast
+ *            spring touches them).  Algebraically mrvi's fully-explicit.
+ *   verlet   the Stoermer-Verlet floor: velocity Verlet at dt with all
+ *            forces, p steps per macro step: the step size at which
+ *            mrvi's implicit schemes resolve the fast motion (bench_fpu's
+ *            pairing).
+ *   mrvi     fully-explicit, explicit-slow, midpoint-midpoint,
+ *            trapezoidal-midpoint through mrvi_integrator_step (no output,
+ *            no energy monitor: the floors compute none either).
+ *   lammps   Debian's `lmp` (found on PATH, else skipped with a note) on
+ *            the lattices: run_style respa 2 p (fast springs as bonds on
+ *            the inner level, slow springs as `pair_style list` on the
+ *            outer) and run_style verlet at dt; CPU time = the log's loop
+ *            time times its CPU share.
+ *
+ * Each case (network, n, method) runs in a forked child: build the network,
+ * create the integrator (CPU time, also in macro steps), step at least
+ * --steps macro steps and 0.3 s, report the time per macro step, the
+ * solver's counters, and the peak resident memory (VmHWM) with the resident
+ * memory before creation.  The methods of one (network, n) alternate,
+ * --repeats rounds, best time of the rounds.  Before the timings, checks on
+ * the smallest n: mrvi fully-explicit against the r-RESPA floor (and
+ * LAMMPS respa against it), and every method's error against a fine
+ * Verlet reference at t = 20 dT, which says what the pairings compare.  A
+ * measurement: no thresholds (doc/performance.md). */
+#define _DEFAULT_SOURCE /* wait4 */
+#include "bench_util.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+enum { MAX_N = 8, MAX_REPEATS = 9, N_NETS = 3, CHECK_STEPS = 20 };
+enum { CHECK_MAX_N = 20000 }; /* the checks run a fine Verlet reference */
+#define MIN_CPU 0.3
+
+typedef enum method {
+  M_RESPA,
+  M_VERLET,
+  M_FE,
+  M_ES,
+  M_MM,
+  M_TM,
+  M_LMP_RESPA,
+  M_LMP_VERLET,
+  N_METHODS
+} method;
+
+static const char *const method_names[N_METHODS] = {
+    "floor r-RESPA", "floor Verlet",      "fully-explicit",
+    "explicit-slow", "midpoint-midpoint", "trapezoidal-midpoint",
+    "LAMMPS rRESPA", "LAMMPS Verlet"};
+static const char *const net_names[N_NETS] = {"lattice2d", "lattice3d",
+                                              "random3d"};
+
+static const char usage[] =
+    "Usage: bench_floor [--quick] [--n N1,N2,...] [--net NAME,...]\n"
+    "                   [--repeats R] [--steps K] [--dT DT] [--p P]\n"
+    "                   [--budget SECONDS] [--mem GB] [--big N]\n"
+    "                   [--no-lammps] [--method NAME]\n"
+    "\n"
+    "The r-RESPA and Stoermer-Verlet floors, mrvi's fully-explicit,\n"
+    "explicit-slow, midpoint-midpoint and trapezoidal-midpoint, and LAMMPS\n"
+    "(rRESPA, Verlet; when `lmp` is on PATH) on networks of about N\n"
+    "coordinates (default 1000,10000,100000): lattice2d, lattice3d,\n"
+    "random3d (default all).  Each case in a child process limited to\n"
+    "SECONDS of CPU (default 300) and GB of address space (default 12);\n"
+    "R rounds alternating the methods (default 3), best of them; at least\n"
+    "K macro steps (default 3) and 0.3 s; dT = 0.05, P = 10.  Implicit\n"
+    "schemes run only up to --big N coordinates (default 1000000).\n"
+    "--method runs one method alone (as the tables name it, e.g.\n"
+    "midpoint-midpoint).  --quick: N = 300,1000, R = 1, K = 2, lattice2d\n"
+    "only.\n";
+
+static int bad_usage(void) {
+  fputs(usage, stderr);
+  return 1;
+}
+
+/* ------------------------------------------------------------------------
+ * Networks.
+ * ---------------------------------------------------------------------- */
+typedef struct bond {
+  int i, j;  /* particles */
+  double L0; /* rest length */
+  double k;  /* stiffness (linear), or Morse depth */
+  double a;  /* Morse width; 0 for linear */
+} bond;
+
+typedef struct network {
+  int kind, d, np;
+  int nx[3];
+  double *x0, *v0; /* d * np, particle order */
+  char *fast;      /* np */
+  bond *slow, *fst;
+  long n_slow, n_fast;
+} network;
+
+static void network_free(network *w) {
+  free(w->x0);
+  free(w->v0);
+  free(w->fast);
+  free(w->slow);
+  free(w->fst);
+  memset(w, 0, sizeof *w);
+}
+
+static int add_bond(network *w, int i, int j, double L0, long *cap_s,
+                    long *cap_f) {
+  const int fast = w->fast[i] && w->fast[j];
+  bond **list = fast ? &w->fst : &w->slow;
+  long *count = fast ? &w->n_fast : &w->n_slow, *cap = fast ? cap_f : cap_s;
+  if (*count == *cap) {
+    long c = 2 * *cap + 1024;
+    bond *t = realloc(*list, (size_t)c * sizeof *t);
+    if (!t)
+      return -1;
+    *list = t;
+    *cap = c;
+  }
+  bond b = {i, j, L0, 1000.0, 0.0};
+  if (!fast) {
+    if (w->kind == 2)
+      b.k = 5.0, b.a = 1.0; /* Morse: 2 D a^2 = 10 */
+    else
+      b.k = 10.0;
+  }
+  (*list)[(*count)++] = b;
+  return 0;
+}
+
+/* The network of kind `kind` with about n coordinates. */
+static int network_make(network *w, int kind, int n) {
+  memset(w, 0, sizeof *w);
+  w->kind = kind;
+  w->d = kind == 0 ? 2 : 3;
+  const int d = w->d;
+  int particles = n / d < 4 ? 4 : n / d;
+  if (d == 2) {
+    int nx = (int)lround(sqrt((double)particles));
+    nx += nx % 2;
+    w->nx[0] = nx;
+    w->nx[1] = (particles + nx - 1) / nx;
+    w->nx[2] = 1;
+  } else {
+    int s = (int)lround(cbrt((double)particles));
+    if (s < 2)
+      s = 2;
+    w->nx[0] = s + s % 2;
+    w->nx[1] = s;
+    w->nx[2] = (particles + w->nx[0] * s - 1) / (w->nx[0] * s);
+  }
+  w->np = w->nx[0] * w->nx[1] * w->nx[2];
+  w->x0 = malloc((size_t)w->np * d * sizeof *w->x0);
+  w->v0 = malloc((size_t)w->np * d * sizeof *w->v0);
+  w->fast = malloc((size_t)w->np);
+  if (!w->x0 || !w->v0 || !w->fast)
+    return -1;
+  unsigned long long seed = 12345, rseed = 777;
+  for (int i = 0; i < w->np; i++) {
+    int idx[3] = {i % w->nx[0], i / w->nx[0] % w->nx[1],
+                  i / (w->nx[0] * w->nx[1])};
+    for (int a = 0; a < d; a++) {
+      double jit = kind == 2 ? 0.2 * bench_uniform(&rseed) : 0.0;
+      w->x0[i * d + a] = idx[a] + jit + 0.05 * bench_uniform(&seed);
+      w->v0[i * d + a] = 0.1 * bench_uniform(&seed);
+    }
+    /* lattices: the generator's `every: 2`; random: probability 1/2 */
+    w->fast[i] = kind == 2 ? bench_uniform(&rseed) > 0.0 : i % 2 == 1;
+  }
+  long cap_s = 0, cap_f = 0;
+  const int *nx = w->nx;
+  if (kind < 2) {
+    /* The generator's order: each particle to its +x, +y, +z neighbour. */
+    for (int i = 0; i < w->np; i++) {
+      int idx[3] = {i % nx[0], i / nx[0] % nx[1], i / (nx[0] * nx[1])};
+      int stride = 1;
+      for (int a = 0; a < 3; a++) {
+        if (idx[a] + 1 < nx[a] &&
+            add_bond(w, i, i + stride, 1.0, &cap_s, &cap_f) < 0)
+          return -1;
+        stride *= nx[a];
+      }
+    }
+    return 0;
+  }
+  /* random3d: pairs of grid sites at most one apart per axis (13 forward
+   * neighbours) within 1.45 of each other. */
+  for (int i = 0; i < w->np; i++) {
+    int idx[3] = {i % nx[0], i / nx[0] % nx[1], i / (nx[0] * nx[1])};
+    for (int dz = 0; dz <= 1; dz++)
+      for (int dy = dz ? -1 : 0; dy <= 1; dy++)
+        for (int dx = (dz || dy) ? -1 : 1; dx <= 1; dx++) {
+          int o[3] = {idx[0] + dx, idx[1] + dy, idx[2] + dz};
+          if (o[0] < 0 || o[0] >= nx[0] || o[1] < 0 || o[1] >= nx[1] ||
+              o[2] >= nx[2])
+            continue;
+          int j = o[0] + nx[0] * (o[1] + nx[1] * o[2]);
+          double r2 = 0;
+          for (int a = 0; a < 3; a++) {
+            double t = w->x0[i * 3 + a] - w->x0[j * 3 + a];
+            r2 += t * t;
+          }
+          if (r2 < 1.45 * 1.45 &&
+              add_bond(w, i, j, sqrt(r2), &cap_s, &cap_f) < 0)
+            return -1;
+        }
+  }
+  return 0;
+}
+
+/* The mrvi model of the network: the generator for the lattices, the
+ * particles and springs one by one for the random network. */
+static mrvi_model *network_model(const network *w, char *msg, size_t len) {
+  mrvi_model *m = mrvi_model_create();
+  if (!m || mrvi_model_set_dimension(m, w->d) < 0) {
+    snprintf(msg, len, "model: out of memory");
+    mrvi_model_free(m);
+    return NULL;
+  }
+  int st = 0;
+  if (w->kind < 2) {
+    double *disp = malloc((size_t)w->np * w->d * sizeof *disp);
+    if (!disp) {
+      mrvi_model_free(m);
+      return NULL;
+    }
+    for (int i = 0; i < w->np; i++) {
+      int idx[3] = {i % w->nx[0], i / w->nx[0] % w->nx[1],
+                    i / (w->nx[0] * w->nx[1])};
+      for (int a = 0; a < w->d; a++)
+        disp[i * w->d + a] = w->x0[i * w->d + a] - idx[a];
+    }
+    mrvi_generator g;
+    memset(&g, 0, sizeof g);
+    g.kind = w->kind == 0 ? MRVI_GEN_LATTICE2D : MRVI_GEN_LATTICE3D;
+    g.prefix = "p";
+    for (int a = 0; a < 3; a++)
+      g.count[a] = w->nx[a];
+    g.spacing = 1.0;
+    g.mass = 1.0;
+    g.rates = MRVI_RATES_EVERY;
+    g.every = 2;
+    g.slow.law = "linear";
+    g.slow.params[0] = 10.0;
+    g.slow.rest_length = NAN;
+    g.fast.law = "linear";
+    g.fast.params[0] = 1000.0;
+    g.fast.rest_length = NAN;
+    g.displacement = disp;
+    g.velocity = w->v0;
+    st = mrvi_model_generate(m, &g, NULL);
+    free(disp);
+  } else {
+    for (int i = 0; i < w->np && st >= 0; i++) {
+      char name[32];
+      snprintf(name, sizeof name, "p%d", i);
+      st = mrvi_model_add_particle(m, name, 1.0,
+                                   w->fast[i] ? MRVI_FAST : MRVI_SLOW,
+                                   w->x0 + i * 3, w->v0 + i * 3);
+    }
+    for (int pass = 0; pass < 2 && st >= 0; pass++) {
+      /* the network's order within each class; classes do not interleave
+       * in the sums, so the order between them does not matter */
+      const bond *b = pass ? w->fst : w->slow;
+      long nb = pass ? w->n_fast : w->n_slow;
+      for (long e = 0; e < nb && st >= 0; e++) {
+        double par[2] = {b[e].k, b[e].a};
+        st = mrvi_model_add_spring(m, pass ? MRVI_FAST : MRVI_SLOW, b[e].i,
+                                   b[e].j, pass ? "linear" : "morse", par,
+                                   b[e].L0);
+      }
+    }
+  }
+  if (st < 0) {
+    snprintf(msg, len, "model: %s", mrvi_model_errmsg(m));
+    mrvi_model_free(m);
+    return NULL;
+  }
+  return m;
+}
+
+/* ------------------------------------------------------------------------
+ * The floors: flat arrays, fast particles first.
+ * ---------------------------------------------------------------------- */
+typedef struct fbond {
+  int i, j; /* first coordinate of each end in the floor's arrays */
+  double L0, k, a;
+} fbond;
+
+typedef struct floor_sys {
+  int d, n, nf; /* coordinates, fast coordinates (first) */
+  int *perm;    /* particle -> floor particle */
+  double *x, *v, *fs, *ff;
+  fbond *slow, *fst;
+  long n_slow, n_fast;
+  int morse;
+} floor_sys;
+
+static void floor_free(floor_sys *f) {
+  free(f->perm);
+  free(f->x);
+  free(f->v);
+  free(f->fs);
+  free(f->ff);
+  free(f->slow);
+  free(f->fst);
+}
+
+static int floor_make(floor_sys *f, const network *w) {
+  memset(f, 0, sizeof *f);
+  const int d = w->d;
+  f->d = d;
+  f->n = d * w->np;
+  f->morse = w->kind == 2;
+  f->perm = malloc((size_t)w->np * sizeof *f->perm);
+  f->x = malloc((size_t)f->n * sizeof *f->x);
+  f->v = malloc((size_t)f->n * sizeof *f->v);
+  f->fs = malloc((size_t)f->n * sizeof *f->fs);
+  f->ff = malloc((size_t)f->n * sizeof *f->ff);
+  f->slow = malloc((size_t)(w->n_slow + 1) * sizeof *f->slow);
+  f->fst = malloc((size_t)(w->n_fast + 1) * sizeof *f->fst);
+  if (!f->perm || !f->x || !f->v || !f->fs || !f->ff || !f->slow || !f->fst)
+    return -1;
+  int k = 0;
+  for (int pass = 1; pass >= 0; pass--)
+    for (int i = 0; i < w->np; i++)
+      if (w->fast[i] == pass)
+        f->perm[i] = k++;
+  for (int i = 0; i < w->np; i++)
+    if (w->fast[i])
+      f->nf += d;
+  for (int i = 0; i < w->np; i++)
+    for (int a = 0; a < d; a++) {
+      f->x[f->perm[i] * d + a] = w->x0[i * d + a];
+      f->v[f->perm[i] * d + a] = w->v0[i * d + a];
+    }
+  for (int pass = 0; pass < 2; pass++) {
+    const bond *b = pass ? w->fst : w->slow;
+    long nb = pass ? w->n_fast : w->n_slow;
+    fbond *out = pass ? f->fst : f->slow;
+    for (long e = 0; e < nb; e++)
+      out[e] = (fbond){f->perm[b[e].i] * d, f->perm[b[e].j] * d, b[e].L0,
+                       b[e].k, b[e].a};
+  }
+  f->n_slow = w->n_slow;
+  f->n_fast = w->n_fast;
+  return 0;
+}
+
+/* Add the spring forces of bonds b[0..nb) to F (D = 2, 3; Morse or
+ * linear): the gradient of phi(|x_i - x_j| - L0). */
+#define SPRINGS(D, MORSE)                                                      \
+  static void springs##D##MORSE(const fbond *b, long nb, const double *x,      \
+                                double *F) {                                   \
+    for (long e = 0; e < nb; e++) {                                            \
+      const double *xi = x + b[e].i, *xj = x + b[e].j;                         \
+      double dx[D], r2 = 0.0;                                                  \
+      for (int c = 0; c < D; c++) {                                            \
+        dx[c] = xi[c] - xj[c];                                                 \
+        r2 += dx[c] * dx[c];                                                   \
+      }                                                                        \
+      const double r = sqrt(r2), s = r - b[e].L0;                              \
+      double dphi;                                                             \
+      if (MORSE) {                                                             \
+        const double ex = exp(-b[e].a * s);                                    \
+        dphi = 2 * b[e].k * b[e].a * ex * (1 - ex);                            \
+      } else {                                                                 \
+        dphi = b[e].k * s;                                                     \
+      }                                                                        \
+      const double c0 = dphi / r;                                              \
+      for (int c = 0; c < D; c++) {                                            \
+        F[b[e].i + c] -= c0 * dx[c];                                           \
+        F[b[e].j + c] += c0 * dx[c];                                           \
+      }                                                                        \
+    }                                                                          \
+  }
+SPRINGS(2, 0)
+SPRINGS(3, 0)
+SPRINGS(2, 1)
+SPRINGS(3, 1)
+
+static void floor_slow(const floor_sys *f, double *F) {
+  if (f->d == 2)
+    f->morse ? springs21(f->slow, f->n_slow, f->x, F)
+             : springs20(f->slow, f->n_slow, f->x, F);
+  else
+    f->morse ? springs31(f->slow, f->n_slow, f->x, F)
+             : springs30(f->slow, f->n_slow, f->x, F);
+}
+
+static void floor_fast(const floor_sys *f, double *F) {
+  (f->d == 2 ? springs20 : springs30)(f->fst, f->n_fast, f->x, F);
+}
+
+/* r-RESPA (impulse) macro steps; fs and ff hold the forces at x on entry
+ * (floor_forces). */
+static void floor_forces(floor_sys *f) {
+  memset(f->fs, 0, (size_t)f->n * sizeof *f->fs);
+  memset(f->ff, 0, (size_t)f->nf * sizeof *f->ff);
+  floor_slow(f, f->fs);
+  floor_fast(f, f->ff);
+}
+
+static void respa_steps(floor_sys *f, double dT, int p, long steps) {
+  const double dt = dT / p;
+  const int n = f->n, nf = f->nf;
+  double *restrict x = f->x, *restrict v = f->v, *restrict fs = f->fs,
+                   *restrict ff = f->ff;
+  for (long k = 0; k < steps; k++) {
+    for (int i = 0; i < n; i++)
+      v[i] += 0.5 * dT * fs[i];
+    for (int m = 0; m < p; m++) {
+      for (int i = 0; i < nf; i++) {
+        v[i] += 0.5 * dt * ff[i];
+        x[i] += dt * v[i];
+      }
+      memset(ff, 0, (size_t)nf * sizeof *ff);
+      floor_fast(f, ff);
+      for (int i = 0; i < nf; i++)
+        v[i] += 0.5 * dt * ff[i];
+    }
+    for (int i = nf; i < n; i++)
+      x[i] += dT * v[i];
+    memset(fs, 0, (size_t)n * sizeof *fs);
+    floor_slow(f, fs);
+    for (int i = 0; i < n; i++)
+      v[i] += 0.5 * dT * fs[i];
+  }
+}
+
+/* Velocity Verlet at dt with all forces; fs holds the total force. */
+static void verlet_steps(floor_sys *f, double dt, long steps) {
+  const int n = f->n;
+  double *restrict x = f->x, *restrict v = f->v, *restrict F = f->fs;
+  for (long k = 0; k < steps; k++) {
+    for (int i = 0; i < n; i++) {
+      v[i] += 0.5 * dt * F[i];
+      x[i] += dt * v[i];
+    }
+    memset(F, 0, (size_t)n * sizeof *F);
+    floor_slow(f, F);
+    floor_fast(f, F);
+    for (int i = 0; i < n; i++)
+      v[i] += 0.5 * dt * F[i];
+  }
+}
+
+static void verlet_forces(floor_sys *f) {
+  memset(f->fs, 0, (size_t)f->n * sizeof *f->fs);
+  floor_slow(f, f->fs);
+  floor_fast(f, f->fs);
+}
+
+/* ------------------------------------------------------------------------
+ * LAMMPS: a data file, a pair list and an input script in a directory;
+ * `lmp` run on them.
+ * ---------------------------------------------------------------------- */
+static int have_lammps(void) {
+  const char *path = getenv("PATH");
+  char buf[4096];
+  while (path && *path) {
+    const char *e = strchr(path, ':');
+    size_t len = e ? (size_t)(e - path) : strlen(path);
+    snprintf(buf, sizeof buf, "%.*s/lmp", (int)len, path);
+    if (access(buf, X_OK) == 0)
+      return 1;
+    path = e ? e + 1 : NULL;
+  }
+  return 0;
+}
+
+/* Write DIR/data, DIR/pairs and DIR/in for `steps` steps of `style`
+ * (respa: outer dT, p inner; verlet: dt = dT/p, steps * p steps); the final
+ * state goes to DIR/final (id x y z vx vy vz). */
+static int lammps_write(const network *w, const char *dir, int respa, double dT,
+                        int p, long steps) {
+  char path[512];
+  snprintf(path, sizeof path, "%s/data", dir);
+  FILE *f = fopen(path, "w");
+  if (!f)
+    return -1;
+  double lo[3] = {1e300, 1e300, -0.5}, hi[3] = {-1e300, -1e300, 0.5};
+  for (int i = 0; i < w->np; i++)
+    for (int a = 0; a < w->d; a++) {
+      double x = w->x0[i * w->d + a];
+      lo[a] = x < lo[a] ? x : lo[a];
+      hi[a] = x > hi[a] ? x : hi[a];
+    }
+  fprintf(f,
+          "bench_floor network\n\n%d atoms\n%ld bonds\n1 atom types\n"
+          "1 bond types\n\n",
+          w->np, w->n_fast);
+  for (int a = 0; a < 3; a++)
+    fprintf(f, "%.6f %.6f %clo %chi\n", a < w->d ? lo[a] - 2 : lo[a],
+            a < w->d ? hi[a] + 2 : hi[a], 'x' + a, 'x' + a);
+  fprintf(f, "\nMasses\n\n1 1.0\n\nAtoms # bond\n\n");
+  for (int i = 0; i < w->np; i++)
+    fprintf(f, "%d 1 1 %.17g %.17g %.17g\n", i + 1, w->x0[i * w->d],
+            w->x0[i * w->d + 1], w->d == 3 ? w->x0[i * w->d + 2] : 0.0);
+  fprintf(f, "\nVelocities\n\n");
+  for (int i = 0; i < w->np; i++)
+    fprintf(f, "%d %.17g %.17g %.17g\n", i + 1, w->v0[i * w->d],
+            w->v0[i * w->d + 1], w->d == 3 ? w->v0[i * w->d + 2] : 0.0);
+  fprintf(f, "\nBonds\n\n");
+  for (long e = 0; e < w->n_fast; e++)
+    fprintf(f, "%ld 1 %d %d\n", e + 1, w->fst[e].i + 1, w->fst[e].j + 1);
+  if (fclose(f) != 0)
+    return -1;
+  snprintf(path, sizeof path, "%s/pairs", dir);
+  if (!(f = fopen(path, "w")))
+    return -1;
+  /* pair list harmonic: K (r - r0)^2, K = k/2 */
+  for (long e = 0; e < w->n_slow; e++)
+    fprintf(f, "%d %d harmonic %.17g %.17g\n", w->slow[e].i + 1,
+            w->slow[e].j + 1, 0.5 * w->slow[e].k, w->slow[e].L0);
+  if (fclose(f) != 0)
+    return -1;
+  snprintf(path, sizeof path, "%s/in", dir);
+  if (!(f = fopen(path, "w")))
+    return -1;
+  fprintf(f,
+          "units lj\ndimension %d\nboundary s s %s\natom_style bond\n"
+          "atom_modify map array sort 0 0\n"
+          "read_data %s/data\n"
+          "bond_style harmonic\nbond_coeff 1 %.17g 1.0\n"
+          "pair_style list %s/pairs 2.0\npair_coeff * *\n"
+          "special_bonds lj/coul 1.0 1.0 1.0\n"
+          "neighbor 0.5 bin\nneigh_modify every 1000 delay 0 check yes\n"
+          "fix 1 all nve\nthermo 0\n",
+          w->d, w->d == 2 ? "p" : "s", dir, 0.5 * 1000.0, dir);
+  if (respa)
+    fprintf(f, "timestep %.17g\nrun_style respa 2 %d bond 1 pair 2\n", dT, p);
+  else
+    fprintf(f, "timestep %.17g\nrun_style verlet\n", dT / p);
+  fprintf(f,
+          "run %ld\nwrite_dump all custom %s/final id x y z vx vy vz "
+          "modify sort id format float %%.17g\n",
+          respa ? steps : steps * p, dir);
+  return fclose(f) == 0 ? 0 : -1;
+}
+
+/* Run lmp on DIR/in; the loop's CPU seconds (loop time x CPU share) and
+ * the steps it reports; -1 on failure with a message. */
+static double lammps_run(const char *dir, long *steps_out, long *maxrss_kb,
+                         char *msg, size_t len) {
+  char in[512], log[512];
+  snprintf(in, sizeof in, "%s/in", dir);
+  snprintf(log, sizeof log, "%s/log", dir);
+  fflush(stdout);
+  pid_t pid = fork();
+  if (pid < 0) {
+    snprintf(msg, len, "fork failed");
+    return -1;
+  }
+  if (pid == 0) {
+    setenv("OMP_NUM_THREADS", "1", 1);
+    setenv("OMPI_ALLOW_RUN_AS_ROOT", "1", 1);
+    setenv("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1", 1);
+    if (!freopen("/dev/null", "w", stdout) ||
+        !freopen("/dev/null", "w", stderr))
+      _exit(126);
+    execlp("lmp", "lmp", "-in", in, "-log", log, "-screen", "none",
+           (char *)NULL);
+    _exit(127);
+  }
+  int status = 0;
+  struct rusage ru;
+  if (wait4(pid, &status, 0, &ru) < 0 || !WIFEXITED(status) ||
+      WEXITSTATUS(status) != 0) {
+    snprintf(msg, len, "lmp failed (status %d; see %.150s)", status, log);
+    return -1;
+  }
+  *maxrss_kb = ru.ru_maxrss;
+  FILE *f = fopen(log, "r");
+  char line[1024];
+  double loop = -1, cpu = 100.0;
+  while (f && fgets(line, sizeof line, f)) {
+    double t;
+    int procs;
+    long st;
+    if (sscanf(line, "Loop time of %lf on %d procs for %ld steps", &t, &procs,
+               &st) == 3)
+      loop = t, *steps_out = st;
+    const char *c = strstr(line, "% CPU use");
+    if (c) {
+      const char *b = c;
+      while (b > line && (b[-1] == '.' || (b[-1] >= '0' && b[-1] <= '9')))
+        b--;
+      cpu = atof(b);
+    }
+  }
+  if (f)
+    fclose(f);
+  if (loop < 0) {
+    snprintf(msg, len, "no loop time in %.150s", log);
+    return -1;
+  }
+  return loop * cpu / 100.0;
+}
+
+/* Final positions of a LAMMPS run (DIR/final) in particle order. */
+static int lammps_final(const char *dir, const network *w, double *x) {
+  char path[512], line[1024];
+  snprintf(path, sizeof path, "%s/final", dir);
+  FILE *f = fopen(path, "r");
+  if (!f)
+    return -1;
+  int got = 0;
+  while (fgets(line, sizeof line, f)) {
+    int id;
+    double p[3];
+    if (sscanf(line, "%d %lf %lf %lf", &id, p, p + 1, p + 2) == 4 && id >= 1 &&
+        id <= w->np) {
+      for (int a = 0; a < w->d; a++)
+        x[(id - 1) * w->d + a] = p[a];
+      got++;
+    }
+  }
+  fclose(f);
+  return got == w->np ? 0 : -1;
+}
+
+/* ------------------------------------------------------------------------
+ * One case in a child process.
+ * ---------------------------------------------------------------------- */
+typedef struct result {
+  int status; /* 0 ok, 1 failed, 2 over budget / memory, 3 skipped */
+  int n;
+  long steps;
+  double create, step;      /* CPU s: creation, per macro step */
+  double newton, cg, gmres; /* per macro step; CG iterations per micro step */
+  long nnz;
+  char path[16];
+  long rss_before_kb, peak_kb;
+  char message[200];
+} result;
+
+typedef struct options {
+  double dT, budget, mem_gb;
+  int p, steps, big;
+  char tmpdir[256];
+} options;
+
+/* Reset the peak resident set (VmHWM) to the current one, so that the peak
+ * read at the end belongs to what follows (Linux >= 4.0; else the peak
+ * includes the network's construction). */
+static void reset_peak(void) {
+  FILE *f = fopen("/proc/self/clear_refs", "w");
+  if (f) {
+    fputs("5", f);
+    fclose(f);
+  }
+}
+
+static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
+  char msg[512];
+  mrvi_settings s;
+  mrvi_settings_default(&s);
+  mrvi_settings_set_scheme(&s, method_names[me]);
+  s.macro_step = o->dT;
+  s.micro_steps = o->p;
+  s.t_end = 1e6 * o->dT;
+  s.energy_warning = 0;
+  r->n = mrvi_model_n(m);
+  reset_peak();
+  r->rss_before_kb = bench_status_kb("VmRSS:");
+  mrvi_integrator *it = NULL;
+  double t0 = bench_cpu();
+  if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
+    snprintf(r->message, sizeof r->message, "%.190s", msg);
+    return;
+  }
+  double t1 = bench_cpu();
+  r->create = t1 - t0;
+  long newton = 0, k = 0;
+  for (; k < o->steps || (bench_cpu() - t1 < MIN_CPU && k < 100000); k++) {
+    if (mrvi_integrator_step(it) < 0) {
+      snprintf(r->message, sizeof r->message, "%.190s",
+               mrvi_integrator_errmsg(it));
+      break;
+    }
+    newton += mrvi_integrator_last_iterations(it);
+  }
+  if (!r->message[0]) {
+    r->step = (bench_cpu() - t1) / k;
+    r->steps = k;
+    mrvi_krylov_stats ks;
+    mrvi_integrator_krylov_stats(it, &ks);
+    r->newton = (double)newton / k;
+    r->cg = (double)ks.cg_iterations / ((double)k * o->p);
+    r->gmres = (double)ks.gmres_iterations / k;
+    r->nnz = mrvi_integrator_system_nnz(it);
+    snprintf(r->path, sizeof r->path, "%s", mrvi_integrator_solver_path(it));
+    r->status = 0;
+  }
+  mrvi_integrator_free(it);
+}
+
+static void floor_case(floor_sys *f, method me, const options *o, result *r) {
+  r->n = f->n;
+  reset_peak();
+  r->rss_before_kb = bench_status_kb("VmRSS:");
+  double t0 = bench_cpu();
+  me == M_RESPA ? floor_forces(f) : verlet_forces(f);
+  double t1 = bench_cpu();
+  r->create = t1 - t0;
+  long k = 0;
+  while (k < o->steps || bench_cpu() - t1 < MIN_CPU) {
+    if (me == M_RESPA)
+      respa_steps(f, o->dT, o->p, 1);
+    else
+      verlet_steps(f, o->dT / o->p, o->p);
+    k++;
+  }
+  r->step = (bench_cpu() - t1) / k;
+  r->steps = k;
+  snprintf(r->path, sizeof r->path, "-");
+  r->status = isfinite(f->x[0]) ? 0 : 1;
+  if (r->status)
+    snprintf(r->message, sizeof r->message, "floor diverged");
+}
+
+/* The network is built and freed before the measured part, so that the
+ * peak memory is that of the model (or the floor's arrays) and the
+ * integrator. */
+static void child_case(int fd, int kind, int n, method me, const options *o) {
+  result r;
+  memset(&r, 0, sizeof r);
+  r.status = 1;
+  network w;
+  floor_sys f;
+  mrvi_model *m = NULL;
+  const int fl = me == M_RESPA || me == M_VERLET;
+  int ok = network_make(&w, kind, n) == 0;
+  if (ok && fl)
+    ok = floor_make(&f, &w) == 0;
+  else if (ok)
+    ok = (m = network_model(&w, r.message, sizeof r.message)) != NULL;
+  network_free(&w);
+  if (!ok && !r.message[0])
+    snprintf(r.message, sizeof r.message, "network: out of memory");
+  else if (ok && fl)
+    floor_case(&f, me, o, &r);
+  else if (ok)
+    mrvi_case(m, me, o, &r);
+  r.peak_kb = bench_status_kb("VmHWM:");
+  ssize_t wr = write(fd, &r, sizeof r);
+  (void)wr;
+  if (ok && fl)
+    floor_free(&f);
+  mrvi_model_free(m);
+}
+
+typedef struct case_args {
+  int kind, n;
+  method me;
+  const options *o;
+} case_args;
+
+static void child_fn(int fd, void *arg) {
+  const case_args *a = arg;
+  child_case(fd, a->kind, a->n, a->me, a->o);
+}
+
+static result run_case(int kind, int n, method me, const options *o) {
+  case_args a = {kind, n, me, o};
+  result r;
+  memset(&r, 0, sizeof r);
+  int ws = 0;
+  if (bench_run_child(child_fn, &a, &r, sizeof r, o->budget, o->mem_gb, &ws) ==
+      0) {
+    memset(&r, 0, sizeof r);
+    r.status = 2;
+    snprintf(r.message, sizeof r.message, "child %s %d",
+             WIFSIGNALED(ws) ? "killed by signal" : "exited with",
+             WIFSIGNALED(ws) ? WTERMSIG(ws) : WEXITSTATUS(ws));
+  }
+  return r;
+}
+
+static result lammps_case(const network *w, method me, const options *o) {
+  result r;
+  memset(&r, 0, sizeof r);
+  r.status = 1;
+  r.n = w->d * w->np;
+  snprintf(r.path, sizeof r.path, "-");
+  /* at least MIN_CPU: steps from the r-RESPA floor's speed are not known
+   * here, so run o->steps and scale up while the loop is short */
+  long steps = o->steps;
+  for (int tries = 0; tries < 6; tries++) {
+    long done = 0, rss = 0;
+    if (lammps_write(w, o->tmpdir, me == M_LMP_RESPA, o->dT, o->p, steps) < 0) {
+      snprintf(r.message, sizeof r.message, "cannot write %.150s", o->tmpdir);
+      return r;
+    }
+    double t = lammps_run(o->tmpdir, &done, &rss, r.message, sizeof r.message);
+    if (t < 0)
+      return r;
+    r.peak_kb = rss;
+    r.steps = steps;
+    r.step = t / steps;
+    r.status = 0;
+    if (t >= MIN_CPU)
+      break;
+    steps = (long)ceil(steps * fmin(10.0, 1.5 * MIN_CPU / fmax(t, 1e-3)));
+  }
+  return r;
+}
+
+/* ------------------------------------------------------------------------
+ * Checks on the smallest n.
+ * ---------------------------------------------------------------------- */
+
+/* mrvi's state after `steps` macro steps of `scheme` (model order, q then
+ * p); 0 or -1 with the message on stderr. */
+static int mrvi_trajectory_end(const network *w, const char *scheme,
+                               const options *o, long steps, double *q,
+                               double *pm) {
+  char msg[512];
+  mrvi_model *m = network_model(w, msg, sizeof msg);
+  if (!m) {
+    fprintf(stderr, "%s\n", msg);
+    return -1;
+  }
+  mrvi_settings s;
+  mrvi_settings_default(&s);
+  mrvi_settings_set_scheme(&s, scheme);
+  s.macro_step = o->dT;
+  s.micro_steps = o->p;
+  s.t_end = steps * o->dT;
+  s.newton_tol = 1e-12;
+  mrvi_integrator *it = NULL;
+  int st = mrvi_integrator_create(m, &s, &it, msg, sizeof msg);
+  for (long k = 0; st >= 0 && k < steps; k++)
+    st = mrvi_integrator_step(it);
+  if (st < 0)
+    fprintf(stderr, "%s: %s\n", scheme, it ? mrvi_integrator_errmsg(it) : msg);
+  else {
+    memcpy(q, mrvi_integrator_q(it), (size_t)mrvi_model_n(m) * sizeof *q);
+    memcpy(pm, mrvi_integrator_p(it), (size_t)mrvi_model_n(m) * sizeof *pm);
+  }
+  mrvi_integrator_free(it);
+  mrvi_model_free(m);
+  return st < 0 ? -1 : 0;
+}
+
+/* Floor state in particle (model) order. */
+static void floor_state(const floor_sys *f, const network *w, double *q,
+                        double *v) {
+  for (int i = 0; i < w->np; i++)
+    for (int a = 0; a < w->d; a++) {
+      q[i * w->d + a] = f->x[f->perm[i] * w->d + a];
+      if (v)
+        v[i * w->d + a] = f->v[f->perm[i] * w->d + a];
+    }
+}
+
+static double max_diff(const double *a, const double *b, int n) {
+  double e = 0;
+  for (int i = 0; i < n; i++)
+    e = fmax(e, fabs(a[i] - b[i]));
+  return e;
+}
+
+static void checks(int kind, int n, const options *o, int lammps) {
+  network w;
+  floor_sys f;
+  if (network_make(&w, kind, n) < 0 || floor_make(&f, &w) < 0) {
+    fprintf(stderr, "checks: out of memory\n");
+    exit(1);
+  }
+  const int nc = w.d * w.np;
+  const long K = CHECK_STEPS;
+  double *q = malloc((size_t)nc * sizeof *q), *p = malloc(nc * sizeof *p),
+         *qf = malloc((size_t)nc * sizeof *qf),
+         *vf = malloc((size_t)nc * sizeof *vf),
+         *qref = malloc((size_t)nc * sizeof *qref);
+  if (!q || !p || !qf || !vf || !qref) {
+    fprintf(stderr, "checks: out of memory\n");
+    exit(1);
+  }
+  floor_forces(&f);
+  respa_steps(&f, o->dT, o->p, K);
+  floor_state(&f, &w, qf, vf);
+  double scale = 0;
+  for (int i = 0; i < nc; i++)
+    scale = fmax(scale, fabs(qf[i]));
+  printf("%s, n = %d (%ld slow, %ld fast springs), %ld macro steps "
+         "(t = %g):\n",
+         net_names[kind], nc, w.n_slow, w.n_fast, K, K * o->dT);
+  if (mrvi_trajectory_end(&w, "fully-explicit", o, K, q, p) == 0)
+    printf("- mrvi fully-explicit vs the r-RESPA floor: max |dq| = %.2e, "
+           "max |dp| = %.2e (max |q| = %.3g)\n",
+           max_diff(q, qf, nc), max_diff(p, vf, nc), scale);
+  if (lammps && kind < 2) {
+    double *ql = malloc((size_t)nc * sizeof *ql);
+    long done = 0, rss = 0;
+    char msg[256];
+    if (ql && lammps_write(&w, o->tmpdir, 1, o->dT, o->p, K) == 0 &&
+        lammps_run(o->tmpdir, &done, &rss, msg, sizeof msg) >= 0 &&
+        lammps_final(o->tmpdir, &w, ql) == 0)
+      printf("- LAMMPS rRESPA vs the r-RESPA floor: max |dq| = %.2e\n",
+             max_diff(ql, qf, nc));
+    else
+      printf("- LAMMPS rRESPA: check failed (%s)\n", ql ? msg : "memory");
+    free(ql);
+  }
+  /* Errors against Verlet at dt/20 at t = K dT. */
+  floor_sys g;
+  floor_make(&g, &w);
+  verlet_forces(&g);
+  verlet_steps(&g, o->dT / o->p / 20, K * o->p * 20);
+  floor_state(&g, &w, qref, NULL);
+  floor_free(&g);
+  floor_make(&g, &w);
+  verlet_forces(&g);
+  verlet_steps(&g, o->dT / o->p, K * o->p);
+  floor_state(&g, &w, q, NULL);
+  floor_free(&g);
+  printf("- max |q - q_ref| at t = %g (q_ref: Verlet at dt/20): Verlet(dt) "
+         "%.2e, r-RESPA floor %.2e",
+         K * o->dT, max_diff(q, qref, nc), max_diff(qf, qref, nc));
+  for (int s = M_FE; s <= M_TM; s++)
+    if (mrvi_trajectory_end(&w, method_names[s], o, K, q, p) == 0)
+      printf(", %s %.2e", method_names[s], max_diff(q, qref, nc));
+  printf("\n\n");
+  free(q);
+  free(p);
+  free(qf);
+  free(vf);
+  free(qref);
+  floor_free(&f);
+  network_free(&w);
+}
+
+/* ------------------------------------------------------------------------
+ * Tables.
+ * ---------------------------------------------------------------------- */
+static double ratio(const result *a, const result *b) {
+  return a->status == 0 && b->status == 0 && b->step > 0 ? a->step / b->step
+                                                         : NAN;
+}
+
+static void print_ratio(const result *a, const result *b) {
+  double x = ratio(a, b);
+  if (isnan(x))
+    printf(" %10s |", "-");
+  else
+    printf(" %10.2f |", x);
+}
+
+int main(int argc, char **argv) {
+  options o;
+  memset(&o, 0, sizeof o);
+  o.dT = 0.05;
+  o.p = 10;
+  o.steps = 3;
+  o.budget = 300;
+  o.mem_gb = 12;
+  o.big = 1000000;
+  int n_list[MAX_N] = {1000, 10000, 100000}, n_n = 3, repeats = 3;
+  int nets[N_NETS] = {1, 1, 1}, quick = 0, no_lammps = 0, n_set = 0;
+  const char *only = NULL;
+  for (int i = 1; i < argc; i++) {
+    const char *a = argv[i];
+    int has = i + 1 < argc;
+    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+      fputs(usage, stdout);
+      return 0;
+    } else if (!strcmp(a, "--quick")) {
+      quick = 1;
+    } else if (!strcmp(a, "--n") && has) {
+      if ((n_n = bench_parse_ints(argv[++i], n_list, MAX_N)) <= 0)
+        return bad_usage();
+      n_set = 1;
+    } else if (!strcmp(a, "--net") && has) {
+      const char *s = argv[++i];
+      for (int k = 0; k < N_NETS; k++)
+        nets[k] = strstr(s, net_names[k]) != NULL;
+      if (!nets[0] && !nets[1] && !nets[2])
+        return bad_usage();
+    } else if (!strcmp(a, "--repeats") && has) {
+      repeats = atoi(argv[++i]);
+      if (repeats < 1 || repeats > MAX_REPEATS)
+        return bad_usage();
+    } else if (!strcmp(a, "--steps") && has) {
+      if ((o.steps = atoi(argv[++i])) < 1)
+        return bad_usage();
+    } else if (!strcmp(a, "--p") && has) {
+      if ((o.p = atoi(argv[++i])) < 1)
+        return bad_usage();
+    } else if (!strcmp(a, "--big") && has) {
+      if ((o.big = atoi(argv[++i])) < 1)
+        return bad_usage();
+    } else if (!strcmp(a, "--dT") && has) {
+      if (bench_parse_positive(argv[++i], &o.dT) < 0)
+        return bad_usage();
+    } else if (!strcmp(a, "--budget") && has) {
+      if (bench_parse_positive(argv[++i], &o.budget) < 0)
+        return bad_usage();
+    } else if (!strcmp(a, "--mem") && has) {
+      if (bench_parse_positive(argv[++i], &o.mem_gb) < 0)
+        return bad_usage();
+    } else if (!strcmp(a, "--method") && has) {
+      only = argv[++i];
+      int known = 0;
+      for (int me = 0; me < N_METHODS; me++)
+        known |= !strcmp(only, method_names[me]);
+      if (!known)
+        return bad_usage();
+    } else if (!strcmp(a, "--no-lammps")) {
+      no_lammps = 1;
+    } else {
+      return bad_usage();
+    }
+  }
+  if (quick) {
+    if (!n_set) {
+      n_n = 2;
+      n_list[0] = 300;
+      n_list[1] = 1000;
+    }
+    repeats = 1;
+    o.steps = 2;
+    nets[1] = nets[2] = 0;
+  }
+  const int lammps = !no_lammps && have_lammps();
+  snprintf(o.tmpdir, sizeof o.tmpdir, "/tmp/bench_floor.%d", (int)getpid());
+  if (lammps && mkdir(o.tmpdir, 0700) < 0) {
+    fprintf(stderr, "cannot create %s\n", o.tmpdir);
+    return 1;
+  }
+
+  printf("# mrvi %s  networks  dT = %g  p = %d  at least %d macro steps and "
+         "%g s  best of %d alternating rounds  load average %.2f at the "
+         "start\n",
+         mrvi_version(), o.dT, o.p, o.steps, MIN_CPU, repeats, bench_load());
+  printf("# build: %s\n", bench_build());
+  printf("# LAMMPS: %s\n\n",
+         no_lammps ? "off (--no-lammps)"
+         : lammps  ? "lmp found on PATH (rRESPA: bonds inner, pair list "
+                     "outer; Verlet at dt)"
+                   : "not found (install Debian's lammps); its columns are "
+                     "skipped");
+
+  printf("## Checks (smallest n)\n\n");
+  if (n_list[0] > CHECK_MAX_N)
+    printf("skipped: the smallest n is above %d\n\n", CHECK_MAX_N);
+  for (int k = 0; k < N_NETS && n_list[0] <= CHECK_MAX_N; k++)
+    if (nets[k])
+      checks(k, n_list[0], &o, lammps);
+
+  static result res[N_NETS][MAX_N][N_METHODS];
+  for (int k = 0; k < N_NETS; k++) {
+    if (!nets[k])
+      continue;
+    int dead[N_METHODS] = {0};
+    for (int ni = 0; ni < n_n; ni++) {
+      for (int me = 0; me < N_METHODS; me++) {
+        res[k][ni][me].status = 3;
+        res[k][ni][me].step = INFINITY;
+      }
+      network w;
+      int have_w = 0;
+      for (int r = 0; r < repeats; r++)
+        for (int me = 0; me < N_METHODS; me++) {
+          int is_lmp = me >= M_LMP_RESPA;
+          int implicit = me == M_MM || me == M_TM;
+          if (dead[me] || (is_lmp && (!lammps || k == 2)) ||
+              (only && strcmp(only, method_names[me])) ||
+              (implicit && n_list[ni] > o.big))
+            continue;
+          result x;
+          if (is_lmp) {
+            if (!have_w && network_make(&w, k, n_list[ni]) == 0)
+              have_w = 1;
+            if (!have_w)
+              continue;
+            x = lammps_case(&w, (method)me, &o);
+          } else {
+            x = run_case(k, n_list[ni], (method)me, &o);
+          }
+          result *best = &res[k][ni][me];
+          if (x.status == 0 && (best->status != 0 || x.step < best->step))
+            *best = x;
+          else if (best->status != 0)
+            *best = x;
+          if (x.status != 0) {
+            fprintf(stderr, "%s n = %d %s: %s\n", net_names[k], n_list[ni],
+                    method_names[me], x.message);
+            if (x.status == 2)
+              dead[me] = 1;
+          }
+        }
+      if (have_w)
+        network_free(&w);
+    }
+    /* The network's tables as soon as it is measured. */
+    printf("## %s\n\nTimes: CPU seconds per macro step (dT = %g; Verlet: p "
+           "steps of dt), best of %d; creation: integrator set-up (floors: "
+           "first force evaluation); memory: the child's peak resident set "
+           "per coordinate and its growth from before the integrator's "
+           "creation (LAMMPS: the process' peak)\n\n",
+           net_names[k], o.dT, repeats);
+    printf("| %-20s | %8s | %-12s | %11s | %9s | %10s | %9s | %9s | %8s | "
+           "%8s | %8s | %9s |\n",
+           "method", "n", "path", "step_s", "create_s", "create/st", "B/coord",
+           "dB/coord", "newton/st", "cg/micro", "gmres/st", "nnz/coord");
+    printf("|----------------------|---------:|--------------|------------:|"
+           "----------:|-----------:|----------:|----------:|---------:|"
+           "---------:|---------:|----------:|\n");
+    for (int me = 0; me < N_METHODS; me++)
+      for (int ni = 0; ni < n_n; ni++) {
+        const result *r = &res[k][ni][me];
+        if (r->status == 3)
+          continue;
+        if (r->status != 0) {
+          printf("| %-20s | %8d | failed: %s |\n", method_names[me], n_list[ni],
+                 r->message);
+          continue;
+        }
+        printf("| %-20s | %8d | %-12s | %11.4g | %9.3g | %10.2f | %9.0f | "
+               "%9.0f | %8.2f | %8.2f | %8.2f | %9.1f |\n",
+               method_names[me], r->n, r->path, r->step, r->create,
+               r->create / r->step, 1024.0 * r->peak_kb / r->n,
+               r->rss_before_kb > 0
+                   ? 1024.0 * (r->peak_kb - r->rss_before_kb) / r->n
+                   : NAN,
+               r->newton, r->cg, r->gmres, (double)r->nnz / r->n);
+      }
+    printf("\nRatios (one run), issue-24 goals: fully-explicit <= 1.3 x "
+           "r-RESPA, explicit-slow <= 4 x r-RESPA and faster than LAMMPS "
+           "rRESPA, midpoint-midpoint and trapezoidal-midpoint <= 15 x "
+           "Verlet\n\n");
+    printf("| %8s | %10s | %10s | %10s | %10s | %10s | %10s | %10s |\n", "n",
+           "FE/RESPA", "ES/RESPA", "MM/Verlet", "TM/Verlet", "ES/LMP-R",
+           "FE/LMP-R", "LMP-V/Ver");
+    printf("|---------:|-----------:|-----------:|-----------:|-----------:|"
+           "-----------:|-----------:|-----------:|\n");
+    for (int ni = 0; ni < n_n; ni++) {
+      const result *r = res[k][ni];
+      printf("| %8d |", r[M_RESPA].n ? r[M_RESPA].n : n_list[ni]);
+      print_ratio(&r[M_FE], &r[M_RESPA]);
+      print_ratio(&r[M_ES], &r[M_RESPA]);
+      print_ratio(&r[M_MM], &r[M_VERLET]);
+      print_ratio(&r[M_TM], &r[M_VERLET]);
+      print_ratio(&r[M_ES], &r[M_LMP_RESPA]);
+      print_ratio(&r[M_FE], &r[M_LMP_RESPA]);
+      print_ratio(&r[M_LMP_VERLET], &r[M_VERLET]);
+      printf("\n");
+    }
+    printf("\nExponents of the time per macro step in n (least squares on "
+           "log-log over the completed n)\n\n| %-20s | %8s |\n|----------"
+           "------------|---------:|\n",
+           "method", "exponent");
+    for (int me = 0; me < N_METHODS; me++) {
+      double x[MAX_N], y[MAX_N];
+      int c = 0;
+      for (int ni = 0; ni < n_n; ni++)
+        if (res[k][ni][me].status == 0) {
+          x[c] = res[k][ni][me].n;
+          y[c++] = res[k][ni][me].step;
+        }
+      if (c >= 2)
+        printf("| %-20s | %8.3f |\n", method_names[me],
+               bench_exponent(x, y, c));
+    }
+    printf("\n");
+    fflush(stdout);
+  }
+  printf("# load average %.2f at the end\n", bench_load());
+  if (lammps) {
+    char cmd[300];
+    snprintf(cmd, sizeof cmd, "%s/in", o.tmpdir);
+    const char *files[] = {"in", "data", "pairs", "log", "final"};
+    for (int i = 0; i < 5; i++) {
+      snprintf(cmd, sizeof cmd, "%s/%s", o.tmpdir, files[i]);
+      unlink(cmd);
+    }
+    rmdir(o.tmpdir);
+  }
+  return 0;
+}
