@@ -450,9 +450,21 @@ int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst);
 /* Gradients independent at q (model order): MRVI_ESINGULAR with a message
  * naming the constraints whose gradients are linearly dependent. */
 int mrvi_model_check_independent(mrvi_model *m, const double *q);
+/* Largest change of a coordinate, relative to max(1, max |q0_i|), that
+ * the projection of initial positions may make (doc/constraints.md). */
+#define MRVI_PROJECT_POSITIONS_MAX 1e-3
+/* Project the initial positions onto the constraints if some |g(q0)|
+ * exceeds tol (the positions of a closed loop cannot be typed exactly):
+ * Newton on g with the minimum-norm correction in the metric M, redundant
+ * rows skipped.  *correction gets max_i |dq_i|.  MRVI_EMODEL, q0 unchanged
+ * and a message naming the violated constraints if Newton fails or the
+ * change exceeds MRVI_PROJECT_POSITIONS_MAX max(1, max |q0_i|); *worst (may
+ * be NULL) the constraint with the largest |g(q0)|. */
+int mrvi_model_project_positions(mrvi_model *m, double tol, double *correction,
+                                 int *worst);
 /* Project the initial velocities onto the tangent space G(q0) v = 0
- * (M-orthogonally, so that p0 = M v0 meets G M^-1 p = 0); *correction gets
- * max_i |dv_i|. */
+ * (M-orthogonally, so that p0 = M v0 meets G M^-1 p = 0; redundant rows
+ * skipped); *correction gets max_i |dv_i|. */
 int mrvi_model_project_velocities(mrvi_model *m, double *correction);
 
 /* ---------------------------------------------------------------------------

@@ -19,6 +19,12 @@
  *     micro-node constraints.
  * The reduced rows therefore keep the arrowhead pattern of the step.
  *
+ * Redundant slow-only rows (a closed loop of joints modelled in 3-D): the
+ * rows the integrator's rank-revealing pass at q0 marks (drop) are left out
+ * of the QR, of the equations and of lambda (0 there).  The null space of
+ * the kept rows is that of all rows while the rank stays, and their zero set
+ * is the loop's near q0, so the step is the same (doc/constraints.md).
+ *
  * Newton matrix: at R = F - C lambda = 0, d(P^T F) = P^T (dF - dC lambda)
  * because d(P^T) C lambda = -P^T dC lambda (from P^T C = 0).  dF - dC lambda
  * is the x-block of the multiplier Jacobian evaluated at lambda, so the
@@ -42,6 +48,8 @@ struct mrvi_nullspace {
   int *fc, *sc;   /* slot lists */
   int *fpos;      /* fast slot -> index in fc or -1 */
   int r, rs;      /* rows of micro-node / slow-only constraints */
+  int rk;         /* slow-only rows kept (rs less the redundant ones) */
+  int *srow;      /* slow-only row -> index among the kept ones, or -1 */
   int nbs;        /* slow basis size ns - rs */
   int *b_slot;    /* basis vector i: its slot (unit) or -1 (Q column) */
   int *b_coupled; /* does it couple to the micro-node constraints? */
@@ -66,7 +74,7 @@ struct mrvi_nullspace {
 void mrvi_nullspace_free(mrvi_nullspace *z) {
   if (!z)
     return;
-  free(z->fc), free(z->sc), free(z->fpos), free(z->b_slot);
+  free(z->fc), free(z->sc), free(z->fpos), free(z->b_slot), free(z->srow);
   free(z->b_coupled), free(z->Q), free(z->Rm), free(z->Gs), free(z->Qs);
   free(z->Rs), free(z->A), free(z->t), free(z->B), free(z->Gf), free(z->Gsl);
   free(z->rec_start), free(z->rec_row), free(z->rec_coef);
@@ -140,6 +148,8 @@ static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
     }
   }
   for (int e = 0; e < st->n_lambda; e++) {
+    if (e < z->rs && z->srow[e] < 0)
+      continue;
     z->rec_start[row++] = (int)z->n_rec;
     if (rec_push(z, &cap, nu + e) < 0)
       return -1;
@@ -216,8 +226,8 @@ static int build_pattern(mrvi_nullspace *z) {
   return z->Ax ? 0 : -1;
 }
 
-int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
-                          size_t len) {
+int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
+                          mrvi_nullspace **out, char *msg, size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   mrvi_nullspace *z = calloc(1, sizeof *z);
@@ -235,8 +245,32 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
   z->sc = malloc((size_t)(ns + 1) * sizeof(int));
   int *spos = malloc((size_t)(ns + 1) * sizeof(int));
   int *ms = calloc((size_t)(ns + 1), sizeof(int));
-  if (!z->fc || !z->fpos || !z->sc || !spos || !ms)
+  z->srow = malloc((size_t)(z->rs + 1) * sizeof(int));
+  if (!z->fc || !z->fpos || !z->sc || !spos || !ms || !z->srow)
     goto oom;
+  /* Kept rows: slow-only ones numbered in order; a redundant micro-node
+   * row is declined. */
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    for (int rr = 0; rr < k->rows; rr++) {
+      const int red = drop && drop[k->first_row + rr];
+      if (k->where == MRVI_FAST && red) {
+        free(spos), free(ms);
+        mrvi_nullspace_free(z);
+        return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                         "null-space form: constraint '%s' is redundant and "
+                         "enforced at micro nodes; redundant rows are handled "
+                         "among constraints on slow coordinates only (make "
+                         "the bodies of the loop slow)",
+                         k->label);
+      }
+      if (k->where != MRVI_FAST)
+        z->srow[st->c_off[c] + rr] = red ? -1 : 0;
+    }
+  }
+  for (int e = 0; e < z->rs; e++)
+    if (z->srow[e] == 0)
+      z->srow[e] = z->rk++;
   for (int f = 0; f < nf; f++)
     z->fpos[f] = -1;
   for (int s = 0; s < ns; s++)
@@ -269,21 +303,21 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
         "of one rate; use form: multipliers",
         MAXD);
   }
-  if (z->r > z->nfc || z->rs > z->nsc) {
+  if (z->r > z->nfc || z->rk > z->nsc) {
     const int st =
         mrvi_fail(msg, len, MRVI_ESINGULAR,
                   "null-space form: %d micro-node constraint equations "
                   "on %d fast coordinates (or %d slow-only equations on "
                   "%d slow coordinates) cannot be independent; use "
                   "form: multipliers",
-                  z->r, z->nfc, z->rs, z->nsc);
+                  z->r, z->nfc, z->rk, z->nsc);
     free(spos), free(ms);
     mrvi_nullspace_free(z);
     return st;
   }
   /* Slow basis: unit vectors of the slots outside sc, then the columns of
    * the slow-only block's null space. */
-  z->nbs = ns - z->rs;
+  z->nbs = ns - z->rk;
   z->b_slot = malloc((size_t)(z->nbs + 1) * sizeof(int));
   z->b_coupled = malloc((size_t)(z->nbs + 1) * sizeof(int));
   if (!z->b_slot || !z->b_coupled)
@@ -308,12 +342,12 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
   z->Rm = malloc((p * r * r + 1) * sizeof(double));
   z->Gs = malloc((p * r * (size_t)ns + 1) * sizeof(double));
   z->Qs = malloc(((size_t)z->nsc * (size_t)z->nsc + 1) * sizeof(double));
-  z->Rs = malloc(((size_t)z->rs * (size_t)z->rs + 1) * sizeof(double));
+  z->Rs = malloc(((size_t)z->rk * (size_t)z->rk + 1) * sizeof(double));
   z->A = malloc((size_t)MAXD * MAXD * sizeof(double));
   z->t = malloc((size_t)MAXD * sizeof(double));
   z->B = malloc(((size_t)z->nbs * (size_t)ns + 1) * sizeof(double));
   z->Gf = malloc((r * nfc + 1) * sizeof(double));
-  z->Gsl = malloc(((size_t)z->rs * (size_t)z->nsc + 1) * sizeof(double));
+  z->Gsl = malloc(((size_t)z->rk * (size_t)z->nsc + 1) * sizeof(double));
   if (!z->Q || !z->Rm || !z->Gs || !z->Qs || !z->Rs || !z->A || !z->t ||
       !z->B || !z->Gf || !z->Gsl)
     goto oom;
@@ -365,7 +399,7 @@ static void solve_r(int k, const double *R, double *u) {
 int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
                           const double *F, char *msg, size_t len) {
   const mrvi_model *m = st->model;
-  const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs;
+  const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs, rk = z->rk;
   double *lam = x + st->n_unknowns;
   /* Micro-node constraints, node by node. */
   for (int mm = 0; mm < z->p; mm++) {
@@ -416,7 +450,7 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
   /* Slow-only constraints at q_k: what the slow rows leave after the
    * micro-node forces, dT R_s lambda = Q1s^T (F_s - sum_m dt a0 G_s^T l). */
   double *G = z->Gsl;
-  memset(G, 0, (size_t)(rs * z->nsc) * sizeof *G);
+  memset(G, 0, (size_t)(rk * z->nsc) * sizeof *G);
   const mrvi_point p0 = mrvi_step_node_point(st, 0, st->dT);
   for (int i = 0; i < st->n_slow_c; i++) {
     const int c = st->slow_c[i], off = st->c_off[c];
@@ -428,15 +462,16 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
       while (z->sc[a] != s)
         a++;
       for (int rr = 0; rr < k->rows; rr++)
-        G[(off + rr) * z->nsc + a] += st->cG[rr * k->n_in + j];
+        if (z->srow[off + rr] >= 0)
+          G[z->srow[off + rr] * z->nsc + a] += st->cG[rr * k->n_in + j];
     }
   }
-  if (block_qr(z, rs, z->nsc, G, z->Qs, z->Rs) < 0)
+  if (block_qr(z, rk, z->nsc, G, z->Qs, z->Rs) < 0)
     return mrvi_fail(
         msg, len, MRVI_ESINGULAR,
         "null-space form: the slow-only constraints are dependent");
-  double *u = lam;
-  for (int a = 0; a < rs; a++) {
+  double *u = z->t; /* kept rows, then spread over lam[0..rs) */
+  for (int a = 0; a < rk; a++) {
     double s = 0.0;
     for (int b = 0; b < z->nsc; b++) {
       const int sl = z->sc[b];
@@ -452,9 +487,9 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
     }
     u[a] = s;
   }
-  solve_r(rs, z->Rs, u);
-  for (int a = 0; a < rs; a++)
-    u[a] /= st->dT;
+  solve_r(rk, z->Rs, u);
+  for (int e = 0; e < rs; e++)
+    lam[e] = z->srow[e] >= 0 ? u[z->srow[e]] / st->dT : 0.0;
   return MRVI_OK;
 }
 
@@ -468,7 +503,7 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
     if (z->b_slot[i] >= 0)
       b[z->b_slot[i]] = 1.0;
     else {
-      const int col = z->rs + (i - (z->nbs - (nsc - z->rs)));
+      const int col = z->rk + (i - (z->nbs - (nsc - z->rk)));
       for (int a = 0; a < nsc; a++)
         b[z->sc[a]] = z->Qs[a * nsc + col];
     }
@@ -515,7 +550,7 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
       for (int a = 0; a < nfc; a++)
         z->rec_coef[e++] = Q[a * nfc + j];
   }
-  for (int k = 0; k < st->n_lambda; k++)
+  for (int k = 0; k < st->n_lambda - (z->rs - z->rk); k++)
     z->rec_coef[e++] = 1.0;
   /* Rows of the reduced system: combinations of the full rows. */
   memset(z->Ax, 0, (size_t)z->nnz * sizeof *z->Ax);

@@ -14,8 +14,8 @@
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_nullspace mrvi_nullspace;
 /* After mrvi_step_build_pattern: reduced pattern (size n_unknowns). */
-int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
-                          size_t len);
+int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
+                          mrvi_nullspace **out, char *msg, size_t len);
 void mrvi_nullspace_free(mrvi_nullspace *z);
 /* Multipliers lambda(x) (written to x + n_unknowns) from the residual F of
  * the full system assembled at lambda = 0; also factors the node blocks

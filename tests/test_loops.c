@@ -1,0 +1,334 @@
+/* Closed loops of joints (doc/multibody.md, "Closed loops"): a planar
+ * four-bar modelled in 3-D with revolute joints has 3 redundant constraint
+ * rows, which the null-space form handles and the multiplier form refuses
+ * with the joints' names; the loop holds to the constraint tolerance over
+ * 10^4 steps with a bounded energy error.  The 2-D four-bar (no redundancy)
+ * gives the same trajectory in both forms.  Initial positions off the
+ * constraints are projected with the minimal (mass-weighted) displacement. */
+#include "model/model.h"
+#include "models.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const char *form_name(mrvi_constraint_form f) {
+  return f == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers";
+}
+
+/* ---------------------------------------------------------------------------
+ * The four-bar: ground pivots A = 0 and D = (fb_d, 0), crank AB (fb_a),
+ * coupler BC (fb_b), rocker DC (fb_c), a Grashof crank-rocker (s + l <=
+ * p + q), crank angle fb_th0, crank angular velocity fb_w0 about e3,
+ * gravity -fb_g e2 in the plane.  Each link is a uniform bar (d1 along it).
+ * ------------------------------------------------------------------------- */
+static const double fb_a = 1.0, fb_b = 3.0, fb_c = 2.5, fb_d = 3.0,
+                    fb_th0 = 1.0, fb_w0 = 2.0, fb_g = 9.81;
+
+/* The joint points A, B, C, D (3 entries each, z = 0) at crank angle th,
+ * C on the upper branch (exact to round-off). */
+static void fourbar_points(double th, double P[4][3]) {
+  memset(P, 0, 4 * 3 * sizeof(double));
+  P[1][0] = fb_a * cos(th);
+  P[1][1] = fb_a * sin(th);
+  P[3][0] = fb_d;
+  /* C: |C - B| = b, |C - D| = c (intersection of two circles). */
+  const double ex = P[3][0] - P[1][0], ey = P[3][1] - P[1][1];
+  const double e = hypot(ex, ey);
+  const double s = (fb_b * fb_b - fb_c * fb_c + e * e) / (2.0 * e);
+  const double h = sqrt(fb_b * fb_b - s * s);
+  P[2][0] = P[1][0] + (s * ex + h * ey) / e;
+  P[2][1] = P[1][1] + (s * ey - h * ex) / e;
+  if (P[2][1] < 0) { /* the other branch */
+    P[2][0] = P[1][0] + (s * ex - h * ey) / e;
+    P[2][1] = P[1][1] + (s * ey + h * ex) / e;
+  }
+}
+
+/* A uniform bar from P to Q as a body (D = 2 or 3), at rest or with
+ * angular velocity w about e3 around P (v = w e3 x (x - P)). */
+static int add_bar(mrvi_model *m, const char *name, int D, const double *P,
+                   const double *Q, double mass, double w) {
+  const double dx = Q[0] - P[0], dy = Q[1] - P[1], l = hypot(dx, dy);
+  const double c = dx / l, s = dy / l;
+  const double x0[3] = {0.5 * (P[0] + Q[0]), 0.5 * (P[1] + Q[1]), 0.0};
+  const double v0[3] = {-w * (x0[1] - P[1]), w * (x0[0] - P[0]), 0.0};
+  const double Jt = mass * l * l / 12.0;
+  if (D == 3) {
+    const double R[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
+    const double J[3] = {0.1 * Jt, Jt, Jt}, om[3] = {0, 0, w};
+    return mrvi_model_add_body(m, name, 3, MRVI_SLOW, mass, J, x0, R, v0, om);
+  }
+  const double R[4] = {c, -s, s, c};
+  return mrvi_model_add_body(m, name, 2, MRVI_SLOW, mass, &Jt, x0, R, v0, &w);
+}
+
+/* The four-bar in D dimensions; off moves the rocker's centre by off along
+ * e2 after the joints are made (which meet the typed positions exactly), so
+ * that its two joints are off by off.  With fast: a fast particle on a stiff spring to an anchor and a
+ * soft slow spring to the coupler's midpoint (so that p > 1 has fast
+ * coordinates). */
+static mrvi_model *fourbar(int D, double off, int fast) {
+  mrvi_model *m = mrvi_model_create();
+  double P[4][3];
+  fourbar_points(fb_th0, P);
+  const double axis[3] = {0, 0, 1}, g[3] = {0, -fb_g, 0};
+  mrvi_model_set_dimension(m, D);
+  int st = add_bar(m, "crank", D, P[0], P[1], 1.0, fb_w0);
+  st |= add_bar(m, "coupler", D, P[1], P[2], 2.0, 0.0);
+  st |= add_bar(m, "rocker", D, P[3], P[2], 1.5, 0.0);
+  CHECK(st >= 0, "four-bar %d-D bodies: %s", D, mrvi_model_errmsg(m));
+  const char *rev = "revolute";
+  const double *ax = D == 3 ? axis : NULL;
+  st = mrvi_model_add_joint(m, rev, 0, -1, P[0], ax);
+  st |= mrvi_model_add_joint(m, rev, 0, 1, P[1], ax);
+  st |= mrvi_model_add_joint(m, rev, 1, 2, P[2], ax);
+  st |= mrvi_model_add_joint(m, rev, 2, -1, P[3], ax);
+  CHECK(st >= 0, "four-bar %d-D joints: %s", D, mrvi_model_errmsg(m));
+  m->q0[mrvi_model_body_first(m, 2) + 1] += off;
+  CHECK(mrvi_model_set_gravity(m, g) >= 0, "gravity: %s",
+        mrvi_model_errmsg(m));
+  if (fast) {
+    const double x[3] = {1.5, 2.5, 0.0}, v[3] = {0.3, -0.2, 0.0};
+    const int f = mrvi_model_add_particle(m, "f", 0.2, MRVI_FAST, x, v);
+    const mrvi_end pf = {.particle = f, .body = -1},
+                   cm = {.particle = -1, .body = 1, .at = {0, 0, 0}};
+    const double kf = 400.0, ks = 5.0, anchor[3] = {1.5, 2.7, 0.0};
+    CHECK(f >= 0 &&
+              mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor,
+                                        "linear", &kf, 0.15) >= 0 &&
+              mrvi_model_add_end_spring(m, MRVI_SLOW, &pf, &cm, NULL, "linear",
+                                        &ks, NAN) >= 0,
+          "fast particle: %s", mrvi_model_errmsg(m));
+  }
+  return m;
+}
+
+static mrvi_settings loop_settings(double dT, int p, double t_end,
+                                   mrvi_constraint_form form) {
+  mrvi_settings s = test_settings("midpoint-midpoint", dT, p, t_end, 1e-11);
+  s.constraint_form = form;
+  s.constraint_tol = 1e-11;
+  return s;
+}
+
+/* max |g| (all rows, the redundant ones too) and max |H - H0| / |H0| over a
+ * trajectory; *eH10 (may be NULL) the latter over its first tenth. */
+static void loop_invariants(const mrvi_model *m, const mrvi_trajectory *tr,
+                            double *eg, double *eH, double *eH10) {
+  const int n = tr->n, R = mrvi_model_constraint_rows(m);
+  double *g = malloc((size_t)R * sizeof *g), H0 = 0.0;
+  *eg = *eH = 0.0;
+  for (long k = 0; k < tr->n_macro; k++) {
+    double T, V, W;
+    mrvi_model_energy(m, tr->q + k * n, tr->p + k * n, &T, &V, &W);
+    if (k == 0)
+      H0 = T + V + W;
+    *eH = fmax(*eH, fabs(T + V + W - H0) / fabs(H0));
+    if (eH10 && 10 * k <= tr->n_macro)
+      *eH10 = *eH;
+    mrvi_model_constraint_eval(m, tr->q + k * n, g, NULL);
+    for (int r = 0; r < R; r++)
+      *eg = fmax(*eg, fabs(g[r]));
+  }
+  free(g);
+}
+
+/* The 3-D four-bar: 38 rows on 36 coordinates, rank 35. */
+static void test_fourbar_3d(void) {
+  mrvi_model *m = fourbar(3, 0.0, 0);
+  char why[600];
+  const int R = mrvi_model_constraint_rows(m);
+  CHECK(R == 38, "four-bar 3-D: %d rows", R);
+  /* The multiplier form refuses, naming the joints and what to do. */
+  const int st = mrvi_model_check_independent(m, mrvi_model_q0(m));
+  snprintf(why, sizeof why, "%s", mrvi_model_errmsg(m));
+  CHECK(st == MRVI_ESINGULAR && strstr(why, "revolute") &&
+            strstr(why, "null-space") && strstr(why, "2-D") &&
+            strstr(why, "non-redundant joint set"),
+        "four-bar 3-D refused in the multiplier form with its joints named: "
+        "%s",
+        why);
+  mrvi_settings s = loop_settings(0.01, 1, 1.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  CHECK(mrvi_trajectory_run(m, &s, &tr, &sum) != 0 &&
+            strstr(sum.message, "redundant constraints"),
+        "multiplier-form run refused: %s", sum.message);
+  mrvi_trajectory_free(tr);
+  tr = NULL;
+  /* The null-space form integrates it: 10^4 steps. */
+  s = loop_settings(0.01, 1, 100.0, MRVI_FORM_NULL_SPACE);
+  if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0) {
+    CHECK(0, "four-bar 3-D null-space run: %s", sum.message);
+  } else {
+    double eg, eH, eH10 = 0.0;
+    loop_invariants(m, tr, &eg, &eH, &eH10);
+    /* The crank's angle after 10^4 steps: it turns (a crank-rocker). */
+    const double *q = tr->q + (tr->n_macro - 1) * tr->n;
+    printf("four-bar 3-D (null-space): %ld steps, max |g| %.3g (all 38 rows), "
+           "max relative energy error %.3g (%.3g over the first 1000), crank "
+           "centre (%.3f, %.3f)\n",
+           tr->n_macro - 1, eg, eH, eH10, q[0], q[1]);
+    CHECK(tr->n_macro == 10001, "four-bar 3-D: %ld nodes", tr->n_macro);
+    CHECK(eg <= 1e-11, "four-bar 3-D: loop closure %.3g", eg);
+    /* Bounded: O(dT^2), reached early and not growing. */
+    CHECK(eH < 3e-3 && eH < 1.5 * eH10,
+          "four-bar 3-D: energy error %.3g (%.3g over the first tenth)", eH,
+          eH10);
+    /* Planar: every z coordinate of the centres stays 0. */
+    double zmax = 0.0;
+    for (long k = 0; k < tr->n_macro; k++)
+      for (int b = 0; b < 3; b++)
+        zmax = fmax(zmax, fabs(tr->q[k * tr->n + 12 * b + 2]));
+    CHECK(zmax < 1e-12, "four-bar 3-D stays planar: %.3g", zmax);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+/* The 2-D four-bar (17 rows on 18 coordinates, independent) in 3-D and
+ * 2-D agree, and both forms agree in 2-D, p in {1, 5}. */
+static void test_fourbar_forms(void) {
+  for (int p = 1; p <= 5; p += 4) {
+    mrvi_model *m = fourbar(2, 0.0, p > 1);
+    mrvi_trajectory *tr[2] = {NULL, NULL};
+    mrvi_summary sum;
+    for (int f = 0; f < 2; f++) {
+      const mrvi_constraint_form form =
+          f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      const mrvi_settings s = loop_settings(0.01, p, 1.0, form);
+      if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+        CHECK(0, "four-bar 2-D (%s, p = %d): %s", form_name(form), p,
+              sum.message);
+    }
+    if (tr[0] && tr[1]) {
+      double d = 0.0;
+      for (long i = 0; i < tr[0]->n_macro * tr[0]->n; i++)
+        d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
+      double eg, eH;
+      loop_invariants(m, tr[1], &eg, &eH, NULL);
+      printf("four-bar 2-D, p = %d: 100 steps, forms differ by %.3g, max |g| "
+             "%.3g\n",
+             p, d, eg);
+      CHECK(tr[0]->n_macro == 101 && d < 1e-10,
+            "four-bar 2-D p = %d: forms differ by %.3g", p, d);
+      CHECK(eg <= 1e-11, "four-bar 2-D p = %d: max |g| %.3g", p, eg);
+    }
+    mrvi_trajectory_free(tr[0]);
+    mrvi_trajectory_free(tr[1]);
+    mrvi_model_free(m);
+  }
+  /* 3-D (redundant, null-space form) against 2-D (multipliers): the same
+   * planar motion. */
+  mrvi_model *m3 = fourbar(3, 0.0, 0), *m2 = fourbar(2, 0.0, 0);
+  const mrvi_settings s3 = loop_settings(0.01, 1, 1.0, MRVI_FORM_NULL_SPACE),
+                      s2 = loop_settings(0.01, 1, 1.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *t3 = NULL, *t2 = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m3, &s3, &t3, &sum) == 0 &&
+      mrvi_trajectory_run(m2, &s2, &t2, &sum) == 0) {
+    double d = 0.0;
+    for (long k = 0; k < t2->n_macro; k++)
+      for (int b = 0; b < 3; b++)
+        for (int a = 0; a < 2; a++)
+          d = fmax(d, fabs(t3->q[k * t3->n + 12 * b + a] -
+                           t2->q[k * t2->n + 6 * b + a]));
+    printf("four-bar 3-D (null-space) against 2-D (multipliers): centres "
+           "differ by %.3g over 100 steps\n",
+           d);
+    CHECK(d < 1e-9, "four-bar 3-D against 2-D: %.3g", d);
+  } else {
+    CHECK(0, "four-bar 3-D / 2-D runs: %s", sum.message);
+  }
+  mrvi_trajectory_free(t3);
+  mrvi_trajectory_free(t2);
+  mrvi_model_free(m3);
+  mrvi_model_free(m2);
+}
+
+/* ---------------------------------------------------------------------------
+ * Projection of initial positions (doc/constraints.md, initial data).
+ * ------------------------------------------------------------------------- */
+static void test_projection(void) {
+  /* A rod between masses 1 and 3 that start 1.001 apart: the minimal
+   * M-weighted correction moves them along the rod by 0.001 * 3/4 and
+   * 0.001 * 1/4. */
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double x1[3] = {0.2, -0.1, 0.3}, u[3] = {0.6, 0.0, 0.8},
+               v0[3] = {0, 0, 0};
+  double x2[3];
+  for (int a = 0; a < 3; a++)
+    x2[a] = x1[a] + 1.001 * u[a];
+  const int i = mrvi_model_add_particle(m, "a", 1.0, MRVI_SLOW, x1, v0),
+            j = mrvi_model_add_particle(m, "b", 3.0, MRVI_SLOW, x2, v0);
+  CHECK(mrvi_model_add_distance(m, i, j, 1.0) >= 0, "rod: %s",
+        mrvi_model_errmsg(m));
+  double corr = 0.0, err = 0.0;
+  CHECK(mrvi_model_project_positions(m, 1e-12, &corr, NULL) == MRVI_OK,
+        "rod projected: %s", mrvi_model_errmsg(m));
+  const double *q = mrvi_model_q0(m);
+  for (int a = 0; a < 3; a++) {
+    err = fmax(err, fabs(q[a] - (x1[a] + 0.00075 * u[a])));
+    err = fmax(err, fabs(q[3 + a] - (x2[a] - 0.00025 * u[a])));
+  }
+  printf("projection of a rod 1.001 long onto length 1 (masses 1, 3): "
+         "error against the minimal displacement %.3g, largest change %.3g\n",
+         err, corr);
+  CHECK(err < 1e-14, "rod projection: %.3g from the analytic one", err);
+  CHECK(fabs(corr - 0.00075 * 0.8) < 1e-14, "rod projection: change %.3g",
+        corr);
+  mrvi_model_free(m);
+
+  /* The 3-D four-bar with the rocker moved 1e-4 off the loop: projected onto all 38
+   * rows (3 redundant) by a change of the order of the offset. */
+  m = fourbar(3, 1e-4, 0);
+  const int R = mrvi_model_constraint_rows(m);
+  double *g = malloc((size_t)R * sizeof *g), gmax = 0.0, g0 = 0.0;
+  mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
+  for (int r = 0; r < R; r++)
+    g0 = fmax(g0, fabs(g[r]));
+  CHECK(mrvi_model_project_positions(m, 1e-12, &corr, NULL) == MRVI_OK,
+        "four-bar projected: %s", mrvi_model_errmsg(m));
+  mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
+  for (int r = 0; r < R; r++)
+    gmax = fmax(gmax, fabs(g[r]));
+  printf("four-bar 3-D with the rocker 1e-4 off the loop: max |g| %.3g -> %.3g, "
+         "largest change %.3g\n",
+         g0, gmax, corr);
+  CHECK(g0 > 1e-5 && gmax <= 1e-12, "four-bar projection: |g| %.3g", gmax);
+  CHECK(corr > 1e-5 && corr < 1e-3, "four-bar projection: change %.3g", corr);
+  /* And it runs from there in the null-space form. */
+  const mrvi_settings s = loop_settings(0.01, 1, 0.5, MRVI_FORM_NULL_SPACE);
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  CHECK(mrvi_trajectory_run(m, &s, &tr, &sum) == 0, "projected run: %s",
+        sum.message);
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+  free(g);
+
+  /* Too far off (0.1): refused, naming the joints, positions unchanged. */
+  m = fourbar(3, 0.1, 0);
+  double before[64];
+  memcpy(before, mrvi_model_q0(m), 36 * sizeof(double));
+  int worst = -1;
+  const int st = mrvi_model_project_positions(m, 1e-12, &corr, &worst);
+  const char *msg = mrvi_model_errmsg(m);
+  printf("four-bar 3-D with the rocker 0.1 off: %s\n", msg);
+  CHECK(st == MRVI_EMODEL && strstr(msg, "revolute") && worst >= 0,
+        "far-off four-bar refused: %s", msg);
+  CHECK(memcmp(before, mrvi_model_q0(m), 36 * sizeof(double)) == 0,
+        "refused projection leaves q0");
+  mrvi_model_free(m);
+}
+
+int main(void) {
+  test_fourbar_3d();
+  test_fourbar_forms();
+  test_projection();
+  return test_finish();
+}
