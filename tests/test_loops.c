@@ -5,6 +5,7 @@
  * 10^4 steps with a bounded energy error.  The 2-D four-bar (no redundancy)
  * gives the same trajectory in both forms.  Initial positions off the
  * constraints are projected with the minimal (mass-weighted) displacement. */
+#include "io/io.h"
 #include "model/model.h"
 #include "models.h"
 #include "testlib.h"
@@ -13,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 static const char *form_name(mrvi_constraint_form f) {
   return f == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers";
@@ -67,9 +69,9 @@ static int add_bar(mrvi_model *m, const char *name, int D, const double *P,
 
 /* The four-bar in D dimensions; off moves the rocker's centre by off along
  * e2 after the joints are made (which meet the typed positions exactly), so
- * that its two joints are off by off.  With fast: a fast particle on a stiff spring to an anchor and a
- * soft slow spring to the coupler's midpoint (so that p > 1 has fast
- * coordinates). */
+ * that its two joints are off by off.  With fast: a fast particle on a stiff
+ * spring to an anchor and a soft slow spring to the coupler's midpoint (so that
+ * p > 1 has fast coordinates). */
 static mrvi_model *fourbar(int D, double off, int fast) {
   mrvi_model *m = mrvi_model_create();
   double P[4][3];
@@ -88,8 +90,7 @@ static mrvi_model *fourbar(int D, double off, int fast) {
   st |= mrvi_model_add_joint(m, rev, 2, -1, P[3], ax);
   CHECK(st >= 0, "four-bar %d-D joints: %s", D, mrvi_model_errmsg(m));
   m->q0[mrvi_model_body_first(m, 2) + 1] += off;
-  CHECK(mrvi_model_set_gravity(m, g) >= 0, "gravity: %s",
-        mrvi_model_errmsg(m));
+  CHECK(mrvi_model_set_gravity(m, g) >= 0, "gravity: %s", mrvi_model_errmsg(m));
   if (fast) {
     const double x[3] = {1.5, 2.5, 0.0}, v[3] = {0.3, -0.2, 0.0};
     const int f = mrvi_model_add_particle(m, "f", 0.2, MRVI_FAST, x, v);
@@ -283,8 +284,8 @@ static void test_projection(void) {
         corr);
   mrvi_model_free(m);
 
-  /* The 3-D four-bar with the rocker moved 1e-4 off the loop: projected onto all 38
-   * rows (3 redundant) by a change of the order of the offset. */
+  /* The 3-D four-bar with the rocker moved 1e-4 off the loop: projected onto
+   * all 38 rows (3 redundant) by a change of the order of the offset. */
   m = fourbar(3, 1e-4, 0);
   const int R = mrvi_model_constraint_rows(m);
   double *g = malloc((size_t)R * sizeof *g), gmax = 0.0, g0 = 0.0;
@@ -296,9 +297,10 @@ static void test_projection(void) {
   mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
   for (int r = 0; r < R; r++)
     gmax = fmax(gmax, fabs(g[r]));
-  printf("four-bar 3-D with the rocker 1e-4 off the loop: max |g| %.3g -> %.3g, "
-         "largest change %.3g\n",
-         g0, gmax, corr);
+  printf(
+      "four-bar 3-D with the rocker 1e-4 off the loop: max |g| %.3g -> %.3g, "
+      "largest change %.3g\n",
+      g0, gmax, corr);
   CHECK(g0 > 1e-5 && gmax <= 1e-12, "four-bar projection: |g| %.3g", gmax);
   CHECK(corr > 1e-5 && corr < 1e-3, "four-bar projection: change %.3g", corr);
   /* And it runs from there in the null-space form. */
@@ -326,9 +328,52 @@ static void test_projection(void) {
   mrvi_model_free(m);
 }
 
+/* A description file whose loop (particles B, C on rods to anchors and to
+ * each other) is typed to 4 digits: the loader projects it with a note. */
+static void test_loader_projection(void) {
+  char path[] = "/tmp/mrvi_test_loops_XXXXXX";
+  const int fd = mkstemp(path);
+  FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
+  CHECK(f != NULL, "temporary file");
+  if (!f)
+    return;
+  fputs("name: typed-loop\n"
+        "dimension: 2\n"
+        "particles:\n"
+        "  - {name: B, mass: 1, position: [0.5403, 0.8415]}\n"
+        "  - {name: C, mass: 2, position: [3.0404, 2.4997], velocity: [1, 0]}\n"
+        "constraints:\n"
+        "  - {type: distance, name: crank, between: [B], anchor: [0, 0], "
+        "length: 1}\n"
+        "  - {type: distance, name: coupler, between: [B, C], length: 3}\n"
+        "  - {type: distance, name: rocker, between: [C], anchor: [3, 0], "
+        "length: 2.5}\n"
+        "integrator: {macro_step: 0.01, t_end: 0.1}\n",
+        f);
+  fclose(f);
+  mrvi_system *sys = NULL;
+  char msg[1024] = "";
+  const int st = mrvi_system_load(path, NULL, 0, &sys, msg, sizeof msg);
+  unlink(path);
+  CHECK(st == 0, "typed loop loads: %s", msg);
+  if (st)
+    return;
+  double g[3];
+  mrvi_model_constraint_eval(sys->model, mrvi_model_q0(sys->model), g, NULL);
+  const double gmax = fmax(fabs(g[0]), fmax(fabs(g[1]), fabs(g[2])));
+  printf("typed loop: note '%s', max |g| %.3g\n", sys->notes ? sys->notes : "",
+         gmax);
+  CHECK(sys->notes && strstr(sys->notes, "initial positions projected onto "
+                                         "the constraints (largest change"),
+        "typed loop: projection note: %s", sys->notes ? sys->notes : "none");
+  CHECK(gmax <= 1e-12, "typed loop projected: max |g| %.3g", gmax);
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   test_fourbar_3d();
   test_fourbar_forms();
   test_projection();
+  test_loader_projection();
   return test_finish();
 }
