@@ -522,6 +522,8 @@ void mrvi_model_body_pose(const mrvi_model *m, int b, const double *q,
  *   prismatic    2-D 2 rows, 3-D 5 rows; axis: the sliding direction
  *   cylindrical  3-D, 4 rows; axis: of rotation and sliding
  *   planar       3-D, 3 rows; axis: the plane's normal
+ *   universal    3-D, 4 rows; axis: fixed in A, second axis: fixed in B
+ *                (the Hooke joint's cross; perpendicular to the axis)
  * point: the joint's point in space at the initial configuration (D
  * entries), stored in each body's frame so that the initial positions meet
  * the joint; axis: in space at the initial configuration (D entries, not
@@ -544,6 +546,13 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
 int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
                            int body_b, const double *axis, const char *law,
                            const double *params, double rest_angle);
+/* The same with a second axis (D entries, in space at the initial
+ * configuration; NULL for the types that take none): the universal
+ * joint's axis fixed in body B (or the ground), perpendicular to `axis`
+ * (parallel or oblique axes are refused with a message). */
+int mrvi_model_add_joint_axes(mrvi_model *m, const char *type, int body_a,
+                              int body_b, const double *point,
+                              const double *axis, const double *second);
 /* Names of the joint types above, NULL-terminated. */
 const char *const *mrvi_joint_type_names(void);
 

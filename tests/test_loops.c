@@ -328,6 +328,146 @@ static void test_projection(void) {
   mrvi_model_free(m);
 }
 
+/* ---------------------------------------------------------------------------
+ * Universal joint (constraints/universal.c): a bar hanging from the ground
+ * by a Hooke joint, its axis e1 fixed in the bar, the second axis e2 fixed
+ * in the ground.  The bar may swing about e2 and about its own d1 but not
+ * spin about the vertical.
+ * ------------------------------------------------------------------------- */
+static const double uj_M = 2.0, uj_l = 0.6, uj_th0 = 0.7;
+
+/* The bar at angle uj_th0 about e2 from hanging down; w1 the initial
+ * rate about its own d1 (a second swing). */
+static mrvi_model *hooke(const char *type, double w1) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double c = cos(uj_th0), s = sin(uj_th0);
+  const double R[9] = {c, 0, s, 0, 1, 0, -s, 0, c};
+  const double x0[3] = {uj_l * s, 0, -uj_l * c}, J[3] = {0.05, 0.06, 0.02};
+  const double w[3] = {w1 * c, 0.0, -w1 * s}; /* w1 d1 */
+  double v0[3] = {w[1] * x0[2] - w[2] * x0[1], w[2] * x0[0] - w[0] * x0[2],
+                  w[0] * x0[1] - w[1] * x0[0]};
+  const double e1[3] = {c, 0, -s}, e2[3] = {0, 1, 0}, o[3] = {0, 0, 0},
+               g[3] = {0, 0, -9.81};
+  int st = mrvi_model_add_body(m, "bar", 3, MRVI_SLOW, uj_M, J, x0, R, v0, w);
+  if (!strcmp(type, "universal"))
+    st |= mrvi_model_add_joint_axes(m, type, 0, -1, o, e1, e2);
+  else
+    st |= mrvi_model_add_joint(m, type, 0, -1, o, e2);
+  st |= mrvi_model_set_gravity(m, g);
+  CHECK(st >= 0, "%s pendulum: %s", type, mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_universal(void) {
+  /* Rows and the gradient of the joint as built, against central
+   * differences of g at a configuration off the initial one. */
+  mrvi_model *m = hooke("universal", 0.0);
+  const int n = mrvi_model_n(m), R = mrvi_model_constraint_rows(m);
+  CHECK(R == 6 + 4, "universal: %d rows (6 internal + 4)", R);
+  double q[12], gp[10], gm[10], G[120], g[10], err = 0.0, gmax = 0.0;
+  for (int i = 0; i < n; i++)
+    q[i] = mrvi_model_q0(m)[i] + 0.1 * sin(3.1 * i + 0.4);
+  mrvi_model_constraint_eval(m, q, g, G);
+  for (int j = 0; j < n; j++) {
+    const double h = 1e-6, q0 = q[j];
+    q[j] = q0 + h;
+    mrvi_model_constraint_eval(m, q, gp, NULL);
+    q[j] = q0 - h;
+    mrvi_model_constraint_eval(m, q, gm, NULL);
+    q[j] = q0;
+    for (int r = 0; r < R; r++)
+      err = fmax(err, fabs((gp[r] - gm[r]) / (2 * h) - G[r * n + j]));
+  }
+  mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
+  for (int r = 0; r < R; r++)
+    gmax = fmax(gmax, fabs(g[r]));
+  printf("universal joint: gradient against central differences %.3g, "
+         "|g(q0)| %.3g\n",
+         err, gmax);
+  CHECK(err < 1e-8, "universal gradient: FD error %.3g", err);
+  CHECK(gmax < 1e-15, "universal joint holds at q0: %.3g", gmax);
+  /* A swing about e2 stays planar: the revolute pendulum (hinge e2). */
+  mrvi_model *r = hooke("revolute", 0.0);
+  for (int f = 0; f < 2; f++) {
+    const mrvi_constraint_form form =
+        f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    const mrvi_settings s = loop_settings(0.01, 1, 1.0, form);
+    mrvi_trajectory *a = NULL, *b = NULL;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &a, &sum) == 0 &&
+        mrvi_trajectory_run(r, &s, &b, &sum) == 0) {
+      double d = 0.0;
+      for (long i = 0; i < a->n_macro * n; i++)
+        d = fmax(d, fabs(a->q[i] - b->q[i]));
+      printf("universal against revolute, planar swing (%s): %.3g over 100 "
+             "steps\n",
+             form_name(form), d);
+      CHECK(d < 1e-10, "universal planar swing (%s): %.3g", form_name(form), d);
+    } else {
+      CHECK(0, "universal / revolute runs (%s): %s", form_name(form),
+            sum.message);
+    }
+    mrvi_trajectory_free(a);
+    mrvi_trajectory_free(b);
+  }
+  mrvi_model_free(r);
+  mrvi_model_free(m);
+  /* Both swings at once: d1 stays normal to e2 (no spin about the
+   * vertical), the joint holds, the energy is bounded; both forms agree. */
+  m = hooke("universal", 3.0);
+  mrvi_trajectory *tr[2] = {NULL, NULL};
+  for (int f = 0; f < 2; f++) {
+    const mrvi_settings s = loop_settings(
+        0.01, 1, 10.0, f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS);
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+      CHECK(0, "universal swing: %s", sum.message);
+  }
+  if (tr[0] && tr[1]) {
+    double eg, eH, d1y = 0.0, d = 0.0, spread = 0.0;
+    loop_invariants(m, tr[0], &eg, &eH, NULL);
+    for (long k = 0; k < tr[0]->n_macro; k++) {
+      d1y = fmax(d1y, fabs(tr[0]->q[k * n + 4]));
+      spread = fmax(spread, fabs(tr[0]->q[k * n + 1]));
+    }
+    for (long i = 0; i < tr[0]->n_macro * n; i++)
+      d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
+    printf("universal joint, two swings, 1000 steps: max |d1 . e2| %.3g, "
+           "max |g| %.3g, energy %.3g, max |y| of the centre %.3g, forms "
+           "differ by %.3g\n",
+           d1y, eg, eH, spread, d);
+    CHECK(d1y <= 1e-11 && eg <= 1e-11, "universal: d1.e2 %.3g, |g| %.3g", d1y,
+          eg);
+    CHECK(spread > 0.05, "universal: the bar swings out of the plane (%.3g)",
+          spread);
+    CHECK(eH < 1e-2, "universal: energy error %.3g", eH);
+    CHECK(d < 1e-8, "universal: forms differ by %.3g", d);
+  }
+  mrvi_trajectory_free(tr[0]);
+  mrvi_trajectory_free(tr[1]);
+  mrvi_model_free(m);
+  /* Parallel and oblique axes are refused. */
+  m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double x0[3] = {0, 0, -1}, J[3] = {1, 1, 1}, o[3] = {0, 0, 0},
+               ex[3] = {1, 0, 0}, ex2[3] = {-2, 0, 0}, ob[3] = {1, 1, 0};
+  mrvi_model_add_body(m, "b", 3, MRVI_SLOW, 1.0, J, x0, NULL, NULL, NULL);
+  int st = mrvi_model_add_joint_axes(m, "universal", 0, -1, o, ex, ex2);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "parallel"),
+        "parallel axes refused: %s", mrvi_model_errmsg(m));
+  st = mrvi_model_add_joint_axes(m, "universal", 0, -1, o, ex, ob);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "45 degrees"),
+        "oblique axes refused: %s", mrvi_model_errmsg(m));
+  st = mrvi_model_add_joint(m, "universal", 0, -1, o, ex);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "needs a second axis"),
+        "missing second axis refused: %s", mrvi_model_errmsg(m));
+  st = mrvi_model_add_joint_axes(m, "revolute", 0, -1, o, ex, ob);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "takes no second axis"),
+        "second axis of a revolute refused: %s", mrvi_model_errmsg(m));
+  mrvi_model_free(m);
+}
+
 /* A description file whose loop (particles B, C on rods to anchors and to
  * each other) is typed to 4 digits: the loader projects it with a note. */
 static void test_loader_projection(void) {
@@ -375,5 +515,6 @@ int main(void) {
   test_fourbar_forms();
   test_projection();
   test_loader_projection();
+  test_universal();
   return test_finish();
 }

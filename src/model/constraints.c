@@ -20,6 +20,7 @@ extern const mrvi_constraint_type mrvi_constraint_prismatic;
 extern const mrvi_constraint_type mrvi_constraint_cylindrical;
 extern const mrvi_constraint_type mrvi_constraint_planar;
 extern const mrvi_constraint_type mrvi_constraint_point;
+extern const mrvi_constraint_type mrvi_constraint_universal;
 
 static const mrvi_constraint_type *const builtin[] = {
     &mrvi_constraint_distance,  &mrvi_constraint_fixed,
@@ -28,6 +29,7 @@ static const mrvi_constraint_type *const builtin[] = {
     &mrvi_constraint_revolute,  &mrvi_constraint_weld,
     &mrvi_constraint_prismatic, &mrvi_constraint_cylindrical,
     &mrvi_constraint_planar,    &mrvi_constraint_point,
+    &mrvi_constraint_universal,
 };
 
 #define N_BUILTIN ((int)(sizeof builtin / sizeof builtin[0]))
