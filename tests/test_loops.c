@@ -510,11 +510,64 @@ static void test_loader_projection(void) {
   mrvi_system_free(sys);
 }
 
+/* systems/slider_crank.yaml: 10^4 steps, the loop closed to the
+ * tolerance, the energy error bounded; both forms agree. */
+static void test_slider_crank(void) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  int st = mrvi_system_load(test_source_path("systems/slider_crank.yaml"), NULL,
+                            0, &sys, msg, sizeof msg);
+  CHECK(st == 0, "systems/slider_crank.yaml loads: %s", msg);
+  if (st)
+    return;
+  const mrvi_model *m = sys->model;
+  mrvi_settings s = sys->settings;
+  mrvi_trajectory *tr = NULL, *tn = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0) {
+    CHECK(0, "slider-crank run: %s", sum.message);
+  } else {
+    double eg, eH, eH10 = 0.0, xmin = 1e300, xmax = -1e300;
+    loop_invariants(m, tr, &eg, &eH, &eH10);
+    const int xs = mrvi_model_body_first(m, 2);
+    for (long k = 0; k < tr->n_macro; k++) {
+      xmin = fmin(xmin, tr->q[k * tr->n + xs]);
+      xmax = fmax(xmax, tr->q[k * tr->n + xs]);
+    }
+    printf("slider-crank: %ld steps, max |g| %.3g, max relative energy "
+           "error %.3g (%.3g over the first tenth), slider in [%.4f, %.4f]\n",
+           tr->n_macro - 1, eg, eH, eH10, xmin, xmax);
+    CHECK(tr->n_macro == 10001, "slider-crank: %ld nodes", tr->n_macro);
+    CHECK(eg <= s.constraint_tol, "slider-crank: loop closure %.3g", eg);
+    CHECK(eH < 1e-2 && eH < 1.5 * eH10,
+          "slider-crank: energy error %.3g (%.3g over the first tenth)", eH,
+          eH10);
+    /* The crank turns over: the slider reaches L - r and L + r. */
+    CHECK(fabs(xmin - 1.0) < 1e-3 && fabs(xmax - 2.0) < 1e-3,
+          "slider-crank: slider range [%.4f, %.4f]", xmin, xmax);
+  }
+  s.t_end = 100 * s.macro_step;
+  s.constraint_form = MRVI_FORM_NULL_SPACE;
+  if (tr && mrvi_trajectory_run(m, &s, &tn, &sum) == 0) {
+    double d = 0.0;
+    for (long i = 0; i < tn->n_macro * tn->n; i++)
+      d = fmax(d, fabs(tn->q[i] - tr->q[i]));
+    printf("slider-crank: forms differ by %.3g over 100 steps\n", d);
+    CHECK(d < 1e-10, "slider-crank forms: %.3g", d);
+  } else if (tr) {
+    CHECK(0, "slider-crank null-space run: %s", sum.message);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_trajectory_free(tn);
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   test_fourbar_3d();
   test_fourbar_forms();
   test_projection();
   test_loader_projection();
   test_universal();
+  test_slider_crank();
   return test_finish();
 }
