@@ -768,7 +768,9 @@ static int general_update(mrvi_integrator *it, int fresh, char *msg,
     mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
     s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
                           it->dx, msg, len);
-    if (s == MRVI_OK)
+    if (s == MRVI_OK && mrvi_nullspace_reparametrised(it->nullspace))
+      mrvi_nullspace_retract(it->nullspace, st, it->x, it->dx);
+    else if (s == MRVI_OK)
       subtract_dx(it, st->n_unknowns);
     return s;
   }
@@ -1108,6 +1110,8 @@ static int newton_step(mrvi_integrator *it) {
   const int shoot = it->blocks && use_shoot(it);
   if (!shoot)
     predict(it);
+  if (it->nullspace && mrvi_nullspace_reparametrised(it->nullspace))
+    mrvi_nullspace_start(it->nullspace, st, it->x);
   if (st->n_lambda > 0)
     memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;

@@ -499,3 +499,17 @@ int mrvi_model_add_joint_axes(mrvi_model *m, const char *type, int body_a,
   mrvi_fmt(label, sizeof label, "%s %s-%s", type, na, nb);
   return mrvi_model_add_constraint(m, type, n_in, in, n_par, par, label);
 }
+
+int mrvi_model_free_bodies_only(const mrvi_model *m) {
+  if (m->n_bodies == 0)
+    return 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    int own = 0;
+    for (int b = 0; b < m->n_bodies; b++)
+      own |= m->bodies[b].constraint == c && m->bodies[b].dim == 3 &&
+             m->rate[m->bodies[b].first] == MRVI_SLOW;
+    if (!own)
+      return 0;
+  }
+  return 1;
+}
