@@ -415,12 +415,11 @@ static void rotate(const double *th, double *v) {
     v[i] += a * c[i] + b * cc[i];
 }
 
-/* The new node of every reparametrised body from the old one by a
- * translation and a rotation: phi_{k+1} = phi_k + u, d_{k+1}^i =
- * exp(th^) d^i with d^i the directors of `from` (3 x 3, rows) and th from
- * the increments w (3 x 3, rows) as th = 1/2 sum_i d^i x w^i (exact for
- * w^i = th x d^i with d orthonormal: the left inverse of the body's
- * null-space matrix P = [[I, 0], [0, -d1^], [0, -d2^], [0, -d3^]]). */
+/* The rotation th of director increments w^i at directors d^i (3 x 3
+ * each, rows): th = 1/2 sum_i d^i x w^i, exact for w^i = th x d^i with d
+ * orthonormal (the left inverse of the body's null-space matrix P = [[I,
+ * 0], [0, -d1^], [0, -d2^], [0, -d3^]]); for w^i = R d^i - d^i with R a
+ * rotation, sin|th| th/|th|. */
 static void rotation_of(const double *d, const double *w, double *th) {
   th[0] = th[1] = th[2] = 0.0;
   for (int i = 0; i < 3; i++) {
