@@ -450,9 +450,21 @@ int mrvi_model_check_initial_positions(mrvi_model *m, double tol, int *worst);
 /* Gradients independent at q (model order): MRVI_ESINGULAR with a message
  * naming the constraints whose gradients are linearly dependent. */
 int mrvi_model_check_independent(mrvi_model *m, const double *q);
+/* Largest change of a coordinate, relative to max(1, max |q0_i|), that
+ * the projection of initial positions may make (doc/constraints.md). */
+#define MRVI_PROJECT_POSITIONS_MAX 1e-3
+/* Project the initial positions onto the constraints if some |g(q0)|
+ * exceeds tol (the positions of a closed loop cannot be typed exactly):
+ * Newton on g with the minimum-norm correction in the metric M, redundant
+ * rows skipped.  *correction gets max_i |dq_i|.  MRVI_EMODEL, q0 unchanged
+ * and a message naming the violated constraints if Newton fails or the
+ * change exceeds MRVI_PROJECT_POSITIONS_MAX max(1, max |q0_i|); *worst (may
+ * be NULL) the constraint with the largest |g(q0)|. */
+int mrvi_model_project_positions(mrvi_model *m, double tol, double *correction,
+                                 int *worst);
 /* Project the initial velocities onto the tangent space G(q0) v = 0
- * (M-orthogonally, so that p0 = M v0 meets G M^-1 p = 0); *correction gets
- * max_i |dv_i|. */
+ * (M-orthogonally, so that p0 = M v0 meets G M^-1 p = 0; redundant rows
+ * skipped); *correction gets max_i |dv_i|. */
 int mrvi_model_project_velocities(mrvi_model *m, double *correction);
 
 /* ---------------------------------------------------------------------------
@@ -510,6 +522,8 @@ void mrvi_model_body_pose(const mrvi_model *m, int b, const double *q,
  *   prismatic    2-D 2 rows, 3-D 5 rows; axis: the sliding direction
  *   cylindrical  3-D, 4 rows; axis: of rotation and sliding
  *   planar       3-D, 3 rows; axis: the plane's normal
+ *   universal    3-D, 4 rows; axis: fixed in A, second axis: fixed in B
+ *                (the Hooke joint's cross; perpendicular to the axis)
  * point: the joint's point in space at the initial configuration (D
  * entries), stored in each body's frame so that the initial positions meet
  * the joint; axis: in space at the initial configuration (D entries, not
@@ -532,6 +546,13 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
 int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
                            int body_b, const double *axis, const char *law,
                            const double *params, double rest_angle);
+/* The same with a second axis (D entries, in space at the initial
+ * configuration; NULL for the types that take none): the universal
+ * joint's axis fixed in body B (or the ground), perpendicular to `axis`
+ * (parallel or oblique axes are refused with a message). */
+int mrvi_model_add_joint_axes(mrvi_model *m, const char *type, int body_a,
+                              int body_b, const double *point,
+                              const double *axis, const double *second);
 /* Names of the joint types above, NULL-terminated. */
 const char *const *mrvi_joint_type_names(void);
 

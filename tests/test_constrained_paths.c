@@ -277,7 +277,7 @@ static void test_gram(void) {
     CHECK(mrvi_gram_create(m, &gr) == 0, "gram created");
     CHECK(mrvi_gram_factor(gr, m, m->q0) == 0, "gram factored");
     mrvi_gram_project(gr, m, p, mus);
-    CHECK(mrvi_constraints_project(m, m->q0, pd, g, G, A, mu) == 0,
+    CHECK(mrvi_constraints_project(m, m->q0, pd, NULL, g, G, A, mu) == 0,
           "dense projection");
     double dp = 0.0, pm = 0.0, dm = 0.0, mm = 0.0;
     for (int j = 0; j < nn; j++) {

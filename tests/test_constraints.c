@@ -75,12 +75,12 @@ static void test_derivatives(void) {
   check_type("body", 9, 0, jp, y24);
   check_type("body", 4, 0, jp, y24);
   /* Parameters: D, bodies, two points and (but spherical) two frames. */
-  const char *const framed[] = {"revolute", "weld", "prismatic", "cylindrical",
-                                "planar"};
+  const char *const framed[] = {"revolute",    "weld",   "prismatic",
+                                "cylindrical", "planar", "universal"};
   for (int nb = 1; nb <= 2; nb++) {
     jp[0] = 3, jp[1] = nb;
     check_type("spherical", 12 * nb, 8, jp, y24);
-    for (int t = 0; t < 5; t++)
+    for (int t = 0; t < 6; t++)
       check_type(framed[t], 12 * nb, 26, jp, y24);
     jp[0] = 2;
     for (int t = 0; t < 3; t++)

@@ -491,6 +491,20 @@ static int cmd_check(int argc, char **argv) {
            s->constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
                                                       : "multipliers",
            s->constraint_tol, s->project_momenta ? "on" : "off");
+  if (nc > 0 && s->constraint_form == MRVI_FORM_NULL_SPACE) {
+    char why[8];
+    const int red = mrvi_constraints_rank(sys->model, mrvi_model_q0(sys->model),
+                                          NULL, why, sizeof why);
+    if (mrvi_model_free_bodies_only(sys->model))
+      printf("%-14sanalytic (free rigid bodies: P = [[I, 0], [0, -d1^], "
+             "[0, -d2^], [0, -d3^]]), nodal reparametrisation phi + u, "
+             "exp(th^) d\n",
+             "  null space");
+    else
+      printf("%-14snumerical (QR of the constraint gradients at every node); "
+             "%d redundant row%s left out\n",
+             "  null space", red > 0 ? red : 0, red == 1 ? "" : "s");
+  }
   printf("%-14s%s (every %d, micro %s)\n", "output",
          sys->output_file ? sys->output_file : "-", sys->output_every,
          sys->output_micro ? "yes" : "no");

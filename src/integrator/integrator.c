@@ -44,6 +44,10 @@ struct mrvi_integrator {
   double *mu_h;    /* projection impulse / h at the current node */
   int n_torsion;   /* torsional springs of the model */
   double *torsion; /* their branches: unwrapped angles at node k (torsion.c) */
+  /* Null-space form: constraint rows redundant at q0 (1), left out of the
+   * step and the projection; their count; scratch for later checks. */
+  unsigned char *c_drop, *c_drop_at;
+  int n_drop;
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
   int last_iterations;
   int chord_mode;      /* schur path: MRVI_CHORD_AUTO, _OFF or _ON */
@@ -175,6 +179,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->cA);
   mrvi_gram_free(it->gram);
   free(it->cmu);
+  free(it->c_drop);
   free(it->mu_h);
   free(it->pGf);
   free(it->pA);
@@ -302,12 +307,33 @@ static double residual_floor(const mrvi_integrator *it) {
   return 16.0 * DBL_EPSILON * scale;
 }
 
-/* Constraints at q: g within the tolerance and independent gradients. */
+/* Constraints at q: g within the tolerance and independent gradients; in
+ * the null-space form the redundant rows at q those found at q0 (the first
+ * call sets them). */
 static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
                              size_t len) {
-  const int st = mrvi_constraints_check_positions(
-      it->model, q, it->settings.constraint_tol, "positions", NULL, msg, len);
-  return st < 0 ? st : mrvi_constraints_independent(it->model, q, msg, len);
+  const mrvi_model *m = it->model;
+  const int R = m->constraint_rows;
+  int st = mrvi_constraints_check_positions(m, q, it->settings.constraint_tol,
+                                            "positions", NULL, msg, len);
+  if (st < 0 || it->settings.constraint_form != MRVI_FORM_NULL_SPACE)
+    return st < 0 ? st : mrvi_constraints_independent(m, q, msg, len);
+  if (!it->c_drop) {
+    if (!(it->c_drop = malloc(2 * (size_t)R + 1)))
+      return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+    it->c_drop_at = it->c_drop + R;
+    it->n_drop = mrvi_constraints_rank(m, q, it->c_drop, msg, len);
+    return it->n_drop < 0 ? it->n_drop : MRVI_OK;
+  }
+  st = mrvi_constraints_rank(m, q, it->c_drop_at, msg, len);
+  if (st >= 0 && memcmp(it->c_drop, it->c_drop_at, (size_t)R) != 0)
+    return mrvi_fail(
+        msg, len, MRVI_ESINGULAR,
+        "the redundant constraint rows differ here (%d) from those at "
+        "the initial positions (%d): a singular configuration of a "
+        "closed loop?",
+        st, it->n_drop);
+  return st < 0 ? st : MRVI_OK;
 }
 
 /* Momentum projection at the current macro node (doc/constraints.md,
@@ -316,12 +342,14 @@ static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
  * the node, so the next step's lambda absorbs it: positions are unchanged. */
 static int project(mrvi_integrator *it) {
   const int R = it->model->constraint_rows;
-  if (it->gram) {
+  /* The sparse Gram factorisation needs independent rows; a model with
+   * redundant rows left out (null-space form) projects densely. */
+  if (it->gram && it->n_drop == 0) {
     if (mrvi_gram_factor(it->gram, it->model, it->q) < 0)
       return MRVI_ESINGULAR;
     mrvi_gram_project(it->gram, it->model, it->p, it->cmu);
-  } else if (mrvi_constraints_project(it->model, it->q, it->p, it->cg, it->cGd,
-                                      it->cA, it->cmu) < 0) {
+  } else if (mrvi_constraints_project(it->model, it->q, it->p, it->c_drop,
+                                      it->cg, it->cGd, it->cA, it->cmu) < 0) {
     return MRVI_ESINGULAR;
   }
   /* The impulse G^T mu belongs to the node's multipliers: the next step
@@ -423,7 +451,8 @@ static int general_create(mrvi_integrator *it, char *msg, size_t len) {
       sp->n_lambda > 0) {
     /* Values for the symbolic analysis: lambda(x) and the reduced rows at
      * the predictor. */
-    if ((st = mrvi_nullspace_create(sp, &it->nullspace, msg, len)) < 0 ||
+    if ((st = mrvi_nullspace_create(sp, it->c_drop, &it->nullspace, msg, len)) <
+            0 ||
         (mrvi_step_assemble(sp, it->x, it->R, 0),
          st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
                                     len)) < 0)
@@ -770,7 +799,9 @@ static int general_update(mrvi_integrator *it, int fresh, char *msg,
     mrvi_nullspace_reduce(it->nullspace, st, it->R, it->rhs);
     s = mrvi_newton_solve(it->newton, mrvi_nullspace_Ax(it->nullspace), it->rhs,
                           it->dx, msg, len);
-    if (s == MRVI_OK)
+    if (s == MRVI_OK && mrvi_nullspace_reparametrised(it->nullspace))
+      mrvi_nullspace_retract(it->nullspace, st, it->x, it->dx);
+    else if (s == MRVI_OK)
       subtract_dx(it, st->n_unknowns);
     return s;
   }
@@ -1123,6 +1154,8 @@ static int newton_step(mrvi_integrator *it) {
   const int shoot = it->blocks && use_shoot(it);
   if (!shoot)
     predict(it);
+  if (it->nullspace && mrvi_nullspace_reparametrised(it->nullspace))
+    mrvi_nullspace_start(it->nullspace, st, it->x);
   if (st->n_lambda > 0)
     memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;

@@ -284,18 +284,20 @@ int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
  * ------------------------------------------------------------------------- */
 typedef struct joint_kind {
   const char *type;
-  int dims;  /* bit mask 1 << D */
-  int frame; /* its parameters carry the joint's frame (constraints/joint.h) */
-  int axis;  /* bit mask 1 << D: dimensions in which it needs an axis */
+  int dims;   /* bit mask 1 << D */
+  int frame;  /* its parameters carry the joint's frame (constraints/joint.h) */
+  int axis;   /* bit mask 1 << D: dimensions in which it needs an axis */
+  int second; /* ... and a second axis (t_2 of its frame) */
 } joint_kind;
 
 static const joint_kind joint_kinds[] = {
-    {"spherical", 1 << 3, 0, 0},
-    {"revolute", (1 << 2) | (1 << 3), 1, 1 << 3},
-    {"weld", (1 << 2) | (1 << 3), 1, 0},
-    {"prismatic", (1 << 2) | (1 << 3), 1, (1 << 2) | (1 << 3)},
-    {"cylindrical", 1 << 3, 1, 1 << 3},
-    {"planar", 1 << 3, 1, 1 << 3},
+    {"spherical", 1 << 3, 0, 0, 0},
+    {"revolute", (1 << 2) | (1 << 3), 1, 1 << 3, 0},
+    {"weld", (1 << 2) | (1 << 3), 1, 0, 0},
+    {"prismatic", (1 << 2) | (1 << 3), 1, (1 << 2) | (1 << 3), 0},
+    {"cylindrical", 1 << 3, 1, 1 << 3, 0},
+    {"planar", 1 << 3, 1, 1 << 3, 0},
+    {"universal", 1 << 3, 1, 1 << 3, 1 << 3},
 };
 #define N_JOINT_KINDS ((int)(sizeof joint_kinds / sizeof joint_kinds[0]))
 
@@ -322,8 +324,16 @@ void mrvi_body_frame_of(const mrvi_model *m, int b, const double *v,
 /* The joint's frame t_1..t_D in space (D x D, row m = t_m): t_1 along the
  * axis (e_1 without one), then unit normals with (t_1, t_2, t_3)
  * right-handed (2-D: t_2 = t_1 turned by +90 degrees).  t_2 is along the
+ * second axis if given (3-D, checked normal to t_1), else along the
  * coordinate axis least aligned with t_1, made normal to it. */
+static void joint_frame(int D, const double *axis, const double *second,
+                        double *t);
 void mrvi_joint_frame(int D, const double *axis, double *t) {
+  joint_frame(D, axis, NULL, t);
+}
+
+static void joint_frame(int D, const double *axis, const double *second,
+                        double *t) {
   double n = 0.0;
   for (int a = 0; a < D; a++) {
     t[a] = axis ? axis[a] : a == 0;
@@ -340,8 +350,11 @@ void mrvi_joint_frame(int D, const double *axis, double *t) {
     if (fabs(t[a]) < fabs(t[k]))
       k = a;
   n = 0.0;
+  double c = 0.0;
+  for (int a = 0; second && a < 3; a++)
+    c += second[a] * t[a];
   for (int a = 0; a < 3; a++) {
-    t[3 + a] = (a == k) - t[k] * t[a];
+    t[3 + a] = second ? second[a] - c * t[a] : (a == k) - t[k] * t[a];
     n += t[3 + a] * t[3 + a];
   }
   for (int a = 0; a < 3; a++)
@@ -353,6 +366,44 @@ void mrvi_joint_frame(int D, const double *axis, double *t) {
 
 int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                          int body_b, const double *point, const double *axis) {
+  return mrvi_model_add_joint_axes(m, type, body_a, body_b, point, axis, NULL);
+}
+
+/* The second axis of a joint that takes one: finite, not zero, normal to
+ * the first axis to 1e-9 (cosine); parallel axes are named as such. */
+static int check_second_axis(mrvi_model *m, const char *type, const char *na,
+                             const char *nb, const double *axis,
+                             const double *second) {
+  double aa = 0.0, bb = 0.0, ab = 0.0;
+  for (int a = 0; a < 3; a++) {
+    aa += axis[a] * axis[a];
+    bb += second[a] * second[a];
+    ab += axis[a] * second[a];
+  }
+  if (!(isfinite(bb) && bb > 0.0))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s joint %s-%s: the second axis must be a nonzero "
+                           "finite vector",
+                           type, na, nb);
+  const double c = ab / sqrt(aa * bb);
+  if (fabs(c) > 1.0 - 1e-9)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s joint %s-%s: the second axis is parallel to "
+                           "the axis; a universal joint's axes (one in each "
+                           "body) must be perpendicular",
+                           type, na, nb);
+  if (fabs(c) > 1e-9)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s joint %s-%s: the second axis must be "
+                           "perpendicular to the axis (they are %.6g degrees "
+                           "apart)",
+                           type, na, nb, acos(c) * 180.0 / M_PI);
+  return MRVI_OK;
+}
+
+int mrvi_model_add_joint_axes(mrvi_model *m, const char *type, int body_a,
+                              int body_b, const double *point,
+                              const double *axis, const double *second) {
   const joint_kind *kind = NULL;
   for (int i = 0; i < N_JOINT_KINDS; i++)
     if (type && strcmp(type, joint_kinds[i].type) == 0)
@@ -360,7 +411,8 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
   if (!kind)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "unknown joint type '%s' (joints: spherical, "
-                           "revolute, weld, prismatic, cylindrical, planar)",
+                           "revolute, weld, prismatic, cylindrical, planar, "
+                           "universal)",
                            type ? type : "(null)");
   if (body_a < 0 || body_a >= m->n_bodies || body_b >= m->n_bodies)
     return mrvi_model_fail(
@@ -388,6 +440,14 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                                       : "%s joint %s-%s: a %d-D %s joint takes "
                                         "no axis",
                            type, na, nb, D, type);
+  const int needs_second = (kind->second >> D) & 1;
+  if (needs_second != (second != NULL))
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           needs_second ? "%s joint %s-%s: a %d-D %s joint "
+                                          "needs a second axis (fixed in %s)"
+                                        : "%s joint %s-%s: a %d-D %s joint "
+                                          "takes no second axis%s",
+                           type, na, nb, D, type, needs_second ? nb : "");
   double par[MRVI_MAX_INPUTS];
   int n_par = 0, in[24], n_in = 0;
   par[n_par++] = D;
@@ -422,7 +482,11 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
                              "%s joint %s-%s: the axis must be a nonzero "
                              "finite vector",
                              type, na, nb);
-    mrvi_joint_frame(D, axis, t);
+    const int st =
+        second ? check_second_axis(m, type, na, nb, axis, second) : MRVI_OK;
+    if (st < 0)
+      return st;
+    joint_frame(D, axis, second, t);
     /* t_m in A's frame, then in B's frame (in space for the ground). */
     for (int s = 0; s < 2; s++)
       for (int k = 0; k < D; k++, n_par += D)
@@ -577,4 +641,18 @@ int mrvi_model_joint_point(const mrvi_model *m, int j, const double *q,
       x[a] += rho[i] * q[first + D * (1 + i) + a];
   }
   return MRVI_OK;
+}
+
+int mrvi_model_free_bodies_only(const mrvi_model *m) {
+  if (m->n_bodies == 0)
+    return 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    int own = 0;
+    for (int b = 0; b < m->n_bodies; b++)
+      own |= m->bodies[b].constraint == c && m->bodies[b].dim == 3 &&
+             m->rate[m->bodies[b].first] == MRVI_SLOW;
+    if (!own)
+      return 0;
+  }
+  return 1;
 }

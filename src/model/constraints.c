@@ -20,6 +20,7 @@ extern const mrvi_constraint_type mrvi_constraint_prismatic;
 extern const mrvi_constraint_type mrvi_constraint_cylindrical;
 extern const mrvi_constraint_type mrvi_constraint_planar;
 extern const mrvi_constraint_type mrvi_constraint_point;
+extern const mrvi_constraint_type mrvi_constraint_universal;
 
 static const mrvi_constraint_type *const builtin[] = {
     &mrvi_constraint_distance,  &mrvi_constraint_fixed,
@@ -28,6 +29,7 @@ static const mrvi_constraint_type *const builtin[] = {
     &mrvi_constraint_revolute,  &mrvi_constraint_weld,
     &mrvi_constraint_prismatic, &mrvi_constraint_cylindrical,
     &mrvi_constraint_planar,    &mrvi_constraint_point,
+    &mrvi_constraint_universal,
 };
 
 #define N_BUILTIN ((int)(sizeof builtin / sizeof builtin[0]))
@@ -412,31 +414,64 @@ static int constraint_of_row(const mrvi_model *m, int r) {
   return m->n_constraints - 1;
 }
 
+/* Message for redundant row r = sum_l (-t_l) row_l over earlier rows:
+ * the constraints involved, and what to do in the multiplier form. */
+static void name_dependency(const mrvi_model *m, int r, const double *t, int R,
+                            char *msg, size_t len) {
+  char names[400] = "";
+  size_t used = 0;
+  int count = 0, last = -1;
+  double tmax = 0.0;
+  (void)R;
+  for (int l = 0; l < r; l++)
+    tmax = fmax(tmax, fabs(t[l]));
+  for (int l = 0; l <= r; l++) {
+    if (l < r && !(fabs(t[l]) > 1e-8 * tmax))
+      continue;
+    const int c = constraint_of_row(m, l);
+    if (c == last)
+      continue;
+    int seen = 0;
+    for (int l2 = 0; l2 < l; l2++)
+      if (fabs(t[l2]) > 1e-8 * tmax && constraint_of_row(m, l2) == c)
+        seen = 1;
+    if (seen)
+      continue;
+    last = c;
+    if (used + 8 < sizeof names)
+      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                               count ? ", " : "", m->constraints[c].label);
+    count++;
+  }
+  mrvi_fail(msg, len, MRVI_ESINGULAR,
+            count > 1
+                ? "redundant constraints: the gradients of %s are linearly "
+                  "dependent; the multiplier form needs independent rows: "
+                  "remove one of them (a non-redundant joint set), model a "
+                  "planar mechanism in 2-D, or use "
+                  "integrator.constraints.form: null-space, which handles "
+                  "redundant rows"
+                : "constraint %s has a zero gradient (it is redundant or "
+                  "degenerate here)",
+            names);
+}
+
 int mrvi_model_check_independent(mrvi_model *m, const double *q) {
   return mrvi_constraints_independent(m, q, m->errmsg, sizeof m->errmsg);
 }
 
-int mrvi_constraints_independent(const mrvi_model *m, const double *q,
-                                 char *msg, size_t len) {
+/* Rank-revealing pass over the rows of G(q) in model order (modified
+ * Gram-Schmidt twice, in the metric M^-1): a row within 1e-9 (relative) of
+ * the span of the earlier rows is redundant.  drop (rows, may be NULL) gets
+ * 1 for those; msg names the constraints of the first dependency.  Returns
+ * the number of redundant rows, or MRVI_ENOMEM. */
+int mrvi_constraints_rank(const mrvi_model *m, const double *q,
+                          unsigned char *drop, char *msg, size_t len) {
   const int R = m->constraint_rows, n = m->n;
+  if (drop)
+    memset(drop, 0, (size_t)R);
   if (R == 0)
-    return MRVI_OK;
-  if (R > n)
-    return mrvi_fail(
-        msg, len, MRVI_ESINGULAR,
-        "%d constraint equations on %d coordinates: the constraints "
-        "are redundant",
-        R, n);
-  /* The sparse Cholesky of the Gram matrix proves independence in O(R)
-   * for chains and trees; where it cannot, Gram-Schmidt below decides and
-   * names the dependent constraints. */
-  mrvi_gram *gr = NULL;
-  if (mrvi_gram_create(m, &gr) == MRVI_OK) {
-    const int ok = mrvi_gram_factor(gr, m, q) == MRVI_OK;
-    mrvi_gram_free(gr);
-    if (ok)
-      return MRVI_OK;
-  }
+    return 0;
   double *g = malloc((size_t)R * sizeof *g);
   double *G = malloc((size_t)R * (size_t)n * sizeof *G);
   /* Orthonormal basis E (rank x n) of the rows seen so far, in the metric
@@ -450,8 +485,8 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
   mrvi_model_constraint_eval(m, q, g, G);
-  int rank = 0, status = MRVI_OK;
-  for (int r = 0; r < R && status == MRVI_OK; r++) {
+  int rank = 0, redundant = 0;
+  for (int r = 0; r < R; r++) {
     double norm0 = 0.0;
     for (int j = 0; j < n; j++) {
       v[j] = G[(size_t)r * n + j] / sqrt(m->mass[j]);
@@ -476,39 +511,11 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
       norm += v[j] * v[j];
     norm = sqrt(norm);
     if (norm <= 1e-9 * norm0 || norm0 == 0.0) {
-      /* Row r = sum_l (-t_l) row_l over earlier rows: name those involved. */
-      char names[400] = "";
-      size_t used = 0;
-      int count = 0, last = -1;
-      double tmax = 0.0;
-      for (int l = 0; l < r; l++)
-        tmax = fmax(tmax, fabs(t[l]));
-      for (int l = 0; l <= r; l++) {
-        if (l < r && !(fabs(t[l]) > 1e-8 * tmax))
-          continue;
-        const int c = constraint_of_row(m, l);
-        if (c == last)
-          continue;
-        int seen = 0;
-        for (int l2 = 0; l2 < l; l2++)
-          if (fabs(t[l2]) > 1e-8 * tmax && constraint_of_row(m, l2) == c)
-            seen = 1;
-        if (seen)
-          continue;
-        last = c;
-        if (used + 8 < sizeof names)
-          used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
-                                   count ? ", " : "", m->constraints[c].label);
-        count++;
-      }
-      status =
-          mrvi_fail(msg, len, MRVI_ESINGULAR,
-                    count > 1 ? "redundant constraints: the gradients of %s "
-                                "are linearly dependent; remove one of them"
-                              : "constraint %s has a zero gradient (it is "
-                                "redundant or degenerate here)",
-                    names);
-      break;
+      if (drop)
+        drop[r] = 1;
+      if (redundant++ == 0)
+        name_dependency(m, r, t, R, msg, len);
+      continue;
     }
     for (int j = 0; j < n; j++)
       E[(size_t)rank * n + j] = v[j] / norm;
@@ -517,27 +524,74 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
     rank++;
   }
   free(g), free(G), free(E), free(T), free(v), free(t);
-  return status;
+  return redundant;
+}
+
+int mrvi_constraints_independent(const mrvi_model *m, const double *q,
+                                 char *msg, size_t len) {
+  if (m->constraint_rows == 0)
+    return MRVI_OK;
+  /* The sparse Cholesky of the Gram matrix proves independence in O(R)
+   * for chains and trees; where it cannot, the rank-revealing pass decides
+   * and names the dependent constraints. */
+  mrvi_gram *gr = NULL;
+  if (mrvi_gram_create(m, &gr) == MRVI_OK) {
+    const int ok = mrvi_gram_factor(gr, m, q) == MRVI_OK;
+    mrvi_gram_free(gr);
+    if (ok)
+      return MRVI_OK;
+  }
+  const int st = mrvi_constraints_rank(m, q, NULL, msg, len);
+  return st > 0 ? MRVI_ESINGULAR : st;
+}
+
+/* mu (rows) = (G_k M^-1 G_k^T)^-1 b_k over the rows k that drop (may be
+ * NULL) keeps, 0 on the others; G (rows x n) at q, A workspace (rows x
+ * rows).  MRVI_ESINGULAR if the kept rows are dependent. */
+static int solve_kept(const mrvi_model *m, const double *G,
+                      const unsigned char *drop, const double *b, double *A,
+                      double *mu) {
+  const int R = m->constraint_rows, n = m->n;
+  int k = 0;
+  for (int a = 0; a < R; a++) {
+    if (drop && drop[a])
+      continue;
+    mu[k] = b[a];
+    int l = 0; /* symmetric: lower triangle mirrored */
+    for (int c = 0; c <= a; c++) {
+      if (drop && drop[c])
+        continue;
+      double t = 0.0;
+      for (int j = 0; j < n; j++)
+        t += G[(size_t)a * n + j] * G[(size_t)c * n + j] / m->mass[j];
+      A[k * R + l] = A[l * R + k] = t;
+      l++;
+    }
+    k++;
+  }
+  /* Compact to k x k and solve. */
+  for (int a = 0; a < k; a++)
+    memmove(A + a * k, A + a * R, (size_t)k * sizeof *A);
+  if (mrvi_dense_solve(k, A, mu) < 0)
+    return MRVI_ESINGULAR;
+  for (int a = R - 1; a >= 0; a--)
+    mu[a] = drop && drop[a] ? 0.0 : mu[--k];
+  return MRVI_OK;
 }
 
 int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
-                             double *g, double *G, double *A, double *mu) {
+                             const unsigned char *drop, double *g, double *G,
+                             double *A, double *mu) {
   const int R = m->constraint_rows, n = m->n;
   mrvi_model_constraint_eval(m, q, g, G);
-  /* (G M^-1 G^T) mu = G M^-1 p (symmetric: lower triangle mirrored) */
+  /* (G M^-1 G^T) mu = G M^-1 p over the kept rows */
   for (int a = 0; a < R; a++) {
     double s = 0.0;
     for (int j = 0; j < n; j++)
       s += G[(size_t)a * n + j] * p[j] / m->mass[j];
-    mu[a] = s;
-    for (int b = 0; b <= a; b++) {
-      double t = 0.0;
-      for (int j = 0; j < n; j++)
-        t += G[(size_t)a * n + j] * G[(size_t)b * n + j] / m->mass[j];
-      A[a * R + b] = A[b * R + a] = t;
-    }
+    g[a] = s;
   }
-  if (mrvi_dense_solve(R, A, mu) < 0)
+  if (solve_kept(m, G, drop, g, A, mu) < 0)
     return MRVI_ESINGULAR;
   for (int j = 0; j < n; j++)
     for (int a = 0; a < R; a++)
@@ -558,17 +612,124 @@ static void store_velocities(mrvi_model *m, const double *p,
     *correction = worst;
 }
 
+/* Names of the constraints with |g(q)| > tol, quoted, into buf. */
+static void name_violated(const mrvi_model *m, const double *q, double tol,
+                          char *buf, size_t len) {
+  double y[MRVI_MAX_INPUTS], g[MRVI_MAX_INPUTS],
+      Gl[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
+  size_t used = 0;
+  buf[0] = 0;
+  for (int c = 0; c < m->n_constraints && used + 8 < len; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    gather_q(k, q, y);
+    mrvi_constraint_eval_at(k, y, g, Gl, NULL);
+    double w = 0.0;
+    for (int r = 0; r < k->rows; r++)
+      w = fmax(w, fabs(g[r]));
+    if (w > tol)
+      used += (size_t)snprintf(buf + used, len - used, "%s'%s'",
+                               used ? ", " : "", k->label);
+  }
+}
+
+int mrvi_constraints_project_positions(const mrvi_model *m, double *q,
+                                       double tol, double *change, int *worst,
+                                       char *msg, size_t len) {
+  const int R = m->constraint_rows, n = m->n;
+  *change = 0.0;
+  int st =
+      mrvi_constraints_check_positions(m, q, tol, "positions", worst, msg, len);
+  if (st == MRVI_OK || R == 0)
+    return MRVI_OK;
+  double *q0 = malloc((size_t)n * sizeof *q0);
+  double *g = malloc((size_t)R * sizeof *g);
+  double *G = malloc((size_t)R * (size_t)n * sizeof *G);
+  double *A = malloc((size_t)R * (size_t)R * sizeof *A);
+  double *mu = malloc((size_t)R * sizeof *mu);
+  unsigned char *drop = malloc((size_t)R);
+  if (!q0 || !g || !G || !A || !mu || !drop) {
+    free(q0), free(g), free(G), free(A), free(mu), free(drop);
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  }
+  memcpy(q0, q, (size_t)n * sizeof *q0);
+  double size = 1.0;
+  for (int j = 0; j < n; j++)
+    size = fmax(size, fabs(q0[j]));
+  const double limit = MRVI_PROJECT_POSITIONS_MAX * size;
+  /* Newton on g with the minimum-norm correction in the metric M:
+   * dq = -M^-1 G_k^T (G_k M^-1 G_k^T)^-1 g_k over the rows k that the
+   * rank-revealing pass keeps (the others follow on the manifold). */
+  double gmax = HUGE_VAL, prev = HUGE_VAL;
+  int it = 0, ok = 0;
+  for (; it < 30; it++) {
+    char why[8];
+    const int red = mrvi_constraints_rank(m, q, drop, why, sizeof why);
+    if (red < 0) {
+      st = red;
+      break;
+    }
+    mrvi_model_constraint_eval(m, q, g, G);
+    gmax = 0.0;
+    for (int a = 0; a < R; a++)
+      gmax = fmax(gmax, fabs(g[a]));
+    if (gmax <= 1e-2 * tol || (gmax <= tol && gmax > 0.5 * prev)) {
+      ok = 1;
+      break;
+    }
+    if (!(gmax < HUGE_VAL) || solve_kept(m, G, drop, g, A, mu) < 0)
+      break;
+    for (int j = 0; j < n; j++) {
+      double s = 0.0;
+      for (int a = 0; a < R; a++)
+        s += G[(size_t)a * n + j] * mu[a];
+      q[j] -= s / m->mass[j];
+    }
+    prev = gmax;
+  }
+  for (int j = 0; j < n; j++)
+    *change = fmax(*change, fabs(q[j] - q0[j]));
+  if (st == MRVI_ENOMEM) {
+    mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  } else if (!ok || !(*change <= limit)) {
+    /* At q0: the worst constraint with its |g|, then every one off. */
+    char names[300], head[200];
+    int w = -1;
+    mrvi_constraints_check_positions(m, q0, tol, "initial positions", &w, head,
+                                     sizeof head);
+    if (worst)
+      *worst = w;
+    name_violated(m, q0, tol, names, sizeof names);
+    st = !ok ? mrvi_fail(msg, len, MRVI_EMODEL,
+                         "%s, and Newton on the constraints did not project "
+                         "the positions onto them (off: %s)",
+                         head, names)
+             : mrvi_fail(msg, len, MRVI_EMODEL,
+                         "%s, and projecting the positions onto the "
+                         "constraints would move a coordinate by %.3e, more "
+                         "than %.3e (%g times the largest coordinate, at "
+                         "least 1; off: %s)",
+                         head, *change, limit, MRVI_PROJECT_POSITIONS_MAX,
+                         names);
+    memcpy(q, q0, (size_t)n * sizeof *q0);
+  } else {
+    st = MRVI_OK;
+  }
+  free(q0), free(g), free(G), free(A), free(mu), free(drop);
+  return st;
+}
+
 int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
   const int R = m->constraint_rows, n = m->n;
   if (correction)
     *correction = 0.0;
   if (R == 0)
     return MRVI_OK;
-  int st = mrvi_model_check_independent(m, m->q0);
-  if (st < 0)
-    return st;
+  int st = MRVI_OK;
   if (R > MRVI_GRAM_DENSE_MAX) {
-    /* Sparse: p0 = M v0 projected, the velocities read back. */
+    /* Sparse: p0 = M v0 projected, the velocities read back.  Where the
+     * rows are dependent (redundant rows of a closed loop in the null-space
+     * form) the factorisation fails and the dense projection below, which
+     * leaves those rows out, takes over. */
     mrvi_gram *gr = NULL;
     double *p = malloc((size_t)n * sizeof *p);
     double *mu = malloc((size_t)R * sizeof *mu);
@@ -576,10 +737,8 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
       free(p), free(mu);
       return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
     }
-    if (mrvi_gram_factor(gr, m, m->q0) < 0) {
-      st = mrvi_model_fail(m, MRVI_ESINGULAR,
-                           "constraint gradients are dependent");
-    } else {
+    const int sparse_ok = mrvi_gram_factor(gr, m, m->q0) == MRVI_OK;
+    if (sparse_ok) {
       for (int j = 0; j < n; j++)
         p[j] = m->mass[j] * m->v0[j];
       mrvi_gram_project(gr, m, p, mu);
@@ -587,26 +746,40 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
     }
     mrvi_gram_free(gr);
     free(p), free(mu);
-    return st;
+    if (sparse_ok)
+      return MRVI_OK;
   }
   double *g = malloc((size_t)R * sizeof *g);
   double *G = malloc((size_t)R * (size_t)n * sizeof *G);
   double *A = malloc((size_t)R * (size_t)R * sizeof *A);
   double *mu = malloc((size_t)R * sizeof *mu);
   double *p = malloc((size_t)n * sizeof *p);
-  if (!g || !G || !A || !mu || !p) {
-    free(g), free(G), free(A), free(mu), free(p);
+  unsigned char *drop = malloc((size_t)R);
+  if (!g || !G || !A || !mu || !p || !drop ||
+      mrvi_constraints_rank(m, m->q0, drop, m->errmsg, sizeof m->errmsg) < 0) {
+    free(g), free(G), free(A), free(mu), free(p), free(drop);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
-  /* Project p0 = M v0 and read the velocities back. */
+  /* Project p0 = M v0 onto the tangent space of the independent rows (the
+   * redundant ones add nothing to it) and read the velocities back. */
   for (int j = 0; j < n; j++)
     p[j] = m->mass[j] * m->v0[j];
-  if (mrvi_constraints_project(m, m->q0, p, g, G, A, mu) < 0) {
+  if (mrvi_constraints_project(m, m->q0, p, drop, g, G, A, mu) < 0) {
     st = mrvi_model_fail(m, MRVI_ESINGULAR,
                          "constraint gradients are dependent");
   } else {
     store_velocities(m, p, correction);
   }
-  free(g), free(G), free(A), free(mu), free(p);
+  free(g), free(G), free(A), free(mu), free(p), free(drop);
+  return st;
+}
+
+int mrvi_model_project_positions(mrvi_model *m, double tol, double *correction,
+                                 int *worst) {
+  double change = 0.0;
+  const int st = mrvi_constraints_project_positions(
+      m, m->q0, tol, &change, worst, m->errmsg, sizeof m->errmsg);
+  if (correction)
+    *correction = change;
   return st;
 }

@@ -132,6 +132,11 @@ void mrvi_body_frame_of(const mrvi_model *m, int b, const double *v,
                         double *out);
 /* Release the bodies of m (bodies.c). */
 void mrvi_model_free_bodies(mrvi_model *m);
+/* 1 if m has bodies and every constraint is the internal one of a slow
+ * 3-D body (no joints, no other constraints): the null-space form then
+ * uses the free body's analytic null space and the nodal
+ * reparametrisation (solver/nullspace.c, doc/multibody.md). */
+int mrvi_model_free_bodies_only(const mrvi_model *m);
 /* Body owning model coordinate c, or -1. */
 int mrvi_model_body_of(const mrvi_model *m, int c);
 
@@ -197,11 +202,28 @@ int mrvi_constraints_check_positions(const mrvi_model *m, const double *q,
                                      double tol, const char *what, int *worst,
                                      char *msg, size_t len);
 /* M-orthogonal projection of momenta p (n) at q onto G M^-1 p = 0:
- * p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p.  Workspace g (rows),
- * G (rows x n), A (rows x rows); mu (rows) keeps the multiplier.
- * MRVI_ESINGULAR if the gradients are dependent. */
+ * p <- p - G^T mu with (G M^-1 G^T) mu = G M^-1 p over the rows that drop
+ * (rows, may be NULL: all) keeps; mu is 0 on the dropped rows.  Workspace g
+ * (rows), G (rows x n), A (rows x rows); mu (rows) keeps the multiplier.
+ * MRVI_ESINGULAR if the kept gradients are dependent. */
 int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
-                             double *g, double *G, double *A, double *mu);
+                             const unsigned char *drop, double *g, double *G,
+                             double *A, double *mu);
+/* Rank-revealing pass over G(q) in model order: drop (rows, may be NULL)
+ * marks each row in the span of the earlier ones; msg names the
+ * constraints of the first such dependency (with what the multiplier form
+ * asks to do).  Returns the number of redundant rows or MRVI_ENOMEM. */
+int mrvi_constraints_rank(const mrvi_model *m, const double *q,
+                          unsigned char *drop, char *msg, size_t len);
+/* Project positions q (n) onto g = 0 if some |g| exceeds tol: Newton on g
+ * with the minimum-norm correction in the metric M over the independent
+ * rows (doc/constraints.md, initial data).  *change gets max |dq_i|;
+ * MRVI_EMODEL, q unchanged and a message naming the violated constraints
+ * if Newton fails or *change exceeds MRVI_PROJECT_POSITIONS_MAX times
+ * max(1, max |q_i|); *worst the constraint with the largest |g(q)|. */
+int mrvi_constraints_project_positions(const mrvi_model *m, double *q,
+                                       double tol, double *change, int *worst,
+                                       char *msg, size_t len);
 /* Gradients of all constraints independent at q (model order); otherwise
  * MRVI_ESINGULAR and a message naming the dependent constraints. */
 int mrvi_constraints_independent(const mrvi_model *m, const double *q,

@@ -19,6 +19,12 @@
  *     micro-node constraints.
  * The reduced rows therefore keep the arrowhead pattern of the step.
  *
+ * Redundant slow-only rows (a closed loop of joints modelled in 3-D): the
+ * rows the integrator's rank-revealing pass at q0 marks (drop) are left out
+ * of the QR, of the equations and of lambda (0 there).  The null space of
+ * the kept rows is that of all rows while the rank stays, and their zero set
+ * is the loop's near q0, so the step is the same (doc/constraints.md).
+ *
  * Newton matrix: at R = F - C lambda = 0, d(P^T F) = P^T (dF - dC lambda)
  * because d(P^T) C lambda = -P^T dC lambda (from P^T C = 0).  dF - dC lambda
  * is the x-block of the multiplier Jacobian evaluated at lambda, so the
@@ -38,10 +44,16 @@
 struct mrvi_nullspace {
   int n; /* reduced size = n_unknowns */
   int ns, nf, p;
-  int nfc, nsc;   /* constrained fast / slow slots */
-  int *fc, *sc;   /* slot lists */
-  int *fpos;      /* fast slot -> index in fc or -1 */
-  int r, rs;      /* rows of micro-node / slow-only constraints */
+  int nfc, nsc; /* constrained fast / slow slots */
+  int *fc, *sc; /* slot lists */
+  int *fpos;    /* fast slot -> index in fc or -1 */
+  int r, rs;    /* rows of micro-node / slow-only constraints */
+  int rk;       /* slow-only rows kept (rs less the redundant ones) */
+  int *srow;    /* slow-only row -> index among the kept ones, or -1 */
+  /* Nodal reparametrisation (free slow 3-D bodies, no other constraint):
+   * the slow slot of each body's phi (its directors follow), or NULL. */
+  int n_rep, *rep_slot;
+  double *rep_d;  /* scratch: 9 per body */
   int nbs;        /* slow basis size ns - rs */
   int *b_slot;    /* basis vector i: its slot (unit) or -1 (Q column) */
   int *b_coupled; /* does it couple to the micro-node constraints? */
@@ -66,7 +78,8 @@ struct mrvi_nullspace {
 void mrvi_nullspace_free(mrvi_nullspace *z) {
   if (!z)
     return;
-  free(z->fc), free(z->sc), free(z->fpos), free(z->b_slot);
+  free(z->fc), free(z->sc), free(z->fpos), free(z->b_slot), free(z->srow);
+  free(z->rep_slot), free(z->rep_d);
   free(z->b_coupled), free(z->Q), free(z->Rm), free(z->Gs), free(z->Qs);
   free(z->Rs), free(z->A), free(z->t), free(z->B), free(z->Gf), free(z->Gsl);
   free(z->rec_start), free(z->rec_row), free(z->rec_coef);
@@ -140,6 +153,8 @@ static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
     }
   }
   for (int e = 0; e < st->n_lambda; e++) {
+    if (e < z->rs && z->srow[e] < 0)
+      continue;
     z->rec_start[row++] = (int)z->n_rec;
     if (rec_push(z, &cap, nu + e) < 0)
       return -1;
@@ -216,8 +231,10 @@ static int build_pattern(mrvi_nullspace *z) {
   return z->Ax ? 0 : -1;
 }
 
-int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
-                          size_t len) {
+static int reparametrise(mrvi_nullspace *z, const mrvi_model *m);
+
+int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
+                          mrvi_nullspace **out, char *msg, size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   mrvi_nullspace *z = calloc(1, sizeof *z);
@@ -235,8 +252,32 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
   z->sc = malloc((size_t)(ns + 1) * sizeof(int));
   int *spos = malloc((size_t)(ns + 1) * sizeof(int));
   int *ms = calloc((size_t)(ns + 1), sizeof(int));
-  if (!z->fc || !z->fpos || !z->sc || !spos || !ms)
+  z->srow = malloc((size_t)(z->rs + 1) * sizeof(int));
+  if (!z->fc || !z->fpos || !z->sc || !spos || !ms || !z->srow)
     goto oom;
+  /* Kept rows: slow-only ones numbered in order; a redundant micro-node
+   * row is declined. */
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    for (int rr = 0; rr < k->rows; rr++) {
+      const int red = drop && drop[k->first_row + rr];
+      if (k->where == MRVI_FAST && red) {
+        free(spos), free(ms);
+        mrvi_nullspace_free(z);
+        return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                         "null-space form: constraint '%s' is redundant and "
+                         "enforced at micro nodes; redundant rows are handled "
+                         "among constraints on slow coordinates only (make "
+                         "the bodies of the loop slow)",
+                         k->label);
+      }
+      if (k->where != MRVI_FAST)
+        z->srow[st->c_off[c] + rr] = red ? -1 : 0;
+    }
+  }
+  for (int e = 0; e < z->rs; e++)
+    if (z->srow[e] == 0)
+      z->srow[e] = z->rk++;
   for (int f = 0; f < nf; f++)
     z->fpos[f] = -1;
   for (int s = 0; s < ns; s++)
@@ -269,21 +310,21 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
         "of one rate; use form: multipliers",
         MAXD);
   }
-  if (z->r > z->nfc || z->rs > z->nsc) {
+  if (z->r > z->nfc || z->rk > z->nsc) {
     const int st =
         mrvi_fail(msg, len, MRVI_ESINGULAR,
                   "null-space form: %d micro-node constraint equations "
                   "on %d fast coordinates (or %d slow-only equations on "
                   "%d slow coordinates) cannot be independent; use "
                   "form: multipliers",
-                  z->r, z->nfc, z->rs, z->nsc);
+                  z->r, z->nfc, z->rk, z->nsc);
     free(spos), free(ms);
     mrvi_nullspace_free(z);
     return st;
   }
   /* Slow basis: unit vectors of the slots outside sc, then the columns of
    * the slow-only block's null space. */
-  z->nbs = ns - z->rs;
+  z->nbs = ns - z->rk;
   z->b_slot = malloc((size_t)(z->nbs + 1) * sizeof(int));
   z->b_coupled = malloc((size_t)(z->nbs + 1) * sizeof(int));
   if (!z->b_slot || !z->b_coupled)
@@ -308,16 +349,17 @@ int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
   z->Rm = malloc((p * r * r + 1) * sizeof(double));
   z->Gs = malloc((p * r * (size_t)ns + 1) * sizeof(double));
   z->Qs = malloc(((size_t)z->nsc * (size_t)z->nsc + 1) * sizeof(double));
-  z->Rs = malloc(((size_t)z->rs * (size_t)z->rs + 1) * sizeof(double));
+  z->Rs = malloc(((size_t)z->rk * (size_t)z->rk + 1) * sizeof(double));
   z->A = malloc((size_t)MAXD * MAXD * sizeof(double));
   z->t = malloc((size_t)MAXD * sizeof(double));
   z->B = malloc(((size_t)z->nbs * (size_t)ns + 1) * sizeof(double));
   z->Gf = malloc((r * nfc + 1) * sizeof(double));
-  z->Gsl = malloc(((size_t)z->rs * (size_t)z->nsc + 1) * sizeof(double));
+  z->Gsl = malloc(((size_t)z->rk * (size_t)z->nsc + 1) * sizeof(double));
   if (!z->Q || !z->Rm || !z->Gs || !z->Qs || !z->Rs || !z->A || !z->t ||
       !z->B || !z->Gf || !z->Gsl)
     goto oom;
-  if (build_recipe(z, st) < 0 || build_csr(z, st) < 0 || build_pattern(z) < 0)
+  if (build_recipe(z, st) < 0 || build_csr(z, st) < 0 || build_pattern(z) < 0 ||
+      reparametrise(z, m) < 0)
     goto oom;
   *out = z;
   return MRVI_OK;
@@ -325,6 +367,121 @@ oom:
   free(spos), free(ms);
   mrvi_nullspace_free(z);
   return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+}
+
+/* Which bodies the nodal reparametrisation takes: all of them when every
+ * constraint is the internal one of a slow 3-D body (no joint, nothing at
+ * micro nodes) and each body's 12 coordinates are consecutive slow slots;
+ * else none. */
+static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
+  if (!mrvi_model_free_bodies_only(m) || z->r > 0 || z->rk != z->rs)
+    return 0;
+  z->rep_slot = malloc((size_t)m->n_bodies * sizeof *z->rep_slot);
+  z->rep_d = malloc((size_t)m->n_bodies * 9 * sizeof *z->rep_d);
+  if (!z->rep_slot || !z->rep_d)
+    return -1;
+  for (int b = 0; b < m->n_bodies; b++) {
+    /* A body's 12 coordinates are consecutive slots of the slow block. */
+    const int f = m->bodies[b].first, s0 = m->slot[f];
+    for (int j = 1; j < 12; j++)
+      if (m->slot[f + j] != s0 + j || m->rate[f + j] != MRVI_SLOW)
+        return 0;
+    z->rep_slot[b] = s0;
+  }
+  z->n_rep = m->n_bodies;
+  return 0;
+}
+
+int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) { return z->n_rep; }
+
+/* v <- exp(th^) v (Rodrigues; the series below |th| = 1e-4). */
+static void rotate(const double *th, double *v) {
+  const double t2 = th[0] * th[0] + th[1] * th[1] + th[2] * th[2];
+  const double t = sqrt(t2);
+  double a, b; /* exp(th^) = I + a th^ + b th^2 */
+  if (t < 1e-4) {
+    a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0);
+    b = 0.5 * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0));
+  } else {
+    a = sin(t) / t;
+    b = (1.0 - cos(t)) / t2;
+  }
+  const double c[3] = {th[1] * v[2] - th[2] * v[1], th[2] * v[0] - th[0] * v[2],
+                       th[0] * v[1] - th[1] * v[0]};
+  const double cc[3] = {th[1] * c[2] - th[2] * c[1],
+                        th[2] * c[0] - th[0] * c[2],
+                        th[0] * c[1] - th[1] * c[0]};
+  for (int i = 0; i < 3; i++)
+    v[i] += a * c[i] + b * cc[i];
+}
+
+/* The rotation th of director increments w^i at directors d^i (3 x 3
+ * each, rows): th = 1/2 sum_i d^i x w^i, exact for w^i = th x d^i with d
+ * orthonormal (the left inverse of the body's null-space matrix P = [[I,
+ * 0], [0, -d1^], [0, -d2^], [0, -d3^]]); for w^i = R d^i - d^i with R a
+ * rotation, sin|th| th/|th|. */
+static void rotation_of(const double *d, const double *w, double *th) {
+  th[0] = th[1] = th[2] = 0.0;
+  for (int i = 0; i < 3; i++) {
+    const double *a = d + 3 * i, *b = w + 3 * i;
+    th[0] += 0.5 * (a[1] * b[2] - a[2] * b[1]);
+    th[1] += 0.5 * (a[2] * b[0] - a[0] * b[2]);
+    th[2] += 0.5 * (a[0] * b[1] - a[1] * b[0]);
+  }
+}
+
+/* Directors of body slot s0 as x holds them: rows d^1..d^3 (positions). */
+static void directors(const mrvi_step *st, const double *x, int s0, double *d) {
+  for (int j = 0; j < 9; j++)
+    d[j] = x[s0 + 3 + j] + (st->increments ? st->qs0[s0 + 3 + j] : 0.0);
+}
+
+/* Store the directors d (positions) of body slot s0 into x. */
+static void set_directors(const mrvi_step *st, double *x, int s0,
+                          const double *d) {
+  for (int j = 0; j < 9; j++)
+    x[s0 + 3 + j] = d[j] - (st->increments ? st->qs0[s0 + 3 + j] : 0.0);
+}
+
+void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
+                            const double *dx) {
+  /* The rotated directors from the iterate, before x changes. */
+  for (int b = 0; b < z->n_rep; b++) {
+    const int s0 = z->rep_slot[b];
+    double *d = z->rep_d + 9 * b, w[9], th[3];
+    directors(st, x, s0, d);
+    for (int j = 0; j < 9; j++)
+      w[j] = -dx[s0 + 3 + j];
+    rotation_of(d, w, th);
+    for (int i = 0; i < 3; i++)
+      rotate(th, d + 3 * i);
+  }
+  for (int s = 0; s < st->n_unknowns; s++)
+    x[s] -= dx[s];
+  for (int b = 0; b < z->n_rep; b++)
+    set_directors(st, x, z->rep_slot[b], z->rep_d + 9 * b);
+}
+
+void mrvi_nullspace_start(const mrvi_nullspace *z, const mrvi_step *st,
+                          double *x) {
+  for (int b = 0; b < z->n_rep; b++) {
+    const int s0 = z->rep_slot[b];
+    double d[9], w[9], th[3];
+    directors(st, x, s0, w);
+    for (int j = 0; j < 9; j++)
+      d[j] = st->qs0[s0 + 3 + j];
+    /* The predictor's frame w: 1/2 sum d^i x w^i = sin|th| th/|th| for a
+     * rotation; its angle from the sine (a predictor turns by much less
+     * than pi/2 in a step). */
+    rotation_of(d, w, th);
+    const double sn = sqrt(th[0] * th[0] + th[1] * th[1] + th[2] * th[2]);
+    const double f = sn > 1e-300 && sn < 1.0 ? asin(sn) / sn : 1.0;
+    for (int a = 0; a < 3; a++)
+      th[a] *= f;
+    for (int i = 0; i < 3; i++)
+      rotate(th, d + 3 * i);
+    set_directors(st, x, s0, d);
+  }
 }
 
 /* QR of the transpose of the k x nc block G (row-major, k rows): Q
@@ -365,7 +522,7 @@ static void solve_r(int k, const double *R, double *u) {
 int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
                           const double *F, char *msg, size_t len) {
   const mrvi_model *m = st->model;
-  const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs;
+  const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs, rk = z->rk;
   double *lam = x + st->n_unknowns;
   /* Micro-node constraints, node by node. */
   for (int mm = 0; mm < z->p; mm++) {
@@ -416,7 +573,7 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
   /* Slow-only constraints at q_k: what the slow rows leave after the
    * micro-node forces, dT R_s lambda = Q1s^T (F_s - sum_m dt a0 G_s^T l). */
   double *G = z->Gsl;
-  memset(G, 0, (size_t)(rs * z->nsc) * sizeof *G);
+  memset(G, 0, (size_t)(rk * z->nsc) * sizeof *G);
   const mrvi_point p0 = mrvi_step_node_point(st, 0, st->dT);
   for (int i = 0; i < st->n_slow_c; i++) {
     const int c = st->slow_c[i], off = st->c_off[c];
@@ -428,15 +585,16 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
       while (z->sc[a] != s)
         a++;
       for (int rr = 0; rr < k->rows; rr++)
-        G[(off + rr) * z->nsc + a] += st->cG[rr * k->n_in + j];
+        if (z->srow[off + rr] >= 0)
+          G[z->srow[off + rr] * z->nsc + a] += st->cG[rr * k->n_in + j];
     }
   }
-  if (block_qr(z, rs, z->nsc, G, z->Qs, z->Rs) < 0)
+  if (block_qr(z, rk, z->nsc, G, z->Qs, z->Rs) < 0)
     return mrvi_fail(
         msg, len, MRVI_ESINGULAR,
         "null-space form: the slow-only constraints are dependent");
-  double *u = lam;
-  for (int a = 0; a < rs; a++) {
+  double *u = z->t; /* kept rows, then spread over lam[0..rs) */
+  for (int a = 0; a < rk; a++) {
     double s = 0.0;
     for (int b = 0; b < z->nsc; b++) {
       const int sl = z->sc[b];
@@ -452,10 +610,27 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
     }
     u[a] = s;
   }
-  solve_r(rs, z->Rs, u);
-  for (int a = 0; a < rs; a++)
-    u[a] /= st->dT;
+  solve_r(rk, z->Rs, u);
+  for (int e = 0; e < rs; e++)
+    lam[e] = z->srow[e] >= 0 ? u[z->srow[e]] / st->dT : 0.0;
   return MRVI_OK;
+}
+
+/* Column j of the analytic null-space matrix of the free bodies at q_k
+ * (Betsch & Leyendecker 2006): P = [[I, 0], [0, -d1^], [0, -d2^],
+ * [0, -d3^]] acting on (u, w).  The columns of u are the unit vectors of
+ * phi, which no constraint touches (basis vectors of their own); column j
+ * here is body j / 3 turning about e_(j % 3): d^i -> e x d^i. */
+static void free_body_column(const mrvi_nullspace *z, const mrvi_step *st,
+                             int j, double *b) {
+  const int s0 = z->rep_slot[j / 3], k = j % 3, k1 = (k + 1) % 3,
+            k2 = (k + 2) % 3;
+  for (int i = 0; i < 3; i++) {
+    const double *d = st->qs0 + s0 + 3 + 3 * i;
+    double *v = b + s0 + 3 + 3 * i;
+    v[k1] = -d[k2]; /* (e_k x d)_k1 = -d_k2 */
+    v[k2] = d[k1];  /* (e_k x d)_k2 = d_k1 */
+  }
 }
 
 void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
@@ -465,13 +640,14 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
   for (int i = 0; i < z->nbs; i++) {
     double *b = z->B + (size_t)i * ns;
     memset(b, 0, (size_t)ns * sizeof *b);
+    const int j = i - (z->nbs - (nsc - z->rk)); /* j-th column of Q2 */
     if (z->b_slot[i] >= 0)
       b[z->b_slot[i]] = 1.0;
-    else {
-      const int col = z->rs + (i - (z->nbs - (nsc - z->rs)));
+    else if (z->n_rep)
+      free_body_column(z, st, j, b);
+    else
       for (int a = 0; a < nsc; a++)
-        b[z->sc[a]] = z->Qs[a * nsc + col];
-    }
+        b[z->sc[a]] = z->Qs[a * nsc + z->rk + j];
   }
   /* Coefficients in recipe order. */
   long e = 0;
@@ -515,7 +691,7 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
       for (int a = 0; a < nfc; a++)
         z->rec_coef[e++] = Q[a * nfc + j];
   }
-  for (int k = 0; k < st->n_lambda; k++)
+  for (int k = 0; k < st->n_lambda - (z->rs - z->rk); k++)
     z->rec_coef[e++] = 1.0;
   /* Rows of the reduced system: combinations of the full rows. */
   memset(z->Ax, 0, (size_t)z->nnz * sizeof *z->Ax);

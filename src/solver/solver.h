@@ -14,8 +14,8 @@
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_nullspace mrvi_nullspace;
 /* After mrvi_step_build_pattern: reduced pattern (size n_unknowns). */
-int mrvi_nullspace_create(const mrvi_step *st, mrvi_nullspace **out, char *msg,
-                          size_t len);
+int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
+                          mrvi_nullspace **out, char *msg, size_t len);
 void mrvi_nullspace_free(mrvi_nullspace *z);
 /* Multipliers lambda(x) (written to x + n_unknowns) from the residual F of
  * the full system assembled at lambda = 0; also factors the node blocks
@@ -26,6 +26,17 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
  * [P^T R; h] from the full system assembled at lambda(x). */
 void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
                            const double *R, double *rhs);
+/* Nodal reparametrisation (doc/multibody.md): the number of free slow 3-D
+ * bodies whose new node is phi_k + u, exp(th^) d_k^i (0: none, the basis
+ * is numerical and x -= dx).  mrvi_nullspace_start puts the predictor's
+ * directors on that form; mrvi_nullspace_retract makes the Newton update
+ * x -= dx with the bodies' directors rotated (th from dx), so that the
+ * internal constraints hold to round-off at every iterate. */
+int mrvi_nullspace_reparametrised(const mrvi_nullspace *z);
+void mrvi_nullspace_start(const mrvi_nullspace *z, const mrvi_step *st,
+                          double *x);
+void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
+                            const double *dx);
 const int *mrvi_nullspace_Ap(const mrvi_nullspace *z);
 const int *mrvi_nullspace_Ai(const mrvi_nullspace *z);
 const double *mrvi_nullspace_Ax(const mrvi_nullspace *z);

@@ -517,16 +517,20 @@ int mrvi_ld_constraints(loader *L, struct fy_node *list, int dim) {
 }
 
 /* Initial data against the constraints (doc/constraints.md), once the settings
- * are known: positions within the tolerance, independent gradients, velocities
- * projected onto the tangent space (with a note when they changed). */
+ * are known: positions projected onto the constraints and velocities onto
+ * their tangent space (with a note when they changed), independent
+ * gradients in the multiplier form. */
 int mrvi_ld_check_constraints(loader *L) {
   mrvi_model *m = L->sys->model;
   const int n_c = mrvi_model_n_constraints(m);
   int worst = -1, st;
   if (n_c == 0)
     return MRVI_OK;
-  st = mrvi_model_check_initial_positions(m, L->sys->settings.constraint_tol,
-                                          &worst);
+  /* Positions off the constraints (a closed loop's cannot be typed
+   * exactly) are projected onto them, within MRVI_PROJECT_POSITIONS_MAX. */
+  double moved = 0.0;
+  st = mrvi_model_project_positions(m, L->sys->settings.constraint_tol, &moved,
+                                    &worst);
   if (st < 0)
     return st == MRVI_ENOMEM
                ? mrvi_ld_fail_nomem(L)
@@ -534,7 +538,15 @@ int mrvi_ld_check_constraints(loader *L) {
                               worst >= 0 ? L->constraint_items[worst]
                                          : L->constraint_list,
                               "%s", mrvi_model_errmsg(m));
-  if ((st = mrvi_model_check_independent(m, mrvi_model_q0(m))) < 0) {
+  if (moved > 0 &&
+      (st = mrvi_ld_add_note(L,
+                             "initial positions projected onto the "
+                             "constraints (largest change %.1e)",
+                             moved)) < 0)
+    return st;
+  /* The null-space form handles redundant rows (doc/constraints.md). */
+  if (L->sys->settings.constraint_form != MRVI_FORM_NULL_SPACE &&
+      (st = mrvi_model_check_independent(m, mrvi_model_q0(m))) < 0) {
     /* At the last constraint the message names (labels are unique). */
     const char *msg = mrvi_model_errmsg(m);
     struct fy_node *at = L->constraint_list;

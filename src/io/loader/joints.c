@@ -1,7 +1,8 @@
 /* `joints:` of a description file (doc/multibody.md): {type, bodies,
- * point, axis, name, spring}; one body joins it to the ground, two join
- * them.  point and axis are in space at the initial configuration
- * (mrvi_model_add_joint stores them in the bodies' frames).  `spring:` on
+ * point, axis, second_axis, name, spring}; one body joins it to the
+ * ground, two join them.  point and the axes are in space at the initial
+ * configuration (mrvi_model_add_joint_axes stores them in the bodies'
+ * frames).  `spring:` on
  * a revolute joint is a torsional spring about its axis
  * (mrvi_model_add_torsion): {law, the law's parameters, rest_angle,
  * potential}. */
@@ -10,8 +11,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-static const char *const joint_keys[] = {"type", "bodies", "point",
-                                         "axis", "name",   "spring"};
+static const char *const joint_keys[] = {"type", "bodies",      "point",
+                                         "axis", "second_axis", "name",
+                                         "spring"};
 static const char *const torsion_keys[] = {"law", "rest_angle", "potential"};
 
 /* `spring:` of joint `where` between bodies b (b[1] < 0: the ground). */
@@ -64,8 +66,8 @@ static int find_body(loader *L, struct fy_node *n, int *b) {
 static int load_joint(loader *L, struct fy_node *item, int i, int dim) {
   char where[64];
   mrvi_fmt(where, sizeof where, "joints.%d", i);
-  struct fy_node *tn, *bn, *pn, *an, *nn;
-  double point[3], axis[3];
+  struct fy_node *tn, *bn, *pn, *an, *xn, *nn;
+  double point[3], axis[3], second[3];
   const char *const *types = mrvi_joint_type_names();
   int n_types = 0, type, b[2] = {-1, -1}, st;
   while (types[n_types])
@@ -96,12 +98,20 @@ static int load_joint(loader *L, struct fy_node *item, int i, int dim) {
   if ((an = mrvi_ld_get(item, "axis")) &&
       (st = mrvi_ld_as_vector(L, an, "axis", dim, axis)))
     return st;
+  if ((xn = mrvi_ld_get(item, "second_axis")) &&
+      (st = mrvi_ld_as_vector(L, xn, "second_axis", dim, second)))
+    return st;
   mrvi_model *m = L->sys->model;
-  const int c =
-      mrvi_model_add_joint(m, types[type], b[0], b[1], point, an ? axis : NULL);
-  if (c < 0)
-    return mrvi_ld_fail_model(
-        L, an && strstr(mrvi_model_errmsg(m), "axis") ? an : item, c);
+  const int c = mrvi_model_add_joint_axes(m, types[type], b[0], b[1], point,
+                                          an ? axis : NULL, xn ? second : NULL);
+  if (c < 0) {
+    const char *e = mrvi_model_errmsg(m);
+    return mrvi_ld_fail_model(L,
+                              xn && strstr(e, "second axis") ? xn
+                              : an && strstr(e, "axis")      ? an
+                                                             : item,
+                              c);
+  }
   if ((nn = mrvi_ld_get(item, "name"))) {
     const char *label;
     if ((st = mrvi_ld_as_string(L, nn, "name", &label)))

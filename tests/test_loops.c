@@ -1,0 +1,626 @@
+/* Closed loops of joints (doc/multibody.md, "Closed loops"): a planar
+ * four-bar modelled in 3-D with revolute joints has 3 redundant constraint
+ * rows, which the null-space form handles and the multiplier form refuses
+ * with the joints' names; the loop holds to the constraint tolerance over
+ * 10^4 steps with a bounded energy error.  The 2-D four-bar (no redundancy)
+ * gives the same trajectory in both forms.  Initial positions off the
+ * constraints are projected with the minimal (mass-weighted) displacement. */
+#include "io/io.h"
+#include "model/model.h"
+#include "models.h"
+#include "testlib.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+static const char *form_name(mrvi_constraint_form f) {
+  return f == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers";
+}
+
+/* ---------------------------------------------------------------------------
+ * The four-bar: ground pivots A = 0 and D = (fb_d, 0), crank AB (fb_a),
+ * coupler BC (fb_b), rocker DC (fb_c), a Grashof crank-rocker (s + l <=
+ * p + q), crank angle fb_th0, crank angular velocity fb_w0 about e3,
+ * gravity -fb_g e2 in the plane.  Each link is a uniform bar (d1 along it).
+ * ------------------------------------------------------------------------- */
+static const double fb_a = 1.0, fb_b = 3.0, fb_c = 2.5, fb_d = 3.0,
+                    fb_th0 = 1.0, fb_w0 = 2.0, fb_g = 9.81;
+
+/* The joint points A, B, C, D (3 entries each, z = 0) at crank angle th,
+ * C on the upper branch (exact to round-off). */
+static void fourbar_points(double th, double P[4][3]) {
+  memset(P, 0, 4 * 3 * sizeof(double));
+  P[1][0] = fb_a * cos(th);
+  P[1][1] = fb_a * sin(th);
+  P[3][0] = fb_d;
+  /* C: |C - B| = b, |C - D| = c (intersection of two circles). */
+  const double ex = P[3][0] - P[1][0], ey = P[3][1] - P[1][1];
+  const double e = hypot(ex, ey);
+  const double s = (fb_b * fb_b - fb_c * fb_c + e * e) / (2.0 * e);
+  const double h = sqrt(fb_b * fb_b - s * s);
+  P[2][0] = P[1][0] + (s * ex + h * ey) / e;
+  P[2][1] = P[1][1] + (s * ey - h * ex) / e;
+  if (P[2][1] < 0) { /* the other branch */
+    P[2][0] = P[1][0] + (s * ex - h * ey) / e;
+    P[2][1] = P[1][1] + (s * ey + h * ex) / e;
+  }
+}
+
+/* A uniform bar from P to Q as a body (D = 2 or 3), at rest or with
+ * angular velocity w about e3 around P (v = w e3 x (x - P)). */
+static int add_bar(mrvi_model *m, const char *name, int D, const double *P,
+                   const double *Q, double mass, double w) {
+  const double dx = Q[0] - P[0], dy = Q[1] - P[1], l = hypot(dx, dy);
+  const double c = dx / l, s = dy / l;
+  const double x0[3] = {0.5 * (P[0] + Q[0]), 0.5 * (P[1] + Q[1]), 0.0};
+  const double v0[3] = {-w * (x0[1] - P[1]), w * (x0[0] - P[0]), 0.0};
+  const double Jt = mass * l * l / 12.0;
+  if (D == 3) {
+    const double R[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
+    const double J[3] = {0.1 * Jt, Jt, Jt}, om[3] = {0, 0, w};
+    return mrvi_model_add_body(m, name, 3, MRVI_SLOW, mass, J, x0, R, v0, om);
+  }
+  const double R[4] = {c, -s, s, c};
+  return mrvi_model_add_body(m, name, 2, MRVI_SLOW, mass, &Jt, x0, R, v0, &w);
+}
+
+/* The four-bar in D dimensions; off moves the rocker's centre by off along
+ * e2 after the joints are made (which meet the typed positions exactly), so
+ * that its two joints are off by off.  With fast: a fast particle on a stiff
+ * spring to an anchor and a soft slow spring to the coupler's midpoint (so that
+ * p > 1 has fast coordinates). */
+static mrvi_model *fourbar(int D, double off, int fast) {
+  mrvi_model *m = mrvi_model_create();
+  double P[4][3];
+  fourbar_points(fb_th0, P);
+  const double axis[3] = {0, 0, 1}, g[3] = {0, -fb_g, 0};
+  mrvi_model_set_dimension(m, D);
+  int st = add_bar(m, "crank", D, P[0], P[1], 1.0, fb_w0);
+  st |= add_bar(m, "coupler", D, P[1], P[2], 2.0, 0.0);
+  st |= add_bar(m, "rocker", D, P[3], P[2], 1.5, 0.0);
+  CHECK(st >= 0, "four-bar %d-D bodies: %s", D, mrvi_model_errmsg(m));
+  const char *rev = "revolute";
+  const double *ax = D == 3 ? axis : NULL;
+  st = mrvi_model_add_joint(m, rev, 0, -1, P[0], ax);
+  st |= mrvi_model_add_joint(m, rev, 0, 1, P[1], ax);
+  st |= mrvi_model_add_joint(m, rev, 1, 2, P[2], ax);
+  st |= mrvi_model_add_joint(m, rev, 2, -1, P[3], ax);
+  CHECK(st >= 0, "four-bar %d-D joints: %s", D, mrvi_model_errmsg(m));
+  m->q0[mrvi_model_body_first(m, 2) + 1] += off;
+  CHECK(mrvi_model_set_gravity(m, g) >= 0, "gravity: %s", mrvi_model_errmsg(m));
+  if (fast) {
+    const double x[3] = {1.5, 2.5, 0.0}, v[3] = {0.3, -0.2, 0.0};
+    const int f = mrvi_model_add_particle(m, "f", 0.2, MRVI_FAST, x, v);
+    const mrvi_end pf = {.particle = f, .body = -1},
+                   cm = {.particle = -1, .body = 1, .at = {0, 0, 0}};
+    const double kf = 400.0, ks = 5.0, anchor[3] = {1.5, 2.7, 0.0};
+    CHECK(f >= 0 &&
+              mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor,
+                                        "linear", &kf, 0.15) >= 0 &&
+              mrvi_model_add_end_spring(m, MRVI_SLOW, &pf, &cm, NULL, "linear",
+                                        &ks, NAN) >= 0,
+          "fast particle: %s", mrvi_model_errmsg(m));
+  }
+  return m;
+}
+
+static mrvi_settings loop_settings(double dT, int p, double t_end,
+                                   mrvi_constraint_form form) {
+  mrvi_settings s = test_settings("midpoint-midpoint", dT, p, t_end, 1e-11);
+  s.constraint_form = form;
+  s.constraint_tol = 1e-11;
+  return s;
+}
+
+/* max |g| (all rows, the redundant ones too) and max |H - H0| / |H0| over a
+ * trajectory; *eH10 (may be NULL) the latter over its first tenth. */
+static void loop_invariants(const mrvi_model *m, const mrvi_trajectory *tr,
+                            double *eg, double *eH, double *eH10) {
+  const int n = tr->n, R = mrvi_model_constraint_rows(m);
+  double *g = malloc((size_t)R * sizeof *g), H0 = 0.0;
+  *eg = *eH = 0.0;
+  for (long k = 0; k < tr->n_macro; k++) {
+    double T, V, W;
+    mrvi_model_energy(m, tr->q + k * n, tr->p + k * n, &T, &V, &W);
+    if (k == 0)
+      H0 = T + V + W;
+    *eH = fmax(*eH, fabs(T + V + W - H0) / fabs(H0));
+    if (eH10 && 10 * k <= tr->n_macro)
+      *eH10 = *eH;
+    mrvi_model_constraint_eval(m, tr->q + k * n, g, NULL);
+    for (int r = 0; r < R; r++)
+      *eg = fmax(*eg, fabs(g[r]));
+  }
+  free(g);
+}
+
+/* The 3-D four-bar: 38 rows on 36 coordinates, rank 35. */
+static void test_fourbar_3d(void) {
+  mrvi_model *m = fourbar(3, 0.0, 0);
+  char why[600];
+  const int R = mrvi_model_constraint_rows(m);
+  CHECK(R == 38, "four-bar 3-D: %d rows", R);
+  /* The multiplier form refuses, naming the joints and what to do. */
+  const int st = mrvi_model_check_independent(m, mrvi_model_q0(m));
+  snprintf(why, sizeof why, "%s", mrvi_model_errmsg(m));
+  CHECK(st == MRVI_ESINGULAR && strstr(why, "revolute") &&
+            strstr(why, "null-space") && strstr(why, "2-D") &&
+            strstr(why, "non-redundant joint set"),
+        "four-bar 3-D refused in the multiplier form with its joints named: "
+        "%s",
+        why);
+  mrvi_settings s = loop_settings(0.01, 1, 1.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  CHECK(mrvi_trajectory_run(m, &s, &tr, &sum) != 0 &&
+            strstr(sum.message, "redundant constraints"),
+        "multiplier-form run refused: %s", sum.message);
+  mrvi_trajectory_free(tr);
+  tr = NULL;
+  /* The null-space form integrates it: 10^4 steps. */
+  s = loop_settings(0.01, 1, 100.0, MRVI_FORM_NULL_SPACE);
+  if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0) {
+    CHECK(0, "four-bar 3-D null-space run: %s", sum.message);
+  } else {
+    double eg, eH, eH10 = 0.0;
+    loop_invariants(m, tr, &eg, &eH, &eH10);
+    /* The crank's angle after 10^4 steps: it turns (a crank-rocker). */
+    const double *q = tr->q + (tr->n_macro - 1) * tr->n;
+    printf("four-bar 3-D (null-space): %ld steps, max |g| %.3g (all 38 rows), "
+           "max relative energy error %.3g (%.3g over the first 1000), crank "
+           "centre (%.3f, %.3f)\n",
+           tr->n_macro - 1, eg, eH, eH10, q[0], q[1]);
+    CHECK(tr->n_macro == 10001, "four-bar 3-D: %ld nodes", tr->n_macro);
+    CHECK(eg <= 1e-11, "four-bar 3-D: loop closure %.3g", eg);
+    /* Bounded: O(dT^2), reached early and not growing. */
+    CHECK(eH < 3e-3 && eH < 1.5 * eH10,
+          "four-bar 3-D: energy error %.3g (%.3g over the first tenth)", eH,
+          eH10);
+    /* Planar: every z coordinate of the centres stays 0. */
+    double zmax = 0.0;
+    for (long k = 0; k < tr->n_macro; k++)
+      for (int b = 0; b < 3; b++)
+        zmax = fmax(zmax, fabs(tr->q[k * tr->n + 12 * b + 2]));
+    CHECK(zmax < 1e-12, "four-bar 3-D stays planar: %.3g", zmax);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+/* The 2-D four-bar (17 rows on 18 coordinates, independent) in 3-D and
+ * 2-D agree, and both forms agree in 2-D, p in {1, 5}. */
+static void test_fourbar_forms(void) {
+  for (int p = 1; p <= 5; p += 4) {
+    mrvi_model *m = fourbar(2, 0.0, p > 1);
+    mrvi_trajectory *tr[2] = {NULL, NULL};
+    mrvi_summary sum;
+    for (int f = 0; f < 2; f++) {
+      const mrvi_constraint_form form =
+          f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      const mrvi_settings s = loop_settings(0.01, p, 1.0, form);
+      if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+        CHECK(0, "four-bar 2-D (%s, p = %d): %s", form_name(form), p,
+              sum.message);
+    }
+    if (tr[0] && tr[1]) {
+      double d = 0.0;
+      for (long i = 0; i < tr[0]->n_macro * tr[0]->n; i++)
+        d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
+      double eg, eH;
+      loop_invariants(m, tr[1], &eg, &eH, NULL);
+      printf("four-bar 2-D, p = %d: 100 steps, forms differ by %.3g, max |g| "
+             "%.3g\n",
+             p, d, eg);
+      CHECK(tr[0]->n_macro == 101 && d < 1e-10,
+            "four-bar 2-D p = %d: forms differ by %.3g", p, d);
+      CHECK(eg <= 1e-11, "four-bar 2-D p = %d: max |g| %.3g", p, eg);
+    }
+    mrvi_trajectory_free(tr[0]);
+    mrvi_trajectory_free(tr[1]);
+    mrvi_model_free(m);
+  }
+  /* 3-D (redundant, null-space form) against 2-D (multipliers): the same
+   * planar motion. */
+  mrvi_model *m3 = fourbar(3, 0.0, 0), *m2 = fourbar(2, 0.0, 0);
+  const mrvi_settings s3 = loop_settings(0.01, 1, 1.0, MRVI_FORM_NULL_SPACE),
+                      s2 = loop_settings(0.01, 1, 1.0, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *t3 = NULL, *t2 = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m3, &s3, &t3, &sum) == 0 &&
+      mrvi_trajectory_run(m2, &s2, &t2, &sum) == 0) {
+    double d = 0.0;
+    for (long k = 0; k < t2->n_macro; k++)
+      for (int b = 0; b < 3; b++)
+        for (int a = 0; a < 2; a++)
+          d = fmax(d, fabs(t3->q[k * t3->n + 12 * b + a] -
+                           t2->q[k * t2->n + 6 * b + a]));
+    printf("four-bar 3-D (null-space) against 2-D (multipliers): centres "
+           "differ by %.3g over 100 steps\n",
+           d);
+    CHECK(d < 1e-9, "four-bar 3-D against 2-D: %.3g", d);
+  } else {
+    CHECK(0, "four-bar 3-D / 2-D runs: %s", sum.message);
+  }
+  mrvi_trajectory_free(t3);
+  mrvi_trajectory_free(t2);
+  mrvi_model_free(m3);
+  mrvi_model_free(m2);
+}
+
+/* ---------------------------------------------------------------------------
+ * Projection of initial positions (doc/constraints.md, initial data).
+ * ------------------------------------------------------------------------- */
+static void test_projection(void) {
+  /* A rod between masses 1 and 3 that start 1.001 apart: the minimal
+   * M-weighted correction moves them along the rod by 0.001 * 3/4 and
+   * 0.001 * 1/4. */
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double x1[3] = {0.2, -0.1, 0.3}, u[3] = {0.6, 0.0, 0.8},
+               v0[3] = {0, 0, 0};
+  double x2[3];
+  for (int a = 0; a < 3; a++)
+    x2[a] = x1[a] + 1.001 * u[a];
+  const int i = mrvi_model_add_particle(m, "a", 1.0, MRVI_SLOW, x1, v0),
+            j = mrvi_model_add_particle(m, "b", 3.0, MRVI_SLOW, x2, v0);
+  CHECK(mrvi_model_add_distance(m, i, j, 1.0) >= 0, "rod: %s",
+        mrvi_model_errmsg(m));
+  double corr = 0.0, err = 0.0;
+  CHECK(mrvi_model_project_positions(m, 1e-12, &corr, NULL) == MRVI_OK,
+        "rod projected: %s", mrvi_model_errmsg(m));
+  const double *q = mrvi_model_q0(m);
+  for (int a = 0; a < 3; a++) {
+    err = fmax(err, fabs(q[a] - (x1[a] + 0.00075 * u[a])));
+    err = fmax(err, fabs(q[3 + a] - (x2[a] - 0.00025 * u[a])));
+  }
+  printf("projection of a rod 1.001 long onto length 1 (masses 1, 3): "
+         "error against the minimal displacement %.3g, largest change %.3g\n",
+         err, corr);
+  CHECK(err < 1e-14, "rod projection: %.3g from the analytic one", err);
+  CHECK(fabs(corr - 0.00075 * 0.8) < 1e-14, "rod projection: change %.3g",
+        corr);
+  mrvi_model_free(m);
+
+  /* The 3-D four-bar with the rocker moved 1e-4 off the loop: projected onto
+   * all 38 rows (3 redundant) by a change of the order of the offset. */
+  m = fourbar(3, 1e-4, 0);
+  const int R = mrvi_model_constraint_rows(m);
+  double *g = malloc((size_t)R * sizeof *g), gmax = 0.0, g0 = 0.0;
+  mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
+  for (int r = 0; r < R; r++)
+    g0 = fmax(g0, fabs(g[r]));
+  CHECK(mrvi_model_project_positions(m, 1e-12, &corr, NULL) == MRVI_OK,
+        "four-bar projected: %s", mrvi_model_errmsg(m));
+  mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
+  for (int r = 0; r < R; r++)
+    gmax = fmax(gmax, fabs(g[r]));
+  printf(
+      "four-bar 3-D with the rocker 1e-4 off the loop: max |g| %.3g -> %.3g, "
+      "largest change %.3g\n",
+      g0, gmax, corr);
+  CHECK(g0 > 1e-5 && gmax <= 1e-12, "four-bar projection: |g| %.3g", gmax);
+  CHECK(corr > 1e-5 && corr < 1e-3, "four-bar projection: change %.3g", corr);
+  /* And it runs from there in the null-space form. */
+  const mrvi_settings s = loop_settings(0.01, 1, 0.5, MRVI_FORM_NULL_SPACE);
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  CHECK(mrvi_trajectory_run(m, &s, &tr, &sum) == 0, "projected run: %s",
+        sum.message);
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+  free(g);
+
+  /* Too far off (0.1): refused, naming the joints, positions unchanged. */
+  m = fourbar(3, 0.1, 0);
+  double before[64];
+  memcpy(before, mrvi_model_q0(m), 36 * sizeof(double));
+  int worst = -1;
+  const int st = mrvi_model_project_positions(m, 1e-12, &corr, &worst);
+  const char *msg = mrvi_model_errmsg(m);
+  printf("four-bar 3-D with the rocker 0.1 off: %s\n", msg);
+  CHECK(st == MRVI_EMODEL && strstr(msg, "revolute") && worst >= 0,
+        "far-off four-bar refused: %s", msg);
+  CHECK(memcmp(before, mrvi_model_q0(m), 36 * sizeof(double)) == 0,
+        "refused projection leaves q0");
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
+ * Universal joint (constraints/universal.c): a bar hanging from the ground
+ * by a Hooke joint, its axis e1 fixed in the bar, the second axis e2 fixed
+ * in the ground.  The bar may swing about e2 and about its own d1 but not
+ * spin about the vertical.
+ * ------------------------------------------------------------------------- */
+static const double uj_M = 2.0, uj_l = 0.6, uj_th0 = 0.7;
+
+/* The bar at angle uj_th0 about e2 from hanging down; w1 the initial
+ * rate about its own d1 (a second swing). */
+static mrvi_model *hooke(const char *type, double w1) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double c = cos(uj_th0), s = sin(uj_th0);
+  const double R[9] = {c, 0, s, 0, 1, 0, -s, 0, c};
+  const double x0[3] = {uj_l * s, 0, -uj_l * c}, J[3] = {0.05, 0.06, 0.02};
+  const double w[3] = {w1 * c, 0.0, -w1 * s}; /* w1 d1 */
+  double v0[3] = {w[1] * x0[2] - w[2] * x0[1], w[2] * x0[0] - w[0] * x0[2],
+                  w[0] * x0[1] - w[1] * x0[0]};
+  const double e1[3] = {c, 0, -s}, e2[3] = {0, 1, 0}, o[3] = {0, 0, 0},
+               g[3] = {0, 0, -9.81};
+  int st = mrvi_model_add_body(m, "bar", 3, MRVI_SLOW, uj_M, J, x0, R, v0, w);
+  if (!strcmp(type, "universal"))
+    st |= mrvi_model_add_joint_axes(m, type, 0, -1, o, e1, e2);
+  else
+    st |= mrvi_model_add_joint(m, type, 0, -1, o, e2);
+  st |= mrvi_model_set_gravity(m, g);
+  CHECK(st >= 0, "%s pendulum: %s", type, mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_universal(void) {
+  /* Rows and the gradient of the joint as built, against central
+   * differences of g at a configuration off the initial one. */
+  mrvi_model *m = hooke("universal", 0.0);
+  const int n = mrvi_model_n(m), R = mrvi_model_constraint_rows(m);
+  CHECK(R == 6 + 4, "universal: %d rows (6 internal + 4)", R);
+  double q[12], gp[10], gm[10], G[120], g[10], err = 0.0, gmax = 0.0;
+  for (int i = 0; i < n; i++)
+    q[i] = mrvi_model_q0(m)[i] + 0.1 * sin(3.1 * i + 0.4);
+  mrvi_model_constraint_eval(m, q, g, G);
+  for (int j = 0; j < n; j++) {
+    const double h = 1e-6, q0 = q[j];
+    q[j] = q0 + h;
+    mrvi_model_constraint_eval(m, q, gp, NULL);
+    q[j] = q0 - h;
+    mrvi_model_constraint_eval(m, q, gm, NULL);
+    q[j] = q0;
+    for (int r = 0; r < R; r++)
+      err = fmax(err, fabs((gp[r] - gm[r]) / (2 * h) - G[r * n + j]));
+  }
+  mrvi_model_constraint_eval(m, mrvi_model_q0(m), g, NULL);
+  for (int r = 0; r < R; r++)
+    gmax = fmax(gmax, fabs(g[r]));
+  printf("universal joint: gradient against central differences %.3g, "
+         "|g(q0)| %.3g\n",
+         err, gmax);
+  CHECK(err < 1e-8, "universal gradient: FD error %.3g", err);
+  CHECK(gmax < 1e-15, "universal joint holds at q0: %.3g", gmax);
+  /* A swing about e2 stays planar: the revolute pendulum (hinge e2). */
+  mrvi_model *r = hooke("revolute", 0.0);
+  for (int f = 0; f < 2; f++) {
+    const mrvi_constraint_form form =
+        f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    const mrvi_settings s = loop_settings(0.01, 1, 1.0, form);
+    mrvi_trajectory *a = NULL, *b = NULL;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &a, &sum) == 0 &&
+        mrvi_trajectory_run(r, &s, &b, &sum) == 0) {
+      double d = 0.0;
+      for (long i = 0; i < a->n_macro * n; i++)
+        d = fmax(d, fabs(a->q[i] - b->q[i]));
+      printf("universal against revolute, planar swing (%s): %.3g over 100 "
+             "steps\n",
+             form_name(form), d);
+      CHECK(d < 1e-10, "universal planar swing (%s): %.3g", form_name(form), d);
+    } else {
+      CHECK(0, "universal / revolute runs (%s): %s", form_name(form),
+            sum.message);
+    }
+    mrvi_trajectory_free(a);
+    mrvi_trajectory_free(b);
+  }
+  mrvi_model_free(r);
+  mrvi_model_free(m);
+  /* Both swings at once: d1 stays normal to e2 (no spin about the
+   * vertical), the joint holds, the energy is bounded; both forms agree. */
+  m = hooke("universal", 3.0);
+  mrvi_trajectory *tr[2] = {NULL, NULL};
+  for (int f = 0; f < 2; f++) {
+    const mrvi_settings s = loop_settings(
+        0.01, 1, 10.0, f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS);
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+      CHECK(0, "universal swing: %s", sum.message);
+  }
+  if (tr[0] && tr[1]) {
+    double eg, eH, d1y = 0.0, d = 0.0, spread = 0.0;
+    loop_invariants(m, tr[0], &eg, &eH, NULL);
+    for (long k = 0; k < tr[0]->n_macro; k++) {
+      d1y = fmax(d1y, fabs(tr[0]->q[k * n + 4]));
+      spread = fmax(spread, fabs(tr[0]->q[k * n + 1]));
+    }
+    for (long i = 0; i < tr[0]->n_macro * n; i++)
+      d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
+    printf("universal joint, two swings, 1000 steps: max |d1 . e2| %.3g, "
+           "max |g| %.3g, energy %.3g, max |y| of the centre %.3g, forms "
+           "differ by %.3g\n",
+           d1y, eg, eH, spread, d);
+    CHECK(d1y <= 1e-11 && eg <= 1e-11, "universal: d1.e2 %.3g, |g| %.3g", d1y,
+          eg);
+    CHECK(spread > 0.05, "universal: the bar swings out of the plane (%.3g)",
+          spread);
+    CHECK(eH < 1e-2, "universal: energy error %.3g", eH);
+    CHECK(d < 1e-8, "universal: forms differ by %.3g", d);
+  }
+  mrvi_trajectory_free(tr[0]);
+  mrvi_trajectory_free(tr[1]);
+  mrvi_model_free(m);
+  /* Parallel and oblique axes are refused. */
+  m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double x0[3] = {0, 0, -1}, J[3] = {1, 1, 1}, o[3] = {0, 0, 0},
+               ex[3] = {1, 0, 0}, ex2[3] = {-2, 0, 0}, ob[3] = {1, 1, 0};
+  mrvi_model_add_body(m, "b", 3, MRVI_SLOW, 1.0, J, x0, NULL, NULL, NULL);
+  int st = mrvi_model_add_joint_axes(m, "universal", 0, -1, o, ex, ex2);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "parallel"),
+        "parallel axes refused: %s", mrvi_model_errmsg(m));
+  st = mrvi_model_add_joint_axes(m, "universal", 0, -1, o, ex, ob);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "45 degrees"),
+        "oblique axes refused: %s", mrvi_model_errmsg(m));
+  st = mrvi_model_add_joint(m, "universal", 0, -1, o, ex);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "needs a second axis"),
+        "missing second axis refused: %s", mrvi_model_errmsg(m));
+  st = mrvi_model_add_joint_axes(m, "revolute", 0, -1, o, ex, ob);
+  CHECK(st < 0 && strstr(mrvi_model_errmsg(m), "takes no second axis"),
+        "second axis of a revolute refused: %s", mrvi_model_errmsg(m));
+  mrvi_model_free(m);
+}
+
+/* A description file whose loop (particles B, C on rods to anchors and to
+ * each other) is typed to 4 digits: the loader projects it with a note. */
+static void test_loader_projection(void) {
+  char path[] = "/tmp/mrvi_test_loops_XXXXXX";
+  const int fd = mkstemp(path);
+  FILE *f = fd >= 0 ? fdopen(fd, "w") : NULL;
+  CHECK(f != NULL, "temporary file");
+  if (!f)
+    return;
+  fputs("name: typed-loop\n"
+        "dimension: 2\n"
+        "particles:\n"
+        "  - {name: B, mass: 1, position: [0.5403, 0.8415]}\n"
+        "  - {name: C, mass: 2, position: [3.0404, 2.4997], velocity: [1, 0]}\n"
+        "constraints:\n"
+        "  - {type: distance, name: crank, between: [B], anchor: [0, 0], "
+        "length: 1}\n"
+        "  - {type: distance, name: coupler, between: [B, C], length: 3}\n"
+        "  - {type: distance, name: rocker, between: [C], anchor: [3, 0], "
+        "length: 2.5}\n"
+        "integrator: {macro_step: 0.01, t_end: 0.1}\n",
+        f);
+  fclose(f);
+  mrvi_system *sys = NULL;
+  char msg[1024] = "";
+  const int st = mrvi_system_load(path, NULL, 0, &sys, msg, sizeof msg);
+  unlink(path);
+  CHECK(st == 0, "typed loop loads: %s", msg);
+  if (st)
+    return;
+  double g[3];
+  mrvi_model_constraint_eval(sys->model, mrvi_model_q0(sys->model), g, NULL);
+  const double gmax = fmax(fabs(g[0]), fmax(fabs(g[1]), fabs(g[2])));
+  printf("typed loop: note '%s', max |g| %.3g\n", sys->notes ? sys->notes : "",
+         gmax);
+  CHECK(sys->notes && strstr(sys->notes, "initial positions projected onto "
+                                         "the constraints (largest change"),
+        "typed loop: projection note: %s", sys->notes ? sys->notes : "none");
+  CHECK(gmax <= 1e-12, "typed loop projected: max |g| %.3g", gmax);
+  mrvi_system_free(sys);
+}
+
+/* systems/slider_crank.yaml: 10^4 steps, the loop closed to the
+ * tolerance, the energy error bounded; both forms agree. */
+static void test_slider_crank(void) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  int st = mrvi_system_load(test_source_path("systems/slider_crank.yaml"), NULL,
+                            0, &sys, msg, sizeof msg);
+  CHECK(st == 0, "systems/slider_crank.yaml loads: %s", msg);
+  if (st)
+    return;
+  const mrvi_model *m = sys->model;
+  mrvi_settings s = sys->settings;
+  mrvi_trajectory *tr = NULL, *tn = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0) {
+    CHECK(0, "slider-crank run: %s", sum.message);
+  } else {
+    double eg, eH, eH10 = 0.0, xmin = 1e300, xmax = -1e300;
+    loop_invariants(m, tr, &eg, &eH, &eH10);
+    const int xs = mrvi_model_body_first(m, 2);
+    for (long k = 0; k < tr->n_macro; k++) {
+      xmin = fmin(xmin, tr->q[k * tr->n + xs]);
+      xmax = fmax(xmax, tr->q[k * tr->n + xs]);
+    }
+    printf("slider-crank: %ld steps, max |g| %.3g, max relative energy "
+           "error %.3g (%.3g over the first tenth), slider in [%.4f, %.4f]\n",
+           tr->n_macro - 1, eg, eH, eH10, xmin, xmax);
+    CHECK(tr->n_macro == 10001, "slider-crank: %ld nodes", tr->n_macro);
+    CHECK(eg <= s.constraint_tol, "slider-crank: loop closure %.3g", eg);
+    CHECK(eH < 1e-2 && eH < 1.5 * eH10,
+          "slider-crank: energy error %.3g (%.3g over the first tenth)", eH,
+          eH10);
+    /* The crank turns over: the slider reaches L - r and L + r. */
+    CHECK(fabs(xmin - 1.0) < 1e-3 && fabs(xmax - 2.0) < 1e-3,
+          "slider-crank: slider range [%.4f, %.4f]", xmin, xmax);
+  }
+  s.t_end = 100 * s.macro_step;
+  s.constraint_form = MRVI_FORM_NULL_SPACE;
+  if (tr && mrvi_trajectory_run(m, &s, &tn, &sum) == 0) {
+    double d = 0.0;
+    for (long i = 0; i < tn->n_macro * tn->n; i++)
+      d = fmax(d, fabs(tn->q[i] - tr->q[i]));
+    printf("slider-crank: forms differ by %.3g over 100 steps\n", d);
+    CHECK(d < 1e-10, "slider-crank forms: %.3g", d);
+  } else if (tr) {
+    CHECK(0, "slider-crank null-space run: %s", sum.message);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_trajectory_free(tn);
+  mrvi_system_free(sys);
+}
+
+/* ---------------------------------------------------------------------------
+ * Nodal reparametrisation (doc/multibody.md): free slow 3-D bodies in the
+ * null-space form take phi_{k+1} = phi_k + u, d_{k+1}^i = exp(th^) d_k^i,
+ * so that their internal constraints hold to round-off over 10^4 steps,
+ * with the default (loose) tolerances; the multiplier form holds them to
+ * the constraint tolerance.  Both give the same motion to the tolerance.
+ * ------------------------------------------------------------------------- */
+static void test_reparametrisation(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double J[3] = {1.0, 2.0, 2.5}, K[3] = {0.5, 0.7, 0.9},
+               w[3] = {0.5, 1.2, -0.7}, w2[3] = {-2.0, 0.3, 1.1},
+               x0[3] = {0.1, -0.2, 0.3}, x1[3] = {2.0, 0.5, 0.0},
+               v0[3] = {0.5, 0.0, -0.25}, v1[3] = {0, 0, 0},
+               R[9] = {0, -1, 0, 1, 0, 0, 0, 0, 1};
+  int st = mrvi_model_add_body(m, "a", 3, MRVI_SLOW, 2.0, J, x0, R, v0, w);
+  st |= mrvi_model_add_body(m, "b", 3, MRVI_SLOW, 1.0, K, x1, NULL, v1, w2);
+  const mrvi_end a = {.particle = -1, .body = 0, .at = {0.5, 0.2, -0.1}},
+                 b = {.particle = -1, .body = 1, .at = {-0.3, 0.1, 0.4}};
+  const double k = 20.0;
+  CHECK(st >= 0 && mrvi_model_add_end_spring(m, MRVI_SLOW, &a, &b, NULL,
+                                             "linear", &k, 1.0) >= 0,
+        "two sprung bodies: %s", mrvi_model_errmsg(m));
+  mrvi_trajectory *tr[2] = {NULL, NULL};
+  double eg[2] = {0, 0}, eH[2] = {0, 0};
+  for (int f = 0; f < 2; f++) {
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 1, 100.0, 1e-9);
+    s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+      CHECK(0, "reparametrisation run (%s): %s", form_name(s.constraint_form),
+            sum.message);
+    else
+      loop_invariants(m, tr[f], &eg[f], &eH[f], NULL);
+  }
+  if (tr[0] && tr[1]) {
+    double d = 0.0;
+    for (long i = 0; i < 101 * tr[0]->n; i++)
+      d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
+    printf("two free bodies on a spring, 10^4 steps, Newton tolerance 1e-9, "
+           "constraint tolerance 1e-10: max |g| %.3g (multipliers), %.3g "
+           "(null space, reparametrised); energy %.3g, %.3g; forms differ by "
+           "%.3g over 100 steps\n",
+           eg[0], eg[1], eH[0], eH[1], d);
+    CHECK(eg[1] <= 1e-13, "reparametrised bodies: max |g| %.3g", eg[1]);
+    CHECK(d < 1e-8, "reparametrised against multipliers: %.3g", d);
+  }
+  mrvi_trajectory_free(tr[0]);
+  mrvi_trajectory_free(tr[1]);
+  mrvi_model_free(m);
+}
+
+int main(void) {
+  test_fourbar_3d();
+  test_fourbar_forms();
+  test_projection();
+  test_loader_projection();
+  test_universal();
+  test_slider_crank();
+  test_reparametrisation();
+  return test_finish();
+}
