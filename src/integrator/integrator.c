@@ -323,6 +323,19 @@ static int check_constraints(mrvi_integrator *it, const double *q, char *msg,
       return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
     it->c_drop_at = it->c_drop + R;
     it->n_drop = mrvi_constraints_rank(m, q, it->c_drop, msg, len);
+    if (it->n_drop > 0 && it->gram) {
+      /* Redundant rows: the sparse Gram matrix is singular, so project()
+       * takes the dense pass, whose G and Gram are full size. */
+      const size_t n = (size_t)m->n;
+      double *G = realloc(it->cGd, (size_t)R * n * sizeof *G);
+      if (G)
+        it->cGd = G;
+      double *A = G ? realloc(it->cA, (size_t)R * (size_t)R * sizeof *A) : NULL;
+      if (A)
+        it->cA = A;
+      if (!G || !A)
+        return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+    }
     return it->n_drop < 0 ? it->n_drop : MRVI_OK;
   }
   st = mrvi_constraints_rank(m, q, it->c_drop_at, msg, len);
