@@ -11,9 +11,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-static const char *const joint_keys[] = {"type", "bodies",      "point",
-                                         "axis", "second_axis", "name",
-                                         "spring"};
+static const char *const joint_keys[] = {
+    "type", "bodies", "point", "axis", "second_axis", "name", "spring"};
 static const char *const torsion_keys[] = {"law", "rest_angle", "potential"};
 
 /* `spring:` of joint `where` between bodies b (b[1] < 0: the ground). */
