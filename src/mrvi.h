@@ -999,6 +999,13 @@ typedef struct mrvi_writer_options {
                               resume_k, which the first record repeats and
                               is not written again */
   long resume_k;
+  int extend; /* with resume: the file is a completed run that
+                 goes on to a later t_end.  It is copied beside
+                 itself, its t_end, stop_reason and
+                 /model/description are set to this run's in
+                 the copy, and the copy is renamed over it
+                 before appending: killed before the rename,
+                 the completed file is untouched */
 } mrvi_writer_options;
 
 /* The writer options a description's `output:` section asks for (name,
@@ -1046,11 +1053,15 @@ typedef struct mrvi_stored_node {
 } mrvi_stored_node;
 #define MRVI_NODE_LAST (-1L)   /* the last stored macro node */
 #define MRVI_NODE_RESUME (-2L) /* the node a resumed run continues from */
+#define MRVI_NODE_EXTEND                                                       \
+  (-3L) /* the same, of a completed run (its extension) */
 /* Read node `which` (a node index k >= 0 that the file stores, or one of
  * the two above) of the mrvi output at path.  MRVI_NODE_RESUME: the last
  * stored node k <= steps_completed with k a multiple of `every` whose
  * multipliers (/macro/lambda) are in the file; a completed run or a file a
- * live run holds is refused.  n: the coordinates of the model the node
+ * live run holds is refused.  MRVI_NODE_EXTEND: the same node of a
+ * completed run (mrvi run --resume with a later t_end); other runs are
+ * refused.  n: the coordinates of the model the node
  * is for (/macro/q and /model/rate must have n; 0 when the model is the
  * file's own, as for a resume: any count whose vectors fit in memory).
  * Every dataset and attribute is checked before it is read (the file is

@@ -870,7 +870,7 @@ static void synthetic_case_s(const char *name, mrvi_model *m,
   char path[64];
   snprintf(path, sizeof path, "synthetic_%s.h5", name);
   mrvi_writer_options opt = {"synthetic", description, every, micro, 0.0,
-                             0,           0,           0,     0};
+                             0,           0,           0,     0,     0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg);
@@ -945,7 +945,7 @@ static void test_synthetic(void) {
   /* Explicit check of the `every` rule on /macro/t (k = 0,3,6,9,10). */
   {
     mrvi_settings s = settings("midpoint-midpoint", 0.5, 2, 5.0);
-    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0, 0, 0, 0};
+    mrvi_writer_options opt = {"x", NULL, 3, 1, 0.0, 0, 0, 0, 0, 0};
     mrvi_writer *w = NULL;
     char msg[256];
     mrvi_writer_open("every_rule.h5", m3, &s, &opt, &w, msg, sizeof msg);
@@ -1061,7 +1061,7 @@ static void test_bad_records(void) {
 
   /* Bad options. */
   static char sentinel;
-  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0, 0, 0, 0};
+  mrvi_writer_options opt = {NULL, NULL, 0, 1, 0.0, 0, 0, 0, 0, 0};
   w = (mrvi_writer *)(void *)&sentinel;
   CHECK(mrvi_writer_open("bad_records.h5", m, &s, &opt, &w, msg, sizeof msg) ==
                 MRVI_EINVAL &&
@@ -1089,7 +1089,7 @@ static void hard_kill_case(mrvi_model *m) {
   if (pid == 0) {
     mrvi_writer *w = NULL;
     char msg[256];
-    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0, 0, 0, 0};
+    mrvi_writer_options opt = {"killed", NULL, 1, 1, 0.0, 0, 0, 0, 0, 0};
     if (mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg))
       _exit(3);
     synth g;
@@ -1184,7 +1184,7 @@ static void test_lock(void) {
     fclose(fp);
   }
   CHECK(!strcmp(buf, "not an HDF5 file\n"), "foreign file untouched");
-  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1, 0, 0, 0};
+  mrvi_writer_options opt = {NULL, NULL, 1, 1, 0.0, 1, 0, 0, 0, 0};
   CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == MRVI_OK,
         "force replaces it: %s", msg);
   mrvi_writer_close(w, NULL, msg, sizeof msg);
@@ -1382,8 +1382,8 @@ static void run_case(const char *name, mrvi_model *m, const mrvi_settings *s,
                      int every, long stop_at) {
   char path[64];
   snprintf(path, sizeof path, "run_%s.h5", name);
-  mrvi_writer_options opt = {name, "description text\n", every, 1, 0.0, 0, 0, 0,
-                             0};
+  mrvi_writer_options opt = {
+      name, "description text\n", every, 1, 0.0, 0, 0, 0, 0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   int rc = mrvi_writer_open(path, m, s, &opt, &w, msg, sizeof msg);
@@ -1503,7 +1503,7 @@ static void test_particles_micro_slow(void) {
   const int *slow = mrvi_model_slow_index(m);
   for (int with = 0; with <= 1; with++) {
     const char *path = with ? "micro_slow.h5" : "micro_fast_only.h5";
-    mrvi_writer_options opt = {"particles", NULL, 1, 1, 0.0, 0, with, 0, 0};
+    mrvi_writer_options opt = {"particles", NULL, 1, 1, 0.0, 0, with, 0, 0, 0};
     mrvi_writer *w = NULL;
     char msg[512];
     CHECK(mrvi_writer_open(path, m, &s, &opt, &w, msg, sizeof msg) == 0,
@@ -1581,7 +1581,7 @@ static void test_particles_micro_slow(void) {
   }
   /* A model without particles has none of the particle datasets. */
   mrvi_model *fpu = fpu_model();
-  mrvi_writer_options opt = {"fpu", NULL, 1, 1, 0.0, 0, 1, 0, 0};
+  mrvi_writer_options opt = {"fpu", NULL, 1, 1, 0.0, 0, 1, 0, 0, 0};
   mrvi_writer *w = NULL;
   char msg[512];
   CHECK(mrvi_writer_open("no_particles.h5", fpu, &s, &opt, &w, msg,

@@ -298,7 +298,7 @@ expect_error "--from the last node of a run at its t_end" 1 \
   -o "$tmp/x.h5"
 expect_error "--from into the same file" 1 "is the --from file" \
   "$mrvi" run "$fpu" --from "$tmp/short.h5:10" -o "$tmp/short.h5"
-expect_error "--resume with FILE" 1 "give no FILE, --set, -o or --from" \
+expect_error "--resume with FILE" 1 "give no FILE, -o or --from" \
   "$mrvi" run "$fpu" --resume "$tmp/a.h5"
 [ ! -e "$tmp/x.h5" ] && pass "no output file from a refused --from" ||
   fail "a refused --from wrote $tmp/x.h5"
@@ -318,6 +318,83 @@ wait $pid
 rc=$?
 [ "$rc" = 130 ] && pass "the live run went on undisturbed (exit 130)" ||
   fail "the live run: exit $rc"
+
+# --- extending a completed run in place: --resume OUT --set integrator.t_end
+# The extended file equals a run to the later t_end from the start (every
+# dataset but /model/description, whose header comment records the two
+# steps, and every root attribute), for a free and a constrained system,
+# also extended twice; stop_reason is the text form again and no copy is
+# left beside the file.
+cat >"$tmp/ext.py" <<'PY'
+import sys, h5py, numpy as np
+ref, f = h5py.File(sys.argv[1], "r"), h5py.File(sys.argv[2], "r")
+bad, count = [], 0
+def visit(name, d):
+    global count
+    if isinstance(d, h5py.Dataset) and name != "model/description":
+        count += 1
+        a = d[()]
+        b = f[name][()] if name in f else None
+        if isinstance(a, bytes) or a.dtype.kind == "O":
+            same = b is not None and np.asarray(a).tolist() == np.asarray(b).tolist()
+        else:
+            same = b is not None and a.shape == b.shape and a.tobytes() == b.tobytes()
+        if not same:
+            bad.append(name)
+ref.visititems(visit)
+for key in ref.attrs:
+    count += 1
+    if str(ref.attrs[key]) != str(f.attrs.get(key)):
+        bad.append("attribute " + key)
+if set(f.attrs) != set(ref.attrs):
+    bad.append("attributes %s" % sorted(set(f.attrs) ^ set(ref.attrs)))
+r = f.attrs["stop_reason"]
+if not (isinstance(r, str) and r == "completed"):
+    bad.append("stop_reason %r" % (r,))
+d = f["model/description"][()].decode()
+if "--set " + sys.argv[3] not in d.split("\n")[1]:
+    bad.append("description header: %s" % d.split("\n")[:2])
+print("%d compared" % count, "identical" if not bad else "DIFFER: %s" % bad[:6])
+sys.exit(1 if bad else 0)
+PY
+for sys_ in fpu cart; do
+  file=$root/systems/$([ $sys_ = fpu ] && echo fpu || echo cart_pendulum).yaml
+  "$mrvi" run "$file" --set integrator.t_end=3 -o "$tmp/ext_$sys_.h5" -q
+  "$mrvi" run "$file" --set integrator.t_end=6 -o "$tmp/ext_ref_$sys_.h5" -q
+  "$mrvi" run "$file" --set integrator.t_end=9 -o "$tmp/ext_ref9_$sys_.h5" -q
+  if "$mrvi" run --resume "$tmp/ext_$sys_.h5" --set integrator.t_end=6 -q \
+    2>"$tmp/err.txt" &&
+    "$py" "$tmp/ext.py" "$tmp/ext_ref_$sys_.h5" "$tmp/ext_$sys_.h5" \
+      integrator.t_end=6 >"$tmp/log"; then
+    pass "$sys_: extended from t_end 3 to 6 = a run to 6 ($(cat "$tmp/log"))"
+  else
+    fail "$sys_: extended to 6: $(cat "$tmp/err.txt" "$tmp/log")"
+  fi
+  if "$mrvi" run --resume "$tmp/ext_$sys_.h5" --set integrator.t_end=9 -q \
+    2>"$tmp/err.txt" &&
+    "$py" "$tmp/ext.py" "$tmp/ext_ref9_$sys_.h5" "$tmp/ext_$sys_.h5" \
+      integrator.t_end=9 >"$tmp/log"; then
+    pass "$sys_: extended again to 9 = a run to 9 ($(cat "$tmp/log"))"
+  else
+    fail "$sys_: extended to 9: $(cat "$tmp/err.txt" "$tmp/log")"
+  fi
+  if compgen -G "$tmp/ext_$sys_.h5.part*" >/dev/null; then
+    fail "$sys_: the extension left $(echo "$tmp"/ext_"$sys_".h5.part*)"
+  else pass "$sys_: no copy left beside the extended file"; fi
+done
+expect_error "extend to an earlier t_end" 1 "must give more steps" \
+  "$mrvi" run --resume "$tmp/ext_fpu.h5" --set integrator.t_end=5
+expect_error "resume with another --set" 1 "no --set but integrator.t_end" \
+  "$mrvi" run --resume "$tmp/ext_fpu.h5" --set integrator.micro_steps=5
+"$mrvi" run "$fpu" --set integrator.t_end=2.1 --set output.every=4 \
+  -o "$tmp/ext_every.h5" -q
+expect_error "extend a run whose last node output.every skips" 1 \
+  "not a multiple of output.every" \
+  "$mrvi" run --resume "$tmp/ext_every.h5" --set integrator.t_end=6
+MRVI_TEST_WRITE_FAIL_AFTER=3 "$mrvi" run "$fpu" --set integrator.t_end=3 \
+  -o "$tmp/ext_stopped.h5" -q 2>/dev/null
+expect_error "extend a run that did not complete" 1 "did not complete" \
+  "$mrvi" run --resume "$tmp/ext_stopped.h5" --set integrator.t_end=6
 
 run_ok "mrvi help run" "$mrvi" help run
 grep -q -- "--resume OUT.h5" "$tmp/out.txt" && grep -q -- "--from" "$tmp/out.txt" &&

@@ -64,7 +64,7 @@ static const char usage_run[] =
     "Usage: mrvi run FILE [-o OUT.h5] [--set KEY=VALUE]... [--quiet] "
     "[--force]\n"
     "                [--from RUN.h5[:K]]\n"
-    "       mrvi run --resume OUT.h5 [--quiet]\n"
+    "       mrvi run --resume OUT.h5 [--set integrator.t_end=LATER] [--quiet]\n"
     "       mrvi run FILE --controls OPT.h5 [-o OUT.h5] [--set KEY=VALUE]...\n"
     "\n"
     "Integrate the system described in FILE (YAML) and write macro and micro\n"
@@ -89,8 +89,10 @@ static const char usage_run[] =
     "                        last complete stored macro node, appending to\n"
     "                        OUT.h5; description and settings come from the\n"
     "                        file; the result equals an uninterrupted run bit\n"
-    "                        for bit.  Refused for a completed run or a file\n"
-    "                        a live run holds\n"
+    "                        for bit.  Refused for a file a live run holds.\n"
+    "                        With --set integrator.t_end=LATER: extend a\n"
+    "                        completed run in place to a later t_end (the\n"
+    "                        same file as a run to LATER)\n"
     "      --from RUN.h5[:K] start a new run (a new output file) from the\n"
     "                        state of stored macro node K of RUN.h5 (default:\n"
     "                        its last node); FILE must have the same\n"
@@ -693,16 +695,23 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
 
 /* --resume OUT.h5: the node to continue from and the system of its stored
  * description (which has the original overrides spliced in). */
-static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node) {
+static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node,
+                                int *extend) {
   char msg[MSG_LEN];
-  if (a->file || a->n_overrides > 0 || a->output || a->from) {
+  /* One --set is allowed: a later integrator.t_end extends a completed run
+   * in place. */
+  *extend =
+      a->n_overrides == 1 && !strncmp(a->overrides[0], "integrator.t_end=", 17);
+  if (a->file || (a->n_overrides > 0 && !*extend) || a->output || a->from) {
     fprintf(stderr, "mrvi run: --resume takes the description, settings and "
-                    "output file from OUT.h5; give no FILE, --set, -o or "
-                    "--from with it\n");
+                    "output file from OUT.h5; give no FILE, -o or --from "
+                    "with it, and no --set but integrator.t_end=LATER (which "
+                    "extends a completed run in place)\n");
     return NULL;
   }
-  if (mrvi_stored_node_read(a->resume, MRVI_NODE_RESUME, 0, node, msg,
-                            sizeof msg) < 0) {
+  if (mrvi_stored_node_read(a->resume,
+                            *extend ? MRVI_NODE_EXTEND : MRVI_NODE_RESUME, 0,
+                            node, msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi run: --resume %s\n", msg);
     return NULL;
   }
@@ -718,8 +727,39 @@ static mrvi_system *load_resume(const cli_args *a, mrvi_stored_node **node) {
     *node = NULL;
     return NULL;
   }
-  if (mrvi_stored_run_check(a->resume, sys, msg, sizeof msg) < 0) {
+  int bad = mrvi_stored_run_check(a->resume, sys, msg, sizeof msg) < 0;
+  if (bad)
     fprintf(stderr, "mrvi run: --resume %s; not resumed\n", msg);
+  /* The stored run checked against its own description, an extension
+   * loads that description again with the later t_end. */
+  if (!bad && *extend) {
+    mrvi_system_free(sys);
+    sys = NULL;
+    if (mrvi_system_load_string((*node)->description, name, a->overrides, 1,
+                                &sys, msg, sizeof msg) < 0 ||
+        !sys) {
+      fprintf(stderr, "mrvi run: --resume --set %s: %s\n", a->overrides[0],
+              msg);
+      bad = 1;
+    }
+  }
+  const long N = sys ? mrvi_settings_n_steps(&sys->settings) : 0;
+  if (!bad && *extend && N <= (*node)->steps_completed) {
+    fprintf(stderr,
+            "mrvi run: --resume %s --set %s: the run already reached macro "
+            "step %ld; integrator.t_end must give more steps (%ld)\n",
+            a->resume, a->overrides[0], (*node)->steps_completed, N);
+    bad = 1;
+  }
+  if (!bad && *extend && (*node)->steps_completed % (*node)->every != 0) {
+    fprintf(stderr,
+            "mrvi run: --resume %s: its last node (%ld) is not a multiple of "
+            "output.every (%d), so the extended file would not be the file "
+            "of a run to the later t_end; write a new file with --from\n",
+            a->resume, (*node)->steps_completed, (*node)->every);
+    bad = 1;
+  }
+  if (bad) {
     mrvi_system_free(sys);
     mrvi_stored_node_free(*node);
     *node = NULL;
@@ -824,7 +864,9 @@ static int cmd_run(int argc, char **argv) {
   loading = 1;
   mrvi_cli_install_handlers();
   mrvi_stored_node *node = NULL;
-  mrvi_system *sys = a.resume ? load_resume(&a, &node) : load_system(&a);
+  int extend = 0;
+  mrvi_system *sys =
+      a.resume ? load_resume(&a, &node, &extend) : load_system(&a);
   free(a.overrides);
   char from_path[4096] = "";
   if (sys && a.from &&
@@ -843,8 +885,8 @@ static int cmd_run(int argc, char **argv) {
   if (!a.resume)
     print_notes(stderr, a.file, sys->notes);
   else if (!a.quiet)
-    fprintf(stderr, "mrvi run: resuming %s at macro node %ld (t = %g)\n",
-            a.resume, node->k, node->t);
+    fprintf(stderr, "mrvi run: %s %s at macro node %ld (t = %g)\n",
+            extend ? "extending" : "resuming", a.resume, node->k, node->t);
   if (a.resume && node->n != mrvi_model_n(sys->model)) {
     fprintf(stderr,
             "mrvi run: --resume %s: /macro/q has %d columns, the stored "
@@ -916,6 +958,7 @@ static int cmd_run(int argc, char **argv) {
   opt.force = a.force;
   opt.resume = a.resume != NULL;
   opt.resume_k = node ? node->k : 0;
+  opt.extend = extend;
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(out, sys->model, &sys->settings, &opt, &w, msg,
                        sizeof msg) < 0 ||

@@ -269,6 +269,10 @@ static int resume_row(const mrvi_h5in *in, long K, long e, hsize_t rows,
 
 static int stored_node_read(const mrvi_h5in *in, long which, int n,
                             mrvi_stored_node *node) {
+  /* An extension reads the node a resume would, of a completed run. */
+  const int extend = which == MRVI_NODE_EXTEND;
+  if (extend)
+    which = MRVI_NODE_RESUME;
   const char *path = in->path;
   char *msg = in->msg;
   const size_t len = in->len;
@@ -290,12 +294,19 @@ static int stored_node_read(const mrvi_h5in *in, long which, int n,
                      "%s: written by mrvi optimize or run --controls; "
                      "resuming a controlled run is not supported",
                      path);
-  if (which == MRVI_NODE_RESUME && !strcmp(node->stop_reason, "completed"))
+  if (extend && strcmp(node->stop_reason, "completed") != 0)
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "%s: the run did not complete (stop_reason: %s); resume "
+                     "it first (mrvi run --resume %s), then extend it",
+                     path, node->stop_reason, path);
+  if (!extend && which == MRVI_NODE_RESUME &&
+      !strcmp(node->stop_reason, "completed"))
     return mrvi_fail(msg, len, MRVI_EINVAL,
                      "%s: the run completed; nothing to resume (to go on "
-                     "past t_end: mrvi run FILE --set integrator.t_end=... "
-                     "--from %s -o NEW.h5)",
-                     path, path);
+                     "past t_end: mrvi run --resume %s --set "
+                     "integrator.t_end=LATER, in place; or a new file: mrvi "
+                     "run FILE --from %s -o NEW.h5)",
+                     path, path, path);
   if (which == MRVI_NODE_RESUME && !strcmp(node->stop_reason, "running"))
     return mrvi_fail(msg, len, MRVI_EIO,
                      "%s: the file is in use by another run (locked); not "
@@ -414,7 +425,8 @@ int mrvi_stored_node_read(const char *path, long which, int n,
                    path);
   else
     st = stored_node_read(&in, which, n, node);
-  if (st == MRVI_OK && which == MRVI_NODE_RESUME && node->k > 0)
+  if (st == MRVI_OK &&
+      (which == MRVI_NODE_RESUME || which == MRVI_NODE_EXTEND) && node->k > 0)
     st = read_node_energy(&in, node);
   if (f >= 0)
     H5Fclose(f);

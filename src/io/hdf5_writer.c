@@ -264,6 +264,7 @@ struct mrvi_writer {
   int new_file;          /* lock_and_check created the file */
   char *part_path;       /* the file while it is set up (writer_setup) */
   int lock_fd;           /* holds mrvi_h5_lock_fd's lock, -1 when none */
+  int extend;            /* resume a completed run to a later t_end */
   long fail_after;       /* MRVI_TEST_WRITE_FAIL_AFTER: fail the first flush
                             after this many records (testing), -1: never */
   long last_k;           /* k of the last record, -1 before the first */
@@ -952,15 +953,88 @@ static void text_stop_reason(mrvi_writer *w, const char *reason) {
   free(part);
 }
 
+/* Extending a completed run (mrvi_writer_options.extend): lock the file,
+ * copy it beside itself, give the copy this run's t_end and description,
+ * the fixed-length stop_reason "running" (which SWMR writing rewrites) and
+ * no energy attributes of the old end (close writes the whole run's), force
+ * it to disk and rename it over the output with the lock moved to it.
+ * Killed before the rename, the completed file is untouched and a .part
+ * copy may remain beside it; after, the file is the run stopped at its old
+ * end, which --resume continues. */
+static int extend_prepare(mrvi_writer *w, double t_end,
+                          const char *description) {
+  w->lock_fd = open(w->path, O_RDWR | O_CLOEXEC);
+  if (w->lock_fd < 0)
+    return fail(w, MRVI_EIO, "cannot open: %s", strerror(errno));
+  if (mrvi_h5_lock_fd(w->lock_fd) < 0)
+    return fail(w, MRVI_EIO, "%s",
+                errno == EAGAIN
+                    ? "the file is in use by another run (locked); not touched"
+                    : "cannot lock the file");
+  char msg[400];
+  int rc = mrvi_h5_part_create(w->path, &w->part_path, msg, sizeof msg);
+  if (rc)
+    return fail(w, rc, "%s", msg);
+  if (copy_file(w->path, w->part_path) < 0)
+    return fail(w, MRVI_EIO, "copying the file beside itself: %s",
+                strerror(errno));
+  hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
+#if H5_VERSION_GE(1, 10, 7)
+  if (fapl >= 0)
+    H5Pset_file_locking(fapl, 0, 1); /* no one else knows the copy */
+#endif
+  if (fapl >= 0)
+    H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST);
+  hid_t f = H5Fopen(w->part_path, H5F_ACC_RDWR, fapl >= 0 ? fapl : H5P_DEFAULT);
+  if (fapl >= 0)
+    H5Pclose(fapl);
+  if (f < 0)
+    return fail_h5(w, MRVI_EIO, "cannot open the copy");
+  static const char *const old_end[] = {"energy_error_max", "energy_scale",
+                                        "energy_scale_kind", "warning"};
+  int ok = H5Adelete(f, "stop_reason") >= 0 &&
+           mrvi_h5_attr_fixed_string(f, "stop_reason", "running") >= 0 &&
+           mrvi_h5_attr_double(f, "t_end", t_end) >= 0;
+  for (size_t i = 0; ok && i < sizeof old_end / sizeof *old_end; i++)
+    if (H5Aexists(f, old_end[i]) > 0)
+      ok = H5Adelete(f, old_end[i]) >= 0;
+  if (ok && description) {
+    hid_t st = mrvi_h5_string_type();
+    ok = st >= 0 && H5Ldelete(f, "/model/description", H5P_DEFAULT) >= 0 &&
+         mrvi_h5_write_fixed(f, "/model/description", H5P_DEFAULT, st, st, 0, 0,
+                             1, &description,
+                             "the input description, verbatim") >= 0;
+    if (st >= 0)
+      H5Tclose(st);
+  }
+  if (H5Fclose(f) < 0)
+    ok = 0;
+  if (!ok)
+    return fail_h5(w, MRVI_EIO, "setting the copy's t_end and description");
+  int fd = open(w->part_path, O_RDWR | O_CLOEXEC);
+  ok = fd >= 0 && fsync(fd) == 0;
+  if (fd >= 0)
+    close(fd);
+  if (!ok)
+    return fail(w, MRVI_EIO, "writing the copy: %s", strerror(errno));
+  rc = mrvi_h5_part_commit(w->part_path, w->path, &w->lock_fd, msg, sizeof msg);
+  if (rc)
+    return fail(w, rc, "%s", msg);
+  free(w->part_path);
+  w->part_path = NULL;
+  return 0;
+}
+
 /* Appending (mrvi run --resume): open the existing output for SWMR writing
  * and cut every dataset back to macro node k, as a run that stopped after
  * node k would have left it.  The file keeps HDF5's "open for writing" flag
  * when its writer was killed; opening clears it (as h5clear -s does). */
 static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
-  w->lock_fd = open(w->path, O_RDWR | O_CLOEXEC);
+  if (w->lock_fd < 0) /* extend_prepare holds it already */
+    w->lock_fd = open(w->path, O_RDWR | O_CLOEXEC);
   if (w->lock_fd < 0)
     return fail(w, MRVI_EIO, "cannot open: %s", strerror(errno));
-  if (mrvi_h5_lock_fd(w->lock_fd) < 0)
+  if (!w->extend && mrvi_h5_lock_fd(w->lock_fd) < 0)
     return fail(w, MRVI_EIO, "%s",
                 errno == EAGAIN
                     ? "the file is in use by another run (locked); not touched"
@@ -1166,8 +1240,11 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
     return fail_h5(w, MRVI_EIO, "cannot select the HDF5 file format");
   }
   if (resume_k >= 0) {
-    rc = fapl >= 0 ? resume_open(w, resume_k, fapl)
-                   : fail_h5(w, MRVI_EIO, "file access properties");
+    if (w->extend)
+      rc = extend_prepare(w, s->t_end, description);
+    if (rc == 0)
+      rc = fapl >= 0 ? resume_open(w, resume_k, fapl)
+                     : fail_h5(w, MRVI_EIO, "file access properties");
     if (fapl >= 0)
       H5Pclose(fapl);
     return rc;
@@ -1261,7 +1338,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
                   : "no file name");
     return MRVI_EINVAL;
   }
-  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0, 0, 0, 0};
+  mrvi_writer_options o = {NULL, NULL, 1, 1, 0.0, 0, 0, 0, 0, 0};
   if (opt)
     o = *opt;
   if (o.every < 1) {
@@ -1320,6 +1397,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
 
   mrvi_h5_quiet q;
   mrvi_h5_quiet_begin(&q);
+  w->extend = o.resume && o.extend;
   int rc = writer_setup(w, m, s, system_name, o.description, o.force,
                         o.resume ? (o.resume_k >= 0 ? o.resume_k : 0) : -1);
   if (rc) {
