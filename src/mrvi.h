@@ -304,6 +304,14 @@ int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular);
  * pairs (2 x cap particle indices) and kind (cap), either may be NULL, and
  * returns the number of edges (call with cap = 0 to count). */
 int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap);
+/* The fixed points of a picture of the model: anchored springs (kind 0
+ * slow, 1 fast potential), then distance constraints between a particle
+ * and a fixed point (kind 2, rods), in model order.  Writes at most cap
+ * anchors into particle (cap particle indices), point (cap x dimension
+ * coordinates) and kind (cap), any may be NULL, and returns the number of
+ * anchors (call with cap = 0 to count). */
+int mrvi_model_anchors(const mrvi_model *m, int *particle, double *point,
+                       int *kind, int cap);
 
 /* ---------------------------------------------------------------------------
  * Holonomic constraints g(q) = 0 (doc/constraints.md).

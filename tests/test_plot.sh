@@ -864,6 +864,21 @@ with h5py.File(sys.argv[2], "r") as h5:
     want = [q[:, c] for c in run.columns]
     ok.append(len(traces) == run.columns.size and all(
         np.array_equal(l.get_xdata(), w) for l, w in zip(traces, want)))
+    # The rod of h1 to the origin is an anchor (/model/anchor_*): stored
+    # with its particle and kind, and drawn from the origin to h1 at every
+    # instant drawn (6 segments).
+    part, point, kind = mod.read_anchors(h5, run.columns.size, 2)
+    h1 = run.pnames.index("h1")
+    c = run.columns[h1]
+    segs = [(l.get_xdata(), l.get_ydata()) for l in fig.axes[0].lines
+            if l.get_xdata().size == 2 and l.get_xdata()[0] == 0.0
+            and l.get_ydata()[0] == 0.0]
+    ends = {(x[1], y[1]) for x, y in segs}
+    ok.append(part.tolist() == [h1] and point.tolist() == [[0.0, 0.0]]
+              and kind.tolist() == [2] and len(segs) == 6 and
+              all((q[k, c], q[k, c + 1]) in ends for k in
+                  np.unique(np.linspace(0, q.shape[0] - 1, 6).round()
+                            .astype(int))))
 with h5py.File(sys.argv[3], "r") as h5:
     run = mod.Run(h5)
     fig = mod.still_figure(run, 6)
@@ -887,7 +902,7 @@ print(" ".join(str(v) for v in ok))
 PY
 )
 case $still in
-"True True True True") pass "still: traces are the stored positions, directors the stored rotation, equal 3-D scales" ;;
+"True True True True True") pass "still: traces are the stored positions, anchors drawn from their stored points, directors the stored rotation, equal 3-D scales" ;;
 *) fail "still: traces, directors or scales (got: $still)" ;;
 esac
 fails_with "still: a model of coordinates only" "no particles or bodies\|needs particles" \

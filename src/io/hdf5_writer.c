@@ -450,19 +450,26 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
   if (np <= 0)
     return 0;
   const int ne = mrvi_model_edges(m, NULL, NULL, 0);
-  const size_t cap = (size_t)(np > ne ? np : ne) + 1;
+  const int na = mrvi_model_anchors(m, NULL, NULL, NULL, 0);
+  size_t cap = (size_t)(np > ne ? np : ne) + 1;
+  if ((size_t)na + 1 > cap)
+    cap = (size_t)na + 1;
   const char **name = malloc(cap * sizeof *name);
   int *column = malloc(cap * sizeof *column);
   int *pairs = malloc(2 * cap * sizeof *pairs);
   int *kind = malloc(cap * sizeof *kind);
+  int *a_particle = malloc(cap * sizeof *a_particle);
+  int *a_kind = malloc(cap * sizeof *a_kind);
+  double *a_point = malloc(cap * 3 * sizeof *a_point);
   int lin[3] = {0, 0, 0}, ang[3] = {0, 0, 0};
   int rc = 0;
-  if (!name || !column || !pairs || !kind || ne < 0 ||
-      mrvi_model_conserved(m, lin, ang) < 0) {
+  if (!name || !column || !pairs || !kind || !a_particle || !a_kind ||
+      !a_point || ne < 0 || na < 0 || mrvi_model_conserved(m, lin, ang) < 0) {
     rc = fail(w, MRVI_ENOMEM, "writing /model: out of memory");
     goto out;
   }
   mrvi_model_edges(m, pairs, kind, ne);
+  mrvi_model_anchors(m, a_particle, a_point, a_kind, na);
   for (int i = 0; i < np; i++) {
     column[i] = m->particles[i].first;
     name[i] = m->particles[i].name ? m->particles[i].name : "";
@@ -477,6 +484,12 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
        column, "column of /macro/q holding the particle's x (y, z follow)"},
       {"/model/edge_rate", H5T_STD_I32LE, H5T_NATIVE_INT, (hsize_t)ne, 0, kind,
        "each edge: 0 slow spring, 1 fast spring, 2 rod"},
+      {"/model/anchor_particle", H5T_STD_I32LE, H5T_NATIVE_INT, (hsize_t)na, 0,
+       na > 0 ? a_particle : NULL,
+       "particle index of each anchored spring or rod"},
+      {"/model/anchor_rate", H5T_STD_I32LE, H5T_NATIVE_INT, (hsize_t)na, 0,
+       na > 0 ? a_kind : NULL,
+       "each anchor: 0 slow spring, 1 fast spring, 2 rod"},
       {"/model/linear_momentum_conserved", H5T_STD_I32LE, H5T_NATIVE_INT,
        (hsize_t)w->dim, 0, lin,
        "1 where the symmetry of the model conserves that component"},
@@ -491,7 +504,16 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
                      "particle indices of the springs and rods between two "
                      "particles") < 0)
     rc = fail_dataset(w, "/model/edges");
+  if (rc == 0 && na > 0 &&
+      mrvi_h5_write_fixed(w->file, "/model/anchor_position", lcpl,
+                          H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, (hsize_t)na,
+                          (hsize_t)dim, 0, a_point,
+                          "fixed end of each anchored spring or rod") < 0)
+    rc = fail_dataset(w, "/model/anchor_position");
 out:
+  free(a_particle);
+  free(a_kind);
+  free(a_point);
   free(name);
   free(column);
   free(pairs);

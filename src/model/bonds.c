@@ -14,6 +14,51 @@ static int pair_law(const mrvi_law *law) {
 }
 
 /* Particle whose x coordinate is model coordinate c, or -1. */
+static int particle_at(const mrvi_model *m, int c);
+
+/* Store anchor (i, point, k) as number *count if it fits. */
+static void push_anchor(const mrvi_model *m, int *particle, double *point,
+                        int *kind, int cap, int *count, int i, const double *at,
+                        int k) {
+  if (*count < cap) {
+    if (particle)
+      particle[*count] = i;
+    if (point)
+      for (int a = 0; a < m->dimension; a++)
+        point[(size_t)*count * (size_t)m->dimension + (size_t)a] = at[a];
+    if (kind)
+      kind[*count] = k;
+  }
+  (*count)++;
+}
+
+int mrvi_model_anchors(const mrvi_model *m, int *particle, double *point,
+                       int *kind, int cap) {
+  if (!m)
+    return MRVI_EINVAL;
+  int count = 0;
+  for (int e = 0; e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    if (el->kind == MRVI_ELEMENT_ANCHOR && el->particle_i >= 0)
+      push_anchor(m, particle, point, kind, cap, &count, el->particle_i,
+                  el->anchor, el->potential == MRVI_FAST ? 1 : 0);
+  }
+  const int d = m->dimension;
+  for (int c = 0; c < m->n_constraints && d > 0; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    /* constraints/distance.c: a particle and an anchor, parameters the
+     * length and the d anchor coordinates. */
+    if (strcmp(k->type->name, "distance") != 0 || k->n_in != d ||
+        k->n_params != d + 1)
+      continue;
+    const int i = particle_at(m, k->in[0]);
+    if (i >= 0)
+      push_anchor(m, particle, point, kind, cap, &count, i, k->params + 1, 2);
+  }
+  return count;
+}
+
+/* Particle whose x coordinate is model coordinate c, or -1. */
 static int particle_at(const mrvi_model *m, int c) {
   for (int i = 0; i < m->n_particles; i++)
     if (m->particles[i].first == c)
