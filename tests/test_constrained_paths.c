@@ -112,13 +112,27 @@ static double rel_diff(const run_out *a, const run_out *b, int steps) {
 
 /* schur-bordered (auto, multiplier form) against general in both forms,
  * every shipped constrained system, scheme and p in {1, 5}. */
+/* Under AddressSanitizer (about 20× slower here) each system is compared
+ * with one scheme, a different one per system in turn, both p and both
+ * forms: every system and every scheme still run through the path, in a
+ * twentieth of the time; the full product runs in the plain build. */
+#if defined(__SANITIZE_ADDRESS__)
+#define ONE_SCHEME_PER_SYSTEM 1
+#else
+#define ONE_SCHEME_PER_SYSTEM 0
+#endif
+
 static void test_shipped(void) {
   const char *const *schemes = mrvi_scheme_names();
-  int compared = 0, failed_runs = 0;
+  int compared = 0, failed_runs = 0, n_schemes = 0;
   double worst = 0.0;
+  while (schemes[n_schemes])
+    n_schemes++;
   for (int sy = 0; sy < N_SYSTEMS; sy++)
     for (int sc = 0; schemes[sc]; sc++)
       for (int pi = 0; pi < 2; pi++) {
+        if (ONE_SCHEME_PER_SYSTEM && sc != sy % n_schemes)
+          continue;
         const int p = pi ? 5 : 1;
         mrvi_system *sa =
             load(systems[sy], schemes[sc], p, "multipliers", "structured");
@@ -165,8 +179,8 @@ static void test_shipped(void) {
       }
   /* 9 systems x 5 schemes x 2 p x 2 forms, less the few runs beyond a
    * scheme's stability. */
-  CHECK(compared >= 140, "compared %d runs (%d not completed)", compared,
-        failed_runs);
+  CHECK(compared >= (ONE_SCHEME_PER_SYSTEM ? 28 : 140),
+        "compared %d runs (%d not completed)", compared, failed_runs);
   printf("shipped systems: %d comparisons, largest difference %.2e\n", compared,
          worst);
 }
