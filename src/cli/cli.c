@@ -983,7 +983,9 @@ static int cmd_run(int argc, char **argv) {
   /* From a stored node; a resume at node 0 starts as the original run. */
   mrvi_start start = {node ? node->k : 0, node ? node->q : NULL,
                       node ? node->p : NULL,
-                      a.resume && node ? node->energy : NULL};
+                      a.resume && node ? node->energy : NULL,
+                      node ? node->n_torsion : 0,
+                      node ? node->torsion_angle : NULL};
   int st = mrvi_run_from(sys->model, &sys->settings,
                          node && (a.from || node->k > 0) ? &start : NULL,
                          run_observe, &ctx, &mrvi_cli_stop_signal, &sum);
