@@ -555,8 +555,8 @@ static int same_coordinates(const mrvi_h5in *in, const mrvi_model *m) {
   const int nt = mrvi_model_n_torsions(m);
   hsize_t dt[2] = {0, 0};
   const int has_t = mrvi_h5in_exists(in, "/macro/torsion_angle");
-  if (has_t && (st = mrvi_h5in_shape(in, "/macro/torsion_angle",
-                                     MRVI_H5_NUMBER, 2, NULL, dt)) < 0)
+  if (has_t && (st = mrvi_h5in_shape(in, "/macro/torsion_angle", MRVI_H5_NUMBER,
+                                     2, NULL, dt)) < 0)
     return st;
   if (dt[1] != (hsize_t)nt)
     return mrvi_fail(in->msg, in->len, MRVI_EINVAL,
@@ -564,8 +564,9 @@ static int same_coordinates(const mrvi_h5in *in, const mrvi_model *m) {
                      "model of /model/description %d torsional springs%s",
                      in->path, (unsigned long long)dt[1],
                      has_t ? "" : " (no such dataset)", nt,
-                     has_t ? "" : " (a file of an earlier mrvi: its springs' "
-                                  "winding is not stored)");
+                     has_t ? ""
+                           : " (a file of an earlier mrvi: its springs' "
+                             "winding is not stored)");
   const int rows = mrvi_model_constraint_rows(m);
   hsize_t dl[2];
   if (mrvi_h5in_exists(in, "/macro/lambda") &&

@@ -84,9 +84,9 @@ enum elem { F64, I32 };
   X(MACRO_ENERGY_RUNNING, "/macro/energy_running", F64, MACRO, 2, 2,           \
     r->energy_running,                                                         \
     "max |H_j - H_0| and max T_j + |V_j| + |W_j| over all nodes j <= k")       \
-  X(MACRO_TORSION_ANGLE, "/macro/torsion_angle", F64, MACRO, 2, w->n_torsion, \
+  X(MACRO_TORSION_ANGLE, "/macro/torsion_angle", F64, MACRO, 2, w->n_torsion,  \
     r->torsion_angle,                                                          \
-    "branch of each torsional spring: its unwrapped angle at macro node k")   \
+    "branch of each torsional spring: its unwrapped angle at macro node k")    \
   X(MACRO_LINEAR_MOMENTUM, "/macro/linear_momentum", F64, MACRO, 2, w->dim,    \
     r->linear_momentum, "linear momentum sum_i p_i of the particles")          \
   X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \
