@@ -788,6 +788,16 @@ int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,
  * node k (doc/output.md, "Resuming a run"). */
 int mrvi_integrator_resume_state(mrvi_integrator *it, long k, const double *q,
                                  const double *p);
+/* Torsional springs: their count and their branches at the current node
+ * (unwrapped angles, in the order they were added). */
+int mrvi_integrator_n_torsions(const mrvi_integrator *it);
+const double *mrvi_integrator_torsion_angle(const mrvi_integrator *it);
+/* After mrvi_integrator_resume_state: the branches (n_torsions entries) of
+ * that node as the earlier run had them (resume_state puts each spring on
+ * the branch nearest its rest angle).  Each must be the spring's angle at
+ * the node's q up to 2 pi turns (to 1e-6 rad), else MRVI_EINVAL.  Taken
+ * exactly as given, so that the steps equal the earlier run's bit for bit. */
+int mrvi_integrator_resume_torsion(mrvi_integrator *it, const double *angle);
 /* Advance one macro step.  On failure the state is unchanged and the message
  * gives the step, time and residual. */
 int mrvi_integrator_step(mrvi_integrator *it);
@@ -892,6 +902,12 @@ typedef struct mrvi_record {
    * max |H_j - H_0| and max T_j + |V_j| + |W_j| (mrvi_summary's error and
    * scale follow from them; a resumed run continues from them). */
   double energy_running[2];
+  /* Torsional springs (doc/multibody.md "Torsional springs"): the branch of
+   * each, its unwrapped angle at node k, in the order they were added
+   * (n_torsion entries; NULL without them).  A run continued from node k
+   * needs them (mrvi_start.torsion_angle). */
+  int n_torsion;
+  const double *torsion_angle;
 } mrvi_record;
 
 /* Observer: return 0 to continue, a status < 0 to stop the run with it. */
@@ -944,6 +960,12 @@ typedef struct mrvi_start {
    * resumed run's H_0, T_0 + |V_0| + |W_0| and energy_running at node k, so
    * that its summary equals the uninterrupted run's. */
   const double *energy;
+  /* NULL: each torsional spring starts on the branch nearest its rest
+   * angle.  Else the branches at node k (n_torsion entries, which must be
+   * the model's count; mrvi_record.torsion_angle of the run that stored
+   * node k), so that a wound spring continues wound. */
+  int n_torsion;
+  const double *torsion_angle;
 } mrvi_start;
 /* mrvi_run from node start->k (mrvi_integrator_resume_state) instead of
  * node 0: the first record is node k (as the initial record of mrvi_run:
@@ -1056,6 +1078,10 @@ typedef struct mrvi_stored_node {
   /* H_0, T_0 + |V_0| + |W_0| (row 0) and /macro/energy_running of node k:
    * mrvi_start.energy of a resumed run. */
   double energy[4];
+  /* /macro/torsion_angle of node k (n_torsion entries; 0 and NULL when the
+   * file has none): mrvi_start.torsion_angle. */
+  int n_torsion;
+  double *torsion_angle;
   char *description;      /* /model/description: the input after overrides */
   char stop_reason[1024]; /* as mrvi_run_file_status */
 } mrvi_stored_node;

@@ -7,6 +7,8 @@ KIND:
   export    BASE: a 2-D run with particles and /micro/q_slow (lattice)
   resume    BASE: a run with /macro/lambda (cart pendulum), completed
   bodies    BASE: a completed run with rigid bodies (/bodies, ranks 3, 4)
+  torsion   BASE: a completed run with one torsional spring
+            (/macro/torsion_angle)
   from      BASE: a run without particles (fpu)
   controls  BASE: ignored; /control/u files for ocp_double_integrator.yaml
             (1 actuator on the macro grid, 10 macro steps)
@@ -218,6 +220,29 @@ def bodies_cases(base, out):
         huge(f, "bodies/position", (f["macro/t"].shape[0], 1, 2**40))
 
 
+def torsion_cases(base, out):
+    with copy(base, out, "ok") as f:
+        resumable(f, 5)
+    rows = None
+    with copy(base, out, "torsion_wider") as f:
+        resumable(f, 5)
+        a = f["macro/torsion_angle"][...]
+        rows = a.shape[0]
+        replace(f, "macro/torsion_angle",
+                data=np.hstack([a, np.zeros((rows, 2))]),
+                maxshape=(None, 3), chunks=True)
+    with copy(base, out, "torsion_rank3") as f:
+        resumable(f, 5)
+        replace(f, "macro/torsion_angle", data=np.zeros((rows, 1, 1)),
+                maxshape=(None, 1, 1))
+    with copy(base, out, "torsion_missing") as f:
+        resumable(f, 5)
+        del f["macro/torsion_angle"]
+    with copy(base, out, "torsion_huge") as f:
+        resumable(f, 5)
+        huge(f, "macro/torsion_angle", (rows, 2**40))
+
+
 def from_cases(base, out):
     with copy(base, out, "desc_macro_step") as f:
         edit_description(f, "macro_step: 0.3", "macro_step: 0.2")
@@ -302,7 +327,7 @@ def main():
     base, out = sys.argv[2], sys.argv[3]
     os.makedirs(out, exist_ok=True)
     {"export": export_cases, "resume": resume_cases, "from": from_cases,
-     "bodies": bodies_cases, "hang": hang_cases,
+     "bodies": bodies_cases, "torsion": torsion_cases, "hang": hang_cases,
      "controls": lambda b, o: controls_cases(o)}[kind](base, out)
 
 

@@ -90,8 +90,21 @@ run_ok "fpu (no particles)" "$mrvi" run "$sys/fpu.yaml" -o fpu.h5 \
   --set integrator.t_end=1 -q
 run_ok "rigid pendulum (bodies)" "$mrvi" run "$sys/rigid_pendulum.yaml" \
   -o body.h5 --set integrator.t_end=0.2 --set output.xdmf=false -q
+cat >wheel.yaml <<'YAML'
+name: wheel
+dimension: 2
+bodies:
+  - {name: wheel, mass: 1, inertia: 1, position: [0, 0], angular_velocity: 2}
+joints:
+  - {type: revolute, name: axle, bodies: [wheel], point: [0, 0],
+     spring: {law: linear, stiffness: 0.01}}
+integrator: {scheme: midpoint-midpoint, macro_step: 0.05, micro_steps: 1,
+             t_end: 1}
+output: {xdmf: false}
+YAML
+run_ok "wheel on a torsional spring" "$mrvi" run wheel.yaml -o wheel.h5 -q
 for kind in export:lat.h5 resume:cart.h5 from:fpu.h5 controls:- \
-  bodies:body.h5; do
+  bodies:body.h5 torsion:wheel.h5; do
   "$py" "$craft" "${kind%%:*}" "${kind#*:}" "${kind%%:*}" >/dev/null ||
     fail "crafting the ${kind%%:*} cases"
 done
@@ -173,6 +186,20 @@ done <<'EOF'
 rotation_rank5 /bodies/rotation
 rotation_wider /bodies/rotation
 position_huge /bodies/position
+EOF
+
+# /macro/torsion_angle: one column per torsional spring of the model.
+accepts "resume the uncrafted wheel file (stopped at node 5)" "$mrvi" run \
+  --resume torsion/ok.h5 -q
+while read -r case pattern; do
+  refuses "resume: $case" "$pattern" "$mrvi" run --resume "torsion/$case.h5" -q
+  refuses "--from: $case" "$pattern" "$mrvi" run wheel.yaml \
+    --from "torsion/$case.h5:5" -o wfrom.h5 -q
+done <<'EOF'
+torsion_wider /macro/torsion_angle has 3 columns
+torsion_rank3 /macro/torsion_angle
+torsion_missing no such dataset
+torsion_huge /macro/torsion_angle
 EOF
 
 # --- mrvi run --from -------------------------------------------------------

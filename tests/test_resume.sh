@@ -8,7 +8,8 @@
 # `mrvi run --resume OUT.h5`, and compared with an uninterrupted run: every
 # dataset and every root attribute bit for bit (q, p, micro data,
 # energies, momenta, Newton iterations and residuals, constraint residuals
-# and multipliers, rigid-body outputs and joint reactions).  `--from
+# and multipliers, rigid-body outputs and joint reactions), also of a
+# wheel whose torsional spring is wound several turns.  `--from
 # OUT.h5[:k]` must reproduce the uninterrupted run's rows from node k on.  Error cases: exit status and message.
 #
 #   test_resume.sh MRVI_BINARY SOURCE_ROOT
@@ -44,8 +45,12 @@ def visit(name, d):
         bad.append("missing " + name)
         return
     a, b = d[()], f[name][()]
-    if K is not None and name.startswith(("macro", "micro", "solver")):
-        start = {"macro": K // every, "micro": K * p, "solver": K}[name.split("/")[0]]
+    # (bodies/ and joints/ per-node data: rank >= 2; their rank-1
+    # datasets describe the model)
+    if K is not None and (name.startswith(("macro", "micro", "solver")) or
+                          (name.startswith(("bodies", "joints")) and a.ndim >= 2)):
+        start = {"macro": K // every, "micro": K * p, "solver": K, "bodies": K // every,
+                 "joints": K // every}[name.split("/")[0]]
         a = a[start:]
         # Row K of the new run is its initial node: its multipliers lack
         # the projection impulse, its constraint residual is |g(q_K)|.
@@ -252,6 +257,46 @@ run_ok "--from short.h5 (last node) to t_end 6300" "$mrvi" run "$fpu" \
   pass "extended run = run to the later t_end ($(cat "$tmp/log"))" ||
   fail "extended run: $(cat "$tmp/log")"
 
+# A wheel on a soft torsional spring (k = 0.01, omega0 = 2: J theta'' =
+# -k theta, amplitude 20 rad) wound past +-pi several times: its branch
+# (/macro/torsion_angle) is stored, so a resumed run continues wound.
+cat >"$tmp/wheel.yaml" <<'YAML'
+name: wound_wheel
+dimension: 2
+bodies:
+  - {name: wheel, mass: 1, inertia: 1, position: [0, 0], angular_velocity: 2}
+joints:
+  - type: revolute
+    name: axle
+    bodies: [wheel]
+    point: [0, 0]
+    spring: {law: linear, stiffness: 0.01}
+integrator:
+  scheme: midpoint-midpoint
+  macro_step: 0.05
+  micro_steps: 1
+  t_end: 60
+  newton: {tolerance: 1.0e-12, max_iterations: 20}
+  constraints: {form: multipliers, tolerance: 1.0e-12, projection: true}
+YAML
+resume_case "wound wheel" 1200 "$tmp/wheel.yaml"
+# --from a wound node (theta = 20 rad at node 300): the new run is the
+# reference's from there on (energy included, so continuous).
+run_ok "wheel reference" "$mrvi" run "$tmp/wheel.yaml" -o "$tmp/w.h5" -q
+"$py" -c 'import sys, h5py; a = h5py.File(sys.argv[1], "r")["macro/torsion_angle"][()]
+sys.exit(0 if a.shape == (1201, 1) and a[300, 0] > 19 else 1)' "$tmp/w.h5" &&
+  pass "wheel: /macro/torsion_angle (1201, 1), wound to > 19 rad at node 300" ||
+  fail "wheel: /macro/torsion_angle missing or not wound"
+run_ok "--from w.h5:300 (wound)" "$mrvi" run "$tmp/wheel.yaml" \
+  --from "$tmp/w.h5:300" -o "$tmp/wfrom.h5" -q
+"$py" "$tmp/same.py" "$tmp/w.h5" "$tmp/wfrom.h5" 300 >"$tmp/log" &&
+  pass "--from a wound node continues on its branch ($(cat "$tmp/log"))" ||
+  fail "--from a wound node: $(cat "$tmp/log")"
+# A branch that is not the spring's angle at q (off by 1 rad) is refused.
+cp "$tmp/w.h5" "$tmp/wbad.h5"
+"$py" -c 'import sys, h5py; h5py.File(sys.argv[1], "r+")["macro/torsion_angle"][300, 0] += 1' \
+  "$tmp/wbad.h5"
+
 # --- errors -----------------------------------------------------------------
 # expect_error NAME STATUS PATTERN CMD...: exit STATUS, PATTERN on stderr.
 expect_error() {
@@ -296,6 +341,10 @@ expect_error "--from the last node of a run at its t_end" 1 \
   "is not before the last node" \
   "$mrvi" run "$fpu" --set integrator.t_end=6000 --from "$tmp/short.h5" \
   -o "$tmp/x.h5"
+# (refused by the run, as a start state off the constraints: exit 2)
+expect_error "--from a node whose spring branch is not its angle" 2 \
+  "is not its angle at the node's configuration" \
+  "$mrvi" run "$tmp/wheel.yaml" --from "$tmp/wbad.h5:300" -o "$tmp/wx.h5"
 expect_error "--from into the same file" 1 "is the --from file" \
   "$mrvi" run "$fpu" --from "$tmp/short.h5:10" -o "$tmp/short.h5"
 expect_error "--resume with FILE" 1 "give no FILE, -o or --from" \

@@ -981,9 +981,14 @@ static int cmd_run(int argc, char **argv) {
   mrvi_summary sum;
   memset(&sum, 0, sizeof sum);
   /* From a stored node; a resume at node 0 starts as the original run. */
-  mrvi_start start = {node ? node->k : 0, node ? node->q : NULL,
-                      node ? node->p : NULL,
-                      a.resume && node ? node->energy : NULL};
+  mrvi_start start = {0};
+  if (node)
+    start = (mrvi_start){.k = node->k,
+                         .q = node->q,
+                         .p = node->p,
+                         .energy = a.resume ? node->energy : NULL,
+                         .n_torsion = node->n_torsion,
+                         .torsion_angle = node->torsion_angle};
   int st = mrvi_run_from(sys->model, &sys->settings,
                          node && (a.from || node->k > 0) ? &start : NULL,
                          run_observe, &ctx, &mrvi_cli_stop_signal, &sum);

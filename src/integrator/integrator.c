@@ -717,10 +717,11 @@ int mrvi_integrator_resume_state(mrvi_integrator *it, long k, const double *q,
   memcpy(it->q, q, (size_t)n * sizeof *q);
   memcpy(it->p, p, (size_t)n * sizeof *p);
   /* No projection: p_k of a stored node is projected already, and
-   * projecting again would change its last bits.  Torsional springs
-   * resume on the branch nearest their rest angle: the output does not
-   * keep their winding (doc/multibody.md, "Torsional springs"). */
+   * projecting again would change its last bits.  Torsional springs start
+   * on the branch nearest their rest angle until
+   * mrvi_integrator_resume_torsion gives the stored ones. */
   mrvi_model_torsion_init(it->model, q, it->torsion);
+  mrvi_model_torsion_set(it->model, it->torsion);
   memset(it->mu_h, 0, (size_t)it->model->constraint_rows * sizeof(double));
   split_state(it);
   mrvi_sweep_reset(it->sweep);
@@ -728,6 +729,41 @@ int mrvi_integrator_resume_state(mrvi_integrator *it, long k, const double *q,
   it->t0 = 0.0;
   it->k = k;
   return MRVI_OK;
+}
+
+int mrvi_integrator_resume_torsion(mrvi_integrator *it, const double *angle) {
+  const int nt = it->n_torsion;
+  if (nt == 0)
+    return MRVI_OK;
+  double *at = alloc((size_t)nt);
+  if (!at)
+    return fail(it, MRVI_ENOMEM, "out of memory");
+  memcpy(at, angle, (size_t)nt * sizeof *at);
+  /* at <- each spring's angle at q on the branch nearest the given one:
+   * the given branch must be that angle (up to rounding), not just near. */
+  mrvi_model_torsion_follow(it->model, it->q, at, NULL);
+  for (int t = 0; t < nt; t++)
+    if (!isfinite(angle[t]) || !(fabs(at[t] - angle[t]) <= 1e-6)) {
+      const double want = at[t];
+      free(at);
+      mrvi_model_torsion_set(it->model, it->torsion);
+      return fail(it, MRVI_EINVAL,
+                  "torsional spring %d: branch %.17g is not its angle at the "
+                  "node's configuration (nearest: %.17g) up to whole turns",
+                  t, angle[t], want);
+    }
+  free(at);
+  memcpy(it->torsion, angle, (size_t)nt * sizeof *angle);
+  mrvi_model_torsion_set(it->model, it->torsion);
+  return MRVI_OK;
+}
+
+int mrvi_integrator_n_torsions(const mrvi_integrator *it) {
+  return it->n_torsion;
+}
+
+const double *mrvi_integrator_torsion_angle(const mrvi_integrator *it) {
+  return it->torsion;
 }
 
 /* Norms of the dynamic rows (momentum units) and of the constraint rows

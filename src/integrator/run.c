@@ -179,6 +179,22 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     mrvi_integrator_free(it);
     return sum->status = st;
   }
+  if (start && start->torsion_angle &&
+      start->n_torsion != mrvi_integrator_n_torsions(it)) {
+    mrvi_fmt(sum->message, sizeof sum->message,
+             "the start node has %d torsional spring branches, the model %d "
+             "torsional springs",
+             start->n_torsion, mrvi_integrator_n_torsions(it));
+    mrvi_integrator_free(it);
+    return sum->status = MRVI_EINVAL;
+  }
+  if (start && start->torsion_angle &&
+      (st = mrvi_integrator_resume_torsion(it, start->torsion_angle)) < 0) {
+    mrvi_fmt(sum->message, sizeof sum->message, "%s",
+             mrvi_integrator_errmsg(it));
+    mrvi_integrator_free(it);
+    return sum->status = st;
+  }
   if (k0 > N) {
     mrvi_fmt(sum->message, sizeof sum->message,
              "start node %ld is beyond the last node %ld", k0, N);
@@ -193,6 +209,9 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
   r.t = (double)k0 * s->macro_step;
   r.q = mrvi_integrator_q(it);
   r.p = mrvi_integrator_p(it);
+  /* the integrator's array: each record sees the branches of its node */
+  r.n_torsion = mrvi_integrator_n_torsions(it);
+  r.torsion_angle = r.n_torsion > 0 ? mrvi_integrator_torsion_angle(it) : NULL;
   potentials pot;
   potentials_create(m, &pot);
   observe_state(m, &pot, &r);

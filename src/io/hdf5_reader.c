@@ -206,6 +206,34 @@ static int read_row(const mrvi_h5in *in, const char *name, hsize_t row,
                         row, 1, buf, cols > 0 ? (size_t)cols : 1);
 }
 
+/* node->torsion_angle <- row `row` of /macro/torsion_angle, when the file
+ * has it (a model with torsional springs): rank 2, at most
+ * max_coordinates() columns (its width against the model:
+ * mrvi_stored_run_check, mrvi_run_from). */
+static int read_torsion_row(const mrvi_h5in *in, hsize_t row,
+                            mrvi_stored_node *node) {
+  static const char name[] = "/macro/torsion_angle";
+  if (!mrvi_h5in_exists(in, name))
+    return MRVI_OK;
+  hsize_t d[2];
+  int st = mrvi_h5in_shape(in, name, MRVI_H5_NUMBER, 2, NULL, d);
+  if (st < 0)
+    return st;
+  if (d[1] == 0 || d[1] > max_coordinates() ||
+      (node->torsion_angle && d[1] != (hsize_t)node->n_torsion))
+    return mrvi_fail(in->msg, in->len, MRVI_EIO,
+                     "%s: %s has %llu columns, expected 1 to %llu", in->path,
+                     name, (unsigned long long)d[1],
+                     (unsigned long long)max_coordinates());
+  if (!node->torsion_angle) {
+    node->n_torsion = (int)d[1];
+    node->torsion_angle = calloc(d[1], sizeof *node->torsion_angle);
+    if (!node->torsion_angle)
+      return mrvi_fail(in->msg, in->len, MRVI_ENOMEM, "out of memory");
+  }
+  return read_row(in, name, row, node->n_torsion, node->torsion_angle);
+}
+
 /* Fill node from row `row` of /macro/t, q and p; the node index is
  * t / macro_step and must reproduce t exactly. */
 static int read_node_row(const mrvi_h5in *in, hsize_t row,
@@ -214,7 +242,8 @@ static int read_node_row(const mrvi_h5in *in, hsize_t row,
   int st;
   if ((st = read_row(in, "/macro/t", row, 0, &t)) < 0 ||
       (st = read_row(in, "/macro/q", row, node->n, node->q)) < 0 ||
-      (st = read_row(in, "/macro/p", row, node->n, node->p)) < 0)
+      (st = read_row(in, "/macro/p", row, node->n, node->p)) < 0 ||
+      (st = read_torsion_row(in, row, node)) < 0)
     return st;
   const double kd = t / node->macro_step;
   const long k = (long)(kd >= -0.5 && kd < 9.0e15 ? kd + 0.5 : -1);
@@ -444,6 +473,7 @@ void mrvi_stored_node_free(mrvi_stored_node *node) {
     return;
   free(node->q);
   free(node->p);
+  free(node->torsion_angle);
   free(node->description);
   free(node);
 }
@@ -522,6 +552,21 @@ static int same_coordinates(const mrvi_h5in *in, const mrvi_model *m) {
   mrvi_h5_strings_free(name, (size_t)n);
   if (st < 0)
     return st;
+  const int nt = mrvi_model_n_torsions(m);
+  hsize_t dt[2] = {0, 0};
+  const int has_t = mrvi_h5in_exists(in, "/macro/torsion_angle");
+  if (has_t && (st = mrvi_h5in_shape(in, "/macro/torsion_angle", MRVI_H5_NUMBER,
+                                     2, NULL, dt)) < 0)
+    return st;
+  if (dt[1] != (hsize_t)nt)
+    return mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: /macro/torsion_angle has %llu columns%s but the "
+                     "model of /model/description %d torsional springs%s",
+                     in->path, (unsigned long long)dt[1],
+                     has_t ? "" : " (no such dataset)", nt,
+                     has_t ? ""
+                           : " (a file of an earlier mrvi: its springs' "
+                             "winding is not stored)");
   const int rows = mrvi_model_constraint_rows(m);
   hsize_t dl[2];
   if (mrvi_h5in_exists(in, "/macro/lambda") &&

@@ -84,6 +84,9 @@ enum elem { F64, I32 };
   X(MACRO_ENERGY_RUNNING, "/macro/energy_running", F64, MACRO, 2, 2,           \
     r->energy_running,                                                         \
     "max |H_j - H_0| and max T_j + |V_j| + |W_j| over all nodes j <= k")       \
+  X(MACRO_TORSION_ANGLE, "/macro/torsion_angle", F64, MACRO, 2, w->n_torsion,  \
+    r->torsion_angle,                                                          \
+    "branch of each torsional spring: its unwrapped angle at macro node k")    \
   X(MACRO_LINEAR_MOMENTUM, "/macro/linear_momentum", F64, MACRO, 2, w->dim,    \
     r->linear_momentum, "linear momentum sum_i p_i of the particles")          \
   X(MACRO_ANGULAR_MOMENTUM, "/macro/angular_momentum", F64, MACRO, 2,          \
@@ -231,6 +234,7 @@ struct mrvi_writer {
   double *prev_slow;  /* ns: slow coordinates of the previous record */
   double *slow_rows;  /* p x ns: /micro/q_slow rows of the current record */
   int n_lambda;       /* constraint rows (0: no constraint outputs) */
+  int n_torsion;      /* torsional springs (0: no /macro/torsion_angle) */
   int nb;             /* rigid bodies (0: no /bodies datasets) */
   int *body_first;    /* nb: model index of each body's first coordinate */
   double *body_rows;  /* nb d positions, then nb d^2 rotations (row-major) */
@@ -1397,6 +1401,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->every = o.every;
   w->energy_warning = s->energy_warning;
   w->n_lambda = mrvi_model_constraint_rows(m);
+  w->n_torsion = mrvi_model_n_torsions(m);
   w->nb = mrvi_model_n_bodies(m);
   w->model = m;
   w->nj = mrvi_model_n_joints(m);
