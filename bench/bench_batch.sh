@@ -45,7 +45,7 @@ lo=$(awk -v t="$t_end" 'BEGIN { printf "%.17g", 0.9 * t }')
 hi=$(awk -v t="$t_end" 'BEGIN { printf "%.17g", 1.1 * t }')
 mapfile -t t_ends < <(awk -v a="$lo" -v b="$hi" -v n="$n_cases" 'BEGIN {
   for (i = 0; i < n; i++)
-    printf "%.17g\n", (n == 1) ? a : a + (b - a) * i / (n - 1) }')
+    printf "%.10g\n", (n == 1) ? a : a + (b - a) * i / (n - 1) }')
 vary=(--vary "integrator.t_end=$(IFS=,; echo "${t_ends[*]}")"
       --vary output.every=10 --vary output.micro=false)
 
