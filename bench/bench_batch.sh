@@ -41,8 +41,8 @@ trap 'rm -rf "$tmp"' EXIT
 
 # The cases: t_end from 0.9 T to 1.1 T (n values); the state every 10th
 # macro step, no micro states, so that the run is the integration.
-lo=$(awk -v t="$t_end" 'BEGIN { printf "%.17g", 0.9 * t }')
-hi=$(awk -v t="$t_end" 'BEGIN { printf "%.17g", 1.1 * t }')
+lo=$(awk -v t="$t_end" 'BEGIN { printf "%.10g", 0.9 * t }')
+hi=$(awk -v t="$t_end" 'BEGIN { printf "%.10g", 1.1 * t }')
 mapfile -t t_ends < <(awk -v a="$lo" -v b="$hi" -v n="$n_cases" 'BEGIN {
   for (i = 0; i < n; i++)
     printf "%.10g\n", (n == 1) ? a : a + (b - a) * i / (n - 1) }')
