@@ -487,6 +487,24 @@ run_ok "mrvi batch, three varied keys" "$mrvi" batch "$root/systems/fpu.yaml" \
   --vary integrator.micro_steps=1,2 --vary integrator.t_end=10,20
 fails_with "batch: two other varied keys need --group" "also varies" \
   "$py" "$plot" batch "$tmp/bt3.h5" --x integrator.macro_step -o "$out"
+# all: a master file is told apart by /cases and batch_version; each varied
+# key against the other, energy_error and wall_time (the figures of
+# mrvi-plot batch); three varied keys: no figure, a note, exit 0.
+rm -rf "$tmp/all_bt" && mkdir "$tmp/all_bt"
+run_ok "mrvi-plot all (batch master files)" "$py" "$plot" all "$tmp/bt.h5" \
+  "$tmp/bt3.h5" -o "$tmp/all_bt"
+for y in energy_error wall_time; do
+  for x in macro_step micro_steps; do
+    png_ok "$tmp/all_bt/bt_${y}_vs_integrator.$x.png"
+  done
+done
+n_png=$(ls "$tmp/all_bt" | wc -l)
+[ "$n_png" = 4 ] && pass "all: four batch figures, none of bt3" ||
+  fail "all: four batch figures, none of bt3 (got $n_png)"
+"$py" "$plot" all "$tmp/bt3.h5" -o "$tmp/all_bt" 2>"$tmp/err.txt"
+[ $? = 0 ] && grep -q "no figure of the batch" "$tmp/err.txt" &&
+  pass "all: a batch varying three keys: a note" ||
+  fail "all: a batch varying three keys: a note ($(cat "$tmp/err.txt"))"
 
 # --- synthetic study tables in the formats of mrvi converge / stability /
 # timing ---

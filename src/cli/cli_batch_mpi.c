@@ -33,6 +33,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 /* The size an MPI launcher gave this process (Open MPI's mpiexec, a PMI
  * launcher: MPICH's hydra, or Slurm's srun, which says it in
@@ -243,11 +244,18 @@ int mrvi_batch_mpi_run(const mrvi_batch_plan *plan, const char *master,
                         .user = &l};
   int rc =
       n_todo > 0 ? mrvi_batch_pool_serve(plan, master, jobs, &q, msg, len) : 0;
-  /* Rank 0's own workers are done: serve the other ranks to the end. */
+  /* Rank 0's own workers are done: serve the other ranks to the end,
+   * probing every millisecond (Open MPI's blocking MPI_Probe spins: it would
+   * take a core from the other ranks' workers while their last cases run). */
   while (l.away > 0 || l.open > 0) {
+    const struct timespec pause = {0, 1000000};
+    int flag = 0;
     MPI_Status st;
-    MPI_Probe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &st);
-    lead_serve_one(&l, &st);
+    MPI_Iprobe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &flag, &st);
+    if (flag)
+      lead_serve_one(&l, &st);
+    else
+      nanosleep(&pause, NULL);
   }
   if (rc == 0 && l.stop)
     rc = MRVI_EIO;
