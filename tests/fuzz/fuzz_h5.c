@@ -15,8 +15,8 @@
  * Any crash, sanitizer report, leak or timeout is a finding; a refused
  * file is not.  So is an HDF5 object (file, dataset, attribute, ...) the
  * readers leave open: that is mrvi's leak even where LeakSanitizer can only
- * see libhdf5's allocation (tests/fuzz/lsan.supp hides those).  Reports inside libhdf5 itself are told apart by
- * tests/fuzz/run.sh (see there). */
+ * see libhdf5's allocation (tests/fuzz/lsan.supp hides those).  Reports inside
+ * libhdf5 itself are told apart by tests/fuzz/run.sh (see there). */
 #include "mrvi.h"
 
 #include <hdf5.h>
