@@ -5,12 +5,13 @@
 # reports come from mrvi's code only (libhdf5 is not instrumented).  The
 # sanitizer runtime is a shared library with gcc (libsanitizer sources) and
 # linked into the program with clang (frames named by the intercepted
-# function only: malloc, memcpy, ...).  Used by
+# function only: malloc, memcpy, ...; libFuzzer's out-of-memory report
+# starts with its own frames).  Used by
 # tests/test_hostile_h5.sh and tests/fuzz/run.sh.
 /runtime error:/ { ours = 1 }
 /^ *#[0-9]+ / {
   if (!stack) { stack = 1; decided = 0 }
-  if (!decided && $0 !~ /libsanitizer|asan_|interceptor/ &&
+  if (!decided && $0 !~ /libsanitizer|asan_|__asan|__sanitizer|fuzzer::|interceptor/ &&
       $0 !~ / in (malloc|calloc|realloc|free|posix_memalign|aligned_alloc|mem(cpy|move|set|cmp)|str[a-z]*) /) {
     decided = 1
     if ($0 !~ /libhdf5/) ours = 1
