@@ -390,23 +390,10 @@ rm -f stuck.h5
 #   - hangs: none expected since the SWMR-read fallback is bounded (see
 #     "hangs" above); one would be counted here (killed after 8 s).
 # MRVI_HOSTILE_KEEP=DIR keeps each file that failed or was counted.
-# hdf5_own: 0 when the sanitizer report in err.txt is libhdf5's own: in
-# every stack it shows (the access, the allocation of the memory, each
-# leak) the first frame outside the sanitizer runtime is in libhdf5.  A
-# buffer mrvi passed to HDF5 too small shows mrvi's allocation; UBSan
-# reports come from mrvi's code only.
+# hdf5_own: 0 when the sanitizer report in err.txt is libhdf5's own
+# (tests/hdf5_own.awk says how that is told).
 hdf5_own() {
-  awk '/runtime error:/ { ours = 1 }
-    /^ *#[0-9]+ / {
-      if (!stack) { stack = 1; decided = 0 }
-      if (!decided && $0 !~ /libsanitizer|asan_|interceptor/) {
-        decided = 1
-        if ($0 !~ /libhdf5/) ours = 1
-      }
-      next
-    }
-    { stack = 0 }
-    END { exit ours }' err.txt
+  awk -f "$root/tests/hdf5_own.awk" err.txt
 }
 hangs=""
 hdf5_own=""

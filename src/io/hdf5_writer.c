@@ -1465,8 +1465,10 @@ static void fill_lambda(mrvi_writer *w, const mrvi_record *r) {
     mrvi_model_joint_reaction(
         w->model, j, w->lambda_q, r->lambda_prev, w->joint_rows + j * D,
         w->joint_rows + (size_t)w->nj * (size_t)D + (size_t)(j * w->n_ang));
-  const void *src[N_LAMBDA_OUTPUTS] = {
-      r->lambda_prev, w->joint_rows, w->joint_rows + (size_t)w->nj * (size_t)D};
+  /* joint_rows is NULL without joints (no offset from it then: UB). */
+  const double *angular =
+      w->joint_rows ? w->joint_rows + (size_t)w->nj * (size_t)D : NULL;
+  const void *src[N_LAMBDA_OUTPUTS] = {r->lambda_prev, w->joint_rows, angular};
   unsigned char *patch = (unsigned char *)w->lambda_patch;
   for (int i = 0; i < N_LAMBDA_OUTPUTS; i++) {
     output *o = &w->out[lambda_outputs[i]];

@@ -1,9 +1,15 @@
 #!/usr/bin/env bash
-# Build the loader's libFuzzer target (clang, ASan + UBSan) in its own build
-# directory and run it for a bounded time, seeded by systems/ and
-# tests/bad_input/ with the key dictionary tests/fuzz/loader.dict.
+# Build the libFuzzer targets (clang, ASan + UBSan) in their own build
+# directory and run each for a bounded time:
+#   - fuzz_loader, the description loader, seeded by systems/ and
+#     tests/bad_input/ with the key dictionary tests/fuzz/loader.dict;
+#   - fuzz_h5, the readers of an mrvi output (HDF5) file, seeded by small
+#     outputs made here by the fuzz build's mrvi (BUILD_DIR/h5seeds: FPU,
+#     a constrained cart pendulum, the heavy top (a body), a lattice with
+#     particles and /micro).
 #
-#   tests/fuzz/run.sh [SECONDS [BUILD_DIR]]     (default 120, build-fuzz)
+#   tests/fuzz/run.sh [SECONDS [BUILD_DIR [H5_SECONDS]]]
+#                                        (default 120, build-fuzz, 60)
 #
 # FUZZ_SEED (default 1) fixes libFuzzer's random seed, so that a run of the
 # same code on the same seeds repeats its inputs (CI runs this way: what
@@ -18,18 +24,44 @@
 #
 # Exits non-zero when the fuzzer finds a crash, sanitizer report, leak or
 # timeout; the input that triggered it is left in BUILD_DIR/artifacts/.
-# Keep every finding as a regression file in tests/bad_input/.
+# Keep every finding as a regression file in tests/bad_input/ (loader) or
+# tests/test_hostile_h5.sh (HDF5 readers).
+#
+# libhdf5 1.10.8 (Debian 12) has findings of its own on corrupted files
+# (tests/test_hostile_h5.sh): it leaks the metadata of an object header it
+# fails to read (H5Dopen2 -> H5O_protect -> H5FL_reg_calloc), overruns its
+# global heap in H5HG_read (memcpy-param-overlap: vlen strings such as
+# /model/description) and dereferences wild pointers there and in
+# H5C_protect (SEGV).  For fuzz_h5:
+#   - leaks: tests/fuzz/lsan.supp suppresses every leak allocated inside
+#     libhdf5.  That would also hide an HDF5 object mrvi forgets to close,
+#     so fuzz_h5 itself fails when any HDF5 object is still open after the
+#     readers (H5Fget_obj_count), and the ASan test suite runs on valid
+#     files without suppressions;
+#   - crashes: fuzz_h5 runs with -fork=1 -ignore_crashes=1 so that one
+#     inside libhdf5 does not end the run; every crash artifact is then run
+#     again and judged by tests/hdf5_own.awk: a report whose every stack
+#     (access, allocation) starts in libhdf5 is libhdf5's (counted, kept in
+#     BUILD_DIR/artifacts-h5/, not failed); any frame of mrvi's first, a
+#     UBSan report, a leak or a timeout fails the run.  So does an
+#     out-of-memory (> 2 GiB) unless libhdf5 asked for it: it allocates
+#     whatever length a corrupted vlen string declares (H5T__conv_vlen,
+#     4 GiB seen), before mrvi can check it.
+#     ASan's quarantine is lowered to 8 MiB (twice the executions/s: HDF5
+#     callocs fresh pages for every file).
 set -euo pipefail
 secs=${1:-120}
 root=$(cd "$(dirname "$0")/../.." && pwd)
 build=${2:-$root/build-fuzz}
+h5secs=${3:-60}
 if [ ! -d "$build" ]; then
   CC=clang meson setup "$build" "$root" -Dfuzz=true \
     -Db_sanitize=address,undefined -Db_lundef=false \
     -Dc_args="-fsanitize=fuzzer-no-link -DMRVI_SMALL_KERNELS=0 -DMRVI_MEMORY_CAP=268435456 -DMRVI_MAX_GENERATED=20000" \
     -Dbuildtype=debugoptimized >/dev/null
 fi
-meson compile -C "$build" tests/fuzz/fuzz_loader >/dev/null
+meson compile -C "$build" tests/fuzz/fuzz_loader tests/fuzz/fuzz_h5 \
+  mrvi:executable >/dev/null
 mkdir -p "$build/corpus" "$build/artifacts"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1}
 export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$root/tests/fuzz/lsan.supp}
@@ -39,3 +71,44 @@ export UBSAN_OPTIONS=${UBSAN_OPTIONS:-halt_on_error=1:print_stacktrace=1}
   -dict="$root/tests/fuzz/loader.dict" \
   -artifact_prefix="$build/artifacts/" -print_final_stats=1 \
   "$build/corpus" "$root/systems" "$root/tests/bad_input"
+
+# --- the HDF5 readers -------------------------------------------------------
+seeds=$build/h5seeds
+if [ ! -f "$seeds/lat.h5" ]; then
+  mkdir -p "$seeds"
+  run() { ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" run -q --force "$@"; }
+  run "$root/systems/fpu.yaml" --set integrator.t_end=0.6 -o "$seeds/fpu.h5"
+  run "$root/systems/cart_pendulum.yaml" --set integrator.t_end=0.2 \
+    -o "$seeds/cart.h5"
+  run "$root/systems/heavy_top.yaml" --set integrator.t_end=0.05 \
+    -o "$seeds/top.h5" 2>/dev/null
+  run "$root/systems/lattice.yaml" --set integrator.t_end=0.05 \
+    -o "$seeds/lat.h5" 2>/dev/null
+  rm -f "$seeds"/*.xdmf
+fi
+art=$build/artifacts-h5
+mkdir -p "$build/corpus-h5" "$art"
+rm -f "$art"/*.txt
+export ASAN_OPTIONS=detect_leaks=1:quarantine_size_mb=8
+"$build/tests/fuzz/fuzz_h5" \
+  -seed="${FUZZ_SEED:-1}" -max_total_time="$h5secs" -timeout=10 -rss_limit_mb=2048 -max_len=65536 \
+  -fork=1 -ignore_crashes=1 -artifact_prefix="$art/" -print_final_stats=1 \
+  "$build/corpus-h5" "$seeds" 2>"$art/fuzz.log" || true
+grep -E '^#[0-9]+: cov|INFO: exiting|DONE' "$art/fuzz.log" | tail -2
+hdf5=0 ours=0
+for f in "$art"/crash-* "$art"/leak-* "$art"/timeout-* "$art"/oom-*; do
+  [ -e "$f" ] || continue
+  "$build/tests/fuzz/fuzz_h5" -timeout=10 -rss_limit_mb=2048 "$f" >"$f.txt" 2>&1 && continue
+  case $f in
+  */crash-* | */oom-*) if awk -f "$root/tests/hdf5_own.awk" "$f.txt"; then
+      hdf5=$((hdf5 + 1))
+      echo "fuzz_h5: inside libhdf5 (not failed): $f: $(grep -m1 -o 'AddressSanitizer: [A-Za-z-]*' "$f.txt")$(grep -m1 -o ' in H5[A-Za-z_0-9]*' "$f.txt")"
+      continue
+    fi ;;
+  esac
+  ours=$((ours + 1))
+  echo "fuzz_h5: FINDING $f (report: $f.txt)"
+  grep -m3 'ERROR\|runtime error\|left open' "$f.txt" || true
+done
+echo "fuzz_h5: $ours findings in mrvi, $hdf5 inside libhdf5"
+[ "$ours" -eq 0 ]

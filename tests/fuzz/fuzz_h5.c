@@ -1,0 +1,114 @@
+/* libFuzzer target: the readers of an mrvi output file, the HDF5 inputs a
+ * user can point mrvi at (run --resume / --from, export, converge
+ * --reference, the status line of mrvi export).
+ *
+ * The input is the bytes of an HDF5 file; it is written to a file of its
+ * own (the readers take a path) and read as each command reads it:
+ *   - mrvi_run_file_status;
+ *   - mrvi_stored_node_read of the last node and of the node a resume
+ *     continues from; when one is read, its /model/description is loaded
+ *     and mrvi_stored_run_check compares the file with it (--resume,
+ *     --from); the node is also read for a model of the file's own width
+ *     (--from with a model);
+ *   - mrvi_trajectory_read (converge --reference);
+ *   - mrvi_export_xyz (macro and micro frames) and mrvi_export_xdmf.
+ * Any crash, sanitizer report, leak or timeout is a finding; a refused
+ * file is not.  So is an HDF5 object (file, dataset, attribute, ...) the
+ * readers leave open: that is mrvi's leak even where LeakSanitizer can only
+ * see libhdf5's allocation (tests/fuzz/lsan.supp hides those).  Reports inside
+ * libhdf5 itself are told apart by tests/fuzz/run.sh (see there). */
+#include "mrvi.h"
+
+#include <hdf5.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#define MSG 1024
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+/* The contract of every reader: a message on failure. */
+static void refused_with_message(int st, const char *msg) {
+  if (st < 0 && !msg[0])
+    abort();
+}
+
+/* --resume / --from: the node, then the file against its own description. */
+static void read_node(const char *path, long which, int n) {
+  char msg[MSG] = "";
+  mrvi_stored_node *node = NULL;
+  int st = mrvi_stored_node_read(path, which, n, &node, msg, sizeof msg);
+  refused_with_message(st, msg);
+  if ((st == MRVI_OK) != (node != NULL))
+    abort();
+  if (!node)
+    return;
+  if (node->n > 0 && n == 0 && which == MRVI_NODE_LAST)
+    read_node(path, MRVI_NODE_LAST, node->n);
+  if (node->description && n == 0) {
+    mrvi_system *sys = NULL;
+    msg[0] = '\0';
+    st = mrvi_system_load_string(node->description, "fuzz.h5:/description",
+                                 NULL, 0, &sys, msg, sizeof msg);
+    refused_with_message(st, msg);
+    if (sys) {
+      msg[0] = '\0';
+      refused_with_message(mrvi_stored_run_check(path, sys, msg, sizeof msg),
+                           msg);
+    }
+    mrvi_system_free(sys);
+  }
+  mrvi_stored_node_free(node);
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
+  /* One file per process: libFuzzer's -fork and -jobs run several. */
+  static char path[64], out[64];
+  if (!path[0]) {
+    const char *dir = access("/dev/shm", W_OK) == 0 ? "/dev/shm" : "/tmp";
+    snprintf(path, sizeof path, "%s/mrvi-fuzz-%ld.h5", dir, (long)getpid());
+    snprintf(out, sizeof out, "%s/mrvi-fuzz-%ld.out", dir, (long)getpid());
+  }
+  FILE *f = fopen(path, "wb");
+  if (!f)
+    abort();
+  if (fwrite(data, 1, size, f) != size || fclose(f) != 0)
+    abort();
+
+  char msg[MSG] = "";
+  char reason[MSG] = "";
+  int st = mrvi_run_file_status(path, reason, sizeof reason);
+  refused_with_message(st, reason);
+
+  read_node(path, MRVI_NODE_LAST, 0);
+  read_node(path, MRVI_NODE_RESUME, 0);
+  read_node(path, 0, 0);
+
+  mrvi_trajectory *tr = NULL;
+  st = mrvi_trajectory_read(path, &tr, msg, sizeof msg);
+  refused_with_message(st, msg);
+  mrvi_trajectory_free(tr);
+
+  mrvi_xyz_options opt = {1, 0, MRVI_XYZ_SPECIES_NAME};
+  msg[0] = '\0';
+  refused_with_message(mrvi_export_xyz(path, out, &opt, msg, sizeof msg), msg);
+  opt.micro = 1;
+  opt.species = MRVI_XYZ_SPECIES_RATE;
+  msg[0] = '\0';
+  refused_with_message(mrvi_export_xyz(path, out, &opt, msg, sizeof msg), msg);
+  msg[0] = '\0';
+  refused_with_message(mrvi_export_xdmf(path, out, msg, sizeof msg), msg);
+
+  ssize_t open = H5Fget_obj_count(H5F_OBJ_ALL, H5F_OBJ_ALL);
+  if (open != 0) {
+    fprintf(stderr, "fuzz_h5: %ld HDF5 objects left open\n", (long)open);
+    abort();
+  }
+  unlink(out);
+  unlink(path);
+  return 0;
+}
