@@ -498,6 +498,24 @@ static void end_name(const mrvi_model *m, const mrvi_end *e, char *buf,
              a[2]);
 }
 
+/* "KIND A-B" (B "anchor" when b is NULL) into buf; MRVI_EINVAL with that
+ * label when both ends are points of one body (their distance is
+ * constant), else 0.  Springs and distance constraints between ends. */
+static int end_pair(mrvi_model *m, const char *kind, const mrvi_end *a,
+                    const mrvi_end *b, char *buf, size_t len) {
+  char na[128], nb[128] = "anchor";
+  end_name(m, a, na, sizeof na);
+  if (b)
+    end_name(m, b, nb, sizeof nb);
+  mrvi_fmt(buf, len, "%s %s-%s", kind, na, nb);
+  if (b && a->particle < 0 && b->particle < 0 && a->body == b->body)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "%s: both ends are on body '%s' (their distance is "
+                           "constant)",
+                           buf, m->bodies[a->body].name);
+  return 0;
+}
+
 /* The end's position as blocks of D consecutive coordinates with constant
  * weights, x = sum_b w[b] q[first[b] .. first[b] + D): a particle is one
  * block of weight 1, a body point phi (1) and d_i (at[i]).  Returns the
@@ -563,16 +581,9 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
                                      law, params, rest_length)
              : mrvi_model_add_anchor_spring(m, potential, a->particle, anchor,
                                             law, params, rest_length);
-  char na[128], nb[128] = "anchor", what[300];
-  end_name(m, a, na, sizeof na);
-  if (b)
-    end_name(m, b, nb, sizeof nb);
-  mrvi_fmt(what, sizeof what, "spring %s-%s", na, nb);
-  if (b && a->particle < 0 && b->particle < 0 && a->body == b->body)
-    return mrvi_model_fail(m, MRVI_EINVAL,
-                           "%s: both ends are on body '%s' (their distance is "
-                           "constant)",
-                           what, m->bodies[a->body].name);
+  char what[300];
+  if (end_pair(m, "spring", a, b, what, sizeof what) < 0)
+    return MRVI_EINVAL;
   if (!isfinite(rest_length))
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: rest length must be finite",
                            what);
@@ -662,16 +673,9 @@ int mrvi_model_add_end_distance(mrvi_model *m, const mrvi_end *a,
     return b ? mrvi_model_add_distance(m, a->particle, b->particle, length)
              : mrvi_model_add_distance_anchor(m, a->particle, anchor, length);
   const int D = m->dimension;
-  char na[128], nb[128] = "anchor", label[300];
-  end_name(m, a, na, sizeof na);
-  if (b)
-    end_name(m, b, nb, sizeof nb);
-  mrvi_fmt(label, sizeof label, "distance %s-%s", na, nb);
-  if (b && a->particle < 0 && b->particle < 0 && a->body == b->body)
-    return mrvi_model_fail(m, MRVI_EINVAL,
-                           "%s: both ends are on body '%s' (their distance is "
-                           "constant)",
-                           label, m->bodies[a->body].name);
+  char label[300];
+  if (end_pair(m, "distance", a, b, label, sizeof label) < 0)
+    return MRVI_EINVAL;
   double own[4] = {length, 0, 0, 0}, xa[3], xb[3] = {0, 0, 0};
   for (int k = 0; !b && k < D; k++)
     xb[k] = own[1 + k] = anchor[k];
