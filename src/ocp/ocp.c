@@ -169,6 +169,8 @@ int ocp_alloc(mrvi_ocp *o) {
   o->cres_micro = dalloc((size_t)o->N * (size_t)o->p);
   o->q_out = dalloc(N1 * n);
   o->p_out = dalloc(N1 * n);
+  o->n_torsion = mrvi_model_n_torsions(m);
+  o->branch = dalloc(N1 * (size_t)o->n_torsion);
   o->H = dalloc((size_t)o->nv * (size_t)o->nv);
   o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
   o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
@@ -176,7 +178,7 @@ int ocp_alloc(mrvi_ocp *o) {
   if (!o->p0 || !o->x || !o->R || !o->dx || !o->f_rows || !o->f_end ||
       !o->ps1 || !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k ||
       !o->pf_micro || !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out ||
-      !o->H || !o->Lam || !o->rhs_ns)
+      !o->H || !o->Lam || !o->rhs_ns || !o->branch)
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
@@ -238,6 +240,7 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->cres_micro);
   free(o->q_out);
   free(o->p_out);
+  free(o->branch);
   free(o->H);
   ocp_adjoint_free(o);
   free(o);
@@ -922,9 +925,16 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
       return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
   }
   step_forces(o, k, u);
+  const int nt = o->n_torsion;
+  if (nt > 0)
+    memcpy(o->branch + k * nt, mrvi_integrator_torsion_angle(it),
+           (size_t)nt * sizeof(double));
   const int s = mrvi_integrator_step(it);
   if (s < 0)
     return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
+  if (nt > 0)
+    memcpy(o->branch + (k + 1) * nt, mrvi_integrator_torsion_angle(it),
+           (size_t)nt * sizeof(double));
   const double *q = mrvi_integrator_q(it), *pm = mrvi_integrator_p(it);
   for (int i = 0; i < o->ns; i++) {
     o->ps1[i] = pm[m->slow_index[i]];
@@ -933,6 +943,32 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
   store_step(o, k, o->x, mrvi_integrator_micro_q(it), o->ps1,
              mrvi_integrator_micro_p(it));
   return MRVI_OK;
+}
+
+/* The torsional springs' branches at node k + 1 from those at node k (the
+ * integrator's rule, mrvi_integrator_step): the angle nearest the branch;
+ * a step that turns a spring by pi/2 or more is refused. */
+static int follow_torsion(mrvi_ocp *o, long k) {
+  const mrvi_model *m = o->model;
+  const int ns = o->ns, nf = o->nf, nt = o->n_torsion;
+  const long N = o->N;
+  double *q = o->q_out + (k + 1) * m->n, *b = o->branch + (k + 1) * nt;
+  for (int s = 0; s < ns; s++)
+    q[m->slow_index[s]] = o->Q[(k + 1) * ns + s];
+  for (int s = 0; s < nf; s++)
+    q[m->fast_index[s]] = o->Q[(N + 1) * ns + (k + 1) * o->p * nf + s];
+  memcpy(b, b - nt, (size_t)nt * sizeof *b);
+  int worst;
+  const double turn = mrvi_model_torsion_follow(m, q, b, &worst);
+  if (turn < 0.5 * M_PI)
+    return MRVI_OK;
+  char what[300];
+  mrvi_model_describe_element(m, worst, what, sizeof what);
+  return mrvi_ocp_fail(o, MRVI_ENEWTON,
+                       "step %ld: the %s turned by %.3g rad in one macro "
+                       "step (at most pi/2 are followed: reduce "
+                       "integrator.macro_step)",
+                       k + 1, what, turn);
 }
 
 int ocp_forward(mrvi_ocp *o, const double *u) {
@@ -964,7 +1000,11 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
   for (long k = 0; k < N && o->integ; k++)
     if ((s0 = structured_step(o, k, u)) < 0)
       return s0;
+  if (o->n_torsion > 0)
+    mrvi_model_torsion_init(m, m->q0, o->branch);
   for (long k = 0; k < N && !o->integ; k++) {
+    if (o->n_torsion > 0)
+      mrvi_model_torsion_set(m, o->branch + k * o->n_torsion);
     st->qs0 = Qs + k * ns;
     st->qf0 = Qf + k * p * nf;
     st->ps0 = o->ps_k + k * ns;
@@ -1021,6 +1061,8 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
     mrvi_step_micro_residuals(st, o->R, o->cres_micro + k * p);
     store_step(o, k, o->x, o->x + ns, o->ps1, o->pf1);
+    if (o->n_torsion > 0 && (s0 = follow_torsion(o, k)) < 0)
+      return s0;
   }
   memcpy(o->pN, o->ps_k + N * ns, (size_t)ns * sizeof(double));
   memcpy(o->pN + ns, o->pf_k + N * nf, (size_t)nf * sizeof(double));

@@ -114,6 +114,11 @@ struct mrvi_ocp {
   double *f_plus;        /* f^+ of a step on fast nodes 1..p, p x nf */
   double *cres_micro;    /* max |g| at micro nodes 1..p of every step, N p */
   double *q_out, *p_out; /* (N+1) x n model order */
+  /* Torsional springs: each one's branch at every macro node, (N+1) x
+   * n_torsion; step k (forward and adjoint) evaluates on row k, as the
+   * integrator does (src/model/torsion.c). */
+  int n_torsion;
+  double *branch;
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
   long *gz;           /* global node of every z of the step (nz) */
