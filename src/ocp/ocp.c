@@ -553,10 +553,81 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind, int c,
   return penalty > 0.0 ? 0 : o->n_con++;
 }
 
+/* Rows r0 .. r0 + nrows - 1 of the body terminal condition T0 (kind,
+ * body, penalty, attitude target or direction frame), each with its target
+ * (angular velocity; NULL: 0): appended, and an equality that the
+ * constraints and the conditions before it already impose is refused with
+ * the body's joints named. */
+static int push_body_rows(mrvi_ocp *o, const ocp_terminal *T0, int r0,
+                          int nrows, const double *target) {
+  const mrvi_model *m = o->model;
+  const int body = T0->body;
+  ocp_terminal *t = realloc(o->term, (size_t)(o->n_term + nrows) * sizeof *t);
+  if (!t)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  o->term = t;
+  const int first = o->n_con;
+  for (int r = 0; r < nrows; r++) {
+    ocp_terminal T = *T0;
+    T.coord = mrvi_model_body_first(m, body);
+    T.row = r0 + r;
+    T.target = target ? target[r] : 0.0;
+    o->term[o->n_term++] = T;
+    if (T0->penalty == 0.0)
+      o->n_con++;
+  }
+  if (T0->penalty > 0.0)
+    return 0;
+  /* Rows the constraints already impose (a jointed body has fewer than
+   * three rotations) would make the constraint Jacobian of the optimiser
+   * rank-deficient: refused, with the joints of the body named. */
+  const int bad = ocp_terminal_redundant(o, o->n_term - nrows);
+  if (bad == -1)
+    return first;
+  o->n_term -= nrows;
+  o->n_con = first;
+  if (bad == -2)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  char names[300] = "";
+  size_t used = 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *C = &m->constraints[c];
+    int touches = 0;
+    for (int j = 0; j < C->n_in && !touches; j++)
+      touches = mrvi_model_body_of(m, C->in[j]) == body;
+    if (touches && c != m->bodies[body].constraint && used < sizeof names)
+      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                               used ? ", " : "", C->label);
+  }
+  const int rot =
+      T0->kind == MRVI_OCP_ATTITUDE || T0->kind == MRVI_OCP_DIRECTION;
+  return mrvi_ocp_fail(
+      o, MRVI_EINVAL,
+      "terminal %s of body '%s': row %d is implied by %s%s and the "
+      "conditions before it (redundant: the body has fewer free %s); give "
+      "it a penalty instead",
+      T0->kind == MRVI_OCP_ATTITUDE    ? "attitude"
+      : T0->kind == MRVI_OCP_DIRECTION ? "direction"
+                                       : "angular velocity",
+      mrvi_model_body_name(m, body), o->term[bad].row,
+      used ? "its joints " : "the constraints", names,
+      rot ? "rotations" : "angular velocities");
+}
+
+/* The checks every body terminal condition shares. */
+static int check_body_terminal(mrvi_ocp *o, int body, double penalty) {
+  int st = check_body(o, body, "body terminal condition");
+  if (st < 0)
+    return st;
+  if (!(penalty >= 0.0))
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "terminal penalty must be >= 0");
+  return MRVI_OK;
+}
+
 int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
                                int body, const double *target, double penalty) {
   const mrvi_model *m = o->model;
-  int st = check_body(o, body, "body terminal condition");
+  int st = check_body_terminal(o, body, penalty);
   if (st < 0)
     return st;
   const int D = m->dimension, rows = D == 3 ? 3 : 1;
@@ -571,8 +642,7 @@ int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
     if (!isfinite(target[k]))
       return mrvi_ocp_fail(o, MRVI_EINVAL,
                            "body terminal condition: target not finite");
-  if (!(penalty >= 0.0))
-    return mrvi_ocp_fail(o, MRVI_EINVAL, "terminal penalty must be >= 0");
+  ocp_terminal T = {.kind = kind, .penalty = penalty, .body = body};
   if (kind == MRVI_OCP_ATTITUDE) {
     /* A rotation: R^T R = I within 1e-6, det +1. */
     double err = 0.0, det;
@@ -594,58 +664,66 @@ int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
                            "body terminal attitude: the target is not a "
                            "rotation (|R^T R - I| = %.3g, det %.6g)",
                            err, det);
+    memcpy(T.R_target, target, (size_t)(D * D) * sizeof *target);
+    return push_body_rows(o, &T, 0, rows, NULL);
   }
-  ocp_terminal *t = realloc(o->term, (size_t)(o->n_term + rows) * sizeof *t);
-  if (!t)
-    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
-  o->term = t;
-  const int first = o->n_con;
-  for (int r = 0; r < rows; r++) {
-    ocp_terminal T = {.kind = kind,
-                      .coord = mrvi_model_body_first(m, body),
-                      .penalty = penalty,
-                      .body = body,
-                      .row = r};
-    if (kind == MRVI_OCP_ATTITUDE)
-      memcpy(T.R_target, target, (size_t)(D * D) * sizeof *target);
-    else
-      T.target = target[r];
-    o->term[o->n_term++] = T;
-    if (penalty == 0.0)
-      o->n_con++;
-  }
-  if (penalty > 0.0)
-    return 0;
-  /* Rows the constraints already impose (a jointed body has fewer than
-   * three rotations) would make the constraint Jacobian of the optimiser
-   * rank-deficient: refused, with the joints of the body named. */
-  const int bad = ocp_terminal_redundant(o, o->n_term - rows);
-  if (bad == -1)
-    return first;
-  o->n_term -= rows;
-  o->n_con = first;
-  if (bad == -2)
-    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
-  char names[300] = "";
-  size_t used = 0;
-  for (int c = 0; c < m->n_constraints; c++) {
-    const mrvi_constraint *C = &m->constraints[c];
-    int touches = 0;
-    for (int j = 0; j < C->n_in && !touches; j++)
-      touches = mrvi_model_body_of(m, C->in[j]) == body;
-    if (touches && c != m->bodies[body].constraint && used < sizeof names)
-      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
-                               used ? ", " : "", C->label);
-  }
-  return mrvi_ocp_fail(
-      o, MRVI_EINVAL,
-      "terminal %s of body '%s': row %d is implied by %s%s and the "
-      "conditions before it (redundant: the body has fewer free %s); give "
-      "it a penalty instead",
-      kind == MRVI_OCP_ATTITUDE ? "attitude" : "angular velocity",
-      mrvi_model_body_name(m, body), o->term[bad].row,
-      used ? "its joints " : "the constraints", names,
-      kind == MRVI_OCP_ATTITUDE ? "rotations" : "angular velocities");
+  return push_body_rows(o, &T, 0, rows, target);
+}
+
+int mrvi_ocp_add_body_angular_velocity_component(mrvi_ocp *o, int body_frame,
+                                                 int body, int component,
+                                                 double target,
+                                                 double penalty) {
+  int st = check_body_terminal(o, body, penalty);
+  if (st < 0)
+    return st;
+  const int rows = o->model->dimension == 3 ? 3 : 1;
+  if (component < 0 || component >= rows)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal angular velocity component %d of a %d-D "
+                         "body (0 .. %d)",
+                         component, o->model->dimension, rows - 1);
+  if (!isfinite(target))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "body terminal condition: target not finite");
+  const ocp_terminal T = {.kind = body_frame ? MRVI_OCP_ANGULAR_VELOCITY_BODY
+                                             : MRVI_OCP_ANGULAR_VELOCITY,
+                          .penalty = penalty,
+                          .body = body};
+  return push_body_rows(o, &T, component, 1, &target);
+}
+
+int mrvi_ocp_add_body_direction(mrvi_ocp *o, int body, int director,
+                                const double *direction, double penalty) {
+  const mrvi_model *m = o->model;
+  int st = check_body_terminal(o, body, penalty);
+  if (st < 0)
+    return st;
+  if (m->dimension != 3)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal direction of a director: 3-D bodies only "
+                         "(in 2-D a director's direction is the attitude)");
+  if (director < 0 || director > 2)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal direction: director %d (0 .. 2)", director);
+  double ee = 0.0;
+  for (int a = 0; a < 3; a++)
+    ee += direction[a] * direction[a];
+  if (!(isfinite(ee) && ee > 0.0))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal direction: the direction must be a nonzero "
+                         "finite vector");
+  /* Frame (u, v, e), right-handed, e the unit direction (stored in
+   * R_target's rows; body_terminal.c). */
+  double t[9];
+  mrvi_joint_frame(3, direction, t);
+  ocp_terminal T = {.kind = MRVI_OCP_DIRECTION,
+                    .penalty = penalty,
+                    .body = body,
+                    .director = director};
+  memcpy(T.R_target, t + 3, 6 * sizeof *t);
+  memcpy(T.R_target + 6, t, 3 * sizeof *t);
+  return push_body_rows(o, &T, 0, 2, NULL);
 }
 
 void mrvi_ocp_set_algorithm(mrvi_ocp *o, mrvi_ocp_algorithm a) {
@@ -708,11 +786,13 @@ void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj) {
 }
 int mrvi_ocp_n_terminals(const mrvi_ocp *o) { return o->n_term; }
 const char *mrvi_ocp_terminal_kind_name(mrvi_ocp_terminal_kind kind) {
-  static const char *const names[] = {"position", "velocity", "attitude",
+  static const char *const names[] = {"position",
+                                      "velocity",
+                                      "attitude",
                                       "angular_velocity",
-                                      "angular_velocity_body"};
-  return kind >= 0 && kind <= MRVI_OCP_ANGULAR_VELOCITY_BODY ? names[kind]
-                                                             : "unknown";
+                                      "angular_velocity_body",
+                                      "direction"};
+  return kind >= 0 && kind <= MRVI_OCP_DIRECTION ? names[kind] : "unknown";
 }
 int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row) {
   if (row)

@@ -56,9 +56,11 @@ typedef struct ocp_terminal {
   mrvi_ocp_terminal_kind kind;
   int coord;              /* coordinate; a body's first for body kinds */
   double target, penalty; /* penalty 0: equality constraint */
-  /* Body kinds (attitude, angular velocity): body, row (0..2), target
-   * rotation (D x D row-major; attitude). */
-  int body, row;
+  /* Body kinds (attitude, angular velocity, direction): body, row (0..2),
+   * target rotation (D x D row-major; attitude) or the direction's frame
+   * (rows u, v, e, right-handed, e the unit direction; direction) and the
+   * director (0..2; direction). */
+  int body, row, director;
   double R_target[9];
 } ocp_terminal;
 
