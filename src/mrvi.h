@@ -531,7 +531,9 @@ void mrvi_model_body_pose(const mrvi_model *m, int b, const double *q,
  *   cylindrical  3-D, 4 rows; axis: of rotation and sliding
  *   planar       3-D, 3 rows; axis: the plane's normal
  *   universal    3-D, 4 rows; axis: fixed in A, second axis: fixed in B
- *                (the Hooke joint's cross; perpendicular to the axis)
+ *                (the Hooke joint's cross; the two keep the angle they
+ *                make at the initial configuration, perpendicular or
+ *                oblique, not parallel)
  * point: the joint's point in space at the initial configuration (D
  * entries), stored in each body's frame so that the initial positions meet
  * the joint; axis: in space at the initial configuration (D entries, not
@@ -556,8 +558,9 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
                            const double *params, double rest_angle);
 /* The same with a second axis (D entries, in space at the initial
  * configuration; NULL for the types that take none): the universal
- * joint's axis fixed in body B (or the ground), perpendicular to `axis`
- * (parallel or oblique axes are refused with a message). */
+ * joint's axis fixed in body B (or the ground), at a constant angle to
+ * `axis`, perpendicular or oblique (parallel axes are refused with a
+ * message). */
 int mrvi_model_add_joint_axes(mrvi_model *m, const char *type, int body_a,
                               int body_b, const double *point,
                               const double *axis, const double *second);

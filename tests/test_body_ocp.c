@@ -340,6 +340,195 @@ static void test_planar(mrvi_constraint_form form) {
   mrvi_model_free(m);
 }
 
+/* ---------------------------------------------------------------------------
+ * Single rotation components: the direction of one director (two rows) and
+ * single angular velocity components.  A free body: the direction of d3
+ * and Omega_2 (body frame) as equalities, omega_1 (space) as a penalty;
+ * gradients against central differences and the values against their
+ * definitions.  A body on a revolute joint about e3: the angular velocity
+ * about the hinge is an equality it can meet, the other components and the
+ * direction of any director repeat joint rows and are refused.
+ * ------------------------------------------------------------------------- */
+static void test_components(mrvi_constraint_form form) {
+  const double w0[3] = {0.4, -0.3, 0.8};
+  mrvi_model *m = free_body(w0);
+  const mrvi_settings s = settings(0.1, 1, 0.8, form);
+  mrvi_ocp *o = create(m, &s);
+  if (!o) {
+    mrvi_model_free(m);
+    return;
+  }
+  const double ax[3] = {0.3, -0.2, 1.0}, bx[3] = {1.0, 0.5, 0.0};
+  const double e3[3] = {0.2, -0.3, 1.0};
+  CHECK(mrvi_ocp_add_torque_actuator(o, 0, ax, 0, MRVI_GRID_MACRO, 1.0,
+                                     -HUGE_VAL, HUGE_VAL) == 0 &&
+            mrvi_ocp_add_torque_actuator(o, 0, bx, 1, MRVI_GRID_MACRO, 2.0,
+                                         -HUGE_VAL, HUGE_VAL) == 1 &&
+            mrvi_ocp_add_body_direction(o, 0, 2, e3, 0.0) == 0 &&
+            mrvi_ocp_add_body_angular_velocity_component(o, 1, 0, 1, 0.1,
+                                                         0.0) == 2 &&
+            mrvi_ocp_add_body_angular_velocity_component(o, 0, 0, 0, -0.2,
+                                                         2.0) == 0,
+        "free body components: %s", mrvi_ocp_errmsg(o));
+  CHECK(mrvi_ocp_n_constraints(o) == 3 && mrvi_ocp_n_terminals(o) == 4,
+        "component rows: %d constraints, %d terminals",
+        mrvi_ocp_n_constraints(o), mrvi_ocp_n_terminals(o));
+  mrvi_ocp_terminal_kind kind;
+  mrvi_ocp_terminal(o, 0, &kind, NULL, NULL, NULL);
+  CHECK(kind == MRVI_OCP_DIRECTION &&
+            !strcmp(mrvi_ocp_terminal_kind_name(kind), "direction"),
+        "direction kind");
+  char what[96];
+  snprintf(what, sizeof what,
+           "free body, direction of d3 and angular "
+           "velocity components, %s",
+           form_name(form));
+  check_gradients(o, what);
+  /* Values: |rows| is the angle between d3 and e, the rows' vector in the
+   * plane normal to e is along e x d3; Omega_2 = d2 . L / J2. */
+  const int n = m->n;
+  double c[3], u[16], J;
+  for (int i = 0; i < mrvi_ocp_n_controls(o); i++)
+    u[i] = 0.4 * sin(1.7 * i + 0.3);
+  mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+  const double *q = mrvi_ocp_q(o) + mrvi_ocp_n_steps(o) * n;
+  const double *p = mrvi_ocp_p(o) + mrvi_ocp_n_steps(o) * n;
+  const double *d3 = q + 9, *d2 = q + 6;
+  const double ne = sqrt(e3[0] * e3[0] + e3[1] * e3[1] + e3[2] * e3[2]);
+  const double e[3] = {e3[0] / ne, e3[1] / ne, e3[2] / ne};
+  double ed = 0.0, L[3] = {0, 0, 0};
+  for (int a = 0; a < 3; a++)
+    ed += e[a] * d3[a] / sqrt(d3[0] * d3[0] + d3[1] * d3[1] + d3[2] * d3[2]);
+  for (int i = 0; i < 3; i++) {
+    const double *d = q + 3 + 3 * i, *pd = p + 3 + 3 * i;
+    L[0] += d[1] * pd[2] - d[2] * pd[1];
+    L[1] += d[2] * pd[0] - d[0] * pd[2];
+    L[2] += d[0] * pd[1] - d[1] * pd[0];
+  }
+  const double Om2 = (d2[0] * L[0] + d2[1] * L[1] + d2[2] * L[2]) / free_J[1];
+  const double ang = acos(ed), rows = hypot(c[0], c[1]);
+  printf("  direction rows: |rows| %.12f, angle(d3, e) %.12f; Omega_2 - "
+         "target %.3e (definition %.3e)\n",
+         rows, ang, c[2], Om2 - 0.1);
+  CHECK(fabs(rows - ang) < 1e-9 * fmax(1.0, ang) && ang > 0.05,
+        "direction rows %.15g, angle %.15g", rows, ang);
+  CHECK(fabs(c[2] - (Om2 - 0.1)) < 1e-12, "Omega_2 component %.15g vs %.15g",
+        c[2], Om2 - 0.1);
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+
+  /* A body on a revolute joint about e3. */
+  m = mrvi_model_create();
+  const double J1[3] = {0.5, 0.6, 0.3}, x1[3] = {0.5, 0.0, 0.0};
+  const double w1[3] = {0.0, 0.0, 0.3}, o0[3] = {0, 0, 0}, z[3] = {0, 0, 1};
+  CHECK(mrvi_model_add_body(m, "arm", 3, MRVI_SLOW, 1.0, J1, x1, NULL, NULL,
+                            w1) == 0,
+        "arm: %s", mrvi_model_errmsg(m));
+  const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, z);
+  double one = 0.0;
+  CHECK(j0 >= 0 && mrvi_model_project_velocities(m, &one) == 0, "arm joint");
+  const mrvi_settings s2 = settings(0.1, 1, 0.6, form);
+  o = create(m, &s2);
+  if (!o) {
+    mrvi_model_free(m);
+    return;
+  }
+  const double d1t[3] = {cos(0.4), sin(0.4), 0.0};
+  CHECK(mrvi_ocp_add_joint_torque_actuator(o, j0, MRVI_GRID_MACRO, 1.0,
+                                           -HUGE_VAL, HUGE_VAL) == 0 &&
+            mrvi_ocp_add_body_angular_velocity_component(o, 0, 0, 2, 0.1,
+                                                         0.0) == 0,
+        "arm: angular velocity about the hinge: %s", mrvi_ocp_errmsg(o));
+  CHECK(mrvi_ocp_add_body_angular_velocity_component(o, 0, 0, 0, 0.0, 0.0) <
+                0 &&
+            strstr(mrvi_ocp_errmsg(o), "implied by its joints") &&
+            mrvi_ocp_add_body_direction(o, 0, 2, z, 0.0) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "terminal direction") &&
+            mrvi_ocp_add_body_direction(o, 0, 0, d1t, 0.0) < 0 &&
+            strstr(mrvi_ocp_errmsg(o), "revolute arm-ground") &&
+            mrvi_ocp_n_constraints(o) == 1 && mrvi_ocp_n_terminals(o) == 1,
+        "arm: components the joint imposes refused: %s", mrvi_ocp_errmsg(o));
+  CHECK(mrvi_ocp_add_body_direction(o, 0, 0, d1t, 1.5) == 0 &&
+            mrvi_ocp_add_body_direction(o, 0, 5, d1t, 1.5) < 0 &&
+            mrvi_ocp_add_body_direction(o, 0, 0, (double[3]){0, 0, 0}, 1.5) < 0,
+        "arm: direction penalty, bad director and zero direction: %s",
+        mrvi_ocp_errmsg(o));
+  snprintf(what, sizeof what,
+           "revolute arm, hinge rate and d1 direction (penalty), %s",
+           form_name(form));
+  check_gradients(o, what);
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
+ * A 2-D wheel on a revolute joint to the ground with a torsional spring
+ * (linear, k = 1, J = 1 about the hinge: theta = 4 sin t unforced), which
+ * turns through pi at t = 0.9 and reaches 3.99 rad at T = 1.5.  The OCP's
+ * forward pass follows the spring's branch from node to node as the
+ * integrator does (the same trajectory with u = 0), and the adjoint
+ * evaluates every step on that step's branch (the gradients against
+ * central differences).
+ * ------------------------------------------------------------------------- */
+static void test_torsion_through_pi(mrvi_constraint_form form) {
+  mrvi_model *m = mrvi_model_create();
+  const double J = 1.0, k = 1.0, w0 = 4.0, x0[2] = {0, 0};
+  CHECK(mrvi_model_add_body(m, "wheel", 2, MRVI_SLOW, 1.0, &J, x0, NULL, NULL,
+                            &w0) == 0,
+        "wheel: %s", mrvi_model_errmsg(m));
+  const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, x0, NULL);
+  CHECK(j0 >= 0 && mrvi_model_add_torsion(m, MRVI_SLOW, 0, -1, NULL, "linear",
+                                          &k, 0.0) >= 0,
+        "wheel joint and spring: %s", mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 1, 1.5, form);
+  mrvi_ocp *o = create(m, &s);
+  if (!o) {
+    mrvi_model_free(m);
+    return;
+  }
+  const double th = 3.9, om = 0.5;
+  const double Rt[4] = {cos(th), -sin(th), sin(th), cos(th)};
+  CHECK(mrvi_ocp_add_joint_torque_actuator(o, j0, MRVI_GRID_MACRO, 1.0,
+                                           -HUGE_VAL, HUGE_VAL) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 0, &om,
+                                       0.0) == 1,
+        "wheel actuator and terminals: %s", mrvi_ocp_errmsg(o));
+  /* Unforced: the integrator's trajectory, wound past pi. */
+  const int nu = mrvi_ocp_n_controls(o), n = m->n;
+  double *u = calloc((size_t)nu, sizeof *u), J0, c[2];
+  int st = mrvi_ocp_evaluate(o, u, &J0, NULL, c, NULL);
+  CHECK(st == 0, "wheel forward: %s", mrvi_ocp_errmsg(o));
+  mrvi_integrator *it = NULL;
+  char msg[300];
+  CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0, "%s", msg);
+  const long N = mrvi_settings_n_steps(&s);
+  for (long i = 0; i < N && it; i++)
+    CHECK(mrvi_integrator_step(it) == 0, "wheel step: %s",
+          mrvi_integrator_errmsg(it));
+  double diff = 0.0;
+  for (int i = 0; i < n && it && st == 0; i++)
+    diff =
+        fmax(diff, fabs(mrvi_ocp_q(o)[N * n + i] - mrvi_integrator_q(it)[i]));
+  const double wound = it ? mrvi_integrator_torsion_angle(it)[0] : 0.0;
+  printf("wheel through pi (%s): unforced angle %.6f (4 sin 1.5 = %.6f), "
+         "OCP forward vs integrator %.2e\n",
+         form_name(form), wound, 4 * sin(1.5), diff);
+  CHECK(wound > M_PI + 0.5 && fabs(wound - 4 * sin(1.5)) < 1e-2,
+        "wheel: unforced angle %.6f, expected past pi near %.6f", wound,
+        4 * sin(1.5));
+  CHECK(st == 0 && diff <= 1e-11,
+        "wheel: OCP forward differs from the integrator by %.3e", diff);
+  mrvi_integrator_free(it);
+  free(u);
+  char what[80];
+  snprintf(what, sizeof what, "wheel with a torsional spring through pi, %s",
+           form_name(form));
+  check_gradients(o, what);
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
 /* Refusals with their reasons. */
 static void test_refusals(void) {
   const double zero[3] = {0, 0, 0};
@@ -374,6 +563,10 @@ int main(void) {
   test_chain(MRVI_FORM_NULL_SPACE);
   test_planar(MRVI_FORM_MULTIPLIERS);
   test_planar(MRVI_FORM_NULL_SPACE);
+  test_components(MRVI_FORM_MULTIPLIERS);
+  test_components(MRVI_FORM_NULL_SPACE);
+  test_torsion_through_pi(MRVI_FORM_MULTIPLIERS);
+  test_torsion_through_pi(MRVI_FORM_NULL_SPACE);
   test_refusals();
   return test_finish();
 }

@@ -203,6 +203,38 @@ print("%.3e" % max(np.abs(v).max(), 1e-300 if c > 0 else 1.0))' replay.h5 2>&1)
   fi
 done
 
+# --- single rotation components (doc/optimal-control.md, "Bodies"): the
+# same body pointed, d3 along (1, 1, 1) with the spin about d3 free
+# (`director: 3, direction`, `angular_velocity: [0, 0, ~]` in the body
+# frame): converged; the replay's d3 . e = 1 and omega . d1 = omega . d2 = 0
+# to 1e-9 (from /bodies/rotation and /bodies/angular_velocity), the spin
+# about d3 not 0 (the free component is free), and the pointing costs less
+# than the full reorientation. --------------------------------------------
+sed -e '/^  terminal:/,/^  solver:/{/^  solver:/!d}' -e 's/^  solver:/  terminal:\
+    - {body: sat, director: 3, direction: [1, 1, 1], frame: body,\
+       angular_velocity: [0, 0, ~]}\
+  solver:/' "$ro" >point.yaml
+"$mrvi" optimize point.yaml -o pt.h5 -q >out.txt 2>err.txt
+rc=$?
+"$mrvi" run point.yaml --controls pt.h5 -o ptrep.h5 -q >rep.txt 2>&1
+rr=$?
+check=$("$py" -c 'import sys, h5py, numpy as np
+f = h5py.File(sys.argv[1], "r")
+R = f["bodies/rotation"][-1, 0]
+w = f["bodies/angular_velocity"][-1, 0]
+e = np.ones(3) / np.sqrt(3.0)
+c = h5py.File(sys.argv[2], "r")["optimizer"].attrs["cost"]
+bad = max(abs(R[:, 2] @ e - 1), abs(w @ R[:, 0]), abs(w @ R[:, 1]))
+ok = bad <= 1e-9 and abs(w @ R[:, 2]) > 1e-3 and c < 0.6
+print("%s pointing %.1e, spin about d3 %.4f, cost %.6f" % (
+    "ok" if ok else "FAIL", bad, w @ R[:, 2], c))' ptrep.h5 pt.h5 2>&1)
+if [ $rc -eq 0 ] && [ $rr -eq 0 ] && [ "${check%% *}" = ok ] &&
+  [ "$(attr pt.h5 status)" = converged ]; then
+  pass "direction and a free angular velocity component: ${check#ok }"
+else
+  fail "direction and free component: exit $rc/$rr, '$check' ($(cat err.txt rep.txt))"
+fi
+
 # The history's KKT residual (column 3): at the gantry crane's constrained
 # optimum the cost gradient stays large while the projected gradient of
 # the Lagrangian vanishes.

@@ -95,4 +95,44 @@ else
   fail "3-D animation axes: $(tail -3 "$tmp/log")"
 fi
 
+# mrvi-plot optimize with body terminal conditions (attitude, angular
+# velocity): their rows carry the body's first column but are no target of
+# it; they are counted, not drawn as targets on that coordinate.  The
+# reorientation's actuators are body torques (no column), so no coordinate
+# panel remains and no trajectory figure is written.
+run_ok "optimize reorientation" "$mrvi" optimize \
+  "$root/systems/ocp_reorient.yaml" -o "$tmp/reor.h5" -q
+run_ok "plot optimize (body terminals)" "$py" "$plot" optimize \
+  "$tmp/reor.h5" -o "$tmp/reor"
+if "$py" - "$plot" "$tmp/reor.h5" >"$tmp/log" 2>&1 <<'PY'; then
+import importlib.machinery, importlib.util, sys
+import h5py
+loader = importlib.machinery.SourceFileLoader("mrvi_plot", sys.argv[1])
+spec = importlib.util.spec_from_loader("mrvi_plot", loader)
+mp = importlib.util.module_from_spec(spec)
+loader.exec_module(mp)
+with h5py.File(sys.argv[2], "r") as h5:
+    opt = mp.Optimal(h5)
+    cols = mp.ocp_coordinates(opt)
+bad = []
+if opt.terminal:
+    bad.append("coordinate terminals %s" % opt.terminal)
+if opt.body_terminals != 6:
+    bad.append("%d body terminal rows, want 6" % opt.body_terminals)
+if cols:
+    bad.append("coordinate panels %s" % cols)
+print("FAIL " + "; ".join(bad) if bad else
+      "6 body rows counted, no coordinate target")
+sys.exit(1 if bad else 0)
+PY
+  pass "optimize plot skips body terminals: $(tail -1 "$tmp/log")"
+else
+  fail "optimize plot with body terminals: $(tail -3 "$tmp/log")"
+fi
+if [ -e "$tmp/reor/reor_trajectory.png" ]; then
+  fail "a trajectory figure was drawn for body-only terminal conditions"
+else
+  pass "no trajectory figure for body-only terminal conditions"
+fi
+
 test_finish

@@ -369,11 +369,13 @@ int mrvi_model_add_joint(mrvi_model *m, const char *type, int body_a,
   return mrvi_model_add_joint_axes(m, type, body_a, body_b, point, axis, NULL);
 }
 
-/* The second axis of a joint that takes one: finite, not zero, normal to
- * the first axis to 1e-9 (cosine); parallel axes are named as such. */
+/* The second axis of a joint that takes one: finite, not zero, not
+ * parallel to the first axis (cosine within 1e-9 of +-1).  *cosine <- the
+ * cosine of their angle, 0 when they are normal to 1e-9 (then the frame
+ * makes them exactly normal). */
 static int check_second_axis(mrvi_model *m, const char *type, const char *na,
                              const char *nb, const double *axis,
-                             const double *second) {
+                             const double *second, double *cosine) {
   double aa = 0.0, bb = 0.0, ab = 0.0;
   for (int a = 0; a < 3; a++) {
     aa += axis[a] * axis[a];
@@ -390,14 +392,10 @@ static int check_second_axis(mrvi_model *m, const char *type, const char *na,
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "%s joint %s-%s: the second axis is parallel to "
                            "the axis; a universal joint's axes (one in each "
-                           "body) must be perpendicular",
-                           type, na, nb);
-  if (fabs(c) > 1e-9)
-    return mrvi_model_fail(m, MRVI_EINVAL,
-                           "%s joint %s-%s: the second axis must be "
-                           "perpendicular to the axis (they are %.6g degrees "
-                           "apart)",
-                           type, na, nb, acos(c) * 180.0 / M_PI);
+                           "body) must make a nonzero angle (at least "
+                           "%.2g degrees)",
+                           type, na, nb, acos(1.0 - 1e-9) * 180.0 / M_PI);
+  *cosine = fabs(c) > 1e-9 ? c : 0.0;
   return MRVI_OK;
 }
 
@@ -482,18 +480,34 @@ int mrvi_model_add_joint_axes(mrvi_model *m, const char *type, int body_a,
                              "%s joint %s-%s: the axis must be a nonzero "
                              "finite vector",
                              type, na, nb);
+    double cosine = 0.0;
     const int st =
-        second ? check_second_axis(m, type, na, nb, axis, second) : MRVI_OK;
+        second ? check_second_axis(m, type, na, nb, axis, second, &cosine)
+               : MRVI_OK;
     if (st < 0)
       return st;
     joint_frame(D, axis, second, t);
-    /* t_m in A's frame, then in B's frame (in space for the ground). */
+    /* t_m in A's frame, then in B's frame (in space for the ground); an
+     * oblique second axis is B's t_2 itself, unit (constraints/universal.c). */
+    double tb[9];
+    memcpy(tb, t, sizeof t);
+    if (cosine != 0.0) {
+      double bb = 0.0;
+      for (int a = 0; a < 3; a++)
+        bb += second[a] * second[a];
+      for (int a = 0; a < 3; a++)
+        tb[3 + a] = second[a] / sqrt(bb);
+    }
     for (int s = 0; s < 2; s++)
-      for (int k = 0; k < D; k++, n_par += D)
+      for (int k = 0; k < D; k++, n_par += D) {
+        const double *v = (s ? tb : t) + D * k;
         if (bodies[s] >= 0)
-          mrvi_body_frame_of(m, bodies[s], t + D * k, par + n_par);
+          mrvi_body_frame_of(m, bodies[s], v, par + n_par);
         else
-          memcpy(par + n_par, t + D * k, (size_t)D * sizeof *t);
+          memcpy(par + n_par, v, (size_t)D * sizeof *v);
+      }
+    if (cosine != 0.0)
+      par[n_par++] = cosine; /* a_1 . b_2 = cos(alpha) */
   }
   char label[300];
   mrvi_fmt(label, sizeof label, "%s %s-%s", type, na, nb);

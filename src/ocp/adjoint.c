@@ -323,7 +323,9 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     memcpy(o->x + ns, o->Q + (N + 1) * ns + (k * p + 1) * nf,
            (size_t)(p * nf) * sizeof(double));
     memcpy(o->x + nu, o->Lam + k * nl, (size_t)nl * sizeof(double));
-    o->k_cur = k; /* for the pair-force step hook */
+    o->k_cur = k;         /* for the pair-force step hook */
+    if (o->n_torsion > 0) /* step k's branches, as in the forward pass */
+      mrvi_model_torsion_set(o->model, o->branch + k * o->n_torsion);
     ocp_jacobian(o, k, H);
     const long *gz = o->gz; /* global node of every z of step k */
     /* The nonzeros of every row of H in the node columns (CSR). */

@@ -1,8 +1,11 @@
 /* Terminal conditions on rigid bodies (doc/optimal-control.md, "Bodies"):
  * the attitude as the rotation vector of R_target^T R_N (three rows; 2-D:
  * the angle) and the angular velocity from the final discrete momenta
- * (three rows in space or in the body frame; 2-D: one), with their exact
- * derivatives in the final positions and momenta for the adjoint.
+ * (three rows in space or in the body frame; 2-D: one; or single
+ * components of it), and the direction of one director (two rows: the
+ * rotation vector taking the target direction to it, normal to the
+ * target), with their exact derivatives in the final positions and
+ * momenta for the adjoint.
  *
  * Attitude: A = R_target^T R with A_ab = t_a . d_b (t_a the columns of
  * R_target).  With c = (tr A - 1)/2 = cos(theta) and s = vee(A - A^T)/2 =
@@ -21,6 +24,23 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* k = atan2(sigma, c) / sigma and its derivatives ks = (dk/dsigma)/sigma,
+ * kc = dk/dc: the rotation vector (or angle vector) is k s for s of length
+ * sigma = sin(theta) and c = cos(theta). */
+static void angle_factor(double sig, double c, double *k, double *ks,
+                         double *kc) {
+  const double rho2 = sig * sig + c * c, th = atan2(sig, c);
+  *kc = -1.0 / rho2;
+  if (sig < 1e-3 && c > 0.0) {
+    /* Series in sigma (the closed form cancels): k = 1/c - sigma^2/(3c^3). */
+    *k = 1.0 / c - sig * sig / (3.0 * c * c * c);
+    *ks = -2.0 / (3.0 * c * c * c);
+  } else {
+    *k = th / sig;
+    *ks = (c * sig / rho2 - th) / (sig * sig * sig);
+  }
+}
+
 /* Rotation vector row r of A (3 x 3) and its derivative GA[a b] = dv_r/dA_ab.
  */
 static double rotvec_row(const double *A, int r, double *GA) {
@@ -28,16 +48,8 @@ static double rotvec_row(const double *A, int r, double *GA) {
   const double s[3] = {0.5 * (A[7] - A[5]), 0.5 * (A[2] - A[6]),
                        0.5 * (A[3] - A[1])};
   const double sig = sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
-  const double rho2 = sig * sig + c * c, th = atan2(sig, c);
-  double k, ks, kc = -1.0 / rho2; /* ks = (dk/dsigma)/sigma */
-  if (sig < 1e-3 && c > 0.0) {
-    /* Series in sigma (the closed form cancels): k = 1/c - sigma^2/(3c^3). */
-    k = 1.0 / c - sig * sig / (3.0 * c * c * c);
-    ks = -2.0 / (3.0 * c * c * c);
-  } else {
-    k = th / sig;
-    ks = (c * sig / rho2 - th) / (sig * sig * sig);
-  }
+  double k, ks, kc;
+  angle_factor(sig, c, &k, &ks, &kc);
   double w[3];
   for (int q = 0; q < 3; q++)
     w[q] = (q == r ? k : 0.0) + s[r] * ks * s[q];
@@ -82,6 +94,34 @@ static double attitude(int D, const ocp_terminal *T, const double *q,
       gq[D + D * b + j] = g;
     }
   return v;
+}
+
+/* Direction of director i along e (frame rows u, v, e in R_target): the
+ * rotation vector taking e to d = d_i is w = k(sigma, c) e x d with
+ * c = e . d, sigma = |e x d|; e x d has the components s_u = (e x d) . u
+ * = -d . v and s_v = d . u (u x e = -v, v x e = u), and row r is
+ * w_r = k s_r, with dw_r = k ds_r + s_r (ks (s . ds) + kc dc) linear in
+ * dd (ds_u = -v . dd, ds_v = u . dd, dc = e . dd). */
+static double direction(const ocp_terminal *T, const double *q, double *gq) {
+  const double *u = T->R_target, *v = u + 3, *e = u + 6;
+  const double *d = q + 3 + 3 * T->director;
+  double su = 0.0, sv = 0.0, c = 0.0;
+  for (int a = 0; a < 3; a++) {
+    su -= d[a] * v[a];
+    sv += d[a] * u[a];
+    c += d[a] * e[a];
+  }
+  const double sig = sqrt(su * su + sv * sv);
+  double k, ks, kc;
+  angle_factor(sig, c, &k, &ks, &kc);
+  const double sr = T->row == 0 ? su : sv;
+  for (int a = 0; a < 3; a++) {
+    const double dsu = -v[a], dsv = u[a];
+    const double dsr = T->row == 0 ? dsu : dsv;
+    gq[3 + 3 * T->director + a] =
+        k * dsr + sr * (ks * (su * dsu + sv * dsv) + kc * e[a]);
+  }
+  return k * sr;
 }
 
 static void cross(const double *a, const double *b, double *out) {
@@ -150,6 +190,8 @@ double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
   memset(gp, 0, (size_t)n * sizeof *gp);
   if (T->kind == MRVI_OCP_ATTITUDE)
     return attitude(D, T, q, gq);
+  if (T->kind == MRVI_OCP_DIRECTION)
+    return direction(T, q, gq);
   if (D == 3)
     return angular_velocity(B, T, q, p, gq, gp) - T->target;
   /* 2-D: L = sum_i d_i x p_i (scalar), omega = L / J. */
@@ -234,7 +276,7 @@ int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
     memset(v, 0, (size_t)n * sizeof *v);
     if (T->body >= 0) {
       ocp_body_terminal(o, T, m->q0 + T->coord, p0 + T->coord, gq, gp);
-      pos = T->kind == MRVI_OCP_ATTITUDE;
+      pos = T->kind == MRVI_OCP_ATTITUDE || T->kind == MRVI_OCP_DIRECTION;
       for (int j = 0; j < nb; j++)
         v[T->coord + j] = pos ? gq[j] : gp[j];
     } else {

@@ -169,6 +169,8 @@ int ocp_alloc(mrvi_ocp *o) {
   o->cres_micro = dalloc((size_t)o->N * (size_t)o->p);
   o->q_out = dalloc(N1 * n);
   o->p_out = dalloc(N1 * n);
+  o->n_torsion = mrvi_model_n_torsions(m);
+  o->branch = dalloc(N1 * (size_t)o->n_torsion);
   o->H = dalloc((size_t)o->nv * (size_t)o->nv);
   o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
   o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
@@ -176,7 +178,7 @@ int ocp_alloc(mrvi_ocp *o) {
   if (!o->p0 || !o->x || !o->R || !o->dx || !o->f_rows || !o->f_end ||
       !o->ps1 || !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k ||
       !o->pf_micro || !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out ||
-      !o->H || !o->Lam || !o->rhs_ns)
+      !o->H || !o->Lam || !o->rhs_ns || !o->branch)
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
@@ -238,6 +240,7 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->cres_micro);
   free(o->q_out);
   free(o->p_out);
+  free(o->branch);
   free(o->H);
   ocp_adjoint_free(o);
   free(o);
@@ -550,10 +553,81 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind, int c,
   return penalty > 0.0 ? 0 : o->n_con++;
 }
 
+/* Rows r0 .. r0 + nrows - 1 of the body terminal condition T0 (kind,
+ * body, penalty, attitude target or direction frame), each with its target
+ * (angular velocity; NULL: 0): appended, and an equality that the
+ * constraints and the conditions before it already impose is refused with
+ * the body's joints named. */
+static int push_body_rows(mrvi_ocp *o, const ocp_terminal *T0, int r0,
+                          int nrows, const double *target) {
+  const mrvi_model *m = o->model;
+  const int body = T0->body;
+  ocp_terminal *t = realloc(o->term, (size_t)(o->n_term + nrows) * sizeof *t);
+  if (!t)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  o->term = t;
+  const int first = o->n_con;
+  for (int r = 0; r < nrows; r++) {
+    ocp_terminal T = *T0;
+    T.coord = mrvi_model_body_first(m, body);
+    T.row = r0 + r;
+    T.target = target ? target[r] : 0.0;
+    o->term[o->n_term++] = T;
+    if (T0->penalty == 0.0)
+      o->n_con++;
+  }
+  if (T0->penalty > 0.0)
+    return 0;
+  /* Rows the constraints already impose (a jointed body has fewer than
+   * three rotations) would make the constraint Jacobian of the optimiser
+   * rank-deficient: refused, with the joints of the body named. */
+  const int bad = ocp_terminal_redundant(o, o->n_term - nrows);
+  if (bad == -1)
+    return first;
+  o->n_term -= nrows;
+  o->n_con = first;
+  if (bad == -2)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  char names[300] = "";
+  size_t used = 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *C = &m->constraints[c];
+    int touches = 0;
+    for (int j = 0; j < C->n_in && !touches; j++)
+      touches = mrvi_model_body_of(m, C->in[j]) == body;
+    if (touches && c != m->bodies[body].constraint && used < sizeof names)
+      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                               used ? ", " : "", C->label);
+  }
+  const int rot =
+      T0->kind == MRVI_OCP_ATTITUDE || T0->kind == MRVI_OCP_DIRECTION;
+  return mrvi_ocp_fail(
+      o, MRVI_EINVAL,
+      "terminal %s of body '%s': row %d is implied by %s%s and the "
+      "conditions before it (redundant: the body has fewer free %s); give "
+      "it a penalty instead",
+      T0->kind == MRVI_OCP_ATTITUDE    ? "attitude"
+      : T0->kind == MRVI_OCP_DIRECTION ? "direction"
+                                       : "angular velocity",
+      mrvi_model_body_name(m, body), o->term[bad].row,
+      used ? "its joints " : "the constraints", names,
+      rot ? "rotations" : "angular velocities");
+}
+
+/* The checks every body terminal condition shares. */
+static int check_body_terminal(mrvi_ocp *o, int body, double penalty) {
+  int st = check_body(o, body, "body terminal condition");
+  if (st < 0)
+    return st;
+  if (!(penalty >= 0.0))
+    return mrvi_ocp_fail(o, MRVI_EINVAL, "terminal penalty must be >= 0");
+  return MRVI_OK;
+}
+
 int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
                                int body, const double *target, double penalty) {
   const mrvi_model *m = o->model;
-  int st = check_body(o, body, "body terminal condition");
+  int st = check_body_terminal(o, body, penalty);
   if (st < 0)
     return st;
   const int D = m->dimension, rows = D == 3 ? 3 : 1;
@@ -568,8 +642,7 @@ int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
     if (!isfinite(target[k]))
       return mrvi_ocp_fail(o, MRVI_EINVAL,
                            "body terminal condition: target not finite");
-  if (!(penalty >= 0.0))
-    return mrvi_ocp_fail(o, MRVI_EINVAL, "terminal penalty must be >= 0");
+  ocp_terminal T = {.kind = kind, .penalty = penalty, .body = body};
   if (kind == MRVI_OCP_ATTITUDE) {
     /* A rotation: R^T R = I within 1e-6, det +1. */
     double err = 0.0, det;
@@ -591,58 +664,66 @@ int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
                            "body terminal attitude: the target is not a "
                            "rotation (|R^T R - I| = %.3g, det %.6g)",
                            err, det);
+    memcpy(T.R_target, target, (size_t)(D * D) * sizeof *target);
+    return push_body_rows(o, &T, 0, rows, NULL);
   }
-  ocp_terminal *t = realloc(o->term, (size_t)(o->n_term + rows) * sizeof *t);
-  if (!t)
-    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
-  o->term = t;
-  const int first = o->n_con;
-  for (int r = 0; r < rows; r++) {
-    ocp_terminal T = {.kind = kind,
-                      .coord = mrvi_model_body_first(m, body),
-                      .penalty = penalty,
-                      .body = body,
-                      .row = r};
-    if (kind == MRVI_OCP_ATTITUDE)
-      memcpy(T.R_target, target, (size_t)(D * D) * sizeof *target);
-    else
-      T.target = target[r];
-    o->term[o->n_term++] = T;
-    if (penalty == 0.0)
-      o->n_con++;
-  }
-  if (penalty > 0.0)
-    return 0;
-  /* Rows the constraints already impose (a jointed body has fewer than
-   * three rotations) would make the constraint Jacobian of the optimiser
-   * rank-deficient: refused, with the joints of the body named. */
-  const int bad = ocp_terminal_redundant(o, o->n_term - rows);
-  if (bad == -1)
-    return first;
-  o->n_term -= rows;
-  o->n_con = first;
-  if (bad == -2)
-    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
-  char names[300] = "";
-  size_t used = 0;
-  for (int c = 0; c < m->n_constraints; c++) {
-    const mrvi_constraint *C = &m->constraints[c];
-    int touches = 0;
-    for (int j = 0; j < C->n_in && !touches; j++)
-      touches = mrvi_model_body_of(m, C->in[j]) == body;
-    if (touches && c != m->bodies[body].constraint && used < sizeof names)
-      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
-                               used ? ", " : "", C->label);
-  }
-  return mrvi_ocp_fail(
-      o, MRVI_EINVAL,
-      "terminal %s of body '%s': row %d is implied by %s%s and the "
-      "conditions before it (redundant: the body has fewer free %s); give "
-      "it a penalty instead",
-      kind == MRVI_OCP_ATTITUDE ? "attitude" : "angular velocity",
-      mrvi_model_body_name(m, body), o->term[bad].row,
-      used ? "its joints " : "the constraints", names,
-      kind == MRVI_OCP_ATTITUDE ? "rotations" : "angular velocities");
+  return push_body_rows(o, &T, 0, rows, target);
+}
+
+int mrvi_ocp_add_body_angular_velocity_component(mrvi_ocp *o, int body_frame,
+                                                 int body, int component,
+                                                 double target,
+                                                 double penalty) {
+  int st = check_body_terminal(o, body, penalty);
+  if (st < 0)
+    return st;
+  const int rows = o->model->dimension == 3 ? 3 : 1;
+  if (component < 0 || component >= rows)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal angular velocity component %d of a %d-D "
+                         "body (0 .. %d)",
+                         component, o->model->dimension, rows - 1);
+  if (!isfinite(target))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "body terminal condition: target not finite");
+  const ocp_terminal T = {.kind = body_frame ? MRVI_OCP_ANGULAR_VELOCITY_BODY
+                                             : MRVI_OCP_ANGULAR_VELOCITY,
+                          .penalty = penalty,
+                          .body = body};
+  return push_body_rows(o, &T, component, 1, &target);
+}
+
+int mrvi_ocp_add_body_direction(mrvi_ocp *o, int body, int director,
+                                const double *direction, double penalty) {
+  const mrvi_model *m = o->model;
+  int st = check_body_terminal(o, body, penalty);
+  if (st < 0)
+    return st;
+  if (m->dimension != 3)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal direction of a director: 3-D bodies only "
+                         "(in 2-D a director's direction is the attitude)");
+  if (director < 0 || director > 2)
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal direction: director %d (0 .. 2)", director);
+  double ee = 0.0;
+  for (int a = 0; a < 3; a++)
+    ee += direction[a] * direction[a];
+  if (!(isfinite(ee) && ee > 0.0))
+    return mrvi_ocp_fail(o, MRVI_EINVAL,
+                         "terminal direction: the direction must be a nonzero "
+                         "finite vector");
+  /* Frame (u, v, e), right-handed, e the unit direction (stored in
+   * R_target's rows; body_terminal.c). */
+  double t[9];
+  mrvi_joint_frame(3, direction, t);
+  ocp_terminal T = {.kind = MRVI_OCP_DIRECTION,
+                    .penalty = penalty,
+                    .body = body,
+                    .director = director};
+  memcpy(T.R_target, t + 3, 6 * sizeof *t);
+  memcpy(T.R_target + 6, t, 3 * sizeof *t);
+  return push_body_rows(o, &T, 0, 2, NULL);
 }
 
 void mrvi_ocp_set_algorithm(mrvi_ocp *o, mrvi_ocp_algorithm a) {
@@ -705,11 +786,13 @@ void mrvi_ocp_actuator_pair(const mrvi_ocp *o, int a, int *pi, int *pj) {
 }
 int mrvi_ocp_n_terminals(const mrvi_ocp *o) { return o->n_term; }
 const char *mrvi_ocp_terminal_kind_name(mrvi_ocp_terminal_kind kind) {
-  static const char *const names[] = {"position", "velocity", "attitude",
+  static const char *const names[] = {"position",
+                                      "velocity",
+                                      "attitude",
                                       "angular_velocity",
-                                      "angular_velocity_body"};
-  return kind >= 0 && kind <= MRVI_OCP_ANGULAR_VELOCITY_BODY ? names[kind]
-                                                             : "unknown";
+                                      "angular_velocity_body",
+                                      "direction"};
+  return kind >= 0 && kind <= MRVI_OCP_DIRECTION ? names[kind] : "unknown";
 }
 int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row) {
   if (row)
@@ -922,9 +1005,16 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
       return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
   }
   step_forces(o, k, u);
+  const int nt = o->n_torsion;
+  if (nt > 0)
+    memcpy(o->branch + k * nt, mrvi_integrator_torsion_angle(it),
+           (size_t)nt * sizeof(double));
   const int s = mrvi_integrator_step(it);
   if (s < 0)
     return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
+  if (nt > 0)
+    memcpy(o->branch + (k + 1) * nt, mrvi_integrator_torsion_angle(it),
+           (size_t)nt * sizeof(double));
   const double *q = mrvi_integrator_q(it), *pm = mrvi_integrator_p(it);
   for (int i = 0; i < o->ns; i++) {
     o->ps1[i] = pm[m->slow_index[i]];
@@ -933,6 +1023,32 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
   store_step(o, k, o->x, mrvi_integrator_micro_q(it), o->ps1,
              mrvi_integrator_micro_p(it));
   return MRVI_OK;
+}
+
+/* The torsional springs' branches at node k + 1 from those at node k (the
+ * integrator's rule, mrvi_integrator_step): the angle nearest the branch;
+ * a step that turns a spring by pi/2 or more is refused. */
+static int follow_torsion(mrvi_ocp *o, long k) {
+  const mrvi_model *m = o->model;
+  const int ns = o->ns, nf = o->nf, nt = o->n_torsion;
+  const long N = o->N;
+  double *q = o->q_out + (k + 1) * m->n, *b = o->branch + (k + 1) * nt;
+  for (int s = 0; s < ns; s++)
+    q[m->slow_index[s]] = o->Q[(k + 1) * ns + s];
+  for (int s = 0; s < nf; s++)
+    q[m->fast_index[s]] = o->Q[(N + 1) * ns + (k + 1) * o->p * nf + s];
+  memcpy(b, b - nt, (size_t)nt * sizeof *b);
+  int worst;
+  const double turn = mrvi_model_torsion_follow(m, q, b, &worst);
+  if (turn < 0.5 * M_PI)
+    return MRVI_OK;
+  char what[300];
+  mrvi_model_describe_element(m, worst, what, sizeof what);
+  return mrvi_ocp_fail(o, MRVI_ENEWTON,
+                       "step %ld: the %s turned by %.3g rad in one macro "
+                       "step (at most pi/2 are followed: reduce "
+                       "integrator.macro_step)",
+                       k + 1, what, turn);
 }
 
 int ocp_forward(mrvi_ocp *o, const double *u) {
@@ -964,7 +1080,11 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
   for (long k = 0; k < N && o->integ; k++)
     if ((s0 = structured_step(o, k, u)) < 0)
       return s0;
+  if (o->n_torsion > 0)
+    mrvi_model_torsion_init(m, m->q0, o->branch);
   for (long k = 0; k < N && !o->integ; k++) {
+    if (o->n_torsion > 0)
+      mrvi_model_torsion_set(m, o->branch + k * o->n_torsion);
     st->qs0 = Qs + k * ns;
     st->qf0 = Qf + k * p * nf;
     st->ps0 = o->ps_k + k * ns;
@@ -1021,6 +1141,8 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     mrvi_step_momenta(st, o->x, o->ps1, o->pf1);
     mrvi_step_micro_residuals(st, o->R, o->cres_micro + k * p);
     store_step(o, k, o->x, o->x + ns, o->ps1, o->pf1);
+    if (o->n_torsion > 0 && (s0 = follow_torsion(o, k)) < 0)
+      return s0;
   }
   memcpy(o->pN, o->ps_k + N * ns, (size_t)ns * sizeof(double));
   memcpy(o->pN + ns, o->pf_k + N * nf, (size_t)nf * sizeof(double));

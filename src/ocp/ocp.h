@@ -38,11 +38,12 @@ typedef enum mrvi_ocp_algorithm {
 /* Terminal quantity of a coordinate or (mrvi_ocp_add_body_terminal) of a
  * rigid body. */
 typedef enum mrvi_ocp_terminal_kind {
-  MRVI_OCP_POSITION = 0,             /* q_N */
-  MRVI_OCP_VELOCITY = 1,             /* p_N / M (final discrete momentum) */
-  MRVI_OCP_ATTITUDE = 2,             /* rotation vector of R_target^T R_N */
-  MRVI_OCP_ANGULAR_VELOCITY = 3,     /* omega_N in space */
-  MRVI_OCP_ANGULAR_VELOCITY_BODY = 4 /* Omega_N = R_N^T omega_N */
+  MRVI_OCP_POSITION = 0,              /* q_N */
+  MRVI_OCP_VELOCITY = 1,              /* p_N / M (final discrete momentum) */
+  MRVI_OCP_ATTITUDE = 2,              /* rotation vector of R_target^T R_N */
+  MRVI_OCP_ANGULAR_VELOCITY = 3,      /* omega_N in space */
+  MRVI_OCP_ANGULAR_VELOCITY_BODY = 4, /* Omega_N = R_N^T omega_N */
+  MRVI_OCP_DIRECTION = 5 /* a director along a direction in space */
 } mrvi_ocp_terminal_kind;
 
 /* Create a problem on model m (must outlive it; no constraints yet) with the
@@ -112,6 +113,21 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
  * index of the first constraint row, or 0 for penalties. */
 int mrvi_ocp_add_body_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind,
                                int body, const double *target, double penalty);
+/* One component of a body's terminal angular velocity (in space, or with
+ * body_frame in the body frame): row `component` (0 .. 2; 2-D: 0) of
+ * mrvi_ocp_add_body_terminal's rows, equal to target.  Returns as above. */
+int mrvi_ocp_add_body_angular_velocity_component(mrvi_ocp *o, int body_frame,
+                                                 int body, int component,
+                                                 double target, double penalty);
+/* Terminal direction of director d_{director+1} (director 0 .. 2) of a 3-D
+ * body: at t_N it points along `direction` (3 entries in space, not zero;
+ * its length does not matter), the rotation about it free.  Two rows: the
+ * components normal to e = direction/|direction| of the rotation vector
+ * taking e to d, theta (e x d)/|e x d| with theta = atan2(|e x d|, e . d)
+ * (0 only for d = e, not for d = -e; defined below half a turn).
+ * Returns as above. */
+int mrvi_ocp_add_body_direction(mrvi_ocp *o, int body, int director,
+                                const double *direction, double penalty);
 
 /* Solver settings: algorithm, relative tolerance on the cost (default
  * 1e-12), terminal tolerance (default 1e-8, also the NLopt constraint

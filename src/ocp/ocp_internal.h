@@ -56,9 +56,11 @@ typedef struct ocp_terminal {
   mrvi_ocp_terminal_kind kind;
   int coord;              /* coordinate; a body's first for body kinds */
   double target, penalty; /* penalty 0: equality constraint */
-  /* Body kinds (attitude, angular velocity): body, row (0..2), target
-   * rotation (D x D row-major; attitude). */
-  int body, row;
+  /* Body kinds (attitude, angular velocity, direction): body, row (0..2),
+   * target rotation (D x D row-major; attitude) or the direction's frame
+   * (rows u, v, e, right-handed, e the unit direction; direction) and the
+   * director (0..2; direction). */
+  int body, row, director;
   double R_target[9];
 } ocp_terminal;
 
@@ -114,6 +116,11 @@ struct mrvi_ocp {
   double *f_plus;        /* f^+ of a step on fast nodes 1..p, p x nf */
   double *cres_micro;    /* max |g| at micro nodes 1..p of every step, N p */
   double *q_out, *p_out; /* (N+1) x n model order */
+  /* Torsional springs: each one's branch at every macro node, (N+1) x
+   * n_torsion; step k (forward and adjoint) evaluates on row k, as the
+   * integrator does (src/model/torsion.c). */
+  int n_torsion;
+  double *branch;
   /* Adjoint workspace. */
   double *H, *r, *mu, *rhs, *sol;
   long *gz;           /* global node of every z of the step (nz) */

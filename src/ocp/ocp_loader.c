@@ -8,7 +8,8 @@
  *                     initial}]
  *     tracking:     [{coordinate, weight, reference}]
  *     terminal:     [{coordinate, position, velocity, penalty} |
- *                    {body, attitude, angular_velocity, frame, penalty}]
+ *                    {body, attitude, angular_velocity (entries may be ~:
+ *                     free), frame, director + direction, penalty}]
  *     solver:       {algorithm, tolerance, terminal_tolerance,
  *                    max_evaluations}
  *
@@ -433,8 +434,8 @@ static const char *const actuator_keys[] = {
 static const char *const tracking_keys[] = {"coordinate", "weight",
                                             "reference"};
 static const char *const terminal_keys[] = {
-    "coordinate", "position", "velocity",         "penalty",
-    "body",       "attitude", "angular_velocity", "frame"};
+    "coordinate", "position",         "velocity", "penalty",  "body",
+    "attitude",   "angular_velocity", "frame",    "director", "direction"};
 static const char *const solver_keys[] = {
     "algorithm", "tolerance", "terminal_tolerance", "max_evaluations"};
 
@@ -614,7 +615,77 @@ static int attitude_target(parser *P, struct fy_node *n, const char *where,
   return MRVI_OK;
 }
 
-/* {body, attitude, angular_velocity, frame, penalty}. */
+/* A terminal angular velocity: a number (2-D) or 3 entries, each a number
+ * or null (~: that component free); free[i] <- 1 for a free one. */
+static int angular_velocity_target(parser *P, struct fy_node *n,
+                                   const char *where, int D, double *w,
+                                   int *free_) {
+  if (D == 2 || !n || !fy_node_is_sequence(n) ||
+      fy_node_sequence_item_count(n) != 3) {
+    for (int i = 0; i < 3; i++)
+      free_[i] = 0;
+    return number_or_vector(P, n, where, "angular_velocity", D == 3 ? 3 : 1, w);
+  }
+  int given = 0;
+  for (int i = 0; i < 3; i++) {
+    struct fy_node *e = fy_node_sequence_get_by_index(n, i);
+    const char *s = fy_node_is_scalar(e) ? fy_node_get_scalar0(e) : NULL;
+    free_[i] = s && (!strcmp(s, "~") || !strcmp(s, "null") ||
+                     !strcmp(s, "Null") || !strcmp(s, "NULL"));
+    if (free_[i])
+      continue;
+    char *end = NULL;
+    w[i] = s ? strtod(s, &end) : NAN;
+    if (!s || end == s || *end || !isfinite(w[i]))
+      return fail(P, e,
+                  "%s.angular_velocity: entry %d must be a finite number or "
+                  "~ (that component free)",
+                  where, i);
+    given++;
+  }
+  if (!given)
+    return fail(P, n,
+                "%s.angular_velocity: every component is free (~); give at "
+                "least one",
+                where);
+  return MRVI_OK;
+}
+
+/* director: 1 .. 3 and direction: [x, y, z] (3-D), both or neither;
+ * *d <- the director's index (0 .. 2), -1 without. */
+static int direction_target(parser *P, struct fy_node *item, const char *where,
+                            int D, int *d, double *e) {
+  struct fy_node *dn = get(item, "director"), *en = get(item, "direction");
+  *d = -1;
+  if (!dn && !en)
+    return MRVI_OK;
+  if (!dn || !en)
+    return fail(P, dn ? dn : en,
+                dn ? "%s: 'director' needs a 'direction' (in space) to end "
+                     "along"
+                   : "%s: 'direction' needs a 'director' (1, 2 or 3: the "
+                     "one that ends along it)",
+                where);
+  if (D != 3)
+    return fail(P, dn,
+                "%s.director: a direction condition is 3-D only (in 2-D a "
+                "director's direction is the attitude)",
+                where);
+  const char *s = fy_node_is_scalar(dn) ? fy_node_get_scalar0(dn) : NULL;
+  if (!s || (strcmp(s, "1") && strcmp(s, "2") && strcmp(s, "3")))
+    return fail(P, dn, "%s.director must be 1, 2 or 3 (d1, d2, d3), not '%s'",
+                where, s ? s : "?");
+  *d = s[0] - '1';
+  int st = vector(P, en, where, "direction", 3, e);
+  if (st)
+    return st;
+  if (!(e[0] * e[0] + e[1] * e[1] + e[2] * e[2] > 0.0))
+    return fail(P, en, "%s.direction must not be zero", where);
+  return MRVI_OK;
+}
+
+/* {body, attitude, angular_velocity, frame, director, direction,
+ * penalty}. */
 static int body_terminal(parser *P, struct fy_node *item, const char *where,
                          mrvi_ocp *o) {
   static const char *const coord_only[] = {"coordinate", "position",
@@ -626,16 +697,25 @@ static int body_terminal(parser *P, struct fy_node *item, const char *where,
                   "'attitude' and 'angular_velocity'",
                   where, coord_only[k]);
   const int D = P->m->dimension;
-  int b, frame = 0, st;
-  double pen = 0.0, R[9], w[3];
+  int b, frame = 0, st, dir;
+  double pen = 0.0, R[9], w[3], e[3];
   struct fy_node *an = get(item, "attitude"),
-                 *wn = get(item, "angular_velocity");
+                 *wn = get(item, "angular_velocity"),
+                 *en = get(item, "direction");
   if ((st = body_named(P, item, where, &b)) ||
       (st = frame_of(P, item, where, &frame)) ||
-      (st = number(P, item, "penalty", where, &pen)))
+      (st = number(P, item, "penalty", where, &pen)) ||
+      (st = direction_target(P, item, where, D, &dir, e)))
     return st;
-  if (!an && !wn)
-    return fail(P, item, "%s needs 'attitude' and/or 'angular_velocity'",
+  if (!an && !wn && dir < 0)
+    return fail(P, item,
+                "%s needs 'attitude', 'angular_velocity' and/or 'director' "
+                "with 'direction'",
+                where);
+  if (an && dir >= 0)
+    return fail(P, en,
+                "%s: a direction and the attitude of the same body: the "
+                "attitude already fixes every director",
                 where);
   if (get(item, "frame") && !wn)
     return fail(P, get(item, "frame"),
@@ -646,12 +726,22 @@ static int body_terminal(parser *P, struct fy_node *item, const char *where,
    * angular velocity) repeats or contradicts the first. */
   for (int i = 0; i < o->n_term; i++) {
     const ocp_terminal *T = &o->term[i];
-    const int att = T->kind == MRVI_OCP_ATTITUDE;
-    if (T->body == b && ((att && an) || (!att && wn)))
-      return fail(P, att ? an : wn,
+    const int att = T->kind == MRVI_OCP_ATTITUDE,
+              dn = T->kind == MRVI_OCP_DIRECTION;
+    struct fy_node *clash = T->body != b               ? NULL
+                            : att && (an || dir >= 0)  ? (an ? an : en)
+                            : dn && an                 ? an
+                            : dn && dir == T->director ? en
+                            : !att && !dn && wn        ? wn
+                                                       : NULL;
+    if (clash)
+      return fail(P, clash,
                   "%s: a second terminal %s of body '%s': the conditions "
                   "are redundant or conflict",
-                  where, att ? "attitude" : "angular velocity",
+                  where,
+                  clash == an   ? "attitude"
+                  : clash == en ? "direction"
+                                : "angular velocity",
                   mrvi_model_body_name(P->m, b));
   }
   if (an) {
@@ -660,15 +750,24 @@ static int body_terminal(parser *P, struct fy_node *item, const char *where,
     if (mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, b, R, pen) < 0)
       return fail(P, an, "%s: %s", where, mrvi_ocp_errmsg(o));
   }
+  if (dir >= 0 && mrvi_ocp_add_body_direction(o, b, dir, e, pen) < 0)
+    return fail(P, en, "%s: %s", where, mrvi_ocp_errmsg(o));
   if (wn) {
-    if ((st = number_or_vector(P, wn, where, "angular_velocity", D == 3 ? 3 : 1,
-                               w)))
+    int free_[3];
+    if ((st = angular_velocity_target(P, wn, where, D, w, free_)))
       return st;
-    if (mrvi_ocp_add_body_terminal(o,
-                                   frame ? MRVI_OCP_ANGULAR_VELOCITY_BODY
-                                         : MRVI_OCP_ANGULAR_VELOCITY,
-                                   b, w, pen) < 0)
-      return fail(P, wn, "%s: %s", where, mrvi_ocp_errmsg(o));
+    if (!free_[0] && !free_[1] && !free_[2]) {
+      if (mrvi_ocp_add_body_terminal(o,
+                                     frame ? MRVI_OCP_ANGULAR_VELOCITY_BODY
+                                           : MRVI_OCP_ANGULAR_VELOCITY,
+                                     b, w, pen) < 0)
+        return fail(P, wn, "%s: %s", where, mrvi_ocp_errmsg(o));
+    }
+    for (int r = 0; r < 3 && (free_[0] || free_[1] || free_[2]); r++)
+      if (!free_[r] && mrvi_ocp_add_body_angular_velocity_component(
+                           o, frame, b, r, w[r], pen) < 0)
+        return fail(P, fy_node_sequence_get_by_index(wn, r), "%s: %s", where,
+                    mrvi_ocp_errmsg(o));
   }
   return MRVI_OK;
 }
@@ -694,8 +793,8 @@ static int load_terminal(parser *P, struct fy_node *list, mrvi_ocp *o) {
       continue;
     }
     static const char *const body_only[] = {"attitude", "angular_velocity",
-                                            "frame"};
-    for (int k = 0; k < 3; k++)
+                                            "frame", "director", "direction"};
+    for (int k = 0; k < 5; k++)
       if (get(item, body_only[k]))
         return fail(P, get(item, body_only[k]),
                     "%s.%s is a terminal condition on a body: give 'body'",
