@@ -7,6 +7,7 @@
  * constraints are projected with the minimal (mass-weighted) displacement. */
 #include "io/io.h"
 #include "model/model.h"
+#include "solver/solver.h"
 #include "models.h"
 #include "testlib.h"
 
@@ -695,55 +696,153 @@ static void test_slider_crank(void) {
 }
 
 /* ---------------------------------------------------------------------------
- * Nodal reparametrisation (doc/multibody.md): free slow 3-D bodies in the
- * null-space form take phi_{k+1} = phi_k + u, d_{k+1}^i = exp(th^) d_k^i,
- * so that their internal constraints hold to round-off over 10^4 steps,
- * with the default (loose) tolerances; the multiplier form holds them to
- * the constraint tolerance.  Both give the same motion to the tolerance.
+ * Analytic null space of a free body (doc/multibody.md): P = [[I, 0], [0,
+ * -d1^], [0, -d2^], [0, -d3^]] (2-D: [[I, 0], [0, J d1], [0, J d2]]).  G P
+ * = 0 to round-off at any directors (orthonormal or not: the quadrature
+ * points' are not), and P^T P = diag(I, 2 I) at orthonormal ones (full
+ * column rank).
  * ------------------------------------------------------------------------- */
-static void test_reparametrisation(void) {
+static void test_body_null_space(void) {
+  for (int D = 2; D <= 3; D++) {
+    mrvi_model *m = mrvi_model_create();
+    mrvi_model_set_dimension(m, D);
+    const double J[3] = {1.0, 2.0, 2.5}, x0[3] = {0.1, -0.2, 0.3},
+                 w[3] = {0.5, 1.2, -0.7}, v0[3] = {0, 0, 0};
+    CHECK(mrvi_model_add_body(m, "a", D, MRVI_SLOW, 2.0, D == 3 ? J : J + 2, x0,
+                              NULL, v0, D == 3 ? w : w + 2) >= 0,
+          "null-space body (%d-D): %s", D, mrvi_model_errmsg(m));
+    const int n = D * (D + 1), R = mrvi_model_constraint_rows(m),
+              nr = D == 3 ? 3 : 1;
+    double q[12], g[6], G[6 * 12], P[12 * 6], gp = 0.0, gram = 0.0;
+    unsigned seed = 12345u;
+    for (int trial = 0; trial < 2; trial++) {
+      /* Trial 0: a rotated orthonormal frame; 1: arbitrary directors. */
+      const double th = 0.7, c = cos(th), sn = sin(th);
+      for (int j = 0; j < n; j++) {
+        seed = seed * 1103515245u + 12345u;
+        q[j] = (double)(seed >> 8) / (double)(1u << 24) - 0.5;
+      }
+      if (trial == 0) {
+        const double R3[9] = {c, -sn, 0, sn, c, 0, 0, 0, 1};
+        for (int i = 0; i < D; i++)
+          for (int a = 0; a < D; a++)
+            q[D + D * i + a] = R3[a * 3 + i]; /* d^i = column i */
+      }
+      memset(P, 0, sizeof P);
+      for (int a = 0; a < D; a++)
+        P[a * (D + nr) + a] = 1.0;
+      for (int k = 0; k < nr; k++) {
+        double v[9];
+        mrvi_nullspace_body_rotation(D, q + D, k, v);
+        for (int j = 0; j < D * D; j++)
+          P[(D + j) * (D + nr) + D + k] = v[j];
+      }
+      mrvi_model_constraint_eval(m, q, g, G);
+      for (int r = 0; r < R; r++)
+        for (int col = 0; col < D + nr; col++) {
+          double s = 0.0;
+          for (int j = 0; j < n; j++)
+            s += G[r * n + j] * P[j * (D + nr) + col];
+          gp = fmax(gp, fabs(s));
+        }
+      for (int a = 0; trial == 0 && a < D + nr; a++)
+        for (int b = 0; b < D + nr; b++) {
+          double s = 0.0;
+          for (int j = 0; j < n; j++)
+            s += P[j * (D + nr) + a] * P[j * (D + nr) + b];
+          gram = fmax(gram, fabs(s - (a == b ? (a < D ? 1.0 : 2.0) : 0.0)));
+        }
+    }
+    printf("free body null space (%d-D): max |G P| %.3g, max |P^T P - "
+           "diag(I, 2I)| %.3g\n",
+           D, gp, gram);
+    CHECK(R == (D == 3 ? 6 : 3), "%d-D body: %d internal rows", D, R);
+    CHECK(gp <= 1e-15, "%d-D body: |G P| %.3g", D, gp);
+    CHECK(gram <= 1e-15, "%d-D body: P^T P off diag(I, 2I) by %.3g", D, gram);
+    mrvi_model_free(m);
+  }
+}
+
+/* ---------------------------------------------------------------------------
+ * Nodal reparametrisation (doc/multibody.md): free slow bodies (3-D and
+ * 2-D) in the null-space form take phi_{k+1} = phi_k + u, d_{k+1}^i =
+ * exp(th^) d_k^i (2-D: R(th) d_k^i), so that their internal constraints
+ * hold to round-off over 10^4 steps, with the default (loose) tolerances;
+ * the multiplier form holds them to the constraint tolerance.  Both give
+ * the same motion to the tolerance; tight tolerances, 100 steps: 1e-10.
+ * ------------------------------------------------------------------------- */
+static mrvi_model *sprung_bodies(int D) {
   mrvi_model *m = mrvi_model_create();
-  mrvi_model_set_dimension(m, 3);
+  mrvi_model_set_dimension(m, D);
   const double J[3] = {1.0, 2.0, 2.5}, K[3] = {0.5, 0.7, 0.9},
                w[3] = {0.5, 1.2, -0.7}, w2[3] = {-2.0, 0.3, 1.1},
                x0[3] = {0.1, -0.2, 0.3}, x1[3] = {2.0, 0.5, 0.0},
                v0[3] = {0.5, 0.0, -0.25}, v1[3] = {0, 0, 0},
-               R[9] = {0, -1, 0, 1, 0, 0, 0, 0, 1};
-  int st = mrvi_model_add_body(m, "a", 3, MRVI_SLOW, 2.0, J, x0, R, v0, w);
-  st |= mrvi_model_add_body(m, "b", 3, MRVI_SLOW, 1.0, K, x1, NULL, v1, w2);
+               R[9] = {0, -1, 0, 1, 0, 0, 0, 0, 1}, R2[4] = {0, -1, 1, 0};
+  /* 2-D: the planar inertia J[2] and the angular velocity w[2]. */
+  int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 2.0, D == 3 ? J : J + 2,
+                               x0, D == 3 ? R : R2, v0, D == 3 ? w : w + 2);
+  st |= mrvi_model_add_body(m, "b", D, MRVI_SLOW, 1.0, D == 3 ? K : K + 2, x1,
+                            NULL, v1, D == 3 ? w2 : w2 + 2);
   const mrvi_end a = {.particle = -1, .body = 0, .at = {0.5, 0.2, -0.1}},
                  b = {.particle = -1, .body = 1, .at = {-0.3, 0.1, 0.4}};
   const double k = 20.0;
   CHECK(st >= 0 && mrvi_model_add_end_spring(m, MRVI_SLOW, &a, &b, NULL,
                                              "linear", &k, 1.0) >= 0,
-        "two sprung bodies: %s", mrvi_model_errmsg(m));
-  mrvi_trajectory *tr[2] = {NULL, NULL};
-  double eg[2] = {0, 0}, eH[2] = {0, 0};
-  for (int f = 0; f < 2; f++) {
-    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 1, 100.0, 1e-9);
-    s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
-    mrvi_summary sum;
-    if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
-      CHECK(0, "reparametrisation run (%s): %s", form_name(s.constraint_form),
-            sum.message);
-    else
-      loop_invariants(m, tr[f], &eg[f], &eH[f], NULL);
+        "two sprung bodies (%d-D): %s", D, mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_reparametrisation(void) {
+  for (int D = 3; D >= 2; D--) {
+    mrvi_model *m = sprung_bodies(D);
+    mrvi_trajectory *tr[2] = {NULL, NULL}, *tt[2] = {NULL, NULL};
+    double eg[2] = {0, 0}, eH[2] = {0, 0};
+    for (int f = 0; f < 2; f++) {
+      mrvi_settings s =
+          test_settings("midpoint-midpoint", 0.01, 1, 100.0, 1e-9);
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      mrvi_summary sum;
+      if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+        CHECK(0, "reparametrisation run (%d-D, %s): %s", D,
+              form_name(s.constraint_form), sum.message);
+      else
+        loop_invariants(m, tr[f], &eg[f], &eH[f], NULL);
+      s = test_settings("midpoint-midpoint", 0.01, 1, 1.0, 1e-13);
+      s.constraint_tol = 1e-13;
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
+        CHECK(0, "tight run (%d-D, %s): %s", D, form_name(s.constraint_form),
+              sum.message);
+    }
+    if (tr[0] && tr[1]) {
+      double d = 0.0;
+      for (long i = 0; i < 101 * tr[0]->n; i++)
+        d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
+      printf("two free bodies on a spring (%d-D), 10^4 steps, Newton "
+             "tolerance 1e-9, constraint tolerance 1e-10: max |g| %.3g "
+             "(multipliers), %.3g (null space, reparametrised); energy %.3g, "
+             "%.3g; forms differ by %.3g over 100 steps\n",
+             D, eg[0], eg[1], eH[0], eH[1], d);
+      CHECK(eg[1] <= 1e-13, "reparametrised bodies (%d-D): max |g| %.3g", D,
+            eg[1]);
+      CHECK(d < 1e-8, "reparametrised against multipliers (%d-D): %.3g", D, d);
+    }
+    if (tt[0] && tt[1]) {
+      double d = 0.0;
+      for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++)
+        d = fmax(d, fabs(tt[0]->q[i] - tt[1]->q[i]));
+      printf("  tight tolerances (1e-13), 100 steps: forms differ by %.3g\n",
+             d);
+      CHECK(tt[0]->n_macro == 101 && d < 1e-10,
+            "forms at tight tolerances (%d-D): %.3g", D, d);
+    }
+    for (int f = 0; f < 2; f++) {
+      mrvi_trajectory_free(tr[f]);
+      mrvi_trajectory_free(tt[f]);
+    }
+    mrvi_model_free(m);
   }
-  if (tr[0] && tr[1]) {
-    double d = 0.0;
-    for (long i = 0; i < 101 * tr[0]->n; i++)
-      d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
-    printf("two free bodies on a spring, 10^4 steps, Newton tolerance 1e-9, "
-           "constraint tolerance 1e-10: max |g| %.3g (multipliers), %.3g "
-           "(null space, reparametrised); energy %.3g, %.3g; forms differ by "
-           "%.3g over 100 steps\n",
-           eg[0], eg[1], eH[0], eH[1], d);
-    CHECK(eg[1] <= 1e-13, "reparametrised bodies: max |g| %.3g", eg[1]);
-    CHECK(d < 1e-8, "reparametrised against multipliers: %.3g", d);
-  }
-  mrvi_trajectory_free(tr[0]);
-  mrvi_trajectory_free(tr[1]);
-  mrvi_model_free(m);
 }
 
 int main(void) {
@@ -755,6 +854,7 @@ int main(void) {
   test_universal_oblique();
   test_universal_oblique_file();
   test_slider_crank();
+  test_body_null_space();
   test_reparametrisation();
   return test_finish();
 }

@@ -50,10 +50,11 @@ struct mrvi_nullspace {
   int r, rs;    /* rows of micro-node / slow-only constraints */
   int rk;       /* slow-only rows kept (rs less the redundant ones) */
   int *srow;    /* slow-only row -> index among the kept ones, or -1 */
-  /* Nodal reparametrisation (free slow 3-D bodies, no other constraint):
-   * the slow slot of each body's phi (its directors follow), or NULL. */
-  int n_rep, *rep_slot;
-  double *rep_d;  /* scratch: 9 per body */
+  /* Nodal reparametrisation (free slow bodies, no other constraint): the
+   * slow slot of each body's phi (its directors follow), or NULL; dim the
+   * bodies' dimension D (D^2 director entries, D(D-1)/2 rotations). */
+  int n_rep, *rep_slot, dim;
+  double *rep_d;  /* scratch: D^2 per body */
   int nbs;        /* slow basis size ns - rs */
   int *b_slot;    /* basis vector i: its slot (unit) or -1 (Q column) */
   int *b_coupled; /* does it couple to the micro-node constraints? */
@@ -370,32 +371,43 @@ oom:
 }
 
 /* Which bodies the nodal reparametrisation takes: all of them when every
- * constraint is the internal one of a slow 3-D body (no joint, nothing at
- * micro nodes) and each body's 12 coordinates are consecutive slow slots;
- * else none. */
+ * constraint is the internal one of a slow body (2-D or 3-D; no joint,
+ * nothing at micro nodes) and each body's D(D+1) coordinates are
+ * consecutive slow slots; else none. */
 static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
   if (!mrvi_model_free_bodies_only(m) || z->r > 0 || z->rk != z->rs)
     return 0;
+  const int D = m->bodies[0].dim;
   z->rep_slot = malloc((size_t)m->n_bodies * sizeof *z->rep_slot);
   z->rep_d = malloc((size_t)m->n_bodies * 9 * sizeof *z->rep_d);
   if (!z->rep_slot || !z->rep_d)
     return -1;
   for (int b = 0; b < m->n_bodies; b++) {
-    /* A body's 12 coordinates are consecutive slots of the slow block. */
+    /* A body's coordinates are consecutive slots of the slow block. */
     const int f = m->bodies[b].first, s0 = m->slot[f];
-    for (int j = 1; j < 12; j++)
+    if (m->bodies[b].dim != D)
+      return 0;
+    for (int j = 1; j < D * (D + 1); j++)
       if (m->slot[f + j] != s0 + j || m->rate[f + j] != MRVI_SLOW)
         return 0;
     z->rep_slot[b] = s0;
   }
+  z->dim = D;
   z->n_rep = m->n_bodies;
   return 0;
 }
 
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) { return z->n_rep; }
 
-/* v <- exp(th^) v (Rodrigues; the series below |th| = 1e-4). */
-static void rotate(const double *th, double *v) {
+/* v <- exp(th^) v (Rodrigues; the series below |th| = 1e-4); in 2-D v <-
+ * R(th) v with th[0] the angle. */
+static void rotate(int D, const double *th, double *v) {
+  if (D == 2) {
+    const double c = cos(th[0]), s = sin(th[0]), x = v[0];
+    v[0] = c * x - s * v[1];
+    v[1] = s * x + c * v[1];
+    return;
+  }
   const double t2 = th[0] * th[0] + th[1] * th[1] + th[2] * th[2];
   const double t = sqrt(t2);
   double a, b; /* exp(th^) = I + a th^ + b th^2 */
@@ -415,72 +427,96 @@ static void rotate(const double *th, double *v) {
     v[i] += a * c[i] + b * cc[i];
 }
 
-/* The rotation th of director increments w^i at directors d^i (3 x 3
- * each, rows): th = 1/2 sum_i d^i x w^i, exact for w^i = th x d^i with d
- * orthonormal (the left inverse of the body's null-space matrix P = [[I,
- * 0], [0, -d1^], [0, -d2^], [0, -d3^]]); for w^i = R d^i - d^i with R a
- * rotation, sin|th| th/|th|. */
-static void rotation_of(const double *d, const double *w, double *th) {
+/* The rotation th of director increments w^i at directors d^i (D x D
+ * each, rows): th = 1/2 sum_i d^i x w^i (2-D: the scalar cross product,
+ * th[0]), exact for w^i = th x d^i (2-D: th J d^i) with d orthonormal --
+ * the left inverse of the body's null-space matrix
+ * (mrvi_nullspace_body_rotation); for w^i = R d^i - d^i with R a rotation,
+ * sin|th| th/|th|. */
+static void rotation_of(int D, const double *d, const double *w, double *th) {
   th[0] = th[1] = th[2] = 0.0;
-  for (int i = 0; i < 3; i++) {
-    const double *a = d + 3 * i, *b = w + 3 * i;
+  for (int i = 0; i < D; i++) {
+    const double *a = d + D * i, *b = w + D * i;
+    if (D == 2) {
+      th[0] += 0.5 * (a[0] * b[1] - a[1] * b[0]);
+      continue;
+    }
     th[0] += 0.5 * (a[1] * b[2] - a[2] * b[1]);
     th[1] += 0.5 * (a[2] * b[0] - a[0] * b[2]);
     th[2] += 0.5 * (a[0] * b[1] - a[1] * b[0]);
   }
 }
 
-/* Directors of body slot s0 as x holds them: rows d^1..d^3 (positions). */
-static void directors(const mrvi_step *st, const double *x, int s0, double *d) {
-  for (int j = 0; j < 9; j++)
-    d[j] = x[s0 + 3 + j] + (st->increments ? st->qs0[s0 + 3 + j] : 0.0);
+void mrvi_nullspace_body_rotation(int D, const double *d, int k, double *v) {
+  for (int i = 0; i < D; i++) {
+    const double *a = d + D * i;
+    double *u = v + D * i;
+    if (D == 2) { /* J d = (-d_y, d_x) */
+      u[0] = -a[1];
+      u[1] = a[0];
+      continue;
+    }
+    const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+    u[k] = 0.0;
+    u[k1] = -a[k2]; /* (e_k x d)_k1 = -d_k2 */
+    u[k2] = a[k1];  /* (e_k x d)_k2 = d_k1 */
+  }
+}
+
+/* Directors of body slot s0 as x holds them: rows d^1..d^D (positions). */
+static void directors(const mrvi_step *st, int D, const double *x, int s0,
+                      double *d) {
+  for (int j = 0; j < D * D; j++)
+    d[j] = x[s0 + D + j] + (st->increments ? st->qs0[s0 + D + j] : 0.0);
 }
 
 /* Store the directors d (positions) of body slot s0 into x. */
-static void set_directors(const mrvi_step *st, double *x, int s0,
+static void set_directors(const mrvi_step *st, int D, double *x, int s0,
                           const double *d) {
-  for (int j = 0; j < 9; j++)
-    x[s0 + 3 + j] = d[j] - (st->increments ? st->qs0[s0 + 3 + j] : 0.0);
+  for (int j = 0; j < D * D; j++)
+    x[s0 + D + j] = d[j] - (st->increments ? st->qs0[s0 + D + j] : 0.0);
 }
 
 void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
                             const double *dx) {
+  const int D = z->dim;
   /* The rotated directors from the iterate, before x changes. */
   for (int b = 0; b < z->n_rep; b++) {
     const int s0 = z->rep_slot[b];
     double *d = z->rep_d + 9 * b, w[9], th[3];
-    directors(st, x, s0, d);
-    for (int j = 0; j < 9; j++)
-      w[j] = -dx[s0 + 3 + j];
-    rotation_of(d, w, th);
-    for (int i = 0; i < 3; i++)
-      rotate(th, d + 3 * i);
+    directors(st, D, x, s0, d);
+    for (int j = 0; j < D * D; j++)
+      w[j] = -dx[s0 + D + j];
+    rotation_of(D, d, w, th);
+    for (int i = 0; i < D; i++)
+      rotate(D, th, d + D * i);
   }
   for (int s = 0; s < st->n_unknowns; s++)
     x[s] -= dx[s];
   for (int b = 0; b < z->n_rep; b++)
-    set_directors(st, x, z->rep_slot[b], z->rep_d + 9 * b);
+    set_directors(st, D, x, z->rep_slot[b], z->rep_d + 9 * b);
 }
 
 void mrvi_nullspace_start(const mrvi_nullspace *z, const mrvi_step *st,
                           double *x) {
+  const int D = z->dim;
   for (int b = 0; b < z->n_rep; b++) {
     const int s0 = z->rep_slot[b];
     double d[9], w[9], th[3];
-    directors(st, x, s0, w);
-    for (int j = 0; j < 9; j++)
-      d[j] = st->qs0[s0 + 3 + j];
+    directors(st, D, x, s0, w);
+    for (int j = 0; j < D * D; j++)
+      d[j] = st->qs0[s0 + D + j];
     /* The predictor's frame w: 1/2 sum d^i x w^i = sin|th| th/|th| for a
      * rotation; its angle from the sine (a predictor turns by much less
      * than pi/2 in a step). */
-    rotation_of(d, w, th);
+    rotation_of(D, d, w, th);
     const double sn = sqrt(th[0] * th[0] + th[1] * th[1] + th[2] * th[2]);
     const double f = sn > 1e-300 && sn < 1.0 ? asin(sn) / sn : 1.0;
     for (int a = 0; a < 3; a++)
       th[a] *= f;
-    for (int i = 0; i < 3; i++)
-      rotate(th, d + 3 * i);
-    set_directors(st, x, s0, d);
+    for (int i = 0; i < D; i++)
+      rotate(D, th, d + D * i);
+    set_directors(st, D, x, s0, d);
   }
 }
 
@@ -618,19 +654,14 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
 
 /* Column j of the analytic null-space matrix of the free bodies at q_k
  * (Betsch & Leyendecker 2006): P = [[I, 0], [0, -d1^], [0, -d2^],
- * [0, -d3^]] acting on (u, w).  The columns of u are the unit vectors of
- * phi, which no constraint touches (basis vectors of their own); column j
- * here is body j / 3 turning about e_(j % 3): d^i -> e x d^i. */
+ * [0, -d3^]] acting on (u, w) (2-D: [[I, 0], [0, J d1], [0, J d2]]).  The
+ * columns of u are the unit vectors of phi, which no constraint touches
+ * (basis vectors of their own); column j here is body j / nr turning
+ * about its rotation j % nr (nr = 3 in 3-D, 1 in 2-D). */
 static void free_body_column(const mrvi_nullspace *z, const mrvi_step *st,
                              int j, double *b) {
-  const int s0 = z->rep_slot[j / 3], k = j % 3, k1 = (k + 1) % 3,
-            k2 = (k + 2) % 3;
-  for (int i = 0; i < 3; i++) {
-    const double *d = st->qs0 + s0 + 3 + 3 * i;
-    double *v = b + s0 + 3 + 3 * i;
-    v[k1] = -d[k2]; /* (e_k x d)_k1 = -d_k2 */
-    v[k2] = d[k1];  /* (e_k x d)_k2 = d_k1 */
-  }
+  const int D = z->dim, nr = D == 3 ? 3 : 1, s0 = z->rep_slot[j / nr];
+  mrvi_nullspace_body_rotation(D, st->qs0 + s0 + D, j % nr, b + s0 + D);
 }
 
 void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
