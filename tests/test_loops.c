@@ -771,7 +771,10 @@ static void test_body_null_space(void) {
  * the multiplier form holds them to the constraint tolerance.  Both give
  * the same motion to the tolerance; tight tolerances, 100 steps: 1e-10.
  * ------------------------------------------------------------------------- */
-static mrvi_model *sprung_bodies(int D) {
+/* Two bodies a (slow) and b of rate rb on a slow spring between body
+ * points; b also on a spring of its own rate to an anchor (stiff when
+ * fast) unless rb is -1 (b slow, no anchor). */
+static mrvi_model *sprung_bodies(int D, int rb) {
   mrvi_model *m = mrvi_model_create();
   mrvi_model_set_dimension(m, D);
   const double J[3] = {1.0, 2.0, 2.5}, K[3] = {0.5, 0.7, 0.9},
@@ -782,7 +785,8 @@ static mrvi_model *sprung_bodies(int D) {
   /* 2-D: the planar inertia J[2] and the angular velocity w[2]. */
   int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 2.0, D == 3 ? J : J + 2,
                                x0, D == 3 ? R : R2, v0, D == 3 ? w : w + 2);
-  st |= mrvi_model_add_body(m, "b", D, MRVI_SLOW, 1.0, D == 3 ? K : K + 2, x1,
+  const mrvi_rate rate_b = rb == MRVI_FAST ? MRVI_FAST : MRVI_SLOW;
+  st |= mrvi_model_add_body(m, "b", D, rate_b, 1.0, D == 3 ? K : K + 2, x1,
                             NULL, v1, D == 3 ? w2 : w2 + 2);
   const mrvi_end a = {.particle = -1, .body = 0, .at = {0.5, 0.2, -0.1}},
                  b = {.particle = -1, .body = 1, .at = {-0.3, 0.1, 0.4}};
@@ -790,12 +794,19 @@ static mrvi_model *sprung_bodies(int D) {
   CHECK(st >= 0 && mrvi_model_add_end_spring(m, MRVI_SLOW, &a, &b, NULL,
                                              "linear", &k, 1.0) >= 0,
         "two sprung bodies (%d-D): %s", D, mrvi_model_errmsg(m));
+  if (rb >= 0) {
+    const mrvi_end c = {.particle = -1, .body = 1, .at = {0.2, -0.4, 0.3}};
+    const double anchor[3] = {2.5, 1.0, 0.5}, kf = 400.0;
+    CHECK(mrvi_model_add_end_spring(m, rate_b, &c, NULL, anchor, "linear", &kf,
+                                    0.8) >= 0,
+          "anchored body (%d-D): %s", D, mrvi_model_errmsg(m));
+  }
   return m;
 }
 
 static void test_reparametrisation(void) {
   for (int D = 3; D >= 2; D--) {
-    mrvi_model *m = sprung_bodies(D);
+    mrvi_model *m = sprung_bodies(D, -1);
     mrvi_trajectory *tr[2] = {NULL, NULL}, *tt[2] = {NULL, NULL};
     double eg[2] = {0, 0}, eH[2] = {0, 0};
     for (int f = 0; f < 2; f++) {
@@ -845,6 +856,88 @@ static void test_reparametrisation(void) {
   }
 }
 
+/* Largest |d_i . d_j - delta_ij| of the D directors stored from v[D]. */
+static double frame_error(int D, const double *v) {
+  double e = 0.0;
+  for (int i = 0; i < D; i++)
+    for (int j = 0; j < D; j++) {
+      double s = 0.0;
+      for (int a = 0; a < D; a++)
+        s += v[D + D * i + a] * v[D + D * j + a];
+      e = fmax(e, fabs(s - (i == j)));
+    }
+  return e;
+}
+
+/* Fast free bodies (doc/multibody.md): the null-space form reparametrises
+ * every micro node z^1..z^p of a fast body, so its internal constraints hold
+ * to round-off at every micro node over 10^4 macro steps (loose
+ * tolerances); both forms agree to 1e-10 at tight tolerances for p = 1 and
+ * 5; with p = 1 the fast body gives the slow body's trajectory (the
+ * single-rate scheme) to the Newton tolerance. */
+static void test_fast_reparametrisation(void) {
+  for (int D = 3; D >= 2; D--) {
+    mrvi_model *mf = sprung_bodies(D, MRVI_FAST),
+               *ms = sprung_bodies(D, MRVI_SLOW);
+    const int nb = D * (D + 1);
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 5, 100.0, 1e-9);
+    s.constraint_form = MRVI_FORM_NULL_SPACE;
+    mrvi_trajectory *tr = NULL;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(mf, &s, &tr, &sum) != 0) {
+      CHECK(0, "fast body run (%d-D): %s", D, sum.message);
+    } else {
+      double e = 0.0;
+      for (long i = 0; i < tr->n_micro; i++)
+        e = fmax(e, frame_error(D, tr->micro_q + i * tr->n_fast));
+      printf("fast free body (%d-D), p = 5, 10^4 macro steps, null space "
+             "(reparametrised at micro nodes): max |d_i.d_j - delta_ij| over "
+             "%ld micro nodes %.3g\n",
+             D, tr->n_micro, e);
+      CHECK(tr->n_fast == nb && tr->n_micro == 50001,
+            "fast body (%d-D): %d fast coordinates, %ld micro nodes", D,
+            tr->n_fast, tr->n_micro);
+      CHECK(e <= 1e-13, "fast body reparametrised (%d-D): %.3g", D, e);
+    }
+    mrvi_trajectory_free(tr);
+    mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
+    for (int p = 1; p <= 5; p += 4) {
+      for (int f = 0; f < 3; f++) { /* multipliers, null space; slow b */
+        s = test_settings("midpoint-midpoint", 0.01, p, 1.0, 1e-13);
+        s.constraint_tol = 1e-13;
+        s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+        if ((f < 2 || p == 1) &&
+            mrvi_trajectory_run(f < 2 ? mf : ms, &s, &tt[f], &sum) != 0)
+          CHECK(0, "fast body, tight (%d-D, p = %d, case %d): %s", D, p, f,
+                sum.message);
+      }
+      double d = 1e300, r = 0.0;
+      if (tt[0] && tt[1]) {
+        d = 0.0;
+        for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++)
+          d = fmax(d, fabs(tt[0]->q[i] - tt[1]->q[i]));
+      }
+      if (p == 1 && tt[1] && tt[2]) {
+        /* Coordinates in model order: the same in both models. */
+        for (long i = 0; i < tt[1]->n_macro * tt[1]->n; i++)
+          r = fmax(r, fabs(tt[1]->q[i] - tt[2]->q[i]));
+        printf("  p = 1: fast body against the same body slow %.3g\n", r);
+        CHECK(r < 1e-11, "p = 1 reduction (%d-D): %.3g", D, r);
+      }
+      printf("  fast body (%d-D), p = %d, tight tolerances, 100 steps: forms "
+             "differ by %.3g\n",
+             D, p, d);
+      CHECK(d < 1e-10, "fast body forms (%d-D, p = %d): %.3g", D, p, d);
+      for (int f = 0; f < 3; f++) {
+        mrvi_trajectory_free(tt[f]);
+        tt[f] = NULL;
+      }
+    }
+    mrvi_model_free(mf);
+    mrvi_model_free(ms);
+  }
+}
+
 int main(void) {
   test_fourbar_3d();
   test_fourbar_forms();
@@ -856,5 +949,6 @@ int main(void) {
   test_slider_crank();
   test_body_null_space();
   test_reparametrisation();
+  test_fast_reparametrisation();
   return test_finish();
 }

@@ -26,10 +26,11 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
  * [P^T R; h] from the full system assembled at lambda(x). */
 void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
                            const double *R, double *rhs);
-/* Nodal reparametrisation (doc/multibody.md): the number of free slow
- * bodies (2-D: phi_k + u, R(th) d_k^i) whose new node is phi_k + u, exp(th^)
- * d_k^i (0: none, the basis is numerical and x -= dx).  mrvi_nullspace_start
- * puts the predictor's directors on that form; mrvi_nullspace_retract makes the
+/* Nodal reparametrisation (doc/multibody.md): the number of free bodies
+ * whose new nodes (a slow body's new macro node, a fast body's micro nodes
+ * z^1..z^p) are the previous node's phi + u, exp(th^) d^i (2-D: R(th) d^i)
+ * (0: none, the basis is numerical and x -= dx).  mrvi_nullspace_start puts
+ * the predictor's directors on that form; mrvi_nullspace_retract makes the
  * Newton update x -= dx with the bodies' directors rotated (th from dx), so
  * that the internal constraints hold to round-off at every iterate. */
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z);
