@@ -16,8 +16,9 @@
  *            a light mass on a spring to its lower end (a body point) and
  *            the light masses joined by fast springs.
  * Every model is run with midpoint-midpoint and trapezoidal-midpoint on the
- * path mrvi_solver_path picks (listed), rods also in the null-space form,
- * springs also on the general path (the one the constrained chains take).
+ * path mrvi_solver_path picks (listed), rods and rigid bars also in the
+ * null-space form, springs also on the general path (the one the constrained
+ * chains take).
  * (explicit-slow is unstable here: the attachments' slow springs have
  * omega dT = 2.)  dT = 0.01, p = 10 by default.  The cases of one n
  * alternate, --repeats rounds, best of them; each times blocks of 20 macro
@@ -32,15 +33,15 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 5, N_SCHEMES = 2 };
+enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 6, N_SCHEMES = 2 };
 enum { HORIZON = 20 }; /* macro steps from the initial state, repeated */
 #define MIN_CPU 0.3
 
 /* Case c builds chain kind chain_of[c]. */
 static const char *const case_names[N_CASES] = {
-    "rods (multipliers)", "rods (null space)", "springs", "springs (general)",
-    "rigid bars"};
-static const int chain_of[N_CASES] = {0, 1, 2, 2, 3};
+    "rods (multipliers)", "rods (null space)", "springs",
+    "springs (general)",  "rigid bars",        "rigid bars (null space)"};
+static const int chain_of[N_CASES] = {0, 1, 2, 2, 3, 3};
 static const char *const scheme_names[N_SCHEMES] = {"midpoint-midpoint",
                                                     "trapezoidal-midpoint"};
 
@@ -51,7 +52,8 @@ static const char usage[] =
     "Pendulum chains of N links (default 10,30,100,300,1000): rods,\n"
     "the same with stiff springs in place of the rods, and rigid bars on\n"
     "revolute joints; midpoint-midpoint and trapezoidal-midpoint on the\n"
-    "path chosen automatically (springs also on the general path); CPU\n"
+    "path chosen automatically (springs also on the general path, rods\n"
+    "and rigid bars also in the null-space form); CPU\n"
     "time per macro step (at least K steps, default 3, and 0.3 s), best\n"
     "of R alternating rounds (default 3).\n"
     "A case slower than SECONDS per macro step (default 5) ends the larger\n"
@@ -157,7 +159,8 @@ static result run_one(int cs, int links, const char *scheme, double dT, int p,
   s.t_end = 1e6 * dT;
   s.newton_tol = 1e-10;
   s.energy_warning = 0;
-  s.constraint_form = c == 1 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+  s.constraint_form =
+      c == 1 || cs == 5 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
   s.solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
   r.n = mrvi_model_n(m);
   mrvi_integrator *it = NULL;

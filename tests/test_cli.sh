@@ -285,6 +285,21 @@ run_mrvi check "$cart" --set integrator.constraints.form=null-space \
 expect_rc 0 "check with constraint settings overridden"
 contains "$out" '^constraints +null-space form, tolerance 1e-12, momentum projection off$' \
   "--set integrator.constraints.* applied"
+# The null space a model gets: analytic for free bodies (2-D and fast too),
+# numerical with a joint.
+cat >"$tmp/wheel.yaml" <<'EOF'
+name: wheel
+dimension: 2
+bodies:
+  - {name: w, mass: 1, inertia: 0.5, position: [0, 0], angular_velocity: 2, rate: fast}
+integrator: {macro_step: 0.01, micro_steps: 2, t_end: 0.02, constraints: {form: null-space}}
+EOF
+run_mrvi check "$tmp/wheel.yaml"
+contains "$out" '^  null space  analytic \(free planar rigid bodies: P = \[\[I, 0\], \[0, J d1\], \[0, J d2\]\]\)' \
+  "free fast 2-D body: analytic null space"
+run_mrvi check "$root/systems/rigid_pendulum.yaml" \
+  --set integrator.constraints.form=null-space
+contains "$out" '^  null space  numerical \(QR' "a body on a joint: numerical null space"
 run_mrvi check "$fpu"
 contains "$out" '^constraints +0$' "fpu: no constraints"
 check "fpu: no constraint settings line" \

@@ -7,6 +7,7 @@
  * constraints are projected with the minimal (mass-weighted) displacement. */
 #include "io/io.h"
 #include "model/model.h"
+#include "solver/solver.h"
 #include "models.h"
 #include "testlib.h"
 
@@ -695,55 +696,246 @@ static void test_slider_crank(void) {
 }
 
 /* ---------------------------------------------------------------------------
- * Nodal reparametrisation (doc/multibody.md): free slow 3-D bodies in the
- * null-space form take phi_{k+1} = phi_k + u, d_{k+1}^i = exp(th^) d_k^i,
- * so that their internal constraints hold to round-off over 10^4 steps,
- * with the default (loose) tolerances; the multiplier form holds them to
- * the constraint tolerance.  Both give the same motion to the tolerance.
+ * Analytic null space of a free body (doc/multibody.md): P = [[I, 0], [0,
+ * -d1^], [0, -d2^], [0, -d3^]] (2-D: [[I, 0], [0, J d1], [0, J d2]]).  G P
+ * = 0 to round-off at any directors (orthonormal or not: the quadrature
+ * points' are not), and P^T P = diag(I, 2 I) at orthonormal ones (full
+ * column rank).
  * ------------------------------------------------------------------------- */
-static void test_reparametrisation(void) {
+static void test_body_null_space(void) {
+  for (int D = 2; D <= 3; D++) {
+    mrvi_model *m = mrvi_model_create();
+    mrvi_model_set_dimension(m, D);
+    const double J[3] = {1.0, 2.0, 2.5}, x0[3] = {0.1, -0.2, 0.3},
+                 w[3] = {0.5, 1.2, -0.7}, v0[3] = {0, 0, 0};
+    CHECK(mrvi_model_add_body(m, "a", D, MRVI_SLOW, 2.0, D == 3 ? J : J + 2, x0,
+                              NULL, v0, D == 3 ? w : w + 2) >= 0,
+          "null-space body (%d-D): %s", D, mrvi_model_errmsg(m));
+    const int n = D * (D + 1), R = mrvi_model_constraint_rows(m),
+              nr = D == 3 ? 3 : 1;
+    double q[12], g[6], G[6 * 12], P[12 * 6], gp = 0.0, gram = 0.0;
+    unsigned seed = 12345u;
+    for (int trial = 0; trial < 2; trial++) {
+      /* Trial 0: a rotated orthonormal frame; 1: arbitrary directors. */
+      const double th = 0.7, c = cos(th), sn = sin(th);
+      for (int j = 0; j < n; j++) {
+        seed = seed * 1103515245u + 12345u;
+        q[j] = (double)(seed >> 8) / (double)(1u << 24) - 0.5;
+      }
+      if (trial == 0) {
+        const double R3[9] = {c, -sn, 0, sn, c, 0, 0, 0, 1};
+        for (int i = 0; i < D; i++)
+          for (int a = 0; a < D; a++)
+            q[D + D * i + a] = R3[a * 3 + i]; /* d^i = column i */
+      }
+      memset(P, 0, sizeof P);
+      for (int a = 0; a < D; a++)
+        P[a * (D + nr) + a] = 1.0;
+      for (int k = 0; k < nr; k++) {
+        double v[9];
+        mrvi_nullspace_body_rotation(D, q + D, k, v);
+        for (int j = 0; j < D * D; j++)
+          P[(D + j) * (D + nr) + D + k] = v[j];
+      }
+      mrvi_model_constraint_eval(m, q, g, G);
+      for (int r = 0; r < R; r++)
+        for (int col = 0; col < D + nr; col++) {
+          double s = 0.0;
+          for (int j = 0; j < n; j++)
+            s += G[r * n + j] * P[j * (D + nr) + col];
+          gp = fmax(gp, fabs(s));
+        }
+      for (int a = 0; trial == 0 && a < D + nr; a++)
+        for (int b = 0; b < D + nr; b++) {
+          double s = 0.0;
+          for (int j = 0; j < n; j++)
+            s += P[j * (D + nr) + a] * P[j * (D + nr) + b];
+          gram = fmax(gram, fabs(s - (a == b ? (a < D ? 1.0 : 2.0) : 0.0)));
+        }
+    }
+    printf("free body null space (%d-D): max |G P| %.3g, max |P^T P - "
+           "diag(I, 2I)| %.3g\n",
+           D, gp, gram);
+    CHECK(R == (D == 3 ? 6 : 3), "%d-D body: %d internal rows", D, R);
+    CHECK(gp <= 1e-15, "%d-D body: |G P| %.3g", D, gp);
+    CHECK(gram <= 1e-15, "%d-D body: P^T P off diag(I, 2I) by %.3g", D, gram);
+    mrvi_model_free(m);
+  }
+}
+
+/* ---------------------------------------------------------------------------
+ * Nodal reparametrisation (doc/multibody.md): free slow bodies (3-D and
+ * 2-D) in the null-space form take phi_{k+1} = phi_k + u, d_{k+1}^i =
+ * exp(th^) d_k^i (2-D: R(th) d_k^i), so that their internal constraints
+ * hold to round-off over 10^4 steps, with the default (loose) tolerances;
+ * the multiplier form holds them to the constraint tolerance.  Both give
+ * the same motion to the tolerance; tight tolerances, 100 steps: 1e-10.
+ * ------------------------------------------------------------------------- */
+/* Two bodies a (slow) and b of rate rb on a slow spring between body
+ * points; b also on a spring of its own rate to an anchor (stiff when
+ * fast) unless rb is -1 (b slow, no anchor). */
+static mrvi_model *sprung_bodies(int D, int rb) {
   mrvi_model *m = mrvi_model_create();
-  mrvi_model_set_dimension(m, 3);
+  mrvi_model_set_dimension(m, D);
   const double J[3] = {1.0, 2.0, 2.5}, K[3] = {0.5, 0.7, 0.9},
                w[3] = {0.5, 1.2, -0.7}, w2[3] = {-2.0, 0.3, 1.1},
                x0[3] = {0.1, -0.2, 0.3}, x1[3] = {2.0, 0.5, 0.0},
                v0[3] = {0.5, 0.0, -0.25}, v1[3] = {0, 0, 0},
-               R[9] = {0, -1, 0, 1, 0, 0, 0, 0, 1};
-  int st = mrvi_model_add_body(m, "a", 3, MRVI_SLOW, 2.0, J, x0, R, v0, w);
-  st |= mrvi_model_add_body(m, "b", 3, MRVI_SLOW, 1.0, K, x1, NULL, v1, w2);
+               R[9] = {0, -1, 0, 1, 0, 0, 0, 0, 1}, R2[4] = {0, -1, 1, 0};
+  /* 2-D: the planar inertia J[2] and the angular velocity w[2]. */
+  int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 2.0, D == 3 ? J : J + 2,
+                               x0, D == 3 ? R : R2, v0, D == 3 ? w : w + 2);
+  const mrvi_rate rate_b = rb == MRVI_FAST ? MRVI_FAST : MRVI_SLOW;
+  st |= mrvi_model_add_body(m, "b", D, rate_b, 1.0, D == 3 ? K : K + 2, x1,
+                            NULL, v1, D == 3 ? w2 : w2 + 2);
   const mrvi_end a = {.particle = -1, .body = 0, .at = {0.5, 0.2, -0.1}},
                  b = {.particle = -1, .body = 1, .at = {-0.3, 0.1, 0.4}};
   const double k = 20.0;
   CHECK(st >= 0 && mrvi_model_add_end_spring(m, MRVI_SLOW, &a, &b, NULL,
                                              "linear", &k, 1.0) >= 0,
-        "two sprung bodies: %s", mrvi_model_errmsg(m));
-  mrvi_trajectory *tr[2] = {NULL, NULL};
-  double eg[2] = {0, 0}, eH[2] = {0, 0};
-  for (int f = 0; f < 2; f++) {
-    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 1, 100.0, 1e-9);
-    s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+        "two sprung bodies (%d-D): %s", D, mrvi_model_errmsg(m));
+  if (rb >= 0) {
+    const mrvi_end c = {.particle = -1, .body = 1, .at = {0.2, -0.4, 0.3}};
+    const double anchor[3] = {2.5, 1.0, 0.5}, kf = 400.0;
+    CHECK(mrvi_model_add_end_spring(m, rate_b, &c, NULL, anchor, "linear", &kf,
+                                    0.8) >= 0,
+          "anchored body (%d-D): %s", D, mrvi_model_errmsg(m));
+  }
+  return m;
+}
+
+static void test_reparametrisation(void) {
+  for (int D = 3; D >= 2; D--) {
+    mrvi_model *m = sprung_bodies(D, -1);
+    mrvi_trajectory *tr[2] = {NULL, NULL}, *tt[2] = {NULL, NULL};
+    double eg[2] = {0, 0}, eH[2] = {0, 0};
+    for (int f = 0; f < 2; f++) {
+      mrvi_settings s =
+          test_settings("midpoint-midpoint", 0.01, 1, 100.0, 1e-9);
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      mrvi_summary sum;
+      if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+        CHECK(0, "reparametrisation run (%d-D, %s): %s", D,
+              form_name(s.constraint_form), sum.message);
+      else
+        loop_invariants(m, tr[f], &eg[f], &eH[f], NULL);
+      s = test_settings("midpoint-midpoint", 0.01, 1, 1.0, 1e-13);
+      s.constraint_tol = 1e-13;
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
+        CHECK(0, "tight run (%d-D, %s): %s", D, form_name(s.constraint_form),
+              sum.message);
+    }
+    if (tr[0] && tr[1]) {
+      double d = 0.0;
+      for (long i = 0; i < 101 * tr[0]->n; i++)
+        d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
+      printf("two free bodies on a spring (%d-D), 10^4 steps, Newton "
+             "tolerance 1e-9, constraint tolerance 1e-10: max |g| %.3g "
+             "(multipliers), %.3g (null space, reparametrised); energy %.3g, "
+             "%.3g; forms differ by %.3g over 100 steps\n",
+             D, eg[0], eg[1], eH[0], eH[1], d);
+      CHECK(eg[1] <= 1e-13, "reparametrised bodies (%d-D): max |g| %.3g", D,
+            eg[1]);
+      CHECK(d < 1e-8, "reparametrised against multipliers (%d-D): %.3g", D, d);
+    }
+    if (tt[0] && tt[1]) {
+      double d = 0.0;
+      for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++)
+        d = fmax(d, fabs(tt[0]->q[i] - tt[1]->q[i]));
+      printf("  tight tolerances (1e-13), 100 steps: forms differ by %.3g\n",
+             d);
+      CHECK(tt[0]->n_macro == 101 && d < 1e-10,
+            "forms at tight tolerances (%d-D): %.3g", D, d);
+    }
+    for (int f = 0; f < 2; f++) {
+      mrvi_trajectory_free(tr[f]);
+      mrvi_trajectory_free(tt[f]);
+    }
+    mrvi_model_free(m);
+  }
+}
+
+/* Largest |d_i . d_j - delta_ij| of the D directors stored from v[D]. */
+static double frame_error(int D, const double *v) {
+  double e = 0.0;
+  for (int i = 0; i < D; i++)
+    for (int j = 0; j < D; j++) {
+      double s = 0.0;
+      for (int a = 0; a < D; a++)
+        s += v[D + D * i + a] * v[D + D * j + a];
+      e = fmax(e, fabs(s - (i == j)));
+    }
+  return e;
+}
+
+/* Fast free bodies (doc/multibody.md): the null-space form reparametrises
+ * every micro node z^1..z^p of a fast body, so its internal constraints hold
+ * to round-off at every micro node over 10^4 macro steps (loose
+ * tolerances); both forms agree to 1e-10 at tight tolerances for p = 1 and
+ * 5; with p = 1 the fast body gives the slow body's trajectory (the
+ * single-rate scheme) to the Newton tolerance. */
+static void test_fast_reparametrisation(void) {
+  for (int D = 3; D >= 2; D--) {
+    mrvi_model *mf = sprung_bodies(D, MRVI_FAST),
+               *ms = sprung_bodies(D, MRVI_SLOW);
+    const int nb = D * (D + 1);
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 5, 100.0, 1e-9);
+    s.constraint_form = MRVI_FORM_NULL_SPACE;
+    mrvi_trajectory *tr = NULL;
     mrvi_summary sum;
-    if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
-      CHECK(0, "reparametrisation run (%s): %s", form_name(s.constraint_form),
-            sum.message);
-    else
-      loop_invariants(m, tr[f], &eg[f], &eH[f], NULL);
+    if (mrvi_trajectory_run(mf, &s, &tr, &sum) != 0) {
+      CHECK(0, "fast body run (%d-D): %s", D, sum.message);
+    } else {
+      double e = 0.0;
+      for (long i = 0; i < tr->n_micro; i++)
+        e = fmax(e, frame_error(D, tr->micro_q + i * tr->n_fast));
+      printf("fast free body (%d-D), p = 5, 10^4 macro steps, null space "
+             "(reparametrised at micro nodes): max |d_i.d_j - delta_ij| over "
+             "%ld micro nodes %.3g\n",
+             D, tr->n_micro, e);
+      CHECK(tr->n_fast == nb && tr->n_micro == 50001,
+            "fast body (%d-D): %d fast coordinates, %ld micro nodes", D,
+            tr->n_fast, tr->n_micro);
+      CHECK(e <= 1e-13, "fast body reparametrised (%d-D): %.3g", D, e);
+    }
+    mrvi_trajectory_free(tr);
+    mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
+    for (int p = 1; p <= 5; p += 4) {
+      for (int f = 0; f < 3; f++) { /* multipliers, null space; slow b */
+        s = test_settings("midpoint-midpoint", 0.01, p, 1.0, 1e-13);
+        s.constraint_tol = 1e-13;
+        s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+        if ((f < 2 || p == 1) &&
+            mrvi_trajectory_run(f < 2 ? mf : ms, &s, &tt[f], &sum) != 0)
+          CHECK(0, "fast body, tight (%d-D, p = %d, case %d): %s", D, p, f,
+                sum.message);
+      }
+      double d = 1e300, r = 0.0;
+      if (tt[0] && tt[1]) {
+        d = 0.0;
+        for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++)
+          d = fmax(d, fabs(tt[0]->q[i] - tt[1]->q[i]));
+      }
+      if (p == 1 && tt[1] && tt[2]) {
+        /* Coordinates in model order: the same in both models. */
+        for (long i = 0; i < tt[1]->n_macro * tt[1]->n; i++)
+          r = fmax(r, fabs(tt[1]->q[i] - tt[2]->q[i]));
+        printf("  p = 1: fast body against the same body slow %.3g\n", r);
+        CHECK(r < 1e-11, "p = 1 reduction (%d-D): %.3g", D, r);
+      }
+      printf("  fast body (%d-D), p = %d, tight tolerances, 100 steps: forms "
+             "differ by %.3g\n",
+             D, p, d);
+      CHECK(d < 1e-10, "fast body forms (%d-D, p = %d): %.3g", D, p, d);
+      for (int f = 0; f < 3; f++) {
+        mrvi_trajectory_free(tt[f]);
+        tt[f] = NULL;
+      }
+    }
+    mrvi_model_free(mf);
+    mrvi_model_free(ms);
   }
-  if (tr[0] && tr[1]) {
-    double d = 0.0;
-    for (long i = 0; i < 101 * tr[0]->n; i++)
-      d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
-    printf("two free bodies on a spring, 10^4 steps, Newton tolerance 1e-9, "
-           "constraint tolerance 1e-10: max |g| %.3g (multipliers), %.3g "
-           "(null space, reparametrised); energy %.3g, %.3g; forms differ by "
-           "%.3g over 100 steps\n",
-           eg[0], eg[1], eH[0], eH[1], d);
-    CHECK(eg[1] <= 1e-13, "reparametrised bodies: max |g| %.3g", eg[1]);
-    CHECK(d < 1e-8, "reparametrised against multipliers: %.3g", d);
-  }
-  mrvi_trajectory_free(tr[0]);
-  mrvi_trajectory_free(tr[1]);
-  mrvi_model_free(m);
 }
 
 int main(void) {
@@ -755,6 +947,8 @@ int main(void) {
   test_universal_oblique();
   test_universal_oblique_file();
   test_slider_crank();
+  test_body_null_space();
   test_reparametrisation();
+  test_fast_reparametrisation();
   return test_finish();
 }

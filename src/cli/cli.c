@@ -497,10 +497,16 @@ static int cmd_check(int argc, char **argv) {
     char why[8];
     const int red = mrvi_constraints_rank(sys->model, mrvi_model_q0(sys->model),
                                           NULL, why, sizeof why);
-    if (mrvi_model_free_bodies_only(sys->model))
+    if (mrvi_model_free_bodies_only(sys->model) &&
+        mrvi_model_dimension(sys->model) == 2)
+      printf("%-14sanalytic (free planar rigid bodies: P = [[I, 0], [0, J "
+             "d1], [0, J d2]]), nodal reparametrisation phi + u, R(th) d "
+             "(fast bodies at every micro node)\n",
+             "  null space");
+    else if (mrvi_model_free_bodies_only(sys->model))
       printf("%-14sanalytic (free rigid bodies: P = [[I, 0], [0, -d1^], "
              "[0, -d2^], [0, -d3^]]), nodal reparametrisation phi + u, "
-             "exp(th^) d\n",
+             "exp(th^) d (fast bodies at every micro node)\n",
              "  null space");
     else
       printf("%-14snumerical (QR of the constraint gradients at every node); "

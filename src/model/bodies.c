@@ -663,8 +663,7 @@ int mrvi_model_free_bodies_only(const mrvi_model *m) {
   for (int c = 0; c < m->n_constraints; c++) {
     int own = 0;
     for (int b = 0; b < m->n_bodies; b++)
-      own |= m->bodies[b].constraint == c && m->bodies[b].dim == 3 &&
-             m->rate[m->bodies[b].first] == MRVI_SLOW;
+      own |= m->bodies[b].constraint == c;
     if (!own)
       return 0;
   }

@@ -132,9 +132,9 @@ void mrvi_body_frame_of(const mrvi_model *m, int b, const double *v,
                         double *out);
 /* Release the bodies of m (bodies.c). */
 void mrvi_model_free_bodies(mrvi_model *m);
-/* 1 if m has bodies and every constraint is the internal one of a slow
- * 3-D body (no joints, no other constraints): the null-space form then
- * uses the free body's analytic null space and the nodal
+/* 1 if m has bodies and every constraint is the internal one of a body,
+ * 2-D or 3-D, slow or fast (no joints, no other constraints): the null-space
+ * form then uses the free body's analytic null space and the nodal
  * reparametrisation (solver/nullspace.c, doc/multibody.md). */
 int mrvi_model_free_bodies_only(const mrvi_model *m);
 /* Body owning model coordinate c, or -1. */

@@ -50,10 +50,15 @@ struct mrvi_nullspace {
   int r, rs;    /* rows of micro-node / slow-only constraints */
   int rk;       /* slow-only rows kept (rs less the redundant ones) */
   int *srow;    /* slow-only row -> index among the kept ones, or -1 */
-  /* Nodal reparametrisation (free slow 3-D bodies, no other constraint):
-   * the slow slot of each body's phi (its directors follow), or NULL. */
-  int n_rep, *rep_slot;
-  double *rep_d;  /* scratch: 9 per body */
+  /* Nodal reparametrisation (free bodies, no other constraint): the slot
+   * of each slow body's phi (its directors follow) and of each fast
+   * body's, or NULL; dim the bodies' dimension D (D^2 director entries,
+   * D(D-1)/2 rotations). */
+  int n_rep, *rep_slot, dim;
+  int n_frep, *frep_slot;
+  double *rep_d;  /* scratch: D^2 per slow body */
+  double *frep_d; /* D^2 per fast body and micro node 0..p: scratch, then
+                     the directors at which P was built (lambda) */
   int nbs;        /* slow basis size ns - rs */
   int *b_slot;    /* basis vector i: its slot (unit) or -1 (Q column) */
   int *b_coupled; /* does it couple to the micro-node constraints? */
@@ -79,7 +84,7 @@ void mrvi_nullspace_free(mrvi_nullspace *z) {
   if (!z)
     return;
   free(z->fc), free(z->sc), free(z->fpos), free(z->b_slot), free(z->srow);
-  free(z->rep_slot), free(z->rep_d);
+  free(z->rep_slot), free(z->rep_d), free(z->frep_slot), free(z->frep_d);
   free(z->b_coupled), free(z->Q), free(z->Rm), free(z->Gs), free(z->Qs);
   free(z->Rs), free(z->A), free(z->t), free(z->B), free(z->Gf), free(z->Gsl);
   free(z->rec_start), free(z->rec_row), free(z->rec_coef);
@@ -370,32 +375,54 @@ oom:
 }
 
 /* Which bodies the nodal reparametrisation takes: all of them when every
- * constraint is the internal one of a slow 3-D body (no joint, nothing at
- * micro nodes) and each body's 12 coordinates are consecutive slow slots;
- * else none. */
+ * constraint is the internal one of a body (2-D or 3-D, slow or fast; no
+ * joint, no other constraint) and each body's D(D+1) coordinates are
+ * consecutive slots of its rate's block; else none.  Slow bodies: the new
+ * macro node; fast bodies: every unknown micro node z^1..z^p. */
 static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
-  if (!mrvi_model_free_bodies_only(m) || z->r > 0 || z->rk != z->rs)
+  if (!mrvi_model_free_bodies_only(m) || z->rk != z->rs)
     return 0;
-  z->rep_slot = malloc((size_t)m->n_bodies * sizeof *z->rep_slot);
-  z->rep_d = malloc((size_t)m->n_bodies * 9 * sizeof *z->rep_d);
-  if (!z->rep_slot || !z->rep_d)
+  const int D = m->bodies[0].dim, nb = m->n_bodies;
+  z->rep_slot = malloc((size_t)nb * sizeof *z->rep_slot);
+  z->frep_slot = malloc((size_t)nb * sizeof *z->frep_slot);
+  z->rep_d = malloc((size_t)nb * 9 * sizeof *z->rep_d);
+  z->frep_d = malloc((size_t)nb * 9 * (size_t)(z->p + 1) * sizeof *z->frep_d);
+  if (!z->rep_slot || !z->frep_slot || !z->rep_d || !z->frep_d)
     return -1;
-  for (int b = 0; b < m->n_bodies; b++) {
-    /* A body's 12 coordinates are consecutive slots of the slow block. */
+  int ns = 0, nf = 0;
+  for (int b = 0; b < nb; b++) {
+    /* A body's coordinates are consecutive slots of one rate's block. */
     const int f = m->bodies[b].first, s0 = m->slot[f];
-    for (int j = 1; j < 12; j++)
-      if (m->slot[f + j] != s0 + j || m->rate[f + j] != MRVI_SLOW)
+    const mrvi_rate rate = m->rate[f];
+    if (m->bodies[b].dim != D)
+      return 0;
+    for (int j = 1; j < D * (D + 1); j++)
+      if (m->slot[f + j] != s0 + j || m->rate[f + j] != rate)
         return 0;
-    z->rep_slot[b] = s0;
+    if (rate == MRVI_SLOW)
+      z->rep_slot[ns++] = s0;
+    else
+      z->frep_slot[nf++] = s0;
   }
-  z->n_rep = m->n_bodies;
+  z->dim = D;
+  z->n_rep = ns;
+  z->n_frep = nf;
   return 0;
 }
 
-int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) { return z->n_rep; }
+int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) {
+  return z->n_rep + z->n_frep;
+}
 
-/* v <- exp(th^) v (Rodrigues; the series below |th| = 1e-4). */
-static void rotate(const double *th, double *v) {
+/* v <- exp(th^) v (Rodrigues; the series below |th| = 1e-4); in 2-D v <-
+ * R(th) v with th[0] the angle. */
+static void rotate(int D, const double *th, double *v) {
+  if (D == 2) {
+    const double c = cos(th[0]), s = sin(th[0]), x = v[0];
+    v[0] = c * x - s * v[1];
+    v[1] = s * x + c * v[1];
+    return;
+  }
   const double t2 = th[0] * th[0] + th[1] * th[1] + th[2] * th[2];
   const double t = sqrt(t2);
   double a, b; /* exp(th^) = I + a th^ + b th^2 */
@@ -415,72 +442,154 @@ static void rotate(const double *th, double *v) {
     v[i] += a * c[i] + b * cc[i];
 }
 
-/* The rotation th of director increments w^i at directors d^i (3 x 3
- * each, rows): th = 1/2 sum_i d^i x w^i, exact for w^i = th x d^i with d
- * orthonormal (the left inverse of the body's null-space matrix P = [[I,
- * 0], [0, -d1^], [0, -d2^], [0, -d3^]]); for w^i = R d^i - d^i with R a
- * rotation, sin|th| th/|th|. */
-static void rotation_of(const double *d, const double *w, double *th) {
+/* The rotation th of director increments w^i at directors d^i (D x D
+ * each, rows): th = 1/2 sum_i d^i x w^i (2-D: the scalar cross product,
+ * th[0]), exact for w^i = th x d^i (2-D: th J d^i) with d orthonormal --
+ * the left inverse of the body's null-space matrix
+ * (mrvi_nullspace_body_rotation); for w^i = R d^i - d^i with R a rotation,
+ * sin|th| th/|th|. */
+static void rotation_of(int D, const double *d, const double *w, double *th) {
   th[0] = th[1] = th[2] = 0.0;
-  for (int i = 0; i < 3; i++) {
-    const double *a = d + 3 * i, *b = w + 3 * i;
+  for (int i = 0; i < D; i++) {
+    const double *a = d + D * i, *b = w + D * i;
+    if (D == 2) {
+      th[0] += 0.5 * (a[0] * b[1] - a[1] * b[0]);
+      continue;
+    }
     th[0] += 0.5 * (a[1] * b[2] - a[2] * b[1]);
     th[1] += 0.5 * (a[2] * b[0] - a[0] * b[2]);
     th[2] += 0.5 * (a[0] * b[1] - a[1] * b[0]);
   }
 }
 
-/* Directors of body slot s0 as x holds them: rows d^1..d^3 (positions). */
-static void directors(const mrvi_step *st, const double *x, int s0, double *d) {
-  for (int j = 0; j < 9; j++)
-    d[j] = x[s0 + 3 + j] + (st->increments ? st->qs0[s0 + 3 + j] : 0.0);
+void mrvi_nullspace_body_rotation(int D, const double *d, int k, double *v) {
+  for (int i = 0; i < D; i++) {
+    const double *a = d + D * i;
+    double *u = v + D * i;
+    if (D == 2) { /* J d = (-d_y, d_x) */
+      u[0] = -a[1];
+      u[1] = a[0];
+      continue;
+    }
+    const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+    u[k] = 0.0;
+    u[k1] = -a[k2]; /* (e_k x d)_k1 = -d_k2 */
+    u[k2] = a[k1];  /* (e_k x d)_k2 = d_k1 */
+  }
 }
 
-/* Store the directors d (positions) of body slot s0 into x. */
-static void set_directors(const mrvi_step *st, double *x, int s0,
-                          const double *d) {
-  for (int j = 0; j < 9; j++)
-    x[s0 + 3 + j] = d[j] - (st->increments ? st->qs0[s0 + 3 + j] : 0.0);
+/* Directors d (positions; rows d^1..d^D) from the D^2 entries x holds,
+ * which are displacements from q0 when q0 is not NULL (st->increments). */
+static void directors(int D, const double *x, const double *q0, double *d) {
+  for (int j = 0; j < D * D; j++)
+    d[j] = x[j] + (q0 ? q0[j] : 0.0);
+}
+
+/* Store the directors d (positions) into x (displacements from q0 if not
+ * NULL). */
+static void set_directors(int D, double *x, const double *q0, const double *d) {
+  for (int j = 0; j < D * D; j++)
+    x[j] = d[j] - (q0 ? q0[j] : 0.0);
+}
+
+/* Where x holds the directors of slow body b (the new macro node) and of
+ * fast body b at micro node m = 1..p, and the known positions they are
+ * displacements from (NULL unless st->increments). */
+static double *slow_dirs(const mrvi_nullspace *z, const mrvi_step *st,
+                         double *x, int b, const double **q0) {
+  const int o = z->rep_slot[b] + z->dim;
+  *q0 = st->increments ? st->qs0 + o : NULL;
+  return x + o;
+}
+static double *fast_dirs(const mrvi_nullspace *z, const mrvi_step *st,
+                         double *x, int b, int m, const double **q0) {
+  const int o = z->frep_slot[b] + z->dim;
+  *q0 = st->increments ? st->qf0 + o : NULL;
+  return x + z->ns + (m - 1) * z->nf + o;
+}
+
+/* d <- exp(th^) d for the D directors, th = 1/2 sum_i d^i x w^i from the
+ * director increments w (the left inverse of P). */
+static void turn(int D, double *d, const double *w) {
+  double th[3];
+  rotation_of(D, d, w, th);
+  for (int i = 0; i < D; i++)
+    rotate(D, th, d + D * i);
+}
+
+/* d <- the frame ref turned by the rotation that takes it closest to the
+ * frame w: 1/2 sum ref^i x w^i = sin|th| th/|th| for a rotation; its angle
+ * from the sine (a predictor turns by much less than pi/2 in a step). */
+static void nearest_turn(int D, const double *ref, const double *w, double *d) {
+  double th[3];
+  rotation_of(D, ref, w, th);
+  const double sn = sqrt(th[0] * th[0] + th[1] * th[1] + th[2] * th[2]);
+  const double f = sn > 1e-300 && sn < 1.0 ? asin(sn) / sn : 1.0;
+  for (int a = 0; a < 3; a++)
+    th[a] *= f;
+  for (int j = 0; j < D * D; j++)
+    d[j] = ref[j];
+  for (int i = 0; i < D; i++)
+    rotate(D, th, d + D * i);
 }
 
 void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
                             const double *dx) {
+  const int D = z->dim, p = z->p;
+  const double *q0;
   /* The rotated directors from the iterate, before x changes. */
   for (int b = 0; b < z->n_rep; b++) {
-    const int s0 = z->rep_slot[b];
-    double *d = z->rep_d + 9 * b, w[9], th[3];
-    directors(st, x, s0, d);
-    for (int j = 0; j < 9; j++)
-      w[j] = -dx[s0 + 3 + j];
-    rotation_of(d, w, th);
-    for (int i = 0; i < 3; i++)
-      rotate(th, d + 3 * i);
+    double *v = slow_dirs(z, st, x, b, &q0), *d = z->rep_d + 9 * b, w[9];
+    directors(D, v, q0, d);
+    for (int j = 0; j < D * D; j++)
+      w[j] = -dx[v - x + j];
+    turn(D, d, w);
   }
+  for (int b = 0; b < z->n_frep; b++)
+    for (int mm = 1; mm <= p; mm++) {
+      double *v = fast_dirs(z, st, x, b, mm, &q0), w[9];
+      double *d = z->frep_d + 9 * ((size_t)b * (p + 1) + mm);
+      directors(D, v, q0, d);
+      for (int j = 0; j < D * D; j++)
+        w[j] = -dx[v - x + j];
+      turn(D, d, w);
+    }
   for (int s = 0; s < st->n_unknowns; s++)
     x[s] -= dx[s];
-  for (int b = 0; b < z->n_rep; b++)
-    set_directors(st, x, z->rep_slot[b], z->rep_d + 9 * b);
+  for (int b = 0; b < z->n_rep; b++) {
+    double *v = slow_dirs(z, st, x, b, &q0);
+    set_directors(D, v, q0, z->rep_d + 9 * b);
+  }
+  for (int b = 0; b < z->n_frep; b++)
+    for (int mm = 1; mm <= p; mm++) {
+      double *v = fast_dirs(z, st, x, b, mm, &q0);
+      set_directors(D, v, q0, z->frep_d + 9 * ((size_t)b * (p + 1) + mm));
+    }
 }
 
 void mrvi_nullspace_start(const mrvi_nullspace *z, const mrvi_step *st,
                           double *x) {
+  const int D = z->dim;
+  const double *q0;
+  /* Each new node: the frame before it turned as close as can be to the
+   * predictor's (fast bodies node by node from z^0). */
   for (int b = 0; b < z->n_rep; b++) {
-    const int s0 = z->rep_slot[b];
-    double d[9], w[9], th[3];
-    directors(st, x, s0, w);
-    for (int j = 0; j < 9; j++)
-      d[j] = st->qs0[s0 + 3 + j];
-    /* The predictor's frame w: 1/2 sum d^i x w^i = sin|th| th/|th| for a
-     * rotation; its angle from the sine (a predictor turns by much less
-     * than pi/2 in a step). */
-    rotation_of(d, w, th);
-    const double sn = sqrt(th[0] * th[0] + th[1] * th[1] + th[2] * th[2]);
-    const double f = sn > 1e-300 && sn < 1.0 ? asin(sn) / sn : 1.0;
-    for (int a = 0; a < 3; a++)
-      th[a] *= f;
-    for (int i = 0; i < 3; i++)
-      rotate(th, d + 3 * i);
-    set_directors(st, x, s0, d);
+    double *v = slow_dirs(z, st, x, b, &q0), w[9], d[9];
+    directors(D, v, q0, w);
+    nearest_turn(D, st->qs0 + z->rep_slot[b] + D, w, d);
+    set_directors(D, v, q0, d);
+  }
+  for (int b = 0; b < z->n_frep; b++) {
+    double ref[9], w[9], d[9];
+    for (int j = 0; j < D * D; j++)
+      ref[j] = st->qf0[z->frep_slot[b] + D + j];
+    for (int mm = 1; mm <= z->p; mm++) {
+      double *v = fast_dirs(z, st, x, b, mm, &q0);
+      directors(D, v, q0, w);
+      nearest_turn(D, ref, w, d);
+      set_directors(D, v, q0, d);
+      memcpy(ref, d, sizeof ref);
+    }
   }
 }
 
@@ -524,6 +633,16 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
   const mrvi_model *m = st->model;
   const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs, rk = z->rk;
   double *lam = x + st->n_unknowns;
+  /* Directors of the fast free bodies at nodes 0..p-1, where their
+   * analytic basis is built (mrvi_nullspace_reduce). */
+  for (int b = 0; b < z->n_frep; b++)
+    for (int mm = 0; mm < z->p; mm++) {
+      double *d = z->frep_d + 9 * ((size_t)b * (z->p + 1) + mm);
+      const double *q0 = NULL, *v = st->qf0 + z->frep_slot[b] + z->dim;
+      if (mm > 0)
+        v = fast_dirs(z, st, x, b, mm, &q0);
+      directors(z->dim, v, q0, d);
+    }
   /* Micro-node constraints, node by node. */
   for (int mm = 0; mm < z->p; mm++) {
     const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
@@ -618,19 +737,30 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
 
 /* Column j of the analytic null-space matrix of the free bodies at q_k
  * (Betsch & Leyendecker 2006): P = [[I, 0], [0, -d1^], [0, -d2^],
- * [0, -d3^]] acting on (u, w).  The columns of u are the unit vectors of
- * phi, which no constraint touches (basis vectors of their own); column j
- * here is body j / 3 turning about e_(j % 3): d^i -> e x d^i. */
+ * [0, -d3^]] acting on (u, w) (2-D: [[I, 0], [0, J d1], [0, J d2]]).  The
+ * columns of u are the unit vectors of phi, which no constraint touches
+ * (basis vectors of their own); column j here is body j / nr turning
+ * about its rotation j % nr (nr = 3 in 3-D, 1 in 2-D). */
 static void free_body_column(const mrvi_nullspace *z, const mrvi_step *st,
                              int j, double *b) {
-  const int s0 = z->rep_slot[j / 3], k = j % 3, k1 = (k + 1) % 3,
-            k2 = (k + 2) % 3;
-  for (int i = 0; i < 3; i++) {
-    const double *d = st->qs0 + s0 + 3 + 3 * i;
-    double *v = b + s0 + 3 + 3 * i;
-    v[k1] = -d[k2]; /* (e_k x d)_k1 = -d_k2 */
-    v[k2] = d[k1];  /* (e_k x d)_k2 = d_k1 */
-  }
+  const int D = z->dim, nr = D == 3 ? 3 : 1, s0 = z->rep_slot[j / nr];
+  mrvi_nullspace_body_rotation(D, st->qs0 + s0 + D, j % nr, b + s0 + D);
+}
+
+/* Local column j (0..nfc-r-1) of micro node m for the fast free bodies:
+ * body j / nr turning about its rotation j % nr at its directors at node m
+ * (recorded by mrvi_nullspace_lambda), over the constrained fast slots fc
+ * (col: nfc entries). */
+static void fast_body_column(const mrvi_nullspace *z, int m, int j,
+                             double *col) {
+  const int D = z->dim, nr = D == 3 ? 3 : 1, b = j / nr, s0 = z->frep_slot[b];
+  double v[9];
+  mrvi_nullspace_body_rotation(D, z->frep_d + 9 * ((size_t)b * (z->p + 1) + m),
+                               j % nr, v);
+  for (int a = 0; a < z->nfc; a++)
+    col[a] = 0.0;
+  for (int e = 0; e < D * D; e++)
+    col[z->fpos[s0 + D + e]] = v[e];
 }
 
 void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
@@ -687,9 +817,16 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
     for (int f = 0; f < z->nf; f++)
       if (z->fpos[f] < 0)
         z->rec_coef[e++] = 1.0;
-    for (int j = r; j < nfc; j++)
+    for (int j = r; j < nfc; j++) {
+      if (z->n_frep) {
+        fast_body_column(z, mm, j - r, z->t);
+        for (int a = 0; a < nfc; a++)
+          z->rec_coef[e++] = z->t[a];
+        continue;
+      }
       for (int a = 0; a < nfc; a++)
         z->rec_coef[e++] = Q[a * nfc + j];
+    }
   }
   for (int k = 0; k < st->n_lambda - (z->rs - z->rk); k++)
     z->rec_coef[e++] = 1.0;

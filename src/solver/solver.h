@@ -26,17 +26,24 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
  * [P^T R; h] from the full system assembled at lambda(x). */
 void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
                            const double *R, double *rhs);
-/* Nodal reparametrisation (doc/multibody.md): the number of free slow 3-D
- * bodies whose new node is phi_k + u, exp(th^) d_k^i (0: none, the basis
- * is numerical and x -= dx).  mrvi_nullspace_start puts the predictor's
- * directors on that form; mrvi_nullspace_retract makes the Newton update
- * x -= dx with the bodies' directors rotated (th from dx), so that the
- * internal constraints hold to round-off at every iterate. */
+/* Nodal reparametrisation (doc/multibody.md): the number of free bodies
+ * whose new nodes (a slow body's new macro node, a fast body's micro nodes
+ * z^1..z^p) are the previous node's phi + u, exp(th^) d^i (2-D: R(th) d^i)
+ * (0: none, the basis is numerical and x -= dx).  mrvi_nullspace_start puts
+ * the predictor's directors on that form; mrvi_nullspace_retract makes the
+ * Newton update x -= dx with the bodies' directors rotated (th from dx), so
+ * that the internal constraints hold to round-off at every iterate. */
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z);
 void mrvi_nullspace_start(const mrvi_nullspace *z, const mrvi_step *st,
                           double *x);
 void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
                             const double *dx);
+/* Column k (0..D(D-1)/2-1) of the rotation block of a free body's analytic
+ * null-space matrix at directors d (D x D, rows d^1..d^D), written to v
+ * (D x D, the director increments): e_k x d^i in 3-D (the columns of
+ * -d^i^), J d^i in 2-D (J the rotation by +pi/2).  G P = 0 for any d
+ * (doc/multibody.md, "Analytic null space"). */
+void mrvi_nullspace_body_rotation(int D, const double *d, int k, double *v);
 const int *mrvi_nullspace_Ap(const mrvi_nullspace *z);
 const int *mrvi_nullspace_Ai(const mrvi_nullspace *z);
 const double *mrvi_nullspace_Ax(const mrvi_nullspace *z);
