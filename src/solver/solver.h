@@ -94,6 +94,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
 void mrvi_sweep_free(mrvi_sweep *sw);
 /* Forget cached forces (after the state is set from outside). */
 void mrvi_sweep_reset(mrvi_sweep *sw);
+/* last_only 1: mrvi_sweep_step writes every fast node over the last,
+ * so that x holds q^{f,p} alone (at x + ns) and pf p^{f,p} alone (nf);
+ * 0 (the default): all p nodes.  The arithmetic is the same. */
+void mrvi_sweep_set_last_only(mrvi_sweep *sw, int last_only);
 /* One step from the known data of st: x (n_unknowns) gets
  * (q_{k+1}^s, q^{f,1..p}), ps1 (ns) the slow momentum at k+1, pf (p x nf)
  * the fast momenta at nodes 1..p (eq:pkfm+).  *iterations: the largest

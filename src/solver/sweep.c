@@ -46,6 +46,10 @@ struct mrvi_sweep {
   int nl, nr;
   double wl[2], wr[2];
   int tight; /* explicit, p = 1, one point at each node (explicit_p1) */
+  /* The spacing of the fast nodes in x and pf: nf (every micro node kept),
+   * or 0 (mrvi_sweep_set_last_only: each node overwrites the last, which
+   * every sweep reads entry by entry before it writes that entry). */
+  size_t node_stride;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
@@ -277,6 +281,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->n_w++;
   }
   sw->tight = !sw->implicit && sw->p == 1 && sw->nl == 1 && sw->nr == 1;
+  sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
   int max_n_in = 1;
@@ -362,6 +367,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   }
   *out = sw;
   return MRVI_OK;
+}
+
+void mrvi_sweep_set_last_only(mrvi_sweep *sw, int last_only) {
+  sw->node_stride = last_only ? 0 : (size_t)sw->nf;
 }
 
 void mrvi_sweep_reset(mrvi_sweep *sw) {
@@ -674,10 +683,11 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
   const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
   const double *mf = sw->m_f, *minv = sw->minv_f;
   double *gnode = sw->gnode;
+  const size_t stride = sw->node_stride;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     if (nl > 0 && !sw->gnode_ok)
       fast_gradient(sw, qm, gnode, nf);
@@ -768,10 +778,11 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->Hpt[0];
   double *g = sw->gpt[0], *fimp = sw->fimp, *F = sw->F, *del = sw->del;
   double *rhs = sw->rhs, *dn = sw->dn, r = 0.0;
+  const size_t stride = sw->node_stride;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     /* Predictor (the last implicit force held fixed) and F there. */
     UNROLL
@@ -821,10 +832,11 @@ ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double wb = sw->w[0] * sw->cB[0];
   const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->wH;
   double *g = sw->gpt[0], *F = sw->F, *dn = sw->dn, *hd = sw->del, r = 0.0;
+  const size_t stride = sw->node_stride;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     fast_gradient(sw, qm, g, nf); /* gq */
     UNROLL
@@ -859,9 +871,10 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const int ns = sw->ns, nf = sw->nf, p = sw->p;
   const double dt = st->dt;
   const double *pm = pf;
+  const size_t stride = sw->node_stride;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride;
     /* rhs = p^{f,m} (+ control force) - forces of the points at node m
      * (cB = 0). */
     memcpy(sw->rhs, pm, (size_t)nf * sizeof(double));
@@ -901,7 +914,7 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     for (int f = 0; f < nf; f++)
       qn[f] = qm[f] + sw->dn[f];
     /* p^{f,m+1} (eq:pkfm+): M v_m - sum w cB grad W of interval m. */
-    double *pn = pf + (size_t)m * nf;
+    double *pn = pf + (size_t)m * stride;
     for (int f = 0; f < nf; f++)
       pn[f] = sw->m_f[f] * sw->dn[f] / dt;
     sw->gnode_ok = 0;
@@ -1075,8 +1088,8 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
       return s;
   }
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
-  double *pe = pf + (size_t)(p - 1) * nf;
-  const double *xe = x + ns + (size_t)(p - 1) * nf;
+  double *pe = pf + (size_t)(p - 1) * sw->node_stride;
+  const double *xe = x + ns + (size_t)(p - 1) * sw->node_stride;
   end_potential(sw, x, xe, ps1, pe, ns, nf);
   /* Control forces f^+ of the step on the end momenta. */
   if (st->f_end) {
