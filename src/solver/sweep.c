@@ -389,20 +389,9 @@ static void eval_fast(mrvi_sweep *sw, double *gf, double *J, double hscale) {
     mrvi_terms_eval(sw->kc[cls], sw->zf, 1.0, gf, J, sw->nf, hscale);
     return;
   }
-  /* Sparse block: each element's Hessian goes to its pattern entries. */
-  const mrvi_step *st = sw->st;
-  const mrvi_model *m = st->model;
-  for (int ie = 0; ie < st->n_elem_of_class[cls]; ie++) {
-    const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
-    const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
-    for (int j = 0; j < n; j++)
-      sw->y[j] = sw->zf[m->slot[e->in[j]]];
-    mrvi_element_eval(m, e, sw->y, sw->g, lin ? NULL : sw->H);
-    for (int j = 0; j < n; j++)
-      gf[m->slot[e->in[j]]] += sw->g[j];
-    if (!lin)
-      mrvi_sblock_add_element(sw->sb, ie, sw->H, n, hscale);
-  }
+  /* Sparse block: each element's Hessian goes to its pattern entries
+   * (springs and anchors by compiled kernels). */
+  mrvi_sblock_add_terms(sw->sb, sw->kc[cls], sw->zf, gf, hscale);
 }
 
 /* The blocks of a few coordinates are copied and zeroed by loops (unrolled

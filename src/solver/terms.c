@@ -778,6 +778,126 @@ void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
   }
 }
 
+/* A spring or anchor (spring_eval's arithmetic, law code kk): its
+ * gradient added to g, and hscale times its Hessian, the blocks
+ * [A -A; -A A] (or A), added entry by entry into Ax[map[k]] in the
+ * row-major order of the element's n_in x n_in Hessian (mrvi_element_eval
+ * and a scatter of it: bitwise the same); map[k] < 0: entry left out. */
+ALWAYS_INLINE void spring_map(const kspring *q, const double *z, double *g,
+                              double *Ax, const int *map, double hscale,
+                              const int dim, const int two, const int kk) {
+  double d[3], r2 = 0.0;
+  UNROLL for (int k = 0; k < dim; k++) {
+    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->a[k]);
+    r2 += d[k] * d[k];
+  }
+  const double r = sqrt(r2), s = r - q->shift;
+  const int k = kk == K_ANY ? q->k : kk;
+  double phi, d1, d2;
+  if (k == KS_HOOKE) {
+    d1 = q->c * s;
+    d2 = q->c;
+  } else if (k >= 0) {
+    mrvi_power_derivs_ce(q->ce, q->ce1, k, s, &d1, &d2);
+  } else {
+    q->el->law->eval(q->el->params, s, &phi, &d1, &d2);
+  }
+  double u[3] = {0, 0, 0}, a = 0.0, b;
+  if (r > 0.0) {
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / r;
+    a = d2 - d1 / r;
+    b = d1 / r;
+  } else {
+    b = d2;
+  }
+  UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] += d1 * u[k];
+  if (two)
+    UNROLL for (int k = 0; k < dim; k++) g[q->cj[k]] += -d1 * u[k];
+  const int n = two ? 2 * dim : dim;
+  UNROLL for (int i = 0; i < n; i++) {
+    UNROLL for (int j = 0; j < n; j++) {
+      const int ii = i < dim ? i : i - dim, jj = j < dim ? j : j - dim;
+      const double A = a * u[ii] * u[jj] + (ii == jj ? b : 0.0);
+      const int t = map[i * n + j];
+      if (t >= 0)
+        Ax[t] += hscale * ((i < dim) == (j < dim) ? A : -A);
+    }
+  }
+}
+
+/* A run of nr springs or anchors from record q (element index ie0) into
+ * the sparse values (a loop per dimension, kind and law code). */
+ALWAYS_INLINE void springs_map_k(const kspring *q, int nr, int ie0,
+                                 const double *z, double *g, double *Ax,
+                                 const long *off, const int *emap,
+                                 double hscale, const int dim, const int two) {
+#define SPRINGS_MAP(KK)                                                        \
+  for (int r = 0; r < nr; r++) {                                               \
+    const long o = off[ie0 + r];                                               \
+    if (o >= 0)                                                                \
+      spring_map(q + r, z, g, Ax, emap + o, hscale, dim, two, KK);             \
+    else /* (no Hessian entries) */                                            \
+      spring_eval(q + r, z, 1.0, g, NULL, 0, 0.0, dim, two, KK, 1);            \
+  }
+  switch (q->k) {
+  case KS_HOOKE:
+    SPRINGS_MAP(KS_HOOKE)
+    break;
+  case KS_LAW:
+    SPRINGS_MAP(KS_LAW)
+    break;
+  default:
+    SPRINGS_MAP(K_ANY)
+  }
+#undef SPRINGS_MAP
+}
+
+static __attribute__((noinline)) void
+springs_map(const kspring *q, int nr, int ie0, const double *z, double *g,
+            double *Ax, const long *off, const int *emap, double hscale,
+            int dim) {
+  if (dim == 2 && q->two)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 2, 1);
+  else if (dim == 2)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 2, 0);
+  else if (dim == 3 && q->two)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 3, 1);
+  else if (dim == 3)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 3, 0);
+  else if (q->two)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 1, 1);
+  else
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 1, 0);
+}
+
+void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
+                            double *Ax, const long *off, const int *emap,
+                            double hscale) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    if (t->runs > 0) {
+      springs_map(kc->qs + t->qs, t->runs, it, z, g, Ax, off, emap, hscale,
+                  kc->dim);
+      it += t->runs - 1;
+      continue;
+    }
+    /* Every other element through the generic evaluation. */
+    const int n = t->n, *col = kc->col + t->first;
+    const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
+    for (int j = 0; j < n; j++)
+      kc->y[j] = z[col[j]];
+    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, lin ? NULL : kc->H);
+    for (int j = 0; j < n; j++)
+      g[col[j]] += kc->g[j];
+    if (lin || off[it] < 0)
+      continue;
+    const int *map = emap + off[it];
+    for (int k = 0; k < n * n; k++)
+      if (map[k] >= 0)
+        Ax[map[k]] += hscale * kc->H[k];
+  }
+}
+
 /* c s^k for a small integer k: laws/power.c's phi (s^k by repeated
  * squaring, the same products). */
 static double power_phi(double c, int k, double s) {
