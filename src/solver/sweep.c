@@ -22,6 +22,7 @@
  * MRVI_TUNING_LIST) and by CG on a sparse pattern beyond ("sweep-cg",
  * solver/sparse_block.c). */
 #include "solver/solver.h"
+#include "util/simd.h"
 #include "util/small.h"
 
 #include <float.h>
@@ -660,6 +661,42 @@ static const double *force_row(const mrvi_step *st, int m) {
   return st->f_rows ? st->f_rows + st->ns + (size_t)m * (size_t)st->nf : NULL;
 }
 
+/* Row m of the explicit sweep with one W point at each node and no
+ * control force, for blocks beyond the small kernels: explicit_nodes'
+ * operations entry by entry (r = p - wl g, dn = dt minv r, q^{m+1} =
+ * q^m + dn, M dn / dt), two entries at a time (util/simd.h: the same
+ * operations on each, so the same values; GCC's -O2 leaves the loop
+ * scalar, and its division per entry bounds it).  qn and pn may be qm and
+ * pm (the last node alone kept): each pair is read before it is written. */
+static void explicit_row(int nf, double dt, double wl, const double *pm,
+                         const double *gnode, const double *minv,
+                         const double *mf, const double *qm, double *qn,
+                         double *pn) {
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 r = v2_sub(v2_load(pm + f), v2_scale(wl, v2_load(gnode + f)));
+    const mrvi_v2 dn = v2_mul(v2_scale(dt, v2_load(minv + f)), r);
+    v2_store(qn + f, v2_add(v2_load(qm + f), dn));
+    v2_store(pn + f, v2_div(v2_mul(v2_load(mf + f), dn), vdt));
+  }
+  for (; f < nf; f++) {
+    const double r = pm[f] - wl * gnode[f], dn = dt * minv[f] * r;
+    qn[f] = qm[f] + dn;
+    pn[f] = mf[f] * dn / dt;
+  }
+}
+
+/* pn -= wr gnode (nf entries) in pairs, as explicit_row. */
+static void explicit_end_force(int nf, double wr, const double *gnode,
+                               double *pn) {
+  int f = 0;
+  for (; f + 2 <= nf; f += 2)
+    v2_store(pn + f, v2_sub(v2_load(pn + f), v2_scale(wr, v2_load(gnode + f))));
+  for (; f < nf; f++)
+    pn[f] -= wr * gnode[f];
+}
+
 /* The fast nodes of the explicit path (every W point on a node): row m
  * gives q^{m+1} from p^{f,m} (in pf's row m - 1, row 0: pf's first row as
  * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
@@ -680,25 +717,34 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     const double *fm = force_row(st, m);
     if (nl > 0 && !sw->gnode_ok)
       fast_gradient(sw, qm, gnode, nf);
-    UNROLL
-    for (int f = 0; f < nf; f++) {
-      double r = pm[f];
-      if (fm)
-        r += fm[f];
-      for (int i = 0; i < nl; i++)
-        r -= wl[i] * gnode[f];
-      const double dn = dt * minv[f] * r;
-      qn[f] = qm[f] + dn;
-      pn[f] = mf[f] * dn / dt;
+    const int pairs = nl == 1 && nr == 1 && !fm && nf > 4; /* (not small) */
+    if (pairs) {
+      explicit_row(nf, dt, wl[0], pm, gnode, minv, mf, qm, qn, pn);
+    } else {
+      UNROLL
+      for (int f = 0; f < nf; f++) {
+        double r = pm[f];
+        if (fm)
+          r += fm[f];
+        for (int i = 0; i < nl; i++)
+          r -= wl[i] * gnode[f];
+        const double dn = dt * minv[f] * r;
+        qn[f] = qm[f] + dn;
+        pn[f] = mf[f] * dn / dt;
+      }
     }
     sw->gnode_ok = 0;
     if (nr > 0) {
       fast_gradient(sw, qn, gnode, nf);
       sw->gnode_ok = 1;
-      UNROLL
-      for (int f = 0; f < nf; f++)
-        for (int i = 0; i < nr; i++)
-          pn[f] -= wr[i] * gnode[f];
+      if (pairs) {
+        explicit_end_force(nf, wr[0], gnode, pn);
+      } else {
+        UNROLL
+        for (int f = 0; f < nf; f++)
+          for (int i = 0; i < nr; i++)
+            pn[f] -= wr[i] * gnode[f];
+      }
     }
     pm = pn;
   }
