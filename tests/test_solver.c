@@ -1675,10 +1675,31 @@ static void test_keep_micro(void) {
                 "alone changes the run",
                 systems[i], schemes[sc], p, cg ? "1" : "default", all.path);
         }
-  CHECK(n_last >= 10 && seen_cg,
-        "keep_micro: %d runs on the sweep paths, "
-        "sweep-cg %s",
-        n_last, seen_cg ? "seen" : "not seen");
+  CHECK(n_last >= 10 && seen_cg, "keep_micro: %d runs on the sweep paths, %s",
+        n_last, seen_cg ? "sweep-cg seen" : "sweep-cg not seen");
+  /* Without the nodes there is no step Jacobian to solve with. */
+  mrvi_system *sys =
+      load("systems/lattice.yaml", "fully-explicit", 5, "multipliers", "auto");
+  mrvi_integrator *it = NULL;
+  char msg[300];
+  if (sys && mrvi_integrator_create(sys->model, &sys->settings, &it, msg,
+                                    sizeof msg) == 0) {
+    const int nj = mrvi_integrator_jacobian_size(it);
+    double *b = calloc((size_t)nj, sizeof *b),
+           *x = calloc((size_t)nj, sizeof *x);
+    const int rows = mrvi_integrator_keep_micro(it, 0);
+    const int st = mrvi_integrator_step(it);
+    const int js = b && x ? mrvi_integrator_jacobian_solve(it, 0, b, x) : 0;
+    CHECK(rows == 1 && st == 0 && js == MRVI_EINVAL &&
+              strstr(mrvi_integrator_errmsg(it), "keep_micro"),
+          "lattice fully-explicit, last node alone: rows %d, step %d, "
+          "jacobian_solve %d (%s)",
+          rows, st, js, mrvi_integrator_errmsg(it));
+    free(b);
+    free(x);
+  }
+  mrvi_integrator_free(it);
+  mrvi_system_free(sys);
 }
 
 int main(void) {

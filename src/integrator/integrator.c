@@ -1535,6 +1535,10 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
   char msg[300] = "";
   if (!it->jac_ready && it->k == 0)
     return fail(it, MRVI_EINVAL, "no completed step to solve with");
+  if (it->jac_ready && it->node_stride == 0)
+    return fail(it, MRVI_EINVAL,
+                "the step's micro nodes were not kept "
+                "(mrvi_integrator_keep_micro): no Jacobian to solve with");
   if (it->jac_ready) {
     /* Assemble the full Jacobian at the last step's solution, with that
      * step's known data, and factorise it once for any number of solves. */
