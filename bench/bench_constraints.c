@@ -10,6 +10,7 @@
  * Defaults: N = 100 macro steps, p in {1, 10, 100}, the four constrained
  * systems under systems/ (found through $MRVI_SOURCE_ROOT or "..").
  * Runs whose Newton iteration fails print the reason in the last column. */
+#include "bench_util.h"
 #include "mrvi.h"
 
 #include <stdio.h>
@@ -111,6 +112,7 @@ int main(int argc, char **argv) {
       files[nfiles++] = paths[i];
     }
   }
+  printf("# build: %s\n", bench_build());
   printf("# %d macro steps per run; times in microseconds per macro step\n",
          steps);
   printf("%-18s %-12s %5s %7s %9s %6s %12s %12s %12s\n", "system", "form", "p",

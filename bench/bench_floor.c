@@ -28,7 +28,9 @@
  *            pairing).
  *   mrvi     fully-explicit, explicit-slow, midpoint-midpoint,
  *            trapezoidal-midpoint through mrvi_integrator_step (no output,
- *            no energy monitor: the floors compute none either).
+ *            no energy monitor, the last micro node alone kept where the
+ *            path allows it, mrvi_integrator_keep_micro: the floors keep
+ *            and compute none of these either).
  *   lammps   Debian's `lmp` (found on PATH, else skipped with a note) on
  *            the lattices: run_style respa 2 p (fast springs as bonds on
  *            the inner level, slow springs as `pair_style list` on the
@@ -696,6 +698,12 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   double t0 = bench_cpu();
   if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
     snprintf(r->message, sizeof r->message, "%.190s", msg);
+    return;
+  }
+  /* the floors keep no micro nodes: the last alone (sweep paths) */
+  if (mrvi_integrator_keep_micro(it, 0) < 0) {
+    snprintf(r->message, sizeof r->message, "keep_micro: out of memory");
+    mrvi_integrator_free(it);
     return;
   }
   double t1 = bench_cpu();

@@ -392,6 +392,7 @@ int main(int argc, char **argv) {
   printf("# mrvi %s vs SUNDIALS ARKODE MRIStep (%s)  FPU %s  p = %d  "
          "q(t = %g)\n",
          mrvi_version(), SUNDIALS_VERSION, file, p, t_end);
+  printf("# build: %s\n", bench_build());
   printf("# reference RK4 h = %.0e (estimated error %.1e); CPU time median "
          "of %d, set-up included\n\n",
          t_end / (double)n_ref, dist(q_ref, q_half) / 15.0, repeats);

@@ -8,6 +8,7 @@
  * Usage: bench_ocp [--budget SECONDS] [--only PROBLEM]   (run from the
  * source root, or set MRVI_SOURCE_ROOT; --only: part 1 for one problem,
  * e.g. ocp_reorient, and no part 2). */
+#include "bench_util.h"
 #include "mrvi.h"
 #include "ocp/ocp.h"
 
@@ -124,6 +125,7 @@ int main(int argc, char **argv) {
   for (int i = 0; i < NP; i++)
     snprintf(files[i], sizeof files[i], "%s/systems/%s.yaml", root ? root : ".",
              names[i]);
+  printf("# build: %s\n", bench_build());
   printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %8s %9s %-8s %s\n", "problem",
          "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd", "at opt",
          "total [s]", "path", "status");

@@ -813,6 +813,15 @@ const double *mrvi_integrator_p(const mrvi_integrator *it); /* n */
  * coordinates in model order (row p-1 is the new macro node). */
 const double *mrvi_integrator_micro_q(const mrvi_integrator *it);
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it);
+/* Which fast micro nodes the steps keep from the next step on: all = 1
+ * (the default) all p, all = 0 the last alone (mrvi_integrator_micro_q and
+ * _p then give one row, the new macro node's fast part): on the explicit
+ * and sweep paths each node is written over the last, which saves
+ * (p - 1) n_fast doubles of each and their copying; the trajectory is the
+ * same bit for bit; mrvi_integrator_jacobian_solve then refuses (the
+ * Jacobian needs every node).  Returns the rows kept (p on the Newton
+ * paths, which solve all nodes at once), or MRVI_ENOMEM. */
+int mrvi_integrator_keep_micro(mrvi_integrator *it, int all);
 int mrvi_integrator_last_iterations(const mrvi_integrator *it);
 /* Solve J x = b (transpose = 0) or J^T x = b (transpose = 1) with the
  * Jacobian J of the last completed step's residual (multiplier form, size

@@ -42,8 +42,8 @@ static double uniform(unsigned long long *state) {
 /* A model of N_PART particles in dimension d joined by springs of law lc
  * (a chain and a few chords) and anchored by anchors of the same law, all
  * slow; NULL if the law is not registered. */
-static mrvi_model *spring_model(int d, const law_case *lc,
-                                unsigned long long *rng) {
+static mrvi_model *spring_model_rate(int d, const law_case *lc,
+                                     unsigned long long *rng, int rate) {
   mrvi_model *m = mrvi_model_create();
   if (!m || mrvi_model_set_dimension(m, d) < 0) {
     mrvi_model_free(m);
@@ -54,25 +54,30 @@ static mrvi_model *spring_model(int d, const law_case *lc,
     x[0] = 1.1 * i;
     char name[16];
     snprintf(name, sizeof name, "p%d", i);
-    CHECK(mrvi_model_add_particle(m, name, 1.0, MRVI_SLOW, x, v) >= 0,
+    CHECK(mrvi_model_add_particle(m, name, 1.0, rate, x, v) >= 0,
           "add particle: %s", mrvi_model_errmsg(m));
   }
   int ok = 1;
   for (int i = 0; i + 1 < N_PART; i++)
-    ok = ok && mrvi_model_add_spring(m, MRVI_SLOW, i, i + 1, lc->law,
-                                     lc->params, 1.0 + 0.1 * uniform(rng)) >= 0;
+    ok = ok && mrvi_model_add_spring(m, rate, i, i + 1, lc->law, lc->params,
+                                     1.0 + 0.1 * uniform(rng)) >= 0;
   for (int i = 0; i + 3 < N_PART; i += 2) /* chords */
-    ok = ok && mrvi_model_add_spring(m, MRVI_SLOW, i + 3, i, lc->law,
-                                     lc->params, 2.9) >= 0;
+    ok = ok && mrvi_model_add_spring(m, rate, i + 3, i, lc->law, lc->params,
+                                     2.9) >= 0;
   for (int i = 0; i < N_PART; i += 3) { /* anchors, then a spring again */
     const double a[3] = {1.1 * i + 0.3, 0.5, -0.2};
-    ok = ok && mrvi_model_add_anchor_spring(m, MRVI_SLOW, i, a, lc->law,
-                                            lc->params, 0.6) >= 0;
+    ok = ok && mrvi_model_add_anchor_spring(m, rate, i, a, lc->law, lc->params,
+                                            0.6) >= 0;
   }
-  ok = ok && mrvi_model_add_spring(m, MRVI_SLOW, 1, N_PART - 1, lc->law,
-                                   lc->params, 5.0) >= 0;
+  ok = ok && mrvi_model_add_spring(m, rate, 1, N_PART - 1, lc->law, lc->params,
+                                   5.0) >= 0;
   CHECK(ok, "%s: springs: %s", lc->law, mrvi_model_errmsg(m));
   return m;
+}
+
+static mrvi_model *spring_model(int d, const law_case *lc,
+                                unsigned long long *rng) {
+  return spring_model_rate(d, lc, rng, MRVI_SLOW);
 }
 
 /* Relative difference of x and y (n entries) in the max norm. */
@@ -181,6 +186,93 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
   mrvi_model_free(m);
 }
 
+/* The sparse-block kernel (mrvi_sblock_add_terms: springs and anchors
+ * compiled, the sweep-cg path's micro-step matrix) against the generic
+ * evaluation scattered by mrvi_sblock_add_element, bitwise, and its
+ * Hessian-vector products against central differences of the gradient. */
+static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
+  mrvi_model *m = spring_model_rate(d, lc, rng, MRVI_FAST);
+  if (!m)
+    return;
+  const int n = m->n, ne = m->n_elements;
+  int *elems = calloc((size_t)ne, sizeof *elems);
+  double *q = calloc((size_t)n, sizeof *q), *g = calloc((size_t)n, sizeof *g);
+  double *gr = calloc((size_t)n, sizeof *gr), *v = calloc((size_t)n, sizeof *v);
+  double *gp = calloc((size_t)n, sizeof *gp),
+         *gm = calloc((size_t)n, sizeof *gm);
+  double *Hv = calloc((size_t)n, sizeof *Hv),
+         *qh = calloc((size_t)n, sizeof *qh);
+  for (int e = 0; e < ne; e++)
+    elems[e] = e;
+  mrvi_terms *kc = NULL;
+  mrvi_sblock *sb = NULL, *sr = NULL;
+  CHECK(mrvi_terms_create(m, elems, ne, m->slot, &kc) == MRVI_OK &&
+            mrvi_sblock_create(m, elems, ne, &sb) == MRVI_OK &&
+            mrvi_sblock_create(m, elems, ne, &sr) == MRVI_OK,
+        "d %d %s: create", d, lc->law);
+  for (int r = 0; kc && sb && sr && r < 4; r++) {
+    for (int i = 0; i < n; i++) {
+      q[i] = m->q0[i] + 0.3 * uniform(rng);
+      v[i] = uniform(rng);
+      g[i] = gr[i] = gp[i] = gm[i] = Hv[i] = 0.0;
+    }
+    const double hscale = -1.9;
+    mrvi_sblock_zero(sb);
+    mrvi_sblock_zero(sr);
+    mrvi_sblock_add_terms(sb, kc, q, g, hscale);
+    for (int e = 0; e < ne; e++) { /* the reference */
+      const mrvi_element *el = &m->elements[e];
+      double y[6], ge[6], He[36];
+      for (int j = 0; j < el->n_in; j++)
+        y[j] = q[m->slot[el->in[j]]];
+      mrvi_element_eval(m, el, y, ge, He);
+      for (int j = 0; j < el->n_in; j++)
+        gr[m->slot[el->in[j]]] += ge[j];
+      mrvi_sblock_add_element(sr, e, He, el->n_in, hscale);
+    }
+    long nnz = 0, nnz_r = 0;
+    const double *Ax = mrvi_sblock_values(sb, &nnz);
+    const double *Ar = mrvi_sblock_values(sr, &nnz_r);
+    CHECK(nnz == nnz_r && memcmp(Ax, Ar, (size_t)nnz * sizeof *Ax) == 0 &&
+              memcmp(g, gr, (size_t)n * sizeof *g) == 0,
+          "d %d %s (%g): sparse kernel bitwise the generic scatter", d, lc->law,
+          lc->params[1]);
+    /* H v from the values against central differences of the gradient
+     * along v. */
+    const double h = 1e-7; /* (error h^2 phi''' against round-off / h) */
+    for (int i = 0; i < n; i++)
+      qh[i] = q[i] + h * v[i];
+    mrvi_terms_grad(kc, qh, gp);
+    for (int i = 0; i < n; i++)
+      qh[i] = q[i] - h * v[i];
+    mrvi_terms_grad(kc, qh, gm);
+    mrvi_sblock_matvec(sb, v, Hv);
+    double e = 0.0, sc = 0.0;
+    for (int i = 0; i < n; i++) {
+      const double fd = hscale * (gp[i] - gm[i]) / (2 * h);
+      e = fmax(e, fabs(Hv[i] - fd));
+      sc = fmax(sc, fabs(fd));
+    }
+    CHECK(e <= 1e-5 * fmax(sc, 1.0),
+          "d %d %s (%g): sparse Hessian-vector %.2e against central "
+          "differences (scale %.2e)",
+          d, lc->law, lc->params[1], e, sc);
+  }
+  mrvi_sblock_free(sb);
+  mrvi_sblock_free(sr);
+  mrvi_terms_free(kc);
+  free(elems);
+  free(q);
+  free(g);
+  free(gr);
+  free(v);
+  free(gp);
+  free(gm);
+  free(Hv);
+  free(qh);
+  mrvi_model_free(m);
+}
+
 /* Every registered law has a case (a new law must be added above). */
 static void check_coverage(void) {
   for (int i = 0; i < mrvi_law_count(); i++) {
@@ -198,5 +290,8 @@ int main(void) {
   for (int d = 1; d <= 3; d++)
     for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++)
       check_case(d, &cases[c], &rng);
+  for (int d = 1; d <= 3; d++)
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++)
+      check_sparse(d, &cases[c], &rng);
   return test_finish();
 }

@@ -65,6 +65,9 @@ typedef struct run_out {
  * (MRVI_CHORD_AUTO by default). */
 static int run_chord = MRVI_CHORD_AUTO, run_cchord = MRVI_CHORD_AUTO,
            run_shoot = MRVI_CHORD_AUTO;
+/* 1: run() keeps the last micro node alone (mrvi_integrator_keep_micro),
+ * storing it as the step's micro nodes' last row. */
+static int run_last_only = 0;
 
 static void run(const mrvi_system *sys, run_out *o) {
   mrvi_integrator *it = NULL;
@@ -84,6 +87,13 @@ static void run(const mrvi_system *sys, run_out *o) {
   mrvi_integrator_set_chord(it, run_chord);
   mrvi_integrator_set_const_chord(it, run_cchord);
   mrvi_integrator_set_shoot(it, run_shoot);
+  const int p = sys->settings.micro_steps, nf = m->n_fast;
+  const int rows = mrvi_integrator_keep_micro(it, !run_last_only);
+  if (rows != (run_last_only && rows == 1 ? 1 : p)) {
+    CHECK(0, "keep_micro(%d): %d rows", !run_last_only, rows);
+    mrvi_integrator_free(it);
+    return;
+  }
   o->path = mrvi_integrator_solver_path(it);
   memcpy(o->q[0], mrvi_integrator_q(it), (size_t)o->n * sizeof(double));
   memcpy(o->p[0], mrvi_integrator_p(it), (size_t)o->n * sizeof(double));
@@ -95,8 +105,12 @@ static void run(const mrvi_system *sys, run_out *o) {
     }
     memcpy(o->q[k + 1], mrvi_integrator_q(it), (size_t)o->n * sizeof(double));
     memcpy(o->p[k + 1], mrvi_integrator_p(it), (size_t)o->n * sizeof(double));
-    memcpy(o->micro[k], mrvi_integrator_micro_q(it),
-           (size_t)o->nmicro * sizeof(double));
+    if (rows == 1 && p > 1) /* the last row alone, the others zero */
+      memcpy(o->micro[k] + (size_t)(p - 1) * nf, mrvi_integrator_micro_q(it),
+             (size_t)nf * sizeof(double));
+    else
+      memcpy(o->micro[k], mrvi_integrator_micro_q(it),
+             (size_t)o->nmicro * sizeof(double));
     o->iters[k] = mrvi_integrator_last_iterations(it);
   }
   o->nfac = mrvi_integrator_factorisations(it);
@@ -1608,7 +1622,88 @@ static void test_tuning(void) {
   }
 }
 
+/* Keeping the last micro node alone (mrvi_integrator_keep_micro) leaves
+ * the trajectory bit for bit on every path that allows it (the explicit,
+ * sweep and sweep-cg paths: one row kept), and the last micro node too;
+ * the Newton paths keep all rows. */
+static void test_keep_micro(void) {
+  static const char *const schemes[] = {"fully-explicit", "explicit-slow",
+                                        "trapezoidal-trapezoidal"};
+  static run_out all, last;
+  int n_last = 0, seen_cg = 0;
+  for (int i = 0; i < N_SYSTEMS; i++)
+    for (int sc = 0; sc < 3; sc++)
+      for (int p = 1; p <= 5; p += 4)
+        for (int cg = 0; cg < 2; cg++) {
+          mrvi_system *sys =
+              load(systems[i], schemes[sc], p, "multipliers", "auto");
+          if (!sys)
+            continue;
+          char msg[200];
+          if (cg && mrvi_settings_set_tuning(&sys->settings, "dense_max", 1,
+                                             msg, sizeof msg) < 0)
+            CHECK(0, "%s", msg);
+          memset(&all, 0, sizeof all);
+          memset(&last, 0, sizeof last);
+          run_last_only = 0;
+          run(sys, &all);
+          run_last_only = 1;
+          run(sys, &last);
+          run_last_only = 0;
+          mrvi_system_free(sys);
+          if (!all.ok || !last.ok)
+            continue;
+          const int structured = !strcmp(all.path, "explicit") ||
+                                 !strcmp(all.path, "sweep") ||
+                                 !strcmp(all.path, "sweep-cg");
+          n_last += structured;
+          seen_cg |= !strcmp(all.path, "sweep-cg");
+          int same = 1;
+          const int nf = all.nmicro / p;
+          for (int k = 0; k <= N_STEPS; k++) {
+            same &=
+                !memcmp(all.q[k], last.q[k], (size_t)all.n * sizeof(double));
+            same &=
+                !memcmp(all.p[k], last.p[k], (size_t)all.n * sizeof(double));
+            if (k < N_STEPS)
+              same &= !memcmp(all.micro[k] + (size_t)(p - 1) * nf,
+                              last.micro[k] + (size_t)(p - 1) * nf,
+                              (size_t)nf * sizeof(double));
+          }
+          CHECK(same,
+                "%s %s p=%d dense_max %s (%s): the last micro node "
+                "alone changes the run",
+                systems[i], schemes[sc], p, cg ? "1" : "default", all.path);
+        }
+  CHECK(n_last >= 10 && seen_cg, "keep_micro: %d runs on the sweep paths, %s",
+        n_last, seen_cg ? "sweep-cg seen" : "sweep-cg not seen");
+  /* Without the nodes there is no step Jacobian to solve with. */
+  mrvi_system *sys =
+      load("systems/lattice.yaml", "fully-explicit", 5, "multipliers", "auto");
+  mrvi_integrator *it = NULL;
+  char msg[300];
+  if (sys && mrvi_integrator_create(sys->model, &sys->settings, &it, msg,
+                                    sizeof msg) == 0) {
+    const int nj = mrvi_integrator_jacobian_size(it);
+    double *b = calloc((size_t)nj, sizeof *b),
+           *x = calloc((size_t)nj, sizeof *x);
+    const int rows = mrvi_integrator_keep_micro(it, 0);
+    const int st = mrvi_integrator_step(it);
+    const int js = b && x ? mrvi_integrator_jacobian_solve(it, 0, b, x) : 0;
+    CHECK(rows == 1 && st == 0 && js == MRVI_EINVAL &&
+              strstr(mrvi_integrator_errmsg(it), "keep_micro"),
+          "lattice fully-explicit, last node alone: rows %d, step %d, "
+          "jacobian_solve %d (%s)",
+          rows, st, js, mrvi_integrator_errmsg(it));
+    free(b);
+    free(x);
+  }
+  mrvi_integrator_free(it);
+  mrvi_system_free(sys);
+}
+
 int main(void) {
+  test_keep_micro();
   test_tuning();
   test_path_names();
   test_direct();

@@ -36,7 +36,10 @@ struct mrvi_integrator {
   int packed; /* model order is slow then fast: the blocks alias q and p */
   double *x, *R, *dx;        /* unknowns, residual, Newton update */
   double *ps1;               /* ns */
-  double *micro_q, *micro_p; /* p x nf */
+  double *micro_q, *micro_p; /* p x nf (1 x nf: node_stride 0) */
+  /* Spacing of the fast nodes in x and micro_p: nf, or 0 where only the
+   * last is kept (mrvi_integrator_keep_micro) */
+  size_t node_stride;
   double *lambda; /* constraint rows: multipliers at node k of the last step */
   double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
@@ -602,6 +605,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->ps1 = alloc(ns);
   it->micro_q = alloc(p * nf);
   it->micro_p = alloc(p * nf);
+  it->node_stride = nf;
   it->lambda = alloc((size_t)m->constraint_rows);
   it->micro_cres = alloc(p);
   it->rhs = alloc((size_t)it->step.n_unknowns);
@@ -1158,6 +1162,28 @@ static int use_shoot(const mrvi_integrator *it) {
   return it->shoot_mode == MRVI_CHORD_ON || !const_chord_rule(it);
 }
 
+int mrvi_integrator_keep_micro(mrvi_integrator *it, int all) {
+  const mrvi_step *st = &it->step;
+  if (!it->sweep)
+    return st->p; /* (the Newton paths solve all nodes at once) */
+  /* micro_q and micro_p resized to the rows kept (shrinking in place) */
+  const size_t rows = all ? (size_t)st->p : 1, nf = (size_t)st->nf;
+  double *q =
+      realloc(it->micro_q, (rows * nf > 0 ? rows * nf : 1) * sizeof(double));
+  if (q)
+    it->micro_q = q;
+  double *p =
+      q ? realloc(it->micro_p, (rows * nf > 0 ? rows * nf : 1) * sizeof(double))
+        : NULL;
+  if (p)
+    it->micro_p = p;
+  if (!p) /* (growing failed: the last node alone is still kept) */
+    return MRVI_ENOMEM;
+  it->node_stride = all ? nf : 0;
+  mrvi_sweep_set_last_only(it->sweep, !all);
+  return (int)rows;
+}
+
 void mrvi_integrator_set_shoot(mrvi_integrator *it, int mode) {
   it->shoot_mode = mode;
 }
@@ -1364,7 +1390,7 @@ ALWAYS_INLINE void new_state_packed(mrvi_integrator *it, const double *xf,
     q[ns + i] = xf[i];
     pq[ns + i] = pf1[i];
   }
-  if (p == 1) { /* the one fast node is the new state's */
+  if (p == 1 || it->node_stride == 0) { /* the new state's fast node */
     UNROLL
     for (int i = 0; i < nf; i++)
       it->micro_q[i] = xf[i];
@@ -1388,8 +1414,9 @@ static int finish_step_general(mrvi_integrator *it) {
   /* The new state in rate blocks and model order, the last one kept (loops:
    * these copies are short, a call each would cost more than the copying at
    * p = 1). */
-  const double *xq = it->x, *xf = it->x + ns + (size_t)(p - 1) * nf;
-  const double *pf1 = it->micro_p + (size_t)(p - 1) * (size_t)nf;
+  const size_t last = (size_t)(p - 1) * it->node_stride;
+  const double *xq = it->x, *xf = it->x + ns + last;
+  const double *pf1 = it->micro_p + last;
   if (it->packed) {
     SMALL2(ns, NS, nf, NF, new_state_packed(it, xf, pf1, NS, NF));
   } else {
@@ -1403,7 +1430,8 @@ static int finish_step_general(mrvi_integrator *it) {
       it->qf[i] = it->q[m->fast_index[i]] = xf[i];
       it->pf[i] = it->p[m->fast_index[i]] = pf1[i];
     }
-    copy_pairs(it->micro_q, it->x + ns, (size_t)p * (size_t)nf);
+    copy_pairs(it->micro_q, it->x + ns,
+               it->node_stride ? (size_t)p * (size_t)nf : (size_t)nf);
   }
   if (m->n_constraints > 0 && it->settings.project_momenta) {
     if (project(it) < 0)
@@ -1413,7 +1441,7 @@ static int finish_step_general(mrvi_integrator *it) {
                   it->k + 1, it->t0 + (double)(it->k + 1) * st->dT);
     split_state(it);
     for (int i = 0; i < nf; i++)
-      it->micro_p[(size_t)(p - 1) * (size_t)nf + (size_t)i] = it->pf[i];
+      it->micro_p[last + (size_t)i] = it->pf[i];
   }
   it->k++;
   it->jac_ready = 1;
@@ -1426,8 +1454,8 @@ ALWAYS_INLINE int finish_step(mrvi_integrator *it) {
     return finish_step_general(it);
   /* Unconstrained, packed layout: the new state only. */
   const int ns = st->ns, nf = st->nf, p = st->p;
-  const double *xf = it->x + ns + (size_t)(p - 1) * nf;
-  const double *pf1 = it->micro_p + (size_t)(p - 1) * (size_t)nf;
+  const size_t last = (size_t)(p - 1) * it->node_stride;
+  const double *xf = it->x + ns + last, *pf1 = it->micro_p + last;
   SMALL2(ns, NS, nf, NF, new_state_packed(it, xf, pf1, NS, NF));
   it->k++;
   it->jac_ready = 1;
@@ -1507,6 +1535,10 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
   char msg[300] = "";
   if (!it->jac_ready && it->k == 0)
     return fail(it, MRVI_EINVAL, "no completed step to solve with");
+  if (it->jac_ready && it->node_stride == 0)
+    return fail(it, MRVI_EINVAL,
+                "the step's micro nodes were not kept "
+                "(mrvi_integrator_keep_micro): no Jacobian to solve with");
   if (it->jac_ready) {
     /* Assemble the full Jacobian at the last step's solution, with that
      * step's known data, and factorise it once for any number of solves. */

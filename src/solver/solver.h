@@ -101,6 +101,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
 void mrvi_sweep_free(mrvi_sweep *sw);
 /* Forget cached forces (after the state is set from outside). */
 void mrvi_sweep_reset(mrvi_sweep *sw);
+/* last_only 1: mrvi_sweep_step writes every fast node over the last,
+ * so that x holds q^{f,p} alone (at x + ns) and pf p^{f,p} alone (nf);
+ * 0 (the default): all p nodes.  The arithmetic is the same. */
+void mrvi_sweep_set_last_only(mrvi_sweep *sw, int last_only);
 /* One step from the known data of st: x (n_unknowns) gets
  * (q_{k+1}^s, q^{f,1..p}), ps1 (ns) the slow momentum at k+1, pf (p x nf)
  * the fast momenta at nodes 1..p (eq:pkfm+).  *iterations: the largest
@@ -158,6 +162,7 @@ int mrvi_gmres(int n, mrvi_matvec_status A, void *ctx, const double *dinv,
 /* Micro-step Newton matrix J = diag + sum_e scale_e hess_ff(e) of the sweep
  * path on a fixed sparse pattern (solver/sparse_block.c, "sweep-cg"). */
 typedef struct mrvi_sblock mrvi_sblock;
+typedef struct mrvi_terms mrvi_terms; /* (below) */
 /* Pattern of the fast-fast Hessians of the elements elems (n_elems model
  * indices; the sweep's W elements) and the diagonal. */
 int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
@@ -167,6 +172,15 @@ void mrvi_sblock_free(mrvi_sblock *sb);
 void mrvi_sblock_zero(mrvi_sblock *sb);
 void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
                              double scale);
+/* g += grad W(z) of the class kc (compiled from the same elems) and
+ * scale hess W(z) added to the values (mrvi_terms_eval_sparse): the
+ * elements' evaluation and mrvi_sblock_add_element, bitwise. */
+void mrvi_sblock_add_terms(mrvi_sblock *sb, mrvi_terms *kc, const double *z,
+                           double *g, double scale);
+/* The values (nnz, CSC order of the pattern) and y = J x with them as
+ * they stand (nf), for tests. */
+const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz);
+void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y);
 /* Add dscale diag (nf) to the diagonal and solve J x = b in place (b
  * becomes x) by CG, stopping at ||r||_inf <= atol or 1e-12 relative;
  * sparse LU where CG meets non-positive curvature or does not converge
@@ -214,6 +228,15 @@ void mrvi_terms_grad_d2(const mrvi_terms *kc, const double *z, double *g,
                         double w, double *dsum);
 void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
                         int ld, int lim);
+/* g += grad Z(z) and hscale times each element's Hessian added into the
+ * values Ax of a sparse matrix: entry k of element i's n_in x n_in Hessian
+ * (row-major; i in the order of elems) into Ax[emap[off[i] + k]], left
+ * out where off[i] < 0 or that index is < 0.  Springs and anchors by the
+ * compiled kernels, the others by mrvi_element_eval; bitwise a scatter of
+ * mrvi_element_eval's Hessians element by element. */
+void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
+                            double *Ax, const long *off, const int *emap,
+                            double hscale);
 /* Whether every element of the class is quadratic
  * (mrvi_element_is_quadratic): its Hessian is constant. */
 int mrvi_terms_quadratic(const mrvi_terms *kc);

@@ -151,6 +151,23 @@ void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
       sb->Ax[map[k]] += scale * H[k];
 }
 
+void mrvi_sblock_add_terms(mrvi_sblock *sb, mrvi_terms *kc, const double *z,
+                           double *g, double scale) {
+  mrvi_terms_eval_sparse(kc, z, g, sb->Ax, sb->elem_off, sb->emap, scale);
+}
+
+void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y) {
+  memset(y, 0, (size_t)sb->nf * sizeof(double));
+  for (int j = 0; j < sb->nf; j++)
+    for (int q = sb->Ap[j]; q < sb->Ap[j + 1]; q++)
+      y[sb->Ai[q]] += sb->Ax[q] * x[j];
+}
+
+const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz) {
+  *nnz = sb->nnz;
+  return sb->Ax;
+}
+
 static double matvec(void *ctx, const double *x, double *y) {
   const mrvi_sblock *sb = ctx;
   memset(y, 0, (size_t)sb->nf * sizeof(double));

@@ -22,6 +22,7 @@
  * MRVI_TUNING_LIST) and by CG on a sparse pattern beyond ("sweep-cg",
  * solver/sparse_block.c). */
 #include "solver/solver.h"
+#include "util/simd.h"
 #include "util/small.h"
 
 #include <float.h>
@@ -46,6 +47,10 @@ struct mrvi_sweep {
   int nl, nr;
   double wl[2], wr[2];
   int tight; /* explicit, p = 1, one point at each node (explicit_p1) */
+  /* The spacing of the fast nodes in x and pf: nf (every micro node kept),
+   * or 0 (mrvi_sweep_set_last_only: each node overwrites the last, which
+   * every sweep reads entry by entry before it writes that entry). */
+  size_t node_stride;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
@@ -277,6 +282,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->n_w++;
   }
   sw->tight = !sw->implicit && sw->p == 1 && sw->nl == 1 && sw->nr == 1;
+  sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
   int max_n_in = 1;
@@ -364,6 +370,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   return MRVI_OK;
 }
 
+void mrvi_sweep_set_last_only(mrvi_sweep *sw, int last_only) {
+  sw->node_stride = last_only ? 0 : (size_t)sw->nf;
+}
+
 void mrvi_sweep_reset(mrvi_sweep *sw) {
   if (!sw)
     return;
@@ -380,20 +390,9 @@ static void eval_fast(mrvi_sweep *sw, double *gf, double *J, double hscale) {
     mrvi_terms_eval(sw->kc[cls], sw->zf, 1.0, gf, J, sw->nf, hscale);
     return;
   }
-  /* Sparse block: each element's Hessian goes to its pattern entries. */
-  const mrvi_step *st = sw->st;
-  const mrvi_model *m = st->model;
-  for (int ie = 0; ie < st->n_elem_of_class[cls]; ie++) {
-    const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
-    const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
-    for (int j = 0; j < n; j++)
-      sw->y[j] = sw->zf[m->slot[e->in[j]]];
-    mrvi_element_eval(m, e, sw->y, sw->g, lin ? NULL : sw->H);
-    for (int j = 0; j < n; j++)
-      gf[m->slot[e->in[j]]] += sw->g[j];
-    if (!lin)
-      mrvi_sblock_add_element(sw->sb, ie, sw->H, n, hscale);
-  }
+  /* Sparse block: each element's Hessian goes to its pattern entries
+   * (springs and anchors by compiled kernels). */
+  mrvi_sblock_add_terms(sw->sb, sw->kc[cls], sw->zf, gf, hscale);
 }
 
 /* The blocks of a few coordinates are copied and zeroed by loops (unrolled
@@ -662,6 +661,42 @@ static const double *force_row(const mrvi_step *st, int m) {
   return st->f_rows ? st->f_rows + st->ns + (size_t)m * (size_t)st->nf : NULL;
 }
 
+/* Row m of the explicit sweep with one W point at each node and no
+ * control force, for blocks beyond the small kernels: explicit_nodes'
+ * operations entry by entry (r = p - wl g, dn = dt minv r, q^{m+1} =
+ * q^m + dn, M dn / dt), two entries at a time (util/simd.h: the same
+ * operations on each, so the same values; GCC's -O2 leaves the loop
+ * scalar, and its division per entry bounds it).  qn and pn may be qm and
+ * pm (the last node alone kept): each pair is read before it is written. */
+static void explicit_row(int nf, double dt, double wl, const double *pm,
+                         const double *gnode, const double *minv,
+                         const double *mf, const double *qm, double *qn,
+                         double *pn) {
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 r = v2_sub(v2_load(pm + f), v2_scale(wl, v2_load(gnode + f)));
+    const mrvi_v2 dn = v2_mul(v2_scale(dt, v2_load(minv + f)), r);
+    v2_store(qn + f, v2_add(v2_load(qm + f), dn));
+    v2_store(pn + f, v2_div(v2_mul(v2_load(mf + f), dn), vdt));
+  }
+  for (; f < nf; f++) {
+    const double r = pm[f] - wl * gnode[f], dn = dt * minv[f] * r;
+    qn[f] = qm[f] + dn;
+    pn[f] = mf[f] * dn / dt;
+  }
+}
+
+/* pn -= wr gnode (nf entries) in pairs, as explicit_row. */
+static void explicit_end_force(int nf, double wr, const double *gnode,
+                               double *pn) {
+  int f = 0;
+  for (; f + 2 <= nf; f += 2)
+    v2_store(pn + f, v2_sub(v2_load(pn + f), v2_scale(wr, v2_load(gnode + f))));
+  for (; f < nf; f++)
+    pn[f] -= wr * gnode[f];
+}
+
 /* The fast nodes of the explicit path (every W point on a node): row m
  * gives q^{m+1} from p^{f,m} (in pf's row m - 1, row 0: pf's first row as
  * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
@@ -674,32 +709,42 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
   const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
   const double *mf = sw->m_f, *minv = sw->minv_f;
   double *gnode = sw->gnode;
+  const size_t stride = sw->node_stride;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     if (nl > 0 && !sw->gnode_ok)
       fast_gradient(sw, qm, gnode, nf);
-    UNROLL
-    for (int f = 0; f < nf; f++) {
-      double r = pm[f];
-      if (fm)
-        r += fm[f];
-      for (int i = 0; i < nl; i++)
-        r -= wl[i] * gnode[f];
-      const double dn = dt * minv[f] * r;
-      qn[f] = qm[f] + dn;
-      pn[f] = mf[f] * dn / dt;
+    const int pairs = nl == 1 && nr == 1 && !fm && nf > 4; /* (not small) */
+    if (pairs) {
+      explicit_row(nf, dt, wl[0], pm, gnode, minv, mf, qm, qn, pn);
+    } else {
+      UNROLL
+      for (int f = 0; f < nf; f++) {
+        double r = pm[f];
+        if (fm)
+          r += fm[f];
+        for (int i = 0; i < nl; i++)
+          r -= wl[i] * gnode[f];
+        const double dn = dt * minv[f] * r;
+        qn[f] = qm[f] + dn;
+        pn[f] = mf[f] * dn / dt;
+      }
     }
     sw->gnode_ok = 0;
     if (nr > 0) {
       fast_gradient(sw, qn, gnode, nf);
       sw->gnode_ok = 1;
-      UNROLL
-      for (int f = 0; f < nf; f++)
-        for (int i = 0; i < nr; i++)
-          pn[f] -= wr[i] * gnode[f];
+      if (pairs) {
+        explicit_end_force(nf, wr[0], gnode, pn);
+      } else {
+        UNROLL
+        for (int f = 0; f < nf; f++)
+          for (int i = 0; i < nr; i++)
+            pn[f] -= wr[i] * gnode[f];
+      }
     }
     pm = pn;
   }
@@ -768,10 +813,11 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->Hpt[0];
   double *g = sw->gpt[0], *fimp = sw->fimp, *F = sw->F, *del = sw->del;
   double *rhs = sw->rhs, *dn = sw->dn, r = 0.0;
+  const size_t stride = sw->node_stride;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     /* Predictor (the last implicit force held fixed) and F there. */
     UNROLL
@@ -821,10 +867,11 @@ ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double wb = sw->w[0] * sw->cB[0];
   const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->wH;
   double *g = sw->gpt[0], *F = sw->F, *dn = sw->dn, *hd = sw->del, r = 0.0;
+  const size_t stride = sw->node_stride;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf, *pn = pf + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     fast_gradient(sw, qm, g, nf); /* gq */
     UNROLL
@@ -859,9 +906,10 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const int ns = sw->ns, nf = sw->nf, p = sw->p;
   const double dt = st->dt;
   const double *pm = pf;
+  const size_t stride = sw->node_stride;
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * nf;
-    double *qn = x + ns + (size_t)m * nf;
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride;
     /* rhs = p^{f,m} (+ control force) - forces of the points at node m
      * (cB = 0). */
     memcpy(sw->rhs, pm, (size_t)nf * sizeof(double));
@@ -901,7 +949,7 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     for (int f = 0; f < nf; f++)
       qn[f] = qm[f] + sw->dn[f];
     /* p^{f,m+1} (eq:pkfm+): M v_m - sum w cB grad W of interval m. */
-    double *pn = pf + (size_t)m * nf;
+    double *pn = pf + (size_t)m * stride;
     for (int f = 0; f < nf; f++)
       pn[f] = sw->m_f[f] * sw->dn[f] / dt;
     sw->gnode_ok = 0;
@@ -1075,8 +1123,8 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
       return s;
   }
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
-  double *pe = pf + (size_t)(p - 1) * nf;
-  const double *xe = x + ns + (size_t)(p - 1) * nf;
+  double *pe = pf + (size_t)(p - 1) * sw->node_stride;
+  const double *xe = x + ns + (size_t)(p - 1) * sw->node_stride;
   end_potential(sw, x, xe, ps1, pe, ns, nf);
   /* Control forces f^+ of the step on the end momenta. */
   if (st->f_end) {

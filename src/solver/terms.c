@@ -44,6 +44,14 @@ typedef struct kspring {
   const mrvi_element *el;
 } kspring;
 
+/* A Hooke spring whose particles' coordinates are consecutive columns
+ * (ci..ci+dim-1, cj..cj+dim-1): the data its gradient reads, a quarter of
+ * a kspring (the explicit paths' loop streams them). */
+typedef struct khooke {
+  int ci, cj;
+  double c, shift;
+} khooke;
+
 /* The few-input terms compact and contiguous (kterm4 runs). */
 typedef struct kterm4 {
   int n, k; /* inputs; integer exponent, -1 for the linear law */
@@ -62,6 +70,9 @@ struct mrvi_terms {
   double *y, *g, *H; /* element workspace */
   kterm4 *q4;
   kspring *qs;
+  khooke *qh;               /* per record of qs (used where hooke_run) */
+  unsigned char *hooke_run; /* per record of qs: the run from it is of
+                               khooke springs */
   int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
               dim) */
   /* Every term a compact record (q4[0..n)): gradients by one loop over
@@ -82,6 +93,8 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->H);
   free(kc->q4);
   free(kc->qs);
+  free(kc->qh);
+  free(kc->hooke_run);
   free(kc);
 }
 
@@ -113,7 +126,11 @@ static int terms_springs(mrvi_terms *kc) {
     t->runs = 1 + (same ? u->runs : 0);
     ns++;
   }
-  if (!(kc->qs = calloc((size_t)(ns > 0 ? ns : 1), sizeof *kc->qs)))
+  const size_t nq = (size_t)(ns > 0 ? ns : 1);
+  kc->qs = calloc(nq, sizeof *kc->qs);
+  kc->qh = calloc(nq, sizeof *kc->qh);
+  kc->hooke_run = calloc(nq, 1);
+  if (!kc->qs || !kc->qh || !kc->hooke_run)
     return MRVI_ENOMEM;
   for (int ie = 0, is = 0; ie < kc->n; ie++) {
     kterm *t = &kc->t[ie];
@@ -133,6 +150,18 @@ static int terms_springs(mrvi_terms *kc) {
       q->cj[k] = q->two ? kc->col[t->first + dim + k] : 0;
       q->a[k] = e->anchor[k];
     }
+    int consecutive = q->two && q->k == KS_HOOKE;
+    for (int k = 1; k < dim; k++)
+      consecutive &= q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
+    kc->qh[t->qs] = (khooke){q->ci[0], q->cj[0], q->c, q->shift};
+    kc->hooke_run[t->qs] = (unsigned char)consecutive;
+  }
+  /* A run is of khooke springs when every record in it is (from its end
+   * backwards: hooke_run[r] = the record's and the rest of its run's). */
+  for (int ie = kc->n - 1; ie >= 0; ie--) {
+    const kterm *t = &kc->t[ie];
+    if (t->runs > 1 && !kc->hooke_run[t->qs + 1])
+      kc->hooke_run[t->qs] = 0;
   }
   return MRVI_OK;
 }
@@ -469,6 +498,36 @@ springs_eval(const kspring *q, int nr, const double *z, double scale, double *g,
 #undef SPRINGS
 }
 
+/* The gradient of a run of nr khooke springs in dimension dim:
+ * spring_eval's arithmetic at unit scale (bitwise the same). */
+ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
+                                double *g, const int dim) {
+  for (int r = 0; r < nr; r++) {
+    const int ci = q[r].ci, cj = q[r].cj;
+    double d[3], r2 = 0.0;
+    UNROLL for (int k = 0; k < dim; k++) {
+      d[k] = z[ci + k] - z[cj + k];
+      r2 += d[k] * d[k];
+    }
+    const double rr = sqrt(r2), d1 = q[r].c * (rr - q[r].shift);
+    double u[3] = {0, 0, 0};
+    if (rr > 0.0)
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    UNROLL for (int k = 0; k < dim; k++) g[ci + k] += d1 * u[k];
+    UNROLL for (int k = 0; k < dim; k++) g[cj + k] += -d1 * u[k];
+  }
+}
+
+static __attribute__((noinline)) void
+hooke_grad(const khooke *q, int nr, const double *z, double *g, int dim) {
+  if (dim == 2)
+    hooke_grad_k(q, nr, z, g, 2);
+  else if (dim == 3)
+    hooke_grad_k(q, nr, z, g, 3);
+  else
+    hooke_grad_k(q, nr, z, g, 1);
+}
+
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
                           double *g, double *J, int ld, double hscale,
                           const int unit) {
@@ -477,6 +536,11 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
     if (t->run4 > 0) {
       run4_eval(kc->q4 + t->q4, t->run4, z, scale, g, J, ld, hscale, unit);
       it += t->run4 - 1;
+      continue;
+    }
+    if (t->runs > 0 && !J && unit && kc->hooke_run[t->qs]) {
+      hooke_grad(kc->qh + t->qs, t->runs, z, g, kc->dim);
+      it += t->runs - 1;
       continue;
     }
     if (t->runs > 0) {
@@ -775,6 +839,126 @@ void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
         if (q->col[l] < lim)
           J[q->col[j] * ld + q->col[l]] += u * q->a[l];
     }
+  }
+}
+
+/* A spring or anchor (spring_eval's arithmetic, law code kk): its
+ * gradient added to g, and hscale times its Hessian, the blocks
+ * [A -A; -A A] (or A), added entry by entry into Ax[map[k]] in the
+ * row-major order of the element's n_in x n_in Hessian (mrvi_element_eval
+ * and a scatter of it: bitwise the same); map[k] < 0: entry left out. */
+ALWAYS_INLINE void spring_map(const kspring *q, const double *z, double *g,
+                              double *Ax, const int *map, double hscale,
+                              const int dim, const int two, const int kk) {
+  double d[3], r2 = 0.0;
+  UNROLL for (int k = 0; k < dim; k++) {
+    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->a[k]);
+    r2 += d[k] * d[k];
+  }
+  const double r = sqrt(r2), s = r - q->shift;
+  const int k = kk == K_ANY ? q->k : kk;
+  double phi, d1, d2;
+  if (k == KS_HOOKE) {
+    d1 = q->c * s;
+    d2 = q->c;
+  } else if (k >= 0) {
+    mrvi_power_derivs_ce(q->ce, q->ce1, k, s, &d1, &d2);
+  } else {
+    q->el->law->eval(q->el->params, s, &phi, &d1, &d2);
+  }
+  double u[3] = {0, 0, 0}, a = 0.0, b;
+  if (r > 0.0) {
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / r;
+    a = d2 - d1 / r;
+    b = d1 / r;
+  } else {
+    b = d2;
+  }
+  UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] += d1 * u[k];
+  if (two)
+    UNROLL for (int k = 0; k < dim; k++) g[q->cj[k]] += -d1 * u[k];
+  const int n = two ? 2 * dim : dim;
+  UNROLL for (int i = 0; i < n; i++) {
+    UNROLL for (int j = 0; j < n; j++) {
+      const int ii = i < dim ? i : i - dim, jj = j < dim ? j : j - dim;
+      const double A = a * u[ii] * u[jj] + (ii == jj ? b : 0.0);
+      const int t = map[i * n + j];
+      if (t >= 0)
+        Ax[t] += hscale * ((i < dim) == (j < dim) ? A : -A);
+    }
+  }
+}
+
+/* A run of nr springs or anchors from record q (element index ie0) into
+ * the sparse values (a loop per dimension, kind and law code). */
+ALWAYS_INLINE void springs_map_k(const kspring *q, int nr, int ie0,
+                                 const double *z, double *g, double *Ax,
+                                 const long *off, const int *emap,
+                                 double hscale, const int dim, const int two) {
+#define SPRINGS_MAP(KK)                                                        \
+  for (int r = 0; r < nr; r++) {                                               \
+    const long o = off[ie0 + r];                                               \
+    if (o >= 0)                                                                \
+      spring_map(q + r, z, g, Ax, emap + o, hscale, dim, two, KK);             \
+    else /* (no Hessian entries) */                                            \
+      spring_eval(q + r, z, 1.0, g, NULL, 0, 0.0, dim, two, KK, 1);            \
+  }
+  switch (q->k) {
+  case KS_HOOKE:
+    SPRINGS_MAP(KS_HOOKE)
+    break;
+  case KS_LAW:
+    SPRINGS_MAP(KS_LAW)
+    break;
+  default:
+    SPRINGS_MAP(K_ANY)
+  }
+#undef SPRINGS_MAP
+}
+
+static __attribute__((noinline)) void
+springs_map(const kspring *q, int nr, int ie0, const double *z, double *g,
+            double *Ax, const long *off, const int *emap, double hscale,
+            int dim) {
+  if (dim == 2 && q->two)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 2, 1);
+  else if (dim == 2)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 2, 0);
+  else if (dim == 3 && q->two)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 3, 1);
+  else if (dim == 3)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 3, 0);
+  else if (q->two)
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 1, 1);
+  else
+    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 1, 0);
+}
+
+void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
+                            double *Ax, const long *off, const int *emap,
+                            double hscale) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    if (t->runs > 0) {
+      springs_map(kc->qs + t->qs, t->runs, it, z, g, Ax, off, emap, hscale,
+                  kc->dim);
+      it += t->runs - 1;
+      continue;
+    }
+    /* Every other element through the generic evaluation. */
+    const int n = t->n, *col = kc->col + t->first;
+    const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
+    for (int j = 0; j < n; j++)
+      kc->y[j] = z[col[j]];
+    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, lin ? NULL : kc->H);
+    for (int j = 0; j < n; j++)
+      g[col[j]] += kc->g[j];
+    if (lin || off[it] < 0)
+      continue;
+    const int *map = emap + off[it];
+    for (int k = 0; k < n * n; k++)
+      if (map[k] >= 0)
+        Ax[map[k]] += hscale * kc->H[k];
   }
 }
 
