@@ -304,6 +304,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
                                    st->n_elem_of_class[MRVI_FAST], col,
                                    &sw->kc[MRVI_FAST]) == MRVI_OK;
   free(col);
+  /* The gradients of large spring classes on threads (the same bits). */
+  const int threads = mrvi_threads_resolve(s->threads);
+  for (int c = 0; s_ok && c < 2; c++)
+    s_ok = mrvi_terms_set_threads(sw->kc[c], threads,
+                                  s->tuning.thread_chunk) == MRVI_OK;
   if (!s_ok) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
