@@ -999,7 +999,8 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
   printf("# mrvi %s  threads: 1 against %d  dT = %g  p = %d  best of %d "
          "alternating rounds (wall time)  %d cores available  load average "
          "%.2f at the start\n",
-         mrvi_version(), t, o->dT, o->p, repeats, (int)sysconf(_SC_NPROCESSORS_ONLN), bench_load());
+         mrvi_version(), t, o->dT, o->p, repeats,
+         (int)sysconf(_SC_NPROCESSORS_ONLN), bench_load());
   printf("# build: %s; threads %s\n\n", bench_build(),
          mrvi_threads_supported() ? "on (OpenMP)" : "off (no OpenMP)");
   for (int k = 0; k < N_NETS; k++) {
@@ -1022,16 +1023,14 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
           for (int j = 0; j < 2; j++) {
             o->threads = j ? t : 1;
             result x = run_case(k, n_list[ni], me, o);
-            if (x.status == 0 &&
-                (best[j].status != 0 || x.wall < best[j].wall))
+            if (x.status == 0 && (best[j].status != 0 || x.wall < best[j].wall))
               best[j] = x;
             else if (x.status != 0 && best[j].status != 0)
               best[j] = x;
           }
         o->threads = 1;
         if (best[0].status != 0 || best[1].status != 0) {
-          printf("| %-20s | %8d | failed: %s |\n", method_names[me],
-                 n_list[ni],
+          printf("| %-20s | %8d | failed: %s |\n", method_names[me], n_list[ni],
                  best[0].status ? best[0].message : best[1].message);
           continue;
         }

@@ -693,7 +693,7 @@ typedef enum mrvi_solver {
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
     "relative tolerance of schur-krylov's GMRES on the slow unknowns")         \
   X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
-  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")  \
+  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")   \
   X(int, thread_chunk, 4096, 1, 100000000,                                     \
     "elements per chunk of a threaded element loop (settings.threads); a "     \
     "class of fewer than two chunks runs on one thread")

@@ -175,8 +175,8 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
       memset(gs, 0, (size_t)n * sizeof *gs);
       mrvi_terms_grad(kt, q, gs);
       CHECK(memcmp(gs, g, (size_t)n * sizeof *g) == 0,
-            "d %d %s (%g): %d threads: the serial gradient bitwise", d,
-            lc->law, lc->params[1], t);
+            "d %d %s (%g): %d threads: the serial gradient bitwise", d, lc->law,
+            lc->params[1], t);
       mrvi_terms_free(kt);
     }
     const double val = mrvi_terms_value(kc, q);

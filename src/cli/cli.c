@@ -206,8 +206,8 @@ int mrvi_cli_threads(const char *cmd, const char *what, const char *value) {
   char *end = NULL;
   const long n = strtol(value, &end, 10);
   if (!*value || *end || n < 1 || n > 4096) {
-    fprintf(stderr, "mrvi %s: %s takes a thread count 1..4096, got '%s'\n",
-            cmd, what, value);
+    fprintf(stderr, "mrvi %s: %s takes a thread count 1..4096, got '%s'\n", cmd,
+            what, value);
     return -1;
   }
   if (n > 1 && !mrvi_threads_supported()) {

@@ -17,7 +17,8 @@ const char mrvi_usage_batch[] =
     "Usage: mrvi batch FILE -o OUT.h5 [--vary KEY=V1,V2,...]...\n"
     "                  [--vary KEY=linspace(a,b,n)|logspace(a,b,n)]... "
     "[--zip]\n"
-    "                  [--seeds N [--velocity-std S]] [--jobs N] [--threads T]\n"
+    "                  [--seeds N [--velocity-std S]] [--jobs N] [--threads "
+    "T]\n"
     "                  [--quiet]\n"
     "       mrvi batch --resume OUT.h5 [--jobs N] [--threads T] [--quiet]\n"
     "\n"
@@ -365,10 +366,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
               n_todo, n_todo == 1 ? "" : "s", resume ? " left" : "", ranks,
               jobs, jobs == 1 ? "" : "s", out);
     else if (!quiet)
-      fprintf(stderr, "mrvi batch: %d case%s%s on %d job%s x %d thread%s -> %s\n",
+      fprintf(stderr,
+              "mrvi batch: %d case%s%s on %d job%s x %d thread%s -> %s\n",
               n_todo, n_todo == 1 ? "" : "s", resume ? " left" : "",
-              jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s",
-              plan.threads, plan.threads == 1 ? "" : "s", out);
+              jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s", plan.threads,
+              plan.threads == 1 ? "" : "s", out);
     int st = mrvi_batch_mpi_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
                                 msg, sizeof msg);
     if (st < 0 && msg[0])

@@ -141,8 +141,8 @@ struct mrvi_skrylov {
    * the chunks' sums added in order (for every thread count). */
   int threads, chunk, n_chunk;
   double *vpart;
-  int failed;           /* MRVI_CG_* of the last failed solve */
-  double curvature;     /* of a non-positive direction */
+  int failed;       /* MRVI_CG_* of the last failed solve */
+  double curvature; /* of a non-positive direction */
   int fail_block, fail_iters;
   mrvi_newton *lu; /* whole-step fallback, on first use */
   int lu_active;   /* the current Jacobian is factored by LU */
@@ -237,7 +237,8 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->cgb, nf);
   ALLOC(k->cgwork, 3 * nf);
   k->chunk = st->tuning.thread_chunk;
-  k->n_chunk = (int)nf >= 2 * k->chunk ? ((int)nf + k->chunk - 1) / k->chunk : 0;
+  k->n_chunk =
+      (int)nf >= 2 * k->chunk ? ((int)nf + k->chunk - 1) / k->chunk : 0;
   k->threads = k->n_chunk > 0 ? st->threads : 1;
   ALLOC(k->vpart, k->n_chunk > 0 ? k->n_chunk : 1);
   ALLOC(k->gwork, mrvi_gmres_work(k->ns, st->tuning.krylov_restart));

@@ -316,8 +316,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   /* The gradients of large spring classes on threads (the same bits). */
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
-    s_ok = mrvi_terms_set_threads(sw->kc[c], threads,
-                                  s->tuning.thread_chunk) == MRVI_OK;
+    s_ok = mrvi_terms_set_threads(sw->kc[c], threads, s->tuning.thread_chunk) ==
+           MRVI_OK;
   sw->chunk = s->tuning.thread_chunk;
   sw->threads = sw->nf >= 2 * sw->chunk ? threads : 1;
   if (!s_ok) {

@@ -389,8 +389,8 @@ ALWAYS_INLINE void run1_eval(const kterm *t, int nr, const int *col,
  * record's): mrvi_element_eval's distance arithmetic in its order, the
  * gradient added to g and the Hessian to J as eval_k adds an element's
  * (bitwise the same). */
-ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z,
-                                 double u[3], double *d1, double *a, double *b,
+ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
+                                 double *d1, double *a, double *b,
                                  const int dim, const int two, const int kk) {
   double d[3], r2 = 0.0;
   UNROLL for (int k = 0; k < dim; k++) {
