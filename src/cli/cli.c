@@ -517,13 +517,6 @@ static int cmd_check(int argc, char **argv) {
          steps, (double)steps * s->macro_step);
   printf("%-14stolerance %g, at most %d iterations\n", "newton", s->newton_tol,
          s->newton_max_iter);
-  if (mrvi_threads_supported())
-    printf("%-14s%d%s (element loops; the same results for every count)\n",
-           "threads", s->threads > 0 ? s->threads : mrvi_batch_cores(),
-           s->threads > 0 ? "" : " (the cores available)");
-  else
-    printf("%-14s1 (this build has no threads: built without OpenMP)\n",
-           "threads");
   {
     char why[300];
     const char *path = mrvi_solver_path(sys->model, s, why, sizeof why);
@@ -554,6 +547,13 @@ static int cmd_check(int argc, char **argv) {
   printf("%-14s%s (every %d, micro %s)\n", "output",
          sys->output_file ? sys->output_file : "-", sys->output_every,
          sys->output_micro ? "yes" : "no");
+  if (mrvi_threads_supported())
+    printf("%-14s%d%s (element loops; the same results for every count)\n",
+           "threads", s->threads > 0 ? s->threads : mrvi_batch_cores(),
+           s->threads > 0 ? "" : " (the cores available)");
+  else
+    printf("%-14s1 (this build has no threads: built without OpenMP)\n",
+           "threads");
   const int bad_control = mrvi_cli_check_control(sys);
   if (sys->notes) {
     putchar('\n');
