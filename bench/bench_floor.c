@@ -1006,11 +1006,15 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
   for (int k = 0; k < N_NETS; k++) {
     if (!nets[k])
       continue;
-    printf("## %s\n\n| %-20s | %8s | %-12s | %11s | %11s | %7s |\n",
+    printf("## %s\n\nwall: wall time per macro step; cpu: the CPU time of "
+           "all threads per macro step (cpu_T / cpu_1 near 1: the threads "
+           "add little work, whatever the machine's load does to the wall "
+           "times)\n\n| %-20s | %8s | %-12s | %11s | %11s | %7s | %11s | "
+           "%11s |\n",
            net_names[k], "method", "n", "path", "wall_1_s", "wall_T_s",
-           "speedup");
+           "speedup", "cpu_1_s", "cpu_T_s");
     printf("|----------------------|---------:|--------------|------------:|"
-           "------------:|--------:|\n");
+           "------------:|--------:|------------:|------------:|\n");
     for (int ni = 0; ni < n_n; ni++)
       for (int i = 0; i < 4; i++) {
         const method me = ms[i];
@@ -1034,9 +1038,11 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
                  best[0].status ? best[0].message : best[1].message);
           continue;
         }
-        printf("| %-20s | %8d | %-12s | %11.4g | %11.4g | %7.2f |\n",
+        printf("| %-20s | %8d | %-12s | %11.4g | %11.4g | %7.2f | %11.4g | "
+               "%11.4g |\n",
                method_names[me], best[0].n, best[0].path, best[0].wall,
-               best[1].wall, best[0].wall / best[1].wall);
+               best[1].wall, best[0].wall / best[1].wall, best[0].step,
+               best[1].step);
         fflush(stdout);
       }
     printf("\n");
