@@ -76,11 +76,6 @@ struct mrvi_sweep {
   int *piv;
   mrvi_sblock *sb;   /* sparse J instead (nf > dense_max) */
   double *y, *g, *H; /* element workspace */
-  /* The sparse block's elements on threads (eval_fast): per element of
-   * the fast class its inputs, gradient and Hessian (estride doubles
-   * each), evaluated in chunks, then added in the serial order. */
-  double *ebuf;
-  int estride, ethreads;
 };
 
 /* The structure the sweep needs, or the reason it is missing. */
@@ -240,7 +235,6 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->y);
   free(sw->g);
   free(sw->H);
-  free(sw->ebuf);
   free(sw);
 }
 
@@ -339,15 +333,6 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
-  const int ne_f = st->n_elem_of_class[MRVI_FAST];
-  if (sw->sb && threads > 1 && ne_f >= 2 * sw->chunk) {
-    sw->estride = 2 * max_n_in + max_n_in * max_n_in;
-    sw->ethreads = threads;
-    if (!(sw->ebuf = dalloc((size_t)ne_f * (size_t)sw->estride))) {
-      mrvi_sweep_free(sw);
-      return MRVI_ENOMEM;
-    }
-  }
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -397,42 +382,6 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
   memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
 }
 
-/* Elements ie0..ie1 of the fast class at zf into their slots of ebuf. */
-static void eval_elements(mrvi_sweep *sw, int ie0, int ie1) {
-  const mrvi_step *st = sw->st;
-  const mrvi_model *m = st->model;
-  for (int ie = ie0; ie < ie1; ie++) {
-    const mrvi_element *e = &m->elements[st->elem_of_class[MRVI_FAST][ie]];
-    const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
-    double *y = sw->ebuf + (size_t)ie * (size_t)sw->estride, *g = y + n;
-    for (int j = 0; j < n; j++)
-      y[j] = sw->zf[m->slot[e->in[j]]];
-    mrvi_element_eval(m, e, y, g, lin ? NULL : g + n);
-  }
-}
-
-/* eval_fast's sparse loop with the evaluations on threads (chunks of
- * sw->chunk elements, each element its own slot) and the additions after,
- * in the serial loop's order: the same bits for every thread count. */
-static void eval_fast_threads(mrvi_sweep *sw, double *gf, double hscale) {
-  const mrvi_step *st = sw->st;
-  const mrvi_model *m = st->model;
-  const int ne = st->n_elem_of_class[MRVI_FAST], chunk = sw->chunk;
-  const int n_chunk = (ne + chunk - 1) / chunk;
-  MRVI_PARALLEL_FOR(sw->ethreads)
-  for (int c = 0; c < n_chunk; c++)
-    eval_elements(sw, c * chunk, ne - c * chunk < chunk ? ne : (c + 1) * chunk);
-  for (int ie = 0; ie < ne; ie++) {
-    const mrvi_element *e = &m->elements[st->elem_of_class[MRVI_FAST][ie]];
-    const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
-    const double *g = sw->ebuf + (size_t)ie * (size_t)sw->estride + n;
-    for (int j = 0; j < n; j++)
-      gf[m->slot[e->in[j]]] += g[j];
-    if (!lin)
-      mrvi_sblock_add_element(sw->sb, ie, g + n, n, hscale);
-  }
-}
-
 /* The fast class at zf: gf += grad W and, if J, J += hscale hess W
  * (nf x nf, or the sparse sw->sb when set). */
 static void eval_fast(mrvi_sweep *sw, double *gf, double *J, double hscale) {
@@ -444,10 +393,6 @@ static void eval_fast(mrvi_sweep *sw, double *gf, double *J, double hscale) {
   /* Sparse block: each element's Hessian goes to its pattern entries. */
   const mrvi_step *st = sw->st;
   const mrvi_model *m = st->model;
-  if (sw->ebuf) {
-    eval_fast_threads(sw, gf, hscale);
-    return;
-  }
   for (int ie = 0; ie < st->n_elem_of_class[cls]; ie++) {
     const mrvi_element *e = &m->elements[st->elem_of_class[cls][ie]];
     const int n = e->n_in, lin = e->kind == MRVI_ELEMENT_GRAVITY;
