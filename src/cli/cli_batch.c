@@ -183,8 +183,8 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
   return rc;
 }
 
-/* The threads of each case: the given count, else the cores (of this
- * rank's share) divided by the jobs, at least 1 (1 without OpenMP). */
+/* The threads of each case: the given count, else the cores divided by
+ * the jobs, at least 1 (1 without OpenMP). */
 static int case_threads(int given, int cores, int jobs) {
   if (given > 0)
     return given;
@@ -203,7 +203,7 @@ static int batch_follow(void) {
   if (mrvi_batch_mpi_share(0, &plan, &master, &jobs)) {
     if (jobs == 0)
       jobs = mrvi_batch_mpi_jobs();
-    plan.threads = case_threads(0, mrvi_batch_mpi_jobs(), jobs);
+    plan.threads = 1; /* (over MPI the ranks fill the cores) */
     if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, NULL, NULL, msg,
                            sizeof msg) < 0 &&
         msg[0])
@@ -356,8 +356,9 @@ int mrvi_cmd_batch(int argc, char **argv) {
   mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
   if (rc == 0 && jobs == 0)
     jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
-  plan.threads = case_threads(
-      threads, ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores(), jobs);
+  /* (mrvi_batch_mpi_jobs is collective: not called here again) */
+  plan.threads = ranks > 1 ? (threads > 0 ? threads : 1)
+                           : case_threads(threads, mrvi_batch_cores(), jobs);
 
   batch_ctx ctx = {.out = out, .quiet = quiet, .ranks = ranks, .total = n_todo};
   if (rc == 0) {
