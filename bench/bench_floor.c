@@ -57,6 +57,7 @@
 #include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 enum { MAX_N = 8, MAX_REPEATS = 9, N_NETS = 3, CHECK_STEPS = 20 };
@@ -86,7 +87,7 @@ static const char usage[] =
     "Usage: bench_floor [--quick] [--n N1,N2,...] [--net NAME,...]\n"
     "                   [--repeats R] [--steps K] [--dT DT] [--p P]\n"
     "                   [--budget SECONDS] [--mem GB] [--big N]\n"
-    "                   [--no-lammps] [--method NAME]\n"
+    "                   [--no-lammps] [--method NAME] [--threads T]\n"
     "\n"
     "The r-RESPA and Stoermer-Verlet floors, mrvi's fully-explicit,\n"
     "explicit-slow, midpoint-midpoint and trapezoidal-midpoint, and LAMMPS\n"
@@ -98,7 +99,10 @@ static const char usage[] =
     "K macro steps (default 3) and 0.3 s; dT = 0.05, P = 10.  Implicit\n"
     "schemes run only up to --big N coordinates (default 1000000).\n"
     "--method runs one method alone (as the tables name it, e.g.\n"
-    "midpoint-midpoint).  --quick: N = 300,1000, R = 1, K = 2, lattice2d\n"
+    "midpoint-midpoint).  --threads T: instead of the tables above, mrvi's\n"
+    "schemes on 1 and on T threads (settings.threads), alternating, wall\n"
+    "time per macro step and the ratio; the other tables are on 1 thread.\n"
+    "  --quick: N = 300,1000, R = 1, K = 2, lattice2d\n"
     "only.\n";
 
 static int bad_usage(void) {
@@ -658,6 +662,7 @@ typedef struct result {
   int n;
   long steps;
   double create, step;      /* CPU s: creation, per macro step */
+  double wall;              /* wall s per macro step */
   double newton, cg, gmres; /* per macro step; CG iterations per micro step */
   long nnz;
   char path[16];
@@ -668,6 +673,7 @@ typedef struct result {
 typedef struct options {
   double dT, budget, mem_gb;
   int p, steps, big;
+  int threads; /* settings.threads of the mrvi methods (default 1) */
   char tmpdir[256];
 } options;
 
@@ -682,6 +688,12 @@ static void reset_peak(void) {
   }
 }
 
+static double wall_clock(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   char msg[512];
   mrvi_settings s;
@@ -691,6 +703,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   s.micro_steps = o->p;
   s.t_end = 1e6 * o->dT;
   s.energy_warning = 0;
+  s.threads = o->threads;
   r->n = mrvi_model_n(m);
   reset_peak();
   r->rss_before_kb = bench_status_kb("VmRSS:");
@@ -706,7 +719,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     mrvi_integrator_free(it);
     return;
   }
-  double t1 = bench_cpu();
+  double t1 = bench_cpu(), w1 = wall_clock();
   r->create = t1 - t0;
   long newton = 0, k = 0;
   for (; k < o->steps || (bench_cpu() - t1 < MIN_CPU && k < 100000); k++) {
@@ -719,6 +732,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   }
   if (!r->message[0]) {
     r->step = (bench_cpu() - t1) / k;
+    r->wall = (wall_clock() - w1) / k;
     r->steps = k;
     mrvi_krylov_stats ks;
     mrvi_integrator_krylov_stats(it, &ks);
@@ -985,6 +999,66 @@ static void print_ratio(const result *a, const result *b) {
     printf(" %10.2f |", x);
 }
 
+/* mrvi's schemes on 1 and on t threads, alternating: wall time per macro
+ * step, best of `repeats` rounds, and the ratio (one run). */
+static int threads_table(options *o, int t, const int *nets, const int *n_list,
+                         int n_n, int repeats, const char *only) {
+  const method ms[] = {M_FE, M_ES, M_MM, M_TM};
+  printf("# mrvi %s  threads: 1 against %d  dT = %g  p = %d  best of %d "
+         "alternating rounds (wall time)  %d cores available  load average "
+         "%.2f at the start\n",
+         mrvi_version(), t, o->dT, o->p, repeats,
+         (int)sysconf(_SC_NPROCESSORS_ONLN), bench_load());
+  printf("# build: %s; threads %s\n\n", bench_build(),
+         mrvi_threads_supported() ? "on (OpenMP)" : "off (no OpenMP)");
+  for (int k = 0; k < N_NETS; k++) {
+    if (!nets[k])
+      continue;
+    printf("## %s\n\nwall: wall time per macro step; cpu: the CPU time of "
+           "all threads per macro step (cpu_T / cpu_1 near 1: the threads "
+           "add little work, whatever the machine's load does to the wall "
+           "times)\n\n| %-20s | %8s | %-12s | %11s | %11s | %7s | %11s | "
+           "%11s |\n",
+           net_names[k], "method", "n", "path", "wall_1_s", "wall_T_s",
+           "speedup", "cpu_1_s", "cpu_T_s");
+    printf("|----------------------|---------:|--------------|------------:|"
+           "------------:|--------:|------------:|------------:|\n");
+    for (int ni = 0; ni < n_n; ni++)
+      for (int i = 0; i < 4; i++) {
+        const method me = ms[i];
+        if ((only && strcmp(only, method_names[me])) ||
+            ((me == M_MM || me == M_TM) && n_list[ni] > o->big))
+          continue;
+        result best[2];
+        best[0].status = best[1].status = 1;
+        for (int r = 0; r < repeats; r++)
+          for (int j = 0; j < 2; j++) {
+            o->threads = j ? t : 1;
+            result x = run_case(k, n_list[ni], me, o);
+            if (x.status == 0 && (best[j].status != 0 || x.wall < best[j].wall))
+              best[j] = x;
+            else if (x.status != 0 && best[j].status != 0)
+              best[j] = x;
+          }
+        o->threads = 1;
+        if (best[0].status != 0 || best[1].status != 0) {
+          printf("| %-20s | %8d | failed: %s |\n", method_names[me], n_list[ni],
+                 best[0].status ? best[0].message : best[1].message);
+          continue;
+        }
+        printf("| %-20s | %8d | %-12s | %11.4g | %11.4g | %7.2f | %11.4g | "
+               "%11.4g |\n",
+               method_names[me], best[0].n, best[0].path, best[0].wall,
+               best[1].wall, best[0].wall / best[1].wall, best[0].step,
+               best[1].step);
+        fflush(stdout);
+      }
+    printf("\n");
+  }
+  printf("# load average %.2f at the end\n", bench_load());
+  return 0;
+}
+
 int main(int argc, char **argv) {
   options o;
   memset(&o, 0, sizeof o);
@@ -997,6 +1071,8 @@ int main(int argc, char **argv) {
   int n_list[MAX_N] = {1000, 10000, 100000}, n_n = 3, repeats = 3;
   int nets[N_NETS] = {1, 1, 1}, quick = 0, no_lammps = 0, n_set = 0;
   const char *only = NULL;
+  int threads = 0;
+  o.threads = 1;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
     int has = i + 1 < argc;
@@ -1044,6 +1120,9 @@ int main(int argc, char **argv) {
         known |= !strcmp(only, method_names[me]);
       if (!known)
         return bad_usage();
+    } else if (!strcmp(a, "--threads") && has) {
+      if ((threads = atoi(argv[++i])) < 2)
+        return bad_usage();
     } else if (!strcmp(a, "--no-lammps")) {
       no_lammps = 1;
     } else {
@@ -1060,6 +1139,8 @@ int main(int argc, char **argv) {
     o.steps = 2;
     nets[1] = nets[2] = 0;
   }
+  if (threads > 1)
+    return threads_table(&o, threads, nets, n_list, n_n, repeats, only);
   const int lammps = !no_lammps && have_lammps();
   snprintf(o.tmpdir, sizeof o.tmpdir, "/tmp/bench_floor.%d", (int)getpid());
   if (lammps && mkdir(o.tmpdir, 0700) < 0) {

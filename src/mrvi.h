@@ -52,6 +52,8 @@ const char *mrvi_strerror(int status);
 
 /* Library version string (MRVI_VERSION of the build). */
 const char *mrvi_version(void);
+/* 1 if this build runs element loops on threads (OpenMP), else 0. */
+int mrvi_threads_supported(void);
 
 /* ---------------------------------------------------------------------------
  * Potential laws: scalar functions phi(s) of a strain-like scalar s.
@@ -691,7 +693,10 @@ typedef enum mrvi_solver {
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
     "relative tolerance of schur-krylov's GMRES on the slow unknowns")         \
   X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
-  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")
+  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")   \
+  X(int, thread_chunk, 4096, 1, 100000000,                                     \
+    "elements per chunk of a threaded element loop (settings.threads); a "     \
+    "class of fewer than two chunks runs on one thread")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;
@@ -719,6 +724,11 @@ typedef struct mrvi_settings {
    * (default 0.1); 0 never warns. */
   double energy_warning;
   mrvi_tuning tuning; /* MRVI_TUNING_LIST's defaults */
+  /* Threads of the element loops (OpenMP; doc/performance.md, "Threads"):
+   * 0 (default) the cores this process may use, 1 none.  Results are the
+   * same bit for bit for every count.  Above 1 in a build without OpenMP,
+   * mrvi_settings_check refuses it (mrvi_threads_supported). */
+  int threads;
 } mrvi_settings;
 
 /* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it,

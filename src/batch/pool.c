@@ -15,7 +15,6 @@
 #include <errno.h>
 #include <math.h>
 #include <poll.h>
-#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -26,14 +25,7 @@
 #endif
 #include <unistd.h>
 
-int mrvi_batch_cores(void) {
-  cpu_set_t set;
-  CPU_ZERO(&set);
-  if (sched_getaffinity(0, sizeof set, &set) == 0 && CPU_COUNT(&set) > 0)
-    return CPU_COUNT(&set);
-  long n = sysconf(_SC_NPROCESSORS_ONLN);
-  return n > 0 ? (int)n : 1;
-}
+int mrvi_batch_cores(void) { return mrvi_cores(); }
 
 void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
                          mrvi_batch_result *res) {
@@ -47,6 +39,8 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
     mrvi_fmt(res->reason, sizeof res->reason, "%s", msg);
     return;
   }
+  if (plan->threads > 0)
+    sys->settings.threads = plan->threads;
   /* The options of `mrvi run` for this description. */
   mrvi_writer_options opt = mrvi_system_writer_options(sys);
   opt.force = 1;

@@ -103,6 +103,11 @@ static const char usage_run[] =
     "                        through the discrete equations of FILE, write\n"
     "                        the trajectory and check the terminal\n"
     "                        conditions (with -o, --set, --quiet only)\n"
+    "      --threads N       threads of the element loops (default: the\n"
+    "                        environment's MRVI_THREADS, else the cores\n"
+    "                        available); the results are the same bit for\n"
+    "                        bit for every N.  A build without OpenMP refuses\n"
+    "                        N > 1\n"
     "  -h, --help            show this help\n"
     "\n"
     "Notes about the input, such as initial velocities projected onto the\n"
@@ -145,6 +150,8 @@ static const char usage_check[] =
     "\n"
     "Options:\n"
     "  -s, --set KEY=VALUE   override a scalar of FILE by its dotted path\n"
+    "      --threads N       the thread count to check and show (default:\n"
+    "                        MRVI_THREADS, else the cores available)\n"
     "  -h, --help            show this help\n"
     "\n"
     "Exit status: 0 if FILE is valid, 1 otherwise.\n";
@@ -174,14 +181,16 @@ typedef struct cli_args {
   int help;
   const char *resume; /* --resume OUT.h5 */
   const char *from;   /* --from OUT.h5[:k] */
+  int threads;        /* --threads N, else MRVI_THREADS, else -1 */
 } cli_args;
 
 /* Options accepted by a command, for the parser and for suggestions
  * (--controls is handled by the replay of cli_optimize.c). */
-static const char *const run_options[] = {"--output", "--set",      "--quiet",
-                                          "--force",  "--help",     "--resume",
-                                          "--from",   "--controls", NULL};
-static const char *const check_options[] = {"--set", "--help", NULL};
+static const char *const run_options[] = {
+    "--output", "--set",  "--quiet",    "--force",   "--help",
+    "--resume", "--from", "--controls", "--threads", NULL};
+static const char *const check_options[] = {"--set", "--help", "--threads",
+                                            NULL};
 
 static void usage_error(const char *usage) { fputs(usage, stderr); }
 
@@ -191,6 +200,24 @@ void mrvi_cli_usage_short(const char *cmd, const char *usage) {
     fprintf(stderr, "%.*s\n",
             (int)(end ? end - usage : (ptrdiff_t)strlen(usage)), usage);
   fprintf(stderr, "Options and details: mrvi help %s\n", cmd);
+}
+
+int mrvi_cli_threads(const char *cmd, const char *what, const char *value) {
+  char *end = NULL;
+  const long n = strtol(value, &end, 10);
+  if (!*value || *end || n < 1 || n > 4096) {
+    fprintf(stderr, "mrvi %s: %s takes a thread count 1..4096, got '%s'\n", cmd,
+            what, value);
+    return -1;
+  }
+  if (n > 1 && !mrvi_threads_supported()) {
+    fprintf(stderr,
+            "mrvi %s: %s %ld: this build has no threads (built without "
+            "OpenMP: meson setup -Dopenmp=enabled); use 1\n",
+            cmd, what, n);
+    return -1;
+  }
+  return (int)n;
 }
 
 /* The value of an option that takes one: "--opt=V", "-oV" or the next
@@ -290,6 +317,10 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
         return EXIT_INPUT;
       }
       *(!strcmp(name, "--resume") ? &a->resume : &a->from) = v;
+    } else if (!strcmp(name, "--threads")) {
+      const char *v = option_value(cmd, name, inline_value, argc, argv, &i);
+      if (!v || (a->threads = mrvi_cli_threads(cmd, "--threads", v)) < 0)
+        return EXIT_INPUT;
     } else if (!strcmp(name, "-s") || !strcmp(name, "--set")) {
       const char *v = option_value(cmd, name, inline_value, argc, argv, &i);
       if (!v)
@@ -313,6 +344,10 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
       return EXIT_INPUT;
     }
   }
+  if (a->threads == 0 && getenv("MRVI_THREADS") &&
+      (a->threads =
+           mrvi_cli_threads(cmd, "MRVI_THREADS", getenv("MRVI_THREADS"))) < 0)
+    return EXIT_INPUT;
   if (!a->help && !a->file && !a->resume) {
     fprintf(stderr, "mrvi %s: missing FILE\n", cmd);
     mrvi_cli_usage_short(cmd, usage);
@@ -341,6 +376,8 @@ static mrvi_system *load_system(const cli_args *a) {
     mrvi_system_free(sys);
     return NULL;
   }
+  if (a->threads > 0)
+    sys->settings.threads = a->threads;
   return sys;
 }
 
@@ -516,6 +553,13 @@ static int cmd_check(int argc, char **argv) {
   printf("%-14s%s (every %d, micro %s)\n", "output",
          sys->output_file ? sys->output_file : "-", sys->output_every,
          sys->output_micro ? "yes" : "no");
+  if (mrvi_threads_supported())
+    printf("%-14s%d%s (element loops; the same results for every count)\n",
+           "threads", s->threads > 0 ? s->threads : mrvi_batch_cores(),
+           s->threads > 0 ? "" : " (the cores available)");
+  else
+    printf("%-14s1 (this build has no threads: built without OpenMP)\n",
+           "threads");
   const int bad_control = mrvi_cli_check_control(sys);
   if (sys->notes) {
     putchar('\n');
@@ -883,6 +927,15 @@ static int cmd_run(int argc, char **argv) {
   loading = 0;
   if (!sys)
     return EXIT_INPUT;
+  if (a.threads > 0)
+    sys->settings.threads = a.threads;
+  char tmsg[256];
+  if (mrvi_settings_check(&sys->settings, tmsg, sizeof tmsg) < 0) {
+    fprintf(stderr, "mrvi run: %s\n", tmsg);
+    mrvi_system_free(sys);
+    mrvi_stored_node_free(node);
+    return EXIT_INPUT;
+  }
   if (mrvi_cli_stop_signal) { /* interrupted while loading: write nothing */
     mrvi_system_free(sys);
     mrvi_stored_node_free(node);

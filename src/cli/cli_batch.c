@@ -17,8 +17,10 @@ const char mrvi_usage_batch[] =
     "Usage: mrvi batch FILE -o OUT.h5 [--vary KEY=V1,V2,...]...\n"
     "                  [--vary KEY=linspace(a,b,n)|logspace(a,b,n)]... "
     "[--zip]\n"
-    "                  [--seeds N [--velocity-std S]] [--jobs N] [--quiet]\n"
-    "       mrvi batch --resume OUT.h5 [--jobs N] [--quiet]\n"
+    "                  [--seeds N [--velocity-std S]] [--jobs N] [--threads "
+    "T]\n"
+    "                  [--quiet]\n"
+    "       mrvi batch --resume OUT.h5 [--jobs N] [--threads T] [--quiet]\n"
     "\n"
     "Run FILE once per case: a case is 'mrvi run FILE --set KEY=VALUE' for\n"
     "one value of every --vary.  Several --vary form the Cartesian product\n"
@@ -47,6 +49,11 @@ const char mrvi_usage_batch[] =
     "                        depend on the seed alone (doc/batch.md)\n"
     "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
     "                        cores available)\n"
+    "      --threads T       threads of each case's element loops (default:\n"
+    "                        the cores available divided by the jobs, at\n"
+    "                        least 1: jobs x threads stays within the cores\n"
+    "                        unless both are given); results do not depend\n"
+    "                        on T\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
     "                        killed or interrupted batch)\n"
     "  -q, --quiet           no line per finished case\n"
@@ -176,6 +183,15 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
   return rc;
 }
 
+/* The threads of each case: the given count, else the cores divided by
+ * the jobs, at least 1 (1 without OpenMP). */
+static int case_threads(int given, int cores, int jobs) {
+  if (given > 0)
+    return given;
+  const int t = jobs > 0 ? cores / jobs : 1;
+  return mrvi_threads_supported() && t > 1 ? t : 1;
+}
+
 /* A rank other than 0 of an MPI batch: the plan from rank 0, then its
  * cases (cli_batch_mpi.c). */
 static int batch_follow(void) {
@@ -187,6 +203,7 @@ static int batch_follow(void) {
   if (mrvi_batch_mpi_share(0, &plan, &master, &jobs)) {
     if (jobs == 0)
       jobs = mrvi_batch_mpi_jobs();
+    plan.threads = 1; /* (over MPI the ranks fill the cores) */
     if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, NULL, NULL, msg,
                            sizeof msg) < 0 &&
         msg[0])
@@ -199,7 +216,7 @@ static int batch_follow(void) {
 
 int mrvi_cmd_batch(int argc, char **argv) {
   const char *file = NULL, *out = NULL, *resume = NULL;
-  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0;
+  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0, threads = 0;
   double vstd = NAN; /* seeds -1, vstd NAN, jobs 0: not given */
   char msg[MSG_LEN];
   int rank = 0, ranks = 1;
@@ -218,7 +235,8 @@ int mrvi_cmd_batch(int argc, char **argv) {
     int takes = !strcmp(a, "-o") || !strcmp(a, "--output") ||
                 !strcmp(a, "--vary") || !strcmp(a, "--seeds") ||
                 !strcmp(a, "--velocity-std") || !strcmp(a, "-j") ||
-                !strcmp(a, "--jobs") || !strcmp(a, "--resume");
+                !strcmp(a, "--jobs") || !strcmp(a, "--resume") ||
+                !strcmp(a, "--threads");
     if (takes && !v) {
       snprintf(msg, sizeof msg, "%s needs a value", a);
       rc = usage_fail(msg);
@@ -247,6 +265,9 @@ int mrvi_cmd_batch(int argc, char **argv) {
     } else if (!strcmp(a, "-j") || !strcmp(a, "--jobs")) {
       if ((jobs = parse_count(v, 0)) < 1)
         rc = usage_fail("--jobs takes a count 1..1000000");
+    } else if (!strcmp(a, "--threads")) {
+      if ((threads = mrvi_cli_threads("batch", "--threads", v)) < 0)
+        rc = EXIT_INPUT;
     } else if (!strcmp(a, "--velocity-std")) {
       char *end;
       vstd = strtod(v, &end);
@@ -335,6 +356,9 @@ int mrvi_cmd_batch(int argc, char **argv) {
   mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
   if (rc == 0 && jobs == 0)
     jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
+  /* (mrvi_batch_mpi_jobs is collective: not called here again) */
+  plan.threads = ranks > 1 ? (threads > 0 ? threads : 1)
+                           : case_threads(threads, mrvi_batch_cores(), jobs);
 
   batch_ctx ctx = {.out = out, .quiet = quiet, .ranks = ranks, .total = n_todo};
   if (rc == 0) {
@@ -343,9 +367,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
               n_todo, n_todo == 1 ? "" : "s", resume ? " left" : "", ranks,
               jobs, jobs == 1 ? "" : "s", out);
     else if (!quiet)
-      fprintf(stderr, "mrvi batch: %d case%s%s on %d job%s -> %s\n", n_todo,
-              n_todo == 1 ? "" : "s", resume ? " left" : "",
-              jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s", out);
+      fprintf(stderr,
+              "mrvi batch: %d case%s%s on %d job%s x %d thread%s -> %s\n",
+              n_todo, n_todo == 1 ? "" : "s", resume ? " left" : "",
+              jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s", plan.threads,
+              plan.threads == 1 ? "" : "s", out);
     int st = mrvi_batch_mpi_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
                                 msg, sizeof msg);
     if (st < 0 && msg[0])

@@ -193,6 +193,9 @@ typedef struct mrvi_batch_plan {
   long *seed;    /* n_cases; -1: no perturbation */
   int n_seeds;   /* --seeds (0: none) */
   double velocity_std;
+  /* settings.threads of every case's run (0: the settings' own), chosen by
+   * the command line for its jobs; not part of the packed plan */
+  int threads;
 } mrvi_batch_plan;
 void mrvi_batch_plan_free(mrvi_batch_plan *plan); /* the contents; NULL ok */
 

@@ -136,8 +136,13 @@ struct mrvi_skrylov {
   double *cgb, *cgwork; /* nf, 3 nf */
   double *gwork;        /* GMRES */
   int block;            /* diagonal block of the CG operator */
-  int failed;           /* MRVI_CG_* of the last failed solve */
-  double curvature;     /* of a non-positive direction */
+  /* The CG operator's rows on threads (nf of at least two chunks of
+   * tuning.thread_chunk rows): its v^T y summed per chunk into vpart and
+   * the chunks' sums added in order (for every thread count). */
+  int threads, chunk, n_chunk;
+  double *vpart;
+  int failed;       /* MRVI_CG_* of the last failed solve */
+  double curvature; /* of a non-positive direction */
   int fail_block, fail_iters;
   mrvi_newton *lu; /* whole-step fallback, on first use */
   int lu_active;   /* the current Jacobian is factored by LU */
@@ -167,6 +172,7 @@ void mrvi_skrylov_free(mrvi_skrylov *k) {
   free(k->ds);
   free(k->cgb);
   free(k->cgwork);
+  free(k->vpart);
   free(k->gwork);
   mrvi_newton_free(k->lu);
   free(k);
@@ -230,11 +236,16 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   ALLOC(k->ds, ns);
   ALLOC(k->cgb, nf);
   ALLOC(k->cgwork, 3 * nf);
+  k->chunk = st->tuning.thread_chunk;
+  k->n_chunk =
+      (int)nf >= 2 * k->chunk ? ((int)nf + k->chunk - 1) / k->chunk : 0;
+  k->threads = k->n_chunk > 0 ? st->threads : 1;
+  ALLOC(k->vpart, k->n_chunk > 0 ? k->n_chunk : 1);
   ALLOC(k->gwork, mrvi_gmres_work(k->ns, st->tuning.krylov_restart));
 #undef ALLOC
   if (!k->s1 || !k->s2 || !k->dg || !k->sdiv || !k->dinv || !k->dinv_s ||
       !k->t || !k->T || !k->gy || !k->rs || !k->ds || !k->cgb || !k->cgwork ||
-      !k->gwork) {
+      !k->gwork || !k->vpart) {
     mrvi_skrylov_free(k);
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   }
@@ -315,20 +326,34 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
 /* y = -D_c v (positive definite where CG applies), c = k->block, by the
  * compact rows of D_c (the same operations as adding the products of
  * -D_c); returns v^T y. */
-static double neg_diag_block(void *ctx, const double *v, double *y) {
-  const mrvi_skrylov *k = ctx;
-  const int nf = k->nf;
-  const int *ptr = k->D.ptr + (size_t)k->block * (size_t)nf;
+static double neg_diag_rows(const mrvi_skrylov *k, const double *v, double *y,
+                            int f0, int f1) {
+  const int *ptr = k->D.ptr + (size_t)k->block * (size_t)k->nf;
   const int *col = k->D.idx;
   const double *val = k->D.val;
   double vy = 0.0;
-  for (int f = 0; f < nf; f++) {
+  for (int f = f0; f < f1; f++) {
     double s = 0.0;
     for (int q = ptr[f]; q < ptr[f + 1]; q++)
       s -= val[q] * v[col[q]];
     y[f] = s;
     vy += v[f] * s;
   }
+  return vy;
+}
+
+static double neg_diag_block(void *ctx, const double *v, double *y) {
+  mrvi_skrylov *k = ctx;
+  const int nf = k->nf, chunk = k->chunk, n_chunk = k->n_chunk;
+  if (n_chunk == 0)
+    return neg_diag_rows(k, v, y, 0, nf);
+  MRVI_PARALLEL_FOR(k->threads)
+  for (int c = 0; c < n_chunk; c++)
+    k->vpart[c] = neg_diag_rows(k, v, y, c * chunk,
+                                nf - c * chunk < chunk ? nf : (c + 1) * chunk);
+  double vy = 0.0;
+  for (int c = 0; c < n_chunk; c++)
+    vy += k->vpart[c];
   return vy;
 }
 

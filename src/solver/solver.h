@@ -214,6 +214,15 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 /* g += grad Z(z): mrvi_terms_eval with scale 1 and no Hessian (the same
  * kernels without their Hessian part), bitwise the same. */
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
+/* mrvi_terms_grad on `threads` threads (resolved: >= 1) for a class of
+ * springs and anchors alone with at least two chunks of `chunk` elements
+ * (tuning.thread_chunk); other classes stay on one.  The partition
+ * depends on the class and chunk alone and every column sums its
+ * contributions in the serial order: the gradient is the serial one
+ * bitwise for every thread count.  MRVI_ENOMEM, else MRVI_OK. */
+int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk);
+/* The threads mrvi_terms_grad runs on (1: the serial loop). */
+int mrvi_terms_threads(const mrvi_terms *kc);
 /* Whether mrvi_terms_grad takes the flat loop (every term linear or a small
  * integer power on 2..4 inputs): 1 with one law for all, 2 with mixed laws,
  * 0 (the kernel per run) otherwise. */

@@ -51,6 +51,9 @@ struct mrvi_sweep {
    * or 0 (mrvi_sweep_set_last_only: each node overwrites the last, which
    * every sweep reads entry by entry before it writes that entry). */
   size_t node_stride;
+  /* The explicit path's node updates on `threads` threads in blocks of
+   * `chunk` fast coordinates (nf at least two chunks; else 1). */
+  int threads, chunk;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   double *zf;                    /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
@@ -310,6 +313,13 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
                                    st->n_elem_of_class[MRVI_FAST], col,
                                    &sw->kc[MRVI_FAST]) == MRVI_OK;
   free(col);
+  /* The gradients of large spring classes on threads (the same bits). */
+  const int threads = mrvi_threads_resolve(s->threads);
+  for (int c = 0; s_ok && c < 2; c++)
+    s_ok = mrvi_terms_set_threads(sw->kc[c], threads, s->tuning.thread_chunk) ==
+           MRVI_OK;
+  sw->chunk = s->tuning.thread_chunk;
+  sw->threads = sw->nf >= 2 * sw->chunk ? threads : 1;
   if (!s_ok) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
@@ -687,6 +697,27 @@ static void explicit_row(int nf, double dt, double wl, const double *pm,
   }
 }
 
+/* Rows f0..f1 of node m of the explicit path: q^{m+1} = q^m + dt M^-1 r,
+ * r = p^{f,m} (+ the control force fm) - sum wl grad W(q^m), and the
+ * momentum's first part p^{f,m+1} = M dn / dt. */
+ALWAYS_INLINE void explicit_rows(const double *pm, const double *fm,
+                                 const double *wl, const double *gnode,
+                                 const double *mf, const double *minv,
+                                 const double *qm, double *qn, double *pn,
+                                 double dt, const int nl, int f0, int f1) {
+  UNROLL
+  for (int f = f0; f < f1; f++) {
+    double r = pm[f];
+    if (fm)
+      r += fm[f];
+    for (int i = 0; i < nl; i++)
+      r -= wl[i] * gnode[f];
+    const double dn = dt * minv[f] * r;
+    qn[f] = qm[f] + dn;
+    pn[f] = mf[f] * dn / dt;
+  }
+}
+
 /* pn -= wr gnode (nf entries) in pairs, as explicit_row. */
 static void explicit_end_force(int nf, double wr, const double *gnode,
                                double *pn) {
@@ -701,16 +732,20 @@ static void explicit_end_force(int nf, double wr, const double *gnode,
  * gives q^{m+1} from p^{f,m} (in pf's row m - 1, row 0: pf's first row as
  * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
  * node m + 1, which also serves row m + 1.  The arithmetic of the general
- * sweep below, in one pass per node. */
+ * sweep below, in one pass per node.  par: the rows in blocks of
+ * sw->chunk on sw->threads threads (each row is independent: the same
+ * bits). */
 ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nl,
-                                  const int nr, const int nf, const int p) {
+                                  const int nr, const int nf, const int p,
+                                  const int par) {
   const int ns = sw->ns;
   const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
   const double *mf = sw->m_f, *minv = sw->minv_f;
   double *gnode = sw->gnode;
   const size_t stride = sw->node_stride;
   const double *pm = pf;
+  const int chunk = sw->chunk, n_chunk = par ? (nf + chunk - 1) / chunk : 0;
   for (int m = 0; m < p; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
     double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
@@ -718,20 +753,15 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     if (nl > 0 && !sw->gnode_ok)
       fast_gradient(sw, qm, gnode, nf);
     const int pairs = nl == 1 && nr == 1 && !fm && nf > 4; /* (not small) */
-    if (pairs) {
+    if (par) {
+      MRVI_PARALLEL_FOR(sw->threads)
+      for (int c = 0; c < n_chunk; c++)
+        explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl,
+                      c * chunk, nf - c * chunk < chunk ? nf : (c + 1) * chunk);
+    } else if (pairs) {
       explicit_row(nf, dt, wl[0], pm, gnode, minv, mf, qm, qn, pn);
     } else {
-      UNROLL
-      for (int f = 0; f < nf; f++) {
-        double r = pm[f];
-        if (fm)
-          r += fm[f];
-        for (int i = 0; i < nl; i++)
-          r -= wl[i] * gnode[f];
-        const double dn = dt * minv[f] * r;
-        qn[f] = qm[f] + dn;
-        pn[f] = mf[f] * dn / dt;
-      }
+      explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl, 0, nf);
     }
     sw->gnode_ok = 0;
     if (nr > 0) {
@@ -754,12 +784,14 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
  * node of an interval). */
 ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nf) {
-  if (sw->nl == 1 && sw->nr == 1 && sw->p == 1)
-    explicit_nodes(sw, st, x, pf, 1, 1, nf, 1); /* p = 1: no loop */
+  if (sw->threads > 1)
+    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p, 1);
+  else if (sw->nl == 1 && sw->nr == 1 && sw->p == 1)
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, 1, 0); /* p = 1: no loop */
   else if (sw->nl == 1 && sw->nr == 1)
-    explicit_nodes(sw, st, x, pf, 1, 1, nf, sw->p);
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, sw->p, 0);
   else
-    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p);
+    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p, 0);
 }
 
 /* y = A x (A: nf x nf, row-major). */

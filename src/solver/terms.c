@@ -80,6 +80,20 @@ struct mrvi_terms {
   int flat, flat_k;
   /* flat_sym applies: flat, and every record's columns distinct */
   int sym;
+  /* Threads (mrvi_terms_set_threads; par_grad): a class of springs and
+   * anchors alone, its records in n_chunk chunks of `chunk` (a partition
+   * that depends on the class, not on the number of threads).  A column
+   * written by one chunk alone is written in place; the contributions to a
+   * column shared by chunks go to slots gb[s] (for column gb_col[s]),
+   * numbered in the order of the serial loop, and are added after the
+   * chunks in that order: every column sums its contributions in the
+   * serial order, so the gradient is the serial one bitwise for every
+   * number of threads.  wcol: per record its 2 dim write indices (x_i's,
+   * then x_j's), a column or ~slot. */
+  int threads, chunk, n_chunk;
+  int *wcol, *gb_col;
+  double *gb;
+  long n_gb;
 };
 
 void mrvi_terms_free(mrvi_terms *kc) {
@@ -95,6 +109,9 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->qs);
   free(kc->qh);
   free(kc->hooke_run);
+  free(kc->wcol);
+  free(kc->gb_col);
+  free(kc->gb);
   free(kc);
 }
 
@@ -401,10 +418,9 @@ ALWAYS_INLINE void run1_eval(const kterm *t, int nr, const int *col,
  * record's): mrvi_element_eval's distance arithmetic in its order, the
  * gradient added to g and the Hessian to J as eval_k adds an element's
  * (bitwise the same). */
-ALWAYS_INLINE void spring_eval(const kspring *q, const double *z, double scale,
-                               double *g, double *J, int ld, double hscale,
-                               const int dim, const int two, const int kk,
-                               const int unit) {
+ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
+                                 double *d1, double *a, double *b,
+                                 const int dim, const int two, const int kk) {
   double d[3], r2 = 0.0;
   UNROLL for (int k = 0; k < dim; k++) {
     d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->a[k]);
@@ -412,23 +428,32 @@ ALWAYS_INLINE void spring_eval(const kspring *q, const double *z, double scale,
   }
   const double r = sqrt(r2), s = r - q->shift;
   const int k = kk == K_ANY ? q->k : kk;
-  double phi, d1, d2;
+  double phi, d2;
   if (k == KS_HOOKE) {
-    d1 = q->c * s;
+    *d1 = q->c * s;
     d2 = q->c;
   } else if (k >= 0) {
-    mrvi_power_derivs_ce(q->ce, q->ce1, k, s, &d1, &d2);
+    mrvi_power_derivs_ce(q->ce, q->ce1, k, s, d1, &d2);
   } else {
-    q->el->law->eval(q->el->params, s, &phi, &d1, &d2);
+    q->el->law->eval(q->el->params, s, &phi, d1, &d2);
   }
-  double u[3] = {0, 0, 0}, a = 0.0, b; /* Hessian blocks a u u^T + b I */
+  UNROLL for (int k = 0; k < dim; k++) u[k] = 0.0;
+  *a = 0.0; /* Hessian blocks a u u^T + b I */
   if (r > 0.0) {
     UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / r;
-    a = d2 - d1 / r;
-    b = d1 / r;
+    *a = d2 - *d1 / r;
+    *b = *d1 / r;
   } else {
-    b = d2; /* (the limit at r = 0, as model.c) */
+    *b = d2; /* (the limit at r = 0, as model.c) */
   }
+}
+
+ALWAYS_INLINE void spring_eval(const kspring *q, const double *z, double scale,
+                               double *g, double *J, int ld, double hscale,
+                               const int dim, const int two, const int kk,
+                               const int unit) {
+  double u[3], d1, a, b;
+  spring_derivs(q, z, u, &d1, &a, &b, dim, two, kk);
   UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] +=
       unit ? d1 * u[k] : scale * (d1 * u[k]);
   if (two)
@@ -776,8 +801,136 @@ terms_grad_any(mrvi_terms *kc, const double *z, double *g) {
   eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
 }
 
+/* A contribution v to column w, or to slot ~w (w < 0) of gb. */
+ALWAYS_INLINE void par_put(double *g, double *gb, int w, double v) {
+  if (w >= 0)
+    g[w] += v;
+  else
+    gb[~w] = v;
+}
+
+/* The gradient of nr springs and anchors (spring_eval's unit-scale
+ * products; law code per record) into g and gb by their write indices w. */
+ALWAYS_INLINE void par_chunk_k(const kspring *q, const int *w, int nr,
+                               const double *z, double *g, double *gb,
+                               const int dim) {
+  for (int r = 0; r < nr; r++, w += 2 * dim) {
+    double u[3], d1, a, b;
+    const int two = q[r].two;
+    if (two)
+      spring_derivs(q + r, z, u, &d1, &a, &b, dim, 1, K_ANY);
+    else
+      spring_derivs(q + r, z, u, &d1, &a, &b, dim, 0, K_ANY);
+    UNROLL for (int k = 0; k < dim; k++) par_put(g, gb, w[k], d1 * u[k]);
+    if (two)
+      UNROLL for (int k = 0; k < dim; k++)
+          par_put(g, gb, w[dim + k], -d1 * u[k]);
+  }
+}
+
+static void par_chunk(const mrvi_terms *kc, int c, const double *z, double *g) {
+  const int dim = kc->dim, r0 = c * kc->chunk;
+  const int nr = kc->n - r0 < kc->chunk ? kc->n - r0 : kc->chunk;
+  const kspring *q = kc->qs + r0;
+  const int *w = kc->wcol + (size_t)r0 * (size_t)(2 * dim);
+  if (dim == 2)
+    par_chunk_k(q, w, nr, z, g, kc->gb, 2);
+  else if (dim == 3)
+    par_chunk_k(q, w, nr, z, g, kc->gb, 3);
+  else
+    par_chunk_k(q, w, nr, z, g, kc->gb, 1);
+}
+
+/* The chunks on kc->threads threads (each chunk writes columns of its own
+ * and slots of its own), then the shared contributions in serial order. */
+static __attribute__((noinline)) void par_grad(mrvi_terms *kc, const double *z,
+                                               double *g) {
+  const int n_chunk = kc->n_chunk;
+  MRVI_PARALLEL_FOR(kc->threads)
+  for (int c = 0; c < n_chunk; c++)
+    par_chunk(kc, c, z, g);
+  for (long s = 0; s < kc->n_gb; s++)
+    g[kc->gb_col[s]] += kc->gb[s];
+}
+
+int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
+  if (!mrvi_threads_supported())
+    threads = 1;
+  if (kc->wcol) { /* (partitioned already) */
+    kc->threads = threads > 1 ? threads : 1;
+    return MRVI_OK;
+  }
+  kc->threads = 1;
+  int ns = 0;
+  for (int i = 0; i < kc->n; i++)
+    ns += kc->t[i].runs > 0;
+  if (threads <= 1 || chunk < 1 || ns != kc->n || kc->n < 2 * chunk)
+    return MRVI_OK;
+  const int dim = kc->dim, nw = 2 * dim;
+  int ncol = 1;
+  for (int r = 0; r < kc->n; r++)
+    for (int k = 0; k < dim; k++) {
+      ncol = kc->qs[r].ci[k] >= ncol ? kc->qs[r].ci[k] + 1 : ncol;
+      ncol = kc->qs[r].cj[k] >= ncol ? kc->qs[r].cj[k] + 1 : ncol;
+    }
+  /* The first chunk writing each column, and -2 for a shared column. */
+  int *owner = malloc((size_t)ncol * sizeof *owner);
+  kc->wcol = malloc((size_t)kc->n * (size_t)nw * sizeof *kc->wcol);
+  if (!owner || !kc->wcol) {
+    free(owner);
+    free(kc->wcol);
+    kc->wcol = NULL;
+    return MRVI_ENOMEM;
+  }
+  for (int c = 0; c < ncol; c++)
+    owner[c] = -1;
+  for (int r = 0; r < kc->n; r++) {
+    const kspring *q = &kc->qs[r];
+    for (int k = 0; k < (q->two ? nw : dim); k++) {
+      const int col = k < dim ? q->ci[k] : q->cj[k - dim];
+      if (owner[col] == -1)
+        owner[col] = r / chunk;
+      else if (owner[col] != r / chunk)
+        owner[col] = -2;
+    }
+  }
+  long n_gb = 0;
+  for (int r = 0; r < kc->n; r++) {
+    const kspring *q = &kc->qs[r];
+    for (int k = 0; k < nw; k++) {
+      const int col = k < dim ? q->ci[k] : q->cj[k - dim];
+      const int shared = (k < dim || q->two) && owner[col] == -2;
+      kc->wcol[(size_t)r * nw + k] = shared ? ~(int)n_gb++ : col;
+    }
+  }
+  kc->gb = malloc((size_t)(n_gb > 0 ? n_gb : 1) * sizeof *kc->gb);
+  kc->gb_col = malloc((size_t)(n_gb > 0 ? n_gb : 1) * sizeof *kc->gb_col);
+  if (!kc->gb || !kc->gb_col) {
+    free(owner);
+    return MRVI_ENOMEM; /* (freed with kc) */
+  }
+  for (int r = 0; r < kc->n; r++)
+    for (int k = 0; k < nw; k++) {
+      const int w = kc->wcol[(size_t)r * nw + k];
+      if (w < 0)
+        kc->gb_col[~w] = k < dim ? kc->qs[r].ci[k] : kc->qs[r].cj[k - dim];
+    }
+  free(owner);
+  kc->n_gb = n_gb;
+  kc->chunk = chunk;
+  kc->n_chunk = (kc->n + chunk - 1) / chunk;
+  kc->threads = threads;
+  return MRVI_OK;
+}
+
+int mrvi_terms_threads(const mrvi_terms *kc) {
+  return kc->threads > 1 ? kc->threads : 1;
+}
+
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
-  if (kc->flat)
+  if (kc->threads > 1)
+    par_grad(kc, z, g);
+  else if (kc->flat)
     flat_grad(kc, z, g);
   else
     terms_grad_any(kc, z, g);

@@ -111,6 +111,18 @@ int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len) {
              s->energy_warning);
     return MRVI_EINVAL;
   }
+  if (s->threads < 0) {
+    mrvi_fmt(msg, len, "threads must be >= 0 (0: the cores available; got %d)",
+             s->threads);
+    return MRVI_EINVAL;
+  }
+  if (s->threads > 1 && !mrvi_threads_supported()) {
+    mrvi_fmt(msg, len,
+             "threads = %d: this build has no threads (built without OpenMP; "
+             "meson setup -Dopenmp=enabled)",
+             s->threads);
+    return MRVI_EINVAL;
+  }
   if (s->newton_max_iter < 1) {
     mrvi_fmt(msg, len, "newton max_iterations must be at least 1 (got %d)",
              s->newton_max_iter);

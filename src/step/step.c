@@ -200,6 +200,7 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   st->dt = s->macro_step / s->micro_steps;
   st->n_unknowns = st->ns + st->p * st->nf;
   st->tuning = s->tuning;
+  st->threads = mrvi_threads_resolve(s->threads);
   const mrvi_rule rules[2] = {s->slow, s->fast};
   const mrvi_grid grids[2] = {s->slow_grid, MRVI_GRID_MICRO};
   int max_n_in = 1;

@@ -40,6 +40,7 @@ typedef struct mrvi_step {
   double dT, dt;
   int n_unknowns;     /* ns + p nf */
   mrvi_tuning tuning; /* the settings' (read at setup) */
+  int threads;        /* settings.threads resolved (>= 1) */
   mrvi_point *pts[2]; /* [MRVI_SLOW] points of V, [MRVI_FAST] of W */
   int n_pts[2];
   int *elem_of_class[2]; /* element indices of V and W */

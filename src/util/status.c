@@ -1,6 +1,8 @@
 /* Status codes and small utilities shared by the library. */
+#define _GNU_SOURCE /* sched_getaffinity, CPU_COUNT */
 #include "util/util.h"
 
+#include <sched.h>
 #include <stdio.h>
 #include <time.h>
 #include <unistd.h>
@@ -44,6 +46,29 @@ double mrvi_clock(void) {
   struct timespec ts;
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+int mrvi_cores(void) {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof set, &set) == 0 && CPU_COUNT(&set) > 0)
+    return CPU_COUNT(&set);
+  const long n = sysconf(_SC_NPROCESSORS_ONLN);
+  return n > 0 ? (int)n : 1;
+}
+
+int mrvi_threads_supported(void) {
+#ifdef _OPENMP
+  return 1;
+#else
+  return 0;
+#endif
+}
+
+int mrvi_threads_resolve(int requested) {
+  if (!mrvi_threads_supported())
+    return 1;
+  return requested > 0 ? requested : mrvi_cores();
 }
 
 double mrvi_machine_memory(void) {

@@ -32,6 +32,22 @@ double mrvi_clock(void);
  * -DMRVI_MEMORY_CAP=BYTES (the fuzz build does, so that what the checks
  * admit fits the fuzzer's memory limit; tests/fuzz/run.sh). */
 double mrvi_machine_memory(void);
+/* Threads (OpenMP, meson option `openmp`; doc/performance.md, "Threads"):
+ * the processors this process may run on (its affinity mask), and the
+ * count a setting asks for (0: that) capped to 1 in a build without
+ * OpenMP.  MRVI_PARALLEL_FOR(t): the next loop on t threads, its
+ * iterations split statically; a plain loop without OpenMP.  The loops
+ * so marked write disjoint data and combine nothing: no reductions, so
+ * results do not depend on the number of threads. */
+int mrvi_cores(void);
+int mrvi_threads_resolve(int requested);
+#ifdef _OPENMP
+#define MRVI_PRAGMA(x) _Pragma(#x)
+#define MRVI_PARALLEL_FOR(t)                                                   \
+  MRVI_PRAGMA(omp parallel for num_threads(t) schedule(static))
+#else
+#define MRVI_PARALLEL_FOR(t)
+#endif
 /* Particles one `generate:` entry may make (the fuzz build lowers it). */
 #ifndef MRVI_MAX_GENERATED
 #define MRVI_MAX_GENERATED 10000000

@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# Threads (doc/performance.md, "Threads"): the planar lattice of
+# systems/lattice.yaml grown to 40 x 20 particles (1600 coordinates), its
+# element loops in chunks of 16 springs (integrator.tuning.thread_chunk),
+# run by fully-explicit, explicit-slow and midpoint-midpoint on 1, 2 and 3
+# threads: /macro/q, /macro/p, /micro/q_fast and /micro/p_fast the same bit for bit.  A run on
+# 2 threads to t = 0.25 extended by `--resume --set integrator.t_end` on 3
+# threads equals the uninterrupted run on 1.  `mrvi check` shows the
+# count; a build without OpenMP refuses --threads 2 with a message that
+# says so.
+#
+#   test_threads.sh MRVI_BINARY SOURCE_ROOT
+set -u
+mrvi=${1:?usage: test_threads.sh MRVI_BINARY SOURCE_ROOT}
+root=${2:?usage: test_threads.sh MRVI_BINARY SOURCE_ROOT}
+# shellcheck source=tests/testlib.sh
+. "$(dirname "$0")/testlib.sh"
+if ! command -v h5diff >/dev/null 2>&1; then
+  echo "skipped: needs h5diff (hdf5-tools)"
+  exit 77
+fi
+sys=$root/systems/lattice.yaml
+common=(--set generate.0.count.0=40 --set generate.0.count.1=20
+  --set integrator.tuning.thread_chunk=16 --set integrator.t_end=0.5
+  --set output.micro=true --set output.xdmf=false --quiet)
+
+# same A B: the trajectories of A and B bit for bit
+same() {
+  for g in /macro/q /macro/p /micro/q_fast /micro/p_fast; do
+    if ! h5diff "$1" "$2" "$g" "$g" >/dev/null 2>&1; then
+      h5diff -r "$1" "$2" "$g" "$g" | head -n 5
+      return 1
+    fi
+  done
+}
+
+if ! "$mrvi" check "$sys" --threads 3 >"$tmp/check.txt" 2>&1; then
+  if grep -q "this build has no threads" "$tmp/check.txt"; then
+    pass "no OpenMP: --threads 3 refused with its reason"
+    run_ok "no OpenMP: --threads 1 runs" "$mrvi" run "$sys" "${common[@]}" \
+      --threads 1 -o "$tmp/one.h5"
+    test_finish
+    exit $?
+  fi
+  fail "mrvi check --threads 3"
+  cat "$tmp/check.txt"
+fi
+if grep -q "^threads *3 " "$tmp/check.txt"; then
+  pass "mrvi check shows the thread count"
+else
+  fail "mrvi check shows the thread count: $(grep threads "$tmp/check.txt")"
+fi
+
+for scheme in fully-explicit explicit-slow midpoint-midpoint; do
+  for t in 1 2 3; do
+    run_ok "$scheme on $t threads" "$mrvi" run "$sys" "${common[@]}" \
+      --set integrator.scheme=$scheme --threads $t -o "$tmp/$scheme.$t.h5"
+  done
+  for t in 2 3; do
+    if same "$tmp/$scheme.1.h5" "$tmp/$scheme.$t.h5"; then
+      pass "$scheme: $t threads give the trajectory of 1 bit for bit"
+    else
+      fail "$scheme: $t threads give the trajectory of 1 bit for bit"
+    fi
+  done
+done
+
+# Resume across thread counts: 2 threads to t = 0.25, extended on 3.
+scheme=explicit-slow
+run_ok "$scheme to t = 0.25 on 2 threads" "$mrvi" run "$sys" "${common[@]}" \
+  --set integrator.scheme=$scheme --set integrator.t_end=0.25 --threads 2 \
+  -o "$tmp/part.h5"
+run_ok "extended to t = 0.5 on 3 threads" env MRVI_THREADS=3 "$mrvi" run \
+  --resume "$tmp/part.h5" --set integrator.t_end=0.5 --quiet
+if same "$tmp/$scheme.1.h5" "$tmp/part.h5"; then
+  pass "resumed on other thread counts: the uninterrupted run bit for bit"
+else
+  fail "resumed on other thread counts: the uninterrupted run bit for bit"
+fi
+
+# Bad counts are refused before anything is written.
+if "$mrvi" run "$sys" "${common[@]}" --threads 0 -o "$tmp/bad.h5" \
+  2>"$tmp/err.txt"; then
+  fail "--threads 0 refused"
+elif grep -q "thread count 1..4096" "$tmp/err.txt" && [ ! -e "$tmp/bad.h5" ]; then
+  pass "--threads 0 refused"
+else
+  fail "--threads 0 refused: $(cat "$tmp/err.txt")"
+fi
+test_finish
