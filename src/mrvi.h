@@ -691,7 +691,10 @@ typedef enum mrvi_solver {
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
     "relative tolerance of schur-krylov's GMRES on the slow unknowns")         \
   X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
-  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")
+  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")  \
+  X(int, adjoint_dense_max, 600, 0, 1000000,                                   \
+    "largest step (nodes and multipliers) whose optimal-control adjoint "      \
+    "assembles the step Jacobian dense; beyond: sparse rows")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

@@ -171,14 +171,13 @@ int ocp_alloc(mrvi_ocp *o) {
   o->p_out = dalloc(N1 * n);
   o->n_torsion = mrvi_model_n_torsions(m);
   o->branch = dalloc(N1 * (size_t)o->n_torsion);
-  o->H = dalloc((size_t)o->nv * (size_t)o->nv);
   o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
   o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
   o->p0 = dalloc(n);
   if (!o->p0 || !o->x || !o->R || !o->dx || !o->f_rows || !o->f_end ||
       !o->ps1 || !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k ||
       !o->pf_micro || !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out ||
-      !o->H || !o->Lam || !o->rhs_ns || !o->branch)
+      !o->Lam || !o->rhs_ns || !o->branch)
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
@@ -193,7 +192,7 @@ oom:
 }
 
 void ocp_adjoint_free(mrvi_ocp *o) {
-  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val};
+  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val, &o->H};
   for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
     free(*d[i]);
     *d[i] = NULL;
@@ -206,6 +205,7 @@ void ocp_adjoint_free(mrvi_ocp *o) {
   o->h_of_a = NULL;
   o->h_ptr = NULL;
   o->h_col = NULL;
+  o->h_sparse = 0;
   o->nfun_alloc = 0;
 }
 
@@ -241,7 +241,6 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->q_out);
   free(o->p_out);
   free(o->branch);
-  free(o->H);
   ocp_adjoint_free(o);
   free(o);
 }
