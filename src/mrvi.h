@@ -694,7 +694,11 @@ typedef enum mrvi_solver {
   X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")  \
   X(int, adjoint_dense_max, 600, 0, 1000000,                                   \
     "largest step (nodes and multipliers) whose optimal-control adjoint "      \
-    "assembles the step Jacobian dense; beyond: sparse rows")
+    "assembles the step Jacobian dense; beyond: sparse rows")                \
+  X(int, adjoint_refine_max, 8, 0, 1000,                                       \
+    "refinement steps of an adjoint step solved with the factors of the "     \
+    "step after it (or the forward pass's); beyond: factorised anew "         \
+    "(0: every step)")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

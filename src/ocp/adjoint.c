@@ -486,11 +486,15 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     }
     /* A_k^T mu_k = b with the step Jacobian at the converged step: the
      * solver's transposed solve (UMFPACK_At, or the dense LU of small
-     * steps), refactored here: the forward pass keeps no factors of the
-     * converged step. */
-    s = mrvi_newton_solve_transpose(o->newton_full ? o->newton_full : o->newton,
-                                    o->Ak, nfun, o->rhs, o->sol, msg,
-                                    sizeof msg);
+     * steps) with the factors it keeps (of step k + 1, or of the forward
+     * pass's last Newton update) refined against A_k, factorised anew where
+     * that does not converge in tuning.adjoint_refine_max steps. */
+    int refactored;
+    s = mrvi_newton_solve_transpose_kept(
+        o->newton_full ? o->newton_full : o->newton, o->Ak, nfun, o->rhs,
+        o->sol, o->settings.tuning.adjoint_refine_max, &refactored, msg,
+        sizeof msg);
+    o->adjoint_factorisations += refactored;
     if (s < 0)
       return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);
     /* mu on the equation nodes of step k; r -= J_k[rows_k, :]^T mu_k. */

@@ -134,6 +134,7 @@ struct mrvi_ocp {
   int *h_col, h_sparse; /* h_sparse: the pattern is fixed (sparse mode) */
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
+  long adjoint_factorisations; /* step factorisations of the adjoints */
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
   double ftol_rel, terminal_tol;
