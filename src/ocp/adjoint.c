@@ -16,6 +16,7 @@
  * All functionals (cost and every terminal constraint) share one sweep. */
 #include "ocp/ocp_internal.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -287,6 +288,14 @@ static int sparse_pattern(mrvi_ocp *o, long k) {
     ptr[i + 1] += ptr[i];
     fill[i] = ptr[i];
   }
+  /* The slots of the entries, recorded at the next assembly (none if
+   * there is no room for them: then every step bisects). */
+  free(o->h_slot);
+  o->n_h_slot = 0;
+  o->h_slot_cap = ptr[nv] < INT_MAX ? ptr[nv] : 0;
+  o->h_slot = malloc(((size_t)o->h_slot_cap + 1) * sizeof *o->h_slot);
+  if (!o->h_slot)
+    o->h_slot_cap = 0;
   int *col = malloc(((size_t)ptr[nv] + 1) * sizeof *col);
   if (!col) {
     free(fill);
@@ -375,9 +384,21 @@ static int step_jacobian(mrvi_ocp *o, long k) {
       o->Ak[e] = H[o->h_of_a[e]];
     return MRVI_OK;
   }
-  /* An entry outside the pattern (not expected: the pattern depends on
-   * the step templates only) makes it again from this step. */
-  for (int pass = 0; pass < 2; pass++) {
+  /* The slots recorded at the first step replayed; an entry outside the
+   * pattern (not expected: the pattern depends on the step templates only)
+   * makes it again from this step. */
+  int done = 0;
+  if (o->h_sparse && o->n_h_slot > 0) {
+    memset(o->h_val, 0, (size_t)o->h_ptr[nv] * sizeof *o->h_val);
+    ocp_jac a = {.mode = OCP_JAC_SLOTS,
+                 .nv = nv,
+                 .val = o->h_val,
+                 .slot = o->h_slot,
+                 .max_slot = o->n_h_slot};
+    ocp_jacobian(o, k, &a);
+    done = a.n_slot == o->n_h_slot;
+  }
+  for (int pass = 0; pass < 2 && !done; pass++) {
     if (!o->h_sparse || pass == 1) {
       const int s = sparse_pattern(o, k);
       if (s < 0)
@@ -388,10 +409,12 @@ static int step_jacobian(mrvi_ocp *o, long k) {
                  .nv = nv,
                  .ptr = o->h_ptr,
                  .col = o->h_col,
-                 .val = o->h_val};
+                 .val = o->h_val,
+                 .slot = o->h_slot,
+                 .max_slot = o->h_slot_cap};
     ocp_jacobian(o, k, &a);
-    if (!a.miss)
-      break;
+    done = !a.miss;
+    o->n_h_slot = done && a.n_slot == o->h_slot_cap ? a.n_slot : 0;
   }
   for (long e = 0; e < nnz; e++)
     o->Ak[e] = o->h_of_a[e] >= 0 ? o->h_val[o->h_of_a[e]] : 0.0;

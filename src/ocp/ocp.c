@@ -201,6 +201,9 @@ void ocp_adjoint_free(mrvi_ocp *o) {
   free(o->h_of_a);
   free(o->h_ptr);
   free(o->h_col);
+  free(o->h_slot);
+  o->h_slot = NULL;
+  o->n_h_slot = o->h_slot_cap = 0;
   o->gz = NULL;
   o->h_of_a = NULL;
   o->h_ptr = NULL;

@@ -131,6 +131,9 @@ struct mrvi_ocp {
                          h_val; -1: none) of every CSC entry of A_k */
   double *Ak;         /* A_k on the step's CSC pattern, gathered from H */
   long *h_ptr;        /* nonzeros of H's rows (CSR, all columns) */
+  int *h_slot;        /* slot in h_val of every entry of the assembly */
+  long n_h_slot;      /* their number (0: not recorded) */
+  long h_slot_cap;    /* room in h_slot: the assembly's entries */
   int *h_col, h_sparse; /* h_sparse: the pattern is fixed (sparse mode) */
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
@@ -179,8 +182,13 @@ typedef enum {
   OCP_JAC_DENSE,
   OCP_JAC_COUNT,
   OCP_JAC_LIST,
-  OCP_JAC_SPARSE
+  OCP_JAC_SPARSE,
+  OCP_JAC_SLOTS
 } ocp_jac_mode;
+/* OCP_JAC_SPARSE finds every entry's slot by bisection in its row and,
+ * with slot not NULL, records it at slot[n_slot++] (n_slot < max_slot;
+ * beyond, slot is dropped); OCP_JAC_SLOTS replays the recorded slots (the
+ * assembly adds the same entries in the same order at every step). */
 typedef struct ocp_jac {
   ocp_jac_mode mode;
   int nv, miss;
@@ -189,6 +197,8 @@ typedef struct ocp_jac {
   int *col;
   long *fill;
   double *val;
+  int *slot;
+  long n_slot, max_slot;
 } ocp_jac;
 /* Entry (i, j) += v. */
 static inline void ocp_jac_add(ocp_jac *a, int i, int j, double v) {
@@ -211,12 +221,21 @@ static inline void ocp_jac_add(ocp_jac *a, int i, int j, double v) {
       else
         hi = mid;
     }
-    if (lo < a->ptr[i + 1] && a->col[lo] == j)
+    if (lo < a->ptr[i + 1] && a->col[lo] == j) {
       a->val[lo] += v;
-    else
+      if (a->slot && a->n_slot < a->max_slot)
+        a->slot[a->n_slot] = (int)lo;
+      a->n_slot++;
+    } else {
       a->miss = 1;
+    }
     return;
   }
+  case OCP_JAC_SLOTS:
+    if (a->n_slot < a->max_slot)
+      a->val[a->slot[a->n_slot]] += v;
+    a->n_slot++;
+    return;
   }
 }
 /* The Jacobian of the equations of step k in its variables v = (z_k,

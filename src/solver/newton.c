@@ -328,6 +328,9 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
     return MRVI_ENOMEM;
   }
   double *r = nw->ref, *d = r + n;
+  /* UMFPACK's own refinement steps are this loop's: off meanwhile. */
+  const double irstep = nw->control[UMFPACK_IRSTEP];
+  nw->control[UMFPACK_IRSTEP] = 0.0;
   for (int i = 0; i < nrhs; i++) {
     const double *bi = b + (size_t)i * (size_t)n;
     double *xi = x + (size_t)i * (size_t)n;
@@ -357,9 +360,12 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
         xi[j] += d[j];
     }
     /* Stalled (or the kept factors failed): factorise A. */
-    if (!ok)
+    if (!ok) {
+      nw->control[UMFPACK_IRSTEP] = irstep;
       return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
+    }
   }
+  nw->control[UMFPACK_IRSTEP] = irstep;
   *refactored = 0;
   return MRVI_OK;
 }
