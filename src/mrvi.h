@@ -692,7 +692,7 @@ typedef enum mrvi_solver {
     "relative tolerance of schur-krylov's GMRES on the slow unknowns")         \
   X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
   X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")  \
-  X(int, adjoint_dense_max, 600, 0, 1000000,                                   \
+  X(int, adjoint_dense_max, 64, 0, 1000000,                                    \
     "largest step (nodes and multipliers) whose optimal-control adjoint "      \
     "assembles the step Jacobian dense; beyond: sparse rows")                \
   X(int, adjoint_refine_max, 8, 0, 1000,                                       \

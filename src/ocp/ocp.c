@@ -41,7 +41,9 @@ static double *dalloc(size_t n) {
 /* Sizes of the problem against int indexing and the machine's memory,
  * before anything is allocated: the trajectory (N + 1) n_s + (N p + 1) n_f
  * nodes with momenta and outputs, and the adjoint's dense step Jacobian of
- * nv = 2 n_s + (p + 1) n_f + (multipliers) rows. */
+ * nv = 2 n_s + (p + 1) n_f + (multipliers) rows where it takes one
+ * (tuning.adjoint_dense_max; beyond, its sparse rows are of the size of
+ * the step's own Jacobian). */
 static int ocp_check_sizes(const mrvi_model *m, const mrvi_settings *s,
                            char *msg, size_t len) {
   const double N = (double)mrvi_settings_n_steps(s), p = s->micro_steps;
@@ -61,18 +63,16 @@ static int ocp_check_sizes(const mrvi_model *m, const mrvi_settings *s,
   /* doubles: step vectors, trajectory, momenta, outputs, multipliers,
    * the adjoint's Jacobian and workspace (one functional) */
   const double words = 6.0 * nv + 4.0 * nodes + (N + 1.0) * (ns + 3.0 * nf) +
-                       N * p * (nf + 1.0) + 2.0 * (N + 1.0) * n + nv * nv +
-                       N * nl;
+                       N * p * (nf + 1.0) + 2.0 * (N + 1.0) * n + N * nl +
+                       (nv <= s->tuning.adjoint_dense_max ? 2.5 * nv * nv : 0.0);
   const double need = 8.0 * words, have = mrvi_machine_memory();
   if (have > 0 && need > have)
     return mrvi_fail(msg, len, MRVI_EINVAL,
                      "the optimal control problem needs about %.3g GiB "
                      "(N = %.0f macro steps, p = %.0f micro steps, n_f = %.0f "
-                     "fast coordinates; the adjoint's dense step Jacobian "
-                     "has %.0f × %.0f entries), more than this machine's "
-                     "%.3g GiB",
-                     need / 1073741824.0, N, p, nf, nv, nv,
-                     have / 1073741824.0);
+                     "fast coordinates, %.0f step variables), more than this "
+                     "machine's %.3g GiB",
+                     need / 1073741824.0, N, p, nf, nv, have / 1073741824.0);
   return MRVI_OK;
 }
 

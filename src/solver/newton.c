@@ -93,6 +93,10 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
   }
   umfpack_di_defaults(nw->control);
   nw->control[UMFPACK_PRL] = 0; /* the library never prints */
+  /* Nested dissection on large steps: less fill than AMD on lattices
+   * (doc/performance.md, "Optimal control on a lattice"). */
+  if (n >= MRVI_NEWTON_METIS_MIN)
+    nw->control[UMFPACK_ORDERING] = UMFPACK_ORDERING_METIS;
   int st = umfpack_di_symbolic(n, n, Ap, Ai, Ax, &nw->symbolic, nw->control,
                                nw->info);
   if (st != UMFPACK_OK) {

@@ -55,6 +55,9 @@ long mrvi_nullspace_nnz(const mrvi_nullspace *z);
  * interface.
  * ------------------------------------------------------------------------- */
 #define MRVI_NEWTON_DENSE_MAX 128
+/* UMFPACK orders matrices of at least this many rows by METIS (nested
+ * dissection), smaller ones by AMD (its default). */
+#define MRVI_NEWTON_METIS_MIN 10000
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, char *msg, size_t len);
