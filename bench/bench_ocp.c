@@ -147,7 +147,6 @@ static const char *lattice_ocp_text =
     "    - {coordinate: p0_0.x, position: 0.2, velocity: 0}\n"
     "  solver: {algorithm: slsqp}\n";
 
-
 static void lattice_child(int fd, void *arg) {
   const int target = *(const int *)arg;
   lattice_rec r;
@@ -248,8 +247,8 @@ static int lattice_table(const char *sizes, double budget) {
   for (int i = 0; i < k; i++) {
     lattice_rec r;
     int wstatus = 0;
-    const int got = bench_run_child(lattice_child, &ns[i], &r, sizeof r,
-                                    budget, 8.0, &wstatus);
+    const int got = bench_run_child(lattice_child, &ns[i], &r, sizeof r, budget,
+                                    8.0, &wstatus);
     if (got == 0) {
       printf("%6d  did not finish within %.0f s CPU\n", ns[i], budget);
       continue;

@@ -691,13 +691,13 @@ typedef enum mrvi_solver {
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
     "relative tolerance of schur-krylov's GMRES on the slow unknowns")         \
   X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
-  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")  \
+  X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")   \
   X(int, adjoint_dense_max, 64, 0, 1000000,                                    \
     "largest step (nodes and multipliers) whose optimal-control adjoint "      \
-    "assembles the step Jacobian dense; beyond: sparse rows")                \
+    "assembles the step Jacobian dense; beyond: sparse rows")                  \
   X(int, adjoint_refine_max, 8, 0, 1000,                                       \
-    "refinement steps of an adjoint step solved with the factors of the "     \
-    "step after it (or the forward pass's); beyond: factorised anew "         \
+    "refinement steps of an adjoint step solved with the factors of the "      \
+    "step after it (or the forward pass's); beyond: factorised anew "          \
     "(0: every step)")
 
 typedef struct mrvi_tuning {

@@ -193,7 +193,8 @@ static void test_adjoint_ways(void) {
         mrvi_model *m = f ? test_cart_pendulum() : test_fpu();
         mrvi_settings s = test_settings("midpoint-midpoint", f ? 0.01 : 0.03, p,
                                         f ? 0.08 : 0.24, 1e-13);
-        s.constraint_form = f == 2 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+        s.constraint_form =
+            f == 2 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
         s.constraint_tol = 1e-13;
         s.tuning.adjoint_dense_max = way & 1 ? 0 : 1000000;
         s.tuning.adjoint_refine_max = way & 2 ? 8 : 0;
@@ -224,8 +225,10 @@ static void test_adjoint_ways(void) {
             err = fmax(err, fabs(g[i] - ref[i]));
             sc = fmax(sc, fabs(ref[i]));
           }
-          CHECK(err <= 1e-10 * sc, "%s p=%d way %d: gradients differ by %.3e "
-                "(scale %.3e)", forms[f], p, way, err, sc);
+          CHECK(err <= 1e-10 * sc,
+                "%s p=%d way %d: gradients differ by %.3e "
+                "(scale %.3e)",
+                forms[f], p, way, err, sc);
           /* 2 evaluations of N steps (N = 8); the pendulum's steps change
            * too fast for the refinement (it factorises them). */
           if (way & 2 && f == 0)

@@ -255,7 +255,8 @@ static int h_row(const mrvi_ocp *o, int i) {
 }
 static int h_column(const mrvi_ocp *o, int j) {
   const int ns = o->ns, nx = o->step.n_unknowns;
-  return j < ns ? ns + j : (j < nx ? 2 * ns + o->nf + (j - ns) : o->nz + j - nx);
+  return j < ns ? ns + j
+                : (j < nx ? 2 * ns + o->nf + (j - ns) : o->nz + j - nx);
 }
 
 static int cmp_int(const void *a, const void *b) {

@@ -62,9 +62,10 @@ static int ocp_check_sizes(const mrvi_model *m, const mrvi_settings *s,
                      N, p, nv, INT_MAX);
   /* doubles: step vectors, trajectory, momenta, outputs, multipliers,
    * the adjoint's Jacobian and workspace (one functional) */
-  const double words = 6.0 * nv + 4.0 * nodes + (N + 1.0) * (ns + 3.0 * nf) +
-                       N * p * (nf + 1.0) + 2.0 * (N + 1.0) * n + N * nl +
-                       (nv <= s->tuning.adjoint_dense_max ? 2.5 * nv * nv : 0.0);
+  const double words =
+      6.0 * nv + 4.0 * nodes + (N + 1.0) * (ns + 3.0 * nf) +
+      N * p * (nf + 1.0) + 2.0 * (N + 1.0) * n + N * nl +
+      (nv <= s->tuning.adjoint_dense_max ? 2.5 * nv * nv : 0.0);
   const double need = 8.0 * words, have = mrvi_machine_memory();
   if (have > 0 && need > have)
     return mrvi_fail(msg, len, MRVI_EINVAL,

@@ -126,14 +126,14 @@ struct mrvi_ocp {
    * into rows; beyond, straight into its sparse rows (pattern found once,
    * the same for every step). */
   double *H, *r, *mu, *rhs, *sol;
-  long *gz;           /* global node of every z of the step (nz) */
-  long *h_of_a;       /* entry of H (dense: row nv + col; sparse: slot in
-                         h_val; -1: none) of every CSC entry of A_k */
-  double *Ak;         /* A_k on the step's CSC pattern, gathered from H */
-  long *h_ptr;        /* nonzeros of H's rows (CSR, all columns) */
-  int *h_slot;        /* slot in h_val of every entry of the assembly */
-  long n_h_slot;      /* their number (0: not recorded) */
-  long h_slot_cap;    /* room in h_slot: the assembly's entries */
+  long *gz;             /* global node of every z of the step (nz) */
+  long *h_of_a;         /* entry of H (dense: row nv + col; sparse: slot in
+                           h_val; -1: none) of every CSC entry of A_k */
+  double *Ak;           /* A_k on the step's CSC pattern, gathered from H */
+  long *h_ptr;          /* nonzeros of H's rows (CSR, all columns) */
+  int *h_slot;          /* slot in h_val of every entry of the assembly */
+  long n_h_slot;        /* their number (0: not recorded) */
+  long h_slot_cap;      /* room in h_slot: the assembly's entries */
   int *h_col, h_sparse; /* h_sparse: the pattern is fixed (sparse mode) */
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */

@@ -322,8 +322,8 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
  * residual by less than 4. */
 int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
                                      int nrhs, const double *b, double *x,
-                                     int max_refine, int *refactored,
-                                     char *msg, size_t len) {
+                                     int max_refine, int *refactored, char *msg,
+                                     size_t len) {
   const int n = nw->n;
   const int kept = nw->lu ? nw->factored : nw->numeric != NULL;
   *refactored = 1;

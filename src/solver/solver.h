@@ -79,8 +79,8 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
  * are the kept ones). */
 int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
                                      int nrhs, const double *b, double *x,
-                                     int max_refine, int *refactored,
-                                     char *msg, size_t len);
+                                     int max_refine, int *refactored, char *msg,
+                                     size_t len);
 
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).
