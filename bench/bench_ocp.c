@@ -4,24 +4,43 @@
  *      <= 3), total time;
  *   2. the largest number of controls each algorithm solves within a time
  *      budget (default 60 s per solve), doubling N on the double
- *      integrator.
- * Usage: bench_ocp [--budget SECONDS] [--only PROBLEM]   (run from the
- * source root, or set MRVI_SOURCE_ROOT; --only: part 1 for one problem,
- * e.g. ocp_reorient, and no part 2). */
+ *      integrator;
+ *   3. (--lattice SIZES, alone) the planar lattice of systems/lattice.yaml
+ *      grown to about n coordinates (midpoint-midpoint, p = 10, dT = 0.05,
+ *      N = 20; one macro-grid actuator pushing the corner particle along x,
+ *      tracking of one other coordinate, terminal position and velocity of
+ *      the actuated coordinate): CPU time of one forward sweep and of one
+ *      cost + gradient (constraint gradients included), their ratio, and
+ *      the peak resident memory after each, every size in its own process
+ *      (issue goal: ratio <= 3; memory <= 2x the forward run plus the
+ *      stored trajectory).
+ * Usage: bench_ocp [--budget SECONDS] [--only PROBLEM] [--lattice SIZES
+ * [--set NAME=VALUE]...] (--set: overrides of the problems of parts 1
+ * and 3)
+ * (run from the source root, or set MRVI_SOURCE_ROOT; --only: part 1 for
+ * one problem, e.g. ocp_reorient, and no part 2). */
 #include "bench_util.h"
 #include "mrvi.h"
 #include "ocp/ocp.h"
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 static double now(void) {
   struct timespec ts;
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
+
+/* --set overrides of the problems (e.g.
+ * integrator.tuning.adjoint_dense_max=0). */
+enum { MAX_SET = 8 };
+static const char *set[MAX_SET];
+static int n_set;
 
 typedef struct row {
   int n_u, evals, ok;
@@ -96,19 +115,176 @@ static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
   return 0;
 }
 
+/* Part 3: the lattice problem at about n coordinates. */
+typedef struct lattice_rec {
+  int n, n_u, ok;
+  double t_fwd, t_first, t_grad, fwd_kb, grad_kb, traj_kb;
+  char path[16], message[200];
+} lattice_rec;
+
+static const char *lattice_ocp_text =
+    "name: lattice_ocp\ndimension: 2\n"
+    "generate:\n"
+    "  - kind: lattice2d\n"
+    "    name: p\n"
+    "    count: [6, 5]\n"
+    "    spacing: 1.0\n"
+    "    mass: 1.0\n"
+    "    rates: {every: 2}\n"
+    "    slow_spring: {law: linear, stiffness: 10}\n"
+    "    fast_spring: {law: linear, stiffness: 1000}\n"
+    "    initial:\n"
+    "      - {index: [2, 2], displacement: [0.1, 0.05], velocity: [0.0, "
+    "0.5]}\n"
+    "integrator: {scheme: midpoint-midpoint, macro_step: 0.05, micro_steps: "
+    "10, t_end: 1}\n"
+    "control:\n"
+    "  actuators:\n"
+    "    - {name: push, coordinate: p0_0.x, grid: macro, weight: 1}\n"
+    "  tracking:\n"
+    "    - {coordinate: p1_1.y, weight: 1, reference: 0}\n"
+    "  terminal:\n"
+    "    - {coordinate: p0_0.x, position: 0.2, velocity: 0}\n"
+    "  solver: {algorithm: slsqp}\n";
+
+static void lattice_child(int fd, void *arg) {
+  const int target = *(const int *)arg;
+  lattice_rec r;
+  memset(&r, 0, sizeof r);
+  /* nx x ny particles, nx = ny + 1 or so (6 x 5 at n = 60). */
+  const int particles = target / 2 < 4 ? 4 : target / 2;
+  int ny = (int)floor(sqrt((double)particles));
+  while (ny > 2 && particles % ny != 0 && particles % ny < ny / 2)
+    ny--;
+  const int nx = (particles + ny - 1) / ny;
+  char count[64], msg[2048];
+  snprintf(count, sizeof count, "generate.0.count=[%d, %d]", nx, ny);
+  const char *ov[1 + MAX_SET] = {count};
+  for (int i = 0; i < n_set; i++)
+    ov[1 + i] = set[i];
+  mrvi_system *sys = NULL;
+  mrvi_ocp *o = NULL;
+  double *u = NULL, *g = NULL, *c = NULL, *cg = NULL;
+  if (mrvi_system_load_string(lattice_ocp_text, "lattice_ocp", ov, 1 + n_set,
+                              &sys, msg, sizeof msg) < 0 ||
+      mrvi_ocp_load(sys, &o, &u, msg, sizeof msg) < 0) {
+    snprintf(r.message, sizeof r.message, "%.199s", msg);
+    (void)!write(fd, &r, sizeof r);
+    mrvi_system_free(sys);
+    return;
+  }
+  r.n = 2 * nx * ny;
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  r.n_u = n;
+  for (int i = 0; i < n; i++)
+    u[i] = 0.5 * sin(0.7 * i); /* a controlled motion */
+  g = malloc((size_t)n * sizeof *g);
+  c = malloc((size_t)(m + 1) * sizeof *c);
+  cg = malloc((size_t)(m * n + 1) * sizeof *cg);
+  const char *path = mrvi_ocp_solver_path(o, NULL, 0);
+  snprintf(r.path, sizeof r.path, "%s", path ? path : "none");
+  /* Trajectory kept for the adjoint: nodes, momenta, multipliers. */
+  r.traj_kb = 8.0 * (21.0 * 2 * nx * ny * 10 + 2 * 21.0 * 2 * nx * ny) / 1024.0;
+  double J;
+  int ok = g && c && cg;
+  /* First forward (allocation and set-up) untimed, then the best of up
+   * to three within about a second each. */
+  ok = ok && mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) == 0;
+  r.t_fwd = 1e30;
+  for (int i = 0; i < 3 && ok; i++) {
+    const double t0 = bench_cpu();
+    ok = mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) == 0;
+    r.t_fwd = fmin(r.t_fwd, bench_cpu() - t0);
+    if (r.t_fwd > 1.0)
+      break;
+  }
+  r.fwd_kb = (double)bench_status_kb("VmHWM:");
+  /* The first cost + gradient (the adjoint's set-up: pattern, first
+   * factorisation) apart, then the best of up to two more at controls
+   * moved as an optimiser would (kept factors from the evaluation
+   * before). */
+  r.t_grad = 1e30;
+  for (int i = 0; i < 3 && ok; i++) {
+    const double t0 = bench_cpu();
+    ok = mrvi_ocp_evaluate(o, u, &J, g, c, cg) == 0;
+    const double t = bench_cpu() - t0;
+    if (i == 0)
+      r.t_first = t;
+    else
+      r.t_grad = fmin(r.t_grad, t);
+    for (int j = 0; j < n; j++)
+      u[j] -= 0.01 * g[j];
+    (void)!write(fd, &r, sizeof r); /* a partial record */
+    if (i > 0 && r.t_grad > 5.0)
+      break;
+  }
+  r.grad_kb = (double)bench_status_kb("VmHWM:");
+  r.ok = ok;
+  if (!ok)
+    snprintf(r.message, sizeof r.message, "%.199s", mrvi_ocp_errmsg(o));
+  (void)!write(fd, &r, sizeof r);
+  free(g);
+  free(c);
+  free(cg);
+  free(u);
+  mrvi_ocp_free(o);
+  mrvi_system_free(sys);
+}
+
+static int lattice_table(const char *sizes, double budget) {
+  int ns[16];
+  const int k = bench_parse_ints(sizes, ns, 16);
+  if (k < 1) {
+    fputs("bench_ocp: --lattice takes sizes such as 60,240,1012\n", stderr);
+    return 1;
+  }
+  printf("lattice optimal control (midpoint-midpoint, p = 10, dT = 0.05, "
+         "N = 20), one process per size; %s\n",
+         bench_build());
+  printf("%6s %4s %-13s %9s %9s %9s %7s %7s %9s %9s %9s %s\n", "n", "n_u",
+         "path", "fwd [s]", "1st [s]", "c+g [s]", "1st/fwd", "c+g/fwd",
+         "fwd [MB]", "c+g [MB]", "traj [MB]", "status");
+  for (int i = 0; i < k; i++) {
+    lattice_rec r;
+    int wstatus = 0;
+    const int got = bench_run_child(lattice_child, &ns[i], &r, sizeof r, budget,
+                                    8.0, &wstatus);
+    if (got == 0) {
+      printf("%6d  did not finish within %.0f s CPU\n", ns[i], budget);
+      continue;
+    }
+    printf("%6d %4d %-13s %9.4f %9.4f %9.4f %7.2f %7.2f %9.1f %9.1f %9.1f "
+           "%s\n",
+           r.n, r.n_u, r.path, r.t_fwd, r.t_first, r.t_grad,
+           r.t_first / r.t_fwd, r.t_grad / r.t_fwd, r.fwd_kb / 1024.0,
+           r.grad_kb / 1024.0, r.traj_kb / 1024.0,
+           r.ok ? "ok" : (r.message[0] ? r.message : "killed"));
+    fflush(stdout);
+  }
+  return 0;
+}
+
 int main(int argc, char **argv) {
   double budget = 60.0;
-  const char *only = NULL;
+  const char *only = NULL, *lattice = NULL;
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--budget") && i + 1 < argc) {
       budget = atof(argv[++i]);
     } else if (!strcmp(argv[i], "--only") && i + 1 < argc) {
       only = argv[++i];
+    } else if (!strcmp(argv[i], "--lattice") && i + 1 < argc) {
+      lattice = argv[++i];
+    } else if (!strcmp(argv[i], "--set") && i + 1 < argc && n_set < MAX_SET) {
+      set[n_set++] = argv[++i];
     } else {
-      fputs("usage: bench_ocp [--budget SECONDS] [--only PROBLEM]\n", stderr);
+      fputs("usage: bench_ocp [--budget SECONDS] [--only PROBLEM] "
+            "[--lattice SIZES [--set NAME=VALUE]...]\n",
+            stderr);
       return !!strcmp(argv[i], "--help");
     }
   }
+  if (lattice)
+    return lattice_table(lattice, budget);
   const char *root = getenv("MRVI_SOURCE_ROOT");
   /* The shipped problems (their scheme), and the FPU problem with the
    * schemes of the sweep and explicit paths. */
@@ -139,9 +315,11 @@ int main(int argc, char **argv) {
         snprintf(b, sizeof b, "integrator.micro_steps=%d", ps[ip]);
         snprintf(c, sizeof c, "integrator.scheme=%s",
                  scheme[f] ? scheme[f] : "midpoint-midpoint");
-        const char *ov[3] = {a, b, c};
+        const char *ov[3 + MAX_SET] = {a, b, c};
+        for (int i = 0; i < n_set; i++)
+          ov[3 + i] = set[i];
         row r;
-        if (bench(files[f], ov, 3, -1, &r) < 0)
+        if (bench(files[f], ov, 3 + n_set, -1, &r) < 0)
           return 1;
         printf("%-22s %-15s %4d %2d %5d %5d %9.3f %8.2f %8.2f %9.3f %-8s "
                "%s\n",

@@ -696,7 +696,14 @@ typedef enum mrvi_solver {
   X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")   \
   X(int, thread_chunk, 4096, 1, 100000000,                                     \
     "elements per chunk of a threaded element loop (settings.threads); a "     \
-    "class of fewer than two chunks runs on one thread")
+    "class of fewer than two chunks runs on one thread") \
+  X(int, adjoint_dense_max, 64, 0, 1000000,                                    \
+    "largest step (nodes and multipliers) whose optimal-control adjoint "      \
+    "assembles the step Jacobian dense; beyond: sparse rows")                  \
+  X(int, adjoint_refine_max, 8, 0, 1000,                                       \
+    "refinement steps of an adjoint step solved with the factors of the "      \
+    "step after it (or the forward pass's); beyond: factorised anew "          \
+    "(0: every step)")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

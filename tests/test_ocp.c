@@ -8,10 +8,14 @@
  * - harmonic oscillator rest-to-rest over one period: J* = m^2 w^2 d^2 / T,
  *   order 2 (midpoint) fitted from a halving sequence;
  * - p = 1 equals a few-line single-rate DMOC written here (midpoint L_d,
- *   f^+- = (h/2) u), to 1e-8 on the optimal controls. */
+ *   f^+- = (h/2) u), to 1e-8 on the optimal controls;
+ * - the adjoint's step Jacobian dense and in sparse rows, its transposed
+ *   solves factorised every step and refined from kept factors: the same
+ *   gradients to 1e-10 (unconstrained, both constraint forms). */
 #include "model/model.h"
 #include "models.h"
 #include "ocp/ocp.h"
+#include "ocp/ocp_internal.h"
 #include "testlib.h"
 
 #include <hdf5.h>
@@ -99,6 +103,9 @@ static void test_gradients(void) {
     for (int ip = 0; ip < 2; ip++) {
       mrvi_model *m = test_fpu();
       mrvi_settings s = test_settings(schemes[is], 0.03, ps[ip], 0.12, 1e-13);
+      /* Every other case with the step Jacobian in sparse rows. */
+      if ((is + ip) % 2)
+        s.tuning.adjoint_dense_max = 0;
       mrvi_ocp *o = fpu_problem(m, &s);
       if (o) {
         char what[100];
@@ -108,6 +115,32 @@ static void test_gradients(void) {
       mrvi_ocp_free(o);
       mrvi_model_free(m);
     }
+}
+
+/* Cart pendulum problem: actuators on slow and fast coordinates and grids,
+ * a pair force between cart and bob, tracking, terminal conditions. */
+static mrvi_ocp *cart_problem(mrvi_model *m, const mrvi_settings *s) {
+  mrvi_ocp *o = NULL;
+  char msg[300];
+  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
+    CHECK(0, "create: %s", msg);
+    return NULL;
+  }
+  /* cart.x, cart.y slow (0, 1); bob.x, bob.y fast (3, 4) */
+  mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 0.5, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 1.5, -HUGE_VAL, HUGE_VAL);
+  /* A pair force between cart and bob (along the rod). */
+  mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MICRO, 1.0, -HUGE_VAL,
+                             HUGE_VAL);
+  mrvi_ocp_add_tracking(o, 5, 3.0, -0.2);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 3, 0.0, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.0, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.0, 4.0);
+  return o;
 }
 
 /* Cart pendulum (slow cart on a plane, fast bob on a rod: constraints at
@@ -123,29 +156,10 @@ static void test_gradients_constrained(void) {
         mrvi_settings s = test_settings(schemes[is], 0.01, ps[ip], 0.04, 1e-13);
         s.constraint_form = form ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
         s.constraint_tol = 1e-13;
-        mrvi_ocp *o = NULL;
-        char msg[300];
-        int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
-        CHECK(st == 0, "create: %s", msg);
-        if (st == 0) {
-          /* cart.x, cart.y slow (0, 1); bob.x, bob.y fast (3, 4) */
-          mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
-                                HUGE_VAL);
-          mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 2.0, -HUGE_VAL,
-                                HUGE_VAL);
-          mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 0.5, -HUGE_VAL,
-                                HUGE_VAL);
-          mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 1.5, -HUGE_VAL,
-                                HUGE_VAL);
-          /* A pair force between cart and bob (along the rod). */
-          mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MICRO, 1.0, -HUGE_VAL,
-                                     HUGE_VAL);
-          mrvi_ocp_add_tracking(o, 5, 3.0, -0.2);
-          mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
-          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
-          mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 3, 0.0, 0.0);
-          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.0, 0.0);
-          mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.0, 4.0);
+        if ((is + ip + form) % 2)
+          s.tuning.adjoint_dense_max = 0;
+        mrvi_ocp *o = cart_problem(m, &s);
+        if (o) {
           char what[120];
           mrvi_fmt(what, sizeof what, "cart pendulum %s p=%d %s", schemes[is],
                    ps[ip], forms[form]);
@@ -154,6 +168,81 @@ static void test_gradients_constrained(void) {
         mrvi_ocp_free(o);
         mrvi_model_free(m);
       }
+}
+
+/* Cost and constraint gradients of o at u into g (n (1 + m)). */
+static int gradients_at(mrvi_ocp *o, const double *u, double *g) {
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  double J, c[16];
+  return m <= 16 ? mrvi_ocp_evaluate(o, u, &J, g, c, g + n) : -1;
+}
+
+/* The adjoint's four ways (step Jacobian dense or in sparse rows; every
+ * step factorised, or kept factors refined) give the same gradients to
+ * 1e-10 relative, at two controls in turn (the second starts from the
+ * first's kept factors); on the FPU the refined ways factorise fewer
+ * steps than there are. */
+static void test_adjoint_ways(void) {
+  const char *forms[3] = {"unconstrained", "multipliers", "null-space"};
+  for (int f = 0; f < 3; f++)
+    for (int ip = 0; ip < 2; ip++) {
+      const int p = ip ? 5 : 1;
+      double *ref = NULL;
+      int n_ref = 0;
+      for (int way = 0; way < 4; way++) {
+        mrvi_model *m = f ? test_cart_pendulum() : test_fpu();
+        mrvi_settings s = test_settings("midpoint-midpoint", f ? 0.01 : 0.03, p,
+                                        f ? 0.08 : 0.24, 1e-13);
+        s.constraint_form =
+            f == 2 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+        s.constraint_tol = 1e-13;
+        s.tuning.adjoint_dense_max = way & 1 ? 0 : 1000000;
+        s.tuning.adjoint_refine_max = way & 2 ? 8 : 0;
+        mrvi_ocp *o = f ? cart_problem(m, &s) : fpu_problem(m, &s);
+        if (!o) {
+          mrvi_model_free(m);
+          continue;
+        }
+        const int n = mrvi_ocp_n_controls(o), nm = mrvi_ocp_n_constraints(o);
+        const int len = 2 * n * (1 + nm);
+        double *u = malloc((size_t)n * sizeof *u);
+        double *g = calloc((size_t)len, sizeof *g);
+        int st = 0;
+        for (int t = 0; t < 2 && st == 0; t++) {
+          for (int i = 0; i < n; i++)
+            u[i] = 0.5 * sin(1.7 * i + 0.3 + t);
+          st = gradients_at(o, u, g + t * n * (1 + nm));
+        }
+        CHECK(st == 0, "%s p=%d way %d: %s", forms[f], p, way,
+              mrvi_ocp_errmsg(o));
+        if (st == 0 && way == 0) {
+          ref = g;
+          n_ref = len;
+          g = NULL;
+        } else if (st == 0 && ref && n_ref == len) {
+          double err = 0.0, sc = 0.0;
+          for (int i = 0; i < len; i++) {
+            err = fmax(err, fabs(g[i] - ref[i]));
+            sc = fmax(sc, fabs(ref[i]));
+          }
+          CHECK(err <= 1e-10 * sc,
+                "%s p=%d way %d: gradients differ by %.3e "
+                "(scale %.3e)",
+                forms[f], p, way, err, sc);
+          /* 2 evaluations of N steps (N = 8); the pendulum's steps change
+           * too fast for the refinement (it factorises them). */
+          if (way & 2 && f == 0)
+            CHECK(o->adjoint_factorisations < 16,
+                  "%s p=%d way %d: %ld step factorisations in 16 steps",
+                  forms[f], p, way, o->adjoint_factorisations);
+        }
+        free(u);
+        free(g);
+        mrvi_ocp_free(o);
+        mrvi_model_free(m);
+      }
+      free(ref);
+    }
 }
 
 /* Slow free mass (and, if p > 1, an uncoupled fast oscillator). */
@@ -1051,6 +1140,7 @@ static void test_paths_general(void) {
 int main(void) {
   test_gradients();
   test_gradients_constrained();
+  test_adjoint_ways();
   test_double_integrator();
   test_oscillator_period();
   test_dmoc_reference();

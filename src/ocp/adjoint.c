@@ -16,6 +16,7 @@
  * All functionals (cost and every terminal constraint) share one sweep. */
 #include "ocp/ocp_internal.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,10 +25,10 @@
  * variable lv, if lv >= 0) into the node rows with its derivatives, and the
  * equation g = 0 at row er (if er >= 0). */
 static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
-                           int er, double *J) {
+                           int er, ocp_jac *J) {
   mrvi_step *st = &o->step;
   const mrvi_constraint *kc = &o->model->constraints[c];
-  const int n = kc->n_in, rows = kc->rows, nv = o->nv;
+  const int n = kc->n_in, rows = kc->rows;
   mrvi_step_constraint_eval(st, c, pt, o->x, lv >= 0);
   /* Node coefficients: for a constraint node, cA = 1 at fast node m. */
   int zi[MRVI_MAX_INPUTS][2];
@@ -44,47 +45,46 @@ static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
       const int zr = zi[j][a];
       if (er >= 0)
         for (int r = 0; r < rows; r++)
-          J[(er + r) * nv + zr] += zc[j][a] * st->cG[r * n + j];
+          ocp_jac_add(J, er + r, zr, zc[j][a] * st->cG[r * n + j]);
       if (lv < 0)
         continue;
       const double *lam = o->x + st->n_unknowns + (lv - o->nz);
       for (int r = 0; r < rows; r++)
-        J[zr * nv + lv + r] -= pt->w * zc[j][a] * st->cG[r * n + j];
+        ocp_jac_add(J, zr, lv + r, -pt->w * zc[j][a] * st->cG[r * n + j]);
       for (int l = 0; l < n; l++) {
         double h = 0.0;
         for (int r = 0; r < rows; r++)
           h += lam[r] * st->cH[(r * n + j) * n + l];
         for (int b = 0; b < 2; b++)
           if (zc[l][b] != 0.0)
-            J[zr * nv + zi[l][b]] -= pt->w * zc[j][a] * zc[l][b] * h;
+            ocp_jac_add(J, zr, zi[l][b], -pt->w * zc[j][a] * zc[l][b] * h);
       }
     }
 }
 
-void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
+void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
   const mrvi_model *m = o->model;
   mrvi_step *st = &o->step;
-  const int ns = o->ns, nf = o->nf, p = o->p, nv = o->nv;
+  const int ns = o->ns, nf = o->nf, p = o->p;
   const long *gz = o->gz;
   for (int z = 0; z < o->nz; z++)
     o->gz[z] = ocp_global(o, k, z);
-  memset(J, 0, (size_t)nv * (size_t)nv * sizeof *J);
   /* Kinetic: M/h [[1, -1], [-1, 1]] on every interval. */
   for (int s = 0; s < ns; s++) {
     const double a = m->mass[m->slow_index[s]] / st->dT;
-    J[s * nv + s] += a;
-    J[(ns + s) * nv + ns + s] += a;
-    J[s * nv + ns + s] -= a;
-    J[(ns + s) * nv + s] -= a;
+    ocp_jac_add(J, s, s, a);
+    ocp_jac_add(J, ns + s, ns + s, a);
+    ocp_jac_add(J, s, ns + s, -a);
+    ocp_jac_add(J, ns + s, s, -a);
   }
   for (int mm = 0; mm < p; mm++)
     for (int s = 0; s < nf; s++) {
       const double a = m->mass[m->fast_index[s]] / st->dt;
       const int i = 2 * ns + mm * nf + s, j = i + nf;
-      J[i * nv + i] += a;
-      J[j * nv + j] += a;
-      J[i * nv + j] -= a;
-      J[j * nv + i] -= a;
+      ocp_jac_add(J, i, i, a);
+      ocp_jac_add(J, j, j, a);
+      ocp_jac_add(J, i, j, -a);
+      ocp_jac_add(J, j, i, -a);
     }
   /* Potentials: -w c_a c_b hess Z at every evaluation point. */
   for (int c = 0; c < 2; c++)
@@ -108,7 +108,7 @@ void ocp_jacobian(mrvi_ocp *o, long k, double *J) {
             const double h = pt->w * st->H[j * n + l];
             for (int a = 0; a < 2; a++)
               for (int b = 0; b < 2; b++)
-                J[zi[j][a] * nv + zi[l][b]] -= zc[j][a] * zc[l][b] * h;
+                ocp_jac_add(J, zi[j][a], zi[l][b], -zc[j][a] * zc[l][b] * h);
           }
       }
     }
@@ -240,41 +240,186 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
   }
 }
 
-/* Lazily sized adjoint workspace for nfun functionals. */
+/* Whether the adjoint assembles the step Jacobian dense (small steps, where
+ * that is cheaper: doc/performance.md, bench_ocp --lattice). */
+static int dense_jacobian(const mrvi_ocp *o) {
+  return o->nv <= o->settings.tuning.adjoint_dense_max;
+}
+
+/* Row (i < 0: column j) of H of index i (j) of the step's CSC pattern:
+ * rows q_k^s, fast nodes 0..p-1, constraint equations; columns q_{k+1}^s,
+ * fast nodes 1..p, multipliers. */
+static int h_row(const mrvi_ocp *o, int i) {
+  const int ns = o->ns, nx = o->step.n_unknowns;
+  return i < ns ? i : (i < nx ? 2 * ns + (i - ns) : o->nz + i - nx);
+}
+static int h_column(const mrvi_ocp *o, int j) {
+  const int ns = o->ns, nx = o->step.n_unknowns;
+  return j < ns ? ns + j
+                : (j < nx ? 2 * ns + o->nf + (j - ns) : o->nz + j - nx);
+}
+
+static int cmp_int(const void *a, const void *b) {
+  const int x = *(const int *)a, y = *(const int *)b;
+  return (x > y) - (x < y);
+}
+
+/* The sparse rows of H (the same pattern for every step; found at step k,
+ * whose data are loaded): count the assembly's entries per row, list their
+ * columns, sort and merge duplicates; then the slot of every entry of A_k
+ * in them. */
+static int sparse_pattern(mrvi_ocp *o, long k) {
+  const int nv = o->nv;
+  const mrvi_step *st = &o->step;
+  free(o->h_ptr);
+  free(o->h_col);
+  free(o->h_val);
+  o->h_col = NULL;
+  o->h_val = NULL;
+  o->h_sparse = 0;
+  long *ptr = o->h_ptr = calloc((size_t)nv + 1, sizeof *ptr);
+  long *fill = malloc(((size_t)nv + 1) * sizeof *fill);
+  if (!ptr || !fill) {
+    free(fill);
+    return MRVI_ENOMEM;
+  }
+  ocp_jac a = {.mode = OCP_JAC_COUNT, .nv = nv, .ptr = ptr};
+  ocp_jacobian(o, k, &a);
+  for (int i = 0; i < nv; i++) {
+    ptr[i + 1] += ptr[i];
+    fill[i] = ptr[i];
+  }
+  /* The slots of the entries, recorded at the next assembly (none if
+   * there is no room for them: then every step bisects). */
+  free(o->h_slot);
+  o->n_h_slot = 0;
+  o->h_slot_cap = ptr[nv] < INT_MAX ? ptr[nv] : 0;
+  o->h_slot = malloc(((size_t)o->h_slot_cap + 1) * sizeof *o->h_slot);
+  if (!o->h_slot)
+    o->h_slot_cap = 0;
+  int *col = malloc(((size_t)ptr[nv] + 1) * sizeof *col);
+  if (!col) {
+    free(fill);
+    return MRVI_ENOMEM;
+  }
+  a = (ocp_jac){.mode = OCP_JAC_LIST, .nv = nv, .col = col, .fill = fill};
+  ocp_jacobian(o, k, &a);
+  free(fill);
+  long w = 0;
+  for (int i = 0; i < nv; i++) {
+    const long b = ptr[i], e = ptr[i + 1];
+    qsort(col + b, (size_t)(e - b), sizeof *col, cmp_int);
+    ptr[i] = w;
+    for (long t = b; t < e; t++)
+      if (w == ptr[i] || col[t] != col[w - 1])
+        col[w++] = col[t];
+  }
+  ptr[nv] = w;
+  int *shrunk = realloc(col, ((size_t)w + 1) * sizeof *col);
+  o->h_col = shrunk ? shrunk : col;
+  o->h_val = calloc((size_t)w + 1, sizeof *o->h_val);
+  if (!o->h_val)
+    return MRVI_ENOMEM;
+  for (int j = 0; j < st->n_total; j++)
+    for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++) {
+      const int row = h_row(o, st->Ai[e]), c = h_column(o, j);
+      const int *lo = o->h_col + ptr[row], *hi = o->h_col + ptr[row + 1];
+      const int *f = bsearch(&c, lo, (size_t)(hi - lo), sizeof c, cmp_int);
+      o->h_of_a[e] = f ? (long)(f - o->h_col) : -1;
+    }
+  o->h_sparse = 1;
+  return MRVI_OK;
+}
+
+/* Lazily sized adjoint workspace for nfun functionals: the dense H and its
+ * rows where dense_jacobian, else the sparse rows at the first step. */
 static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   const size_t nn = (size_t)o->n_nodes, nu = (size_t)o->step.n_total;
   const size_t npn = (size_t)(o->ns + o->nf), f = (size_t)nfun;
+  const size_t nv = (size_t)o->nv;
   ocp_adjoint_free(o);
   o->gz = malloc((size_t)o->nz * sizeof *o->gz);
-  const size_t nvz = (size_t)o->nv * (size_t)o->nz + 1;
-  o->h_ptr = malloc(((size_t)o->nv + 1) * sizeof *o->h_ptr);
-  o->h_col = malloc(nvz * sizeof *o->h_col);
-  o->h_val = malloc(nvz * sizeof *o->h_val);
-  /* A_k[i][j] = H[row(i)][col(j)] in the step's order: rows q_k^s, fast
-   * nodes 0..p-1, constraint equations; columns q_{k+1}^s, fast nodes
-   * 1..p, multipliers. */
   const mrvi_step *st = &o->step;
-  const int ns = o->ns, nf = o->nf, nx = st->n_unknowns, nz = o->nz;
   o->h_of_a = malloc(((size_t)st->nnz + 1) * sizeof *o->h_of_a);
   o->Ak = malloc(((size_t)st->nnz + 1) * sizeof *o->Ak);
-  if (o->h_of_a)
-    for (int j = 0; j < st->n_total; j++) {
-      const int col =
-          j < ns ? ns + j : (j < nx ? 2 * ns + nf + (j - ns) : nz + j - nx);
-      for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++) {
-        const int i = st->Ai[e];
-        const int row = i < ns ? i : (i < nx ? 2 * ns + (i - ns) : nz + i - nx);
-        o->h_of_a[e] = row * o->nv + col;
-      }
-    }
+  int ok = o->gz && o->h_of_a && o->Ak;
+  if (ok && dense_jacobian(o)) {
+    o->H = malloc((nv * nv + 1) * sizeof *o->H);
+    o->h_ptr = malloc((nv + 1) * sizeof *o->h_ptr);
+    o->h_col = malloc((nv * nv + 1) * sizeof *o->h_col);
+    o->h_val = malloc((nv * nv + 1) * sizeof *o->h_val);
+    ok = o->H && o->h_ptr && o->h_col && o->h_val;
+    for (int j = 0; ok && j < st->n_total; j++)
+      for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++)
+        o->h_of_a[e] = (long)h_row(o, st->Ai[e]) * o->nv + h_column(o, j);
+  }
   o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  o->nfun_alloc =
-      o->r && o->mu && o->rhs && o->sol && o->gz && o->h_of_a && o->Ak ? nfun
-                                                                       : 0;
+  o->nfun_alloc = ok && o->r && o->mu && o->rhs && o->sol ? nfun : 0;
   return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
+}
+
+/* H of step k (its data loaded) into its rows (h_ptr, h_col, h_val) and
+ * A_k (Ak): assembled dense and compressed, or into the sparse rows. */
+static int step_jacobian(mrvi_ocp *o, long k) {
+  const int nv = o->nv;
+  const long nnz = o->step.nnz;
+  if (dense_jacobian(o)) {
+    double *H = o->H;
+    memset(H, 0, (size_t)nv * (size_t)nv * sizeof *H);
+    ocp_jac a = {.mode = OCP_JAC_DENSE, .nv = nv, .J = H};
+    ocp_jacobian(o, k, &a);
+    long nh = 0;
+    for (int row = 0; row < nv; row++) {
+      o->h_ptr[row] = nh;
+      for (int y = 0; y < nv; y++)
+        if (H[(size_t)row * nv + y] != 0.0) {
+          o->h_col[nh] = y;
+          o->h_val[nh++] = H[(size_t)row * nv + y];
+        }
+    }
+    o->h_ptr[nv] = nh;
+    for (long e = 0; e < nnz; e++)
+      o->Ak[e] = H[o->h_of_a[e]];
+    return MRVI_OK;
+  }
+  /* The slots recorded at the first step replayed; an entry outside the
+   * pattern (not expected: the pattern depends on the step templates only)
+   * makes it again from this step. */
+  int done = 0;
+  if (o->h_sparse && o->n_h_slot > 0) {
+    memset(o->h_val, 0, (size_t)o->h_ptr[nv] * sizeof *o->h_val);
+    ocp_jac a = {.mode = OCP_JAC_SLOTS,
+                 .nv = nv,
+                 .val = o->h_val,
+                 .slot = o->h_slot,
+                 .max_slot = o->n_h_slot};
+    ocp_jacobian(o, k, &a);
+    done = a.n_slot == o->n_h_slot;
+  }
+  for (int pass = 0; pass < 2 && !done; pass++) {
+    if (!o->h_sparse || pass == 1) {
+      const int s = sparse_pattern(o, k);
+      if (s < 0)
+        return s;
+    }
+    memset(o->h_val, 0, (size_t)o->h_ptr[nv] * sizeof *o->h_val);
+    ocp_jac a = {.mode = OCP_JAC_SPARSE,
+                 .nv = nv,
+                 .ptr = o->h_ptr,
+                 .col = o->h_col,
+                 .val = o->h_val,
+                 .slot = o->h_slot,
+                 .max_slot = o->h_slot_cap};
+    ocp_jacobian(o, k, &a);
+    done = !a.miss;
+    o->n_h_slot = done && a.n_slot == o->h_slot_cap ? a.n_slot : 0;
+  }
+  for (long e = 0; e < nnz; e++)
+    o->Ak[e] = o->h_of_a[e] >= 0 ? o->h_val[o->h_of_a[e]] : 0.0;
+  return MRVI_OK;
 }
 
 int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
@@ -311,8 +456,7 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     for (int i = 0; i < nf; i++)
       o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
   }
-  double *H = o->H;
-  const int nv = o->nv, nl = o->nl, nt = st->n_total;
+  const int nl = o->nl, nt = st->n_total;
   double *rloc = o->sol + (size_t)nfun * (size_t)nt; /* nl, see alloc */
   char msg[300];
   for (long k = N - 1; k >= 0; k--) {
@@ -326,20 +470,14 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     o->k_cur = k;         /* for the pair-force step hook */
     if (o->n_torsion > 0) /* step k's branches, as in the forward pass */
       mrvi_model_torsion_set(o->model, o->branch + k * o->n_torsion);
-    ocp_jacobian(o, k, H);
+    if ((s = step_jacobian(o, k)) < 0)
+      return mrvi_ocp_fail(o, s, "out of memory");
     const long *gz = o->gz; /* global node of every z of step k */
-    /* The nonzeros of every row of H in the node columns (CSR). */
-    int *hp = o->h_ptr, *hy = o->h_col, nh = 0;
-    double *hv = o->h_val;
-    for (int row = 0; row < nv; row++) {
-      hp[row] = nh;
-      for (int y = 0; y < nz; y++)
-        if (H[row * nv + y] != 0.0) {
-          hy[nh] = y;
-          hv[nh++] = H[row * nv + y];
-        }
-    }
-    hp[nv] = nh;
+    /* The nonzeros of H's rows (columns ascending: nodes, then
+     * multipliers). */
+    const long *hp = o->h_ptr;
+    const int *hy = o->h_col;
+    const double *hv = o->h_val;
     for (int f = 0; f < nfun; f++) {
       double *r = gQ + f * nn;
       const double *mu = o->mu + f * nn;
@@ -353,10 +491,13 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         const double mz = mu[gz[zz]];
         if (mz == 0.0)
           continue;
-        for (int e = hp[zz]; e < hp[zz + 1]; e++)
-          r[gz[hy[e]]] -= hv[e] * mz;
-        for (int y = 0; y < nl; y++)
-          rloc[y] -= H[zz * nv + nz + y] * mz;
+        for (long e = hp[zz]; e < hp[zz + 1]; e++) {
+          const int y = hy[e];
+          if (y < nz)
+            r[gz[y]] -= hv[e] * mz;
+          else
+            rloc[y - nz] -= hv[e] * mz;
+        }
       }
       /* Right-hand side on the step's unknowns (x_k, lambda_k). */
       double *b = o->rhs + (size_t)f * (size_t)nt;
@@ -367,12 +508,17 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
       for (int i = 0; i < nl; i++)
         b[nu + i] = rloc[i];
     }
-    /* A_k^T mu_k = b with the step Jacobian at the converged step. */
-    for (long e = 0; e < st->nnz; e++)
-      o->Ak[e] = H[o->h_of_a[e]];
-    s = mrvi_newton_solve_transpose(o->newton_full ? o->newton_full : o->newton,
-                                    o->Ak, nfun, o->rhs, o->sol, msg,
-                                    sizeof msg);
+    /* A_k^T mu_k = b with the step Jacobian at the converged step: the
+     * solver's transposed solve (UMFPACK_At, or the dense LU of small
+     * steps) with the factors it keeps (of step k + 1, or of the forward
+     * pass's last Newton update) refined against A_k, factorised anew where
+     * that does not converge in tuning.adjoint_refine_max steps. */
+    int refactored;
+    s = mrvi_newton_solve_transpose_kept(
+        o->newton_full ? o->newton_full : o->newton, o->Ak, nfun, o->rhs,
+        o->sol, o->settings.tuning.adjoint_refine_max, &refactored, msg,
+        sizeof msg);
+    o->adjoint_factorisations += refactored;
     if (s < 0)
       return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);
     /* mu on the equation nodes of step k; r -= J_k[rows_k, :]^T mu_k. */
@@ -385,7 +531,7 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         if (row < nz)
           mu[gz[row]] = x[i];
         if (x[i] != 0.0)
-          for (int e = hp[row]; e < hp[row + 1]; e++)
+          for (long e = hp[row]; e < hp[row + 1] && hy[e] < nz; e++)
             r[gz[hy[e]]] -= hv[e] * x[i];
       }
     }

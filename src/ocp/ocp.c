@@ -41,7 +41,9 @@ static double *dalloc(size_t n) {
 /* Sizes of the problem against int indexing and the machine's memory,
  * before anything is allocated: the trajectory (N + 1) n_s + (N p + 1) n_f
  * nodes with momenta and outputs, and the adjoint's dense step Jacobian of
- * nv = 2 n_s + (p + 1) n_f + (multipliers) rows. */
+ * nv = 2 n_s + (p + 1) n_f + (multipliers) rows where it takes one
+ * (tuning.adjoint_dense_max; beyond, its sparse rows are of the size of
+ * the step's own Jacobian). */
 static int ocp_check_sizes(const mrvi_model *m, const mrvi_settings *s,
                            char *msg, size_t len) {
   const double N = (double)mrvi_settings_n_steps(s), p = s->micro_steps;
@@ -60,19 +62,18 @@ static int ocp_check_sizes(const mrvi_model *m, const mrvi_settings *s,
                      N, p, nv, INT_MAX);
   /* doubles: step vectors, trajectory, momenta, outputs, multipliers,
    * the adjoint's Jacobian and workspace (one functional) */
-  const double words = 6.0 * nv + 4.0 * nodes + (N + 1.0) * (ns + 3.0 * nf) +
-                       N * p * (nf + 1.0) + 2.0 * (N + 1.0) * n + nv * nv +
-                       N * nl;
+  const double words =
+      6.0 * nv + 4.0 * nodes + (N + 1.0) * (ns + 3.0 * nf) +
+      N * p * (nf + 1.0) + 2.0 * (N + 1.0) * n + N * nl +
+      (nv <= s->tuning.adjoint_dense_max ? 2.5 * nv * nv : 0.0);
   const double need = 8.0 * words, have = mrvi_machine_memory();
   if (have > 0 && need > have)
     return mrvi_fail(msg, len, MRVI_EINVAL,
                      "the optimal control problem needs about %.3g GiB "
                      "(N = %.0f macro steps, p = %.0f micro steps, n_f = %.0f "
-                     "fast coordinates; the adjoint's dense step Jacobian "
-                     "has %.0f × %.0f entries), more than this machine's "
-                     "%.3g GiB",
-                     need / 1073741824.0, N, p, nf, nv, nv,
-                     have / 1073741824.0);
+                     "fast coordinates, %.0f step variables), more than this "
+                     "machine's %.3g GiB",
+                     need / 1073741824.0, N, p, nf, nv, have / 1073741824.0);
   return MRVI_OK;
 }
 
@@ -171,14 +172,13 @@ int ocp_alloc(mrvi_ocp *o) {
   o->p_out = dalloc(N1 * n);
   o->n_torsion = mrvi_model_n_torsions(m);
   o->branch = dalloc(N1 * (size_t)o->n_torsion);
-  o->H = dalloc((size_t)o->nv * (size_t)o->nv);
   o->Lam = dalloc((size_t)o->N * (size_t)o->nl);
   o->rhs_ns = dalloc((size_t)o->step.n_unknowns);
   o->p0 = dalloc(n);
   if (!o->p0 || !o->x || !o->R || !o->dx || !o->f_rows || !o->f_end ||
       !o->ps1 || !o->pf1 || !o->Q || !o->pN || !o->ps_k || !o->pf_k ||
       !o->pf_micro || !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out ||
-      !o->H || !o->Lam || !o->rhs_ns || !o->branch)
+      !o->Lam || !o->rhs_ns || !o->branch)
     goto oom;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
@@ -193,7 +193,7 @@ oom:
 }
 
 void ocp_adjoint_free(mrvi_ocp *o) {
-  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val};
+  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val, &o->H};
   for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
     free(*d[i]);
     *d[i] = NULL;
@@ -202,10 +202,14 @@ void ocp_adjoint_free(mrvi_ocp *o) {
   free(o->h_of_a);
   free(o->h_ptr);
   free(o->h_col);
+  free(o->h_slot);
+  o->h_slot = NULL;
+  o->n_h_slot = o->h_slot_cap = 0;
   o->gz = NULL;
   o->h_of_a = NULL;
   o->h_ptr = NULL;
   o->h_col = NULL;
+  o->h_sparse = 0;
   o->nfun_alloc = 0;
 }
 
@@ -241,7 +245,6 @@ void mrvi_ocp_free(mrvi_ocp *o) {
   free(o->q_out);
   free(o->p_out);
   free(o->branch);
-  free(o->H);
   ocp_adjoint_free(o);
   free(o);
 }

@@ -121,14 +121,23 @@ struct mrvi_ocp {
    * integrator does (src/model/torsion.c). */
   int n_torsion;
   double *branch;
-  /* Adjoint workspace. */
+  /* Adjoint workspace.  The step Jacobian H (nv x nv) is assembled dense
+   * (H) for nv <= tuning.adjoint_dense_max, then its nonzeros compressed
+   * into rows; beyond, straight into its sparse rows (pattern found once,
+   * the same for every step). */
   double *H, *r, *mu, *rhs, *sol;
-  long *gz;           /* global node of every z of the step (nz) */
-  int *h_of_a;        /* entry of H of every CSC entry of A_k (step nnz) */
-  double *Ak;         /* A_k on the step's CSC pattern, gathered from H */
-  int *h_ptr, *h_col; /* nonzeros of H's rows in the node columns (CSR) */
+  long *gz;             /* global node of every z of the step (nz) */
+  long *h_of_a;         /* entry of H (dense: row nv + col; sparse: slot in
+                           h_val; -1: none) of every CSC entry of A_k */
+  double *Ak;           /* A_k on the step's CSC pattern, gathered from H */
+  long *h_ptr;          /* nonzeros of H's rows (CSR, all columns) */
+  int *h_slot;          /* slot in h_val of every entry of the assembly */
+  long n_h_slot;        /* their number (0: not recorded) */
+  long h_slot_cap;      /* room in h_slot: the assembly's entries */
+  int *h_col, h_sparse; /* h_sparse: the pattern is fixed (sparse mode) */
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
+  long adjoint_factorisations; /* step factorisations of the adjoints */
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
   double ftol_rel, terminal_tol;
@@ -163,12 +172,79 @@ int ocp_alloc(mrvi_ocp *o);
 int ocp_forward(mrvi_ocp *o, const double *u);
 /* Control index of force entry fe in step k. */
 int ocp_control_index(const mrvi_ocp *o, long k, const ocp_force *fe);
-/* Dense Jacobian J (nv x nv) of the equations of step k in its variables
- * v = (z_k, lambda_k) at the stored trajectory: rows 0..nz-1 are
- * D_z of L_d^k - sum h lambda^T g (all nodes of the step), rows nz.. the
- * step's constraint equations g (step row order).  Also fills o->gz (the
- * global node of every z of step k; the adjoint workspace). */
-void ocp_jacobian(mrvi_ocp *o, long k, double *J);
+/* Where ocp_jacobian puts the entries of a step Jacobian (nv x nv): dense
+ * (J, row-major), or sparse rows (CSR: ptr, col ascending within a row,
+ * val) on a pattern found by two symbolic passes over the same assembly:
+ * OCP_JAC_COUNT counts every row's entries into ptr[row + 1],
+ * OCP_JAC_LIST writes their columns at col[fill[row]++] (duplicates
+ * included).  An entry outside the sparse pattern sets miss. */
+typedef enum {
+  OCP_JAC_DENSE,
+  OCP_JAC_COUNT,
+  OCP_JAC_LIST,
+  OCP_JAC_SPARSE,
+  OCP_JAC_SLOTS
+} ocp_jac_mode;
+/* OCP_JAC_SPARSE finds every entry's slot by bisection in its row and,
+ * with slot not NULL, records it at slot[n_slot++] (n_slot < max_slot;
+ * beyond, slot is dropped); OCP_JAC_SLOTS replays the recorded slots (the
+ * assembly adds the same entries in the same order at every step). */
+typedef struct ocp_jac {
+  ocp_jac_mode mode;
+  int nv, miss;
+  double *J;
+  long *ptr;
+  int *col;
+  long *fill;
+  double *val;
+  int *slot;
+  long n_slot, max_slot;
+} ocp_jac;
+/* Entry (i, j) += v. */
+static inline void ocp_jac_add(ocp_jac *a, int i, int j, double v) {
+  switch (a->mode) {
+  case OCP_JAC_DENSE:
+    a->J[(size_t)i * (size_t)a->nv + (size_t)j] += v;
+    return;
+  case OCP_JAC_COUNT:
+    a->ptr[i + 1]++;
+    return;
+  case OCP_JAC_LIST:
+    a->col[a->fill[i]++] = j;
+    return;
+  case OCP_JAC_SPARSE: {
+    long lo = a->ptr[i], hi = a->ptr[i + 1];
+    while (lo < hi) {
+      const long mid = lo + (hi - lo) / 2;
+      if (a->col[mid] < j)
+        lo = mid + 1;
+      else
+        hi = mid;
+    }
+    if (lo < a->ptr[i + 1] && a->col[lo] == j) {
+      a->val[lo] += v;
+      if (a->slot && a->n_slot < a->max_slot)
+        a->slot[a->n_slot] = (int)lo;
+      a->n_slot++;
+    } else {
+      a->miss = 1;
+    }
+    return;
+  }
+  case OCP_JAC_SLOTS:
+    if (a->n_slot < a->max_slot)
+      a->val[a->slot[a->n_slot]] += v;
+    a->n_slot++;
+    return;
+  }
+}
+/* The Jacobian of the equations of step k in its variables v = (z_k,
+ * lambda_k) at the stored trajectory, added into a (cleared by the
+ * caller): rows 0..nz-1 are D_z of L_d^k - sum h lambda^T g (all nodes of
+ * the step), rows nz.. the step's constraint equations g (step row order).
+ * Also fills o->gz (the global node of every z of step k; the adjoint
+ * workspace). */
+void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *a);
 
 /* z indices and coefficients of the (two) nodes that model coordinate idx
  * interpolates at point pt of a step. */
@@ -198,10 +274,9 @@ void ocp_state_hook(void *ctx, mrvi_step *st, const double *x, double *R,
 /* After convergence of step k at o->x under controls u: their f^+ into
  * o->f_end (end nodes) and o->f_plus (fast nodes 1..p). */
 void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u);
-/* Their second derivatives in the step's nodes added to the dense step
- * Jacobian J (nv x nv) of step k at the stored trajectory (controls
- * o->u_cur). */
-void ocp_state_jacobian(const mrvi_ocp *o, long k, double *J);
+/* Their second derivatives in the step's nodes added to the step
+ * Jacobian a of step k at the stored trajectory (controls o->u_cur). */
+void ocp_state_jacobian(const mrvi_ocp *o, long k, ocp_jac *a);
 /* Value of body terminal condition T at the final nodes; its derivatives in
  * the final positions gq and momenta gp of the body's D (D + 1)
  * coordinates (body_terminal.c). */

@@ -277,20 +277,19 @@ void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u) {
 
 static void jacobian_visit(const mrvi_ocp *o, void *ctx, long k,
                            const act_point *ap, double w, int ic) {
-  double *J = ctx;
-  const int nv = o->nv;
+  ocp_jac *J = ctx;
   const double wu = w * o->u_cur[ic];
   (void)k;
   for (int i = 0; i < ap->n; i++)
     for (int a = 0; a < 2; a++)
       for (int j = 0; j < ap->n; j++)
         for (int b = 0; b < 2; b++)
-          J[ap->z[i][a] * nv + ap->z[j][b]] +=
-              wu * ap->c[i][a] * ap->c[j][b] * ap->Dm[i * ap->n + j];
+          ocp_jac_add(J, ap->z[i][a], ap->z[j][b],
+                      wu * ap->c[i][a] * ap->c[j][b] * ap->Dm[i * ap->n + j]);
 }
 
-void ocp_state_jacobian(const mrvi_ocp *o, long k, double *J) {
-  each_act(o, NULL, NULL, k, jacobian_visit, J);
+void ocp_state_jacobian(const mrvi_ocp *o, long k, ocp_jac *a) {
+  each_act(o, NULL, NULL, k, jacobian_visit, a);
 }
 
 typedef struct gradient_ctx {

@@ -55,6 +55,9 @@ long mrvi_nullspace_nnz(const mrvi_nullspace *z);
  * interface.
  * ------------------------------------------------------------------------- */
 #define MRVI_NEWTON_DENSE_MAX 128
+/* UMFPACK orders matrices of at least this many rows by METIS (nested
+ * dissection), smaller ones by AMD (its default). */
+#define MRVI_NEWTON_METIS_MIN 10000
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, char *msg, size_t len);
@@ -67,6 +70,17 @@ int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
 int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
                                 const double *b, double *x, char *msg,
                                 size_t len);
+/* The same solves starting from the factors kept from an earlier matrix of
+ * the same pattern (a previous step, the forward Newton iteration),
+ * refined against A (at most max_refine corrections, each a solve with the
+ * kept factors) to the round-off of the residual; A is factorised, as by
+ * mrvi_newton_solve_transpose, where no factors are kept, max_refine <= 0
+ * or the refinement does not get there (*refactored = 1; then its factors
+ * are the kept ones). */
+int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
+                                     int nrhs, const double *b, double *x,
+                                     int max_refine, int *refactored, char *msg,
+                                     size_t len);
 
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).
