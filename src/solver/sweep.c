@@ -85,10 +85,13 @@ struct mrvi_sweep {
 
 /* The structure the sweep needs, or the reason it is missing. */
 /* Path of a constrained model (doc/solver.md): schur-bordered in the
- * multiplier form where the slow and fast blocks and the multipliers of a
- * step are at most bordered_max (mrvi.h, MRVI_TUNING_LIST; beyond it the
- * dense blocks cost more than the sparse LU of chains: doc/performance.md,
- * "Constrained chains on structured paths"), else general. */
+ * multiplier form where its dense blocks are at most bordered_max (mrvi.h,
+ * MRVI_TUNING_LIST; beyond it the dense blocks cost more than the sparse LU
+ * of chains: doc/performance.md, "Constrained chains on structured paths"),
+ * else general.  The blocks (solver/bordered.c): with constraints at macro
+ * nodes only, the slow and fast blocks and the r_s multipliers; with
+ * micro-node constraints, the node blocks of n_s + r_s and n_f + r_f
+ * unknowns (the multipliers joined to their nodes), whatever p. */
 static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
                             char *why, size_t len) {
   const char *bodies = mrvi_model_n_bodies(m) > 0
@@ -108,13 +111,30 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
              bodies);
     return MRVI_PATH_GENERAL;
   }
-  if (m->n_slow > bmax || m->n_fast > bmax || n_lambda > bmax) {
+  if (r_micro == 0 && (m->n_slow > bmax || m->n_fast > bmax || r_slow > bmax)) {
     mrvi_fmt(why, len,
              "constrained model%s: %d slow and %d fast unknowns per node and "
-             "%ld multipliers, beyond the dense limit %d (bordered_max): "
+             "%d multipliers, beyond the dense limit %d (bordered_max): "
              "Newton with a sparse LU of the whole step",
-             bodies, m->n_slow, m->n_fast, n_lambda, bmax);
+             bodies, m->n_slow, m->n_fast, r_slow, bmax);
     return MRVI_PATH_GENERAL;
+  }
+  if (r_micro > 0 &&
+      (m->n_slow + r_slow > bmax || m->n_fast + r_micro > bmax)) {
+    mrvi_fmt(why, len,
+             "constrained model%s: node blocks of %d slow and %d fast "
+             "unknowns with their multipliers, beyond the dense limit %d "
+             "(bordered_max): Newton with a sparse LU of the whole step",
+             bodies, m->n_slow + r_slow, m->n_fast + r_micro, bmax);
+    return MRVI_PATH_GENERAL;
+  }
+  if (r_micro > 0) {
+    mrvi_fmt(why, len,
+             "constrained model%s: Newton with a Schur complement on the %d "
+             "slow unknowns and multipliers and block sweeps over %d micro "
+             "nodes of %d fast unknowns and multipliers each",
+             bodies, m->n_slow + r_slow, s->micro_steps, m->n_fast + r_micro);
+    return MRVI_PATH_SCHUR_BORDERED;
   }
   mrvi_fmt(why, len,
            "constrained model%s: Newton with a Schur complement on the %d "
