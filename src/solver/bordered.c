@@ -44,10 +44,11 @@
  * at O(p ((n_f + r_f)^3 + (n_f + r_f)^2 (n_s + r_s)) + (n_s + r_s)^3) per
  * factorisation: linear in p, where bordering A by all p r_f multipliers
  * cost p r_f block solves and a dense system of p r_f, cubic in p.  The path
- * is chosen where n_s + r_s, n_f + r_f are at most bordered_max
- * (solver/sweep.c, mrvi_sweep_path); larger blocks keep the sparse LU of the
- * general path, whose fill on chains and trees grows linearly with the
- * length (doc/solver.md).  The Jacobian is the general path's (the CSC
+ * is chosen where n_s + r_s, n_f + r_f are at most bordered_node_max
+ * (and, with constraints at macro nodes only, n_s, n_f, r_s at most
+ * bordered_max: solver/sweep.c, mrvi_sweep_path); larger blocks keep the sparse
+ * LU of the general path, whose fill on chains and trees grows linearly with
+ * the length (doc/solver.md).  The Jacobian is the general path's (the CSC
  * assembled by step.c), factored afresh at every update as on the general
  * path: the iterates are the general path's up to the round-off of the
  * linear solve. */

@@ -85,13 +85,15 @@ struct mrvi_sweep {
 
 /* The structure the sweep needs, or the reason it is missing. */
 /* Path of a constrained model (doc/solver.md): schur-bordered in the
- * multiplier form where its dense blocks are at most bordered_max (mrvi.h,
+ * multiplier form where its dense blocks are small enough, else general
+ * (solver/bordered.c): with constraints at macro nodes only, the slow and
+ * fast blocks and the r_s multipliers at most bordered_max (mrvi.h,
  * MRVI_TUNING_LIST; beyond it the dense blocks cost more than the sparse LU
- * of chains: doc/performance.md, "Constrained chains on structured paths"),
- * else general.  The blocks (solver/bordered.c): with constraints at macro
- * nodes only, the slow and fast blocks and the r_s multipliers; with
- * micro-node constraints, the node blocks of n_s + r_s and n_f + r_f
- * unknowns (the multipliers joined to their nodes), whatever p. */
+ * of chains: doc/performance.md, "Constrained chains on structured
+ * paths"); with micro-node constraints, the node blocks of n_s + r_s and
+ * n_f + r_f unknowns (the multipliers joined to their nodes) at most
+ * bordered_node_max, whatever p (measured on bodies: doc/performance.md,
+ * "Multibody"). */
 static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
                             char *why, size_t len) {
   const char *bodies = mrvi_model_n_bodies(m) > 0
@@ -102,7 +104,7 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
     *(m->constraints[c].where == MRVI_SLOW ? &r_slow : &r_micro) +=
         m->constraints[c].rows;
   const long n_lambda = r_slow + (long)s->micro_steps * r_micro;
-  const int bmax = s->tuning.bordered_max;
+  const int bmax = s->tuning.bordered_max, nmax = s->tuning.bordered_node_max;
   if (s->constraint_form == MRVI_FORM_NULL_SPACE) {
     mrvi_fmt(why, len,
              "constrained model%s in the null-space form: Newton with a "
@@ -120,12 +122,12 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
     return MRVI_PATH_GENERAL;
   }
   if (r_micro > 0 &&
-      (m->n_slow + r_slow > bmax || m->n_fast + r_micro > bmax)) {
+      (m->n_slow + r_slow > nmax || m->n_fast + r_micro > nmax)) {
     mrvi_fmt(why, len,
              "constrained model%s: node blocks of %d slow and %d fast "
              "unknowns with their multipliers, beyond the dense limit %d "
-             "(bordered_max): Newton with a sparse LU of the whole step",
-             bodies, m->n_slow + r_slow, m->n_fast + r_micro, bmax);
+             "(bordered_node_max): Newton with a sparse LU of the whole step",
+             bodies, m->n_slow + r_slow, m->n_fast + r_micro, nmax);
     return MRVI_PATH_GENERAL;
   }
   if (r_micro > 0) {
