@@ -688,6 +688,9 @@ typedef enum mrvi_solver {
   X(int, bordered_max, 32, 0, 1000000,                                         \
     "largest slow block, fast block and number of multipliers of a "           \
     "constrained step solved by schur-bordered; beyond: general")              \
+  X(int, newton_dense_max, 512, 0, 4096,                                       \
+    "largest Newton matrix of the general path (whole step) factored by "      \
+    "the dense LU that skips zeros; beyond: UMFPACK")                          \
   X(int, bordered_node_max, 192, 0, 1000000,                                   \
     "largest node block (fast unknowns and a micro node's multipliers, or "    \
     "slow unknowns and the slow multipliers) of a step with micro-node "       \

@@ -354,9 +354,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fimp = dalloc(nf);
   sw->dn = dalloc(nf);
   const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
-  if (sparse &&
-      mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
-                         st->n_elem_of_class[MRVI_FAST], &sw->sb) < 0) {
+  if (sparse && mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
+                                   st->n_elem_of_class[MRVI_FAST],
+                                   s->tuning.newton_dense_max, &sw->sb) < 0) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
