@@ -48,7 +48,10 @@
  * (and, with constraints at macro nodes only, n_s, n_f, r_s at most
  * bordered_max: solver/sweep.c, mrvi_sweep_path); larger blocks keep the sparse
  * LU of the general path, whose fill on chains and trees grows linearly with
- * the length (doc/solver.md).  The Jacobian is the general path's (the CSC
+ * the length (doc/solver.md).  Where a node block is singular though the
+ * step is not (micro-node constraints dependent through their fast
+ * coordinates, allowed at p = 1), the path solves with the general path's LU
+ * of the whole step from then on.  The Jacobian is the general path's (the CSC
  * assembled by step.c), factored afresh at every update as on the general
  * path: the iterates are the general path's up to the round-off of the
  * linear solve. */
@@ -78,12 +81,19 @@ struct mrvi_bordered {
   double **dst;
   double *nbuf, *Ass, *Asf, *Y, *D, *L1, *L2, *S, *z;
   size_t n_nbuf;
+  /* The LU of the whole step (the general path's), from the first node
+   * block that is singular on: micro-node constraints dependent through
+   * their fast coordinates (allowed at p = 1, doc/constraints.md) make the
+   * saddle-point blocks singular while the step is not. */
+  mrvi_newton *whole;
+  int dense_max;
 };
 
 void mrvi_bordered_free(mrvi_bordered *bd) {
   if (!bd)
     return;
   mrvi_blocks_free(bd->blocks);
+  mrvi_newton_free(bd->whole);
   free(bd->rblk);
   free(bd->roff);
   free(bd->dpiv);
@@ -175,6 +185,7 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
   bd->nu = st->n_unknowns;
   bd->nl = st->n_lambda;
   bd->ns = st->ns;
+  bd->dense_max = st->tuning.newton_dense_max;
   /* The pattern (fixed for the run) says whether the constraints touch
    * the slow unknowns only. */
   bd->slow_only = 1;
@@ -368,10 +379,20 @@ int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
                                const double *R, double *dx, char *msg,
                                size_t len) {
   if (!bd->slow_only) {
-    const int s = node_factor(bd, st, msg, len);
-    if (s == MRVI_OK)
-      node_solve(bd, R, dx);
-    return s;
+    if (!bd->whole) {
+      const int s = node_factor(bd, st, msg, len);
+      if (s == MRVI_OK) {
+        node_solve(bd, R, dx);
+        return s;
+      }
+      if (s != MRVI_ESINGULAR)
+        return s;
+      bd->whole = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                                     bd->dense_max, msg, len);
+      if (!bd->whole)
+        return MRVI_ESINGULAR;
+    }
+    return mrvi_newton_solve(bd->whole, st->Ax, R, dx, msg, len);
   }
   const int s = factor(bd, st, msg, len);
   if (s == MRVI_OK)
