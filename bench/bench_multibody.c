@@ -12,6 +12,11 @@
  *
  *   bench_multibody [--quick] [--p P] [--t T] [--repeat R]
  *                   [--set KEY=VALUE]... [FILE.yaml]
+ *   bench_multibody --cost [--t T] [--set KEY=VALUE]... [FILE.yaml]
+ *
+ * --cost: CPU time per macro step (creation left out, the best of R runs)
+ * at the file's macro step for p = 1, 2, 5, 10, 20, 40, with the solver
+ * path each takes: how the cost of a macro step grows with p.
  *
  * Defaults: p = 10, T = 1, R = 3, systems/flexible_pendulum.yaml (through
  * $MRVI_SOURCE_ROOT or ".."); --quick: T = 0.2, R = 1, fewer steps. */
@@ -25,12 +30,16 @@
 static const char usage[] =
     "Usage: bench_multibody [--quick] [--p P] [--t T] [--repeat R] "
     "[--set KEY=VALUE]... [FILE.yaml]\n"
+    "       bench_multibody --cost [--t T] [--repeat R] [--set KEY=VALUE]... "
+    "[FILE.yaml]\n"
     "\n"
     "Error at time T against a fine reference and CPU time of the\n"
     "midpoint-midpoint scheme with p micro steps and with p = 1, and the\n"
     "CPU ratio at matched error; default p = 10, T = 1, R = 3 repeats,\n"
     "systems/flexible_pendulum.yaml; --set applies a description-file\n"
-    "override (e.g. integrator.constraints.form=null-space).\n";
+    "override (e.g. integrator.constraints.form=null-space).\n"
+    "--cost: CPU time per macro step against p at the file's macro step,\n"
+    "with the solver path of each p.\n";
 
 /* N steps of dT with p micro steps from the file's initial state; q (n)
  * gets the last node; returns the CPU time or a negative value. */
@@ -58,6 +67,48 @@ static double run(const mrvi_system *sys, int p, double dT, long N, double *q) {
          (size_t)mrvi_model_n(sys->model) * sizeof *q);
   mrvi_integrator_free(it);
   return t;
+}
+
+/* --cost: CPU time per macro step (stepping only) against p, the best of
+ * `repeat` runs of T / dT steps. */
+static int cost_table(const mrvi_system *sys, double T, int repeat) {
+  const int ps[] = {1, 2, 5, 10, 20, 40};
+  const double dT = sys->settings.macro_step;
+  const long N = lround(T / dT) > 0 ? lround(T / dT) : 1;
+  printf("# %s, %s form, dT = %g, %ld macro steps; %s\n", sys->name,
+         sys->settings.constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
+                                                               : "multiplier",
+         dT, N, bench_build());
+  printf("%5s %16s %14s %14s\n", "p", "path", "ms/macro", "ms/micro");
+  for (size_t i = 0; i < sizeof ps / sizeof *ps; i++) {
+    mrvi_settings s = sys->settings;
+    s.micro_steps = ps[i];
+    s.t_end = (double)N * dT;
+    double best = INFINITY;
+    const char *path = "?";
+    for (int r = 0; r < repeat; r++) {
+      mrvi_integrator *it = NULL;
+      char msg[512];
+      if (mrvi_integrator_create(sys->model, &s, &it, msg, sizeof msg) != 0) {
+        fprintf(stderr, "p = %d: %s\n", ps[i], msg);
+        return -1;
+      }
+      path = mrvi_integrator_solver_path(it);
+      const double t0 = bench_cpu();
+      for (long k = 0; k < N; k++)
+        if (mrvi_integrator_step(it) != 0) {
+          fprintf(stderr, "p = %d: %s\n", ps[i], mrvi_integrator_errmsg(it));
+          mrvi_integrator_free(it);
+          return -1;
+        }
+      best = fmin(best, bench_cpu() - t0);
+      mrvi_integrator_free(it);
+    }
+    printf("%5d %16s %14.4f %14.4f\n", ps[i], path, 1e3 * best / (double)N,
+           1e3 * best / (double)N / ps[i]);
+    fflush(stdout);
+  }
+  return 0;
 }
 
 typedef struct row {
@@ -98,7 +149,7 @@ static double cpu_at(const row *s, int ns, double e) {
 }
 
 int main(int argc, char **argv) {
-  int p = 10, repeat = 3, quick = 0;
+  int p = 10, repeat = 3, quick = 0, cost = 0;
   double T = 1.0;
   const char *file = NULL, *sets[16];
   int n_sets = 0;
@@ -108,6 +159,8 @@ int main(int argc, char **argv) {
       return 0;
     } else if (!strcmp(argv[i], "--quick")) {
       quick = 1, T = 0.2, repeat = 1;
+    } else if (!strcmp(argv[i], "--cost")) {
+      cost = 1;
     } else if (!strcmp(argv[i], "--p") && i + 1 < argc) {
       p = atoi(argv[++i]);
     } else if (!strcmp(argv[i], "--t") && i + 1 < argc) {
@@ -133,6 +186,11 @@ int main(int argc, char **argv) {
   if (mrvi_system_load(file, sets, n_sets, &sys, msg, sizeof msg) != 0) {
     fprintf(stderr, "%s\n", msg);
     return 1;
+  }
+  if (cost) {
+    const int st = cost_table(sys, T, repeat);
+    mrvi_system_free(sys);
+    return st ? 1 : 0;
   }
   const int n = mrvi_model_n(sys->model);
   double *q_ref = malloc((size_t)n * sizeof *q_ref),

@@ -688,6 +688,13 @@ typedef enum mrvi_solver {
   X(int, bordered_max, 32, 0, 1000000,                                         \
     "largest slow block, fast block and number of multipliers of a "           \
     "constrained step solved by schur-bordered; beyond: general")              \
+  X(int, newton_dense_max, 512, 0, 4096,                                       \
+    "largest Newton matrix of the general path (whole step) factored by "      \
+    "the dense LU that skips zeros; beyond: UMFPACK")                          \
+  X(int, bordered_node_max, 192, 0, 1000000,                                   \
+    "largest node block (fast unknowns and a micro node's multipliers, or "    \
+    "slow unknowns and the slow multipliers) of a step with micro-node "       \
+    "constraints solved by schur-bordered; beyond: general")                   \
   X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
     "relative tolerance of schur-krylov's block CG solves")                    \
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \

@@ -26,26 +26,27 @@ static const char *const systems[] = {
 
 static mrvi_system *load(const char *rel, const char *scheme, int p,
                          const char *form, const char *solver) {
-  char ov[8][96];
-  const char *ovp[8];
+  char ov[9][96];
+  const char *ovp[9];
   snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", scheme);
   snprintf(ov[1], sizeof ov[1], "integrator.micro_steps=%d", p);
   snprintf(ov[2], sizeof ov[2], "integrator.newton.tolerance=1e-12");
   snprintf(ov[3], sizeof ov[3], "integrator.solver=%s", solver);
   snprintf(ov[4], sizeof ov[4], "integrator.constraints.form=%s", form);
   snprintf(ov[5], sizeof ov[5], "integrator.constraints.tolerance=1e-12");
-  /* schur-bordered forced on the systems whose multipliers exceed its
-   * default limit (flexible_pendulum, spacecraft) */
+  /* schur-bordered forced on every system (the default limits keep it
+   * from larger blocks) */
   snprintf(ov[6], sizeof ov[6], "integrator.tuning.bordered_max=100000");
+  snprintf(ov[7], sizeof ov[7], "integrator.tuning.bordered_node_max=100000");
   /* The pendulum chain's stiff attachments at p = 1 need dT below
    * 2/omega for the explicit fast rules (as in test_solver). */
   const int chain = strstr(rel, "pendulum_chain") != NULL;
-  snprintf(ov[7], sizeof ov[7], "integrator.macro_step=0.002");
-  for (int i = 0; i < 8; i++)
+  snprintf(ov[8], sizeof ov[8], "integrator.macro_step=0.002");
+  for (int i = 0; i < 9; i++)
     ovp[i] = ov[i];
   mrvi_system *sys = NULL;
   char msg[512];
-  if (mrvi_system_load(test_source_path(rel), ovp, chain ? 8 : 7, &sys, msg,
+  if (mrvi_system_load(test_source_path(rel), ovp, chain ? 9 : 8, &sys, msg,
                        sizeof msg) < 0) {
     CHECK(0, "load %s: %s", rel, msg);
     return NULL;
@@ -233,6 +234,67 @@ static mrvi_settings chain_settings(int p, const char *solver) {
   return s;
 }
 
+/* The node blocks (micro-node multipliers joined to their nodes) at the
+ * default limits: flexible_pendulum (blocks 11 and 22) and spacecraft
+ * (18 and 138) take schur-bordered at p = 10 and 20 and agree with
+ * general over 30 macro steps; with bordered_node_max below the fast block
+ * they take general and say why. */
+static void test_node_blocks(void) {
+  const char *const files[] = {"systems/flexible_pendulum.yaml",
+                               "systems/spacecraft.yaml"};
+  for (int f = 0; f < 2; f++)
+    for (int pi = 0; pi < 2; pi++) {
+      const int p = pi ? 20 : 10;
+      char ov[5][96];
+      const char *ovp[5];
+      snprintf(ov[0], sizeof ov[0], "integrator.micro_steps=%d", p);
+      snprintf(ov[1], sizeof ov[1], "integrator.newton.tolerance=1e-12");
+      snprintf(ov[2], sizeof ov[2], "integrator.constraints.tolerance=1e-12");
+      snprintf(ov[3], sizeof ov[3], "integrator.solver=structured");
+      snprintf(ov[4], sizeof ov[4], "integrator.solver=general");
+      for (int i = 0; i < 5; i++)
+        ovp[i] = ov[i];
+      mrvi_system *sa = NULL, *sg = NULL;
+      char msg[512], why[400] = "";
+      if (mrvi_system_load(test_source_path(files[f]), ovp, 4, &sa, msg,
+                           sizeof msg) < 0 ||
+          mrvi_system_load(test_source_path(files[f]), ovp, 5, &sg, msg,
+                           sizeof msg) < 0) {
+        CHECK(0, "load %s: %s", files[f], msg);
+        mrvi_system_free(sa);
+        continue;
+      }
+      const char *path =
+          mrvi_solver_path(sa->model, &sa->settings, why, sizeof why);
+      CHECK(path && strcmp(path, "schur-bordered") == 0,
+            "%s p=%d: path %s (%s)", files[f], p, path ? path : "none", why);
+      run_out a = {0}, g = {0};
+      run(sa->model, &sa->settings, 30, &a);
+      run(sg->model, &sg->settings, 30, &g);
+      CHECK(a.ok && g.ok, "%s p=%d: runs completed", files[f], p);
+      if (a.ok && g.ok) {
+        const double d = rel_diff(&g, &a, 30);
+        CHECK(d <= 1e-10, "%s p=%d: %s vs general: %.2e", files[f], p, a.path,
+              d);
+        printf("%s p=%d: schur-bordered vs general %.2e\n", files[f], p, d);
+      }
+      run_free(&a);
+      run_free(&g);
+      mrvi_settings s = sa->settings;
+      s.solver = MRVI_SOLVER_AUTO;
+      CHECK(mrvi_settings_set_tuning(&s, "bordered_node_max", 16, msg,
+                                     sizeof msg) == 0,
+            "%s", msg);
+      path = mrvi_solver_path(sa->model, &s, why, sizeof why);
+      CHECK(path && strcmp(path, "general") == 0 &&
+                strstr(why, "bordered_node_max") != NULL,
+            "%s, bordered_node_max 16: path %s (%s)", files[f],
+            path ? path : "none", why);
+      mrvi_system_free(sa);
+      mrvi_system_free(sg);
+    }
+}
+
 /* Chains: 8 links take schur-bordered automatically; 40 links take general
  * (beyond bordered_max) and schur-bordered where it is raised; both agree
  * with general. */
@@ -334,6 +396,7 @@ static void test_gram(void) {
 int main(void) {
   test_gram();
   test_chains();
+  test_node_blocks();
   test_shipped();
   return test_finish();
 }

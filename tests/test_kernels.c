@@ -226,8 +226,8 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
   mrvi_terms *kc = NULL;
   mrvi_sblock *sb = NULL, *sr = NULL;
   CHECK(mrvi_terms_create(m, elems, ne, m->slot, &kc) == MRVI_OK &&
-            mrvi_sblock_create(m, elems, ne, &sb) == MRVI_OK &&
-            mrvi_sblock_create(m, elems, ne, &sr) == MRVI_OK,
+            mrvi_sblock_create(m, elems, ne, 512, &sb) == MRVI_OK &&
+            mrvi_sblock_create(m, elems, ne, 512, &sr) == MRVI_OK,
         "d %d %s: create", d, lc->law);
   for (int r = 0; kc && sb && sr && r < 4; r++) {
     for (int i = 0; i < n; i++) {

@@ -716,13 +716,13 @@ static void test_predictor_small_steps(void) {
 }
 
 /* The one linear-solve interface (solver/newton.c) on both of its backends:
- * a dense LU below MRVI_NEWTON_DENSE_MAX rows, UMFPACK above.  Saddle-point
+ * a dense LU up to dense_max rows (here 128), UMFPACK above.  Saddle-point
  * matrices [[0, G], [-G^T, K]] (K non-symmetric, rows scaled over six
  * orders of magnitude; the zero block first, so that partial pivoting swaps
  * rows from the first column on) solved with A and A^T; residuals against
  * the CSC matrix itself. */
 static void test_linsolve_backends(void) {
-  const int sizes[2] = {9, 3 * MRVI_NEWTON_DENSE_MAX + 3};
+  const int dense_max = 128, sizes[2] = {9, 3 * dense_max + 3};
   for (int t = 0; t < 2; t++) {
     const int n = sizes[t], nk = 2 * n / 3, ng = n - nk;
     double *A = calloc((size_t)n * (size_t)n, sizeof *A);
@@ -767,7 +767,8 @@ static void test_linsolve_backends(void) {
     }
     Ap[n] = nnz;
     char msg[200];
-    mrvi_newton *nw = mrvi_newton_create(n, Ap, Ai, Ax, msg, sizeof msg);
+    mrvi_newton *nw =
+        mrvi_newton_create(n, Ap, Ai, Ax, dense_max, msg, sizeof msg);
     CHECK(nw != NULL, "n = %d: create: %s", n, msg);
     if (nw) {
       CHECK(mrvi_linsolve_solve(nw, Ax, 0, b, x, msg, sizeof msg) ==
@@ -793,8 +794,8 @@ static void test_linsolve_backends(void) {
         }
         CHECK(s == MRVI_OK && worst <= 1e3 * DBL_EPSILON,
               "n = %d (%s): %s solve, worst relative row residual %.2e", n,
-              n <= MRVI_NEWTON_DENSE_MAX ? "dense" : "UMFPACK",
-              tr ? "transposed" : "plain", worst);
+              n <= dense_max ? "dense" : "UMFPACK", tr ? "transposed" : "plain",
+              worst);
       }
       /* A zero constraint row: singular, reported as such. */
       for (int e = 0; e < nnz; e++)

@@ -475,13 +475,13 @@ static int general_create(mrvi_integrator *it, char *msg, size_t len) {
       return st;
     mrvi_step_assemble(sp, it->x, it->R, 1);
     mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
-    it->newton =
-        mrvi_newton_create(sp->n_unknowns, mrvi_nullspace_Ap(it->nullspace),
-                           mrvi_nullspace_Ai(it->nullspace),
-                           mrvi_nullspace_Ax(it->nullspace), msg, len);
+    it->newton = mrvi_newton_create(
+        sp->n_unknowns, mrvi_nullspace_Ap(it->nullspace),
+        mrvi_nullspace_Ai(it->nullspace), mrvi_nullspace_Ax(it->nullspace),
+        sp->tuning.newton_dense_max, msg, len);
   } else {
-    it->newton =
-        mrvi_newton_create(sp->n_total, sp->Ap, sp->Ai, sp->Ax, msg, len);
+    it->newton = mrvi_newton_create(sp->n_total, sp->Ap, sp->Ai, sp->Ax,
+                                    sp->tuning.newton_dense_max, msg, len);
   }
   return it->newton ? MRVI_OK : MRVI_ESINGULAR;
 }
@@ -1554,9 +1554,9 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
     mrvi_step_assemble(st, it->x, it->dx, 1);
     st->qs0 = qs0;
     st->qf0 = qf0;
-    if (!it->jac_nw &&
-        !(it->jac_nw = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
-                                          msg, sizeof msg)))
+    if (!it->jac_nw && !(it->jac_nw = mrvi_newton_create(
+                             st->n_total, st->Ap, st->Ai, st->Ax,
+                             st->tuning.newton_dense_max, msg, sizeof msg)))
       return fail(it, MRVI_ESINGULAR, "%s", msg);
     if ((s = mrvi_newton_factor(it->jac_nw, st->Ax, msg, sizeof msg)) < 0)
       return fail(it, s, "step Jacobian: %s", msg);

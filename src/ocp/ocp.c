@@ -887,21 +887,23 @@ static int prepare(mrvi_ocp *o) {
       return mrvi_ocp_fail(o, s, "%s", msg);
     mrvi_step_assemble(st, o->x, o->R, 1);
     mrvi_nullspace_reduce(o->nullspace, st, o->R, o->rhs_ns);
-    o->newton =
-        mrvi_newton_create(st->n_unknowns, mrvi_nullspace_Ap(o->nullspace),
-                           mrvi_nullspace_Ai(o->nullspace),
-                           mrvi_nullspace_Ax(o->nullspace), msg, sizeof msg);
+    o->newton = mrvi_newton_create(
+        st->n_unknowns, mrvi_nullspace_Ap(o->nullspace),
+        mrvi_nullspace_Ai(o->nullspace), mrvi_nullspace_Ax(o->nullspace),
+        st->tuning.newton_dense_max, msg, sizeof msg);
   } else {
-    o->newton = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax, msg,
-                                   sizeof msg);
+    o->newton =
+        mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                           st->tuning.newton_dense_max, msg, sizeof msg);
   }
   if (!o->newton)
     return mrvi_ocp_fail(o, MRVI_ESINGULAR, "%s", msg);
   /* The adjoint always solves with the saddle-point matrix of the
    * multiplier form (same equations, same converged steps). */
   if (o->nullspace) {
-    o->newton_full = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
-                                        msg, sizeof msg);
+    o->newton_full =
+        mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                           st->tuning.newton_dense_max, msg, sizeof msg);
     if (!o->newton_full)
       return mrvi_ocp_fail(o, MRVI_ESINGULAR, "%s", msg);
   }

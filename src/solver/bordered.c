@@ -11,25 +11,50 @@
  * and A has the structure of an unconstrained step: a slow block coupled
  * to every micro node and a fast block lower-triangular by micro nodes
  * (row m: nodes m-2 .. m), which the schur path's block elimination
- * factors in O(p (n_f^3 + n_f^2 n_s) + n_s^3) (solver/blocks.c).  With
- * Y = A^-1 B (one block solve per multiplier) and z = A^-1 R_x,
+ * factors in O(p (n_f^3 + n_f^2 n_s) + n_s^3) (solver/blocks.c).
  *
- *     (E - C Y) dlambda = R_c - C z,   dx = z - Y dlambda,
+ * Where every constraint is enforced at macro nodes only (slow
+ * coordinates: B and C touch the slow unknowns alone, E = 0), the slow
+ * block of A^-1 is S^-1, S the kept Schur complement of blocks.c, so with
+ * z = A^-1 R_x and W = S^-1 B_s,
  *
- * a dense system of the n_lambda multipliers.  Cost per Newton update: one
- * factorisation of A, n_lambda + 1 block solves, nnz(C) n_lambda products
- * and n_lambda^3 / 3 for the bordered system.  Where every constraint is
- * enforced at macro nodes only (slow coordinates: B and C touch the slow
- * unknowns alone, E = 0), the slow block of A^-1 is S^-1, S the kept
- * Schur complement, so C Y = C_s S^-1 B_s costs n_lambda solves with S
- * (n_s^2 each) instead of block solves, and
- * dx = A^-1 (R_x - B dlambda) takes one more block solve.  The path is chosen
- * where n_s, n_f and n_lambda are at most bordered_max (solver/sweep.c,
- * mrvi_sweep_path); larger steps keep the sparse LU of the general path, whose
- * fill on chains and trees grows linearly with the length (doc/solver.md).  The
- * Jacobian is the general path's (the CSC assembled by step.c), factored
- * afresh at every update as on the general path: the iterates are the general
- * path's up to the round-off of the linear solve. */
+ *     (-C_s W) dlambda = R_c - C z,   dx = A^-1 (R_x - B dlambda),
+ *
+ * a dense system of the r_s multipliers, n_lambda solves with S (n_s^2
+ * each) and two block solves.
+ *
+ * With constraints at the micro nodes (step.h's layout), the multipliers
+ * lambda^m of micro node m enter the fast row m (and the slow row) only,
+ * and the equations g(z^{m+1}) involve the fast node m+1 (and the slow
+ * unknowns, the slow coordinates interpolated) only.  So the node blocks
+ *
+ *     slow:     columns (q_{k+1}^s, lambda_k), rows (slow row, g(q_{k+1}^s))
+ *     fast c:   columns (q^{f,c+1}, lambda^c), rows (fast row c, g(z^{c+1}))
+ *
+ * (c = 0 .. p-1; sizes n_s + r_s and n_f + r_f) keep the structure of an
+ * unconstrained step: the fast block is block lower-triangular with three
+ * block diagonals (column blocks c-2 .. c), each diagonal block a saddle
+ * point [A_cc, -h G(z^c)^T; G(z^{c+1}), 0].  It is eliminated as the
+ * schur path does (blocks.c), with dense LU and partial pivoting on the
+ * node blocks:
+ *
+ *     Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2})    (forward sweep)
+ *     S = A_ss - sum_c A_sf,c Y_c,
+ *
+ * at O(p ((n_f + r_f)^3 + (n_f + r_f)^2 (n_s + r_s)) + (n_s + r_s)^3) per
+ * factorisation: linear in p, where bordering A by all p r_f multipliers
+ * cost p r_f block solves and a dense system of p r_f, cubic in p.  The path
+ * is chosen where n_s + r_s, n_f + r_f are at most bordered_node_max
+ * (and, with constraints at macro nodes only, n_s, n_f, r_s at most
+ * bordered_max: solver/sweep.c, mrvi_sweep_path); larger blocks keep the sparse
+ * LU of the general path, whose fill on chains and trees grows linearly with
+ * the length (doc/solver.md).  Where a node block is singular though the
+ * step is not (micro-node constraints dependent through their fast
+ * coordinates, allowed at p = 1), the path solves with the general path's LU
+ * of the whole step from then on.  The Jacobian is the general path's (the CSC
+ * assembled by step.c), factored afresh at every update as on the general
+ * path: the iterates are the general path's up to the round-off of the
+ * linear solve. */
 #include "solver/solver.h"
 
 #include <stdlib.h>
@@ -38,27 +63,118 @@
 struct mrvi_bordered {
   mrvi_blocks *blocks;
   int nu, nl;
-  double *Y;     /* nl x nu: A^-1 B by columns of B (B itself first) */
-  double *K;     /* nl x nl: E - C Y, then its LU */
+  double *K;     /* nl x nl: -C_s W, then its LU (slow_only) */
   int *piv;      /* nl */
   double *r;     /* nl */
   double *dz;    /* nu */
   int slow_only; /* B, C on the slow unknowns only, E = 0 */
   int ns;
   double *W; /* ns x nl: S^-1 B_s (slow_only) */
+  /* Node blocks (micro-node constraints): sizes a (slow) and b (fast),
+   * p fast blocks; the block and offset of every row and column of J
+   * (rblk, roff: node_of); where each CSC entry
+   * goes (dst, built at creation); the dense blocks (one allocation nbuf):
+   * Ass (a x a), Asf (a x p b), Afs = Y (p b x a), D, L1, L2 (p b x b each:
+   * column blocks c, c-1, c-2 of row block c), S (a x a), z (p b + a). */
+  int a, b, p;
+  int *rblk, *roff, *dpiv, *spiv;
+  double **dst;
+  double *nbuf, *Ass, *Asf, *Y, *D, *L1, *L2, *S, *z;
+  size_t n_nbuf;
+  /* The LU of the whole step (the general path's), from the first node
+   * block that is singular on: micro-node constraints dependent through
+   * their fast coordinates (allowed at p = 1, doc/constraints.md) make the
+   * saddle-point blocks singular while the step is not. */
+  mrvi_newton *whole;
+  int dense_max;
 };
 
 void mrvi_bordered_free(mrvi_bordered *bd) {
   if (!bd)
     return;
   mrvi_blocks_free(bd->blocks);
-  free(bd->Y);
+  mrvi_newton_free(bd->whole);
+  free(bd->rblk);
+  free(bd->roff);
+  free(bd->dpiv);
+  free(bd->spiv);
+  free(bd->dst);
+  free(bd->nbuf);
   free(bd->K);
   free(bd->piv);
   free(bd->r);
   free(bd->dz);
   free(bd->W);
   free(bd);
+}
+
+/* Node block and offset of row or column i of J (the same numbers: row
+ * n_unknowns + r_s + (m-1) r_f + o, g(z^m), and column
+ * n_unknowns + r_s + m' r_f + o, lambda^{m'}, both go to offset n_f + o of
+ * fast block m - 1 = m'; block -1 the slow one). */
+static void node_of(const mrvi_step *st, int i, int *blk, int *off) {
+  const int ns = st->ns, nf = st->nf, nu = st->n_unknowns;
+  const int rs = st->r_slow, rf = st->r_micro;
+  if (i < ns) {
+    *blk = -1, *off = i;
+  } else if (i < nu) {
+    *blk = (i - ns) / nf, *off = (i - ns) % nf;
+  } else if (i < nu + rs) {
+    *blk = -1, *off = ns + i - nu;
+  } else {
+    /* g(z^m), m = 1..p: block m - 1; lambda^m, m = 0..p-1: block m */
+    *blk = (i - nu - rs) / rf, *off = nf + (i - nu - rs) % rf;
+  }
+}
+
+/* The node blocks' workspaces and the destination of every CSC entry;
+ * MRVI_EINVAL if an entry lies outside the structure (a fast row block
+ * coupled to a column block after it or more than two before it). */
+static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
+  const int n = st->n_total, p = st->p;
+  bd->a = st->ns + st->r_slow, bd->b = st->nf + st->r_micro, bd->p = p;
+  const size_t a = (size_t)bd->a, b = (size_t)bd->b, pb = (size_t)p * b;
+  bd->rblk = malloc((size_t)n * sizeof *bd->rblk);
+  bd->roff = malloc((size_t)n * sizeof *bd->roff);
+  bd->dpiv = malloc((pb + 1) * sizeof *bd->dpiv);
+  bd->spiv = malloc((a + 1) * sizeof *bd->spiv);
+  bd->dst = malloc(((size_t)st->Ap[n] + 1) * sizeof *bd->dst);
+  bd->n_nbuf = 2 * a * a + 2 * a * pb + 3 * pb * b + pb + a;
+  bd->nbuf = malloc((bd->n_nbuf + 1) * sizeof *bd->nbuf);
+  if (!bd->rblk || !bd->roff || !bd->dpiv || !bd->spiv || !bd->dst || !bd->nbuf)
+    return MRVI_ENOMEM;
+  bd->Ass = bd->nbuf;
+  bd->Asf = bd->Ass + a * a;
+  bd->Y = bd->Asf + a * pb;
+  bd->D = bd->Y + pb * a;
+  bd->L1 = bd->D + pb * b;
+  bd->L2 = bd->L1 + pb * b;
+  bd->S = bd->L2 + pb * b;
+  bd->z = bd->S + a * a;
+  for (int i = 0; i < n; i++) {
+    node_of(st, i, &bd->rblk[i], &bd->roff[i]);
+  }
+  for (int j = 0; j < n; j++)
+    for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++) {
+      const int i = st->Ai[q], rb = bd->rblk[i], cb = bd->rblk[j];
+      const size_t ro = (size_t)bd->roff[i], co = (size_t)bd->roff[j];
+      double *d;
+      if (rb < 0 && cb < 0)
+        d = bd->Ass + ro * a + co;
+      else if (rb < 0)
+        d = bd->Asf + ro * pb + (size_t)cb * b + co;
+      else if (cb < 0)
+        d = bd->Y + ((size_t)rb * b + ro) * a + co;
+      else if (cb <= rb && cb >= rb - 2)
+        d = (rb == cb       ? bd->D
+             : rb == cb + 1 ? bd->L1
+                            : bd->L2) +
+            ((size_t)rb * b + ro) * b + co;
+      else
+        return MRVI_EINVAL;
+      bd->dst[q] = d;
+    }
+  return MRVI_OK;
 }
 
 int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
@@ -68,14 +184,8 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
     return MRVI_ENOMEM;
   bd->nu = st->n_unknowns;
   bd->nl = st->n_lambda;
-  const size_t nu = (size_t)bd->nu, nl = (size_t)bd->nl;
-  bd->Y = malloc((nl * nu + 1) * sizeof *bd->Y);
-  bd->K = malloc((nl * nl + 1) * sizeof *bd->K);
-  bd->piv = malloc((nl + 1) * sizeof *bd->piv);
-  bd->r = malloc((nl + 1) * sizeof *bd->r);
-  bd->dz = malloc((nu + 1) * sizeof *bd->dz);
   bd->ns = st->ns;
-  bd->W = malloc(((size_t)st->ns * nl + 1) * sizeof *bd->W);
+  bd->dense_max = st->tuning.newton_dense_max;
   /* The pattern (fixed for the run) says whether the constraints touch
    * the slow unknowns only. */
   bd->slow_only = 1;
@@ -86,18 +196,125 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
           (col_c && !row_c && st->Ai[q] >= st->ns))
         bd->slow_only = 0;
     }
-  if (!bd->Y || !bd->K || !bd->piv || !bd->r || !bd->dz || !bd->W ||
-      mrvi_blocks_create(st, &bd->blocks) < 0) {
+  int s = MRVI_OK;
+  if (!bd->slow_only) {
+    s = node_create(bd, st);
+  } else {
+    const size_t nu = (size_t)bd->nu, nl = (size_t)bd->nl;
+    bd->K = malloc((nl * nl + 1) * sizeof *bd->K);
+    bd->piv = malloc((nl + 1) * sizeof *bd->piv);
+    bd->r = malloc((nl + 1) * sizeof *bd->r);
+    bd->dz = malloc((nu + 1) * sizeof *bd->dz);
+    bd->W = malloc(((size_t)st->ns * nl + 1) * sizeof *bd->W);
+    if (!bd->K || !bd->piv || !bd->r || !bd->dz || !bd->W)
+      s = MRVI_ENOMEM;
+    else if (mrvi_blocks_create(st, &bd->blocks) < 0)
+      s = MRVI_ENOMEM;
+  }
+  if (s < 0) {
     mrvi_bordered_free(bd);
-    return MRVI_ENOMEM;
+    return s;
   }
   *out = bd;
   return MRVI_OK;
 }
 
-/* The factors: A by block elimination (the constraint rows of x's columns
- * skipped), Y = A^-1 B (or W = S^-1 B_s where the constraints touch the
- * slow unknowns only), K = E - C Y and its LU. */
+/* Node blocks: scatter J, factor the D_c, sweep Y = A_ff^-1 A_fs, form and
+ * factor S = A_ss - A_sf Y. */
+static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
+                       size_t len) {
+  const int a = bd->a, b = bd->b, p = bd->p;
+  const size_t pb = (size_t)p * (size_t)b;
+  memset(bd->nbuf, 0,
+         (2 * (size_t)a * (size_t)a + 2 * (size_t)a * pb + 3 * pb * (size_t)b) *
+             sizeof *bd->nbuf);
+  for (int q = 0; q < st->Ap[st->n_total]; q++)
+    *bd->dst[q] += st->Ax[q];
+  for (int c = 0; c < p; c++) {
+    double *D = bd->D + (size_t)c * b * b, *Yc = bd->Y + (size_t)c * b * a;
+    /* Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2}) */
+    for (int k = 1; k <= 2 && k <= c; k++) {
+      const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * b * b;
+      const double *Yp = bd->Y + (size_t)(c - k) * b * a;
+      for (int i = 0; i < b; i++)
+        for (int j = 0; j < b; j++) {
+          const double l = L[(size_t)i * b + j];
+          if (l != 0.0)
+            for (int t = 0; t < a; t++)
+              Yc[(size_t)i * a + t] -= l * Yp[(size_t)j * a + t];
+        }
+    }
+    if (mrvi_dense_lu_factor(b, D, bd->dpiv + (size_t)c * b) < 0)
+      return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                       "singular Newton matrix (node block %d of the "
+                       "schur-bordered path)",
+                       c + 1);
+    mrvi_dense_lu_solve(b, D, bd->dpiv + (size_t)c * b, Yc, a);
+  }
+  /* S = A_ss - A_sf Y */
+  memcpy(bd->S, bd->Ass, (size_t)a * (size_t)a * sizeof *bd->S);
+  for (int i = 0; i < a; i++)
+    for (size_t j = 0; j < pb; j++) {
+      const double f = bd->Asf[(size_t)i * pb + j];
+      if (f != 0.0)
+        for (int t = 0; t < a; t++)
+          bd->S[(size_t)i * a + t] -= f * bd->Y[j * a + t];
+    }
+  if (mrvi_dense_lu_factor(a, bd->S, bd->spiv) < 0)
+    return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                     "singular Newton matrix (slow Schur complement of the "
+                     "schur-bordered path)");
+  return MRVI_OK;
+}
+
+/* J dx = R with the node blocks' factors. */
+static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
+  const int a = bd->a, b = bd->b, p = bd->p;
+  const size_t pb = (size_t)p * (size_t)b;
+  double *z = bd->z, *ds = bd->z + pb;
+  /* z = A_ff^-1 R_f (forward sweep), in node-block order */
+  for (int i = 0; i < bd->nu + bd->nl; i++)
+    if (bd->rblk[i] >= 0)
+      z[(size_t)bd->rblk[i] * b + bd->roff[i]] = R[i];
+    else
+      ds[bd->roff[i]] = R[i];
+  for (int c = 0; c < p; c++) {
+    double *zc = z + (size_t)c * b;
+    for (int k = 1; k <= 2 && k <= c; k++) {
+      const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * b * b;
+      const double *zp = z + (size_t)(c - k) * b;
+      for (int i = 0; i < b; i++) {
+        double acc = 0.0;
+        for (int j = 0; j < b; j++)
+          acc += L[(size_t)i * b + j] * zp[j];
+        zc[i] -= acc;
+      }
+    }
+    mrvi_dense_lu_solve(b, bd->D + (size_t)c * b * b, bd->dpiv + (size_t)c * b,
+                        zc, 1);
+  }
+  /* S ds = R_s - A_sf z, then df = z - Y ds */
+  for (int i = 0; i < a; i++) {
+    double acc = 0.0;
+    for (size_t j = 0; j < pb; j++)
+      acc += bd->Asf[(size_t)i * pb + j] * z[j];
+    ds[i] -= acc;
+  }
+  mrvi_dense_lu_solve(a, bd->S, bd->spiv, ds, 1);
+  for (size_t j = 0; j < pb; j++) {
+    double acc = 0.0;
+    for (int t = 0; t < a; t++)
+      acc += bd->Y[j * a + t] * ds[t];
+    z[j] -= acc;
+  }
+  for (int i = 0; i < bd->nu + bd->nl; i++)
+    dx[i] = bd->rblk[i] >= 0 ? z[(size_t)bd->rblk[i] * b + bd->roff[i]]
+                             : ds[bd->roff[i]];
+}
+
+/* Constraints at macro nodes only: A by block elimination (the
+ * constraint rows of x's columns skipped), W = S^-1 B_s, K = -C_s W and
+ * its LU. */
 static int factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
                   size_t len) {
   const int nu = bd->nu, nl = bd->nl, ns = bd->ns;
@@ -112,51 +329,27 @@ static int factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
     return mrvi_fail(msg, len, MRVI_ESINGULAR,
                      "singular Newton matrix (block elimination)");
   memset(bd->K, 0, (size_t)nl * (size_t)nl * sizeof *bd->K);
-  if (bd->slow_only) {
-    /* W = S^-1 B_s (ns x nl row-major), K = -C_s W */
-    memset(bd->W, 0, (size_t)ns * (size_t)nl * sizeof *bd->W);
-    for (int l = 0; l < nl; l++)
-      for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
-        bd->W[(size_t)Ai[q] * (size_t)nl + (size_t)l] += Ax[q];
-    mrvi_blocks_slow_solve(bd->blocks, bd->W, nl);
-    for (int j = 0; j < ns; j++)
-      for (int q = Ap[j]; q < Ap[j + 1]; q++) {
-        if (Ai[q] < nu)
-          continue;
-        double *ka = bd->K + (size_t)(Ai[q] - nu) * (size_t)nl;
-        const double *wj = bd->W + (size_t)j * (size_t)nl;
-        for (int l = 0; l < nl; l++)
-          ka[l] -= Ax[q] * wj[l];
-      }
-  } else {
-    /* Y = A^-1 B column by column, K = E - C Y */
-    for (int l = 0; l < nl; l++) {
-      double *y = bd->Y + (size_t)l * (size_t)nu;
-      memset(bd->dz, 0, (size_t)nu * sizeof *bd->dz);
-      for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++) {
-        if (Ai[q] < nu)
-          bd->dz[Ai[q]] += Ax[q];
-        else
-          bd->K[(size_t)(Ai[q] - nu) * (size_t)nl + (size_t)l] += Ax[q];
-      }
-      mrvi_blocks_solve(bd->blocks, bd->dz, y);
+  memset(bd->W, 0, (size_t)ns * (size_t)nl * sizeof *bd->W);
+  for (int l = 0; l < nl; l++)
+    for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
+      bd->W[(size_t)Ai[q] * (size_t)nl + (size_t)l] += Ax[q];
+  mrvi_blocks_slow_solve(bd->blocks, bd->W, nl);
+  for (int j = 0; j < ns; j++)
+    for (int q = Ap[j]; q < Ap[j + 1]; q++) {
+      if (Ai[q] < nu)
+        continue;
+      double *ka = bd->K + (size_t)(Ai[q] - nu) * (size_t)nl;
+      const double *wj = bd->W + (size_t)j * (size_t)nl;
+      for (int l = 0; l < nl; l++)
+        ka[l] -= Ax[q] * wj[l];
     }
-    for (int j = 0; j < nu; j++)
-      for (int q = Ap[j]; q < Ap[j + 1]; q++) {
-        if (Ai[q] < nu)
-          continue;
-        double *ka = bd->K + (size_t)(Ai[q] - nu) * (size_t)nl;
-        for (int l = 0; l < nl; l++)
-          ka[l] -= Ax[q] * bd->Y[(size_t)l * (size_t)nu + (size_t)j];
-      }
-  }
   if (mrvi_dense_lu_factor(nl, bd->K, bd->piv) < 0)
     return mrvi_fail(msg, len, MRVI_ESINGULAR,
                      "singular Newton matrix (constraint rows)");
   return MRVI_OK;
 }
 
-/* J dx = R with the factors. */
+/* J dx = R with the factors (constraints at macro nodes only). */
 static void solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
                   double *dx) {
   const int nu = bd->nu, nl = bd->nl;
@@ -173,29 +366,34 @@ static void solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
   mrvi_dense_lu_solve(nl, bd->K, bd->piv, bd->r, 1);
   for (int l = 0; l < nl; l++)
     dx[nu + l] = bd->r[l];
-  if (bd->slow_only) {
-    /* dx = A^-1 (R_x - B dlambda) */
-    for (int i = 0; i < nu; i++)
-      bd->dz[i] = R[i];
-    for (int l = 0; l < nl; l++)
-      for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
-        bd->dz[Ai[q]] -= Ax[q] * bd->r[l];
-    mrvi_blocks_solve(bd->blocks, bd->dz, dx);
-  } else {
-    /* dx = z - Y dlambda */
-    for (int i = 0; i < nu; i++)
-      dx[i] = bd->dz[i];
-    for (int l = 0; l < nl; l++) {
-      const double *y = bd->Y + (size_t)l * (size_t)nu, d = bd->r[l];
-      for (int i = 0; i < nu; i++)
-        dx[i] -= y[i] * d;
-    }
-  }
+  /* dx = A^-1 (R_x - B dlambda) */
+  for (int i = 0; i < nu; i++)
+    bd->dz[i] = R[i];
+  for (int l = 0; l < nl; l++)
+    for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
+      bd->dz[Ai[q]] -= Ax[q] * bd->r[l];
+  mrvi_blocks_solve(bd->blocks, bd->dz, dx);
 }
 
 int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
                                const double *R, double *dx, char *msg,
                                size_t len) {
+  if (!bd->slow_only) {
+    if (!bd->whole) {
+      const int s = node_factor(bd, st, msg, len);
+      if (s == MRVI_OK) {
+        node_solve(bd, R, dx);
+        return s;
+      }
+      if (s != MRVI_ESINGULAR)
+        return s;
+      bd->whole = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                                     bd->dense_max, msg, len);
+      if (!bd->whole)
+        return MRVI_ESINGULAR;
+    }
+    return mrvi_newton_solve(bd->whole, st->Ax, R, dx, msg, len);
+  }
   const int s = factor(bd, st, msg, len);
   if (s == MRVI_OK)
     solve(bd, st, R, dx);

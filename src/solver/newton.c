@@ -3,7 +3,8 @@
  *  - UMFPACK: the symbolic analysis is done once for the fixed pattern of a
  *    run, the numeric factorisation once per iteration (STYLE: symbolic
  *    once, numeric many);
- *  - for n <= MRVI_NEWTON_DENSE_MAX, an LU with partial pivoting in dense
+ *  - for n <= dense_max (newton_dense_max, mrvi.h), an LU with partial
+ *    pivoting in dense
  *    storage that skips zeros, of the row-scaled matrix renumbered for
  *    little fill: on the small step Jacobians (general path, optimal-control
  *    adjoint) UMFPACK's fixed cost per factorisation dominates
@@ -74,7 +75,8 @@ static int dense_create(mrvi_newton *nw) {
 }
 
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
-                                const double *Ax, char *msg, size_t len) {
+                                const double *Ax, int dense_max, char *msg,
+                                size_t len) {
   mrvi_newton *nw = calloc(1, sizeof *nw);
   if (!nw) {
     mrvi_fmt(msg, len, "out of memory");
@@ -83,7 +85,7 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
   nw->n = n;
   nw->Ap = Ap;
   nw->Ai = Ai;
-  if (n <= MRVI_NEWTON_DENSE_MAX) {
+  if (n <= dense_max) {
     if (dense_create(nw) < 0) {
       mrvi_newton_free(nw);
       mrvi_fmt(msg, len, "out of memory");

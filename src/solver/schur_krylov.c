@@ -508,8 +508,9 @@ int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
                                  : "CG on a diagonal block",
                k->fail_iters);
   }
-  if (!k->lu && !(k->lu = mrvi_newton_create(st->n_unknowns, st->Ap, st->Ai,
-                                             st->Ax, msg, len)))
+  if (!k->lu &&
+      !(k->lu = mrvi_newton_create(st->n_unknowns, st->Ap, st->Ai, st->Ax,
+                                   st->tuning.newton_dense_max, msg, len)))
     return MRVI_ESINGULAR;
   const int r = mrvi_newton_solve(k->lu, st->Ax, R, dx, msg, len);
   k->lu_active = r == MRVI_OK;

@@ -51,16 +51,16 @@ long mrvi_nullspace_nnz(const mrvi_nullspace *z);
 
 /* ---------------------------------------------------------------------------
  * Newton solver: UMFPACK, or a dense LU (dense.c) for matrices of at most
- * MRVI_NEWTON_DENSE_MAX rows (solver/newton.c); the caller sees one
- * interface.
+ * dense_max rows (the tuning constant newton_dense_max; solver/newton.c);
+ * the caller sees one interface.
  * ------------------------------------------------------------------------- */
-#define MRVI_NEWTON_DENSE_MAX 128
 /* UMFPACK orders matrices of at least this many rows by METIS (nested
  * dissection), smaller ones by AMD (its default). */
 #define MRVI_NEWTON_METIS_MIN 10000
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
-                                const double *Ax, char *msg, size_t len);
+                                const double *Ax, int dense_max, char *msg,
+                                size_t len);
 void mrvi_newton_free(mrvi_newton *nw);
 /* Factorise A (values Ax on the fixed pattern) and solve A dx = b. */
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
@@ -180,7 +180,7 @@ typedef struct mrvi_terms mrvi_terms; /* (below) */
 /* Pattern of the fast-fast Hessians of the elements elems (n_elems model
  * indices; the sweep's W elements) and the diagonal. */
 int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
-                       mrvi_sblock **out);
+                       int dense_max, mrvi_sblock **out);
 void mrvi_sblock_free(mrvi_sblock *sb);
 /* Values to zero, then add scale H (n_in x n_in, element ie of the list). */
 void mrvi_sblock_zero(mrvi_sblock *sb);

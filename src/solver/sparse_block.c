@@ -19,7 +19,8 @@
 
 struct mrvi_sblock {
   int nf;
-  int *Ap, *Ai; /* CSC pattern (symmetric), sorted rows */
+  int dense_max; /* the fallback LU's (mrvi_newton_create) */
+  int *Ap, *Ai;  /* CSC pattern (symmetric), sorted rows */
   long nnz;
   double *Ax;              /* values */
   int *diag;               /* nf: index of (f, f) in Ax */
@@ -49,13 +50,14 @@ void mrvi_sblock_free(mrvi_sblock *sb) {
 /* Pattern of the fast-fast Hessians of elements `elems` (model indices)
  * and the diagonal, as triplets mapped to CSC. */
 int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
-                       mrvi_sblock **out) {
+                       int dense_max, mrvi_sblock **out) {
   const int nf = m->n_fast;
   *out = NULL;
   mrvi_sblock *sb = calloc(1, sizeof *sb);
   if (!sb)
     return MRVI_ENOMEM;
   sb->nf = nf;
+  sb->dense_max = dense_max;
   long nt = nf;
   sb->elem_off = malloc((size_t)(n_elems > 0 ? n_elems : 1) * sizeof(long));
   if (!sb->elem_off)
@@ -227,8 +229,8 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
                "iterations: sparse LU of the %d x %d block",
                it, nf, nf);
   }
-  if (!sb->lu &&
-      !(sb->lu = mrvi_newton_create(nf, sb->Ap, sb->Ai, sb->Ax, msg, len)))
+  if (!sb->lu && !(sb->lu = mrvi_newton_create(nf, sb->Ap, sb->Ai, sb->Ax,
+                                               sb->dense_max, msg, len)))
     return MRVI_ESINGULAR;
   const int r = mrvi_newton_solve(sb->lu, sb->Ax, b, x, msg, len);
   if (r < 0) {

@@ -85,10 +85,15 @@ struct mrvi_sweep {
 
 /* The structure the sweep needs, or the reason it is missing. */
 /* Path of a constrained model (doc/solver.md): schur-bordered in the
- * multiplier form where the slow and fast blocks and the multipliers of a
- * step are at most bordered_max (mrvi.h, MRVI_TUNING_LIST; beyond it the
- * dense blocks cost more than the sparse LU of chains: doc/performance.md,
- * "Constrained chains on structured paths"), else general. */
+ * multiplier form where its dense blocks are small enough, else general
+ * (solver/bordered.c): with constraints at macro nodes only, the slow and
+ * fast blocks and the r_s multipliers at most bordered_max (mrvi.h,
+ * MRVI_TUNING_LIST; beyond it the dense blocks cost more than the sparse LU
+ * of chains: doc/performance.md, "Constrained chains on structured
+ * paths"); with micro-node constraints, the node blocks of n_s + r_s and
+ * n_f + r_f unknowns (the multipliers joined to their nodes) at most
+ * bordered_node_max, whatever p (measured on bodies: doc/performance.md,
+ * "Multibody"). */
 static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
                             char *why, size_t len) {
   const char *bodies = mrvi_model_n_bodies(m) > 0
@@ -99,7 +104,7 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
     *(m->constraints[c].where == MRVI_SLOW ? &r_slow : &r_micro) +=
         m->constraints[c].rows;
   const long n_lambda = r_slow + (long)s->micro_steps * r_micro;
-  const int bmax = s->tuning.bordered_max;
+  const int bmax = s->tuning.bordered_max, nmax = s->tuning.bordered_node_max;
   if (s->constraint_form == MRVI_FORM_NULL_SPACE) {
     mrvi_fmt(why, len,
              "constrained model%s in the null-space form: Newton with a "
@@ -108,13 +113,30 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
              bodies);
     return MRVI_PATH_GENERAL;
   }
-  if (m->n_slow > bmax || m->n_fast > bmax || n_lambda > bmax) {
+  if (r_micro == 0 && (m->n_slow > bmax || m->n_fast > bmax || r_slow > bmax)) {
     mrvi_fmt(why, len,
              "constrained model%s: %d slow and %d fast unknowns per node and "
-             "%ld multipliers, beyond the dense limit %d (bordered_max): "
+             "%d multipliers, beyond the dense limit %d (bordered_max): "
              "Newton with a sparse LU of the whole step",
-             bodies, m->n_slow, m->n_fast, n_lambda, bmax);
+             bodies, m->n_slow, m->n_fast, r_slow, bmax);
     return MRVI_PATH_GENERAL;
+  }
+  if (r_micro > 0 &&
+      (m->n_slow + r_slow > nmax || m->n_fast + r_micro > nmax)) {
+    mrvi_fmt(why, len,
+             "constrained model%s: node blocks of %d slow and %d fast "
+             "unknowns with their multipliers, beyond the dense limit %d "
+             "(bordered_node_max): Newton with a sparse LU of the whole step",
+             bodies, m->n_slow + r_slow, m->n_fast + r_micro, nmax);
+    return MRVI_PATH_GENERAL;
+  }
+  if (r_micro > 0) {
+    mrvi_fmt(why, len,
+             "constrained model%s: Newton with a Schur complement on the %d "
+             "slow unknowns and multipliers and block sweeps over %d micro "
+             "nodes of %d fast unknowns and multipliers each",
+             bodies, m->n_slow + r_slow, s->micro_steps, m->n_fast + r_micro);
+    return MRVI_PATH_SCHUR_BORDERED;
   }
   mrvi_fmt(why, len,
            "constrained model%s: Newton with a Schur complement on the %d "
@@ -332,9 +354,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fimp = dalloc(nf);
   sw->dn = dalloc(nf);
   const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
-  if (sparse &&
-      mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
-                         st->n_elem_of_class[MRVI_FAST], &sw->sb) < 0) {
+  if (sparse && mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
+                                   st->n_elem_of_class[MRVI_FAST],
+                                   s->tuning.newton_dense_max, &sw->sb) < 0) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
