@@ -35,11 +35,14 @@ void mrvi_batch_axis_clear(mrvi_batch_axis *axis);
 /* Build the case table: the Cartesian product of the axes (the last axis
  * varies fastest), or with zip the i-th values of every axis together
  * (equal lengths), each repeated for seeds 0..n_seeds-1 when n_seeds > 0
- * (seed fastest).  The plan owns copies of everything. */
+ * (seed fastest).  command: MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE (with
+ * seeds, control_std > 0 perturbs each case's initial guess: a
+ * multi-start).  The plan owns copies of everything. */
 int mrvi_batch_plan_build(mrvi_batch_plan *plan, const char *description,
                           const char *source, const mrvi_batch_axis *axes,
                           int n_axes, int zip, int n_seeds, double velocity_std,
-                          char *msg, size_t len);
+                          int command, double control_std, char *msg,
+                          size_t len);
 
 /* Load every case's description with its overrides (and perturbation)
  * before any case runs: the first refused case gives MRVI_EPARSE with
@@ -64,6 +67,10 @@ int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *plan);
  * Box-Muller from numbers 2j and 2j+1.
  * ------------------------------------------------------------------------- */
 uint64_t mrvi_batch_random(uint64_t seed, uint64_t i);
+/* Streams: the normal numbers j of one use of a seed are numbers
+ * STREAM + j, so that the uses do not share numbers (j < 2^40). */
+#define MRVI_BATCH_STREAM_VELOCITIES 0ull
+#define MRVI_BATCH_STREAM_CONTROLS (1ull << 40)
 /* Standard normal number j of seed s. */
 double mrvi_batch_normal(uint64_t seed, uint64_t j);
 

@@ -115,7 +115,8 @@ int mrvi_batch_axis_parse(const char *spec, mrvi_batch_axis *a, char *msg,
 int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
                           const char *source, const mrvi_batch_axis *axes,
                           int n_axes, int zip, int n_seeds, double velocity_std,
-                          char *msg, size_t len) {
+                          int command, double control_std, char *msg,
+                          size_t len) {
   memset(p, 0, sizeof *p);
   /* Number of parameter points: product, or the common length. */
   long points = 1;
@@ -144,6 +145,14 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
              "0, which needs --seeds");
     return MRVI_EINVAL;
   }
+  if (!(control_std >= 0) || !isfinite(control_std) ||
+      (control_std != 0 &&
+       (n_seeds == 0 || command != MRVI_BATCH_OPTIMIZE))) {
+    mrvi_fmt(msg, len,
+             "--control-std S: a finite S >= 0, for --optimize with "
+             "--seeds");
+    return MRVI_EINVAL;
+  }
   const long per = n_seeds > 0 ? n_seeds : 1;
   if (points * per > 1000000) {
     mrvi_fmt(msg, len, "more than 1000000 cases");
@@ -153,6 +162,8 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
   p->n_keys = n_axes;
   p->n_seeds = n_seeds;
   p->velocity_std = velocity_std;
+  p->command = command;
+  p->control_std = control_std;
   p->description = strdup(description);
   p->source = strdup(source);
   p->keys = calloc((size_t)n_axes + 1, sizeof *p->keys);
@@ -257,9 +268,58 @@ static int note_perturbation(mrvi_system *sys, long seed, double std) {
   return 0;
 }
 
+/* The start of an optimize case of seed `seed`: for actuator a the
+ * override "control.actuators.a.initial=[...]" with value j of the
+ * description's guess plus std times normal number j of the seed's control
+ * stream (j over the control vector), held in the actuator's bounds.  The
+ * guess is an override of the case's description, so its run file's
+ * /model/description names it and `mrvi optimize FILE --set ...` with
+ * the same overrides gives the same file.  Appended to *over (*n_over
+ * strings, grown); with std 0 only checks that the control: section
+ * loads. */
+static int guess_overrides(const mrvi_system *sys, long seed, double std,
+                           char ***over, int *n_over, char *msg, size_t len) {
+  mrvi_ocp *o = NULL;
+  double *u = NULL;
+  if (mrvi_ocp_load(sys, &o, &u, msg, len) < 0)
+    return MRVI_EPARSE;
+  const int na = seed >= 0 && std > 0 ? mrvi_ocp_n_actuators(o) : 0;
+  char **grown = realloc(*over, (size_t)(*n_over + na + 1) * sizeof **over);
+  int rc = grown ? 0 : MRVI_ENOMEM;
+  if (grown)
+    *over = grown;
+  for (int a = 0; rc == 0 && a < na; a++) {
+    const int off = mrvi_ocp_actuator_offset(o, a);
+    const int size = mrvi_ocp_actuator_size(o, a);
+    double lo, hi;
+    mrvi_ocp_actuator_bounds(o, a, &lo, &hi);
+    const size_t cap = 64 + 26 * (size_t)size;
+    char *s = malloc(cap);
+    if (!s) {
+      rc = MRVI_ENOMEM;
+      break;
+    }
+    size_t at = (size_t)snprintf(s, cap, "control.actuators.%d.initial=[", a);
+    for (int j = 0; j < size; j++) {
+      const uint64_t k = MRVI_BATCH_STREAM_CONTROLS + (uint64_t)(off + j);
+      const double v = u[off + j] + std * mrvi_batch_normal((uint64_t)seed, k);
+      at += (size_t)snprintf(s + at, cap - at, "%s%.17g", j ? "," : "",
+                             fmin(fmax(v, lo), hi));
+    }
+    snprintf(s + at, cap - at, "]");
+    grown[(*n_over)++] = s;
+  }
+  if (rc < 0)
+    mrvi_fmt(msg, len, "out of memory");
+  free(u);
+  mrvi_ocp_free(o);
+  return rc;
+}
+
 int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
                          char *msg, size_t len) {
   *out = NULL;
+  int n_over = p->n_keys;
   char **over = calloc((size_t)p->n_keys + 1, sizeof *over);
   int rc = over ? 0 : MRVI_ENOMEM;
   for (int j = 0; rc == 0 && j < p->n_keys; j++) {
@@ -276,8 +336,22 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
   text[0] = '\0';
   if (rc == 0)
     rc = mrvi_system_load_string(p->description, p->source,
-                                 (const char *const *)over, p->n_keys, out,
+                                 (const char *const *)over, n_over, out,
                                  text, sizeof text);
+  /* An optimize case: its control: section loads; a multi-start case is
+   * loaded again with its start as overrides. */
+  if (rc == 0 && *out && p->command == MRVI_BATCH_OPTIMIZE) {
+    const int n_keys = n_over;
+    rc = guess_overrides(*out, p->seed[c], p->control_std, &over, &n_over,
+                         text, sizeof text);
+    if (rc == 0 && n_over > n_keys) {
+      mrvi_system_free(*out);
+      *out = NULL;
+      rc = mrvi_system_load_string(p->description, p->source,
+                                   (const char *const *)over, n_over, out,
+                                   text, sizeof text);
+    }
+  }
   if (rc == 0 && *out &&
       note_perturbation(*out, p->seed[c], p->velocity_std) < 0) {
     mrvi_fmt(text, sizeof text, "out of memory");
@@ -294,11 +368,13 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
     rc = MRVI_EINVAL;
   }
   if (rc < 0 || !*out) {
+    mrvi_system_free(*out);
+    *out = NULL;
     mrvi_fmt(msg, len, "%s: %s", name,
              text[0] ? text : mrvi_strerror(rc < 0 ? rc : MRVI_EPARSE));
     rc = rc < 0 ? rc : MRVI_EPARSE;
   }
-  for (int j = 0; over && j < p->n_keys; j++)
+  for (int j = 0; over && j < n_over; j++)
     free(over[j]);
   free(over);
   return rc;
@@ -316,15 +392,16 @@ int mrvi_batch_plan_check(const mrvi_batch_plan *p, char *msg, size_t len) {
 }
 
 /* ---------------------------------------------------------------------------
- * The plan as bytes: "MRVIPLN1", int32 n_cases, n_keys, n_seeds, double
- * velocity_std, int64 seed[n_cases], then '\0'-terminated strings:
+ * The plan as bytes: "MRVIPLN2", int32 n_cases, n_keys, n_seeds, command,
+ * double velocity_std, control_std, int64 seed[n_cases], then
+ * '\0'-terminated strings:
  * description, source, keys, values (row-major).
  * ------------------------------------------------------------------------- */
-static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '1'};
+static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '2'};
 
 int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   const long nv = (long)p->n_cases * p->n_keys;
-  size_t n = sizeof plan_magic + 3 * sizeof(int32_t) + sizeof(double) +
+  size_t n = sizeof plan_magic + 4 * sizeof(int32_t) + 2 * sizeof(double) +
              (size_t)p->n_cases * sizeof(int64_t) + strlen(p->description) +
              strlen(p->source) + 2;
   for (int j = 0; j < p->n_keys; j++)
@@ -334,10 +411,11 @@ int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   char *b = malloc(n), *at = b;
   if (!b)
     return MRVI_ENOMEM;
-  const int32_t counts[3] = {p->n_cases, p->n_keys, p->n_seeds};
+  const int32_t counts[4] = {p->n_cases, p->n_keys, p->n_seeds, p->command};
   memcpy(at, plan_magic, sizeof plan_magic), at += sizeof plan_magic;
   memcpy(at, counts, sizeof counts), at += sizeof counts;
   memcpy(at, &p->velocity_std, sizeof(double)), at += sizeof(double);
+  memcpy(at, &p->control_std, sizeof(double)), at += sizeof(double);
   for (int c = 0; c < p->n_cases; c++) {
     int64_t s = p->seed[c];
     memcpy(at, &s, sizeof s), at += sizeof s;
@@ -367,13 +445,19 @@ static char *take_string(const char **at, const char *end) {
 
 int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *p) {
   memset(p, 0, sizeof *p);
-  int32_t counts[3];
-  const size_t head = sizeof plan_magic + sizeof counts + sizeof(double);
+  int32_t counts[4];
+  const size_t head = sizeof plan_magic + sizeof counts + 2 * sizeof(double);
   if (size < head || memcmp(buf, plan_magic, sizeof plan_magic))
     return MRVI_EINVAL;
   memcpy(counts, buf + sizeof plan_magic, sizeof counts);
   memcpy(&p->velocity_std, buf + sizeof plan_magic + sizeof counts,
          sizeof(double));
+  memcpy(&p->control_std,
+         buf + sizeof plan_magic + sizeof counts + sizeof(double),
+         sizeof(double));
+  if (counts[3] != MRVI_BATCH_RUN && counts[3] != MRVI_BATCH_OPTIMIZE)
+    return MRVI_EINVAL;
+  p->command = counts[3];
   if (counts[0] < 1 || counts[0] > 1000000 || counts[1] < 0 ||
       counts[1] > 1000000 || counts[2] < 0 ||
       (size - head) / sizeof(int64_t) < (size_t)counts[0] ||

@@ -18,6 +18,7 @@ const char mrvi_usage_batch[] =
     "                  [--vary KEY=linspace(a,b,n)|logspace(a,b,n)]... "
     "[--zip]\n"
     "                  [--seeds N [--velocity-std S]] [--jobs N] [--quiet]\n"
+    "                  [--optimize [--control-std S]]\n"
     "       mrvi batch --resume OUT.h5 [--jobs N] [--quiet]\n"
     "\n"
     "Run FILE once per case: a case is 'mrvi run FILE --set KEY=VALUE' for\n"
@@ -29,8 +30,8 @@ const char mrvi_usage_batch[] =
     "stop_reason, steps, wall_time, energy_error) and external links\n"
     "/runs/case_CCCC to the case files (doc/batch.md).\n"
     "\n"
-    "The description's batch: section may hold vary, zip, seeds, velocity_std\n"
-    "and jobs in the same vocabulary; the command line overrides or extends\n"
+    "The description's batch: section may hold vary, zip, seeds, velocity_std,\n"
+    "command (run or optimize), control_std and jobs in the same vocabulary; the command line overrides or extends\n"
     "it (a --vary of a key the file varies replaces the file's values).\n"
     "\n"
     "Options:\n"
@@ -45,6 +46,14 @@ const char mrvi_usage_batch[] =
     "                        by S times standard normal numbers of its seed\n"
     "                        (projected onto the constraints); the numbers\n"
     "                        depend on the seed alone (doc/batch.md)\n"
+    "      --optimize        each case is 'mrvi optimize FILE --set ...' (the\n"
+    "                        control: section); the table gains cost,\n"
+    "                        violation, evaluations, nlopt_result and\n"
+    "                        /best_case, the converged case of lowest cost\n"
+    "      --control-std S   multi-start: the initial guess of a seeded case\n"
+    "                        plus S times standard normal numbers of its seed\n"
+    "                        (in the bounds), written into the case's\n"
+    "                        description as control.actuators.A.initial\n"
     "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
     "                        cores available)\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
@@ -53,7 +62,8 @@ const char mrvi_usage_batch[] =
     "  -h, --help            show this help\n"
     "\n"
     "A case that fails (Newton failure, non-finite state) is recorded with\n"
-    "its reason and the others go on.  Not yet: optimize cases.\n"
+    "its reason and the others go on; an optimize case that does not\n"
+    "converge is recorded as failed with the optimiser's status.\n"
     "\n"
     "MPI (built with meson -Dmpi=enabled): 'mpiexec -n R mrvi batch ...'\n"
     "hands the cases out over R ranks, each with its own --jobs workers\n"
@@ -68,7 +78,7 @@ const char mrvi_usage_batch[] =
 
 typedef struct batch_ctx {
   const char *out;
-  int quiet, ranks, finished, failed, unfinished, total;
+  int quiet, ranks, finished, failed, unfinished, total, optimize;
 } batch_ctx;
 
 /* A finished case: its row of the table, and a line. */
@@ -97,12 +107,48 @@ static int on_done(void *user, const mrvi_batch_result *res) {
   char where[32] = "";
   if (b->ranks > 1)
     snprintf(where, sizeof where, " (rank %d)", res->rank);
-  if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
+  if ((!b->quiet || res->status != MRVI_BATCH_COMPLETED) && b->optimize)
+    fprintf(stderr,
+            "mrvi batch: [%d/%d] case %d%s: %s (cost %.12e, violation "
+            "%.3e, %d evaluations, NLopt %s, %.3f s)\n",
+            b->finished, b->total, res->c, where, res->reason, res->cost,
+            res->violation, res->evaluations,
+            res->nlopt[0] ? res->nlopt : "-", res->wall_time);
+  else if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
     fprintf(stderr,
             "mrvi batch: [%d/%d] case %d%s: %s (%ld steps, %.3f s, "
             "energy error %.3e)\n",
             b->finished, b->total, res->c, where, res->reason, res->steps,
             res->wall_time, res->energy_error);
+  return 0;
+}
+
+/* An optimize batch: the best case over the whole table (this run's
+ * cases and those of earlier runs of a resumed batch) into /best_case,
+ * and a line. */
+static int print_best(const char *out, int quiet) {
+  char msg[MSG_LEN];
+  mrvi_batch_file *f = NULL;
+  int best = -1;
+  double cost = NAN;
+  int st = mrvi_batch_file_open(out, NULL, NULL, &f, msg, sizeof msg);
+  if (st == 0)
+    st = mrvi_batch_file_best(f, &best, &cost, msg, sizeof msg);
+  char close_msg[MSG_LEN];
+  if (mrvi_batch_file_close(f, close_msg, sizeof close_msg) < 0 && st == 0) {
+    st = MRVI_EIO;
+    snprintf(msg, sizeof msg, "%s", close_msg);
+  }
+  if (st < 0) {
+    fprintf(stderr, "mrvi batch: %s\n", msg);
+    return st;
+  }
+  char file[4096] = "";
+  mrvi_batch_case_file(out, best, 0, file, sizeof file);
+  if (!quiet && best >= 0)
+    printf("%s: best case %d, cost %.12e (%s)\n", out, best, cost, file);
+  else if (!quiet)
+    printf("%s: no case converged\n", out);
   return 0;
 }
 
@@ -129,7 +175,8 @@ static int usage_fail(const char *what) {
  * return *axes holds every axis (the command line's moved into it). */
 static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
                         int *n_axes, int *zip, int *seeds, double *vstd,
-                        int *jobs, char *msg, size_t len) {
+                        int *command, double *cstd, int *jobs, char *msg,
+                        size_t len) {
   mrvi_batch_section sec;
   if (mrvi_batch_section_read(base, &sec, msg, len) < 0)
     return -1;
@@ -167,6 +214,10 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
       *vstd = isnan(sec.velocity_std) ? 0.0 : sec.velocity_std;
     if (*jobs == 0 && sec.jobs > 0)
       *jobs = sec.jobs;
+    if (*command < 0)
+      *command = sec.command >= 0 ? sec.command : MRVI_BATCH_RUN;
+    if (isnan(*cstd))
+      *cstd = isnan(sec.control_std) ? 0.0 : sec.control_std;
   } else {
     for (int i = 0; all && i < n; i++)
       mrvi_batch_axis_clear(&all[i]);
@@ -199,8 +250,9 @@ static int batch_follow(void) {
 
 int mrvi_cmd_batch(int argc, char **argv) {
   const char *file = NULL, *out = NULL, *resume = NULL;
-  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0;
-  double vstd = NAN; /* seeds -1, vstd NAN, jobs 0: not given */
+  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0, command = -1;
+  /* seeds -1, vstd NAN, jobs 0, command -1, cstd NAN: not given */
+  double vstd = NAN, cstd = NAN;
   char msg[MSG_LEN];
   int rank = 0, ranks = 1;
   if (mrvi_batch_mpi_begin(&rank, &ranks, msg, sizeof msg) < 0) {
@@ -217,7 +269,8 @@ int mrvi_cmd_batch(int argc, char **argv) {
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
     int takes = !strcmp(a, "-o") || !strcmp(a, "--output") ||
                 !strcmp(a, "--vary") || !strcmp(a, "--seeds") ||
-                !strcmp(a, "--velocity-std") || !strcmp(a, "-j") ||
+                !strcmp(a, "--velocity-std") ||
+                !strcmp(a, "--control-std") || !strcmp(a, "-j") ||
                 !strcmp(a, "--jobs") || !strcmp(a, "--resume");
     if (takes && !v) {
       snprintf(msg, sizeof msg, "%s needs a value", a);
@@ -247,6 +300,13 @@ int mrvi_cmd_batch(int argc, char **argv) {
     } else if (!strcmp(a, "-j") || !strcmp(a, "--jobs")) {
       if ((jobs = parse_count(v, 0)) < 1)
         rc = usage_fail("--jobs takes a count 1..1000000");
+    } else if (!strcmp(a, "--optimize")) {
+      command = MRVI_BATCH_OPTIMIZE;
+    } else if (!strcmp(a, "--control-std")) {
+      char *end;
+      cstd = strtod(v, &end);
+      if (*end || end == v || isnan(cstd))
+        rc = usage_fail("--control-std takes a number");
     } else if (!strcmp(a, "--velocity-std")) {
       char *end;
       vstd = strtod(v, &end);
@@ -263,9 +323,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
     }
   }
   if (rc == 0 && resume &&
-      (file || out || n_axes || zip || seeds >= 0 || !isnan(vstd)))
+      (file || out || n_axes || zip || seeds >= 0 || !isnan(vstd) ||
+       command >= 0 || !isnan(cstd)))
     rc = usage_fail("--resume takes the cases from OUT.h5: give no FILE, -o, "
-                    "--vary, --zip, --seeds or --velocity-std with it");
+                    "--vary, --zip, --seeds, --velocity-std, --optimize or "
+                    "--control-std with it");
   if (rc == 0 && !resume && (!file || !out))
     rc = usage_fail("give FILE and -o OUT.h5 (or --resume OUT.h5)");
   if (rc == 0 && file && out) {
@@ -292,13 +354,13 @@ int mrvi_cmd_batch(int argc, char **argv) {
     if (mrvi_system_load(file, NULL, 0, &base, msg, sizeof msg) < 0 || !base) {
       fprintf(stderr, "%s\n", msg);
       rc = EXIT_INPUT;
-    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd, &jobs,
-                            msg, sizeof msg) < 0) {
+    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd,
+                            &command, &cstd, &jobs, msg, sizeof msg) < 0) {
       fprintf(stderr, "mrvi batch: %s\n", msg);
       rc = EXIT_INPUT;
     } else if (mrvi_batch_plan_build(&plan, base->description, file, axes,
-                                     n_axes, zip, seeds, vstd, msg,
-                                     sizeof msg) < 0) {
+                                     n_axes, zip, seeds, vstd, command, cstd,
+                                     msg, sizeof msg) < 0) {
       rc = usage_fail(msg);
     }
     mrvi_system_free(base);
@@ -336,7 +398,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
   if (rc == 0 && jobs == 0)
     jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
 
-  batch_ctx ctx = {.out = out, .quiet = quiet, .ranks = ranks, .total = n_todo};
+  batch_ctx ctx = {.out = out,
+                   .quiet = quiet,
+                   .ranks = ranks,
+                   .total = n_todo,
+                   .optimize = plan.command == MRVI_BATCH_OPTIMIZE};
   if (rc == 0) {
     if (!quiet && ranks > 1)
       fprintf(stderr, "mrvi batch: %d case%s%s on %d ranks x %d job%s -> %s\n",
@@ -354,6 +420,8 @@ int mrvi_cmd_batch(int argc, char **argv) {
       printf("%s: %d of %d cases completed, %d failed, %d not run\n", out,
              ctx.finished - ctx.failed - ctx.unfinished, n_todo, ctx.failed,
              n_todo - (ctx.finished - ctx.unfinished));
+    if (st == 0 && ctx.optimize && print_best(out, quiet) < 0)
+      st = MRVI_EIO;
     rc = st < 0 || ctx.failed > 0 || ctx.unfinished > 0 || ctx.finished < n_todo
              ? EXIT_RUN
              : 0;
