@@ -146,8 +146,7 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
     return MRVI_EINVAL;
   }
   if (!(control_std >= 0) || !isfinite(control_std) ||
-      (control_std != 0 &&
-       (n_seeds == 0 || command != MRVI_BATCH_OPTIMIZE))) {
+      (control_std != 0 && (n_seeds == 0 || command != MRVI_BATCH_OPTIMIZE))) {
     mrvi_fmt(msg, len,
              "--control-std S: a finite S >= 0, for --optimize with "
              "--seeds");
@@ -336,20 +335,20 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
   text[0] = '\0';
   if (rc == 0)
     rc = mrvi_system_load_string(p->description, p->source,
-                                 (const char *const *)over, n_over, out,
-                                 text, sizeof text);
+                                 (const char *const *)over, n_over, out, text,
+                                 sizeof text);
   /* An optimize case: its control: section loads; a multi-start case is
    * loaded again with its start as overrides. */
   if (rc == 0 && *out && p->command == MRVI_BATCH_OPTIMIZE) {
     const int n_keys = n_over;
-    rc = guess_overrides(*out, p->seed[c], p->control_std, &over, &n_over,
-                         text, sizeof text);
+    rc = guess_overrides(*out, p->seed[c], p->control_std, &over, &n_over, text,
+                         sizeof text);
     if (rc == 0 && n_over > n_keys) {
       mrvi_system_free(*out);
       *out = NULL;
       rc = mrvi_system_load_string(p->description, p->source,
-                                   (const char *const *)over, n_over, out,
-                                   text, sizeof text);
+                                   (const char *const *)over, n_over, out, text,
+                                   sizeof text);
     }
   }
   if (rc == 0 && *out &&

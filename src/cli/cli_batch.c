@@ -30,8 +30,10 @@ const char mrvi_usage_batch[] =
     "stop_reason, steps, wall_time, energy_error) and external links\n"
     "/runs/case_CCCC to the case files (doc/batch.md).\n"
     "\n"
-    "The description's batch: section may hold vary, zip, seeds, velocity_std,\n"
-    "command (run or optimize), control_std and jobs in the same vocabulary; the command line overrides or extends\n"
+    "The description's batch: section may hold vary, zip, seeds, "
+    "velocity_std,\n"
+    "command (run or optimize), control_std and jobs in the same vocabulary; "
+    "the command line overrides or extends\n"
     "it (a --vary of a key the file varies replaces the file's values).\n"
     "\n"
     "Options:\n"
@@ -112,8 +114,8 @@ static int on_done(void *user, const mrvi_batch_result *res) {
             "mrvi batch: [%d/%d] case %d%s: %s (cost %.12e, violation "
             "%.3e, %d evaluations, NLopt %s, %.3f s)\n",
             b->finished, b->total, res->c, where, res->reason, res->cost,
-            res->violation, res->evaluations,
-            res->nlopt[0] ? res->nlopt : "-", res->wall_time);
+            res->violation, res->evaluations, res->nlopt[0] ? res->nlopt : "-",
+            res->wall_time);
   else if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
     fprintf(stderr,
             "mrvi batch: [%d/%d] case %d%s: %s (%ld steps, %.3f s, "
@@ -269,9 +271,9 @@ int mrvi_cmd_batch(int argc, char **argv) {
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
     int takes = !strcmp(a, "-o") || !strcmp(a, "--output") ||
                 !strcmp(a, "--vary") || !strcmp(a, "--seeds") ||
-                !strcmp(a, "--velocity-std") ||
-                !strcmp(a, "--control-std") || !strcmp(a, "-j") ||
-                !strcmp(a, "--jobs") || !strcmp(a, "--resume");
+                !strcmp(a, "--velocity-std") || !strcmp(a, "--control-std") ||
+                !strcmp(a, "-j") || !strcmp(a, "--jobs") ||
+                !strcmp(a, "--resume");
     if (takes && !v) {
       snprintf(msg, sizeof msg, "%s needs a value", a);
       rc = usage_fail(msg);
@@ -354,8 +356,8 @@ int mrvi_cmd_batch(int argc, char **argv) {
     if (mrvi_system_load(file, NULL, 0, &base, msg, sizeof msg) < 0 || !base) {
       fprintf(stderr, "%s\n", msg);
       rc = EXIT_INPUT;
-    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd,
-                            &command, &cstd, &jobs, msg, sizeof msg) < 0) {
+    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd, &command,
+                            &cstd, &jobs, msg, sizeof msg) < 0) {
       fprintf(stderr, "mrvi batch: %s\n", msg);
       rc = EXIT_INPUT;
     } else if (mrvi_batch_plan_build(&plan, base->description, file, axes,

@@ -176,8 +176,8 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   int *status = calloc(n, sizeof *status);
   long *steps = calloc(n, sizeof *steps);
   char *reasons = calloc(n, MRVI_BATCH_REASON_BYTES);
-  if (!over || !files || !num || !zero || !nan || !nlopt || !status ||
-      !steps || !reasons)
+  if (!over || !files || !num || !zero || !nan || !nlopt || !status || !steps ||
+      !reasons)
     mrvi_h5_batch_fail_text(b, MRVI_ENOMEM, "out of memory");
   hid_t cases = mrvi_h5_batch_group(b, root, "cases");
   hid_t runs = mrvi_h5_batch_group(b, root, "runs");
@@ -231,8 +231,7 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
     if (b->status == 0 &&
         mrvi_h5_write_fixed(root, "best_case", H5P_DEFAULT, H5T_STD_I64LE,
                             H5T_NATIVE_LONG, 0, 0, 1, &none,
-                            "the completed case of lowest cost (-1: none)") <
-            0)
+                            "the completed case of lowest cost (-1: none)") < 0)
       mrvi_h5_batch_fail(b, "best_case");
   }
   mrvi_h5_batch_ints(b, cases, "status", status, n, 0);
@@ -351,8 +350,8 @@ static int read_plan(const mrvi_h5in *in, mrvi_batch_plan *p, int **status) {
   if (rc == 0 && mrvi_h5in_has_attr(in, "command") &&
       mrvi_h5in_attr_string(in, "command", command, sizeof command) < 0)
     rc = MRVI_EIO;
-  p->command = !strcmp(command, "optimize") ? MRVI_BATCH_OPTIMIZE
-                                            : MRVI_BATCH_RUN;
+  p->command =
+      !strcmp(command, "optimize") ? MRVI_BATCH_OPTIMIZE : MRVI_BATCH_RUN;
   if (rc == 0 && strcmp(command, "run") && strcmp(command, "optimize")) {
     mrvi_fmt(in->msg, in->len, "%s: command '%s' is neither run nor optimize",
              in->path, command);
@@ -558,8 +557,8 @@ int mrvi_batch_file_close(mrvi_batch_file *f, char *msg, size_t len) {
   return rc;
 }
 
-int mrvi_batch_file_best(mrvi_batch_file *f, int *best, double *cost,
-                         char *msg, size_t len) {
+int mrvi_batch_file_best(mrvi_batch_file *f, int *best, double *cost, char *msg,
+                         size_t len) {
   *best = -1;
   *cost = NAN;
   if (!f->optimize)
@@ -587,9 +586,9 @@ int mrvi_batch_file_best(mrvi_batch_file *f, int *best, double *cost,
   /* In place, raw data only, as a row. */
   const long b = *best;
   hid_t d = H5Dopen2(f->file, "best_case", H5P_DEFAULT);
-  herr_t w = d >= 0 ? H5Dwrite(d, H5T_NATIVE_LONG, H5S_ALL, H5S_ALL,
-                               H5P_DEFAULT, &b)
-                    : -1;
+  herr_t w =
+      d >= 0 ? H5Dwrite(d, H5T_NATIVE_LONG, H5S_ALL, H5S_ALL, H5P_DEFAULT, &b)
+             : -1;
   if (d >= 0)
     H5Dclose(d);
   if (w >= 0)

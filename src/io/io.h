@@ -248,8 +248,8 @@ int mrvi_batch_file_row(mrvi_batch_file *f, const mrvi_batch_result *res,
 /* An optimize batch: the completed case of lowest cost (-1: none) into
  * *best and the master file's /best_case (written in place, as a row);
  * a run batch: *best = -1, nothing written. */
-int mrvi_batch_file_best(mrvi_batch_file *f, int *best, double *cost,
-                         char *msg, size_t len);
+int mrvi_batch_file_best(mrvi_batch_file *f, int *best, double *cost, char *msg,
+                         size_t len);
 /* Close; NULL is accepted. */
 int mrvi_batch_file_close(mrvi_batch_file *f, char *msg, size_t len);
 

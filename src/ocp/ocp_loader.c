@@ -525,9 +525,8 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
 /* The initial guess u0 (n_controls): each actuator's number on its whole
  * grid, or its list of one value per grid value, in its bounds (a start
  * of a multi-start, doc/batch.md, is such a list). */
-static int initial_values(parser *P, const mrvi_ocp *o,
-                          const double *initial, struct fy_node *const *lists,
-                          double *u0) {
+static int initial_values(parser *P, const mrvi_ocp *o, const double *initial,
+                          struct fy_node *const *lists, double *u0) {
   for (int a = 0; a < o->n_act; a++) {
     const ocp_actuator *A = &o->act[a];
     double *u = u0 + A->offset;
@@ -542,7 +541,8 @@ static int initial_values(parser *P, const mrvi_ocp *o,
       return fail(P, lists[a],
                   "%s.initial: a number, or a list of one number per value "
                   "of the actuator (%d on its %s grid), got %d",
-                  where, A->size, A->grid == MRVI_GRID_MACRO ? "macro" : "micro",
+                  where, A->size,
+                  A->grid == MRVI_GRID_MACRO ? "macro" : "micro",
                   fy_node_sequence_item_count(lists[a]));
     int st = vector(P, lists[a], where, "initial", A->size, u);
     if (st)
@@ -947,8 +947,8 @@ int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
       !(st = load_terminal(&P, get(control, "terminal"), o)))
     st = load_solver(&P, get(control, "solver"), o);
   /* The guess is checked also when not asked for (mrvi check, mrvi run). */
-  double *guess = st ? NULL : malloc((size_t)(o->n_u > 0 ? o->n_u : 1) *
-                                     sizeof *guess);
+  double *guess =
+      st ? NULL : malloc((size_t)(o->n_u > 0 ? o->n_u : 1) * sizeof *guess);
   if (!st && !guess)
     st = fail(&P, control, "out of memory");
   if (!st)
