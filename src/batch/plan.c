@@ -114,8 +114,8 @@ int mrvi_batch_axis_parse(const char *spec, mrvi_batch_axis *a, char *msg,
 
 int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
                           const char *source, const mrvi_batch_axis *axes,
-                          int n_axes, int zip, int n_seeds, double velocity_std,
-                          int command, double control_std, char *msg,
+                          int n_axes, int zip, int n_seeds, int command,
+                          const mrvi_batch_perturb *pert, char *msg,
                           size_t len) {
   memset(p, 0, sizeof *p);
   /* Number of parameter points: product, or the common length. */
@@ -138,18 +138,38 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
       return MRVI_EINVAL;
     }
   }
-  if (n_seeds < 0 || n_seeds > 1000000 || (velocity_std != 0 && n_seeds == 0) ||
-      !(velocity_std >= 0) || !isfinite(velocity_std)) {
+  const mrvi_batch_perturb *pt = pert;
+  const double stds[] = {pt->velocity_std, pt->control_std, pt->position_std,
+                         pt->temperature, pt->rotation_std};
+  int any = pt->position_uniform || pt->rotation_uniform, bad_std = 0;
+  for (int i = 0; i < 5; i++) {
+    any = any || stds[i] != 0;
+    bad_std = bad_std || !(stds[i] >= 0) || !isfinite(stds[i]);
+  }
+  if (n_seeds < 0 || n_seeds > 1000000 || bad_std || (any && n_seeds == 0)) {
     mrvi_fmt(msg, len,
-             "--seeds N (0..1000000) and a finite --velocity-std >= "
-             "0, which needs --seeds");
+             "--seeds N (0..1000000), and finite perturbations >= 0 "
+             "(--velocity-std, --position-std, --temperature, "
+             "--rotation-std, --control-std), which need --seeds");
     return MRVI_EINVAL;
   }
-  if (!(control_std >= 0) || !isfinite(control_std) ||
-      (control_std != 0 && (n_seeds == 0 || command != MRVI_BATCH_OPTIMIZE))) {
+  if (pt->control_std != 0 && command != MRVI_BATCH_OPTIMIZE) {
+    mrvi_fmt(msg, len, "--control-std S perturbs the guess of --optimize");
+    return MRVI_EINVAL;
+  }
+  if (pt->temperature != 0 && pt->velocity_std != 0) {
     mrvi_fmt(msg, len,
-             "--control-std S: a finite S >= 0, for --optimize with "
-             "--seeds");
+             "--temperature sets the initial velocities: no --velocity-std "
+             "with it");
+    return MRVI_EINVAL;
+  }
+  if (pt->rotation_uniform && pt->rotation_std != 0) {
+    mrvi_fmt(msg, len, "--rotations uniform or --rotation-std A, not both");
+    return MRVI_EINVAL;
+  }
+  if (pt->position_uniform && pt->position_std == 0) {
+    mrvi_fmt(msg, len,
+             "--position-distribution uniform needs --position-std S");
     return MRVI_EINVAL;
   }
   const long per = n_seeds > 0 ? n_seeds : 1;
@@ -160,9 +180,8 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
   p->n_cases = (int)(points * per);
   p->n_keys = n_axes;
   p->n_seeds = n_seeds;
-  p->velocity_std = velocity_std;
   p->command = command;
-  p->control_std = control_std;
+  p->pert = *pert;
   p->description = strdup(description);
   p->source = strdup(source);
   p->keys = calloc((size_t)n_axes + 1, sizeof *p->keys);
@@ -225,46 +244,6 @@ static void case_name(const mrvi_batch_plan *p, int c, char *buf, size_t len) {
   }
   if (p->n_keys > 0 && at + 1 < len)
     snprintf(buf + at, len - at, ")");
-}
-
-/* Add seed s's perturbation to the initial velocities: v0_i += std z_i,
- * z_i the normal number i of the seed, then onto the constraints' tangent
- * space when the model has constraints. */
-static int perturb(mrvi_model *m, long seed, double std) {
-  if (seed < 0 || std == 0)
-    return 0;
-  for (int i = 0; i < m->n; i++)
-    m->v0[i] += std * mrvi_batch_normal((uint64_t)seed, (uint64_t)i);
-  return mrvi_model_project_velocities(m, NULL);
-}
-
-/* Say in the case's description (its run file's /model/description) how
- * its initial velocities differ from the text: a YAML comment appended. */
-static int note_perturbation(mrvi_system *sys, long seed, double std) {
-  if (seed < 0 || std == 0 || !sys->description)
-    return 0;
-  /* std in the fewest digits that read back exactly. */
-  char num[32];
-  for (int prec = 15; prec <= 17; prec++) {
-    snprintf(num, sizeof num, "%.*g", prec, std);
-    if (strtod(num, NULL) == std)
-      break;
-  }
-  char note[512];
-  size_t n = strlen(sys->description);
-  int k = snprintf(note, sizeof note,
-                   "%s# mrvi batch, seed %ld: the initial velocities are the "
-                   "above plus %s\n# times the standard normal numbers of "
-                   "seed %ld (doc/batch.md, Ensembles),\n# projected onto "
-                   "the constraints.\n",
-                   n > 0 && sys->description[n - 1] != '\n' ? "\n" : "", seed,
-                   num, seed);
-  char *grown = realloc(sys->description, n + (size_t)k + 1);
-  if (!grown)
-    return MRVI_ENOMEM;
-  memcpy(grown + n, note, (size_t)k + 1);
-  sys->description = grown;
-  return 0;
 }
 
 /* The start of an optimize case of seed `seed`: for actuator a the
@@ -341,7 +320,7 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
    * loaded again with its start as overrides. */
   if (rc == 0 && *out && p->command == MRVI_BATCH_OPTIMIZE) {
     const int n_keys = n_over;
-    rc = guess_overrides(*out, p->seed[c], p->control_std, &over, &n_over, text,
+    rc = guess_overrides(*out, p->seed[c], p->pert.control_std, &over, &n_over, text,
                          sizeof text);
     if (rc == 0 && n_over > n_keys) {
       mrvi_system_free(*out);
@@ -351,20 +330,13 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
                                    sizeof text);
     }
   }
+  int dof = 0;
   if (rc == 0 && *out &&
-      note_perturbation(*out, p->seed[c], p->velocity_std) < 0) {
+      (rc = mrvi_batch_perturb_apply(*out, p->seed[c], &p->pert, &dof, text,
+                                     sizeof text)) == 0 &&
+      mrvi_batch_perturb_note(*out, p->seed[c], &p->pert, dof) < 0) {
     mrvi_fmt(text, sizeof text, "out of memory");
-    mrvi_system_free(*out);
-    *out = NULL;
     rc = MRVI_ENOMEM;
-  }
-  if (rc == 0 && *out &&
-      perturb((*out)->model, p->seed[c], p->velocity_std) < 0) {
-    mrvi_fmt(text, sizeof text, "velocity perturbation: %s",
-             mrvi_model_errmsg((*out)->model));
-    mrvi_system_free(*out);
-    *out = NULL;
-    rc = MRVI_EINVAL;
   }
   if (rc < 0 || !*out) {
     mrvi_system_free(*out);
@@ -391,16 +363,17 @@ int mrvi_batch_plan_check(const mrvi_batch_plan *p, char *msg, size_t len) {
 }
 
 /* ---------------------------------------------------------------------------
- * The plan as bytes: "MRVIPLN2", int32 n_cases, n_keys, n_seeds, command,
- * double velocity_std, control_std, int64 seed[n_cases], then
+ * The plan as bytes: "MRVIPLN3", int32 n_cases, n_keys, n_seeds, command,
+ * mrvi_batch_perturb (raw: the ranks run one binary), int64
+ * seed[n_cases], then
  * '\0'-terminated strings:
  * description, source, keys, values (row-major).
  * ------------------------------------------------------------------------- */
-static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '2'};
+static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '3'};
 
 int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   const long nv = (long)p->n_cases * p->n_keys;
-  size_t n = sizeof plan_magic + 4 * sizeof(int32_t) + 2 * sizeof(double) +
+  size_t n = sizeof plan_magic + 4 * sizeof(int32_t) + sizeof p->pert +
              (size_t)p->n_cases * sizeof(int64_t) + strlen(p->description) +
              strlen(p->source) + 2;
   for (int j = 0; j < p->n_keys; j++)
@@ -413,8 +386,7 @@ int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   const int32_t counts[4] = {p->n_cases, p->n_keys, p->n_seeds, p->command};
   memcpy(at, plan_magic, sizeof plan_magic), at += sizeof plan_magic;
   memcpy(at, counts, sizeof counts), at += sizeof counts;
-  memcpy(at, &p->velocity_std, sizeof(double)), at += sizeof(double);
-  memcpy(at, &p->control_std, sizeof(double)), at += sizeof(double);
+  memcpy(at, &p->pert, sizeof p->pert), at += sizeof p->pert;
   for (int c = 0; c < p->n_cases; c++) {
     int64_t s = p->seed[c];
     memcpy(at, &s, sizeof s), at += sizeof s;
@@ -445,15 +417,11 @@ static char *take_string(const char **at, const char *end) {
 int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *p) {
   memset(p, 0, sizeof *p);
   int32_t counts[4];
-  const size_t head = sizeof plan_magic + sizeof counts + 2 * sizeof(double);
+  const size_t head = sizeof plan_magic + sizeof counts + sizeof p->pert;
   if (size < head || memcmp(buf, plan_magic, sizeof plan_magic))
     return MRVI_EINVAL;
   memcpy(counts, buf + sizeof plan_magic, sizeof counts);
-  memcpy(&p->velocity_std, buf + sizeof plan_magic + sizeof counts,
-         sizeof(double));
-  memcpy(&p->control_std,
-         buf + sizeof plan_magic + sizeof counts + sizeof(double),
-         sizeof(double));
+  memcpy(&p->pert, buf + sizeof plan_magic + sizeof counts, sizeof p->pert);
   if (counts[3] != MRVI_BATCH_RUN && counts[3] != MRVI_BATCH_OPTIMIZE)
     return MRVI_EINVAL;
   p->command = counts[3];

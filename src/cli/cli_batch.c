@@ -18,7 +18,9 @@ const char mrvi_usage_batch[] =
     "                  [--vary KEY=linspace(a,b,n)|logspace(a,b,n)]... "
     "[--zip]\n"
     "                  [--seeds N [--velocity-std S]] [--jobs N] [--quiet]\n"
-    "                  [--optimize [--control-std S]]\n"
+    "                  [--optimize [--control-std S]] [--position-std S]\n"
+    "                  [--temperature T] [--rotation-std A|--rotations "
+    "uniform]\n"
     "       mrvi batch --resume OUT.h5 [--jobs N] [--quiet]\n"
     "\n"
     "Run FILE once per case: a case is 'mrvi run FILE --set KEY=VALUE' for\n"
@@ -30,11 +32,12 @@ const char mrvi_usage_batch[] =
     "stop_reason, steps, wall_time, energy_error) and external links\n"
     "/runs/case_CCCC to the case files (doc/batch.md).\n"
     "\n"
-    "The description's batch: section may hold vary, zip, seeds, "
-    "velocity_std,\n"
-    "command (run or optimize), control_std and jobs in the same vocabulary; "
-    "the command line overrides or extends\n"
-    "it (a --vary of a key the file varies replaces the file's values).\n"
+    "The description's batch: section may hold vary, zip, seeds, command\n"
+    "(run or optimize), the perturbations (velocity_std, position_std,\n"
+    "position_distribution, temperature, rotation_std, rotations,\n"
+    "control_std) and jobs in the same vocabulary; the command line\n"
+    "overrides or extends it (a --vary of a key the file varies replaces\n"
+    "the file's values).\n"
     "\n"
     "Options:\n"
     "  -o, --output OUT.h5   the master file\n"
@@ -48,14 +51,14 @@ const char mrvi_usage_batch[] =
     "                        by S times standard normal numbers of its seed\n"
     "                        (projected onto the constraints); the numbers\n"
     "                        depend on the seed alone (doc/batch.md)\n"
-    "      --optimize        each case is 'mrvi optimize FILE --set ...' (the\n"
-    "                        control: section); the table gains cost,\n"
-    "                        violation, evaluations, nlopt_result and\n"
-    "                        /best_case, the converged case of lowest cost\n"
-    "      --control-std S   multi-start: the initial guess of a seeded case\n"
-    "                        plus S times standard normal numbers of its seed\n"
-    "                        (in the bounds), written into the case's\n"
-    "                        description as control.actuators.A.initial\n"
+    "      --position-std S, --position-distribution gaussian|uniform,\n"
+    "      --temperature T, --rotation-std A, --rotations uniform\n"
+    "                        perturb a seeded case's positions (projected),\n"
+    "                        set thermal velocities (zero net momentum) or\n"
+    "                        turn its bodies (doc/batch.md, Ensembles)\n"
+    "      --optimize        cases are 'mrvi optimize' (doc/batch.md)\n"
+    "      --control-std S   multi-start: perturb a seeded case's initial\n"
+    "                        guess by S times normal numbers of its seed\n"
     "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
     "                        cores available)\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
@@ -170,14 +173,39 @@ static int usage_fail(const char *what) {
   return EXIT_INPUT;
 }
 
+/* --velocity-std, --control-std, --position-std, --temperature,
+ * --rotation-std S into pt: 1 when `a` is one of them (*rc set when its
+ * value is not a number), else 0. */
+static int std_option(const char *a, const char *v, mrvi_batch_perturb *pt,
+                      int *rc) {
+  static const char *const names[] = {"--velocity-std", "--control-std",
+                                      "--position-std", "--temperature",
+                                      "--rotation-std"};
+  double *const to[] = {&pt->velocity_std, &pt->control_std,
+                        &pt->position_std, &pt->temperature,
+                        &pt->rotation_std};
+  for (int i = 0; i < 5; i++)
+    if (!strcmp(a, names[i])) {
+      char *end, what[64];
+      *to[i] = strtod(v, &end);
+      if (*end || end == v || isnan(*to[i])) {
+        snprintf(what, sizeof what, "%s takes a number", a);
+        *rc = usage_fail(what);
+      }
+      return 1;
+    }
+  return 0;
+}
+
 /* The description's `batch:` section under the command line: the file's
  * --vary entries in its order, a --vary of the same key on the command
  * line in place of the file's, the other --vary after them; --zip,
- * --seeds, --velocity-std and --jobs over the file's (doc/batch.md).  On
+ * --seeds, the perturbations, --optimize and --jobs over the file's
+ * (doc/batch.md).  On
  * return *axes holds every axis (the command line's moved into it). */
 static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
-                        int *n_axes, int *zip, int *seeds, double *vstd,
-                        int *command, double *cstd, int *jobs, char *msg,
+                        int *n_axes, int *zip, int *seeds, int *command,
+                        mrvi_batch_perturb *pt, int *jobs, char *msg,
                         size_t len) {
   mrvi_batch_section sec;
   if (mrvi_batch_section_read(base, &sec, msg, len) < 0)
@@ -212,14 +240,24 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
     *zip = *zip || sec.zip == 1;
     if (*seeds < 0)
       *seeds = sec.seeds > 0 ? sec.seeds : 0;
-    if (isnan(*vstd))
-      *vstd = isnan(sec.velocity_std) ? 0.0 : sec.velocity_std;
+    /* NAN, -1: not given on the command line; then the file's, or 0. */
+    double *const mine[] = {&pt->velocity_std, &pt->control_std,
+                            &pt->position_std, &pt->temperature,
+                            &pt->rotation_std};
+    const double file[] = {sec.velocity_std, sec.control_std, sec.position_std,
+                           sec.temperature, sec.rotation_std};
+    for (int i = 0; i < 5; i++)
+      if (isnan(*mine[i]))
+        *mine[i] = isnan(file[i]) ? 0.0 : file[i];
+    if (pt->position_uniform < 0)
+      pt->position_uniform = sec.position_uniform > 0;
+    if (pt->rotation_uniform < 0)
+      pt->rotation_uniform = sec.rotation_uniform > 0;
     if (*jobs == 0 && sec.jobs > 0)
       *jobs = sec.jobs;
     if (*command < 0)
       *command = sec.command >= 0 ? sec.command : MRVI_BATCH_RUN;
-    if (isnan(*cstd))
-      *cstd = isnan(sec.control_std) ? 0.0 : sec.control_std;
+
   } else {
     for (int i = 0; all && i < n; i++)
       mrvi_batch_axis_clear(&all[i]);
@@ -253,8 +291,15 @@ static int batch_follow(void) {
 int mrvi_cmd_batch(int argc, char **argv) {
   const char *file = NULL, *out = NULL, *resume = NULL;
   int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0, command = -1;
-  /* seeds -1, vstd NAN, jobs 0, command -1, cstd NAN: not given */
-  double vstd = NAN, cstd = NAN;
+  /* seeds -1, jobs 0, command -1, NAN and -1 in pt: not given */
+  mrvi_batch_perturb pt = {.velocity_std = NAN,
+                           .control_std = NAN,
+                           .position_std = NAN,
+                           .temperature = NAN,
+                           .rotation_std = NAN,
+                           .position_uniform = -1,
+                           .rotation_uniform = -1};
+  int perturbs = 0; /* a perturbation option given */
   char msg[MSG_LEN];
   int rank = 0, ranks = 1;
   if (mrvi_batch_mpi_begin(&rank, &ranks, msg, sizeof msg) < 0) {
@@ -272,7 +317,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
     int takes = !strcmp(a, "-o") || !strcmp(a, "--output") ||
                 !strcmp(a, "--vary") || !strcmp(a, "--seeds") ||
                 !strcmp(a, "--velocity-std") || !strcmp(a, "--control-std") ||
-                !strcmp(a, "-j") || !strcmp(a, "--jobs") ||
+                !strcmp(a, "--position-std") ||
+                !strcmp(a, "--position-distribution") ||
+                !strcmp(a, "--temperature") || !strcmp(a, "--rotation-std") ||
+                !strcmp(a, "--rotations") || !strcmp(a, "-j") ||
+                !strcmp(a, "--jobs") ||
                 !strcmp(a, "--resume");
     if (takes && !v) {
       snprintf(msg, sizeof msg, "%s needs a value", a);
@@ -304,16 +353,18 @@ int mrvi_cmd_batch(int argc, char **argv) {
         rc = usage_fail("--jobs takes a count 1..1000000");
     } else if (!strcmp(a, "--optimize")) {
       command = MRVI_BATCH_OPTIMIZE;
-    } else if (!strcmp(a, "--control-std")) {
-      char *end;
-      cstd = strtod(v, &end);
-      if (*end || end == v || isnan(cstd))
-        rc = usage_fail("--control-std takes a number");
-    } else if (!strcmp(a, "--velocity-std")) {
-      char *end;
-      vstd = strtod(v, &end);
-      if (*end || end == v || isnan(vstd))
-        rc = usage_fail("--velocity-std takes a number");
+    } else if (std_option(a, v, &pt, &rc)) {
+      perturbs = 1;
+    } else if (!strcmp(a, "--position-distribution")) {
+      perturbs = 1;
+      pt.position_uniform = !strcmp(v, "uniform");
+      if (strcmp(v, "uniform") && strcmp(v, "gaussian"))
+        rc = usage_fail("--position-distribution takes gaussian or uniform");
+    } else if (!strcmp(a, "--rotations")) {
+      perturbs = 1;
+      pt.rotation_uniform = 1;
+      if (strcmp(v, "uniform"))
+        rc = usage_fail("--rotations takes uniform (or give --rotation-std)");
     } else if (a[0] == '-') {
       snprintf(msg, sizeof msg, "unknown option '%s'", a);
       rc = usage_fail(msg);
@@ -325,11 +376,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
     }
   }
   if (rc == 0 && resume &&
-      (file || out || n_axes || zip || seeds >= 0 || !isnan(vstd) ||
-       command >= 0 || !isnan(cstd)))
+      (file || out || n_axes || zip || seeds >= 0 || perturbs ||
+       command >= 0))
     rc = usage_fail("--resume takes the cases from OUT.h5: give no FILE, -o, "
-                    "--vary, --zip, --seeds, --velocity-std, --optimize or "
-                    "--control-std with it");
+                    "--vary, --zip, --seeds, --optimize or a perturbation "
+                    "with it");
   if (rc == 0 && !resume && (!file || !out))
     rc = usage_fail("give FILE and -o OUT.h5 (or --resume OUT.h5)");
   if (rc == 0 && file && out) {
@@ -356,13 +407,13 @@ int mrvi_cmd_batch(int argc, char **argv) {
     if (mrvi_system_load(file, NULL, 0, &base, msg, sizeof msg) < 0 || !base) {
       fprintf(stderr, "%s\n", msg);
       rc = EXIT_INPUT;
-    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd, &command,
-                            &cstd, &jobs, msg, sizeof msg) < 0) {
+    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &command, &pt,
+                            &jobs, msg, sizeof msg) < 0) {
       fprintf(stderr, "mrvi batch: %s\n", msg);
       rc = EXIT_INPUT;
     } else if (mrvi_batch_plan_build(&plan, base->description, file, axes,
-                                     n_axes, zip, seeds, vstd, command, cstd,
-                                     msg, sizeof msg) < 0) {
+                                     n_axes, zip, seeds, command, &pt, msg,
+                                     sizeof msg) < 0) {
       rc = usage_fail(msg);
     }
     mrvi_system_free(base);

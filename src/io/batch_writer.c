@@ -11,7 +11,8 @@
  * each row either pending or complete (the status entry is written last).
  *
  * Layout: root attributes mrvi_version, batch_version, source, keys
- * ('\n'-separated), n_seeds, velocity_std; /cases/ overrides (fixed strings
+ * ('\n'-separated), n_seeds, velocity_std, position_std, position_uniform,
+ * temperature, rotation_std, rotation_uniform; /cases/ overrides (fixed strings
  * "KEY=VALUE" '\n'-separated), /cases/values/KEY (the value as a number, NAN
  * when it is not one), seed, status, steps, wall_time, energy_error,
  * stop_reason, file; /description (the text before overrides); /runs/case_CCCC
@@ -162,11 +163,17 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   mrvi_h5_batch_attr_string(b, root, "keys", keys);
   free(keys);
   mrvi_h5_batch_attr_int(b, root, "n_seeds", p->n_seeds);
-  mrvi_h5_batch_attr_double(b, root, "velocity_std", p->velocity_std);
+  const mrvi_batch_perturb *pt = &p->pert;
+  mrvi_h5_batch_attr_double(b, root, "velocity_std", pt->velocity_std);
+  mrvi_h5_batch_attr_double(b, root, "position_std", pt->position_std);
+  mrvi_h5_batch_attr_int(b, root, "position_uniform", pt->position_uniform);
+  mrvi_h5_batch_attr_double(b, root, "temperature", pt->temperature);
+  mrvi_h5_batch_attr_double(b, root, "rotation_std", pt->rotation_std);
+  mrvi_h5_batch_attr_int(b, root, "rotation_uniform", pt->rotation_uniform);
   const int opt = p->command == MRVI_BATCH_OPTIMIZE;
   mrvi_h5_batch_attr_string(b, root, "command", opt ? "optimize" : "run");
   if (opt)
-    mrvi_h5_batch_attr_double(b, root, "control_std", p->control_std);
+    mrvi_h5_batch_attr_double(b, root, "control_std", pt->control_std);
 
   char *over = calloc(n, OVERRIDES_BYTES);
   char *files = calloc(n, FILE_BYTES);
@@ -342,9 +349,28 @@ static int read_plan(const mrvi_h5in *in, mrvi_batch_plan *p, int **status) {
   if (rc == 0 && mrvi_h5in_attr_number(in, "n_seeds", 0, MAX_CASES, 1, &v) < 0)
     rc = MRVI_EIO;
   p->n_seeds = (int)v;
+  mrvi_batch_perturb *pt = &p->pert;
   if (rc == 0 && mrvi_h5in_attr_number(in, "velocity_std", 0, 1e300, 0,
-                                       &p->velocity_std) < 0)
+                                       &pt->velocity_std) < 0)
     rc = MRVI_EIO;
+  /* The other perturbations: absent in a file of an older writer. */
+  const char *const names[] = {"position_std", "position_uniform",
+                               "temperature", "rotation_std",
+                               "rotation_uniform"};
+  double *const into[] = {&pt->position_std, &v, &pt->temperature,
+                          &pt->rotation_std, &v};
+  const int flag[] = {0, 1, 0, 0, 1}; /* 0 or 1, else a number >= 0 */
+  for (int i = 0; rc == 0 && i < 5; i++) {
+    v = 0;
+    if (mrvi_h5in_has_attr(in, names[i]) &&
+        mrvi_h5in_attr_number(in, names[i], 0, flag[i] ? 1 : 1e300, flag[i],
+                              into[i]) < 0)
+      rc = MRVI_EIO;
+    if (i == 1)
+      pt->position_uniform = (int)v;
+    if (i == 4)
+      pt->rotation_uniform = (int)v;
+  }
   /* command and control_std: absent in a run batch of an older writer. */
   char command[16] = "run";
   if (rc == 0 && mrvi_h5in_has_attr(in, "command") &&
@@ -358,7 +384,7 @@ static int read_plan(const mrvi_h5in *in, mrvi_batch_plan *p, int **status) {
     rc = MRVI_EIO;
   }
   if (rc == 0 && p->command == MRVI_BATCH_OPTIMIZE &&
-      mrvi_h5in_attr_number(in, "control_std", 0, 1e300, 0, &p->control_std) <
+      mrvi_h5in_attr_number(in, "control_std", 0, 1e300, 0, &pt->control_std) <
           0)
     rc = MRVI_EIO;
   if (rc == 0 &&

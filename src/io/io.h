@@ -157,14 +157,16 @@ int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
 
 /* The `batch:` section of a description file (io/loader/batch.c): what
  * the command line of `mrvi batch` says, in the file.  Absent entries are
- * -1 (zip, seeds, jobs, command) or NAN (velocity_std, control_std). */
+ * -1 (zip, seeds, jobs, command, position_uniform, rotation_uniform) or
+ * NAN (the stds and temperature). */
 typedef struct mrvi_batch_section {
   int n_vary;
   char **vary;  /* n_vary: "KEY=VALUES" as --vary takes it */
   char **where; /* n_vary: "file:line:col" of the entry, for messages */
   int zip, seeds, jobs;
   int command; /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE; -1 absent */
-  double velocity_std, control_std;
+  double velocity_std, control_std, position_std, temperature, rotation_std;
+  int position_uniform, rotation_uniform; /* -1 absent */
 } mrvi_batch_section;
 /* Read the `batch:` section of sys's description (every key, type and
  * range checked: "file:line:col: message" otherwise); no section: n_vary
@@ -186,10 +188,24 @@ enum {
   MRVI_BATCH_OPTIMIZE = 1 /* `mrvi optimize` (multi-start: control_std) */
 };
 
+/* The perturbations of a seeded case (doc/batch.md, Ensembles); 0: none. */
+typedef struct mrvi_batch_perturb {
+  double velocity_std; /* v0_i += std z_i */
+  double control_std;  /* optimize: the guess u_j += std z_j (in bounds) */
+  double position_std; /* translational q0 += std z (particles, bodies'
+                        * centres, plain coordinates), projected */
+  int position_uniform;  /* uniform numbers of that std instead of z */
+  double temperature;    /* > 0: thermal velocities of that temperature,
+                          * zero net momentum (replace v0) */
+  double rotation_std;   /* > 0: each body turned by a rotation vector of
+                          * that std per component (radians) */
+  int rotation_uniform;  /* 1: each body turned uniformly on SO(D) */
+} mrvi_batch_perturb;
+
 /* The case table: case c is the description with the overrides
  * keys[j]=values[c * n_keys + j] and, when seed[c] >= 0, the initial
- * velocities perturbed by seed seed[c] with std velocity_std and, for an
- * optimize case, the initial guess of the controls with std control_std. */
+ * state (and for an optimize case the guess) perturbed by seed seed[c]
+ * as pert says. */
 typedef struct mrvi_batch_plan {
   char *description; /* the input text (before overrides) */
   char *source;      /* the file it came from (messages, root attribute) */
@@ -199,9 +215,8 @@ typedef struct mrvi_batch_plan {
   char **values; /* n_cases x n_keys, row-major */
   long *seed;    /* n_cases; -1: no perturbation */
   int n_seeds;   /* --seeds (0: none) */
-  double velocity_std;
-  int command;        /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE */
-  double control_std; /* optimize: the guess's perturbation (0: none) */
+  int command;   /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE */
+  mrvi_batch_perturb pert; /* of the seeded cases */
 } mrvi_batch_plan;
 void mrvi_batch_plan_free(mrvi_batch_plan *plan); /* the contents; NULL ok */
 

@@ -10,6 +10,11 @@
  *     velocity_std: 0.01
  *     command: run                # or optimize (a multi-start with
  *     control_std: 0.5            #   control_std and seeds)
+ *     position_std: 1e-3          # translational positions, projected
+ *     position_distribution: gaussian   # or uniform
+ *     temperature: 0.5            # thermal velocities, no net momentum
+ *     rotation_std: 0.1           # bodies turned by small rotations,
+ *     rotations: uniform          #   or uniformly
  *     jobs: 2
  *
  * A run (`mrvi run`, `mrvi check`) checks the section and does nothing
@@ -25,7 +30,9 @@
 #include <string.h>
 
 static const char *const batch_keys[] = {
-    "vary", "seeds", "velocity_std", "zip", "jobs", "command", "control_std"};
+    "vary",         "seeds",        "velocity_std",          "zip",
+    "jobs",         "command",      "control_std",           "position_std",
+    "temperature",  "rotation_std", "position_distribution", "rotations"};
 
 /* Append "KEY=VALUES" and its position to out. */
 static int add_vary(loader *L, mrvi_batch_section *out, struct fy_node *at,
@@ -167,6 +174,37 @@ static int read_batch(loader *L, struct fy_node *sec, mrvi_batch_section *out) {
     if (out)
       out->control_std = x;
   }
+  const char *const stds[] = {"position_std", "temperature", "rotation_std"};
+  double *const to[] = {out ? &out->position_std : NULL,
+                        out ? &out->temperature : NULL,
+                        out ? &out->rotation_std : NULL};
+  for (int i = 0; i < 3; i++)
+    if ((n = mrvi_ld_get(sec, stds[i]))) {
+      char what[40];
+      snprintf(what, sizeof what, "batch.%s", stds[i]);
+      if ((st = std_value(L, n, what, &x)))
+        return st;
+      if (out)
+        *to[i] = x;
+    }
+  if ((n = mrvi_ld_get(sec, "position_distribution"))) {
+    const char *s = fy_node_is_scalar(n) ? mrvi_ld_scalar0(n) : "";
+    if (strcmp(s, "gaussian") && strcmp(s, "uniform"))
+      return mrvi_ld_fail(L, n,
+                          "batch.position_distribution must be 'gaussian' or "
+                          "'uniform', got '%s'",
+                          s);
+    if (out)
+      out->position_uniform = !strcmp(s, "uniform");
+  }
+  if ((n = mrvi_ld_get(sec, "rotations"))) {
+    const char *s = fy_node_is_scalar(n) ? mrvi_ld_scalar0(n) : "";
+    if (strcmp(s, "uniform"))
+      return mrvi_ld_fail(L, n, "batch.rotations must be 'uniform', got '%s'",
+                          s);
+    if (out)
+      out->rotation_uniform = 1;
+  }
   if ((n = mrvi_ld_get(sec, "command"))) {
     const char *s = fy_node_is_scalar(n) ? mrvi_ld_scalar0(n) : "";
     if (strcmp(s, "run") && strcmp(s, "optimize"))
@@ -200,7 +238,9 @@ int mrvi_batch_section_read(const mrvi_system *sys, mrvi_batch_section *out,
                             char *msg, size_t len) {
   memset(out, 0, sizeof *out);
   out->zip = out->seeds = out->jobs = out->command = -1;
-  out->velocity_std = out->control_std = NAN;
+  out->position_uniform = out->rotation_uniform = -1;
+  out->velocity_std = out->control_std = out->position_std = NAN;
+  out->temperature = out->rotation_std = NAN;
   loader L = {
       .path = sys->path ? sys->path : "<string>", .msg = msg, .len = len};
   L.diag = mrvi_ld_diag_create();
@@ -223,7 +263,9 @@ int mrvi_batch_section_read(const mrvi_system *sys, mrvi_batch_section *out,
   if (st) {
     mrvi_batch_section_free(out);
     out->zip = out->seeds = out->jobs = out->command = -1;
-    out->velocity_std = out->control_std = NAN;
+    out->position_uniform = out->rotation_uniform = -1;
+    out->velocity_std = out->control_std = out->position_std = NAN;
+    out->temperature = out->rotation_std = NAN;
   } else {
     msg[0] = '\0';
   }
