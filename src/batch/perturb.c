@@ -68,8 +68,8 @@ static void body_rotation(uint64_t seed, int b, int D, double s, int uni,
                           double *R) {
   const uint64_t j = MRVI_BATCH_STREAM_ROTATIONS + 4 * (uint64_t)b;
   if (D == 2) {
-    const double a = uni ? two_pi * uniform(seed, j)
-                         : s * mrvi_batch_normal(seed, j);
+    const double a =
+        uni ? two_pi * uniform(seed, j) : s * mrvi_batch_normal(seed, j);
     R[0] = cos(a), R[1] = -sin(a), R[2] = sin(a), R[3] = cos(a);
     return;
   }
@@ -144,8 +144,8 @@ static int directions(const mrvi_model *m, int *comp) {
 }
 
 /* Thermal velocities (see the top); *dof gets N_f. */
-static int thermal(mrvi_model *m, uint64_t seed, double T, int *dof,
-                   char *msg, size_t len) {
+static int thermal(mrvi_model *m, uint64_t seed, double T, int *dof, char *msg,
+                   size_t len) {
   const int n = m->n;
   int *comp = malloc((size_t)n * sizeof *comp);
   unsigned char *drop = calloc((size_t)m->constraint_rows + 1, 1);
@@ -156,9 +156,9 @@ static int thermal(mrvi_model *m, uint64_t seed, double T, int *dof,
   }
   const int nd = directions(m, comp);
   for (int i = 0; i < n; i++)
-    m->v0[i] = mrvi_batch_normal(seed, MRVI_BATCH_STREAM_VELOCITIES +
-                                           (uint64_t)i) /
-               sqrt(m->mass[i]);
+    m->v0[i] =
+        mrvi_batch_normal(seed, MRVI_BATCH_STREAM_VELOCITIES + (uint64_t)i) /
+        sqrt(m->mass[i]);
   /* Remove the centre-of-mass velocity of every direction. */
   for (int d = 0; d < nd; d++) {
     double P = 0.0, M = 0.0;
@@ -203,10 +203,9 @@ int mrvi_batch_perturb_apply(mrvi_system *sys, long seed,
   *dof = 0;
   mrvi_model *m = sys->model;
   const uint64_t s = (uint64_t)seed;
-  const int moves = pt->position_std > 0 || pt->rotation_std > 0 ||
-                    pt->rotation_uniform;
-  if (seed < 0 ||
-      (!moves && pt->velocity_std == 0 && !(pt->temperature > 0)))
+  const int moves =
+      pt->position_std > 0 || pt->rotation_std > 0 || pt->rotation_uniform;
+  if (seed < 0 || (!moves && pt->velocity_std == 0 && !(pt->temperature > 0)))
     return 0;
   if (pt->position_std > 0) {
     unsigned char *dir = director_mask(m);
@@ -231,8 +230,9 @@ int mrvi_batch_perturb_apply(mrvi_system *sys, long seed,
   if (pt->temperature > 0)
     return thermal(m, s, pt->temperature, dof, msg, len);
   for (int i = 0; pt->velocity_std > 0 && i < m->n; i++)
-    m->v0[i] += pt->velocity_std *
-                mrvi_batch_normal(s, MRVI_BATCH_STREAM_VELOCITIES + (uint64_t)i);
+    m->v0[i] +=
+        pt->velocity_std *
+        mrvi_batch_normal(s, MRVI_BATCH_STREAM_VELOCITIES + (uint64_t)i);
   st = mrvi_model_project_velocities(m, NULL);
   if (st < 0)
     mrvi_fmt(msg, len, "perturbed velocities: %s", mrvi_model_errmsg(m));
@@ -259,7 +259,7 @@ int mrvi_batch_perturb_note(mrvi_system *sys, long seed,
     note[at++] = '\n';
   note[at] = '\0';
 #define SAY(...)                                                               \
-  (at += (size_t)snprintf(note + at, sizeof note - at, __VA_ARGS__),          \
+  (at += (size_t)snprintf(note + at, sizeof note - at, __VA_ARGS__),           \
    at = at < sizeof note ? at : sizeof note - 1)
   if (pt->position_std > 0) {
     shortest(pt->position_std, num, sizeof num);

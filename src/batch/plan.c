@@ -320,8 +320,8 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
    * loaded again with its start as overrides. */
   if (rc == 0 && *out && p->command == MRVI_BATCH_OPTIMIZE) {
     const int n_keys = n_over;
-    rc = guess_overrides(*out, p->seed[c], p->pert.control_std, &over, &n_over, text,
-                         sizeof text);
+    rc = guess_overrides(*out, p->seed[c], p->pert.control_std, &over, &n_over,
+                         text, sizeof text);
     if (rc == 0 && n_over > n_keys) {
       mrvi_system_free(*out);
       *out = NULL;

@@ -181,9 +181,8 @@ static int std_option(const char *a, const char *v, mrvi_batch_perturb *pt,
   static const char *const names[] = {"--velocity-std", "--control-std",
                                       "--position-std", "--temperature",
                                       "--rotation-std"};
-  double *const to[] = {&pt->velocity_std, &pt->control_std,
-                        &pt->position_std, &pt->temperature,
-                        &pt->rotation_std};
+  double *const to[] = {&pt->velocity_std, &pt->control_std, &pt->position_std,
+                        &pt->temperature, &pt->rotation_std};
   for (int i = 0; i < 5; i++)
     if (!strcmp(a, names[i])) {
       char *end, what[64];
@@ -314,15 +313,13 @@ int mrvi_cmd_batch(int argc, char **argv) {
   for (int i = 1; rc == 0 && i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-    int takes = !strcmp(a, "-o") || !strcmp(a, "--output") ||
-                !strcmp(a, "--vary") || !strcmp(a, "--seeds") ||
-                !strcmp(a, "--velocity-std") || !strcmp(a, "--control-std") ||
-                !strcmp(a, "--position-std") ||
-                !strcmp(a, "--position-distribution") ||
-                !strcmp(a, "--temperature") || !strcmp(a, "--rotation-std") ||
-                !strcmp(a, "--rotations") || !strcmp(a, "-j") ||
-                !strcmp(a, "--jobs") ||
-                !strcmp(a, "--resume");
+    int takes =
+        !strcmp(a, "-o") || !strcmp(a, "--output") || !strcmp(a, "--vary") ||
+        !strcmp(a, "--seeds") || !strcmp(a, "--velocity-std") ||
+        !strcmp(a, "--control-std") || !strcmp(a, "--position-std") ||
+        !strcmp(a, "--position-distribution") || !strcmp(a, "--temperature") ||
+        !strcmp(a, "--rotation-std") || !strcmp(a, "--rotations") ||
+        !strcmp(a, "-j") || !strcmp(a, "--jobs") || !strcmp(a, "--resume");
     if (takes && !v) {
       snprintf(msg, sizeof msg, "%s needs a value", a);
       rc = usage_fail(msg);
@@ -376,8 +373,7 @@ int mrvi_cmd_batch(int argc, char **argv) {
     }
   }
   if (rc == 0 && resume &&
-      (file || out || n_axes || zip || seeds >= 0 || perturbs ||
-       command >= 0))
+      (file || out || n_axes || zip || seeds >= 0 || perturbs || command >= 0))
     rc = usage_fail("--resume takes the cases from OUT.h5: give no FILE, -o, "
                     "--vary, --zip, --seeds, --optimize or a perturbation "
                     "with it");

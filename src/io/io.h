@@ -190,16 +190,16 @@ enum {
 
 /* The perturbations of a seeded case (doc/batch.md, Ensembles); 0: none. */
 typedef struct mrvi_batch_perturb {
-  double velocity_std; /* v0_i += std z_i */
-  double control_std;  /* optimize: the guess u_j += std z_j (in bounds) */
-  double position_std; /* translational q0 += std z (particles, bodies'
-                        * centres, plain coordinates), projected */
-  int position_uniform;  /* uniform numbers of that std instead of z */
-  double temperature;    /* > 0: thermal velocities of that temperature,
-                          * zero net momentum (replace v0) */
-  double rotation_std;   /* > 0: each body turned by a rotation vector of
-                          * that std per component (radians) */
-  int rotation_uniform;  /* 1: each body turned uniformly on SO(D) */
+  double velocity_std;  /* v0_i += std z_i */
+  double control_std;   /* optimize: the guess u_j += std z_j (in bounds) */
+  double position_std;  /* translational q0 += std z (particles, bodies'
+                         * centres, plain coordinates), projected */
+  int position_uniform; /* uniform numbers of that std instead of z */
+  double temperature;   /* > 0: thermal velocities of that temperature,
+                         * zero net momentum (replace v0) */
+  double rotation_std;  /* > 0: each body turned by a rotation vector of
+                         * that std per component (radians) */
+  int rotation_uniform; /* 1: each body turned uniformly on SO(D) */
 } mrvi_batch_perturb;
 
 /* The case table: case c is the description with the overrides
@@ -212,10 +212,10 @@ typedef struct mrvi_batch_plan {
   int n_keys;
   char **keys; /* n_keys */
   int n_cases;
-  char **values; /* n_cases x n_keys, row-major */
-  long *seed;    /* n_cases; -1: no perturbation */
-  int n_seeds;   /* --seeds (0: none) */
-  int command;   /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE */
+  char **values;           /* n_cases x n_keys, row-major */
+  long *seed;              /* n_cases; -1: no perturbation */
+  int n_seeds;             /* --seeds (0: none) */
+  int command;             /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE */
   mrvi_batch_perturb pert; /* of the seeded cases */
 } mrvi_batch_plan;
 void mrvi_batch_plan_free(mrvi_batch_plan *plan); /* the contents; NULL ok */

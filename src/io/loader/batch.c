@@ -30,9 +30,9 @@
 #include <string.h>
 
 static const char *const batch_keys[] = {
-    "vary",         "seeds",        "velocity_std",          "zip",
-    "jobs",         "command",      "control_std",           "position_std",
-    "temperature",  "rotation_std", "position_distribution", "rotations"};
+    "vary",        "seeds",        "velocity_std",          "zip",
+    "jobs",        "command",      "control_std",           "position_std",
+    "temperature", "rotation_std", "position_distribution", "rotations"};
 
 /* Append "KEY=VALUES" and its position to out. */
 static int add_vary(loader *L, mrvi_batch_section *out, struct fy_node *at,
