@@ -61,6 +61,8 @@ static void case_optimize(mrvi_system *sys, const char *path,
   mrvi_ocp_set_callback(o, on_evaluation, out);
   const double t0 = mrvi_clock();
   mrvi_ocp_result r;
+  memset(&r, 0, sizeof r); /* a failure before NLopt starts sets nothing */
+  r.cost = r.violation = NAN;
   const int st = mrvi_ocp_solve(o, u, &r);
   res->wall_time = mrvi_clock() - t0;
   if (!r.status[0]) /* failed before NLopt started */
