@@ -3,7 +3,7 @@
 #
 # Built with MPI: `mpiexec -n 2` equals a serial batch (every case file by
 # h5diff, the table except wall times) with 1 and 2 jobs per rank, for
-# seeded cases and a failing case too; a bad override is refused once,
+# seeded cases, multi-start optimize cases and a failing case too; a bad override is refused once,
 # before any case runs; --resume under mpiexec runs only the pending cases
 # and gives the uninterrupted batch.
 # Built without MPI: a run under an MPI launcher with more than one rank is
@@ -94,6 +94,17 @@ run_ok "ensemble, 2 ranks" "${mpirun[@]}" "$mrvi" batch "$fpu" -o e2.h5 -q \
 seq 0 5 | sed 's/.*/&:&/' | same_runs e1.h5 e2.h5 && same_table e1.h5 e2.h5 &&
   pass "seeded cases equal on 1 process and 2 ranks" ||
   fail "seeded cases equal on 1 process and 2 ranks"
+
+# --- multi-start optimize cases: the same starts and files on 2 ranks ---
+ocp=$root/systems/ocp_double_integrator.yaml
+ms=(--optimize --seeds 4 --control-std 2)
+run_ok "multi-start, one process" "$mrvi" batch "$ocp" -o o1.h5 -q -j 1 "${ms[@]}"
+run_ok "multi-start, 2 ranks" "${mpirun[@]}" "$mrvi" batch "$ocp" -o o2.h5 -q \
+  -j 1 "${ms[@]}"
+seq 0 3 | sed 's/.*/&:&/' | same_runs o1.h5 o2.h5 && same_table o1.h5 o2.h5 &&
+  h5diff o1.h5 o2.h5 /best_case /best_case >/dev/null 2>&1 &&
+  pass "optimize cases and /best_case equal on 1 process and 2 ranks" ||
+  fail "optimize cases and /best_case equal on 1 process and 2 ranks"
 
 # --- a failing case is recorded, the others complete ---
 "${mpirun[@]}" "$mrvi" batch "$fpu" -o f.h5 -q -j 1 \

@@ -35,11 +35,14 @@ void mrvi_batch_axis_clear(mrvi_batch_axis *axis);
 /* Build the case table: the Cartesian product of the axes (the last axis
  * varies fastest), or with zip the i-th values of every axis together
  * (equal lengths), each repeated for seeds 0..n_seeds-1 when n_seeds > 0
- * (seed fastest).  The plan owns copies of everything. */
+ * (seed fastest).  command: MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE; pert:
+ * the perturbations of the seeded cases (control_std, with optimize, the
+ * initial guess: a multi-start).  The plan owns copies of everything. */
 int mrvi_batch_plan_build(mrvi_batch_plan *plan, const char *description,
                           const char *source, const mrvi_batch_axis *axes,
-                          int n_axes, int zip, int n_seeds, double velocity_std,
-                          char *msg, size_t len);
+                          int n_axes, int zip, int n_seeds, int command,
+                          const mrvi_batch_perturb *pert, char *msg,
+                          size_t len);
 
 /* Load every case's description with its overrides (and perturbation)
  * before any case runs: the first refused case gives MRVI_EPARSE with
@@ -64,6 +67,28 @@ int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *plan);
  * Box-Muller from numbers 2j and 2j+1.
  * ------------------------------------------------------------------------- */
 uint64_t mrvi_batch_random(uint64_t seed, uint64_t i);
+/* Streams: the normal numbers j of one use of a seed are numbers
+ * STREAM + j, so that the uses do not share numbers (j < 2^40). */
+#define MRVI_BATCH_STREAM_VELOCITIES 0ull
+#define MRVI_BATCH_STREAM_CONTROLS (1ull << 40)
+#define MRVI_BATCH_STREAM_POSITIONS (2ull << 40)
+#define MRVI_BATCH_STREAM_ROTATIONS (3ull << 40)
+
+/* ---------------------------------------------------------------------------
+ * Perturbations (perturb.c): positions, body rotations and velocities of
+ * a seeded case, onto the constraints (doc/batch.md, Ensembles).
+ * ------------------------------------------------------------------------- */
+
+/* Perturb sys's initial state by seed (nothing for seed < 0); *dof gets
+ * the degrees of freedom of a thermal case (0 otherwise).  MRVI_EINVAL
+ * with a message when the projection onto the constraints fails. */
+int mrvi_batch_perturb_apply(mrvi_system *sys, long seed,
+                             const mrvi_batch_perturb *pt, int *dof, char *msg,
+                             size_t len);
+/* Say in sys's description (its run file's /model/description) how the
+ * initial state differs from the text: YAML comments appended. */
+int mrvi_batch_perturb_note(mrvi_system *sys, long seed,
+                            const mrvi_batch_perturb *pt, int dof);
 /* Standard normal number j of seed s. */
 double mrvi_batch_normal(uint64_t seed, uint64_t j);
 

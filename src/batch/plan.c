@@ -114,8 +114,9 @@ int mrvi_batch_axis_parse(const char *spec, mrvi_batch_axis *a, char *msg,
 
 int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
                           const char *source, const mrvi_batch_axis *axes,
-                          int n_axes, int zip, int n_seeds, double velocity_std,
-                          char *msg, size_t len) {
+                          int n_axes, int zip, int n_seeds, int command,
+                          const mrvi_batch_perturb *pert, char *msg,
+                          size_t len) {
   memset(p, 0, sizeof *p);
   /* Number of parameter points: product, or the common length. */
   long points = 1;
@@ -137,11 +138,38 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
       return MRVI_EINVAL;
     }
   }
-  if (n_seeds < 0 || n_seeds > 1000000 || (velocity_std != 0 && n_seeds == 0) ||
-      !(velocity_std >= 0) || !isfinite(velocity_std)) {
+  const mrvi_batch_perturb *pt = pert;
+  const double stds[] = {pt->velocity_std, pt->control_std, pt->position_std,
+                         pt->temperature, pt->rotation_std};
+  int any = pt->position_uniform || pt->rotation_uniform, bad_std = 0;
+  for (int i = 0; i < 5; i++) {
+    any = any || stds[i] != 0;
+    bad_std = bad_std || !(stds[i] >= 0) || !isfinite(stds[i]);
+  }
+  if (n_seeds < 0 || n_seeds > 1000000 || bad_std || (any && n_seeds == 0)) {
     mrvi_fmt(msg, len,
-             "--seeds N (0..1000000) and a finite --velocity-std >= "
-             "0, which needs --seeds");
+             "--seeds N (0..1000000), and finite perturbations >= 0 "
+             "(--velocity-std, --position-std, --temperature, "
+             "--rotation-std, --control-std), which need --seeds");
+    return MRVI_EINVAL;
+  }
+  if (pt->control_std != 0 && command != MRVI_BATCH_OPTIMIZE) {
+    mrvi_fmt(msg, len, "--control-std S perturbs the guess of --optimize");
+    return MRVI_EINVAL;
+  }
+  if (pt->temperature != 0 && pt->velocity_std != 0) {
+    mrvi_fmt(msg, len,
+             "--temperature sets the initial velocities: no --velocity-std "
+             "with it");
+    return MRVI_EINVAL;
+  }
+  if (pt->rotation_uniform && pt->rotation_std != 0) {
+    mrvi_fmt(msg, len, "--rotations uniform or --rotation-std A, not both");
+    return MRVI_EINVAL;
+  }
+  if (pt->position_uniform && pt->position_std == 0) {
+    mrvi_fmt(msg, len,
+             "--position-distribution uniform needs --position-std S");
     return MRVI_EINVAL;
   }
   const long per = n_seeds > 0 ? n_seeds : 1;
@@ -152,7 +180,8 @@ int mrvi_batch_plan_build(mrvi_batch_plan *p, const char *description,
   p->n_cases = (int)(points * per);
   p->n_keys = n_axes;
   p->n_seeds = n_seeds;
-  p->velocity_std = velocity_std;
+  p->command = command;
+  p->pert = *pert;
   p->description = strdup(description);
   p->source = strdup(source);
   p->keys = calloc((size_t)n_axes + 1, sizeof *p->keys);
@@ -217,49 +246,58 @@ static void case_name(const mrvi_batch_plan *p, int c, char *buf, size_t len) {
     snprintf(buf + at, len - at, ")");
 }
 
-/* Add seed s's perturbation to the initial velocities: v0_i += std z_i,
- * z_i the normal number i of the seed, then onto the constraints' tangent
- * space when the model has constraints. */
-static int perturb(mrvi_model *m, long seed, double std) {
-  if (seed < 0 || std == 0)
-    return 0;
-  for (int i = 0; i < m->n; i++)
-    m->v0[i] += std * mrvi_batch_normal((uint64_t)seed, (uint64_t)i);
-  return mrvi_model_project_velocities(m, NULL);
-}
-
-/* Say in the case's description (its run file's /model/description) how
- * its initial velocities differ from the text: a YAML comment appended. */
-static int note_perturbation(mrvi_system *sys, long seed, double std) {
-  if (seed < 0 || std == 0 || !sys->description)
-    return 0;
-  /* std in the fewest digits that read back exactly. */
-  char num[32];
-  for (int prec = 15; prec <= 17; prec++) {
-    snprintf(num, sizeof num, "%.*g", prec, std);
-    if (strtod(num, NULL) == std)
+/* The start of an optimize case of seed `seed`: for actuator a the
+ * override "control.actuators.a.initial=[...]" with value j of the
+ * description's guess plus std times normal number j of the seed's control
+ * stream (j over the control vector), held in the actuator's bounds.  The
+ * guess is an override of the case's description, so its run file's
+ * /model/description names it and `mrvi optimize FILE --set ...` with
+ * the same overrides gives the same file.  Appended to *over (*n_over
+ * strings, grown); with std 0 only checks that the control: section
+ * loads. */
+static int guess_overrides(const mrvi_system *sys, long seed, double std,
+                           char ***over, int *n_over, char *msg, size_t len) {
+  mrvi_ocp *o = NULL;
+  double *u = NULL;
+  if (mrvi_ocp_load(sys, &o, &u, msg, len) < 0)
+    return MRVI_EPARSE;
+  const int na = seed >= 0 && std > 0 ? mrvi_ocp_n_actuators(o) : 0;
+  char **grown = realloc(*over, (size_t)(*n_over + na + 1) * sizeof **over);
+  int rc = grown ? 0 : MRVI_ENOMEM;
+  if (grown)
+    *over = grown;
+  for (int a = 0; rc == 0 && a < na; a++) {
+    const int off = mrvi_ocp_actuator_offset(o, a);
+    const int size = mrvi_ocp_actuator_size(o, a);
+    double lo, hi;
+    mrvi_ocp_actuator_bounds(o, a, &lo, &hi);
+    const size_t cap = 64 + 26 * (size_t)size;
+    char *s = malloc(cap);
+    if (!s) {
+      rc = MRVI_ENOMEM;
       break;
+    }
+    size_t at = (size_t)snprintf(s, cap, "control.actuators.%d.initial=[", a);
+    for (int j = 0; j < size; j++) {
+      const uint64_t k = MRVI_BATCH_STREAM_CONTROLS + (uint64_t)(off + j);
+      const double v = u[off + j] + std * mrvi_batch_normal((uint64_t)seed, k);
+      at += (size_t)snprintf(s + at, cap - at, "%s%.17g", j ? "," : "",
+                             fmin(fmax(v, lo), hi));
+    }
+    snprintf(s + at, cap - at, "]");
+    grown[(*n_over)++] = s;
   }
-  char note[512];
-  size_t n = strlen(sys->description);
-  int k = snprintf(note, sizeof note,
-                   "%s# mrvi batch, seed %ld: the initial velocities are the "
-                   "above plus %s\n# times the standard normal numbers of "
-                   "seed %ld (doc/batch.md, Ensembles),\n# projected onto "
-                   "the constraints.\n",
-                   n > 0 && sys->description[n - 1] != '\n' ? "\n" : "", seed,
-                   num, seed);
-  char *grown = realloc(sys->description, n + (size_t)k + 1);
-  if (!grown)
-    return MRVI_ENOMEM;
-  memcpy(grown + n, note, (size_t)k + 1);
-  sys->description = grown;
-  return 0;
+  if (rc < 0)
+    mrvi_fmt(msg, len, "out of memory");
+  free(u);
+  mrvi_ocp_free(o);
+  return rc;
 }
 
 int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
                          char *msg, size_t len) {
   *out = NULL;
+  int n_over = p->n_keys;
   char **over = calloc((size_t)p->n_keys + 1, sizeof *over);
   int rc = over ? 0 : MRVI_ENOMEM;
   for (int j = 0; rc == 0 && j < p->n_keys; j++) {
@@ -276,29 +314,38 @@ int mrvi_batch_case_load(const mrvi_batch_plan *p, int c, mrvi_system **out,
   text[0] = '\0';
   if (rc == 0)
     rc = mrvi_system_load_string(p->description, p->source,
-                                 (const char *const *)over, p->n_keys, out,
-                                 text, sizeof text);
+                                 (const char *const *)over, n_over, out, text,
+                                 sizeof text);
+  /* An optimize case: its control: section loads; a multi-start case is
+   * loaded again with its start as overrides. */
+  if (rc == 0 && *out && p->command == MRVI_BATCH_OPTIMIZE) {
+    const int n_keys = n_over;
+    rc = guess_overrides(*out, p->seed[c], p->pert.control_std, &over, &n_over,
+                         text, sizeof text);
+    if (rc == 0 && n_over > n_keys) {
+      mrvi_system_free(*out);
+      *out = NULL;
+      rc = mrvi_system_load_string(p->description, p->source,
+                                   (const char *const *)over, n_over, out, text,
+                                   sizeof text);
+    }
+  }
+  int dof = 0;
   if (rc == 0 && *out &&
-      note_perturbation(*out, p->seed[c], p->velocity_std) < 0) {
+      (rc = mrvi_batch_perturb_apply(*out, p->seed[c], &p->pert, &dof, text,
+                                     sizeof text)) == 0 &&
+      mrvi_batch_perturb_note(*out, p->seed[c], &p->pert, dof) < 0) {
     mrvi_fmt(text, sizeof text, "out of memory");
-    mrvi_system_free(*out);
-    *out = NULL;
     rc = MRVI_ENOMEM;
   }
-  if (rc == 0 && *out &&
-      perturb((*out)->model, p->seed[c], p->velocity_std) < 0) {
-    mrvi_fmt(text, sizeof text, "velocity perturbation: %s",
-             mrvi_model_errmsg((*out)->model));
+  if (rc < 0 || !*out) {
     mrvi_system_free(*out);
     *out = NULL;
-    rc = MRVI_EINVAL;
-  }
-  if (rc < 0 || !*out) {
     mrvi_fmt(msg, len, "%s: %s", name,
              text[0] ? text : mrvi_strerror(rc < 0 ? rc : MRVI_EPARSE));
     rc = rc < 0 ? rc : MRVI_EPARSE;
   }
-  for (int j = 0; over && j < p->n_keys; j++)
+  for (int j = 0; over && j < n_over; j++)
     free(over[j]);
   free(over);
   return rc;
@@ -316,15 +363,17 @@ int mrvi_batch_plan_check(const mrvi_batch_plan *p, char *msg, size_t len) {
 }
 
 /* ---------------------------------------------------------------------------
- * The plan as bytes: "MRVIPLN1", int32 n_cases, n_keys, n_seeds, double
- * velocity_std, int64 seed[n_cases], then '\0'-terminated strings:
+ * The plan as bytes: "MRVIPLN3", int32 n_cases, n_keys, n_seeds, command,
+ * mrvi_batch_perturb (raw: the ranks run one binary), int64
+ * seed[n_cases], then
+ * '\0'-terminated strings:
  * description, source, keys, values (row-major).
  * ------------------------------------------------------------------------- */
-static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '1'};
+static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '3'};
 
 int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   const long nv = (long)p->n_cases * p->n_keys;
-  size_t n = sizeof plan_magic + 3 * sizeof(int32_t) + sizeof(double) +
+  size_t n = sizeof plan_magic + 4 * sizeof(int32_t) + sizeof p->pert +
              (size_t)p->n_cases * sizeof(int64_t) + strlen(p->description) +
              strlen(p->source) + 2;
   for (int j = 0; j < p->n_keys; j++)
@@ -334,10 +383,10 @@ int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   char *b = malloc(n), *at = b;
   if (!b)
     return MRVI_ENOMEM;
-  const int32_t counts[3] = {p->n_cases, p->n_keys, p->n_seeds};
+  const int32_t counts[4] = {p->n_cases, p->n_keys, p->n_seeds, p->command};
   memcpy(at, plan_magic, sizeof plan_magic), at += sizeof plan_magic;
   memcpy(at, counts, sizeof counts), at += sizeof counts;
-  memcpy(at, &p->velocity_std, sizeof(double)), at += sizeof(double);
+  memcpy(at, &p->pert, sizeof p->pert), at += sizeof p->pert;
   for (int c = 0; c < p->n_cases; c++) {
     int64_t s = p->seed[c];
     memcpy(at, &s, sizeof s), at += sizeof s;
@@ -367,13 +416,15 @@ static char *take_string(const char **at, const char *end) {
 
 int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *p) {
   memset(p, 0, sizeof *p);
-  int32_t counts[3];
-  const size_t head = sizeof plan_magic + sizeof counts + sizeof(double);
+  int32_t counts[4];
+  const size_t head = sizeof plan_magic + sizeof counts + sizeof p->pert;
   if (size < head || memcmp(buf, plan_magic, sizeof plan_magic))
     return MRVI_EINVAL;
   memcpy(counts, buf + sizeof plan_magic, sizeof counts);
-  memcpy(&p->velocity_std, buf + sizeof plan_magic + sizeof counts,
-         sizeof(double));
+  memcpy(&p->pert, buf + sizeof plan_magic + sizeof counts, sizeof p->pert);
+  if (counts[3] != MRVI_BATCH_RUN && counts[3] != MRVI_BATCH_OPTIMIZE)
+    return MRVI_EINVAL;
+  p->command = counts[3];
   if (counts[0] < 1 || counts[0] > 1000000 || counts[1] < 0 ||
       counts[1] > 1000000 || counts[2] < 0 ||
       (size - head) / sizeof(int64_t) < (size_t)counts[0] ||

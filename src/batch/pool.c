@@ -27,12 +27,64 @@
 
 int mrvi_batch_cores(void) { return mrvi_cores(); }
 
+/* Each evaluation of an optimize case: a row of /optimizer/history. */
+static int on_evaluation(void *data, int it, double cost, double viol,
+                         double gnorm, double kkt) {
+  (void)it;
+  return mrvi_ocp_output_iteration(data, cost, viol, gnorm, kkt) < 0;
+}
+
+/* An optimize case into `path`, as `mrvi optimize FILE --set ... -o path`
+ * writes it: completed when the optimiser converged, else failed with the
+ * status (max_evaluations, terminal_not_met, ...). */
+static void case_optimize(mrvi_system *sys, const char *path,
+                          mrvi_batch_result *res) {
+  char msg[4096];
+  mrvi_ocp *o = NULL;
+  double *u = NULL;
+  mrvi_ocp_output *out = NULL;
+  if (mrvi_ocp_load(sys, &o, &u, msg, sizeof msg) < 0 ||
+      mrvi_ocp_output_open(path, sys, o, &out, msg, sizeof msg) < 0) {
+    mrvi_fmt(res->reason, sizeof res->reason, "%s", msg);
+    free(u);
+    mrvi_ocp_free(o);
+    return;
+  }
+  mrvi_ocp_set_callback(o, on_evaluation, out);
+  const double t0 = mrvi_clock();
+  mrvi_ocp_result r;
+  memset(&r, 0, sizeof r); /* a failure before NLopt starts sets nothing */
+  r.cost = r.violation = NAN;
+  const int st = mrvi_ocp_solve(o, u, &r);
+  res->wall_time = mrvi_clock() - t0;
+  if (!r.status[0]) /* failed before NLopt started */
+    mrvi_fmt(r.status, sizeof r.status, "%s", "failed");
+  res->steps = mrvi_ocp_n_steps(o);
+  res->cost = r.cost;
+  res->violation = r.violation;
+  res->evaluations = r.evaluations;
+  mrvi_fmt(res->nlopt, sizeof res->nlopt, "%s", r.nlopt_name);
+  if (st == 0)
+    mrvi_fmt(res->reason, sizeof res->reason, "completed");
+  else
+    mrvi_fmt(res->reason, sizeof res->reason, "%s: %s", r.status,
+             mrvi_ocp_errmsg(o));
+  if (mrvi_ocp_output_close(out, u, &r, r.status, msg, sizeof msg) < 0) {
+    mrvi_fmt(res->reason, sizeof res->reason, "%s", msg);
+  } else if (st == 0) {
+    res->status = MRVI_BATCH_COMPLETED;
+  }
+  free(u);
+  mrvi_ocp_free(o);
+}
+
 void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
                          mrvi_batch_result *res) {
   memset(res, 0, sizeof *res);
   res->c = c;
   res->status = MRVI_BATCH_FAILED;
   res->energy_error = NAN;
+  res->cost = res->violation = NAN;
   char msg[4096];
   mrvi_system *sys = NULL;
   if (mrvi_batch_case_load(plan, c, &sys, msg, sizeof msg) < 0) {
@@ -41,6 +93,11 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
   }
   if (plan->threads > 0)
     sys->settings.threads = plan->threads;
+  if (plan->command == MRVI_BATCH_OPTIMIZE) {
+    case_optimize(sys, path, res);
+    mrvi_system_free(sys);
+    return;
+  }
   /* The options of `mrvi run` for this description. */
   mrvi_writer_options opt = mrvi_system_writer_options(sys);
   opt.force = 1;
@@ -111,6 +168,7 @@ static void worker(const mrvi_batch_plan *plan, const char *master, int fd_in,
     if (mrvi_batch_case_file(master, c, 0, path, sizeof path) < 0) {
       memset(&res, 0, sizeof res);
       res.c = c;
+      res.energy_error = res.cost = res.violation = NAN;
       res.status = MRVI_BATCH_FAILED;
       snprintf(res.reason, sizeof res.reason, "case file name too long");
     } else {
@@ -140,7 +198,7 @@ static mrvi_batch_result not_run(int c, const char *why, int code) {
   memset(&res, 0, sizeof res);
   res.c = c;
   res.status = MRVI_BATCH_PENDING;
-  res.energy_error = NAN;
+  res.energy_error = res.cost = res.violation = NAN;
   snprintf(res.reason, sizeof res.reason, "%s %d (not run: --resume runs it)",
            why, code);
   return res;

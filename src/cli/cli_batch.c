@@ -19,7 +19,9 @@ const char mrvi_usage_batch[] =
     "[--zip]\n"
     "                  [--seeds N [--velocity-std S]] [--jobs N] [--threads "
     "T]\n"
-    "                  [--quiet]\n"
+    "                  [--quiet] [--optimize [--control-std S]]\n"
+    "                  [--position-std S] [--temperature T]\n"
+    "                  [--rotation-std A|--rotations uniform]\n"
     "       mrvi batch --resume OUT.h5 [--jobs N] [--threads T] [--quiet]\n"
     "\n"
     "Run FILE once per case: a case is 'mrvi run FILE --set KEY=VALUE' for\n"
@@ -31,9 +33,12 @@ const char mrvi_usage_batch[] =
     "stop_reason, steps, wall_time, energy_error) and external links\n"
     "/runs/case_CCCC to the case files (doc/batch.md).\n"
     "\n"
-    "The description's batch: section may hold vary, zip, seeds, velocity_std\n"
-    "and jobs in the same vocabulary; the command line overrides or extends\n"
-    "it (a --vary of a key the file varies replaces the file's values).\n"
+    "The description's batch: section may hold vary, zip, seeds, command\n"
+    "(run or optimize), the perturbations (velocity_std, position_std,\n"
+    "position_distribution, temperature, rotation_std, rotations,\n"
+    "control_std) and jobs in the same vocabulary; the command line\n"
+    "overrides or extends it (a --vary of a key the file varies replaces\n"
+    "the file's values).\n"
     "\n"
     "Options:\n"
     "  -o, --output OUT.h5   the master file\n"
@@ -47,6 +52,14 @@ const char mrvi_usage_batch[] =
     "                        by S times standard normal numbers of its seed\n"
     "                        (projected onto the constraints); the numbers\n"
     "                        depend on the seed alone (doc/batch.md)\n"
+    "      --position-std S, --position-distribution gaussian|uniform,\n"
+    "      --temperature T, --rotation-std A, --rotations uniform\n"
+    "                        perturb a seeded case's positions (projected),\n"
+    "                        set thermal velocities (zero net momentum) or\n"
+    "                        turn its bodies (doc/batch.md, Ensembles)\n"
+    "      --optimize        cases are 'mrvi optimize' (doc/batch.md)\n"
+    "      --control-std S   multi-start: perturb a seeded case's initial\n"
+    "                        guess by S times normal numbers of its seed\n"
     "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
     "                        cores available)\n"
     "      --threads T       threads of each case's element loops (default:\n"
@@ -60,7 +73,8 @@ const char mrvi_usage_batch[] =
     "  -h, --help            show this help\n"
     "\n"
     "A case that fails (Newton failure, non-finite state) is recorded with\n"
-    "its reason and the others go on.  Not yet: optimize cases.\n"
+    "its reason and the others go on; an optimize case that does not\n"
+    "converge is recorded as failed with the optimiser's status.\n"
     "\n"
     "MPI (built with meson -Dmpi=enabled): 'mpiexec -n R mrvi batch ...'\n"
     "hands the cases out over R ranks, each with its own --jobs workers\n"
@@ -75,7 +89,7 @@ const char mrvi_usage_batch[] =
 
 typedef struct batch_ctx {
   const char *out;
-  int quiet, ranks, finished, failed, unfinished, total;
+  int quiet, ranks, finished, failed, unfinished, total, optimize;
 } batch_ctx;
 
 /* A finished case: its row of the table, and a line. */
@@ -104,12 +118,48 @@ static int on_done(void *user, const mrvi_batch_result *res) {
   char where[32] = "";
   if (b->ranks > 1)
     snprintf(where, sizeof where, " (rank %d)", res->rank);
-  if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
+  if ((!b->quiet || res->status != MRVI_BATCH_COMPLETED) && b->optimize)
+    fprintf(stderr,
+            "mrvi batch: [%d/%d] case %d%s: %s (cost %.12e, violation "
+            "%.3e, %d evaluations, NLopt %s, %.3f s)\n",
+            b->finished, b->total, res->c, where, res->reason, res->cost,
+            res->violation, res->evaluations, res->nlopt[0] ? res->nlopt : "-",
+            res->wall_time);
+  else if (!b->quiet || res->status != MRVI_BATCH_COMPLETED)
     fprintf(stderr,
             "mrvi batch: [%d/%d] case %d%s: %s (%ld steps, %.3f s, "
             "energy error %.3e)\n",
             b->finished, b->total, res->c, where, res->reason, res->steps,
             res->wall_time, res->energy_error);
+  return 0;
+}
+
+/* An optimize batch: the best case over the whole table (this run's
+ * cases and those of earlier runs of a resumed batch) into /best_case,
+ * and a line. */
+static int print_best(const char *out, int quiet) {
+  char msg[MSG_LEN];
+  mrvi_batch_file *f = NULL;
+  int best = -1;
+  double cost = NAN;
+  int st = mrvi_batch_file_open(out, NULL, NULL, &f, msg, sizeof msg);
+  if (st == 0)
+    st = mrvi_batch_file_best(f, &best, &cost, msg, sizeof msg);
+  char close_msg[MSG_LEN];
+  if (mrvi_batch_file_close(f, close_msg, sizeof close_msg) < 0 && st == 0) {
+    st = MRVI_EIO;
+    snprintf(msg, sizeof msg, "%s", close_msg);
+  }
+  if (st < 0) {
+    fprintf(stderr, "mrvi batch: %s\n", msg);
+    return st;
+  }
+  char file[4096] = "";
+  mrvi_batch_case_file(out, best, 0, file, sizeof file);
+  if (!quiet && best >= 0)
+    printf("%s: best case %d, cost %.12e (%s)\n", out, best, cost, file);
+  else if (!quiet)
+    printf("%s: no case converged\n", out);
   return 0;
 }
 
@@ -129,14 +179,39 @@ static int usage_fail(const char *what) {
   return EXIT_INPUT;
 }
 
+/* --velocity-std, --control-std, --position-std, --temperature,
+ * --rotation-std S into pt: 1 when `a` is one of them (*rc set when its
+ * value is not a number), else 0. */
+static int std_option(const char *a, const char *v, mrvi_batch_perturb *pt,
+                      int *rc) {
+  static const char *const names[] = {"--velocity-std", "--control-std",
+                                      "--position-std", "--temperature",
+                                      "--rotation-std"};
+  double *const to[] = {&pt->velocity_std, &pt->control_std, &pt->position_std,
+                        &pt->temperature, &pt->rotation_std};
+  for (int i = 0; i < 5; i++)
+    if (!strcmp(a, names[i])) {
+      char *end, what[64];
+      *to[i] = strtod(v, &end);
+      if (*end || end == v || isnan(*to[i])) {
+        snprintf(what, sizeof what, "%s takes a number", a);
+        *rc = usage_fail(what);
+      }
+      return 1;
+    }
+  return 0;
+}
+
 /* The description's `batch:` section under the command line: the file's
  * --vary entries in its order, a --vary of the same key on the command
  * line in place of the file's, the other --vary after them; --zip,
- * --seeds, --velocity-std and --jobs over the file's (doc/batch.md).  On
+ * --seeds, the perturbations, --optimize and --jobs over the file's
+ * (doc/batch.md).  On
  * return *axes holds every axis (the command line's moved into it). */
 static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
-                        int *n_axes, int *zip, int *seeds, double *vstd,
-                        int *jobs, char *msg, size_t len) {
+                        int *n_axes, int *zip, int *seeds, int *command,
+                        mrvi_batch_perturb *pt, int *jobs, char *msg,
+                        size_t len) {
   mrvi_batch_section sec;
   if (mrvi_batch_section_read(base, &sec, msg, len) < 0)
     return -1;
@@ -170,10 +245,24 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
     *zip = *zip || sec.zip == 1;
     if (*seeds < 0)
       *seeds = sec.seeds > 0 ? sec.seeds : 0;
-    if (isnan(*vstd))
-      *vstd = isnan(sec.velocity_std) ? 0.0 : sec.velocity_std;
+    /* NAN, -1: not given on the command line; then the file's, or 0. */
+    double *const mine[] = {&pt->velocity_std, &pt->control_std,
+                            &pt->position_std, &pt->temperature,
+                            &pt->rotation_std};
+    const double file[] = {sec.velocity_std, sec.control_std, sec.position_std,
+                           sec.temperature, sec.rotation_std};
+    for (int i = 0; i < 5; i++)
+      if (isnan(*mine[i]))
+        *mine[i] = isnan(file[i]) ? 0.0 : file[i];
+    if (pt->position_uniform < 0)
+      pt->position_uniform = sec.position_uniform > 0;
+    if (pt->rotation_uniform < 0)
+      pt->rotation_uniform = sec.rotation_uniform > 0;
     if (*jobs == 0 && sec.jobs > 0)
       *jobs = sec.jobs;
+    if (*command < 0)
+      *command = sec.command >= 0 ? sec.command : MRVI_BATCH_RUN;
+
   } else {
     for (int i = 0; all && i < n; i++)
       mrvi_batch_axis_clear(&all[i]);
@@ -216,8 +305,17 @@ static int batch_follow(void) {
 
 int mrvi_cmd_batch(int argc, char **argv) {
   const char *file = NULL, *out = NULL, *resume = NULL;
-  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0, threads = 0;
-  double vstd = NAN; /* seeds -1, vstd NAN, jobs 0: not given */
+  int zip = 0, seeds = -1, jobs = 0, quiet = 0, n_axes = 0, command = -1;
+  int threads = 0;
+  /* seeds -1, jobs 0, threads 0, command -1, NAN and -1 in pt: not given */
+  mrvi_batch_perturb pt = {.velocity_std = NAN,
+                           .control_std = NAN,
+                           .position_std = NAN,
+                           .temperature = NAN,
+                           .rotation_std = NAN,
+                           .position_uniform = -1,
+                           .rotation_uniform = -1};
+  int perturbs = 0; /* a perturbation option given */
   char msg[MSG_LEN];
   int rank = 0, ranks = 1;
   if (mrvi_batch_mpi_begin(&rank, &ranks, msg, sizeof msg) < 0) {
@@ -232,11 +330,14 @@ int mrvi_cmd_batch(int argc, char **argv) {
   for (int i = 1; rc == 0 && i < argc; i++) {
     const char *a = argv[i];
     const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-    int takes = !strcmp(a, "-o") || !strcmp(a, "--output") ||
-                !strcmp(a, "--vary") || !strcmp(a, "--seeds") ||
-                !strcmp(a, "--velocity-std") || !strcmp(a, "-j") ||
-                !strcmp(a, "--jobs") || !strcmp(a, "--resume") ||
-                !strcmp(a, "--threads");
+    int takes =
+        !strcmp(a, "-o") || !strcmp(a, "--output") || !strcmp(a, "--vary") ||
+        !strcmp(a, "--seeds") || !strcmp(a, "--velocity-std") ||
+        !strcmp(a, "--control-std") || !strcmp(a, "--position-std") ||
+        !strcmp(a, "--position-distribution") || !strcmp(a, "--temperature") ||
+        !strcmp(a, "--rotation-std") || !strcmp(a, "--rotations") ||
+        !strcmp(a, "-j") || !strcmp(a, "--jobs") || !strcmp(a, "--resume") ||
+        !strcmp(a, "--threads");
     if (takes && !v) {
       snprintf(msg, sizeof msg, "%s needs a value", a);
       rc = usage_fail(msg);
@@ -268,11 +369,20 @@ int mrvi_cmd_batch(int argc, char **argv) {
     } else if (!strcmp(a, "--threads")) {
       if ((threads = mrvi_cli_threads("batch", "--threads", v)) < 0)
         rc = EXIT_INPUT;
-    } else if (!strcmp(a, "--velocity-std")) {
-      char *end;
-      vstd = strtod(v, &end);
-      if (*end || end == v || isnan(vstd))
-        rc = usage_fail("--velocity-std takes a number");
+    } else if (!strcmp(a, "--optimize")) {
+      command = MRVI_BATCH_OPTIMIZE;
+    } else if (std_option(a, v, &pt, &rc)) {
+      perturbs = 1;
+    } else if (!strcmp(a, "--position-distribution")) {
+      perturbs = 1;
+      pt.position_uniform = !strcmp(v, "uniform");
+      if (strcmp(v, "uniform") && strcmp(v, "gaussian"))
+        rc = usage_fail("--position-distribution takes gaussian or uniform");
+    } else if (!strcmp(a, "--rotations")) {
+      perturbs = 1;
+      pt.rotation_uniform = 1;
+      if (strcmp(v, "uniform"))
+        rc = usage_fail("--rotations takes uniform (or give --rotation-std)");
     } else if (a[0] == '-') {
       snprintf(msg, sizeof msg, "unknown option '%s'", a);
       rc = usage_fail(msg);
@@ -284,9 +394,10 @@ int mrvi_cmd_batch(int argc, char **argv) {
     }
   }
   if (rc == 0 && resume &&
-      (file || out || n_axes || zip || seeds >= 0 || !isnan(vstd)))
+      (file || out || n_axes || zip || seeds >= 0 || perturbs || command >= 0))
     rc = usage_fail("--resume takes the cases from OUT.h5: give no FILE, -o, "
-                    "--vary, --zip, --seeds or --velocity-std with it");
+                    "--vary, --zip, --seeds, --optimize or a perturbation "
+                    "with it");
   if (rc == 0 && !resume && (!file || !out))
     rc = usage_fail("give FILE and -o OUT.h5 (or --resume OUT.h5)");
   if (rc == 0 && file && out) {
@@ -313,12 +424,12 @@ int mrvi_cmd_batch(int argc, char **argv) {
     if (mrvi_system_load(file, NULL, 0, &base, msg, sizeof msg) < 0 || !base) {
       fprintf(stderr, "%s\n", msg);
       rc = EXIT_INPUT;
-    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &vstd, &jobs,
-                            msg, sizeof msg) < 0) {
+    } else if (with_section(base, &axes, &n_axes, &zip, &seeds, &command, &pt,
+                            &jobs, msg, sizeof msg) < 0) {
       fprintf(stderr, "mrvi batch: %s\n", msg);
       rc = EXIT_INPUT;
     } else if (mrvi_batch_plan_build(&plan, base->description, file, axes,
-                                     n_axes, zip, seeds, vstd, msg,
+                                     n_axes, zip, seeds, command, &pt, msg,
                                      sizeof msg) < 0) {
       rc = usage_fail(msg);
     }
@@ -360,7 +471,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
   plan.threads = ranks > 1 ? (threads > 0 ? threads : 1)
                            : case_threads(threads, mrvi_batch_cores(), jobs);
 
-  batch_ctx ctx = {.out = out, .quiet = quiet, .ranks = ranks, .total = n_todo};
+  batch_ctx ctx = {.out = out,
+                   .quiet = quiet,
+                   .ranks = ranks,
+                   .total = n_todo,
+                   .optimize = plan.command == MRVI_BATCH_OPTIMIZE};
   if (rc == 0) {
     if (!quiet && ranks > 1)
       fprintf(stderr, "mrvi batch: %d case%s%s on %d ranks x %d job%s -> %s\n",
@@ -380,6 +495,8 @@ int mrvi_cmd_batch(int argc, char **argv) {
       printf("%s: %d of %d cases completed, %d failed, %d not run\n", out,
              ctx.finished - ctx.failed - ctx.unfinished, n_todo, ctx.failed,
              n_todo - (ctx.finished - ctx.unfinished));
+    if (st == 0 && ctx.optimize && print_best(out, quiet) < 0)
+      st = MRVI_EIO;
     rc = st < 0 || ctx.failed > 0 || ctx.unfinished > 0 || ctx.finished < n_todo
              ? EXIT_RUN
              : 0;

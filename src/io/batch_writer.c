@@ -11,11 +11,14 @@
  * each row either pending or complete (the status entry is written last).
  *
  * Layout: root attributes mrvi_version, batch_version, source, keys
- * ('\n'-separated), n_seeds, velocity_std; /cases/ overrides (fixed strings
+ * ('\n'-separated), n_seeds, velocity_std, position_std, position_uniform,
+ * temperature, rotation_std, rotation_uniform; /cases/ overrides (fixed strings
  * "KEY=VALUE" '\n'-separated), /cases/values/KEY (the value as a number, NAN
  * when it is not one), seed, status, steps, wall_time, energy_error,
  * stop_reason, file; /description (the text before overrides); /runs/case_CCCC
- * external links to "/" of each case file. */
+ * external links to "/" of each case file.  A batch of `optimize` cases
+ * (root attribute command "optimize", control_std) also has /cases/cost,
+ * violation, evaluations, nlopt_result and the scalar /best_case. */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -28,10 +31,12 @@
 
 #define OVERRIDES_BYTES 1024
 #define FILE_BYTES 512
+#define NLOPT_BYTES 48
 
 struct mrvi_batch_file {
   char *path;
   hid_t file;
+  int optimize; /* the table has the columns of optimize cases */
   mrvi_h5_quiet q;
 };
 
@@ -158,16 +163,28 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   mrvi_h5_batch_attr_string(b, root, "keys", keys);
   free(keys);
   mrvi_h5_batch_attr_int(b, root, "n_seeds", p->n_seeds);
-  mrvi_h5_batch_attr_double(b, root, "velocity_std", p->velocity_std);
+  const mrvi_batch_perturb *pt = &p->pert;
+  mrvi_h5_batch_attr_double(b, root, "velocity_std", pt->velocity_std);
+  mrvi_h5_batch_attr_double(b, root, "position_std", pt->position_std);
+  mrvi_h5_batch_attr_int(b, root, "position_uniform", pt->position_uniform);
+  mrvi_h5_batch_attr_double(b, root, "temperature", pt->temperature);
+  mrvi_h5_batch_attr_double(b, root, "rotation_std", pt->rotation_std);
+  mrvi_h5_batch_attr_int(b, root, "rotation_uniform", pt->rotation_uniform);
+  const int opt = p->command == MRVI_BATCH_OPTIMIZE;
+  mrvi_h5_batch_attr_string(b, root, "command", opt ? "optimize" : "run");
+  if (opt)
+    mrvi_h5_batch_attr_double(b, root, "control_std", pt->control_std);
 
   char *over = calloc(n, OVERRIDES_BYTES);
   char *files = calloc(n, FILE_BYTES);
   double *num = malloc(n * sizeof *num);
-  double *zero = calloc(n, sizeof *zero);
+  double *zero = calloc(n, sizeof *zero), *nan = malloc(n * sizeof *nan);
+  char *nlopt = calloc(n, NLOPT_BYTES);
   int *status = calloc(n, sizeof *status);
   long *steps = calloc(n, sizeof *steps);
   char *reasons = calloc(n, MRVI_BATCH_REASON_BYTES);
-  if (!over || !files || !num || !zero || !status || !steps || !reasons)
+  if (!over || !files || !num || !zero || !nan || !nlopt || !status || !steps ||
+      !reasons)
     mrvi_h5_batch_fail_text(b, MRVI_ENOMEM, "out of memory");
   hid_t cases = mrvi_h5_batch_group(b, root, "cases");
   hid_t runs = mrvi_h5_batch_group(b, root, "runs");
@@ -210,6 +227,20 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   mrvi_h5_batch_doubles(b, cases, "energy_error", zero, n, 0);
   write_strings(b, cases, "stop_reason", reasons, n, MRVI_BATCH_REASON_BYTES);
   write_strings(b, cases, "file", files, n, FILE_BYTES);
+  if (opt && nan) {
+    for (hsize_t c = 0; c < n; c++)
+      nan[c] = NAN;
+    mrvi_h5_batch_doubles(b, cases, "cost", nan, n, 0);
+    mrvi_h5_batch_doubles(b, cases, "violation", nan, n, 0);
+    mrvi_h5_batch_ints(b, cases, "evaluations", status, n, 0);
+    write_strings(b, cases, "nlopt_result", nlopt, n, NLOPT_BYTES);
+    const long none = -1;
+    if (b->status == 0 &&
+        mrvi_h5_write_fixed(root, "best_case", H5P_DEFAULT, H5T_STD_I64LE,
+                            H5T_NATIVE_LONG, 0, 0, 1, &none,
+                            "the completed case of lowest cost (-1: none)") < 0)
+      mrvi_h5_batch_fail(b, "best_case");
+  }
   mrvi_h5_batch_ints(b, cases, "status", status, n, 0);
   if (values >= 0)
     H5Gclose(values);
@@ -221,6 +252,8 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   free(files);
   free(num);
   free(zero);
+  free(nan);
+  free(nlopt);
   free(status);
   free(steps);
   free(reasons);
@@ -276,6 +309,7 @@ int mrvi_batch_file_create(const char *path, const mrvi_batch_plan *plan,
   if (b.file < 0)
     mrvi_h5_batch_fail(&b, "cannot create the file");
   f->file = b.file;
+  f->optimize = plan->command == MRVI_BATCH_OPTIMIZE;
   write_plan(&b, path, plan);
   if (b.status == 0 && H5Fflush(f->file, H5F_SCOPE_GLOBAL) < 0)
     mrvi_h5_batch_fail(&b, "flushing");
@@ -315,8 +349,43 @@ static int read_plan(const mrvi_h5in *in, mrvi_batch_plan *p, int **status) {
   if (rc == 0 && mrvi_h5in_attr_number(in, "n_seeds", 0, MAX_CASES, 1, &v) < 0)
     rc = MRVI_EIO;
   p->n_seeds = (int)v;
+  mrvi_batch_perturb *pt = &p->pert;
   if (rc == 0 && mrvi_h5in_attr_number(in, "velocity_std", 0, 1e300, 0,
-                                       &p->velocity_std) < 0)
+                                       &pt->velocity_std) < 0)
+    rc = MRVI_EIO;
+  /* The other perturbations: absent in a file of an older writer. */
+  const char *const names[] = {"position_std", "position_uniform",
+                               "temperature", "rotation_std",
+                               "rotation_uniform"};
+  double *const into[] = {&pt->position_std, &v, &pt->temperature,
+                          &pt->rotation_std, &v};
+  const int flag[] = {0, 1, 0, 0, 1}; /* 0 or 1, else a number >= 0 */
+  for (int i = 0; rc == 0 && i < 5; i++) {
+    v = 0;
+    if (mrvi_h5in_has_attr(in, names[i]) &&
+        mrvi_h5in_attr_number(in, names[i], 0, flag[i] ? 1 : 1e300, flag[i],
+                              into[i]) < 0)
+      rc = MRVI_EIO;
+    if (i == 1)
+      pt->position_uniform = (int)v;
+    if (i == 4)
+      pt->rotation_uniform = (int)v;
+  }
+  /* command and control_std: absent in a run batch of an older writer. */
+  char command[16] = "run";
+  if (rc == 0 && mrvi_h5in_has_attr(in, "command") &&
+      mrvi_h5in_attr_string(in, "command", command, sizeof command) < 0)
+    rc = MRVI_EIO;
+  p->command =
+      !strcmp(command, "optimize") ? MRVI_BATCH_OPTIMIZE : MRVI_BATCH_RUN;
+  if (rc == 0 && strcmp(command, "run") && strcmp(command, "optimize")) {
+    mrvi_fmt(in->msg, in->len, "%s: command '%s' is neither run nor optimize",
+             in->path, command);
+    rc = MRVI_EIO;
+  }
+  if (rc == 0 && p->command == MRVI_BATCH_OPTIMIZE &&
+      mrvi_h5in_attr_number(in, "control_std", 0, 1e300, 0, &pt->control_std) <
+          0)
     rc = MRVI_EIO;
   if (rc == 0 &&
       mrvi_h5in_read_new(in, "/cases/status", H5T_NATIVE_INT, 1, NULL,
@@ -414,6 +483,7 @@ int mrvi_batch_file_open(const char *path, mrvi_batch_plan *plan, int **status,
   }
   mrvi_h5in in = {.file = f->file, .path = path, .msg = msg, .len = len};
   int rc = plan ? read_plan(&in, plan, status) : 0;
+  f->optimize = mrvi_h5in_exists(&in, "/best_case");
   if (rc) {
     file_free(f);
     return rc;
@@ -444,6 +514,27 @@ static herr_t write_entry(hid_t g, const char *name, hid_t mtype, int c,
   return rc;
 }
 
+/* The entries of an optimize case's row. */
+static herr_t optimize_entries(hid_t cases, const mrvi_batch_result *res) {
+  char nlopt[NLOPT_BYTES] = {0};
+  snprintf(nlopt, sizeof nlopt, "%s", res->nlopt);
+  hid_t t = fixed_string(NLOPT_BYTES);
+  herr_t rc = t >= 0 ? 0 : -1;
+  if (rc >= 0)
+    rc = write_entry(cases, "cost", H5T_NATIVE_DOUBLE, res->c, &res->cost);
+  if (rc >= 0)
+    rc = write_entry(cases, "violation", H5T_NATIVE_DOUBLE, res->c,
+                     &res->violation);
+  if (rc >= 0)
+    rc = write_entry(cases, "evaluations", H5T_NATIVE_INT, res->c,
+                     &res->evaluations);
+  if (rc >= 0)
+    rc = write_entry(cases, "nlopt_result", t, res->c, nlopt);
+  if (t >= 0)
+    H5Tclose(t);
+  return rc;
+}
+
 int mrvi_batch_file_row(mrvi_batch_file *f, const mrvi_batch_result *res,
                         char *msg, size_t len) {
   hid_t cases = H5Gopen2(f->file, "cases", H5P_DEFAULT);
@@ -462,6 +553,8 @@ int mrvi_batch_file_row(mrvi_batch_file *f, const mrvi_batch_result *res,
                      &res->energy_error);
   if (rc >= 0)
     rc = write_entry(cases, "stop_reason", t, res->c, reason);
+  if (rc >= 0 && f->optimize)
+    rc = optimize_entries(cases, res);
   if (rc >= 0)
     rc = H5Fflush(f->file, H5F_SCOPE_GLOBAL);
   if (rc >= 0)
@@ -488,4 +581,47 @@ int mrvi_batch_file_close(mrvi_batch_file *f, char *msg, size_t len) {
   f->file = H5I_INVALID_HID;
   file_free(f);
   return rc;
+}
+
+int mrvi_batch_file_best(mrvi_batch_file *f, int *best, double *cost, char *msg,
+                         size_t len) {
+  *best = -1;
+  *cost = NAN;
+  if (!f->optimize)
+    return 0;
+  mrvi_h5in in = {.file = f->file, .path = f->path, .msg = msg, .len = len};
+  int *status = NULL;
+  double *J = NULL;
+  hsize_t dims[1] = {0};
+  int rc = mrvi_h5in_read_new(&in, "/cases/status", H5T_NATIVE_INT, 1, NULL,
+                              MRVI_H5_ANY, (void **)&status, dims);
+  if (rc == 0)
+    rc = mrvi_h5in_read_new(&in, "/cases/cost", H5T_NATIVE_DOUBLE, 1, dims,
+                            MRVI_H5_ANY, (void **)&J, NULL);
+  /* The lowest cost of the completed (converged) cases; ties: the first. */
+  for (hsize_t c = 0; rc == 0 && c < dims[0]; c++)
+    if (status[c] == MRVI_BATCH_COMPLETED && isfinite(J[c]) &&
+        (*best < 0 || J[c] < *cost)) {
+      *best = (int)c;
+      *cost = J[c];
+    }
+  free(status);
+  free(J);
+  if (rc < 0)
+    return MRVI_EIO;
+  /* In place, raw data only, as a row. */
+  const long b = *best;
+  hid_t d = H5Dopen2(f->file, "best_case", H5P_DEFAULT);
+  herr_t w =
+      d >= 0 ? H5Dwrite(d, H5T_NATIVE_LONG, H5S_ALL, H5S_ALL, H5P_DEFAULT, &b)
+             : -1;
+  if (d >= 0)
+    H5Dclose(d);
+  if (w >= 0)
+    w = H5Fflush(f->file, H5F_SCOPE_GLOBAL);
+  if (w < 0) {
+    mrvi_h5_error_message(msg, len, f->path, "writing /best_case");
+    return MRVI_EIO;
+  }
+  return 0;
 }

@@ -157,13 +157,16 @@ int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
 
 /* The `batch:` section of a description file (io/loader/batch.c): what
  * the command line of `mrvi batch` says, in the file.  Absent entries are
- * -1 (zip, seeds, jobs) or NAN (velocity_std). */
+ * -1 (zip, seeds, jobs, command, position_uniform, rotation_uniform) or
+ * NAN (the stds and temperature). */
 typedef struct mrvi_batch_section {
   int n_vary;
   char **vary;  /* n_vary: "KEY=VALUES" as --vary takes it */
   char **where; /* n_vary: "file:line:col" of the entry, for messages */
   int zip, seeds, jobs;
-  double velocity_std;
+  int command; /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE; -1 absent */
+  double velocity_std, control_std, position_std, temperature, rotation_std;
+  int position_uniform, rotation_uniform; /* -1 absent */
 } mrvi_batch_section;
 /* Read the `batch:` section of sys's description (every key, type and
  * range checked: "file:line:col: message" otherwise); no section: n_vary
@@ -179,20 +182,41 @@ enum {
   MRVI_BATCH_FAILED = 2     /* it ran and stopped: stop_reason says why */
 };
 #define MRVI_BATCH_REASON_BYTES 1024
+/* What a case is. */
+enum {
+  MRVI_BATCH_RUN = 0,     /* `mrvi run` */
+  MRVI_BATCH_OPTIMIZE = 1 /* `mrvi optimize` (multi-start: control_std) */
+};
+
+/* The perturbations of a seeded case (doc/batch.md, Ensembles); 0: none. */
+typedef struct mrvi_batch_perturb {
+  double velocity_std;  /* v0_i += std z_i */
+  double control_std;   /* optimize: the guess u_j += std z_j (in bounds) */
+  double position_std;  /* translational q0 += std z (particles, bodies'
+                         * centres, plain coordinates), projected */
+  int position_uniform; /* uniform numbers of that std instead of z */
+  double temperature;   /* > 0: thermal velocities of that temperature,
+                         * zero net momentum (replace v0) */
+  double rotation_std;  /* > 0: each body turned by a rotation vector of
+                         * that std per component (radians) */
+  int rotation_uniform; /* 1: each body turned uniformly on SO(D) */
+} mrvi_batch_perturb;
 
 /* The case table: case c is the description with the overrides
  * keys[j]=values[c * n_keys + j] and, when seed[c] >= 0, the initial
- * velocities perturbed by seed seed[c] with std velocity_std. */
+ * state (and for an optimize case the guess) perturbed by seed seed[c]
+ * as pert says. */
 typedef struct mrvi_batch_plan {
   char *description; /* the input text (before overrides) */
   char *source;      /* the file it came from (messages, root attribute) */
   int n_keys;
   char **keys; /* n_keys */
   int n_cases;
-  char **values; /* n_cases x n_keys, row-major */
-  long *seed;    /* n_cases; -1: no perturbation */
-  int n_seeds;   /* --seeds (0: none) */
-  double velocity_std;
+  char **values;           /* n_cases x n_keys, row-major */
+  long *seed;              /* n_cases; -1: no perturbation */
+  int n_seeds;             /* --seeds (0: none) */
+  int command;             /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE */
+  mrvi_batch_perturb pert; /* of the seeded cases */
   /* settings.threads of every case's run (0: the settings' own), chosen by
    * the command line for its jobs; not part of the packed plan */
   int threads;
@@ -206,6 +230,12 @@ typedef struct mrvi_batch_result {
   int rank;   /* the MPI rank that ran it (0 without MPI; not in the table) */
   long steps; /* macro steps completed */
   double wall_time, energy_error; /* s; max rel. energy error (mrvi_summary) */
+  /* optimize cases (NAN, 0, "" for runs): the cost and largest terminal
+   * violation at the returned controls, cost + gradient evaluations, and
+   * NLopt's stop reason (mrvi_ocp_result). */
+  double cost, violation;
+  int evaluations;
+  char nlopt[48];
   char reason[MRVI_BATCH_REASON_BYTES]; /* stop reason ("completed") */
 } mrvi_batch_result;
 
@@ -233,6 +263,11 @@ int mrvi_batch_file_open(const char *path, mrvi_batch_plan *plan, int **status,
  * and a batch killed at any instant leaves a readable table. */
 int mrvi_batch_file_row(mrvi_batch_file *f, const mrvi_batch_result *res,
                         char *msg, size_t len);
+/* An optimize batch: the completed case of lowest cost (-1: none) into
+ * *best and the master file's /best_case (written in place, as a row);
+ * a run batch: *best = -1, nothing written. */
+int mrvi_batch_file_best(mrvi_batch_file *f, int *best, double *cost, char *msg,
+                         size_t len);
 /* Close; NULL is accepted. */
 int mrvi_batch_file_close(mrvi_batch_file *f, char *msg, size_t len);
 

@@ -763,6 +763,11 @@ int mrvi_ocp_actuator_offset(const mrvi_ocp *o, int a) {
 }
 int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a) { return o->act[a].size; }
 int mrvi_ocp_n_actuators(const mrvi_ocp *o) { return o->n_act; }
+void mrvi_ocp_actuator_bounds(const mrvi_ocp *o, int a, double *lower,
+                              double *upper) {
+  *lower = o->act[a].lower;
+  *upper = o->act[a].upper;
+}
 const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a) {
   return o->act[a].name;
 }

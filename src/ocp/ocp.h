@@ -210,6 +210,9 @@ int mrvi_ocp_actuator_size(const mrvi_ocp *o, int a);
 /* Number of actuators; name (default: its coordinate's) and grid
  * (mrvi_grid) of actuator a. */
 int mrvi_ocp_n_actuators(const mrvi_ocp *o);
+/* Bounds of every value of actuator a (+-HUGE_VAL: none). */
+void mrvi_ocp_actuator_bounds(const mrvi_ocp *o, int a, double *lower,
+                              double *upper);
 const char *mrvi_ocp_actuator_name(const mrvi_ocp *o, int a);
 int mrvi_ocp_actuator_grid(const mrvi_ocp *o, int a);
 /* Model coordinate actuator a acts on (-1 for a pair actuator), and the

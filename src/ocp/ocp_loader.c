@@ -441,8 +441,11 @@ static const char *const solver_keys[] = {
 
 #define NKEYS(a) ((int)(sizeof a / sizeof a[0]))
 
+/* initial[a]: actuator a's `initial` when a number; lists[a]: its node
+ * when a list (one value per grid value, checked once the sizes are
+ * known: initial_values). */
 static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
-                          double *initial) {
+                          double *initial, struct fy_node **lists) {
   if (!list || !fy_node_is_sequence(list) ||
       fy_node_sequence_item_count(list) == 0)
     return fail(P, list, "control.actuators must be a non-empty list");
@@ -463,8 +466,12 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
                                   : coordinate(P, item, where, &c)) ||
         (st = number(P, item, "weight", where, &w)) ||
         (st = number_of(P, item, "lower", where, 1, &lo)) ||
-        (st = number_of(P, item, "upper", where, 1, &hi)) ||
-        (st = number(P, item, "initial", where, &u0)))
+        (st = number_of(P, item, "upper", where, 1, &hi)))
+      return st;
+    struct fy_node *init = get(item, "initial");
+    if (init && fy_node_is_sequence(init))
+      lists[i] = init;
+    else if ((st = number(P, item, "initial", where, &u0)))
       return st;
     mrvi_grid grid = MRVI_GRID_MACRO;
     struct fy_node *gn = get(item, "grid");
@@ -511,6 +518,40 @@ static int load_actuators(parser *P, struct fy_node *list, mrvi_ocp *o,
                          "'BODY.force' or the joint's; give a 'name')");
     initial[a] = u0;
     i++;
+  }
+  return MRVI_OK;
+}
+
+/* The initial guess u0 (n_controls): each actuator's number on its whole
+ * grid, or its list of one value per grid value, in its bounds (a start
+ * of a multi-start, doc/batch.md, is such a list). */
+static int initial_values(parser *P, const mrvi_ocp *o, const double *initial,
+                          struct fy_node *const *lists, double *u0) {
+  for (int a = 0; a < o->n_act; a++) {
+    const ocp_actuator *A = &o->act[a];
+    double *u = u0 + A->offset;
+    char where[48];
+    mrvi_fmt(where, sizeof where, "control.actuators[%d]", a);
+    if (!lists[a]) {
+      for (int j = 0; j < A->size; j++)
+        u[j] = initial[a];
+      continue;
+    }
+    if (fy_node_sequence_item_count(lists[a]) != A->size)
+      return fail(P, lists[a],
+                  "%s.initial: a number, or a list of one number per value "
+                  "of the actuator (%d on its %s grid), got %d",
+                  where, A->size,
+                  A->grid == MRVI_GRID_MACRO ? "macro" : "micro",
+                  fy_node_sequence_item_count(lists[a]));
+    int st = vector(P, lists[a], where, "initial", A->size, u);
+    if (st)
+      return st;
+    for (int j = 0; j < A->size; j++)
+      if (u[j] < A->lower || u[j] > A->upper)
+        return fail(P, fy_node_sequence_get_by_index(lists[a], j),
+                    "%s.initial: entry %d, %g, outside [%g, %g]", where, j,
+                    u[j], A->lower, A->upper);
   }
   return MRVI_OK;
 }
@@ -892,25 +933,32 @@ int mrvi_ocp_parse(const mrvi_model *m, const mrvi_settings *s,
   const int na =
       acts && fy_node_is_sequence(acts) ? fy_node_sequence_item_count(acts) : 0;
   double *initial = calloc((size_t)(na > 0 ? na : 1), sizeof *initial);
-  if (!initial) {
+  struct fy_node **lists = calloc((size_t)(na > 0 ? na : 1), sizeof *lists);
+  if (!initial || !lists) {
+    free(initial);
+    free(lists);
     mrvi_ocp_free(o);
     return fail(&P, control, "out of memory");
   }
   if (!acts)
     st = fail(&P, control, "control needs 'actuators'");
-  if (!st && !(st = load_actuators(&P, acts, o, initial)) &&
+  if (!st && !(st = load_actuators(&P, acts, o, initial, lists)) &&
       !(st = load_tracking(&P, get(control, "tracking"), o)) &&
       !(st = load_terminal(&P, get(control, "terminal"), o)))
     st = load_solver(&P, get(control, "solver"), o);
-  if (!st && u0) {
-    *u0 = malloc((size_t)o->n_u * sizeof **u0);
-    if (!*u0)
-      st = fail(&P, control, "out of memory");
-    for (int a = 0; !st && a < o->n_act; a++)
-      for (int j = 0; j < o->act[a].size; j++)
-        (*u0)[o->act[a].offset + j] = initial[a];
-  }
+  /* The guess is checked also when not asked for (mrvi check, mrvi run). */
+  double *guess =
+      st ? NULL : malloc((size_t)(o->n_u > 0 ? o->n_u : 1) * sizeof *guess);
+  if (!st && !guess)
+    st = fail(&P, control, "out of memory");
+  if (!st)
+    st = initial_values(&P, o, initial, lists, guess);
+  if (!st && u0)
+    *u0 = guess;
+  else
+    free(guess);
   free(initial);
+  free(lists);
   if (st) {
     mrvi_ocp_free(o);
     return st;

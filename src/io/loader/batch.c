@@ -8,6 +8,13 @@
  *     zip: false
  *     seeds: 8
  *     velocity_std: 0.01
+ *     command: run                # or optimize (a multi-start with
+ *     control_std: 0.5            #   control_std and seeds)
+ *     position_std: 1e-3          # translational positions, projected
+ *     position_distribution: gaussian   # or uniform
+ *     temperature: 0.5            # thermal velocities, no net momentum
+ *     rotation_std: 0.1           # bodies turned by small rotations,
+ *     rotations: uniform          #   or uniformly
  *     jobs: 2
  *
  * A run (`mrvi run`, `mrvi check`) checks the section and does nothing
@@ -22,8 +29,10 @@
 #include <stdlib.h>
 #include <string.h>
 
-static const char *const batch_keys[] = {"vary", "seeds", "velocity_std", "zip",
-                                         "jobs"};
+static const char *const batch_keys[] = {
+    "vary",        "seeds",        "velocity_std",          "zip",
+    "jobs",        "command",      "control_std",           "position_std",
+    "temperature", "rotation_std", "position_distribution", "rotations"};
 
 /* Append "KEY=VALUES" and its position to out. */
 static int add_vary(loader *L, mrvi_batch_section *out, struct fy_node *at,
@@ -104,6 +113,15 @@ static int read_vary_entry(loader *L, struct fy_node_pair *pair,
   return st;
 }
 
+/* A standard deviation: finite and >= 0. */
+static int std_value(loader *L, struct fy_node *n, const char *what,
+                     double *x) {
+  int st = mrvi_ld_as_number(L, n, what, x);
+  if (!st && (!(*x >= 0) || !isfinite(*x)))
+    return mrvi_ld_fail(L, n, "%s must be finite and >= 0, got %g", what, *x);
+  return st;
+}
+
 /* The section into out (NULL: check only). */
 static int read_batch(loader *L, struct fy_node *sec, mrvi_batch_section *out) {
   struct fy_node *n;
@@ -145,15 +163,57 @@ static int read_batch(loader *L, struct fy_node *sec, mrvi_batch_section *out) {
       out->zip = v;
   }
   if ((n = mrvi_ld_get(sec, "velocity_std"))) {
-    if ((st = mrvi_ld_as_number(L, n, "batch.velocity_std", &x)))
+    if ((st = std_value(L, n, "batch.velocity_std", &x)))
       return st;
-    if (!(x >= 0) || !isfinite(x))
-      return mrvi_ld_fail(L, n,
-                          "batch.velocity_std must be finite and >= 0, "
-                          "got %g",
-                          x);
     if (out)
       out->velocity_std = x;
+  }
+  if ((n = mrvi_ld_get(sec, "control_std"))) {
+    if ((st = std_value(L, n, "batch.control_std", &x)))
+      return st;
+    if (out)
+      out->control_std = x;
+  }
+  const char *const stds[] = {"position_std", "temperature", "rotation_std"};
+  double *const to[] = {out ? &out->position_std : NULL,
+                        out ? &out->temperature : NULL,
+                        out ? &out->rotation_std : NULL};
+  for (int i = 0; i < 3; i++)
+    if ((n = mrvi_ld_get(sec, stds[i]))) {
+      char what[40];
+      snprintf(what, sizeof what, "batch.%s", stds[i]);
+      if ((st = std_value(L, n, what, &x)))
+        return st;
+      if (out)
+        *to[i] = x;
+    }
+  if ((n = mrvi_ld_get(sec, "position_distribution"))) {
+    const char *s = fy_node_is_scalar(n) ? mrvi_ld_scalar0(n) : "";
+    if (strcmp(s, "gaussian") && strcmp(s, "uniform"))
+      return mrvi_ld_fail(L, n,
+                          "batch.position_distribution must be 'gaussian' or "
+                          "'uniform', got '%s'",
+                          s);
+    if (out)
+      out->position_uniform = !strcmp(s, "uniform");
+  }
+  if ((n = mrvi_ld_get(sec, "rotations"))) {
+    const char *s = fy_node_is_scalar(n) ? mrvi_ld_scalar0(n) : "";
+    if (strcmp(s, "uniform"))
+      return mrvi_ld_fail(L, n, "batch.rotations must be 'uniform', got '%s'",
+                          s);
+    if (out)
+      out->rotation_uniform = 1;
+  }
+  if ((n = mrvi_ld_get(sec, "command"))) {
+    const char *s = fy_node_is_scalar(n) ? mrvi_ld_scalar0(n) : "";
+    if (strcmp(s, "run") && strcmp(s, "optimize"))
+      return mrvi_ld_fail(L, n,
+                          "batch.command must be 'run' or 'optimize', "
+                          "got '%s'",
+                          s);
+    if (out)
+      out->command = strcmp(s, "run") ? MRVI_BATCH_OPTIMIZE : MRVI_BATCH_RUN;
   }
   return MRVI_OK;
 }
@@ -177,8 +237,10 @@ void mrvi_batch_section_free(mrvi_batch_section *sec) {
 int mrvi_batch_section_read(const mrvi_system *sys, mrvi_batch_section *out,
                             char *msg, size_t len) {
   memset(out, 0, sizeof *out);
-  out->zip = out->seeds = out->jobs = -1;
-  out->velocity_std = NAN;
+  out->zip = out->seeds = out->jobs = out->command = -1;
+  out->position_uniform = out->rotation_uniform = -1;
+  out->velocity_std = out->control_std = out->position_std = NAN;
+  out->temperature = out->rotation_std = NAN;
   loader L = {
       .path = sys->path ? sys->path : "<string>", .msg = msg, .len = len};
   L.diag = mrvi_ld_diag_create();
@@ -200,8 +262,10 @@ int mrvi_batch_section_read(const mrvi_system *sys, mrvi_batch_section *out,
     st = read_batch(&L, sec, out);
   if (st) {
     mrvi_batch_section_free(out);
-    out->zip = out->seeds = out->jobs = -1;
-    out->velocity_std = NAN;
+    out->zip = out->seeds = out->jobs = out->command = -1;
+    out->position_uniform = out->rotation_uniform = -1;
+    out->velocity_std = out->control_std = out->position_std = NAN;
+    out->temperature = out->rotation_std = NAN;
   } else {
     msg[0] = '\0';
   }
