@@ -743,6 +743,12 @@ typedef struct mrvi_settings {
    * same bit for bit for every count.  Above 1 in a build without OpenMP,
    * mrvi_settings_check refuses it (mrvi_threads_supported). */
   int threads;
+  /* 1: mrvi_run's steps keep the last fast micro node alone
+   * (mrvi_integrator_keep_micro): its observers see micro_count 1, the new
+   * macro node, at t_{k+1}; for runs whose micro nodes nobody reads (the
+   * CLI sets it when output.micro is off).  The trajectory is the same bit
+   * for bit.  0 (default): all p micro nodes. */
+  int micro_last_only;
 } mrvi_settings;
 
 /* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it,

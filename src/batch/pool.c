@@ -100,6 +100,7 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
   }
   /* The options of `mrvi run` for this description. */
   mrvi_writer_options opt = mrvi_system_writer_options(sys);
+  sys->settings.micro_last_only = !opt.micro && !opt.micro_slow; /* as run */
   opt.force = 1;
   mrvi_writer *w = NULL;
   if (mrvi_writer_open(path, sys->model, &sys->settings, &opt, &w, msg,

@@ -929,6 +929,8 @@ static int cmd_run(int argc, char **argv) {
     return EXIT_INPUT;
   if (a.threads > 0)
     sys->settings.threads = a.threads;
+  /* Without micro output nothing reads a step's inner micro nodes. */
+  sys->settings.micro_last_only = !sys->output_micro && !sys->output_micro_slow;
   char tmsg[256];
   if (mrvi_settings_check(&sys->settings, tmsg, sizeof tmsg) < 0) {
     fprintf(stderr, "mrvi run: %s\n", tmsg);

@@ -168,6 +168,15 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     sum->status = st;
     return st;
   }
+  /* The micro nodes each step hands to the observer: p, or the last. */
+  const int rows = s->micro_last_only ? mrvi_integrator_keep_micro(it, 0)
+                                      : s->micro_steps;
+  if (rows < 0) {
+    mrvi_fmt(sum->message, sizeof sum->message,
+             "out of memory keeping the last micro node");
+    mrvi_integrator_free(it);
+    return sum->status = rows;
+  }
   const long N = mrvi_settings_n_steps(s);
   const int nf = m->n_fast, p = s->micro_steps;
   const double dt = s->macro_step / p;
@@ -289,8 +298,8 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     observe_state(m, &pot, &r);
     r.iterations = iters;
     r.residual = mrvi_integrator_last_residual(it);
-    r.micro_count = p;
-    r.micro_t0 = (double)k * s->macro_step + dt;
+    r.micro_count = rows;
+    r.micro_t0 = rows == p ? (double)k * s->macro_step + dt : r.t;
     r.micro_q_fast = mrvi_integrator_micro_q(it);
     r.micro_p_fast = mrvi_integrator_micro_p(it);
     if (m->n_constraints > 0) {
