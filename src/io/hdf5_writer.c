@@ -202,6 +202,8 @@ static const int lambda_outputs[] = {MACRO_LAMBDA, JOINTS_FORCE, JOINTS_TORQUE};
   X("t_end", double, s->t_end, 1)                                              \
   X("newton_tolerance", double, s->newton_tol, 1)                              \
   X("newton_max_iterations", int, s->newton_max_iter, 1)                       \
+  X("newton_criterion", string, "scaled",                                      \
+    s->newton_criterion == MRVI_CRITERION_SCALED)                              \
   X("constraint_form", string,                                                 \
     s->constraint_form == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers", \
     w->n_lambda > 0)                                                           \
