@@ -257,4 +257,48 @@ else
   fail "gantry crane optimize: $(head -1 err.txt)"
 fi
 
+# --- a constrained model brought to rest: the terminal velocity is the
+# projected (hidden-constraint-consistent) one (issue 26, class 7).  A
+# pendulum of length 1 pushed along x from hanging to 45 degrees with
+# bob.x velocity 0: on the unprojected discrete momentum the replay ended
+# with a physical speed of 0.16 (its momentum (0, -0.22) projected onto the
+# tangent); the projected speed of the replay is now below the terminal
+# tolerance ---------------------------------------------------------------
+cat >pend.yaml <<'YAML'
+name: pend_rest
+dimension: 2
+gravity: [0, -9.81]
+particles:
+  - {name: bob, mass: 1, rate: slow, position: [0, -1], velocity: [0, 0]}
+constraints:
+  - {type: distance, name: rod, between: [bob], anchor: [0, 0], length: 1}
+integrator:
+  scheme: midpoint-midpoint
+  macro_step: 0.05
+  t_end: 1.5
+  newton: {tolerance: 1.0e-12}
+  constraints: {tolerance: 1.0e-12}
+control:
+  actuators:
+    - {name: fx, coordinate: bob.x, grid: macro}
+  terminal:
+    - {coordinate: bob.x, position: 0.70710678118654752, velocity: 0}
+  solver: {algorithm: slsqp, tolerance: 1.0e-12, terminal_tolerance: 1.0e-9}
+YAML
+"$mrvi" optimize pend.yaml -o pend_opt.h5 -q >out.txt 2>err.txt
+rc=$?
+"$mrvi" run pend.yaml --controls pend_opt.h5 -o pend_rep.h5 -q >rep.txt 2>&1
+rr=$?
+speed=$("$py" -c 'import sys, h5py, numpy as np
+f = h5py.File(sys.argv[1], "r")
+q, p = f["macro/q"][-1], f["macro/p"][-1]
+n = q / np.linalg.norm(q)
+print("%.3e" % np.linalg.norm(p - (p @ n) * n))' pend_rep.h5 2>&1)
+if [ $rc -eq 0 ] && [ $rr -eq 0 ] && [ "$(attr pend_opt.h5 status)" = converged ] &&
+  "$py" -c 'import sys; sys.exit(not float(sys.argv[1]) <= 1e-9)' "$speed" 2>/dev/null; then
+  pass "pendulum brought to rest: projected final speed $speed of the replay"
+else
+  fail "pendulum brought to rest: exit $rc/$rr, projected final speed $speed ($(head -1 err.txt) $(head -1 rep.txt))"
+fi
+
 test_finish

@@ -129,6 +129,10 @@ struct mrvi_ocp {
   int *h_ptr, *h_col; /* nonzeros of H's rows in the node columns (CSR) */
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
+  /* Terminal velocities of a constrained model (projected_velocity):
+   * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
+   * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */
+  double *pv;
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
   double ftol_rel, terminal_tol;
