@@ -1844,8 +1844,8 @@ static void test_scaled_criterion(void) {
   CHECK(d[1] <= 1e-10,
         "tiny mass, scaled criterion: sweep vs general %.2e relative", d[1]);
   /* (the case the criterion is for: the absolute one is far looser here) */
-  CHECK(d[0] > 1e3 * d[1],
-        "tiny mass: absolute %.2e against scaled %.2e", d[0], d[1]);
+  CHECK(d[0] > 1e3 * d[1], "tiny mass: absolute %.2e against scaled %.2e", d[0],
+        d[1]);
 }
 
 int main(void) {

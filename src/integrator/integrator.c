@@ -301,8 +301,9 @@ static double residual_floor(const mrvi_integrator *it) {
   double scale = 0.0;
   for (int s = 0; s < st->ns; s++) {
     const double M = m->mass[m->slow_index[s]];
-    const double a = fabs(it->ps[s]) +
-                     M * (fabs(it->qs[s]) + fabs(it->qs[s] + it->x[s])) / st->dT;
+    const double a =
+        fabs(it->ps[s]) +
+        M * (fabs(it->qs[s]) + fabs(it->qs[s] + it->x[s])) / st->dT;
     scale = fmax(scale, scaled ? a / M : a);
   }
   for (int s = 0; s < st->nf; s++) {
@@ -640,8 +641,9 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     /* Rows: the slow unknowns, then the fast ones of micro nodes 1..p. */
     it->rinv = alloc((size_t)it->step.n_unknowns);
     for (size_t r = 0; it->rinv && r < (size_t)it->step.n_unknowns; r++)
-      it->rinv[r] = 1.0 / m->mass[r < ns ? m->slow_index[r]
-                                         : m->fast_index[(r - ns) % nf]];
+      it->rinv[r] =
+          1.0 /
+          m->mass[r < ns ? m->slow_index[r] : m->fast_index[(r - ns) % nf]];
     if (!it->rinv)
       goto oom;
   }

@@ -274,7 +274,8 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
         q[j] = o->Q[final_node(o, j, &pj)];
         p[j] = o->pN[pj];
       }
-      const double v = projected_velocity(o, T->coord, q, p, dq, dp) - T->target;
+      const double v =
+          projected_velocity(o, T->coord, q, p, dq, dp) - T->target;
       const int f = T->penalty > 0.0 ? 0 : 1 + ic++;
       const double scale = f == 0 ? T->penalty * v : 1.0;
       val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
@@ -332,11 +333,10 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  o->nfun_alloc =
-      o->r && o->mu && o->rhs && o->sol && o->gz && o->h_of_a && o->Ak &&
-              (R == 0 || o->pv)
-          ? nfun
-          : 0;
+  o->nfun_alloc = o->r && o->mu && o->rhs && o->sol && o->gz && o->h_of_a &&
+                          o->Ak && (R == 0 || o->pv)
+                      ? nfun
+                      : 0;
   return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
 }
 

@@ -214,9 +214,9 @@ double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
                          double *gp);
 /* The first equality terminal condition at index >= first implied, to first
  * order near the initial state (q0 moved a little and projected back: the
- * generic rank, not an accident of q0), by the model's constraints (positions: G q' =
- * 0; momenta: the hidden constraints G M^-1 p = 0) and the conditions before
- * it, or -1 (-2: out of memory) (body_terminal.c). */
+ * generic rank, not an accident of q0), by the model's constraints (positions:
+ * G q' = 0; momenta: the hidden constraints G M^-1 p = 0) and the conditions
+ * before it, or -1 (-2: out of memory) (body_terminal.c). */
 int ocp_terminal_redundant(const mrvi_ocp *o, int first);
 /* out[control] -= mu^T d(forces of step k)/du for every state control of
  * step k (mu: global node adjoints). */

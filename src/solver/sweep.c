@@ -364,8 +364,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->H = dalloc(mi * mi);
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
-      !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
-      !sw->piv || !sw->y || !sw->g || !sw->H) {
+      !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
+      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -635,9 +635,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
   }
   double scale = 0.0;
   for (int f = 0; f < nf; f++)
-    scale = fmax(scale, (fabs(sw->rhs[f]) +
-                         4.0 * sw->m_f[f] * fabs(qm[f]) / dt) *
-                            sw->rw[f]);
+    scale =
+        fmax(scale, (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) *
+                        sw->rw[f]);
   const double floor = 16.0 * DBL_EPSILON * scale;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
@@ -680,8 +680,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
       /* J d = F by CG to 1 % of the tolerance (inexact Newton: the
        * residual above is exact, so the solution is the same). */
       const int s = mrvi_sblock_solve(sw->sb, sw->m_f, 1.0 / dt, sw->F,
-                                      0.01 * fmax(sw->tol, floor) *
-                                          sw->cg_unit,
+                                      0.01 * fmax(sw->tol, floor) * sw->cg_unit,
                                       msg, len);
       if (s < 0)
         return s;
