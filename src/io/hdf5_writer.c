@@ -1069,6 +1069,7 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
                     : "cannot lock the file");
   hbool_t clear = 1;
   H5Pset(fapl, "clear_status_flags", &clear);
+  H5Pset_metadata_read_attempts(fapl, MRVI_H5_SWMR_READ_ATTEMPTS);
   w->file = H5Fopen(w->path, H5F_ACC_RDWR | H5F_ACC_SWMR_WRITE, fapl);
   if (w->file < 0)
     return fail_h5(w, MRVI_EIO, "cannot open the file for appending");
