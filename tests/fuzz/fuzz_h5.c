@@ -26,6 +26,7 @@
  * see libhdf5's allocation (tests/fuzz/lsan.supp hides those).  Reports inside
  * libhdf5 itself are told apart by tests/fuzz/run.sh (see there). */
 #include "mrvi.h"
+#include "io/io.h"
 #include "ocp/ocp.h"
 
 #include <hdf5.h>
