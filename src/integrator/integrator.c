@@ -34,10 +34,10 @@ struct mrvi_integrator {
   double *q, *p;             /* model order, n */
   double *qs, *qf, *ps, *pf; /* rate blocks of the state */
   int packed; /* model order is slow then fast: the blocks alias q and p */
-  double *x, *R, *dx;        /* unknowns, residual, Newton update */
-  double *rinv; /* newton.criterion scaled: 1 / mass of each dynamic row
-                   (n_unknowns), else NULL */
-  double *ps1;               /* ns */
+  double *x, *R, *dx; /* unknowns, residual, Newton update */
+  double *rinv;       /* newton.criterion scaled: 1 / mass of each dynamic row
+                         (n_unknowns), else NULL */
+  double *ps1;        /* ns */
   double *micro_q, *micro_p; /* p x nf (1 x nf: node_stride 0) */
   /* Spacing of the fast nodes in x and micro_p: nf, or 0 where only the
    * last is kept (mrvi_integrator_keep_micro) */
