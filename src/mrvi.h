@@ -631,6 +631,15 @@ typedef enum mrvi_solver {
   MRVI_SOLVER_GENERAL = 2
 } mrvi_solver;
 
+/* Newton stopping criterion (doc/description-files.md, integrator.newton):
+ * absolute, ||R||_inf <= tol on the momentum rows as they stand; scaled,
+ * ||M^-1 R||_inf <= tol, each row divided by the mass of its coordinate
+ * (a velocity: the same relative accuracy whatever the mass scale). */
+typedef enum mrvi_newton_criterion {
+  MRVI_CRITERION_ABSOLUTE = 0,
+  MRVI_CRITERION_SCALED = 1
+} mrvi_newton_criterion;
+
 /* Tuning constants of the step solvers (doc/solver.md, "Tuning"): the
  * thresholds, caps and tolerances their rules were measured with (the FPU
  * chain of arXiv 2406.12991 §6), listed once, one row each:
@@ -729,6 +738,7 @@ typedef struct mrvi_settings {
   double t_end;        /* >= macro_step; N = ceil(t_end/dT - 1e-9) steps */
   double newton_tol;   /* stop when ||R||_inf <= tol (default 1e-9) */
   int newton_max_iter; /* default 20 */
+  mrvi_newton_criterion newton_criterion; /* default ABSOLUTE */
   /* Constraints (doc/constraints.md). */
   mrvi_constraint_form constraint_form; /* default MRVI_FORM_MULTIPLIERS */
   double constraint_tol;                /* max |g| at enforced nodes (1e-10) */

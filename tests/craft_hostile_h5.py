@@ -15,6 +15,11 @@ KIND:
   hang      BASE: a run file (written by mrvi, superblock version 3):
             truncated to 34 bytes, a superblock byte flipped, and both with
             the superblock flagged as open for writing (a killed writer's)
+  tables    BASE: ignored; tables of mrvi converge, stability and timing
+            crafted from nothing for mrvi-plot (a good one of each, then
+            one dataset of another rank, type, length or a huge size)
+  plotcontrol  BASE: a file of mrvi optimize; /control and
+            /optimizer/history replaced, for mrvi-plot optimize
   flip SEED COUNT BASE OUT_DIR: COUNT copies of BASE with bytes flipped
 
 Huge dimensions are declared on chunked datasets with no chunk written,
@@ -287,6 +292,96 @@ def controls_cases(out):
     print("not_hdf5", path)
 
 
+def table_file(out, case, kind, **edits):
+    """A table of mrvi converge / stability / timing (kind) in the format
+    tests/test_plot.sh draws, with edits {dataset: value} applied (a
+    tuple value: a huge declared shape)."""
+    f = control_file(out, case)
+    n = 5
+    if kind == "conv":
+        g = f.create_group("convergence/p1")
+        g["macro_step"] = 0.1 / 2.0 ** np.arange(n)
+        for k in ("e_q_mac", "e_p_mac", "e_q_mic", "e_p_mic", "e_qs_mac",
+                  "e_qf_mac", "e_ps_mac", "e_pf_mac"):
+            g[k] = 0.5 * g["macro_step"][()] ** 2
+    elif kind == "stab":
+        s = f.create_group("stability")
+        s["p"] = np.arange(1, n + 1, dtype=np.int32)
+        for rule in ("trapezoidal", "midpoint"):
+            for k in ("analytic", "measured"):
+                s["%s_%s" % (rule, k)] = np.full(n, 3.0)
+            s["scan/trace_" + rule] = np.zeros((n, 7))
+        s["scan/omega_dT"] = np.linspace(0.0, 6.0, 7)
+        s["scan/p"] = np.arange(1, n + 1, dtype=np.int32)
+    else:
+        t = f.create_group("timing")
+        t["p"] = np.arange(1, n + 1, dtype=np.int32)
+        for k in ("macro_steps", "system_size", "assemble_per_step",
+                  "solve_per_step", "time_per_step", "total_time",
+                  "iterations"):
+            t["midpoint-midpoint/" + k] = np.arange(1.0, n + 1.0)
+    for name, value in edits.items():
+        if isinstance(value, tuple):
+            huge(f, name, value)
+        else:
+            del f[name]
+            f[name] = value
+    f.close()
+
+
+def tables_cases(out):
+    conv, stab, tim = "convergence/p1/", "stability/", "timing/"
+    table_file(out, "conv_ok", "conv")
+    table_file(out, "conv_rank2", "conv", **{conv + "macro_step": rank(2)})
+    table_file(out, "conv_strings", "conv", **{conv + "e_q_mac": strings(
+        ["a"] * 5)})
+    table_file(out, "conv_huge", "conv", **{conv + "e_p_mac": (2**40,)})
+    table_file(out, "conv_shorter", "conv", **{conv + "e_q_mic": np.ones(3)})
+    table_file(out, "stab_ok", "stab")
+    table_file(out, "stab_trace_rank3", "stab",
+               **{stab + "scan/trace_midpoint": rank(3)})
+    table_file(out, "stab_trace_wider", "stab",
+               **{stab + "scan/trace_midpoint": np.zeros((5, 9))})
+    table_file(out, "stab_p_huge", "stab", **{stab + "p": (2**61,)})
+    table_file(out, "stab_bound_longer", "stab",
+               **{stab + "midpoint_measured": np.ones(8)})
+    table_file(out, "timing_ok", "timing")
+    table_file(out, "timing_p_strings", "timing",
+               **{tim + "p": strings(["1"] * 5)})
+    table_file(out, "timing_total_rank2", "timing",
+               **{tim + "midpoint-midpoint/total_time": np.ones((5, 2))})
+    table_file(out, "timing_iterations_huge", "timing",
+               **{tim + "midpoint-midpoint/iterations": (2**33,)})
+
+
+def plotcontrol_cases(base, out):
+    with copy(base, out, "ok") as f:
+        pass
+    with copy(base, out, "u_rank3") as f:
+        replace(f, "control/u", data=rank(3))
+    with copy(base, out, "u_huge") as f:
+        huge(f, "control/u", (2**31, 2**31))
+    with copy(base, out, "u_wider") as f:
+        u = f["control/u"][()]
+        replace(f, "control/u", data=np.hstack([u, u]))
+    with copy(base, out, "names_numbers") as f:
+        replace(f, "control/names", data=np.zeros(1))
+    with copy(base, out, "t_rank2") as f:
+        replace(f, "control/t", data=np.zeros((10, 2)))
+    with copy(base, out, "pair_wider") as f:
+        replace(f, "control/actuator_pair", data=np.zeros((1, 5), "i4"))
+    with copy(base, out, "terminal_kind_numbers") as f:
+        n = f["control/terminal_kind"].shape[0]
+        replace(f, "control/terminal_kind", data=np.zeros(n))
+    with copy(base, out, "terminal_target_longer") as f:
+        n = f["control/terminal_target"].shape[0]
+        replace(f, "control/terminal_target", data=np.zeros(n + 3))
+    with copy(base, out, "history_rank3") as f:
+        replace(f, "optimizer/history", data=rank(3))
+    with copy(base, out, "history_huge") as f:
+        huge(f, "optimizer/history", (2**40, 4))
+
+
 def hang_cases(base, out):
     """Files on which HDF5's SWMR-read retries spun for tens of minutes."""
     data = open(base, "rb").read()
@@ -328,7 +423,9 @@ def main():
     os.makedirs(out, exist_ok=True)
     {"export": export_cases, "resume": resume_cases, "from": from_cases,
      "bodies": bodies_cases, "torsion": torsion_cases, "hang": hang_cases,
-     "controls": lambda b, o: controls_cases(o)}[kind](base, out)
+     "controls": lambda b, o: controls_cases(o),
+     "tables": lambda b, o: tables_cases(o),
+     "plotcontrol": plotcontrol_cases}[kind](base, out)
 
 
 main()

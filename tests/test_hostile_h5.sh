@@ -291,6 +291,53 @@ from/q_wider.h5 /macro/q' has 12 columns, expected 6
 from/rate_huge.h5 /macro/q' has 6 columns, expected 200000000
 from/t_rank32.h5 /macro/t' has rank 32
 EOF
+  # Tables of mrvi converge / stability / timing and files of mrvi
+  # optimize (/control, /optimizer/history): every dataset drawn checked
+  # for rank, type, size and length before it is read, a crafted one
+  # refused with one line naming it (before: 6 of 21 drawn without a word,
+  # e.g. /timing/p of strings, a longer /control/terminal_target, others
+  # refused naming another dataset or a Python exception; h5py's int64
+  # size of a 2^61-entry dataset wrapped to 0 and passed the read cap).
+  "$py" "$craft" tables none tables >/dev/null &&
+    "$mrvi" optimize "$ocp" -o di_opt.h5 -q >/dev/null 2>&1 &&
+    "$py" "$craft" plotcontrol di_opt.h5 plotcontrol >/dev/null ||
+    fail "crafting the table and control files for mrvi-plot"
+  for t in conv stab timing; do
+    sub=$(case $t in conv) echo convergence ;; stab) echo stability ;;
+      *) echo timing ;; esac)
+    accepts "mrvi-plot $sub: a good table" "$py" "$plot" $sub \
+      tables/${t}_ok.h5 -o figs
+  done
+  accepts "mrvi-plot optimize: the uncrafted file" "$py" "$plot" optimize \
+    plotcontrol/ok.h5 -o figs
+  while read -r sub case pattern; do
+    refuses "mrvi-plot $sub: $case" "$pattern" "$py" "$plot" "$sub" "$case" \
+      -o figs
+    { [ "$(wc -l <err.txt)" -eq 1 ] && ! grep -q Traceback err.txt; } ||
+      fail "mrvi-plot $sub: $case: not one line: $(head -3 err.txt)"
+  done <<'EOF'
+convergence tables/conv_rank2.h5 /convergence/p1/macro_step' has rank 2
+convergence tables/conv_strings.h5 /convergence/p1/e_q_mac' does not hold numbers
+convergence tables/conv_huge.h5 /convergence/p1/e_p_mac' declares 1099511627776
+convergence tables/conv_shorter.h5 /convergence/p1/e_q_mic' has shape (3,), expected (5,)
+stability tables/stab_trace_rank3.h5 /stability/scan/trace_midpoint' has rank 3
+stability tables/stab_trace_wider.h5 /stability/scan/trace_midpoint' has shape (5, 9)
+stability tables/stab_p_huge.h5 /stability/p' declares 2305843009213693952
+stability tables/stab_bound_longer.h5 /stability/midpoint_measured' has shape (8,)
+timing tables/timing_p_strings.h5 /timing/p' does not hold numbers
+timing tables/timing_total_rank2.h5 /timing/midpoint-midpoint/total_time' has rank 2
+timing tables/timing_iterations_huge.h5 /timing/midpoint-midpoint/iterations' declares
+optimize plotcontrol/u_rank3.h5 /control/u' has rank 3
+optimize plotcontrol/u_huge.h5 /control/u' declares 2147483648 x 2147483648
+optimize plotcontrol/u_wider.h5 /control/u' has shape (10, 2)
+optimize plotcontrol/names_numbers.h5 /control/names' does not hold strings
+optimize plotcontrol/t_rank2.h5 /control/t' has rank 2
+optimize plotcontrol/pair_wider.h5 /control/actuator_pair' has shape (1, 5)
+optimize plotcontrol/terminal_kind_numbers.h5 /control/terminal_kind' does not hold strings
+optimize plotcontrol/terminal_target_longer.h5 /control/terminal_target' has shape
+optimize plotcontrol/history_rank3.h5 /optimizer/history' has rank 3
+optimize plotcontrol/history_huge.h5 /optimizer/history' declares
+EOF
 else
   echo "note: mrvi-plot not run (no matplotlib for $py)"
 fi

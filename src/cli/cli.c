@@ -515,8 +515,10 @@ static int cmd_check(int argc, char **argv) {
          s->macro_step / s->micro_steps);
   printf("%-14s%g (%ld macro steps, last at t = %g)\n", "t_end", s->t_end,
          steps, (double)steps * s->macro_step);
-  printf("%-14stolerance %g, at most %d iterations\n", "newton", s->newton_tol,
-         s->newton_max_iter);
+  printf(
+      "%-14stolerance %g%s, at most %d iterations\n", "newton", s->newton_tol,
+      s->newton_criterion == MRVI_CRITERION_SCALED ? " (scaled by mass)" : "",
+      s->newton_max_iter);
   {
     char why[300];
     const char *path = mrvi_solver_path(sys->model, s, why, sizeof why);

@@ -34,8 +34,10 @@ struct mrvi_integrator {
   double *q, *p;             /* model order, n */
   double *qs, *qf, *ps, *pf; /* rate blocks of the state */
   int packed; /* model order is slow then fast: the blocks alias q and p */
-  double *x, *R, *dx;        /* unknowns, residual, Newton update */
-  double *ps1;               /* ns */
+  double *x, *R, *dx; /* unknowns, residual, Newton update */
+  double *rinv;       /* newton.criterion scaled: 1 / mass of each dynamic row
+                         (n_unknowns), else NULL */
+  double *ps1;        /* ns */
   double *micro_q, *micro_p; /* p x nf (1 x nf: node_stride 0) */
   /* Spacing of the fast nodes in x and micro_p: nf, or 0 where only the
    * last is kept (mrvi_integrator_keep_micro) */
@@ -171,6 +173,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   }
   free(it->x);
   free(it->R);
+  free(it->rinv);
   free(it->dx);
   free(it->ps1);
   free(it->micro_q);
@@ -288,16 +291,20 @@ static void copy_pairs(double *restrict dst, const double *restrict src,
 /* Roundoff floor of the residual: its rows subtract momenta of size
  * M |q| / dt, so no iterate can push ||R|| below a few eps times that.  The
  * Newton test is ||R|| <= max(tol, floor); for the paper's set-ups the floor
- * is far below the tolerance (FPU, dt = 1e-3: about 1e-12). */
+ * is far below the tolerance (FPU, dt = 1e-3: about 1e-12).  With the
+ * scaled criterion each row's floor is divided by its mass, as its
+ * residual is (residual_norms). */
 static double residual_floor(const mrvi_integrator *it) {
   const mrvi_model *m = it->model;
   const mrvi_step *st = &it->step;
+  const int scaled = it->rinv != NULL;
   double scale = 0.0;
   for (int s = 0; s < st->ns; s++) {
     const double M = m->mass[m->slow_index[s]];
-    scale = fmax(scale, fabs(it->ps[s]) +
-                            M * (fabs(it->qs[s]) + fabs(it->qs[s] + it->x[s])) /
-                                st->dT);
+    const double a =
+        fabs(it->ps[s]) +
+        M * (fabs(it->qs[s]) + fabs(it->qs[s] + it->x[s])) / st->dT;
+    scale = fmax(scale, scaled ? a / M : a);
   }
   for (int s = 0; s < st->nf; s++) {
     double qmax = fabs(it->qf[s]);
@@ -305,7 +312,8 @@ static double residual_floor(const mrvi_integrator *it) {
       qmax =
           fmax(qmax, fabs(it->qf[s] + it->x[st->ns + (mm - 1) * st->nf + s]));
     const double M = m->mass[m->fast_index[s]];
-    scale = fmax(scale, fabs(it->pf[s]) + 4.0 * M * qmax / st->dt);
+    const double a = fabs(it->pf[s]) + 4.0 * M * qmax / st->dt;
+    scale = fmax(scale, scaled ? a / M : a);
   }
   return 16.0 * DBL_EPSILON * scale;
 }
@@ -629,6 +637,16 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   if (!it->qs_prev)
     goto oom;
   it->qf_prev = it->qs_prev + ns;
+  if (s->newton_criterion == MRVI_CRITERION_SCALED) {
+    /* Rows: the slow unknowns, then the fast ones of micro nodes 1..p. */
+    it->rinv = alloc((size_t)it->step.n_unknowns);
+    for (size_t r = 0; it->rinv && r < (size_t)it->step.n_unknowns; r++)
+      it->rinv[r] =
+          1.0 /
+          m->mass[r < ns ? m->slow_index[r] : m->fast_index[(r - ns) % nf]];
+    if (!it->rinv)
+      goto oom;
+  }
   if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf || !it->x ||
       !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p ||
       !it->lambda || !it->micro_cres || !it->rhs || !it->cg || !it->cGd ||
@@ -775,7 +793,16 @@ const double *mrvi_integrator_torsion_angle(const mrvi_integrator *it) {
 static void residual_norms(const mrvi_integrator *it, double *dyn,
                            double *con) {
   const mrvi_step *st = &it->step;
-  *dyn = norm_inf(it->R, st->n_unknowns);
+  if (it->rinv) { /* newton.criterion scaled: max |R_r| / M_r */
+    double r = 0.0;
+    for (int i = 0; i < st->n_unknowns; i++) {
+      const double a = fabs(it->R[i]) * it->rinv[i];
+      r = isnan(a) || a > r ? a : r;
+    }
+    *dyn = r;
+  } else {
+    *dyn = norm_inf(it->R, st->n_unknowns);
+  }
   *con =
       st->n_lambda > 0 ? norm_inf(it->R + st->n_unknowns, st->n_lambda) : 0.0;
 }

@@ -64,6 +64,13 @@ size_t mrvi_h5_read_cap(void);
 #define MRVI_H5_ANY ((hsize_t)-1)
 /* Highest rank mrvi reads (/bodies/rotation: rows x bodies x d x d). */
 #define MRVI_H5_MAX_RANK 4
+/* Metadata read attempts of a file opened in SWMR mode, read or write
+ * (HDF5's default: 100, each retrying the checksum failures of a whole
+ * metadata cache load with sleeps, which on a corrupted superblock, a
+ * truncated file or a corrupted chunk index spins for tens of minutes:
+ * the readers, and the writer appending to a file for --resume, where
+ * fuzz_h5 found it in H5Dset_extent). */
+#define MRVI_H5_SWMR_READ_ATTEMPTS 10
 /* Longest string attribute read (stop_reason, versions, settings). */
 #define MRVI_H5_MAX_ATTR ((size_t)65536)
 /* Longest /model/description read. */

@@ -14,11 +14,6 @@
 #include <string.h>
 #include <unistd.h>
 
-/* Metadata read attempts of a SWMR read (HDF5's default: 100, each
- * retrying the checksum failures of a whole metadata cache load, which on a
- * corrupted superblock or a truncated file spins for tens of minutes). */
-#define SWMR_READ_ATTEMPTS 10
-
 /* 1 when the superblock at the start of the file (versions 2 and 3, those
  * of SWMR files) says it is open for writing or SWMR writing: its file
  * consistency flags (byte 11) have bit 0 or 2 set.  A file without them
@@ -39,7 +34,7 @@ hid_t mrvi_h5_open_read(const char *path, hid_t fapl) {
   if (f < 0 && flagged_open_for_writing(path)) {
     hid_t swmr = H5Pcopy(fapl == H5P_DEFAULT ? H5P_FILE_ACCESS_DEFAULT : fapl);
     if (swmr >= 0 &&
-        H5Pset_metadata_read_attempts(swmr, SWMR_READ_ATTEMPTS) >= 0)
+        H5Pset_metadata_read_attempts(swmr, MRVI_H5_SWMR_READ_ATTEMPTS) >= 0)
       f = H5Fopen(path, H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, swmr);
     if (swmr >= 0)
       H5Pclose(swmr);

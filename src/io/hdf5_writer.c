@@ -202,6 +202,8 @@ static const int lambda_outputs[] = {MACRO_LAMBDA, JOINTS_FORCE, JOINTS_TORQUE};
   X("t_end", double, s->t_end, 1)                                              \
   X("newton_tolerance", double, s->newton_tol, 1)                              \
   X("newton_max_iterations", int, s->newton_max_iter, 1)                       \
+  X("newton_criterion", string, "scaled",                                      \
+    s->newton_criterion == MRVI_CRITERION_SCALED)                              \
   X("constraint_form", string,                                                 \
     s->constraint_form == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers", \
     w->n_lambda > 0)                                                           \
@@ -1067,6 +1069,7 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
                     : "cannot lock the file");
   hbool_t clear = 1;
   H5Pset(fapl, "clear_status_flags", &clear);
+  H5Pset_metadata_read_attempts(fapl, MRVI_H5_SWMR_READ_ATTEMPTS);
   w->file = H5Fopen(w->path, H5F_ACC_RDWR | H5F_ACC_SWMR_WRITE, fapl);
   if (w->file < 0)
     return fail_h5(w, MRVI_EIO, "cannot open the file for appending");

@@ -153,6 +153,43 @@ static long final_node(const mrvi_ocp *o, int c, int *pslot) {
   return (o->N + 1) * o->ns + o->N * o->p * o->nf + s;
 }
 
+/* Velocity of coordinate c from the momenta p (model order, n) at q
+ * projected onto the hidden constraint G M^-1 p = 0 (the physical,
+ * constraint-consistent velocity; mrvi_constraints_project), its
+ * derivatives in p into gp: the projection is linear, M^-1 P symmetric,
+ * so d v_c / d p_j = (P e_c)_j / M_j (one projection); and in q into gq by
+ * central differences (G depends on q; at rest the derivative vanishes).
+ * NAN where the constraint gradients are dependent. */
+static double projected_velocity(const mrvi_ocp *o, int c, double *q,
+                                 const double *p, double *gq, double *gp) {
+  const mrvi_model *m = o->model;
+  const int n = m->n, R = mrvi_model_constraint_rows(m);
+  double *pp = o->pv + 2 * n, *e = o->pv + 3 * n, *g = o->pv + 6 * n;
+  double *G = g + R, *A = G + (size_t)R * (size_t)n, *mu = A + (size_t)R * R;
+  double v = NAN;
+  memcpy(pp, p, (size_t)n * sizeof *pp);
+  if (mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu) == MRVI_OK)
+    v = pp[c] / m->mass[c];
+  memset(e, 0, (size_t)n * sizeof *e);
+  e[c] = 1.0;
+  const int ok = mrvi_constraints_project(m, q, e, NULL, g, G, A, mu);
+  for (int j = 0; j < n; j++)
+    gp[j] = ok == MRVI_OK ? e[j] / m->mass[j] : NAN;
+  for (int j = 0; j < n; j++) {
+    const double qj = q[j], h = 1e-6 * fmax(1.0, fabs(qj));
+    double vs[2] = {NAN, NAN};
+    for (int s = 0; s < 2; s++) {
+      q[j] = qj + (s ? -h : h);
+      memcpy(pp, p, (size_t)n * sizeof *pp);
+      if (mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu) == MRVI_OK)
+        vs[s] = pp[c] / m->mass[c];
+    }
+    q[j] = qj;
+    gq[j] = (vs[0] - vs[1]) / (2.0 * h);
+  }
+  return v;
+}
+
 /* Body terminal condition T (one row): its value into val and its
  * derivatives in the body's final nodes and momenta into gQ, gp (row 0, the
  * cost, for a penalty; else constraint row 1 + (*ic)++). */
@@ -227,6 +264,28 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
     int ps;
     const long g = final_node(o, T->coord, &ps);
     const double M = m->mass[T->coord];
+    if (T->kind == MRVI_OCP_VELOCITY && o->pv) {
+      /* A constrained model: the projected velocity, a function of every
+       * coordinate's final node and momentum. */
+      const int n = m->n;
+      double *q = o->pv, *p = q + n, *dq = q + 4 * n, *dp = q + 5 * n;
+      int pj;
+      for (int j = 0; j < n; j++) {
+        q[j] = o->Q[final_node(o, j, &pj)];
+        p[j] = o->pN[pj];
+      }
+      const double v =
+          projected_velocity(o, T->coord, q, p, dq, dp) - T->target;
+      const int f = T->penalty > 0.0 ? 0 : 1 + ic++;
+      const double scale = f == 0 ? T->penalty * v : 1.0;
+      val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
+      for (int j = 0; j < n; j++) {
+        gQ[(size_t)f * (size_t)nn + (size_t)final_node(o, j, &pj)] +=
+            scale * dq[j];
+        gp[f * npn + pj] += scale * dp[j];
+      }
+      continue;
+    }
     const double v =
         (T->kind == MRVI_OCP_POSITION ? o->Q[g] : o->pN[ps] / M) - T->target;
     const double dv = T->kind == MRVI_OCP_POSITION ? 1.0 : 1.0 / M;
@@ -353,11 +412,15 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
       for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++)
         o->h_of_a[e] = (long)h_row(o, st->Ai[e]) * o->nv + h_column(o, j);
   }
+  const size_t n = (size_t)o->model->n,
+               R = (size_t)mrvi_model_constraint_rows(o->model);
+  o->pv = R > 0 ? malloc((6 * n + R * (n + R + 2)) * sizeof *o->pv) : NULL;
   o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
   o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  o->nfun_alloc = ok && o->r && o->mu && o->rhs && o->sol ? nfun : 0;
+  o->nfun_alloc =
+      ok && o->r && o->mu && o->rhs && o->sol && (R == 0 || o->pv) ? nfun : 0;
   return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
 }
 

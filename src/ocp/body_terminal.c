@@ -249,14 +249,33 @@ int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
   double *v = malloc(((size_t)n + 1) * sizeof *v);
   double *g = malloc(((size_t)R + 1) * sizeof *g);
   double *p0 = malloc(((size_t)n + 1) * sizeof *p0);
+  double *qg = malloc(((size_t)n + 1) * sizeof *qg);
   int kq = 0, kp = 0, bad = -2;
-  if (!G || !Bq || !Bp || !v || !g || !p0)
+  if (!G || !Bq || !Bp || !v || !g || !p0 || !qg)
     goto out;
   bad = -1;
   for (int i = 0; i < n; i++)
     p0[i] = m->mass[i] * m->v0[i];
+  /* The test point: q0 moved by 1e-4 max(1, |q0|) in a fixed pattern and
+   * projected back onto the constraints, so that a condition is judged by
+   * the structure of the constraints rather than by where they happen to
+   * point at q0 (a pendulum hanging straight down has its rod gradient
+   * along y, which made a condition on the bob's y look redundant; at
+   * 45 degrees it did not).  q0 itself where that projection fails. */
+  double qmax = 1.0;
+  for (int i = 0; i < n; i++)
+    qmax = fmax(qmax, fabs(m->q0[i]));
+  for (int i = 0; i < n; i++)
+    qg[i] = m->q0[i] + 1e-4 * qmax * sin(1.7 * i + 0.3);
+  if (R > 0) {
+    double change;
+    char msg[200];
+    if (mrvi_constraints_project_positions(m, qg, 1e-13 * qmax, &change, NULL,
+                                           msg, sizeof msg) < 0)
+      memcpy(qg, m->q0, (size_t)n * sizeof *qg);
+  }
   /* Positions: the rows of G; momenta: the hidden constraints G M^-1 p. */
-  mrvi_model_constraint_eval(m, m->q0, g, G);
+  mrvi_model_constraint_eval(m, qg, g, G);
   for (int r = 0; r < R; r++) {
     memcpy(v, G + (size_t)r * (size_t)n, (size_t)n * sizeof *v);
     extend_basis(n, Bq, &kq, v);
@@ -275,7 +294,7 @@ int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
     int pos;
     memset(v, 0, (size_t)n * sizeof *v);
     if (T->body >= 0) {
-      ocp_body_terminal(o, T, m->q0 + T->coord, p0 + T->coord, gq, gp);
+      ocp_body_terminal(o, T, qg + T->coord, p0 + T->coord, gq, gp);
       pos = T->kind == MRVI_OCP_ATTITUDE || T->kind == MRVI_OCP_DIRECTION;
       for (int j = 0; j < nb; j++)
         v[T->coord + j] = pos ? gq[j] : gp[j];
@@ -296,5 +315,6 @@ out:
   free(v);
   free(g);
   free(p0);
+  free(qg);
   return bad;
 }

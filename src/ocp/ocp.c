@@ -193,7 +193,8 @@ oom:
 }
 
 void ocp_adjoint_free(mrvi_ocp *o) {
-  double **d[] = {&o->r, &o->mu, &o->rhs, &o->sol, &o->Ak, &o->h_val, &o->H};
+  double **d[] = {&o->r,  &o->mu,    &o->rhs, &o->sol,
+                  &o->Ak, &o->h_val, &o->H,   &o->pv};
   for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
     free(*d[i]);
     *d[i] = NULL;
@@ -553,7 +554,38 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind, int c,
                                         .target = target,
                                         .penalty = penalty,
                                         .body = -1};
-  return penalty > 0.0 ? 0 : o->n_con++;
+  if (penalty > 0.0)
+    return 0;
+  /* An equality implied by the constraints and the earlier conditions
+   * (a coordinate a constraint fixes, both coordinates of a pendulum's bob)
+   * would make the optimiser's constraint Jacobian rank-deficient: refused
+   * with the constraints on the coordinate named.  The rank is taken near
+   * q0, not at it (ocp_terminal_redundant). */
+  const int bad = ocp_terminal_redundant(o, o->n_term - 1);
+  if (bad == -1)
+    return o->n_con++;
+  o->n_term--;
+  if (bad == -2)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  const mrvi_model *m = o->model;
+  char names[300] = "";
+  size_t used = 0;
+  for (int k = 0; k < m->n_constraints; k++) {
+    const mrvi_constraint *C = &m->constraints[k];
+    int touches = 0;
+    for (int j = 0; j < C->n_in; j++)
+      touches |= C->in[j] == c;
+    if (touches && used < sizeof names)
+      used += (size_t)snprintf(names + used, sizeof names - used, "%s'%s'",
+                               used ? ", " : "", C->label);
+  }
+  return mrvi_ocp_fail(
+      o, MRVI_EINVAL,
+      "terminal %s of '%s' is implied by the constraints %s and the "
+      "conditions before it (redundant: the optimiser's constraint Jacobian "
+      "would lose rank); give it a penalty instead, or drop it",
+      kind == MRVI_OCP_POSITION ? "position" : "velocity", m->names[c],
+      used ? names : "of the model");
 }
 
 /* Rows r0 .. r0 + nrows - 1 of the body terminal condition T0 (kind,

@@ -138,6 +138,10 @@ struct mrvi_ocp {
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
   long adjoint_factorisations; /* step factorisations of the adjoints */
+  /* Terminal velocities of a constrained model (projected_velocity):
+   * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
+   * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */
+  double *pv;
   /* Solver settings. */
   mrvi_ocp_algorithm algorithm;
   double ftol_rel, terminal_tol;
@@ -284,9 +288,10 @@ double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
                          const double *q, const double *p, double *gq,
                          double *gp);
 /* The first equality terminal condition at index >= first implied, to first
- * order at the initial state, by the model's constraints (positions: G q' =
- * 0; momenta: the hidden constraints G M^-1 p = 0) and the conditions before
- * it, or -1 (-2: out of memory) (body_terminal.c). */
+ * order near the initial state (q0 moved a little and projected back: the
+ * generic rank, not an accident of q0), by the model's constraints (positions:
+ * G q' = 0; momenta: the hidden constraints G M^-1 p = 0) and the conditions
+ * before it, or -1 (-2: out of memory) (body_terminal.c). */
 int ocp_terminal_redundant(const mrvi_ocp *o, int first);
 /* out[control] -= mu^T d(forces of step k)/du for every state control of
  * step k (mu: global node adjoints). */

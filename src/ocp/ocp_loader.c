@@ -177,36 +177,6 @@ static int coordinate(parser *P, struct fy_node *map, const char *where,
               hint);
 }
 
-/* The constraint that pins coordinate c by itself (its gradient at q0 has
- * no other entry), or -1. */
-static int fixing_constraint(const mrvi_model *m, int c) {
-  for (int i = 0; i < m->n_constraints; i++) {
-    const mrvi_constraint *k = &m->constraints[i];
-    double y[MRVI_MAX_INPUTS], g[MRVI_MAX_INPUTS];
-    double *G = malloc((size_t)(k->rows * k->n_in) * sizeof *G);
-    if (!G || k->n_in > MRVI_MAX_INPUTS || k->rows > MRVI_MAX_INPUTS) {
-      free(G);
-      continue;
-    }
-    for (int j = 0; j < k->n_in; j++)
-      y[j] = m->q0[k->in[j]];
-    mrvi_constraint_eval_at(k, y, g, G, NULL);
-    int only = 1, touches = 0;
-    for (int r = 0; r < k->rows; r++)
-      for (int j = 0; j < k->n_in; j++)
-        if (G[r * k->n_in + j] != 0.0) {
-          if (k->in[j] == c)
-            touches = 1;
-          else
-            only = 0;
-        }
-    free(G);
-    if (touches && only)
-      return i;
-  }
-  return -1;
-}
-
 /* Particles named at map["pair"]: a list of two different particles. */
 static int pair(parser *P, struct fy_node *map, const char *where, int *pi,
                 int *pj) {
@@ -849,12 +819,6 @@ static int load_terminal(parser *P, struct fy_node *list, mrvi_ocp *o) {
       return fail(P, item, "%s needs 'position' and/or 'velocity'", where);
     if (!(pen >= 0.0))
       return fail(P, get(item, "penalty"), "%s.penalty must be >= 0", where);
-    const int k = fixing_constraint(P->m, c);
-    if (k >= 0)
-      return fail(P, get(item, "coordinate"),
-                  "%s: coordinate '%s' is fixed by constraint '%s'; a "
-                  "terminal condition on it is redundant",
-                  where, P->m->names[c], P->m->constraints[k].label);
     if ((st = conflict(P, o, item, where, MRVI_OCP_POSITION, c, pos)) ||
         (st = conflict(P, o, item, where, MRVI_OCP_VELOCITY, c, vel)))
       return st;

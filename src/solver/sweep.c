@@ -39,6 +39,10 @@ struct mrvi_sweep {
   double *Hpt[2];
   double tol;
   int max_iter;
+  /* newton.criterion: 1 / M^f for the scaled criterion (each fast row's
+   * residual divided by its mass), else ones; the smallest fast mass or 1
+   * (CG's tolerance is on the unscaled residual) */
+  double *rw, cg_unit;
   double wv0, wv1; /* weights of V at the macro nodes k and k+1 */
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
@@ -76,6 +80,7 @@ struct mrvi_sweep {
   double *gpt[2];         /* grad_f W at the implicit points (converged) */
   double *rhs, *F, *fimp; /* row data, residual, last implicit force */
   double *dn;             /* q^{m+1} - q^m */
+  double *dff;            /* row 0's free flight dt M^-1 rhs (predictor) */
   double *J;              /* nf x nf */
   double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
@@ -252,6 +257,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->F);
   free(sw->fimp);
   free(sw->dn);
+  free(sw->dff);
+  free(sw->rw);
   free(sw->J);
   free(sw->Jinv);
   free(sw->del);
@@ -353,6 +360,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->F = dalloc(nf);
   sw->fimp = dalloc(nf);
   sw->dn = dalloc(nf);
+  sw->dff = dalloc(nf);
+  sw->rw = dalloc(nf);
   const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
   if (sparse && mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
                                    st->n_elem_of_class[MRVI_FAST],
@@ -387,8 +396,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->H = dalloc(mi * mi);
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
-      !sw->F || !sw->fimp || !sw->dn || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
-      !sw->piv || !sw->y || !sw->g || !sw->H) {
+      !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
+      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -397,6 +406,13 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   for (int i = 0; i < sw->nf; i++) {
     sw->m_f[i] = m->mass[m->fast_index[i]];
     sw->minv_f[i] = 1.0 / sw->m_f[i];
+  }
+  const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
+  sw->cg_unit = 1.0;
+  for (int i = 0; i < sw->nf; i++) {
+    sw->rw[i] = scaled ? sw->minv_f[i] : 1.0;
+    if (scaled && (i == 0 || sw->m_f[i] < sw->cg_unit))
+      sw->cg_unit = sw->m_f[i];
   }
   *out = sw;
   return MRVI_OK;
@@ -625,15 +641,35 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
    * the other rows (1e-1 against 8e-3, medians), and one update leaves 3e-9
    * > the tolerance 1e-9: two updates where the other rows take one (one
    * gradient against a Newton update); with it, 1.9e-4 and 3e-14. */
+  /* That factor exceeds 1 where omega dt > 2 (a stiff W at a large step):
+   * the estimate then moves away from the solution, and on a stiff
+   * non-linear W (a quartic at dT = 0.3) Newton from there needs three
+   * times the updates of Newton from the free flight dn0 = dt M^-1 rhs (the
+   * general path's predictor at such steps, solver/predict.c).  So row 0
+   * keeps dn0's residual r0 (free: its only term is the implicit force),
+   * and the first iteration falls back to dn0 where the estimate's
+   * residual is larger. */
+  double r0 = HUGE_VAL;
   for (int pass = first ? 0 : 1; pass < 2; pass++) {
     for (int f = 0; f < nf; f++)
       dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
-    if (pass == 0)
+    if (pass == 0) {
       implicit_force(sw, qm, dn, NULL);
+      r0 = 0.0;
+      for (int f = 0; f < nf; f++) {
+        sw->dff[f] = dn[f];
+        const double a =
+            fabs(sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f]) *
+            sw->rw[f];
+        r0 = isnan(a) || a > r0 ? a : r0;
+      }
+    }
   }
   double scale = 0.0;
   for (int f = 0; f < nf; f++)
-    scale = fmax(scale, fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt);
+    scale =
+        fmax(scale, (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) *
+                        sw->rw[f]);
   const double floor = 16.0 * DBL_EPSILON * scale;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
@@ -648,8 +684,14 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
     double r = 0.0;
     for (int f = 0; f < nf; f++) {
       sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
-      const double a = fabs(sw->F[f]);
+      const double a = fabs(sw->F[f]) * sw->rw[f];
       r = isnan(a) || a > r ? a : r;
+    }
+    if (it == 0 && r > r0) { /* (not for NaN r0: r > r0 is false) */
+      memcpy(dn, sw->dff, (size_t)nf * sizeof(double));
+      r0 = HUGE_VAL;
+      it = -1; /* (the fallback is no update) */
+      continue;
     }
     if (it >= 1 && r <= fmax(sw->tol, floor)) {
       *iters = it;
@@ -670,7 +712,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
       /* J d = F by CG to 1 % of the tolerance (inexact Newton: the
        * residual above is exact, so the solution is the same). */
       const int s = mrvi_sblock_solve(sw->sb, sw->m_f, 1.0 / dt, sw->F,
-                                      0.01 * fmax(sw->tol, floor), msg, len);
+                                      0.01 * fmax(sw->tol, floor) * sw->cg_unit,
+                                      msg, len);
       if (s < 0)
         return s;
     } else {

@@ -6,7 +6,8 @@
 #   - fuzz_h5, the readers of an mrvi output (HDF5) file, seeded by small
 #     outputs made here by the fuzz build's mrvi (BUILD_DIR/h5seeds: FPU,
 #     a constrained cart pendulum, the heavy top (a body), a lattice with
-#     particles and /micro).
+#     particles and /micro, and for the --controls reader the output of
+#     mrvi optimize on systems/ocp_double_integrator.yaml).
 #
 #   tests/fuzz/run.sh [SECONDS [BUILD_DIR [H5_SECONDS]]]
 #                                        (default 120, build-fuzz, 60)
@@ -76,7 +77,7 @@ export UBSAN_OPTIONS=${UBSAN_OPTIONS:-halt_on_error=1:print_stacktrace=1}
 
 # --- the HDF5 readers -------------------------------------------------------
 seeds=$build/h5seeds
-if [ ! -f "$seeds/lat.h5" ]; then
+if [ ! -f "$seeds/ocp.h5" ]; then
   mkdir -p "$seeds"
   run() { ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" run -q --force "$@"; }
   run "$root/systems/fpu.yaml" --set integrator.t_end=0.6 -o "$seeds/fpu.h5"
@@ -86,6 +87,9 @@ if [ ! -f "$seeds/lat.h5" ]; then
     -o "$seeds/top.h5" 2>/dev/null
   run "$root/systems/lattice.yaml" --set integrator.t_end=0.05 \
     -o "$seeds/lat.h5" 2>/dev/null
+  # the --controls reader's: a file of mrvi optimize for its problem
+  ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" optimize -q \
+    "$root/systems/ocp_double_integrator.yaml" -o "$seeds/ocp.h5" >/dev/null
   rm -f "$seeds"/*.xdmf
 fi
 art=$build/artifacts-h5

@@ -13,7 +13,8 @@ static const char *const slow_rule_keys[] = {"alpha", "gamma", "grid"};
 
 static const char *const fast_rule_keys[] = {"alpha", "gamma"};
 
-static const char *const newton_keys[] = {"tolerance", "max_iterations"};
+static const char *const newton_keys[] = {"tolerance", "max_iterations",
+                                          "criterion"};
 
 static const char *const constraint_setting_keys[] = {"form", "tolerance",
                                                       "projection"};
@@ -164,6 +165,13 @@ int mrvi_ld_integrator(loader *L, struct fy_node *in) {
       if (s->newton_max_iter < 1)
         return mrvi_ld_fail(L, v, "max_iterations must be >= 1, got %d",
                             s->newton_max_iter);
+    }
+    if ((v = mrvi_ld_get(n, "criterion"))) {
+      static const char *const criteria[] = {"absolute", "scaled"};
+      int which;
+      if ((st = mrvi_ld_as_choice(L, v, "criterion", criteria, 2, &which)))
+        return st;
+      s->newton_criterion = (mrvi_newton_criterion)which;
     }
   }
   if ((n = mrvi_ld_get(in, "energy_warning"))) {
