@@ -60,7 +60,8 @@ const char mrvi_usage_optimize[] =
  * stop (non-zero) on a signal or when the history cannot grow. */
 typedef struct progress {
   mrvi_ocp_output *out;
-  int quiet, no_memory;
+  const mrvi_ocp *o;
+  int quiet, no_memory, progress_failed;
 } progress;
 
 static int on_iteration(void *data, int it, double cost, double viol,
@@ -69,6 +70,16 @@ static int on_iteration(void *data, int it, double cost, double viol,
   if (mrvi_ocp_output_iteration(pr->out, cost, viol, gnorm, kkt) < 0) {
     pr->no_memory = 1;
     return 1;
+  }
+  /* The progress file (what a SIGKILL leaves); a failure is said once and
+   * the optimisation goes on (close writes the whole file again). */
+  char msg[1024];
+  if (mrvi_ocp_output_progress(pr->out, mrvi_ocp_best_iterate(pr->o), msg,
+                               sizeof msg) < 0 &&
+      !pr->progress_failed) {
+    pr->progress_failed = 1;
+    fprintf(stderr, "mrvi optimize: warning: progress file not written: %s\n",
+            msg);
   }
   if (!pr->quiet) {
     printf("%5d  cost %.12e  violation %.3e  |grad| %.3e\n", it, cost, viol,
@@ -307,7 +318,7 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   char *def = out ? NULL : default_output(sys);
   if (!out)
     out = def;
-  progress pr = {.quiet = quiet};
+  progress pr = {.quiet = quiet, .o = o};
   if (mrvi_ocp_output_open(out, sys, o, &pr.out, msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi optimize: %s\n", msg);
     free(u);
