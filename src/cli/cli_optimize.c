@@ -8,8 +8,10 @@
  * is checked (created, lockable, its directory writable) before the
  * optimisation starts.  SIGINT and SIGTERM stop the optimiser after the
  * evaluation in progress; the best iterate is written with status
- * interrupted.  When the file cannot be written (a full disk) the
- * controls are printed instead.
+ * interrupted.  Meanwhile the output holds the best controls and the
+ * history so far (mrvi_ocp_output_progress): what a SIGKILL leaves.  When
+ * the file cannot be written (a full disk) the controls are printed
+ * instead.
  * Exit status (doc/optimal-control.md, "Status"): 0 converged, 1 bad
  * input or an unusable output path, 2 not converged (every other status;
  * the file is written), 130/143 interrupted by SIGINT/SIGTERM (written). */
@@ -49,6 +51,9 @@ const char mrvi_usage_optimize[] =
     "The output path is checked before the optimisation starts.  Ctrl-C\n"
     "(SIGINT) or SIGTERM stops the optimiser after the evaluation in\n"
     "progress and writes the best iterate so far (status interrupted).\n"
+    "Meanwhile the file holds the best controls and the history so far\n"
+    "(status running, no trajectory; rewritten at most every\n"
+    "output.flush_interval s): what a SIGKILL leaves.\n"
     "\n"
     "Exit status: 0 converged (NLopt reached its tolerance and the terminal\n"
     "conditions hold to control.solver.terminal_tolerance), 1 invalid input\n"

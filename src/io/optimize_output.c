@@ -211,7 +211,7 @@ struct mrvi_ocp_output {
   const mrvi_system *sys;
   const mrvi_ocp *o;
   int n, cap;
-  double *history; /* n x 4: cost, violation, gradient norm, KKT residual */
+  double *history;    /* n x 4: cost, violation, gradient norm, KKT residual */
   double snapshot_at; /* mrvi_clock of the last progress file */
 };
 

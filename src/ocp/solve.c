@@ -124,8 +124,8 @@ static double objective(unsigned n, const double *u, double *grad, void *data) {
     for (unsigned i = 0; i < n; i++)
       g2 += cc->grad[i] * cc->grad[i];
     o->best_u = cc->best_u;
-    const int stop = o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc), sqrt(g2),
-              stationarity(cc, u));
+    const int stop = o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc),
+                           sqrt(g2), stationarity(cc, u));
     o->best_u = NULL;
     if (stop) {
       cc->stop = 2;
