@@ -169,8 +169,8 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     return st;
   }
   /* The micro nodes each step hands to the observer: p, or the last. */
-  const int rows =
-      s->micro_last_only ? mrvi_integrator_keep_micro(it, 0) : s->micro_steps;
+  const int rows = s->micro_last_only ? mrvi_integrator_keep_micro(it, 0)
+                                      : s->micro_steps;
   if (rows < 0) {
     mrvi_fmt(sum->message, sizeof sum->message,
              "out of memory keeping the last micro node");
