@@ -20,7 +20,13 @@
 #   with status interrupted, /control/u of the problem's shape (N x 1),
 #   one history row per evaluation, and the best iterate (the lowest cost
 #   meeting the terminal tolerance, else the lowest violation) written.  A run that ends before the signal
-#   proves nothing, so the problem is made longer and the run repeated.
+#   proves nothing, so the problem is made longer and the run repeated;
+# - SIGKILL during the optimisation leaves the last progress file: readable,
+#   root stop_reason and /optimizer status "running", no /macro, /control/u
+#   of the problem's shape, 1 to (evaluations printed) history rows, no
+#   temporary file; its controls replay (`mrvi run --controls`) to a cost
+#   that is a history row; mrvi-plot optimize draws controls and history and
+#   says INCOMPLETE; the finished file keeps stop_reason completed.
 #
 #   test_optimize.sh MRVI SOURCE_ROOT
 set -u
@@ -168,6 +174,74 @@ print(o.attrs["cost"] == met[:, 0].min() if len(met)
     fail "SIG$sig: exit $rc, check '$check' ($(cat err.txt))"
   fi
 done
+
+# --- SIGKILL: the last progress file, readable and said incomplete ---------
+# (output.flush_interval 0.2 s: a progress file at most every 0.2 s, the
+# first at the first evaluation)
+t_end=20
+done_ok=0
+for _ in 1 2 3; do
+  N=$((t_end * 10)) # macro_step 0.1
+  rm -f kill.h5
+  "$mrvi" optimize "$fpu" -o kill.h5 --set integrator.t_end=$t_end \
+    --set output.flush_interval=0.2 >out.txt 2>err.txt &
+  pid=$!
+  sleep 1.5
+  kill -KILL $pid
+  wait $pid
+  rc=$?
+  if [ $rc -ne 137 ] && grep -q 'optimum found\|NOT CONVERGED' out.txt; then
+    t_end=$((t_end * 3)) # finished before the signal: a longer problem
+    continue
+  fi
+  done_ok=1
+  break
+done
+if [ $done_ok -eq 0 ]; then
+  fail "SIGKILL: the optimisation always ended before the signal"
+else
+  evals=$(grep -c '^ *[0-9][0-9]*  cost' out.txt)
+  check=$("$py" -c 'import sys, h5py
+f = h5py.File(sys.argv[1], "r")
+o = f["optimizer"]
+t = lambda v: v.decode() if isinstance(v, bytes) else v
+n = o["history"].shape[0]
+print(t(f.attrs["stop_reason"]), t(o.attrs["status"]), "macro" in f,
+      f["control/u"].shape == (int(sys.argv[2]), 1), o["history"].shape[1],
+      1 <= n <= int(sys.argv[3]) and int(o.attrs["evaluations"]) == n, end="")
+' kill.h5 $N "$evals" 2>&1)
+  parts=$(find . -name 'kill.h5.part*' | wc -l)
+  "$py" "$root/src/cli/mrvi-plot" optimize kill.h5 -o plots >plot.txt 2>&1
+  prc=$?
+  # the stored controls are an evaluated iterate: the replay's cost is a
+  # row of the history
+  "$mrvi" run "$fpu" --controls kill.h5 -o kill_replay.h5 \
+    --set integrator.t_end=$t_end >rep.txt 2>&1
+  rr=$?
+  J=$(sed -n 's/^ *cost *\([^ ]*\).*/\1/p' rep.txt)
+  inrows=$("$py" -c 'import sys, h5py, numpy as np
+h = h5py.File(sys.argv[1], "r")["optimizer/history"][:, 0]
+print(bool(np.any(np.abs(h - float(sys.argv[2])) <= 1e-11 * np.abs(h))))' \
+    kill.h5 "$J" 2>&1)
+  if [ $rc -eq 137 ] && [ "$check" = "running running False True 4 True" ] &&
+    [ "$parts" -eq 0 ] && [ $prc -eq 0 ] &&
+    grep -q 'INCOMPLETE: mrvi optimize did not finish' plot.txt &&
+    [ -s plots/kill_controls.png ] && [ -s plots/kill_history.png ] &&
+    [ ! -e plots/kill_trajectory.png ] && { [ $rr -eq 0 ] || [ $rr -eq 2 ]; } &&
+    [ "$inrows" = True ]; then
+    pass "SIGKILL: file readable, stop_reason/status running, /control/u $N x 1, history rows <= $evals evaluations, replay cost $J is a history row, mrvi-plot says INCOMPLETE"
+  else
+    fail "SIGKILL: exit $rc, check '$check', parts $parts, plot $prc ($(cat plot.txt)), replay $rr cost '$J' in rows '$inrows' ($(cat err.txt))"
+  fi
+fi
+# the finished file keeps the layout: trajectory, stop_reason completed
+s=$("$py" -c 'import sys, h5py
+f = h5py.File(sys.argv[1], "r")
+v = f.attrs["stop_reason"]
+print(v.decode() if isinstance(v, bytes) else v, "macro" in f)' full.h5 2>&1)
+[ "$s" = "completed True" ] &&
+  pass "finished file: stop_reason completed, /macro present" ||
+  fail "finished file: '$s'"
 
 # --- rigid body reoriented by torques (systems/ocp_reorient.yaml), both
 # constraint forms: converged; the replay of the controls meets the terminal

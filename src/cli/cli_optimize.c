@@ -8,8 +8,10 @@
  * is checked (created, lockable, its directory writable) before the
  * optimisation starts.  SIGINT and SIGTERM stop the optimiser after the
  * evaluation in progress; the best iterate is written with status
- * interrupted.  When the file cannot be written (a full disk) the
- * controls are printed instead.
+ * interrupted.  Meanwhile the output holds the best controls and the
+ * history so far (mrvi_ocp_output_progress): what a SIGKILL leaves.  When
+ * the file cannot be written (a full disk) the controls are printed
+ * instead.
  * Exit status (doc/optimal-control.md, "Status"): 0 converged, 1 bad
  * input or an unusable output path, 2 not converged (every other status;
  * the file is written), 130/143 interrupted by SIGINT/SIGTERM (written). */
@@ -49,6 +51,9 @@ const char mrvi_usage_optimize[] =
     "The output path is checked before the optimisation starts.  Ctrl-C\n"
     "(SIGINT) or SIGTERM stops the optimiser after the evaluation in\n"
     "progress and writes the best iterate so far (status interrupted).\n"
+    "Meanwhile the file holds the best controls and the history so far\n"
+    "(status running, no trajectory; rewritten at most every\n"
+    "output.flush_interval s): what a SIGKILL leaves.\n"
     "\n"
     "Exit status: 0 converged (NLopt reached its tolerance and the terminal\n"
     "conditions hold to control.solver.terminal_tolerance), 1 invalid input\n"
@@ -60,7 +65,8 @@ const char mrvi_usage_optimize[] =
  * stop (non-zero) on a signal or when the history cannot grow. */
 typedef struct progress {
   mrvi_ocp_output *out;
-  int quiet, no_memory;
+  const mrvi_ocp *o;
+  int quiet, no_memory, progress_failed;
 } progress;
 
 static int on_iteration(void *data, int it, double cost, double viol,
@@ -69,6 +75,16 @@ static int on_iteration(void *data, int it, double cost, double viol,
   if (mrvi_ocp_output_iteration(pr->out, cost, viol, gnorm, kkt) < 0) {
     pr->no_memory = 1;
     return 1;
+  }
+  /* The progress file (what a SIGKILL leaves); a failure is said once and
+   * the optimisation goes on (close writes the whole file again). */
+  char msg[1024];
+  if (mrvi_ocp_output_progress(pr->out, mrvi_ocp_best_iterate(pr->o), msg,
+                               sizeof msg) < 0 &&
+      !pr->progress_failed) {
+    pr->progress_failed = 1;
+    fprintf(stderr, "mrvi optimize: warning: progress file not written: %s\n",
+            msg);
   }
   if (!pr->quiet) {
     printf("%5d  cost %.12e  violation %.3e  |grad| %.3e\n", it, cost, viol,
@@ -307,7 +323,7 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   char *def = out ? NULL : default_output(sys);
   if (!out)
     out = def;
-  progress pr = {.quiet = quiet};
+  progress pr = {.quiet = quiet, .o = o};
   if (mrvi_ocp_output_open(out, sys, o, &pr.out, msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi optimize: %s\n", msg);
     free(u);

@@ -124,12 +124,13 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
  * (the history of cost, terminal violation, gradient norm and KKT
  * residual per evaluation, the result).  Opened before optimising, given every
  * evaluation, closed with the result:
- *   mrvi_ocp_output_open -> mrvi_ocp_output_iteration ... ->
- *   mrvi_ocp_output_close.
+ *   mrvi_ocp_output_open -> (mrvi_ocp_output_iteration,
+ *   mrvi_ocp_output_progress) ... -> mrvi_ocp_output_close.
  * Open checks the path as the writer at close will take it (created or an
  * earlier mrvi output, not locked by a live writer, a temporary file
- * creatable beside it) and leaves it as it was; the file itself is written
- * whole at close. */
+ * creatable beside it) and leaves it as it was; progress writes a progress
+ * file (status "running", no trajectory) and close the whole file, each
+ * renamed over the path when complete. */
 typedef struct mrvi_ocp_output mrvi_ocp_output;
 
 /* sys and o must outlive the output.  MRVI_EIO with "path: reason" when
@@ -141,6 +142,15 @@ int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
  * be kept. */
 int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
                               double gradient_norm, double kkt_residual);
+/* After an evaluation: when output.flush_interval seconds (default 2) have
+ * passed since the last progress file (the first at once), replace the
+ * file by one with the best controls so far u in /control, the history so
+ * far in /optimizer, root attribute stop_reason and /optimizer's status
+ * "running" (doc/output.md); what a killed optimisation leaves.  MRVI_EIO
+ * with a message when it cannot be written (the optimisation may go on:
+ * close writes the whole file again). */
+int mrvi_ocp_output_progress(mrvi_ocp_output *w, const double *u, char *msg,
+                             size_t len);
 /* Write the file for the controls u (o's last evaluation is theirs) and
  * the result res; status is /optimizer's attribute status (res->status:
  * "converged", "max_evaluations", "interrupted", ...).  Frees w (also on

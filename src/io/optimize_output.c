@@ -21,12 +21,20 @@
  * again at close), so a writer starting on the same path meanwhile is
  * found only at close.
  *
- * The trajectory is written crash-safe by the run writer; the solver
- * attribute, /control and /optimizer are added after it closed, in a
- * second open of the file.  So a process killed (SIGKILL) while optimising
- * leaves no output (or the previous file), and one killed in that second
- * open may leave a trajectory without /control.  SIGINT and SIGTERM are
- * turned into status interrupted by the caller (cli_optimize.c). */
+ * While optimising, mrvi_ocp_output_progress replaces the file, at most
+ * every output.flush_interval seconds (the first evaluation at once), by a
+ * progress file: the best controls so far in /control, the history so far
+ * in /optimizer, status "running" there and root stop_reason "running", no
+ * trajectory; each built under a temporary name and renamed to the path.
+ * So a process killed (SIGKILL) while optimising leaves the last progress
+ * file (none before the first evaluation), which `mrvi run --controls`
+ * replays and mrvi-plot optimize draws as incomplete.
+ * At close the trajectory is written crash-safe by the run writer (again
+ * a rename over the path); the solver attribute, /control and /optimizer
+ * are added after it closed, in a second open of the file, so one killed
+ * in that second open may leave a trajectory without /control.  SIGINT
+ * and SIGTERM are turned into status interrupted by the caller
+ * (cli_optimize.c). */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -34,6 +42,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+
+#define PROGRESS_SECONDS 2.0 /* default of output.flush_interval (as run) */
 
 /* ---------------------------------------------------------------------------
  * The trajectory
@@ -201,7 +211,8 @@ struct mrvi_ocp_output {
   const mrvi_system *sys;
   const mrvi_ocp *o;
   int n, cap;
-  double *history; /* n x 4: cost, violation, gradient norm, KKT residual */
+  double *history;    /* n x 4: cost, violation, gradient norm, KKT residual */
+  double snapshot_at; /* mrvi_clock of the last progress file */
 };
 
 /* /control: t and u on the finest grid of the actuators (the micro grid if
@@ -282,12 +293,15 @@ static void write_optimizer(mrvi_h5_batch *b, const mrvi_ocp_output *w,
   attr_text(b, go, "algorithm",
             mrvi_ocp_algorithm_name(mrvi_ocp_get_algorithm(o)));
   attr_text(b, go, "status", status);
-  attr_text(b, go, "nlopt_result", res->nlopt_name);
-  mrvi_h5_batch_attr_double(b, go, "cost", res->cost);
-  mrvi_h5_batch_attr_double(b, go, "terminal_violation", res->violation);
+  if (res) {
+    attr_text(b, go, "nlopt_result", res->nlopt_name);
+    mrvi_h5_batch_attr_double(b, go, "cost", res->cost);
+    mrvi_h5_batch_attr_double(b, go, "terminal_violation", res->violation);
+  }
   mrvi_h5_batch_attr_double(b, go, "terminal_tolerance",
                             mrvi_ocp_terminal_tolerance(o));
-  mrvi_h5_batch_attr_double(b, go, "evaluations", res->evaluations);
+  mrvi_h5_batch_attr_double(b, go, "evaluations",
+                            res ? res->evaluations : w->n);
   if (go >= 0)
     H5Gclose(go);
 }
@@ -332,6 +346,7 @@ int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
   }
   w->sys = sys;
   w->o = o;
+  w->snapshot_at = -HUGE_VAL;
   *out = w;
   return MRVI_OK;
 }
@@ -354,6 +369,73 @@ int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,
   w->history[4 * w->n + 3] = kkt_residual;
   w->n++;
   return MRVI_OK;
+}
+
+/* The progress file: root attributes mrvi_version, system, micro_steps,
+ * macro_step, solver and stop_reason "running", /control with the best
+ * controls so far and /optimizer with the history and status "running";
+ * built under a temporary name beside the path and renamed to it
+ * (h5util.c), so that a process killed at any instant leaves the last
+ * complete one. */
+static int write_progress(mrvi_ocp_output *w, const double *u, char *msg,
+                          size_t len) {
+  int fd = -1, created = 0;
+  char *part = NULL;
+  int st = mrvi_h5_lock_output(w->path, 0, &fd, &created, msg, len);
+  if (st == 0)
+    st = mrvi_h5_part_create(w->path, &part, msg, len);
+  if (st == 0) {
+    mrvi_h5_batch b = {.path = part, .msg = msg, .len = len};
+    mrvi_h5_quiet q;
+    mrvi_h5_quiet_begin(&q);
+    b.file = H5Fcreate(part, H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    if (b.file < 0) {
+      mrvi_h5_batch_fail(&b, "cannot create the file");
+    } else {
+      const mrvi_system *sys = w->sys;
+      attr_text(&b, b.file, "mrvi_version", MRVI_VERSION);
+      attr_text(&b, b.file, "system",
+                sys->name ? sys->name : mrvi_model_name(sys->model));
+      mrvi_h5_batch_attr_int(&b, b.file, "micro_steps",
+                             sys->settings.micro_steps);
+      mrvi_h5_batch_attr_double(&b, b.file, "macro_step",
+                                sys->settings.macro_step);
+      attr_text(&b, b.file, "stop_reason", "running");
+      write_solver_path(&b, w->o);
+      write_control(&b, sys, w->o, u);
+      write_optimizer(&b, w, NULL, "running");
+      if (H5Fclose(b.file) < 0)
+        mrvi_h5_batch_fail(&b, "closing the file");
+    }
+    H5Eclear2(H5E_DEFAULT);
+    mrvi_h5_quiet_end(&q);
+    st = b.status;
+  }
+  if (st == 0)
+    st = mrvi_h5_part_commit(part, w->path, &fd, msg, len);
+  else if (part)
+    unlink(part);
+  free(part);
+  if (fd >= 0)
+    close(fd);
+  if (st < 0 && created)
+    unlink(w->path);
+  return st;
+}
+
+int mrvi_ocp_output_progress(mrvi_ocp_output *w, const double *u, char *msg,
+                             size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (!w || !u)
+    return MRVI_OK;
+  const double interval = w->sys->output_flush_interval > 0
+                              ? w->sys->output_flush_interval
+                              : PROGRESS_SECONDS;
+  const double now = mrvi_clock();
+  if (now - w->snapshot_at < interval)
+    return MRVI_OK;
+  w->snapshot_at = now;
+  return write_progress(w, u, msg, len);
 }
 
 int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,

@@ -778,6 +778,7 @@ void mrvi_ocp_set_callback(mrvi_ocp *o, mrvi_ocp_callback cb, void *data) {
   o->cb = cb;
   o->cb_data = data;
 }
+const double *mrvi_ocp_best_iterate(const mrvi_ocp *o) { return o->best_u; }
 int mrvi_ocp_n_controls(const mrvi_ocp *o) { return o->n_u; }
 int mrvi_ocp_n_constraints(const mrvi_ocp *o) { return o->n_con; }
 long mrvi_ocp_n_steps(const mrvi_ocp *o) { return o->N; }

@@ -147,6 +147,9 @@ typedef int (*mrvi_ocp_callback)(void *data, int evaluation, double cost,
                                  double violation, double grad_norm,
                                  double kkt_residual);
 void mrvi_ocp_set_callback(mrvi_ocp *o, mrvi_ocp_callback cb, void *data);
+/* Inside the callback: the best iterate so far (the controls solve returns
+ * when stopped there; n_controls values, owned by solve); else NULL. */
+const double *mrvi_ocp_best_iterate(const mrvi_ocp *o);
 
 /* Sizes: controls, terminal equality constraints, macro steps N. */
 int mrvi_ocp_n_controls(const mrvi_ocp *o);

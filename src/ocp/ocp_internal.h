@@ -148,6 +148,7 @@ struct mrvi_ocp {
   int max_eval;
   mrvi_ocp_callback cb;
   void *cb_data;
+  const double *best_u; /* during a callback of solve: the best iterate */
   char errmsg[512];
 };
 

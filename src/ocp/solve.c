@@ -123,8 +123,11 @@ static double objective(unsigned n, const double *u, double *grad, void *data) {
     double g2 = 0.0;
     for (unsigned i = 0; i < n; i++)
       g2 += cc->grad[i] * cc->grad[i];
-    if (o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc), sqrt(g2),
-              stationarity(cc, u))) {
+    o->best_u = cc->best_u;
+    const int stop = o->cb(o->cb_data, cc->evaluations, cc->J, violation(cc),
+                           sqrt(g2), stationarity(cc, u));
+    o->best_u = NULL;
+    if (stop) {
       cc->stop = 2;
       nlopt_force_stop(cc->opt);
     }
