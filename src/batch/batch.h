@@ -152,8 +152,8 @@ typedef void (*mrvi_batch_item)(void *user, int i, void *out);
  * next free worker.  jobs <= 1 runs fn here, in order, without forking.
  * A worker that dies mid-item stops the map: MRVI_EIO with the signal or
  * exit status and the item in msg. */
-int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn,
-                   void *user, void *out, char *msg, size_t len);
+int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn, void *user,
+                   void *out, char *msg, size_t len);
 
 /* The cores this process may run on (sched_getaffinity, else
  * sysconf(_SC_NPROCESSORS_ONLN)), at least 1. */

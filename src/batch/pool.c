@@ -395,22 +395,21 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
 
 /* A map worker: item indices from fd_in until it closes; for each, the
  * index and its record to fd_out. */
-static void map_worker(int n_size, mrvi_batch_item fn, void *user, int fd_in,
+static void map_worker(size_t size, mrvi_batch_item fn, void *user, int fd_in,
                        int fd_out) {
-  char *rec = malloc((size_t)n_size);
+  char *rec = malloc(size);
   int i;
   while (rec && read_all(fd_in, &i, sizeof i) == 0) {
-    memset(rec, 0, (size_t)n_size);
+    memset(rec, 0, size);
     fn(user, i, rec);
-    if (write_all(fd_out, &i, sizeof i) < 0 ||
-        write_all(fd_out, rec, (size_t)n_size) < 0)
+    if (write_all(fd_out, &i, sizeof i) < 0 || write_all(fd_out, rec, size) < 0)
       break;
   }
   free(rec);
 }
 
-int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn,
-                   void *user, void *out, char *msg, size_t len) {
+int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn, void *user,
+                   void *out, char *msg, size_t len) {
   mrvi_fmt(msg, len, "%s", "");
   char *rec = out;
   if (jobs > n)
@@ -454,7 +453,7 @@ int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn,
       for (int m = 0; m < k; m++)
         close(w[m].task), close(w[m].result);
       close(tp[1]), close(rp[0]);
-      map_worker((int)size, fn, user, tp[0], rp[1]);
+      map_worker(size, fn, user, tp[0], rp[1]);
       _exit(0);
     }
     close(tp[0]), close(rp[1]);
@@ -462,8 +461,8 @@ int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn,
       close(tp[1]), close(rp[0]);
       break;
     }
-    w[started++] = (slot){.pid = pid, .task = tp[1], .result = rp[0],
-                          .busy = -1};
+    w[started++] =
+        (slot){.pid = pid, .task = tp[1], .result = rp[0], .busy = -1};
   }
   if (started == 0) {
     mrvi_fmt(msg, len, "cannot start a worker process: %s", strerror(errno));

@@ -590,7 +590,8 @@ int mrvi_cmd_converge(int argc, char **argv) {
   static const char *const names[] = {
       "--dt",    "--dt0",       "--levels",   "--p",
       "--t-end", "--reference", "--ref-step", "--ref-scheme",
-      "--cache", "--output",    "--csv",      "--jobs", NULL};
+      "--cache", "--output",    "--csv",      "--jobs",
+      NULL};
   args a;
   int pr = parse(argc, argv, mrvi_usage_converge, names, &a);
   if (pr <= 0) {
@@ -647,8 +648,7 @@ int mrvi_cmd_converge(int argc, char **argv) {
     if (parse_double(cmd, "--jobs", get(&a, "--jobs"), &v) < 0)
       goto out;
     if (!(v >= 1 && v <= 4096 && v == floor(v))) {
-      fprintf(stderr, "mrvi %s: --jobs must be an integer in [1, 4096]\n",
-              cmd);
+      fprintf(stderr, "mrvi %s: --jobs must be an integer in [1, 4096]\n", cmd);
       goto out;
     }
     jobs = (int)v;
