@@ -162,6 +162,20 @@ within "$worst" 0 0.01
 check "stability: measured within 1 % of analytic (worst $worst)" $?
 awk '$1 == 1 && /stable +uncond/ { found = 1 } END { exit !found }' stab.out
 check "stability: midpoint p = 1 unconditionally stable" $?
+# --jobs: the 2 x 5 limits and scans on worker processes, the same table.
+for j in 1 2 3; do
+  "$mrvi" stability "$root/systems/oscillator.yaml" --at 3.5 --jobs $j -o stabj$j.h5 >stabj$j.out 2>&1
+  check "stability --jobs $j: exit status" $?
+  sed -i '/^table: /d' stabj$j.out
+done
+for j in 2 3; do
+  cmp -s stabj1.out stabj$j.out
+  check "stability --jobs $j: the output of --jobs 1" $?
+  if command -v h5diff >/dev/null; then
+    h5diff -q stabj1.h5 stabj$j.h5
+    check "stability --jobs $j: h5diff of the table files" $?
+  fi
+done
 "$mrvi" stability "$fpu" -q 2>bad.err
 [ $? -eq 1 ] && grep -q "one slow coordinate" bad.err
 check "stability: a non-oscillator is refused" $?

@@ -89,6 +89,10 @@ const char mrvi_usage_stability[] =
     "  --max X             end of the scan of omega dT (default 20)\n"
     "  --step X            scan step (default 0.01)\n"
     "  --at X              also print det and trace at omega dT = X\n"
+    "  -j, --jobs N        worker processes for the 2 x (number of p) limits\n"
+    "                      and scans (default: the cores available; 1 runs\n"
+    "                      them in this process); the table does not depend\n"
+    "                      on N\n"
     "  -o, --output OUT.h5 table file (default <name>-stability.h5)\n"
     "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
     "  -q, --quiet         print only errors\n";
@@ -584,6 +588,27 @@ static void conv_item(void *user, int k, void *out) {
   mrvi_trajectory_free(run);
 }
 
+/* --jobs: worker processes for the runs (default: the cores), or -1 with
+ * the message printed.  The results do not depend on threads (util.h), and
+ * forked workers must not inherit a thread pool: with more than one job
+ * every run of sys is on one thread. */
+static int parse_jobs(const char *cmd, const args *a, mrvi_system *sys) {
+  int jobs = mrvi_batch_cores();
+  if (get(a, "--jobs")) {
+    double v;
+    if (parse_double(cmd, "--jobs", get(a, "--jobs"), &v) < 0)
+      return -1;
+    if (!(v >= 1 && v <= 4096 && v == floor(v))) {
+      fprintf(stderr, "mrvi %s: --jobs must be an integer in [1, 4096]\n", cmd);
+      return -1;
+    }
+    jobs = (int)v;
+  }
+  if (jobs > 1)
+    sys->settings.threads = 1;
+  return jobs;
+}
+
 static long gcd(long a, long b) { return b ? gcd(b, a % b) : a; }
 
 int mrvi_cmd_converge(int argc, char **argv) {
@@ -821,9 +846,62 @@ out:
 /* ---------------------------------------------------------------------------
  * stability
  * ------------------------------------------------------------------------- */
+/* stability: the scan of omega dT has this many points. */
+enum { K = 400 };
+
+/* The limit and the scan of one rule and p: the record a worker process
+ * returns (mrvi_batch_map). */
+typedef struct stab_run {
+  int failed;
+  double measured;
+  double trace[K];
+  char msg[1024];
+} stab_run;
+
+typedef struct stab_job {
+  const mrvi_system *sys;
+  const mrvi_rule *rules;
+  const double *ps;
+  int n_p;
+  double x_max, step;
+  const double *xs;
+} stab_job;
+
+/* The settings of rule r, p = ps[j]: the slow potential on the micro grid. */
+static mrvi_settings stab_settings(const mrvi_system *sys, mrvi_rule rule,
+                                   double p) {
+  mrvi_settings s = sys->settings;
+  s.slow = rule;
+  s.slow_grid = MRVI_GRID_MICRO;
+  s.micro_steps = (int)p;
+  s.newton_tol = 1e-12;
+  return s;
+}
+
+/* Item k: rule k / n_p, p number k % n_p. */
+static void stab_item(void *user, int k, void *out) {
+  const stab_job *job = user;
+  stab_run *run = out;
+  const int r = k / job->n_p, j = k % job->n_p;
+  const mrvi_settings s = stab_settings(job->sys, job->rules[r], job->ps[j]);
+  if (mrvi_stability_limit(job->sys->model, &s, job->x_max, job->step,
+                           &run->measured, run->msg, sizeof run->msg) < 0) {
+    run->failed = 1;
+    return;
+  }
+  for (int i = 0; i < K; i++) {
+    double det;
+    if (mrvi_stability_at(job->sys->model, &s, job->xs[i], &det, &run->trace[i],
+                          run->msg, sizeof run->msg) < 0) {
+      run->failed = 1;
+      return;
+    }
+  }
+}
+
 int mrvi_cmd_stability(int argc, char **argv) {
-  static const char *const names[] = {"--p",  "--max",    "--step",
-                                      "--at", "--output", NULL};
+  static const char *const names[] = {"--p",      "--max",  "--step", "--at",
+                                      "--output", "--jobs", NULL};
   args a;
   int pr = parse(argc, argv, mrvi_usage_stability, names, &a);
   if (pr <= 0) {
@@ -847,6 +925,9 @@ int mrvi_cmd_stability(int argc, char **argv) {
        parse_double(cmd, "--step", get(&a, "--step"), &step) < 0) ||
       (get(&a, "--at") && parse_double(cmd, "--at", get(&a, "--at"), &at) < 0))
     goto out;
+  const int jobs = parse_jobs(cmd, &a, sys);
+  if (jobs < 0)
+    goto out;
   if (!(x_max > 0) || !(step > 0) || step > x_max) {
     fprintf(stderr, "mrvi %s: need 0 < --step <= --max\n", cmd);
     goto out;
@@ -861,36 +942,37 @@ int mrvi_cmd_stability(int argc, char **argv) {
    * mrvi_stability_rule_name (trapezoidal, midpoint). */
   const mrvi_rule rules[MRVI_STABILITY_RULES] = {{1.0, 1.0}, {0.5, 0.5}};
   double measured[2][MAX_LIST], analytic[2][MAX_LIST];
-  enum { K = 400 };
   scan = malloc((size_t)2 * n_p * K * sizeof(double));
   double xs[K];
   if (!scan)
     goto out;
   for (int k = 0; k < K; k++)
     xs[k] = x_max * (k + 1) / K;
+  /* The 2 x n_p limits and scans on --jobs worker processes, gathered in
+   * their order: the first failure in that order is reported. */
+  stab_job job = {sys, rules, ps, n_p, x_max, step, xs};
+  stab_run *runs = calloc((size_t)2 * n_p, sizeof *runs);
+  if (!runs)
+    goto out;
+  if (mrvi_batch_map(2 * n_p, jobs, sizeof *runs, stab_item, &job, runs, msg,
+                     sizeof msg) < 0) {
+    fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+    free(runs);
+    goto out;
+  }
   for (int r = 0; r < 2; r++)
     for (int j = 0; j < n_p; j++) {
-      mrvi_settings s = sys->settings;
-      s.slow = rules[r];
-      s.slow_grid = MRVI_GRID_MICRO;
-      s.micro_steps = (int)ps[j];
-      s.newton_tol = 1e-12;
-      if (mrvi_stability_limit(sys->model, &s, x_max, step, &measured[r][j],
-                               msg, sizeof msg) < 0) {
-        fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+      const stab_run *run = &runs[r * n_p + j];
+      if (run->failed) {
+        fprintf(stderr, "mrvi %s: %s\n", cmd, run->msg);
+        free(runs);
         goto out;
       }
+      measured[r][j] = run->measured;
       analytic[r][j] = mrvi_stability_bound(rules[r], (int)ps[j]);
-      for (int k = 0; k < K; k++) {
-        double det, tr;
-        if (mrvi_stability_at(sys->model, &s, xs[k], &det, &tr, msg,
-                              sizeof msg) < 0) {
-          fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
-          goto out;
-        }
-        scan[((size_t)r * n_p + j) * K + k] = tr;
-      }
+      memcpy(scan + ((size_t)r * n_p + j) * K, run->trace, sizeof run->trace);
     }
+  free(runs);
   if (!a.quiet) {
     printf("linear stability of %s (omega = %g): largest stable omega dT\n",
            sys->name, omega);
@@ -919,11 +1001,7 @@ int mrvi_cmd_stability(int argc, char **argv) {
     for (int j = 0; j < n_p; j++) {
       printf("%4d ", (int)ps[j]);
       for (int r = 0; r < 2; r++) {
-        mrvi_settings s = sys->settings;
-        s.slow = rules[r];
-        s.slow_grid = MRVI_GRID_MICRO;
-        s.micro_steps = (int)ps[j];
-        s.newton_tol = 1e-12;
+        const mrvi_settings s = stab_settings(sys, rules[r], ps[j]);
         double det, tr;
         if (mrvi_stability_at(sys->model, &s, at, &det, &tr, msg, sizeof msg) <
             0) {
