@@ -141,6 +141,22 @@ sed '/^table: /d;/^reference: /d' readme-newton2.out >jn1.out
 sed '/^table: /d;/^reference: /d' readme-newton2-j2.out >jn2.out
 cmp -s jn1.out jn2.out
 check "converge --jobs 2: failed coarse runs skipped as with the default jobs" $?
+# A worker killed mid-run stops the study, naming the signal and the run
+# (the runs of t_end = 40 take long enough to be caught running).
+"$mrvi" converge "$fpu" --no-cache --jobs 2 --dt0 0.01 --levels 5 --p 5,10 \
+  --t-end 40 --ref-step 6.25e-5 -q -o jkill.h5 2>jkill.err &
+study_pid=$!
+kid=
+for _ in $(seq 1200); do
+  kid=$(pgrep -P "$study_pid" | head -1)
+  [ -n "$kid" ] && break
+  sleep 0.05
+done
+[ -n "$kid" ] && kill -KILL "$kid"
+wait "$study_pid"
+[ $? -eq 2 ] && grep -q '^mrvi converge: worker process killed by signal 9 (item [0-9]*)$' jkill.err &&
+  [ -z "$(pgrep -P "$study_pid")" ]
+check "converge --jobs 2: a killed worker is reported, exit 2 ($(cat jkill.err))" $?
 "$mrvi" converge "$fpu" --jobs 0 -q 2>bad.err
 [ $? -eq 1 ] && grep -q -- '--jobs must be an integer' bad.err
 check "converge: --jobs 0 refused" $?
