@@ -101,6 +101,66 @@ check "converge: bad --dt refused" $?
 [ -f midmid.h5 ] && [ "$(wc -l <midmid.csv)" -eq 5 ]
 check "converge: table files (HDF5 and 4 CSV rows)" $?
 
+# --- converge --jobs: the runs on worker processes, the same table --------
+# Fixed range (every row in one map) with 2 p, and the chosen range (rows
+# deepened with the reference, the last ones one at a time); --jobs 1 is the
+# serial path in this process.
+for mode in fixed chosen; do
+  case $mode in
+  fixed) range="--dt0 0.05 --levels 4" ;;
+  chosen) range="" ;;
+  esac
+  for j in 1 2 3; do
+    # shellcheck disable=SC2086
+    "$mrvi" converge "$fpu" --p 5,10 $range --no-cache --jobs $j -o "j$mode$j.h5" \
+      --csv "j$mode$j.csv" >"j$mode$j.out" 2>"j$mode$j.err"
+    check "converge --jobs $j ($mode): exit status ($(cat "j$mode$j.err"))" $?
+    sed -i '/^table: /d' "j$mode$j.out"
+  done
+  for j in 2 3; do
+    cmp -s "j${mode}1.csv" "j$mode$j.csv" && cmp -s "j${mode}1.out" "j$mode$j.out" &&
+      cmp -s "j${mode}1.err" "j$mode$j.err"
+    check "converge --jobs $j ($mode): the table, output and warnings of --jobs 1" $?
+    if command -v h5diff >/dev/null; then
+      h5diff -q "j${mode}1.h5" "j$mode$j.h5"
+      check "converge --jobs $j ($mode): h5diff of the table files" $?
+    fi
+  done
+done
+# A run that fails in a worker: reported as by the serial path.
+for j in 1 2; do
+  "$mrvi" converge "$fpu" --p 5 --dt0 0.125 --levels 3 --jobs $j \
+    --set integrator.newton.max_iterations=2 -q -o jfail$j.h5 2>jfail$j.err
+  echo $? >>jfail$j.err
+done
+cmp -s jfail1.err jfail2.err && grep -q 'run dT = 0.125, p = 5 failed' jfail2.err &&
+  [ "$(tail -1 jfail2.err)" = 2 ]
+check "converge --jobs 2: a failed run reported as with --jobs 1 ($(cat jfail2.err))" $?
+readme readme-newton2-j2 2 --set integrator.newton.max_iterations=2 --jobs 2
+sed '/^table: /d;/^reference: /d' readme-newton2.out >jn1.out
+sed '/^table: /d;/^reference: /d' readme-newton2-j2.out >jn2.out
+cmp -s jn1.out jn2.out
+check "converge --jobs 2: failed coarse runs skipped as with the default jobs" $?
+# A worker killed mid-run stops the study, naming the signal and the run
+# (the runs of t_end = 40 take long enough to be caught running).
+"$mrvi" converge "$fpu" --no-cache --jobs 2 --dt0 0.01 --levels 5 --p 5,10 \
+  --t-end 40 --ref-step 6.25e-5 -q -o jkill.h5 2>jkill.err &
+study_pid=$!
+kid=
+for _ in $(seq 1200); do
+  kid=$(pgrep -P "$study_pid" | head -1)
+  [ -n "$kid" ] && break
+  sleep 0.05
+done
+[ -n "$kid" ] && kill -KILL "$kid"
+wait "$study_pid"
+[ $? -eq 2 ] && grep -q '^mrvi converge: worker process killed by signal 9 (item [0-9]*)$' jkill.err &&
+  [ -z "$(pgrep -P "$study_pid")" ]
+check "converge --jobs 2: a killed worker is reported, exit 2 ($(cat jkill.err))" $?
+"$mrvi" converge "$fpu" --jobs 0 -q 2>bad.err
+[ $? -eq 1 ] && grep -q -- '--jobs must be an integer' bad.err
+check "converge: --jobs 0 refused" $?
+
 # doc/reproduce.sh keeps machine paths out of the tracked result tables.
 bad=$(grep -rlE '(^|[[:space:](,=:])/[A-Za-z_.-]+/' "$root/doc/results" 2>/dev/null)
 [ -z "$bad" ]
@@ -118,6 +178,20 @@ within "$worst" 0 0.01
 check "stability: measured within 1 % of analytic (worst $worst)" $?
 awk '$1 == 1 && /stable +uncond/ { found = 1 } END { exit !found }' stab.out
 check "stability: midpoint p = 1 unconditionally stable" $?
+# --jobs: the 2 x 5 limits and scans on worker processes, the same table.
+for j in 1 2 3; do
+  "$mrvi" stability "$root/systems/oscillator.yaml" --at 3.5 --jobs $j -o stabj$j.h5 >stabj$j.out 2>&1
+  check "stability --jobs $j: exit status" $?
+  sed -i '/^table: /d' stabj$j.out
+done
+for j in 2 3; do
+  cmp -s stabj1.out stabj$j.out
+  check "stability --jobs $j: the output of --jobs 1" $?
+  if command -v h5diff >/dev/null; then
+    h5diff -q stabj1.h5 stabj$j.h5
+    check "stability --jobs $j: h5diff of the table files" $?
+  fi
+done
 "$mrvi" stability "$fpu" -q 2>bad.err
 [ $? -eq 1 ] && grep -q "one slow coordinate" bad.err
 check "stability: a non-oscillator is refused" $?

@@ -141,6 +141,20 @@ int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
                           int jobs, const mrvi_batch_queue *q, char *msg,
                           size_t len);
 
+/* One item of mrvi_batch_map: fill the record `out` (zeroed, `size` bytes,
+ * plain data: it is copied between processes) for item i. */
+typedef void (*mrvi_batch_item)(void *user, int i, void *out);
+
+/* Items 0..n-1 on `jobs` worker processes forked at once (call before any
+ * thread is started and with no HDF5 file open): item i's record goes to
+ * out + i * size in this process, whichever worker ran it, so that the
+ * records do not depend on jobs.  Items are handed out in order to the
+ * next free worker.  jobs <= 1 runs fn here, in order, without forking.
+ * A worker that dies mid-item stops the map: MRVI_EIO with the signal or
+ * exit status and the item in msg. */
+int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn, void *user,
+                   void *out, char *msg, size_t len);
+
 /* The cores this process may run on (sched_getaffinity, else
  * sysconf(_SC_NPROCESSORS_ONLN)), at least 1. */
 int mrvi_batch_cores(void);

@@ -387,3 +387,151 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
   }
   return rc;
 }
+
+/* ---------------------------------------------------------------------------
+ * A map over worker processes: items that return a small record (the
+ * study commands, `mrvi converge`), no run files.
+ * ------------------------------------------------------------------------- */
+
+/* A map worker: item indices from fd_in until it closes; for each, the
+ * index and its record to fd_out. */
+static void map_worker(size_t size, mrvi_batch_item fn, void *user, int fd_in,
+                       int fd_out) {
+  char *rec = malloc(size);
+  int i;
+  while (rec && read_all(fd_in, &i, sizeof i) == 0) {
+    memset(rec, 0, size);
+    fn(user, i, rec);
+    if (write_all(fd_out, &i, sizeof i) < 0 || write_all(fd_out, rec, size) < 0)
+      break;
+  }
+  free(rec);
+}
+
+int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn, void *user,
+                   void *out, char *msg, size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  char *rec = out;
+  if (jobs > n)
+    jobs = n;
+  if (jobs <= 1) {
+    for (int i = 0; i < n; i++)
+      fn(user, i, rec + (size_t)i * size);
+    return 0;
+  }
+  if (size > (size_t)1 << 30) {
+    mrvi_fmt(msg, len, "record of %zu bytes too large", size);
+    return MRVI_EINVAL;
+  }
+  slot *w = calloc((size_t)jobs, sizeof *w);
+  struct pollfd *pfd = calloc((size_t)jobs, sizeof *pfd);
+  if (!w || !pfd) {
+    free(w), free(pfd);
+    mrvi_fmt(msg, len, "out of memory");
+    return MRVI_ENOMEM;
+  }
+  struct sigaction ign = {.sa_handler = SIG_IGN}, old_pipe;
+  sigemptyset(&ign.sa_mask);
+  sigaction(SIGPIPE, &ign, &old_pipe);
+  fflush(NULL); /* nothing buffered is written twice */
+  int rc = 0, started = 0;
+  for (int k = 0; k < jobs; k++) {
+    int tp[2], rp[2];
+    if (pipe(tp) < 0)
+      break;
+    if (pipe(rp) < 0) {
+      close(tp[0]), close(tp[1]);
+      break;
+    }
+    const pid_t parent = getpid();
+    pid_t pid = fork();
+    if (pid == 0) {
+#ifdef __linux__
+      if (prctl(PR_SET_PDEATHSIG, SIGKILL) < 0 || getppid() != parent)
+        _exit(1);
+#endif
+      for (int m = 0; m < k; m++)
+        close(w[m].task), close(w[m].result);
+      close(tp[1]), close(rp[0]);
+      map_worker(size, fn, user, tp[0], rp[1]);
+      _exit(0);
+    }
+    close(tp[0]), close(rp[1]);
+    if (pid < 0) {
+      close(tp[1]), close(rp[0]);
+      break;
+    }
+    w[started++] =
+        (slot){.pid = pid, .task = tp[1], .result = rp[0], .busy = -1};
+  }
+  if (started == 0) {
+    mrvi_fmt(msg, len, "cannot start a worker process: %s", strerror(errno));
+    rc = MRVI_EIO;
+  }
+  /* Items handed out in order to whichever worker is free; each record
+   * lands at its index, so the gathered records do not depend on jobs. */
+  int next = 0, done = 0;
+  while (rc == 0 && done < n) {
+    int np = 0;
+    for (int k = 0; k < started; k++) {
+      slot *s = &w[k];
+      if (s->busy < 0 && s->task >= 0 && next < n) {
+        if (write_all(s->task, &next, sizeof next) == 0)
+          s->busy = next++;
+        else
+          slot_retire(s);
+      }
+      if (s->busy >= 0)
+        pfd[np++] = (struct pollfd){.fd = s->result, .events = POLLIN};
+    }
+    if (np == 0) {
+      mrvi_fmt(msg, len, "every worker process died; %d items not run",
+               n - done);
+      rc = MRVI_EIO;
+      break;
+    }
+    if (poll(pfd, (nfds_t)np, -1) < 0) {
+      if (errno == EINTR)
+        continue;
+      mrvi_fmt(msg, len, "poll: %s", strerror(errno));
+      rc = MRVI_EIO;
+      break;
+    }
+    for (int k = 0, p = 0; k < started && rc == 0; k++) {
+      slot *s = &w[k];
+      if (s->busy < 0 || !pfd[p++].revents)
+        continue;
+      int i = -1;
+      if (read_all(s->result, &i, sizeof i) < 0 || i != s->busy ||
+          read_all(s->result, rec + (size_t)i * size, size) < 0) {
+        int ws = 0;
+        waitpid(s->pid, &ws, 0);
+        s->pid = -1;
+        if (WIFSIGNALED(ws))
+          mrvi_fmt(msg, len, "worker process killed by signal %d (item %d)",
+                   WTERMSIG(ws), s->busy);
+        else
+          mrvi_fmt(msg, len, "worker process exited with status %d (item %d)",
+                   WEXITSTATUS(ws), s->busy);
+        rc = MRVI_EIO;
+        break;
+      }
+      s->busy = -1;
+      done++;
+    }
+  }
+  for (int k = 0; k < started; k++) {
+    slot_retire(&w[k]);
+    if (w[k].result >= 0)
+      close(w[k].result);
+    if (w[k].pid > 0) {
+      if (rc < 0)
+        kill(w[k].pid, SIGKILL);
+      waitpid(w[k].pid, NULL, 0);
+    }
+  }
+  sigaction(SIGPIPE, &old_pipe, NULL);
+  free(pfd);
+  free(w);
+  return rc;
+}

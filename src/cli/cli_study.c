@@ -10,6 +10,7 @@
  * layouts are in doc/output.md. */
 #include "cli.h"
 
+#include "batch/batch.h"
 #include "io/io.h"
 #include "mrvi.h"
 
@@ -64,6 +65,10 @@ const char mrvi_usage_converge[] =
     "                      (default .mrvi-cache); --no-cache keeps none\n"
     "  -o, --output OUT.h5 table file (default <name>-convergence.h5)\n"
     "  --csv OUT.csv       also write the table as CSV\n"
+    "  -j, --jobs N        worker processes for the runs (default: the cores\n"
+    "                      available; 1 runs them in this process); with\n"
+    "                      more than one, each run is on one thread.  The\n"
+    "                      table does not depend on N\n"
     "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
     "  -q, --quiet         print only errors\n";
 
@@ -84,6 +89,10 @@ const char mrvi_usage_stability[] =
     "  --max X             end of the scan of omega dT (default 20)\n"
     "  --step X            scan step (default 0.01)\n"
     "  --at X              also print det and trace at omega dT = X\n"
+    "  -j, --jobs N        worker processes for the 2 x (number of p) limits\n"
+    "                      and scans (default: the cores available; 1 runs\n"
+    "                      them in this process); the table does not depend\n"
+    "                      on N\n"
     "  -o, --output OUT.h5 table file (default <name>-stability.h5)\n"
     "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
     "  -q, --quiet         print only errors\n";
@@ -166,6 +175,8 @@ static int parse(int argc, char **argv, const char *usage,
       snprintf(name, sizeof name, "--output");
     else if (!strcmp(arg, "-s"))
       snprintf(name, sizeof name, "--set");
+    else if (!strcmp(arg, "-j"))
+      snprintf(name, sizeof name, "--jobs");
     else if (eq && !strncmp(arg, "--", 2)) {
       snprintf(name, sizeof name, "%.*s", (int)(eq - arg), arg);
       value = eq + 1;
@@ -537,13 +548,75 @@ static int write_conv_csv(const char *cmd, const char *path,
   return 0;
 }
 
+/* One run of the study (macro step, p) and its errors: the record a
+ * worker process returns (mrvi_batch_map). */
+typedef struct conv_run {
+  int run_failed, errors_failed;
+  mrvi_errors e;
+  char msg[1024];
+} conv_run;
+
+/* What the runs of rows first ... share. */
+typedef struct conv_job {
+  const mrvi_system *sys;
+  const mrvi_trajectory *ref;
+  const double *dts, *ps;
+  int n_p;
+  double t_end;
+  int first;
+} conv_job;
+
+/* Item k: row first + k / n_p, p number k % n_p. */
+static void conv_item(void *user, int k, void *out) {
+  const conv_job *job = user;
+  conv_run *r = out;
+  const int i = job->first + k / job->n_p, j = k % job->n_p;
+  mrvi_settings s = job->sys->settings;
+  s.macro_step = job->dts[i];
+  s.micro_steps = (int)job->ps[j];
+  s.t_end = job->t_end;
+  mrvi_trajectory *run = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(job->sys->model, &s, &run, &sum) < 0) {
+    r->run_failed = 1;
+    snprintf(r->msg, sizeof r->msg, "%s", sum.message);
+    return;
+  }
+  if (mrvi_trajectory_errors(job->sys->model, run, job->ref, &r->e, r->msg,
+                             sizeof r->msg) < 0)
+    r->errors_failed = 1;
+  mrvi_trajectory_free(run);
+}
+
+/* --jobs: worker processes for the runs (default: the cores), or -1 with
+ * the message printed.  The results do not depend on threads (util.h), and
+ * forked workers must not inherit a thread pool: with more than one job
+ * every run of sys is on one thread. */
+static int parse_jobs(const char *cmd, const args *a, mrvi_system *sys) {
+  int jobs = mrvi_batch_cores();
+  if (get(a, "--jobs")) {
+    double v;
+    if (parse_double(cmd, "--jobs", get(a, "--jobs"), &v) < 0)
+      return -1;
+    if (!(v >= 1 && v <= 4096 && v == floor(v))) {
+      fprintf(stderr, "mrvi %s: --jobs must be an integer in [1, 4096]\n", cmd);
+      return -1;
+    }
+    jobs = (int)v;
+  }
+  if (jobs > 1)
+    sys->settings.threads = 1;
+  return jobs;
+}
+
 static long gcd(long a, long b) { return b ? gcd(b, a % b) : a; }
 
 int mrvi_cmd_converge(int argc, char **argv) {
   static const char *const names[] = {
       "--dt",    "--dt0",       "--levels",   "--p",
       "--t-end", "--reference", "--ref-step", "--ref-scheme",
-      "--cache", "--output",    "--csv",      NULL};
+      "--cache", "--output",    "--csv",      "--jobs",
+      NULL};
   args a;
   int pr = parse(argc, argv, mrvi_usage_converge, names, &a);
   if (pr <= 0) {
@@ -591,6 +664,22 @@ int mrvi_cmd_converge(int argc, char **argv) {
   if (get(&a, "--p") &&
       (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0)
     goto out;
+  /* --jobs: worker processes for the runs (default: the cores).  Their
+   * results do not depend on threads (util.h), and forked workers must not
+   * inherit a thread pool: with more than one job every run is serial. */
+  int jobs = mrvi_batch_cores();
+  if (get(&a, "--jobs")) {
+    double v;
+    if (parse_double(cmd, "--jobs", get(&a, "--jobs"), &v) < 0)
+      goto out;
+    if (!(v >= 1 && v <= 4096 && v == floor(v))) {
+      fprintf(stderr, "mrvi %s: --jobs must be an integer in [1, 4096]\n", cmd);
+      goto out;
+    }
+    jobs = (int)v;
+  }
+  if (jobs > 1)
+    sys->settings.threads = 1;
   if (!(t_end > 0)) {
     fprintf(stderr, "mrvi %s: --t-end must be positive\n", cmd);
     goto out;
@@ -624,7 +713,10 @@ int mrvi_cmd_converge(int argc, char **argv) {
     fflush(stdout);
   }
   code = EXIT_RUN;
-  int rows = 0;
+  int rows = 0, done_to = 0; /* rows [0, done_to) have their runs */
+  conv_run *runs = calloc((size_t)MAX_LIST * MAX_LIST, sizeof *runs);
+  if (!runs)
+    goto out;
   for (int i = 0; i < n_dt; i++) {
     /* A reference fine enough for row i: computed once for the fixed
      * table, deepened 4 halvings at a time for the chosen range. */
@@ -637,41 +729,55 @@ int mrvi_cmd_converge(int argc, char **argv) {
       ref = reference(cmd, &a, sys, ref_scheme, h, t_ref, a.quiet);
       if (!ref) {
         code = EXIT_INPUT;
+        free(runs);
         goto out;
       }
     }
+    if (i >= done_to) {
+      /* The runs of rows i .. to-1 at once, on --jobs processes: rows this
+       * reference is fine enough for, and with the chosen range none past
+       * a row that may end the study (no run is wasted). */
+      int to = i + 1;
+      while (to < n_dt && (!adaptive || to < (int)levels) &&
+             (get(&a, "--reference") || !isnan(h_fixed) ||
+              ref->macro_step <= dts[to] / (double)lcm / 8.0 * (1 + 1e-9)))
+        to++;
+      conv_job job = {sys, ref, dts, ps, n_p, t_end, i};
+      char msg[1024];
+      if (mrvi_batch_map((to - i) * n_p, jobs, sizeof *runs, conv_item, &job,
+                         runs + (size_t)i * n_p, msg, sizeof msg) < 0) {
+        fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+        free(runs);
+        goto out;
+      }
+      done_to = to;
+    }
     for (int j = 0; j < n_p; j++) {
-      mrvi_settings s = sys->settings;
-      s.macro_step = dts[i];
-      s.micro_steps = (int)ps[j];
-      s.t_end = t_end;
+      const conv_run *r = &runs[(size_t)i * n_p + j];
       T[j].p = (int)ps[j];
       T[j].dT[i] = dts[i];
-      mrvi_trajectory *run = NULL;
-      mrvi_summary sum;
-      char msg[1024];
-      if (mrvi_trajectory_run(sys->model, &s, &run, &sum) < 0) {
+      if (r->run_failed) {
         if (adaptive && i + 1 < n_dt) { /* a coarse step may fail: halve on */
           if (!a.quiet)
             printf("dT = %g, p = %d failed, trying smaller steps: %s\n", dts[i],
-                   (int)ps[j], sum.message);
+                   (int)ps[j], r->msg);
           const mrvi_errors none = {dts[i], (int)ps[j], NAN, NAN, NAN,
                                     NAN,    NAN,        NAN, NAN, NAN};
           T[j].e[i] = none;
           continue;
         }
         fprintf(stderr, "mrvi %s: run dT = %g, p = %d failed: %s\n", cmd,
-                dts[i], (int)ps[j], sum.message);
+                dts[i], (int)ps[j], r->msg);
+        free(runs);
         goto out;
       }
-      int st = mrvi_trajectory_errors(sys->model, run, ref, &T[j].e[i], msg,
-                                      sizeof msg);
-      mrvi_trajectory_free(run);
-      if (st < 0) {
-        fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+      if (r->errors_failed) {
+        fprintf(stderr, "mrvi %s: %s\n", cmd, r->msg);
         code = EXIT_INPUT;
+        free(runs);
         goto out;
       }
+      T[j].e[i] = r->e;
     }
     rows = i + 1;
     if (adaptive && rows >= (int)levels) {
@@ -687,6 +793,7 @@ int mrvi_cmd_converge(int argc, char **argv) {
         break;
     }
   }
+  free(runs);
   /* The table: every row, or with the chosen range its last `levels`. */
   const int first = adaptive && rows > (int)levels ? rows - (int)levels : 0;
   for (int j = 0; j < n_p; j++) {
@@ -739,9 +846,62 @@ out:
 /* ---------------------------------------------------------------------------
  * stability
  * ------------------------------------------------------------------------- */
+/* stability: the scan of omega dT has this many points. */
+enum { K = 400 };
+
+/* The limit and the scan of one rule and p: the record a worker process
+ * returns (mrvi_batch_map). */
+typedef struct stab_run {
+  int failed;
+  double measured;
+  double trace[K];
+  char msg[1024];
+} stab_run;
+
+typedef struct stab_job {
+  const mrvi_system *sys;
+  const mrvi_rule *rules;
+  const double *ps;
+  int n_p;
+  double x_max, step;
+  const double *xs;
+} stab_job;
+
+/* The settings of rule r, p = ps[j]: the slow potential on the micro grid. */
+static mrvi_settings stab_settings(const mrvi_system *sys, mrvi_rule rule,
+                                   double p) {
+  mrvi_settings s = sys->settings;
+  s.slow = rule;
+  s.slow_grid = MRVI_GRID_MICRO;
+  s.micro_steps = (int)p;
+  s.newton_tol = 1e-12;
+  return s;
+}
+
+/* Item k: rule k / n_p, p number k % n_p. */
+static void stab_item(void *user, int k, void *out) {
+  const stab_job *job = user;
+  stab_run *run = out;
+  const int r = k / job->n_p, j = k % job->n_p;
+  const mrvi_settings s = stab_settings(job->sys, job->rules[r], job->ps[j]);
+  if (mrvi_stability_limit(job->sys->model, &s, job->x_max, job->step,
+                           &run->measured, run->msg, sizeof run->msg) < 0) {
+    run->failed = 1;
+    return;
+  }
+  for (int i = 0; i < K; i++) {
+    double det;
+    if (mrvi_stability_at(job->sys->model, &s, job->xs[i], &det, &run->trace[i],
+                          run->msg, sizeof run->msg) < 0) {
+      run->failed = 1;
+      return;
+    }
+  }
+}
+
 int mrvi_cmd_stability(int argc, char **argv) {
-  static const char *const names[] = {"--p",  "--max",    "--step",
-                                      "--at", "--output", NULL};
+  static const char *const names[] = {"--p",      "--max",  "--step", "--at",
+                                      "--output", "--jobs", NULL};
   args a;
   int pr = parse(argc, argv, mrvi_usage_stability, names, &a);
   if (pr <= 0) {
@@ -765,6 +925,9 @@ int mrvi_cmd_stability(int argc, char **argv) {
        parse_double(cmd, "--step", get(&a, "--step"), &step) < 0) ||
       (get(&a, "--at") && parse_double(cmd, "--at", get(&a, "--at"), &at) < 0))
     goto out;
+  const int jobs = parse_jobs(cmd, &a, sys);
+  if (jobs < 0)
+    goto out;
   if (!(x_max > 0) || !(step > 0) || step > x_max) {
     fprintf(stderr, "mrvi %s: need 0 < --step <= --max\n", cmd);
     goto out;
@@ -779,36 +942,37 @@ int mrvi_cmd_stability(int argc, char **argv) {
    * mrvi_stability_rule_name (trapezoidal, midpoint). */
   const mrvi_rule rules[MRVI_STABILITY_RULES] = {{1.0, 1.0}, {0.5, 0.5}};
   double measured[2][MAX_LIST], analytic[2][MAX_LIST];
-  enum { K = 400 };
   scan = malloc((size_t)2 * n_p * K * sizeof(double));
   double xs[K];
   if (!scan)
     goto out;
   for (int k = 0; k < K; k++)
     xs[k] = x_max * (k + 1) / K;
+  /* The 2 x n_p limits and scans on --jobs worker processes, gathered in
+   * their order: the first failure in that order is reported. */
+  stab_job job = {sys, rules, ps, n_p, x_max, step, xs};
+  stab_run *runs = calloc((size_t)2 * n_p, sizeof *runs);
+  if (!runs)
+    goto out;
+  if (mrvi_batch_map(2 * n_p, jobs, sizeof *runs, stab_item, &job, runs, msg,
+                     sizeof msg) < 0) {
+    fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+    free(runs);
+    goto out;
+  }
   for (int r = 0; r < 2; r++)
     for (int j = 0; j < n_p; j++) {
-      mrvi_settings s = sys->settings;
-      s.slow = rules[r];
-      s.slow_grid = MRVI_GRID_MICRO;
-      s.micro_steps = (int)ps[j];
-      s.newton_tol = 1e-12;
-      if (mrvi_stability_limit(sys->model, &s, x_max, step, &measured[r][j],
-                               msg, sizeof msg) < 0) {
-        fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+      const stab_run *run = &runs[r * n_p + j];
+      if (run->failed) {
+        fprintf(stderr, "mrvi %s: %s\n", cmd, run->msg);
+        free(runs);
         goto out;
       }
+      measured[r][j] = run->measured;
       analytic[r][j] = mrvi_stability_bound(rules[r], (int)ps[j]);
-      for (int k = 0; k < K; k++) {
-        double det, tr;
-        if (mrvi_stability_at(sys->model, &s, xs[k], &det, &tr, msg,
-                              sizeof msg) < 0) {
-          fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
-          goto out;
-        }
-        scan[((size_t)r * n_p + j) * K + k] = tr;
-      }
+      memcpy(scan + ((size_t)r * n_p + j) * K, run->trace, sizeof run->trace);
     }
+  free(runs);
   if (!a.quiet) {
     printf("linear stability of %s (omega = %g): largest stable omega dT\n",
            sys->name, omega);
@@ -837,11 +1001,7 @@ int mrvi_cmd_stability(int argc, char **argv) {
     for (int j = 0; j < n_p; j++) {
       printf("%4d ", (int)ps[j]);
       for (int r = 0; r < 2; r++) {
-        mrvi_settings s = sys->settings;
-        s.slow = rules[r];
-        s.slow_grid = MRVI_GRID_MICRO;
-        s.micro_steps = (int)ps[j];
-        s.newton_tol = 1e-12;
+        const mrvi_settings s = stab_settings(sys, rules[r], ps[j]);
         double det, tr;
         if (mrvi_stability_at(sys->model, &s, at, &det, &tr, msg, sizeof msg) <
             0) {
