@@ -1003,30 +1003,8 @@ void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
 ALWAYS_INLINE void spring_map(const kspring *q, const double *z, double *g,
                               double *Ax, const int *map, double hscale,
                               const int dim, const int two, const int kk) {
-  double d[3], r2 = 0.0;
-  UNROLL for (int k = 0; k < dim; k++) {
-    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->a[k]);
-    r2 += d[k] * d[k];
-  }
-  const double r = sqrt(r2), s = r - q->shift;
-  const int k = kk == K_ANY ? q->k : kk;
-  double phi, d1, d2;
-  if (k == KS_HOOKE) {
-    d1 = q->c * s;
-    d2 = q->c;
-  } else if (k >= 0) {
-    mrvi_power_derivs_ce(q->ce, q->ce1, k, s, &d1, &d2);
-  } else {
-    q->el->law->eval(q->el->params, s, &phi, &d1, &d2);
-  }
-  double u[3] = {0, 0, 0}, a = 0.0, b;
-  if (r > 0.0) {
-    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / r;
-    a = d2 - d1 / r;
-    b = d1 / r;
-  } else {
-    b = d2;
-  }
+  double u[3], d1, a, b;
+  spring_derivs(q, z, u, &d1, &a, &b, dim, two, kk);
   UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] += d1 * u[k];
   if (two)
     UNROLL for (int k = 0; k < dim; k++) g[q->cj[k]] += -d1 * u[k];
