@@ -13,12 +13,15 @@
  * bracket it, and the ratio.  A measurement, not a test: no thresholds.
  *
  *   bench_multibody [--quick] [--p P] [--t T] [--repeat R] [--dt LIST]
- *                   [--halvings K] [--set KEY=VALUE]... [FILE.yaml]
+ *                   [--halvings K] [--p1-general] [--set KEY=VALUE]...
+ *                   [FILE.yaml]
  *   bench_multibody --cost [--t T] [--set KEY=VALUE]... [FILE.yaml]
  *
  * --dt: the multirate macro steps (default 0.04,0.02,0.01,0.005);
  * --halvings: the single-rate steps 0.02 / 2^i, i < K (default 8), the
- * reference at 1/16 of the finest.
+ * reference at 1/16 of the finest; --p1-general: the single-rate runs (and
+ * the reference) on the general path, where it is faster than the
+ * automatic choice (doc/performance.md, "Multibody").
  * --cost: CPU time per macro step (creation left out, the best of R runs)
  * at the file's macro step for p = 1, 2, 5, 10, 20, 40, with the solver
  * path each takes: how the cost of a macro step grows with p.
@@ -35,7 +38,8 @@
 
 static const char usage[] =
     "Usage: bench_multibody [--quick] [--p P] [--t T] [--repeat R] "
-    "[--dt LIST] [--halvings K] [--set KEY=VALUE]... [FILE.yaml]\n"
+    "[--dt LIST] [--halvings K] [--p1-general] [--set KEY=VALUE]... "
+    "[FILE.yaml]\n"
     "       bench_multibody --cost [--t T] [--repeat R] [--set KEY=VALUE]... "
     "[FILE.yaml]\n"
     "\n"
@@ -44,16 +48,21 @@ static const char usage[] =
     "matched error; default p = 10, T = 1, R = 3 repeats,\n"
     "systems/flexible_pendulum.yaml; --dt: the multirate macro steps\n"
     "(default 0.04,0.02,0.01,0.005); --halvings K: single-rate steps\n"
-    "0.02/2^i, i < K (default 8); --set applies a description-file\n"
+    "0.02/2^i, i < K (default 8); --p1-general: p = 1 on the general\n"
+    "path; --set applies a description-file\n"
     "override (e.g. integrator.constraints.form=null-space).\n"
     "--cost: CPU time per macro step against p at the file's macro step,\n"
     "with the solver path of each p.\n";
 
 /* N steps of dT with p micro steps from the file's initial state; q (n)
  * gets the last node; returns the CPU time or a negative value. */
+static int p1_general; /* --p1-general: the single-rate runs on general */
+
 static double run(const mrvi_system *sys, int p, double dT, long N, double *q) {
   mrvi_settings s = sys->settings;
   s.micro_steps = p;
+  if (p == 1 && p1_general)
+    s.solver = MRVI_SOLVER_GENERAL;
   s.macro_step = dT;
   s.t_end = (double)N * dT;
   const double t0 = bench_cpu();
@@ -219,6 +228,8 @@ int main(int argc, char **argv) {
     } else if (!strcmp(argv[i], "--dt") && i + 1 < argc) {
       if ((n_mr = parse_list(argv[++i], mr_dT)) < 0)
         return fputs(usage, stderr), 2;
+    } else if (!strcmp(argv[i], "--p1-general")) {
+      p1_general = 1;
     } else if (!strcmp(argv[i], "--halvings") && i + 1 < argc) {
       n_sr = atoi(argv[++i]);
       if (n_sr < 2 || n_sr > MAX_RUNS)
@@ -263,8 +274,9 @@ int main(int argc, char **argv) {
          sys->settings.constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
                                                                : "multiplier",
          bench_build());
-  printf("# reference: p = 1, dT = %g (%ld steps)\n", ref_dT,
-         lround(T / ref_dT));
+  printf("# reference: p = 1, dT = %g (%ld steps)%s\n", ref_dT,
+         lround(T / ref_dT),
+         p1_general ? "; every p = 1 run on the general path" : "");
   if (run(sys, 1, ref_dT, lround(T / ref_dT), q_ref) < 0)
     return 1;
   printf("%5s %12s %6s %12s %12s %12s %12s\n", "p", "dT", "steps", "error",
