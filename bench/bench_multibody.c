@@ -173,8 +173,8 @@ static void measure(const mrvi_system *sys, int p, double dT, double T,
   }
   for (int i = 0; i < n; i++) {
     const double e = fabs(q[i] - q_ref[i]);
-    double *part = mrvi_model_rate(sys->model, i) == MRVI_FAST ? &r->err_f
-                                                               : &r->err_s;
+    double *part =
+        mrvi_model_rate(sys->model, i) == MRVI_FAST ? &r->err_f : &r->err_s;
     *part = fmax(*part, e);
     r->err = fmax(r->err, e);
   }
@@ -269,8 +269,7 @@ int main(int argc, char **argv) {
   for (int i = 0; i < n_sr; i++)
     sr_dT[i] = 0.02 / (double)(1L << i);
   const double ref_dT = sr_dT[n_sr - 1] / 16.0;
-  printf("# %s, %s, T = %g, %s form; %s\n", sys->name, sys->settings.scheme,
-         T,
+  printf("# %s, %s, T = %g, %s form; %s\n", sys->name, sys->settings.scheme, T,
          sys->settings.constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
                                                                : "multiplier",
          bench_build());

@@ -853,8 +853,8 @@ static double arm_error(const mrvi_system *sys, int p, double dT, long N,
 static void test_arm_multirate(void) {
   mrvi_system *sys = NULL;
   char msg[1024];
-  if (mrvi_system_load(test_source_path("systems/robot_arm_payload.yaml"),
-                       NULL, 0, &sys, msg, sizeof msg) < 0) {
+  if (mrvi_system_load(test_source_path("systems/robot_arm_payload.yaml"), NULL,
+                       0, &sys, msg, sizeof msg) < 0) {
     CHECK(0, "systems/robot_arm_payload.yaml loads: %s", msg);
     return;
   }
