@@ -1,25 +1,34 @@
 /* Multirate pays on a multibody system (doc/performance.md, "Multibody";
- * doc/multibody.md): systems/flexible_pendulum.yaml, a heavy slow arm
- * carrying two light fast links joined by a stiff torsional spring, with
- * the midpoint-midpoint scheme at p micro steps against p = 1 (the same
- * scheme single-rate).  Each run's error is max |q(T) - q_ref(T)| at a fixed
- * time T against a fine single-rate reference, its cost the process CPU
- * time of creating the integrator and taking the steps (the best of
- * `repeat` runs).  The table lists every run; the summary matches errors:
- * for each multirate run, the CPU time p = 1 needs for the same error,
- * interpolated log-log between the two single-rate runs that bracket it,
- * and the ratio.  A measurement, not a test: no thresholds.
+ * doc/multibody.md): a description file (default
+ * systems/flexible_pendulum.yaml; systems/robot_arm_payload.yaml is the
+ * one where it pays) with its scheme (midpoint-midpoint in both) at p
+ * micro steps against p = 1 (the same scheme single-rate).  Each run's
+ * error is max |q(T) - q_ref(T)| at a fixed time T against a fine
+ * single-rate reference, split into the slow and the fast coordinates; its
+ * cost the process CPU time of creating the integrator and taking the
+ * steps (the best of `repeat` runs).  The table lists every run (a run
+ * whose Newton fails is listed as failed and left out); the summary
+ * matches errors: for each multirate run, the CPU time p = 1 needs for the
+ * same error, interpolated log-log between the two single-rate runs that
+ * bracket it, and the ratio.  A measurement, not a test: no thresholds.
  *
- *   bench_multibody [--quick] [--p P] [--t T] [--repeat R]
- *                   [--set KEY=VALUE]... [FILE.yaml]
+ *   bench_multibody [--quick] [--p P] [--t T] [--repeat R] [--dt LIST]
+ *                   [--halvings K] [--p1-general] [--set KEY=VALUE]...
+ *                   [FILE.yaml]
  *   bench_multibody --cost [--t T] [--set KEY=VALUE]... [FILE.yaml]
  *
+ * --dt: the multirate macro steps (default 0.04,0.02,0.01,0.005);
+ * --halvings: the single-rate steps 0.02 / 2^i, i < K (default 8), the
+ * reference at 1/16 of the finest; --p1-general: the single-rate runs (and
+ * the reference) on the general path, where it is faster than the
+ * automatic choice (doc/performance.md, "Multibody").
  * --cost: CPU time per macro step (creation left out, the best of R runs)
  * at the file's macro step for p = 1, 2, 5, 10, 20, 40, with the solver
  * path each takes: how the cost of a macro step grows with p.
  *
  * Defaults: p = 10, T = 1, R = 3, systems/flexible_pendulum.yaml (through
- * $MRVI_SOURCE_ROOT or ".."); --quick: T = 0.2, R = 1, fewer steps. */
+ * $MRVI_SOURCE_ROOT or ".."); --quick: T = 0.2, R = 1, K = 6, the first
+ * three macro steps. */
 #include "bench_util.h"
 
 #include <math.h>
@@ -29,23 +38,31 @@
 
 static const char usage[] =
     "Usage: bench_multibody [--quick] [--p P] [--t T] [--repeat R] "
-    "[--set KEY=VALUE]... [FILE.yaml]\n"
+    "[--dt LIST] [--halvings K] [--p1-general] [--set KEY=VALUE]... "
+    "[FILE.yaml]\n"
     "       bench_multibody --cost [--t T] [--repeat R] [--set KEY=VALUE]... "
     "[FILE.yaml]\n"
     "\n"
-    "Error at time T against a fine reference and CPU time of the\n"
-    "midpoint-midpoint scheme with p micro steps and with p = 1, and the\n"
-    "CPU ratio at matched error; default p = 10, T = 1, R = 3 repeats,\n"
-    "systems/flexible_pendulum.yaml; --set applies a description-file\n"
+    "Error at time T against a fine reference and CPU time of the file's\n"
+    "scheme with p micro steps and with p = 1, and the CPU ratio at\n"
+    "matched error; default p = 10, T = 1, R = 3 repeats,\n"
+    "systems/flexible_pendulum.yaml; --dt: the multirate macro steps\n"
+    "(default 0.04,0.02,0.01,0.005); --halvings K: single-rate steps\n"
+    "0.02/2^i, i < K (default 8); --p1-general: p = 1 on the general\n"
+    "path; --set applies a description-file\n"
     "override (e.g. integrator.constraints.form=null-space).\n"
     "--cost: CPU time per macro step against p at the file's macro step,\n"
     "with the solver path of each p.\n";
 
 /* N steps of dT with p micro steps from the file's initial state; q (n)
  * gets the last node; returns the CPU time or a negative value. */
+static int p1_general; /* --p1-general: the single-rate runs on general */
+
 static double run(const mrvi_system *sys, int p, double dT, long N, double *q) {
   mrvi_settings s = sys->settings;
   s.micro_steps = p;
+  if (p == 1 && p1_general)
+    s.solver = MRVI_SOLVER_GENERAL;
   s.macro_step = dT;
   s.t_end = (double)N * dT;
   const double t0 = bench_cpu();
@@ -111,45 +128,85 @@ static int cost_table(const mrvi_system *sys, double T, int repeat) {
   return 0;
 }
 
+enum { MAX_RUNS = 12 };
+
+/* A comma-separated list of positive numbers into v (at most MAX_RUNS);
+ * returns their count or -1. */
+static int parse_list(const char *arg, double *v) {
+  char buf[256];
+  if (strlen(arg) >= sizeof buf)
+    return -1;
+  strcpy(buf, arg);
+  int k = 0;
+  for (char *tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+    if (k == MAX_RUNS || bench_parse_positive(tok, &v[k]) < 0)
+      return -1;
+    k++;
+  }
+  return k > 0 ? k : -1;
+}
+
 typedef struct row {
   int p;
   double dT, err, cpu;
+  double err_s, err_f; /* the error on the slow and on the fast coordinates */
 } row;
 
-/* Best CPU time of `repeat` runs and the error against q_ref. */
-static int measure(const mrvi_system *sys, int p, double dT, double T,
-                   int repeat, const double *q_ref, double *q, row *r) {
+/* Best CPU time of `repeat` runs and the error against q_ref; a run that
+ * fails (Newton diverges at a large step) is printed and kept out of the
+ * matching (err NAN).  Returns -1 only for the reference's failure. */
+static void measure(const mrvi_system *sys, int p, double dT, double T,
+                    int repeat, const double *q_ref, double *q, row *r) {
   const long N = lround(T / dT);
   const int n = mrvi_model_n(sys->model);
   r->p = p, r->dT = dT, r->cpu = INFINITY, r->err = 0.0;
+  r->err_s = r->err_f = 0.0;
   for (int i = 0; i < repeat; i++) {
     const double t = run(sys, p, dT, N, q);
-    if (t < 0)
-      return -1;
+    if (t < 0) {
+      r->err = r->err_s = r->err_f = r->cpu = NAN;
+      printf("%5d %12.6g %6ld %12s\n", p, dT, N, "failed");
+      fflush(stdout);
+      return;
+    }
     r->cpu = fmin(r->cpu, t);
   }
-  for (int i = 0; i < n; i++)
-    r->err = fmax(r->err, fabs(q[i] - q_ref[i]));
-  printf("%5d %12.6g %6ld %12.3e %12.4f\n", p, dT, N, r->err, r->cpu);
+  for (int i = 0; i < n; i++) {
+    const double e = fabs(q[i] - q_ref[i]);
+    double *part =
+        mrvi_model_rate(sys->model, i) == MRVI_FAST ? &r->err_f : &r->err_s;
+    *part = fmax(*part, e);
+    r->err = fmax(r->err, e);
+  }
+  printf("%5d %12.6g %6ld %12.3e %12.3e %12.3e %12.4f\n", p, dT, N, r->err,
+         r->err_s, r->err_f, r->cpu);
   fflush(stdout);
-  return 0;
 }
 
 /* CPU time of the single-rate runs s (ns, dT decreasing) at error e:
- * log-log interpolation between the two that bracket e; NAN outside. */
+ * log-log interpolation between the two that bracket e at the last
+ * crossing, i.e. the step from which on every finer run (those measured)
+ * is at least as accurate (a fast oscillation's error at T is not
+ * monotone in dT until the step resolves it; a lucky coarse run does not
+ * count); NAN outside. */
 static double cpu_at(const row *s, int ns, double e) {
-  for (int i = 0; i + 1 < ns; i++) {
+  for (int i = ns - 2; i >= 0; i--) {
     const double a = s[i].err, b = s[i + 1].err;
-    if ((a >= e && b <= e) || (a <= e && b >= e)) {
+    if (isnan(a) || isnan(b))
+      continue;
+    if (a >= e && b <= e) {
       const double w = a == b ? 0.0 : log(e / a) / log(b / a);
       return exp(log(s[i].cpu) + w * log(s[i + 1].cpu / s[i].cpu));
     }
+    if (b > e)
+      return NAN; /* the finest runs are still above e */
   }
   return NAN;
 }
 
 int main(int argc, char **argv) {
-  int p = 10, repeat = 3, quick = 0, cost = 0;
+  int p = 10, repeat = 3, cost = 0, n_sr = 8, n_mr = 4;
+  double mr_dT[MAX_RUNS] = {0.04, 0.02, 0.01, 0.005};
   double T = 1.0;
   const char *file = NULL, *sets[16];
   int n_sets = 0;
@@ -158,7 +215,7 @@ int main(int argc, char **argv) {
       fputs(usage, stdout);
       return 0;
     } else if (!strcmp(argv[i], "--quick")) {
-      quick = 1, T = 0.2, repeat = 1;
+      T = 0.2, repeat = 1, n_sr = 6, n_mr = n_mr < 3 ? n_mr : 3;
     } else if (!strcmp(argv[i], "--cost")) {
       cost = 1;
     } else if (!strcmp(argv[i], "--p") && i + 1 < argc) {
@@ -168,6 +225,15 @@ int main(int argc, char **argv) {
         return fputs(usage, stderr), 2;
     } else if (!strcmp(argv[i], "--set") && i + 1 < argc && n_sets < 16) {
       sets[n_sets++] = argv[++i];
+    } else if (!strcmp(argv[i], "--dt") && i + 1 < argc) {
+      if ((n_mr = parse_list(argv[++i], mr_dT)) < 0)
+        return fputs(usage, stderr), 2;
+    } else if (!strcmp(argv[i], "--p1-general")) {
+      p1_general = 1;
+    } else if (!strcmp(argv[i], "--halvings") && i + 1 < argc) {
+      n_sr = atoi(argv[++i]);
+      if (n_sr < 2 || n_sr > MAX_RUNS)
+        return fputs(usage, stderr), 2;
     } else if (!strcmp(argv[i], "--repeat") && i + 1 < argc) {
       repeat = atoi(argv[++i]);
     } else if (argv[i][0] != '-' && !file) {
@@ -195,44 +261,44 @@ int main(int argc, char **argv) {
   const int n = mrvi_model_n(sys->model);
   double *q_ref = malloc((size_t)n * sizeof *q_ref),
          *q = malloc((size_t)n * sizeof *q);
-  /* The reference: p = 1 at a step 2^-4 of the finest single-rate run. */
-  const double ref_dT = 1.5625e-5;
-  printf("# %s, midpoint-midpoint, T = %g, %s form; %s\n", sys->name, T,
+  /* Single-rate from dT = 0.02 down by halvings to where it resolves the
+   * fast part (on flexible_pendulum its error falls as dT^2 from
+   * dT = 6.25e-4 on, not monotonically above); the reference: p = 1 at a
+   * step 2^-4 of the finest single-rate run. */
+  double sr_dT[MAX_RUNS];
+  for (int i = 0; i < n_sr; i++)
+    sr_dT[i] = 0.02 / (double)(1L << i);
+  const double ref_dT = sr_dT[n_sr - 1] / 16.0;
+  printf("# %s, %s, T = %g, %s form; %s\n", sys->name, sys->settings.scheme, T,
          sys->settings.constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
                                                                : "multiplier",
          bench_build());
-  printf("# reference: p = 1, dT = %g (%ld steps)\n", ref_dT,
-         lround(T / ref_dT));
+  printf("# reference: p = 1, dT = %g (%ld steps)%s\n", ref_dT,
+         lround(T / ref_dT),
+         p1_general ? "; every p = 1 run on the general path" : "");
   if (run(sys, 1, ref_dT, lround(T / ref_dT), q_ref) < 0)
     return 1;
-  printf("%5s %12s %6s %12s %12s\n", "p", "dT", "steps", "error", "cpu [s]");
-  /* Multirate from dT = 0.04 down; single-rate from 0.02 down to where it
-   * resolves the fast links (its error falls as dT^2 from dT = 6.25e-4 on,
-   * not monotonically above). */
-  const double mr_dT[] = {0.04, 0.02, 0.01, 0.005},
-               sr_dT[] = {0.02,    0.01,     0.005,     0.0025,
-                          0.00125, 0.000625, 0.0003125, 0.00015625};
-  const int n_mr = quick ? 3 : 4, n_sr = quick ? 6 : 8;
-  row mr[4], sr[8];
-  int st = 0;
-  for (int i = 0; i < n_mr && !st; i++)
-    st = measure(sys, p, mr_dT[i], T, repeat, q_ref, q, &mr[i]);
-  for (int i = 0; i < n_sr && !st; i++)
-    st = measure(sys, 1, sr_dT[i], T, repeat, q_ref, q, &sr[i]);
-  if (!st) {
-    printf("\n# matched error: p = 1's CPU time for each p = %d run's error "
-           "(log-log between the bracketing p = 1 runs)\n",
-           p);
-    printf("%12s %12s %12s %14s %8s\n", "dT", "error", "cpu p", "cpu p=1 same",
-           "ratio");
-    for (int i = 0; i < n_mr; i++) {
-      const double c1 = cpu_at(sr, n_sr, mr[i].err);
-      printf("%12.6g %12.3e %12.4f %14.4f %8.2f\n", mr[i].dT, mr[i].err,
-             mr[i].cpu, c1, c1 / mr[i].cpu);
-    }
+  printf("%5s %12s %6s %12s %12s %12s %12s\n", "p", "dT", "steps", "error",
+         "slow", "fast", "cpu [s]");
+  row mr[MAX_RUNS], sr[MAX_RUNS];
+  for (int i = 0; i < n_mr; i++)
+    measure(sys, p, mr_dT[i], T, repeat, q_ref, q, &mr[i]);
+  for (int i = 0; i < n_sr; i++)
+    measure(sys, 1, sr_dT[i], T, repeat, q_ref, q, &sr[i]);
+  printf("\n# matched error: p = 1's CPU time for each p = %d run's error "
+         "(log-log between the bracketing p = 1 runs)\n",
+         p);
+  printf("%12s %12s %12s %14s %8s\n", "dT", "error", "cpu p", "cpu p=1 same",
+         "ratio");
+  for (int i = 0; i < n_mr; i++) {
+    if (isnan(mr[i].err))
+      continue;
+    const double c1 = cpu_at(sr, n_sr, mr[i].err);
+    printf("%12.6g %12.3e %12.4f %14.4f %8.2f\n", mr[i].dT, mr[i].err,
+           mr[i].cpu, c1, c1 / mr[i].cpu);
   }
   free(q_ref);
   free(q);
   mrvi_system_free(sys);
-  return st ? 1 : 0;
+  return 0;
 }
