@@ -31,7 +31,10 @@
  * index in case_names, default the rigid bars) and one scheme for K
  * consecutive macro steps from the initial state (no reset: the chain
  * falls for K dT) and prints the Newton updates of every step, their mean
- * and largest, and the first step that failed. */
+ * and largest, and the first step that failed.  --gravity G scales the
+ * load (the tension at the chain's top, which limits dT), --tune NAME=VALUE
+ * sets a tuning constant (doc/performance.md, "The rigid chain at 1 000
+ * links, continued"). */
 #include "bench_util.h"
 
 #include <math.h>
@@ -74,7 +77,7 @@ static const char usage[] =
     "updates per step.\n"
     "--gravity G: gravity G instead of 9.81 (the chain's tension at its\n"
     "top, about N G (2.05), is what limits dT: doc/performance.md).\n"
-    "--tune NAME=VALUE: a tuning constant (with --trajectory; up to 8).\n";
+    "--tune NAME=VALUE: a tuning constant (up to 8).\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
@@ -148,6 +151,33 @@ static mrvi_model *chain_model(int c, int n, char *msg, size_t len) {
   return m;
 }
 
+/* The settings of case cs, with the --tune constants. */
+static int case_settings(int cs, const char *scheme, double dT, int p,
+                         mrvi_settings *s, char *msg, size_t len) {
+  mrvi_settings_default(s);
+  mrvi_settings_set_scheme(s, scheme);
+  s->macro_step = dT;
+  s->micro_steps = p;
+  s->t_end = 1e6 * dT;
+  s->newton_tol = 1e-10;
+  s->energy_warning = 0;
+  s->constraint_form = chain_of[cs] == 1 || cs == 5 ? MRVI_FORM_NULL_SPACE
+                                                    : MRVI_FORM_MULTIPLIERS;
+  s->solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
+  for (int t = 0; t < n_tune; t++) {
+    char name[64];
+    const char *eq = strchr(tune[t], '=');
+    if (!eq) {
+      snprintf(msg, len, "--tune %s: not NAME=VALUE", tune[t]);
+      return -1;
+    }
+    snprintf(name, sizeof name, "%.*s", (int)(eq - tune[t]), tune[t]);
+    if (mrvi_settings_set_tuning(s, name, atof(eq + 1), msg, len) < 0)
+      return -1;
+  }
+  return 0;
+}
+
 typedef struct result {
   int status; /* 0 ok, 1 failed, 3 not run */
   int n;      /* coordinates */
@@ -169,19 +199,10 @@ static result run_one(int cs, int links, const char *scheme, double dT, int p,
     return r;
   }
   mrvi_settings s;
-  mrvi_settings_default(&s);
-  mrvi_settings_set_scheme(&s, scheme);
-  s.macro_step = dT;
-  s.micro_steps = p;
-  s.t_end = 1e6 * dT;
-  s.newton_tol = 1e-10;
-  s.energy_warning = 0;
-  s.constraint_form =
-      c == 1 || cs == 5 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
-  s.solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
   r.n = mrvi_model_n(m);
   mrvi_integrator *it = NULL;
-  if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
+  if (case_settings(cs, scheme, dT, p, &s, msg, sizeof msg) < 0 ||
+      mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
     snprintf(r.message, sizeof r.message, "%.190s", msg);
     mrvi_model_free(m);
     return r;
@@ -242,30 +263,8 @@ static int trajectory(const int *n_list, int n_n, int cs, const char *scheme,
       continue;
     }
     mrvi_settings s;
-    mrvi_settings_default(&s);
-    mrvi_settings_set_scheme(&s, scheme);
-    s.macro_step = dT;
-    s.micro_steps = p;
-    s.t_end = 1e6 * dT;
-    s.newton_tol = 1e-10;
-    s.energy_warning = 0;
-    s.constraint_form = chain_of[cs] == 1 || cs == 5 ? MRVI_FORM_NULL_SPACE
-                                                     : MRVI_FORM_MULTIPLIERS;
-    s.solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
-    for (int t = 0; t < n_tune; t++) {
-      char name[64];
-      const char *eq = strchr(tune[t], '=');
-      snprintf(name, sizeof name, "%.*s", eq ? (int)(eq - tune[t]) : 0,
-               tune[t]);
-      if (!eq || mrvi_settings_set_tuning(&s, name, atof(eq + 1), msg,
-                                          sizeof msg) < 0) {
-        printf("--tune %s: %s\n", tune[t], eq ? msg : "not NAME=VALUE");
-        free(iters);
-        mrvi_model_free(m);
-        return 1;
-      }
-    }
-    if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
+    if (case_settings(cs, scheme, dT, p, &s, msg, sizeof msg) < 0 ||
+        mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
       printf("links %d: %s\n", links, msg);
       mrvi_model_free(m);
       continue;
