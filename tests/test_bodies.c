@@ -630,9 +630,9 @@ static void test_pendulum(void) {
  * tolerance, and stop once a full update stops contracting instead of
  * stirring the rounding noise until it happens to fall below the target.
  * ------------------------------------------------------------------------- */
-static mrvi_model *far_chain(int n, double X) {
+static mrvi_model *far_chain(int n, double X, double gravity) {
   mrvi_model *m = mrvi_model_create();
-  const double g[2] = {0.0, -9.81}, e[2] = {sqrt(0.5), -sqrt(0.5)};
+  const double g[2] = {0.0, -gravity}, e[2] = {sqrt(0.5), -sqrt(0.5)};
   const double zero[2] = {0.0, 0.0}, k[1] = {2000.0}, J[1] = {2.0 / 12.0};
   const double R[4] = {e[0], -e[1], e[1], e[0]}; /* d1 along e */
   int st = m ? mrvi_model_set_dimension(m, 2) : MRVI_ENOMEM;
@@ -672,7 +672,7 @@ static mrvi_model *far_chain(int n, double X) {
 
 static void test_chain_floor(void) {
   enum { LINKS = 8, STEPS = 10 };
-  mrvi_model *m = far_chain(LINKS, 3000.0);
+  mrvi_model *m = far_chain(LINKS, 3000.0, 9.81);
   if (!m)
     return;
   mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 4, 1.0, 1e-10);
@@ -703,6 +703,45 @@ static void test_chain_floor(void) {
         most);
   mrvi_integrator_free(it);
   mrvi_model_free(m);
+}
+
+/* The chain's step-size limit (doc/performance.md, "The rigid chain at
+ * 1 000 links, continued"): the zig-zag mode of bars of mass m, length L
+ * under tension T has omega^2 = 12 T / (m L), and the steps fail where
+ * omega dT is well above 2.  10 bars at 100 g have the tension of 1 000 at
+ * g, T = 2.05 N g = 2e4 at the top: omega dT = 3.5 at dT = 0.01 (Newton
+ * stagnates within a few steps, and says a smaller macro step may help),
+ * 1.7 at dT = 0.005 (runs). */
+static void test_chain_limit(void) {
+  for (int half = 0; half <= 1; half++) {
+    const double dT = half ? 0.005 : 0.01;
+    const int steps = half ? 20 : 10;
+    mrvi_model *m = far_chain(10, 0.0, 981.0);
+    if (!m)
+      return;
+    mrvi_settings s = test_settings("midpoint-midpoint", dT, 4, 1.0, 1e-10);
+    s.constraint_tol = 1e-10;
+    mrvi_integrator *it = NULL;
+    char msg[400];
+    CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0,
+          "chain at 100 g: %s", msg);
+    int k = 0;
+    while (it && k < steps && mrvi_integrator_step(it) == 0)
+      k++;
+    const char *why = it ? mrvi_integrator_errmsg(it) : "";
+    printf("10 bars at 100 g, dT = %g: %d of %d steps%s%.120s\n", dT, k, steps,
+           k < steps ? ": " : "", k < steps ? why : "");
+    if (half)
+      CHECK(k == steps, "chain at 100 g, dT = %g: step %d failed: %s", dT,
+            k + 1, why);
+    else
+      CHECK(k < steps && strstr(why, "smaller integrator.macro_step"),
+            "chain at 100 g, dT = %g: %d steps (expected a failure within "
+            "%d, with a hint to reduce the macro step): %s",
+            dT, k, steps, why);
+    mrvi_integrator_free(it);
+    mrvi_model_free(m);
+  }
 }
 
 /* ---------------------------------------------------------------------------
@@ -978,6 +1017,7 @@ int main(void) {
   test_top();
   test_pendulum();
   test_chain_floor();
+  test_chain_limit();
   test_output();
   test_loader();
   test_arm_multirate();

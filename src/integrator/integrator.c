@@ -1295,6 +1295,8 @@ static int newton_step(mrvi_integrator *it) {
   int iter = 0, fresh = 0, jac_at_x = !cc;
   double res, cres, prev = INFINITY, pprev = 0.0;
   residual_norms(it, &res, &cres);
+  double best = res; /* the smallest residual of the step, at update */
+  int best_iter = 0; /* best_iter (for the failure message) */
   /* Converged at the tolerance after at least one update (the predictor is
    * never accepted), or stalled at the roundoff floor after one (counted:
    * mrvi_integrator_roundoff_steps).  On the schur path the factors of the
@@ -1334,10 +1336,21 @@ static int newton_step(mrvi_integrator *it) {
       const int finite = isfinite(res) && isfinite(cres);
       it->last_iterations = iter;
       it->last_residual = res;
-      char extra[120] = "";
+      char extra[300] = "";
       if (st->n_lambda > 0)
         mrvi_fmt(extra, sizeof extra,
                  ", constraint residual %.3e (tolerance %.3e)", cres, ctol);
+      /* (Newton stagnant for many updates above the tolerance: no root
+       * near the start, as where a macro step is beyond the scheme's step
+       * size limit; doc/solver.md, "Newton details") */
+      const size_t used = strlen(extra);
+      if (finite && iter - best_iter >= 5 && best > tol)
+        mrvi_fmt(extra + used, sizeof extra - used,
+                 "; the residual has not fallen below %.3e (update %d) "
+                 "since: the step equations may have no solution near the "
+                 "predictor at this macro step (a smaller "
+                 "integrator.macro_step may help)",
+                 best, best_iter);
       return fail(it, finite ? MRVI_ENEWTON : MRVI_ENONFINITE,
                   "step %ld (t = %.10g -> %.10g): Newton %s after %d "
                   "iterations, residual %.3e (tolerance %.3e, roundoff floor "
@@ -1375,6 +1388,10 @@ static int newton_step(mrvi_integrator *it) {
      * (used if it converges). */
     s = evaluate_momenta(it, &res, &cres, msg, sizeof msg);
     jac_at_x = 0;
+    if (res < best) {
+      best = res;
+      best_iter = iter;
+    }
   }
   if (s < 0) {
     it->last_iterations = iter;
