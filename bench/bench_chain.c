@@ -25,7 +25,16 @@
  * steps from the initial state (the integrator set back to it, so that the
  * falling chain stays in its first 0.2 s) until --steps steps and 0.3 s.  Then
  * the exponent of the time per macro step in n and the ratio rods / springs.  A
- * measurement: no thresholds (doc/performance.md, "Chains"). */
+ * measurement: no thresholds (doc/performance.md, "Chains").
+ *
+ * --trajectory K: instead, each n of the list runs one case (--case C, the
+ * index in case_names, default the rigid bars) and one scheme for K
+ * consecutive macro steps from the initial state (no reset: the chain
+ * falls for K dT) and prints the Newton updates of every step, their mean
+ * and largest, and the first step that failed.  --gravity G scales the
+ * load (the tension at the chain's top, which limits dT), --tune NAME=VALUE
+ * sets a tuning constant (doc/performance.md, "The rigid chain at 1 000
+ * links, continued"). */
 #include "bench_util.h"
 
 #include <math.h>
@@ -34,7 +43,10 @@
 #include <string.h>
 
 enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 6, N_SCHEMES = 2 };
-enum { HORIZON = 20 }; /* macro steps from the initial state, repeated */
+enum { HORIZON = 20 };        /* macro steps from the initial state, repeated */
+static double gravity = 9.81; /* --gravity */
+static const char *tune[8];   /* --tune NAME=VALUE */
+static int n_tune;
 #define MIN_CPU 0.3
 
 /* Case c builds chain kind chain_of[c]. */
@@ -57,7 +69,15 @@ static const char usage[] =
     "time per macro step (at least K steps, default 3, and 0.3 s), best\n"
     "of R alternating rounds (default 3).\n"
     "A case slower than SECONDS per macro step (default 5) ends the larger\n"
-    "N of that case.  --quick: N = 10,30, R = 1, K = 2.\n";
+    "N of that case.  --quick: N = 10,30, R = 1, K = 2.\n"
+    "--trajectory K [--case C] [--scheme S]: case C (0 rods, 1 rods null\n"
+    "space, 2 springs, 3 springs general, 4 rigid bars (default), 5 rigid\n"
+    "bars null space), scheme S (default midpoint-midpoint) for K\n"
+    "consecutive macro steps from the initial state at each N: Newton\n"
+    "updates per step.\n"
+    "--gravity G: gravity G instead of 9.81 (the chain's tension at its\n"
+    "top, about N G (2.05), is what limits dT: doc/performance.md).\n"
+    "--tune NAME=VALUE: a tuning constant (up to 8).\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
@@ -67,7 +87,7 @@ static int bad_usage(void) {
 /* The chain of kind c (0, 1 rods, 2 springs, 3 rigid) with n links. */
 static mrvi_model *chain_model(int c, int n, char *msg, size_t len) {
   mrvi_model *m = mrvi_model_create();
-  const double g[2] = {0.0, -9.81}, e[2] = {sqrt(0.5), -sqrt(0.5)};
+  const double g[2] = {0.0, -gravity}, e[2] = {sqrt(0.5), -sqrt(0.5)};
   const double zero[2] = {0.0, 0.0};
   int st = m ? mrvi_model_set_dimension(m, 2) : MRVI_ENOMEM;
   int prev_h = -1, prev_l = -1;
@@ -131,6 +151,33 @@ static mrvi_model *chain_model(int c, int n, char *msg, size_t len) {
   return m;
 }
 
+/* The settings of case cs, with the --tune constants. */
+static int case_settings(int cs, const char *scheme, double dT, int p,
+                         mrvi_settings *s, char *msg, size_t len) {
+  mrvi_settings_default(s);
+  mrvi_settings_set_scheme(s, scheme);
+  s->macro_step = dT;
+  s->micro_steps = p;
+  s->t_end = 1e6 * dT;
+  s->newton_tol = 1e-10;
+  s->energy_warning = 0;
+  s->constraint_form = chain_of[cs] == 1 || cs == 5 ? MRVI_FORM_NULL_SPACE
+                                                    : MRVI_FORM_MULTIPLIERS;
+  s->solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
+  for (int t = 0; t < n_tune; t++) {
+    char name[64];
+    const char *eq = strchr(tune[t], '=');
+    if (!eq) {
+      snprintf(msg, len, "--tune %s: not NAME=VALUE", tune[t]);
+      return -1;
+    }
+    snprintf(name, sizeof name, "%.*s", (int)(eq - tune[t]), tune[t]);
+    if (mrvi_settings_set_tuning(s, name, atof(eq + 1), msg, len) < 0)
+      return -1;
+  }
+  return 0;
+}
+
 typedef struct result {
   int status; /* 0 ok, 1 failed, 3 not run */
   int n;      /* coordinates */
@@ -152,19 +199,10 @@ static result run_one(int cs, int links, const char *scheme, double dT, int p,
     return r;
   }
   mrvi_settings s;
-  mrvi_settings_default(&s);
-  mrvi_settings_set_scheme(&s, scheme);
-  s.macro_step = dT;
-  s.micro_steps = p;
-  s.t_end = 1e6 * dT;
-  s.newton_tol = 1e-10;
-  s.energy_warning = 0;
-  s.constraint_form =
-      c == 1 || cs == 5 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
-  s.solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
   r.n = mrvi_model_n(m);
   mrvi_integrator *it = NULL;
-  if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
+  if (case_settings(cs, scheme, dT, p, &s, msg, sizeof msg) < 0 ||
+      mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
     snprintf(r.message, sizeof r.message, "%.190s", msg);
     mrvi_model_free(m);
     return r;
@@ -205,10 +243,64 @@ static result run_one(int cs, int links, const char *scheme, double dT, int p,
   return r;
 }
 
+/* Case cs with scheme for K consecutive macro steps at each n of the list:
+ * the Newton updates of every step. */
+static int trajectory(const int *n_list, int n_n, int cs, const char *scheme,
+                      double dT, int p, int K) {
+  printf("# trajectory: %s, %s, %d consecutive macro steps from the initial "
+         "state, Newton updates per step\n\n",
+         case_names[cs], scheme, K);
+  int *iters = malloc((size_t)K * sizeof *iters);
+  if (!iters)
+    return 1;
+  for (int ni = 0; ni < n_n; ni++) {
+    char msg[512];
+    const int links = n_list[ni];
+    mrvi_model *m = chain_model(chain_of[cs], links, msg, sizeof msg);
+    mrvi_integrator *it = NULL;
+    if (!m) {
+      printf("links %d: %s\n", links, msg);
+      continue;
+    }
+    mrvi_settings s;
+    if (case_settings(cs, scheme, dT, p, &s, msg, sizeof msg) < 0 ||
+        mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
+      printf("links %d: %s\n", links, msg);
+      mrvi_model_free(m);
+      continue;
+    }
+    int k = 0, worst = 0;
+    long sum = 0;
+    const double t0 = bench_cpu();
+    for (; k < K; k++) {
+      if (mrvi_integrator_step(it) < 0)
+        break;
+      iters[k] = mrvi_integrator_last_iterations(it);
+      sum += iters[k];
+      worst = iters[k] > worst ? iters[k] : worst;
+    }
+    const double cpu = bench_cpu() - t0;
+    printf("links %d (%s): %d steps, %.3f updates per step, at most %d, "
+           "%.3g s per step%s%s\n  ",
+           links, mrvi_integrator_solver_path(it), k, k ? (double)sum / k : 0.0,
+           worst, k ? cpu / k : 0.0, k < K ? "; failed: " : "",
+           k < K ? mrvi_integrator_errmsg(it) : "");
+    for (int j = 0; j < k; j++)
+      printf("%d%s", iters[j], (j + 1) % 50 == 0 ? "\n  " : "");
+    printf("\n");
+    fflush(stdout);
+    mrvi_integrator_free(it);
+    mrvi_model_free(m);
+  }
+  free(iters);
+  return 0;
+}
+
 int main(int argc, char **argv) {
   int n_list[MAX_N] = {10, 30, 100, 300, 1000}, n_n = 5, repeats = 3, steps = 3,
-      p = 10, quick = 0, n_set = 0;
+      p = 10, quick = 0, n_set = 0, traj = 0, traj_case = 4;
   double dT = 0.01, budget = 5.0;
+  const char *traj_scheme = scheme_names[0];
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
     int has = i + 1 < argc;
@@ -234,6 +326,20 @@ int main(int argc, char **argv) {
     } else if (!strcmp(a, "--dT") && has) {
       if (bench_parse_positive(argv[++i], &dT) < 0)
         return bad_usage();
+    } else if (!strcmp(a, "--trajectory") && has) {
+      if ((traj = atoi(argv[++i])) < 1)
+        return bad_usage();
+    } else if (!strcmp(a, "--gravity") && has) {
+      if (bench_parse_positive(argv[++i], &gravity) < 0)
+        return bad_usage();
+    } else if (!strcmp(a, "--tune") && has && n_tune < 8) {
+      tune[n_tune++] = argv[++i];
+    } else if (!strcmp(a, "--case") && has) {
+      traj_case = atoi(argv[++i]);
+      if (traj_case < 0 || traj_case >= N_CASES)
+        return bad_usage();
+    } else if (!strcmp(a, "--scheme") && has) {
+      traj_scheme = argv[++i];
     } else if (!strcmp(a, "--budget") && has) {
       if (bench_parse_positive(argv[++i], &budget) < 0)
         return bad_usage();
@@ -249,6 +355,12 @@ int main(int argc, char **argv) {
     }
     repeats = 1;
     steps = 2;
+  }
+  if (traj) {
+    printf("# mrvi %s  pendulum chains  dT = %g  p = %d  gravity %g  load "
+           "average %.2f\n",
+           mrvi_version(), dT, p, gravity, bench_load());
+    return trajectory(n_list, n_n, traj_case, traj_scheme, dT, p, traj);
   }
   printf("# mrvi %s  pendulum chains  dT = %g  p = %d  at least %d macro "
          "steps and %g s  best of %d alternating rounds  load average %.2f "

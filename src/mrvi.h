@@ -691,6 +691,9 @@ typedef enum mrvi_newton_criterion {
     "residual by at most this")                                                \
   X(double, reuse_tighten, 0.01, 0.0, 1.0,                                     \
     "Newton and shooting stop at this times the Newton tolerance")             \
+  X(double, floor_rate, 0.1, 0.0, 1.0,                                         \
+    "... or, the tolerance met, where a full Newton update left more than "    \
+    "this fraction of the residual (the rounding floor; 0: off)")              \
   X(int, dense_max, 64, 0, 1000000,                                            \
     "largest block (fast, and slow on schur) solved densely; beyond: "         \
     "sweep-cg and schur-krylov")                                               \

@@ -620,6 +620,131 @@ static void test_pendulum(void) {
 }
 
 /* ---------------------------------------------------------------------------
+ * Newton's stopping rule at the rounding floor (doc/solver.md, "Newton
+ * details").  A chain of rigid bars on revolute joints far from the origin
+ * (bench_chain's rigid chain, 2-D, slow bars, each with a light fast mass on
+ * a stiff spring to its lower end): a spring force at a body point a
+ * distance X from the origin is computed to eps X k, so at X = 3000 the
+ * residual's rounding floor is near reuse_tighten x tolerance = 1e-12 (as
+ * it is at the far end of a chain of 1 000 links).  Every step must meet the
+ * tolerance, and stop once a full update stops contracting instead of
+ * stirring the rounding noise until it happens to fall below the target.
+ * ------------------------------------------------------------------------- */
+static mrvi_model *far_chain(int n, double X, double gravity) {
+  mrvi_model *m = mrvi_model_create();
+  const double g[2] = {0.0, -gravity}, e[2] = {sqrt(0.5), -sqrt(0.5)};
+  const double zero[2] = {0.0, 0.0}, k[1] = {2000.0}, J[1] = {2.0 / 12.0};
+  const double R[4] = {e[0], -e[1], e[1], e[0]}; /* d1 along e */
+  int st = m ? mrvi_model_set_dimension(m, 2) : MRVI_ENOMEM;
+  int prev_b = -1, prev_l = -1;
+  for (int i = 0; i < n && st >= 0; i++) {
+    const double x[2] = {X + (i + 0.5) * e[0], (i + 0.5) * e[1]};
+    const double pivot[2] = {X + i * e[0], i * e[1]};
+    const double l[2] = {X + (i + 1) * e[0], (i + 1) * e[1] - 0.1};
+    char name[16];
+    snprintf(name, sizeof name, "b%d", i);
+    const int b = st =
+        mrvi_model_add_body(m, name, 2, MRVI_SLOW, 2.0, J, x, R, NULL, NULL);
+    if (st >= 0)
+      st = mrvi_model_add_joint(m, "revolute", b, prev_b, pivot, NULL);
+    snprintf(name, sizeof name, "l%d", i);
+    const int li = st =
+        st < 0 ? st
+               : mrvi_model_add_particle(m, name, 0.05, MRVI_FAST, l, zero);
+    const mrvi_end end_b = {-1, b, {0.5, 0, 0}}, end_l = {li, -1, {0, 0, 0}};
+    if (st >= 0)
+      st = mrvi_model_add_end_spring(m, MRVI_SLOW, &end_b, &end_l, NULL,
+                                     "linear", k, 0.1);
+    if (st >= 0 && prev_l >= 0)
+      st = mrvi_model_add_spring(m, MRVI_FAST, prev_l, li, "linear", k, 1.0);
+    prev_b = b;
+    prev_l = li;
+  }
+  if (st >= 0)
+    st = mrvi_model_set_gravity(m, g);
+  CHECK(st >= 0, "far chain: %s", m ? mrvi_model_errmsg(m) : "out of memory");
+  if (st < 0) {
+    mrvi_model_free(m);
+    return NULL;
+  }
+  return m;
+}
+
+static void test_chain_floor(void) {
+  enum { LINKS = 8, STEPS = 10 };
+  mrvi_model *m = far_chain(LINKS, 3000.0, 9.81);
+  if (!m)
+    return;
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 4, 1.0, 1e-10);
+  s.constraint_tol = 1e-10;
+  s.solver = MRVI_SOLVER_GENERAL;
+  mrvi_integrator *it = NULL;
+  char msg[400];
+  CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0,
+        "far chain: %s", msg);
+  int k = 0, iters = 0, most = 0;
+  for (; it && k < STEPS; k++) {
+    if (mrvi_integrator_step(it) < 0) {
+      CHECK(0, "far chain, step %d: %s", k + 1, mrvi_integrator_errmsg(it));
+      break;
+    }
+    const int n = mrvi_integrator_last_iterations(it);
+    const double r = mrvi_integrator_last_residual(it);
+    CHECK(r <= s.newton_tol, "far chain, step %d: residual %.3e", k + 1, r);
+    iters += n;
+    most = n > most ? n : most;
+  }
+  printf("chain of %d bars 3000 from the origin: %.2f Newton updates per "
+         "step, at most %d\n",
+         LINKS, k ? (double)iters / k : 0.0, most);
+  CHECK(k == STEPS && most <= 3,
+        "far chain: %d updates in a step (at most 3: two reach the "
+        "tolerance, a third finds the rounding floor)",
+        most);
+  mrvi_integrator_free(it);
+  mrvi_model_free(m);
+}
+
+/* The chain's step-size limit (doc/performance.md, "The rigid chain at
+ * 1 000 links, continued"): the zig-zag mode of bars of mass m, length L
+ * under tension T has omega^2 = 12 T / (m L), and the steps fail where
+ * omega dT is well above 2.  10 bars at 100 g have the tension of 1 000 at
+ * g, T = 2.05 N g = 2e4 at the top: omega dT = 3.5 at dT = 0.01 (Newton
+ * stagnates within a few steps, and says a smaller macro step may help),
+ * 1.7 at dT = 0.005 (runs). */
+static void test_chain_limit(void) {
+  for (int half = 0; half <= 1; half++) {
+    const double dT = half ? 0.005 : 0.01;
+    const int steps = half ? 20 : 10;
+    mrvi_model *m = far_chain(10, 0.0, 981.0);
+    if (!m)
+      return;
+    mrvi_settings s = test_settings("midpoint-midpoint", dT, 4, 1.0, 1e-10);
+    s.constraint_tol = 1e-10;
+    mrvi_integrator *it = NULL;
+    char msg[400];
+    CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0,
+          "chain at 100 g: %s", msg);
+    int k = 0;
+    while (it && k < steps && mrvi_integrator_step(it) == 0)
+      k++;
+    const char *why = it ? mrvi_integrator_errmsg(it) : "";
+    printf("10 bars at 100 g, dT = %g: %d of %d steps%s%.120s\n", dT, k, steps,
+           k < steps ? ": " : "", k < steps ? why : "");
+    if (half)
+      CHECK(k == steps, "chain at 100 g, dT = %g: step %d failed: %s", dT,
+            k + 1, why);
+    else
+      CHECK(k < steps && strstr(why, "smaller integrator.macro_step"),
+            "chain at 100 g, dT = %g: %d steps (expected a failure within "
+            "%d, with a hint to reduce the macro step): %s",
+            dT, k, steps, why);
+    mrvi_integrator_free(it);
+    mrvi_model_free(m);
+  }
+}
+
+/* ---------------------------------------------------------------------------
  * Bad input: each refused with its reason.
  * ------------------------------------------------------------------------- */
 static void expect_fail(mrvi_model *m, int st, const char *what,
@@ -891,6 +1016,8 @@ int main(void) {
   test_isotropic();
   test_top();
   test_pendulum();
+  test_chain_floor();
+  test_chain_limit();
   test_output();
   test_loader();
   test_arm_multirate();

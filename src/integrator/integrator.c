@@ -1293,8 +1293,10 @@ static int newton_step(mrvi_integrator *it) {
     mrvi_blocks_chord(it->blocks, use_chord(it));
   int s = evaluate(it, !cc, msg, sizeof msg);
   int iter = 0, fresh = 0, jac_at_x = !cc;
-  double res, cres, prev = INFINITY;
+  double res, cres, prev = INFINITY, pprev = 0.0;
   residual_norms(it, &res, &cres);
+  double best = res; /* the smallest residual of the step, at update */
+  int best_iter = 0; /* best_iter (for the failure message) */
   /* Converged at the tolerance after at least one update (the predictor is
    * never accepted), or stalled at the roundoff floor after one (counted:
    * mrvi_integrator_roundoff_steps).  On the schur path the factors of the
@@ -1302,14 +1304,25 @@ static int newton_step(mrvi_integrator *it) {
    * contract the residual by reuse_rate per update (simplified Newton;
    * the residual is exact, so the converged solution is the same) and
    * refactorised otherwise.  Updates stop at reuse_tighten times the
-   * tolerance, or when they stall at the roundoff floor (counted if that is
-   * above the tolerance), or at the iteration limit if the tolerance itself
-   * is met: a last update with kept factors is cheap, and it takes the
-   * error as far below the tolerance as a full Newton update typically
-   * lands. */
+   * tolerance; or, the tolerance met, once a full Newton update contracts
+   * the residual by less than 1/floor_rate (the rounding floor, which on
+   * long chains lies near reuse_tighten times the tolerance:
+   * doc/solver.md, "Newton details"); or when they stall at the roundoff
+   * floor (counted if that is above the tolerance); or at the iteration
+   * limit if the tolerance itself is met: a last update with kept factors
+   * is cheap, and it takes the error as far below the tolerance as a full
+   * Newton update typically lands. */
+  int exact = 0; /* the last update was a full Newton update */
   while (s == MRVI_OK) {
     if (iter >= 1 && cres <= ctol) {
       if (res <= tn->reuse_tighten * tol)
+        break;
+      /* (the tolerance met and a full update contracted by less than
+       * 1/floor_rate, or by less than the full update before it: Newton's
+       * quadratic contraction has stopped, the residual is at the rounding
+       * floor of its rows, and further updates only stir it) */
+      if (exact && tn->floor_rate > 0.0 && res <= tol &&
+          (res > tn->floor_rate * prev || res * pprev > prev * prev))
         break;
       if (res <= residual_floor(it) && res > 0.5 * prev) {
         if (res > tol)
@@ -1323,10 +1336,21 @@ static int newton_step(mrvi_integrator *it) {
       const int finite = isfinite(res) && isfinite(cres);
       it->last_iterations = iter;
       it->last_residual = res;
-      char extra[120] = "";
+      char extra[300] = "";
       if (st->n_lambda > 0)
         mrvi_fmt(extra, sizeof extra,
                  ", constraint residual %.3e (tolerance %.3e)", cres, ctol);
+      /* (Newton stagnant for many updates above the tolerance: no root
+       * near the start, as where a macro step is beyond the scheme's step
+       * size limit; doc/solver.md, "Newton details") */
+      const size_t used = strlen(extra);
+      if (finite && iter - best_iter >= 5 && best > tol)
+        mrvi_fmt(extra + used, sizeof extra - used,
+                 "; the residual has not fallen below %.3e (update %d) "
+                 "since: the step equations may have no solution near the "
+                 "predictor at this macro step (a smaller "
+                 "integrator.macro_step may help)",
+                 best, best_iter);
       return fail(it, finite ? MRVI_ENEWTON : MRVI_ENONFINITE,
                   "step %ld (t = %.10g -> %.10g): Newton %s after %d "
                   "iterations, residual %.3e (tolerance %.3e, roundoff floor "
@@ -1349,6 +1373,12 @@ static int newton_step(mrvi_integrator *it) {
       fresh = rate > tn->reuse_rate ||
               res * rate * (it->const_kept ? 1.0 : rate) > target;
     }
+    /* (full Newton: the general and schur-bordered paths always; schur
+     * where it refactorises at the iterate, not on its first update, which
+     * may take a chord; not schur-krylov, whose GMRES is inexact) */
+    const int was_exact = exact;
+    exact = !it->ops->keeps_factors || (it->blocks && fresh && !jac_at_x);
+    pprev = exact && was_exact ? prev : 0.0;
     prev = res;
     s = newton_update(it, fresh, jac_at_x, msg, sizeof msg);
     if (s < 0)
@@ -1358,6 +1388,10 @@ static int newton_step(mrvi_integrator *it) {
      * (used if it converges). */
     s = evaluate_momenta(it, &res, &cres, msg, sizeof msg);
     jac_at_x = 0;
+    if (res < best) {
+      best = res;
+      best_iter = iter;
+    }
   }
   if (s < 0) {
     it->last_iterations = iter;
