@@ -290,7 +290,6 @@ static int batch_follow(void) {
   if (mrvi_batch_mpi_share(0, &plan, &master, &jobs)) {
     if (jobs == 0)
       jobs = mrvi_batch_mpi_jobs();
-    plan.threads = 1; /* (over MPI the ranks fill the cores) */
     if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, NULL, NULL, msg,
                            sizeof msg) < 0 &&
         msg[0])
@@ -461,13 +460,17 @@ int mrvi_cmd_batch(int argc, char **argv) {
       todo[n_todo++] = c;
   /* MPI: the other ranks get the plan (or leave), and each rank takes the
    * cores of its share of the machine unless --jobs says. */
+  /* Over MPI the ranks fill the cores: each case on one thread unless
+   * --threads says, on every rank (the plan carries it). */
+  if (ranks > 1)
+    plan.threads = threads > 0 ? threads : 1;
   int jobs_given = jobs;
   mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
   if (rc == 0 && jobs == 0)
     jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
   /* (mrvi_batch_mpi_jobs is collective: not called here again) */
-  plan.threads = ranks > 1 ? (threads > 0 ? threads : 1)
-                           : case_threads(threads, mrvi_batch_cores(), jobs);
+  if (ranks == 1)
+    plan.threads = case_threads(threads, mrvi_batch_cores(), jobs);
 
   batch_ctx ctx = {.out = out,
                    .quiet = quiet,
