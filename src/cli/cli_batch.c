@@ -429,6 +429,15 @@ int mrvi_cmd_batch(int argc, char **argv) {
                                      n_axes, zip, seeds, command, &pt, msg,
                                      sizeof msg) < 0) {
       rc = usage_fail(msg);
+    } else if (!quiet && pt.temperature > 0 && base->model->n_particles == 0 &&
+               base->model->n_bodies == 0) {
+      /* The sum of the momenta of plain coordinates (elongations, angles)
+       * is no physical momentum: nothing is removed from it. */
+      fprintf(stderr,
+              "mrvi batch: %s has plain coordinates only: --temperature "
+              "draws Maxwell-Boltzmann momenta per coordinate, no net "
+              "momentum removed (doc/batch.md, Ensembles)\n",
+              file);
     }
     mrvi_system_free(base);
   }
