@@ -12,11 +12,17 @@
  * HDF5 is needed, every case file keeps the run writer's SWMR crash safety
  * (the MPI-IO driver has none), and the files equal a serial batch's.
  *
- * Messages: a rank asks rank 0 for a case (TAG_ASK), rank 0 answers with a
- * case number or -1 (none left: the rank asks no more); a finished case
- * goes to rank 0 as its mrvi_batch_result (TAG_RESULT, bytes: the ranks
- * run one binary).  Rank 0 is done when every rank has been told -1 and
- * every case handed out has come back.
+ * `mpiexec -n R mrvi converge|stability ...` use the same queue for the
+ * runs of a study (mrvi_batch_mpi_map): every rank runs the study in step,
+ * rank 0 hands out the runs of each step and sends the gathered records
+ * to every rank (src/cli/cli_study.c).
+ *
+ * Messages: a rank asks rank 0 for an item (TAG_ASK), rank 0 answers with
+ * an item number or -1 (none left: the rank asks no more); a finished item
+ * goes to rank 0 as its record (TAG_RESULT: a case's mrvi_batch_result, a
+ * study run's record; bytes: the ranks run one binary, checked at
+ * MPI_Init).  Rank 0 is done when every rank has been told -1 and every
+ * item handed out has come back.
  *
  * The worker processes are forked after MPI_Init; they never call MPI and
  * leave with _exit, which Open MPI supports outside its InfiniBand
