@@ -18,6 +18,7 @@
 #include <math.h>
 #include <poll.h>
 #include <signal.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -167,18 +168,22 @@ static int write_all(int fd, const void *buf, size_t n) {
  * commands' runs are items of their own records (mrvi_batch_map).
  * ------------------------------------------------------------------------- */
 
+/* A worker's message: the item's index, then its record from HEAD on (a
+ * record of any type is aligned there: malloc's alignment). */
+#define HEAD _Alignof(max_align_t)
+
 /* A worker: item indices from fd_in until it closes; for each, the index
  * followed by its record (zeroed, then filled by fn) to fd_out in one
  * write. */
 static void worker(size_t size, mrvi_batch_item fn, void *user, int fd_in,
                    int fd_out) {
-  char *msg = malloc(sizeof(int) + size);
+  char *msg = malloc(HEAD + size);
   int i;
   while (msg && read_all(fd_in, &i, sizeof i) == 0) {
-    memset(msg, 0, sizeof(int) + size);
+    memset(msg, 0, HEAD + size);
     memcpy(msg, &i, sizeof i);
-    fn(user, i, msg + sizeof(int));
-    if (write_all(fd_out, msg, sizeof(int) + size) < 0)
+    fn(user, i, msg + HEAD);
+    if (write_all(fd_out, msg, HEAD + size) < 0)
       break;
   }
   free(msg);
@@ -261,7 +266,7 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
   }
   slot *w = calloc((size_t)jobs, sizeof *w);
   struct pollfd *pfd = calloc((size_t)jobs, sizeof *pfd);
-  char *rec = malloc(sizeof(int) + size);
+  char *rec = malloc(HEAD + size);
   if (!w || !pfd || !rec) {
     free(w), free(pfd), free(rec);
     mrvi_fmt(msg, len, "out of memory");
@@ -321,7 +326,7 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
       const int i = s->busy;
       int got = -1;
       s->busy = -1;
-      if (read_all(s->result, rec, sizeof(int) + size) == 0)
+      if (read_all(s->result, rec, HEAD + size) == 0)
         memcpy(&got, rec, sizeof got);
       if (got != i) {
         /* The worker died mid-item (killed); it is gone. */
@@ -335,7 +340,7 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
           stop = 1;
           rc = MRVI_EIO;
         }
-      } else if (!stop && q->done(q->user, i, rec + sizeof(int)) < 0) {
+      } else if (!stop && q->done(q->user, i, rec + HEAD) < 0) {
         stop = 1;
         rc = MRVI_EIO;
       }

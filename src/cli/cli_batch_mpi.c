@@ -37,6 +37,7 @@
 
 #include <limits.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -185,8 +186,10 @@ int mrvi_batch_mpi_share(int go, mrvi_batch_plan *plan, const char **master,
 /* ---------------------------------------------------------------------------
  * The queue over ranks, for items of any fixed-size record: the cases of a
  * batch (records mrvi_batch_result) and the runs of a study.  A result
- * message is int item, int ran (0: given back not run), record.
+ * message is int item, int ran (0: given back not run), and the record
+ * from HEAD on (aligned for any type).
  * ------------------------------------------------------------------------- */
+#define HEAD _Alignof(max_align_t)
 
 /* What the ranks share out. */
 typedef struct spread {
@@ -242,14 +245,14 @@ static void lead_serve_one(lead *l, const MPI_Status *st) {
     return;
   }
   int head[2];
-  MPI_Recv(l->buf, (int)(sizeof head + l->sp->size), MPI_BYTE, st->MPI_SOURCE,
+  MPI_Recv(l->buf, (int)(HEAD + l->sp->size), MPI_BYTE, st->MPI_SOURCE,
            TAG_RESULT, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
   memcpy(head, l->buf, sizeof head);
   l->away--;
   if (!l->stop &&
-      (head[1] ? l->sp->done(l->sp->user, head[0], l->buf + sizeof head,
-                             st->MPI_SOURCE)
-               : l->sp->lost(l->sp->user, head[0], st->MPI_SOURCE)) < 0)
+      (head[1]
+           ? l->sp->done(l->sp->user, head[0], l->buf + HEAD, st->MPI_SOURCE)
+           : l->sp->lost(l->sp->user, head[0], st->MPI_SOURCE)) < 0)
     l->stop = 1;
 }
 
@@ -279,10 +282,10 @@ static void follow_send(follow *f, int i, const void *rec) {
   const int head[2] = {i, rec != NULL};
   memcpy(f->buf, head, sizeof head);
   if (rec)
-    memcpy(f->buf + sizeof head, rec, f->sp->size);
+    memcpy(f->buf + HEAD, rec, f->sp->size);
   else
-    memset(f->buf + sizeof head, 0, f->sp->size);
-  MPI_Send(f->buf, (int)(sizeof head + f->sp->size), MPI_BYTE, 0, TAG_RESULT,
+    memset(f->buf + HEAD, 0, f->sp->size);
+  MPI_Send(f->buf, (int)(HEAD + f->sp->size), MPI_BYTE, 0, TAG_RESULT,
            MPI_COMM_WORLD);
   for (int k = 0; k < f->n_held; k++)
     if (f->held[k] == i) {
@@ -323,7 +326,7 @@ static int spread_run(const spread *sp, const int *todo, int n_todo, int jobs,
   int rank, size;
   MPI_Comm_rank(MPI_COMM_WORLD, &rank);
   MPI_Comm_size(MPI_COMM_WORLD, &size);
-  char *buf = malloc(2 * sizeof(int) + sp->size);
+  char *buf = malloc(HEAD + sp->size);
   if (!buf)
     MPI_Abort(MPI_COMM_WORLD, 1);
   int rc;
