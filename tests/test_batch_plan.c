@@ -42,9 +42,8 @@ int main(void) {
                                    .rotation_std = 0,
                                    .rotation_uniform = 0};
   mrvi_batch_plan plan;
-  CHECK(mrvi_batch_plan_build(&plan, "coordinates: []\n", "in.yaml", axes, 2,
-                              0, 3, MRVI_BATCH_RUN, &pert, msg,
-                              sizeof msg) == 0,
+  CHECK(mrvi_batch_plan_build(&plan, "coordinates: []\n", "in.yaml", axes, 2, 0,
+                              3, MRVI_BATCH_RUN, &pert, msg, sizeof msg) == 0,
         "plan: %s", msg);
   CHECK(plan.n_cases == 18, "3 x 2 points x 3 seeds: %d cases", plan.n_cases);
   plan.threads = 3;
