@@ -9,12 +9,20 @@
 # Reported: the speed-up of 2 workers over 1, the overhead per case of a
 # 1-worker batch against the individual runs, and the batch's output size
 # (master file + case files) against the sum of the individual files.
+# With --converge, also `mrvi converge` on 1 and 2 jobs (and on 2 ranks of
+# one job each): a fixed FPU study of 15 runs (p = 2, 5, 10; 5 macro steps
+# from 0.02; t_end 200) with --no-cache: the reference (1.6 M steps) is
+# computed first, serially, then the runs are spread.  (Reading the
+# reference from the cache is slower than computing it, for this system.)
 # The machine may be shared: the configurations are interleaved, every one
-# is repeated and the best wall time is kept; the load average is printed
-# before each measurement.
+# is repeated and the best wall and CPU times are kept; the load average
+# is printed before each measurement.
 #
 #   bench_batch.sh MRVI SOURCE_ROOT [mpi|no-mpi] [--quick] [--cases N]
-#                  [--repeats R] [--t-end T]
+#                  [--repeats R] [--t-end T] [--configs LIST] [--converge]
+#
+# --configs: some of runs,jobs1,jobs2,mpi1,mpi2 (default all; the mpi ones
+# when built with MPI).
 set -u
 mrvi=$1 src=$2
 shift 2
@@ -23,14 +31,16 @@ if [ "${1:-}" = mpi ] || [ "${1:-}" = no-mpi ]; then
   with_mpi=$1
   shift
 fi
-n_cases=8 repeats=3 t_end=25000
+n_cases=8 repeats=3 t_end=25000 only="" converge=0
 while [ $# -gt 0 ]; do
   case $1 in
   --quick) n_cases=4 repeats=1 t_end=4000 ;;
   --cases) n_cases=$2; shift ;;
   --repeats) repeats=$2; shift ;;
   --t-end) t_end=$2; shift ;;
-  -h | --help) sed -n 2,18p "$0"; exit 0 ;;
+  --configs) only=$2; shift ;;
+  --converge) converge=1 ;;
+  -h | --help) sed -n 2,26p "$0"; exit 0 ;;
   *) echo "bench_batch: unknown option '$1'" >&2; exit 2 ;;
   esac
   shift
@@ -100,6 +110,27 @@ fi
 
 configs=(runs jobs1 jobs2)
 [ ${#mpirun[@]} -gt 0 ] && configs+=(mpi1 mpi2)
+if [ -n "$only" ]; then
+  wanted=()
+  for c in "${configs[@]}"; do
+    [[ ",$only," == *",$c,"* ]] && wanted+=("$c")
+  done
+  configs=("${wanted[@]}")
+fi
+# The converge study.
+study=(converge "$fpu" --p 2,5,10 --dt0 0.02 --levels 5 --t-end 200
+  --ref-step 1.25e-4 --no-cache -q -o "$tmp/conv.h5")
+conv() {  # conv [LAUNCHER...] -- ARGS...
+  local launcher=()
+  while [ "$1" != -- ]; do launcher+=("$1"); shift; done
+  shift
+  "${launcher[@]}" "$mrvi" "${study[@]}" "$@" 2>/dev/null ||
+    fail "converge $* failed"
+}
+if [ "$converge" = 1 ]; then
+  configs+=(conv_j1 conv_j2)
+  [ ${#mpirun[@]} -gt 0 ] && configs+=(conv_mpi2)
+fi
 
 echo "bench_batch: $n_cases FPU cases (systems/fpu.yaml, t_end $lo .. $hi," \
   "every 10th step, no micro states), best of $repeats"
@@ -107,7 +138,7 @@ echo "mrvi: $mrvi ($("$mrvi" --version | head -1))," \
   "MPI: $([ ${#mpirun[@]} -gt 0 ] && echo "yes ($(mpiexec --version | head -1))" || echo "no ($with_mpi)")"
 echo "cores: $(nproc), $(date -u '+%Y-%m-%d %H:%M UTC')"
 echo
-printf '%-6s %-6s %9s %9s   %s\n' repeat config wall_s cpu_s \
+printf '%-6s %-16s %9s %9s   %s\n' repeat config wall_s cpu_s \
   "load before (1, 5, 15 min)"
 for ((r = 1; r <= repeats; r++)); do
   for c in "${configs[@]}"; do
@@ -118,32 +149,47 @@ for ((r = 1; r <= repeats; r++)); do
     jobs2) m=$(measure "$c" batch jobs2 -- 2) ;;
     mpi1) m=$(measure "$c" batch mpi1 "${mpirun[@]}" -n 1 -- 1) ;;
     mpi2) m=$(measure "$c" batch mpi2 "${mpirun[@]}" -n 2 -- 1) ;;
+    conv_j1) m=$(measure "$c" conv -- -j 1) ;;
+    conv_j2) m=$(measure "$c" conv -- -j 2) ;;
+    conv_mpi2) m=$(measure "$c" conv "${mpirun[@]}" -n 2 -- -j 1) ;;
     esac
     [ -n "$m" ] || exit 1
     read -r s cpu <<<"$m"
     keep "$c" "$s"
     keep "cpu_$c" "$cpu"
-    printf '%-6s %-6s %9s %9s   %s\n' "$r" "$c" "$s" "$cpu" "$l"
+    printf '%-6s %-16s %9s %9s   %s\n' "$r" "$c" "$s" "$cpu" "$l"
   done
 done
-# The files of the last repeat (the same in every one).
-size_runs=$(du -cb "$tmp"/runs/*.h5 | tail -1 | cut -f1)
-size_batch=$(du -cb "$tmp/b.h5" "$tmp/b.cases" | tail -1 | cut -f1)
-size_master=$(stat -c %s "$tmp/b.h5")
-
 echo
 ratio() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.3f", a / b }'; }
 pct() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%+.1f %%", 100 * (a / b - 1) }'; }
-echo "best wall time (s): runs ${best[runs]}, jobs 1 ${best[jobs1]}," \
-  "jobs 2 ${best[jobs2]}$([ -n "${best[mpi1]:-}" ] &&
-    echo ", mpi 1 ${best[mpi1]}, mpi 2 ${best[mpi2]}")"
-echo "speed-up --jobs 2 / --jobs 1:     $(ratio "${best[jobs1]}" "${best[jobs2]}")  (goal >= 1.8)"
-[ -n "${best[mpi1]:-}" ] &&
-  echo "speed-up mpiexec -n 2 / -n 1:     $(ratio "${best[mpi1]}" "${best[mpi2]}")  (goal >= 1.8)"
-echo "overhead --jobs 1 against runs:   $(pct "${best[jobs1]}" "${best[runs]}") wall," \
-  "$(pct "${best[cpu_jobs1]}" "${best[cpu_runs]}") CPU  (goal <= 5 %)"
-[ -n "${best[mpi1]:-}" ] &&
+have() { for k in "$@"; do [ -n "${best[$k]:-}" ] || return 1; done; }
+echo "best wall / CPU time (s):"
+for c in "${configs[@]}"; do
+  printf '  %-16s %9s %9s\n' "$c" "${best[$c]}" "${best[cpu_$c]}"
+done
+# speedup NAME BASE CONFIG: wall ratio, and the CPU time against the base.
+speedup() {
+  have "$2" "$3" || return 0
+  echo "speed-up $1: $(ratio "${best[$2]}" "${best[$3]}") wall" \
+    "(CPU $(pct "${best[cpu_$3]}" "${best[cpu_$2]}") against $2)"
+}
+speedup "--jobs 2 / --jobs 1        " jobs1 jobs2
+speedup "mpiexec -n 2 / -n 1        " mpi1 mpi2
+speedup "mpiexec -n 2 / --jobs 1    " jobs1 mpi2
+speedup "converge -j 2 / -j 1          " conv_j1 conv_j2
+speedup "converge 2 ranks x 1 / -j 1   " conv_j1 conv_mpi2
+have jobs1 runs &&
+  echo "overhead --jobs 1 against runs:   $(pct "${best[jobs1]}" "${best[runs]}") wall," \
+    "$(pct "${best[cpu_jobs1]}" "${best[cpu_runs]}") CPU  (goal <= 5 %)"
+have mpi1 runs &&
   echo "overhead mpiexec -n 1 against runs: $(pct "${best[mpi1]}" "${best[runs]}") wall," \
     "$(pct "${best[cpu_mpi1]}" "${best[cpu_runs]}") CPU"
-echo "output: batch $size_batch B (master $size_master B + case files)," \
-  "runs $size_runs B: $(pct "$size_batch" "$size_runs")"
+if have runs && [ -e "$tmp/b.h5" ]; then
+  # The files of the last repeat (the same in every one).
+  size_runs=$(du -cb "$tmp"/runs/*.h5 | tail -1 | cut -f1)
+  size_batch=$(du -cb "$tmp/b.h5" "$tmp/b.cases" | tail -1 | cut -f1)
+  size_master=$(stat -c %s "$tmp/b.h5")
+  echo "output: batch $size_batch B (master $size_master B + case files)," \
+    "runs $size_runs B: $(pct "$size_batch" "$size_runs")"
+fi

@@ -5,7 +5,8 @@
 # h5diff, the table except wall times) with 1 and 2 jobs per rank, for
 # seeded cases, multi-start optimize cases and a failing case too; a bad override is refused once,
 # before any case runs; --resume under mpiexec runs only the pending cases
-# and gives the uninterrupted batch.
+# and gives the uninterrupted batch; `mrvi converge` and `mrvi stability`
+# under mpiexec print and write what they print and write serially.
 # Built without MPI: a run under an MPI launcher with more than one rank is
 # refused with a message (instead of every rank running every case); the
 # mpiexec runs are skipped with a message.
@@ -47,6 +48,14 @@ if [ "$built" != mpi ]; then
     fail "only rank 0 prints the refusal: $(cat err.txt)"
   run_ok "one rank of a launcher runs the batch" env OMPI_COMM_WORLD_SIZE=1 \
     "$mrvi" batch "$fpu" -o r.h5 -q "${grid[@]}"
+  for study in converge stability; do
+    env OMPI_COMM_WORLD_SIZE=2 "$mrvi" $study "$root/systems/oscillator.yaml" \
+      -q -o st.h5 2>err.txt
+    rc=$?
+    [ $rc = 1 ] && grep -q "built without MPI" err.txt && [ ! -e st.h5 ] &&
+      pass "$study under a launcher without MPI: refused" ||
+      fail "$study under a launcher without MPI (exit $rc): $(cat err.txt)"
+  done
   echo "skipped: the mpiexec runs (built without MPI: meson setup -Dmpi=enabled)"
   test_finish
   exit
@@ -154,5 +163,69 @@ EOF
 else
   echo "skipped: --resume under mpiexec (needs python3-h5py)"
 fi
+
+# --- mrvi converge and mrvi stability over 2 ranks: the serial output ---
+# Every rank runs the study in step; rank 0 hands out the runs (its own and
+# rank 1's workers), prints and writes; rank 1 prints nothing.  The chosen
+# range (rows deepened with the reference, then one at a time) and a fixed
+# range with 2 p; the table, the printed output, the warnings, the CSV.
+for mode in chosen fixed; do
+  case $mode in
+  chosen) range=() ;;
+  fixed) range=(--dt0 0.05 --levels 4) ;;
+  esac
+  "$mrvi" converge "$fpu" --p 5,10 "${range[@]}" --no-cache -j 1 -o cs.h5 \
+    --csv cs.csv >cs.out 2>cs.err
+  for j in 1 2; do
+    "${mpirun[@]}" "$mrvi" converge "$fpu" --p 5,10 "${range[@]}" --no-cache \
+      -j $j -o cm.h5 --csv cm.csv >cm.out 2>cm.err
+    rc=$?
+    sed -i '/^table: /d' cs.out cm.out
+    [ $rc = 0 ] && cmp -s cs.out cm.out && cmp -s cs.err cm.err &&
+      cmp -s cs.csv cm.csv && h5diff -q cs.h5 cm.h5 &&
+      pass "converge ($mode) on 2 ranks x $j jobs: the serial table and output" ||
+      fail "converge ($mode) on 2 ranks x $j jobs (exit $rc): $(diff cs.out cm.out | head -5) $(cat cm.err)"
+  done
+done
+# The reference is computed once, by rank 0, and cached once.
+rm -rf cache
+"${mpirun[@]}" "$mrvi" converge "$fpu" --p 5 --dt0 0.05 --levels 3 \
+  --cache cache -o cc.h5 >cc.out 2>cc.err
+[ $? = 0 ] && [ "$(grep -c '^reference: ' cc.out)" = 1 ] &&
+  [ "$(find cache -name '*.h5' | wc -l)" = 1 ] &&
+  pass "converge on 2 ranks: one reference, cached once" ||
+  fail "converge on 2 ranks: one reference, cached once: $(cat cc.out cc.err)"
+"${mpirun[@]}" "$mrvi" converge "$fpu" --p 5 --dt0 0.05 --levels 3 \
+  --cache cache -o cc2.h5 >cc2.out 2>cc2.err
+[ $? = 0 ] && grep -q '(cached)' cc2.out && h5diff -q cc.h5 cc2.h5 &&
+  pass "converge on 2 ranks: the cached reference read by rank 0, sent to rank 1" ||
+  fail "converge on 2 ranks, cached reference: $(cat cc2.out cc2.err)"
+# A failing run is reported as by the serial study, once.
+"$mrvi" converge "$fpu" --p 5 --dt0 0.125 --levels 3 -j 1 \
+  --set integrator.newton.max_iterations=2 -q -o cf.h5 2>cfs.err
+echo $? >>cfs.err
+"${mpirun[@]}" "$mrvi" converge "$fpu" --p 5 --dt0 0.125 --levels 3 \
+  --set integrator.newton.max_iterations=2 -q -o cf.h5 2>cfm.err
+echo $? >>cfm.err
+grep -v '^mpiexec\|^-\|^ \|^$\|Primary job\|a non-zero exit\|the job to be\|Process name\|Exit code\|the job has been' cfm.err >cfm2.err
+cmp -s cfs.err cfm2.err && [ "$(tail -1 cfm.err)" = 2 ] &&
+  pass "converge on 2 ranks: a failed run reported once, exit 2" ||
+  fail "converge on 2 ranks, failed run: $(cat cfs.err) vs $(cat cfm.err)"
+# A file rank 1 cannot read: stopped by rank 0 with the rank named, not a
+# hang (the description is read by every rank).
+"${mpirun[@]}" "$mrvi" stability nonexistent.yaml -q 2>nf.err
+[ $? = 1 ] && [ "$(grep -c 'nonexistent.yaml' nf.err)" = 1 ] &&
+  pass "a missing FILE reported once on 2 ranks" ||
+  fail "a missing FILE on 2 ranks: $(cat nf.err)"
+osc=$root/systems/oscillator.yaml
+"$mrvi" stability "$osc" --at 3.5 -j 1 -o ss.h5 >ss.out 2>&1
+for j in 1 2; do
+  "${mpirun[@]}" "$mrvi" stability "$osc" --at 3.5 -j $j -o sm.h5 >sm.out 2>&1
+  rc=$?
+  sed -i '/^table: /d' ss.out sm.out
+  [ $rc = 0 ] && cmp -s ss.out sm.out && h5diff -q ss.h5 sm.h5 &&
+    pass "stability on 2 ranks x $j jobs: the serial table and output" ||
+    fail "stability on 2 ranks x $j jobs (exit $rc): $(diff ss.out sm.out | head -5)"
+done
 
 test_finish

@@ -2,7 +2,8 @@
 # Named perturbations of mrvi batch (doc/batch.md, Ensembles): a thermal
 # ensemble hits its temperature 2 KE / N_f = T to round-off with zero net
 # momentum, on a free lattice of particles (spring_ring) and on a
-# constrained molecule (triatomic: two rigid bonds), whose perturbed
+# constrained molecule (triatomic: two rigid bonds), and with momenta drawn
+# per coordinate, nothing removed, on plain coordinates (fpu), whose perturbed
 # positions stay on the constraints; uniform position perturbations stay
 # within sqrt(3) S; random rotations of a free body (ocp_reorient) keep its
 # directors orthonormal, uniform ones differ per seed and small ones stay
@@ -82,6 +83,46 @@ with h5py.File("tri.h5") as f:
             moved = max(moved, np.abs(x - f["/runs/case_0000/macro/q"][0].reshape(3, 3)).max())
 print("max bond error %.1e (tolerance 1e-10), seeds differ by %.1e" % (worst, moved))
 assert worst < 1e-10 and moved > 1e-5
+'
+
+# --- plain coordinates (FPU elongations): no net momentum removed ---
+# The sum of the momenta of elongations is no momentum: --temperature draws
+# p_i = c sqrt(m_i) z_i per coordinate (z_i normal number i of the seed,
+# one c per case: 2 KE / N_f = T with N_f = n), says so on stderr and in the
+# case's description note, and removes nothing (the sum stays nonzero).
+"$mrvi" batch "$sys/fpu.yaml" -o fpu.h5 -j 2 --seeds 3 --temperature 0.7 \
+  --vary integrator.t_end=0.6 >out.txt 2>err.txt
+rc=$?
+[ $rc = 0 ] && grep -q "plain coordinates only: --temperature draws Maxwell-Boltzmann momenta per coordinate, no net momentum removed" err.txt &&
+  pass "fpu --temperature: the plain-coordinate note on stderr" ||
+  fail "fpu --temperature (exit $rc): $(cat err.txt)"
+check "fpu: temperature, momenta per coordinate, nothing removed" '
+import h5py, numpy as np, re, math
+M64 = (1 << 64) - 1
+def rnd(seed, i):  # mrvi_batch_random (src/batch/batch.h)
+    z = ((seed + 1) * 0x9E3779B97F4A7C15 + i) & M64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & M64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & M64
+    return z ^ (z >> 31)
+def normal(seed, j):  # mrvi_batch_normal
+    u1 = ((rnd(seed, 2 * j) >> 11) + 1) * 2.0 ** -53
+    u2 = (rnd(seed, 2 * j + 1) >> 11) * 2.0 ** -53
+    return math.sqrt(-2 * math.log(u1)) * math.cos(6.283185307179586 * u2)
+T, worst_T, least_P, worst_z = 0.7, 0.0, np.inf, 0.0
+with h5py.File("fpu.h5") as f:
+    for c in range(3):
+        r = f["/runs/case_%04d" % c]
+        p, m = r["macro/p"][0], r["model/mass"][:]
+        text = r["model/description"][()].decode()
+        assert "plain coordinates: no net momentum removed" in text, text[-300:]
+        nf = int(re.search(r"over (\d+) degrees of freedom", text).group(1))
+        assert nf == len(p), (nf, len(p))
+        worst_T = max(worst_T, abs(np.sum(p * p / m) / nf - T) / T)
+        least_P = min(least_P, abs(p.sum()) / np.abs(p).max())
+        ratio = p / (np.sqrt(m) * np.array([normal(c, i) for i in range(len(p))]))
+        worst_z = max(worst_z, np.ptp(ratio) / abs(ratio[0]))
+print("max |2KE/N_f - T|/T = %.1e, min |sum p|/max|p| = %.2f, p_i/(sqrt(m_i) z_i) within %.1e of one c" % (worst_T, least_P, worst_z))
+assert worst_T < 1e-14 and least_P > 1e-3 and worst_z < 1e-13
 '
 
 # --- uniform positions: |dq| <= sqrt(3) S on a free lattice ---

@@ -119,14 +119,15 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
                         mrvi_batch_done done, void *user, char *msg,
                         size_t len);
 
-/* Where the pool's cases come from and where their results go, for a pool
- * that does not own its list of cases (an MPI rank asks its manager for
- * each case: src/cli/cli_batch_mpi.c). */
+/* Where a pool's items come from and where their records go, for a pool
+ * that does not own its list of items (an MPI rank asks its manager for
+ * each: src/cli/cli_batch_mpi.c). */
 typedef struct mrvi_batch_queue {
-  /* The next case to run, or -1: none left (not asked again). */
+  /* The next item to run, or -1: none left (not asked again). */
   int (*next)(void *user);
-  /* A finished case (as mrvi_batch_done); < 0 stops the batch. */
-  int (*done)(void *user, const mrvi_batch_result *res);
+  /* Item i's record (a case's: its mrvi_batch_result); < 0 stops the
+   * pool. */
+  int (*done)(void *user, int i, const void *rec);
   /* When set: called at least every idle_ms milliseconds while workers
    * run (to serve other ranks); < 0 stops the batch. */
   int (*idle)(void *user);
@@ -144,6 +145,13 @@ int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
 /* One item of mrvi_batch_map: fill the record `out` (zeroed, `size` bytes,
  * plain data: it is copied between processes) for item i. */
 typedef void (*mrvi_batch_item)(void *user, int i, void *out);
+
+/* mrvi_batch_pool_serve for items: `jobs` workers forked at once (even
+ * one), each running fn on the item q->next() hands it; q->done gets each
+ * record.  A worker that dies mid-item stops the pool (the others are
+ * killed): MRVI_EIO with the signal or exit status and the item in msg. */
+int mrvi_batch_map_serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
+                         const mrvi_batch_queue *q, char *msg, size_t len);
 
 /* Items 0..n-1 on `jobs` worker processes forked at once (call before any
  * thread is started and with no HDF5 file open): item i's record goes to

@@ -14,11 +14,12 @@
  *   then the positions projected onto the constraints (the loader's
  *   projection, mrvi_model_project_positions: small corrections only);
  *   velocities  v0_i += s z_i, or thermal at temperature T: v_i = z_i /
- *               sqrt(m_i), the net momentum of every direction removed,
- *               projected onto the constraints' tangent space, scaled to
- *               2 KE / N_f = T (k_B = 1) with N_f the coordinates less
- *               the independent constraint rows less the momentum
- *               components removed;
+ *               sqrt(m_i), the net momentum of every direction of the
+ *               particles and bodies' centres removed (none on plain
+ *               coordinates: their sum is no momentum), projected onto the
+ *               constraints' tangent space, scaled to 2 KE / N_f = T
+ *               (k_B = 1) with N_f the coordinates less the independent
+ *               constraint rows less the momentum components removed;
  *   and the velocities projected onto the tangent space at the new
  *   positions.
  *
@@ -122,17 +123,15 @@ static void rotate_bodies(mrvi_model *m, uint64_t seed, double s, int uni) {
 }
 
 /* Translational coordinates by direction: comp[i] = d (0..D-1) for
- * particles' and bodies' centres, -1 otherwise; a model of plain
- * coordinates only is one direction (comp 0).  Returns the number of
- * directions. */
+ * particles' and bodies' centres, -1 otherwise (plain coordinates, as the
+ * elongations of a chain, have no net momentum: the sum of their momenta
+ * is none).  Returns the number of directions: D, or 0 without particles
+ * and bodies. */
 static int directions(const mrvi_model *m, int *comp) {
   for (int i = 0; i < m->n; i++)
     comp[i] = -1;
-  if (m->n_particles == 0 && m->n_bodies == 0) {
-    for (int i = 0; i < m->n; i++)
-      comp[i] = 0;
-    return 1;
-  }
+  if (m->n_particles == 0 && m->n_bodies == 0)
+    return 0;
   const int D = m->dimension;
   for (int k = 0; k < m->n_particles; k++)
     for (int d = 0; d < D; d++)
@@ -280,11 +279,15 @@ int mrvi_batch_perturb_note(mrvi_system *sys, long seed,
         seed, num, seed);
   }
   if (pt->temperature > 0) {
+    const mrvi_model *m = sys->model;
     shortest(pt->temperature, num, sizeof num);
     SAY("# mrvi batch, seed %ld: thermal initial velocities of seed %ld at "
-        "temperature %s\n# over %d degrees of freedom, zero net momentum "
-        "(doc/batch.md, Ensembles).\n",
-        seed, seed, num, dof);
+        "temperature %s\n# over %d degrees of freedom, %s (doc/batch.md, "
+        "Ensembles).\n",
+        seed, seed, num, dof,
+        m->n_particles == 0 && m->n_bodies == 0
+            ? "plain coordinates: no net momentum removed"
+            : "zero net momentum");
   } else if (pt->velocity_std > 0) {
     shortest(pt->velocity_std, num, sizeof num);
     SAY("# mrvi batch, seed %ld: the initial velocities are the above plus "

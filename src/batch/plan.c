@@ -363,17 +363,18 @@ int mrvi_batch_plan_check(const mrvi_batch_plan *p, char *msg, size_t len) {
 }
 
 /* ---------------------------------------------------------------------------
- * The plan as bytes: "MRVIPLN3", int32 n_cases, n_keys, n_seeds, command,
- * mrvi_batch_perturb (raw: the ranks run one binary), int64
+ * The plan as bytes: "MRVIPLN4", int32 n_cases, n_keys, n_seeds, command,
+ * threads, mrvi_batch_perturb (raw: the ranks run one binary, which
+ * src/cli/cli_batch_mpi.c checks when MPI starts), int64
  * seed[n_cases], then
  * '\0'-terminated strings:
  * description, source, keys, values (row-major).
  * ------------------------------------------------------------------------- */
-static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '3'};
+static const char plan_magic[8] = {'M', 'R', 'V', 'I', 'P', 'L', 'N', '4'};
 
 int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   const long nv = (long)p->n_cases * p->n_keys;
-  size_t n = sizeof plan_magic + 4 * sizeof(int32_t) + sizeof p->pert +
+  size_t n = sizeof plan_magic + 5 * sizeof(int32_t) + sizeof p->pert +
              (size_t)p->n_cases * sizeof(int64_t) + strlen(p->description) +
              strlen(p->source) + 2;
   for (int j = 0; j < p->n_keys; j++)
@@ -383,7 +384,8 @@ int mrvi_batch_plan_pack(const mrvi_batch_plan *p, char **buf, size_t *size) {
   char *b = malloc(n), *at = b;
   if (!b)
     return MRVI_ENOMEM;
-  const int32_t counts[4] = {p->n_cases, p->n_keys, p->n_seeds, p->command};
+  const int32_t counts[5] = {p->n_cases, p->n_keys, p->n_seeds, p->command,
+                             p->threads};
   memcpy(at, plan_magic, sizeof plan_magic), at += sizeof plan_magic;
   memcpy(at, counts, sizeof counts), at += sizeof counts;
   memcpy(at, &p->pert, sizeof p->pert), at += sizeof p->pert;
@@ -416,7 +418,7 @@ static char *take_string(const char **at, const char *end) {
 
 int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *p) {
   memset(p, 0, sizeof *p);
-  int32_t counts[4];
+  int32_t counts[5];
   const size_t head = sizeof plan_magic + sizeof counts + sizeof p->pert;
   if (size < head || memcmp(buf, plan_magic, sizeof plan_magic))
     return MRVI_EINVAL;
@@ -425,6 +427,9 @@ int mrvi_batch_plan_unpack(const char *buf, size_t size, mrvi_batch_plan *p) {
   if (counts[3] != MRVI_BATCH_RUN && counts[3] != MRVI_BATCH_OPTIMIZE)
     return MRVI_EINVAL;
   p->command = counts[3];
+  if (counts[4] < 0 || counts[4] > 4096)
+    return MRVI_EINVAL;
+  p->threads = counts[4];
   if (counts[0] < 1 || counts[0] > 1000000 || counts[1] < 0 ||
       counts[1] > 1000000 || counts[2] < 0 ||
       (size - head) / sizeof(int64_t) < (size_t)counts[0] ||

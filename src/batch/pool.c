@@ -3,12 +3,14 @@
  *
  * Workers are forked before the parent starts any thread or opens any HDF5
  * file, so a worker inherits no lock and no half-written state; each
- * reads case indices from its task pipe, runs them and writes one
- * fixed-size result (smaller than PIPE_BUF: written at once) per case to
- * its result pipe, and leaves with _exit (no atexit handler of the parent's
- * libraries runs in it).  The parent hands a case to whichever worker
- * answers first (cases differ in cost by orders of magnitude: a queue, not
- * a static split) and closes a worker's task pipe when none are left. */
+ * reads item indices (cases) from its task pipe, runs them and writes, in
+ * one write per item, the index and a fixed-size record (a case's result)
+ * to its result pipe, and leaves with _exit (no atexit handler of the
+ * parent's libraries runs in it).  The parent hands an item to whichever
+ * worker answers first (cases differ in cost by orders of magnitude: a
+ * queue, not a static split) and closes a worker's task pipe when none are
+ * left.  One loop (serve) runs the cases of a batch and the items of
+ * mrvi_batch_map alike; they differ in what a worker's death means. */
 #define _GNU_SOURCE
 #include "batch/batch.h"
 
@@ -16,6 +18,7 @@
 #include <math.h>
 #include <poll.h>
 #include <signal.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -159,80 +162,59 @@ static int write_all(int fd, const void *buf, size_t n) {
   return 0;
 }
 
-/* A worker: cases from fd_in until it closes, results to fd_out. */
-static void worker(const mrvi_batch_plan *plan, const char *master, int fd_in,
+/* ---------------------------------------------------------------------------
+ * Worker processes: item indices in, fixed-size records out.  The cases of
+ * a batch are items whose record is their mrvi_batch_result; the study
+ * commands' runs are items of their own records (mrvi_batch_map).
+ * ------------------------------------------------------------------------- */
+
+/* A worker's message: the item's index, then its record from HEAD on (a
+ * record of any type is aligned there: malloc's alignment). */
+#define HEAD _Alignof(max_align_t)
+
+/* A worker: item indices from fd_in until it closes; for each, the index
+ * followed by its record (zeroed, then filled by fn) to fd_out in one
+ * write. */
+static void worker(size_t size, mrvi_batch_item fn, void *user, int fd_in,
                    int fd_out) {
-  int c;
-  while (read_all(fd_in, &c, sizeof c) == 0) {
-    char path[4096];
-    mrvi_batch_result res;
-    if (mrvi_batch_case_file(master, c, 0, path, sizeof path) < 0) {
-      memset(&res, 0, sizeof res);
-      res.c = c;
-      res.energy_error = res.cost = res.violation = NAN;
-      res.status = MRVI_BATCH_FAILED;
-      snprintf(res.reason, sizeof res.reason, "case file name too long");
-    } else {
-      mrvi_batch_case_run(plan, c, path, &res);
-    }
-    if (write_all(fd_out, &res, sizeof res) < 0)
+  char *msg = malloc(HEAD + size);
+  int i;
+  while (msg && read_all(fd_in, &i, sizeof i) == 0) {
+    memset(msg, 0, HEAD + size);
+    memcpy(msg, &i, sizeof i);
+    fn(user, i, msg + HEAD);
+    if (write_all(fd_out, msg, HEAD + size) < 0)
       break;
   }
+  free(msg);
 }
 
 typedef struct slot {
   pid_t pid;
   int task, result; /* the parent's ends */
-  int busy;         /* case being run, or -1 */
+  int busy;         /* item being run, or -1 */
 } slot;
 
-/* Close a worker's task pipe: it leaves after its current case. */
+/* Close a worker's task pipe: it leaves after its current item. */
 static void slot_retire(slot *s) {
   if (s->task >= 0)
     close(s->task);
   s->task = -1;
 }
 
-/* A result for case c that did not run: "WHY CODE (not run: ...)". */
-static mrvi_batch_result not_run(int c, const char *why, int code) {
-  mrvi_batch_result res;
-  memset(&res, 0, sizeof res);
-  res.c = c;
-  res.status = MRVI_BATCH_PENDING;
-  res.energy_error = res.cost = res.violation = NAN;
-  snprintf(res.reason, sizeof res.reason, "%s %d (not run: --resume runs it)",
-           why, code);
-  return res;
-}
-
-int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
-                          int jobs, const mrvi_batch_queue *q, char *msg,
-                          size_t len) {
-  mrvi_fmt(msg, len, "%s", "");
-  if (jobs < 1)
-    jobs = 1;
-  slot *w = calloc((size_t)jobs, sizeof *w);
-  if (!w) {
-    mrvi_fmt(msg, len, "out of memory");
-    return MRVI_ENOMEM;
-  }
-  /* A worker that died closes its pipe: writing to it must fail, not kill
-   * the parent. */
-  struct sigaction ign = {.sa_handler = SIG_IGN}, old_pipe;
-  sigemptyset(&ign.sa_mask);
-  sigaction(SIGPIPE, &ign, &old_pipe);
+/* Fork up to `jobs` workers running fn into w[0..); the number started
+ * (0: errno says why).  The caller ignores SIGPIPE: a worker that died
+ * closes its pipe, and writing to it must fail, not kill the parent. */
+static int start_workers(slot *w, int jobs, size_t size, mrvi_batch_item fn,
+                         void *user) {
   fflush(NULL); /* nothing buffered is written twice */
-  int rc = 0, started = 0;
-  for (int i = 0; i < jobs; i++) {
+  int started = 0;
+  for (int k = 0; k < jobs; k++) {
     int tp[2], rp[2];
-    w[i] = (slot){.pid = -1, .task = -1, .result = -1, .busy = -1};
-    if (pipe(tp) < 0) {
-      rc = MRVI_EIO;
+    if (pipe(tp) < 0)
       break;
-    }
     if (pipe(rp) < 0) {
       close(tp[0]), close(tp[1]);
-      rc = MRVI_EIO;
       break;
     }
     const pid_t parent = getpid();
@@ -244,56 +226,91 @@ int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
       if (prctl(PR_SET_PDEATHSIG, SIGKILL) < 0 || getppid() != parent)
         _exit(1);
 #endif
-      for (int k = 0; k < i; k++) /* the other workers' pipes */
-        close(w[k].task), close(w[k].result);
+      for (int m = 0; m < started; m++) /* the other workers' pipes */
+        close(w[m].task), close(w[m].result);
       close(tp[1]), close(rp[0]);
-      worker(plan, master, tp[0], rp[1]);
+      worker(size, fn, user, tp[0], rp[1]);
       _exit(0);
     }
     close(tp[0]), close(rp[1]);
     if (pid < 0) {
       close(tp[1]), close(rp[0]);
-      rc = MRVI_EIO;
       break;
     }
-    w[i] = (slot){.pid = pid, .task = tp[1], .result = rp[0], .busy = -1};
-    started++;
+    w[started++] =
+        (slot){.pid = pid, .task = tp[1], .result = rp[0], .busy = -1};
   }
-  if (rc < 0 && started == 0)
-    mrvi_fmt(msg, len, "cannot start a worker process: %s", strerror(errno));
-  if (started > 0)
-    rc = 0;
+  return started;
+}
 
+/* A pool's queue and what it does with an item that did not come back. */
+typedef struct feed {
+  const mrvi_batch_queue *q;
+  /* Item i lost: its worker died with wait status ws, or (ws < 0) no
+   * worker was left to take it.  < 0 stops the pool (msg set). */
+  int (*lost)(const mrvi_batch_queue *q, int i, int ws, char *msg, size_t len);
+  int kill_on_stop; /* a stop kills the workers (else each ends its item) */
+} feed;
+
+/* `jobs` workers forked at once, each handed f->q->next() whenever it is
+ * free, until the queue says none are left and every worker is idle. */
+static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
+                 const feed *f, char *msg, size_t len) {
+  const mrvi_batch_queue *q = f->q;
+  mrvi_fmt(msg, len, "%s", "");
+  if (jobs < 1)
+    jobs = 1;
+  if (size > (size_t)1 << 30) {
+    mrvi_fmt(msg, len, "record of %zu bytes too large", size);
+    return MRVI_EINVAL;
+  }
+  slot *w = calloc((size_t)jobs, sizeof *w);
   struct pollfd *pfd = calloc((size_t)jobs, sizeof *pfd);
-  int stop = rc < 0 || !pfd, exhausted = 0;
-  int carry = -1; /* a case taken from q whose worker was gone */
+  char *rec = malloc(HEAD + size);
+  if (!w || !pfd || !rec) {
+    free(w), free(pfd), free(rec);
+    mrvi_fmt(msg, len, "out of memory");
+    return MRVI_ENOMEM;
+  }
+  struct sigaction ign = {.sa_handler = SIG_IGN}, old_pipe;
+  sigemptyset(&ign.sa_mask);
+  sigaction(SIGPIPE, &ign, &old_pipe);
+  const int started = start_workers(w, jobs, size, fn, user);
+  int rc = 0, stop = 0, exhausted = 0;
+  int carry = -1; /* an item taken from q whose worker was gone */
+  if (started == 0) {
+    mrvi_fmt(msg, len, "cannot start a worker process: %s", strerror(errno));
+    rc = MRVI_EIO;
+    stop = 1;
+  }
   for (;;) {
-    /* Hand out cases to idle workers. */
+    /* Hand out items to idle workers. */
     int running = 0;
-    for (int i = 0; i < started; i++) {
-      slot *s = &w[i];
+    for (int k = 0; k < started; k++) {
+      slot *s = &w[k];
       if (s->busy < 0 && s->task >= 0) {
-        int c = carry;
-        if (c < 0 && !stop && !exhausted && (c = q->next(q->user)) < 0)
+        int i = carry;
+        if (i < 0 && !stop && !exhausted && (i = q->next(q->user)) < 0)
           exhausted = 1;
         carry = -1;
-        if (c >= 0 && write_all(s->task, &c, sizeof c) == 0)
-          s->busy = c;
+        if (i >= 0 && write_all(s->task, &i, sizeof i) == 0)
+          s->busy = i;
         else
-          carry = c, slot_retire(s);
+          carry = i, slot_retire(s);
       }
       running += s->busy >= 0;
     }
-    if (running == 0)
+    if (running == 0 || (stop && f->kill_on_stop))
       break;
     int np = 0;
-    for (int i = 0; i < started; i++)
-      if (w[i].busy >= 0)
-        pfd[np++] = (struct pollfd){.fd = w[i].result, .events = POLLIN};
+    for (int k = 0; k < started; k++)
+      if (w[k].busy >= 0)
+        pfd[np++] = (struct pollfd){.fd = w[k].result, .events = POLLIN};
     int ready = poll(pfd, (nfds_t)np, q->idle ? q->idle_ms : -1);
     if (ready < 0 && errno != EINTR) {
       mrvi_fmt(msg, len, "poll: %s", strerror(errno));
       rc = MRVI_EIO;
+      stop = 1;
       break;
     }
     if (q->idle && !stop && q->idle(q->user) < 0) {
@@ -302,53 +319,104 @@ int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
     }
     if (ready <= 0)
       continue;
-    for (int i = 0, k = 0; i < started; i++) {
-      slot *s = &w[i];
-      if (s->busy < 0)
+    for (int k = 0, m = 0; k < started; k++) {
+      slot *s = &w[k];
+      if (s->busy < 0 || !pfd[m++].revents)
         continue;
-      short ev = pfd[k++].revents;
-      if (!ev)
-        continue;
-      mrvi_batch_result res;
-      if (read_all(s->result, &res, sizeof res) < 0 || res.c != s->busy) {
-        /* The worker died mid-case (killed): the case stays pending, to
-         * be run by --resume; the worker is gone. */
+      const int i = s->busy;
+      int got = -1;
+      s->busy = -1;
+      if (read_all(s->result, rec, HEAD + size) == 0)
+        memcpy(&got, rec, sizeof got);
+      if (got != i) {
+        /* The worker died mid-item (killed); it is gone. */
         int ws = 0;
         waitpid(s->pid, &ws, 0);
-        res = WIFSIGNALED(ws)
-                  ? not_run(s->busy, "worker process killed by signal",
-                            WTERMSIG(ws))
-                  : not_run(s->busy, "worker process exited with status",
-                            WEXITSTATUS(ws));
         slot_retire(s);
         close(s->result);
         s->result = -1;
         s->pid = -1;
-      }
-      s->busy = -1;
-      if (!stop && q->done(q->user, &res) < 0) {
+        if (!stop && f->lost(q, i, ws, msg, len) < 0) {
+          stop = 1;
+          rc = MRVI_EIO;
+        }
+      } else if (!stop && q->done(q->user, i, rec + HEAD) < 0) {
         stop = 1;
         rc = MRVI_EIO;
       }
     }
   }
-  /* A case taken and never started: every worker was gone. */
-  if (carry >= 0 && !stop) {
-    mrvi_batch_result res = not_run(carry, "worker processes gone:", started);
-    if (q->done(q->user, &res) < 0)
-      rc = MRVI_EIO;
-  }
-  for (int i = 0; i < started; i++) {
-    slot_retire(&w[i]);
-    if (w[i].result >= 0)
-      close(w[i].result);
-    if (w[i].pid > 0)
-      waitpid(w[i].pid, NULL, 0);
+  /* An item taken and never started: every worker was gone. */
+  if (carry >= 0 && !stop && f->lost(q, carry, -1, msg, len) < 0)
+    rc = MRVI_EIO;
+  for (int k = 0; k < started; k++) {
+    slot_retire(&w[k]);
+    if (w[k].result >= 0)
+      close(w[k].result);
+    if (w[k].pid > 0) {
+      if (stop && f->kill_on_stop)
+        kill(w[k].pid, SIGKILL);
+      waitpid(w[k].pid, NULL, 0);
+    }
   }
   sigaction(SIGPIPE, &old_pipe, NULL);
+  free(rec);
   free(pfd);
   free(w);
   return rc;
+}
+
+/* ---------------------------------------------------------------------------
+ * The cases of a batch
+ * ------------------------------------------------------------------------- */
+
+typedef struct case_job {
+  const mrvi_batch_plan *plan;
+  const char *master;
+} case_job;
+
+/* Item c: case c into its run file; the record is its result. */
+static void case_item(void *user, int c, void *out) {
+  const case_job *job = user;
+  mrvi_batch_result *res = out;
+  char path[4096];
+  if (mrvi_batch_case_file(job->master, c, 0, path, sizeof path) == 0) {
+    mrvi_batch_case_run(job->plan, c, path, res);
+    return;
+  }
+  res->c = c;
+  res->energy_error = res->cost = res->violation = NAN;
+  res->status = MRVI_BATCH_FAILED;
+  snprintf(res->reason, sizeof res->reason, "case file name too long");
+}
+
+/* A case whose worker died (killed) stays pending, to be run by --resume;
+ * the cases left go to the workers left. */
+static int case_lost(const mrvi_batch_queue *q, int c, int ws, char *msg,
+                     size_t len) {
+  (void)msg, (void)len;
+  mrvi_batch_result res;
+  memset(&res, 0, sizeof res);
+  res.c = c;
+  res.status = MRVI_BATCH_PENDING;
+  res.energy_error = res.cost = res.violation = NAN;
+  if (ws < 0)
+    snprintf(res.reason, sizeof res.reason,
+             "no worker process left (not run: --resume runs it)");
+  else
+    snprintf(res.reason, sizeof res.reason, "%s %d (not run: --resume runs it)",
+             WIFSIGNALED(ws) ? "worker process killed by signal"
+                             : "worker process exited with status",
+             WIFSIGNALED(ws) ? WTERMSIG(ws) : WEXITSTATUS(ws));
+  return q->done(q->user, c, &res);
+}
+
+int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
+                          int jobs, const mrvi_batch_queue *q, char *msg,
+                          size_t len) {
+  case_job job = {plan, master};
+  const feed f = {.q = q, .lost = case_lost};
+  return serve(jobs, sizeof(mrvi_batch_result), case_item, &job, &f, msg, len);
 }
 
 /* The serial queue: todo[0..n) in order. */
@@ -364,8 +432,9 @@ static int todo_next(void *user) {
   return t->next < t->n ? t->todo[t->next++] : -1;
 }
 
-static int todo_done(void *user, const mrvi_batch_result *res) {
+static int todo_done(void *user, int c, const void *res) {
   todo_queue *t = user;
+  (void)c;
   return t->done(t->user, res);
 }
 
@@ -393,19 +462,44 @@ int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
  * study commands, `mrvi converge`), no run files.
  * ------------------------------------------------------------------------- */
 
-/* A map worker: item indices from fd_in until it closes; for each, the
- * index and its record to fd_out. */
-static void map_worker(size_t size, mrvi_batch_item fn, void *user, int fd_in,
-                       int fd_out) {
-  char *rec = malloc(size);
-  int i;
-  while (rec && read_all(fd_in, &i, sizeof i) == 0) {
-    memset(rec, 0, size);
-    fn(user, i, rec);
-    if (write_all(fd_out, &i, sizeof i) < 0 || write_all(fd_out, rec, size) < 0)
-      break;
-  }
-  free(rec);
+/* A worker that died stops the map, whose records would be incomplete. */
+static int map_lost(const mrvi_batch_queue *q, int i, int ws, char *msg,
+                    size_t len) {
+  (void)q;
+  if (ws < 0)
+    mrvi_fmt(msg, len, "every worker process died (item %d not run)", i);
+  else if (WIFSIGNALED(ws))
+    mrvi_fmt(msg, len, "worker process killed by signal %d (item %d)",
+             WTERMSIG(ws), i);
+  else
+    mrvi_fmt(msg, len, "worker process exited with status %d (item %d)",
+             WEXITSTATUS(ws), i);
+  return -1;
+}
+
+int mrvi_batch_map_serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
+                         const mrvi_batch_queue *q, char *msg, size_t len) {
+  const feed f = {.q = q, .lost = map_lost, .kill_on_stop = 1};
+  return serve(jobs, size, fn, user, &f, msg, len);
+}
+
+/* The map's queue: items 0..n-1 in order, records to out + i * size. */
+typedef struct map_queue {
+  int n, next, done;
+  size_t size;
+  char *out;
+} map_queue;
+
+static int map_next(void *user) {
+  map_queue *m = user;
+  return m->next < m->n ? m->next++ : -1;
+}
+
+static int map_done(void *user, int i, const void *rec) {
+  map_queue *m = user;
+  memcpy(m->out + (size_t)i * m->size, rec, m->size);
+  m->done++;
+  return 0;
 }
 
 int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn, void *user,
@@ -419,119 +513,15 @@ int mrvi_batch_map(int n, int jobs, size_t size, mrvi_batch_item fn, void *user,
       fn(user, i, rec + (size_t)i * size);
     return 0;
   }
-  if (size > (size_t)1 << 30) {
-    mrvi_fmt(msg, len, "record of %zu bytes too large", size);
-    return MRVI_EINVAL;
-  }
-  slot *w = calloc((size_t)jobs, sizeof *w);
-  struct pollfd *pfd = calloc((size_t)jobs, sizeof *pfd);
-  if (!w || !pfd) {
-    free(w), free(pfd);
-    mrvi_fmt(msg, len, "out of memory");
-    return MRVI_ENOMEM;
-  }
-  struct sigaction ign = {.sa_handler = SIG_IGN}, old_pipe;
-  sigemptyset(&ign.sa_mask);
-  sigaction(SIGPIPE, &ign, &old_pipe);
-  fflush(NULL); /* nothing buffered is written twice */
-  int rc = 0, started = 0;
-  for (int k = 0; k < jobs; k++) {
-    int tp[2], rp[2];
-    if (pipe(tp) < 0)
-      break;
-    if (pipe(rp) < 0) {
-      close(tp[0]), close(tp[1]);
-      break;
-    }
-    const pid_t parent = getpid();
-    pid_t pid = fork();
-    if (pid == 0) {
-#ifdef __linux__
-      if (prctl(PR_SET_PDEATHSIG, SIGKILL) < 0 || getppid() != parent)
-        _exit(1);
-#endif
-      for (int m = 0; m < k; m++)
-        close(w[m].task), close(w[m].result);
-      close(tp[1]), close(rp[0]);
-      map_worker(size, fn, user, tp[0], rp[1]);
-      _exit(0);
-    }
-    close(tp[0]), close(rp[1]);
-    if (pid < 0) {
-      close(tp[1]), close(rp[0]);
-      break;
-    }
-    w[started++] =
-        (slot){.pid = pid, .task = tp[1], .result = rp[0], .busy = -1};
-  }
-  if (started == 0) {
-    mrvi_fmt(msg, len, "cannot start a worker process: %s", strerror(errno));
-    rc = MRVI_EIO;
-  }
   /* Items handed out in order to whichever worker is free; each record
    * lands at its index, so the gathered records do not depend on jobs. */
-  int next = 0, done = 0;
-  while (rc == 0 && done < n) {
-    int np = 0;
-    for (int k = 0; k < started; k++) {
-      slot *s = &w[k];
-      if (s->busy < 0 && s->task >= 0 && next < n) {
-        if (write_all(s->task, &next, sizeof next) == 0)
-          s->busy = next++;
-        else
-          slot_retire(s);
-      }
-      if (s->busy >= 0)
-        pfd[np++] = (struct pollfd){.fd = s->result, .events = POLLIN};
-    }
-    if (np == 0) {
-      mrvi_fmt(msg, len, "every worker process died; %d items not run",
-               n - done);
-      rc = MRVI_EIO;
-      break;
-    }
-    if (poll(pfd, (nfds_t)np, -1) < 0) {
-      if (errno == EINTR)
-        continue;
-      mrvi_fmt(msg, len, "poll: %s", strerror(errno));
-      rc = MRVI_EIO;
-      break;
-    }
-    for (int k = 0, p = 0; k < started && rc == 0; k++) {
-      slot *s = &w[k];
-      if (s->busy < 0 || !pfd[p++].revents)
-        continue;
-      int i = -1;
-      if (read_all(s->result, &i, sizeof i) < 0 || i != s->busy ||
-          read_all(s->result, rec + (size_t)i * size, size) < 0) {
-        int ws = 0;
-        waitpid(s->pid, &ws, 0);
-        s->pid = -1;
-        if (WIFSIGNALED(ws))
-          mrvi_fmt(msg, len, "worker process killed by signal %d (item %d)",
-                   WTERMSIG(ws), s->busy);
-        else
-          mrvi_fmt(msg, len, "worker process exited with status %d (item %d)",
-                   WEXITSTATUS(ws), s->busy);
-        rc = MRVI_EIO;
-        break;
-      }
-      s->busy = -1;
-      done++;
-    }
+  map_queue m = {.n = n, .size = size, .out = out};
+  const mrvi_batch_queue q = {.next = map_next, .done = map_done, .user = &m};
+  int rc = mrvi_batch_map_serve(jobs, size, fn, user, &q, msg, len);
+  if (rc == 0 && m.done < n) {
+    mrvi_fmt(msg, len, "every worker process died; %d items not run",
+             n - m.done);
+    rc = MRVI_EIO;
   }
-  for (int k = 0; k < started; k++) {
-    slot_retire(&w[k]);
-    if (w[k].result >= 0)
-      close(w[k].result);
-    if (w[k].pid > 0) {
-      if (rc < 0)
-        kill(w[k].pid, SIGKILL);
-      waitpid(w[k].pid, NULL, 0);
-    }
-  }
-  sigaction(SIGPIPE, &old_pipe, NULL);
-  free(pfd);
-  free(w);
   return rc;
 }

@@ -7,7 +7,7 @@
  *   cli_optimize.c  optimize, and run --controls (replay)
  *   cli_export.c    export, and the XDMF file beside a run
  *   cli_batch.c     batch
- *   cli_batch_mpi.c batch over MPI ranks
+ *   cli_batch_mpi.c batch, converge and stability over MPI ranks
  */
 #ifndef MRVI_CLI_H
 #define MRVI_CLI_H
@@ -81,6 +81,19 @@ int mrvi_batch_mpi_share(int go, mrvi_batch_plan *plan, const char **master,
 int mrvi_batch_mpi_run(const mrvi_batch_plan *plan, const char *master,
                        const int *todo, int n_todo, int jobs,
                        mrvi_batch_done done, void *user, char *msg, size_t len);
+/* mrvi_batch_map over the ranks (collective: every rank calls it with the
+ * same items): rank 0 hands the items out, each rank runs its share on its
+ * own `jobs` worker processes (forked even for one job), and every rank
+ * gets every record in out, or rank 0's failure (its message on rank 0).
+ * Without MPI: mrvi_batch_map. */
+int mrvi_batch_mpi_map(int n, int jobs, size_t size, mrvi_batch_item fn,
+                       void *user, void *out, char *msg, size_t len);
+/* Collective: the lowest rank where ok is 0, or -1 when it is 1
+ * everywhere. */
+int mrvi_batch_mpi_agree(int ok);
+/* Collective: rank 0's *tr to every rank (the others' *tr allocated, as
+ * mrvi_trajectory_read would); -1 on every rank when rank 0's is NULL. */
+int mrvi_batch_mpi_share_trajectory(mrvi_trajectory **tr);
 /* Every rank leaves with rank 0's exit status rc (MPI_Finalize). */
 int mrvi_batch_mpi_end(int rc);
 

@@ -53,7 +53,8 @@ const char mrvi_usage_batch[] =
     "      --position-std S, --position-distribution gaussian|uniform,\n"
     "      --temperature T, --rotation-std A, --rotations uniform\n"
     "                        perturb a seeded case's positions (projected),\n"
-    "                        set thermal velocities (zero net momentum) or\n"
+    "                        set thermal velocities (zero net momentum of\n"
+    "                        particles and bodies) or\n"
     "                        turn its bodies (doc/batch.md, Ensembles)\n"
     "      --optimize        cases are 'mrvi optimize' (doc/batch.md)\n"
     "      --control-std S   multi-start: perturb a seeded case's initial\n"
@@ -63,8 +64,8 @@ const char mrvi_usage_batch[] =
     "      --threads T       threads of each case's element loops (default:\n"
     "                        the cores available divided by the jobs, at\n"
     "                        least 1: jobs x threads stays within the cores\n"
-    "                        unless both are given); results do not depend\n"
-    "                        on T\n"
+    "                        unless both are given; over MPI ranks 1); the\n"
+    "                        results do not depend on T\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
     "                        killed or interrupted batch)\n"
     "  -q, --quiet           no line per finished case\n"
@@ -77,7 +78,7 @@ const char mrvi_usage_batch[] =
     "MPI (built with meson -Dmpi=enabled): 'mpiexec -n R mrvi batch ...'\n"
     "hands the cases out over R ranks, each with its own --jobs workers\n"
     "(default: its share of the machine's cores); the files are those of one\n"
-    "process (doc/batch.md).\n"
+    "process (doc/batch.md).  Every rank must run the same mrvi binary.\n"
     "\n"
     "Exit status:\n"
     "  0    every case completed\n"
@@ -290,7 +291,6 @@ static int batch_follow(void) {
   if (mrvi_batch_mpi_share(0, &plan, &master, &jobs)) {
     if (jobs == 0)
       jobs = mrvi_batch_mpi_jobs();
-    plan.threads = 1; /* (over MPI the ranks fill the cores) */
     if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, NULL, NULL, msg,
                            sizeof msg) < 0 &&
         msg[0])
@@ -430,6 +430,15 @@ int mrvi_cmd_batch(int argc, char **argv) {
                                      n_axes, zip, seeds, command, &pt, msg,
                                      sizeof msg) < 0) {
       rc = usage_fail(msg);
+    } else if (!quiet && pt.temperature > 0 && base->model->n_particles == 0 &&
+               base->model->n_bodies == 0) {
+      /* The sum of the momenta of plain coordinates (elongations, angles)
+       * is no physical momentum: nothing is removed from it. */
+      fprintf(stderr,
+              "mrvi batch: %s has plain coordinates only: --temperature "
+              "draws Maxwell-Boltzmann momenta per coordinate, no net "
+              "momentum removed (doc/batch.md, Ensembles)\n",
+              file);
     }
     mrvi_system_free(base);
   }
@@ -461,13 +470,17 @@ int mrvi_cmd_batch(int argc, char **argv) {
       todo[n_todo++] = c;
   /* MPI: the other ranks get the plan (or leave), and each rank takes the
    * cores of its share of the machine unless --jobs says. */
+  /* Over MPI the ranks fill the cores: each case on one thread unless
+   * --threads says, on every rank (the plan carries it). */
+  if (ranks > 1)
+    plan.threads = threads > 0 ? threads : 1;
   int jobs_given = jobs;
   mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
   if (rc == 0 && jobs == 0)
     jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
   /* (mrvi_batch_mpi_jobs is collective: not called here again) */
-  plan.threads = ranks > 1 ? (threads > 0 ? threads : 1)
-                           : case_threads(threads, mrvi_batch_cores(), jobs);
+  if (ranks == 1)
+    plan.threads = case_threads(threads, mrvi_batch_cores(), jobs);
 
   batch_ctx ctx = {.out = out,
                    .quiet = quiet,

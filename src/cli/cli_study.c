@@ -21,6 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 enum { EXIT_INPUT = 1, EXIT_RUN = 2, MAX_LIST = 64, MSG = 8192 };
 /* converge: consecutive observed orders further apart than this are not in
@@ -68,7 +69,9 @@ const char mrvi_usage_converge[] =
     "  -j, --jobs N        worker processes for the runs (default: the cores\n"
     "                      available; 1 runs them in this process); with\n"
     "                      more than one, each run is on one thread.  The\n"
-    "                      table does not depend on N\n"
+    "                      table does not depend on N.  Under mpiexec -n R\n"
+    "                      (built with MPI) the runs are spread over the R\n"
+    "                      ranks, N jobs each (doc/batch.md)\n"
     "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
     "  -q, --quiet         print only errors\n";
 
@@ -92,7 +95,9 @@ const char mrvi_usage_stability[] =
     "  -j, --jobs N        worker processes for the 2 x (number of p) limits\n"
     "                      and scans (default: the cores available; 1 runs\n"
     "                      them in this process); the table does not depend\n"
-    "                      on N\n"
+    "                      on N.  Under mpiexec -n R (built with MPI) they "
+    "are\n"
+    "                      spread over the R ranks, N jobs each\n"
     "  -o, --output OUT.h5 table file (default <name>-stability.h5)\n"
     "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
     "  -q, --quiet         print only errors\n";
@@ -588,12 +593,15 @@ static void conv_item(void *user, int k, void *out) {
   mrvi_trajectory_free(run);
 }
 
-/* --jobs: worker processes for the runs (default: the cores), or -1 with
- * the message printed.  The results do not depend on threads (util.h), and
- * forked workers must not inherit a thread pool: with more than one job
- * every run of sys is on one thread. */
-static int parse_jobs(const char *cmd, const args *a, mrvi_system *sys) {
-  int jobs = mrvi_batch_cores();
+/* --jobs: worker processes for the runs (default: the cores; over MPI
+ * ranks, each rank's share of its machine's cores), or -1 with the message
+ * printed.  The results do not depend on threads (util.h), and forked
+ * workers must not inherit a thread pool: with more than one job, or over
+ * ranks (whose runs are always on forked workers), every run of sys is on
+ * one thread. */
+static int parse_jobs(const char *cmd, const args *a, mrvi_system *sys,
+                      int ranks) {
+  int jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
   if (get(a, "--jobs")) {
     double v;
     if (parse_double(cmd, "--jobs", get(a, "--jobs"), &v) < 0)
@@ -604,14 +612,57 @@ static int parse_jobs(const char *cmd, const args *a, mrvi_system *sys) {
     }
     jobs = (int)v;
   }
-  if (jobs > 1)
+  if (jobs > 1 || ranks > 1)
     sys->settings.threads = 1;
   return jobs;
 }
 
+/* Under an MPI launcher (mpiexec -n R mrvi converge|stability ...) every
+ * rank runs the study in step: the same arguments, so the same calls of
+ * the collectives (mrvi_batch_mpi_map hands the runs out over the ranks
+ * and gives every rank every record); rank 0 alone computes the
+ * reference, prints and writes: the other ranks' output goes to
+ * /dev/null. */
+static int with_ranks(const char *cmd, int (*study)(int, char **, int, int),
+                      int argc, char **argv) {
+  int rank = 0, ranks = 1;
+  char msg[1024];
+  if (mrvi_batch_mpi_begin(&rank, &ranks, msg, sizeof msg) < 0) {
+    if (msg[0])
+      fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
+    return EXIT_INPUT;
+  }
+  if (rank > 0) {
+    fflush(NULL);
+    FILE *null = fopen("/dev/null", "w");
+    if (null) {
+      dup2(fileno(null), 1);
+      dup2(fileno(null), 2);
+      fclose(null);
+    }
+  }
+  return mrvi_batch_mpi_end(study(argc, argv, rank, ranks));
+}
+
+/* The system of FILE on every rank, or NULL on every rank (a rank that
+ * cannot load it is named by rank 0). */
+static mrvi_system *load_everywhere(const char *cmd, const args *a) {
+  mrvi_system *sys = load(cmd, a);
+  const int bad = mrvi_batch_mpi_agree(sys != NULL);
+  if (bad < 0)
+    return sys;
+  if (bad > 0)
+    fprintf(stderr,
+            "mrvi %s: MPI rank %d cannot load %s: every rank reads FILE "
+            "(and the files it names)\n",
+            cmd, bad, a->file);
+  mrvi_system_free(sys);
+  return NULL;
+}
+
 static long gcd(long a, long b) { return b ? gcd(b, a % b) : a; }
 
-int mrvi_cmd_converge(int argc, char **argv) {
+static int converge(int argc, char **argv, int rank, int ranks) {
   static const char *const names[] = {
       "--dt",    "--dt0",       "--levels",   "--p",
       "--t-end", "--reference", "--ref-step", "--ref-scheme",
@@ -625,7 +676,7 @@ int mrvi_cmd_converge(int argc, char **argv) {
   }
   const char *cmd = "converge";
   int code = EXIT_INPUT;
-  mrvi_system *sys = load(cmd, &a);
+  mrvi_system *sys = load_everywhere(cmd, &a);
   conv_table *T = calloc(MAX_LIST, sizeof *T);
   mrvi_trajectory *ref = NULL;
   if (!sys || !T)
@@ -664,22 +715,9 @@ int mrvi_cmd_converge(int argc, char **argv) {
   if (get(&a, "--p") &&
       (n_p = parse_list(cmd, "--p", get(&a, "--p"), ps, MAX_LIST, 1)) < 0)
     goto out;
-  /* --jobs: worker processes for the runs (default: the cores).  Their
-   * results do not depend on threads (util.h), and forked workers must not
-   * inherit a thread pool: with more than one job every run is serial. */
-  int jobs = mrvi_batch_cores();
-  if (get(&a, "--jobs")) {
-    double v;
-    if (parse_double(cmd, "--jobs", get(&a, "--jobs"), &v) < 0)
-      goto out;
-    if (!(v >= 1 && v <= 4096 && v == floor(v))) {
-      fprintf(stderr, "mrvi %s: --jobs must be an integer in [1, 4096]\n", cmd);
-      goto out;
-    }
-    jobs = (int)v;
-  }
-  if (jobs > 1)
-    sys->settings.threads = 1;
+  const int jobs = parse_jobs(cmd, &a, sys, ranks);
+  if (jobs < 0)
+    goto out;
   if (!(t_end > 0)) {
     fprintf(stderr, "mrvi %s: --t-end must be positive\n", cmd);
     goto out;
@@ -726,8 +764,9 @@ int mrvi_cmd_converge(int argc, char **argv) {
       const int deep = adaptive ? (i + 3 < n_dt ? i + 3 : n_dt - 1) : n_dt - 1;
       const double h = isnan(h_fixed) ? dts[deep] / (double)lcm / 8.0 : h_fixed;
       mrvi_trajectory_free(ref);
-      ref = reference(cmd, &a, sys, ref_scheme, h, t_ref, a.quiet);
-      if (!ref) {
+      ref = rank == 0 ? reference(cmd, &a, sys, ref_scheme, h, t_ref, a.quiet)
+                      : NULL;
+      if (mrvi_batch_mpi_share_trajectory(&ref) < 0) {
         code = EXIT_INPUT;
         free(runs);
         goto out;
@@ -744,8 +783,9 @@ int mrvi_cmd_converge(int argc, char **argv) {
         to++;
       conv_job job = {sys, ref, dts, ps, n_p, t_end, i};
       char msg[1024];
-      if (mrvi_batch_map((to - i) * n_p, jobs, sizeof *runs, conv_item, &job,
-                         runs + (size_t)i * n_p, msg, sizeof msg) < 0) {
+      if (mrvi_batch_mpi_map((to - i) * n_p, jobs, sizeof *runs, conv_item,
+                             &job, runs + (size_t)i * n_p, msg,
+                             sizeof msg) < 0) {
         fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
         free(runs);
         goto out;
@@ -825,6 +865,10 @@ int mrvi_cmd_converge(int argc, char **argv) {
   }
   char out[2048];
   default_output(out, sizeof out, get(&a, "--output"), sys, "convergence");
+  code = 0;
+  if (rank > 0) /* rank 0 writes */
+    goto out;
+  code = EXIT_RUN;
   if (write_conv(cmd, out, T, n_p, sys, t_end, ref->macro_step,
                  get(&a, "--reference") ? get(&a, "--reference") : ref_scheme) <
       0)
@@ -841,6 +885,10 @@ out:
   mrvi_system_free(sys);
   args_free(&a);
   return code;
+}
+
+int mrvi_cmd_converge(int argc, char **argv) {
+  return with_ranks("converge", converge, argc, argv);
 }
 
 /* ---------------------------------------------------------------------------
@@ -899,7 +947,7 @@ static void stab_item(void *user, int k, void *out) {
   }
 }
 
-int mrvi_cmd_stability(int argc, char **argv) {
+static int stability(int argc, char **argv, int rank, int ranks) {
   static const char *const names[] = {"--p",      "--max",  "--step", "--at",
                                       "--output", "--jobs", NULL};
   args a;
@@ -914,7 +962,7 @@ int mrvi_cmd_stability(int argc, char **argv) {
   int n_p = 5;
   double *scan = NULL;
   char msg[1024];
-  mrvi_system *sys = load(cmd, &a);
+  mrvi_system *sys = load_everywhere(cmd, &a);
   if (!sys)
     goto out;
   if ((get(&a, "--p") &&
@@ -925,7 +973,7 @@ int mrvi_cmd_stability(int argc, char **argv) {
        parse_double(cmd, "--step", get(&a, "--step"), &step) < 0) ||
       (get(&a, "--at") && parse_double(cmd, "--at", get(&a, "--at"), &at) < 0))
     goto out;
-  const int jobs = parse_jobs(cmd, &a, sys);
+  const int jobs = parse_jobs(cmd, &a, sys, ranks);
   if (jobs < 0)
     goto out;
   if (!(x_max > 0) || !(step > 0) || step > x_max) {
@@ -954,8 +1002,8 @@ int mrvi_cmd_stability(int argc, char **argv) {
   stab_run *runs = calloc((size_t)2 * n_p, sizeof *runs);
   if (!runs)
     goto out;
-  if (mrvi_batch_map(2 * n_p, jobs, sizeof *runs, stab_item, &job, runs, msg,
-                     sizeof msg) < 0) {
+  if (mrvi_batch_mpi_map(2 * n_p, jobs, sizeof *runs, stab_item, &job, runs,
+                         msg, sizeof msg) < 0) {
     fprintf(stderr, "mrvi %s: %s\n", cmd, msg);
     free(runs);
     goto out;
@@ -1016,6 +1064,10 @@ int mrvi_cmd_stability(int argc, char **argv) {
   }
   char out[2048];
   default_output(out, sizeof out, get(&a, "--output"), sys, "stability");
+  code = 0;
+  if (rank > 0) /* rank 0 writes */
+    goto out;
+  code = EXIT_RUN;
   int pint[MAX_LIST];
   for (int j = 0; j < n_p; j++)
     pint[j] = (int)ps[j];
@@ -1042,6 +1094,10 @@ out:
   mrvi_system_free(sys);
   args_free(&a);
   return code;
+}
+
+int mrvi_cmd_stability(int argc, char **argv) {
+  return with_ranks("stability", stability, argc, argv);
 }
 
 /* ---------------------------------------------------------------------------

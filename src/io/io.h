@@ -206,7 +206,8 @@ typedef struct mrvi_batch_perturb {
                          * centres, plain coordinates), projected */
   int position_uniform; /* uniform numbers of that std instead of z */
   double temperature;   /* > 0: thermal velocities of that temperature,
-                         * zero net momentum (replace v0) */
+                         * zero net momentum of particles and bodies
+                         * (replace v0) */
   double rotation_std;  /* > 0: each body turned by a rotation vector of
                          * that std per component (radians) */
   int rotation_uniform; /* 1: each body turned uniformly on SO(D) */
@@ -228,7 +229,8 @@ typedef struct mrvi_batch_plan {
   int command;             /* MRVI_BATCH_RUN or MRVI_BATCH_OPTIMIZE */
   mrvi_batch_perturb pert; /* of the seeded cases */
   /* settings.threads of every case's run (0: the settings' own), chosen by
-   * the command line for its jobs; not part of the packed plan */
+   * the command line for its jobs; packed with the plan for the other MPI
+   * ranks, not written to the master file */
   int threads;
 } mrvi_batch_plan;
 void mrvi_batch_plan_free(mrvi_batch_plan *plan); /* the contents; NULL ok */
