@@ -27,6 +27,9 @@
 #   temporary file; its controls replay (`mrvi run --controls`) to a cost
 #   that is a history row; mrvi-plot optimize draws controls and history and
 #   says INCOMPLETE; the finished file keeps stop_reason completed;
+# - SIGKILL before the first evaluation completes leaves the first progress
+#   file (written before the optimiser starts): the initial controls, no
+#   history row, said INCOMPLETE by mrvi-plot;
 # - constrained models: a pendulum brought to rest ends at rest (the
 #   projected velocity); a pendulum hanging straight down is brought to the
 #   horizontal by a condition on bob.y, to the same cost as the same
@@ -239,6 +242,72 @@ print(bool(np.any(np.abs(h - float(sys.argv[2])) <= 1e-11 * np.abs(h))))' \
   else
     fail "SIGKILL: exit $rc, check '$check', parts $parts, plot $prc ($(cat plot.txt)), replay $rr cost '$J' in rows '$inrows' ($(cat err.txt))"
   fi
+fi
+
+# --- SIGKILL before the first evaluation completes: the first progress
+# file (initial controls, no history row) is written before the optimiser
+# starts.  t_end 40: an evaluation takes about 0.3 s idle.  Three kills at
+# random instants in the first 0.3 s (a kill before the file is opened
+# leaves none, or an empty one: tolerated, as in test_kill.sh), then one as
+# soon as the file is there, which must find no history row.  Every file
+# found must be readable: stop_reason and status running, no /macro,
+# /control/u of 400 x 1, history rows = its evaluations; with no row, the
+# initial controls (0.25) and mrvi-plot says INCOMPLETE, draws the
+# controls and no history.
+early_bad=""
+early_zero=0
+early_none=0
+for i in 1 2 3 4; do
+  rm -f early.h5 early.h5.part*
+  "$mrvi" optimize "$fpu" -o early.h5 -q --set integrator.t_end=40 \
+    --set control.actuators.0.initial=0.25 >/dev/null 2>&1 &
+  pid=$!
+  if [ $i -le 3 ]; then
+    ms=$((RANDOM % 300))
+    sleep "0.$(printf %03d $ms)"
+  else
+    for _ in $(seq 1 1000); do # at most 10 s
+      [ -s early.h5 ] && break
+      sleep 0.01
+    done
+  fi
+  kill -KILL $pid 2>/dev/null
+  wait $pid 2>/dev/null
+  if [ ! -s early.h5 ]; then
+    early_none=$((early_none + 1))
+    [ $i -eq 4 ] && early_bad="$early_bad kill 4: no file after 10 s;"
+    continue
+  fi
+  check=$("$py" -c 'import sys, h5py, numpy as np
+f = h5py.File(sys.argv[1], "r")
+o = f["optimizer"]
+t = lambda v: v.decode() if isinstance(v, bytes) else v
+h, u = o["history"], f["control/u"][()]
+rows = h.shape[0]
+ok = (t(f.attrs["stop_reason"]) == "running" and t(o.attrs["status"]) ==
+      "running" and "macro" not in f and u.shape == (400, 1) and
+      h.shape[1] == 4 and int(o.attrs["evaluations"]) == rows and
+      (rows > 0 or np.all(u == 0.25)))
+print("ok" if ok else "bad", rows)' early.h5 2>&1)
+  case $check in
+  "ok 0")
+    early_zero=$((early_zero + 1))
+    if [ $early_zero -eq 1 ]; then
+      rm -rf eplots
+      "$py" "$root/src/cli/mrvi-plot" optimize early.h5 -o eplots >plot.txt 2>&1 &&
+        grep -q 'INCOMPLETE: mrvi optimize did not finish (killed before its first evaluation' plot.txt &&
+        [ -s eplots/early_controls.png ] && [ ! -e eplots/early_history.png ] ||
+        early_bad="$early_bad mrvi-plot: $(cat plot.txt);"
+    fi
+    ;;
+  "ok "*) ;;
+  *) early_bad="$early_bad kill $i: $check;" ;;
+  esac
+done
+if [ -z "$early_bad" ] && [ $early_zero -ge 1 ]; then
+  pass "SIGKILL before the first evaluation: $early_zero of 4 kills left a progress file with the initial controls and no history row, $early_none none (killed before the file was opened); mrvi-plot says INCOMPLETE"
+else
+  fail "SIGKILL before the first evaluation: $early_zero files without history rows;$early_bad"
 fi
 # the finished file keeps the layout: trajectory, stop_reason completed
 s=$("$py" -c 'import sys, h5py
