@@ -172,11 +172,10 @@ static double projected(const mrvi_ocp *o, const ocp_terminal *T, momentum_fn f,
   const int n = m->n, R = mrvi_model_constraint_rows(m);
   double *pp = o->pv + 2 * n, *b = o->pv + 3 * n, *g = o->pv + 6 * n;
   double *G = g + R, *A = G + (size_t)R * (size_t)n, *mu = A + (size_t)R * R;
-  double v = NAN;
   memset(b, 0, (size_t)n * sizeof *b);
   memcpy(pp, p, (size_t)n * sizeof *pp);
   const int ok = mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu);
-  v = f(o, T, q, pp, b);
+  double v = f(o, T, q, pp, b);
   if (ok != MRVI_OK ||
       mrvi_constraints_project(m, q, b, NULL, g, G, A, mu) != MRVI_OK)
     v = NAN;
@@ -229,7 +228,9 @@ static int body_constrained(const mrvi_model *m, int body) {
   const int lo = B->first, hi = lo + B->dim * (B->dim + 1);
   for (int c = 0; c < m->n_constraints; c++) {
     const mrvi_constraint *C = &m->constraints[c];
-    for (int i = 0; c != B->constraint && i < C->n_in; i++)
+    if (c == B->constraint)
+      continue;
+    for (int i = 0; i < C->n_in; i++)
       if (C->in[i] >= lo && C->in[i] < hi)
         return 1;
   }
