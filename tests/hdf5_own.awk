@@ -7,7 +7,9 @@
 # linked into the program with clang (frames named by the intercepted
 # function only: malloc, memcpy, ...; libFuzzer's out-of-memory report
 # starts with its own frames).  Used by
-# tests/test_hostile_h5.sh and tests/fuzz/run.sh.  A libFuzzer timeout
+# tests/test_hostile_h5.sh and tests/fuzz/run.sh (the list of libhdf5's own
+# crashes and why they are listed, not isolated: doc/output.md, "libhdf5's
+# own crashes on corrupted files").  A libFuzzer timeout
 # report's stack starts with the alarm handler and the C library's signal
 # frame: the frame it interrupted is the first after them, so a hang inside
 # libhdf5 (its metadata-cache and global-heap retries on a corrupted file,

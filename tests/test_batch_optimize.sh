@@ -9,7 +9,8 @@
 # --jobs 1 equals --jobs 2; a case that does not converge is recorded as
 # failed with the optimiser's status; --control-std is refused without
 # --optimize; the batch: section's command: optimize gives the same batch;
-# --resume runs only the pending cases and gives the uninterrupted batch.
+# --resume runs only the pending cases and gives the uninterrupted batch;
+# a batch killed while optimising leaves each started case's progress file.
 #
 #   test_batch_optimize.sh MRVI_BINARY SOURCE_ROOT
 #
@@ -168,6 +169,48 @@ EOF
     fail "resumed batch equals the uninterrupted one"
 else
   echo "skipped: --resume of an optimize batch (needs python3-h5py)"
+fi
+
+
+# --- a batch killed while optimising leaves each started case's progress
+# file (as mrvi optimize does): readable, stop_reason and status running,
+# /control/u of the problem's shape (ocp_fpu to t = 40: 400 x 1), no
+# /macro, history rows = its evaluations.  The parent is killed (SIGKILL)
+# half a second after both case files exist; its workers die with it. ---
+if /usr/bin/python3 -c "import h5py" 2>/dev/null; then
+  "$mrvi" batch "$root/systems/ocp_fpu.yaml" -o kb.h5 -q -j 2 --optimize \
+    --seeds 2 --control-std 0.5 --vary integrator.t_end=40 >/dev/null 2>&1 &
+  pid=$!
+  for _ in $(seq 1 1000); do # at most 10 s
+    [ -s kb.cases/case_0000.h5 ] && [ -s kb.cases/case_0001.h5 ] && break
+    sleep 0.01
+  done
+  sleep 0.5
+  kill -KILL $pid 2>/dev/null
+  wait $pid 2>/dev/null
+  rc=$?
+  check=$(/usr/bin/python3 - <<'EOF' 2>&1
+import h5py
+t = lambda v: v.decode() if isinstance(v, bytes) else v
+out = []
+for c in (0, 1):
+    f = h5py.File("kb.cases/case_%04d.h5" % c, "r")
+    o = f["optimizer"]
+    h = o["history"]
+    out.append(t(f.attrs["stop_reason"]) == "running" and
+               t(o.attrs["status"]) == "running" and "macro" not in f and
+               f["control/u"].shape == (400, 1) and h.shape[1] == 4 and
+               int(o.attrs["evaluations"]) == h.shape[0])
+print(out)
+EOF
+)
+  if [ "$rc" = 137 ] && [ "$check" = "[True, True]" ]; then
+    pass "batch killed while optimising: both case files are progress files (running, 400 x 1 controls, history = evaluations)"
+  else
+    fail "batch killed while optimising (exit $rc): $check"
+  fi
+else
+  echo "skipped: kill of an optimize batch (needs python3-h5py)"
 fi
 
 test_finish

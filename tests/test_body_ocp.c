@@ -13,7 +13,10 @@
  *   R_target^T R_N, the angular velocity rows J^-1 R^T L from the final
  *   momenta (computed here independently);
  * - a constant torque tau on a body at rest gives it the angular momentum
- *   tau T up to the truncation error. */
+ *   tau T up to the truncation error;
+ * - a 2-D pendulum brought to rest by a joint torque ends with a projected
+ *   angular speed below the terminal tolerance (the condition is imposed on
+ *   the projected momenta; on p_N itself it left -1.5 rad/s). */
 #include "model/model.h"
 #include "models.h"
 #include "ocp/ocp.h"
@@ -341,6 +344,71 @@ static void test_planar(mrvi_constraint_form form) {
 }
 
 /* ---------------------------------------------------------------------------
+ * The 2-D pendulum brought to rest at -0.7 rad by its joint torque.  The
+ * angular velocity condition is imposed on the final momenta projected onto
+ * the hidden constraints (the joint's impulse moves the discrete momentum
+ * off them): the projected angular speed, computed here from the final
+ * state, ends below the terminal tolerance.
+ * ------------------------------------------------------------------------- */
+static void test_planar_rest(mrvi_constraint_form form) {
+  mrvi_model *m = mrvi_model_create();
+  const double J = 1.0 / 12, x0[2] = {0.5, 0.0}, g[2] = {0, -9.81};
+  const double R0[4] = {1, 0, 0, 1}, w0 = 0.5, o0[2] = {0, 0};
+  CHECK(mrvi_model_add_body(m, "link", 2, MRVI_SLOW, 1.0, &J, x0, R0, NULL,
+                            &w0) == 0 &&
+            mrvi_model_set_gravity(m, g) >= 0,
+        "pendulum: %s", mrvi_model_errmsg(m));
+  const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, NULL);
+  double corr;
+  CHECK(j0 >= 0 && mrvi_model_project_velocities(m, &corr) == 0,
+        "pendulum joint: %s", mrvi_model_errmsg(m));
+  const mrvi_settings s = settings(0.05, 2, 1.0, form);
+  mrvi_ocp *o = create(m, &s);
+  if (!o) {
+    mrvi_model_free(m);
+    return;
+  }
+  const double th = -0.7, rest = 0.0;
+  const double Rt[4] = {cos(th), -sin(th), sin(th), cos(th)};
+  CHECK(mrvi_ocp_add_joint_torque_actuator(o, j0, MRVI_GRID_MACRO, 1.0,
+                                           -HUGE_VAL, HUGE_VAL) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ATTITUDE, 0, Rt, 0.0) == 0 &&
+            mrvi_ocp_add_body_terminal(o, MRVI_OCP_ANGULAR_VELOCITY, 0, &rest,
+                                       0.0) == 1,
+        "pendulum at rest: %s", mrvi_ocp_errmsg(o));
+  char what[80];
+  snprintf(what, sizeof what, "2-D pendulum to rest, %s", form_name(form));
+  check_gradients(o, what);
+  const int nu = mrvi_ocp_n_controls(o), n = m->n;
+  double *u = calloc((size_t)nu, sizeof *u);
+  mrvi_ocp_result r;
+  const int st = mrvi_ocp_solve(o, u, &r);
+  CHECK(st == 0, "%s: %s (%s)", what, r.status, mrvi_ocp_errmsg(o));
+  /* The final state, its momenta projected here (L = sum d_i x p_i). */
+  const int R = mrvi_model_constraint_rows(m);
+  double q[6], p[6], pp[6], gc[8], G[48], A[64], mu[8];
+  memcpy(q, mrvi_ocp_q(o) + mrvi_ocp_n_steps(o) * n, sizeof q);
+  memcpy(p, mrvi_ocp_p(o) + mrvi_ocp_n_steps(o) * n, sizeof p);
+  memcpy(pp, p, sizeof pp);
+  CHECK(n == 6 && R <= 8 &&
+            mrvi_constraints_project(m, q, pp, NULL, gc, G, A, mu) == 0,
+        "%s: projection of the final momenta", what);
+  const double w_raw =
+      (q[2] * p[3] - q[3] * p[2] + q[4] * p[5] - q[5] * p[4]) / J;
+  const double w_proj =
+      (q[2] * pp[3] - q[3] * pp[2] + q[4] * pp[5] - q[5] * pp[4]) / J;
+  const double ang = atan2(q[3], q[2]), tol = mrvi_ocp_terminal_tolerance(o);
+  printf("  %s: %s in %d evaluations, cost %.6f, angle %.12f; angular "
+         "velocity projected %.2e (tolerance %.0e), unprojected %.2e\n",
+         what, r.status, r.evaluations, r.cost, ang, w_proj, tol, w_raw);
+  CHECK(fabs(w_proj) <= tol && fabs(ang - th) <= tol,
+        "%s: projected angular velocity %.3e, angle %.15g", what, w_proj, ang);
+  free(u);
+  mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+/* ---------------------------------------------------------------------------
  * Single rotation components: the direction of one director (two rows) and
  * single angular velocity components.  A free body: the direction of d3
  * and Omega_2 (body frame) as equalities, omega_1 (space) as a penalty;
@@ -563,6 +631,8 @@ int main(void) {
   test_chain(MRVI_FORM_NULL_SPACE);
   test_planar(MRVI_FORM_MULTIPLIERS);
   test_planar(MRVI_FORM_NULL_SPACE);
+  test_planar_rest(MRVI_FORM_MULTIPLIERS);
+  test_planar_rest(MRVI_FORM_NULL_SPACE);
   test_components(MRVI_FORM_MULTIPLIERS);
   test_components(MRVI_FORM_NULL_SPACE);
   test_torsion_through_pi(MRVI_FORM_MULTIPLIERS);

@@ -26,7 +26,14 @@
 #   of the problem's shape, 1 to (evaluations printed) history rows, no
 #   temporary file; its controls replay (`mrvi run --controls`) to a cost
 #   that is a history row; mrvi-plot optimize draws controls and history and
-#   says INCOMPLETE; the finished file keeps stop_reason completed.
+#   says INCOMPLETE; the finished file keeps stop_reason completed;
+# - SIGKILL before the first evaluation completes leaves the first progress
+#   file (written before the optimiser starts): the initial controls, no
+#   history row, said INCOMPLETE by mrvi-plot;
+# - constrained models: a pendulum brought to rest ends at rest (the
+#   projected velocity); a pendulum hanging straight down is brought to the
+#   horizontal by a condition on bob.y, to the same cost as the same
+#   problem turned by 45 degrees.
 #
 #   test_optimize.sh MRVI SOURCE_ROOT
 set -u
@@ -236,6 +243,72 @@ print(bool(np.any(np.abs(h - float(sys.argv[2])) <= 1e-11 * np.abs(h))))' \
     fail "SIGKILL: exit $rc, check '$check', parts $parts, plot $prc ($(cat plot.txt)), replay $rr cost '$J' in rows '$inrows' ($(cat err.txt))"
   fi
 fi
+
+# --- SIGKILL before the first evaluation completes: the first progress
+# file (initial controls, no history row) is written before the optimiser
+# starts.  t_end 40: an evaluation takes about 0.3 s idle.  Three kills at
+# random instants in the first 0.3 s (a kill before the file is opened
+# leaves none, or an empty one: tolerated, as in test_kill.sh), then one as
+# soon as the file is there, which must find no history row.  Every file
+# found must be readable: stop_reason and status running, no /macro,
+# /control/u of 400 x 1, history rows = its evaluations; with no row, the
+# initial controls (0.25) and mrvi-plot says INCOMPLETE, draws the
+# controls and no history.
+early_bad=""
+early_zero=0
+early_none=0
+for i in 1 2 3 4; do
+  rm -f early.h5 early.h5.part*
+  "$mrvi" optimize "$fpu" -o early.h5 -q --set integrator.t_end=40 \
+    --set control.actuators.0.initial=0.25 >/dev/null 2>&1 &
+  pid=$!
+  if [ $i -le 3 ]; then
+    ms=$((RANDOM % 300))
+    sleep "0.$(printf %03d $ms)"
+  else
+    for _ in $(seq 1 1000); do # at most 10 s
+      [ -s early.h5 ] && break
+      sleep 0.01
+    done
+  fi
+  kill -KILL $pid 2>/dev/null
+  wait $pid 2>/dev/null
+  if [ ! -s early.h5 ]; then
+    early_none=$((early_none + 1))
+    [ $i -eq 4 ] && early_bad="$early_bad kill 4: no file after 10 s;"
+    continue
+  fi
+  check=$("$py" -c 'import sys, h5py, numpy as np
+f = h5py.File(sys.argv[1], "r")
+o = f["optimizer"]
+t = lambda v: v.decode() if isinstance(v, bytes) else v
+h, u = o["history"], f["control/u"][()]
+rows = h.shape[0]
+ok = (t(f.attrs["stop_reason"]) == "running" and t(o.attrs["status"]) ==
+      "running" and "macro" not in f and u.shape == (400, 1) and
+      h.shape[1] == 4 and int(o.attrs["evaluations"]) == rows and
+      (rows > 0 or np.all(u == 0.25)))
+print("ok" if ok else "bad", rows)' early.h5 2>&1)
+  case $check in
+  "ok 0")
+    early_zero=$((early_zero + 1))
+    if [ $early_zero -eq 1 ]; then
+      rm -rf eplots
+      "$py" "$root/src/cli/mrvi-plot" optimize early.h5 -o eplots >plot.txt 2>&1 &&
+        grep -q 'INCOMPLETE: mrvi optimize did not finish (killed before its first evaluation' plot.txt &&
+        [ -s eplots/early_controls.png ] && [ ! -e eplots/early_history.png ] ||
+        early_bad="$early_bad mrvi-plot: $(cat plot.txt);"
+    fi
+    ;;
+  "ok "*) ;;
+  *) early_bad="$early_bad kill $i: $check;" ;;
+  esac
+done
+if [ -z "$early_bad" ] && [ $early_zero -ge 1 ]; then
+  pass "SIGKILL before the first evaluation: $early_zero of 4 kills left a progress file with the initial controls and no history row, $early_none none (killed before the file was opened); mrvi-plot says INCOMPLETE"
+else
+  fail "SIGKILL before the first evaluation: $early_zero files without history rows;$early_bad"
+fi
 # the finished file keeps the layout: trajectory, stop_reason completed
 s=$("$py" -c 'import sys, h5py
 f = h5py.File(sys.argv[1], "r")
@@ -400,6 +473,76 @@ if [ $rc -eq 0 ] && [ $rr -eq 0 ] && [ "$(attr pend_y.h5 status)" = converged ] 
   pass "hanging pendulum to the horizontal by bob.y: converged, replay |y| and speed $end"
 else
   fail "hanging pendulum by bob.y: exit $rc/$rr, end '$end' ($(head -1 err.txt))"
+fi
+
+
+# --- the same problem rotated by 45 degrees (issue 26, class 7): the
+# hanging pendulum pushed by a force free in the plane (actuators on bob.x
+# and bob.y, so the effort |u|^2 and the set of forces are rotation
+# invariant) to the horizontal at rest by conditions on bob.y, and the
+# same with gravity, start, initial guess and target turned by 45 degrees
+# (the target (1, 0) turned is (c, c), c = sqrt(1/2), which bob.y = c picks
+# out near the solution; rest is the projected bob.y velocity 0 in both).
+# The discrete problem is rotation equivariant (midpoint rule, rod and a
+# linear potential), so both optima have one cost.  Each is found to
+# SLSQP's tolerance 1e-12 (relative change of J between iterations) with
+# violations below 1e-9: a difference above 1e-9 J would be a different
+# (or an unconverged) answer (100 evaluations into the first run the cost
+# was still 3e-7 J off; the runs agree to 1e-11 J).  The controls agree up
+# to the rotation (and the mirror x -> -x, a symmetry of the first
+# problem: either end (+-1, 0) is an optimum) only to about sqrt(1e-11) of
+# their scale, the cost being flat to second order at the optimum: 1e-4.
+cat >down.yaml <<'YAML'
+name: pend_down
+dimension: 2
+gravity: [0, -9.81]
+particles:
+  - {name: bob, mass: 1, rate: slow, position: [0, -1], velocity: [0, 0]}
+constraints:
+  - {type: distance, name: rod, between: [bob], anchor: [0, 0], length: 1}
+integrator:
+  scheme: midpoint-midpoint
+  macro_step: 0.05
+  t_end: 1.5
+  newton: {tolerance: 1.0e-12}
+  constraints: {tolerance: 1.0e-12}
+control:
+  actuators:
+    - {name: fx, coordinate: bob.x, grid: macro, initial: 1}
+    - {name: fy, coordinate: bob.y, grid: macro, initial: 0}
+  terminal:
+    - {coordinate: bob.y, position: 0, velocity: 0}
+  solver: {algorithm: slsqp, tolerance: 1.0e-12, terminal_tolerance: 1.0e-9}
+YAML
+c=0.70710678118654757
+sed -e "s/gravity: \[0, -9.81\]/gravity: [6.9367175234400325, -6.9367175234400325]/" \
+  -e "s/position: \[0, -1\]/position: [$c, -$c]/" \
+  -e "s/initial: [01]}/initial: $c}/" \
+  -e "s/coordinate: bob.y, position: 0,/coordinate: bob.y, position: $c,/" \
+  down.yaml >rot.yaml
+"$mrvi" optimize down.yaml -o down.h5 -q >out.txt 2>err.txt
+rc=$?
+"$mrvi" optimize rot.yaml -o rot.h5 -q >>out.txt 2>>err.txt
+rr=$?
+cmp45=$("$py" -c 'import sys, h5py, numpy as np
+a, b = h5py.File("down.h5", "r"), h5py.File("rot.h5", "r")
+ja, jb = a["optimizer"].attrs["cost"], b["optimizer"].attrs["cost"]
+ua, ub = a["control/u"][()], b["control/u"][()]
+qa, qb = a["macro/q"][-1], b["macro/q"][-1]
+if qa[0] < 0:  # the mirror image of the optimum ending at (1, 0)
+    ua, qa = ua * [-1, 1], qa * [-1, 1]
+c = np.sqrt(0.5)
+R = np.array([[c, -c], [c, c]])
+du = np.abs(ua @ R.T - ub).max() / np.abs(ub).max()
+dq = np.abs(R @ qa - qb).max()
+ok = abs(ja - jb) <= 1e-9 * abs(ja) and du <= 1e-4 and dq <= 1e-9
+print("%s J %.13g and %.13g (difference %.1e J), controls %.1e, end %.1e"
+      % ("ok" if ok else "bad", ja, jb, abs(ja - jb) / abs(ja), du, dq))' 2>&1)
+if [ $rc -eq 0 ] && [ $rr -eq 0 ] && [ "$(attr down.h5 status)" = converged ] &&
+  [ "$(attr rot.h5 status)" = converged ] && [ "${cmp45%% *}" = ok ]; then
+  pass "hanging pendulum and the same problem turned by 45 degrees: ${cmp45#ok }"
+else
+  fail "pendulum turned by 45 degrees: exit $rc/$rr, $cmp45 ($(head -1 err.txt))"
 fi
 
 test_finish

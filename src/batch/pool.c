@@ -30,15 +30,30 @@
 
 int mrvi_batch_cores(void) { return mrvi_cores(); }
 
-/* Each evaluation of an optimize case: a row of /optimizer/history. */
+/* An optimize case's output and problem, for its evaluations. */
+typedef struct case_progress {
+  mrvi_ocp_output *out;
+  const mrvi_ocp *o;
+} case_progress;
+
+/* Each evaluation of an optimize case: a row of /optimizer/history and, at
+ * most every output.flush_interval, the progress file (what a kill leaves;
+ * a failure to write it does not stop the case: close writes the file). */
 static int on_evaluation(void *data, int it, double cost, double viol,
                          double gnorm, double kkt) {
   (void)it;
-  return mrvi_ocp_output_iteration(data, cost, viol, gnorm, kkt) < 0;
+  case_progress *cp = data;
+  char msg[1024];
+  if (mrvi_ocp_output_iteration(cp->out, cost, viol, gnorm, kkt) < 0)
+    return 1;
+  mrvi_ocp_output_progress(cp->out, mrvi_ocp_best_iterate(cp->o), msg,
+                           sizeof msg);
+  return 0;
 }
 
 /* An optimize case into `path`, as `mrvi optimize FILE --set ... -o path`
- * writes it: completed when the optimiser converged, else failed with the
+ * writes it, progress files included (the first before the optimiser
+ * starts): completed when the optimiser converged, else failed with the
  * status (max_evaluations, terminal_not_met, ...). */
 static void case_optimize(mrvi_system *sys, const char *path,
                           mrvi_batch_result *res) {
@@ -53,7 +68,9 @@ static void case_optimize(mrvi_system *sys, const char *path,
     mrvi_ocp_free(o);
     return;
   }
-  mrvi_ocp_set_callback(o, on_evaluation, out);
+  case_progress cp = {.out = out, .o = o};
+  mrvi_ocp_set_callback(o, on_evaluation, &cp);
+  mrvi_ocp_output_start(out, u, msg, sizeof msg);
   const double t0 = mrvi_clock();
   mrvi_ocp_result r;
   memset(&r, 0, sizeof r); /* a failure before NLopt starts sets nothing */

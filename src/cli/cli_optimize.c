@@ -9,7 +9,8 @@
  * optimisation starts.  SIGINT and SIGTERM stop the optimiser after the
  * evaluation in progress; the best iterate is written with status
  * interrupted.  Meanwhile the output holds the best controls and the
- * history so far (mrvi_ocp_output_progress): what a SIGKILL leaves.  When
+ * history so far (mrvi_ocp_output_progress; before the first evaluation,
+ * the initial controls and no history): what a SIGKILL leaves.  When
  * the file cannot be written (a full disk) the controls are printed
  * instead.
  * Exit status (doc/optimal-control.md, "Status"): 0 converged, 1 bad
@@ -334,6 +335,13 @@ int mrvi_cmd_optimize(int argc, char **argv) {
   }
   mrvi_ocp_set_callback(o, on_iteration, &pr);
   mrvi_cli_install_handlers();
+  /* The first progress file, before any evaluation: from here on a kill
+   * leaves a readable file with the initial controls. */
+  if (mrvi_ocp_output_start(pr.out, u, msg, sizeof msg) < 0) {
+    pr.progress_failed = 1;
+    fprintf(stderr, "mrvi optimize: warning: progress file not written: %s\n",
+            msg);
+  }
   printf("%s: %d controls, %d terminal constraints, %ld macro steps, p = %d, "
          "%s\n",
          file, mrvi_ocp_n_controls(o), mrvi_ocp_n_constraints(o),

@@ -124,8 +124,9 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
  * (the history of cost, terminal violation, gradient norm and KKT
  * residual per evaluation, the result).  Opened before optimising, given every
  * evaluation, closed with the result:
- *   mrvi_ocp_output_open -> (mrvi_ocp_output_iteration,
- *   mrvi_ocp_output_progress) ... -> mrvi_ocp_output_close.
+ *   mrvi_ocp_output_open -> mrvi_ocp_output_start ->
+ *   (mrvi_ocp_output_iteration, mrvi_ocp_output_progress) ... ->
+ *   mrvi_ocp_output_close.
  * Open checks the path as the writer at close will take it (created or an
  * earlier mrvi output, not locked by a live writer, a temporary file
  * creatable beside it) and leaves it as it was; progress writes a progress
@@ -138,6 +139,13 @@ typedef struct mrvi_ocp_output mrvi_ocp_output;
 int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
                          const mrvi_ocp *o, mrvi_ocp_output **out, char *msg,
                          size_t len);
+/* Before the optimiser starts: the first progress file (as
+ * mrvi_ocp_output_progress, with the initial controls u0 and no history
+ * row), so that a process killed before its first evaluation completes
+ * leaves a readable file too.  Does not delay the progress file of the
+ * first evaluation.  MRVI_EIO with a message when it cannot be written. */
+int mrvi_ocp_output_start(mrvi_ocp_output *w, const double *u0, char *msg,
+                          size_t len);
 /* One evaluation: a row of /optimizer/history.  MRVI_ENOMEM when it cannot
  * be kept. */
 int mrvi_ocp_output_iteration(mrvi_ocp_output *w, double cost, double violation,

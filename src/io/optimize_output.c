@@ -26,9 +26,11 @@
  * progress file: the best controls so far in /control, the history so far
  * in /optimizer, status "running" there and root stop_reason "running", no
  * trajectory; each built under a temporary name and renamed to the path.
- * So a process killed (SIGKILL) while optimising leaves the last progress
- * file (none before the first evaluation), which `mrvi run --controls`
- * replays and mrvi-plot optimize draws as incomplete.
+ * The first one, with the initial controls and no history row, is
+ * written before the optimiser starts (mrvi_ocp_output_start).  So a
+ * process killed (SIGKILL) at any instant after that leaves the last
+ * progress file, which `mrvi run --controls` replays and mrvi-plot
+ * optimize draws as incomplete.
  * At close the trajectory is written crash-safe by the run writer (again
  * a rename over the path); the solver attribute, /control and /optimizer
  * are added after it closed, in a second open of the file, so one killed
@@ -436,6 +438,14 @@ int mrvi_ocp_output_progress(mrvi_ocp_output *w, const double *u, char *msg,
     return MRVI_OK;
   w->snapshot_at = now;
   return write_progress(w, u, msg, len);
+}
+
+int mrvi_ocp_output_start(mrvi_ocp_output *w, const double *u0, char *msg,
+                          size_t len) {
+  mrvi_fmt(msg, len, "%s", "");
+  if (!w || !u0)
+    return MRVI_OK;
+  return write_progress(w, u0, msg, len);
 }
 
 int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,

@@ -153,28 +153,34 @@ static long final_node(const mrvi_ocp *o, int c, int *pslot) {
   return (o->N + 1) * o->ns + o->N * o->p * o->nf + s;
 }
 
-/* Velocity of coordinate c from the momenta p (model order, n) at q
+/* A terminal condition of the final positions q and momenta pp (model
+ * order, n each): its value (target subtracted) and, with b not NULL, b_j = M_j
+ * df/dpp_j (b cleared by the caller). */
+typedef double (*momentum_fn)(const mrvi_ocp *o, const ocp_terminal *T,
+                              const double *q, const double *pp, double *b);
+
+/* f(q, P(q) p): f evaluated on the momenta p (model order, n) at q
  * projected onto the hidden constraint G M^-1 p = 0 (the physical,
- * constraint-consistent velocity; mrvi_constraints_project), its
- * derivatives in p into gp: the projection is linear, M^-1 P symmetric,
- * so d v_c / d p_j = (P e_c)_j / M_j (one projection); and in q into gq by
- * central differences (G depends on q; at rest the derivative vanishes).
+ * constraint-consistent velocities; mrvi_constraints_project), with its
+ * derivatives in p into gp: the projection pp = P p is linear and M^-1 P
+ * symmetric, so P^T a = M^-1 P (M a) for a = df/dpp (one projection of
+ * b = M a); and in q into gq by central differences (G and f depend on q).
  * NAN where the constraint gradients are dependent. */
-static double projected_velocity(const mrvi_ocp *o, int c, double *q,
-                                 const double *p, double *gq, double *gp) {
+static double projected(const mrvi_ocp *o, const ocp_terminal *T, momentum_fn f,
+                        double *q, const double *p, double *gq, double *gp) {
   const mrvi_model *m = o->model;
   const int n = m->n, R = mrvi_model_constraint_rows(m);
-  double *pp = o->pv + 2 * n, *e = o->pv + 3 * n, *g = o->pv + 6 * n;
+  double *pp = o->pv + 2 * n, *b = o->pv + 3 * n, *g = o->pv + 6 * n;
   double *G = g + R, *A = G + (size_t)R * (size_t)n, *mu = A + (size_t)R * R;
-  double v = NAN;
+  memset(b, 0, (size_t)n * sizeof *b);
   memcpy(pp, p, (size_t)n * sizeof *pp);
-  if (mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu) == MRVI_OK)
-    v = pp[c] / m->mass[c];
-  memset(e, 0, (size_t)n * sizeof *e);
-  e[c] = 1.0;
-  const int ok = mrvi_constraints_project(m, q, e, NULL, g, G, A, mu);
+  const int ok = mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu);
+  double v = f(o, T, q, pp, b);
+  if (ok != MRVI_OK ||
+      mrvi_constraints_project(m, q, b, NULL, g, G, A, mu) != MRVI_OK)
+    v = NAN;
   for (int j = 0; j < n; j++)
-    gp[j] = ok == MRVI_OK ? e[j] / m->mass[j] : NAN;
+    gp[j] = isfinite(v) ? b[j] / m->mass[j] : NAN;
   for (int j = 0; j < n; j++) {
     const double qj = q[j], h = 1e-6 * fmax(1.0, fabs(qj));
     double vs[2] = {NAN, NAN};
@@ -182,7 +188,7 @@ static double projected_velocity(const mrvi_ocp *o, int c, double *q,
       q[j] = qj + (s ? -h : h);
       memcpy(pp, p, (size_t)n * sizeof *pp);
       if (mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu) == MRVI_OK)
-        vs[s] = pp[c] / m->mass[c];
+        vs[s] = f(o, T, q, pp, NULL);
     }
     q[j] = qj;
     gq[j] = (vs[0] - vs[1]) / (2.0 * h);
@@ -190,13 +196,94 @@ static double projected_velocity(const mrvi_ocp *o, int c, double *q,
   return v;
 }
 
+/* Velocity of coordinate T->coord minus its target (momentum_fn). */
+static double coordinate_velocity(const mrvi_ocp *o, const ocp_terminal *T,
+                                  const double *q, const double *pp,
+                                  double *b) {
+  (void)q;
+  if (b)
+    b[T->coord] = 1.0;
+  return pp[T->coord] / o->model->mass[T->coord] - T->target;
+}
+
+/* Body condition T (momentum_fn): its value on the body's D (D + 1)
+ * coordinates. */
+static double body_condition(const mrvi_ocp *o, const ocp_terminal *T,
+                             const double *q, const double *pp, double *b) {
+  const int D = o->model->dimension, nb = D * (D + 1);
+  double gq[12], gp[12];
+  const double v = ocp_body_terminal(o, T, q + T->coord, pp + T->coord, gq, gp);
+  for (int k = 0; b && k < nb; k++)
+    b[T->coord + k] = o->model->mass[T->coord + k] * gp[k];
+  return v;
+}
+
+/* Whether a constraint other than body's own internal one acts on its
+ * coordinates (a joint, a rod to a point of it): the internal constraints'
+ * forces have no moment (L = sum d_i x p_{d_i} is blind to them), the
+ * others' do, and its angular velocity must then be read from projected
+ * momenta. */
+static int body_constrained(const mrvi_model *m, int body) {
+  const mrvi_body *B = &m->bodies[body];
+  const int lo = B->first, hi = lo + B->dim * (B->dim + 1);
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *C = &m->constraints[c];
+    if (c == B->constraint)
+      continue;
+    for (int i = 0; i < C->n_in; i++)
+      if (C->in[i] >= lo && C->in[i] < hi)
+        return 1;
+  }
+  return 0;
+}
+
+/* Terminal row T of value v and derivatives dq, dp in every coordinate's
+ * final node and momentum (model order): into val, gQ, gp (row 0, the
+ * cost, for a penalty; else constraint row 1 + (*ic)++). */
+static void add_full_row(const mrvi_ocp *o, const ocp_terminal *T, double v,
+                         const double *dq, const double *dp, long nn, int npn,
+                         int *ic, double *val, double *gQ, double *gp) {
+  const int f = T->penalty > 0.0 ? 0 : 1 + (*ic)++;
+  const double scale = f == 0 ? T->penalty * v : 1.0;
+  int pj;
+  val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
+  for (int j = 0; j < o->model->n; j++) {
+    gQ[(size_t)f * (size_t)nn + (size_t)final_node(o, j, &pj)] += scale * dq[j];
+    gp[f * npn + pj] += scale * dp[j];
+  }
+}
+
+/* A velocity condition T of a constrained model on the projected momenta
+ * (a function of every coordinate's final node and momentum). */
+static void projected_row(const mrvi_ocp *o, const ocp_terminal *T,
+                          momentum_fn fn, long nn, int npn, int *ic,
+                          double *val, double *gQ, double *gp) {
+  const int n = o->model->n;
+  double *q = o->pv, *p = q + n, *dq = q + 4 * n, *dp = q + 5 * n;
+  int pj;
+  for (int j = 0; j < n; j++) {
+    q[j] = o->Q[final_node(o, j, &pj)];
+    p[j] = o->pN[pj];
+  }
+  const double v = projected(o, T, fn, q, p, dq, dp);
+  add_full_row(o, T, v, dq, dp, nn, npn, ic, val, gQ, gp);
+}
+
 /* Body terminal condition T (one row): its value into val and its
  * derivatives in the body's final nodes and momenta into gQ, gp (row 0, the
- * cost, for a penalty; else constraint row 1 + (*ic)++). */
+ * cost, for a penalty; else constraint row 1 + (*ic)++).  An angular
+ * velocity of a body held by other constraints is read from the projected
+ * momenta. */
 static void body_terminal(const mrvi_ocp *o, const ocp_terminal *T, long nn,
                           int npn, int *ic, double *val, double *gQ,
                           double *gp) {
   const int D = o->model->dimension, n = D * (D + 1);
+  const int velocity =
+      T->kind != MRVI_OCP_ATTITUDE && T->kind != MRVI_OCP_DIRECTION;
+  if (velocity && o->pv && body_constrained(o->model, T->body)) {
+    projected_row(o, T, body_condition, nn, npn, ic, val, gQ, gp);
+    return;
+  }
   double q[12], p[12], gq[12], gpv[12];
   long g[12];
   int ps[12];
@@ -265,25 +352,7 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
     const long g = final_node(o, T->coord, &ps);
     const double M = m->mass[T->coord];
     if (T->kind == MRVI_OCP_VELOCITY && o->pv) {
-      /* A constrained model: the projected velocity, a function of every
-       * coordinate's final node and momentum. */
-      const int n = m->n;
-      double *q = o->pv, *p = q + n, *dq = q + 4 * n, *dp = q + 5 * n;
-      int pj;
-      for (int j = 0; j < n; j++) {
-        q[j] = o->Q[final_node(o, j, &pj)];
-        p[j] = o->pN[pj];
-      }
-      const double v =
-          projected_velocity(o, T->coord, q, p, dq, dp) - T->target;
-      const int f = T->penalty > 0.0 ? 0 : 1 + ic++;
-      const double scale = f == 0 ? T->penalty * v : 1.0;
-      val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
-      for (int j = 0; j < n; j++) {
-        gQ[(size_t)f * (size_t)nn + (size_t)final_node(o, j, &pj)] +=
-            scale * dq[j];
-        gp[f * npn + pj] += scale * dp[j];
-      }
+      projected_row(o, T, coordinate_velocity, nn, npn, &ic, val, gQ, gp);
       continue;
     }
     const double v =

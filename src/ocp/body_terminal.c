@@ -17,7 +17,10 @@
  * L = sum_i d_i x p_{d_i} is the momentum map of the rotations (blind to
  * the internal constraints' forces), and L = R J Omega for a rigid motion
  * (d_i' = omega x d_i, p_{d_i} = E_i d_i', J_i = E_j + E_k), hence
- *   Omega_r = d_r . L / J_r (body frame),  omega = sum_r Omega_r d_r. */
+ *   Omega_r = d_r . L / J_r (body frame),  omega = sum_r Omega_r d_r.
+ * A joint's impulse does have a moment: for a body held by a constraint
+ * other than its internal one, adjoint.c hands these functions the final
+ * momenta projected onto the hidden constraints. */
 #include "ocp/ocp_internal.h"
 
 #include <math.h>
