@@ -93,6 +93,7 @@ struct mrvi_sweep {
   double *jdinv, *dprev, *fhist[2];
   int mild, chord;
   double chord_max;
+  int imp; /* the interval's one implicit point, or -1 (several or none) */
   double *y, *g, *H; /* element workspace */
 };
 
@@ -326,6 +327,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->n_w++;
   }
   sw->tight = !sw->implicit && sw->p == 1 && sw->nl == 1 && sw->nr == 1;
+  sw->imp = -1;
+  for (int i = 0, k = 0; i < sw->n_w; i++)
+    if (sw->cA[i] != 0.0 && sw->cB[i] != 0.0)
+      sw->imp = k++ == 0 ? i : -1;
   sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
@@ -681,6 +686,47 @@ static void chord_setup(mrvi_sweep *sw) {
   sw->mild = sw->chord = rho <= sw->chord_max;
 }
 
+/* The row residual of a chord iterate with one implicit point, whose
+ * configuration sw->zf the update has set (zf_ok) or is set here: the
+ * gradient, the implicit force and F in one pass over the row (the
+ * arithmetic of implicit_force and of the residual in solve_implicit). */
+static double chord_residual(mrvi_sweep *sw, const double *qm,
+                             const double *dn, int zf_ok) {
+  const int nf = sw->nf, i = sw->imp;
+  const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i];
+  double *g = sw->gpt[i];
+  if (!zf_ok)
+    set_zf(sw, 1.0, qm, sw->cB[i], dn);
+  fast_gradient(sw, sw->zf, g, nf);
+  /* Two entries at a time (util/simd.h: each lane the scalar operations
+   * below); the largest |F| rw by v2_max, which passes over NaN, so NaN is
+   * found by the sum of the entries instead, which it poisons. */
+  const double *rhs = sw->rhs, *mf = sw->m_f, *rw = sw->rw;
+  double *fimp = sw->fimp, *F = sw->F;
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  mrvi_v2 vmax = v2_zero(), vsum = v2_zero();
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
+    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), v2_load(dn + f)), vdt);
+    const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
+    const mrvi_v2 a = v2_mul(v2_abs(Ff), v2_load(rw + f));
+    v2_store(fimp + f, fi);
+    v2_store(F + f, Ff);
+    vmax = v2_max(a, vmax);
+    vsum = v2_add(vsum, a);
+  }
+  double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
+  for (; f < nf; f++) {
+    fimp[f] = 0.0 + wc * g[f];
+    F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
+    const double a = fabs(F[f]) * rw[f];
+    r = a > r ? a : r;
+    sum += a;
+  }
+  return isnan(sum) ? sum : r;
+}
+
 /* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
  * rhs = p^{f,m} minus the forces of the points at node m (Newton on nf
  * unknowns, or the Jacobi chord above; displacements keep tiny steps'
@@ -730,32 +776,37 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     }
   }
   double scale = 0.0;
-  for (int f = 0; f < nf; f++)
-    scale =
-        fmax(scale, (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) *
-                        sw->rw[f]);
+  for (int f = 0; f < nf; f++) { /* (fmax's NaN rule, without its call) */
+    const double v =
+        (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) * sw->rw[f];
+    scale = v > scale ? v : scale;
+  }
   const double floor = 16.0 * DBL_EPSILON * scale;
   /* Newton evaluates J with the residual where an update follows for sure
    * (the first iterate), else the residual alone and J only where that
    * residual misses the tolerance (a second evaluation, the same values):
    * a micro step that converges in one update assembles J once. */
-  int chord = sw->chord && !first, with_j = !chord, min_it = 1;
+  int chord = sw->chord && !first, with_j = !chord, min_it = 1, zf_ok = 0;
   double r_prev = HUGE_VAL;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
    * summed over many micro steps, exceeds the truncation error. */
   for (int it = 0;; it++) {
     /* F = rhs - M (qn - qm)/dt - sum w cA grad W(z); J = M/dt + w cA cB H. */
-    if (with_j && sw->sb)
-      mrvi_sblock_zero(sw->sb);
-    else if (with_j)
-      memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
-    implicit_force(sw, qm, dn, with_j ? sw->J : NULL);
     double r = 0.0;
-    for (int f = 0; f < nf; f++) {
-      sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
-      const double a = fabs(sw->F[f]) * sw->rw[f];
-      r = isnan(a) || a > r ? a : r;
+    if (chord && sw->imp >= 0) {
+      r = chord_residual(sw, qm, dn, zf_ok);
+    } else {
+      if (with_j && sw->sb)
+        mrvi_sblock_zero(sw->sb);
+      else if (with_j)
+        memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
+      implicit_force(sw, qm, dn, with_j ? sw->J : NULL);
+      for (int f = 0; f < nf; f++) {
+        sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
+        const double a = fabs(sw->F[f]) * sw->rw[f];
+        r = isnan(a) || a > r ? a : r;
+      }
     }
     if (it == 0 && r > r0) { /* (not for NaN r0: r > r0 is false) */
       memcpy(dn, sw->dff, (size_t)nf * sizeof(double));
@@ -792,11 +843,16 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
                it, r, sw->tol, floor);
       return isfinite(r) ? MRVI_ENEWTON : MRVI_ENONFINITE;
     }
-    if (chord) { /* dn += D^-1 F */
-      memcpy(sw->dprev, dn, (size_t)nf * sizeof(double));
+    if (chord) { /* dn += D^-1 F, and the next point's configuration */
       r_prev = r;
-      for (int f = 0; f < nf; f++)
+      const double cB = sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
+      zf_ok = sw->imp >= 0;
+      for (int f = 0; f < nf; f++) {
+        sw->dprev[f] = dn[f];
         dn[f] += sw->jdinv[f] * sw->F[f];
+        if (zf_ok)
+          sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
+      }
       continue;
     }
     if (!with_j) { /* J at this iterate */
