@@ -690,8 +690,8 @@ static void chord_setup(mrvi_sweep *sw) {
  * configuration sw->zf the update has set (zf_ok) or is set here: the
  * gradient, the implicit force and F in one pass over the row (the
  * arithmetic of implicit_force and of the residual in solve_implicit). */
-static double chord_residual(mrvi_sweep *sw, const double *qm,
-                             const double *dn, int zf_ok) {
+static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
+                             int zf_ok) {
   const int nf = sw->nf, i = sw->imp;
   const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i];
   double *g = sw->gpt[i];
@@ -869,8 +869,13 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
                                       msg, len);
       if (s < 0)
         return s;
-      if (first && it == 0 && sw->chord_max > 0.0)
+      /* Row 0's first matrix sets the chord up; its later updates take
+       * it too (the first Newton update leaves about the tolerance: one
+       * gradient where a second Newton update would cost ten). */
+      if (first && it == 0 && sw->chord_max > 0.0) {
         chord_setup(sw);
+        chord = sw->chord;
+      }
     } else {
       for (int f = 0; f < nf; f++)
         sw->J[f * nf + f] += sw->m_f[f] / dt;
