@@ -214,8 +214,10 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
   if (m->n_fast > dense_max) {
     mrvi_fmt(why, len,
              "macro-grid slow rule: explicit slow update and a sweep of %d "
-             "implicit micro steps of size %d (beyond the dense limit %d), "
-             "each solved by Newton with Jacobi-preconditioned CG",
+             "implicit micro steps of size %d (beyond the dense limit %d): "
+             "a step's first update by Newton with Jacobi-preconditioned "
+             "CG, the later ones by Jacobi chord updates where they "
+             "contract (chord_jacobi_max)",
              s->micro_steps, m->n_fast, dense_max);
     return MRVI_PATH_SWEEP_CG;
   }
