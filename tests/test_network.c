@@ -299,7 +299,8 @@ static void test_agree(void) {
  * on sweep-cg (explicit-slow) exactly 1 in row 0 of a step (the later rows
  * take Jacobi chord updates: bound below).  Newton's residual
  * after one update is quadratic in the predictor's row residual r0.  Rows
- * m >= 1 start from the last interval's implicit force held fixed, r0 the
+ * m >= 1 started from the last interval's implicit force held fixed (now
+ * extrapolated where the chord runs, which lowers r0), r0 the
  * change of that force over one micro step, and one update reaches the
  * tolerance (benchmark lattice n = 312: r0 <= 2e-2, after the update
  * <= 1.2e-10 against 1e-9).  Row 0 has no last force (a step depends on

@@ -827,7 +827,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
        * updates allowed: Newton for the rest of the step, from the better
        * of the last two iterates. */
       chord = sw->chord = 0;
-      if (!(r <= r_prev)) {
+      if (r_prev < HUGE_VAL && !(r <= r_prev)) { /* (after a chord update) */
         memcpy(dn, sw->dprev, (size_t)nf * sizeof(double));
         min_it = it + 1;
       }
