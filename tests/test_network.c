@@ -504,6 +504,25 @@ static void test_chord(void) {
               "chord case %d (dT %g, bound %g): %ld CG solves in %d steps "
               "of %d rows",
               c, cases[c].dT, cases[c].bound, cg, steps, p);
+        /* A step depends on (q_k, p_k) alone (the chord's history holds
+         * rows of the current step): resumed at node 5, the run continues
+         * bit for bit. */
+        mrvi_integrator *it = NULL;
+        char msg[512];
+        const size_t n = (size_t)a.n;
+        int same =
+            mrvi_integrator_create(sa->model, &sa->settings, &it, msg,
+                                   sizeof msg) == 0 &&
+            mrvi_integrator_resume_state(it, 5, b.q + 5 * n, b.p + 5 * n) == 0;
+        for (int k = 5; same && k < steps; k++)
+          same = mrvi_integrator_step(it) == 0;
+        same =
+            same &&
+            !memcmp(mrvi_integrator_q(it), b.q + steps * n,
+                    n * sizeof(double)) &&
+            !memcmp(mrvi_integrator_p(it), b.p + steps * n, n * sizeof(double));
+        CHECK(same, "chord case %d: resumed at node 5, not bit for bit", c);
+        mrvi_integrator_free(it);
         printf("chord case %d: dT %g bound %g: %ld CG solves, %d updates "
                "at most, vs general %.2e\n",
                c, cases[c].dT, cases[c].bound, cg, b.max_iter, d);
