@@ -202,6 +202,10 @@ void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y);
 int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
                       double *b, double atol, char *msg, size_t len);
 const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb);
+/* After mrvi_sblock_solve: dinv (nf) = 1 / J_ff, and the return value the
+ * Gershgorin bound max_f sum_{g != f} |J_fg| / J_ff on the contraction of
+ * the Jacobi iteration x += D^-1 (b - J x); HUGE_VAL where a J_ff <= 0. */
+double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv);
 
 /* A potential class compiled for evaluation (solver/terms.c): the elements
  * elems (n_elems model indices) with input c read from and summed into

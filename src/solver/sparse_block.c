@@ -188,6 +188,22 @@ const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb) {
   return &sb->stats;
 }
 
+double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv) {
+  double bound = 0.0;
+  for (int j = 0; j < sb->nf; j++) {
+    const double d = sb->Ax[sb->diag[j]];
+    if (!(d > 0.0))
+      return HUGE_VAL;
+    double off = 0.0; /* column j's off-diagonal sum: row j's (symmetric) */
+    for (int q = sb->Ap[j]; q < sb->Ap[j + 1]; q++)
+      if (q != sb->diag[j])
+        off += fabs(sb->Ax[q]);
+    dinv[j] = 1.0 / d;
+    bound = fmax(bound, off * dinv[j]);
+  }
+  return bound;
+}
+
 /* Relative CG tolerance besides the caller's absolute one (a share of the
  * Newton tolerance): reachable where that share is below round-off. */
 #define SBLOCK_RTOL 1e-12

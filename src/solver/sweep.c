@@ -84,7 +84,16 @@ struct mrvi_sweep {
   double *J;              /* nf x nf */
   double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
-  mrvi_sblock *sb;   /* sparse J instead (nf > dense_max) */
+  mrvi_sblock *sb; /* sparse J instead (nf > dense_max) */
+  /* sweep-cg's Jacobi chord (chord_setup): 1 / diag J of row 0's first
+   * Newton matrix, mild (this step's rows extrapolate their predictor),
+   * chord (they update by it; cleared where it contracts poorly), the
+   * bound chord_jacobi_max; dprev: the iterate before a chord update;
+   * fhist: the converged implicit forces of the two rows before the last. */
+  double *jdinv, *dprev, *fhist[2];
+  int mild, chord;
+  double chord_max;
+  int imp; /* the interval's one implicit point, or -1 (several or none) */
   double *y, *g, *H; /* element workspace */
 };
 
@@ -205,8 +214,10 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
   if (m->n_fast > dense_max) {
     mrvi_fmt(why, len,
              "macro-grid slow rule: explicit slow update and a sweep of %d "
-             "implicit micro steps of size %d (beyond the dense limit %d), "
-             "each solved by Newton with Jacobi-preconditioned CG",
+             "implicit micro steps of size %d (beyond the dense limit %d): "
+             "a step's first update by Newton with Jacobi-preconditioned "
+             "CG, the later ones by Jacobi chord updates where they "
+             "contract (chord_jacobi_max)",
              s->micro_steps, m->n_fast, dense_max);
     return MRVI_PATH_SWEEP_CG;
   }
@@ -266,6 +277,10 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->Hpt[1]);
   free(sw->piv);
   mrvi_sblock_free(sw->sb);
+  free(sw->jdinv);
+  free(sw->dprev);
+  free(sw->fhist[0]);
+  free(sw->fhist[1]);
   free(sw->y);
   free(sw->g);
   free(sw->H);
@@ -314,6 +329,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->n_w++;
   }
   sw->tight = !sw->implicit && sw->p == 1 && sw->nl == 1 && sw->nr == 1;
+  sw->imp = -1;
+  for (int i = 0, k = 0; i < sw->n_w; i++)
+    if (sw->cA[i] != 0.0 && sw->cB[i] != 0.0)
+      sw->imp = k++ == 0 ? i : -1;
   sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
@@ -370,6 +389,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
+  sw->chord_max = s->tuning.chord_jacobi_max;
+  sw->jdinv = dalloc(sparse ? nf : 1);
+  sw->dprev = dalloc(sparse ? nf : 1);
+  sw->fhist[0] = dalloc(sparse ? nf : 1);
+  sw->fhist[1] = dalloc(sparse ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -397,7 +421,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
-      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H) {
+      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H ||
+      !sw->jdinv || !sw->dprev || !sw->fhist[0] || !sw->fhist[1]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -622,14 +647,95 @@ static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
   }
 }
 
+/* The predictor of row m >= 1 of sweep-cg in the mild regime (sw->mild):
+ * the implicit force extrapolated from the rows before (quadratic from
+ * row 3 on, linear at row 2, held fixed at row 1) instead of held fixed,
+ * so that the row residual r0 = fimp_pred - fimp(dn_pred) is the force's
+ * third difference over the micro steps, not its first.  Measured on the
+ * benchmark lattice (bench_floor, lattice2d, n = 1012, dT = 0.05, p = 10):
+ * r0 8.3e-2 held fixed, 2.4e-2 linear, 6.6e-3 quadratic (medians).  The
+ * history holds only rows of the current step (a step depends on (q_k,
+ * p_k) alone).  fimp: the last row's converged implicit force. */
+static void extrapolated_predictor(mrvi_sweep *sw, int m, double *dn) {
+  const int nf = sw->nf;
+  const double dt = sw->st->dt;
+  const double *f1 = sw->fimp, *f2 = sw->fhist[0], *f3 = sw->fhist[1];
+  for (int f = 0; f < nf; f++) {
+    double fp = f1[f];
+    if (sw->mild && m == 2)
+      fp = 2.0 * f1[f] - f2[f];
+    else if (sw->mild && m >= 3)
+      fp = 3.0 * f1[f] - 3.0 * f2[f] + f3[f];
+    dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - fp);
+  }
+  /* the history moves one row on */
+  double *t = sw->fhist[1];
+  sw->fhist[1] = sw->fhist[0];
+  sw->fhist[0] = t;
+  memcpy(t, f1, (size_t)nf * sizeof(double));
+}
+
+/* The Jacobi chord of sweep-cg (doc/solver.md, "sweep-cg"): after row 0's
+ * first Newton matrix J is assembled, the Gershgorin bound rho of the
+ * Jacobi iteration dn += D^-1 F(dn), D = diag J, decides the regime: where
+ * rho <= chord_jacobi_max (mrvi.h, MRVI_TUNING_LIST) the later rows of the
+ * step take these updates (one gradient each, no assembly, no CG) and the
+ * extrapolated predictor.  rho ~ (omega dt)^2/4 is the contraction of the
+ * linear part; the residual that decides convergence is exact, so the
+ * iteration stops where Newton would, at the same tolerance. */
+static void chord_setup(mrvi_sweep *sw) {
+  const double rho = mrvi_sblock_jacobi(sw->sb, sw->jdinv);
+  sw->mild = sw->chord = rho <= sw->chord_max;
+}
+
+/* The row residual of a chord iterate with one implicit point, whose
+ * configuration sw->zf the update has set (zf_ok) or is set here: the
+ * gradient, the implicit force and F in one pass over the row (the
+ * arithmetic of implicit_force and of the residual in solve_implicit). */
+static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
+                             int zf_ok) {
+  const int nf = sw->nf, i = sw->imp;
+  const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i];
+  double *g = sw->gpt[i];
+  if (!zf_ok)
+    set_zf(sw, 1.0, qm, sw->cB[i], dn);
+  fast_gradient(sw, sw->zf, g, nf);
+  /* Two entries at a time (util/simd.h: each lane the scalar operations
+   * below); the largest |F| rw by v2_max, which passes over NaN, so NaN is
+   * found by the sum of the entries instead, which it poisons. */
+  const double *rhs = sw->rhs, *mf = sw->m_f, *rw = sw->rw;
+  double *fimp = sw->fimp, *F = sw->F;
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  mrvi_v2 vmax = v2_zero(), vsum = v2_zero();
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
+    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), v2_load(dn + f)), vdt);
+    const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
+    const mrvi_v2 a = v2_mul(v2_abs(Ff), v2_load(rw + f));
+    v2_store(fimp + f, fi);
+    v2_store(F + f, Ff);
+    vmax = v2_max(a, vmax);
+    vsum = v2_add(vsum, a);
+  }
+  double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
+  for (; f < nf; f++) {
+    fimp[f] = 0.0 + wc * g[f];
+    F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
+    const double a = fabs(F[f]) * rw[f];
+    r = a > r ? a : r;
+    sum += a;
+  }
+  return isnan(sum) ? sum : r;
+}
+
 /* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
  * rhs = p^{f,m} minus the forces of the points at node m (Newton on nf
- * unknowns; displacements keep tiny steps' digits).  first: row 0 of the
- * step, whose predictor has no last implicit force. */
-static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
-                          int first, int *iters, double *res, char *msg,
-                          size_t len) {
-  const int nf = sw->nf;
+ * unknowns, or the Jacobi chord above; displacements keep tiny steps'
+ * digits).  Row 0's predictor has no last implicit force. */
+static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
+                          int *iters, double *res, char *msg, size_t len) {
+  const int nf = sw->nf, first = m == 0;
   const double dt = sw->st->dt;
   /* Predictor: the last implicit force held fixed (explicit in it).  Row 0
    * has none (nothing is carried from the last step, so a step depends on
@@ -650,42 +756,59 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
    * and the first iteration falls back to dn0 where the estimate's
    * residual is larger. */
   double r0 = HUGE_VAL;
-  for (int pass = first ? 0 : 1; pass < 2; pass++) {
-    for (int f = 0; f < nf; f++)
-      dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
-    if (pass == 0) {
-      implicit_force(sw, qm, dn, NULL);
-      r0 = 0.0;
-      for (int f = 0; f < nf; f++) {
-        sw->dff[f] = dn[f];
-        const double a =
-            fabs(sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f]) *
-            sw->rw[f];
-        r0 = isnan(a) || a > r0 ? a : r0;
+  if (first)
+    sw->mild = sw->chord = 0;
+  if (!first && sw->sb) {
+    extrapolated_predictor(sw, m, dn);
+  } else {
+    for (int pass = first ? 0 : 1; pass < 2; pass++) {
+      for (int f = 0; f < nf; f++)
+        dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
+      if (pass == 0) {
+        implicit_force(sw, qm, dn, NULL);
+        r0 = 0.0;
+        for (int f = 0; f < nf; f++) {
+          sw->dff[f] = dn[f];
+          const double a =
+              fabs(sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f]) *
+              sw->rw[f];
+          r0 = isnan(a) || a > r0 ? a : r0;
+        }
       }
     }
   }
   double scale = 0.0;
-  for (int f = 0; f < nf; f++)
-    scale =
-        fmax(scale, (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) *
-                        sw->rw[f]);
+  for (int f = 0; f < nf; f++) { /* (fmax's NaN rule, without its call) */
+    const double v =
+        (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) * sw->rw[f];
+    scale = v > scale ? v : scale;
+  }
   const double floor = 16.0 * DBL_EPSILON * scale;
+  /* Newton evaluates J with the residual where an update follows for sure
+   * (the first iterate), else the residual alone and J only where that
+   * residual misses the tolerance (a second evaluation, the same values):
+   * a micro step that converges in one update assembles J once. */
+  int chord = sw->chord && !first, with_j = !chord, min_it = 1, zf_ok = 0;
+  double r_prev = HUGE_VAL;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
    * summed over many micro steps, exceeds the truncation error. */
   for (int it = 0;; it++) {
     /* F = rhs - M (qn - qm)/dt - sum w cA grad W(z); J = M/dt + w cA cB H. */
-    if (sw->sb)
-      mrvi_sblock_zero(sw->sb);
-    else
-      memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
-    implicit_force(sw, qm, dn, sw->J);
     double r = 0.0;
-    for (int f = 0; f < nf; f++) {
-      sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
-      const double a = fabs(sw->F[f]) * sw->rw[f];
-      r = isnan(a) || a > r ? a : r;
+    if (chord && sw->imp >= 0) {
+      r = chord_residual(sw, qm, dn, zf_ok);
+    } else {
+      if (with_j && sw->sb)
+        mrvi_sblock_zero(sw->sb);
+      else if (with_j)
+        memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
+      implicit_force(sw, qm, dn, with_j ? sw->J : NULL);
+      for (int f = 0; f < nf; f++) {
+        sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
+        const double a = fabs(sw->F[f]) * sw->rw[f];
+        r = isnan(a) || a > r ? a : r;
+      }
     }
     if (it == 0 && r > r0) { /* (not for NaN r0: r > r0 is false) */
       memcpy(dn, sw->dff, (size_t)nf * sizeof(double));
@@ -693,10 +816,24 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
       it = -1; /* (the fallback is no update) */
       continue;
     }
-    if (it >= 1 && r <= fmax(sw->tol, floor)) {
+    if (it >= min_it && r <= fmax(sw->tol, floor)) {
       *iters = it;
       *res = fmax(*res, r);
       return MRVI_OK;
+    }
+    if (chord && it >= 1 &&
+        (!(r <= sw->chord_max * r_prev) || 2 * it >= sw->max_iter)) {
+      /* The chord contracts poorly (or diverges), or has taken half the
+       * updates allowed: Newton for the rest of the step, from the better
+       * of the last two iterates. */
+      chord = sw->chord = 0;
+      if (r_prev < HUGE_VAL && !(r <= r_prev)) { /* (after a chord update) */
+        memcpy(dn, sw->dprev, (size_t)nf * sizeof(double));
+        min_it = it + 1;
+      }
+      with_j = 1;
+      it--; /* (an evaluation, no update) */
+      continue;
     }
     if (!isfinite(r) || it == sw->max_iter) {
       *iters = it;
@@ -708,6 +845,24 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
                it, r, sw->tol, floor);
       return isfinite(r) ? MRVI_ENEWTON : MRVI_ENONFINITE;
     }
+    if (chord) { /* dn += D^-1 F, and the next point's configuration */
+      r_prev = r;
+      const double cB = sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
+      zf_ok = sw->imp >= 0;
+      for (int f = 0; f < nf; f++) {
+        sw->dprev[f] = dn[f];
+        dn[f] += sw->jdinv[f] * sw->F[f];
+        if (zf_ok)
+          sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
+      }
+      continue;
+    }
+    if (!with_j) { /* J at this iterate */
+      with_j = 1;
+      it--;
+      continue;
+    }
+    with_j = 0;
     if (sw->sb) {
       /* J d = F by CG to 1 % of the tolerance (inexact Newton: the
        * residual above is exact, so the solution is the same). */
@@ -716,6 +871,13 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn,
                                       msg, len);
       if (s < 0)
         return s;
+      /* Row 0's first matrix sets the chord up; its later updates take
+       * it too (the first Newton update leaves about the tolerance: one
+       * gradient where a second Newton update would cost ten). */
+      if (first && it == 0 && sw->chord_max > 0.0) {
+        chord_setup(sw);
+        chord = sw->chord;
+      }
     } else {
       for (int f = 0; f < nf; f++)
         sw->J[f * nf + f] += sw->m_f[f] / dt;
@@ -1030,7 +1192,7 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       const int s =
           sw->linear
               ? solve_linear(sw, qm, sw->dn, &it, residual, msg, len)
-              : solve_implicit(sw, qm, sw->dn, m == 0, &it, residual, msg, len);
+              : solve_implicit(sw, qm, sw->dn, m, &it, residual, msg, len);
       if (it > *iterations)
         *iterations = it;
       if (s < 0) {
