@@ -756,8 +756,9 @@ typedef struct mrvi_settings {
   double energy_warning;
   mrvi_tuning tuning; /* MRVI_TUNING_LIST's defaults */
   /* Threads of the element loops (OpenMP; doc/performance.md, "Threads"):
-   * 0 (default) the cores this process may use, 1 none.  Results are the
-   * same bit for bit for every count.  Above 1 in a build without OpenMP,
+   * 1 (default) none, 0 the cores this process may use.  Results are the
+   * same bit for bit for every count.  The default is 1 because the
+   * threaded loops do not pay yet (doc/performance.md, "Threads").  Above 1 in a build without OpenMP,
    * mrvi_settings_check refuses it (mrvi_threads_supported). */
   int threads;
   /* 1: mrvi_run's steps keep the last fast micro node alone

@@ -104,10 +104,9 @@ static const char usage_run[] =
     "                        the trajectory and check the terminal\n"
     "                        conditions (with -o, --set, --quiet only)\n"
     "      --threads N       threads of the element loops (default: the\n"
-    "                        environment's MRVI_THREADS, else the cores\n"
-    "                        available); the results are the same bit for\n"
-    "                        bit for every N.  A build without OpenMP refuses\n"
-    "                        N > 1\n"
+    "                        environment's MRVI_THREADS, else 1); the\n"
+    "                        results are the same bit for bit for every N.\n"
+    "                        A build without OpenMP refuses N > 1\n"
     "  -h, --help            show this help\n"
     "\n"
     "Notes about the input, such as initial velocities projected onto the\n"
@@ -151,7 +150,7 @@ static const char usage_check[] =
     "Options:\n"
     "  -s, --set KEY=VALUE   override a scalar of FILE by its dotted path\n"
     "      --threads N       the thread count to check and show (default:\n"
-    "                        MRVI_THREADS, else the cores available)\n"
+    "                        MRVI_THREADS, else 1)\n"
     "  -h, --help            show this help\n"
     "\n"
     "Exit status: 0 if FILE is valid, 1 otherwise.\n";
@@ -558,7 +557,7 @@ static int cmd_check(int argc, char **argv) {
   if (mrvi_threads_supported())
     printf("%-14s%d%s (element loops; the same results for every count)\n",
            "threads", s->threads > 0 ? s->threads : mrvi_batch_cores(),
-           s->threads > 0 ? "" : " (the cores available)");
+           s->threads > 0 ? "" : " (settings.threads 0: the cores available)");
   else
     printf("%-14s1 (this build has no threads: built without OpenMP)\n",
            "threads");

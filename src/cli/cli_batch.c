@@ -62,10 +62,8 @@ const char mrvi_usage_batch[] =
     "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
     "                        cores available)\n"
     "      --threads T       threads of each case's element loops (default:\n"
-    "                        the cores available divided by the jobs, at\n"
-    "                        least 1: jobs x threads stays within the cores\n"
-    "                        unless both are given; over MPI ranks 1); the\n"
-    "                        results do not depend on T\n"
+    "                        1, as for mrvi run: the jobs fill the cores);\n"
+    "                        the results do not depend on T\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
     "                        killed or interrupted batch)\n"
     "  -q, --quiet           no line per finished case\n"
@@ -271,14 +269,10 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
   return rc;
 }
 
-/* The threads of each case: the given count, else the cores divided by
- * the jobs, at least 1 (1 without OpenMP). */
-static int case_threads(int given, int cores, int jobs) {
-  if (given > 0)
-    return given;
-  const int t = jobs > 0 ? cores / jobs : 1;
-  return mrvi_threads_supported() && t > 1 ? t : 1;
-}
+/* The threads of each case: the given count, else 1 (the default of
+ * settings.threads: the threaded loops do not pay yet, doc/performance.md,
+ * "Threads"; the jobs fill the cores). */
+static int case_threads(int given) { return given > 0 ? given : 1; }
 
 /* A rank other than 0 of an MPI batch: the plan from rank 0, then its
  * cases (cli_batch_mpi.c). */
@@ -470,17 +464,14 @@ int mrvi_cmd_batch(int argc, char **argv) {
       todo[n_todo++] = c;
   /* MPI: the other ranks get the plan (or leave), and each rank takes the
    * cores of its share of the machine unless --jobs says. */
-  /* Over MPI the ranks fill the cores: each case on one thread unless
-   * --threads says, on every rank (the plan carries it). */
-  if (ranks > 1)
-    plan.threads = threads > 0 ? threads : 1;
+  /* Each case on one thread unless --threads says, on every rank (the
+   * plan carries it): the jobs and ranks fill the cores. */
+  plan.threads = case_threads(threads);
   int jobs_given = jobs;
   mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
   if (rc == 0 && jobs == 0)
     jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
   /* (mrvi_batch_mpi_jobs is collective: not called here again) */
-  if (ranks == 1)
-    plan.threads = case_threads(threads, mrvi_batch_cores(), jobs);
 
   batch_ctx ctx = {.out = out,
                    .quiet = quiet,

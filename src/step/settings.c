@@ -61,6 +61,7 @@ void mrvi_settings_default(mrvi_settings *s) {
   s->project_momenta = 1;
   s->solver = MRVI_SOLVER_AUTO;
   s->energy_warning = 0.1;
+  s->threads = 1;
   mrvi_tuning_default(&s->tuning);
 }
 
