@@ -734,7 +734,7 @@ typedef enum mrvi_newton_criterion {
   X(int, adjoint_refine_max, 8, 0, 1000,                                       \
     "refinement steps of an adjoint step solved with the factors of the "      \
     "step after it (or the forward pass's); beyond: factorised anew "          \
-    "(0: every step)")                                                        \
+    "(0: every step)")                                                         \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

@@ -952,7 +952,8 @@ static mrvi_model *jointed_tree(int D, int n) {
   const double e2[2] = {sqrt(0.5), -sqrt(0.5)},
                e3[3] = {1.0 / 1.5, 0.5 / 1.5, -1.0 / 1.5};
   const double *e = D == 2 ? e2 : e3, J2[1] = {2.0 / 12.0},
-               J3[3] = {0.1, 0.5, 0.55}, w2[1] = {0.7}, w3[3] = {0.2, -0.3, 0.5};
+               J3[3] = {0.1, 0.5, 0.55}, w2[1] = {0.7},
+               w3[3] = {0.2, -0.3, 0.5};
   const double ax1[3] = {0, 0, 1}, ax2[3] = {sqrt(0.5), sqrt(0.5), 0};
   static const char *const kinds3[] = {"spherical", "revolute", "spherical",
                                        "weld", "revolute"};
@@ -987,15 +988,15 @@ static mrvi_model *jointed_tree(int D, int n) {
   double l[3] = {0, 0, 0}, anchor[6] = {0, 0, 0, 0, 0, 0};
   for (int a = 0; a < D; a++)
     l[a] = n * e[a] + (a == 1 ? -0.2 : 0.0), anchor[a] = l[a] + 0.5;
-  const int f = st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l,
-                                                  anchor + 3)
-                        : st;
+  const int f =
+      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, anchor + 3)
+              : st;
   const mrvi_end pf = {.particle = f, .body = -1},
                  pb = {.particle = -1, .body = n - 1, .at = {0.5, 0, 0}};
   const double kf = 200.0, ks = 50.0;
   CHECK(f >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor,
-                                      "linear", &kf, NAN) >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
+                                      &kf, NAN) >= 0 &&
             mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
                                       &ks, NAN) >= 0,
         "jointed tree (%d-D): %s", D, mrvi_model_errmsg(m));

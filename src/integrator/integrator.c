@@ -475,8 +475,8 @@ static int general_create(mrvi_integrator *it, char *msg, size_t len) {
       sp->n_lambda > 0) {
     /* Values for the symbolic analysis: lambda(x) and the reduced rows at
      * the predictor. */
-    if ((st = mrvi_nullspace_create(sp, it->c_drop, 1, &it->nullspace, msg, len)) <
-            0 ||
+    if ((st = mrvi_nullspace_create(sp, it->c_drop, 1, &it->nullspace, msg,
+                                    len)) < 0 ||
         (mrvi_step_assemble(sp, it->x, it->R, 0),
          st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
                                     len)) < 0)

@@ -186,8 +186,7 @@ static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
   return row == nu && z->rec_coef ? 0 : -1;
 }
 
-int mrvi_nullspace_csr(const mrvi_step *st, int **start, int **col,
-                       int **idx) {
+int mrvi_nullspace_csr(const mrvi_step *st, int **start, int **col, int **idx) {
   const int n = st->n_total, nu = st->n_unknowns;
   int *cs = *start = calloc((size_t)n + 1, sizeof(int));
   int *cc = *col = malloc((size_t)(st->nnz > 0 ? st->nnz : 1) * sizeof(int));
@@ -394,8 +393,9 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
   if (!z->Q || !z->Rm || !z->Gs || !z->Qs || !z->Rs || !z->A || !z->t ||
       !z->B || !z->Gf || !z->Gsl)
     goto oom;
-  if (build_recipe(z, st) < 0 || mrvi_nullspace_csr(st, &z->csr_start, &z->csr_col, &z->csr_idx) < 0 || build_pattern(z) < 0 ||
-      reparametrise(z, m) < 0)
+  if (build_recipe(z, st) < 0 ||
+      mrvi_nullspace_csr(st, &z->csr_start, &z->csr_col, &z->csr_idx) < 0 ||
+      build_pattern(z) < 0 || reparametrise(z, m) < 0)
     goto oom;
   *out = z;
   return MRVI_OK;

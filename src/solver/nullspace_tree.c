@@ -114,8 +114,7 @@ static int find(int *up, int a) {
 
 /* Body B of joint constraint k (-1: the ground). */
 static int body_b(const mrvi_model *m, const mrvi_constraint *k, int D) {
-  return k->n_in > D * (D + 1) ? mrvi_model_body_of(m, k->in[D * (D + 1)])
-                               : -1;
+  return k->n_in > D * (D + 1) ? mrvi_model_body_of(m, k->in[D * (D + 1)]) : -1;
 }
 
 /* The forest, parents first (order, parent, joint: n_bodies each), or 0 and
@@ -471,8 +470,8 @@ static int build_pattern(mrvi_nstree *z) {
     for (int e = z->ext_start[i]; e < z->ext_start[i + 1]; e++)
       Ti[t] = i, Tj[t++] = z->ext_col[e];
   }
-  const int status = umfpack_di_triplet_to_col(z->n, z->n, (int)nt, Ti, Tj,
-                                               NULL, z->Ap, z->Ai, NULL, z->map);
+  const int status = umfpack_di_triplet_to_col(
+      z->n, z->n, (int)nt, Ti, Tj, NULL, z->Ap, z->Ai, NULL, z->map);
   free(Ti), free(Tj);
   if (status != UMFPACK_OK)
     return -1;
@@ -529,9 +528,9 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
   z->rec_start = malloc(((size_t)z->n + 1) * sizeof(int));
   z->ext_start = malloc(((size_t)z->n + 1) * sizeof(int));
   if (!z->is_a || !z->motion || !z->slot || !z->dof || !z->child_start ||
-      !z->child || !z->in_body || !z->P || !z->X || !z->S || !z->qk ||
-      !z->qm || !z->pm || !z->mu || !z->pos || !z->npos || !z->th || !z->u ||
-      !z->Q || !z->rec_start || !z->ext_start)
+      !z->child || !z->in_body || !z->P || !z->X || !z->S || !z->qk || !z->qm ||
+      !z->pm || !z->mu || !z->pos || !z->npos || !z->th || !z->u || !z->Q ||
+      !z->rec_start || !z->ext_start)
     goto oom;
   for (int t = 0; t < nb; t++) {
     const mrvi_body *bd = &m->bodies[z->order[t]];
@@ -544,7 +543,7 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
     const mrvi_constraint *k = &m->constraints[z->joint[t]];
     z->is_a[t] = mrvi_model_body_of(m, k->in[0]) == z->order[t];
     z->motion[t] = k->type->joint_motion;
-    z->dof[t] = z->motion[t] == MRVI_JOINT_WELD    ? 0
+    z->dof[t] = z->motion[t] == MRVI_JOINT_WELD   ? 0
                 : z->motion[t] == MRVI_JOINT_BALL ? T - D
                                                   : 1;
     if (z->parent[t] >= 0)

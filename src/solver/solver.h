@@ -69,8 +69,7 @@ void mrvi_nullspace_rotation_of(int D, const double *d, const double *w,
 void mrvi_nullspace_nearest_rotation(int D, const double *ref, const double *w,
                                      double *th);
 /* CSR view (x columns only) of the step's CSC matrix (nullspace.c). */
-int mrvi_nullspace_csr(const mrvi_step *st, int **start, int **col,
-                       int **idx);
+int mrvi_nullspace_csr(const mrvi_step *st, int **start, int **col, int **idx);
 /* The joint-reduced basis (nullspace_tree.c), behind mrvi_nullspace_*:
  * create returns 1 (made), 0 (does not apply: why) or a status < 0. */
 typedef struct mrvi_nstree mrvi_nstree;
