@@ -18,15 +18,14 @@
  * Every model is run with midpoint-midpoint and trapezoidal-midpoint on the
  * path mrvi_solver_path picks (listed), rods and rigid bars also in the
  * null-space form (the rigid bars with the joint-reduced basis, and with
- * the numerical QR one as before it), springs also on the general path (the one the constrained
- * chains take).
- * (explicit-slow is unstable here: the attachments' slow springs have
- * omega dT = 2.)  dT = 0.01, p = 10 by default.  The cases of one n
- * alternate, --repeats rounds, best of them; each times blocks of 20 macro
- * steps from the initial state (the integrator set back to it, so that the
- * falling chain stays in its first 0.2 s) until --steps steps and 0.3 s.  Then
- * the exponent of the time per macro step in n and the ratio rods / springs.  A
- * measurement: no thresholds (doc/performance.md, "Chains").
+ * the numerical QR one as before it), springs also on the general path (the one
+ * the constrained chains take). (explicit-slow is unstable here: the
+ * attachments' slow springs have omega dT = 2.)  dT = 0.01, p = 10 by default.
+ * The cases of one n alternate, --repeats rounds, best of them; each times
+ * blocks of 20 macro steps from the initial state (the integrator set back to
+ * it, so that the falling chain stays in its first 0.2 s) until --steps steps
+ * and 0.3 s.  Then the exponent of the time per macro step in n and the ratio
+ * rods / springs.  A measurement: no thresholds (doc/performance.md, "Chains").
  *
  * --trajectory K: instead, each n of the list runs one case (--case C, the
  * index in case_names, default the rigid bars) and one scheme for K
