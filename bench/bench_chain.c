@@ -17,15 +17,15 @@
  *            the light masses joined by fast springs.
  * Every model is run with midpoint-midpoint and trapezoidal-midpoint on the
  * path mrvi_solver_path picks (listed), rods and rigid bars also in the
- * null-space form, springs also on the general path (the one the constrained
- * chains take).
- * (explicit-slow is unstable here: the attachments' slow springs have
- * omega dT = 2.)  dT = 0.01, p = 10 by default.  The cases of one n
- * alternate, --repeats rounds, best of them; each times blocks of 20 macro
- * steps from the initial state (the integrator set back to it, so that the
- * falling chain stays in its first 0.2 s) until --steps steps and 0.3 s.  Then
- * the exponent of the time per macro step in n and the ratio rods / springs.  A
- * measurement: no thresholds (doc/performance.md, "Chains").
+ * null-space form (the rigid bars with the joint-reduced basis, and with
+ * the numerical QR one as before it), springs also on the general path (the one
+ * the constrained chains take). (explicit-slow is unstable here: the
+ * attachments' slow springs have omega dT = 2.)  dT = 0.01, p = 10 by default.
+ * The cases of one n alternate, --repeats rounds, best of them; each times
+ * blocks of 20 macro steps from the initial state (the integrator set back to
+ * it, so that the falling chain stays in its first 0.2 s) until --steps steps
+ * and 0.3 s.  Then the exponent of the time per macro step in n and the ratio
+ * rods / springs.  A measurement: no thresholds (doc/performance.md, "Chains").
  *
  * --trajectory K: instead, each n of the list runs one case (--case C, the
  * index in case_names, default the rigid bars) and one scheme for K
@@ -42,7 +42,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 6, N_SCHEMES = 2 };
+enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 7, N_SCHEMES = 2 };
 enum { HORIZON = 20 };        /* macro steps from the initial state, repeated */
 static double gravity = 9.81; /* --gravity */
 static const char *tune[8];   /* --tune NAME=VALUE */
@@ -52,8 +52,9 @@ static int n_tune;
 /* Case c builds chain kind chain_of[c]. */
 static const char *const case_names[N_CASES] = {
     "rods (multipliers)", "rods (null space)", "springs",
-    "springs (general)",  "rigid bars",        "rigid bars (null space)"};
-static const int chain_of[N_CASES] = {0, 1, 2, 2, 3, 3};
+    "springs (general)",  "rigid bars",        "rigid bars (null space)",
+    "rigid bars (QR)"};
+static const int chain_of[N_CASES] = {0, 1, 2, 2, 3, 3, 3};
 static const char *const scheme_names[N_SCHEMES] = {"midpoint-midpoint",
                                                     "trapezoidal-midpoint"};
 
@@ -72,12 +73,14 @@ static const char usage[] =
     "N of that case.  --quick: N = 10,30, R = 1, K = 2.\n"
     "--trajectory K [--case C] [--scheme S]: case C (0 rods, 1 rods null\n"
     "space, 2 springs, 3 springs general, 4 rigid bars (default), 5 rigid\n"
-    "bars null space), scheme S (default midpoint-midpoint) for K\n"
+    "bars null space (joint-reduced), 6 rigid bars null space with the\n"
+    "numerical QR basis), scheme S (default midpoint-midpoint) for K\n"
     "consecutive macro steps from the initial state at each N: Newton\n"
     "updates per step.\n"
     "--gravity G: gravity G instead of 9.81 (the chain's tension at its\n"
     "top, about N G (2.05), is what limits dT: doc/performance.md).\n"
-    "--tune NAME=VALUE: a tuning constant (up to 8).\n";
+    "--tune NAME=VALUE: a tuning constant (up to 8).\n"
+    "--cases C1,C2,...: only these cases (numbered as for --case).\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
@@ -161,8 +164,9 @@ static int case_settings(int cs, const char *scheme, double dT, int p,
   s->t_end = 1e6 * dT;
   s->newton_tol = 1e-10;
   s->energy_warning = 0;
-  s->constraint_form = chain_of[cs] == 1 || cs == 5 ? MRVI_FORM_NULL_SPACE
+  s->constraint_form = chain_of[cs] == 1 || cs >= 5 ? MRVI_FORM_NULL_SPACE
                                                     : MRVI_FORM_MULTIPLIERS;
+  s->tuning.nullspace_tree = cs != 6; /* 6: the numerical (QR) basis */
   s->solver = cs == 3 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
   for (int t = 0; t < n_tune; t++) {
     char name[64];
@@ -298,7 +302,8 @@ static int trajectory(const int *n_list, int n_n, int cs, const char *scheme,
 
 int main(int argc, char **argv) {
   int n_list[MAX_N] = {10, 30, 100, 300, 1000}, n_n = 5, repeats = 3, steps = 3,
-      p = 10, quick = 0, n_set = 0, traj = 0, traj_case = 4;
+      p = 10, quick = 0, n_set = 0, traj = 0, traj_case = 4,
+      only[N_CASES] = {0}, n_only = 0;
   double dT = 0.01, budget = 5.0;
   const char *traj_scheme = scheme_names[0];
   for (int i = 1; i < argc; i++) {
@@ -340,6 +345,15 @@ int main(int argc, char **argv) {
         return bad_usage();
     } else if (!strcmp(a, "--scheme") && has) {
       traj_scheme = argv[++i];
+    } else if (!strcmp(a, "--cases") && has) {
+      int list[N_CASES];
+      if ((n_only = bench_parse_ints(argv[++i], list, N_CASES)) <= 0)
+        return bad_usage();
+      for (int k = 0; k < n_only; k++) {
+        if (list[k] < 0 || list[k] >= N_CASES)
+          return bad_usage();
+        only[list[k]] = 1;
+      }
     } else if (!strcmp(a, "--budget") && has) {
       if (bench_parse_positive(argv[++i], &budget) < 0)
         return bad_usage();
@@ -377,7 +391,7 @@ int main(int argc, char **argv) {
     for (int r = 0; r < repeats; r++)
       for (int si = 0; si < N_SCHEMES; si++)
         for (int c = 0; c < N_CASES; c++) {
-          if (dead[si][c])
+          if (dead[si][c] || (n_only && !only[c]))
             continue;
           result x = run_one(c, n_list[ni], scheme_names[si], dT, p, steps);
           result *b = &res[si][c][ni];

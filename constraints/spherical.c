@@ -26,4 +26,5 @@ const mrvi_constraint_type mrvi_constraint_spherical = {
         "(3 rows)",
     .check = check,
     .eval = eval,
+    .joint_motion = MRVI_JOINT_BALL,
 };

@@ -28,4 +28,5 @@ const mrvi_constraint_type mrvi_constraint_weld = {
     .summary = "weld: the bodies fixed to each other (2-D: 3 rows, 3-D: 6)",
     .check = check,
     .eval = eval,
+    .joint_motion = MRVI_JOINT_WELD,
 };

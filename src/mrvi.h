@@ -383,7 +383,15 @@ typedef struct mrvi_constraint_type {
   /* Keys of an entry in a description file, ended by {NULL}; NULL: the
    * generic {coordinates: [names], parameters: [numbers]}. */
   const mrvi_constraint_key *keys;
+  /* Joints between rigid bodies only: the relative motion the joint leaves
+   * free about its point, MRVI_JOINT_BALL (every rotation), MRVI_JOINT_HINGE
+   * (the rotation about the frame's first axis; in 2-D the one rotation)
+   * or MRVI_JOINT_WELD (none), which the null-space form's joint-reduced
+   * basis of open chains and trees builds on (doc/multibody.md); 0 for
+   * every other type (the null-space form then takes its numerical basis). */
+  int joint_motion;
 } mrvi_constraint_type;
+enum { MRVI_JOINT_BALL = 1, MRVI_JOINT_HINGE = 2, MRVI_JOINT_WELD = 3 };
 
 /* Add a type to the registry (the pointer must stay valid).  MRVI_EINVAL if
  * the name is taken or the table is incomplete. */
@@ -726,7 +734,11 @@ typedef enum mrvi_newton_criterion {
   X(int, adjoint_refine_max, 8, 0, 1000,                                       \
     "refinement steps of an adjoint step solved with the factors of the "      \
     "step after it (or the forward pass's); beyond: factorised anew "          \
-    "(0: every step)")
+    "(0: every step)")                                                         \
+  X(int, nullspace_tree, 1, 0, 1,                                              \
+    "the null-space form of bodies in open chains and trees of spherical, "    \
+    "revolute and weld joints takes the joint-reduced basis (0: the "          \
+    "numerical QR basis)")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

@@ -286,7 +286,8 @@ expect_rc 0 "check with constraint settings overridden"
 contains "$out" '^constraints +null-space form, tolerance 1e-12, momentum projection off$' \
   "--set integrator.constraints.* applied"
 # The null space a model gets: analytic for free bodies (2-D and fast too),
-# numerical with a joint.
+# joint-reduced for open chains and trees of joints, numerical for a
+# closed loop, a fast body in a joint or nullspace_tree 0.
 cat >"$tmp/wheel.yaml" <<'EOF'
 name: wheel
 dimension: 2
@@ -299,7 +300,21 @@ contains "$out" '^  null space  analytic \(free planar rigid bodies: P = \[\[I, 
   "free fast 2-D body: analytic null space"
 run_mrvi check "$root/systems/rigid_pendulum.yaml" \
   --set integrator.constraints.form=null-space
-contains "$out" '^  null space  numerical \(QR' "a body on a joint: numerical null space"
+contains "$out" '^  null space  joint-reduced \(open chains and trees of joints' \
+  "a body on a joint: joint-reduced null space"
+run_mrvi check "$root/systems/rigid_pendulum.yaml" \
+  --set integrator.constraints.form=null-space \
+  --set integrator.tuning.nullspace_tree=0
+contains "$out" '^  null space  numerical \(QR.*; not joint-reduced: nullspace_tree 0$' \
+  "nullspace_tree 0: numerical null space"
+run_mrvi check "$root/systems/slider_crank.yaml" \
+  --set integrator.constraints.form=null-space
+contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: constraint 'guide' \\(prismatic\\) has no joint reduction$" \
+  "slider-crank: numerical null space, the prismatic joint named"
+run_mrvi check "$root/systems/flexible_pendulum.yaml" \
+  --set integrator.constraints.form=null-space
+contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: body 'upper' is fast$" \
+  "flexible pendulum: numerical null space, the fast body named"
 run_mrvi check "$fpu"
 contains "$out" '^constraints +0$' "fpu: no constraints"
 check "fpu: no constraint settings line" \

@@ -938,6 +938,149 @@ static void test_fast_reparametrisation(void) {
   }
 }
 
+/* Open chains and trees of bodies in joints (doc/multibody.md, "Joint-
+ * reduced null space for chains and trees").  2-D: n bars of length 1 on
+ * revolute joints, a chain from the ground along e = (1, -1)/sqrt 2, with a
+ * last bar hung on the second's lower end (a tree) and a fast particle on a
+ * slow spring to the last bar's end and a fast one to an anchor.  3-D: a
+ * ball joint to the ground, then revolute (axis e_3), ball, weld and
+ * revolute (axis (1, 1, 0)) joints along e = (1, 0.5, -1)/1.5, and a
+ * branch on a ball joint at the second body's centre. */
+static mrvi_model *jointed_tree(int D, int n) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, D);
+  const double e2[2] = {sqrt(0.5), -sqrt(0.5)},
+               e3[3] = {1.0 / 1.5, 0.5 / 1.5, -1.0 / 1.5};
+  const double *e = D == 2 ? e2 : e3, J2[1] = {2.0 / 12.0},
+               J3[3] = {0.1, 0.5, 0.55}, w2[1] = {0.7},
+               w3[3] = {0.2, -0.3, 0.5};
+  const double ax1[3] = {0, 0, 1}, ax2[3] = {sqrt(0.5), sqrt(0.5), 0};
+  static const char *const kinds3[] = {"spherical", "revolute", "spherical",
+                                       "weld", "revolute"};
+  int st = 0, prev = -1;
+  for (int i = 0; i <= n && st >= 0; i++) {
+    /* body i < n on the chain; body n the branch on body 1 */
+    const int br = i == n;
+    double x[3], pt[3];
+    for (int a = 0; a < D; a++) {
+      pt[a] = br ? (D == 2 ? 2.0 : 1.5) * e[a] : i * e[a];
+      x[a] = pt[a] + 0.5 * e[a] + (br ? 0.3 * (a == 0) : 0.0);
+    }
+    char name[16];
+    snprintf(name, sizeof name, "b%d", i);
+    const int b = st = mrvi_model_add_body(m, name, D, MRVI_SLOW, 2.0 + 0.1 * i,
+                                           D == 2 ? J2 : J3, x, NULL, NULL,
+                                           i == 0 ? (D == 2 ? w2 : w3) : NULL);
+    if (st < 0)
+      break;
+    const int parent = br ? 1 : prev;
+    const char *kind = D == 2 ? "revolute" : br ? "spherical" : kinds3[i % 5];
+    const double *axis = D == 2 || strcmp(kind, "revolute") ? NULL
+                         : i % 5 == 1                       ? ax1
+                                                            : ax2;
+    /* the joint point: the chain's i e; the branch at the end of body 1 */
+    st = mrvi_model_add_joint(m, kind, b, parent, pt, axis);
+    prev = b;
+  }
+  const double g[3] = {0.0, D == 2 ? -9.81 : 0.0, D == 3 ? -9.81 : 0.0};
+  if (st >= 0)
+    st = mrvi_model_set_gravity(m, g);
+  double l[3] = {0, 0, 0}, anchor[6] = {0, 0, 0, 0, 0, 0};
+  for (int a = 0; a < D; a++)
+    l[a] = n * e[a] + (a == 1 ? -0.2 : 0.0), anchor[a] = l[a] + 0.5;
+  const int f =
+      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, anchor + 3)
+              : st;
+  const mrvi_end pf = {.particle = f, .body = -1},
+                 pb = {.particle = -1, .body = n - 1, .at = {0.5, 0, 0}};
+  const double kf = 200.0, ks = 50.0;
+  CHECK(f >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
+                                      &kf, NAN) >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
+                                      &ks, NAN) >= 0,
+        "jointed tree (%d-D): %s", D, mrvi_model_errmsg(m));
+  return m;
+}
+
+/* Size of the step's system on the general path in the null-space form
+ * (tree: the joint-reduced basis allowed). */
+static int ns_size(const mrvi_model *m, int tree) {
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 1.0, 1e-9);
+  s.constraint_form = MRVI_FORM_NULL_SPACE;
+  s.tuning.nullspace_tree = tree;
+  mrvi_integrator *it = NULL;
+  char msg[512];
+  if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
+    CHECK(0, "jointed tree integrator: %s", msg);
+    return -1;
+  }
+  const int n = mrvi_integrator_system_size(it);
+  mrvi_integrator_free(it);
+  return n;
+}
+
+static void test_joint_reduced(void) {
+  for (int D = 2; D <= 3; D++) {
+    const int n = D == 2 ? 7 : 6, T = D * (D + 1) / 2;
+    mrvi_model *m = jointed_tree(D, n);
+    /* the path: n + 1 bodies' twists beside the unknowns */
+    const int nt = ns_size(m, 1), nq = ns_size(m, 0);
+    CHECK(nq > 0 && nt == nq + (n + 1) * T,
+          "jointed tree (%d-D): system %d (joint-reduced) against %d (QR)", D,
+          nt, nq);
+    /* the forms at tight tolerances, 100 steps, p = 2 */
+    mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
+    for (int f = 0; f < 3; f++) {
+      mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 1.0, 1e-12);
+      s.constraint_tol = 1e-12;
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      s.tuning.nullspace_tree = f == 1;
+      mrvi_summary sum;
+      if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
+        CHECK(0, "jointed tree, tight (%d-D, case %d): %s", D, f, sum.message);
+    }
+    double d[2] = {0.0, 0.0};
+    if (tt[0] && tt[1] && tt[2])
+      for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++) {
+        d[0] = fmax(d[0], fabs(tt[1]->q[i] - tt[0]->q[i]));
+        d[1] = fmax(d[1], fabs(tt[1]->q[i] - tt[2]->q[i]));
+      }
+    printf("jointed tree (%d-D, %d bodies), 100 steps at tolerances 1e-12: "
+           "joint-reduced null space against multipliers %.3g, against the "
+           "QR null space %.3g\n",
+           D, n + 1, d[0], d[1]);
+    CHECK(tt[0] && tt[0]->n_macro == 101 && d[0] < 1e-9 && d[1] < 1e-9,
+          "joint-reduced against the other forms (%d-D): %.3g, %.3g", D, d[0],
+          d[1]);
+    /* default tolerances, 3000 steps: the constraints to round-off, the
+     * energy error that of the multiplier form (the scheme's, bounded) */
+    mrvi_trajectory *tr[2] = {NULL, NULL};
+    double eg[2] = {1, 1}, eH[2] = {1, 1}, eH10[2] = {1, 1};
+    for (int f = 0; f < 2; f++) {
+      mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 30.0, 1e-9);
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      mrvi_summary sum;
+      if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+        CHECK(0, "jointed tree run (%d-D, case %d): %s", D, f, sum.message);
+      else
+        loop_invariants(m, tr[f], &eg[f], &eH[f], &eH10[f]);
+    }
+    printf("  3000 steps, Newton tolerance 1e-9: max |g| %.3g (multipliers "
+           "%.3g), energy %.3g (multipliers %.3g; first tenth %.3g, %.3g)\n",
+           eg[1], eg[0], eH[1], eH[0], eH10[1], eH10[0]);
+    CHECK(eg[1] <= 1e-13, "joint-reduced (%d-D): max |g| %.3g", D, eg[1]);
+    CHECK(eH[1] < 0.05 && eH[1] < 1.5 * eH[0] + 1e-6,
+          "joint-reduced (%d-D): energy %.3g (multipliers %.3g)", D, eH[1],
+          eH[0]);
+    for (int f = 0; f < 3; f++)
+      mrvi_trajectory_free(tt[f]);
+    mrvi_trajectory_free(tr[0]);
+    mrvi_trajectory_free(tr[1]);
+    mrvi_model_free(m);
+  }
+}
+
 int main(void) {
   test_fourbar_3d();
   test_fourbar_forms();
@@ -950,5 +1093,6 @@ int main(void) {
   test_body_null_space();
   test_reparametrisation();
   test_fast_reparametrisation();
+  test_joint_reduced();
   return test_finish();
 }

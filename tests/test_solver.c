@@ -1540,11 +1540,14 @@ static void test_tuning(void) {
     CHECK(mrvi_settings_set_tuning(&s, t[i].name, NAN, msg, sizeof msg) ==
               MRVI_EINVAL,
           "tuning %s = NaN accepted", t[i].name);
+    /* (a fraction inside the range: a switch 0..1 at 1 takes 0.5) */
+    const double frac =
+        t[i].value + 0.5 <= t[i].highest ? t[i].value + 0.5 : t[i].value - 0.5;
     if (t[i].integer)
-      CHECK(mrvi_settings_set_tuning(&s, t[i].name, t[i].value + 0.5, msg,
-                                     sizeof msg) == MRVI_EINVAL &&
+      CHECK(mrvi_settings_set_tuning(&s, t[i].name, frac, msg, sizeof msg) ==
+                    MRVI_EINVAL &&
                 strstr(msg, "integer"),
-            "tuning %s = %g: '%s'", t[i].name, t[i].value + 0.5, msg);
+            "tuning %s = %g: '%s'", t[i].name, frac, msg);
   }
   mrvi_settings d;
   mrvi_settings_default(&d);

@@ -12,6 +12,7 @@
  * leaves a valid HDF5 file with every completed step. */
 #include "cli.h"
 #include "io/io.h"
+#include "solver/solver.h"
 
 #include <errno.h>
 #include <signal.h>
@@ -532,7 +533,7 @@ static int cmd_check(int argc, char **argv) {
                                                       : "multipliers",
            s->constraint_tol, s->project_momenta ? "on" : "off");
   if (nc > 0 && s->constraint_form == MRVI_FORM_NULL_SPACE) {
-    char why[8];
+    char why[8], tree_why[200] = "nullspace_tree 0";
     const int red = mrvi_constraints_rank(sys->model, mrvi_model_q0(sys->model),
                                           NULL, why, sizeof why);
     if (mrvi_model_free_bodies_only(sys->model) &&
@@ -546,10 +547,19 @@ static int cmd_check(int argc, char **argv) {
              "[0, -d2^], [0, -d3^]]), nodal reparametrisation phi + u, "
              "exp(th^) d (fast bodies at every micro node)\n",
              "  null space");
+    else if (s->tuning.nullspace_tree &&
+             mrvi_nullspace_tree_plan(sys->model, tree_why, sizeof tree_why))
+      printf("%-14sjoint-reduced (open chains and trees of joints: P = "
+             "blkdiag(P_i) (I - X)^-1 S, solved sparse with one twist per "
+             "body), nodal reparametrisation turning each body about its "
+             "joint\n",
+             "  null space");
     else
       printf("%-14snumerical (QR of the constraint gradients at every node); "
-             "%d redundant row%s left out\n",
-             "  null space", red > 0 ? red : 0, red == 1 ? "" : "s");
+             "%d redundant row%s left out%s%s\n",
+             "  null space", red > 0 ? red : 0, red == 1 ? "" : "s",
+             mrvi_model_n_bodies(sys->model) > 0 ? "; not joint-reduced: " : "",
+             mrvi_model_n_bodies(sys->model) > 0 ? tree_why : "");
   }
   printf("%-14s%s (every %d, micro %s)\n", "output",
          sys->output_file ? sys->output_file : "-", sys->output_every,

@@ -475,8 +475,8 @@ static int general_create(mrvi_integrator *it, char *msg, size_t len) {
       sp->n_lambda > 0) {
     /* Values for the symbolic analysis: lambda(x) and the reduced rows at
      * the predictor. */
-    if ((st = mrvi_nullspace_create(sp, it->c_drop, &it->nullspace, msg, len)) <
-            0 ||
+    if ((st = mrvi_nullspace_create(sp, it->c_drop, 1, &it->nullspace, msg,
+                                    len)) < 0 ||
         (mrvi_step_assemble(sp, it->x, it->R, 0),
          st = mrvi_nullspace_lambda(it->nullspace, sp, it->x, it->R, msg,
                                     len)) < 0)
@@ -484,7 +484,7 @@ static int general_create(mrvi_integrator *it, char *msg, size_t len) {
     mrvi_step_assemble(sp, it->x, it->R, 1);
     mrvi_nullspace_reduce(it->nullspace, sp, it->R, it->rhs);
     it->newton = mrvi_newton_create(
-        sp->n_unknowns, mrvi_nullspace_Ap(it->nullspace),
+        mrvi_nullspace_size(it->nullspace), mrvi_nullspace_Ap(it->nullspace),
         mrvi_nullspace_Ai(it->nullspace), mrvi_nullspace_Ax(it->nullspace),
         sp->tuning.newton_dense_max, msg, len);
   } else {
@@ -616,7 +616,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->node_stride = nf;
   it->lambda = alloc((size_t)m->constraint_rows);
   it->micro_cres = alloc(p);
-  it->rhs = alloc((size_t)it->step.n_unknowns);
+  it->rhs = alloc(nu); /* the joint-reduced system: at most n_total */
   const size_t R = (size_t)m->constraint_rows;
   it->cg = alloc(R);
   /* Dense G and Gram up to MRVI_GRAM_DENSE_MAX rows, the sparse Gram
@@ -1549,7 +1549,7 @@ double mrvi_integrator_last_residual(const mrvi_integrator *it) {
   return it->last_residual;
 }
 int mrvi_integrator_system_size(const mrvi_integrator *it) {
-  return it->nullspace ? it->step.n_unknowns : it->step.n_total;
+  return it->nullspace ? mrvi_nullspace_size(it->nullspace) : it->step.n_total;
 }
 long mrvi_integrator_system_nnz(const mrvi_integrator *it) {
   return it->nullspace ? mrvi_nullspace_nnz(it->nullspace) : it->step.nnz;

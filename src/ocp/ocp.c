@@ -916,7 +916,7 @@ static int prepare(mrvi_ocp *o) {
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
   mrvi_step_assemble(st, o->x, o->R, 1);
   if (o->settings.constraint_form == MRVI_FORM_NULL_SPACE && o->nl > 0) {
-    int s = mrvi_nullspace_create(st, NULL, &o->nullspace, msg, sizeof msg);
+    int s = mrvi_nullspace_create(st, NULL, 0, &o->nullspace, msg, sizeof msg);
     if (s == 0) {
       mrvi_step_assemble(st, o->x, o->R, 0);
       s = mrvi_nullspace_lambda(o->nullspace, st, o->x, o->R, msg, sizeof msg);

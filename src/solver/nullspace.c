@@ -78,6 +78,7 @@ struct mrvi_nullspace {
   int *map, *Ap, *Ai;
   double *Ax;
   long nnz;
+  mrvi_nstree *tree; /* the joint-reduced basis (nullspace_tree.c), or NULL */
 };
 
 void mrvi_nullspace_free(mrvi_nullspace *z) {
@@ -90,13 +91,28 @@ void mrvi_nullspace_free(mrvi_nullspace *z) {
   free(z->rec_start), free(z->rec_row), free(z->rec_coef);
   free(z->csr_start), free(z->csr_col), free(z->csr_idx);
   free(z->map), free(z->Ap), free(z->Ai), free(z->Ax);
+  mrvi_nstree_free(z->tree);
   free(z);
 }
 
-const int *mrvi_nullspace_Ap(const mrvi_nullspace *z) { return z->Ap; }
-const int *mrvi_nullspace_Ai(const mrvi_nullspace *z) { return z->Ai; }
-const double *mrvi_nullspace_Ax(const mrvi_nullspace *z) { return z->Ax; }
-long mrvi_nullspace_nnz(const mrvi_nullspace *z) { return z->nnz; }
+const int *mrvi_nullspace_Ap(const mrvi_nullspace *z) {
+  return z->tree ? mrvi_nstree_Ap(z->tree) : z->Ap;
+}
+const int *mrvi_nullspace_Ai(const mrvi_nullspace *z) {
+  return z->tree ? mrvi_nstree_Ai(z->tree) : z->Ai;
+}
+const double *mrvi_nullspace_Ax(const mrvi_nullspace *z) {
+  return z->tree ? mrvi_nstree_Ax(z->tree) : z->Ax;
+}
+long mrvi_nullspace_nnz(const mrvi_nullspace *z) {
+  return z->tree ? mrvi_nstree_nnz(z->tree) : z->nnz;
+}
+int mrvi_nullspace_size(const mrvi_nullspace *z) {
+  return z->tree ? mrvi_nstree_size(z->tree) : z->n;
+}
+int mrvi_nullspace_joint_reduced(const mrvi_nullspace *z) {
+  return z->tree != NULL;
+}
 
 /* Row of fast node m, slot f, in the full system. */
 static inline int frow(const mrvi_nullspace *z, int m, int f) {
@@ -170,28 +186,27 @@ static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
   return row == nu && z->rec_coef ? 0 : -1;
 }
 
-/* CSR view (x columns only) of the full CSC matrix of the step. */
-static int build_csr(mrvi_nullspace *z, const mrvi_step *st) {
+int mrvi_nullspace_csr(const mrvi_step *st, int **start, int **col, int **idx) {
   const int n = st->n_total, nu = st->n_unknowns;
-  z->csr_start = calloc((size_t)n + 1, sizeof(int));
-  z->csr_col = malloc((size_t)(st->nnz > 0 ? st->nnz : 1) * sizeof(int));
-  z->csr_idx = malloc((size_t)(st->nnz > 0 ? st->nnz : 1) * sizeof(int));
-  if (!z->csr_start || !z->csr_col || !z->csr_idx)
+  int *cs = *start = calloc((size_t)n + 1, sizeof(int));
+  int *cc = *col = malloc((size_t)(st->nnz > 0 ? st->nnz : 1) * sizeof(int));
+  int *ci = *idx = malloc((size_t)(st->nnz > 0 ? st->nnz : 1) * sizeof(int));
+  if (!cs || !cc || !ci)
     return -1;
   for (int j = 0; j < nu; j++)
     for (int k = st->Ap[j]; k < st->Ap[j + 1]; k++)
-      z->csr_start[st->Ai[k] + 1]++;
+      cs[st->Ai[k] + 1]++;
   for (int i = 0; i < n; i++)
-    z->csr_start[i + 1] += z->csr_start[i];
+    cs[i + 1] += cs[i];
   int *fill = malloc((size_t)n * sizeof *fill);
   if (!fill)
     return -1;
-  memcpy(fill, z->csr_start, (size_t)n * sizeof *fill);
+  memcpy(fill, cs, (size_t)n * sizeof *fill);
   for (int j = 0; j < nu; j++)
     for (int k = st->Ap[j]; k < st->Ap[j + 1]; k++) {
       const int i = st->Ai[k];
-      z->csr_col[fill[i]] = j;
-      z->csr_idx[fill[i]++] = k;
+      cc[fill[i]] = j;
+      ci[fill[i]++] = k;
     }
   free(fill);
   return 0;
@@ -239,12 +254,27 @@ static int build_pattern(mrvi_nullspace *z) {
 static int reparametrise(mrvi_nullspace *z, const mrvi_model *m);
 
 int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
-                          mrvi_nullspace **out, char *msg, size_t len) {
+                          int tree, mrvi_nullspace **out, char *msg,
+                          size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   mrvi_nullspace *z = calloc(1, sizeof *z);
   if (!z)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  if (tree && st->tuning.nullspace_tree) {
+    /* Open chains and trees of joints: the joint-reduced basis. */
+    char why[200];
+    const int s = mrvi_nstree_create(st, &z->tree, why, sizeof why);
+    if (s < 0) {
+      mrvi_nullspace_free(z);
+      return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+    }
+    if (s > 0) {
+      z->n = mrvi_nstree_size(z->tree);
+      *out = z;
+      return MRVI_OK;
+    }
+  }
   z->n = st->n_unknowns;
   z->ns = st->ns;
   z->nf = st->nf;
@@ -363,8 +393,9 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
   if (!z->Q || !z->Rm || !z->Gs || !z->Qs || !z->Rs || !z->A || !z->t ||
       !z->B || !z->Gf || !z->Gsl)
     goto oom;
-  if (build_recipe(z, st) < 0 || build_csr(z, st) < 0 || build_pattern(z) < 0 ||
-      reparametrise(z, m) < 0)
+  if (build_recipe(z, st) < 0 ||
+      mrvi_nullspace_csr(st, &z->csr_start, &z->csr_col, &z->csr_idx) < 0 ||
+      build_pattern(z) < 0 || reparametrise(z, m) < 0)
     goto oom;
   *out = z;
   return MRVI_OK;
@@ -411,12 +442,12 @@ static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
 }
 
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) {
-  return z->n_rep + z->n_frep;
+  return z->tree ? mrvi_nstree_bodies(z->tree) : z->n_rep + z->n_frep;
 }
 
 /* v <- exp(th^) v (Rodrigues; the series below |th| = 1e-4); in 2-D v <-
  * R(th) v with th[0] the angle. */
-static void rotate(int D, const double *th, double *v) {
+void mrvi_nullspace_rotate(int D, const double *th, double *v) {
   if (D == 2) {
     const double c = cos(th[0]), s = sin(th[0]), x = v[0];
     v[0] = c * x - s * v[1];
@@ -448,7 +479,8 @@ static void rotate(int D, const double *th, double *v) {
  * the left inverse of the body's null-space matrix
  * (mrvi_nullspace_body_rotation); for w^i = R d^i - d^i with R a rotation,
  * sin|th| th/|th|. */
-static void rotation_of(int D, const double *d, const double *w, double *th) {
+void mrvi_nullspace_rotation_of(int D, const double *d, const double *w,
+                                double *th) {
   th[0] = th[1] = th[2] = 0.0;
   for (int i = 0; i < D; i++) {
     const double *a = d + D * i, *b = w + D * i;
@@ -512,29 +544,38 @@ static double *fast_dirs(const mrvi_nullspace *z, const mrvi_step *st,
  * director increments w (the left inverse of P). */
 static void turn(int D, double *d, const double *w) {
   double th[3];
-  rotation_of(D, d, w, th);
+  mrvi_nullspace_rotation_of(D, d, w, th);
   for (int i = 0; i < D; i++)
-    rotate(D, th, d + D * i);
+    mrvi_nullspace_rotate(D, th, d + D * i);
 }
 
 /* d <- the frame ref turned by the rotation that takes it closest to the
  * frame w: 1/2 sum ref^i x w^i = sin|th| th/|th| for a rotation; its angle
  * from the sine (a predictor turns by much less than pi/2 in a step). */
-static void nearest_turn(int D, const double *ref, const double *w, double *d) {
-  double th[3];
-  rotation_of(D, ref, w, th);
+void mrvi_nullspace_nearest_rotation(int D, const double *ref, const double *w,
+                                     double *th) {
+  mrvi_nullspace_rotation_of(D, ref, w, th);
   const double sn = sqrt(th[0] * th[0] + th[1] * th[1] + th[2] * th[2]);
   const double f = sn > 1e-300 && sn < 1.0 ? asin(sn) / sn : 1.0;
   for (int a = 0; a < 3; a++)
     th[a] *= f;
+}
+
+static void nearest_turn(int D, const double *ref, const double *w, double *d) {
+  double th[3];
+  mrvi_nullspace_nearest_rotation(D, ref, w, th);
   for (int j = 0; j < D * D; j++)
     d[j] = ref[j];
   for (int i = 0; i < D; i++)
-    rotate(D, th, d + D * i);
+    mrvi_nullspace_rotate(D, th, d + D * i);
 }
 
 void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
                             const double *dx) {
+  if (z->tree) {
+    mrvi_nstree_retract(z->tree, st, x, dx);
+    return;
+  }
   const int D = z->dim, p = z->p;
   const double *q0;
   /* The rotated directors from the iterate, before x changes. */
@@ -567,8 +608,11 @@ void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
     }
 }
 
-void mrvi_nullspace_start(const mrvi_nullspace *z, const mrvi_step *st,
-                          double *x) {
+void mrvi_nullspace_start(mrvi_nullspace *z, const mrvi_step *st, double *x) {
+  if (z->tree) {
+    mrvi_nstree_start(z->tree, st, x);
+    return;
+  }
   const int D = z->dim;
   const double *q0;
   /* Each new node: the frame before it turned as close as can be to the
@@ -630,6 +674,8 @@ static void solve_r(int k, const double *R, double *u) {
 
 int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
                           const double *F, char *msg, size_t len) {
+  if (z->tree)
+    return mrvi_nstree_lambda(z->tree, st, x, F, msg, len);
   const mrvi_model *m = st->model;
   const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs, rk = z->rk;
   double *lam = x + st->n_unknowns;
@@ -765,6 +811,10 @@ static void fast_body_column(const mrvi_nullspace *z, int m, int j,
 
 void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
                            const double *Rfull, double *rhs) {
+  if (z->tree) {
+    mrvi_nstree_reduce(z->tree, st, Rfull, rhs);
+    return;
+  }
   const int ns = z->ns, nfc = z->nfc, r = z->r, nsc = z->nsc;
   /* Slow basis vectors b (ns each). */
   for (int i = 0; i < z->nbs; i++) {

@@ -13,9 +13,14 @@
  * are premultiplied by P^T with P^T C = 0, which removes the multipliers.
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_nullspace mrvi_nullspace;
-/* After mrvi_step_build_pattern: reduced pattern (size n_unknowns). */
+/* After mrvi_step_build_pattern: reduced pattern (size mrvi_nullspace_size).
+ * tree 1: open chains and trees of bodies in joints take the joint-reduced
+ * basis where st->tuning.nullspace_tree allows (nullspace_tree.c), whose
+ * system is larger than n_unknowns (the first n_unknowns entries of its
+ * solution are dx); 0: the numerical basis always. */
 int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
-                          mrvi_nullspace **out, char *msg, size_t len);
+                          int tree, mrvi_nullspace **out, char *msg,
+                          size_t len);
 void mrvi_nullspace_free(mrvi_nullspace *z);
 /* Multipliers lambda(x) (written to x + n_unknowns) from the residual F of
  * the full system assembled at lambda = 0; also factors the node blocks
@@ -34,8 +39,7 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
  * Newton update x -= dx with the bodies' directors rotated (th from dx), so
  * that the internal constraints hold to round-off at every iterate. */
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z);
-void mrvi_nullspace_start(const mrvi_nullspace *z, const mrvi_step *st,
-                          double *x);
+void mrvi_nullspace_start(mrvi_nullspace *z, const mrvi_step *st, double *x);
 void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
                             const double *dx);
 /* Column k (0..D(D-1)/2-1) of the rotation block of a free body's analytic
@@ -48,6 +52,43 @@ const int *mrvi_nullspace_Ap(const mrvi_nullspace *z);
 const int *mrvi_nullspace_Ai(const mrvi_nullspace *z);
 const double *mrvi_nullspace_Ax(const mrvi_nullspace *z);
 long mrvi_nullspace_nnz(const mrvi_nullspace *z);
+/* Size of the reduced system; 1 if it is the joint-reduced one. */
+int mrvi_nullspace_size(const mrvi_nullspace *z);
+int mrvi_nullspace_joint_reduced(const mrvi_nullspace *z);
+/* 1 if m's bodies and joints form open chains and trees the joint-reduced
+ * basis covers (nullspace_tree.c; constraints at micro nodes aside), else 0
+ * and why (e.g. the joint that closes a loop). */
+int mrvi_nullspace_tree_plan(const mrvi_model *m, char *why, size_t len);
+/* v <- exp(th^) v (2-D: the rotation by th[0]); th = 1/2 sum_i d^i x w^i,
+ * the left inverse of a body's null-space matrix at directors d applied to
+ * director increments w; th of the rotation that takes the frame ref
+ * closest to the frame w (nullspace.c). */
+void mrvi_nullspace_rotate(int D, const double *th, double *v);
+void mrvi_nullspace_rotation_of(int D, const double *d, const double *w,
+                                double *th);
+void mrvi_nullspace_nearest_rotation(int D, const double *ref, const double *w,
+                                     double *th);
+/* CSR view (x columns only) of the step's CSC matrix (nullspace.c). */
+int mrvi_nullspace_csr(const mrvi_step *st, int **start, int **col, int **idx);
+/* The joint-reduced basis (nullspace_tree.c), behind mrvi_nullspace_*:
+ * create returns 1 (made), 0 (does not apply: why) or a status < 0. */
+typedef struct mrvi_nstree mrvi_nstree;
+int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
+                       size_t len);
+void mrvi_nstree_free(mrvi_nstree *z);
+int mrvi_nstree_size(const mrvi_nstree *z);
+int mrvi_nstree_bodies(const mrvi_nstree *z);
+const int *mrvi_nstree_Ap(const mrvi_nstree *z);
+const int *mrvi_nstree_Ai(const mrvi_nstree *z);
+const double *mrvi_nstree_Ax(const mrvi_nstree *z);
+long mrvi_nstree_nnz(const mrvi_nstree *z);
+int mrvi_nstree_lambda(mrvi_nstree *z, mrvi_step *st, double *x,
+                       const double *F, char *msg, size_t len);
+void mrvi_nstree_reduce(mrvi_nstree *z, const mrvi_step *st, const double *R,
+                        double *rhs);
+void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
+                         const double *dx);
+void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x);
 
 /* ---------------------------------------------------------------------------
  * Newton solver: UMFPACK, or a dense LU (dense.c) for matrices of at most

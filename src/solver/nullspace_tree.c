@@ -1,0 +1,761 @@
+/* Joint-reduced null space of open chains and trees of rigid bodies
+ * (doc/multibody.md, "Joint-reduced null space for chains and trees";
+ * Betsch & Leyendecker 2006, Part II; Leyendecker, Marsden & Ortiz 2008).
+ *
+ * Every body i of dimension D moves by its twist t_i = (u_i, w_i) (D and
+ * T - D = D (D - 1) / 2 entries, T in all) through its own analytic
+ * null-space matrix, qdot_i = P_i t_i (mrvi_nullspace_body_rotation).  A
+ * joint between i and its parent a(i) (or the ground) leaves
+ *   t_i = X_i t_a + S_i nu_i,
+ * X_i carrying i rigidly with its parent (w_i = w_a, u_i = u_a + w_a x
+ * (phi_i - phi_a); X_i = 0 for a root) and S_i the joint's free directions
+ * about its point x_J, with r = phi_i - x_J: ball (w, w x r) for the three
+ * rotations, hinge (a, a x r) with a the axis fixed in the joint's body A
+ * (2-D: (J r, 1)), weld none; a body in no joint (a free root) S = I.  In
+ * tree order (parents first) (I - X) t = S nu, so the null-space matrix is
+ *   P = blkdiag(P_i) (I - X)^-1 S,
+ * dense down each subtree.  It is never formed: with
+ *   y = (I - X)^-T P_int^T (R - A dx)       (one twist y_i per body)
+ * the reduced Newton system P^T A dx = P^T R, H dx = h becomes the square
+ * sparse system
+ *   (I - X)^T y + P_int^T A dx = P_int^T R  (T rows per body),
+ *   S^T y                      = 0          (one row per joint rate),
+ *   H dx                       = h          (the constraint rows),
+ * with the rows of the coordinates outside the bodies (slow particles, the
+ * fast coordinates) as they are: (I - X)^T is block bidiagonal along the
+ * tree (a body's rows hold its own y and its children's), so the matrix has
+ * O(n) entries for n bodies and its sparse LU (UMFPACK through
+ * mrvi_newton) costs O(n) for chains and trees.  dx is the first
+ * n_unknowns entries of the solution.  P, X and S are taken at q_k, where
+ * the constraint forces dT G(q_k)^T lambda act (doc/constraints.md,
+ * "Null-space form").
+ *
+ * Multipliers lambda(x): the least-squares solution of dT G^T lambda = F on
+ * the slow rows in the metric M^-1, by the sparse Gram factor of
+ * model/constraint_gram.c (exact at the solution, where P^T F = 0).
+ *
+ * Nodal reparametrisation: a Newton update is applied body by body, parents
+ * first: each body's rotation w from its director increments (the left
+ * inverse of P_i), its turn relative to its parent projected on the joint's
+ * free rotations, its frame the parent's update times that turn, and its
+ * centre placed so that its joint point lies on the parent's (or on the
+ * ground point).  The internal constraints and the joints' points hold to
+ * round-off at every iterate; the hinge's axis rows keep the value they
+ * have at q_0. */
+#include "solver/solver.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <suitesparse/umfpack.h>
+
+#define JOINT_HEAD 2 /* params: d, bodies, then rho_A, rho_B (or p), frame */
+
+struct mrvi_nstree {
+  int D, T, nb, nu, n, ns, nf, p, n_lambda;
+  int *order;  /* tree index -> body, parents first */
+  int *parent; /* parent's tree index, -1 for a root */
+  int *joint;  /* constraint joining t to its parent or the ground; -1 free */
+  int *is_a;   /* t is its joint's body A */
+  int *motion; /* MRVI_JOINT_* of that joint, 0 for a free root */
+  int *slot;   /* slot of t's phi */
+  int *dof;    /* joint rates of t (T for a free root) */
+  int *child_start, *child; /* children of t, by tree index */
+  int *in_body;             /* per slow slot */
+  double *P, *X, *S;        /* at q_k: 2T x T, T x T, T x T per body */
+  double *qk;               /* the q_k they were taken at */
+  int have_qk;
+  mrvi_gram *gram;
+  double *qm, *pm, *mu; /* model-ordered q_k, forces, multipliers */
+  /* Rows of the extended system: combinations of the full rows (rec) and
+   * entries in the y columns (ext). */
+  int *rec_start, *rec_row, *ext_start, *ext_col;
+  double *rec_coef, *ext_coef;
+  long n_rec, n_ext, cap_rec, cap_ext;
+  int *csr_start, *csr_col, *csr_idx;
+  int *map, *Ap, *Ai;
+  double *Ax;
+  long nnz;
+  double *pos, *npos, *th, *u, *Q; /* placement: nb x D(D+1), .., 3, 3, 9 */
+};
+
+void mrvi_nstree_free(mrvi_nstree *z) {
+  if (!z)
+    return;
+  free(z->order), free(z->parent), free(z->joint), free(z->is_a);
+  free(z->motion), free(z->slot), free(z->dof), free(z->child_start);
+  free(z->child), free(z->in_body), free(z->P), free(z->X), free(z->S);
+  free(z->qk), mrvi_gram_free(z->gram), free(z->qm), free(z->pm);
+  free(z->mu), free(z->rec_start), free(z->rec_row), free(z->ext_start);
+  free(z->ext_col), free(z->rec_coef), free(z->ext_coef);
+  free(z->csr_start), free(z->csr_col), free(z->csr_idx), free(z->map);
+  free(z->Ap), free(z->Ai), free(z->Ax), free(z->pos), free(z->npos);
+  free(z->th), free(z->u), free(z->Q);
+  free(z);
+}
+
+int mrvi_nstree_size(const mrvi_nstree *z) { return z->n; }
+int mrvi_nstree_bodies(const mrvi_nstree *z) { return z->nb; }
+const int *mrvi_nstree_Ap(const mrvi_nstree *z) { return z->Ap; }
+const int *mrvi_nstree_Ai(const mrvi_nstree *z) { return z->Ai; }
+const double *mrvi_nstree_Ax(const mrvi_nstree *z) { return z->Ax; }
+long mrvi_nstree_nnz(const mrvi_nstree *z) { return z->nnz; }
+
+/* ---------------------------------------------------------------------------
+ * The forest of joints
+ * ------------------------------------------------------------------------- */
+
+static int find(int *up, int a) {
+  while (up[a] != a)
+    a = up[a] = up[up[a]];
+  return a;
+}
+
+/* Body B of joint constraint k (-1: the ground). */
+static int body_b(const mrvi_model *m, const mrvi_constraint *k, int D) {
+  return k->n_in > D * (D + 1) ? mrvi_model_body_of(m, k->in[D * (D + 1)]) : -1;
+}
+
+/* The forest, parents first (order, parent, joint: n_bodies each), or 0 and
+ * why the joint-reduced basis does not apply. */
+static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
+                char *why, size_t len) {
+  const int nb = m->n_bodies;
+  snprintf(why, len, "no joints");
+  if (nb == 0 || mrvi_model_free_bodies_only(m))
+    return 0;
+  const int D = m->bodies[0].dim;
+  for (int b = 0; b < nb; b++) {
+    const int f = m->bodies[b].first, s0 = m->slot[f];
+    if (m->bodies[b].dim != D)
+      return snprintf(why, len, "bodies of two dimensions"), 0;
+    for (int j = 0; j < D * (D + 1); j++)
+      if (m->slot[f + j] != s0 + j || m->rate[f + j] != MRVI_SLOW)
+        return snprintf(why, len, "body '%s' is fast", m->bodies[b].name), 0;
+  }
+  int *is_int = calloc((size_t)m->n_constraints + 1, sizeof *is_int);
+  int *up = malloc(((size_t)nb + 2) * sizeof *up);
+  int *adj_start = calloc((size_t)nb + 2, sizeof *adj_start);
+  int *adj = malloc(2 * ((size_t)m->n_constraints + 1) * sizeof *adj);
+  int ok = is_int && up && adj_start && adj;
+  if (!ok)
+    snprintf(why, len, "out of memory");
+  for (int b = 0; ok && b < nb; b++)
+    is_int[m->bodies[b].constraint] = 1;
+  for (int b = 0; ok && b <= nb; b++)
+    up[b] = b; /* nb: the ground */
+  /* Every other constraint a joint with a reduction, slow, no loop. */
+  for (int c = 0; ok && c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    if (is_int[c])
+      continue;
+    if (!k->type->joint_motion || k->where != MRVI_SLOW) {
+      snprintf(why, len, "constraint '%s' (%s) has no joint reduction",
+               k->label, k->type->name);
+      ok = 0;
+      break;
+    }
+    const int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
+    const int ra = find(up, a), rb = find(up, b < 0 ? nb : b);
+    if (ra == rb) {
+      snprintf(why, len, "joint '%s' closes a loop", k->label);
+      ok = 0;
+      break;
+    }
+    up[ra] = rb;
+    adj_start[a + 1]++;
+    if (b >= 0)
+      adj_start[b + 1]++;
+  }
+  if (ok) {
+    /* Joints by body (CSR), then a breadth-first walk from the bodies on
+     * the ground, then from the first body of each free part. */
+    for (int b = 0; b < nb; b++)
+      adj_start[b + 1] += adj_start[b];
+    int *fill = up; /* reused */
+    memcpy(fill, adj_start, (size_t)(nb + 1) * sizeof *fill);
+    for (int c = 0; c < m->n_constraints; c++) {
+      const mrvi_constraint *k = &m->constraints[c];
+      if (is_int[c])
+        continue;
+      const int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
+      adj[fill[a]++] = c;
+      if (b >= 0)
+        adj[fill[b]++] = c;
+    }
+    int *tree_of = is_int; /* reused: body -> tree index + 1 */
+    memset(tree_of, 0, (size_t)(m->n_constraints + 1) * sizeof *tree_of);
+    int n = 0;
+    for (int pass = 0; pass < 2; pass++)
+      for (int r = 0; r < nb; r++) {
+        if (tree_of[r])
+          continue;
+        int ground = -1;
+        for (int e = adj_start[r]; e < adj_start[r + 1]; e++)
+          if (body_b(m, &m->constraints[adj[e]], D) < 0)
+            ground = adj[e];
+        if (pass == 0 && ground < 0)
+          continue;
+        order[n] = r, parent[n] = -1, joint[n] = ground;
+        tree_of[r] = ++n;
+        for (int h = n - 1; h < n; h++) {
+          const int b = order[h];
+          for (int e = adj_start[b]; e < adj_start[b + 1]; e++) {
+            const mrvi_constraint *k = &m->constraints[adj[e]];
+            const int a = mrvi_model_body_of(m, k->in[0]);
+            const int o = a == b ? body_b(m, k, D) : a;
+            if (o < 0 || tree_of[o])
+              continue;
+            order[n] = o, parent[n] = h, joint[n] = adj[e];
+            tree_of[o] = ++n;
+          }
+        }
+      }
+  }
+  free(is_int), free(up), free(adj_start), free(adj);
+  return ok;
+}
+
+int mrvi_nullspace_tree_plan(const mrvi_model *m, char *why, size_t len) {
+  const int nb = m->n_bodies;
+  int *a = malloc(3 * ((size_t)nb + 1) * sizeof *a);
+  if (!a)
+    return snprintf(why, len, "out of memory"), 0;
+  const int ok = plan(m, a, a + nb + 1, a + 2 * (nb + 1), why, len);
+  free(a);
+  return ok;
+}
+
+/* ---------------------------------------------------------------------------
+ * Geometry at q_k
+ * ------------------------------------------------------------------------- */
+
+static void cross(const double *a, const double *b, double *c) {
+  c[0] = a[1] * b[2] - a[2] * b[1];
+  c[1] = a[2] * b[0] - a[0] * b[2];
+  c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static const double *params(const mrvi_model *m, const mrvi_nstree *z, int t) {
+  return m->constraints[z->joint[t]].params;
+}
+
+/* rho^i of tree body t's joint point in its own frame (own = 1) or in its
+ * parent's (own = 0; the ground point p for a root). */
+static const double *rho(const mrvi_model *m, const mrvi_nstree *z, int t,
+                         int own) {
+  const double *par = params(m, z, t);
+  return par + JOINT_HEAD + (own == z->is_a[t] ? 0 : z->D);
+}
+
+/* Hinge axis in space: t_1 of the joint in body A's frame on A's directors
+ * dA (D x D). */
+static void hinge_axis(const mrvi_model *m, const mrvi_nstree *z, int t,
+                       const double *dA, double *a) {
+  const int D = z->D;
+  const double *t1 = params(m, z, t) + JOINT_HEAD + 2 * D;
+  a[0] = a[1] = a[2] = 0.0;
+  for (int i = 0; i < D; i++)
+    for (int c = 0; c < D; c++)
+      a[c] += t1[i] * dA[D * i + c];
+}
+
+/* The directors of body A of t's joint among the positions pos. */
+static const double *dirs_a(const mrvi_nstree *z, int t, const double *pos) {
+  const int w = z->D * (z->D + 1);
+  return pos + (size_t)w * (z->is_a[t] ? t : z->parent[t]) + z->D;
+}
+
+/* P_t, X_t, S_t at the positions pos (nb x D(D+1), tree order). */
+static void geometry(mrvi_nstree *z, const mrvi_model *m, const double *pos) {
+  const int D = z->D, T = z->T, w = D * (D + 1);
+  for (int t = 0; t < z->nb; t++) {
+    const double *y = pos + (size_t)w * t, *d = y + D;
+    double *P = z->P + (size_t)2 * T * T * t, *X = z->X + (size_t)T * T * t;
+    double *S = z->S + (size_t)T * T * t, v[9];
+    memset(P, 0, (size_t)2 * T * T * sizeof *P);
+    for (int a = 0; a < D; a++)
+      P[a * T + a] = 1.0;
+    for (int k = 0; k < T - D; k++) {
+      mrvi_nullspace_body_rotation(D, d, k, v);
+      for (int e = 0; e < D * D; e++)
+        P[(D + e) * T + D + k] = v[e];
+    }
+    /* X: u += w x (phi_t - phi_a) */
+    memset(X, 0, (size_t)T * T * sizeof *X);
+    if (z->parent[t] >= 0) {
+      const double *ya = pos + (size_t)w * z->parent[t];
+      double r[3] = {0.0, 0.0, 0.0};
+      for (int a = 0; a < D; a++)
+        r[a] = y[a] - ya[a];
+      for (int a = 0; a < T; a++)
+        X[a * T + a] = 1.0;
+      if (D == 2) {
+        X[0 * T + 2] = -r[1];
+        X[1 * T + 2] = r[0];
+      } else {
+        X[0 * T + 4] = r[2], X[0 * T + 5] = -r[1];
+        X[1 * T + 3] = -r[2], X[1 * T + 5] = r[0];
+        X[2 * T + 3] = r[1], X[2 * T + 4] = -r[0];
+      }
+    }
+    /* S: the joint's rotations about x_J, r = phi_t - x_J = -rho^i d^i */
+    const int nd = z->dof[t];
+    memset(S, 0, (size_t)T * T * sizeof *S);
+    if (z->joint[t] < 0) {
+      for (int a = 0; a < T; a++)
+        S[a * nd + a] = 1.0;
+      continue;
+    }
+    double r[3] = {0.0, 0.0, 0.0}, axis[3][3] = {{0}};
+    const double *rh = rho(m, z, t, 1);
+    for (int i = 0; i < D; i++)
+      for (int a = 0; a < D; a++)
+        r[a] -= rh[i] * d[D * i + a];
+    if (D == 2 && nd == 1) {
+      S[0] = -r[1], S[1] = r[0], S[2] = 1.0; /* (J r, 1) */
+      continue;
+    }
+    if (z->motion[t] == MRVI_JOINT_HINGE)
+      hinge_axis(m, z, t, dirs_a(z, t, pos), axis[0]);
+    else
+      for (int k = 0; k < nd; k++)
+        axis[k][k] = 1.0;
+    for (int k = 0; k < nd; k++) {
+      double c[3];
+      cross(axis[k], r, c);
+      for (int a = 0; a < 3; a++) {
+        S[a * nd + k] = c[a];
+        S[(3 + a) * nd + k] = axis[k][a];
+      }
+    }
+  }
+}
+
+/* Positions of the bodies (tree order) from the unknowns x (increments from
+ * q0 if q0 is not NULL), or from q0 alone (x NULL). */
+static void gather(const mrvi_nstree *z, const double *x, const double *q0,
+                   double *pos) {
+  const int w = z->D * (z->D + 1);
+  for (int t = 0; t < z->nb; t++)
+    for (int e = 0; e < w; e++) {
+      const int s = z->slot[t] + e;
+      pos[(size_t)w * t + e] = (x ? x[s] : 0.0) + (q0 ? q0[s] : 0.0);
+    }
+}
+
+/* ---------------------------------------------------------------------------
+ * Creation: the forest, the recipe of the extended rows, its pattern
+ * ------------------------------------------------------------------------- */
+
+typedef struct walk {
+  mrvi_nstree *z;
+  int build, row;
+  long e, x;
+} walk;
+
+static int grow(int **a, double **c, long *cap, long n) {
+  if (n < *cap)
+    return 0;
+  const long k = *cap ? 2 * *cap : 1024;
+  int *na = realloc(*a, (size_t)k * sizeof *na);
+  if (!na)
+    return -1;
+  *a = na;
+  double *nc = realloc(*c, (size_t)k * sizeof *nc);
+  if (!nc)
+    return -1;
+  *c = nc;
+  *cap = k;
+  return 0;
+}
+
+/* Entry of the current row: c times full row `row` (x columns). */
+static int full(walk *w, int row, double c) {
+  mrvi_nstree *z = w->z;
+  if (w->build) {
+    if (grow(&z->rec_row, &z->rec_coef, &z->cap_rec, w->e) < 0)
+      return -1;
+    z->rec_row[w->e] = row;
+  }
+  z->rec_coef[w->e++] = c;
+  return 0;
+}
+
+/* Entry of the current row: c in column col (a y column). */
+static int ext(walk *w, int col, double c) {
+  mrvi_nstree *z = w->z;
+  if (w->build) {
+    if (grow(&z->ext_col, &z->ext_coef, &z->cap_ext, w->x) < 0)
+      return -1;
+    z->ext_col[w->x] = col;
+  }
+  z->ext_coef[w->x++] = c;
+  return 0;
+}
+
+static void next_row(walk *w) {
+  if (w->build) {
+    w->z->rec_start[w->row] = (int)w->e;
+    w->z->ext_start[w->row] = (int)w->x;
+  }
+  w->row++;
+}
+
+/* The extended rows in order (module header), with their coefficients at
+ * the current geometry; build: record the sources too. */
+static int rows(walk *w, const mrvi_step *st) {
+  mrvi_nstree *z = w->z;
+  const int T = z->T, nu = z->nu;
+  int s = 0;
+  for (int t = 0; t < z->nb; t++) {
+    const double *P = z->P + (size_t)2 * T * T * t;
+    for (int a = 0; a < T; a++) {
+      next_row(w);
+      for (int e = 0; e < 2 * T; e++)
+        if ((a < z->D) == (e < z->D)) /* P's zero blocks left out */
+          s |= full(w, z->slot[t] + e, P[e * T + a]);
+      s |= ext(w, nu + t * T + a, 1.0);
+      for (int h = z->child_start[t]; h < z->child_start[t + 1]; h++) {
+        const int c = z->child[h];
+        const double *X = z->X + (size_t)T * T * c;
+        for (int b = 0; b < T; b++)
+          s |= ext(w, nu + c * T + b, -X[b * T + a]);
+      }
+    }
+  }
+  for (int t = 0; t < z->nb; t++) {
+    const double *S = z->S + (size_t)T * T * t;
+    for (int j = 0; j < z->dof[t]; j++) {
+      next_row(w);
+      for (int a = 0; a < T; a++)
+        s |= ext(w, nu + t * T + a, S[a * z->dof[t] + j]);
+    }
+  }
+  for (int q = 0; q < z->ns; q++)
+    if (!z->in_body[q]) {
+      next_row(w);
+      s |= full(w, q, 1.0);
+    }
+  for (int q = z->ns; q < nu + st->n_lambda; q++) {
+    next_row(w);
+    s |= full(w, q, 1.0);
+  }
+  return s;
+}
+
+static int build_pattern(mrvi_nstree *z) {
+  long nt = z->n_ext;
+  for (long e = 0; e < z->n_rec; e++)
+    nt += z->csr_start[z->rec_row[e] + 1] - z->csr_start[z->rec_row[e]];
+  if (nt > 2147483647L)
+    return -1;
+  int *Ti = malloc((size_t)(nt + 1) * sizeof *Ti);
+  int *Tj = malloc((size_t)(nt + 1) * sizeof *Tj);
+  z->map = malloc((size_t)(nt + 1) * sizeof *z->map);
+  z->Ap = malloc(((size_t)z->n + 1) * sizeof *z->Ap);
+  z->Ai = malloc((size_t)(nt + 1) * sizeof *z->Ai);
+  if (!Ti || !Tj || !z->map || !z->Ap || !z->Ai) {
+    free(Ti), free(Tj);
+    return -1;
+  }
+  long t = 0;
+  for (int i = 0; i < z->n; i++) {
+    for (int e = z->rec_start[i]; e < z->rec_start[i + 1]; e++) {
+      const int r = z->rec_row[e];
+      for (int k = z->csr_start[r]; k < z->csr_start[r + 1]; k++)
+        Ti[t] = i, Tj[t++] = z->csr_col[k];
+    }
+    for (int e = z->ext_start[i]; e < z->ext_start[i + 1]; e++)
+      Ti[t] = i, Tj[t++] = z->ext_col[e];
+  }
+  const int status = umfpack_di_triplet_to_col(
+      z->n, z->n, (int)nt, Ti, Tj, NULL, z->Ap, z->Ai, NULL, z->map);
+  free(Ti), free(Tj);
+  if (status != UMFPACK_OK)
+    return -1;
+  z->nnz = z->Ap[z->n];
+  z->Ax = calloc((size_t)z->nnz + 1, sizeof *z->Ax);
+  return z->Ax ? 0 : -1;
+}
+
+int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
+                       size_t len) {
+  const mrvi_model *m = st->model;
+  *out = NULL;
+  if (st->r_micro > 0)
+    return snprintf(why, len, "constraints at micro nodes"), 0;
+  mrvi_nstree *z = calloc(1, sizeof *z);
+  if (!z)
+    return MRVI_ENOMEM;
+  const int nb = m->n_bodies;
+  const size_t B = (size_t)nb + 1;
+  z->nb = nb;
+  z->order = malloc(B * sizeof(int));
+  z->parent = malloc(B * sizeof(int));
+  z->joint = malloc(B * sizeof(int));
+  if (!z->order || !z->parent || !z->joint)
+    goto oom;
+  if (!plan(m, z->order, z->parent, z->joint, why, len)) {
+    mrvi_nstree_free(z);
+    return 0;
+  }
+  const int D = m->bodies[0].dim, T = D * (D + 1) / 2, w = D * (D + 1);
+  z->D = D, z->T = T;
+  z->ns = st->ns, z->nf = st->nf, z->p = st->p;
+  z->nu = st->n_unknowns, z->n_lambda = st->n_lambda;
+  z->n = z->nu + nb * T;
+  z->is_a = calloc(B, sizeof(int));
+  z->motion = calloc(B, sizeof(int));
+  z->slot = malloc(B * sizeof(int));
+  z->dof = malloc(B * sizeof(int));
+  z->child_start = calloc(B + 1, sizeof(int));
+  z->child = malloc(B * sizeof(int));
+  z->in_body = calloc((size_t)st->ns + 1, sizeof(int));
+  z->P = malloc(B * 2 * T * T * sizeof(double));
+  z->X = malloc(B * T * T * sizeof(double));
+  z->S = malloc(B * T * T * sizeof(double));
+  z->qk = malloc(((size_t)st->ns + 1) * sizeof(double));
+  z->qm = calloc((size_t)m->n + 1, sizeof(double));
+  z->pm = calloc((size_t)m->n + 1, sizeof(double));
+  z->mu = calloc((size_t)m->constraint_rows + 1, sizeof(double));
+  z->pos = malloc(B * w * sizeof(double));
+  z->npos = malloc(B * w * sizeof(double));
+  z->th = malloc(B * 3 * sizeof(double));
+  z->u = malloc(B * 3 * sizeof(double));
+  z->Q = malloc(B * 9 * sizeof(double));
+  z->rec_start = malloc(((size_t)z->n + 1) * sizeof(int));
+  z->ext_start = malloc(((size_t)z->n + 1) * sizeof(int));
+  if (!z->is_a || !z->motion || !z->slot || !z->dof || !z->child_start ||
+      !z->child || !z->in_body || !z->P || !z->X || !z->S || !z->qk || !z->qm ||
+      !z->pm || !z->mu || !z->pos || !z->npos || !z->th || !z->u || !z->Q ||
+      !z->rec_start || !z->ext_start)
+    goto oom;
+  for (int t = 0; t < nb; t++) {
+    const mrvi_body *bd = &m->bodies[z->order[t]];
+    z->slot[t] = m->slot[bd->first];
+    for (int e = 0; e < w; e++)
+      z->in_body[z->slot[t] + e] = 1;
+    z->dof[t] = T;
+    if (z->joint[t] < 0)
+      continue;
+    const mrvi_constraint *k = &m->constraints[z->joint[t]];
+    z->is_a[t] = mrvi_model_body_of(m, k->in[0]) == z->order[t];
+    z->motion[t] = k->type->joint_motion;
+    z->dof[t] = z->motion[t] == MRVI_JOINT_WELD   ? 0
+                : z->motion[t] == MRVI_JOINT_BALL ? T - D
+                                                  : 1;
+    if (z->parent[t] >= 0)
+      z->child_start[z->parent[t] + 1]++;
+  }
+  for (int t = 0; t < nb; t++)
+    z->child_start[t + 1] += z->child_start[t];
+  int *fill = malloc(B * sizeof *fill);
+  if (!fill)
+    goto oom;
+  memcpy(fill, z->child_start, B * sizeof *fill);
+  for (int t = 0; t < nb; t++)
+    if (z->parent[t] >= 0)
+      z->child[fill[z->parent[t]]++] = t;
+  free(fill);
+  for (int i = 0; i < m->n; i++)
+    z->qm[i] = m->q0[i];
+  if (mrvi_gram_create(m, &z->gram) < 0 ||
+      mrvi_nullspace_csr(st, &z->csr_start, &z->csr_col, &z->csr_idx) < 0)
+    goto oom;
+  gather(z, NULL, st->qs0, z->pos);
+  geometry(z, m, z->pos);
+  walk wk = {z, 1, 0, 0, 0};
+  if (rows(&wk, st) < 0)
+    goto oom;
+  if (wk.row != z->n) {
+    mrvi_nstree_free(z);
+    return snprintf(why, len,
+                    "the joints' rows (%d) do not match the bodies' "
+                    "coordinates",
+                    st->n_lambda),
+           0;
+  }
+  z->rec_start[z->n] = (int)wk.e;
+  z->ext_start[z->n] = (int)wk.x;
+  z->n_rec = wk.e, z->n_ext = wk.x;
+  if (build_pattern(z) < 0)
+    goto oom;
+  *out = z;
+  return 1;
+oom:
+  mrvi_nstree_free(z);
+  return MRVI_ENOMEM;
+}
+
+/* ---------------------------------------------------------------------------
+ * Multipliers and the reduced system
+ * ------------------------------------------------------------------------- */
+
+int mrvi_nstree_lambda(mrvi_nstree *z, mrvi_step *st, double *x,
+                       const double *F, char *msg, size_t len) {
+  const mrvi_model *m = st->model;
+  /* P, X, S and the Gram factor at q_k, when q_k is new. */
+  if (!z->have_qk ||
+      memcmp(z->qk, st->qs0, (size_t)z->ns * sizeof *z->qk) != 0) {
+    memcpy(z->qk, st->qs0, (size_t)z->ns * sizeof *z->qk);
+    for (int s = 0; s < z->ns; s++)
+      z->qm[m->slow_index[s]] = st->qs0[s];
+    gather(z, NULL, st->qs0, z->pos);
+    geometry(z, m, z->pos);
+    if (mrvi_gram_factor(z->gram, m, z->qm) < 0) {
+      z->have_qk = 0;
+      return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                       "null-space form: the joints' constraint gradients are "
+                       "dependent");
+    }
+    z->have_qk = 1;
+  }
+  /* dT G^T lambda = F on the slow rows, least squares in M^-1. */
+  for (int s = 0; s < z->ns; s++)
+    z->pm[m->slow_index[s]] = F[s];
+  mrvi_gram_project(z->gram, m, z->pm, z->mu);
+  double *lam = x + z->nu;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    for (int r = 0; r < k->rows; r++)
+      lam[st->c_off[c] + r] = z->mu[k->first_row + r] / st->dT;
+  }
+  return MRVI_OK;
+}
+
+void mrvi_nstree_reduce(mrvi_nstree *z, const mrvi_step *st,
+                        const double *Rfull, double *rhs) {
+  walk wk = {z, 0, 0, 0, 0};
+  rows(&wk, st);
+  memset(z->Ax, 0, (size_t)z->nnz * sizeof *z->Ax);
+  long t = 0;
+  for (int i = 0; i < z->n; i++) {
+    double s = 0.0;
+    for (int k = z->rec_start[i]; k < z->rec_start[i + 1]; k++) {
+      const int row = z->rec_row[k];
+      const double c = z->rec_coef[k];
+      s += c * Rfull[row];
+      for (int q = z->csr_start[row]; q < z->csr_start[row + 1]; q++)
+        z->Ax[z->map[t++]] += c * st->Ax[z->csr_idx[q]];
+    }
+    for (int k = z->ext_start[i]; k < z->ext_start[i + 1]; k++)
+      z->Ax[z->map[t++]] += z->ext_coef[k];
+    rhs[i] = s;
+  }
+}
+
+/* ---------------------------------------------------------------------------
+ * Nodal reparametrisation
+ * ------------------------------------------------------------------------- */
+
+/* c = a b (D x D, row-major). */
+static void matmul(int D, const double *a, const double *b, double *c) {
+  for (int i = 0; i < D; i++)
+    for (int j = 0; j < D; j++) {
+      double s = 0.0;
+      for (int k = 0; k < D; k++)
+        s += a[i * D + k] * b[k * D + j];
+      c[i * D + j] = s;
+    }
+}
+
+/* The bodies from the base positions z->pos turned by z->th and (free
+ * roots) moved by z->u, parents first (module header), written to x
+ * (increments from q0 if not NULL). */
+static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
+                  const double *q0) {
+  const int D = z->D, w = D * (D + 1);
+  for (int t = 0; t < z->nb; t++) {
+    const double *b = z->pos + (size_t)w * t;
+    double *nw = z->npos + (size_t)w * t, *Q = z->Q + 9 * t;
+    const int pa = z->parent[t];
+    double th[3], E[9], I[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    if (D == 2)
+      I[2] = 0.0, I[3] = 1.0; /* 2 x 2 identity */
+    const double *Qp = pa >= 0 ? z->Q + 9 * pa : I;
+    for (int a = 0; a < 3; a++)
+      th[a] = z->th[3 * t + a] - (pa >= 0 ? z->th[3 * pa + a] : 0.0);
+    if (z->joint[t] >= 0 && z->motion[t] == MRVI_JOINT_WELD)
+      th[0] = th[1] = th[2] = 0.0;
+    if (z->joint[t] >= 0 && z->motion[t] == MRVI_JOINT_HINGE && D == 3) {
+      double a[3];
+      hinge_axis(m, z, t, dirs_a(z, t, z->pos), a);
+      const double f = (th[0] * a[0] + th[1] * a[1] + th[2] * a[2]) /
+                       (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+      for (int c = 0; c < 3; c++)
+        th[c] = f * a[c];
+    }
+    /* E = exp(th^) by columns; Q_t = Q_parent E */
+    for (int k = 0; k < D; k++) {
+      double v[3] = {0.0, 0.0, 0.0};
+      v[k] = 1.0;
+      mrvi_nullspace_rotate(D, th, v);
+      for (int i = 0; i < D; i++)
+        E[i * D + k] = v[i];
+    }
+    matmul(D, Qp, E, Q);
+    for (int i = 0; i < D; i++)
+      for (int a = 0; a < D; a++) {
+        double s = 0.0;
+        for (int c = 0; c < D; c++)
+          s += Q[a * D + c] * b[D + D * i + c];
+        nw[D + D * i + a] = s;
+      }
+    if (z->joint[t] < 0) {
+      for (int a = 0; a < D; a++)
+        nw[a] = b[a] + z->u[3 * t + a];
+    } else {
+      /* phi = x_J - rho^i d^i, x_J the parent's point (or the ground's) */
+      const double *rp = rho(m, z, t, 0), *rc = rho(m, z, t, 1);
+      const double *yp = pa >= 0 ? z->npos + (size_t)w * pa : NULL;
+      for (int a = 0; a < D; a++) {
+        double xj = yp ? yp[a] : rp[a];
+        for (int i = 0; yp && i < D; i++)
+          xj += rp[i] * yp[D + D * i + a];
+        for (int i = 0; i < D; i++)
+          xj -= rc[i] * nw[D + D * i + a];
+        nw[a] = xj;
+      }
+    }
+    for (int e = 0; e < w; e++)
+      x[z->slot[t] + e] = nw[e] - (q0 ? q0[z->slot[t] + e] : 0.0);
+  }
+}
+
+void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
+                         const double *dx) {
+  const int D = z->D;
+  const double *q0 = st->increments ? st->qs0 : NULL;
+  gather(z, x, q0, z->pos);
+  /* Each body's turn and shift from dx: th = 1/2 sum d^i x (-dd^i). */
+  for (int t = 0; t < z->nb; t++) {
+    const double *d = z->pos + (size_t)D * (D + 1) * t + D;
+    const double *v = dx + z->slot[t];
+    double wv[9];
+    for (int e = 0; e < D * D; e++)
+      wv[e] = -v[D + e];
+    mrvi_nullspace_rotation_of(D, d, wv, z->th + 3 * t);
+    for (int a = 0; a < D; a++)
+      z->u[3 * t + a] = -v[a];
+  }
+  for (int s = 0; s < z->nu; s++)
+    x[s] -= dx[s];
+  place(z, st->model, x, q0);
+}
+
+void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
+  const int D = z->D, w = D * (D + 1);
+  const double *q0 = st->increments ? st->qs0 : NULL;
+  /* The predictor's turns and shifts from q_k. */
+  gather(z, x, q0, z->npos);
+  gather(z, NULL, st->qs0, z->pos);
+  for (int t = 0; t < z->nb; t++) {
+    const double *b = z->pos + (size_t)w * t, *pr = z->npos + (size_t)w * t;
+    mrvi_nullspace_nearest_rotation(D, b + D, pr + D, z->th + 3 * t);
+    for (int a = 0; a < D; a++)
+      z->u[3 * t + a] = pr[a] - b[a];
+  }
+  place(z, st->model, x, q0);
+}
