@@ -770,8 +770,9 @@ typedef struct mrvi_settings {
   /* Threads of the element loops (OpenMP; doc/performance.md, "Threads"):
    * 1 (default) none, 0 the cores this process may use.  Results are the
    * same bit for bit for every count.  The default is 1 because the
-   * threaded loops do not pay yet (doc/performance.md, "Threads").  Above 1 in a build without OpenMP,
-   * mrvi_settings_check refuses it (mrvi_threads_supported). */
+   * threaded loops do not pay yet (doc/performance.md, "Threads").  Above 1 in
+   * a build without OpenMP, mrvi_settings_check refuses it
+   * (mrvi_threads_supported). */
   int threads;
   /* 1: mrvi_run's steps keep the last fast micro node alone
    * (mrvi_integrator_keep_micro): its observers see micro_count 1, the new
