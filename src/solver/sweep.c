@@ -92,7 +92,8 @@ struct mrvi_sweep {
    * bound chord_jacobi_max; dprev: the iterate before a chord update;
    * fhist: the converged implicit forces of the two rows before the last.
    * fresh: W's class is springs and anchors alone, so that row 0 takes
-   * the chord from its start (chord_residual's D and bound: hd, off). */
+   * the chord from its start (chord_residual's D and bound, hd and off
+   * its workspace). */
   double *jdinv, *dprev, *fhist[2], *hd, *off;
   int mild, chord, fresh;
   double chord_max;
@@ -701,11 +702,12 @@ static void chord_setup(mrvi_sweep *sw) {
  * configuration sw->zf the update has set (zf_ok) or is set here: the
  * gradient, the implicit force and F in one pass over the row (the
  * arithmetic of implicit_force and of the residual in solve_implicit).
- * With rho (row 0, sw->fresh), D = diag J at this iterate as well
- * (bitwise the diagonal of the J that Newton would assemble there), and,
- * where rho is not NULL, the Gershgorin bound of chord_setup from the
- * elements' off-diagonal entries (an upper bound of the assembled
- * matrix's: no assembly). */
+ * With fresh (row 0's first iterate, sw->fresh), D = diag J at this
+ * iterate as well (bitwise the diagonal of the J that Newton would
+ * assemble there) and, in rho, the Gershgorin bound of chord_setup from
+ * the elements' off-diagonal entries (at least the assembled matrix's: no
+ * assembly).  A fresh D at every update contracted no faster and cost
+ * more (doc/performance.md, "explicit-slow: micro step 0 on the chord"). */
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
                              int zf_ok, int fresh, double *rho) {
   const int nf = sw->nf, i = sw->imp;
@@ -716,21 +718,16 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
   if (fresh) {
     zero(g, nf);
     zero(sw->hd, nf);
-    if (rho)
-      zero(sw->off, nf);
-    mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, sw->hd,
-                          rho ? sw->off : NULL,
+    zero(sw->off, nf);
+    mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, sw->hd, sw->off,
                           sw->w[i] * sw->cA[i] * sw->cB[i]);
     double bound = 0.0;
     for (int f = 0; f < nf; f++) { /* (M/dt added as mrvi_sblock_solve) */
       const double d = sw->hd[f] + (1.0 / dt) * sw->m_f[f];
-      if (d > 0.0)
-        sw->jdinv[f] = 1.0 / d;
-      if (rho)
-        bound = d > 0.0 ? fmax(bound, sw->off[f] * sw->jdinv[f]) : HUGE_VAL;
+      sw->jdinv[f] = 1.0 / d;
+      bound = d > 0.0 ? fmax(bound, sw->off[f] * sw->jdinv[f]) : HUGE_VAL;
     }
-    if (rho)
-      *rho = bound;
+    *rho = bound;
   } else {
     fast_gradient(sw, sw->zf, g, nf);
   }
@@ -835,9 +832,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     double r = 0.0;
     if (chord && sw->imp >= 0) {
       double rho = 0.0;
-      const int fresh = first && sw->fresh;
-      r = chord_residual(sw, qm, dn, zf_ok, fresh,
-                         fresh && it == 0 ? &rho : NULL);
+      r = chord_residual(sw, qm, dn, zf_ok, first && sw->fresh && it == 0,
+                         &rho);
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
         with_j = 1;
