@@ -278,8 +278,7 @@ static void test_agree(void) {
       /* (explicit-slow at p = 5: the Jacobi chord in every row, row 0's
        * too, no CG; at p = 1 its bound fails and Newton's CG runs) */
       if (agree(text, schemes[sc], p, 0.01, 20, want[sc], &b))
-        CHECK((b.ks.cg_solves > 0) == (sc > 0 || p == 1) &&
-                  b.ks.fallbacks == 0,
+        CHECK((b.ks.cg_solves > 0) == (sc > 0 || p == 1) && b.ks.fallbacks == 0,
               "%s p=%d: %ld CG solves, %ld fallbacks (%s)", schemes[sc], p,
               b.ks.cg_solves, b.ks.fallbacks, b.ks.fallback_reason);
     }
@@ -338,8 +337,8 @@ static void test_iterations(void) {
     run(s, 10, &t);
     if (t.ok) {
       const mrvi_krylov_stats *k = &t.ks;
-      CHECK(sc == 0 || (k->cg_solves > 0 && k->cg_max <= bound &&
-                        k->cg_max <= 30),
+      CHECK(sc == 0 ||
+                (k->cg_solves > 0 && k->cg_max <= bound && k->cg_max <= 30),
             "%s (%s): CG at most %d iterations per block solve (bound %d "
             "from omega_max %.1f)",
             schemes[sc], t.path, k->cg_max, bound, w);
@@ -366,8 +365,7 @@ static void test_iterations(void) {
              "per solve; GMRES max %d; Newton max %d\n",
              schemes[sc], t.path, w, k->cg_max, bound,
              (double)k->cg_iterations / fmax(1.0, (double)k->cg_solves),
-             k->gmres_max,
-             t.max_iter);
+             k->gmres_max, t.max_iter);
     }
     release(&t);
     mrvi_system_free(s);

@@ -432,7 +432,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H ||
-      !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->fhist[0] || !sw->fhist[1]) {
+      !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->fhist[0] ||
+      !sw->fhist[1]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }

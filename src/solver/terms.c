@@ -1127,9 +1127,10 @@ ALWAYS_INLINE void spring_hdiag(const kspring *q, const double *z, double *g,
   }
 }
 
-static __attribute__((noinline)) void
-springs_hdiag(const kspring *q, int nr, const double *z, double *g, double *hd,
-              double *off, double hscale, int dim) {
+static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
+                                                    const double *z, double *g,
+                                                    double *hd, double *off,
+                                                    double hscale, int dim) {
 #define SPRINGS_HD(D, T)                                                       \
   for (int r = 0; r < nr; r++)                                                 \
     spring_hdiag(q + r, z, g, hd, off, hscale, D, T);
