@@ -703,9 +703,10 @@ typedef enum mrvi_newton_criterion {
     "... or, the tolerance met, where a full Newton update left more than "    \
     "this fraction of the residual (the rounding floor; 0: off)")              \
   X(double, chord_jacobi_max, 0.1, 0.0, 1.0,                                   \
-    "sweep-cg: the micro steps after a step's first take Jacobi updates "      \
-    "(diagonal of its first Newton matrix) where their Gershgorin bound, "     \
-    "and each update's residual ratio, is at most this (0: Newton)")           \
+    "sweep-cg: the micro steps take Jacobi updates (diagonal of micro step "   \
+    "0's Newton matrix; micro step 0 itself where W is springs and anchors "   \
+    "alone, else after its first Newton update) where their Gershgorin "       \
+    "bound, and each update's residual ratio, is at most this (0: Newton)")    \
   X(int, dense_max, 64, 0, 1000000,                                            \
     "largest block (fast, and slow on schur) solved densely; beyond: "         \
     "sweep-cg and schur-krylov")                                               \

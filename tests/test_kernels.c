@@ -256,6 +256,33 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
               memcmp(g, gr, (size_t)n * sizeof *g) == 0,
           "d %d %s (%g): sparse kernel bitwise the generic scatter", d, lc->law,
           lc->params[1]);
+    /* The gradient with the Hessian's diagonal and off-diagonal row sums
+     * (mrvi_terms_grad_hdiag, sweep-cg's chord): the gradient and the
+     * diagonal bitwise those assembled (column f of the values by a product
+     * with e_f), the row sums at least the assembled ones. */
+    CHECK(mrvi_terms_springs_only(kc), "d %d %s: springs alone", d, lc->law);
+    for (int i = 0; i < n; i++)
+      gp[i] = gm[i] = qh[i] = 0.0;
+    mrvi_terms_grad_hdiag(kc, q, gp, gm, qh, hscale);
+    int diag_same = memcmp(g, gp, (size_t)n * sizeof *g) == 0, off_ok = 1;
+    for (int f = 0; f < n; f++) {
+      for (int i = 0; i < n; i++)
+        v[i] = i == f;
+      mrvi_sblock_matvec(sb, v, Hv);
+      double os = 0.0;
+      for (int i = 0; i < n; i++)
+        os += i == f ? 0.0 : fabs(Hv[i]);
+      diag_same = diag_same && Hv[f] == gm[f];
+      off_ok = off_ok && os <= qh[f] * (1.0 + 1e-14);
+    }
+    CHECK(diag_same && off_ok,
+          "d %d %s (%g): fresh diagonal bitwise the assembled (%d), row "
+          "sums bound the assembled (%d)",
+          d, lc->law, lc->params[1], diag_same, off_ok);
+    for (int i = 0; i < n; i++) {
+      v[i] = uniform(rng);
+      gp[i] = gm[i] = Hv[i] = 0.0;
+    }
     /* H v from the values against central differences of the gradient
      * along v. */
     const double h = 1e-7; /* (error h^2 phi''' against round-off / h) */

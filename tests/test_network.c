@@ -275,8 +275,10 @@ static void test_agree(void) {
     for (int pi = 0; pi < 2; pi++) {
       const int p = pi ? 5 : 1;
       trajectory b;
+      /* (explicit-slow at p = 5: the Jacobi chord in every row, row 0's
+       * too, no CG; at p = 1 its bound fails and Newton's CG runs) */
       if (agree(text, schemes[sc], p, 0.01, 20, want[sc], &b))
-        CHECK(b.ks.cg_solves > 0 && b.ks.fallbacks == 0,
+        CHECK((b.ks.cg_solves > 0) == (sc > 0 || p == 1) && b.ks.fallbacks == 0,
               "%s p=%d: %ld CG solves, %ld fallbacks (%s)", schemes[sc], p,
               b.ks.cg_solves, b.ks.fallbacks, b.ks.fallback_reason);
     }
@@ -335,34 +337,35 @@ static void test_iterations(void) {
     run(s, 10, &t);
     if (t.ok) {
       const mrvi_krylov_stats *k = &t.ks;
-      CHECK(k->cg_solves > 0 && k->cg_max <= bound && k->cg_max <= 30,
+      CHECK(sc == 0 ||
+                (k->cg_solves > 0 && k->cg_max <= bound && k->cg_max <= 30),
             "%s (%s): CG at most %d iterations per block solve (bound %d "
             "from omega_max %.1f)",
             schemes[sc], t.path, k->cg_max, bound, w);
       CHECK(sc == 0 || (k->gmres_solves > 0 && k->gmres_max <= 6),
             "%s: GMRES at most %d iterations per solve", schemes[sc],
             k->gmres_max);
-      /* sweep-cg: row 0 one Newton update; rows 1..p-1 Jacobi chord
-       * updates, each contracting the residual by at most the Jacobi
-       * iteration's spectral radius 2a/(1 - a) (the off-diagonal part of
-       * (dt^2/4) H is at most 2a in norm, the diagonal of J at least
-       * (1 - a)/dt), from a predictor residual at most 2e-2 (the held
-       * force's, above; the extrapolation only lowers it); CG only in
-       * row 0's first update.  schur-krylov: 2 Newton updates. */
+      /* sweep-cg: Jacobi chord updates in every row (row 0's too: its
+       * bound holds at the first iterate), each contracting the residual
+       * by at most the Jacobi iteration's spectral radius 2a/(1 - a) (the
+       * off-diagonal part of (dt^2/4) H is at most 2a in norm, the
+       * diagonal of J at least (1 - a)/dt), from a predictor residual at
+       * most 2e-2 (the held force's, above; the extrapolation only lowers
+       * it); no CG.  schur-krylov: 2 Newton updates. */
       const double rj = 2.0 * a / (1.0 - a);
       const int chord_bound = (int)ceil(log(1e-9 / 2e-2) / log(rj));
       const int nbound = sc == 0 ? chord_bound : 2;
       CHECK(t.max_iter <= nbound && k->fallbacks == 0,
             "%s: %d updates at most (bound %d), %ld fallbacks", schemes[sc],
             t.max_iter, nbound, k->fallbacks);
-      CHECK(sc == 1 || k->cg_solves == 10,
-            "%s: %ld CG solves in 10 steps (row 0's first update alone)",
+      CHECK(sc == 1 || k->cg_solves == 0,
+            "%s: %ld CG solves in 10 steps (the chord from row 0 on)",
             schemes[sc], k->cg_solves);
       printf("%s 30x30 (%s): omega_max %.1f, CG max %d (bound %d), %.2f "
              "per solve; GMRES max %d; Newton max %d\n",
              schemes[sc], t.path, w, k->cg_max, bound,
-             (double)k->cg_iterations / (double)k->cg_solves, k->gmres_max,
-             t.max_iter);
+             (double)k->cg_iterations / fmax(1.0, (double)k->cg_solves),
+             k->gmres_max, t.max_iter);
     }
     release(&t);
     mrvi_system_free(s);
@@ -471,8 +474,9 @@ static void test_many_gmres(void) {
  * lattice (fast springs k = 2500 in chains along x): with unit masses its
  * Gershgorin bound is rho = (dt k / 2) / (1/dt + dt k / 2) = 0.043 at dt =
  * 0.006 (dT = 0.03, p = 5) and 0.111 at dt = 0.01 (dT = 0.05).  Below the
- * default bound 0.1 every update but row 0's first is a chord update (one
- * CG solve a step); above it Newton in every row (a CG solve each); with the
+ * default bound 0.1 every update is a chord update, row 0's first too (its
+ * bound from the elements' entries at its first iterate: no CG solve);
+ * above it Newton in every row (a CG solve each); with the
  * bound raised to 0.5 and 8 iterations allowed, the chord (contracting by
  * about 0.11 from a residual of about 1e-2) cannot reach 1e-12 in the 4
  * updates it may take, so Newton takes over in those rows.  Every case
@@ -481,7 +485,7 @@ static void test_chord(void) {
   char *text = lattice(10, 8);
   const struct {
     double dT, bound;
-    int max_iter, chord; /* chord: expected in every row after the first */
+    int max_iter, chord; /* chord: expected in every row */
   } cases[] = {{0.03, 0.1, 20, 1}, {0.05, 0.1, 20, 0}, {0.05, 0.5, 8, 0}};
   const int steps = 10, p = 5;
   for (int c = 0; c < 3; c++) {
@@ -500,7 +504,7 @@ static void test_chord(void) {
         const double d = rel_diff(&a, &b);
         const long cg = b.ks.cg_solves;
         CHECK(d <= 1e-10, "chord case %d: vs general %.2e", c, d);
-        CHECK(cases[c].chord ? cg == steps : cg > 2 * steps,
+        CHECK(cases[c].chord ? cg == 0 : cg > 2 * steps,
               "chord case %d (dT %g, bound %g): %ld CG solves in %d steps "
               "of %d rows",
               c, cases[c].dT, cases[c].bound, cg, steps, p);

@@ -296,6 +296,17 @@ void mrvi_terms_grad_d2(const mrvi_terms *kc, const double *z, double *g,
                         double w, double *dsum);
 void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
                         int ld, int lim);
+/* Whether every term of kc is a spring or an anchor; for such a class,
+ * g += grad Z(z) (spring_eval's products: mrvi_terms_grad's gradient,
+ * bitwise) and hd += hscale times the diagonal of hess Z(z): the diagonal
+ * mrvi_terms_eval_sparse adds with the same hscale, bitwise (the same
+ * products summed in the same order); unless off is NULL, off += each
+ * row's sum of |hscale x| over the elements' off-diagonal Hessian entries
+ * x (at least the assembled matrix's off-diagonal row sum: a Gershgorin
+ * bound without the assembly). */
+int mrvi_terms_springs_only(const mrvi_terms *kc);
+void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
+                           double *hd, double *off, double hscale);
 /* g += grad Z(z) and hscale times each element's Hessian added into the
  * values Ax of a sparse matrix: entry k of element i's n_in x n_in Hessian
  * (row-major; i in the order of elems) into Ax[emap[off[i] + k]], left

@@ -85,13 +85,17 @@ struct mrvi_sweep {
   double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
   mrvi_sblock *sb; /* sparse J instead (nf > dense_max) */
-  /* sweep-cg's Jacobi chord (chord_setup): 1 / diag J of row 0's first
-   * Newton matrix, mild (this step's rows extrapolate their predictor),
+  /* sweep-cg's Jacobi chord (chord_setup, or chord_residual from row 0's
+   * start): 1 / diag J of row 0's first Newton matrix (or of its last
+   * chord iterate), mild (this step's rows extrapolate their predictor),
    * chord (they update by it; cleared where it contracts poorly), the
    * bound chord_jacobi_max; dprev: the iterate before a chord update;
-   * fhist: the converged implicit forces of the two rows before the last. */
-  double *jdinv, *dprev, *fhist[2];
-  int mild, chord;
+   * fhist: the converged implicit forces of the two rows before the last.
+   * fresh: W's class is springs and anchors alone, so that row 0 takes
+   * the chord from its start (chord_residual's D and bound, hd and off
+   * its workspace). */
+  double *jdinv, *dprev, *fhist[2], *hd, *off;
+  int mild, chord, fresh;
   double chord_max;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   double *y, *g, *H; /* element workspace */
@@ -215,9 +219,10 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
     mrvi_fmt(why, len,
              "macro-grid slow rule: explicit slow update and a sweep of %d "
              "implicit micro steps of size %d (beyond the dense limit %d): "
-             "a step's first update by Newton with Jacobi-preconditioned "
-             "CG, the later ones by Jacobi chord updates where they "
-             "contract (chord_jacobi_max)",
+             "Jacobi chord updates where they contract "
+             "(chord_jacobi_max), else Newton with Jacobi-preconditioned "
+             "CG (a step's first update, where W is not springs and "
+             "anchors alone)",
              s->micro_steps, m->n_fast, dense_max);
     return MRVI_PATH_SWEEP_CG;
   }
@@ -278,6 +283,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->piv);
   mrvi_sblock_free(sw->sb);
   free(sw->jdinv);
+  free(sw->hd);
+  free(sw->off);
   free(sw->dprev);
   free(sw->fhist[0]);
   free(sw->fhist[1]);
@@ -391,6 +398,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
   sw->chord_max = s->tuning.chord_jacobi_max;
   sw->jdinv = dalloc(sparse ? nf : 1);
+  sw->fresh = sparse && mrvi_terms_springs_only(sw->kc[MRVI_FAST]);
+  sw->hd = dalloc(sw->fresh ? nf : 1);
+  sw->off = dalloc(sw->fresh ? nf : 1);
   sw->dprev = dalloc(sparse ? nf : 1);
   sw->fhist[0] = dalloc(sparse ? nf : 1);
   sw->fhist[1] = dalloc(sparse ? nf : 1);
@@ -422,7 +432,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H ||
-      !sw->jdinv || !sw->dprev || !sw->fhist[0] || !sw->fhist[1]) {
+      !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->fhist[0] ||
+      !sw->fhist[1]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -691,15 +702,36 @@ static void chord_setup(mrvi_sweep *sw) {
 /* The row residual of a chord iterate with one implicit point, whose
  * configuration sw->zf the update has set (zf_ok) or is set here: the
  * gradient, the implicit force and F in one pass over the row (the
- * arithmetic of implicit_force and of the residual in solve_implicit). */
+ * arithmetic of implicit_force and of the residual in solve_implicit).
+ * With fresh (row 0's first iterate, sw->fresh), D = diag J at this
+ * iterate as well (bitwise the diagonal of the J that Newton would
+ * assemble there) and, in rho, the Gershgorin bound of chord_setup from
+ * the elements' off-diagonal entries (at least the assembled matrix's: no
+ * assembly).  A fresh D at every update contracted no faster and cost
+ * more (doc/performance.md, "explicit-slow: micro step 0 on the chord"). */
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
-                             int zf_ok) {
+                             int zf_ok, int fresh, double *rho) {
   const int nf = sw->nf, i = sw->imp;
   const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i];
   double *g = sw->gpt[i];
   if (!zf_ok)
     set_zf(sw, 1.0, qm, sw->cB[i], dn);
-  fast_gradient(sw, sw->zf, g, nf);
+  if (fresh) {
+    zero(g, nf);
+    zero(sw->hd, nf);
+    zero(sw->off, nf);
+    mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, sw->hd, sw->off,
+                          sw->w[i] * sw->cA[i] * sw->cB[i]);
+    double bound = 0.0;
+    for (int f = 0; f < nf; f++) { /* (M/dt added as mrvi_sblock_solve) */
+      const double d = sw->hd[f] + (1.0 / dt) * sw->m_f[f];
+      sw->jdinv[f] = 1.0 / d;
+      bound = d > 0.0 ? fmax(bound, sw->off[f] * sw->jdinv[f]) : HUGE_VAL;
+    }
+    *rho = bound;
+  } else {
+    fast_gradient(sw, sw->zf, g, nf);
+  }
   /* Two entries at a time (util/simd.h: each lane the scalar operations
    * below); the largest |F| rw by v2_max, which passes over NaN, so NaN is
    * found by the sum of the entries instead, which it poisons. */
@@ -756,8 +788,11 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
    * and the first iteration falls back to dn0 where the estimate's
    * residual is larger. */
   double r0 = HUGE_VAL;
+  /* Row 0 takes the chord from its start where W is springs and anchors
+   * alone and the bound at its first iterate holds (chord_residual),
+   * else Newton, whose first matrix decides (chord_setup). */
   if (first)
-    sw->mild = sw->chord = 0;
+    sw->mild = sw->chord = sw->fresh && sw->imp >= 0 && sw->chord_max > 0.0;
   if (!first && sw->sb) {
     extrapolated_predictor(sw, m, dn);
   } else {
@@ -788,7 +823,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
    * (the first iterate), else the residual alone and J only where that
    * residual misses the tolerance (a second evaluation, the same values):
    * a micro step that converges in one update assembles J once. */
-  int chord = sw->chord && !first, with_j = !chord, min_it = 1, zf_ok = 0;
+  int chord = sw->chord, with_j = !chord, min_it = 1, zf_ok = 0;
   double r_prev = HUGE_VAL;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
@@ -797,7 +832,15 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     /* F = rhs - M (qn - qm)/dt - sum w cA grad W(z); J = M/dt + w cA cB H. */
     double r = 0.0;
     if (chord && sw->imp >= 0) {
-      r = chord_residual(sw, qm, dn, zf_ok);
+      double rho = 0.0;
+      r = chord_residual(sw, qm, dn, zf_ok, first && sw->fresh && it == 0,
+                         &rho);
+      if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
+        chord = sw->chord = sw->mild = 0;
+        with_j = 1;
+        it--;
+        continue;
+      }
     } else {
       if (with_j && sw->sb)
         mrvi_sblock_zero(sw->sb);

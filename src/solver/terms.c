@@ -1093,6 +1093,80 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
   }
 }
 
+/* A spring or anchor's gradient added to g (spring_eval's products),
+ * hscale times the diagonal entries of its Hessian blocks [A -A; -A A]
+ * (A_kk = a u_k u_k + b, spring_map's products) added to hd, and, unless
+ * off is NULL, the absolute values of hscale times its off-diagonal
+ * entries added to off by row. */
+ALWAYS_INLINE void spring_hdiag(const kspring *q, const double *z, double *g,
+                                double *hd, double *off, double hscale,
+                                const int dim, const int two) {
+  double u[3], d1, a, b;
+  spring_derivs(q, z, u, &d1, &a, &b, dim, two, K_ANY);
+  UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] += d1 * u[k];
+  if (two)
+    UNROLL for (int k = 0; k < dim; k++) g[q->cj[k]] += -d1 * u[k];
+  UNROLL for (int k = 0; k < dim; k++) {
+    const double A = a * u[k] * u[k] + b;
+    hd[q->ci[k]] += hscale * A;
+    if (two)
+      hd[q->cj[k]] += hscale * A;
+  }
+  if (!off)
+    return;
+  UNROLL for (int k = 0; k < dim; k++) {
+    double o = 0.0;
+    UNROLL for (int l = 0; l < dim; l++) {
+      const double A = a * u[k] * u[l];
+      o += (l != k ? fabs(hscale * A) : 0.0) +
+           (two ? fabs(hscale * (A + (l == k ? b : 0.0))) : 0.0);
+    }
+    off[q->ci[k]] += o;
+    if (two)
+      off[q->cj[k]] += o;
+  }
+}
+
+static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
+                                                    const double *z, double *g,
+                                                    double *hd, double *off,
+                                                    double hscale, int dim) {
+#define SPRINGS_HD(D, T)                                                       \
+  for (int r = 0; r < nr; r++)                                                 \
+    spring_hdiag(q + r, z, g, hd, off, hscale, D, T);
+  if (dim == 2 && q->two)
+    SPRINGS_HD(2, 1)
+  else if (dim == 2)
+    SPRINGS_HD(2, 0)
+  else if (dim == 3 && q->two)
+    SPRINGS_HD(3, 1)
+  else if (dim == 3)
+    SPRINGS_HD(3, 0)
+  else if (q->two)
+    SPRINGS_HD(1, 1)
+  else
+    SPRINGS_HD(1, 0)
+#undef SPRINGS_HD
+}
+
+int mrvi_terms_springs_only(const mrvi_terms *kc) {
+  if (kc->n < 1)
+    return 0;
+  for (int it = 0; it < kc->n; it++)
+    if (kc->t[it].runs < 1)
+      return 0;
+  return 1;
+}
+
+void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
+                           double *hd, double *off, double hscale) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    springs_hdiag(kc->qs + t->qs, t->runs, z, g, hd, off, hscale, kc->dim);
+    it += t->runs - 1;
+  }
+}
+
 /* c s^k for a small integer k: laws/power.c's phi (s^k by repeated
  * squaring, the same products). */
 static double power_phi(double c, int k, double s) {
