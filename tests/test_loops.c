@@ -1081,6 +1081,144 @@ static void test_joint_reduced(void) {
   }
 }
 
+/* Trees with weld joints (doc/multibody.md, "Joint-reduced null space for
+ * chains and trees"), in the plane z = 0: bar b0 on a joint to the ground
+ * along e = (1, -1)/sqrt 2; b1 welded to b0's end, bent along e1; b2 on a
+ * joint at b1's end; a branch b3 on a joint at b0's centre, hanging along
+ * -e2, and b4 welded to b3's end, bent along e; a second root b5 welded to
+ * the ground with b6 on a joint at its end; a fast particle on a slow spring
+ * to a point of b2 and a fast one to an anchor.  b0 and b6 turn initially.
+ * 2-D: the joints other than welds revolute.  3-D: b0 and b3 on ball
+ * joints, b2 on a hinge about (1, 1, 1)/sqrt 3, b6 about e3. */
+static mrvi_model *welded_tree(int D) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, D);
+  const double J2[1] = {2.0 / 12.0}, J3[3] = {0.1, 0.5, 0.55},
+               w2[2][1] = {{0.7}, {-0.4}},
+               w3[2][3] = {{0.2, -0.3, 0.5}, {0.0, 0.0, -0.4}};
+  const double s3 = 0.57735026918962576, axes[2][3] = {{s3, s3, s3}, {0, 0, 1}};
+  /* joint point, bar direction, parent (-1: the ground), kind in 3-D (2-D:
+   * revolute unless a weld), hinge axis in 3-D */
+  static const struct {
+    double pt[3], dir[3];
+    int parent;
+    const char *kind3;
+    int axis;
+  } bar[] = {{{0, 0, 0},
+              {0.70710678118654752, -0.70710678118654752, 0},
+              -1,
+              "spherical",
+              -1},
+             {{0.70710678118654752, -0.70710678118654752, 0},
+              {1, 0, 0},
+              0,
+              "weld",
+              -1},
+             {{1.70710678118654752, -0.70710678118654752, 0},
+              {0.70710678118654752, -0.70710678118654752, 0},
+              1,
+              "revolute",
+              0},
+             {{0.35355339059327376, -0.35355339059327376, 0},
+              {0, -1, 0},
+              0,
+              "spherical",
+              -1},
+             {{0.35355339059327376, -1.35355339059327376, 0},
+              {0.70710678118654752, -0.70710678118654752, 0},
+              3,
+              "weld",
+              -1},
+             {{3.0, 0.0, 0}, {0, -1, 0}, -1, "weld", -1},
+             {{3.0, -1.0, 0}, {1, 0, 0}, 5, "revolute", 1}};
+  int st = 0;
+  for (int i = 0; i < (int)(sizeof bar / sizeof bar[0]) && st >= 0; i++) {
+    const double x[3] = {bar[i].pt[0] + 0.5 * bar[i].dir[0],
+                         bar[i].pt[1] + 0.5 * bar[i].dir[1], 0.0};
+    const int turns = i == 0 ? 0 : i == 6 ? 1 : -1;
+    const double *w = turns < 0 ? NULL : D == 2 ? w2[turns] : w3[turns];
+    char name[8];
+    snprintf(name, sizeof name, "b%d", i);
+    st = mrvi_model_add_body(m, name, D, MRVI_SLOW, 2.0 + 0.1 * i,
+                             D == 2 ? J2 : J3, x, NULL, NULL, w);
+    const int weld = !strcmp(bar[i].kind3, "weld");
+    const char *kind = D == 3 ? bar[i].kind3 : weld ? "weld" : "revolute";
+    const double *axis = D == 3 && bar[i].axis >= 0 ? axes[bar[i].axis] : NULL;
+    if (st >= 0)
+      st = mrvi_model_add_joint(m, kind, st, bar[i].parent, bar[i].pt, axis);
+  }
+  const double g[3] = {0.0, -9.81, 0.0};
+  if (st >= 0)
+    st = mrvi_model_set_gravity(m, g);
+  const double l[3] = {2.4, -1.6, 0.1}, v[3] = {0.0, 0.0, 0.0},
+               anchor[3] = {2.9, -1.1, 0.2};
+  const int f =
+      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, v) : st;
+  const mrvi_end pf = {.particle = f, .body = -1},
+                 pb = {.particle = -1, .body = 2, .at = {0.5, 0, 0}};
+  const double kf = 200.0, ks = 50.0;
+  CHECK(f >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
+                                      &kf, NAN) >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
+                                      &ks, NAN) >= 0,
+        "welded tree (%d-D): %s", D, mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_joint_reduced_weld(void) {
+  for (int D = 2; D <= 3; D++) {
+    mrvi_model *m = welded_tree(D);
+    const int nb = 7, T = D * (D + 1) / 2;
+    const int nt = ns_size(m, 1), nq = ns_size(m, 0);
+    CHECK(nq > 0 && nt == nq + nb * T,
+          "welded tree (%d-D): system %d (joint-reduced) against %d (QR)", D,
+          nt, nq);
+    mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
+    for (int f = 0; f < 3; f++) {
+      mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 1.0, 1e-13);
+      s.constraint_tol = 1e-13;
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      s.tuning.nullspace_tree = f == 1;
+      mrvi_summary sum;
+      if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
+        CHECK(0, "welded tree, tight (%d-D, case %d): %s", D, f, sum.message);
+    }
+    double d[2] = {0.0, 0.0};
+    if (tt[0] && tt[1] && tt[2])
+      for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++) {
+        d[0] = fmax(d[0], fabs(tt[1]->q[i] - tt[0]->q[i]));
+        d[1] = fmax(d[1], fabs(tt[1]->q[i] - tt[2]->q[i]));
+      }
+    printf("welded tree (%d-D, %d bodies), 100 steps at tolerances 1e-13: "
+           "joint-reduced null space against multipliers %.3g, against the "
+           "QR null space %.3g\n",
+           D, nb, d[0], d[1]);
+    CHECK(tt[0] && tt[0]->n_macro == 101 && d[0] < 1e-11 && d[1] < 1e-11,
+          "welded tree (%d-D), joint-reduced against the other forms: %.3g, "
+          "%.3g",
+          D, d[0], d[1]);
+    mrvi_trajectory *tr = NULL;
+    double eg = 1, eH = 1;
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 10.0, 1e-9);
+    s.constraint_form = MRVI_FORM_NULL_SPACE;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0)
+      CHECK(0, "welded tree run (%d-D): %s", D, sum.message);
+    else
+      loop_invariants(m, tr, &eg, &eH, NULL);
+    printf("  1000 steps, Newton tolerance 1e-9: max |g| %.3g, energy %.3g\n",
+           eg, eH);
+    CHECK(eg <= 1e-13, "welded tree (%d-D), joint-reduced: max |g| %.3g", D,
+          eg);
+    CHECK(eH < 0.05, "welded tree (%d-D), joint-reduced: energy %.3g", D, eH);
+    for (int f = 0; f < 3; f++)
+      mrvi_trajectory_free(tt[f]);
+    mrvi_trajectory_free(tr);
+    mrvi_model_free(m);
+  }
+}
+
 int main(void) {
   test_fourbar_3d();
   test_fourbar_forms();
@@ -1094,5 +1232,6 @@ int main(void) {
   test_reparametrisation();
   test_fast_reparametrisation();
   test_joint_reduced();
+  test_joint_reduced_weld();
   return test_finish();
 }
