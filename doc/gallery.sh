@@ -52,6 +52,8 @@ for file in "$root"/systems/*.yaml; do
     cmd="mrvi optimize systems/$name.yaml -o $name.h5"
     second=trajectory
     "$py" "$plot" optimize "$work/$name.h5" -o "$work" >/dev/null
+    # Body terminal conditions only (no coordinate panel): the attitude.
+    [ -e "$work/${name}_trajectory.png" ] || second=attitude
   else
     "$mrvi" run "$file" -o "$work/$name.h5" -q --set output.xdmf=false 2>/dev/null
     cmd="mrvi run systems/$name.yaml -o $name.h5"
@@ -75,7 +77,7 @@ for file in "$root"/systems/*.yaml; do
     echo '```sh'
     echo "$cmd"
     [ "$still" -eq 1 ] && echo "mrvi-plot still $name.h5"
-    if [ "$second" = trajectory ]; then
+    if [ "$second" != energy ]; then
       echo "mrvi-plot optimize $name.h5"
     else
       echo "mrvi-plot run $name.h5"

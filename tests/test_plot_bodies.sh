@@ -97,42 +97,118 @@ fi
 
 # mrvi-plot optimize with body terminal conditions (attitude, angular
 # velocity): their rows carry the body's first column but are no target of
-# it; they are counted, not drawn as targets on that coordinate.  The
-# reorientation's actuators are body torques (no column), so no coordinate
-# panel remains and no trajectory figure is written.
+# it, so no coordinate panel and no trajectory figure (the reorientation's
+# actuators are body torques, no column); the attitude figure draws them.
+# Its angle curve is |rotation vector of R_target^T R(t)|, checked here
+# against the angle computed from /bodies/rotation and the target of the
+# description by quaternion (2 atan2(|v|, w)), to 1e-12 at every macro
+# node; the omega lines are /bodies/angular_velocity, the targets the
+# angular_velocity rows, the dashed line the terminal tolerance.
 run_ok "optimize reorientation" "$mrvi" optimize \
   "$root/systems/ocp_reorient.yaml" -o "$tmp/reor.h5" -q
 run_ok "plot optimize (body terminals)" "$py" "$plot" optimize \
   "$tmp/reor.h5" -o "$tmp/reor"
 if "$py" - "$plot" "$tmp/reor.h5" >"$tmp/log" 2>&1 <<'PY'; then
-import importlib.machinery, importlib.util, sys
+import importlib.machinery, importlib.util, math, sys
 import h5py
+import numpy as np
 loader = importlib.machinery.SourceFileLoader("mrvi_plot", sys.argv[1])
 spec = importlib.util.spec_from_loader("mrvi_plot", loader)
 mp = importlib.util.module_from_spec(spec)
 loader.exec_module(mp)
+bad = []
 with h5py.File(sys.argv[2], "r") as h5:
     opt = mp.Optimal(h5)
     cols = mp.ocp_coordinates(opt)
-bad = []
+    fig = mp.attitude_figure(opt, mp.attitude_series(opt))
+    R = h5["bodies/rotation"][:, 0]
+    W = h5["bodies/angular_velocity"][:, 0]
+    tol = h5["optimizer"].attrs["terminal_tolerance"]
+# The target of systems/ocp_reorient.yaml: 2 rad about (1, 1, 1)/sqrt 3.
+k = np.ones(3) / math.sqrt(3.0)
+K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+Rt = np.eye(3) + math.sin(2.0) * K + (1 - math.cos(2.0)) * K @ K
+want = []
+for Rk in R:
+    A = Rt.T @ Rk
+    w = math.sqrt(max(1.0 + np.trace(A), 0.0)) / 2.0
+    v = np.array([A[2, 1] - A[1, 2], A[0, 2] - A[2, 0],
+                  A[1, 0] - A[0, 1]]) / (4.0 * w)
+    want.append(2.0 * math.atan2(np.linalg.norm(v), w))
+want = np.array(want)
 if opt.terminal:
     bad.append("coordinate terminals %s" % opt.terminal)
-if opt.body_terminals != 6:
-    bad.append("%d body terminal rows, want 6" % opt.body_terminals)
+if len(opt.body_rows) != 6:
+    bad.append("%d body terminal rows, want 6" % len(opt.body_rows))
 if cols:
     bad.append("coordinate panels %s" % cols)
+ax_angle, ax_omega = fig.axes[0], fig.axes[1]
+line = ax_angle.get_lines()[0]
+got = np.asarray(line.get_ydata(), dtype=float)
+err = np.max(np.abs(got - want)) if got.size == want.size else np.inf
+if not err <= 1e-12:
+    bad.append("drawn angle differs from /bodies/rotation by %s" % err)
+if not abs(got[-1] - want[-1]) <= 1e-12 or not want[0] > 1.9:
+    bad.append("final angle %s, want %s (start %s)"
+               % (got[-1], want[-1], want[0]))
+tl = [l for l in ax_angle.get_lines() if l.get_label().startswith("tol")]
+if len(tl) != 1 or tl[0].get_ydata()[0] != tol:
+    bad.append("tolerance line %s" % [l.get_ydata() for l in tl])
+om = ax_omega.get_lines()
+if len(om) != 6 or any(not np.array_equal(om[j].get_ydata(), W[:, j])
+                       for j in range(3)) or \
+        any(list(om[j].get_ydata()) != [0.0] for j in range(3, 6)):
+    bad.append("omega lines/targets differ from the file")
 print("FAIL " + "; ".join(bad) if bad else
-      "6 body rows counted, no coordinate target")
+      "6 body rows; angle = quaternion angle to %.1e, final %.3g rad, "
+      "start %.3g" % (err, got[-1], want[0]))
 sys.exit(1 if bad else 0)
 PY
-  pass "optimize plot skips body terminals: $(tail -1 "$tmp/log")"
+  pass "optimize attitude panel: $(tail -1 "$tmp/log")"
 else
-  fail "optimize plot with body terminals: $(tail -3 "$tmp/log")"
+  fail "optimize attitude panel: $(tail -3 "$tmp/log")"
 fi
 if [ -e "$tmp/reor/reor_trajectory.png" ]; then
   fail "a trajectory figure was drawn for body-only terminal conditions"
 else
   pass "no trajectory figure for body-only terminal conditions"
 fi
+if [ -s "$tmp/reor/reor_attitude.png" ]; then
+  pass "attitude figure written"
+else
+  fail "no attitude figure for body terminal conditions"
+fi
+
+# Crafted files: a description that is not YAML, or without the attitude,
+# or a rotation of the wrong shape: an error naming the dataset, no
+# traceback.
+craft() {
+  cp "$tmp/reor.h5" "$tmp/$1.h5"
+  "$py" - "$tmp/$1.h5" "$2" "$3" <<'PY'
+import sys
+import h5py
+import numpy as np
+with h5py.File(sys.argv[1], "r+") as h5:
+    if sys.argv[2] == "description":
+        del h5["model/description"]
+        h5["model/description"] = np.array([sys.argv[3].encode()])
+    else:
+        del h5["bodies/rotation"]
+        h5["bodies/rotation"] = np.zeros((3, 1, 3, 2))
+PY
+}
+for c in "notyaml|description|name: [unclosed|unreadable as YAML" \
+         "noatt|description|name: x|no 3 x 3 terminal attitude" \
+         "shape|rotation||bodies/rotation"; do
+  IFS='|' read -r n what val pat <<<"$c"
+  craft "$n" "$what" "$val"
+  if "$py" "$plot" optimize "$tmp/$n.h5" -o "$tmp/reor" >"$tmp/log" 2>&1; then
+    fail "crafted $n: exit 0"
+  elif grep -q Traceback "$tmp/log" || ! grep -q "$pat" "$tmp/log"; then
+    fail "crafted $n: $(tail -2 "$tmp/log")"
+  else
+    pass "crafted $n refused: $(grep -m1 "$pat" "$tmp/log")"
+  fi
+done
 
 test_finish
