@@ -1137,7 +1137,7 @@ static mrvi_model *welded_tree(int D) {
                          bar[i].pt[1] + 0.5 * bar[i].dir[1], 0.0};
     const int turns = i == 0 ? 0 : i == 6 ? 1 : -1;
     const double *w = turns < 0 ? NULL : D == 2 ? w2[turns] : w3[turns];
-    char name[8];
+    char name[16];
     snprintf(name, sizeof name, "b%d", i);
     st = mrvi_model_add_body(m, name, D, MRVI_SLOW, 2.0 + 0.1 * i,
                              D == 2 ? J2 : J3, x, NULL, NULL, w);
