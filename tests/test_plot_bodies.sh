@@ -179,9 +179,39 @@ else
   fail "no attitude figure for body terminal conditions"
 fi
 
-# Crafted files: a description that is not YAML, or without the attitude,
-# or a rotation of the wrong shape: an error naming the dataset, no
-# traceback.
+# A target changed by --set (1 rad instead of the description's 2) is the
+# one drawn: mrvi optimize stores R_target in /control/terminal_attitude,
+# so the angle starts at 1 and ends at the terminal tolerance (drawn from
+# the description's target it would end near 1 rad).
+run_ok "optimize reorientation, target by --set" "$mrvi" optimize \
+  "$root/systems/ocp_reorient.yaml" -o "$tmp/reor1.h5" -q \
+  --set control.terminal.0.attitude.angle=1
+if "$py" - "$plot" "$tmp/reor1.h5" >"$tmp/log" 2>&1 <<'PY'; then
+import importlib.machinery, importlib.util, sys
+import h5py
+import numpy as np
+loader = importlib.machinery.SourceFileLoader("mrvi_plot", sys.argv[1])
+spec = importlib.util.spec_from_loader("mrvi_plot", loader)
+mp = importlib.util.module_from_spec(spec)
+loader.exec_module(mp)
+with h5py.File(sys.argv[2], "r") as h5:
+    opt = mp.Optimal(h5)
+    (name, t, angle, omega, kinds), = mp.attitude_series(opt)
+    tol = h5["optimizer"].attrs["terminal_tolerance"]
+ok = abs(angle[0] - 1.0) <= 1e-12 and angle[-1] <= tol
+print(("" if ok else "FAIL ") + "start %.15g rad, final %.3g (tolerance %.1g)"
+      % (angle[0], angle[-1], tol))
+sys.exit(0 if ok else 1)
+PY
+  pass "attitude target from --set drawn: $(tail -1 "$tmp/log")"
+else
+  fail "attitude target from --set: $(tail -3 "$tmp/log")"
+fi
+
+# Crafted files: a description that is not YAML, or without the attitude
+# (files without /control/terminal_attitude, as earlier versions wrote),
+# a stored target that is not a rotation or of the wrong shape, or a
+# rotation of the wrong shape: an error naming the dataset, no traceback.
 craft() {
   cp "$tmp/reor.h5" "$tmp/$1.h5"
   "$py" - "$tmp/$1.h5" "$2" "$3" <<'PY'
@@ -190,8 +220,14 @@ import h5py
 import numpy as np
 with h5py.File(sys.argv[1], "r+") as h5:
     if sys.argv[2] == "description":
+        del h5["control/terminal_attitude"]
         del h5["model/description"]
         h5["model/description"] = np.array([sys.argv[3].encode()])
+    elif sys.argv[2] == "stored":
+        a = h5["control/terminal_attitude"][()]
+        del h5["control/terminal_attitude"]
+        h5["control/terminal_attitude"] = (
+            2.0 * a if sys.argv[3] == "scaled" else a[:, :4])
     else:
         del h5["bodies/rotation"]
         h5["bodies/rotation"] = np.zeros((3, 1, 3, 2))
@@ -199,6 +235,8 @@ PY
 }
 for c in "notyaml|description|name: [unclosed|unreadable as YAML" \
          "noatt|description|name: x|no 3 x 3 terminal attitude" \
+         "notrot|stored|scaled|terminal_attitude' row 0 is not" \
+         "attshape|stored|cut|terminal_attitude' has shape" \
          "shape|rotation||bodies/rotation"; do
   IFS='|' read -r n what val pat <<<"$c"
   craft "$n" "$what" "$val"

@@ -217,6 +217,33 @@ struct mrvi_ocp_output {
   double snapshot_at; /* mrvi_clock of the last progress file */
 };
 
+/* /control/terminal_attitude: R_target of every attitude row (row-major
+ * D x D per row, NaN on the rows of other kinds), when there is one, so
+ * that the targets of a run are in its file even where --set changed the
+ * description's. */
+static void write_attitudes(mrvi_h5_batch *b, hid_t gc, const mrvi_ocp *o) {
+  const int nterm = mrvi_ocp_n_terminals(o);
+  int D = 0;
+  double R[9];
+  for (int i = 0; i < nterm && !D; i++)
+    D = mrvi_ocp_terminal_attitude(o, i, R);
+  if (!D)
+    return;
+  const size_t dd = (size_t)(D * D);
+  double *v = malloc((size_t)nterm * dd * sizeof *v);
+  if (!v) {
+    mrvi_h5_batch_fail_text(b, MRVI_ENOMEM, "out of memory");
+    return;
+  }
+  for (int i = 0; i < nterm; i++)
+    if (!mrvi_ocp_terminal_attitude(o, i, v + (size_t)i * dd))
+      for (size_t k = 0; k < dd; k++)
+        v[(size_t)i * dd + k] = NAN;
+  mrvi_h5_batch_doubles(b, gc, "terminal_attitude", v, (hsize_t)nterm,
+                        (hsize_t)dd);
+  free(v);
+}
+
 /* /control: t and u on the finest grid of the actuators (the micro grid if
  * any actuator is on it), per actuator its name, grid, coordinate and pair,
  * per terminal condition its coordinate, kind, target and penalty (for
@@ -274,6 +301,7 @@ static void write_control(mrvi_h5_batch *b, const mrvi_system *sys,
   mrvi_h5_batch_doubles(b, gc, "terminal_target", tv, (hsize_t)nterm, 0);
   mrvi_h5_batch_doubles(b, gc, "terminal_penalty", tv + nterm, (hsize_t)nterm,
                         0);
+  write_attitudes(b, gc, o);
   attr_text(b, gc, "grid", p > 1 ? "micro" : "macro");
 out:
   if (gc >= 0)

@@ -840,6 +840,14 @@ int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row) {
     *row = o->term[i].row;
   return o->term[i].body;
 }
+int mrvi_ocp_terminal_attitude(const mrvi_ocp *o, int i, double *R) {
+  const ocp_terminal *t = &o->term[i];
+  const int D = o->model->dimension;
+  if (t->kind != MRVI_OCP_ATTITUDE)
+    return 0;
+  memcpy(R, t->R_target, (size_t)(D * D) * sizeof *R);
+  return D;
+}
 void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
                        int *coordinate, double *target, double *penalty) {
   const ocp_terminal *t = &o->term[i];

@@ -240,6 +240,10 @@ void mrvi_ocp_terminal(const mrvi_ocp *o, int i, mrvi_ocp_terminal_kind *kind,
  * i (-1 for a coordinate) and its row (0..2) in the body's condition. */
 const char *mrvi_ocp_terminal_kind_name(mrvi_ocp_terminal_kind kind);
 int mrvi_ocp_terminal_body(const mrvi_ocp *o, int i, int *row);
+/* Target rotation of terminal condition i when it is an attitude row: R
+ * gets R_target (D x D row-major, D the model's dimension) and D is
+ * returned; 0 for every other kind (R untouched). */
+int mrvi_ocp_terminal_attitude(const mrvi_ocp *o, int i, double *R);
 /* Name of an algorithm ("slsqp", "auglag-lbfgs", "auglag-mma",
  * "auglag-ccsaq"); the problem's algorithm and terminal tolerance. */
 const char *mrvi_ocp_algorithm_name(mrvi_ocp_algorithm a);
