@@ -75,11 +75,9 @@ fi
 
 # 3-D axes have equal scales: the animation's limits span one length.
 if "$py" - "$plot" >"$tmp/log" 2>&1 <<'PY'; then
-import importlib.machinery, importlib.util, sys
-loader = importlib.machinery.SourceFileLoader("mrvi_plot", sys.argv[1])
-spec = importlib.util.spec_from_loader("mrvi_plot", loader)
-mp = importlib.util.module_from_spec(spec)
-loader.exec_module(mp)
+import sys
+from importlib.machinery import SourceFileLoader
+mp = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
 import numpy as np
 fig = mp.plt.figure()
 ax = fig.add_subplot(1, 1, 1, projection="3d")
@@ -105,13 +103,11 @@ run_ok "flexible pendulum run (micro output)" "$mrvi" run \
   "$root/systems/flexible_pendulum.yaml" -o "$tmp/flex.h5" -q \
   --set integrator.t_end=0.2 --set output.micro=true
 if "$py" - "$plot" "$tmp/flex.h5" >"$tmp/log" 2>&1 <<'PY'; then
-import importlib.machinery, importlib.util, sys
+import sys
+from importlib.machinery import SourceFileLoader
 import h5py
 import numpy as np
-loader = importlib.machinery.SourceFileLoader("mrvi_plot", sys.argv[1])
-spec = importlib.util.spec_from_loader("mrvi_plot", loader)
-mp = importlib.util.module_from_spec(spec)
-loader.exec_module(mp)
+mp = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
 with h5py.File(sys.argv[2], "r") as h5:
     b = mp.animation_bodies(h5)
     names = [mp.text(n) for n in h5["bodies/name"][()]]
@@ -163,13 +159,11 @@ run_ok "optimize reorientation" "$mrvi" optimize \
 run_ok "plot optimize (body terminals)" "$py" "$plot" optimize \
   "$tmp/reor.h5" -o "$tmp/reor"
 if "$py" - "$plot" "$tmp/reor.h5" >"$tmp/log" 2>&1 <<'PY'; then
-import importlib.machinery, importlib.util, math, sys
+import math, sys
+from importlib.machinery import SourceFileLoader
 import h5py
 import numpy as np
-loader = importlib.machinery.SourceFileLoader("mrvi_plot", sys.argv[1])
-spec = importlib.util.spec_from_loader("mrvi_plot", loader)
-mp = importlib.util.module_from_spec(spec)
-loader.exec_module(mp)
+mp = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
 bad = []
 with h5py.File(sys.argv[2], "r") as h5:
     opt = mp.Optimal(h5)
@@ -241,13 +235,11 @@ run_ok "optimize reorientation, target by --set" "$mrvi" optimize \
   "$root/systems/ocp_reorient.yaml" -o "$tmp/reor1.h5" -q \
   --set control.terminal.0.attitude.angle=1
 if "$py" - "$plot" "$tmp/reor1.h5" >"$tmp/log" 2>&1 <<'PY'; then
-import importlib.machinery, importlib.util, sys
+import sys
+from importlib.machinery import SourceFileLoader
 import h5py
 import numpy as np
-loader = importlib.machinery.SourceFileLoader("mrvi_plot", sys.argv[1])
-spec = importlib.util.spec_from_loader("mrvi_plot", loader)
-mp = importlib.util.module_from_spec(spec)
-loader.exec_module(mp)
+mp = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
 with h5py.File(sys.argv[2], "r") as h5:
     opt = mp.Optimal(h5)
     (name, t, angle, omega, kinds), = mp.attitude_series(opt)
