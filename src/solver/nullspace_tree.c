@@ -629,21 +629,10 @@ void mrvi_nstree_reduce(mrvi_nstree *z, const mrvi_step *st,
                         const double *Rfull, double *rhs) {
   walk wk = {z, 0, 0, 0, 0};
   rows(&wk, st);
-  memset(z->Ax, 0, (size_t)z->nnz * sizeof *z->Ax);
-  long t = 0;
-  for (int i = 0; i < z->n; i++) {
-    double s = 0.0;
-    for (int k = z->rec_start[i]; k < z->rec_start[i + 1]; k++) {
-      const int row = z->rec_row[k];
-      const double c = z->rec_coef[k];
-      s += c * Rfull[row];
-      for (int q = z->csr_start[row]; q < z->csr_start[row + 1]; q++)
-        z->Ax[z->map[t++]] += c * st->Ax[z->csr_idx[q]];
-    }
-    for (int k = z->ext_start[i]; k < z->ext_start[i + 1]; k++)
-      z->Ax[z->map[t++]] += z->ext_coef[k];
-    rhs[i] = s;
-  }
+  const mrvi_row_recipe rr = {z->n,        z->rec_start, z->rec_row,
+                              z->ext_start, z->csr_start, z->csr_idx,
+                              z->map,      z->rec_coef,  z->ext_coef};
+  mrvi_row_recipe_apply(&rr, st, Rfull, z->Ax, z->nnz, rhs);
 }
 
 /* ---------------------------------------------------------------------------
