@@ -881,9 +881,9 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
   for (int k = 0; k < st->n_lambda - (z->rs - z->rk); k++)
     z->rec_coef[e++] = 1.0;
   /* Rows of the reduced system: combinations of the full rows. */
-  const mrvi_row_recipe rr = {z->n,         z->rec_start, z->rec_row,
-                              NULL,         z->csr_start, z->csr_idx,
-                              z->map,       z->rec_coef,  NULL};
+  const mrvi_row_recipe rr = {z->n,   z->rec_start, z->rec_row,
+                              NULL,   z->csr_start, z->csr_idx,
+                              z->map, z->rec_coef,  NULL};
   mrvi_row_recipe_apply(&rr, st, Rfull, z->Ax, z->nnz, rhs);
 }
 
