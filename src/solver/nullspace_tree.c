@@ -9,26 +9,29 @@
  *   t_i = X_i t_a + S_i nu_i,
  * X_i carrying i rigidly with its parent (w_i = w_a, u_i = u_a + w_a x
  * (phi_i - phi_a); X_i = 0 for a root) and S_i the joint's free directions
- * about its point x_J, with r = phi_i - x_J: ball (w, w x r) for the three
- * rotations, hinge (a, a x r) with a the axis fixed in the joint's body A
- * (2-D: (J r, 1)), weld none; a body in no joint (a free root) S = I.  In
- * tree order (parents first) (I - X) t = S nu, so the null-space matrix is
- *   P = blkdiag(P_i) (I - X)^-1 S,
- * dense down each subtree.  It is never formed: with
- *   y = (I - X)^-T P_int^T (R - A dx)       (one twist y_i per body)
- * the reduced Newton system P^T A dx = P^T R, H dx = h becomes the square
- * sparse system
- *   (I - X)^T y + P_int^T A dx = P_int^T R  (T rows per body),
- *   S^T y                      = 0          (one row per joint rate),
- *   H dx                       = h          (the constraint rows),
- * with the rows of the coordinates outside the bodies (slow particles, the
- * fast coordinates) as they are: (I - X)^T is block bidiagonal along the
- * tree (a body's rows hold its own y and its children's), so the matrix has
- * O(n) entries for n bodies and its sparse LU (UMFPACK through
- * mrvi_newton) costs O(n) for chains and trees.  dx is the first
- * n_unknowns entries of the solution.  P, X and S are taken at q_k, where
- * the constraint forces dT G(q_k)^T lambda act (doc/constraints.md,
- * "Null-space form").
+ * (u, w), rotations about the child's joint point x_J first, with r =
+ * phi_i - x_J, then translations: ball (w x r, w) for the three rotations;
+ * hinge (a_1 x r, a_1), a_1 the axis fixed in the joint's body A (2-D:
+ * (J r, 1)); weld none; prismatic (b_1, 0), b_1 the axis fixed in body B
+ * (or in space); cylindrical the hinge's column and the prismatic's;
+ * universal (a_1 x r, a_1) and (b_2 x r, b_2), the cross's arms fixed in A
+ * and in B; planar the hinge's column about the normal a_1 and (b_2, 0),
+ * (b_3, 0) in the plane fixed in B; a body in no joint (a free root) S = I.
+ * Each leaves the joint's rows constant to first order on the constraint
+ * manifold (doc/multibody.md).  In tree order (parents first) (I - X) t = S nu,
+ * so the null-space matrix is P = blkdiag(P_i) (I - X)^-1 S, dense down each
+ * subtree.  It is never formed: with y = (I - X)^-T P_int^T (R - A dx) (one
+ * twist y_i per body) the reduced Newton system P^T A dx = P^T R, H dx = h
+ * becomes the square sparse system (I - X)^T y + P_int^T A dx = P_int^T R  (T
+ * rows per body), S^T y                      = 0          (one row per joint
+ * rate), H dx                       = h          (the constraint rows), with
+ * the rows of the coordinates outside the bodies (slow particles, the fast
+ * coordinates) as they are: (I - X)^T is block bidiagonal along the tree (a
+ * body's rows hold its own y and its children's), so the matrix has O(n)
+ * entries for n bodies and its sparse LU (UMFPACK through mrvi_newton) costs
+ * O(n) for chains and trees.  dx is the first n_unknowns entries of the
+ * solution.  P, X and S are taken at q_k, where the constraint forces dT
+ * G(q_k)^T lambda act (doc/constraints.md, "Null-space form").
  *
  * Multipliers lambda(x): the least-squares solution of dT G^T lambda = F on
  * the slow rows in the metric M^-1, by the sparse Gram factor of
@@ -37,11 +40,15 @@
  * Nodal reparametrisation: a Newton update is applied body by body, parents
  * first: each body's rotation w from its director increments (the left
  * inverse of P_i), its turn relative to its parent projected on the joint's
- * free rotations, its frame the parent's update times that turn, and its
- * centre placed so that its joint point lies on the parent's (or on the
- * ground point).  The internal constraints and the joints' points hold to
- * round-off at every iterate; the hinge's axis rows keep the value they
- * have at q_0. */
+ * free rotations (a cross: exp(al e_p^) exp(be e_c^), the parent's arm
+ * outside, which keeps e_p . e_c), its frame the parent's update times that
+ * turn, and its centre placed so that its joint point lies on the parent's
+ * (or on the ground point), or, for a joint with translations, on the line
+ * along (the plane normal to) b_1 through it nearest to the child's own
+ * moved point.  The internal constraints, the joints' points and their
+ * lines and planes hold to round-off at every iterate; the rows between
+ * axes (hinge, cylindrical, planar, prismatic, universal, weld) keep the
+ * value they have at q_0. */
 #include "solver/solver.h"
 
 #include <math.h>
