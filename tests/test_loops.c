@@ -938,6 +938,25 @@ static void test_fast_reparametrisation(void) {
   }
 }
 
+/* The trees' fast particle: at l, on a fast linear spring (200) to anchor
+ * and a slow one (50) to body b's point (0.5, 0, 0); st the status so far.
+ * Returns the status. */
+static int add_fast_particle(mrvi_model *m, int st, int b, const double *l,
+                             const double *anchor) {
+  const double v[3] = {0.0, 0.0, 0.0}, kf = 200.0, ks = 50.0;
+  const int f =
+      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, v) : st;
+  const mrvi_end pf = {.particle = f, .body = -1},
+                 pb = {.particle = -1, .body = b, .at = {0.5, 0, 0}};
+  if (f < 0)
+    return f;
+  st = mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear", &kf,
+                                 NAN);
+  return st < 0 ? st
+                : mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL,
+                                            "linear", &ks, NAN);
+}
+
 /* Open chains and trees of bodies in joints (doc/multibody.md, "Joint-
  * reduced null space for chains and trees").  2-D: n bars of length 1 on
  * revolute joints, a chain from the ground along e = (1, -1)/sqrt 2, with a
@@ -985,20 +1004,10 @@ static mrvi_model *jointed_tree(int D, int n) {
   const double g[3] = {0.0, D == 2 ? -9.81 : 0.0, D == 3 ? -9.81 : 0.0};
   if (st >= 0)
     st = mrvi_model_set_gravity(m, g);
-  double l[3] = {0, 0, 0}, anchor[6] = {0, 0, 0, 0, 0, 0};
+  double l[3] = {0, 0, 0}, anchor[3] = {0, 0, 0};
   for (int a = 0; a < D; a++)
     l[a] = n * e[a] + (a == 1 ? -0.2 : 0.0), anchor[a] = l[a] + 0.5;
-  const int f =
-      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, anchor + 3)
-              : st;
-  const mrvi_end pf = {.particle = f, .body = -1},
-                 pb = {.particle = -1, .body = n - 1, .at = {0.5, 0, 0}};
-  const double kf = 200.0, ks = 50.0;
-  CHECK(f >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
-                                      &kf, NAN) >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
-                                      &ks, NAN) >= 0,
+  CHECK(add_fast_particle(m, st, n - 1, l, anchor) >= 0,
         "jointed tree (%d-D): %s", D, mrvi_model_errmsg(m));
   return m;
 }
@@ -1179,19 +1188,9 @@ static mrvi_model *welded_tree(int D) {
   const double g[3] = {0.0, -9.81, 0.0};
   if (st >= 0)
     st = mrvi_model_set_gravity(m, g);
-  const double l[3] = {2.4, -1.6, 0.1}, v[3] = {0.0, 0.0, 0.0},
-               anchor[3] = {2.9, -1.1, 0.2};
-  const int f =
-      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, v) : st;
-  const mrvi_end pf = {.particle = f, .body = -1},
-                 pb = {.particle = -1, .body = 2, .at = {0.5, 0, 0}};
-  const double kf = 200.0, ks = 50.0;
-  CHECK(f >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
-                                      &kf, NAN) >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
-                                      &ks, NAN) >= 0,
-        "welded tree (%d-D): %s", D, mrvi_model_errmsg(m));
+  const double l[3] = {2.4, -1.6, 0.1}, anchor[3] = {2.9, -1.1, 0.2};
+  CHECK(add_fast_particle(m, st, 2, l, anchor) >= 0, "welded tree (%d-D): %s",
+        D, mrvi_model_errmsg(m));
   return m;
 }
 
@@ -1278,19 +1277,9 @@ static mrvi_model *kind_tree(int D, const char *kind) {
   const double g[3] = {0.0, -9.81, 0.0};
   if (st >= 0)
     st = mrvi_model_set_gravity(m, g);
-  const double l[3] = {2.2, -1.5, 0.1}, v[3] = {0.0, 0.0, 0.0},
-               anchor[3] = {2.7, -1.0, 0.2};
-  const int f =
-      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, v) : st;
-  const mrvi_end pf = {.particle = f, .body = -1},
-                 pb = {.particle = -1, .body = 2, .at = {0.5, 0, 0}};
-  const double kf = 200.0, ks = 50.0;
-  CHECK(f >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
-                                      &kf, NAN) >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
-                                      &ks, NAN) >= 0,
-        "%s tree (%d-D): %s", kind, D, mrvi_model_errmsg(m));
+  const double l[3] = {2.2, -1.5, 0.1}, anchor[3] = {2.7, -1.0, 0.2};
+  CHECK(add_fast_particle(m, st, 2, l, anchor) >= 0, "%s tree (%d-D): %s", kind,
+        D, mrvi_model_errmsg(m));
   return m;
 }
 
