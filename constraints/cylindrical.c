@@ -27,4 +27,5 @@ const mrvi_constraint_type mrvi_constraint_cylindrical = {
         "cylinder: rotation about and sliding along an axis (3-D, 4 rows)",
     .check = check,
     .eval = eval,
+    .joint_motion = MRVI_JOINT_CYLINDRICAL,
 };

@@ -25,4 +25,5 @@ const mrvi_constraint_type mrvi_constraint_planar = {
         "plane on plane: parallel normals, no motion along them (3-D, 3 rows)",
     .check = check,
     .eval = eval,
+    .joint_motion = MRVI_JOINT_PLANAR,
 };

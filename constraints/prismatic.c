@@ -30,4 +30,5 @@ const mrvi_constraint_type mrvi_constraint_prismatic = {
         "(2-D: 2 rows, 3-D: 5)",
     .check = check,
     .eval = eval,
+    .joint_motion = MRVI_JOINT_PRISMATIC,
 };

@@ -50,4 +50,5 @@ const mrvi_constraint_type mrvi_constraint_universal = {
                "keeps its angle to one fixed in B (3-D, 4 rows)",
     .check = check,
     .eval = eval,
+    .joint_motion = MRVI_JOINT_UNIVERSAL,
 };

@@ -384,14 +384,26 @@ typedef struct mrvi_constraint_type {
    * generic {coordinates: [names], parameters: [numbers]}. */
   const mrvi_constraint_key *keys;
   /* Joints between rigid bodies only: the relative motion the joint leaves
-   * free about its point, MRVI_JOINT_BALL (every rotation), MRVI_JOINT_HINGE
-   * (the rotation about the frame's first axis; in 2-D the one rotation)
-   * or MRVI_JOINT_WELD (none), which the null-space form's joint-reduced
-   * basis of open chains and trees builds on (doc/multibody.md); 0 for
-   * every other type (the null-space form then takes its numerical basis). */
+   * free, MRVI_JOINT_BALL (every rotation about its point), _HINGE (the
+   * rotation about the frame's first axis a_1 fixed in A; in 2-D the one
+   * rotation), _WELD (none), _PRISMATIC (the translation along b_1 fixed in
+   * B), _CYLINDRICAL (the hinge's rotation and the prismatic's
+   * translation), _UNIVERSAL (the rotations about a_1 fixed in A and b_2
+   * fixed in B) or _PLANAR (the rotation about a_1 and the translations
+   * normal to b_1), which the null-space form's joint-reduced basis of open
+   * chains and trees builds on (doc/multibody.md); 0 for every other type
+   * (the null-space form then takes its numerical basis). */
   int joint_motion;
 } mrvi_constraint_type;
-enum { MRVI_JOINT_BALL = 1, MRVI_JOINT_HINGE = 2, MRVI_JOINT_WELD = 3 };
+enum {
+  MRVI_JOINT_BALL = 1,
+  MRVI_JOINT_HINGE = 2,
+  MRVI_JOINT_WELD = 3,
+  MRVI_JOINT_PRISMATIC = 4,
+  MRVI_JOINT_CYLINDRICAL = 5,
+  MRVI_JOINT_UNIVERSAL = 6,
+  MRVI_JOINT_PLANAR = 7
+};
 
 /* Add a type to the registry (the pointer must stay valid).  MRVI_EINVAL if
  * the name is taken or the table is incomplete. */

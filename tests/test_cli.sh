@@ -309,8 +309,28 @@ contains "$out" '^  null space  numerical \(QR.*; not joint-reduced: nullspace_t
   "nullspace_tree 0: numerical null space"
 run_mrvi check "$root/systems/slider_crank.yaml" \
   --set integrator.constraints.form=null-space
-contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: constraint 'guide' \\(prismatic\\) has no joint reduction$" \
-  "slider-crank: numerical null space, the prismatic joint named"
+contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: joint 'guide' closes a loop$" \
+  "slider-crank: numerical null space, the joint closing the loop named"
+cat >"$tmp/cart_pole.yaml" <<'EOF'
+name: cart-pole
+dimension: 2
+gravity: [0, -9.81]
+bodies:
+  - {name: cart, mass: 2, inertia: 0.1, position: [0, 0]}
+  - {name: pole, mass: 1, inertia: 0.08, position: [0.5, 0], angular_velocity: 1}
+joints:
+  - {type: prismatic, name: rail, bodies: [cart], point: [0, 0], axis: [1, 0]}
+  - {type: revolute, name: pivot, bodies: [pole, cart], point: [0, 0]}
+integrator: {macro_step: 0.01, micro_steps: 1, t_end: 0.02, constraints: {form: null-space}}
+EOF
+run_mrvi check "$tmp/cart_pole.yaml"
+contains "$out" "^  null space  joint-reduced \\(open chains and trees of joints.*joint's free turns and slides$" \
+  "a pole on a cart on a rail: joint-reduced null space"
+sed 's/^integrator/constraints:\n  - {type: distance, name: tether, between: [{body: pole, at: [0.5, 0]}], anchor: [1, 1], length: 1}\nintegrator/' \
+  "$tmp/cart_pole.yaml" >"$tmp/cart_tether.yaml"
+run_mrvi check "$tmp/cart_tether.yaml"
+contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: constraint 'tether' \\(point\\) has no joint reduction$" \
+  "a tethered pole: numerical null space, the tether named"
 run_mrvi check "$root/systems/flexible_pendulum.yaml" \
   --set integrator.constraints.form=null-space
 contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: body 'upper' is fast$" \

@@ -938,6 +938,25 @@ static void test_fast_reparametrisation(void) {
   }
 }
 
+/* The trees' fast particle: at l, on a fast linear spring (200) to anchor
+ * and a slow one (50) to body b's point (0.5, 0, 0); st the status so far.
+ * Returns the status. */
+static int add_fast_particle(mrvi_model *m, int st, int b, const double *l,
+                             const double *anchor) {
+  const double v[3] = {0.0, 0.0, 0.0}, kf = 200.0, ks = 50.0;
+  const int f =
+      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, v) : st;
+  const mrvi_end pf = {.particle = f, .body = -1},
+                 pb = {.particle = -1, .body = b, .at = {0.5, 0, 0}};
+  if (f < 0)
+    return f;
+  st = mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear", &kf,
+                                 NAN);
+  return st < 0 ? st
+                : mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL,
+                                            "linear", &ks, NAN);
+}
+
 /* Open chains and trees of bodies in joints (doc/multibody.md, "Joint-
  * reduced null space for chains and trees").  2-D: n bars of length 1 on
  * revolute joints, a chain from the ground along e = (1, -1)/sqrt 2, with a
@@ -985,20 +1004,10 @@ static mrvi_model *jointed_tree(int D, int n) {
   const double g[3] = {0.0, D == 2 ? -9.81 : 0.0, D == 3 ? -9.81 : 0.0};
   if (st >= 0)
     st = mrvi_model_set_gravity(m, g);
-  double l[3] = {0, 0, 0}, anchor[6] = {0, 0, 0, 0, 0, 0};
+  double l[3] = {0, 0, 0}, anchor[3] = {0, 0, 0};
   for (int a = 0; a < D; a++)
     l[a] = n * e[a] + (a == 1 ? -0.2 : 0.0), anchor[a] = l[a] + 0.5;
-  const int f =
-      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, anchor + 3)
-              : st;
-  const mrvi_end pf = {.particle = f, .body = -1},
-                 pb = {.particle = -1, .body = n - 1, .at = {0.5, 0, 0}};
-  const double kf = 200.0, ks = 50.0;
-  CHECK(f >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
-                                      &kf, NAN) >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
-                                      &ks, NAN) >= 0,
+  CHECK(add_fast_particle(m, st, n - 1, l, anchor) >= 0,
         "jointed tree (%d-D): %s", D, mrvi_model_errmsg(m));
   return m;
 }
@@ -1020,63 +1029,92 @@ static int ns_size(const mrvi_model *m, int tree) {
   return n;
 }
 
+/* The joint-reduced basis on a tree (doc/multibody.md, "Joint-reduced null
+ * space for chains and trees"): it is taken (the step's system carries one
+ * twist per body beside the QR basis's unknowns); over 100 steps of 0.01
+ * (p = 2) at Newton and constraint tolerances tol it gives the trajectory
+ * of the multiplier form and of the QR basis to within agree; over t_long
+ * at Newton tolerance 1e-9 the constraints hold to 1e-13 (the nodal
+ * reparametrisation keeps them at round-off, the forms that do not only
+ * at the tolerance: printed for contrast with qr_long) with a bounded
+ * energy error, no worse than the multiplier form's if vs_multipliers. */
+typedef struct tree_case {
+  const char *name;
+  int nb;
+  double tol, agree, t_long;
+  int vs_multipliers, qr_long;
+} tree_case;
+
+static void check_joint_reduced(mrvi_model *m, int D, const tree_case *c) {
+  const int T = D * (D + 1) / 2;
+  const int nt = ns_size(m, 1), nq = ns_size(m, 0);
+  CHECK(nq > 0 && nt == nq + c->nb * T,
+        "%s (%d-D): system %d (joint-reduced) against %d (QR)", c->name, D, nt,
+        nq);
+  mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
+  for (int f = 0; f < 3; f++) {
+    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 1.0, c->tol);
+    s.constraint_tol = c->tol;
+    s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+    s.tuning.nullspace_tree = f == 1;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
+      CHECK(0, "%s, tight (%d-D, case %d): %s", c->name, D, f, sum.message);
+  }
+  double d[2] = {0.0, 0.0};
+  if (tt[0] && tt[1] && tt[2])
+    for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++) {
+      d[0] = fmax(d[0], fabs(tt[1]->q[i] - tt[0]->q[i]));
+      d[1] = fmax(d[1], fabs(tt[1]->q[i] - tt[2]->q[i]));
+    }
+  printf("%s (%d-D, %d bodies), 100 steps at tolerances %.0e: joint-reduced "
+         "null space against multipliers %.3g, against the QR null space "
+         "%.3g\n",
+         c->name, D, c->nb, c->tol, d[0], d[1]);
+  CHECK(tt[0] && tt[0]->n_macro == 101 && d[0] < c->agree && d[1] < c->agree,
+        "%s (%d-D), joint-reduced against the other forms: %.3g, %.3g", c->name,
+        D, d[0], d[1]);
+  for (int f = 0; f < 3; f++)
+    mrvi_trajectory_free(tt[f]);
+  /* default tolerances: joint-reduced (0), multipliers (1), QR basis (2) */
+  mrvi_trajectory *tr[3] = {NULL, NULL, NULL};
+  double eg[3] = {1, 1, 1}, eH[3] = {1, 1, 1}, eH10[3] = {1, 1, 1};
+  for (int f = 0; f < 3; f++) {
+    if ((f == 1 && !c->vs_multipliers) || (f == 2 && !c->qr_long))
+      continue;
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", 0.01, 2, c->t_long, 1e-9);
+    s.constraint_form = f == 1 ? MRVI_FORM_MULTIPLIERS : MRVI_FORM_NULL_SPACE;
+    s.tuning.nullspace_tree = f == 0;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
+      CHECK(0, "%s run (%d-D, case %d): %s", c->name, D, f, sum.message);
+    else
+      loop_invariants(m, tr[f], &eg[f], &eH[f], &eH10[f]);
+    mrvi_trajectory_free(tr[f]);
+  }
+  printf("  %.0f steps, Newton tolerance 1e-9: max |g| %.3g, energy %.3g",
+         c->t_long / 0.01, eg[0], eH[0]);
+  if (c->qr_long)
+    printf(" (QR null space: max |g| %.3g)", eg[2]);
+  if (c->vs_multipliers)
+    printf(" (multipliers: max |g| %.3g, energy %.3g; first tenth %.3g, "
+           "%.3g)",
+           eg[1], eH[1], eH10[0], eH10[1]);
+  printf("\n");
+  CHECK(eg[0] <= 1e-13, "%s (%d-D), joint-reduced: max |g| %.3g", c->name, D,
+        eg[0]);
+  CHECK(eH[0] < 0.05 && (!c->vs_multipliers || eH[0] < 1.5 * eH[1] + 1e-6),
+        "%s (%d-D), joint-reduced: energy %.3g (multipliers %.3g)", c->name, D,
+        eH[0], eH[1]);
+}
+
 static void test_joint_reduced(void) {
   for (int D = 2; D <= 3; D++) {
-    const int n = D == 2 ? 7 : 6, T = D * (D + 1) / 2;
+    const int n = D == 2 ? 7 : 6;
     mrvi_model *m = jointed_tree(D, n);
-    /* the path: n + 1 bodies' twists beside the unknowns */
-    const int nt = ns_size(m, 1), nq = ns_size(m, 0);
-    CHECK(nq > 0 && nt == nq + (n + 1) * T,
-          "jointed tree (%d-D): system %d (joint-reduced) against %d (QR)", D,
-          nt, nq);
-    /* the forms at tight tolerances, 100 steps, p = 2 */
-    mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
-    for (int f = 0; f < 3; f++) {
-      mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 1.0, 1e-12);
-      s.constraint_tol = 1e-12;
-      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
-      s.tuning.nullspace_tree = f == 1;
-      mrvi_summary sum;
-      if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
-        CHECK(0, "jointed tree, tight (%d-D, case %d): %s", D, f, sum.message);
-    }
-    double d[2] = {0.0, 0.0};
-    if (tt[0] && tt[1] && tt[2])
-      for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++) {
-        d[0] = fmax(d[0], fabs(tt[1]->q[i] - tt[0]->q[i]));
-        d[1] = fmax(d[1], fabs(tt[1]->q[i] - tt[2]->q[i]));
-      }
-    printf("jointed tree (%d-D, %d bodies), 100 steps at tolerances 1e-12: "
-           "joint-reduced null space against multipliers %.3g, against the "
-           "QR null space %.3g\n",
-           D, n + 1, d[0], d[1]);
-    CHECK(tt[0] && tt[0]->n_macro == 101 && d[0] < 1e-9 && d[1] < 1e-9,
-          "joint-reduced against the other forms (%d-D): %.3g, %.3g", D, d[0],
-          d[1]);
-    /* default tolerances, 3000 steps: the constraints to round-off, the
-     * energy error that of the multiplier form (the scheme's, bounded) */
-    mrvi_trajectory *tr[2] = {NULL, NULL};
-    double eg[2] = {1, 1}, eH[2] = {1, 1}, eH10[2] = {1, 1};
-    for (int f = 0; f < 2; f++) {
-      mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 30.0, 1e-9);
-      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
-      mrvi_summary sum;
-      if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
-        CHECK(0, "jointed tree run (%d-D, case %d): %s", D, f, sum.message);
-      else
-        loop_invariants(m, tr[f], &eg[f], &eH[f], &eH10[f]);
-    }
-    printf("  3000 steps, Newton tolerance 1e-9: max |g| %.3g (multipliers "
-           "%.3g), energy %.3g (multipliers %.3g; first tenth %.3g, %.3g)\n",
-           eg[1], eg[0], eH[1], eH[0], eH10[1], eH10[0]);
-    CHECK(eg[1] <= 1e-13, "joint-reduced (%d-D): max |g| %.3g", D, eg[1]);
-    CHECK(eH[1] < 0.05 && eH[1] < 1.5 * eH[0] + 1e-6,
-          "joint-reduced (%d-D): energy %.3g (multipliers %.3g)", D, eH[1],
-          eH[0]);
-    for (int f = 0; f < 3; f++)
-      mrvi_trajectory_free(tt[f]);
-    mrvi_trajectory_free(tr[0]);
-    mrvi_trajectory_free(tr[1]);
+    const tree_case c = {"jointed tree", n + 1, 1e-12, 1e-9, 30.0, 1, 0};
+    check_joint_reduced(m, D, &c);
     mrvi_model_free(m);
   }
 }
@@ -1150,71 +1188,116 @@ static mrvi_model *welded_tree(int D) {
   const double g[3] = {0.0, -9.81, 0.0};
   if (st >= 0)
     st = mrvi_model_set_gravity(m, g);
-  const double l[3] = {2.4, -1.6, 0.1}, v[3] = {0.0, 0.0, 0.0},
-               anchor[3] = {2.9, -1.1, 0.2};
-  const int f =
-      st >= 0 ? mrvi_model_add_particle(m, "l", 0.05, MRVI_FAST, l, v) : st;
-  const mrvi_end pf = {.particle = f, .body = -1},
-                 pb = {.particle = -1, .body = 2, .at = {0.5, 0, 0}};
-  const double kf = 200.0, ks = 50.0;
-  CHECK(f >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_FAST, &pf, NULL, anchor, "linear",
-                                      &kf, NAN) >= 0 &&
-            mrvi_model_add_end_spring(m, MRVI_SLOW, &pb, &pf, NULL, "linear",
-                                      &ks, NAN) >= 0,
-        "welded tree (%d-D): %s", D, mrvi_model_errmsg(m));
+  const double l[3] = {2.4, -1.6, 0.1}, anchor[3] = {2.9, -1.1, 0.2};
+  CHECK(add_fast_particle(m, st, 2, l, anchor) >= 0, "welded tree (%d-D): %s",
+        D, mrvi_model_errmsg(m));
   return m;
 }
 
 static void test_joint_reduced_weld(void) {
   for (int D = 2; D <= 3; D++) {
     mrvi_model *m = welded_tree(D);
-    const int nb = 7, T = D * (D + 1) / 2;
-    const int nt = ns_size(m, 1), nq = ns_size(m, 0);
-    CHECK(nq > 0 && nt == nq + nb * T,
-          "welded tree (%d-D): system %d (joint-reduced) against %d (QR)", D,
-          nt, nq);
-    mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
-    for (int f = 0; f < 3; f++) {
-      mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 1.0, 1e-13);
-      s.constraint_tol = 1e-13;
-      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
-      s.tuning.nullspace_tree = f == 1;
-      mrvi_summary sum;
-      if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
-        CHECK(0, "welded tree, tight (%d-D, case %d): %s", D, f, sum.message);
+    const tree_case c = {"welded tree", 7, 1e-13, 1e-11, 10.0, 0, 0};
+    check_joint_reduced(m, D, &c);
+    mrvi_model_free(m);
+  }
+}
+
+/* Trees of the joints with translations and of the cross, in the plane
+ * z = 0 (doc/multibody.md, "Joint-reduced null space for chains and
+ * trees"): bar b0 on the joint `kind` to the ground at 0; b1 on a ball
+ * (2-D: revolute) joint at b0's end, turning; b2 on `kind` at b1's end with
+ * b2 the joint's body B (the child carries the frame b_m); b3 on `kind` at
+ * b1's centre with b3 its body A (the parent carries b_m), turning; a fast
+ * particle on a slow spring to a point of b2 and a fast one to an anchor;
+ * gravity -e2.  The axes (and a universal's second axes, oblique at the
+ * ground) are out of the plane in 3-D. */
+static mrvi_model *kind_tree(int D, const char *kind) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, D);
+  const double J2[1] = {2.0 / 12.0}, J3[3] = {0.1, 0.5, 0.55},
+               w2[2][1] = {{0.7}, {-0.4}},
+               w3[2][3] = {{0.2, -0.3, 0.5}, {0.0, 0.3, -0.4}};
+  static const struct {
+    double pt[3], dir[3], axis2[2], axis3[3], second[3];
+    int parent, child_is_b;
+  } bar[] = {
+      {{0, 0, 0},
+       {0.6, -0.8, 0},
+       {0.6, -0.8},
+       {0.48, -0.64, 0.6},
+       {0, 0, 1},
+       -1,
+       0},
+      {{0.6, -0.8, 0}, {1, 0, 0}, {0, 0}, {0, 0, 0}, {0, 0, 0}, 0, 0},
+      {{1.6, -0.8, 0}, {0, -1, 0}, {0.8, -0.6}, {0, 0.6, 0.8}, {1, 0, 0}, 1, 1},
+      {{1.1, -0.8, 0},
+       {0.6, -0.8, 0},
+       {1, 0},
+       {0.8, 0, -0.6},
+       {0, 1, 0},
+       1,
+       0}};
+  int st = 0, b[4];
+  for (int i = 0; i < 4 && st >= 0; i++) {
+    const double x[3] = {bar[i].pt[0] + 0.5 * bar[i].dir[0],
+                         bar[i].pt[1] + 0.5 * bar[i].dir[1], 0.0};
+    const double *w =
+        i == 1 || i == 3 ? (D == 2 ? w2[i / 2] : w3[i / 2]) : NULL;
+    char name[16];
+    snprintf(name, sizeof name, "b%d", i);
+    st = b[i] = mrvi_model_add_body(m, name, D, MRVI_SLOW, 2.0 + 0.1 * i,
+                                    D == 2 ? J2 : J3, x, NULL, NULL, w);
+    if (st < 0)
+      break;
+    const int pa = bar[i].parent < 0 ? -1 : b[bar[i].parent];
+    if (i == 1) {
+      st = mrvi_model_add_joint(m, D == 2 ? "revolute" : "spherical", b[i], pa,
+                                bar[i].pt, NULL);
+      continue;
     }
-    double d[2] = {0.0, 0.0};
-    if (tt[0] && tt[1] && tt[2])
-      for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++) {
-        d[0] = fmax(d[0], fabs(tt[1]->q[i] - tt[0]->q[i]));
-        d[1] = fmax(d[1], fabs(tt[1]->q[i] - tt[2]->q[i]));
-      }
-    printf("welded tree (%d-D, %d bodies), 100 steps at tolerances 1e-13: "
-           "joint-reduced null space against multipliers %.3g, against the "
-           "QR null space %.3g\n",
-           D, nb, d[0], d[1]);
-    CHECK(tt[0] && tt[0]->n_macro == 101 && d[0] < 1e-11 && d[1] < 1e-11,
-          "welded tree (%d-D), joint-reduced against the other forms: %.3g, "
-          "%.3g",
-          D, d[0], d[1]);
-    mrvi_trajectory *tr = NULL;
-    double eg = 1, eH = 1;
-    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 10.0, 1e-9);
-    s.constraint_form = MRVI_FORM_NULL_SPACE;
-    mrvi_summary sum;
-    if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0)
-      CHECK(0, "welded tree run (%d-D): %s", D, sum.message);
-    else
-      loop_invariants(m, tr, &eg, &eH, NULL);
-    printf("  1000 steps, Newton tolerance 1e-9: max |g| %.3g, energy %.3g\n",
-           eg, eH);
-    CHECK(eg <= 1e-13, "welded tree (%d-D), joint-reduced: max |g| %.3g", D,
-          eg);
-    CHECK(eH < 0.05, "welded tree (%d-D), joint-reduced: energy %.3g", D, eH);
-    for (int f = 0; f < 3; f++)
-      mrvi_trajectory_free(tt[f]);
-    mrvi_trajectory_free(tr);
+    const double *axis = D == 2 ? bar[i].axis2 : bar[i].axis3;
+    const int A = bar[i].child_is_b ? pa : b[i],
+              B = bar[i].child_is_b ? b[i] : pa;
+    st = mrvi_model_add_joint_axes(m, kind, A, B, bar[i].pt, axis,
+                                   strcmp(kind, "universal") ? NULL
+                                                             : bar[i].second);
+  }
+  /* slow springs from b0, b2, b3 to points above them keep the slides
+   * bounded (a row r . b_n is as large as r times its round-off) */
+  for (int i = 0; i < 4 && st >= 0; i++) {
+    const mrvi_end e = {.particle = -1, .body = b[i], .at = {0, 0, 0}};
+    const double k = 20.0,
+                 up[3] = {bar[i].pt[0] + 0.5 * bar[i].dir[0],
+                          bar[i].pt[1] + 0.5 * bar[i].dir[1] + 1.0, 0.0};
+    if (i != 1)
+      st = mrvi_model_add_end_spring(m, MRVI_SLOW, &e, NULL, up, "linear", &k,
+                                     NAN);
+  }
+  const double g[3] = {0.0, -9.81, 0.0};
+  if (st >= 0)
+    st = mrvi_model_set_gravity(m, g);
+  const double l[3] = {2.2, -1.5, 0.1}, anchor[3] = {2.7, -1.0, 0.2};
+  CHECK(add_fast_particle(m, st, 2, l, anchor) >= 0, "%s tree (%d-D): %s", kind,
+        D, mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_joint_reduced_kinds(void) {
+  static const struct {
+    const char *kind;
+    int D;
+  } cases[] = {{"prismatic", 2},
+               {"prismatic", 3},
+               {"cylindrical", 3},
+               {"universal", 3},
+               {"planar", 3}};
+  for (int i = 0; i < (int)(sizeof cases / sizeof cases[0]); i++) {
+    mrvi_model *m = kind_tree(cases[i].D, cases[i].kind);
+    char name[32];
+    snprintf(name, sizeof name, "%s tree", cases[i].kind);
+    const tree_case c = {name, 4, 1e-13, 1e-11, 10.0, 0, 1};
+    check_joint_reduced(m, cases[i].D, &c);
     mrvi_model_free(m);
   }
 }
@@ -1233,5 +1316,6 @@ int main(void) {
   test_fast_reparametrisation();
   test_joint_reduced();
   test_joint_reduced_weld();
+  test_joint_reduced_kinds();
   return test_finish();
 }

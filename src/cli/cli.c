@@ -551,8 +551,8 @@ static int cmd_check(int argc, char **argv) {
              mrvi_nullspace_tree_plan(sys->model, tree_why, sizeof tree_why))
       printf("%-14sjoint-reduced (open chains and trees of joints: P = "
              "blkdiag(P_i) (I - X)^-1 S, solved sparse with one twist per "
-             "body), nodal reparametrisation turning each body about its "
-             "joint\n",
+             "body), nodal reparametrisation moving each body by its "
+             "joint's free turns and slides\n",
              "  null space");
     else
       printf("%-14snumerical (QR of the constraint gradients at every node); "

@@ -881,17 +881,28 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
   for (int k = 0; k < st->n_lambda - (z->rs - z->rk); k++)
     z->rec_coef[e++] = 1.0;
   /* Rows of the reduced system: combinations of the full rows. */
-  memset(z->Ax, 0, (size_t)z->nnz * sizeof *z->Ax);
+  const mrvi_row_recipe rr = {z->n,   z->rec_start, z->rec_row,
+                              NULL,   z->csr_start, z->csr_idx,
+                              z->map, z->rec_coef,  NULL};
+  mrvi_row_recipe_apply(&rr, st, Rfull, z->Ax, z->nnz, rhs);
+}
+
+void mrvi_row_recipe_apply(const mrvi_row_recipe *r, const mrvi_step *st,
+                           const double *R, double *Ax, long nnz, double *rhs) {
+  memset(Ax, 0, (size_t)nnz * sizeof *Ax);
   long t = 0;
-  for (int i = 0; i < z->n; i++) {
+  for (int i = 0; i < r->n; i++) {
     double s = 0.0;
-    for (int k = z->rec_start[i]; k < z->rec_start[i + 1]; k++) {
-      const int row = z->rec_row[k];
-      const double c = z->rec_coef[k];
-      s += c * Rfull[row];
-      for (int q = z->csr_start[row]; q < z->csr_start[row + 1]; q++)
-        z->Ax[z->map[t++]] += c * st->Ax[z->csr_idx[q]];
+    for (int k = r->rec_start[i]; k < r->rec_start[i + 1]; k++) {
+      const int row = r->rec_row[k];
+      const double c = r->rec_coef[k];
+      s += c * R[row];
+      for (int q = r->csr_start[row]; q < r->csr_start[row + 1]; q++)
+        Ax[r->map[t++]] += c * st->Ax[r->csr_idx[q]];
     }
+    if (r->ext_start)
+      for (int k = r->ext_start[i]; k < r->ext_start[i + 1]; k++)
+        Ax[r->map[t++]] += r->ext_coef[k];
     rhs[i] = s;
   }
 }

@@ -9,26 +9,29 @@
  *   t_i = X_i t_a + S_i nu_i,
  * X_i carrying i rigidly with its parent (w_i = w_a, u_i = u_a + w_a x
  * (phi_i - phi_a); X_i = 0 for a root) and S_i the joint's free directions
- * about its point x_J, with r = phi_i - x_J: ball (w, w x r) for the three
- * rotations, hinge (a, a x r) with a the axis fixed in the joint's body A
- * (2-D: (J r, 1)), weld none; a body in no joint (a free root) S = I.  In
- * tree order (parents first) (I - X) t = S nu, so the null-space matrix is
- *   P = blkdiag(P_i) (I - X)^-1 S,
- * dense down each subtree.  It is never formed: with
- *   y = (I - X)^-T P_int^T (R - A dx)       (one twist y_i per body)
- * the reduced Newton system P^T A dx = P^T R, H dx = h becomes the square
- * sparse system
- *   (I - X)^T y + P_int^T A dx = P_int^T R  (T rows per body),
- *   S^T y                      = 0          (one row per joint rate),
- *   H dx                       = h          (the constraint rows),
- * with the rows of the coordinates outside the bodies (slow particles, the
- * fast coordinates) as they are: (I - X)^T is block bidiagonal along the
- * tree (a body's rows hold its own y and its children's), so the matrix has
- * O(n) entries for n bodies and its sparse LU (UMFPACK through
- * mrvi_newton) costs O(n) for chains and trees.  dx is the first
- * n_unknowns entries of the solution.  P, X and S are taken at q_k, where
- * the constraint forces dT G(q_k)^T lambda act (doc/constraints.md,
- * "Null-space form").
+ * (u, w), rotations about the child's joint point x_J first, with r =
+ * phi_i - x_J, then translations: ball (w x r, w) for the three rotations;
+ * hinge (a_1 x r, a_1), a_1 the axis fixed in the joint's body A (2-D:
+ * (J r, 1)); weld none; prismatic (b_1, 0), b_1 the axis fixed in body B
+ * (or in space); cylindrical the hinge's column and the prismatic's;
+ * universal (a_1 x r, a_1) and (b_2 x r, b_2), the cross's arms fixed in A
+ * and in B; planar the hinge's column about the normal a_1 and (b_2, 0),
+ * (b_3, 0) in the plane fixed in B; a body in no joint (a free root) S = I.
+ * Each leaves the joint's rows constant to first order on the constraint
+ * manifold (doc/multibody.md).  In tree order (parents first) (I - X) t = S nu,
+ * so the null-space matrix is P = blkdiag(P_i) (I - X)^-1 S, dense down each
+ * subtree.  It is never formed: with y = (I - X)^-T P_int^T (R - A dx) (one
+ * twist y_i per body) the reduced Newton system P^T A dx = P^T R, H dx = h
+ * becomes the square sparse system (I - X)^T y + P_int^T A dx = P_int^T R  (T
+ * rows per body), S^T y                      = 0          (one row per joint
+ * rate), H dx                       = h          (the constraint rows), with
+ * the rows of the coordinates outside the bodies (slow particles, the fast
+ * coordinates) as they are: (I - X)^T is block bidiagonal along the tree (a
+ * body's rows hold its own y and its children's), so the matrix has O(n)
+ * entries for n bodies and its sparse LU (UMFPACK through mrvi_newton) costs
+ * O(n) for chains and trees.  dx is the first n_unknowns entries of the
+ * solution.  P, X and S are taken at q_k, where the constraint forces dT
+ * G(q_k)^T lambda act (doc/constraints.md, "Null-space form").
  *
  * Multipliers lambda(x): the least-squares solution of dT G^T lambda = F on
  * the slow rows in the metric M^-1, by the sparse Gram factor of
@@ -37,11 +40,15 @@
  * Nodal reparametrisation: a Newton update is applied body by body, parents
  * first: each body's rotation w from its director increments (the left
  * inverse of P_i), its turn relative to its parent projected on the joint's
- * free rotations, its frame the parent's update times that turn, and its
- * centre placed so that its joint point lies on the parent's (or on the
- * ground point).  The internal constraints and the joints' points hold to
- * round-off at every iterate; the hinge's axis rows keep the value they
- * have at q_0. */
+ * free rotations (a cross: exp(al e_p^) exp(be e_c^), the parent's arm
+ * outside, which keeps e_p . e_c), its frame the parent's update times that
+ * turn, and its centre placed so that its joint point lies on the parent's
+ * (or on the ground point), or, for a joint with translations, on the line
+ * along (the plane normal to) b_1 through it nearest to the child's own
+ * moved point.  The internal constraints, the joints' points and their
+ * lines and planes hold to round-off at every iterate; the rows between
+ * axes (hinge, cylindrical, planar, prismatic, universal, weld) keep the
+ * value they have at q_0. */
 #include "solver/solver.h"
 
 #include <math.h>
@@ -51,6 +58,35 @@
 #include <suitesparse/umfpack.h>
 
 #define JOINT_HEAD 2 /* params: d, bodies, then rho_A, rho_B (or p), frame */
+
+/* A joint's free relative motion (module header): its rotations about the
+ * child's joint point and its translations, by MRVI_JOINT_*. */
+enum { ROT_NONE, ROT_ALL, ROT_AXIS, ROT_CROSS }; /* -, every, a_1, a_1 + b_2 */
+enum { TR_NONE, TR_LINE, TR_PLANE }; /* -, along b_1, normal to b_1 */
+static const struct {
+  unsigned char rot, tr;
+} motions[] = {
+    [MRVI_JOINT_BALL] = {ROT_ALL, TR_NONE},
+    [MRVI_JOINT_HINGE] = {ROT_AXIS, TR_NONE},
+    [MRVI_JOINT_WELD] = {ROT_NONE, TR_NONE},
+    [MRVI_JOINT_PRISMATIC] = {ROT_NONE, TR_LINE},
+    [MRVI_JOINT_CYLINDRICAL] = {ROT_AXIS, TR_LINE},
+    [MRVI_JOINT_UNIVERSAL] = {ROT_CROSS, TR_NONE},
+    [MRVI_JOINT_PLANAR] = {ROT_AXIS, TR_PLANE},
+};
+#define N_MOTIONS ((int)(sizeof motions / sizeof motions[0]))
+
+/* Rotations (out of T - D) and translations a joint of motion k leaves. */
+static int n_rot(int k, int D) {
+  const int r = motions[k].rot;
+  return r == ROT_ALL     ? D * (D - 1) / 2
+         : r == ROT_AXIS  ? 1
+         : r == ROT_CROSS ? 2
+                          : 0;
+}
+static int n_tr(int k) {
+  return motions[k].tr == TR_LINE ? 1 : motions[k].tr == TR_PLANE ? 2 : 0;
+}
 
 struct mrvi_nstree {
   int D, T, nb, nu, n, ns, nf, p, n_lambda;
@@ -150,7 +186,8 @@ static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
     const mrvi_constraint *k = &m->constraints[c];
     if (is_int[c])
       continue;
-    if (!k->type->joint_motion || k->where != MRVI_SLOW) {
+    if (k->type->joint_motion <= 0 || k->type->joint_motion >= N_MOTIONS ||
+        k->where != MRVI_SLOW) {
       snprintf(why, len, "constraint '%s' (%s) has no joint reduction",
                k->label, k->type->name);
       ok = 0;
@@ -249,22 +286,25 @@ static const double *rho(const mrvi_model *m, const mrvi_nstree *z, int t,
   return par + JOINT_HEAD + (own == z->is_a[t] ? 0 : z->D);
 }
 
-/* Hinge axis in space: t_1 of the joint in body A's frame on A's directors
- * dA (D x D). */
-static void hinge_axis(const mrvi_model *m, const mrvi_nstree *z, int t,
-                       const double *dA, double *a) {
-  const int D = z->D;
-  const double *t1 = params(m, z, t) + JOINT_HEAD + 2 * D;
-  a[0] = a[1] = a[2] = 0.0;
+/* Frame vector t_k of tree body t's joint in space on the positions pos
+ * (nb x D(D+1), tree order): fixed in body A (body 0) or body B (body 1;
+ * the ground's t_k is in space). */
+static void joint_vec(const mrvi_model *m, const mrvi_nstree *z, int t,
+                      int body, int k, const double *pos, double *v) {
+  const int D = z->D, w = D * (D + 1),
+            own = body == 0 ? z->is_a[t] : !z->is_a[t];
+  const double *tk =
+      params(m, z, t) + JOINT_HEAD + 2 * D + D * D * body + D * k;
+  v[0] = v[1] = v[2] = 0.0;
+  if (!own && z->parent[t] < 0) {
+    for (int c = 0; c < D; c++)
+      v[c] = tk[c];
+    return;
+  }
+  const double *d = pos + (size_t)w * (own ? t : z->parent[t]) + D;
   for (int i = 0; i < D; i++)
     for (int c = 0; c < D; c++)
-      a[c] += t1[i] * dA[D * i + c];
-}
-
-/* The directors of body A of t's joint among the positions pos. */
-static const double *dirs_a(const mrvi_nstree *z, int t, const double *pos) {
-  const int w = z->D * (z->D + 1);
-  return pos + (size_t)w * (z->is_a[t] ? t : z->parent[t]) + z->D;
+      v[c] += tk[i] * d[D * i + c];
 }
 
 /* P_t, X_t, S_t at the positions pos (nb x D(D+1), tree order). */
@@ -308,27 +348,34 @@ static void geometry(mrvi_nstree *z, const mrvi_model *m, const double *pos) {
         S[a * nd + a] = 1.0;
       continue;
     }
+    /* rotations about the joint point (w x r, w), then translations (v, 0) */
     double r[3] = {0.0, 0.0, 0.0}, axis[3][3] = {{0}};
     const double *rh = rho(m, z, t, 1);
     for (int i = 0; i < D; i++)
       for (int a = 0; a < D; a++)
         r[a] -= rh[i] * d[D * i + a];
-    if (D == 2 && nd == 1) {
-      S[0] = -r[1], S[1] = r[0], S[2] = 1.0; /* (J r, 1) */
-      continue;
-    }
-    if (z->motion[t] == MRVI_JOINT_HINGE)
-      hinge_axis(m, z, t, dirs_a(z, t, pos), axis[0]);
-    else
-      for (int k = 0; k < nd; k++)
+    const int mo = z->motion[t], nr = n_rot(mo, D);
+    if (D == 2 && nr == 1)
+      S[0 * nd] = -r[1], S[1 * nd] = r[0], S[2 * nd] = 1.0; /* (J r, 1) */
+    if (D == 3 && motions[mo].rot == ROT_ALL)
+      for (int k = 0; k < nr; k++)
         axis[k][k] = 1.0;
-    for (int k = 0; k < nd; k++) {
+    if (D == 3 && motions[mo].rot != ROT_ALL)
+      for (int k = 0; k < nr; k++) /* a_1 (fixed in A), b_2 (in B) */
+        joint_vec(m, z, t, k, k, pos, axis[k]);
+    for (int k = 0; D == 3 && k < nr; k++) {
       double c[3];
       cross(axis[k], r, c);
       for (int a = 0; a < 3; a++) {
         S[a * nd + k] = c[a];
         S[(3 + a) * nd + k] = axis[k][a];
       }
+    }
+    for (int k = 0; k < n_tr(mo); k++) { /* b_1; b_2, b_3 (fixed in B) */
+      double v[3];
+      joint_vec(m, z, t, 1, motions[mo].tr == TR_LINE ? 0 : 1 + k, pos, v);
+      for (int a = 0; a < D; a++)
+        S[a * nd + nr + k] = v[a];
     }
   }
 }
@@ -543,9 +590,7 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
     const mrvi_constraint *k = &m->constraints[z->joint[t]];
     z->is_a[t] = mrvi_model_body_of(m, k->in[0]) == z->order[t];
     z->motion[t] = k->type->joint_motion;
-    z->dof[t] = z->motion[t] == MRVI_JOINT_WELD   ? 0
-                : z->motion[t] == MRVI_JOINT_BALL ? T - D
-                                                  : 1;
+    z->dof[t] = n_rot(z->motion[t], D) + n_tr(z->motion[t]);
     if (z->parent[t] >= 0)
       z->child_start[z->parent[t] + 1]++;
   }
@@ -629,21 +674,10 @@ void mrvi_nstree_reduce(mrvi_nstree *z, const mrvi_step *st,
                         const double *Rfull, double *rhs) {
   walk wk = {z, 0, 0, 0, 0};
   rows(&wk, st);
-  memset(z->Ax, 0, (size_t)z->nnz * sizeof *z->Ax);
-  long t = 0;
-  for (int i = 0; i < z->n; i++) {
-    double s = 0.0;
-    for (int k = z->rec_start[i]; k < z->rec_start[i + 1]; k++) {
-      const int row = z->rec_row[k];
-      const double c = z->rec_coef[k];
-      s += c * Rfull[row];
-      for (int q = z->csr_start[row]; q < z->csr_start[row + 1]; q++)
-        z->Ax[z->map[t++]] += c * st->Ax[z->csr_idx[q]];
-    }
-    for (int k = z->ext_start[i]; k < z->ext_start[i + 1]; k++)
-      z->Ax[z->map[t++]] += z->ext_coef[k];
-    rhs[i] = s;
-  }
+  const mrvi_row_recipe rr = {z->n,         z->rec_start, z->rec_row,
+                              z->ext_start, z->csr_start, z->csr_idx,
+                              z->map,       z->rec_coef,  z->ext_coef};
+  mrvi_row_recipe_apply(&rr, st, Rfull, z->Ax, z->nnz, rhs);
 }
 
 /* ---------------------------------------------------------------------------
@@ -659,6 +693,50 @@ static void matmul(int D, const double *a, const double *b, double *c) {
         s += a[i * D + k] * b[k * D + j];
       c[i * D + j] = s;
     }
+}
+
+/* A cross's turn: the relative turn th ~ al e_p + be e_c (least squares)
+ * on its axes e_p, e_c fixed in the parent and the child (a_1 in A, b_2 in
+ * B), unit, at the base positions; ep <- al e_p, ec <- be e_c. */
+static void cross_turn(const mrvi_model *m, const mrvi_nstree *z, int t,
+                       const double *th, double *ep, double *ec) {
+  const int pb = z->is_a[t]; /* the parent's body: B if t is A */
+  joint_vec(m, z, t, pb, pb, z->pos, ep);
+  joint_vec(m, z, t, !pb, !pb, z->pos, ec);
+  double np = 0.0, nc = 0.0, c = 0.0, fp = 0.0, fc = 0.0;
+  for (int a = 0; a < 3; a++)
+    np += ep[a] * ep[a], nc += ec[a] * ec[a];
+  np = sqrt(np), nc = sqrt(nc);
+  for (int a = 0; a < 3; a++) {
+    ep[a] /= np, ec[a] /= nc;
+    c += ep[a] * ec[a], fp += ep[a] * th[a], fc += ec[a] * th[a];
+  }
+  const double det = 1.0 - c * c; /* sin^2 of the axes' angle, > 0 */
+  const double al = (fp - c * fc) / det, be = (fc - c * fp) / det;
+  for (int a = 0; a < 3; a++)
+    ep[a] *= al, ec[a] *= be;
+}
+
+/* A joint with free translations: its point xj (on the parent, placed) moved
+ * to the child's own point, the base b moved by the child's shift and on
+ * its placed directors, projected on the line along b_1 (TR_LINE) or on the
+ * plane normal to b_1 (TR_PLANE), b_1 of the placed body B. */
+static void slide(const mrvi_model *m, const mrvi_nstree *z, int t,
+                  const double *b, const double *rc, double *xj) {
+  const int D = z->D, w = D * (D + 1);
+  const double *nw = z->npos + (size_t)w * t;
+  double e[3], x[3], ee = 0.0, f = 0.0;
+  joint_vec(m, z, t, 1, 0, z->npos, e);
+  for (int a = 0; a < D; a++) {
+    x[a] = b[a] + z->u[3 * t + a];
+    for (int i = 0; i < D; i++)
+      x[a] += rc[i] * nw[D + D * i + a];
+    ee += e[a] * e[a], f += (x[a] - xj[a]) * e[a];
+  }
+  f /= ee;
+  for (int a = 0; a < D; a++)
+    xj[a] = motions[z->motion[t]].tr == TR_LINE ? xj[a] + f * e[a]
+                                                : x[a] - f * e[a];
 }
 
 /* The bodies from the base positions z->pos turned by z->th and (free
@@ -677,21 +755,32 @@ static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
     const double *Qp = pa >= 0 ? z->Q + 9 * pa : I;
     for (int a = 0; a < 3; a++)
       th[a] = z->th[3 * t + a] - (pa >= 0 ? z->th[3 * pa + a] : 0.0);
-    if (z->joint[t] >= 0 && z->motion[t] == MRVI_JOINT_WELD)
+    /* the turn relative to the parent on the joint's free rotations: E =
+     * exp(th^), or for a cross exp(al e_p^) exp(be e_c^) with e_p, e_c its
+     * axes fixed in the parent and the child, which keeps e_p . e_c */
+    const int rot = z->joint[t] < 0 ? ROT_ALL : motions[z->motion[t]].rot;
+    double ep[3] = {0.0, 0.0, 0.0}, ec[3] = {0.0, 0.0, 0.0};
+    if (rot == ROT_NONE)
       th[0] = th[1] = th[2] = 0.0;
-    if (z->joint[t] >= 0 && z->motion[t] == MRVI_JOINT_HINGE && D == 3) {
+    if (rot == ROT_AXIS && D == 3) {
       double a[3];
-      hinge_axis(m, z, t, dirs_a(z, t, z->pos), a);
+      joint_vec(m, z, t, 0, 0, z->pos, a);
       const double f = (th[0] * a[0] + th[1] * a[1] + th[2] * a[2]) /
                        (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
       for (int c = 0; c < 3; c++)
         th[c] = f * a[c];
     }
-    /* E = exp(th^) by columns; Q_t = Q_parent E */
+    if (rot == ROT_CROSS)
+      cross_turn(m, z, t, th, ep, ec);
+    /* E by columns; Q_t = Q_parent E */
     for (int k = 0; k < D; k++) {
       double v[3] = {0.0, 0.0, 0.0};
       v[k] = 1.0;
-      mrvi_nullspace_rotate(D, th, v);
+      if (rot == ROT_CROSS) {
+        mrvi_nullspace_rotate(D, ec, v);
+        mrvi_nullspace_rotate(D, ep, v);
+      } else
+        mrvi_nullspace_rotate(D, th, v);
       for (int i = 0; i < D; i++)
         E[i * D + k] = v[i];
     }
@@ -707,16 +796,23 @@ static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
       for (int a = 0; a < D; a++)
         nw[a] = b[a] + z->u[3 * t + a];
     } else {
-      /* phi = x_J - rho^i d^i, x_J the parent's point (or the ground's) */
+      /* phi = x_J - rho^i d^i, x_J the parent's point (or the ground's),
+       * moved along the joint's free translations by the child's own */
       const double *rp = rho(m, z, t, 0), *rc = rho(m, z, t, 1);
       const double *yp = pa >= 0 ? z->npos + (size_t)w * pa : NULL;
+      double xj[3];
       for (int a = 0; a < D; a++) {
-        double xj = yp ? yp[a] : rp[a];
+        xj[a] = yp ? yp[a] : rp[a];
         for (int i = 0; yp && i < D; i++)
-          xj += rp[i] * yp[D + D * i + a];
+          xj[a] += rp[i] * yp[D + D * i + a];
+      }
+      if (motions[z->motion[t]].tr != TR_NONE)
+        slide(m, z, t, b, rc, xj);
+      for (int a = 0; a < D; a++) {
+        double s = xj[a];
         for (int i = 0; i < D; i++)
-          xj -= rc[i] * nw[D + D * i + a];
-        nw[a] = xj;
+          s -= rc[i] * nw[D + D * i + a];
+        nw[a] = s;
       }
     }
     for (int e = 0; e < w; e++)

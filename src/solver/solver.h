@@ -70,6 +70,22 @@ void mrvi_nullspace_nearest_rotation(int D, const double *ref, const double *w,
                                      double *th);
 /* CSR view (x columns only) of the step's CSC matrix (nullspace.c). */
 int mrvi_nullspace_csr(const mrvi_step *st, int **start, int **col, int **idx);
+/* A reduced system whose row i combines full rows of the step's system:
+ * sum over k in rec_start[i] .. rec_start[i+1]-1 of rec_coef[k] times row
+ * rec_row[k] (of st->Ax through the CSR view csr_start/csr_idx, and of R),
+ * plus, if ext_start is not NULL, the entries ext_coef[ext_start[i] ..
+ * ext_start[i+1]-1] in columns of its own.  map takes the matrix's entries,
+ * in that order, to their places in Ax (nnz entries of the reduced
+ * pattern). */
+typedef struct mrvi_row_recipe {
+  int n;
+  const int *rec_start, *rec_row, *ext_start, *csr_start, *csr_idx, *map;
+  const double *rec_coef, *ext_coef;
+} mrvi_row_recipe;
+/* The reduced matrix (Ax, nnz) and right-hand side rhs (n) of recipe r from
+ * the full system st->Ax, R (nullspace.c). */
+void mrvi_row_recipe_apply(const mrvi_row_recipe *r, const mrvi_step *st,
+                           const double *R, double *Ax, long nnz, double *rhs);
 /* The joint-reduced basis (nullspace_tree.c), behind mrvi_nullspace_*:
  * create returns 1 (made), 0 (does not apply: why) or a status < 0. */
 typedef struct mrvi_nstree mrvi_nstree;
