@@ -254,5 +254,8 @@ void mrvi_gram_project(mrvi_gram *gr, const mrvi_model *m, double *p,
  * (rows) is workspace.  Returns the smallest max |g| seen. */
 double mrvi_gram_settle(mrvi_gram *gr, const mrvi_model *m, double *q,
                         double *mu, int max_pass);
+/* Its passes for a predictor (a step's turn from q_k: each pass gains
+ * about two digits on chains). */
+#define MRVI_GRAM_SETTLE_PASSES 8
 
 #endif

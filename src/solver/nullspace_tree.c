@@ -57,11 +57,7 @@
 #include <string.h>
 #include <suitesparse/umfpack.h>
 
-#define JOINT_HEAD 2
-#define SETTLE_PASSES                                                          \
-  8 /* chord corrections of the start (settle) */ /* params: d, bodies, then   \
-                                                     rho_A, rho_B (or p),      \
-                                                     frame */
+#define JOINT_HEAD 2 /* params: d, bodies, then rho_A, rho_B (or p), frame */
 
 /* A joint's free relative motion (module header): its rotations about the
  * child's joint point and its translations, by MRVI_JOINT_*. */
@@ -869,7 +865,7 @@ static void settle(mrvi_nstree *z, const mrvi_step *st, double *x) {
       const int s = z->slot[t] + e;
       z->qx[m->slow_index[s]] = x[s] + (q0 ? q0[s] : 0.0);
     }
-  mrvi_gram_settle(z->gram, m, z->qx, z->mu, SETTLE_PASSES);
+  mrvi_gram_settle(z->gram, m, z->qx, z->mu, MRVI_GRAM_SETTLE_PASSES);
   for (int t = 0; t < z->nb; t++)
     for (int e = 0; e < w; e++) {
       const int s = z->slot[t] + e;
@@ -880,7 +876,8 @@ static void settle(mrvi_nstree *z, const mrvi_step *st, double *x) {
 void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
   const int D = z->D, w = D * (D + 1);
   const double *q0 = st->increments ? st->qs0 : NULL;
-  settle(z, st, x);
+  if (st->tuning.predict_settle)
+    settle(z, st, x);
   /* The predictor's turns and shifts from q_k. */
   gather(z, x, q0, z->npos);
   gather(z, NULL, st->qs0, z->pos);
