@@ -346,14 +346,18 @@ int main(int argc, char **argv) {
     } else if (!strcmp(a, "--scheme") && has) {
       traj_scheme = argv[++i];
     } else if (!strcmp(a, "--cases") && has) {
-      int list[N_CASES];
-      if ((n_only = bench_parse_ints(argv[++i], list, N_CASES)) <= 0)
-        return bad_usage();
-      for (int k = 0; k < n_only; k++) {
-        if (list[k] < 0 || list[k] >= N_CASES)
+      /* (case numbers from 0: bench_parse_ints takes positive ones) */
+      const char *c = argv[++i];
+      for (n_only = 0; *c; n_only++) {
+        char *end;
+        const long v = strtol(c, &end, 10);
+        if (end == c || v < 0 || v >= N_CASES || (*end && *end != ','))
           return bad_usage();
-        only[list[k]] = 1;
+        only[v] = 1;
+        c = *end ? end + 1 : end;
       }
+      if (n_only == 0)
+        return bad_usage();
     } else if (!strcmp(a, "--budget") && has) {
       if (bench_parse_positive(argv[++i], &budget) < 0)
         return bad_usage();

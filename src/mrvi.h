@@ -751,7 +751,11 @@ typedef enum mrvi_newton_criterion {
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \
-    "numerical QR basis)")
+    "numerical QR basis)")                                                     \
+  X(int, predict_settle, 1, 0, 1,                                              \
+    "steps with more than 32 rows of slow constraints start Newton from the "  \
+    "predictor moved onto the constraints, nearest in the mass metric (0: "    \
+    "from the predictor)")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

@@ -1119,6 +1119,49 @@ static void test_joint_reduced(void) {
   }
 }
 
+/* Newton updates per step along a long chain (doc/performance.md, "Chains:
+ * the ordering and the settled start"): the 2-D jointed tree of 100 bars,
+ * 10 steps (p = 2) at the tolerances of bench_chain, each form with and without
+ * tuning predict_settle.  The predictor leaves the constraint forces out:
+ * it violates the joints by about its error.  From it, the multiplier
+ * form's first update has to absorb that violation; the joint-reduced form
+ * turns each bar to the predictor's frame and places it on its parent's
+ * joint point, which sets the chain's far end off by the sum of the turns'
+ * errors above it.  Moved onto the constraints nearest in the mass metric
+ * (a move in the range of M^-1 G^T, which the multipliers absorb), the
+ * start keeps the predictor's accuracy along the constraints, and each
+ * form needs at least half an update per step less; the joint-reduced form
+ * then two, as on a chain of 10 bars. */
+static void test_joint_reduced_long_chain(void) {
+  mrvi_model *m = jointed_tree(2, 100);
+  double per[2][2] = {{0.0, 0.0}, {0.0, 0.0}}; /* [form][settle] */
+  for (int f = 0; f < 2; f++)
+    for (int on = 0; on < 2; on++) {
+      mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 2, 0.1, 1e-10);
+      s.constraint_tol = 1e-10;
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      s.tuning.predict_settle = on;
+      mrvi_summary sum;
+      if (mrvi_run(m, &s, NULL, NULL, NULL, &sum) != 0)
+        CHECK(0, "long chain (%s): %s", form_name(s.constraint_form),
+              sum.message);
+      else
+        per[f][on] = (double)sum.iterations_total / (double)sum.steps;
+    }
+  printf("jointed chain of 100 bars, 10 steps: Newton updates per step "
+         "%.2f (joint-reduced null space; %.2f from the predictor), %.2f "
+         "(multipliers; %.2f from the predictor)\n",
+         per[1][1], per[1][0], per[0][1], per[0][0]);
+  for (int f = 0; f < 2; f++)
+    CHECK(per[f][1] > 0.0 && per[f][1] <= per[f][0] - 0.5,
+          "long chain (%s): %.2f updates per step from the settled "
+          "predictor, %.2f from the predictor",
+          f ? "joint-reduced" : "multipliers", per[f][1], per[f][0]);
+  CHECK(per[1][1] <= 2.0, "long chain, joint-reduced: %.2f updates per step",
+        per[1][1]);
+  mrvi_model_free(m);
+}
+
 /* Trees with weld joints (doc/multibody.md, "Joint-reduced null space for
  * chains and trees"), in the plane z = 0: bar b0 on a joint to the ground
  * along e = (1, -1)/sqrt 2; b1 welded to b0's end, bent along e1; b2 on a
@@ -1315,6 +1358,7 @@ int main(void) {
   test_reparametrisation();
   test_fast_reparametrisation();
   test_joint_reduced();
+  test_joint_reduced_long_chain();
   test_joint_reduced_weld();
   test_joint_reduced_kinds();
   return test_finish();

@@ -12,6 +12,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <suitesparse/umfpack.h>
 
 static const char *const systems[] = {
     "systems/cart_pendulum.yaml", "systems/fpu.yaml",
@@ -1852,7 +1853,80 @@ static void test_scaled_criterion(void) {
         d[1]);
 }
 
+/* The ordering rule of solver/newton.c on two patterns of the same size
+ * above MRVI_NEWTON_METIS_TRY: a chain (each of nb blocks of 3 unknowns
+ * coupled to itself and the next, as the rigid chain's step), whose AMD
+ * order is nearly fill-free, must keep AMD; a 2-D five-point lattice of
+ * side m, where nested dissection's O(m^2 log m) fill beats minimum
+ * degree's, must take METIS.  Both then factorise and solve to round-off. */
+static void test_ordering_choice(void) {
+  const int m = 120, n = m * m, nb = n / 3;
+  int *Ap = malloc((size_t)(n + 1) * sizeof *Ap);
+  int *Ai = malloc(9 * (size_t)n * sizeof *Ai);
+  double *Ax = malloc(9 * (size_t)n * sizeof *Ax);
+  double *b = malloc((size_t)n * sizeof *b), *x = malloc((size_t)n * sizeof *x);
+  for (int lattice = 0; lattice < 2; lattice++) {
+    int nnz = 0;
+    for (int j = 0; j < n; j++) {
+      Ap[j] = nnz;
+      /* Column j: rows in increasing order, diagonally dominant. */
+      if (lattice) {
+        const int r = j / m, c = j % m;
+        const int nb4[5] = {r > 0 ? j - m : -1, c > 0 ? j - 1 : -1, j,
+                            c + 1 < m ? j + 1 : -1, r + 1 < m ? j + m : -1};
+        for (int k = 0; k < 5; k++)
+          if (nb4[k] >= 0) {
+            Ai[nnz] = nb4[k];
+            Ax[nnz++] = nb4[k] == j ? 4.5 : -1.0 - 0.01 * k;
+          }
+      } else {
+        const int blk = j / 3, lo = (blk > 0 ? blk - 1 : 0) * 3,
+                  hi = (blk + 1 < nb ? blk + 2 : nb) * 3;
+        for (int i = lo; i < hi; i++) {
+          Ai[nnz] = i;
+          Ax[nnz++] = i == j ? 10.0 : 0.3 + 0.01 * ((i + 2 * j) % 7);
+        }
+      }
+    }
+    Ap[n] = nnz;
+    char msg[200];
+    mrvi_newton *nw = mrvi_newton_create(n, Ap, Ai, Ax, 0, msg, sizeof msg);
+    CHECK(nw != NULL, "ordering: create: %s", msg);
+    if (!nw)
+      continue;
+    const int want = lattice ? UMFPACK_ORDERING_METIS : UMFPACK_ORDERING_AMD;
+    CHECK(mrvi_newton_ordering(nw) == want,
+          "ordering of the %s (n = %d): %d, expected %d",
+          lattice ? "lattice" : "chain", n, mrvi_newton_ordering(nw), want);
+    for (int i = 0; i < n; i++)
+      b[i] = sin(0.3 + 1.1 * i);
+    CHECK(mrvi_newton_solve(nw, Ax, b, x, msg, sizeof msg) == MRVI_OK,
+          "ordering: solve: %s", msg);
+    double worst = 0.0;
+    for (int i = 0; i < n; i++)
+      worst = fmax(worst, fabs(b[i]));
+    for (int j = 0; j < n; j++)
+      for (int e = Ap[j]; e < Ap[j + 1]; e++)
+        b[Ai[e]] -= Ax[e] * x[j];
+    double r = 0.0;
+    for (int i = 0; i < n; i++)
+      r = fmax(r, fabs(b[i]));
+    CHECK(r <= 1e3 * DBL_EPSILON * 10.0 * worst, "ordering (%s): residual %.2e",
+          lattice ? "lattice" : "chain", r);
+    printf("ordering: %s of %d rows -> %s\n", lattice ? "lattice" : "chain", n,
+           mrvi_newton_ordering(nw) == UMFPACK_ORDERING_METIS ? "METIS"
+                                                              : "AMD");
+    mrvi_newton_free(nw);
+  }
+  free(Ap);
+  free(Ai);
+  free(Ax);
+  free(b);
+  free(x);
+}
+
 int main(void) {
+  test_ordering_choice();
   test_keep_micro();
   test_stiff_quartic_sweep();
   test_scaled_criterion();

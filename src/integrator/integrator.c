@@ -45,10 +45,11 @@ struct mrvi_integrator {
   double *lambda; /* constraint rows: multipliers at node k of the last step */
   double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
-  mrvi_gram *gram; /* sparse Gram (more than MRVI_GRAM_DENSE_MAX rows) */
-  double *mu_h;    /* projection impulse / h at the current node */
-  int n_torsion;   /* torsional springs of the model */
-  double *torsion; /* their branches: unwrapped angles at node k (torsion.c) */
+  double *settle_q; /* 2 n: settle_predictor's positions (NULL: off) */
+  mrvi_gram *gram;  /* sparse Gram (more than MRVI_GRAM_DENSE_MAX rows) */
+  double *mu_h;     /* projection impulse / h at the current node */
+  int n_torsion;    /* torsional springs of the model */
+  double *torsion;  /* their branches: unwrapped angles at node k (torsion.c) */
   /* Null-space form: constraint rows redundant at q0 (1), left out of the
    * step and the projection; their count; scratch for later checks. */
   unsigned char *c_drop, *c_drop_at;
@@ -185,6 +186,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->cA);
   mrvi_gram_free(it->gram);
   free(it->cmu);
+  free(it->settle_q);
   free(it->c_drop);
   free(it->mu_h);
   free(it->pGf);
@@ -214,6 +216,32 @@ static void split_state(mrvi_integrator *it) {
 static void predict(mrvi_integrator *it) {
   it->step.increments = 1;
   mrvi_predict_checked(it->predictor, &it->step, it->x);
+}
+
+/* The predictor's slow positions moved onto the slow constraints, nearest
+ * in the mass metric (tuning predict_settle; mrvi_gram_settle with the Gram
+ * factor at q_k).  The move lies in the range of M^-1 G^T, so the
+ * multipliers' first update absorbs its force and that update starts from
+ * the constraints held instead of from the predictor's violation (the
+ * predictor leaves the constraint forces out): on long chains one Newton
+ * update less per step (doc/performance.md, "Chains").  A singular Gram
+ * matrix leaves the predictor as it is (the step reports it).  The
+ * joint-reduced null space settles its own start
+ * (solver/nullspace_tree.c). */
+static void settle_predictor(mrvi_integrator *it) {
+  const mrvi_model *m = it->model;
+  const mrvi_step *st = &it->step;
+  double *q = it->settle_q, *q1 = it->settle_q + m->n;
+  if (mrvi_gram_factor(it->gram, m, it->q) != MRVI_OK)
+    return;
+  memcpy(q, it->q, (size_t)m->n * sizeof *q);
+  for (int s = 0; s < st->ns; s++)
+    q[m->slow_index[s]] = it->qs[s] + it->x[s];
+  memcpy(q1, q, (size_t)m->n * sizeof *q1);
+  mrvi_gram_settle(it->gram, m, q1, it->cmu, MRVI_GRAM_SETTLE_PASSES);
+  /* (the moves alone: coordinates no constraint touches keep x exactly) */
+  for (int s = 0; s < st->ns; s++)
+    it->x[s] += q1[m->slow_index[s]] - q[m->slow_index[s]];
 }
 
 /* Displacements -> positions in x (after convergence), for ns, nf
@@ -629,6 +657,14 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     goto oom;
   it->cmu = alloc(R);
   it->mu_h = alloc(R);
+  /* settle_predictor: the multiplier form with the sparse Gram matrix and
+   * slow constraints only */
+  int all_slow = 1;
+  for (int c = 0; c < m->n_constraints; c++)
+    all_slow = all_slow && m->constraints[c].where == MRVI_SLOW;
+  if (it->gram && all_slow && s->tuning.predict_settle &&
+      s->constraint_form != MRVI_FORM_NULL_SPACE)
+    it->settle_q = alloc(2 * n);
   const size_t rm = (size_t)it->step.r_micro;
   it->pGf = alloc(rm * nf);
   it->pA = alloc(rm * rm);
@@ -1256,6 +1292,8 @@ static int newton_step(mrvi_integrator *it) {
   const int shoot = it->blocks && use_shoot(it);
   if (!shoot)
     predict(it);
+  if (!shoot && it->settle_q)
+    settle_predictor(it);
   if (it->nullspace && mrvi_nullspace_reparametrised(it->nullspace))
     mrvi_nullspace_start(it->nullspace, st, it->x);
   if (st->n_lambda > 0)

@@ -37,6 +37,7 @@ struct mrvi_gram {
   int *entry_grad;  /* n_entries: its value's index in grad */
   int *entry_coord; /* n_entries: its coordinate (for G^T mu) */
   double *y;        /* max_constraint_in: inputs of one constraint */
+  double *gs;       /* rows x n_in of one constraint (scratch) */
 };
 
 void mrvi_gram_free(mrvi_gram *gr) {
@@ -51,6 +52,7 @@ void mrvi_gram_free(mrvi_gram *gr) {
   free(gr->entry_grad);
   free(gr->entry_coord);
   free(gr->y);
+  free(gr->gs);
   free(gr);
 }
 
@@ -60,9 +62,12 @@ int mrvi_gram_create(const mrvi_model *m, mrvi_gram **out) {
   if (!gr)
     return MRVI_ENOMEM;
   const int R = m->constraint_rows, n = m->n;
-  int ne = 0;
-  for (int c = 0; c < m->n_constraints; c++)
-    ne += m->constraints[c].rows * m->constraints[c].n_in;
+  int ne = 0, ne_max = 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const int e = m->constraints[c].rows * m->constraints[c].n_in;
+    ne += e;
+    ne_max = e > ne_max ? e : ne_max;
+  }
   gr->R = R;
   gr->n_entries = ne;
   gr->first = malloc(((size_t)R + 1) * sizeof *gr->first);
@@ -73,9 +78,11 @@ int mrvi_gram_create(const mrvi_model *m, mrvi_gram **out) {
   gr->entry_grad = malloc(((size_t)ne + 1) * sizeof *gr->entry_grad);
   gr->entry_coord = malloc(((size_t)ne + 1) * sizeof *gr->entry_coord);
   gr->y = malloc(((size_t)m->max_constraint_in + 1) * sizeof *gr->y);
+  gr->gs = malloc(((size_t)ne_max + 1) * sizeof *gr->gs);
   int *low = malloc(((size_t)n + 1) * sizeof *low);
   if (!gr->first || !gr->start || !gr->grad || !gr->coord_ptr ||
-      !gr->entry_row || !gr->entry_grad || !gr->entry_coord || !gr->y || !low) {
+      !gr->entry_row || !gr->entry_grad || !gr->entry_coord || !gr->y ||
+      !gr->gs || !low) {
     free(low);
     mrvi_gram_free(gr);
     return MRVI_ENOMEM;
@@ -186,6 +193,26 @@ int mrvi_gram_factor(mrvi_gram *gr, const mrvi_model *m, const double *q) {
   return MRVI_OK;
 }
 
+/* mu <- A^-1 mu by the factor: L y = mu, then L^T mu = y (the envelope of
+ * row a: first[a] .. a). */
+static void chol_solve(mrvi_gram *gr, double *mu) {
+  for (int a = 0; a < gr->R; a++) {
+    const int fa = gr->first[a];
+    const double *la = at(gr, a, fa);
+    double s = mu[a];
+    for (int k = fa; k < a; k++)
+      s -= la[k - fa] * mu[k];
+    mu[a] = s / la[a - fa];
+  }
+  for (int a = gr->R - 1; a >= 0; a--) {
+    const int fa = gr->first[a];
+    const double *la = at(gr, a, fa);
+    mu[a] /= la[a - fa];
+    for (int k = fa; k < a; k++)
+      mu[k] -= la[k - fa] * mu[a];
+  }
+}
+
 void mrvi_gram_project(mrvi_gram *gr, const mrvi_model *m, double *p,
                        double *mu) {
   const int R = gr->R;
@@ -195,23 +222,39 @@ void mrvi_gram_project(mrvi_gram *gr, const mrvi_model *m, double *p,
     const int j = gr->entry_coord[e];
     mu[gr->entry_row[e]] += gr->grad[gr->entry_grad[e]] * p[j] / m->mass[j];
   }
-  /* L y = mu, then L^T mu = y (the envelope of row a: first[a] .. a). */
-  for (int a = 0; a < R; a++) {
-    const int fa = gr->first[a];
-    const double *la = at(gr, a, fa);
-    double s = mu[a];
-    for (int k = fa; k < a; k++)
-      s -= la[k - fa] * mu[k];
-    mu[a] = s / la[a - fa];
-  }
-  for (int a = R - 1; a >= 0; a--) {
-    const int fa = gr->first[a];
-    const double *la = at(gr, a, fa);
-    mu[a] /= la[a - fa];
-    for (int k = fa; k < a; k++)
-      mu[k] -= la[k - fa] * mu[a];
-  }
+  chol_solve(gr, mu);
   /* p -= G^T mu */
   for (int e = 0; e < gr->n_entries; e++)
     p[gr->entry_coord[e]] -= gr->grad[gr->entry_grad[e]] * mu[gr->entry_row[e]];
+}
+
+double mrvi_gram_settle(mrvi_gram *gr, const mrvi_model *m, double *q,
+                        double *mu, int max_pass) {
+  double gmax = INFINITY;
+  for (int pass = 0; pass <= max_pass; pass++) {
+    /* mu = g(q) */
+    double worst = 0.0;
+    for (int c = 0; c < m->n_constraints; c++) {
+      const mrvi_constraint *k = &m->constraints[c];
+      for (int j = 0; j < k->n_in; j++)
+        gr->y[j] = q[k->in[j]];
+      mrvi_constraint_eval_at(k, gr->y, mu + k->first_row, gr->gs, NULL);
+      for (int r = 0; r < k->rows; r++)
+        worst = fmax(worst, fabs(mu[k->first_row + r]));
+    }
+    if (!isfinite(worst))
+      return INFINITY;
+    /* (at round-off, or no longer contracting: done) */
+    const int stop = pass == max_pass || !(worst < 0.5 * gmax);
+    gmax = fmin(gmax, worst);
+    if (stop || worst == 0.0)
+      break;
+    /* (G M^-1 G^T) mu = g by the factor, then q -= M^-1 G^T mu */
+    chol_solve(gr, mu);
+    for (int e = 0; e < gr->n_entries; e++) {
+      const int j = gr->entry_coord[e];
+      q[j] -= gr->grad[gr->entry_grad[e]] * mu[gr->entry_row[e]] / m->mass[j];
+    }
+  }
+  return gmax;
 }

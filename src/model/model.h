@@ -247,5 +247,15 @@ int mrvi_gram_factor(mrvi_gram *gr, const mrvi_model *m, const double *q);
  * G M^-1 p; mu (rows) gets the multiplier. */
 void mrvi_gram_project(mrvi_gram *gr, const mrvi_model *m, double *p,
                        double *mu);
+/* After mrvi_gram_factor at q_k: q moved onto g(q) = 0 nearest in the
+ * metric M by chord corrections q <- q - M^-1 G^T mu, (G M^-1 G^T) mu =
+ * g(q), with G and the factor at q_k (each contracts g by about the angle
+ * q has turned from q_k), until g stops halving or after max_pass; mu
+ * (rows) is workspace.  Returns the smallest max |g| seen. */
+double mrvi_gram_settle(mrvi_gram *gr, const mrvi_model *m, double *q,
+                        double *mu, int max_pass);
+/* Its passes for a predictor (a step's turn from q_k: each pass gains
+ * about two digits on chains). */
+#define MRVI_GRAM_SETTLE_PASSES 8
 
 #endif

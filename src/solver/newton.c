@@ -23,6 +23,7 @@ struct mrvi_newton {
   int n;
   const int *Ap, *Ai;
   void *symbolic, *numeric;
+  int ordering; /* Info[UMFPACK_ORDERING_USED] of the kept analysis */
   double control[UMFPACK_CONTROL];
   double info[UMFPACK_INFO];
   /* Dense backend (lu != NULL), for B = P R^-1 A P^T: the rows scaled by
@@ -74,6 +75,42 @@ static int dense_create(mrvi_newton *nw) {
   return MRVI_OK;
 }
 
+/* Estimated nonzeros of L and U from a symbolic analysis's Info. */
+static double factor_fill(const double *info) {
+  return info[UMFPACK_LNZ_ESTIMATE] + info[UMFPACK_UNZ_ESTIMATE];
+}
+
+/* Analyse the pattern again ordered by METIS (nested dissection) and keep
+ * that analysis where its factors are estimated to have fewer nonzeros
+ * than with AMD's (the analysis in nw).  Neither ordering wins everywhere:
+ * nested dissection gives less fill on 2-D lattices, AMD on chains and
+ * trees, whose minimum-degree order is nearly fill-free (doc/solver.md,
+ * "Orderings"; doc/performance.md).  A failed METIS analysis keeps AMD's. */
+static void try_metis(mrvi_newton *nw, const double *Ax) {
+  double control[UMFPACK_CONTROL], info[UMFPACK_INFO];
+  memcpy(control, nw->control, sizeof control);
+  control[UMFPACK_ORDERING] = UMFPACK_ORDERING_METIS;
+  void *symbolic = NULL;
+  if (umfpack_di_symbolic(nw->n, nw->n, nw->Ap, nw->Ai, Ax, &symbolic, control,
+                          info) != UMFPACK_OK) {
+    if (symbolic)
+      umfpack_di_free_symbolic(&symbolic);
+    return;
+  }
+  if (!(factor_fill(info) < factor_fill(nw->info))) {
+    umfpack_di_free_symbolic(&symbolic);
+    return;
+  }
+  umfpack_di_free_symbolic(&nw->symbolic);
+  nw->symbolic = symbolic;
+  memcpy(nw->control, control, sizeof control);
+  nw->ordering = (int)info[UMFPACK_ORDERING_USED];
+}
+
+int mrvi_newton_ordering(const mrvi_newton *nw) {
+  return nw->lu ? -1 : nw->ordering;
+}
+
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, int dense_max, char *msg,
                                 size_t len) {
@@ -95,10 +132,6 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
   }
   umfpack_di_defaults(nw->control);
   nw->control[UMFPACK_PRL] = 0; /* the library never prints */
-  /* Nested dissection on large steps: less fill than AMD on lattices
-   * (doc/performance.md, "Optimal control on a lattice"). */
-  if (n >= MRVI_NEWTON_METIS_MIN)
-    nw->control[UMFPACK_ORDERING] = UMFPACK_ORDERING_METIS;
   int st = umfpack_di_symbolic(n, n, Ap, Ai, Ax, &nw->symbolic, nw->control,
                                nw->info);
   if (st != UMFPACK_OK) {
@@ -106,6 +139,9 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
     free(nw);
     return NULL;
   }
+  nw->ordering = (int)nw->info[UMFPACK_ORDERING_USED];
+  if (n >= MRVI_NEWTON_METIS_TRY)
+    try_metis(nw, Ax);
   return nw;
 }
 

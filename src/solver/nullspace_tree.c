@@ -104,6 +104,7 @@ struct mrvi_nstree {
   int have_qk;
   mrvi_gram *gram;
   double *qm, *pm, *mu; /* model-ordered q_k, forces, multipliers */
+  double *qx;           /* model-ordered iterate (settle) */
   /* Rows of the extended system: combinations of the full rows (rec) and
    * entries in the y columns (ext). */
   int *rec_start, *rec_row, *ext_start, *ext_col;
@@ -123,6 +124,7 @@ void mrvi_nstree_free(mrvi_nstree *z) {
   free(z->motion), free(z->slot), free(z->dof), free(z->child_start);
   free(z->child), free(z->in_body), free(z->P), free(z->X), free(z->S);
   free(z->qk), mrvi_gram_free(z->gram), free(z->qm), free(z->pm);
+  free(z->qx);
   free(z->mu), free(z->rec_start), free(z->rec_row), free(z->ext_start);
   free(z->ext_col), free(z->rec_coef), free(z->ext_coef);
   free(z->csr_start), free(z->csr_col), free(z->csr_idx), free(z->map);
@@ -566,6 +568,7 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
   z->qk = malloc(((size_t)st->ns + 1) * sizeof(double));
   z->qm = calloc((size_t)m->n + 1, sizeof(double));
   z->pm = calloc((size_t)m->n + 1, sizeof(double));
+  z->qx = calloc((size_t)m->n + 1, sizeof(double));
   z->mu = calloc((size_t)m->constraint_rows + 1, sizeof(double));
   z->pos = malloc(B * w * sizeof(double));
   z->npos = malloc(B * w * sizeof(double));
@@ -576,8 +579,8 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
   z->ext_start = malloc(((size_t)z->n + 1) * sizeof(int));
   if (!z->is_a || !z->motion || !z->slot || !z->dof || !z->child_start ||
       !z->child || !z->in_body || !z->P || !z->X || !z->S || !z->qk || !z->qm ||
-      !z->pm || !z->mu || !z->pos || !z->npos || !z->th || !z->u || !z->Q ||
-      !z->rec_start || !z->ext_start)
+      !z->pm || !z->qx || !z->mu || !z->pos || !z->npos || !z->th || !z->u ||
+      !z->Q || !z->rec_start || !z->ext_start)
     goto oom;
   for (int t = 0; t < nb; t++) {
     const mrvi_body *bd = &m->bodies[z->order[t]];
@@ -638,25 +641,28 @@ oom:
  * Multipliers and the reduced system
  * ------------------------------------------------------------------------- */
 
+/* P, X, S and the Gram factor at q_k, when q_k is new; 0, or -1 where the
+ * Gram matrix is singular. */
+static int at_qk(mrvi_nstree *z, const mrvi_step *st) {
+  const mrvi_model *m = st->model;
+  if (z->have_qk && memcmp(z->qk, st->qs0, (size_t)z->ns * sizeof *z->qk) == 0)
+    return 0;
+  memcpy(z->qk, st->qs0, (size_t)z->ns * sizeof *z->qk);
+  for (int s = 0; s < z->ns; s++)
+    z->qm[m->slow_index[s]] = st->qs0[s];
+  gather(z, NULL, st->qs0, z->pos);
+  geometry(z, m, z->pos);
+  z->have_qk = mrvi_gram_factor(z->gram, m, z->qm) == MRVI_OK;
+  return z->have_qk ? 0 : -1;
+}
+
 int mrvi_nstree_lambda(mrvi_nstree *z, mrvi_step *st, double *x,
                        const double *F, char *msg, size_t len) {
   const mrvi_model *m = st->model;
-  /* P, X, S and the Gram factor at q_k, when q_k is new. */
-  if (!z->have_qk ||
-      memcmp(z->qk, st->qs0, (size_t)z->ns * sizeof *z->qk) != 0) {
-    memcpy(z->qk, st->qs0, (size_t)z->ns * sizeof *z->qk);
-    for (int s = 0; s < z->ns; s++)
-      z->qm[m->slow_index[s]] = st->qs0[s];
-    gather(z, NULL, st->qs0, z->pos);
-    geometry(z, m, z->pos);
-    if (mrvi_gram_factor(z->gram, m, z->qm) < 0) {
-      z->have_qk = 0;
-      return mrvi_fail(msg, len, MRVI_ESINGULAR,
-                       "null-space form: the joints' constraint gradients are "
-                       "dependent");
-    }
-    z->have_qk = 1;
-  }
+  if (at_qk(z, st) < 0)
+    return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                     "null-space form: the joints' constraint gradients are "
+                     "dependent");
   /* dT G^T lambda = F on the slow rows, least squares in M^-1. */
   for (int s = 0; s < z->ns; s++)
     z->pm[m->slow_index[s]] = F[s];
@@ -841,9 +847,37 @@ void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
   place(z, st->model, x, q0);
 }
 
+/* The bodies' coordinates in x moved onto the constraints, nearest in the
+ * metric M (mrvi_gram_settle: a few chord corrections with the Gram factor
+ * at q_k).  A move normal to the constraints in M changes the reduced
+ * residual P^T R only to second order, while turning each body towards
+ * the predictor's frame and placing it on its parent's joint point moves
+ * the chain's far end along the constraints by the sum of the errors
+ * above it (doc/performance.md, "Chains: the joint-reduced null space"). */
+static void settle(mrvi_nstree *z, const mrvi_step *st, double *x) {
+  const mrvi_model *m = st->model;
+  const int w = z->D * (z->D + 1);
+  const double *q0 = st->increments ? st->qs0 : NULL;
+  if (at_qk(z, st) < 0)
+    return; /* (the iteration reports it) */
+  for (int t = 0; t < z->nb; t++)
+    for (int e = 0; e < w; e++) {
+      const int s = z->slot[t] + e;
+      z->qx[m->slow_index[s]] = x[s] + (q0 ? q0[s] : 0.0);
+    }
+  mrvi_gram_settle(z->gram, m, z->qx, z->mu, MRVI_GRAM_SETTLE_PASSES);
+  for (int t = 0; t < z->nb; t++)
+    for (int e = 0; e < w; e++) {
+      const int s = z->slot[t] + e;
+      x[s] = z->qx[m->slow_index[s]] - (q0 ? q0[s] : 0.0);
+    }
+}
+
 void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
   const int D = z->D, w = D * (D + 1);
   const double *q0 = st->increments ? st->qs0 : NULL;
+  if (st->tuning.predict_settle)
+    settle(z, st, x);
   /* The predictor's turns and shifts from q_k. */
   gather(z, x, q0, z->npos);
   gather(z, NULL, st->qs0, z->pos);

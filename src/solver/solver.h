@@ -111,13 +111,19 @@ void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x);
  * dense_max rows (the tuning constant newton_dense_max; solver/newton.c);
  * the caller sees one interface.
  * ------------------------------------------------------------------------- */
-/* UMFPACK orders matrices of at least this many rows by METIS (nested
- * dissection), smaller ones by AMD (its default). */
-#define MRVI_NEWTON_METIS_MIN 10000
+/* UMFPACK orders by AMD (its default); matrices of at least this many rows
+ * are analysed by METIS (nested dissection) as well, and the ordering whose
+ * factors are estimated to have fewer nonzeros is kept.  Below it the
+ * second analysis would cost more than it can save (doc/solver.md,
+ * "Orderings"). */
+#define MRVI_NEWTON_METIS_TRY 4000
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, int dense_max, char *msg,
                                 size_t len);
+/* The fill-reducing ordering kept: UMFPACK_ORDERING_AMD or
+ * UMFPACK_ORDERING_METIS (umfpack.h), -1 for the dense backend. */
+int mrvi_newton_ordering(const mrvi_newton *nw);
 void mrvi_newton_free(mrvi_newton *nw);
 /* Factorise A (values Ax on the fixed pattern) and solve A dx = b. */
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
