@@ -921,7 +921,7 @@ static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
   if (fresh)
     mrvi_skrylov_factor(it->skrylov);
   it->factors_ok = 1;
-  const int s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+  const int s = mrvi_skrylov_solve(it->skrylov, 0, it->R, it->dx, msg, len);
   if (s == MRVI_OK)
     subtract_dx(it, it->step.n_total);
   return s;
