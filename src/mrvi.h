@@ -752,6 +752,8 @@ typedef enum mrvi_newton_criterion {
     "where the forward pass takes schur-krylov, the adjoint's transposed "     \
     "step solves run its elimination backwards (GMRES, CG sweeps; 0: the "     \
     "sparse LU with kept factors)")                                            \
+  X(double, adjoint_krylov_rtol, 1e-10, 0.0, 1.0,                              \
+    "relative tolerance of those solves' block CG and GMRES")                  \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

@@ -495,9 +495,13 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   /* The schur-krylov elimination on the step's pattern (a pattern outside
    * its block structure keeps the LU: EINVAL). */
   char msg[300];
-  if (o->path == MRVI_PATH_SCHUR_KRYLOV && o->settings.tuning.adjoint_krylov &&
+  const mrvi_tuning *tn = &o->settings.tuning;
+  if (o->path == MRVI_PATH_SCHUR_KRYLOV && tn->adjoint_krylov &&
       mrvi_skrylov_create(st, &o->skrylov, msg, sizeof msg) == MRVI_ENOMEM)
     return MRVI_ENOMEM;
+  if (o->skrylov)
+    mrvi_skrylov_set_rtol(o->skrylov, tn->adjoint_krylov_rtol,
+                          tn->adjoint_krylov_rtol);
   return MRVI_OK;
 }
 

@@ -41,7 +41,8 @@
 /* The relative tolerances of the block CG solves and of GMRES (2-norm),
  * and GMRES's restart length and iteration cap, are the tuning constants
  * krylov_cg_rtol, krylov_gmres_rtol, krylov_restart and krylov_max_it
- * (mrvi.h, MRVI_TUNING_LIST). */
+ * (mrvi.h, MRVI_TUNING_LIST); the tolerances can be set per object
+ * (mrvi_skrylov_set_rtol). */
 /* Sweeps of the S operator kept for the final one (T below). */
 #define SK_KEEP 6
 
@@ -119,6 +120,7 @@ struct mrvi_skrylov {
   const double *Ax; /* the Jacobian's values (st's pattern) taken at factor */
   int ns, nf, p;
   int transposed; /* the CG operator is -D_c^T (by D_c's columns) */
+  double cg_rtol, gmres_rtol;
   /* Pattern: per fast column (p nf) the end of its slow rows (s1) and of
    * its own row block (s2), and its diagonal entry (dg); per slow column
    * the first entry in a fast row (sdiv). */
@@ -231,6 +233,8 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   k->st = st;
   k->Ax = st->Ax;
+  k->cg_rtol = st->tuning.krylov_cg_rtol;
+  k->gmres_rtol = st->tuning.krylov_gmres_rtol;
   k->ns = st->ns;
   k->nf = st->nf;
   k->p = st->p;
@@ -312,6 +316,11 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   }
   *out = k;
   return MRVI_OK;
+}
+
+void mrvi_skrylov_set_rtol(mrvi_skrylov *k, double cg_rtol, double gmres_rtol) {
+  k->cg_rtol = cg_rtol;
+  k->gmres_rtol = gmres_rtol;
 }
 
 const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k) {
@@ -414,10 +423,9 @@ static int block_cg(mrvi_skrylov *k, int c, double *xc) {
   const int nf = k->nf;
   k->block = c;
   int it = 0;
-  const int s =
-      mrvi_pcg(nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb,
-               xc, k->st->tuning.krylov_cg_rtol, 0.0, MRVI_CG_MAX_IT, k->cgwork,
-               &it, &k->curvature);
+  const int s = mrvi_pcg(
+      nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, xc,
+      k->cg_rtol, 0.0, MRVI_CG_MAX_IT, k->cgwork, &it, &k->curvature);
   k->stats.cg_solves++;
   k->stats.cg_iterations += it;
   if (it > k->stats.cg_max)
@@ -562,9 +570,9 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   int it = 0, ny = -1;
   k->calls = 0;
   const mrvi_tuning *tn = &k->st->tuning;
-  s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds,
-                 tn->krylov_gmres_rtol, 0.0, tn->krylov_restart,
-                 tn->krylov_max_it, k->gwork, &it, k->gy, &ny);
+  s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds, k->gmres_rtol, 0.0,
+                 tn->krylov_restart, tn->krylov_max_it, k->gwork, &it, k->gy,
+                 &ny);
   k->stats.gmres_solves++;
   k->stats.gmres_iterations += it;
   if (it > k->stats.gmres_max)

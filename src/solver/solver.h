@@ -486,6 +486,9 @@ void mrvi_skrylov_factor_values(mrvi_skrylov *k, const double *Ax);
  * mrvi_skrylov_factor). */
 int mrvi_skrylov_solve(mrvi_skrylov *k, int transpose, const double *R,
                        double *dx, char *msg, size_t len);
+/* The relative tolerances of its block CG solves and of GMRES (default:
+ * tuning.krylov_cg_rtol, tuning.krylov_gmres_rtol). */
+void mrvi_skrylov_set_rtol(mrvi_skrylov *k, double cg_rtol, double gmres_rtol);
 const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k);
 
 /* ---------------------------------------------------------------------------
