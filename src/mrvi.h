@@ -748,6 +748,12 @@ typedef enum mrvi_newton_criterion {
     "refinement steps of an adjoint step solved with the factors of the "      \
     "step after it (or the forward pass's); beyond: factorised anew "          \
     "(0: every step)")                                                         \
+  X(int, adjoint_krylov, 1, 0, 1,                                              \
+    "where the forward pass takes schur-krylov, the adjoint's transposed "     \
+    "step solves run its elimination backwards (GMRES, CG sweeps; 0: the "     \
+    "sparse LU with kept factors)")                                            \
+  X(double, adjoint_krylov_rtol, 1e-10, 0.0, 1.0,                              \
+    "relative tolerance of those solves' block CG and GMRES")                  \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

@@ -1033,6 +1033,87 @@ static void test_paths_iterative(void) {
     }
 }
 
+/* The lattice problem of bench_ocp --lattice at 200 coordinates (10 x 10
+ * particles, every second column fast: 100 slow, 100 fast, schur-krylov),
+ * N = 10: the adjoint's transposed step solves on the schur-krylov
+ * elimination run backwards give the gradients of the sparse LU's
+ * (tuning.adjoint_krylov = 0) to 1e-8 relative, at two controls in turn,
+ * with no fallback to the LU; and central differences (1e-6). */
+static const char *lattice_text =
+    "name: lattice_ocp\ndimension: 2\n"
+    "generate:\n"
+    "  - {kind: lattice2d, name: p, count: [10, 10], spacing: 1.0, mass: 1.0,\n"
+    "     rates: {every: 2}, slow_spring: {law: linear, stiffness: 10},\n"
+    "     fast_spring: {law: linear, stiffness: 1000},\n"
+    "     initial: [{index: [2, 2], displacement: [0.1, 0.05],\n"
+    "                velocity: [0.0, 0.5]}]}\n"
+    "integrator: {scheme: midpoint-midpoint, macro_step: 0.05, micro_steps: "
+    "10, t_end: 0.5,\n  newton: {tolerance: 1e-12}}\n"
+    "control:\n"
+    "  actuators:\n"
+    "    - {name: push, coordinate: p0_0.x, grid: macro, weight: 1}\n"
+    "  tracking:\n"
+    "    - {coordinate: p1_1.y, weight: 1, reference: 0}\n"
+    "  terminal:\n"
+    "    - {coordinate: p0_0.x, position: 0.2, velocity: 0}\n";
+
+static void test_adjoint_krylov(void) {
+  const char *ov[1] = {"integrator.tuning.adjoint_krylov=0"};
+  mrvi_system *sys[2] = {NULL, NULL};
+  mrvi_ocp *o[2] = {NULL, NULL};
+  double *u[2] = {NULL, NULL}, *g[2] = {NULL, NULL};
+  char msg[2048];
+  int st = 0;
+  for (int w = 0; w < 2 && st == 0; w++) {
+    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, w, &sys[w],
+                                 msg, sizeof msg);
+    if (st == 0)
+      st = mrvi_ocp_load(sys[w], &o[w], &u[w], msg, sizeof msg);
+    CHECK(st == 0, "adjoint krylov: load: %s", msg);
+  }
+  if (st != 0)
+    goto out;
+  const char *path = mrvi_ocp_solver_path(o[0], NULL, 0);
+  CHECK(path && strcmp(path, "schur-krylov") == 0,
+        "adjoint krylov: path %s, expected schur-krylov", path ? path : "none");
+  const int n = mrvi_ocp_n_controls(o[0]), nm = mrvi_ocp_n_constraints(o[0]);
+  const int len = 2 * n * (1 + nm);
+  for (int w = 0; w < 2 && st == 0; w++) {
+    g[w] = calloc((size_t)len, sizeof *g[w]);
+    for (int t = 0; t < 2 && st == 0; t++) {
+      for (int i = 0; i < n; i++)
+        u[w][i] = 0.5 * sin(0.7 * i + t);
+      st = gradients_at(o[w], u[w], g[w] + t * n * (1 + nm));
+    }
+    CHECK(st == 0, "adjoint krylov: way %d: %s", w, mrvi_ocp_errmsg(o[w]));
+  }
+  if (st != 0)
+    goto out;
+  double err = 0.0, sc = 0.0;
+  for (int i = 0; i < len; i++) {
+    err = fmax(err, fabs(g[0][i] - g[1][i]));
+    sc = fmax(sc, fabs(g[1][i]));
+  }
+  CHECK(sc > 0.0 && err <= 1e-8 * sc,
+        "adjoint krylov: gradients differ from the LU's by %.3e (scale %.3e)",
+        err, sc);
+  /* 2 evaluations of N = 10 steps, 2 functionals each */
+  CHECK(o[0]->adjoint_krylov_solves == 2 * 10 * (1 + nm) &&
+            o[0]->adjoint_krylov_fallbacks == 0 &&
+            o[1]->adjoint_krylov_solves == 0,
+        "adjoint krylov: %ld solves, %ld fallbacks (LU way: %ld solves)",
+        o[0]->adjoint_krylov_solves, o[0]->adjoint_krylov_fallbacks,
+        o[1]->adjoint_krylov_solves);
+  check_gradients(o[0], "adjoint krylov: lattice 200");
+out:
+  for (int w = 0; w < 2; w++) {
+    free(g[w]);
+    free(u[w]);
+    mrvi_ocp_free(o[w]);
+    mrvi_system_free(sys[w]);
+  }
+}
+
 /* The optimum found on the path chosen automatically equals the general
  * path's: the rest-to-rest double integrator beside a fast oscillator
  * (p = 5) reaches J_N = J* N^2/(N^2 - 1) to 1e-8 on the explicit, sweep and
@@ -1152,6 +1233,7 @@ int main(void) {
   test_adjoint_cost();
   test_paths();
   test_paths_iterative();
+  test_adjoint_krylov();
   test_paths_optimum();
   test_paths_general();
   return test_finish();

@@ -248,15 +248,19 @@ static void test_choice(void) {
 /* J x = b and J^T y = c with mrvi_integrator_jacobian_solve against the
  * CSC matrix assembled independently at the last step's data. */
 static void test_jacobian_solve(void) {
-  /* explicit, sweep, schur and general paths */
+  /* explicit, sweep, schur, general and (blocks beyond dense_max = 0)
+   * schur-krylov paths */
   const char *const schemes[] = {"fully-explicit", "explicit-slow",
-                                 "midpoint-midpoint", "midpoint-midpoint"};
-  const char *const solvers[] = {"auto", "auto", "auto", "general"};
-  for (int sc = 0; sc < 4; sc++) {
+                                 "midpoint-midpoint", "midpoint-midpoint",
+                                 "midpoint-midpoint"};
+  const char *const solvers[] = {"auto", "auto", "auto", "general", "auto"};
+  for (int sc = 0; sc < 5; sc++) {
     mrvi_system *s =
         load("systems/fpu.yaml", schemes[sc], 5, "multipliers", solvers[sc]);
     if (!s)
       continue;
+    if (sc == 4)
+      s->settings.tuning.dense_max = 0;
     const mrvi_model *m = s->model;
     mrvi_integrator *it = NULL;
     char msg[400];
@@ -325,6 +329,14 @@ static void test_jacobian_solve(void) {
       CHECK(rc == MRVI_OK && err < 1e-10, "%s (%s): %s solve error %.2e",
             schemes[sc], mrvi_integrator_solver_path(it),
             tr ? "transposed" : "plain", err);
+      if (sc == 4) {
+        mrvi_krylov_stats ks;
+        mrvi_integrator_krylov_stats(it, &ks);
+        CHECK(!strcmp(mrvi_integrator_solver_path(it), "schur-krylov") &&
+                  ks.fallbacks == 0,
+              "fpu dense_max 0: path %s, %ld fallbacks to the LU",
+              mrvi_integrator_solver_path(it), ks.fallbacks);
+      }
     }
     mrvi_step_free(&st);
     mrvi_integrator_free(ref);

@@ -957,7 +957,7 @@ static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
   if (fresh)
     mrvi_skrylov_factor(it->skrylov);
   it->factors_ok = 1;
-  const int s = mrvi_skrylov_solve(it->skrylov, it->R, it->dx, msg, len);
+  const int s = mrvi_skrylov_solve(it->skrylov, 0, it->R, it->dx, msg, len);
   if (s == MRVI_OK)
     subtract_dx(it, it->step.n_total);
   return s;
@@ -1638,9 +1638,11 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
     return fail(it, MRVI_EINVAL,
                 "the step's micro nodes were not kept "
                 "(mrvi_integrator_keep_micro): no Jacobian to solve with");
-  if (it->jac_ready) {
+  if (it->jac_ready == 1) {
     /* Assemble the full Jacobian at the last step's solution, with that
-     * step's known data, and factorise it once for any number of solves. */
+     * step's known data, and factorise it once for any number of solves
+     * (schur-krylov: its elimination takes it, run backwards for J^T; the
+     * next step takes its own Jacobian afresh). */
     const double *qs0 = st->qs0, *qf0 = st->qf0;
     st->qs0 = it->qs_prev;
     st->qf0 = it->qf_prev;
@@ -1653,18 +1655,23 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
     mrvi_step_assemble(st, it->x, it->dx, 1);
     st->qs0 = qs0;
     st->qf0 = qf0;
-    if (!it->jac_nw && !(it->jac_nw = mrvi_newton_create(
-                             st->n_total, st->Ap, st->Ai, st->Ax,
-                             st->tuning.newton_dense_max, msg, sizeof msg)))
+    if (it->skrylov)
+      mrvi_skrylov_factor(it->skrylov);
+    else if (!it->jac_nw &&
+             !(it->jac_nw = mrvi_newton_create(
+                   st->n_total, st->Ap, st->Ai, st->Ax,
+                   st->tuning.newton_dense_max, msg, sizeof msg)))
       return fail(it, MRVI_ESINGULAR, "%s", msg);
-    if ((s = mrvi_newton_factor(it->jac_nw, st->Ax, msg, sizeof msg)) < 0)
+    else if ((s = mrvi_newton_factor(it->jac_nw, st->Ax, msg, sizeof msg)) < 0)
       return fail(it, s, "step Jacobian: %s", msg);
     it->jac_ready = 2;
   }
   if (it->jac_ready != 2)
     return fail(it, MRVI_EINVAL, "the step Jacobian is no longer available");
-  const int s =
-      mrvi_linsolve_solve(it->jac_nw, st->Ax, transpose, b, x, msg, sizeof msg);
+  const int s = it->skrylov ? mrvi_skrylov_solve(it->skrylov, transpose, b, x,
+                                                 msg, sizeof msg)
+                            : mrvi_linsolve_solve(it->jac_nw, st->Ax, transpose,
+                                                  b, x, msg, sizeof msg);
   return s < 0 ? fail(it, s, "step Jacobian: %s", msg) : MRVI_OK;
 }
 

@@ -490,7 +490,19 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
   o->nfun_alloc =
       ok && o->r && o->mu && o->rhs && o->sol && (R == 0 || o->pv) ? nfun : 0;
-  return o->nfun_alloc ? MRVI_OK : MRVI_ENOMEM;
+  if (!o->nfun_alloc)
+    return MRVI_ENOMEM;
+  /* The schur-krylov elimination on the step's pattern (a pattern outside
+   * its block structure keeps the LU: EINVAL). */
+  char msg[300];
+  const mrvi_tuning *tn = &o->settings.tuning;
+  if (o->path == MRVI_PATH_SCHUR_KRYLOV && tn->adjoint_krylov &&
+      mrvi_skrylov_create(st, &o->skrylov, msg, sizeof msg) == MRVI_ENOMEM)
+    return MRVI_ENOMEM;
+  if (o->skrylov)
+    mrvi_skrylov_set_rtol(o->skrylov, tn->adjoint_krylov_rtol,
+                          tn->adjoint_krylov_rtol);
+  return MRVI_OK;
 }
 
 /* H of step k (its data loaded) into its rows (h_ptr, h_col, h_val) and
@@ -551,6 +563,26 @@ static int step_jacobian(mrvi_ocp *o, long k) {
   }
   for (long e = 0; e < nnz; e++)
     o->Ak[e] = o->h_of_a[e] >= 0 ? o->h_val[o->h_of_a[e]] : 0.0;
+  return MRVI_OK;
+}
+
+/* A_k^T x_f = b_f (rhs, sol: nfun x n_total) by the schur-krylov
+ * elimination run backwards with A_k's values (forward path schur-krylov:
+ * the solver that never factorises the step); its fallback, the sparse LU
+ * of the step, counted. */
+static int krylov_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
+  const size_t nt = (size_t)o->step.n_total;
+  const mrvi_krylov_stats *ks = mrvi_skrylov_stats(o->skrylov);
+  const long fallbacks = ks->fallbacks;
+  mrvi_skrylov_factor_values(o->skrylov, o->Ak);
+  for (int f = 0; f < nfun; f++) {
+    const int s = mrvi_skrylov_solve(o->skrylov, 1, o->rhs + (size_t)f * nt,
+                                     o->sol + (size_t)f * nt, msg, len);
+    if (s < 0)
+      return s;
+  }
+  o->adjoint_krylov_solves += nfun;
+  o->adjoint_krylov_fallbacks += ks->fallbacks - fallbacks;
   return MRVI_OK;
 }
 
@@ -640,17 +672,23 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
       for (int i = 0; i < nl; i++)
         b[nu + i] = rloc[i];
     }
-    /* A_k^T mu_k = b with the step Jacobian at the converged step: the
-     * solver's transposed solve (UMFPACK_At, or the dense LU of small
-     * steps) with the factors it keeps (of step k + 1, or of the forward
-     * pass's last Newton update) refined against A_k, factorised anew where
-     * that does not converge in tuning.adjoint_refine_max steps. */
-    int refactored;
-    s = mrvi_newton_solve_transpose_kept(
-        o->newton_full ? o->newton_full : o->newton, o->Ak, nfun, o->rhs,
-        o->sol, o->settings.tuning.adjoint_refine_max, &refactored, msg,
-        sizeof msg);
-    o->adjoint_factorisations += refactored;
+    /* A_k^T mu_k = b with the step Jacobian at the converged step: where
+     * the forward pass takes schur-krylov, its elimination run backwards;
+     * else the solver's transposed solve (UMFPACK_At, or the dense LU of
+     * small steps) with the factors it keeps (of step k + 1, or of the
+     * forward pass's last Newton update) refined against A_k, factorised
+     * anew where that does not converge in tuning.adjoint_refine_max
+     * steps. */
+    if (o->skrylov) {
+      s = krylov_transpose(o, nfun, msg, sizeof msg);
+    } else {
+      int refactored;
+      s = mrvi_newton_solve_transpose_kept(
+          o->newton_full ? o->newton_full : o->newton, o->Ak, nfun, o->rhs,
+          o->sol, o->settings.tuning.adjoint_refine_max, &refactored, msg,
+          sizeof msg);
+      o->adjoint_factorisations += refactored;
+    }
     if (s < 0)
       return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);
     /* mu on the equation nodes of step k; r -= J_k[rows_k, :]^T mu_k. */

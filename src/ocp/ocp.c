@@ -199,6 +199,8 @@ void ocp_adjoint_free(mrvi_ocp *o) {
     free(*d[i]);
     *d[i] = NULL;
   }
+  mrvi_skrylov_free(o->skrylov);
+  o->skrylov = NULL;
   free(o->gz);
   free(o->h_of_a);
   free(o->h_ptr);

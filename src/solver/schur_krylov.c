@@ -20,7 +20,18 @@
  * products with D_c: O(p n) for a network.  A direction of non-positive
  * curvature in a block, or no convergence, falls back to a sparse LU of
  * the whole step (UMFPACK, symbolic analysis on the first fallback of the
- * run), kept for the further solves with the same Jacobian. */
+ * run), kept for the further solves with the same Jacobian.
+ *
+ * The transposed solve J^T y = b (adjoints) runs the same elimination
+ * backwards:
+ *   z = A_ff^-T b_f,  S^T ys = b_s - A_fs^T z  (GMRES),
+ *   yf = A_ff^-T (b_f - A_sf^T ys),
+ *   S^T = A_ss^T - A_fs^T A_ff^-T A_sf^T,
+ * where A_ff^T is block upper-triangular: a backward sweep c = p-1..0 whose
+ * diagonal blocks D_c^T (= D_c) are solved by the same CG and whose
+ * off-diagonal products are the columns of the sub-diagonal blocks, read
+ * from the CSC Jacobian (columns are contiguous there); the preconditioners
+ * are the same diagonals. */
 #include "solver/solver.h"
 
 #include <math.h>
@@ -30,7 +41,8 @@
 /* The relative tolerances of the block CG solves and of GMRES (2-norm),
  * and GMRES's restart length and iteration cap, are the tuning constants
  * krylov_cg_rtol, krylov_gmres_rtol, krylov_restart and krylov_max_it
- * (mrvi.h, MRVI_TUNING_LIST). */
+ * (mrvi.h, MRVI_TUNING_LIST); the tolerances can be set per object
+ * (mrvi_skrylov_set_rtol). */
 /* Sweeps of the S operator kept for the final one (T below). */
 #define SK_KEEP 6
 
@@ -105,7 +117,10 @@ static int part_cols(part *P, size_t nF, const int *beg, const int *end,
 
 struct mrvi_skrylov {
   const mrvi_step *st;
+  const double *Ax; /* the Jacobian's values (st's pattern) taken at factor */
   int ns, nf, p;
+  int transposed; /* the CG operator is -D_c^T (by D_c's columns) */
+  double cg_rtol, gmres_rtol;
   /* Pattern: per fast column (p nf) the end of its slow rows (s1) and of
    * its own row block (s2), and its diagonal entry (dg); per slow column
    * the first entry in a fast row (sdiv). */
@@ -217,6 +232,9 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   if (!k)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   k->st = st;
+  k->Ax = st->Ax;
+  k->cg_rtol = st->tuning.krylov_cg_rtol;
+  k->gmres_rtol = st->tuning.krylov_gmres_rtol;
   k->ns = st->ns;
   k->nf = st->nf;
   k->p = st->p;
@@ -300,12 +318,21 @@ int mrvi_skrylov_create(const mrvi_step *st, mrvi_skrylov **out, char *msg,
   return MRVI_OK;
 }
 
+void mrvi_skrylov_set_rtol(mrvi_skrylov *k, double cg_rtol, double gmres_rtol) {
+  k->cg_rtol = cg_rtol;
+  k->gmres_rtol = gmres_rtol;
+}
+
 const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k) {
   return &k->stats;
 }
 
 void mrvi_skrylov_factor(mrvi_skrylov *k) {
-  const double *Ax = k->st->Ax;
+  mrvi_skrylov_factor_values(k, k->st->Ax);
+}
+
+void mrvi_skrylov_factor_values(mrvi_skrylov *k, const double *Ax) {
+  k->Ax = Ax;
   const int nnz = k->st->Ap[k->ns + k->p * k->nf];
   for (int q = 0; q < nnz; q++)
     k->vals[k->dst[q]] = Ax[q];
@@ -317,7 +344,7 @@ void mrvi_skrylov_factor(mrvi_skrylov *k) {
     double d = 0.0;
     for (int q = k->st->Ap[j]; q < k->sdiv[j]; q++)
       if (k->st->Ai[q] == j)
-        d = k->st->Ax[q];
+        d = Ax[q];
     k->dinv_s[j] = d != 0.0 ? 1.0 / d : 1.0;
   }
   k->lu_active = 0;
@@ -342,15 +369,41 @@ static double neg_diag_rows(const mrvi_skrylov *k, const double *v, double *y,
   return vy;
 }
 
+/* y = -D_c^T v by the columns of D_c in the CSC Jacobian (rows f0..f1-1
+ * of D_c^T); returns v^T y. */
+static double neg_diag_cols(const mrvi_skrylov *k, const double *v, double *y,
+                            int f0, int f1) {
+  const int j0 = k->ns + k->block * k->nf, r0 = j0;
+  const int *Ai = k->st->Ai;
+  const int *s1 = k->s1 + (size_t)k->block * (size_t)k->nf;
+  const int *s2 = k->s2 + (size_t)k->block * (size_t)k->nf;
+  const double *Ax = k->Ax;
+  double vy = 0.0;
+  for (int f = f0; f < f1; f++) {
+    double s = 0.0;
+    for (int q = s1[f]; q < s2[f]; q++)
+      s -= Ax[q] * v[Ai[q] - r0];
+    y[f] = s;
+    vy += v[f] * s;
+  }
+  return vy;
+}
+
+static double neg_diag_range(const mrvi_skrylov *k, const double *v, double *y,
+                             int f0, int f1) {
+  return k->transposed ? neg_diag_cols(k, v, y, f0, f1)
+                       : neg_diag_rows(k, v, y, f0, f1);
+}
+
 static double neg_diag_block(void *ctx, const double *v, double *y) {
   mrvi_skrylov *k = ctx;
   const int nf = k->nf, chunk = k->chunk, n_chunk = k->n_chunk;
   if (n_chunk == 0)
-    return neg_diag_rows(k, v, y, 0, nf);
+    return neg_diag_range(k, v, y, 0, nf);
   MRVI_PARALLEL_FOR(k->threads)
   for (int c = 0; c < n_chunk; c++)
-    k->vpart[c] = neg_diag_rows(k, v, y, c * chunk,
-                                nf - c * chunk < chunk ? nf : (c + 1) * chunk);
+    k->vpart[c] = neg_diag_range(k, v, y, c * chunk,
+                                 nf - c * chunk < chunk ? nf : (c + 1) * chunk);
   double vy = 0.0;
   for (int c = 0; c < n_chunk; c++)
     vy += k->vpart[c];
@@ -363,6 +416,27 @@ enum {
   FS_SET,   /* X = A_fs vs */
   FS_MINUS, /* X = X - A_fs vs */
 };
+
+/* x_c = (-D_c)^-1 k->cgb (or (-D_c^T)^-1 where k->transposed) by CG;
+ * MRVI_CG_* on failure, recorded. */
+static int block_cg(mrvi_skrylov *k, int c, double *xc) {
+  const int nf = k->nf;
+  k->block = c;
+  int it = 0;
+  const int s = mrvi_pcg(
+      nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf, k->cgb, xc,
+      k->cg_rtol, 0.0, MRVI_CG_MAX_IT, k->cgwork, &it, &k->curvature);
+  k->stats.cg_solves++;
+  k->stats.cg_iterations += it;
+  if (it > k->stats.cg_max)
+    k->stats.cg_max = it;
+  if (s != MRVI_CG_OK) {
+    k->failed = s;
+    k->fail_block = c;
+    k->fail_iters = it;
+  }
+  return s;
+}
 
 /* X (p nf) <- A_ff^-1 X by a block forward sweep (X first set from vs
  * by `fs`, block by block), and, if ysf is not NULL, ysf (ns) -= A_sf
@@ -391,23 +465,10 @@ static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
         acc -= lv[q] * X[lc[q]];
       k->cgb[f] = -acc;
     }
-    k->block = c;
-    int it = 0;
     /* X_c is read: the solution goes there */
-    const int s =
-        mrvi_pcg(nf, neg_diag_block, k, k->dinv + (size_t)c * (size_t)nf,
-                 k->cgb, xc, k->st->tuning.krylov_cg_rtol, 0.0, MRVI_CG_MAX_IT,
-                 k->cgwork, &it, &k->curvature);
-    k->stats.cg_solves++;
-    k->stats.cg_iterations += it;
-    if (it > k->stats.cg_max)
-      k->stats.cg_max = it;
-    if (s != MRVI_CG_OK) {
-      k->failed = s;
-      k->fail_block = c;
-      k->fail_iters = it;
+    const int s = block_cg(k, c, xc);
+    if (s != MRVI_CG_OK)
       return s;
-    }
     if (!ysf)
       continue;
     const int *sp = k->sf.ptr + (size_t)c * (size_t)nf, *sr = k->sf.idx;
@@ -421,22 +482,79 @@ static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
   return MRVI_CG_OK;
 }
 
-/* y = S v = A_ss v - A_sf A_ff^-1 A_fs v. */
+/* X (p nf) <- A_ff^-T X by a block backward sweep (X first set from vs by
+ * `fs` with A_sf^T in place of A_fs), and, if ysf is not NULL, ysf (ns) -=
+ * A_fs^T (A_ff^-T X) block by block; MRVI_CG_* on failure.  The products
+ * with the sub-diagonal blocks' transposes are their columns in the CSC
+ * Jacobian, rows of the later blocks (solved before). */
+static int backward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
+                          double *ysf) {
+  const int nf = k->nf, ns = k->ns;
+  const int *Ap = k->st->Ap + ns + 1, *Ai = k->st->Ai;
+  const double *Ax = k->Ax;
+  for (int c = k->p - 1; c >= 0; c--) {
+    double *xc = X + (size_t)c * (size_t)nf;
+    const size_t j0 = (size_t)c * (size_t)nf;
+    /* b_c = X_c - sum_{r > c} A_ff[r][c]^T X_r;  (-D_c^T) x = -b */
+    for (int f = 0; f < nf; f++) {
+      const size_t j = j0 + (size_t)f;
+      double acc = xc[f];
+      if (fs != FS_NONE) {
+        double a = 0.0;
+        for (int q = k->sf.ptr[j]; q < k->sf.ptr[j + 1]; q++)
+          a += k->sf.val[q] * vs[k->sf.idx[q]];
+        acc = fs == FS_SET ? a : acc - a;
+      }
+      for (int q = k->s2[j]; q < Ap[j]; q++)
+        acc -= Ax[q] * X[Ai[q] - ns];
+      k->cgb[f] = -acc;
+    }
+    const int s = block_cg(k, c, xc);
+    if (s != MRVI_CG_OK)
+      return s;
+    if (!ysf)
+      continue;
+    const int *fp = k->fs.ptr + j0, *fc = k->fs.idx;
+    const double *fv = k->fs.val;
+    for (int f = 0; f < nf; f++) {
+      const double v = xc[f];
+      for (int q = fp[f]; q < fp[f + 1]; q++)
+        ysf[fc[q]] -= fv[q] * v;
+    }
+  }
+  return MRVI_CG_OK;
+}
+
+/* The sweep of the solve under way: A_ff^-1 or, transposed, A_ff^-T. */
+static int sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
+                 double *ysf) {
+  return k->transposed ? backward_sweep(k, X, fs, vs, ysf)
+                       : forward_sweep(k, X, fs, vs, ysf);
+}
+
+/* y = S v = A_ss v - A_sf A_ff^-1 A_fs v (transposed: S^T v = A_ss^T v -
+ * A_fs^T A_ff^-T A_sf^T v). */
 static int schur_op(void *ctx, const double *v, double *y) {
   mrvi_skrylov *k = ctx;
   const mrvi_step *st = k->st;
   memset(y, 0, (size_t)k->ns * sizeof(double));
-  for (int j = 0; j < k->ns; j++)
-    for (int q = st->Ap[j]; q < k->sdiv[j]; q++)
-      y[st->Ai[q]] += st->Ax[q] * v[j];
+  if (k->transposed)
+    for (int j = 0; j < k->ns; j++)
+      for (int q = st->Ap[j]; q < k->sdiv[j]; q++)
+        y[j] += k->Ax[q] * v[st->Ai[q]];
+  else
+    for (int j = 0; j < k->ns; j++)
+      for (int q = st->Ap[j]; q < k->sdiv[j]; q++)
+        y[st->Ai[q]] += k->Ax[q] * v[j];
   double *tv = k->calls < SK_KEEP
                    ? k->T + (size_t)k->calls * (size_t)k->p * (size_t)k->nf
                    : k->t;
   k->calls++;
-  return forward_sweep(k, tv, FS_SET, v, y) == MRVI_CG_OK ? 0 : -1;
+  return sweep(k, tv, FS_SET, v, y) == MRVI_CG_OK ? 0 : -1;
 }
 
-/* The iterative solve; MRVI_CG_* on failure. */
+/* The iterative solve (of J^T dx = R where k->transposed: every A below
+ * transposed, the sweeps backward); MRVI_CG_* on failure. */
 static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   const int ns = k->ns;
   const size_t nF = (size_t)k->p * (size_t)k->nf;
@@ -444,7 +562,7 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   /* z = A_ff^-1 R_f (in df), rs = R_s - A_sf z */
   memcpy(df, R + ns, nF * sizeof(double));
   memcpy(k->rs, R, (size_t)ns * sizeof(double));
-  int s = forward_sweep(k, df, FS_NONE, NULL, k->rs);
+  int s = sweep(k, df, FS_NONE, NULL, k->rs);
   if (s != MRVI_CG_OK)
     return s;
   if (ns == 0)
@@ -452,9 +570,9 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
   int it = 0, ny = -1;
   k->calls = 0;
   const mrvi_tuning *tn = &k->st->tuning;
-  s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds,
-                 tn->krylov_gmres_rtol, 0.0, tn->krylov_restart,
-                 tn->krylov_max_it, k->gwork, &it, k->gy, &ny);
+  s = mrvi_gmres(ns, schur_op, k, k->dinv_s, k->rs, k->ds, k->gmres_rtol, 0.0,
+                 tn->krylov_restart, tn->krylov_max_it, k->gwork, &it, k->gy,
+                 &ny);
   k->stats.gmres_solves++;
   k->stats.gmres_iterations += it;
   if (it > k->stats.gmres_max)
@@ -479,15 +597,17 @@ static int solve_krylov(mrvi_skrylov *k, const double *R, double *dx) {
     return MRVI_CG_OK;
   }
   memcpy(df, R + ns, nF * sizeof(double));
-  return forward_sweep(k, df, FS_MINUS, k->ds, NULL);
+  return sweep(k, df, FS_MINUS, k->ds, NULL);
 }
 
-int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
-                       size_t len) {
+int mrvi_skrylov_solve(mrvi_skrylov *k, int transpose, const double *R,
+                       double *dx, char *msg, size_t len) {
   const mrvi_step *st = k->st;
   if (k->lu_active)
-    return mrvi_linsolve_solve(k->lu, st->Ax, 0, R, dx, msg, len);
+    return mrvi_linsolve_solve(k->lu, k->Ax, transpose, R, dx, msg, len);
+  k->transposed = transpose;
   const int s = solve_krylov(k, R, dx);
+  k->transposed = 0;
   if (s == MRVI_CG_OK)
     return MRVI_OK;
   /* Fallback: sparse LU of the whole step for this Jacobian. */
@@ -509,10 +629,12 @@ int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
                k->fail_iters);
   }
   if (!k->lu &&
-      !(k->lu = mrvi_newton_create(st->n_unknowns, st->Ap, st->Ai, st->Ax,
+      !(k->lu = mrvi_newton_create(st->n_unknowns, st->Ap, st->Ai, k->Ax,
                                    st->tuning.newton_dense_max, msg, len)))
     return MRVI_ESINGULAR;
-  const int r = mrvi_newton_solve(k->lu, st->Ax, R, dx, msg, len);
+  int r = mrvi_newton_factor(k->lu, k->Ax, msg, len);
+  if (r == MRVI_OK)
+    r = mrvi_linsolve_solve(k->lu, k->Ax, transpose, R, dx, msg, len);
   k->lu_active = r == MRVI_OK;
   return r;
 }

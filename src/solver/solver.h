@@ -482,11 +482,19 @@ void mrvi_skrylov_free(mrvi_skrylov *k);
 /* Take the Jacobian now in st->Ax (preconditioners); solves use it until
  * the next call. */
 void mrvi_skrylov_factor(mrvi_skrylov *k);
-/* Solve J dx = R; a sparse LU of the whole step where CG meets
- * non-positive curvature or an iteration does not converge (counted with
- * the reason in the stats, kept until the next mrvi_skrylov_factor). */
-int mrvi_skrylov_solve(mrvi_skrylov *k, const double *R, double *dx, char *msg,
-                       size_t len);
+/* The same with the values Ax on st's pattern (another step's Jacobian,
+ * e.g. the adjoint's); Ax must stay valid while solves use it. */
+void mrvi_skrylov_factor_values(mrvi_skrylov *k, const double *Ax);
+/* Solve J dx = R (transpose = 0) or J^T dx = R (1: the same elimination
+ * run backwards, doc/solver.md, "schur-krylov"); a sparse LU of the whole
+ * step where CG meets non-positive curvature or an iteration does not
+ * converge (counted with the reason in the stats, kept until the next
+ * mrvi_skrylov_factor). */
+int mrvi_skrylov_solve(mrvi_skrylov *k, int transpose, const double *R,
+                       double *dx, char *msg, size_t len);
+/* The relative tolerances of its block CG solves and of GMRES (default:
+ * tuning.krylov_cg_rtol, tuning.krylov_gmres_rtol). */
+void mrvi_skrylov_set_rtol(mrvi_skrylov *k, double cg_rtol, double gmres_rtol);
 const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k);
 
 /* ---------------------------------------------------------------------------
