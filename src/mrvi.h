@@ -732,6 +732,9 @@ typedef enum mrvi_newton_criterion {
     "largest node block (fast unknowns and a micro node's multipliers, or "    \
     "slow unknowns and the slow multipliers) of a step with micro-node "       \
     "constraints solved by schur-bordered; beyond: general")                   \
+  X(double, path_entry_cost, 5.0, 0.0, 1e300,                                  \
+    "cost of a stored dense entry per factorisation, in flops, in the "        \
+    "estimates that choose general or schur-bordered (doc/solver.md)")         \
   X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
     "relative tolerance of schur-krylov's block CG solves")                    \
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \
