@@ -1,10 +1,10 @@
 /* Cost estimates of the two paths of a constrained step in the multiplier
  * form (doc/solver.md, "Choosing between general and schur-bordered";
- * measured with bench_paths: doc/performance.md, "Constrained paths"):
- * the work of one Newton update's linear algebra (factorisation and
- * solve), which is all the two paths do differently (both assemble the
- * same CSC Jacobian, step.c, and take the same updates).  Counted from
- * the structure alone, so that the choice is deterministic:
+ * measured with bench_paths: doc/performance.md, "Constrained paths: the
+ * choice by cost estimates"): the work of one Newton update's linear
+ * algebra, which is all the two paths do differently (both assemble the
+ * same CSC Jacobian, step.c, and take the same updates).  Counted from the
+ * structure alone, so that the choice is deterministic:
  *
  *  - schur-bordered (solver/bordered.c, blocks.c) eliminates dense node
  *    blocks: with the slow block of a unknowns and p fast blocks of b,
@@ -12,41 +12,32 @@
  *    Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2}) (6 b^2 a) and
  *    its product into S (2 a^2 b), then S's LU (2/3 a^3):
  *
- *        F_b = p (2/3 b^3 + 6 b^2 a + 2 a^2 b) + 2/3 a^3
- *              + w (a^2 + p (2 a b + 3 b^2)),
+ *        F_b = p (2/3 b^3 + 6 b^2 a + 2 a^2 b) + 2/3 a^3,
  *
- *    the last term the dense blocks it clears and fills (w flops per
- *    stored entry, the tuning constant path_entry_cost).  With micro-node
- *    constraints a = n_s + r_s and b = n_f + r_f (the multipliers joined to
- *    their nodes); with macro-node constraints only a = n_s, b = n_f, and
- *    the r_s multipliers border S: r_s solves with S, the dense system
- *    K = -C_s S^-1 B_s and its LU (2 r a^2 + 2 r^2 a + 2/3 r^3, and
- *    w (r a + r^2) stored).
- *  - general (solver/newton.c) factors the n x n step (n = a + p b) by an
- *    LU in dense storage that skips zeros: it clears, scans and lists
- *    n^2 entries, and its elimination, ordered by nonzero count, costs
- *    about 2/3 n nnz (nnz/n nonzeros per row and column meeting at each of
- *    n pivots, the fill of the slow border and the constraint rows
- *    included):
+ *    with micro-node constraints a = n_s + r_s and b = n_f + r_f (the
+ *    multipliers joined to their nodes); with macro-node constraints only
+ *    a = n_s, b = n_f, and the r_s multipliers border S: r_s solves with S,
+ *    the dense system K = -C_s S^-1 B_s and its LU (2 r a^2 + 2 r^2 a +
+ *    2/3 r^3 more).
+ *  - general (solver/newton.c) factors the n x n step by an LU in dense
+ *    storage that skips zeros: it clears, scans and lists n^2 entries, and
+ *    eliminates with the fill of its ordering.  So the step's pattern is
+ *    built from the model (step_pattern), ordered as newton.c orders it
+ *    and eliminated symbolically (lu_flops: without pivoting, 2 |L_k| |U_k|
+ *    per pivot):
  *
- *        F_g = w n^2 + 2/3 n nnz,
+ *        F_g = c_i (w n^2 + L),
  *
- *    nnz counted from the model's coupling pattern (below).  Beyond
+ *    w = path_entry_cost (flops per stored entry), c_i = path_index_cost
+ *    (an indexed flop of the LU that skips zeros against one of the dense
+ *    block kernels); both measured across the shipped systems.  Beyond
  *    newton_dense_max the general path takes UMFPACK, whose fixed costs
  *    and fill this does not model: there the structured path is kept, as
  *    measured (the spacecraft and the flexible pendulum at p >= 5 and 20).
- *
- * The step's nonzeros: with P the coordinates' coupling pattern (the
- * diagonal, each non-linear potential element's and constraint's inputs
- * pairwise),
- * P_ss, P_ff, P_sf its slow-slow, fast-fast and slow-fast pairs, G_s and
- * G_m the gradient entries (rows x inputs) of the macro-node and
- * micro-node constraints: the slow block P_ss, the fast rows coupled to
- * three nodes each (3p - 3 node blocks of P_ff, 1 at p = 1), the slow row
- * to every node and every node to the slow unknowns (2 p P_sf), and the
- * constraint rows and multiplier columns (2 G_s + 2 p G_m). */
+ */
 #include "solver/solver.h"
 
+#include <math.h>
 #include <stdlib.h>
 
 /* Mark the pairs of inputs in[0..k) in the n x n pattern P. */
@@ -54,6 +45,122 @@ static void couple(unsigned char *P, int n, const int *in, int k) {
   for (int i = 0; i < k; i++)
     for (int j = 0; j < k; j++)
       P[(size_t)in[i] * (size_t)n + (size_t)in[j]] = 1;
+}
+
+/* The step's pattern as rows of bits (nw words each). */
+typedef struct {
+  int n, nw;
+  unsigned long long *bits;
+} pattern;
+
+static void set(pattern *J, int r, int c) {
+  J->bits[(size_t)r * (size_t)J->nw + (size_t)(c / 64)] |= 1ULL << (c % 64);
+}
+
+static int get(const pattern *J, int r, int c) {
+  return (int)(J->bits[(size_t)r * (size_t)J->nw + (size_t)(c / 64)] >>
+               (c % 64)) &
+         1;
+}
+
+/* The multiplier form's step pattern (step.h's layout, as
+ * solver/bordered.c reads it) from the coupling pattern P of the model's
+ * coordinates: unknowns q_{k+1}^s (row: the slow row), the fast nodes
+ * 1..p (row c: fast row c, coupled to the nodes c-1 .. c+1), the r_s
+ * multipliers of the macro-node constraints (rows: their equations at node
+ * k+1) and those of the micro nodes (column lambda^m, m = 0..p-1, and row
+ * g(z^{m+1}) share block m). */
+static void step_pattern(const mrvi_model *m, const unsigned char *P, int p,
+                         int rs, int rf, pattern *J) {
+  const int n = m->n, ns = m->n_slow, nf = m->n_fast, nu = ns + p * nf;
+  for (int u = 0; u < n; u++)
+    for (int v = 0; v < n; v++) {
+      if (!P[(size_t)u * (size_t)n + (size_t)v])
+        continue;
+      const int su = m->rate[u] == MRVI_SLOW, sv = m->rate[v] == MRVI_SLOW;
+      const int a = m->slot[u], b = m->slot[v];
+      if (su && sv)
+        set(J, a, b);
+      for (int c = 0; c < p; c++) {
+        if (su && !sv)
+          set(J, a, ns + c * nf + b);
+        else if (!su && sv)
+          set(J, ns + c * nf + a, b);
+        else if (!su)
+          for (int d = c - 2; d <= c; d++)
+            if (d >= 0)
+              set(J, ns + c * nf + a, ns + d * nf + b);
+      }
+    }
+  int js = 0, jm = 0;
+  for (int k = 0; k < m->n_constraints; k++) {
+    const mrvi_constraint *ct = &m->constraints[k];
+    for (int r = 0; r < ct->rows; r++) {
+      for (int i = 0; i < ct->n_in; i++) {
+        const int u = ct->in[i], slow = m->rate[u] == MRVI_SLOW;
+        const int a = m->slot[u];
+        if (ct->where == MRVI_SLOW) { /* at node k+1 = fast node p */
+          const int x = slow ? a : ns + (p - 1) * nf + a, l = nu + js + r;
+          set(J, l, x);
+          set(J, x, l);
+          continue;
+        }
+        for (int c = 0; c < p; c++) {
+          const int l = nu + rs + c * rf + jm + r;
+          /* g(z^{c+1}): node c+1's fast and the slow unknowns */
+          set(J, l, slow ? a : ns + c * nf + a);
+          /* lambda^c: fast row c (node c) and the slow row */
+          if (slow)
+            set(J, a, l);
+          else if (c > 0)
+            set(J, ns + c * nf + a, l);
+        }
+      }
+    }
+    *(ct->where == MRVI_SLOW ? &js : &jm) += ct->rows;
+  }
+}
+
+/* Flops of the general path's dense LU that skips zeros on pattern J:
+ * rows and columns ordered by increasing nonzero count of row plus column
+ * (stably, as solver/newton.c), then Gaussian elimination without
+ * pivoting on the bits, 2 |L_k| |U_k| per pivot with the fill. */
+static double lu_flops(pattern *J, int *deg, int *order) {
+  const int n = J->n;
+  for (int i = 0; i < n; i++)
+    deg[i] = 0;
+  for (int r = 0; r < n; r++)
+    for (int c = 0; c < n; c++)
+      if (get(J, r, c))
+        deg[r]++, deg[c]++;
+  for (int i = 0; i < n; i++) {
+    int k = i;
+    for (; k > 0 && deg[order[k - 1]] > deg[i]; k--)
+      order[k] = order[k - 1];
+    order[k] = i;
+  }
+  /* B = J renumbered, in the upper half of the bits (rows n..2n-1) */
+  pattern B = {n, J->nw, J->bits + (size_t)n * (size_t)J->nw};
+  for (int r = 0; r < n; r++)
+    for (int c = 0; c < n; c++)
+      if (get(J, order[r], order[c]))
+        set(&B, r, c);
+  double flops = 0.0;
+  for (int k = 0; k < n; k++) {
+    long u = 0;
+    for (int c = k + 1; c < n; c++)
+      u += get(&B, k, c);
+    const unsigned long long *bk = B.bits + (size_t)k * (size_t)B.nw;
+    for (int i = k + 1; i < n; i++) {
+      if (!get(&B, i, k))
+        continue;
+      flops += 2.0 * (double)u + 1.0;
+      unsigned long long *bi = B.bits + (size_t)i * (size_t)B.nw;
+      for (int w = k / 64; w < B.nw; w++)
+        bi[w] |= bk[w];
+    }
+  }
+  return flops;
 }
 
 int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
@@ -70,48 +177,49 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
     if (el->kind != MRVI_ELEMENT_GRAVITY && el->kind != MRVI_ELEMENT_FORCE)
       couple(P, n, el->in, el->n_in);
   }
-  long gs = 0, gm = 0;
   int rs = 0, rf = 0;
   for (int k = 0; k < m->n_constraints; k++) {
     const mrvi_constraint *ct = &m->constraints[k];
     couple(P, n, ct->in, ct->n_in);
-    if (ct->where == MRVI_SLOW)
-      gs += (long)ct->rows * ct->n_in, rs += ct->rows;
-    else
-      gm += (long)ct->rows * ct->n_in, rf += ct->rows;
+    *(ct->where == MRVI_SLOW ? &rs : &rf) += ct->rows;
   }
-  long pss = 0, pff = 0, psf = 0;
-  for (int i = 0; i < n; i++)
-    for (int j = 0; j < n; j++) {
-      if (!P[(size_t)i * (size_t)n + (size_t)j])
-        continue;
-      const int si = m->rate[i] == MRVI_SLOW, sj = m->rate[j] == MRVI_SLOW;
-      pss += si && sj;
-      pff += !si && !sj;
-      psf += si && !sj;
-    }
-  free(P);
-  const long node_blocks = p == 1 ? 1 : 3L * p - 3;
   c->r_slow = rs;
   c->r_micro = rf;
   c->n = m->n_slow + rs + (long)p * (m->n_fast + rf);
-  c->nnz = pss + node_blocks * pff + 2L * p * psf + 2 * gs + 2L * p * gm;
-  const double w = s->tuning.path_entry_cost, P1 = (double)p;
-  const double nn = (double)c->n;
-  c->general = w * nn * nn + 2.0 / 3.0 * nn * (double)c->nnz;
+  c->nnz = -1;
+  c->general = HUGE_VAL; /* beyond newton_dense_max: not modelled */
+  if (c->n <= s->tuning.newton_dense_max) {
+    const int nj = (int)c->n, nw = (nj + 63) / 64;
+    pattern J = {nj, nw, calloc(2 * (size_t)nj * (size_t)nw + 1, 8)};
+    int *deg = malloc(((size_t)nj + 1) * sizeof *deg),
+        *order = malloc(((size_t)nj + 1) * sizeof *order);
+    if (!J.bits || !deg || !order) {
+      free(J.bits), free(deg), free(order), free(P);
+      return MRVI_ENOMEM;
+    }
+    step_pattern(m, P, p, rs, rf, &J);
+    c->nnz = 0;
+    for (size_t i = 0; i < (size_t)nj * (size_t)nw; i++)
+      for (unsigned long long x = J.bits[i]; x; x &= x - 1)
+        c->nnz++;
+    const double nn = (double)nj;
+    c->general = s->tuning.path_index_cost *
+                 (s->tuning.path_entry_cost * nn * nn + lu_flops(&J, deg, order));
+    free(J.bits), free(deg), free(order);
+  }
+  free(P);
+  const double P1 = (double)p;
   double a, b, border = 0.0;
   if (rf > 0) {
     a = m->n_slow + rs, b = m->n_fast + rf;
   } else {
     const double r = rs;
     a = m->n_slow, b = m->n_fast;
-    border = 2 * r * a * a + 2 * r * r * a + 2.0 / 3.0 * r * r * r +
-             w * (r * a + r * r);
+    border = 2 * r * a * a + 2 * r * r * a + 2.0 / 3.0 * r * r * r;
   }
   c->a = (int)a;
   c->b = (int)b;
   c->bordered = P1 * (2.0 / 3.0 * b * b * b + 6 * b * b * a + 2 * a * a * b) +
-                2.0 / 3.0 * a * a * a +
-                w * (a * a + P1 * (2 * a * b + 3 * b * b)) + border;
+                2.0 / 3.0 * a * a * a + border;
   return MRVI_OK;
 }
