@@ -47,6 +47,43 @@ static void couple(unsigned char *P, int n, const int *in, int k) {
       P[(size_t)in[i] * (size_t)n + (size_t)in[j]] = 1;
 }
 
+/* Mark in P the pairs of a constraint's inputs that its second
+ * derivatives couple: the nonzeros of lambda^T hess g at the initial
+ * configuration and at a fixed displacement of it (so that entries zero
+ * by the symmetry of the initial state count; a body's director
+ * orthonormality d_i . d_j couples component k of d_i with component k of
+ * d_j alone, not all its inputs pairwise). */
+static int constraint_hessian(const mrvi_model *m, const mrvi_constraint *ct,
+                              unsigned char *P) {
+  const int k = ct->n_in, r = ct->rows, n = m->n;
+  double *y = malloc((size_t)k * sizeof *y),
+         *g = malloc((size_t)r * sizeof *g),
+         *G = malloc((size_t)r * (size_t)k * sizeof *G),
+         *H = malloc((size_t)r * (size_t)k * (size_t)k * sizeof *H);
+  if (!y || !g || !G || !H) {
+    free(y), free(g), free(G), free(H);
+    return MRVI_ENOMEM;
+  }
+  for (int t = 0; t < 2; t++) {
+    for (int i = 0; i < k; i++)
+      y[i] = m->q0[ct->in[i]] + (t ? 0.01 * (i + 1) : 0.0);
+    ct->type->eval(k, ct->n_params, ct->params, y, g, G, H);
+    for (int i = 0; i < k; i++)
+      for (int j = 0; j < k; j++) {
+        int nz = i == j;
+        for (int l = 0; l < r && !nz; l++) {
+          const double h = H[((size_t)l * (size_t)k + (size_t)i) * (size_t)k +
+                             (size_t)j];
+          nz = h != 0.0; /* (a NaN counts too) */
+        }
+        if (nz)
+          P[(size_t)ct->in[i] * (size_t)n + (size_t)ct->in[j]] = 1;
+      }
+  }
+  free(y), free(g), free(G), free(H);
+  return MRVI_OK;
+}
+
 /* The step's pattern as rows of bits (nw words each). */
 typedef struct {
   int n, nw;
@@ -110,10 +147,7 @@ static void step_pattern(const mrvi_model *m, const unsigned char *P, int p,
           /* g(z^{c+1}): node c+1's fast and the slow unknowns */
           set(J, l, slow ? a : ns + c * nf + a);
           /* lambda^c: fast row c (node c) and the slow row */
-          if (slow)
-            set(J, a, l);
-          else if (c > 0)
-            set(J, ns + c * nf + a, l);
+          set(J, slow ? a : ns + c * nf + a, l);
         }
       }
     }
@@ -178,10 +212,15 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
       couple(P, n, el->in, el->n_in);
   }
   int rs = 0, rf = 0;
-  for (int k = 0; k < m->n_constraints; k++) {
+  int st = MRVI_OK;
+  for (int k = 0; k < m->n_constraints && st == MRVI_OK; k++) {
     const mrvi_constraint *ct = &m->constraints[k];
-    couple(P, n, ct->in, ct->n_in);
+    st = constraint_hessian(m, ct, P);
     *(ct->where == MRVI_SLOW ? &rs : &rf) += ct->rows;
+  }
+  if (st < 0) {
+    free(P);
+    return st;
   }
   c->r_slow = rs;
   c->r_micro = rf;
