@@ -71,8 +71,7 @@ static mrvi_settings settings_of(const mrvi_system *sys, int kind, int p,
 }
 
 /* N macro steps of run kind `kind`; CPU seconds, or a negative value. */
-static double run(const mrvi_system *sys, int kind, int p, long N,
-                  figures *f) {
+static double run(const mrvi_system *sys, int kind, int p, long N, figures *f) {
   const mrvi_settings s = settings_of(sys, kind, p, N);
   mrvi_integrator *it = NULL;
   char msg[512];
@@ -132,10 +131,9 @@ static void row(const mrvi_system *sys, int p, int repeat, double budget) {
   const int ns = mrvi_model_n_slow(sys->model),
             nf = mrvi_model_n_fast(sys->model);
   const int size = f[GENERAL].ok ? f[GENERAL].size : f[BORDERED].size;
-  const char *faster =
-      !f[BORDERED].ok                        ? "general"
-      : f[GENERAL].ms <= f[BORDERED].ms ? "general"
-                                             : "schur-bordered";
+  const char *faster = !f[BORDERED].ok                   ? "general"
+                       : f[GENERAL].ms <= f[BORDERED].ms ? "general"
+                                                         : "schur-bordered";
   const double chosen = !strcmp(path ? path : "", "schur-bordered")
                             ? f[BORDERED].ms
                             : f[GENERAL].ms;

@@ -369,7 +369,10 @@ static void test_chains(void) {
       const char *path = mrvi_solver_path(m, &sa, why, sizeof why);
       const char *want = c == 1 ? "general" : "schur-bordered";
       CHECK(path && strcmp(path, want) == 0, "chain of %d (%s): path %s (%s)",
-            n, c == 2 ? "bordered_max 128" : c ? "auto" : "structured",
+            n,
+            c == 2 ? "bordered_max 128"
+            : c    ? "auto"
+                   : "structured",
             path ? path : "none", why);
       if (c == 1)
         CHECK(strstr(why, "beyond the dense limit") != NULL, "reason: %s", why);

@@ -188,7 +188,7 @@ static void test_paths_agree(void) {
              * null-space form. */
             const char *chosen =
                 mrvi_solver_path(sa->model, &sa->settings, NULL, 0);
-            const char *want = constrained ? (f ? "general" : chosen)
+            const char *want = constrained   ? (f ? "general" : chosen)
                                : !slow_macro ? "schur"
                                : expl        ? "explicit"
                                              : "sweep";

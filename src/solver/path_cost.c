@@ -56,8 +56,7 @@ static void couple(unsigned char *P, int n, const int *in, int k) {
 static int constraint_hessian(const mrvi_model *m, const mrvi_constraint *ct,
                               unsigned char *P) {
   const int k = ct->n_in, r = ct->rows, n = m->n;
-  double *y = malloc((size_t)k * sizeof *y),
-         *g = malloc((size_t)r * sizeof *g),
+  double *y = malloc((size_t)k * sizeof *y), *g = malloc((size_t)r * sizeof *g),
          *G = malloc((size_t)r * (size_t)k * sizeof *G),
          *H = malloc((size_t)r * (size_t)k * (size_t)k * sizeof *H);
   if (!y || !g || !G || !H) {
@@ -72,8 +71,8 @@ static int constraint_hessian(const mrvi_model *m, const mrvi_constraint *ct,
       for (int j = 0; j < k; j++) {
         int nz = i == j;
         for (int l = 0; l < r && !nz; l++) {
-          const double h = H[((size_t)l * (size_t)k + (size_t)i) * (size_t)k +
-                             (size_t)j];
+          const double h =
+              H[((size_t)l * (size_t)k + (size_t)i) * (size_t)k + (size_t)j];
           nz = h != 0.0; /* (a NaN counts too) */
         }
         if (nz)
@@ -242,8 +241,9 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
       for (unsigned long long x = J.bits[i]; x; x &= x - 1)
         c->nnz++;
     const double nn = (double)nj;
-    c->general = s->tuning.path_index_cost *
-                 (s->tuning.path_entry_cost * nn * nn + lu_flops(&J, deg, order));
+    c->general =
+        s->tuning.path_index_cost *
+        (s->tuning.path_entry_cost * nn * nn + lu_flops(&J, deg, order));
     free(J.bits), free(deg), free(order);
   }
   free(P);
