@@ -732,6 +732,13 @@ typedef enum mrvi_newton_criterion {
     "largest node block (fast unknowns and a micro node's multipliers, or "    \
     "slow unknowns and the slow multipliers) of a step with micro-node "       \
     "constraints solved by schur-bordered; beyond: general")                   \
+  X(double, path_entry_cost, 5.0, 0.0, 1e300,                                  \
+    "cost of an entry of the general path's dense LU storage per "             \
+    "factorisation, in its flops, in the estimate that chooses general or "    \
+    "schur-bordered (doc/solver.md)")                                          \
+  X(double, path_index_cost, 2.0, 0.0, 1e300,                                  \
+    "cost of a flop of the general path's LU that skips zeros, in flops of "   \
+    "schur-bordered's dense blocks, in the same estimate")                     \
   X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
     "relative tolerance of schur-krylov's block CG solves")                    \
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \

@@ -4,7 +4,8 @@
  * constrained system, scheme and p in {1, 5} over 100 macro steps, on
  * generated pendulum chains where the automatic choice takes it and where
  * it is forced by bordered_max; the path chosen and its reason; the
- * sparse Gram matrix of the projection against the dense one. */
+ * sparse Gram matrix of the projection against the dense one; the choice
+ * between general and schur-bordered by the cost estimates. */
 #include "integrator/integrator.h"
 #include "models.h"
 #include "testlib.h"
@@ -295,9 +296,60 @@ static void test_node_blocks(void) {
     }
 }
 
-/* Chains: 8 links take schur-bordered automatically; 40 links take general
- * (beyond bordered_max) and schur-bordered where it is raised; both agree
- * with general. */
+/* The choice between general and schur-bordered by the structural cost
+ * estimates (solver/path_cost.c, doc/solver.md): on structurally different
+ * models, the path, its reason with both estimates, the same answer twice
+ * (no timing), and integrator.solver = structured keeping schur-bordered. */
+static void test_path_choice(void) {
+  static const struct {
+    const char *file;
+    int p;
+    const char *path, *reason;
+  } cases[] = {
+      /* all slow bodies: the dense LU of the sparse saddle point */
+      {"systems/slider_crank.yaml", 1, "general", "against"},
+      {"systems/slider_crank.yaml", 20, "general", "against"},
+      /* particles, micro-node rods: node blocks from p = 5 on */
+      {"systems/triatomic.yaml", 10, "schur-bordered", "on general"},
+      /* slow arm, fast payload, macro-node joints: general up to p = 10 */
+      {"systems/robot_arm_payload.yaml", 1, "general", "on schur-bordered"},
+      {"systems/robot_arm_payload.yaml", 20, "schur-bordered", "on general"},
+      /* bodies with micro-node joints beyond the dense LU's size */
+      {"systems/spacecraft.yaml", 5, "schur-bordered", "newton_dense_max"}};
+  for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
+    char ov[1][64];
+    const char *ovp[1] = {ov[0]};
+    snprintf(ov[0], sizeof ov[0], "integrator.micro_steps=%d", cases[i].p);
+    mrvi_system *sys = NULL;
+    char msg[512], why[512] = "", why2[512] = "";
+    if (mrvi_system_load(test_source_path(cases[i].file), ovp, 1, &sys, msg,
+                         sizeof msg) < 0) {
+      CHECK(0, "load %s: %s", cases[i].file, msg);
+      continue;
+    }
+    mrvi_settings s = sys->settings;
+    const char *path = mrvi_solver_path(sys->model, &s, why, sizeof why);
+    CHECK(path && strcmp(path, cases[i].path) == 0 &&
+              strstr(why, cases[i].reason) != NULL,
+          "%s p=%d: %s (%s)", cases[i].file, cases[i].p, path ? path : "none",
+          why);
+    const char *again = mrvi_solver_path(sys->model, &s, why2, sizeof why2);
+    CHECK(again == path && strcmp(why, why2) == 0, "%s: deterministic",
+          cases[i].file);
+    s.solver = MRVI_SOLVER_STRUCTURED;
+    path = mrvi_solver_path(sys->model, &s, why, sizeof why);
+    CHECK(path && strcmp(path, "schur-bordered") == 0 &&
+              strstr(why, "estimated") == NULL,
+          "%s p=%d structured: %s (%s)", cases[i].file, cases[i].p,
+          path ? path : "none", why);
+    mrvi_system_free(sys);
+  }
+}
+
+/* Chains: 8 links on schur-bordered (requested: the estimates take general
+ * at p = 1 and 5, test_path_choice); 40 links take general (beyond
+ * bordered_max) and schur-bordered where it is raised; both agree with
+ * general. */
 static void test_chains(void) {
   for (int c = 0; c < 3; c++) {
     const int n = c == 0 ? 8 : 40, steps = c == 0 ? N_STEPS : 20;
@@ -307,15 +359,21 @@ static void test_chains(void) {
       mrvi_settings sa = chain_settings(p, "auto"),
                     sg = chain_settings(p, "general");
       char msg[200];
+      if (c != 1)
+        sa.solver = MRVI_SOLVER_STRUCTURED; /* whatever the estimates say */
       if (c == 2)
         CHECK(mrvi_settings_set_tuning(&sa, "bordered_max", 128, msg,
                                        sizeof msg) == 0,
               "%s", msg);
-      char why[400] = "";
+      char why[512] = "";
       const char *path = mrvi_solver_path(m, &sa, why, sizeof why);
       const char *want = c == 1 ? "general" : "schur-bordered";
       CHECK(path && strcmp(path, want) == 0, "chain of %d (%s): path %s (%s)",
-            n, c == 2 ? "bordered_max 128" : "auto", path ? path : "none", why);
+            n,
+            c == 2 ? "bordered_max 128"
+            : c    ? "auto"
+                   : "structured",
+            path ? path : "none", why);
       if (c == 1)
         CHECK(strstr(why, "beyond the dense limit") != NULL, "reason: %s", why);
       run_out a = {0}, g = {0};
@@ -395,6 +453,7 @@ static void test_gram(void) {
 
 int main(void) {
   test_gram();
+  test_path_choice();
   test_chains();
   test_node_blocks();
   test_shipped();

@@ -183,10 +183,13 @@ static void test_paths_agree(void) {
              * macro-grid schemes. */
             const int expl = strcmp(schemes[sc], "fully-explicit") == 0 ||
                              sa->model->n_fast == 0;
-            /* Constrained: schur-bordered in the multiplier form (the
-             * shipped systems fit the dense limit), general in the
+            /* Constrained: in the multiplier form the path of the cost
+             * estimates (the shipped systems fit the dense limits;
+             * test_constrained_paths checks the choice), general in the
              * null-space form. */
-            const char *want = constrained ? (f ? "general" : "schur-bordered")
+            const char *chosen =
+                mrvi_solver_path(sa->model, &sa->settings, NULL, 0);
+            const char *want = constrained   ? (f ? "general" : chosen)
                                : !slow_macro ? "schur"
                                : expl        ? "explicit"
                                              : "sweep";
@@ -234,7 +237,7 @@ static void test_choice(void) {
         "create refuses: %s", msg);
   mrvi_integrator_free(it);
   mrvi_system_free(s);
-  s = load("systems/triatomic.yaml", "fully-explicit", 1, "multipliers",
+  s = load("systems/triatomic.yaml", "fully-explicit", 5, "multipliers",
            "auto");
   if (!s)
     return;

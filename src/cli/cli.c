@@ -520,7 +520,7 @@ static int cmd_check(int argc, char **argv) {
       s->newton_criterion == MRVI_CRITERION_SCALED ? " (scaled by mass)" : "",
       s->newton_max_iter);
   {
-    char why[300];
+    char why[512];
     const char *path = mrvi_solver_path(sys->model, s, why, sizeof why);
     printf("%-14s%s: %s\n", "solver", path ? path : "structured unavailable",
            why);

@@ -24,7 +24,7 @@ struct mrvi_integrator {
   mrvi_bordered *bordered;    /* schur-bordered path */
   mrvi_predictor *predictor;  /* Newton paths */
   int factors_ok;             /* factors of this step's Jacobian are kept */
-  char why[240];              /* reason for the path */
+  char why[512];              /* reason for the path */
   double *qs_prev, *qf_prev;  /* q_k^s, q_k^{f,0} of the last step (packed) */
   mrvi_newton *jac_nw;        /* full-step factors for jacobian_solve */
   int jac_ready;              /* jac_nw holds the last step's Jacobian */

@@ -168,6 +168,18 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
 #define MRVI_PATH_ENUM(id, name) MRVI_PATH_##id,
 enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };
 #undef MRVI_PATH_ENUM
+/* Structural cost estimates of a constrained step's linear algebra per
+ * Newton update on the general and schur-bordered paths, in flops
+ * (solver/path_cost.c): the step's size n and estimated nonzeros nnz
+ * (multiplier form), the dense slow block a and fast node block b of
+ * schur-bordered, the rows at macro and micro nodes. */
+typedef struct mrvi_path_cost {
+  long n, nnz;
+  int a, b, r_slow, r_micro;
+  double general, bordered;
+} mrvi_path_cost;
+int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
+                    mrvi_path_cost *c);
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len);

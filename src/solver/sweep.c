@@ -148,19 +148,44 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
              bodies, m->n_slow + r_slow, m->n_fast + r_micro, nmax);
     return MRVI_PATH_GENERAL;
   }
+  /* Within the limits: the cheaper path by the structural estimates
+   * (solver/path_cost.c), unless the structured path is requested. */
+  mrvi_path_cost c = {0};
+  const int costed =
+      s->solver != MRVI_SOLVER_STRUCTURED && mrvi_path_costs(m, s, &c) == 0;
+  char est[200] = "";
+  if (costed && c.n <= s->tuning.newton_dense_max)
+    mrvi_fmt(est, sizeof est,
+             "; estimated %.3g flop per update against %.3g on general "
+             "(%ld unknowns, about %ld nonzeros)",
+             c.bordered, c.general, c.n, c.nnz);
+  else if (costed)
+    mrvi_fmt(est, sizeof est,
+             "; %ld unknowns, beyond the general path's dense LU "
+             "(newton_dense_max %d)",
+             c.n, s->tuning.newton_dense_max);
+  if (costed && c.n <= s->tuning.newton_dense_max && c.general < c.bordered) {
+    mrvi_fmt(why, len,
+             "constrained model%s: Newton with a sparse LU of the whole step "
+             "(%ld unknowns, about %ld nonzeros), estimated %.3g flop per "
+             "update against %.3g on schur-bordered (blocks %d and %d)",
+             bodies, c.n, c.nnz, c.general, c.bordered, c.a, c.b);
+    return MRVI_PATH_GENERAL;
+  }
   if (r_micro > 0) {
     mrvi_fmt(why, len,
              "constrained model%s: Newton with a Schur complement on the %d "
              "slow unknowns and multipliers and block sweeps over %d micro "
-             "nodes of %d fast unknowns and multipliers each",
-             bodies, m->n_slow + r_slow, s->micro_steps, m->n_fast + r_micro);
+             "nodes of %d fast unknowns and multipliers each%s",
+             bodies, m->n_slow + r_slow, s->micro_steps, m->n_fast + r_micro,
+             est);
     return MRVI_PATH_SCHUR_BORDERED;
   }
   mrvi_fmt(why, len,
            "constrained model%s: Newton with a Schur complement on the %d "
            "slow unknowns and block sweeps over %d micro nodes, bordered by "
-           "the %ld multipliers",
-           bodies, m->n_slow, s->micro_steps, n_lambda);
+           "the %ld multipliers%s",
+           bodies, m->n_slow, s->micro_steps, n_lambda, est);
   return MRVI_PATH_SCHUR_BORDERED;
 }
 

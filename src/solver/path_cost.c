@@ -1,0 +1,264 @@
+/* Cost estimates of the two paths of a constrained step in the multiplier
+ * form (doc/solver.md, "Choosing between general and schur-bordered";
+ * measured with bench_paths: doc/performance.md, "Constrained paths: the
+ * choice by cost estimates"): the work of one Newton update's linear
+ * algebra, which is all the two paths do differently (both assemble the
+ * same CSC Jacobian, step.c, and take the same updates).  Counted from the
+ * structure alone, so that the choice is deterministic:
+ *
+ *  - schur-bordered (solver/bordered.c, blocks.c) eliminates dense node
+ *    blocks: with the slow block of a unknowns and p fast blocks of b,
+ *    each fast block's LU (2/3 b^3), its solve for the slow columns
+ *    Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2}) (6 b^2 a) and
+ *    its product into S (2 a^2 b), then S's LU (2/3 a^3):
+ *
+ *        F_b = p (2/3 b^3 + 6 b^2 a + 2 a^2 b) + 2/3 a^3,
+ *
+ *    with micro-node constraints a = n_s + r_s and b = n_f + r_f (the
+ *    multipliers joined to their nodes); with macro-node constraints only
+ *    a = n_s, b = n_f, and the r_s multipliers border S: r_s solves with S,
+ *    the dense system K = -C_s S^-1 B_s and its LU (2 r a^2 + 2 r^2 a +
+ *    2/3 r^3 more).
+ *  - general (solver/newton.c) factors the n x n step by an LU in dense
+ *    storage that skips zeros: it clears, scans and lists n^2 entries, and
+ *    eliminates with the fill of its ordering.  So the step's pattern is
+ *    built from the model (step_pattern), ordered as newton.c orders it
+ *    and eliminated symbolically (lu_flops: without pivoting, 2 |L_k| |U_k|
+ *    per pivot):
+ *
+ *        F_g = c_i (w n^2 + L),
+ *
+ *    w = path_entry_cost (flops per stored entry), c_i = path_index_cost
+ *    (an indexed flop of the LU that skips zeros against one of the dense
+ *    block kernels); both measured across the shipped systems.  Beyond
+ *    newton_dense_max the general path takes UMFPACK, whose fixed costs
+ *    and fill this does not model: there the structured path is kept, as
+ *    measured (the spacecraft and the flexible pendulum at p >= 5 and 20).
+ */
+#include "solver/solver.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+/* Mark the pairs of inputs in[0..k) in the n x n pattern P. */
+static void couple(unsigned char *P, int n, const int *in, int k) {
+  for (int i = 0; i < k; i++)
+    for (int j = 0; j < k; j++)
+      P[(size_t)in[i] * (size_t)n + (size_t)in[j]] = 1;
+}
+
+/* Mark in P the pairs of a constraint's inputs that its second
+ * derivatives couple: the nonzeros of lambda^T hess g at the initial
+ * configuration and at a fixed displacement of it (so that entries zero
+ * by the symmetry of the initial state count; a body's director
+ * orthonormality d_i . d_j couples component k of d_i with component k of
+ * d_j alone, not all its inputs pairwise). */
+static int constraint_hessian(const mrvi_model *m, const mrvi_constraint *ct,
+                              unsigned char *P) {
+  const int k = ct->n_in, r = ct->rows, n = m->n;
+  double *y = malloc((size_t)k * sizeof *y), *g = malloc((size_t)r * sizeof *g),
+         *G = malloc((size_t)r * (size_t)k * sizeof *G),
+         *H = malloc((size_t)r * (size_t)k * (size_t)k * sizeof *H);
+  if (!y || !g || !G || !H) {
+    free(y), free(g), free(G), free(H);
+    return MRVI_ENOMEM;
+  }
+  for (int t = 0; t < 2; t++) {
+    for (int i = 0; i < k; i++)
+      y[i] = m->q0[ct->in[i]] + (t ? 0.01 * (i + 1) : 0.0);
+    ct->type->eval(k, ct->n_params, ct->params, y, g, G, H);
+    for (int i = 0; i < k; i++)
+      for (int j = 0; j < k; j++) {
+        int nz = i == j;
+        for (int l = 0; l < r && !nz; l++) {
+          const double h =
+              H[((size_t)l * (size_t)k + (size_t)i) * (size_t)k + (size_t)j];
+          nz = h != 0.0; /* (a NaN counts too) */
+        }
+        if (nz)
+          P[(size_t)ct->in[i] * (size_t)n + (size_t)ct->in[j]] = 1;
+      }
+  }
+  free(y), free(g), free(G), free(H);
+  return MRVI_OK;
+}
+
+/* The step's pattern as rows of bits (nw words each). */
+typedef struct {
+  int n, nw;
+  unsigned long long *bits;
+} pattern;
+
+static void set(pattern *J, int r, int c) {
+  J->bits[(size_t)r * (size_t)J->nw + (size_t)(c / 64)] |= 1ULL << (c % 64);
+}
+
+static int get(const pattern *J, int r, int c) {
+  return (int)(J->bits[(size_t)r * (size_t)J->nw + (size_t)(c / 64)] >>
+               (c % 64)) &
+         1;
+}
+
+/* The multiplier form's step pattern (step.h's layout, as
+ * solver/bordered.c reads it) from the coupling pattern P of the model's
+ * coordinates: unknowns q_{k+1}^s (row: the slow row), the fast nodes
+ * 1..p (row c: fast row c, coupled to the nodes c-1 .. c+1), the r_s
+ * multipliers of the macro-node constraints (rows: their equations at node
+ * k+1) and those of the micro nodes (column lambda^m, m = 0..p-1, and row
+ * g(z^{m+1}) share block m). */
+static void step_pattern(const mrvi_model *m, const unsigned char *P, int p,
+                         int rs, int rf, pattern *J) {
+  const int n = m->n, ns = m->n_slow, nf = m->n_fast, nu = ns + p * nf;
+  for (int u = 0; u < n; u++)
+    for (int v = 0; v < n; v++) {
+      if (!P[(size_t)u * (size_t)n + (size_t)v])
+        continue;
+      const int su = m->rate[u] == MRVI_SLOW, sv = m->rate[v] == MRVI_SLOW;
+      const int a = m->slot[u], b = m->slot[v];
+      if (su && sv)
+        set(J, a, b);
+      for (int c = 0; c < p; c++) {
+        if (su && !sv)
+          set(J, a, ns + c * nf + b);
+        else if (!su && sv)
+          set(J, ns + c * nf + a, b);
+        else if (!su)
+          for (int d = c - 2; d <= c; d++)
+            if (d >= 0)
+              set(J, ns + c * nf + a, ns + d * nf + b);
+      }
+    }
+  int js = 0, jm = 0;
+  for (int k = 0; k < m->n_constraints; k++) {
+    const mrvi_constraint *ct = &m->constraints[k];
+    for (int r = 0; r < ct->rows; r++) {
+      for (int i = 0; i < ct->n_in; i++) {
+        const int u = ct->in[i], slow = m->rate[u] == MRVI_SLOW;
+        const int a = m->slot[u];
+        if (ct->where == MRVI_SLOW) { /* at node k+1 = fast node p */
+          const int x = slow ? a : ns + (p - 1) * nf + a, l = nu + js + r;
+          set(J, l, x);
+          set(J, x, l);
+          continue;
+        }
+        for (int c = 0; c < p; c++) {
+          const int l = nu + rs + c * rf + jm + r;
+          /* g(z^{c+1}): node c+1's fast and the slow unknowns */
+          set(J, l, slow ? a : ns + c * nf + a);
+          /* lambda^c: fast row c (node c) and the slow row */
+          set(J, slow ? a : ns + c * nf + a, l);
+        }
+      }
+    }
+    *(ct->where == MRVI_SLOW ? &js : &jm) += ct->rows;
+  }
+}
+
+/* Flops of the general path's dense LU that skips zeros on pattern J:
+ * rows and columns ordered by increasing nonzero count of row plus column
+ * (stably, as solver/newton.c), then Gaussian elimination without
+ * pivoting on the bits, 2 |L_k| |U_k| per pivot with the fill. */
+static double lu_flops(pattern *J, int *deg, int *order) {
+  const int n = J->n;
+  for (int i = 0; i < n; i++)
+    deg[i] = 0;
+  for (int r = 0; r < n; r++)
+    for (int c = 0; c < n; c++)
+      if (get(J, r, c))
+        deg[r]++, deg[c]++;
+  for (int i = 0; i < n; i++) {
+    int k = i;
+    for (; k > 0 && deg[order[k - 1]] > deg[i]; k--)
+      order[k] = order[k - 1];
+    order[k] = i;
+  }
+  /* B = J renumbered, in the upper half of the bits (rows n..2n-1) */
+  pattern B = {n, J->nw, J->bits + (size_t)n * (size_t)J->nw};
+  for (int r = 0; r < n; r++)
+    for (int c = 0; c < n; c++)
+      if (get(J, order[r], order[c]))
+        set(&B, r, c);
+  double flops = 0.0;
+  for (int k = 0; k < n; k++) {
+    long u = 0;
+    for (int c = k + 1; c < n; c++)
+      u += get(&B, k, c);
+    const unsigned long long *bk = B.bits + (size_t)k * (size_t)B.nw;
+    for (int i = k + 1; i < n; i++) {
+      if (!get(&B, i, k))
+        continue;
+      flops += 2.0 * (double)u + 1.0;
+      unsigned long long *bi = B.bits + (size_t)i * (size_t)B.nw;
+      for (int w = k / 64; w < B.nw; w++)
+        bi[w] |= bk[w];
+    }
+  }
+  return flops;
+}
+
+int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
+                    mrvi_path_cost *c) {
+  const int n = m->n, p = s->micro_steps;
+  unsigned char *P = calloc((size_t)n * (size_t)n + 1, 1);
+  if (!P)
+    return MRVI_ENOMEM;
+  for (int i = 0; i < n; i++)
+    P[(size_t)i * (size_t)n + (size_t)i] = 1;
+  for (int e = 0; e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    /* (gravity and constant forces are linear: no Hessian) */
+    if (el->kind != MRVI_ELEMENT_GRAVITY && el->kind != MRVI_ELEMENT_FORCE)
+      couple(P, n, el->in, el->n_in);
+  }
+  int rs = 0, rf = 0;
+  int st = MRVI_OK;
+  for (int k = 0; k < m->n_constraints && st == MRVI_OK; k++) {
+    const mrvi_constraint *ct = &m->constraints[k];
+    st = constraint_hessian(m, ct, P);
+    *(ct->where == MRVI_SLOW ? &rs : &rf) += ct->rows;
+  }
+  if (st < 0) {
+    free(P);
+    return st;
+  }
+  c->r_slow = rs;
+  c->r_micro = rf;
+  c->n = m->n_slow + rs + (long)p * (m->n_fast + rf);
+  c->nnz = -1;
+  c->general = HUGE_VAL; /* beyond newton_dense_max: not modelled */
+  if (c->n <= s->tuning.newton_dense_max) {
+    const int nj = (int)c->n, nw = (nj + 63) / 64;
+    pattern J = {nj, nw, calloc(2 * (size_t)nj * (size_t)nw + 1, 8)};
+    int *deg = malloc(((size_t)nj + 1) * sizeof *deg),
+        *order = malloc(((size_t)nj + 1) * sizeof *order);
+    if (!J.bits || !deg || !order) {
+      free(J.bits), free(deg), free(order), free(P);
+      return MRVI_ENOMEM;
+    }
+    step_pattern(m, P, p, rs, rf, &J);
+    c->nnz = 0;
+    for (size_t i = 0; i < (size_t)nj * (size_t)nw; i++)
+      for (unsigned long long x = J.bits[i]; x; x &= x - 1)
+        c->nnz++;
+    const double nn = (double)nj;
+    c->general =
+        s->tuning.path_index_cost *
+        (s->tuning.path_entry_cost * nn * nn + lu_flops(&J, deg, order));
+    free(J.bits), free(deg), free(order);
+  }
+  free(P);
+  const double P1 = (double)p;
+  double a, b, border = 0.0;
+  if (rf > 0) {
+    a = m->n_slow + rs, b = m->n_fast + rf;
+  } else {
+    const double r = rs;
+    a = m->n_slow, b = m->n_fast;
+    border = 2 * r * a * a + 2 * r * r * a + 2.0 / 3.0 * r * r * r;
+  }
+  c->a = (int)a;
+  c->b = (int)b;
+  c->bordered = P1 * (2.0 / 3.0 * b * b * b + 6 * b * b * a + 2 * a * a * b) +
+                2.0 / 3.0 * a * a * a + border;
+  return MRVI_OK;
+}
