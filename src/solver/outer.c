@@ -1,0 +1,386 @@
+/* Matrix-free step of schur-krylov (doc/solver.md, "schur-krylov: the
+ * outer iteration"): a nonlinear block Gauss-Seidel iteration on the slow
+ * and fast rows of an unconstrained step, with no Jacobian assembled.
+ *
+ * Rows (step.c; x as displacements from (q_k^s, q_k^{f,0})):
+ *   slow    G = p_k^s - M^s x_s/dT - sum_pts w a0 grad_s Z(z)
+ *   fast m  F_m = p^{f,m} - M^f (d^{m+1} - d^m)/dt - sum_{pts of m} w cA
+ *           grad_f Z(z),
+ *           p^{f,m+1} = M^f (d^{m+1} - d^m)/dt - sum_{pts of m} w cB grad_f Z
+ * (eq:pkfm+), every point z = (q_k^s + a1 x_s, q_k^{f,0} + cA d^m + cB
+ * d^{m+1}).  With x_s held, fast row m involves d^{m-1}, d^m, d^{m+1}
+ * only: the fast rows are solved by a forward sweep, row m for d^{m+1} by
+ * the Jacobi chord d^{m+1} += (dt/M^f) F_m (one gradient of the interval's
+ * points per update; dF_m/dd^{m+1} = -(M^f/dt + sum w cA cB hess_ff Z),
+ * so it contracts by about (omega dt)^2/4).  The sweep also sums the slow
+ * row's forces at the converged points, which gives G exactly; then x_s +=
+ * (dT/M^s) G (dG/dx_s = -(M^s/dT + sum w a0 a1 hess_ss Z) - A_sf
+ * A_ff^-1 A_fs, contracting by about dT^2 |M_s^-1 hess_ss V|/6 plus the
+ * weak slow-fast coupling), and the sweep runs again from the fast nodes
+ * of the last one, each shifted first by the change its node before took
+ * in this sweep (the response to the slow update is smooth in m).  It
+ * stops after a sweep whose slow row and fast rows are all within the
+ * target.  A row or slow update that contracts by less than outer_rate,
+ * more than outer_max sweeps, or non-finite values end it unconverged:
+ * the caller then takes Newton from its predictor.  A step depends on its
+ * known data and x's start alone. */
+#include "solver/solver.h"
+
+#include <float.h>
+#include <stdio.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* The factor of the inexact sweeps (mrvi_outer_solve). */
+#define OUTER_CUT 1e-3
+
+/* The points of one interval with the same configuration evaluated once:
+ * a site (a0, a1, cA, cB) with the classes evaluated there and one weight
+ * (points of V and W with the same coefficients and weight share a site,
+ * midpoint-midpoint's). */
+typedef struct site {
+  double w, a0, a1, cA, cB;
+  int cls; /* bit c: class c is evaluated here */
+  double *g; /* gradient at the site (ns + nf packed) */
+} site;
+
+struct mrvi_outer {
+  int ns, nf, p;
+  mrvi_terms *kc[2]; /* V and W on the packed columns (q^s, q^f) */
+  site *sites;       /* by interval */
+  int *send;         /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
+  double *minv_s, *minv_f, *m_s, *m_f;
+  double *z;              /* packed configuration */
+  double *pm, *fexp, *F;  /* p^{f,m}, the forces of node-m sites, F_m */
+  double *fs;             /* slow-row force (ns) */
+  double *shift, *dold;   /* the last node's change in this sweep, nf */
+  mrvi_outer_stats stats; /* of the run */
+};
+
+void mrvi_outer_free(mrvi_outer *o) {
+  if (!o)
+    return;
+  for (int c = 0; c < 2; c++)
+    mrvi_terms_free(o->kc[c]);
+  if (o->sites && o->send)
+    for (int i = 0; i < o->send[o->p]; i++)
+      free(o->sites[i].g);
+  free(o->sites);
+  free(o->send);
+  free(o->minv_s);
+  free(o->minv_f);
+  free(o->m_s);
+  free(o->m_f);
+  free(o->z);
+  free(o->pm);
+  free(o->fexp);
+  free(o->F);
+  free(o->fs);
+  free(o->shift);
+  free(o->dold);
+  free(o);
+}
+
+static double *dalloc(size_t n) { return malloc((n > 0 ? n : 1) * sizeof(double)); }
+
+int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
+                      mrvi_outer **out) {
+  *out = NULL;
+  mrvi_outer *o = calloc(1, sizeof *o);
+  if (!o)
+    return MRVI_ENOMEM;
+  o->ns = st->ns;
+  o->nf = st->nf;
+  o->p = st->p;
+  const size_t ns = (size_t)o->ns, nf = (size_t)o->nf, n = ns + nf;
+  int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
+  const int npts = st->n_pts[0] + st->n_pts[1];
+  o->sites = calloc((size_t)(npts > 0 ? npts : 1), sizeof *o->sites);
+  o->send = calloc((size_t)o->p + 1, sizeof *o->send);
+  o->minv_s = dalloc(ns);
+  o->m_s = dalloc(ns);
+  o->minv_f = dalloc(nf);
+  o->m_f = dalloc(nf);
+  o->z = dalloc(n);
+  o->pm = dalloc(nf);
+  o->fexp = dalloc(nf);
+  o->F = dalloc(nf);
+  o->fs = dalloc(ns);
+  o->shift = dalloc(nf);
+  o->dold = dalloc(nf);
+  if (!col || !o->sites || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
+      !o->m_f || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
+      !o->shift || !o->dold) {
+    free(col);
+    mrvi_outer_free(o);
+    return MRVI_ENOMEM;
+  }
+  for (int c = 0; c < m->n; c++)
+    col[c] = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
+  for (int s = 0; s < o->ns; s++) {
+    o->m_s[s] = m->mass[m->slow_index[s]];
+    o->minv_s[s] = 1.0 / o->m_s[s];
+  }
+  for (int f = 0; f < o->nf; f++) {
+    o->m_f[f] = m->mass[m->fast_index[f]];
+    o->minv_f[f] = 1.0 / o->m_f[f];
+  }
+  for (int c = 0; c < 2; c++)
+    if (st->n_elem_of_class[c] > 0 &&
+        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
+                          &o->kc[c]) != MRVI_OK) {
+      free(col);
+      mrvi_outer_free(o);
+      return MRVI_ENOMEM;
+    }
+  free(col);
+  /* Sites by interval: the points of both classes, merged where the
+   * coefficients and weight agree. */
+  int ns_ = 0;
+  for (int mm = 0; mm < o->p; mm++) {
+    o->send[mm] = ns_;
+    for (int c = 0; c < 2; c++) {
+      if (!o->kc[c])
+        continue;
+      for (int ip = 0; ip < st->n_pts[c]; ip++) {
+        const mrvi_point *pt = &st->pts[c][ip];
+        if (pt->m != mm)
+          continue;
+        int at = -1;
+        for (int i = o->send[mm]; i < ns_; i++) {
+          const site *S = &o->sites[i];
+          if (S->w == pt->w && S->a0 == pt->a0 && S->a1 == pt->a1 &&
+              S->cA == pt->cA && S->cB == pt->cB && !(S->cls & (1 << c)))
+            at = i;
+        }
+        if (at < 0) {
+          at = ns_++;
+          o->sites[at] = (site){.w = pt->w,
+                                .a0 = pt->a0,
+                                .a1 = pt->a1,
+                                .cA = pt->cA,
+                                .cB = pt->cB};
+          if (!(o->sites[at].g = dalloc(n))) {
+            o->send[o->p] = ns_;
+            mrvi_outer_free(o);
+            return MRVI_ENOMEM;
+          }
+        }
+        o->sites[at].cls |= 1 << c;
+      }
+    }
+  }
+  o->send[o->p] = ns_;
+  *out = o;
+  return MRVI_OK;
+}
+
+const mrvi_outer_stats *mrvi_outer_stats_of(const mrvi_outer *o) {
+  return &o->stats;
+}
+
+/* S->g = grad Z at the site's configuration for the slow displacement xs
+ * and the fast displacements dm = d^m, dn = d^{m+1} (NULL: zeros). */
+static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
+                      const double *xs, const double *dm, const double *dn) {
+  const int ns = o->ns, nf = o->nf;
+  double *z = o->z;
+  for (int s = 0; s < ns; s++)
+    z[s] = st->qs0[s] + S->a1 * xs[s];
+  for (int f = 0; f < nf; f++)
+    z[ns + f] = st->qf0[f] + (dm ? S->cA * dm[f] : 0.0) +
+                (dn ? S->cB * dn[f] : 0.0);
+  memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
+  for (int c = 0; c < 2; c++)
+    if (S->cls & (1 << c))
+      mrvi_terms_grad(o->kc[c], z, S->g);
+  o->stats.site_evals++;
+}
+
+/* The row of interval m for d^{m+1} = dn by the Jacobi chord from dn as
+ * given, with d^m = dm (NULL at m = 0), the slow displacement xs and
+ * o->pm = p^{f,m}, to max(target, cut times its first residual); then
+ * p^{f,m+1} into o->pm, its potential part into pfm (nf), and the sites'
+ * slow forces added to o->fs, the potential part of p_{k+1}^s to ps1.
+ * Returns the row's residual (weighted by rw, NULL: 1) or -1 where it did
+ * not converge. */
+static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
+                        const double *xs, const double *dm, double *dn,
+                        const double *rw, double target, double cut,
+                        double rate, int max_updates, double *ps1,
+                        double *pfm) {
+  const int ns = o->ns, nf = o->nf;
+  const double dt = st->dt;
+  site *s0 = o->sites + o->send[m], *s1 = o->sites + o->send[m + 1];
+  /* the sites at node m (cB = 0) are known */
+  int inside = 0;
+  memset(o->fexp, 0, (size_t)nf * sizeof(double));
+  for (site *S = s0; S < s1; S++) {
+    if (S->cB != 0.0) {
+      inside |= S->cA != 0.0;
+      continue;
+    }
+    eval_site(o, st, S, xs, dm, NULL);
+    for (int f = 0; f < nf; f++)
+      o->fexp[f] += S->w * S->cA * S->g[ns + f];
+  }
+  double r = 0.0, r_prev = HUGE_VAL;
+  for (int it = 0;; it++) {
+    /* F_m at dn: the sites inside the interval at dn (no iteration where
+     * there is none: the row is explicit in d^{m+1}) */
+    if (!inside && it == 0)
+      for (int f = 0; f < nf; f++)
+        dn[f] = (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
+    for (int f = 0; f < nf; f++)
+      o->F[f] = o->pm[f] - o->fexp[f];
+    for (site *S = s0; S < s1; S++) {
+      if (S->cB == 0.0 || S->cA == 0.0)
+        continue;
+      eval_site(o, st, S, xs, dm, dn);
+      const double wc = S->w * S->cA;
+      for (int f = 0; f < nf; f++)
+        o->F[f] -= wc * S->g[ns + f];
+    }
+    /* (the roundoff floor: 16 eps times the largest term of a row, the
+     * unknowns being displacements) */
+    double sum = 0.0, scale = 0.0;
+    r = 0.0;
+    for (int f = 0; f < nf; f++) {
+      const double w = rw ? rw[f] : 1.0;
+      const double fi = o->pm[f] - o->fexp[f] - o->F[f];
+      const double mv = o->m_f[f] * (dn[f] - (dm ? dm[f] : 0.0)) / dt;
+      o->F[f] -= mv;
+      const double a = fabs(o->F[f]) * w;
+      const double t =
+          (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * w;
+      r = a > r ? a : r;
+      scale = t > scale ? t : scale;
+      sum += a;
+    }
+    if (getenv("OUTER_DEBUG2"))
+      fprintf(stderr, " row %d it %d r %.3e target %.3e floor %.3e\n", m, it, r, target, 16.0 * DBL_EPSILON * scale);
+    if (isnan(sum))
+      return -1.0;
+    if (it == 0)
+      target = fmax(target, cut * r);
+    if (!inside || r <= fmax(target, 16.0 * DBL_EPSILON * scale))
+      break;
+    /* (stalled at the rounding of its terms: solved as far as it can be) */
+    if (it >= 1 && !(r <= rate * r_prev) && r <= 128.0 * DBL_EPSILON * scale) {
+      r = fmin(r, target);
+      break;
+    }
+    if (it >= max_updates || !(r <= rate * r_prev)) {
+      if (getenv("OUTER_DEBUG"))
+        fprintf(stderr, "row %d fails: it %d r %.3e prev %.3e target %.3e\n", m, it, r, r_prev, target);
+      return -1.0;
+    }
+    r_prev = r;
+    for (int f = 0; f < nf; f++)
+      dn[f] += dt * o->minv_f[f] * o->F[f];
+    o->stats.row_updates++;
+  }
+  /* the sites at node m + 1 (cA = 0), then p^{f,m+1} and the slow forces */
+  for (site *S = s0; S < s1; S++)
+    if (S->cA == 0.0)
+      eval_site(o, st, S, xs, dm, dn);
+  memset(pfm, 0, (size_t)nf * sizeof(double));
+  for (site *S = s0; S < s1; S++) {
+    const double wa = S->w * S->a0, w1 = S->w * S->a1, wb = S->w * S->cB;
+    if (wa != 0.0 || w1 != 0.0)
+      for (int s = 0; s < ns; s++) {
+        o->fs[s] += wa * S->g[s];
+        ps1[s] -= w1 * S->g[s];
+      }
+    if (wb != 0.0)
+      for (int f = 0; f < nf; f++)
+        pfm[f] -= wb * S->g[ns + f];
+  }
+  for (int f = 0; f < nf; f++)
+    o->pm[f] = o->m_f[f] * (dn[f] - (dm ? dm[f] : 0.0)) / dt + pfm[f];
+  return r;
+}
+
+int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
+                     const double *rw, double target, double rate,
+                     int max_outer, double *ps1, double *pf, double *res) {
+  const int ns = o->ns, nf = o->nf, p = o->p;
+  const double dT = st->dT;
+  double *xs = x, *xf = x + ns;
+  double g_prev = HUGE_VAL;
+  o->stats.steps++;
+  for (int k = 1; k <= max_outer; k++) {
+    /* Inexact sweeps: the rows are solved only as far as the slow row's
+     * residual makes worthwhile -- in the first sweep by OUTER_CUT of
+     * their first residual, then to OUTER_CUT times the slow residual of
+     * the sweep before (the slow update changes them again) -- and to the
+     * target where that is below: a sweep ends the iteration only where
+     * every row met the target. */
+    const double row_target =
+        k == 1 ? target : fmax(target, OUTER_CUT * g_prev);
+    double rows = 0.0;
+    o->stats.sweeps++;
+    memcpy(o->pm, st->pf0, (size_t)nf * sizeof(double));
+    memset(o->fs, 0, (size_t)ns * sizeof(double));
+    memset(ps1, 0, (size_t)ns * sizeof(double));
+    memset(o->shift, 0, (size_t)nf * sizeof(double));
+    for (int mm = 0; mm < p; mm++) {
+      double *dn = xf + (size_t)mm * (size_t)nf;
+      const double *dm = mm == 0 ? NULL : dn - nf;
+      /* start from the last sweep's node, moved by the change of the node
+       * before (none in the first sweep) */
+      for (int f = 0; f < nf; f++) {
+        o->dold[f] = dn[f];
+        dn[f] += o->shift[f];
+      }
+      const double r =
+          solve_row(o, st, mm, xs, dm, dn,
+                    rw ? rw + ns + (size_t)mm * nf : NULL, row_target,
+                    k == 1 ? OUTER_CUT : 0.0, rate, max_outer, ps1,
+                    pf + (size_t)mm * nf);
+      if (r < 0.0) {
+        o->stats.failed++;
+        return 0;
+      }
+      rows = fmax(rows, r);
+      if (k > 1)
+        for (int f = 0; f < nf; f++)
+          o->shift[f] = dn[f] - o->dold[f];
+    }
+    /* the slow row at the swept nodes */
+    double g = 0.0, sum = 0.0, scale = 0.0;
+    for (int s = 0; s < ns; s++) {
+      const double G = st->ps0[s] - o->m_s[s] * xs[s] / dT - o->fs[s];
+      const double w = rw ? rw[s] : 1.0, a = fabs(G) * w;
+      g = a > g ? a : g;
+      sum += a;
+      scale = fmax(scale, (fabs(st->ps0[s]) + o->m_s[s] * fabs(xs[s]) / dT +
+                           fabs(o->fs[s])) *
+                              w);
+      o->fs[s] = G;
+    }
+    if (getenv("OUTER_DEBUG"))
+      fprintf(stderr, "sweep %d: slow %.3e row updates %ld evals %ld\n", k, g,
+              o->stats.row_updates, o->stats.site_evals);
+    /* (at or stalled at the rounding of the slow row's terms) */
+    const double floor = 16.0 * DBL_EPSILON * scale;
+    if (k > 1 && !(g <= rate * g_prev) && g <= 8.0 * floor)
+      g = fmin(g, target);
+    if (isnan(sum) || (k > 1 && !(g <= rate * g_prev))) {
+      o->stats.failed++;
+      return 0;
+    }
+    if (k > 1 && g <= fmax(target, floor) &&
+        rows <= row_target && row_target == target) {
+      *res = fmax(g, rows);
+      return k;
+    }
+    g_prev = g;
+    for (int s = 0; s < ns; s++)
+      xs[s] += dT * o->minv_s[s] * o->fs[s];
+    o->stats.slow_updates++;
+  }
+  o->stats.failed++;
+  return 0;
+}
