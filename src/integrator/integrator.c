@@ -526,9 +526,16 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
   if (st < 0 ||
       (st = mrvi_skrylov_create(&it->step, &it->skrylov, msg, len)) < 0)
     return st;
-  /* The matrix-free outer iteration on unconstrained steps (solver/outer.c) */
-  if (it->step.tuning.outer_max > 0 && it->step.n_lambda == 0 &&
-      mrvi_outer_create(it->model, &it->step, &it->outer) < 0)
+  /* The matrix-free outer iteration on unconstrained steps (solver/outer.c)
+   * where its Jacobi chord on the fast rows contracts by at most
+   * chord_jacobi_max at the initial state, (omega_max dt)^2/4, as
+   * sweep-cg's (doc/solver.md, "schur-krylov: the outer iteration"). */
+  const mrvi_step *sp = &it->step;
+  const double a = 0.25 * pow(mrvi_predictor_omega_max(it->predictor) * sp->dt,
+                              2.0);
+  if (sp->tuning.outer_max > 0 && sp->n_lambda == 0 &&
+      a <= sp->tuning.chord_jacobi_max &&
+      mrvi_outer_create(it->model, sp, &it->outer) < 0)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   return MRVI_OK;
 }

@@ -27,13 +27,14 @@
 #include "solver/solver.h"
 
 #include <float.h>
-#include <stdio.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-/* The factor of the inexact sweeps (mrvi_outer_solve). */
+/* The factor of the inexact sweeps, and the depth of Anderson's
+ * acceleration of the slow updates (mrvi_outer_solve). */
 #define OUTER_CUT 1e-3
+#define OUTER_AA 3
 
 /* The points of one interval with the same configuration evaluated once:
  * a site (a0, a1, cA, cB) with the classes evaluated there and one weight
@@ -54,7 +55,12 @@ struct mrvi_outer {
   double *z;              /* packed configuration */
   double *pm, *fexp, *F;  /* p^{f,m}, the forces of node-m sites, F_m */
   double *fs;             /* slow-row force (ns) */
-  double *shift, *dold;   /* the last node's change in this sweep, nf */
+  double *dold;           /* a node before this sweep's row, nf */
+  double *dlt[3];         /* the changes of the last three nodes, nf each */
+  /* Anderson: the slow iterate and its update f = (dT/M^s) G before (ns
+   * each) and the differences of the last OUTER_AA (ns x OUTER_AA each) */
+  double *xp, *fp, *dX, *dF;
+  int met;                /* every row of the sweep met its target */
   mrvi_outer_stats stats; /* of the run */
 };
 
@@ -77,8 +83,13 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->fexp);
   free(o->F);
   free(o->fs);
-  free(o->shift);
   free(o->dold);
+  for (int i = 0; i < 3; i++)
+    free(o->dlt[i]);
+  free(o->xp);
+  free(o->fp);
+  free(o->dX);
+  free(o->dF);
   free(o);
 }
 
@@ -107,11 +118,17 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->fexp = dalloc(nf);
   o->F = dalloc(nf);
   o->fs = dalloc(ns);
-  o->shift = dalloc(nf);
   o->dold = dalloc(nf);
+  for (int i = 0; i < 3; i++)
+    o->dlt[i] = dalloc(nf);
+  o->xp = dalloc(ns);
+  o->fp = dalloc(ns);
+  o->dX = dalloc(ns * OUTER_AA);
+  o->dF = dalloc(ns * OUTER_AA);
   if (!col || !o->sites || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
       !o->m_f || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
-      !o->shift || !o->dold) {
+      !o->dold || !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp ||
+      !o->dX || !o->dF) {
     free(col);
     mrvi_outer_free(o);
     return MRVI_ENOMEM;
@@ -225,7 +242,7 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
     for (int f = 0; f < nf; f++)
       o->fexp[f] += S->w * S->cA * S->g[ns + f];
   }
-  double r = 0.0, r_prev = HUGE_VAL;
+  double r = 0.0, r_prev = HUGE_VAL, floor = 0.0;
   for (int it = 0;; it++) {
     /* F_m at dn: the sites inside the interval at dn (no iteration where
      * there is none: the row is explicit in d^{m+1}) */
@@ -258,24 +275,20 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
       scale = t > scale ? t : scale;
       sum += a;
     }
-    if (getenv("OUTER_DEBUG2"))
-      fprintf(stderr, " row %d it %d r %.3e target %.3e floor %.3e\n", m, it, r, target, 16.0 * DBL_EPSILON * scale);
     if (isnan(sum))
       return -1.0;
     if (it == 0)
       target = fmax(target, cut * r);
-    if (!inside || r <= fmax(target, 16.0 * DBL_EPSILON * scale))
+    floor = 16.0 * DBL_EPSILON * scale;
+    if (!inside || r <= fmax(target, floor))
       break;
     /* (stalled at the rounding of its terms: solved as far as it can be) */
-    if (it >= 1 && !(r <= rate * r_prev) && r <= 128.0 * DBL_EPSILON * scale) {
-      r = fmin(r, target);
+    if (it >= 1 && !(r <= rate * r_prev) && r <= 8.0 * floor) {
+      floor = r;
       break;
     }
-    if (it >= max_updates || !(r <= rate * r_prev)) {
-      if (getenv("OUTER_DEBUG"))
-        fprintf(stderr, "row %d fails: it %d r %.3e prev %.3e target %.3e\n", m, it, r, r_prev, target);
+    if (it >= max_updates || !(r <= rate * r_prev))
       return -1.0;
-    }
     r_prev = r;
     for (int f = 0; f < nf; f++)
       dn[f] += dt * o->minv_f[f] * o->F[f];
@@ -299,7 +312,59 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
   }
   for (int f = 0; f < nf; f++)
     o->pm[f] = o->m_f[f] * (dn[f] - (dm ? dm[f] : 0.0)) / dt + pfm[f];
+  /* (met: within the target, or at the rounding floor of the row's terms) */
+  o->met &= inside ? r <= fmax(target, floor) : 1;
   return r;
+}
+
+/* xs += the slow update from G (o->fs) at the iterate's slow update j =
+ * 0, 1, ...: the chord f = (dT/M^s) G, accelerated by Anderson's mixing of
+ * the last min(j, OUTER_AA) iterates (Walker & Ni, SIAM J. Numer. Anal.
+ * 49 (2011)): x + f - (dX + dF) gamma, gamma the least-squares solution of
+ * dF gamma = f (normal equations; a singular one drops the history). */
+static void slow_update(mrvi_outer *o, double *xs, int j, double dT) {
+  const int ns = o->ns;
+  double *f = o->fs;
+  for (int s = 0; s < ns; s++)
+    f[s] *= dT * o->minv_s[s];
+  const int slot = (j - 1) % OUTER_AA, depth = j < OUTER_AA ? j : OUTER_AA;
+  if (j >= 1) {
+    double *dx = o->dX + (size_t)slot * ns, *df = o->dF + (size_t)slot * ns;
+    for (int s = 0; s < ns; s++) {
+      dx[s] = xs[s] - o->xp[s];
+      df[s] = f[s] - o->fp[s];
+    }
+  }
+  memcpy(o->xp, xs, (size_t)ns * sizeof(double));
+  memcpy(o->fp, f, (size_t)ns * sizeof(double));
+  double A[OUTER_AA * OUTER_AA], b[OUTER_AA];
+  int piv[OUTER_AA], ok = depth > 0;
+  for (int a = 0; a < depth; a++) {
+    const double *fa = o->dF + (size_t)a * ns;
+    double t = 0.0;
+    for (int s = 0; s < ns; s++)
+      t += fa[s] * f[s];
+    b[a] = t;
+    for (int c = 0; c < depth; c++) {
+      const double *fc = o->dF + (size_t)c * ns;
+      double u = 0.0;
+      for (int s = 0; s < ns; s++)
+        u += fa[s] * fc[s];
+      A[a * depth + c] = u;
+    }
+  }
+  ok = ok && mrvi_dense_lu_factor(depth, A, piv) == 0;
+  if (ok) {
+    mrvi_dense_lu_solve(depth, A, piv, b, 1);
+    for (int a = 0; a < depth; a++)
+      ok &= isfinite(b[a]);
+  }
+  for (int s = 0; s < ns; s++) {
+    double v = f[s];
+    for (int a = 0; ok && a < depth; a++)
+      v -= b[a] * (o->dX[(size_t)a * ns + s] + o->dF[(size_t)a * ns + s]);
+    xs[s] += v;
+  }
 }
 
 int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
@@ -320,19 +385,26 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
     const double row_target =
         k == 1 ? target : fmax(target, OUTER_CUT * g_prev);
     double rows = 0.0;
+    o->met = 1;
     o->stats.sweeps++;
     memcpy(o->pm, st->pf0, (size_t)nf * sizeof(double));
     memset(o->fs, 0, (size_t)ns * sizeof(double));
     memset(ps1, 0, (size_t)ns * sizeof(double));
-    memset(o->shift, 0, (size_t)nf * sizeof(double));
     for (int mm = 0; mm < p; mm++) {
       double *dn = xf + (size_t)mm * (size_t)nf;
       const double *dm = mm == 0 ? NULL : dn - nf;
-      /* start from the last sweep's node, moved by the change of the node
-       * before (none in the first sweep) */
+      /* start from the last sweep's node, moved by the change of the nodes
+       * before in this sweep extrapolated (none in the first sweep; the
+       * response to a slow update is smooth in m) */
+      const double *d1 = o->dlt[0], *d2 = o->dlt[1], *d3 = o->dlt[2];
       for (int f = 0; f < nf; f++) {
         o->dold[f] = dn[f];
-        dn[f] += o->shift[f];
+        if (k > 1 && mm >= 3)
+          dn[f] += 3.0 * d1[f] - 3.0 * d2[f] + d3[f];
+        else if (k > 1 && mm == 2)
+          dn[f] += 2.0 * d1[f] - d2[f];
+        else if (k > 1 && mm == 1)
+          dn[f] += d1[f];
       }
       const double r =
           solve_row(o, st, mm, xs, dm, dn,
@@ -344,9 +416,12 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
         return 0;
       }
       rows = fmax(rows, r);
-      if (k > 1)
-        for (int f = 0; f < nf; f++)
-          o->shift[f] = dn[f] - o->dold[f];
+      double *t = o->dlt[2];
+      o->dlt[2] = o->dlt[1];
+      o->dlt[1] = o->dlt[0];
+      o->dlt[0] = t;
+      for (int f = 0; f < nf; f++)
+        t[f] = dn[f] - o->dold[f];
     }
     /* the slow row at the swept nodes */
     double g = 0.0, sum = 0.0, scale = 0.0;
@@ -360,25 +435,20 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
                               w);
       o->fs[s] = G;
     }
-    if (getenv("OUTER_DEBUG"))
-      fprintf(stderr, "sweep %d: slow %.3e row updates %ld evals %ld\n", k, g,
-              o->stats.row_updates, o->stats.site_evals);
     /* (at or stalled at the rounding of the slow row's terms) */
     const double floor = 16.0 * DBL_EPSILON * scale;
-    if (k > 1 && !(g <= rate * g_prev) && g <= 8.0 * floor)
-      g = fmin(g, target);
-    if (isnan(sum) || (k > 1 && !(g <= rate * g_prev))) {
+    const int stalled = k > 1 && !(g <= rate * g_prev) && g <= 8.0 * floor;
+    if (isnan(sum) || (k > 1 && !stalled && !(g <= rate * g_prev))) {
       o->stats.failed++;
       return 0;
     }
-    if (k > 1 && g <= fmax(target, floor) &&
-        rows <= row_target && row_target == target) {
+    if (k > 1 && (g <= fmax(target, floor) || stalled) &&
+        o->met && row_target == target) {
       *res = fmax(g, rows);
       return k;
     }
     g_prev = g;
-    for (int s = 0; s < ns; s++)
-      xs[s] += dT * o->minv_s[s] * o->fs[s];
+    slow_update(o, xs, k - 1, dT);
     o->stats.slow_updates++;
   }
   o->stats.failed++;
