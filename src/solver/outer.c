@@ -52,6 +52,8 @@ struct mrvi_outer {
   site *sites;       /* by interval */
   int *send;         /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
   double *minv_s, *minv_f, *m_s, *m_f;
+  double *mdt, *dtm;  /* M^f/dt, dt/M^f */
+  double *zero, *one; /* nf zeros, nf ones */
   double *z;              /* packed configuration */
   double *pm, *fexp, *F;  /* p^{f,m}, the forces of node-m sites, F_m */
   double *fs;             /* slow-row force (ns) */
@@ -61,6 +63,10 @@ struct mrvi_outer {
    * each) and the differences of the last OUTER_AA (ns x OUTER_AA each) */
   double *xp, *fp, *dX, *dF;
   int met;                /* every row of the sweep met its target */
+  /* z's slow part is the one of site z_site in sweep z_sweep (xs is
+   * fixed during a sweep) */
+  const site *z_site;
+  long z_sweep;
   mrvi_outer_stats stats; /* of the run */
 };
 
@@ -78,6 +84,10 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->minv_f);
   free(o->m_s);
   free(o->m_f);
+  free(o->mdt);
+  free(o->dtm);
+  free(o->zero);
+  free(o->one);
   free(o->z);
   free(o->pm);
   free(o->fexp);
@@ -113,6 +123,10 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->m_s = dalloc(ns);
   o->minv_f = dalloc(nf);
   o->m_f = dalloc(nf);
+  o->mdt = dalloc(nf);
+  o->dtm = dalloc(nf);
+  o->zero = calloc(nf > 0 ? nf : 1, sizeof(double));
+  o->one = dalloc(nf);
   o->z = dalloc(n);
   o->pm = dalloc(nf);
   o->fexp = dalloc(nf);
@@ -126,7 +140,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->dX = dalloc(ns * OUTER_AA);
   o->dF = dalloc(ns * OUTER_AA);
   if (!col || !o->sites || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
-      !o->m_f || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
+      !o->m_f || !o->mdt || !o->dtm || !o->zero || !o->one || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
       !o->dold || !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp ||
       !o->dX || !o->dF) {
     free(col);
@@ -142,6 +156,9 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   for (int f = 0; f < o->nf; f++) {
     o->m_f[f] = m->mass[m->fast_index[f]];
     o->minv_f[f] = 1.0 / o->m_f[f];
+    o->mdt[f] = o->m_f[f] / st->dt;
+    o->dtm[f] = st->dt / o->m_f[f];
+    o->one[f] = 1.0;
   }
   for (int c = 0; c < 2; c++)
     if (st->n_elem_of_class[c] > 0 &&
@@ -203,11 +220,15 @@ static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
                       const double *xs, const double *dm, const double *dn) {
   const int ns = o->ns, nf = o->nf;
   double *z = o->z;
-  for (int s = 0; s < ns; s++)
-    z[s] = st->qs0[s] + S->a1 * xs[s];
+  if (o->z_site != S || o->z_sweep != o->stats.sweeps) /* (else as it is) */
+    for (int s = 0; s < ns; s++)
+      z[s] = st->qs0[s] + S->a1 * xs[s];
+  o->z_site = S;
+  o->z_sweep = o->stats.sweeps;
+  const double cA = S->cA, cB = dn ? S->cB : 0.0;
+  const double *a = dm ? dm : o->zero, *b = dn ? dn : o->zero;
   for (int f = 0; f < nf; f++)
-    z[ns + f] = st->qf0[f] + (dm ? S->cA * dm[f] : 0.0) +
-                (dn ? S->cB * dn[f] : 0.0);
+    z[ns + f] = st->qf0[f] + cA * a[f] + cB * b[f];
   memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
   for (int c = 0; c < 2; c++)
     if (S->cls & (1 << c))
@@ -249,37 +270,51 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
     if (!inside && it == 0)
       for (int f = 0; f < nf; f++)
         dn[f] = (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
+    /* F = p^{f,m} - the forces of the sites (the first inside one's in
+     * the loop below) - M^f (d^{m+1} - d^m)/dt */
+    const double *g1 = o->zero;
+    double w1 = 0.0, *F = o->F;
     for (int f = 0; f < nf; f++)
-      o->F[f] = o->pm[f] - o->fexp[f];
+      F[f] = o->pm[f] - o->fexp[f];
     for (site *S = s0; S < s1; S++) {
       if (S->cB == 0.0 || S->cA == 0.0)
         continue;
       eval_site(o, st, S, xs, dm, dn);
+      if (w1 == 0.0) {
+        g1 = S->g + ns;
+        w1 = S->w * S->cA;
+        continue;
+      }
       const double wc = S->w * S->cA;
       for (int f = 0; f < nf; f++)
-        o->F[f] -= wc * S->g[ns + f];
+        F[f] -= wc * S->g[ns + f];
     }
-    /* (the roundoff floor: 16 eps times the largest term of a row, the
-     * unknowns being displacements) */
-    double sum = 0.0, scale = 0.0;
+    /* ... and its largest entry (NaN found by the sum, which it poisons);
+     * at the first iterate the roundoff floor, 16 eps times the largest
+     * term of the row (the unknowns being displacements) */
+    const double *dp = dm ? dm : o->zero, *w = rw ? rw : o->one;
+    double sum = 0.0;
     r = 0.0;
     for (int f = 0; f < nf; f++) {
-      const double w = rw ? rw[f] : 1.0;
-      const double fi = o->pm[f] - o->fexp[f] - o->F[f];
-      const double mv = o->m_f[f] * (dn[f] - (dm ? dm[f] : 0.0)) / dt;
-      o->F[f] -= mv;
-      const double a = fabs(o->F[f]) * w;
-      const double t =
-          (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * w;
+      F[f] = F[f] - w1 * g1[f] - o->mdt[f] * (dn[f] - dp[f]);
+      const double a = fabs(F[f]) * w[f];
       r = a > r ? a : r;
-      scale = t > scale ? t : scale;
       sum += a;
     }
     if (isnan(sum))
       return -1.0;
-    if (it == 0)
+    if (it == 0) {
+      double scale = 0.0;
+      for (int f = 0; f < nf; f++) {
+        const double mv = o->mdt[f] * (dn[f] - dp[f]);
+        const double fi = o->pm[f] - o->fexp[f] - mv - F[f];
+        const double t =
+            (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * w[f];
+        scale = t > scale ? t : scale;
+      }
+      floor = 16.0 * DBL_EPSILON * scale;
       target = fmax(target, cut * r);
-    floor = 16.0 * DBL_EPSILON * scale;
+    }
     if (!inside || r <= fmax(target, floor))
       break;
     /* (stalled at the rounding of its terms: solved as far as it can be) */
@@ -291,7 +326,7 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
       return -1.0;
     r_prev = r;
     for (int f = 0; f < nf; f++)
-      dn[f] += dt * o->minv_f[f] * o->F[f];
+      dn[f] += o->dtm[f] * F[f];
     o->stats.row_updates++;
   }
   /* the sites at node m + 1 (cA = 0), then p^{f,m+1} and the slow forces */
