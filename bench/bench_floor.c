@@ -678,7 +678,7 @@ typedef struct result {
 typedef struct options {
   double dT, budget, mem_gb;
   int p, steps, big;
-  int threads; /* settings.threads of the mrvi methods (default 1) */
+  int threads;        /* settings.threads of the mrvi methods (default 1) */
   const char *tuning; /* NAME=VALUE for the mrvi methods, or NULL */
   char tmpdir[256];
 } options;
@@ -715,8 +715,8 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     char name[64];
     snprintf(name, sizeof name, "%.*s", eq ? (int)(eq - o->tuning) : 0,
              o->tuning);
-    if (!eq || mrvi_settings_set_tuning(&s, name, atof(eq + 1), msg,
-                                        sizeof msg) < 0) {
+    if (!eq ||
+        mrvi_settings_set_tuning(&s, name, atof(eq + 1), msg, sizeof msg) < 0) {
       snprintf(r->message, sizeof r->message, "--tuning %.60s: %.120s",
                o->tuning, eq ? msg : "NAME=VALUE expected");
       return;

@@ -606,8 +606,8 @@ static void test_outer(void) {
                 a.ks.cg_solves == 0 && a.max_iter <= 4,
             "%s: %ld outer steps, %ld left to Newton, %ld CG solves, %d "
             "sweeps at most",
-            schemes[sc], a.ks.outer_steps, a.ks.outer_fallbacks,
-            a.ks.cg_solves, a.max_iter);
+            schemes[sc], a.ks.outer_steps, a.ks.outer_fallbacks, a.ks.cg_solves,
+            a.max_iter);
       const double d = rel_diff(&c, &a);
       CHECK(d <= 1e-8, "%s: outer vs Newton %.2e", schemes[sc], d);
       const size_t n = (size_t)b.n, nq = (size_t)(steps + 1) * n;
@@ -626,18 +626,16 @@ static void test_outer(void) {
           mrvi_integrator_resume_state(it, 5, a.q + 5 * n, a.p + 5 * n) == 0;
       for (int k = 5; same && k < steps; k++)
         same = mrvi_integrator_step(it) == 0;
-      same = same &&
-             !memcmp(mrvi_integrator_q(it), a.q + steps * n,
-                     n * sizeof(double)) &&
-             !memcmp(mrvi_integrator_p(it), a.p + steps * n,
-                     n * sizeof(double));
+      same =
+          same &&
+          !memcmp(mrvi_integrator_q(it), a.q + steps * n, n * sizeof(double)) &&
+          !memcmp(mrvi_integrator_p(it), a.p + steps * n, n * sizeof(double));
       CHECK(same, "%s: resumed at node 5, not bit for bit", schemes[sc]);
       mrvi_integrator_free(it);
       printf("%s outer: %.2f sweeps per step (max %d), %.2f gradient "
              "evaluations per micro step, vs Newton %.2e\n",
-             schemes[sc],
-             (double)a.ks.outer_sweeps / (double)a.ks.outer_steps, a.max_iter,
-             (double)a.ks.outer_evals / (double)(steps * 5), d);
+             schemes[sc], (double)a.ks.outer_sweeps / (double)a.ks.outer_steps,
+             a.max_iter, (double)a.ks.outer_evals / (double)(steps * 5), d);
     }
     release(&a);
     release(&b);

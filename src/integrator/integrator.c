@@ -531,8 +531,8 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
    * chord_jacobi_max at the initial state, (omega_max dt)^2/4, as
    * sweep-cg's (doc/solver.md, "schur-krylov: the outer iteration"). */
   const mrvi_step *sp = &it->step;
-  const double a = 0.25 * pow(mrvi_predictor_omega_max(it->predictor) * sp->dt,
-                              2.0);
+  const double a =
+      0.25 * pow(mrvi_predictor_omega_max(it->predictor) * sp->dt, 2.0);
   if (sp->tuning.outer_max > 0 && sp->n_lambda == 0 &&
       a <= sp->tuning.chord_jacobi_max &&
       mrvi_outer_create(it->model, sp, &it->outer) < 0)
@@ -1306,9 +1306,9 @@ static int newton_step(mrvi_integrator *it) {
    * converge, Newton from the predictor. */
   if (it->outer && !st->f_rows && !st->f_end) {
     double r0 = 0.0;
-    const int k = mrvi_outer_solve(
-        it->outer, st, it->x, it->rinv, tn->reuse_tighten * tol,
-        tn->outer_rate, tn->outer_max, it->ps1, it->micro_p, &r0);
+    const int k = mrvi_outer_solve(it->outer, st, it->x, it->rinv,
+                                   tn->reuse_tighten * tol, tn->outer_rate,
+                                   tn->outer_max, it->ps1, it->micro_p, &r0);
     if (k > 0)
       return accept_step(it, k, r0);
     predict(it);

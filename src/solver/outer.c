@@ -42,7 +42,7 @@
  * midpoint-midpoint's). */
 typedef struct site {
   double w, a0, a1, cA, cB;
-  int cls; /* bit c: class c is evaluated here */
+  int cls;   /* bit c: class c is evaluated here */
   double *g; /* gradient at the site (ns + nf packed) */
 } site;
 
@@ -52,17 +52,17 @@ struct mrvi_outer {
   site *sites;       /* by interval */
   int *send;         /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
   double *minv_s, *minv_f, *m_s, *m_f;
-  double *mdt, *dtm;  /* M^f/dt, dt/M^f */
-  double *zero, *one; /* nf zeros, nf ones */
-  double *z;              /* packed configuration */
-  double *pm, *fexp, *F;  /* p^{f,m}, the forces of node-m sites, F_m */
-  double *fs;             /* slow-row force (ns) */
-  double *dold;           /* a node before this sweep's row, nf */
-  double *dlt[3];         /* the changes of the last three nodes, nf each */
+  double *mdt, *dtm;     /* M^f/dt, dt/M^f */
+  double *zero, *one;    /* nf zeros, nf ones */
+  double *z;             /* packed configuration */
+  double *pm, *fexp, *F; /* p^{f,m}, the forces of node-m sites, F_m */
+  double *fs;            /* slow-row force (ns) */
+  double *dold;          /* a node before this sweep's row, nf */
+  double *dlt[3];        /* the changes of the last three nodes, nf each */
   /* Anderson: the slow iterate and its update f = (dT/M^s) G before (ns
    * each) and the differences of the last OUTER_AA (ns x OUTER_AA each) */
   double *xp, *fp, *dX, *dF;
-  int met;                /* every row of the sweep met its target */
+  int met; /* every row of the sweep met its target */
   /* z's slow part is the one of site z_site in sweep z_sweep (xs is
    * fixed during a sweep) */
   const site *z_site;
@@ -103,7 +103,9 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o);
 }
 
-static double *dalloc(size_t n) { return malloc((n > 0 ? n : 1) * sizeof(double)); }
+static double *dalloc(size_t n) {
+  return malloc((n > 0 ? n : 1) * sizeof(double));
+}
 
 int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
                       mrvi_outer **out) {
@@ -140,9 +142,9 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->dX = dalloc(ns * OUTER_AA);
   o->dF = dalloc(ns * OUTER_AA);
   if (!col || !o->sites || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
-      !o->m_f || !o->mdt || !o->dtm || !o->zero || !o->one || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
-      !o->dold || !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp ||
-      !o->dX || !o->dF) {
+      !o->m_f || !o->mdt || !o->dtm || !o->zero || !o->one || !o->z || !o->pm ||
+      !o->fexp || !o->F || !o->fs || !o->dold || !o->dlt[0] || !o->dlt[1] ||
+      !o->dlt[2] || !o->xp || !o->fp || !o->dX || !o->dF) {
     free(col);
     mrvi_outer_free(o);
     return MRVI_ENOMEM;
@@ -269,7 +271,8 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
      * there is none: the row is explicit in d^{m+1}) */
     if (!inside && it == 0)
       for (int f = 0; f < nf; f++)
-        dn[f] = (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
+        dn[f] =
+            (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
     /* F = p^{f,m} - the forces of the sites (the first inside one's in
      * the loop below) - M^f (d^{m+1} - d^m)/dt */
     const double *g1 = o->zero;
@@ -441,11 +444,10 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
         else if (k > 1 && mm == 1)
           dn[f] += d1[f];
       }
-      const double r =
-          solve_row(o, st, mm, xs, dm, dn,
-                    rw ? rw + ns + (size_t)mm * nf : NULL, row_target,
-                    k == 1 ? OUTER_CUT : 0.0, rate, max_outer, ps1,
-                    pf + (size_t)mm * nf);
+      const double r = solve_row(o, st, mm, xs, dm, dn,
+                                 rw ? rw + ns + (size_t)mm * nf : NULL,
+                                 row_target, k == 1 ? OUTER_CUT : 0.0, rate,
+                                 max_outer, ps1, pf + (size_t)mm * nf);
       if (r < 0.0) {
         o->stats.failed++;
         return 0;
@@ -477,8 +479,8 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
       o->stats.failed++;
       return 0;
     }
-    if (k > 1 && (g <= fmax(target, floor) || stalled) &&
-        o->met && row_target == target) {
+    if (k > 1 && (g <= fmax(target, floor) || stalled) && o->met &&
+        row_target == target) {
       *res = fmax(g, rows);
       return k;
     }
