@@ -16,14 +16,18 @@
  * row's forces at the converged points, which gives G exactly; then x_s +=
  * (dT/M^s) G (dG/dx_s = -(M^s/dT + sum w a0 a1 hess_ss Z) - A_sf
  * A_ff^-1 A_fs, contracting by about dT^2 |M_s^-1 hess_ss V|/6 plus the
- * weak slow-fast coupling), and the sweep runs again from the fast nodes
- * of the last one, each shifted first by the change its node before took
- * in this sweep (the response to the slow update is smooth in m).  It
- * stops after a sweep whose slow row and fast rows are all within the
- * target.  A row or slow update that contracts by less than outer_rate,
- * more than outer_max sweeps, or non-finite values end it unconverged:
- * the caller then takes Newton from its predictor.  A step depends on its
- * known data and x's start alone. */
+ * weak slow-fast coupling), mixed with the last iterates by Anderson's
+ * acceleration (slow_update), and the sweep runs again from the fast nodes
+ * of the last one, each shifted first by the change of the nodes before it
+ * in this sweep, extrapolated (the response to the slow update is smooth
+ * in m).  The rows of a sweep are solved only as far as the slow residual
+ * makes worthwhile (OUTER_CUT).  It stops after a sweep in which the slow
+ * row and every fast row met the target: that sweep evaluated each row at
+ * the final x, so this is the step's exact residual.  A row or slow update
+ * that contracts by less than outer_rate, more than outer_max sweeps or
+ * row updates, or non-finite values end it unconverged: the caller then
+ * takes Newton from its predictor.  A step depends on its known data and
+ * x's start alone. */
 #include "solver/solver.h"
 
 #include <float.h>
