@@ -88,6 +88,7 @@ static const char usage[] =
     "                   [--repeats R] [--steps K] [--dT DT] [--p P]\n"
     "                   [--budget SECONDS] [--mem GB] [--big N]\n"
     "                   [--no-lammps] [--method NAME] [--threads T]\n"
+    "                   [--tuning NAME=VALUE]\n"
     "\n"
     "The r-RESPA and Stoermer-Verlet floors, mrvi's fully-explicit,\n"
     "explicit-slow, midpoint-midpoint and trapezoidal-midpoint, and LAMMPS\n"
@@ -102,6 +103,8 @@ static const char usage[] =
     "midpoint-midpoint).  --threads T: instead of the tables above, mrvi's\n"
     "schemes on 1 and on T threads (settings.threads), alternating, wall\n"
     "time per macro step and the ratio; the other tables are on 1 thread.\n"
+    "--tuning sets a tuning constant of mrvi's methods (mrvi.h,\n"
+    "MRVI_TUNING_LIST), e.g. outer_max=0.\n"
     "  --quick: N = 300,1000, R = 1, K = 2, lattice2d\n"
     "only.\n";
 
@@ -664,6 +667,8 @@ typedef struct result {
   double create, step;      /* CPU s: creation, per macro step */
   double wall;              /* wall s per macro step */
   double newton, cg, gmres; /* per macro step; CG iterations per micro step */
+  double evals; /* gradient evaluations of schur-krylov's outer iteration per
+                   micro step */
   long nnz;
   char path[16];
   long rss_before_kb, peak_kb;
@@ -673,7 +678,8 @@ typedef struct result {
 typedef struct options {
   double dT, budget, mem_gb;
   int p, steps, big;
-  int threads; /* settings.threads of the mrvi methods (default 1) */
+  int threads;        /* settings.threads of the mrvi methods (default 1) */
+  const char *tuning; /* NAME=VALUE for the mrvi methods, or NULL */
   char tmpdir[256];
 } options;
 
@@ -704,6 +710,18 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   s.t_end = 1e6 * o->dT;
   s.energy_warning = 0;
   s.threads = o->threads;
+  if (o->tuning) {
+    const char *eq = strchr(o->tuning, '=');
+    char name[64];
+    snprintf(name, sizeof name, "%.*s", eq ? (int)(eq - o->tuning) : 0,
+             o->tuning);
+    if (!eq ||
+        mrvi_settings_set_tuning(&s, name, atof(eq + 1), msg, sizeof msg) < 0) {
+      snprintf(r->message, sizeof r->message, "--tuning %.60s: %.120s",
+               o->tuning, eq ? msg : "NAME=VALUE expected");
+      return;
+    }
+  }
   r->n = mrvi_model_n(m);
   reset_peak();
   r->rss_before_kb = bench_status_kb("VmRSS:");
@@ -739,6 +757,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     r->newton = (double)newton / k;
     r->cg = (double)ks.cg_iterations / ((double)k * o->p);
     r->gmres = (double)ks.gmres_iterations / k;
+    r->evals = (double)ks.outer_evals / ((double)k * o->p);
     r->nnz = mrvi_integrator_system_nnz(it);
     snprintf(r->path, sizeof r->path, "%s", mrvi_integrator_solver_path(it));
     r->status = 0;
@@ -1123,6 +1142,8 @@ int main(int argc, char **argv) {
     } else if (!strcmp(a, "--threads") && has) {
       if ((threads = atoi(argv[++i])) < 2)
         return bad_usage();
+    } else if (!strcmp(a, "--tuning") && has) {
+      o.tuning = argv[++i];
     } else if (!strcmp(a, "--no-lammps")) {
       no_lammps = 1;
     } else {
@@ -1220,12 +1241,13 @@ int main(int argc, char **argv) {
            "creation (LAMMPS: the process' peak)\n\n",
            net_names[k], o.dT, repeats);
     printf("| %-20s | %8s | %-12s | %11s | %9s | %10s | %9s | %9s | %8s | "
-           "%8s | %8s | %9s |\n",
+           "%8s | %8s | %9s | %10s |\n",
            "method", "n", "path", "step_s", "create_s", "create/st", "B/coord",
-           "dB/coord", "newton/st", "cg/micro", "gmres/st", "nnz/coord");
+           "dB/coord", "newton/st", "cg/micro", "gmres/st", "nnz/coord",
+           "grad/micro");
     printf("|----------------------|---------:|--------------|------------:|"
            "----------:|-----------:|----------:|----------:|---------:|"
-           "---------:|---------:|----------:|\n");
+           "---------:|---------:|----------:|-----------:|\n");
     for (int me = 0; me < N_METHODS; me++)
       for (int ni = 0; ni < n_n; ni++) {
         const result *r = &res[k][ni][me];
@@ -1237,13 +1259,13 @@ int main(int argc, char **argv) {
           continue;
         }
         printf("| %-20s | %8d | %-12s | %11.4g | %9.3g | %10.2f | %9.0f | "
-               "%9.0f | %8.2f | %8.2f | %8.2f | %9.1f |\n",
+               "%9.0f | %8.2f | %8.2f | %8.2f | %9.1f | %10.2f |\n",
                method_names[me], r->n, r->path, r->step, r->create,
                r->create / r->step, 1024.0 * r->peak_kb / r->n,
                r->rss_before_kb > 0
                    ? 1024.0 * (r->peak_kb - r->rss_before_kb) / r->n
                    : NAN,
-               r->newton, r->cg, r->gmres, (double)r->nnz / r->n);
+               r->newton, r->cg, r->gmres, (double)r->nnz / r->n, r->evals);
       }
     printf("\nRatios (one run), issue-24 goals: fully-explicit <= 1.3 x "
            "r-RESPA, explicit-slow <= 4 x r-RESPA and faster than LAMMPS "

@@ -719,6 +719,12 @@ typedef enum mrvi_newton_criterion {
     "0's Newton matrix; micro step 0 itself where W is springs and anchors "   \
     "alone, else after its first Newton update) where their Gershgorin "       \
     "bound, and each update's residual ratio, is at most this (0: Newton)")    \
+  X(int, outer_max, 12, 0, 1000,                                               \
+    "schur-krylov: the most sweeps of its matrix-free outer iteration "        \
+    "before Newton takes the step from the predictor (0: off)")                \
+  X(double, outer_rate, 0.5, 0.0, 1.0,                                         \
+    "schur-krylov: ... and the largest residual ratio of one of its row or "   \
+    "slow updates")                                                            \
   X(int, dense_max, 64, 0, 1000000,                                            \
     "largest block (fast, and slow on schur) solved densely; beyond: "         \
     "sweep-cg and schur-krylov")                                               \
@@ -936,6 +942,11 @@ typedef struct mrvi_krylov_stats {
   int gmres_max;         /* most iterations of one GMRES solve */
   long fallbacks;        /* linear solves done by sparse LU instead */
   char fallback_reason[320]; /* why the first of them was */
+  /* schur-krylov's matrix-free outer iteration (doc/solver.md) */
+  long outer_steps;     /* steps it solved */
+  long outer_sweeps;    /* its fast sweeps in those and the failed tries */
+  long outer_evals;     /* its gradient evaluations (a point's V and W) */
+  long outer_fallbacks; /* steps it tried and left to Newton */
 } mrvi_krylov_stats;
 void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
                                   mrvi_krylov_stats *out);

@@ -772,6 +772,9 @@ contains "$out" "^solver +schur-krylov: .*GMRES" "lattice midpoint-midpoint: che
 run_mrvi run "$tmp/net.yaml" --set integrator.scheme=midpoint-midpoint -o "$tmp/o/net.h5"
 expect_rc 0 "lattice run"
 contains "$out" "solver path +schur-krylov" "lattice run: path in the summary"
+contains "$out" "outer iteration +10 steps, .* 0 left to Newton" "lattice run: the outer iteration's steps in the summary"
+run_mrvi run "$tmp/net.yaml" --set integrator.scheme=midpoint-midpoint --set integrator.tuning.outer_max=0 -o "$tmp/o/net0.h5"
+expect_rc 0 "lattice run, outer iteration off"
 contains "$out" "GMRES \(slow unknowns\) +10 solves" "lattice run: GMRES iterations in the summary"
 contains "$out" "CG \(micro blocks\) +[0-9]+ block solves" "lattice run: CG iterations in the summary"
 if [ "$h5tool" != none ]; then

@@ -215,13 +215,18 @@ static const char *const *set(overrides *o, const char *scheme, int p,
 /* The trajectory of `scheme` on `text` by the iterative path (auto)
  * against the general path, tolerance 1e-12: asserts the paths (general,
  * want) and the agreement to 1e-10; *b receives the iterative run (its
- * stats; released here).  Returns whether both runs completed. */
-static int agree(const char *text, const char *scheme, int p, double dT,
-                 int steps, const char *want, trajectory *b) {
+ * stats; released here).  outer_max >= 0 sets that tuning constant of the
+ * iterative run (schur-krylov's outer iteration; 0: off).  Returns
+ * whether both runs completed. */
+static int agree_outer(const char *text, const char *scheme, int p, double dT,
+                       int steps, const char *want, int outer_max,
+                       trajectory *b) {
   overrides og, oa;
   mrvi_system *sg =
       load_text(text, set(&og, scheme, p, dT, 1e-12, "general"), 5);
   mrvi_system *sa = load_text(text, set(&oa, scheme, p, dT, 1e-12, "auto"), 5);
+  if (sa && outer_max >= 0)
+    sa->settings.tuning.outer_max = outer_max;
   int ok = 0;
   memset(b, 0, sizeof *b);
   if (sg && sa) {
@@ -233,9 +238,11 @@ static int agree(const char *text, const char *scheme, int p, double dT,
       CHECK(d <= 1e-10, "%s p=%d: %s vs general: %.2e", scheme, p, b->path, d);
       CHECK(strcmp(a.path, "general") == 0 && strcmp(b->path, want) == 0,
             "%s: paths %s, %s", scheme, a.path, b->path);
-      printf("%-24s p=%d %-13s vs general %.2e  CG %.2f/solve (max %d)  "
+      printf("%-24s p=%d %-13s vs general %.2e  outer %ld steps (%ld left "
+             "to Newton), %.2f sweeps each  CG %.2f/solve (max %d)  "
              "GMRES %.2f/solve (max %d)\n",
-             scheme, p, b->path, d,
+             scheme, p, b->path, d, b->ks.outer_steps, b->ks.outer_fallbacks,
+             (double)b->ks.outer_sweeps / fmax(1.0, (double)b->ks.outer_steps),
              b->ks.cg_solves
                  ? (double)b->ks.cg_iterations / (double)b->ks.cg_solves
                  : 0.0,
@@ -253,12 +260,22 @@ static int agree(const char *text, const char *scheme, int p, double dT,
   return ok;
 }
 
+static int agree(const char *text, const char *scheme, int p, double dT,
+                 int steps, const char *want, trajectory *b) {
+  return agree_outer(text, scheme, p, dT, steps, want, -1, b);
+}
+
 /* A 10 x 8 lattice (80 slow and 80 fast coordinates, beyond the dense
  * limit 64): every scheme with an implicit fast rule on its iterative path
  * against the general path, tolerance 1e-12, 20 steps, p in {1, 5}.  Both
  * solutions meet ||R|| <= 1e-12 with a Jacobian M/dt + O(dt K), so they
  * differ by about 1e-12 dt / M relative to q and p; 1e-10 leaves room for
- * 20 steps of growth (doc/solver.md). */
+ * 20 steps of growth (doc/solver.md).  The schur-krylov schemes run twice:
+ * with the outer iteration (solver/outer.c), which at p = 5 solves every
+ * step (its row chord contracts by about (omega dt)^2/4 = 0.024 per update
+ * at dt = 0.002, omega = 98), and without it (outer_max 0: Newton with
+ * GMRES and CG in every step).  At p = 1 (dt = 0.01, (omega dt)^2/4 = 0.24
+ * > chord_jacobi_max 0.1) it is not used: Newton in every step. */
 static void test_agree(void) {
   static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint",
                                         "trapezoidal-midpoint",
@@ -277,10 +294,20 @@ static void test_agree(void) {
       trajectory b;
       /* (explicit-slow at p = 5: the Jacobi chord in every row, row 0's
        * too, no CG; at p = 1 its bound fails and Newton's CG runs) */
-      if (agree(text, schemes[sc], p, 0.01, 20, want[sc], &b))
-        CHECK((b.ks.cg_solves > 0) == (sc > 0 || p == 1) && b.ks.fallbacks == 0,
-              "%s p=%d: %ld CG solves, %ld fallbacks (%s)", schemes[sc], p,
-              b.ks.cg_solves, b.ks.fallbacks, b.ks.fallback_reason);
+      if (agree_outer(text, schemes[sc], p, 0.01, 20, want[sc], sc > 0 ? 0 : -1,
+                      &b))
+        CHECK((b.ks.cg_solves > 0) == (sc > 0 || p == 1) &&
+                  b.ks.fallbacks == 0 && b.ks.outer_steps == 0,
+              "%s p=%d: %ld CG solves, %ld fallbacks (%s), %ld outer steps",
+              schemes[sc], p, b.ks.cg_solves, b.ks.fallbacks,
+              b.ks.fallback_reason, b.ks.outer_steps);
+      if (sc > 0 && agree(text, schemes[sc], p, 0.01, 20, want[sc], &b))
+        CHECK(p == 1 ? b.ks.outer_steps + b.ks.outer_fallbacks == 0
+                     : b.ks.outer_steps == 20 && b.ks.outer_fallbacks == 0 &&
+                           b.ks.cg_solves == 0,
+              "%s p=%d: %ld outer steps, %ld left to Newton, %ld CG solves",
+              schemes[sc], p, b.ks.outer_steps, b.ks.outer_fallbacks,
+              b.ks.cg_solves);
     }
   free(text);
 }
@@ -320,6 +347,8 @@ static void test_iterations(void) {
         load_text(text, set(&o, schemes[sc], 10, 0.01, 1e-9, "auto"), 5);
     if (!s)
       continue;
+    /* (schur-krylov's Newton: its outer iteration off, test_outer) */
+    s->settings.tuning.outer_max = 0;
     mrvi_step st;
     mrvi_predictor *pr = NULL;
     mrvi_step_init(&st, s->model, &s->settings);
@@ -540,6 +569,82 @@ static void test_chord(void) {
   free(text);
 }
 
+/* schur-krylov's outer iteration (solver/outer.c, doc/solver.md) on the
+ * 10 x 8 lattice at dT = 0.01, p = 5 (dt = 0.002: its fast rows' chord
+ * contracts by about (omega dt)^2/4 = 0.024 per update, omega = 98), 10
+ * steps, for midpoint-midpoint and trapezoidal-midpoint:
+ *  - at tolerance 1e-9 every step by the outer iteration in at most 4
+ *    sweeps (measured 2 to 3: the slow update contracts the slow residual
+ *    by 1e-2 or more per sweep, and the last sweep only confirms the
+ *    rows), no Newton, no CG;
+ *  - resumed at node 5, the run continues bit for bit (a step depends on
+ *    (q_k, p_k) alone);
+ *  - forced to fail (outer_rate 1e-3: no update contracts that much), every
+ *    step is left to Newton from the predictor, so the trajectory is the
+ *    one with the outer iteration off bit for bit, and counted. */
+static void test_outer(void) {
+  char *text = lattice(10, 8);
+  static const char *const schemes[] = {"midpoint-midpoint",
+                                        "trapezoidal-midpoint"};
+  const int steps = 10;
+  for (int sc = 0; sc < 2; sc++) {
+    overrides o;
+    mrvi_system *s =
+        load_text(text, set(&o, schemes[sc], 5, 0.01, 1e-9, "auto"), 5);
+    if (!s)
+      continue;
+    trajectory a, b, c;
+    run(s, steps, &a);
+    s->settings.tuning.outer_rate = 1e-3;
+    run(s, steps, &b);
+    s->settings.tuning.outer_rate = 0.5;
+    s->settings.tuning.outer_max = 0;
+    run(s, steps, &c);
+    s->settings.tuning.outer_max = 12;
+    if (a.ok && b.ok && c.ok) {
+      CHECK(a.ks.outer_steps == steps && a.ks.outer_fallbacks == 0 &&
+                a.ks.cg_solves == 0 && a.max_iter <= 4,
+            "%s: %ld outer steps, %ld left to Newton, %ld CG solves, %d "
+            "sweeps at most",
+            schemes[sc], a.ks.outer_steps, a.ks.outer_fallbacks, a.ks.cg_solves,
+            a.max_iter);
+      const double d = rel_diff(&c, &a);
+      CHECK(d <= 1e-8, "%s: outer vs Newton %.2e", schemes[sc], d);
+      const size_t n = (size_t)b.n, nq = (size_t)(steps + 1) * n;
+      CHECK(b.ks.outer_steps == 0 && b.ks.outer_fallbacks == steps &&
+                !memcmp(b.q, c.q, nq * sizeof(double)) &&
+                !memcmp(b.p, c.p, nq * sizeof(double)),
+            "%s forced to fail: %ld outer steps, %ld left to Newton, "
+            "trajectory %s Newton's",
+            schemes[sc], b.ks.outer_steps, b.ks.outer_fallbacks,
+            memcmp(b.q, c.q, nq * sizeof(double)) ? "not" : "bitwise");
+      mrvi_integrator *it = NULL;
+      char msg[512];
+      int same =
+          mrvi_integrator_create(s->model, &s->settings, &it, msg,
+                                 sizeof msg) == 0 &&
+          mrvi_integrator_resume_state(it, 5, a.q + 5 * n, a.p + 5 * n) == 0;
+      for (int k = 5; same && k < steps; k++)
+        same = mrvi_integrator_step(it) == 0;
+      same =
+          same &&
+          !memcmp(mrvi_integrator_q(it), a.q + steps * n, n * sizeof(double)) &&
+          !memcmp(mrvi_integrator_p(it), a.p + steps * n, n * sizeof(double));
+      CHECK(same, "%s: resumed at node 5, not bit for bit", schemes[sc]);
+      mrvi_integrator_free(it);
+      printf("%s outer: %.2f sweeps per step (max %d), %.2f gradient "
+             "evaluations per micro step, vs Newton %.2e\n",
+             schemes[sc], (double)a.ks.outer_sweeps / (double)a.ks.outer_steps,
+             a.max_iter, (double)a.ks.outer_evals / (double)(steps * 5), d);
+    }
+    release(&a);
+    release(&b);
+    release(&c);
+    mrvi_system_free(s);
+  }
+  free(text);
+}
+
 int main(void) {
   test_chord();
   test_choice();
@@ -547,5 +652,6 @@ int main(void) {
   test_iterations();
   test_fallback();
   test_many_gmres();
+  test_outer();
   return test_finish();
 }

@@ -719,6 +719,16 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
            "GMRES (slow unknowns)", ks->gmres_solves,
            (double)ks->gmres_iterations / (double)ks->gmres_solves,
            ks->gmres_max);
+  if (ks->outer_steps + ks->outer_fallbacks > 0)
+    printf(
+        "  %-23s%ld steps, %.2f sweeps and %.2f gradient evaluations "
+        "each per micro step; %ld left to Newton\n",
+        "outer iteration", ks->outer_steps,
+        (double)ks->outer_sweeps /
+            (double)(ks->outer_steps + ks->outer_fallbacks),
+        (double)ks->outer_evals /
+            ((double)(ks->outer_steps + ks->outer_fallbacks) * s->micro_steps),
+        ks->outer_fallbacks);
   if (ks->fallbacks > 0)
     fprintf(stderr,
             "warning: %ld linear solve%s fell back to a sparse LU (first: "

@@ -21,6 +21,7 @@ struct mrvi_integrator {
   int sweep_tight;            /* mrvi_sweep_tight(sweep) */
   mrvi_blocks *blocks;        /* schur path */
   mrvi_skrylov *skrylov;      /* schur-krylov path */
+  mrvi_outer *outer;          /* ... its matrix-free step (NULL: off) */
   mrvi_bordered *bordered;    /* schur-bordered path */
   mrvi_predictor *predictor;  /* Newton paths */
   int factors_ok;             /* factors of this step's Jacobian are kept */
@@ -549,8 +550,22 @@ static void schur_free(mrvi_integrator *it) {
 
 /* The schur-krylov path (solver/schur_krylov.c). */
 static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
-  const int st = newton_paths_create(it, msg, len);
-  return st < 0 ? st : mrvi_skrylov_create(&it->step, &it->skrylov, msg, len);
+  int st = newton_paths_create(it, msg, len);
+  if (st < 0 ||
+      (st = mrvi_skrylov_create(&it->step, &it->skrylov, msg, len)) < 0)
+    return st;
+  /* The matrix-free outer iteration on unconstrained steps (solver/outer.c)
+   * where its Jacobi chord on the fast rows contracts by at most
+   * chord_jacobi_max at the initial state, (omega_max dt)^2/4, as
+   * sweep-cg's (doc/solver.md, "schur-krylov: the outer iteration"). */
+  const mrvi_step *sp = &it->step;
+  const double a =
+      0.25 * pow(mrvi_predictor_omega_max(it->predictor) * sp->dt, 2.0);
+  if (sp->tuning.outer_max > 0 && sp->n_lambda == 0 &&
+      a <= sp->tuning.chord_jacobi_max &&
+      mrvi_outer_create(it->model, sp, &it->outer) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  return MRVI_OK;
 }
 
 /* The schur-bordered path (solver/bordered.c) on the CSC Jacobian. */
@@ -570,6 +585,7 @@ static void bordered_free(mrvi_integrator *it) {
 
 static void skrylov_free(mrvi_integrator *it) {
   mrvi_skrylov_free(it->skrylov);
+  mrvi_outer_free(it->outer);
   mrvi_predictor_free(it->predictor);
 }
 
@@ -1321,6 +1337,20 @@ static int newton_step(mrvi_integrator *it) {
     }
     /* (else Newton from the last iterate) */
   }
+  /* schur-krylov's matrix-free outer iteration (solver/outer.c), to
+   * reuse_tighten times the tolerance as Newton: its residual is the
+   * step's at its solution (every row evaluated there, by the compiled
+   * terms), with the potential parts of the momenta; where it does not
+   * converge, Newton from the predictor. */
+  if (it->outer && !st->f_rows && !st->f_end) {
+    double r0 = 0.0;
+    const int k = mrvi_outer_solve(it->outer, st, it->x, it->rinv,
+                                   tn->reuse_tighten * tol, tn->outer_rate,
+                                   tn->outer_max, it->ps1, it->micro_p, &r0);
+    if (k > 0)
+      return accept_step(it, k, r0);
+    predict(it);
+  }
   /* The constant chord: its factors stand for the kept ones of this
    * step, so that the first update uses them (prev = INFINITY: rate 0)
    * and the reuse rule below decides the next; else the Jacobian at the
@@ -1622,6 +1652,13 @@ void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
     *out = *k;
   else
     memset(out, 0, sizeof *out);
+  if (it->outer) {
+    const mrvi_outer_stats *o = mrvi_outer_stats_of(it->outer);
+    out->outer_fallbacks = o->failed;
+    out->outer_steps = o->steps - out->outer_fallbacks;
+    out->outer_sweeps = o->sweeps;
+    out->outer_evals = o->site_evals;
+  }
 }
 
 int mrvi_integrator_jacobian_size(const mrvi_integrator *it) {

@@ -509,6 +509,35 @@ int mrvi_skrylov_solve(mrvi_skrylov *k, int transpose, const double *R,
 void mrvi_skrylov_set_rtol(mrvi_skrylov *k, double cg_rtol, double gmres_rtol);
 const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k);
 
+/* schur-krylov's matrix-free step (solver/outer.c, doc/solver.md,
+ * "schur-krylov: the outer iteration"): a nonlinear block Gauss-Seidel
+ * iteration of fast sweeps by the Jacobi chord and slow chord updates on
+ * an unconstrained step, no Jacobian.  mrvi_outer_solve starts from x
+ * (displacements, mrvi_step.increments; the predictor's) and returns the
+ * sweeps made (> 0) where every row of the step came within target
+ * (residuals weighted by rw, n_unknowns, NULL: unweighted; or at the
+ * rounding floor of its terms), with the largest in *res and the potential
+ * parts of the momenta at x (as mrvi_step_assemble's mom_ps, mom_pf) in
+ * ps1 (ns) and pf (p x nf), 0 where an
+ * update contracted by less than rate, more than max_sweeps were needed
+ * or values were non-finite (x then holds no solution). */
+typedef struct mrvi_outer mrvi_outer;
+typedef struct mrvi_outer_stats {
+  long steps;        /* steps tried */
+  long sweeps;       /* fast sweeps (outer iterations) */
+  long slow_updates; /* slow chord updates */
+  long row_updates;  /* fast-row chord updates */
+  long site_evals;   /* gradient evaluations at a configuration */
+  long failed;       /* steps that did not converge */
+} mrvi_outer_stats;
+int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
+                      mrvi_outer **out);
+void mrvi_outer_free(mrvi_outer *o);
+int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
+                     const double *rw, double target, double rate,
+                     int max_sweeps, double *ps1, double *pf, double *res);
+const mrvi_outer_stats *mrvi_outer_stats_of(const mrvi_outer *o);
+
 /* ---------------------------------------------------------------------------
  * Linear solves with a factorisation kept between calls (solver/newton.c):
  * mrvi_newton_solve factorises and solves; mrvi_linsolve_solve solves again

@@ -203,9 +203,10 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
     if (!small) {
       mrvi_fmt(why, len,
                "slow potential on the micro grid couples q_{k+1}^s to every "
-               "micro node, blocks beyond the dense limit %d: Newton with "
-               "GMRES on the Schur complement of the %d slow unknowns and "
-               "block sweeps over %d micro nodes solved by CG",
+               "micro node, blocks beyond the dense limit %d: matrix-free "
+               "outer iteration where it converges, else Newton with GMRES "
+               "on the %d slow unknowns and CG block sweeps over %d micro "
+               "nodes",
                dense_max, m->n_slow, s->micro_steps);
       return MRVI_PATH_SCHUR_KRYLOV;
     }
@@ -228,7 +229,8 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                  m->names[el->in[j]],
                  small ? ": Newton with a Schur complement on the slow "
                          "unknowns and block sweeps"
-                       : ": Newton with GMRES on the slow unknowns and CG "
+                       : ": matrix-free outer iteration where it converges, "
+                         "else Newton with GMRES on the slow unknowns and CG "
                          "block sweeps (blocks beyond the dense limit)");
         return small ? MRVI_PATH_SCHUR : MRVI_PATH_SCHUR_KRYLOV;
       }

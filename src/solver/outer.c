@@ -1,0 +1,497 @@
+/* Matrix-free step of schur-krylov (doc/solver.md, "schur-krylov: the
+ * outer iteration"): a nonlinear block Gauss-Seidel iteration on the slow
+ * and fast rows of an unconstrained step, with no Jacobian assembled.
+ *
+ * Rows (step.c; x as displacements from (q_k^s, q_k^{f,0})):
+ *   slow    G = p_k^s - M^s x_s/dT - sum_pts w a0 grad_s Z(z)
+ *   fast m  F_m = p^{f,m} - M^f (d^{m+1} - d^m)/dt - sum_{pts of m} w cA
+ *           grad_f Z(z),
+ *           p^{f,m+1} = M^f (d^{m+1} - d^m)/dt - sum_{pts of m} w cB grad_f Z
+ * (eq:pkfm+), every point z = (q_k^s + a1 x_s, q_k^{f,0} + cA d^m + cB
+ * d^{m+1}).  With x_s held, fast row m involves d^{m-1}, d^m, d^{m+1}
+ * only: the fast rows are solved by a forward sweep, row m for d^{m+1} by
+ * the Jacobi chord d^{m+1} += (dt/M^f) F_m (one gradient of the interval's
+ * points per update; dF_m/dd^{m+1} = -(M^f/dt + sum w cA cB hess_ff Z),
+ * so it contracts by about (omega dt)^2/4).  The sweep also sums the slow
+ * row's forces at the converged points, which gives G exactly; then x_s +=
+ * (dT/M^s) G (dG/dx_s = -(M^s/dT + sum w a0 a1 hess_ss Z) - A_sf
+ * A_ff^-1 A_fs, contracting by about dT^2 |M_s^-1 hess_ss V|/6 plus the
+ * weak slow-fast coupling), mixed with the last iterates by Anderson's
+ * acceleration (slow_update), and the sweep runs again from the fast nodes
+ * of the last one, each shifted first by the change of the nodes before it
+ * in this sweep, extrapolated (the response to the slow update is smooth
+ * in m).  The rows of a sweep are solved only as far as the slow residual
+ * makes worthwhile (OUTER_CUT).  It stops after a sweep in which the slow
+ * row and every fast row met the target: that sweep evaluated each row at
+ * the final x, so this is the step's exact residual.  A row or slow update
+ * that contracts by less than outer_rate, more than outer_max sweeps or
+ * row updates, or non-finite values end it unconverged: the caller then
+ * takes Newton from its predictor.  A step depends on its known data and
+ * x's start alone. */
+#include "solver/solver.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* The factor of the inexact sweeps, and the depth of Anderson's
+ * acceleration of the slow updates (mrvi_outer_solve). */
+#define OUTER_CUT 1e-3
+#define OUTER_AA 3
+
+/* The points of one interval with the same configuration evaluated once:
+ * a site (a0, a1, cA, cB) with the classes evaluated there and one weight
+ * (points of V and W with the same coefficients and weight share a site,
+ * midpoint-midpoint's). */
+typedef struct site {
+  double w, a0, a1, cA, cB;
+  int cls;   /* bit c: class c is evaluated here */
+  double *g; /* gradient at the site (ns + nf packed) */
+} site;
+
+struct mrvi_outer {
+  int ns, nf, p;
+  mrvi_terms *kc[2]; /* V and W on the packed columns (q^s, q^f) */
+  site *sites;       /* by interval */
+  int *send;         /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
+  double *minv_s, *minv_f, *m_s, *m_f;
+  double *mdt, *dtm;     /* M^f/dt, dt/M^f */
+  double *zero, *one;    /* nf zeros, nf ones */
+  double *z;             /* packed configuration */
+  double *pm, *fexp, *F; /* p^{f,m}, the forces of node-m sites, F_m */
+  double *fs;            /* slow-row force (ns) */
+  double *dold;          /* a node before this sweep's row, nf */
+  double *dlt[3];        /* the changes of the last three nodes, nf each */
+  /* Anderson: the slow iterate and its update f = (dT/M^s) G before (ns
+   * each) and the differences of the last OUTER_AA (ns x OUTER_AA each) */
+  double *xp, *fp, *dX, *dF;
+  int met; /* every row of the sweep met its target */
+  /* z's slow part is the one of site z_site in sweep z_sweep (xs is
+   * fixed during a sweep) */
+  const site *z_site;
+  long z_sweep;
+  mrvi_outer_stats stats; /* of the run */
+};
+
+void mrvi_outer_free(mrvi_outer *o) {
+  if (!o)
+    return;
+  for (int c = 0; c < 2; c++)
+    mrvi_terms_free(o->kc[c]);
+  if (o->sites && o->send)
+    for (int i = 0; i < o->send[o->p]; i++)
+      free(o->sites[i].g);
+  free(o->sites);
+  free(o->send);
+  free(o->minv_s);
+  free(o->minv_f);
+  free(o->m_s);
+  free(o->m_f);
+  free(o->mdt);
+  free(o->dtm);
+  free(o->zero);
+  free(o->one);
+  free(o->z);
+  free(o->pm);
+  free(o->fexp);
+  free(o->F);
+  free(o->fs);
+  free(o->dold);
+  for (int i = 0; i < 3; i++)
+    free(o->dlt[i]);
+  free(o->xp);
+  free(o->fp);
+  free(o->dX);
+  free(o->dF);
+  free(o);
+}
+
+static double *dalloc(size_t n) {
+  return malloc((n > 0 ? n : 1) * sizeof(double));
+}
+
+int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
+                      mrvi_outer **out) {
+  *out = NULL;
+  mrvi_outer *o = calloc(1, sizeof *o);
+  if (!o)
+    return MRVI_ENOMEM;
+  o->ns = st->ns;
+  o->nf = st->nf;
+  o->p = st->p;
+  const size_t ns = (size_t)o->ns, nf = (size_t)o->nf, n = ns + nf;
+  int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
+  const int npts = st->n_pts[0] + st->n_pts[1];
+  o->sites = calloc((size_t)(npts > 0 ? npts : 1), sizeof *o->sites);
+  o->send = calloc((size_t)o->p + 1, sizeof *o->send);
+  o->minv_s = dalloc(ns);
+  o->m_s = dalloc(ns);
+  o->minv_f = dalloc(nf);
+  o->m_f = dalloc(nf);
+  o->mdt = dalloc(nf);
+  o->dtm = dalloc(nf);
+  o->zero = calloc(nf > 0 ? nf : 1, sizeof(double));
+  o->one = dalloc(nf);
+  o->z = dalloc(n);
+  o->pm = dalloc(nf);
+  o->fexp = dalloc(nf);
+  o->F = dalloc(nf);
+  o->fs = dalloc(ns);
+  o->dold = dalloc(nf);
+  for (int i = 0; i < 3; i++)
+    o->dlt[i] = dalloc(nf);
+  o->xp = dalloc(ns);
+  o->fp = dalloc(ns);
+  o->dX = dalloc(ns * OUTER_AA);
+  o->dF = dalloc(ns * OUTER_AA);
+  if (!col || !o->sites || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
+      !o->m_f || !o->mdt || !o->dtm || !o->zero || !o->one || !o->z || !o->pm ||
+      !o->fexp || !o->F || !o->fs || !o->dold || !o->dlt[0] || !o->dlt[1] ||
+      !o->dlt[2] || !o->xp || !o->fp || !o->dX || !o->dF) {
+    free(col);
+    mrvi_outer_free(o);
+    return MRVI_ENOMEM;
+  }
+  for (int c = 0; c < m->n; c++)
+    col[c] = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
+  for (int s = 0; s < o->ns; s++) {
+    o->m_s[s] = m->mass[m->slow_index[s]];
+    o->minv_s[s] = 1.0 / o->m_s[s];
+  }
+  for (int f = 0; f < o->nf; f++) {
+    o->m_f[f] = m->mass[m->fast_index[f]];
+    o->minv_f[f] = 1.0 / o->m_f[f];
+    o->mdt[f] = o->m_f[f] / st->dt;
+    o->dtm[f] = st->dt / o->m_f[f];
+    o->one[f] = 1.0;
+  }
+  for (int c = 0; c < 2; c++)
+    if (st->n_elem_of_class[c] > 0 &&
+        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
+                          &o->kc[c]) != MRVI_OK) {
+      free(col);
+      mrvi_outer_free(o);
+      return MRVI_ENOMEM;
+    }
+  free(col);
+  /* Sites by interval: the points of both classes, merged where the
+   * coefficients and weight agree. */
+  int ns_ = 0;
+  for (int mm = 0; mm < o->p; mm++) {
+    o->send[mm] = ns_;
+    for (int c = 0; c < 2; c++) {
+      if (!o->kc[c])
+        continue;
+      for (int ip = 0; ip < st->n_pts[c]; ip++) {
+        const mrvi_point *pt = &st->pts[c][ip];
+        if (pt->m != mm)
+          continue;
+        int at = -1;
+        for (int i = o->send[mm]; i < ns_; i++) {
+          const site *S = &o->sites[i];
+          if (S->w == pt->w && S->a0 == pt->a0 && S->a1 == pt->a1 &&
+              S->cA == pt->cA && S->cB == pt->cB && !(S->cls & (1 << c)))
+            at = i;
+        }
+        if (at < 0) {
+          at = ns_++;
+          o->sites[at] = (site){.w = pt->w,
+                                .a0 = pt->a0,
+                                .a1 = pt->a1,
+                                .cA = pt->cA,
+                                .cB = pt->cB};
+          if (!(o->sites[at].g = dalloc(n))) {
+            o->send[o->p] = ns_;
+            mrvi_outer_free(o);
+            return MRVI_ENOMEM;
+          }
+        }
+        o->sites[at].cls |= 1 << c;
+      }
+    }
+  }
+  o->send[o->p] = ns_;
+  *out = o;
+  return MRVI_OK;
+}
+
+const mrvi_outer_stats *mrvi_outer_stats_of(const mrvi_outer *o) {
+  return &o->stats;
+}
+
+/* S->g = grad Z at the site's configuration for the slow displacement xs
+ * and the fast displacements dm = d^m, dn = d^{m+1} (NULL: zeros). */
+static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
+                      const double *xs, const double *dm, const double *dn) {
+  const int ns = o->ns, nf = o->nf;
+  double *z = o->z;
+  if (o->z_site != S || o->z_sweep != o->stats.sweeps) /* (else as it is) */
+    for (int s = 0; s < ns; s++)
+      z[s] = st->qs0[s] + S->a1 * xs[s];
+  o->z_site = S;
+  o->z_sweep = o->stats.sweeps;
+  const double cA = S->cA, cB = dn ? S->cB : 0.0;
+  const double *a = dm ? dm : o->zero, *b = dn ? dn : o->zero;
+  for (int f = 0; f < nf; f++)
+    z[ns + f] = st->qf0[f] + cA * a[f] + cB * b[f];
+  memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
+  for (int c = 0; c < 2; c++)
+    if (S->cls & (1 << c))
+      mrvi_terms_grad(o->kc[c], z, S->g);
+  o->stats.site_evals++;
+}
+
+/* The row of interval m for d^{m+1} = dn by the Jacobi chord from dn as
+ * given, with d^m = dm (NULL at m = 0), the slow displacement xs and
+ * o->pm = p^{f,m}, to max(target, cut times its first residual); then
+ * p^{f,m+1} into o->pm, its potential part into pfm (nf), and the sites'
+ * slow forces added to o->fs, the potential part of p_{k+1}^s to ps1.
+ * Returns the row's residual (weighted by rw, NULL: 1) or -1 where it did
+ * not converge. */
+static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
+                        const double *xs, const double *dm, double *dn,
+                        const double *rw, double target, double cut,
+                        double rate, int max_updates, double *ps1,
+                        double *pfm) {
+  const int ns = o->ns, nf = o->nf;
+  const double dt = st->dt;
+  site *s0 = o->sites + o->send[m], *s1 = o->sites + o->send[m + 1];
+  /* the sites at node m (cB = 0) are known */
+  int inside = 0;
+  memset(o->fexp, 0, (size_t)nf * sizeof(double));
+  for (site *S = s0; S < s1; S++) {
+    if (S->cB != 0.0) {
+      inside |= S->cA != 0.0;
+      continue;
+    }
+    eval_site(o, st, S, xs, dm, NULL);
+    for (int f = 0; f < nf; f++)
+      o->fexp[f] += S->w * S->cA * S->g[ns + f];
+  }
+  double r = 0.0, r_prev = HUGE_VAL, floor = 0.0;
+  for (int it = 0;; it++) {
+    /* F_m at dn: the sites inside the interval at dn (no iteration where
+     * there is none: the row is explicit in d^{m+1}) */
+    if (!inside && it == 0)
+      for (int f = 0; f < nf; f++)
+        dn[f] =
+            (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
+    /* F = p^{f,m} - the forces of the sites (the first inside one's in
+     * the loop below) - M^f (d^{m+1} - d^m)/dt */
+    const double *g1 = o->zero;
+    double w1 = 0.0, *F = o->F;
+    for (int f = 0; f < nf; f++)
+      F[f] = o->pm[f] - o->fexp[f];
+    for (site *S = s0; S < s1; S++) {
+      if (S->cB == 0.0 || S->cA == 0.0)
+        continue;
+      eval_site(o, st, S, xs, dm, dn);
+      if (w1 == 0.0) {
+        g1 = S->g + ns;
+        w1 = S->w * S->cA;
+        continue;
+      }
+      const double wc = S->w * S->cA;
+      for (int f = 0; f < nf; f++)
+        F[f] -= wc * S->g[ns + f];
+    }
+    /* ... and its largest entry (NaN found by the sum, which it poisons);
+     * at the first iterate the roundoff floor, 16 eps times the largest
+     * term of the row (the unknowns being displacements) */
+    const double *dp = dm ? dm : o->zero, *w = rw ? rw : o->one;
+    double sum = 0.0;
+    r = 0.0;
+    for (int f = 0; f < nf; f++) {
+      F[f] = F[f] - w1 * g1[f] - o->mdt[f] * (dn[f] - dp[f]);
+      const double a = fabs(F[f]) * w[f];
+      r = a > r ? a : r;
+      sum += a;
+    }
+    if (isnan(sum))
+      return -1.0;
+    if (it == 0) {
+      double scale = 0.0;
+      for (int f = 0; f < nf; f++) {
+        const double mv = o->mdt[f] * (dn[f] - dp[f]);
+        const double fi = o->pm[f] - o->fexp[f] - mv - F[f];
+        const double t =
+            (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * w[f];
+        scale = t > scale ? t : scale;
+      }
+      floor = 16.0 * DBL_EPSILON * scale;
+      target = fmax(target, cut * r);
+    }
+    if (!inside || r <= fmax(target, floor))
+      break;
+    /* (stalled at the rounding of its terms: solved as far as it can be) */
+    if (it >= 1 && !(r <= rate * r_prev) && r <= 8.0 * floor) {
+      floor = r;
+      break;
+    }
+    if (it >= max_updates || !(r <= rate * r_prev))
+      return -1.0;
+    r_prev = r;
+    for (int f = 0; f < nf; f++)
+      dn[f] += o->dtm[f] * F[f];
+    o->stats.row_updates++;
+  }
+  /* the sites at node m + 1 (cA = 0), then p^{f,m+1} and the slow forces */
+  for (site *S = s0; S < s1; S++)
+    if (S->cA == 0.0)
+      eval_site(o, st, S, xs, dm, dn);
+  memset(pfm, 0, (size_t)nf * sizeof(double));
+  for (site *S = s0; S < s1; S++) {
+    const double wa = S->w * S->a0, w1 = S->w * S->a1, wb = S->w * S->cB;
+    if (wa != 0.0 || w1 != 0.0)
+      for (int s = 0; s < ns; s++) {
+        o->fs[s] += wa * S->g[s];
+        ps1[s] -= w1 * S->g[s];
+      }
+    if (wb != 0.0)
+      for (int f = 0; f < nf; f++)
+        pfm[f] -= wb * S->g[ns + f];
+  }
+  for (int f = 0; f < nf; f++)
+    o->pm[f] = o->m_f[f] * (dn[f] - (dm ? dm[f] : 0.0)) / dt + pfm[f];
+  /* (met: within the target, or at the rounding floor of the row's terms) */
+  o->met &= inside ? r <= fmax(target, floor) : 1;
+  return r;
+}
+
+/* xs += the slow update from G (o->fs) at the iterate's slow update j =
+ * 0, 1, ...: the chord f = (dT/M^s) G, accelerated by Anderson's mixing of
+ * the last min(j, OUTER_AA) iterates (Walker & Ni, SIAM J. Numer. Anal.
+ * 49 (2011)): x + f - (dX + dF) gamma, gamma the least-squares solution of
+ * dF gamma = f (normal equations; a singular one drops the history). */
+static void slow_update(mrvi_outer *o, double *xs, int j, double dT) {
+  const int ns = o->ns;
+  double *f = o->fs;
+  for (int s = 0; s < ns; s++)
+    f[s] *= dT * o->minv_s[s];
+  const int slot = (j - 1) % OUTER_AA, depth = j < OUTER_AA ? j : OUTER_AA;
+  if (j >= 1) {
+    double *dx = o->dX + (size_t)slot * ns, *df = o->dF + (size_t)slot * ns;
+    for (int s = 0; s < ns; s++) {
+      dx[s] = xs[s] - o->xp[s];
+      df[s] = f[s] - o->fp[s];
+    }
+  }
+  memcpy(o->xp, xs, (size_t)ns * sizeof(double));
+  memcpy(o->fp, f, (size_t)ns * sizeof(double));
+  double A[OUTER_AA * OUTER_AA], b[OUTER_AA];
+  int piv[OUTER_AA], ok = depth > 0;
+  for (int a = 0; a < depth; a++) {
+    const double *fa = o->dF + (size_t)a * ns;
+    double t = 0.0;
+    for (int s = 0; s < ns; s++)
+      t += fa[s] * f[s];
+    b[a] = t;
+    for (int c = 0; c < depth; c++) {
+      const double *fc = o->dF + (size_t)c * ns;
+      double u = 0.0;
+      for (int s = 0; s < ns; s++)
+        u += fa[s] * fc[s];
+      A[a * depth + c] = u;
+    }
+  }
+  ok = ok && mrvi_dense_lu_factor(depth, A, piv) == 0;
+  if (ok) {
+    mrvi_dense_lu_solve(depth, A, piv, b, 1);
+    for (int a = 0; a < depth; a++)
+      ok &= isfinite(b[a]);
+  }
+  for (int s = 0; s < ns; s++) {
+    double v = f[s];
+    for (int a = 0; ok && a < depth; a++)
+      v -= b[a] * (o->dX[(size_t)a * ns + s] + o->dF[(size_t)a * ns + s]);
+    xs[s] += v;
+  }
+}
+
+int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
+                     const double *rw, double target, double rate,
+                     int max_outer, double *ps1, double *pf, double *res) {
+  const int ns = o->ns, nf = o->nf, p = o->p;
+  const double dT = st->dT;
+  double *xs = x, *xf = x + ns;
+  double g_prev = HUGE_VAL;
+  o->stats.steps++;
+  for (int k = 1; k <= max_outer; k++) {
+    /* Inexact sweeps: the rows are solved only as far as the slow row's
+     * residual makes worthwhile -- in the first sweep by OUTER_CUT of
+     * their first residual, then to OUTER_CUT times the slow residual of
+     * the sweep before (the slow update changes them again) -- and to the
+     * target where that is below: a sweep ends the iteration only where
+     * every row met the target. */
+    const double row_target =
+        k == 1 ? target : fmax(target, OUTER_CUT * g_prev);
+    double rows = 0.0;
+    o->met = 1;
+    o->stats.sweeps++;
+    memcpy(o->pm, st->pf0, (size_t)nf * sizeof(double));
+    memset(o->fs, 0, (size_t)ns * sizeof(double));
+    memset(ps1, 0, (size_t)ns * sizeof(double));
+    for (int mm = 0; mm < p; mm++) {
+      double *dn = xf + (size_t)mm * (size_t)nf;
+      const double *dm = mm == 0 ? NULL : dn - nf;
+      /* start from the last sweep's node, moved by the change of the nodes
+       * before in this sweep extrapolated (none in the first sweep; the
+       * response to a slow update is smooth in m) */
+      const double *d1 = o->dlt[0], *d2 = o->dlt[1], *d3 = o->dlt[2];
+      for (int f = 0; f < nf; f++) {
+        o->dold[f] = dn[f];
+        if (k > 1 && mm >= 3)
+          dn[f] += 3.0 * d1[f] - 3.0 * d2[f] + d3[f];
+        else if (k > 1 && mm == 2)
+          dn[f] += 2.0 * d1[f] - d2[f];
+        else if (k > 1 && mm == 1)
+          dn[f] += d1[f];
+      }
+      const double r = solve_row(o, st, mm, xs, dm, dn,
+                                 rw ? rw + ns + (size_t)mm * nf : NULL,
+                                 row_target, k == 1 ? OUTER_CUT : 0.0, rate,
+                                 max_outer, ps1, pf + (size_t)mm * nf);
+      if (r < 0.0) {
+        o->stats.failed++;
+        return 0;
+      }
+      rows = fmax(rows, r);
+      double *t = o->dlt[2];
+      o->dlt[2] = o->dlt[1];
+      o->dlt[1] = o->dlt[0];
+      o->dlt[0] = t;
+      for (int f = 0; f < nf; f++)
+        t[f] = dn[f] - o->dold[f];
+    }
+    /* the slow row at the swept nodes */
+    double g = 0.0, sum = 0.0, scale = 0.0;
+    for (int s = 0; s < ns; s++) {
+      const double G = st->ps0[s] - o->m_s[s] * xs[s] / dT - o->fs[s];
+      const double w = rw ? rw[s] : 1.0, a = fabs(G) * w;
+      g = a > g ? a : g;
+      sum += a;
+      scale = fmax(scale, (fabs(st->ps0[s]) + o->m_s[s] * fabs(xs[s]) / dT +
+                           fabs(o->fs[s])) *
+                              w);
+      o->fs[s] = G;
+    }
+    /* (at or stalled at the rounding of the slow row's terms) */
+    const double floor = 16.0 * DBL_EPSILON * scale;
+    const int stalled = k > 1 && !(g <= rate * g_prev) && g <= 8.0 * floor;
+    if (isnan(sum) || (k > 1 && !stalled && !(g <= rate * g_prev))) {
+      o->stats.failed++;
+      return 0;
+    }
+    if (k > 1 && (g <= fmax(target, floor) || stalled) && o->met &&
+        row_target == target) {
+      *res = fmax(g, rows);
+      return k;
+    }
+    g_prev = g;
+    slow_update(o, xs, k - 1, dT);
+    o->stats.slow_updates++;
+  }
+  o->stats.failed++;
+  return 0;
+}
