@@ -20,8 +20,11 @@
 enum { KT_LINEAR, KT_POWER, KT_LAW, KT_ELEMENT };
 enum { K_ANY = -2 }; /* law of a compact record: its own (kterm4.k) */
 typedef struct kterm {
-  int kind, n, first; /* inputs col[first..first+n), coef[first..] */
-  int k;              /* integer exponent (KT_POWER) */
+  /* inputs col[first..first+n) and, for an element with coefficients (terms,
+   * gravity), coef[cfirst..cfirst+n); a spring or anchor compiled to a
+   * kspring record has neither (its columns are in the record) */
+  int kind, n, first, cfirst;
+  int k;   /* integer exponent (KT_POWER) */
   int run; /* KT_LINEAR with one input: the number of such terms from here */
   double c, e, shift; /* stiffness or coefficient, exponent, offset b */
   const mrvi_element *el;
@@ -125,17 +128,24 @@ static int spring_law(const mrvi_element *e) {
   return KS_LAW;
 }
 
+/* Whether e is compiled to a kspring record (a spring or an anchor of
+ * points, not of body points, which carry coefficients). */
+static int spring_record(const mrvi_element *e, int dim) {
+  const int two = e->kind == MRVI_ELEMENT_SPRING;
+  return (two || e->kind == MRVI_ELEMENT_ANCHOR) && dim >= 1 && dim <= 3 &&
+         e->n_in == (two ? 2 : 1) * dim && !e->coef;
+}
+
 /* The springs and anchors of kc as compact records, in runs of one kind
- * (spring or anchor) and one law code. */
-static int terms_springs(mrvi_terms *kc) {
-  const int dim = kc->dim = kc->m->dimension;
+ * (spring or anchor) and one law code; their columns col_of[e->in[.]] (or
+ * e->in itself without col_of). */
+static int terms_springs(mrvi_terms *kc, const int *col_of) {
+  const int dim = kc->dim;
   int ns = 0;
   for (int ie = kc->n - 1; ie >= 0; ie--) {
     kterm *t = &kc->t[ie];
     const mrvi_element *e = t->el;
-    const int two = e->kind == MRVI_ELEMENT_SPRING;
-    if (!(two || e->kind == MRVI_ELEMENT_ANCHOR) || dim < 1 || dim > 3 ||
-        e->n_in != (two ? 2 : 1) * dim || e->coef) /* coef: body points */
+    if (!spring_record(e, dim))
       continue;
     const kterm *u = ie + 1 < kc->n ? &kc->t[ie + 1] : NULL;
     const int same = u && u->runs > 0 && u->el->kind == e->kind &&
@@ -163,8 +173,9 @@ static int terms_springs(mrvi_terms *kc) {
     q->ce = e->params[0] * e->params[1];
     q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
     for (int k = 0; k < dim; k++) {
-      q->ci[k] = kc->col[t->first + k];
-      q->cj[k] = q->two ? kc->col[t->first + dim + k] : 0;
+      const int *in = e->in;
+      q->ci[k] = col_of ? col_of[in[k]] : in[k];
+      q->cj[k] = q->two ? (col_of ? col_of[in[dim + k]] : in[dim + k]) : 0;
       q->a[k] = e->anchor[k];
     }
     int consecutive = q->two && q->k == KS_HOOKE;
@@ -189,18 +200,22 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
   *out = NULL;
   if (!kc)
     return MRVI_ENOMEM;
-  int n_in = 0, max_in = 1;
+  const int dim = kc->dim = m->dimension;
+  /* Columns for the elements without a kspring record, coefficients for
+   * those that have them. */
+  int n_col = 0, n_coef = 0, max_in = 1;
   for (int ie = 0; ie < n_elems; ie++) {
-    const int k = m->elements[elems[ie]].n_in;
-    n_in += k;
-    max_in = k > max_in ? k : max_in;
+    const mrvi_element *e = &m->elements[elems[ie]];
+    n_col += spring_record(e, dim) ? 0 : e->n_in;
+    n_coef += e->coef ? e->n_in : 0;
+    max_in = e->n_in > max_in ? e->n_in : max_in;
   }
   const size_t mi = (size_t)max_in;
   kc->m = m;
   kc->n = n_elems;
   kc->t = calloc((size_t)(n_elems > 0 ? n_elems : 1), sizeof *kc->t);
-  kc->col = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->col);
-  kc->coef = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->coef);
+  kc->col = calloc((size_t)(n_col > 0 ? n_col : 1), sizeof *kc->col);
+  kc->coef = calloc((size_t)(n_coef > 0 ? n_coef : 1), sizeof *kc->coef);
   kc->y = calloc(mi, sizeof *kc->y);
   kc->g = calloc(mi, sizeof *kc->g);
   kc->H = calloc(mi * mi, sizeof *kc->H);
@@ -208,13 +223,14 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     mrvi_terms_free(kc);
     return MRVI_ENOMEM;
   }
-  int first = 0;
+  int first = 0, cfirst = 0;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
     kterm *t = &kc->t[ie];
     t->el = e;
     t->n = e->n_in;
     t->first = first;
+    t->cfirst = cfirst;
     t->kind = KT_ELEMENT;
     if (e->kind == MRVI_ELEMENT_TERM) {
       t->kind = e->form == MRVI_LAW_FORM_HOOKE ? KT_LINEAR : KT_LAW;
@@ -226,10 +242,15 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
         t->k = (int)t->e;
       }
     }
-    for (int j = 0; j < e->n_in; j++) {
-      kc->col[first + j] = col_of ? col_of[e->in[j]] : e->in[j];
-      kc->coef[first + j] = e->coef ? e->coef[j] : 0.0;
+    if (e->coef) {
+      for (int j = 0; j < e->n_in; j++)
+        kc->coef[cfirst + j] = e->coef[j];
+      cfirst += e->n_in;
     }
+    if (spring_record(e, dim))
+      continue;
+    for (int j = 0; j < e->n_in; j++)
+      kc->col[first + j] = col_of ? col_of[e->in[j]] : e->in[j];
     first += e->n_in;
   }
   /* Runs of one-input linear terms (k q^2/2 on a coordinate: the stiff
@@ -271,10 +292,10 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     q->ce1 = t->c * t->e * (t->e - 1);
     for (int j = 0; j < t->n; j++) {
       q->col[j] = kc->col[t->first + j];
-      q->a[j] = kc->coef[t->first + j];
+      q->a[j] = kc->coef[t->cfirst + j];
     }
   }
-  if (terms_springs(kc) < 0) {
+  if (terms_springs(kc, col_of) < 0) {
     mrvi_terms_free(kc);
     return MRVI_ENOMEM;
   }
@@ -575,7 +596,7 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
       continue;
     }
     const int n = t->n, *col = kc->col + t->first;
-    const double *a = kc->coef + t->first;
+    const double *a = kc->coef + t->cfirst;
     if (t->run > 1) { /* as below, one input each */
       run1_eval(t, t->run, col, a, z, scale, g, J, ld, hscale);
       it += t->run - 1;
@@ -1184,7 +1205,17 @@ double mrvi_terms_value(mrvi_terms *kc, const double *z) {
   for (int it = 0; it < kc->n; it++) {
     const kterm *t = &kc->t[it];
     const int n = t->n, *col = kc->col + t->first;
-    const double *a = kc->coef + t->first;
+    const double *a = kc->coef + t->cfirst;
+    if (t->runs > 0) { /* a kspring record's inputs: x_i, then x_j */
+      const kspring *q = &kc->qs[t->qs];
+      for (int k = 0; k < kc->dim; k++) {
+        kc->y[k] = z[q->ci[k]];
+        if (q->two)
+          kc->y[kc->dim + k] = z[q->cj[k]];
+      }
+      total += mrvi_element_eval(kc->m, t->el, kc->y, NULL, NULL);
+      continue;
+    }
     if (t->kind == KT_ELEMENT) {
       if (t->el->kind == MRVI_ELEMENT_GRAVITY) { /* input by input */
         for (int j = 0; j < n; j++)
