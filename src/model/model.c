@@ -77,6 +77,10 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->slow_index);
   free(m->fast_index);
   free(m->slot);
+  for (int i = 0; i < m->n_param_sets; i++)
+    free(m->param_sets[i]);
+  free(m->param_sets);
+  free(m->param_table);
   free(m->coord_table);
   free(m->particle_table);
   free(m->name);
@@ -108,6 +112,14 @@ int mrvi_model_set_dimension(mrvi_model *m, int dimension) {
                            "were added");
   m->dimension = dimension;
   return MRVI_OK;
+}
+
+static void fnv(unsigned long long *h, const void *data, size_t n) {
+  const unsigned char *b = data;
+  for (size_t i = 0; i < n; i++) {
+    *h ^= b[i];
+    *h *= 1099511628211ULL;
+  }
 }
 
 /* ---------------------------------------------------------------------------
@@ -363,6 +375,49 @@ static int alloc_inputs(mrvi_model *m, mrvi_element *e) {
   return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
 }
 
+/* Parameter sets: v (MRVI_LAW_MAX_PARAMS values) stored once per model, so
+ * that the elements of a network share the few sets they have; NULL when
+ * out of memory.  Sets are equal when their bits are (NaN, -0). */
+static unsigned long long set_hash(const double *v) {
+  unsigned long long h = 14695981039346656037ULL;
+  fnv(&h, v, MRVI_LAW_MAX_PARAMS * sizeof *v);
+  return h;
+}
+
+static const double *intern_params(mrvi_model *m, const double *v) {
+  const size_t bytes = MRVI_LAW_MAX_PARAMS * sizeof *v;
+  if (2 * (m->n_param_sets + 1) > m->param_table_cap) {
+    const int c = m->param_table_cap ? 2 * m->param_table_cap : 64;
+    int *t = calloc((size_t)c, sizeof *t);
+    if (!t)
+      return NULL;
+    for (int i = 0; i < m->n_param_sets; i++) {
+      size_t h = set_hash(m->param_sets[i]) & (size_t)(c - 1);
+      while (t[h] != 0)
+        h = (h + 1) & (size_t)(c - 1);
+      t[h] = i + 1;
+    }
+    free(m->param_table);
+    m->param_table = t;
+    m->param_table_cap = c;
+  }
+  const size_t mask = (size_t)(m->param_table_cap - 1);
+  size_t h = set_hash(v) & mask;
+  for (; m->param_table[h] != 0; h = (h + 1) & mask)
+    if (memcmp(m->param_sets[m->param_table[h] - 1], v, bytes) == 0)
+      return m->param_sets[m->param_table[h] - 1];
+  double *set = malloc(bytes);
+  if (!set || grow((void **)&m->param_sets, &m->cap_param_sets,
+                   m->n_param_sets + 1, sizeof *m->param_sets)) {
+    free(set);
+    return NULL;
+  }
+  memcpy(set, v, bytes);
+  m->param_sets[m->n_param_sets++] = set;
+  m->param_table[h] = m->n_param_sets;
+  return set;
+}
+
 /* Look up the law and copy and check its parameters. */
 int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
                        const double *params, const char *what) {
@@ -374,13 +429,16 @@ int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
   if (e->law->n_params > 0 && !params)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: law '%s' needs parameters",
                            what, law);
+  double v[MRVI_LAW_MAX_PARAMS] = {0};
   for (int i = 0; i < e->law->n_params; i++)
-    e->params[i] = params[i];
+    v[i] = params[i];
   if (e->law->check) {
     char msg[256] = "";
-    if (e->law->check(e->params, msg, sizeof msg) < 0)
+    if (e->law->check(v, msg, sizeof msg) < 0)
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: %s", what, msg);
   }
+  if (!(e->params = intern_params(m, v)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   return MRVI_OK;
 }
 
@@ -884,10 +942,13 @@ int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
                     .particle_i = particle_i,
                     .particle_j = particle_j,
                     .particle_k = particle_k};
-  e.params[0] = stiffness;
-  e.params[1] = cos(rest_angle);
+  double v[MRVI_LAW_MAX_PARAMS] = {0};
+  v[0] = stiffness;
+  v[1] = cos(rest_angle);
   /* sin(pi) is 1.2e-16, not 0: keep the smooth straight case exact. */
-  e.params[2] = rest_angle == M_PI || rest_angle == 0 ? 0.0 : sin(rest_angle);
+  v[2] = rest_angle == M_PI || rest_angle == 0 ? 0.0 : sin(rest_angle);
+  if (!(e.params = intern_params(m, v)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int parts[3] = {particle_i, particle_j, particle_k}, st;
   if ((st = particle_inputs(m, &e, 3, parts)) < 0)
     return st;
@@ -1411,14 +1472,6 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q, const double *p,
 /* ---------------------------------------------------------------------------
  * Fingerprint (FNV-1a over the defining data)
  * ------------------------------------------------------------------------- */
-static void fnv(unsigned long long *h, const void *data, size_t n) {
-  const unsigned char *b = data;
-  for (size_t i = 0; i < n; i++) {
-    *h ^= b[i];
-    *h *= 1099511628211ULL;
-  }
-}
-
 unsigned long long mrvi_model_hash(const mrvi_model *m) {
   unsigned long long h = 1469598103934665603ULL;
   fnv(&h, &m->n, sizeof m->n);

@@ -27,7 +27,10 @@ typedef struct mrvi_element {
   mrvi_rate potential; /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
   const mrvi_law *law; /* NULL for gravity */
   mrvi_law_form form;  /* law->form (set with the law) */
-  double params[MRVI_LAW_MAX_PARAMS];
+  /* law->n_params values (angles: 3), one copy per distinct set shared by
+   * the elements that have it (model.c, intern_params); NULL for elements
+   * without parameters */
+  const double *params;
   double shift; /* rest length (springs) or offset b (terms) */
   double anchor[3];
   int particle_i, particle_j; /* springs; -1 if unused */
@@ -85,6 +88,12 @@ struct mrvi_model {
   mrvi_constraint *constraints;
   int constraint_rows;      /* sum of rows */
   int max_constraint_in;    /* largest n_in of a constraint */
+  /* The elements' parameter sets (model.c, intern_params): each distinct
+   * one once (MRVI_LAW_MAX_PARAMS values, unused ones 0), found by an
+   * open-addressing table of set indices (0 = empty, else index + 1). */
+  double **param_sets;
+  int n_param_sets, cap_param_sets;
+  int *param_table, param_table_cap;
   int n_bodies, cap_bodies; /* rigid bodies (model/bodies.c) */
   struct mrvi_body *bodies;
   char errmsg[512];
