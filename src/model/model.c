@@ -56,10 +56,9 @@ static void free_constraints(mrvi_model *m) {
 void mrvi_model_free(mrvi_model *m) {
   if (!m)
     return;
-  for (int i = 0; i < m->n; i++)
-    free(m->names[i]);
-  for (int i = 0; i < m->n_particles; i++)
-    free(m->particles[i].name);
+  for (int i = 0; i < m->n_name_blocks; i++)
+    free(m->name_blocks[i]);
+  free(m->name_blocks);
   for (int e = 0; e < m->n_elements; e++) {
     free(m->elements[e].in);
     free(m->elements[e].coef);
@@ -234,6 +233,29 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   return 0;
 }
 
+/* A copy of name in the model's name blocks (freed with the model), or NULL
+ * when out of memory: a block holds the names of many coordinates, without
+ * the allocator's per-allocation overhead. */
+static char *store_name(mrvi_model *m, const char *name) {
+  const size_t len = strlen(name) + 1;
+  if (m->n_name_blocks == 0 || m->name_used + len > m->name_cap) {
+    const size_t cap = len > 65536 ? len : 65536;
+    char *b = malloc(cap);
+    if (!b || grow((void **)&m->name_blocks, &m->cap_name_blocks,
+                   m->n_name_blocks + 1, sizeof *m->name_blocks)) {
+      free(b);
+      return NULL;
+    }
+    m->name_blocks[m->n_name_blocks++] = b;
+    m->name_used = 0;
+    m->name_cap = cap;
+  }
+  char *d = m->name_blocks[m->n_name_blocks - 1] + m->name_used;
+  memcpy(d, name, len);
+  m->name_used += len;
+  return d;
+}
+
 static int add_coord(mrvi_model *m, const char *name, double mass,
                      mrvi_rate rate, double q0, double v0) {
   if (!name || !*name)
@@ -253,7 +275,7 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   if (reserve_coordinates(m, m->n + 1) ||
       table_reserve(&m->coord_table, &m->coord_table_cap, m->n, coord_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  char *d = strdup(name);
+  char *d = store_name(m, name);
   if (!d)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   m->names[m->n] = d;
@@ -302,7 +324,7 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
            sizeof *m->particles))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  char *pname = strdup(name);
+  char *pname = store_name(m, name);
   if (!pname)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int first = m->n;
@@ -310,10 +332,8 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
     char buf[256];
     mrvi_fmt(buf, sizeof buf, "%s.%c", name, axis[d]);
     int st = add_coord(m, buf, mass, rate, x0[d], v0[d]);
-    if (st < 0) {
-      free(pname);
+    if (st < 0)
       return st;
-    }
   }
   m->particles[m->n_particles].name = pname;
   m->particles[m->n_particles].first = first;

@@ -94,6 +94,11 @@ struct mrvi_model {
   double **param_sets;
   int n_param_sets, cap_param_sets;
   int *param_table, param_table_cap;
+  /* The coordinates' and particles' names, packed in blocks (model.c,
+   * store_name) instead of one allocation each. */
+  char **name_blocks;
+  int n_name_blocks, cap_name_blocks;
+  size_t name_used, name_cap; /* in the last block */
   int n_bodies, cap_bodies; /* rigid bodies (model/bodies.c) */
   struct mrvi_body *bodies;
   char errmsg[512];
