@@ -377,6 +377,7 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   if (e->kind != MRVI_ELEMENT_GRAVITY && e->n_in > m->max_in)
     m->max_in = e->n_in;
   m->elements[m->n_elements] = *e;
+  m->n_torsions += e->kind == MRVI_ELEMENT_TORSION;
   return m->n_elements++;
 }
 

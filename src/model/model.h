@@ -84,6 +84,7 @@ struct mrvi_model {
   int *slow_index, *fast_index; /* slot -> model index */
   int *slot;                    /* model index -> slot within its rate block */
   int max_in;                   /* largest n_in of a non-linear element */
+  int n_torsions;               /* elements of kind MRVI_ELEMENT_TORSION */
   int n_constraints, cap_constraints;
   mrvi_constraint *constraints;
   int constraint_rows;      /* sum of rows */
