@@ -35,14 +35,14 @@ typedef struct kterm {
 } kterm;
 
 /* Springs and anchors compact and contiguous (kspring runs): the columns of
- * x_i and x_j (x_j's unused for an anchor, whose point is a) and the law:
+ * x_i and x_j (x_j's unused for an anchor, whose point is el->anchor: read
+ * there, not copied, anchors being few beside springs) and the law:
  * k = KS_HOOKE (phi' = c s), 0..8 (c s^k, mrvi_power_derivs_ce from ce and
  * ce1) or KS_LAW (the law table of el). */
 enum { KS_HOOKE = -1, KS_LAW = -3 };
 typedef struct kspring {
   int two, k;
   int ci[3], cj[3];
-  double a[3];
   double c, shift, ce, ce1;
   const mrvi_element *el;
 } kspring;
@@ -176,7 +176,6 @@ static int terms_springs(mrvi_terms *kc, const int *col_of) {
       const int *in = e->in;
       q->ci[k] = col_of ? col_of[in[k]] : in[k];
       q->cj[k] = q->two ? (col_of ? col_of[in[dim + k]] : in[dim + k]) : 0;
-      q->a[k] = e->anchor[k];
     }
     int consecutive = q->two && q->k == KS_HOOKE;
     for (int k = 1; k < dim; k++)
@@ -444,7 +443,7 @@ ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
                                  const int dim, const int two, const int kk) {
   double d[3], r2 = 0.0;
   UNROLL for (int k = 0; k < dim; k++) {
-    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->a[k]);
+    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->el->anchor[k]);
     r2 += d[k] * d[k];
   }
   const double r = sqrt(r2), s = r - q->shift;
