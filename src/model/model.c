@@ -396,9 +396,10 @@ static int alloc_inputs(mrvi_model *m, mrvi_element *e) {
   return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
 }
 
-/* Parameter sets: v (MRVI_LAW_MAX_PARAMS values) stored once per model, so
- * that the elements of a network share the few sets they have; NULL when
- * out of memory.  Sets are equal when their bits are (NaN, -0). */
+/* Parameter sets and anchor points: v (MRVI_LAW_MAX_PARAMS values) stored
+ * once per model, so that the elements of a network share the few sets they
+ * have; NULL when out of memory.  Sets are equal when their bits are (NaN,
+ * -0). */
 static unsigned long long set_hash(const double *v) {
   unsigned long long h = 14695981039346656037ULL;
   fnv(&h, v, MRVI_LAW_MAX_PARAMS * sizeof *v);
@@ -527,11 +528,14 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
                     .shift = rest_length,
                     .particle_i = particle_i,
                     .particle_j = -1};
+  double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; k < m->dimension; k++) {
     if (!isfinite(anchor[k]))
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
-    e.anchor[k] = anchor[k];
+    point[k] = anchor[k];
   }
+  if (!(e.anchor = intern_params(m, point)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
@@ -671,11 +675,14 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
                     .shift = rest_length,
                     .particle_i = -1,
                     .particle_j = -1};
+  double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; !b && k < D; k++) {
     if (!isfinite(anchor[k]))
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
-    e.anchor[k] = anchor[k];
+    point[k] = anchor[k];
   }
+  if (!b && !(e.anchor = intern_params(m, point)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   if ((st = mrvi_model_set_law(m, &e, law, params, what)) < 0)
     return st;
   /* Inputs: the blocks of a with their weights, then those of b negated
@@ -1515,7 +1522,8 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
       fnv(&h, el->params, sizeof(double)); /* stiffness; shift is theta0 */
     }
     fnv(&h, &el->shift, sizeof el->shift);
-    fnv(&h, el->anchor, sizeof el->anchor);
+    static const double no_anchor[3];
+    fnv(&h, el->anchor ? el->anchor : no_anchor, sizeof no_anchor);
     fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
     if (el->coef)
       fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);

@@ -32,7 +32,8 @@ typedef struct mrvi_element {
    * without parameters */
   const double *params;
   double shift; /* rest length (springs) or offset b (terms) */
-  double anchor[3];
+  const double *anchor; /* anchors: the point (3 values, unused ones 0),
+                           shared like params; else NULL */
   int particle_i, particle_j; /* springs; -1 if unused */
   int particle_k;             /* angles: i-j-k with the vertex at j */
   int n_in;                   /* number of input coordinates */
