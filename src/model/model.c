@@ -56,11 +56,10 @@ static void free_constraints(mrvi_model *m) {
 void mrvi_model_free(mrvi_model *m) {
   if (!m)
     return;
-  for (int i = 0; i < m->n_name_blocks; i++)
-    free(m->name_blocks[i]);
-  free(m->name_blocks);
+  for (int i = 0; i < m->n_blocks; i++)
+    free(m->blocks[i]);
+  free(m->blocks);
   for (int e = 0; e < m->n_elements; e++) {
-    free(m->elements[e].in);
     free(m->elements[e].coef);
     free(m->elements[e].axes);
   }
@@ -233,27 +232,39 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   return 0;
 }
 
-/* A copy of name in the model's name blocks (freed with the model), or NULL
- * when out of memory: a block holds the names of many coordinates, without
- * the allocator's per-allocation overhead. */
-static char *store_name(mrvi_model *m, const char *name) {
-  const size_t len = strlen(name) + 1;
-  if (m->n_name_blocks == 0 || m->name_used + len > m->name_cap) {
-    const size_t cap = len > 65536 ? len : 65536;
+/* `bytes` in the model's blocks (freed with the model), aligned for int,
+ * or NULL when out of memory: a block holds the names and inputs of many
+ * coordinates and elements, without the allocator's per-allocation
+ * overhead. */
+static void *block_alloc(mrvi_model *m, size_t bytes) {
+  bytes = (bytes + sizeof(int) - 1) / sizeof(int) * sizeof(int);
+  if (m->n_blocks == 0 || m->block_used + bytes > m->block_cap) {
+    const size_t cap = bytes > 65536 ? bytes : 65536;
     char *b = malloc(cap);
-    if (!b || grow((void **)&m->name_blocks, &m->cap_name_blocks,
-                   m->n_name_blocks + 1, sizeof *m->name_blocks)) {
+    if (!b || grow((void **)&m->blocks, &m->cap_blocks, m->n_blocks + 1,
+                   sizeof *m->blocks)) {
       free(b);
       return NULL;
     }
-    m->name_blocks[m->n_name_blocks++] = b;
-    m->name_used = 0;
-    m->name_cap = cap;
+    m->blocks[m->n_blocks++] = b;
+    m->block_used = 0;
+    m->block_cap = cap;
   }
-  char *d = m->name_blocks[m->n_name_blocks - 1] + m->name_used;
-  memcpy(d, name, len);
-  m->name_used += len;
+  char *d = m->blocks[m->n_blocks - 1] + m->block_used;
+  m->block_used += bytes;
   return d;
+}
+
+static char *store_name(mrvi_model *m, const char *name) {
+  const size_t len = strlen(name) + 1;
+  char *d = block_alloc(m, len);
+  if (d)
+    memcpy(d, name, len);
+  return d;
+}
+
+int *mrvi_model_inputs(mrvi_model *m, int n) {
+  return block_alloc(m, (size_t)(n > 0 ? n : 1) * sizeof(int));
 }
 
 static int add_coord(mrvi_model *m, const char *name, double mass,
@@ -343,7 +354,6 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
 
 /* Release what element e (not yet pushed) owns. */
 static void drop_element(mrvi_element *e) {
-  free(e->in);
   free(e->coef);
   free(e->axes);
 }
@@ -387,11 +397,10 @@ int mrvi_model_push_element(mrvi_model *m, mrvi_element *e, const char *what) {
 
 /* Allocate e->in and e->coef (e->n_in entries each). */
 static int alloc_inputs(mrvi_model *m, mrvi_element *e) {
-  e->in = malloc((size_t)e->n_in * sizeof *e->in);
+  e->in = mrvi_model_inputs(m, e->n_in);
   e->coef = malloc((size_t)e->n_in * sizeof *e->coef);
   if (e->in && e->coef)
     return MRVI_OK;
-  free(e->in);
   free(e->coef);
   return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
 }
@@ -468,7 +477,7 @@ static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
                            const int *parts) {
   const int d = m->dimension;
   e->n_in = np * d;
-  e->in = malloc((size_t)e->n_in * sizeof *e->in);
+  e->in = mrvi_model_inputs(m, e->n_in);
   if (!e->in)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   for (int a = 0; a < np; a++)
@@ -867,10 +876,9 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
-  e.in = malloc((size_t)n_terms * sizeof *e.in);
+  e.in = mrvi_model_inputs(m, n_terms);
   e.coef = malloc((size_t)n_terms * sizeof *e.coef);
   if (!e.in || !e.coef) {
-    free(e.in);
     free(e.coef);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
@@ -1004,10 +1012,9 @@ int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
                     .particle_i = -1,
                     .particle_j = -1,
                     .n_in = n_terms};
-  e.in = malloc((size_t)n_terms * sizeof *e.in);
+  e.in = mrvi_model_inputs(m, n_terms);
   e.coef = malloc((size_t)n_terms * sizeof *e.coef);
   if (!e.in || !e.coef) {
-    free(e.in);
     free(e.coef);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }

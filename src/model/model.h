@@ -37,7 +37,7 @@ typedef struct mrvi_element {
   int particle_i, particle_j; /* springs; -1 if unused */
   int particle_k;             /* angles: i-j-k with the vertex at j */
   int n_in;                   /* number of input coordinates */
-  int *in;                    /* n_in model indices */
+  int *in; /* n_in model indices (in the model's blocks: mrvi_model_inputs) */
   double *coef;               /* n_in coefficients (terms, gravity) */
   /* Torsion (bodies.c): the frame vectors r_u, r_v of the reference (body A
    * in its frame, or the ground in space) and m_u of the moving body (its
@@ -96,11 +96,12 @@ struct mrvi_model {
   double **param_sets;
   int n_param_sets, cap_param_sets;
   int *param_table, param_table_cap;
-  /* The coordinates' and particles' names, packed in blocks (model.c,
-   * store_name) instead of one allocation each. */
-  char **name_blocks;
-  int n_name_blocks, cap_name_blocks;
-  size_t name_used, name_cap; /* in the last block */
+  /* The coordinates' and particles' names and the elements' inputs (`in`),
+   * packed in blocks (model.c, block_alloc) instead of one allocation
+   * each. */
+  char **blocks;
+  int n_blocks, cap_blocks;
+  size_t block_used, block_cap; /* in the last block */
   int n_bodies, cap_bodies; /* rigid bodies (model/bodies.c) */
   struct mrvi_body *bodies;
   char errmsg[512];
@@ -135,8 +136,12 @@ double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
 double mrvi_torsion_eval(const mrvi_element *e, int dim, const double *y,
                          double *grad, double *hess);
 /* Append element e (its inputs set) after the rate rule's check; on
- * failure e's arrays are freed (model.c).  Returns its index. */
+ * failure e's coef and axes are freed (its inputs stay in the model's
+ * blocks) (model.c).  Returns its index. */
 int mrvi_model_push_element(mrvi_model *m, mrvi_element *e, const char *what);
+/* Room for an element's n inputs in the model's blocks (freed with the
+ * model, never alone), or NULL when out of memory (model.c). */
+int *mrvi_model_inputs(mrvi_model *m, int n);
 /* e's law `law` with params, checked (model.c). */
 int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
                        const double *params, const char *what);

@@ -231,10 +231,9 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
   mrvi_joint_frame(D, axis, t);
   const int u = D == 3 ? 1 : 0, v = D == 3 ? 2 : 1;
   e.n_in = (ref >= 0 ? 2 : 1) * D * D;
-  e.in = malloc((size_t)e.n_in * sizeof *e.in);
+  e.in = mrvi_model_inputs(m, e.n_in);
   e.axes = malloc((size_t)(3 * D) * sizeof *e.axes);
   if (!e.in || !e.axes) {
-    free(e.in);
     free(e.axes);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
