@@ -136,10 +136,58 @@ static int spring_record(const mrvi_element *e, int dim) {
          e->n_in == (two ? 2 : 1) * dim && !e->coef;
 }
 
+/* The law of spring or anchor e into its record q. */
+static void spring_law_of(const mrvi_element *e, kspring *q) {
+  q->two = e->kind == MRVI_ELEMENT_SPRING;
+  q->k = spring_law(e);
+  q->el = e;
+  q->c = e->params[0];
+  q->shift = e->shift;
+  q->ce = e->params[0] * e->params[1];
+  q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
+}
+
+/* The columns of spring or anchor e into its record q: col_of[e->in[.]],
+ * or e->in itself without col_of (q->two set). */
+static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
+                        kspring *q) {
+  const int *in = e->in;
+  for (int k = 0; k < dim; k++) {
+    q->ci[k] = col_of ? col_of[in[k]] : in[k];
+    q->cj[k] = q->two ? (col_of ? col_of[in[dim + k]] : in[dim + k]) : 0;
+  }
+}
+
+/* The kspring records of a class whose every run is of khooke springs,
+ * from those (their columns consecutive from khooke's): the records
+ * terms_springs leaves out of a gradient-only class. */
+static int hooke_records(mrvi_terms *kc) {
+  int ns = 0;
+  for (int ie = 0; ie < kc->n; ie++)
+    ns += kc->t[ie].runs > 0;
+  kc->qs = calloc((size_t)(ns > 0 ? ns : 1), sizeof *kc->qs);
+  if (!kc->qs)
+    return MRVI_ENOMEM;
+  for (int ie = 0; ie < kc->n; ie++) {
+    const kterm *t = &kc->t[ie];
+    if (t->runs == 0)
+      continue;
+    kspring *q = &kc->qs[t->qs];
+    const khooke *h = &kc->qh[t->qs];
+    spring_law_of(t->el, q);
+    for (int k = 0; k < kc->dim; k++) {
+      q->ci[k] = h->ci + k;
+      q->cj[k] = h->cj + k;
+    }
+  }
+  return MRVI_OK;
+}
+
 /* The springs and anchors of kc as compact records, in runs of one kind
  * (spring or anchor) and one law code; their columns col_of[e->in[.]] (or
- * e->in itself without col_of). */
-static int terms_springs(mrvi_terms *kc, const int *col_of) {
+ * e->in itself without col_of).  grad_only: the kspring records are left
+ * out when every run is of khooke springs (mrvi_terms_create_grad). */
+static int terms_springs(mrvi_terms *kc, const int *col_of, int grad_only) {
   const int dim = kc->dim;
   int ns = 0;
   for (int ie = kc->n - 1; ie >= 0; ie--) {
@@ -154,29 +202,20 @@ static int terms_springs(mrvi_terms *kc, const int *col_of) {
     ns++;
   }
   const size_t nq = (size_t)(ns > 0 ? ns : 1);
-  kc->qs = calloc(nq, sizeof *kc->qs);
+  kc->qs = grad_only ? NULL : calloc(nq, sizeof *kc->qs);
   kc->qh = calloc(nq, sizeof *kc->qh);
   kc->hooke_run = calloc(nq, 1);
-  if (!kc->qs || !kc->qh || !kc->hooke_run)
+  if ((!grad_only && !kc->qs) || !kc->qh || !kc->hooke_run)
     return MRVI_ENOMEM;
   for (int ie = 0, is = 0; ie < kc->n; ie++) {
     kterm *t = &kc->t[ie];
     if (t->runs == 0)
       continue;
     const mrvi_element *e = t->el;
-    kspring *q = &kc->qs[t->qs = is++];
-    q->two = e->kind == MRVI_ELEMENT_SPRING;
-    q->k = spring_law(e);
-    q->el = e;
-    q->c = e->params[0];
-    q->shift = e->shift;
-    q->ce = e->params[0] * e->params[1];
-    q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
-    for (int k = 0; k < dim; k++) {
-      const int *in = e->in;
-      q->ci[k] = col_of ? col_of[in[k]] : in[k];
-      q->cj[k] = q->two ? (col_of ? col_of[in[dim + k]] : in[dim + k]) : 0;
-    }
+    kspring one, *q = kc->qs ? &kc->qs[is] : &one;
+    t->qs = is++;
+    spring_law_of(e, q);
+    spring_cols(e, col_of, dim, q);
     int consecutive = q->two && q->k == KS_HOOKE;
     for (int k = 1; k < dim; k++)
       consecutive &= q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
@@ -190,11 +229,28 @@ static int terms_springs(mrvi_terms *kc, const int *col_of) {
     if (t->runs > 1 && !kc->hooke_run[t->qs + 1])
       kc->hooke_run[t->qs] = 0;
   }
+  int all_hooke = 1;
+  for (int r = 0; r < ns; r++)
+    all_hooke &= kc->hooke_run[r];
+  if (kc->qs || all_hooke)
+    return MRVI_OK;
+  /* (gradient only, some run not of khooke springs: the records after all) */
+  kc->qs = calloc(nq, sizeof *kc->qs);
+  if (!kc->qs)
+    return MRVI_ENOMEM;
+  for (int ie = 0; ie < kc->n; ie++) {
+    const kterm *t = &kc->t[ie];
+    if (t->runs == 0)
+      continue;
+    kspring *q = &kc->qs[t->qs];
+    spring_law_of(t->el, q);
+    spring_cols(t->el, col_of, dim, q);
+  }
   return MRVI_OK;
 }
 
-int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
-                      const int *col_of, mrvi_terms **out) {
+static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                        const int *col_of, int grad_only, mrvi_terms **out) {
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
@@ -294,7 +350,7 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
       q->a[j] = kc->coef[t->cfirst + j];
     }
   }
-  if (terms_springs(kc, col_of) < 0) {
+  if (terms_springs(kc, col_of, grad_only) < 0) {
     mrvi_terms_free(kc);
     return MRVI_ENOMEM;
   }
@@ -311,6 +367,16 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
           kc->sym = 0;
   *out = kc;
   return MRVI_OK;
+}
+
+int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                      const int *col_of, mrvi_terms **out) {
+  return terms_create(m, elems, n_elems, col_of, 0, out);
+}
+
+int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
+                           const int *col_of, mrvi_terms **out) {
+  return terms_create(m, elems, n_elems, col_of, 1, out);
 }
 
 /* One term phi(a^T z - b) with n inputs: gradient into g, Hessian into J
@@ -886,6 +952,8 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
     ns += kc->t[i].runs > 0;
   if (threads <= 1 || chunk < 1 || ns != kc->n || kc->n < 2 * chunk)
     return MRVI_OK;
+  if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
+    return MRVI_ENOMEM;
   const int dim = kc->dim, nw = 2 * dim;
   int ncol = 1;
   for (int r = 0; r < kc->n; r++)
