@@ -74,6 +74,11 @@ struct mrvi_terms {
   kterm4 *q4;
   kspring *qs;
   khooke *qh;               /* per record of qs (used where hooke_run) */
+  /* A gradient-only class of khooke springs alone (hooke_class): qh and
+   * els (the records' elements) without t, col, coef or hooke_run; its
+   * gradient is hooke_grad over qh, one run. */
+  int hooke_only;
+  const mrvi_element **els;
   unsigned char *hooke_run; /* per record of qs: the run from it is of
                                khooke springs */
   int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
@@ -111,6 +116,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->q4);
   free(kc->qs);
   free(kc->qh);
+  free(kc->els);
   free(kc->hooke_run);
   free(kc->wcol);
   free(kc->gb_col);
@@ -158,29 +164,71 @@ static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
   }
 }
 
+/* Element i of kc (in class order). */
+static const mrvi_element *el_of(const mrvi_terms *kc, int i) {
+  return kc->hooke_only ? kc->els[i] : kc->t[i].el;
+}
+
 /* The kspring records of a class whose every run is of khooke springs,
  * from those (their columns consecutive from khooke's): the records
- * terms_springs leaves out of a gradient-only class. */
+ * terms_springs and hooke_class leave out of a gradient-only class. */
 static int hooke_records(mrvi_terms *kc) {
   int ns = 0;
   for (int ie = 0; ie < kc->n; ie++)
-    ns += kc->t[ie].runs > 0;
+    ns += kc->hooke_only || kc->t[ie].runs > 0;
   kc->qs = calloc((size_t)(ns > 0 ? ns : 1), sizeof *kc->qs);
   if (!kc->qs)
     return MRVI_ENOMEM;
   for (int ie = 0; ie < kc->n; ie++) {
-    const kterm *t = &kc->t[ie];
-    if (t->runs == 0)
+    if (!kc->hooke_only && kc->t[ie].runs == 0)
       continue;
-    kspring *q = &kc->qs[t->qs];
-    const khooke *h = &kc->qh[t->qs];
-    spring_law_of(t->el, q);
+    const int r = kc->hooke_only ? ie : kc->t[ie].qs;
+    kspring *q = &kc->qs[r];
+    const khooke *h = &kc->qh[r];
+    spring_law_of(el_of(kc, ie), q);
     for (int k = 0; k < kc->dim; k++) {
       q->ci[k] = h->ci + k;
       q->cj[k] = h->cj + k;
     }
   }
   return MRVI_OK;
+}
+
+/* A gradient-only class whose elements are all Hooke springs on
+ * consecutive columns (terms_springs would make them one run of khooke
+ * springs): their khooke records and elements alone, no kterm (the
+ * lattices' classes on the explicit paths).  0 if the class is not such,
+ * else 1, or MRVI_ENOMEM. */
+static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
+                       int n_elems, const int *col_of) {
+  const int dim = kc->dim;
+  if (n_elems < 1)
+    return 0;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    if (!spring_record(e, dim) || e->kind != MRVI_ELEMENT_SPRING ||
+        spring_law(e) != KS_HOOKE)
+      return 0;
+    kspring q = {.two = 1};
+    spring_cols(e, col_of, dim, &q);
+    for (int k = 1; k < dim; k++)
+      if (q.ci[k] != q.ci[0] + k || q.cj[k] != q.cj[0] + k)
+        return 0;
+  }
+  kc->qh = malloc((size_t)n_elems * sizeof *kc->qh);
+  kc->els = malloc((size_t)n_elems * sizeof *kc->els);
+  if (!kc->qh || !kc->els)
+    return MRVI_ENOMEM;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    kspring q = {.two = 1};
+    spring_law_of(e, &q);
+    spring_cols(e, col_of, dim, &q);
+    kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
+    kc->els[ie] = e;
+  }
+  kc->hooke_only = 1;
+  return 1;
 }
 
 /* The springs and anchors of kc as compact records, in runs of one kind
@@ -256,6 +304,17 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   if (!kc)
     return MRVI_ENOMEM;
   const int dim = kc->dim = m->dimension;
+  kc->m = m;
+  kc->n = n_elems;
+  const int hc = grad_only ? hooke_class(kc, m, elems, n_elems, col_of) : 0;
+  if (hc < 0) {
+    mrvi_terms_free(kc);
+    return hc;
+  }
+  if (hc > 0) {
+    *out = kc;
+    return MRVI_OK;
+  }
   /* Columns for the elements without a kspring record, coefficients for
    * those that have them. */
   int n_col = 0, n_coef = 0, max_in = 1;
@@ -266,8 +325,6 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
     max_in = e->n_in > max_in ? e->n_in : max_in;
   }
   const size_t mi = (size_t)max_in;
-  kc->m = m;
-  kc->n = n_elems;
   kc->t = calloc((size_t)(n_elems > 0 ? n_elems : 1), sizeof *kc->t);
   kc->col = calloc((size_t)(n_col > 0 ? n_col : 1), sizeof *kc->col);
   kc->coef = calloc((size_t)(n_coef > 0 ? n_coef : 1), sizeof *kc->coef);
@@ -699,7 +756,9 @@ static void flat_eval(const mrvi_terms *kc, const double *z, double *g,
 
 void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale) {
-  if (kc->flat && J && scale == 1.0 && hscale == 1.0)
+  if (kc->hooke_only) /* (gradient only: scale 1, no J) */
+    mrvi_terms_grad(kc, z, g);
+  else if (kc->flat && J && scale == 1.0 && hscale == 1.0)
     flat_eval(kc, z, g, J, ld); /* (a call: see flat_grad) */
   else
     terms_eval_any(kc, z, scale, g, J, ld, hscale);
@@ -854,7 +913,7 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 
 int mrvi_terms_quadratic(const mrvi_terms *kc) {
   for (int i = 0; i < kc->n; i++)
-    if (!mrvi_element_is_quadratic(kc->t[i].el))
+    if (!mrvi_element_is_quadratic(el_of(kc, i)))
       return 0;
   return 1;
 }
@@ -949,7 +1008,7 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
   kc->threads = 1;
   int ns = 0;
   for (int i = 0; i < kc->n; i++)
-    ns += kc->t[i].runs > 0;
+    ns += kc->hooke_only || kc->t[i].runs > 0;
   if (threads <= 1 || chunk < 1 || ns != kc->n || kc->n < 2 * chunk)
     return MRVI_OK;
   if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
@@ -1018,6 +1077,8 @@ int mrvi_terms_threads(const mrvi_terms *kc) {
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
     par_grad(kc, z, g);
+  else if (kc->hooke_only)
+    hooke_grad(kc->qh, kc->n, z, g, kc->dim);
   else if (kc->flat)
     flat_grad(kc, z, g);
   else
@@ -1240,6 +1301,8 @@ static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
 int mrvi_terms_springs_only(const mrvi_terms *kc) {
   if (kc->n < 1)
     return 0;
+  if (kc->hooke_only)
+    return 1;
   for (int it = 0; it < kc->n; it++)
     if (kc->t[it].runs < 1)
       return 0;
