@@ -204,17 +204,7 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   const int dim = kc->dim;
   if (n_elems < 1)
     return 0;
-  for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
-    if (!spring_record(e, dim) || e->kind != MRVI_ELEMENT_SPRING ||
-        spring_law(e) != KS_HOOKE)
-      return 0;
-    kspring q = {.two = 1};
-    spring_cols(e, col_of, dim, &q);
-    for (int k = 1; k < dim; k++)
-      if (q.ci[k] != q.ci[0] + k || q.cj[k] != q.cj[0] + k)
-        return 0;
-  }
+  /* (one pass, the records made as the elements are checked) */
   kc->qh = malloc((size_t)n_elems * sizeof *kc->qh);
   kc->els = malloc((size_t)n_elems * sizeof *kc->els);
   if (!kc->qh || !kc->els)
@@ -222,8 +212,21 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
     kspring q = {.two = 1};
-    spring_law_of(e, &q);
-    spring_cols(e, col_of, dim, &q);
+    int ok = spring_record(e, dim) && e->kind == MRVI_ELEMENT_SPRING &&
+             spring_law(e) == KS_HOOKE;
+    if (ok) {
+      spring_law_of(e, &q);
+      spring_cols(e, col_of, dim, &q);
+    }
+    for (int k = 1; ok && k < dim; k++)
+      ok = q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
+    if (!ok) {
+      free(kc->qh);
+      free(kc->els);
+      kc->qh = NULL;
+      kc->els = NULL;
+      return 0;
+    }
     kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
     kc->els[ie] = e;
   }
