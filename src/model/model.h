@@ -31,14 +31,14 @@ typedef struct mrvi_element {
    * the elements that have it (model.c, intern_params); NULL for elements
    * without parameters */
   const double *params;
-  double shift; /* rest length (springs) or offset b (terms) */
-  const double *anchor; /* anchors: the point (3 values, unused ones 0),
-                           shared like params; else NULL */
+  double shift;               /* rest length (springs) or offset b (terms) */
+  const double *anchor;       /* anchors: the point (3 values, unused ones 0),
+                                 shared like params; else NULL */
   int particle_i, particle_j; /* springs; -1 if unused */
   int particle_k;             /* angles: i-j-k with the vertex at j */
   int n_in;                   /* number of input coordinates */
-  int *in; /* n_in model indices (in the model's blocks: mrvi_model_inputs) */
-  double *coef;               /* n_in coefficients (terms, gravity) */
+  int *in;      /* n_in model indices (in blocks: mrvi_model_inputs) */
+  double *coef; /* n_in coefficients (terms, gravity) */
   /* Torsion (bodies.c): the frame vectors r_u, r_v of the reference (body A
    * in its frame, or the ground in space) and m_u of the moving body (its
    * frame), dimension entries each; NULL for other kinds. */
@@ -88,8 +88,8 @@ struct mrvi_model {
   int n_torsions;               /* elements of kind MRVI_ELEMENT_TORSION */
   int n_constraints, cap_constraints;
   mrvi_constraint *constraints;
-  int constraint_rows;      /* sum of rows */
-  int max_constraint_in;    /* largest n_in of a constraint */
+  int constraint_rows;   /* sum of rows */
+  int max_constraint_in; /* largest n_in of a constraint */
   /* The elements' parameter sets (model.c, intern_params): each distinct
    * one once (MRVI_LAW_MAX_PARAMS values, unused ones 0), found by an
    * open-addressing table of set indices (0 = empty, else index + 1). */
@@ -102,7 +102,7 @@ struct mrvi_model {
   char **blocks;
   int n_blocks, cap_blocks;
   size_t block_used, block_cap; /* in the last block */
-  int n_bodies, cap_bodies; /* rigid bodies (model/bodies.c) */
+  int n_bodies, cap_bodies;     /* rigid bodies (model/bodies.c) */
   struct mrvi_body *bodies;
   char errmsg[512];
 };

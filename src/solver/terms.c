@@ -73,7 +73,7 @@ struct mrvi_terms {
   double *y, *g, *H; /* element workspace */
   kterm4 *q4;
   kspring *qs;
-  khooke *qh;               /* per record of qs (used where hooke_run) */
+  khooke *qh; /* per record of qs (used where hooke_run) */
   /* A gradient-only class of khooke springs alone (hooke_class): qh and
    * els (the records' elements) without t, col, coef or hooke_run; its
    * gradient is hooke_grad over qh, one run. */
