@@ -651,16 +651,20 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     it->qf = alloc(nf);
     it->pf = alloc(nf);
   }
+  /* The residual, the update and the reduced right-hand side are the Newton
+   * paths' (update != NULL); the sweep paths' step Jacobian solve allocates
+   * dx when first asked (mrvi_integrator_jacobian_solve). */
+  const size_t nn = path_ops_of(it->path)->update ? nu : 0;
   it->x = alloc(nu);
-  it->R = alloc(nu);
-  it->dx = alloc(nu);
+  it->R = alloc(nn);
+  it->dx = alloc(nn);
   it->ps1 = alloc(ns);
   it->micro_q = alloc(p * nf);
   it->micro_p = alloc(p * nf);
   it->node_stride = nf;
   it->lambda = alloc((size_t)m->constraint_rows);
   it->micro_cres = alloc(p);
-  it->rhs = alloc(nu); /* the joint-reduced system: at most n_total */
+  it->rhs = alloc(nn); /* the joint-reduced system: at most n_total */
   const size_t R = (size_t)m->constraint_rows;
   it->cg = alloc(R);
   /* Dense G and Gram up to MRVI_GRAM_DENSE_MAX rows, the sparse Gram
@@ -1688,6 +1692,15 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
       st->qs0 = qs0;
       st->qf0 = qf0;
       return fail(it, s, "out of memory");
+    }
+    if (!it->ops->update && !it->jac_nw) { /* (a sweep path: see create) */
+      double *dx = realloc(it->dx, (size_t)st->n_total * sizeof *dx);
+      if (!dx) {
+        st->qs0 = qs0;
+        st->qf0 = qf0;
+        return fail(it, MRVI_ENOMEM, "out of memory");
+      }
+      it->dx = dx;
     }
     mrvi_step_assemble(st, it->x, it->dx, 1);
     st->qs0 = qs0;

@@ -56,12 +56,10 @@ static void free_constraints(mrvi_model *m) {
 void mrvi_model_free(mrvi_model *m) {
   if (!m)
     return;
-  for (int i = 0; i < m->n; i++)
-    free(m->names[i]);
-  for (int i = 0; i < m->n_particles; i++)
-    free(m->particles[i].name);
+  for (int i = 0; i < m->n_blocks; i++)
+    free(m->blocks[i]);
+  free(m->blocks);
   for (int e = 0; e < m->n_elements; e++) {
-    free(m->elements[e].in);
     free(m->elements[e].coef);
     free(m->elements[e].axes);
   }
@@ -77,6 +75,10 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->slow_index);
   free(m->fast_index);
   free(m->slot);
+  for (int i = 0; i < m->n_param_sets; i++)
+    free(m->param_sets[i]);
+  free(m->param_sets);
+  free(m->param_table);
   free(m->coord_table);
   free(m->particle_table);
   free(m->name);
@@ -108,6 +110,14 @@ int mrvi_model_set_dimension(mrvi_model *m, int dimension) {
                            "were added");
   m->dimension = dimension;
   return MRVI_OK;
+}
+
+static void fnv(unsigned long long *h, const void *data, size_t n) {
+  const unsigned char *b = data;
+  for (size_t i = 0; i < n; i++) {
+    *h ^= b[i];
+    *h *= 1099511628211ULL;
+  }
 }
 
 /* ---------------------------------------------------------------------------
@@ -222,6 +232,41 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   return 0;
 }
 
+/* `bytes` in the model's blocks (freed with the model), aligned for int,
+ * or NULL when out of memory: a block holds the names and inputs of many
+ * coordinates and elements, without the allocator's per-allocation
+ * overhead. */
+static void *block_alloc(mrvi_model *m, size_t bytes) {
+  bytes = (bytes + sizeof(int) - 1) / sizeof(int) * sizeof(int);
+  if (m->n_blocks == 0 || m->block_used + bytes > m->block_cap) {
+    const size_t cap = bytes > 65536 ? bytes : 65536;
+    char *b = malloc(cap);
+    if (!b || grow((void **)&m->blocks, &m->cap_blocks, m->n_blocks + 1,
+                   sizeof *m->blocks)) {
+      free(b);
+      return NULL;
+    }
+    m->blocks[m->n_blocks++] = b;
+    m->block_used = 0;
+    m->block_cap = cap;
+  }
+  char *d = m->blocks[m->n_blocks - 1] + m->block_used;
+  m->block_used += bytes;
+  return d;
+}
+
+static char *store_name(mrvi_model *m, const char *name) {
+  const size_t len = strlen(name) + 1;
+  char *d = block_alloc(m, len);
+  if (d)
+    memcpy(d, name, len);
+  return d;
+}
+
+int *mrvi_model_inputs(mrvi_model *m, int n) {
+  return block_alloc(m, (size_t)(n > 0 ? n : 1) * sizeof(int));
+}
+
 static int add_coord(mrvi_model *m, const char *name, double mass,
                      mrvi_rate rate, double q0, double v0) {
   if (!name || !*name)
@@ -241,7 +286,7 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   if (reserve_coordinates(m, m->n + 1) ||
       table_reserve(&m->coord_table, &m->coord_table_cap, m->n, coord_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  char *d = strdup(name);
+  char *d = store_name(m, name);
   if (!d)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   m->names[m->n] = d;
@@ -290,7 +335,7 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
            sizeof *m->particles))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  char *pname = strdup(name);
+  char *pname = store_name(m, name);
   if (!pname)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int first = m->n;
@@ -298,10 +343,8 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
     char buf[256];
     mrvi_fmt(buf, sizeof buf, "%s.%c", name, axis[d]);
     int st = add_coord(m, buf, mass, rate, x0[d], v0[d]);
-    if (st < 0) {
-      free(pname);
+    if (st < 0)
       return st;
-    }
   }
   m->particles[m->n_particles].name = pname;
   m->particles[m->n_particles].first = first;
@@ -311,7 +354,6 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
 
 /* Release what element e (not yet pushed) owns. */
 static void drop_element(mrvi_element *e) {
-  free(e->in);
   free(e->coef);
   free(e->axes);
 }
@@ -345,6 +387,7 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   if (e->kind != MRVI_ELEMENT_GRAVITY && e->n_in > m->max_in)
     m->max_in = e->n_in;
   m->elements[m->n_elements] = *e;
+  m->n_torsions += e->kind == MRVI_ELEMENT_TORSION;
   return m->n_elements++;
 }
 
@@ -354,13 +397,56 @@ int mrvi_model_push_element(mrvi_model *m, mrvi_element *e, const char *what) {
 
 /* Allocate e->in and e->coef (e->n_in entries each). */
 static int alloc_inputs(mrvi_model *m, mrvi_element *e) {
-  e->in = malloc((size_t)e->n_in * sizeof *e->in);
+  e->in = mrvi_model_inputs(m, e->n_in);
   e->coef = malloc((size_t)e->n_in * sizeof *e->coef);
   if (e->in && e->coef)
     return MRVI_OK;
-  free(e->in);
   free(e->coef);
   return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+}
+
+/* Parameter sets and anchor points: v (MRVI_LAW_MAX_PARAMS values) stored
+ * once per model, so that the elements of a network share the few sets they
+ * have; NULL when out of memory.  Sets are equal when their bits are (NaN,
+ * -0). */
+static unsigned long long set_hash(const double *v) {
+  unsigned long long h = 14695981039346656037ULL;
+  fnv(&h, v, MRVI_LAW_MAX_PARAMS * sizeof *v);
+  return h;
+}
+
+static const double *intern_params(mrvi_model *m, const double *v) {
+  const size_t bytes = MRVI_LAW_MAX_PARAMS * sizeof *v;
+  if (2 * (m->n_param_sets + 1) > m->param_table_cap) {
+    const int c = m->param_table_cap ? 2 * m->param_table_cap : 64;
+    int *t = calloc((size_t)c, sizeof *t);
+    if (!t)
+      return NULL;
+    for (int i = 0; i < m->n_param_sets; i++) {
+      size_t h = set_hash(m->param_sets[i]) & (size_t)(c - 1);
+      while (t[h] != 0)
+        h = (h + 1) & (size_t)(c - 1);
+      t[h] = i + 1;
+    }
+    free(m->param_table);
+    m->param_table = t;
+    m->param_table_cap = c;
+  }
+  const size_t mask = (size_t)(m->param_table_cap - 1);
+  size_t h = set_hash(v) & mask;
+  for (; m->param_table[h] != 0; h = (h + 1) & mask)
+    if (memcmp(m->param_sets[m->param_table[h] - 1], v, bytes) == 0)
+      return m->param_sets[m->param_table[h] - 1];
+  double *set = malloc(bytes);
+  if (!set || grow((void **)&m->param_sets, &m->cap_param_sets,
+                   m->n_param_sets + 1, sizeof *m->param_sets)) {
+    free(set);
+    return NULL;
+  }
+  memcpy(set, v, bytes);
+  m->param_sets[m->n_param_sets++] = set;
+  m->param_table[h] = m->n_param_sets;
+  return set;
 }
 
 /* Look up the law and copy and check its parameters. */
@@ -374,13 +460,16 @@ int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
   if (e->law->n_params > 0 && !params)
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: law '%s' needs parameters",
                            what, law);
+  double v[MRVI_LAW_MAX_PARAMS] = {0};
   for (int i = 0; i < e->law->n_params; i++)
-    e->params[i] = params[i];
+    v[i] = params[i];
   if (e->law->check) {
     char msg[256] = "";
-    if (e->law->check(e->params, msg, sizeof msg) < 0)
+    if (e->law->check(v, msg, sizeof msg) < 0)
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: %s", what, msg);
   }
+  if (!(e->params = intern_params(m, v)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   return MRVI_OK;
 }
 
@@ -388,7 +477,7 @@ static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
                            const int *parts) {
   const int d = m->dimension;
   e->n_in = np * d;
-  e->in = malloc((size_t)e->n_in * sizeof *e->in);
+  e->in = mrvi_model_inputs(m, e->n_in);
   if (!e->in)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   for (int a = 0; a < np; a++)
@@ -448,11 +537,14 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
                     .shift = rest_length,
                     .particle_i = particle_i,
                     .particle_j = -1};
+  double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; k < m->dimension; k++) {
     if (!isfinite(anchor[k]))
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
-    e.anchor[k] = anchor[k];
+    point[k] = anchor[k];
   }
+  if (!(e.anchor = intern_params(m, point)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
@@ -592,11 +684,14 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
                     .shift = rest_length,
                     .particle_i = -1,
                     .particle_j = -1};
+  double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; !b && k < D; k++) {
     if (!isfinite(anchor[k]))
       return mrvi_model_fail(m, MRVI_EINVAL, "%s: anchor must be finite", what);
-    e.anchor[k] = anchor[k];
+    point[k] = anchor[k];
   }
+  if (!b && !(e.anchor = intern_params(m, point)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   if ((st = mrvi_model_set_law(m, &e, law, params, what)) < 0)
     return st;
   /* Inputs: the blocks of a with their weights, then those of b negated
@@ -781,10 +876,9 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
-  e.in = malloc((size_t)n_terms * sizeof *e.in);
+  e.in = mrvi_model_inputs(m, n_terms);
   e.coef = malloc((size_t)n_terms * sizeof *e.coef);
   if (!e.in || !e.coef) {
-    free(e.in);
     free(e.coef);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
@@ -884,10 +978,13 @@ int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
                     .particle_i = particle_i,
                     .particle_j = particle_j,
                     .particle_k = particle_k};
-  e.params[0] = stiffness;
-  e.params[1] = cos(rest_angle);
+  double v[MRVI_LAW_MAX_PARAMS] = {0};
+  v[0] = stiffness;
+  v[1] = cos(rest_angle);
   /* sin(pi) is 1.2e-16, not 0: keep the smooth straight case exact. */
-  e.params[2] = rest_angle == M_PI || rest_angle == 0 ? 0.0 : sin(rest_angle);
+  v[2] = rest_angle == M_PI || rest_angle == 0 ? 0.0 : sin(rest_angle);
+  if (!(e.params = intern_params(m, v)))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int parts[3] = {particle_i, particle_j, particle_k}, st;
   if ((st = particle_inputs(m, &e, 3, parts)) < 0)
     return st;
@@ -915,10 +1012,9 @@ int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
                     .particle_i = -1,
                     .particle_j = -1,
                     .n_in = n_terms};
-  e.in = malloc((size_t)n_terms * sizeof *e.in);
+  e.in = mrvi_model_inputs(m, n_terms);
   e.coef = malloc((size_t)n_terms * sizeof *e.coef);
   if (!e.in || !e.coef) {
-    free(e.in);
     free(e.coef);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
@@ -1411,14 +1507,6 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q, const double *p,
 /* ---------------------------------------------------------------------------
  * Fingerprint (FNV-1a over the defining data)
  * ------------------------------------------------------------------------- */
-static void fnv(unsigned long long *h, const void *data, size_t n) {
-  const unsigned char *b = data;
-  for (size_t i = 0; i < n; i++) {
-    *h ^= b[i];
-    *h *= 1099511628211ULL;
-  }
-}
-
 unsigned long long mrvi_model_hash(const mrvi_model *m) {
   unsigned long long h = 1469598103934665603ULL;
   fnv(&h, &m->n, sizeof m->n);
@@ -1441,7 +1529,8 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
       fnv(&h, el->params, sizeof(double)); /* stiffness; shift is theta0 */
     }
     fnv(&h, &el->shift, sizeof el->shift);
-    fnv(&h, el->anchor, sizeof el->anchor);
+    static const double no_anchor[3];
+    fnv(&h, el->anchor ? el->anchor : no_anchor, sizeof no_anchor);
     fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
     if (el->coef)
       fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);

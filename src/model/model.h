@@ -27,14 +27,18 @@ typedef struct mrvi_element {
   mrvi_rate potential; /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
   const mrvi_law *law; /* NULL for gravity */
   mrvi_law_form form;  /* law->form (set with the law) */
-  double params[MRVI_LAW_MAX_PARAMS];
-  double shift; /* rest length (springs) or offset b (terms) */
-  double anchor[3];
+  /* law->n_params values (angles: 3), one copy per distinct set shared by
+   * the elements that have it (model.c, intern_params); NULL for elements
+   * without parameters */
+  const double *params;
+  double shift;               /* rest length (springs) or offset b (terms) */
+  const double *anchor;       /* anchors: the point (3 values, unused ones 0),
+                                 shared like params; else NULL */
   int particle_i, particle_j; /* springs; -1 if unused */
   int particle_k;             /* angles: i-j-k with the vertex at j */
   int n_in;                   /* number of input coordinates */
-  int *in;                    /* n_in model indices */
-  double *coef;               /* n_in coefficients (terms, gravity) */
+  int *in;      /* n_in model indices (in blocks: mrvi_model_inputs) */
+  double *coef; /* n_in coefficients (terms, gravity) */
   /* Torsion (bodies.c): the frame vectors r_u, r_v of the reference (body A
    * in its frame, or the ground in space) and m_u of the moving body (its
    * frame), dimension entries each; NULL for other kinds. */
@@ -81,11 +85,24 @@ struct mrvi_model {
   int *slow_index, *fast_index; /* slot -> model index */
   int *slot;                    /* model index -> slot within its rate block */
   int max_in;                   /* largest n_in of a non-linear element */
+  int n_torsions;               /* elements of kind MRVI_ELEMENT_TORSION */
   int n_constraints, cap_constraints;
   mrvi_constraint *constraints;
-  int constraint_rows;      /* sum of rows */
-  int max_constraint_in;    /* largest n_in of a constraint */
-  int n_bodies, cap_bodies; /* rigid bodies (model/bodies.c) */
+  int constraint_rows;   /* sum of rows */
+  int max_constraint_in; /* largest n_in of a constraint */
+  /* The elements' parameter sets (model.c, intern_params): each distinct
+   * one once (MRVI_LAW_MAX_PARAMS values, unused ones 0), found by an
+   * open-addressing table of set indices (0 = empty, else index + 1). */
+  double **param_sets;
+  int n_param_sets, cap_param_sets;
+  int *param_table, param_table_cap;
+  /* The coordinates' and particles' names and the elements' inputs (`in`),
+   * packed in blocks (model.c, block_alloc) instead of one allocation
+   * each. */
+  char **blocks;
+  int n_blocks, cap_blocks;
+  size_t block_used, block_cap; /* in the last block */
+  int n_bodies, cap_bodies;     /* rigid bodies (model/bodies.c) */
   struct mrvi_body *bodies;
   char errmsg[512];
 };
@@ -119,8 +136,12 @@ double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
 double mrvi_torsion_eval(const mrvi_element *e, int dim, const double *y,
                          double *grad, double *hess);
 /* Append element e (its inputs set) after the rate rule's check; on
- * failure e's arrays are freed (model.c).  Returns its index. */
+ * failure e's coef and axes are freed (its inputs stay in the model's
+ * blocks) (model.c).  Returns its index. */
 int mrvi_model_push_element(mrvi_model *m, mrvi_element *e, const char *what);
+/* Room for an element's n inputs in the model's blocks (freed with the
+ * model, never alone), or NULL when out of memory (model.c). */
+int *mrvi_model_inputs(mrvi_model *m, int n);
 /* e's law `law` with params, checked (model.c). */
 int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
                        const double *params, const char *what);

@@ -143,15 +143,12 @@ static double angle_at(const mrvi_model *m, const mrvi_element *e,
   return nearest(b, c, s);
 }
 
-int mrvi_model_n_torsions(const mrvi_model *m) {
-  int n = 0;
-  for (int i = 0; i < m->n_elements; i++)
-    n += m->elements[i].kind == MRVI_ELEMENT_TORSION;
-  return n;
-}
+int mrvi_model_n_torsions(const mrvi_model *m) { return m->n_torsions; }
 
 void mrvi_model_torsion_init(const mrvi_model *m, const double *q,
                              double *ref) {
+  if (m->n_torsions == 0) /* (no pass over a network's elements) */
+    return;
   for (int i = 0, t = 0; i < m->n_elements; i++)
     if (m->elements[i].kind == MRVI_ELEMENT_TORSION) {
       const mrvi_element *e = &m->elements[i];
@@ -161,6 +158,8 @@ void mrvi_model_torsion_init(const mrvi_model *m, const double *q,
 
 void mrvi_model_torsion_set(const mrvi_model *m, const double *ref) {
   /* (the elements array is the model's; its `unwrap` is run state) */
+  if (m->n_torsions == 0)
+    return;
   for (int i = 0, t = 0; i < m->n_elements; i++)
     if (m->elements[i].kind == MRVI_ELEMENT_TORSION)
       m->elements[i].unwrap = ref[t++];
@@ -232,10 +231,9 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
   mrvi_joint_frame(D, axis, t);
   const int u = D == 3 ? 1 : 0, v = D == 3 ? 2 : 1;
   e.n_in = (ref >= 0 ? 2 : 1) * D * D;
-  e.in = malloc((size_t)e.n_in * sizeof *e.in);
+  e.in = mrvi_model_inputs(m, e.n_in);
   e.axes = malloc((size_t)(3 * D) * sizeof *e.axes);
   if (!e.in || !e.axes) {
-    free(e.in);
     free(e.axes);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }

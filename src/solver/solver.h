@@ -288,6 +288,13 @@ double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv);
 typedef struct mrvi_terms mrvi_terms;
 int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, mrvi_terms **out);
+/* The same for gradients alone: mrvi_terms_grad, mrvi_terms_eval with
+ * scale 1 and no J, _set_threads, _count, _threads, _flat, _quadratic and
+ * _springs_only (no Hessian, value or scaled evaluation), without the full
+ * spring records where every spring is a Hooke spring on consecutive
+ * columns (the explicit paths' classes). */
+int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
+                           const int *col_of, mrvi_terms **out);
 void mrvi_terms_free(mrvi_terms *kc);
 /* g += scale grad Z(z) and, if J, J += hscale hess Z(z) (ld x ld, row-major
  * on the columns). */

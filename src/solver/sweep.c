@@ -386,14 +386,17 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   int s_ok = col != NULL;
   for (int c = 0; s_ok && c < m->n; c++)
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : sw->ns) + m->slot[c];
-  s_ok = s_ok && mrvi_terms_create(m, st->elem_of_class[MRVI_SLOW],
-                                   st->n_elem_of_class[MRVI_SLOW], col,
-                                   &sw->kc[MRVI_SLOW]) == MRVI_OK;
+  /* (V's gradient alone; W's too on the explicit path, unless its affine
+   * map is made below) */
+  s_ok = s_ok && mrvi_terms_create_grad(m, st->elem_of_class[MRVI_SLOW],
+                                        st->n_elem_of_class[MRVI_SLOW], col,
+                                        &sw->kc[MRVI_SLOW]) == MRVI_OK;
   for (int c = 0; s_ok && c < m->n; c++)
     col[c] = m->slot[c];
-  s_ok = s_ok && mrvi_terms_create(m, st->elem_of_class[MRVI_FAST],
-                                   st->n_elem_of_class[MRVI_FAST], col,
-                                   &sw->kc[MRVI_FAST]) == MRVI_OK;
+  s_ok = s_ok &&
+         (sw->implicit || nf <= 4 ? mrvi_terms_create : mrvi_terms_create_grad)(
+             m, st->elem_of_class[MRVI_FAST], st->n_elem_of_class[MRVI_FAST],
+             col, &sw->kc[MRVI_FAST]) == MRVI_OK;
   free(col);
   /* The gradients of large spring classes on threads (the same bits). */
   const int threads = mrvi_threads_resolve(s->threads);

@@ -20,8 +20,11 @@
 enum { KT_LINEAR, KT_POWER, KT_LAW, KT_ELEMENT };
 enum { K_ANY = -2 }; /* law of a compact record: its own (kterm4.k) */
 typedef struct kterm {
-  int kind, n, first; /* inputs col[first..first+n), coef[first..] */
-  int k;              /* integer exponent (KT_POWER) */
+  /* inputs col[first..first+n) and, for an element with coefficients (terms,
+   * gravity), coef[cfirst..cfirst+n); a spring or anchor compiled to a
+   * kspring record has neither (its columns are in the record) */
+  int kind, n, first, cfirst;
+  int k;   /* integer exponent (KT_POWER) */
   int run; /* KT_LINEAR with one input: the number of such terms from here */
   double c, e, shift; /* stiffness or coefficient, exponent, offset b */
   const mrvi_element *el;
@@ -32,14 +35,14 @@ typedef struct kterm {
 } kterm;
 
 /* Springs and anchors compact and contiguous (kspring runs): the columns of
- * x_i and x_j (x_j's unused for an anchor, whose point is a) and the law:
+ * x_i and x_j (x_j's unused for an anchor, whose point is el->anchor: read
+ * there, not copied, anchors being few beside springs) and the law:
  * k = KS_HOOKE (phi' = c s), 0..8 (c s^k, mrvi_power_derivs_ce from ce and
  * ce1) or KS_LAW (the law table of el). */
 enum { KS_HOOKE = -1, KS_LAW = -3 };
 typedef struct kspring {
   int two, k;
   int ci[3], cj[3];
-  double a[3];
   double c, shift, ce, ce1;
   const mrvi_element *el;
 } kspring;
@@ -70,7 +73,12 @@ struct mrvi_terms {
   double *y, *g, *H; /* element workspace */
   kterm4 *q4;
   kspring *qs;
-  khooke *qh;               /* per record of qs (used where hooke_run) */
+  khooke *qh; /* per record of qs (used where hooke_run) */
+  /* A gradient-only class of khooke springs alone (hooke_class): qh and
+   * els (the records' elements) without t, col, coef or hooke_run; its
+   * gradient is hooke_grad over qh, one run. */
+  int hooke_only;
+  const mrvi_element **els;
   unsigned char *hooke_run; /* per record of qs: the run from it is of
                                khooke springs */
   int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
@@ -108,6 +116,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->q4);
   free(kc->qs);
   free(kc->qh);
+  free(kc->els);
   free(kc->hooke_run);
   free(kc->wcol);
   free(kc->gb_col);
@@ -125,17 +134,117 @@ static int spring_law(const mrvi_element *e) {
   return KS_LAW;
 }
 
+/* Whether e is compiled to a kspring record (a spring or an anchor of
+ * points, not of body points, which carry coefficients). */
+static int spring_record(const mrvi_element *e, int dim) {
+  const int two = e->kind == MRVI_ELEMENT_SPRING;
+  return (two || e->kind == MRVI_ELEMENT_ANCHOR) && dim >= 1 && dim <= 3 &&
+         e->n_in == (two ? 2 : 1) * dim && !e->coef;
+}
+
+/* The law of spring or anchor e into its record q. */
+static void spring_law_of(const mrvi_element *e, kspring *q) {
+  q->two = e->kind == MRVI_ELEMENT_SPRING;
+  q->k = spring_law(e);
+  q->el = e;
+  q->c = e->params[0];
+  q->shift = e->shift;
+  q->ce = e->params[0] * e->params[1];
+  q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
+}
+
+/* The columns of spring or anchor e into its record q: col_of[e->in[.]],
+ * or e->in itself without col_of (q->two set). */
+static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
+                        kspring *q) {
+  const int *in = e->in;
+  for (int k = 0; k < dim; k++) {
+    q->ci[k] = col_of ? col_of[in[k]] : in[k];
+    q->cj[k] = q->two ? (col_of ? col_of[in[dim + k]] : in[dim + k]) : 0;
+  }
+}
+
+/* Element i of kc (in class order). */
+static const mrvi_element *el_of(const mrvi_terms *kc, int i) {
+  return kc->hooke_only ? kc->els[i] : kc->t[i].el;
+}
+
+/* The kspring records of a class whose every run is of khooke springs,
+ * from those (their columns consecutive from khooke's): the records
+ * terms_springs and hooke_class leave out of a gradient-only class. */
+static int hooke_records(mrvi_terms *kc) {
+  int ns = 0;
+  for (int ie = 0; ie < kc->n; ie++)
+    ns += kc->hooke_only || kc->t[ie].runs > 0;
+  kc->qs = calloc((size_t)(ns > 0 ? ns : 1), sizeof *kc->qs);
+  if (!kc->qs)
+    return MRVI_ENOMEM;
+  for (int ie = 0; ie < kc->n; ie++) {
+    if (!kc->hooke_only && kc->t[ie].runs == 0)
+      continue;
+    const int r = kc->hooke_only ? ie : kc->t[ie].qs;
+    kspring *q = &kc->qs[r];
+    const khooke *h = &kc->qh[r];
+    spring_law_of(el_of(kc, ie), q);
+    for (int k = 0; k < kc->dim; k++) {
+      q->ci[k] = h->ci + k;
+      q->cj[k] = h->cj + k;
+    }
+  }
+  return MRVI_OK;
+}
+
+/* A gradient-only class whose elements are all Hooke springs on
+ * consecutive columns (terms_springs would make them one run of khooke
+ * springs): their khooke records and elements alone, no kterm (the
+ * lattices' classes on the explicit paths).  0 if the class is not such,
+ * else 1, or MRVI_ENOMEM. */
+static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
+                       int n_elems, const int *col_of) {
+  const int dim = kc->dim;
+  if (n_elems < 1)
+    return 0;
+  /* (one pass, the records made as the elements are checked) */
+  kc->qh = malloc((size_t)n_elems * sizeof *kc->qh);
+  kc->els = malloc((size_t)n_elems * sizeof *kc->els);
+  if (!kc->qh || !kc->els)
+    return MRVI_ENOMEM;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    kspring q = {.two = 1};
+    int ok = spring_record(e, dim) && e->kind == MRVI_ELEMENT_SPRING &&
+             spring_law(e) == KS_HOOKE;
+    if (ok) {
+      spring_law_of(e, &q);
+      spring_cols(e, col_of, dim, &q);
+    }
+    for (int k = 1; ok && k < dim; k++)
+      ok = q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
+    if (!ok) {
+      free(kc->qh);
+      free(kc->els);
+      kc->qh = NULL;
+      kc->els = NULL;
+      return 0;
+    }
+    kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
+    kc->els[ie] = e;
+  }
+  kc->hooke_only = 1;
+  return 1;
+}
+
 /* The springs and anchors of kc as compact records, in runs of one kind
- * (spring or anchor) and one law code. */
-static int terms_springs(mrvi_terms *kc) {
-  const int dim = kc->dim = kc->m->dimension;
+ * (spring or anchor) and one law code; their columns col_of[e->in[.]] (or
+ * e->in itself without col_of).  grad_only: the kspring records are left
+ * out when every run is of khooke springs (mrvi_terms_create_grad). */
+static int terms_springs(mrvi_terms *kc, const int *col_of, int grad_only) {
+  const int dim = kc->dim;
   int ns = 0;
   for (int ie = kc->n - 1; ie >= 0; ie--) {
     kterm *t = &kc->t[ie];
     const mrvi_element *e = t->el;
-    const int two = e->kind == MRVI_ELEMENT_SPRING;
-    if (!(two || e->kind == MRVI_ELEMENT_ANCHOR) || dim < 1 || dim > 3 ||
-        e->n_in != (two ? 2 : 1) * dim || e->coef) /* coef: body points */
+    if (!spring_record(e, dim))
       continue;
     const kterm *u = ie + 1 < kc->n ? &kc->t[ie + 1] : NULL;
     const int same = u && u->runs > 0 && u->el->kind == e->kind &&
@@ -144,29 +253,20 @@ static int terms_springs(mrvi_terms *kc) {
     ns++;
   }
   const size_t nq = (size_t)(ns > 0 ? ns : 1);
-  kc->qs = calloc(nq, sizeof *kc->qs);
+  kc->qs = grad_only ? NULL : calloc(nq, sizeof *kc->qs);
   kc->qh = calloc(nq, sizeof *kc->qh);
   kc->hooke_run = calloc(nq, 1);
-  if (!kc->qs || !kc->qh || !kc->hooke_run)
+  if ((!grad_only && !kc->qs) || !kc->qh || !kc->hooke_run)
     return MRVI_ENOMEM;
   for (int ie = 0, is = 0; ie < kc->n; ie++) {
     kterm *t = &kc->t[ie];
     if (t->runs == 0)
       continue;
     const mrvi_element *e = t->el;
-    kspring *q = &kc->qs[t->qs = is++];
-    q->two = e->kind == MRVI_ELEMENT_SPRING;
-    q->k = spring_law(e);
-    q->el = e;
-    q->c = e->params[0];
-    q->shift = e->shift;
-    q->ce = e->params[0] * e->params[1];
-    q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
-    for (int k = 0; k < dim; k++) {
-      q->ci[k] = kc->col[t->first + k];
-      q->cj[k] = q->two ? kc->col[t->first + dim + k] : 0;
-      q->a[k] = e->anchor[k];
-    }
+    kspring one, *q = kc->qs ? &kc->qs[is] : &one;
+    t->qs = is++;
+    spring_law_of(e, q);
+    spring_cols(e, col_of, dim, q);
     int consecutive = q->two && q->k == KS_HOOKE;
     for (int k = 1; k < dim; k++)
       consecutive &= q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
@@ -180,27 +280,57 @@ static int terms_springs(mrvi_terms *kc) {
     if (t->runs > 1 && !kc->hooke_run[t->qs + 1])
       kc->hooke_run[t->qs] = 0;
   }
+  int all_hooke = 1;
+  for (int r = 0; r < ns; r++)
+    all_hooke &= kc->hooke_run[r];
+  if (kc->qs || all_hooke)
+    return MRVI_OK;
+  /* (gradient only, some run not of khooke springs: the records after all) */
+  kc->qs = calloc(nq, sizeof *kc->qs);
+  if (!kc->qs)
+    return MRVI_ENOMEM;
+  for (int ie = 0; ie < kc->n; ie++) {
+    const kterm *t = &kc->t[ie];
+    if (t->runs == 0)
+      continue;
+    kspring *q = &kc->qs[t->qs];
+    spring_law_of(t->el, q);
+    spring_cols(t->el, col_of, dim, q);
+  }
   return MRVI_OK;
 }
 
-int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
-                      const int *col_of, mrvi_terms **out) {
+static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                        const int *col_of, int grad_only, mrvi_terms **out) {
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
     return MRVI_ENOMEM;
-  int n_in = 0, max_in = 1;
-  for (int ie = 0; ie < n_elems; ie++) {
-    const int k = m->elements[elems[ie]].n_in;
-    n_in += k;
-    max_in = k > max_in ? k : max_in;
-  }
-  const size_t mi = (size_t)max_in;
+  const int dim = kc->dim = m->dimension;
   kc->m = m;
   kc->n = n_elems;
+  const int hc = grad_only ? hooke_class(kc, m, elems, n_elems, col_of) : 0;
+  if (hc < 0) {
+    mrvi_terms_free(kc);
+    return hc;
+  }
+  if (hc > 0) {
+    *out = kc;
+    return MRVI_OK;
+  }
+  /* Columns for the elements without a kspring record, coefficients for
+   * those that have them. */
+  int n_col = 0, n_coef = 0, max_in = 1;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    n_col += spring_record(e, dim) ? 0 : e->n_in;
+    n_coef += e->coef ? e->n_in : 0;
+    max_in = e->n_in > max_in ? e->n_in : max_in;
+  }
+  const size_t mi = (size_t)max_in;
   kc->t = calloc((size_t)(n_elems > 0 ? n_elems : 1), sizeof *kc->t);
-  kc->col = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->col);
-  kc->coef = calloc((size_t)(n_in > 0 ? n_in : 1), sizeof *kc->coef);
+  kc->col = calloc((size_t)(n_col > 0 ? n_col : 1), sizeof *kc->col);
+  kc->coef = calloc((size_t)(n_coef > 0 ? n_coef : 1), sizeof *kc->coef);
   kc->y = calloc(mi, sizeof *kc->y);
   kc->g = calloc(mi, sizeof *kc->g);
   kc->H = calloc(mi * mi, sizeof *kc->H);
@@ -208,13 +338,14 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     mrvi_terms_free(kc);
     return MRVI_ENOMEM;
   }
-  int first = 0;
+  int first = 0, cfirst = 0;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
     kterm *t = &kc->t[ie];
     t->el = e;
     t->n = e->n_in;
     t->first = first;
+    t->cfirst = cfirst;
     t->kind = KT_ELEMENT;
     if (e->kind == MRVI_ELEMENT_TERM) {
       t->kind = e->form == MRVI_LAW_FORM_HOOKE ? KT_LINEAR : KT_LAW;
@@ -226,10 +357,15 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
         t->k = (int)t->e;
       }
     }
-    for (int j = 0; j < e->n_in; j++) {
-      kc->col[first + j] = col_of ? col_of[e->in[j]] : e->in[j];
-      kc->coef[first + j] = e->coef ? e->coef[j] : 0.0;
+    if (e->coef) {
+      for (int j = 0; j < e->n_in; j++)
+        kc->coef[cfirst + j] = e->coef[j];
+      cfirst += e->n_in;
     }
+    if (spring_record(e, dim))
+      continue;
+    for (int j = 0; j < e->n_in; j++)
+      kc->col[first + j] = col_of ? col_of[e->in[j]] : e->in[j];
     first += e->n_in;
   }
   /* Runs of one-input linear terms (k q^2/2 on a coordinate: the stiff
@@ -271,10 +407,10 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
     q->ce1 = t->c * t->e * (t->e - 1);
     for (int j = 0; j < t->n; j++) {
       q->col[j] = kc->col[t->first + j];
-      q->a[j] = kc->coef[t->first + j];
+      q->a[j] = kc->coef[t->cfirst + j];
     }
   }
-  if (terms_springs(kc) < 0) {
+  if (terms_springs(kc, col_of, grad_only) < 0) {
     mrvi_terms_free(kc);
     return MRVI_ENOMEM;
   }
@@ -291,6 +427,16 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
           kc->sym = 0;
   *out = kc;
   return MRVI_OK;
+}
+
+int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
+                      const int *col_of, mrvi_terms **out) {
+  return terms_create(m, elems, n_elems, col_of, 0, out);
+}
+
+int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
+                           const int *col_of, mrvi_terms **out) {
+  return terms_create(m, elems, n_elems, col_of, 1, out);
 }
 
 /* One term phi(a^T z - b) with n inputs: gradient into g, Hessian into J
@@ -423,7 +569,7 @@ ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
                                  const int dim, const int two, const int kk) {
   double d[3], r2 = 0.0;
   UNROLL for (int k = 0; k < dim; k++) {
-    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->a[k]);
+    d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->el->anchor[k]);
     r2 += d[k] * d[k];
   }
   const double r = sqrt(r2), s = r - q->shift;
@@ -575,7 +721,7 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
       continue;
     }
     const int n = t->n, *col = kc->col + t->first;
-    const double *a = kc->coef + t->first;
+    const double *a = kc->coef + t->cfirst;
     if (t->run > 1) { /* as below, one input each */
       run1_eval(t, t->run, col, a, z, scale, g, J, ld, hscale);
       it += t->run - 1;
@@ -613,7 +759,9 @@ static void flat_eval(const mrvi_terms *kc, const double *z, double *g,
 
 void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale) {
-  if (kc->flat && J && scale == 1.0 && hscale == 1.0)
+  if (kc->hooke_only) /* (gradient only: scale 1, no J) */
+    mrvi_terms_grad(kc, z, g);
+  else if (kc->flat && J && scale == 1.0 && hscale == 1.0)
     flat_eval(kc, z, g, J, ld); /* (a call: see flat_grad) */
   else
     terms_eval_any(kc, z, scale, g, J, ld, hscale);
@@ -768,7 +916,7 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 
 int mrvi_terms_quadratic(const mrvi_terms *kc) {
   for (int i = 0; i < kc->n; i++)
-    if (!mrvi_element_is_quadratic(kc->t[i].el))
+    if (!mrvi_element_is_quadratic(el_of(kc, i)))
       return 0;
   return 1;
 }
@@ -863,9 +1011,11 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
   kc->threads = 1;
   int ns = 0;
   for (int i = 0; i < kc->n; i++)
-    ns += kc->t[i].runs > 0;
+    ns += kc->hooke_only || kc->t[i].runs > 0;
   if (threads <= 1 || chunk < 1 || ns != kc->n || kc->n < 2 * chunk)
     return MRVI_OK;
+  if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
+    return MRVI_ENOMEM;
   const int dim = kc->dim, nw = 2 * dim;
   int ncol = 1;
   for (int r = 0; r < kc->n; r++)
@@ -930,6 +1080,8 @@ int mrvi_terms_threads(const mrvi_terms *kc) {
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
     par_grad(kc, z, g);
+  else if (kc->hooke_only)
+    hooke_grad(kc->qh, kc->n, z, g, kc->dim);
   else if (kc->flat)
     flat_grad(kc, z, g);
   else
@@ -1152,6 +1304,8 @@ static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
 int mrvi_terms_springs_only(const mrvi_terms *kc) {
   if (kc->n < 1)
     return 0;
+  if (kc->hooke_only)
+    return 1;
   for (int it = 0; it < kc->n; it++)
     if (kc->t[it].runs < 1)
       return 0;
@@ -1184,7 +1338,17 @@ double mrvi_terms_value(mrvi_terms *kc, const double *z) {
   for (int it = 0; it < kc->n; it++) {
     const kterm *t = &kc->t[it];
     const int n = t->n, *col = kc->col + t->first;
-    const double *a = kc->coef + t->first;
+    const double *a = kc->coef + t->cfirst;
+    if (t->runs > 0) { /* a kspring record's inputs: x_i, then x_j */
+      const kspring *q = &kc->qs[t->qs];
+      for (int k = 0; k < kc->dim; k++) {
+        kc->y[k] = z[q->ci[k]];
+        if (q->two)
+          kc->y[kc->dim + k] = z[q->cj[k]];
+      }
+      total += mrvi_element_eval(kc->m, t->el, kc->y, NULL, NULL);
+      continue;
+    }
     if (t->kind == KT_ELEMENT) {
       if (t->el->kind == MRVI_ELEMENT_GRAVITY) { /* input by input */
         for (int j = 0; j < n; j++)
