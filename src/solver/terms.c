@@ -1333,20 +1333,30 @@ static double power_phi(double c, int k, double s) {
   return c * r;
 }
 
+/* phi(|x_i - x_j| - L0) of spring or anchor record q: mrvi_element_eval's
+ * distance arithmetic in its order (model.c), so bitwise its value. */
+static double spring_value(const kspring *q, const double *z, int dim) {
+  double r2 = 0.0;
+  for (int k = 0; k < dim; k++) {
+    const double d = z[q->ci[k]] - (q->two ? z[q->cj[k]] : q->el->anchor[k]);
+    r2 += d * d;
+  }
+  const double s = sqrt(r2) - q->shift;
+  if (q->k == KS_HOOKE)
+    return 0.5 * q->c * s * s; /* laws/linear.c */
+  double phi, d1, d2;
+  q->el->law->eval(q->el->params, s, &phi, &d1, &d2);
+  return phi;
+}
+
 double mrvi_terms_value(mrvi_terms *kc, const double *z) {
   double total = 0.0;
   for (int it = 0; it < kc->n; it++) {
     const kterm *t = &kc->t[it];
     const int n = t->n, *col = kc->col + t->first;
     const double *a = kc->coef + t->cfirst;
-    if (t->runs > 0) { /* a kspring record's inputs: x_i, then x_j */
-      const kspring *q = &kc->qs[t->qs];
-      for (int k = 0; k < kc->dim; k++) {
-        kc->y[k] = z[q->ci[k]];
-        if (q->two)
-          kc->y[kc->dim + k] = z[q->cj[k]];
-      }
-      total += mrvi_element_eval(kc->m, t->el, kc->y, NULL, NULL);
+    if (t->runs > 0) {
+      total += spring_value(&kc->qs[t->qs], z, kc->dim);
       continue;
     }
     if (t->kind == KT_ELEMENT) {
