@@ -652,8 +652,8 @@ static void test_outer(void) {
                   sol[0] != 0.0,
               "%s: Jacobian solve after outer steps: status %d (%s), Newton "
               "built %d -> %d",
-              schemes[sc], js, js ? mrvi_integrator_errmsg(it) : "",
-              before, ks.newton_built);
+              schemes[sc], js, js ? mrvi_integrator_errmsg(it) : "", before,
+              ks.newton_built);
       }
       free(rhs);
       free(sol);

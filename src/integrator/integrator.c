@@ -1723,8 +1723,8 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
     const double *qs0 = st->qs0, *qf0 = st->qf0;
     st->qs0 = it->qs_prev;
     st->qf0 = it->qf_prev;
-    int s = it->path == MRVI_PATH_SCHUR_KRYLOV ? skrylov_newton(it, msg,
-                                                                sizeof msg)
+    int s = it->path == MRVI_PATH_SCHUR_KRYLOV
+                ? skrylov_newton(it, msg, sizeof msg)
             : !st->Ap ? mrvi_step_build_pattern(st, it->x)
                       : MRVI_OK;
     if (s < 0) {
