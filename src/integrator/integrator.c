@@ -479,8 +479,7 @@ static int sweep_create(mrvi_integrator *it, char *msg, size_t len) {
 
 static void sweep_free(mrvi_integrator *it) { mrvi_sweep_free(it->sweep); }
 
-/* The Newton paths' predictor, set at the predictor's tolerance, and x
- * at the predictor. */
+/* The Newton paths' predictor, to Newton's tolerance, and x at it. */
 static int predictor_create(mrvi_integrator *it, char *msg, size_t len) {
   if (mrvi_predictor_create(it->model, &it->step, &it->predictor) < 0)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
@@ -489,17 +488,19 @@ static int predictor_create(mrvi_integrator *it, char *msg, size_t len) {
   return MRVI_OK;
 }
 
-/* The Newton paths' common set-up: the predictor, the Jacobian pattern
- * and the residual and Jacobian at the predictor (pattern and symbolic
- * analysis once per run). */
-static int newton_paths_create(mrvi_integrator *it, char *msg, size_t len) {
-  const int st = predictor_create(it, msg, len);
-  if (st < 0)
-    return st;
+/* The Jacobian pattern and the residual and Jacobian at the predictor
+ * (pattern and symbolic analysis once per run). */
+static int jacobian_create(mrvi_integrator *it, char *msg, size_t len) {
   if (mrvi_step_build_pattern(&it->step, it->x) < 0)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   mrvi_step_assemble(&it->step, it->x, it->R, 1);
   return MRVI_OK;
+}
+
+/* The Newton paths' common set-up: the predictor and the Jacobian. */
+static int newton_paths_create(mrvi_integrator *it, char *msg, size_t len) {
+  const int st = predictor_create(it, msg, len);
+  return st < 0 ? st : jacobian_create(it, msg, len);
 }
 
 /* The general path: the sparse LU of the whole step's Jacobian, or in the
@@ -591,10 +592,9 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
     return mrvi_outer_create(it->model, sp, &it->outer) < 0
                ? mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory")
                : MRVI_OK;
-  if (mrvi_step_build_pattern(&it->step, it->x) < 0)
-    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
-  mrvi_step_assemble(&it->step, it->x, it->R, 1);
-  return skrylov_newton(it, msg, len);
+  return (st = jacobian_create(it, msg, len)) < 0
+             ? st
+             : skrylov_newton(it, msg, len);
 }
 
 /* The schur-bordered path (solver/bordered.c) on the CSC Jacobian. */
@@ -1384,16 +1384,17 @@ static int newton_step(mrvi_integrator *it) {
       return accept_step(it, k, r0);
     predict(it);
   }
-  /* The constant chord: its factors stand for the kept ones of this
-   * step, so that the first update uses them (prev = INFINITY: rate 0)
-   * and the reuse rule below decides the next; else the Jacobian at the
-   * predictor, assembled with its residual, for the first update. */
+  /* (schur-krylov's Newton built on the first step that needs it) */
   int s = it->path == MRVI_PATH_SCHUR_KRYLOV
               ? skrylov_newton(it, msg, sizeof msg)
               : MRVI_OK;
   if (s < 0)
     return fail(it, s, "step %ld (t = %.10g): %s", it->k + 1,
                 it->t0 + (double)it->k * st->dT, msg);
+  /* The constant chord: its factors stand for the kept ones of this
+   * step, so that the first update uses them (prev = INFINITY: rate 0)
+   * and the reuse rule below decides the next; else the Jacobian at the
+   * predictor, assembled with its residual, for the first update. */
   const int cc = it->blocks && use_const_chord(it);
   it->const_kept = it->factors_ok = cc;
   if (it->blocks && !cc)
