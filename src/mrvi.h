@@ -947,6 +947,10 @@ typedef struct mrvi_krylov_stats {
   long outer_sweeps;    /* its fast sweeps in those and the failed tries */
   long outer_evals;     /* its gradient evaluations (a point's V and W) */
   long outer_fallbacks; /* steps it tried and left to Newton */
+  /* schur-krylov's Newton (the whole step's Jacobian and its elimination)
+   * is built: at creation, or where the outer iteration is the first
+   * choice, on the first step left to Newton or Jacobian solve */
+  int newton_built;
 } mrvi_krylov_stats;
 void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
                                   mrvi_krylov_stats *out);
@@ -956,7 +960,8 @@ long mrvi_integrator_roundoff_steps(const mrvi_integrator *it);
 double mrvi_integrator_last_residual(const mrvi_integrator *it);
 /* Size of the Newton system (n_slow + p n_fast, plus the multipliers in
  * the multiplier form) and its nonzeros (0 on the explicit and sweep
- * paths, which form no matrix of the whole step). */
+ * paths, which form no matrix of the whole step, and on schur-krylov until
+ * its Newton is built: mrvi_krylov_stats.newton_built). */
 int mrvi_integrator_system_size(const mrvi_integrator *it);
 long mrvi_integrator_system_nnz(const mrvi_integrator *it);
 /* Constraint multipliers of the last step, k -> k+1 (model constraint

@@ -631,6 +631,32 @@ static void test_outer(void) {
           !memcmp(mrvi_integrator_q(it), a.q + steps * n, n * sizeof(double)) &&
           !memcmp(mrvi_integrator_p(it), a.p + steps * n, n * sizeof(double));
       CHECK(same, "%s: resumed at node 5, not bit for bit", schemes[sc]);
+      /* Newton is built on the first step left to it (or Jacobian solve),
+       * not at creation, where the outer iteration is the first choice. */
+      CHECK(!a.ks.newton_built && b.ks.newton_built && c.ks.newton_built,
+            "%s: Newton built %d with no step left to it, %d after "
+            "fallbacks, %d without the outer iteration",
+            schemes[sc], a.ks.newton_built, b.ks.newton_built,
+            c.ks.newton_built);
+      mrvi_krylov_stats ks;
+      const int nj = mrvi_integrator_jacobian_size(it);
+      double *rhs = calloc((size_t)nj, sizeof *rhs),
+             *sol = calloc((size_t)nj, sizeof *sol);
+      if (same && rhs && sol) {
+        rhs[0] = 1.0;
+        mrvi_integrator_krylov_stats(it, &ks);
+        const int before = ks.newton_built;
+        const int js = mrvi_integrator_jacobian_solve(it, 1, rhs, sol);
+        mrvi_integrator_krylov_stats(it, &ks);
+        CHECK(!before && js == 0 && ks.newton_built && isfinite(sol[0]) &&
+                  sol[0] != 0.0,
+              "%s: Jacobian solve after outer steps: status %d (%s), Newton "
+              "built %d -> %d",
+              schemes[sc], js, js ? mrvi_integrator_errmsg(it) : "", before,
+              ks.newton_built);
+      }
+      free(rhs);
+      free(sol);
       mrvi_integrator_free(it);
       printf("%s outer: %.2f sweeps per step (max %d), %.2f gradient "
              "evaluations per micro step, vs Newton %.2e\n",

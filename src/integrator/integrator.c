@@ -479,18 +479,28 @@ static int sweep_create(mrvi_integrator *it, char *msg, size_t len) {
 
 static void sweep_free(mrvi_integrator *it) { mrvi_sweep_free(it->sweep); }
 
-/* The Newton paths' common set-up: the predictor, the Jacobian pattern
- * and the residual and Jacobian at the predictor (pattern and symbolic
- * analysis once per run). */
-static int newton_paths_create(mrvi_integrator *it, char *msg, size_t len) {
+/* The Newton paths' predictor, to Newton's tolerance, and x at it. */
+static int predictor_create(mrvi_integrator *it, char *msg, size_t len) {
   if (mrvi_predictor_create(it->model, &it->step, &it->predictor) < 0)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   mrvi_predictor_set_tolerance(it->predictor, it->settings.newton_tol);
   predict(it);
+  return MRVI_OK;
+}
+
+/* The Jacobian pattern and the residual and Jacobian at the predictor
+ * (pattern and symbolic analysis once per run). */
+static int jacobian_create(mrvi_integrator *it, char *msg, size_t len) {
   if (mrvi_step_build_pattern(&it->step, it->x) < 0)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   mrvi_step_assemble(&it->step, it->x, it->R, 1);
   return MRVI_OK;
+}
+
+/* The Newton paths' common set-up: the predictor and the Jacobian. */
+static int newton_paths_create(mrvi_integrator *it, char *msg, size_t len) {
+  const int st = predictor_create(it, msg, len);
+  return st < 0 ? st : jacobian_create(it, msg, len);
 }
 
 /* The general path: the sparse LU of the whole step's Jacobian, or in the
@@ -548,24 +558,43 @@ static void schur_free(mrvi_integrator *it) {
   mrvi_predictor_free(it->predictor);
 }
 
+/* schur-krylov's Newton: the whole step's CSC Jacobian pattern and the
+ * elimination on it (solver/schur_krylov.c), built once and kept.  Where
+ * the matrix-free outer iteration is the path's first choice, on the first
+ * step left to Newton (or the first Jacobian solve): the pattern is
+ * structural and the elimination reads only it at creation, so that step
+ * does the arithmetic it does with the machinery built at creation. */
+static int skrylov_newton(mrvi_integrator *it, char *msg, size_t len) {
+  if (it->skrylov)
+    return MRVI_OK;
+  if (!it->step.Ap && mrvi_step_build_pattern(&it->step, it->x) < 0)
+    return mrvi_fail(msg, len, MRVI_ENOMEM,
+                     "out of memory for the step Jacobian of schur-krylov's "
+                     "Newton");
+  return mrvi_skrylov_create(&it->step, &it->skrylov, msg, len);
+}
+
 /* The schur-krylov path (solver/schur_krylov.c). */
 static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
-  int st = newton_paths_create(it, msg, len);
-  if (st < 0 ||
-      (st = mrvi_skrylov_create(&it->step, &it->skrylov, msg, len)) < 0)
+  int st = predictor_create(it, msg, len);
+  if (st < 0)
     return st;
   /* The matrix-free outer iteration on unconstrained steps (solver/outer.c)
    * where its Jacobi chord on the fast rows contracts by at most
    * chord_jacobi_max at the initial state, (omega_max dt)^2/4, as
-   * sweep-cg's (doc/solver.md, "schur-krylov: the outer iteration"). */
+   * sweep-cg's (doc/solver.md, "schur-krylov: the outer iteration"); then
+   * Newton is built on the first step left to it. */
   const mrvi_step *sp = &it->step;
   const double a =
       0.25 * pow(mrvi_predictor_omega_max(it->predictor) * sp->dt, 2.0);
   if (sp->tuning.outer_max > 0 && sp->n_lambda == 0 &&
-      a <= sp->tuning.chord_jacobi_max &&
-      mrvi_outer_create(it->model, sp, &it->outer) < 0)
-    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
-  return MRVI_OK;
+      a <= sp->tuning.chord_jacobi_max)
+    return mrvi_outer_create(it->model, sp, &it->outer) < 0
+               ? mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory")
+               : MRVI_OK;
+  return (st = jacobian_create(it, msg, len)) < 0
+             ? st
+             : skrylov_newton(it, msg, len);
 }
 
 /* The schur-bordered path (solver/bordered.c) on the CSC Jacobian. */
@@ -1355,6 +1384,13 @@ static int newton_step(mrvi_integrator *it) {
       return accept_step(it, k, r0);
     predict(it);
   }
+  /* (schur-krylov's Newton built on the first step that needs it) */
+  int s = it->path == MRVI_PATH_SCHUR_KRYLOV
+              ? skrylov_newton(it, msg, sizeof msg)
+              : MRVI_OK;
+  if (s < 0)
+    return fail(it, s, "step %ld (t = %.10g): %s", it->k + 1,
+                it->t0 + (double)it->k * st->dT, msg);
   /* The constant chord: its factors stand for the kept ones of this
    * step, so that the first update uses them (prev = INFINITY: rate 0)
    * and the reuse rule below decides the next; else the Jacobian at the
@@ -1363,7 +1399,7 @@ static int newton_step(mrvi_integrator *it) {
   it->const_kept = it->factors_ok = cc;
   if (it->blocks && !cc)
     mrvi_blocks_chord(it->blocks, use_chord(it));
-  int s = evaluate(it, !cc, msg, sizeof msg);
+  s = evaluate(it, !cc, msg, sizeof msg);
   int iter = 0, fresh = 0, jac_at_x = !cc;
   double res, cres, prev = INFINITY, pprev = 0.0;
   residual_norms(it, &res, &cres);
@@ -1656,6 +1692,7 @@ void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
     *out = *k;
   else
     memset(out, 0, sizeof *out);
+  out->newton_built = it->skrylov != NULL;
   if (it->outer) {
     const mrvi_outer_stats *o = mrvi_outer_stats_of(it->outer);
     out->outer_fallbacks = o->failed;
@@ -1687,11 +1724,14 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
     const double *qs0 = st->qs0, *qf0 = st->qf0;
     st->qs0 = it->qs_prev;
     st->qf0 = it->qf_prev;
-    int s = MRVI_OK;
-    if (!st->Ap && (s = mrvi_step_build_pattern(st, it->x)) < 0) {
+    int s = it->path == MRVI_PATH_SCHUR_KRYLOV
+                ? skrylov_newton(it, msg, sizeof msg)
+            : !st->Ap ? mrvi_step_build_pattern(st, it->x)
+                      : MRVI_OK;
+    if (s < 0) {
       st->qs0 = qs0;
       st->qf0 = qf0;
-      return fail(it, s, "out of memory");
+      return fail(it, s, "%s", msg[0] ? msg : "out of memory");
     }
     if (!it->ops->update && !it->jac_nw) { /* (a sweep path: see create) */
       double *dx = realloc(it->dx, (size_t)st->n_total * sizeof *dx);

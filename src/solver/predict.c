@@ -84,6 +84,7 @@ struct mrvi_predictor {
   const mrvi_model *m;
   mrvi_tuning tn;   /* the step's tuning constants */
   int sweep_ok;     /* dt omega_max small enough for the explicit sweep */
+  double omega;     /* omega_max at q0 (power_iteration, once) */
   int slow_coupled; /* the slow row sees the micro nodes */
   /* Vectors of n entries (model order in omega_max; packed (q^s, q^f) in
    * the sweep): configuration, gradient, slow-row force (ns), the explicit
@@ -451,6 +452,8 @@ static void one_point(mrvi_predictor *pr, const mrvi_step *st) {
   pr->one = 1;
 }
 
+static double power_iteration(mrvi_predictor *pr);
+
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
                           mrvi_predictor **out) {
   mrvi_predictor *pr = calloc(1, sizeof *pr);
@@ -567,7 +570,8 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
             pr->slow_coupled = 1;
       }
     }
-  pr->sweep_ok = st->dt * mrvi_predictor_omega_max(pr) <= 0.5;
+  pr->omega = power_iteration(pr);
+  pr->sweep_ok = st->dt * pr->omega <= 0.5;
   pr->rstop = pr->rsweep = INFINITY;
   if (pr->slow_coupled && m->n <= pr->tn.slow_newton_n) {
     const size_t ns = (size_t)(m->n_slow > 0 ? m->n_slow : 1);
@@ -643,10 +647,13 @@ static void full_gradient(mrvi_predictor *pr) {
   mrvi_model_potential(pr->m, MRVI_FAST, pr->z, pr->g, NULL);
 }
 
-double mrvi_predictor_omega_max(mrvi_predictor *pr) {
-  /* Power iteration on M^-1/2 hess(V + W)(q0) M^-1/2 with Hessian-vector
-   * products from central differences of the gradient (fs, fexp, fimp and
-   * fb serve as vectors here). */
+double mrvi_predictor_omega_max(mrvi_predictor *pr) { return pr->omega; }
+
+/* omega_max at q0 (mrvi_predictor_omega_max): power iteration on M^-1/2
+ * hess(V + W)(q0) M^-1/2 with Hessian-vector products from central
+ * differences of the gradient (fs, fexp, fimp and fb serve as vectors
+ * here); computed once, by mrvi_predictor_create. */
+static double power_iteration(mrvi_predictor *pr) {
   const mrvi_model *m = pr->m;
   const int n = m->n;
   double *u = pr->fs, *gp = pr->fexp, *gm = pr->fimp;

@@ -413,7 +413,7 @@ int mrvi_predictor_sweeps(const mrvi_predictor *pr);
  * previous setting. */
 int mrvi_predictor_one_point(mrvi_predictor *pr, int on);
 /* Largest frequency sqrt(max eig M^-1 hess(V + W)) at the initial state,
- * by power iteration (0 if not positive). */
+ * by power iteration at creation (0 if not positive). */
 double mrvi_predictor_omega_max(mrvi_predictor *pr);
 
 /* The schur-bordered path (solver/bordered.c): a constrained step's

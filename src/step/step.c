@@ -548,6 +548,23 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
     assemble_constraints(st, x, R, jac);
 }
 
+/* What build_pattern made, freed (out of memory: a later call starts
+ * afresh). */
+static int drop_pattern(mrvi_step *st) {
+  free(st->Ti);
+  free(st->Tj);
+  free(st->Ap);
+  free(st->Ai);
+  free(st->map);
+  free(st->Ax);
+  st->Ti = st->Tj = st->Ai = st->Ap = st->map = NULL;
+  st->Ax = NULL;
+  st->cap_trip = st->n_trip = 0;
+  st->nnz = 0;
+  st->recording = 0;
+  return MRVI_ENOMEM;
+}
+
 int mrvi_step_build_pattern(mrvi_step *st, const double *x) {
   const int n = st->n_total;
   double *R = malloc((size_t)n * sizeof *R);
@@ -558,14 +575,14 @@ int mrvi_step_build_pattern(mrvi_step *st, const double *x) {
   mrvi_step_assemble(st, x, R, 1);
   free(R);
   if (st->recording < 0)
-    return MRVI_ENOMEM;
+    return drop_pattern(st);
   st->recording = 0;
   const long nt = st->n_trip;
   st->Ap = malloc((size_t)(n + 1) * sizeof *st->Ap);
   st->Ai = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *st->Ai);
   st->map = malloc((size_t)(nt > 0 ? nt : 1) * sizeof *st->map);
   if (!st->Ap || !st->Ai || !st->map)
-    return MRVI_ENOMEM;
+    return drop_pattern(st);
   int status = umfpack_di_triplet_to_col(n, n, (int)nt, st->Ti, st->Tj, NULL,
                                          st->Ap, st->Ai, NULL, st->map);
   free(st->Ti);
@@ -573,11 +590,11 @@ int mrvi_step_build_pattern(mrvi_step *st, const double *x) {
   st->Ti = st->Tj = NULL;
   st->cap_trip = 0;
   if (status != UMFPACK_OK)
-    return MRVI_ENOMEM;
+    return drop_pattern(st);
   st->nnz = st->Ap[n];
   st->Ax = calloc((size_t)(st->nnz > 0 ? st->nnz : 1), sizeof *st->Ax);
   if (!st->Ax)
-    return MRVI_ENOMEM;
+    return drop_pattern(st);
   return MRVI_OK;
 }
 
