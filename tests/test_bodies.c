@@ -729,8 +729,7 @@ static void test_chain_updates(void) {
         "chain updates: %s", msg);
   for (int k = 0; it && k < STEPS; k++) {
     if (mrvi_integrator_step(it) < 0) {
-      CHECK(0, "chain updates, step %d: %s", k + 1,
-            mrvi_integrator_errmsg(it));
+      CHECK(0, "chain updates, step %d: %s", k + 1, mrvi_integrator_errmsg(it));
       break;
     }
     const int n = mrvi_integrator_last_iterations(it);
