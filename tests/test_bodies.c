@@ -709,6 +709,40 @@ static void test_chain_floor(void) {
   mrvi_model_free(m);
 }
 
+/* The general path's Newton updates in the multiplier form solve without
+ * UMFPACK's iterative refinement (doc/solver.md, "Newton details"): the
+ * exact residual decides convergence, and the count of updates must be what
+ * it was with refinement.  A rigid chain of 30 bars at the origin (step
+ * matrix of about 900 rows: UMFPACK, not the dense LU) takes two updates at
+ * every step, the second below the tolerance. */
+static void test_chain_updates(void) {
+  enum { LINKS = 30, STEPS = 8 };
+  mrvi_model *m = far_chain(LINKS, 0.0, 9.81);
+  if (!m)
+    return;
+  mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 4, 1.0, 1e-10);
+  s.constraint_tol = 1e-10;
+  s.solver = MRVI_SOLVER_GENERAL;
+  mrvi_integrator *it = NULL;
+  char msg[400];
+  CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0,
+        "chain updates: %s", msg);
+  for (int k = 0; it && k < STEPS; k++) {
+    if (mrvi_integrator_step(it) < 0) {
+      CHECK(0, "chain updates, step %d: %s", k + 1, mrvi_integrator_errmsg(it));
+      break;
+    }
+    const int n = mrvi_integrator_last_iterations(it);
+    const double r = mrvi_integrator_last_residual(it);
+    CHECK(n == 2 && r <= s.newton_tol,
+          "chain of %d bars, step %d: %d updates, residual %.3e (expected 2 "
+          "updates, residual <= %.0e)",
+          LINKS, k + 1, n, r, s.newton_tol);
+  }
+  mrvi_integrator_free(it);
+  mrvi_model_free(m);
+}
+
 /* The chain's step-size limit (doc/performance.md, "The rigid chain at
  * 1 000 links, continued"): the zig-zag mode of bars of mass m, length L
  * under tension T has omega^2 = 12 T / (m L), and the steps fail where
@@ -1021,6 +1055,7 @@ int main(void) {
   test_top();
   test_pendulum();
   test_chain_floor();
+  test_chain_updates();
   test_chain_limit();
   test_output();
   test_loader();

@@ -970,7 +970,7 @@ static int general_update(mrvi_integrator *it, int fresh, char *msg,
       subtract_dx(it, st->n_unknowns);
     return s;
   }
-  s = mrvi_newton_solve(it->newton, st->Ax, it->R, it->dx, msg, len);
+  s = mrvi_newton_update(it->newton, st->Ax, it->R, it->dx, msg, len);
   if (s == MRVI_OK)
     subtract_dx(it, st->n_total);
   return s;

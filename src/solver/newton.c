@@ -338,6 +338,23 @@ int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
   return st < 0 ? st : mrvi_linsolve_solve(nw, Ax, 0, b, dx, msg, len);
 }
 
+/* A Newton update: as mrvi_newton_solve without UMFPACK's iterative
+ * refinement (Control[UMFPACK_IRSTEP] = 0 for this solve only).  The update
+ * is only needed to the Newton tolerance, and the caller re-evaluates the
+ * residual exactly at the updated point: that residual, not the accuracy
+ * of the solve, decides convergence (doc/solver.md, "Newton details"). */
+int mrvi_newton_update(mrvi_newton *nw, const double *Ax, const double *b,
+                       double *dx, char *msg, size_t len) {
+  const int st = mrvi_newton_factor(nw, Ax, msg, len);
+  if (st < 0)
+    return st;
+  const double irstep = nw->control[UMFPACK_IRSTEP];
+  nw->control[UMFPACK_IRSTEP] = 0.0;
+  const int s = mrvi_linsolve_solve(nw, Ax, 0, b, dx, msg, len);
+  nw->control[UMFPACK_IRSTEP] = irstep;
+  return s;
+}
+
 /* Solve A^T x_i = b_i for nrhs right-hand sides (columns of length n),
  * through the same factorisation and solve as the Newton updates. */
 int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,

@@ -128,6 +128,10 @@ void mrvi_newton_free(mrvi_newton *nw);
 /* Factorise A (values Ax on the fixed pattern) and solve A dx = b. */
 int mrvi_newton_solve(mrvi_newton *nw, const double *Ax, const double *b,
                       double *dx, char *msg, size_t len);
+/* The same without the backend's iterative refinement (UMFPACK_IRSTEP):
+ * for Newton updates whose residual the caller re-evaluates exactly. */
+int mrvi_newton_update(mrvi_newton *nw, const double *Ax, const double *b,
+                       double *dx, char *msg, size_t len);
 /* Factorise A once and solve A^T x_i = b_i for nrhs right-hand sides
  * (b, x: nrhs x n, row i contiguous); the adjoint of optimal control. */
 int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
