@@ -454,8 +454,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
-      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->fhist[0] ||
-      !sw->fhist[1]) {
+      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
+      !sw->off || !sw->dprev || !sw->fhist[0] || !sw->fhist[1]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
