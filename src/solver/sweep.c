@@ -84,7 +84,11 @@ struct mrvi_sweep {
   double *J;              /* nf x nf */
   double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
-  mrvi_sblock *sb; /* sparse J instead (nf > dense_max) */
+  /* sparse: J as the block sb instead (nf > dense_max), made when Newton
+   * first needs it (sblock_ready; sb_dense_max its dense blocks' bound): a
+   * run whose rows all converge on the chord below never builds it. */
+  int sparse, sb_dense_max;
+  mrvi_sblock *sb;
   /* sweep-cg's Jacobi chord (chord_setup, or chord_residual from row 0's
    * start): 1 / diag J of row 0's first Newton matrix (or of its last
    * chord iterate), mild (this step's rows extrapolate their predictor),
@@ -98,7 +102,6 @@ struct mrvi_sweep {
   int mild, chord, fresh;
   double chord_max;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
-  double *y, *g, *H; /* element workspace */
 };
 
 /* The structure the sweep needs, or the reason it is missing. */
@@ -315,9 +318,6 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->dprev);
   free(sw->fhist[0]);
   free(sw->fhist[1]);
-  free(sw->y);
-  free(sw->g);
-  free(sw->H);
   free(sw);
 }
 
@@ -369,18 +369,14 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->imp = k++ == 0 ? i : -1;
   sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
-  const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
-  int max_n_in = 1;
-  for (int e = 0; e < m->n_elements; e++)
-    if (m->elements[e].n_in > max_n_in)
-      max_n_in = m->elements[e].n_in;
   sw->minv_s = dalloc(ns);
   sw->minv_f = dalloc(nf);
   sw->m_f = dalloc(nf);
-  sw->zf = dalloc(nf);
   sw->zv = dalloc(ns + nf);
   sw->gv = dalloc(ns + nf);
-  sw->gzero = dalloc(ns + nf);
+  /* (zeros for grad V where V has no point at node k, and for the
+   * implicit paths' zero displacement) */
+  sw->gzero = dalloc(sw->wv0 == 0.0 || sw->implicit ? ns + nf : 0);
   /* Columns: (q^s, q^f) packed for V, q^f alone for W (no slow inputs). */
   int *col = calloc((size_t)(m->n > 0 ? m->n : 1), sizeof *col);
   int s_ok = col != NULL;
@@ -410,21 +406,21 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->gnode = dalloc(nf);
-  sw->gpt[0] = dalloc(nf);
-  sw->gpt[1] = dalloc(nf);
-  sw->rhs = dalloc(nf);
-  sw->F = dalloc(nf);
-  sw->fimp = dalloc(nf);
-  sw->dn = dalloc(nf);
-  sw->dff = dalloc(nf);
-  sw->rw = dalloc(nf);
+  /* The rows' workspace of the implicit paths (the explicit path needs
+   * none of it: explicit_sweep and explicit_p1). */
+  const size_t ni = sw->implicit ? nf : 0;
+  sw->zf = dalloc(ni);
+  sw->gpt[0] = dalloc(ni);
+  sw->gpt[1] = dalloc(sw->n_w > 1 ? ni : 0);
+  sw->rhs = dalloc(ni);
+  sw->F = dalloc(ni);
+  sw->fimp = dalloc(ni);
+  sw->dn = dalloc(ni);
+  sw->dff = dalloc(ni);
+  sw->rw = dalloc(ni);
   const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
-  if (sparse && mrvi_sblock_create(m, st->elem_of_class[MRVI_FAST],
-                                   st->n_elem_of_class[MRVI_FAST],
-                                   s->tuning.newton_dense_max, &sw->sb) < 0) {
-    mrvi_sweep_free(sw);
-    return MRVI_ENOMEM;
-  }
+  sw->sparse = sparse;
+  sw->sb_dense_max = s->tuning.newton_dense_max;
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
   sw->chord_max = s->tuning.chord_jacobi_max;
   sw->jdinv = dalloc(sparse ? nf : 1);
@@ -453,17 +449,13 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->Hpt[0] = dalloc(sw->linear ? nf * nf : 1);
   sw->Hpt[1] = dalloc(sw->linear ? nf * nf : 1);
   sw->Jinv = dalloc(sw->linear ? nf * nf : 1);
-  sw->del = dalloc(nf);
-  sw->piv = calloc(nf > 0 ? nf : 1, sizeof(int));
-  sw->y = dalloc((size_t)max_n_in);
-  sw->g = dalloc((size_t)max_n_in);
-  sw->H = dalloc(mi * mi);
+  sw->del = dalloc(sw->linear ? nf : 0);
+  sw->piv = calloc(sw->implicit && !sparse && nf > 0 ? nf : 1, sizeof(int));
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
-      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->y || !sw->g || !sw->H ||
-      !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->fhist[0] ||
-      !sw->fhist[1]) {
+      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
+      !sw->off || !sw->dprev || !sw->fhist[0] || !sw->fhist[1]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -476,7 +468,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
   sw->cg_unit = 1.0;
   for (int i = 0; i < sw->nf; i++) {
-    sw->rw[i] = scaled ? sw->minv_f[i] : 1.0;
+    if (sw->implicit)
+      sw->rw[i] = scaled ? sw->minv_f[i] : 1.0;
     if (scaled && (i == 0 || sw->m_f[i] < sw->cg_unit))
       sw->cg_unit = sw->m_f[i];
   }
@@ -493,7 +486,26 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
     return;
   sw->gnode_ok = 0;
   sw->gv_ok = 0;
-  memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
+  if (sw->implicit)
+    memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
+}
+
+/* The sparse block of the Newton matrix (its pattern, assembly maps and CG
+ * vectors), made once, where Newton first assembles J. */
+static int sblock_ready(mrvi_sweep *sw, char *msg, size_t len) {
+  if (sw->sb)
+    return MRVI_OK;
+  const mrvi_step *st = sw->st;
+  if (mrvi_sblock_create(st->model, st->elem_of_class[MRVI_FAST],
+                         st->n_elem_of_class[MRVI_FAST], sw->sb_dense_max,
+                         &sw->sb) < 0) {
+    mrvi_fmt(msg, len,
+             "out of memory for the micro-step Newton matrix "
+             "(%d fast coordinates)",
+             sw->nf);
+    return MRVI_ENOMEM;
+  }
+  return MRVI_OK;
 }
 
 /* The fast class at zf: gf += grad W and, if J, J += hscale hess W
@@ -823,7 +835,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
    * else Newton, whose first matrix decides (chord_setup). */
   if (first)
     sw->mild = sw->chord = sw->fresh && sw->imp >= 0 && sw->chord_max > 0.0;
-  if (!first && sw->sb) {
+  if (!first && sw->sparse) {
     extrapolated_predictor(sw, m, dn);
   } else {
     for (int pass = first ? 0 : 1; pass < 2; pass++) {
@@ -872,9 +884,12 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         continue;
       }
     } else {
-      if (with_j && sw->sb)
+      if (with_j && sw->sparse) {
+        const int s = sblock_ready(sw, msg, len);
+        if (s < 0)
+          return s;
         mrvi_sblock_zero(sw->sb);
-      else if (with_j)
+      } else if (with_j)
         memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
       implicit_force(sw, qm, dn, with_j ? sw->J : NULL);
       for (int f = 0; f < nf; f++) {
@@ -936,7 +951,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       continue;
     }
     with_j = 0;
-    if (sw->sb) {
+    if (sw->sparse) {
       /* J d = F by CG to 1 % of the tolerance (inexact Newton: the
        * residual above is exact, so the solution is the same). */
       const int s = mrvi_sblock_solve(sw->sb, sw->m_f, 1.0 / dt, sw->F,
