@@ -640,11 +640,11 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr);
 }
 
-/* g <- grad (V + W) at z. */
+/* g <- grad (V + W) at z, both packed (q^s, q^f): the compiled terms. */
 static void full_gradient(mrvi_predictor *pr) {
   memset(pr->g, 0, (size_t)pr->m->n * sizeof(double));
-  mrvi_model_potential(pr->m, MRVI_SLOW, pr->z, pr->g, NULL);
-  mrvi_model_potential(pr->m, MRVI_FAST, pr->z, pr->g, NULL);
+  mrvi_terms_grad(pr->kc[0], pr->z, pr->g);
+  mrvi_terms_grad(pr->kc[1], pr->z, pr->g);
 }
 
 double mrvi_predictor_omega_max(mrvi_predictor *pr) { return pr->omega; }
@@ -652,14 +652,21 @@ double mrvi_predictor_omega_max(mrvi_predictor *pr) { return pr->omega; }
 /* omega_max at q0 (mrvi_predictor_omega_max): power iteration on M^-1/2
  * hess(V + W)(q0) M^-1/2 with Hessian-vector products from central
  * differences of the gradient (fs, fexp, fimp and fb serve as vectors
- * here); computed once, by mrvi_predictor_create. */
+ * here), in the packed order of the compiled terms (coordinate c at
+ * column (slow ? 0 : n_slow) + slot[c], its start entry 1 + 0.1 (c mod 7)
+ * as in model order); computed once, by mrvi_predictor_create. */
 static double power_iteration(mrvi_predictor *pr) {
   const mrvi_model *m = pr->m;
   const int n = m->n;
-  double *u = pr->fs, *gp = pr->fexp, *gm = pr->fimp;
-  double lambda = 0.0;
-  for (int i = 0; i < n; i++)
-    u[i] = 1.0 + 0.1 * (double)(i % 7);
+  double *u = pr->fs, *gp = pr->fexp, *gm = pr->fimp, *q0 = pr->fb;
+  double lambda = 0.0, h = 0.0;
+  for (int c = 0; c < n; c++) {
+    const int j = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
+    u[j] = 1.0 + 0.1 * (double)(c % 7);
+    q0[j] = m->q0[c];
+    h = fmax(h, fabs(m->q0[c]));
+  }
+  h = 1e-6 * (1.0 + h);
   for (int it = 0; it < 30; it++) {
     double nu = 0.0;
     for (int i = 0; i < n; i++)
@@ -667,21 +674,17 @@ static double power_iteration(mrvi_predictor *pr) {
     nu = sqrt(nu);
     if (!(nu > 0.0))
       return 0.0;
-    double h = 0.0;
-    for (int i = 0; i < n; i++) {
+    for (int i = 0; i < n; i++)
       u[i] /= nu;
-      h = fmax(h, fabs(m->q0[i]));
-    }
-    h = 1e-6 * (1.0 + h);
     for (int sgn = 0; sgn < 2; sgn++) {
       for (int i = 0; i < n; i++)
-        pr->z[i] = m->q0[i] + (sgn ? -h : h) * u[i] / sqrt(m->mass[i]);
+        pr->z[i] = q0[i] + (sgn ? -h : h) * u[i] * sqrt(pr->minv[i]);
       full_gradient(pr);
       memcpy(sgn ? gm : gp, pr->g, (size_t)n * sizeof(double));
     }
     lambda = 0.0;
     for (int i = 0; i < n; i++) {
-      const double hu = (gp[i] - gm[i]) / (2.0 * h) / sqrt(m->mass[i]);
+      const double hu = (gp[i] - gm[i]) / (2.0 * h) * sqrt(pr->minv[i]);
       lambda += u[i] * hu;
       u[i] = hu;
     }
