@@ -102,14 +102,27 @@ check_stopped() {
   fi
 }
 
-# --- SIGINT to the batch process alone, 2 jobs ---
-"$mrvi" batch "$fpu" -o i.h5 -j 2 "${slow[@]}" >out.txt 2>err.txt &
-pid=$!
-if started i.h5 2; then
-  kill -INT "$pid"
-  ended "$pid" || fail "SIGINT: the batch did not stop within 60 s"
+# interrupt NAME PID TARGET MASTER N SIGNAL: once N case files of MASTER
+# exist, send SIGNAL to TARGET (PID, or -PID: its process group) and wait
+# for PID to end; its exit status in $rc.  1 (a failure said) when no case
+# started within 60 s.
+interrupt() {
+  local name=$1 pid=$2 target=$3
+  if ! started "$4" "$5"; then
+    kill -KILL -- "$target"
+    wait "$pid"
+    fail "$name: no case started within 60 s"
+    return 1
+  fi
+  kill "-$6" -- "$target"
+  ended "$pid" || fail "$name: the batch did not stop within 60 s"
   wait "$pid"
   rc=$?
+}
+
+# --- SIGINT to the batch process alone, 2 jobs ---
+"$mrvi" batch "$fpu" -o i.h5 -j 2 "${slow[@]}" >out.txt 2>err.txt &
+if interrupt SIGINT $! $! i.h5 2 INT; then
   [ $rc = 130 ] && pass "SIGINT: exit 130" || fail "SIGINT: exit $rc"
   grep -q "^i.h5: interrupted: 0 of 5 cases completed" out.txt &&
     pass "SIGINT: the summary says interrupted" ||
@@ -118,37 +131,21 @@ if started i.h5 2; then
     pass "SIGINT: the two running cases stopped" ||
     fail "SIGINT: $(tail -n 3 err.txt)"
   check_stopped "SIGINT" i.h5 INT
-else
-  kill -KILL "$pid"
-  fail "SIGINT: no case started within 60 s"
 fi
 
 # --- SIGTERM to the process group (workers too), 1 job ---
 setsid "$mrvi" batch "$fpu" -o t.h5 -j 1 -q "${slow[@]}" >out.txt 2>err.txt &
-pid=$!
-if started t.h5 1; then
-  kill -TERM -- "-$pid"
-  ended "$pid" || fail "SIGTERM: the batch did not stop within 60 s"
-  wait "$pid"
-  rc=$?
+if interrupt "SIGTERM to the group" $! "-$!" t.h5 1 TERM; then
   [ $rc = 143 ] && pass "SIGTERM to the group: exit 143" ||
     fail "SIGTERM to the group: exit $rc"
   check_stopped "SIGTERM to the group" t.h5 TERM
-else
-  kill -KILL -- "-$pid"
-  fail "SIGTERM: no case started within 60 s"
 fi
 
 # --- an optimize batch: SIGINT stops each optimiser after its evaluation ---
 "$mrvi" batch "$root/systems/ocp_gantry_crane.yaml" -o o.h5 -j 2 -q --optimize \
   --seeds 5 --control-std 5 --vary integrator.macro_step=0.004 >out.txt \
   2>err.txt &
-pid=$!
-if started o.h5 2; then
-  kill -INT "$pid"
-  ended "$pid" || fail "optimize: the batch did not stop within 60 s"
-  wait "$pid"
-  rc=$?
+if interrupt optimize $! $! o.h5 2 INT; then
   mapfile -t status < <(column o.h5 status)
   stopped=$(column o.h5 stop_reason |
     grep -c '^"interrupted: optimisation interrupted after')
@@ -163,28 +160,18 @@ if started o.h5 2; then
   else
     fail "optimize: exit $rc, $stopped stopped, $skipped not run, $done_ done, files valid $opened"
   fi
-else
-  kill -KILL "$pid"
-  fail "optimize: no case started within 60 s"
 fi
 
-# --- Ctrl-C of mpiexec -n 2: Open MPI sends SIGTERM to every rank ---
+# --- Ctrl-C of mpiexec -n 2: Open MPI sends SIGTERM to every rank (the
+# exit status is mpiexec's own) ---
 if [ "$built" = mpi ] && command -v mpiexec >/dev/null; then
   mpirun=(mpiexec -n 2 --oversubscribe)
   [ "$(id -u)" = 0 ] && mpirun+=(--allow-run-as-root)
   export ASAN_OPTIONS="${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0"
   "${mpirun[@]}" "$mrvi" batch "$fpu" -o m.h5 -j 1 -q "${slow[@]}" \
     >out.txt 2>err.txt &
-  pid=$!
-  if started m.h5 2; then
-    kill -INT "$pid"
-    ended "$pid" || fail "mpiexec: the batch did not stop within 60 s"
-    wait "$pid"
+  interrupt mpiexec $! $! m.h5 2 INT &&
     check_stopped "mpiexec -n 2, SIGINT to mpiexec" m.h5 TERM
-  else
-    kill -KILL "$pid"
-    fail "mpiexec: no case started within 60 s"
-  fi
 else
   echo "skipped: the mpiexec run (built without MPI, or no mpiexec)"
 fi
