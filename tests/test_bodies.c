@@ -674,39 +674,67 @@ static mrvi_model *far_chain(int n, double X, double gravity) {
   return m;
 }
 
-static void test_chain_floor(void) {
-  enum { LINKS = 8, STEPS = 10 };
-  mrvi_model *m = far_chain(LINKS, 3000.0, 9.81);
+/* Each step of a chain, for a test's check: its Newton updates and final
+ * residual against the tolerance tol. */
+typedef void (*chain_check)(void *ctx, int k, int updates, double residual,
+                            double tol);
+
+/* `steps` steps of far_chain(links, X, 9.81) on the general path
+ * (midpoint-midpoint, dT = 0.01, p = 4, Newton and constraint tolerance
+ * 1e-10), each handed to check; the steps taken (a failure is reported
+ * under `what`), -1 without a model (far_chain said why). */
+static int chain_steps(int links, double X, int steps, const char *what,
+                       chain_check check, void *ctx) {
+  mrvi_model *m = far_chain(links, X, 9.81);
   if (!m)
-    return;
+    return -1;
   mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 4, 1.0, 1e-10);
   s.constraint_tol = 1e-10;
   s.solver = MRVI_SOLVER_GENERAL;
   mrvi_integrator *it = NULL;
   char msg[400];
-  CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0,
-        "far chain: %s", msg);
-  int k = 0, iters = 0, most = 0;
-  for (; it && k < STEPS; k++) {
+  CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0, "%s: %s",
+        what, msg);
+  int k = 0;
+  for (; it && k < steps; k++) {
     if (mrvi_integrator_step(it) < 0) {
-      CHECK(0, "far chain, step %d: %s", k + 1, mrvi_integrator_errmsg(it));
+      CHECK(0, "%s, step %d: %s", what, k + 1, mrvi_integrator_errmsg(it));
       break;
     }
-    const int n = mrvi_integrator_last_iterations(it);
-    const double r = mrvi_integrator_last_residual(it);
-    CHECK(r <= s.newton_tol, "far chain, step %d: residual %.3e", k + 1, r);
-    iters += n;
-    most = n > most ? n : most;
+    check(ctx, k, mrvi_integrator_last_iterations(it),
+          mrvi_integrator_last_residual(it), s.newton_tol);
   }
-  printf("chain of %d bars 3000 from the origin: %.2f Newton updates per "
-         "step, at most %d\n",
-         LINKS, k ? (double)iters / k : 0.0, most);
-  CHECK(k == STEPS && most <= 3,
-        "far chain: %d updates in a step (at most 3: two reach the "
-        "tolerance, a third finds the rounding floor)",
-        most);
   mrvi_integrator_free(it);
   mrvi_model_free(m);
+  return k;
+}
+
+typedef struct floor_count {
+  int iters, most;
+} floor_count;
+
+/* Every step meets the tolerance; the updates counted. */
+static void floor_check(void *ctx, int k, int n, double r, double tol) {
+  floor_count *fc = ctx;
+  CHECK(r <= tol, "far chain, step %d: residual %.3e", k + 1, r);
+  fc->iters += n;
+  fc->most = n > fc->most ? n : fc->most;
+}
+
+static void test_chain_floor(void) {
+  enum { LINKS = 8, STEPS = 10 };
+  floor_count fc = {0, 0};
+  const int k =
+      chain_steps(LINKS, 3000.0, STEPS, "far chain", floor_check, &fc);
+  if (k < 0)
+    return;
+  printf("chain of %d bars 3000 from the origin: %.2f Newton updates per "
+         "step, at most %d\n",
+         LINKS, k ? (double)fc.iters / k : 0.0, fc.most);
+  CHECK(k == STEPS && fc.most <= 3,
+        "far chain: %d updates in a step (at most 3: two reach the "
+        "tolerance, a third finds the rounding floor)",
+        fc.most);
 }
 
 /* The general path's Newton updates in the multiplier form solve without
@@ -715,32 +743,17 @@ static void test_chain_floor(void) {
  * it was with refinement.  A rigid chain of 30 bars at the origin (step
  * matrix of about 900 rows: UMFPACK, not the dense LU) takes two updates at
  * every step, the second below the tolerance. */
+static void updates_check(void *ctx, int k, int n, double r, double tol) {
+  const int *links = ctx;
+  CHECK(n == 2 && r <= tol,
+        "chain of %d bars, step %d: %d updates, residual %.3e (expected 2 "
+        "updates, residual <= %.0e)",
+        *links, k + 1, n, r, tol);
+}
+
 static void test_chain_updates(void) {
-  enum { LINKS = 30, STEPS = 8 };
-  mrvi_model *m = far_chain(LINKS, 0.0, 9.81);
-  if (!m)
-    return;
-  mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 4, 1.0, 1e-10);
-  s.constraint_tol = 1e-10;
-  s.solver = MRVI_SOLVER_GENERAL;
-  mrvi_integrator *it = NULL;
-  char msg[400];
-  CHECK(mrvi_integrator_create(m, &s, &it, msg, sizeof msg) == 0,
-        "chain updates: %s", msg);
-  for (int k = 0; it && k < STEPS; k++) {
-    if (mrvi_integrator_step(it) < 0) {
-      CHECK(0, "chain updates, step %d: %s", k + 1, mrvi_integrator_errmsg(it));
-      break;
-    }
-    const int n = mrvi_integrator_last_iterations(it);
-    const double r = mrvi_integrator_last_residual(it);
-    CHECK(n == 2 && r <= s.newton_tol,
-          "chain of %d bars, step %d: %d updates, residual %.3e (expected 2 "
-          "updates, residual <= %.0e)",
-          LINKS, k + 1, n, r, s.newton_tol);
-  }
-  mrvi_integrator_free(it);
-  mrvi_model_free(m);
+  int links = 30;
+  chain_steps(links, 0.0, 8, "chain updates", updates_check, &links);
 }
 
 /* The chain's step-size limit (doc/performance.md, "The rigid chain at

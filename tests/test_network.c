@@ -193,6 +193,26 @@ static double rel_diff(const trajectory *a, const trajectory *b) {
   return worst;
 }
 
+/* Whether sys's run resumed at node k of t (its q_k, p_k) reaches t's last
+ * node bit for bit: a step depends on (q_k, p_k) alone.  *it: the resumed
+ * integrator (the caller frees it; NULL if it could not be created). */
+static int resumes_bitwise(const mrvi_system *sys, const trajectory *t, int k,
+                           mrvi_integrator **it) {
+  char msg[512];
+  const size_t n = (size_t)t->n;
+  *it = NULL;
+  int same = mrvi_integrator_create(sys->model, &sys->settings, it, msg,
+                                    sizeof msg) == 0 &&
+             mrvi_integrator_resume_state(*it, k, t->q + (size_t)k * n,
+                                          t->p + (size_t)k * n) == 0;
+  for (int j = k; same && j < t->steps; j++)
+    same = mrvi_integrator_step(*it) == 0;
+  const size_t last = (size_t)t->steps * n;
+  return same &&
+         !memcmp(mrvi_integrator_q(*it), t->q + last, n * sizeof(double)) &&
+         !memcmp(mrvi_integrator_p(*it), t->p + last, n * sizeof(double));
+}
+
 /* Settings overrides: scheme, p, dT, tolerance, solver. */
 typedef struct overrides {
   char text[5][80];
@@ -541,20 +561,8 @@ static void test_chord(void) {
          * rows of the current step): resumed at node 5, the run continues
          * bit for bit. */
         mrvi_integrator *it = NULL;
-        char msg[512];
-        const size_t n = (size_t)a.n;
-        int same =
-            mrvi_integrator_create(sa->model, &sa->settings, &it, msg,
-                                   sizeof msg) == 0 &&
-            mrvi_integrator_resume_state(it, 5, b.q + 5 * n, b.p + 5 * n) == 0;
-        for (int k = 5; same && k < steps; k++)
-          same = mrvi_integrator_step(it) == 0;
-        same =
-            same &&
-            !memcmp(mrvi_integrator_q(it), b.q + steps * n,
-                    n * sizeof(double)) &&
-            !memcmp(mrvi_integrator_p(it), b.p + steps * n, n * sizeof(double));
-        CHECK(same, "chord case %d: resumed at node 5, not bit for bit", c);
+        CHECK(resumes_bitwise(sa, &b, 5, &it),
+              "chord case %d: resumed at node 5, not bit for bit", c);
         mrvi_integrator_free(it);
         printf("chord case %d: dT %g bound %g: %ld CG solves, %d updates "
                "at most, vs general %.2e\n",
@@ -619,17 +627,7 @@ static void test_outer(void) {
             schemes[sc], b.ks.outer_steps, b.ks.outer_fallbacks,
             memcmp(b.q, c.q, nq * sizeof(double)) ? "not" : "bitwise");
       mrvi_integrator *it = NULL;
-      char msg[512];
-      int same =
-          mrvi_integrator_create(s->model, &s->settings, &it, msg,
-                                 sizeof msg) == 0 &&
-          mrvi_integrator_resume_state(it, 5, a.q + 5 * n, a.p + 5 * n) == 0;
-      for (int k = 5; same && k < steps; k++)
-        same = mrvi_integrator_step(it) == 0;
-      same =
-          same &&
-          !memcmp(mrvi_integrator_q(it), a.q + steps * n, n * sizeof(double)) &&
-          !memcmp(mrvi_integrator_p(it), a.p + steps * n, n * sizeof(double));
+      const int same = resumes_bitwise(s, &a, 5, &it);
       CHECK(same, "%s: resumed at node 5, not bit for bit", schemes[sc]);
       /* Newton is built on the first step left to it (or Jacobian solve),
        * not at creation, where the outer iteration is the first choice. */

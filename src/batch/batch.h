@@ -99,9 +99,13 @@ double mrvi_batch_normal(uint64_t seed, uint64_t j);
 /* Run case c of the plan into the run file `path` (the layout of `mrvi
  * run`, written by mrvi_writer) and fill *res.  A case that fails (load,
  * Newton, non-finite state) is a result with status MRVI_BATCH_FAILED and
- * its reason, not an error of the batch. */
+ * its reason, not an error of the batch.  stop (NULL: none) is polled
+ * before every macro step (an optimize case: after every evaluation);
+ * once non-zero the case stops there, its file closed and valid with the
+ * reason ("interrupted after ..."), and the result is MRVI_BATCH_PENDING
+ * with that reason (--resume runs it again). */
 void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
-                         mrvi_batch_result *res);
+                         volatile const int *stop, mrvi_batch_result *res);
 
 /* Called by the pool in the parent for every finished case; a status < 0
  * stops the batch (no new cases are handed out). */
@@ -113,11 +117,12 @@ typedef int (*mrvi_batch_done)(void *user, const mrvi_batch_result *res);
  * mrvi_batch_case_file(master, c).  A worker that dies mid-case (killed)
  * gives that case a result with status MRVI_BATCH_PENDING (for --resume);
  * the cases left go to the workers left.  The
- * parent calls done for each result as it arrives. */
+ * parent calls done for each result as it arrives.  stop: as the queue's
+ * (the cases not handed out get no result; 0 is returned). */
 int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
                         const int *todo, int n_todo, int jobs,
-                        mrvi_batch_done done, void *user, char *msg,
-                        size_t len);
+                        volatile const int *stop, mrvi_batch_done done,
+                        void *user, char *msg, size_t len);
 
 /* Where a pool's items come from and where their records go, for a pool
  * that does not own its list of items (an MPI rank asks its manager for
@@ -132,6 +137,13 @@ typedef struct mrvi_batch_queue {
    * run (to serve other ranks); < 0 stops the batch. */
   int (*idle)(void *user);
   int idle_ms;
+  /* When set (a flag the caller's signal handler raises; the library
+   * installs none): polled while workers run.  Once non-zero no item is
+   * handed out and the running cases stop at their next macro step (the
+   * pool copies the flag into a page shared with its workers, which their
+   * runs poll); their results still come to done.  mrvi_batch_pool_serve
+   * only (a map ignores it). */
+  volatile const int *stop;
   void *user;
 } mrvi_batch_queue;
 

@@ -10,7 +10,9 @@
  * worker answers first (cases differ in cost by orders of magnitude: a
  * queue, not a static split) and closes a worker's task pipe when none are
  * left.  One loop (serve) runs the cases of a batch and the items of
- * mrvi_batch_map alike; they differ in what a worker's death means. */
+ * mrvi_batch_map alike; they differ in what a worker's death means.  A
+ * batch's stop flag (the caller's: SIGINT, SIGTERM) reaches the workers
+ * through a shared page that their runs poll between macro steps. */
 #define _GNU_SOURCE
 #include "batch/batch.h"
 
@@ -22,6 +24,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/wait.h>
 #ifdef __linux__
 #include <sys/prctl.h>
@@ -30,15 +33,18 @@
 
 int mrvi_batch_cores(void) { return mrvi_cores(); }
 
-/* An optimize case's output and problem, for its evaluations. */
+/* An optimize case's output and problem, for its evaluations, and the
+ * batch's stop flag (NULL: none). */
 typedef struct case_progress {
   mrvi_ocp_output *out;
   const mrvi_ocp *o;
+  volatile const int *stop;
 } case_progress;
 
 /* Each evaluation of an optimize case: a row of /optimizer/history and, at
  * most every output.flush_interval, the progress file (what a kill leaves;
- * a failure to write it does not stop the case: close writes the file). */
+ * a failure to write it does not stop the case: close writes the file);
+ * the stop flag set stops the optimiser (MRVI_EINTERRUPTED). */
 static int on_evaluation(void *data, int it, double cost, double viol,
                          double gnorm, double kkt) {
   (void)it;
@@ -48,15 +54,16 @@ static int on_evaluation(void *data, int it, double cost, double viol,
     return 1;
   mrvi_ocp_output_progress(cp->out, mrvi_ocp_best_iterate(cp->o), msg,
                            sizeof msg);
-  return 0;
+  return cp->stop && *cp->stop;
 }
 
 /* An optimize case into `path`, as `mrvi optimize FILE --set ... -o path`
  * writes it, progress files included (the first before the optimiser
- * starts): completed when the optimiser converged, else failed with the
- * status (max_evaluations, terminal_not_met, ...). */
+ * starts): completed when the optimiser converged, pending when stopped by
+ * the flag, else failed with the status (max_evaluations,
+ * terminal_not_met, ...). */
 static void case_optimize(mrvi_system *sys, const char *path,
-                          mrvi_batch_result *res) {
+                          volatile const int *stop, mrvi_batch_result *res) {
   char msg[4096];
   mrvi_ocp *o = NULL;
   double *u = NULL;
@@ -68,7 +75,7 @@ static void case_optimize(mrvi_system *sys, const char *path,
     mrvi_ocp_free(o);
     return;
   }
-  case_progress cp = {.out = out, .o = o};
+  case_progress cp = {.out = out, .o = o, .stop = stop};
   mrvi_ocp_set_callback(o, on_evaluation, &cp);
   mrvi_ocp_output_start(out, u, msg, sizeof msg);
   const double t0 = mrvi_clock();
@@ -93,13 +100,15 @@ static void case_optimize(mrvi_system *sys, const char *path,
     mrvi_fmt(res->reason, sizeof res->reason, "%s", msg);
   } else if (st == 0) {
     res->status = MRVI_BATCH_COMPLETED;
+  } else if (st == MRVI_EINTERRUPTED) {
+    res->status = MRVI_BATCH_PENDING;
   }
   free(u);
   mrvi_ocp_free(o);
 }
 
 void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
-                         mrvi_batch_result *res) {
+                         volatile const int *stop, mrvi_batch_result *res) {
   memset(res, 0, sizeof *res);
   res->c = c;
   res->status = MRVI_BATCH_FAILED;
@@ -114,7 +123,7 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
   if (plan->threads > 0)
     sys->settings.threads = plan->threads;
   if (plan->command == MRVI_BATCH_OPTIMIZE) {
-    case_optimize(sys, path, res);
+    case_optimize(sys, path, stop, res);
     mrvi_system_free(sys);
     return;
   }
@@ -133,7 +142,7 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
   mrvi_summary sum;
   memset(&sum, 0, sizeof sum);
   int st =
-      mrvi_run(sys->model, &sys->settings, mrvi_writer_observe, w, NULL, &sum);
+      mrvi_run(sys->model, &sys->settings, mrvi_writer_observe, w, stop, &sum);
   mrvi_writer_set_summary(w, &sum);
   const char *reason = "completed";
   if (st < 0)
@@ -143,8 +152,8 @@ void mrvi_batch_case_run(const mrvi_batch_plan *plan, int c, const char *path,
   res->steps = sum.steps;
   res->wall_time = sum.wall_time;
   res->energy_error = sum.max_rel_energy_error;
-  if (st == 0 && cst == 0)
-    res->status = MRVI_BATCH_COMPLETED;
+  if (cst == 0 && (st == 0 || st == MRVI_EINTERRUPTED))
+    res->status = st == 0 ? MRVI_BATCH_COMPLETED : MRVI_BATCH_PENDING;
   mrvi_fmt(res->reason, sizeof res->reason, "%s",
            cst < 0 && st == 0 ? close_msg : reason);
   mrvi_system_free(sys);
@@ -267,10 +276,16 @@ typedef struct feed {
    * worker was left to take it.  < 0 stops the pool (msg set). */
   int (*lost)(const mrvi_batch_queue *q, int i, int ws, char *msg, size_t len);
   int kill_on_stop; /* a stop kills the workers (else each ends its item) */
+  /* When q->stop is set: a flag the workers share (mmap'd before the fork),
+   * set once *q->stop is seen, that their items poll. */
+  volatile int *relay;
 } feed;
 
 /* `jobs` workers forked at once, each handed f->q->next() whenever it is
- * free, until the queue says none are left and every worker is idle. */
+ * free, until the queue says none are left and every worker is idle, or,
+ * once *q->stop is seen, until the items running come back (halted: no
+ * more are handed out, and the workers are asked through f->relay to end
+ * theirs early). */
 static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
                  const feed *f, char *msg, size_t len) {
   const mrvi_batch_queue *q = f->q;
@@ -293,7 +308,7 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
   sigemptyset(&ign.sa_mask);
   sigaction(SIGPIPE, &ign, &old_pipe);
   const int started = start_workers(w, jobs, size, fn, user);
-  int rc = 0, stop = 0, exhausted = 0;
+  int rc = 0, stop = 0, exhausted = 0, halted = 0;
   int carry = -1; /* an item taken from q whose worker was gone */
   if (started == 0) {
     mrvi_fmt(msg, len, "cannot start a worker process: %s", strerror(errno));
@@ -301,11 +316,18 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
     stop = 1;
   }
   for (;;) {
-    /* Hand out items to idle workers. */
+    if (!halted && q->stop && *q->stop) {
+      halted = 1;
+      if (f->relay)
+        *f->relay = 1;
+    }
+    /* Hand out items to idle workers (none once halted). */
     int running = 0;
     for (int k = 0; k < started; k++) {
       slot *s = &w[k];
-      if (s->busy < 0 && s->task >= 0) {
+      if (s->busy < 0 && halted) {
+        slot_retire(s);
+      } else if (s->busy < 0 && s->task >= 0) {
         int i = carry;
         if (i < 0 && !stop && !exhausted && (i = q->next(q->user)) < 0)
           exhausted = 1;
@@ -323,7 +345,10 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
     for (int k = 0; k < started; k++)
       if (w[k].busy >= 0)
         pfd[np++] = (struct pollfd){.fd = w[k].result, .events = POLLIN};
-    int ready = poll(pfd, (nfds_t)np, q->idle ? q->idle_ms : -1);
+    /* A signal that sets *q->stop interrupts poll (EINTR); the timeout
+     * covers one that lands just before it. */
+    const int wait_ms = q->idle ? q->idle_ms : q->stop && !halted ? 50 : -1;
+    int ready = poll(pfd, (nfds_t)np, wait_ms);
     if (ready < 0 && errno != EINTR) {
       mrvi_fmt(msg, len, "poll: %s", strerror(errno));
       rc = MRVI_EIO;
@@ -363,8 +388,9 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
       }
     }
   }
-  /* An item taken and never started: every worker was gone. */
-  if (carry >= 0 && !stop && f->lost(q, carry, -1, msg, len) < 0)
+  /* An item taken and never started: every worker was gone (or the pool
+   * halted: the caller counts it as not run). */
+  if (carry >= 0 && !stop && !halted && f->lost(q, carry, -1, msg, len) < 0)
     rc = MRVI_EIO;
   for (int k = 0; k < started; k++) {
     slot_retire(&w[k]);
@@ -390,6 +416,7 @@ static int serve(int jobs, size_t size, mrvi_batch_item fn, void *user,
 typedef struct case_job {
   const mrvi_batch_plan *plan;
   const char *master;
+  volatile const int *stop; /* the pool's relay, or NULL */
 } case_job;
 
 /* Item c: case c into its run file; the record is its result. */
@@ -398,7 +425,7 @@ static void case_item(void *user, int c, void *out) {
   mrvi_batch_result *res = out;
   char path[4096];
   if (mrvi_batch_case_file(job->master, c, 0, path, sizeof path) == 0) {
-    mrvi_batch_case_run(job->plan, c, path, res);
+    mrvi_batch_case_run(job->plan, c, path, job->stop, res);
     return;
   }
   res->c = c;
@@ -431,9 +458,25 @@ static int case_lost(const mrvi_batch_queue *q, int c, int ws, char *msg,
 int mrvi_batch_pool_serve(const mrvi_batch_plan *plan, const char *master,
                           int jobs, const mrvi_batch_queue *q, char *msg,
                           size_t len) {
-  case_job job = {plan, master};
-  const feed f = {.q = q, .lost = case_lost};
-  return serve(jobs, sizeof(mrvi_batch_result), case_item, &job, &f, msg, len);
+  /* The workers' copy of the stop flag: an int shared with them. */
+  volatile int *relay = NULL;
+  if (q->stop) {
+    void *page = mmap(NULL, sizeof *relay, PROT_READ | PROT_WRITE,
+                      MAP_SHARED | MAP_ANONYMOUS, -1, 0);
+    if (page == MAP_FAILED) {
+      mrvi_fmt(msg, len, "mmap of the stop flag: %s", strerror(errno));
+      return MRVI_ENOMEM;
+    }
+    relay = page;
+    *relay = 0;
+  }
+  case_job job = {plan, master, relay};
+  const feed f = {.q = q, .lost = case_lost, .relay = relay};
+  const int rc =
+      serve(jobs, sizeof(mrvi_batch_result), case_item, &job, &f, msg, len);
+  if (relay)
+    munmap((void *)relay, sizeof *relay);
+  return rc;
 }
 
 /* The serial queue: todo[0..n) in order. */
@@ -457,16 +500,17 @@ static int todo_done(void *user, int c, const void *res) {
 
 int mrvi_batch_pool_run(const mrvi_batch_plan *plan, const char *master,
                         const int *todo, int n_todo, int jobs,
-                        mrvi_batch_done done, void *user, char *msg,
-                        size_t len) {
+                        volatile const int *stop, mrvi_batch_done done,
+                        void *user, char *msg, size_t len) {
   mrvi_fmt(msg, len, "%s", "");
   if (n_todo <= 0)
     return 0;
   todo_queue t = {.todo = todo, .n = n_todo, .done = done, .user = user};
-  mrvi_batch_queue q = {.next = todo_next, .done = todo_done, .user = &t};
+  mrvi_batch_queue q = {
+      .next = todo_next, .done = todo_done, .stop = stop, .user = &t};
   int rc = mrvi_batch_pool_serve(plan, master, jobs < n_todo ? jobs : n_todo,
                                  &q, msg, len);
-  if (rc == 0 && t.next < n_todo) {
+  if (rc == 0 && t.next < n_todo && !(stop && *stop)) {
     mrvi_fmt(msg, len, "every worker process died; %d cases not run",
              n_todo - t.next);
     rc = MRVI_EIO;

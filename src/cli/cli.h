@@ -77,10 +77,13 @@ int mrvi_batch_mpi_share(int go, mrvi_batch_plan *plan, const char **master,
                          int *jobs);
 /* Run the cases over the ranks: rank 0 hands todo[0..n_todo) out and calls
  * done for every result (its own workers' and the other ranks'); the other
- * ranks run what it hands them. */
+ * ranks run what it hands them.  stop: this rank's signal flag (a rank
+ * where it is set ends its running cases at their next macro step and
+ * takes no more; on rank 0 none are handed out any more). */
 int mrvi_batch_mpi_run(const mrvi_batch_plan *plan, const char *master,
                        const int *todo, int n_todo, int jobs,
-                       mrvi_batch_done done, void *user, char *msg, size_t len);
+                       volatile const int *stop, mrvi_batch_done done,
+                       void *user, char *msg, size_t len);
 /* mrvi_batch_map over the ranks (collective: every rank calls it with the
  * same items): rank 0 hands the items out, each rank runs its share on its
  * own `jobs` worker processes (forked even for one job), and every rank

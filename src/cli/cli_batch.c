@@ -6,6 +6,7 @@
 
 #include <errno.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -72,6 +73,8 @@ const char mrvi_usage_batch[] =
     "A case that fails (Newton failure, non-finite state) is recorded with\n"
     "its reason and the others go on; an optimize case that does not\n"
     "converge is recorded as failed with the optimiser's status.\n"
+    "Ctrl-C or SIGTERM: no case starts any more and the running ones stop\n"
+    "at their next macro step, their files valid (--resume runs the rest).\n"
     "\n"
     "MPI (built with meson -Dmpi=enabled): 'mpiexec -n R mrvi batch ...'\n"
     "hands the cases out over R ranks, each with its own --jobs workers\n"
@@ -82,12 +85,31 @@ const char mrvi_usage_batch[] =
     "  0    every case completed\n"
     "  1    nothing was run: bad arguments, a case refused by the loader\n"
     "  2    the batch ran and at least one case failed or was not run (a\n"
-    "       worker process killed: --resume runs it)\n";
+    "       worker process killed: --resume runs it)\n"
+    "  130  interrupted by SIGINT (143: SIGTERM)\n";
 
 typedef struct batch_ctx {
   const char *out;
   int quiet, ranks, finished, failed, unfinished, total, optimize;
+  int n_cases;
+  char *seen; /* n_cases: a result came back for the case */
 } batch_ctx;
+
+/* Close the master file f after the status st of what was done with it
+ * (its message in msg): a failure to close becomes the message.  0, or -1
+ * after printing the message. */
+static int table_close(mrvi_batch_file *f, int st, char *msg, size_t len) {
+  char close_msg[MSG_LEN];
+  if (mrvi_batch_file_close(f, close_msg, sizeof close_msg) < 0 && st == 0) {
+    st = MRVI_EIO;
+    snprintf(msg, len, "%s", close_msg);
+  }
+  if (st < 0) {
+    fprintf(stderr, "mrvi batch: %s\n", msg);
+    return -1;
+  }
+  return 0;
+}
 
 /* A finished case: its row of the table, and a line. */
 static int on_done(void *user, const mrvi_batch_result *res) {
@@ -100,16 +122,11 @@ static int on_done(void *user, const mrvi_batch_result *res) {
   int st = mrvi_batch_file_open(b->out, NULL, NULL, &f, msg, sizeof msg);
   if (st == 0)
     st = mrvi_batch_file_row(f, res, msg, sizeof msg);
-  char close_msg[MSG_LEN];
-  if (mrvi_batch_file_close(f, close_msg, sizeof close_msg) < 0 && st == 0) {
-    st = MRVI_EIO;
-    snprintf(msg, sizeof msg, "%s", close_msg);
-  }
-  if (st < 0) {
-    fprintf(stderr, "mrvi batch: %s\n", msg);
+  if (table_close(f, st, msg, sizeof msg) < 0)
     return -1;
-  }
   b->finished++;
+  if (res->c >= 0 && res->c < b->n_cases)
+    b->seen[res->c] = 1;
   b->failed += res->status == MRVI_BATCH_FAILED;
   b->unfinished += res->status == MRVI_BATCH_PENDING;
   char where[32] = "";
@@ -142,15 +159,8 @@ static int print_best(const char *out, int quiet) {
   int st = mrvi_batch_file_open(out, NULL, NULL, &f, msg, sizeof msg);
   if (st == 0)
     st = mrvi_batch_file_best(f, &best, &cost, msg, sizeof msg);
-  char close_msg[MSG_LEN];
-  if (mrvi_batch_file_close(f, close_msg, sizeof close_msg) < 0 && st == 0) {
-    st = MRVI_EIO;
-    snprintf(msg, sizeof msg, "%s", close_msg);
-  }
-  if (st < 0) {
-    fprintf(stderr, "mrvi batch: %s\n", msg);
-    return st;
-  }
+  if (table_close(f, st, msg, sizeof msg) < 0)
+    return MRVI_EIO;
   char file[4096] = "";
   mrvi_batch_case_file(out, best, 0, file, sizeof file);
   if (!quiet && best >= 0)
@@ -158,6 +168,32 @@ static int print_best(const char *out, int quiet) {
   else if (!quiet)
     printf("%s: no case converged\n", out);
   return 0;
+}
+
+/* After a signal: every case of todo that got no result (not started) is
+ * recorded as pending with why, in one opening of the master file; the
+ * number of such cases, or -1 (said on stderr). */
+static int record_not_run(const batch_ctx *b, const int *todo, int n_todo,
+                          const char *sig) {
+  char msg[MSG_LEN];
+  mrvi_batch_file *f = NULL;
+  int st = mrvi_batch_file_open(b->out, NULL, NULL, &f, msg, sizeof msg);
+  int n = 0;
+  mrvi_batch_result res;
+  memset(&res, 0, sizeof res);
+  res.status = MRVI_BATCH_PENDING;
+  res.energy_error = res.cost = res.violation = NAN;
+  snprintf(res.reason, sizeof res.reason,
+           "not run: the batch was stopped by %s before this case started "
+           "(--resume runs it)",
+           sig);
+  for (int k = 0; st == 0 && k < n_todo; k++)
+    if (!b->seen[todo[k]]) {
+      res.c = todo[k];
+      st = mrvi_batch_file_row(f, &res, msg, sizeof msg);
+      n++;
+    }
+  return table_close(f, st, msg, sizeof msg) < 0 ? -1 : n;
 }
 
 /* A positive int argument, or -1. */
@@ -285,8 +321,10 @@ static int batch_follow(void) {
   if (mrvi_batch_mpi_share(0, &plan, &master, &jobs)) {
     if (jobs == 0)
       jobs = mrvi_batch_mpi_jobs();
-    if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, NULL, NULL, msg,
-                           sizeof msg) < 0 &&
+    /* A signal on this rank stops its cases; it takes no more. */
+    mrvi_cli_install_handlers();
+    if (mrvi_batch_mpi_run(&plan, master, NULL, 0, jobs, &mrvi_cli_stop_signal,
+                           NULL, NULL, msg, sizeof msg) < 0 &&
         msg[0])
       fprintf(stderr, "mrvi batch: %s\n", msg);
   }
@@ -444,6 +482,11 @@ int mrvi_cmd_batch(int argc, char **argv) {
     fprintf(stderr, "mrvi batch: %s\n", msg);
     rc = EXIT_INPUT;
   }
+  /* Until here a signal ends the process (nothing is written); from the
+   * master file on it stops the batch (the worker processes inherit the
+   * handlers and take the stop from this process). */
+  if (rc == 0)
+    mrvi_cli_install_handlers();
   if (rc == 0 && !resume) {
     mrvi_batch_file *f = NULL;
     if (mrvi_batch_file_create(out, &plan, &f, msg, sizeof msg) < 0 ||
@@ -477,7 +520,14 @@ int mrvi_cmd_batch(int argc, char **argv) {
                    .quiet = quiet,
                    .ranks = ranks,
                    .total = n_todo,
-                   .optimize = plan.command == MRVI_BATCH_OPTIMIZE};
+                   .optimize = plan.command == MRVI_BATCH_OPTIMIZE,
+                   .n_cases = plan.n_cases,
+                   .seen =
+                       rc == 0 ? calloc((size_t)plan.n_cases + 1, 1) : NULL};
+  if (rc == 0 && !ctx.seen) {
+    fprintf(stderr, "mrvi batch: out of memory\n");
+    rc = EXIT_RUN;
+  }
   if (rc == 0) {
     if (!quiet && ranks > 1)
       fprintf(stderr, "mrvi batch: %d case%s%s on %d ranks x %d job%s -> %s\n",
@@ -489,12 +539,25 @@ int mrvi_cmd_batch(int argc, char **argv) {
               n_todo, n_todo == 1 ? "" : "s", resume ? " left" : "",
               jobs < n_todo ? jobs : n_todo, jobs == 1 ? "" : "s", plan.threads,
               plan.threads == 1 ? "" : "s", out);
-    int st = mrvi_batch_mpi_run(&plan, out, todo, n_todo, jobs, on_done, &ctx,
-                                msg, sizeof msg);
+    int st = mrvi_batch_mpi_run(&plan, out, todo, n_todo, jobs,
+                                &mrvi_cli_stop_signal, on_done, &ctx, msg,
+                                sizeof msg);
     if (st < 0 && msg[0])
       fprintf(stderr, "mrvi batch: %s\n", msg);
+    const int sig = (int)mrvi_cli_stop_signal;
+    const char *sig_name = sig == SIGTERM ? "SIGTERM" : "SIGINT";
+    int not_started = 0;
+    if (sig && (not_started = record_not_run(&ctx, todo, n_todo, sig_name)) < 0)
+      st = MRVI_EIO;
+    if (sig)
+      fprintf(stderr,
+              "mrvi batch: %s: %d running case%s stopped, %d not started "
+              "(mrvi batch --resume %s runs them)\n",
+              sig_name, ctx.unfinished, ctx.unfinished == 1 ? "" : "s",
+              not_started, out);
     if (!quiet)
-      printf("%s: %d of %d cases completed, %d failed, %d not run\n", out,
+      printf("%s: %s%d of %d cases completed, %d failed, %d not run\n", out,
+             sig ? "interrupted: " : "",
              ctx.finished - ctx.failed - ctx.unfinished, n_todo, ctx.failed,
              n_todo - (ctx.finished - ctx.unfinished));
     if (st == 0 && ctx.optimize && print_best(out, quiet) < 0)
@@ -502,7 +565,10 @@ int mrvi_cmd_batch(int argc, char **argv) {
     rc = st < 0 || ctx.failed > 0 || ctx.unfinished > 0 || ctx.finished < n_todo
              ? EXIT_RUN
              : 0;
+    if (sig)
+      rc = 128 + sig;
   }
+  free(ctx.seen);
   free(todo);
   free(status);
   mrvi_batch_plan_free(&plan);

@@ -17,8 +17,9 @@
  * rank 0 hands out the runs of each step and sends the gathered records
  * to every rank (src/cli/cli_study.c).
  *
- * Messages: a rank asks rank 0 for an item (TAG_ASK), rank 0 answers with
- * an item number or -1 (none left: the rank asks no more); a finished item
+ * Messages: a rank asks rank 0 for an item (TAG_ASK: 0; 1 when it leaves,
+ * stopped by a signal), rank 0 answers with an item number or -1 (none
+ * left, or leaving: the rank asks no more); a finished item
  * goes to rank 0 as its record (TAG_RESULT: a case's mrvi_batch_result, a
  * study run's record; bytes: the ranks run one binary, checked at
  * MPI_Init).  Rank 0 is done when every rank has been told -1 and every
@@ -204,6 +205,10 @@ typedef struct spread {
    * left there); < 0 stops. */
   int (*lost)(void *user, int i, int rank);
   void *user;
+  /* The stop flag of this rank's signal handlers (NULL: none): once set,
+   * this rank's running items stop early and it takes no more; on rank 0
+   * no more are handed out to any rank. */
+  volatile const int *stop;
 } spread;
 
 /* Rank 0: the queue of items and the ranks still asking. */
@@ -217,9 +222,11 @@ typedef struct lead {
   char *buf;
 } lead;
 
+static int halted(const spread *sp) { return sp->stop && *sp->stop; }
+
 static int lead_take(void *user) {
   lead *l = user;
-  if (l->stop || l->next >= l->n_todo)
+  if (l->stop || halted(l->sp) || l->next >= l->n_todo)
     return -1;
   const int i = l->next++;
   return l->todo ? l->todo[i] : i;
@@ -238,7 +245,7 @@ static void lead_serve_one(lead *l, const MPI_Status *st) {
     int ask, c;
     MPI_Recv(&ask, 1, MPI_INT, st->MPI_SOURCE, TAG_ASK, MPI_COMM_WORLD,
              MPI_STATUS_IGNORE);
-    c = lead_take(l);
+    c = ask ? -1 : lead_take(l);
     MPI_Send(&c, 1, MPI_INT, st->MPI_SOURCE, TAG_CASE, MPI_COMM_WORLD);
     l->away += c >= 0;
     l->open -= c < 0;
@@ -296,7 +303,7 @@ static void follow_send(follow *f, int i, const void *rec) {
 
 static int follow_take(void *user) {
   follow *f = user;
-  int ask = 0, c = -1;
+  int ask = halted(f->sp), c = -1; /* 1: leaving */
   if (f->done_asking)
     return -1;
   if (f->n_held == f->cap_held) {
@@ -332,10 +339,12 @@ static int spread_run(const spread *sp, const int *todo, int n_todo, int jobs,
   int rc;
   if (rank != 0) {
     follow f = {.sp = sp, .buf = buf};
-    mrvi_batch_queue q = {.next = follow_take, .done = follow_done, .user = &f};
+    mrvi_batch_queue q = {
+        .next = follow_take, .done = follow_done, .stop = sp->stop, .user = &f};
     rc = sp->local(sp->ctx, jobs, &q, msg, len);
     /* No worker process left here: give back the items held and those
-     * still asked for, until rank 0 says none are left. */
+     * still asked for, until rank 0 says none are left (stopped by a
+     * signal: say so at once, and leave). */
     while (f.n_held > 0)
       follow_send(&f, f.held[f.n_held - 1], NULL);
     for (int c; (c = follow_take(&f)) >= 0;)
@@ -350,6 +359,7 @@ static int spread_run(const spread *sp, const int *todo, int n_todo, int jobs,
                         .done = lead_done,
                         .idle = lead_serve,
                         .idle_ms = 2,
+                        .stop = sp->stop,
                         .user = &l};
   rc = n_todo > 0 ? sp->local(sp->ctx, jobs, &q, msg, len) : 0;
   if (rc < 0)
@@ -370,7 +380,7 @@ static int spread_run(const spread *sp, const int *todo, int n_todo, int jobs,
   free(buf);
   if (rc == 0 && l.stop)
     rc = MRVI_EIO;
-  if (rc == 0 && l.next < n_todo) {
+  if (rc == 0 && l.next < n_todo && !halted(sp)) {
     snprintf(msg, len, "every worker process died; %d items not run",
              n_todo - l.next);
     rc = MRVI_EIO;
@@ -417,18 +427,19 @@ static int batch_lost(void *user, int c, int rank) {
 
 int mrvi_batch_mpi_run(const mrvi_batch_plan *plan, const char *master,
                        const int *todo, int n_todo, int jobs,
-                       mrvi_batch_done done, void *user, char *msg,
-                       size_t len) {
+                       volatile const int *stop, mrvi_batch_done done,
+                       void *user, char *msg, size_t len) {
   if (!mpi_on)
-    return mrvi_batch_pool_run(plan, master, todo, n_todo, jobs, done, user,
-                               msg, len);
+    return mrvi_batch_pool_run(plan, master, todo, n_todo, jobs, stop, done,
+                               user, msg, len);
   batch_spread b = {plan, master, done, user};
   const spread sp = {.size = sizeof(mrvi_batch_result),
                      .local = batch_local,
                      .ctx = &b,
                      .done = batch_done,
                      .lost = batch_lost,
-                     .user = &b};
+                     .user = &b,
+                     .stop = stop};
   return spread_run(&sp, n_todo > 0 ? todo : NULL, n_todo, jobs, msg, len);
 }
 
@@ -615,10 +626,10 @@ int mrvi_batch_mpi_share(int go, mrvi_batch_plan *plan, const char **master,
 
 int mrvi_batch_mpi_run(const mrvi_batch_plan *plan, const char *master,
                        const int *todo, int n_todo, int jobs,
-                       mrvi_batch_done done, void *user, char *msg,
-                       size_t len) {
-  return mrvi_batch_pool_run(plan, master, todo, n_todo, jobs, done, user, msg,
-                             len);
+                       volatile const int *stop, mrvi_batch_done done,
+                       void *user, char *msg, size_t len) {
+  return mrvi_batch_pool_run(plan, master, todo, n_todo, jobs, stop, done, user,
+                             msg, len);
 }
 
 int mrvi_batch_mpi_map(int n, int jobs, size_t size, mrvi_batch_item fn,

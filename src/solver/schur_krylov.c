@@ -438,6 +438,19 @@ static int block_cg(mrvi_skrylov *k, int c, double *xc) {
   return s;
 }
 
+/* ysf -= M x_c for a block M (ns x nf) stored by its columns f: entries
+ * val[q] in rows idx[q], q in ptr[f] .. ptr[f+1]-1 (A_sf's block c in the
+ * forward sweep, A_fs's block c transposed in the backward sweep). */
+static void sub_block_columns(int nf, const int *ptr, const int *idx,
+                              const double *val, const double *xc,
+                              double *ysf) {
+  for (int f = 0; f < nf; f++) {
+    const double v = xc[f];
+    for (int q = ptr[f]; q < ptr[f + 1]; q++)
+      ysf[idx[q]] -= val[q] * v;
+  }
+}
+
 /* X (p nf) <- A_ff^-1 X by a block forward sweep (X first set from vs
  * by `fs`, block by block), and, if ysf is not NULL, ysf (ns) -= A_sf
  * (A_ff^-1 X) while each block is in cache; MRVI_CG_* on failure. */
@@ -469,15 +482,9 @@ static int forward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
     const int s = block_cg(k, c, xc);
     if (s != MRVI_CG_OK)
       return s;
-    if (!ysf)
-      continue;
-    const int *sp = k->sf.ptr + (size_t)c * (size_t)nf, *sr = k->sf.idx;
-    const double *sv = k->sf.val;
-    for (int f = 0; f < nf; f++) {
-      const double v = xc[f];
-      for (int q = sp[f]; q < sp[f + 1]; q++)
-        ysf[sr[q]] -= sv[q] * v;
-    }
+    if (ysf)
+      sub_block_columns(nf, k->sf.ptr + (size_t)c * (size_t)nf, k->sf.idx,
+                        k->sf.val, xc, ysf);
   }
   return MRVI_CG_OK;
 }
@@ -512,15 +519,8 @@ static int backward_sweep(mrvi_skrylov *k, double *X, int fs, const double *vs,
     const int s = block_cg(k, c, xc);
     if (s != MRVI_CG_OK)
       return s;
-    if (!ysf)
-      continue;
-    const int *fp = k->fs.ptr + j0, *fc = k->fs.idx;
-    const double *fv = k->fs.val;
-    for (int f = 0; f < nf; f++) {
-      const double v = xc[f];
-      for (int q = fp[f]; q < fp[f + 1]; q++)
-        ysf[fc[q]] -= fv[q] * v;
-    }
+    if (ysf)
+      sub_block_columns(nf, k->fs.ptr + j0, k->fs.idx, k->fs.val, xc, ysf);
   }
   return MRVI_CG_OK;
 }
