@@ -10,14 +10,17 @@
  * whose Newton fails is listed as failed and left out); the summary
  * matches errors: for each multirate run, the CPU time p = 1 needs for the
  * same error, interpolated log-log between the two single-rate runs that
- * bracket it, and the ratio.  A measurement, not a test: no thresholds.
+ * bracket it, and the ratio; a run of either kind more accurate than a
+ * finer one of its kind (the lucky phase of a fast oscillation at T, before
+ * the step resolves it) is not matched.  A measurement, not a test: no
+ * thresholds.
  *
  *   bench_multibody [--quick] [--p P] [--t T] [--repeat R] [--dt LIST]
  *                   [--halvings K] [--p1-general] [--set KEY=VALUE]...
  *                   [FILE.yaml]
  *   bench_multibody --cost [--t T] [--set KEY=VALUE]... [FILE.yaml]
  *
- * --dt: the multirate macro steps (default 0.04,0.02,0.01,0.005);
+ * --dt: the multirate macro steps (default 0.02,0.01,0.005,0.0025);
  * --halvings: the single-rate steps 0.02 / 2^i, i < K (default 8), the
  * reference at 1/16 of the finest; --p1-general: the single-rate runs (and
  * the reference) on the general path, where it is faster than the
@@ -47,7 +50,7 @@ static const char usage[] =
     "scheme with p micro steps and with p = 1, and the CPU ratio at\n"
     "matched error; default p = 10, T = 1, R = 3 repeats,\n"
     "systems/flexible_pendulum.yaml; --dt: the multirate macro steps\n"
-    "(default 0.04,0.02,0.01,0.005); --halvings K: single-rate steps\n"
+    "(default 0.02,0.01,0.005,0.0025); --halvings K: single-rate steps\n"
     "0.02/2^i, i < K (default 8); --p1-general: p = 1 on the general\n"
     "path; --set applies a description-file\n"
     "override (e.g. integrator.constraints.form=null-space).\n"
@@ -206,7 +209,7 @@ static double cpu_at(const row *s, int ns, double e) {
 
 int main(int argc, char **argv) {
   int p = 10, repeat = 3, cost = 0, n_sr = 8, n_mr = 4;
-  double mr_dT[MAX_RUNS] = {0.04, 0.02, 0.01, 0.005};
+  double mr_dT[MAX_RUNS] = {0.02, 0.01, 0.005, 0.0025};
   double T = 1.0;
   const char *file = NULL, *sets[16];
   int n_sets = 0;
@@ -293,9 +296,16 @@ int main(int argc, char **argv) {
   for (int i = 0; i < n_mr; i++) {
     if (isnan(mr[i].err))
       continue;
-    const double c1 = cpu_at(sr, n_sr, mr[i].err);
-    printf("%12.6g %12.3e %12.4f %14.4f %8.2f\n", mr[i].dT, mr[i].err,
-           mr[i].cpu, c1, c1 / mr[i].cpu);
+    /* A multirate run more accurate than one at a smaller dT has a lucky
+     * phase of a fast oscillation at T, as a coarse p = 1 run can (cpu_at):
+     * outside the range where the error falls with dT, not matched. */
+    int lucky = 0;
+    for (int j = 0; j < n_mr; j++)
+      lucky |= mr[j].dT < mr[i].dT && mr[j].err > mr[i].err;
+    const double c1 = lucky ? NAN : cpu_at(sr, n_sr, mr[i].err);
+    printf("%12.6g %12.3e %12.4f %14.4f %8.2f%s\n", mr[i].dT, mr[i].err,
+           mr[i].cpu, c1, c1 / mr[i].cpu,
+           lucky ? "  (a finer run is less accurate)" : "");
   }
   free(q_ref);
   free(q);

@@ -41,9 +41,14 @@
  *     Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2})    (forward sweep)
  *     S = A_ss - sum_c A_sf,c Y_c,
  *
- * at O(p ((n_f + r_f)^3 + (n_f + r_f)^2 (n_s + r_s)) + (n_s + r_s)^3) per
+ * at O(p ((n_f + r_f)^3 + (n_f + r_f)^2 k) + (n_s + r_s)^3) per
  * factorisation: linear in p, where bordering A by all p r_f multipliers
- * cost p r_f block solves and a dense system of p r_f, cubic in p.  The path
+ * cost p r_f block solves and a dense system of p r_f, cubic in p.  Here k
+ * <= n_s + r_s counts the slow columns that A_fs has an entry in (at any
+ * node): the sweep keeps the others of Y, zero by structure, out (on
+ * systems/flexible_pendulum.yaml 6 of the slow block's 11, the arm's
+ * coordinates, which the elbow reads, and not its multipliers), with the
+ * same arithmetic on the kept ones.  The path
  * is chosen where n_s + r_s, n_f + r_f are at most bordered_node_max
  * (and, with constraints at macro nodes only, n_s, n_f, r_s at most
  * bordered_max: solver/sweep.c, mrvi_sweep_path); larger blocks keep the sparse
@@ -72,12 +77,13 @@ struct mrvi_bordered {
   double *W; /* ns x nl: S^-1 B_s (slow_only) */
   /* Node blocks (micro-node constraints): sizes a (slow) and b (fast),
    * p fast blocks; the block and offset of every row and column of J
-   * (rblk, roff: node_of); where each CSC entry
+   * (rblk, roff: node_of); the ka slow columns with an entry of A_fs
+   * (ycol: the columns of Y); where each CSC entry
    * goes (dst, built at creation); the dense blocks (one allocation nbuf):
-   * Ass (a x a), Asf (a x p b), Afs = Y (p b x a), D, L1, L2 (p b x b each:
+   * Ass (a x a), Asf (a x p b), Afs = Y (p b x ka), D, L1, L2 (p b x b each:
    * column blocks c, c-1, c-2 of row block c), S (a x a), z (p b + a). */
-  int a, b, p;
-  int *rblk, *roff, *dpiv, *spiv;
+  int a, b, p, ka;
+  int *rblk, *roff, *dpiv, *spiv, *ycol;
   double **dst;
   double *nbuf, *Ass, *Asf, *Y, *D, *L1, *L2, *S, *z;
   size_t n_nbuf;
@@ -98,6 +104,7 @@ void mrvi_bordered_free(mrvi_bordered *bd) {
   free(bd->roff);
   free(bd->dpiv);
   free(bd->spiv);
+  free(bd->ycol);
   free(bd->dst);
   free(bd->nbuf);
   free(bd->K);
@@ -138,10 +145,12 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   bd->roff = malloc((size_t)n * sizeof *bd->roff);
   bd->dpiv = malloc((pb + 1) * sizeof *bd->dpiv);
   bd->spiv = malloc((a + 1) * sizeof *bd->spiv);
+  bd->ycol = calloc(a + 1, sizeof *bd->ycol);
   bd->dst = malloc(((size_t)st->Ap[n] + 1) * sizeof *bd->dst);
   bd->n_nbuf = 2 * a * a + 2 * a * pb + 3 * pb * b + pb + a;
   bd->nbuf = malloc((bd->n_nbuf + 1) * sizeof *bd->nbuf);
-  if (!bd->rblk || !bd->roff || !bd->dpiv || !bd->spiv || !bd->dst || !bd->nbuf)
+  if (!bd->rblk || !bd->roff || !bd->dpiv || !bd->spiv || !bd->ycol ||
+      !bd->dst || !bd->nbuf)
     return MRVI_ENOMEM;
   bd->Ass = bd->nbuf;
   bd->Asf = bd->Ass + a * a;
@@ -154,6 +163,16 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   for (int i = 0; i < n; i++) {
     node_of(st, i, &bd->rblk[i], &bd->roff[i]);
   }
+  /* The columns of Y: the slow columns with an entry in a fast row (ycol
+   * first marks them, then maps a column to its rank among them). */
+  for (int j = 0; j < n; j++)
+    for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
+      if (bd->rblk[st->Ai[q]] >= 0 && bd->rblk[j] < 0)
+        bd->ycol[bd->roff[j]] = 1;
+  bd->ka = 0;
+  for (int t = 0; t < bd->a; t++)
+    bd->ycol[t] = bd->ycol[t] ? bd->ka++ : -1;
+  const size_t ka = (size_t)bd->ka;
   for (int j = 0; j < n; j++)
     for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++) {
       const int i = st->Ai[q], rb = bd->rblk[i], cb = bd->rblk[j];
@@ -164,7 +183,7 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
       else if (rb < 0)
         d = bd->Asf + ro * pb + (size_t)cb * b + co;
       else if (cb < 0)
-        d = bd->Y + ((size_t)rb * b + ro) * a + co;
+        d = bd->Y + ((size_t)rb * b + ro) * ka + (size_t)bd->ycol[co];
       else if (cb <= rb && cb >= rb - 2)
         d = (rb == cb       ? bd->D
              : rb == cb + 1 ? bd->L1
@@ -223,7 +242,7 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
  * factor S = A_ss - A_sf Y. */
 static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
                        size_t len) {
-  const int a = bd->a, b = bd->b, p = bd->p;
+  const int a = bd->a, b = bd->b, p = bd->p, ka = bd->ka;
   const size_t pb = (size_t)p * (size_t)b;
   memset(bd->nbuf, 0,
          (2 * (size_t)a * (size_t)a + 2 * (size_t)a * pb + 3 * pb * (size_t)b) *
@@ -231,17 +250,17 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   for (int q = 0; q < st->Ap[st->n_total]; q++)
     *bd->dst[q] += st->Ax[q];
   for (int c = 0; c < p; c++) {
-    double *D = bd->D + (size_t)c * b * b, *Yc = bd->Y + (size_t)c * b * a;
+    double *D = bd->D + (size_t)c * b * b, *Yc = bd->Y + (size_t)c * b * ka;
     /* Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2}) */
     for (int k = 1; k <= 2 && k <= c; k++) {
       const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * b * b;
-      const double *Yp = bd->Y + (size_t)(c - k) * b * a;
+      const double *Yp = bd->Y + (size_t)(c - k) * b * ka;
       for (int i = 0; i < b; i++)
         for (int j = 0; j < b; j++) {
           const double l = L[(size_t)i * b + j];
           if (l != 0.0)
-            for (int t = 0; t < a; t++)
-              Yc[(size_t)i * a + t] -= l * Yp[(size_t)j * a + t];
+            for (int t = 0; t < ka; t++)
+              Yc[(size_t)i * ka + t] -= l * Yp[(size_t)j * ka + t];
         }
     }
     if (mrvi_dense_lu_factor(b, D, bd->dpiv + (size_t)c * b) < 0)
@@ -249,16 +268,19 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
                        "singular Newton matrix (node block %d of the "
                        "schur-bordered path)",
                        c + 1);
-    mrvi_dense_lu_solve(b, D, bd->dpiv + (size_t)c * b, Yc, a);
+    mrvi_dense_lu_solve(b, D, bd->dpiv + (size_t)c * b, Yc, ka);
   }
-  /* S = A_ss - A_sf Y */
+  /* S = A_ss - A_sf Y (Y's columns ycol) */
   memcpy(bd->S, bd->Ass, (size_t)a * (size_t)a * sizeof *bd->S);
   for (int i = 0; i < a; i++)
     for (size_t j = 0; j < pb; j++) {
       const double f = bd->Asf[(size_t)i * pb + j];
+      double *Si = bd->S + (size_t)i * a;
+      const double *Yj = bd->Y + j * (size_t)ka;
       if (f != 0.0)
         for (int t = 0; t < a; t++)
-          bd->S[(size_t)i * a + t] -= f * bd->Y[j * a + t];
+          if (bd->ycol[t] >= 0)
+            Si[t] -= f * Yj[bd->ycol[t]];
     }
   if (mrvi_dense_lu_factor(a, bd->S, bd->spiv) < 0)
     return mrvi_fail(msg, len, MRVI_ESINGULAR,
@@ -269,7 +291,7 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
 
 /* J dx = R with the node blocks' factors. */
 static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
-  const int a = bd->a, b = bd->b, p = bd->p;
+  const int a = bd->a, b = bd->b, p = bd->p, ka = bd->ka;
   const size_t pb = (size_t)p * (size_t)b;
   double *z = bd->z, *ds = bd->z + pb;
   /* z = A_ff^-1 R_f (forward sweep), in node-block order */
@@ -304,7 +326,8 @@ static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
   for (size_t j = 0; j < pb; j++) {
     double acc = 0.0;
     for (int t = 0; t < a; t++)
-      acc += bd->Y[j * a + t] * ds[t];
+      if (bd->ycol[t] >= 0)
+        acc += bd->Y[j * (size_t)ka + (size_t)bd->ycol[t]] * ds[t];
     z[j] -= acc;
   }
   for (int i = 0; i < bd->nu + bd->nl; i++)

@@ -330,6 +330,12 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
                              const double *lam, int lcol, double *R, int jac) {
   const mrvi_constraint *k = &st->model->constraints[c];
   const int n = k->n_in, rows = k->rows;
+  /* The unknown columns of every input, once (not once per row fed). */
+  int kc[MRVI_MAX_INPUTS], cl[MRVI_MAX_INPUTS][2];
+  double cc[MRVI_MAX_INPUTS][2];
+  if (jac)
+    for (int l = 0; l < n; l++)
+      kc[l] = mrvi_step_cols_of(st, k->in[l], pt, cl[l], cc[l]);
   for (int j = 0; j < n; j++) {
     int rj[2];
     double cj[2];
@@ -344,16 +350,13 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
       for (int r = 0; r < rows; r++)
         jac_add(st, rj[a], lcol + r, -pt->w * cj[a] * st->cG[r * n + j]);
       for (int l = 0; l < n; l++) {
-        int cl[2];
-        double cc[2];
-        const int kc = mrvi_step_cols_of(st, k->in[l], pt, cl, cc);
-        if (kc == 0)
+        if (kc[l] == 0)
           continue;
         double h = 0.0;
         for (int r = 0; r < rows; r++)
           h += lam[r] * st->cH[(r * n + j) * n + l];
-        for (int b = 0; b < kc; b++)
-          jac_add(st, rj[a], cl[b], -pt->w * cj[a] * cc[b] * h);
+        for (int b = 0; b < kc[l]; b++)
+          jac_add(st, rj[a], cl[l][b], -pt->w * cj[a] * cc[l][b] * h);
       }
     }
   }
