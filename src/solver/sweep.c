@@ -97,8 +97,10 @@ struct mrvi_sweep {
    * fhist: the converged implicit forces of the two rows before the last.
    * fresh: W's class is springs and anchors alone, so that row 0 takes
    * the chord from its start (chord_residual's D and bound, hd and off
-   * its workspace). */
-  double *jdinv, *dprev, *fhist[2], *hd, *off;
+   * its workspace).  dnx: the next chord iterate, formed in the pass of
+   * the residual (chord_residual) and taken by a rotation of dprev, dn and
+   * dnx where the row goes on. */
+  double *jdinv, *dprev, *dnx, *fhist[2], *hd, *off;
   int mild, chord, fresh;
   double chord_max;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
@@ -316,6 +318,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->hd);
   free(sw->off);
   free(sw->dprev);
+  free(sw->dnx);
   free(sw->fhist[0]);
   free(sw->fhist[1]);
   free(sw);
@@ -428,6 +431,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->hd = dalloc(sw->fresh ? nf : 1);
   sw->off = dalloc(sw->fresh ? nf : 1);
   sw->dprev = dalloc(sparse ? nf : 1);
+  sw->dnx = dalloc(sparse ? nf : 1);
   sw->fhist[0] = dalloc(sparse ? nf : 1);
   sw->fhist[1] = dalloc(sparse ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
@@ -455,7 +459,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
-      !sw->off || !sw->dprev || !sw->fhist[0] || !sw->fhist[1]) {
+      !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -708,24 +712,42 @@ static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
  * benchmark lattice (bench_floor, lattice2d, n = 1012, dT = 0.05, p = 10):
  * r0 8.3e-2 held fixed, 2.4e-2 linear, 6.6e-3 quadratic (medians).  The
  * history holds only rows of the current step (a step depends on (q_k,
- * p_k) alone).  fimp: the last row's converged implicit force. */
-static void extrapolated_predictor(mrvi_sweep *sw, int m, double *dn) {
-  const int nf = sw->nf;
+ * p_k) alone).  fimp: the last row's converged implicit force.  In the
+ * same pass (one pass over the row instead of three): the point's
+ * configuration zf = qm + cB dn where cB is not 0 (the chord's first
+ * iterate), and the row's round-off scale, returned (solve_implicit). */
+static double extrapolated_predictor(mrvi_sweep *sw, int m,
+                                     const double *restrict qm,
+                                     double *restrict dn, double cB) {
+  const int nf = sw->nf, q = sw->mild ? (m >= 3 ? 3 : m) : 1;
   const double dt = sw->st->dt;
-  const double *f1 = sw->fimp, *f2 = sw->fhist[0], *f3 = sw->fhist[1];
+  const double *restrict f1 = sw->fimp, *restrict f2 = sw->fhist[0],
+                         *restrict f3 = sw->fhist[1];
+  const double *restrict rhs = sw->rhs, *restrict minv = sw->minv_f,
+                         *restrict mf = sw->m_f, *restrict rw = sw->rw;
+  double *restrict zf = sw->zf;
+  double scale = 0.0;
   for (int f = 0; f < nf; f++) {
     double fp = f1[f];
-    if (sw->mild && m == 2)
+    if (q == 2)
       fp = 2.0 * f1[f] - f2[f];
-    else if (sw->mild && m >= 3)
+    else if (q == 3)
       fp = 3.0 * f1[f] - 3.0 * f2[f] + f3[f];
-    dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - fp);
+    dn[f] = dt * minv[f] * (rhs[f] - fp);
+    if (cB != 0.0)
+      zf[f] = 1.0 * qm[f] + cB * dn[f];
+    /* (fmax's NaN rule, without its call) */
+    const double v = (fabs(rhs[f]) + 4.0 * mf[f] * fabs(qm[f]) / dt) * rw[f];
+    scale = v > scale ? v : scale;
   }
-  /* the history moves one row on */
+  /* The history moves one row on: the last force becomes fhist[0], and
+   * fimp takes the oldest row's array (every path writes fimp whole before
+   * it reads it). */
   double *t = sw->fhist[1];
   sw->fhist[1] = sw->fhist[0];
-  sw->fhist[0] = t;
-  memcpy(t, f1, (size_t)nf * sizeof(double));
+  sw->fhist[0] = sw->fimp;
+  sw->fimp = t;
+  return scale;
 }
 
 /* The Jacobi chord of sweep-cg (doc/solver.md, "sweep-cg"): after row 0's
@@ -750,14 +772,18 @@ static void chord_setup(mrvi_sweep *sw) {
  * assemble there) and, in rho, the Gershgorin bound of chord_setup from
  * the elements' off-diagonal entries (at least the assembled matrix's: no
  * assembly).  A fresh D at every update contracted no faster and cost
- * more (doc/performance.md, "explicit-slow: micro step 0 on the chord"). */
+ * more (doc/performance.md, "explicit-slow: micro step 0 on the chord").
+ * In the same pass, the next chord iterate dnx = dn + D^-1 F and its
+ * configuration, written over sw->zf (the arithmetic of the update in
+ * solve_implicit): taken where the row goes on, else dropped (every other
+ * path sets zf afresh).  F itself is not stored. */
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
                              int zf_ok, int fresh, double *rho) {
   const int nf = sw->nf, i = sw->imp;
-  const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i];
+  const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
   if (!zf_ok)
-    set_zf(sw, 1.0, qm, sw->cB[i], dn);
+    set_zf(sw, 1.0, qm, cB, dn);
   if (fresh) {
     zero(g, nf);
     zero(sw->hd, nf);
@@ -777,26 +803,33 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
   /* Two entries at a time (util/simd.h: each lane the scalar operations
    * below); the largest |F| rw by v2_max, which passes over NaN, so NaN is
    * found by the sum of the entries instead, which it poisons. */
-  const double *rhs = sw->rhs, *mf = sw->m_f, *rw = sw->rw;
-  double *fimp = sw->fimp, *F = sw->F;
+  const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
+                         *restrict rw = sw->rw, *restrict jd = sw->jdinv;
+  double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
+                   *restrict zf = sw->zf;
   const mrvi_v2 vdt = v2_set(dt, dt);
   mrvi_v2 vmax = v2_zero(), vsum = v2_zero();
   int f = 0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
-    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), v2_load(dn + f)), vdt);
+    const mrvi_v2 d = v2_load(dn + f);
+    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
     const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
     const mrvi_v2 a = v2_mul(v2_abs(Ff), v2_load(rw + f));
+    const mrvi_v2 dx = v2_add(d, v2_mul(v2_load(jd + f), Ff));
     v2_store(fimp + f, fi);
-    v2_store(F + f, Ff);
+    v2_store(dnx + f, dx);
+    v2_store(zf + f, v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
     vmax = v2_max(a, vmax);
     vsum = v2_add(vsum, a);
   }
   double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
   for (; f < nf; f++) {
     fimp[f] = 0.0 + wc * g[f];
-    F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
-    const double a = fabs(F[f]) * rw[f];
+    const double Ff = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
+    dnx[f] = dn[f] + jd[f] * Ff;
+    zf[f] = 1.0 * qm[f] + cB * dnx[f];
+    const double a = fabs(Ff) * rw[f];
     r = a > r ? a : r;
     sum += a;
   }
@@ -835,8 +868,12 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
    * else Newton, whose first matrix decides (chord_setup). */
   if (first)
     sw->mild = sw->chord = sw->fresh && sw->imp >= 0 && sw->chord_max > 0.0;
-  if (!first && sw->sparse) {
-    extrapolated_predictor(sw, m, dn);
+  double scale = 0.0;
+  int pred = !first && sw->sparse, zf_ok = 0;
+  if (pred) {
+    zf_ok = sw->chord && sw->imp >= 0;
+    scale = extrapolated_predictor(sw, m, qm, dn,
+                                   zf_ok ? sw->cB[sw->imp] : 0.0);
   } else {
     for (int pass = first ? 0 : 1; pass < 2; pass++) {
       for (int f = 0; f < nf; f++)
@@ -854,8 +891,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       }
     }
   }
-  double scale = 0.0;
-  for (int f = 0; f < nf; f++) { /* (fmax's NaN rule, without its call) */
+  for (int f = 0; !pred && f < nf; f++) { /* (fmax's NaN rule, no call) */
     const double v =
         (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) * sw->rw[f];
     scale = v > scale ? v : scale;
@@ -865,7 +901,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
    * (the first iterate), else the residual alone and J only where that
    * residual misses the tolerance (a second evaluation, the same values):
    * a micro step that converges in one update assembles J once. */
-  int chord = sw->chord, with_j = !chord, min_it = 1, zf_ok = 0;
+  int chord = sw->chord, with_j = !chord, min_it = 1;
   double r_prev = HUGE_VAL;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
@@ -877,6 +913,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       double rho = 0.0;
       r = chord_residual(sw, qm, dn, zf_ok, first && sw->fresh && it == 0,
                          &rho);
+      zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
         with_j = 1;
@@ -933,15 +970,22 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
                it, r, sw->tol, floor);
       return isfinite(r) ? MRVI_ENEWTON : MRVI_ENONFINITE;
     }
-    if (chord) { /* dn += D^-1 F, and the next point's configuration */
+    if (chord && sw->imp >= 0) {
+      /* dn += D^-1 F and the next point's configuration, both formed by
+       * chord_residual: dprev <- dn <- dnx. */
       r_prev = r;
-      const double cB = sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
-      zf_ok = sw->imp >= 0;
+      double *t = sw->dprev;
+      sw->dprev = dn;
+      dn = sw->dn = sw->dnx;
+      sw->dnx = t;
+      zf_ok = 1;
+      continue;
+    }
+    if (chord) { /* dn += D^-1 F */
+      r_prev = r;
       for (int f = 0; f < nf; f++) {
         sw->dprev[f] = dn[f];
         dn[f] += sw->jdinv[f] * sw->F[f];
-        if (zf_ok)
-          sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
       }
       continue;
     }
@@ -1247,6 +1291,30 @@ ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
 /* The fast nodes of the sweep path in general (row m solved by Newton, or
  * the explicit arithmetic of a general point set), with p^{f,0} in pf's
  * first row. */
+/* The new node qn = qm + dn and its momentum pn = M dn/dt - wb g of an
+ * interval whose one point is implicit (wb = w cB, g its gradient): the
+ * arithmetic of general_sweep's loops in one pass, two entries at a time
+ * (util/simd.h).  qn may be qm and pn the row's own momentum (the last
+ * node alone kept): each entry is read before it is written. */
+static void node_momentum(int nf, double dt, double wb, const double *qm,
+                          const double *dn, const double *mf, const double *g,
+                          double *qn, double *pn) {
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 d = v2_load(dn + f);
+    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
+    const mrvi_v2 pv = v2_sub(mv, v2_scale(wb, v2_load(g + f)));
+    v2_store(qn + f, v2_add(v2_load(qm + f), d));
+    v2_store(pn + f, pv);
+  }
+  for (; f < nf; f++) {
+    const double d = dn[f];
+    qn[f] = qm[f] + d;
+    pn[f] = mf[f] * d / dt - wb * g[f];
+  }
+}
+
 static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
                          double *pf, int *iterations, double *residual,
                          char *msg, size_t len) {
@@ -1293,13 +1361,19 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       for (int f = 0; f < nf; f++)
         sw->dn[f] = dt * sw->minv_f[f] * sw->rhs[f];
     }
-    for (int f = 0; f < nf; f++)
-      qn[f] = qm[f] + sw->dn[f];
     /* p^{f,m+1} (eq:pkfm+): M v_m - sum w cB grad W of interval m. */
     double *pn = pf + (size_t)m * stride;
+    sw->gnode_ok = 0;
+    if (sw->implicit && sw->n_w == 1) { /* (midpoint: one pass) */
+      node_momentum(nf, dt, sw->w[0] * sw->cB[0], qm, sw->dn, sw->m_f,
+                    sw->gpt[0], qn, pn);
+      pm = pn;
+      continue;
+    }
+    for (int f = 0; f < nf; f++)
+      qn[f] = qm[f] + sw->dn[f];
     for (int f = 0; f < nf; f++)
       pn[f] = sw->m_f[f] * sw->dn[f] / dt;
-    sw->gnode_ok = 0;
     for (int i = 0; i < sw->n_w; i++) {
       if (sw->cB[i] == 0.0)
         continue;
