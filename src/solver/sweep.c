@@ -43,6 +43,7 @@ struct mrvi_sweep {
    * residual divided by its mass), else ones; the smallest fast mass or 1
    * (CG's tolerance is on the unscaled residual) */
   double *rw, cg_unit;
+  int rw_one;      /* every rw 1 (the absolute criterion) */
   double wv0, wv1; /* weights of V at the macro nodes k and k+1 */
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
@@ -483,6 +484,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->minv_f[i] = 1.0 / sw->m_f[i];
   }
   const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
+  sw->rw_one = !scaled;
   sw->cg_unit = 1.0;
   for (int i = 0; i < sw->nf; i++) {
     if (sw->implicit)
@@ -785,6 +787,67 @@ static void chord_setup(mrvi_sweep *sw) {
   sw->rho_c = rho;
 }
 
+/* The pass of chord_residual over the row, two entries at a time
+ * (util/simd.h: each lane the scalar operations of the tail): F, its
+ * largest |F| rw (returned; v2_max passes over NaN, so NaN is found by the
+ * sum of the entries instead, which it poisons), the next iterate dnx and
+ * its configuration zf, the sums F.F_old (on) and F_old.F_old (oo) with F
+ * stored over F_old; rw read unless unit (every weight 1: the absolute
+ * criterion), the implicit force fimp stored where keep (else
+ * node_momentum stores it at the row's end: one point per interval). */
+ALWAYS_INLINE double chord_pass(mrvi_sweep *sw, const double *restrict qm,
+                                const double *restrict dn,
+                                const double *restrict g, double om, double wc,
+                                double cB, double *on_out, double *oo_out,
+                                const int unit, const int keep) {
+  const int nf = sw->nf;
+  const double dt = sw->st->dt;
+  const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
+                         *restrict rw = sw->rw, *restrict jd = sw->jdinv;
+  double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
+                   *restrict zf = sw->zf, *restrict F = sw->F;
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
+    const mrvi_v2 d = v2_load(dn + f);
+    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
+    const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
+    const mrvi_v2 a = unit ? v2_abs(Ff) : v2_mul(v2_abs(Ff), v2_load(rw + f));
+    const mrvi_v2 dx = v2_add(d, v2_mul(v2_scale(om, v2_load(jd + f)), Ff));
+    const mrvi_v2 Fo = v2_load(F + f);
+    von = v2_add(von, v2_mul(Ff, Fo));
+    voo = v2_add(voo, v2_mul(Fo, Fo));
+    v2_store(F + f, Ff);
+    if (keep)
+      v2_store(fimp + f, fi);
+    v2_store(dnx + f, dx);
+    v2_store(zf + f, v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
+    vmax = v2_max(a, vmax);
+    vsum = v2_add(vsum, a);
+  }
+  double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
+  double on = v2_lo(von) + v2_hi(von), oo = v2_lo(voo) + v2_hi(voo);
+  for (; f < nf; f++) {
+    const double fi = 0.0 + wc * g[f];
+    if (keep)
+      fimp[f] = fi;
+    const double Ff = rhs[f] - mf[f] * dn[f] / dt - fi;
+    dnx[f] = dn[f] + om * jd[f] * Ff;
+    zf[f] = 1.0 * qm[f] + cB * dnx[f];
+    on += Ff * F[f];
+    oo += F[f] * F[f];
+    F[f] = Ff;
+    const double a = unit ? fabs(Ff) : fabs(Ff) * rw[f];
+    r = a > r ? a : r;
+    sum += a;
+  }
+  *on_out = on;
+  *oo_out = oo;
+  return isnan(sum) ? sum : r;
+}
+
 /* The row residual of a chord iterate with one implicit point, whose
  * configuration sw->zf the update has set (zf_ok) or is set here: the
  * gradient, the implicit force and F in one pass over the row (the
@@ -834,51 +897,18 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
   } else {
     fast_gradient(sw, sw->zf, g, nf);
   }
-  /* Two entries at a time (util/simd.h: each lane the scalar operations
-   * below); the largest |F| rw by v2_max, which passes over NaN, so NaN is
-   * found by the sum of the entries instead, which it poisons. */
   const double om = 1.0 / (1.0 - sw->lam);
-  const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
-                         *restrict rw = sw->rw, *restrict jd = sw->jdinv;
-  double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
-                   *restrict zf = sw->zf, *restrict F = sw->F;
-  const mrvi_v2 vdt = v2_set(dt, dt);
-  mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
-  int f = 0;
-  for (; f + 2 <= nf; f += 2) {
-    const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
-    const mrvi_v2 d = v2_load(dn + f);
-    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
-    const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
-    const mrvi_v2 a = v2_mul(v2_abs(Ff), v2_load(rw + f));
-    const mrvi_v2 dx = v2_add(d, v2_mul(v2_scale(om, v2_load(jd + f)), Ff));
-    const mrvi_v2 Fo = v2_load(F + f);
-    von = v2_add(von, v2_mul(Ff, Fo));
-    voo = v2_add(voo, v2_mul(Fo, Fo));
-    v2_store(F + f, Ff);
-    v2_store(fimp + f, fi);
-    v2_store(dnx + f, dx);
-    v2_store(zf + f, v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
-    vmax = v2_max(a, vmax);
-    vsum = v2_add(vsum, a);
-  }
-  double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
-  double on = v2_lo(von) + v2_hi(von), oo = v2_lo(voo) + v2_hi(voo);
-  for (; f < nf; f++) {
-    fimp[f] = 0.0 + wc * g[f];
-    const double Ff = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
-    dnx[f] = dn[f] + om * jd[f] * Ff;
-    zf[f] = 1.0 * qm[f] + cB * dnx[f];
-    on += Ff * F[f];
-    oo += F[f] * F[f];
-    F[f] = Ff;
-    const double a = fabs(Ff) * rw[f];
-    r = a > r ? a : r;
-    sum += a;
-  }
+  double on = 0.0, oo = 0.0, r;
+  const int unit = sw->rw_one, keep = sw->n_w != 1;
+  if (unit && !keep)
+    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 0);
+  else if (unit)
+    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 1);
+  else
+    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 0, 1);
   if (track && oo > 0.0 && isfinite(on)) /* (the next update's lam) */
     sw->lam = fmin(sw->rho_c, fmax(-sw->rho_c, on / oo));
-  return isnan(sum) ? sum : r;
+  return r;
 }
 
 /* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
@@ -1349,15 +1379,19 @@ ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
 /* The new node qn = qm + dn and its momentum pn = M dn/dt - wb g of an
  * interval whose one point is implicit (wb = w cB, g its gradient): the
  * arithmetic of general_sweep's loops in one pass, two entries at a time
- * (util/simd.h).  qn may be qm and pn the row's own momentum (the last
- * node alone kept): each entry is read before it is written. */
+ * (util/simd.h), and with fimp the row's implicit force wc g (wc = w cA;
+ * implicit_force's arithmetic), which chord_residual leaves to this pass.
+ * qn may be qm and pn the row's own momentum (the last node alone kept):
+ * each entry is read before it is written. */
 static void node_momentum(int nf, double dt, double wb, const double *qm,
                           const double *dn, const double *mf, const double *g,
-                          double *qn, double *pn) {
+                          double *qn, double *pn, double wc, double *fimp) {
   const mrvi_v2 vdt = v2_set(dt, dt);
   int f = 0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 d = v2_load(dn + f);
+    if (fimp)
+      v2_store(fimp + f, v2_add(v2_zero(), v2_scale(wc, v2_load(g + f))));
     const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
     const mrvi_v2 pv = v2_sub(mv, v2_scale(wb, v2_load(g + f)));
     v2_store(qn + f, v2_add(v2_load(qm + f), d));
@@ -1365,6 +1399,8 @@ static void node_momentum(int nf, double dt, double wb, const double *qm,
   }
   for (; f < nf; f++) {
     const double d = dn[f];
+    if (fimp)
+      fimp[f] = 0.0 + wc * g[f];
     qn[f] = qm[f] + d;
     pn[f] = mf[f] * d / dt - wb * g[f];
   }
@@ -1421,7 +1457,8 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     sw->gnode_ok = 0;
     if (sw->implicit && sw->n_w == 1) { /* (midpoint: one pass) */
       node_momentum(nf, dt, sw->w[0] * sw->cB[0], qm, sw->dn, sw->m_f,
-                    sw->gpt[0], qn, pn);
+                    sw->gpt[0], qn, pn, sw->w[0] * sw->cA[0],
+                    sw->linear ? NULL : sw->fimp);
       pm = pn;
       continue;
     }
