@@ -669,6 +669,10 @@ typedef struct result {
   double newton, cg, gmres; /* per macro step; CG iterations per micro step */
   double evals; /* gradient evaluations of schur-krylov's outer iteration per
                    micro step */
+  /* the cost model of the explicit and sweep paths: evaluations of grad W
+   * and grad V per macro step, and the network's fast and slow springs */
+  double ev_w, ev_v;
+  long springs_w, springs_v;
   long nnz;
   char path[16];
   long rss_before_kb, peak_kb;
@@ -758,6 +762,8 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     r->cg = (double)ks.cg_iterations / ((double)k * o->p);
     r->gmres = (double)ks.gmres_iterations / k;
     r->evals = (double)ks.outer_evals / ((double)k * o->p);
+    r->ev_w = (double)ks.sweep_evals_w / k;
+    r->ev_v = (double)ks.sweep_evals_v / k;
     r->nnz = mrvi_integrator_system_nnz(it);
     snprintf(r->path, sizeof r->path, "%s", mrvi_integrator_solver_path(it));
     r->status = 0;
@@ -801,6 +807,8 @@ static void child_case(int fd, int kind, int n, method me, const options *o) {
   mrvi_model *m = NULL;
   const int fl = me == M_RESPA || me == M_VERLET;
   int ok = network_make(&w, kind, n) == 0;
+  r.springs_w = w.n_fast;
+  r.springs_v = w.n_slow;
   if (ok && fl)
     ok = floor_make(&f, &w) == 0;
   else if (ok)
@@ -1288,6 +1296,30 @@ int main(int argc, char **argv) {
       print_ratio(&r[M_LMP_VERLET], &r[M_VERLET]);
       printf("\n");
     }
+    printf("\nCost model of the explicit paths against the r-RESPA floor "
+           "(one grad W per micro step, one grad V per macro step): "
+           "force work per macro step in spring evaluations, as a multiple "
+           "of the floor's (p s_W + s_V); per micro step, the evaluations "
+           "of grad W and of grad V (V: per macro step / p); 'other': the "
+           "share of the time that force work at the floor's cost per "
+           "spring does not explain, 1 - work / ratio\n\n");
+    printf("| %8s | %-14s | %10s | %9s | %9s | %10s | %8s |\n", "n", "method",
+           "ratio", "gradW/mic", "gradV/mic", "work/floor", "other");
+    printf("|---------:|----------------|-----------:|----------:|----------:|"
+           "-----------:|---------:|\n");
+    for (int ni = 0; ni < n_n; ni++)
+      for (int me = M_FE; me <= M_ES; me++) {
+        const result *r = &res[k][ni][me], *fl = &res[k][ni][M_RESPA];
+        if (r->status != 0 || fl->status != 0)
+          continue;
+        const double sw = (double)r->springs_w, sv = (double)r->springs_v;
+        const double work =
+            (r->ev_w * sw + r->ev_v * sv) / ((double)o.p * sw + sv);
+        const double x = ratio(r, fl);
+        printf("| %8d | %-14s | %10.2f | %9.2f | %9.3f | %10.2f | %7.0f%% |\n",
+               r->n, method_names[me], x, r->ev_w / o.p, r->ev_v / o.p, work,
+               100.0 * (1.0 - work / x));
+      }
     printf("\nExponents of the time per macro step in n (least squares on "
            "log-log over the completed n)\n\n| %-20s | %8s |\n|----------"
            "------------|---------:|\n",

@@ -951,6 +951,11 @@ typedef struct mrvi_krylov_stats {
    * is built: at creation, or where the outer iteration is the first
    * choice, on the first step left to Newton or Jacobian solve */
   int newton_built;
+  /* explicit, sweep and sweep-cg paths: evaluations of grad W over the
+   * whole fast class (at a node or an implicit point, with or without its
+   * Hessian) and of grad V over the slow class, for the cost model of the
+   * benchmarks (doc/performance.md) */
+  long sweep_evals_w, sweep_evals_v;
 } mrvi_krylov_stats;
 void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
                                   mrvi_krylov_stats *out);

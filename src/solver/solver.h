@@ -219,6 +219,8 @@ int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
 /* Statistics of the micro-step blocks' iterative solves (NULL on the
  * dense and explicit paths). */
 const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);
+/* Evaluations of grad W (fast class) and grad V (slow class) so far. */
+void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v);
 /* Name of path MRVI_PATH_* ("general", "explicit", ...): the one list. */
 const char *mrvi_path_name(int path);
 

@@ -43,6 +43,7 @@ struct mrvi_sweep {
    * residual divided by its mass), else ones; the smallest fast mass or 1
    * (CG's tolerance is on the unscaled residual) */
   double *rw, cg_unit;
+  int rw_one;      /* every rw 1 (the absolute criterion) */
   double wv0, wv1; /* weights of V at the macro nodes k and k+1 */
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
@@ -94,14 +95,21 @@ struct mrvi_sweep {
    * chord iterate), mild (this step's rows extrapolate their predictor),
    * chord (they update by it; cleared where it contracts poorly), the
    * bound chord_jacobi_max; dprev: the iterate before a chord update;
-   * fhist: the converged implicit forces of the two rows before the last.
+   * fhist: the converged implicit forces of the three rows before the last.
    * fresh: W's class is springs and anchors alone, so that row 0 takes
    * the chord from its start (chord_residual's D and bound, hd and off
-   * its workspace). */
-  double *jdinv, *dprev, *fhist[2], *hd, *off;
+   * its workspace).  dnx: the next chord iterate, formed in the pass of
+   * the residual (chord_residual) and taken by a rotation of dprev, dn and
+   * dnx where the row goes on. */
+  double *jdinv, *dprev, *dnx, *fhist[3], *hd, *off;
   int mild, chord, fresh;
   double chord_max;
+  /* The chord's relaxation (chord_residual): rho_c, the Gershgorin bound of
+   * its D; lam, the ratio of the last two residuals of this step's chord
+   * rows (0 at row 0). */
+  double rho_c, lam;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
+  long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
 };
 
 /* The structure the sweep needs, or the reason it is missing. */
@@ -282,6 +290,11 @@ const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw) {
   return sw && sw->sb ? mrvi_sblock_stats(sw->sb) : NULL;
 }
 
+void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v) {
+  *w = sw->evals_w;
+  *v = sw->evals_v;
+}
+
 void mrvi_sweep_free(mrvi_sweep *sw) {
   if (!sw)
     return;
@@ -316,8 +329,10 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->hd);
   free(sw->off);
   free(sw->dprev);
+  free(sw->dnx);
   free(sw->fhist[0]);
   free(sw->fhist[1]);
+  free(sw->fhist[2]);
   free(sw);
 }
 
@@ -428,8 +443,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->hd = dalloc(sw->fresh ? nf : 1);
   sw->off = dalloc(sw->fresh ? nf : 1);
   sw->dprev = dalloc(sparse ? nf : 1);
+  sw->dnx = dalloc(sparse ? nf : 1);
   sw->fhist[0] = dalloc(sparse ? nf : 1);
   sw->fhist[1] = dalloc(sparse ? nf : 1);
+  sw->fhist[2] = dalloc(sparse ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -455,7 +472,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
-      !sw->off || !sw->dprev || !sw->fhist[0] || !sw->fhist[1]) {
+      !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
+      !sw->fhist[2]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -466,6 +484,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->minv_f[i] = 1.0 / sw->m_f[i];
   }
   const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
+  sw->rw_one = !scaled;
   sw->cg_unit = 1.0;
   for (int i = 0; i < sw->nf; i++) {
     if (sw->implicit)
@@ -512,6 +531,7 @@ static int sblock_ready(mrvi_sweep *sw, char *msg, size_t len) {
  * (nf x nf, or the sparse sw->sb when set). */
 static void eval_fast(mrvi_sweep *sw, double *gf, double *J, double hscale) {
   const int cls = MRVI_FAST;
+  sw->evals_w++;
   if (!(J && sw->sb)) {
     mrvi_terms_eval(sw->kc[cls], sw->zf, 1.0, gf, J, sw->nf, hscale);
     return;
@@ -541,6 +561,7 @@ ALWAYS_INLINE void zero(double *d, int n) {
  * small block (round-off apart, the terms' gradient), else the terms. */
 ALWAYS_INLINE void fast_gradient(mrvi_sweep *sw, const double *z, double *g,
                                  const int nf) {
+  sw->evals_w++;
   if (sw->wdiag) {
     UNROLL
     for (int i = 0; i < nf; i++)
@@ -566,6 +587,7 @@ ALWAYS_INLINE void fast_gradient(mrvi_sweep *sw, const double *z, double *g,
 ALWAYS_INLINE void slow_gradient(mrvi_sweep *sw, const double *qs,
                                  const double *qf, const int ns, const int nf) {
   const double *z = qs;
+  sw->evals_v++;
   if (qf != qs + ns) {
     copy(sw->zv, qs, ns);
     copy(sw->zv + ns, qf, nf);
@@ -701,31 +723,54 @@ static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
 }
 
 /* The predictor of row m >= 1 of sweep-cg in the mild regime (sw->mild):
- * the implicit force extrapolated from the rows before (quadratic from
- * row 3 on, linear at row 2, held fixed at row 1) instead of held fixed,
- * so that the row residual r0 = fimp_pred - fimp(dn_pred) is the force's
- * third difference over the micro steps, not its first.  Measured on the
- * benchmark lattice (bench_floor, lattice2d, n = 1012, dT = 0.05, p = 10):
- * r0 8.3e-2 held fixed, 2.4e-2 linear, 6.6e-3 quadratic (medians).  The
+ * the implicit force extrapolated from the rows before (cubic from row 4
+ * on, quadratic at row 3, linear at row 2, held fixed at row 1) instead
+ * of held fixed, so that the row residual r0 = fimp_pred - fimp(dn_pred)
+ * is the force's fourth difference over the micro steps, not its first.
+ * Measured on the benchmark lattice (bench_floor, lattice2d, n = 1012,
+ * dT = 0.05, p = 10): r0 8.3e-2 held fixed, 2.4e-2 linear, 6.6e-3
+ * quadratic, 1.3e-3 cubic (medians).  The
  * history holds only rows of the current step (a step depends on (q_k,
- * p_k) alone).  fimp: the last row's converged implicit force. */
-static void extrapolated_predictor(mrvi_sweep *sw, int m, double *dn) {
-  const int nf = sw->nf;
+ * p_k) alone).  fimp: the last row's converged implicit force.  In the
+ * same pass (one pass over the row instead of three): the point's
+ * configuration zf = qm + cB dn where cB is not 0 (the chord's first
+ * iterate), and the row's round-off scale, returned (solve_implicit). */
+static double extrapolated_predictor(mrvi_sweep *sw, int m,
+                                     const double *restrict qm,
+                                     double *restrict dn, double cB) {
+  const int nf = sw->nf, q = sw->mild ? (m >= 4 ? 4 : m) : 1;
   const double dt = sw->st->dt;
-  const double *f1 = sw->fimp, *f2 = sw->fhist[0], *f3 = sw->fhist[1];
+  const double *restrict f1 = sw->fimp, *restrict f2 = sw->fhist[0],
+                         *restrict f3 = sw->fhist[1],
+                         *restrict f4 = sw->fhist[2];
+  const double *restrict rhs = sw->rhs, *restrict minv = sw->minv_f,
+                         *restrict mf = sw->m_f, *restrict rw = sw->rw;
+  double *restrict zf = sw->zf;
+  double scale = 0.0;
   for (int f = 0; f < nf; f++) {
     double fp = f1[f];
-    if (sw->mild && m == 2)
+    if (q == 2)
       fp = 2.0 * f1[f] - f2[f];
-    else if (sw->mild && m >= 3)
+    else if (q == 3)
       fp = 3.0 * f1[f] - 3.0 * f2[f] + f3[f];
-    dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - fp);
+    else if (q == 4)
+      fp = 4.0 * f1[f] - 6.0 * f2[f] + 4.0 * f3[f] - f4[f];
+    dn[f] = dt * minv[f] * (rhs[f] - fp);
+    if (cB != 0.0)
+      zf[f] = 1.0 * qm[f] + cB * dn[f];
+    /* (fmax's NaN rule, without its call) */
+    const double v = (fabs(rhs[f]) + 4.0 * mf[f] * fabs(qm[f]) / dt) * rw[f];
+    scale = v > scale ? v : scale;
   }
-  /* the history moves one row on */
-  double *t = sw->fhist[1];
+  /* The history moves one row on: the last force becomes fhist[0], and
+   * fimp takes the oldest row's array (every path writes fimp whole before
+   * it reads it). */
+  double *t = sw->fhist[2];
+  sw->fhist[2] = sw->fhist[1];
   sw->fhist[1] = sw->fhist[0];
-  sw->fhist[0] = t;
-  memcpy(t, f1, (size_t)nf * sizeof(double));
+  sw->fhist[0] = sw->fimp;
+  sw->fimp = t;
+  return scale;
 }
 
 /* The Jacobi chord of sweep-cg (doc/solver.md, "sweep-cg"): after row 0's
@@ -739,6 +784,68 @@ static void extrapolated_predictor(mrvi_sweep *sw, int m, double *dn) {
 static void chord_setup(mrvi_sweep *sw) {
   const double rho = mrvi_sblock_jacobi(sw->sb, sw->jdinv);
   sw->mild = sw->chord = rho <= sw->chord_max;
+  sw->rho_c = rho;
+}
+
+/* The pass of chord_residual over the row, two entries at a time
+ * (util/simd.h: each lane the scalar operations of the tail): F, its
+ * largest |F| rw (returned; v2_max passes over NaN, so NaN is found by the
+ * sum of the entries instead, which it poisons), the next iterate dnx and
+ * its configuration zf, the sums F.F_old (on) and F_old.F_old (oo) with F
+ * stored over F_old; rw read unless unit (every weight 1: the absolute
+ * criterion), the implicit force fimp stored where keep (else
+ * node_momentum stores it at the row's end: one point per interval). */
+ALWAYS_INLINE double chord_pass(mrvi_sweep *sw, const double *restrict qm,
+                                const double *restrict dn,
+                                const double *restrict g, double om, double wc,
+                                double cB, double *on_out, double *oo_out,
+                                const int unit, const int keep) {
+  const int nf = sw->nf;
+  const double dt = sw->st->dt;
+  const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
+                         *restrict rw = sw->rw, *restrict jd = sw->jdinv;
+  double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
+                   *restrict zf = sw->zf, *restrict F = sw->F;
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
+    const mrvi_v2 d = v2_load(dn + f);
+    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
+    const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
+    const mrvi_v2 a = unit ? v2_abs(Ff) : v2_mul(v2_abs(Ff), v2_load(rw + f));
+    const mrvi_v2 dx = v2_add(d, v2_mul(v2_scale(om, v2_load(jd + f)), Ff));
+    const mrvi_v2 Fo = v2_load(F + f);
+    von = v2_add(von, v2_mul(Ff, Fo));
+    voo = v2_add(voo, v2_mul(Fo, Fo));
+    v2_store(F + f, Ff);
+    if (keep)
+      v2_store(fimp + f, fi);
+    v2_store(dnx + f, dx);
+    v2_store(zf + f, v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
+    vmax = v2_max(a, vmax);
+    vsum = v2_add(vsum, a);
+  }
+  double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
+  double on = v2_lo(von) + v2_hi(von), oo = v2_lo(voo) + v2_hi(voo);
+  for (; f < nf; f++) {
+    const double fi = 0.0 + wc * g[f];
+    if (keep)
+      fimp[f] = fi;
+    const double Ff = rhs[f] - mf[f] * dn[f] / dt - fi;
+    dnx[f] = dn[f] + om * jd[f] * Ff;
+    zf[f] = 1.0 * qm[f] + cB * dnx[f];
+    on += Ff * F[f];
+    oo += F[f] * F[f];
+    F[f] = Ff;
+    const double a = unit ? fabs(Ff) : fabs(Ff) * rw[f];
+    r = a > r ? a : r;
+    sum += a;
+  }
+  *on_out = on;
+  *oo_out = oo;
+  return isnan(sum) ? sum : r;
 }
 
 /* The row residual of a chord iterate with one implicit point, whose
@@ -750,18 +857,34 @@ static void chord_setup(mrvi_sweep *sw) {
  * assemble there) and, in rho, the Gershgorin bound of chord_setup from
  * the elements' off-diagonal entries (at least the assembled matrix's: no
  * assembly).  A fresh D at every update contracted no faster and cost
- * more (doc/performance.md, "explicit-slow: micro step 0 on the chord"). */
+ * more (doc/performance.md, "explicit-slow: micro step 0 on the chord").
+ *
+ * In the same pass, the next chord iterate dnx = dn + om D^-1 F and its
+ * configuration, written over sw->zf: taken where the row goes on, else
+ * dropped (every other path sets zf afresh).  The relaxation om =
+ * 1/(1 - lam): the plain update (om = 1) maps F to about (I - J D^-1) F,
+ * whose eigenvalues lie in [-rho, rho]; where the residual sits near one
+ * eigenvalue lam (on the benchmark lattice each residual is within a few
+ * degrees of minus the last: the fast chains' alternating modes, which the
+ * predictor misses most), the plain update leaves the factor lam on it and
+ * the relaxed one removes it.  With track (F of this row's last iterate
+ * in sw->F), lam = F.F_old / F_old.F_old, within [-rho_c, rho_c], for the
+ * next update: after a relaxed update that ratio is small and the next
+ * update nearly plain, so plain and relaxed updates alternate
+ * (doc/performance.md, "explicit-slow: relaxed chord").  Convergence is
+ * decided by the exact residual F as before. */
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
-                             int zf_ok, int fresh, double *rho) {
+                             int zf_ok, int fresh, int track, double *rho) {
   const int nf = sw->nf, i = sw->imp;
-  const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i];
+  const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
   if (!zf_ok)
-    set_zf(sw, 1.0, qm, sw->cB[i], dn);
+    set_zf(sw, 1.0, qm, cB, dn);
   if (fresh) {
     zero(g, nf);
     zero(sw->hd, nf);
     zero(sw->off, nf);
+    sw->evals_w++;
     mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, sw->hd, sw->off,
                           sw->w[i] * sw->cA[i] * sw->cB[i]);
     double bound = 0.0;
@@ -770,37 +893,22 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
       sw->jdinv[f] = 1.0 / d;
       bound = d > 0.0 ? fmax(bound, sw->off[f] * sw->jdinv[f]) : HUGE_VAL;
     }
-    *rho = bound;
+    *rho = sw->rho_c = bound;
   } else {
     fast_gradient(sw, sw->zf, g, nf);
   }
-  /* Two entries at a time (util/simd.h: each lane the scalar operations
-   * below); the largest |F| rw by v2_max, which passes over NaN, so NaN is
-   * found by the sum of the entries instead, which it poisons. */
-  const double *rhs = sw->rhs, *mf = sw->m_f, *rw = sw->rw;
-  double *fimp = sw->fimp, *F = sw->F;
-  const mrvi_v2 vdt = v2_set(dt, dt);
-  mrvi_v2 vmax = v2_zero(), vsum = v2_zero();
-  int f = 0;
-  for (; f + 2 <= nf; f += 2) {
-    const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
-    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), v2_load(dn + f)), vdt);
-    const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
-    const mrvi_v2 a = v2_mul(v2_abs(Ff), v2_load(rw + f));
-    v2_store(fimp + f, fi);
-    v2_store(F + f, Ff);
-    vmax = v2_max(a, vmax);
-    vsum = v2_add(vsum, a);
-  }
-  double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
-  for (; f < nf; f++) {
-    fimp[f] = 0.0 + wc * g[f];
-    F[f] = rhs[f] - mf[f] * dn[f] / dt - fimp[f];
-    const double a = fabs(F[f]) * rw[f];
-    r = a > r ? a : r;
-    sum += a;
-  }
-  return isnan(sum) ? sum : r;
+  const double om = 1.0 / (1.0 - sw->lam);
+  double on = 0.0, oo = 0.0, r;
+  const int unit = sw->rw_one, keep = sw->n_w != 1;
+  if (unit && !keep)
+    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 0);
+  else if (unit)
+    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 1);
+  else
+    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 0, 1);
+  if (track && oo > 0.0 && isfinite(on)) /* (the next update's lam) */
+    sw->lam = fmin(sw->rho_c, fmax(-sw->rho_c, on / oo));
+  return r;
 }
 
 /* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
@@ -833,10 +941,16 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
   /* Row 0 takes the chord from its start where W is springs and anchors
    * alone and the bound at its first iterate holds (chord_residual),
    * else Newton, whose first matrix decides (chord_setup). */
-  if (first)
+  if (first) {
     sw->mild = sw->chord = sw->fresh && sw->imp >= 0 && sw->chord_max > 0.0;
-  if (!first && sw->sparse) {
-    extrapolated_predictor(sw, m, dn);
+    sw->lam = 0.0; /* (a step depends on (q_k, p_k) alone) */
+  }
+  double scale = 0.0;
+  int pred = !first && sw->sparse, zf_ok = 0;
+  if (pred) {
+    zf_ok = sw->chord && sw->imp >= 0;
+    scale =
+        extrapolated_predictor(sw, m, qm, dn, zf_ok ? sw->cB[sw->imp] : 0.0);
   } else {
     for (int pass = first ? 0 : 1; pass < 2; pass++) {
       for (int f = 0; f < nf; f++)
@@ -854,8 +968,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       }
     }
   }
-  double scale = 0.0;
-  for (int f = 0; f < nf; f++) { /* (fmax's NaN rule, without its call) */
+  for (int f = 0; !pred && f < nf; f++) { /* (fmax's NaN rule, no call) */
     const double v =
         (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) * sw->rw[f];
     scale = v > scale ? v : scale;
@@ -865,7 +978,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
    * (the first iterate), else the residual alone and J only where that
    * residual misses the tolerance (a second evaluation, the same values):
    * a micro step that converges in one update assembles J once. */
-  int chord = sw->chord, with_j = !chord, min_it = 1, zf_ok = 0;
+  int chord = sw->chord, with_j = !chord, min_it = 1;
   double r_prev = HUGE_VAL;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
@@ -876,7 +989,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     if (chord && sw->imp >= 0) {
       double rho = 0.0;
       r = chord_residual(sw, qm, dn, zf_ok, first && sw->fresh && it == 0,
-                         &rho);
+                         it >= 1, &rho);
+      zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
         with_j = 1;
@@ -904,7 +1018,15 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       it = -1; /* (the fallback is no update) */
       continue;
     }
-    if (it >= min_it && r <= fmax(sw->tol, floor)) {
+    /* A chord row between the tolerance and the round-off floor goes on
+     * while it contracts and is met where it stalls (the outer
+     * iteration's rule, solver/outer.c): the floor, from M |q^m|/dt, is
+     * the round-off of the general path's absolute positions, far above
+     * that of this displacement form where |q| is large, and Newton's
+     * last update lands far below the tolerance where the chord's lands
+     * just below it. */
+    const int stalled = !(chord && it >= 1 && r <= sw->chord_max * r_prev);
+    if (it >= min_it && (r <= sw->tol || (r <= floor && (stalled || !chord)))) {
       *iters = it;
       *res = fmax(*res, r);
       return MRVI_OK;
@@ -933,15 +1055,22 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
                it, r, sw->tol, floor);
       return isfinite(r) ? MRVI_ENEWTON : MRVI_ENONFINITE;
     }
-    if (chord) { /* dn += D^-1 F, and the next point's configuration */
+    if (chord && sw->imp >= 0) {
+      /* dn += D^-1 F and the next point's configuration, both formed by
+       * chord_residual: dprev <- dn <- dnx. */
       r_prev = r;
-      const double cB = sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
-      zf_ok = sw->imp >= 0;
+      double *t = sw->dprev;
+      sw->dprev = dn;
+      dn = sw->dn = sw->dnx;
+      sw->dnx = t;
+      zf_ok = 1;
+      continue;
+    }
+    if (chord) { /* dn += D^-1 F */
+      r_prev = r;
       for (int f = 0; f < nf; f++) {
         sw->dprev[f] = dn[f];
         dn[f] += sw->jdinv[f] * sw->F[f];
-        if (zf_ok)
-          sw->zf[f] = 1.0 * qm[f] + cB * dn[f];
       }
       continue;
     }
@@ -1247,6 +1376,36 @@ ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
 /* The fast nodes of the sweep path in general (row m solved by Newton, or
  * the explicit arithmetic of a general point set), with p^{f,0} in pf's
  * first row. */
+/* The new node qn = qm + dn and its momentum pn = M dn/dt - wb g of an
+ * interval whose one point is implicit (wb = w cB, g its gradient): the
+ * arithmetic of general_sweep's loops in one pass, two entries at a time
+ * (util/simd.h), and with fimp the row's implicit force wc g (wc = w cA;
+ * implicit_force's arithmetic), which chord_residual leaves to this pass.
+ * qn may be qm and pn the row's own momentum (the last node alone kept):
+ * each entry is read before it is written. */
+static void node_momentum(int nf, double dt, double wb, const double *qm,
+                          const double *dn, const double *mf, const double *g,
+                          double *qn, double *pn, double wc, double *fimp) {
+  const mrvi_v2 vdt = v2_set(dt, dt);
+  int f = 0;
+  for (; f + 2 <= nf; f += 2) {
+    const mrvi_v2 d = v2_load(dn + f);
+    if (fimp)
+      v2_store(fimp + f, v2_add(v2_zero(), v2_scale(wc, v2_load(g + f))));
+    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
+    const mrvi_v2 pv = v2_sub(mv, v2_scale(wb, v2_load(g + f)));
+    v2_store(qn + f, v2_add(v2_load(qm + f), d));
+    v2_store(pn + f, pv);
+  }
+  for (; f < nf; f++) {
+    const double d = dn[f];
+    if (fimp)
+      fimp[f] = 0.0 + wc * g[f];
+    qn[f] = qm[f] + d;
+    pn[f] = mf[f] * d / dt - wb * g[f];
+  }
+}
+
 static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
                          double *pf, int *iterations, double *residual,
                          char *msg, size_t len) {
@@ -1293,13 +1452,20 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
       for (int f = 0; f < nf; f++)
         sw->dn[f] = dt * sw->minv_f[f] * sw->rhs[f];
     }
-    for (int f = 0; f < nf; f++)
-      qn[f] = qm[f] + sw->dn[f];
     /* p^{f,m+1} (eq:pkfm+): M v_m - sum w cB grad W of interval m. */
     double *pn = pf + (size_t)m * stride;
+    sw->gnode_ok = 0;
+    if (sw->implicit && sw->n_w == 1) { /* (midpoint: one pass) */
+      node_momentum(nf, dt, sw->w[0] * sw->cB[0], qm, sw->dn, sw->m_f,
+                    sw->gpt[0], qn, pn, sw->w[0] * sw->cA[0],
+                    sw->linear ? NULL : sw->fimp);
+      pm = pn;
+      continue;
+    }
+    for (int f = 0; f < nf; f++)
+      qn[f] = qm[f] + sw->dn[f];
     for (int f = 0; f < nf; f++)
       pn[f] = sw->m_f[f] * sw->dn[f] / dt;
-    sw->gnode_ok = 0;
     for (int i = 0; i < sw->n_w; i++) {
       if (sw->cB[i] == 0.0)
         continue;
