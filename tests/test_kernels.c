@@ -165,12 +165,13 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
     CHECK(e_gs <= 1e-13 && e_Hs <= 1e-13,
           "d %d %s (%g): scaled gradient %.2e, Hessian %.2e relative", d,
           lc->law, lc->params[1], e_gs, e_Hs);
-    /* The gradient on threads (chunks of 4 elements): the serial one
+    /* The gradient on threads (parts of 2 columns, a particle split in 2-D
+     * and 3-D): the serial one
      * bitwise for 2 and 3 threads. */
     for (int t = 2; t <= 3; t++) {
       mrvi_terms *kt = NULL;
       CHECK(mrvi_terms_create(m, elems, ne, NULL, &kt) == MRVI_OK &&
-                mrvi_terms_set_threads(kt, t, 4) == MRVI_OK,
+                mrvi_terms_set_threads(kt, t, 2, n) == MRVI_OK,
             "d %d %s: threaded create", d, lc->law);
       if (!kt)
         continue;

@@ -319,14 +319,22 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
  * kernels without their Hessian part), bitwise the same. */
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
 /* mrvi_terms_grad on `threads` threads (resolved: >= 1) for a class of
- * springs and anchors alone with at least two chunks of `chunk` elements
- * (tuning.thread_chunk); other classes stay on one.  The partition
- * depends on the class and chunk alone and every column sums its
- * contributions in the serial order: the gradient is the serial one
- * bitwise for every thread count.  MRVI_ENOMEM, else MRVI_OK. */
-int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk);
+ * springs and anchors alone whose gradient has ncol columns, at least two
+ * parts of `chunk` columns (tuning.thread_chunk); other classes stay on
+ * one.  Part c is the columns [c chunk, (c+1) chunk): the partition
+ * depends on ncol and chunk alone, each part writes its own columns and
+ * every column sums its contributions in the serial order, so the
+ * gradient is the serial one bitwise for every thread count.
+ * MRVI_ENOMEM, else MRVI_OK. */
+int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
+/* The parts of a partitioned class (0: not partitioned), and g +=
+ * part c's columns of grad Z(z) (the other columns untouched): for a
+ * caller's own parallel loop over the parts (the explicit sweep). */
+int mrvi_terms_parts(const mrvi_terms *kc);
+void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
+                          double *g);
 /* Whether mrvi_terms_grad takes the flat loop (every term linear or a small
  * integer power on 2..4 inputs): 1 with one law for all, 2 with mixed laws,
  * 0 (the kernel per run) otherwise. */

@@ -13,6 +13,7 @@
 #include "solver/solver.h"
 #include "util/small.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -88,20 +89,19 @@ struct mrvi_terms {
   int flat, flat_k;
   /* flat_sym applies: flat, and every record's columns distinct */
   int sym;
-  /* Threads (mrvi_terms_set_threads; par_grad): a class of springs and
-   * anchors alone, its records in n_chunk chunks of `chunk` (a partition
-   * that depends on the class, not on the number of threads).  A column
-   * written by one chunk alone is written in place; the contributions to a
-   * column shared by chunks go to slots gb[s] (for column gb_col[s]),
-   * numbered in the order of the serial loop, and are added after the
-   * chunks in that order: every column sums its contributions in the
-   * serial order, so the gradient is the serial one bitwise for every
-   * number of threads.  wcol: per record its 2 dim write indices (x_i's,
-   * then x_j's), a column or ~slot. */
-  int threads, chunk, n_chunk;
-  int *wcol, *gb_col;
-  double *gb;
-  long n_gb;
+  /* Threads (mrvi_terms_set_threads; part_grad): a class of springs and
+   * anchors alone, its gradient's columns [0, ncol) in n_part parts of
+   * `chunk` columns (a partition that depends on the class and chunk, not
+   * on the number of threads).  Part c's records are part_rec[part_first[c]
+   * .. part_first[c+1]), in the serial order, each with the mask of the
+   * columns it writes in c (bit k: x_i's k-th, bit dim + k: x_j's): each
+   * part writes its own columns alone, and every column sums its
+   * contributions in the serial order, so the gradient is the serial one
+   * bitwise for every number of threads (a record spanning parts is
+   * evaluated once per part). */
+  int threads, chunk, n_part;
+  int *part_first, *part_rec;
+  unsigned char *part_mask;
 };
 
 void mrvi_terms_free(mrvi_terms *kc) {
@@ -118,9 +118,9 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->qh);
   free(kc->els);
   free(kc->hooke_run);
-  free(kc->wcol);
-  free(kc->gb_col);
-  free(kc->gb);
+  free(kc->part_first);
+  free(kc->part_rec);
+  free(kc->part_mask);
   free(kc);
 }
 
@@ -949,62 +949,82 @@ terms_grad_any(mrvi_terms *kc, const double *z, double *g) {
   eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
 }
 
-/* A contribution v to column w, or to slot ~w (w < 0) of gb. */
-ALWAYS_INLINE void par_put(double *g, double *gb, int w, double v) {
-  if (w >= 0)
-    g[w] += v;
-  else
-    gb[~w] = v;
-}
-
-/* The gradient of nr springs and anchors (spring_eval's unit-scale
- * products; law code per record) into g and gb by their write indices w. */
-ALWAYS_INLINE void par_chunk_k(const kspring *q, const int *w, int nr,
-                               const double *z, double *g, double *gb,
-                               const int dim) {
-  for (int r = 0; r < nr; r++, w += 2 * dim) {
+/* Part c's records (mrvi_terms_set_threads): spring_eval's gradient at
+ * unit scale, each column written only where the record's mask has it. */
+ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
+                          const unsigned char *mask, int nr, const double *z,
+                          double *g, const int dim) {
+  for (int i = 0; i < nr; i++) {
+    const kspring *s = q + rec[i];
+    const unsigned mk = mask[i];
     double u[3], d1, a, b;
-    const int two = q[r].two;
+    const int two = s->two;
     if (two)
-      spring_derivs(q + r, z, u, &d1, &a, &b, dim, 1, K_ANY);
+      spring_derivs(s, z, u, &d1, &a, &b, dim, 1, K_ANY);
     else
-      spring_derivs(q + r, z, u, &d1, &a, &b, dim, 0, K_ANY);
-    UNROLL for (int k = 0; k < dim; k++) par_put(g, gb, w[k], d1 * u[k]);
+      spring_derivs(s, z, u, &d1, &a, &b, dim, 0, K_ANY);
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[s->ci[k]] +=
+        d1 * u[k];
     if (two)
-      UNROLL for (int k = 0; k < dim; k++)
-          par_put(g, gb, w[dim + k], -d1 * u[k]);
+      UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k))
+          g[s->cj[k]] += -d1 * u[k];
   }
 }
 
-static void par_chunk(const mrvi_terms *kc, int c, const double *z, double *g) {
-  const int dim = kc->dim, r0 = c * kc->chunk;
-  const int nr = kc->n - r0 < kc->chunk ? kc->n - r0 : kc->chunk;
-  const kspring *q = kc->qs + r0;
-  const int *w = kc->wcol + (size_t)r0 * (size_t)(2 * dim);
-  if (dim == 2)
-    par_chunk_k(q, w, nr, z, g, kc->gb, 2);
-  else if (dim == 3)
-    par_chunk_k(q, w, nr, z, g, kc->gb, 3);
+void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
+                          double *g) {
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  const int *rec = kc->part_rec + r0;
+  const unsigned char *mask = kc->part_mask + r0;
+  if (kc->dim == 2)
+    part_k(kc->qs, rec, mask, nr, z, g, 2);
+  else if (kc->dim == 3)
+    part_k(kc->qs, rec, mask, nr, z, g, 3);
   else
-    par_chunk_k(q, w, nr, z, g, kc->gb, 1);
+    part_k(kc->qs, rec, mask, nr, z, g, 1);
 }
 
-/* The chunks on kc->threads threads (each chunk writes columns of its own
- * and slots of its own), then the shared contributions in serial order. */
-static __attribute__((noinline)) void par_grad(mrvi_terms *kc, const double *z,
-                                               double *g) {
-  const int n_chunk = kc->n_chunk;
+/* The parts on kc->threads threads (each writes its own columns). */
+static __attribute__((noinline)) void part_grad(mrvi_terms *kc, const double *z,
+                                                double *g) {
+  const int n_part = kc->n_part;
   MRVI_PARALLEL_FOR(kc->threads)
-  for (int c = 0; c < n_chunk; c++)
-    par_chunk(kc, c, z, g);
-  for (long s = 0; s < kc->n_gb; s++)
-    g[kc->gb_col[s]] += kc->gb[s];
+  for (int c = 0; c < n_part; c++)
+    mrvi_terms_grad_part(kc, c, z, g);
 }
 
-int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
+/* The parts (1 + the last) a record's write columns fall in, by column
+ * index / chunk; -1 for a column outside [0, ncol). */
+static int record_span(const kspring *q, int dim, int chunk, int ncol, int *lo,
+                       int *hi) {
+  *lo = ncol;
+  *hi = -1;
+  for (int k = 0; k < (q->two ? 2 * dim : dim); k++) {
+    const int col = k < dim ? q->ci[k] : q->cj[k - dim];
+    if (col < 0 || col >= ncol)
+      return -1;
+    *lo = col < *lo ? col : *lo;
+    *hi = col > *hi ? col : *hi;
+  }
+  *lo /= chunk;
+  *hi /= chunk;
+  return 0;
+}
+
+/* The mask of record q's write columns in part c. */
+static unsigned record_mask(const kspring *q, int dim, int chunk, int c) {
+  unsigned mk = 0;
+  for (int k = 0; k < (q->two ? 2 * dim : dim); k++) {
+    const int col = k < dim ? q->ci[k] : q->cj[k - dim];
+    mk |= (unsigned)(col / chunk == c) << k;
+  }
+  return mk;
+}
+
+int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   if (!mrvi_threads_supported())
     threads = 1;
-  if (kc->wcol) { /* (partitioned already) */
+  if (kc->part_first) { /* (partitioned already) */
     kc->threads = threads > 1 ? threads : 1;
     return MRVI_OK;
   }
@@ -1012,65 +1032,66 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
   int ns = 0;
   for (int i = 0; i < kc->n; i++)
     ns += kc->hooke_only || kc->t[i].runs > 0;
-  if (threads <= 1 || chunk < 1 || ns != kc->n || kc->n < 2 * chunk)
+  if (threads <= 1 || chunk < 1 || ns != kc->n || ncol < 2 * chunk)
     return MRVI_OK;
   if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
     return MRVI_ENOMEM;
-  const int dim = kc->dim, nw = 2 * dim;
-  int ncol = 1;
-  for (int r = 0; r < kc->n; r++)
-    for (int k = 0; k < dim; k++) {
-      ncol = kc->qs[r].ci[k] >= ncol ? kc->qs[r].ci[k] + 1 : ncol;
-      ncol = kc->qs[r].cj[k] >= ncol ? kc->qs[r].cj[k] + 1 : ncol;
-    }
-  /* The first chunk writing each column, and -2 for a shared column. */
-  int *owner = malloc((size_t)ncol * sizeof *owner);
-  kc->wcol = malloc((size_t)kc->n * (size_t)nw * sizeof *kc->wcol);
-  if (!owner || !kc->wcol) {
-    free(owner);
-    free(kc->wcol);
-    kc->wcol = NULL;
+  const int dim = kc->dim, n_part = (ncol - 1) / chunk + 1;
+  /* Count each part's records (a record's parts: those of its columns,
+   * which a spring's two particles make at most two runs of). */
+  int *first = calloc((size_t)n_part + 1, sizeof *first);
+  if (!first)
     return MRVI_ENOMEM;
-  }
-  for (int c = 0; c < ncol; c++)
-    owner[c] = -1;
+  long total = 0;
   for (int r = 0; r < kc->n; r++) {
-    const kspring *q = &kc->qs[r];
-    for (int k = 0; k < (q->two ? nw : dim); k++) {
-      const int col = k < dim ? q->ci[k] : q->cj[k - dim];
-      if (owner[col] == -1)
-        owner[col] = r / chunk;
-      else if (owner[col] != r / chunk)
-        owner[col] = -2;
+    int lo, hi;
+    if (record_span(&kc->qs[r], dim, chunk, ncol, &lo, &hi) < 0) {
+      free(first); /* (a column outside [0, ncol): stays serial) */
+      return MRVI_OK;
     }
+    for (int c = lo; c <= hi; c++)
+      if (record_mask(&kc->qs[r], dim, chunk, c)) {
+        first[c + 1]++;
+        total++;
+      }
   }
-  long n_gb = 0;
+  if (total > INT_MAX) {
+    free(first);
+    return MRVI_OK;
+  }
+  for (int c = 0; c < n_part; c++)
+    first[c + 1] += first[c];
+  kc->part_rec = malloc((size_t)(total > 0 ? total : 1) * sizeof *kc->part_rec);
+  kc->part_mask = malloc((size_t)(total > 0 ? total : 1));
+  int *fill = malloc((size_t)n_part * sizeof *fill);
+  if (!kc->part_rec || !kc->part_mask || !fill) {
+    free(first);
+    free(fill);
+    return MRVI_ENOMEM; /* (the rest freed with kc) */
+  }
+  memcpy(fill, first, (size_t)n_part * sizeof *fill);
+  /* Each part's records in the serial order. */
   for (int r = 0; r < kc->n; r++) {
-    const kspring *q = &kc->qs[r];
-    for (int k = 0; k < nw; k++) {
-      const int col = k < dim ? q->ci[k] : q->cj[k - dim];
-      const int shared = (k < dim || q->two) && owner[col] == -2;
-      kc->wcol[(size_t)r * nw + k] = shared ? ~(int)n_gb++ : col;
+    int lo, hi;
+    record_span(&kc->qs[r], dim, chunk, ncol, &lo, &hi);
+    for (int c = lo; c <= hi; c++) {
+      const unsigned mk = record_mask(&kc->qs[r], dim, chunk, c);
+      if (mk) {
+        kc->part_rec[fill[c]] = r;
+        kc->part_mask[fill[c]++] = (unsigned char)mk;
+      }
     }
   }
-  kc->gb = malloc((size_t)(n_gb > 0 ? n_gb : 1) * sizeof *kc->gb);
-  kc->gb_col = malloc((size_t)(n_gb > 0 ? n_gb : 1) * sizeof *kc->gb_col);
-  if (!kc->gb || !kc->gb_col) {
-    free(owner);
-    return MRVI_ENOMEM; /* (freed with kc) */
-  }
-  for (int r = 0; r < kc->n; r++)
-    for (int k = 0; k < nw; k++) {
-      const int w = kc->wcol[(size_t)r * nw + k];
-      if (w < 0)
-        kc->gb_col[~w] = k < dim ? kc->qs[r].ci[k] : kc->qs[r].cj[k - dim];
-    }
-  free(owner);
-  kc->n_gb = n_gb;
+  free(fill);
+  kc->part_first = first;
+  kc->n_part = n_part;
   kc->chunk = chunk;
-  kc->n_chunk = (kc->n + chunk - 1) / chunk;
   kc->threads = threads;
   return MRVI_OK;
+}
+
+int mrvi_terms_parts(const mrvi_terms *kc) {
+  return kc->part_first ? kc->n_part : 0;
 }
 
 int mrvi_terms_threads(const mrvi_terms *kc) {
@@ -1079,7 +1100,7 @@ int mrvi_terms_threads(const mrvi_terms *kc) {
 
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
-    par_grad(kc, z, g);
+    part_grad(kc, z, g);
   else if (kc->hooke_only)
     hooke_grad(kc->qh, kc->n, z, g, kc->dim);
   else if (kc->flat)
