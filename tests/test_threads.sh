@@ -7,7 +7,8 @@
 # 2 threads to t = 0.25 extended by `--resume --set integrator.t_end` on 3
 # threads equals the uninterrupted run on 1.  `mrvi check` shows the
 # count; a build without OpenMP refuses --threads 2 with a message that
-# says so.
+# says so.  A command on threads sets libgomp's OMP_WAIT_POLICY to passive
+# unless the environment sets it.
 #
 #   test_threads.sh MRVI_BINARY SOURCE_ROOT
 set -u
@@ -49,6 +50,27 @@ if grep -q "^threads *3 " "$tmp/check.txt"; then
   pass "mrvi check shows the thread count"
 else
   fail "mrvi check shows the thread count: $(grep threads "$tmp/check.txt")"
+fi
+
+# libgomp's wait policy: passive when the command asks for threads and
+# the environment leaves it to mrvi, the user's setting otherwise.
+if env -u OMP_WAIT_POLICY -u GOMP_SPINCOUNT "$mrvi" check "$sys" --threads 2 |
+  grep -q "^threads .*OMP_WAIT_POLICY passive)"; then
+  pass "--threads 2: libgomp's wait policy passive"
+else
+  fail "--threads 2: libgomp's wait policy passive"
+fi
+if OMP_WAIT_POLICY=active "$mrvi" check "$sys" --threads 2 |
+  grep -q "^threads .*OMP_WAIT_POLICY active)"; then
+  pass "--threads 2: the user's OMP_WAIT_POLICY stands"
+else
+  fail "--threads 2: the user's OMP_WAIT_POLICY stands"
+fi
+if env -u OMP_WAIT_POLICY -u MRVI_THREADS "$mrvi" check "$sys" |
+  grep -q "^threads .*OMP_WAIT_POLICY unset)"; then
+  pass "one thread: the environment unchanged"
+else
+  fail "one thread: the environment unchanged"
 fi
 
 for scheme in fully-explicit explicit-slow midpoint-midpoint; do

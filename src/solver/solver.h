@@ -319,13 +319,16 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
  * kernels without their Hessian part), bitwise the same. */
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
 /* mrvi_terms_grad on `threads` threads (resolved: >= 1) for a class of
- * springs and anchors alone whose gradient has ncol columns, at least two
- * parts of `chunk` columns (tuning.thread_chunk); other classes stay on
- * one.  Part c is the columns [c chunk, (c+1) chunk): the partition
- * depends on ncol and chunk alone, each part writes its own columns and
- * every column sums its contributions in the serial order, so the
- * gradient is the serial one bitwise for every thread count.
- * MRVI_ENOMEM, else MRVI_OK. */
+ * springs and anchors alone, in parts that depend on the class, `chunk`
+ * (tuning.thread_chunk) and ncol alone, not on the thread count: with
+ * ncol > 0, part c owns the columns [c chunk, (c+1) chunk) of a gradient
+ * of ncol columns (the explicit sweep's rows); with ncol = 0, the records
+ * in chunks of `chunk` and each column owned by the chunk of the first
+ * record that writes it (few records span parts wherever the records'
+ * order follows the columns', whatever the columns' order).  Each part
+ * writes its own columns from its records in the serial order, so the
+ * gradient is the serial one bitwise for every thread count.  Fewer than
+ * two parts: one thread.  MRVI_ENOMEM, else MRVI_OK. */
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);

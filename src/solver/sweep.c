@@ -398,7 +398,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
     s_ok = mrvi_terms_set_threads(sw->kc[c], threads, s->tuning.thread_chunk,
-                                  c == MRVI_SLOW ? sw->ns + nf : nf) == MRVI_OK;
+                                  c == MRVI_SLOW ? 0 : nf) == MRVI_OK;
   /* The explicit sweep's one parallel region per step: W's gradient by
    * parts of the fast rows (explicit_nodes_par). */
   sw->chunk = s->tuning.thread_chunk;

@@ -993,32 +993,61 @@ static __attribute__((noinline)) void part_grad(mrvi_terms *kc, const double *z,
     mrvi_terms_grad_part(kc, c, z, g);
 }
 
-/* The parts (1 + the last) a record's write columns fall in, by column
- * index / chunk; -1 for a column outside [0, ncol). */
-static int record_span(const kspring *q, int dim, int chunk, int ncol, int *lo,
-                       int *hi) {
-  *lo = ncol;
-  *hi = -1;
-  for (int k = 0; k < (q->two ? 2 * dim : dim); k++) {
-    const int col = k < dim ? q->ci[k] : q->cj[k - dim];
-    if (col < 0 || col >= ncol)
-      return -1;
-    *lo = col < *lo ? col : *lo;
-    *hi = col > *hi ? col : *hi;
-  }
-  *lo /= chunk;
-  *hi /= chunk;
-  return 0;
+/* Write column k of record q (x_i's for k < dim, then x_j's). */
+static int record_col(const kspring *q, int dim, int k) {
+  return k < dim ? q->ci[k] : q->cj[k - dim];
 }
 
-/* The mask of record q's write columns in part c. */
-static unsigned record_mask(const kspring *q, int dim, int chunk, int c) {
-  unsigned mk = 0;
+/* The part owning each column: ranges of `chunk` columns (ncol > 0), else
+ * the chunk of `chunk` records (in the serial order) holding the first
+ * record that writes the column.  NULL on a column outside [0, ncol) or
+ * no memory (*n_col: the columns mapped, *n_part: the parts). */
+static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
+                          int *n_part) {
+  const int dim = kc->dim, by_rec = ncol <= 0;
+  if (by_rec)
+    for (int r = 0; r < kc->n; r++)
+      for (int k = 0; k < (kc->qs[r].two ? 2 * dim : dim); k++)
+        ncol = record_col(&kc->qs[r], dim, k) >= ncol
+                   ? record_col(&kc->qs[r], dim, k) + 1
+                   : ncol;
+  int *owner = malloc((size_t)(ncol > 0 ? ncol : 1) * sizeof *owner);
+  if (!owner)
+    return NULL;
+  for (int c = 0; c < ncol; c++)
+    owner[c] = by_rec ? -1 : c / chunk;
+  for (int r = 0; r < kc->n; r++)
+    for (int k = 0; k < (kc->qs[r].two ? 2 * dim : dim); k++) {
+      const int col = record_col(&kc->qs[r], dim, k);
+      if (col < 0 || col >= ncol) {
+        free(owner);
+        return NULL;
+      }
+      if (owner[col] < 0)
+        owner[col] = r / chunk;
+    }
+  *n_col = ncol;
+  *n_part = by_rec ? (kc->n - 1) / chunk + 1 : (ncol - 1) / chunk + 1;
+  return owner;
+}
+
+/* Record q's masks of write columns per owning part: up to 2 dim distinct
+ * parts into part[], masks into mask[]; returns their count. */
+static int record_parts(const kspring *q, int dim, const int *owner,
+                        int part[6], unsigned mask[6]) {
+  int np = 0;
   for (int k = 0; k < (q->two ? 2 * dim : dim); k++) {
-    const int col = k < dim ? q->ci[k] : q->cj[k - dim];
-    mk |= (unsigned)(col / chunk == c) << k;
+    const int o = owner[record_col(q, dim, k)];
+    int i = 0;
+    while (i < np && part[i] != o)
+      i++;
+    if (i == np) {
+      part[np] = o;
+      mask[np++] = 0;
+    }
+    mask[i] |= 1u << k;
   }
-  return mk;
+  return np;
 }
 
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
@@ -1032,56 +1061,49 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   int ns = 0;
   for (int i = 0; i < kc->n; i++)
     ns += kc->hooke_only || kc->t[i].runs > 0;
-  if (threads <= 1 || chunk < 1 || ns != kc->n || ncol < 2 * chunk)
+  if (threads <= 1 || chunk < 1 || ns != kc->n ||
+      (ncol > 0 ? ncol : kc->n) < 2 * chunk)
     return MRVI_OK;
   if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
     return MRVI_ENOMEM;
-  const int dim = kc->dim, n_part = (ncol - 1) / chunk + 1;
-  /* Count each part's records (a record's parts: those of its columns,
-   * which a spring's two particles make at most two runs of). */
+  const int dim = kc->dim;
+  int n_col = 0, n_part = 0, part[6];
+  unsigned mask[6];
+  int *owner = column_owners(kc, chunk, ncol, &n_col, &n_part);
+  if (!owner) /* (no memory, or a column outside [0, ncol): stays serial) */
+    return ncol > 0 ? MRVI_OK : MRVI_ENOMEM;
+  /* Count each part's records, then list them in the serial order. */
   int *first = calloc((size_t)n_part + 1, sizeof *first);
-  if (!first)
-    return MRVI_ENOMEM;
-  long total = 0;
-  for (int r = 0; r < kc->n; r++) {
-    int lo, hi;
-    if (record_span(&kc->qs[r], dim, chunk, ncol, &lo, &hi) < 0) {
-      free(first); /* (a column outside [0, ncol): stays serial) */
-      return MRVI_OK;
-    }
-    for (int c = lo; c <= hi; c++)
-      if (record_mask(&kc->qs[r], dim, chunk, c)) {
-        first[c + 1]++;
-        total++;
-      }
-  }
-  if (total > INT_MAX) {
-    free(first);
-    return MRVI_OK;
-  }
-  for (int c = 0; c < n_part; c++)
-    first[c + 1] += first[c];
-  kc->part_rec = malloc((size_t)(total > 0 ? total : 1) * sizeof *kc->part_rec);
-  kc->part_mask = malloc((size_t)(total > 0 ? total : 1));
   int *fill = malloc((size_t)n_part * sizeof *fill);
-  if (!kc->part_rec || !kc->part_mask || !fill) {
+  long total = 0;
+  for (int r = 0; first && r < kc->n; r++) {
+    const int np = record_parts(&kc->qs[r], dim, owner, part, mask);
+    for (int i = 0; i < np; i++)
+      first[part[i] + 1]++;
+    total += np;
+  }
+  if (total <= INT_MAX) {
+    kc->part_rec = malloc((size_t)(total > 0 ? total : 1) * sizeof(int));
+    kc->part_mask = malloc((size_t)(total > 0 ? total : 1));
+  }
+  if (!first || !fill || !kc->part_rec || !kc->part_mask) {
+    free(owner);
     free(first);
     free(fill);
-    return MRVI_ENOMEM; /* (the rest freed with kc) */
+    return total > INT_MAX ? MRVI_OK : MRVI_ENOMEM; /* (freed with kc) */
   }
-  memcpy(fill, first, (size_t)n_part * sizeof *fill);
-  /* Each part's records in the serial order. */
+  for (int c = 0; c < n_part; c++) {
+    first[c + 1] += first[c];
+    fill[c] = first[c];
+  }
   for (int r = 0; r < kc->n; r++) {
-    int lo, hi;
-    record_span(&kc->qs[r], dim, chunk, ncol, &lo, &hi);
-    for (int c = lo; c <= hi; c++) {
-      const unsigned mk = record_mask(&kc->qs[r], dim, chunk, c);
-      if (mk) {
-        kc->part_rec[fill[c]] = r;
-        kc->part_mask[fill[c]++] = (unsigned char)mk;
-      }
+    const int np = record_parts(&kc->qs[r], dim, owner, part, mask);
+    for (int i = 0; i < np; i++) {
+      kc->part_rec[fill[part[i]]] = r;
+      kc->part_mask[fill[part[i]]++] = (unsigned char)mask[i];
     }
   }
+  free(owner);
   free(fill);
   kc->part_first = first;
   kc->n_part = n_part;
