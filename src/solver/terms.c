@@ -100,6 +100,7 @@ struct mrvi_terms {
    * bitwise for every number of threads (a record spanning parts is
    * evaluated once per part). */
   int threads, chunk, n_part;
+  int part_hooke; /* every record a khooke spring: part_hooke_k on qh */
   int *part_first, *part_rec;
   unsigned char *part_mask;
 };
@@ -971,12 +972,43 @@ ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
   }
 }
 
+/* part_k for a class of khooke springs alone (hooke_grad_k's arithmetic,
+ * bitwise spring_eval's): the quarter-size records. */
+ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
+                                const unsigned char *mask, int nr,
+                                const double *z, double *g, const int dim) {
+  for (int i = 0; i < nr; i++) {
+    const khooke *h = q + rec[i];
+    const unsigned mk = mask[i];
+    const int ci = h->ci, cj = h->cj;
+    double d[3], r2 = 0.0;
+    UNROLL for (int k = 0; k < dim; k++) {
+      d[k] = z[ci + k] - z[cj + k];
+      r2 += d[k] * d[k];
+    }
+    const double rr = sqrt(r2), d1 = h->c * (rr - h->shift);
+    double u[3] = {0, 0, 0};
+    if (rr > 0.0)
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[ci + k] +=
+        d1 * u[k];
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k)) g[cj + k] +=
+        -d1 * u[k];
+  }
+}
+
 void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
                           double *g) {
   const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
-  if (kc->dim == 2)
+  if (kc->part_hooke && kc->dim == 2)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2);
+  else if (kc->part_hooke && kc->dim == 3)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3);
+  else if (kc->part_hooke)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1);
+  else if (kc->dim == 2)
     part_k(kc->qs, rec, mask, nr, z, g, 2);
   else if (kc->dim == 3)
     part_k(kc->qs, rec, mask, nr, z, g, 3);
@@ -1105,6 +1137,9 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   }
   free(owner);
   free(fill);
+  kc->part_hooke = 1;
+  for (int r = 0; r < kc->n; r++)
+    kc->part_hooke &= kc->hooke_only || kc->hooke_run[r];
   kc->part_first = first;
   kc->n_part = n_part;
   kc->chunk = chunk;
