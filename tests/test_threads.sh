@@ -3,7 +3,8 @@
 # systems/lattice.yaml grown to 40 x 20 particles (1600 coordinates), its
 # threaded loops in parts of 16 coordinates (integrator.tuning.thread_chunk),
 # run by fully-explicit, explicit-slow and midpoint-midpoint on 1, 2 and 3
-# threads: /macro/q, /macro/p, /micro/q_fast and /micro/p_fast the same bit for bit.  A run on
+# threads: /macro/q, /macro/p, /micro/q_fast, /micro/p_fast and the energies
+# (summed per chunk of elements) the same bit for bit.  A run on
 # 2 threads to t = 0.25 extended by `--resume --set integrator.t_end` on 3
 # threads equals the uninterrupted run on 1.  `mrvi check` shows the
 # count; a build without OpenMP refuses --threads 2 with a message that
@@ -27,7 +28,8 @@ common=(--set generate.0.count.0=40 --set generate.0.count.1=20
 
 # same A B: the trajectories of A and B bit for bit
 same() {
-  for g in /macro/q /macro/p /micro/q_fast /micro/p_fast; do
+  for g in /macro/q /macro/p /micro/q_fast /micro/p_fast /macro/potential_slow \
+    /macro/potential_fast /macro/energy; do
     if ! h5diff "$1" "$2" "$g" "$g" >/dev/null 2>&1; then
       h5diff -r "$1" "$2" "$g" "$g" | head -n 5
       return 1

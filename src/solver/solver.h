@@ -380,8 +380,15 @@ int mrvi_terms_quadratic(const mrvi_terms *kc);
  * z = 0.  MRVI_ENOMEM (nothing allocated) or MRVI_OK. */
 int mrvi_terms_affine(mrvi_terms *kc, int n, double **g0, double **H);
 /* Z(z): the sum of the elements' values in their order, bitwise
- * mrvi_model_potential's (the same products and additions). */
+ * mrvi_model_potential's (the same products and additions); after
+ * mrvi_terms_set_value_chunks on a class of at least two chunks, the sums
+ * of chunks of `chunk` elements added in order (round-off apart the same;
+ * bitwise the same for every thread count). */
 double mrvi_terms_value(mrvi_terms *kc, const double *z);
+/* mrvi_terms_value in chunks of `chunk` elements (a class of fewer than
+ * two: one sum, unchanged), on `threads` threads where no element needs
+ * the class's shared scratch.  MRVI_ENOMEM, else MRVI_OK. */
+int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk);
 
 /* Predictor of the Newton paths (solver/predict.c): an explicit multirate
  * sweep (Stoermer-Verlet on both grids) from the known data of st, written

@@ -99,6 +99,11 @@ struct mrvi_terms {
    * contributions in the serial order, so the gradient is the serial one
    * bitwise for every number of threads (a record spanning parts is
    * evaluated once per part). */
+  /* mrvi_terms_set_value_chunks: the value summed per chunk of vchunk
+   * elements (0: in one sum), the chunks' sums vpart added in order;
+   * the chunks on vthreads threads. */
+  int vchunk, vthreads;
+  double *vpart;
   int threads, chunk, n_part;
   int part_hooke; /* every record a khooke spring: part_hooke_k on qh */
   int *part_first, *part_rec;
@@ -120,6 +125,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->els);
   free(kc->hooke_run);
   free(kc->part_first);
+  free(kc->vpart);
   free(kc->part_rec);
   free(kc->part_mask);
   free(kc);
@@ -1427,9 +1433,11 @@ static double spring_value(const kspring *q, const double *z, int dim) {
   return phi;
 }
 
-double mrvi_terms_value(mrvi_terms *kc, const double *z) {
+/* The sum of elements i0..i1-1's values in their order, from 0.  kc->y:
+ * scratch of a generic element (vsafe: the class has none). */
+static double value_range(mrvi_terms *kc, int i0, int i1, const double *z) {
   double total = 0.0;
-  for (int it = 0; it < kc->n; it++) {
+  for (int it = i0; it < i1; it++) {
     const kterm *t = &kc->t[it];
     const int n = t->n, *col = kc->col + t->first;
     const double *a = kc->coef + t->cfirst;
@@ -1460,4 +1468,37 @@ double mrvi_terms_value(mrvi_terms *kc, const double *z) {
     total += phi;
   }
   return total;
+}
+
+double mrvi_terms_value(mrvi_terms *kc, const double *z) {
+  if (kc->vchunk <= 0)
+    return value_range(kc, 0, kc->n, z);
+  const int nc = (kc->n - 1) / kc->vchunk + 1, ch = kc->vchunk;
+  double *part = kc->vpart;
+  MRVI_PARALLEL_FOR(kc->vthreads)
+  for (int c = 0; c < nc; c++)
+    part[c] =
+        value_range(kc, c * ch, kc->n - c * ch < ch ? kc->n : (c + 1) * ch, z);
+  double total = 0.0;
+  for (int c = 0; c < nc; c++)
+    total += part[c];
+  return total;
+}
+
+int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
+  kc->vchunk = 0;
+  kc->vthreads = 1;
+  if (chunk < 1 || kc->n < 2 * chunk || !kc->t)
+    return MRVI_OK;
+  free(kc->vpart);
+  if (!(kc->vpart = malloc((size_t)((kc->n - 1) / chunk + 1) * sizeof(double))))
+    return MRVI_ENOMEM;
+  kc->vchunk = chunk;
+  /* (threads only where no element needs the shared scratch kc->y) */
+  int safe = mrvi_threads_supported();
+  for (int i = 0; safe && i < kc->n; i++)
+    safe = kc->t[i].runs > 0 || kc->t[i].kind != KT_ELEMENT ||
+           kc->t[i].el->kind == MRVI_ELEMENT_GRAVITY;
+  kc->vthreads = safe && threads > 1 ? threads : 1;
+  return MRVI_OK;
 }
