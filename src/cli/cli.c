@@ -107,6 +107,8 @@ static const char usage_run[] =
     "      --threads N       threads of the element loops (default: the\n"
     "                        environment's MRVI_THREADS, else 1); the\n"
     "                        results are the same bit for bit for every N.\n"
+    "                        N > 1 sets OMP_WAIT_POLICY=passive unless the\n"
+    "                        environment sets it or GOMP_SPINCOUNT.\n"
     "                        A build without OpenMP refuses N > 1\n"
     "  -h, --help            show this help\n"
     "\n"
