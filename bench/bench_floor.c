@@ -1036,8 +1036,9 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
          "%.2f at the start\n",
          mrvi_version(), t, o->dT, o->p, repeats,
          (int)sysconf(_SC_NPROCESSORS_ONLN), bench_load());
-  printf("# build: %s; threads %s\n\n", bench_build(),
-         mrvi_threads_supported() ? "on (OpenMP)" : "off (no OpenMP)");
+  printf("# build: %s; threads %s; OMP_WAIT_POLICY %s\n\n", bench_build(),
+         mrvi_threads_supported() ? "on (OpenMP)" : "off (no OpenMP)",
+         getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset");
   for (int k = 0; k < N_NETS; k++) {
     if (!nets[k])
       continue;

@@ -165,25 +165,32 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
     CHECK(e_gs <= 1e-13 && e_Hs <= 1e-13,
           "d %d %s (%g): scaled gradient %.2e, Hessian %.2e relative", d,
           lc->law, lc->params[1], e_gs, e_Hs);
-    /* The gradient on threads (chunks of 4 elements): the serial one
+    /* The gradient on threads, in parts of 2 columns (a particle split in
+     * 2-D and 3-D) and in parts of 2 records (ncol = 0): the serial one
      * bitwise for 2 and 3 threads. */
-    for (int t = 2; t <= 3; t++) {
-      mrvi_terms *kt = NULL;
-      CHECK(mrvi_terms_create(m, elems, ne, NULL, &kt) == MRVI_OK &&
-                mrvi_terms_set_threads(kt, t, 4) == MRVI_OK,
-            "d %d %s: threaded create", d, lc->law);
-      if (!kt)
-        continue;
-      CHECK(mrvi_terms_threads(kt) == (mrvi_threads_supported() ? t : 1),
-            "d %d %s: %d threads in use, %d asked", d, lc->law,
-            mrvi_terms_threads(kt), t);
-      memset(gs, 0, (size_t)n * sizeof *gs);
-      mrvi_terms_grad(kt, q, gs);
-      CHECK(memcmp(gs, g, (size_t)n * sizeof *g) == 0,
-            "d %d %s (%g): %d threads: the serial gradient bitwise", d, lc->law,
-            lc->params[1], t);
-      mrvi_terms_free(kt);
-    }
+    for (int t = 2; t <= 3; t++)
+      for (int by_rec = 0; by_rec <= 1; by_rec++) {
+        mrvi_terms *kt = NULL;
+        CHECK(mrvi_terms_create(m, elems, ne, NULL, &kt) == MRVI_OK &&
+                  mrvi_terms_set_threads(kt, t, 2, by_rec ? 0 : n) == MRVI_OK,
+              "d %d %s: threaded create", d, lc->law);
+        if (!kt)
+          continue;
+        CHECK(mrvi_terms_threads(kt) == (mrvi_threads_supported() ? t : 1) &&
+                  mrvi_terms_parts(kt) ==
+                      (mrvi_threads_supported()
+                           ? (by_rec ? (ne + 1) / 2 : (n + 1) / 2)
+                           : 0),
+              "d %d %s: %d threads in use, %d asked, %d parts", d, lc->law,
+              mrvi_terms_threads(kt), t, mrvi_terms_parts(kt));
+        memset(gs, 0, (size_t)n * sizeof *gs);
+        mrvi_terms_grad(kt, q, gs);
+        CHECK(memcmp(gs, g, (size_t)n * sizeof *g) == 0,
+              "d %d %s (%g): %d threads, parts by %s: the serial gradient "
+              "bitwise",
+              d, lc->law, lc->params[1], t, by_rec ? "records" : "columns");
+        mrvi_terms_free(kt);
+      }
     const double val = mrvi_terms_value(kc, q);
     CHECK(fabs(val - val_ref) <= 1e-13 * fabs(val_ref),
           "d %d %s: value %.17g vs %.17g", d, lc->law, val, val_ref);

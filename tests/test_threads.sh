@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # Threads (doc/performance.md, "Threads"): the planar lattice of
 # systems/lattice.yaml grown to 40 x 20 particles (1600 coordinates), its
-# element loops in chunks of 16 springs (integrator.tuning.thread_chunk),
+# threaded loops in parts of 16 coordinates (integrator.tuning.thread_chunk),
 # run by fully-explicit, explicit-slow and midpoint-midpoint on 1, 2 and 3
-# threads: /macro/q, /macro/p, /micro/q_fast and /micro/p_fast the same bit for bit.  A run on
+# threads: /macro/q, /macro/p, /micro/q_fast, /micro/p_fast and the energies
+# (summed per chunk of elements) the same bit for bit.  A run on
 # 2 threads to t = 0.25 extended by `--resume --set integrator.t_end` on 3
 # threads equals the uninterrupted run on 1.  `mrvi check` shows the
 # count; a build without OpenMP refuses --threads 2 with a message that
-# says so.
+# says so.  A command on threads sets libgomp's OMP_WAIT_POLICY to passive
+# unless the environment sets it.
 #
 #   test_threads.sh MRVI_BINARY SOURCE_ROOT
 set -u
@@ -26,7 +28,8 @@ common=(--set generate.0.count.0=40 --set generate.0.count.1=20
 
 # same A B: the trajectories of A and B bit for bit
 same() {
-  for g in /macro/q /macro/p /micro/q_fast /micro/p_fast; do
+  for g in /macro/q /macro/p /micro/q_fast /micro/p_fast /macro/potential_slow \
+    /macro/potential_fast /macro/energy; do
     if ! h5diff "$1" "$2" "$g" "$g" >/dev/null 2>&1; then
       h5diff -r "$1" "$2" "$g" "$g" | head -n 5
       return 1
@@ -51,6 +54,27 @@ else
   fail "mrvi check shows the thread count: $(grep threads "$tmp/check.txt")"
 fi
 
+# libgomp's wait policy: passive when the command asks for threads and
+# the environment leaves it to mrvi, the user's setting otherwise.
+if env -u OMP_WAIT_POLICY -u GOMP_SPINCOUNT "$mrvi" check "$sys" --threads 2 |
+  grep -q "^threads .*OMP_WAIT_POLICY passive)"; then
+  pass "--threads 2: libgomp's wait policy passive"
+else
+  fail "--threads 2: libgomp's wait policy passive"
+fi
+if OMP_WAIT_POLICY=active "$mrvi" check "$sys" --threads 2 |
+  grep -q "^threads .*OMP_WAIT_POLICY active)"; then
+  pass "--threads 2: the user's OMP_WAIT_POLICY stands"
+else
+  fail "--threads 2: the user's OMP_WAIT_POLICY stands"
+fi
+if env -u OMP_WAIT_POLICY -u MRVI_THREADS "$mrvi" check "$sys" |
+  grep -q "^threads .*OMP_WAIT_POLICY unset)"; then
+  pass "one thread: the environment unchanged"
+else
+  fail "one thread: the environment unchanged"
+fi
+
 for scheme in fully-explicit explicit-slow midpoint-midpoint; do
   for t in 1 2 3; do
     run_ok "$scheme on $t threads" "$mrvi" run "$sys" "${common[@]}" \
@@ -64,6 +88,22 @@ for scheme in fully-explicit explicit-slow midpoint-midpoint; do
     fi
   done
 done
+
+# Micro output off: each fast node overwrites the last in place, so the
+# threaded explicit sweep keeps a barrier after each node's end force.
+for t in 1 3; do
+  run_ok "fully-explicit, micro output off, on $t threads" "$mrvi" run "$sys" \
+    "${common[@]}" --set output.micro=false \
+    --set integrator.scheme=fully-explicit --threads $t -o "$tmp/last.$t.h5"
+done
+if h5diff "$tmp/last.1.h5" "$tmp/last.3.h5" /macro/q /macro/q >/dev/null 2>&1 &&
+  h5diff "$tmp/last.1.h5" "$tmp/last.3.h5" /macro/p /macro/p >/dev/null 2>&1 &&
+  h5diff "$tmp/last.1.h5" "$tmp/fully-explicit.1.h5" /macro/q /macro/q \
+    >/dev/null 2>&1; then
+  pass "fully-explicit, micro output off: 3 threads give 1's macro nodes bit for bit"
+else
+  fail "fully-explicit, micro output off: 3 threads give 1's macro nodes bit for bit"
+fi
 
 # Resume across thread counts: 2 threads to t = 0.25, extended on 3.
 scheme=explicit-slow

@@ -107,6 +107,8 @@ static const char usage_run[] =
     "      --threads N       threads of the element loops (default: the\n"
     "                        environment's MRVI_THREADS, else 1); the\n"
     "                        results are the same bit for bit for every N.\n"
+    "                        N > 1 sets OMP_WAIT_POLICY=passive unless the\n"
+    "                        environment sets it or GOMP_SPINCOUNT.\n"
     "                        A build without OpenMP refuses N > 1\n"
     "  -h, --help            show this help\n"
     "\n"
@@ -565,9 +567,11 @@ static int cmd_check(int argc, char **argv) {
          sys->output_file ? sys->output_file : "-", sys->output_every,
          sys->output_micro ? "yes" : "no");
   if (mrvi_threads_supported())
-    printf("%-14s%d%s (element loops; the same results for every count)\n",
+    printf("%-14s%d%s (element loops; the same results for every count; "
+           "OMP_WAIT_POLICY %s)\n",
            "threads", s->threads > 0 ? s->threads : mrvi_batch_cores(),
-           s->threads > 0 ? "" : " (settings.threads 0: the cores available)");
+           s->threads > 0 ? "" : " (settings.threads 0: the cores available)",
+           getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset");
   else
     printf("%-14s1 (this build has no threads: built without OpenMP)\n",
            "threads");
@@ -1158,7 +1162,41 @@ static const char *command_usage(const char *cmd) {
   return NULL;
 }
 
+/* Whether the command line or MRVI_THREADS asks for more than one thread
+ * (mrvi_cli_threads checks the values later). */
+static int asks_threads(int argc, char **argv) {
+  const char *e = getenv("MRVI_THREADS");
+  int many = e && atoi(e) > 1;
+  for (int i = 2; i < argc; i++)
+    if (!strcmp(argv[i], "--threads") && i + 1 < argc)
+      many |= atoi(argv[i + 1]) > 1;
+    else if (!strncmp(argv[i], "--threads=", 10))
+      many |= atoi(argv[i] + 10) > 1;
+  return many;
+}
+
+/* libgomp's threads spin at each barrier before they sleep when
+ * OMP_WAIT_POLICY is unset; on a machine with more runnable processes
+ * than cores a spinning thread holds the core its partner needs, and the
+ * threaded loops ran up to 17x slower than one thread
+ * (doc/performance.md, "Threads").  libgomp reads its environment once,
+ * as the program loads, so a command on more than one thread restarts
+ * itself once with OMP_WAIT_POLICY=passive, unless the environment sets
+ * OMP_WAIT_POLICY or GOMP_SPINCOUNT (the user's choice stands).  If the
+ * restart fails the command goes on with libgomp's default. */
+static void passive_wait(int argc, char **argv) {
+  if (!mrvi_threads_supported() || getenv("OMP_WAIT_POLICY") ||
+      getenv("GOMP_SPINCOUNT") || !asks_threads(argc, argv))
+    return;
+  if (setenv("OMP_WAIT_POLICY", "passive", 1) == 0)
+    execv("/proc/self/exe", argv);
+  unsetenv("OMP_WAIT_POLICY");
+}
+
 int main(int argc, char **argv) {
+  if (argc >= 2 && (!strcmp(argv[1], "run") || !strcmp(argv[1], "check") ||
+                    !strcmp(argv[1], "batch")))
+    passive_wait(argc, argv);
   if (argc < 2) {
     usage_error(usage_main);
     return EXIT_INPUT;

@@ -8,12 +8,16 @@
 
 /* The potentials V and W compiled once per run (solver/terms.c): their
  * values at every node, bitwise mrvi_model_energy's, without its per-element
- * dispatch.  NULL entries (out of memory): mrvi_model_energy. */
+ * dispatch; a class of at least two chunks of tuning.thread_chunk elements
+ * sums per chunk (on settings.threads threads), then the chunks in order
+ * (mrvi_terms_set_value_chunks: the same bits for every thread count).
+ * NULL entries (out of memory): mrvi_model_energy. */
 typedef struct potentials {
   mrvi_terms *kc[2];
 } potentials;
 
-static void potentials_create(const mrvi_model *m, potentials *pot) {
+static void potentials_create(const mrvi_model *m, const mrvi_settings *s,
+                              potentials *pot) {
   pot->kc[0] = pot->kc[1] = NULL;
   int *elems = malloc((size_t)(m->n_elements + 1) * sizeof *elems);
   for (int c = 0; elems && c < 2; c++) {
@@ -21,8 +25,13 @@ static void potentials_create(const mrvi_model *m, potentials *pot) {
     for (int e = 0; e < m->n_elements; e++)
       if (m->elements[e].potential == (mrvi_rate)c)
         elems[n++] = e;
-    if (mrvi_terms_create(m, elems, n, NULL, &pot->kc[c]) < 0)
+    if (mrvi_terms_create(m, elems, n, NULL, &pot->kc[c]) < 0 ||
+        mrvi_terms_set_value_chunks(pot->kc[c],
+                                    mrvi_threads_resolve(s->threads),
+                                    s->tuning.thread_chunk) < 0) {
+      mrvi_terms_free(pot->kc[c]);
       pot->kc[c] = NULL;
+    }
   }
   free(elems);
 }
@@ -222,7 +231,7 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
   r.n_torsion = mrvi_integrator_n_torsions(it);
   r.torsion_angle = r.n_torsion > 0 ? mrvi_integrator_torsion_angle(it) : NULL;
   potentials pot;
-  potentials_create(m, &pot);
+  potentials_create(m, s, &pot);
   observe_state(m, &pot, &r);
   /* Initial fast part, in model order of the fast coordinates. */
   double *fq = malloc((2 * (size_t)nf + 1 + (size_t)p) * sizeof(double));

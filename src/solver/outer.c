@@ -166,10 +166,14 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     o->dtm[f] = st->dt / o->m_f[f];
     o->one[f] = 1.0;
   }
+  /* (the gradients of large spring classes on threads, in parts by
+   * records: mrvi_terms_set_threads, the same bits for every count) */
   for (int c = 0; c < 2; c++)
     if (st->n_elem_of_class[c] > 0 &&
-        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
-                          &o->kc[c]) != MRVI_OK) {
+        (mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
+                           &o->kc[c]) != MRVI_OK ||
+         mrvi_terms_set_threads(o->kc[c], st->threads, st->tuning.thread_chunk,
+                                0) != MRVI_OK)) {
       free(col);
       mrvi_outer_free(o);
       return MRVI_ENOMEM;

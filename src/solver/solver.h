@@ -321,14 +321,25 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
  * kernels without their Hessian part), bitwise the same. */
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
 /* mrvi_terms_grad on `threads` threads (resolved: >= 1) for a class of
- * springs and anchors alone with at least two chunks of `chunk` elements
- * (tuning.thread_chunk); other classes stay on one.  The partition
- * depends on the class and chunk alone and every column sums its
- * contributions in the serial order: the gradient is the serial one
- * bitwise for every thread count.  MRVI_ENOMEM, else MRVI_OK. */
-int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk);
+ * springs and anchors alone, in parts that depend on the class, `chunk`
+ * (tuning.thread_chunk) and ncol alone, not on the thread count: with
+ * ncol > 0, part c owns the columns [c chunk, (c+1) chunk) of a gradient
+ * of ncol columns (the explicit sweep's rows); with ncol = 0, the records
+ * in chunks of `chunk` and each column owned by the chunk of the first
+ * record that writes it (few records span parts wherever the records'
+ * order follows the columns', whatever the columns' order).  Each part
+ * writes its own columns from its records in the serial order, so the
+ * gradient is the serial one bitwise for every thread count.  Fewer than
+ * two parts: one thread.  MRVI_ENOMEM, else MRVI_OK. */
+int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
+/* The parts of a partitioned class (0: not partitioned), and g +=
+ * part c's columns of grad Z(z) (the other columns untouched): for a
+ * caller's own parallel loop over the parts (the explicit sweep). */
+int mrvi_terms_parts(const mrvi_terms *kc);
+void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
+                          double *g);
 /* Whether mrvi_terms_grad takes the flat loop (every term linear or a small
  * integer power on 2..4 inputs): 1 with one law for all, 2 with mixed laws,
  * 0 (the kernel per run) otherwise. */
@@ -371,8 +382,15 @@ int mrvi_terms_quadratic(const mrvi_terms *kc);
  * z = 0.  MRVI_ENOMEM (nothing allocated) or MRVI_OK. */
 int mrvi_terms_affine(mrvi_terms *kc, int n, double **g0, double **H);
 /* Z(z): the sum of the elements' values in their order, bitwise
- * mrvi_model_potential's (the same products and additions). */
+ * mrvi_model_potential's (the same products and additions); after
+ * mrvi_terms_set_value_chunks on a class of at least two chunks, the sums
+ * of chunks of `chunk` elements added in order (round-off apart the same;
+ * bitwise the same for every thread count). */
 double mrvi_terms_value(mrvi_terms *kc, const double *z);
+/* mrvi_terms_value in chunks of `chunk` elements (a class of fewer than
+ * two: one sum, unchanged), on `threads` threads where no element needs
+ * the class's shared scratch.  MRVI_ENOMEM, else MRVI_OK. */
+int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk);
 
 /* Predictor of the Newton paths (solver/predict.c): an explicit multirate
  * sweep (Stoermer-Verlet on both grids) from the known data of st, written

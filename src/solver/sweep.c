@@ -412,10 +412,15 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   /* The gradients of large spring classes on threads (the same bits). */
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
-    s_ok = mrvi_terms_set_threads(sw->kc[c], threads, s->tuning.thread_chunk) ==
-           MRVI_OK;
+    s_ok = mrvi_terms_set_threads(sw->kc[c], threads, s->tuning.thread_chunk,
+                                  c == MRVI_SLOW ? 0 : nf) == MRVI_OK;
+  /* The explicit sweep's one parallel region per step: W's gradient by
+   * parts of the fast rows (explicit_nodes_par). */
   sw->chunk = s->tuning.thread_chunk;
-  sw->threads = sw->nf >= 2 * sw->chunk ? threads : 1;
+  sw->threads = s_ok && !sw->implicit && !sw->wH &&
+                        mrvi_terms_parts(sw->kc[MRVI_FAST]) > 0
+                    ? threads
+                    : 1;
   if (!s_ok) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
@@ -1176,20 +1181,16 @@ static void explicit_end_force(int nf, double wr, const double *gnode,
  * gives q^{m+1} from p^{f,m} (in pf's row m - 1, row 0: pf's first row as
  * set by the caller) and grad W at node m; p^{f,m+1} follows with grad W at
  * node m + 1, which also serves row m + 1.  The arithmetic of the general
- * sweep below, in one pass per node.  par: the rows in blocks of
- * sw->chunk on sw->threads threads (each row is independent: the same
- * bits). */
+ * sweep below, in one pass per node. */
 ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nl,
-                                  const int nr, const int nf, const int p,
-                                  const int par) {
+                                  const int nr, const int nf, const int p) {
   const int ns = sw->ns;
   const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
   const double *mf = sw->m_f, *minv = sw->minv_f;
   double *gnode = sw->gnode;
   const size_t stride = sw->node_stride;
   const double *pm = pf;
-  const int chunk = sw->chunk, n_chunk = par ? (nf + chunk - 1) / chunk : 0;
   for (int m = 0; m < p; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
     double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
@@ -1197,12 +1198,7 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
     if (nl > 0 && !sw->gnode_ok)
       fast_gradient(sw, qm, gnode, nf);
     const int pairs = nl == 1 && nr == 1 && !fm && nf > 4; /* (not small) */
-    if (par) {
-      MRVI_PARALLEL_FOR(sw->threads)
-      for (int c = 0; c < n_chunk; c++)
-        explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl,
-                      c * chunk, nf - c * chunk < chunk ? nf : (c + 1) * chunk);
-    } else if (pairs) {
+    if (pairs) {
       explicit_row(nf, dt, wl[0], pm, gnode, minv, mf, qm, qn, pn);
     } else {
       explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl, 0, nf);
@@ -1224,18 +1220,99 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
   }
 }
 
+/* Rows [c chunk, (c+1) chunk) of grad W at z into g (part c of the fast
+ * class, mrvi_terms_grad_part: fast_gradient's sums, bitwise). */
+static void fast_gradient_part(const mrvi_sweep *sw, int c, const double *z,
+                               double *g) {
+  const int f0 = c * sw->chunk;
+  const int f1 = sw->nf - f0 < sw->chunk ? sw->nf : f0 + sw->chunk;
+  zero(g + f0, f1 - f0);
+  mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, z, g);
+}
+
+/* Part c of node m's end: grad W at qn into gnode and pn -= sum wr
+ * grad W (explicit_nodes' arithmetic). */
+static void end_force_part(const mrvi_sweep *sw, int c, const double *qn,
+                           double *gnode, double *pn, const double *wr,
+                           int nr) {
+  fast_gradient_part(sw, c, qn, gnode);
+  const int f0 = c * sw->chunk;
+  const int f1 = sw->nf - f0 < sw->chunk ? sw->nf : f0 + sw->chunk;
+  for (int f = f0; f < f1; f++)
+    for (int i = 0; i < nr; i++)
+      pn[f] -= wr[i] * gnode[f];
+}
+
+/* explicit_nodes on sw->threads threads in one parallel region: the fast
+ * rows in parts of sw->chunk (the fast class's parts, a partition by nf
+ * alone), each part's gradient rows and node updates by one thread, a
+ * barrier where a node's configuration is complete.  Every row's
+ * arithmetic is explicit_nodes' (the same bits for every thread count). */
+static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                               double *pf) {
+  const int ns = sw->ns, nf = sw->nf, p = sw->p, nl = sw->nl, nr = sw->nr;
+  const int chunk = sw->chunk, n_part = (nf + chunk - 1) / chunk;
+  const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
+  const double *mf = sw->m_f, *minv = sw->minv_f;
+  double *gnode = sw->gnode;
+  const size_t stride = sw->node_stride;
+  const int g0 = nl > 0 && !sw->gnode_ok;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->threads)
+#endif
+  for (int m = 0; m < p; m++) {
+    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    const double *pm = m == 0 ? pf : pf + (size_t)(m - 1) * stride;
+    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
+    const double *fm = force_row(st, m);
+    /* grad W at node m, unless node m - 1's end left it */
+    if (nl > 0 && (m == 0 ? g0 : nr == 0)) {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_part; c++)
+        fast_gradient_part(sw, c, qm, gnode);
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_part; c++)
+      explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl, c * chunk,
+                    nf - c * chunk < chunk ? nf : (c + 1) * chunk);
+    /* (after the barrier: node m + 1 complete) grad W there and the end
+     * force; the next node's rows of part c read part c's rows alone,
+     * which the same thread wrote (the same static schedule), so no
+     * barrier follows unless the next node overwrites this one in place
+     * (node_stride 0) while other parts may still read it. */
+    if (nr > 0 && stride == 0) {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_part; c++)
+        end_force_part(sw, c, qn, gnode, pn, wr, nr);
+    } else if (nr > 0) {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+      for (int c = 0; c < n_part; c++)
+        end_force_part(sw, c, qn, gnode, pn, wr, nr);
+    }
+  }
+  sw->gnode_ok = nr > 0;
+}
+
 /* The explicit sweep, unrolled for the trapezoidal rule (one point at each
  * node of an interval). */
 ALWAYS_INLINE void explicit_sweep(mrvi_sweep *sw, const mrvi_step *st,
                                   double *x, double *pf, const int nf) {
   if (sw->threads > 1)
-    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p, 1);
+    explicit_nodes_par(sw, st, x, pf);
   else if (sw->nl == 1 && sw->nr == 1 && sw->p == 1)
-    explicit_nodes(sw, st, x, pf, 1, 1, nf, 1, 0); /* p = 1: no loop */
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, 1); /* p = 1: no loop */
   else if (sw->nl == 1 && sw->nr == 1)
-    explicit_nodes(sw, st, x, pf, 1, 1, nf, sw->p, 0);
+    explicit_nodes(sw, st, x, pf, 1, 1, nf, sw->p);
   else
-    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p, 0);
+    explicit_nodes(sw, st, x, pf, sw->nl, sw->nr, nf, sw->p);
 }
 
 /* y = A x (A: nf x nf, row-major). */

@@ -13,6 +13,7 @@
 #include "solver/solver.h"
 #include "util/small.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -88,20 +89,25 @@ struct mrvi_terms {
   int flat, flat_k;
   /* flat_sym applies: flat, and every record's columns distinct */
   int sym;
-  /* Threads (mrvi_terms_set_threads; par_grad): a class of springs and
-   * anchors alone, its records in n_chunk chunks of `chunk` (a partition
-   * that depends on the class, not on the number of threads).  A column
-   * written by one chunk alone is written in place; the contributions to a
-   * column shared by chunks go to slots gb[s] (for column gb_col[s]),
-   * numbered in the order of the serial loop, and are added after the
-   * chunks in that order: every column sums its contributions in the
-   * serial order, so the gradient is the serial one bitwise for every
-   * number of threads.  wcol: per record its 2 dim write indices (x_i's,
-   * then x_j's), a column or ~slot. */
-  int threads, chunk, n_chunk;
-  int *wcol, *gb_col;
-  double *gb;
-  long n_gb;
+  /* Threads (mrvi_terms_set_threads; part_grad): a class of springs and
+   * anchors alone, its gradient's columns [0, ncol) in n_part parts of
+   * `chunk` columns (a partition that depends on the class and chunk, not
+   * on the number of threads).  Part c's records are part_rec[part_first[c]
+   * .. part_first[c+1]), in the serial order, each with the mask of the
+   * columns it writes in c (bit k: x_i's k-th, bit dim + k: x_j's): each
+   * part writes its own columns alone, and every column sums its
+   * contributions in the serial order, so the gradient is the serial one
+   * bitwise for every number of threads (a record spanning parts is
+   * evaluated once per part). */
+  /* mrvi_terms_set_value_chunks: the value summed per chunk of vchunk
+   * elements (0: in one sum), the chunks' sums vpart added in order;
+   * the chunks on vthreads threads. */
+  int vchunk, vthreads;
+  double *vpart;
+  int threads, chunk, n_part;
+  int part_hooke; /* every record a khooke spring: part_hooke_k on qh */
+  int *part_first, *part_rec;
+  unsigned char *part_mask;
 };
 
 void mrvi_terms_free(mrvi_terms *kc) {
@@ -118,9 +124,10 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->qh);
   free(kc->els);
   free(kc->hooke_run);
-  free(kc->wcol);
-  free(kc->gb_col);
-  free(kc->gb);
+  free(kc->part_first);
+  free(kc->vpart);
+  free(kc->part_rec);
+  free(kc->part_mask);
   free(kc);
 }
 
@@ -949,62 +956,142 @@ terms_grad_any(mrvi_terms *kc, const double *z, double *g) {
   eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
 }
 
-/* A contribution v to column w, or to slot ~w (w < 0) of gb. */
-ALWAYS_INLINE void par_put(double *g, double *gb, int w, double v) {
-  if (w >= 0)
-    g[w] += v;
-  else
-    gb[~w] = v;
-}
-
-/* The gradient of nr springs and anchors (spring_eval's unit-scale
- * products; law code per record) into g and gb by their write indices w. */
-ALWAYS_INLINE void par_chunk_k(const kspring *q, const int *w, int nr,
-                               const double *z, double *g, double *gb,
-                               const int dim) {
-  for (int r = 0; r < nr; r++, w += 2 * dim) {
+/* Part c's records (mrvi_terms_set_threads): spring_eval's gradient at
+ * unit scale, each column written only where the record's mask has it. */
+ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
+                          const unsigned char *mask, int nr, const double *z,
+                          double *g, const int dim) {
+  for (int i = 0; i < nr; i++) {
+    const kspring *s = q + rec[i];
+    const unsigned mk = mask[i];
     double u[3], d1, a, b;
-    const int two = q[r].two;
+    const int two = s->two;
     if (two)
-      spring_derivs(q + r, z, u, &d1, &a, &b, dim, 1, K_ANY);
+      spring_derivs(s, z, u, &d1, &a, &b, dim, 1, K_ANY);
     else
-      spring_derivs(q + r, z, u, &d1, &a, &b, dim, 0, K_ANY);
-    UNROLL for (int k = 0; k < dim; k++) par_put(g, gb, w[k], d1 * u[k]);
+      spring_derivs(s, z, u, &d1, &a, &b, dim, 0, K_ANY);
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[s->ci[k]] +=
+        d1 * u[k];
     if (two)
-      UNROLL for (int k = 0; k < dim; k++)
-          par_put(g, gb, w[dim + k], -d1 * u[k]);
+      UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k))
+          g[s->cj[k]] += -d1 * u[k];
   }
 }
 
-static void par_chunk(const mrvi_terms *kc, int c, const double *z, double *g) {
-  const int dim = kc->dim, r0 = c * kc->chunk;
-  const int nr = kc->n - r0 < kc->chunk ? kc->n - r0 : kc->chunk;
-  const kspring *q = kc->qs + r0;
-  const int *w = kc->wcol + (size_t)r0 * (size_t)(2 * dim);
-  if (dim == 2)
-    par_chunk_k(q, w, nr, z, g, kc->gb, 2);
-  else if (dim == 3)
-    par_chunk_k(q, w, nr, z, g, kc->gb, 3);
+/* part_k for a class of khooke springs alone (hooke_grad_k's arithmetic,
+ * bitwise spring_eval's): the quarter-size records. */
+ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
+                                const unsigned char *mask, int nr,
+                                const double *z, double *g, const int dim) {
+  for (int i = 0; i < nr; i++) {
+    const khooke *h = q + rec[i];
+    const unsigned mk = mask[i];
+    const int ci = h->ci, cj = h->cj;
+    double d[3], r2 = 0.0;
+    UNROLL for (int k = 0; k < dim; k++) {
+      d[k] = z[ci + k] - z[cj + k];
+      r2 += d[k] * d[k];
+    }
+    const double rr = sqrt(r2), d1 = h->c * (rr - h->shift);
+    double u[3] = {0, 0, 0};
+    if (rr > 0.0)
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[ci + k] +=
+        d1 * u[k];
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k)) g[cj + k] +=
+        -d1 * u[k];
+  }
+}
+
+void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
+                          double *g) {
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  const int *rec = kc->part_rec + r0;
+  const unsigned char *mask = kc->part_mask + r0;
+  if (kc->part_hooke && kc->dim == 2)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2);
+  else if (kc->part_hooke && kc->dim == 3)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3);
+  else if (kc->part_hooke)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1);
+  else if (kc->dim == 2)
+    part_k(kc->qs, rec, mask, nr, z, g, 2);
+  else if (kc->dim == 3)
+    part_k(kc->qs, rec, mask, nr, z, g, 3);
   else
-    par_chunk_k(q, w, nr, z, g, kc->gb, 1);
+    part_k(kc->qs, rec, mask, nr, z, g, 1);
 }
 
-/* The chunks on kc->threads threads (each chunk writes columns of its own
- * and slots of its own), then the shared contributions in serial order. */
-static __attribute__((noinline)) void par_grad(mrvi_terms *kc, const double *z,
-                                               double *g) {
-  const int n_chunk = kc->n_chunk;
+/* The parts on kc->threads threads (each writes its own columns). */
+static __attribute__((noinline)) void part_grad(mrvi_terms *kc, const double *z,
+                                                double *g) {
+  const int n_part = kc->n_part;
   MRVI_PARALLEL_FOR(kc->threads)
-  for (int c = 0; c < n_chunk; c++)
-    par_chunk(kc, c, z, g);
-  for (long s = 0; s < kc->n_gb; s++)
-    g[kc->gb_col[s]] += kc->gb[s];
+  for (int c = 0; c < n_part; c++)
+    mrvi_terms_grad_part(kc, c, z, g);
 }
 
-int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
+/* Write column k of record q (x_i's for k < dim, then x_j's). */
+static int record_col(const kspring *q, int dim, int k) {
+  return k < dim ? q->ci[k] : q->cj[k - dim];
+}
+
+/* The part owning each column: ranges of `chunk` columns (ncol > 0), else
+ * the chunk of `chunk` records (in the serial order) holding the first
+ * record that writes the column.  NULL on a column outside [0, ncol) or
+ * no memory (*n_col: the columns mapped, *n_part: the parts). */
+static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
+                          int *n_part) {
+  const int dim = kc->dim, by_rec = ncol <= 0;
+  if (by_rec)
+    for (int r = 0; r < kc->n; r++)
+      for (int k = 0; k < (kc->qs[r].two ? 2 * dim : dim); k++)
+        ncol = record_col(&kc->qs[r], dim, k) >= ncol
+                   ? record_col(&kc->qs[r], dim, k) + 1
+                   : ncol;
+  int *owner = malloc((size_t)(ncol > 0 ? ncol : 1) * sizeof *owner);
+  if (!owner)
+    return NULL;
+  for (int c = 0; c < ncol; c++)
+    owner[c] = by_rec ? -1 : c / chunk;
+  for (int r = 0; r < kc->n; r++)
+    for (int k = 0; k < (kc->qs[r].two ? 2 * dim : dim); k++) {
+      const int col = record_col(&kc->qs[r], dim, k);
+      if (col < 0 || col >= ncol) {
+        free(owner);
+        return NULL;
+      }
+      if (owner[col] < 0)
+        owner[col] = r / chunk;
+    }
+  *n_col = ncol;
+  *n_part = by_rec ? (kc->n - 1) / chunk + 1 : (ncol - 1) / chunk + 1;
+  return owner;
+}
+
+/* Record q's masks of write columns per owning part: up to 2 dim distinct
+ * parts into part[], masks into mask[]; returns their count. */
+static int record_parts(const kspring *q, int dim, const int *owner,
+                        int part[6], unsigned mask[6]) {
+  int np = 0;
+  for (int k = 0; k < (q->two ? 2 * dim : dim); k++) {
+    const int o = owner[record_col(q, dim, k)];
+    int i = 0;
+    while (i < np && part[i] != o)
+      i++;
+    if (i == np) {
+      part[np] = o;
+      mask[np++] = 0;
+    }
+    mask[i] |= 1u << k;
+  }
+  return np;
+}
+
+int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   if (!mrvi_threads_supported())
     threads = 1;
-  if (kc->wcol) { /* (partitioned already) */
+  if (kc->part_first) { /* (partitioned already) */
     kc->threads = threads > 1 ? threads : 1;
     return MRVI_OK;
   }
@@ -1012,65 +1099,62 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk) {
   int ns = 0;
   for (int i = 0; i < kc->n; i++)
     ns += kc->hooke_only || kc->t[i].runs > 0;
-  if (threads <= 1 || chunk < 1 || ns != kc->n || kc->n < 2 * chunk)
+  if (threads <= 1 || chunk < 1 || ns != kc->n ||
+      (ncol > 0 ? ncol : kc->n) < 2 * chunk)
     return MRVI_OK;
   if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
     return MRVI_ENOMEM;
-  const int dim = kc->dim, nw = 2 * dim;
-  int ncol = 1;
-  for (int r = 0; r < kc->n; r++)
-    for (int k = 0; k < dim; k++) {
-      ncol = kc->qs[r].ci[k] >= ncol ? kc->qs[r].ci[k] + 1 : ncol;
-      ncol = kc->qs[r].cj[k] >= ncol ? kc->qs[r].cj[k] + 1 : ncol;
-    }
-  /* The first chunk writing each column, and -2 for a shared column. */
-  int *owner = malloc((size_t)ncol * sizeof *owner);
-  kc->wcol = malloc((size_t)kc->n * (size_t)nw * sizeof *kc->wcol);
-  if (!owner || !kc->wcol) {
+  const int dim = kc->dim;
+  int n_col = 0, n_part = 0, part[6];
+  unsigned mask[6];
+  int *owner = column_owners(kc, chunk, ncol, &n_col, &n_part);
+  if (!owner) /* (no memory, or a column outside [0, ncol): stays serial) */
+    return ncol > 0 ? MRVI_OK : MRVI_ENOMEM;
+  /* Count each part's records, then list them in the serial order. */
+  int *first = calloc((size_t)n_part + 1, sizeof *first);
+  int *fill = malloc((size_t)n_part * sizeof *fill);
+  long total = 0;
+  for (int r = 0; first && r < kc->n; r++) {
+    const int np = record_parts(&kc->qs[r], dim, owner, part, mask);
+    for (int i = 0; i < np; i++)
+      first[part[i] + 1]++;
+    total += np;
+  }
+  if (total <= INT_MAX) {
+    kc->part_rec = malloc((size_t)(total > 0 ? total : 1) * sizeof(int));
+    kc->part_mask = malloc((size_t)(total > 0 ? total : 1));
+  }
+  if (!first || !fill || !kc->part_rec || !kc->part_mask) {
     free(owner);
-    free(kc->wcol);
-    kc->wcol = NULL;
-    return MRVI_ENOMEM;
+    free(first);
+    free(fill);
+    return total > INT_MAX ? MRVI_OK : MRVI_ENOMEM; /* (freed with kc) */
   }
-  for (int c = 0; c < ncol; c++)
-    owner[c] = -1;
+  for (int c = 0; c < n_part; c++) {
+    first[c + 1] += first[c];
+    fill[c] = first[c];
+  }
   for (int r = 0; r < kc->n; r++) {
-    const kspring *q = &kc->qs[r];
-    for (int k = 0; k < (q->two ? nw : dim); k++) {
-      const int col = k < dim ? q->ci[k] : q->cj[k - dim];
-      if (owner[col] == -1)
-        owner[col] = r / chunk;
-      else if (owner[col] != r / chunk)
-        owner[col] = -2;
+    const int np = record_parts(&kc->qs[r], dim, owner, part, mask);
+    for (int i = 0; i < np; i++) {
+      kc->part_rec[fill[part[i]]] = r;
+      kc->part_mask[fill[part[i]]++] = (unsigned char)mask[i];
     }
   }
-  long n_gb = 0;
-  for (int r = 0; r < kc->n; r++) {
-    const kspring *q = &kc->qs[r];
-    for (int k = 0; k < nw; k++) {
-      const int col = k < dim ? q->ci[k] : q->cj[k - dim];
-      const int shared = (k < dim || q->two) && owner[col] == -2;
-      kc->wcol[(size_t)r * nw + k] = shared ? ~(int)n_gb++ : col;
-    }
-  }
-  kc->gb = malloc((size_t)(n_gb > 0 ? n_gb : 1) * sizeof *kc->gb);
-  kc->gb_col = malloc((size_t)(n_gb > 0 ? n_gb : 1) * sizeof *kc->gb_col);
-  if (!kc->gb || !kc->gb_col) {
-    free(owner);
-    return MRVI_ENOMEM; /* (freed with kc) */
-  }
-  for (int r = 0; r < kc->n; r++)
-    for (int k = 0; k < nw; k++) {
-      const int w = kc->wcol[(size_t)r * nw + k];
-      if (w < 0)
-        kc->gb_col[~w] = k < dim ? kc->qs[r].ci[k] : kc->qs[r].cj[k - dim];
-    }
   free(owner);
-  kc->n_gb = n_gb;
+  free(fill);
+  kc->part_hooke = 1;
+  for (int r = 0; r < kc->n; r++)
+    kc->part_hooke &= kc->hooke_only || kc->hooke_run[r];
+  kc->part_first = first;
+  kc->n_part = n_part;
   kc->chunk = chunk;
-  kc->n_chunk = (kc->n + chunk - 1) / chunk;
   kc->threads = threads;
   return MRVI_OK;
+}
+
+int mrvi_terms_parts(const mrvi_terms *kc) {
+  return kc->part_first ? kc->n_part : 0;
 }
 
 int mrvi_terms_threads(const mrvi_terms *kc) {
@@ -1079,7 +1163,7 @@ int mrvi_terms_threads(const mrvi_terms *kc) {
 
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
-    par_grad(kc, z, g);
+    part_grad(kc, z, g);
   else if (kc->hooke_only)
     hooke_grad(kc->qh, kc->n, z, g, kc->dim);
   else if (kc->flat)
@@ -1349,9 +1433,11 @@ static double spring_value(const kspring *q, const double *z, int dim) {
   return phi;
 }
 
-double mrvi_terms_value(mrvi_terms *kc, const double *z) {
+/* The sum of elements i0..i1-1's values in their order, from 0.  kc->y:
+ * scratch of a generic element (vsafe: the class has none). */
+static double value_range(mrvi_terms *kc, int i0, int i1, const double *z) {
   double total = 0.0;
-  for (int it = 0; it < kc->n; it++) {
+  for (int it = i0; it < i1; it++) {
     const kterm *t = &kc->t[it];
     const int n = t->n, *col = kc->col + t->first;
     const double *a = kc->coef + t->cfirst;
@@ -1382,4 +1468,37 @@ double mrvi_terms_value(mrvi_terms *kc, const double *z) {
     total += phi;
   }
   return total;
+}
+
+double mrvi_terms_value(mrvi_terms *kc, const double *z) {
+  if (kc->vchunk <= 0)
+    return value_range(kc, 0, kc->n, z);
+  const int nc = (kc->n - 1) / kc->vchunk + 1, ch = kc->vchunk;
+  double *part = kc->vpart;
+  MRVI_PARALLEL_FOR(kc->vthreads)
+  for (int c = 0; c < nc; c++)
+    part[c] =
+        value_range(kc, c * ch, kc->n - c * ch < ch ? kc->n : (c + 1) * ch, z);
+  double total = 0.0;
+  for (int c = 0; c < nc; c++)
+    total += part[c];
+  return total;
+}
+
+int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
+  kc->vchunk = 0;
+  kc->vthreads = 1;
+  if (chunk < 1 || kc->n < 2 * chunk || !kc->t)
+    return MRVI_OK;
+  free(kc->vpart);
+  if (!(kc->vpart = malloc((size_t)((kc->n - 1) / chunk + 1) * sizeof(double))))
+    return MRVI_ENOMEM;
+  kc->vchunk = chunk;
+  /* (threads only where no element needs the shared scratch kc->y) */
+  int safe = mrvi_threads_supported();
+  for (int i = 0; safe && i < kc->n; i++)
+    safe = kc->t[i].runs > 0 || kc->t[i].kind != KT_ELEMENT ||
+           kc->t[i].el->kind == MRVI_ELEMENT_GRAVITY;
+  kc->vthreads = safe && threads > 1 ? threads : 1;
+  return MRVI_OK;
 }
