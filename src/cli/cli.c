@@ -556,7 +556,20 @@ static int cmd_check(int argc, char **argv) {
              "body), nodal reparametrisation moving each body by its "
              "joint's free turns and slides\n",
              "  null space");
-    else
+    else if (s->tuning.nullspace_tree &&
+             mrvi_nullspace_fast_plan(sys->model, tree_why, sizeof tree_why)) {
+      const int slow_free = mrvi_nullspace_slow_side_free(sys->model);
+      printf("%-14sjoint-reduced at the micro nodes (fast bodies in open "
+             "chains and trees of joints, rooted at the ground or at a slow "
+             "body's joint interpolated at the node: P_f = blkdiag(P_i) (I - "
+             "X)^-1 S at every micro node), nodal reparametrisation moving "
+             "each fast body by its joint's free turns and slides; slow "
+             "bodies: %s\n",
+             "  null space",
+             slow_free ? "analytic (free rigid bodies), reparametrised"
+                       : "numerical (QR at q_k), their constraints to the "
+                         "constraint tolerance");
+    } else
       printf("%-14snumerical (QR of the constraint gradients at every node); "
              "%d redundant row%s left out%s%s\n",
              "  null space", red > 0 ? red : 0, red == 1 ? "" : "s",
