@@ -443,7 +443,8 @@ int mrvi_nullspace_slow_side_free(const mrvi_model *m) {
  * none.  Slow bodies: the new macro node; fast bodies: every unknown micro
  * node z^1..z^p. */
 static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
-  if (!(mrvi_model_free_bodies_only(m) || (z->fast && mrvi_nullspace_slow_side_free(m))) ||
+  if (!(mrvi_model_free_bodies_only(m) ||
+        (z->fast && mrvi_nullspace_slow_side_free(m))) ||
       z->rk != z->rs || m->n_bodies == 0)
     return 0;
   const int D = m->bodies[0].dim, nb = m->n_bodies;

@@ -170,8 +170,8 @@ static int member(const mrvi_model *m, int fast, int b) {
 
 /* The member at the other end of joint k from member b, or -1: the ground,
  * or (fast plan) a slow body, the fast tree's moving ground. */
-static int other(const mrvi_model *m, int fast, const mrvi_constraint *k,
-                 int D, int b) {
+static int other(const mrvi_model *m, int fast, const mrvi_constraint *k, int D,
+                 int b) {
   const int a = mrvi_model_body_of(m, k->in[0]);
   const int o = a == b ? body_b(m, k, D) : a;
   return member(m, fast, o) ? o : -1;
@@ -370,8 +370,11 @@ static void joint_vec(const mrvi_model *m, const mrvi_nstree *z, int t,
       v[c] = tk[c];
     return;
   }
-  const double *d =
-      pos + (size_t)w * (own ? t : ground ? z->anchor[t] : z->parent[t]) + D;
+  const double *d = pos +
+                    (size_t)w * (own      ? t
+                                 : ground ? z->anchor[t]
+                                          : z->parent[t]) +
+                    D;
   for (int i = 0; i < D; i++)
     for (int c = 0; c < D; c++)
       v[c] += tk[i] * d[D * i + c];
@@ -838,8 +841,8 @@ static void anchor_turn(const mrvi_model *m, const mrvi_nstree *z, int t,
       joint_vec(m, z, t, 1, 2, pos, b3);
       cross(b2, b3, v[k]);
     }
-    const double n = sqrt(v[k][0] * v[k][0] + v[k][1] * v[k][1] +
-                          v[k][2] * v[k][2]);
+    const double n =
+        sqrt(v[k][0] * v[k][0] + v[k][1] * v[k][1] + v[k][2] * v[k][2]);
     for (int a = 0; a < 3; a++)
       v[k][a] /= n;
   }
@@ -1109,8 +1112,8 @@ int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
       z->dof[t] = n_rot(z->motion[t], D) + n_tr(z->motion[t]);
       if (z->parent[t] >= 0)
         z->child_start[z->parent[t] + 1]++;
-      const int o = z->is_a[t] ? body_b(m, k, D)
-                               : mrvi_model_body_of(m, k->in[0]);
+      const int o =
+          z->is_a[t] ? body_b(m, k, D) : mrvi_model_body_of(m, k->in[0]);
       if (z->parent[t] < 0 && o >= 0) { /* a slow body: a moving ground */
         z->aslot[z->na] = m->slot[m->bodies[o].first];
         z->anchor[t] = nb + z->na++;
@@ -1145,8 +1148,8 @@ oom:
 
 int mrvi_nsfast_bodies(const mrvi_nstree *z) { return z->nb; }
 
-void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x,
-                         int m, const int *fpos, int nfc, double *cols) {
+void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
+                         const int *fpos, int nfc, double *cols) {
   const int T = z->T, w = z->D * (z->D + 1);
   const double *q0 = st->qf0;
   const double *xm = m > 0 ? node_of(z, st, x, m, &q0) : NULL;

@@ -124,8 +124,8 @@ void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x);
 int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
                        mrvi_nstree **out, char *why, size_t len);
 int mrvi_nsfast_bodies(const mrvi_nstree *z);
-void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x,
-                         int m, const int *fpos, int nfc, double *cols);
+void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
+                         const int *fpos, int nfc, double *cols);
 void mrvi_nsfast_start(mrvi_nstree *z, const mrvi_step *st, double *x);
 void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
                          const double *xold, double *x, const double *dx);
