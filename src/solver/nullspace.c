@@ -84,6 +84,7 @@ struct mrvi_nullspace {
    * before an update (retract). */
   mrvi_nstree *fast;
   double *Fcol, *xold;
+  mrvi_nstree *slow; /* beside it, the slow bodies' placement, or NULL */
 };
 
 void mrvi_nullspace_free(mrvi_nullspace *z) {
@@ -98,6 +99,7 @@ void mrvi_nullspace_free(mrvi_nullspace *z) {
   free(z->map), free(z->Ap), free(z->Ai), free(z->Ax);
   mrvi_nstree_free(z->tree);
   mrvi_nstree_free(z->fast), free(z->Fcol), free(z->xold);
+  mrvi_nstree_free(z->slow);
   free(z);
 }
 
@@ -375,6 +377,10 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
          (!(z->Fcol = malloc(((size_t)st->p * nc + 1) * sizeof(double))) ||
           !(z->xold = malloc((size_t)(st->n_unknowns + 1) * sizeof(double))))))
       goto oom;
+    /* Slow bodies in joints beside it: their joint-reduced placement. */
+    if (z->fast && !mrvi_nullspace_slow_side_free(m) && z->rk == z->rs &&
+        mrvi_nsslow_create(st, &z->slow, why, sizeof why) < 0)
+      goto oom;
   }
   /* Slow basis: unit vectors of the slots outside sc, then the columns of
    * the slow-only block's null space. */
@@ -477,7 +483,8 @@ static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
 
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) {
   return z->tree   ? mrvi_nstree_bodies(z->tree)
-         : z->fast ? z->n_rep + mrvi_nsfast_bodies(z->fast)
+         : z->fast ? z->n_rep + mrvi_nsfast_bodies(z->fast) +
+                         (z->slow ? mrvi_nsfast_bodies(z->slow) : 0)
                    : z->n_rep + z->n_frep;
 }
 
@@ -644,7 +651,10 @@ void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
       double *v = fast_dirs(z, st, x, b, mm, &q0);
       set_directors(D, v, q0, z->frep_d + 9 * ((size_t)b * (p + 1) + mm));
     }
-  /* The fast forest on the new slow nodes, micro node by micro node. */
+  /* The slow bodies on their joints, then the fast forest on the new slow
+   * nodes, micro node by micro node. */
+  if (z->slow)
+    mrvi_nsslow_retract(z->slow, st, z->xold, x, dx);
   if (z->fast)
     mrvi_nsfast_retract(z->fast, st, z->xold, x, dx);
 }
@@ -676,6 +686,8 @@ void mrvi_nullspace_start(mrvi_nullspace *z, const mrvi_step *st, double *x) {
       memcpy(ref, d, sizeof ref);
     }
   }
+  if (z->slow)
+    mrvi_nsslow_start(z->slow, st, x);
   if (z->fast)
     mrvi_nsfast_start(z->fast, st, x);
 }

@@ -162,19 +162,25 @@ static int body_b(const mrvi_model *m, const mrvi_constraint *k, int D) {
   return k->n_in > D * (D + 1) ? mrvi_model_body_of(m, k->in[D * (D + 1)]) : -1;
 }
 
-/* Is body b a member of the forest: every body (slow plan), the fast ones
- * (fast plan)? */
-static int member(const mrvi_model *m, int fast, int b) {
-  return b >= 0 && (!fast || m->rate[m->bodies[b].first] == MRVI_FAST);
+/* The forests a model's bodies form (plan): every body, all slow (the
+ * joint-reduced basis); the fast bodies (their basis at the micro nodes);
+ * the slow bodies beside those (their reparametrisation alone). */
+enum { PLAN_SLOW, PLAN_FAST, PLAN_BESIDE };
+
+/* Is body b a member of the forest of plan mode? */
+static int member(const mrvi_model *m, int mode, int b) {
+  const mrvi_rate r = b >= 0 ? m->rate[m->bodies[b].first] : MRVI_SLOW;
+  return b >= 0 &&
+         (mode == PLAN_SLOW || (mode == PLAN_FAST) == (r == MRVI_FAST));
 }
 
 /* The member at the other end of joint k from member b, or -1: the ground,
  * or (fast plan) a slow body, the fast tree's moving ground. */
-static int other(const mrvi_model *m, int fast, const mrvi_constraint *k, int D,
+static int other(const mrvi_model *m, int mode, const mrvi_constraint *k, int D,
                  int b) {
   const int a = mrvi_model_body_of(m, k->in[0]);
   const int o = a == b ? body_b(m, k, D) : a;
-  return member(m, fast, o) ? o : -1;
+  return member(m, mode, o) ? o : -1;
 }
 
 /* The forest, parents first (order, parent, joint: n_bodies each; *count
@@ -185,7 +191,7 @@ static int other(const mrvi_model *m, int fast, const mrvi_constraint *k, int D,
  * slow body (spherical or revolute: the slow body interpolated at the
  * micro node is a moving ground); slow-only constraints are the slow
  * side's. */
-static int plan(const mrvi_model *m, int fast, int *order, int *parent,
+static int plan(const mrvi_model *m, int mode, int *order, int *parent,
                 int *joint, int *count, char *why, size_t len) {
   const int nb = m->n_bodies;
   snprintf(why, len, "no joints");
@@ -199,17 +205,19 @@ static int plan(const mrvi_model *m, int fast, int *order, int *parent,
     const mrvi_rate rate = m->rate[f];
     if (m->bodies[b].dim != D)
       return snprintf(why, len, "bodies of two dimensions"), 0;
-    if (!fast && rate != MRVI_SLOW)
+    if (mode == PLAN_SLOW && rate != MRVI_SLOW)
       return snprintf(why, len, "body '%s' is fast", m->bodies[b].name), 0;
     for (int j = 0; j < D * (D + 1); j++)
       if (m->slot[f + j] != s0 + j || m->rate[f + j] != rate)
         return snprintf(why, len, "body '%s' is not contiguous",
                         m->bodies[b].name),
                0;
-    n_members += member(m, fast, b);
+    n_members += member(m, mode, b);
   }
   if (n_members == 0)
-    return snprintf(why, len, "no fast bodies"), 0;
+    return snprintf(why, len, "no %s bodies",
+                    mode == PLAN_FAST ? "fast" : "slow"),
+           0;
   int *is_int = calloc((size_t)m->n_constraints + 1, sizeof *is_int);
   int *up = malloc(((size_t)nb + 2) * sizeof *up);
   int *adj_start = calloc((size_t)nb + 2, sizeof *adj_start);
@@ -225,17 +233,19 @@ static int plan(const mrvi_model *m, int fast, int *order, int *parent,
    * no loop. */
   for (int c = 0; ok && c < m->n_constraints; c++) {
     const mrvi_constraint *k = &m->constraints[c];
-    if (is_int[c] || (fast && k->where != MRVI_FAST))
+    if (is_int[c] ||
+        (mode != PLAN_SLOW && (mode == PLAN_FAST) != (k->where == MRVI_FAST)))
       continue;
     if (k->type->joint_motion <= 0 || k->type->joint_motion >= N_MOTIONS ||
-        (!fast && k->where != MRVI_SLOW)) {
+        (mode != PLAN_FAST && k->where != MRVI_SLOW)) {
       snprintf(why, len, "constraint '%s' (%s) has no joint reduction",
                k->label, k->type->name);
       ok = 0;
       break;
     }
     int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
-    if (fast && (!member(m, 1, a) || (b >= 0 && !member(m, 1, b)))) {
+    if (mode == PLAN_FAST &&
+        (!member(m, mode, a) || (b >= 0 && !member(m, mode, b)))) {
       /* a fast body on a slow one: a moving ground */
       const int mo = k->type->joint_motion;
       if (mo != MRVI_JOINT_BALL && mo != MRVI_JOINT_HINGE) {
@@ -246,7 +256,7 @@ static int plan(const mrvi_model *m, int fast, int *order, int *parent,
         ok = 0;
         break;
       }
-      if (!member(m, 1, a))
+      if (!member(m, mode, a))
         a = b;
       b = -1;
     }
@@ -270,12 +280,13 @@ static int plan(const mrvi_model *m, int fast, int *order, int *parent,
     memcpy(fill, adj_start, (size_t)(nb + 1) * sizeof *fill);
     for (int c = 0; c < m->n_constraints; c++) {
       const mrvi_constraint *k = &m->constraints[c];
-      if (is_int[c] || (fast && k->where != MRVI_FAST))
+      if (is_int[c] ||
+          (mode != PLAN_SLOW && (mode == PLAN_FAST) != (k->where == MRVI_FAST)))
         continue;
       const int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
-      if (member(m, fast, a))
+      if (member(m, mode, a))
         adj[fill[a]++] = c;
-      if (member(m, fast, b))
+      if (member(m, mode, b))
         adj[fill[b]++] = c;
     }
     int *tree_of = is_int; /* reused: body -> tree index + 1 */
@@ -283,11 +294,11 @@ static int plan(const mrvi_model *m, int fast, int *order, int *parent,
     int n = 0;
     for (int pass = 0; pass < 2; pass++)
       for (int r = 0; r < nb; r++) {
-        if (tree_of[r] || !member(m, fast, r))
+        if (tree_of[r] || !member(m, mode, r))
           continue;
         int ground = -1;
         for (int e = adj_start[r]; e < adj_start[r + 1]; e++)
-          if (other(m, fast, &m->constraints[adj[e]], D, r) < 0)
+          if (other(m, mode, &m->constraints[adj[e]], D, r) < 0)
             ground = adj[e];
         if (pass == 0 && ground < 0)
           continue;
@@ -296,7 +307,7 @@ static int plan(const mrvi_model *m, int fast, int *order, int *parent,
         for (int h = n - 1; h < n; h++) {
           const int b = order[h];
           for (int e = adj_start[b]; e < adj_start[b + 1]; e++) {
-            const int o = other(m, fast, &m->constraints[adj[e]], D, b);
+            const int o = other(m, mode, &m->constraints[adj[e]], D, b);
             if (o < 0 || tree_of[o])
               continue;
             order[n] = o, parent[n] = h, joint[n] = adj[e];
@@ -310,26 +321,26 @@ static int plan(const mrvi_model *m, int fast, int *order, int *parent,
   return ok;
 }
 
-static int plan_only(const mrvi_model *m, int fast, char *why, size_t len) {
+static int plan_only(const mrvi_model *m, int mode, char *why, size_t len) {
   const int nb = m->n_bodies;
   int *a = malloc(3 * ((size_t)nb + 1) * sizeof *a);
   if (!a)
     return snprintf(why, len, "out of memory"), 0;
   int n;
-  const int ok = plan(m, fast, a, a + nb + 1, a + 2 * (nb + 1), &n, why, len);
+  const int ok = plan(m, mode, a, a + nb + 1, a + 2 * (nb + 1), &n, why, len);
   free(a);
   return ok;
 }
 
 int mrvi_nullspace_tree_plan(const mrvi_model *m, char *why, size_t len) {
-  return plan_only(m, 0, why, len);
+  return plan_only(m, PLAN_SLOW, why, len);
 }
 
 int mrvi_nullspace_fast_plan(const mrvi_model *m, char *why, size_t len) {
   int fast = 0;
   for (int b = 0; b < m->n_bodies; b++)
-    fast |= member(m, 1, b);
-  return fast ? plan_only(m, 1, why, len) : 0;
+    fast |= member(m, PLAN_FAST, b);
+  return fast ? plan_only(m, PLAN_FAST, why, len) : 0;
 }
 
 /* ---------------------------------------------------------------------------
@@ -618,7 +629,7 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
   if (!z->order || !z->parent || !z->joint)
     goto oom;
   int n_tree;
-  if (!plan(m, 0, z->order, z->parent, z->joint, &n_tree, why, len)) {
+  if (!plan(m, PLAN_SLOW, z->order, z->parent, z->joint, &n_tree, why, len)) {
     mrvi_nstree_free(z);
     return 0;
   }
@@ -951,12 +962,13 @@ static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
   }
 }
 
-void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
-                         const double *dx) {
+/* Each body's turn and shift z->th, z->u from the update dx at the iterate
+ * x (increments from q0 if not NULL), into the base positions z->pos: th =
+ * 1/2 sum d^i x (-dd^i). */
+static void turns(mrvi_nstree *z, const double *x, const double *q0,
+                  const double *dx) {
   const int D = z->D;
-  const double *q0 = st->increments ? st->qs0 : NULL;
   gather(z, x, q0, z->pos);
-  /* Each body's turn and shift from dx: th = 1/2 sum d^i x (-dd^i). */
   for (int t = 0; t < z->nb; t++) {
     const double *d = z->pos + (size_t)D * (D + 1) * t + D;
     const double *v = dx + z->slot[t];
@@ -967,6 +979,12 @@ void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
     for (int a = 0; a < D; a++)
       z->u[3 * t + a] = -v[a];
   }
+}
+
+void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
+                         const double *dx) {
+  const double *q0 = st->increments ? st->qs0 : NULL;
+  turns(z, x, q0, dx);
   for (int s = 0; s < z->nu; s++)
     x[s] -= dx[s];
   place(z, st->model, x, q0);
@@ -999,10 +1017,14 @@ static void settle(mrvi_nstree *z, const mrvi_step *st, double *x) {
 }
 
 void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
-  const int D = z->D, w = D * (D + 1);
-  const double *q0 = st->increments ? st->qs0 : NULL;
   if (st->tuning.predict_settle)
     settle(z, st, x);
+  mrvi_nsslow_start(z, st, x);
+}
+
+void mrvi_nsslow_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
+  const int D = z->D, w = D * (D + 1);
+  const double *q0 = st->increments ? st->qs0 : NULL;
   /* The predictor's turns and shifts from q_k. */
   gather(z, x, q0, z->npos);
   gather(z, NULL, st->qs0, z->pos);
@@ -1051,8 +1073,12 @@ static double *node_of(const mrvi_nstree *z, const mrvi_step *st, double *x,
   return x + z->ns + (size_t)(m - 1) * z->nf;
 }
 
-int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
-                       mrvi_nstree **out, char *why, size_t len) {
+/* The forest of plan mode PLAN_FAST or PLAN_BESIDE for placement (and,
+ * fast, the columns): 1 and *out, 0 and why, or MRVI_ENOMEM; fast: fpos,
+ * nfc and r as for mrvi_nsfast_create. */
+static int forest_create(const mrvi_step *st, int mode, const int *fpos,
+                         int nfc, int r, mrvi_nstree **out, char *why,
+                         size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   mrvi_nstree *z = calloc(1, sizeof *z);
@@ -1060,14 +1086,14 @@ int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
     return MRVI_ENOMEM;
   const int nbm = m->n_bodies;
   const size_t B = (size_t)nbm + 1;
-  z->fast = 1;
+  z->fast = mode == PLAN_FAST;
   z->order = malloc(B * sizeof(int));
   z->parent = malloc(B * sizeof(int));
   z->joint = malloc(B * sizeof(int));
   if (!z->order || !z->parent || !z->joint)
     goto oom;
   int nb;
-  if (!plan(m, 1, z->order, z->parent, z->joint, &nb, why, len)) {
+  if (!plan(m, mode, z->order, z->parent, z->joint, &nb, why, len)) {
     mrvi_nstree_free(z);
     return 0;
   }
@@ -1101,7 +1127,7 @@ int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
   for (int t = 0; t < nb; t++) {
     const mrvi_body *bd = &m->bodies[z->order[t]];
     z->slot[t] = m->slot[bd->first];
-    for (int e = 0; e < w; e++)
+    for (int e = 0; z->fast && e < w; e++)
       in_fc &= fpos[z->slot[t] + e] >= 0;
     z->anchor[t] = -1;
     z->dof[t] = T;
@@ -1121,7 +1147,7 @@ int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
     }
     cols += z->dof[t];
   }
-  if (!in_fc || cols != nfc - r) {
+  if (z->fast && (!in_fc || cols != nfc - r)) {
     mrvi_nstree_free(z);
     return snprintf(why, len,
                     "the fast joints' rows (%d) do not match the fast "
@@ -1144,6 +1170,20 @@ int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
 oom:
   mrvi_nstree_free(z);
   return MRVI_ENOMEM;
+}
+
+int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
+                       mrvi_nstree **out, char *why, size_t len) {
+  return forest_create(st, PLAN_FAST, fpos, nfc, r, out, why, len);
+}
+
+int mrvi_nsslow_create(const mrvi_step *st, mrvi_nstree **out, char *why,
+                       size_t len) {
+  return forest_create(st, PLAN_BESIDE, NULL, 0, 0, out, why, len);
+}
+
+int mrvi_nullspace_beside_plan(const mrvi_model *m, char *why, size_t len) {
+  return plan_only(m, PLAN_BESIDE, why, len);
 }
 
 int mrvi_nsfast_bodies(const mrvi_nstree *z) { return z->nb; }
@@ -1192,27 +1232,22 @@ void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
     }
 }
 
+void mrvi_nsslow_retract(mrvi_nstree *z, const mrvi_step *st,
+                         const double *xold, double *x, const double *dx) {
+  const double *q0 = st->increments ? st->qs0 : NULL;
+  turns(z, xold, q0, dx);
+  place(z, st->model, x, q0);
+}
+
 void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
                          const double *xold, double *x, const double *dx) {
-  const int D = z->D;
   for (int m = 1; m <= z->p; m++) {
     const double *q0;
     double *xn = node_of(z, st, x, m, &q0);
     const size_t o = (size_t)(xn - x);
-    gather(z, xold + o, q0, z->pos);
+    turns(z, xold + o, q0, dx + o);
     anchors(z, st, xold, m, z->pos);
     anchors(z, st, x, m, z->npos);
-    /* Each body's turn and shift from dx: th = 1/2 sum d^i x (-dd^i). */
-    for (int t = 0; t < z->nb; t++) {
-      const double *d = z->pos + (size_t)D * (D + 1) * t + D;
-      const double *v = dx + o + z->slot[t];
-      double wv[9];
-      for (int e = 0; e < D * D; e++)
-        wv[e] = -v[D + e];
-      mrvi_nullspace_rotation_of(D, d, wv, z->th + 3 * t);
-      for (int a = 0; a < D; a++)
-        z->u[3 * t + a] = -v[a];
-    }
     place(z, st->model, xn, q0);
   }
 }
