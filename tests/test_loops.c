@@ -1471,8 +1471,9 @@ static void test_fast_joint_reduced(void) {
       continue;
     CHECK(mrvi_nullspace_fast_plan(sys->model, why, sizeof why),
           "%s: fast forest planned (%s)", files[i], why);
-    /* the spacecraft's null-space step costs ~80 times the pendulum's
-     * (general path, 72 fast coordinates per node): 1 000 micro nodes */
+    /* the spacecraft's null-space step (general path, 72 fast coordinates
+     * per node) is far dearer than the pendulum's (doc/performance.md,
+     * "Fast bodies in joints"): 1 000 micro nodes */
     check_fast_forest(files[i], sys->model, sys->settings.macro_step,
                       i == 1 ? 100 : 1000);
     mrvi_system_free(sys);

@@ -12,7 +12,10 @@
  * P is built node by node.  With G_f(z^m)^T = [Q1 Q2] [R; 0] (QR over the
  * fast coordinates the micro-node constraints touch):
  *   - per fast node m, the columns of Q2 and unit vectors of the other fast
- *     coordinates (local rows of the reduced system);
+ *     coordinates (local rows of the reduced system); fast free bodies
+ *     take their analytic columns instead, fast bodies in open chains and
+ *     trees of joints their joint-reduced ones (nullspace_tree.c), each
+ *     with their micro nodes reparametrised;
  *   - per slow basis vector b (null space of the slow-only constraints'
  *     G(q_k)), the slow part b and at every node m the fast part
  *     -a0_m Q1 R^-T G_s(z^m) b, which cancels the coupling of b with the
