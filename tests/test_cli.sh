@@ -286,8 +286,9 @@ expect_rc 0 "check with constraint settings overridden"
 contains "$out" '^constraints +null-space form, tolerance 1e-12, momentum projection off$' \
   "--set integrator.constraints.* applied"
 # The null space a model gets: analytic for free bodies (2-D and fast too),
-# joint-reduced for open chains and trees of joints, numerical for a
-# closed loop, a fast body in a joint or nullspace_tree 0.
+# joint-reduced for open chains and trees of joints (fast ones at the micro
+# nodes), numerical for a closed loop, a fast body on a slow one by a weld
+# or nullspace_tree 0.
 cat >"$tmp/wheel.yaml" <<'EOF'
 name: wheel
 dimension: 2
@@ -333,8 +334,37 @@ contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: constraint
   "a tethered pole: numerical null space, the tether named"
 run_mrvi check "$root/systems/flexible_pendulum.yaml" \
   --set integrator.constraints.form=null-space
-contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: body 'upper' is fast$" \
-  "flexible pendulum: numerical null space, the fast body named"
+contains "$out" "^  null space  joint-reduced at the micro nodes \\(fast bodies in open chains and trees of joints.*; slow bodies: numerical \\(QR at q_k\\), reparametrised on their joints$" \
+  "flexible pendulum: fast joint-reduced null space, the arm's numerical"
+run_mrvi check "$root/systems/spacecraft.yaml" \
+  --set integrator.constraints.form=null-space
+contains "$out" "^  null space  joint-reduced at the micro nodes .*; slow bodies: analytic \\(free rigid bodies\\), reparametrised$" \
+  "spacecraft: fast joint-reduced null space, the hub's analytic"
+cat >"$tmp/arm_link.yaml" <<'EOF'
+name: arm-link
+dimension: 2
+gravity: [0, -9.81]
+bodies:
+  - {name: arm, mass: 5, inertia: 0.4, position: [0.5, 0]}
+  - {name: link, mass: 0.1, inertia: 0.002, position: [1.25, 0], rate: fast}
+joints:
+  - {type: revolute, name: shoulder, bodies: [arm], point: [0, 0]}
+  - {type: revolute, name: elbow, bodies: [arm, link], point: [1, 0]}
+integrator: {macro_step: 0.01, micro_steps: 4, t_end: 0.02, constraints: {form: null-space}}
+EOF
+run_mrvi check "$tmp/arm_link.yaml"
+contains "$out" "^  null space  joint-reduced at the micro nodes " \
+  "a fast link on a slow arm: fast joint-reduced null space"
+sed 's/type: revolute, name: elbow/type: weld, name: elbow/' \
+  "$tmp/arm_link.yaml" >"$tmp/arm_weld.yaml"
+run_mrvi check "$tmp/arm_weld.yaml"
+contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: joint 'elbow' \\(weld\\) joins a fast body to a slow one: a moving root is spherical or revolute$" \
+  "a fast body welded to a slow one: numerical null space, the joint named"
+sed 's/^joints:/joints:\n  - {type: revolute, name: pin, bodies: [link], point: [1.5, 0]}/' \
+  "$tmp/arm_link.yaml" >"$tmp/arm_loop.yaml"
+run_mrvi check "$tmp/arm_loop.yaml"
+contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: joint 'elbow' closes a loop$" \
+  "a fast closed loop: numerical null space, the loop named"
 run_mrvi check "$fpu"
 contains "$out" '^constraints +0$' "fpu: no constraints"
 check "fpu: no constraint settings line" \

@@ -965,7 +965,7 @@ static int add_fast_particle(mrvi_model *m, int st, int b, const double *l,
  * ball joint to the ground, then revolute (axis e_3), ball, weld and
  * revolute (axis (1, 1, 0)) joints along e = (1, 0.5, -1)/1.5, and a
  * branch on a ball joint at the second body's centre. */
-static mrvi_model *jointed_tree(int D, int n) {
+static mrvi_model *jointed_tree_rate(int D, int n, mrvi_rate rate) {
   mrvi_model *m = mrvi_model_create();
   mrvi_model_set_dimension(m, D);
   const double e2[2] = {sqrt(0.5), -sqrt(0.5)},
@@ -987,9 +987,9 @@ static mrvi_model *jointed_tree(int D, int n) {
     }
     char name[16];
     snprintf(name, sizeof name, "b%d", i);
-    const int b = st = mrvi_model_add_body(m, name, D, MRVI_SLOW, 2.0 + 0.1 * i,
-                                           D == 2 ? J2 : J3, x, NULL, NULL,
-                                           i == 0 ? (D == 2 ? w2 : w3) : NULL);
+    const int b = st =
+        mrvi_model_add_body(m, name, D, rate, 2.0 + 0.1 * i, D == 2 ? J2 : J3,
+                            x, NULL, NULL, i == 0 ? (D == 2 ? w2 : w3) : NULL);
     if (st < 0)
       break;
     const int parent = br ? 1 : prev;
@@ -1010,6 +1010,10 @@ static mrvi_model *jointed_tree(int D, int n) {
   CHECK(add_fast_particle(m, st, n - 1, l, anchor) >= 0,
         "jointed tree (%d-D): %s", D, mrvi_model_errmsg(m));
   return m;
+}
+
+static mrvi_model *jointed_tree(int D, int n) {
+  return jointed_tree_rate(D, n, MRVI_SLOW);
 }
 
 /* Size of the step's system on the general path in the null-space form
@@ -1345,7 +1349,153 @@ static void test_joint_reduced_kinds(void) {
   }
 }
 
-int main(void) {
+/* ---------------------------------------------------------------------------
+ * Fast bodies in joints (doc/multibody.md, "Fast bodies in joints"): the
+ * joint-reduced basis and nodal reparametrisation at the micro nodes, on
+ * systems/flexible_pendulum.yaml and systems/spacecraft.yaml (fast trees
+ * on a slow body's joint, their moving ground) and on the trees of
+ * jointed_tree made fast (on the ground).
+ * ------------------------------------------------------------------------- */
+
+/* max |g| of the rows enforced at the micro nodes (micro-node constraints,
+ * the slow coordinates interpolated as the step does) over every micro node
+ * of tr (p micro steps), and of the other rows at the macro nodes (*eslow,
+ * may be NULL). */
+static double micro_residual(const mrvi_model *m, const mrvi_trajectory *tr,
+                             int p, double *eslow) {
+  const int n = tr->n, R = mrvi_model_constraint_rows(m);
+  double *q = malloc((size_t)n * sizeof *q), *g = malloc((size_t)R * sizeof *g);
+  double e = 0.0, es = 0.0;
+  for (long i = 0; q && g && i < tr->n_micro; i++) {
+    const long k = i / p;
+    const double a1 = (double)(i % p) / p;
+    for (int c = 0; c < n; c++) {
+      const double *qk = tr->q + k * n + c;
+      q[c] = a1 > 0.0 ? (1.0 - a1) * qk[0] + a1 * qk[n] : qk[0];
+      if (m->rate[c] == MRVI_FAST)
+        q[c] = tr->micro_q[i * tr->n_fast + m->slot[c]];
+    }
+    mrvi_model_constraint_eval(m, q, g, NULL);
+    for (int c = 0; c < m->n_constraints; c++) {
+      const mrvi_constraint *k = &m->constraints[c];
+      for (int r = 0; r < k->rows; r++) {
+        const double v = fabs(g[k->first_row + r]);
+        if (k->where == MRVI_FAST)
+          e = fmax(e, v);
+        else if (i % p == 0)
+          es = fmax(es, v);
+      }
+    }
+  }
+  free(q), free(g);
+  if (eslow)
+    *eslow = es;
+  return e;
+}
+
+/* On model m (dT its macro step): both forms agree at tolerances 1e-13 over
+ * 100 macro steps with the joint-reduced basis at the micro nodes and with
+ * the QR basis (nullspace_tree 0), p = 1 and 5; over n_long macro steps
+ * (p = 10) at Newton tolerance 1e-9 and constraint tolerance 1e-10 the
+ * micro-node constraints hold to 1e-13 with the reparametrisation (the QR
+ * basis only to the tolerance, printed over 100 steps); so do the slow
+ * bodies' constraints at the macro nodes (free slow bodies reparametrised,
+ * or slow bodies in joints placed on their joints). */
+static void check_fast_forest(const char *name, const mrvi_model *m, double dT,
+                              int n_long) {
+  for (int p = 1; p <= 5; p += 4) {
+    mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
+    for (int f = 0; f < 3; f++) { /* multipliers, joint-reduced, QR */
+      mrvi_settings s =
+          test_settings("midpoint-midpoint", dT, p, 100 * dT, 1e-13);
+      s.constraint_tol = 1e-13;
+      s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+      s.tuning.nullspace_tree = f == 1;
+      mrvi_summary sum;
+      if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
+        CHECK(0, "%s, tight (p = %d, case %d): %s", name, p, f, sum.message);
+    }
+    double d[2] = {1e300, 1e300};
+    if (tt[0] && tt[1] && tt[2]) {
+      d[0] = d[1] = 0.0;
+      for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++) {
+        d[0] = fmax(d[0], fabs(tt[1]->q[i] - tt[0]->q[i]));
+        d[1] = fmax(d[1], fabs(tt[1]->q[i] - tt[2]->q[i]));
+      }
+    }
+    printf("%s, p = %d, 100 steps at tolerances 1e-13: fast joint-reduced "
+           "null space against multipliers %.3g, against the QR null space "
+           "%.3g\n",
+           name, p, d[0], d[1]);
+    CHECK(tt[0] && tt[0]->n_macro == 101 && d[0] < 1e-10 && d[1] < 1e-10,
+          "%s (p = %d): forms differ by %.3g, %.3g", name, p, d[0], d[1]);
+    for (int f = 0; f < 3; f++)
+      mrvi_trajectory_free(tt[f]);
+  }
+  double e[2] = {1.0, 1.0}, es[2] = {1.0, 1.0};
+  const int n_steps[2] = {n_long, 100}; /* the QR basis: for contrast */
+  for (int f = 0; f < 2; f++) {         /* joint-reduced, QR */
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", dT, 10, n_steps[f] * dT, 1e-9);
+    s.constraint_tol = 1e-10;
+    s.constraint_form = MRVI_FORM_NULL_SPACE;
+    s.tuning.nullspace_tree = f == 0;
+    mrvi_trajectory *tr = NULL;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0)
+      CHECK(0, "%s run (case %d): %s", name, f, sum.message);
+    else
+      e[f] = micro_residual(m, tr, 10, &es[f]);
+    CHECK(!tr || tr->n_micro == 10L * n_steps[f] + 1, "%s: %ld micro nodes",
+          name, tr ? tr->n_micro : 0L);
+    mrvi_trajectory_free(tr);
+  }
+  printf("  %d micro nodes (p = 10), Newton tolerance 1e-9: micro-node "
+         "constraints max |g| %.3g (QR basis, 1000 micro nodes: %.3g); "
+         "slow-only rows at the macro nodes %.3g (QR basis %.3g)\n",
+         10 * n_long, e[0], e[1], es[0], es[1]);
+  CHECK(e[0] <= 1e-13, "%s: micro-node constraints %.3g", name, e[0]);
+  CHECK(es[0] <= 1e-13, "%s: the slow bodies' constraints %.3g", name, es[0]);
+}
+
+static void test_fast_joint_reduced(void) {
+  static const char *const files[] = {"systems/flexible_pendulum.yaml",
+                                      "systems/spacecraft.yaml"};
+  for (int i = 0; i < 2; i++) {
+    mrvi_system *sys = NULL;
+    char msg[1024], why[200] = "";
+    int st = mrvi_system_load(test_source_path(files[i]), NULL, 0, &sys, msg,
+                              sizeof msg);
+    CHECK(st == 0, "%s loads: %s", files[i], msg);
+    if (st)
+      continue;
+    CHECK(mrvi_nullspace_fast_plan(sys->model, why, sizeof why),
+          "%s: fast forest planned (%s)", files[i], why);
+    /* the spacecraft's null-space step (general path, 72 fast coordinates
+     * per node) is far dearer than the pendulum's (doc/performance.md,
+     * "Fast bodies in joints"): 1 000 micro nodes */
+    check_fast_forest(files[i], sys->model, sys->settings.macro_step,
+                      i == 1 ? 100 : 1000);
+    mrvi_system_free(sys);
+  }
+  for (int D = 2; D <= 3; D++) {
+    mrvi_model *m = jointed_tree_rate(D, 4, MRVI_FAST);
+    char why[200] = "", name[64];
+    snprintf(name, sizeof name, "fast tree on the ground (%d-D)", D);
+    CHECK(mrvi_nullspace_fast_plan(m, why, sizeof why), "%s planned (%s)", name,
+          why);
+    check_fast_forest(name, m, 0.01, 1000);
+    mrvi_model_free(m);
+  }
+}
+
+/* `test_loops fast`: the fast bodies in joints alone (a meson test of its
+ * own, test_loops_fast); else every other study. */
+int main(int argc, char **argv) {
+  if (argc > 1 && strcmp(argv[1], "fast") == 0) {
+    test_fast_joint_reduced();
+    return test_finish();
+  }
   test_fourbar_3d();
   test_fourbar_forms();
   test_projection();

@@ -469,10 +469,17 @@ static void test_forms(const char *path, double dT, int conserved) {
              "%.3g, %.3g, max |L - L0| %.3g, %.3g (multipliers, null space)\n",
              path, p, dT, e, eP[0], eP[1], eL[0], eL[1]);
       CHECK(e < 1e-10, "%s, p = %d: forms differ by %.3g", path, p, e);
+      /* Multipliers: to round-off (every Newton update keeps the momenta).
+       * Null space: the fast bodies' micro nodes are reparametrised on their
+       * joints, so the update is no longer linear and the momenta hold to
+       * the Newton tolerance (1e-12) per step, times the appendages' reach
+       * (3.5) for the angular momentum (doc/multibody.md, "Fast bodies in
+       * joints"). */
       if (conserved)
-        CHECK(fmax(eP[0], eP[1]) < 1e-10 && fmax(eL[0], eL[1]) < 1e-10,
-              "%s, p = %d: momentum %.3g, angular momentum %.3g", path, p,
-              fmax(eP[0], eP[1]), fmax(eL[0], eL[1]));
+        CHECK(eP[0] < 1e-10 && eL[0] < 1e-10 && eP[1] < 100 * 1e-12 &&
+                  eL[1] < 100 * 3.5 * 1e-12,
+              "%s, p = %d: momentum %.3g, %.3g, angular momentum %.3g, %.3g",
+              path, p, eP[0], eP[1], eL[0], eL[1]);
     }
     mrvi_trajectory_free(t[0]);
     mrvi_trajectory_free(t[1]);

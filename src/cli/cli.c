@@ -556,7 +556,29 @@ static int cmd_check(int argc, char **argv) {
              "body), nodal reparametrisation moving each body by its "
              "joint's free turns and slides\n",
              "  null space");
-    else
+    else if (s->tuning.nullspace_tree &&
+             mrvi_nullspace_fast_plan(sys->model, tree_why, sizeof tree_why)) {
+      char slow[320], slow_why[200];
+      if (mrvi_nullspace_slow_side_free(sys->model))
+        snprintf(slow, sizeof slow,
+                 "analytic (free rigid bodies), reparametrised");
+      else if (mrvi_nullspace_beside_plan(sys->model, slow_why,
+                                          sizeof slow_why))
+        snprintf(slow, sizeof slow,
+                 "numerical (QR at q_k), reparametrised on their joints");
+      else
+        snprintf(slow, sizeof slow,
+                 "numerical (QR at q_k), their constraints to the constraint "
+                 "tolerance (%s)",
+                 slow_why);
+      printf("%-14sjoint-reduced at the micro nodes (fast bodies in open "
+             "chains and trees of joints, rooted at the ground or at a slow "
+             "body's joint interpolated at the node: P_f = blkdiag(P_i) (I - "
+             "X)^-1 S at every micro node), nodal reparametrisation moving "
+             "each fast body by its joint's free turns and slides; slow "
+             "bodies: %s\n",
+             "  null space", slow);
+    } else
       printf("%-14snumerical (QR of the constraint gradients at every node); "
              "%d redundant row%s left out%s%s\n",
              "  null space", red > 0 ? red : 0, red == 1 ? "" : "s",

@@ -12,7 +12,10 @@
  * P is built node by node.  With G_f(z^m)^T = [Q1 Q2] [R; 0] (QR over the
  * fast coordinates the micro-node constraints touch):
  *   - per fast node m, the columns of Q2 and unit vectors of the other fast
- *     coordinates (local rows of the reduced system);
+ *     coordinates (local rows of the reduced system); fast free bodies
+ *     take their analytic columns instead, fast bodies in open chains and
+ *     trees of joints their joint-reduced ones (nullspace_tree.c), each
+ *     with their micro nodes reparametrised;
  *   - per slow basis vector b (null space of the slow-only constraints'
  *     G(q_k)), the slow part b and at every node m the fast part
  *     -a0_m Q1 R^-T G_s(z^m) b, which cancels the coupling of b with the
@@ -79,6 +82,12 @@ struct mrvi_nullspace {
   double *Ax;
   long nnz;
   mrvi_nstree *tree; /* the joint-reduced basis (nullspace_tree.c), or NULL */
+  /* The fast forest's joint-reduced local columns (nullspace_tree.c), or
+   * NULL: per node m = 0..p-1, nfc - r columns of nfc entries; the iterate
+   * before an update (retract). */
+  mrvi_nstree *fast;
+  double *Fcol, *xold;
+  mrvi_nstree *slow; /* beside it, the slow bodies' placement, or NULL */
 };
 
 void mrvi_nullspace_free(mrvi_nullspace *z) {
@@ -92,6 +101,8 @@ void mrvi_nullspace_free(mrvi_nullspace *z) {
   free(z->csr_start), free(z->csr_col), free(z->csr_idx);
   free(z->map), free(z->Ap), free(z->Ai), free(z->Ax);
   mrvi_nstree_free(z->tree);
+  mrvi_nstree_free(z->fast), free(z->Fcol), free(z->xold);
+  mrvi_nstree_free(z->slow);
   free(z);
 }
 
@@ -357,6 +368,23 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
     mrvi_nullspace_free(z);
     return st;
   }
+  /* Fast bodies in open chains and trees of joints: the joint-reduced
+   * local columns at every micro node. */
+  if (tree && st->tuning.nullspace_tree && z->r > 0) {
+    char why[200];
+    const int s = mrvi_nsfast_create(st, z->fpos, z->nfc, z->r, &z->fast, why,
+                                     sizeof why);
+    const size_t nc = (size_t)(z->nfc - z->r) * (size_t)z->nfc;
+    if (s < 0 ||
+        (z->fast &&
+         (!(z->Fcol = malloc(((size_t)st->p * nc + 1) * sizeof(double))) ||
+          !(z->xold = malloc((size_t)(st->n_unknowns + 1) * sizeof(double))))))
+      goto oom;
+    /* Slow bodies in joints beside it: their joint-reduced placement. */
+    if (z->fast && !mrvi_nullspace_slow_side_free(m) && z->rk == z->rs &&
+        mrvi_nsslow_create(st, &z->slow, why, sizeof why) < 0)
+      goto oom;
+  }
   /* Slow basis: unit vectors of the slots outside sc, then the columns of
    * the slow-only block's null space. */
   z->nbs = ns - z->rk;
@@ -405,13 +433,28 @@ oom:
   return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
 }
 
-/* Which bodies the nodal reparametrisation takes: all of them when every
- * constraint is the internal one of a body (2-D or 3-D, slow or fast; no
- * joint, no other constraint) and each body's D(D+1) coordinates are
- * consecutive slots of its rate's block; else none.  Slow bodies: the new
- * macro node; fast bodies: every unknown micro node z^1..z^p. */
+int mrvi_nullspace_slow_side_free(const mrvi_model *m) {
+  for (int c = 0; c < m->n_constraints; c++) {
+    int internal = m->constraints[c].where == MRVI_FAST;
+    for (int b = 0; b < m->n_bodies && !internal; b++)
+      internal = m->bodies[b].constraint == c;
+    if (!internal)
+      return 0;
+  }
+  return 1;
+}
+
+/* Which bodies the nodal reparametrisation of free bodies takes: all of
+ * them when every constraint is the internal one of a body (2-D or 3-D,
+ * slow or fast; no joint, no other constraint) and each body's D(D+1)
+ * coordinates are consecutive slots of its rate's block, the slow ones
+ * when the fast bodies are the fast forest's and the slow ones free; else
+ * none.  Slow bodies: the new macro node; fast bodies: every unknown micro
+ * node z^1..z^p. */
 static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
-  if (!mrvi_model_free_bodies_only(m) || z->rk != z->rs)
+  if (!(mrvi_model_free_bodies_only(m) ||
+        (z->fast && mrvi_nullspace_slow_side_free(m))) ||
+      z->rk != z->rs || m->n_bodies == 0)
     return 0;
   const int D = m->bodies[0].dim, nb = m->n_bodies;
   z->rep_slot = malloc((size_t)nb * sizeof *z->rep_slot);
@@ -432,7 +475,7 @@ static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
         return 0;
     if (rate == MRVI_SLOW)
       z->rep_slot[ns++] = s0;
-    else
+    else if (!z->fast)
       z->frep_slot[nf++] = s0;
   }
   z->dim = D;
@@ -442,7 +485,10 @@ static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
 }
 
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) {
-  return z->tree ? mrvi_nstree_bodies(z->tree) : z->n_rep + z->n_frep;
+  return z->tree   ? mrvi_nstree_bodies(z->tree)
+         : z->fast ? z->n_rep + mrvi_nsfast_bodies(z->fast) +
+                         (z->slow ? mrvi_nsfast_bodies(z->slow) : 0)
+                   : z->n_rep + z->n_frep;
 }
 
 /* v <- exp(th^) v (Rodrigues; the series below |th| = 1e-4); in 2-D v <-
@@ -578,6 +624,8 @@ void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
   }
   const int D = z->dim, p = z->p;
   const double *q0;
+  if (z->fast)
+    memcpy(z->xold, x, (size_t)st->n_unknowns * sizeof *x);
   /* The rotated directors from the iterate, before x changes. */
   for (int b = 0; b < z->n_rep; b++) {
     double *v = slow_dirs(z, st, x, b, &q0), *d = z->rep_d + 9 * b, w[9];
@@ -606,6 +654,12 @@ void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
       double *v = fast_dirs(z, st, x, b, mm, &q0);
       set_directors(D, v, q0, z->frep_d + 9 * ((size_t)b * (p + 1) + mm));
     }
+  /* The slow bodies on their joints, then the fast forest on the new slow
+   * nodes, micro node by micro node. */
+  if (z->slow)
+    mrvi_nsslow_retract(z->slow, st, z->xold, x, dx);
+  if (z->fast)
+    mrvi_nsfast_retract(z->fast, st, z->xold, x, dx);
 }
 
 void mrvi_nullspace_start(mrvi_nullspace *z, const mrvi_step *st, double *x) {
@@ -635,6 +689,10 @@ void mrvi_nullspace_start(mrvi_nullspace *z, const mrvi_step *st, double *x) {
       memcpy(ref, d, sizeof ref);
     }
   }
+  if (z->slow)
+    mrvi_nsslow_start(z->slow, st, x);
+  if (z->fast)
+    mrvi_nsfast_start(z->fast, st, x);
 }
 
 /* QR of the transpose of the k x nc block G (row-major, k rows): Q
@@ -732,6 +790,9 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
     solve_r(r, R, u);
     for (int a = 0; a < r; a++)
       u[a] /= st->dt;
+    if (z->fast)
+      mrvi_nsfast_columns(z->fast, st, x, mm, z->fpos, nfc,
+                          z->Fcol + (size_t)mm * (nfc - r) * nfc);
   }
   if (rs == 0)
     return MRVI_OK;
@@ -868,6 +929,12 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
       if (z->fpos[f] < 0)
         z->rec_coef[e++] = 1.0;
     for (int j = r; j < nfc; j++) {
+      if (z->fast) {
+        const double *c = z->Fcol + ((size_t)mm * (nfc - r) + (j - r)) * nfc;
+        for (int a = 0; a < nfc; a++)
+          z->rec_coef[e++] = c[a];
+        continue;
+      }
       if (z->n_frep) {
         fast_body_column(z, mm, j - r, z->t);
         for (int a = 0; a < nfc; a++)

@@ -115,6 +115,12 @@ struct mrvi_nstree {
   double *Ax;
   long nnz;
   double *pos, *npos, *th, *u, *Q; /* placement: nb x D(D+1), .., 3, 3, 9 */
+  /* The fast forest (mrvi_nsfast_*): per tree body the row of pos / npos
+   * after the nb bodies' that holds its moving ground, a slow body
+   * interpolated at the micro node, or -1; per such row the slow body's
+   * first slot; scratch twists (nb x T) and reached flags. */
+  int fast, na, *anchor, *aslot, *reached;
+  double *tw;
 };
 
 void mrvi_nstree_free(mrvi_nstree *z) {
@@ -130,6 +136,7 @@ void mrvi_nstree_free(mrvi_nstree *z) {
   free(z->csr_start), free(z->csr_col), free(z->csr_idx), free(z->map);
   free(z->Ap), free(z->Ai), free(z->Ax), free(z->pos), free(z->npos);
   free(z->th), free(z->u), free(z->Q);
+  free(z->anchor), free(z->aslot), free(z->reached), free(z->tw);
   free(z);
 }
 
@@ -155,23 +162,62 @@ static int body_b(const mrvi_model *m, const mrvi_constraint *k, int D) {
   return k->n_in > D * (D + 1) ? mrvi_model_body_of(m, k->in[D * (D + 1)]) : -1;
 }
 
-/* The forest, parents first (order, parent, joint: n_bodies each), or 0 and
- * why the joint-reduced basis does not apply. */
-static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
-                char *why, size_t len) {
+/* The forests a model's bodies form (plan): every body, all slow (the
+ * joint-reduced basis); the fast bodies (their basis at the micro nodes);
+ * the slow bodies beside those (their reparametrisation alone). */
+enum { PLAN_SLOW, PLAN_FAST, PLAN_BESIDE };
+
+/* Is body b a member of the forest of plan mode? */
+static int member(const mrvi_model *m, int mode, int b) {
+  const mrvi_rate r = b >= 0 ? m->rate[m->bodies[b].first] : MRVI_SLOW;
+  return b >= 0 &&
+         (mode == PLAN_SLOW || (mode == PLAN_FAST) == (r == MRVI_FAST));
+}
+
+/* The member at the other end of joint k from member b, or -1: the ground,
+ * or (fast plan) a slow body, the fast tree's moving ground. */
+static int other(const mrvi_model *m, int mode, const mrvi_constraint *k, int D,
+                 int b) {
+  const int a = mrvi_model_body_of(m, k->in[0]);
+  const int o = a == b ? body_b(m, k, D) : a;
+  return member(m, mode, o) ? o : -1;
+}
+
+/* The forest, parents first (order, parent, joint: n_bodies each; *count
+ * members), or 0 and why the joint-reduced basis does not apply.  Slow
+ * plan (fast 0): every body slow, every constraint a body's or a slow
+ * joint's.  Fast plan (fast 1): the fast bodies, whose micro-node
+ * constraints are their own and joints among them, to the ground or to a
+ * slow body (spherical or revolute: the slow body interpolated at the
+ * micro node is a moving ground); slow-only constraints are the slow
+ * side's. */
+static int plan(const mrvi_model *m, int mode, int *order, int *parent,
+                int *joint, int *count, char *why, size_t len) {
   const int nb = m->n_bodies;
   snprintf(why, len, "no joints");
+  *count = 0;
   if (nb == 0 || mrvi_model_free_bodies_only(m))
     return 0;
   const int D = m->bodies[0].dim;
+  int n_members = 0;
   for (int b = 0; b < nb; b++) {
     const int f = m->bodies[b].first, s0 = m->slot[f];
+    const mrvi_rate rate = m->rate[f];
     if (m->bodies[b].dim != D)
       return snprintf(why, len, "bodies of two dimensions"), 0;
+    if (mode == PLAN_SLOW && rate != MRVI_SLOW)
+      return snprintf(why, len, "body '%s' is fast", m->bodies[b].name), 0;
     for (int j = 0; j < D * (D + 1); j++)
-      if (m->slot[f + j] != s0 + j || m->rate[f + j] != MRVI_SLOW)
-        return snprintf(why, len, "body '%s' is fast", m->bodies[b].name), 0;
+      if (m->slot[f + j] != s0 + j || m->rate[f + j] != rate)
+        return snprintf(why, len, "body '%s' is not contiguous",
+                        m->bodies[b].name),
+               0;
+    n_members += member(m, mode, b);
   }
+  if (n_members == 0)
+    return snprintf(why, len, "no %s bodies",
+                    mode == PLAN_FAST ? "fast" : "slow"),
+           0;
   int *is_int = calloc((size_t)m->n_constraints + 1, sizeof *is_int);
   int *up = malloc(((size_t)nb + 2) * sizeof *up);
   int *adj_start = calloc((size_t)nb + 2, sizeof *adj_start);
@@ -182,20 +228,38 @@ static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
   for (int b = 0; ok && b < nb; b++)
     is_int[m->bodies[b].constraint] = 1;
   for (int b = 0; ok && b <= nb; b++)
-    up[b] = b; /* nb: the ground */
-  /* Every other constraint a joint with a reduction, slow, no loop. */
+    up[b] = b; /* nb: the ground (and, fast plan, the slow bodies) */
+  /* Every other constraint of the forest's rate a joint with a reduction,
+   * no loop. */
   for (int c = 0; ok && c < m->n_constraints; c++) {
     const mrvi_constraint *k = &m->constraints[c];
-    if (is_int[c])
+    if (is_int[c] ||
+        (mode != PLAN_SLOW && (mode == PLAN_FAST) != (k->where == MRVI_FAST)))
       continue;
     if (k->type->joint_motion <= 0 || k->type->joint_motion >= N_MOTIONS ||
-        k->where != MRVI_SLOW) {
+        (mode != PLAN_FAST && k->where != MRVI_SLOW)) {
       snprintf(why, len, "constraint '%s' (%s) has no joint reduction",
                k->label, k->type->name);
       ok = 0;
       break;
     }
-    const int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
+    int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
+    if (mode == PLAN_FAST &&
+        (!member(m, mode, a) || (b >= 0 && !member(m, mode, b)))) {
+      /* a fast body on a slow one: a moving ground */
+      const int mo = k->type->joint_motion;
+      if (mo != MRVI_JOINT_BALL && mo != MRVI_JOINT_HINGE) {
+        snprintf(why, len,
+                 "joint '%s' (%s) joins a fast body to a slow one: a "
+                 "moving root is spherical or revolute",
+                 k->label, k->type->name);
+        ok = 0;
+        break;
+      }
+      if (!member(m, mode, a))
+        a = b;
+      b = -1;
+    }
     const int ra = find(up, a), rb = find(up, b < 0 ? nb : b);
     if (ra == rb) {
       snprintf(why, len, "joint '%s' closes a loop", k->label);
@@ -216,11 +280,13 @@ static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
     memcpy(fill, adj_start, (size_t)(nb + 1) * sizeof *fill);
     for (int c = 0; c < m->n_constraints; c++) {
       const mrvi_constraint *k = &m->constraints[c];
-      if (is_int[c])
+      if (is_int[c] ||
+          (mode != PLAN_SLOW && (mode == PLAN_FAST) != (k->where == MRVI_FAST)))
         continue;
       const int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
-      adj[fill[a]++] = c;
-      if (b >= 0)
+      if (member(m, mode, a))
+        adj[fill[a]++] = c;
+      if (member(m, mode, b))
         adj[fill[b]++] = c;
     }
     int *tree_of = is_int; /* reused: body -> tree index + 1 */
@@ -228,11 +294,11 @@ static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
     int n = 0;
     for (int pass = 0; pass < 2; pass++)
       for (int r = 0; r < nb; r++) {
-        if (tree_of[r])
+        if (tree_of[r] || !member(m, mode, r))
           continue;
         int ground = -1;
         for (int e = adj_start[r]; e < adj_start[r + 1]; e++)
-          if (body_b(m, &m->constraints[adj[e]], D) < 0)
+          if (other(m, mode, &m->constraints[adj[e]], D, r) < 0)
             ground = adj[e];
         if (pass == 0 && ground < 0)
           continue;
@@ -241,9 +307,7 @@ static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
         for (int h = n - 1; h < n; h++) {
           const int b = order[h];
           for (int e = adj_start[b]; e < adj_start[b + 1]; e++) {
-            const mrvi_constraint *k = &m->constraints[adj[e]];
-            const int a = mrvi_model_body_of(m, k->in[0]);
-            const int o = a == b ? body_b(m, k, D) : a;
+            const int o = other(m, mode, &m->constraints[adj[e]], D, b);
             if (o < 0 || tree_of[o])
               continue;
             order[n] = o, parent[n] = h, joint[n] = adj[e];
@@ -251,19 +315,32 @@ static int plan(const mrvi_model *m, int *order, int *parent, int *joint,
           }
         }
       }
+    *count = n;
   }
   free(is_int), free(up), free(adj_start), free(adj);
   return ok;
 }
 
-int mrvi_nullspace_tree_plan(const mrvi_model *m, char *why, size_t len) {
+static int plan_only(const mrvi_model *m, int mode, char *why, size_t len) {
   const int nb = m->n_bodies;
   int *a = malloc(3 * ((size_t)nb + 1) * sizeof *a);
   if (!a)
     return snprintf(why, len, "out of memory"), 0;
-  const int ok = plan(m, a, a + nb + 1, a + 2 * (nb + 1), why, len);
+  int n;
+  const int ok = plan(m, mode, a, a + nb + 1, a + 2 * (nb + 1), &n, why, len);
   free(a);
   return ok;
+}
+
+int mrvi_nullspace_tree_plan(const mrvi_model *m, char *why, size_t len) {
+  return plan_only(m, PLAN_SLOW, why, len);
+}
+
+int mrvi_nullspace_fast_plan(const mrvi_model *m, char *why, size_t len) {
+  int fast = 0;
+  for (int b = 0; b < m->n_bodies; b++)
+    fast |= member(m, PLAN_FAST, b);
+  return fast ? plan_only(m, PLAN_FAST, why, len) : 0;
 }
 
 /* ---------------------------------------------------------------------------
@@ -298,12 +375,17 @@ static void joint_vec(const mrvi_model *m, const mrvi_nstree *z, int t,
   const double *tk =
       params(m, z, t) + JOINT_HEAD + 2 * D + D * D * body + D * k;
   v[0] = v[1] = v[2] = 0.0;
-  if (!own && z->parent[t] < 0) {
+  const int ground = !own && z->parent[t] < 0;
+  if (ground && !(z->anchor && z->anchor[t] >= 0)) {
     for (int c = 0; c < D; c++)
       v[c] = tk[c];
     return;
   }
-  const double *d = pos + (size_t)w * (own ? t : z->parent[t]) + D;
+  const double *d = pos +
+                    (size_t)w * (own      ? t
+                                 : ground ? z->anchor[t]
+                                          : z->parent[t]) +
+                    D;
   for (int i = 0; i < D; i++)
     for (int c = 0; c < D; c++)
       v[c] += tk[i] * d[D * i + c];
@@ -546,7 +628,8 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
   z->joint = malloc(B * sizeof(int));
   if (!z->order || !z->parent || !z->joint)
     goto oom;
-  if (!plan(m, z->order, z->parent, z->joint, why, len)) {
+  int n_tree;
+  if (!plan(m, PLAN_SLOW, z->order, z->parent, z->joint, &n_tree, why, len)) {
     mrvi_nstree_free(z);
     return 0;
   }
@@ -745,6 +828,51 @@ static void slide(const mrvi_model *m, const mrvi_nstree *z, int t,
                                                 : x[a] - f * e[a];
 }
 
+/* The turn Q (D x D) that a fast root on a moving ground takes from it
+ * between the base positions z->pos and the new ones z->npos: a 3-D hinge
+ * the shortest turn from the ground's invariant direction then to now (its
+ * axis a_1, or b_2 x b_3 when the ground is body B), which keeps the rows
+ * a_1 . b_2, a_1 . b_3 while the interpolated ground deforms; else the
+ * identity (the rows are the point's alone). */
+static void anchor_turn(const mrvi_model *m, const mrvi_nstree *z, int t,
+                        double *Q) {
+  const int D = z->D;
+  for (int i = 0; i < D * D; i++)
+    Q[i] = i % (D + 1) == 0 ? 1.0 : 0.0;
+  if (D != 3 || z->motion[t] != MRVI_JOINT_HINGE)
+    return;
+  double v[2][3], th[3], c = 0.0, s2 = 0.0;
+  for (int k = 0; k < 2; k++) {
+    const double *pos = k ? z->npos : z->pos;
+    if (!z->is_a[t])
+      joint_vec(m, z, t, 0, 0, pos, v[k]); /* a_1 of the ground A */
+    else {
+      double b2[3], b3[3];
+      joint_vec(m, z, t, 1, 1, pos, b2);
+      joint_vec(m, z, t, 1, 2, pos, b3);
+      cross(b2, b3, v[k]);
+    }
+    const double n =
+        sqrt(v[k][0] * v[k][0] + v[k][1] * v[k][1] + v[k][2] * v[k][2]);
+    for (int a = 0; a < 3; a++)
+      v[k][a] /= n;
+  }
+  cross(v[0], v[1], th);
+  for (int a = 0; a < 3; a++)
+    c += v[0][a] * v[1][a], s2 += th[a] * th[a];
+  const double sn = sqrt(s2);
+  const double f = sn > 1e-300 ? atan2(sn, c) / sn : 1.0;
+  for (int a = 0; a < 3; a++)
+    th[a] *= f;
+  for (int k = 0; k < 3; k++) {
+    double e[3] = {0.0, 0.0, 0.0};
+    e[k] = 1.0;
+    mrvi_nullspace_rotate(3, th, e);
+    for (int i = 0; i < 3; i++)
+      Q[i * 3 + k] = e[i];
+  }
+}
+
 /* The bodies from the base positions z->pos turned by z->th and (free
  * roots) moved by z->u, parents first (module header), written to x
  * (increments from q0 if not NULL). */
@@ -759,6 +887,12 @@ static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
     if (D == 2)
       I[2] = 0.0, I[3] = 1.0; /* 2 x 2 identity */
     const double *Qp = pa >= 0 ? z->Q + 9 * pa : I;
+    double Qa[9];
+    const int an = pa < 0 && z->anchor ? z->anchor[t] : -1;
+    if (an >= 0) {
+      anchor_turn(m, z, t, Qa);
+      Qp = Qa;
+    }
     for (int a = 0; a < 3; a++)
       th[a] = z->th[3 * t + a] - (pa >= 0 ? z->th[3 * pa + a] : 0.0);
     /* the turn relative to the parent on the joint's free rotations: E =
@@ -805,7 +939,9 @@ static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
       /* phi = x_J - rho^i d^i, x_J the parent's point (or the ground's),
        * moved along the joint's free translations by the child's own */
       const double *rp = rho(m, z, t, 0), *rc = rho(m, z, t, 1);
-      const double *yp = pa >= 0 ? z->npos + (size_t)w * pa : NULL;
+      const double *yp = pa >= 0   ? z->npos + (size_t)w * pa
+                         : an >= 0 ? z->npos + (size_t)w * an
+                                   : NULL;
       double xj[3];
       for (int a = 0; a < D; a++) {
         xj[a] = yp ? yp[a] : rp[a];
@@ -826,12 +962,13 @@ static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
   }
 }
 
-void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
-                         const double *dx) {
+/* Each body's turn and shift z->th, z->u from the update dx at the iterate
+ * x (increments from q0 if not NULL), into the base positions z->pos: th =
+ * 1/2 sum d^i x (-dd^i). */
+static void turns(mrvi_nstree *z, const double *x, const double *q0,
+                  const double *dx) {
   const int D = z->D;
-  const double *q0 = st->increments ? st->qs0 : NULL;
   gather(z, x, q0, z->pos);
-  /* Each body's turn and shift from dx: th = 1/2 sum d^i x (-dd^i). */
   for (int t = 0; t < z->nb; t++) {
     const double *d = z->pos + (size_t)D * (D + 1) * t + D;
     const double *v = dx + z->slot[t];
@@ -842,6 +979,12 @@ void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
     for (int a = 0; a < D; a++)
       z->u[3 * t + a] = -v[a];
   }
+}
+
+void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
+                         const double *dx) {
+  const double *q0 = st->increments ? st->qs0 : NULL;
+  turns(z, x, q0, dx);
   for (int s = 0; s < z->nu; s++)
     x[s] -= dx[s];
   place(z, st->model, x, q0);
@@ -874,10 +1017,14 @@ static void settle(mrvi_nstree *z, const mrvi_step *st, double *x) {
 }
 
 void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
-  const int D = z->D, w = D * (D + 1);
-  const double *q0 = st->increments ? st->qs0 : NULL;
   if (st->tuning.predict_settle)
     settle(z, st, x);
+  mrvi_nsslow_start(z, st, x);
+}
+
+void mrvi_nsslow_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
+  const int D = z->D, w = D * (D + 1);
+  const double *q0 = st->increments ? st->qs0 : NULL;
   /* The predictor's turns and shifts from q_k. */
   gather(z, x, q0, z->npos);
   gather(z, NULL, st->qs0, z->pos);
@@ -888,4 +1035,241 @@ void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
       z->u[3 * t + a] = pr[a] - b[a];
   }
   place(z, st->model, x, q0);
+}
+
+/* ---------------------------------------------------------------------------
+ * The fast forest at the micro nodes
+ *
+ * Fast bodies in open chains and trees of joints among themselves, to the
+ * ground, or to a slow body (doc/multibody.md, "Fast bodies in joints"):
+ * at micro node m the slow body is interpolated, a0 q_k + a1 q_{k+1}, as
+ * the step evaluates the slow-fast joint, and the fast tree hangs on its
+ * joint point (and axis) as on a moving ground.  P_f = blkdiag(P_i) (I -
+ * X)^-1 S at node m spans the null space of the fast part of the
+ * micro-node constraints' gradient there; it is small (the fast bodies of
+ * one model) and formed densely, column by column.
+ * ------------------------------------------------------------------------- */
+
+/* The moving grounds at node m into the rows nb.. of pos: each slow body
+ * interpolated as the step interpolates it (step.c, slow_at). */
+static void anchors(const mrvi_nstree *z, const mrvi_step *st, const double *x,
+                    int m, double *pos) {
+  const int w = z->D * (z->D + 1);
+  const mrvi_point pt = mrvi_step_node_point(st, m, st->dt);
+  for (int i = 0; i < z->na; i++)
+    for (int e = 0; e < w; e++) {
+      const int s = z->aslot[i] + e;
+      pos[(size_t)w * (z->nb + i) + e] =
+          st->increments ? st->qs0[s] + pt.a1 * x[s]
+                         : pt.a0 * st->qs0[s] + pt.a1 * x[s];
+    }
+}
+
+/* Fast node m of x (m >= 1) and the positions its entries are
+ * displacements from (NULL unless st->increments). */
+static double *node_of(const mrvi_nstree *z, const mrvi_step *st, double *x,
+                       int m, const double **q0) {
+  *q0 = st->increments ? st->qf0 : NULL;
+  return x + z->ns + (size_t)(m - 1) * z->nf;
+}
+
+/* The forest of plan mode PLAN_FAST or PLAN_BESIDE for placement (and,
+ * fast, the columns): 1 and *out, 0 and why, or MRVI_ENOMEM; fast: fpos,
+ * nfc and r as for mrvi_nsfast_create. */
+static int forest_create(const mrvi_step *st, int mode, const int *fpos,
+                         int nfc, int r, mrvi_nstree **out, char *why,
+                         size_t len) {
+  const mrvi_model *m = st->model;
+  *out = NULL;
+  mrvi_nstree *z = calloc(1, sizeof *z);
+  if (!z)
+    return MRVI_ENOMEM;
+  const int nbm = m->n_bodies;
+  const size_t B = (size_t)nbm + 1;
+  z->fast = mode == PLAN_FAST;
+  z->order = malloc(B * sizeof(int));
+  z->parent = malloc(B * sizeof(int));
+  z->joint = malloc(B * sizeof(int));
+  if (!z->order || !z->parent || !z->joint)
+    goto oom;
+  int nb;
+  if (!plan(m, mode, z->order, z->parent, z->joint, &nb, why, len)) {
+    mrvi_nstree_free(z);
+    return 0;
+  }
+  const int D = m->bodies[0].dim, T = D * (D + 1) / 2, w = D * (D + 1);
+  z->D = D, z->T = T, z->nb = nb;
+  z->ns = st->ns, z->nf = st->nf, z->p = st->p;
+  z->nu = st->n_unknowns;
+  z->is_a = calloc(B, sizeof(int));
+  z->motion = calloc(B, sizeof(int));
+  z->slot = malloc(B * sizeof(int));
+  z->dof = malloc(B * sizeof(int));
+  z->child_start = calloc(B + 1, sizeof(int));
+  z->child = malloc(B * sizeof(int));
+  z->anchor = malloc(B * sizeof(int));
+  z->aslot = malloc(B * sizeof(int));
+  z->reached = malloc(B * sizeof(int));
+  z->tw = malloc(B * T * sizeof(double));
+  z->P = malloc(B * 2 * T * T * sizeof(double));
+  z->X = malloc(B * T * T * sizeof(double));
+  z->S = malloc(B * T * T * sizeof(double));
+  z->pos = malloc(2 * B * w * sizeof(double));
+  z->npos = malloc(2 * B * w * sizeof(double));
+  z->th = malloc(B * 3 * sizeof(double));
+  z->u = malloc(B * 3 * sizeof(double));
+  z->Q = malloc(B * 9 * sizeof(double));
+  if (!z->is_a || !z->motion || !z->slot || !z->dof || !z->child_start ||
+      !z->child || !z->anchor || !z->aslot || !z->reached || !z->tw || !z->P ||
+      !z->X || !z->S || !z->pos || !z->npos || !z->th || !z->u || !z->Q)
+    goto oom;
+  int cols = 0, in_fc = 1;
+  for (int t = 0; t < nb; t++) {
+    const mrvi_body *bd = &m->bodies[z->order[t]];
+    z->slot[t] = m->slot[bd->first];
+    for (int e = 0; z->fast && e < w; e++)
+      in_fc &= fpos[z->slot[t] + e] >= 0;
+    z->anchor[t] = -1;
+    z->dof[t] = T;
+    if (z->joint[t] >= 0) {
+      const mrvi_constraint *k = &m->constraints[z->joint[t]];
+      z->is_a[t] = mrvi_model_body_of(m, k->in[0]) == z->order[t];
+      z->motion[t] = k->type->joint_motion;
+      z->dof[t] = n_rot(z->motion[t], D) + n_tr(z->motion[t]);
+      if (z->parent[t] >= 0)
+        z->child_start[z->parent[t] + 1]++;
+      const int o =
+          z->is_a[t] ? body_b(m, k, D) : mrvi_model_body_of(m, k->in[0]);
+      if (z->parent[t] < 0 && o >= 0) { /* a slow body: a moving ground */
+        z->aslot[z->na] = m->slot[m->bodies[o].first];
+        z->anchor[t] = nb + z->na++;
+      }
+    }
+    cols += z->dof[t];
+  }
+  if (z->fast && (!in_fc || cols != nfc - r)) {
+    mrvi_nstree_free(z);
+    return snprintf(why, len,
+                    "the fast joints' rows (%d) do not match the fast "
+                    "bodies' coordinates",
+                    r),
+           0;
+  }
+  for (int t = 0; t < nb; t++)
+    z->child_start[t + 1] += z->child_start[t];
+  int *fill = malloc(B * sizeof *fill);
+  if (!fill)
+    goto oom;
+  memcpy(fill, z->child_start, B * sizeof *fill);
+  for (int t = 0; t < nb; t++)
+    if (z->parent[t] >= 0)
+      z->child[fill[z->parent[t]]++] = t;
+  free(fill);
+  *out = z;
+  return 1;
+oom:
+  mrvi_nstree_free(z);
+  return MRVI_ENOMEM;
+}
+
+int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
+                       mrvi_nstree **out, char *why, size_t len) {
+  return forest_create(st, PLAN_FAST, fpos, nfc, r, out, why, len);
+}
+
+int mrvi_nsslow_create(const mrvi_step *st, mrvi_nstree **out, char *why,
+                       size_t len) {
+  return forest_create(st, PLAN_BESIDE, NULL, 0, 0, out, why, len);
+}
+
+int mrvi_nullspace_beside_plan(const mrvi_model *m, char *why, size_t len) {
+  return plan_only(m, PLAN_BESIDE, why, len);
+}
+
+int mrvi_nsfast_bodies(const mrvi_nstree *z) { return z->nb; }
+
+void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
+                         const int *fpos, int nfc, double *cols) {
+  const int T = z->T, w = z->D * (z->D + 1);
+  const double *q0 = st->qf0;
+  const double *xm = m > 0 ? node_of(z, st, x, m, &q0) : NULL;
+  gather(z, xm, q0, z->pos);
+  anchors(z, st, x, m, z->pos);
+  geometry(z, st->model, z->pos);
+  /* Column (t, j): the twist S_t e_j carried rigidly down t's subtree
+   * (parents first), each body's through its own P_i. */
+  double *col = cols;
+  for (int t = 0; t < z->nb; t++)
+    for (int j = 0; j < z->dof[t]; j++, col += nfc) {
+      memset(col, 0, (size_t)nfc * sizeof *col);
+      for (int c = 0; c < z->nb; c++)
+        z->reached[c] = c == t;
+      for (int a = 0; a < T; a++)
+        z->tw[(size_t)T * t + a] = z->S[(size_t)T * T * t + a * z->dof[t] + j];
+      for (int c = t + 1; c < z->nb; c++) {
+        const int pa = z->parent[c];
+        if (!(z->reached[c] = pa >= 0 && z->reached[pa]))
+          continue;
+        const double *X = z->X + (size_t)T * T * c;
+        for (int a = 0; a < T; a++) {
+          double s = 0.0;
+          for (int b = 0; b < T; b++)
+            s += X[a * T + b] * z->tw[(size_t)T * pa + b];
+          z->tw[(size_t)T * c + a] = s;
+        }
+      }
+      for (int c = t; c < z->nb; c++) {
+        if (!z->reached[c])
+          continue;
+        const double *P = z->P + (size_t)2 * T * T * c;
+        for (int e = 0; e < w; e++) {
+          double s = 0.0;
+          for (int a = 0; a < T; a++)
+            s += P[e * T + a] * z->tw[(size_t)T * c + a];
+          col[fpos[z->slot[c] + e]] = s;
+        }
+      }
+    }
+}
+
+void mrvi_nsslow_retract(mrvi_nstree *z, const mrvi_step *st,
+                         const double *xold, double *x, const double *dx) {
+  const double *q0 = st->increments ? st->qs0 : NULL;
+  turns(z, xold, q0, dx);
+  place(z, st->model, x, q0);
+}
+
+void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
+                         const double *xold, double *x, const double *dx) {
+  for (int m = 1; m <= z->p; m++) {
+    const double *q0;
+    double *xn = node_of(z, st, x, m, &q0);
+    const size_t o = (size_t)(xn - x);
+    turns(z, xold + o, q0, dx + o);
+    anchors(z, st, xold, m, z->pos);
+    anchors(z, st, x, m, z->npos);
+    place(z, st->model, xn, q0);
+  }
+}
+
+void mrvi_nsfast_start(mrvi_nstree *z, const mrvi_step *st, double *x) {
+  const int D = z->D, w = D * (D + 1);
+  for (int m = 1; m <= z->p; m++) {
+    const double *q0, *qb = st->qf0;
+    double *xn = node_of(z, st, x, m, &q0);
+    const double *xb = m > 1 ? node_of(z, st, x, m - 1, &qb) : NULL;
+    /* node m - 1 as placed, the predictor's node m turned and moved from
+     * it onto the joints */
+    gather(z, xb, qb, z->pos);
+    gather(z, xn, q0, z->npos);
+    anchors(z, st, x, m - 1, z->pos);
+    anchors(z, st, x, m, z->npos);
+    for (int t = 0; t < z->nb; t++) {
+      const double *b = z->pos + (size_t)w * t, *pr = z->npos + (size_t)w * t;
+      mrvi_nullspace_nearest_rotation(D, b + D, pr + D, z->th + 3 * t);
+      for (int a = 0; a < D; a++)
+        z->u[3 * t + a] = pr[a] - b[a];
+    }
+    place(z, st->model, xn, q0);
+  }
 }

@@ -59,6 +59,18 @@ int mrvi_nullspace_joint_reduced(const mrvi_nullspace *z);
  * basis covers (nullspace_tree.c; constraints at micro nodes aside), else 0
  * and why (e.g. the joint that closes a loop). */
 int mrvi_nullspace_tree_plan(const mrvi_model *m, char *why, size_t len);
+/* 1 if m's fast bodies form open chains and trees of joints among
+ * themselves, to the ground or on spherical and revolute joints to slow
+ * bodies (their moving grounds), which the joint-reduced basis at the micro
+ * nodes covers (nullspace_tree.c, doc/multibody.md "Fast bodies in
+ * joints"), else 0 and why (untouched if m has no fast body). */
+int mrvi_nullspace_fast_plan(const mrvi_model *m, char *why, size_t len);
+/* 1 if every constraint outside the micro nodes is a body's internal one:
+ * beside the fast forest, the slow bodies are free (nullspace.c). */
+int mrvi_nullspace_slow_side_free(const mrvi_model *m);
+/* 1 if m's slow bodies form open chains and trees of slow joints (the
+ * micro-node constraints aside), else 0 and why (nullspace_tree.c). */
+int mrvi_nullspace_beside_plan(const mrvi_model *m, char *why, size_t len);
 /* v <- exp(th^) v (2-D: the rotation by th[0]); th = 1/2 sum_i d^i x w^i,
  * the left inverse of a body's null-space matrix at directors d applied to
  * director increments w; th of the rotation that takes the frame ref
@@ -105,6 +117,32 @@ void mrvi_nstree_reduce(mrvi_nstree *z, const mrvi_step *st, const double *R,
 void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
                          const double *dx);
 void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x);
+/* The fast forest (nullspace_tree.c): 1 and *out if mrvi_nullspace_fast_plan
+ * holds and its joints' free directions number nfc - r (the fast slots fpos
+ * of the micro-node constraints, r their rows), 0 and why if not, < 0 out of
+ * memory.  _columns: the nfc - r columns (nfc entries each, over fpos) of
+ * the joint-reduced basis at micro node m of x; _start, _retract: the nodal
+ * reparametrisation of micro nodes 1..p after the slow unknowns are final
+ * (the predictor's; xold the iterate before x -= dx). */
+int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
+                       mrvi_nstree **out, char *why, size_t len);
+int mrvi_nsfast_bodies(const mrvi_nstree *z);
+/* The slow bodies beside a fast forest, in open chains and trees of slow
+ * joints (mrvi_nullspace_beside_plan): their joint-reduced nodal
+ * reparametrisation alone (their basis stays the QR one): _create as
+ * mrvi_nsfast_create; _start puts the predictor's q_{k+1} on the joints from
+ * q_k, _retract makes x -= dx on their slots the joints' turns and slides
+ * (xold the iterate before it; the other slots are the caller's). */
+int mrvi_nsslow_create(const mrvi_step *st, mrvi_nstree **out, char *why,
+                       size_t len);
+void mrvi_nsslow_start(mrvi_nstree *z, const mrvi_step *st, double *x);
+void mrvi_nsslow_retract(mrvi_nstree *z, const mrvi_step *st,
+                         const double *xold, double *x, const double *dx);
+void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
+                         const int *fpos, int nfc, double *cols);
+void mrvi_nsfast_start(mrvi_nstree *z, const mrvi_step *st, double *x);
+void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
+                         const double *xold, double *x, const double *dx);
 
 /* ---------------------------------------------------------------------------
  * Newton solver: UMFPACK, or a dense LU (dense.c) for matrices of at most
