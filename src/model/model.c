@@ -61,7 +61,8 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->blocks);
   for (int e = 0; e < m->n_elements; e++) {
     free(m->elements[e].coef);
-    free(m->elements[e].axes);
+    if (m->elements[e].kind == MRVI_ELEMENT_TORSION)
+      free(m->elements[e].axes);
   }
   free(m->names);
   free(m->mass);
@@ -355,7 +356,8 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
 /* Release what element e (not yet pushed) owns. */
 static void drop_element(mrvi_element *e) {
   free(e->coef);
-  free(e->axes);
+  if (e->kind == MRVI_ELEMENT_TORSION)
+    free(e->axes);
 }
 
 /* Append an element whose inputs are already set; checks the rate rule. */
@@ -471,6 +473,25 @@ int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
   if (!(e->params = intern_params(m, v)))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   return MRVI_OK;
+}
+
+int mrvi_element_particle(const mrvi_model *m, const mrvi_element *e, int j) {
+  if (j < 0 || j >= e->n_in)
+    return -1;
+  /* Particles are added with fresh coordinates: their first coordinates
+   * increase with the particle index. */
+  const int c = e->in[j];
+  int lo = 0, hi = m->n_particles - 1;
+  while (lo <= hi) {
+    const int mid = lo + (hi - lo) / 2, f = m->particles[mid].first;
+    if (f == c)
+      return mid;
+    if (f < c)
+      lo = mid + 1;
+    else
+      hi = mid - 1;
+  }
+  return -1;
 }
 
 static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
@@ -976,8 +997,7 @@ int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
                     .potential = potential,
                     .shift = rest_angle,
                     .particle_i = particle_i,
-                    .particle_j = particle_j,
-                    .particle_k = particle_k};
+                    .particle_j = particle_j};
   double v[MRVI_LAW_MAX_PARAMS] = {0};
   v[0] = stiffness;
   v[1] = cos(rest_angle);
@@ -1140,7 +1160,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
   case MRVI_ELEMENT_ANGLE:
     mrvi_fmt(buf, len, "%s angle %s-%s-%s, stiffness %g, rest angle %g rad",
              rate, m->particles[e->particle_i].name,
-             m->particles[e->particle_j].name, m->particles[e->particle_k].name,
+             m->particles[e->particle_j].name, m->particles[mrvi_element_particle(m, e, 2 * m->dimension)].name,
              e->params[0], e->shift);
     break;
   case MRVI_ELEMENT_FORCE: {
@@ -1520,8 +1540,11 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
   }
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
-    fnv(&h, &el->kind, sizeof el->kind);
-    fnv(&h, &el->potential, sizeof el->potential);
+    /* (the enumerations' bytes, as when the fields had their types) */
+    const mrvi_element_kind kind = el->kind;
+    const mrvi_rate potential = el->potential;
+    fnv(&h, &kind, sizeof kind);
+    fnv(&h, &potential, sizeof potential);
     if (el->law) {
       fnv(&h, el->law->name, strlen(el->law->name) + 1);
       fnv(&h, el->params, (size_t)el->law->n_params * sizeof(double));
@@ -1530,11 +1553,12 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     }
     fnv(&h, &el->shift, sizeof el->shift);
     static const double no_anchor[3];
-    fnv(&h, el->anchor ? el->anchor : no_anchor, sizeof no_anchor);
+    const int anchored = el->kind == MRVI_ELEMENT_ANCHOR && el->anchor;
+    fnv(&h, anchored ? el->anchor : no_anchor, sizeof no_anchor);
     fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
     if (el->coef)
       fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);
-    if (el->axes)
+    if (el->kind == MRVI_ELEMENT_TORSION)
       fnv(&h, el->axes, (size_t)(3 * m->dimension) * sizeof *el->axes);
   }
   for (int c = 0; c < m->n_constraints; c++) {
