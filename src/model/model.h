@@ -40,16 +40,16 @@ typedef struct mrvi_element {
      * branch of the angle, the unwrapped angle at the last accepted node
      * (run state: mrvi_model_torsion_set). */
     double *axes;
-  }; /* NULL for the other kinds */
-  int *in;                    /* n_in model indices (in blocks: mrvi_model_inputs) */
-  double *coef;               /* n_in coefficients (terms, gravity) */
+  };            /* NULL for the other kinds */
+  int *in;      /* n_in model indices (in blocks: mrvi_model_inputs) */
+  double *coef; /* n_in coefficients (terms, gravity) */
   int particle_i, particle_j; /* springs, angles (i-j-k, the vertex at j:
                                  k from the inputs, mrvi_element_particle);
                                  -1 if unused */
   int n_in;                   /* number of input coordinates */
   unsigned char kind;         /* mrvi_element_kind */
-  unsigned char potential;    /* mrvi_rate: MRVI_SLOW: part of V, MRVI_FAST: W */
-  unsigned char form;         /* mrvi_law_form: law->form (set with the law) */
+  unsigned char potential; /* mrvi_rate: MRVI_SLOW: part of V, MRVI_FAST: W */
+  unsigned char form;      /* mrvi_law_form: law->form (set with the law) */
 } mrvi_element;
 
 typedef struct mrvi_particle {
@@ -78,9 +78,11 @@ struct mrvi_model {
   mrvi_rate *rate;
   int n_particles, cap_particles;
   /* Name lookup (model.c): open-addressing tables of coordinate and
-   * particle indices by name, 0 = empty, else index + 1. */
+   * particle indices by name, 0 = empty, else index + 1; the coordinate
+   * table holds the n_coord_table coordinates that are not a particle's
+   * (a particle's are found through its name). */
   int *coord_table, *particle_table;
-  int coord_table_cap, particle_table_cap;
+  int coord_table_cap, particle_table_cap, n_coord_table;
   mrvi_particle *particles;
   int n_elements, cap_elements;
   mrvi_element *elements;
@@ -139,8 +141,7 @@ double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
 /* Index in a torsion element's axes of its branch (after 3 x 3 frame
  * entries). */
 #define MRVI_TORSION_BRANCH 9
-/* Particle owning input j of element e (its first coordinate's), or -1
- * (model.c). */
+/* Particle owning input j of element e, or -1 (model.c). */
 int mrvi_element_particle(const mrvi_model *m, const mrvi_element *e, int j);
 /* Energy of torsion element e at its inputs y (bodies.c). */
 double mrvi_torsion_eval(const mrvi_element *e, int dim, const double *y,

@@ -446,8 +446,8 @@ int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
   return terms_create(m, elems, n_elems, col_of, 1, out);
 }
 
-int mrvi_terms_create_value(const mrvi_model *m, const int *elems,
-                            int n_elems, mrvi_terms **out) {
+int mrvi_terms_create_value(const mrvi_model *m, const int *elems, int n_elems,
+                            mrvi_terms **out) {
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
