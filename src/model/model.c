@@ -529,7 +529,8 @@ int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
 }
 
 int mrvi_element_particle(const mrvi_model *m, const mrvi_element *e, int j) {
-  return j >= 0 && j < e->n_in ? particle_of(m, e->in[j]) : -1;
+  /* (springs between body points carry their weights in coef) */
+  return !e->coef && j >= 0 && j < e->n_in ? particle_of(m, e->in[j]) : -1;
 }
 
 static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
@@ -564,9 +565,7 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
            m->particles[particle_j].name);
   mrvi_element e = {.kind = MRVI_ELEMENT_SPRING,
                     .potential = potential,
-                    .shift = rest_length,
-                    .particle_i = particle_i,
-                    .particle_j = particle_j};
+                    .shift = rest_length};
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
@@ -593,9 +592,7 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
            m->particles[particle_i].name);
   mrvi_element e = {.kind = MRVI_ELEMENT_ANCHOR,
                     .potential = potential,
-                    .shift = rest_length,
-                    .particle_i = particle_i,
-                    .particle_j = -1};
+                    .shift = rest_length};
   double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; k < m->dimension; k++) {
     if (!isfinite(anchor[k]))
@@ -740,9 +737,7 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
                            what);
   mrvi_element e = {.kind = b ? MRVI_ELEMENT_SPRING : MRVI_ELEMENT_ANCHOR,
                     .potential = potential,
-                    .shift = rest_length,
-                    .particle_i = -1,
-                    .particle_j = -1};
+                    .shift = rest_length};
   double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; !b && k < D; k++) {
     if (!isfinite(anchor[k]))
@@ -929,8 +924,6 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
   mrvi_element e = {.kind = MRVI_ELEMENT_TERM,
                     .potential = potential,
                     .shift = offset,
-                    .particle_i = -1,
-                    .particle_j = -1,
                     .n_in = n_terms};
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
@@ -960,8 +953,6 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
   const int d = m->dimension;
   mrvi_element e = {.kind = MRVI_ELEMENT_GRAVITY,
                     .potential = MRVI_SLOW,
-                    .particle_i = -1,
-                    .particle_j = -1,
                     .n_in = (m->n_particles + m->n_bodies) * d};
   if (alloc_inputs(m, &e) < 0)
     return MRVI_ENOMEM;
@@ -1031,11 +1022,8 @@ int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "%s: rest angle must be in [0, pi] radians (got %g)",
                            what, rest_angle);
-  mrvi_element e = {.kind = MRVI_ELEMENT_ANGLE,
-                    .potential = potential,
-                    .shift = rest_angle,
-                    .particle_i = particle_i,
-                    .particle_j = particle_j};
+  mrvi_element e = {
+      .kind = MRVI_ELEMENT_ANGLE, .potential = potential, .shift = rest_angle};
   double v[MRVI_LAW_MAX_PARAMS] = {0};
   v[0] = stiffness;
   v[1] = cos(rest_angle);
@@ -1065,11 +1053,8 @@ int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
   char what[300];
   mrvi_fmt(what, sizeof what, "force on %s%s", m->names[coords[0]],
            n_terms > 1 ? ", ..." : "");
-  mrvi_element e = {.kind = MRVI_ELEMENT_FORCE,
-                    .potential = potential,
-                    .particle_i = -1,
-                    .particle_j = -1,
-                    .n_in = n_terms};
+  mrvi_element e = {
+      .kind = MRVI_ELEMENT_FORCE, .potential = potential, .n_in = n_terms};
   e.in = mrvi_model_inputs(m, n_terms);
   e.coef = malloc((size_t)n_terms * sizeof *e.coef);
   if (!e.in || !e.coef) {
@@ -1139,7 +1124,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
   switch (e->kind) {
   case MRVI_ELEMENT_SPRING:
   case MRVI_ELEMENT_ANCHOR:
-    if (e->particle_i < 0) { /* body points: name the coordinates' range */
+    if (e->coef) { /* body points: name the coordinates' range */
       mrvi_fmt(buf, len,
                "%s spring between points (%d inputs, %s .. %s), rest length "
                "%g, %s",
@@ -1150,7 +1135,8 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     if (e->kind == MRVI_ELEMENT_ANCHOR)
       goto anchor;
     mrvi_fmt(buf, len, "%s spring %s-%s, rest length %g, %s", rate,
-             m->particles[e->particle_i].name, m->particles[e->particle_j].name,
+             m->particles[mrvi_element_particle(m, e, 0)].name,
+             m->particles[mrvi_element_particle(m, e, m->dimension)].name,
              e->shift, law);
     break;
   anchor : {
@@ -1163,7 +1149,8 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
       mrvi_fmt(a, sizeof a, "[%g, %g, %g]", e->anchor[0], e->anchor[1],
                e->anchor[2]);
     mrvi_fmt(buf, len, "%s spring %s-anchor %s, rest length %g, %s", rate,
-             m->particles[e->particle_i].name, a, e->shift, law);
+             m->particles[mrvi_element_particle(m, e, 0)].name, a, e->shift,
+             law);
     break;
   }
   case MRVI_ELEMENT_TERM: {
@@ -1197,8 +1184,8 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     break;
   case MRVI_ELEMENT_ANGLE:
     mrvi_fmt(buf, len, "%s angle %s-%s-%s, stiffness %g, rest angle %g rad",
-             rate, m->particles[e->particle_i].name,
-             m->particles[e->particle_j].name,
+             rate, m->particles[mrvi_element_particle(m, e, 0)].name,
+             m->particles[mrvi_element_particle(m, e, m->dimension)].name,
              m->particles[mrvi_element_particle(m, e, 2 * m->dimension)].name,
              e->params[0], e->shift);
     break;

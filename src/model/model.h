@@ -23,7 +23,7 @@ typedef enum mrvi_element_kind {
 } mrvi_element_kind;
 
 typedef struct mrvi_element {
-  /* (Fields ordered and narrowed so that an element takes 64 bytes: a
+  /* (Fields ordered and narrowed so that an element takes 56 bytes: a
    * network holds about one per coordinate.) */
   const mrvi_law *law; /* NULL for gravity */
   /* law->n_params values (angles: 3), one copy per distinct set shared by
@@ -40,14 +40,11 @@ typedef struct mrvi_element {
      * branch of the angle, the unwrapped angle at the last accepted node
      * (run state: mrvi_model_torsion_set). */
     double *axes;
-  };            /* NULL for the other kinds */
-  int *in;      /* n_in model indices (in blocks: mrvi_model_inputs) */
-  double *coef; /* n_in coefficients (terms, gravity) */
-  int particle_i, particle_j; /* springs, angles (i-j-k, the vertex at j:
-                                 k from the inputs, mrvi_element_particle);
-                                 -1 if unused */
-  int n_in;                   /* number of input coordinates */
-  unsigned char kind;         /* mrvi_element_kind */
+  };                  /* NULL for the other kinds */
+  int *in;            /* n_in model indices (in blocks: mrvi_model_inputs) */
+  double *coef;       /* n_in coefficients (terms, gravity) */
+  int n_in;           /* number of input coordinates */
+  unsigned char kind; /* mrvi_element_kind */
   unsigned char potential; /* mrvi_rate: MRVI_SLOW: part of V, MRVI_FAST: W */
   unsigned char form;      /* mrvi_law_form: law->form (set with the law) */
 } mrvi_element;
@@ -141,7 +138,8 @@ double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
 /* Index in a torsion element's axes of its branch (after 3 x 3 frame
  * entries). */
 #define MRVI_TORSION_BRANCH 9
-/* Particle owning input j of element e, or -1 (model.c). */
+/* Particle owning input j of element e (springs, anchors and angles of
+ * particles: particle i's inputs first, then j's, k's), or -1 (model.c). */
 int mrvi_element_particle(const mrvi_model *m, const mrvi_element *e, int j);
 /* Energy of torsion element e at its inputs y (bodies.c). */
 double mrvi_torsion_eval(const mrvi_element *e, int dim, const double *y,

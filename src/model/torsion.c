@@ -216,9 +216,7 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
                            what);
   mrvi_element e = {.kind = MRVI_ELEMENT_TORSION,
                     .potential = potential,
-                    .shift = rest_angle,
-                    .particle_i = -1,
-                    .particle_j = -1};
+                    .shift = rest_angle};
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
