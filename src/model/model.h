@@ -40,11 +40,14 @@ typedef struct mrvi_element {
      * branch of the angle, the unwrapped angle at the last accepted node
      * (run state: mrvi_model_torsion_set). */
     double *axes;
-  };                  /* NULL for the other kinds */
-  int *in;            /* n_in model indices (in blocks: mrvi_model_inputs) */
-  double *coef;       /* n_in coefficients (terms, gravity) */
-  int n_in;           /* number of input coordinates */
-  unsigned char kind; /* mrvi_element_kind */
+  };       /* NULL for the other kinds */
+  int *in; /* n_in model indices (in blocks: mrvi_model_inputs) */
+  /* n_in coefficients (terms, gravity, forces, springs between body points);
+   * NULL for the others, whose particles are those of their inputs
+   * (mrvi_element_particle) */
+  double *coef;
+  int n_in;                /* number of input coordinates */
+  unsigned char kind;      /* mrvi_element_kind */
   unsigned char potential; /* mrvi_rate: MRVI_SLOW: part of V, MRVI_FAST: W */
   unsigned char form;      /* mrvi_law_form: law->form (set with the law) */
 } mrvi_element;
