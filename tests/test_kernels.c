@@ -194,6 +194,36 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
     const double val = mrvi_terms_value(kc, q);
     CHECK(fabs(val - val_ref) <= 1e-13 * fabs(val_ref),
           "d %d %s: value %.17g vs %.17g", d, lc->law, val, val_ref);
+    /* The values-only class (the run's energies): the full class's value
+     * bitwise, on the whole class (anchors in it: the full records) and on
+     * its springs alone (for the linear law, khooke records alone). */
+    for (int only = 0; only < 2 && r == 0; only++) {
+      int ns = 0, *sel = calloc((size_t)ne, sizeof *sel);
+      for (int i = 0; sel && i < ne; i++)
+        if (!only || m->elements[i].kind == MRVI_ELEMENT_SPRING)
+          sel[ns++] = i;
+      mrvi_terms *kf = NULL, *kv = NULL;
+      CHECK(sel && mrvi_terms_create(m, sel, ns, NULL, &kf) == MRVI_OK &&
+                mrvi_terms_create_value(m, sel, ns, &kv) == MRVI_OK,
+            "d %d %s: values-only create", d, lc->law);
+      if (kf && kv) {
+        const double vf = mrvi_terms_value(kf, q), vv = mrvi_terms_value(kv, q);
+        CHECK(memcmp(&vf, &vv, sizeof vf) == 0,
+              "d %d %s (%d springs): values-only %.17g vs %.17g", d, lc->law,
+              ns, vv, vf);
+        /* and in chunks of 4 elements (the run's energies on threads) */
+        CHECK(mrvi_terms_set_value_chunks(kf, 2, 4) == MRVI_OK &&
+                  mrvi_terms_set_value_chunks(kv, 2, 4) == MRVI_OK,
+              "d %d %s: value chunks", d, lc->law);
+        const double cf = mrvi_terms_value(kf, q), cv = mrvi_terms_value(kv, q);
+        CHECK(memcmp(&cf, &cv, sizeof cf) == 0,
+              "d %d %s (%d springs): values-only in chunks %.17g vs %.17g", d,
+              lc->law, ns, cv, cf);
+      }
+      mrvi_terms_free(kf);
+      mrvi_terms_free(kv);
+      free(sel);
+    }
   }
   mrvi_terms_free(kc);
   free(elems);

@@ -315,6 +315,40 @@ static void builder_checks(void) {
             strstr(mrvi_model_errmsg(m), "unknown law"),
         "unknown law");
   CHECK(mrvi_model_n_slow(m) == 2 && mrvi_model_n_fast(m) == 2, "partition");
+  /* A particle's coordinate names are taken, found through the particle
+   * (model.c keeps no coordinate-table entry for them), and a coordinate
+   * of its own takes a particle coordinate's name from a later particle;
+   * names with a particle's prefix but no such axis stay free. */
+  CHECK(mrvi_model_add_coordinate(m, "f.y", 1, MRVI_SLOW, 0, 0) < 0 &&
+            strstr(mrvi_model_errmsg(m), "duplicate coordinate name 'f.y'"),
+        "a particle's coordinate name: %s", mrvi_model_errmsg(m));
+  CHECK(mrvi_model_add_coordinate(m, "f.z", 1, MRVI_SLOW, 0, 0) == 4 &&
+            mrvi_model_add_coordinate(m, "f.x.x", 1, MRVI_SLOW, 0, 0) == 5 &&
+            mrvi_model_add_coordinate(m, "g.x", 1, MRVI_SLOW, 0, 0) == 6,
+        "names free of particle coordinates: %s", mrvi_model_errmsg(m));
+  CHECK(mrvi_model_add_particle(m, "g", 1, MRVI_FAST, x, v) < 0 &&
+            strstr(mrvi_model_errmsg(m), "duplicate coordinate name 'g.x'"),
+        "a particle over a coordinate's name: %s", mrvi_model_errmsg(m));
+  CHECK(mrvi_model_add_coordinate(m, "f.z", 1, MRVI_SLOW, 0, 0) < 0,
+        "a coordinate's own name twice");
+  /* The same through the tables' growth (rehashing the coordinates of
+   * their own among particles'). */
+  int dup = 0;
+  for (int i = 0; i < 200; i++) {
+    char name[32];
+    snprintf(name, sizeof name, "p%d", i);
+    dup += mrvi_model_add_particle(m, name, 1, MRVI_SLOW, x, v) < 0;
+    snprintf(name, sizeof name, "c%d", i);
+    dup += mrvi_model_add_coordinate(m, name, 1, MRVI_SLOW, 0, 0) < 0;
+  }
+  for (int i = 0; i < 200; i += 7) {
+    char name[32];
+    snprintf(name, sizeof name, "p%d.y", i);
+    dup += mrvi_model_add_coordinate(m, name, 1, MRVI_SLOW, 0, 0) >= 0;
+    snprintf(name, sizeof name, "c%d", i);
+    dup += mrvi_model_add_coordinate(m, name, 1, MRVI_SLOW, 0, 0) >= 0;
+  }
+  CHECK(dup == 0, "duplicates through the tables' growth: %d wrong", dup);
   mrvi_model_free(m);
 }
 

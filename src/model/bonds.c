@@ -39,9 +39,11 @@ int mrvi_model_anchors(const mrvi_model *m, int *particle, double *point,
   int count = 0;
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
-    if (el->kind == MRVI_ELEMENT_ANCHOR && el->particle_i >= 0)
-      push_anchor(m, particle, point, kind, cap, &count, el->particle_i,
-                  el->anchor, el->potential == MRVI_FAST ? 1 : 0);
+    const int pi =
+        el->kind == MRVI_ELEMENT_ANCHOR ? mrvi_element_particle(m, el, 0) : -1;
+    if (pi >= 0)
+      push_anchor(m, particle, point, kind, cap, &count, pi, el->anchor,
+                  el->potential == MRVI_FAST ? 1 : 0);
   }
   const int d = m->dimension;
   for (int c = 0; c < m->n_constraints && d > 0; c++) {
@@ -86,9 +88,11 @@ int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap) {
   int count = 0;
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
-    if (el->kind == MRVI_ELEMENT_SPRING && el->particle_i >= 0 &&
-        !pair_law(el->law))
-      push(pairs, kind, cap, &count, el->particle_i, el->particle_j,
+    const int pi =
+        el->kind == MRVI_ELEMENT_SPRING ? mrvi_element_particle(m, el, 0) : -1;
+    if (pi >= 0 && !pair_law(el->law))
+      push(pairs, kind, cap, &count, pi,
+           mrvi_element_particle(m, el, m->dimension),
            el->potential == MRVI_FAST ? 1 : 0);
   }
   const int d = m->dimension;

@@ -61,7 +61,8 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->blocks);
   for (int e = 0; e < m->n_elements; e++) {
     free(m->elements[e].coef);
-    free(m->elements[e].axes);
+    if (m->elements[e].kind == MRVI_ELEMENT_TORSION)
+      free(m->elements[e].axes);
   }
   free(m->names);
   free(m->mass);
@@ -124,37 +125,42 @@ static void fnv(unsigned long long *h, const void *data, size_t n) {
  * Name tables: open addressing (linear probing) on an FNV-1a hash, load at
  * most 1/2, so that building a model with n names costs O(n).
  * ------------------------------------------------------------------------- */
-static unsigned long name_hash(const char *s) {
+static unsigned long name_hash(const char *s, size_t len) {
   unsigned long h = 2166136261UL;
-  for (; *s; s++)
-    h = (h ^ (unsigned char)*s) * 16777619UL;
+  for (size_t i = 0; i < len; i++)
+    h = (h ^ (unsigned char)s[i]) * 16777619UL;
   return h;
 }
 
-/* Index of `name` among count entries named by name_of, or -1. */
-static int table_find(const int *table, int cap, const char *name,
+/* Index of the entry named by the len characters of `name` (name_of), or
+ * -1. */
+static int table_find(const int *table, int cap, const char *name, size_t len,
                       const char *(*name_of)(const mrvi_model *, int),
                       const mrvi_model *m) {
   if (!table)
     return -1;
-  for (unsigned long h = name_hash(name) & (unsigned long)(cap - 1);;
+  for (unsigned long h = name_hash(name, len) & (unsigned long)(cap - 1);;
        h = (h + 1) & (unsigned long)(cap - 1)) {
     if (table[h] == 0)
       return -1;
-    if (strcmp(name_of(m, table[h] - 1), name) == 0)
+    const char *t = name_of(m, table[h] - 1);
+    if (strncmp(t, name, len) == 0 && t[len] == '\0')
       return table[h] - 1;
   }
 }
 
 static void table_put(int *table, int cap, const char *name, int index) {
-  unsigned long h = name_hash(name) & (unsigned long)(cap - 1);
+  unsigned long h = name_hash(name, strlen(name)) & (unsigned long)(cap - 1);
   while (table[h] != 0)
     h = (h + 1) & (unsigned long)(cap - 1);
   table[h] = index + 1;
 }
 
-/* Make room for count + 1 entries (rehashing all count entries). */
-static int table_reserve(int **table, int *cap, int count,
+/* Make room for count + 1 entries (rehashing the count entries: the
+ * indices i < n_index for which in_table is 1, or all of them without
+ * in_table). */
+static int table_reserve(int **table, int *cap, int count, int n_index,
+                         int (*in_table)(const mrvi_model *, int),
                          const char *(*name_of)(const mrvi_model *, int),
                          const mrvi_model *m) {
   if (2 * (count + 1) <= *cap)
@@ -165,8 +171,9 @@ static int table_reserve(int **table, int *cap, int count,
   int *t = calloc((size_t)c, sizeof *t);
   if (!t)
     return -1;
-  for (int i = 0; i < count; i++)
-    table_put(t, c, name_of(m, i), i);
+  for (int i = 0; i < n_index; i++)
+    if (!in_table || in_table(m, i))
+      table_put(t, c, name_of(m, i), i);
   free(*table);
   *table = t;
   *cap = c;
@@ -180,8 +187,48 @@ static const char *particle_name(const mrvi_model *m, int i) {
   return m->particles[i].name;
 }
 
+/* Particle owning coordinate c, or -1: particles are added with fresh
+ * coordinates, so their first coordinates increase with the particle
+ * index. */
+static int particle_of(const mrvi_model *m, int c) {
+  int lo = 0, hi = m->n_particles - 1, p = -1;
+  while (lo <= hi) { /* the last particle whose first is <= c */
+    const int mid = lo + (hi - lo) / 2;
+    if (m->particles[mid].first <= c) {
+      p = mid;
+      lo = mid + 1;
+    } else {
+      hi = mid - 1;
+    }
+  }
+  return p >= 0 && c < m->particles[p].first + m->dimension ? p : -1;
+}
+
+/* The coordinate table holds the coordinates that are not a particle's:
+ * a particle's (its name, '.', the axis letter) are found through the
+ * particle table, which spares a network an entry per coordinate. */
+static int coord_in_table(const mrvi_model *m, int c) {
+  return particle_of(m, c) < 0;
+}
+
 static int find_coordinate(const mrvi_model *m, const char *name) {
-  return table_find(m->coord_table, m->coord_table_cap, name, coord_name, m);
+  const int c = table_find(m->coord_table, m->coord_table_cap, name,
+                           strlen(name), coord_name, m);
+  if (c >= 0)
+    return c;
+  static const char axes[] = "xyz";
+  const char *dot = strrchr(name, '.');
+  if (!dot || dot == name || !dot[1] || dot[2])
+    return -1;
+  const char *a = strchr(axes, dot[1]);
+  if (!a || a - axes >= m->dimension)
+    return -1;
+  const int p = table_find(m->particle_table, m->particle_table_cap, name,
+                           (size_t)(dot - name), particle_name, m);
+  if (p < 0)
+    return -1;
+  const int pc = m->particles[p].first + (int)(a - axes);
+  return strcmp(m->names[pc], name) == 0 ? pc : -1;
 }
 
 /* Extend the slow/fast index maps by the coordinate just appended (the
@@ -267,8 +314,10 @@ int *mrvi_model_inputs(mrvi_model *m, int n) {
   return block_alloc(m, (size_t)(n > 0 ? n : 1) * sizeof(int));
 }
 
+/* Append a coordinate; in_table: a coordinate of its own (not a
+ * particle's, coord_in_table). */
 static int add_coord(mrvi_model *m, const char *name, double mass,
-                     mrvi_rate rate, double q0, double v0) {
+                     mrvi_rate rate, double q0, double v0, int in_table) {
   if (!name || !*name)
     return mrvi_model_fail(m, MRVI_EINVAL, "coordinate name is empty");
   if (!isfinite(mass) || mass <= 0)
@@ -284,7 +333,9 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
                            name);
   if (reserve_coordinates(m, m->n + 1) ||
-      table_reserve(&m->coord_table, &m->coord_table_cap, m->n, coord_name, m))
+      (in_table &&
+       table_reserve(&m->coord_table, &m->coord_table_cap, m->n_coord_table,
+                     m->n, coord_in_table, coord_name, m)))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   char *d = store_name(m, name);
   if (!d)
@@ -294,7 +345,10 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   m->q0[m->n] = q0;
   m->v0[m->n] = v0;
   m->rate[m->n] = rate;
-  table_put(m->coord_table, m->coord_table_cap, d, m->n);
+  if (in_table) {
+    table_put(m->coord_table, m->coord_table_cap, d, m->n);
+    m->n_coord_table++;
+  }
   m->n++;
   update_partition(m);
   return m->n - 1;
@@ -302,7 +356,7 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
 
 int mrvi_model_add_coordinate(mrvi_model *m, const char *name, double mass,
                               mrvi_rate rate, double q0, double v0) {
-  return add_coord(m, name, mass, rate, q0, v0);
+  return add_coord(m, name, mass, rate, q0, v0, 1);
 }
 
 int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
@@ -319,15 +373,15 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (!x0 || !v0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s' needs position and velocity", name);
-  if (table_find(m->particle_table, m->particle_table_cap, name, particle_name,
-                 m) >= 0)
+  if (table_find(m->particle_table, m->particle_table_cap, name, strlen(name),
+                 particle_name, m) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
                            name);
   if (mrvi_model_find_body(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s': a body has that name", name);
   if (table_reserve(&m->particle_table, &m->particle_table_cap, m->n_particles,
-                    particle_name, m))
+                    m->n_particles, NULL, particle_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   if (!isfinite(mass) || mass <= 0)
     return mrvi_model_fail(
@@ -342,7 +396,7 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   for (int d = 0; d < m->dimension; d++) {
     char buf[256];
     mrvi_fmt(buf, sizeof buf, "%s.%c", name, axis[d]);
-    int st = add_coord(m, buf, mass, rate, x0[d], v0[d]);
+    int st = add_coord(m, buf, mass, rate, x0[d], v0[d], 0);
     if (st < 0)
       return st;
   }
@@ -355,7 +409,8 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
 /* Release what element e (not yet pushed) owns. */
 static void drop_element(mrvi_element *e) {
   free(e->coef);
-  free(e->axes);
+  if (e->kind == MRVI_ELEMENT_TORSION)
+    free(e->axes);
 }
 
 /* Append an element whose inputs are already set; checks the rate rule. */
@@ -473,6 +528,11 @@ int mrvi_model_set_law(mrvi_model *m, mrvi_element *e, const char *law,
   return MRVI_OK;
 }
 
+int mrvi_element_particle(const mrvi_model *m, const mrvi_element *e, int j) {
+  /* (springs between body points carry their weights in coef) */
+  return !e->coef && j >= 0 && j < e->n_in ? particle_of(m, e->in[j]) : -1;
+}
+
 static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
                            const int *parts) {
   const int d = m->dimension;
@@ -505,9 +565,7 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
            m->particles[particle_j].name);
   mrvi_element e = {.kind = MRVI_ELEMENT_SPRING,
                     .potential = potential,
-                    .shift = rest_length,
-                    .particle_i = particle_i,
-                    .particle_j = particle_j};
+                    .shift = rest_length};
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
@@ -534,9 +592,7 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
            m->particles[particle_i].name);
   mrvi_element e = {.kind = MRVI_ELEMENT_ANCHOR,
                     .potential = potential,
-                    .shift = rest_length,
-                    .particle_i = particle_i,
-                    .particle_j = -1};
+                    .shift = rest_length};
   double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; k < m->dimension; k++) {
     if (!isfinite(anchor[k]))
@@ -681,9 +737,7 @@ int mrvi_model_add_end_spring(mrvi_model *m, mrvi_rate potential,
                            what);
   mrvi_element e = {.kind = b ? MRVI_ELEMENT_SPRING : MRVI_ELEMENT_ANCHOR,
                     .potential = potential,
-                    .shift = rest_length,
-                    .particle_i = -1,
-                    .particle_j = -1};
+                    .shift = rest_length};
   double point[MRVI_LAW_MAX_PARAMS] = {0};
   for (int k = 0; !b && k < D; k++) {
     if (!isfinite(anchor[k]))
@@ -870,8 +924,6 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
   mrvi_element e = {.kind = MRVI_ELEMENT_TERM,
                     .potential = potential,
                     .shift = offset,
-                    .particle_i = -1,
-                    .particle_j = -1,
                     .n_in = n_terms};
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
@@ -901,8 +953,6 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
   const int d = m->dimension;
   mrvi_element e = {.kind = MRVI_ELEMENT_GRAVITY,
                     .potential = MRVI_SLOW,
-                    .particle_i = -1,
-                    .particle_j = -1,
                     .n_in = (m->n_particles + m->n_bodies) * d};
   if (alloc_inputs(m, &e) < 0)
     return MRVI_ENOMEM;
@@ -972,12 +1022,8 @@ int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "%s: rest angle must be in [0, pi] radians (got %g)",
                            what, rest_angle);
-  mrvi_element e = {.kind = MRVI_ELEMENT_ANGLE,
-                    .potential = potential,
-                    .shift = rest_angle,
-                    .particle_i = particle_i,
-                    .particle_j = particle_j,
-                    .particle_k = particle_k};
+  mrvi_element e = {
+      .kind = MRVI_ELEMENT_ANGLE, .potential = potential, .shift = rest_angle};
   double v[MRVI_LAW_MAX_PARAMS] = {0};
   v[0] = stiffness;
   v[1] = cos(rest_angle);
@@ -1007,11 +1053,8 @@ int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
   char what[300];
   mrvi_fmt(what, sizeof what, "force on %s%s", m->names[coords[0]],
            n_terms > 1 ? ", ..." : "");
-  mrvi_element e = {.kind = MRVI_ELEMENT_FORCE,
-                    .potential = potential,
-                    .particle_i = -1,
-                    .particle_j = -1,
-                    .n_in = n_terms};
+  mrvi_element e = {
+      .kind = MRVI_ELEMENT_FORCE, .potential = potential, .n_in = n_terms};
   e.in = mrvi_model_inputs(m, n_terms);
   e.coef = malloc((size_t)n_terms * sizeof *e.coef);
   if (!e.in || !e.coef) {
@@ -1081,7 +1124,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
   switch (e->kind) {
   case MRVI_ELEMENT_SPRING:
   case MRVI_ELEMENT_ANCHOR:
-    if (e->particle_i < 0) { /* body points: name the coordinates' range */
+    if (e->coef) { /* body points: name the coordinates' range */
       mrvi_fmt(buf, len,
                "%s spring between points (%d inputs, %s .. %s), rest length "
                "%g, %s",
@@ -1092,7 +1135,8 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     if (e->kind == MRVI_ELEMENT_ANCHOR)
       goto anchor;
     mrvi_fmt(buf, len, "%s spring %s-%s, rest length %g, %s", rate,
-             m->particles[e->particle_i].name, m->particles[e->particle_j].name,
+             m->particles[mrvi_element_particle(m, e, 0)].name,
+             m->particles[mrvi_element_particle(m, e, m->dimension)].name,
              e->shift, law);
     break;
   anchor : {
@@ -1105,7 +1149,8 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
       mrvi_fmt(a, sizeof a, "[%g, %g, %g]", e->anchor[0], e->anchor[1],
                e->anchor[2]);
     mrvi_fmt(buf, len, "%s spring %s-anchor %s, rest length %g, %s", rate,
-             m->particles[e->particle_i].name, a, e->shift, law);
+             m->particles[mrvi_element_particle(m, e, 0)].name, a, e->shift,
+             law);
     break;
   }
   case MRVI_ELEMENT_TERM: {
@@ -1139,8 +1184,9 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     break;
   case MRVI_ELEMENT_ANGLE:
     mrvi_fmt(buf, len, "%s angle %s-%s-%s, stiffness %g, rest angle %g rad",
-             rate, m->particles[e->particle_i].name,
-             m->particles[e->particle_j].name, m->particles[e->particle_k].name,
+             rate, m->particles[mrvi_element_particle(m, e, 0)].name,
+             m->particles[mrvi_element_particle(m, e, m->dimension)].name,
+             m->particles[mrvi_element_particle(m, e, 2 * m->dimension)].name,
              e->params[0], e->shift);
     break;
   case MRVI_ELEMENT_FORCE: {
@@ -1520,8 +1566,11 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
   }
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
-    fnv(&h, &el->kind, sizeof el->kind);
-    fnv(&h, &el->potential, sizeof el->potential);
+    /* (the enumerations' bytes, as when the fields had their types) */
+    const mrvi_element_kind kind = el->kind;
+    const mrvi_rate potential = el->potential;
+    fnv(&h, &kind, sizeof kind);
+    fnv(&h, &potential, sizeof potential);
     if (el->law) {
       fnv(&h, el->law->name, strlen(el->law->name) + 1);
       fnv(&h, el->params, (size_t)el->law->n_params * sizeof(double));
@@ -1530,11 +1579,12 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     }
     fnv(&h, &el->shift, sizeof el->shift);
     static const double no_anchor[3];
-    fnv(&h, el->anchor ? el->anchor : no_anchor, sizeof no_anchor);
+    const int anchored = el->kind == MRVI_ELEMENT_ANCHOR && el->anchor;
+    fnv(&h, anchored ? el->anchor : no_anchor, sizeof no_anchor);
     fnv(&h, el->in, (size_t)el->n_in * sizeof *el->in);
     if (el->coef)
       fnv(&h, el->coef, (size_t)el->n_in * sizeof *el->coef);
-    if (el->axes)
+    if (el->kind == MRVI_ELEMENT_TORSION)
       fnv(&h, el->axes, (size_t)(3 * m->dimension) * sizeof *el->axes);
   }
   for (int c = 0; c < m->n_constraints; c++) {

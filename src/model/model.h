@@ -23,29 +23,33 @@ typedef enum mrvi_element_kind {
 } mrvi_element_kind;
 
 typedef struct mrvi_element {
-  mrvi_element_kind kind;
-  mrvi_rate potential; /* MRVI_SLOW: part of V, MRVI_FAST: part of W */
+  /* (Fields ordered and narrowed so that an element takes 56 bytes: a
+   * network holds about one per coordinate.) */
   const mrvi_law *law; /* NULL for gravity */
-  mrvi_law_form form;  /* law->form (set with the law) */
   /* law->n_params values (angles: 3), one copy per distinct set shared by
    * the elements that have it (model.c, intern_params); NULL for elements
    * without parameters */
   const double *params;
-  double shift;               /* rest length (springs) or offset b (terms) */
-  const double *anchor;       /* anchors: the point (3 values, unused ones 0),
-                                 shared like params; else NULL */
-  int particle_i, particle_j; /* springs; -1 if unused */
-  int particle_k;             /* angles: i-j-k with the vertex at j */
-  int n_in;                   /* number of input coordinates */
-  int *in;      /* n_in model indices (in blocks: mrvi_model_inputs) */
-  double *coef; /* n_in coefficients (terms, gravity) */
-  /* Torsion (bodies.c): the frame vectors r_u, r_v of the reference (body A
-   * in its frame, or the ground in space) and m_u of the moving body (its
-   * frame), dimension entries each; NULL for other kinds. */
-  double *axes;
-  /* Torsion: the branch of the angle, the unwrapped angle at the last
-   * accepted node (run state: mrvi_model_torsion_set). */
-  double unwrap;
+  double shift; /* rest length (springs) or offset b (terms) */
+  union {
+    /* anchors: the point (3 values, unused ones 0), shared like params */
+    const double *anchor;
+    /* Torsion (bodies.c): the frame vectors r_u, r_v of the reference (body
+     * A in its frame, or the ground in space) and m_u of the moving body
+     * (its frame), dimension entries each, then at MRVI_TORSION_BRANCH the
+     * branch of the angle, the unwrapped angle at the last accepted node
+     * (run state: mrvi_model_torsion_set). */
+    double *axes;
+  };       /* NULL for the other kinds */
+  int *in; /* n_in model indices (in blocks: mrvi_model_inputs) */
+  /* n_in coefficients (terms, gravity, forces, springs between body points);
+   * NULL for the others, whose particles are those of their inputs
+   * (mrvi_element_particle) */
+  double *coef;
+  int n_in;                /* number of input coordinates */
+  unsigned char kind;      /* mrvi_element_kind */
+  unsigned char potential; /* mrvi_rate: MRVI_SLOW: part of V, MRVI_FAST: W */
+  unsigned char form;      /* mrvi_law_form: law->form (set with the law) */
 } mrvi_element;
 
 typedef struct mrvi_particle {
@@ -74,9 +78,11 @@ struct mrvi_model {
   mrvi_rate *rate;
   int n_particles, cap_particles;
   /* Name lookup (model.c): open-addressing tables of coordinate and
-   * particle indices by name, 0 = empty, else index + 1. */
+   * particle indices by name, 0 = empty, else index + 1; the coordinate
+   * table holds the n_coord_table coordinates that are not a particle's
+   * (a particle's are found through its name). */
   int *coord_table, *particle_table;
-  int coord_table_cap, particle_table_cap;
+  int coord_table_cap, particle_table_cap, n_coord_table;
   mrvi_particle *particles;
   int n_elements, cap_elements;
   mrvi_element *elements;
@@ -132,6 +138,12 @@ void mrvi_model_torsion_set(const mrvi_model *m, const double *ref);
  * NULL) its element index. */
 double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
                                  double *ref, int *worst);
+/* Index in a torsion element's axes of its branch (after 3 x 3 frame
+ * entries). */
+#define MRVI_TORSION_BRANCH 9
+/* Particle owning input j of element e (springs, anchors and angles of
+ * particles: particle i's inputs first, then j's, k's), or -1 (model.c). */
+int mrvi_element_particle(const mrvi_model *m, const mrvi_element *e, int j);
 /* Energy of torsion element e at its inputs y (bodies.c). */
 double mrvi_torsion_eval(const mrvi_element *e, int dim, const double *y,
                          double *grad, double *hess);

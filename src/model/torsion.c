@@ -80,7 +80,7 @@ double mrvi_torsion_eval(const mrvi_element *e, int D, const double *y,
                          double *grad, double *hess) {
   double ru[3], rv[3], mu[3], c, s;
   cos_sin(e, D, y, ru, rv, mu, &c, &s);
-  const double theta = nearest(e->unwrap, c, s);
+  const double theta = nearest(e->axes[MRVI_TORSION_BRANCH], c, s);
   double phi, d1, d2;
   e->law->eval(e->params, theta - e->shift, &phi, &d1, &d2);
   if (!grad && !hess)
@@ -157,12 +157,12 @@ void mrvi_model_torsion_init(const mrvi_model *m, const double *q,
 }
 
 void mrvi_model_torsion_set(const mrvi_model *m, const double *ref) {
-  /* (the elements array is the model's; its `unwrap` is run state) */
+  /* (the elements array is the model's; its branches are run state) */
   if (m->n_torsions == 0)
     return;
   for (int i = 0, t = 0; i < m->n_elements; i++)
     if (m->elements[i].kind == MRVI_ELEMENT_TORSION)
-      m->elements[i].unwrap = ref[t++];
+      m->elements[i].axes[MRVI_TORSION_BRANCH] = ref[t++];
 }
 
 double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
@@ -178,7 +178,7 @@ double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
         if (worst)
           *worst = i;
       }
-      m->elements[i].unwrap = ref[t++] = a;
+      m->elements[i].axes[MRVI_TORSION_BRANCH] = ref[t++] = a;
     }
   return jump;
 }
@@ -216,9 +216,7 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
                            what);
   mrvi_element e = {.kind = MRVI_ELEMENT_TORSION,
                     .potential = potential,
-                    .shift = rest_angle,
-                    .particle_i = -1,
-                    .particle_j = -1};
+                    .shift = rest_angle};
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
@@ -232,7 +230,7 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
   const int u = D == 3 ? 1 : 0, v = D == 3 ? 2 : 1;
   e.n_in = (ref >= 0 ? 2 : 1) * D * D;
   e.in = mrvi_model_inputs(m, e.n_in);
-  e.axes = malloc((size_t)(3 * D) * sizeof *e.axes);
+  e.axes = malloc((MRVI_TORSION_BRANCH + 1) * sizeof *e.axes);
   if (!e.in || !e.axes) {
     free(e.axes);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
@@ -251,6 +249,6 @@ int mrvi_model_add_torsion(mrvi_model *m, mrvi_rate potential, int body_a,
     for (int j = 0; b >= 0 && j < D * D; j++)
       e.in[n_in++] = m->bodies[b].first + D + j; /* d_1 .. d_D */
   }
-  e.unwrap = angle_at(m, &e, m->q0, rest_angle);
+  e.axes[MRVI_TORSION_BRANCH] = angle_at(m, &e, m->q0, rest_angle);
   return mrvi_model_push_element(m, &e, what);
 }

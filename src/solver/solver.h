@@ -339,6 +339,11 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
  * columns (the explicit paths' classes). */
 int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
                            const int *col_of, mrvi_terms **out);
+/* The same for values alone (mrvi_terms_value; col_of NULL): a class of
+ * Hooke springs on consecutive columns keeps its khooke records alone, as
+ * mrvi_terms_create_grad's, any other class is mrvi_terms_create's. */
+int mrvi_terms_create_value(const mrvi_model *m, const int *elems, int n_elems,
+                            mrvi_terms **out);
 void mrvi_terms_free(mrvi_terms *kc);
 /* g += scale grad Z(z) and, if J, J += hscale hess Z(z) (ld x ld, row-major
  * on the columns). */

@@ -446,6 +446,24 @@ int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
   return terms_create(m, elems, n_elems, col_of, 1, out);
 }
 
+int mrvi_terms_create_value(const mrvi_model *m, const int *elems, int n_elems,
+                            mrvi_terms **out) {
+  mrvi_terms *kc = calloc(1, sizeof *kc);
+  *out = NULL;
+  if (!kc)
+    return MRVI_ENOMEM;
+  kc->dim = m->dimension;
+  kc->m = m;
+  kc->n = n_elems;
+  const int hc = hooke_class(kc, m, elems, n_elems, NULL);
+  if (hc > 0) {
+    *out = kc;
+    return MRVI_OK;
+  }
+  mrvi_terms_free(kc);
+  return hc < 0 ? hc : terms_create(m, elems, n_elems, NULL, 0, out);
+}
+
 /* One term phi(a^T z - b) with n inputs: gradient into g, Hessian into J
  * (inlined with a constant n for the common sizes). */
 ALWAYS_INLINE void term_eval(const kterm *t, const int *col, const double *a,
@@ -1433,9 +1451,30 @@ static double spring_value(const kspring *q, const double *z, int dim) {
   return phi;
 }
 
+/* The values of records i0..i1-1 of a class of khooke springs alone
+ * (hooke_class), from 0: spring_value's arithmetic for a Hooke spring, in
+ * the class's order, so bitwise value_range of the full class. */
+static double hooke_range(const mrvi_terms *kc, int i0, int i1,
+                          const double *z) {
+  double total = 0.0;
+  for (int r = i0; r < i1; r++) {
+    const khooke *q = &kc->qh[r];
+    double r2 = 0.0;
+    for (int k = 0; k < kc->dim; k++) {
+      const double d = z[q->ci + k] - z[q->cj + k];
+      r2 += d * d;
+    }
+    const double s = sqrt(r2) - q->shift;
+    total += 0.5 * q->c * s * s; /* laws/linear.c */
+  }
+  return total;
+}
+
 /* The sum of elements i0..i1-1's values in their order, from 0.  kc->y:
  * scratch of a generic element (vsafe: the class has none). */
 static double value_range(mrvi_terms *kc, int i0, int i1, const double *z) {
+  if (kc->hooke_only)
+    return hooke_range(kc, i0, i1, z);
   double total = 0.0;
   for (int it = i0; it < i1; it++) {
     const kterm *t = &kc->t[it];
@@ -1488,7 +1527,7 @@ double mrvi_terms_value(mrvi_terms *kc, const double *z) {
 int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vchunk = 0;
   kc->vthreads = 1;
-  if (chunk < 1 || kc->n < 2 * chunk || !kc->t)
+  if (chunk < 1 || kc->n < 2 * chunk || (!kc->t && !kc->hooke_only))
     return MRVI_OK;
   free(kc->vpart);
   if (!(kc->vpart = malloc((size_t)((kc->n - 1) / chunk + 1) * sizeof(double))))
@@ -1496,7 +1535,7 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vchunk = chunk;
   /* (threads only where no element needs the shared scratch kc->y) */
   int safe = mrvi_threads_supported();
-  for (int i = 0; safe && i < kc->n; i++)
+  for (int i = 0; safe && !kc->hooke_only && i < kc->n; i++)
     safe = kc->t[i].runs > 0 || kc->t[i].kind != KT_ELEMENT ||
            kc->t[i].el->kind == MRVI_ELEMENT_GRAVITY;
   kc->vthreads = safe && threads > 1 ? threads : 1;
