@@ -593,9 +593,11 @@ ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
   UNROLL for (int k = 0; k < dim; k++) u[k] = 0.0;
   *a = 0.0; /* Hessian blocks a u u^T + b I */
   if (r > 0.0) {
-    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / r;
-    *a = d2 - *d1 / r;
-    *b = *d1 / r;
+    /* (one division: u and d1/r by the reciprocal) */
+    const double ir = 1.0 / r;
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * ir;
+    *b = *d1 * ir;
+    *a = d2 - *b;
   } else {
     *b = d2; /* (the limit at r = 0, as model.c) */
   }
@@ -688,9 +690,10 @@ ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
       r2 += d[k] * d[k];
     }
     const double rr = sqrt(r2), d1 = q[r].c * (rr - q[r].shift);
-    double u[3] = {0, 0, 0};
-    if (rr > 0.0)
-      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    /* (one division, no branch: the reciprocal selected, 0 at rr = 0) */
+    const double ir = 1.0 / rr, i0 = rr > 0.0 ? ir : 0.0;
+    double u[3];
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
     UNROLL for (int k = 0; k < dim; k++) g[ci + k] += d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) g[cj + k] += -d1 * u[k];
   }
