@@ -70,7 +70,9 @@ int mrvi_threads_supported(void);
 typedef enum mrvi_law_form {
   MRVI_LAW_FORM_NONE = 0,  /* phi by eval alone */
   MRVI_LAW_FORM_HOOKE = 1, /* phi(s) = k s^2 / 2, k = params[0] */
-  MRVI_LAW_FORM_POWER = 2  /* phi(s) = c s^e, c = params[0], e = params[1] */
+  MRVI_LAW_FORM_POWER = 2, /* phi(s) = c s^e, c = params[0], e = params[1] */
+  MRVI_LAW_FORM_MORSE = 3  /* phi(s) = D (1 - exp(-a s))^2, D = params[0],
+                              a = params[1] */
 } mrvi_law_form;
 
 typedef struct mrvi_law {

@@ -47,13 +47,31 @@
 typedef struct site {
   double w, a0, a1, cA, cB;
   int cls;   /* bit c: class c is evaluated here */
-  double *g; /* gradient at the site (ns + nf packed) */
+  int grp;   /* its slow group (slow_group) */
+  double *g; /* gradient of the terms on fast columns at the site (ns + nf
+                packed) */
 } site;
+
+/* The terms on slow columns alone depend on x_s alone, fixed during a
+ * sweep: their gradient at a slow configuration (a1, the classes cls) is
+ * evaluated once per sweep for all the sites that share it, and only the
+ * slow row and p_{k+1}^s read it (a fast row reads the fast columns). */
+typedef struct slow_group {
+  double a1;
+  int cls;
+  long sweep; /* g is at x_s of this sweep (0: none yet) */
+  double *g;  /* ns */
+} slow_group;
 
 struct mrvi_outer {
   int ns, nf, p;
-  mrvi_terms *kc[2]; /* V and W on the packed columns (q^s, q^f) */
+  /* V and W on the packed columns (q^s, q^f): the terms with an input
+   * on a fast column, and those on slow columns alone */
+  mrvi_terms *kc[2], *kss[2];
   site *sites;       /* by interval */
+  slow_group *grps;
+  int n_grps;
+  double *zs; /* a slow configuration (ns) */
   int *send;         /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
   double *minv_s, *minv_f, *m_s, *m_f;
   double *mdt, *dtm;     /* M^f/dt, dt/M^f */
@@ -77,11 +95,17 @@ struct mrvi_outer {
 void mrvi_outer_free(mrvi_outer *o) {
   if (!o)
     return;
-  for (int c = 0; c < 2; c++)
+  for (int c = 0; c < 2; c++) {
     mrvi_terms_free(o->kc[c]);
+    mrvi_terms_free(o->kss[c]);
+  }
   if (o->sites && o->send)
     for (int i = 0; i < o->send[o->p]; i++)
       free(o->sites[i].g);
+  for (int i = 0; o->grps && i < o->n_grps; i++)
+    free(o->grps[i].g);
+  free(o->grps);
+  free(o->zs);
   free(o->sites);
   free(o->send);
   free(o->minv_s);
@@ -124,6 +148,15 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
   const int npts = st->n_pts[0] + st->n_pts[1];
   o->sites = calloc((size_t)(npts > 0 ? npts : 1), sizeof *o->sites);
+  o->grps = calloc((size_t)(npts > 0 ? npts : 1), sizeof *o->grps);
+  o->zs = dalloc(ns);
+  int *sel = NULL;
+  {
+    const int ne = st->n_elem_of_class[0] > st->n_elem_of_class[1]
+                       ? st->n_elem_of_class[0]
+                       : st->n_elem_of_class[1];
+    sel = malloc((size_t)(ne > 0 ? ne : 1) * sizeof *sel);
+  }
   o->send = calloc((size_t)o->p + 1, sizeof *o->send);
   o->minv_s = dalloc(ns);
   o->m_s = dalloc(ns);
@@ -145,11 +178,12 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->fp = dalloc(ns);
   o->dX = dalloc(ns * OUTER_AA);
   o->dF = dalloc(ns * OUTER_AA);
-  if (!col || !o->sites || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
+  if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
       !o->m_f || !o->mdt || !o->dtm || !o->zero || !o->one || !o->z || !o->pm ||
       !o->fexp || !o->F || !o->fs || !o->dold || !o->dlt[0] || !o->dlt[1] ||
       !o->dlt[2] || !o->xp || !o->fp || !o->dX || !o->dF) {
     free(col);
+    free(sel);
     mrvi_outer_free(o);
     return MRVI_ENOMEM;
   }
@@ -166,26 +200,40 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     o->dtm[f] = st->dt / o->m_f[f];
     o->one[f] = 1.0;
   }
-  /* (the gradients of large spring classes on threads, in parts by
-   * records: mrvi_terms_set_threads, the same bits for every count) */
+  /* each class's terms split by their columns (the order kept); the
+   * gradients of large spring classes on threads, in parts by records
+   * (mrvi_terms_set_threads, the same bits for every count) */
   for (int c = 0; c < 2; c++)
-    if (st->n_elem_of_class[c] > 0 &&
-        (mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
-                           &o->kc[c]) != MRVI_OK ||
-         mrvi_terms_set_threads(o->kc[c], st->threads, st->tuning.thread_chunk,
-                                0) != MRVI_OK)) {
-      free(col);
-      mrvi_outer_free(o);
-      return MRVI_ENOMEM;
+    for (int part = 0; part < 2; part++) {
+      int n_sel = 0;
+      for (int i = 0; i < st->n_elem_of_class[c]; i++) {
+        const mrvi_element *e = &m->elements[st->elem_of_class[c][i]];
+        int slow_only = 1;
+        for (int j = 0; j < e->n_in; j++)
+          slow_only &= col[e->in[j]] < o->ns;
+        if (slow_only == part)
+          sel[n_sel++] = st->elem_of_class[c][i];
+      }
+      mrvi_terms **kt = part ? &o->kss[c] : &o->kc[c];
+      if (n_sel > 0 &&
+          (mrvi_terms_create_grad(m, sel, n_sel, col, kt) != MRVI_OK ||
+           mrvi_terms_set_threads(*kt, st->threads, st->tuning.thread_chunk,
+                                  0) != MRVI_OK)) {
+        free(col);
+        free(sel);
+        mrvi_outer_free(o);
+        return MRVI_ENOMEM;
+      }
     }
   free(col);
+  free(sel);
   /* Sites by interval: the points of both classes, merged where the
    * coefficients and weight agree. */
   int ns_ = 0;
   for (int mm = 0; mm < o->p; mm++) {
     o->send[mm] = ns_;
     for (int c = 0; c < 2; c++) {
-      if (!o->kc[c])
+      if (!o->kc[c] && !o->kss[c])
         continue;
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
@@ -216,6 +264,26 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     }
   }
   o->send[o->p] = ns_;
+  /* the slow groups of the sites (those with slow-only terms) */
+  for (int i = 0; i < ns_; i++) {
+    site *S = &o->sites[i];
+    const int cls = S->cls & ((o->kss[0] ? 1 : 0) | (o->kss[1] ? 2 : 0));
+    S->grp = -1;
+    if (!cls)
+      continue;
+    for (int j = 0; j < o->n_grps; j++)
+      if (o->grps[j].a1 == S->a1 && o->grps[j].cls == cls)
+        S->grp = j;
+    if (S->grp < 0) {
+      slow_group *G = &o->grps[o->n_grps];
+      *G = (slow_group){.a1 = S->a1, .cls = cls, .g = dalloc(ns)};
+      if (!G->g) {
+        mrvi_outer_free(o);
+        return MRVI_ENOMEM;
+      }
+      S->grp = o->n_grps++;
+    }
+  }
   *out = o;
   return MRVI_OK;
 }
@@ -241,9 +309,29 @@ static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
     z[ns + f] = st->qf0[f] + cA * a[f] + cB * b[f];
   memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
   for (int c = 0; c < 2; c++)
-    if (S->cls & (1 << c))
+    if (S->cls & (1 << c) && o->kc[c])
       mrvi_terms_grad(o->kc[c], z, S->g);
   o->stats.site_evals++;
+}
+
+/* The gradient of the slow-only terms at site S for the slow displacement
+ * xs of this sweep (NULL: S has none), evaluated on its group's first
+ * need in the sweep. */
+static const double *slow_site(mrvi_outer *o, const mrvi_step *st,
+                               const site *S, const double *xs) {
+  if (S->grp < 0)
+    return NULL;
+  slow_group *G = &o->grps[S->grp];
+  if (G->sweep != o->stats.sweeps) {
+    for (int s = 0; s < o->ns; s++)
+      o->zs[s] = st->qs0[s] + G->a1 * xs[s];
+    memset(G->g, 0, (size_t)o->ns * sizeof(double));
+    for (int c = 0; c < 2; c++)
+      if (G->cls & (1 << c))
+        mrvi_terms_grad(o->kss[c], o->zs, G->g);
+    G->sweep = o->stats.sweeps;
+  }
+  return G->g;
 }
 
 /* The row of interval m for d^{m+1} = dn by the Jacobi chord from dn as
@@ -347,7 +435,14 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
   memset(pfm, 0, (size_t)nf * sizeof(double));
   for (site *S = s0; S < s1; S++) {
     const double wa = S->w * S->a0, w1 = S->w * S->a1, wb = S->w * S->cB;
-    if (wa != 0.0 || w1 != 0.0)
+    const double *gss = wa != 0.0 || w1 != 0.0 ? slow_site(o, st, S, xs) : NULL;
+    if (gss)
+      for (int s = 0; s < ns; s++) {
+        const double gs = S->g[s] + gss[s];
+        o->fs[s] += wa * gs;
+        ps1[s] -= w1 * gs;
+      }
+    else if (wa != 0.0 || w1 != 0.0)
       for (int s = 0; s < ns; s++) {
         o->fs[s] += wa * S->g[s];
         ps1[s] -= w1 * S->g[s];

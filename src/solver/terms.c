@@ -39,8 +39,9 @@ typedef struct kterm {
  * x_i and x_j (x_j's unused for an anchor, whose point is el->anchor: read
  * there, not copied, anchors being few beside springs) and the law:
  * k = KS_HOOKE (phi' = c s), 0..8 (c s^k, mrvi_power_derivs_ce from ce and
- * ce1) or KS_LAW (the law table of el). */
-enum { KS_HOOKE = -1, KS_LAW = -3 };
+ * ce1), KS_MORSE (c = a, ce = 2 D a, ce1 = 2 D a a: laws/morse.c inline)
+ * or KS_LAW (the law table of el). */
+enum { KS_HOOKE = -1, KS_LAW = -3, KS_MORSE = -4 };
 typedef struct kspring {
   int two, k;
   int ci[3], cj[3];
@@ -134,6 +135,8 @@ void mrvi_terms_free(mrvi_terms *kc) {
 static int spring_law(const mrvi_element *e) {
   if (e->form == MRVI_LAW_FORM_HOOKE)
     return KS_HOOKE;
+  if (e->form == MRVI_LAW_FORM_MORSE)
+    return KS_MORSE;
   const double x = e->params[1];
   if (e->form == MRVI_LAW_FORM_POWER && x >= 0.0 && x <= 8.0 &&
       (double)(int)x == x)
@@ -158,6 +161,11 @@ static void spring_law_of(const mrvi_element *e, kspring *q) {
   q->shift = e->shift;
   q->ce = e->params[0] * e->params[1];
   q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
+  if (q->k == KS_MORSE) { /* (laws/morse.c's products: 2 D a, 2 D a a) */
+    q->c = e->params[1];
+    q->ce = 2 * e->params[0] * e->params[1];
+    q->ce1 = q->ce * e->params[1];
+  }
 }
 
 /* The columns of spring or anchor e into its record q: col_of[e->in[.]],
@@ -587,6 +595,10 @@ ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
     d2 = q->c;
   } else if (k >= 0) {
     mrvi_power_derivs_ce(q->ce, q->ce1, k, s, d1, &d2);
+  } else if (k == KS_MORSE) { /* laws/morse.c in its order */
+    const double x = exp(-q->c * s);
+    *d1 = q->ce * x * (1 - x);
+    d2 = q->ce1 * x * (2 * x - 1);
   } else {
     q->el->law->eval(q->el->params, s, &phi, d1, &d2);
   }
@@ -643,6 +655,10 @@ ALWAYS_INLINE void springs_k(const kspring *q, int nr, const double *z,
   case KS_LAW:
     for (int r = 0; r < nr; r++)
       spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, KS_LAW, unit);
+    break;
+  case KS_MORSE:
+    for (int r = 0; r < nr; r++)
+      spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, KS_MORSE, unit);
     break;
   default:
     for (int r = 0; r < nr; r++)
@@ -1279,6 +1295,9 @@ ALWAYS_INLINE void springs_map_k(const kspring *q, int nr, int ie0,
     break;
   case KS_LAW:
     SPRINGS_MAP(KS_LAW)
+    break;
+  case KS_MORSE:
+    SPRINGS_MAP(KS_MORSE)
     break;
   default:
     SPRINGS_MAP(K_ANY)
