@@ -1026,6 +1026,36 @@ static void print_ratio(const result *a, const result *b) {
     printf(" %10.2f |", x);
 }
 
+/* The implicit schemes' cost model in the floor's micro steps (one
+ * hand-written gradient of V + W and the update): the ratio to Verlet, the
+ * outer iteration's gradient evaluations per micro step (each a gradient
+ * of the points of an interval), the Newton path's Krylov iterations (CG
+ * per micro step: a Hessian-vector product of a micro block each; GMRES
+ * per macro step), and the rest: ratio - evaluations, the time not
+ * explained by evaluations at the floor's cost (the iteration's own
+ * vector passes, the kernels' distance to the hand-written loop, the
+ * predictor's sweep), and its share. */
+static void cost_model(result (*r)[N_METHODS], const int *n_list, int n_n) {
+  printf("\nCost model of the implicit schemes (units: the Verlet floor's "
+         "micro step)\n\n| %-20s | %8s | %9s | %10s | %8s | %8s | %9s | "
+         "%7s |\n|----------------------|---------:|----------:|-----------:|"
+         "---------:|---------:|----------:|--------:|\n",
+         "method", "n", "x Verlet", "grad/micro", "cg/micro", "gmres/st",
+         "rest", "rest %");
+  const method ms[] = {M_MM, M_TM};
+  for (int i = 0; i < 2; i++)
+    for (int ni = 0; ni < n_n; ni++) {
+      const result *a = &r[ni][ms[i]];
+      const double x = ratio(a, &r[ni][M_VERLET]);
+      if (isnan(x))
+        continue;
+      printf("| %-20s | %8d | %9.2f | %10.2f | %8.2f | %8.2f | %9.2f | "
+             "%6.0f%% |\n",
+             method_names[ms[i]], a->n ? a->n : n_list[ni], x, a->evals, a->cg,
+             a->gmres, x - a->evals, 100.0 * (x - a->evals) / x);
+    }
+}
+
 /* mrvi's schemes on 1 and on t threads, alternating: wall time per macro
  * step, best of `repeats` rounds, and the ratio (one run). */
 static int threads_table(options *o, int t, const int *nets, const int *n_list,
@@ -1321,6 +1351,7 @@ int main(int argc, char **argv) {
                r->n, method_names[me], x, r->ev_w / o.p, r->ev_v / o.p, work,
                100.0 * (1.0 - work / x));
       }
+    cost_model(res[k], n_list, n_n);
     printf("\nExponents of the time per macro step in n (least squares on "
            "log-log over the completed n)\n\n| %-20s | %8s |\n|----------"
            "------------|---------:|\n",

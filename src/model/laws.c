@@ -46,8 +46,7 @@ int mrvi_law_register(const mrvi_law *law) {
     return MRVI_EINVAL;
   /* (a closed form reads its parameters: HOOKE one, POWER and MORSE two) */
   if ((law->form == MRVI_LAW_FORM_HOOKE && law->n_params < 1) ||
-      ((law->form == MRVI_LAW_FORM_POWER ||
-        law->form == MRVI_LAW_FORM_MORSE) &&
+      ((law->form == MRVI_LAW_FORM_POWER || law->form == MRVI_LAW_FORM_MORSE) &&
        law->n_params < 2) ||
       (law->form != MRVI_LAW_FORM_NONE && law->form != MRVI_LAW_FORM_HOOKE &&
        law->form != MRVI_LAW_FORM_POWER && law->form != MRVI_LAW_FORM_MORSE))

@@ -68,11 +68,11 @@ struct mrvi_outer {
   /* V and W on the packed columns (q^s, q^f): the terms with an input
    * on a fast column, and those on slow columns alone */
   mrvi_terms *kc[2], *kss[2];
-  site *sites;       /* by interval */
+  site *sites; /* by interval */
   slow_group *grps;
   int n_grps;
   double *zs; /* a slow configuration (ns) */
-  int *send;         /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
+  int *send;  /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
   double *minv_s, *minv_f, *m_s, *m_f;
   double *mdt, *dtm;     /* M^f/dt, dt/M^f */
   double *zero, *one;    /* nf zeros, nf ones */
@@ -175,10 +175,11 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->fp = dalloc(ns);
   o->dX = dalloc(ns * OUTER_AA);
   o->dF = dalloc(ns * OUTER_AA);
-  if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
-      !o->m_f || !o->mdt || !o->dtm || !o->zero || !o->one || !o->z || !o->pm ||
-      !o->fexp || !o->F || !o->fs || !o->dlt[0] || !o->dlt[1] ||
-      !o->dlt[2] || !o->xp || !o->fp || !o->dX || !o->dF) {
+  if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send ||
+      !o->minv_s || !o->m_s || !o->minv_f || !o->m_f || !o->mdt || !o->dtm ||
+      !o->zero || !o->one || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
+      !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp || !o->dX ||
+      !o->dF) {
     free(col);
     free(sel);
     mrvi_outer_free(o);
@@ -351,8 +352,7 @@ row_entry(mrvi_outer *o, int f, int one, double w1, const double *g1,
           const double *dn, const double *dp, const double *w, double *r,
           double *sum, double *c) {
   const double mv = o->mdt[f] * (dn[f] - dp[f]);
-  const double Ff =
-      (one ? o->pm[f] - o->fexp[f] : o->F[f]) - w1 * g1[f] - mv;
+  const double Ff = (one ? o->pm[f] - o->fexp[f] : o->F[f]) - w1 * g1[f] - mv;
   o->F[f] = Ff;
   const double a = fabs(Ff) * w[f];
   *r = a > *r ? a : *r;
@@ -375,8 +375,8 @@ row_entry(mrvi_outer *o, int f, int one, double w1, const double *g1,
 static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
                         const double *xs, const double *dm, double *dn,
                         const double *rw, double target, double cut,
-                        double rate, int max_updates, double *ps1,
-                        double *pfm, double *dl) {
+                        double rate, int max_updates, double *ps1, double *pfm,
+                        double *dl) {
   const int ns = o->ns, nf = o->nf;
   const double dt = st->dt;
   site *s0 = o->sites + o->send[m], *s1 = o->sites + o->send[m + 1];
@@ -434,15 +434,21 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
     double rl[4] = {0, 0, 0, 0}, sl[4] = {0, 0, 0, 0}, cl[4] = {0, 0, 0, 0};
     const int one = n_inside <= 1, nf4 = nf & ~3;
     if (it == 0) {
-      for (int f0 = 0; f0 < nf4; f0 += 4)
-        for (int l = 0; l < 4; l++)
-          row_entry(o, f0 + l, one, w1, g1, dn, dp, w, rl + l, sl + l, cl + l);
+      for (int f0 = 0; f0 < nf4; f0 += 4) {
+        row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, cl);
+        row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1, cl + 1);
+        row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2, cl + 2);
+        row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3, cl + 3);
+      }
       for (int f = nf4; f < nf; f++)
         row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, cl);
     } else {
-      for (int f0 = 0; f0 < nf4; f0 += 4)
-        for (int l = 0; l < 4; l++)
-          row_entry(o, f0 + l, one, w1, g1, dn, dp, w, rl + l, sl + l, NULL);
+      for (int f0 = 0; f0 < nf4; f0 += 4) {
+        row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, NULL);
+        row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1, NULL);
+        row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2, NULL);
+        row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3, NULL);
+      }
       for (int f = nf4; f < nf; f++)
         row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, NULL);
     }
