@@ -48,6 +48,8 @@ typedef struct site {
   double w, a0, a1, cA, cB;
   int cls;   /* bit c: class c is evaluated here */
   int grp;   /* its slow group (slow_group) */
+  int rs;    /* its terms on fast columns read slow ones too (else g's slow
+                part stays zero, and z's slow part is not needed) */
   double *g; /* gradient of the terms on fast columns at the site (ns + nf
                 packed) */
 } site;
@@ -68,7 +70,8 @@ struct mrvi_outer {
   /* V and W on the packed columns (q^s, q^f): the terms with an input
    * on a fast column, and those on slow columns alone */
   mrvi_terms *kc[2], *kss[2];
-  site *sites; /* by interval */
+  int slow_in[2]; /* kc[c] has a term with a slow input */
+  site *sites;    /* by interval */
   slow_group *grps;
   int n_grps;
   double *zs; /* a slow configuration (ns) */
@@ -211,6 +214,9 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
           slow_only &= col[e->in[j]] < o->ns;
         if (slow_only == part)
           sel[n_sel++] = st->elem_of_class[c][i];
+        if (!part && !slow_only)
+          for (int j = 0; j < e->n_in; j++)
+            o->slow_in[c] |= col[e->in[j]] < o->ns;
       }
       mrvi_terms **kt = part ? &o->kss[c] : &o->kc[c];
       if (n_sel > 0 &&
@@ -251,7 +257,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
                                 .a1 = pt->a1,
                                 .cA = pt->cA,
                                 .cB = pt->cB};
-          if (!(o->sites[at].g = dalloc(n))) {
+          if (!(o->sites[at].g = calloc(n, sizeof(double)))) {
             o->send[o->p] = ns_;
             mrvi_outer_free(o);
             return MRVI_ENOMEM;
@@ -267,6 +273,8 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     site *S = &o->sites[i];
     const int cls = S->cls & ((o->kss[0] ? 1 : 0) | (o->kss[1] ? 2 : 0));
     S->grp = -1;
+    for (int c = 0; c < 2; c++)
+      S->rs |= (S->cls >> c & 1) && o->kc[c] && o->slow_in[c];
     if (!cls)
       continue;
     for (int j = 0; j < o->n_grps; j++)
@@ -300,11 +308,13 @@ static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
   const int ns = o->ns, nf = o->nf;
   double *z = o->z;
   /* (z's slow part depends on a1 alone within a sweep) */
-  if (!o->z_site || o->z_site->a1 != S->a1 || o->z_sweep != o->stats.sweeps)
+  if (S->rs &&
+      (!o->z_site || o->z_site->a1 != S->a1 || o->z_sweep != o->stats.sweeps)) {
     for (int s = 0; s < ns; s++)
       z[s] = st->qs0[s] + S->a1 * xs[s];
-  o->z_site = S;
-  o->z_sweep = o->stats.sweeps;
+    o->z_site = S;
+    o->z_sweep = o->stats.sweeps;
+  }
   const double cA = S->cA, cB = dn ? S->cB : 0.0;
   const double *a = dm ? dm : o->zero, *b = dn ? dn : o->zero;
   double *restrict zf = z + ns;
@@ -316,7 +326,10 @@ static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
   else
     for (int f = 0; f < nf; f++)
       zf[f] = st->qf0[f] + cA * a[f] + cB * b[f];
-  memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
+  if (S->rs)
+    memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
+  else
+    memset(S->g + ns, 0, (size_t)nf * sizeof(double));
   for (int c = 0; c < 2; c++)
     if (S->cls & (1 << c) && o->kc[c])
       mrvi_terms_grad(o->kc[c], z, S->g);
@@ -496,7 +509,7 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
         o->fs[s] += wa * gs;
         ps1[s] -= w1 * gs;
       }
-    else if (wa != 0.0 || w1 != 0.0)
+    else if (S->rs && (wa != 0.0 || w1 != 0.0))
       for (int s = 0; s < ns; s++) {
         o->fs[s] += wa * S->g[s];
         ps1[s] -= w1 * S->g[s];
