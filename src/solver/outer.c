@@ -345,12 +345,17 @@ static const double *slow_site(mrvi_outer *o, const mrvi_step *st,
     return NULL;
   slow_group *G = &o->grps[S->grp];
   if (G->sweep != o->stats.sweeps) {
-    for (int s = 0; s < o->ns; s++)
-      o->zs[s] = st->qs0[s] + G->a1 * xs[s];
+    /* (the slow configuration: z's where it is this one, else built) */
+    const double *zs = o->zs;
+    if (o->z_site && o->z_site->a1 == G->a1 && o->z_sweep == o->stats.sweeps)
+      zs = o->z;
+    else
+      for (int s = 0; s < o->ns; s++)
+        o->zs[s] = st->qs0[s] + G->a1 * xs[s];
     memset(G->g, 0, (size_t)o->ns * sizeof(double));
     for (int c = 0; c < 2; c++)
       if (G->cls & (1 << c))
-        mrvi_terms_grad(o->kss[c], o->zs, G->g);
+        mrvi_terms_grad(o->kss[c], zs, G->g);
     G->sweep = o->stats.sweeps;
   }
   return G->g;
