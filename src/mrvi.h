@@ -945,10 +945,12 @@ typedef struct mrvi_krylov_stats {
   long fallbacks;        /* linear solves done by sparse LU instead */
   char fallback_reason[320]; /* why the first of them was */
   /* schur-krylov's matrix-free outer iteration (doc/solver.md) */
-  long outer_steps;     /* steps it solved */
-  long outer_sweeps;    /* its fast sweeps in those and the failed tries */
-  long outer_evals;     /* its gradient evaluations (a point's V and W) */
-  long outer_fallbacks; /* steps it tried and left to Newton */
+  long outer_steps;  /* steps it solved */
+  long outer_sweeps; /* its fast sweeps in those and the failed tries */
+  long outer_evals;  /* its gradient evaluations (a point's V and W) */
+  double outer_grad_equivalents; /* ... weighted by their share of the
+                                    terms of V and W */
+  long outer_fallbacks;          /* steps it tried and left to Newton */
   /* schur-krylov's Newton (the whole step's Jacobian and its elimination)
    * is built: at creation, or where the outer iteration is the first
    * choice, on the first step left to Newton or Jacobian solve */

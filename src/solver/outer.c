@@ -70,8 +70,10 @@ struct mrvi_outer {
   /* V and W on the packed columns (q^s, q^f): the terms with an input
    * on a fast column, and those on slow columns alone */
   mrvi_terms *kc[2], *kss[2];
-  int slow_in[2]; /* kc[c] has a term with a slow input */
-  site *sites;    /* by interval */
+  int slow_in[2];               /* kc[c] has a term with a slow input */
+  double share[2], share_ss[2]; /* kc[c]'s and kss[c]'s share of the terms
+                                   of both classes (stats.grad_equiv) */
+  site *sites;                  /* by interval */
   slow_group *grps;
   int n_grps;
   double *zs; /* a slow configuration (ns) */
@@ -231,6 +233,12 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     }
   free(col);
   free(sel);
+  const int n_terms = st->n_elem_of_class[0] + st->n_elem_of_class[1];
+  for (int c = 0; c < 2 && n_terms > 0; c++) {
+    o->share[c] = o->kc[c] ? (double)mrvi_terms_count(o->kc[c]) / n_terms : 0;
+    o->share_ss[c] =
+        o->kss[c] ? (double)mrvi_terms_count(o->kss[c]) / n_terms : 0;
+  }
   /* Sites by interval: the points of both classes, merged where the
    * coefficients and weight agree. */
   int ns_ = 0;
@@ -331,8 +339,10 @@ static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
   else
     memset(S->g + ns, 0, (size_t)nf * sizeof(double));
   for (int c = 0; c < 2; c++)
-    if (S->cls & (1 << c) && o->kc[c])
+    if (S->cls & (1 << c) && o->kc[c]) {
       mrvi_terms_grad(o->kc[c], z, S->g);
+      o->stats.grad_equiv += o->share[c];
+    }
   o->stats.site_evals++;
 }
 
@@ -354,8 +364,10 @@ static const double *slow_site(mrvi_outer *o, const mrvi_step *st,
         o->zs[s] = st->qs0[s] + G->a1 * xs[s];
     memset(G->g, 0, (size_t)o->ns * sizeof(double));
     for (int c = 0; c < 2; c++)
-      if (G->cls & (1 << c))
+      if (G->cls & (1 << c)) {
         mrvi_terms_grad(o->kss[c], zs, G->g);
+        o->stats.grad_equiv += o->share_ss[c];
+      }
     G->sweep = o->stats.sweeps;
   }
   return G->g;
