@@ -1191,11 +1191,10 @@ static double eval_points(const mrvi_element *e, int dim, const double *y,
   e->law->eval(e->params, r - e->shift, &phi, &dphi, &ddphi);
   double u[3] = {0, 0, 0}, a = 0.0, b = ddphi; /* A = a u u^T + b I */
   if (r > 0.0) {
-    const double ir = 1.0 / r; /* (one division, as solver/terms.c) */
     for (int k = 0; k < dim; k++)
-      u[k] = d[k] * ir;
-    b = dphi * ir;
-    a = ddphi - b;
+      u[k] = d[k] / r;
+    a = ddphi - dphi / r;
+    b = dphi / r;
   }
   if (grad)
     for (int j = 0; j < n; j++)
@@ -1228,11 +1227,10 @@ static double eval_distance(const mrvi_element *e, int dim, const double *y,
   e->law->eval(e->params, r - e->shift, &phi, &dphi, &ddphi);
   double u[3] = {0, 0, 0}, a = 0.0, b = 0.0; /* A = a u u^T + b I */
   if (r > 0.0) {
-    const double ir = 1.0 / r; /* (one division, as solver/terms.c) */
     for (int k = 0; k < dim; k++)
-      u[k] = d[k] * ir;
-    b = dphi * ir;
-    a = ddphi - b;
+      u[k] = d[k] / r;
+    a = ddphi - dphi / r;
+    b = dphi / r;
   } else {
     /* r = 0: smooth only when phi'(-L0) = 0; the limit of A is phi'' I. */
     b = ddphi;

@@ -605,11 +605,9 @@ ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
   UNROLL for (int k = 0; k < dim; k++) u[k] = 0.0;
   *a = 0.0; /* Hessian blocks a u u^T + b I */
   if (r > 0.0) {
-    /* (one division: u and d1/r by the reciprocal) */
-    const double ir = 1.0 / r;
-    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * ir;
-    *b = *d1 * ir;
-    *a = d2 - *b;
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / r;
+    *a = d2 - *d1 / r;
+    *b = *d1 / r;
   } else {
     *b = d2; /* (the limit at r = 0, as model.c) */
   }
@@ -694,10 +692,21 @@ springs_eval(const kspring *q, int nr, const double *z, double scale, double *g,
 #undef SPRINGS
 }
 
+/* The length's reciprocal, 0 at length 0: one division, no branch (the
+ * gradient-only classes' springs, hooke_grad_k and part_hooke_k with one =
+ * 1: u = d / r by it instead of a division per axis; the last bits differ
+ * from spring_eval's). */
+ALWAYS_INLINE double recip_len(double rr) {
+  const double ir = 1.0 / rr;
+  return rr > 0.0 ? ir : 0.0;
+}
+
 /* The gradient of a run of nr khooke springs in dimension dim:
- * spring_eval's arithmetic at unit scale (bitwise the same). */
+ * spring_eval's arithmetic at unit scale (bitwise the same), or with one =
+ * 1 (a gradient-only class, mrvi_terms_create_grad) one division per
+ * spring. */
 ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
-                                double *g, const int dim) {
+                                double *g, const int dim, const int one) {
   for (int r = 0; r < nr; r++) {
     const int ci = q[r].ci, cj = q[r].cj;
     double d[3], r2 = 0.0;
@@ -706,10 +715,13 @@ ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
       r2 += d[k] * d[k];
     }
     const double rr = sqrt(r2), d1 = q[r].c * (rr - q[r].shift);
-    /* (one division, no branch: the reciprocal selected, 0 at rr = 0) */
-    const double ir = 1.0 / rr, i0 = rr > 0.0 ? ir : 0.0;
-    double u[3];
-    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
+    double u[3] = {0, 0, 0};
+    if (one) {
+      const double i0 = recip_len(rr);
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
+    } else if (rr > 0.0) {
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    }
     UNROLL for (int k = 0; k < dim; k++) g[ci + k] += d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) g[cj + k] += -d1 * u[k];
   }
@@ -718,11 +730,22 @@ ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
 static __attribute__((noinline)) void
 hooke_grad(const khooke *q, int nr, const double *z, double *g, int dim) {
   if (dim == 2)
-    hooke_grad_k(q, nr, z, g, 2);
+    hooke_grad_k(q, nr, z, g, 2, 0);
   else if (dim == 3)
-    hooke_grad_k(q, nr, z, g, 3);
+    hooke_grad_k(q, nr, z, g, 3, 0);
   else
-    hooke_grad_k(q, nr, z, g, 1);
+    hooke_grad_k(q, nr, z, g, 1, 0);
+}
+
+/* hooke_grad with one division per spring (a gradient-only class). */
+static __attribute__((noinline)) void
+hooke_grad1(const khooke *q, int nr, const double *z, double *g, int dim) {
+  if (dim == 2)
+    hooke_grad_k(q, nr, z, g, 2, 1);
+  else if (dim == 3)
+    hooke_grad_k(q, nr, z, g, 3, 1);
+  else
+    hooke_grad_k(q, nr, z, g, 1, 1);
 }
 
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
@@ -998,10 +1021,12 @@ ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
 }
 
 /* part_k for a class of khooke springs alone (hooke_grad_k's arithmetic,
- * bitwise spring_eval's): the quarter-size records. */
+ * bitwise spring_eval's, or with one = 1 hooke_grad1's): the quarter-size
+ * records. */
 ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
                                 const unsigned char *mask, int nr,
-                                const double *z, double *g, const int dim) {
+                                const double *z, double *g, const int dim,
+                                const int one) {
   for (int i = 0; i < nr; i++) {
     const khooke *h = q + rec[i];
     const unsigned mk = mask[i];
@@ -1013,8 +1038,12 @@ ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
     }
     const double rr = sqrt(r2), d1 = h->c * (rr - h->shift);
     double u[3] = {0, 0, 0};
-    if (rr > 0.0)
+    if (one) {
+      const double i0 = recip_len(rr);
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
+    } else if (rr > 0.0) {
       UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    }
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[ci + k] +=
         d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k)) g[cj + k] +=
@@ -1027,12 +1056,18 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
-  if (kc->part_hooke && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2);
+  if (kc->part_hooke && kc->hooke_only && kc->dim == 2)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 1);
+  else if (kc->part_hooke && kc->hooke_only && kc->dim == 3)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 1);
+  else if (kc->part_hooke && kc->hooke_only)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 1);
+  else if (kc->part_hooke && kc->dim == 2)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 0);
   else if (kc->part_hooke && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3);
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 0);
   else if (kc->part_hooke)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1);
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 0);
   else if (kc->dim == 2)
     part_k(kc->qs, rec, mask, nr, z, g, 2);
   else if (kc->dim == 3)
@@ -1184,7 +1219,7 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
     part_grad(kc, z, g);
   else if (kc->hooke_only)
-    hooke_grad(kc->qh, kc->n, z, g, kc->dim);
+    hooke_grad1(kc->qh, kc->n, z, g, kc->dim);
   else if (kc->flat)
     flat_grad(kc, z, g);
   else
