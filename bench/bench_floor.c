@@ -673,7 +673,7 @@ typedef struct result {
    * and grad V per macro step, and the network's fast and slow springs */
   double ev_w, ev_v;
   long springs_w, springs_v;
-  double geq;   /* ... in gradients of V + W (their share of the terms) */
+  double geq; /* ... in gradients of V + W (their share of the terms) */
   long nnz;
   char path[16];
   long rss_before_kb, peak_kb;
