@@ -673,6 +673,7 @@ typedef struct result {
    * and grad V per macro step, and the network's fast and slow springs */
   double ev_w, ev_v;
   long springs_w, springs_v;
+  double geq; /* ... in gradients of V + W (their share of the terms) */
   long nnz;
   char path[16];
   long rss_before_kb, peak_kb;
@@ -764,6 +765,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     r->evals = (double)ks.outer_evals / ((double)k * o->p);
     r->ev_w = (double)ks.sweep_evals_w / k;
     r->ev_v = (double)ks.sweep_evals_v / k;
+    r->geq = ks.outer_grad_equivalents / ((double)k * o->p);
     r->nnz = mrvi_integrator_system_nnz(it);
     snprintf(r->path, sizeof r->path, "%s", mrvi_integrator_solver_path(it));
     r->status = 0;
@@ -1024,6 +1026,37 @@ static void print_ratio(const result *a, const result *b) {
     printf(" %10s |", "-");
   else
     printf(" %10.2f |", x);
+}
+
+/* The implicit schemes' cost model in the floor's micro steps (one
+ * hand-written gradient of V + W and the update): the ratio to Verlet, the
+ * outer iteration's gradient evaluations per micro step (each of the terms
+ * of an interval's points) and what they are worth in gradients of V + W
+ * (their share of the terms), the Newton path's Krylov iterations (CG per
+ * micro step: a Hessian-vector product of a micro block each; GMRES per
+ * macro step), and the rest: ratio - gradient equivalents, the time not
+ * explained by gradients at the floor's cost (the iteration's own vector
+ * passes, the kernels' distance to the hand-written loop, the predictor's
+ * sweep), and its share. */
+static void cost_model(result (*r)[N_METHODS], const int *n_list, int n_n) {
+  printf("\nCost model of the implicit schemes (units: the Verlet floor's "
+         "micro step)\n\n| %-20s | %8s | %9s | %9s | %8s | %8s | %8s | %8s "
+         "| %7s |\n|----------------------|---------:|----------:|---------:|"
+         "---------:|---------:|---------:|---------:|--------:|\n",
+         "method", "n", "x Verlet", "evals/mic", "grad-eq", "cg/micro",
+         "gmres/st", "rest", "rest %");
+  const method ms[] = {M_MM, M_TM};
+  for (int i = 0; i < 2; i++)
+    for (int ni = 0; ni < n_n; ni++) {
+      const result *a = &r[ni][ms[i]];
+      const double x = ratio(a, &r[ni][M_VERLET]);
+      if (isnan(x))
+        continue;
+      printf("| %-20s | %8d | %9.2f | %9.2f | %8.2f | %8.2f | %8.2f | %8.2f "
+             "| %6.0f%% |\n",
+             method_names[ms[i]], a->n ? a->n : n_list[ni], x, a->evals, a->geq,
+             a->cg, a->gmres, x - a->geq, 100.0 * (x - a->geq) / x);
+    }
 }
 
 /* mrvi's schemes on 1 and on t threads, alternating: wall time per macro
@@ -1321,6 +1354,7 @@ int main(int argc, char **argv) {
                r->n, method_names[me], x, r->ev_w / o.p, r->ev_v / o.p, work,
                100.0 * (1.0 - work / x));
       }
+    cost_model(res[k], n_list, n_n);
     printf("\nExponents of the time per macro step in n (least squares on "
            "log-log over the completed n)\n\n| %-20s | %8s |\n|----------"
            "------------|---------:|\n",

@@ -70,7 +70,9 @@ int mrvi_threads_supported(void);
 typedef enum mrvi_law_form {
   MRVI_LAW_FORM_NONE = 0,  /* phi by eval alone */
   MRVI_LAW_FORM_HOOKE = 1, /* phi(s) = k s^2 / 2, k = params[0] */
-  MRVI_LAW_FORM_POWER = 2  /* phi(s) = c s^e, c = params[0], e = params[1] */
+  MRVI_LAW_FORM_POWER = 2, /* phi(s) = c s^e, c = params[0], e = params[1] */
+  MRVI_LAW_FORM_MORSE = 3  /* phi(s) = D (1 - exp(-a s))^2, D = params[0],
+                              a = params[1] */
 } mrvi_law_form;
 
 typedef struct mrvi_law {
@@ -943,10 +945,12 @@ typedef struct mrvi_krylov_stats {
   long fallbacks;        /* linear solves done by sparse LU instead */
   char fallback_reason[320]; /* why the first of them was */
   /* schur-krylov's matrix-free outer iteration (doc/solver.md) */
-  long outer_steps;     /* steps it solved */
-  long outer_sweeps;    /* its fast sweeps in those and the failed tries */
-  long outer_evals;     /* its gradient evaluations (a point's V and W) */
-  long outer_fallbacks; /* steps it tried and left to Newton */
+  long outer_steps;  /* steps it solved */
+  long outer_sweeps; /* its fast sweeps in those and the failed tries */
+  long outer_evals;  /* its gradient evaluations (a point's V and W) */
+  double outer_grad_equivalents; /* ... weighted by their share of the
+                                    terms of V and W */
+  long outer_fallbacks;          /* steps it tried and left to Newton */
   /* schur-krylov's Newton (the whole step's Jacobian and its elimination)
    * is built: at creation, or where the outer iteration is the first
    * choice, on the first step left to Newton or Jacobian solve */

@@ -1701,6 +1701,7 @@ void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
     out->outer_steps = o->steps - out->outer_fallbacks;
     out->outer_sweeps = o->sweeps;
     out->outer_evals = o->site_evals;
+    out->outer_grad_equivalents = o->grad_equiv;
   }
 }
 

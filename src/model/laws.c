@@ -44,11 +44,12 @@ int mrvi_law_register(const mrvi_law *law) {
       law->n_params > MRVI_LAW_MAX_PARAMS ||
       (law->n_params > 0 && !law->param_names))
     return MRVI_EINVAL;
-  /* (a closed form reads its parameters: HOOKE one, POWER two) */
+  /* (a closed form reads its parameters: HOOKE one, POWER and MORSE two) */
   if ((law->form == MRVI_LAW_FORM_HOOKE && law->n_params < 1) ||
-      (law->form == MRVI_LAW_FORM_POWER && law->n_params < 2) ||
+      ((law->form == MRVI_LAW_FORM_POWER || law->form == MRVI_LAW_FORM_MORSE) &&
+       law->n_params < 2) ||
       (law->form != MRVI_LAW_FORM_NONE && law->form != MRVI_LAW_FORM_HOOKE &&
-       law->form != MRVI_LAW_FORM_POWER))
+       law->form != MRVI_LAW_FORM_POWER && law->form != MRVI_LAW_FORM_MORSE))
     return MRVI_EINVAL;
   if (mrvi_law_find(law->name) || n_user == MAX_USER)
     return MRVI_EINVAL;

@@ -47,21 +47,43 @@
 typedef struct site {
   double w, a0, a1, cA, cB;
   int cls;   /* bit c: class c is evaluated here */
-  double *g; /* gradient at the site (ns + nf packed) */
+  int grp;   /* its slow group (slow_group) */
+  int rs;    /* its terms on fast columns read slow ones too (else g's slow
+                part stays zero, and z's slow part is not needed) */
+  double *g; /* gradient of the terms on fast columns at the site (ns + nf
+                packed) */
 } site;
+
+/* The terms on slow columns alone depend on x_s alone, fixed during a
+ * sweep: their gradient at a slow configuration (a1, the classes cls) is
+ * evaluated once per sweep for all the sites that share it, and only the
+ * slow row and p_{k+1}^s read it (a fast row reads the fast columns). */
+typedef struct slow_group {
+  double a1;
+  int cls;
+  long sweep; /* g is at x_s of this sweep (0: none yet) */
+  double *g;  /* ns */
+} slow_group;
 
 struct mrvi_outer {
   int ns, nf, p;
-  mrvi_terms *kc[2]; /* V and W on the packed columns (q^s, q^f) */
-  site *sites;       /* by interval */
-  int *send;         /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
+  /* V and W on the packed columns (q^s, q^f): the terms with an input
+   * on a fast column, and those on slow columns alone */
+  mrvi_terms *kc[2], *kss[2];
+  int slow_in[2];               /* kc[c] has a term with a slow input */
+  double share[2], share_ss[2]; /* kc[c]'s and kss[c]'s share of the terms
+                                   of both classes (stats.grad_equiv) */
+  site *sites;                  /* by interval */
+  slow_group *grps;
+  int n_grps;
+  double *zs; /* a slow configuration (ns) */
+  int *send;  /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
   double *minv_s, *minv_f, *m_s, *m_f;
   double *mdt, *dtm;     /* M^f/dt, dt/M^f */
   double *zero, *one;    /* nf zeros, nf ones */
   double *z;             /* packed configuration */
   double *pm, *fexp, *F; /* p^{f,m}, the forces of node-m sites, F_m */
   double *fs;            /* slow-row force (ns) */
-  double *dold;          /* a node before this sweep's row, nf */
   double *dlt[3];        /* the changes of the last three nodes, nf each */
   /* Anderson: the slow iterate and its update f = (dT/M^s) G before (ns
    * each) and the differences of the last OUTER_AA (ns x OUTER_AA each) */
@@ -77,11 +99,17 @@ struct mrvi_outer {
 void mrvi_outer_free(mrvi_outer *o) {
   if (!o)
     return;
-  for (int c = 0; c < 2; c++)
+  for (int c = 0; c < 2; c++) {
     mrvi_terms_free(o->kc[c]);
+    mrvi_terms_free(o->kss[c]);
+  }
   if (o->sites && o->send)
     for (int i = 0; i < o->send[o->p]; i++)
       free(o->sites[i].g);
+  for (int i = 0; o->grps && i < o->n_grps; i++)
+    free(o->grps[i].g);
+  free(o->grps);
+  free(o->zs);
   free(o->sites);
   free(o->send);
   free(o->minv_s);
@@ -97,7 +125,6 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->fexp);
   free(o->F);
   free(o->fs);
-  free(o->dold);
   for (int i = 0; i < 3; i++)
     free(o->dlt[i]);
   free(o->xp);
@@ -124,6 +151,15 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   int *col = malloc((size_t)(m->n > 0 ? m->n : 1) * sizeof *col);
   const int npts = st->n_pts[0] + st->n_pts[1];
   o->sites = calloc((size_t)(npts > 0 ? npts : 1), sizeof *o->sites);
+  o->grps = calloc((size_t)(npts > 0 ? npts : 1), sizeof *o->grps);
+  o->zs = dalloc(ns);
+  int *sel = NULL;
+  {
+    const int ne = st->n_elem_of_class[0] > st->n_elem_of_class[1]
+                       ? st->n_elem_of_class[0]
+                       : st->n_elem_of_class[1];
+    sel = malloc((size_t)(ne > 0 ? ne : 1) * sizeof *sel);
+  }
   o->send = calloc((size_t)o->p + 1, sizeof *o->send);
   o->minv_s = dalloc(ns);
   o->m_s = dalloc(ns);
@@ -138,18 +174,19 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->fexp = dalloc(nf);
   o->F = dalloc(nf);
   o->fs = dalloc(ns);
-  o->dold = dalloc(nf);
   for (int i = 0; i < 3; i++)
     o->dlt[i] = dalloc(nf);
   o->xp = dalloc(ns);
   o->fp = dalloc(ns);
   o->dX = dalloc(ns * OUTER_AA);
   o->dF = dalloc(ns * OUTER_AA);
-  if (!col || !o->sites || !o->send || !o->minv_s || !o->m_s || !o->minv_f ||
-      !o->m_f || !o->mdt || !o->dtm || !o->zero || !o->one || !o->z || !o->pm ||
-      !o->fexp || !o->F || !o->fs || !o->dold || !o->dlt[0] || !o->dlt[1] ||
-      !o->dlt[2] || !o->xp || !o->fp || !o->dX || !o->dF) {
+  if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send ||
+      !o->minv_s || !o->m_s || !o->minv_f || !o->m_f || !o->mdt || !o->dtm ||
+      !o->zero || !o->one || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
+      !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp || !o->dX ||
+      !o->dF) {
     free(col);
+    free(sel);
     mrvi_outer_free(o);
     return MRVI_ENOMEM;
   }
@@ -166,26 +203,49 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     o->dtm[f] = st->dt / o->m_f[f];
     o->one[f] = 1.0;
   }
-  /* (the gradients of large spring classes on threads, in parts by
-   * records: mrvi_terms_set_threads, the same bits for every count) */
+  /* each class's terms split by their columns (the order kept); the
+   * gradients of large spring classes on threads, in parts by records
+   * (mrvi_terms_set_threads, the same bits for every count) */
   for (int c = 0; c < 2; c++)
-    if (st->n_elem_of_class[c] > 0 &&
-        (mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
-                           &o->kc[c]) != MRVI_OK ||
-         mrvi_terms_set_threads(o->kc[c], st->threads, st->tuning.thread_chunk,
-                                0) != MRVI_OK)) {
-      free(col);
-      mrvi_outer_free(o);
-      return MRVI_ENOMEM;
+    for (int part = 0; part < 2; part++) {
+      int n_sel = 0;
+      for (int i = 0; i < st->n_elem_of_class[c]; i++) {
+        const mrvi_element *e = &m->elements[st->elem_of_class[c][i]];
+        int slow_only = 1;
+        for (int j = 0; j < e->n_in; j++)
+          slow_only &= col[e->in[j]] < o->ns;
+        if (slow_only == part)
+          sel[n_sel++] = st->elem_of_class[c][i];
+        if (!part && !slow_only)
+          for (int j = 0; j < e->n_in; j++)
+            o->slow_in[c] |= col[e->in[j]] < o->ns;
+      }
+      mrvi_terms **kt = part ? &o->kss[c] : &o->kc[c];
+      if (n_sel > 0 &&
+          (mrvi_terms_create_grad(m, sel, n_sel, col, kt) != MRVI_OK ||
+           mrvi_terms_set_threads(*kt, st->threads, st->tuning.thread_chunk,
+                                  0) != MRVI_OK)) {
+        free(col);
+        free(sel);
+        mrvi_outer_free(o);
+        return MRVI_ENOMEM;
+      }
     }
   free(col);
+  free(sel);
+  const int n_terms = st->n_elem_of_class[0] + st->n_elem_of_class[1];
+  for (int c = 0; c < 2 && n_terms > 0; c++) {
+    o->share[c] = o->kc[c] ? (double)mrvi_terms_count(o->kc[c]) / n_terms : 0;
+    o->share_ss[c] =
+        o->kss[c] ? (double)mrvi_terms_count(o->kss[c]) / n_terms : 0;
+  }
   /* Sites by interval: the points of both classes, merged where the
    * coefficients and weight agree. */
   int ns_ = 0;
   for (int mm = 0; mm < o->p; mm++) {
     o->send[mm] = ns_;
     for (int c = 0; c < 2; c++) {
-      if (!o->kc[c])
+      if (!o->kc[c] && !o->kss[c])
         continue;
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
@@ -205,7 +265,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
                                 .a1 = pt->a1,
                                 .cA = pt->cA,
                                 .cB = pt->cB};
-          if (!(o->sites[at].g = dalloc(n))) {
+          if (!(o->sites[at].g = calloc(n, sizeof(double)))) {
             o->send[o->p] = ns_;
             mrvi_outer_free(o);
             return MRVI_ENOMEM;
@@ -216,6 +276,28 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     }
   }
   o->send[o->p] = ns_;
+  /* the slow groups of the sites (those with slow-only terms) */
+  for (int i = 0; i < ns_; i++) {
+    site *S = &o->sites[i];
+    const int cls = S->cls & ((o->kss[0] ? 1 : 0) | (o->kss[1] ? 2 : 0));
+    S->grp = -1;
+    for (int c = 0; c < 2; c++)
+      S->rs |= (S->cls >> c & 1) && o->kc[c] && o->slow_in[c];
+    if (!cls)
+      continue;
+    for (int j = 0; j < o->n_grps; j++)
+      if (o->grps[j].a1 == S->a1 && o->grps[j].cls == cls)
+        S->grp = j;
+    if (S->grp < 0) {
+      slow_group *G = &o->grps[o->n_grps];
+      *G = (slow_group){.a1 = S->a1, .cls = cls, .g = dalloc(ns)};
+      if (!G->g) {
+        mrvi_outer_free(o);
+        return MRVI_ENOMEM;
+      }
+      S->grp = o->n_grps++;
+    }
+  }
   *out = o;
   return MRVI_OK;
 }
@@ -225,25 +307,92 @@ const mrvi_outer_stats *mrvi_outer_stats_of(const mrvi_outer *o) {
 }
 
 /* S->g = grad Z at the site's configuration for the slow displacement xs
- * and the fast displacements dm = d^m, dn = d^{m+1} (NULL: zeros). */
+ * and the fast displacements dm = d^m, dn = d^{m+1} (NULL: zeros); with
+ * F, dn first takes the chord update dn += (dt/M^f) F (in the same pass
+ * over the fast columns). */
 static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
-                      const double *xs, const double *dm, const double *dn) {
+                      const double *xs, const double *dm, double *dn,
+                      const double *F) {
   const int ns = o->ns, nf = o->nf;
   double *z = o->z;
-  if (o->z_site != S || o->z_sweep != o->stats.sweeps) /* (else as it is) */
+  /* (z's slow part depends on a1 alone within a sweep) */
+  if (S->rs &&
+      (!o->z_site || o->z_site->a1 != S->a1 || o->z_sweep != o->stats.sweeps)) {
     for (int s = 0; s < ns; s++)
       z[s] = st->qs0[s] + S->a1 * xs[s];
-  o->z_site = S;
-  o->z_sweep = o->stats.sweeps;
+    o->z_site = S;
+    o->z_sweep = o->stats.sweeps;
+  }
   const double cA = S->cA, cB = dn ? S->cB : 0.0;
   const double *a = dm ? dm : o->zero, *b = dn ? dn : o->zero;
-  for (int f = 0; f < nf; f++)
-    z[ns + f] = st->qf0[f] + cA * a[f] + cB * b[f];
-  memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
+  double *restrict zf = z + ns;
+  if (F)
+    for (int f = 0; f < nf; f++) {
+      dn[f] += o->dtm[f] * F[f];
+      zf[f] = st->qf0[f] + cA * a[f] + cB * dn[f];
+    }
+  else
+    for (int f = 0; f < nf; f++)
+      zf[f] = st->qf0[f] + cA * a[f] + cB * b[f];
+  if (S->rs)
+    memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
+  else
+    memset(S->g + ns, 0, (size_t)nf * sizeof(double));
   for (int c = 0; c < 2; c++)
-    if (S->cls & (1 << c))
+    if (S->cls & (1 << c) && o->kc[c]) {
       mrvi_terms_grad(o->kc[c], z, S->g);
+      o->stats.grad_equiv += o->share[c];
+    }
   o->stats.site_evals++;
+}
+
+/* The gradient of the slow-only terms at site S for the slow displacement
+ * xs of this sweep (NULL: S has none), evaluated on its group's first
+ * need in the sweep. */
+static const double *slow_site(mrvi_outer *o, const mrvi_step *st,
+                               const site *S, const double *xs) {
+  if (S->grp < 0)
+    return NULL;
+  slow_group *G = &o->grps[S->grp];
+  if (G->sweep != o->stats.sweeps) {
+    /* (the slow configuration: z's where it is this one, else built) */
+    const double *zs = o->zs;
+    if (o->z_site && o->z_site->a1 == G->a1 && o->z_sweep == o->stats.sweeps)
+      zs = o->z;
+    else
+      for (int s = 0; s < o->ns; s++)
+        o->zs[s] = st->qs0[s] + G->a1 * xs[s];
+    memset(G->g, 0, (size_t)o->ns * sizeof(double));
+    for (int c = 0; c < 2; c++)
+      if (G->cls & (1 << c)) {
+        mrvi_terms_grad(o->kss[c], zs, G->g);
+        o->stats.grad_equiv += o->share_ss[c];
+      }
+    G->sweep = o->stats.sweeps;
+  }
+  return G->g;
+}
+
+/* Entry f of the row F_m = (p^{f,m} - the node-m sites' forces, or F's
+ * partial sum where more than one site is inside: one = 0) - w1 g1 -
+ * M^f (dn - dp)/dt into o->F, its weighted size into the running maximum
+ * *r and the sum *sum, and with c the size of its largest term into *c. */
+static inline __attribute__((always_inline)) void
+row_entry(mrvi_outer *o, int f, int one, double w1, const double *g1,
+          const double *dn, const double *dp, const double *w, double *r,
+          double *sum, double *c) {
+  const double mv = o->mdt[f] * (dn[f] - dp[f]);
+  const double Ff = (one ? o->pm[f] - o->fexp[f] : o->F[f]) - w1 * g1[f] - mv;
+  o->F[f] = Ff;
+  const double a = fabs(Ff) * w[f];
+  *r = a > *r ? a : *r;
+  *sum += a;
+  if (c) {
+    const double fi = o->pm[f] - o->fexp[f] - mv - Ff;
+    const double t =
+        (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * w[f];
+    *c = t > *c ? t : *c;
+  }
 }
 
 /* The row of interval m for d^{m+1} = dn by the Jacobi chord from dn as
@@ -256,8 +405,8 @@ static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
 static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
                         const double *xs, const double *dm, double *dn,
                         const double *rw, double target, double cut,
-                        double rate, int max_updates, double *ps1,
-                        double *pfm) {
+                        double rate, int max_updates, double *ps1, double *pfm,
+                        double *dl) {
   const int ns = o->ns, nf = o->nf;
   const double dt = st->dt;
   site *s0 = o->sites + o->send[m], *s1 = o->sites + o->send[m + 1];
@@ -269,61 +418,75 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
       inside |= S->cA != 0.0;
       continue;
     }
-    eval_site(o, st, S, xs, dm, NULL);
+    eval_site(o, st, S, xs, dm, NULL, NULL);
     for (int f = 0; f < nf; f++)
       o->fexp[f] += S->w * S->cA * S->g[ns + f];
   }
-  double r = 0.0, r_prev = HUGE_VAL, floor = 0.0;
+  int n_inside = 0;
+  for (site *S = s0; S < s1; S++)
+    n_inside += S->cB != 0.0 && S->cA != 0.0;
+  const double *dp = dm ? dm : o->zero, *w = rw ? rw : o->one;
+  double r = 0.0, r_prev = HUGE_VAL, floor = 0.0, *F = o->F;
   for (int it = 0;; it++) {
     /* F_m at dn: the sites inside the interval at dn (no iteration where
-     * there is none: the row is explicit in d^{m+1}) */
+     * there is none: the row is explicit in d^{m+1}); from the second
+     * iterate on, dn takes the chord update first (eval_site) */
     if (!inside && it == 0)
       for (int f = 0; f < nf; f++)
         dn[f] =
             (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
     /* F = p^{f,m} - the forces of the sites (the first inside one's in
-     * the loop below) - M^f (d^{m+1} - d^m)/dt */
+     * the pass below) - M^f (d^{m+1} - d^m)/dt */
     const double *g1 = o->zero;
-    double w1 = 0.0, *F = o->F;
-    for (int f = 0; f < nf; f++)
-      F[f] = o->pm[f] - o->fexp[f];
+    double w1 = 0.0;
+    int first = 1;
     for (site *S = s0; S < s1; S++) {
       if (S->cB == 0.0 || S->cA == 0.0)
         continue;
-      eval_site(o, st, S, xs, dm, dn);
-      if (w1 == 0.0) {
+      eval_site(o, st, S, xs, dm, dn, first && it > 0 ? F : NULL);
+      if (first) {
+        first = 0;
         g1 = S->g + ns;
         w1 = S->w * S->cA;
+        if (n_inside > 1)
+          for (int f = 0; f < nf; f++)
+            F[f] = o->pm[f] - o->fexp[f];
         continue;
       }
       const double wc = S->w * S->cA;
       for (int f = 0; f < nf; f++)
         F[f] -= wc * S->g[ns + f];
     }
-    /* ... and its largest entry (NaN found by the sum, which it poisons);
-     * at the first iterate the roundoff floor, 16 eps times the largest
-     * term of the row (the unknowns being displacements) */
-    const double *dp = dm ? dm : o->zero, *w = rw ? rw : o->one;
-    double sum = 0.0;
-    r = 0.0;
-    for (int f = 0; f < nf; f++) {
-      F[f] = F[f] - w1 * g1[f] - o->mdt[f] * (dn[f] - dp[f]);
-      const double a = fabs(F[f]) * w[f];
-      r = a > r ? a : r;
-      sum += a;
+    /* ... and its largest entry (NaN found by the sums, which it poisons;
+     * partial maxima and sums in four lanes); at the first iterate the
+     * roundoff floor, 16 eps times the largest term of the row (the
+     * unknowns being displacements) */
+    double rl[4] = {0, 0, 0, 0}, sl[4] = {0, 0, 0, 0}, cl[4] = {0, 0, 0, 0};
+    const int one = n_inside <= 1, nf4 = nf & ~3;
+    if (it == 0) {
+      for (int f0 = 0; f0 < nf4; f0 += 4) {
+        row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, cl);
+        row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1, cl + 1);
+        row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2, cl + 2);
+        row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3, cl + 3);
+      }
+      for (int f = nf4; f < nf; f++)
+        row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, cl);
+    } else {
+      for (int f0 = 0; f0 < nf4; f0 += 4) {
+        row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, NULL);
+        row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1, NULL);
+        row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2, NULL);
+        row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3, NULL);
+      }
+      for (int f = nf4; f < nf; f++)
+        row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, NULL);
     }
-    if (isnan(sum))
+    r = fmax(fmax(rl[0], rl[1]), fmax(rl[2], rl[3]));
+    if (isnan(sl[0] + sl[1] + sl[2] + sl[3]))
       return -1.0;
     if (it == 0) {
-      double scale = 0.0;
-      for (int f = 0; f < nf; f++) {
-        const double mv = o->mdt[f] * (dn[f] - dp[f]);
-        const double fi = o->pm[f] - o->fexp[f] - mv - F[f];
-        const double t =
-            (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * w[f];
-        scale = t > scale ? t : scale;
-      }
-      floor = 16.0 * DBL_EPSILON * scale;
+      floor = 16.0 * DBL_EPSILON * fmax(fmax(cl[0], cl[1]), fmax(cl[2], cl[3]));
       target = fmax(target, cut * r);
     }
     if (!inside || r <= fmax(target, floor))
@@ -336,28 +499,55 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
     if (it >= max_updates || !(r <= rate * r_prev))
       return -1.0;
     r_prev = r;
-    for (int f = 0; f < nf; f++)
-      dn[f] += o->dtm[f] * F[f];
     o->stats.row_updates++;
+    /* (the update dn += (dt/M^f) F: by eval_site in the next iterate) */
   }
   /* the sites at node m + 1 (cA = 0), then p^{f,m+1} and the slow forces */
   for (site *S = s0; S < s1; S++)
     if (S->cA == 0.0)
-      eval_site(o, st, S, xs, dm, dn);
-  memset(pfm, 0, (size_t)nf * sizeof(double));
+      eval_site(o, st, S, xs, dm, dn, NULL);
+  /* (one site with a node-(m+1) coefficient, midpoint-midpoint's: pfm,
+   * p^{f,m+1} and the node's change in one pass below) */
+  const site *sb = NULL;
+  int n_b = 0;
+  for (site *S = s0; S < s1; S++)
+    if (S->w * S->cB != 0.0) {
+      sb = S;
+      n_b++;
+    }
+  if (n_b != 1)
+    memset(pfm, 0, (size_t)nf * sizeof(double));
   for (site *S = s0; S < s1; S++) {
     const double wa = S->w * S->a0, w1 = S->w * S->a1, wb = S->w * S->cB;
-    if (wa != 0.0 || w1 != 0.0)
+    const double *gss = wa != 0.0 || w1 != 0.0 ? slow_site(o, st, S, xs) : NULL;
+    if (gss)
+      for (int s = 0; s < ns; s++) {
+        const double gs = S->g[s] + gss[s];
+        o->fs[s] += wa * gs;
+        ps1[s] -= w1 * gs;
+      }
+    else if (S->rs && (wa != 0.0 || w1 != 0.0))
       for (int s = 0; s < ns; s++) {
         o->fs[s] += wa * S->g[s];
         ps1[s] -= w1 * S->g[s];
       }
-    if (wb != 0.0)
+    if (wb != 0.0 && n_b != 1)
       for (int f = 0; f < nf; f++)
         pfm[f] -= wb * S->g[ns + f];
   }
-  for (int f = 0; f < nf; f++)
-    o->pm[f] = o->m_f[f] * (dn[f] - (dm ? dm[f] : 0.0)) / dt + pfm[f];
+  if (n_b == 1) {
+    const double wb = sb->w * sb->cB, *gf = sb->g + ns;
+    for (int f = 0; f < nf; f++) {
+      pfm[f] = 0.0 - wb * gf[f];
+      o->pm[f] = o->mdt[f] * (dn[f] - dp[f]) + pfm[f];
+      dl[f] = dn[f] - dl[f];
+    }
+  } else {
+    for (int f = 0; f < nf; f++) {
+      o->pm[f] = o->mdt[f] * (dn[f] - dp[f]) + pfm[f];
+      dl[f] = dn[f] - dl[f];
+    }
+  }
   /* (met: within the target, or at the rounding floor of the row's terms) */
   o->met &= inside ? r <= fmax(target, floor) : 1;
   return r;
@@ -442,31 +632,40 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
       /* start from the last sweep's node, moved by the change of the nodes
        * before in this sweep extrapolated (none in the first sweep; the
        * response to a slow update is smooth in m) */
-      const double *d1 = o->dlt[0], *d2 = o->dlt[1], *d3 = o->dlt[2];
-      for (int f = 0; f < nf; f++) {
-        o->dold[f] = dn[f];
-        if (k > 1 && mm >= 3)
-          dn[f] += 3.0 * d1[f] - 3.0 * d2[f] + d3[f];
-        else if (k > 1 && mm == 2)
+      /* (the node before it into dl = dlt[2], read there first as d3;
+       * solve_row leaves the node's change in dl) */
+      const double *d1 = o->dlt[0], *d2 = o->dlt[1];
+      double *dl = o->dlt[2];
+      if (k > 1 && mm >= 3)
+        for (int f = 0; f < nf; f++) {
+          const double d3 = dl[f];
+          dl[f] = dn[f];
+          dn[f] += 3.0 * d1[f] - 3.0 * d2[f] + d3;
+        }
+      else if (k > 1 && mm == 2)
+        for (int f = 0; f < nf; f++) {
+          dl[f] = dn[f];
           dn[f] += 2.0 * d1[f] - d2[f];
-        else if (k > 1 && mm == 1)
+        }
+      else if (k > 1 && mm == 1)
+        for (int f = 0; f < nf; f++) {
+          dl[f] = dn[f];
           dn[f] += d1[f];
-      }
+        }
+      else
+        memcpy(dl, dn, (size_t)nf * sizeof(double));
       const double r = solve_row(o, st, mm, xs, dm, dn,
                                  rw ? rw + ns + (size_t)mm * nf : NULL,
                                  row_target, k == 1 ? OUTER_CUT : 0.0, rate,
-                                 max_outer, ps1, pf + (size_t)mm * nf);
+                                 max_outer, ps1, pf + (size_t)mm * nf, dl);
       if (r < 0.0) {
         o->stats.failed++;
         return 0;
       }
       rows = fmax(rows, r);
-      double *t = o->dlt[2];
       o->dlt[2] = o->dlt[1];
       o->dlt[1] = o->dlt[0];
-      o->dlt[0] = t;
-      for (int f = 0; f < nf; f++)
-        t[f] = dn[f] - o->dold[f];
+      o->dlt[0] = dl;
     }
     /* the slow row at the swept nodes */
     double g = 0.0, sum = 0.0, scale = 0.0;

@@ -602,6 +602,9 @@ typedef struct mrvi_outer_stats {
   long slow_updates; /* slow chord updates */
   long row_updates;  /* fast-row chord updates */
   long site_evals;   /* gradient evaluations at a configuration */
+  double grad_equiv; /* the evaluations (and the slow-only terms' once a
+                        sweep) weighted by their share of V's and W's
+                        terms: gradients of V + W they are worth */
   long failed;       /* steps that did not converge */
 } mrvi_outer_stats;
 int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,

@@ -39,8 +39,9 @@ typedef struct kterm {
  * x_i and x_j (x_j's unused for an anchor, whose point is el->anchor: read
  * there, not copied, anchors being few beside springs) and the law:
  * k = KS_HOOKE (phi' = c s), 0..8 (c s^k, mrvi_power_derivs_ce from ce and
- * ce1) or KS_LAW (the law table of el). */
-enum { KS_HOOKE = -1, KS_LAW = -3 };
+ * ce1), KS_MORSE (c = a, ce = 2 D a, ce1 = 2 D a a: laws/morse.c inline)
+ * or KS_LAW (the law table of el). */
+enum { KS_HOOKE = -1, KS_LAW = -3, KS_MORSE = -4 };
 typedef struct kspring {
   int two, k;
   int ci[3], cj[3];
@@ -134,6 +135,8 @@ void mrvi_terms_free(mrvi_terms *kc) {
 static int spring_law(const mrvi_element *e) {
   if (e->form == MRVI_LAW_FORM_HOOKE)
     return KS_HOOKE;
+  if (e->form == MRVI_LAW_FORM_MORSE)
+    return KS_MORSE;
   const double x = e->params[1];
   if (e->form == MRVI_LAW_FORM_POWER && x >= 0.0 && x <= 8.0 &&
       (double)(int)x == x)
@@ -158,6 +161,11 @@ static void spring_law_of(const mrvi_element *e, kspring *q) {
   q->shift = e->shift;
   q->ce = e->params[0] * e->params[1];
   q->ce1 = e->params[0] * e->params[1] * (e->params[1] - 1);
+  if (q->k == KS_MORSE) { /* (laws/morse.c's products: 2 D a, 2 D a a) */
+    q->c = e->params[1];
+    q->ce = 2 * e->params[0] * e->params[1];
+    q->ce1 = q->ce * e->params[1];
+  }
 }
 
 /* The columns of spring or anchor e into its record q: col_of[e->in[.]],
@@ -605,6 +613,10 @@ ALWAYS_INLINE void spring_derivs(const kspring *q, const double *z, double u[3],
     d2 = q->c;
   } else if (k >= 0) {
     mrvi_power_derivs_ce(q->ce, q->ce1, k, s, d1, &d2);
+  } else if (k == KS_MORSE) { /* laws/morse.c in its order */
+    const double x = exp(-q->c * s);
+    *d1 = q->ce * x * (1 - x);
+    d2 = q->ce1 * x * (2 * x - 1);
   } else {
     q->el->law->eval(q->el->params, s, &phi, d1, &d2);
   }
@@ -660,6 +672,10 @@ ALWAYS_INLINE void springs_k(const kspring *q, int nr, const double *z,
     for (int r = 0; r < nr; r++)
       spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, KS_LAW, unit);
     break;
+  case KS_MORSE:
+    for (int r = 0; r < nr; r++)
+      spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, KS_MORSE, unit);
+    break;
   default:
     for (int r = 0; r < nr; r++)
       spring_eval(q + r, z, scale, g, J, ld, hscale, dim, two, K_ANY, unit);
@@ -694,10 +710,21 @@ springs_eval(const kspring *q, int nr, const double *z, double scale, double *g,
 #undef SPRINGS
 }
 
+/* The length's reciprocal, 0 at length 0: one division, no branch (the
+ * gradient-only classes' springs, hooke_grad_k and part_hooke_k with one =
+ * 1: u = d / r by it instead of a division per axis; the last bits differ
+ * from spring_eval's). */
+ALWAYS_INLINE double recip_len(double rr) {
+  const double ir = 1.0 / rr;
+  return rr > 0.0 ? ir : 0.0;
+}
+
 /* The gradient of a run of nr khooke springs in dimension dim:
- * spring_eval's arithmetic at unit scale (bitwise the same). */
+ * spring_eval's arithmetic at unit scale (bitwise the same), or with one =
+ * 1 (a gradient-only class, mrvi_terms_create_grad) one division per
+ * spring. */
 ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
-                                double *g, const int dim) {
+                                double *g, const int dim, const int one) {
   for (int r = 0; r < nr; r++) {
     const int ci = q[r].ci, cj = q[r].cj;
     double d[3], r2 = 0.0;
@@ -707,8 +734,12 @@ ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
     }
     const double rr = sqrt(r2), d1 = q[r].c * (rr - q[r].shift);
     double u[3] = {0, 0, 0};
-    if (rr > 0.0)
+    if (one) {
+      const double i0 = recip_len(rr);
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
+    } else if (rr > 0.0) {
       UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    }
     UNROLL for (int k = 0; k < dim; k++) g[ci + k] += d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) g[cj + k] += -d1 * u[k];
   }
@@ -717,11 +748,22 @@ ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
 static __attribute__((noinline)) void
 hooke_grad(const khooke *q, int nr, const double *z, double *g, int dim) {
   if (dim == 2)
-    hooke_grad_k(q, nr, z, g, 2);
+    hooke_grad_k(q, nr, z, g, 2, 0);
   else if (dim == 3)
-    hooke_grad_k(q, nr, z, g, 3);
+    hooke_grad_k(q, nr, z, g, 3, 0);
   else
-    hooke_grad_k(q, nr, z, g, 1);
+    hooke_grad_k(q, nr, z, g, 1, 0);
+}
+
+/* hooke_grad with one division per spring (a gradient-only class). */
+static __attribute__((noinline)) void
+hooke_grad1(const khooke *q, int nr, const double *z, double *g, int dim) {
+  if (dim == 2)
+    hooke_grad_k(q, nr, z, g, 2, 1);
+  else if (dim == 3)
+    hooke_grad_k(q, nr, z, g, 3, 1);
+  else
+    hooke_grad_k(q, nr, z, g, 1, 1);
 }
 
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
@@ -997,10 +1039,12 @@ ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
 }
 
 /* part_k for a class of khooke springs alone (hooke_grad_k's arithmetic,
- * bitwise spring_eval's): the quarter-size records. */
+ * bitwise spring_eval's, or with one = 1 hooke_grad1's): the quarter-size
+ * records. */
 ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
                                 const unsigned char *mask, int nr,
-                                const double *z, double *g, const int dim) {
+                                const double *z, double *g, const int dim,
+                                const int one) {
   for (int i = 0; i < nr; i++) {
     const khooke *h = q + rec[i];
     const unsigned mk = mask[i];
@@ -1012,8 +1056,12 @@ ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
     }
     const double rr = sqrt(r2), d1 = h->c * (rr - h->shift);
     double u[3] = {0, 0, 0};
-    if (rr > 0.0)
+    if (one) {
+      const double i0 = recip_len(rr);
+      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
+    } else if (rr > 0.0) {
       UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+    }
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[ci + k] +=
         d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k)) g[cj + k] +=
@@ -1026,12 +1074,18 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
-  if (kc->part_hooke && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2);
+  if (kc->part_hooke && kc->hooke_only && kc->dim == 2)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 1);
+  else if (kc->part_hooke && kc->hooke_only && kc->dim == 3)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 1);
+  else if (kc->part_hooke && kc->hooke_only)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 1);
+  else if (kc->part_hooke && kc->dim == 2)
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 0);
   else if (kc->part_hooke && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3);
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 0);
   else if (kc->part_hooke)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1);
+    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 0);
   else if (kc->dim == 2)
     part_k(kc->qs, rec, mask, nr, z, g, 2);
   else if (kc->dim == 3)
@@ -1183,7 +1237,7 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
     part_grad(kc, z, g);
   else if (kc->hooke_only)
-    hooke_grad(kc->qh, kc->n, z, g, kc->dim);
+    hooke_grad1(kc->qh, kc->n, z, g, kc->dim);
   else if (kc->flat)
     flat_grad(kc, z, g);
   else
@@ -1294,6 +1348,9 @@ ALWAYS_INLINE void springs_map_k(const kspring *q, int nr, int ie0,
     break;
   case KS_LAW:
     SPRINGS_MAP(KS_LAW)
+    break;
+  case KS_MORSE:
+    SPRINGS_MAP(KS_MORSE)
     break;
   default:
     SPRINGS_MAP(K_ANY)

@@ -31,4 +31,5 @@ const mrvi_law mrvi_law_morse = {
     .param_names = names,
     .check = check,
     .eval = eval,
+    .form = MRVI_LAW_FORM_MORSE,
 };
