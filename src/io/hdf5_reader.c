@@ -252,9 +252,52 @@ static int read_node_row(const mrvi_h5in *in, hsize_t row,
   return MRVI_OK;
 }
 
+/* *finite <- 1 if row `row` of the numeric dataset name (rank 2 or 3) exists
+ * and holds no NaN; 1 as well if the file has no such dataset. */
+static int row_finite(const mrvi_h5in *in, const char *name, int rank,
+                      hsize_t row, int *finite) {
+  *finite = 1;
+  if (!mrvi_h5in_exists(in, name))
+    return MRVI_OK;
+  hsize_t any[MRVI_H5_MAX_RANK] = {MRVI_H5_ANY, MRVI_H5_ANY, MRVI_H5_ANY,
+                                   MRVI_H5_ANY};
+  hsize_t dims[MRVI_H5_MAX_RANK] = {1, 1, 1, 1};
+  int st = mrvi_h5in_shape(in, name, MRVI_H5_NUMBER, rank, any, dims);
+  if (st < 0)
+    return st;
+  hsize_t cols = 1;
+  for (int i = 1; i < rank; i++)
+    cols =
+        dims[i] <= max_coordinates() ? cols * dims[i] : max_coordinates() + 1;
+  if (cols == 0 || cols > max_coordinates())
+    return mrvi_fail(in->msg, in->len, MRVI_EIO,
+                     "%s: %s has rows of %llu entries, expected 1 to %llu",
+                     in->path, name, (unsigned long long)cols,
+                     (unsigned long long)max_coordinates());
+  if (row >= dims[0]) { /* rows past its end have no values */
+    *finite = 0;
+    return MRVI_OK;
+  }
+  double *v = malloc((size_t)cols * sizeof *v);
+  if (!v)
+    return mrvi_fail(in->msg, in->len, MRVI_ENOMEM, "out of memory");
+  dims[0] = MRVI_H5_ANY;
+  st = mrvi_h5in_read(in, name, H5T_NATIVE_DOUBLE, rank, dims, row, 1, v,
+                      (size_t)cols);
+  for (hsize_t i = 0; i < cols && st == MRVI_OK && *finite; i++)
+    *finite = v[i] == v[i];
+  free(v);
+  if (st != MRVI_OK)
+    *finite = 0;
+  return MRVI_OK;
+}
+
 /* Resume: the row of the last kept node within steps_completed whose
  * multipliers arrived (the next step reports them; its projection impulse
- * cannot be recomputed, so a node without them is not resumed from). */
+ * cannot be recomputed, so a node without them is not resumed from).  The
+ * joint reactions computed from them are written in the same flush, but a
+ * killed writer may leave some of those rows on disk and not others, so
+ * every one of them must be there. */
 static int resume_row(const mrvi_h5in *in, long K, long e, hsize_t rows,
                       hsize_t *row) {
   if ((hsize_t)(K / e) >= rows)
@@ -262,31 +305,23 @@ static int resume_row(const mrvi_h5in *in, long K, long e, hsize_t rows,
                      "%s: steps_completed = %ld but /macro/t has %llu rows",
                      in->path, K, (unsigned long long)rows);
   *row = (hsize_t)(K / e);
-  if (!mrvi_h5in_exists(in, "/macro/lambda"))
-    return MRVI_OK;
-  hsize_t dl[2];
-  int st = mrvi_h5in_shape(in, "/macro/lambda", MRVI_H5_NUMBER, 2, NULL, dl);
-  if (st < 0)
-    return st;
-  if (dl[1] > max_coordinates())
-    return mrvi_fail(in->msg, in->len, MRVI_EIO,
-                     "%s: /macro/lambda has %llu columns, more than %llu",
-                     in->path, (unsigned long long)dl[1],
-                     (unsigned long long)max_coordinates());
-  const int nl = (int)dl[1];
-  double *lam = malloc(((size_t)nl + 1) * sizeof *lam);
-  if (!lam)
-    return mrvi_fail(in->msg, in->len, MRVI_ENOMEM, "out of memory");
-  /* Rows past the end of /macro/lambda have no multipliers. */
+  static const struct {
+    const char *name;
+    int rank;
+  } from_lambda[] = {
+      {"/macro/lambda", 2}, {"/joints/force", 3}, {"/joints/torque", 3}};
   for (; *row > 0; --*row) {
-    int finite =
-        *row < dl[0] && read_row(in, "/macro/lambda", *row, nl, lam) == MRVI_OK;
-    for (int i = 0; i < nl && finite; i++)
-      finite = lam[i] == lam[i];
+    int finite = 1;
+    for (size_t i = 0; i < sizeof from_lambda / sizeof *from_lambda && finite;
+         i++) {
+      const int st = row_finite(in, from_lambda[i].name, from_lambda[i].rank,
+                                *row, &finite);
+      if (st < 0)
+        return st;
+    }
     if (finite)
       break;
   }
-  free(lam);
   mrvi_fmt(in->msg, in->len, "%s", "");
   return MRVI_OK;
 }
