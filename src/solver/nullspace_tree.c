@@ -611,6 +611,38 @@ static int build_pattern(mrvi_nstree *z) {
   return z->Ax ? 0 : -1;
 }
 
+/* Body t's joint to its parent (or the ground): which side of it the body
+ * is, the joint's motion and the body's degrees of freedom (T: free). */
+static void body_motion(mrvi_nstree *z, const mrvi_model *m, int t, int D,
+                        int T) {
+  z->dof[t] = T;
+  if (z->joint[t] < 0)
+    return;
+  const mrvi_constraint *k = &m->constraints[z->joint[t]];
+  z->is_a[t] = mrvi_model_body_of(m, k->in[0]) == z->order[t];
+  z->motion[t] = k->type->joint_motion;
+  z->dof[t] = n_rot(z->motion[t], D) + n_tr(z->motion[t]);
+}
+
+/* The children of each of the nb bodies, in tree order, as CSR lists
+ * (child_start, zeroed by the caller, and child); MRVI_ENOMEM or 0. */
+static int link_children(mrvi_nstree *z, int nb) {
+  for (int t = 0; t < nb; t++)
+    if (z->joint[t] >= 0 && z->parent[t] >= 0)
+      z->child_start[z->parent[t] + 1]++;
+  for (int t = 0; t < nb; t++)
+    z->child_start[t + 1] += z->child_start[t];
+  int *fill = malloc(((size_t)nb + 1) * sizeof *fill);
+  if (!fill)
+    return MRVI_ENOMEM;
+  memcpy(fill, z->child_start, ((size_t)nb + 1) * sizeof *fill);
+  for (int t = 0; t < nb; t++)
+    if (z->joint[t] >= 0 && z->parent[t] >= 0)
+      z->child[fill[z->parent[t]]++] = t;
+  free(fill);
+  return 0;
+}
+
 int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
                        size_t len) {
   const mrvi_model *m = st->model;
@@ -670,26 +702,10 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
     z->slot[t] = m->slot[bd->first];
     for (int e = 0; e < w; e++)
       z->in_body[z->slot[t] + e] = 1;
-    z->dof[t] = T;
-    if (z->joint[t] < 0)
-      continue;
-    const mrvi_constraint *k = &m->constraints[z->joint[t]];
-    z->is_a[t] = mrvi_model_body_of(m, k->in[0]) == z->order[t];
-    z->motion[t] = k->type->joint_motion;
-    z->dof[t] = n_rot(z->motion[t], D) + n_tr(z->motion[t]);
-    if (z->parent[t] >= 0)
-      z->child_start[z->parent[t] + 1]++;
+    body_motion(z, m, t, D, T);
   }
-  for (int t = 0; t < nb; t++)
-    z->child_start[t + 1] += z->child_start[t];
-  int *fill = malloc(B * sizeof *fill);
-  if (!fill)
+  if (link_children(z, nb) < 0)
     goto oom;
-  memcpy(fill, z->child_start, B * sizeof *fill);
-  for (int t = 0; t < nb; t++)
-    if (z->parent[t] >= 0)
-      z->child[fill[z->parent[t]]++] = t;
-  free(fill);
   for (int i = 0; i < m->n; i++)
     z->qm[i] = m->q0[i];
   if (mrvi_gram_create(m, &z->gram) < 0 ||
@@ -1130,14 +1146,9 @@ static int forest_create(const mrvi_step *st, int mode, const int *fpos,
     for (int e = 0; z->fast && e < w; e++)
       in_fc &= fpos[z->slot[t] + e] >= 0;
     z->anchor[t] = -1;
-    z->dof[t] = T;
+    body_motion(z, m, t, D, T);
     if (z->joint[t] >= 0) {
       const mrvi_constraint *k = &m->constraints[z->joint[t]];
-      z->is_a[t] = mrvi_model_body_of(m, k->in[0]) == z->order[t];
-      z->motion[t] = k->type->joint_motion;
-      z->dof[t] = n_rot(z->motion[t], D) + n_tr(z->motion[t]);
-      if (z->parent[t] >= 0)
-        z->child_start[z->parent[t] + 1]++;
       const int o =
           z->is_a[t] ? body_b(m, k, D) : mrvi_model_body_of(m, k->in[0]);
       if (z->parent[t] < 0 && o >= 0) { /* a slow body: a moving ground */
@@ -1155,16 +1166,8 @@ static int forest_create(const mrvi_step *st, int mode, const int *fpos,
                     r),
            0;
   }
-  for (int t = 0; t < nb; t++)
-    z->child_start[t + 1] += z->child_start[t];
-  int *fill = malloc(B * sizeof *fill);
-  if (!fill)
+  if (link_children(z, nb) < 0)
     goto oom;
-  memcpy(fill, z->child_start, B * sizeof *fill);
-  for (int t = 0; t < nb; t++)
-    if (z->parent[t] >= 0)
-      z->child[fill[z->parent[t]]++] = t;
-  free(fill);
   *out = z;
   return 1;
 oom:

@@ -719,6 +719,27 @@ ALWAYS_INLINE double recip_len(double rr) {
   return rr > 0.0 ? ir : 0.0;
 }
 
+/* A khooke spring's unit direction u (0 at zero length) and force
+ * magnitude c (r - shift): u = d / r per axis (spring_eval's arithmetic) or,
+ * with one = 1, by the reciprocal of r. */
+ALWAYS_INLINE double hooke_dir(const khooke *h, const double *z, int ci, int cj,
+                               double u[3], const int dim, const int one) {
+  double d[3], r2 = 0.0;
+  UNROLL for (int k = 0; k < dim; k++) {
+    d[k] = z[ci + k] - z[cj + k];
+    r2 += d[k] * d[k];
+  }
+  const double rr = sqrt(r2), d1 = h->c * (rr - h->shift);
+  u[0] = u[1] = u[2] = 0.0;
+  if (one) {
+    const double i0 = recip_len(rr);
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
+  } else if (rr > 0.0) {
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
+  }
+  return d1;
+}
+
 /* The gradient of a run of nr khooke springs in dimension dim:
  * spring_eval's arithmetic at unit scale (bitwise the same), or with one =
  * 1 (a gradient-only class, mrvi_terms_create_grad) one division per
@@ -727,19 +748,8 @@ ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
                                 double *g, const int dim, const int one) {
   for (int r = 0; r < nr; r++) {
     const int ci = q[r].ci, cj = q[r].cj;
-    double d[3], r2 = 0.0;
-    UNROLL for (int k = 0; k < dim; k++) {
-      d[k] = z[ci + k] - z[cj + k];
-      r2 += d[k] * d[k];
-    }
-    const double rr = sqrt(r2), d1 = q[r].c * (rr - q[r].shift);
-    double u[3] = {0, 0, 0};
-    if (one) {
-      const double i0 = recip_len(rr);
-      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
-    } else if (rr > 0.0) {
-      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
-    }
+    double u[3];
+    const double d1 = hooke_dir(q + r, z, ci, cj, u, dim, one);
     UNROLL for (int k = 0; k < dim; k++) g[ci + k] += d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) g[cj + k] += -d1 * u[k];
   }
@@ -1049,19 +1059,8 @@ ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
     const khooke *h = q + rec[i];
     const unsigned mk = mask[i];
     const int ci = h->ci, cj = h->cj;
-    double d[3], r2 = 0.0;
-    UNROLL for (int k = 0; k < dim; k++) {
-      d[k] = z[ci + k] - z[cj + k];
-      r2 += d[k] * d[k];
-    }
-    const double rr = sqrt(r2), d1 = h->c * (rr - h->shift);
-    double u[3] = {0, 0, 0};
-    if (one) {
-      const double i0 = recip_len(rr);
-      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * i0;
-    } else if (rr > 0.0) {
-      UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] / rr;
-    }
+    double u[3];
+    const double d1 = hooke_dir(h, z, ci, cj, u, dim, one);
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[ci + k] +=
         d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k)) g[cj + k] +=
