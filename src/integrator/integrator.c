@@ -172,8 +172,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->p);
   free(it->torsion);
   if (!it->packed) {
-    free(it->qs);
-    free(it->qf);
+    free(it->qs); /* qf inside */
     free(it->ps);
     free(it->pf);
   }
@@ -679,9 +678,9 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     it->pf = it->p + ns;
   } else {
     it->packed = 0;
-    it->qs = alloc(ns);
+    it->qs = alloc(ns + nf); /* (qf after qs, as in x: swap_state) */
     it->ps = alloc(ns);
-    it->qf = alloc(nf);
+    it->qf = it->qs ? it->qs + ns : NULL;
     it->pf = alloc(nf);
   }
   /* The residual, the update and the reduced right-hand side are the Newton
@@ -1295,7 +1294,12 @@ int mrvi_integrator_keep_micro(mrvi_integrator *it, int all) {
         : NULL;
   if (p)
     it->micro_p = p;
-  if (!p) /* (growing failed: the last node alone is still kept) */
+  /* x: the slow unknowns and the fast nodes kept */
+  const size_t nx = (size_t)st->ns + rows * nf;
+  double *x = p ? realloc(it->x, (nx > 0 ? nx : 1) * sizeof(double)) : NULL;
+  if (x)
+    it->x = x;
+  if (!x) /* (growing failed: the last node alone is still kept) */
     return MRVI_ENOMEM;
   it->node_stride = all ? nf : 0;
   mrvi_sweep_set_last_only(it->sweep, !all);
@@ -1621,6 +1625,39 @@ static int finish_step_general(mrvi_integrator *it) {
   return MRVI_OK;
 }
 
+/* The new state of an unconstrained step whose last node alone was kept
+ * (x is then ns + nf long, slow then fast, as the positions' block): the
+ * positions by exchanging x with that block (q where packed, else the
+ * block of qs and qf), the momenta by exchanging ps1 and micro_p with ps
+ * and pf where not packed (packed: copied into p), so that the step's
+ * results are not copied again. */
+static void swap_state(mrvi_integrator *it) {
+  mrvi_step *st = &it->step;
+  const int ns = st->ns, nf = st->nf;
+  double *const x = it->x;
+  if (it->packed) {
+    it->x = it->q;
+    it->q = x;
+    it->ps = it->p;
+    it->pf = it->p + ns;
+    copy_pairs(it->ps, it->ps1, (size_t)ns);
+    copy_pairs(it->pf, it->micro_p, (size_t)nf);
+  } else {
+    it->x = it->qs;
+    double *const ps = it->ps, *const pf = it->pf;
+    it->ps = it->ps1;
+    it->ps1 = ps;
+    it->pf = it->micro_p;
+    it->micro_p = pf;
+  }
+  it->qs = x;
+  it->qf = x + ns;
+  st->qs0 = it->qs;
+  st->qf0 = it->qf;
+  st->ps0 = it->ps;
+  st->pf0 = it->pf;
+}
+
 ALWAYS_INLINE int finish_step(mrvi_integrator *it) {
   const mrvi_step *st = &it->step;
   if (!(it->packed || it->blocks_only) || it->model->n_constraints > 0)
@@ -1630,7 +1667,10 @@ ALWAYS_INLINE int finish_step(mrvi_integrator *it) {
   const int ns = st->ns, nf = st->nf, p = st->p;
   const size_t last = (size_t)(p - 1) * it->node_stride;
   const double *xf = it->x + ns + last, *pf1 = it->micro_p + last;
-  SMALL2(ns, NS, nf, NF, new_state_blocks(it, xf, pf1, NS, NF));
+  if (it->node_stride == 0)
+    swap_state(it);
+  else
+    SMALL2(ns, NS, nf, NF, new_state_blocks(it, xf, pf1, NS, NF));
   it->k++;
   it->jac_ready = 1;
   return MRVI_OK;
@@ -1664,7 +1704,7 @@ const double *mrvi_integrator_micro_q(const mrvi_integrator *it) {
   return it->node_stride == 0 ? it->qf : it->micro_q;
 }
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it) {
-  return it->micro_p;
+  return it->node_stride == 0 ? it->pf : it->micro_p;
 }
 const double *mrvi_integrator_lambda(const mrvi_integrator *it) {
   return it->lambda;
