@@ -1731,7 +1731,8 @@ static void test_keep_micro(void) {
       mrvi_integrator_create(sys->model, &sys->settings, &it, msg,
                              sizeof msg) == 0) {
     const int n = mrvi_model_n(sys->model), nf = sys->model->n_fast;
-    const int p = sys->settings.micro_steps, nj = mrvi_integrator_jacobian_size(it);
+    const int p = sys->settings.micro_steps,
+              nj = mrvi_integrator_jacobian_size(it);
     double *b = calloc((size_t)nj, sizeof *b),
            *x = calloc((size_t)nj, sizeof *x);
     int same = 1, steps = 0, js = -1;

@@ -766,8 +766,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   if (!(it->torsion = alloc((size_t)it->n_torsion)))
     goto oom;
   mrvi_model_torsion_init(m, it->q, it->torsion);
-  it->blocks_only =
-      !it->packed && m->n_constraints == 0 && it->n_torsion == 0;
+  it->blocks_only = !it->packed && m->n_constraints == 0 && it->n_torsion == 0;
   split_state(it);
   it->step.qs0 = it->qs;
   it->step.qf0 = it->qf;

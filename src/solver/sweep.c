@@ -64,7 +64,7 @@ struct mrvi_sweep {
    * reads: 0 where every fast mass is the same (entry 0 is each entry's
    * value: two streams fewer per micro step), else 1. */
   int mass_inc;
-  double *zf;                    /* point configuration of W */
+  double *zf;        /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
   /* W quadratic on a block of at most 4 fast coordinates: grad W = wg0 +
    * wH z (affine_grad_k, evaluated at z = 0 once per run), else NULL. */
