@@ -906,6 +906,9 @@ int mrvi_integrator_step(mrvi_integrator *it);
 
 double mrvi_integrator_time(const mrvi_integrator *it);
 long mrvi_integrator_step_index(const mrvi_integrator *it); /* k */
+/* The state at the current node, model order (n each).  Call again after
+ * each step: the arrays may move (mrvi_integrator_keep_micro) or be
+ * gathered at the call from the rate blocks the steps keep. */
 const double *mrvi_integrator_q(const mrvi_integrator *it); /* n */
 const double *mrvi_integrator_p(const mrvi_integrator *it); /* n */
 /* Fast micro nodes m = 1..p of the last step: p x n_fast, row-major, fast

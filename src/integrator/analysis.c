@@ -225,9 +225,10 @@ int mrvi_propagation_matrix(const mrvi_model *m, const mrvi_settings *s,
       mrvi_fmt(msg, len, "%s", mrvi_integrator_errmsg(it));
       break;
     }
+    const double *q = mrvi_integrator_q(it), *pm = mrvi_integrator_p(it);
     for (int i = 0; i < n; i++) {
-      P[i * d + j] = mrvi_integrator_q(it)[i];
-      P[(n + i) * d + j] = mrvi_integrator_p(it)[i];
+      P[i * d + j] = q[i];
+      P[(n + i) * d + j] = pm[i];
     }
   }
   free(z);

@@ -35,6 +35,10 @@ struct mrvi_integrator {
   double *q, *p;             /* model order, n */
   double *qs, *qf, *ps, *pf; /* rate blocks of the state */
   int packed; /* model order is slow then fast: the blocks alias q and p */
+  /* Not packed, unconstrained and without torsional springs: the steps
+   * keep the state in the rate blocks alone, and q and p are gathered from
+   * them when asked (mrvi_integrator_q, _p): a step scatters nothing. */
+  int blocks_only;
   double *x, *R, *dx; /* unknowns, residual, Newton update */
   double *rinv;       /* newton.criterion scaled: 1 / mass of each dynamic row
                          (n_unknowns), else NULL */
@@ -168,8 +172,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->p);
   free(it->torsion);
   if (!it->packed) {
-    free(it->qs);
-    free(it->qf);
+    free(it->qs); /* qf inside */
     free(it->ps);
     free(it->pf);
   }
@@ -675,9 +678,9 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     it->pf = it->p + ns;
   } else {
     it->packed = 0;
-    it->qs = alloc(ns);
+    it->qs = alloc(ns + nf); /* (qf after qs, as in x: swap_state) */
     it->ps = alloc(ns);
-    it->qf = alloc(nf);
+    it->qf = it->qs ? it->qs + ns : NULL;
     it->pf = alloc(nf);
   }
   /* The residual, the update and the reduced right-hand side are the Newton
@@ -763,6 +766,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   if (!(it->torsion = alloc((size_t)it->n_torsion)))
     goto oom;
   mrvi_model_torsion_init(m, it->q, it->torsion);
+  it->blocks_only = !it->packed && m->n_constraints == 0 && it->n_torsion == 0;
   split_state(it);
   it->step.qs0 = it->qs;
   it->step.qf0 = it->qf;
@@ -1289,10 +1293,16 @@ int mrvi_integrator_keep_micro(mrvi_integrator *it, int all) {
         : NULL;
   if (p)
     it->micro_p = p;
-  if (!p) /* (growing failed: the last node alone is still kept) */
+  /* x: the slow unknowns and the fast nodes kept */
+  const size_t nx = (size_t)st->ns + rows * nf;
+  double *x = p ? realloc(it->x, (nx > 0 ? nx : 1) * sizeof(double)) : NULL;
+  if (x)
+    it->x = x;
+  if (!x) /* (growing failed: the last node alone is still kept) */
     return MRVI_ENOMEM;
   it->node_stride = all ? nf : 0;
   mrvi_sweep_set_last_only(it->sweep, !all);
+  it->jac_ready = 0; /* (the last step's nodes are not all there) */
   return (int)rows;
 }
 
@@ -1537,34 +1547,37 @@ int mrvi_integrator_step(mrvi_integrator *it) {
   return MRVI_OK;
 }
 
-/* The new state (x, ps1 and xf, pf1: the last fast node) into q, p, the
- * last one into qs_prev, qf_prev and the fast nodes into micro_q, for the
- * packed layout and ns, nf constants for small blocks. */
-ALWAYS_INLINE void new_state_packed(mrvi_integrator *it, const double *xf,
+/* The new state (x, ps1 and xf, pf1: the last fast node) into the rate
+ * blocks qs, qf, ps, pf (in the packed layout: q and p), the last one
+ * into qs_prev, qf_prev where the micro nodes are kept (only the step
+ * Jacobian needs it, mrvi_integrator_jacobian_solve, and it needs every
+ * node) and the fast nodes into micro_q (the last alone: micro_q is qf,
+ * mrvi_integrator_micro_q), for ns, nf constants for small blocks. */
+ALWAYS_INLINE void new_state_blocks(mrvi_integrator *it, const double *xf,
                                     const double *pf1, const int ns,
                                     const int nf) {
   const int p = it->step.p;
-  double *restrict q = it->q, *restrict pq = it->p,
-                   *restrict prev = it->qs_prev;
+  double *restrict qs = it->qs, *restrict ps = it->ps, *restrict qf = it->qf,
+                   *restrict pf = it->pf, *restrict prev = it->qs_prev;
   const double *restrict x = it->x, *restrict ps1 = it->ps1;
+  if (it->node_stride != 0) {
+    UNROLL
+    for (int i = 0; i < ns; i++)
+      prev[i] = qs[i];
+    UNROLL
+    for (int i = 0; i < nf; i++)
+      prev[ns + i] = qf[i];
+    copy_pairs(it->micro_q, x + ns, (size_t)p * (size_t)nf);
+  }
   UNROLL
   for (int i = 0; i < ns; i++) {
-    prev[i] = q[i];
-    q[i] = x[i];
-    pq[i] = ps1[i];
+    qs[i] = x[i];
+    ps[i] = ps1[i];
   }
   UNROLL
   for (int i = 0; i < nf; i++) {
-    prev[ns + i] = q[ns + i];
-    q[ns + i] = xf[i];
-    pq[ns + i] = pf1[i];
-  }
-  if (p == 1 || it->node_stride == 0) { /* the new state's fast node */
-    UNROLL
-    for (int i = 0; i < nf; i++)
-      it->micro_q[i] = xf[i];
-  } else {
-    copy_pairs(it->micro_q, x + ns, (size_t)p * (size_t)nf);
+    qf[i] = xf[i];
+    pf[i] = pf1[i];
   }
 }
 
@@ -1584,23 +1597,17 @@ static int finish_step_general(mrvi_integrator *it) {
    * these copies are short, a call each would cost more than the copying at
    * p = 1). */
   const size_t last = (size_t)(p - 1) * it->node_stride;
-  const double *xq = it->x, *xf = it->x + ns + last;
-  const double *pf1 = it->micro_p + last;
-  if (it->packed) {
-    SMALL2(ns, NS, nf, NF, new_state_packed(it, xf, pf1, NS, NF));
-  } else {
+  const double *xf = it->x + ns + last, *pf1 = it->micro_p + last;
+  SMALL2(ns, NS, nf, NF, new_state_blocks(it, xf, pf1, NS, NF));
+  if (!it->packed && !it->blocks_only) {
     for (int i = 0; i < ns; i++) {
-      it->qs_prev[i] = it->qs[i];
-      it->qs[i] = it->q[m->slow_index[i]] = xq[i];
-      it->ps[i] = it->p[m->slow_index[i]] = it->ps1[i];
+      it->q[m->slow_index[i]] = it->qs[i];
+      it->p[m->slow_index[i]] = it->ps[i];
     }
     for (int i = 0; i < nf; i++) {
-      it->qf_prev[i] = it->qf[i];
-      it->qf[i] = it->q[m->fast_index[i]] = xf[i];
-      it->pf[i] = it->p[m->fast_index[i]] = pf1[i];
+      it->q[m->fast_index[i]] = it->qf[i];
+      it->p[m->fast_index[i]] = it->pf[i];
     }
-    copy_pairs(it->micro_q, it->x + ns,
-               it->node_stride ? (size_t)p * (size_t)nf : (size_t)nf);
   }
   if (m->n_constraints > 0 && it->settings.project_momenta) {
     if (project(it) < 0)
@@ -1617,15 +1624,52 @@ static int finish_step_general(mrvi_integrator *it) {
   return MRVI_OK;
 }
 
+/* The new state of an unconstrained step whose last node alone was kept
+ * (x is then ns + nf long, slow then fast, as the positions' block): the
+ * positions by exchanging x with that block (q where packed, else the
+ * block of qs and qf), the momenta by exchanging ps1 and micro_p with ps
+ * and pf where not packed (packed: copied into p), so that the step's
+ * results are not copied again. */
+static void swap_state(mrvi_integrator *it) {
+  mrvi_step *st = &it->step;
+  const int ns = st->ns, nf = st->nf;
+  double *const x = it->x;
+  if (it->packed) {
+    it->x = it->q;
+    it->q = x;
+    it->ps = it->p;
+    it->pf = it->p + ns;
+    copy_pairs(it->ps, it->ps1, (size_t)ns);
+    copy_pairs(it->pf, it->micro_p, (size_t)nf);
+  } else {
+    it->x = it->qs;
+    double *const ps = it->ps, *const pf = it->pf;
+    it->ps = it->ps1;
+    it->ps1 = ps;
+    it->pf = it->micro_p;
+    it->micro_p = pf;
+  }
+  it->qs = x;
+  it->qf = x + ns;
+  st->qs0 = it->qs;
+  st->qf0 = it->qf;
+  st->ps0 = it->ps;
+  st->pf0 = it->pf;
+}
+
 ALWAYS_INLINE int finish_step(mrvi_integrator *it) {
   const mrvi_step *st = &it->step;
-  if (!it->packed || it->model->n_constraints > 0)
+  if (!(it->packed || it->blocks_only) || it->model->n_constraints > 0)
     return finish_step_general(it);
-  /* Unconstrained, packed layout: the new state only. */
+  /* Unconstrained, in rate blocks (model order is q and p, or gathered
+   * when asked): the new state only. */
   const int ns = st->ns, nf = st->nf, p = st->p;
   const size_t last = (size_t)(p - 1) * it->node_stride;
   const double *xf = it->x + ns + last, *pf1 = it->micro_p + last;
-  SMALL2(ns, NS, nf, NF, new_state_packed(it, xf, pf1, NS, NF));
+  if (it->node_stride == 0)
+    swap_state(it);
+  else
+    SMALL2(ns, NS, nf, NF, new_state_blocks(it, xf, pf1, NS, NF));
   it->k++;
   it->jac_ready = 1;
   return MRVI_OK;
@@ -1635,13 +1679,31 @@ double mrvi_integrator_time(const mrvi_integrator *it) {
   return it->t0 + (double)it->k * it->settings.macro_step;
 }
 long mrvi_integrator_step_index(const mrvi_integrator *it) { return it->k; }
-const double *mrvi_integrator_q(const mrvi_integrator *it) { return it->q; }
-const double *mrvi_integrator_p(const mrvi_integrator *it) { return it->p; }
+/* v (model order) from its rate blocks vs and vf, where the steps keep the
+ * state in those alone (blocks_only); else v is the state itself. */
+static const double *model_order(const mrvi_integrator *it, double *v,
+                                 const double *vs, const double *vf) {
+  const mrvi_model *m = it->model;
+  if (!it->blocks_only)
+    return v;
+  for (int i = 0; i < m->n_slow; i++)
+    v[m->slow_index[i]] = vs[i];
+  for (int i = 0; i < m->n_fast; i++)
+    v[m->fast_index[i]] = vf[i];
+  return v;
+}
+const double *mrvi_integrator_q(const mrvi_integrator *it) {
+  return model_order(it, it->q, it->qs, it->qf);
+}
+const double *mrvi_integrator_p(const mrvi_integrator *it) {
+  return model_order(it, it->p, it->ps, it->pf);
+}
+/* (the last node alone kept: the new state's fast part) */
 const double *mrvi_integrator_micro_q(const mrvi_integrator *it) {
-  return it->micro_q;
+  return it->node_stride == 0 ? it->qf : it->micro_q;
 }
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it) {
-  return it->micro_p;
+  return it->node_stride == 0 ? it->pf : it->micro_p;
 }
 const double *mrvi_integrator_lambda(const mrvi_integrator *it) {
   return it->lambda;

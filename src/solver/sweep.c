@@ -60,7 +60,11 @@ struct mrvi_sweep {
    * `chunk` fast coordinates (nf at least two chunks; else 1). */
   int threads, chunk;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
-  double *zf;                    /* point configuration of W */
+  /* The step between the entries of minv_f and m_f that explicit_row
+   * reads: 0 where every fast mass is the same (entry 0 is each entry's
+   * value: two streams fewer per micro step), else 1. */
+  int mass_inc;
+  double *zf;        /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
   /* W quadratic on a block of at most 4 fast coordinates: grad W = wg0 +
    * wH z (affine_grad_k, evaluated at z = 0 once per run), else NULL. */
@@ -484,9 +488,12 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   }
   for (int i = 0; i < sw->ns; i++)
     sw->minv_s[i] = 1.0 / m->mass[m->slow_index[i]];
+  sw->mass_inc = 0;
   for (int i = 0; i < sw->nf; i++) {
     sw->m_f[i] = m->mass[m->fast_index[i]];
     sw->minv_f[i] = 1.0 / sw->m_f[i];
+    if (sw->m_f[i] != sw->m_f[0])
+      sw->mass_inc = 1;
   }
   const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
   sw->rw_one = !scaled;
@@ -1125,24 +1132,26 @@ static const double *force_row(const mrvi_step *st, int m) {
  * operations entry by entry (r = p - wl g, dn = dt minv r, q^{m+1} =
  * q^m + dn, M dn / dt), two entries at a time (util/simd.h: the same
  * operations on each, so the same values; GCC's -O2 leaves the loop
- * scalar, and its division per entry bounds it).  qn and pn may be qm and
- * pm (the last node alone kept): each pair is read before it is written. */
+ * scalar, and its division per entry bounds it).  The masses' entries
+ * are read every inc (mass_inc: 0 for equal masses).  qn and pn may be qm
+ * and pm (the last node alone kept): each pair is read before it is
+ * written. */
 static void explicit_row(int nf, double dt, double wl, const double *pm,
                          const double *gnode, const double *minv,
-                         const double *mf, const double *qm, double *qn,
-                         double *pn) {
+                         const double *mf, int inc, const double *qm,
+                         double *qn, double *pn) {
   const mrvi_v2 vdt = v2_set(dt, dt);
   int f = 0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 r = v2_sub(v2_load(pm + f), v2_scale(wl, v2_load(gnode + f)));
-    const mrvi_v2 dn = v2_mul(v2_scale(dt, v2_load(minv + f)), r);
+    const mrvi_v2 dn = v2_mul(v2_scale(dt, v2_load(minv + f * inc)), r);
     v2_store(qn + f, v2_add(v2_load(qm + f), dn));
-    v2_store(pn + f, v2_div(v2_mul(v2_load(mf + f), dn), vdt));
+    v2_store(pn + f, v2_div(v2_mul(v2_load(mf + f * inc), dn), vdt));
   }
   for (; f < nf; f++) {
-    const double r = pm[f] - wl * gnode[f], dn = dt * minv[f] * r;
+    const double r = pm[f] - wl * gnode[f], dn = dt * minv[f * inc] * r;
     qn[f] = qm[f] + dn;
-    pn[f] = mf[f] * dn / dt;
+    pn[f] = mf[f * inc] * dn / dt;
   }
 }
 
@@ -1199,7 +1208,8 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
       fast_gradient(sw, qm, gnode, nf);
     const int pairs = nl == 1 && nr == 1 && !fm && nf > 4; /* (not small) */
     if (pairs) {
-      explicit_row(nf, dt, wl[0], pm, gnode, minv, mf, qm, qn, pn);
+      explicit_row(nf, dt, wl[0], pm, gnode, minv, mf, sw->mass_inc, qm, qn,
+                   pn);
     } else {
       explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl, 0, nf);
     }
