@@ -37,12 +37,12 @@ struct mrvi_joint_sweep {
    * the slow-only constraints' at q_k and at q_{k+1}^s in blocks p + 1
    * and p + 2 */
   double *G;
-  double *K;     /* node m's K factored in block m, the slow one's in p */
-  int *piv;      /* (p + 1) rmax */
-  int ok;        /* the current node's K is regular */
-  double *g, *mu; /* g at the equation's node, one update (rmax each) */
-  double *mut;    /* the updates' sum at the current node (rmax) */
-  double *c;      /* the current node's move (nf) */
+  double *K;           /* node m's K factored in block m, the slow one's in p */
+  int *piv;            /* (p + 1) rmax */
+  int ok;              /* the current node's K is regular */
+  double *g, *mu;      /* g at the equation's node, one update (rmax each) */
+  double *mut;         /* the updates' sum at the current node (rmax) */
+  double *c;           /* the current node's move (nf) */
   double *y, *cg, *cG; /* one constraint's inputs, g and G */
 };
 
@@ -193,8 +193,7 @@ const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
   const double p = (double)st->p;
   if (!again) {
     if (m == 0)
-      rows_at(w, st, x, st->micro_c, st->n_micro_c, 0, 0.0, NULL,
-              gblock(w, 0));
+      rows_at(w, st, x, st->micro_c, st->n_micro_c, 0, 0.0, NULL, gblock(w, 0));
     memset(w->c, 0, (size_t)nf * sizeof *w->c);
     memset(w->mut, 0, (size_t)rm * sizeof *w->mut);
   }
@@ -213,9 +212,8 @@ const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
   return w->c;
 }
 
-void mrvi_joint_sweep_slow_force(const mrvi_joint_sweep *w,
-                                 const mrvi_step *st, const double *x,
-                                 double *fs) {
+void mrvi_joint_sweep_slow_force(const mrvi_joint_sweep *w, const mrvi_step *st,
+                                 const double *x, double *fs) {
   const int n = w->n, rm = st->r_micro, ns = st->ns;
   for (int m = 0; m < st->p; m++) {
     const double *A = gblock(w, m);
@@ -227,8 +225,7 @@ void mrvi_joint_sweep_slow_force(const mrvi_joint_sweep *w,
   }
 }
 
-int mrvi_joint_sweep_slow(mrvi_joint_sweep *w, const mrvi_step *st,
-                          double *x) {
+int mrvi_joint_sweep_slow(mrvi_joint_sweep *w, const mrvi_step *st, double *x) {
   const int ns = st->ns, rs = st->r_slow, p = st->p;
   if (rs == 0)
     return MRVI_OK;
