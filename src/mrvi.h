@@ -776,7 +776,11 @@ typedef enum mrvi_newton_criterion {
   X(int, predict_settle, 1, 0, 1,                                              \
     "steps with more than 32 rows of slow constraints start Newton from the "  \
     "predictor moved onto the constraints, nearest in the mass metric (0: "    \
-    "from the predictor)")
+    "from the predictor)")                                                     \
+  X(int, predict_joints, 1, 0, 1,                                              \
+    "schur-bordered steps with micro-node constraints: the predictor's "       \
+    "sweep moves each fast node onto them and sets their multipliers (the "    \
+    "joint sweep; 0: the explicit sweep, multipliers from zero)")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

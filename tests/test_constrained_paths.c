@@ -27,8 +27,8 @@ static const char *const systems[] = {
 
 static mrvi_system *load(const char *rel, const char *scheme, int p,
                          const char *form, const char *solver) {
-  char ov[9][96];
-  const char *ovp[9];
+  char ov[10][96];
+  const char *ovp[10];
   snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", scheme);
   snprintf(ov[1], sizeof ov[1], "integrator.micro_steps=%d", p);
   snprintf(ov[2], sizeof ov[2], "integrator.newton.tolerance=1e-12");
@@ -39,15 +39,21 @@ static mrvi_system *load(const char *rel, const char *scheme, int p,
    * from larger blocks) */
   snprintf(ov[6], sizeof ov[6], "integrator.tuning.bordered_max=100000");
   snprintf(ov[7], sizeof ov[7], "integrator.tuning.bordered_node_max=100000");
+  /* Both paths from the same predictor: the joint sweep starts
+   * schur-bordered elsewhere, its steps then agree with general's to the
+   * tolerance (8.8e-13 after spring_ring_rod's first step), which that
+   * system amplifies past this comparison's 1e-10 within 20 steps;
+   * test_torsion tests the sweep. */
+  snprintf(ov[8], sizeof ov[8], "integrator.tuning.predict_joints=0");
   /* The pendulum chain's stiff attachments at p = 1 need dT below
    * 2/omega for the explicit fast rules (as in test_solver). */
   const int chain = strstr(rel, "pendulum_chain") != NULL;
-  snprintf(ov[8], sizeof ov[8], "integrator.macro_step=0.002");
-  for (int i = 0; i < 9; i++)
+  snprintf(ov[9], sizeof ov[9], "integrator.macro_step=0.002");
+  for (int i = 0; i < 10; i++)
     ovp[i] = ov[i];
   mrvi_system *sys = NULL;
   char msg[512];
-  if (mrvi_system_load(test_source_path(rel), ovp, chain ? 9 : 8, &sys, msg,
+  if (mrvi_system_load(test_source_path(rel), ovp, chain ? 10 : 9, &sys, msg,
                        sizeof msg) < 0) {
     CHECK(0, "load %s: %s", rel, msg);
     return NULL;

@@ -24,8 +24,8 @@ static const char *const systems[] = {
 
 static mrvi_system *load(const char *rel, const char *scheme, int p,
                          const char *form, const char *solver) {
-  char ov[6][96];
-  const char *ovp[6];
+  char ov[7][96];
+  const char *ovp[7];
   snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", scheme);
   snprintf(ov[1], sizeof ov[1], "integrator.micro_steps=%d", p);
   snprintf(ov[2], sizeof ov[2], "integrator.newton.tolerance=1e-12");
@@ -37,9 +37,14 @@ static mrvi_system *load(const char *rel, const char *scheme, int p,
   const char *dT = strstr(rel, "fpu")              ? "0.03"
                    : strstr(rel, "pendulum_chain") ? "0.002"
                                                    : NULL;
-  snprintf(ov[5], sizeof ov[5], "integrator.macro_step=%s", dT ? dT : "");
-  const int n_ov = dT ? 6 : 5;
-  for (int i = 0; i < 6; i++)
+  /* Every path from the same predictor (the joint sweep, schur-bordered's
+   * with micro-node constraints, is tested in test_torsion; its steps agree
+   * with general's to the tolerance, not to this comparison's 1e-10 over
+   * 20 steps on cart_pendulum) */
+  snprintf(ov[5], sizeof ov[5], "integrator.tuning.predict_joints=0");
+  snprintf(ov[6], sizeof ov[6], "integrator.macro_step=%s", dT ? dT : "");
+  const int n_ov = dT ? 7 : 6;
+  for (int i = 0; i < 7; i++)
     ovp[i] = ov[i];
   mrvi_system *sys = NULL;
   char msg[512];

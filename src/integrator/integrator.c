@@ -23,6 +23,7 @@ struct mrvi_integrator {
   mrvi_skrylov *skrylov;      /* schur-krylov path */
   mrvi_outer *outer;          /* ... its matrix-free step (NULL: off) */
   mrvi_bordered *bordered;    /* schur-bordered path */
+  mrvi_joint_sweep *jsweep;   /* its predictor's joint sweep (or NULL) */
   mrvi_predictor *predictor;  /* Newton paths */
   int factors_ok;             /* factors of this step's Jacobian are kept */
   char why[512];              /* reason for the path */
@@ -600,18 +601,24 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
              : skrylov_newton(it, msg, len);
 }
 
-/* The schur-bordered path (solver/bordered.c) on the CSC Jacobian. */
+/* The schur-bordered path (solver/bordered.c) on the CSC Jacobian; with
+ * micro-node constraints (tuning predict_joints) its predictor takes the
+ * joint sweep (solver/predict_joints.c). */
 static int bordered_create(mrvi_integrator *it, char *msg, size_t len) {
   const int st = newton_paths_create(it, msg, len);
   if (st < 0)
     return st;
-  return mrvi_bordered_create(&it->step, &it->bordered) < 0
-             ? mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory")
-             : MRVI_OK;
+  if (mrvi_bordered_create(&it->step, &it->bordered) < 0 ||
+      (it->step.tuning.predict_joints &&
+       (mrvi_joint_sweep_create(&it->step, &it->jsweep) < 0 ||
+        mrvi_predictor_set_joints(it->predictor, it->jsweep) < 0)))
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  return MRVI_OK;
 }
 
 static void bordered_free(mrvi_integrator *it) {
   mrvi_bordered_free(it->bordered);
+  mrvi_joint_sweep_free(it->jsweep);
   mrvi_predictor_free(it->predictor);
 }
 
@@ -1345,18 +1352,19 @@ static int newton_step(mrvi_integrator *it) {
   it->jac_ready = 0;
   count_step(it);
 
-  /* Predictor for x, the multipliers from zero.  Nothing is carried from
-   * the last step (multipliers, factors), so a step depends on (q_k, p_k)
-   * alone: a restarted or resumed run continues bit for bit. */
+  /* Predictor for x, the multipliers from zero (or, with the joint sweep,
+   * from the predictor's).  Nothing is carried from the last step
+   * (multipliers, factors), so a step depends on (q_k, p_k) alone: a
+   * restarted or resumed run continues bit for bit. */
   const int shoot = it->blocks && use_shoot(it);
+  if (st->n_lambda > 0)
+    memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   if (!shoot)
     predict(it);
   if (!shoot && it->settle_q)
     settle_predictor(it);
   if (it->nullspace && mrvi_nullspace_reparametrised(it->nullspace))
     mrvi_nullspace_start(it->nullspace, st, it->x);
-  if (st->n_lambda > 0)
-    memset(it->x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof(double));
   it->factors_ok = 0;
   /* Shooting on the slow unknowns: accepted where the exact residual is
    * within the tolerance after it; else Newton goes on from its iterate

@@ -82,6 +82,10 @@ static int kind(const mrvi_point *pt) {
 
 struct mrvi_predictor {
   const mrvi_model *m;
+  /* The micro-node constraints' moves (predict_joints.c; NULL: none) and
+   * sweep_joints' row value u (nf). */
+  mrvi_joint_sweep *js;
+  double *ju;
   mrvi_tuning tn;   /* the step's tuning constants */
   int sweep_ok;     /* dt omega_max small enough for the explicit sweep */
   double omega;     /* omega_max at q0 (power_iteration, once) */
@@ -610,6 +614,7 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr->fexp);
   free(pr->fimp);
   free(pr->fimp1);
+  free(pr->ju);
   free(pr->fimp0);
   free(pr->gnode);
   free(pr->scr);
@@ -1077,9 +1082,65 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     UNROLL for (int s = 0; s < ns; s++) pr->fs[s] = fs[s];
 }
 
+/* The sweep with the micro-node constraints' forces (pr->js,
+ * predict_joints.c; doc/solver.md, "The joint sweep"), on the points of
+ * any rule as sweep_k.  At each node: the row solved with the implicit
+ * force at its estimate (sweep_k), the node moved onto the constraints
+ * (lambda^m), the implicit points evaluated at the moved node (the move is
+ * of the size of the constraint force's effect over the micro step, far
+ * above the estimate's error, and W's force changes with it), the row
+ * solved again with them plus the move, and the node moved onto the
+ * constraints again with the matrix kept; p^{f,m+1} = M (d^{m+1} - d^m) /
+ * dt - F_m^B of the moved node.  The slow-row force is the points' (the
+ * multipliers' is mrvi_joint_sweep_slow_force). */
+static void sweep_joints(mrvi_predictor *pr, const mrvi_step *st, double *x,
+                         int sum_slow) {
+  const int p = st->p, ns = st->ns, nf = st->nf;
+  const double dt = st->dt, *minv = pr->minv + ns;
+  double *fs = pr->fs, *fexp = pr->fexp, *fimp = pr->fimp, *fimp1 = pr->fimp1,
+         *fb = pr->fb, *pm = pr->pm, *u = pr->ju;
+  if (sum_slow)
+    memset(fs, 0, (size_t)ns * sizeof *fs);
+  memcpy(fimp, pr->fimp0, (size_t)nf * sizeof *fimp);
+  memcpy(pm, st->pf0, (size_t)nf * sizeof *pm);
+  int first[2] = {0, 0}, end[2];
+  for (int mm = 0; mm < p; mm++) {
+    end[0] = pr->pend[0][mm];
+    end[1] = pr->pend[1][mm];
+    const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+    double *dn = x + ns + (size_t)mm * nf;
+    memset(fexp, 0, (size_t)nf * sizeof *fexp);
+    eval_points_k(pr, st, x, first, end, AT_LEFT, fexp, NULL, fs, sum_slow,
+                  mm == 0, ns, nf);
+    extrapolate_k(mm, fimp, fimp1, nf);
+    for (int f = 0; f < nf; f++)
+      dn[f] = (d ? d[f] : 0.0) + dt * minv[f] * (pm[f] - fexp[f] - fimp[f]);
+    const double *c = mrvi_joint_sweep_node(pr->js, st, x, mm, 0);
+    memset(fimp, 0, (size_t)nf * sizeof *fimp);
+    memset(fb, 0, (size_t)nf * sizeof *fb);
+    eval_points_k(pr, st, x, first, end, INSIDE, fimp, fb, fs, sum_slow, 0, ns,
+                  nf);
+    for (int f = 0; f < nf; f++) {
+      u[f] = pm[f] - fexp[f] - fimp[f];
+      dn[f] = (d ? d[f] : 0.0) + dt * minv[f] * u[f] + c[f];
+    }
+    c = mrvi_joint_sweep_node(pr->js, st, x, mm, 1);
+    eval_points_k(pr, st, x, first, end, AT_RIGHT, NULL, fb, fs, sum_slow, 0,
+                  ns, nf);
+    for (int f = 0; f < nf; f++)
+      pm[f] = u[f] + c[f] / (dt * minv[f]) - fb[f];
+    first[0] = end[0];
+    first[1] = end[1];
+  }
+}
+
 static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
                   int sum_slow) {
   pr->n_sweeps++;
+  if (pr->js) {
+    sweep_joints(pr, st, x, sum_slow);
+    return;
+  }
   if (pr->one) {
     SMALL2(st->ns, NS, st->nf, NF, sweep1_k(pr, st, x, sum_slow, NS, NF));
   } else {
@@ -1374,6 +1435,25 @@ static void predict_start(mrvi_predictor *pr, const mrvi_step *st, double *x,
     pre_solve(pr, st, x);
 }
 
+/* With the micro-node constraints (pr->js): q_{k+1}^s against the force of
+ * the swept multipliers (M_s dq^s / dT moved by dT M_s^-1 of it) and onto
+ * the slow-only constraints, and the fast nodes swept again along it.  The
+ * elbow of a light link hanging on a heavy slow body follows the slow
+ * path interpolated ((4.8)), so its multipliers at node 0 are as wrong as
+ * q_{k+1}^s / p, and their error is carried through every later node;
+ * the slow body's response to the links is small (their mass over its),
+ * so one correction suffices (doc/solver.md, "The joint sweep"). */
+static void joints_slow_end(mrvi_predictor *pr, const mrvi_step *st,
+                            double *x) {
+  double *fj = pr->b; /* (ns) */
+  memset(fj, 0, (size_t)st->ns * sizeof *fj);
+  mrvi_joint_sweep_slow_force(pr->js, st, x, fj);
+  for (int s = 0; s < st->ns; s++)
+    x[s] -= st->dT * pr->minv[s] * fj[s];
+  mrvi_joint_sweep_slow(pr->js, st, x);
+  sweep(pr, st, x, 0);
+}
+
 static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   pr->n_sweeps = 0;
   if (!pr->sweep_ok) {
@@ -1383,29 +1463,36 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   predict_start(pr, st, x, use_pre(pr, 0));
   if (!pr->slow_coupled || st->ns == 0) {
     sweep(pr, st, x, 0);
-    return;
+  } else {
+    /* The slow row again with its points along the swept path.  (Sweeping
+     * the fast nodes once more along the corrected slow path saves no
+     * Newton update: doc/performance.md, "Tuning constants".) */
+    sweep(pr, st, x, 1);
+    slow_newton(pr, st, x);
   }
-  /* The slow row again with its points along the swept path.  (Sweeping
-   * the fast nodes once more along the corrected slow path saves no Newton
-   * update: doc/performance.md, "Tuning constants".) */
-  sweep(pr, st, x, 1);
-  slow_newton(pr, st, x);
+  if (pr->js && st->ns > 0)
+    joints_slow_end(pr, st, x);
 }
 
 void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   predict_sweep(pr, st, x);
   /* Any entry NaN or infinite (x * 0 is NaN exactly then; no branch per
-   * entry): free flight instead. */
+   * entry): free flight instead (and, with the joint sweep, the
+   * multipliers it set from zero). */
+  const int nx = pr->js ? st->n_total : st->n_unknowns;
   double b4[4] = {0.0, 0.0, 0.0, 0.0}; /* (four independent sums) */
   int i = 0;
-  for (; i + 4 <= st->n_unknowns; i += 4)
+  for (; i + 4 <= nx; i += 4)
     for (int j = 0; j < 4; j++)
       b4[j] += x[i + j] * 0.0;
-  for (; i < st->n_unknowns; i++)
+  for (; i < nx; i++)
     b4[0] += x[i] * 0.0;
   const double bad = (b4[0] + b4[1]) + (b4[2] + b4[3]);
-  if (bad != 0.0 || bad != bad)
+  if (bad != 0.0 || bad != bad) {
     mrvi_predict_free_flight(st, x);
+    if (pr->js)
+      memset(x + st->n_unknowns, 0, (size_t)st->n_lambda * sizeof *x);
+  }
 }
 
 /* Shooting (doc/solver.md, "Newton details"): where the sweep solves
@@ -1535,6 +1622,14 @@ int mrvi_predictor_presolve(mrvi_predictor *pr, int on) {
 }
 
 int mrvi_predictor_sweeps(const mrvi_predictor *pr) { return pr->n_sweeps; }
+
+int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w) {
+  if (w && !pr->ju &&
+      !(pr->ju = malloc((size_t)(pr->m->n_fast + 1) * sizeof(double))))
+    return MRVI_ENOMEM;
+  pr->js = w;
+  return MRVI_OK;
+}
 
 int mrvi_predictor_one_point(mrvi_predictor *pr, int on) {
   const int was = pr->one;

@@ -483,6 +483,32 @@ int mrvi_predictor_one_point(mrvi_predictor *pr, int on);
  * by power iteration at creation (0 if not positive). */
 double mrvi_predictor_omega_max(mrvi_predictor *pr);
 
+/* The predictor's constraint forces at the micro nodes
+ * (solver/predict_joints.c, doc/solver.md "The joint sweep").  create
+ * leaves *out NULL (and returns MRVI_OK) where the step has no micro-node
+ * constraint. */
+typedef struct mrvi_joint_sweep mrvi_joint_sweep;
+int mrvi_joint_sweep_create(const mrvi_step *st, mrvi_joint_sweep **out);
+void mrvi_joint_sweep_free(mrvi_joint_sweep *w);
+/* In a sweep of the displacements x (st->increments; n_total with the
+ * multipliers), fast node m + 1 just solved from row m: one Newton update
+ * of its move onto the micro-node constraints along M_f^-1 G_f(z^m)^T
+ * (again = 0: a new node, its matrix formed; 1: the same node again, the
+ * matrix kept), lambda^m set from the moves.  Returns the node's move so
+ * far (nf). */
+const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
+                                    double *x, int m, int again);
+/* fs (ns) += the slow-row force of the micro-node multipliers of x, sum
+ * over m of dt (1 - m/p) G_s(z^m)^T lambda^m (G of the last sweep). */
+void mrvi_joint_sweep_slow_force(const mrvi_joint_sweep *w, const mrvi_step *st,
+                                 const double *x, double *fs);
+/* q_{k+1}^s of x onto the slow-only constraints along M_s^-1 G(q_k)^T (two
+ * Newton updates), their multipliers set; MRVI_ESINGULAR (x unchanged)
+ * where the matrix is singular. */
+int mrvi_joint_sweep_slow(mrvi_joint_sweep *w, const mrvi_step *st, double *x);
+/* The predictor's sweeps take w's moves (NULL: not); MRVI_ENOMEM. */
+int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w);
+
 /* The schur-bordered path (solver/bordered.c): a constrained step's
  * Newton matrix [A B; C E] in the multiplier form by the block elimination
  * of A (blocks.c) bordered by the multipliers. */

@@ -1,0 +1,248 @@
+/* The predictor's constraint forces at the micro nodes (doc/solver.md,
+ * "The joint sweep").  The explicit sweep (predict.c) leaves them out: over
+ * a macro step its fast nodes drift from the micro-node constraints by what
+ * those forces would have moved them (about (omega m dt)^2 at node m, against
+ * (omega dt)^2 over a single-rate step), and Newton starts the multipliers
+ * from zero, so that a macro step took two Newton updates more than a
+ * single-rate step.  The sweep with joints solves each node's constrained
+ * fast row in its turn instead.  Row m of a fast node (doc/constraints.md,
+ * "The constrained discrete action"; arXiv 2406.12991, (4.8)),
+ *
+ *   M^f (q^m - q^{m-1}) / dt - M^f (q^{m+1} - q^m) / dt - F_m
+ *       - dt G_f(z^m)^T lambda^m = 0,      g(z^{m+1}) = 0,
+ *
+ * changes by -M^f delta / dt when q^{m+1} moves by delta, so the node the
+ * explicit row gives moves by
+ *
+ *   delta = M_f^-1 G_f(z^m)^T mu,   lambda^m = -mu / dt^2,
+ *
+ * mu (r_micro) the root of g(z^{m+1} + delta) = 0: the SHAKE update, here
+ * one Newton update on K = G_f(z^{m+1}) M_f^-1 G_f(z^m)^T per call (the
+ * sweep calls it twice per node, the second time with K kept).  The slow
+ * part of z^m is the predictor's q_{k+1}^s interpolated ((4.8)) and held;
+ * mrvi_joint_sweep_slow_force gives the slow row the multipliers' force
+ * and mrvi_joint_sweep_slow moves q_{k+1}^s onto the slow-only
+ * constraints the same way (weight dT, G at q_k).  Every step of this
+ * depends on (q_k, p_k) alone. */
+#include "solver/solver.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct mrvi_joint_sweep {
+  int n, rmax;  /* ns + nf; the most rows of one block (r_micro, r_slow) */
+  double *minv; /* 1 / mass, slow slots then fast (n) */
+  /* G (rmax x n, slow slots then fast): at node m in block m (m = 0..p),
+   * the slow-only constraints' at q_k and at q_{k+1}^s in blocks p + 1
+   * and p + 2 */
+  double *G;
+  double *K;           /* node m's K factored in block m, the slow one's in p */
+  int *piv;            /* (p + 1) rmax */
+  int ok;              /* the current node's K is regular */
+  double *g, *mu;      /* g at the equation's node, one update (rmax each) */
+  double *mut;         /* the updates' sum at the current node (rmax) */
+  double *c;           /* the current node's move (nf) */
+  double *y, *cg, *cG; /* one constraint's inputs, g and G */
+};
+
+int mrvi_joint_sweep_create(const mrvi_step *st, mrvi_joint_sweep **out) {
+  *out = NULL;
+  if (st->r_micro == 0 || st->nf == 0)
+    return MRVI_OK;
+  mrvi_joint_sweep *w = calloc(1, sizeof *w);
+  if (!w)
+    return MRVI_ENOMEM;
+  const mrvi_model *m = st->model;
+  const size_t n = (size_t)(st->ns + st->nf), p = (size_t)st->p;
+  const size_t r =
+      (size_t)(st->r_micro > st->r_slow ? st->r_micro : st->r_slow);
+  const size_t ni =
+      (size_t)(m->max_constraint_in > 0 ? m->max_constraint_in : 1);
+  w->n = (int)n;
+  w->rmax = (int)r;
+  w->minv = malloc(n * sizeof(double));
+  w->G = malloc((p + 3) * r * n * sizeof(double));
+  w->K = malloc((p + 1) * r * r * sizeof(double));
+  w->piv = malloc((p + 1) * r * sizeof(int));
+  w->g = malloc(3 * r * sizeof(double));
+  w->c = malloc((size_t)st->nf * sizeof(double));
+  w->y = malloc((ni + r + r * ni) * sizeof(double));
+  if (!w->minv || !w->G || !w->K || !w->piv || !w->g || !w->c || !w->y) {
+    mrvi_joint_sweep_free(w);
+    return MRVI_ENOMEM;
+  }
+  w->mu = w->g + r;
+  w->mut = w->g + 2 * r;
+  w->cg = w->y + ni;
+  w->cG = w->cg + r;
+  for (int s = 0; s < st->ns; s++)
+    w->minv[s] = 1.0 / m->mass[m->slow_index[s]];
+  for (int s = 0; s < st->nf; s++)
+    w->minv[st->ns + s] = 1.0 / m->mass[m->fast_index[s]];
+  *out = w;
+  return MRVI_OK;
+}
+
+void mrvi_joint_sweep_free(mrvi_joint_sweep *w) {
+  if (!w)
+    return;
+  free(w->minv);
+  free(w->G);
+  free(w->K);
+  free(w->piv);
+  free(w->g);
+  free(w->c);
+  free(w->y);
+  free(w);
+}
+
+/* G block b (rmax x n) and K block b (rmax x rmax), pivots of block b. */
+static double *gblock(const mrvi_joint_sweep *w, int b) {
+  return w->G + (size_t)b * (size_t)w->rmax * (size_t)w->n;
+}
+static double *kblock(const mrvi_joint_sweep *w, int b) {
+  return w->K + (size_t)b * (size_t)w->rmax * (size_t)w->rmax;
+}
+static int *pblock(const mrvi_joint_sweep *w, int b) {
+  return w->piv + (size_t)b * (size_t)w->rmax;
+}
+
+/* g (if not NULL) and G (if not NULL: rows x n, slow slots then fast) of
+ * the constraints cons[0..nc) at node m of the displacements x
+ * (st->increments), the slow part with weight a1 ((4.8)). */
+static void rows_at(mrvi_joint_sweep *w, const mrvi_step *st, const double *x,
+                    const int *cons, int nc, int m, double a1, double *g,
+                    double *G) {
+  const mrvi_model *md = st->model;
+  const int n = w->n, ns = st->ns;
+  const double *xf = m == 0 ? NULL : x + ns + (size_t)(m - 1) * st->nf;
+  if (G)
+    memset(G, 0, (size_t)w->rmax * (size_t)n * sizeof *G);
+  for (int i = 0; i < nc; i++) {
+    const int c = cons[i], off = st->c_off[c];
+    const mrvi_constraint *k = &md->constraints[c];
+    for (int j = 0; j < k->n_in; j++) {
+      const int idx = k->in[j], s = md->slot[idx];
+      w->y[j] = md->rate[idx] == MRVI_SLOW ? st->qs0[s] + a1 * x[s]
+                                           : st->qf0[s] + (xf ? xf[s] : 0.0);
+    }
+    mrvi_constraint_eval_at(k, w->y, w->cg, w->cG, NULL);
+    for (int r = 0; r < k->rows; r++) {
+      if (g)
+        g[off + r] = w->cg[r];
+      if (!G)
+        continue;
+      for (int j = 0; j < k->n_in; j++) {
+        const int idx = k->in[j];
+        const int col = md->slot[idx] + (md->rate[idx] == MRVI_FAST ? ns : 0);
+        G[(off + r) * n + col] += w->cG[r * k->n_in + j];
+      }
+    }
+  }
+}
+
+/* K = B M^-1 A^T on the columns [lo, lo + ny), factored; -1 if singular. */
+static int project_matrix(const mrvi_joint_sweep *w, int r, int lo, int ny,
+                          const double *A, const double *B, double *K,
+                          int *piv) {
+  const int n = w->n;
+  const double *mi = w->minv + lo;
+  A += lo;
+  B += lo;
+  for (int a = 0; a < r; a++)
+    for (int b = 0; b < r; b++) {
+      double s = 0.0;
+      for (int j = 0; j < ny; j++)
+        s += B[a * n + j] * mi[j] * A[b * n + j];
+      K[a * r + b] = s;
+    }
+  return mrvi_dense_lu_factor(r, K, piv);
+}
+
+/* mu = -K^-1 g added to w->mut, and the move M^-1 A^T mu on the columns
+ * [lo, lo + ny) added to y (their unknowns) and to c (if not NULL). */
+static void project_update(mrvi_joint_sweep *w, int r, int lo, int ny,
+                           const double *A, const double *K, const int *piv,
+                           double *y, double *c) {
+  const int n = w->n;
+  const double *mi = w->minv + lo;
+  A += lo;
+  for (int a = 0; a < r; a++)
+    w->mu[a] = -w->g[a];
+  mrvi_dense_lu_solve(r, K, piv, w->mu, 1);
+  for (int j = 0; j < ny; j++) {
+    double d = 0.0;
+    for (int a = 0; a < r; a++)
+      d += A[a * n + j] * w->mu[a];
+    d *= mi[j];
+    y[j] += d;
+    if (c)
+      c[j] += d;
+  }
+  for (int a = 0; a < r; a++)
+    w->mut[a] += w->mu[a];
+}
+
+const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
+                                    double *x, int m, int again) {
+  const int ns = st->ns, nf = st->nf, rm = st->r_micro;
+  const double *A = gblock(w, m);
+  double *B = gblock(w, m + 1), *K = kblock(w, m);
+  int *piv = pblock(w, m);
+  const double p = (double)st->p;
+  if (!again) {
+    if (m == 0)
+      rows_at(w, st, x, st->micro_c, st->n_micro_c, 0, 0.0, NULL, gblock(w, 0));
+    memset(w->c, 0, (size_t)nf * sizeof *w->c);
+    memset(w->mut, 0, (size_t)rm * sizeof *w->mut);
+  }
+  /* g and G at z^{m+1}; that G stays as the next node's (from before the
+   * second update, which moves the node by the square of the first's
+   * residual) */
+  rows_at(w, st, x, st->micro_c, st->n_micro_c, m + 1, (m + 1) / p, w->g, B);
+  if (!again)
+    w->ok = project_matrix(w, rm, ns, nf, A, B, K, piv) == 0;
+  if (w->ok)
+    project_update(w, rm, ns, nf, A, K, piv, x + ns + (size_t)m * nf, w->c);
+  double *lam = x + st->n_unknowns + st->r_slow + (size_t)m * rm;
+  const double idt2 = 1.0 / (st->dt * st->dt);
+  for (int a = 0; a < rm; a++)
+    lam[a] = -w->mut[a] * idt2;
+  return w->c;
+}
+
+void mrvi_joint_sweep_slow_force(const mrvi_joint_sweep *w, const mrvi_step *st,
+                                 const double *x, double *fs) {
+  const int n = w->n, rm = st->r_micro, ns = st->ns;
+  for (int m = 0; m < st->p; m++) {
+    const double *A = gblock(w, m);
+    const double *lam = x + st->n_unknowns + st->r_slow + (size_t)m * rm;
+    const double h = st->dt * (1.0 - m / (double)st->p);
+    for (int a = 0; a < rm; a++)
+      for (int s = 0; s < ns; s++)
+        fs[s] += h * A[a * n + s] * lam[a];
+  }
+}
+
+int mrvi_joint_sweep_slow(mrvi_joint_sweep *w, const mrvi_step *st, double *x) {
+  const int ns = st->ns, rs = st->r_slow, p = st->p;
+  if (rs == 0)
+    return MRVI_OK;
+  double *A = gblock(w, p + 1), *B = gblock(w, p + 2), *K = kblock(w, p);
+  int *piv = pblock(w, p);
+  rows_at(w, st, x, st->slow_c, st->n_slow_c, 0, 0.0, NULL, A);
+  rows_at(w, st, x, st->slow_c, st->n_slow_c, p, 1.0, w->g, B);
+  if (project_matrix(w, rs, 0, ns, A, B, K, piv) < 0)
+    return MRVI_ESINGULAR;
+  memset(w->mut, 0, (size_t)rs * sizeof *w->mut);
+  /* two updates, the second with K kept */
+  project_update(w, rs, 0, ns, A, K, piv, x, NULL);
+  rows_at(w, st, x, st->slow_c, st->n_slow_c, p, 1.0, w->g, NULL);
+  project_update(w, rs, 0, ns, A, K, piv, x, NULL);
+  double *lam = x + st->n_unknowns;
+  const double idT2 = 1.0 / (st->dT * st->dT);
+  for (int a = 0; a < rs; a++)
+    lam[a] = -w->mut[a] * idT2;
+  return MRVI_OK;
+}
