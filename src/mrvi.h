@@ -764,8 +764,9 @@ typedef enum mrvi_newton_criterion {
     "step after it (or the forward pass's); beyond: factorised anew "          \
     "(0: every step)")                                                         \
   X(int, adjoint_krylov, 1, 0, 1,                                              \
-    "where the forward pass takes schur-krylov, the adjoint's transposed "     \
-    "step solves run its elimination backwards (GMRES, CG sweeps; 0: the "     \
+    "where the forward pass takes schur-krylov, or an explicit path on "       \
+    "steps beyond adjoint_dense_max, the adjoint's transposed step solves "    \
+    "run schur-krylov's elimination backwards (GMRES, CG sweeps; 0: the "      \
     "sparse LU with kept factors)")                                            \
   X(double, adjoint_krylov_rtol, 1e-10, 0.0, 1.0,                              \
     "relative tolerance of those solves' block CG and GMRES")                  \

@@ -1034,11 +1034,12 @@ static void test_paths_iterative(void) {
 }
 
 /* The lattice problem of bench_ocp --lattice at 200 coordinates (10 x 10
- * particles, every second column fast: 100 slow, 100 fast, schur-krylov),
- * N = 10: the adjoint's transposed step solves on the schur-krylov
- * elimination run backwards give the gradients of the sparse LU's
- * (tuning.adjoint_krylov = 0) to 1e-8 relative, at two controls in turn,
- * with no fallback to the LU; and central differences (1e-6). */
+ * particles, every second column fast: 100 slow, 100 fast), N = 10, with
+ * midpoint-midpoint (schur-krylov), explicit-slow (sweep-cg) and
+ * fully-explicit (explicit): the adjoint's transposed step solves on the
+ * schur-krylov elimination run backwards give the gradients of the sparse
+ * LU's (tuning.adjoint_krylov = 0) to 1e-8 relative, at two controls in
+ * turn, with no fallback to the LU; and central differences (1e-6). */
 static const char *lattice_text =
     "name: lattice_ocp\ndimension: 2\n"
     "generate:\n"
@@ -1057,25 +1058,28 @@ static const char *lattice_text =
     "  terminal:\n"
     "    - {coordinate: p0_0.x, position: 0.2, velocity: 0}\n";
 
-static void test_adjoint_krylov(void) {
-  const char *ov[1] = {"integrator.tuning.adjoint_krylov=0"};
+static void adjoint_krylov_scheme(const char *scheme, const char *path_want) {
+  char sch[64];
+  snprintf(sch, sizeof sch, "integrator.scheme=%s", scheme);
+  const char *ov[2] = {sch, "integrator.tuning.adjoint_krylov=0"};
   mrvi_system *sys[2] = {NULL, NULL};
   mrvi_ocp *o[2] = {NULL, NULL};
   double *u[2] = {NULL, NULL}, *g[2] = {NULL, NULL};
   char msg[2048];
   int st = 0;
   for (int w = 0; w < 2 && st == 0; w++) {
-    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, w, &sys[w],
-                                 msg, sizeof msg);
+    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, 1 + w,
+                                 &sys[w], msg, sizeof msg);
     if (st == 0)
       st = mrvi_ocp_load(sys[w], &o[w], &u[w], msg, sizeof msg);
-    CHECK(st == 0, "adjoint krylov: load: %s", msg);
+    CHECK(st == 0, "adjoint krylov, %s: load: %s", scheme, msg);
   }
   if (st != 0)
     goto out;
   const char *path = mrvi_ocp_solver_path(o[0], NULL, 0);
-  CHECK(path && strcmp(path, "schur-krylov") == 0,
-        "adjoint krylov: path %s, expected schur-krylov", path ? path : "none");
+  CHECK(path && strcmp(path, path_want) == 0,
+        "adjoint krylov, %s: path %s, expected %s", scheme,
+        path ? path : "none", path_want);
   const int n = mrvi_ocp_n_controls(o[0]), nm = mrvi_ocp_n_constraints(o[0]);
   const int len = 2 * n * (1 + nm);
   for (int w = 0; w < 2 && st == 0; w++) {
@@ -1085,7 +1089,8 @@ static void test_adjoint_krylov(void) {
         u[w][i] = 0.5 * sin(0.7 * i + t);
       st = gradients_at(o[w], u[w], g[w] + t * n * (1 + nm));
     }
-    CHECK(st == 0, "adjoint krylov: way %d: %s", w, mrvi_ocp_errmsg(o[w]));
+    CHECK(st == 0, "adjoint krylov, %s: way %d: %s", scheme, w,
+          mrvi_ocp_errmsg(o[w]));
   }
   if (st != 0)
     goto out;
@@ -1095,16 +1100,19 @@ static void test_adjoint_krylov(void) {
     sc = fmax(sc, fabs(g[1][i]));
   }
   CHECK(sc > 0.0 && err <= 1e-8 * sc,
-        "adjoint krylov: gradients differ from the LU's by %.3e (scale %.3e)",
-        err, sc);
+        "adjoint krylov, %s: gradients differ from the LU's by %.3e (scale "
+        "%.3e)",
+        scheme, err, sc);
   /* 2 evaluations of N = 10 steps, 2 functionals each */
   CHECK(o[0]->adjoint_krylov_solves == 2 * 10 * (1 + nm) &&
             o[0]->adjoint_krylov_fallbacks == 0 &&
             o[1]->adjoint_krylov_solves == 0,
-        "adjoint krylov: %ld solves, %ld fallbacks (LU way: %ld solves)",
-        o[0]->adjoint_krylov_solves, o[0]->adjoint_krylov_fallbacks,
+        "adjoint krylov, %s: %ld solves, %ld fallbacks (LU way: %ld solves)",
+        scheme, o[0]->adjoint_krylov_solves, o[0]->adjoint_krylov_fallbacks,
         o[1]->adjoint_krylov_solves);
-  check_gradients(o[0], "adjoint krylov: lattice 200");
+  char what[96];
+  snprintf(what, sizeof what, "adjoint krylov: lattice 200, %s", scheme);
+  check_gradients(o[0], what);
 out:
   for (int w = 0; w < 2; w++) {
     free(g[w]);
@@ -1112,6 +1120,12 @@ out:
     mrvi_ocp_free(o[w]);
     mrvi_system_free(sys[w]);
   }
+}
+
+static void test_adjoint_krylov(void) {
+  adjoint_krylov_scheme("midpoint-midpoint", "schur-krylov");
+  adjoint_krylov_scheme("explicit-slow", "sweep-cg");
+  adjoint_krylov_scheme("fully-explicit", "explicit");
 }
 
 /* The optimum found on the path chosen automatically equals the general

@@ -103,12 +103,16 @@ void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
               zc[j][0] * o->Q[gz[zi[j][0]]] + zc[j][1] * o->Q[gz[zi[j][1]]];
         }
         mrvi_element_eval(m, e, st->y, st->g, st->H);
+        /* Node pairs of zero coefficient skipped (a point on a node: the
+         * explicit schemes' points), in every mode alike, so that the
+         * pattern and the recorded slots agree. */
         for (int j = 0; j < n; j++)
           for (int l = 0; l < n; l++) {
             const double h = pt->w * st->H[j * n + l];
             for (int a = 0; a < 2; a++)
               for (int b = 0; b < 2; b++)
-                ocp_jac_add(J, zi[j][a], zi[l][b], -zc[j][a] * zc[l][b] * h);
+                if (zc[j][a] != 0.0 && zc[l][b] != 0.0)
+                  ocp_jac_add(J, zi[j][a], zi[l][b], -zc[j][a] * zc[l][b] * h);
           }
       }
     }
@@ -459,6 +463,25 @@ static int sparse_pattern(mrvi_ocp *o, long k) {
   return MRVI_OK;
 }
 
+/* Whether the adjoint's transposed step solves take the schur-krylov
+ * elimination: where the forward pass does (large unconstrained steps),
+ * and on the explicit paths (explicit, sweep, sweep-cg) for steps too
+ * large for the dense H, whose forward pass factorises nothing either
+ * (against the sparse LU of the step: doc/performance.md, "Optimal
+ * control on a lattice"). */
+static int adjoint_krylov_path(const mrvi_ocp *o) {
+  switch (o->path) {
+  case MRVI_PATH_SCHUR_KRYLOV:
+    return 1;
+  case MRVI_PATH_EXPLICIT:
+  case MRVI_PATH_SWEEP:
+  case MRVI_PATH_SWEEP_CG:
+    return !dense_jacobian(o);
+  default:
+    return 0;
+  }
+}
+
 /* Lazily sized adjoint workspace for nfun functionals: the dense H and its
  * rows where dense_jacobian, else the sparse rows at the first step. */
 static int adjoint_alloc(mrvi_ocp *o, int nfun) {
@@ -496,7 +519,7 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
    * its block structure keeps the LU: EINVAL). */
   char msg[300];
   const mrvi_tuning *tn = &o->settings.tuning;
-  if (o->path == MRVI_PATH_SCHUR_KRYLOV && tn->adjoint_krylov &&
+  if (adjoint_krylov_path(o) && tn->adjoint_krylov &&
       mrvi_skrylov_create(st, &o->skrylov, msg, sizeof msg) == MRVI_ENOMEM)
     return MRVI_ENOMEM;
   if (o->skrylov)
@@ -567,9 +590,9 @@ static int step_jacobian(mrvi_ocp *o, long k) {
 }
 
 /* A_k^T x_f = b_f (rhs, sol: nfun x n_total) by the schur-krylov
- * elimination run backwards with A_k's values (forward path schur-krylov:
- * the solver that never factorises the step); its fallback, the sparse LU
- * of the step, counted. */
+ * elimination run backwards with A_k's values (adjoint_krylov_path: the
+ * solver that never factorises the step); its fallback, the sparse LU of
+ * the step, counted. */
 static int krylov_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   const size_t nt = (size_t)o->step.n_total;
   const mrvi_krylov_stats *ks = mrvi_skrylov_stats(o->skrylov);
@@ -673,7 +696,8 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         b[nu + i] = rloc[i];
     }
     /* A_k^T mu_k = b with the step Jacobian at the converged step: where
-     * the forward pass takes schur-krylov, its elimination run backwards;
+     * the forward pass takes schur-krylov or an explicit path
+     * (adjoint_krylov_path), schur-krylov's elimination run backwards;
      * else the solver's transposed solve (UMFPACK_At, or the dense LU of
      * small steps) with the factors it keeps (of step k + 1, or of the
      * forward pass's last Newton update) refined against A_k, factorised

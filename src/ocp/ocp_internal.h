@@ -139,9 +139,9 @@ struct mrvi_ocp {
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
   long adjoint_factorisations; /* step factorisations of the adjoints */
   /* The transposed step solves of the adjoint on the schur-krylov
-   * elimination (forward path schur-krylov, tuning.adjoint_krylov), on
-   * step's pattern with the values Ak; its solves and those that fell
-   * back to the sparse LU. */
+   * elimination (forward path schur-krylov or an explicit one,
+   * tuning.adjoint_krylov), on step's pattern with the values Ak; its
+   * solves and those that fell back to the sparse LU. */
   mrvi_skrylov *skrylov;
   long adjoint_krylov_solves, adjoint_krylov_fallbacks;
   /* Terminal velocities of a constrained model (projected_velocity):
