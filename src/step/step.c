@@ -325,17 +325,20 @@ void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
  * the rows the node feeds, with its derivatives: lambda columns starting at
  * lcol, and -w c_row c_col sum_r lambda_r d2g_r on the unknown columns.
  * The caller has evaluated g, G (and, if the node has unknown columns and
- * jac, the second derivatives) at pt. */
+ * jac and c is not affine, the second derivatives) at pt.  An affine
+ * constraint's second derivatives are zero: its entries keep their place
+ * in the pattern (recorded as for any constraint) and get nothing. */
 static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
                              const double *lam, int lcol, double *R, int jac) {
   const mrvi_constraint *k = &st->model->constraints[c];
   const int n = k->n_in, rows = k->rows;
   /* The unknown columns of every input, once (not once per row fed). */
-  int kc[MRVI_MAX_INPUTS], cl[MRVI_MAX_INPUTS][2];
+  int kc[MRVI_MAX_INPUTS], cl[MRVI_MAX_INPUTS][2], nh = 0;
   double cc[MRVI_MAX_INPUTS][2];
   if (jac)
     for (int l = 0; l < n; l++)
-      kc[l] = mrvi_step_cols_of(st, k->in[l], pt, cl[l], cc[l]);
+      nh += kc[l] = mrvi_step_cols_of(st, k->in[l], pt, cl[l], cc[l]);
+  const int skip_hess = k->affine && st->recording == 0;
   for (int j = 0; j < n; j++) {
     int rj[2];
     double cj[2];
@@ -349,11 +352,15 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
         continue;
       for (int r = 0; r < rows; r++)
         jac_add(st, rj[a], lcol + r, -pt->w * cj[a] * st->cG[r * n + j]);
+      if (skip_hess) {
+        st->n_trip += nh;
+        continue;
+      }
       for (int l = 0; l < n; l++) {
         if (kc[l] == 0)
           continue;
         double h = 0.0;
-        for (int r = 0; r < rows; r++)
+        for (int r = 0; r < rows && !k->affine; r++)
           h += lam[r] * st->cH[(r * n + j) * n + l];
         for (int b = 0; b < kc[l]; b++)
           jac_add(st, rj[a], cl[l][b], -pt->w * cj[a] * cc[l][b] * h);
@@ -407,7 +414,9 @@ static void assemble_constraints(mrvi_step *st, const double *x, double *R,
       const int c = st->micro_c[i], off = st->c_off[c];
       /* One evaluation serves the force at nodes 0..p-1 and the equation
        * at nodes 1..p. */
-      mrvi_step_constraint_eval(st, c, &pt, x, jac && mm > 0 && mm < p);
+      mrvi_step_constraint_eval(st, c, &pt, x,
+                                jac && mm > 0 && mm < p &&
+                                    !st->model->constraints[c].affine);
       if (mm < p)
         constraint_force(st, c, &pt, lam + st->r_slow + mm * rm + off,
                          base + mm * rm + off, R, jac);
