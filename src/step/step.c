@@ -128,32 +128,35 @@ int mrvi_step_cols_of(const mrvi_step *st, int c, const mrvi_point *pt,
   return cols_of(st, c, pt, col, coef);
 }
 
+/* The recording pass of jac_add: the entry's row and column. */
+static void jac_record(mrvi_step *st, int row, int col) {
+  if (st->n_trip == st->cap_trip) {
+    long c = st->cap_trip ? 2 * st->cap_trip : 1024;
+    int *ti = realloc(st->Ti, (size_t)c * sizeof *ti);
+    if (ti)
+      st->Ti = ti;
+    int *tj = realloc(st->Tj, (size_t)c * sizeof *tj);
+    if (tj)
+      st->Tj = tj;
+    if (!ti || !tj) {
+      st->recording = -1; /* out of memory: reported by build_pattern */
+      return;
+    }
+    st->cap_trip = c;
+  }
+  st->Ti[st->n_trip] = row;
+  st->Tj[st->n_trip] = col;
+  st->n_trip++;
+}
+
 /* Add v at (row, col): records the pattern on the first pass, then sums into
  * the CSC values through the triplet map.  Both passes make the same calls
  * because every skip depends on structure (weights, coefficients) only. */
-static void jac_add(mrvi_step *st, int row, int col, double v) {
-  if (st->recording) {
-    if (st->n_trip == st->cap_trip) {
-      long c = st->cap_trip ? 2 * st->cap_trip : 1024;
-      int *ti = realloc(st->Ti, (size_t)c * sizeof *ti);
-      if (ti)
-        st->Ti = ti;
-      int *tj = realloc(st->Tj, (size_t)c * sizeof *tj);
-      if (tj)
-        st->Tj = tj;
-      if (!ti || !tj) {
-        st->recording = -1; /* out of memory: reported by build_pattern */
-        return;
-      }
-      st->cap_trip = c;
-    }
-    st->Ti[st->n_trip] = row;
-    st->Tj[st->n_trip] = col;
-    st->n_trip++;
-    return;
-  }
+static inline void jac_add(mrvi_step *st, int row, int col, double v) {
   if (st->recording == 0)
     st->Ax[st->map[st->n_trip++]] += v;
+  else if (st->recording > 0)
+    jac_record(st, row, col);
 }
 
 /* Split the model's constraints into slow-only (macro nodes) and micro-node
@@ -337,12 +340,12 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
   double cc[MRVI_MAX_INPUTS][2];
   if (jac)
     for (int l = 0; l < n; l++)
-      nh += kc[l] = mrvi_step_cols_of(st, k->in[l], pt, cl[l], cc[l]);
+      nh += kc[l] = cols_of(st, k->in[l], pt, cl[l], cc[l]);
   const int skip_hess = k->affine && st->recording == 0;
   for (int j = 0; j < n; j++) {
     int rj[2];
     double cj[2];
-    const int kr = mrvi_step_rows_of(st, k->in[j], pt, rj, cj);
+    const int kr = rows_of(st, k->in[j], pt, rj, cj);
     double f = 0.0;
     for (int r = 0; r < rows; r++)
       f += st->cG[r * n + j] * lam[r];
@@ -383,7 +386,7 @@ static void constraint_equation(mrvi_step *st, int c, const mrvi_point *pt,
   for (int j = 0; j < n; j++) {
     int cl[2];
     double cc[2];
-    const int kc = mrvi_step_cols_of(st, k->in[j], pt, cl, cc);
+    const int kc = cols_of(st, k->in[j], pt, cl, cc);
     for (int b = 0; b < kc; b++)
       for (int r = 0; r < k->rows; r++)
         jac_add(st, row + r, cl[b], cc[b] * st->cG[r * n + j]);
