@@ -222,23 +222,24 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   for (int i = 0; i < n; i++) {
     node_of(st, i, &bd->rblk[i], &bd->roff[i]);
   }
-  if (getenv("MRVI_DEG")) {
-    int *deg = calloc((size_t)b + 1, sizeof *deg), *ord = calloc((size_t)b + 1, sizeof *ord), *pos = calloc((size_t)b+1, sizeof *pos);
-    for (int j = 0; j < n; j++)
-      for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
-        if (bd->rblk[st->Ai[q]] >= 0 && bd->rblk[st->Ai[q]] == bd->rblk[j])
-          deg[bd->roff[st->Ai[q]]]++, deg[bd->roff[j]]++;
-    for (int i = 0; i < (int)b; i++) {
-      int k = i;
-      for (; k > 0 && deg[ord[k - 1]] > deg[i]; k--)
-        ord[k] = ord[k - 1];
-      ord[k] = i;
-    }
-    for (int k = 0; k < (int)b; k++) pos[ord[k]] = k;
-    for (int i = 0; i < n; i++)
-      if (bd->rblk[i] >= 0) bd->roff[i] = pos[bd->roff[i]];
-    free(deg); free(ord); free(pos);
+  /* The offsets in the fast blocks ordered by their degrees in D's
+   * pattern (rows and columns alike), as the general path's dense LU
+   * orders its unknowns: the saddle-point blocks fill less. */
+  int *deg = calloc(b + 1, sizeof *deg), *ord = malloc((b + 1) * sizeof *ord),
+      *pos = malloc((b + 1) * sizeof *pos);
+  if (!deg || !ord || !pos) {
+    free(deg), free(ord), free(pos);
+    return MRVI_ENOMEM;
   }
+  for (int j = 0; j < n; j++)
+    for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
+      if (bd->rblk[st->Ai[q]] >= 0 && bd->rblk[st->Ai[q]] == bd->rblk[j])
+        deg[bd->roff[st->Ai[q]]]++, deg[bd->roff[j]]++;
+  mrvi_degree_order(bd->b, deg, ord, pos);
+  for (int i = 0; i < n; i++)
+    if (bd->rblk[i] >= 0)
+      bd->roff[i] = pos[bd->roff[i]];
+  free(deg), free(ord), free(pos);
   /* The columns of Y: the slow columns with an entry in a fast row (ycol
    * first marks them, then maps a column to its rank among them). */
   for (int j = 0; j < n; j++)

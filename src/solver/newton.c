@@ -63,15 +63,7 @@ static int dense_create(mrvi_newton *nw) {
     deg[i] = nw->Ap[i + 1] - nw->Ap[i];
   for (int e = 0; e < nw->Ap[nw->n]; e++)
     deg[nw->Ai[e]]++;
-  /* Stable insertion sort of the indices by degree. */
-  for (int i = 0; i < nw->n; i++) {
-    int k = i;
-    for (; k > 0 && deg[order[k - 1]] > deg[i]; k--)
-      order[k] = order[k - 1];
-    order[k] = i;
-  }
-  for (int k = 0; k < nw->n; k++)
-    nw->pos[order[k]] = k;
+  mrvi_degree_order(nw->n, deg, order, nw->pos);
   return MRVI_OK;
 }
 

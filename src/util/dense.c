@@ -124,6 +124,17 @@ int mrvi_dense_lu_factor(int n, double *A, int *piv) {
   return 0;
 }
 
+void mrvi_degree_order(int n, const int *deg, int *order, int *pos) {
+  for (int i = 0; i < n; i++) { /* insertion sort */
+    int k = i;
+    for (; k > 0 && deg[order[k - 1]] > deg[i]; k--)
+      order[k] = order[k - 1];
+    order[k] = i;
+  }
+  for (int k = 0; k < n; k++)
+    pos[order[k]] = k;
+}
+
 int mrvi_dense_lu_factor_nz(int n, double *A, int *piv, int *nzc) {
   for (int k = 0; k < n; k++) {
     if (mrvi_dense_lu_pivot(n, A, piv, k) < 0)

@@ -64,6 +64,10 @@ int mrvi_dense_lu_factor(int n, double *A, int *piv);
  * columns of each pivot row: for matrices with many zeros (nzc: workspace
  * of n). */
 int mrvi_dense_lu_factor_nz(int n, double *A, int *piv, int *nzc);
+/* Indices 0..n-1 sorted by their degrees deg, ascending and stable (ties
+ * in index order): order[k] the k-th, pos[i] the rank of index i (the
+ * elimination order of the dense LUs of Newton matrices: fewer fill). */
+void mrvi_degree_order(int n, const int *deg, int *order, int *pos);
 /* Step k of that factorisation's pivoting: the largest |A_ik|, i >= k, its
  * row in piv[k] and swapped with row k; -1 if that column is zero. */
 int mrvi_dense_lu_pivot(int n, double *A, int *piv, int k);
