@@ -65,17 +65,28 @@ static void test_affine(void) {
     int n_in, n_par;  /* other types */
     double par[9];    /* other types: their parameters */
   } cases[] = {
-      {"spherical", 3, 1, 0, 0, 0, {0}},   {"spherical", 3, 2, 0, 0, 0, {0}},
-      {"revolute", 2, 1, 1, 0, 0, {0}},    {"revolute", 2, 2, 1, 0, 0, {0}},
-      {"revolute", 3, 1, 1, 0, 0, {0}},    {"revolute", 3, 2, 1, 0, 0, {0}},
-      {"weld", 2, 1, 1, 0, 0, {0}},        {"weld", 2, 2, 1, 0, 0, {0}},
-      {"weld", 3, 1, 1, 0, 0, {0}},        {"weld", 3, 2, 1, 0, 0, {0}},
-      {"prismatic", 2, 1, 1, 0, 0, {0}},   {"prismatic", 2, 2, 1, 0, 0, {0}},
-      {"prismatic", 3, 1, 1, 0, 0, {0}},   {"prismatic", 3, 2, 1, 0, 0, {0}},
-      {"cylindrical", 3, 1, 1, 0, 0, {0}}, {"cylindrical", 3, 2, 1, 0, 0, {0}},
-      {"planar", 3, 1, 1, 0, 0, {0}},      {"planar", 3, 2, 1, 0, 0, {0}},
-      {"universal", 3, 1, 1, 0, 0, {0}},   {"universal", 3, 2, 1, 0, 0, {0}},
-      {"body", 0, 0, 0, 4, 0, {0}},        {"body", 0, 0, 0, 9, 0, {0}},
+      {"spherical", 3, 1, 0, 0, 0, {0}},
+      {"spherical", 3, 2, 0, 0, 0, {0}},
+      {"revolute", 2, 1, 1, 0, 0, {0}},
+      {"revolute", 2, 2, 1, 0, 0, {0}},
+      {"revolute", 3, 1, 1, 0, 0, {0}},
+      {"revolute", 3, 2, 1, 0, 0, {0}},
+      {"weld", 2, 1, 1, 0, 0, {0}},
+      {"weld", 2, 2, 1, 0, 0, {0}},
+      {"weld", 3, 1, 1, 0, 0, {0}},
+      {"weld", 3, 2, 1, 0, 0, {0}},
+      {"prismatic", 2, 1, 1, 0, 0, {0}},
+      {"prismatic", 2, 2, 1, 0, 0, {0}},
+      {"prismatic", 3, 1, 1, 0, 0, {0}},
+      {"prismatic", 3, 2, 1, 0, 0, {0}},
+      {"cylindrical", 3, 1, 1, 0, 0, {0}},
+      {"cylindrical", 3, 2, 1, 0, 0, {0}},
+      {"planar", 3, 1, 1, 0, 0, {0}},
+      {"planar", 3, 2, 1, 0, 0, {0}},
+      {"universal", 3, 1, 1, 0, 0, {0}},
+      {"universal", 3, 2, 1, 0, 0, {0}},
+      {"body", 0, 0, 0, 4, 0, {0}},
+      {"body", 0, 0, 0, 9, 0, {0}},
       {"distance", 0, 0, 0, 4, 1, {0.7}},
       {"distance", 0, 0, 0, 2, 3, {0.7, 0.1, 0.2}},
       {"fixed", 0, 0, 0, 2, 2, {0.1, 0.2}},
@@ -104,8 +115,8 @@ static void test_affine(void) {
       memcpy(par, cases[i].par, (size_t)n_par * sizeof *par);
     }
     const int rows = t ? t->check(n_in, n_par, par, msg, sizeof msg) : -1;
-    CHECK(rows > 0, "affine: %s d %d on %d inputs: %s", cases[i].type, d,
-          n_in, msg);
+    CHECK(rows > 0, "affine: %s d %d on %d inputs: %s", cases[i].type, d, n_in,
+          msg);
     if (rows <= 0)
       continue;
     for (int k = 0; k < n_in; k++)

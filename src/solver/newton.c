@@ -178,7 +178,8 @@ static int dense_factor(mrvi_newton *nw, const double *Ax, char *msg,
     for (int e = nw->Ap[j]; e < nw->Ap[j + 1]; e++)
       B[(size_t)nw->pos[nw->Ai[e]] * (size_t)n + (size_t)nw->pos[j]] +=
           nw->rs[nw->Ai[e]] * Ax[e];
-  nw->factored = nw->factored && mrvi_dense_lu_factor_nz(n, B, nw->piv, nw->nzc) == 0;
+  nw->factored =
+      nw->factored && mrvi_dense_lu_factor_nz(n, B, nw->piv, nw->nzc) == 0;
   if (!nw->factored) {
     mrvi_fmt(msg, len, "singular Newton matrix");
     return MRVI_ESINGULAR;
