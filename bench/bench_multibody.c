@@ -27,7 +27,9 @@
  * automatic choice (doc/performance.md, "Multibody").
  * --cost: CPU time per macro step (creation left out, the best of R runs)
  * at the file's macro step for p = 1, 2, 5, 10, 20, 40, with the solver
- * path each takes: how the cost of a macro step grows with p.
+ * path each takes: how the cost of a macro step grows with p; and the
+ * Newton updates per macro step and the CPU time per micro node and update
+ * (per step and update at p = 1).
  *
  * Defaults: p = 10, T = 1, R = 3, systems/flexible_pendulum.yaml (through
  * $MRVI_SOURCE_ROOT or ".."); --quick: T = 0.2, R = 1, K = 6, the first
@@ -55,7 +57,8 @@ static const char usage[] =
     "path; --set applies a description-file\n"
     "override (e.g. integrator.constraints.form=null-space).\n"
     "--cost: CPU time per macro step against p at the file's macro step,\n"
-    "with the solver path of each p.\n";
+    "with the solver path of each p, Newton updates per macro step and\n"
+    "CPU time per micro node and update.\n";
 
 /* N steps of dT with p micro steps from the file's initial state; q (n)
  * gets the last node; returns the CPU time or a negative value. */
@@ -99,12 +102,14 @@ static int cost_table(const mrvi_system *sys, double T, int repeat) {
          sys->settings.constraint_form == MRVI_FORM_NULL_SPACE ? "null-space"
                                                                : "multiplier",
          dT, N, bench_build());
-  printf("%5s %16s %14s %14s\n", "p", "path", "ms/macro", "ms/micro");
+  printf("%5s %16s %14s %14s %10s %16s\n", "p", "path", "ms/macro", "ms/micro",
+         "updates", "us/node/update");
   for (size_t i = 0; i < sizeof ps / sizeof *ps; i++) {
     mrvi_settings s = sys->settings;
     s.micro_steps = ps[i];
     s.t_end = (double)N * dT;
     double best = INFINITY;
+    long updates = 0; /* Newton iterations of the N steps */
     const char *path = "?";
     for (int r = 0; r < repeat; r++) {
       mrvi_integrator *it = NULL;
@@ -115,17 +120,22 @@ static int cost_table(const mrvi_system *sys, double T, int repeat) {
       }
       path = mrvi_integrator_solver_path(it);
       const double t0 = bench_cpu();
-      for (long k = 0; k < N; k++)
+      updates = 0;
+      for (long k = 0; k < N; k++) {
         if (mrvi_integrator_step(it) != 0) {
           fprintf(stderr, "p = %d: %s\n", ps[i], mrvi_integrator_errmsg(it));
           mrvi_integrator_free(it);
           return -1;
         }
+        updates += mrvi_integrator_last_iterations(it);
+      }
       best = fmin(best, bench_cpu() - t0);
       mrvi_integrator_free(it);
     }
-    printf("%5d %16s %14.4f %14.4f\n", ps[i], path, 1e3 * best / (double)N,
-           1e3 * best / (double)N / ps[i]);
+    const double u = updates > 0 ? (double)updates : NAN;
+    printf("%5d %16s %14.4f %14.4f %10.2f %16.2f\n", ps[i], path,
+           1e3 * best / (double)N, 1e3 * best / (double)N / ps[i],
+           u / (double)N, 1e6 * best / u / ps[i]);
     fflush(stdout);
   }
   return 0;

@@ -52,11 +52,15 @@ static const mrvi_constraint_key keys[] = {
     {0},
 };
 
+/* Affine whatever the parameters (linear.c). */
+int mrvi_constraint_always_affine(int n_in, int n_params, const double *par);
+
 const mrvi_constraint_type mrvi_constraint_fixed = {
     .name = "fixed",
     .summary = "pinned coordinates q_i = c_i (a particle, all or some axes)",
     .check = check,
     .eval = eval,
+    .affine = mrvi_constraint_always_affine,
     .initial = initial,
     .keys = keys,
 };

@@ -213,6 +213,25 @@ mrvi_joint_check_rows(const char *type, int frame, const mrvi_joint_row *r3,
                   : mrvi_joint_rows(r2, n2, 2);
 }
 
+/* affine of a joint type whose rows are r3 and r2 (constraints/joint.h's
+ * rows, an instance already checked): the rows r are affine; a_m . b_n and
+ * r . b_n are products of two affine vectors, affine where one is
+ * constant, which b_n is for the ground (one body).  So a 2-D revolute
+ * joint (r alone) and every joint to the ground are affine, a 3-D
+ * revolute joint between two bodies is not. */
+static inline int mrvi_joint_affine_rows(const mrvi_joint_row *r3, int n3,
+                                         const mrvi_joint_row *r2, int n2,
+                                         const double *par) {
+  const mrvi_joint_row *rows = par[0] == 3.0 ? r3 : r2;
+  const int n = par[0] == 3.0 ? n3 : n2;
+  if (par[1] == 1.0)
+    return 1;
+  for (int i = 0; i < n; i++)
+    if (rows[i].kind != 'p')
+      return 0;
+  return 1;
+}
+
 static inline void mrvi_joint_eval_rows(const mrvi_joint_row *r3, int n3,
                                         const mrvi_joint_row *r2, int n2,
                                         int n_in, const double *par,

@@ -65,11 +65,19 @@ static const mrvi_constraint_key keys[] = {
     {0},
 };
 
+/* affine of the types whose rows are affine in the inputs whatever the
+ * parameters (linear; fixed and plane too). */
+int mrvi_constraint_always_affine(int n_in, int n_params, const double *par) {
+  (void)n_in, (void)n_params, (void)par;
+  return 1;
+}
+
 const mrvi_constraint_type mrvi_constraint_linear = {
     .name = "linear",
     .summary = "a^T q = b on generalised coordinates",
     .check = check,
     .eval = eval,
     .initial = mrvi_constraint_initial_rhs,
+    .affine = mrvi_constraint_always_affine,
     .keys = keys,
 };

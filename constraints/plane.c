@@ -60,11 +60,15 @@ static const mrvi_constraint_key keys[] = {
     {0},
 };
 
+/* Affine whatever the parameters (linear.c). */
+int mrvi_constraint_always_affine(int n_in, int n_params, const double *par);
+
 const mrvi_constraint_type mrvi_constraint_plane = {
     .name = "plane",
     .summary = "particle on the plane n.x = c (residual: signed distance)",
     .check = check,
     .eval = eval,
+    .affine = mrvi_constraint_always_affine,
     .initial = mrvi_constraint_initial_rhs,
     .keys = keys,
 };

@@ -131,10 +131,18 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
     }
 }
 
+/* Fixed and plane are affine in x, so in the inputs; distance is not. */
+static int affine(int n_in, int n_params, const double *par) {
+  (void)n_in;
+  int d, nb, kind, own;
+  return layout(n_params, par, &d, &nb, &kind, &own) == 0 && kind != DISTANCE;
+}
+
 const mrvi_constraint_type mrvi_constraint_point = {
     .name = "point",
     .summary = "distance, fixed or plane on affine points such as body "
                "points (x = sum_b w_b Y_b)",
     .check = check,
     .eval = eval,
+    .affine = affine,
 };

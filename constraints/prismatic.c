@@ -23,6 +23,11 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
   mrvi_joint_eval_rows(rows3, 5, rows2, 2, n_in, par, y, g, G, H);
 }
 
+static int affine(int n_in, int n_params, const double *par) {
+  (void)n_in, (void)n_params;
+  return mrvi_joint_affine_rows(rows3, 5, rows2, 2, par);
+}
+
 const mrvi_constraint_type mrvi_constraint_prismatic = {
     .name = "prismatic",
     .summary =
@@ -30,5 +35,6 @@ const mrvi_constraint_type mrvi_constraint_prismatic = {
         "(2-D: 2 rows, 3-D: 5)",
     .check = check,
     .eval = eval,
+    .affine = affine,
     .joint_motion = MRVI_JOINT_PRISMATIC,
 };

@@ -21,6 +21,11 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
   mrvi_joint_eval_rows(rows3, 3, rows2, 1, n_in, par, y, g, G, H);
 }
 
+static int affine(int n_in, int n_params, const double *par) {
+  (void)n_in, (void)n_params;
+  return mrvi_joint_affine_rows(rows3, 3, rows2, 1, par);
+}
+
 const mrvi_constraint_type mrvi_constraint_revolute = {
     .name = "revolute",
     .summary =
@@ -28,5 +33,6 @@ const mrvi_constraint_type mrvi_constraint_revolute = {
         "bodies (2-D: 2 rows, 3-D: 5)",
     .check = check,
     .eval = eval,
+    .affine = affine,
     .joint_motion = MRVI_JOINT_HINGE,
 };

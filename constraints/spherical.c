@@ -19,6 +19,11 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
   mrvi_joint_eval_rows(rows, 1, NULL, 0, n_in, par, y, g, G, H);
 }
 
+static int affine(int n_in, int n_params, const double *par) {
+  (void)n_in, (void)n_params;
+  return mrvi_joint_affine_rows(rows, 1, NULL, 0, par);
+}
+
 const mrvi_constraint_type mrvi_constraint_spherical = {
     .name = "spherical",
     .summary =
@@ -26,5 +31,6 @@ const mrvi_constraint_type mrvi_constraint_spherical = {
         "(3 rows)",
     .check = check,
     .eval = eval,
+    .affine = affine,
     .joint_motion = MRVI_JOINT_BALL,
 };

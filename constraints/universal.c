@@ -44,11 +44,17 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
     g[3] -= par[n_params - 1]; /* a_1 . b_2 - cos(alpha) */
 }
 
+static int affine(int n_in, int n_params, const double *par) {
+  (void)n_in, (void)n_params;
+  return mrvi_joint_affine_rows(rows3, 2, NULL, 0, par);
+}
+
 const mrvi_constraint_type mrvi_constraint_universal = {
     .name = "universal",
     .summary = "Hooke joint: the body points coincide and an axis fixed in A "
                "keeps its angle to one fixed in B (3-D, 4 rows)",
     .check = check,
     .eval = eval,
+    .affine = affine,
     .joint_motion = MRVI_JOINT_UNIVERSAL,
 };

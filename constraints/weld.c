@@ -23,10 +23,16 @@ static void eval(int n_in, int n_params, const double *par, const double *y,
   mrvi_joint_eval_rows(rows3, 4, rows2, 2, n_in, par, y, g, G, H);
 }
 
+static int affine(int n_in, int n_params, const double *par) {
+  (void)n_in, (void)n_params;
+  return mrvi_joint_affine_rows(rows3, 4, rows2, 2, par);
+}
+
 const mrvi_constraint_type mrvi_constraint_weld = {
     .name = "weld",
     .summary = "weld: the bodies fixed to each other (2-D: 3 rows, 3-D: 6)",
     .check = check,
     .eval = eval,
+    .affine = affine,
     .joint_motion = MRVI_JOINT_WELD,
 };

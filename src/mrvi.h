@@ -385,6 +385,15 @@ typedef struct mrvi_constraint_type {
   /* Keys of an entry in a description file, ended by {NULL}; NULL: the
    * generic {coordinates: [names], parameters: [numbers]}. */
   const mrvi_constraint_key *keys;
+  /* Optional, after check: 1 if the instance's g is affine in its inputs
+   * (every second derivative identically zero, whatever the inputs), else
+   * 0; NULL: never.  Asked once per instance (mrvi_constraint.affine); the
+   * step then leaves out the constraint's Hessian (doc/constraints.md).
+   * E.g. fixed, plane, linear; a 2-D revolute joint (its rows are the
+   * components of x_A - x_B), any joint to the ground; not a 3-D revolute
+   * between two bodies (a_1 . b_2 is a product of the two bodies'
+   * directors), nor distance or body. */
+  int (*affine)(int n_in, int n_params, const double *params);
   /* Joints between rigid bodies only: the relative motion the joint leaves
    * free, MRVI_JOINT_BALL (every rotation about its point), _HINGE (the
    * rotation about the frame's first axis a_1 fixed in A; in 2-D the one
@@ -466,6 +475,8 @@ const char *mrvi_model_constraint_type_name(const mrvi_model *m, int c);
 int mrvi_model_constraint_n_rows(const mrvi_model *m, int c);
 /* MRVI_SLOW: enforced at macro nodes; MRVI_FAST: at every micro node. */
 mrvi_rate mrvi_model_constraint_where(const mrvi_model *m, int c);
+/* 1 if constraint c is affine in its coordinates (its type's `affine`). */
+int mrvi_model_constraint_affine(const mrvi_model *m, int c);
 /* One-line description, e.g. "distance cart-bob, length 0.5 (micro nodes)". */
 int mrvi_model_describe_constraint(const mrvi_model *m, int c, char *buf,
                                    size_t len);

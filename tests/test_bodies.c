@@ -53,6 +53,100 @@ static void test_types(void) {
         "2-D spherical refused: %s", msg);
 }
 
+/* The affine property (mrvi_constraint_type.affine) against the second
+ * derivatives by finite differences of G: every joint type in 2-D and 3-D,
+ * to the ground and between two bodies, and the other types.  The rows are
+ * at most quadratic, so the differences are exact up to round-off: an
+ * instance is affine exactly where they vanish, and then its H too. */
+static void test_affine(void) {
+  static const struct {
+    const char *type;
+    int d, nb, frame; /* joints (d > 0): par[0] = d, par[1] = nb */
+    int n_in, n_par;  /* other types */
+    double par[9];    /* other types: their parameters */
+  } cases[] = {
+      {"spherical", 3, 1, 0, 0, 0, {0}},
+      {"spherical", 3, 2, 0, 0, 0, {0}},
+      {"revolute", 2, 1, 1, 0, 0, {0}},
+      {"revolute", 2, 2, 1, 0, 0, {0}},
+      {"revolute", 3, 1, 1, 0, 0, {0}},
+      {"revolute", 3, 2, 1, 0, 0, {0}},
+      {"weld", 2, 1, 1, 0, 0, {0}},
+      {"weld", 2, 2, 1, 0, 0, {0}},
+      {"weld", 3, 1, 1, 0, 0, {0}},
+      {"weld", 3, 2, 1, 0, 0, {0}},
+      {"prismatic", 2, 1, 1, 0, 0, {0}},
+      {"prismatic", 2, 2, 1, 0, 0, {0}},
+      {"prismatic", 3, 1, 1, 0, 0, {0}},
+      {"prismatic", 3, 2, 1, 0, 0, {0}},
+      {"cylindrical", 3, 1, 1, 0, 0, {0}},
+      {"cylindrical", 3, 2, 1, 0, 0, {0}},
+      {"planar", 3, 1, 1, 0, 0, {0}},
+      {"planar", 3, 2, 1, 0, 0, {0}},
+      {"universal", 3, 1, 1, 0, 0, {0}},
+      {"universal", 3, 2, 1, 0, 0, {0}},
+      {"body", 0, 0, 0, 4, 0, {0}},
+      {"body", 0, 0, 0, 9, 0, {0}},
+      {"distance", 0, 0, 0, 4, 1, {0.7}},
+      {"distance", 0, 0, 0, 2, 3, {0.7, 0.1, 0.2}},
+      {"fixed", 0, 0, 0, 2, 2, {0.1, 0.2}},
+      {"plane", 0, 0, 0, 2, 3, {0.6, 0.8, 0.3}},
+      {"linear", 0, 0, 0, 3, 4, {1.0, -2.0, 0.5, 0.3}},
+      {"point", 0, 0, 0, 4, 8, {2, 2, 1.0, 0.4, 0, 0.7, 0.1, 0.2}},
+      {"point", 0, 0, 0, 4, 9, {2, 2, 1.0, 0.4, 1, 1, 1, 0.5, 0.2}},
+      {"point", 0, 0, 0, 4, 8, {2, 2, 1.0, 0.4, 2, 0.6, 0.8, 0.3}},
+  };
+  enum { NI = 24, NP = 26 };
+  static double G0[NI * NI], G1[NI * NI], H[NI * NI * NI];
+  double par[NP], y[NI], g[NI];
+  char msg[400];
+  int n_aff = 0, n_not = 0;
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    const mrvi_constraint_type *t = mrvi_constraint_type_find(cases[i].type);
+    const int d = cases[i].d;
+    int n_in = cases[i].n_in, n_par = cases[i].n_par;
+    if (d > 0) {
+      n_in = cases[i].nb * d * (d + 1);
+      n_par = 2 + 2 * d + (cases[i].frame ? 2 * d * d : 0);
+      for (int k = 0; k < n_par; k++)
+        par[k] = 0.3 + 0.1 * ((k * 7) % 11);
+      par[0] = d, par[1] = cases[i].nb;
+    } else {
+      memcpy(par, cases[i].par, (size_t)n_par * sizeof *par);
+    }
+    const int rows = t ? t->check(n_in, n_par, par, msg, sizeof msg) : -1;
+    CHECK(rows > 0, "affine: %s d %d on %d inputs: %s", cases[i].type, d, n_in,
+          msg);
+    if (rows <= 0)
+      continue;
+    for (int k = 0; k < n_in; k++)
+      y[k] = 0.2 + 0.13 * ((k * 5) % 9);
+    t->eval(n_in, n_par, par, y, g, G0, H);
+    /* max |dG/dy_k| over k by differences, and max |H| */
+    double fd = 0.0, hmax = 0.0;
+    const double h = 1e-3;
+    for (int k = 0; k < n_in; k++) {
+      y[k] += h;
+      t->eval(n_in, n_par, par, y, g, G1, NULL);
+      y[k] -= h;
+      for (int e = 0; e < rows * n_in; e++)
+        fd = fmax(fd, fabs(G1[e] - G0[e]) / h);
+    }
+    for (int e = 0; e < rows * n_in * n_in; e++)
+      hmax = fmax(hmax, fabs(H[e]));
+    const int flag = t->affine && t->affine(n_in, n_par, par) == 1;
+    const int zero = fd < 1e-9;
+    flag ? n_aff++ : n_not++;
+    CHECK(flag == zero && (!flag || hmax == 0.0),
+          "affine: %s d %d, %d bodies, %d inputs: flag %d, max |dG/dy| by "
+          "differences %.3g, max |H| %.3g",
+          cases[i].type, d, cases[i].nb, n_in, flag, fd, hmax);
+  }
+  printf("affine: %d instances affine, %d not, as their differences say\n",
+         n_aff, n_not);
+  CHECK(n_aff >= 12 && n_not >= 12, "affine: %d and %d", n_aff, n_not);
+}
+
 /* ---------------------------------------------------------------------------
  * Helpers
  * ------------------------------------------------------------------------- */
@@ -1060,6 +1154,7 @@ static void test_arm_multirate(void) {
 
 int main(void) {
   test_types();
+  test_affine();
   test_bad_input();
   test_layout();
   test_free_body(MRVI_FORM_MULTIPLIERS);

@@ -1135,13 +1135,16 @@ static int project_micro(mrvi_integrator *it) {
         it->pmu[off + q] = gv;
       }
     }
+    /* G_f M_f^-1 G_f^T: symmetric (the same products either way), the
+     * zeros of row a of G_f skipped */
     for (int a = 0; a < r; a++)
-      for (int b = 0; b < r; b++) {
+      for (int b = a; b < r; b++) {
         double t = 0.0;
         for (int f = 0; f < nf; f++)
-          t += it->pGf[a * nf + f] * it->pGf[b * nf + f] /
-               m->mass[m->fast_index[f]];
-        it->pA[a * r + b] = t;
+          if (it->pGf[a * nf + f] != 0.0)
+            t += it->pGf[a * nf + f] * it->pGf[b * nf + f] /
+                 m->mass[m->fast_index[f]];
+        it->pA[a * r + b] = it->pA[b * r + a] = t;
       }
     if (mrvi_dense_solve(r, it->pA, it->pmu) < 0)
       return MRVI_ESINGULAR;

@@ -140,6 +140,7 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
                            "%s: check returned %d rows for %d inputs", t->name,
                            c.rows, n_in);
   }
+  c.affine = t->affine && t->affine(n_in, n_params, c.params) == 1;
   for (int j = 0; j < n_in; j++)
     if (m->rate[coords[j]] == MRVI_FAST)
       c.where = MRVI_FAST;
@@ -314,6 +315,9 @@ int mrvi_model_constraint_n_rows(const mrvi_model *m, int c) {
 }
 mrvi_rate mrvi_model_constraint_where(const mrvi_model *m, int c) {
   return get(m, c) ? get(m, c)->where : MRVI_SLOW;
+}
+int mrvi_model_constraint_affine(const mrvi_model *m, int c) {
+  return get(m, c) ? get(m, c)->affine : 0;
 }
 
 int mrvi_model_describe_constraint(const mrvi_model *m, int c, char *buf,

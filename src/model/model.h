@@ -67,6 +67,7 @@ typedef struct mrvi_constraint {
   int rows;        /* scalar equations */
   int first_row;   /* offset in the model's constraint rows */
   mrvi_rate where; /* MRVI_SLOW: macro nodes; MRVI_FAST: micro */
+  int affine;      /* g affine in the inputs: no Hessian (type->affine) */
 } mrvi_constraint;
 
 struct mrvi_model {

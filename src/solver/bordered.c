@@ -84,6 +84,13 @@ struct mrvi_bordered {
    * column blocks c, c-1, c-2 of row block c), S (a x a), z (p b + a). */
   int a, b, p, ka;
   int *rblk, *roff, *dpiv, *spiv, *ycol;
+  /* The structure, listed once at creation: the entries of L1_c, L2_c
+   * (rows li, columns lj, by rows; list 2 c + k - 1 from lp), of Asf
+   * (columns sfj of slow row i from sfp[i]) and the kept slow columns kt
+   * (ka: the column t of Y's r-th).  Workspace dnz (b) for the LU.  Of
+   * those, the kv with a nonzero in A_fs at this factorisation (their slow
+   * columns kvt), Y's columns at stride kv. */
+  int *lp, *li, *lj, *sfp, *sfj, *kt, *dnz, *kvt, kv;
   double **dst;
   double *nbuf, *Ass, *Asf, *Y, *D, *L1, *L2, *S, *z;
   size_t n_nbuf;
@@ -105,6 +112,14 @@ void mrvi_bordered_free(mrvi_bordered *bd) {
   free(bd->dpiv);
   free(bd->spiv);
   free(bd->ycol);
+  free(bd->lp);
+  free(bd->li);
+  free(bd->lj);
+  free(bd->sfp);
+  free(bd->sfj);
+  free(bd->kt);
+  free(bd->kvt);
+  free(bd->dnz);
   free(bd->dst);
   free(bd->nbuf);
   free(bd->K);
@@ -134,6 +149,50 @@ static void node_of(const mrvi_step *st, int i, int *blk, int *off) {
   }
 }
 
+/* The structure lists of bd (above) from the destinations of the CSC
+ * entries: marked in the (zeroed) blocks, read off by rows, cleared. */
+static int node_lists(mrvi_bordered *bd, const mrvi_step *st) {
+  const int a = bd->a, b = bd->b, p = bd->p, nnz = st->Ap[st->n_total];
+  const size_t pb = (size_t)p * (size_t)b, bb = (size_t)b * (size_t)b;
+  bd->lp = malloc((2 * (size_t)p + 1) * sizeof *bd->lp);
+  bd->li = malloc(((size_t)nnz + 1) * sizeof *bd->li);
+  bd->lj = malloc(((size_t)nnz + 1) * sizeof *bd->lj);
+  bd->sfp = malloc(((size_t)a + 1) * sizeof *bd->sfp);
+  bd->sfj = malloc(((size_t)nnz + 1) * sizeof *bd->sfj);
+  bd->kt = malloc(((size_t)a + 1) * sizeof *bd->kt);
+  bd->kvt = malloc(((size_t)a + 1) * sizeof *bd->kvt);
+  bd->dnz = malloc(((size_t)b + 1) * sizeof *bd->dnz);
+  if (!bd->lp || !bd->li || !bd->lj || !bd->sfp || !bd->sfj || !bd->kt ||
+      !bd->kvt || !bd->dnz)
+    return MRVI_ENOMEM;
+  for (int q = 0; q < nnz; q++)
+    *bd->dst[q] = 1.0;
+  int e = 0;
+  for (int c = 0; c < p; c++)
+    for (int k = 1; k <= 2; k++) {
+      const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * bb;
+      bd->lp[2 * c + k - 1] = e;
+      for (int i = 0; i < b; i++)
+        for (int j = 0; j < b; j++)
+          if (L[(size_t)i * b + j] != 0.0)
+            bd->li[e] = i, bd->lj[e++] = j;
+    }
+  bd->lp[2 * p] = e;
+  e = 0;
+  for (int i = 0; i < a; i++) {
+    bd->sfp[i] = e;
+    for (size_t j = 0; j < pb; j++)
+      if (bd->Asf[(size_t)i * pb + j] != 0.0)
+        bd->sfj[e++] = (int)j;
+  }
+  bd->sfp[a] = e;
+  for (int t = 0; t < a; t++)
+    if (bd->ycol[t] >= 0)
+      bd->kt[bd->ycol[t]] = t;
+  memset(bd->nbuf, 0, bd->n_nbuf * sizeof *bd->nbuf);
+  return MRVI_OK;
+}
+
 /* The node blocks' workspaces and the destination of every CSC entry;
  * MRVI_EINVAL if an entry lies outside the structure (a fast row block
  * coupled to a column block after it or more than two before it). */
@@ -148,7 +207,7 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   bd->ycol = calloc(a + 1, sizeof *bd->ycol);
   bd->dst = malloc(((size_t)st->Ap[n] + 1) * sizeof *bd->dst);
   bd->n_nbuf = 2 * a * a + 2 * a * pb + 3 * pb * b + pb + a;
-  bd->nbuf = malloc((bd->n_nbuf + 1) * sizeof *bd->nbuf);
+  bd->nbuf = calloc(bd->n_nbuf + 1, sizeof *bd->nbuf);
   if (!bd->rblk || !bd->roff || !bd->dpiv || !bd->spiv || !bd->ycol ||
       !bd->dst || !bd->nbuf)
     return MRVI_ENOMEM;
@@ -163,6 +222,24 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   for (int i = 0; i < n; i++) {
     node_of(st, i, &bd->rblk[i], &bd->roff[i]);
   }
+  /* The offsets in the fast blocks ordered by their degrees in D's
+   * pattern (rows and columns alike), as the general path's dense LU
+   * orders its unknowns: the saddle-point blocks fill less. */
+  int *deg = calloc(b + 1, sizeof *deg), *ord = malloc((b + 1) * sizeof *ord),
+      *pos = malloc((b + 1) * sizeof *pos);
+  if (!deg || !ord || !pos) {
+    free(deg), free(ord), free(pos);
+    return MRVI_ENOMEM;
+  }
+  for (int j = 0; j < n; j++)
+    for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
+      if (bd->rblk[st->Ai[q]] >= 0 && bd->rblk[st->Ai[q]] == bd->rblk[j])
+        deg[bd->roff[st->Ai[q]]]++, deg[bd->roff[j]]++;
+  mrvi_degree_order(bd->b, deg, ord, pos);
+  for (int i = 0; i < n; i++)
+    if (bd->rblk[i] >= 0)
+      bd->roff[i] = pos[bd->roff[i]];
+  free(deg), free(ord), free(pos);
   /* The columns of Y: the slow columns with an entry in a fast row (ycol
    * first marks them, then maps a column to its rank among them). */
   for (int j = 0; j < n; j++)
@@ -193,7 +270,7 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
         return MRVI_EINVAL;
       bd->dst[q] = d;
     }
-  return MRVI_OK;
+  return node_lists(bd, st);
 }
 
 int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
@@ -238,32 +315,58 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
   return MRVI_OK;
 }
 
+/* Y's columns (A_fs as scattered, stride ka) that are zero at every node
+ * stay zero through the sweep (a joint's point on a body's axis reads the
+ * other director with weight 0): left out, the others moved to the front
+ * at stride kv, their slow columns in kvt.  Returns kv. */
+static int drop_zero_columns(mrvi_bordered *bd) {
+  const size_t pb = (size_t)bd->p * (size_t)bd->b, ka = (size_t)bd->ka;
+  double *Y = bd->Y;
+  int kv = 0;
+  for (size_t r = 0; r < ka; r++) {
+    int used = 0;
+    for (size_t j = 0; j < pb && !used; j++)
+      used = Y[j * ka + r] != 0.0;
+    if (used)
+      bd->kvt[kv++] = (int)r;
+  }
+  if ((size_t)kv < ka) /* in place: every move goes to a lower index */
+    for (size_t j = 0; j < pb; j++)
+      for (int u = 0; u < kv; u++)
+        Y[j * (size_t)kv + (size_t)u] = Y[j * ka + (size_t)bd->kvt[u]];
+  for (int u = 0; u < kv; u++)
+    bd->kvt[u] = bd->kt[bd->kvt[u]];
+  return bd->kv = kv;
+}
+
 /* Node blocks: scatter J, factor the D_c, sweep Y = A_ff^-1 A_fs, form and
  * factor S = A_ss - A_sf Y. */
 static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
                        size_t len) {
-  const int a = bd->a, b = bd->b, p = bd->p, ka = bd->ka;
+  const int a = bd->a, b = bd->b, p = bd->p;
   const size_t pb = (size_t)p * (size_t)b;
-  memset(bd->nbuf, 0,
-         (2 * (size_t)a * (size_t)a + 2 * (size_t)a * pb + 3 * pb * (size_t)b) *
-             sizeof *bd->nbuf);
+  /* Every entry of the structure is set (one CSC entry each); of the
+   * others only D's and Y's, which the factorisation fills, need zeroing. */
+  memset(bd->Y, 0, pb * (size_t)bd->ka * sizeof *bd->Y);
+  memset(bd->D, 0, pb * (size_t)b * sizeof *bd->D);
   for (int q = 0; q < st->Ap[st->n_total]; q++)
-    *bd->dst[q] += st->Ax[q];
+    *bd->dst[q] = st->Ax[q];
+  const int ka = drop_zero_columns(bd);
   for (int c = 0; c < p; c++) {
     double *D = bd->D + (size_t)c * b * b, *Yc = bd->Y + (size_t)c * b * ka;
     /* Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2}) */
     for (int k = 1; k <= 2 && k <= c; k++) {
       const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * b * b;
       const double *Yp = bd->Y + (size_t)(c - k) * b * ka;
-      for (int i = 0; i < b; i++)
-        for (int j = 0; j < b; j++) {
-          const double l = L[(size_t)i * b + j];
-          if (l != 0.0)
-            for (int t = 0; t < ka; t++)
-              Yc[(size_t)i * ka + t] -= l * Yp[(size_t)j * ka + t];
-        }
+      for (int e = bd->lp[2 * c + k - 1]; e < bd->lp[2 * c + k]; e++) {
+        const int i = bd->li[e], j = bd->lj[e];
+        const double l = L[(size_t)i * b + j];
+        if (l != 0.0)
+          for (int t = 0; t < ka; t++)
+            Yc[(size_t)i * ka + t] -= l * Yp[(size_t)j * ka + t];
+      }
     }
-    if (mrvi_dense_lu_factor(b, D, bd->dpiv + (size_t)c * b) < 0)
+    if (mrvi_dense_lu_factor_nz(b, D, bd->dpiv + (size_t)c * b, bd->dnz) < 0)
       return mrvi_fail(msg, len, MRVI_ESINGULAR,
                        "singular Newton matrix (node block %d of the "
                        "schur-bordered path)",
@@ -273,14 +376,14 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   /* S = A_ss - A_sf Y (Y's columns ycol) */
   memcpy(bd->S, bd->Ass, (size_t)a * (size_t)a * sizeof *bd->S);
   for (int i = 0; i < a; i++)
-    for (size_t j = 0; j < pb; j++) {
+    for (int e = bd->sfp[i]; e < bd->sfp[i + 1]; e++) {
+      const size_t j = (size_t)bd->sfj[e];
       const double f = bd->Asf[(size_t)i * pb + j];
       double *Si = bd->S + (size_t)i * a;
       const double *Yj = bd->Y + j * (size_t)ka;
       if (f != 0.0)
-        for (int t = 0; t < a; t++)
-          if (bd->ycol[t] >= 0)
-            Si[t] -= f * Yj[bd->ycol[t]];
+        for (int r = 0; r < ka; r++)
+          Si[bd->kvt[r]] -= f * Yj[r];
     }
   if (mrvi_dense_lu_factor(a, bd->S, bd->spiv) < 0)
     return mrvi_fail(msg, len, MRVI_ESINGULAR,
@@ -291,7 +394,7 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
 
 /* J dx = R with the node blocks' factors. */
 static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
-  const int a = bd->a, b = bd->b, p = bd->p, ka = bd->ka;
+  const int a = bd->a, b = bd->b, p = bd->p, ka = bd->kv;
   const size_t pb = (size_t)p * (size_t)b;
   double *z = bd->z, *ds = bd->z + pb;
   /* z = A_ff^-1 R_f (forward sweep), in node-block order */
@@ -305,10 +408,12 @@ static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
     for (int k = 1; k <= 2 && k <= c; k++) {
       const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * b * b;
       const double *zp = z + (size_t)(c - k) * b;
-      for (int i = 0; i < b; i++) {
+      const int end = bd->lp[2 * c + k];
+      for (int e = bd->lp[2 * c + k - 1]; e < end;) { /* row by row */
+        const int i = bd->li[e];
         double acc = 0.0;
-        for (int j = 0; j < b; j++)
-          acc += L[(size_t)i * b + j] * zp[j];
+        for (; e < end && bd->li[e] == i; e++)
+          acc += L[(size_t)i * b + bd->lj[e]] * zp[bd->lj[e]];
         zc[i] -= acc;
       }
     }
@@ -318,16 +423,15 @@ static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
   /* S ds = R_s - A_sf z, then df = z - Y ds */
   for (int i = 0; i < a; i++) {
     double acc = 0.0;
-    for (size_t j = 0; j < pb; j++)
-      acc += bd->Asf[(size_t)i * pb + j] * z[j];
+    for (int e = bd->sfp[i]; e < bd->sfp[i + 1]; e++)
+      acc += bd->Asf[(size_t)i * pb + (size_t)bd->sfj[e]] * z[bd->sfj[e]];
     ds[i] -= acc;
   }
   mrvi_dense_lu_solve(a, bd->S, bd->spiv, ds, 1);
   for (size_t j = 0; j < pb; j++) {
     double acc = 0.0;
-    for (int t = 0; t < a; t++)
-      if (bd->ycol[t] >= 0)
-        acc += bd->Y[j * (size_t)ka + (size_t)bd->ycol[t]] * ds[t];
+    for (int r = 0; r < ka; r++)
+      acc += bd->Y[j * (size_t)ka + (size_t)r] * ds[bd->kvt[r]];
     z[j] -= acc;
   }
   for (int i = 0; i < bd->nu + bd->nl; i++)

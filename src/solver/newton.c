@@ -63,15 +63,7 @@ static int dense_create(mrvi_newton *nw) {
     deg[i] = nw->Ap[i + 1] - nw->Ap[i];
   for (int e = 0; e < nw->Ap[nw->n]; e++)
     deg[nw->Ai[e]]++;
-  /* Stable insertion sort of the indices by degree. */
-  for (int i = 0; i < nw->n; i++) {
-    int k = i;
-    for (; k > 0 && deg[order[k - 1]] > deg[i]; k--)
-      order[k] = order[k - 1];
-    order[k] = i;
-  }
-  for (int k = 0; k < nw->n; k++)
-    nw->pos[order[k]] = k;
+  mrvi_degree_order(nw->n, deg, order, nw->pos);
   return MRVI_OK;
 }
 
@@ -165,30 +157,6 @@ void mrvi_newton_free(mrvi_newton *nw) {
   free(nw);
 }
 
-/* LU with partial pivoting of B (n x n row-major) in place, as
- * mrvi_dense_lu_factor, updating only the nonzero columns of each pivot row
- * (nzc: workspace n); -1 if singular. */
-static int sparse_lu(int n, double *B, int *piv, int *nzc) {
-  for (int k = 0; k < n; k++) {
-    if (mrvi_dense_lu_pivot(n, B, piv, k) < 0)
-      return -1;
-    const double *bk = B + k * n, d = 1.0 / bk[k];
-    int nn = 0;
-    for (int j = k + 1; j < n; j++)
-      if (bk[j] != 0.0)
-        nzc[nn++] = j;
-    for (int i = k + 1; i < n; i++) {
-      double *bi = B + i * n;
-      if (bi[k] == 0.0)
-        continue;
-      const double f = (bi[k] *= d);
-      for (int t = 0; t < nn; t++)
-        bi[nzc[t]] -= f * bk[nzc[t]];
-    }
-  }
-  return 0;
-}
-
 /* Dense backend: scatter the scaled, renumbered CSC values into B, factorise
  * and list the factors' nonzeros by rows: L in ptr[0..n], U in
  * ptr[n+1..2n+1] (diagonal first). */
@@ -210,7 +178,8 @@ static int dense_factor(mrvi_newton *nw, const double *Ax, char *msg,
     for (int e = nw->Ap[j]; e < nw->Ap[j + 1]; e++)
       B[(size_t)nw->pos[nw->Ai[e]] * (size_t)n + (size_t)nw->pos[j]] +=
           nw->rs[nw->Ai[e]] * Ax[e];
-  nw->factored = nw->factored && sparse_lu(n, B, nw->piv, nw->nzc) == 0;
+  nw->factored =
+      nw->factored && mrvi_dense_lu_factor_nz(n, B, nw->piv, nw->nzc) == 0;
   if (!nw->factored) {
     mrvi_fmt(msg, len, "singular Newton matrix");
     return MRVI_ESINGULAR;

@@ -128,32 +128,35 @@ int mrvi_step_cols_of(const mrvi_step *st, int c, const mrvi_point *pt,
   return cols_of(st, c, pt, col, coef);
 }
 
+/* The recording pass of jac_add: the entry's row and column. */
+static void jac_record(mrvi_step *st, int row, int col) {
+  if (st->n_trip == st->cap_trip) {
+    long c = st->cap_trip ? 2 * st->cap_trip : 1024;
+    int *ti = realloc(st->Ti, (size_t)c * sizeof *ti);
+    if (ti)
+      st->Ti = ti;
+    int *tj = realloc(st->Tj, (size_t)c * sizeof *tj);
+    if (tj)
+      st->Tj = tj;
+    if (!ti || !tj) {
+      st->recording = -1; /* out of memory: reported by build_pattern */
+      return;
+    }
+    st->cap_trip = c;
+  }
+  st->Ti[st->n_trip] = row;
+  st->Tj[st->n_trip] = col;
+  st->n_trip++;
+}
+
 /* Add v at (row, col): records the pattern on the first pass, then sums into
  * the CSC values through the triplet map.  Both passes make the same calls
  * because every skip depends on structure (weights, coefficients) only. */
-static void jac_add(mrvi_step *st, int row, int col, double v) {
-  if (st->recording) {
-    if (st->n_trip == st->cap_trip) {
-      long c = st->cap_trip ? 2 * st->cap_trip : 1024;
-      int *ti = realloc(st->Ti, (size_t)c * sizeof *ti);
-      if (ti)
-        st->Ti = ti;
-      int *tj = realloc(st->Tj, (size_t)c * sizeof *tj);
-      if (tj)
-        st->Tj = tj;
-      if (!ti || !tj) {
-        st->recording = -1; /* out of memory: reported by build_pattern */
-        return;
-      }
-      st->cap_trip = c;
-    }
-    st->Ti[st->n_trip] = row;
-    st->Tj[st->n_trip] = col;
-    st->n_trip++;
-    return;
-  }
+static inline void jac_add(mrvi_step *st, int row, int col, double v) {
   if (st->recording == 0)
     st->Ax[st->map[st->n_trip++]] += v;
+  else if (st->recording > 0)
+    jac_record(st, row, col);
 }
 
 /* Split the model's constraints into slow-only (macro nodes) and micro-node
@@ -325,21 +328,24 @@ void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
  * the rows the node feeds, with its derivatives: lambda columns starting at
  * lcol, and -w c_row c_col sum_r lambda_r d2g_r on the unknown columns.
  * The caller has evaluated g, G (and, if the node has unknown columns and
- * jac, the second derivatives) at pt. */
+ * jac and c is not affine, the second derivatives) at pt.  An affine
+ * constraint's second derivatives are zero: its entries keep their place
+ * in the pattern (recorded as for any constraint) and get nothing. */
 static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
                              const double *lam, int lcol, double *R, int jac) {
   const mrvi_constraint *k = &st->model->constraints[c];
   const int n = k->n_in, rows = k->rows;
   /* The unknown columns of every input, once (not once per row fed). */
-  int kc[MRVI_MAX_INPUTS], cl[MRVI_MAX_INPUTS][2];
+  int kc[MRVI_MAX_INPUTS], cl[MRVI_MAX_INPUTS][2], nh = 0;
   double cc[MRVI_MAX_INPUTS][2];
   if (jac)
     for (int l = 0; l < n; l++)
-      kc[l] = mrvi_step_cols_of(st, k->in[l], pt, cl[l], cc[l]);
+      nh += kc[l] = cols_of(st, k->in[l], pt, cl[l], cc[l]);
+  const int skip_hess = k->affine && st->recording == 0;
   for (int j = 0; j < n; j++) {
     int rj[2];
     double cj[2];
-    const int kr = mrvi_step_rows_of(st, k->in[j], pt, rj, cj);
+    const int kr = rows_of(st, k->in[j], pt, rj, cj);
     double f = 0.0;
     for (int r = 0; r < rows; r++)
       f += st->cG[r * n + j] * lam[r];
@@ -349,11 +355,15 @@ static void constraint_force(mrvi_step *st, int c, const mrvi_point *pt,
         continue;
       for (int r = 0; r < rows; r++)
         jac_add(st, rj[a], lcol + r, -pt->w * cj[a] * st->cG[r * n + j]);
+      if (skip_hess) {
+        st->n_trip += nh;
+        continue;
+      }
       for (int l = 0; l < n; l++) {
         if (kc[l] == 0)
           continue;
         double h = 0.0;
-        for (int r = 0; r < rows; r++)
+        for (int r = 0; r < rows && !k->affine; r++)
           h += lam[r] * st->cH[(r * n + j) * n + l];
         for (int b = 0; b < kc[l]; b++)
           jac_add(st, rj[a], cl[l][b], -pt->w * cj[a] * cc[l][b] * h);
@@ -376,7 +386,7 @@ static void constraint_equation(mrvi_step *st, int c, const mrvi_point *pt,
   for (int j = 0; j < n; j++) {
     int cl[2];
     double cc[2];
-    const int kc = mrvi_step_cols_of(st, k->in[j], pt, cl, cc);
+    const int kc = cols_of(st, k->in[j], pt, cl, cc);
     for (int b = 0; b < kc; b++)
       for (int r = 0; r < k->rows; r++)
         jac_add(st, row + r, cl[b], cc[b] * st->cG[r * n + j]);
@@ -407,7 +417,9 @@ static void assemble_constraints(mrvi_step *st, const double *x, double *R,
       const int c = st->micro_c[i], off = st->c_off[c];
       /* One evaluation serves the force at nodes 0..p-1 and the equation
        * at nodes 1..p. */
-      mrvi_step_constraint_eval(st, c, &pt, x, jac && mm > 0 && mm < p);
+      mrvi_step_constraint_eval(st, c, &pt, x,
+                                jac && mm > 0 && mm < p &&
+                                    !st->model->constraints[c].affine);
       if (mm < p)
         constraint_force(st, c, &pt, lam + st->r_slow + mm * rm + off,
                          base + mm * rm + off, R, jac);

@@ -124,6 +124,38 @@ int mrvi_dense_lu_factor(int n, double *A, int *piv) {
   return 0;
 }
 
+void mrvi_degree_order(int n, const int *deg, int *order, int *pos) {
+  for (int i = 0; i < n; i++) { /* insertion sort */
+    int k = i;
+    for (; k > 0 && deg[order[k - 1]] > deg[i]; k--)
+      order[k] = order[k - 1];
+    order[k] = i;
+  }
+  for (int k = 0; k < n; k++)
+    pos[order[k]] = k;
+}
+
+int mrvi_dense_lu_factor_nz(int n, double *A, int *piv, int *nzc) {
+  for (int k = 0; k < n; k++) {
+    if (mrvi_dense_lu_pivot(n, A, piv, k) < 0)
+      return -1;
+    const double *ak = A + k * n, d = 1.0 / ak[k];
+    int nn = 0;
+    for (int j = k + 1; j < n; j++)
+      if (ak[j] != 0.0)
+        nzc[nn++] = j;
+    for (int i = k + 1; i < n; i++) {
+      double *ai = A + i * n;
+      if (ai[k] == 0.0)
+        continue;
+      const double f = (ai[k] *= d);
+      for (int t = 0; t < nn; t++)
+        ai[nzc[t]] -= f * ak[nzc[t]];
+    }
+  }
+  return 0;
+}
+
 /* Solve with mrvi_dense_lu_factor's factors; b (n x nrhs row-major) becomes x.
  * The factorisation swaps whole rows (P A = L U with L in its final row
  * order), so all row swaps apply to b before the forward substitution. */
@@ -144,13 +176,19 @@ void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
           b[i * nrhs + c] -= f * b[k * nrhs + c];
     }
   }
-  for (int i = n - 1; i >= 0; i--)
-    for (int c = 0; c < nrhs; c++) {
-      double s = b[i * nrhs + c];
-      for (int j = i + 1; j < n; j++)
-        s -= A[i * n + j] * b[j * nrhs + c];
-      b[i * nrhs + c] = s / A[i * n + i];
+  /* Back substitution by rows of b, the nonzeros of U only (each entry
+   * of b takes its terms in the order of j as a dot product would). */
+  for (int i = n - 1; i >= 0; i--) {
+    double *bi = b + i * nrhs;
+    for (int j = i + 1; j < n; j++) {
+      const double u = A[i * n + j];
+      if (u != 0.0)
+        for (int c = 0; c < nrhs; c++)
+          bi[c] -= u * b[j * nrhs + c];
     }
+    for (int c = 0; c < nrhs; c++)
+      bi[c] /= A[i * n + i];
+  }
 }
 
 /* Solve A^T x = b with mrvi_dense_lu_factor's factors of A (P A = L U, so

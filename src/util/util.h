@@ -60,6 +60,14 @@ int mrvi_dense_solve(int n, double *A, double *b);
  * (n); -1 if singular.  mrvi_dense_lu_solve: b (n x nrhs row-major)
  * becomes A^-1 b.  The small blocks of the structured step solvers. */
 int mrvi_dense_lu_factor(int n, double *A, int *piv);
+/* The same factorisation (the same arithmetic) updating only the nonzero
+ * columns of each pivot row: for matrices with many zeros (nzc: workspace
+ * of n). */
+int mrvi_dense_lu_factor_nz(int n, double *A, int *piv, int *nzc);
+/* Indices 0..n-1 sorted by their degrees deg, ascending and stable (ties
+ * in index order): order[k] the k-th, pos[i] the rank of index i (the
+ * elimination order of the dense LUs of Newton matrices: fewer fill). */
+void mrvi_degree_order(int n, const int *deg, int *order, int *pos);
 /* Step k of that factorisation's pivoting: the largest |A_ik|, i >= k, its
  * row in piv[k] and swapped with row k; -1 if that column is zero. */
 int mrvi_dense_lu_pivot(int n, double *A, int *piv, int k);
