@@ -57,8 +57,11 @@ struct mrvi_sweep {
    * every sweep reads entry by entry before it writes that entry). */
   size_t node_stride;
   /* The explicit path's node updates on `threads` threads in blocks of
-   * `chunk` fast coordinates (nf at least two chunks; else 1). */
+   * `chunk` fast coordinates (nf at least two chunks; else 1); with
+   * node_stride 0 the nodes alternate between x's fast part and qalt (nf),
+   * so that a node is written while other parts read the last one. */
   int threads, chunk;
+  double *qalt;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   /* The step between the entries of minv_f and m_f that explicit_row
    * reads: 0 where every fast mass is the same (entry 0 is each entry's
@@ -314,6 +317,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->gv);
   free(sw->gzero);
   free(sw->gnode);
+  free(sw->qalt);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
   free(sw->rhs);
@@ -430,6 +434,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->gnode = dalloc(nf);
+  sw->qalt = dalloc(sw->threads > 1 ? nf : 1);
   /* The rows' workspace of the implicit paths (the explicit path needs
    * none of it: explicit_sweep and explicit_p1). */
   const size_t ni = sw->implicit ? nf : 0;
@@ -478,7 +483,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->del = dalloc(sw->linear ? nf : 0);
   sw->piv = calloc(sw->implicit && !sparse && nf > 0 ? nf : 1, sizeof(int));
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
-      !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
+      !sw->gzero || !sw->gnode || !sw->qalt || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
       !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
@@ -1241,29 +1246,60 @@ static void fast_gradient_part(const mrvi_sweep *sw, int c, const double *z,
 }
 
 /* Part c of node m's end: grad W at qn into gnode and pn -= sum wr
- * grad W (explicit_nodes' arithmetic). */
+ * grad W (explicit_nodes' arithmetic, in pairs as explicit_nodes with one
+ * point at each end). */
 static void end_force_part(const mrvi_sweep *sw, int c, const double *qn,
                            double *gnode, double *pn, const double *wr,
                            int nr) {
   fast_gradient_part(sw, c, qn, gnode);
   const int f0 = c * sw->chunk;
   const int f1 = sw->nf - f0 < sw->chunk ? sw->nf : f0 + sw->chunk;
+  if (nr == 1) {
+    explicit_end_force(f1 - f0, wr[0], gnode + f0, pn + f0);
+    return;
+  }
   for (int f = f0; f < f1; f++)
     for (int i = 0; i < nr; i++)
       pn[f] -= wr[i] * gnode[f];
 }
 
+/* Rows [f0, f1) of node m (explicit_nodes' arithmetic: explicit_row where
+ * it takes it). */
+static void rows_part(const mrvi_sweep *sw, const double *pm, const double *fm,
+                      const double *qm, double *qn, double *pn, double dt,
+                      int f0, int f1) {
+  const double *gnode = sw->gnode, *mf = sw->m_f, *minv = sw->minv_f;
+  if (sw->nl == 1 && sw->nr == 1 && !fm)
+    explicit_row(f1 - f0, dt, sw->wl[0], pm + f0, gnode + f0, minv + f0,
+                 mf + f0, qm + f0, qn + f0, pn + f0);
+  else
+    explicit_rows(pm, fm, sw->wl, gnode, mf, minv, qm, qn, pn, dt, sw->nl, f0,
+                  f1);
+}
+
+/* The fast configuration of node m + 1 (row m's left end: st->qf0 for m =
+ * -1) in explicit_nodes_par: x's row m, or with node_stride 0 x's fast
+ * part and qalt alternately, node p in x. */
+static double *node_q(const mrvi_sweep *sw, const mrvi_step *st, double *x,
+                      int m) {
+  if (m < 0)
+    return (double *)st->qf0; /* (read only) */
+  if (sw->node_stride > 0)
+    return x + sw->ns + (size_t)m * sw->node_stride;
+  return (sw->p - 1 - m) % 2 == 0 ? x + sw->ns : sw->qalt;
+}
+
 /* explicit_nodes on sw->threads threads in one parallel region: the fast
  * rows in parts of sw->chunk (the fast class's parts, a partition by nf
- * alone), each part's gradient rows and node updates by one thread, a
- * barrier where a node's configuration is complete.  Every row's
- * arithmetic is explicit_nodes' (the same bits for every thread count). */
+ * alone), each part's gradient rows and node updates by one thread, one
+ * barrier per node where its configuration is complete (two without an
+ * end force).  Every row's arithmetic is explicit_nodes' (the same bits
+ * for every thread count). */
 static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
                                double *pf) {
-  const int ns = sw->ns, nf = sw->nf, p = sw->p, nl = sw->nl, nr = sw->nr;
+  const int nf = sw->nf, p = sw->p, nl = sw->nl, nr = sw->nr;
   const int chunk = sw->chunk, n_part = (nf + chunk - 1) / chunk;
-  const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
-  const double *mf = sw->m_f, *minv = sw->minv_f;
+  const double dt = st->dt, *wr = sw->wr;
   double *gnode = sw->gnode;
   const size_t stride = sw->node_stride;
   const int g0 = nl > 0 && !sw->gnode_ok;
@@ -1271,9 +1307,9 @@ static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
 #pragma omp parallel num_threads(sw->threads)
 #endif
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    const double *qm = node_q(sw, st, x, m - 1);
     const double *pm = m == 0 ? pf : pf + (size_t)(m - 1) * stride;
-    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
+    double *qn = node_q(sw, st, x, m), *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     /* grad W at node m, unless node m - 1's end left it */
     if (nl > 0 && (m == 0 ? g0 : nr == 0)) {
@@ -1287,20 +1323,14 @@ static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
 #pragma omp for schedule(static)
 #endif
     for (int c = 0; c < n_part; c++)
-      explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl, c * chunk,
-                    nf - c * chunk < chunk ? nf : (c + 1) * chunk);
+      rows_part(sw, pm, fm, qm, qn, pn, dt, c * chunk,
+                nf - c * chunk < chunk ? nf : (c + 1) * chunk);
     /* (after the barrier: node m + 1 complete) grad W there and the end
      * force; the next node's rows of part c read part c's rows alone,
-     * which the same thread wrote (the same static schedule), so no
-     * barrier follows unless the next node overwrites this one in place
-     * (node_stride 0) while other parts may still read it. */
-    if (nr > 0 && stride == 0) {
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-      for (int c = 0; c < n_part; c++)
-        end_force_part(sw, c, qn, gnode, pn, wr, nr);
-    } else if (nr > 0) {
+     * which the same thread wrote (the same static schedule), and write
+     * a configuration no part reads any more (node m's two before, or
+     * another row of x), so no barrier follows. */
+    if (nr > 0) {
 #ifdef _OPENMP
 #pragma omp for schedule(static) nowait
 #endif

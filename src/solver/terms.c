@@ -99,7 +99,10 @@ struct mrvi_terms {
    * part writes its own columns alone, and every column sums its
    * contributions in the serial order, so the gradient is the serial one
    * bitwise for every number of threads (a record spanning parts is
-   * evaluated once per part). */
+   * evaluated once per part).  part_run[i] (khooke classes): the number
+   * of consecutive records from entry i on that write all their columns
+   * in the part (0 where entry i's mask lacks one), taken by the serial
+   * kernel in one loop. */
   /* mrvi_terms_set_value_chunks: the value summed per chunk of vchunk
    * elements (0: in one sum), the chunks' sums vpart added in order;
    * the chunks on vthreads threads. */
@@ -107,7 +110,7 @@ struct mrvi_terms {
   double *vpart;
   int threads, chunk, n_part;
   int part_hooke; /* every record a khooke spring: part_hooke_k on qh */
-  int *part_first, *part_rec;
+  int *part_first, *part_rec, *part_run;
   unsigned char *part_mask;
 };
 
@@ -129,6 +132,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->vpart);
   free(kc->part_rec);
   free(kc->part_mask);
+  free(kc->part_run);
   free(kc);
 }
 
@@ -1052,10 +1056,15 @@ ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
  * bitwise spring_eval's, or with one = 1 hooke_grad1's): the quarter-size
  * records. */
 ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
-                                const unsigned char *mask, int nr,
-                                const double *z, double *g, const int dim,
-                                const int one) {
+                                const unsigned char *mask, const int *run,
+                                int nr, const double *z, double *g,
+                                const int dim, const int one) {
   for (int i = 0; i < nr; i++) {
+    if (run[i] > 0) { /* whole records: the serial loop, the same sums */
+      hooke_grad_k(q + rec[i], run[i], z, g, dim, one);
+      i += run[i] - 1;
+      continue;
+    }
     const khooke *h = q + rec[i];
     const unsigned mk = mask[i];
     const int ci = h->ci, cj = h->cj;
@@ -1073,18 +1082,19 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
+  const int *run = kc->part_run + r0;
   if (kc->part_hooke && kc->hooke_only && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 1);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 1);
   else if (kc->part_hooke && kc->hooke_only && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 1);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 3, 1);
   else if (kc->part_hooke && kc->hooke_only)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 1);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 1, 1);
   else if (kc->part_hooke && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 0);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 0);
   else if (kc->part_hooke && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 0);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 3, 0);
   else if (kc->part_hooke)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 0);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 1, 0);
   else if (kc->dim == 2)
     part_k(kc->qs, rec, mask, nr, z, g, 2);
   else if (kc->dim == 3)
@@ -1159,6 +1169,24 @@ static int record_parts(const kspring *q, int dim, const int *owner,
   return np;
 }
 
+/* kc->part_run of a class of khooke springs (two-sided: a whole record's
+ * mask has 2 dim bits) partitioned into n_part parts of total entries. */
+static int part_runs(mrvi_terms *kc, const int *first, int n_part,
+                     long total) {
+  kc->part_run = malloc((size_t)(total > 0 ? total : 1) * sizeof(int));
+  if (!kc->part_run)
+    return MRVI_ENOMEM;
+  const unsigned whole = (1u << 2 * kc->dim) - 1;
+  for (int c = 0; c < n_part; c++)
+    for (int i = first[c + 1] - 1; i >= first[c]; i--) {
+      const int next = i + 1 < first[c + 1] && kc->part_run[i + 1] > 0 &&
+                       kc->part_rec[i + 1] == kc->part_rec[i] + 1;
+      kc->part_run[i] =
+          kc->part_mask[i] != whole ? 0 : next ? kc->part_run[i + 1] + 1 : 1;
+    }
+  return MRVI_OK;
+}
+
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   if (!mrvi_threads_supported())
     threads = 1;
@@ -1217,6 +1245,10 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   kc->part_hooke = 1;
   for (int r = 0; r < kc->n; r++)
     kc->part_hooke &= kc->hooke_only || kc->hooke_run[r];
+  if (kc->part_hooke && part_runs(kc, first, n_part, total) < 0) {
+    free(first);
+    return MRVI_ENOMEM; /* (part_rec, part_mask freed with kc) */
+  }
   kc->part_first = first;
   kc->n_part = n_part;
   kc->chunk = chunk;
