@@ -365,11 +365,12 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
 /* mrvi_terms_grad on `threads` threads (resolved: >= 1) for a class of
  * springs and anchors alone, in parts that depend on the class, `chunk`
- * (tuning.thread_chunk) and ncol alone, not on the thread count: with
- * ncol > 0, part c owns the columns [c chunk, (c+1) chunk) of a gradient
- * of ncol columns (the explicit sweep's rows); with ncol = 0, the records
- * in chunks of `chunk` and each column owned by the chunk of the first
- * record that writes it (few records span parts wherever the records'
+ * (tuning.thread_chunk) and ncol alone, not on the thread count: the
+ * number of chunks rounded up to an even count (two threads take equal
+ * shares), of sizes equal to within one.  With ncol > 0, part c owns a
+ * range of the ncol columns (mrvi_terms_part_columns; the explicit
+ * sweep's rows); with ncol = 0, the records in such parts and each
+ * column owned by the part of the first record that writes it (few records span parts wherever the records'
  * order follows the columns', whatever the columns' order).  Each part
  * writes its own columns from its records in the serial order, so the
  * gradient is the serial one bitwise for every thread count.  Fewer than
@@ -381,6 +382,8 @@ int mrvi_terms_threads(const mrvi_terms *kc);
  * part c's columns of grad Z(z) (the other columns untouched): for a
  * caller's own parallel loop over the parts (the explicit sweep). */
 int mrvi_terms_parts(const mrvi_terms *kc);
+/* The columns [*c0, *c1) part c owns (a class partitioned with ncol > 0). */
+void mrvi_terms_part_columns(const mrvi_terms *kc, int c, int *c0, int *c1);
 void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
                           double *g);
 /* Whether mrvi_terms_grad takes the flat loop (every term linear or a small

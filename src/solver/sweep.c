@@ -56,11 +56,11 @@ struct mrvi_sweep {
    * or 0 (mrvi_sweep_set_last_only: each node overwrites the last, which
    * every sweep reads entry by entry before it writes that entry). */
   size_t node_stride;
-  /* The explicit path's node updates on `threads` threads in blocks of
-   * `chunk` fast coordinates (nf at least two chunks; else 1); with
+  /* The explicit path's node updates on `threads` threads in the fast
+   * class's parts (nf at least two thread_chunk; else 1); with
    * node_stride 0 the nodes alternate between x's fast part and qalt (nf),
    * so that a node is written while other parts read the last one. */
-  int threads, chunk;
+  int threads;
   double *qalt;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   /* The step between the entries of minv_f and m_f that explicit_row
@@ -424,7 +424,6 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
                                   c == MRVI_SLOW ? 0 : nf) == MRVI_OK;
   /* The explicit sweep's one parallel region per step: W's gradient by
    * parts of the fast rows (explicit_nodes_par). */
-  sw->chunk = s->tuning.thread_chunk;
   sw->threads = s_ok && !sw->implicit && !sw->wH &&
                         mrvi_terms_parts(sw->kc[MRVI_FAST]) > 0
                     ? threads
@@ -1239,8 +1238,8 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
  * class, mrvi_terms_grad_part: fast_gradient's sums, bitwise). */
 static void fast_gradient_part(const mrvi_sweep *sw, int c, const double *z,
                                double *g) {
-  const int f0 = c * sw->chunk;
-  const int f1 = sw->nf - f0 < sw->chunk ? sw->nf : f0 + sw->chunk;
+  int f0, f1;
+  mrvi_terms_part_columns(sw->kc[MRVI_FAST], c, &f0, &f1);
   zero(g + f0, f1 - f0);
   mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, z, g);
 }
@@ -1252,8 +1251,8 @@ static void end_force_part(const mrvi_sweep *sw, int c, const double *qn,
                            double *gnode, double *pn, const double *wr,
                            int nr) {
   fast_gradient_part(sw, c, qn, gnode);
-  const int f0 = c * sw->chunk;
-  const int f1 = sw->nf - f0 < sw->chunk ? sw->nf : f0 + sw->chunk;
+  int f0, f1;
+  mrvi_terms_part_columns(sw->kc[MRVI_FAST], c, &f0, &f1);
   if (nr == 1) {
     explicit_end_force(f1 - f0, wr[0], gnode + f0, pn + f0);
     return;
@@ -1263,11 +1262,13 @@ static void end_force_part(const mrvi_sweep *sw, int c, const double *qn,
       pn[f] -= wr[i] * gnode[f];
 }
 
-/* Rows [f0, f1) of node m (explicit_nodes' arithmetic: explicit_row where
+/* Part c's rows of node m (explicit_nodes' arithmetic: explicit_row where
  * it takes it). */
-static void rows_part(const mrvi_sweep *sw, const double *pm, const double *fm,
-                      const double *qm, double *qn, double *pn, double dt,
-                      int f0, int f1) {
+static void rows_part(const mrvi_sweep *sw, int c, const double *pm,
+                      const double *fm, const double *qm, double *qn,
+                      double *pn, double dt) {
+  int f0, f1;
+  mrvi_terms_part_columns(sw->kc[MRVI_FAST], c, &f0, &f1);
   const double *gnode = sw->gnode, *mf = sw->m_f, *minv = sw->minv_f;
   if (sw->nl == 1 && sw->nr == 1 && !fm)
     explicit_row(f1 - f0, dt, sw->wl[0], pm + f0, gnode + f0, minv + f0,
@@ -1290,15 +1291,15 @@ static double *node_q(const mrvi_sweep *sw, const mrvi_step *st, double *x,
 }
 
 /* explicit_nodes on sw->threads threads in one parallel region: the fast
- * rows in parts of sw->chunk (the fast class's parts, a partition by nf
+ * rows in the fast class's parts (a partition by nf and thread_chunk
  * alone), each part's gradient rows and node updates by one thread, one
  * barrier per node where its configuration is complete (two without an
  * end force).  Every row's arithmetic is explicit_nodes' (the same bits
  * for every thread count). */
 static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
                                double *pf) {
-  const int nf = sw->nf, p = sw->p, nl = sw->nl, nr = sw->nr;
-  const int chunk = sw->chunk, n_part = (nf + chunk - 1) / chunk;
+  const int p = sw->p, nl = sw->nl, nr = sw->nr;
+  const int n_part = mrvi_terms_parts(sw->kc[MRVI_FAST]);
   const double dt = st->dt, *wr = sw->wr;
   double *gnode = sw->gnode;
   const size_t stride = sw->node_stride;
@@ -1323,8 +1324,7 @@ static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
 #pragma omp for schedule(static)
 #endif
     for (int c = 0; c < n_part; c++)
-      rows_part(sw, pm, fm, qm, qn, pn, dt, c * chunk,
-                nf - c * chunk < chunk ? nf : (c + 1) * chunk);
+      rows_part(sw, c, pm, fm, qm, qn, pn, dt);
     /* (after the barrier: node m + 1 complete) grad W there and the end
      * force; the next node's rows of part c read part c's rows alone,
      * which the same thread wrote (the same static schedule), and write

@@ -108,7 +108,7 @@ struct mrvi_terms {
    * the chunks on vthreads threads. */
   int vchunk, vthreads;
   double *vpart;
-  int threads, chunk, n_part;
+  int threads, chunk, n_part, ncol;
   int part_hooke; /* every record a khooke spring: part_hooke_k on qh */
   int *part_first, *part_rec, *part_run;
   unsigned char *part_mask;
@@ -1117,10 +1117,25 @@ static int record_col(const kspring *q, int dim, int k) {
   return k < dim ? q->ci[k] : q->cj[k - dim];
 }
 
-/* The part owning each column: ranges of `chunk` columns (ncol > 0), else
- * the chunk of `chunk` records (in the serial order) holding the first
- * record that writes the column.  NULL on a column outside [0, ncol) or
- * no memory (*n_col: the columns mapped, *n_part: the parts). */
+/* n items (n >= 1) in parts: the number of `chunk` items rounded up to an
+ * even count, so that two threads take equal shares, and part c the items
+ * [c n / n_part, (c+1) n / n_part) (sizes equal to within one). */
+static int even_parts(int n, int chunk) {
+  const int np = (n - 1) / chunk + 1;
+  return np + (np & 1);
+}
+static int part_start(int c, int n, int n_part) {
+  return (int)((long)c * n / n_part);
+}
+static int part_of(int i, int n, int n_part) {
+  return (int)(((long)(i + 1) * n_part + n - 1) / n - 1);
+}
+
+/* The part owning each column: even_parts of the ncol columns (ncol > 0),
+ * else the part of the records (even_parts of them, in the serial order)
+ * holding the first record that writes the column.  NULL on a column
+ * outside [0, ncol) or no memory (*n_col: the columns mapped, *n_part:
+ * the parts). */
 static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
                           int *n_part) {
   const int dim = kc->dim, by_rec = ncol <= 0;
@@ -1133,8 +1148,9 @@ static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
   int *owner = malloc((size_t)(ncol > 0 ? ncol : 1) * sizeof *owner);
   if (!owner)
     return NULL;
+  const int np = even_parts(by_rec ? kc->n : ncol, chunk);
   for (int c = 0; c < ncol; c++)
-    owner[c] = by_rec ? -1 : c / chunk;
+    owner[c] = by_rec ? -1 : part_of(c, ncol, np);
   for (int r = 0; r < kc->n; r++)
     for (int k = 0; k < (kc->qs[r].two ? 2 * dim : dim); k++) {
       const int col = record_col(&kc->qs[r], dim, k);
@@ -1143,10 +1159,10 @@ static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
         return NULL;
       }
       if (owner[col] < 0)
-        owner[col] = r / chunk;
+        owner[col] = part_of(r, kc->n, np);
     }
   *n_col = ncol;
-  *n_part = by_rec ? (kc->n - 1) / chunk + 1 : (ncol - 1) / chunk + 1;
+  *n_part = np;
   return owner;
 }
 
@@ -1251,6 +1267,7 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   }
   kc->part_first = first;
   kc->n_part = n_part;
+  kc->ncol = ncol;
   kc->chunk = chunk;
   kc->threads = threads;
   return MRVI_OK;
@@ -1258,6 +1275,11 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
 
 int mrvi_terms_parts(const mrvi_terms *kc) {
   return kc->part_first ? kc->n_part : 0;
+}
+
+void mrvi_terms_part_columns(const mrvi_terms *kc, int c, int *c0, int *c1) {
+  *c0 = part_start(c, kc->ncol, kc->n_part);
+  *c1 = part_start(c + 1, kc->ncol, kc->n_part);
 }
 
 int mrvi_terms_threads(const mrvi_terms *kc) {
