@@ -115,6 +115,12 @@ struct mrvi_sweep {
    * its D; lam, the ratio of the last two residuals of this step's chord
    * rows (0 at row 0). */
   double rho_c, lam;
+  /* chord_residual's pass in n_cpass chunks of tuning.thread_chunk rows
+   * (nf at least two of them, else 0: one pass), each chunk's maximum and
+   * sums in cpass (4 per chunk) added in order, on pthreads threads: the
+   * same bits for every thread count. */
+  int n_cpass, cchunk, pthreads;
+  double *cpass;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
 };
@@ -318,6 +324,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->gzero);
   free(sw->gnode);
   free(sw->qalt);
+  free(sw->cpass);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
   free(sw->rhs);
@@ -460,6 +467,12 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fhist[0] = dalloc(sparse ? nf : 1);
   sw->fhist[1] = dalloc(sparse ? nf : 1);
   sw->fhist[2] = dalloc(sparse ? nf : 1);
+  sw->cchunk = s->tuning.thread_chunk;
+  sw->n_cpass = sparse && (int)nf >= 2 * sw->cchunk
+                    ? ((int)nf + sw->cchunk - 1) / sw->cchunk
+                    : 0;
+  sw->pthreads = threads;
+  sw->cpass = dalloc(4 * (size_t)sw->n_cpass);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -482,7 +495,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->del = dalloc(sw->linear ? nf : 0);
   sw->piv = calloc(sw->implicit && !sparse && nf > 0 ? nf : 1, sizeof(int));
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
-      !sw->gzero || !sw->gnode || !sw->qalt || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
+      !sw->gzero || !sw->gnode || !sw->qalt || !sw->cpass || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
       !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
@@ -811,12 +824,11 @@ static void chord_setup(mrvi_sweep *sw) {
  * stored over F_old; rw read unless unit (every weight 1: the absolute
  * criterion), the implicit force fimp stored where keep (else
  * node_momentum stores it at the row's end: one point per interval). */
-ALWAYS_INLINE double chord_pass(mrvi_sweep *sw, const double *restrict qm,
-                                const double *restrict dn,
-                                const double *restrict g, double om, double wc,
-                                double cB, double *on_out, double *oo_out,
-                                const int unit, const int keep) {
-  const int nf = sw->nf;
+ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
+                              const double *restrict dn,
+                              const double *restrict g, double om, double wc,
+                              double cB, int f0, const int nf, double out[4],
+                              const int unit, const int keep) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
@@ -824,7 +836,7 @@ ALWAYS_INLINE double chord_pass(mrvi_sweep *sw, const double *restrict qm,
                    *restrict zf = sw->zf, *restrict F = sw->F;
   const mrvi_v2 vdt = v2_set(dt, dt);
   mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
-  int f = 0;
+  int f = f0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
     const mrvi_v2 d = v2_load(dn + f);
@@ -859,9 +871,23 @@ ALWAYS_INLINE double chord_pass(mrvi_sweep *sw, const double *restrict qm,
     r = a > r ? a : r;
     sum += a;
   }
-  *on_out = on;
-  *oo_out = oo;
-  return isnan(sum) ? sum : r;
+  out[0] = r;
+  out[1] = sum;
+  out[2] = on;
+  out[3] = oo;
+}
+
+/* chord_pass over rows [f0, f1) in its three variants. */
+static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
+                            const double *g, double om, double wc, double cB,
+                            int f0, int f1, double out[4]) {
+  const int unit = sw->rw_one, keep = sw->n_w != 1;
+  if (unit && !keep)
+    chord_pass(sw, qm, dn, g, om, wc, cB, f0, f1, out, 1, 0);
+  else if (unit)
+    chord_pass(sw, qm, dn, g, om, wc, cB, f0, f1, out, 1, 1);
+  else
+    chord_pass(sw, qm, dn, g, om, wc, cB, f0, f1, out, 0, 1);
 }
 
 /* The row residual of a chord iterate with one implicit point, whose
@@ -914,14 +940,25 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     fast_gradient(sw, sw->zf, g, nf);
   }
   const double om = 1.0 / (1.0 - sw->lam);
-  double on = 0.0, oo = 0.0, r;
-  const int unit = sw->rw_one, keep = sw->n_w != 1;
-  if (unit && !keep)
-    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 0);
-  else if (unit)
-    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 1);
-  else
-    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 0, 1);
+  double t[4];
+  const int n_c = sw->n_cpass, chunk = sw->cchunk;
+  if (n_c == 0) {
+    chord_pass_rows(sw, qm, dn, g, om, wc, cB, 0, nf, t);
+  } else {
+    double *cp = sw->cpass;
+    MRVI_PARALLEL_FOR(sw->pthreads)
+    for (int c = 0; c < n_c; c++)
+      chord_pass_rows(sw, qm, dn, g, om, wc, cB, c * chunk,
+                      c == n_c - 1 ? nf : (c + 1) * chunk, cp + 4 * c);
+    t[0] = t[1] = t[2] = t[3] = 0.0;
+    for (int c = 0; c < n_c; c++) { /* (in order) */
+      t[0] = cp[4 * c] > t[0] ? cp[4 * c] : t[0];
+      t[1] += cp[4 * c + 1];
+      t[2] += cp[4 * c + 2];
+      t[3] += cp[4 * c + 3];
+    }
+  }
+  const double r = isnan(t[1]) ? t[1] : t[0], on = t[2], oo = t[3];
   if (track && oo > 0.0 && isfinite(on)) /* (the next update's lam) */
     sw->lam = fmin(sw->rho_c, fmax(-sw->rho_c, on / oo));
   return r;
