@@ -115,12 +115,16 @@ struct mrvi_sweep {
    * its D; lam, the ratio of the last two residuals of this step's chord
    * rows (0 at row 0). */
   double rho_c, lam;
-  /* chord_residual's pass in n_cpass chunks of tuning.thread_chunk rows
-   * (nf at least two of them, else 0: one pass), each chunk's maximum and
-   * sums in cpass (4 per chunk) added in order, on pthreads threads: the
-   * same bits for every thread count. */
-  int n_cpass, cchunk, pthreads;
-  double *cpass;
+  /* chord_residual's pass in n_cpass parts of the rows (mrvi_even_parts
+   * by tuning.thread_chunk; nf at least two chunks, else 0: one pass),
+   * each part's maximum and sums in cpass (4 per part) added in order, on
+   * pthreads threads: the same bits for every thread count.  cfused: the
+   * fast class is partitioned alike (on threads), so that one thread
+   * takes a part's gradient rows and then its pass, in one parallel
+   * region, the pass writing the next configuration into zalt (other
+   * parts' gradients still read zf), which then becomes zf. */
+  int n_cpass, pthreads, cfused;
+  double *cpass, *zalt;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
 };
@@ -325,6 +329,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->gnode);
   free(sw->qalt);
   free(sw->cpass);
+  free(sw->zalt);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
   free(sw->rhs);
@@ -467,12 +472,14 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fhist[0] = dalloc(sparse ? nf : 1);
   sw->fhist[1] = dalloc(sparse ? nf : 1);
   sw->fhist[2] = dalloc(sparse ? nf : 1);
-  sw->cchunk = s->tuning.thread_chunk;
-  sw->n_cpass = sparse && (int)nf >= 2 * sw->cchunk
-                    ? ((int)nf + sw->cchunk - 1) / sw->cchunk
-                    : 0;
+  const int chunk = s->tuning.thread_chunk;
+  sw->n_cpass =
+      sparse && (int)nf >= 2 * chunk ? mrvi_even_parts((int)nf, chunk) : 0;
   sw->pthreads = threads;
+  sw->cfused = sw->n_cpass > 0 && mrvi_terms_threads(sw->kc[MRVI_FAST]) > 1 &&
+               mrvi_terms_parts(sw->kc[MRVI_FAST]) == sw->n_cpass;
   sw->cpass = dalloc(4 * (size_t)sw->n_cpass);
+  sw->zalt = dalloc(sw->cfused ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -495,11 +502,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->del = dalloc(sw->linear ? nf : 0);
   sw->piv = calloc(sw->implicit && !sparse && nf > 0 ? nf : 1, sizeof(int));
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
-      !sw->gzero || !sw->gnode || !sw->qalt || !sw->cpass || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
-      !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
-      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
-      !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
-      !sw->fhist[2]) {
+      !sw->gzero || !sw->gnode || !sw->qalt || !sw->cpass || !sw->zalt ||
+      !sw->gpt[0] || !sw->gpt[1] || !sw->rhs || !sw->F || !sw->fimp ||
+      !sw->dn || !sw->dff || !sw->rw || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
+      !sw->piv || !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->dnx ||
+      !sw->fhist[0] || !sw->fhist[1] || !sw->fhist[2]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -827,13 +834,14 @@ static void chord_setup(mrvi_sweep *sw) {
 ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
                               const double *restrict dn,
                               const double *restrict g, double om, double wc,
-                              double cB, int f0, const int nf, double out[4],
-                              const int unit, const int keep) {
+                              double cB, double *restrict zf, int f0,
+                              const int nf, double out[4], const int unit,
+                              const int keep) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
   double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
-                   *restrict zf = sw->zf, *restrict F = sw->F;
+                   *restrict F = sw->F;
   const mrvi_v2 vdt = v2_set(dt, dt);
   mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
   int f = f0;
@@ -877,17 +885,18 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
   out[3] = oo;
 }
 
-/* chord_pass over rows [f0, f1) in its three variants. */
+/* chord_pass over rows [f0, f1) in its three variants, the next
+ * configuration into zn. */
 static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
                             const double *g, double om, double wc, double cB,
-                            int f0, int f1, double out[4]) {
+                            double *zn, int f0, int f1, double out[4]) {
   const int unit = sw->rw_one, keep = sw->n_w != 1;
   if (unit && !keep)
-    chord_pass(sw, qm, dn, g, om, wc, cB, f0, f1, out, 1, 0);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0);
   else if (unit)
-    chord_pass(sw, qm, dn, g, om, wc, cB, f0, f1, out, 1, 1);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 1);
   else
-    chord_pass(sw, qm, dn, g, om, wc, cB, f0, f1, out, 0, 1);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 0, 1);
 }
 
 /* The row residual of a chord iterate with one implicit point, whose
@@ -936,20 +945,32 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
       bound = d > 0.0 ? fmax(bound, sw->off[f] * sw->jdinv[f]) : HUGE_VAL;
     }
     *rho = sw->rho_c = bound;
-  } else {
+  } else if (!sw->cfused) {
     fast_gradient(sw, sw->zf, g, nf);
   }
   const double om = 1.0 / (1.0 - sw->lam);
   double t[4];
-  const int n_c = sw->n_cpass, chunk = sw->cchunk;
+  const int n_c = sw->n_cpass, grad = !fresh && sw->cfused;
   if (n_c == 0) {
-    chord_pass_rows(sw, qm, dn, g, om, wc, cB, 0, nf, t);
+    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t);
   } else {
-    double *cp = sw->cpass;
+    double *cp = sw->cpass, *zn = grad ? sw->zalt : sw->zf;
+    const double *zf = sw->zf;
+    sw->evals_w += grad;
     MRVI_PARALLEL_FOR(sw->pthreads)
-    for (int c = 0; c < n_c; c++)
-      chord_pass_rows(sw, qm, dn, g, om, wc, cB, c * chunk,
-                      c == n_c - 1 ? nf : (c + 1) * chunk, cp + 4 * c);
+    for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
+        zero(g + f0, f1 - f0);
+        mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+      }
+      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c);
+    }
+    if (grad) { /* (zalt: the next configuration) */
+      sw->zalt = sw->zf;
+      sw->zf = zn;
+    }
     t[0] = t[1] = t[2] = t[3] = 0.0;
     for (int c = 0; c < n_c; c++) { /* (in order) */
       t[0] = cp[4 * c] > t[0] ? cp[4 * c] : t[0];

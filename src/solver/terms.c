@@ -1117,23 +1117,21 @@ static int record_col(const kspring *q, int dim, int k) {
   return k < dim ? q->ci[k] : q->cj[k - dim];
 }
 
-/* n items (n >= 1) in parts: the number of `chunk` items rounded up to an
- * even count, so that two threads take equal shares, and part c the items
- * [c n / n_part, (c+1) n / n_part) (sizes equal to within one). */
-static int even_parts(int n, int chunk) {
+int mrvi_even_parts(int n, int chunk) {
   const int np = (n - 1) / chunk + 1;
   return np + (np & 1);
 }
-static int part_start(int c, int n, int n_part) {
+int mrvi_part_start(int c, int n, int n_part) {
   return (int)((long)c * n / n_part);
 }
+/* The part of mrvi_even_parts holding item i. */
 static int part_of(int i, int n, int n_part) {
   return (int)(((long)(i + 1) * n_part + n - 1) / n - 1);
 }
 
-/* The part owning each column: even_parts of the ncol columns (ncol > 0),
- * else the part of the records (even_parts of them, in the serial order)
- * holding the first record that writes the column.  NULL on a column
+/* The part owning each column: mrvi_even_parts of the ncol columns (ncol
+ * > 0), else the part of the records (mrvi_even_parts of them, in the serial
+ * order) holding the first record that writes the column.  NULL on a column
  * outside [0, ncol) or no memory (*n_col: the columns mapped, *n_part:
  * the parts). */
 static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
@@ -1148,7 +1146,7 @@ static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
   int *owner = malloc((size_t)(ncol > 0 ? ncol : 1) * sizeof *owner);
   if (!owner)
     return NULL;
-  const int np = even_parts(by_rec ? kc->n : ncol, chunk);
+  const int np = mrvi_even_parts(by_rec ? kc->n : ncol, chunk);
   for (int c = 0; c < ncol; c++)
     owner[c] = by_rec ? -1 : part_of(c, ncol, np);
   for (int r = 0; r < kc->n; r++)
@@ -1187,8 +1185,7 @@ static int record_parts(const kspring *q, int dim, const int *owner,
 
 /* kc->part_run of a class of khooke springs (two-sided: a whole record's
  * mask has 2 dim bits) partitioned into n_part parts of total entries. */
-static int part_runs(mrvi_terms *kc, const int *first, int n_part,
-                     long total) {
+static int part_runs(mrvi_terms *kc, const int *first, int n_part, long total) {
   kc->part_run = malloc((size_t)(total > 0 ? total : 1) * sizeof(int));
   if (!kc->part_run)
     return MRVI_ENOMEM;
@@ -1197,8 +1194,9 @@ static int part_runs(mrvi_terms *kc, const int *first, int n_part,
     for (int i = first[c + 1] - 1; i >= first[c]; i--) {
       const int next = i + 1 < first[c + 1] && kc->part_run[i + 1] > 0 &&
                        kc->part_rec[i + 1] == kc->part_rec[i] + 1;
-      kc->part_run[i] =
-          kc->part_mask[i] != whole ? 0 : next ? kc->part_run[i + 1] + 1 : 1;
+      kc->part_run[i] = kc->part_mask[i] != whole ? 0
+                        : next                    ? kc->part_run[i + 1] + 1
+                                                  : 1;
     }
   return MRVI_OK;
 }
@@ -1278,8 +1276,8 @@ int mrvi_terms_parts(const mrvi_terms *kc) {
 }
 
 void mrvi_terms_part_columns(const mrvi_terms *kc, int c, int *c0, int *c1) {
-  *c0 = part_start(c, kc->ncol, kc->n_part);
-  *c1 = part_start(c + 1, kc->ncol, kc->n_part);
+  *c0 = mrvi_part_start(c, kc->ncol, kc->n_part);
+  *c1 = mrvi_part_start(c + 1, kc->ncol, kc->n_part);
 }
 
 int mrvi_terms_threads(const mrvi_terms *kc) {
