@@ -1329,8 +1329,9 @@ static void rows_part(const mrvi_sweep *sw, int c, const double *pm,
   mrvi_terms_part_columns(sw->kc[MRVI_FAST], c, &f0, &f1);
   const double *gnode = sw->gnode, *mf = sw->m_f, *minv = sw->minv_f;
   if (sw->nl == 1 && sw->nr == 1 && !fm)
-    explicit_row(f1 - f0, dt, sw->wl[0], pm + f0, gnode + f0, minv + f0,
-                 mf + f0, qm + f0, qn + f0, pn + f0);
+    explicit_row(f1 - f0, dt, sw->wl[0], pm + f0, gnode + f0,
+                 minv + f0 * sw->mass_inc, mf + f0 * sw->mass_inc,
+                 sw->mass_inc, qm + f0, qn + f0, pn + f0);
   else
     explicit_rows(pm, fm, sw->wl, gnode, mf, minv, qm, qn, pn, dt, sw->nl, f0,
                   f1);
