@@ -1330,8 +1330,8 @@ static void rows_part(const mrvi_sweep *sw, int c, const double *pm,
   const double *gnode = sw->gnode, *mf = sw->m_f, *minv = sw->minv_f;
   if (sw->nl == 1 && sw->nr == 1 && !fm)
     explicit_row(f1 - f0, dt, sw->wl[0], pm + f0, gnode + f0,
-                 minv + f0 * sw->mass_inc, mf + f0 * sw->mass_inc,
-                 sw->mass_inc, qm + f0, qn + f0, pn + f0);
+                 minv + f0 * sw->mass_inc, mf + f0 * sw->mass_inc, sw->mass_inc,
+                 qm + f0, qn + f0, pn + f0);
   else
     explicit_rows(pm, fm, sw->wl, gnode, mf, minv, qm, qn, pn, dt, sw->nl, f0,
                   f1);
