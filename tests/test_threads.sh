@@ -8,8 +8,9 @@
 # 2 threads to t = 0.25 extended by `--resume --set integrator.t_end` on 3
 # threads equals the uninterrupted run on 1.  `mrvi check` shows the
 # count; a build without OpenMP refuses --threads 2 with a message that
-# says so.  A command on threads sets libgomp's OMP_WAIT_POLICY to passive
-# unless the environment sets it.
+# says so.  A command on threads sets libgomp's GOMP_SPINCOUNT to 1000 (a
+# short spin, then sleep) unless the environment sets it or
+# OMP_WAIT_POLICY.
 #
 #   test_threads.sh MRVI_BINARY SOURCE_ROOT
 set -u
@@ -54,22 +55,28 @@ else
   fail "mrvi check shows the thread count: $(grep threads "$tmp/check.txt")"
 fi
 
-# libgomp's wait policy: passive when the command asks for threads and
+# libgomp's wait: a spin of 1000 when the command asks for threads and
 # the environment leaves it to mrvi, the user's setting otherwise.
 if env -u OMP_WAIT_POLICY -u GOMP_SPINCOUNT "$mrvi" check "$sys" --threads 2 |
-  grep -q "^threads .*OMP_WAIT_POLICY passive)"; then
-  pass "--threads 2: libgomp's wait policy passive"
+  grep -q "^threads .*OMP_WAIT_POLICY unset, GOMP_SPINCOUNT 1000)"; then
+  pass "--threads 2: libgomp spins 1000 iterations before it sleeps"
 else
-  fail "--threads 2: libgomp's wait policy passive"
+  fail "--threads 2: libgomp spins 1000 iterations before it sleeps"
 fi
-if OMP_WAIT_POLICY=active "$mrvi" check "$sys" --threads 2 |
-  grep -q "^threads .*OMP_WAIT_POLICY active)"; then
+if env -u GOMP_SPINCOUNT OMP_WAIT_POLICY=active "$mrvi" check "$sys" \
+  --threads 2 | grep -q "^threads .*OMP_WAIT_POLICY active, GOMP_SPINCOUNT unset)"; then
   pass "--threads 2: the user's OMP_WAIT_POLICY stands"
 else
   fail "--threads 2: the user's OMP_WAIT_POLICY stands"
 fi
-if env -u OMP_WAIT_POLICY -u MRVI_THREADS "$mrvi" check "$sys" |
-  grep -q "^threads .*OMP_WAIT_POLICY unset)"; then
+if env -u OMP_WAIT_POLICY GOMP_SPINCOUNT=5 "$mrvi" check "$sys" --threads 2 |
+  grep -q "^threads .*OMP_WAIT_POLICY unset, GOMP_SPINCOUNT 5)"; then
+  pass "--threads 2: the user's GOMP_SPINCOUNT stands"
+else
+  fail "--threads 2: the user's GOMP_SPINCOUNT stands"
+fi
+if env -u OMP_WAIT_POLICY -u GOMP_SPINCOUNT -u MRVI_THREADS "$mrvi" check "$sys" |
+  grep -q "^threads .*OMP_WAIT_POLICY unset, GOMP_SPINCOUNT unset)"; then
   pass "one thread: the environment unchanged"
 else
   fail "one thread: the environment unchanged"
@@ -89,8 +96,9 @@ for scheme in fully-explicit explicit-slow midpoint-midpoint; do
   done
 done
 
-# Micro output off: each fast node overwrites the last in place, so the
-# threaded explicit sweep keeps a barrier after each node's end force.
+# Micro output off: only the last fast node is kept, and the threaded
+# explicit sweep alternates the nodes between the output row and a
+# scratch row, one barrier per node (p = 10: the last node in the row).
 for t in 1 3; do
   run_ok "fully-explicit, micro output off, on $t threads" "$mrvi" run "$sys" \
     "${common[@]}" --set output.micro=false \

@@ -107,8 +107,9 @@ static const char usage_run[] =
     "      --threads N       threads of the element loops (default: the\n"
     "                        environment's MRVI_THREADS, else 1); the\n"
     "                        results are the same bit for bit for every N.\n"
-    "                        N > 1 sets OMP_WAIT_POLICY=passive unless the\n"
-    "                        environment sets it or GOMP_SPINCOUNT.\n"
+    "                        N > 1 sets GOMP_SPINCOUNT=1000 (a short spin\n"
+    "                        before a waiting thread sleeps) unless the\n"
+    "                        environment sets it or OMP_WAIT_POLICY.\n"
     "                        A build without OpenMP refuses N > 1\n"
     "  -h, --help            show this help\n"
     "\n"
@@ -590,10 +591,11 @@ static int cmd_check(int argc, char **argv) {
          sys->output_micro ? "yes" : "no");
   if (mrvi_threads_supported())
     printf("%-14s%d%s (element loops; the same results for every count; "
-           "OMP_WAIT_POLICY %s)\n",
+           "OMP_WAIT_POLICY %s, GOMP_SPINCOUNT %s)\n",
            "threads", s->threads > 0 ? s->threads : mrvi_batch_cores(),
            s->threads > 0 ? "" : " (settings.threads 0: the cores available)",
-           getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset");
+           getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset",
+           getenv("GOMP_SPINCOUNT") ? getenv("GOMP_SPINCOUNT") : "unset");
   else
     printf("%-14s1 (this build has no threads: built without OpenMP)\n",
            "threads");
@@ -1197,28 +1199,34 @@ static int asks_threads(int argc, char **argv) {
   return many;
 }
 
-/* libgomp's threads spin at each barrier before they sleep when
- * OMP_WAIT_POLICY is unset; on a machine with more runnable processes
- * than cores a spinning thread holds the core its partner needs, and the
- * threaded loops ran up to 17x slower than one thread
- * (doc/performance.md, "Threads").  libgomp reads its environment once,
- * as the program loads, so a command on more than one thread restarts
- * itself once with OMP_WAIT_POLICY=passive, unless the environment sets
- * OMP_WAIT_POLICY or GOMP_SPINCOUNT (the user's choice stands).  If the
+/* libgomp's threads spin at each barrier up to GOMP_SPINCOUNT = 300 000
+ * iterations before they sleep when OMP_WAIT_POLICY is unset; on a
+ * machine with more runnable processes than cores a spinning thread holds
+ * the core its partner needs, and the threaded loops ran up to 17x slower
+ * than one thread.  Sleeping at once (OMP_WAIT_POLICY=passive) makes each
+ * barrier a wake-up, which on a virtual machine costs an exit to the host,
+ * about what two threads save between two barriers.  So a command on more
+ * than one thread spins briefly, WAIT_SPINS iterations (libgomp's own
+ * count for more threads than cores; about 25 us on the machine measured,
+ * doc/performance.md, "Threads"), then sleeps.  libgomp reads its
+ * environment once, as the program loads, so the command restarts itself
+ * once with GOMP_SPINCOUNT set, unless the environment sets
+ * GOMP_SPINCOUNT or OMP_WAIT_POLICY (the user's choice stands).  If the
  * restart fails the command goes on with libgomp's default. */
-static void passive_wait(int argc, char **argv) {
+#define WAIT_SPINS "1000"
+static void bounded_wait(int argc, char **argv) {
   if (!mrvi_threads_supported() || getenv("OMP_WAIT_POLICY") ||
       getenv("GOMP_SPINCOUNT") || !asks_threads(argc, argv))
     return;
-  if (setenv("OMP_WAIT_POLICY", "passive", 1) == 0)
+  if (setenv("GOMP_SPINCOUNT", WAIT_SPINS, 1) == 0)
     execv("/proc/self/exe", argv);
-  unsetenv("OMP_WAIT_POLICY");
+  unsetenv("GOMP_SPINCOUNT");
 }
 
 int main(int argc, char **argv) {
   if (argc >= 2 && (!strcmp(argv[1], "run") || !strcmp(argv[1], "check") ||
                     !strcmp(argv[1], "batch")))
-    passive_wait(argc, argv);
+    bounded_wait(argc, argv);
   if (argc < 2) {
     usage_error(usage_main);
     return EXIT_INPUT;

@@ -365,15 +365,16 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
 /* mrvi_terms_grad on `threads` threads (resolved: >= 1) for a class of
  * springs and anchors alone, in parts that depend on the class, `chunk`
- * (tuning.thread_chunk) and ncol alone, not on the thread count: with
- * ncol > 0, part c owns the columns [c chunk, (c+1) chunk) of a gradient
- * of ncol columns (the explicit sweep's rows); with ncol = 0, the records
- * in chunks of `chunk` and each column owned by the chunk of the first
- * record that writes it (few records span parts wherever the records'
- * order follows the columns', whatever the columns' order).  Each part
- * writes its own columns from its records in the serial order, so the
- * gradient is the serial one bitwise for every thread count.  Fewer than
- * two parts: one thread.  MRVI_ENOMEM, else MRVI_OK. */
+ * (tuning.thread_chunk) and ncol alone, not on the thread count: the
+ * number of chunks rounded up to an even count (two threads take equal
+ * shares), of sizes equal to within one.  With ncol > 0, part c owns a
+ * range of the ncol columns (mrvi_terms_part_columns; the explicit
+ * sweep's rows); with ncol = 0, the records in such parts and each
+ * column owned by the part of the first record that writes it (few records span
+ * parts wherever the records' order follows the columns', whatever the columns'
+ * order).  Each part writes its own columns from its records in the serial
+ * order, so the gradient is the serial one bitwise for every thread count.
+ * Fewer than two parts: one thread.  MRVI_ENOMEM, else MRVI_OK. */
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
@@ -381,6 +382,15 @@ int mrvi_terms_threads(const mrvi_terms *kc);
  * part c's columns of grad Z(z) (the other columns untouched): for a
  * caller's own parallel loop over the parts (the explicit sweep). */
 int mrvi_terms_parts(const mrvi_terms *kc);
+/* The parts of n items (n >= 1) for threads: the number of `chunk` items
+ * rounded up to an even count (two threads take equal shares), part c
+ * the items [mrvi_part_start(c), mrvi_part_start(c + 1)) = [c n / n_part,
+ * (c+1) n / n_part).  They depend on n and chunk alone. */
+int mrvi_even_parts(int n, int chunk);
+int mrvi_part_start(int c, int n, int n_part);
+/* The columns [*c0, *c1) part c owns (a class partitioned with ncol > 0:
+ * mrvi_even_parts of the ncol columns). */
+void mrvi_terms_part_columns(const mrvi_terms *kc, int c, int *c0, int *c1);
 void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
                           double *g);
 /* Whether mrvi_terms_grad takes the flat loop (every term linear or a small

@@ -56,9 +56,12 @@ struct mrvi_sweep {
    * or 0 (mrvi_sweep_set_last_only: each node overwrites the last, which
    * every sweep reads entry by entry before it writes that entry). */
   size_t node_stride;
-  /* The explicit path's node updates on `threads` threads in blocks of
-   * `chunk` fast coordinates (nf at least two chunks; else 1). */
-  int threads, chunk;
+  /* The explicit path's node updates on `threads` threads in the fast
+   * class's parts (nf at least two thread_chunk; else 1); with
+   * node_stride 0 the nodes alternate between x's fast part and qalt (nf),
+   * so that a node is written while other parts read the last one. */
+  int threads;
+  double *qalt;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   /* The step between the entries of minv_f and m_f that explicit_row
    * reads: 0 where every fast mass is the same (entry 0 is each entry's
@@ -112,6 +115,16 @@ struct mrvi_sweep {
    * its D; lam, the ratio of the last two residuals of this step's chord
    * rows (0 at row 0). */
   double rho_c, lam;
+  /* chord_residual's pass in n_cpass parts of the rows (mrvi_even_parts
+   * by tuning.thread_chunk; nf at least two chunks, else 0: one pass),
+   * each part's maximum and sums in cpass (4 per part) added in order, on
+   * pthreads threads: the same bits for every thread count.  cfused: the
+   * fast class is partitioned alike (on threads), so that one thread
+   * takes a part's gradient rows and then its pass, in one parallel
+   * region, the pass writing the next configuration into zalt (other
+   * parts' gradients still read zf), which then becomes zf. */
+  int n_cpass, pthreads, cfused;
+  double *cpass, *zalt;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
 };
@@ -314,6 +327,9 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->gv);
   free(sw->gzero);
   free(sw->gnode);
+  free(sw->qalt);
+  free(sw->cpass);
+  free(sw->zalt);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
   free(sw->rhs);
@@ -420,7 +436,6 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
                                   c == MRVI_SLOW ? 0 : nf) == MRVI_OK;
   /* The explicit sweep's one parallel region per step: W's gradient by
    * parts of the fast rows (explicit_nodes_par). */
-  sw->chunk = s->tuning.thread_chunk;
   sw->threads = s_ok && !sw->implicit && !sw->wH &&
                         mrvi_terms_parts(sw->kc[MRVI_FAST]) > 0
                     ? threads
@@ -430,6 +445,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   sw->gnode = dalloc(nf);
+  sw->qalt = dalloc(sw->threads > 1 ? nf : 1);
   /* The rows' workspace of the implicit paths (the explicit path needs
    * none of it: explicit_sweep and explicit_p1). */
   const size_t ni = sw->implicit ? nf : 0;
@@ -456,6 +472,14 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fhist[0] = dalloc(sparse ? nf : 1);
   sw->fhist[1] = dalloc(sparse ? nf : 1);
   sw->fhist[2] = dalloc(sparse ? nf : 1);
+  const int chunk = s->tuning.thread_chunk;
+  sw->n_cpass =
+      sparse && (int)nf >= 2 * chunk ? mrvi_even_parts((int)nf, chunk) : 0;
+  sw->pthreads = threads;
+  sw->cfused = sw->n_cpass > 0 && mrvi_terms_threads(sw->kc[MRVI_FAST]) > 1 &&
+               mrvi_terms_parts(sw->kc[MRVI_FAST]) == sw->n_cpass;
+  sw->cpass = dalloc(4 * (size_t)sw->n_cpass);
+  sw->zalt = dalloc(sw->cfused ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -478,11 +502,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->del = dalloc(sw->linear ? nf : 0);
   sw->piv = calloc(sw->implicit && !sparse && nf > 0 ? nf : 1, sizeof(int));
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
-      !sw->gzero || !sw->gnode || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
-      !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
-      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
-      !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
-      !sw->fhist[2]) {
+      !sw->gzero || !sw->gnode || !sw->qalt || !sw->cpass || !sw->zalt ||
+      !sw->gpt[0] || !sw->gpt[1] || !sw->rhs || !sw->F || !sw->fimp ||
+      !sw->dn || !sw->dff || !sw->rw || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
+      !sw->piv || !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->dnx ||
+      !sw->fhist[0] || !sw->fhist[1] || !sw->fhist[2]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -807,20 +831,20 @@ static void chord_setup(mrvi_sweep *sw) {
  * stored over F_old; rw read unless unit (every weight 1: the absolute
  * criterion), the implicit force fimp stored where keep (else
  * node_momentum stores it at the row's end: one point per interval). */
-ALWAYS_INLINE double chord_pass(mrvi_sweep *sw, const double *restrict qm,
-                                const double *restrict dn,
-                                const double *restrict g, double om, double wc,
-                                double cB, double *on_out, double *oo_out,
-                                const int unit, const int keep) {
-  const int nf = sw->nf;
+ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
+                              const double *restrict dn,
+                              const double *restrict g, double om, double wc,
+                              double cB, double *restrict zf, int f0,
+                              const int nf, double out[4], const int unit,
+                              const int keep) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
   double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
-                   *restrict zf = sw->zf, *restrict F = sw->F;
+                   *restrict F = sw->F;
   const mrvi_v2 vdt = v2_set(dt, dt);
   mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
-  int f = 0;
+  int f = f0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
     const mrvi_v2 d = v2_load(dn + f);
@@ -855,9 +879,24 @@ ALWAYS_INLINE double chord_pass(mrvi_sweep *sw, const double *restrict qm,
     r = a > r ? a : r;
     sum += a;
   }
-  *on_out = on;
-  *oo_out = oo;
-  return isnan(sum) ? sum : r;
+  out[0] = r;
+  out[1] = sum;
+  out[2] = on;
+  out[3] = oo;
+}
+
+/* chord_pass over rows [f0, f1) in its three variants, the next
+ * configuration into zn. */
+static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
+                            const double *g, double om, double wc, double cB,
+                            double *zn, int f0, int f1, double out[4]) {
+  const int unit = sw->rw_one, keep = sw->n_w != 1;
+  if (unit && !keep)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0);
+  else if (unit)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 1);
+  else
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 0, 1);
 }
 
 /* The row residual of a chord iterate with one implicit point, whose
@@ -906,18 +945,41 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
       bound = d > 0.0 ? fmax(bound, sw->off[f] * sw->jdinv[f]) : HUGE_VAL;
     }
     *rho = sw->rho_c = bound;
-  } else {
+  } else if (!sw->cfused) {
     fast_gradient(sw, sw->zf, g, nf);
   }
   const double om = 1.0 / (1.0 - sw->lam);
-  double on = 0.0, oo = 0.0, r;
-  const int unit = sw->rw_one, keep = sw->n_w != 1;
-  if (unit && !keep)
-    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 0);
-  else if (unit)
-    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 1, 1);
-  else
-    r = chord_pass(sw, qm, dn, g, om, wc, cB, &on, &oo, 0, 1);
+  double t[4];
+  const int n_c = sw->n_cpass, grad = !fresh && sw->cfused;
+  if (n_c == 0) {
+    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t);
+  } else {
+    double *cp = sw->cpass, *zn = grad ? sw->zalt : sw->zf;
+    const double *zf = sw->zf;
+    sw->evals_w += grad;
+    MRVI_PARALLEL_FOR(sw->pthreads)
+    for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
+        zero(g + f0, f1 - f0);
+        mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+      }
+      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c);
+    }
+    if (grad) { /* (zalt: the next configuration) */
+      sw->zalt = sw->zf;
+      sw->zf = zn;
+    }
+    t[0] = t[1] = t[2] = t[3] = 0.0;
+    for (int c = 0; c < n_c; c++) { /* (in order) */
+      t[0] = cp[4 * c] > t[0] ? cp[4 * c] : t[0];
+      t[1] += cp[4 * c + 1];
+      t[2] += cp[4 * c + 2];
+      t[3] += cp[4 * c + 3];
+    }
+  }
+  const double r = isnan(t[1]) ? t[1] : t[0], on = t[2], oo = t[3];
   if (track && oo > 0.0 && isfinite(on)) /* (the next update's lam) */
     sw->lam = fmin(sw->rho_c, fmax(-sw->rho_c, on / oo));
   return r;
@@ -1234,36 +1296,70 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
  * class, mrvi_terms_grad_part: fast_gradient's sums, bitwise). */
 static void fast_gradient_part(const mrvi_sweep *sw, int c, const double *z,
                                double *g) {
-  const int f0 = c * sw->chunk;
-  const int f1 = sw->nf - f0 < sw->chunk ? sw->nf : f0 + sw->chunk;
+  int f0, f1;
+  mrvi_terms_part_columns(sw->kc[MRVI_FAST], c, &f0, &f1);
   zero(g + f0, f1 - f0);
   mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, z, g);
 }
 
 /* Part c of node m's end: grad W at qn into gnode and pn -= sum wr
- * grad W (explicit_nodes' arithmetic). */
+ * grad W (explicit_nodes' arithmetic, in pairs as explicit_nodes with one
+ * point at each end). */
 static void end_force_part(const mrvi_sweep *sw, int c, const double *qn,
                            double *gnode, double *pn, const double *wr,
                            int nr) {
   fast_gradient_part(sw, c, qn, gnode);
-  const int f0 = c * sw->chunk;
-  const int f1 = sw->nf - f0 < sw->chunk ? sw->nf : f0 + sw->chunk;
+  int f0, f1;
+  mrvi_terms_part_columns(sw->kc[MRVI_FAST], c, &f0, &f1);
+  if (nr == 1) {
+    explicit_end_force(f1 - f0, wr[0], gnode + f0, pn + f0);
+    return;
+  }
   for (int f = f0; f < f1; f++)
     for (int i = 0; i < nr; i++)
       pn[f] -= wr[i] * gnode[f];
 }
 
+/* Part c's rows of node m (explicit_nodes' arithmetic: explicit_row where
+ * it takes it). */
+static void rows_part(const mrvi_sweep *sw, int c, const double *pm,
+                      const double *fm, const double *qm, double *qn,
+                      double *pn, double dt) {
+  int f0, f1;
+  mrvi_terms_part_columns(sw->kc[MRVI_FAST], c, &f0, &f1);
+  const double *gnode = sw->gnode, *mf = sw->m_f, *minv = sw->minv_f;
+  if (sw->nl == 1 && sw->nr == 1 && !fm)
+    explicit_row(f1 - f0, dt, sw->wl[0], pm + f0, gnode + f0,
+                 minv + f0 * sw->mass_inc, mf + f0 * sw->mass_inc, sw->mass_inc,
+                 qm + f0, qn + f0, pn + f0);
+  else
+    explicit_rows(pm, fm, sw->wl, gnode, mf, minv, qm, qn, pn, dt, sw->nl, f0,
+                  f1);
+}
+
+/* The fast configuration of node m + 1 (row m's left end: st->qf0 for m =
+ * -1) in explicit_nodes_par: x's row m, or with node_stride 0 x's fast
+ * part and qalt alternately, node p in x. */
+static double *node_q(const mrvi_sweep *sw, const mrvi_step *st, double *x,
+                      int m) {
+  if (m < 0)
+    return (double *)st->qf0; /* (read only) */
+  if (sw->node_stride > 0)
+    return x + sw->ns + (size_t)m * sw->node_stride;
+  return (sw->p - 1 - m) % 2 == 0 ? x + sw->ns : sw->qalt;
+}
+
 /* explicit_nodes on sw->threads threads in one parallel region: the fast
- * rows in parts of sw->chunk (the fast class's parts, a partition by nf
- * alone), each part's gradient rows and node updates by one thread, a
- * barrier where a node's configuration is complete.  Every row's
- * arithmetic is explicit_nodes' (the same bits for every thread count). */
+ * rows in the fast class's parts (a partition by nf and thread_chunk
+ * alone), each part's gradient rows and node updates by one thread, one
+ * barrier per node where its configuration is complete (two without an
+ * end force).  Every row's arithmetic is explicit_nodes' (the same bits
+ * for every thread count). */
 static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
                                double *pf) {
-  const int ns = sw->ns, nf = sw->nf, p = sw->p, nl = sw->nl, nr = sw->nr;
-  const int chunk = sw->chunk, n_part = (nf + chunk - 1) / chunk;
-  const double dt = st->dt, *wl = sw->wl, *wr = sw->wr;
-  const double *mf = sw->m_f, *minv = sw->minv_f;
+  const int p = sw->p, nl = sw->nl, nr = sw->nr;
+  const int n_part = mrvi_terms_parts(sw->kc[MRVI_FAST]);
+  const double dt = st->dt, *wr = sw->wr;
   double *gnode = sw->gnode;
   const size_t stride = sw->node_stride;
   const int g0 = nl > 0 && !sw->gnode_ok;
@@ -1271,9 +1367,9 @@ static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
 #pragma omp parallel num_threads(sw->threads)
 #endif
   for (int m = 0; m < p; m++) {
-    const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
+    const double *qm = node_q(sw, st, x, m - 1);
     const double *pm = m == 0 ? pf : pf + (size_t)(m - 1) * stride;
-    double *qn = x + ns + (size_t)m * stride, *pn = pf + (size_t)m * stride;
+    double *qn = node_q(sw, st, x, m), *pn = pf + (size_t)m * stride;
     const double *fm = force_row(st, m);
     /* grad W at node m, unless node m - 1's end left it */
     if (nl > 0 && (m == 0 ? g0 : nr == 0)) {
@@ -1287,20 +1383,13 @@ static void explicit_nodes_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
 #pragma omp for schedule(static)
 #endif
     for (int c = 0; c < n_part; c++)
-      explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl, c * chunk,
-                    nf - c * chunk < chunk ? nf : (c + 1) * chunk);
+      rows_part(sw, c, pm, fm, qm, qn, pn, dt);
     /* (after the barrier: node m + 1 complete) grad W there and the end
      * force; the next node's rows of part c read part c's rows alone,
-     * which the same thread wrote (the same static schedule), so no
-     * barrier follows unless the next node overwrites this one in place
-     * (node_stride 0) while other parts may still read it. */
-    if (nr > 0 && stride == 0) {
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-      for (int c = 0; c < n_part; c++)
-        end_force_part(sw, c, qn, gnode, pn, wr, nr);
-    } else if (nr > 0) {
+     * which the same thread wrote (the same static schedule), and write
+     * a configuration no part reads any more (node m's two before, or
+     * another row of x), so no barrier follows. */
+    if (nr > 0) {
 #ifdef _OPENMP
 #pragma omp for schedule(static) nowait
 #endif

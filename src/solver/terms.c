@@ -99,15 +99,18 @@ struct mrvi_terms {
    * part writes its own columns alone, and every column sums its
    * contributions in the serial order, so the gradient is the serial one
    * bitwise for every number of threads (a record spanning parts is
-   * evaluated once per part). */
+   * evaluated once per part).  part_run[i] (khooke classes): the number
+   * of consecutive records from entry i on that write all their columns
+   * in the part (0 where entry i's mask lacks one), taken by the serial
+   * kernel in one loop. */
   /* mrvi_terms_set_value_chunks: the value summed per chunk of vchunk
    * elements (0: in one sum), the chunks' sums vpart added in order;
    * the chunks on vthreads threads. */
   int vchunk, vthreads;
   double *vpart;
-  int threads, chunk, n_part;
+  int threads, chunk, n_part, ncol;
   int part_hooke; /* every record a khooke spring: part_hooke_k on qh */
-  int *part_first, *part_rec;
+  int *part_first, *part_rec, *part_run;
   unsigned char *part_mask;
 };
 
@@ -129,6 +132,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->vpart);
   free(kc->part_rec);
   free(kc->part_mask);
+  free(kc->part_run);
   free(kc);
 }
 
@@ -1052,10 +1056,15 @@ ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
  * bitwise spring_eval's, or with one = 1 hooke_grad1's): the quarter-size
  * records. */
 ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
-                                const unsigned char *mask, int nr,
-                                const double *z, double *g, const int dim,
-                                const int one) {
+                                const unsigned char *mask, const int *run,
+                                int nr, const double *z, double *g,
+                                const int dim, const int one) {
   for (int i = 0; i < nr; i++) {
+    if (run[i] > 0) { /* whole records: the serial loop, the same sums */
+      hooke_grad_k(q + rec[i], run[i], z, g, dim, one);
+      i += run[i] - 1;
+      continue;
+    }
     const khooke *h = q + rec[i];
     const unsigned mk = mask[i];
     const int ci = h->ci, cj = h->cj;
@@ -1073,18 +1082,19 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
+  const int *run = kc->part_run + r0;
   if (kc->part_hooke && kc->hooke_only && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 1);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 1);
   else if (kc->part_hooke && kc->hooke_only && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 1);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 3, 1);
   else if (kc->part_hooke && kc->hooke_only)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 1);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 1, 1);
   else if (kc->part_hooke && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 2, 0);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 0);
   else if (kc->part_hooke && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 3, 0);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 3, 0);
   else if (kc->part_hooke)
-    part_hooke_k(kc->qh, rec, mask, nr, z, g, 1, 0);
+    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 1, 0);
   else if (kc->dim == 2)
     part_k(kc->qs, rec, mask, nr, z, g, 2);
   else if (kc->dim == 3)
@@ -1107,10 +1117,23 @@ static int record_col(const kspring *q, int dim, int k) {
   return k < dim ? q->ci[k] : q->cj[k - dim];
 }
 
-/* The part owning each column: ranges of `chunk` columns (ncol > 0), else
- * the chunk of `chunk` records (in the serial order) holding the first
- * record that writes the column.  NULL on a column outside [0, ncol) or
- * no memory (*n_col: the columns mapped, *n_part: the parts). */
+int mrvi_even_parts(int n, int chunk) {
+  const int np = (n - 1) / chunk + 1;
+  return np + (np & 1);
+}
+int mrvi_part_start(int c, int n, int n_part) {
+  return (int)((long)c * n / n_part);
+}
+/* The part of mrvi_even_parts holding item i. */
+static int part_of(int i, int n, int n_part) {
+  return (int)(((long)(i + 1) * n_part + n - 1) / n - 1);
+}
+
+/* The part owning each column: mrvi_even_parts of the ncol columns (ncol
+ * > 0), else the part of the records (mrvi_even_parts of them, in the serial
+ * order) holding the first record that writes the column.  NULL on a column
+ * outside [0, ncol) or no memory (*n_col: the columns mapped, *n_part:
+ * the parts). */
 static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
                           int *n_part) {
   const int dim = kc->dim, by_rec = ncol <= 0;
@@ -1123,8 +1146,9 @@ static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
   int *owner = malloc((size_t)(ncol > 0 ? ncol : 1) * sizeof *owner);
   if (!owner)
     return NULL;
+  const int np = mrvi_even_parts(by_rec ? kc->n : ncol, chunk);
   for (int c = 0; c < ncol; c++)
-    owner[c] = by_rec ? -1 : c / chunk;
+    owner[c] = by_rec ? -1 : part_of(c, ncol, np);
   for (int r = 0; r < kc->n; r++)
     for (int k = 0; k < (kc->qs[r].two ? 2 * dim : dim); k++) {
       const int col = record_col(&kc->qs[r], dim, k);
@@ -1133,10 +1157,10 @@ static int *column_owners(const mrvi_terms *kc, int chunk, int ncol, int *n_col,
         return NULL;
       }
       if (owner[col] < 0)
-        owner[col] = r / chunk;
+        owner[col] = part_of(r, kc->n, np);
     }
   *n_col = ncol;
-  *n_part = by_rec ? (kc->n - 1) / chunk + 1 : (ncol - 1) / chunk + 1;
+  *n_part = np;
   return owner;
 }
 
@@ -1157,6 +1181,24 @@ static int record_parts(const kspring *q, int dim, const int *owner,
     mask[i] |= 1u << k;
   }
   return np;
+}
+
+/* kc->part_run of a class of khooke springs (two-sided: a whole record's
+ * mask has 2 dim bits) partitioned into n_part parts of total entries. */
+static int part_runs(mrvi_terms *kc, const int *first, int n_part, long total) {
+  kc->part_run = malloc((size_t)(total > 0 ? total : 1) * sizeof(int));
+  if (!kc->part_run)
+    return MRVI_ENOMEM;
+  const unsigned whole = (1u << 2 * kc->dim) - 1;
+  for (int c = 0; c < n_part; c++)
+    for (int i = first[c + 1] - 1; i >= first[c]; i--) {
+      const int next = i + 1 < first[c + 1] && kc->part_run[i + 1] > 0 &&
+                       kc->part_rec[i + 1] == kc->part_rec[i] + 1;
+      kc->part_run[i] = kc->part_mask[i] != whole ? 0
+                        : next                    ? kc->part_run[i + 1] + 1
+                                                  : 1;
+    }
+  return MRVI_OK;
 }
 
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
@@ -1217,8 +1259,13 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   kc->part_hooke = 1;
   for (int r = 0; r < kc->n; r++)
     kc->part_hooke &= kc->hooke_only || kc->hooke_run[r];
+  if (kc->part_hooke && part_runs(kc, first, n_part, total) < 0) {
+    free(first);
+    return MRVI_ENOMEM; /* (part_rec, part_mask freed with kc) */
+  }
   kc->part_first = first;
   kc->n_part = n_part;
+  kc->ncol = ncol;
   kc->chunk = chunk;
   kc->threads = threads;
   return MRVI_OK;
@@ -1226,6 +1273,11 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
 
 int mrvi_terms_parts(const mrvi_terms *kc) {
   return kc->part_first ? kc->n_part : 0;
+}
+
+void mrvi_terms_part_columns(const mrvi_terms *kc, int c, int *c0, int *c1) {
+  *c0 = mrvi_part_start(c, kc->ncol, kc->n_part);
+  *c1 = mrvi_part_start(c + 1, kc->ncol, kc->n_part);
 }
 
 int mrvi_terms_threads(const mrvi_terms *kc) {
