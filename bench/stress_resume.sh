@@ -88,7 +88,6 @@ for sys in "${systems[@]}"; do
       rc=$?
       kind=$([ $fresh = 1 ] && echo start || echo resume)
       seen["$kind $rc"]=$((${seen["$kind $rc"]:-0} + 1))
-      prev="$kind $rc" 
       case $rc in
       0) break ;;
       130 | 137) fresh=0 ;;
@@ -117,6 +116,7 @@ for sys in "${systems[@]}"; do
         break
         ;;
       esac
+      prev="$kind $rc" # the status a refusal as completed follows
     done
     [ $rc = 0 ] || continue
     for g in /macro /micro /bodies /joints; do
