@@ -161,20 +161,22 @@ static void test_fourbar_3d(void) {
         "multiplier-form run refused: %s", sum.message);
   mrvi_trajectory_free(tr);
   tr = NULL;
-  /* The null-space form integrates it: 10^4 steps. */
-  s = loop_settings(0.01, 1, 100.0, MRVI_FORM_NULL_SPACE);
+  /* The null-space form integrates it: 10^4 steps (also under the
+   * sanitizers: the energy error's first tenth must span its swings). */
+  const long n_steps = 10000;
+  s = loop_settings(0.01, 1, n_steps * 0.01, MRVI_FORM_NULL_SPACE);
   if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0) {
     CHECK(0, "four-bar 3-D null-space run: %s", sum.message);
   } else {
     double eg, eH, eH10 = 0.0;
     loop_invariants(m, tr, &eg, &eH, &eH10);
-    /* The crank's angle after 10^4 steps: it turns (a crank-rocker). */
+    /* The crank's angle at the end: it turns (a crank-rocker). */
     const double *q = tr->q + (tr->n_macro - 1) * tr->n;
     printf("four-bar 3-D (null-space): %ld steps, max |g| %.3g (all 38 rows), "
-           "max relative energy error %.3g (%.3g over the first 1000), crank "
+           "max relative energy error %.3g (%.3g over the first tenth), crank "
            "centre (%.3f, %.3f)\n",
            tr->n_macro - 1, eg, eH, eH10, q[0], q[1]);
-    CHECK(tr->n_macro == 10001, "four-bar 3-D: %ld nodes", tr->n_macro);
+    CHECK(tr->n_macro == n_steps + 1, "four-bar 3-D: %ld nodes", tr->n_macro);
     CHECK(eg <= 1e-11, "four-bar 3-D: loop closure %.3g", eg);
     /* Bounded: O(dT^2), reached early and not growing. */
     CHECK(eH < 3e-3 && eH < 1.5 * eH10,
@@ -372,8 +374,8 @@ static mrvi_model *hooke(const char *type, double w1) {
  * = -sin(0.7) sin(0.5) = -0.309; the row a_1 . b_2 = cos(alpha) keeps it.
  * Checked: the gradient against central differences, the joint (all 4
  * rows) and d1 . s - cos(alpha) computed from the directors alone over
- * 10^4 steps in both forms, the motion leaves the perpendicular joint's
- * invariant d1 . e2 = 0 (the joint is not the perpendicular one), both
+ * 10^4 steps (test_steps) in both forms, the motion leaves the perpendicular
+ * joint's invariant d1 . e2 = 0 (the joint is not the perpendicular one), both
  * forms agree. */
 static void test_universal_oblique(void) {
   const double s[3] = {0.0, cos(0.5), sin(0.5)};
@@ -401,9 +403,11 @@ static void test_universal_oblique(void) {
   CHECK(err < 1e-8 && gmax < 1e-15,
         "oblique universal: gradient FD error %.3g, |g(q0)| %.3g", err, gmax);
   mrvi_trajectory *tr[2] = {NULL, NULL};
+  const long n_steps = test_steps(10000);
   for (int f = 0; f < 2; f++) {
-    const mrvi_settings st = loop_settings(
-        0.01, 1, 100.0, f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS);
+    const mrvi_settings st =
+        loop_settings(0.01, 1, n_steps * 0.01,
+                      f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS);
     mrvi_summary sum;
     if (mrvi_trajectory_run(m, &st, &tr[f], &sum) != 0)
       CHECK(0, "oblique universal swing: %s", sum.message);
@@ -424,7 +428,7 @@ static void test_universal_oblique(void) {
            "energy %.3g, max |d1 . e2| %.3g\n",
            ca, form_name(f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS),
            tr[f]->n_macro - 1, ea, ej, eg, eH, d1y);
-    CHECK(tr[f]->n_macro - 1 == 10000, "oblique universal: %ld steps",
+    CHECK(tr[f]->n_macro - 1 == n_steps, "oblique universal: %ld steps",
           tr[f]->n_macro - 1);
     CHECK(ea <= 1e-11 && ej <= 1e-11,
           "oblique universal: |d1 . s - cos alpha| %.3g, joint rows %.3g", ea,
@@ -809,9 +813,10 @@ static void test_reparametrisation(void) {
     mrvi_model *m = sprung_bodies(D, -1);
     mrvi_trajectory *tr[2] = {NULL, NULL}, *tt[2] = {NULL, NULL};
     double eg[2] = {0, 0}, eH[2] = {0, 0};
+    const long n_steps = test_steps(10000);
     for (int f = 0; f < 2; f++) {
       mrvi_settings s =
-          test_settings("midpoint-midpoint", 0.01, 1, 100.0, 1e-9);
+          test_settings("midpoint-midpoint", 0.01, 1, n_steps * 0.01, 1e-9);
       s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
       mrvi_summary sum;
       if (mrvi_trajectory_run(m, &s, &tr[f], &sum) != 0)
@@ -830,11 +835,11 @@ static void test_reparametrisation(void) {
       double d = 0.0;
       for (long i = 0; i < 101 * tr[0]->n; i++)
         d = fmax(d, fabs(tr[0]->q[i] - tr[1]->q[i]));
-      printf("two free bodies on a spring (%d-D), 10^4 steps, Newton "
+      printf("two free bodies on a spring (%d-D), %ld steps, Newton "
              "tolerance 1e-9, constraint tolerance 1e-10: max |g| %.3g "
              "(multipliers), %.3g (null space, reparametrised); energy %.3g, "
              "%.3g; forms differ by %.3g over 100 steps\n",
-             D, eg[0], eg[1], eH[0], eH[1], d);
+             D, n_steps, eg[0], eg[1], eH[0], eH[1], d);
       CHECK(eg[1] <= 1e-13, "reparametrised bodies (%d-D): max |g| %.3g", D,
             eg[1]);
       CHECK(d < 1e-8, "reparametrised against multipliers (%d-D): %.3g", D, d);
@@ -871,7 +876,7 @@ static double frame_error(int D, const double *v) {
 
 /* Fast free bodies (doc/multibody.md): the null-space form reparametrises
  * every micro node z^1..z^p of a fast body, so its internal constraints hold
- * to round-off at every micro node over 10^4 macro steps (loose
+ * to round-off at every micro node over 10^4 macro steps (test_steps; loose
  * tolerances); both forms agree to 1e-10 at tight tolerances for p = 1 and
  * 5; with p = 1 the fast body gives the slow body's trajectory (the
  * single-rate scheme) to the Newton tolerance. */
@@ -880,7 +885,9 @@ static void test_fast_reparametrisation(void) {
     mrvi_model *mf = sprung_bodies(D, MRVI_FAST),
                *ms = sprung_bodies(D, MRVI_SLOW);
     const int nb = D * (D + 1);
-    mrvi_settings s = test_settings("midpoint-midpoint", 0.01, 5, 100.0, 1e-9);
+    const long n_steps = test_steps(10000);
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", 0.01, 5, n_steps * 0.01, 1e-9);
     s.constraint_form = MRVI_FORM_NULL_SPACE;
     mrvi_trajectory *tr = NULL;
     mrvi_summary sum;
@@ -890,11 +897,11 @@ static void test_fast_reparametrisation(void) {
       double e = 0.0;
       for (long i = 0; i < tr->n_micro; i++)
         e = fmax(e, frame_error(D, tr->micro_q + i * tr->n_fast));
-      printf("fast free body (%d-D), p = 5, 10^4 macro steps, null space "
+      printf("fast free body (%d-D), p = 5, %ld macro steps, null space "
              "(reparametrised at micro nodes): max |d_i.d_j - delta_ij| over "
              "%ld micro nodes %.3g\n",
-             D, tr->n_micro, e);
-      CHECK(tr->n_fast == nb && tr->n_micro == 50001,
+             D, n_steps, tr->n_micro, e);
+      CHECK(tr->n_fast == nb && tr->n_micro == 5 * n_steps + 1,
             "fast body (%d-D): %d fast coordinates, %ld micro nodes", D,
             tr->n_fast, tr->n_micro);
       CHECK(e <= 1e-13, "fast body reparametrised (%d-D): %.3g", D, e);
@@ -1038,9 +1045,9 @@ static int ns_size(const mrvi_model *m, int tree) {
  * twist per body beside the QR basis's unknowns); over 100 steps of 0.01
  * (p = 2) at Newton and constraint tolerances tol it gives the trajectory
  * of the multiplier form and of the QR basis to within agree; over t_long
- * at Newton tolerance 1e-9 the constraints hold to 1e-13 (the nodal
- * reparametrisation keeps them at round-off, the forms that do not only
- * at the tolerance: printed for contrast with qr_long) with a bounded
+ * (test_steps of its steps) at Newton tolerance 1e-9 the constraints hold to
+ * 1e-13 (the nodal reparametrisation keeps them at round-off, the forms that do
+ * not only at the tolerance: printed for contrast with qr_long) with a bounded
  * energy error, no worse than the multiplier form's if vs_multipliers. */
 typedef struct tree_case {
   const char *name;
@@ -1083,11 +1090,12 @@ static void check_joint_reduced(mrvi_model *m, int D, const tree_case *c) {
   /* default tolerances: joint-reduced (0), multipliers (1), QR basis (2) */
   mrvi_trajectory *tr[3] = {NULL, NULL, NULL};
   double eg[3] = {1, 1, 1}, eH[3] = {1, 1, 1}, eH10[3] = {1, 1, 1};
+  const long n_long = test_steps(lround(c->t_long / 0.01));
   for (int f = 0; f < 3; f++) {
     if ((f == 1 && !c->vs_multipliers) || (f == 2 && !c->qr_long))
       continue;
     mrvi_settings s =
-        test_settings("midpoint-midpoint", 0.01, 2, c->t_long, 1e-9);
+        test_settings("midpoint-midpoint", 0.01, 2, n_long * 0.01, 1e-9);
     s.constraint_form = f == 1 ? MRVI_FORM_MULTIPLIERS : MRVI_FORM_NULL_SPACE;
     s.tuning.nullspace_tree = f == 0;
     mrvi_summary sum;
@@ -1097,8 +1105,8 @@ static void check_joint_reduced(mrvi_model *m, int D, const tree_case *c) {
       loop_invariants(m, tr[f], &eg[f], &eH[f], &eH10[f]);
     mrvi_trajectory_free(tr[f]);
   }
-  printf("  %.0f steps, Newton tolerance 1e-9: max |g| %.3g, energy %.3g",
-         c->t_long / 0.01, eg[0], eH[0]);
+  printf("  %ld steps, Newton tolerance 1e-9: max |g| %.3g, energy %.3g",
+         n_long, eg[0], eH[0]);
   if (c->qr_long)
     printf(" (QR null space: max |g| %.3g)", eg[2]);
   if (c->vs_multipliers)
@@ -1394,20 +1402,22 @@ static double micro_residual(const mrvi_model *m, const mrvi_trajectory *tr,
 }
 
 /* On model m (dT its macro step): both forms agree at tolerances 1e-13 over
- * 100 macro steps with the joint-reduced basis at the micro nodes and with
- * the QR basis (nullspace_tree 0), p = 1 and 5; over n_long macro steps
- * (p = 10) at Newton tolerance 1e-9 and constraint tolerance 1e-10 the
- * micro-node constraints hold to 1e-13 with the reparametrisation (the QR
- * basis only to the tolerance, printed over 100 steps); so do the slow
+ * 100 macro steps (run lengths: test_steps) with the joint-reduced basis at the
+ * micro nodes and with the QR basis (nullspace_tree 0), p = 1 and 5; over
+ * n_long macro steps (p = 10) at Newton tolerance 1e-9 and constraint tolerance
+ * 1e-10 the micro-node constraints hold to 1e-13 with the reparametrisation
+ * (the QR basis only to the tolerance, printed over 100 steps); so do the slow
  * bodies' constraints at the macro nodes (free slow bodies reparametrised,
  * or slow bodies in joints placed on their joints). */
 static void check_fast_forest(const char *name, const mrvi_model *m, double dT,
                               int n_long) {
+  const long n_short = test_steps(100);
+  n_long = (int)test_steps(n_long);
   for (int p = 1; p <= 5; p += 4) {
     mrvi_trajectory *tt[3] = {NULL, NULL, NULL};
     for (int f = 0; f < 3; f++) { /* multipliers, joint-reduced, QR */
       mrvi_settings s =
-          test_settings("midpoint-midpoint", dT, p, 100 * dT, 1e-13);
+          test_settings("midpoint-midpoint", dT, p, n_short * dT, 1e-13);
       s.constraint_tol = 1e-13;
       s.constraint_form = f ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
       s.tuning.nullspace_tree = f == 1;
@@ -1423,18 +1433,19 @@ static void check_fast_forest(const char *name, const mrvi_model *m, double dT,
         d[1] = fmax(d[1], fabs(tt[1]->q[i] - tt[2]->q[i]));
       }
     }
-    printf("%s, p = %d, 100 steps at tolerances 1e-13: fast joint-reduced "
+    printf("%s, p = %d, %ld steps at tolerances 1e-13: fast joint-reduced "
            "null space against multipliers %.3g, against the QR null space "
            "%.3g\n",
-           name, p, d[0], d[1]);
-    CHECK(tt[0] && tt[0]->n_macro == 101 && d[0] < 1e-10 && d[1] < 1e-10,
+           name, p, n_short, d[0], d[1]);
+    CHECK(tt[0] && tt[0]->n_macro == n_short + 1 && d[0] < 1e-10 &&
+              d[1] < 1e-10,
           "%s (p = %d): forms differ by %.3g, %.3g", name, p, d[0], d[1]);
     for (int f = 0; f < 3; f++)
       mrvi_trajectory_free(tt[f]);
   }
   double e[2] = {1.0, 1.0}, es[2] = {1.0, 1.0};
-  const int n_steps[2] = {n_long, 100}; /* the QR basis: for contrast */
-  for (int f = 0; f < 2; f++) {         /* joint-reduced, QR */
+  const long n_steps[2] = {n_long, n_short}; /* the QR basis: for contrast */
+  for (int f = 0; f < 2; f++) {              /* joint-reduced, QR */
     mrvi_settings s =
         test_settings("midpoint-midpoint", dT, 10, n_steps[f] * dT, 1e-9);
     s.constraint_tol = 1e-10;
@@ -1451,9 +1462,9 @@ static void check_fast_forest(const char *name, const mrvi_model *m, double dT,
     mrvi_trajectory_free(tr);
   }
   printf("  %d micro nodes (p = 10), Newton tolerance 1e-9: micro-node "
-         "constraints max |g| %.3g (QR basis, 1000 micro nodes: %.3g); "
+         "constraints max |g| %.3g (QR basis, %ld micro nodes: %.3g); "
          "slow-only rows at the macro nodes %.3g (QR basis %.3g)\n",
-         10 * n_long, e[0], e[1], es[0], es[1]);
+         10 * n_long, e[0], 10 * n_short, e[1], es[0], es[1]);
   CHECK(e[0] <= 1e-13, "%s: micro-node constraints %.3g", name, e[0]);
   CHECK(es[0] <= 1e-13, "%s: the slow bodies' constraints %.3g", name, es[0]);
 }

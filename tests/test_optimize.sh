@@ -4,8 +4,9 @@
 #
 # - an evaluation limit is never "converged": the double integrator (which
 #   converges in 3 evaluations) stopped after 2 exits 2, prints NOT
-#   CONVERGED and stores status max_evaluations; the full run stores
-#   converged and exits 0;
+#   CONVERGED (also its last line) and stores status and root stop_reason
+#   max_evaluations (the replay of the returned controls: replay_stop_reason
+#   completed); the full run stores converged and exits 0;
 # - the output path is checked before the optimisation starts: a missing
 #   directory, a file locked by another writer, a read-only directory (not
 #   as root, who may write anyway) and a file that is not an mrvi output
@@ -16,8 +17,9 @@
 #   equal to the converged ones;
 # - .inf bounds (allowed by doc/description-files.md) are accepted, in the
 #   file and by --set;
-# - SIGINT or SIGTERM during the optimisation: exit 130/143, a readable file
-#   with status interrupted, /control/u of the problem's shape (N x 1),
+# - SIGINT or SIGTERM during the optimisation: exit 130/143, a last line
+#   saying INTERRUPTED, a readable file with status and root stop_reason
+#   interrupted, /control/u of the problem's shape (N x 1),
 #   one history row per evaluation, and the best iterate (the lowest cost
 #   meeting the terminal tolerance, else the lowest violation) written.  A run that ends before the signal
 #   proves nothing, so the problem is made longer and the run repeated;
@@ -52,17 +54,28 @@ v = h5py.File(sys.argv[1], "r")["optimizer"].attrs[sys.argv[2]]
 print(v.decode() if isinstance(v, bytes) else v)' "$1" "$2" 2>&1
 }
 
+# Root stop_reason and replay_stop_reason of a file, space-separated.
+root_reasons() {
+  "$py" -c 'import sys, h5py
+a = h5py.File(sys.argv[1], "r").attrs
+t = lambda v: v.decode() if isinstance(v, bytes) else v
+print(t(a["stop_reason"]), t(a.get("replay_stop_reason", "none")))' "$1" 2>&1
+}
+
 # --- an evaluation limit is never converged --------------------------------
 "$mrvi" optimize "$di" -o limit.h5 -q --set control.solver.max_evaluations=2 \
   >out.txt 2>err.txt
 rc=$?
 s=$(attr limit.h5 status)
+reasons=$(root_reasons limit.h5)
 if [ $rc -eq 2 ] && [ "$s" = max_evaluations ] &&
+  [ "$reasons" = "max_evaluations completed" ] &&
   grep -q 'NOT CONVERGED (status max_evaluations)' out.txt &&
+  tail -n 1 out.txt | grep -q 'NOT CONVERGED.*stop_reason max_evaluations' &&
   ! grep -q 'optimum found' out.txt && grep -q 'evaluation limit' err.txt; then
-  pass "evaluation limit: exit 2, status max_evaluations, not 'optimum found'"
+  pass "evaluation limit: exit 2, status and root stop_reason max_evaluations (replay_stop_reason completed), last line NOT CONVERGED, not 'optimum found'"
 else
-  fail "evaluation limit: exit $rc, status '$s' ($(cat out.txt err.txt))"
+  fail "evaluation limit: exit $rc, status '$s', root '$reasons' ($(cat out.txt err.txt))"
 fi
 "$mrvi" optimize "$di" -o full.h5 -q >out.txt 2>err.txt
 rc=$?
@@ -174,11 +187,14 @@ h, tol = o["history"][:], o.attrs["terminal_tolerance"]
 met = h[h[:, 1] <= tol]
 print(o.attrs["cost"] == met[:, 0].min() if len(met)
       else o.attrs["terminal_violation"] == h[:, 1].min())' sig.h5 $N "$evals" 2>&1)
+  reasons=$(root_reasons sig.h5)
   if [ $rc -eq "$want" ] && [ "$check" = "interrupted True True True True" ] &&
+    [ "$reasons" = "interrupted completed" ] &&
+    tail -n 1 out.txt | grep -q 'INTERRUPTED.*stop_reason interrupted' &&
     grep -q "SIG$sig: optimisation interrupted" err.txt; then
-    pass "SIG$sig: exit $rc, status interrupted, /control/u $N x 1, $evals evaluations kept"
+    pass "SIG$sig: exit $rc, status and root stop_reason interrupted (replay_stop_reason completed), last line INTERRUPTED, /control/u $N x 1, $evals evaluations kept"
   else
-    fail "SIG$sig: exit $rc, check '$check' ($(cat err.txt))"
+    fail "SIG$sig: exit $rc, check '$check', root '$reasons', last line '$(tail -n 1 out.txt)' ($(cat err.txt))"
   fi
 done
 

@@ -23,6 +23,12 @@ void test_check(int ok, const char *file, int line, const char *fmt, ...)
 
 int test_finish(void);
 
+/* Steps of a long run: n, or n / 10 (at least 10) in a build with
+ * AddressSanitizer (CI's build-san, .ci/run), where a step costs several
+ * times as much and a long run repeats the code paths of its first steps;
+ * the plain build checks the full length.  MRVI_TEST_FULL=1 keeps n. */
+long test_steps(long n);
+
 /* Path of a file under the source tree ($MRVI_SOURCE_ROOT, else ".."). */
 const char *test_source_path(const char *relative);
 

@@ -395,6 +395,13 @@ int mrvi_cmd_optimize(int argc, char **argv) {
       rc = 2;
   } else {
     printf("  %-22s%s\n", "output", out);
+    /* Last line: what the file's root stop_reason says when the
+     * optimisation stopped short (the trajectory in it is complete either
+     * way: that of the controls returned). */
+    if (st != 0)
+      printf("optimisation %s: %s holds the %s controls, stop_reason %s\n",
+             sig ? "INTERRUPTED" : "NOT CONVERGED", out,
+             sig ? "best" : "returned", res.status);
   }
   free(u);
   free(def);

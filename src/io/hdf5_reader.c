@@ -122,9 +122,14 @@ int mrvi_trajectory_read(const char *path, mrvi_trajectory **out, char *msg,
     st = mrvi_fail(msg, len, MRVI_EIO, "%s: cannot open as an HDF5 file", path);
     goto done;
   }
-  char reason[256];
+  /* A whole trajectory: a completed run, or the replay of the controls of
+   * an optimisation that stopped short (replay_stop_reason, written by
+   * mrvi_ocp_output_close beside the optimisation's stop_reason). */
+  char reason[256], replay[32] = "";
   mrvi_h5_stop_reason(file, path, reason, sizeof reason);
-  if (strcmp(reason, "completed") != 0) {
+  if (mrvi_h5in_has_attr(&in, "replay_stop_reason"))
+    mrvi_h5in_attr_string(&in, "replay_stop_reason", replay, sizeof replay);
+  if (strcmp(reason, "completed") != 0 && strcmp(replay, "completed") != 0) {
     st = mrvi_fail(msg, len, MRVI_EIO,
                    "%s: the run did not complete (stop_reason: %s)", path,
                    reason[0] ? reason : "missing");

@@ -34,9 +34,11 @@
  * At close the trajectory is written crash-safe by the run writer (again
  * a rename over the path); the solver attribute, /control and /optimizer
  * are added after it closed, in a second open of the file, so one killed
- * in that second open may leave a trajectory without /control.  SIGINT
- * and SIGTERM are turned into status interrupted by the caller
- * (cli_optimize.c). */
+ * in that second open may leave a trajectory without /control.  That
+ * second open also turns the run writer's root stop_reason "completed" (the
+ * replay's, kept as replay_stop_reason) into the optimisation's outcome
+ * (write_stop_reason).  SIGINT and SIGTERM are turned into status
+ * interrupted by the caller (cli_optimize.c). */
 #include "io/h5util.h"
 #include "io/io.h"
 
@@ -336,6 +338,24 @@ static void write_optimizer(mrvi_h5_batch *b, const mrvi_ocp_output *w,
     H5Gclose(go);
 }
 
+/* Root attributes stop_reason and replay_stop_reason of the closed file
+ * (doc/output.md, "Optimal control"): the run writer closed the trajectory
+ * of the returned controls with stop_reason "completed", which is the
+ * replay's own outcome and is kept as replay_stop_reason; stop_reason
+ * becomes the optimisation's: "completed" only when it converged, else
+ * its status ("interrupted", "max_evaluations", ...), so that a reader of
+ * the root alone does not take a stopped optimisation for a finished one.
+ * Variable-length UTF-8, as the run writer writes a closed run's. */
+static void write_stop_reason(mrvi_h5_batch *b, const char *status) {
+  const char *reason = strcmp(status, "converged") ? status : "completed";
+  if (b->status == 0 &&
+      (H5Aexists(b->file, "stop_reason") <= 0 ||
+       H5Adelete(b->file, "stop_reason") < 0 ||
+       mrvi_h5_attr_string(b->file, "stop_reason", reason) < 0 ||
+       mrvi_h5_attr_string(b->file, "replay_stop_reason", "completed") < 0))
+    mrvi_h5_batch_fail(b, "stop_reason");
+}
+
 int mrvi_ocp_output_open(const char *path, const mrvi_system *sys,
                          const mrvi_ocp *o, mrvi_ocp_output **out, char *msg,
                          size_t len) {
@@ -496,6 +516,7 @@ int mrvi_ocp_output_close(mrvi_ocp_output *w, const double *u,
       write_solver_path(&a.b, w->o);
       write_control(&a.b, w->sys, w->o, u);
       write_optimizer(&a.b, w, res, status);
+      write_stop_reason(&a.b, status);
     }
     st = add_close(&a);
   }

@@ -181,6 +181,13 @@ static int classify(mrvi_ocp *o, nlopt_result r, int stop,
   } else if (r < 0) {
     s = "failed";
     st = mrvi_ocp_fail(o, MRVI_EOPTIMIZE, "NLopt failed: %s", res->nlopt_name);
+  } else if (!isfinite(res->cost)) {
+    /* NLopt may call a NaN or infinite cost a success (no constraints to
+     * re-check): never converged. */
+    s = "failed";
+    st = mrvi_ocp_fail(o, MRVI_EOPTIMIZE,
+                       "the cost at the returned controls is %g (NLopt: %s)",
+                       res->cost, res->nlopt_name);
   } else if (!met) {
     /* NLOPT_SUCCESS, STOPVAL, FTOL or XTOL reached, constraints violated. */
     s = "terminal_not_met";
