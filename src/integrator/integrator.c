@@ -202,9 +202,12 @@ void mrvi_integrator_free(mrvi_integrator *it) {
 
 static double *alloc(size_t n) { return calloc(n > 0 ? n : 1, sizeof(double)); }
 
-/* Split model-order (q, p) into the rate blocks. */
+/* Split model-order (q, p) into the rate blocks (packed: the blocks are
+ * views of q and p already). */
 static void split_state(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
+  if (it->packed)
+    return;
   for (int s = 0; s < m->n_slow; s++) {
     it->qs[s] = it->q[m->slow_index[s]];
     it->ps[s] = it->p[m->slow_index[s]];

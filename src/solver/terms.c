@@ -76,11 +76,11 @@ struct mrvi_terms {
   kterm4 *q4;
   kspring *qs;
   khooke *qh; /* per record of qs (used where hooke_run) */
-  /* A gradient-only class of khooke springs alone (hooke_class): qh and
-   * els (the records' elements) without t, col, coef or hooke_run; its
-   * gradient is hooke_grad over qh, one run. */
+  /* A gradient-only class of khooke springs alone (hooke_class): qh
+   * without t, col, coef, hooke_run or the elements (a Hooke spring's
+   * record is all its gradient and value read); its gradient is hooke_grad
+   * over qh, one run. */
   int hooke_only;
-  const mrvi_element **els;
   unsigned char *hooke_run; /* per record of qs: the run from it is of
                                khooke springs */
   int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
@@ -126,7 +126,6 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->q4);
   free(kc->qs);
   free(kc->qh);
-  free(kc->els);
   free(kc->hooke_run);
   free(kc->part_first);
   free(kc->vpart);
@@ -183,11 +182,6 @@ static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
   }
 }
 
-/* Element i of kc (in class order). */
-static const mrvi_element *el_of(const mrvi_terms *kc, int i) {
-  return kc->hooke_only ? kc->els[i] : kc->t[i].el;
-}
-
 /* The kspring records of a class whose every run is of khooke springs,
  * from those (their columns consecutive from khooke's): the records
  * terms_springs and hooke_class leave out of a gradient-only class. */
@@ -204,7 +198,10 @@ static int hooke_records(mrvi_terms *kc) {
     const int r = kc->hooke_only ? ie : kc->t[ie].qs;
     kspring *q = &kc->qs[r];
     const khooke *h = &kc->qh[r];
-    spring_law_of(el_of(kc, ie), q);
+    if (kc->hooke_only) /* (a Hooke spring: its law is its khooke's) */
+      *q = (kspring){.two = 1, .k = KS_HOOKE, .c = h->c, .shift = h->shift};
+    else
+      spring_law_of(kc->t[ie].el, q);
     for (int k = 0; k < kc->dim; k++) {
       q->ci[k] = h->ci + k;
       q->cj[k] = h->cj + k;
@@ -225,8 +222,7 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     return 0;
   /* (one pass, the records made as the elements are checked) */
   kc->qh = malloc((size_t)n_elems * sizeof *kc->qh);
-  kc->els = malloc((size_t)n_elems * sizeof *kc->els);
-  if (!kc->qh || !kc->els)
+  if (!kc->qh)
     return MRVI_ENOMEM;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
@@ -241,13 +237,10 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
       ok = q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
     if (!ok) {
       free(kc->qh);
-      free(kc->els);
       kc->qh = NULL;
-      kc->els = NULL;
       return 0;
     }
     kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
-    kc->els[ie] = e;
   }
   kc->hooke_only = 1;
   return 1;
@@ -996,8 +989,10 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 }
 
 int mrvi_terms_quadratic(const mrvi_terms *kc) {
+  if (kc->hooke_only) /* (springs: not polynomial in positions) */
+    return 0;
   for (int i = 0; i < kc->n; i++)
-    if (!mrvi_element_is_quadratic(el_of(kc, i)))
+    if (!mrvi_element_is_quadratic(kc->t[i].el))
       return 0;
   return 1;
 }
