@@ -201,6 +201,11 @@ void mrvi_integrator_free(mrvi_integrator *it) {
 }
 
 static double *alloc(size_t n) { return calloc(n > 0 ? n : 1, sizeof(double)); }
+/* An array written whole before it is read, not zeroed: its pages are
+ * first touched where it is written (those never written, never). */
+static double *alloc_raw(size_t n) {
+  return malloc((n > 0 ? n : 1) * sizeof(double));
+}
 
 /* Split model-order (q, p) into the rate blocks (packed: the blocks are
  * views of q and p already). */
@@ -671,8 +676,8 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     goto oom;
   const size_t n = (size_t)m->n, ns = (size_t)m->n_slow, nf = (size_t)m->n_fast,
                p = (size_t)s->micro_steps, nu = (size_t)it->step.n_total;
-  it->q = alloc(n);
-  it->p = alloc(n);
+  it->q = alloc_raw(n); /* (q0, M v0 below) */
+  it->p = alloc_raw(n);
   /* Slow coordinates first, then the fast ones, in their order (the usual
    * layout): the rate blocks are views of q and p, and a step's new state
    * is written once. */
@@ -697,12 +702,17 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
    * paths' (update != NULL); the sweep paths' step Jacobian solve allocates
    * dx when first asked (mrvi_integrator_jacobian_solve). */
   const size_t nn = path_ops_of(it->path)->update ? nu : 0;
-  it->x = alloc(nu);
+  /* The explicit path writes each node before it reads it and each step
+   * writes the kept micro nodes: those arrays are not zeroed (with the
+   * last node alone kept, mrvi_integrator_keep_micro, the other rows are
+   * never touched). */
+  const int explicit = it->path == MRVI_PATH_EXPLICIT;
+  it->x = explicit ? alloc_raw(nu) : alloc(nu);
   it->R = alloc(nn);
   it->dx = alloc(nn);
   it->ps1 = alloc(ns);
-  it->micro_q = alloc(p * nf);
-  it->micro_p = alloc(p * nf);
+  it->micro_q = explicit ? alloc_raw(p * nf) : alloc(p * nf);
+  it->micro_p = explicit ? alloc_raw(p * nf) : alloc(p * nf);
   it->node_stride = nf;
   it->lambda = alloc((size_t)m->constraint_rows);
   it->micro_cres = alloc(p);

@@ -359,6 +359,12 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
 static double *dalloc(size_t n) {
   return calloc(n > 0 ? n : 1, sizeof(double));
 }
+/* An array written whole before it is read, not zeroed: its pages are
+ * first touched where it is written (zv, where V's inputs are adjacent,
+ * never). */
+static double *dalloc_raw(size_t n) {
+  return malloc((n > 0 ? n : 1) * sizeof(double));
+}
 
 int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
                       mrvi_sweep **out) {
@@ -404,11 +410,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->imp = k++ == 0 ? i : -1;
   sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
-  sw->minv_s = dalloc(ns);
-  sw->minv_f = dalloc(nf);
-  sw->m_f = dalloc(nf);
-  sw->zv = dalloc(ns + nf);
-  sw->gv = dalloc(ns + nf);
+  sw->minv_s = dalloc_raw(ns); /* (set below) */
+  sw->minv_f = dalloc_raw(nf);
+  sw->m_f = dalloc_raw(nf);
+  sw->zv = dalloc_raw(ns + nf); /* (slow_gradient: copied, zeroed there) */
+  sw->gv = dalloc_raw(ns + nf);
   /* (zeros for grad V where V has no point at node k, and for the
    * implicit paths' zero displacement) */
   sw->gzero = dalloc(sw->wv0 == 0.0 || sw->implicit ? ns + nf : 0);
