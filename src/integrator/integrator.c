@@ -665,15 +665,18 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   }
   it->model = m;
   it->settings = *s;
-  it->path = mrvi_sweep_path(m, s, it->why, sizeof it->why);
+  /* (the step's pass over the elements first: the path choice takes what
+   * it found) */
+  if ((st = mrvi_step_init(&it->step, m, s)) < 0)
+    goto oom;
+  it->path = mrvi_sweep_path_of(m, s, it->step.fast_on_slow, it->why,
+                                sizeof it->why);
   if (it->path == MRVI_PATH_GENERAL && s->solver == MRVI_SOLVER_STRUCTURED) {
     mrvi_fmt(msg, len, "integrator.solver = structured: no structured path: %s",
              it->why);
-    free(it);
+    mrvi_integrator_free(it);
     return MRVI_EINVAL;
   }
-  if ((st = mrvi_step_init(&it->step, m, s)) < 0)
-    goto oom;
   const size_t n = (size_t)m->n, ns = (size_t)m->n_slow, nf = (size_t)m->n_fast,
                p = (size_t)s->micro_steps, nu = (size_t)it->step.n_total;
   it->q = alloc_raw(n); /* (q0, M v0 below) */

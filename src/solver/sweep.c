@@ -219,6 +219,20 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
 
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len) {
+  int fast_on_slow = -1;
+  for (int e = 0; fast_on_slow < 0 && e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    for (int j = 0; el->potential == MRVI_FAST && j < el->n_in; j++)
+      if (m->rate[el->in[j]] == MRVI_SLOW) {
+        fast_on_slow = e;
+        break;
+      }
+  }
+  return mrvi_sweep_path_of(m, s, fast_on_slow, why, len);
+}
+
+int mrvi_sweep_path_of(const mrvi_model *m, const mrvi_settings *s,
+                       int fast_on_slow, char *why, size_t len) {
   if (s->solver == MRVI_SOLVER_GENERAL) {
     mrvi_fmt(why, len, "requested (integrator.solver = general)");
     return MRVI_PATH_GENERAL;
@@ -245,10 +259,8 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
              m->n_slow, s->micro_steps);
     return MRVI_PATH_SCHUR;
   }
-  for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
-    if (el->potential != MRVI_FAST)
-      continue;
+  if (fast_on_slow >= 0) {
+    const mrvi_element *el = &m->elements[fast_on_slow];
     for (int j = 0; j < el->n_in; j++)
       if (m->rate[el->in[j]] == MRVI_SLOW) {
         mrvi_fmt(why, len,
