@@ -669,8 +669,8 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
    * it found) */
   if ((st = mrvi_step_init(&it->step, m, s)) < 0)
     goto oom;
-  it->path = mrvi_sweep_path_of(m, s, it->step.fast_on_slow, it->why,
-                                sizeof it->why);
+  it->path =
+      mrvi_sweep_path_of(m, s, it->step.fast_on_slow, it->why, sizeof it->why);
   if (it->path == MRVI_PATH_GENERAL && s->solver == MRVI_SOLVER_STRUCTURED) {
     mrvi_fmt(msg, len, "integrator.solver = structured: no structured path: %s",
              it->why);

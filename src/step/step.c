@@ -221,8 +221,8 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
     st->elem_of_class[el->potential][st->n_elem_of_class[el->potential]++] = e;
     if (el->n_in > max_n_in)
       max_n_in = el->n_in;
-    for (int j = 0; st->fast_on_slow < 0 && el->potential == MRVI_FAST &&
-                    j < el->n_in;
+    for (int j = 0;
+         st->fast_on_slow < 0 && el->potential == MRVI_FAST && j < el->n_in;
          j++)
       if (m->rate[el->in[j]] == MRVI_SLOW)
         st->fast_on_slow = e;
