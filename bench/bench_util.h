@@ -8,6 +8,12 @@
 
 /* CPU time of the process in seconds (CLOCK_PROCESS_CPUTIME_ID). */
 double bench_cpu(void);
+/* CPU time of the calling thread in seconds (CLOCK_THREAD_CPUTIME_ID).
+ * Under RLIMIT_CPU (bench_run_child's children) the kernel reads the
+ * process clock from the process-wide timer, which advances in scheduler
+ * ticks (1-4 ms); the thread clock keeps its nanoseconds, so a short
+ * single-threaded phase (an integrator's creation) is timed with it. */
+double bench_thread_cpu(void);
 /* The compiler, build type and flags of this build (bench/meson.build),
  * printed with each table. */
 const char *bench_build(void);

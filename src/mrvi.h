@@ -937,8 +937,10 @@ const double *mrvi_integrator_micro_p(const mrvi_integrator *it);
  * and sweep paths each node is written over the last, which saves
  * (p - 1) n_fast doubles of each and their copying; the trajectory is the
  * same bit for bit; mrvi_integrator_jacobian_solve then refuses (the
- * Jacobian needs every node).  Returns the rows kept (p on the Newton
- * paths, which solve all nodes at once), or MRVI_ENOMEM. */
+ * Jacobian needs every node).  With the last node alone, micro_q's and
+ * micro_p's row is the state's fast part itself (no copy kept).  Returns
+ * the rows kept (p on the Newton paths, which solve all nodes at once), or
+ * MRVI_ENOMEM. */
 int mrvi_integrator_keep_micro(mrvi_integrator *it, int all);
 int mrvi_integrator_last_iterations(const mrvi_integrator *it);
 /* Solve J x = b (transpose = 0) or J^T x = b (transpose = 1) with the

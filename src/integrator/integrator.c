@@ -201,10 +201,18 @@ void mrvi_integrator_free(mrvi_integrator *it) {
 }
 
 static double *alloc(size_t n) { return calloc(n > 0 ? n : 1, sizeof(double)); }
+/* An array written whole before it is read, not zeroed: its pages are
+ * first touched where it is written (those never written, never). */
+static double *alloc_raw(size_t n) {
+  return malloc((n > 0 ? n : 1) * sizeof(double));
+}
 
-/* Split model-order (q, p) into the rate blocks. */
+/* Split model-order (q, p) into the rate blocks (packed: the blocks are
+ * views of q and p already). */
 static void split_state(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
+  if (it->packed)
+    return;
   for (int s = 0; s < m->n_slow; s++) {
     it->qs[s] = it->q[m->slow_index[s]];
     it->ps[s] = it->p[m->slow_index[s]];
@@ -657,19 +665,22 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   }
   it->model = m;
   it->settings = *s;
-  it->path = mrvi_sweep_path(m, s, it->why, sizeof it->why);
+  /* (the step's pass over the elements first: the path choice takes what
+   * it found) */
+  if ((st = mrvi_step_init(&it->step, m, s)) < 0)
+    goto oom;
+  it->path =
+      mrvi_sweep_path_of(m, s, it->step.fast_on_slow, it->why, sizeof it->why);
   if (it->path == MRVI_PATH_GENERAL && s->solver == MRVI_SOLVER_STRUCTURED) {
     mrvi_fmt(msg, len, "integrator.solver = structured: no structured path: %s",
              it->why);
-    free(it);
+    mrvi_integrator_free(it);
     return MRVI_EINVAL;
   }
-  if ((st = mrvi_step_init(&it->step, m, s)) < 0)
-    goto oom;
   const size_t n = (size_t)m->n, ns = (size_t)m->n_slow, nf = (size_t)m->n_fast,
                p = (size_t)s->micro_steps, nu = (size_t)it->step.n_total;
-  it->q = alloc(n);
-  it->p = alloc(n);
+  it->q = alloc_raw(n); /* (q0, M v0 below) */
+  it->p = alloc_raw(n);
   /* Slow coordinates first, then the fast ones, in their order (the usual
    * layout): the rate blocks are views of q and p, and a step's new state
    * is written once. */
@@ -694,12 +705,17 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
    * paths' (update != NULL); the sweep paths' step Jacobian solve allocates
    * dx when first asked (mrvi_integrator_jacobian_solve). */
   const size_t nn = path_ops_of(it->path)->update ? nu : 0;
-  it->x = alloc(nu);
+  /* The explicit path writes each node before it reads it and each step
+   * writes the kept micro nodes: those arrays are not zeroed (with the
+   * last node alone kept, mrvi_integrator_keep_micro, the other rows are
+   * never touched). */
+  const int explicit = it->path == MRVI_PATH_EXPLICIT;
+  it->x = explicit ? alloc_raw(nu) : alloc(nu);
   it->R = alloc(nn);
   it->dx = alloc(nn);
   it->ps1 = alloc(ns);
-  it->micro_q = alloc(p * nf);
-  it->micro_p = alloc(p * nf);
+  it->micro_q = explicit ? alloc_raw(p * nf) : alloc(p * nf);
+  it->micro_p = explicit ? alloc_raw(p * nf) : alloc(p * nf);
   it->node_stride = nf;
   it->lambda = alloc((size_t)m->constraint_rows);
   it->micro_cres = alloc(p);

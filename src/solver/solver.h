@@ -225,6 +225,11 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
 /* Path for m and s (MRVI_PATH_*); why (may be NULL) gets the reason. */
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len);
+/* mrvi_sweep_path with the first element of W that has a slow input
+ * known (mrvi_step.fast_on_slow, -1: none), without its pass over the
+ * elements. */
+int mrvi_sweep_path_of(const mrvi_model *m, const mrvi_settings *s,
+                       int fast_on_slow, char *why, size_t len);
 typedef struct mrvi_sweep mrvi_sweep;
 /* Workspace for the explicit and sweep paths of st (after mrvi_step_init). */
 int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,

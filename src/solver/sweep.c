@@ -219,6 +219,20 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
 
 int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len) {
+  int fast_on_slow = -1;
+  for (int e = 0; fast_on_slow < 0 && e < m->n_elements; e++) {
+    const mrvi_element *el = &m->elements[e];
+    for (int j = 0; el->potential == MRVI_FAST && j < el->n_in; j++)
+      if (m->rate[el->in[j]] == MRVI_SLOW) {
+        fast_on_slow = e;
+        break;
+      }
+  }
+  return mrvi_sweep_path_of(m, s, fast_on_slow, why, len);
+}
+
+int mrvi_sweep_path_of(const mrvi_model *m, const mrvi_settings *s,
+                       int fast_on_slow, char *why, size_t len) {
   if (s->solver == MRVI_SOLVER_GENERAL) {
     mrvi_fmt(why, len, "requested (integrator.solver = general)");
     return MRVI_PATH_GENERAL;
@@ -245,10 +259,8 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
              m->n_slow, s->micro_steps);
     return MRVI_PATH_SCHUR;
   }
-  for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
-    if (el->potential != MRVI_FAST)
-      continue;
+  if (fast_on_slow >= 0) {
+    const mrvi_element *el = &m->elements[fast_on_slow];
     for (int j = 0; j < el->n_in; j++)
       if (m->rate[el->in[j]] == MRVI_SLOW) {
         mrvi_fmt(why, len,
@@ -359,6 +371,12 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
 static double *dalloc(size_t n) {
   return calloc(n > 0 ? n : 1, sizeof(double));
 }
+/* An array written whole before it is read, not zeroed: its pages are
+ * first touched where it is written (zv, where V's inputs are adjacent,
+ * never). */
+static double *dalloc_raw(size_t n) {
+  return malloc((n > 0 ? n : 1) * sizeof(double));
+}
 
 int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
                       mrvi_sweep **out) {
@@ -404,11 +422,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->imp = k++ == 0 ? i : -1;
   sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
-  sw->minv_s = dalloc(ns);
-  sw->minv_f = dalloc(nf);
-  sw->m_f = dalloc(nf);
-  sw->zv = dalloc(ns + nf);
-  sw->gv = dalloc(ns + nf);
+  sw->minv_s = dalloc_raw(ns); /* (set below) */
+  sw->minv_f = dalloc_raw(nf);
+  sw->m_f = dalloc_raw(nf);
+  sw->zv = dalloc_raw(ns + nf); /* (slow_gradient: copied, zeroed there) */
+  sw->gv = dalloc_raw(ns + nf);
   /* (zeros for grad V where V has no point at node k, and for the
    * implicit paths' zero displacement) */
   sw->gzero = dalloc(sw->wv0 == 0.0 || sw->implicit ? ns + nf : 0);

@@ -76,11 +76,16 @@ struct mrvi_terms {
   kterm4 *q4;
   kspring *qs;
   khooke *qh; /* per record of qs (used where hooke_run) */
-  /* A gradient-only class of khooke springs alone (hooke_class): qh and
-   * els (the records' elements) without t, col, coef or hooke_run; its
-   * gradient is hooke_grad over qh, one run. */
+  /* A gradient-only class of khooke springs alone (hooke_class): qh
+   * without t, col, coef, hooke_run or the elements (a Hooke spring's
+   * record is all its gradient and value read); its gradient is hooke_grad
+   * over qh, one run. */
   int hooke_only;
-  const mrvi_element **els;
+  /* A gradient-only class of springs or anchors of one kind and one law
+   * code alone, not all khooke springs (spring_class): qs without t, col,
+   * coef, qh or hooke_run; its gradient is springs_eval over qs, one run
+   * (terms_springs would make the class one such run). */
+  int spring_only;
   unsigned char *hooke_run; /* per record of qs: the run from it is of
                                khooke springs */
   int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
@@ -126,7 +131,6 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->q4);
   free(kc->qs);
   free(kc->qh);
-  free(kc->els);
   free(kc->hooke_run);
   free(kc->part_first);
   free(kc->vpart);
@@ -183,11 +187,6 @@ static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
   }
 }
 
-/* Element i of kc (in class order). */
-static const mrvi_element *el_of(const mrvi_terms *kc, int i) {
-  return kc->hooke_only ? kc->els[i] : kc->t[i].el;
-}
-
 /* The kspring records of a class whose every run is of khooke springs,
  * from those (their columns consecutive from khooke's): the records
  * terms_springs and hooke_class leave out of a gradient-only class. */
@@ -204,7 +203,10 @@ static int hooke_records(mrvi_terms *kc) {
     const int r = kc->hooke_only ? ie : kc->t[ie].qs;
     kspring *q = &kc->qs[r];
     const khooke *h = &kc->qh[r];
-    spring_law_of(el_of(kc, ie), q);
+    if (kc->hooke_only) /* (a Hooke spring: its law is its khooke's) */
+      *q = (kspring){.two = 1, .k = KS_HOOKE, .c = h->c, .shift = h->shift};
+    else
+      spring_law_of(kc->t[ie].el, q);
     for (int k = 0; k < kc->dim; k++) {
       q->ci[k] = h->ci + k;
       q->cj[k] = h->cj + k;
@@ -225,8 +227,7 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     return 0;
   /* (one pass, the records made as the elements are checked) */
   kc->qh = malloc((size_t)n_elems * sizeof *kc->qh);
-  kc->els = malloc((size_t)n_elems * sizeof *kc->els);
-  if (!kc->qh || !kc->els)
+  if (!kc->qh)
     return MRVI_ENOMEM;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
@@ -241,15 +242,52 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
       ok = q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
     if (!ok) {
       free(kc->qh);
-      free(kc->els);
       kc->qh = NULL;
-      kc->els = NULL;
       return 0;
     }
     kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
-    kc->els[ie] = e;
   }
   kc->hooke_only = 1;
+  return 1;
+}
+
+/* A gradient-only class of springs or anchors of one kind and one law
+ * code, not all khooke springs (hooke_class takes those): their kspring
+ * records alone, in the class's order, no kterm (the Morse springs of
+ * random networks on the explicit paths).  0 if the class is not such,
+ * else 1, or MRVI_ENOMEM. */
+static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
+                        int n_elems, const int *col_of) {
+  const int dim = kc->dim;
+  if (n_elems < 1 || !spring_record(&m->elements[elems[0]], dim))
+    return 0;
+  const int kind = m->elements[elems[0]].kind;
+  const int law = spring_law(&m->elements[elems[0]]);
+  kc->qs = malloc((size_t)n_elems * sizeof *kc->qs);
+  if (!kc->qs)
+    return MRVI_ENOMEM;
+  /* (all khooke springs: terms_springs' khooke run instead) */
+  int hooke = kind == MRVI_ELEMENT_SPRING && law == KS_HOOKE;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    if (!spring_record(e, dim) || e->kind != kind || spring_law(e) != law) {
+      free(kc->qs);
+      kc->qs = NULL;
+      return 0;
+    }
+    kspring *q = &kc->qs[ie];
+    *q = (kspring){0};
+    spring_law_of(e, q);
+    spring_cols(e, col_of, dim, q);
+    for (int k = 1; hooke && k < dim; k++)
+      hooke = q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
+  }
+  if (hooke) {
+    free(kc->qs);
+    kc->qs = NULL;
+    return 0;
+  }
+  kc->spring_only = 1;
   return 1;
 }
 
@@ -328,7 +366,9 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   const int dim = kc->dim = m->dimension;
   kc->m = m;
   kc->n = n_elems;
-  const int hc = grad_only ? hooke_class(kc, m, elems, n_elems, col_of) : 0;
+  int hc = grad_only ? hooke_class(kc, m, elems, n_elems, col_of) : 0;
+  if (hc == 0 && grad_only)
+    hc = spring_class(kc, m, elems, n_elems, col_of);
   if (hc < 0) {
     mrvi_terms_free(kc);
     return hc;
@@ -842,6 +882,8 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale) {
   if (kc->hooke_only) /* (gradient only: scale 1, no J) */
     mrvi_terms_grad(kc, z, g);
+  else if (kc->spring_only) /* (eval_k's one run) */
+    springs_eval(kc->qs, kc->n, z, scale, g, J, ld, hscale, kc->dim);
   else if (kc->flat && J && scale == 1.0 && hscale == 1.0)
     flat_eval(kc, z, g, J, ld); /* (a call: see flat_grad) */
   else
@@ -996,8 +1038,10 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 }
 
 int mrvi_terms_quadratic(const mrvi_terms *kc) {
+  if (kc->hooke_only || kc->spring_only) /* (springs: not polynomial) */
+    return 0;
   for (int i = 0; i < kc->n; i++)
-    if (!mrvi_element_is_quadratic(el_of(kc, i)))
+    if (!mrvi_element_is_quadratic(kc->t[i].el))
       return 0;
   return 1;
 }
@@ -1211,7 +1255,7 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   kc->threads = 1;
   int ns = 0;
   for (int i = 0; i < kc->n; i++)
-    ns += kc->hooke_only || kc->t[i].runs > 0;
+    ns += kc->hooke_only || kc->spring_only || kc->t[i].runs > 0;
   if (threads <= 1 || chunk < 1 || ns != kc->n ||
       (ncol > 0 ? ncol : kc->n) < 2 * chunk)
     return MRVI_OK;
@@ -1258,7 +1302,7 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   free(fill);
   kc->part_hooke = 1;
   for (int r = 0; r < kc->n; r++)
-    kc->part_hooke &= kc->hooke_only || kc->hooke_run[r];
+    kc->part_hooke &= kc->hooke_only || (!kc->spring_only && kc->hooke_run[r]);
   if (kc->part_hooke && part_runs(kc, first, n_part, total) < 0) {
     free(first);
     return MRVI_ENOMEM; /* (part_rec, part_mask freed with kc) */
@@ -1289,6 +1333,8 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
     part_grad(kc, z, g);
   else if (kc->hooke_only)
     hooke_grad1(kc->qh, kc->n, z, g, kc->dim);
+  else if (kc->spring_only) /* (eval_k's one run at unit scale) */
+    springs_eval(kc->qs, kc->n, z, 1.0, g, NULL, 0, 0.0, kc->dim);
   else if (kc->flat)
     flat_grad(kc, z, g);
   else
@@ -1514,7 +1560,7 @@ static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
 int mrvi_terms_springs_only(const mrvi_terms *kc) {
   if (kc->n < 1)
     return 0;
-  if (kc->hooke_only)
+  if (kc->hooke_only || kc->spring_only)
     return 1;
   for (int it = 0; it < kc->n; it++)
     if (kc->t[it].runs < 1)
@@ -1584,6 +1630,11 @@ static double value_range(mrvi_terms *kc, int i0, int i1, const double *z) {
   if (kc->hooke_only)
     return hooke_range(kc, i0, i1, z);
   double total = 0.0;
+  if (kc->spring_only) { /* (the loop below on one run) */
+    for (int r = i0; r < i1; r++)
+      total += spring_value(&kc->qs[r], z, kc->dim);
+    return total;
+  }
   for (int it = i0; it < i1; it++) {
     const kterm *t = &kc->t[it];
     const int n = t->n, *col = kc->col + t->first;
@@ -1635,7 +1686,8 @@ double mrvi_terms_value(mrvi_terms *kc, const double *z) {
 int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vchunk = 0;
   kc->vthreads = 1;
-  if (chunk < 1 || kc->n < 2 * chunk || (!kc->t && !kc->hooke_only))
+  if (chunk < 1 || kc->n < 2 * chunk ||
+      (!kc->t && !kc->hooke_only && !kc->spring_only))
     return MRVI_OK;
   free(kc->vpart);
   if (!(kc->vpart = malloc((size_t)((kc->n - 1) / chunk + 1) * sizeof(double))))
@@ -1643,7 +1695,7 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vchunk = chunk;
   /* (threads only where no element needs the shared scratch kc->y) */
   int safe = mrvi_threads_supported();
-  for (int i = 0; safe && !kc->hooke_only && i < kc->n; i++)
+  for (int i = 0; safe && !kc->hooke_only && !kc->spring_only && i < kc->n; i++)
     safe = kc->t[i].runs > 0 || kc->t[i].kind != KT_ELEMENT ||
            kc->t[i].el->kind == MRVI_ELEMENT_GRAVITY;
   kc->vthreads = safe && threads > 1 ? threads : 1;

@@ -215,11 +215,17 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
     st->n_pts[c] =
         mrvi_quadrature_points(rules[c], grids[c], st->dT, st->p, st->pts[c]);
   }
+  st->fast_on_slow = -1;
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = &m->elements[e];
     st->elem_of_class[el->potential][st->n_elem_of_class[el->potential]++] = e;
     if (el->n_in > max_n_in)
       max_n_in = el->n_in;
+    for (int j = 0;
+         st->fast_on_slow < 0 && el->potential == MRVI_FAST && j < el->n_in;
+         j++)
+      if (m->rate[el->in[j]] == MRVI_SLOW)
+        st->fast_on_slow = e;
   }
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
   st->y = malloc((size_t)max_n_in * sizeof(double));

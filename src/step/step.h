@@ -45,6 +45,9 @@ typedef struct mrvi_step {
   int n_pts[2];
   int *elem_of_class[2]; /* element indices of V and W */
   int n_elem_of_class[2];
+  /* The first element of W with a slow input, or -1 (the path choice:
+   * mrvi_sweep_path_of). */
+  int fast_on_slow;
   /* Unknowns as displacements from (q_k^s, q_k^{f,0}) instead of
    * positions (0 by default; the integrator's Newton paths set it). */
   int increments;
