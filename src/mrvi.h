@@ -765,8 +765,10 @@ typedef enum mrvi_newton_criterion {
   X(int, krylov_restart, 20, 1, 10000, "GMRES restart length of schur-krylov") \
   X(int, krylov_max_it, 100, 1, 1000000, "GMRES iterations of schur-krylov")   \
   X(int, thread_chunk, 4096, 1, 100000000,                                     \
-    "coordinates per part of a threaded loop (settings.threads): a loop "      \
-    "over fewer than two parts runs on one thread")                            \
+    "largest part of a threaded loop (settings.threads), in coordinates "      \
+    "or records: a loop is cut into an even number of equal parts of at "      \
+    "most this size; a loop of fewer than two such parts runs on one "         \
+    "thread")                                                                  \
   X(int, adjoint_dense_max, 64, 0, 1000000,                                    \
     "largest step (nodes and multipliers) whose optimal-control adjoint "      \
     "assembles the step Jacobian dense; beyond: sparse rows")                  \
