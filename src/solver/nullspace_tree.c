@@ -643,28 +643,45 @@ static int link_children(mrvi_nstree *z, int nb) {
   return 0;
 }
 
+/* A tree of plan mode `mode` with its order, parent and joint arrays
+ * (plan's): 1 and *out (*n_tree its bodies), 0 and why (nothing kept), or
+ * MRVI_ENOMEM. */
+static int planned_tree(const mrvi_model *m, int mode, mrvi_nstree **out,
+                        int *n_tree, char *why, size_t len) {
+  *out = NULL;
+  mrvi_nstree *z = calloc(1, sizeof *z);
+  if (!z)
+    return MRVI_ENOMEM;
+  const size_t B = (size_t)m->n_bodies + 1;
+  z->order = malloc(B * sizeof(int));
+  z->parent = malloc(B * sizeof(int));
+  z->joint = malloc(B * sizeof(int));
+  if (!z->order || !z->parent || !z->joint) {
+    mrvi_nstree_free(z);
+    return MRVI_ENOMEM;
+  }
+  if (!plan(m, mode, z->order, z->parent, z->joint, n_tree, why, len)) {
+    mrvi_nstree_free(z);
+    return 0;
+  }
+  *out = z;
+  return 1;
+}
+
 int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
                        size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   if (st->r_micro > 0)
     return snprintf(why, len, "constraints at micro nodes"), 0;
-  mrvi_nstree *z = calloc(1, sizeof *z);
-  if (!z)
-    return MRVI_ENOMEM;
+  mrvi_nstree *z;
+  int n_tree;
+  const int got = planned_tree(m, PLAN_SLOW, &z, &n_tree, why, len);
+  if (got != 1)
+    return got;
   const int nb = m->n_bodies;
   const size_t B = (size_t)nb + 1;
   z->nb = nb;
-  z->order = malloc(B * sizeof(int));
-  z->parent = malloc(B * sizeof(int));
-  z->joint = malloc(B * sizeof(int));
-  if (!z->order || !z->parent || !z->joint)
-    goto oom;
-  int n_tree;
-  if (!plan(m, PLAN_SLOW, z->order, z->parent, z->joint, &n_tree, why, len)) {
-    mrvi_nstree_free(z);
-    return 0;
-  }
   const int D = m->bodies[0].dim, T = D * (D + 1) / 2, w = D * (D + 1);
   z->D = D, z->T = T;
   z->ns = st->ns, z->nf = st->nf, z->p = st->p;
@@ -1097,22 +1114,13 @@ static int forest_create(const mrvi_step *st, int mode, const int *fpos,
                          size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
-  mrvi_nstree *z = calloc(1, sizeof *z);
-  if (!z)
-    return MRVI_ENOMEM;
-  const int nbm = m->n_bodies;
-  const size_t B = (size_t)nbm + 1;
-  z->fast = mode == PLAN_FAST;
-  z->order = malloc(B * sizeof(int));
-  z->parent = malloc(B * sizeof(int));
-  z->joint = malloc(B * sizeof(int));
-  if (!z->order || !z->parent || !z->joint)
-    goto oom;
+  mrvi_nstree *z;
   int nb;
-  if (!plan(m, mode, z->order, z->parent, z->joint, &nb, why, len)) {
-    mrvi_nstree_free(z);
-    return 0;
-  }
+  const int got = planned_tree(m, mode, &z, &nb, why, len);
+  if (got != 1)
+    return got;
+  const size_t B = (size_t)m->n_bodies + 1;
+  z->fast = mode == PLAN_FAST;
   const int D = m->bodies[0].dim, T = D * (D + 1) / 2, w = D * (D + 1);
   z->D = D, z->T = T, z->nb = nb;
   z->ns = st->ns, z->nf = st->nf, z->p = st->p;
