@@ -1,5 +1,6 @@
 #include "testlib.h"
 
+#include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
 
@@ -52,4 +53,20 @@ const char *test_source_path(const char *relative) {
   const char *root = getenv("MRVI_SOURCE_ROOT");
   snprintf(buf, sizeof buf, "%s/%s", root ? root : "..", relative);
   return buf;
+}
+
+void test_rotation(const double *w, double t, double *R) {
+  const double a = t * sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  double k[3] = {0, 0, 0};
+  if (a > 0)
+    for (int i = 0; i < 3; i++)
+      k[i] = w[i] * t / a;
+  const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
+  for (int i = 0; i < 3; i++)
+    for (int j = 0; j < 3; j++) {
+      double K2 = 0.0;
+      for (int l = 0; l < 3; l++)
+        K2 += K[i * 3 + l] * K[l * 3 + j];
+      R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
+    }
 }

@@ -32,4 +32,9 @@ long test_steps(long n);
 /* Path of a file under the source tree ($MRVI_SOURCE_ROOT, else ".."). */
 const char *test_source_path(const char *relative);
 
+/* R (3 x 3, row-major): the rotation by the angle |w| t about w
+ * (Rodrigues: R = I + sin(a) K + (1 - cos a) K^2, K the cross-product
+ * matrix of the unit axis); the identity for w = 0. */
+void test_rotation(const double *w, double t, double *R);
+
 #endif
