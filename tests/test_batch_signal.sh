@@ -9,7 +9,7 @@
 # not started has no file and a row "not run: ... stopped by SIG...".  An
 # optimize batch stops each optimiser after its evaluation.  Built
 # with MPI, the same after Ctrl-C of `mpiexec -n 2` (Open MPI sends SIGTERM
-# to the ranks).
+# to the ranks), and a SIGINT to rank 0 alone lets rank 1's case finish.
 #
 #   test_batch_signal.sh MRVI_BINARY SOURCE_ROOT mpi|no-mpi
 #
@@ -172,6 +172,69 @@ if [ "$built" = mpi ] && command -v mpiexec >/dev/null; then
     >out.txt 2>err.txt &
   interrupt mpiexec $! $! m.h5 2 INT &&
     check_stopped "mpiexec -n 2, SIGINT to mpiexec" m.h5 TERM
+
+  # --- SIGINT to rank 0 alone (doc/batch.md, "Rank 0 alone"): rank 0 stops
+  # its running case and hands out no more; rank 1's case runs to its end
+  # (three cases of 2e5 macro steps, a second or two each) and gets its
+  # row; the batch ends as interrupted with rank 0's status 130 (Open
+  # MPI's mpiexec passes it on).  Which rank takes which case does not
+  # matter: the cases cost the same. ---
+  short=(--vary integrator.macro_step=0.1 --vary output.micro=false
+    --vary output.every=1000 --vary integrator.t_end=20000,20001,20002)
+  "${mpirun[@]}" "$mrvi" batch "$fpu" -o r.h5 -j 1 "${short[@]}" \
+    >out.txt 2>err.txt &
+  launcher=$!
+  if started r.h5 2; then
+    # Rank 0: the child of mpiexec that Open MPI gave rank 0.
+    rank0=""
+    for p in $(pgrep -P $launcher); do
+      tr '\0' '\n' <"/proc/$p/environ" 2>/dev/null |
+        grep -qx OMPI_COMM_WORLD_RANK=0 && rank0=$p
+    done
+    [ -n "$rank0" ] && kill -INT "$rank0"
+    ended $launcher || fail "rank 0 alone: the batch did not stop within 60 s"
+    wait $launcher
+    rc=$?
+    mapfile -t status < <(column r.h5 status)
+    mapfile -t reasons < <(column r.h5 stop_reason | sed 's/^"//;s/"$//')
+    bad=""
+    [ -n "$rank0" ] || bad="$bad no rank 0 among the children of mpiexec;"
+    [ $rc = 130 ] || bad="$bad exit $rc;"
+    grep -q "^r.h5: interrupted: 1 of 3 cases completed, 0 failed, 2 not run" \
+      out.txt || bad="$bad summary '$(cat out.txt)';"
+    grep -q "(rank 0): interrupted after " err.txt &&
+      grep -q "(rank 1): completed" err.txt ||
+      bad="$bad rank lines: $(grep '(rank' err.txt | tr '\n' ' ');"
+    ran="" skipped=0
+    for c in 0 1 2; do
+      f=r.cases/case_000$c.h5
+      if [ -e "$f" ]; then
+        why=$(attr "$f" stop_reason)
+        [ "$why" = "${reasons[$c]:-}" ] ||
+          bad="$bad case $c row '${reasons[$c]:-}' != file '$why';"
+        case "${status[$c]:-}:$why" in
+        "1:completed") ran="${ran}c" ;;
+        "0:interrupted after "*) ran="${ran}i" ;;
+        *) bad="$bad case $c status ${status[$c]:-?} '$why';" ;;
+        esac
+      else
+        case "${status[$c]:-}:${reasons[$c]:-}" in
+        "0:not run: the batch was stopped by SIGINT "*)
+          skipped=$((skipped + 1)) ;;
+        *) bad="$bad case $c (no file) ${status[$c]:-?} '${reasons[$c]:-}';" ;;
+        esac
+      fi
+    done
+    case $ran in ci | ic) ;; *) bad="$bad case files '$ran' (c completed, i interrupted);" ;; esac
+    [ $skipped = 1 ] || bad="$bad $skipped cases not started;"
+    [ -z "$bad" ] &&
+      pass "rank 0 alone: exit 130, rank 1's case completed, rank 0's interrupted, 1 not run" ||
+      fail "rank 0 alone:$bad"
+  else
+    kill -KILL $launcher
+    wait $launcher
+    fail "rank 0 alone: no case started within 60 s"
+  fi
 else
   echo "skipped: the mpiexec run (built without MPI, or no mpiexec)"
 fi

@@ -150,23 +150,6 @@ static void test_affine(void) {
 /* ---------------------------------------------------------------------------
  * Helpers
  * ------------------------------------------------------------------------- */
-/* Rotation by angle |w| t about w: R = I + sin(a) K + (1 - cos a) K^2. */
-static void rodrigues(const double *w, double t, double *R) {
-  const double a = t * sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-  double k[3] = {0, 0, 0};
-  if (a > 0)
-    for (int i = 0; i < 3; i++)
-      k[i] = w[i] * t / a;
-  const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
-  for (int i = 0; i < 3; i++)
-    for (int j = 0; j < 3; j++) {
-      double K2 = 0.0;
-      for (int l = 0; l < 3; l++)
-        K2 += K[i * 3 + l] * K[l * 3 + j];
-      R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
-    }
-}
-
 static mrvi_settings settings(double dT, double t_end,
                               mrvi_constraint_form form) {
   mrvi_settings s = test_settings("midpoint-midpoint", dT, 1, t_end, 1e-12);
@@ -202,7 +185,7 @@ static mrvi_model *free_body(const double *J, const double *omega) {
   const double x0[3] = {0.1, -0.2, 0.3}, v0[3] = {0.5, 0.0, -0.25};
   double R[9];
   const double axis[3] = {0.3, 0.4, -0.2};
-  rodrigues(axis, 1.0, R);
+  test_rotation(axis, 1.0, R);
   const int b =
       mrvi_model_add_body(m, "B", 3, MRVI_SLOW, 2.0, J, x0, R, v0, omega);
   CHECK(b == 0, "free body added: %s", mrvi_model_errmsg(m));
@@ -276,7 +259,7 @@ static mrvi_model *sprung_bodies(int D) {
                w2b = -0.5;
   double R[9];
   const double axis[3] = {0.2, -0.4, 0.5};
-  rodrigues(axis, 1.0, R);
+  test_rotation(axis, 1.0, R);
   const double R2[4] = {cos(0.3), -sin(0.3), sin(0.3), cos(0.3)};
   mrvi_model_set_dimension(m, D);
   int st = mrvi_model_add_body(m, "a", D, MRVI_SLOW, 1.0, D == 3 ? J3 : &J2, xa,
@@ -393,7 +376,7 @@ static void test_weld(int D, mrvi_constraint_form form) {
   const double va[3] = {0.1, 0.2, 0.3}, wa[3] = {0.4, -0.3, 0.8}, w2 = 0.9;
   double vb[3] = {0, 0, 0}, R[9];
   const double axis[3] = {0.2, -0.4, 0.5};
-  rodrigues(axis, 1.0, R);
+  test_rotation(axis, 1.0, R);
   const double R2[4] = {cos(0.3), -sin(0.3), sin(0.3), cos(0.3)};
   /* B moves with A: v_B = v_A + w x (x_B - x_A). */
   if (D == 3) {
@@ -438,7 +421,7 @@ static void test_planar(void) {
   const double normal[3] = {0, 0, 1};
   double R[9];
   const double axis[3] = {0.1, 0.7, -0.3};
-  rodrigues(axis, 1.0, R);
+  test_rotation(axis, 1.0, R);
   CHECK(mrvi_model_add_body(m, "puck", 3, MRVI_SLOW, 1.5, J, x0, R, v0, w0) ==
                 0 &&
             mrvi_model_add_joint(m, "planar", 0, -1, x0, normal) >= 0 &&
@@ -504,7 +487,7 @@ static double isotropic_error(double dT, mrvi_constraint_form form) {
     double R0[9], RT[9], E[9];
     mrvi_model_body_pose(m, 0, tr->q, NULL, R0);
     mrvi_model_body_pose(m, 0, tr->q + (tr->n_macro - 1) * tr->n, NULL, RT);
-    rodrigues(w, tr->t[tr->n_macro - 1], E);
+    test_rotation(w, tr->t[tr->n_macro - 1], E);
     err = 0.0;
     for (int i = 0; i < 3; i++)
       for (int j = 0; j < 3; j++) {

@@ -26,23 +26,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Rotation by angle |w| about w (Rodrigues), row-major. */
-static void rotation(const double *w, double *R) {
-  const double a = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-  double k[3] = {0, 0, 0};
-  if (a > 0)
-    for (int i = 0; i < 3; i++)
-      k[i] = w[i] / a;
-  const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
-  for (int i = 0; i < 3; i++)
-    for (int j = 0; j < 3; j++) {
-      double K2 = 0.0;
-      for (int l = 0; l < 3; l++)
-        K2 += K[i * 3 + l] * K[l * 3 + j];
-      R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
-    }
-}
-
 static mrvi_settings settings(double dT, int p, double t_end,
                               mrvi_constraint_form form) {
   mrvi_settings s = test_settings("midpoint-midpoint", dT, p, t_end, 1e-13);
@@ -55,49 +38,9 @@ static const char *form_name(mrvi_constraint_form f) {
   return f == MRVI_FORM_NULL_SPACE ? "null-space" : "multipliers";
 }
 
-/* Central differences of the cost and constraint gradients at
- * u_i = 0.4 sin(1.7 i + 0.3). */
+/* The gradients against central differences (testlib.h). */
 static void check_gradients(mrvi_ocp *o, const char *what) {
-  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
-  double *u = malloc((size_t)n * sizeof *u), *g = malloc((size_t)n * sizeof *g);
-  double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
-  double *cp = malloc((size_t)(m + 1) * sizeof *cp);
-  double *cm = malloc((size_t)(m + 1) * sizeof *cm);
-  for (int i = 0; i < n; i++)
-    u[i] = 0.4 * sin(1.7 * i + 0.3);
-  double J;
-  int st = mrvi_ocp_evaluate(o, u, &J, g, cp, cg);
-  CHECK(st == 0, "%s: evaluate: %s", what, mrvi_ocp_errmsg(o));
-  double errJ = 0, scJ = 0, errC = 0, scC = 0;
-  for (int i = 0; i < n && st == 0; i++) {
-    const double h = 1e-5, ui = u[i];
-    double Jp, Jm;
-    u[i] = ui + h;
-    st |= mrvi_ocp_evaluate(o, u, &Jp, NULL, cp, NULL);
-    u[i] = ui - h;
-    st |= mrvi_ocp_evaluate(o, u, &Jm, NULL, cm, NULL);
-    u[i] = ui;
-    const double fd = (Jp - Jm) / (2 * h);
-    errJ = fmax(errJ, fabs(fd - g[i]));
-    scJ = fmax(scJ, fabs(fd));
-    for (int j = 0; j < m; j++) {
-      const double fc = (cp[j] - cm[j]) / (2 * h);
-      errC = fmax(errC, fabs(fc - cg[j * n + i]));
-      scC = fmax(scC, fabs(fc));
-    }
-  }
-  printf("%s: %d controls, %d constraints: gradient error cost %.2e, "
-         "constraints %.2e (relative)\n",
-         what, n, m, errJ / scJ, m ? errC / scC : 0.0);
-  CHECK(st == 0 && scJ > 0 && errJ <= 1e-6 * scJ,
-        "%s: cost gradient error %.3e (scale %.3e)", what, errJ, scJ);
-  CHECK(m == 0 || (scC > 0 && errC <= 1e-6 * scC),
-        "%s: constraint gradient error %.3e (scale %.3e)", what, errC, scC);
-  free(u);
-  free(g);
-  free(cg);
-  free(cp);
-  free(cm);
+  test_ocp_gradients(o, what, 0.4);
 }
 
 static mrvi_ocp *create(const mrvi_model *m, const mrvi_settings *s) {
@@ -117,7 +60,7 @@ static mrvi_model *free_body(const double *omega) {
   mrvi_model *m = mrvi_model_create();
   const double x0[3] = {0.1, -0.2, 0.3}, w[3] = {0.3, 0.4, -0.2};
   double R[9];
-  rotation(w, R);
+  test_rotation(w, 1.0, R);
   CHECK(mrvi_model_add_body(m, "B", 3, MRVI_SLOW, 2.0, free_J, x0, R, NULL,
                             omega) == 0,
         "free body: %s", mrvi_model_errmsg(m));
@@ -137,7 +80,7 @@ static void test_free_body(mrvi_constraint_form form) {
   const double at[3] = {0.2, 0.1, -0.3}, dir[3] = {0.0, 1.0, 0.5};
   const double wt[3] = {-0.5, 0.2, 0.9}, om[3] = {0.1, 0.0, -0.2};
   double Rt[9];
-  rotation(wt, Rt);
+  test_rotation(wt, 1.0, Rt);
   CHECK(mrvi_ocp_add_torque_actuator(o, 0, ax, 0, MRVI_GRID_MACRO, 1.0,
                                      -HUGE_VAL, HUGE_VAL) == 0 &&
             mrvi_ocp_add_torque_actuator(o, 0, bx, 1, MRVI_GRID_MACRO, 2.0,
@@ -272,7 +215,7 @@ static void test_chain(mrvi_constraint_form form) {
   }
   const double tx[3] = {1.0, 0.0, 0.2}, wt[3] = {0.0, 0.0, 0.4};
   double Rt[9];
-  rotation(wt, Rt);
+  test_rotation(wt, 1.0, Rt);
   const double om[3] = {0.0, 0.0, 0.1};
   CHECK(mrvi_ocp_add_joint_torque_actuator(o, j0, MRVI_GRID_MACRO, 1.0,
                                            -HUGE_VAL, HUGE_VAL) == 0 &&
@@ -307,18 +250,28 @@ static void test_chain(mrvi_constraint_form form) {
 /* ---------------------------------------------------------------------------
  * 2-D pendulum: a joint torque and a body torque.
  * ------------------------------------------------------------------------- */
-static void test_planar(mrvi_constraint_form form) {
+/* A 2-D link of length 1 (mass 1, inertia PENDULUM_J, slow) on a revolute
+ * joint j0 to the ground at its end, horizontal, turning at 0.5 rad/s,
+ * under gravity. */
+#define PENDULUM_J (1.0 / 12)
+static mrvi_model *planar_pendulum(int *j0) {
   mrvi_model *m = mrvi_model_create();
-  const double J = 1.0 / 12, x0[2] = {0.5, 0.0}, g[2] = {0, -9.81};
+  const double J = PENDULUM_J, x0[2] = {0.5, 0.0}, g[2] = {0, -9.81};
   const double R0[4] = {1, 0, 0, 1}, w0 = 0.5, o0[2] = {0, 0};
   CHECK(mrvi_model_add_body(m, "link", 2, MRVI_SLOW, 1.0, &J, x0, R0, NULL,
                             &w0) == 0 &&
             mrvi_model_set_gravity(m, g) >= 0,
         "pendulum: %s", mrvi_model_errmsg(m));
-  const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, NULL);
+  *j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, NULL);
   double corr;
-  CHECK(j0 >= 0 && mrvi_model_project_velocities(m, &corr) == 0,
+  CHECK(*j0 >= 0 && mrvi_model_project_velocities(m, &corr) == 0,
         "pendulum joint: %s", mrvi_model_errmsg(m));
+  return m;
+}
+
+static void test_planar(mrvi_constraint_form form) {
+  int j0;
+  mrvi_model *m = planar_pendulum(&j0);
   const mrvi_settings s = settings(0.05, 2, 0.5, form);
   mrvi_ocp *o = create(m, &s);
   if (!o) {
@@ -351,17 +304,8 @@ static void test_planar(mrvi_constraint_form form) {
  * state, ends below the terminal tolerance.
  * ------------------------------------------------------------------------- */
 static void test_planar_rest(mrvi_constraint_form form) {
-  mrvi_model *m = mrvi_model_create();
-  const double J = 1.0 / 12, x0[2] = {0.5, 0.0}, g[2] = {0, -9.81};
-  const double R0[4] = {1, 0, 0, 1}, w0 = 0.5, o0[2] = {0, 0};
-  CHECK(mrvi_model_add_body(m, "link", 2, MRVI_SLOW, 1.0, &J, x0, R0, NULL,
-                            &w0) == 0 &&
-            mrvi_model_set_gravity(m, g) >= 0,
-        "pendulum: %s", mrvi_model_errmsg(m));
-  const int j0 = mrvi_model_add_joint(m, "revolute", 0, -1, o0, NULL);
-  double corr;
-  CHECK(j0 >= 0 && mrvi_model_project_velocities(m, &corr) == 0,
-        "pendulum joint: %s", mrvi_model_errmsg(m));
+  int j0;
+  mrvi_model *m = planar_pendulum(&j0);
   const mrvi_settings s = settings(0.05, 2, 1.0, form);
   mrvi_ocp *o = create(m, &s);
   if (!o) {
@@ -394,9 +338,9 @@ static void test_planar_rest(mrvi_constraint_form form) {
             mrvi_constraints_project(m, q, pp, NULL, gc, G, A, mu) == 0,
         "%s: projection of the final momenta", what);
   const double w_raw =
-      (q[2] * p[3] - q[3] * p[2] + q[4] * p[5] - q[5] * p[4]) / J;
+      (q[2] * p[3] - q[3] * p[2] + q[4] * p[5] - q[5] * p[4]) / PENDULUM_J;
   const double w_proj =
-      (q[2] * pp[3] - q[3] * pp[2] + q[4] * pp[5] - q[5] * pp[4]) / J;
+      (q[2] * pp[3] - q[3] * pp[2] + q[4] * pp[5] - q[5] * pp[4]) / PENDULUM_J;
   const double ang = atan2(q[3], q[2]), tol = mrvi_ocp_terminal_tolerance(o);
   printf("  %s: %s in %d evaluations, cost %.6f, angle %.12f; angular "
          "velocity projected %.2e (tolerance %.0e), unprojected %.2e\n",

@@ -55,7 +55,13 @@ refuses() {
   local name=$1 pattern=$2
   shift 2
   timeout 60 "$@" >out.txt 2>err.txt
-  local rc=$?
+  refused "$name" "$pattern" $?
+}
+
+# refused NAME PATTERN RC: judges a command that ended with RC, its stderr
+# in err.txt, as refuses does.
+refused() {
+  local name=$1 pattern=$2 rc=$3
   clean "$name" $rc || return
   if [ $rc -eq 0 ]; then
     fail "$name: accepted (exit 0)"
@@ -71,7 +77,12 @@ accepts() {
   local name=$1
   shift
   timeout 60 "$@" >out.txt 2>err.txt
-  local rc=$?
+  accepted "$name" $?
+}
+
+# accepted NAME RC: judges a command that ended with RC, as accepts does.
+accepted() {
+  local name=$1 rc=$2
   clean "$name" $rc || return
   if [ $rc -ne 0 ]; then
     fail "$name: exit $rc: $(head -c 300 err.txt)"
@@ -253,28 +264,52 @@ EOF
 # Crafted run files: drawn (exit 0) or refused with one line naming the
 # file (exit 1), never a Python traceback (TypeError, IndexError,
 # MemoryError before); the shape refusals name the dataset or attribute,
-# before anything is read (8 TiB declared).
+# before anything is read (8 TiB declared).  The command lines are queued
+# and run in one Python process (tests/plot_cases.py: matplotlib imported
+# once, not once a case), then judged one by one as refuses and accepts
+# judge a command.
 plot=$root/src/cli/mrvi-plot
+# The hang files of "hangs" below, crafted here for mrvi-plot's cases too.
+"$py" "$craft" hang resume/ok.h5 hang >/dev/null || fail "crafting hang files"
+# plot_case ID ARGS...: queue mrvi-plot ARGS as case ID.
+plot_case() {
+  (IFS=$'\t' && echo "$*") >>plot/cases.txt
+}
+# plot_result ID: case ID's stderr into err.txt; returns its exit status
+# (125 when it has none: the batch ended before it).
+plot_result() {
+  if [ -f "plot/$1.rc" ]; then
+    cp "plot/$1.err" err.txt
+    return "$(cat "plot/$1.rc")"
+  fi
+  echo "no result for case $1: tests/plot_cases.py ended before it" >err.txt
+  return 125
+}
 if "$py" -c "import matplotlib" 2>/dev/null; then
-  mkdir -p figs
-  traced=""
+  mkdir -p figs plot
+  : >plot/cases.txt
+  # Tables of mrvi converge / stability / timing and files of mrvi
+  # optimize (/control, /optimizer/history): every dataset drawn checked
+  # for rank, type, size and length before it is read, a crafted one
+  # refused with one line naming it (before: 6 of 21 drawn without a word,
+  # e.g. /timing/p of strings, a longer /control/terminal_target, others
+  # refused naming another dataset or a Python exception; h5py's int64
+  # size of a 2^61-entry dataset wrapped to 0 and passed the read cap).
+  "$py" "$craft" tables none tables >/dev/null &&
+    "$mrvi" optimize "$ocp" -o di_opt.h5 -q >/dev/null 2>&1 &&
+    "$py" "$craft" plotcontrol di_opt.h5 plotcontrol >/dev/null ||
+    fail "crafting the table and control files for mrvi-plot"
+
   # Drawn whole (seconds each on a loaded machine): the crafted files whose
   # crafted part mrvi-plot does not read or can draw; the refusals below.
-  for f in resume/{ok,lambda_wider,lambda_rank32,residual_rank32}.h5 \
-    resume/{every_huge,description_array,t_backwards}.h5 \
-    bodies/{rotation_rank5,position_huge}.h5 from/every_nan.h5; do
-    timeout 120 "$py" "$plot" run "$f" -o figs >/dev/null 2>err.txt
-    rc=$?
-    if [ $rc -ne 0 ] && [ $rc -ne 1 ] || grep -q Traceback err.txt ||
-      { [ $rc -eq 1 ] && ! grep -q "^mrvi-plot: error: $f" err.txt; }; then
-      traced="$traced $f(exit $rc: $(grep -m1 'Error' err.txt))"
-    fi
+  drawn=(resume/{ok,lambda_wider,lambda_rank32,residual_rank32}.h5
+    resume/{every_huge,description_array,t_backwards}.h5
+    bodies/{rotation_rank5,position_huge}.h5 from/every_nan.h5)
+  i=0
+  for f in "${drawn[@]}"; do
+    plot_case draw$((i++)) run "$f" -o figs
   done
-  [ -z "$traced" ] && pass "mrvi-plot run on every crafted file: no traceback" ||
-    fail "mrvi-plot run:$traced"
-  while read -r case pattern; do
-    refuses "mrvi-plot: $case" "$pattern" "$py" "$plot" run "$case" -o figs
-  done <<'EOF'
+  runs=$(cat <<'EOF'
 export/names_longer.h5 /model/particle_name' does not have one entry
 export/names_huge.h5 /model/particle_name' declares 4294967296 values
 export/names_matrix.h5 /model/particle_name' has rank 2
@@ -290,32 +325,20 @@ resume/steps_array.h5 attribute steps_completed holds 1000 values
 from/q_wider.h5 /macro/q' has 12 columns, expected 6
 from/rate_huge.h5 /macro/q' has 6 columns, expected 200000000
 from/t_rank32.h5 /macro/t' has rank 32
+hang/truncated34.h5 not a readable HDF5 file
+hang/superblock44_flagged.h5 not a readable HDF5 file
 EOF
-  # Tables of mrvi converge / stability / timing and files of mrvi
-  # optimize (/control, /optimizer/history): every dataset drawn checked
-  # for rank, type, size and length before it is read, a crafted one
-  # refused with one line naming it (before: 6 of 21 drawn without a word,
-  # e.g. /timing/p of strings, a longer /control/terminal_target, others
-  # refused naming another dataset or a Python exception; h5py's int64
-  # size of a 2^61-entry dataset wrapped to 0 and passed the read cap).
-  "$py" "$craft" tables none tables >/dev/null &&
-    "$mrvi" optimize "$ocp" -o di_opt.h5 -q >/dev/null 2>&1 &&
-    "$py" "$craft" plotcontrol di_opt.h5 plotcontrol >/dev/null ||
-    fail "crafting the table and control files for mrvi-plot"
-  for t in conv stab timing; do
-    sub=$(case $t in conv) echo convergence ;; stab) echo stability ;;
-      *) echo timing ;; esac)
-    accepts "mrvi-plot $sub: a good table" "$py" "$plot" $sub \
-      tables/${t}_ok.h5 -o figs
+  )
+  i=0
+  while read -r case pattern; do
+    plot_case run$((i++)) run "$case" -o figs
+  done <<<"$runs"
+  good=(convergence:conv stability:stab timing:timing)
+  for t in "${good[@]}"; do
+    plot_case "good_${t#*:}" "${t%%:*}" "tables/${t#*:}_ok.h5" -o figs
   done
-  accepts "mrvi-plot optimize: the uncrafted file" "$py" "$plot" optimize \
-    plotcontrol/ok.h5 -o figs
-  while read -r sub case pattern; do
-    refuses "mrvi-plot $sub: $case" "$pattern" "$py" "$plot" "$sub" "$case" \
-      -o figs
-    { [ "$(wc -l <err.txt)" -eq 1 ] && ! grep -q Traceback err.txt; } ||
-      fail "mrvi-plot $sub: $case: not one line: $(head -3 err.txt)"
-  done <<'EOF'
+  plot_case optimize_ok optimize plotcontrol/ok.h5 -o figs
+  tables=$(cat <<'EOF'
 convergence tables/conv_rank2.h5 /convergence/p1/macro_step' has rank 2
 convergence tables/conv_strings.h5 /convergence/p1/e_q_mac' does not hold numbers
 convergence tables/conv_huge.h5 /convergence/p1/e_p_mac' declares 1099511627776
@@ -338,6 +361,46 @@ optimize plotcontrol/terminal_target_longer.h5 /control/terminal_target' has sha
 optimize plotcontrol/history_rank3.h5 /optimizer/history' has rank 3
 optimize plotcontrol/history_huge.h5 /optimizer/history' declares
 EOF
+  )
+  i=0
+  while read -r sub case pattern; do
+    plot_case table$((i++)) "$sub" "$case" -o figs
+  done <<<"$tables"
+
+  # One process for every case queued (each case bounded by 120 s inside).
+  timeout 1800 "$py" "$root/tests/plot_cases.py" "$plot" plot/cases.txt plot ||
+    fail "tests/plot_cases.py: exit $?"
+
+  traced=""
+  i=0
+  for f in "${drawn[@]}"; do
+    plot_result draw$((i++))
+    rc=$?
+    if [ $rc -ne 0 ] && [ $rc -ne 1 ] || grep -q Traceback err.txt ||
+      { [ $rc -eq 1 ] && ! grep -q "^mrvi-plot: error: $f" err.txt; }; then
+      traced="$traced $f(exit $rc: $(grep -m1 'Error' err.txt))"
+    fi
+  done
+  [ -z "$traced" ] && pass "mrvi-plot run on every crafted file: no traceback" ||
+    fail "mrvi-plot run:$traced"
+  i=0
+  while read -r case pattern; do
+    plot_result run$((i++))
+    refused "mrvi-plot: $case" "$pattern" $?
+  done <<<"$runs"
+  for t in "${good[@]}"; do
+    plot_result "good_${t#*:}"
+    accepted "mrvi-plot ${t%%:*}: a good table" $?
+  done
+  plot_result optimize_ok
+  accepted "mrvi-plot optimize: the uncrafted file" $?
+  i=0
+  while read -r sub case pattern; do
+    plot_result table$((i++))
+    refused "mrvi-plot $sub: $case" "$pattern" $?
+    { [ "$(wc -l <err.txt)" -eq 1 ] && ! grep -q Traceback err.txt; } ||
+      fail "mrvi-plot $sub: $case: not one line: $(head -3 err.txt)"
+  done <<<"$tables"
 else
   echo "note: mrvi-plot not run (no matplotlib for $py)"
 fi
@@ -389,8 +452,8 @@ left=$(ls -a | grep -c '^live\.h5\..*')
 # --- hangs (class 3) -------------------------------------------------------
 # A truncated file or a damaged superblock made every reader spin in HDF5's
 # SWMR-read retries for tens of minutes.  Each reader refuses them within
-# the timeout of `refuses` (a hang fails the test).
-"$py" "$craft" hang resume/ok.h5 hang >/dev/null || fail "crafting hang files"
+# the timeout of `refuses` (a hang fails the test); mrvi-plot's refusals of
+# two of them are among its cases above.
 for f in hang/*.h5; do
   refuses "export: $f" "cannot open" "$mrvi" export "$f" "${xyz[@]}"
   cp "$f" hang.h5
@@ -398,12 +461,6 @@ for f in hang/*.h5; do
   refuses "--from: $f" "cannot open" "$mrvi" run "$sys/cart_pendulum.yaml" \
     --from "$f" -o from.h5 -q
 done
-if "$py" -c "import matplotlib" 2>/dev/null; then
-  for f in hang/truncated34.h5 hang/superblock44_flagged.h5; do
-    refuses "mrvi-plot: $f" "not a readable HDF5 file" "$py" "$plot" run \
-      "$f" -o figs
-  done
-fi
 # A read that does not return (here: a FIFO nobody writes, as an HDF5 call
 # that spins) ends at the first SIGTERM, exit 143, nothing written.
 rm -f stuck.h5 && mkfifo stuck.h5

@@ -25,50 +25,9 @@
 #include <sys/wait.h>
 #include <time.h>
 
-/* Central-difference check of the cost and constraint gradients. */
+/* The gradients against central differences (testlib.h). */
 static void check_gradients(mrvi_ocp *o, const char *what) {
-  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
-  double *u = malloc((size_t)n * sizeof *u), *g = malloc((size_t)n * sizeof *g);
-  double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
-  double *c = malloc((size_t)(m + 1) * sizeof *c);
-  double *cp = malloc((size_t)(m + 1) * sizeof *cp);
-  double *cm = malloc((size_t)(m + 1) * sizeof *cm);
-  for (int i = 0; i < n; i++)
-    u[i] = 0.5 * sin(1.7 * i + 0.3);
-  double J;
-  int st = mrvi_ocp_evaluate(o, u, &J, g, c, cg);
-  CHECK(st == 0, "%s: evaluate: %s", what, mrvi_ocp_errmsg(o));
-  if (st != 0)
-    goto out;
-  double errJ = 0, scJ = 0, errC = 0, scC = 0;
-  for (int i = 0; i < n; i++) {
-    const double h = 1e-5, ui = u[i];
-    double Jp, Jm;
-    u[i] = ui + h;
-    mrvi_ocp_evaluate(o, u, &Jp, NULL, cp, NULL);
-    u[i] = ui - h;
-    mrvi_ocp_evaluate(o, u, &Jm, NULL, cm, NULL);
-    u[i] = ui;
-    const double fd = (Jp - Jm) / (2 * h);
-    errJ = fmax(errJ, fabs(fd - g[i]));
-    scJ = fmax(scJ, fabs(fd));
-    for (int j = 0; j < m; j++) {
-      const double fc = (cp[j] - cm[j]) / (2 * h);
-      errC = fmax(errC, fabs(fc - cg[j * n + i]));
-      scC = fmax(scC, fabs(fc));
-    }
-  }
-  CHECK(scJ > 0 && errJ <= 1e-6 * scJ,
-        "%s: cost gradient error %.3e (scale %.3e)", what, errJ, scJ);
-  CHECK(m == 0 || (scC > 0 && errC <= 1e-6 * scC),
-        "%s: constraint gradient error %.3e (scale %.3e)", what, errC, scC);
-out:
-  free(u);
-  free(g);
-  free(cg);
-  free(c);
-  free(cp);
-  free(cm);
+  test_ocp_gradients(o, what, 0.5);
 }
 
 /* FPU problem (four actuators: slow and fast grids on slow and fast

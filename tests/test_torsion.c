@@ -17,23 +17,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Rotation by angle |w| about w (Rodrigues). */
-static void rotation(const double *w, double *R) {
-  const double a = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-  double k[3] = {0, 0, 0};
-  if (a > 0)
-    for (int i = 0; i < 3; i++)
-      k[i] = w[i] / a;
-  const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
-  for (int i = 0; i < 3; i++)
-    for (int j = 0; j < 3; j++) {
-      double K2 = 0.0;
-      for (int l = 0; l < 3; l++)
-        K2 += K[i * 3 + l] * K[l * 3 + j];
-      R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
-    }
-}
-
 /* Two bodies a, b (dimension D) with torsional springs between them (law
  * `law`) and from a to the ground (linear). */
 static mrvi_model *sprung_pair(int D, const char *law, const double *par) {
@@ -43,7 +26,7 @@ static mrvi_model *sprung_pair(int D, const char *law, const double *par) {
                wa[3] = {0.3, -0.2, 0.5}, wb[3] = {0.1, 0.4, -0.6},
                axis[3] = {0.3, -0.5, 0.8}, k = 2.0;
   double Ra[9], Rb[9];
-  rotation(wa, Ra), rotation(wb, Rb);
+  test_rotation(wa, 1.0, Ra), test_rotation(wb, 1.0, Rb);
   const double R2a[4] = {cos(0.3), -sin(0.3), sin(0.3), cos(0.3)},
                R2b[4] = {cos(-1.1), -sin(-1.1), sin(-1.1), cos(-1.1)};
   mrvi_model_set_dimension(m, D);
@@ -159,7 +142,7 @@ static int spin_run(int D, mrvi_constraint_form form, double dT, spin *r) {
                axis[3] = {0, 0, 1}, k = 0.01, w0 = 2.0;
   double w3[3] = {0, 0, w0}, R[9];
   const double tilt[3] = {0.0, 0.0, 0.4};
-  rotation(tilt, R);
+  test_rotation(tilt, 1.0, R);
   mrvi_model_set_dimension(m, D);
   /* 3-D: J about the axis e_3 is J3[2] (the body's d_3 along e_3). */
   const double J = D == 3 ? J3[2] : J2;

@@ -1,5 +1,6 @@
 #include "testlib.h"
 
+#include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
 
@@ -52,4 +53,63 @@ const char *test_source_path(const char *relative) {
   const char *root = getenv("MRVI_SOURCE_ROOT");
   snprintf(buf, sizeof buf, "%s/%s", root ? root : "..", relative);
   return buf;
+}
+
+void test_rotation(const double *w, double t, double *R) {
+  const double a = t * sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  double k[3] = {0, 0, 0};
+  if (a > 0)
+    for (int i = 0; i < 3; i++)
+      k[i] = w[i] * t / a;
+  const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
+  for (int i = 0; i < 3; i++)
+    for (int j = 0; j < 3; j++) {
+      double K2 = 0.0;
+      for (int l = 0; l < 3; l++)
+        K2 += K[i * 3 + l] * K[l * 3 + j];
+      R[i * 3 + j] = (i == j) + sin(a) * K[i * 3 + j] + (1 - cos(a)) * K2;
+    }
+}
+
+void test_ocp_gradients(mrvi_ocp *o, const char *what, double amplitude) {
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  double *u = malloc((size_t)n * sizeof *u), *g = malloc((size_t)n * sizeof *g);
+  double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
+  double *cp = malloc((size_t)(m + 1) * sizeof *cp);
+  double *cm = malloc((size_t)(m + 1) * sizeof *cm);
+  for (int i = 0; i < n; i++)
+    u[i] = amplitude * sin(1.7 * i + 0.3);
+  double J;
+  int st = mrvi_ocp_evaluate(o, u, &J, g, cp, cg);
+  CHECK(st == 0, "%s: evaluate: %s", what, mrvi_ocp_errmsg(o));
+  double errJ = 0, scJ = 0, errC = 0, scC = 0;
+  for (int i = 0; i < n && st == 0; i++) {
+    const double h = 1e-5, ui = u[i];
+    double Jp, Jm;
+    u[i] = ui + h;
+    st |= mrvi_ocp_evaluate(o, u, &Jp, NULL, cp, NULL);
+    u[i] = ui - h;
+    st |= mrvi_ocp_evaluate(o, u, &Jm, NULL, cm, NULL);
+    u[i] = ui;
+    const double fd = (Jp - Jm) / (2 * h);
+    errJ = fmax(errJ, fabs(fd - g[i]));
+    scJ = fmax(scJ, fabs(fd));
+    for (int j = 0; j < m; j++) {
+      const double fc = (cp[j] - cm[j]) / (2 * h);
+      errC = fmax(errC, fabs(fc - cg[j * n + i]));
+      scC = fmax(scC, fabs(fc));
+    }
+  }
+  printf("%s: %d controls, %d constraints: gradient error cost %.2e, "
+         "constraints %.2e (relative)\n",
+         what, n, m, scJ > 0 ? errJ / scJ : 0.0, scC > 0 ? errC / scC : 0.0);
+  CHECK(st == 0 && scJ > 0 && errJ <= 1e-6 * scJ,
+        "%s: cost gradient error %.3e (scale %.3e)", what, errJ, scJ);
+  CHECK(m == 0 || (scC > 0 && errC <= 1e-6 * scC),
+        "%s: constraint gradient error %.3e (scale %.3e)", what, errC, scC);
+  free(u);
+  free(g);
+  free(cg);
+  free(cp);
+  free(cm);
 }

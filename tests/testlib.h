@@ -6,6 +6,8 @@
 #ifndef MRVI_TESTLIB_H
 #define MRVI_TESTLIB_H
 
+#include "ocp/ocp.h"
+
 #include <stdio.h>
 
 extern int test_passed, test_failed;
@@ -31,5 +33,16 @@ long test_steps(long n);
 
 /* Path of a file under the source tree ($MRVI_SOURCE_ROOT, else ".."). */
 const char *test_source_path(const char *relative);
+
+/* R (3 x 3, row-major): the rotation by the angle |w| t about w
+ * (Rodrigues: R = I + sin(a) K + (1 - cos a) K^2, K the cross-product
+ * matrix of the unit axis); the identity for w = 0. */
+void test_rotation(const double *w, double t, double *R);
+
+/* Checks the gradients of the cost and of the constraints that
+ * mrvi_ocp_evaluate returns against central differences (h = 1e-5) at
+ * u_i = amplitude sin(1.7 i + 0.3): each within 1e-6 of its scale (the
+ * largest difference quotient); prints the relative errors. */
+void test_ocp_gradients(mrvi_ocp *o, const char *what, double amplitude);
 
 #endif
