@@ -526,3 +526,14 @@ int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
     solve(bd, st, R, dx);
   return s;
 }
+
+int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
+                        double *dx, char *msg, size_t len) {
+  if (bd->whole)
+    return mrvi_linsolve_solve(bd->whole, st->Ax, 0, R, dx, msg, len);
+  if (!bd->slow_only)
+    node_solve(bd, R, dx);
+  else
+    solve(bd, st, R, dx);
+  return MRVI_OK;
+}
