@@ -1541,9 +1541,10 @@ static int newton_step(mrvi_integrator *it) {
     fresh = !it->ops->keeps_factors || !it->factors_ok ||
             !keep_factors(it, res, cres * (tol / ctol), prev,
                           cprev * (tol / ctol), tol);
-    /* (full Newton: the general and schur-bordered paths always; schur
-     * where it refactorises at the iterate, not on its first update, which
-     * may take a chord; not schur-krylov, whose GMRES is inexact) */
+    /* (full Newton: the general path always; schur-bordered where it
+     * refactorises (always at the iterate); schur where it refactorises at
+     * the iterate, not on its first update, which may take a chord; not
+     * schur-krylov, whose GMRES is inexact) */
     const int was_exact = exact;
     exact = !it->ops->keeps_factors ||
             (fresh && (it->bordered || (it->blocks && !jac_at_x)));

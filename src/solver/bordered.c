@@ -57,9 +57,11 @@
  * step is not (micro-node constraints dependent through their fast
  * coordinates, allowed at p = 1), the path solves with the general path's LU
  * of the whole step from then on.  The Jacobian is the general path's (the CSC
- * assembled by step.c), factored afresh at every update as on the general
- * path: the iterates are the general path's up to the round-off of the
- * linear solve. */
+ * assembled by step.c); a factorisation's iterate is the general path's up
+ * to the round-off of the linear solve, and the integrator keeps the
+ * factors for a step's later updates while they contract well
+ * (mrvi_bordered_solve: simplified Newton, doc/solver.md, "Newton
+ * details"). */
 #include "solver/solver.h"
 
 #include <stdlib.h>
