@@ -720,8 +720,8 @@ typedef enum mrvi_newton_criterion {
     "the constant chord's inverse is kept for steps of at most this many "     \
     "unknowns")                                                                \
   X(double, reuse_rate, 0.1, 0.0, 1.0,                                         \
-    "kept factors serve the next update while an update contracts the "        \
-    "residual by at most this")                                                \
+    "kept factors (schur, schur-bordered) serve the next update while an "     \
+    "update contracts the residual by at most this (0: full Newton)")          \
   X(double, reuse_tighten, 0.01, 0.0, 1.0,                                     \
     "Newton and shooting stop at this times the Newton tolerance")             \
   X(double, floor_rate, 0.1, 0.0, 1.0,                                         \

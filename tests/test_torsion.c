@@ -7,6 +7,7 @@
  * constraint forms agree on systems/flexible_pendulum.yaml and
  * systems/spacecraft.yaml (p = 1 and 5), whose orders are fitted from runs
  * and whose momenta are conserved where the symmetry holds. */
+#include "integrator/integrator.h"
 #include "io/io.h"
 #include "model/model.h"
 #include "models.h"
@@ -555,6 +556,9 @@ static void test_joint_sweep(void) {
     mrvi_settings s = sys->settings;
     s.t_end = 100 * s.macro_step;
     s.tuning.predict_joints = j;
+    /* (full Newton, every update factorised: the count the predictor
+     * sets; test_kept_factors counts the updates with kept factors) */
+    s.tuning.reuse_rate = 0.0;
     mrvi_summary sum;
     CHECK(mrvi_trajectory_run(sys->model, &s, &tr[j], &sum) == 0,
           "flexible_pendulum, predict_joints = %d: %s", j, sum.message);
@@ -572,6 +576,127 @@ static void test_joint_sweep(void) {
   CHECK(e < 1e-9, "joint sweep: trajectories differ by %.3g", e);
   mrvi_trajectory_free(tr[0]);
   mrvi_trajectory_free(tr[1]);
+  mrvi_system_free(sys);
+}
+
+/* n_steps steps of s on model m: the Newton updates and factorisations,
+ * the largest constraint residual at a micro node, and the positions of
+ * every macro node after the first into q (n_steps x n; NULL: not). */
+typedef struct kept_run {
+  long updates, factorisations;
+  double g_max;
+  const char *path;
+} kept_run;
+
+static int kept_factors_run(const mrvi_model *m, const mrvi_settings *s,
+                            int n_steps, double *q, kept_run *out) {
+  mrvi_integrator *it = NULL;
+  char msg[512];
+  memset(out, 0, sizeof *out);
+  if (mrvi_integrator_create(m, s, &it, msg, sizeof msg) < 0) {
+    CHECK(0, "kept factors: %s", msg);
+    return -1;
+  }
+  out->path = mrvi_integrator_solver_path(it);
+  const int n = mrvi_model_n(m);
+  for (int k = 0; k < n_steps; k++) {
+    if (mrvi_integrator_step(it) < 0) {
+      CHECK(0, "kept factors, step %d: %s", k, mrvi_integrator_errmsg(it));
+      mrvi_integrator_free(it);
+      return -1;
+    }
+    out->updates += mrvi_integrator_last_iterations(it);
+    const double *g = mrvi_integrator_micro_constraint_residual(it);
+    for (int i = 0; i < s->micro_steps; i++)
+      out->g_max = fmax(out->g_max, g[i]);
+    if (q)
+      memcpy(q + (size_t)k * n, mrvi_integrator_q(it), (size_t)n * sizeof *q);
+  }
+  out->factorisations = mrvi_integrator_factorisations(it);
+  mrvi_integrator_free(it);
+  return 0;
+}
+
+/* schur-bordered keeps the factors of a step's first update for the next
+ * ones while they contract well (simplified Newton, the schur path's rule;
+ * doc/solver.md, "Newton details"): counted on the flexible pendulum at
+ * p = 10 (one factorisation a step where full Newton takes two, at most
+ * 2.2 updates a step), with the trajectory full Newton's (reuse_rate = 0)
+ * within 10 times the Newton tolerance over 100 steps (the steps differ by
+ * round-off: the kept factors land below 0.01 tol, full Newton at the
+ * round-off floor; the pendulum's ringing wrist amplifies that).  And the
+ * constraint rows, which the dynamic rows' contraction does not measure:
+ * the triatomic molecule with trapezoidal-trapezoidal at p = 1, whose
+ * dynamic rows are linear (at round-off after the first update) while the
+ * constraint rows converge linearly with kept factors, takes them and
+ * still ends every step at 0.01 times the constraint tolerance (it stopped
+ * at 0.65 times it when the rule read the dynamic rows alone). */
+static void test_kept_factors(void) {
+  mrvi_system *sys = load("systems/flexible_pendulum.yaml", NULL);
+  if (!sys)
+    return;
+  enum { N = 100 };
+  const int n = mrvi_model_n(sys->model);
+  double *q[2] = {malloc((size_t)N * n * sizeof(double)),
+                  malloc((size_t)N * n * sizeof(double))};
+  kept_run r[2];
+  for (int j = 0; j < 2 && q[0] && q[1]; j++) {
+    mrvi_settings s = sys->settings;
+    if (j == 0)
+      s.tuning.reuse_rate = 0.0; /* full Newton */
+    if (kept_factors_run(sys->model, &s, N, q[j], &r[j]) < 0)
+      goto done;
+  }
+  double d = 0.0;
+  for (size_t i = 0; i < (size_t)N * n; i++)
+    d = fmax(d, fabs(q[0][i] - q[1][i]));
+  const double tol = sys->settings.newton_tol;
+  printf("flexible_pendulum, p = 10, %d steps on %s: full Newton %.2f "
+         "updates and %.2f factorisations a step, kept factors %.2f and "
+         "%.2f; residual evaluations %.2f -> %.2f a step; positions differ "
+         "by %.3g\n",
+         N, r[1].path, (double)r[0].updates / N,
+         (double)r[0].factorisations / N, (double)r[1].updates / N,
+         (double)r[1].factorisations / N,
+         (double)(r[0].updates + r[0].factorisations) / N,
+         (double)(r[1].updates + r[1].factorisations) / N, d);
+  CHECK(strcmp(r[1].path, "schur-bordered") == 0, "path %s", r[1].path);
+  CHECK(r[0].factorisations == r[0].updates,
+        "full Newton: %ld factorisations for %ld updates", r[0].factorisations,
+        r[0].updates);
+  CHECK(r[1].factorisations <= N + N / 20 &&
+            r[1].updates - r[1].factorisations >= N - N / 20 &&
+            r[1].updates <= 2.2 * N,
+        "kept factors: %ld factorisations, %ld updates in %d steps",
+        r[1].factorisations, r[1].updates, N);
+  CHECK(d <= 10.0 * tol, "kept factors: positions differ by %.3g", d);
+
+  /* The constraint rows: triatomic, trapezoidal-trapezoidal, p = 1. */
+  mrvi_system *tri = load("systems/triatomic.yaml", NULL);
+  if (tri) {
+    mrvi_settings s = tri->settings;
+    s.micro_steps = 1;
+    s.tuning.predict_joints = 0;
+    kept_run t;
+    if (mrvi_settings_set_scheme(&s, "trapezoidal-trapezoidal") == 0 &&
+        kept_factors_run(tri->model, &s, 20, NULL, &t) == 0) {
+      printf("triatomic, trapezoidal-trapezoidal, p = 1, 20 steps on %s: "
+             "%ld updates, %ld factorisations, largest |g| %.3g (tolerance "
+             "%.3g)\n",
+             t.path, t.updates, t.factorisations, t.g_max, s.constraint_tol);
+      CHECK(strcmp(t.path, "schur-bordered") == 0 &&
+                t.updates > t.factorisations &&
+                t.g_max <=
+                    tri->settings.tuning.reuse_tighten * s.constraint_tol,
+            "triatomic, kept factors on %s: %ld updates, %ld factorisations, "
+            "|g| %.3g",
+            t.path, t.updates, t.factorisations, t.g_max);
+    }
+    mrvi_system_free(tri);
+  }
+done:
+  free(q[0]);
+  free(q[1]);
   mrvi_system_free(sys);
 }
 
@@ -614,6 +739,7 @@ int main(void) {
   test_forms("systems/flexible_pendulum.yaml", 0.01, 0);
   test_forms("systems/spacecraft.yaml", 0.05, 1);
   test_joint_sweep();
+  test_kept_factors();
   test_orders();
   for (int D = 2; D <= 3; D++) {
     test_spin(D, MRVI_FORM_MULTIPLIERS);

@@ -1039,14 +1039,22 @@ static int skrylov_update(mrvi_integrator *it, int fresh, char *msg,
   return s;
 }
 
-/* The schur-bordered path's update: full Newton, as the general path (why
- * not kept factors: doc/solver.md, "schur-bordered"). */
+/* The schur-bordered path's update: the Jacobian at x factorised afresh
+ * where `fresh`, else the factors kept from the step's last factorisation
+ * (simplified Newton, the schur path's rule: doc/solver.md,
+ * "schur-bordered"). */
 static int bordered_update(mrvi_integrator *it, int fresh, char *msg,
                            size_t len) {
-  (void)fresh;
-  it->n_factor++;
-  const int s = mrvi_bordered_factor_solve(it->bordered, &it->step, it->R,
-                                           it->dx, msg, len);
+  int s;
+  if (fresh) {
+    it->factors_ok = 0;
+    it->n_factor++;
+    s = mrvi_bordered_factor_solve(it->bordered, &it->step, it->R, it->dx, msg,
+                                   len);
+    it->factors_ok = s == MRVI_OK;
+  } else {
+    s = mrvi_bordered_solve(it->bordered, &it->step, it->R, it->dx, msg, len);
+  }
   if (s == MRVI_OK)
     subtract_dx(it, it->step.n_total);
   return s;
@@ -1359,6 +1367,27 @@ static int accept_step(mrvi_integrator *it, int iters, double res) {
   return finish_step(it);
 }
 
+/* Whether the next update keeps the factors (schur, schur-krylov and
+ * schur-bordered paths; the general path, the reference, is full Newton):
+ * where they contracted the residual well on the last update and, at that
+ * rate, reach the target in two more.  The residual measured is the larger
+ * of the dynamic rows' res and the constraint rows' cres (both before the
+ * update: prev, cprev), these in the dynamic rows' units (tol / ctol
+ * times their norm): on schur-bordered the constraint rows may be far
+ * from converged where the dynamic rows are at round-off (trapezoidal
+ * rules, whose dynamic rows are linear in the unknowns). */
+static int keep_factors(const mrvi_integrator *it, double res, double cres,
+                        double prev, double cprev, double tol) {
+  const mrvi_tuning *tn = &it->step.tuning;
+  const double r = cres > res ? cres : res, rp = cprev > prev ? cprev : prev;
+  /* (the constant chord's factors: only if one more update reaches
+   * the target at that rate; else an exact update from here costs
+   * less than the kept factors' slow linear convergence) */
+  const double rate = r / rp, target = tn->reuse_tighten * tol;
+  return !(rate > tn->reuse_rate ||
+           r * rate * (it->const_kept ? 1.0 : rate) > target);
+}
+
 /* A step of the Newton paths. */
 static int newton_step(mrvi_integrator *it) {
   mrvi_step *st = &it->step;
@@ -1438,18 +1467,21 @@ static int newton_step(mrvi_integrator *it) {
     mrvi_blocks_chord(it->blocks, use_chord(it));
   s = evaluate(it, !cc, msg, sizeof msg);
   int iter = 0, fresh = 0, jac_at_x = !cc;
-  double res, cres, prev = INFINITY, pprev = 0.0;
+  double res, cres, prev = INFINITY, pprev = 0.0, cprev = 0.0;
   residual_norms(it, &res, &cres);
   double best = res; /* the smallest residual of the step, at update */
   int best_iter = 0; /* best_iter (for the failure message) */
   /* Converged at the tolerance after at least one update (the predictor is
    * never accepted), or stalled at the roundoff floor after one (counted:
-   * mrvi_integrator_roundoff_steps).  On the schur path the factors of the
-   * first update are kept for the further updates of the step while they
-   * contract the residual by reuse_rate per update (simplified Newton;
-   * the residual is exact, so the converged solution is the same) and
-   * refactorised otherwise.  Updates stop at reuse_tighten times the
-   * tolerance; or, the tolerance met, once a full Newton update contracts
+   * mrvi_integrator_roundoff_steps).  On the schur and schur-bordered
+   * paths the factors of the first update are kept for the further updates
+   * of the step while they contract the residual by reuse_rate per update
+   * (simplified Newton; the residual is exact, so the converged solution is
+   * the same) and refactorised otherwise (keep_factors).  Updates stop at
+   * reuse_tighten times the tolerance (after kept factors, the constraint
+   * rows too: they converge linearly, and a step left just below the
+   * constraint tolerance drifts from full Newton's by that much per step);
+   * or, the tolerance met, once a full Newton update contracts
    * the residual by less than 1/floor_rate (the rounding floor, which on
    * long chains lies near reuse_tighten times the tolerance:
    * doc/solver.md, "Newton details"); or when they stall at the roundoff
@@ -1460,7 +1492,8 @@ static int newton_step(mrvi_integrator *it) {
   int exact = 0; /* the last update was a full Newton update */
   while (s == MRVI_OK) {
     if (iter >= 1 && cres <= ctol) {
-      if (res <= tn->reuse_tighten * tol)
+      const int tight = exact || cres <= tn->reuse_tighten * ctol;
+      if (res <= tn->reuse_tighten * tol && tight)
         break;
       /* (the tolerance met and a full update contracted by less than
        * 1/floor_rate, or by less than the full update before it: Newton's
@@ -1469,7 +1502,7 @@ static int newton_step(mrvi_integrator *it) {
       if (exact && tn->floor_rate > 0.0 && res <= tol &&
           (res > tn->floor_rate * prev || res * pprev > prev * prev))
         break;
-      if (res <= residual_floor(it) && res > 0.5 * prev) {
+      if (tight && res <= residual_floor(it) && res > 0.5 * prev) {
         if (res > tol)
           it->roundoff_steps++;
         break;
@@ -1505,26 +1538,19 @@ static int newton_step(mrvi_integrator *it) {
                   finite ? "did not converge" : "produced non-finite values",
                   iter, res, tol, residual_floor(it), extra);
     }
-    /* Refactorise unless the kept factors contracted well on the last
-     * update and, at that rate, reach the target in two more (schur and
-     * schur-krylov paths; the general path, the reference, is full Newton). */
-    if (!it->ops->keeps_factors || !it->factors_ok)
-      fresh = 1;
-    else {
-      /* (the constant chord's factors: only if one more update reaches
-       * the target at that rate; else an exact update from here costs
-       * less than the kept factors' slow linear convergence) */
-      const double rate = res / prev, target = tn->reuse_tighten * tol;
-      fresh = rate > tn->reuse_rate ||
-              res * rate * (it->const_kept ? 1.0 : rate) > target;
-    }
-    /* (full Newton: the general and schur-bordered paths always; schur
-     * where it refactorises at the iterate, not on its first update, which
-     * may take a chord; not schur-krylov, whose GMRES is inexact) */
+    fresh = !it->ops->keeps_factors || !it->factors_ok ||
+            !keep_factors(it, res, cres * (tol / ctol), prev,
+                          cprev * (tol / ctol), tol);
+    /* (full Newton: the general path always; schur-bordered where it
+     * refactorises (always at the iterate); schur where it refactorises at
+     * the iterate, not on its first update, which may take a chord; not
+     * schur-krylov, whose GMRES is inexact) */
     const int was_exact = exact;
-    exact = !it->ops->keeps_factors || (it->blocks && fresh && !jac_at_x);
+    exact = !it->ops->keeps_factors ||
+            (fresh && (it->bordered || (it->blocks && !jac_at_x)));
     pprev = exact && was_exact ? prev : 0.0;
     prev = res;
+    cprev = cres;
     s = newton_update(it, fresh, jac_at_x, msg, sizeof msg);
     if (s < 0)
       break;
@@ -1882,7 +1908,7 @@ static const path_ops paths[MRVI_N_PATHS] = {
     [MRVI_PATH_SCHUR_KRYLOV] = {skrylov_create, newton_step, csc_assemble,
                                 skrylov_update, skrylov_free, 1},
     [MRVI_PATH_SCHUR_BORDERED] = {bordered_create, newton_step, csc_assemble,
-                                  bordered_update, bordered_free, 0},
+                                  bordered_update, bordered_free, 1},
 };
 
 static const path_ops *path_ops_of(int path) { return &paths[path]; }

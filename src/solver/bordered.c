@@ -57,9 +57,11 @@
  * step is not (micro-node constraints dependent through their fast
  * coordinates, allowed at p = 1), the path solves with the general path's LU
  * of the whole step from then on.  The Jacobian is the general path's (the CSC
- * assembled by step.c), factored afresh at every update as on the general
- * path: the iterates are the general path's up to the round-off of the
- * linear solve. */
+ * assembled by step.c); a factorisation's iterate is the general path's up
+ * to the round-off of the linear solve, and the integrator keeps the
+ * factors for a step's later updates while they contract well
+ * (mrvi_bordered_solve: simplified Newton, doc/solver.md, "Newton
+ * details"). */
 #include "solver/solver.h"
 
 #include <stdlib.h>
@@ -525,4 +527,15 @@ int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
   if (s == MRVI_OK)
     solve(bd, st, R, dx);
   return s;
+}
+
+int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
+                        double *dx, char *msg, size_t len) {
+  if (bd->whole)
+    return mrvi_linsolve_solve(bd->whole, st->Ax, 0, R, dx, msg, len);
+  if (!bd->slow_only)
+    node_solve(bd, R, dx);
+  else
+    solve(bd, st, R, dx);
+  return MRVI_OK;
 }

@@ -535,6 +535,11 @@ void mrvi_bordered_free(mrvi_bordered *bd);
 int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
                                const double *R, double *dx, char *msg,
                                size_t len);
+/* Solve J dx = R with the factors of the last mrvi_bordered_factor_solve
+ * (st->Ax still the Jacobian it factorised): the kept factors of a
+ * simplified Newton update. */
+int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
+                        double *dx, char *msg, size_t len);
 
 /* Newton matrix of an unconstrained step by block elimination
  * (solver/blocks.c): Schur complement on the slow block, block forward
