@@ -62,14 +62,11 @@ struct mrvi_sweep {
    * so that a node is written while other parts read the last one. */
   int threads;
   double *qalt;
-  /* The end-of-step check's sums (end_check) on the explicit path with nf
-   * at least two thread_chunk: per part, n_cs parts of the slow rows
-   * (mrvi_even_parts, or 1 below two chunks) and n_cf of the fast rows
-   * (the fast class's partition), summed in csum and added in order for
-   * every thread count (else 0, 0: one sum).  gv_next: explicit_step_par
-   * writes grad V at the end node there while this step's start still
-   * reads gv, then exchanges the two. */
-  int n_cs, n_cf;
+  /* explicit_step_par: the slow rows in n_cs parts (mrvi_even_parts, or
+   * 1 below two thread_chunk), end_check's sums of the slow and fast
+   * parts in csum; it writes grad V at the end node into gv_next while
+   * this step's start still reads gv, then exchanges the two. */
+  int n_cs;
   double *csum, *gv_next;
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   /* The step between the entries of minv_f and m_f that explicit_row
@@ -379,6 +376,11 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw);
 }
 
+/* The explicit path's classes on threads: parts of thread_chunk doubled
+ * until the records that span parts add at most this share of a class's
+ * (mrvi_terms_set_threads_spread). */
+#define SPREAD 0.05
+
 static double *dalloc(size_t n) {
   return calloc(n > 0 ? n : 1, sizeof(double));
 }
@@ -461,8 +463,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   /* The gradients of large spring classes on threads (the same bits). */
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
-    s_ok = mrvi_terms_set_threads(sw->kc[c], threads, s->tuning.thread_chunk,
-                                  c == MRVI_SLOW ? 0 : nf) == MRVI_OK;
+    s_ok = mrvi_terms_set_threads_spread(sw->kc[c], threads,
+                                         s->tuning.thread_chunk,
+                                         c == MRVI_SLOW ? 0 : nf,
+                                         sw->implicit ? HUGE_VAL : SPREAD) ==
+           MRVI_OK;
   /* The explicit sweep's one parallel region per step: W's gradient by
    * parts of the fast rows (explicit_nodes_par). */
   sw->threads = s_ok && !sw->implicit && !sw->wH &&
@@ -475,13 +480,13 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   }
   sw->gnode = dalloc(nf);
   sw->qalt = dalloc(sw->threads > 1 ? nf : 1);
-  if (!sw->implicit && (int)nf >= 2 * s->tuning.thread_chunk) {
+  if (sw->threads > 1) {
     const int chunk = s->tuning.thread_chunk;
     sw->n_cs = (int)ns >= 2 * chunk ? mrvi_even_parts((int)ns, chunk)
                                     : (ns > 0);
-    sw->n_cf = mrvi_even_parts((int)nf, chunk);
   }
-  sw->csum = dalloc((size_t)(sw->n_cs + sw->n_cf));
+  sw->csum = dalloc((size_t)sw->n_cs +
+                    (size_t)mrvi_terms_parts(sw->kc[MRVI_FAST]));
   sw->gv_next = dalloc_raw(sw->threads > 1 ? ns + nf : 1);
   /* The rows' workspace of the implicit paths (the explicit path needs
    * none of it: explicit_sweep and explicit_p1). */
@@ -1388,14 +1393,13 @@ static int end_status(mrvi_sweep *sw, double sum, char *msg, size_t len) {
   return MRVI_OK;
 }
 
-/* The sum of x[i] + y[i] over part c of n_part parts of n rows
- * (mrvi_part_start): end_check's, in parts. */
+/* end_check's sum over part c of n_part parts of n rows (mrvi_part_start). */
 static double check_part(const double *x, const double *y, int c, int n,
                          int n_part) {
   const int i1 = mrvi_part_start(c + 1, n, n_part);
   double sum = 0.0;
   for (int i = mrvi_part_start(c, n, n_part); i < i1; i++)
-    sum += x[i] + y[i];
+    sum += x[i] * 0.0 + y[i] * 0.0;
   return sum;
 }
 
@@ -1864,25 +1868,19 @@ ALWAYS_INLINE void end_potential(mrvi_sweep *sw, const double *x,
     pe[f] -= w1 * gv[ns + f];
 }
 
-/* The end of a step (end_status), its sum in parts where explicit_step_par
- * takes it so (the same status for every thread count). */
+/* The end of a step (end_status): x 0 + p 0 summed over the new node, 0
+ * where every entry is finite, else NaN, in any order (explicit_step_par
+ * sums it in parts: the same status for every thread count). */
 ALWAYS_INLINE int end_check(mrvi_sweep *sw, const double *x, const double *xe,
                             const double *ps1, const double *pe, char *msg,
                             size_t len, const int ns, const int nf) {
   double sum = 0.0;
-  if (sw->n_cf > 0) { /* (in parts: explicit_step_par's sums) */
-    for (int c = 0; c < sw->n_cs; c++)
-      sum += check_part(x, ps1, c, ns, sw->n_cs);
-    for (int c = 0; c < sw->n_cf; c++)
-      sum += check_part(xe, pe, c, nf, sw->n_cf);
-  } else {
-    UNROLL
-    for (int s = 0; s < ns; s++)
-      sum += x[s] + ps1[s];
-    UNROLL
-    for (int f = 0; f < nf; f++)
-      sum += xe[f] + pe[f];
-  }
+  UNROLL
+  for (int s = 0; s < ns; s++)
+    sum += x[s] * 0.0 + ps1[s] * 0.0;
+  UNROLL
+  for (int f = 0; f < nf; f++)
+    sum += xe[f] * 0.0 + pe[f] * 0.0;
   return end_status(sw, sum, msg, len);
 }
 
