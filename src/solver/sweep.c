@@ -56,8 +56,8 @@ struct mrvi_sweep {
    * or 0 (mrvi_sweep_set_last_only: each node overwrites the last, which
    * every sweep reads entry by entry before it writes that entry). */
   size_t node_stride;
-  /* The explicit path's node updates on `threads` threads in the fast
-   * class's parts (nf at least two thread_chunk; else 1); with
+  /* The explicit path's step on `threads` threads (explicit_step_par) in
+   * the fast class's parts (nf at least two thread_chunk; else 1); with
    * node_stride 0 the nodes alternate between x's fast part and qalt (nf),
    * so that a node is written while other parts read the last one. */
   int threads;
@@ -463,13 +463,12 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   /* The gradients of large spring classes on threads (the same bits). */
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
-    s_ok = mrvi_terms_set_threads_spread(sw->kc[c], threads,
-                                         s->tuning.thread_chunk,
-                                         c == MRVI_SLOW ? 0 : nf,
-                                         sw->implicit ? HUGE_VAL : SPREAD) ==
-           MRVI_OK;
-  /* The explicit sweep's one parallel region per step: W's gradient by
-   * parts of the fast rows (explicit_nodes_par). */
+    s_ok =
+        mrvi_terms_set_threads_spread(
+            sw->kc[c], threads, s->tuning.thread_chunk, c == MRVI_SLOW ? 0 : nf,
+            sw->implicit ? HUGE_VAL : SPREAD) == MRVI_OK;
+  /* The explicit step's one parallel region: W's gradient by
+   * parts of the fast rows (explicit_step_par). */
   sw->threads = s_ok && !sw->implicit && !sw->wH &&
                         mrvi_terms_parts(sw->kc[MRVI_FAST]) > 0
                     ? threads
@@ -482,11 +481,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->qalt = dalloc(sw->threads > 1 ? nf : 1);
   if (sw->threads > 1) {
     const int chunk = s->tuning.thread_chunk;
-    sw->n_cs = (int)ns >= 2 * chunk ? mrvi_even_parts((int)ns, chunk)
-                                    : (ns > 0);
+    sw->n_cs =
+        (int)ns >= 2 * chunk ? mrvi_even_parts((int)ns, chunk) : (ns > 0);
   }
-  sw->csum = dalloc((size_t)sw->n_cs +
-                    (size_t)mrvi_terms_parts(sw->kc[MRVI_FAST]));
+  sw->csum =
+      dalloc((size_t)sw->n_cs + (size_t)mrvi_terms_parts(sw->kc[MRVI_FAST]));
   sw->gv_next = dalloc_raw(sw->threads > 1 ? ns + nf : 1);
   /* The rows' workspace of the implicit paths (the explicit path needs
    * none of it: explicit_sweep and explicit_p1). */
@@ -544,11 +543,12 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->del = dalloc(sw->linear ? nf : 0);
   sw->piv = calloc(sw->implicit && !sparse && nf > 0 ? nf : 1, sizeof(int));
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
-      !sw->gzero || !sw->gnode || !sw->qalt || !sw->csum || !sw->gv_next || !sw->cpass || !sw->zalt ||
-      !sw->gpt[0] || !sw->gpt[1] || !sw->rhs || !sw->F || !sw->fimp ||
-      !sw->dn || !sw->dff || !sw->rw || !sw->J || !sw->Hpt[0] || !sw->Hpt[1] ||
-      !sw->piv || !sw->jdinv || !sw->hd || !sw->off || !sw->dprev || !sw->dnx ||
-      !sw->fhist[0] || !sw->fhist[1] || !sw->fhist[2]) {
+      !sw->gzero || !sw->gnode || !sw->qalt || !sw->csum || !sw->gv_next ||
+      !sw->cpass || !sw->zalt || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
+      !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
+      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
+      !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
+      !sw->fhist[2]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -1573,8 +1573,8 @@ static int explicit_step_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
 #pragma omp for schedule(static) nowait
 #endif
     for (int c = 0; c < n_part; c++)
-      csum[n_cs + c] = end_part(sw, c, nf, n_part, gn + ns, fe ? fe + ns : NULL,
-                                xe, pe);
+      csum[n_cs + c] =
+          end_part(sw, c, nf, n_part, gn + ns, fe ? fe + ns : NULL, xe, pe);
   }
   sw->gnode_ok = nr > 0;
   sw->evals_w += g0 + (long)(p - 1) * (nl > 0 && nr == 0) + (long)p * (nr > 0);
