@@ -124,6 +124,21 @@ printf '%s\n' 0:0 1:1 2:2 3:3 4:4 5:5 | same_runs b.h5 j1.h5 &&
   same_table b.h5 j1.h5 && pass "--jobs 2 equals --jobs 1" ||
   fail "--jobs 2 equals --jobs 1"
 
+# --- --threads 2 without --jobs: jobs x threads within the cores ---
+if "$mrvi" check "$fpu" --threads 2 >/dev/null 2>&1; then
+  run_ok "batch --threads 2" "$mrvi" batch "$fpu" -o t2.h5 --threads 2 \
+    --vary integrator.micro_steps=1,2,4 --vary integrator.macro_step=0.01,0.02 \
+    --vary "$short"
+  cores=$(nproc)
+  want=$((cores / 2 > 1 ? cores / 2 : 1))
+  want=$((want < 6 ? want : 6))
+  if grep -q "6 cases on $want jobs\? x 2 threads" "$tmp/err.txt"; then
+    pass "--threads 2: $want jobs on $cores cores"
+  else
+    fail "--threads 2: $want jobs on $cores cores: $(grep cases "$tmp/err.txt")"
+  fi
+fi
+
 # --- --zip ---
 run_ok "batch --zip" "$mrvi" batch "$fpu" -o z.h5 -q --zip \
   --vary integrator.micro_steps=1,4 --vary integrator.macro_step=0.01,0.02 \

@@ -194,6 +194,36 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
               d, lc->law, lc->params[1], t, by_rec ? "records" : "columns");
         mrvi_terms_free(kt);
       }
+    /* ... and in parts doubled while records span them (the explicit
+     * path's, mrvi_terms_set_threads_spread): with no spread allowed,
+     * fewer parts (at least two) where records span the parts of 2 and
+     * a doubling leaves two (8 columns or records), none doubled with any
+     * allowed; the serial gradient bitwise (the parts in turn). */
+    for (int any = 0; any <= 1 && mrvi_threads_supported(); any++)
+      for (int by_rec = 0; by_rec <= 1; by_rec++) {
+        mrvi_terms *kt = NULL;
+        CHECK(mrvi_terms_create(m, elems, ne, NULL, &kt) == MRVI_OK &&
+                  mrvi_terms_set_threads_spread(kt, 2, 2, by_rec ? 0 : n,
+                                                any ? HUGE_VAL : 0.0) ==
+                      MRVI_OK,
+              "d %d %s: spread create", d, lc->law);
+        if (!kt)
+          continue;
+        const int plain = even_count(by_rec ? (ne + 1) / 2 : (n + 1) / 2);
+        const int np = mrvi_terms_parts(kt), cnt = by_rec ? ne : n;
+        CHECK(any || cnt < 8 ? np == plain : np >= 2 && np < plain,
+              "d %d %s: %d parts with %s spread, %d without", d, lc->law, np,
+              any ? "any" : "no", plain);
+        memset(gs, 0, (size_t)n * sizeof *gs);
+        for (int c = 0; c < np; c++) /* (each part its own columns) */
+          mrvi_terms_grad_part(kt, c, q, gs);
+        CHECK(memcmp(gs, g, (size_t)n * sizeof *g) == 0,
+              "d %d %s (%g): parts by %s, spread %s: the serial gradient "
+              "bitwise",
+              d, lc->law, lc->params[1], by_rec ? "records" : "columns",
+              any ? "any" : "none");
+        mrvi_terms_free(kt);
+      }
     const double val = mrvi_terms_value(kc, q);
     CHECK(fabs(val - val_ref) <= 1e-13 * fabs(val_ref),
           "d %d %s: value %.17g vs %.17g", d, lc->law, val, val_ref);

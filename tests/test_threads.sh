@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Threads (doc/performance.md, "Threads"): the planar lattice of
 # systems/lattice.yaml grown to 40 x 20 particles (1600 coordinates), its
-# threaded loops in parts of 16 coordinates (integrator.tuning.thread_chunk),
+# threaded loops in parts of 16 coordinates (integrator.tuning.thread_chunk;
+# fully-explicit's, the whole step in one region, doubled until few
+# records span them),
 # run by fully-explicit, explicit-slow and midpoint-midpoint on 1, 2 and 3
 # threads: /macro/q, /macro/p, /micro/q_fast, /micro/p_fast and the energies
 # (summed per chunk of elements) the same bit for bit.  A run on

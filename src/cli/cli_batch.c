@@ -61,7 +61,8 @@ const char mrvi_usage_batch[] =
     "      --control-std S   multi-start: perturb a seeded case's initial\n"
     "                        guess by S times normal numbers of its seed\n"
     "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
-    "                        cores available)\n"
+    "                        cores available divided by --threads, at\n"
+    "                        least 1)\n"
     "      --threads T       threads of each case's element loops (default:\n"
     "                        1, as for mrvi run: the jobs fill the cores);\n"
     "                        the results do not depend on T\n"
@@ -512,8 +513,13 @@ int mrvi_cmd_batch(int argc, char **argv) {
   plan.threads = case_threads(threads);
   int jobs_given = jobs;
   mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
-  if (rc == 0 && jobs == 0)
+  if (rc == 0 && jobs == 0) {
     jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
+    /* jobs x threads within the cores unless --jobs says */
+    jobs = plan.threads > 1 && jobs / plan.threads > 1 ? jobs / plan.threads
+           : plan.threads > 1                          ? 1
+                                                       : jobs;
+  }
   /* (mrvi_batch_mpi_jobs is collective: not called here again) */
 
   batch_ctx ctx = {.out = out,

@@ -381,6 +381,13 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
  * order, so the gradient is the serial one bitwise for every thread count.
  * Fewer than two parts: one thread.  MRVI_ENOMEM, else MRVI_OK. */
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
+/* mrvi_terms_set_threads in parts of chunk 2^j, the smallest j >= 0 at
+ * which the records listed in two parts or more add at most `spread` of
+ * the class's records (each is evaluated once per part), or at which a
+ * doubling would leave fewer than two parts: fewer, larger parts where
+ * many records span parts (a 3-D lattice's records between layers). */
+int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
+                                  int ncol, double spread);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
 /* The parts of a partitioned class (0: not partitioned), and g +=

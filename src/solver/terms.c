@@ -1245,6 +1245,44 @@ static int part_runs(mrvi_terms *kc, const int *first, int n_part, long total) {
   return MRVI_OK;
 }
 
+/* The entries of the parts of chunk (column_owners): each record once
+ * per part it writes a column of; -1 without memory. */
+static long part_entries(const mrvi_terms *kc, int chunk, int ncol) {
+  int n_col = 0, n_part = 0, part[6];
+  unsigned mask[6];
+  int *owner = column_owners(kc, chunk, ncol, &n_col, &n_part);
+  if (!owner)
+    return -1;
+  long total = 0;
+  for (int r = 0; r < kc->n; r++)
+    total += record_parts(&kc->qs[r], kc->dim, owner, part, mask);
+  free(owner);
+  return total;
+}
+
+/* A class of springs and anchors alone (mrvi_terms_set_threads). */
+static int springs_alone(const mrvi_terms *kc) {
+  int ns = 0;
+  for (int i = 0; i < kc->n; i++)
+    ns += kc->hooke_only || kc->spring_only || kc->t[i].runs > 0;
+  return ns == kc->n;
+}
+
+int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
+                                  int ncol, double spread) {
+  if (threads > 1 && mrvi_threads_supported() && !kc->part_first &&
+      chunk >= 1 && springs_alone(kc) &&
+      (kc->qs || hooke_records(kc) == MRVI_OK)) {
+    const int n = ncol > 0 ? ncol : kc->n;
+    for (; n / 2 >= 2 * chunk; chunk *= 2) { /* (two parts at least) */
+      const long total = part_entries(kc, chunk, ncol);
+      if (total < 0 || (double)total <= (1.0 + spread) * kc->n)
+        break;
+    }
+  }
+  return mrvi_terms_set_threads(kc, threads, chunk, ncol);
+}
+
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   if (!mrvi_threads_supported())
     threads = 1;
@@ -1253,10 +1291,7 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
     return MRVI_OK;
   }
   kc->threads = 1;
-  int ns = 0;
-  for (int i = 0; i < kc->n; i++)
-    ns += kc->hooke_only || kc->spring_only || kc->t[i].runs > 0;
-  if (threads <= 1 || chunk < 1 || ns != kc->n ||
+  if (threads <= 1 || chunk < 1 || !springs_alone(kc) ||
       (ncol > 0 ? ncol : kc->n) < 2 * chunk)
     return MRVI_OK;
   if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
