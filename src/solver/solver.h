@@ -264,6 +264,9 @@ int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
 const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);
 /* Evaluations of grad W (fast class) and grad V (slow class) so far. */
 void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v);
+/* sweep-cg: the chord's relaxation ratios summed since creation
+ * (mrvi_krylov_stats.sweep_chord_sum). */
+double mrvi_sweep_chord_sum(const mrvi_sweep *sw);
 /* Name of path MRVI_PATH_* ("general", "explicit", ...): the one list. */
 const char *mrvi_path_name(int path);
 

@@ -119,6 +119,8 @@ struct mrvi_sweep {
    * its D; lam, the ratio of the last two residuals of this step's chord
    * rows (0 at row 0). */
   double rho_c, lam;
+  /* lam summed over the updates that set it (mrvi_sweep_chord_sum) */
+  double lam_sum;
   /* chord_residual's pass in n_cpass parts of the rows (mrvi_even_parts
    * by tuning.thread_chunk; nf at least two chunks, else 0: one pass),
    * each part's maximum and sums in cpass (4 per part) added in order, on
@@ -331,6 +333,8 @@ void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v) {
   *w = sw->evals_w;
   *v = sw->evals_v;
 }
+
+double mrvi_sweep_chord_sum(const mrvi_sweep *sw) { return sw->lam_sum; }
 
 void mrvi_sweep_free(mrvi_sweep *sw) {
   if (!sw)
@@ -1040,8 +1044,10 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     }
   }
   const double r = isnan(t[1]) ? t[1] : t[0], on = t[2], oo = t[3];
-  if (track && oo > 0.0 && isfinite(on)) /* (the next update's lam) */
+  if (track && oo > 0.0 && isfinite(on)) { /* (the next update's lam) */
     sw->lam = fmin(sw->rho_c, fmax(-sw->rho_c, on / oo));
+    sw->lam_sum += sw->lam;
+  }
   return r;
 }
 
