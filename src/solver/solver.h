@@ -386,9 +386,10 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
 /* mrvi_terms_grad and mrvi_terms_grad_part on kc's Hooke springs with one
  * division per spring (u = d / r by the reciprocal of r, as in a
- * gradient-only class) instead of spring_eval's division per axis: the
- * last bits differ from mrvi_terms_eval's gradient. */
-void mrvi_terms_set_recip(mrvi_terms *kc);
+ * gradient-only class) instead of spring_eval's division per axis, where
+ * kc is Hooke springs alone (returns whether it is; else nothing
+ * changes): the last bits differ from mrvi_terms_eval's gradient. */
+int mrvi_terms_set_recip(mrvi_terms *kc);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
 /* The parts of a partitioned class (0: not partitioned), and g +=

@@ -1330,7 +1330,18 @@ void mrvi_terms_part_columns(const mrvi_terms *kc, int c, int *c0, int *c1) {
   *c1 = mrvi_part_start(c + 1, kc->ncol, kc->n_part);
 }
 
-void mrvi_terms_set_recip(mrvi_terms *kc) { kc->recip = 1; }
+int mrvi_terms_set_recip(mrvi_terms *kc) {
+  /* (a class of khooke springs alone: its parts take part_hooke_k on
+   * threads, with the serial loop's arithmetic) */
+  int all = kc->hooke_only;
+  if (!all && !kc->spring_only && kc->hooke_run && kc->n > 0) {
+    all = 1;
+    for (int i = 0; i < kc->n; i++)
+      all &= kc->t[i].runs > 0 && kc->hooke_run[kc->t[i].qs];
+  }
+  kc->recip = all;
+  return all;
+}
 
 int mrvi_terms_threads(const mrvi_terms *kc) {
   return kc->threads > 1 ? kc->threads : 1;
