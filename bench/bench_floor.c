@@ -100,7 +100,9 @@ static const char usage[] =
     "K macro steps (default 3) and 0.3 s; dT = 0.05, P = 10.  Implicit\n"
     "schemes run only up to --big N coordinates (default 1000000).\n"
     "--method runs one method alone (as the tables name it, e.g.\n"
-    "midpoint-midpoint).  --threads T: instead of the tables above, mrvi's\n"
+    "midpoint-midpoint) with the floor of its ratio (r-RESPA for the\n"
+    "explicit paths, Verlet for the implicit schemes).  --threads T: instead "
+    "of the tables above, mrvi's\n"
     "schemes on 1 and on T threads (settings.threads), alternating, wall\n"
     "time per macro step and the ratio; the other tables are on 1 thread.\n"
     "--tuning sets a tuning constant of mrvi's methods (mrvi.h,\n"
@@ -1017,6 +1019,18 @@ static void checks(int kind, int n, const options *o, int lammps) {
 /* ------------------------------------------------------------------------
  * Tables.
  * ---------------------------------------------------------------------- */
+/* Whether --method (only, or NULL: every method) runs method me: the
+ * method named, and the floor its ratio is taken against. */
+static int selected(const char *only, method me) {
+  if (!only || !strcmp(only, method_names[me]))
+    return 1;
+  const int explicit_path =
+      !strcmp(only, method_names[M_FE]) || !strcmp(only, method_names[M_ES]);
+  const int implicit =
+      !strcmp(only, method_names[M_MM]) || !strcmp(only, method_names[M_TM]);
+  return (me == M_RESPA && explicit_path) || (me == M_VERLET && implicit);
+}
+
 static double ratio(const result *a, const result *b) {
   return a->status == 0 && b->status == 0 && b->step > 0 ? a->step / b->step
                                                          : NAN;
@@ -1249,8 +1263,7 @@ int main(int argc, char **argv) {
           int is_lmp = me >= M_LMP_RESPA;
           int implicit = me == M_MM || me == M_TM;
           if (dead[me] || (is_lmp && (!lammps || k == 2)) ||
-              (only && strcmp(only, method_names[me])) ||
-              (implicit && n_list[ni] > o.big))
+              !selected(only, (method)me) || (implicit && n_list[ni] > o.big))
             continue;
           result x;
           if (is_lmp) {

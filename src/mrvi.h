@@ -984,6 +984,12 @@ typedef struct mrvi_krylov_stats {
    * Hessian) and of grad V over the slow class, for the cost model of the
    * benchmarks (doc/performance.md) */
   long sweep_evals_w, sweep_evals_v;
+  /* sweep-cg: the sum over the chord updates of the ratio of the last two
+   * residuals that relaxes the next one (doc/solver.md, "sweep-cg"): a
+   * diagnostic whose last bits depend on the order of the sums over the
+   * row, which tests compare across thread counts (the trajectory does
+   * not show them: the relaxation 1 / (1 - ratio) rounds them away) */
+  double sweep_chord_sum;
 } mrvi_krylov_stats;
 void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
                                   mrvi_krylov_stats *out);

@@ -577,6 +577,54 @@ static void test_chord(void) {
   free(text);
 }
 
+/* sweep-cg's chord on threads (doc/performance.md, "Threads"): the 40 x 20
+ * perturbed lattice (800 fast coordinates, moving everywhere) by
+ * explicit-slow with the chord's pass and the row ends in parts of 16
+ * coordinates, on 1, 2 and 3 threads: the trajectory and the sum of the
+ * chord's relaxation ratios (mrvi_krylov_stats.sweep_chord_sum, whose last
+ * bits follow the order of the sums over the parts: the trajectory does
+ * not show them) the same bit for bit.  Summing the parts in another
+ * order on more than one thread (an OpenMP reduction) fails here. */
+static void test_chord_threads(void) {
+  char *text = lattice(40, 20);
+  trajectory t[3];
+  memset(t, 0, sizeof t);
+  int ok = 1;
+  for (int k = 0; k < 3; k++) {
+    overrides o;
+    mrvi_system *sys =
+        load_text(text, set(&o, "explicit-slow", 5, 0.02, 1e-9, "auto"), 5);
+    t[k].ok = 0;
+    if (sys) {
+      sys->settings.threads = k + 1;
+      sys->settings.tuning.thread_chunk = 16;
+      run(sys, 6, &t[k]);
+    }
+    ok = ok && t[k].ok;
+    mrvi_system_free(sys);
+  }
+  if (ok) {
+    CHECK(!strcmp(t[0].path, "sweep-cg"), "chord threads: path %s", t[0].path);
+    CHECK(t[0].ks.sweep_chord_sum != 0.0, "chord threads: no relaxation");
+    const size_t n = (size_t)(t[0].steps + 1) * (size_t)t[0].n;
+    for (int k = 1; k < 3; k++) {
+      CHECK(!memcmp(t[0].q, t[k].q, n * sizeof(double)) &&
+                !memcmp(t[0].p, t[k].p, n * sizeof(double)),
+            "chord threads: %d threads, trajectory not 1's bit for bit", k + 1);
+      CHECK(!memcmp(&t[0].ks.sweep_chord_sum, &t[k].ks.sweep_chord_sum,
+                    sizeof(double)),
+            "chord threads: %d threads, chord sums %.17g against 1's %.17g",
+            k + 1, t[k].ks.sweep_chord_sum, t[0].ks.sweep_chord_sum);
+    }
+    printf("chord threads: sum of relaxation ratios %.17g on 1, 2, 3 "
+           "threads\n",
+           t[0].ks.sweep_chord_sum);
+  }
+  for (int k = 0; k < 3; k++)
+    release(&t[k]);
+  free(text);
+}
+
 /* schur-krylov's outer iteration (solver/outer.c, doc/solver.md) on the
  * 10 x 8 lattice at dT = 0.01, p = 5 (dt = 0.002: its fast rows' chord
  * contracts by about (omega dt)^2/4 = 0.024 per update, omega = 98), 10
@@ -671,6 +719,7 @@ static void test_outer(void) {
 
 int main(void) {
   test_chord();
+  test_chord_threads();
   test_choice();
   test_agree();
   test_iterations();

@@ -757,6 +757,14 @@ static void print_summary(const mrvi_system *sys, const mrvi_summary *sum,
         (double)ks->outer_evals /
             ((double)(ks->outer_steps + ks->outer_fallbacks) * s->micro_steps),
         ks->outer_fallbacks);
+  if (ks->sweep_chord_sum != 0.0 && sum->steps > 0)
+    /* (the sum to the last bit: its bits follow the order of the chord's
+     * sums over the row, the same on every thread count) */
+    printf("  %-23s%.2f gradient evaluations of W per micro step, "
+           "relaxation ratios summed %.17g\n",
+           "chord (sweep-cg)",
+           (double)ks->sweep_evals_w / ((double)sum->steps * s->micro_steps),
+           ks->sweep_chord_sum);
   if (ks->fallbacks > 0)
     fprintf(stderr,
             "warning: %ld linear solve%s fell back to a sparse LU (first: "

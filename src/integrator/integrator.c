@@ -1808,8 +1808,10 @@ void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
   else
     memset(out, 0, sizeof *out);
   out->newton_built = it->skrylov != NULL;
-  if (it->sweep)
+  if (it->sweep) {
     mrvi_sweep_evals(it->sweep, &out->sweep_evals_w, &out->sweep_evals_v);
+    out->sweep_chord_sum = mrvi_sweep_chord_sum(it->sweep);
+  }
   if (it->outer) {
     const mrvi_outer_stats *o = mrvi_outer_stats_of(it->outer);
     out->outer_fallbacks = o->failed;

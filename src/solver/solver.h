@@ -264,6 +264,9 @@ int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
 const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);
 /* Evaluations of grad W (fast class) and grad V (slow class) so far. */
 void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v);
+/* sweep-cg: the chord's relaxation ratios summed since creation
+ * (mrvi_krylov_stats.sweep_chord_sum). */
+double mrvi_sweep_chord_sum(const mrvi_sweep *sw);
 /* Name of path MRVI_PATH_* ("general", "explicit", ...): the one list. */
 const char *mrvi_path_name(int path);
 
@@ -388,6 +391,12 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
  * many records span parts (a 3-D lattice's records between layers). */
 int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
                                   int ncol, double spread);
+/* mrvi_terms_grad and mrvi_terms_grad_part on kc's Hooke springs with one
+ * division per spring (u = d / r by the reciprocal of r, as in a
+ * gradient-only class) instead of spring_eval's division per axis, where
+ * kc is Hooke springs alone (returns whether it is; else nothing
+ * changes): the last bits differ from mrvi_terms_eval's gradient. */
+int mrvi_terms_set_recip(mrvi_terms *kc);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
 /* The parts of a partitioned class (0: not partitioned), and g +=

@@ -93,10 +93,14 @@ struct mrvi_sweep {
   int gnode_ok;
   double *gpt[2];         /* grad_f W at the implicit points (converged) */
   double *rhs, *F, *fimp; /* row data, residual, last implicit force */
-  double *dn;             /* q^{m+1} - q^m */
-  double *dff;            /* row 0's free flight dt M^-1 rhs (predictor) */
-  double *J;              /* nf x nf */
-  double *Jinv, *del;     /* linear: J^-1 (nf x nf) and the update (nf) */
+  /* rhs's array; general_sweep points rhs at the row's momentum itself
+   * where that is the row's data (sweep-cg, one implicit point per
+   * interval, no control force: no copy) */
+  double *rhs_buf;
+  double *dn;         /* q^{m+1} - q^m */
+  double *dff;        /* row 0's free flight dt M^-1 rhs (predictor) */
+  double *J;          /* nf x nf */
+  double *Jinv, *del; /* linear: J^-1 (nf x nf) and the update (nf) */
   int *piv;
   /* sparse: J as the block sb instead (nf > dense_max), made when Newton
    * first needs it (sblock_ready; sb_dense_max its dense blocks' bound): a
@@ -108,19 +112,21 @@ struct mrvi_sweep {
    * chord iterate), mild (this step's rows extrapolate their predictor),
    * chord (they update by it; cleared where it contracts poorly), the
    * bound chord_jacobi_max; dprev: the iterate before a chord update;
-   * fhist: the converged implicit forces of the three rows before the last.
+   * fhist: the converged implicit forces of the four rows before the last.
    * fresh: W's class is springs and anchors alone, so that row 0 takes
    * the chord from its start (chord_residual's D and bound, hd and off
    * its workspace).  dnx: the next chord iterate, formed in the pass of
    * the residual (chord_residual) and taken by a rotation of dprev, dn and
    * dnx where the row goes on. */
-  double *jdinv, *dprev, *dnx, *fhist[3], *hd, *off;
+  double *jdinv, *dprev, *dnx, *fhist[4], *hd, *off;
   int mild, chord, fresh;
   double chord_max;
   /* The chord's relaxation (chord_residual): rho_c, the Gershgorin bound of
    * its D; lam, the ratio of the last two residuals of this step's chord
    * rows (0 at row 0). */
   double rho_c, lam;
+  /* lam summed over the updates that set it (mrvi_sweep_chord_sum) */
+  double lam_sum;
   /* chord_residual's pass in n_cpass parts of the rows (mrvi_even_parts
    * by tuning.thread_chunk; nf at least two chunks, else 0: one pass),
    * each part's maximum and sums in cpass (4 per part) added in order, on
@@ -131,6 +137,10 @@ struct mrvi_sweep {
    * parts' gradients still read zf), which then becomes zf. */
   int n_cpass, pthreads, cfused;
   double *cpass, *zalt;
+  /* The predictor of the next row formed at the end of the last one
+   * (end_predict), with its round-off scale. */
+  int predicted;
+  double pred_scale;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
 };
@@ -330,6 +340,8 @@ void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v) {
   *v = sw->evals_v;
 }
 
+double mrvi_sweep_chord_sum(const mrvi_sweep *sw) { return sw->lam_sum; }
+
 void mrvi_sweep_free(mrvi_sweep *sw) {
   if (!sw)
     return;
@@ -352,7 +364,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->zalt);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
-  free(sw->rhs);
+  free(sw->rhs_buf);
   free(sw->F);
   free(sw->fimp);
   free(sw->dn);
@@ -373,6 +385,7 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->fhist[0]);
   free(sw->fhist[1]);
   free(sw->fhist[2]);
+  free(sw->fhist[3]);
   free(sw);
 }
 
@@ -493,7 +506,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->zf = dalloc(ni);
   sw->gpt[0] = dalloc(ni);
   sw->gpt[1] = dalloc(sw->n_w > 1 ? ni : 0);
-  sw->rhs = dalloc(ni);
+  sw->rhs = sw->rhs_buf = dalloc(ni);
   sw->F = dalloc(ni);
   sw->fimp = dalloc(ni);
   sw->dn = dalloc(ni);
@@ -506,6 +519,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->chord_max = s->tuning.chord_jacobi_max;
   sw->jdinv = dalloc(sparse ? nf : 1);
   sw->fresh = sparse && mrvi_terms_springs_only(sw->kc[MRVI_FAST]);
+  /* The chord's gradients with one division per Hooke spring, as the
+   * explicit path's (the last bits differ from the Newton evaluations'). */
+  if (sparse)
+    mrvi_terms_set_recip(sw->kc[MRVI_FAST]);
   sw->hd = dalloc(sw->fresh ? nf : 1);
   sw->off = dalloc(sw->fresh ? nf : 1);
   sw->dprev = dalloc(sparse ? nf : 1);
@@ -513,6 +530,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fhist[0] = dalloc(sparse ? nf : 1);
   sw->fhist[1] = dalloc(sparse ? nf : 1);
   sw->fhist[2] = dalloc(sparse ? nf : 1);
+  sw->fhist[3] = dalloc(sparse ? nf : 1);
   const int chunk = s->tuning.thread_chunk;
   sw->n_cpass =
       sparse && (int)nf >= 2 * chunk ? mrvi_even_parts((int)nf, chunk) : 0;
@@ -548,7 +566,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
       !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
-      !sw->fhist[2]) {
+      !sw->fhist[2] || !sw->fhist[3]) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -801,38 +819,69 @@ static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
 }
 
 /* The predictor of row m >= 1 of sweep-cg in the mild regime (sw->mild):
- * the implicit force extrapolated from the rows before (cubic from row 4
- * on, quadratic at row 3, linear at row 2, held fixed at row 1) instead
- * of held fixed, so that the row residual r0 = fimp_pred - fimp(dn_pred)
- * is the force's fourth difference over the micro steps, not its first.
- * Measured on the benchmark lattice (bench_floor, lattice2d, n = 1012,
- * dT = 0.05, p = 10): r0 8.3e-2 held fixed, 2.4e-2 linear, 6.6e-3
- * quadratic, 1.3e-3 cubic (medians).  The
- * history holds only rows of the current step (a step depends on (q_k,
- * p_k) alone).  fimp: the last row's converged implicit force.  In the
- * same pass (one pass over the row instead of three): the point's
- * configuration zf = qm + cB dn where cB is not 0 (the chord's first
- * iterate), and the row's round-off scale, returned (solve_implicit). */
+ * the implicit force extrapolated from the rows before (of order q: quartic
+ * from row 5 on, cubic at row 4, quadratic at row 3, linear at row 2, held
+ * fixed at row 1) instead of held fixed, so that the row residual r0 =
+ * fimp_pred - fimp(dn_pred) is the force's fifth difference over the
+ * micro steps, not its first.  Measured on the benchmark lattice
+ * (bench_floor, lattice2d, n = 1012, dT = 0.05, p = 10): r0 8.3e-2 held
+ * fixed, 2.4e-2 linear, 6.6e-3 quadratic, 1.3e-3 cubic (medians); the
+ * quartic leaves the chord rows of 10^5 coordinates within the tolerance
+ * after three updates more often (doc/performance.md, "explicit-slow: the
+ * cost model, fused row ends").  The history holds only rows of the
+ * current step (a step depends on (q_k, p_k) alone).  f1: the last row's
+ * converged implicit force, f2..f5 the rows' before it. */
+enum { PREDICTOR_ORDER = 5 };
+ALWAYS_INLINE double predicted_force(int q, double f1, double f2, double f3,
+                                     double f4, double f5) {
+  if (q == 2)
+    return 2.0 * f1 - f2;
+  if (q == 3)
+    return 3.0 * f1 - 3.0 * f2 + f3;
+  if (q == 4)
+    return 4.0 * f1 - 6.0 * f2 + 4.0 * f3 - f4;
+  if (q == 5)
+    return 5.0 * f1 - 10.0 * f2 + 10.0 * f3 - 5.0 * f4 + f5;
+  return f1;
+}
+
+/* The history moves one row on: the last force becomes fhist[0], and
+ * fimp takes the oldest row's array (every path writes fimp whole before
+ * it reads it). */
+static void rotate_history(mrvi_sweep *sw) {
+  double *t = sw->fhist[3];
+  sw->fhist[3] = sw->fhist[2];
+  sw->fhist[2] = sw->fhist[1];
+  sw->fhist[1] = sw->fhist[0];
+  sw->fhist[0] = sw->fimp;
+  sw->fimp = t;
+}
+
+/* The order of row m's extrapolation. */
+static int predictor_order(const mrvi_sweep *sw, int m) {
+  return sw->mild ? (m >= PREDICTOR_ORDER ? PREDICTOR_ORDER : m) : 1;
+}
+
+/* Row m's predictor (above) where the last row's end did not form it
+ * (end_predict): the displacement dn, in the same pass (one pass over the
+ * row instead of three) the point's configuration zf = qm + cB dn where
+ * cB is not 0 (the chord's first iterate), and the row's round-off scale,
+ * returned (solve_implicit). */
 static double extrapolated_predictor(mrvi_sweep *sw, int m,
                                      const double *restrict qm,
                                      double *restrict dn, double cB) {
-  const int nf = sw->nf, q = sw->mild ? (m >= 4 ? 4 : m) : 1;
+  const int nf = sw->nf, q = predictor_order(sw, m);
   const double dt = sw->st->dt;
   const double *restrict f1 = sw->fimp, *restrict f2 = sw->fhist[0],
                          *restrict f3 = sw->fhist[1],
-                         *restrict f4 = sw->fhist[2];
+                         *restrict f4 = sw->fhist[2],
+                         *restrict f5 = sw->fhist[3];
   const double *restrict rhs = sw->rhs, *restrict minv = sw->minv_f,
                          *restrict mf = sw->m_f, *restrict rw = sw->rw;
   double *restrict zf = sw->zf;
   double scale = 0.0;
   for (int f = 0; f < nf; f++) {
-    double fp = f1[f];
-    if (q == 2)
-      fp = 2.0 * f1[f] - f2[f];
-    else if (q == 3)
-      fp = 3.0 * f1[f] - 3.0 * f2[f] + f3[f];
-    else if (q == 4)
-      fp = 4.0 * f1[f] - 6.0 * f2[f] + 4.0 * f3[f] - f4[f];
+    const double fp = predicted_force(q, f1[f], f2[f], f3[f], f4[f], f5[f]);
     dn[f] = dt * minv[f] * (rhs[f] - fp);
     if (cB != 0.0)
       zf[f] = 1.0 * qm[f] + cB * dn[f];
@@ -840,14 +889,7 @@ static double extrapolated_predictor(mrvi_sweep *sw, int m,
     const double v = (fabs(rhs[f]) + 4.0 * mf[f] * fabs(qm[f]) / dt) * rw[f];
     scale = v > scale ? v : scale;
   }
-  /* The history moves one row on: the last force becomes fhist[0], and
-   * fimp takes the oldest row's array (every path writes fimp whole before
-   * it reads it). */
-  double *t = sw->fhist[2];
-  sw->fhist[2] = sw->fhist[1];
-  sw->fhist[1] = sw->fhist[0];
-  sw->fhist[0] = sw->fimp;
-  sw->fimp = t;
+  rotate_history(sw);
   return scale;
 }
 
@@ -878,19 +920,19 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
                               const double *restrict g, double om, double wc,
                               double cB, double *restrict zf, int f0,
                               const int nf, double out[4], const int unit,
-                              const int keep) {
+                              const int keep, const int inc) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
   double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
                    *restrict F = sw->F;
-  const mrvi_v2 vdt = v2_set(dt, dt);
+  const mrvi_v2 vdt = v2_set(dt, dt), vm = v2_set(mf[0], mf[0]);
   mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
   int f = f0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
     const mrvi_v2 d = v2_load(dn + f);
-    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
+    const mrvi_v2 mv = v2_div(v2_mul(inc ? v2_load(mf + f) : vm, d), vdt);
     const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
     const mrvi_v2 a = unit ? v2_abs(Ff) : v2_mul(v2_abs(Ff), v2_load(rw + f));
     const mrvi_v2 dx = v2_add(d, v2_mul(v2_scale(om, v2_load(jd + f)), Ff));
@@ -911,7 +953,7 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
     const double fi = 0.0 + wc * g[f];
     if (keep)
       fimp[f] = fi;
-    const double Ff = rhs[f] - mf[f] * dn[f] / dt - fi;
+    const double Ff = rhs[f] - mf[inc ? f : 0] * dn[f] / dt - fi;
     dnx[f] = dn[f] + om * jd[f] * Ff;
     zf[f] = 1.0 * qm[f] + cB * dnx[f];
     on += Ff * F[f];
@@ -927,18 +969,21 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
   out[3] = oo;
 }
 
-/* chord_pass over rows [f0, f1) in its three variants, the next
- * configuration into zn. */
+/* chord_pass over rows [f0, f1) in its four variants, the next
+ * configuration into zn: the absolute criterion with one point per
+ * interval (the common case) with every fast mass read from entry 0 where
+ * they are equal (sw->mass_inc 0: a stream fewer) or from its own entry,
+ * and the general pass. */
 static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
                             const double *g, double om, double wc, double cB,
                             double *zn, int f0, int f1, double out[4]) {
   const int unit = sw->rw_one, keep = sw->n_w != 1;
-  if (unit && !keep)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0);
-  else if (unit)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 1);
+  if (unit && !keep && !sw->mass_inc)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0);
+  else if (unit && !keep)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 1);
   else
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 0, 1);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1);
 }
 
 /* The row residual of a chord iterate with one implicit point, whose
@@ -984,7 +1029,8 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     for (int f = 0; f < nf; f++) { /* (M/dt added as mrvi_sblock_solve) */
       const double d = sw->hd[f] + (1.0 / dt) * sw->m_f[f];
       sw->jdinv[f] = 1.0 / d;
-      bound = d > 0.0 ? fmax(bound, sw->off[f] * sw->jdinv[f]) : HUGE_VAL;
+      const double b = sw->off[f] * sw->jdinv[f]; /* (fmax's NaN rule) */
+      bound = d > 0.0 ? (b > bound ? b : bound) : HUGE_VAL;
     }
     *rho = sw->rho_c = bound;
   } else if (!sw->cfused) {
@@ -1022,8 +1068,10 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     }
   }
   const double r = isnan(t[1]) ? t[1] : t[0], on = t[2], oo = t[3];
-  if (track && oo > 0.0 && isfinite(on)) /* (the next update's lam) */
+  if (track && oo > 0.0 && isfinite(on)) { /* (the next update's lam) */
     sw->lam = fmin(sw->rho_c, fmax(-sw->rho_c, on / oo));
+    sw->lam_sum += sw->lam;
+  }
   return r;
 }
 
@@ -1065,8 +1113,10 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
   int pred = !first && sw->sparse, zf_ok = 0;
   if (pred) {
     zf_ok = sw->chord && sw->imp >= 0;
-    scale =
-        extrapolated_predictor(sw, m, qm, dn, zf_ok ? sw->cB[sw->imp] : 0.0);
+    scale = sw->predicted ? sw->pred_scale
+                          : extrapolated_predictor(
+                                sw, m, qm, dn, zf_ok ? sw->cB[sw->imp] : 0.0);
+    sw->predicted = 0;
   } else {
     for (int pass = first ? 0 : 1; pass < 2; pass++) {
       for (int f = 0; f < nf; f++)
@@ -1651,7 +1701,7 @@ ALWAYS_INLINE int linear_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double wb = sw->w[0] * sw->cB[0];
   const double *mf = sw->m_f, *Jinv = sw->Jinv, *H = sw->Hpt[0];
   double *g = sw->gpt[0], *fimp = sw->fimp, *F = sw->F, *del = sw->del;
-  double *rhs = sw->rhs, *dn = sw->dn, r = 0.0;
+  double *rhs = sw->rhs_buf, *dn = sw->dn, r = 0.0;
   const size_t stride = sw->node_stride;
   const double *pm = pf;
   for (int m = 0; m < p; m++) {
@@ -1769,19 +1819,139 @@ static void node_momentum(int nf, double dt, double wb, const double *qm,
   }
 }
 
+/* The end of row m and the predictor of row m + 1 in one pass over the
+ * entries [f0, f1) (sweep-cg with one implicit point per interval and no
+ * control force, whose row m + 1 has p^{f,m+1} for its rhs): the node
+ * qn, its momentum pn and the implicit force (node_momentum's
+ * arithmetic), then row m + 1's predicted displacement over dn, its
+ * configuration zf where cB is not 0 and its round-off scale, returned
+ * (extrapolated_predictor's arithmetic of order q, from the values just
+ * formed): one pass over the row instead of three, and no copy of the
+ * momentum.  qn may be qm and pn the row's own momentum (each entry is
+ * read before it is written).  The caller moves the history on. */
+/* predicted_force on a pair of entries (the same operations lane by lane). */
+ALWAYS_INLINE mrvi_v2 v2_predicted_force(int q, mrvi_v2 f1, mrvi_v2 f2,
+                                         mrvi_v2 f3, mrvi_v2 f4, mrvi_v2 f5) {
+  if (q == 2)
+    return v2_sub(v2_scale(2.0, f1), f2);
+  if (q == 3)
+    return v2_add(v2_sub(v2_scale(3.0, f1), v2_scale(3.0, f2)), f3);
+  if (q == 4)
+    return v2_sub(
+        v2_add(v2_sub(v2_scale(4.0, f1), v2_scale(6.0, f2)), v2_scale(4.0, f3)),
+        f4);
+  if (q == 5)
+    return v2_add(v2_sub(v2_add(v2_sub(v2_scale(5.0, f1), v2_scale(10.0, f2)),
+                                v2_scale(10.0, f3)),
+                         v2_scale(5.0, f4)),
+                  f5);
+  return f1;
+}
+
+static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
+                          double *dn, const double *g, double *qn, double *pn,
+                          int f0, int f1) {
+  const double dt = sw->st->dt, wb = sw->w[0] * sw->cB[0];
+  const double wc = sw->w[0] * sw->cA[0];
+  const size_t inc = (size_t)sw->mass_inc;
+  const int unit = sw->rw_one;
+  const double *restrict f2 = sw->fhist[0], *restrict f3 = sw->fhist[1],
+                         *restrict f4 = sw->fhist[2],
+                         *restrict f5 = sw->fhist[3];
+  const double *restrict minv = sw->minv_f, *restrict mf = sw->m_f,
+                         *restrict rw = sw->rw;
+  double *restrict fimp = sw->fimp, *restrict zf = sw->zf;
+  const mrvi_v2 vdt = v2_set(dt, dt), vm = v2_set(mf[0], mf[0]);
+  const mrvi_v2 vminv = v2_set(minv[0], minv[0]);
+  mrvi_v2 vs = v2_zero();
+  int f = f0;
+  for (; f + 2 <= f1; f += 2) {
+    const mrvi_v2 d = v2_load(dn + f), gf = v2_load(g + f);
+    const mrvi_v2 m = inc ? v2_load(mf + f) : vm;
+    const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, gf));
+    const mrvi_v2 q1 = v2_add(v2_load(qm + f), d);
+    const mrvi_v2 p1 = v2_sub(v2_div(v2_mul(m, d), vdt), v2_scale(wb, gf));
+    v2_store(fimp + f, fi);
+    v2_store(qn + f, q1);
+    v2_store(pn + f, p1);
+    const mrvi_v2 fp = v2_predicted_force(
+        q, fi, q >= 2 ? v2_load(f2 + f) : fi, q >= 3 ? v2_load(f3 + f) : fi,
+        q >= 4 ? v2_load(f4 + f) : fi, q >= 5 ? v2_load(f5 + f) : fi);
+    const mrvi_v2 mi = inc ? v2_load(minv + f) : vminv;
+    const mrvi_v2 dp = v2_mul(v2_scale(dt, mi), v2_sub(p1, fp));
+    v2_store(dn + f, dp);
+    if (cB != 0.0)
+      v2_store(zf + f, v2_add(v2_scale(1.0, q1), v2_scale(cB, dp)));
+    const mrvi_v2 a =
+        v2_add(v2_abs(p1), v2_div(v2_mul(v2_scale(4.0, m), v2_abs(q1)), vdt));
+    vs = v2_max(unit ? a : v2_mul(a, v2_load(rw + f)), vs);
+  }
+  double scale = v2_lo(vs) > v2_hi(vs) ? v2_lo(vs) : v2_hi(vs);
+  for (; f < f1; f++) {
+    const double d = dn[f], gf = g[f], m = mf[inc * (size_t)f];
+    const double fi = 0.0 + wc * gf;
+    const double q1 = qm[f] + d, p1 = m * d / dt - wb * gf;
+    fimp[f] = fi;
+    qn[f] = q1;
+    pn[f] = p1;
+    const double fp = predicted_force(q, fi, f2[f], f3[f], f4[f], f5[f]);
+    const double dp = dt * minv[inc * (size_t)f] * (p1 - fp);
+    dn[f] = dp;
+    if (cB != 0.0)
+      zf[f] = 1.0 * q1 + cB * dp;
+    const double a = fabs(p1) + 4.0 * m * fabs(q1) / dt;
+    const double v = unit ? a : a * rw[f]; /* (rw 1: the same bits) */
+    scale = v > scale ? v : scale;
+  }
+  return scale;
+}
+
+/* end_predict over the row, in the parts of chord_residual's pass on
+ * threads (the largest scale is exact in any order), the history moved
+ * on and the predictor kept for row m + 1 (solve_implicit). */
+static void end_predict_row(mrvi_sweep *sw, int m, const double *qm, double *qn,
+                            double *pn) {
+  const int nf = sw->nf, n_c = sw->n_cpass, q = predictor_order(sw, m + 1);
+  const double cB = sw->chord && sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
+  double *dn = sw->dn, scale = 0.0;
+  const double *g = sw->gpt[0];
+  if (n_c > 0 && sw->pthreads > 1) {
+    double *cp = sw->cpass;
+    MRVI_PARALLEL_FOR(sw->pthreads)
+    for (int c = 0; c < n_c; c++)
+      cp[4 * c] =
+          end_predict(sw, q, cB, qm, dn, g, qn, pn, mrvi_part_start(c, nf, n_c),
+                      mrvi_part_start(c + 1, nf, n_c));
+    for (int c = 0; c < n_c; c++)
+      scale = cp[4 * c] > scale ? cp[4 * c] : scale;
+  } else {
+    scale = end_predict(sw, q, cB, qm, dn, g, qn, pn, 0, nf);
+  }
+  rotate_history(sw);
+  sw->pred_scale = scale;
+  sw->predicted = 1;
+}
+
 static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
                          double *pf, int *iterations, double *residual,
                          char *msg, size_t len) {
   const int ns = sw->ns, nf = sw->nf, p = sw->p;
   const double dt = st->dt;
-  const double *pm = pf;
+  double *pm = pf;
   const size_t stride = sw->node_stride;
+  /* sweep-cg with one implicit point per interval and no control force:
+   * rhs is the row's momentum, and each row's end forms the next row's
+   * predictor (end_predict). */
+  const int own = sw->sparse && sw->implicit && sw->n_w == 1 && !st->f_rows;
+  sw->predicted = 0;
   for (int m = 0; m < p; m++) {
     const double *qm = m == 0 ? st->qf0 : x + ns + (size_t)(m - 1) * stride;
     double *qn = x + ns + (size_t)m * stride;
     /* rhs = p^{f,m} (+ control force) - forces of the points at node m
      * (cB = 0). */
-    memcpy(sw->rhs, pm, (size_t)nf * sizeof(double));
+    sw->rhs = own ? pm : sw->rhs_buf;
+    if (!own)
+      memcpy(sw->rhs, pm, (size_t)nf * sizeof(double));
     const double *fm = force_row(st, m);
     for (int f = 0; fm && f < nf; f++)
       sw->rhs[f] += fm[f];
@@ -1818,6 +1988,11 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     /* p^{f,m+1} (eq:pkfm+): M v_m - sum w cB grad W of interval m. */
     double *pn = pf + (size_t)m * stride;
     sw->gnode_ok = 0;
+    if (own && m + 1 < p) {
+      end_predict_row(sw, m, qm, qn, pn);
+      pm = pn;
+      continue;
+    }
     if (sw->implicit && sw->n_w == 1) { /* (midpoint: one pass) */
       node_momentum(nf, dt, sw->w[0] * sw->cB[0], qm, sw->dn, sw->m_f,
                     sw->gpt[0], qn, pn, sw->w[0] * sw->cA[0],

@@ -115,6 +115,10 @@ struct mrvi_terms {
   double *vpart;
   int threads, chunk, n_part, ncol;
   int part_hooke; /* every record a khooke spring: part_hooke_k on qh */
+  /* mrvi_terms_set_recip: mrvi_terms_grad's and mrvi_terms_grad_part's
+   * khooke runs with one division per spring (hooke_grad1's arithmetic),
+   * as a gradient-only class has them */
+  int recip;
   int *part_first, *part_rec, *part_run;
   unsigned char *part_mask;
 };
@@ -831,7 +835,8 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
       continue;
     }
     if (t->runs > 0 && !J && unit && kc->hooke_run[t->qs]) {
-      hooke_grad(kc->qh + t->qs, t->runs, z, g, kc->dim);
+      (kc->recip ? hooke_grad1 : hooke_grad)(kc->qh + t->qs, t->runs, z, g,
+                                             kc->dim);
       it += t->runs - 1;
       continue;
     }
@@ -1127,11 +1132,12 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
   const int *run = kc->part_run + r0;
-  if (kc->part_hooke && kc->hooke_only && kc->dim == 2)
+  const int one = kc->hooke_only || kc->recip;
+  if (kc->part_hooke && one && kc->dim == 2)
     part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 1);
-  else if (kc->part_hooke && kc->hooke_only && kc->dim == 3)
+  else if (kc->part_hooke && one && kc->dim == 3)
     part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 3, 1);
-  else if (kc->part_hooke && kc->hooke_only)
+  else if (kc->part_hooke && one)
     part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 1, 1);
   else if (kc->part_hooke && kc->dim == 2)
     part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 0);
@@ -1357,6 +1363,19 @@ int mrvi_terms_parts(const mrvi_terms *kc) {
 void mrvi_terms_part_columns(const mrvi_terms *kc, int c, int *c0, int *c1) {
   *c0 = mrvi_part_start(c, kc->ncol, kc->n_part);
   *c1 = mrvi_part_start(c + 1, kc->ncol, kc->n_part);
+}
+
+int mrvi_terms_set_recip(mrvi_terms *kc) {
+  /* (a class of khooke springs alone: its parts take part_hooke_k on
+   * threads, with the serial loop's arithmetic) */
+  int all = kc->hooke_only;
+  if (!all && !kc->spring_only && kc->hooke_run && kc->n > 0) {
+    all = 1;
+    for (int i = 0; i < kc->n; i++)
+      all &= kc->t[i].runs > 0 && kc->hooke_run[kc->t[i].qs];
+  }
+  kc->recip = all;
+  return all;
 }
 
 int mrvi_terms_threads(const mrvi_terms *kc) {
