@@ -106,7 +106,7 @@ struct mrvi_outer {
   double *mdt, *dtm;     /* M^f/dt, dt/M^f */
   int eq_f;              /* the fast masses are equal: mdt[0], dtm[0] for
                             every column (bitwise each column's) */
-  double *zero, *one;    /* nf zeros, nf ones */
+  double *zero;          /* nf zeros */
   double *z;             /* packed configuration */
   double *pm, *fexp, *F; /* p^{f,m}, the forces of node-m sites, F_m */
   double *fs;            /* slow-row force (ns) */
@@ -146,7 +146,6 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->mdt);
   free(o->dtm);
   free(o->zero);
-  free(o->one);
   free(o->z);
   free(o->pm);
   free(o->fexp);
@@ -198,7 +197,6 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->mdt = dalloc(nf);
   o->dtm = dalloc(nf);
   o->zero = calloc(nf > 0 ? nf : 1, sizeof(double));
-  o->one = dalloc(nf);
   o->z = dalloc(n);
   o->pm = dalloc(nf);
   o->fexp = dalloc(nf);
@@ -212,7 +210,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->dF = dalloc(ns * OUTER_AA);
   if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send ||
       !o->minv_s || !o->m_s || !o->minv_f || !o->m_f || !o->mdt || !o->dtm ||
-      !o->zero || !o->one || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
+      !o->zero || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
       !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp || !o->dX ||
       !o->dF) {
     free(col);
@@ -233,7 +231,6 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     o->minv_f[f] = 1.0 / o->m_f[f];
     o->mdt[f] = o->m_f[f] / st->dt;
     o->dtm[f] = st->dt / o->m_f[f];
-    o->one[f] = 1.0;
   }
   /* each class's terms split by their columns (the order kept); the
    * gradients of large spring classes on threads, in parts by records
@@ -537,10 +534,15 @@ row_pass(mrvi_outer *o, int lo, int hi, int one, double w1, const double *g1,
          const int want_c, const int eq) {
   double rl[4] = {0, 0, 0, 0}, sl[4] = {0, 0, 0, 0}, cl[4] = {0, 0, 0, 0};
   const int hi4 = lo + ((hi - lo) & ~3);
-  for (int f0 = lo; f0 < hi4; f0 += 4)
-    for (int l = 0; l < 4; l++)
-      row_entry(o, f0 + l, one, w1, g1, dn, dp, w, rl + l, sl + l,
-                want_c ? cl + l : NULL, eq);
+  for (int f0 = lo; f0 < hi4; f0 += 4) {
+    row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL, eq);
+    row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1,
+              want_c ? cl + 1 : NULL, eq);
+    row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2,
+              want_c ? cl + 2 : NULL, eq);
+    row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3,
+              want_c ? cl + 3 : NULL, eq);
+  }
   for (int f = hi4; f < hi; f++)
     row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL, eq);
   v[0] = fmax(fmax(rl[0], rl[1]), fmax(rl[2], rl[3]));
