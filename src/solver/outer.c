@@ -333,6 +333,9 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     parts |= (o->kc[c] && mrvi_terms_parts(o->kc[c]) > 0) ||
              (o->kss[c] && mrvi_terms_parts(o->kss[c]) > 0);
   o->n_lanes = parts && st->threads > 1 ? st->threads : 1;
+#ifndef _OPENMP
+  o->n_lanes = 1;
+#endif
   o->lanes = calloc((size_t)o->n_lanes, sizeof *o->lanes);
   o->red = dalloc(2 * RED * (size_t)o->n_lanes);
   o->grp_sweeps = calloc((size_t)o->n_lanes * (size_t)(o->n_grps + 1),
