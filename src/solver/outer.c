@@ -505,25 +505,26 @@ static const double *slow_site(mrvi_outer *o, lane *L, const mrvi_step *st,
   return G->g;
 }
 
-/* Entry f of the row F_m = (p^{f,m} - the node-m sites' forces, or F's
- * partial sum where more than one site is inside: one = 0) - w1 g1 -
+/* Entry f of the row F_m = (p^{f,m} - the node-m sites' forces fx (NULL:
+ * none, zeros), or F's partial sum where more than one site is inside:
+ * one = 0) - w1 g1 -
  * M^f (dn - dp)/dt into o->F, its weighted size (w NULL: 1) into the
  * running maximum *r and the sum *sum, and with c the size of its largest
  * term into *c (eq: the masses equal, mdt[0] for every column). */
 static inline __attribute__((always_inline)) void
-row_entry(mrvi_outer *o, int f, int one, double w1, const double *g1,
-          const double *dn, const double *dp, const double *w, double *r,
-          double *sum, double *c, const int eq) {
+row_entry(mrvi_outer *o, const double *fx, int f, int one, double w1,
+          const double *g1, const double *dn, const double *dp, const double *w,
+          double *r, double *sum, double *c, const int eq) {
   const double mv = (eq ? o->mdt[0] : o->mdt[f]) * (dn[f] - dp[f]);
-  const double Ff = (one ? o->pm[f] - o->fexp[f] : o->F[f]) - w1 * g1[f] - mv;
+  const double x = fx ? fx[f] : 0.0;
+  const double Ff = (one ? o->pm[f] - x : o->F[f]) - w1 * g1[f] - mv;
   o->F[f] = Ff;
   const double wf = w ? w[f] : 1.0, a = fabs(Ff) * wf;
   *r = a > *r ? a : *r;
   *sum += a;
   if (c) {
-    const double fi = o->pm[f] - o->fexp[f] - mv - Ff;
-    const double t =
-        (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * wf;
+    const double fi = o->pm[f] - x - mv - Ff;
+    const double t = (fabs(o->pm[f]) + fabs(x) + fabs(fi) + fabs(mv)) * wf;
     *c = t > *c ? t : *c;
   }
 }
@@ -532,22 +533,23 @@ row_entry(mrvi_outer *o, int f, int one, double w1, const double *g1,
  * partial maxima and sums: v = (max, sum, max of the largest terms where
  * want_c). */
 static inline __attribute__((always_inline)) void
-row_pass(mrvi_outer *o, int lo, int hi, int one, double w1, const double *g1,
-         const double *dn, const double *dp, const double *w, double v[3],
-         const int want_c, const int eq) {
+row_pass(mrvi_outer *o, const double *fx, int lo, int hi, int one, double w1,
+         const double *g1, const double *dn, const double *dp, const double *w,
+         double v[3], const int want_c, const int eq) {
   double rl[4] = {0, 0, 0, 0}, sl[4] = {0, 0, 0, 0}, cl[4] = {0, 0, 0, 0};
   const int hi4 = lo + ((hi - lo) & ~3);
   for (int f0 = lo; f0 < hi4; f0 += 4) {
-    row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL, eq);
-    row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1,
+    row_entry(o, fx, f0, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL,
+              eq);
+    row_entry(o, fx, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1,
               want_c ? cl + 1 : NULL, eq);
-    row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2,
+    row_entry(o, fx, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2,
               want_c ? cl + 2 : NULL, eq);
-    row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3,
+    row_entry(o, fx, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3,
               want_c ? cl + 3 : NULL, eq);
   }
   for (int f = hi4; f < hi; f++)
-    row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL, eq);
+    row_entry(o, fx, f, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL, eq);
   v[0] = fmax(fmax(rl[0], rl[1]), fmax(rl[2], rl[3]));
   v[1] = sl[0] + sl[1] + sl[2] + sl[3];
   v[2] = fmax(fmax(cl[0], cl[1]), fmax(cl[2], cl[3]));
@@ -573,9 +575,14 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
   int lo, hi, slo, shi;
   span(L, nf, &lo, &hi);
   span(L, ns, &slo, &shi);
-  /* the sites at node m (cB = 0) are known */
+  /* the sites at node m (cB = 0) are known: their forces fx (NULL: none) */
   int inside = 0;
-  memset(o->fexp + lo, 0, (size_t)(hi - lo) * sizeof(double));
+  const double *fx = NULL;
+  for (site *S = s0; S < s1; S++)
+    if (S->cB == 0.0)
+      fx = o->fexp;
+  if (fx)
+    memset(o->fexp + lo, 0, (size_t)(hi - lo) * sizeof(double));
   for (site *S = s0; S < s1; S++) {
     if (S->cB != 0.0) {
       inside |= S->cA != 0.0;
@@ -596,8 +603,8 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
      * iterate on, dn takes the chord update first (eval_site) */
     if (!inside && it == 0)
       for (int f = lo; f < hi; f++)
-        dn[f] =
-            (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
+        dn[f] = (dm ? dm[f] : 0.0) +
+                dt * o->minv_f[f] * (o->pm[f] - (fx ? fx[f] : 0.0));
     /* F = p^{f,m} - the forces of the sites (the first inside one's in
      * the pass below) - M^f (d^{m+1} - d^m)/dt */
     const double *g1 = o->zero;
@@ -613,7 +620,7 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
         w1 = S->w * S->cA;
         if (n_inside > 1)
           for (int f = lo; f < hi; f++)
-            F[f] = o->pm[f] - o->fexp[f];
+            F[f] = o->pm[f] - (fx ? fx[f] : 0.0);
         continue;
       }
       const double wc = S->w * S->cA;
@@ -627,13 +634,13 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
     double v[3];
     const int one = n_inside <= 1;
     if (it == 0 && o->eq_f)
-      row_pass(o, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 1);
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 1);
     else if (it == 0)
-      row_pass(o, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 0);
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 0);
     else if (o->eq_f)
-      row_pass(o, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 1);
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 1);
     else
-      row_pass(o, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 0);
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 0);
     team_reduce(o, L, v);
     r = v[0];
     if (isnan(v[1]))
