@@ -4,9 +4,11 @@
 # threaded loops in parts of 16 coordinates (integrator.tuning.thread_chunk;
 # fully-explicit's, the whole step in one region, doubled until few
 # records span them),
-# run by fully-explicit, explicit-slow and midpoint-midpoint on 1, 2 and 3
-# threads: /macro/q, /macro/p, /micro/q_fast, /micro/p_fast and the energies
-# (summed per chunk of elements) the same bit for bit.  A run on
+# run by fully-explicit, explicit-slow, midpoint-midpoint and
+# trapezoidal-midpoint (schur-krylov's outer iteration: one parallel region
+# per step, its vector loops in spans and its gradients in parts) on 1, 2
+# and 3 threads: /macro/q, /macro/p, /micro/q_fast, /micro/p_fast and the
+# energies (summed per chunk of elements) the same bit for bit.  A run on
 # 2 threads to t = 0.25 extended by `--resume --set integrator.t_end` on 3
 # threads equals the uninterrupted run on 1.  `mrvi check` shows the
 # count; a build without OpenMP refuses --threads 2 with a message that
@@ -86,7 +88,7 @@ else
   fail "one thread: the environment unchanged"
 fi
 
-for scheme in fully-explicit explicit-slow midpoint-midpoint; do
+for scheme in fully-explicit explicit-slow midpoint-midpoint trapezoidal-midpoint; do
   for t in 1 2 3; do
     run_ok "$scheme on $t threads" "$mrvi" run "$sys" "${common[@]}" \
       --set integrator.scheme=$scheme --threads $t -o "$tmp/$scheme.$t.h5"

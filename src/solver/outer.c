@@ -34,11 +34,16 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 /* The factor of the inexact sweeps, and the depth of Anderson's
  * acceleration of the slow updates (mrvi_outer_solve). */
 #define OUTER_CUT 1e-3
 #define OUTER_AA 3
+/* Doubles per lane in a slot of the partial sums (a cache line). */
+#define RED 8
 
 /* The points of one interval with the same configuration evaluated once:
  * a site (a0, a1, cA, cB) with the classes evaluated there and one weight
@@ -61,9 +66,28 @@ typedef struct site {
 typedef struct slow_group {
   double a1;
   int cls;
-  long sweep; /* g is at x_s of this sweep (0: none yet) */
-  double *g;  /* ns */
+  double *g; /* ns */
 } slow_group;
+
+/* One thread of the iteration: mrvi_outer_solve runs on o->n_lanes
+ * threads in one parallel region (where a class's gradient is in parts,
+ * mrvi_terms_set_threads), every thread through the same rows and
+ * decisions, each taking its span of the vector loops (a fixed share of
+ * the columns), its share of the gradients' parts, and the team's
+ * maxima and sums (team_reduce) from the same partial values in the same
+ * order: the same bits for every thread count.  What the serial iteration
+ * kept on the object and changes is the lane's own. */
+typedef struct lane {
+  int tid, nth;
+  long sweep;         /* the sweep under way (its number in stats.sweeps) */
+  const site *z_site; /* z's slow part: site z_site's in sweep z_sweep */
+  long z_sweep;
+  long *grp_sweep; /* per slow group: its g is at x_s of this sweep (0:
+                      none yet) */
+  double *dlt[3];  /* the changes of the last three nodes (o->dlt) */
+  int met;         /* every row of the sweep met its target */
+  int n_red;       /* reductions made (team_reduce's slot parity) */
+} lane;
 
 struct mrvi_outer {
   int ns, nf, p;
@@ -80,7 +104,9 @@ struct mrvi_outer {
   int *send;  /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
   double *minv_s, *minv_f, *m_s, *m_f;
   double *mdt, *dtm;     /* M^f/dt, dt/M^f */
-  double *zero, *one;    /* nf zeros, nf ones */
+  int eq_f;              /* the fast masses are equal: mdt[0], dtm[0] for
+                            every column (bitwise each column's) */
+  double *zero;          /* nf zeros */
   double *z;             /* packed configuration */
   double *pm, *fexp, *F; /* p^{f,m}, the forces of node-m sites, F_m */
   double *fs;            /* slow-row force (ns) */
@@ -88,11 +114,12 @@ struct mrvi_outer {
   /* Anderson: the slow iterate and its update f = (dT/M^s) G before (ns
    * each) and the differences of the last OUTER_AA (ns x OUTER_AA each) */
   double *xp, *fp, *dX, *dF;
-  int met; /* every row of the sweep met its target */
-  /* z's slow part is the one of site z_site in sweep z_sweep (xs is
-   * fixed during a sweep) */
-  const site *z_site;
-  long z_sweep;
+  /* the threads (lanes, up to n_lanes) and their partial maxima and sums
+   * (team_reduce: two slots of RED doubles per lane) */
+  lane *lanes;
+  int n_lanes;
+  double *red;
+  long *grp_sweeps;       /* n_lanes x n_grps (the lanes' grp_sweep) */
   mrvi_outer_stats stats; /* of the run */
 };
 
@@ -119,7 +146,6 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->mdt);
   free(o->dtm);
   free(o->zero);
-  free(o->one);
   free(o->z);
   free(o->pm);
   free(o->fexp);
@@ -131,6 +157,9 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->fp);
   free(o->dX);
   free(o->dF);
+  free(o->lanes);
+  free(o->red);
+  free(o->grp_sweeps);
   free(o);
 }
 
@@ -168,7 +197,6 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->mdt = dalloc(nf);
   o->dtm = dalloc(nf);
   o->zero = calloc(nf > 0 ? nf : 1, sizeof(double));
-  o->one = dalloc(nf);
   o->z = dalloc(n);
   o->pm = dalloc(nf);
   o->fexp = dalloc(nf);
@@ -182,7 +210,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->dF = dalloc(ns * OUTER_AA);
   if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send ||
       !o->minv_s || !o->m_s || !o->minv_f || !o->m_f || !o->mdt || !o->dtm ||
-      !o->zero || !o->one || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
+      !o->zero || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
       !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp || !o->dX ||
       !o->dF) {
     free(col);
@@ -196,12 +224,13 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     o->m_s[s] = m->mass[m->slow_index[s]];
     o->minv_s[s] = 1.0 / o->m_s[s];
   }
+  o->eq_f = 1;
   for (int f = 0; f < o->nf; f++) {
     o->m_f[f] = m->mass[m->fast_index[f]];
+    o->eq_f &= o->m_f[f] == o->m_f[0];
     o->minv_f[f] = 1.0 / o->m_f[f];
     o->mdt[f] = o->m_f[f] / st->dt;
     o->dtm[f] = st->dt / o->m_f[f];
-    o->one[f] = 1.0;
   }
   /* each class's terms split by their columns (the order kept); the
    * gradients of large spring classes on threads, in parts by records
@@ -298,6 +327,25 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
       S->grp = o->n_grps++;
     }
   }
+  /* the lanes: the threads where a class's gradient is in parts */
+  int parts = 0;
+  for (int c = 0; c < 2; c++)
+    parts |= (o->kc[c] && mrvi_terms_parts(o->kc[c]) > 0) ||
+             (o->kss[c] && mrvi_terms_parts(o->kss[c]) > 0);
+  o->n_lanes = parts && st->threads > 1 ? st->threads : 1;
+#ifndef _OPENMP
+  o->n_lanes = 1;
+#endif
+  o->lanes = calloc((size_t)o->n_lanes, sizeof *o->lanes);
+  o->red = dalloc(2 * RED * (size_t)o->n_lanes);
+  o->grp_sweeps = calloc((size_t)o->n_lanes * (size_t)(o->n_grps + 1),
+                         sizeof *o->grp_sweeps);
+  if (!o->lanes || !o->red || !o->grp_sweeps) {
+    mrvi_outer_free(o);
+    return MRVI_ENOMEM;
+  }
+  for (int t = 0; t < o->n_lanes; t++)
+    o->lanes[t].grp_sweep = o->grp_sweeps + (size_t)t * (size_t)o->n_grps;
   *out = o;
   return MRVI_OK;
 }
@@ -306,93 +354,205 @@ const mrvi_outer_stats *mrvi_outer_stats_of(const mrvi_outer *o) {
   return &o->stats;
 }
 
+/* Lane L's span [*lo, *hi) of n items (all of them on one thread). */
+static void span(const lane *L, int n, int *lo, int *hi) {
+  *lo = (int)((long)n * L->tid / L->nth);
+  *hi = (int)((long)n * (L->tid + 1) / L->nth);
+}
+
+/* Every thread of the team waits for the others (none on one). */
+#ifdef _OPENMP
+#define TEAM_BARRIER(L)                                                        \
+  do {                                                                         \
+    if ((L)->nth > 1) {                                                        \
+      MRVI_PRAGMA(omp barrier)                                                 \
+    }                                                                          \
+  } while (0)
+#else
+#define TEAM_BARRIER(L) (void)(L)
+#endif
+
+/* v = (a maximum, a sum, a maximum) of the lane's span -> the team's, the
+ * same in every lane: the lanes' values combined in lane order after a
+ * barrier.  The maxima skip NaN, which the sum keeps (the callers test
+ * it); two slots alternate, so that a lane writing the next reduction's
+ * partials has passed a barrier after every lane read this one's. */
+static void team_reduce(mrvi_outer *o, lane *L, double v[3]) {
+  if (L->nth == 1)
+    return;
+  double *slot = o->red + (size_t)(L->n_red++ & 1) * RED * (size_t)o->n_lanes;
+  memcpy(slot + (size_t)L->tid * RED, v, 3 * sizeof(double));
+  TEAM_BARRIER(L);
+  v[0] = v[1] = v[2] = 0.0;
+  for (int t = 0; t < L->nth; t++) {
+    const double *u = slot + (size_t)t * RED;
+    v[0] = u[0] > v[0] ? u[0] : v[0];
+    v[1] += u[1];
+    v[2] = fmax(v[2], u[2]);
+  }
+}
+
+/* g += the gradient of class kc at z by the team: the parts of its
+ * partition (mrvi_terms_set_threads) in equal runs per lane, else the
+ * whole class by lane 0. */
+static void grad_team(const lane *L, mrvi_terms *kc, const double *z,
+                      double *g) {
+  const int np = mrvi_terms_parts(kc);
+  if (L->nth > 1 && np > 0) {
+    int c0, c1;
+    span(L, np, &c0, &c1);
+    for (int c = c0; c < c1; c++)
+      mrvi_terms_grad_part(kc, c, z, g);
+  } else if (L->tid == 0)
+    mrvi_terms_grad(kc, z, g);
+}
+
+/* The site's fast configuration zf = q^{f,0} + cA a + cB b on columns
+ * [lo, hi), its gradient's entries gf zeroed in the same pass; with F, b
+ * (= d^{m+1}) first takes the chord update b += (dt/M^f) F (eq: the
+ * masses equal, dtm[0] for every column). */
+static inline __attribute__((always_inline)) void
+site_config(const mrvi_outer *o, double *restrict zf, double *restrict gf,
+            const double *qf0, double cA, double cB, const double *a, double *b,
+            const double *F, int lo, int hi, const int eq) {
+  const double dtm0 = o->dtm[0];
+  if (F)
+    for (int f = lo; f < hi; f++) {
+      b[f] += (eq ? dtm0 : o->dtm[f]) * F[f];
+      zf[f] = qf0[f] + cA * a[f] + cB * b[f];
+      gf[f] = 0.0;
+    }
+  else
+    for (int f = lo; f < hi; f++) {
+      zf[f] = qf0[f] + cA * a[f] + cB * b[f];
+      gf[f] = 0.0;
+    }
+}
+
 /* S->g = grad Z at the site's configuration for the slow displacement xs
  * and the fast displacements dm = d^m, dn = d^{m+1} (NULL: zeros); with
  * F, dn first takes the chord update dn += (dt/M^f) F (in the same pass
- * over the fast columns). */
-static void eval_site(mrvi_outer *o, const mrvi_step *st, site *S,
+ * over the fast columns).  By the team: each lane's span of the
+ * configuration, then the gradient's parts. */
+static void eval_site(mrvi_outer *o, lane *L, const mrvi_step *st, site *S,
                       const double *xs, const double *dm, double *dn,
                       const double *F) {
-  const int ns = o->ns, nf = o->nf;
+  const int ns = o->ns;
   double *z = o->z;
+  int lo, hi;
+  span(L, ns, &lo, &hi);
   /* (z's slow part depends on a1 alone within a sweep) */
   if (S->rs &&
-      (!o->z_site || o->z_site->a1 != S->a1 || o->z_sweep != o->stats.sweeps)) {
-    for (int s = 0; s < ns; s++)
+      (!L->z_site || L->z_site->a1 != S->a1 || L->z_sweep != L->sweep)) {
+    for (int s = lo; s < hi; s++)
       z[s] = st->qs0[s] + S->a1 * xs[s];
-    o->z_site = S;
-    o->z_sweep = o->stats.sweeps;
+    L->z_site = S;
+    L->z_sweep = L->sweep;
   }
-  const double cA = S->cA, cB = dn ? S->cB : 0.0;
-  const double *a = dm ? dm : o->zero, *b = dn ? dn : o->zero;
-  double *restrict zf = z + ns;
-  if (F)
-    for (int f = 0; f < nf; f++) {
-      dn[f] += o->dtm[f] * F[f];
-      zf[f] = st->qf0[f] + cA * a[f] + cB * dn[f];
-    }
-  else
-    for (int f = 0; f < nf; f++)
-      zf[f] = st->qf0[f] + cA * a[f] + cB * b[f];
   if (S->rs)
-    memset(S->g, 0, (size_t)(ns + nf) * sizeof(double));
+    memset(S->g + lo, 0, (size_t)(hi - lo) * sizeof(double));
+  const double cB = dn ? S->cB : 0.0;
+  const double *a = dm ? dm : o->zero;
+  double *b = dn ? dn : o->zero; /* (written only with F, where dn is) */
+  span(L, o->nf, &lo, &hi);
+  if (o->eq_f)
+    site_config(o, z + ns, S->g + ns, st->qf0, S->cA, cB, a, b, F, lo, hi, 1);
   else
-    memset(S->g + ns, 0, (size_t)nf * sizeof(double));
+    site_config(o, z + ns, S->g + ns, st->qf0, S->cA, cB, a, b, F, lo, hi, 0);
+  /* (a barrier after each class: the two classes' parts write the same
+   * columns, in the serial order) */
+  TEAM_BARRIER(L);
   for (int c = 0; c < 2; c++)
     if (S->cls & (1 << c) && o->kc[c]) {
-      mrvi_terms_grad(o->kc[c], z, S->g);
-      o->stats.grad_equiv += o->share[c];
+      grad_team(L, o->kc[c], z, S->g);
+      if (L->tid == 0)
+        o->stats.grad_equiv += o->share[c];
+      TEAM_BARRIER(L);
     }
-  o->stats.site_evals++;
+  if (L->tid == 0)
+    o->stats.site_evals++;
 }
 
 /* The gradient of the slow-only terms at site S for the slow displacement
  * xs of this sweep (NULL: S has none), evaluated on its group's first
  * need in the sweep. */
-static const double *slow_site(mrvi_outer *o, const mrvi_step *st,
+static const double *slow_site(mrvi_outer *o, lane *L, const mrvi_step *st,
                                const site *S, const double *xs) {
   if (S->grp < 0)
     return NULL;
   slow_group *G = &o->grps[S->grp];
-  if (G->sweep != o->stats.sweeps) {
+  if (L->grp_sweep[S->grp] != L->sweep) {
     /* (the slow configuration: z's where it is this one, else built) */
+    int lo, hi;
+    span(L, o->ns, &lo, &hi);
     const double *zs = o->zs;
-    if (o->z_site && o->z_site->a1 == G->a1 && o->z_sweep == o->stats.sweeps)
+    if (L->z_site && L->z_site->a1 == G->a1 && L->z_sweep == L->sweep)
       zs = o->z;
     else
-      for (int s = 0; s < o->ns; s++)
+      for (int s = lo; s < hi; s++)
         o->zs[s] = st->qs0[s] + G->a1 * xs[s];
-    memset(G->g, 0, (size_t)o->ns * sizeof(double));
+    memset(G->g + lo, 0, (size_t)(hi - lo) * sizeof(double));
+    TEAM_BARRIER(L);
     for (int c = 0; c < 2; c++)
       if (G->cls & (1 << c)) {
-        mrvi_terms_grad(o->kss[c], zs, G->g);
-        o->stats.grad_equiv += o->share_ss[c];
+        grad_team(L, o->kss[c], zs, G->g);
+        if (L->tid == 0)
+          o->stats.grad_equiv += o->share_ss[c];
+        TEAM_BARRIER(L);
       }
-    G->sweep = o->stats.sweeps;
+    L->grp_sweep[S->grp] = L->sweep;
   }
   return G->g;
 }
 
-/* Entry f of the row F_m = (p^{f,m} - the node-m sites' forces, or F's
- * partial sum where more than one site is inside: one = 0) - w1 g1 -
- * M^f (dn - dp)/dt into o->F, its weighted size into the running maximum
- * *r and the sum *sum, and with c the size of its largest term into *c. */
+/* Entry f of the row F_m = (p^{f,m} - the node-m sites' forces fx (NULL:
+ * none, zeros), or F's partial sum where more than one site is inside:
+ * one = 0) - w1 g1 -
+ * M^f (dn - dp)/dt into o->F, its weighted size (w NULL: 1) into the
+ * running maximum *r and the sum *sum, and with c the size of its largest
+ * term into *c (eq: the masses equal, mdt[0] for every column). */
 static inline __attribute__((always_inline)) void
-row_entry(mrvi_outer *o, int f, int one, double w1, const double *g1,
-          const double *dn, const double *dp, const double *w, double *r,
-          double *sum, double *c) {
-  const double mv = o->mdt[f] * (dn[f] - dp[f]);
-  const double Ff = (one ? o->pm[f] - o->fexp[f] : o->F[f]) - w1 * g1[f] - mv;
+row_entry(mrvi_outer *o, const double *fx, int f, int one, double w1,
+          const double *g1, const double *dn, const double *dp, const double *w,
+          double *r, double *sum, double *c, const int eq) {
+  const double mv = (eq ? o->mdt[0] : o->mdt[f]) * (dn[f] - dp[f]);
+  const double x = fx ? fx[f] : 0.0;
+  const double Ff = (one ? o->pm[f] - x : o->F[f]) - w1 * g1[f] - mv;
   o->F[f] = Ff;
-  const double a = fabs(Ff) * w[f];
+  const double wf = w ? w[f] : 1.0, a = fabs(Ff) * wf;
   *r = a > *r ? a : *r;
   *sum += a;
   if (c) {
-    const double fi = o->pm[f] - o->fexp[f] - mv - Ff;
-    const double t =
-        (fabs(o->pm[f]) + fabs(o->fexp[f]) + fabs(fi) + fabs(mv)) * w[f];
+    const double fi = o->pm[f] - x - mv - Ff;
+    const double t = (fabs(o->pm[f]) + fabs(x) + fabs(fi) + fabs(mv)) * wf;
     *c = t > *c ? t : *c;
   }
+}
+
+/* The row entries of columns [lo, hi) (row_entry) in four lanes of
+ * partial maxima and sums: v = (max, sum, max of the largest terms where
+ * want_c). */
+static inline __attribute__((always_inline)) void
+row_pass(mrvi_outer *o, const double *fx, int lo, int hi, int one, double w1,
+         const double *g1, const double *dn, const double *dp, const double *w,
+         double v[3], const int want_c, const int eq) {
+  double rl[4] = {0, 0, 0, 0}, sl[4] = {0, 0, 0, 0}, cl[4] = {0, 0, 0, 0};
+  const int hi4 = lo + ((hi - lo) & ~3);
+  for (int f0 = lo; f0 < hi4; f0 += 4) {
+    row_entry(o, fx, f0, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL,
+              eq);
+    row_entry(o, fx, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1,
+              want_c ? cl + 1 : NULL, eq);
+    row_entry(o, fx, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2,
+              want_c ? cl + 2 : NULL, eq);
+    row_entry(o, fx, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3,
+              want_c ? cl + 3 : NULL, eq);
+  }
+  for (int f = hi4; f < hi; f++)
+    row_entry(o, fx, f, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL, eq);
+  v[0] = fmax(fmax(rl[0], rl[1]), fmax(rl[2], rl[3]));
+  v[1] = sl[0] + sl[1] + sl[2] + sl[3];
+  v[2] = fmax(fmax(cl[0], cl[1]), fmax(cl[2], cl[3]));
 }
 
 /* The row of interval m for d^{m+1} = dn by the Jacobi chord from dn as
@@ -401,8 +561,10 @@ row_entry(mrvi_outer *o, int f, int one, double w1, const double *g1,
  * p^{f,m+1} into o->pm, its potential part into pfm (nf), and the sites'
  * slow forces added to o->fs, the potential part of p_{k+1}^s to ps1.
  * Returns the row's residual (weighted by rw, NULL: 1) or -1 where it did
- * not converge. */
-static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
+ * not converge.  By the team: the lanes' spans of the fast and slow
+ * columns (each lane reads in its span only what it wrote there, but
+ * for the gradients, read after their barrier). */
+static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
                         const double *xs, const double *dm, double *dn,
                         const double *rw, double target, double cut,
                         double rate, int max_updates, double *ps1, double *pfm,
@@ -410,31 +572,39 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
   const int ns = o->ns, nf = o->nf;
   const double dt = st->dt;
   site *s0 = o->sites + o->send[m], *s1 = o->sites + o->send[m + 1];
-  /* the sites at node m (cB = 0) are known */
+  int lo, hi, slo, shi;
+  span(L, nf, &lo, &hi);
+  span(L, ns, &slo, &shi);
+  /* the sites at node m (cB = 0) are known: their forces fx (NULL: none) */
   int inside = 0;
-  memset(o->fexp, 0, (size_t)nf * sizeof(double));
+  const double *fx = NULL;
+  for (site *S = s0; S < s1; S++)
+    if (S->cB == 0.0)
+      fx = o->fexp;
+  if (fx)
+    memset(o->fexp + lo, 0, (size_t)(hi - lo) * sizeof(double));
   for (site *S = s0; S < s1; S++) {
     if (S->cB != 0.0) {
       inside |= S->cA != 0.0;
       continue;
     }
-    eval_site(o, st, S, xs, dm, NULL, NULL);
-    for (int f = 0; f < nf; f++)
+    eval_site(o, L, st, S, xs, dm, NULL, NULL);
+    for (int f = lo; f < hi; f++)
       o->fexp[f] += S->w * S->cA * S->g[ns + f];
   }
   int n_inside = 0;
   for (site *S = s0; S < s1; S++)
     n_inside += S->cB != 0.0 && S->cA != 0.0;
-  const double *dp = dm ? dm : o->zero, *w = rw ? rw : o->one;
+  const double *dp = dm ? dm : o->zero;
   double r = 0.0, r_prev = HUGE_VAL, floor = 0.0, *F = o->F;
   for (int it = 0;; it++) {
     /* F_m at dn: the sites inside the interval at dn (no iteration where
      * there is none: the row is explicit in d^{m+1}); from the second
      * iterate on, dn takes the chord update first (eval_site) */
     if (!inside && it == 0)
-      for (int f = 0; f < nf; f++)
-        dn[f] =
-            (dm ? dm[f] : 0.0) + dt * o->minv_f[f] * (o->pm[f] - o->fexp[f]);
+      for (int f = lo; f < hi; f++)
+        dn[f] = (dm ? dm[f] : 0.0) +
+                dt * o->minv_f[f] * (o->pm[f] - (fx ? fx[f] : 0.0));
     /* F = p^{f,m} - the forces of the sites (the first inside one's in
      * the pass below) - M^f (d^{m+1} - d^m)/dt */
     const double *g1 = o->zero;
@@ -443,50 +613,40 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
     for (site *S = s0; S < s1; S++) {
       if (S->cB == 0.0 || S->cA == 0.0)
         continue;
-      eval_site(o, st, S, xs, dm, dn, first && it > 0 ? F : NULL);
+      eval_site(o, L, st, S, xs, dm, dn, first && it > 0 ? F : NULL);
       if (first) {
         first = 0;
         g1 = S->g + ns;
         w1 = S->w * S->cA;
         if (n_inside > 1)
-          for (int f = 0; f < nf; f++)
-            F[f] = o->pm[f] - o->fexp[f];
+          for (int f = lo; f < hi; f++)
+            F[f] = o->pm[f] - (fx ? fx[f] : 0.0);
         continue;
       }
       const double wc = S->w * S->cA;
-      for (int f = 0; f < nf; f++)
+      for (int f = lo; f < hi; f++)
         F[f] -= wc * S->g[ns + f];
     }
     /* ... and its largest entry (NaN found by the sums, which it poisons;
-     * partial maxima and sums in four lanes); at the first iterate the
-     * roundoff floor, 16 eps times the largest term of the row (the
-     * unknowns being displacements) */
-    double rl[4] = {0, 0, 0, 0}, sl[4] = {0, 0, 0, 0}, cl[4] = {0, 0, 0, 0};
-    const int one = n_inside <= 1, nf4 = nf & ~3;
-    if (it == 0) {
-      for (int f0 = 0; f0 < nf4; f0 += 4) {
-        row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, cl);
-        row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1, cl + 1);
-        row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2, cl + 2);
-        row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3, cl + 3);
-      }
-      for (int f = nf4; f < nf; f++)
-        row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, cl);
-    } else {
-      for (int f0 = 0; f0 < nf4; f0 += 4) {
-        row_entry(o, f0, one, w1, g1, dn, dp, w, rl, sl, NULL);
-        row_entry(o, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1, NULL);
-        row_entry(o, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2, NULL);
-        row_entry(o, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3, NULL);
-      }
-      for (int f = nf4; f < nf; f++)
-        row_entry(o, f, one, w1, g1, dn, dp, w, rl, sl, NULL);
-    }
-    r = fmax(fmax(rl[0], rl[1]), fmax(rl[2], rl[3]));
-    if (isnan(sl[0] + sl[1] + sl[2] + sl[3]))
+     * partial maxima and sums in four lanes and per thread); at the first
+     * iterate the roundoff floor, 16 eps times the largest term of the
+     * row (the unknowns being displacements) */
+    double v[3];
+    const int one = n_inside <= 1;
+    if (it == 0 && o->eq_f)
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 1);
+    else if (it == 0)
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 0);
+    else if (o->eq_f)
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 1);
+    else
+      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 0);
+    team_reduce(o, L, v);
+    r = v[0];
+    if (isnan(v[1]))
       return -1.0;
     if (it == 0) {
-      floor = 16.0 * DBL_EPSILON * fmax(fmax(cl[0], cl[1]), fmax(cl[2], cl[3]));
+      floor = 16.0 * DBL_EPSILON * v[2];
       target = fmax(target, cut * r);
     }
     if (!inside || r <= fmax(target, floor))
@@ -499,13 +659,14 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
     if (it >= max_updates || !(r <= rate * r_prev))
       return -1.0;
     r_prev = r;
-    o->stats.row_updates++;
+    if (L->tid == 0)
+      o->stats.row_updates++;
     /* (the update dn += (dt/M^f) F: by eval_site in the next iterate) */
   }
   /* the sites at node m + 1 (cA = 0), then p^{f,m+1} and the slow forces */
   for (site *S = s0; S < s1; S++)
     if (S->cA == 0.0)
-      eval_site(o, st, S, xs, dm, dn, NULL);
+      eval_site(o, L, st, S, xs, dm, dn, NULL);
   /* (one site with a node-(m+1) coefficient, midpoint-midpoint's: pfm,
    * p^{f,m+1} and the node's change in one pass below) */
   const site *sb = NULL;
@@ -516,40 +677,42 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
       n_b++;
     }
   if (n_b != 1)
-    memset(pfm, 0, (size_t)nf * sizeof(double));
+    memset(pfm + lo, 0, (size_t)(hi - lo) * sizeof(double));
   for (site *S = s0; S < s1; S++) {
     const double wa = S->w * S->a0, w1 = S->w * S->a1, wb = S->w * S->cB;
-    const double *gss = wa != 0.0 || w1 != 0.0 ? slow_site(o, st, S, xs) : NULL;
+    const double *gss =
+        wa != 0.0 || w1 != 0.0 ? slow_site(o, L, st, S, xs) : NULL;
     if (gss)
-      for (int s = 0; s < ns; s++) {
+      for (int s = slo; s < shi; s++) {
         const double gs = S->g[s] + gss[s];
         o->fs[s] += wa * gs;
         ps1[s] -= w1 * gs;
       }
     else if (S->rs && (wa != 0.0 || w1 != 0.0))
-      for (int s = 0; s < ns; s++) {
+      for (int s = slo; s < shi; s++) {
         o->fs[s] += wa * S->g[s];
         ps1[s] -= w1 * S->g[s];
       }
     if (wb != 0.0 && n_b != 1)
-      for (int f = 0; f < nf; f++)
+      for (int f = lo; f < hi; f++)
         pfm[f] -= wb * S->g[ns + f];
   }
+  const double mdt0 = o->mdt[0];
   if (n_b == 1) {
     const double wb = sb->w * sb->cB, *gf = sb->g + ns;
-    for (int f = 0; f < nf; f++) {
+    for (int f = lo; f < hi; f++) {
       pfm[f] = 0.0 - wb * gf[f];
-      o->pm[f] = o->mdt[f] * (dn[f] - dp[f]) + pfm[f];
+      o->pm[f] = (o->eq_f ? mdt0 : o->mdt[f]) * (dn[f] - dp[f]) + pfm[f];
       dl[f] = dn[f] - dl[f];
     }
   } else {
-    for (int f = 0; f < nf; f++) {
-      o->pm[f] = o->mdt[f] * (dn[f] - dp[f]) + pfm[f];
+    for (int f = lo; f < hi; f++) {
+      o->pm[f] = (o->eq_f ? mdt0 : o->mdt[f]) * (dn[f] - dp[f]) + pfm[f];
       dl[f] = dn[f] - dl[f];
     }
   }
   /* (met: within the target, or at the rounding floor of the row's terms) */
-  o->met &= inside ? r <= fmax(target, floor) : 1;
+  L->met &= inside ? r <= fmax(target, floor) : 1;
   return r;
 }
 
@@ -557,7 +720,8 @@ static double solve_row(mrvi_outer *o, const mrvi_step *st, int m,
  * 0, 1, ...: the chord f = (dT/M^s) G, accelerated by Anderson's mixing of
  * the last min(j, OUTER_AA) iterates (Walker & Ni, SIAM J. Numer. Anal.
  * 49 (2011)): x + f - (dX + dF) gamma, gamma the least-squares solution of
- * dF gamma = f (normal equations; a singular one drops the history). */
+ * dF gamma = f (normal equations; a singular one drops the history).
+ * (On one thread: its sums in their serial order.) */
 static void slow_update(mrvi_outer *o, double *xs, int j, double dT) {
   const int ns = o->ns;
   double *f = o->fs;
@@ -603,14 +767,18 @@ static void slow_update(mrvi_outer *o, double *xs, int j, double dT) {
   }
 }
 
-int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
-                     const double *rw, double target, double rate,
-                     int max_outer, double *ps1, double *pf, double *res) {
+/* mrvi_outer_solve's iteration by lane L of the team (every lane returns
+ * the same). */
+static int outer_lane(mrvi_outer *o, lane *L, const mrvi_step *st, double *x,
+                      const double *rw, double target, double rate,
+                      int max_outer, double *ps1, double *pf, double *res) {
   const int ns = o->ns, nf = o->nf, p = o->p;
   const double dT = st->dT;
   double *xs = x, *xf = x + ns;
   double g_prev = HUGE_VAL;
-  o->stats.steps++;
+  int lo, hi, slo, shi;
+  span(L, nf, &lo, &hi);
+  span(L, ns, &slo, &shi);
   for (int k = 1; k <= max_outer; k++) {
     /* Inexact sweeps: the rows are solved only as far as the slow row's
      * residual makes worthwhile -- in the first sweep by OUTER_CUT of
@@ -621,11 +789,13 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
     const double row_target =
         k == 1 ? target : fmax(target, OUTER_CUT * g_prev);
     double rows = 0.0;
-    o->met = 1;
-    o->stats.sweeps++;
-    memcpy(o->pm, st->pf0, (size_t)nf * sizeof(double));
-    memset(o->fs, 0, (size_t)ns * sizeof(double));
-    memset(ps1, 0, (size_t)ns * sizeof(double));
+    L->met = 1;
+    L->sweep++;
+    if (L->tid == 0)
+      o->stats.sweeps++;
+    memcpy(o->pm + lo, st->pf0 + lo, (size_t)(hi - lo) * sizeof(double));
+    memset(o->fs + slo, 0, (size_t)(shi - slo) * sizeof(double));
+    memset(ps1 + slo, 0, (size_t)(shi - slo) * sizeof(double));
     for (int mm = 0; mm < p; mm++) {
       double *dn = xf + (size_t)mm * (size_t)nf;
       const double *dm = mm == 0 ? NULL : dn - nf;
@@ -634,67 +804,116 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
        * response to a slow update is smooth in m) */
       /* (the node before it into dl = dlt[2], read there first as d3;
        * solve_row leaves the node's change in dl) */
-      const double *d1 = o->dlt[0], *d2 = o->dlt[1];
-      double *dl = o->dlt[2];
+      const double *d1 = L->dlt[0], *d2 = L->dlt[1];
+      double *dl = L->dlt[2];
       if (k > 1 && mm >= 3)
-        for (int f = 0; f < nf; f++) {
+        for (int f = lo; f < hi; f++) {
           const double d3 = dl[f];
           dl[f] = dn[f];
           dn[f] += 3.0 * d1[f] - 3.0 * d2[f] + d3;
         }
       else if (k > 1 && mm == 2)
-        for (int f = 0; f < nf; f++) {
+        for (int f = lo; f < hi; f++) {
           dl[f] = dn[f];
           dn[f] += 2.0 * d1[f] - d2[f];
         }
       else if (k > 1 && mm == 1)
-        for (int f = 0; f < nf; f++) {
+        for (int f = lo; f < hi; f++) {
           dl[f] = dn[f];
           dn[f] += d1[f];
         }
       else
-        memcpy(dl, dn, (size_t)nf * sizeof(double));
-      const double r = solve_row(o, st, mm, xs, dm, dn,
+        memcpy(dl + lo, dn + lo, (size_t)(hi - lo) * sizeof(double));
+      const double r = solve_row(o, L, st, mm, xs, dm, dn,
                                  rw ? rw + ns + (size_t)mm * nf : NULL,
                                  row_target, k == 1 ? OUTER_CUT : 0.0, rate,
                                  max_outer, ps1, pf + (size_t)mm * nf, dl);
       if (r < 0.0) {
-        o->stats.failed++;
+        if (L->tid == 0)
+          o->stats.failed++;
         return 0;
       }
       rows = fmax(rows, r);
-      o->dlt[2] = o->dlt[1];
-      o->dlt[1] = o->dlt[0];
-      o->dlt[0] = dl;
+      L->dlt[2] = L->dlt[1];
+      L->dlt[1] = L->dlt[0];
+      L->dlt[0] = dl;
     }
     /* the slow row at the swept nodes */
-    double g = 0.0, sum = 0.0, scale = 0.0;
-    for (int s = 0; s < ns; s++) {
+    double v[3] = {0.0, 0.0, 0.0};
+    for (int s = slo; s < shi; s++) {
       const double G = st->ps0[s] - o->m_s[s] * xs[s] / dT - o->fs[s];
       const double w = rw ? rw[s] : 1.0, a = fabs(G) * w;
-      g = a > g ? a : g;
-      sum += a;
-      scale = fmax(scale, (fabs(st->ps0[s]) + o->m_s[s] * fabs(xs[s]) / dT +
-                           fabs(o->fs[s])) *
-                              w);
+      v[0] = a > v[0] ? a : v[0];
+      v[1] += a;
+      v[2] = fmax(v[2], (fabs(st->ps0[s]) + o->m_s[s] * fabs(xs[s]) / dT +
+                         fabs(o->fs[s])) *
+                            w);
       o->fs[s] = G;
     }
+    team_reduce(o, L, v);
+    const double g = v[0];
     /* (at or stalled at the rounding of the slow row's terms) */
-    const double floor = 16.0 * DBL_EPSILON * scale;
+    const double floor = 16.0 * DBL_EPSILON * v[2];
     const int stalled = k > 1 && !(g <= rate * g_prev) && g <= 8.0 * floor;
-    if (isnan(sum) || (k > 1 && !stalled && !(g <= rate * g_prev))) {
-      o->stats.failed++;
+    if (isnan(v[1]) || (k > 1 && !stalled && !(g <= rate * g_prev))) {
+      if (L->tid == 0)
+        o->stats.failed++;
       return 0;
     }
-    if (k > 1 && (g <= fmax(target, floor) || stalled) && o->met &&
+    if (k > 1 && (g <= fmax(target, floor) || stalled) && L->met &&
         row_target == target) {
-      *res = fmax(g, rows);
+      if (L->tid == 0)
+        *res = fmax(g, rows);
       return k;
     }
     g_prev = g;
-    slow_update(o, xs, k - 1, dT);
-    o->stats.slow_updates++;
+    /* (every lane's G complete after team_reduce's barrier; the update
+     * complete before the next sweep reads xs) */
+    if (L->tid == 0) {
+      slow_update(o, xs, k - 1, dT);
+      o->stats.slow_updates++;
+    }
+    TEAM_BARRIER(L);
   }
-  o->stats.failed++;
+  if (L->tid == 0)
+    o->stats.failed++;
   return 0;
+}
+
+/* L's state at the start of a step: lane tid of nth. */
+static void lane_start(const mrvi_outer *o, lane *L, int tid, int nth) {
+  L->tid = tid;
+  L->nth = nth;
+  L->sweep = o->stats.sweeps;
+  L->z_site = NULL;
+  L->met = 1;
+  L->n_red = 0;
+  for (int i = 0; i < 3; i++)
+    L->dlt[i] = o->dlt[i];
+}
+
+int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
+                     const double *rw, double target, double rate,
+                     int max_outer, double *ps1, double *pf, double *res) {
+  o->stats.steps++;
+  /* (each lane's start before any lane counts a sweep) */
+  for (int t = 0; t < o->n_lanes; t++)
+    lane_start(o, &o->lanes[t], t, o->n_lanes);
+  if (o->n_lanes == 1)
+    return outer_lane(o, &o->lanes[0], st, x, rw, target, rate, max_outer, ps1,
+                      pf, res);
+  int k = 0;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(o->n_lanes)
+  {
+    /* (the team may be smaller than asked: the spans follow its size) */
+    lane *L = &o->lanes[omp_get_thread_num()];
+    L->nth = omp_get_num_threads();
+    const int kl =
+        outer_lane(o, L, st, x, rw, target, rate, max_outer, ps1, pf, res);
+    if (L->tid == 0)
+      k = kl;
+  }
+#endif
+  return k;
 }

@@ -656,7 +656,10 @@ const mrvi_krylov_stats *mrvi_skrylov_stats(const mrvi_skrylov *k);
  * parts of the momenta at x (as mrvi_step_assemble's mom_ps, mom_pf) in
  * ps1 (ns) and pf (p x nf), 0 where an
  * update contracted by less than rate, more than max_sweeps were needed
- * or values were non-finite (x then holds no solution). */
+ * or values were non-finite (x then holds no solution).  Where a class's
+ * gradient is in parts (mrvi_terms_set_threads), a step runs on
+ * mrvi_step.threads threads in one parallel region, with the same bits
+ * for every count. */
 typedef struct mrvi_outer mrvi_outer;
 typedef struct mrvi_outer_stats {
   long steps;        /* steps tried */

@@ -634,6 +634,22 @@ static void potential_momenta(const mrvi_step *st, const mrvi_element *e,
   }
 }
 
+/* The fast kinetic parts M^f (d^{m+1} - d^m)/dt of columns [s0, s1) of
+ * the fast increments d (p x nf) added to pf, node by node. */
+static void kinetic_fast_columns(const mrvi_step *st, const double *d,
+                                 double *pf, int s0, int s1) {
+  const mrvi_model *m = st->model;
+  const int nf = st->nf, p = st->p;
+  const double dt = st->dt;
+  for (int s = s0; s < s1; s++) {
+    const double M = m->mass[m->fast_index[s]];
+    const double *ds = d + s;
+    pf[s] += M * (ds[0] - 0.0) / dt;
+    for (int mm = 1; mm < p; mm++)
+      pf[mm * nf + s] += M * (ds[mm * nf] - ds[(mm - 1) * nf]) / dt;
+  }
+}
+
 /* The kinetic parts of the momenta from increments (mrvi_step.increments),
  * for ns, nf constants on small blocks. */
 ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
@@ -644,13 +660,18 @@ ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) ps1[s] +=
       m->mass[m->slow_index[s]] * x[s] / dT;
-  if (nf > 4) { /* (node by node) */
-    for (int s = 0; s < nf; s++) {
-      const double M = m->mass[m->fast_index[s]];
-      const double *d = x + ns + s;
-      pf[s] += M * (d[0] - 0.0) / dt;
-      for (int mm = 1; mm < p; mm++)
-        pf[mm * nf + s] += M * (d[mm * nf] - d[(mm - 1) * nf]) / dt;
+  if (nf > 4) { /* (node by node; in parts of columns on threads) */
+    const int chunk = st->tuning.thread_chunk;
+    const int n_part = st->threads > 1 && chunk > 0 && nf >= 2 * chunk
+                           ? (nf - 1) / chunk + 1
+                           : 1;
+    if (n_part == 1)
+      kinetic_fast_columns(st, x + ns, pf, 0, nf);
+    else {
+      MRVI_PARALLEL_FOR(st->threads)
+      for (int c = 0; c < n_part; c++)
+        kinetic_fast_columns(st, x + ns, pf, (int)((long)c * nf / n_part),
+                             (int)((long)(c + 1) * nf / n_part));
     }
     return;
   }
