@@ -101,6 +101,14 @@ int mrvi_model_generate(mrvi_model *m, const mrvi_generator *g,
   int n[3], counts[4] = {0, 0, 0, 0};
   extent(g, n);
   const int first = m->n_particles;
+  /* Springs: along each axis, (n_a - 1) per line of the others; a ring's
+   * closing one. */
+  long springs = g->kind == MRVI_GEN_RING;
+  for (int a = 0; a < 3; a++)
+    springs += (long)(n[a] - 1) * (total / n[a]);
+  int st0 = mrvi_model_reserve(m, (int)total, (int)springs);
+  if (st0 < 0)
+    return st0;
   /* The names by a rule, made when asked (model.c), not stored: a network
    * would hold a name and a pointer per particle and per coordinate. */
   const int ruled = strlen(g->prefix) <= MRVI_RULE_PREFIX_MAX;

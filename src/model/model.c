@@ -1,6 +1,7 @@
 /* Model builder: coordinates, particles, potential elements, partition. */
 #include "model/model.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -224,8 +225,7 @@ static long parse_index(const char **s) {
 /* The particle of rule r named by the len characters of `name`, or -1:
  * the indices after the prefix, checked by making the name again (no
  * leading zeros, no other separators). */
-static int rule_find(const mrvi_model *m, const mrvi_name_rule *r,
-                     const char *name, size_t len) {
+static int rule_find(const mrvi_name_rule *r, const char *name, size_t len) {
   const size_t pl = strlen(r->prefix);
   if (len <= pl || strncmp(name, r->prefix, pl) != 0)
     return -1;
@@ -250,7 +250,6 @@ static int rule_find(const mrvi_model *m, const mrvi_name_rule *r,
   mrvi_generated_name(r->kind, r->prefix, r->n, lin, buf, sizeof buf);
   if (strncmp(buf, name, len) != 0 || buf[len] != '\0')
     return -1;
-  (void)m;
   return r->first + (int)lin;
 }
 
@@ -260,7 +259,7 @@ static int find_particle_n(const mrvi_model *m, const char *name, size_t len) {
   const int p = table_find(m->particle_table, m->particle_table_cap, name,
                            len, particle_name, m);
   for (int r = 0; p < 0 && r < m->n_rules; r++) {
-    const int q = rule_find(m, &m->rules[r], name, len);
+    const int q = rule_find(&m->rules[r], name, len);
     if (q >= 0)
       return q;
   }
@@ -352,6 +351,8 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   if (need <= m->cap)
     return 0;
   int c = m->cap ? 2 * m->cap : 16;
+  if (c < need)
+    c = need;
   void *b = realloc(m->mass, (size_t)c * sizeof *m->mass);
   if (b)
     m->mass = b;
@@ -531,6 +532,20 @@ int mrvi_model_add_ruled_particle(mrvi_model *m, const char *name, double mass,
                                   mrvi_rate rate, const double *x0,
                                   const double *v0) {
   return add_particle(m, name, mass, rate, x0, v0, 1);
+}
+
+int mrvi_model_reserve(mrvi_model *m, int particles, int elements) {
+  const int d = m->dimension > 0 ? m->dimension : 1;
+  if (particles < 0 || elements < 0 ||
+      particles > (INT_MAX - m->n) / d - m->n_particles ||
+      elements > INT_MAX - m->n_elements ||
+      reserve_coordinates(m, m->n + d * particles) ||
+      grow((void **)&m->particles, &m->cap_particles,
+           m->n_particles + particles, sizeof *m->particles) ||
+      grow((void **)&m->elements, &m->cap_elements, m->n_elements + elements,
+           sizeof *m->elements))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  return MRVI_OK;
 }
 
 int mrvi_model_add_rule(mrvi_model *m, int kind, const char *prefix,

@@ -126,8 +126,8 @@ struct mrvi_model {
   double **param_sets;
   int n_param_sets, cap_param_sets;
   int *param_table, param_table_cap;
-  /* The coordinates' and particles' names and the elements' inputs (`in`),
-   * packed in blocks (model.c, block_alloc) instead of one allocation
+  /* The names of the coordinates of their own and of the particles not
+   * generated, and the elements' inputs (`in`), packed in blocks (model.c, block_alloc) instead of one allocation
    * each. */
   char **blocks;
   int n_blocks, cap_blocks;
@@ -181,8 +181,12 @@ int mrvi_model_find_coordinate(const mrvi_model *m, const char *name);
  * coordinate's (n), in index order, into out: pointers into m or into the
  * returned block, which the caller frees; NULL when out of memory. */
 char *mrvi_model_names(const mrvi_model *m, int particles, const char **out);
-/* Particle p (the first, + count after it) named by rule r from here on
- * (model.c). */
+/* Room for `particles` more particles (their coordinates) and `elements`
+ * more elements, made at once: a network grown by doubling leaves the
+ * touched arrays it outgrew on the heap (model.c). */
+int mrvi_model_reserve(mrvi_model *m, int particles, int elements);
+/* A rule (a generator's kind, prefix and counts n) that names the
+ * particles mrvi_model_add_ruled_particle adds next (model.c). */
 int mrvi_model_add_rule(mrvi_model *m, int kind, const char *prefix,
                         const int n[3]);
 /* mrvi_model_add_particle for a particle named by the last rule (name: the
