@@ -924,9 +924,12 @@ static void test_layout(void) {
             mrvi_model_constraint_rows(m) == 9,
         "top: 12 coordinates, 9 constraint rows (%d, %d)", mrvi_model_n(m),
         mrvi_model_constraint_rows(m));
-  CHECK(!strcmp(mrvi_model_coordinate_name(m, 5, (char[MRVI_NAME_MAX]){0}), "b.d1z") &&
-            !strcmp(mrvi_model_coordinate_name(m, 11, (char[MRVI_NAME_MAX]){0}), "b.d3z"),
-        "coordinate names %s %s", mrvi_model_coordinate_name(m, 5, (char[MRVI_NAME_MAX]){0}),
+  CHECK(!strcmp(mrvi_model_coordinate_name(m, 5, (char[MRVI_NAME_MAX]){0}),
+                "b.d1z") &&
+            !strcmp(mrvi_model_coordinate_name(m, 11, (char[MRVI_NAME_MAX]){0}),
+                    "b.d3z"),
+        "coordinate names %s %s",
+        mrvi_model_coordinate_name(m, 5, (char[MRVI_NAME_MAX]){0}),
         mrvi_model_coordinate_name(m, 11, (char[MRVI_NAME_MAX]){0}));
   /* E_1 = J3/2, E_3 = J1 - J3/2 for J1 = J2. */
   CHECK_NEAR(mrvi_model_mass(m, 3), 0.5 * top_J3, 1e-15, "E1");

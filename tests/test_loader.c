@@ -240,8 +240,10 @@ static void check_fpu_file(void) {
   const double q0[6] = {1, 0, 0, 0.02, 0, 0}, v0[6] = {1, 0, 0, 1, 0, 0};
   const char *names[6] = {"qs1", "qs2", "qs3", "qf1", "qf2", "qf3"};
   for (int i = 0; i < 6; i++) {
-    CHECK(!strcmp(mrvi_model_coordinate_name(m, i, (char[MRVI_NAME_MAX]){0}), names[i]),
-          "fpu coordinate %d is %s", i, mrvi_model_coordinate_name(m, i, (char[MRVI_NAME_MAX]){0}));
+    CHECK(!strcmp(mrvi_model_coordinate_name(m, i, (char[MRVI_NAME_MAX]){0}),
+                  names[i]),
+          "fpu coordinate %d is %s", i,
+          mrvi_model_coordinate_name(m, i, (char[MRVI_NAME_MAX]){0}));
     CHECK(mrvi_model_rate(m, i) == (i < 3 ? MRVI_SLOW : MRVI_FAST),
           "fpu rate of %s", names[i]);
     CHECK_NEAR(mrvi_model_mass(m, i), 1.0, 0.0, "fpu mass");
@@ -1026,7 +1028,9 @@ static void test_doc_example(void) {
       const char *names[5] = {"theta", "a.x", "a.y", "b.x", "b.y"};
       CHECK(mrvi_model_n(sys->model) == 5, "doc example n");
       for (int i = 0; i < 5 && i < mrvi_model_n(sys->model); i++)
-        CHECK(!strcmp(mrvi_model_coordinate_name(sys->model, i, (char[MRVI_NAME_MAX]){0}), names[i]),
+        CHECK(!strcmp(mrvi_model_coordinate_name(sys->model, i,
+                                                 (char[MRVI_NAME_MAX]){0}),
+                      names[i]),
               "doc example order: %s", names[i]);
       CHECK(mrvi_model_n_fast(sys->model) == 2, "doc example n_f");
       CHECK(sys->output_every == 10 && !sys->output_micro,
@@ -1445,8 +1449,7 @@ static void test_generated_names(void) {
         CHECK(got && !strcmp(got, want), "coordinate %d: %s, want %s",
               1 + 3 * lin + a, got ? got : "(null)", want);
       }
-    CHECK(!strcmp(mrvi_model_coordinate_name(m, 1 + 36 + 33 + 2, buf),
-                  "c11.z"),
+    CHECK(!strcmp(mrvi_model_coordinate_name(m, 1 + 36 + 33 + 2, buf), "c11.z"),
           "chain coordinate %s", buf);
     CHECK(mrvi_model_coordinate_name(m, mrvi_model_n(m), buf) == NULL,
           "no name past the last coordinate");

@@ -143,9 +143,9 @@ int mrvi_model_generate(mrvi_model *m, const mrvi_generator *g,
     }
     mrvi_generated_name(g->kind, g->prefix, n, lin, name, sizeof name);
     const mrvi_rate r = rate_of(g, idx, lin);
-    const int p =
-        ruled ? mrvi_model_add_ruled_particle(m, name, g->mass, r, x, v)
-              : mrvi_model_add_particle(m, name, g->mass, r, x, v);
+    const int p = ruled
+                      ? mrvi_model_add_ruled_particle(m, name, g->mass, r, x, v)
+                      : mrvi_model_add_particle(m, name, g->mass, r, x, v);
     if (p < 0)
       return p;
     counts[1] += r == MRVI_SLOW;

@@ -256,8 +256,8 @@ static int rule_find(const mrvi_name_rule *r, const char *name, size_t len) {
 /* The particle named by the len characters of `name`, or -1: a stored
  * name in the table, else a generated one by its rule. */
 static int find_particle_n(const mrvi_model *m, const char *name, size_t len) {
-  const int p = table_find(m->particle_table, m->particle_table_cap, name,
-                           len, particle_name, m);
+  const int p = table_find(m->particle_table, m->particle_table_cap, name, len,
+                           particle_name, m);
   for (int r = 0; p < 0 && r < m->n_rules; r++) {
     const int q = rule_find(&m->rules[r], name, len);
     if (q >= 0)
@@ -434,11 +434,10 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
                            name);
   if (reserve_coordinates(m, m->n + 1) ||
-      (in_table &&
-       (table_reserve(&m->coord_table, &m->coord_table_cap, m->n_own, m->n_own,
-                      NULL, own_name, m) ||
-        grow((void **)&m->own_names, &m->cap_own, m->n_own + 1,
-             sizeof *m->own_names))))
+      (in_table && (table_reserve(&m->coord_table, &m->coord_table_cap,
+                                  m->n_own, m->n_own, NULL, own_name, m) ||
+                    grow((void **)&m->own_names, &m->cap_own, m->n_own + 1,
+                         sizeof *m->own_names))))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   if (in_table) { /* (own_coord: the capacity of own_names) */
     void *oc = realloc(m->own_coord, (size_t)m->cap_own * sizeof *m->own_coord);
@@ -770,8 +769,7 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "spring: rest length must be finite");
   char what[300];
-  mrvi_fmt(what, sizeof what, "spring %s-anchor",
-           MRVI_PNAME(m, particle_i));
+  mrvi_fmt(what, sizeof what, "spring %s-anchor", MRVI_PNAME(m, particle_i));
   mrvi_element e = {.kind = MRVI_ELEMENT_ANCHOR,
                     .potential = potential,
                     .shift = rest_length};
@@ -1180,8 +1178,7 @@ int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
                            "angle: particle index out of range");
   if (m->dimension < 2)
     return mrvi_model_fail(m, MRVI_EINVAL, "angle: needs dimension 2 or 3");
-  const char *ni = MRVI_PNAME(m, particle_i),
-             *nj = MRVI_PNAME(m, particle_j),
+  const char *ni = MRVI_PNAME(m, particle_i), *nj = MRVI_PNAME(m, particle_j),
              *nk = MRVI_PNAME(m, particle_k);
   char what[400];
   mrvi_fmt(what, sizeof what, "angle %s-%s-%s", ni, nj, nk);
@@ -1307,16 +1304,16 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
       mrvi_fmt(buf, len,
                "%s spring between points (%d inputs, %s .. %s), rest length "
                "%g, %s",
-               rate, e->n_in, MRVI_CNAME(m, e->in[0]), MRVI_CNAME(m, e->in[e->n_in - 1]),
-               e->shift, law);
+               rate, e->n_in, MRVI_CNAME(m, e->in[0]),
+               MRVI_CNAME(m, e->in[e->n_in - 1]), e->shift, law);
       break;
     }
     if (e->kind == MRVI_ELEMENT_ANCHOR)
       goto anchor;
     mrvi_fmt(buf, len, "%s spring %s-%s, rest length %g, %s", rate,
              MRVI_PNAME(m, mrvi_element_particle(m, e, 0)),
-             MRVI_PNAME(m, mrvi_element_particle(m, e, m->dimension)),
-             e->shift, law);
+             MRVI_PNAME(m, mrvi_element_particle(m, e, m->dimension)), e->shift,
+             law);
     break;
   anchor : {
     char a[96];
@@ -1328,8 +1325,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
       mrvi_fmt(a, sizeof a, "[%g, %g, %g]", e->anchor[0], e->anchor[1],
                e->anchor[2]);
     mrvi_fmt(buf, len, "%s spring %s-anchor %s, rest length %g, %s", rate,
-             MRVI_PNAME(m, mrvi_element_particle(m, e, 0)), a, e->shift,
-             law);
+             MRVI_PNAME(m, mrvi_element_particle(m, e, 0)), a, e->shift, law);
     break;
   }
   case MRVI_ELEMENT_TERM: {
@@ -1373,8 +1369,9 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     size_t used = 0;
     f[0] = '\0';
     for (int j = 0; j < e->n_in && used < sizeof f; j++)
-      used += (size_t)snprintf(f + used, sizeof f - used, "%s%s %g",
-                               j ? ", " : "", MRVI_CNAME(m, e->in[j]), -e->coef[j]);
+      used +=
+          (size_t)snprintf(f + used, sizeof f - used, "%s%s %g", j ? ", " : "",
+                           MRVI_CNAME(m, e->in[j]), -e->coef[j]);
     mrvi_fmt(buf, len, "%s constant force: %s", rate, f);
     break;
   }

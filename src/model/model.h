@@ -127,8 +127,8 @@ struct mrvi_model {
   int n_param_sets, cap_param_sets;
   int *param_table, param_table_cap;
   /* The names of the coordinates of their own and of the particles not
-   * generated, and the elements' inputs (`in`), packed in blocks (model.c, block_alloc) instead of one allocation
-   * each. */
+   * generated, and the elements' inputs (`in`), packed in blocks (model.c,
+   * block_alloc) instead of one allocation each. */
   char **blocks;
   int n_blocks, cap_blocks;
   size_t block_used, block_cap; /* in the last block */

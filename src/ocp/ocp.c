@@ -301,7 +301,8 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
                               .upper = upper,
                               .offset = o->n_u,
                               .size = (int)(o->N * per)};
-  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s", MRVI_CNAME(o->model, c));
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s",
+           MRVI_CNAME(o->model, c));
   o->n_u += o->act[ia].size;
   /* Force template of one step (virtual work, see the file comment). */
   const mrvi_model *m = o->model;
@@ -364,8 +365,8 @@ int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
     o->act[ia].in[k] = m->particles[pi].first + k;
     o->act[ia].in[d + k] = m->particles[pj].first + k;
   }
-  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s",
-           MRVI_PNAME(m, pi), MRVI_PNAME(m, pj));
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s", MRVI_PNAME(m, pi),
+           MRVI_PNAME(m, pj));
   o->n_state++; /* the step hook is set in ocp_alloc */
   return ia;
 }

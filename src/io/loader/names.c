@@ -94,10 +94,9 @@ static int fail_unknown_model_name(loader *L, struct fy_node *at, int particles,
   }
   const char *kind = particles ? "particle" : "coordinate";
   const char *c = mrvi_closest(name, cand, n);
-  const int st =
-      c ? mrvi_ld_fail(L, at, "unknown %s '%s'; did you mean '%s'?", kind, name,
-                       c)
-        : mrvi_ld_fail(L, at, "unknown %s '%s'", kind, name);
+  const int st = c ? mrvi_ld_fail(L, at, "unknown %s '%s'; did you mean '%s'?",
+                                  kind, name, c)
+                   : mrvi_ld_fail(L, at, "unknown %s '%s'", kind, name);
   free(made);
   free(cand);
   return st;
