@@ -275,15 +275,21 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     return MRVI_ENOMEM;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
+    /* (a Hooke spring's record: spring_law_of's c and shift, spring_cols'
+     * first columns; the law's other products are not read) */
     kspring q = {.two = 1};
     int ok = spring_record(e, dim) && e->kind == MRVI_ELEMENT_SPRING &&
-             spring_law(e) == KS_HOOKE;
+             e->form == MRVI_LAW_FORM_HOOKE;
     if (ok) {
-      spring_law_of(e, &q);
-      spring_cols(e, col_of, dim, &q);
+      const int *in = e->in;
+      q.c = e->params[0];
+      q.shift = e->shift;
+      q.ci[0] = col_of ? col_of[in[0]] : in[0];
+      q.cj[0] = col_of ? col_of[in[dim]] : in[dim];
+      for (int k = 1; ok && k < dim; k++)
+        ok = (col_of ? col_of[in[k]] : in[k]) == q.ci[0] + k &&
+             (col_of ? col_of[in[dim + k]] : in[dim + k]) == q.cj[0] + k;
     }
-    for (int k = 1; ok && k < dim; k++)
-      ok = q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
     if (ie == 0) {
       kc->qp_c = q.c;
       kc->qp_shift = q.shift;
