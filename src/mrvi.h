@@ -266,7 +266,13 @@ int mrvi_model_dimension(const mrvi_model *m); /* 0 if no particles */
 int mrvi_model_n_particles(const mrvi_model *m);
 int mrvi_model_n_elements(const mrvi_model *m);
 const char *mrvi_model_name(const mrvi_model *m);
-const char *mrvi_model_coordinate_name(const mrvi_model *m, int i);
+/* Room for a name made on demand (mrvi_model_coordinate_name). */
+#define MRVI_NAME_MAX 256
+/* Name of coordinate i (NULL for an invalid i): a coordinate of its own
+ * points into m; a particle's (its name, '.', the axis letter: NAME.x) is
+ * made in buf (MRVI_NAME_MAX bytes) when asked, not stored, so the pointer
+ * lasts as long as buf does. */
+const char *mrvi_model_coordinate_name(const mrvi_model *m, int i, char *buf);
 double mrvi_model_mass(const mrvi_model *m, int i);
 mrvi_rate mrvi_model_rate(const mrvi_model *m, int i);
 /* Initial data in model order (n entries). */

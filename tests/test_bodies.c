@@ -924,10 +924,13 @@ static void test_layout(void) {
             mrvi_model_constraint_rows(m) == 9,
         "top: 12 coordinates, 9 constraint rows (%d, %d)", mrvi_model_n(m),
         mrvi_model_constraint_rows(m));
-  CHECK(!strcmp(mrvi_model_coordinate_name(m, 5), "b.d1z") &&
-            !strcmp(mrvi_model_coordinate_name(m, 11), "b.d3z"),
-        "coordinate names %s %s", mrvi_model_coordinate_name(m, 5),
-        mrvi_model_coordinate_name(m, 11));
+  CHECK(!strcmp(mrvi_model_coordinate_name(m, 5, (char[MRVI_NAME_MAX]){0}),
+                "b.d1z") &&
+            !strcmp(mrvi_model_coordinate_name(m, 11, (char[MRVI_NAME_MAX]){0}),
+                    "b.d3z"),
+        "coordinate names %s %s",
+        mrvi_model_coordinate_name(m, 5, (char[MRVI_NAME_MAX]){0}),
+        mrvi_model_coordinate_name(m, 11, (char[MRVI_NAME_MAX]){0}));
   /* E_1 = J3/2, E_3 = J1 - J3/2 for J1 = J2. */
   CHECK_NEAR(mrvi_model_mass(m, 3), 0.5 * top_J3, 1e-15, "E1");
   CHECK_NEAR(mrvi_model_mass(m, 9), top_J1 - 0.5 * top_J3, 1e-15, "E3");
@@ -1060,7 +1063,7 @@ static void test_loader(void) {
   for (int i = 0; i < 12 && mrvi_model_n(sys->model) == 12; i++) {
     e = fmax(e, fabs(a[i] - b[i]) + fabs(va[i] - vb[i]));
     CHECK(mrvi_model_mass(sys->model, i) == mrvi_model_mass(m, i), "mass of %s",
-          mrvi_model_coordinate_name(m, i));
+          mrvi_model_coordinate_name(m, i, (char[MRVI_NAME_MAX]){0}));
   }
   CHECK(e < 1e-14, "loaded initial data as built in C (%.3g)", e);
   mrvi_model_free(m);

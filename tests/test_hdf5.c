@@ -444,9 +444,11 @@ static void verify(const char *path, const traj *tr, const expect *e) {
   free(rate);
   {
     const char **names = calloc((size_t)n + 1, sizeof *names);
-    for (int i = 0; i < n; i++)
-      names[i] = mrvi_model_coordinate_name(m, i);
+    char(*buf)[MRVI_NAME_MAX] = calloc((size_t)n + 1, sizeof *buf);
+    for (int i = 0; names && buf && i < n; i++)
+      names[i] = mrvi_model_coordinate_name(m, i, buf[i]);
     check_strings(f, "/model/name", n, names);
+    free(buf);
     free(names);
   }
   check_constraint_model(f, m, s);

@@ -405,7 +405,8 @@ static void print_names(const mrvi_model *m, const char *label,
   int col = printf("%-14s%d", label, count);
   const char *sep = count ? ": " : "";
   for (int i = 0; i < count; i++) {
-    const char *name = mrvi_model_coordinate_name(m, index[i]);
+    char buf[MRVI_NAME_MAX];
+    const char *name = mrvi_model_coordinate_name(m, index[i], buf);
     int w = (int)(strlen(sep) + strlen(name));
     if (col + w > 79) {
       printf(",\n%14s", "");
@@ -483,7 +484,7 @@ static int cmd_check(int argc, char **argv) {
   printf("%-14s%-16s %12s %12s %12s\n", "initial", "coordinate", "mass",
          "position", "velocity");
   for (int i = 0; i < n && i < 200; i++)
-    printf("  %-28s %12.6g %12.6g %12.6g\n", mrvi_model_coordinate_name(m, i),
+    printf("  %-28s %12.6g %12.6g %12.6g\n", MRVI_CNAME(m, i),
            mrvi_model_mass(m, i), q0[i], v0[i]);
   if (n > 200)
     printf("  ... and %d more coordinates\n", n - 200);

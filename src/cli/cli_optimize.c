@@ -124,15 +124,15 @@ int mrvi_cli_check_control(const mrvi_system *sys) {
     char on[300];
     const char *kind = mrvi_ocp_actuator_kind(o, a);
     if (c >= 0) {
-      snprintf(on, sizeof on, "on %s", mrvi_model_coordinate_name(m, c));
+      snprintf(on, sizeof on, "on %s", MRVI_CNAME(m, c));
     } else if (strcmp(kind, "pair")) {
       snprintf(on, sizeof on, "%s on %s", kind,
                mrvi_model_body_name(m, mrvi_ocp_actuator_body(o, a)));
     } else {
       int pi, pj;
       mrvi_ocp_actuator_pair(o, a, &pi, &pj);
-      snprintf(on, sizeof on, "pair %s - %s", m->particles[pi].name,
-               m->particles[pj].name);
+      snprintf(on, sizeof on, "pair %s - %s", MRVI_PNAME(m, pi),
+               MRVI_PNAME(m, pj));
     }
     printf("  %3d  %s (%s; %s grid, %d values)\n", a,
            mrvi_ocp_actuator_name(o, a), on,
@@ -154,7 +154,7 @@ int mrvi_cli_check_control(const mrvi_system *sys) {
              row);
     else
       printf("  %3d  %s of %s = %g", i, mrvi_ocp_terminal_kind_name(kind),
-             mrvi_model_coordinate_name(m, c), target);
+             MRVI_CNAME(m, c), target);
     if (penalty > 0)
       printf(" (penalty %g)", penalty);
     putchar('\n');

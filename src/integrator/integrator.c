@@ -223,6 +223,23 @@ static void split_state(mrvi_integrator *it) {
   }
 }
 
+/* The initial state (q0, M v0) straight into the rate blocks, where the
+ * steps keep it there alone (blocks_only): q and p are written when asked
+ * (mrvi_integrator_q, _p), so their pages are not touched before. */
+static void initial_blocks(mrvi_integrator *it) {
+  const mrvi_model *m = it->model;
+  for (int s = 0; s < m->n_slow; s++) {
+    const int i = m->slow_index[s];
+    it->qs[s] = m->q0[i];
+    it->ps[s] = m->mass[i] * m->v0[i];
+  }
+  for (int s = 0; s < m->n_fast; s++) {
+    const int i = m->fast_index[s];
+    it->qf[s] = m->q0[i];
+    it->pf[s] = m->mass[i] * m->v0[i];
+  }
+}
+
 /* Predictor: an explicit multirate sweep (solver/predict.c), as
  * displacements from the known nodes (the Newton paths solve for
  * increments, mrvi_step.increments, so that tiny steps keep their digits). */
@@ -679,7 +696,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   }
   const size_t n = (size_t)m->n, ns = (size_t)m->n_slow, nf = (size_t)m->n_fast,
                p = (size_t)s->micro_steps, nu = (size_t)it->step.n_total;
-  it->q = alloc_raw(n); /* (q0, M v0 below) */
+  it->q = alloc_raw(n); /* (q0, M v0 below, or when asked: blocks_only) */
   it->p = alloc_raw(n);
   /* Slow coordinates first, then the fast ones, in their order (the usual
    * layout): the rate blocks are views of q and p, and a step's new state
@@ -764,7 +781,11 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
       !it->cA || !it->cmu || !it->mu_h || !it->pGf || !it->pA || !it->pmu)
     goto oom;
   /* Initial state (q0, M v0) at t = 0; constraints must hold at q0. */
-  for (size_t i = 0; i < n; i++) {
+  it->n_torsion = mrvi_model_n_torsions(m);
+  it->blocks_only = !it->packed && m->n_constraints == 0 && it->n_torsion == 0;
+  if (it->blocks_only)
+    initial_blocks(it);
+  for (size_t i = 0; !it->blocks_only && i < n; i++) {
     it->q[i] = m->q0[i];
     it->p[i] = m->mass[i] * m->v0[i];
   }
@@ -785,12 +806,11 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     return st;
   }
   /* Torsional springs: their branches at q0, nearest their rest angles. */
-  it->n_torsion = mrvi_model_n_torsions(m);
   if (!(it->torsion = alloc((size_t)it->n_torsion)))
     goto oom;
   mrvi_model_torsion_init(m, it->q, it->torsion);
-  it->blocks_only = !it->packed && m->n_constraints == 0 && it->n_torsion == 0;
-  split_state(it);
+  if (!it->blocks_only)
+    split_state(it);
   it->step.qs0 = it->qs;
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;

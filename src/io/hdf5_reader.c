@@ -570,7 +570,8 @@ static int same_coordinates(const mrvi_h5in *in, const mrvi_model *m) {
     return st;
   }
   for (int i = 0; i < n && st == MRVI_OK; i++) {
-    const char *want = mrvi_model_coordinate_name(m, i);
+    char buf[MRVI_NAME_MAX];
+    const char *want = mrvi_model_coordinate_name(m, i, buf);
     const int fast = mrvi_model_rate(m, i) == MRVI_FAST;
     if (strcmp(name[i], want ? want : "") != 0)
       st = mrvi_fail(in->msg, in->len, MRVI_EINVAL,

@@ -419,15 +419,16 @@ static int write_model(mrvi_writer *w, const mrvi_model *m,
   double *mass = malloc((n ? n : 1) * sizeof *mass);
   int *rate = malloc((n ? n : 1) * sizeof *rate);
   const char **name = malloc((n ? n : 1) * sizeof *name);
+  /* (the names made on demand, mrvi_model_coordinate_name, in one block) */
+  char *made = name ? mrvi_model_names(m, 0, name) : NULL;
   int rc = 0;
-  if (!mass || !rate || !name) {
+  if (!mass || !rate || !made) {
     rc = fail(w, MRVI_ENOMEM, "writing /model: out of memory");
     goto out;
   }
   for (size_t i = 0; i < n; i++) {
     mass[i] = mrvi_model_mass(m, (int)i);
     rate[i] = mrvi_model_rate(m, (int)i) == MRVI_FAST ? 1 : 0;
-    name[i] = mrvi_model_coordinate_name(m, (int)i);
     if (!name[i])
       name[i] = "";
   }
@@ -445,6 +446,7 @@ out:
   free(mass);
   free(rate);
   free(name);
+  free(made);
   return rc;
 }
 
@@ -469,7 +471,8 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
   double *a_point = malloc(cap * 3 * sizeof *a_point);
   int lin[3] = {0, 0, 0}, ang[3] = {0, 0, 0};
   int rc = 0;
-  if (!name || !column || !pairs || !kind || !a_particle || !a_kind ||
+  char *made = name ? mrvi_model_names(m, 1, name) : NULL;
+  if (!made || !column || !pairs || !kind || !a_particle || !a_kind ||
       !a_point || ne < 0 || na < 0 || mrvi_model_conserved(m, lin, ang) < 0) {
     rc = fail(w, MRVI_ENOMEM, "writing /model: out of memory");
     goto out;
@@ -478,7 +481,8 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
   mrvi_model_anchors(m, a_particle, a_point, a_kind, na);
   for (int i = 0; i < np; i++) {
     column[i] = m->particles[i].first;
-    name[i] = m->particles[i].name ? m->particles[i].name : "";
+    if (!name[i])
+      name[i] = "";
   }
   const int dim = w->dim;
   const fixed_dataset list[] = {
@@ -521,6 +525,7 @@ out:
   free(a_kind);
   free(a_point);
   free(name);
+  free(made);
   free(column);
   free(pairs);
   free(kind);

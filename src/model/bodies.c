@@ -182,10 +182,9 @@ int mrvi_model_add_body(mrvi_model *m, const char *name, int dimension,
                            name, D, m->dimension);
   if (mrvi_model_find_body(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate body name '%s'", name);
-  for (int i = 0; i < m->n_particles; i++)
-    if (strcmp(m->particles[i].name, name) == 0)
-      return mrvi_model_fail(m, MRVI_EINVAL,
-                             "body '%s': a particle has that name", name);
+  if (mrvi_model_find_particle(m, name) >= 0)
+    return mrvi_model_fail(m, MRVI_EINVAL,
+                           "body '%s': a particle has that name", name);
   if (rate != MRVI_SLOW && rate != MRVI_FAST)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "body '%s': rate must be slow or fast", name);

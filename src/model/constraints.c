@@ -101,11 +101,11 @@ int mrvi_model_add_constraint(mrvi_model *m, const char *type, int n_in,
       if (coords[i] == coords[j])
         return mrvi_model_fail(m, MRVI_EINVAL,
                                "%s: coordinate '%s' appears twice", t->name,
-                               m->names[coords[j]]);
+                               MRVI_CNAME(m, coords[j]));
   }
   char def[300];
   if (!label) {
-    mrvi_fmt(def, sizeof def, "%s on %s%s", t->name, m->names[coords[0]],
+    mrvi_fmt(def, sizeof def, "%s on %s%s", t->name, MRVI_CNAME(m, coords[0]),
              n_in > 1 ? ", ..." : "");
     label = def;
   }
@@ -192,10 +192,10 @@ int mrvi_model_add_distance(mrvi_model *m, int particle_i, int particle_j,
   if (particle_i == particle_j)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "distance: both ends are particle '%s'",
-                           m->particles[particle_i].name);
+                           MRVI_PNAME(m, particle_i));
   char label[300];
-  mrvi_fmt(label, sizeof label, "distance %s-%s", m->particles[particle_i].name,
-           m->particles[particle_j].name);
+  mrvi_fmt(label, sizeof label, "distance %s-%s", MRVI_PNAME(m, particle_i),
+           MRVI_PNAME(m, particle_j));
   return mrvi_model_add_constraint(m, "distance", 2 * d, in, 1, &length, label);
 }
 
@@ -213,7 +213,7 @@ int mrvi_model_add_distance_anchor(mrvi_model *m, int particle_i,
     par[1 + a] = anchor[a];
   char label[300];
   mrvi_fmt(label, sizeof label, "distance %s-anchor",
-           m->particles[particle_i].name);
+           MRVI_PNAME(m, particle_i));
   return mrvi_model_add_constraint(m, "distance", d, in, d + 1, par, label);
 }
 
@@ -237,9 +237,9 @@ int mrvi_model_add_fixed(mrvi_model *m, int particle_i, const int *axes,
     }
   if (n == 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "fixed %s: no axis selected",
-                           m->particles[particle_i].name);
+                           MRVI_PNAME(m, particle_i));
   char label[300];
-  mrvi_fmt(label, sizeof label, "fixed %s%s%s", m->particles[particle_i].name,
+  mrvi_fmt(label, sizeof label, "fixed %s%s%s", MRVI_PNAME(m, particle_i),
            n < d ? "." : "", n < d ? which : "");
   return mrvi_model_add_constraint(m, "fixed", n, in, n, target, label);
 }
@@ -258,7 +258,7 @@ int mrvi_model_add_plane(mrvi_model *m, int particle_i, const double *normal,
     par[a] = normal[a];
   par[d] = offset;
   char label[300];
-  mrvi_fmt(label, sizeof label, "plane %s", m->particles[particle_i].name);
+  mrvi_fmt(label, sizeof label, "plane %s", MRVI_PNAME(m, particle_i));
   return mrvi_model_add_constraint(m, "plane", d, in, d + 1, par, label);
 }
 
@@ -279,7 +279,7 @@ int mrvi_model_add_linear_constraint(mrvi_model *m, int n_terms,
   }
   par[n_terms] = rhs; /* NAN: initial */
   char label[300];
-  mrvi_fmt(label, sizeof label, "linear on %s%s", m->names[coords[0]],
+  mrvi_fmt(label, sizeof label, "linear on %s%s", MRVI_CNAME(m, coords[0]),
            n_terms > 1 ? ", ..." : "");
   return mrvi_model_add_constraint(m, "linear", n_terms, coords, n_terms + 1,
                                    par, label);

@@ -4,6 +4,7 @@
 
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 /* Particles along each axis (1 for unused axes). */
 static void extent(const mrvi_generator *g, int n[3]) {
@@ -30,6 +31,18 @@ long mrvi_generator_particles(const mrvi_generator *g, char *msg, size_t len) {
                      "a generator makes 2 to %ld particles (got %ld)",
                      (long)MRVI_MAX_GENERATED, total);
   return total;
+}
+
+void mrvi_generated_name(int kind, const char *prefix, const int n[3], long lin,
+                         char *buf, size_t len) {
+  const int i = (int)(lin % n[0]), j = (int)(lin / n[0] % n[1]),
+            k = (int)(lin / ((long)n[0] * n[1]));
+  if (kind == MRVI_GEN_LATTICE2D)
+    mrvi_fmt(buf, len, "%s%d_%d", prefix, i, j);
+  else if (kind == MRVI_GEN_LATTICE3D)
+    mrvi_fmt(buf, len, "%s%d_%d_%d", prefix, i, j, k);
+  else
+    mrvi_fmt(buf, len, "%s%ld", prefix, lin);
 }
 
 static mrvi_rate rate_of(const mrvi_generator *g, const int idx[3], long lin) {
@@ -88,6 +101,22 @@ int mrvi_model_generate(mrvi_model *m, const mrvi_generator *g,
   int n[3], counts[4] = {0, 0, 0, 0};
   extent(g, n);
   const int first = m->n_particles;
+  /* Springs: along each axis, (n_a - 1) per line of the others; a ring's
+   * closing one. */
+  long springs = g->kind == MRVI_GEN_RING;
+  for (int a = 0; a < 3; a++)
+    springs += (long)(n[a] - 1) * (total / n[a]);
+  int st0 = mrvi_model_reserve(m, (int)total, (int)springs);
+  if (st0 < 0)
+    return st0;
+  /* The names by a rule, made when asked (model.c), not stored: a network
+   * would hold a name and a pointer per particle and per coordinate. */
+  const int ruled = strlen(g->prefix) <= MRVI_RULE_PREFIX_MAX;
+  if (ruled) {
+    const int st = mrvi_model_add_rule(m, g->kind, g->prefix, n);
+    if (st < 0)
+      return st;
+  }
   /* Particles in linear order, x fastest. */
   for (long lin = 0; lin < total; lin++) {
     const int idx[3] = {(int)(lin % n[0]), (int)(lin / n[0] % n[1]),
@@ -112,15 +141,11 @@ int mrvi_model_generate(mrvi_model *m, const mrvi_generator *g,
       if (g->velocity)
         v[a] = g->velocity[lin * d + a];
     }
-    if (g->kind == MRVI_GEN_LATTICE2D)
-      mrvi_fmt(name, sizeof name, "%s%d_%d", g->prefix, idx[0], idx[1]);
-    else if (g->kind == MRVI_GEN_LATTICE3D)
-      mrvi_fmt(name, sizeof name, "%s%d_%d_%d", g->prefix, idx[0], idx[1],
-               idx[2]);
-    else
-      mrvi_fmt(name, sizeof name, "%s%ld", g->prefix, lin);
+    mrvi_generated_name(g->kind, g->prefix, n, lin, name, sizeof name);
     const mrvi_rate r = rate_of(g, idx, lin);
-    const int p = mrvi_model_add_particle(m, name, g->mass, r, x, v);
+    const int p = ruled
+                      ? mrvi_model_add_ruled_particle(m, name, g->mass, r, x, v)
+                      : mrvi_model_add_particle(m, name, g->mass, r, x, v);
     if (p < 0)
       return p;
     counts[1] += r == MRVI_SLOW;

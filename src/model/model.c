@@ -1,6 +1,7 @@
 /* Model builder: coordinates, particles, potential elements, partition. */
 #include "model/model.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -64,7 +65,11 @@ void mrvi_model_free(mrvi_model *m) {
     if (m->elements[e].kind == MRVI_ELEMENT_TORSION)
       free(m->elements[e].axes);
   }
-  free(m->names);
+  free(m->own_names);
+  free(m->own_coord);
+  for (int r = 0; r < m->n_rules; r++)
+    free(m->rules[r].prefix);
+  free(m->rules);
   free(m->mass);
   free(m->q0);
   free(m->v0);
@@ -180,11 +185,14 @@ static int table_reserve(int **table, int *cap, int count, int n_index,
   return 0;
 }
 
-static const char *coord_name(const mrvi_model *m, int i) {
-  return m->names[i];
+static const char *own_name(const mrvi_model *m, int k) {
+  return m->own_names[k];
 }
 static const char *particle_name(const mrvi_model *m, int i) {
   return m->particles[i].name;
+}
+static int has_stored_name(const mrvi_model *m, int i) {
+  return m->particles[i].name != NULL;
 }
 
 /* Particle owning coordinate c, or -1: particles are added with fresh
@@ -204,18 +212,112 @@ static int particle_of(const mrvi_model *m, int c) {
   return p >= 0 && c < m->particles[p].first + m->dimension ? p : -1;
 }
 
-/* The coordinate table holds the coordinates that are not a particle's:
- * a particle's (its name, '.', the axis letter) are found through the
- * particle table, which spares a network an entry per coordinate. */
-static int coord_in_table(const mrvi_model *m, int c) {
-  return particle_of(m, c) < 0;
+/* The unsigned decimal number at *s (no sign, at most 9 digits), or -1;
+ * *s moves past it. */
+static long parse_index(const char **s) {
+  long v = 0;
+  int k = 0;
+  for (; **s >= '0' && **s <= '9' && k < 10; (*s)++, k++)
+    v = 10 * v + (**s - '0');
+  return k == 0 || k > 9 ? -1 : v;
 }
 
-static int find_coordinate(const mrvi_model *m, const char *name) {
-  const int c = table_find(m->coord_table, m->coord_table_cap, name,
-                           strlen(name), coord_name, m);
-  if (c >= 0)
-    return c;
+/* The particle of rule r named by the len characters of `name`, or -1:
+ * the indices after the prefix, checked by making the name again (no
+ * leading zeros, no other separators). */
+static int rule_find(const mrvi_name_rule *r, const char *name, size_t len) {
+  const size_t pl = strlen(r->prefix);
+  if (len <= pl || strncmp(name, r->prefix, pl) != 0)
+    return -1;
+  const int axes = r->kind == MRVI_GEN_LATTICE3D   ? 3
+                   : r->kind == MRVI_GEN_LATTICE2D ? 2
+                                                   : 1;
+  const char *s = name + pl;
+  long idx[3] = {0, 0, 0};
+  for (int a = 0; a < axes; a++) {
+    if (a > 0 && *s++ != '_')
+      return -1;
+    idx[a] = parse_index(&s);
+    if (idx[a] < 0 || (axes > 1 && idx[a] >= r->n[a]))
+      return -1;
+  }
+  if ((size_t)(s - name) != len)
+    return -1;
+  const long lin = idx[0] + (long)r->n[0] * (idx[1] + (long)r->n[1] * idx[2]);
+  if (lin >= r->count)
+    return -1;
+  char buf[MRVI_NAME_MAX];
+  mrvi_generated_name(r->kind, r->prefix, r->n, lin, buf, sizeof buf);
+  if (strncmp(buf, name, len) != 0 || buf[len] != '\0')
+    return -1;
+  return r->first + (int)lin;
+}
+
+/* The particle named by the len characters of `name`, or -1: a stored
+ * name in the table, else a generated one by its rule. */
+static int find_particle_n(const mrvi_model *m, const char *name, size_t len) {
+  const int p = table_find(m->particle_table, m->particle_table_cap, name, len,
+                           particle_name, m);
+  for (int r = 0; p < 0 && r < m->n_rules; r++) {
+    const int q = rule_find(&m->rules[r], name, len);
+    if (q >= 0)
+      return q;
+  }
+  return p;
+}
+
+int mrvi_model_find_particle(const mrvi_model *m, const char *name) {
+  return find_particle_n(m, name, strlen(name));
+}
+
+const char *mrvi_model_particle_name(const mrvi_model *m, int p, char *buf) {
+  if (m->particles[p].name)
+    return m->particles[p].name;
+  for (int r = 0; r < m->n_rules; r++) {
+    const mrvi_name_rule *u = &m->rules[r];
+    if (p >= u->first && p < u->first + u->count) {
+      mrvi_generated_name(u->kind, u->prefix, u->n, p - u->first, buf,
+                          MRVI_NAME_MAX);
+      return buf;
+    }
+  }
+  buf[0] = '\0'; /* (not reached: every particle has a name) */
+  return buf;
+}
+
+/* Own coordinate c's index in own_coord (increasing), or -1. */
+static int own_of(const mrvi_model *m, int c) {
+  int lo = 0, hi = m->n_own - 1;
+  while (lo <= hi) {
+    const int mid = lo + (hi - lo) / 2;
+    if (m->own_coord[mid] == c)
+      return mid;
+    if (m->own_coord[mid] < c)
+      lo = mid + 1;
+    else
+      hi = mid - 1;
+  }
+  return -1;
+}
+
+const char *mrvi_model_coordinate_name(const mrvi_model *m, int i, char *buf) {
+  static const char axis[3] = {'x', 'y', 'z'};
+  if (i < 0 || i >= m->n)
+    return NULL;
+  const int p = particle_of(m, i), k = p < 0 ? own_of(m, i) : -1;
+  if (p < 0)
+    return k >= 0 ? m->own_names[k] : NULL;
+  char pname[MRVI_NAME_MAX];
+  mrvi_fmt(buf, MRVI_NAME_MAX, "%s.%c", mrvi_model_particle_name(m, p, pname),
+           axis[i - m->particles[p].first]);
+  return buf;
+}
+
+int mrvi_model_find_coordinate(const mrvi_model *m, const char *name) {
+  const int k = table_find(m->coord_table, m->coord_table_cap, name,
+                           strlen(name), own_name, m);
+  if (k >= 0)
+    return m->own_coord[k];
   static const char axes[] = "xyz";
   const char *dot = strrchr(name, '.');
   if (!dot || dot == name || !dot[1] || dot[2])
@@ -223,12 +325,12 @@ static int find_coordinate(const mrvi_model *m, const char *name) {
   const char *a = strchr(axes, dot[1]);
   if (!a || a - axes >= m->dimension)
     return -1;
-  const int p = table_find(m->particle_table, m->particle_table_cap, name,
-                           (size_t)(dot - name), particle_name, m);
+  const int p = find_particle_n(m, name, (size_t)(dot - name));
   if (p < 0)
     return -1;
   const int pc = m->particles[p].first + (int)(a - axes);
-  return strcmp(m->names[pc], name) == 0 ? pc : -1;
+  char buf[MRVI_NAME_MAX]; /* (a name cut at MRVI_NAME_MAX is not found) */
+  return strcmp(mrvi_model_coordinate_name(m, pc, buf), name) == 0 ? pc : -1;
 }
 
 /* Extend the slow/fast index maps by the coordinate just appended (the
@@ -249,9 +351,8 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   if (need <= m->cap)
     return 0;
   int c = m->cap ? 2 * m->cap : 16;
-  void *a = realloc(m->names, (size_t)c * sizeof *m->names);
-  if (a)
-    m->names = a;
+  if (c < need)
+    c = need;
   void *b = realloc(m->mass, (size_t)c * sizeof *m->mass);
   if (b)
     m->mass = b;
@@ -273,7 +374,7 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   void *sl = realloc(m->slot, (size_t)c * sizeof *m->slot);
   if (sl)
     m->slot = sl;
-  if (!a || !b || !q || !v || !r || !si || !fi || !sl)
+  if (!b || !q || !v || !r || !si || !fi || !sl)
     return -1;
   m->cap = c;
   return 0;
@@ -315,7 +416,7 @@ int *mrvi_model_inputs(mrvi_model *m, int n) {
 }
 
 /* Append a coordinate; in_table: a coordinate of its own (not a
- * particle's, coord_in_table). */
+ * particle's), its name stored and in the coordinate table. */
 static int add_coord(mrvi_model *m, const char *name, double mass,
                      mrvi_rate rate, double q0, double v0, int in_table) {
   if (!name || !*name)
@@ -329,26 +430,31 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
   if (rate != MRVI_SLOW && rate != MRVI_FAST)
     return mrvi_model_fail(m, MRVI_EINVAL, "rate of '%s' must be slow or fast",
                            name);
-  if (find_coordinate(m, name) >= 0)
+  if (mrvi_model_find_coordinate(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate coordinate name '%s'",
                            name);
   if (reserve_coordinates(m, m->n + 1) ||
-      (in_table &&
-       table_reserve(&m->coord_table, &m->coord_table_cap, m->n_coord_table,
-                     m->n, coord_in_table, coord_name, m)))
+      (in_table && (table_reserve(&m->coord_table, &m->coord_table_cap,
+                                  m->n_own, m->n_own, NULL, own_name, m) ||
+                    grow((void **)&m->own_names, &m->cap_own, m->n_own + 1,
+                         sizeof *m->own_names))))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  char *d = store_name(m, name);
-  if (!d)
-    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  m->names[m->n] = d;
+  if (in_table) { /* (own_coord: the capacity of own_names) */
+    void *oc = realloc(m->own_coord, (size_t)m->cap_own * sizeof *m->own_coord);
+    char *d = oc ? store_name(m, name) : NULL;
+    if (oc)
+      m->own_coord = oc;
+    if (!d)
+      return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+    m->own_names[m->n_own] = d;
+    m->own_coord[m->n_own] = m->n;
+    table_put(m->coord_table, m->coord_table_cap, d, m->n_own);
+    m->n_own++;
+  }
   m->mass[m->n] = mass;
   m->q0[m->n] = q0;
   m->v0[m->n] = v0;
   m->rate[m->n] = rate;
-  if (in_table) {
-    table_put(m->coord_table, m->coord_table_cap, d, m->n);
-    m->n_coord_table++;
-  }
   m->n++;
   update_partition(m);
   return m->n - 1;
@@ -359,9 +465,10 @@ int mrvi_model_add_coordinate(mrvi_model *m, const char *name, double mass,
   return add_coord(m, name, mass, rate, q0, v0, 1);
 }
 
-int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
-                            mrvi_rate rate, const double *x0,
-                            const double *v0) {
+/* mrvi_model_add_particle; ruled: named by the last rule (not stored). */
+static int add_particle(mrvi_model *m, const char *name, double mass,
+                        mrvi_rate rate, const double *x0, const double *v0,
+                        int ruled) {
   static const char axis[3] = {'x', 'y', 'z'};
   if (m->dimension < 1)
     return mrvi_model_fail(m, MRVI_EINVAL,
@@ -373,15 +480,15 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (!x0 || !v0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s' needs position and velocity", name);
-  if (table_find(m->particle_table, m->particle_table_cap, name, strlen(name),
-                 particle_name, m) >= 0)
+  if (mrvi_model_find_particle(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "duplicate particle name '%s'",
                            name);
   if (mrvi_model_find_body(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s': a body has that name", name);
-  if (table_reserve(&m->particle_table, &m->particle_table_cap, m->n_particles,
-                    m->n_particles, NULL, particle_name, m))
+  if (!ruled && table_reserve(&m->particle_table, &m->particle_table_cap,
+                              m->n_particle_table, m->n_particles,
+                              has_stored_name, particle_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   if (!isfinite(mass) || mass <= 0)
     return mrvi_model_fail(
@@ -389,21 +496,95 @@ int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
   if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
            sizeof *m->particles))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  char *pname = store_name(m, name);
-  if (!pname)
+  char *pname = ruled ? NULL : store_name(m, name);
+  if (!ruled && !pname)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   int first = m->n;
   for (int d = 0; d < m->dimension; d++) {
     char buf[256];
     mrvi_fmt(buf, sizeof buf, "%s.%c", name, axis[d]);
     int st = add_coord(m, buf, mass, rate, x0[d], v0[d], 0);
-    if (st < 0)
+    if (st < 0) { /* (its coordinates go: they have no name without it) */
+      while (m->n > first)
+        m->rate[--m->n] == MRVI_SLOW ? m->n_slow-- : m->n_fast--;
       return st;
+    }
   }
   m->particles[m->n_particles].name = pname;
   m->particles[m->n_particles].first = first;
-  table_put(m->particle_table, m->particle_table_cap, pname, m->n_particles);
+  if (ruled) {
+    m->rules[m->n_rules - 1].count++;
+  } else {
+    table_put(m->particle_table, m->particle_table_cap, pname, m->n_particles);
+    m->n_particle_table++;
+  }
   return m->n_particles++;
+}
+
+int mrvi_model_add_particle(mrvi_model *m, const char *name, double mass,
+                            mrvi_rate rate, const double *x0,
+                            const double *v0) {
+  return add_particle(m, name, mass, rate, x0, v0, 0);
+}
+
+int mrvi_model_add_ruled_particle(mrvi_model *m, const char *name, double mass,
+                                  mrvi_rate rate, const double *x0,
+                                  const double *v0) {
+  return add_particle(m, name, mass, rate, x0, v0, 1);
+}
+
+int mrvi_model_reserve(mrvi_model *m, int particles, int elements) {
+  const int d = m->dimension > 0 ? m->dimension : 1;
+  if (particles < 0 || elements < 0 ||
+      particles > (INT_MAX - m->n) / d - m->n_particles ||
+      elements > INT_MAX - m->n_elements ||
+      reserve_coordinates(m, m->n + d * particles) ||
+      grow((void **)&m->particles, &m->cap_particles,
+           m->n_particles + particles, sizeof *m->particles) ||
+      grow((void **)&m->elements, &m->cap_elements, m->n_elements + elements,
+           sizeof *m->elements))
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  return MRVI_OK;
+}
+
+int mrvi_model_add_rule(mrvi_model *m, int kind, const char *prefix,
+                        const int n[3]) {
+  char *d = strdup(prefix);
+  if (!d || grow((void **)&m->rules, &m->cap_rules, m->n_rules + 1,
+                 sizeof *m->rules)) {
+    free(d);
+    return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  }
+  m->rules[m->n_rules++] =
+      (mrvi_name_rule){d, kind, {n[0], n[1], n[2]}, m->n_particles, 0};
+  return MRVI_OK;
+}
+
+char *mrvi_model_names(const mrvi_model *m, int particles, const char **out) {
+  const int count = particles ? m->n_particles : m->n;
+  size_t bytes = 1;
+  char buf[MRVI_NAME_MAX];
+  for (int i = 0; i < count; i++) { /* (the names made here: their room) */
+    const int made = particles ? !m->particles[i].name : particle_of(m, i) >= 0;
+    if (made)
+      bytes += strlen(particles ? mrvi_model_particle_name(m, i, buf)
+                                : mrvi_model_coordinate_name(m, i, buf)) +
+               1;
+  }
+  char *block = malloc(bytes), *at = block;
+  for (int i = 0; block && i < count; i++) {
+    const char *s = particles ? mrvi_model_particle_name(m, i, buf)
+                              : mrvi_model_coordinate_name(m, i, buf);
+    if (s == buf) {
+      const size_t len = strlen(s) + 1;
+      memcpy(at, s, len);
+      out[i] = at;
+      at += len;
+    } else {
+      out[i] = s;
+    }
+  }
+  return block;
 }
 
 /* Release what element e (not yet pushed) owns. */
@@ -432,7 +613,7 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
             "fast particles make it slow ('potential: slow'), i.e. part "
             "of V, which the default micro slow grid evaluates at every "
             "micro step",
-            what, m->names[c]);
+            what, MRVI_CNAME(m, c));
       }
   if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
            sizeof *m->elements)) {
@@ -556,13 +737,13 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
   if (particle_i == particle_j)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "spring: both ends are particle '%s'",
-                           m->particles[particle_i].name);
+                           MRVI_PNAME(m, particle_i));
   if (!isfinite(rest_length))
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "spring: rest length must be finite");
   char what[300];
-  mrvi_fmt(what, sizeof what, "spring %s-%s", m->particles[particle_i].name,
-           m->particles[particle_j].name);
+  mrvi_fmt(what, sizeof what, "spring %s-%s", MRVI_PNAME(m, particle_i),
+           MRVI_PNAME(m, particle_j));
   mrvi_element e = {.kind = MRVI_ELEMENT_SPRING,
                     .potential = potential,
                     .shift = rest_length};
@@ -588,8 +769,7 @@ int mrvi_model_add_anchor_spring(mrvi_model *m, mrvi_rate potential,
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "spring: rest length must be finite");
   char what[300];
-  mrvi_fmt(what, sizeof what, "spring %s-anchor",
-           m->particles[particle_i].name);
+  mrvi_fmt(what, sizeof what, "spring %s-anchor", MRVI_PNAME(m, particle_i));
   mrvi_element e = {.kind = MRVI_ELEMENT_ANCHOR,
                     .potential = potential,
                     .shift = rest_length};
@@ -635,7 +815,7 @@ static int check_end(mrvi_model *m, const mrvi_end *e, const char *what) {
 static void end_name(const mrvi_model *m, const mrvi_end *e, char *buf,
                      size_t len) {
   if (e->particle >= 0) {
-    mrvi_fmt(buf, len, "%s", m->particles[e->particle].name);
+    mrvi_fmt(buf, len, "%s", MRVI_PNAME(m, e->particle));
     return;
   }
   const double *a = e->at;
@@ -911,15 +1091,15 @@ int mrvi_model_add_term(mrvi_model *m, mrvi_rate potential, int n_terms,
     if (!isfinite(coef[j]))
       return mrvi_model_fail(m, MRVI_EINVAL,
                              "term: coefficient of '%s' must be finite",
-                             m->names[coords[j]]);
+                             MRVI_CNAME(m, coords[j]));
     for (int i = 0; i < j; i++)
       if (coords[i] == coords[j])
         return mrvi_model_fail(m, MRVI_EINVAL,
                                "term: coordinate '%s' appears twice",
-                               m->names[coords[j]]);
+                               MRVI_CNAME(m, coords[j]));
   }
   char what[300];
-  mrvi_fmt(what, sizeof what, "term on %s%s", m->names[coords[0]],
+  mrvi_fmt(what, sizeof what, "term on %s%s", MRVI_CNAME(m, coords[0]),
            n_terms > 1 ? ", ..." : "");
   mrvi_element e = {.kind = MRVI_ELEMENT_TERM,
                     .potential = potential,
@@ -998,9 +1178,8 @@ int mrvi_model_add_angle(mrvi_model *m, mrvi_rate potential, int particle_i,
                            "angle: particle index out of range");
   if (m->dimension < 2)
     return mrvi_model_fail(m, MRVI_EINVAL, "angle: needs dimension 2 or 3");
-  const char *ni = m->particles[particle_i].name,
-             *nj = m->particles[particle_j].name,
-             *nk = m->particles[particle_k].name;
+  const char *ni = MRVI_PNAME(m, particle_i), *nj = MRVI_PNAME(m, particle_j),
+             *nk = MRVI_PNAME(m, particle_k);
   char what[400];
   mrvi_fmt(what, sizeof what, "angle %s-%s-%s", ni, nj, nk);
   if (particle_i == particle_j || particle_j == particle_k ||
@@ -1048,10 +1227,10 @@ int mrvi_model_add_force(mrvi_model *m, mrvi_rate potential, int n_terms,
           m, MRVI_EINVAL, "force: coordinate index %d out of range", coords[j]);
     if (!isfinite(f[j]))
       return mrvi_model_fail(m, MRVI_EINVAL, "force on '%s' must be finite",
-                             m->names[coords[j]]);
+                             MRVI_CNAME(m, coords[j]));
   }
   char what[300];
-  mrvi_fmt(what, sizeof what, "force on %s%s", m->names[coords[0]],
+  mrvi_fmt(what, sizeof what, "force on %s%s", MRVI_CNAME(m, coords[0]),
            n_terms > 1 ? ", ..." : "");
   mrvi_element e = {
       .kind = MRVI_ELEMENT_FORCE, .potential = potential, .n_in = n_terms};
@@ -1094,9 +1273,6 @@ int mrvi_model_dimension(const mrvi_model *m) {
 int mrvi_model_n_particles(const mrvi_model *m) { return m->n_particles; }
 int mrvi_model_n_elements(const mrvi_model *m) { return m->n_elements; }
 const char *mrvi_model_name(const mrvi_model *m) { return m->name; }
-const char *mrvi_model_coordinate_name(const mrvi_model *m, int i) {
-  return i >= 0 && i < m->n ? m->names[i] : NULL;
-}
 double mrvi_model_mass(const mrvi_model *m, int i) { return m->mass[i]; }
 mrvi_rate mrvi_model_rate(const mrvi_model *m, int i) { return m->rate[i]; }
 const double *mrvi_model_q0(const mrvi_model *m) { return m->q0; }
@@ -1128,16 +1304,16 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
       mrvi_fmt(buf, len,
                "%s spring between points (%d inputs, %s .. %s), rest length "
                "%g, %s",
-               rate, e->n_in, m->names[e->in[0]], m->names[e->in[e->n_in - 1]],
-               e->shift, law);
+               rate, e->n_in, MRVI_CNAME(m, e->in[0]),
+               MRVI_CNAME(m, e->in[e->n_in - 1]), e->shift, law);
       break;
     }
     if (e->kind == MRVI_ELEMENT_ANCHOR)
       goto anchor;
     mrvi_fmt(buf, len, "%s spring %s-%s, rest length %g, %s", rate,
-             m->particles[mrvi_element_particle(m, e, 0)].name,
-             m->particles[mrvi_element_particle(m, e, m->dimension)].name,
-             e->shift, law);
+             MRVI_PNAME(m, mrvi_element_particle(m, e, 0)),
+             MRVI_PNAME(m, mrvi_element_particle(m, e, m->dimension)), e->shift,
+             law);
     break;
   anchor : {
     char a[96];
@@ -1149,8 +1325,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
       mrvi_fmt(a, sizeof a, "[%g, %g, %g]", e->anchor[0], e->anchor[1],
                e->anchor[2]);
     mrvi_fmt(buf, len, "%s spring %s-anchor %s, rest length %g, %s", rate,
-             m->particles[mrvi_element_particle(m, e, 0)].name, a, e->shift,
-             law);
+             MRVI_PNAME(m, mrvi_element_particle(m, e, 0)), a, e->shift, law);
     break;
   }
   case MRVI_ELEMENT_TERM: {
@@ -1166,7 +1341,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
       if (a != 1)
         mrvi_fmt(k, sizeof k, "%g*", a);
       used += (size_t)snprintf(comb + used, sizeof comb - used, "%s%s%s", sign,
-                               k, m->names[e->in[j]]);
+                               k, MRVI_CNAME(m, e->in[j]));
     }
     char off[40] = "";
     if (e->shift != 0)
@@ -1184,9 +1359,9 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     break;
   case MRVI_ELEMENT_ANGLE:
     mrvi_fmt(buf, len, "%s angle %s-%s-%s, stiffness %g, rest angle %g rad",
-             rate, m->particles[mrvi_element_particle(m, e, 0)].name,
-             m->particles[mrvi_element_particle(m, e, m->dimension)].name,
-             m->particles[mrvi_element_particle(m, e, 2 * m->dimension)].name,
+             rate, MRVI_PNAME(m, mrvi_element_particle(m, e, 0)),
+             MRVI_PNAME(m, mrvi_element_particle(m, e, m->dimension)),
+             MRVI_PNAME(m, mrvi_element_particle(m, e, 2 * m->dimension)),
              e->params[0], e->shift);
     break;
   case MRVI_ELEMENT_FORCE: {
@@ -1194,8 +1369,9 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
     size_t used = 0;
     f[0] = '\0';
     for (int j = 0; j < e->n_in && used < sizeof f; j++)
-      used += (size_t)snprintf(f + used, sizeof f - used, "%s%s %g",
-                               j ? ", " : "", m->names[e->in[j]], -e->coef[j]);
+      used +=
+          (size_t)snprintf(f + used, sizeof f - used, "%s%s %g", j ? ", " : "",
+                           MRVI_CNAME(m, e->in[j]), -e->coef[j]);
     mrvi_fmt(buf, len, "%s constant force: %s", rate, f);
     break;
   }
@@ -1558,7 +1734,9 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
   fnv(&h, &m->n, sizeof m->n);
   fnv(&h, &m->dimension, sizeof m->dimension);
   for (int i = 0; i < m->n; i++) {
-    fnv(&h, m->names[i], strlen(m->names[i]) + 1);
+    char buf[MRVI_NAME_MAX];
+    const char *name = mrvi_model_coordinate_name(m, i, buf);
+    fnv(&h, name, strlen(name) + 1);
     fnv(&h, &m->mass[i], sizeof(double));
     fnv(&h, &m->q0[i], sizeof(double));
     fnv(&h, &m->v0[i], sizeof(double));

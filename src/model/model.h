@@ -53,9 +53,24 @@ typedef struct mrvi_element {
 } mrvi_element;
 
 typedef struct mrvi_particle {
+  /* NULL for a generated particle, whose name its generator's rule makes
+   * when asked (mrvi_model_particle_name) */
   char *name;
   int first; /* model index of its x coordinate */
 } mrvi_particle;
+
+/* The names of one generator's particles (generators.c), made when asked
+ * instead of stored: particles first .. first + count - 1 are those of
+ * linear index 0 .. count - 1 (x fastest) on n[0] x n[1] x n[2]. */
+typedef struct mrvi_name_rule {
+  char *prefix;
+  int kind; /* mrvi_generator_kind */
+  int n[3];
+  int first, count;
+} mrvi_name_rule;
+/* The longest prefix a rule takes (longer ones: names stored, as a name
+ * of MRVI_NAME_MAX - 1 characters or more would be cut). */
+#define MRVI_RULE_PREFIX_MAX 200
 
 /* A constraint instance: type applied to model coordinates `in`. */
 typedef struct mrvi_constraint {
@@ -74,17 +89,25 @@ struct mrvi_model {
   char *name;
   int dimension;
   int n, cap; /* coordinates */
-  char **names;
+  /* Names of the coordinates that are not a particle's (own_coord[k], in
+   * increasing order, is named own_names[k]); a particle's coordinates are
+   * named after it (mrvi_model_coordinate_name). */
+  char **own_names;
+  int *own_coord;
+  int n_own, cap_own;
   double *mass, *q0, *v0;
   mrvi_rate *rate;
   int n_particles, cap_particles;
-  /* Name lookup (model.c): open-addressing tables of coordinate and
-   * particle indices by name, 0 = empty, else index + 1; the coordinate
-   * table holds the n_coord_table coordinates that are not a particle's
-   * (a particle's are found through its name). */
+  /* Name lookup (model.c): open-addressing tables by name, 0 = empty, else
+   * index + 1: of own_names (the coordinates that are not a particle's: a
+   * particle's are found through its name) and of the n_particle_table
+   * particles with a stored name (a generated one's is found through its
+   * rule). */
   int *coord_table, *particle_table;
-  int coord_table_cap, particle_table_cap, n_coord_table;
+  int coord_table_cap, particle_table_cap, n_particle_table;
   mrvi_particle *particles;
+  mrvi_name_rule *rules; /* generators' names (generators.c) */
+  int n_rules, cap_rules;
   int n_elements, cap_elements;
   mrvi_element *elements;
   /* Partition, extended by every add. */
@@ -103,9 +126,9 @@ struct mrvi_model {
   double **param_sets;
   int n_param_sets, cap_param_sets;
   int *param_table, param_table_cap;
-  /* The coordinates' and particles' names and the elements' inputs (`in`),
-   * packed in blocks (model.c, block_alloc) instead of one allocation
-   * each. */
+  /* The names of the coordinates of their own and of the particles not
+   * generated, and the elements' inputs (`in`), packed in blocks (model.c,
+   * block_alloc) instead of one allocation each. */
   char **blocks;
   int n_blocks, cap_blocks;
   size_t block_used, block_cap; /* in the last block */
@@ -142,6 +165,40 @@ double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
 /* Index in a torsion element's axes of its branch (after 3 x 3 frame
  * entries). */
 #define MRVI_TORSION_BRANCH 9
+/* Name of particle p: its stored name, or its rule's made in buf
+ * (MRVI_NAME_MAX bytes) (model.c). */
+const char *mrvi_model_particle_name(const mrvi_model *m, int p, char *buf);
+/* mrvi_model_particle_name and mrvi_model_coordinate_name with a buffer
+ * that lasts to the end of the enclosing block (messages). */
+#define MRVI_PNAME(m, p)                                                       \
+  mrvi_model_particle_name((m), (p), (char[MRVI_NAME_MAX]){""})
+#define MRVI_CNAME(m, c)                                                       \
+  mrvi_model_coordinate_name((m), (c), (char[MRVI_NAME_MAX]){""})
+/* Index of the particle (coordinate) named `name`, or -1 (model.c). */
+int mrvi_model_find_particle(const mrvi_model *m, const char *name);
+int mrvi_model_find_coordinate(const mrvi_model *m, const char *name);
+/* Every particle's name (particles = 1: n_particles of them) or every
+ * coordinate's (n), in index order, into out: pointers into m or into the
+ * returned block, which the caller frees; NULL when out of memory. */
+char *mrvi_model_names(const mrvi_model *m, int particles, const char **out);
+/* Room for `particles` more particles (their coordinates) and `elements`
+ * more elements, made at once: a network grown by doubling leaves the
+ * touched arrays it outgrew on the heap (model.c). */
+int mrvi_model_reserve(mrvi_model *m, int particles, int elements);
+/* A rule (a generator's kind, prefix and counts n) that names the
+ * particles mrvi_model_add_ruled_particle adds next (model.c). */
+int mrvi_model_add_rule(mrvi_model *m, int kind, const char *prefix,
+                        const int n[3]);
+/* mrvi_model_add_particle for a particle named by the last rule (name: the
+ * rule's, checked for duplicates like any other) (model.c). */
+int mrvi_model_add_ruled_particle(mrvi_model *m, const char *name, double mass,
+                                  mrvi_rate rate, const double *x0,
+                                  const double *v0);
+/* Name of the particle of linear index lin made by a generator of kind
+ * `kind` with `prefix` on n[0] x n[1] x n[2] particles (generators.c). */
+void mrvi_generated_name(int kind, const char *prefix, const int n[3], long lin,
+                         char *buf, size_t len);
+
 /* Particle owning input j of element e (springs, anchors and angles of
  * particles: particle i's inputs first, then j's, k's), or -1 (model.c). */
 int mrvi_element_particle(const mrvi_model *m, const mrvi_element *e, int j);

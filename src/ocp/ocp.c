@@ -301,7 +301,8 @@ int mrvi_ocp_add_actuator(mrvi_ocp *o, int c, mrvi_grid grid, double weight,
                               .upper = upper,
                               .offset = o->n_u,
                               .size = (int)(o->N * per)};
-  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s", o->model->names[c]);
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s",
+           MRVI_CNAME(o->model, c));
   o->n_u += o->act[ia].size;
   /* Force template of one step (virtual work, see the file comment). */
   const mrvi_model *m = o->model;
@@ -342,7 +343,7 @@ int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
   if (pi == pj)
     return mrvi_ocp_fail(o, MRVI_EINVAL,
                          "pair actuator: particle '%s' given twice",
-                         m->particles[pi].name);
+                         MRVI_PNAME(m, pi));
   if (o->ready)
     return mrvi_ocp_fail(o, MRVI_EINVAL,
                          "pair actuators must be added before the first "
@@ -364,8 +365,8 @@ int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
     o->act[ia].in[k] = m->particles[pi].first + k;
     o->act[ia].in[d + k] = m->particles[pj].first + k;
   }
-  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s",
-           m->particles[pi].name, m->particles[pj].name);
+  mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s", MRVI_PNAME(m, pi),
+           MRVI_PNAME(m, pj));
   o->n_state++; /* the step hook is set in ocp_alloc */
   return ia;
 }
@@ -586,7 +587,7 @@ int mrvi_ocp_add_terminal(mrvi_ocp *o, mrvi_ocp_terminal_kind kind, int c,
       "terminal %s of '%s' is implied by the constraints %s and the "
       "conditions before it (redundant: the optimiser's constraint Jacobian "
       "would lose rank); give it a penalty instead, or drop it",
-      kind == MRVI_OCP_POSITION ? "position" : "velocity", m->names[c],
+      kind == MRVI_OCP_POSITION ? "position" : "velocity", MRVI_CNAME(m, c),
       used ? names : "of the model");
 }
 

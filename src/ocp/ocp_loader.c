@@ -163,16 +163,21 @@ static int coordinate(parser *P, struct fy_node *map, const char *where,
   if (!n)
     return fail(P, map, "%s needs a 'coordinate'", where);
   const char *s = fy_node_is_scalar(n) ? fy_node_get_scalar0(n) : NULL;
-  for (int i = 0; s && i < P->m->n; i++)
-    if (!strcmp(s, P->m->names[i])) {
-      *out = i;
-      return MRVI_OK;
-    }
-  const char *close =
-      s ? mrvi_closest(s, (const char *const *)P->m->names, P->m->n) : NULL;
+  if (s && (*out = mrvi_model_find_coordinate(P->m, s)) >= 0)
+    return MRVI_OK;
+  /* (the names made on demand, mrvi_model_coordinate_name, in one block) */
+  const char **names = malloc((size_t)(P->m->n + 1) * sizeof *names);
+  char *made = names ? mrvi_model_names(P->m, 0, names) : NULL;
+  if (!made) {
+    free(names);
+    return fail(P, n, "out of memory");
+  }
+  const char *close = s ? mrvi_closest(s, names, P->m->n) : NULL;
   char hint[160] = "";
   if (close)
     mrvi_fmt(hint, sizeof hint, "; did you mean '%s'?", close);
+  free(made);
+  free(names);
   return fail(P, n, "unknown coordinate '%s' in %s%s", s ? s : "?", where,
               hint);
 }
@@ -188,10 +193,11 @@ static int pair(parser *P, struct fy_node *map, const char *where, int *pi,
     return fail(P, n, "%s.pair must be a list of two particle names", where);
   const mrvi_model *m = P->m;
   const char **names = malloc((size_t)(m->n_particles + 1) * sizeof *names);
-  if (!names)
+  char *made = names ? mrvi_model_names(m, 1, names) : NULL;
+  if (!made) {
+    free(names);
     return fail(P, n, "out of memory");
-  for (int i = 0; i < m->n_particles; i++)
-    names[i] = m->particles[i].name;
+  }
   int *out[2] = {pi, pj}, st = MRVI_OK;
   for (int e = 0; e < 2 && !st; e++) {
     struct fy_node *item = fy_node_sequence_get_by_index(n, e);
@@ -214,6 +220,7 @@ static int pair(parser *P, struct fy_node *map, const char *where, int *pi,
       st = fail(P, item, "%s.pair names particle '%s' twice", where, s);
     }
   }
+  free(made);
   free(names);
   return st;
 }
@@ -565,7 +572,7 @@ static int conflict(parser *P, const mrvi_ocp *o, struct fy_node *item,
       return fail(P, or_item(get(item, what), item),
                   "%s: a second terminal %s of '%s' (%g; an earlier "
                   "condition asks %g)%s",
-                  where, what, P->m->names[c], target, o->term[i].target,
+                  where, what, MRVI_CNAME(P->m, c), target, o->term[i].target,
                   o->term[i].target == target
                       ? ": a duplicate makes the conditions redundant"
                       : ": the conditions conflict");

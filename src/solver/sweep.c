@@ -282,7 +282,7 @@ int mrvi_sweep_path_of(const mrvi_model *m, const mrvi_settings *s,
         mrvi_fmt(why, len,
                  "the fast potential depends on slow coordinate '%s', which "
                  "couples q_{k+1}^s to every micro node%s",
-                 m->names[el->in[j]],
+                 MRVI_CNAME(m, el->in[j]),
                  small ? ": Newton with a Schur complement on the slow "
                          "unknowns and block sweeps"
                        : ": matrix-free outer iteration where it converges, "

@@ -57,6 +57,24 @@ typedef struct khooke {
   double c, shift;
 } khooke;
 
+/* The columns of a khooke spring, where a class's springs share one
+ * stiffness and rest length (hooke_class: a third of a khooke). */
+typedef struct khpair {
+  int ci, cj;
+} khpair;
+
+/* khooke records as the kernels read them: q[r], or the columns pr[r] with
+ * the class's c and shift. */
+typedef struct hsrc {
+  const khooke *q;
+  const khpair *pr;
+  double c, shift;
+} hsrc;
+
+ALWAYS_INLINE khooke hooke_rec(hsrc s, int r) {
+  return s.pr ? (khooke){s.pr[r].ci, s.pr[r].cj, s.c, s.shift} : s.q[r];
+}
+
 /* The few-input terms compact and contiguous (kterm4 runs). */
 typedef struct kterm4 {
   int n, k; /* inputs; integer exponent, -1 for the linear law */
@@ -79,8 +97,12 @@ struct mrvi_terms {
   /* A gradient-only class of khooke springs alone (hooke_class): qh
    * without t, col, coef, hooke_run or the elements (a Hooke spring's
    * record is all its gradient and value read); its gradient is hooke_grad
-   * over qh, one run. */
+   * over qh, one run.  Where every spring has the stiffness and rest
+   * length of the first, qp (its columns) with qp_c and qp_shift instead
+   * of qh (the lattices: 8 bytes a spring instead of 24). */
   int hooke_only;
+  khpair *qp;
+  double qp_c, qp_shift;
   /* A gradient-only class of springs or anchors of one kind and one law
    * code alone, not all khooke springs (spring_class): qs without t, col,
    * coef, qh or hooke_run; its gradient is springs_eval over qs, one run
@@ -135,6 +157,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->q4);
   free(kc->qs);
   free(kc->qh);
+  free(kc->qp);
   free(kc->hooke_run);
   free(kc->part_first);
   free(kc->vpart);
@@ -191,6 +214,11 @@ static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
   }
 }
 
+/* The khooke records of kc as the kernels read them. */
+static hsrc hooke_src(const mrvi_terms *kc) {
+  return (hsrc){kc->qh, kc->qp, kc->qp_c, kc->qp_shift};
+}
+
 /* The kspring records of a class whose every run is of khooke springs,
  * from those (their columns consecutive from khooke's): the records
  * terms_springs and hooke_class leave out of a gradient-only class. */
@@ -206,16 +234,30 @@ static int hooke_records(mrvi_terms *kc) {
       continue;
     const int r = kc->hooke_only ? ie : kc->t[ie].qs;
     kspring *q = &kc->qs[r];
-    const khooke *h = &kc->qh[r];
+    const khooke h = hooke_rec(hooke_src(kc), r);
     if (kc->hooke_only) /* (a Hooke spring: its law is its khooke's) */
-      *q = (kspring){.two = 1, .k = KS_HOOKE, .c = h->c, .shift = h->shift};
+      *q = (kspring){.two = 1, .k = KS_HOOKE, .c = h.c, .shift = h.shift};
     else
       spring_law_of(kc->t[ie].el, q);
     for (int k = 0; k < kc->dim; k++) {
-      q->ci[k] = h->ci + k;
-      q->cj[k] = h->cj + k;
+      q->ci[k] = h.ci + k;
+      q->cj[k] = h.cj + k;
     }
   }
+  return MRVI_OK;
+}
+
+/* The first ne columns qp of a class that shared one stiffness and rest
+ * length as khooke records qh (for the class's ne + 1 and later springs,
+ * which do not share them). */
+static int hooke_unshare(mrvi_terms *kc, int ne) {
+  kc->qh = malloc((size_t)kc->n * sizeof *kc->qh);
+  if (!kc->qh)
+    return MRVI_ENOMEM;
+  for (int r = 0; r < ne; r++)
+    kc->qh[r] = hooke_rec(hooke_src(kc), r);
+  free(kc->qp);
+  kc->qp = NULL;
   return MRVI_OK;
 }
 
@@ -229,27 +271,53 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   const int dim = kc->dim;
   if (n_elems < 1)
     return 0;
-  /* (one pass, the records made as the elements are checked) */
-  kc->qh = malloc((size_t)n_elems * sizeof *kc->qh);
-  if (!kc->qh)
+  /* (one pass, the records made as the elements are checked: columns
+   * alone while the springs share the first's stiffness and rest length,
+   * khooke records from the first that does not) */
+  kc->qp = malloc((size_t)n_elems * sizeof *kc->qp);
+  if (!kc->qp)
     return MRVI_ENOMEM;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
+    /* (a Hooke spring's record: spring_law_of's c and shift, spring_cols'
+     * first columns; the law's other products are not read) */
     kspring q = {.two = 1};
     int ok = spring_record(e, dim) && e->kind == MRVI_ELEMENT_SPRING &&
-             spring_law(e) == KS_HOOKE;
+             e->form == MRVI_LAW_FORM_HOOKE;
     if (ok) {
-      spring_law_of(e, &q);
-      spring_cols(e, col_of, dim, &q);
+      const int *in = e->in;
+      q.c = e->params[0];
+      q.shift = e->shift;
+      q.ci[0] = col_of ? col_of[in[0]] : in[0];
+      q.cj[0] = col_of ? col_of[in[dim]] : in[dim];
+      for (int k = 1; ok && k < dim; k++)
+        ok = (col_of ? col_of[in[k]] : in[k]) == q.ci[0] + k &&
+             (col_of ? col_of[in[dim + k]] : in[dim + k]) == q.cj[0] + k;
     }
-    for (int k = 1; ok && k < dim; k++)
-      ok = q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
+    if (ie == 0) {
+      kc->qp_c = q.c;
+      kc->qp_shift = q.shift;
+    }
+    /* (the same bits: -0 and 0 are not one stiffness here) */
+    if (ok && kc->qp &&
+        (memcmp(&q.c, &kc->qp_c, sizeof q.c) ||
+         memcmp(&q.shift, &kc->qp_shift, sizeof q.shift)) &&
+        hooke_unshare(kc, ie) < 0) {
+      free(kc->qp);
+      kc->qp = NULL;
+      return MRVI_ENOMEM;
+    }
     if (!ok) {
       free(kc->qh);
+      free(kc->qp);
       kc->qh = NULL;
+      kc->qp = NULL;
       return 0;
     }
-    kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
+    if (kc->qp)
+      kc->qp[ie] = (khpair){q.ci[0], q.cj[0]};
+    else
+      kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
   }
   kc->hooke_only = 1;
   return 1;
@@ -792,12 +860,13 @@ ALWAYS_INLINE double hooke_dir(const khooke *h, const double *z, int ci, int cj,
  * spring_eval's arithmetic at unit scale (bitwise the same), or with one =
  * 1 (a gradient-only class, mrvi_terms_create_grad) one division per
  * spring. */
-ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
+ALWAYS_INLINE void hooke_grad_k(hsrc q, int r0, int nr, const double *z,
                                 double *g, const int dim, const int one) {
-  for (int r = 0; r < nr; r++) {
-    const int ci = q[r].ci, cj = q[r].cj;
+  for (int r = r0; r < r0 + nr; r++) {
+    const khooke h = hooke_rec(q, r);
+    const int ci = h.ci, cj = h.cj;
     double u[3];
-    const double d1 = hooke_dir(q + r, z, ci, cj, u, dim, one);
+    const double d1 = hooke_dir(&h, z, ci, cj, u, dim, one);
     UNROLL for (int k = 0; k < dim; k++) g[ci + k] += d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) g[cj + k] += -d1 * u[k];
   }
@@ -805,23 +874,28 @@ ALWAYS_INLINE void hooke_grad_k(const khooke *q, int nr, const double *z,
 
 static __attribute__((noinline)) void
 hooke_grad(const khooke *q, int nr, const double *z, double *g, int dim) {
+  const hsrc s = {q, NULL, 0.0, 0.0};
   if (dim == 2)
-    hooke_grad_k(q, nr, z, g, 2, 0);
+    hooke_grad_k(s, 0, nr, z, g, 2, 0);
   else if (dim == 3)
-    hooke_grad_k(q, nr, z, g, 3, 0);
+    hooke_grad_k(s, 0, nr, z, g, 3, 0);
   else
-    hooke_grad_k(q, nr, z, g, 1, 0);
+    hooke_grad_k(s, 0, nr, z, g, 1, 0);
 }
 
 /* hooke_grad with one division per spring (a gradient-only class). */
 static __attribute__((noinline)) void
-hooke_grad1(const khooke *q, int nr, const double *z, double *g, int dim) {
-  if (dim == 2)
-    hooke_grad_k(q, nr, z, g, 2, 1);
+hooke_grad1(hsrc q, int nr, const double *z, double *g, int dim) {
+  if (dim == 2 && q.pr) /* (one stiffness and rest length: the columns) */
+    hooke_grad_k((hsrc){NULL, q.pr, q.c, q.shift}, 0, nr, z, g, 2, 1);
+  else if (dim == 3 && q.pr)
+    hooke_grad_k((hsrc){NULL, q.pr, q.c, q.shift}, 0, nr, z, g, 3, 1);
+  else if (dim == 2)
+    hooke_grad_k((hsrc){q.q, NULL, 0.0, 0.0}, 0, nr, z, g, 2, 1);
   else if (dim == 3)
-    hooke_grad_k(q, nr, z, g, 3, 1);
+    hooke_grad_k((hsrc){q.q, NULL, 0.0, 0.0}, 0, nr, z, g, 3, 1);
   else
-    hooke_grad_k(q, nr, z, g, 1, 1);
+    hooke_grad_k(q, 0, nr, z, g, 1, 1);
 }
 
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
@@ -835,8 +909,11 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
       continue;
     }
     if (t->runs > 0 && !J && unit && kc->hooke_run[t->qs]) {
-      (kc->recip ? hooke_grad1 : hooke_grad)(kc->qh + t->qs, t->runs, z, g,
-                                             kc->dim);
+      if (kc->recip)
+        hooke_grad1((hsrc){kc->qh + t->qs, NULL, 0.0, 0.0}, t->runs, z, g,
+                    kc->dim);
+      else
+        hooke_grad(kc->qh + t->qs, t->runs, z, g, kc->dim);
       it += t->runs - 1;
       continue;
     }
@@ -1104,21 +1181,21 @@ ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
 /* part_k for a class of khooke springs alone (hooke_grad_k's arithmetic,
  * bitwise spring_eval's, or with one = 1 hooke_grad1's): the quarter-size
  * records. */
-ALWAYS_INLINE void part_hooke_k(const khooke *q, const int *rec,
+ALWAYS_INLINE void part_hooke_k(hsrc q, const int *rec,
                                 const unsigned char *mask, const int *run,
                                 int nr, const double *z, double *g,
                                 const int dim, const int one) {
   for (int i = 0; i < nr; i++) {
     if (run[i] > 0) { /* whole records: the serial loop, the same sums */
-      hooke_grad_k(q + rec[i], run[i], z, g, dim, one);
+      hooke_grad_k(q, rec[i], run[i], z, g, dim, one);
       i += run[i] - 1;
       continue;
     }
-    const khooke *h = q + rec[i];
+    const khooke h = hooke_rec(q, rec[i]);
     const unsigned mk = mask[i];
-    const int ci = h->ci, cj = h->cj;
+    const int ci = h.ci, cj = h.cj;
     double u[3];
-    const double d1 = hooke_dir(h, z, ci, cj, u, dim, one);
+    const double d1 = hooke_dir(&h, z, ci, cj, u, dim, one);
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[ci + k] +=
         d1 * u[k];
     UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k)) g[cj + k] +=
@@ -1133,18 +1210,20 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const unsigned char *mask = kc->part_mask + r0;
   const int *run = kc->part_run + r0;
   const int one = kc->hooke_only || kc->recip;
+  const hsrc qh = {kc->qh, NULL, 0.0, 0.0},
+             q = kc->hooke_only ? hooke_src(kc) : qh;
   if (kc->part_hooke && one && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 1);
+    part_hooke_k(q, rec, mask, run, nr, z, g, 2, 1);
   else if (kc->part_hooke && one && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 3, 1);
+    part_hooke_k(q, rec, mask, run, nr, z, g, 3, 1);
   else if (kc->part_hooke && one)
-    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 1, 1);
+    part_hooke_k(q, rec, mask, run, nr, z, g, 1, 1);
   else if (kc->part_hooke && kc->dim == 2)
-    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 2, 0);
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 2, 0);
   else if (kc->part_hooke && kc->dim == 3)
-    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 3, 0);
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 3, 0);
   else if (kc->part_hooke)
-    part_hooke_k(kc->qh, rec, mask, run, nr, z, g, 1, 0);
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 1, 0);
   else if (kc->dim == 2)
     part_k(kc->qs, rec, mask, nr, z, g, 2);
   else if (kc->dim == 3)
@@ -1386,7 +1465,7 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
     part_grad(kc, z, g);
   else if (kc->hooke_only)
-    hooke_grad1(kc->qh, kc->n, z, g, kc->dim);
+    hooke_grad1(hooke_src(kc), kc->n, z, g, kc->dim);
   else if (kc->spring_only) /* (eval_k's one run at unit scale) */
     springs_eval(kc->qs, kc->n, z, 1.0, g, NULL, 0, 0.0, kc->dim);
   else if (kc->flat)
@@ -1666,14 +1745,14 @@ static double hooke_range(const mrvi_terms *kc, int i0, int i1,
                           const double *z) {
   double total = 0.0;
   for (int r = i0; r < i1; r++) {
-    const khooke *q = &kc->qh[r];
+    const khooke q = hooke_rec(hooke_src(kc), r);
     double r2 = 0.0;
     for (int k = 0; k < kc->dim; k++) {
-      const double d = z[q->ci + k] - z[q->cj + k];
+      const double d = z[q.ci + k] - z[q.cj + k];
       r2 += d * d;
     }
-    const double s = sqrt(r2) - q->shift;
-    total += 0.5 * q->c * s * s; /* laws/linear.c */
+    const double s = sqrt(r2) - q.shift;
+    total += 0.5 * q.c * s * s; /* laws/linear.c */
   }
   return total;
 }

@@ -89,7 +89,7 @@ static int read_ends(loader *L, entry *e, const mrvi_constraint_key *key) {
   if (ends == 2 && pi[0] == pi[1])
     return mrvi_ld_fail(L, mrvi_ld_get(e->item, key->name),
                         "%s: both ends are particle '%s'", e->type->name,
-                        L->sys->model->particles[pi[0]].name);
+                        MRVI_PNAME(L->sys->model, pi[0]));
   for (int i = 0; i < ends; i++)
     if ((st = add_particle(L, e, pi[i])))
       return st;
@@ -249,15 +249,16 @@ static int read_keys(loader *L, entry *e) {
 static const char *entry_label(const loader *L, const entry *e, char *buf,
                                size_t len) {
   static const char axis_name[] = "xyz";
-  const mrvi_particle *p = L->sys->model->particles;
+  const mrvi_model *m = L->sys->model;
   char which[8] = "";
   if (e->n_parts == 0)
     return NULL;
   for (int a = 0, n = 0; a < e->dim && e->n_on < e->dim; a++)
     if (e->on[a])
       which[n++] = axis_name[a];
-  mrvi_fmt(buf, len, "%s %s%s%s%s%s%s%s", e->type->name, p[e->parts[0]].name,
-           e->n_parts > 1 ? "-" : "", e->n_parts > 1 ? p[e->parts[1]].name : "",
+  mrvi_fmt(buf, len, "%s %s%s%s%s%s%s%s", e->type->name,
+           MRVI_PNAME(m, e->parts[0]), e->n_parts > 1 ? "-" : "",
+           e->n_parts > 1 ? MRVI_PNAME(m, e->parts[1]) : "",
            e->anchor ? "-" : "", e->anchor ? e->anchor : "", *which ? "." : "",
            which);
   return buf;

@@ -14,22 +14,6 @@ static const char *const generated_spring_keys[] = {"law", "rest_length"};
 
 static const char *const initial_keys[] = {"index", "displacement", "velocity"};
 
-/* A generated particle becomes a name the rest of the file can use. */
-static int add_generated_name(loader *L, struct fy_node *at, int p) {
-  named *np = realloc(L->parts, (size_t)(L->n_parts + 2) * sizeof *np);
-  if (!np)
-    return mrvi_ld_fail_nomem(L);
-  L->parts = np;
-  const char *name = L->sys->model->particles[p].name;
-  if (mrvi_ld_find_named(L->parts, &L->part_hash, name))
-    return mrvi_ld_fail(L, at, "generated particle name '%s' is already used",
-                        name);
-  if (mrvi_ld_hash_put(&L->part_hash, name, L->n_parts))
-    return mrvi_ld_fail_nomem(L);
-  L->parts[L->n_parts++] = (named){name, at, p};
-  return MRVI_OK;
-}
-
 /* `spring:` / `slow_spring:` / `fast_spring:` of a generator. */
 static int load_spring_spec(loader *L, struct fy_node *n, const char *where,
                             mrvi_spring_spec *sp) {
@@ -190,12 +174,10 @@ static int load_generator(loader *L, struct fy_node *item, const char *where,
   free(vel);
   if (st)
     return st;
+  /* (the rest of the file finds the generated particles by their names
+   * through the model: mrvi_ld_find_particle) */
   if (first < 0)
     return mrvi_ld_fail_model(L, item, first);
-  for (long p = 0; p < total && !st; p++)
-    st = add_generated_name(L, item, first + (int)p);
-  if (st)
-    return st;
   return mrvi_ld_add_note(
       L,
       "%s: %s '%s' generated %d particles (%d slow, %d fast), "

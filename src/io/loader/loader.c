@@ -226,7 +226,6 @@ done:
   free(L.parts);
   mrvi_ld_hash_free(&L.coord_hash);
   mrvi_ld_hash_free(&L.part_hash);
-  mrvi_ld_hash_free(&L.model_hash);
   free(L.constraint_items);
   free(L.ov);
   free(L.sp);

@@ -76,7 +76,6 @@ typedef struct loader {
   named *coords, *parts;
   int n_coords, n_parts;
   name_hash coord_hash, part_hash;   /* name -> index into coords / parts */
-  name_hash model_hash;              /* model coordinate name -> index */
   struct fy_node *constraint_list;   /* `constraints:`, NULL if absent */
   struct fy_node **constraint_items; /* entry of each model constraint */
   int cap_constraint_items;

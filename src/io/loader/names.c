@@ -61,22 +61,6 @@ const named *mrvi_ld_find_named(const named *tab, const name_hash *h,
   return i >= 0 ? &tab[i] : NULL;
 }
 
-/* Unknown name with a suggestion among the defined ones. */
-static int fail_unknown_name(loader *L, struct fy_node *at, const char *kind,
-                             const char *name, const named *tab, int n) {
-  const char **cand = malloc((size_t)(n > 0 ? n : 1) * sizeof *cand);
-  if (!cand)
-    return mrvi_ld_fail_nomem(L);
-  for (int i = 0; i < n; i++)
-    cand[i] = tab[i].name;
-  const char *c = mrvi_closest(name, cand, n);
-  free(cand);
-  if (c)
-    return mrvi_ld_fail(L, at, "unknown %s '%s'; did you mean '%s'?", kind,
-                        name, c);
-  return mrvi_ld_fail(L, at, "unknown %s '%s'", kind, name);
-}
-
 /* Name of a new coordinate or particle, rejecting duplicates. */
 int mrvi_ld_new_name(loader *L, struct fy_node *item, const char *where,
                      const char *kind, const named *tab, const name_hash *h,
@@ -96,7 +80,30 @@ int mrvi_ld_new_name(loader *L, struct fy_node *item, const char *where,
   return MRVI_OK;
 }
 
-/* Particle named by the string node n. */
+/* Unknown name among the model's particles or coordinates (particles = 0)
+ * with a suggestion, in index order (the generated names made for it). */
+static int fail_unknown_model_name(loader *L, struct fy_node *at, int particles,
+                                   const char *name) {
+  const mrvi_model *m = L->sys->model;
+  const int n = particles ? mrvi_model_n_particles(m) : mrvi_model_n(m);
+  const char **cand = malloc((size_t)(n > 0 ? n : 1) * sizeof *cand);
+  char *made = cand ? mrvi_model_names(m, particles, cand) : NULL;
+  if (!made) {
+    free(cand);
+    return mrvi_ld_fail_nomem(L);
+  }
+  const char *kind = particles ? "particle" : "coordinate";
+  const char *c = mrvi_closest(name, cand, n);
+  const int st = c ? mrvi_ld_fail(L, at, "unknown %s '%s'; did you mean '%s'?",
+                                  kind, name, c)
+                   : mrvi_ld_fail(L, at, "unknown %s '%s'", kind, name);
+  free(made);
+  free(cand);
+  return st;
+}
+
+/* Particle named by the string node n: one of `particles:`, or a generated
+ * one (its name by its generator's rule: the model finds it). */
 int mrvi_ld_find_particle(loader *L, struct fy_node *n, const char *what,
                           int *index) {
   const char *pname;
@@ -104,9 +111,10 @@ int mrvi_ld_find_particle(loader *L, struct fy_node *n, const char *what,
   if (st)
     return st;
   const named *p = mrvi_ld_find_named(L->parts, &L->part_hash, pname);
-  if (!p)
-    return fail_unknown_name(L, n, "particle", pname, L->parts, L->n_parts);
-  *index = p->index;
+  const int generated = p ? -1 : mrvi_model_find_particle(L->sys->model, pname);
+  if (!p && generated < 0)
+    return fail_unknown_model_name(L, n, 1, pname);
+  *index = p ? p->index : generated;
   return MRVI_OK;
 }
 
@@ -114,26 +122,11 @@ int mrvi_ld_find_particle(loader *L, struct fy_node *n, const char *what,
  * coordinates such as m1.x). */
 int mrvi_ld_find_coordinate(loader *L, struct fy_node *n, const char *what,
                             int *index) {
-  const mrvi_model *m = L->sys->model;
-  const int count = mrvi_model_n(m);
   const char *cname;
   int st = mrvi_ld_as_string(L, n, what, &cname);
   if (st)
     return st;
-  for (int j = (int)L->model_hash.n; j < count; j++) /* new since last */
-    if (mrvi_ld_hash_put(&L->model_hash, mrvi_model_coordinate_name(m, j), j))
-      return mrvi_ld_fail_nomem(L);
-  if ((*index = hash_find(&L->model_hash, cname)) >= 0)
+  if ((*index = mrvi_model_find_coordinate(L->sys->model, cname)) >= 0)
     return MRVI_OK;
-  const char **names = malloc((size_t)(count + 1) * sizeof *names);
-  if (!names)
-    return mrvi_ld_fail_nomem(L);
-  for (int j = 0; j < count; j++)
-    names[j] = mrvi_model_coordinate_name(m, j);
-  const char *c = mrvi_closest(cname, names, count);
-  st = c ? mrvi_ld_fail(L, n, "unknown coordinate '%s'; did you mean '%s'?",
-                        cname, c)
-         : mrvi_ld_fail(L, n, "unknown coordinate '%s'", cname);
-  free(names);
-  return st;
+  return fail_unknown_model_name(L, n, 0, cname);
 }
