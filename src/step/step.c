@@ -318,16 +318,23 @@ int mrvi_step_same_points(const mrvi_step *st) {
   return 1;
 }
 
-void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
-                               const double *x, int hess) {
+void mrvi_step_constraint_at(const mrvi_step *st, int c, const mrvi_point *pt,
+                             const double *x, double *y, double *g, double *G,
+                             double *H) {
   const mrvi_model *m = st->model;
   const mrvi_constraint *k = &m->constraints[c];
   for (int j = 0; j < k->n_in; j++) {
     const int idx = k->in[j], s = m->slot[idx];
-    st->cy[j] = m->rate[idx] == MRVI_SLOW ? slow_at(st, x, pt->a0, pt->a1, s)
-                                          : fast_node(st, x, pt->m, s);
+    y[j] = m->rate[idx] == MRVI_SLOW ? slow_at(st, x, pt->a0, pt->a1, s)
+                                     : fast_node(st, x, pt->m, s);
   }
-  mrvi_constraint_eval_at(k, st->cy, st->cg, st->cG, hess ? st->cH : NULL);
+  mrvi_constraint_eval_at(k, y, g, G, H);
+}
+
+void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
+                               const double *x, int hess) {
+  mrvi_step_constraint_at(st, c, pt, x, st->cy, st->cg, st->cG,
+                          hess ? st->cH : NULL);
 }
 
 /* Constraint force -w G(z)^T lambda of constraint c at node point pt into
