@@ -58,7 +58,8 @@ struct mrvi_joint_sweep {
   double *K;           /* node m's K factored in block m, the slow one's in p */
   int *piv;            /* (p + 1) rmax */
   int *nzc;            /* the factorisation's workspace (rmax) */
-  int ok;              /* the current node's K is regular */
+  int *ok;             /* node m's K is regular (p) */
+  int reuse;           /* the current node takes the last sweep's G and K */
   double *g, *mu;      /* g at the equation's node, one update (rmax each) */
   double *mut;         /* the updates' sum at the current node (rmax) */
   double *c;           /* the current node's move (nf) */
@@ -159,10 +160,11 @@ int mrvi_joint_sweep_create(const mrvi_step *st, mrvi_joint_sweep **out) {
   w->K = malloc((p + 1) * r * r * sizeof(double));
   w->piv = malloc((p + 1) * r * sizeof(int));
   w->nzc = malloc(r * sizeof(int));
+  w->ok = calloc(p, sizeof(int));
   w->g = malloc(3 * r * sizeof(double));
   w->c = malloc((size_t)st->nf * sizeof(double));
   w->y = malloc((ni + r + r * ni) * sizeof(double));
-  if (!w->minv || !w->G || !w->K || !w->piv || !w->nzc || !w->g || !w->c ||
+  if (!w->minv || !w->G || !w->K || !w->piv || !w->nzc || !w->ok || !w->g || !w->c ||
       !w->y ||
       set_init(&w->micro, st, st->micro_c, st->n_micro_c, st->r_micro, st->ns,
                st->nf) < 0 ||
@@ -193,6 +195,7 @@ void mrvi_joint_sweep_free(mrvi_joint_sweep *w) {
   free(w->K);
   free(w->piv);
   free(w->nzc);
+  free(w->ok);
   free(w->g);
   free(w->c);
   free(w->y);
@@ -300,7 +303,8 @@ const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
   const double *A = gblock(w, m);
   double *B = gblock(w, m + 1), *K = kblock(w, m);
   int *piv = pblock(w, m);
-  if (!again) {
+  if (again != 1) {
+    w->reuse = again == 2;
     if (m == 0)
       rows_at(w, set, st, x, 0, NULL, gblock(w, 0));
     memset(w->c, 0, (size_t)nf * sizeof *w->c);
@@ -308,11 +312,11 @@ const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
   }
   /* g and G at z^{m+1}; that G stays as the next node's (from before the
    * second update, which moves the node by the square of the first's
-   * residual) */
+   * residual); reused, the last sweep's G and K stand */
   rows_at(w, set, st, x, m + 1, w->g, B);
-  if (!again)
-    w->ok = project_matrix(w, set, A, B, K, piv) == 0;
-  if (w->ok)
+  if (again == 0)
+    w->ok[m] = project_matrix(w, set, A, B, K, piv) == 0;
+  if (w->ok[m])
     project_update(w, set, A, K, piv, x + ns + (size_t)m * nf, w->c);
   double *lam = x + st->n_unknowns + st->r_slow + (size_t)m * rm;
   const double idt2 = 1.0 / (st->dt * st->dt);
