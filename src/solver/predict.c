@@ -1092,7 +1092,8 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
  * solved again with them plus the move, and the node moved onto the
  * constraints again with the matrix kept; p^{f,m+1} = M (d^{m+1} - d^m) /
  * dt - F_m^B of the moved node.  The slow-row force is the points' (the
- * multipliers' is mrvi_joint_sweep_slow_force). */
+ * multipliers' is mrvi_joint_sweep_slow_force).  With reuse (the sweep
+ * after the slow correction) each node keeps the last sweep's matrix. */
 static void sweep_joints(mrvi_predictor *pr, const mrvi_step *st, double *x,
                          int sum_slow, int reuse) {
   const int p = st->p, ns = st->ns, nf = st->nf;

@@ -18,7 +18,10 @@
  *
  * mu (r_micro) the root of g(z^{m+1} + delta) = 0: the SHAKE update, here
  * one Newton update on K = G_f(z^{m+1}) M_f^-1 G_f(z^m)^T per call (the
- * sweep calls it twice per node, the second time with K kept).  The slow
+ * sweep calls it twice per node, the second time with K kept; the sweep
+ * after the slow correction keeps the K of the sweep before, again = 2:
+ * the correction moves the nodes by little, doc/solver.md, "The joint
+ * sweep").  The slow
  * part of z^m is the predictor's q_{k+1}^s interpolated ((4.8)) and held;
  * mrvi_joint_sweep_slow_force gives the slow row the multipliers' force
  * and mrvi_joint_sweep_slow moves q_{k+1}^s onto the slow-only
