@@ -318,9 +318,11 @@ int mrvi_step_same_points(const mrvi_step *st) {
   return 1;
 }
 
-void mrvi_step_constraint_at(const mrvi_step *st, int c, const mrvi_point *pt,
-                             const double *x, double *y, double *g, double *G,
-                             double *H) {
+/* mrvi_step_constraint_at, inline in both exported forms (a call from one
+ * to the other would go through the library's symbol table). */
+static inline void constraint_at(const mrvi_step *st, int c,
+                                 const mrvi_point *pt, const double *x,
+                                 double *y, double *g, double *G, double *H) {
   const mrvi_model *m = st->model;
   const mrvi_constraint *k = &m->constraints[c];
   for (int j = 0; j < k->n_in; j++) {
@@ -331,10 +333,15 @@ void mrvi_step_constraint_at(const mrvi_step *st, int c, const mrvi_point *pt,
   mrvi_constraint_eval_at(k, y, g, G, H);
 }
 
+void mrvi_step_constraint_at(const mrvi_step *st, int c, const mrvi_point *pt,
+                             const double *x, double *y, double *g, double *G,
+                             double *H) {
+  constraint_at(st, c, pt, x, y, g, G, H);
+}
+
 void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
                                const double *x, int hess) {
-  mrvi_step_constraint_at(st, c, pt, x, st->cy, st->cg, st->cG,
-                          hess ? st->cH : NULL);
+  constraint_at(st, c, pt, x, st->cy, st->cg, st->cG, hess ? st->cH : NULL);
 }
 
 /* Constraint force -w G(z)^T lambda of constraint c at node point pt into
