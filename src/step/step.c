@@ -231,7 +231,8 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   st->y = malloc((size_t)max_n_in * sizeof(double));
   st->g = malloc((size_t)max_n_in * sizeof(double));
   st->H = malloc(mi * mi * sizeof(double));
-  if (!st->y || !st->g || !st->H)
+  st->kin = malloc((size_t)(4 * (st->nf > 0 ? st->nf : 1)) * sizeof(double));
+  if (!st->y || !st->g || !st->H || !st->kin)
     return MRVI_ENOMEM;
   return init_constraints(st);
 }
@@ -252,6 +253,7 @@ void mrvi_step_free(mrvi_step *st) {
   free(st->y);
   free(st->g);
   free(st->H);
+  free(st->kin);
   free(st->slow_c);
   free(st->micro_c);
   free(st->c_off);
@@ -275,24 +277,32 @@ static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
       jac_add(st, s, s, -M / st->dT);
   }
   /* fast node 0: p_k^{f,0} - M^f (q^{f,1} - q^{f,0})/dt;
-   * node m >= 1: M^f (q^m - q^{m-1})/dt - M^f (q^{m+1} - q^m)/dt */
+   * node m >= 1: M^f (q^m - q^{m-1})/dt - M^f (q^{m+1} - q^m)/dt (the
+   * velocity of interval m - 1 kept from node m - 1, the masses' entries
+   * formed once per call: the same values) */
+  double *km = st->kin, *kd = km + nf, *k2 = kd + nf, *vl = k2 + nf;
+  for (int s = 0; s < nf; s++) {
+    const double M = m->mass[m->fast_index[s]];
+    km[s] = M;
+    kd[s] = -M / st->dt;
+    k2[s] = 2.0 * M / st->dt;
+  }
   for (int mm = 0; mm < p; mm++)
     for (int s = 0; s < nf; s++) {
-      const double M = m->mass[m->fast_index[s]];
+      const double M = km[s];
       const int row = ns + mm * nf + s;
       const double vr = fast_diff(st, x, mm, s) / st->dt;
-      if (mm == 0) {
+      if (mm == 0)
         R[row] = st->pf0[s] - M * vr;
-      } else {
-        const double vl = fast_diff(st, x, mm - 1, s) / st->dt;
-        R[row] = M * (vl - vr);
-      }
+      else
+        R[row] = M * (vl[s] - vr);
+      vl[s] = vr;
       if (jac) {
         if (mm >= 2)
-          jac_add(st, row, ns + (mm - 2) * nf + s, -M / st->dt);
+          jac_add(st, row, ns + (mm - 2) * nf + s, kd[s]);
         if (mm >= 1)
-          jac_add(st, row, ns + (mm - 1) * nf + s, 2.0 * M / st->dt);
-        jac_add(st, row, ns + mm * nf + s, -M / st->dt);
+          jac_add(st, row, ns + (mm - 1) * nf + s, k2[s]);
+        jac_add(st, row, ns + mm * nf + s, kd[s]);
       }
     }
 }
