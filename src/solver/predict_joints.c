@@ -308,15 +308,15 @@ const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
   int *piv = pblock(w, m);
   if (again != 1) {
     w->reuse = again == 2;
-    if (m == 0)
+    if (m == 0 && !w->reuse) /* (node 0 is q_k: its G stays) */
       rows_at(w, set, st, x, 0, NULL, gblock(w, 0));
     memset(w->c, 0, (size_t)nf * sizeof *w->c);
     memset(w->mut, 0, (size_t)rm * sizeof *w->mut);
   }
   /* g and G at z^{m+1}; that G stays as the next node's (from before the
    * second update, which moves the node by the square of the first's
-   * residual); reused, the last sweep's G and K stand */
-  rows_at(w, set, st, x, m + 1, w->g, B);
+   * residual); with K kept, G is needed from the second update on only */
+  rows_at(w, set, st, x, m + 1, w->g, again == 2 ? NULL : B);
   if (again == 0)
     w->ok[m] = project_matrix(w, set, A, B, K, piv) == 0;
   if (w->ok[m])
