@@ -41,14 +41,14 @@
 typedef struct {
   const int *cons; /* the set (model indices, nc) */
   int nc, rows, lo, ny;
-  int *rcon;   /* the constraint (position in the set) of each row (rows) */
-  int *r0;     /* (nc + 1) the first row of each constraint */
-  int *col;    /* each input's column in G (sum of n_in, from in0) */
-  int *in0;    /* (nc + 1) */
-  int *kp;     /* (nc^2 + 1) offsets into kc, by pair of constraints */
-  int *kc;     /* the columns (- lo) both of a pair read, ascending */
-  int *cp;     /* (ny + 1) offsets into cr */
-  int *cr;     /* the rows reading column lo + j, ascending */
+  int *rcon; /* the constraint (position in the set) of each row (rows) */
+  int *r0;   /* (nc + 1) the first row of each constraint */
+  int *col;  /* each input's column in G (sum of n_in, from in0) */
+  int *in0;  /* (nc + 1) */
+  int *kp;   /* (nc^2 + 1) offsets into kc, by pair of constraints */
+  int *kc;   /* the columns (- lo) both of a pair read, ascending */
+  int *cp;   /* (ny + 1) offsets into cr */
+  int *cr;   /* the rows reading column lo + j, ascending */
 } joint_set;
 
 struct mrvi_joint_sweep {
@@ -100,8 +100,8 @@ static int set_init(joint_set *s, const mrvi_step *st, const int *cons, int nc,
   s->kc = malloc((c2 > 0 ? c2 : 1) * y1 * sizeof(int));
   s->cp = malloc((y1 + 1) * sizeof(int));
   s->cr = malloc((size_t)(rows > 0 ? rows : 1) * y1 * sizeof(int));
-  if (!pat || !s->rcon || !s->r0 || !s->col || !s->in0 || !s->kp || !s->kc || !s->cp ||
-      !s->cr) {
+  if (!pat || !s->rcon || !s->r0 || !s->col || !s->in0 || !s->kp || !s->kc ||
+      !s->cp || !s->cr) {
     free(pat);
     return MRVI_ENOMEM;
   }
@@ -167,14 +167,17 @@ int mrvi_joint_sweep_create(const mrvi_step *st, mrvi_joint_sweep **out) {
   w->g = malloc(3 * r * sizeof(double));
   w->c = malloc((size_t)st->nf * sizeof(double));
   w->y = malloc((ni + r + r * ni) * sizeof(double));
-  if (!w->minv || !w->G || !w->K || !w->piv || !w->nzc || !w->ok || !w->g || !w->c ||
-      !w->y ||
-      set_init(&w->micro, st, st->micro_c, st->n_micro_c, st->r_micro, st->ns,
-               st->nf) < 0 ||
-      set_init(&w->slow, st, st->slow_c, st->n_slow_c, st->r_slow, 0,
-               st->ns) < 0) {
+  int status = !w->minv || !w->G || !w->K || !w->piv || !w->nzc || !w->ok ||
+                       !w->g || !w->c || !w->y
+                   ? MRVI_ENOMEM
+                   : set_init(&w->micro, st, st->micro_c, st->n_micro_c,
+                              st->r_micro, st->ns, st->nf);
+  if (status == MRVI_OK)
+    status =
+        set_init(&w->slow, st, st->slow_c, st->n_slow_c, st->r_slow, 0, st->ns);
+  if (status < 0) {
     mrvi_joint_sweep_free(w);
-    return MRVI_ENOMEM;
+    return status;
   }
   w->mu = w->g + r;
   w->mut = w->g + 2 * r;

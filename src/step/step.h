@@ -63,7 +63,7 @@ typedef struct mrvi_step {
   long nnz;
   /* Workspace. */
   double *y, *g, *H; /* element inputs, gradient, Hessian */
-  double *kin;       /* the kinetic rows' M, -M/dt, 2M/dt, last velocity (4 nf) */
+  double *kin; /* the kinetic rows' M, -M/dt, 2M/dt, last velocity (4 nf) */
   /* Constraints (doc/constraints.md).  The full unknown vector is (x, lambda)
    * of size n_total = n_unknowns + n_lambda; the residual appends the
    * constraint equations.  Layout of lambda and of the equation rows:
