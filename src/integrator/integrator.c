@@ -61,6 +61,7 @@ struct mrvi_integrator {
   unsigned char *c_drop, *c_drop_at;
   int n_drop;
   double *pGf, *pA, *pmu; /* micro-node projection: G_f (r x nf), Gram, mu */
+  int *pnz;               /* the nonzero columns of a row of G_f (nf) */
   int last_iterations;
   int chord_mode;      /* schur path: MRVI_CHORD_AUTO, _OFF or _ON */
   int cchord_mode;     /* the constant chord: MRVI_CHORD_AUTO, _OFF or _ON */
@@ -197,6 +198,7 @@ void mrvi_integrator_free(mrvi_integrator *it) {
   free(it->pGf);
   free(it->pA);
   free(it->pmu);
+  free(it->pnz);
   free(it);
 }
 
@@ -761,6 +763,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->pGf = alloc(rm * nf);
   it->pA = alloc(rm * rm);
   it->pmu = alloc(rm);
+  it->pnz = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(int));
   it->qs_prev = alloc(ns + nf);
   if (!it->qs_prev)
     goto oom;
@@ -778,7 +781,8 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   if (!it->q || !it->p || !it->qs || !it->ps || !it->qf || !it->pf || !it->x ||
       !it->R || !it->dx || !it->ps1 || !it->micro_q || !it->micro_p ||
       !it->lambda || !it->micro_cres || !it->rhs || !it->cg || !it->cGd ||
-      !it->cA || !it->cmu || !it->mu_h || !it->pGf || !it->pA || !it->pmu)
+      !it->cA || !it->cmu || !it->mu_h || !it->pGf || !it->pA || !it->pmu ||
+      !it->pnz)
     goto oom;
   /* Initial state (q0, M v0) at t = 0; constraints must hold at q0. */
   it->n_torsion = mrvi_model_n_torsions(m);
@@ -1180,16 +1184,23 @@ static int project_micro(mrvi_integrator *it) {
       }
     }
     /* G_f M_f^-1 G_f^T: symmetric (the same products either way), the
-     * zeros of row a of G_f skipped */
-    for (int a = 0; a < r; a++)
+     * zeros of row a of G_f skipped (listed once per row) */
+    for (int a = 0; a < r; a++) {
+      const double *ga = it->pGf + (size_t)a * (size_t)nf;
+      int nz = 0;
+      for (int f = 0; f < nf; f++)
+        if (ga[f] != 0.0)
+          it->pnz[nz++] = f;
       for (int b = a; b < r; b++) {
+        const double *gb = it->pGf + (size_t)b * (size_t)nf;
         double t = 0.0;
-        for (int f = 0; f < nf; f++)
-          if (it->pGf[a * nf + f] != 0.0)
-            t += it->pGf[a * nf + f] * it->pGf[b * nf + f] /
-                 m->mass[m->fast_index[f]];
+        for (int i = 0; i < nz; i++) {
+          const int f = it->pnz[i];
+          t += ga[f] * gb[f] / m->mass[m->fast_index[f]];
+        }
         it->pA[a * r + b] = it->pA[b * r + a] = t;
       }
+    }
     if (mrvi_dense_solve(r, it->pA, it->pmu) < 0)
       return MRVI_ESINGULAR;
     for (int f = 0; f < nf; f++)

@@ -1092,9 +1092,10 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
  * solved again with them plus the move, and the node moved onto the
  * constraints again with the matrix kept; p^{f,m+1} = M (d^{m+1} - d^m) /
  * dt - F_m^B of the moved node.  The slow-row force is the points' (the
- * multipliers' is mrvi_joint_sweep_slow_force). */
+ * multipliers' is mrvi_joint_sweep_slow_force).  With reuse (the sweep
+ * after the slow correction) each node keeps the last sweep's matrix. */
 static void sweep_joints(mrvi_predictor *pr, const mrvi_step *st, double *x,
-                         int sum_slow) {
+                         int sum_slow, int reuse) {
   const int p = st->p, ns = st->ns, nf = st->nf;
   const double dt = st->dt, *minv = pr->minv + ns;
   double *fs = pr->fs, *fexp = pr->fexp, *fimp = pr->fimp, *fimp1 = pr->fimp1,
@@ -1115,7 +1116,7 @@ static void sweep_joints(mrvi_predictor *pr, const mrvi_step *st, double *x,
     extrapolate_k(mm, fimp, fimp1, nf);
     for (int f = 0; f < nf; f++)
       dn[f] = (d ? d[f] : 0.0) + dt * minv[f] * (pm[f] - fexp[f] - fimp[f]);
-    const double *c = mrvi_joint_sweep_node(pr->js, st, x, mm, 0);
+    const double *c = mrvi_joint_sweep_node(pr->js, st, x, mm, reuse ? 2 : 0);
     memset(fimp, 0, (size_t)nf * sizeof *fimp);
     memset(fb, 0, (size_t)nf * sizeof *fb);
     eval_points_k(pr, st, x, first, end, INSIDE, fimp, fb, fs, sum_slow, 0, ns,
@@ -1138,7 +1139,7 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
                   int sum_slow) {
   pr->n_sweeps++;
   if (pr->js) {
-    sweep_joints(pr, st, x, sum_slow);
+    sweep_joints(pr, st, x, sum_slow, 0);
     return;
   }
   if (pr->one) {
@@ -1451,7 +1452,8 @@ static void joints_slow_end(mrvi_predictor *pr, const mrvi_step *st,
   for (int s = 0; s < st->ns; s++)
     x[s] -= st->dT * pr->minv[s] * fj[s];
   mrvi_joint_sweep_slow(pr->js, st, x);
-  sweep(pr, st, x, 0);
+  pr->n_sweeps++;
+  sweep_joints(pr, st, x, 0, 1);
 }
 
 static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {

@@ -525,8 +525,9 @@ void mrvi_joint_sweep_free(mrvi_joint_sweep *w);
  * multipliers), fast node m + 1 just solved from row m: one Newton update
  * of its move onto the micro-node constraints along M_f^-1 G_f(z^m)^T
  * (again = 0: a new node, its matrix formed; 1: the same node again, the
- * matrix kept), lambda^m set from the moves.  Returns the node's move so
- * far (nf). */
+ * matrix kept; 2: a new node with the matrix of the last sweep's node m,
+ * in a sweep along a slightly moved slow path), lambda^m set from the
+ * moves.  Returns the node's move so far (nf). */
 const double *mrvi_joint_sweep_node(mrvi_joint_sweep *w, const mrvi_step *st,
                                     double *x, int m, int again);
 /* fs (ns) += the slow-row force of the micro-node multipliers of x, sum

@@ -231,7 +231,8 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   st->y = malloc((size_t)max_n_in * sizeof(double));
   st->g = malloc((size_t)max_n_in * sizeof(double));
   st->H = malloc(mi * mi * sizeof(double));
-  if (!st->y || !st->g || !st->H)
+  st->kin = malloc((size_t)(4 * (st->nf > 0 ? st->nf : 1)) * sizeof(double));
+  if (!st->y || !st->g || !st->H || !st->kin)
     return MRVI_ENOMEM;
   return init_constraints(st);
 }
@@ -252,6 +253,7 @@ void mrvi_step_free(mrvi_step *st) {
   free(st->y);
   free(st->g);
   free(st->H);
+  free(st->kin);
   free(st->slow_c);
   free(st->micro_c);
   free(st->c_off);
@@ -275,24 +277,32 @@ static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
       jac_add(st, s, s, -M / st->dT);
   }
   /* fast node 0: p_k^{f,0} - M^f (q^{f,1} - q^{f,0})/dt;
-   * node m >= 1: M^f (q^m - q^{m-1})/dt - M^f (q^{m+1} - q^m)/dt */
+   * node m >= 1: M^f (q^m - q^{m-1})/dt - M^f (q^{m+1} - q^m)/dt (the
+   * velocity of interval m - 1 kept from node m - 1, the masses' entries
+   * formed once per call: the same values) */
+  double *km = st->kin, *kd = km + nf, *k2 = kd + nf, *vl = k2 + nf;
+  for (int s = 0; s < nf; s++) {
+    const double M = m->mass[m->fast_index[s]];
+    km[s] = M;
+    kd[s] = -M / st->dt;
+    k2[s] = 2.0 * M / st->dt;
+  }
   for (int mm = 0; mm < p; mm++)
     for (int s = 0; s < nf; s++) {
-      const double M = m->mass[m->fast_index[s]];
+      const double M = km[s];
       const int row = ns + mm * nf + s;
       const double vr = fast_diff(st, x, mm, s) / st->dt;
-      if (mm == 0) {
+      if (mm == 0)
         R[row] = st->pf0[s] - M * vr;
-      } else {
-        const double vl = fast_diff(st, x, mm - 1, s) / st->dt;
-        R[row] = M * (vl - vr);
-      }
+      else
+        R[row] = M * (vl[s] - vr);
+      vl[s] = vr;
       if (jac) {
         if (mm >= 2)
-          jac_add(st, row, ns + (mm - 2) * nf + s, -M / st->dt);
+          jac_add(st, row, ns + (mm - 2) * nf + s, kd[s]);
         if (mm >= 1)
-          jac_add(st, row, ns + (mm - 1) * nf + s, 2.0 * M / st->dt);
-        jac_add(st, row, ns + mm * nf + s, -M / st->dt);
+          jac_add(st, row, ns + (mm - 1) * nf + s, k2[s]);
+        jac_add(st, row, ns + mm * nf + s, kd[s]);
       }
     }
 }
@@ -318,16 +328,30 @@ int mrvi_step_same_points(const mrvi_step *st) {
   return 1;
 }
 
-void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
-                               const double *x, int hess) {
+/* mrvi_step_constraint_at, inline in both exported forms (a call from one
+ * to the other would go through the library's symbol table). */
+static inline void constraint_at(const mrvi_step *st, int c,
+                                 const mrvi_point *pt, const double *x,
+                                 double *y, double *g, double *G, double *H) {
   const mrvi_model *m = st->model;
   const mrvi_constraint *k = &m->constraints[c];
   for (int j = 0; j < k->n_in; j++) {
     const int idx = k->in[j], s = m->slot[idx];
-    st->cy[j] = m->rate[idx] == MRVI_SLOW ? slow_at(st, x, pt->a0, pt->a1, s)
-                                          : fast_node(st, x, pt->m, s);
+    y[j] = m->rate[idx] == MRVI_SLOW ? slow_at(st, x, pt->a0, pt->a1, s)
+                                     : fast_node(st, x, pt->m, s);
   }
-  mrvi_constraint_eval_at(k, st->cy, st->cg, st->cG, hess ? st->cH : NULL);
+  mrvi_constraint_eval_at(k, y, g, G, H);
+}
+
+void mrvi_step_constraint_at(const mrvi_step *st, int c, const mrvi_point *pt,
+                             const double *x, double *y, double *g, double *G,
+                             double *H) {
+  constraint_at(st, c, pt, x, y, g, G, H);
+}
+
+void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
+                               const double *x, int hess) {
+  constraint_at(st, c, pt, x, st->cy, st->cg, st->cG, hess ? st->cH : NULL);
 }
 
 /* Constraint force -w G(z)^T lambda of constraint c at node point pt into

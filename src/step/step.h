@@ -63,6 +63,7 @@ typedef struct mrvi_step {
   long nnz;
   /* Workspace. */
   double *y, *g, *H; /* element inputs, gradient, Hessian */
+  double *kin; /* the kinetic rows' M, -M/dt, 2M/dt, last velocity (4 nf) */
   /* Constraints (doc/constraints.md).  The full unknown vector is (x, lambda)
    * of size n_total = n_unknowns + n_lambda; the residual appends the
    * constraint equations.  Layout of lambda and of the equation rows:
@@ -108,6 +109,11 @@ int mrvi_step_same_points(const mrvi_step *st);
  * st->cg, st->cG and, if hess, st->cH. */
 void mrvi_step_constraint_eval(mrvi_step *st, int c, const mrvi_point *pt,
                                const double *x, int hess);
+/* The same into the caller's arrays: inputs y (n_in), g (rows), G (rows x
+ * n_in) and, if H is not NULL, the second derivatives (rows x n_in x n_in). */
+void mrvi_step_constraint_at(const mrvi_step *st, int c, const mrvi_point *pt,
+                             const double *x, double *y, double *g, double *G,
+                             double *H);
 /* Residual rows / unknown columns (at most 2) that model coordinate idx
  * feeds / depends on at point pt; return counts. */
 int mrvi_step_rows_of(const mrvi_step *st, int idx, const mrvi_point *pt,

@@ -159,8 +159,40 @@ int mrvi_dense_lu_factor_nz(int n, double *A, int *piv, int *nzc) {
 /* Solve with mrvi_dense_lu_factor's factors; b (n x nrhs row-major) becomes x.
  * The factorisation swaps whole rows (P A = L U with L in its final row
  * order), so all row swaps apply to b before the forward substitution. */
+/* mrvi_dense_lu_solve with one right-hand side: the same arithmetic
+ * without the loops over the columns of b. */
+static void lu_solve1(int n, const double *A, const int *piv, double *b) {
+  for (int k = 0; k < n; k++)
+    if (piv[k] != k) {
+      const double t = b[piv[k]];
+      b[piv[k]] = b[k];
+      b[k] = t;
+    }
+  for (int k = 0; k < n; k++) {
+    const double bk = b[k];
+    for (int i = k + 1; i < n; i++) {
+      const double f = A[i * n + k];
+      if (f != 0.0)
+        b[i] -= f * bk;
+    }
+  }
+  for (int i = n - 1; i >= 0; i--) {
+    double bi = b[i];
+    for (int j = i + 1; j < n; j++) {
+      const double u = A[i * n + j];
+      if (u != 0.0)
+        bi -= u * b[j];
+    }
+    b[i] = bi / A[i * n + i];
+  }
+}
+
 void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
                          int nrhs) {
+  if (nrhs == 1) {
+    lu_solve1(n, A, piv, b);
+    return;
+  }
   for (int k = 0; k < n; k++)
     if (piv[k] != k)
       for (int c = 0; c < nrhs; c++) {
