@@ -790,6 +790,11 @@ typedef enum mrvi_newton_criterion {
     "sparse LU with kept factors)")                                            \
   X(double, adjoint_krylov_rtol, 1e-10, 0.0, 1.0,                              \
     "relative tolerance of those solves' block CG and GMRES")                  \
+  X(int, adjoint_explicit, 1, 0, 1,                                            \
+    "on the explicit path (fully-explicit), the adjoint runs the step's "      \
+    "recursion backwards with Hessian-vector products of W per micro node "    \
+    "and of V per macro node (0: the step Hessian assembled and the "          \
+    "transposed step solved)")                                                 \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \
