@@ -58,9 +58,8 @@ int ocp_explicit_ok(const mrvi_ocp *o) {
     if (a < 0 || c != a || pt->m != (a ? o->p - 1 : 0))
       return 0;
   }
-  for (int i = 0; st->n_elem_of_class[MRVI_FAST] > 0 &&
-                  i < st->n_pts[MRVI_FAST];
-       i++)
+  for (int i = 0;
+       st->n_elem_of_class[MRVI_FAST] > 0 && i < st->n_pts[MRVI_FAST]; i++)
     if (node_point(st->pts[MRVI_FAST][i].cA, st->pts[MRVI_FAST][i].cB) < 0)
       return 0;
   return 1;
@@ -88,8 +87,8 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
                           st->n_elem_of_class[MRVI_FAST], col,
                           &o->adj_terms[MRVI_FAST]);
   free(col);
-  o->adj_work = malloc((f * 2 * nsf + 3 * nsf + (size_t)o->p + 1) *
-                       sizeof *o->adj_work);
+  o->adj_work =
+      malloc((f * 2 * nsf + 3 * nsf + (size_t)o->p + 1) * sizeof *o->adj_work);
   if (s < 0 || !o->adj_work)
     return MRVI_ENOMEM;
   o->adj_explicit = 1;

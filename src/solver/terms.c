@@ -1836,7 +1836,8 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
 }
 
 /* A spring or anchor's Hessian blocks [A -A; -A A], A = a u u^T + b I
- * (spring_derivs, law code K_ANY), times scale, applied to every vector:
+ * (spring_derivs, law code K_ANY; a Hooke spring's a = c L0 / r,
+ * b = c - a with one division), times scale, applied to every vector:
  * y_v[i] += A (x_v[i] - x_v[j]), y_v[j] -= the same. */
 ALWAYS_INLINE void spring_hessvec(const kspring *q, const double *restrict z,
                                   int nvec, const double *restrict x, long xs,
@@ -1844,10 +1845,15 @@ ALWAYS_INLINE void spring_hessvec(const kspring *q, const double *restrict z,
                                   const int dim, const int two,
                                   const int hooke) {
   double u[3], d1, a, b;
-  if (hooke) { /* (a = c L0 / r, b = c - a: one division) */
+  int ci[3], cj[3];
+  UNROLL for (int k = 0; k < dim; k++) {
+    ci[k] = q->ci[k];
+    cj[k] = two ? q->cj[k] : 0;
+  }
+  if (hooke) {
     double d[3], r2 = 0.0;
     UNROLL for (int k = 0; k < dim; k++) {
-      d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->el->anchor[k]);
+      d[k] = z[ci[k]] - (two ? z[cj[k]] : q->el->anchor[k]);
       r2 += d[k] * d[k];
     }
     const double r = sqrt(r2), ir = recip_len(r);
@@ -1857,21 +1863,21 @@ ALWAYS_INLINE void spring_hessvec(const kspring *q, const double *restrict z,
   } else {
     spring_derivs(q, z, u, &d1, &a, &b, dim, two, K_ANY);
   }
-  a *= scale;
-  b *= scale;
+  double A[3][3];
+  UNROLL for (int i = 0; i < dim; i++) UNROLL for (int j = 0; j < dim; j++)
+      A[i][j] = scale * (a * u[i] * u[j] + (i == j ? b : 0.0));
   for (int v = 0; v < nvec; v++) {
     const double *xv = x + (size_t)v * (size_t)xs;
     double *yv = y + (size_t)v * (size_t)ys;
-    double dx[3], ud = 0.0;
-    UNROLL for (int k = 0; k < dim; k++) {
-      dx[k] = xv[q->ci[k]] - (two ? xv[q->cj[k]] : 0.0);
-      ud += u[k] * dx[k];
-    }
-    UNROLL for (int k = 0; k < dim; k++) {
-      const double h = a * ud * u[k] + b * dx[k];
-      yv[q->ci[k]] += h;
+    double dx[3];
+    UNROLL for (int k = 0; k < dim; k++) dx[k] =
+        xv[ci[k]] - (two ? xv[cj[k]] : 0.0);
+    UNROLL for (int i = 0; i < dim; i++) {
+      double h = 0.0;
+      UNROLL for (int j = 0; j < dim; j++) h += A[i][j] * dx[j];
+      yv[ci[i]] += h;
       if (two)
-        yv[q->cj[k]] -= h;
+        yv[cj[i]] -= h;
     }
   }
 }
