@@ -468,7 +468,8 @@ static int sparse_pattern(mrvi_ocp *o, long k) {
  * and on the explicit paths (explicit, sweep, sweep-cg) for steps too
  * large for the dense H, whose forward pass factorises nothing either
  * (against the sparse LU of the step: doc/performance.md, "Optimal
- * control on a lattice"). */
+ * control on a lattice"), where they do not take their own adjoint
+ * (adjoint_explicit.c, ocp_explicit_ok). */
 static int adjoint_krylov_path(const mrvi_ocp *o) {
   switch (o->path) {
   case MRVI_PATH_SCHUR_KRYLOV:
@@ -748,9 +749,9 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
     for (int i = 0; i < nf; i++)
       o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
   }
-  if (o->adj_explicit)
-    ocp_explicit_adjoint(o, nfun, gQ);
-  else if ((s = adjoint_steps(o, nfun, gQ)) < 0)
+  s = o->adj_explicit ? ocp_explicit_adjoint(o, nfun, gQ)
+                      : adjoint_steps(o, nfun, gQ);
+  if (s < 0)
     return s;
   /* dPhi/du = direct - sum_k mu[z_k]^T dforces_k/du. */
   for (int f = 0; f < nfun; f++) {

@@ -263,15 +263,17 @@ static inline void ocp_jac_add(ocp_jac *a, int i, int j, double v) {
  * workspace). */
 void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *a);
 
-/* The explicit path's adjoint (adjoint_explicit.c).  Whether it applies
- * (path explicit, no multipliers, state actuators or torsional springs;
- * tuning.adjoint_explicit) */
+/* The explicit paths' adjoint (adjoint_explicit.c).  Whether it applies
+ * (path explicit, sweep or sweep-cg; no multipliers, state actuators or
+ * torsional springs; tuning.adjoint_explicit) */
 int ocp_explicit_ok(const mrvi_ocp *o);
 /* Its compiled classes and workspace for nfun functionals (MRVI_ENOMEM) */
 int ocp_explicit_alloc(mrvi_ocp *o, int nfun);
 /* The backward sweep: o->mu (nfun x n_nodes; final nodes set) on every
- * equation node from gQ (nfun x n_nodes, d Phi / dY; overwritten). */
-void ocp_explicit_adjoint(mrvi_ocp *o, int nfun, double *gQ);
+ * equation node from gQ (nfun x n_nodes, d Phi / dY; overwritten).
+ * MRVI_ESINGULAR (message on o) where a micro step's transposed solve
+ * (the sweep paths) does not converge. */
+int ocp_explicit_adjoint(mrvi_ocp *o, int nfun, double *gQ);
 
 /* z indices and coefficients of the (two) nodes that model coordinate idx
  * interpolates at point pt of a step. */
