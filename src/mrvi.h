@@ -785,11 +785,18 @@ typedef enum mrvi_newton_criterion {
     "(0: every step)")                                                         \
   X(int, adjoint_krylov, 1, 0, 1,                                              \
     "where the forward pass takes schur-krylov, or an explicit path on "       \
-    "steps beyond adjoint_dense_max, the adjoint's transposed step solves "    \
-    "run schur-krylov's elimination backwards (GMRES, CG sweeps; 0: the "      \
-    "sparse LU with kept factors)")                                            \
+    "steps beyond adjoint_dense_max with adjoint_explicit = 0, the "           \
+    "adjoint's transposed step solves run schur-krylov's elimination "         \
+    "backwards (GMRES, CG sweeps; 0: the sparse LU with kept factors)")        \
   X(double, adjoint_krylov_rtol, 1e-10, 0.0, 1.0,                              \
-    "relative tolerance of those solves' block CG and GMRES")                  \
+    "relative tolerance of those solves' block CG and GMRES, and of the "      \
+    "CG of adjoint_explicit's micro steps")                                    \
+  X(int, adjoint_explicit, 1, 0, 1,                                            \
+    "on the explicit, sweep and sweep-cg paths (fully-explicit, "              \
+    "explicit-slow), the adjoint runs the steps' recursion backwards with "    \
+    "Hessian-vector products of W and V (and a CG per micro step where W's "   \
+    "points lie inside the micro intervals; 0: the step Hessian assembled "    \
+    "and the transposed step solved)")                                         \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

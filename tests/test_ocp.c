@@ -1020,14 +1020,16 @@ static const char *lattice_text =
 static void adjoint_krylov_scheme(const char *scheme, const char *path_want) {
   char sch[64];
   snprintf(sch, sizeof sch, "integrator.scheme=%s", scheme);
-  const char *ov[2] = {sch, "integrator.tuning.adjoint_krylov=0"};
+  /* (fully-explicit: the assembled adjoint, not adjoint_explicit.c's) */
+  const char *ov[3] = {sch, "integrator.tuning.adjoint_explicit=0",
+                       "integrator.tuning.adjoint_krylov=0"};
   mrvi_system *sys[2] = {NULL, NULL};
   mrvi_ocp *o[2] = {NULL, NULL};
   double *u[2] = {NULL, NULL}, *g[2] = {NULL, NULL};
   char msg[2048];
   int st = 0;
   for (int w = 0; w < 2 && st == 0; w++) {
-    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, 1 + w,
+    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, 2 + w,
                                  &sys[w], msg, sizeof msg);
     if (st == 0)
       st = mrvi_ocp_load(sys[w], &o[w], &u[w], msg, sizeof msg);
@@ -1085,6 +1087,107 @@ static void test_adjoint_krylov(void) {
   adjoint_krylov_scheme("midpoint-midpoint", "schur-krylov");
   adjoint_krylov_scheme("explicit-slow", "sweep-cg");
   adjoint_krylov_scheme("fully-explicit", "explicit");
+}
+
+/* The explicit paths' adjoint (ocp/adjoint_explicit.c: the recursion run
+ * backwards with Hessian-vector products) against the transposed step
+ * solves of the assembled step Jacobian (tuning.adjoint_explicit = 0, with
+ * the sparse LU: adjoint_krylov = 0) on the lattice of 200 coordinates,
+ * at two controls in turn: the same gradients to 1e-12 relative on the
+ * explicit path (no iteration), 1e-11 on sweep-cg (its micro steps' CG at
+ * adjoint_krylov_rtol = 1e-10); and central differences (1e-6).
+ * fully-explicit at p = 10 and p = 1 (velocity Verlet; dT = 0.025, away
+ * from its stability limit, where the differences lose digits), the
+ * macro-grid V with alpha = 0.3 beside the fast rule alpha = 0.7,
+ * gamma = 0 (weights differing at every node); explicit-slow at p = 10
+ * and p = 1, and with two points per micro interval (alpha = 0.4,
+ * gamma = 0.3). */
+static void adjoint_explicit_variant(const char *what, const char *scheme,
+                                     const char *path_want, double tol,
+                                     const char *ov1, const char *ov2) {
+  char sch[64];
+  snprintf(sch, sizeof sch, "integrator.scheme=%s", scheme);
+  const char *ov[5] = {sch};
+  int n_ov = 1;
+  if (ov1)
+    ov[n_ov++] = ov1;
+  if (ov2)
+    ov[n_ov++] = ov2;
+  ov[n_ov] = "integrator.tuning.adjoint_explicit=0";
+  ov[n_ov + 1] = "integrator.tuning.adjoint_krylov=0";
+  mrvi_system *sys[2] = {NULL, NULL};
+  mrvi_ocp *o[2] = {NULL, NULL};
+  double *u[2] = {NULL, NULL}, *g[2] = {NULL, NULL};
+  char msg[2048];
+  int st = 0;
+  for (int w = 0; w < 2 && st == 0; w++) {
+    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, n_ov + 2 * w,
+                                 &sys[w], msg, sizeof msg);
+    if (st == 0)
+      st = mrvi_ocp_load(sys[w], &o[w], &u[w], msg, sizeof msg);
+    CHECK(st == 0, "adjoint explicit, %s: load: %s", what, msg);
+  }
+  if (st != 0)
+    goto out;
+  const char *path = mrvi_ocp_solver_path(o[0], NULL, 0);
+  CHECK(path && strcmp(path, path_want) == 0,
+        "adjoint explicit, %s: path %s, expected %s", what,
+        path ? path : "none", path_want);
+  const int n = mrvi_ocp_n_controls(o[0]), nm = mrvi_ocp_n_constraints(o[0]);
+  const int len = 2 * n * (1 + nm);
+  for (int w = 0; w < 2 && st == 0; w++) {
+    g[w] = calloc((size_t)len, sizeof *g[w]);
+    for (int t = 0; t < 2 && st == 0; t++) {
+      for (int i = 0; i < n; i++)
+        u[w][i] = 0.5 * sin(0.7 * i + t);
+      st = gradients_at(o[w], u[w], g[w] + t * n * (1 + nm));
+    }
+    CHECK(st == 0, "adjoint explicit, %s: way %d: %s", what, w,
+          mrvi_ocp_errmsg(o[w]));
+  }
+  if (st != 0)
+    goto out;
+  CHECK(o[0]->adj_explicit == 1 && o[1]->adj_explicit == 0,
+        "adjoint explicit, %s: taken %d, reference %d", what,
+        o[0]->adj_explicit, o[1]->adj_explicit);
+  double err = 0.0, sc = 0.0;
+  for (int i = 0; i < len; i++) {
+    err = fmax(err, fabs(g[0][i] - g[1][i]));
+    sc = fmax(sc, fabs(g[1][i]));
+  }
+  CHECK(sc > 0.0 && err <= tol * sc,
+        "adjoint explicit, %s: gradients differ from the assembled "
+        "adjoint's by %.3e (scale %.3e)",
+        what, err, sc);
+  char name[96];
+  snprintf(name, sizeof name, "adjoint explicit: lattice 200, %s", what);
+  check_gradients(o[0], name);
+out:
+  for (int w = 0; w < 2; w++) {
+    free(g[w]);
+    free(u[w]);
+    mrvi_ocp_free(o[w]);
+    mrvi_system_free(sys[w]);
+  }
+}
+
+static void test_adjoint_explicit(void) {
+  const char *fe = "fully-explicit", *es = "explicit-slow";
+  adjoint_explicit_variant("fully-explicit", fe, "explicit", 1e-12, NULL, NULL);
+  adjoint_explicit_variant("fully-explicit, p = 1", fe, "explicit", 1e-12,
+                           "integrator.micro_steps=1",
+                           "integrator.macro_step=0.025");
+  adjoint_explicit_variant("slow alpha 0.3, fast alpha 0.7 gamma 0", fe,
+                           "explicit", 1e-12,
+                           "integrator.slow={grid: macro, alpha: 0.3}",
+                           "integrator.fast={alpha: 0.7, gamma: 0}");
+  adjoint_explicit_variant("explicit-slow", es, "sweep-cg", 1e-11, NULL, NULL);
+  adjoint_explicit_variant("explicit-slow, p = 1", es, "sweep-cg", 1e-11,
+                           "integrator.micro_steps=1",
+                           "integrator.macro_step=0.025");
+  adjoint_explicit_variant("explicit-slow, fast alpha 0.4 gamma 0.3", es,
+                           "sweep-cg", 1e-11,
+                           "integrator.fast={alpha: 0.4, gamma: 0.3}", NULL);
 }
 
 /* The optimum found on the path chosen automatically equals the general
@@ -1207,6 +1310,7 @@ int main(void) {
   test_paths();
   test_paths_iterative();
   test_adjoint_krylov();
+  test_adjoint_explicit();
   test_paths_optimum();
   test_paths_general();
   return test_finish();

@@ -468,7 +468,8 @@ static int sparse_pattern(mrvi_ocp *o, long k) {
  * and on the explicit paths (explicit, sweep, sweep-cg) for steps too
  * large for the dense H, whose forward pass factorises nothing either
  * (against the sparse LU of the step: doc/performance.md, "Optimal
- * control on a lattice"). */
+ * control on a lattice"), where they do not take their own adjoint
+ * (adjoint_explicit.c, ocp_explicit_ok). */
 static int adjoint_krylov_path(const mrvi_ocp *o) {
   switch (o->path) {
   case MRVI_PATH_SCHUR_KRYLOV:
@@ -489,6 +490,20 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   const size_t npn = (size_t)(o->ns + o->nf), f = (size_t)nfun;
   const size_t nv = (size_t)o->nv;
   ocp_adjoint_free(o);
+  const size_t n = (size_t)o->model->n,
+               R = (size_t)mrvi_model_constraint_rows(o->model);
+  o->pv = R > 0 ? malloc((6 * n + R * (n + R + 2)) * sizeof *o->pv) : NULL;
+  o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
+  o->mu = calloc(f * nn + 1, sizeof(double));
+  if (!o->r || !o->mu || (R > 0 && !o->pv))
+    return MRVI_ENOMEM;
+  /* The explicit path's adjoint needs no step Jacobian. */
+  if (ocp_explicit_ok(o)) {
+    if (ocp_explicit_alloc(o, nfun) < 0)
+      return MRVI_ENOMEM;
+    o->nfun_alloc = nfun;
+    return MRVI_OK;
+  }
   o->gz = malloc((size_t)o->nz * sizeof *o->gz);
   const mrvi_step *st = &o->step;
   o->h_of_a = malloc(((size_t)st->nnz + 1) * sizeof *o->h_of_a);
@@ -504,15 +519,9 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
       for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++)
         o->h_of_a[e] = (long)h_row(o, st->Ai[e]) * o->nv + h_column(o, j);
   }
-  const size_t n = (size_t)o->model->n,
-               R = (size_t)mrvi_model_constraint_rows(o->model);
-  o->pv = R > 0 ? malloc((6 * n + R * (n + R + 2)) * sizeof *o->pv) : NULL;
-  o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
-  o->mu = calloc(f * nn + 1, sizeof(double));
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
-  o->nfun_alloc =
-      ok && o->r && o->mu && o->rhs && o->sol && (R == 0 || o->pv) ? nfun : 0;
+  o->nfun_alloc = ok && o->rhs && o->sol ? nfun : 0;
   if (!o->nfun_alloc)
     return MRVI_ENOMEM;
   /* The schur-krylov elimination on the step's pattern (a pattern outside
@@ -609,40 +618,13 @@ static int krylov_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   return MRVI_OK;
 }
 
-int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
-                      double *c, double *cgrad) {
-  for (int i = 0; i < o->n_u; i++)
-    if (!isfinite(u[i]))
-      return mrvi_ocp_fail(o, MRVI_ENONFINITE, "control %d is not finite", i);
-  int s = ocp_forward(o, u);
-  if (s < 0)
-    return s;
-  const int nfun = 1 + o->n_con, npn = o->ns + o->nf, nz = o->nz;
-  const long nn = o->n_nodes;
-  if (nfun != o->nfun_alloc && adjoint_alloc(o, nfun) < 0)
-    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
-  double *gQ = o->r, *val = o->r + (size_t)nfun * (size_t)nn;
-  double *gp = val + nfun, *gu = gp + (size_t)nfun * (size_t)npn;
-  /* (val, gp and gu fit in the second n_nodes block of r; see alloc.) */
-  functionals(o, u, val, gQ, gp, gu);
-  *J = val[0];
-  if (c)
-    for (int i = 0; i < o->n_con; i++)
-      c[i] = val[1 + i];
-  if (!grad && !cgrad)
-    return MRVI_OK;
-
-  /* Backward sweep.  mu: global node adjoints; final nodes -dPhi/dp_N. */
+/* The backward sweep over the steps with H_k assembled and A_k^T solved:
+ * o->mu (final nodes set) on every equation node from gQ (overwritten). */
+static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ) {
   mrvi_step *st = &o->step;
-  const int ns = o->ns, nf = o->nf, p = o->p, nu = st->n_unknowns;
-  const long N = o->N;
-  memset(o->mu, 0, (size_t)nfun * (size_t)nn * sizeof(double));
-  for (int f = 0; f < nfun; f++) {
-    for (int i = 0; i < ns; i++)
-      o->mu[f * nn + N * ns + i] = -gp[f * npn + i];
-    for (int i = 0; i < nf; i++)
-      o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
-  }
+  const int ns = o->ns, nf = o->nf, p = o->p, nu = st->n_unknowns, nz = o->nz;
+  const long N = o->N, nn = o->n_nodes;
+  int s;
   const int nl = o->nl, nt = st->n_total;
   double *rloc = o->sol + (size_t)nfun * (size_t)nt; /* nl, see alloc */
   char msg[300];
@@ -730,6 +712,47 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
       }
     }
   }
+  return MRVI_OK;
+}
+
+int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
+                      double *c, double *cgrad) {
+  for (int i = 0; i < o->n_u; i++)
+    if (!isfinite(u[i]))
+      return mrvi_ocp_fail(o, MRVI_ENONFINITE, "control %d is not finite", i);
+  int s = ocp_forward(o, u);
+  if (s < 0)
+    return s;
+  const int nfun = 1 + o->n_con, npn = o->ns + o->nf;
+  const long nn = o->n_nodes;
+  if (nfun != o->nfun_alloc && adjoint_alloc(o, nfun) < 0)
+    return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
+  double *gQ = o->r, *val = o->r + (size_t)nfun * (size_t)nn;
+  double *gp = val + nfun, *gu = gp + (size_t)nfun * (size_t)npn;
+  /* (val, gp and gu fit in the second n_nodes block of r; see alloc.) */
+  functionals(o, u, val, gQ, gp, gu);
+  *J = val[0];
+  if (c)
+    for (int i = 0; i < o->n_con; i++)
+      c[i] = val[1 + i];
+  if (!grad && !cgrad)
+    return MRVI_OK;
+
+  /* Backward sweep.  mu: global node adjoints; final nodes -dPhi/dp_N. */
+  const int ns = o->ns, nf = o->nf, p = o->p;
+  const long N = o->N;
+  if (!o->adj_explicit) /* (the explicit sweep writes every node) */
+    memset(o->mu, 0, (size_t)nfun * (size_t)nn * sizeof(double));
+  for (int f = 0; f < nfun; f++) {
+    for (int i = 0; i < ns; i++)
+      o->mu[f * nn + N * ns + i] = -gp[f * npn + i];
+    for (int i = 0; i < nf; i++)
+      o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
+  }
+  s = o->adj_explicit ? ocp_explicit_adjoint(o, nfun, gQ)
+                      : adjoint_steps(o, nfun, gQ);
+  if (s < 0)
+    return s;
   /* dPhi/du = direct - sum_k mu[z_k]^T dforces_k/du. */
   for (int f = 0; f < nfun; f++) {
     double *out =

@@ -193,14 +193,19 @@ oom:
 }
 
 void ocp_adjoint_free(mrvi_ocp *o) {
-  double **d[] = {&o->r,  &o->mu,    &o->rhs, &o->sol,
-                  &o->Ak, &o->h_val, &o->H,   &o->pv};
+  double **d[] = {&o->r,     &o->mu, &o->rhs, &o->sol,     &o->Ak,
+                  &o->h_val, &o->H,  &o->pv,  &o->adj_work};
   for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
     free(*d[i]);
     *d[i] = NULL;
   }
   mrvi_skrylov_free(o->skrylov);
   o->skrylov = NULL;
+  for (int c = 0; c < 2; c++) {
+    mrvi_terms_free(o->adj_terms[c]);
+    o->adj_terms[c] = NULL;
+  }
+  o->adj_explicit = 0;
   free(o->gz);
   free(o->h_of_a);
   free(o->h_ptr);

@@ -144,6 +144,12 @@ struct mrvi_ocp {
    * solves and those that fell back to the sparse LU. */
   mrvi_skrylov *skrylov;
   long adjoint_krylov_solves, adjoint_krylov_fallbacks;
+  /* The explicit path's adjoint (adjoint_explicit.c, ocp_explicit_ok):
+   * V and W compiled for Hessian-vector products (columns: V's slow slots,
+   * then ns + fast slots; W's fast slots) and its workspace. */
+  int adj_explicit;
+  mrvi_terms *adj_terms[2];
+  double *adj_work;
   /* Terminal velocities of a constrained model (projected_velocity):
    * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
    * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */
@@ -256,6 +262,18 @@ static inline void ocp_jac_add(ocp_jac *a, int i, int j, double v) {
  * Also fills o->gz (the global node of every z of step k; the adjoint
  * workspace). */
 void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *a);
+
+/* The explicit paths' adjoint (adjoint_explicit.c).  Whether it applies
+ * (path explicit, sweep or sweep-cg; no multipliers, state actuators or
+ * torsional springs; tuning.adjoint_explicit) */
+int ocp_explicit_ok(const mrvi_ocp *o);
+/* Its compiled classes and workspace for nfun functionals (MRVI_ENOMEM) */
+int ocp_explicit_alloc(mrvi_ocp *o, int nfun);
+/* The backward sweep: o->mu (nfun x n_nodes; final nodes set) on every
+ * equation node from gQ (nfun x n_nodes, d Phi / dY; overwritten).
+ * MRVI_ESINGULAR (message on o) where a micro step's transposed solve
+ * (the sweep paths) does not converge. */
+int ocp_explicit_adjoint(mrvi_ocp *o, int nfun, double *gQ);
 
 /* z indices and coefficients of the (two) nodes that model coordinate idx
  * interpolates at point pt of a step. */

@@ -448,6 +448,15 @@ void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
 void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
                             double *Ax, const long *off, const int *emap,
                             double hscale);
+/* y_v += scale hess Z(z) x_v for the nvec vectors x_v = x + v xs, y_v =
+ * y + v ys (on the columns): each element's Hessian formed once and
+ * applied to every vector, none assembled (springs and anchors by the
+ * compiled kernels' derivatives, the others by mrvi_element_eval; a class
+ * of mrvi_terms_create).  The explicit paths' adjoint (ocp/adjoint_explicit.c).
+ */
+void mrvi_terms_hessvec(mrvi_terms *kc, const double *z, int nvec,
+                        const double *x, long xs, double *y, long ys,
+                        double scale);
 /* Whether every element of the class is quadratic
  * (mrvi_element_is_quadratic): its Hessian is constant. */
 int mrvi_terms_quadratic(const mrvi_terms *kc);

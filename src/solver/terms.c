@@ -1834,3 +1834,110 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vthreads = safe && threads > 1 ? threads : 1;
   return MRVI_OK;
 }
+
+/* A spring or anchor's Hessian blocks [A -A; -A A], A = a u u^T + b I
+ * (spring_derivs, law code K_ANY; a Hooke spring's a = c L0 / r,
+ * b = c - a with one division), times scale, applied to every vector:
+ * y_v[i] += A (x_v[i] - x_v[j]), y_v[j] -= the same. */
+ALWAYS_INLINE void spring_hessvec(const kspring *q, const double *restrict z,
+                                  int nvec, const double *restrict x, long xs,
+                                  double *restrict y, long ys, double scale,
+                                  const int dim, const int two,
+                                  const int hooke) {
+  double u[3], d1, a, b;
+  int ci[3], cj[3];
+  UNROLL for (int k = 0; k < dim; k++) {
+    ci[k] = q->ci[k];
+    cj[k] = two ? q->cj[k] : 0;
+  }
+  if (hooke) {
+    double d[3], r2 = 0.0;
+    UNROLL for (int k = 0; k < dim; k++) {
+      d[k] = z[ci[k]] - (two ? z[cj[k]] : q->el->anchor[k]);
+      r2 += d[k] * d[k];
+    }
+    const double r = sqrt(r2), ir = recip_len(r);
+    UNROLL for (int k = 0; k < dim; k++) u[k] = d[k] * ir;
+    a = r > 0.0 ? q->c * q->shift * ir : 0.0;
+    b = q->c - a;
+  } else {
+    spring_derivs(q, z, u, &d1, &a, &b, dim, two, K_ANY);
+  }
+  double A[3][3];
+  UNROLL for (int i = 0; i < dim; i++) UNROLL for (int j = 0; j < dim; j++)
+      A[i][j] = scale * (a * u[i] * u[j] + (i == j ? b : 0.0));
+  for (int v = 0; v < nvec; v++) {
+    const double *xv = x + (size_t)v * (size_t)xs;
+    double *yv = y + (size_t)v * (size_t)ys;
+    double dx[3];
+    UNROLL for (int k = 0; k < dim; k++) dx[k] =
+        xv[ci[k]] - (two ? xv[cj[k]] : 0.0);
+    UNROLL for (int i = 0; i < dim; i++) {
+      double h = 0.0;
+      UNROLL for (int j = 0; j < dim; j++) h += A[i][j] * dx[j];
+      yv[ci[i]] += h;
+      if (two)
+        yv[cj[i]] -= h;
+    }
+  }
+}
+
+static __attribute__((noinline)) void
+springs_hessvec(const kspring *q, int nr, const double *restrict z, int nvec,
+                const double *restrict x, long xs, double *restrict y, long ys,
+                double scale, int dim) {
+#define SPRINGS_HV(D, T)                                                       \
+  do {                                                                         \
+    if (q->k == KS_HOOKE)                                                      \
+      for (int r = 0; r < nr; r++)                                             \
+        spring_hessvec(q + r, z, nvec, x, xs, y, ys, scale, D, T, 1);          \
+    else                                                                       \
+      for (int r = 0; r < nr; r++)                                             \
+        spring_hessvec(q + r, z, nvec, x, xs, y, ys, scale, D, T, 0);          \
+  } while (0)
+  if (dim == 2 && q->two)
+    SPRINGS_HV(2, 1);
+  else if (dim == 2)
+    SPRINGS_HV(2, 0);
+  else if (dim == 3 && q->two)
+    SPRINGS_HV(3, 1);
+  else if (dim == 3)
+    SPRINGS_HV(3, 0);
+  else if (q->two)
+    SPRINGS_HV(1, 1);
+  else
+    SPRINGS_HV(1, 0);
+#undef SPRINGS_HV
+}
+
+void mrvi_terms_hessvec(mrvi_terms *kc, const double *z, int nvec,
+                        const double *x, long xs, double *y, long ys,
+                        double scale) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    if (t->runs > 0) {
+      springs_hessvec(kc->qs + t->qs, t->runs, z, nvec, x, xs, y, ys, scale,
+                      kc->dim);
+      it += t->runs - 1;
+      continue;
+    }
+    /* Every other element's Hessian by the generic evaluation (an affine
+     * one, gravity, has none). */
+    if (t->el->kind == MRVI_ELEMENT_GRAVITY)
+      continue;
+    const int n = t->n, *col = kc->col + t->first;
+    for (int j = 0; j < n; j++)
+      kc->y[j] = z[col[j]];
+    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, kc->H);
+    for (int v = 0; v < nvec; v++) {
+      const double *xv = x + (size_t)v * (size_t)xs;
+      double *yv = y + (size_t)v * (size_t)ys;
+      for (int j = 0; j < n; j++) {
+        double h = 0.0;
+        for (int l = 0; l < n; l++)
+          h += kc->H[j * n + l] * xv[col[l]];
+        yv[col[j]] += scale * h;
+      }
+    }
+  }
+}
