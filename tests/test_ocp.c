@@ -1017,49 +1017,82 @@ static const char *lattice_text =
     "  terminal:\n"
     "    - {coordinate: p0_0.x, position: 0.2, velocity: 0}\n";
 
+/* A lattice OCP loaded two ways (way 0 with the first n_common overrides,
+ * way 1 with n_extra more), way 0's path checked, and the gradients of
+ * both at two controls in turn (g[w]: len entries); the largest
+ * difference of the two ways' gradients and way 1's largest entry. */
+typedef struct two_way {
+  mrvi_system *sys[2];
+  mrvi_ocp *o[2];
+  double *u[2], *g[2];
+  int n, nm, len;
+} two_way;
+
+static int two_way_gradients(two_way *tw, const char *label, const char **ov,
+                             int n_common, int n_extra, const char *path_want) {
+  char msg[2048];
+  int st = 0;
+  memset(tw, 0, sizeof *tw);
+  for (int w = 0; w < 2 && st == 0; w++) {
+    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov,
+                                 n_common + w * n_extra, &tw->sys[w], msg,
+                                 sizeof msg);
+    if (st == 0)
+      st = mrvi_ocp_load(tw->sys[w], &tw->o[w], &tw->u[w], msg, sizeof msg);
+    CHECK(st == 0, "%s: load: %s", label, msg);
+  }
+  if (st != 0)
+    return st;
+  const char *path = mrvi_ocp_solver_path(tw->o[0], NULL, 0);
+  CHECK(path && strcmp(path, path_want) == 0, "%s: path %s, expected %s", label,
+        path ? path : "none", path_want);
+  const int n = tw->n = mrvi_ocp_n_controls(tw->o[0]);
+  const int nm = tw->nm = mrvi_ocp_n_constraints(tw->o[0]);
+  tw->len = 2 * n * (1 + nm);
+  for (int w = 0; w < 2 && st == 0; w++) {
+    tw->g[w] = calloc((size_t)tw->len, sizeof *tw->g[w]);
+    for (int t = 0; t < 2 && st == 0; t++) {
+      for (int i = 0; i < n; i++)
+        tw->u[w][i] = 0.5 * sin(0.7 * i + t);
+      st = gradients_at(tw->o[w], tw->u[w], tw->g[w] + t * n * (1 + nm));
+    }
+    CHECK(st == 0, "%s: way %d: %s", label, w, mrvi_ocp_errmsg(tw->o[w]));
+  }
+  return st;
+}
+
+static void two_way_diff(const two_way *tw, double *err, double *sc) {
+  *err = *sc = 0.0;
+  for (int i = 0; i < tw->len; i++) {
+    *err = fmax(*err, fabs(tw->g[0][i] - tw->g[1][i]));
+    *sc = fmax(*sc, fabs(tw->g[1][i]));
+  }
+}
+
+static void two_way_free(two_way *tw) {
+  for (int w = 0; w < 2; w++) {
+    free(tw->g[w]);
+    free(tw->u[w]);
+    mrvi_ocp_free(tw->o[w]);
+    mrvi_system_free(tw->sys[w]);
+  }
+}
+
 static void adjoint_krylov_scheme(const char *scheme, const char *path_want) {
   char sch[64];
   snprintf(sch, sizeof sch, "integrator.scheme=%s", scheme);
   /* (fully-explicit: the assembled adjoint, not adjoint_explicit.c's) */
   const char *ov[3] = {sch, "integrator.tuning.adjoint_explicit=0",
                        "integrator.tuning.adjoint_krylov=0"};
-  mrvi_system *sys[2] = {NULL, NULL};
-  mrvi_ocp *o[2] = {NULL, NULL};
-  double *u[2] = {NULL, NULL}, *g[2] = {NULL, NULL};
-  char msg[2048];
-  int st = 0;
-  for (int w = 0; w < 2 && st == 0; w++) {
-    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, 2 + w,
-                                 &sys[w], msg, sizeof msg);
-    if (st == 0)
-      st = mrvi_ocp_load(sys[w], &o[w], &u[w], msg, sizeof msg);
-    CHECK(st == 0, "adjoint krylov, %s: load: %s", scheme, msg);
-  }
-  if (st != 0)
+  char label[96];
+  snprintf(label, sizeof label, "adjoint krylov, %s", scheme);
+  two_way tw;
+  if (two_way_gradients(&tw, label, ov, 2, 1, path_want) != 0)
     goto out;
-  const char *path = mrvi_ocp_solver_path(o[0], NULL, 0);
-  CHECK(path && strcmp(path, path_want) == 0,
-        "adjoint krylov, %s: path %s, expected %s", scheme,
-        path ? path : "none", path_want);
-  const int n = mrvi_ocp_n_controls(o[0]), nm = mrvi_ocp_n_constraints(o[0]);
-  const int len = 2 * n * (1 + nm);
-  for (int w = 0; w < 2 && st == 0; w++) {
-    g[w] = calloc((size_t)len, sizeof *g[w]);
-    for (int t = 0; t < 2 && st == 0; t++) {
-      for (int i = 0; i < n; i++)
-        u[w][i] = 0.5 * sin(0.7 * i + t);
-      st = gradients_at(o[w], u[w], g[w] + t * n * (1 + nm));
-    }
-    CHECK(st == 0, "adjoint krylov, %s: way %d: %s", scheme, w,
-          mrvi_ocp_errmsg(o[w]));
-  }
-  if (st != 0)
-    goto out;
-  double err = 0.0, sc = 0.0;
-  for (int i = 0; i < len; i++) {
-    err = fmax(err, fabs(g[0][i] - g[1][i]));
-    sc = fmax(sc, fabs(g[1][i]));
-  }
+  mrvi_ocp **o = tw.o;
+  const int nm = tw.nm;
+  double err, sc;
+  two_way_diff(&tw, &err, &sc);
   CHECK(sc > 0.0 && err <= 1e-8 * sc,
         "adjoint krylov, %s: gradients differ from the LU's by %.3e (scale "
         "%.3e)",
@@ -1075,12 +1108,7 @@ static void adjoint_krylov_scheme(const char *scheme, const char *path_want) {
   snprintf(what, sizeof what, "adjoint krylov: lattice 200, %s", scheme);
   check_gradients(o[0], what);
 out:
-  for (int w = 0; w < 2; w++) {
-    free(g[w]);
-    free(u[w]);
-    mrvi_ocp_free(o[w]);
-    mrvi_system_free(sys[w]);
-  }
+  two_way_free(&tw);
 }
 
 static void test_adjoint_krylov(void) {
@@ -1115,46 +1143,17 @@ static void adjoint_explicit_variant(const char *what, const char *scheme,
     ov[n_ov++] = ov2;
   ov[n_ov] = "integrator.tuning.adjoint_explicit=0";
   ov[n_ov + 1] = "integrator.tuning.adjoint_krylov=0";
-  mrvi_system *sys[2] = {NULL, NULL};
-  mrvi_ocp *o[2] = {NULL, NULL};
-  double *u[2] = {NULL, NULL}, *g[2] = {NULL, NULL};
-  char msg[2048];
-  int st = 0;
-  for (int w = 0; w < 2 && st == 0; w++) {
-    st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov, n_ov + 2 * w,
-                                 &sys[w], msg, sizeof msg);
-    if (st == 0)
-      st = mrvi_ocp_load(sys[w], &o[w], &u[w], msg, sizeof msg);
-    CHECK(st == 0, "adjoint explicit, %s: load: %s", what, msg);
-  }
-  if (st != 0)
+  char label[160];
+  snprintf(label, sizeof label, "adjoint explicit, %s", what);
+  two_way tw;
+  if (two_way_gradients(&tw, label, ov, n_ov, 2, path_want) != 0)
     goto out;
-  const char *path = mrvi_ocp_solver_path(o[0], NULL, 0);
-  CHECK(path && strcmp(path, path_want) == 0,
-        "adjoint explicit, %s: path %s, expected %s", what,
-        path ? path : "none", path_want);
-  const int n = mrvi_ocp_n_controls(o[0]), nm = mrvi_ocp_n_constraints(o[0]);
-  const int len = 2 * n * (1 + nm);
-  for (int w = 0; w < 2 && st == 0; w++) {
-    g[w] = calloc((size_t)len, sizeof *g[w]);
-    for (int t = 0; t < 2 && st == 0; t++) {
-      for (int i = 0; i < n; i++)
-        u[w][i] = 0.5 * sin(0.7 * i + t);
-      st = gradients_at(o[w], u[w], g[w] + t * n * (1 + nm));
-    }
-    CHECK(st == 0, "adjoint explicit, %s: way %d: %s", what, w,
-          mrvi_ocp_errmsg(o[w]));
-  }
-  if (st != 0)
-    goto out;
+  mrvi_ocp **o = tw.o;
   CHECK(o[0]->adj_explicit == 1 && o[1]->adj_explicit == 0,
         "adjoint explicit, %s: taken %d, reference %d", what,
         o[0]->adj_explicit, o[1]->adj_explicit);
-  double err = 0.0, sc = 0.0;
-  for (int i = 0; i < len; i++) {
-    err = fmax(err, fabs(g[0][i] - g[1][i]));
-    sc = fmax(sc, fabs(g[1][i]));
-  }
+  double err, sc;
+  two_way_diff(&tw, &err, &sc);
   CHECK(sc > 0.0 && err <= tol * sc,
         "adjoint explicit, %s: gradients differ from the assembled "
         "adjoint's by %.3e (scale %.3e)",
@@ -1163,12 +1162,7 @@ static void adjoint_explicit_variant(const char *what, const char *scheme,
   snprintf(name, sizeof name, "adjoint explicit: lattice 200, %s", what);
   check_gradients(o[0], name);
 out:
-  for (int w = 0; w < 2; w++) {
-    free(g[w]);
-    free(u[w]);
-    mrvi_ocp_free(o[w]);
-    mrvi_system_free(sys[w]);
-  }
+  two_way_free(&tw);
 }
 
 static void test_adjoint_explicit(void) {

@@ -192,6 +192,24 @@ static void coefficients(const mrvi_ocp *o, double *cs, double *wV) {
  * a node's adjoint is found from the row of its successor, that row holds
  * r plus the weighted products at the successor (and, at a step's
  * initial nodes, less the kinetic part of the step after). */
+/* The rows of macro node k for step k - 1: step k's kinetic part taken
+ * off (ks, kf: its slow and fast coefficients) with the adjoints of step
+ * k's first nodes. */
+static void kinetic_off(const mrvi_ocp *o, int nfun, long k, const double *ks,
+                        const double *kf, double *gQ) {
+  const int ns = o->ns, nf = o->nf;
+  const long nn = o->n_nodes, F0 = (o->N + 1) * ns;
+  const long s0 = k * ns, s1 = s0 + ns, fk = F0 + k * o->p * nf;
+  for (int f = 0; f < nfun; f++) {
+    const double *mu = o->mu + (size_t)f * (size_t)nn;
+    double *r = gQ + (size_t)f * (size_t)nn;
+    for (int i = 0; i < ns; i++)
+      r[s0 + i] -= ks[i] * (mu[s0 + i] - mu[s1 + i]);
+    for (int i = 0; i < nf; i++)
+      r[fk + i] -= kf[i] * (mu[fk + i] - mu[fk + nf + i]);
+  }
+}
+
 static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   const int ns = o->ns, nf = o->nf, p = o->p, nsf = ns + nf;
   const long N = o->N, nn = o->n_nodes, F0 = (N + 1) * ns;
@@ -231,14 +249,7 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
       break; /* the initial nodes are data */
     /* The rows of macro node k for step k - 1: step k's kinetic part off,
      * both steps' products on. */
-    for (int f = 0; f < nfun; f++) {
-      const double *mu = o->mu + (size_t)f * (size_t)nn;
-      double *r = gQ + (size_t)f * (size_t)nn;
-      for (int i = 0; i < ns; i++)
-        r[s0 + i] -= ks[i] * (mu[s0 + i] - mu[s1 + i]);
-      for (int i = 0; i < nf; i++)
-        r[fk + i] -= kf[i] * (mu[fk + i] - mu[fk + nf + i]);
-    }
+    kinetic_off(o, nfun, k, ks, kf, gQ);
     v_add(o, nfun, k, wV0 + wV1, gQ);
     w_add(o, nfun, k * p, ww[0] + ww[p], gQ);
   }
@@ -430,14 +441,7 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     }
     if (k == 0)
       break;
-    for (int f = 0; f < nfun; f++) {
-      const double *mu = o->mu + (size_t)f * (size_t)nn;
-      double *r = gQ + (size_t)f * (size_t)nn;
-      for (int i = 0; i < ns; i++)
-        r[s0 + i] -= ks[i] * (mu[s0 + i] - mu[s1 + i]);
-      for (int i = 0; i < nf; i++)
-        r[fk + i] -= kf[i] * (mu[fk + i] - mu[fk + nf + i]);
-    }
+    kinetic_off(o, nfun, k, ks, kf, gQ);
     v_add(o, nfun, k, wV[0] + wV[1], gQ);
     interval_row_a(o, nfun, k * p, gQ, zW, vW);
   }
