@@ -1209,9 +1209,11 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
   const int *run = kc->part_run + r0;
+  /* (one division per spring: q is the shared columns where the class has
+   * them, hooke_class, else its khooke records, as qh; the two-division
+   * kernels read qh, whose constant NULL columns the compiler folds) */
   const int one = kc->hooke_only || kc->recip;
-  const hsrc qh = {kc->qh, NULL, 0.0, 0.0},
-             q = kc->hooke_only ? hooke_src(kc) : qh;
+  const hsrc qh = {kc->qh, NULL, 0.0, 0.0}, q = hooke_src(kc);
   if (kc->part_hooke && one && kc->dim == 2)
     part_hooke_k(q, rec, mask, run, nr, z, g, 2, 1);
   else if (kc->part_hooke && one && kc->dim == 3)
