@@ -64,8 +64,8 @@ enum { GENERAL, BORDERED, NULLSPACE, N_RUNS };
 
 /* One run's figures. */
 typedef struct {
-  double ms;  /* CPU ms per macro step (best) */
-  double its; /* Newton updates per macro step */
+  double ms;             /* CPU ms per macro step (best) */
+  double its;            /* Newton updates per macro step */
   double asm_ms, sol_ms; /* of ms: assembling, and the linear solves
                             (mrvi_integrator_timing) */
   int size;
@@ -95,8 +95,8 @@ static mrvi_settings settings_of(const mrvi_system *sys, int kind, int p,
 }
 
 /* N macro steps of run kind `kind`; CPU seconds, or a negative value. */
-static double run(const mrvi_system *sys, int kind, int p, double scale,
-                  long N, figures *f) {
+static double run(const mrvi_system *sys, int kind, int p, double scale, long N,
+                  figures *f) {
   const mrvi_settings s = settings_of(sys, kind, p, scale, N);
   mrvi_integrator *it = NULL;
   char msg[512];
@@ -172,10 +172,11 @@ static void row(const mrvi_system *sys, int p, double scale, int repeat,
   const double best = fmin(f[GENERAL].ms, f[BORDERED].ms);
   printf("%-18s %3d %8.3g %3d %3d %5d %7ld %4ld | %9.4f %4.2f | %9.4f %4.2f | "
          "%9.4f | %-14s %-14s %5.2f\n",
-         sys->name, p, s.macro_step, ns, nf, size, f[GENERAL].ok ? f[GENERAL].nnz : -1L, N,
-         f[GENERAL].ms, f[GENERAL].its, f[BORDERED].ok ? f[BORDERED].ms : NAN,
-         f[BORDERED].its, f[NULLSPACE].ok ? f[NULLSPACE].ms : NAN,
-         path ? path : "?", faster, chosen / best);
+         sys->name, p, s.macro_step, ns, nf, size,
+         f[GENERAL].ok ? f[GENERAL].nnz : -1L, N, f[GENERAL].ms, f[GENERAL].its,
+         f[BORDERED].ok ? f[BORDERED].ms : NAN, f[BORDERED].its,
+         f[NULLSPACE].ok ? f[NULLSPACE].ms : NAN, path ? path : "?", faster,
+         chosen / best);
   const char *est = strstr(why, "estimate");
   printf("%-18s     # %s\n", "", est ? est : why);
   printf("%-18s     # assembling, solving [ms per step]: general %.4f, %.4f; "
@@ -238,7 +239,8 @@ int main(int argc, char **argv) {
       mrvi_settings probe;
       mrvi_settings_default(&probe);
       if (!eq || (*eq = 0, parse_value(eq + 1, &tuning_values[n_tuning])) < 0 ||
-          mrvi_settings_set_tuning(&probe, argv[i], tuning_values[n_tuning], NULL, 0) < 0)
+          mrvi_settings_set_tuning(&probe, argv[i], tuning_values[n_tuning],
+                                   NULL, 0) < 0)
         return fputs(usage, stderr), 2;
       tuning_names[n_tuning++] = argv[i];
     } else if (argv[i][0] != '-' && n_files < 64) {

@@ -353,16 +353,17 @@ static void test_path_choice(void) {
     mrvi_path_cost c;
     CHECK(mrvi_path_costs(sys->model, &s, &c) == 0, "%s: costs", cases[i].file);
     if (c.n <= s.tuning.newton_dense_max)
-      CHECK((strcmp(path ? path : "", "general") == 0 ? c.general : c.bordered) <=
-                fmin(c.general, c.bordered),
-            "%s p=%d: %s estimated %.4g, general %.4g, schur-bordered %.4g",
-            cases[i].file, cases[i].p, path ? path : "none",
-            path && !strcmp(path, "general") ? c.general : c.bordered,
-            c.general, c.bordered);
+      CHECK(
+          (strcmp(path ? path : "", "general") == 0 ? c.general : c.bordered) <=
+              fmin(c.general, c.bordered),
+          "%s p=%d: %s estimated %.4g, general %.4g, schur-bordered %.4g",
+          cases[i].file, cases[i].p, path ? path : "none",
+          path && !strcmp(path, "general") ? c.general : c.bordered, c.general,
+          c.bordered);
     else
       CHECK(path && strcmp(path, "schur-bordered") == 0,
-            "%s p=%d: beyond newton_dense_max on %s", cases[i].file,
-            cases[i].p, path ? path : "none");
+            "%s p=%d: beyond newton_dense_max on %s", cases[i].file, cases[i].p,
+            path ? path : "none");
     const char *again = mrvi_solver_path(sys->model, &s, why2, sizeof why2);
     CHECK(again == path && strcmp(why, why2) == 0, "%s: deterministic",
           cases[i].file);

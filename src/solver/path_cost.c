@@ -30,13 +30,13 @@
  *
  * u = path_updates (Newton updates per macro step), c_i = path_index_cost
  * (an indexed flop of the LU that skips zeros against one of the dense
- * blocks), w = path_entry_cost (per stored entry), K_g and K_b = path_factor_general and
- * path_factor_bordered (the fixed cost of a factorisation: calls, clearing,
- * pivot searches), all in flops of the dense block kernels and measured
- * across the shipped systems (MRVI_TUNING_LIST).  Beyond newton_dense_max
- * the general path takes UMFPACK, whose fixed costs and fill this does not
- * model: there the structured path is kept, as measured (the spacecraft
- * and the flexible pendulum at p >= 5 and 20).
+ * blocks), w = path_entry_cost (per stored entry), K_g and K_b =
+ * path_factor_general and path_factor_bordered (the fixed cost of a
+ * factorisation: calls, clearing, pivot searches), all in flops of the dense
+ * block kernels and measured across the shipped systems (MRVI_TUNING_LIST).
+ * Beyond newton_dense_max the general path takes UMFPACK, whose fixed costs and
+ * fill this does not model: there the structured path is kept, as measured (the
+ * spacecraft and the flexible pendulum at p >= 5 and 20).
  */
 #include "solver/solver.h"
 
@@ -275,7 +275,8 @@ static int bordered_flops(const mrvi_model *m, const pattern *J, int p, int rs,
       Rc[i] = i < nf ? ns + c * nf + i : nu + rs + c * rf + (i - nf);
     for (int i = 0; i < b; i++)
       for (int j = 0; j < b; j++)
-        D[(size_t)i * (size_t)b + (size_t)j] = (unsigned char)get(J, Rc[i], Rc[j]);
+        D[(size_t)i * (size_t)b + (size_t)j] =
+            (unsigned char)get(J, Rc[i], Rc[j]);
     long lu_nz;
     const double lu = block_lu_flops(D, b, &lu_nz);
     const long l1 = c >= 1 ? block_nnz(J, Rc, b, Fc[(c - 1) % 3], b) : 0,
