@@ -234,6 +234,13 @@ static long block_nnz(const pattern *J, const int *R, int nr, const int *C,
   return z;
 }
 
+/* Row (and column) of J of unknown i of fast node block c: its fast
+ * unknowns (i < nf), then its micro-node multipliers (step_pattern's
+ * layout). */
+static int node_row(int ns, int nf, int nu, int rs, int rf, int c, int i) {
+  return i < nf ? ns + c * nf + i : nu + rs + c * rf + (i - nf);
+}
+
 /* schur-bordered's factorisation and kept-factor solve on pattern J, in
  * flops (solver/bordered.c): for each fast node block c (rows and columns
  * F_c: its fast unknowns, with micro-node constraints its multipliers) the
@@ -264,15 +271,14 @@ static int bordered_flops(const mrvi_model *m, const pattern *J, int p, int rs,
     int hit = 0;
     for (int c = 0; c < p && !hit; c++)
       for (int i = 0; i < b && !hit; i++)
-        hit = get(J, i < nf ? ns + c * nf + i : nu + rs + c * rf + (i - nf),
-                  S[j]);
+        hit = get(J, node_row(ns, nf, nu, rs, rf, c, i), S[j]);
     kv += hit;
   }
   double f = 0.0, sv = 0.0;
   for (int c = 0; c < p; c++) {
     int *Rc = F + (c % 3) * b;
     for (int i = 0; i < b; i++)
-      Rc[i] = i < nf ? ns + c * nf + i : nu + rs + c * rf + (i - nf);
+      Rc[i] = node_row(ns, nf, nu, rs, rf, c, i);
     for (int i = 0; i < b; i++)
       for (int j = 0; j < b; j++)
         D[(size_t)i * (size_t)b + (size_t)j] =
