@@ -761,9 +761,19 @@ typedef enum mrvi_newton_criterion {
     "cost of an entry of the general path's dense LU storage per "             \
     "factorisation, in its flops, in the estimate that chooses general or "    \
     "schur-bordered (doc/solver.md)")                                          \
-  X(double, path_index_cost, 2.0, 0.0, 1e300,                                  \
+  X(double, path_index_cost, 0.7, 0.0, 1e300,                                  \
     "cost of a flop of the general path's LU that skips zeros, in flops of "   \
     "schur-bordered's dense blocks, in the same estimate")                     \
+  X(double, path_updates, 2.5, 1.0, 1000.0,                                    \
+    "Newton updates per macro step the same estimate assumes: general "        \
+    "factorises for each, schur-bordered for the first and solves the "        \
+    "others with its kept factors")                                            \
+  X(double, path_factor_general, 300.0, 0.0, 1e300,                            \
+    "fixed cost of one factorisation on the general path, in flops of the "    \
+    "dense blocks, in the same estimate")                                      \
+  X(double, path_factor_bordered, 1000.0, 0.0, 1e300,                          \
+    "fixed cost of one factorisation on schur-bordered, in flops of its "      \
+    "dense blocks, in the same estimate")                                      \
   X(double, krylov_cg_rtol, 1e-13, 0.0, 1.0,                                   \
     "relative tolerance of schur-krylov's block CG solves")                    \
   X(double, krylov_gmres_rtol, 1e-11, 0.0, 1.0,                                \

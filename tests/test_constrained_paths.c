@@ -305,8 +305,11 @@ static void test_node_blocks(void) {
 
 /* The choice between general and schur-bordered by the structural cost
  * estimates (solver/path_cost.c, doc/solver.md): on structurally different
- * models, the path, its reason with both estimates, the same answer twice
- * (no timing), and integrator.solver = structured keeping schur-bordered. */
+ * models, the path (the faster one measured by bench_paths:
+ * doc/performance.md, "Constrained paths: per-step costs"), its reason with
+ * both estimates, the estimate of the chosen path the smaller, the same
+ * answer twice (no timing), and integrator.solver = structured keeping
+ * schur-bordered. */
 static void test_path_choice(void) {
   static const struct {
     const char *file;
@@ -316,12 +319,18 @@ static void test_path_choice(void) {
       /* all slow bodies: the dense LU of the sparse saddle point */
       {"systems/slider_crank.yaml", 1, "general", "against"},
       {"systems/slider_crank.yaml", 20, "general", "against"},
-      /* particles, micro-node rods: node blocks from p = 5 on */
+      {"systems/heavy_top.yaml", 1, "general", "against"},
+      /* particles, micro-node rods: node blocks from p = 5 on, and at
+       * p = 1 the factors kept for a step's later updates */
       {"systems/triatomic.yaml", 10, "schur-bordered", "on general"},
+      {"systems/spring_ring_rod.yaml", 1, "schur-bordered", "on general"},
       /* slow arm, fast payload, macro-node joints: general up to p = 10 */
       {"systems/robot_arm_payload.yaml", 1, "general", "on schur-bordered"},
       {"systems/robot_arm_payload.yaml", 20, "schur-bordered", "on general"},
-      /* bodies with micro-node joints beyond the dense LU's size */
+      /* bodies with micro-node joints: kept factors at p = 1 ... */
+      {"systems/flexible_pendulum.yaml", 1, "schur-bordered", "on general"},
+      {"systems/spacecraft.yaml", 1, "schur-bordered", "on general"},
+      /* ... and beyond the dense LU's size */
       {"systems/spacecraft.yaml", 5, "schur-bordered", "newton_dense_max"}};
   for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
     char ov[1][64];
@@ -340,6 +349,21 @@ static void test_path_choice(void) {
               strstr(why, cases[i].reason) != NULL,
           "%s p=%d: %s (%s)", cases[i].file, cases[i].p, path ? path : "none",
           why);
+    /* the chosen path's estimate is the smaller */
+    mrvi_path_cost c;
+    CHECK(mrvi_path_costs(sys->model, &s, &c) == 0, "%s: costs", cases[i].file);
+    if (c.n <= s.tuning.newton_dense_max)
+      CHECK(
+          (strcmp(path ? path : "", "general") == 0 ? c.general : c.bordered) <=
+              fmin(c.general, c.bordered),
+          "%s p=%d: %s estimated %.4g, general %.4g, schur-bordered %.4g",
+          cases[i].file, cases[i].p, path ? path : "none",
+          path && !strcmp(path, "general") ? c.general : c.bordered, c.general,
+          c.bordered);
+    else
+      CHECK(path && strcmp(path, "schur-bordered") == 0,
+            "%s p=%d: beyond newton_dense_max on %s", cases[i].file, cases[i].p,
+            path ? path : "none");
     const char *again = mrvi_solver_path(sys->model, &s, why2, sizeof why2);
     CHECK(again == path && strcmp(why, why2) == 0, "%s: deterministic",
           cases[i].file);
@@ -353,8 +377,8 @@ static void test_path_choice(void) {
   }
 }
 
-/* Chains: 8 links on schur-bordered (requested: the estimates take general
- * at p = 1 and 5, test_path_choice); 40 links take general (beyond
+/* Chains: 8 links on schur-bordered (requested, whatever the estimates say:
+ * test_path_choice); 40 links take general (beyond
  * bordered_max) and schur-bordered where it is raised; both agree with
  * general. */
 static void test_chains(void) {

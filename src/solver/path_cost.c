@@ -1,39 +1,42 @@
 /* Cost estimates of the two paths of a constrained step in the multiplier
  * form (doc/solver.md, "Choosing between general and schur-bordered";
  * measured with bench_paths: doc/performance.md, "Constrained paths: the
- * choice by cost estimates"): the work of one Newton update's linear
- * algebra, which is all the two paths do differently (both assemble the
- * same CSC Jacobian, step.c, and take the same updates).  Counted from the
- * structure alone, so that the choice is deterministic:
+ * choice by cost estimates" and "Constrained paths: per-step costs"): the
+ * work of one macro step's linear algebra, which is all the two paths do
+ * differently (both assemble the same CSC Jacobian, step.c, from the same
+ * predictor).  Counted from the structure alone, so that the choice is
+ * deterministic.  The step's pattern J is built from the model
+ * (step_pattern), and on it:
  *
- *  - schur-bordered (solver/bordered.c, blocks.c) eliminates dense node
- *    blocks: with the slow block of a unknowns and p fast blocks of b,
- *    each fast block's LU (2/3 b^3), its solve for the slow columns
- *    Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} - L2_c Y_{c-2}) (6 b^2 a) and
- *    its product into S (2 a^2 b), then S's LU (2/3 a^3):
- *
- *        F_b = p (2/3 b^3 + 6 b^2 a + 2 a^2 b) + 2/3 a^3,
- *
- *    with micro-node constraints a = n_s + r_s and b = n_f + r_f (the
- *    multipliers joined to their nodes); with macro-node constraints only
- *    a = n_s, b = n_f, and the r_s multipliers border S: r_s solves with S,
- *    the dense system K = -C_s S^-1 B_s and its LU (2 r a^2 + 2 r^2 a +
- *    2/3 r^3 more).
  *  - general (solver/newton.c) factors the n x n step by an LU in dense
  *    storage that skips zeros: it clears, scans and lists n^2 entries, and
- *    eliminates with the fill of its ordering.  So the step's pattern is
- *    built from the model (step_pattern), ordered as newton.c orders it
- *    and eliminated symbolically (lu_flops: without pivoting, 2 |L_k| |U_k|
- *    per pivot):
+ *    eliminates with the fill of its ordering (J ordered as newton.c
+ *    orders it and eliminated symbolically, lu_flops: without pivoting,
+ *    2 |L_k| |U_k| per pivot, L flops), for every Newton update:
  *
- *        F_g = c_i (w n^2 + L),
+ *        E_g = u (c_i (w n^2 + L) + K_g)
  *
- *    w = path_entry_cost (flops per stored entry), c_i = path_index_cost
- *    (an indexed flop of the LU that skips zeros against one of the dense
- *    block kernels); both measured across the shipped systems.  Beyond
- *    newton_dense_max the general path takes UMFPACK, whose fixed costs
- *    and fill this does not model: there the structured path is kept, as
- *    measured (the spacecraft and the flexible pendulum at p >= 5 and 20).
+ *    (the Jacobian it assembles anew for each update after the first is
+ *    left to c_i and K_g: a term per nonzero did not improve the choice);
+ *  - schur-bordered (solver/bordered.c) eliminates the node blocks
+ *    (bordered_flops: the LU of each fast node block D_c that skips zeros,
+ *    the solves for the slow columns A_fs has entries in and their
+ *    products into S, S's LU, and with macro-node constraints only the
+ *    bordering by their r_s multipliers) once per step, F_b flops, and
+ *    solves the later updates with the kept factors (simplified Newton,
+ *    integrator.c: S_b flops each):
+ *
+ *        E_b = F_b + K_b + (u - 1) S_b.
+ *
+ * u = path_updates (Newton updates per macro step), c_i = path_index_cost
+ * (an indexed flop of the LU that skips zeros against one of the dense
+ * blocks), w = path_entry_cost (per stored entry), K_g and K_b =
+ * path_factor_general and path_factor_bordered (the fixed cost of a
+ * factorisation: calls, clearing, pivot searches), all in flops of the dense
+ * block kernels and measured across the shipped systems (MRVI_TUNING_LIST).
+ * Beyond newton_dense_max the general path takes UMFPACK, whose fixed costs and
+ * fill this does not model: there the structured path is kept, as measured (the
+ * spacecraft and the flexible pendulum at p >= 5 and 20).
  */
 #include "solver/solver.h"
 
@@ -196,6 +199,112 @@ static double lu_flops(pattern *J, int *deg, int *order) {
   return flops;
 }
 
+/* Gaussian elimination without pivoting of the k x k pattern D (bytes,
+ * row-major, modified: the fill), 2 |L_k| |U_k| + |L_k| flops per pivot,
+ * as mrvi_dense_lu_factor_nz skips zeros; its factors' nonzeros in *nz. */
+static double block_lu_flops(unsigned char *D, int k, long *nz) {
+  double flops = 0.0;
+  long z = 0;
+  for (int r = 0; r < k; r++) {
+    long u = 0;
+    for (int c = r + 1; c < k; c++)
+      u += D[(size_t)r * (size_t)k + (size_t)c];
+    z += u + 1;
+    for (int i = r + 1; i < k; i++) {
+      unsigned char *di = D + (size_t)i * (size_t)k;
+      if (!di[r])
+        continue;
+      z++;
+      flops += 2.0 * (double)u + 1.0;
+      for (int c = r + 1; c < k; c++)
+        di[c] |= D[(size_t)r * (size_t)k + (size_t)c];
+    }
+  }
+  *nz = z;
+  return flops;
+}
+
+/* Entries of J in rows R[0..nr) and columns C[0..nc). */
+static long block_nnz(const pattern *J, const int *R, int nr, const int *C,
+                      int nc) {
+  long z = 0;
+  for (int i = 0; i < nr; i++)
+    for (int j = 0; j < nc; j++)
+      z += get(J, R[i], C[j]);
+  return z;
+}
+
+/* Row (and column) of J of unknown i of fast node block c: its fast
+ * unknowns (i < nf), then its micro-node multipliers (step_pattern's
+ * layout). */
+static int node_row(int ns, int nf, int nu, int rs, int rf, int c, int i) {
+  return i < nf ? ns + c * nf + i : nu + rs + c * rf + (i - nf);
+}
+
+/* schur-bordered's factorisation and kept-factor solve on pattern J, in
+ * flops (solver/bordered.c): for each fast node block c (rows and columns
+ * F_c: its fast unknowns, with micro-node constraints its multipliers) the
+ * LU of D_c that skips zeros, Y_c = D_c^-1 (A_fs,c - L1_c Y_{c-1} -
+ * L2_c Y_{c-2}) on the kv slow columns that A_fs has an entry in (a dense
+ * solve, 2 b^2 kv, and the products with L1, L2) and its product A_sf,c Y_c
+ * into S; then S's LU, and with macro-node constraints only, the bordering
+ * by their r multipliers.  A solve with kept factors: one sweep of the
+ * same blocks with one column. */
+static int bordered_flops(const mrvi_model *m, const pattern *J, int p, int rs,
+                          int rf, double *factor, double *solve) {
+  const int ns = m->n_slow, nf = m->n_fast, nu = ns + p * nf;
+  const int b = nf + rf, a = ns + (rf > 0 ? rs : 0);
+  int *S = malloc(((size_t)a + 1) * sizeof *S),
+      *F = malloc(3 * ((size_t)b + 1) * sizeof *F);
+  unsigned char *D = malloc((size_t)b * (size_t)b + 1);
+  if (!S || !F || !D) {
+    free(S), free(F), free(D);
+    return MRVI_ENOMEM;
+  }
+  for (int i = 0; i < a; i++)
+    S[i] = i < ns ? i : nu + (i - ns);
+  /* F + (c % 3) b: the rows and columns of node block c */
+  const int *Fc[3] = {F, F + b, F + 2 * b};
+  /* the slow columns with an entry in A_fs at any node */
+  int kv = 0;
+  for (int j = 0; j < a; j++) {
+    int hit = 0;
+    for (int c = 0; c < p && !hit; c++)
+      for (int i = 0; i < b && !hit; i++)
+        hit = get(J, node_row(ns, nf, nu, rs, rf, c, i), S[j]);
+    kv += hit;
+  }
+  double f = 0.0, sv = 0.0;
+  for (int c = 0; c < p; c++) {
+    int *Rc = F + (c % 3) * b;
+    for (int i = 0; i < b; i++)
+      Rc[i] = node_row(ns, nf, nu, rs, rf, c, i);
+    for (int i = 0; i < b; i++)
+      for (int j = 0; j < b; j++)
+        D[(size_t)i * (size_t)b + (size_t)j] =
+            (unsigned char)get(J, Rc[i], Rc[j]);
+    long lu_nz;
+    const double lu = block_lu_flops(D, b, &lu_nz);
+    const long l1 = c >= 1 ? block_nnz(J, Rc, b, Fc[(c - 1) % 3], b) : 0,
+               l2 = c >= 2 ? block_nnz(J, Rc, b, Fc[(c - 2) % 3], b) : 0,
+               sf = block_nnz(J, S, a, Rc, b), fs = block_nnz(J, Rc, b, S, a);
+    f += lu + 2.0 * (double)b * b * kv + 2.0 * (double)(l1 + l2 + sf) * kv;
+    sv += 2.0 * (double)lu_nz + 2.0 * (double)(l1 + l2 + sf + fs);
+  }
+  const double A = a;
+  f += 2.0 / 3.0 * A * A * A;
+  sv += 2.0 * A * A;
+  if (rf == 0 && rs > 0) { /* W = S^-1 B_s, K = -C_s W and its LU */
+    const double r = rs;
+    f += 2 * r * A * A + 2 * r * r * A + 2.0 / 3.0 * r * r * r;
+    sv += 4 * r * A + 2 * r * r;
+  }
+  *factor = f;
+  *solve = sv;
+  free(S), free(F), free(D);
+  return MRVI_OK;
+}
+
 int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
                     mrvi_path_cost *c) {
   const int n = m->n, p = s->micro_steps;
@@ -221,12 +330,16 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
     free(P);
     return st;
   }
+  const mrvi_tuning *t = &s->tuning;
   c->r_slow = rs;
   c->r_micro = rf;
   c->n = m->n_slow + rs + (long)p * (m->n_fast + rf);
   c->nnz = -1;
+  c->a = m->n_slow + (rf > 0 ? rs : 0);
+  c->b = m->n_fast + rf;
   c->general = HUGE_VAL; /* beyond newton_dense_max: not modelled */
-  if (c->n <= s->tuning.newton_dense_max) {
+  c->bordered = 0.0;
+  if (c->n <= t->newton_dense_max) {
     const int nj = (int)c->n, nw = (nj + 63) / 64;
     pattern J = {nj, nw, calloc(2 * (size_t)nj * (size_t)nw + 1, 8)};
     int *deg = malloc(((size_t)nj + 1) * sizeof *deg),
@@ -240,25 +353,18 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
     for (size_t i = 0; i < (size_t)nj * (size_t)nw; i++)
       for (unsigned long long x = J.bits[i]; x; x &= x - 1)
         c->nnz++;
-    const double nn = (double)nj;
-    c->general =
-        s->tuning.path_index_cost *
-        (s->tuning.path_entry_cost * nn * nn + lu_flops(&J, deg, order));
+    double fb = 0.0, sb = 0.0;
+    st = bordered_flops(m, &J, p, rs, rf, &fb, &sb);
+    /* Per macro step of u Newton updates: general factorises for each (its
+     * LU that skips zeros, weighted, and a fixed cost); schur-bordered for
+     * the first, and solves the others with the kept factors. */
+    const double nn = (double)nj, u = t->path_updates;
+    const double fg = t->path_index_cost *
+                      (t->path_entry_cost * nn * nn + lu_flops(&J, deg, order));
+    c->general = u * (fg + t->path_factor_general);
+    c->bordered = fb + t->path_factor_bordered + (u - 1.0) * sb;
     free(J.bits), free(deg), free(order);
   }
   free(P);
-  const double P1 = (double)p;
-  double a, b, border = 0.0;
-  if (rf > 0) {
-    a = m->n_slow + rs, b = m->n_fast + rf;
-  } else {
-    const double r = rs;
-    a = m->n_slow, b = m->n_fast;
-    border = 2 * r * a * a + 2 * r * r * a + 2.0 / 3.0 * r * r * r;
-  }
-  c->a = (int)a;
-  c->b = (int)b;
-  c->bordered = P1 * (2.0 / 3.0 * b * b * b + 6 * b * b * a + 2 * a * a * b) +
-                2.0 / 3.0 * a * a * a + border;
-  return MRVI_OK;
+  return st;
 }

@@ -211,10 +211,11 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
 enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };
 #undef MRVI_PATH_ENUM
 /* Structural cost estimates of a constrained step's linear algebra per
- * Newton update on the general and schur-bordered paths, in flops
- * (solver/path_cost.c): the step's size n and estimated nonzeros nnz
- * (multiplier form), the dense slow block a and fast node block b of
- * schur-bordered, the rows at macro and micro nodes. */
+ * macro step (tuning path_updates Newton updates) on the general and
+ * schur-bordered paths, in flops (solver/path_cost.c): the step's size n
+ * and estimated nonzeros nnz (multiplier form), the dense slow block a and
+ * fast node block b of schur-bordered, the rows at macro and micro nodes;
+ * general is HUGE_VAL and bordered 0 beyond newton_dense_max. */
 typedef struct mrvi_path_cost {
   long n, nnz;
   int a, b, r_slow, r_micro;

@@ -200,9 +200,9 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
   char est[200] = "";
   if (costed && c.n <= s->tuning.newton_dense_max)
     mrvi_fmt(est, sizeof est,
-             "; estimated %.3g flop per update against %.3g on general "
-             "(%ld unknowns, about %ld nonzeros)",
-             c.bordered, c.general, c.n, c.nnz);
+             "; estimated %.3g flop per macro step of %g Newton updates "
+             "against %.3g on general (%ld unknowns, about %ld nonzeros)",
+             c.bordered, s->tuning.path_updates, c.general, c.n, c.nnz);
   else if (costed)
     mrvi_fmt(est, sizeof est,
              "; %ld unknowns, beyond the general path's dense LU "
@@ -212,8 +212,10 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
     mrvi_fmt(why, len,
              "constrained model%s: Newton with a sparse LU of the whole step "
              "(%ld unknowns, about %ld nonzeros), estimated %.3g flop per "
-             "update against %.3g on schur-bordered (blocks %d and %d)",
-             bodies, c.n, c.nnz, c.general, c.bordered, c.a, c.b);
+             "macro step of %g Newton updates against %.3g on schur-bordered "
+             "(blocks %d and %d)",
+             bodies, c.n, c.nnz, c.general, s->tuning.path_updates, c.bordered,
+             c.a, c.b);
     return MRVI_PATH_GENERAL;
   }
   if (r_micro > 0) {
