@@ -129,7 +129,8 @@ struct mrvi_sweep {
   double lam_sum;
   /* chord_residual's pass in n_cpass parts of the rows (mrvi_even_parts
    * by tuning.thread_chunk; nf at least two chunks, else 0: one pass),
-   * each part's maximum and sums in cpass (4 per part) added in order, on
+   * each part's maximum and sums in cpass (4 per part; then row 0's bound
+   * per part, fresh_parts) added in order, on
    * pthreads threads: the same bits for every thread count.  cfused: the
    * fast class is partitioned alike (on threads), so that one thread
    * takes a part's gradient rows and then its pass, in one parallel
@@ -137,7 +138,6 @@ struct mrvi_sweep {
    * parts' gradients still read zf), which then becomes zf. */
   int n_cpass, pthreads, cfused;
   double *cpass, *zalt;
-  double *cbound; /* row 0's bound per part (fresh_parts; cfused) */
   /* The predictor of the next row formed at the end of the last one
    * (end_predict), with its round-off scale. */
   int predicted;
@@ -365,7 +365,6 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->gv_next);
   free(sw->cpass);
   free(sw->zalt);
-  free(sw->cbound);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
   free(sw->rhs_buf);
@@ -541,9 +540,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->pthreads = threads;
   sw->cfused = sw->n_cpass > 0 && mrvi_terms_threads(sw->kc[MRVI_FAST]) > 1 &&
                mrvi_terms_parts(sw->kc[MRVI_FAST]) == sw->n_cpass;
-  sw->cpass = dalloc(4 * (size_t)sw->n_cpass);
+  sw->cpass = dalloc(5 * (size_t)sw->n_cpass); /* (+ fresh_parts' bounds) */
   sw->zalt = dalloc(sw->cfused ? nf : 1);
-  sw->cbound = dalloc(sw->cfused ? (size_t)sw->n_cpass : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -567,7 +565,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->piv = calloc(sw->implicit && !sparse && nf > 0 ? nf : 1, sizeof(int));
   if (!sw->minv_s || !sw->minv_f || !sw->m_f || !sw->zf || !sw->zv || !sw->gv ||
       !sw->gzero || !sw->gnode || !sw->qalt || !sw->csum || !sw->gv_next ||
-      !sw->cpass || !sw->zalt || !sw->cbound || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
+      !sw->cpass || !sw->zalt || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
       !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
@@ -1033,7 +1031,7 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
   const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   const double hs = wc * sw->cB[i], om = 1.0 / (1.0 - sw->lam);
   double *g = sw->gpt[i], *zf = sw->zf, *zn = sw->zalt, *cp = sw->cpass;
-  double *bound = sw->cbound;
+  double *bound = cp + 4 * n_c; /* (after the sums) */
   sw->evals_w++;
 #ifdef _OPENMP
 #pragma omp parallel num_threads(sw->pthreads)
