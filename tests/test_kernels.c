@@ -396,6 +396,29 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
           "d %d %s (%g): fresh diagonal bitwise the assembled (%d), row "
           "sums bound the assembled (%d)",
           d, lc->law, lc->params[1], diag_same, off_ok);
+    /* ... and in parts (sweep-cg's row 0 on threads), of about 2 columns
+     * (a particle split in 2-D and 3-D) and of about 2 records, taken in
+     * reverse: the serial gradient, diagonal and row sums bitwise. */
+    for (int by_rec = 0; by_rec <= 1 && mrvi_threads_supported(); by_rec++) {
+      mrvi_terms *kt = NULL;
+      double *w3 = calloc(3 * (size_t)n, sizeof *w3);
+      CHECK(w3 && mrvi_terms_create(m, elems, ne, m->slot, &kt) == MRVI_OK &&
+                mrvi_terms_set_threads(kt, 2, 2, by_rec ? 0 : n) == MRVI_OK,
+            "d %d %s: threaded create", d, lc->law);
+      const int np = kt ? mrvi_terms_parts(kt) : 0;
+      CHECK(np >= 2 || (by_rec ? ne : n) < 4, "d %d %s: %d parts by %s", d,
+            lc->law, np, by_rec ? "records" : "columns");
+      for (int c = np - 1; w3 && c >= 0; c--)
+        mrvi_terms_grad_hdiag_part(kt, c, q, w3, w3 + n, w3 + 2 * n, hscale);
+      CHECK(np < 2 || (memcmp(w3, gp, (size_t)n * sizeof *gp) == 0 &&
+                       memcmp(w3 + n, gm, (size_t)n * sizeof *gm) == 0 &&
+                       memcmp(w3 + 2 * n, qh, (size_t)n * sizeof *qh) == 0),
+            "d %d %s (%g): %d parts by %s: the serial gradient, diagonal and "
+            "row sums bitwise",
+            d, lc->law, lc->params[1], np, by_rec ? "records" : "columns");
+      mrvi_terms_free(kt);
+      free(w3);
+    }
     for (int i = 0; i < n; i++) {
       v[i] = uniform(rng);
       gp[i] = gm[i] = Hv[i] = 0.0;

@@ -6,7 +6,9 @@
 # records span them),
 # run by fully-explicit, explicit-slow, midpoint-midpoint and
 # trapezoidal-midpoint (schur-krylov's outer iteration: one parallel region
-# per step, its vector loops in spans and its gradients in parts) on 1, 2
+# per step, its vector loops in spans and its gradients in parts; the
+# predictor's gradients in parts; explicit-slow's row 0 with its Hessian
+# diagonal in the chord's parts, fresh_parts) on 1, 2
 # and 3 threads: /macro/q, /macro/p, /micro/q_fast, /micro/p_fast and the
 # energies (summed per chunk of elements) the same bit for bit.  A run on
 # 2 threads to t = 0.25 extended by `--resume --set integrator.t_end` on 3

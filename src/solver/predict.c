@@ -497,9 +497,13 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     pr->minv[col[c]] = 1.0 / m->mass[c];
   }
   for (int c = 0; c < 2; c++) {
+    /* (a large spring class's gradient on the step's threads, in parts by
+     * records as the outer iteration's: the same bits for every count) */
     const int ok =
         mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
                           &pr->kc[c]) == MRVI_OK &&
+        mrvi_terms_set_threads(pr->kc[c], st->threads, st->tuning.thread_chunk,
+                               0) == MRVI_OK &&
         (pr->kinds[c] = malloc((size_t)st->n_pts[c] + 1));
     if (!ok) {
       free(col);

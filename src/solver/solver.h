@@ -440,6 +440,13 @@ void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
 int mrvi_terms_springs_only(const mrvi_terms *kc);
 void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
                            double *hd, double *off, double hscale);
+/* mrvi_terms_grad_hdiag on part c's columns of a partitioned class
+ * (mrvi_terms_parts; the other columns untouched): each column's sums in
+ * the serial order, so the parts in any order give the serial g, hd and
+ * off bitwise (sweep-cg's row 0 on threads). */
+void mrvi_terms_grad_hdiag_part(const mrvi_terms *kc, int c, const double *z,
+                                double *g, double *hd, double *off,
+                                double hscale);
 /* g += grad Z(z) and hscale times each element's Hessian added into the
  * values Ax of a sparse matrix: entry k of element i's n_in x n_in Hessian
  * (row-major; i in the order of elems) into Ax[emap[off[i] + k]], left

@@ -129,7 +129,8 @@ struct mrvi_sweep {
   double lam_sum;
   /* chord_residual's pass in n_cpass parts of the rows (mrvi_even_parts
    * by tuning.thread_chunk; nf at least two chunks, else 0: one pass),
-   * each part's maximum and sums in cpass (4 per part) added in order, on
+   * each part's maximum and sums in cpass (4 per part; then row 0's bound
+   * per part, fresh_parts) added in order, on
    * pthreads threads: the same bits for every thread count.  cfused: the
    * fast class is partitioned alike (on threads), so that one thread
    * takes a part's gradient rows and then its pass, in one parallel
@@ -539,7 +540,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->pthreads = threads;
   sw->cfused = sw->n_cpass > 0 && mrvi_terms_threads(sw->kc[MRVI_FAST]) > 1 &&
                mrvi_terms_parts(sw->kc[MRVI_FAST]) == sw->n_cpass;
-  sw->cpass = dalloc(4 * (size_t)sw->n_cpass);
+  sw->cpass = dalloc(5 * (size_t)sw->n_cpass); /* (+ fresh_parts' bounds) */
   sw->zalt = dalloc(sw->cfused ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
@@ -988,6 +989,88 @@ static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
     chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1);
 }
 
+/* The chord pass's part sums combined in order (the maximum, the sums). */
+static void chord_parts_sum(const double *cp, int n_c, double t[4]) {
+  t[0] = t[1] = t[2] = t[3] = 0.0;
+  for (int c = 0; c < n_c; c++) {
+    t[0] = cp[4 * c] > t[0] ? cp[4 * c] : t[0];
+    t[1] += cp[4 * c + 1];
+    t[2] += cp[4 * c + 2];
+    t[3] += cp[4 * c + 3];
+  }
+}
+
+/* Rows [f0, f1) of row 0's fresh D: D^-1 = 1 / (hd + M/dt) into jdinv
+ * (M/dt added as mrvi_sblock_solve) and the Gershgorin bound max off D^-1
+ * over them, HUGE_VAL where some D <= 0 or is NaN (so that the bounds of
+ * parts combined by the same rule give the bound of the whole row). */
+static double fresh_bound(mrvi_sweep *sw, int f0, int f1) {
+  const double dt = sw->st->dt;
+  double bound = 0.0;
+  for (int f = f0; f < f1; f++) {
+    const double d = sw->hd[f] + (1.0 / dt) * sw->m_f[f];
+    sw->jdinv[f] = 1.0 / d;
+    const double b = sw->off[f] * sw->jdinv[f]; /* (fmax's NaN rule) */
+    bound = d > 0.0 ? (b > bound ? b : bound) : HUGE_VAL;
+  }
+  return bound;
+}
+
+/* chord_residual's first iterate of row 0 (fresh) where the fast class is
+ * in the chord's parts (sw->cfused, on threads), in one parallel region:
+ * the configuration in the parts' rows, then (after the barrier) each
+ * part's gradient rows with the Hessian diagonal and off-diagonal sums
+ * (mrvi_terms_grad_hdiag_part), its D^-1 and bound, and its pass by one
+ * thread, the next configuration into zalt (other parts' gradients still
+ * read zf), which then becomes zf; the parts' bounds and sums added in
+ * order.  The serial path's values bitwise (the same entries, the same
+ * sums per part). */
+static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
+                          int zf_ok, double *rho) {
+  const int nf = sw->nf, i = sw->imp, n_c = sw->n_cpass;
+  const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
+  const double hs = wc * sw->cB[i], om = 1.0 / (1.0 - sw->lam);
+  double *g = sw->gpt[i], *zf = sw->zf, *zn = sw->zalt, *cp = sw->cpass;
+  double *bound = cp + 4 * n_c; /* (after the sums) */
+  sw->evals_w++;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+  {
+    if (!zf_ok) {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_c; c++)
+        for (int f = mrvi_part_start(c, nf, n_c);
+             f < mrvi_part_start(c + 1, nf, n_c); f++)
+          zf[f] = 1.0 * qm[f] + cB * dn[f]; /* (set_zf's) */
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      zero(g + f0, f1 - f0);
+      zero(sw->hd + f0, f1 - f0);
+      zero(sw->off + f0, f1 - f0);
+      mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, sw->hd, sw->off,
+                                 hs);
+      bound[c] = fresh_bound(sw, f0, f1);
+      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c);
+    }
+  }
+  sw->zalt = zf;
+  sw->zf = zn;
+  double b = 0.0, t[4];
+  for (int c = 0; c < n_c; c++) /* (in order; no NaN among them) */
+    b = bound[c] > b ? bound[c] : b;
+  *rho = sw->rho_c = b;
+  chord_parts_sum(cp, n_c, t);
+  return isnan(t[1]) ? t[1] : t[0];
+}
+
 /* The row residual of a chord iterate with one implicit point, whose
  * configuration sw->zf the update has set (zf_ok) or is set here: the
  * gradient, the implicit force and F in one pass over the row (the
@@ -1016,8 +1099,10 @@ static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
                              int zf_ok, int fresh, int track, double *rho) {
   const int nf = sw->nf, i = sw->imp;
-  const double dt = sw->st->dt, wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
+  const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
+  if (fresh && sw->cfused) /* (on threads: in the parts) */
+    return fresh_parts(sw, qm, dn, zf_ok, rho);
   if (!zf_ok)
     set_zf(sw, 1.0, qm, cB, dn);
   if (fresh) {
@@ -1027,14 +1112,7 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     sw->evals_w++;
     mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, sw->hd, sw->off,
                           sw->w[i] * sw->cA[i] * sw->cB[i]);
-    double bound = 0.0;
-    for (int f = 0; f < nf; f++) { /* (M/dt added as mrvi_sblock_solve) */
-      const double d = sw->hd[f] + (1.0 / dt) * sw->m_f[f];
-      sw->jdinv[f] = 1.0 / d;
-      const double b = sw->off[f] * sw->jdinv[f]; /* (fmax's NaN rule) */
-      bound = d > 0.0 ? (b > bound ? b : bound) : HUGE_VAL;
-    }
-    *rho = sw->rho_c = bound;
+    *rho = sw->rho_c = fresh_bound(sw, 0, nf);
   } else if (!sw->cfused) {
     fast_gradient(sw, sw->zf, g, nf);
   }
@@ -1061,13 +1139,7 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
       sw->zalt = sw->zf;
       sw->zf = zn;
     }
-    t[0] = t[1] = t[2] = t[3] = 0.0;
-    for (int c = 0; c < n_c; c++) { /* (in order) */
-      t[0] = cp[4 * c] > t[0] ? cp[4 * c] : t[0];
-      t[1] += cp[4 * c + 1];
-      t[2] += cp[4 * c + 2];
-      t[3] += cp[4 * c + 3];
-    }
+    chord_parts_sum(cp, n_c, t);
   }
   const double r = isnan(t[1]) ? t[1] : t[0], on = t[2], oo = t[3];
   if (track && oo > 0.0 && isfinite(on)) { /* (the next update's lam) */

@@ -1640,19 +1640,25 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
  * hscale times the diagonal entries of its Hessian blocks [A -A; -A A]
  * (A_kk = a u_k u_k + b, spring_map's products) added to hd, and, unless
  * off is NULL, the absolute values of hscale times its off-diagonal
- * entries added to off by row. */
+ * entries added to off by row; each only on the columns of the mask mk
+ * (bit k: x_i's column k, bit dim + k: x_j's; ~0u: all, the serial loop;
+ * a part's mask, mrvi_terms_set_threads, on threads). */
 ALWAYS_INLINE void spring_hdiag(const kspring *q, const double *z, double *g,
                                 double *hd, double *off, double hscale,
-                                const int dim, const int two) {
+                                const unsigned mk, const int dim,
+                                const int two) {
   double u[3], d1, a, b;
   spring_derivs(q, z, u, &d1, &a, &b, dim, two, K_ANY);
-  UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] += d1 * u[k];
+  UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[q->ci[k]] +=
+      d1 * u[k];
   if (two)
-    UNROLL for (int k = 0; k < dim; k++) g[q->cj[k]] += -d1 * u[k];
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k))
+        g[q->cj[k]] += -d1 * u[k];
   UNROLL for (int k = 0; k < dim; k++) {
     const double A = a * u[k] * u[k] + b;
-    hd[q->ci[k]] += hscale * A;
-    if (two)
+    if (mk & 1u << k)
+      hd[q->ci[k]] += hscale * A;
+    if (two && mk & 1u << (dim + k))
       hd[q->cj[k]] += hscale * A;
   }
   if (!off)
@@ -1664,8 +1670,9 @@ ALWAYS_INLINE void spring_hdiag(const kspring *q, const double *z, double *g,
       o += (l != k ? fabs(hscale * A) : 0.0) +
            (two ? fabs(hscale * (A + (l == k ? b : 0.0))) : 0.0);
     }
-    off[q->ci[k]] += o;
-    if (two)
+    if (mk & 1u << k)
+      off[q->ci[k]] += o;
+    if (two && mk & 1u << (dim + k))
       off[q->cj[k]] += o;
   }
 }
@@ -1676,7 +1683,7 @@ static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
                                                     double hscale, int dim) {
 #define SPRINGS_HD(D, T)                                                       \
   for (int r = 0; r < nr; r++)                                                 \
-    spring_hdiag(q + r, z, g, hd, off, hscale, D, T);
+    spring_hdiag(q + r, z, g, hd, off, hscale, ~0u, D, T);
   if (dim == 2 && q->two)
     SPRINGS_HD(2, 1)
   else if (dim == 2)
@@ -1710,6 +1717,37 @@ void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
     springs_hdiag(kc->qs + t->qs, t->runs, z, g, hd, off, hscale, kc->dim);
     it += t->runs - 1;
   }
+}
+
+/* Part c's records (mrvi_terms_set_threads) in the serial order, each
+ * on the columns of its mask (spring_hdiag's products). */
+static __attribute__((noinline)) void
+part_hdiag(const kspring *q, const int *rec, const unsigned char *mask, int nr,
+           const double *z, double *g, double *hd, double *off, double hscale,
+           int dim) {
+#define PART_HD(D)                                                             \
+  for (int i = 0; i < nr; i++) {                                               \
+    const kspring *s = q + rec[i];                                             \
+    if (s->two)                                                                \
+      spring_hdiag(s, z, g, hd, off, hscale, mask[i], D, 1);                   \
+    else                                                                       \
+      spring_hdiag(s, z, g, hd, off, hscale, mask[i], D, 0);                   \
+  }
+  if (dim == 2)
+    PART_HD(2)
+  else if (dim == 3)
+    PART_HD(3)
+  else
+    PART_HD(1)
+#undef PART_HD
+}
+
+void mrvi_terms_grad_hdiag_part(const mrvi_terms *kc, int c, const double *z,
+                                double *g, double *hd, double *off,
+                                double hscale) {
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  part_hdiag(kc->qs, kc->part_rec + r0, kc->part_mask + r0, nr, z, g, hd, off,
+             hscale, kc->dim);
 }
 
 /* c s^k for a small integer k: laws/power.c's phi (s^k by repeated
