@@ -145,6 +145,11 @@ struct mrvi_sweep {
    * that many updates on is first tested alone (chord_residual's light
    * pass), the next iterate formed only where it misses the tolerance. */
   int expect;
+  /* tuning.chord_carry: the history of the step before is kept (carry:
+   * its rows that this step's predictors take, 0 or PREDICTOR_ORDER;
+   * carry_next: the next step's, set where this step's sweep ends on the
+   * chord regime) */
+  int carry_on, carry, carry_next;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
 };
@@ -524,6 +529,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
   sw->chord_max = s->tuning.chord_jacobi_max;
   sw->expect = s->newton_max_iter;
+  sw->carry_on = s->tuning.chord_carry;
   sw->jdinv = dalloc(sparse ? nf : 1);
   sw->fresh = sparse && mrvi_terms_springs_only(sw->kc[MRVI_FAST]);
   /* The chord's gradients with one division per Hooke spring, as the
@@ -608,6 +614,7 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
     return;
   sw->gnode_ok = 0;
   sw->gv_ok = 0;
+  sw->carry_next = 0;
   if (sw->implicit)
     memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
 }
@@ -866,6 +873,7 @@ static void rotate_history(mrvi_sweep *sw) {
 
 /* The order of row m's extrapolation. */
 static int predictor_order(const mrvi_sweep *sw, int m) {
+  m += sw->carry;
   return sw->mild ? (m >= PREDICTOR_ORDER ? PREDICTOR_ORDER : m) : 1;
 }
 
@@ -1150,7 +1158,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     sw->lam = 0.0; /* (a step depends on (q_k, p_k) alone) */
   }
   double scale = 0.0;
-  int pred = !first && sw->sparse, zf_ok = 0;
+  /* (row 0 too extrapolates where the last step's rows are kept) */
+  int pred = (!first || sw->carry > 0) && sw->sparse, zf_ok = 0;
   if (pred) {
     zf_ok = sw->chord && sw->imp >= 0;
     scale = sw->predicted ? sw->pred_scale
@@ -2064,6 +2073,12 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     }
     pm = pn;
   }
+  /* The rows' history for the next step (tuning.chord_carry): the
+   * converged forces of the last PREDICTOR_ORDER rows in fimp and fhist
+   * (node_momentum stored the last row's), where every row extrapolated
+   * (the chord regime on springs and anchors). */
+  if (sw->carry_on && own && sw->fresh && sw->mild && p >= PREDICTOR_ORDER)
+    sw->carry_next = PREDICTOR_ORDER;
   return MRVI_OK;
 }
 
@@ -2158,8 +2173,11 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   *iterations = 0;
   *residual = 0.0;
   /* The first micro step's predictor holds no implicit force: nothing is
-   * carried from the last step, so a step depends on (q_k, p_k) alone. */
-  if (sw->implicit)
+   * carried from the last step, so a step depends on (q_k, p_k) alone;
+   * with tuning.chord_carry, the last step's rows where it kept them. */
+  sw->carry = sw->carry_next;
+  sw->carry_next = 0;
+  if (sw->implicit && !sw->carry)
     zero(sw->fimp, nf);
   else if (sw->threads > 1)
     return explicit_step_par(sw, st, x, ps1, pf, msg, len);
