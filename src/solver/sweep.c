@@ -932,7 +932,7 @@ static void chord_setup(mrvi_sweep *sw) {
  * node_momentum stores it at the row's end: one point per interval).
  * M dn/dt is formed as M dn (1/dt): no division in the pass.  light: the
  * test of a row's expected last iterate, F's maximum, sum and the sums
- * alone, neither F nor the next iterate stored (3 streams read instead of
+ * alone, neither F nor the next iterate stored (4 streams read instead of
  * 6 read and 3 written); the same values of r, on and oo. */
 ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
                               const double *restrict dn,
