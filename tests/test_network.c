@@ -586,8 +586,8 @@ static void test_chord(void) {
 static void test_chord_carry(void) {
   char *text = lattice(10, 8);
   overrides og, oa, oc;
-  mrvi_system *sg = load_text(
-      text, set(&og, "explicit-slow", 5, 0.03, 1e-12, "general"), 5);
+  mrvi_system *sg =
+      load_text(text, set(&og, "explicit-slow", 5, 0.03, 1e-12, "general"), 5);
   mrvi_system *sa =
       load_text(text, set(&oa, "explicit-slow", 5, 0.03, 1e-12, "auto"), 5);
   mrvi_system *sc =

@@ -1096,8 +1096,7 @@ again:
         zero(g + f0, f1 - f0);
         mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
       }
-      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c,
-                      light);
+      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c, light);
     }
     if (grad && !light) { /* (zalt: the next configuration) */
       sw->zalt = sw->zf;
