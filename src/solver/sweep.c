@@ -141,10 +141,11 @@ struct mrvi_sweep {
    * (end_predict), with its round-off scale. */
   int predicted;
   double pred_scale;
-  /* The updates the last chord row took: a chord row's residual from
-   * that many updates on is first tested alone (chord_residual's light
-   * pass), the next iterate formed only where it misses the tolerance. */
-  int expect;
+  /* The updates the last chord row took (expect0: the last row 0, for
+   * row 0): a chord row's residual from that many updates on is first
+   * tested alone (chord_residual's light pass), the next iterate formed
+   * only where it misses the tolerance. */
+  int expect, expect0;
   /* tuning.chord_carry: the history of the step before is kept (carry:
    * its rows that this step's predictors take, 0 or PREDICTOR_ORDER;
    * carry_next: the next step's, set where this step's sweep ends on the
@@ -528,7 +529,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->sb_dense_max = s->tuning.newton_dense_max;
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
   sw->chord_max = s->tuning.chord_jacobi_max;
-  sw->expect = s->newton_max_iter;
+  sw->expect = sw->expect0 = s->newton_max_iter;
   sw->carry_on = s->tuning.chord_carry;
   sw->jdinv = dalloc(sparse ? nf : 1);
   sw->fresh = sparse && mrvi_terms_springs_only(sw->kc[MRVI_FAST]);
@@ -1202,8 +1203,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     double r = 0.0;
     if (chord && sw->imp >= 0) {
       double rho = 0.0;
-      r = chord_residual(sw, qm, dn, zf_ok, first && sw->fresh && it == 0,
-                         it >= 1, it >= min_it && it >= sw->expect, &rho);
+      r = chord_residual(
+          sw, qm, dn, zf_ok, first && sw->fresh && it == 0, it >= 1,
+          it >= min_it && it >= (first ? sw->expect0 : sw->expect), &rho);
       zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
@@ -1241,6 +1243,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
      * just below it. */
     const int stalled = !(chord && it >= 1 && r <= sw->chord_max * r_prev);
     if (it >= min_it && (r <= sw->tol || (r <= floor && (stalled || !chord)))) {
+      if (chord && first)
+        sw->expect0 = it;
       if (chord)
         sw->expect = it;
       *iters = it;
