@@ -738,6 +738,13 @@ typedef enum mrvi_newton_criterion {
     "0's Newton matrix; micro step 0 itself where W is springs and anchors "   \
     "alone, else after its first Newton update) where their Gershgorin "       \
     "bound, and each update's residual ratio, is at most this (0: Newton)")    \
+  X(int, chord_carry, 0, 0, 1,                                                 \
+    "sweep-cg: each step's first rows extrapolate the implicit force from "    \
+    "the last rows of the step before, as the later rows do from their own "   \
+    "step's (p >= 5, W springs and anchors alone, the chord regime): fewer "   \
+    "chord updates, but a step no longer depends on (q_k, p_k) alone, so a "   \
+    "resumed or restarted run continues within the Newton tolerance, not "     \
+    "bit for bit (0: off)")                                                    \
   X(int, outer_max, 12, 0, 1000,                                               \
     "schur-krylov: the most sweeps of its matrix-free outer iteration "        \
     "before Newton takes the step from the predictor (0: off)")                \

@@ -577,6 +577,48 @@ static void test_chord(void) {
   free(text);
 }
 
+/* tuning.chord_carry (solver/sweep.c): each step's first rows extrapolate
+ * the implicit force from the last rows of the step before.  On the 10 x 8
+ * lattice at dT = 0.03, p = 5 (the chord in every row), tolerance 1e-12:
+ * the general path's trajectory within 1e-10, as without it, and fewer
+ * gradients of W than without it (the first rows' predictors are quartic,
+ * not held fixed, linear, ...). */
+static void test_chord_carry(void) {
+  char *text = lattice(10, 8);
+  overrides og, oa, oc;
+  mrvi_system *sg =
+      load_text(text, set(&og, "explicit-slow", 5, 0.03, 1e-12, "general"), 5);
+  mrvi_system *sa =
+      load_text(text, set(&oa, "explicit-slow", 5, 0.03, 1e-12, "auto"), 5);
+  mrvi_system *sc =
+      load_text(text, set(&oc, "explicit-slow", 5, 0.03, 1e-12, "auto"), 5);
+  if (sg && sa && sc) {
+    sc->settings.tuning.chord_carry = 1;
+    trajectory a, b, c;
+    run(sg, 10, &a);
+    run(sa, 10, &b);
+    run(sc, 10, &c);
+    if (a.ok && b.ok && c.ok) {
+      const double d = rel_diff(&a, &c);
+      CHECK(!strcmp(c.path, "sweep-cg"), "chord carry: path %s", c.path);
+      CHECK(d <= 1e-10, "chord carry: vs general %.2e", d);
+      CHECK(c.ks.sweep_evals_w < b.ks.sweep_evals_w,
+            "chord carry: %ld gradients of W, %ld without", c.ks.sweep_evals_w,
+            b.ks.sweep_evals_w);
+      printf("chord carry: %ld gradients of W (%ld without), vs general "
+             "%.2e\n",
+             c.ks.sweep_evals_w, b.ks.sweep_evals_w, d);
+    }
+    release(&a);
+    release(&b);
+    release(&c);
+  }
+  mrvi_system_free(sg);
+  mrvi_system_free(sa);
+  mrvi_system_free(sc);
+  free(text);
+}
+
 /* sweep-cg's chord on threads (doc/performance.md, "Threads"): the 40 x 20
  * perturbed lattice (800 fast coordinates, moving everywhere) by
  * explicit-slow with the chord's pass and the row ends in parts of 16
@@ -584,8 +626,9 @@ static void test_chord(void) {
  * chord's relaxation ratios (mrvi_krylov_stats.sweep_chord_sum, whose last
  * bits follow the order of the sums over the parts: the trajectory does
  * not show them) the same bit for bit.  Summing the parts in another
- * order on more than one thread (an OpenMP reduction) fails here. */
-static void test_chord_threads(void) {
+ * order on more than one thread (an OpenMP reduction) fails here.  With
+ * carry, the same with tuning.chord_carry (the history kept per entry). */
+static void test_chord_threads(int carry) {
   char *text = lattice(40, 20);
   trajectory t[3];
   memset(t, 0, sizeof t);
@@ -598,6 +641,7 @@ static void test_chord_threads(void) {
     if (sys) {
       sys->settings.threads = k + 1;
       sys->settings.tuning.thread_chunk = 16;
+      sys->settings.tuning.chord_carry = carry;
       run(sys, 6, &t[k]);
     }
     ok = ok && t[k].ok;
@@ -606,6 +650,7 @@ static void test_chord_threads(void) {
   if (ok) {
     CHECK(!strcmp(t[0].path, "sweep-cg"), "chord threads: path %s", t[0].path);
     CHECK(t[0].ks.sweep_chord_sum != 0.0, "chord threads: no relaxation");
+    printf("chord threads, chord_carry %d:\n", carry);
     const size_t n = (size_t)(t[0].steps + 1) * (size_t)t[0].n;
     for (int k = 1; k < 3; k++) {
       CHECK(!memcmp(t[0].q, t[k].q, n * sizeof(double)) &&
@@ -719,7 +764,9 @@ static void test_outer(void) {
 
 int main(void) {
   test_chord();
-  test_chord_threads();
+  test_chord_carry();
+  test_chord_threads(0);
+  test_chord_threads(1);
   test_choice();
   test_agree();
   test_iterations();

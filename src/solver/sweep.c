@@ -142,6 +142,16 @@ struct mrvi_sweep {
    * (end_predict), with its round-off scale. */
   int predicted;
   double pred_scale;
+  /* The updates the last chord row took (expect0: the last row 0, for
+   * row 0): a chord row's residual from that many updates on is first
+   * tested alone (chord_residual's light pass), the next iterate formed
+   * only where it misses the tolerance. */
+  int expect, expect0;
+  /* tuning.chord_carry: the history of the step before is kept (carry:
+   * its rows that this step's predictors take, 0 or PREDICTOR_ORDER;
+   * carry_next: the next step's, set where this step's sweep ends on the
+   * chord regime) */
+  int carry_on, carry, carry_next;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
 };
@@ -520,6 +530,8 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->sb_dense_max = s->tuning.newton_dense_max;
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
   sw->chord_max = s->tuning.chord_jacobi_max;
+  sw->expect = sw->expect0 = s->newton_max_iter;
+  sw->carry_on = s->tuning.chord_carry;
   sw->jdinv = dalloc(sparse ? nf : 1);
   sw->fresh = sparse && mrvi_terms_springs_only(sw->kc[MRVI_FAST]);
   /* The chord's gradients with one division per Hooke spring, as the
@@ -604,6 +616,7 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
     return;
   sw->gnode_ok = 0;
   sw->gv_ok = 0;
+  sw->carry_next = 0;
   if (sw->implicit)
     memset(sw->fimp, 0, (size_t)sw->nf * sizeof(double));
 }
@@ -862,6 +875,7 @@ static void rotate_history(mrvi_sweep *sw) {
 
 /* The order of row m's extrapolation. */
 static int predictor_order(const mrvi_sweep *sw, int m) {
+  m += sw->carry;
   return sw->mild ? (m >= PREDICTOR_ORDER ? PREDICTOR_ORDER : m) : 1;
 }
 
@@ -917,36 +931,44 @@ static void chord_setup(mrvi_sweep *sw) {
  * its configuration zf, the sums F.F_old (on) and F_old.F_old (oo) with F
  * stored over F_old; rw read unless unit (every weight 1: the absolute
  * criterion), the implicit force fimp stored where keep (else
- * node_momentum stores it at the row's end: one point per interval). */
+ * node_momentum stores it at the row's end: one point per interval).
+ * M dn/dt is formed as M dn (1/dt): no division in the pass.  light: the
+ * test of a row's expected last iterate, F's maximum, sum and the sums
+ * alone, neither F nor the next iterate stored (4 streams read instead of
+ * 6 read and 3 written); the same values of r, on and oo. */
 ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
                               const double *restrict dn,
                               const double *restrict g, double om, double wc,
                               double cB, double *restrict zf, int f0,
                               const int nf, double out[4], const int unit,
-                              const int keep, const int inc) {
+                              const int keep, const int inc, const int light) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
   double *restrict fimp = sw->fimp, *restrict dnx = sw->dnx,
                    *restrict F = sw->F;
-  const mrvi_v2 vdt = v2_set(dt, dt), vm = v2_set(mf[0], mf[0]);
+  const double idt = 1.0 / dt;
+  const mrvi_v2 vidt = v2_set(idt, idt), vm = v2_set(mf[0], mf[0]);
   mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
   int f = f0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
     const mrvi_v2 d = v2_load(dn + f);
-    const mrvi_v2 mv = v2_div(v2_mul(inc ? v2_load(mf + f) : vm, d), vdt);
+    const mrvi_v2 mv = v2_mul(v2_mul(inc ? v2_load(mf + f) : vm, d), vidt);
     const mrvi_v2 Ff = v2_sub(v2_sub(v2_load(rhs + f), mv), fi);
     const mrvi_v2 a = unit ? v2_abs(Ff) : v2_mul(v2_abs(Ff), v2_load(rw + f));
-    const mrvi_v2 dx = v2_add(d, v2_mul(v2_scale(om, v2_load(jd + f)), Ff));
     const mrvi_v2 Fo = v2_load(F + f);
     von = v2_add(von, v2_mul(Ff, Fo));
     voo = v2_add(voo, v2_mul(Fo, Fo));
-    v2_store(F + f, Ff);
     if (keep)
       v2_store(fimp + f, fi);
-    v2_store(dnx + f, dx);
-    v2_store(zf + f, v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
+    if (!light) {
+      const mrvi_v2 dx = v2_add(d, v2_mul(v2_scale(om, v2_load(jd + f)), Ff));
+      v2_store(F + f, Ff);
+      v2_store(dnx + f, dx);
+      v2_store(zf + f,
+               v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
+    }
     vmax = v2_max(a, vmax);
     vsum = v2_add(vsum, a);
   }
@@ -956,12 +978,14 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
     const double fi = 0.0 + wc * g[f];
     if (keep)
       fimp[f] = fi;
-    const double Ff = rhs[f] - mf[inc ? f : 0] * dn[f] / dt - fi;
-    dnx[f] = dn[f] + om * jd[f] * Ff;
-    zf[f] = 1.0 * qm[f] + cB * dnx[f];
+    const double Ff = rhs[f] - mf[inc ? f : 0] * dn[f] * idt - fi;
     on += Ff * F[f];
     oo += F[f] * F[f];
-    F[f] = Ff;
+    if (!light) {
+      dnx[f] = dn[f] + om * jd[f] * Ff;
+      zf[f] = 1.0 * qm[f] + cB * dnx[f];
+      F[f] = Ff;
+    }
     const double a = unit ? fabs(Ff) : fabs(Ff) * rw[f];
     r = a > r ? a : r;
     sum += a;
@@ -979,14 +1003,19 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
  * and the general pass. */
 static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
                             const double *g, double om, double wc, double cB,
-                            double *zn, int f0, int f1, double out[4]) {
+                            double *zn, int f0, int f1, double out[4],
+                            int light) {
   const int unit = sw->rw_one, keep = sw->n_w != 1;
-  if (unit && !keep && !sw->mass_inc)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0);
+  if (light && unit && !keep && !sw->mass_inc)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 1);
+  else if (light)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, keep, 1, 1);
+  else if (unit && !keep && !sw->mass_inc)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 0);
   else if (unit && !keep)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 1);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 1, 0);
   else
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1, 0);
 }
 
 /* The chord pass's part sums combined in order (the maximum, the sums). */
@@ -1074,7 +1103,8 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
 /* The row residual of a chord iterate with one implicit point, whose
  * configuration sw->zf the update has set (zf_ok) or is set here: the
  * gradient, the implicit force and F in one pass over the row (the
- * arithmetic of implicit_force and of the residual in solve_implicit).
+ * arithmetic of implicit_force and of the residual in solve_implicit, but
+ * M dn times 1/dt).
  * With fresh (row 0's first iterate, sw->fresh), D = diag J at this
  * iterate as well (bitwise the diagonal of the J that Newton would
  * assemble there) and, in rho, the Gershgorin bound of chord_setup from
@@ -1095,9 +1125,18 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
  * next update: after a relaxed update that ratio is small and the next
  * update nearly plain, so plain and relaxed updates alternate
  * (doc/performance.md, "explicit-slow: relaxed chord").  Convergence is
- * decided by the exact residual F as before. */
+ * decided by the exact residual F as before.
+ *
+ * With light (the iterate that the row is expected to end on, sw->expect),
+ * the pass first only tests F against the tolerance (chord_pass's light
+ * pass: where it is met, solve_implicit returns, which it does at r <=
+ * tol whatever else holds from min_it on, and the next iterate is not
+ * needed), and the full pass follows, with the gradient kept, where it is
+ * not: the same r, lam and iterates either way, only a pass more or
+ * less. */
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
-                             int zf_ok, int fresh, int track, double *rho) {
+                             int zf_ok, int fresh, int track, int light,
+                             double *rho) {
   const int nf = sw->nf, i = sw->imp;
   const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
@@ -1118,11 +1157,14 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
   }
   const double om = 1.0 / (1.0 - sw->lam);
   double t[4];
-  const int n_c = sw->n_cpass, grad = !fresh && sw->cfused;
+  const int n_c = sw->n_cpass;
+  int grad = !fresh && sw->cfused;
+  light = light && !fresh;
+again:
   if (n_c == 0) {
-    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t);
+    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t, light);
   } else {
-    double *cp = sw->cpass, *zn = grad ? sw->zalt : sw->zf;
+    double *cp = sw->cpass, *zn = grad && !light ? sw->zalt : sw->zf;
     const double *zf = sw->zf;
     sw->evals_w += grad;
     MRVI_PARALLEL_FOR(sw->pthreads)
@@ -1133,15 +1175,19 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
         zero(g + f0, f1 - f0);
         mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
       }
-      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c);
+      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c, light);
     }
-    if (grad) { /* (zalt: the next configuration) */
+    if (grad && !light) { /* (zalt: the next configuration) */
       sw->zalt = sw->zf;
       sw->zf = zn;
     }
     chord_parts_sum(cp, n_c, t);
   }
   const double r = isnan(t[1]) ? t[1] : t[0], on = t[2], oo = t[3];
+  if (light && !(r <= sw->tol)) { /* (the full pass, g kept) */
+    light = grad = 0;
+    goto again;
+  }
   if (track && oo > 0.0 && isfinite(on)) { /* (the next update's lam) */
     sw->lam = fmin(sw->rho_c, fmax(-sw->rho_c, on / oo));
     sw->lam_sum += sw->lam;
@@ -1184,7 +1230,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     sw->lam = 0.0; /* (a step depends on (q_k, p_k) alone) */
   }
   double scale = 0.0;
-  int pred = !first && sw->sparse, zf_ok = 0;
+  /* (row 0 too extrapolates where the last step's rows are kept) */
+  int pred = (!first || sw->carry > 0) && sw->sparse, zf_ok = 0;
   if (pred) {
     zf_ok = sw->chord && sw->imp >= 0;
     scale = sw->predicted ? sw->pred_scale
@@ -1228,8 +1275,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     double r = 0.0;
     if (chord && sw->imp >= 0) {
       double rho = 0.0;
-      r = chord_residual(sw, qm, dn, zf_ok, first && sw->fresh && it == 0,
-                         it >= 1, &rho);
+      r = chord_residual(
+          sw, qm, dn, zf_ok, first && sw->fresh && it == 0, it >= 1,
+          it >= min_it && it >= (first ? sw->expect0 : sw->expect), &rho);
       zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
@@ -1267,6 +1315,10 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
      * just below it. */
     const int stalled = !(chord && it >= 1 && r <= sw->chord_max * r_prev);
     if (it >= min_it && (r <= sw->tol || (r <= floor && (stalled || !chord)))) {
+      if (chord && first)
+        sw->expect0 = it;
+      if (chord)
+        sw->expect = it;
       *iters = it;
       *res = fmax(*res, r);
       return MRVI_OK;
@@ -1935,8 +1987,9 @@ static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
   const double *restrict minv = sw->minv_f, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw;
   double *restrict fimp = sw->fimp, *restrict zf = sw->zf;
-  const mrvi_v2 vdt = v2_set(dt, dt), vm = v2_set(mf[0], mf[0]);
-  const mrvi_v2 vminv = v2_set(minv[0], minv[0]);
+  const double idt = 1.0 / dt, idt4 = 4.0 / dt;
+  const mrvi_v2 vidt = v2_set(idt, idt), vidt4 = v2_set(idt4, idt4);
+  const mrvi_v2 vm = v2_set(mf[0], mf[0]), vminv = v2_set(minv[0], minv[0]);
   mrvi_v2 vs = v2_zero();
   int f = f0;
   for (; f + 2 <= f1; f += 2) {
@@ -1944,7 +1997,7 @@ static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
     const mrvi_v2 m = inc ? v2_load(mf + f) : vm;
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, gf));
     const mrvi_v2 q1 = v2_add(v2_load(qm + f), d);
-    const mrvi_v2 p1 = v2_sub(v2_div(v2_mul(m, d), vdt), v2_scale(wb, gf));
+    const mrvi_v2 p1 = v2_sub(v2_mul(v2_mul(m, d), vidt), v2_scale(wb, gf));
     v2_store(fimp + f, fi);
     v2_store(qn + f, q1);
     v2_store(pn + f, p1);
@@ -1956,15 +2009,14 @@ static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
     v2_store(dn + f, dp);
     if (cB != 0.0)
       v2_store(zf + f, v2_add(v2_scale(1.0, q1), v2_scale(cB, dp)));
-    const mrvi_v2 a =
-        v2_add(v2_abs(p1), v2_div(v2_mul(v2_scale(4.0, m), v2_abs(q1)), vdt));
+    const mrvi_v2 a = v2_add(v2_abs(p1), v2_mul(v2_mul(m, v2_abs(q1)), vidt4));
     vs = v2_max(unit ? a : v2_mul(a, v2_load(rw + f)), vs);
   }
   double scale = v2_lo(vs) > v2_hi(vs) ? v2_lo(vs) : v2_hi(vs);
   for (; f < f1; f++) {
     const double d = dn[f], gf = g[f], m = mf[inc * (size_t)f];
     const double fi = 0.0 + wc * gf;
-    const double q1 = qm[f] + d, p1 = m * d / dt - wb * gf;
+    const double q1 = qm[f] + d, p1 = m * d * idt - wb * gf;
     fimp[f] = fi;
     qn[f] = q1;
     pn[f] = p1;
@@ -1973,7 +2025,7 @@ static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
     dn[f] = dp;
     if (cB != 0.0)
       zf[f] = 1.0 * q1 + cB * dp;
-    const double a = fabs(p1) + 4.0 * m * fabs(q1) / dt;
+    const double a = fabs(p1) + m * fabs(q1) * idt4;
     const double v = unit ? a : a * rw[f]; /* (rw 1: the same bits) */
     scale = v > scale ? v : scale;
   }
@@ -2096,6 +2148,12 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     }
     pm = pn;
   }
+  /* The rows' history for the next step (tuning.chord_carry): the
+   * converged forces of the last PREDICTOR_ORDER rows in fimp and fhist
+   * (node_momentum stored the last row's), where every row extrapolated
+   * (the chord regime on springs and anchors). */
+  if (sw->carry_on && own && sw->fresh && sw->mild && p >= PREDICTOR_ORDER)
+    sw->carry_next = PREDICTOR_ORDER;
   return MRVI_OK;
 }
 
@@ -2190,8 +2248,11 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   *iterations = 0;
   *residual = 0.0;
   /* The first micro step's predictor holds no implicit force: nothing is
-   * carried from the last step, so a step depends on (q_k, p_k) alone. */
-  if (sw->implicit)
+   * carried from the last step, so a step depends on (q_k, p_k) alone;
+   * with tuning.chord_carry, the last step's rows where it kept them. */
+  sw->carry = sw->carry_next;
+  sw->carry_next = 0;
+  if (sw->implicit && !sw->carry)
     zero(sw->fimp, nf);
   else if (sw->threads > 1)
     return explicit_step_par(sw, st, x, ps1, pf, msg, len);
