@@ -1087,7 +1087,7 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
       mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, sw->hd, sw->off,
                                  hs);
       bound[c] = fresh_bound(sw, f0, f1);
-      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c);
+      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c, 0);
     }
   }
   sw->zalt = zf;
