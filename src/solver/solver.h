@@ -101,8 +101,8 @@ void mrvi_row_recipe_apply(const mrvi_row_recipe *r, const mrvi_step *st,
 /* The joint-reduced basis (nullspace_tree.c), behind mrvi_nullspace_*:
  * create returns 1 (made), 0 (does not apply: why) or a status < 0. */
 typedef struct mrvi_nstree mrvi_nstree;
-int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
-                       size_t len);
+int mrvi_nstree_create(const mrvi_step *st, const unsigned char *drop,
+                       mrvi_nstree **out, char *why, size_t len);
 void mrvi_nstree_free(mrvi_nstree *z);
 int mrvi_nstree_size(const mrvi_nstree *z);
 int mrvi_nstree_bodies(const mrvi_nstree *z);
