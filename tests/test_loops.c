@@ -1541,7 +1541,56 @@ static void check_loop_reduced(const char *name, const mrvi_model *m, int D,
   mrvi_trajectory_free(tt[1]);
 }
 
+/* A ring of n bars (2-D, length 1) along a regular n-gon hung from its top
+ * vertex at the origin: bar i from vertex i to i + 1, revolute joints
+ * between neighbours and from bar 0 to the ground, the joint between the
+ * last bar and the first closing the loop; with brace, a bar from vertex 1
+ * to vertex n/2 + 1 on joints to the bars starting there (a second loop).
+ * Gravity; bar 0 turning at 1 rad/s about the origin. */
+static mrvi_model *ring(int n, int brace) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double pi = acos(-1.0), rad = 0.5 / sin(pi / n), g[2] = {0, -9.81};
+  double v[64][3];
+  for (int j = 0; j <= n && j < 64; j++) {
+    const double a = pi / 2 + 2.0 * pi * j / n;
+    v[j][0] = rad * cos(a), v[j][1] = rad * (sin(a) - 1.0), v[j][2] = 0.0;
+  }
+  int st = 0;
+  char name[16];
+  for (int i = 0; i < n; i++) {
+    snprintf(name, sizeof name, "b%d", i);
+    st |= add_bar(m, name, 2, v[i], v[i + 1], 1.0, i == 0 ? 1.0 : 0.0);
+    st |= mrvi_model_add_joint(m, "revolute", i, i ? i - 1 : -1, v[i], NULL);
+  }
+  st |= mrvi_model_add_joint(m, "revolute", n - 1, 0, v[0], NULL);
+  if (brace) {
+    const int k = n / 2 + 1;
+    st |= add_bar(m, "brace", 2, v[1], v[k], 1.0, 0.0);
+    st |= mrvi_model_add_joint(m, "revolute", n, 1, v[1], NULL);
+    st |= mrvi_model_add_joint(m, "revolute", n, k, v[k], NULL);
+  }
+  st |= mrvi_model_set_gravity(m, g);
+  CHECK(st >= 0, "ring of %d bars: %s", n, mrvi_model_errmsg(m));
+  return m;
+}
+
 static void test_loop_reduced(void) {
+  /* A ring (the cut joint between two bars) and a braced ring (two loops,
+   * two cut joints): which joints the plan cuts, then the bases. */
+  for (int brace = 0; brace < 2; brace++) {
+    mrvi_model *m = ring(8, brace);
+    char why[200];
+    const int ok = mrvi_nullspace_tree_plan(m, why, sizeof why);
+    printf("ring of 8 bars%s: joint-reduced %d, cut at %s\n",
+           brace ? " with a brace" : "", ok, why);
+    CHECK(ok && strcmp(why, brace ? "'revolute b7-b0', 'revolute brace-b5'"
+                                  : "'revolute b7-b0'") == 0,
+          "ring%s: cut joints %s", brace ? " (braced)" : "", why);
+    check_loop_reduced(brace ? "braced ring of 8 bars" : "ring of 8 bars", m, 2,
+                       1, 2 + 2 * brace, 0.01);
+    mrvi_model_free(m);
+  }
   for (int D = 2; D <= 3; D++) {
     mrvi_model *m = fourbar(D, 0.0, D == 2);
     check_loop_reduced(D == 2 ? "four-bar 2-D" : "four-bar 3-D", m, D,
