@@ -18,6 +18,13 @@
  *   open, reduced    the ring without its closing joint (an open chain) in
  *                    the null-space form with the joint-reduced basis: what
  *                    the cut joint adds.
+ * --ladder: instead a ladder of n four-bars (n loops): two rails of n bars
+ * each (length 1, slanted by 0.3 to the side) hung from the ground at (0,
+ * 0) and (1, 0), the rungs (length 1, horizontal) joining the rails' lower
+ * ends, every bar on revolute joints at the nodes (3n bars, 4n joints, n
+ * degrees of freedom); its open twin, "open, reduced", has no rungs.  The
+ * cut joints' paths to the ground grow with the depth of the ladder, so
+ * C = G_c P_tree has O(n^2) entries there.
  * midpoint-midpoint, dT = 0.01, p = 1, Newton tolerance 1e-10.  The cases
  * of one n alternate, --repeats rounds, best of them; each times blocks of
  * 20 macro steps from the initial state (the integrator set back to it)
@@ -37,17 +44,71 @@ static const char *const case_names[N_CASES] = {"multipliers", "loop-reduced",
                                                 "QR", "open, reduced"};
 
 static const char usage[] =
-    "usage: bench_loops [--quick] [--n 10,30,100] [--repeats R] [--steps K]\n"
+    "usage: bench_loops [--quick] [--ladder] [--n 10,30,100] [--repeats R]\n"
+    "                   [--steps K]\n"
     "Cost per macro step of a ring of n rigid bars on revolute joints (a\n"
-    "closed loop) against n: multiplier form, null-space form with the\n"
-    "joint-reduced basis (the closing joint cut) and with the numerical (QR)\n"
-    "basis, and the open chain (no closing joint) with the joint-reduced\n"
-    "basis; CPU seconds per macro step, best of R rounds.\n";
+    "closed loop; --ladder: a ladder of n four-bars, n loops) against n:\n"
+    "multiplier form, null-space form with the joint-reduced basis (the\n"
+    "closing joints cut) and with the numerical (QR) basis, and the open\n"
+    "twin (no closing joints) with the joint-reduced basis; CPU seconds per\n"
+    "macro step, best of R rounds.\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
   return 2;
 }
+
+/* Bar from P to Q (2-D, length |Q - P|, mass 1) as body `name`. */
+static int add_bar(mrvi_model *m, const char *name, const double *P,
+                   const double *Q) {
+  const double dx = Q[0] - P[0], dy = Q[1] - P[1], l = hypot(dx, dy);
+  const double x[2] = {0.5 * (P[0] + Q[0]), 0.5 * (P[1] + Q[1])};
+  const double R[4] = {dx / l, -dy / l, dy / l, dx / l}, J[1] = {l * l / 12.0};
+  return mrvi_model_add_body(m, name, 2, MRVI_SLOW, 1.0, J, x, R, NULL, NULL);
+}
+
+/* The ladder of n four-bars (closed: with its rungs). */
+static mrvi_model *ladder_model(int n, int closed, char *msg, size_t len) {
+  mrvi_model *m = mrvi_model_create();
+  const double g[2] = {0.0, -9.81}, s = 0.3;
+  int st = m ? mrvi_model_set_dimension(m, 2) : MRVI_ENOMEM;
+  int prev[2] = {-1, -1};
+  for (int j = 0; j < n && st >= 0; j++) {
+    int rail[2] = {-1, -1};
+    for (int side = 0; side < 2 && st >= 0; side++) {
+      const double P[2] = {side + s * j, -j},
+                   Q[2] = {side + s * (j + 1), -(j + 1)};
+      char name[32];
+      snprintf(name, sizeof name, "%c%d", side ? 'r' : 'l', j);
+      rail[side] = st = add_bar(m, name, P, Q);
+      if (st >= 0)
+        st = mrvi_model_add_joint(m, "revolute", rail[side], prev[side], P,
+                                  NULL);
+    }
+    if (st >= 0 && closed) { /* the rung at the rails' lower ends */
+      const double P[2] = {s * (j + 1), -(j + 1)},
+                   Q[2] = {1 + s * (j + 1), -(j + 1)};
+      char name[32];
+      snprintf(name, sizeof name, "rung%d", j);
+      const int r = st = add_bar(m, name, P, Q);
+      if (st >= 0)
+        st = mrvi_model_add_joint(m, "revolute", r, rail[0], P, NULL);
+      if (st >= 0)
+        st = mrvi_model_add_joint(m, "revolute", r, rail[1], Q, NULL);
+    }
+    prev[0] = rail[0], prev[1] = rail[1];
+  }
+  if (st >= 0)
+    st = mrvi_model_set_gravity(m, g);
+  if (st < 0) {
+    snprintf(msg, len, "%s", m ? mrvi_model_errmsg(m) : "out of memory");
+    mrvi_model_free(m);
+    return NULL;
+  }
+  return m;
+}
+
+static int ladder; /* --ladder */
 
 /* The ring of n bars (closed: with its closing joint). */
 static mrvi_model *ring_model(int n, int closed, char *msg, size_t len) {
@@ -91,6 +152,7 @@ static mrvi_model *ring_model(int n, int closed, char *msg, size_t len) {
 typedef struct result {
   int status; /* 0 ok, 1 failed */
   int size;   /* the step's system */
+  int n;      /* coordinates */
   double step, newton;
   char path[16];
   char message[200];
@@ -101,7 +163,8 @@ static result run_one(int cs, int links, int steps) {
   memset(&r, 0, sizeof r);
   r.status = 1;
   char msg[512];
-  mrvi_model *m = ring_model(links, cs != 3, msg, sizeof msg);
+  mrvi_model *m = ladder ? ladder_model(links, cs != 3, msg, sizeof msg)
+                         : ring_model(links, cs != 3, msg, sizeof msg);
   if (!m) {
     snprintf(r.message, sizeof r.message, "%.190s", msg);
     return r;
@@ -123,6 +186,7 @@ static result run_one(int cs, int links, int steps) {
     return r;
   }
   r.size = mrvi_integrator_system_size(it);
+  r.n = mrvi_model_n(m);
   const int nc = mrvi_model_n(m);
   double *p0 = calloc((size_t)nc, sizeof *p0);
   const double *q0 = mrvi_model_q0(m);
@@ -165,6 +229,8 @@ int main(int argc, char **argv) {
     if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
       fputs(usage, stdout);
       return 0;
+    } else if (!strcmp(a, "--ladder")) {
+      ladder = 1;
     } else if (!strcmp(a, "--quick")) {
       n_n = 2, repeats = 1;
     } else if (!strcmp(a, "--n") && has) {
@@ -181,9 +247,11 @@ int main(int argc, char **argv) {
       return bad_usage();
     }
   }
-  printf("# bench_loops: a ring of n rigid bars on revolute joints (2-D, "
-         "one closed loop), midpoint-midpoint, dT = 0.01, p = 1; CPU s per "
-         "macro step, best of %d; load %.2f; %s\n",
+  printf("# bench_loops: %s, midpoint-midpoint, dT = 0.01, p = 1; CPU s "
+         "per macro step, best of %d; load %.2f; %s\n",
+         ladder ? "a ladder of n four-bars (2-D, n loops)"
+                : "a ring of n rigid bars on revolute joints (2-D, one closed "
+                  "loop)",
          repeats, bench_load(), bench_build());
   printf("%6s %6s  %-14s %8s %-16s %12s %8s\n", "links", "coords", "case",
          "system", "path", "s/step", "updates");
@@ -204,14 +272,13 @@ int main(int argc, char **argv) {
     for (int c = 0; c < N_CASES; c++) {
       const result *r = &best[c];
       if (r->status == 0) {
-        printf("%6d %6d  %-14s %8d %-16s %12.3e %8.2f\n", n_list[ni],
-               6 * n_list[ni], case_names[c], r->size, r->path, r->step,
-               r->newton);
+        printf("%6d %6d  %-14s %8d %-16s %12.3e %8.2f\n", n_list[ni], r->n,
+               case_names[c], r->size, r->path, r->step, r->newton);
         xs[c][got[c]] = n_list[ni];
         ys[c][got[c]++] = r->step;
       } else {
-        printf("%6d %6d  %-14s refused: %s\n", n_list[ni], 6 * n_list[ni],
-               case_names[c], r->message);
+        printf("%6d %6s  %-14s refused: %s\n", n_list[ni], "", case_names[c],
+               r->message);
       }
     }
     fflush(stdout);

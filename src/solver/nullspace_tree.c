@@ -121,14 +121,16 @@ struct mrvi_nstree {
    * first slot; scratch twists (nb x T) and reached flags. */
   int fast, na, *anchor, *aslot, *reached;
   double *tw;
-  /* Closed loops (slow plan): the cut joints' kept rows (constraint, row
-   * in it, row among the step's multipliers), each one's bodies' paths to
-   * their roots (nb flags a row: where its C row can be nonzero), the
-   * first rate of each body, C = G_c P_tree at q_k (rc x n_rates), the
-   * step's constraint rows kept (n_lambda flags), scratch. */
-  int *cut, rc, n_rates, *cut_c, *cut_r, *cut_e, *rate0, *tree_of;
-  unsigned char *on_path, *keep;
-  double *C, *cz, *cg, *cG;
+  /* Closed loops (slow plan): the cut joints (flags by constraint), their
+   * kept rows (constraint, row in it, row among the step's multipliers,
+   * the tree indices of its two bodies or -1), P_t^T g_c of each kept row
+   * on each of its bodies at q_k (rc x 2 x T), the kept rows by body (CSR
+   * of 2 i + side), the step's constraint rows kept (n_lambda flags), the
+   * tree index of each body, scratch. */
+  int *cut, rc, *cut_c, *cut_r, *cut_e, *cut_t, *body_cut_start, *body_cut;
+  int *tree_of;
+  unsigned char *keep;
+  double *cv, *cz, *cg, *cG;
 };
 
 void mrvi_nstree_free(mrvi_nstree *z) {
@@ -146,8 +148,9 @@ void mrvi_nstree_free(mrvi_nstree *z) {
   free(z->th), free(z->u), free(z->Q);
   free(z->anchor), free(z->aslot), free(z->reached), free(z->tw);
   free(z->cut), free(z->cut_c), free(z->cut_r), free(z->cut_e);
-  free(z->rate0), free(z->tree_of), free(z->on_path), free(z->keep);
-  free(z->C), free(z->cz), free(z->cg), free(z->cG);
+  free(z->cut_t), free(z->body_cut_start), free(z->body_cut);
+  free(z->tree_of), free(z->keep);
+  free(z->cv), free(z->cz), free(z->cg), free(z->cG);
   free(z);
 }
 
@@ -506,18 +509,26 @@ static void gather(const mrvi_nstree *z, const double *x, const double *q0,
  * of closed loops"; Betsch & Leyendecker 2006, Part II)
  *
  * The joints that close loops are left out of the forest (plan); their rows
- * G_c restrict the tree's rates nu to C nu = 0 with C = G_c P_tree (rc rows,
- * few), so the loop's null-space matrix is P = P_tree N, N spanning the null
- * space of C.  The reduced rows N^T P_tree^T (R - A dx) = N^T S^T y = 0 say
- * that S^T y lies in the range of C^T: one unknown mu_i per kept cut row and
- * S^T y - C^T mu = 0 in place of S^T y = 0, beside the cut rows' H dx = h.
+ * G_c restrict the tree's rates nu to C nu = 0 with C = G_c P_tree (rc rows),
+ * so the loop's null-space matrix is P = P_tree N, N spanning the null space
+ * of C.  Its reduced rows N^T P_tree^T r = 0 (r = R - A dx) say that
+ * P_tree^T r lies in the range of C^T = P_tree^T G_c^T: P_tree^T (r - G_c^T
+ * mu) = 0 for some mu, one unknown per kept cut row.  With y = (I - X)^-T
+ * P_int^T (r - G_c^T mu) the rows of the tree keep their form, the cut rows'
+ * forces entering the rows of their two bodies:
+ *   (I - X)^T y + P_int^T A dx + P_int^T G_c^T mu = P_int^T R,
+ *   S^T y = 0,  H dx = h (the kept rows, the cut ones too).
+ * C itself is formed once, at q_0, for the rank-revealing pass that leaves
+ * out the redundant cut rows.
  * ------------------------------------------------------------------------- */
 
-/* C's row for gradient row gr of cut constraint k (at q_k, its inputs):
- * g^T P_int (I - X)^-1 S = (S^T z)^T with (I - X)^T z = P_int^T g, z by one
- * sweep from the leaves, z_a = v_a + sum over a's children c of X_c^T z_c. */
+/* C's row for gradient row gr of cut constraint k (its inputs), into out
+ * (rate0: each body's first rate): g^T P_int (I - X)^-1 S = (S^T z)^T with
+ * (I - X)^T z = P_int^T g, z by one sweep from the leaves, z_a = v_a + sum
+ * over a's children c of X_c^T z_c. */
 static void cut_row(mrvi_nstree *z, const mrvi_model *m,
-                    const mrvi_constraint *k, const double *gr, double *out) {
+                    const mrvi_constraint *k, const double *gr,
+                    const int *rate0, double *out) {
   const int T = z->T;
   memset(z->cz, 0, (size_t)z->nb * T * sizeof *z->cz);
   for (int j = 0; j < k->n_in; j++) {
@@ -543,23 +554,37 @@ static void cut_row(mrvi_nstree *z, const mrvi_model *m,
       double v = 0.0;
       for (int a = 0; a < T; a++)
         v += S[a * z->dof[t] + j] * zt[a];
-      out[z->rate0[t] + j] = v;
+      out[rate0[t] + j] = v;
     }
   }
 }
 
-/* The kept cut rows of C at q_k (z->qm) and the current geometry. */
-static void cut_matrix(mrvi_nstree *z, const mrvi_model *m) {
+/* The gradient rows of cut constraint k at q_k (z->qm) into z->cG. */
+static void cut_gradient(mrvi_nstree *z, const mrvi_constraint *k) {
+  double y[MRVI_MAX_INPUTS];
+  for (int j = 0; j < k->n_in; j++)
+    y[j] = z->qm[k->in[j]];
+  mrvi_constraint_eval_at(k, y, z->cg, z->cG, NULL);
+}
+
+/* P_t^T g_c of every kept cut row on each of its bodies at q_k and the
+ * current geometry (z->cv). */
+static void cut_forces(mrvi_nstree *z, const mrvi_model *m) {
+  const int T = z->T;
+  memset(z->cv, 0, (size_t)z->rc * 2 * T * sizeof *z->cv);
   for (int i = 0; i < z->rc; i++) {
     const mrvi_constraint *k = &m->constraints[z->cut_c[i]];
-    if (i == 0 || z->cut_c[i] != z->cut_c[i - 1]) {
-      double y[MRVI_MAX_INPUTS];
-      for (int j = 0; j < k->n_in; j++)
-        y[j] = z->qm[k->in[j]];
-      mrvi_constraint_eval_at(k, y, z->cg, z->cG, NULL);
+    if (i == 0 || z->cut_c[i] != z->cut_c[i - 1])
+      cut_gradient(z, k);
+    const double *gr = z->cG + (size_t)z->cut_r[i] * k->n_in;
+    for (int j = 0; j < k->n_in; j++) {
+      const int t = z->tree_of[mrvi_model_body_of(m, k->in[j])];
+      const int e = m->slot[k->in[j]] - z->slot[t], side = t != z->cut_t[2 * i];
+      const double *P = z->P + (size_t)2 * T * T * t;
+      double *v = z->cv + ((size_t)2 * i + side) * T;
+      for (int a = 0; a < T; a++)
+        v[a] += P[e * T + a] * gr[j];
     }
-    cut_row(z, m, k, z->cG + (size_t)z->cut_r[i] * k->n_in,
-            z->C + (size_t)i * z->n_rates);
   }
 }
 
@@ -588,83 +613,114 @@ static int dependent(int n, int k, double *E, const double *v) {
   return 0;
 }
 
-/* The cut joints' rows at q_k = st->qs0 (geometry taken there): a row
- * within 1e-9 of the span of the earlier ones (a planar loop modelled in
- * 3-D) is left out, which must be what the integrator's rank-revealing
- * pass found (drop, model rows; may be NULL).  1, 0 and why, or
+/* The kept rows among the cut joints' at q_k = st->qs0 (the geometry taken
+ * there; every row of the other constraints is kept): a cut row whose row
+ * of C is within 1e-9 (relative) of the span of the earlier ones (a planar
+ * loop modelled in 3-D) is left out, which must be what the integrator's
+ * rank-revealing pass found (drop, model rows; may be NULL).  rows: its
+ * count of rows, nall of them cut rows.  0, 1 (they disagree), or
  * MRVI_ENOMEM. */
+static int cut_rows(mrvi_nstree *z, const mrvi_step *st,
+                    const unsigned char *drop, unsigned char *mdrop, int nall) {
+  const mrvi_model *m = st->model;
+  const int nb = z->nb;
+  int *rate0 = malloc(((size_t)nb + 1) * sizeof *rate0);
+  if (!rate0)
+    return MRVI_ENOMEM;
+  rate0[0] = 0;
+  for (int t = 0; t < nb; t++)
+    rate0[t + 1] = rate0[t] + z->dof[t];
+  const size_t nr = (size_t)rate0[nb] + 1;
+  double *C = malloc(nr * sizeof *C);
+  double *E = malloc(((size_t)nall + 1) * nr * sizeof *E);
+  if (!C || !E)
+    return free(rate0), free(C), free(E), MRVI_ENOMEM;
+  int differ = 0, kept = 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    if (z->cut[c])
+      cut_gradient(z, k);
+    for (int r = 0; r < k->rows; r++) {
+      int red = 0;
+      if (z->cut[c]) {
+        cut_row(z, m, k, z->cG + (size_t)r * k->n_in, rate0, C);
+        red = dependent(rate0[nb], kept, E, C);
+        kept += !red;
+      }
+      differ |= drop && !drop[k->first_row + r] != !red;
+      mdrop[k->first_row + r] = (unsigned char)red;
+      z->keep[st->c_off[c] + r] = !red;
+      if (!z->cut[c] || red)
+        continue;
+      const int i = z->rc++;
+      z->cut_c[i] = c, z->cut_r[i] = r, z->cut_e[i] = st->c_off[c] + r;
+      z->cut_t[2 * i] = z->tree_of[mrvi_model_body_of(m, k->in[0])];
+      const int b =
+          k->n_in > 2 * z->T ? mrvi_model_body_of(m, k->in[2 * z->T]) : -1;
+      z->cut_t[2 * i + 1] = b >= 0 ? z->tree_of[b] : -1;
+    }
+  }
+  free(rate0), free(C), free(E);
+  return differ;
+}
+
+/* The cut joints' kept rows and their body lists at q_k = st->qs0: 1, 0
+ * and why, or MRVI_ENOMEM. */
 static int cut_setup(mrvi_nstree *z, const mrvi_step *st,
                      const unsigned char *drop, char *why, size_t len) {
   const mrvi_model *m = st->model;
-  const int nb = z->nb;
+  const int nb = z->nb, T = z->T;
   int nall = 0, rmax = 1;
   for (int c = 0; c < m->n_constraints; c++)
     if (z->cut[c]) {
       nall += m->constraints[c].rows;
       rmax = m->constraints[c].rows > rmax ? m->constraints[c].rows : rmax;
     }
+  const size_t na = (size_t)nall + 1;
   z->tree_of = malloc(((size_t)m->n_bodies + 1) * sizeof(int));
-  z->rate0 = malloc(((size_t)nb + 1) * sizeof(int));
   z->keep = malloc((size_t)st->n_lambda + 1);
-  unsigned char *mdrop = calloc((size_t)m->constraint_rows + 1, 1);
-  if (!z->tree_of || !z->rate0 || !z->keep || !mdrop)
-    return free(mdrop), MRVI_ENOMEM;
-  memset(z->keep, 1, (size_t)st->n_lambda + 1);
-  z->rate0[0] = 0;
-  for (int t = 0; t < nb; t++) {
-    z->tree_of[z->order[t]] = t;
-    z->rate0[t + 1] = z->rate0[t] + z->dof[t];
-  }
-  z->n_rates = z->rate0[nb];
-  const size_t nr = (size_t)z->n_rates + 1, na = (size_t)nall + 1;
   z->cut_c = malloc(na * sizeof(int));
   z->cut_r = malloc(na * sizeof(int));
   z->cut_e = malloc(na * sizeof(int));
-  z->on_path = calloc(na * (size_t)nb, 1);
-  z->C = malloc(na * nr * sizeof(double));
-  z->cz = malloc(((size_t)nb * z->T + 1) * sizeof(double));
+  z->cut_t = malloc(2 * na * sizeof(int));
+  z->body_cut_start = calloc((size_t)nb + 2, sizeof(int));
+  z->body_cut = malloc(2 * na * sizeof(int));
+  z->cv = malloc(2 * na * T * sizeof(double));
+  z->cz = malloc(((size_t)nb * T + 1) * sizeof(double));
   z->cg = malloc((size_t)rmax * sizeof(double));
   z->cG = malloc((size_t)rmax * (m->max_constraint_in + 1) * sizeof(double));
-  double *E = malloc(na * nr * sizeof *E);
-  if (!z->cut_c || !z->cut_r || !z->cut_e || !z->on_path || !z->C || !z->cz ||
-      !z->cg || !z->cG || !E)
-    return free(mdrop), free(E), MRVI_ENOMEM;
-  /* Every cut row, in model order; kept unless dependent. */
-  int ok = 1;
-  for (int c = 0; c < m->n_constraints; c++) {
-    const mrvi_constraint *k = &m->constraints[c];
-    for (int r = 0; r < k->rows; r++) {
-      const int i = z->rc;
-      z->cut_c[i] = c, z->cut_r[i] = r, z->cut_e[i] = st->c_off[c] + r;
-      int red = 0;
-      if (z->cut[c]) {
-        z->rc = i + 1; /* (computes row i) */
-        cut_matrix(z, m);
-        z->rc = i;
-        red = dependent(z->n_rates, i, E, z->C + (size_t)i * z->n_rates);
-      }
-      if (drop && !drop[k->first_row + r] != !red)
-        ok = 0;
-      mdrop[k->first_row + r] = (unsigned char)red;
-      z->keep[st->c_off[c] + r] = !red;
-      if (!z->cut[c] || red)
-        continue;
-      /* the bodies' paths to their roots */
-      for (int j = 0; j < k->n_in; j++)
-        for (int t = z->tree_of[mrvi_model_body_of(m, k->in[j])]; t >= 0;
-             t = z->parent[t])
-          z->on_path[(size_t)i * nb + t] = 1;
-      z->rc++;
-    }
-  }
-  free(E);
-  if (!ok) {
+  unsigned char *mdrop = calloc((size_t)m->constraint_rows + 1, 1);
+  if (!z->tree_of || !z->keep || !z->cut_c || !z->cut_r || !z->cut_e ||
+      !z->cut_t || !z->body_cut_start || !z->body_cut || !z->cv || !z->cz ||
+      !z->cg || !z->cG || !mdrop)
+    return free(mdrop), MRVI_ENOMEM;
+  for (int t = 0; t < nb; t++)
+    z->tree_of[z->order[t]] = t;
+  const int differ = cut_rows(z, st, drop, mdrop, nall);
+  if (differ < 0 || differ == 1) {
     free(mdrop);
-    return snprintf(why, len,
-                    "the redundant rows at q0 are not the rows of the joints "
-                    "that close loops dependent on the earlier ones"),
-           0;
+    return differ < 0 ? differ
+                      : (snprintf(why, len,
+                                  "the redundant rows at q0 are not the rows "
+                                  "of the joints that close loops dependent "
+                                  "on the earlier ones"),
+                         0);
   }
+  /* the kept rows by body */
+  for (int h = 0; h < 2 * z->rc; h++)
+    if (z->cut_t[h] >= 0)
+      z->body_cut_start[z->cut_t[h] + 1]++;
+  for (int t = 0; t < nb; t++)
+    z->body_cut_start[t + 1] += z->body_cut_start[t];
+  int *fill = malloc(((size_t)nb + 1) * sizeof *fill);
+  if (!fill)
+    return free(mdrop), MRVI_ENOMEM;
+  memcpy(fill, z->body_cut_start, (size_t)nb * sizeof *fill);
+  for (int h = 0; h < 2 * z->rc; h++)
+    if (z->cut_t[h] >= 0)
+      z->body_cut[fill[z->cut_t[h]]++] = h;
+  free(fill);
+  cut_forces(z, m);
   const int s = z->rc < nall ? mrvi_gram_drop(z->gram, mdrop) : MRVI_OK;
   free(mdrop);
   return s < 0 ? s : 1;
@@ -742,6 +798,9 @@ static int rows(walk *w, const mrvi_step *st) {
         if ((a < z->D) == (e < z->D)) /* P's zero blocks left out */
           s |= full(w, z->slot[t] + e, P[e * T + a]);
       s |= ext(w, nu + t * T + a, 1.0);
+      for (int h = z->body_cut_start[t]; h < z->body_cut_start[t + 1]; h++)
+        s |= ext(w, nu + z->nb * T + z->body_cut[h] / 2, /* P_t^T G_c^T mu */
+                 z->cv[(size_t)z->body_cut[h] * T + a]);
       for (int h = z->child_start[t]; h < z->child_start[t + 1]; h++) {
         const int c = z->child[h];
         const double *X = z->X + (size_t)T * T * c;
@@ -756,10 +815,6 @@ static int rows(walk *w, const mrvi_step *st) {
       next_row(w);
       for (int a = 0; a < T; a++)
         s |= ext(w, nu + t * T + a, S[a * z->dof[t] + j]);
-      for (int i = 0; i < z->rc; i++) /* - C^T mu (closed loops) */
-        if (z->on_path[(size_t)i * z->nb + t])
-          s |= ext(w, nu + z->nb * T + i,
-                   -z->C[(size_t)i * z->n_rates + z->rate0[t] + j]);
     }
   }
   for (int q = 0; q < z->ns; q++)
@@ -981,7 +1036,7 @@ static int at_qk(mrvi_nstree *z, const mrvi_step *st) {
     z->qm[m->slow_index[s]] = st->qs0[s];
   gather(z, NULL, st->qs0, z->pos);
   geometry(z, m, z->pos);
-  cut_matrix(z, m);
+  cut_forces(z, m);
   z->have_qk = mrvi_gram_factor(z->gram, m, z->qm) == MRVI_OK;
   return z->have_qk ? 0 : -1;
 }
