@@ -30,8 +30,11 @@
  * body's rows hold its own y and its children's), so the matrix has O(n)
  * entries for n bodies and its sparse LU (UMFPACK through mrvi_newton) costs
  * O(n) for chains and trees.  dx is the first n_unknowns entries of the
- * solution.  P, X and S are taken at q_k, where the constraint forces dT
- * G(q_k)^T lambda act (doc/constraints.md, "Null-space form").
+ * solution.  Closed loops (slow bodies): the joints that close them are
+ * cut, their rows' forces P_int^T G_c^T mu entering their bodies' rows, one
+ * unknown mu per kept cut row (section "Closed loops" below).  P, X and S are
+ * taken at q_k, where the constraint forces dT G(q_k)^T lambda act
+ * (doc/constraints.md, "Null-space form").
  *
  * Multipliers lambda(x): the least-squares solution of dT G^T lambda = F on
  * the slow rows in the metric M^-1, by the sparse Gram factor of
@@ -48,7 +51,10 @@
  * moved point.  The internal constraints, the joints' points and their
  * lines and planes hold to round-off at every iterate; the rows between
  * axes (hinge, cylindrical, planar, prismatic, universal, weld) keep the
- * value they have at q_0. */
+ * value they have at q_0.  The slow forest's placed directors are made
+ * orthonormal to one rounding (orthonormalise), so that the internal
+ * constraints do not drift with the placements' roundings; a closed loop's
+ * cut joints hold to the Newton tolerance. */
 #include "solver/solver.h"
 
 #include <math.h>
