@@ -287,8 +287,8 @@ contains "$out" '^constraints +null-space form, tolerance 1e-12, momentum projec
   "--set integrator.constraints.* applied"
 # The null space a model gets: analytic for free bodies (2-D and fast too),
 # joint-reduced for open chains and trees of joints (fast ones at the micro
-# nodes), numerical for a closed loop, a fast body on a slow one by a weld
-# or nullspace_tree 0.
+# nodes) and, with cut joints, closed loops of slow bodies; numerical for a
+# fast body on a slow one by a weld or nullspace_tree 0.
 cat >"$tmp/wheel.yaml" <<'EOF'
 name: wheel
 dimension: 2
@@ -310,8 +310,13 @@ contains "$out" '^  null space  numerical \(QR.*; not joint-reduced: nullspace_t
   "nullspace_tree 0: numerical null space"
 run_mrvi check "$root/systems/slider_crank.yaml" \
   --set integrator.constraints.form=null-space
-contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: joint 'guide' closes a loop$" \
-  "slider-crank: numerical null space, the joint closing the loop named"
+contains "$out" "^  null space  joint-reduced with cut joints \\(closed loops, cut at 'guide': .*; 0 redundant rows left out; .*Newton tolerance$" \
+  "slider-crank: joint-reduced null space, the joint closing the loop cut"
+run_mrvi check "$root/systems/slider_crank.yaml" \
+  --set integrator.constraints.form=null-space \
+  --set integrator.tuning.nullspace_tree=0
+contains "$out" '^  null space  numerical \(QR.*; 0 redundant rows left out; not joint-reduced: nullspace_tree 0$' \
+  "slider-crank, nullspace_tree 0: numerical null space"
 cat >"$tmp/cart_pole.yaml" <<'EOF'
 name: cart-pole
 dimension: 2

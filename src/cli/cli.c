@@ -552,7 +552,17 @@ static int cmd_check(int argc, char **argv) {
              "exp(th^) d (fast bodies at every micro node)\n",
              "  null space");
     else if (s->tuning.nullspace_tree &&
-             mrvi_nullspace_tree_plan(sys->model, tree_why, sizeof tree_why))
+             mrvi_nullspace_tree_plan(sys->model, tree_why, sizeof tree_why) &&
+             tree_why[0])
+      printf("%-14sjoint-reduced with cut joints (closed loops, cut at %s: "
+             "P = P_tree N, P_tree = blkdiag(P_i) (I - X)^-1 S of the "
+             "spanning tree, N the null space of C = G_c P_tree of the cut "
+             "joints' rows, solved sparse with one twist per body and one "
+             "unknown per kept cut row); %d redundant row%s left out; nodal "
+             "reparametrisation moving each body by its joint's free turns "
+             "and slides, the cut joints held to the Newton tolerance\n",
+             "  null space", tree_why, red > 0 ? red : 0, red == 1 ? "" : "s");
+    else if (s->tuning.nullspace_tree && tree_why[0] == '\0')
       printf("%-14sjoint-reduced (open chains and trees of joints: P = "
              "blkdiag(P_i) (I - X)^-1 S, solved sparse with one twist per "
              "body), nodal reparametrisation moving each body by its "

@@ -28,16 +28,17 @@
 
 struct mrvi_gram {
   int R, n_entries;
-  int *first;       /* R: first column of row r's envelope */
-  int *start;       /* R + 1: offset of row r's envelope in L */
-  double *L;        /* the envelope: A, then its Cholesky factor */
-  double *grad;     /* the rows' gradients by constraint: rows x n_in each */
-  int *coord_ptr;   /* n + 1: entries touching coordinate j */
-  int *entry_row;   /* n_entries: the row of an entry */
-  int *entry_grad;  /* n_entries: its value's index in grad */
-  int *entry_coord; /* n_entries: its coordinate (for G^T mu) */
-  double *y;        /* max_constraint_in: inputs of one constraint */
-  double *gs;       /* rows x n_in of one constraint (scratch) */
+  int *first;          /* R: first column of row r's envelope */
+  int *start;          /* R + 1: offset of row r's envelope in L */
+  double *L;           /* the envelope: A, then its Cholesky factor */
+  double *grad;        /* the rows' gradients by constraint: rows x n_in each */
+  int *coord_ptr;      /* n + 1: entries touching coordinate j */
+  int *entry_row;      /* n_entries: the row of an entry */
+  int *entry_grad;     /* n_entries: its value's index in grad */
+  int *entry_coord;    /* n_entries: its coordinate (for G^T mu) */
+  double *y;           /* max_constraint_in: inputs of one constraint */
+  double *gs;          /* rows x n_in of one constraint (scratch) */
+  unsigned char *drop; /* R: rows left out (mrvi_gram_drop), or NULL */
 };
 
 void mrvi_gram_free(mrvi_gram *gr) {
@@ -53,6 +54,7 @@ void mrvi_gram_free(mrvi_gram *gr) {
   free(gr->entry_coord);
   free(gr->y);
   free(gr->gs);
+  free(gr->drop);
   free(gr);
 }
 
@@ -141,6 +143,18 @@ int mrvi_gram_create(const mrvi_model *m, mrvi_gram **out) {
   return MRVI_OK;
 }
 
+int mrvi_gram_drop(mrvi_gram *gr, const unsigned char *drop) {
+  if (!gr->drop && !(gr->drop = malloc((size_t)gr->R + 1)))
+    return MRVI_ENOMEM;
+  memcpy(gr->drop, drop, (size_t)gr->R);
+  return MRVI_OK;
+}
+
+/* Is row r left out? */
+static int dropped(const mrvi_gram *gr, int r) {
+  return gr->drop && gr->drop[r];
+}
+
 /* Entry (a, b), b <= a, of the envelope. */
 static double *at(mrvi_gram *gr, int a, int b) {
   return &gr->L[gr->start[a] + (b - gr->first[a])];
@@ -165,10 +179,15 @@ int mrvi_gram_factor(mrvi_gram *gr, const mrvi_model *m, const double *q) {
       const int a = gr->entry_row[e];
       const double ga = gr->grad[gr->entry_grad[e]] * w;
       for (int f = gr->coord_ptr[j]; f < gr->coord_ptr[j + 1]; f++)
-        if (gr->entry_row[f] <= a)
+        if (gr->entry_row[f] <= a && !dropped(gr, a) &&
+            !dropped(gr, gr->entry_row[f]))
           *at(gr, a, gr->entry_row[f]) += ga * gr->grad[gr->entry_grad[f]];
     }
   }
+  /* A row left out: a unit pivot, coupled to none (its mu stays 0). */
+  for (int a = 0; gr->drop && a < gr->R; a++)
+    if (gr->drop[a])
+      *at(gr, a, a) = 1.0;
   /* Cholesky in the envelope, row by row; a pivot not clearly above
    * round-off of the row's own Gram entry gives up. */
   for (int a = 0; a < gr->R; a++) {
@@ -222,6 +241,9 @@ void mrvi_gram_project(mrvi_gram *gr, const mrvi_model *m, double *p,
     const int j = gr->entry_coord[e];
     mu[gr->entry_row[e]] += gr->grad[gr->entry_grad[e]] * p[j] / m->mass[j];
   }
+  for (int r = 0; gr->drop && r < R; r++)
+    if (gr->drop[r])
+      mu[r] = 0.0;
   chol_solve(gr, mu);
   /* p -= G^T mu */
   for (int e = 0; e < gr->n_entries; e++)
@@ -239,8 +261,11 @@ double mrvi_gram_settle(mrvi_gram *gr, const mrvi_model *m, double *q,
       for (int j = 0; j < k->n_in; j++)
         gr->y[j] = q[k->in[j]];
       mrvi_constraint_eval_at(k, gr->y, mu + k->first_row, gr->gs, NULL);
-      for (int r = 0; r < k->rows; r++)
+      for (int r = 0; r < k->rows; r++) {
+        if (dropped(gr, k->first_row + r))
+          mu[k->first_row + r] = 0.0;
         worst = fmax(worst, fabs(mu[k->first_row + r]));
+      }
     }
     if (!isfinite(worst))
       return INFINITY;

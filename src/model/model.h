@@ -330,6 +330,10 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
 typedef struct mrvi_gram mrvi_gram;
 int mrvi_gram_create(const mrvi_model *m, mrvi_gram **out);
 void mrvi_gram_free(mrvi_gram *gr);
+/* Leave the rows drop marks (R flags: the redundant rows of closed loops)
+ * out of the factor, the projection and the settling: their multipliers
+ * are 0.  MRVI_ENOMEM or 0. */
+int mrvi_gram_drop(mrvi_gram *gr, const unsigned char *drop);
 /* Gradients at q, the Gram matrix and its factor; MRVI_ESINGULAR where a
  * pivot is not clearly above round-off (the rows may be dependent: the
  * dense check decides and names them). */

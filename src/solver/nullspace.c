@@ -275,7 +275,7 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
   if (tree && st->tuning.nullspace_tree) {
     /* Open chains and trees of joints: the joint-reduced basis. */
     char why[200];
-    const int s = mrvi_nstree_create(st, &z->tree, why, sizeof why);
+    const int s = mrvi_nstree_create(st, drop, &z->tree, why, sizeof why);
     if (s < 0) {
       mrvi_nullspace_free(z);
       return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");

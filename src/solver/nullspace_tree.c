@@ -30,8 +30,11 @@
  * body's rows hold its own y and its children's), so the matrix has O(n)
  * entries for n bodies and its sparse LU (UMFPACK through mrvi_newton) costs
  * O(n) for chains and trees.  dx is the first n_unknowns entries of the
- * solution.  P, X and S are taken at q_k, where the constraint forces dT
- * G(q_k)^T lambda act (doc/constraints.md, "Null-space form").
+ * solution.  Closed loops (slow bodies): the joints that close them are
+ * cut, their rows' forces P_int^T G_c^T mu entering their bodies' rows, one
+ * unknown mu per kept cut row (section "Closed loops" below).  P, X and S are
+ * taken at q_k, where the constraint forces dT G(q_k)^T lambda act
+ * (doc/constraints.md, "Null-space form").
  *
  * Multipliers lambda(x): the least-squares solution of dT G^T lambda = F on
  * the slow rows in the metric M^-1, by the sparse Gram factor of
@@ -48,7 +51,10 @@
  * moved point.  The internal constraints, the joints' points and their
  * lines and planes hold to round-off at every iterate; the rows between
  * axes (hinge, cylindrical, planar, prismatic, universal, weld) keep the
- * value they have at q_0. */
+ * value they have at q_0.  The slow forest's placed directors are made
+ * orthonormal to one rounding (orthonormalise), so that the internal
+ * constraints do not drift with the placements' roundings; a closed loop's
+ * cut joints hold to the Newton tolerance. */
 #include "solver/solver.h"
 
 #include <math.h>
@@ -121,6 +127,16 @@ struct mrvi_nstree {
    * first slot; scratch twists (nb x T) and reached flags. */
   int fast, na, *anchor, *aslot, *reached;
   double *tw;
+  /* Closed loops (slow plan): the cut joints (flags by constraint), their
+   * kept rows (constraint, row in it, row among the step's multipliers,
+   * the tree indices of its two bodies or -1), P_t^T g_c of each kept row
+   * on each of its bodies at q_k (rc x 2 x T), the kept rows by body (CSR
+   * of 2 i + side), the step's constraint rows kept (n_lambda flags), the
+   * tree index of each body, scratch. */
+  int *cut, rc, *cut_c, *cut_r, *cut_e, *cut_t, *body_cut_start, *body_cut;
+  int *tree_of;
+  unsigned char *keep;
+  double *cv, *cz, *cg, *cG;
 };
 
 void mrvi_nstree_free(mrvi_nstree *z) {
@@ -137,6 +153,10 @@ void mrvi_nstree_free(mrvi_nstree *z) {
   free(z->Ap), free(z->Ai), free(z->Ax), free(z->pos), free(z->npos);
   free(z->th), free(z->u), free(z->Q);
   free(z->anchor), free(z->aslot), free(z->reached), free(z->tw);
+  free(z->cut), free(z->cut_c), free(z->cut_r), free(z->cut_e);
+  free(z->cut_t), free(z->body_cut_start), free(z->body_cut);
+  free(z->tree_of), free(z->keep);
+  free(z->cv), free(z->cz), free(z->cg), free(z->cG);
   free(z);
 }
 
@@ -192,10 +212,12 @@ static int other(const mrvi_model *m, int mode, const mrvi_constraint *k, int D,
  * micro node is a moving ground); slow-only constraints are the slow
  * side's. */
 static int plan(const mrvi_model *m, int mode, int *order, int *parent,
-                int *joint, int *count, char *why, size_t len) {
+                int *joint, int *count, int *cut, char *why, size_t len) {
   const int nb = m->n_bodies;
   snprintf(why, len, "no joints");
   *count = 0;
+  for (int c = 0; cut && c < m->n_constraints; c++)
+    cut[c] = 0;
   if (nb == 0 || mrvi_model_free_bodies_only(m))
     return 0;
   const int D = m->bodies[0].dim;
@@ -261,6 +283,10 @@ static int plan(const mrvi_model *m, int mode, int *order, int *parent,
       b = -1;
     }
     const int ra = find(up, a), rb = find(up, b < 0 ? nb : b);
+    if (ra == rb && cut) { /* a cut joint: its rows close the loop */
+      cut[c] = 1;
+      continue;
+    }
     if (ra == rb) {
       snprintf(why, len, "joint '%s' closes a loop", k->label);
       ok = 0;
@@ -280,7 +306,7 @@ static int plan(const mrvi_model *m, int mode, int *order, int *parent,
     memcpy(fill, adj_start, (size_t)(nb + 1) * sizeof *fill);
     for (int c = 0; c < m->n_constraints; c++) {
       const mrvi_constraint *k = &m->constraints[c];
-      if (is_int[c] ||
+      if (is_int[c] || (cut && cut[c]) ||
           (mode != PLAN_SLOW && (mode == PLAN_FAST) != (k->where == MRVI_FAST)))
         continue;
       const int a = mrvi_model_body_of(m, k->in[0]), b = body_b(m, k, D);
@@ -316,6 +342,12 @@ static int plan(const mrvi_model *m, int mode, int *order, int *parent,
         }
       }
     *count = n;
+    /* why: the cut joints, if any */
+    size_t used = (size_t)snprintf(why, len, "%s", "");
+    for (int c = 0, nc = 0; cut && c < m->n_constraints; c++)
+      if (cut[c] && used + 8 < len)
+        used += (size_t)snprintf(why + used, len - used, "%s'%s'",
+                                 nc++ ? ", " : "", m->constraints[c].label);
   }
   free(is_int), free(up), free(adj_start), free(adj);
   return ok;
@@ -323,11 +355,13 @@ static int plan(const mrvi_model *m, int mode, int *order, int *parent,
 
 static int plan_only(const mrvi_model *m, int mode, char *why, size_t len) {
   const int nb = m->n_bodies;
-  int *a = malloc(3 * ((size_t)nb + 1) * sizeof *a);
+  int *a =
+      malloc((3 * ((size_t)nb + 1) + (size_t)m->n_constraints + 1) * sizeof *a);
   if (!a)
     return snprintf(why, len, "out of memory"), 0;
   int n;
-  const int ok = plan(m, mode, a, a + nb + 1, a + 2 * (nb + 1), &n, why, len);
+  const int ok = plan(m, mode, a, a + nb + 1, a + 2 * (nb + 1), &n,
+                      mode == PLAN_SLOW ? a + 3 * (nb + 1) : NULL, why, len);
   free(a);
   return ok;
 }
@@ -477,6 +511,228 @@ static void gather(const mrvi_nstree *z, const double *x, const double *q0,
 }
 
 /* ---------------------------------------------------------------------------
+ * Closed loops: the cut joints (doc/multibody.md, "Joint-reduced null space
+ * of closed loops"; Betsch & Leyendecker 2006, Part II)
+ *
+ * The joints that close loops are left out of the forest (plan); their rows
+ * G_c restrict the tree's rates nu to C nu = 0 with C = G_c P_tree (rc rows),
+ * so the loop's null-space matrix is P = P_tree N, N spanning the null space
+ * of C.  Its reduced rows N^T P_tree^T r = 0 (r = R - A dx) say that
+ * P_tree^T r lies in the range of C^T = P_tree^T G_c^T: P_tree^T (r - G_c^T
+ * mu) = 0 for some mu, one unknown per kept cut row.  With y = (I - X)^-T
+ * P_int^T (r - G_c^T mu) the rows of the tree keep their form, the cut rows'
+ * forces entering the rows of their two bodies:
+ *   (I - X)^T y + P_int^T A dx + P_int^T G_c^T mu = P_int^T R,
+ *   S^T y = 0,  H dx = h (the kept rows, the cut ones too).
+ * C itself is formed once, at q_0, for the rank-revealing pass that leaves
+ * out the redundant cut rows.
+ * ------------------------------------------------------------------------- */
+
+/* C's row for gradient row gr of cut constraint k (its inputs), into out
+ * (rate0: each body's first rate): g^T P_int (I - X)^-1 S = (S^T z)^T with
+ * (I - X)^T z = P_int^T g, z by one sweep from the leaves, z_a = v_a + sum
+ * over a's children c of X_c^T z_c. */
+static void cut_row(mrvi_nstree *z, const mrvi_model *m,
+                    const mrvi_constraint *k, const double *gr,
+                    const int *rate0, double *out) {
+  const int T = z->T;
+  memset(z->cz, 0, (size_t)z->nb * T * sizeof *z->cz);
+  for (int j = 0; j < k->n_in; j++) {
+    const int t = z->tree_of[mrvi_model_body_of(m, k->in[j])];
+    const int e = m->slot[k->in[j]] - z->slot[t];
+    const double *P = z->P + (size_t)2 * T * T * t;
+    for (int a = 0; a < T; a++)
+      z->cz[(size_t)T * t + a] += P[e * T + a] * gr[j];
+  }
+  for (int t = z->nb - 1; t >= 0; t--) {
+    const int pa = z->parent[t];
+    const double *X = z->X + (size_t)T * T * t, *zt = z->cz + (size_t)T * t;
+    for (int b = 0; pa >= 0 && b < T; b++) {
+      double v = 0.0;
+      for (int a = 0; a < T; a++)
+        v += X[a * T + b] * zt[a];
+      z->cz[(size_t)T * pa + b] += v;
+    }
+  }
+  for (int t = 0; t < z->nb; t++) {
+    const double *S = z->S + (size_t)T * T * t, *zt = z->cz + (size_t)T * t;
+    for (int j = 0; j < z->dof[t]; j++) {
+      double v = 0.0;
+      for (int a = 0; a < T; a++)
+        v += S[a * z->dof[t] + j] * zt[a];
+      out[rate0[t] + j] = v;
+    }
+  }
+}
+
+/* The gradient rows of cut constraint k at q_k (z->qm) into z->cG. */
+static void cut_gradient(mrvi_nstree *z, const mrvi_constraint *k) {
+  double y[MRVI_MAX_INPUTS];
+  for (int j = 0; j < k->n_in; j++)
+    y[j] = z->qm[k->in[j]];
+  mrvi_constraint_eval_at(k, y, z->cg, z->cG, NULL);
+}
+
+/* P_t^T g_c of every kept cut row on each of its bodies at q_k and the
+ * current geometry (z->cv). */
+static void cut_forces(mrvi_nstree *z, const mrvi_model *m) {
+  const int T = z->T;
+  memset(z->cv, 0, (size_t)z->rc * 2 * T * sizeof *z->cv);
+  for (int i = 0; i < z->rc; i++) {
+    const mrvi_constraint *k = &m->constraints[z->cut_c[i]];
+    if (i == 0 || z->cut_c[i] != z->cut_c[i - 1])
+      cut_gradient(z, k);
+    const double *gr = z->cG + (size_t)z->cut_r[i] * k->n_in;
+    for (int j = 0; j < k->n_in; j++) {
+      const int t = z->tree_of[mrvi_model_body_of(m, k->in[j])];
+      const int e = m->slot[k->in[j]] - z->slot[t], side = t != z->cut_t[2 * i];
+      const double *P = z->P + (size_t)2 * T * T * t;
+      double *v = z->cv + ((size_t)2 * i + side) * T;
+      for (int a = 0; a < T; a++)
+        v[a] += P[e * T + a] * gr[j];
+    }
+  }
+}
+
+/* Is row v (n entries) within 1e-9 (relative) of the span of the k
+ * orthonormal rows E?  If not, its normalised remainder becomes E's row k
+ * (modified Gram-Schmidt, twice). */
+static int dependent(int n, int k, double *E, const double *v) {
+  double *e = E + (size_t)k * n, n0 = 0.0, n1 = 0.0;
+  for (int a = 0; a < n; a++)
+    e[a] = v[a], n0 += v[a] * v[a];
+  for (int pass = 0; pass < 2; pass++)
+    for (int b = 0; b < k; b++) {
+      const double *f = E + (size_t)b * n;
+      double d = 0.0;
+      for (int a = 0; a < n; a++)
+        d += f[a] * e[a];
+      for (int a = 0; a < n; a++)
+        e[a] -= d * f[a];
+    }
+  for (int a = 0; a < n; a++)
+    n1 += e[a] * e[a];
+  if (!(n1 > 1e-18 * n0) || n0 == 0.0)
+    return 1;
+  for (int a = 0; a < n; a++)
+    e[a] /= sqrt(n1);
+  return 0;
+}
+
+/* The kept rows among the cut joints' at q_k = st->qs0 (the geometry taken
+ * there; every row of the other constraints is kept): a cut row whose row
+ * of C is within 1e-9 (relative) of the span of the earlier ones (a planar
+ * loop modelled in 3-D) is left out, which must be what the integrator's
+ * rank-revealing pass found (drop, model rows; may be NULL).  rows: its
+ * count of rows, nall of them cut rows.  0, 1 (they disagree), or
+ * MRVI_ENOMEM. */
+static int cut_rows(mrvi_nstree *z, const mrvi_step *st,
+                    const unsigned char *drop, unsigned char *mdrop, int nall) {
+  const mrvi_model *m = st->model;
+  const int nb = z->nb;
+  int *rate0 = malloc(((size_t)nb + 1) * sizeof *rate0);
+  if (!rate0)
+    return MRVI_ENOMEM;
+  rate0[0] = 0;
+  for (int t = 0; t < nb; t++)
+    rate0[t + 1] = rate0[t] + z->dof[t];
+  const size_t nr = (size_t)rate0[nb] + 1;
+  double *C = malloc(nr * sizeof *C);
+  double *E = malloc(((size_t)nall + 1) * nr * sizeof *E);
+  if (!C || !E)
+    return free(rate0), free(C), free(E), MRVI_ENOMEM;
+  int differ = 0, kept = 0;
+  for (int c = 0; c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    if (z->cut[c])
+      cut_gradient(z, k);
+    for (int r = 0; r < k->rows; r++) {
+      int red = 0;
+      if (z->cut[c]) {
+        cut_row(z, m, k, z->cG + (size_t)r * k->n_in, rate0, C);
+        red = dependent(rate0[nb], kept, E, C);
+        kept += !red;
+      }
+      differ |= drop && !drop[k->first_row + r] != !red;
+      mdrop[k->first_row + r] = (unsigned char)red;
+      z->keep[st->c_off[c] + r] = !red;
+      if (!z->cut[c] || red)
+        continue;
+      const int i = z->rc++;
+      z->cut_c[i] = c, z->cut_r[i] = r, z->cut_e[i] = st->c_off[c] + r;
+      z->cut_t[2 * i] = z->tree_of[mrvi_model_body_of(m, k->in[0])];
+      const int b =
+          k->n_in > 2 * z->T ? mrvi_model_body_of(m, k->in[2 * z->T]) : -1;
+      z->cut_t[2 * i + 1] = b >= 0 ? z->tree_of[b] : -1;
+    }
+  }
+  free(rate0), free(C), free(E);
+  return differ;
+}
+
+/* The cut joints' kept rows and their body lists at q_k = st->qs0: 1, 0
+ * and why, or MRVI_ENOMEM. */
+static int cut_setup(mrvi_nstree *z, const mrvi_step *st,
+                     const unsigned char *drop, char *why, size_t len) {
+  const mrvi_model *m = st->model;
+  const int nb = z->nb, T = z->T;
+  int nall = 0, rmax = 1;
+  for (int c = 0; c < m->n_constraints; c++)
+    if (z->cut[c]) {
+      nall += m->constraints[c].rows;
+      rmax = m->constraints[c].rows > rmax ? m->constraints[c].rows : rmax;
+    }
+  const size_t na = (size_t)nall + 1;
+  z->tree_of = malloc(((size_t)m->n_bodies + 1) * sizeof(int));
+  z->keep = malloc((size_t)st->n_lambda + 1);
+  z->cut_c = malloc(na * sizeof(int));
+  z->cut_r = malloc(na * sizeof(int));
+  z->cut_e = malloc(na * sizeof(int));
+  z->cut_t = malloc(2 * na * sizeof(int));
+  z->body_cut_start = calloc((size_t)nb + 2, sizeof(int));
+  z->body_cut = malloc(2 * na * sizeof(int));
+  z->cv = malloc(2 * na * T * sizeof(double));
+  z->cz = malloc(((size_t)nb * T + 1) * sizeof(double));
+  z->cg = malloc((size_t)rmax * sizeof(double));
+  z->cG = malloc((size_t)rmax * (m->max_constraint_in + 1) * sizeof(double));
+  unsigned char *mdrop = calloc((size_t)m->constraint_rows + 1, 1);
+  if (!z->tree_of || !z->keep || !z->cut_c || !z->cut_r || !z->cut_e ||
+      !z->cut_t || !z->body_cut_start || !z->body_cut || !z->cv || !z->cz ||
+      !z->cg || !z->cG || !mdrop)
+    return free(mdrop), MRVI_ENOMEM;
+  for (int t = 0; t < nb; t++)
+    z->tree_of[z->order[t]] = t;
+  const int differ = cut_rows(z, st, drop, mdrop, nall);
+  if (differ < 0 || differ == 1) {
+    free(mdrop);
+    return differ < 0 ? differ
+                      : (snprintf(why, len,
+                                  "the redundant rows at q0 are not the rows "
+                                  "of the joints that close loops dependent "
+                                  "on the earlier ones"),
+                         0);
+  }
+  /* the kept rows by body */
+  for (int h = 0; h < 2 * z->rc; h++)
+    if (z->cut_t[h] >= 0)
+      z->body_cut_start[z->cut_t[h] + 1]++;
+  for (int t = 0; t < nb; t++)
+    z->body_cut_start[t + 1] += z->body_cut_start[t];
+  int *fill = malloc(((size_t)nb + 1) * sizeof *fill);
+  if (!fill)
+    return free(mdrop), MRVI_ENOMEM;
+  memcpy(fill, z->body_cut_start, (size_t)nb * sizeof *fill);
+  for (int h = 0; h < 2 * z->rc; h++)
+    if (z->cut_t[h] >= 0)
+      z->body_cut[fill[z->cut_t[h]]++] = h;
+  free(fill);
+  cut_forces(z, m);
+  const int s = z->rc < nall ? mrvi_gram_drop(z->gram, mdrop) : MRVI_OK;
+  free(mdrop);
+  return s < 0 ? s : 1;
+}
+
+/* ---------------------------------------------------------------------------
  * Creation: the forest, the recipe of the extended rows, its pattern
  * ------------------------------------------------------------------------- */
 
@@ -548,6 +804,9 @@ static int rows(walk *w, const mrvi_step *st) {
         if ((a < z->D) == (e < z->D)) /* P's zero blocks left out */
           s |= full(w, z->slot[t] + e, P[e * T + a]);
       s |= ext(w, nu + t * T + a, 1.0);
+      for (int h = z->body_cut_start[t]; h < z->body_cut_start[t + 1]; h++)
+        s |= ext(w, nu + z->nb * T + z->body_cut[h] / 2, /* P_t^T G_c^T mu */
+                 z->cv[(size_t)z->body_cut[h] * T + a]);
       for (int h = z->child_start[t]; h < z->child_start[t + 1]; h++) {
         const int c = z->child[h];
         const double *X = z->X + (size_t)T * T * c;
@@ -570,6 +829,8 @@ static int rows(walk *w, const mrvi_step *st) {
       s |= full(w, q, 1.0);
     }
   for (int q = z->ns; q < nu + st->n_lambda; q++) {
+    if (q >= nu && !z->keep[q - nu])
+      continue; /* a redundant cut row */
     next_row(w);
     s |= full(w, q, 1.0);
   }
@@ -656,11 +917,13 @@ static int planned_tree(const mrvi_model *m, int mode, mrvi_nstree **out,
   z->order = malloc(B * sizeof(int));
   z->parent = malloc(B * sizeof(int));
   z->joint = malloc(B * sizeof(int));
-  if (!z->order || !z->parent || !z->joint) {
+  if (mode == PLAN_SLOW)
+    z->cut = malloc(((size_t)m->n_constraints + 1) * sizeof(int));
+  if (!z->order || !z->parent || !z->joint || (mode == PLAN_SLOW && !z->cut)) {
     mrvi_nstree_free(z);
     return MRVI_ENOMEM;
   }
-  if (!plan(m, mode, z->order, z->parent, z->joint, n_tree, why, len)) {
+  if (!plan(m, mode, z->order, z->parent, z->joint, n_tree, z->cut, why, len)) {
     mrvi_nstree_free(z);
     return 0;
   }
@@ -668,8 +931,8 @@ static int planned_tree(const mrvi_model *m, int mode, mrvi_nstree **out,
   return 1;
 }
 
-int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
-                       size_t len) {
+int mrvi_nstree_create(const mrvi_step *st, const unsigned char *drop,
+                       mrvi_nstree **out, char *why, size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   if (st->r_micro > 0)
@@ -707,12 +970,10 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
   z->th = malloc(B * 3 * sizeof(double));
   z->u = malloc(B * 3 * sizeof(double));
   z->Q = malloc(B * 9 * sizeof(double));
-  z->rec_start = malloc(((size_t)z->n + 1) * sizeof(int));
-  z->ext_start = malloc(((size_t)z->n + 1) * sizeof(int));
   if (!z->is_a || !z->motion || !z->slot || !z->dof || !z->child_start ||
       !z->child || !z->in_body || !z->P || !z->X || !z->S || !z->qk || !z->qm ||
       !z->pm || !z->qx || !z->mu || !z->pos || !z->npos || !z->th || !z->u ||
-      !z->Q || !z->rec_start || !z->ext_start)
+      !z->Q)
     goto oom;
   for (int t = 0; t < nb; t++) {
     const mrvi_body *bd = &m->bodies[z->order[t]];
@@ -725,11 +986,24 @@ int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
     goto oom;
   for (int i = 0; i < m->n; i++)
     z->qm[i] = m->q0[i];
+  for (int s = 0; s < z->ns; s++)
+    z->qm[m->slow_index[s]] = st->qs0[s];
   if (mrvi_gram_create(m, &z->gram) < 0 ||
       mrvi_nullspace_csr(st, &z->csr_start, &z->csr_col, &z->csr_idx) < 0)
     goto oom;
   gather(z, NULL, st->qs0, z->pos);
   geometry(z, m, z->pos);
+  /* Closed loops: the kept cut rows and C at q_k; one mu per row. */
+  const int cs = cut_setup(z, st, drop, why, len);
+  if (cs <= 0) {
+    mrvi_nstree_free(z);
+    return cs;
+  }
+  z->n += z->rc;
+  z->rec_start = malloc(((size_t)z->n + 1) * sizeof(int));
+  z->ext_start = malloc(((size_t)z->n + 1) * sizeof(int));
+  if (!z->rec_start || !z->ext_start)
+    goto oom;
   walk wk = {z, 1, 0, 0, 0};
   if (rows(&wk, st) < 0)
     goto oom;
@@ -768,6 +1042,7 @@ static int at_qk(mrvi_nstree *z, const mrvi_step *st) {
     z->qm[m->slow_index[s]] = st->qs0[s];
   gather(z, NULL, st->qs0, z->pos);
   geometry(z, m, z->pos);
+  cut_forces(z, m);
   z->have_qk = mrvi_gram_factor(z->gram, m, z->qm) == MRVI_OK;
   return z->have_qk ? 0 : -1;
 }
@@ -906,6 +1181,38 @@ static void anchor_turn(const mrvi_model *m, const mrvi_nstree *z, int t,
   }
 }
 
+/* The directors of base positions b turned by Q into nw (D(D+1) each). */
+static void turn_frame(int D, const double *Q, const double *b, double *nw) {
+  for (int i = 0; i < D; i++)
+    for (int a = 0; a < D; a++) {
+      double s = 0.0;
+      for (int c = 0; c < D; c++)
+        s += Q[a * D + c] * b[D + D * i + c];
+      nw[D + D * i + a] = s;
+    }
+}
+
+/* The directors d (D rows of D) made orthonormal to one rounding by a
+ * step of the Newton-Schulz iteration d <- (3 I - d d^T) d / 2 (an error e
+ * in d d^T becomes O(e^2)): turning a frame by rotations leaves its rows
+ * orthonormal only to the roundings of all turns so far, a drift of the
+ * internal constraints the iterates of a closed loop's step cannot follow
+ * (the cut joints' rows settle at that drift, and the step's residual at
+ * it times the constraint forces). */
+static void orthonormalise(int D, double *d) {
+  double g[9], e[9];
+  for (int i = 0; i < D; i++)
+    for (int j = 0; j < D; j++) {
+      double s = 0.0;
+      for (int a = 0; a < D; a++)
+        s += d[D * i + a] * d[D * j + a];
+      g[D * i + j] = (i == j ? 3.0 : 0.0) - s;
+    }
+  matmul(D, g, d, e);
+  for (int k = 0; k < D * D; k++)
+    d[k] = 0.5 * e[k];
+}
+
 /* The bodies from the base positions z->pos turned by z->th and (free
  * roots) moved by z->u, parents first (module header), written to x
  * (increments from q0 if not NULL). */
@@ -958,13 +1265,9 @@ static void place(mrvi_nstree *z, const mrvi_model *m, double *x,
         E[i * D + k] = v[i];
     }
     matmul(D, Qp, E, Q);
-    for (int i = 0; i < D; i++)
-      for (int a = 0; a < D; a++) {
-        double s = 0.0;
-        for (int c = 0; c < D; c++)
-          s += Q[a * D + c] * b[D + D * i + c];
-        nw[D + D * i + a] = s;
-      }
+    turn_frame(D, Q, b, nw);
+    if (z->cut) /* (the slow forest's; its loops are closed by Newton) */
+      orthonormalise(D, nw + D);
     if (z->joint[t] < 0) {
       for (int a = 0; a < D; a++)
         nw[a] = b[a] + z->u[3 * t + a];

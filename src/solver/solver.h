@@ -14,8 +14,10 @@
  * ------------------------------------------------------------------------- */
 typedef struct mrvi_nullspace mrvi_nullspace;
 /* After mrvi_step_build_pattern: reduced pattern (size mrvi_nullspace_size).
- * tree 1: open chains and trees of bodies in joints take the joint-reduced
- * basis where st->tuning.nullspace_tree allows (nullspace_tree.c), whose
+ * drop (model rows, may be NULL): the redundant rows to leave out.
+ * tree 1: open chains, trees and slow closed loops of bodies in joints take
+ * the joint-reduced basis where st->tuning.nullspace_tree allows
+ * (nullspace_tree.c), whose
  * system is larger than n_unknowns (the first n_unknowns entries of its
  * solution are dx); 0: the numerical basis always. */
 int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
@@ -55,9 +57,10 @@ long mrvi_nullspace_nnz(const mrvi_nullspace *z);
 /* Size of the reduced system; 1 if it is the joint-reduced one. */
 int mrvi_nullspace_size(const mrvi_nullspace *z);
 int mrvi_nullspace_joint_reduced(const mrvi_nullspace *z);
-/* 1 if m's bodies and joints form open chains and trees the joint-reduced
- * basis covers (nullspace_tree.c; constraints at micro nodes aside), else 0
- * and why (e.g. the joint that closes a loop). */
+/* 1 if m's bodies and joints form open chains, trees or slow closed loops
+ * the joint-reduced basis covers (nullspace_tree.c; constraints at micro
+ * nodes aside), why then naming the joints cut to close the loops ("" for
+ * none), else 0 and why (e.g. the constraint without a joint reduction). */
 int mrvi_nullspace_tree_plan(const mrvi_model *m, char *why, size_t len);
 /* 1 if m's fast bodies form open chains and trees of joints among
  * themselves, to the ground or on spherical and revolute joints to slow
@@ -101,8 +104,8 @@ void mrvi_row_recipe_apply(const mrvi_row_recipe *r, const mrvi_step *st,
 /* The joint-reduced basis (nullspace_tree.c), behind mrvi_nullspace_*:
  * create returns 1 (made), 0 (does not apply: why) or a status < 0. */
 typedef struct mrvi_nstree mrvi_nstree;
-int mrvi_nstree_create(const mrvi_step *st, mrvi_nstree **out, char *why,
-                       size_t len);
+int mrvi_nstree_create(const mrvi_step *st, const unsigned char *drop,
+                       mrvi_nstree **out, char *why, size_t len);
 void mrvi_nstree_free(mrvi_nstree *z);
 int mrvi_nstree_size(const mrvi_nstree *z);
 int mrvi_nstree_bodies(const mrvi_nstree *z);
