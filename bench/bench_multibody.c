@@ -6,7 +6,8 @@
  * error is max |q(T) - q_ref(T)| at a fixed time T against a fine
  * single-rate reference, split into the slow and the fast coordinates; its
  * cost the process CPU time of creating the integrator and taking the
- * steps (the best of `repeat` runs).  The table lists every run (a run
+ * steps (the best of `repeat` runs), the micro nodes kept as `mrvi run`
+ * keeps them with the file's output settings.  The table lists every run (a run
  * whose Newton fails is listed as failed and left out); the summary
  * matches errors: for each multirate run, the CPU time p = 1 needs for the
  * same error, interpolated log-log between the two single-rate runs that
@@ -60,6 +61,14 @@ static const char usage[] =
     "with the solver path of each p, Newton updates per macro step and\n"
     "CPU time per micro node and update.\n";
 
+/* The micro nodes a run keeps: as `mrvi run` with the file's output
+ * settings (the last alone where output.micro and output.micro_slow are
+ * off: settings.micro_last_only). */
+static int keep_micro(const mrvi_system *sys, mrvi_integrator *it) {
+  return mrvi_integrator_keep_micro(it, sys->output_micro ||
+                                            sys->output_micro_slow);
+}
+
 /* N steps of dT with p micro steps from the file's initial state; q (n)
  * gets the last node; returns the CPU time or a negative value. */
 static int p1_general; /* --p1-general: the single-rate runs on general */
@@ -76,6 +85,11 @@ static double run(const mrvi_system *sys, int p, double dT, long N, double *q) {
   char msg[512];
   if (mrvi_integrator_create(sys->model, &s, &it, msg, sizeof msg) != 0) {
     fprintf(stderr, "p = %d, dT = %g: %s\n", p, dT, msg);
+    return -1.0;
+  }
+  if (keep_micro(sys, it) < 0) {
+    fprintf(stderr, "p = %d, dT = %g: out of memory\n", p, dT);
+    mrvi_integrator_free(it);
     return -1.0;
   }
   for (long k = 0; k < N; k++)
@@ -119,6 +133,11 @@ static int cost_table(const mrvi_system *sys, double T, int repeat) {
         return -1;
       }
       path = mrvi_integrator_solver_path(it);
+      if (keep_micro(sys, it) < 0) {
+        fprintf(stderr, "p = %d: out of memory\n", ps[i]);
+        mrvi_integrator_free(it);
+        return -1;
+      }
       const double t0 = bench_cpu();
       updates = 0;
       for (long k = 0; k < N; k++) {

@@ -968,12 +968,14 @@ const double *mrvi_integrator_micro_p(const mrvi_integrator *it);
  * (the default) all p, all = 0 the last alone (mrvi_integrator_micro_q and
  * _p then give one row, the new macro node's fast part): on the explicit
  * and sweep paths each node is written over the last, which saves
- * (p - 1) n_fast doubles of each and their copying; the trajectory is the
- * same bit for bit; mrvi_integrator_jacobian_solve then refuses (the
- * Jacobian needs every node).  With the last node alone, micro_q's and
- * micro_p's row is the state's fast part itself (no copy kept).  Returns
- * the rows kept (p on the Newton paths, which solve all nodes at once), or
- * MRVI_ENOMEM. */
+ * (p - 1) n_fast doubles of each and their copying; on the Newton paths,
+ * which solve all nodes at once, the interior nodes are not copied out and
+ * their momenta are not projected onto the hidden constraints (an output
+ * only); the trajectory is the same bit for bit;
+ * mrvi_integrator_jacobian_solve then refuses (the Jacobian needs every
+ * node).  With the last node alone, micro_q's and micro_p's row is the
+ * state's fast part itself (no copy kept).  Returns the rows kept (p or
+ * 1), or MRVI_ENOMEM. */
 int mrvi_integrator_keep_micro(mrvi_integrator *it, int all);
 int mrvi_integrator_last_iterations(const mrvi_integrator *it);
 /* Solve J x = b (transpose = 0) or J^T x = b (transpose = 1) with the

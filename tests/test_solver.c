@@ -100,7 +100,7 @@ static void run(const mrvi_system *sys, run_out *o) {
   mrvi_integrator_set_shoot(it, run_shoot);
   const int p = sys->settings.micro_steps, nf = m->n_fast;
   const int rows = mrvi_integrator_keep_micro(it, !run_last_only);
-  if (rows != (run_last_only && rows == 1 ? 1 : p)) {
+  if (rows != (run_last_only ? 1 : p)) {
     CHECK(0, "keep_micro(%d): %d rows", !run_last_only, rows);
     mrvi_integrator_free(it);
     return;
@@ -1653,16 +1653,19 @@ static void test_tuning(void) {
 }
 
 /* Keeping the last micro node alone (mrvi_integrator_keep_micro) leaves
- * the trajectory bit for bit on every path that allows it (the explicit,
- * sweep and sweep-cg paths: one row kept), and the last micro node too;
- * the Newton paths keep all rows. */
+ * the trajectory bit for bit on every path (one row kept), and the last
+ * micro node too: on the explicit, sweep and sweep-cg paths each node is
+ * written over the last; the Newton paths solve every node but copy out
+ * the last alone and leave the interior nodes' momentum projection out
+ * (an output only: schur-bordered with micro-node constraints). */
 static void test_keep_micro(void) {
   static const char *const schemes[] = {"fully-explicit", "explicit-slow",
-                                        "trapezoidal-trapezoidal"};
+                                        "trapezoidal-trapezoidal",
+                                        "midpoint-midpoint"};
   static run_out all, last;
-  int n_last = 0, seen_cg = 0;
+  int n_last = 0, seen_cg = 0, n_bordered = 0;
   for (int i = 0; i < N_SYSTEMS; i++)
-    for (int sc = 0; sc < 3; sc++)
+    for (int sc = 0; sc < 4; sc++)
       for (int p = 1; p <= 5; p += 4)
         for (int cg = 0; cg < 2; cg++) {
           mrvi_system *sys =
@@ -1688,6 +1691,7 @@ static void test_keep_micro(void) {
                                  !strcmp(all.path, "sweep-cg");
           n_last += structured;
           seen_cg |= !strcmp(all.path, "sweep-cg");
+          n_bordered += p > 1 && !strcmp(all.path, "schur-bordered");
           int same = 1;
           const int nf = all.nmicro / p;
           for (int k = 0; k <= N_STEPS; k++) {
@@ -1707,6 +1711,8 @@ static void test_keep_micro(void) {
         }
   CHECK(n_last >= 10 && seen_cg, "keep_micro: %d runs on the sweep paths, %s",
         n_last, seen_cg ? "sweep-cg seen" : "sweep-cg not seen");
+  CHECK(n_bordered >= 4, "keep_micro: %d runs on schur-bordered at p > 1",
+        n_bordered);
   /* Without the nodes there is no step Jacobian to solve with. */
   mrvi_system *sys =
       load("systems/lattice.yaml", "fully-explicit", 5, "multipliers", "auto");

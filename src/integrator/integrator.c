@@ -48,6 +48,11 @@ struct mrvi_integrator {
   /* Spacing of the fast nodes in x and micro_p: nf, or 0 where only the
    * last is kept (mrvi_integrator_keep_micro) */
   size_t node_stride;
+  /* 1: every micro node is kept for output (the default); 0: the last
+   * alone (mrvi_integrator_keep_micro): on the Newton paths, whose x holds
+   * every node at stride nf, the interior nodes are then not copied and
+   * their momenta not projected (project_micro) */
+  int micro_all;
   double *lambda; /* constraint rows: multipliers at node k of the last step */
   double *micro_cres; /* p: max |g| at micro nodes 1..p of the last step */
   double *cg, *cGd, *cA, *cmu; /* constraint workspace: g, dense G, Gram, mu */
@@ -736,6 +741,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->micro_q = explicit ? alloc_raw(p * nf) : alloc(p * nf);
   it->micro_p = explicit ? alloc_raw(p * nf) : alloc(p * nf);
   it->node_stride = nf;
+  it->micro_all = 1;
   it->lambda = alloc((size_t)m->constraint_rows);
   it->micro_cres = alloc(p);
   it->rhs = alloc(nn); /* the joint-reduced system: at most n_total */
@@ -1345,8 +1351,12 @@ static int use_shoot(const mrvi_integrator *it) {
 
 int mrvi_integrator_keep_micro(mrvi_integrator *it, int all) {
   const mrvi_step *st = &it->step;
-  if (!it->sweep)
-    return st->p; /* (the Newton paths solve all nodes at once) */
+  it->micro_all = all != 0;
+  if (!it->sweep) { /* (the Newton paths solve all nodes at once: x keeps
+                       them, the outputs do not) */
+    it->jac_ready = 0;
+    return all ? st->p : 1;
+  }
   /* micro_q and micro_p resized to the rows kept (shrinking in place) */
   const size_t rows = all ? (size_t)st->p : 1, nf = (size_t)st->nf;
   double *q =
@@ -1644,7 +1654,7 @@ ALWAYS_INLINE void new_state_blocks(mrvi_integrator *it, const double *xf,
   double *restrict qs = it->qs, *restrict ps = it->ps, *restrict qf = it->qf,
                    *restrict pf = it->pf, *restrict prev = it->qs_prev;
   const double *restrict x = it->x, *restrict ps1 = it->ps1;
-  if (it->node_stride != 0) {
+  if (it->micro_all) {
     UNROLL
     for (int i = 0; i < ns; i++)
       prev[i] = qs[i];
@@ -1671,7 +1681,8 @@ static int finish_step_general(mrvi_integrator *it) {
   mrvi_step *st = &it->step;
   if (st->n_lambda > 0)
     constraint_outputs(it);
-  if (st->r_micro > 0 && it->settings.project_momenta && project_micro(it) < 0)
+  if (st->r_micro > 0 && it->settings.project_momenta && it->micro_all &&
+      project_micro(it) < 0)
     return fail(it, MRVI_ESINGULAR,
                 "step %ld: micro-node momentum projection failed (fast "
                 "constraint gradients dependent)",
@@ -1784,10 +1795,10 @@ const double *mrvi_integrator_p(const mrvi_integrator *it) {
 }
 /* (the last node alone kept: the new state's fast part) */
 const double *mrvi_integrator_micro_q(const mrvi_integrator *it) {
-  return it->node_stride == 0 ? it->qf : it->micro_q;
+  return it->micro_all ? it->micro_q : it->qf;
 }
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it) {
-  return it->node_stride == 0 ? it->pf : it->micro_p;
+  return it->micro_all ? it->micro_p : it->pf;
 }
 const double *mrvi_integrator_lambda(const mrvi_integrator *it) {
   return it->lambda;
@@ -1863,7 +1874,7 @@ int mrvi_integrator_jacobian_solve(mrvi_integrator *it, int transpose,
   char msg[300] = "";
   if (!it->jac_ready && it->k == 0)
     return fail(it, MRVI_EINVAL, "no completed step to solve with");
-  if (it->jac_ready && it->node_stride == 0)
+  if (it->jac_ready && !it->micro_all)
     return fail(it, MRVI_EINVAL,
                 "the step's micro nodes were not kept "
                 "(mrvi_integrator_keep_micro): no Jacobian to solve with");
