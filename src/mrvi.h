@@ -1320,7 +1320,8 @@ int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
 
 /* What the species column holds: X (ASE's dummy element, a chemical symbol
  * every reader takes), slow/fast, or the particle name (OVITO and VMD take
- * any word there, ASE only chemical symbols). */
+ * any word there, ASE only chemical symbols); for a body's points X,
+ * body/d1/d2/d3, or NAME/NAME.d1/... */
 enum {
   MRVI_XYZ_SPECIES_X = 0,
   MRVI_XYZ_SPECIES_RATE = 1,
@@ -1334,12 +1335,15 @@ typedef struct mrvi_xyz_options {
   int species; /* MRVI_XYZ_SPECIES_X, _RATE or _NAME */
 } mrvi_xyz_options;
 
-/* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of particles,
- * a comment line "Properties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=t
+/* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of points, a
+ * comment line "Properties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=t
  * pbc="F F F"" and a line "species x y z rate name" per particle (2-D and
  * 1-D padded with zeros; rate 0 slow, 1 fast; name with blanks as '_'),
- * values with at most 17 significant digits.  opt may be NULL (every
- * frame, macro nodes, species X). */
+ * then 1 + d lines per rigid body: its centre of mass (name NAME) and the
+ * tips phi + s d_i of its directors (NAME.d1 ...; s as in the XDMF file;
+ * species X, body/d1/d2/d3 or the name), values with at most 17
+ * significant digits.  opt may be NULL (every frame, macro nodes, species
+ * X). */
 int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                     const mrvi_xyz_options *opt, char *msg, size_t len);
 
