@@ -855,10 +855,10 @@ typedef struct mrvi_settings {
   double energy_warning;
   mrvi_tuning tuning; /* MRVI_TUNING_LIST's defaults */
   /* Threads of the element loops (OpenMP; doc/performance.md, "Threads"):
-   * 1 (default) none, 0 the cores this process may use.  Results are the
-   * same bit for bit for every count.  The default is 1 because the
-   * threaded loops do not pay yet (doc/performance.md, "Threads").  Above 1 in
-   * a build without OpenMP, mrvi_settings_check refuses it
+   * 1 (default) none, 0 the cores this process may use; mrvi_threads_auto
+   * chooses by the model's size and the idle cores (the mrvi command's
+   * default).  Results are the same bit for bit for every count.  Above 1
+   * in a build without OpenMP, mrvi_settings_check refuses it
    * (mrvi_threads_supported). */
   int threads;
   /* 1: mrvi_run's steps keep the last fast micro node alone
@@ -910,6 +910,18 @@ const char *const *mrvi_scheme_names(void);
 /* Validate: alpha, gamma in [0,1], p >= 1, dT > 0, t_end >= dT, tol > 0,
  * max_iter >= 1.  Writes a message on failure. */
 int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len);
+
+/* The thread count for a run of m with s (`mrvi run --threads auto`, the
+ * command's default; doc/performance.md, "The automatic thread count"): the
+ * cores this process may use (its affinity mask) less the tasks running on
+ * them now (Linux's /proc/loadavg) when some loop of the step can run on
+ * threads -- the fast or slow coordinates or the elements of V or W number
+ * at least two parts of s->tuning.thread_chunk -- else 1 (a smaller model
+ * never enters a parallel region); 1 on a busy machine and in a build
+ * without OpenMP.  why (may be NULL) gets the reason in words.  Results do
+ * not depend on the count. */
+int mrvi_threads_auto(const mrvi_model *m, const mrvi_settings *s, char *why,
+                      size_t len);
 /* Number of macro steps N = ceil(t_end/dT - 1e-9). */
 long mrvi_settings_n_steps(const mrvi_settings *s);
 
