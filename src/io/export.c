@@ -660,6 +660,8 @@ static int xyz_bodies_read(const run_file *r, int micro, xyz_bodies *xb,
   int *column = NULL, *fast_list = NULL;
   int st;
   memset(xb, 0, sizeof *xb);
+  if (r->rows == 0) /* no frame to write */
+    return MRVI_OK;
   xb->s = frame_scale(r);
   xb->fast = calloc((size_t)nb + 1, sizeof *xb->fast);
   xb->micro_col = malloc(((size_t)nb + 1) * sizeof *xb->micro_col);
@@ -821,7 +823,7 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
   if (r.nb > 0 && r.rows == 0) /* no pose of the bodies to show */
     frames = 0;
   /* A line per particle, then 1 + d per body. */
-  const int atoms = r.np + r.nb * (1 + r.d);
+  const long atoms = (long)r.np + (long)r.nb * (1 + r.d);
   if (st == 0) {
     row = malloc((size_t)r.n * sizeof *row);
     fast = malloc((size_t)(mm.n_fast + 1) * sizeof *fast);
@@ -849,8 +851,8 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
     } else if ((st = read_row(&r, "/macro/q", k, r.n, row, msg, len)) < 0) {
       break;
     }
-    fprintf(
-        f, "%d\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=", atoms);
+    fprintf(f, "%ld\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=",
+            atoms);
     put_double(f, o.micro ? mt[k] : r.t[k]);
     fputs(" pbc=\"F F F\"\n", f);
     for (int i = 0; i < r.np; i++) {
