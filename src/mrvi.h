@@ -855,10 +855,10 @@ typedef struct mrvi_settings {
   double energy_warning;
   mrvi_tuning tuning; /* MRVI_TUNING_LIST's defaults */
   /* Threads of the element loops (OpenMP; doc/performance.md, "Threads"):
-   * 1 (default) none, 0 the cores this process may use.  Results are the
-   * same bit for bit for every count.  The default is 1 because the
-   * threaded loops do not pay yet (doc/performance.md, "Threads").  Above 1 in
-   * a build without OpenMP, mrvi_settings_check refuses it
+   * 1 (default) none, 0 the cores this process may use; mrvi_threads_auto
+   * chooses by the model's size and the idle cores (the mrvi command's
+   * default).  Results are the same bit for bit for every count.  Above 1
+   * in a build without OpenMP, mrvi_settings_check refuses it
    * (mrvi_threads_supported). */
   int threads;
   /* 1: mrvi_run's steps keep the last fast micro node alone
@@ -910,6 +910,18 @@ const char *const *mrvi_scheme_names(void);
 /* Validate: alpha, gamma in [0,1], p >= 1, dT > 0, t_end >= dT, tol > 0,
  * max_iter >= 1.  Writes a message on failure. */
 int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len);
+
+/* The thread count for a run of m with s (`mrvi run --threads auto`, the
+ * command's default; doc/performance.md, "The automatic thread count"): the
+ * cores this process may use (its affinity mask) less the tasks running on
+ * them now (Linux's /proc/loadavg) when some loop of the step can run on
+ * threads -- the fast or slow coordinates or the elements of V or W number
+ * at least two parts of s->tuning.thread_chunk -- else 1 (a smaller model
+ * never enters a parallel region); 1 on a busy machine and in a build
+ * without OpenMP.  why (may be NULL) gets the reason in words.  Results do
+ * not depend on the count. */
+int mrvi_threads_auto(const mrvi_model *m, const mrvi_settings *s, char *why,
+                      size_t len);
 /* Number of macro steps N = ceil(t_end/dT - 1e-9). */
 long mrvi_settings_n_steps(const mrvi_settings *s);
 
@@ -1322,7 +1334,8 @@ int mrvi_export_xdmf(const char *h5_path, const char *xdmf_path, char *msg,
 
 /* What the species column holds: X (ASE's dummy element, a chemical symbol
  * every reader takes), slow/fast, or the particle name (OVITO and VMD take
- * any word there, ASE only chemical symbols). */
+ * any word there, ASE only chemical symbols); for a body's points X,
+ * body/d1/d2/d3, or NAME/NAME.d1/... */
 enum {
   MRVI_XYZ_SPECIES_X = 0,
   MRVI_XYZ_SPECIES_RATE = 1,
@@ -1336,12 +1349,15 @@ typedef struct mrvi_xyz_options {
   int species; /* MRVI_XYZ_SPECIES_X, _RATE or _NAME */
 } mrvi_xyz_options;
 
-/* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of particles,
- * a comment line "Properties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=t
+/* Extended XYZ frames (OVITO, VMD, ASE): per frame the number of points, a
+ * comment line "Properties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=t
  * pbc="F F F"" and a line "species x y z rate name" per particle (2-D and
  * 1-D padded with zeros; rate 0 slow, 1 fast; name with blanks as '_'),
- * values with at most 17 significant digits.  opt may be NULL (every
- * frame, macro nodes, species X). */
+ * then 1 + d lines per rigid body: its centre of mass (name NAME) and the
+ * tips phi + s d_i of its directors (NAME.d1 ...; s as in the XDMF file;
+ * species X, body/d1/d2/d3 or the name), values with at most 17
+ * significant digits.  opt may be NULL (every frame, macro nodes, species
+ * X). */
 int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                     const mrvi_xyz_options *opt, char *msg, size_t len);
 

@@ -5,10 +5,13 @@
 CASES holds one case a line: an identifier, then the arguments of one
 mrvi-plot command line, separated by tabs.  Each case runs through
 mrvi-plot's main(argv) as `python3 mrvi-plot ARGS...` would, with its
-stdout discarded and its stderr (file descriptor 2, so HDF5's own messages
-too) in OUTDIR/ID.err; its exit status goes to OUTDIR/ID.rc: main's return
-value, a SystemExit's code, 1 with the traceback on stderr for an exception
-that escapes main (as the interpreter does), 124 after TIMEOUT seconds.
+stdout in OUTDIR/ID.out and its stderr (file descriptor 2, so HDF5's own
+messages too) in OUTDIR/ID.err; its exit status goes to OUTDIR/ID.rc:
+main's return value, a SystemExit's code, 1 with the traceback on stderr
+for an exception that escapes main (as the interpreter does), 124 after
+TIMEOUT seconds.  A case `ID --script FILE ARGS...` runs the Python file
+FILE as `python3 FILE ARGS...` would instead (a test's own checks that
+load mrvi-plot as a module), pyplot's close restored after it.
 Importing matplotlib and h5py once instead of once per case is what this
 saves (about half a CPU second per case).
 """
@@ -16,6 +19,7 @@ saves (about half a CPU second per case).
 import importlib.machinery
 import importlib.util
 import os
+import runpy
 import signal
 import sys
 import traceback
@@ -40,10 +44,23 @@ def load(path):
     return module
 
 
+def run_script(plt, argv):
+    """Run the file argv[0] with sys.argv = argv as __main__."""
+    saved = sys.argv, plt.close
+    sys.argv = list(argv)
+    try:
+        runpy.run_path(argv[0], run_name="__main__")
+        return 0
+    finally:
+        sys.argv, plt.close = saved
+
+
 def run_case(plot, argv):
     """mrvi-plot's exit status for argv, as the interpreter would give it."""
     signal.alarm(TIMEOUT)
     try:
+        if argv[:1] == ["--script"]:
+            return run_script(plot.plt, argv[1:])
         return plot.main(argv)
     except SystemExit as exc:
         if exc.code is None or isinstance(exc.code, int):
@@ -69,15 +86,16 @@ def main():
         cases = [line.rstrip("\n").split("\t") for line in f if line.strip()]
     signal.signal(signal.SIGALRM, on_alarm)
     saved = os.dup(1), os.dup(2)
-    null = os.open(os.devnull, os.O_WRONLY)
     for case in cases:
         ident, argv = case[0], case[1:]
-        err = os.open(os.path.join(sys.argv[3], ident + ".err"),
-                      os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        out, err = (os.open(os.path.join(sys.argv[3], ident + ext),
+                            os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+                    for ext in (".out", ".err"))
         sys.stdout.flush()
         sys.stderr.flush()
-        os.dup2(null, 1)
+        os.dup2(out, 1)
         os.dup2(err, 2)
+        os.close(out)
         os.close(err)
         try:
             rc = run_case(plot, argv)

@@ -8,12 +8,15 @@ def run_positions(h5, grid):
     """Times (K), positions (K x P x 3: 2-D and 1-D padded with zeros), rate
     (P: 0 slow, 1 fast) and names (P) of the P particles at the K stored
     macro nodes (grid "macro") or micro nodes ("micro": /micro/q_fast and,
-    when present, /micro/q_slow)."""
+    when present, /micro/q_slow); P = 0 for a model of bodies alone."""
     with h5py.File(h5, "r") as f:
-        col = f["model/particle_column"][()]
         rate = f["model/rate"][()]
-        d = int(f["model/dimension"][()])
-        names = list(f["model/particle_name"].asstr()[()])
+        if "model/particle_column" in f:
+            col = f["model/particle_column"][()]
+            d = int(f["model/dimension"][()])
+            names = list(f["model/particle_name"].asstr()[()])
+        else:  # rigid bodies only
+            col, d, names = np.zeros(0, int), 0, []
         if grid == "macro":
             t, q = f["macro/t"][()], f["macro/q"][()]
         else:
@@ -26,3 +29,42 @@ def run_positions(h5, grid):
     for j, c in enumerate(col):
         pos[:, j, :d] = q[:, c:c + d]
     return t, pos, rate[col], names
+
+
+def body_points(h5, grid, t):
+    """The XYZ atoms of the rigid bodies at the times t of the frames
+    (doc/output.md, "Extended XYZ"): positions (K x B(1 + d) x 3), rate and
+    names of each body's centre ("NAME") and director tips ("NAME.d1" ...,
+    phi + s d_i, s half the largest distance from a centre to a joint point
+    on it at the first node, 0.5 without joints).  Micro frames take a fast
+    body's /micro/bodies row and a slow body's last macro node not after t.
+    Empty arrays without /bodies."""
+    with h5py.File(h5, "r") as f:
+        if "bodies/position" not in f:
+            return np.zeros((t.size, 0, 3)), np.zeros(0, int), []
+        pos, rot = f["bodies/position"][()], f["bodies/rotation"][()]
+        nb, d = pos.shape[1], pos.shape[2]
+        names = list(f["bodies/name"].asstr()[()])
+        rate = f["model/rate"][()][f["bodies/column"][()]]
+        arms = [np.linalg.norm(f["joints/position"][0, j] - pos[0, a])
+                for j, a in enumerate(f["joints/body_a"][()])] \
+            if "joints/position" in f else []
+        s = 0.5 * max(arms) if arms and max(arms) > 0 else 0.5
+        if grid == "macro":
+            pos, rot = pos[:t.size], rot[:t.size]
+        else:
+            mt = f["macro/t"][()]
+            row = np.searchsorted(mt, t + 1e-9 * (np.abs(t) + mt[1]),
+                                  "right") - 1
+            pos, rot = pos[row], rot[row]
+            if "bodies/fast" in f:
+                fast = f["bodies/fast"][()]
+                pos[:, fast] = f["micro/bodies/position"][:t.size]
+                rot[:, fast] = f["micro/bodies/rotation"][:t.size]
+    out = np.zeros((t.size, nb * (1 + d), 3))
+    for b in range(nb):
+        out[:, b * (1 + d), :d] = pos[:, b]
+        for i in range(d):
+            out[:, b * (1 + d) + 1 + i, :d] = pos[:, b] + s * rot[:, b, :, i]
+    tips = [n + (".d%d" % i if i else "") for n in names for i in range(d + 1)]
+    return out, np.repeat(rate, 1 + d), tips

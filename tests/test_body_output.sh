@@ -209,12 +209,49 @@ for k, g in enumerate(grids):
 print("%d grids, max |point - (phi, phi + s d_i, x_joint)| = %.1e, s = %g" % (len(grids), err, s))
 sys.exit(0 if ok and err < 1e-14 and abs(s - 0.25) < 1e-12 else 1)
 ' "$tmp/x.h5" "$tmp/x.xdmf"
-if "$mrvi" export "$tmp/x.h5" -f xyz -o "$tmp/x.xyz" 2>"$tmp/err.txt"; then
-  fail "XYZ of a model without particles: accepted"
-else
-  grep -q "no particles" "$tmp/err.txt" &&
-    pass "XYZ of a model without particles refused: $(head -1 "$tmp/err.txt")" ||
-    fail "XYZ refusal: $(head -1 "$tmp/err.txt")"
-fi
+# --- XYZ: the body as its centre and director tips (no ASE needed) ---
+# Each frame: the count line 4 (no particles, 1 + 3 points), the comment
+# line, then top, top.d1, top.d2, top.d3 with species X (default), body
+# d1 d2 d3 (--species rate) or the names (--species name); each tip 0.25
+# (s, as in the XDMF file) from the centre; a frame per macro node.
+frames=$("$py" -c 'import sys, h5py; print(len(h5py.File(sys.argv[1])["macro/t"]))' "$tmp/x.h5")
+for kind in x rate name; do
+  case $kind in
+  x) want="X X X X" ;;
+  rate) want="body d1 d2 d3" ;;
+  name) want="top top.d1 top.d2 top.d3" ;;
+  esac
+  if ! "$mrvi" export "$tmp/x.h5" -f xyz --species "$kind" \
+    -o "$tmp/x-$kind.xyz" >"$tmp/out.txt" 2>&1; then
+    fail "XYZ of the heavy top (--species $kind): $(head -1 "$tmp/out.txt")"
+    continue
+  fi
+  got=$(awk -v want="$want" -v frames="$frames" '
+    function bad(why) { print why; err = 1; exit 1 }
+    (NR - 1) % 6 == 0 { if ($0 != "4") bad("line " NR ": count " $0); n++ }
+    (NR - 1) % 6 == 1 && $1 !~ /^Properties=species:S:1:pos:R:3:rate:I:1:name:S:1$/ {
+      bad("line " NR ": " $1) }
+    (NR - 1) % 6 >= 2 {
+      i = (NR - 1) % 6 - 2
+      sp = sp (i ? " " : "") $1
+      nm = nm (i ? " " : "") $6
+      if (i == 0) { cx = $2; cy = $3; cz = $4 }
+      else {
+        l = sqrt(($2 - cx)^2 + ($3 - cy)^2 + ($4 - cz)^2)
+        if (l < 0.25 - 1e-12 || l > 0.25 + 1e-12) bad("line " NR ": tip at " l)
+      }
+      if (NF != 6 || $5 != "0") bad("line " NR ": " $0)
+      if (i == 3) {
+        if (sp != want) bad("species " sp)
+        if (nm != "top top.d1 top.d2 top.d3") bad("names " nm)
+        sp = nm = ""
+      }
+    }
+    END { if (!err && (n != frames || NR != 6 * frames)) print n " frames, " NR " lines for " frames " nodes"
+          else if (!err) print "ok" }' "$tmp/x-$kind.xyz")
+  [ "$got" = ok ] &&
+    pass "XYZ of the heavy top (--species $kind): $frames frames of 4 points, species $want" ||
+    fail "XYZ of the heavy top (--species $kind): $got"
+done
 
 test_finish

@@ -5,7 +5,10 @@
 # read with h5py -- the number of frames, the time of each (atoms.info
 # Time), every position to the last digit, the species (X, ASE's dummy
 # element) and the extra columns rate and name.  2-D macro and micro nodes,
-# every 3rd frame, 3-D.
+# every 3rd frame, 3-D; rigid bodies (the heavy top, 3-D, bodies alone; the
+# flexible pendulum's slow arm and fast bars, 2-D, macro and micro nodes;
+# the robot arm's fast particles and slow links, micro nodes) as their
+# centres and director tips after the particles.
 #
 #   test_export_ase.sh MRVI_BINARY SOURCE_ROOT
 #
@@ -40,20 +43,30 @@ import ase.io
 import numpy as np
 
 sys.path.insert(0, os.environ["MRVI_TESTS"])
-from run_positions import run_positions  # noqa: E402
+from run_positions import body_points, run_positions  # noqa: E402
 
 xyz, h5, every, grid = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
 with warnings.catch_warnings():
     warnings.simplefilter("error")  # a reader warning is a failure too
     frames = ase.io.read(xyz, index=":", format="extxyz")
 t, pos, rate, names = run_positions(h5, grid)
+bpos, brate, bnames = body_points(h5, grid, t)
+nb = len(bnames)
+pos = np.concatenate([pos, bpos], axis=1)
+rate = np.concatenate([rate, brate])
+names = names + bnames
 rows = list(range(0, t.size, every))
 if len(frames) != len(rows):
     print("FAIL ASE read %d frames, the file has %d" % (len(frames), len(rows)))
     sys.exit(1)
 for atoms, k in zip(frames, rows):
+    x = atoms.get_positions()
     checks = {
-        "positions": np.array_equal(atoms.get_positions(), pos[k]),
+        "atoms": x.shape == pos[k].shape,
+        "particle positions": np.array_equal(x[:x.shape[0] - nb],
+                                             pos[k][:pos.shape[1] - nb]),
+        "body points": x.shape == pos[k].shape and
+        np.abs(x - pos[k]).max(initial=0.0) < 1e-14,
         "Time": atoms.info.get("Time") == t[k],
         "symbols X": set(atoms.get_chemical_symbols()) == {"X"},
         "rate": np.array_equal(atoms.arrays["rate"], rate),
@@ -64,8 +77,9 @@ for atoms, k in zip(frames, rows):
     if bad:
         print("FAIL frame %d (t = %r): %s" % (k, t[k], ", ".join(bad)))
         sys.exit(1)
-print("ok ASE read %d frames of %d particles equal to %s" %
-      (len(frames), len(names), "/macro/q" if grid == "macro" else "/micro"))
+print("ok ASE read %d frames of %d particles and %d body points equal to %s" %
+      (len(frames), len(names) - nb, nb,
+       "/macro/q" if grid == "macro" else "/micro"))
 EOF
 
 # py_ok NAME ARGS...: check_ase.py prints only "ok ..." lines
@@ -94,5 +108,24 @@ run_ok "export every 3rd micro node" "$mrvi" export lattice.h5 -f xyz \
 py_ok "ASE: lattice, every 3rd micro node" micro3.xyz lattice.h5 3 micro
 run_ok "export ring.xyz" "$mrvi" export ring.h5 -f xyz
 py_ok "ASE: spring ring, 3-D" ring.xyz ring.h5 1 macro
+
+run_ok "mrvi run heavy_top (3-D, a body alone)" "$mrvi" run \
+  "$root/systems/heavy_top.yaml" -o top.h5 --set integrator.t_end=0.1 --quiet
+run_ok "export top.xyz" "$mrvi" export top.h5 -f xyz
+py_ok "ASE: heavy top's centre and director tips" top.xyz top.h5 1 macro
+run_ok "mrvi run flexible_pendulum (2-D, slow and fast bodies)" "$mrvi" run \
+  "$root/systems/flexible_pendulum.yaml" -o flex.h5 \
+  --set integrator.t_end=0.02 --set output.micro=true --quiet
+run_ok "export flex.xyz" "$mrvi" export flex.h5 -f xyz
+py_ok "ASE: flexible pendulum, macro nodes" flex.xyz flex.h5 1 macro
+run_ok "export flex micro" "$mrvi" export flex.h5 -f xyz --micro -o flexm.xyz
+py_ok "ASE: flexible pendulum, micro nodes (fast bars move, the arm steps)" \
+  flexm.xyz flex.h5 1 micro
+run_ok "mrvi run robot_arm_payload (particles and bodies)" "$mrvi" run \
+  "$root/systems/robot_arm_payload.yaml" -o arm.h5 \
+  --set integrator.t_end=0.03 --set output.micro=true --quiet
+run_ok "export arm micro" "$mrvi" export arm.h5 -f xyz --micro -o arm.xyz
+py_ok "ASE: robot arm, particles then bodies, micro nodes" arm.xyz arm.h5 1 \
+  micro
 
 test_finish

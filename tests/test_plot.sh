@@ -1,6 +1,9 @@
 #!/bin/bash
 # Test of src/cli/mrvi-plot: renders every figure from small runs and synthetic
-# study tables and checks the PNG files.
+# study tables and checks the PNG files.  The runs and tables are made
+# first; then every mrvi-plot command line and every check that loads
+# mrvi-plot as a module run in one Python process (tests/plot_cases.py:
+# matplotlib imported once, not once a case), and each is judged in turn.
 #
 #   test_plot.sh MRVI_BINARY SOURCE_ROOT
 #
@@ -40,11 +43,54 @@ absent() {
   else pass "$(basename "$1") not drawn"; fi
 }
 
-# fails_with NAME PATTERN CMD...: non-zero exit and PATTERN on stderr
+out="$tmp/figs"
+cases="$tmp/plot"
+mkdir -p "$cases"
+: >"$cases/cases.txt"
+
+# case ID ARGS...: queue `mrvi-plot ARGS` as case ID.
+case_() {
+  (IFS=$'\t' && echo "$*") >>"$cases/cases.txt"
+}
+# script ID ARGS...: queue `python3 $tmp/ID.py ARGS` (written before) as
+# case ID.
+script() {
+  local id=$1
+  shift
+  case_ "$id" --script "$tmp/$id.py" "$@"
+}
+# result ID: case ID's stdout and stderr into $tmp/out.txt and
+# $tmp/err.txt; returns its exit status (125 when it has none: the batch
+# ended before it).
+result() {
+  if [ -f "$cases/$1.rc" ]; then
+    cp "$cases/$1.out" "$tmp/out.txt"
+    cp "$cases/$1.err" "$tmp/err.txt"
+    return "$(cat "$cases/$1.rc")"
+  fi
+  : >"$tmp/out.txt"
+  echo "no result for case $1: tests/plot_cases.py ended before it" \
+    >"$tmp/err.txt"
+  return 125
+}
+# ok NAME ID: case ID exited 0
+ok() {
+  local name=$1 rc
+  result "$2"
+  rc=$?
+  if [ $rc -eq 0 ]; then
+    pass "$name"
+  else
+    fail "$name (exit $rc)"
+    sed 's/^/     /' "$tmp/err.txt" | head -20
+  fi
+}
+# fails_with NAME PATTERN ID: non-zero exit and PATTERN on stderr
 fails_with() {
-  local name=$1 pattern=$2
-  shift 2
-  if "$@" >"$tmp/out.txt" 2>"$tmp/err.txt"; then
+  local name=$1 pattern=$2 rc
+  result "$3"
+  rc=$?
+  if [ $rc -eq 0 ]; then
     fail "$name: exit 0, expected failure"
   elif ! grep -q -- "$pattern" "$tmp/err.txt"; then
     fail "$name: no '$pattern' in the message"
@@ -53,38 +99,32 @@ fails_with() {
     pass "$name ($(head -1 "$tmp/err.txt"))"
   fi
 }
+# warns NAME PATTERN ID: exit 0 and PATTERN on stderr
+warns() {
+  local name=$1 pattern=$2
+  if result "$3" && grep -q -- "$pattern" "$tmp/err.txt"; then
+    pass "$name ($(head -1 "$tmp/err.txt"))"
+  else
+    fail "$name: $(head -1 "$tmp/err.txt")"
+  fi
+}
+# output ID: what case ID printed (its stdout; its traceback on stderr
+# shown when it failed)
+output() {
+  result "$1" || sed 's/^/     /' "$tmp/err.txt" >&2
+  cat "$tmp/out.txt"
+}
 
-out="$tmp/figs"
+# =============================================================================
+# The inputs: runs, optimal control and batch files, synthetic tables
+# =============================================================================
 
-# --- help ---
-run_ok "mrvi-plot --help" "$py" "$plot" --help
-for sub in run optimize convergence stability timing animate batch all; do
-  run_ok "mrvi-plot $sub --help" "$py" "$plot" "$sub" --help
-done
-
-# --- run files ---
 run_ok "mrvi run fpu" "$mrvi" run "$root/systems/fpu.yaml" -o "$tmp/fpu.h5" \
   --set integrator.t_end=6 --quiet
 run_ok "mrvi run spring_ring" "$mrvi" run "$root/systems/spring_ring.yaml" \
   -o "$tmp/ring.h5" --set integrator.t_end=0.5 --quiet
-
-run_ok "mrvi-plot run fpu" "$py" "$plot" run "$tmp/fpu.h5" -o "$out"
-for f in energy stiff_energy micro; do png_ok "$out/fpu_$f.png"; done
-absent "$out/fpu_angular_momentum.png"
-
-run_ok "mrvi-plot run spring_ring" "$py" "$plot" run "$tmp/ring.h5" -o "$out" \
-  --prefix ring --window 0.2
-# W = (omega2/2) |q_f|^2: the stiff-spring energies mean something here.
-for f in energy angular_momentum micro stiff_energy; do
-  png_ok "$out/ring_$f.png"
-done
-
-run_ok "mrvi-plot run --omega" "$py" "$plot" run "$tmp/ring.h5" -o "$out" \
-  --prefix ring_omega --omega 44.72
-png_ok "$out/ring_omega_stiff_energy.png"
-
-# --- particle systems: lattice (2-D, springs only, micro_slow), cart
-# pendulum (J_z conserved), pendulum chain (nothing conserved) ---
+# Particle systems: lattice (2-D, springs only, micro_slow), cart pendulum
+# (J_z conserved), pendulum chain (nothing conserved).
 run_ok "mrvi run lattice" "$mrvi" run "$root/systems/lattice.yaml" \
   -o "$tmp/lattice.h5" --set integrator.t_end=0.3 \
   --set output.micro_slow=true --quiet
@@ -96,172 +136,9 @@ run_ok "mrvi run pendulum_chain" "$mrvi" run \
 # H_0 = 0: a unit mass falling from rest under a unit force.
 printf 'name: fall\ncoordinates: [{name: x, mass: 1, position: 0, velocity: 0}]\nforces: [{coordinate: x, force: 1}]\nintegrator: {macro_step: 0.1, t_end: 1}\n' >"$tmp/fall.yaml"
 run_ok "mrvi run fall" "$mrvi" run "$tmp/fall.yaml" -o "$tmp/fall.h5" --quiet
-run_ok "mrvi-plot run lattice" "$py" "$plot" run "$tmp/lattice.h5" -o "$out"
-for f in energy angular_momentum micro micro_fast; do png_ok "$out/lattice_$f.png"; done
-absent "$out/lattice_stiff_energy.png"
-run_ok "mrvi-plot run cart_pendulum" "$py" "$plot" run "$tmp/cart.h5" -o "$out"
-png_ok "$out/cart_angular_momentum.png"
-run_ok "mrvi-plot run pendulum_chain" "$py" "$plot" run "$tmp/chain.h5" \
-  -o "$out"
-absent "$out/chain_angular_momentum.png"
-if grep -q "conserves no component" "$tmp/out.txt"; then
-  pass "pendulum chain: says why there is no angular momentum figure"
-else
-  fail "pendulum chain: no reason given: $(cat "$tmp/out.txt")"
-fi
-# warns NAME PATTERN CMD...: exit 0 and PATTERN on stderr
-warns() {
-  local name=$1 pattern=$2
-  shift 2
-  if "$@" >"$tmp/out.txt" 2>"$tmp/err.txt" &&
-    grep -q -- "$pattern" "$tmp/err.txt"; then
-    pass "$name ($(head -1 "$tmp/err.txt"))"
-  else
-    fail "$name: $(head -1 "$tmp/err.txt")"
-  fi
-}
-warns "--omega where W is not quadratic per coordinate" \
-  "no stiff-energy figure" "$py" "$plot" run "$tmp/lattice.h5" -o "$out" \
-  --prefix lattice_omega --omega 40
-absent "$out/lattice_omega_stiff_energy.png"
 
-# What the figures are made of, asserted on the numbers.
-checks=$("$py" - "$plot" "$tmp" <<'PYEOF'
-import sys
-from importlib.machinery import SourceFileLoader
-import h5py
-import numpy as np
-mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
-tmp = sys.argv[2]
-out = []
-
-
-def run(name):
-    return mod.Run(h5py.File("%s/%s.h5" % (tmp, name), "r"))
-
-
-# Stiffnesses fitted to W: FPU 2500, spring ring 4000 (fast anchors), none
-# for the lattice (fast springs between particles) and the cart (W = 0).
-k_fpu = mod.fitted_stiffness(run("fpu"))
-k_ring = mod.fitted_stiffness(run("ring"))
-out.append("fit-fpu:%s" % np.allclose(k_fpu, 2500, rtol=1e-9))
-out.append("fit-ring:%s" % np.allclose(k_ring, 4000, rtol=1e-9))
-out.append("fit-lattice:%s" % (mod.fitted_stiffness(run("lattice")) is None))
-out.append("fit-cart:%s" % (mod.fitted_stiffness(run("cart")) is None))
-k, why = mod.stiffnesses(run("lattice"), 40.0)
-out.append("omega-refused:%s" % (k is None and "not" in why))
-
-# The energy error is divided by what the run summary divides it by: the
-# attribute energy_scale (cart pendulum: T0 + |V0| + |W0|, V0 < 0), for
-# H0 = 0 the largest T + |V| + |W| (falling mass: t_end^2 = 1), also
-# recomputed from the datasets for a file without the attribute.
-h = run("cart").h5
-mag0 = sum(abs(float(h["macro/" + d][0])) for d in
-           ("kinetic", "potential_slow", "potential_fast"))
-scale, name = mod.energy_scale(h)
-out.append("escale-cart:%s" % (abs(scale - mag0) <= 1e-15 * mag0 and
-                              float(h.attrs["energy_scale"]) == scale and
-                              name.startswith("(H − H₀)/E₀")))
-scale, name = mod.energy_scale(run("fall").h5)
-out.append("escale-fall:%s" % (abs(scale - 1.0) <= 1e-12 and "H₀ = 0" in name))
-import shutil
-shutil.copy("%s/fall.h5" % tmp, "%s/fall_old.h5" % tmp)
-with h5py.File("%s/fall_old.h5" % tmp, "r+") as f:
-    for a in ("energy_scale", "energy_scale_kind"):
-        del f.attrs[a]
-scale, name = mod.energy_scale(run("fall_old").h5)
-out.append("escale-noattr:%s" % (abs(scale - 1.0) <= 1e-12 and "H₀ = 0" in name))
-
-# Micro figure of the lattice: the 6 of 15 fast particles that move most.
-r = run("lattice")
-tm = mod.read(r.h5, "micro/t")
-sel = tm <= tm[0] + 1.0
-chosen, note = mod.pick_particles(r, tm, sel, None)
-out.append("pick:%s" % (len(chosen) == 6 and "6 of 15" in note and
-                        all(r.rate[r.columns[i]] == 1 for i in chosen)))
-# The slow coordinates interpolated linearly between the macro nodes equal
-# the stored /micro/q_slow (the writer's formula) to 1e-15.
-stored = r.h5["micro/q_slow"][()]
-qmac = r.h5["macro/q"][()]
-slow = np.flatnonzero(r.rate == 0)
-interp = np.column_stack([np.interp(tm, r.t, qmac[:, c]) for c in slow])
-out.append("q_slow:%s" % (np.max(np.abs(interp - stored)) <= 1e-15 *
-                          max(1.0, np.max(np.abs(stored)))))
-
-# A conserved (flat) series gets short tick labels, not 1.0500000000010.
-import matplotlib.pyplot as plt
-fig, ax = plt.subplots()
-y = 1.05 + 1e-14 * np.sin(np.arange(50.0))
-ax.plot(y)
-mod.flat_ylim(ax, y)
-fig.canvas.draw()
-labels = [t.get_text().replace("$\\mathdefault{", "").rstrip("}$")
-          for t in ax.get_yticklabels() if t.get_text()]
-out.append("ticks:%s" % (max(len(lab) for lab in labels) <= 5))
-# Log axis of p = 1 ... 1000 in a narrow panel: labels at the decades only.
-fig, ax = plt.subplots()
-p = [1, 5, 10, 20, 50, 100, 200, 500, 1000]
-ax.loglog(p, p)
-mod.plain_log_ticks(ax.xaxis, p, most=12, labels=4)
-major = list(ax.xaxis.get_major_locator()())
-out.append("decades:%s" % (major == [1, 10, 100, 1000]))
-print(" ".join(out))
-PYEOF
-)
-for c in fit-fpu fit-ring fit-lattice fit-cart omega-refused pick q_slow ticks \
-  decades escale-cart escale-fall escale-noattr; do
-  case " $checks " in
-    *" $c:True "*) pass "$c" ;;
-    *) fail "$c (got: $checks)" ;;
-  esac
-done
-
-# --- animate ---
-run_ok "mrvi-plot animate lattice (micro nodes)" "$py" "$plot" animate \
-  "$tmp/lattice.h5" -o "$tmp/lattice.gif" --every 5
-run_ok "mrvi-plot animate spring_ring (macro nodes)" "$py" "$plot" animate \
-  "$tmp/ring.h5" -o "$tmp/ring.gif" --every 10 --fps 10
-# MP4 asked for where matplotlib finds no ffmpeg: a GIF and a note.
-mkdir -p "$tmp/rc"
-echo "animation.ffmpeg_path: $tmp/no-such-ffmpeg" >"$tmp/rc/matplotlibrc"
-if MATPLOTLIBRC="$tmp/rc" "$py" "$plot" animate "$tmp/cart.h5" \
-  -o "$tmp/cart.mp4" --every 4 >"$tmp/out.txt" 2>"$tmp/err.txt" &&
-  grep -q "ffmpeg not found" "$tmp/err.txt" && [ ! -e "$tmp/cart.mp4" ]; then
-  pass "no ffmpeg: $(head -1 "$tmp/err.txt")"
-else
-  fail "no ffmpeg: GIF fallback ($(head -1 "$tmp/err.txt"))"
-fi
-frames=$("$py" - "$tmp" <<'PYEOF'
-import math
-import sys
-import h5py
-from PIL import Image
-tmp = sys.argv[1]
-res = []
-# The cart is slow and the file has no /micro/q_slow: macro nodes.
-for name, grid, every in (("lattice", "micro", 5), ("ring", "macro", 10),
-                          ("cart", "macro", 4)):
-    rows = h5py.File("%s/%s.h5" % (tmp, name), "r")[grid + "/t"].shape[0]
-    im = Image.open("%s/%s.gif" % (tmp, name))
-    want = math.ceil(rows / every)
-    ok = im.format == "GIF" and im.n_frames == want and im.size[0] > 300
-    res.append("%s:%s:%d/%d" % (name, ok, im.n_frames, want))
-print(" ".join(res))
-PYEOF
-)
-for n in lattice ring cart; do
-  case " $frames " in
-    *" $n:True:"*) pass "animation $n: one GIF frame per node kept ($frames)" ;;
-    *) fail "animation $n: frames ($frames)" ;;
-  esac
-done
-fails_with "animate a run without particles" "no particles" \
-  "$py" "$plot" animate "$tmp/fpu.h5" -o "$tmp/fpu.gif"
-fails_with "animate --grid micro without q_slow" "micro_slow" \
-  "$py" "$plot" animate "$tmp/ring.h5" -o "$tmp/x.gif" --grid micro
-
-# --- constrained run: fpu.h5 plus the constraint datasets of doc/output.md
-# (zeros and a NaN in the residual, as a real run can have) ---
+# A constrained run: fpu.h5 plus the constraint datasets of doc/output.md
+# (zeros and a NaN in the residual, as a real run can have).
 if ! "$py" - "$tmp" <<'EOF' 2>"$tmp/err.txt"
 import shutil
 import sys
@@ -289,42 +166,10 @@ then
 else
   pass "constrained run file built"
 fi
-run_ok "mrvi-plot run constrained" "$py" "$plot" run "$tmp/cons.h5" -o "$out"
-png_ok "$out/cons_energy.png"
-# The constraint panel makes the energy figure taller than the FPU one
-# (PNG height: bytes 20-23, in the IHDR chunk).
-png_height() {
-  od -An -j20 -N4 -tu1 "$1" | awk '{print $1*16777216+$2*65536+$3*256+$4}'
-}
-h_fpu=$(png_height "$out/fpu_energy.png")
-h_cons=$(png_height "$out/cons_energy.png")
-if [ "${h_cons:-0}" -gt "${h_fpu:-0}" ]; then
-  pass "constraint panel added (height $h_cons > $h_fpu px)"
-else
-  fail "constraint panel added (height ${h_cons:-?} vs ${h_fpu:-?} px)"
-fi
-floor=$("$py" - "$plot" <<'EOF' 2>&1
-import sys
-from importlib.machinery import SourceFileLoader
-import numpy as np
-mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
-y, floor, n = mod.log_floor(np.array([0.0, 3e-12, np.nan, 1e-10, -0.0]))
-ok = y[0] == floor and np.isclose(floor, 3e-13) and y[1] == 3e-12 and \
-    np.isnan(y[2]) and n == 2
-y0, floor0, n0 = mod.log_floor(np.zeros(3))
-print("ok" if ok and floor0 == 1e-16 and n0 == 3 and (y0 == 1e-16).all()
-      else "bad: %r %r %r / %r %r" % (y, floor, n, y0, floor0))
-EOF
-)
-if [ "$floor" = "ok" ]; then
-  pass "log_floor raises exact zeros to a decade below the smallest value"
-else
-  fail "log_floor: $floor"
-fi
 
-# --- optimal control files (mrvi optimize): the gantry crane (macro
-# actuator, constrained, fast load on /micro) and the double integrator
-# with a slow macro and a fast micro actuator ---
+# Optimal control files (mrvi optimize): the gantry crane (macro actuator,
+# constrained, fast load on /micro) and the double integrator with a slow
+# macro and a fast micro actuator.
 sed '/^control:/,$d' "$root/systems/ocp_double_integrator.yaml" \
   >"$tmp/di2.yaml"
 cat >>"$tmp/di2.yaml" <<'EOF'
@@ -360,154 +205,20 @@ run_ok "mrvi optimize gantry crane" "$mrvi" optimize \
   "$root/systems/ocp_gantry_crane.yaml" -o "$tmp/crane.h5" -q
 run_ok "mrvi optimize two actuators" "$mrvi" optimize "$tmp/di2.yaml" \
   -o "$tmp/di2.h5" -q
-for f in crane di2 pair; do
-  run_ok "mrvi-plot optimize $f" "$py" "$plot" optimize "$tmp/$f.h5" -o "$out"
-  for g in controls trajectory history; do png_ok "$out/${f}_$g.png"; done
-done
-# `all` recognises the file and draws the run figures too.
-run_ok "mrvi-plot all (optimize file)" "$py" "$plot" all "$tmp/crane.h5" \
-  -o "$out/all" --prefix x
-for g in energy micro controls trajectory history; do
-  png_ok "$out/all/x_crane_$g.png"
-done
-fails_with "mrvi-plot optimize on a run file" \
-  "missing dataset or group '/control'" \
-  "$py" "$plot" optimize "$tmp/fpu.h5" -o "$out"
-# The drawn steps are the stored controls: per actuator, the step values
-# repeated over the intervals of /control/t equal /control/u exactly, the
-# step edges are /control/t and T (macro actuator: every p-th), the panel
-# is labelled with /control/names; the trajectory figure shows the actuated
-# and terminal coordinates.
-ocp=$("$py" - "$plot" "$tmp" <<'PYEOF'
-import sys
-from importlib.machinery import SourceFileLoader
-import h5py
-import matplotlib.patches
-import numpy as np
-mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
-tmp = sys.argv[2]
-res = []
-for name, sizes, want in (("crane", [40], [0, 2]),
-                          ("di2", [10, 50], [0, 1]), ("pair", [80], [2])):
-    h5 = h5py.File("%s/%s.h5" % (tmp, name), "r")
-    opt = mod.Optimal(h5)
-    u, t = h5["control/u"][()], h5["control/t"][()]
-    T = h5["macro/t"][-1]
-    fig = mod.controls_figure(opt)
-    ok = len(fig.axes) == u.shape[1]
-    for a, ax in enumerate(fig.axes):
-        steps = [s for s in ax.patches
-                 if isinstance(s, matplotlib.patches.StepPatch)]
-        if len(steps) != 1:
-            ok = False
-            continue
-        values, edges, _ = steps[0].get_data()
-        rep = u.shape[0] // values.size
-        ok = ok and values.size == sizes[a] and \
-            np.array_equal(np.repeat(values, rep), u[:, a]) and \
-            np.array_equal(edges, np.append(t, T)[::rep]) and \
-            ax.get_ylabel() == mod.text(h5["control/names"][a])
-    ok = ok and mod.ocp_coordinates(opt) == want
-    if name == "pair":
-        # The distance panel: on the 81 micro nodes (b is fast), equal to
-        # |x_a - x_b| of /macro/q at the macro nodes.
-        tr, r = mod.pair_distance(opt.run, 0, 1)
-        q = h5["macro/q"][()]
-        rm = np.hypot(q[:, 0] - q[:, 2], q[:, 1] - q[:, 3])
-        ok = ok and opt.pairs == [(0, 1)] and r.size == 81 and \
-            np.allclose(r[::4], rm, rtol=0, atol=1e-14)
-    res.append("%s:%s" % (name, ok))
-print(" ".join(res))
-PYEOF
-)
-for n in crane di2 pair; do
-  case " $ocp " in
-    *" $n:True "*) pass "optimize $n: drawn steps equal /control/u, panels" ;;
-    *) fail "optimize $n: drawn steps vs /control/u, panels ($ocp)" ;;
-  esac
-done
 
-# --- batch master file (mrvi batch): a column against a varied key ---
-# 3 macro steps x 2 micro step counts; the step 2 fails (Newton: t_end 40),
-# so two cases are not drawn.
+# Batch master files (mrvi batch): 3 macro steps x 2 micro step counts;
+# the step 2 fails (Newton: t_end 40), so two cases are not drawn.
 "$mrvi" batch "$root/systems/fpu.yaml" -o "$tmp/bt.h5" -q -j 1 \
   --vary integrator.macro_step=0.01,0.02,2 --vary integrator.micro_steps=5,10 \
   --vary integrator.t_end=40 >/dev/null 2>&1
 [ $? = 2 ] && pass "mrvi batch for mrvi-plot batch (two cases fail)" ||
   fail "mrvi batch for mrvi-plot batch (two cases fail)"
-run_ok "mrvi-plot batch" "$py" "$plot" batch "$tmp/bt.h5" -o "$out" \
-  --x integrator.macro_step --y energy_error
-png_ok "$out/bt_energy_error_vs_integrator.macro_step.png"
-run_ok "mrvi-plot batch --data" "$py" "$plot" batch "$tmp/bt.h5" -o "$out" \
-  --x integrator.micro_steps --y steps --data
-# The drawn lines are the table: one per micro step count, x the completed
-# macro steps ascending, y /cases/energy_error of the matching case; the
-# --data lines are the same points.
-bt=$("$py" - "$plot" "$tmp/bt.h5" "$tmp/out.txt" <<'PYEOF'
-import sys
-from importlib.machinery import SourceFileLoader
-import h5py
-import numpy as np
-mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
-h5 = h5py.File(sys.argv[2], "r")
-dt = h5["cases/values/integrator.macro_step"][()]
-p = h5["cases/values/integrator.micro_steps"][()]
-err = h5["cases/energy_error"][()]
-steps = h5["cases/steps"][()]
-ok_status = h5["cases/status"][()] == 1
-table = mod.BatchTable(h5)
-group = mod.batch_group(table, "integrator.macro_step", None)
-fig, _ = mod.batch_figure(table, "integrator.macro_step", "energy_error", group)
-lines = fig.axes[0].get_lines()
-ok = group == "integrator.micro_steps" and len(lines) == 2
-for line, pv in zip(lines, (5, 10)):
-    sel = ok_status & (p == pv)
-    order = np.argsort(dt[sel])
-    ok = ok and line.get_label() == "integrator.micro_steps = %d" % pv and \
-        np.array_equal(line.get_xdata(), dt[sel][order]) and \
-        np.array_equal(line.get_ydata(), err[sel][order]) and \
-        line.get_xdata().size == 2
-# --data of --x integrator.micro_steps --y steps: group, x, y per point.
-rows = [l.split("\t") for l in open(sys.argv[3]) if "\t" in l]
-want = sorted((float(d), float(q), float(s)) for d, q, s, c in
-              zip(dt, p, steps, ok_status) if c)
-got = sorted(tuple(float(v) for v in r) for r in rows)
-ok = ok and got == want and len(got) == 4
-print(ok)
-PYEOF
-)
-[ "$bt" = True ] && pass "batch: drawn lines and --data equal the case table" ||
-  fail "batch: drawn lines and --data equal the case table ($bt)"
-fails_with "batch: not a master file" "not the master file of mrvi batch" \
-  "$py" "$plot" batch "$tmp/fpu.h5" --x integrator.macro_step -o "$out"
-fails_with "batch: --x not a varied key" "'integrator.dt' is not a varied key" \
-  "$py" "$plot" batch "$tmp/bt.h5" --x integrator.dt -o "$out"
 run_ok "mrvi batch, three varied keys" "$mrvi" batch "$root/systems/fpu.yaml" \
   -o "$tmp/bt3.h5" -q -j 1 --vary integrator.macro_step=0.01,0.02 \
   --vary integrator.micro_steps=1,2 --vary integrator.t_end=10,20
-fails_with "batch: two other varied keys need --group" "also varies" \
-  "$py" "$plot" batch "$tmp/bt3.h5" --x integrator.macro_step -o "$out"
-# all: a master file is told apart by /cases and batch_version; each varied
-# key against the other, energy_error and wall_time (the figures of
-# mrvi-plot batch); three varied keys: no figure, a note, exit 0.
-rm -rf "$tmp/all_bt" && mkdir "$tmp/all_bt"
-run_ok "mrvi-plot all (batch master files)" "$py" "$plot" all "$tmp/bt.h5" \
-  "$tmp/bt3.h5" -o "$tmp/all_bt"
-for y in energy_error wall_time; do
-  for x in macro_step micro_steps; do
-    png_ok "$tmp/all_bt/bt_${y}_vs_integrator.$x.png"
-  done
-done
-n_png=$(ls "$tmp/all_bt" | wc -l)
-[ "$n_png" = 4 ] && pass "all: four batch figures, none of bt3" ||
-  fail "all: four batch figures, none of bt3 (got $n_png)"
-"$py" "$plot" all "$tmp/bt3.h5" -o "$tmp/all_bt" 2>"$tmp/err.txt"
-[ $? = 0 ] && grep -q "no figure of the batch" "$tmp/err.txt" &&
-  pass "all: a batch varying three keys: a note" ||
-  fail "all: a batch varying three keys: a note ($(cat "$tmp/err.txt"))"
 
-# --- synthetic study tables in the formats of mrvi converge / stability /
-# timing ---
+# Synthetic study tables in the formats of mrvi converge / stability /
+# timing.
 if ! "$py" - "$tmp" <<'EOF' 2>"$tmp/err.txt"
 import math
 import sys
@@ -600,12 +311,279 @@ else
   pass "synthetic tables built"
 fi
 
-run_ok "mrvi-plot convergence" "$py" "$plot" convergence "$tmp/conv.h5" -o "$out"
-for p in 1 5 10; do
-  png_ok "$out/conv_p$p.png"
-  png_ok "$out/conv_p${p}_split.png"
+# For the readable figures: FPU Q3 with p = 1, and 1601 macro nodes (more
+# than DENSE_NODES = 1500).
+run_ok "mrvi run fpu Q3 p = 1" "$mrvi" run "$root/systems/fpu.yaml" \
+  -o "$tmp/fpu3.h5" --set integrator.scheme=trapezoidal-trapezoidal \
+  --set integrator.macro_step=0.03 --set integrator.micro_steps=1 \
+  --set integrator.t_end=6 --quiet
+run_ok "mrvi run spring_ring, 1601 nodes" "$mrvi" run \
+  "$root/systems/spring_ring.yaml" -o "$tmp/ring_long.h5" \
+  --set integrator.t_end=16 --set output.micro=false --quiet
+# For the still picture: a rigid body (heavy_top, 3-D).
+run_ok "mrvi run heavy_top" "$mrvi" run "$root/systems/heavy_top.yaml" \
+  -o "$tmp/top.h5" -q --set integrator.t_end=1
+
+# =============================================================================
+# The cases, queued in the order they are judged below
+# =============================================================================
+
+# --- help ---
+case_ help --help
+for sub in run optimize convergence stability timing animate batch all; do
+  case_ "help_$sub" "$sub" --help
 done
-slope=$("$py" - "$plot" <<'EOF' 2>&1
+
+# --- run files ---
+case_ run_fpu run "$tmp/fpu.h5" -o "$out"
+case_ run_ring run "$tmp/ring.h5" -o "$out" --prefix ring --window 0.2
+case_ run_omega run "$tmp/ring.h5" -o "$out" --prefix ring_omega --omega 44.72
+case_ run_lattice run "$tmp/lattice.h5" -o "$out"
+case_ run_cart run "$tmp/cart.h5" -o "$out"
+case_ run_chain run "$tmp/chain.h5" -o "$out"
+case_ omega_lattice run "$tmp/lattice.h5" -o "$out" --prefix lattice_omega \
+  --omega 40
+
+# What the figures are made of, asserted on the numbers.
+cat >"$tmp/checks.py" <<'PYEOF'
+import sys
+from importlib.machinery import SourceFileLoader
+import h5py
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+tmp = sys.argv[2]
+out = []
+
+
+def run(name):
+    return mod.Run(h5py.File("%s/%s.h5" % (tmp, name), "r"))
+
+
+# Stiffnesses fitted to W: FPU 2500, spring ring 4000 (fast anchors), none
+# for the lattice (fast springs between particles) and the cart (W = 0).
+k_fpu = mod.fitted_stiffness(run("fpu"))
+k_ring = mod.fitted_stiffness(run("ring"))
+out.append("fit-fpu:%s" % np.allclose(k_fpu, 2500, rtol=1e-9))
+out.append("fit-ring:%s" % np.allclose(k_ring, 4000, rtol=1e-9))
+out.append("fit-lattice:%s" % (mod.fitted_stiffness(run("lattice")) is None))
+out.append("fit-cart:%s" % (mod.fitted_stiffness(run("cart")) is None))
+k, why = mod.stiffnesses(run("lattice"), 40.0)
+out.append("omega-refused:%s" % (k is None and "not" in why))
+
+# The energy error is divided by what the run summary divides it by: the
+# attribute energy_scale (cart pendulum: T0 + |V0| + |W0|, V0 < 0), for
+# H0 = 0 the largest T + |V| + |W| (falling mass: t_end^2 = 1), also
+# recomputed from the datasets for a file without the attribute.
+h = run("cart").h5
+mag0 = sum(abs(float(h["macro/" + d][0])) for d in
+           ("kinetic", "potential_slow", "potential_fast"))
+scale, name = mod.energy_scale(h)
+out.append("escale-cart:%s" % (abs(scale - mag0) <= 1e-15 * mag0 and
+                              float(h.attrs["energy_scale"]) == scale and
+                              name.startswith("(H − H₀)/E₀")))
+scale, name = mod.energy_scale(run("fall").h5)
+out.append("escale-fall:%s" % (abs(scale - 1.0) <= 1e-12 and "H₀ = 0" in name))
+import shutil
+shutil.copy("%s/fall.h5" % tmp, "%s/fall_old.h5" % tmp)
+with h5py.File("%s/fall_old.h5" % tmp, "r+") as f:
+    for a in ("energy_scale", "energy_scale_kind"):
+        del f.attrs[a]
+scale, name = mod.energy_scale(run("fall_old").h5)
+out.append("escale-noattr:%s" % (abs(scale - 1.0) <= 1e-12 and "H₀ = 0" in name))
+
+# Micro figure of the lattice: the 6 of 15 fast particles that move most.
+r = run("lattice")
+tm = mod.read(r.h5, "micro/t")
+sel = tm <= tm[0] + 1.0
+chosen, note = mod.pick_particles(r, tm, sel, None)
+out.append("pick:%s" % (len(chosen) == 6 and "6 of 15" in note and
+                        all(r.rate[r.columns[i]] == 1 for i in chosen)))
+# The slow coordinates interpolated linearly between the macro nodes equal
+# the stored /micro/q_slow (the writer's formula) to 1e-15.
+stored = r.h5["micro/q_slow"][()]
+qmac = r.h5["macro/q"][()]
+slow = np.flatnonzero(r.rate == 0)
+interp = np.column_stack([np.interp(tm, r.t, qmac[:, c]) for c in slow])
+out.append("q_slow:%s" % (np.max(np.abs(interp - stored)) <= 1e-15 *
+                          max(1.0, np.max(np.abs(stored)))))
+
+# A conserved (flat) series gets short tick labels, not 1.0500000000010.
+import matplotlib.pyplot as plt
+fig, ax = plt.subplots()
+y = 1.05 + 1e-14 * np.sin(np.arange(50.0))
+ax.plot(y)
+mod.flat_ylim(ax, y)
+fig.canvas.draw()
+labels = [t.get_text().replace("$\\mathdefault{", "").rstrip("}$")
+          for t in ax.get_yticklabels() if t.get_text()]
+out.append("ticks:%s" % (max(len(lab) for lab in labels) <= 5))
+# Log axis of p = 1 ... 1000 in a narrow panel: labels at the decades only.
+fig, ax = plt.subplots()
+p = [1, 5, 10, 20, 50, 100, 200, 500, 1000]
+ax.loglog(p, p)
+mod.plain_log_ticks(ax.xaxis, p, most=12, labels=4)
+major = list(ax.xaxis.get_major_locator()())
+out.append("decades:%s" % (major == [1, 10, 100, 1000]))
+print(" ".join(out))
+PYEOF
+script checks "$plot" "$tmp"
+
+# --- animate ---
+case_ anim_lattice animate "$tmp/lattice.h5" -o "$tmp/lattice.gif" --every 5
+case_ anim_ring animate "$tmp/ring.h5" -o "$tmp/ring.gif" --every 10 --fps 10
+# MP4 asked for where matplotlib finds no ffmpeg: a GIF and a note (a
+# process of its own: matplotlib reads MATPLOTLIBRC as it is imported).
+mkdir -p "$tmp/rc"
+echo "animation.ffmpeg_path: $tmp/no-such-ffmpeg" >"$tmp/rc/matplotlibrc"
+MATPLOTLIBRC="$tmp/rc" "$py" "$plot" animate "$tmp/cart.h5" \
+  -o "$tmp/cart.mp4" --every 4 >"$tmp/ffmpeg.out" 2>"$tmp/ffmpeg.err"
+echo $? >"$tmp/ffmpeg.rc"
+cat >"$tmp/frames.py" <<'PYEOF'
+import math
+import sys
+import h5py
+from PIL import Image
+tmp = sys.argv[1]
+res = []
+# The cart is slow and the file has no /micro/q_slow: macro nodes.
+for name, grid, every in (("lattice", "micro", 5), ("ring", "macro", 10),
+                          ("cart", "macro", 4)):
+    rows = h5py.File("%s/%s.h5" % (tmp, name), "r")[grid + "/t"].shape[0]
+    im = Image.open("%s/%s.gif" % (tmp, name))
+    want = math.ceil(rows / every)
+    ok = im.format == "GIF" and im.n_frames == want and im.size[0] > 300
+    res.append("%s:%s:%d/%d" % (name, ok, im.n_frames, want))
+print(" ".join(res))
+PYEOF
+script frames "$tmp"
+case_ anim_fpu animate "$tmp/fpu.h5" -o "$tmp/fpu.gif"
+case_ anim_grid animate "$tmp/ring.h5" -o "$tmp/x.gif" --grid micro
+
+# --- constrained run ---
+case_ run_cons run "$tmp/cons.h5" -o "$out"
+cat >"$tmp/floor.py" <<'EOF'
+import sys
+from importlib.machinery import SourceFileLoader
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+y, floor, n = mod.log_floor(np.array([0.0, 3e-12, np.nan, 1e-10, -0.0]))
+ok = y[0] == floor and np.isclose(floor, 3e-13) and y[1] == 3e-12 and \
+    np.isnan(y[2]) and n == 2
+y0, floor0, n0 = mod.log_floor(np.zeros(3))
+print("ok" if ok and floor0 == 1e-16 and n0 == 3 and (y0 == 1e-16).all()
+      else "bad: %r %r %r / %r %r" % (y, floor, n, y0, floor0))
+EOF
+script floor "$plot"
+
+# --- optimal control files ---
+for f in crane di2 pair; do
+  case_ "opt_$f" optimize "$tmp/$f.h5" -o "$out"
+done
+# `all` recognises the file and draws the run figures too.
+case_ all_crane all "$tmp/crane.h5" -o "$out/all" --prefix x
+case_ opt_fpu optimize "$tmp/fpu.h5" -o "$out"
+# The drawn steps are the stored controls: per actuator, the step values
+# repeated over the intervals of /control/t equal /control/u exactly, the
+# step edges are /control/t and T (macro actuator: every p-th), the panel
+# is labelled with /control/names; the trajectory figure shows the actuated
+# and terminal coordinates.
+cat >"$tmp/ocp.py" <<'PYEOF'
+import sys
+from importlib.machinery import SourceFileLoader
+import h5py
+import matplotlib.patches
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+tmp = sys.argv[2]
+res = []
+for name, sizes, want in (("crane", [40], [0, 2]),
+                          ("di2", [10, 50], [0, 1]), ("pair", [80], [2])):
+    h5 = h5py.File("%s/%s.h5" % (tmp, name), "r")
+    opt = mod.Optimal(h5)
+    u, t = h5["control/u"][()], h5["control/t"][()]
+    T = h5["macro/t"][-1]
+    fig = mod.controls_figure(opt)
+    ok = len(fig.axes) == u.shape[1]
+    for a, ax in enumerate(fig.axes):
+        steps = [s for s in ax.patches
+                 if isinstance(s, matplotlib.patches.StepPatch)]
+        if len(steps) != 1:
+            ok = False
+            continue
+        values, edges, _ = steps[0].get_data()
+        rep = u.shape[0] // values.size
+        ok = ok and values.size == sizes[a] and \
+            np.array_equal(np.repeat(values, rep), u[:, a]) and \
+            np.array_equal(edges, np.append(t, T)[::rep]) and \
+            ax.get_ylabel() == mod.text(h5["control/names"][a])
+    ok = ok and mod.ocp_coordinates(opt) == want
+    if name == "pair":
+        # The distance panel: on the 81 micro nodes (b is fast), equal to
+        # |x_a - x_b| of /macro/q at the macro nodes.
+        tr, r = mod.pair_distance(opt.run, 0, 1)
+        q = h5["macro/q"][()]
+        rm = np.hypot(q[:, 0] - q[:, 2], q[:, 1] - q[:, 3])
+        ok = ok and opt.pairs == [(0, 1)] and r.size == 81 and \
+            np.allclose(r[::4], rm, rtol=0, atol=1e-14)
+    res.append("%s:%s" % (name, ok))
+print(" ".join(res))
+PYEOF
+script ocp "$plot" "$tmp"
+
+# --- batch master files: a column against a varied key ---
+case_ batch_plot batch "$tmp/bt.h5" -o "$out" --x integrator.macro_step \
+  --y energy_error
+case_ batch_data batch "$tmp/bt.h5" -o "$out" --x integrator.micro_steps \
+  --y steps --data
+# The drawn lines are the table: one per micro step count, x the completed
+# macro steps ascending, y /cases/energy_error of the matching case; the
+# --data lines (the stdout of batch_data) are the same points.
+cat >"$tmp/bt.py" <<'PYEOF'
+import sys
+from importlib.machinery import SourceFileLoader
+import h5py
+import numpy as np
+mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
+h5 = h5py.File(sys.argv[2], "r")
+dt = h5["cases/values/integrator.macro_step"][()]
+p = h5["cases/values/integrator.micro_steps"][()]
+err = h5["cases/energy_error"][()]
+steps = h5["cases/steps"][()]
+ok_status = h5["cases/status"][()] == 1
+table = mod.BatchTable(h5)
+group = mod.batch_group(table, "integrator.macro_step", None)
+fig, _ = mod.batch_figure(table, "integrator.macro_step", "energy_error", group)
+lines = fig.axes[0].get_lines()
+ok = group == "integrator.micro_steps" and len(lines) == 2
+for line, pv in zip(lines, (5, 10)):
+    sel = ok_status & (p == pv)
+    order = np.argsort(dt[sel])
+    ok = ok and line.get_label() == "integrator.micro_steps = %d" % pv and \
+        np.array_equal(line.get_xdata(), dt[sel][order]) and \
+        np.array_equal(line.get_ydata(), err[sel][order]) and \
+        line.get_xdata().size == 2
+# --data of --x integrator.micro_steps --y steps: group, x, y per point.
+rows = [l.split("\t") for l in open(sys.argv[3]) if "\t" in l]
+want = sorted((float(d), float(q), float(s)) for d, q, s, c in
+              zip(dt, p, steps, ok_status) if c)
+got = sorted(tuple(float(v) for v in r) for r in rows)
+ok = ok and got == want and len(got) == 4
+print(ok)
+PYEOF
+script bt "$plot" "$tmp/bt.h5" "$cases/batch_data.out"
+case_ batch_fpu batch "$tmp/fpu.h5" --x integrator.macro_step -o "$out"
+case_ batch_dt batch "$tmp/bt.h5" --x integrator.dt -o "$out"
+case_ batch_bt3 batch "$tmp/bt3.h5" --x integrator.macro_step -o "$out"
+# all: a master file is told apart by /cases and batch_version; each varied
+# key against the other, energy_error and wall_time (the figures of
+# mrvi-plot batch); three varied keys: no figure, a note, exit 0.
+rm -rf "$tmp/all_bt" && mkdir "$tmp/all_bt"
+case_ all_bt all "$tmp/bt.h5" "$tmp/bt3.h5" -o "$tmp/all_bt"
+case_ all_bt3 all "$tmp/bt3.h5" -o "$tmp/all_bt"
+
+# --- synthetic study tables ---
+case_ conv convergence "$tmp/conv.h5" -o "$out"
+cat >"$tmp/slope.py" <<'EOF'
 import sys
 from importlib.machinery import SourceFileLoader
 import numpy as np
@@ -613,31 +591,12 @@ mod = SourceFileLoader("mrvi_plot", sys.argv[1]).load_module()
 x = 0.1 / 2.0 ** np.arange(5)
 print("%.2f %.2f" % (mod.slope(x, 3 * x ** 2), mod.slope(x, 0.1 * x)))
 EOF
-)
-if [ "$slope" = "2.00 1.00" ]; then
-  pass "fitted slopes of C dT^2 and C dT: $slope"
-else
-  fail "fitted slopes of C dT^2 and C dT: $slope (expected 2.00 1.00)"
-fi
-
-run_ok "mrvi-plot stability" "$py" "$plot" stability "$tmp/stab.h5" -o "$out"
-png_ok "$out/stab_bounds.png"
-png_ok "$out/stab_trace.png"
-
-run_ok "mrvi-plot timing" "$py" "$plot" timing "$tmp/timing.h5" -o "$out"
-png_ok "$out/timing_total.png"
-png_ok "$out/timing_per_step.png"
+script slope "$plot"
+case_ stab stability "$tmp/stab.h5" -o "$out"
+case_ timing timing "$tmp/timing.h5" -o "$out"
 
 # --- what a reader needs to see, asserted on the figures themselves ---
-run_ok "mrvi run fpu Q3 p = 1" "$mrvi" run "$root/systems/fpu.yaml" \
-  -o "$tmp/fpu3.h5" --set integrator.scheme=trapezoidal-trapezoidal \
-  --set integrator.macro_step=0.03 --set integrator.micro_steps=1 \
-  --set integrator.t_end=6 --quiet
-# 1601 macro nodes: more than DENSE_NODES = 1500.
-run_ok "mrvi run spring_ring, 1601 nodes" "$mrvi" run \
-  "$root/systems/spring_ring.yaml" -o "$tmp/ring_long.h5" \
-  --set integrator.t_end=16 --set output.micro=false --quiet
-readable=$("$py" - "$plot" "$tmp" <<'PYEOF'
+cat >"$tmp/readable.py" <<'PYEOF'
 import argparse
 import contextlib
 import io
@@ -842,33 +801,17 @@ def _():
 
 print(" ".join(out))
 PYEOF
-)
-for c in q3-note q3-tilde q1-no-note dense-H dense-T range trend j-tol \
-  conv-h stab-inf no-overlap; do
-  case " $readable " in
-    *" $c:True "*) pass "readable figure: $c" ;;
-    *) fail "readable figure: $c (got: $readable)" ;;
-  esac
-done
-
-run_ok "mrvi-plot all" "$py" "$plot" all "$tmp/fpu.h5" "$tmp/stab.h5" \
-  -o "$tmp/all"
-png_ok "$tmp/all/fpu_energy.png"
-png_ok "$tmp/all/stab_trace.png"
+script readable "$plot" "$tmp"
+case_ all_fpu all "$tmp/fpu.h5" "$tmp/stab.h5" -o "$tmp/all"
 
 # --- still: a picture of the motion ---
 # Particles (pendulum_chain, 2-D) and a rigid body (heavy_top, 3-D): the
 # traces drawn are the stored positions, the body's director segments start
 # at its centre of mass along the stored rotation's columns, and 3-D axes
 # have equal scales.  A model of coordinates only is refused with a reason.
-run_ok "mrvi run heavy_top" "$mrvi" run "$root/systems/heavy_top.yaml" \
-  -o "$tmp/top.h5" -q --set integrator.t_end=1
-run_ok "mrvi-plot still pendulum_chain" "$py" "$plot" still \
-  "$tmp/chain.h5" -o "$out"
-png_ok "$out/chain_still.png"
-run_ok "mrvi-plot still heavy_top" "$py" "$plot" still "$tmp/top.h5" -o "$out"
-png_ok "$out/top_still.png"
-still=$("$py" - "$plot" "$tmp/chain.h5" "$tmp/top.h5" <<'PY' 2>&1
+case_ still_chain still "$tmp/chain.h5" -o "$out"
+case_ still_top still "$tmp/top.h5" -o "$out"
+cat >"$tmp/still.py" <<'PY'
 import sys
 import numpy as np, h5py
 from importlib.machinery import SourceFileLoader
@@ -918,21 +861,199 @@ with h5py.File(sys.argv[3], "r") as h5:
     ok.append(np.allclose([b - a for a, b in lim], lim[0][1] - lim[0][0]))
 print(" ".join(str(v) for v in ok))
 PY
-)
+script still "$plot" "$tmp/chain.h5" "$tmp/top.h5"
+case_ still_fpu still "$tmp/fpu.h5" -o "$out"
+
+# --- errors ---
+case_ err_missing run "$tmp/does-not-exist.h5" -o "$out"
+case_ err_broken stability "$tmp/broken.h5" -o "$out"
+case_ err_conv convergence "$tmp/fpu.h5" -o "$out"
+case_ err_none
+
+# One process for every case queued (each case bounded by 120 s inside).
+timeout 1800 "$py" "$root/tests/plot_cases.py" "$plot" "$cases/cases.txt" \
+  "$cases" || fail "tests/plot_cases.py: exit $?"
+
+# =============================================================================
+# The judgements
+# =============================================================================
+
+# --- help ---
+ok "mrvi-plot --help" help
+for sub in run optimize convergence stability timing animate batch all; do
+  ok "mrvi-plot $sub --help" "help_$sub"
+done
+
+# --- run files ---
+ok "mrvi-plot run fpu" run_fpu
+for f in energy stiff_energy micro; do png_ok "$out/fpu_$f.png"; done
+absent "$out/fpu_angular_momentum.png"
+ok "mrvi-plot run spring_ring" run_ring
+# W = (omega2/2) |q_f|^2: the stiff-spring energies mean something here.
+for f in energy angular_momentum micro stiff_energy; do
+  png_ok "$out/ring_$f.png"
+done
+ok "mrvi-plot run --omega" run_omega
+png_ok "$out/ring_omega_stiff_energy.png"
+ok "mrvi-plot run lattice" run_lattice
+for f in energy angular_momentum micro micro_fast; do png_ok "$out/lattice_$f.png"; done
+absent "$out/lattice_stiff_energy.png"
+ok "mrvi-plot run cart_pendulum" run_cart
+png_ok "$out/cart_angular_momentum.png"
+ok "mrvi-plot run pendulum_chain" run_chain
+absent "$out/chain_angular_momentum.png"
+if grep -q "conserves no component" "$tmp/out.txt"; then
+  pass "pendulum chain: says why there is no angular momentum figure"
+else
+  fail "pendulum chain: no reason given: $(cat "$tmp/out.txt")"
+fi
+warns "--omega where W is not quadratic per coordinate" \
+  "no stiff-energy figure" omega_lattice
+absent "$out/lattice_omega_stiff_energy.png"
+checks=$(output checks)
+for c in fit-fpu fit-ring fit-lattice fit-cart omega-refused pick q_slow ticks \
+  decades escale-cart escale-fall escale-noattr; do
+  case " $checks " in
+    *" $c:True "*) pass "$c" ;;
+    *) fail "$c (got: $checks)" ;;
+  esac
+done
+
+# --- animate ---
+ok "mrvi-plot animate lattice (micro nodes)" anim_lattice
+ok "mrvi-plot animate spring_ring (macro nodes)" anim_ring
+if [ "$(cat "$tmp/ffmpeg.rc")" = 0 ] &&
+  grep -q "ffmpeg not found" "$tmp/ffmpeg.err" && [ ! -e "$tmp/cart.mp4" ]; then
+  pass "no ffmpeg: $(head -1 "$tmp/ffmpeg.err")"
+else
+  fail "no ffmpeg: GIF fallback ($(head -1 "$tmp/ffmpeg.err"))"
+fi
+frames=$(output frames)
+for n in lattice ring cart; do
+  case " $frames " in
+    *" $n:True:"*) pass "animation $n: one GIF frame per node kept ($frames)" ;;
+    *) fail "animation $n: frames ($frames)" ;;
+  esac
+done
+fails_with "animate a run without particles" "no particles" anim_fpu
+fails_with "animate --grid micro without q_slow" "micro_slow" anim_grid
+
+# --- constrained run ---
+ok "mrvi-plot run constrained" run_cons
+png_ok "$out/cons_energy.png"
+# The constraint panel makes the energy figure taller than the FPU one
+# (PNG height: bytes 20-23, in the IHDR chunk).
+png_height() {
+  od -An -j20 -N4 -tu1 "$1" | awk '{print $1*16777216+$2*65536+$3*256+$4}'
+}
+h_fpu=$(png_height "$out/fpu_energy.png")
+h_cons=$(png_height "$out/cons_energy.png")
+if [ "${h_cons:-0}" -gt "${h_fpu:-0}" ]; then
+  pass "constraint panel added (height $h_cons > $h_fpu px)"
+else
+  fail "constraint panel added (height ${h_cons:-?} vs ${h_fpu:-?} px)"
+fi
+floor=$(output floor)
+if [ "$floor" = "ok" ]; then
+  pass "log_floor raises exact zeros to a decade below the smallest value"
+else
+  fail "log_floor: $floor"
+fi
+
+# --- optimal control files ---
+for f in crane di2 pair; do
+  ok "mrvi-plot optimize $f" "opt_$f"
+  for g in controls trajectory history; do png_ok "$out/${f}_$g.png"; done
+done
+ok "mrvi-plot all (optimize file)" all_crane
+for g in energy micro controls trajectory history; do
+  png_ok "$out/all/x_crane_$g.png"
+done
+fails_with "mrvi-plot optimize on a run file" \
+  "missing dataset or group '/control'" opt_fpu
+ocp=$(output ocp)
+for n in crane di2 pair; do
+  case " $ocp " in
+    *" $n:True "*) pass "optimize $n: drawn steps equal /control/u, panels" ;;
+    *) fail "optimize $n: drawn steps vs /control/u, panels ($ocp)" ;;
+  esac
+done
+
+# --- batch master files ---
+ok "mrvi-plot batch" batch_plot
+png_ok "$out/bt_energy_error_vs_integrator.macro_step.png"
+ok "mrvi-plot batch --data" batch_data
+bt=$(output bt)
+[ "$bt" = True ] && pass "batch: drawn lines and --data equal the case table" ||
+  fail "batch: drawn lines and --data equal the case table ($bt)"
+fails_with "batch: not a master file" "not the master file of mrvi batch" \
+  batch_fpu
+fails_with "batch: --x not a varied key" "'integrator.dt' is not a varied key" \
+  batch_dt
+fails_with "batch: two other varied keys need --group" "also varies" batch_bt3
+ok "mrvi-plot all (batch master files)" all_bt
+for y in energy_error wall_time; do
+  for x in macro_step micro_steps; do
+    png_ok "$tmp/all_bt/bt_${y}_vs_integrator.$x.png"
+  done
+done
+n_png=$(ls "$tmp/all_bt" | wc -l)
+[ "$n_png" = 4 ] && pass "all: four batch figures, none of bt3" ||
+  fail "all: four batch figures, none of bt3 (got $n_png)"
+result all_bt3
+[ $? = 0 ] && grep -q "no figure of the batch" "$tmp/err.txt" &&
+  pass "all: a batch varying three keys: a note" ||
+  fail "all: a batch varying three keys: a note ($(cat "$tmp/err.txt"))"
+
+# --- synthetic study tables ---
+ok "mrvi-plot convergence" conv
+for p in 1 5 10; do
+  png_ok "$out/conv_p$p.png"
+  png_ok "$out/conv_p${p}_split.png"
+done
+slope=$(output slope)
+if [ "$slope" = "2.00 1.00" ]; then
+  pass "fitted slopes of C dT^2 and C dT: $slope"
+else
+  fail "fitted slopes of C dT^2 and C dT: $slope (expected 2.00 1.00)"
+fi
+ok "mrvi-plot stability" stab
+png_ok "$out/stab_bounds.png"
+png_ok "$out/stab_trace.png"
+ok "mrvi-plot timing" timing
+png_ok "$out/timing_total.png"
+png_ok "$out/timing_per_step.png"
+
+# --- readable figures ---
+readable=$(output readable)
+for c in q3-note q3-tilde q1-no-note dense-H dense-T range trend j-tol \
+  conv-h stab-inf no-overlap; do
+  case " $readable " in
+    *" $c:True "*) pass "readable figure: $c" ;;
+    *) fail "readable figure: $c (got: $readable)" ;;
+  esac
+done
+ok "mrvi-plot all" all_fpu
+png_ok "$tmp/all/fpu_energy.png"
+png_ok "$tmp/all/stab_trace.png"
+
+# --- still ---
+ok "mrvi-plot still pendulum_chain" still_chain
+png_ok "$out/chain_still.png"
+ok "mrvi-plot still heavy_top" still_top
+png_ok "$out/top_still.png"
+still=$(output still)
 case $still in
 "True True True True True") pass "still: traces are the stored positions, anchors drawn from their stored points, directors the stored rotation, equal 3-D scales" ;;
 *) fail "still: traces, directors or scales (got: $still)" ;;
 esac
-fails_with "still: a model of coordinates only" "no particles or bodies\|needs particles" \
-  "$py" "$plot" still "$tmp/fpu.h5" -o "$out"
+fails_with "still: a model of coordinates only" \
+  "no particles or bodies\|needs particles" still_fpu
 
 # --- errors ---
-fails_with "missing input file" "no such file" \
-  "$py" "$plot" run "$tmp/does-not-exist.h5" -o "$out"
-fails_with "missing dataset named" "/stability/midpoint_measured" \
-  "$py" "$plot" stability "$tmp/broken.h5" -o "$out"
-fails_with "run file given to convergence" "/convergence" \
-  "$py" "$plot" convergence "$tmp/fpu.h5" -o "$out"
-fails_with "no subcommand" "usage" "$py" "$plot"
+fails_with "missing input file" "no such file" err_missing
+fails_with "missing dataset named" "/stability/midpoint_measured" err_broken
+fails_with "run file given to convergence" "/convergence" err_conv
+fails_with "no subcommand" "usage" err_none
 
 test_finish

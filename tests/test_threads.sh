@@ -15,7 +15,12 @@
 # threads equals the uninterrupted run on 1.  `mrvi check` shows the
 # count; a build without OpenMP refuses --threads 2 with a message that
 # says so.  explicit-slow's chord sums (the summary's relaxation sum, to
-# the last bit) the same on 1, 2 and 3 threads.  A command on threads sets
+# the last bit) the same on 1, 2 and 3 threads.  The automatic count (the
+# default, `--threads auto`, MRVI_THREADS=auto): 1 for the 6 x 5 and the
+# 40 x 20 lattice in parts of 4096 (no loop of two parts) and bound to one
+# core (taskset); in parts of 16 the cores available (nproc) less those
+# other tasks run on, with the reason in `mrvi check`; the trajectory of 1
+# thread bit for bit.  A command on threads sets
 # libgomp's GOMP_SPINCOUNT to 1000 (a
 # short spin, then sleep) unless the environment sets it or
 # OMP_WAIT_POLICY.
@@ -51,6 +56,8 @@ if ! "$mrvi" check "$sys" --threads 3 >"$tmp/check.txt" 2>&1; then
     pass "no OpenMP: --threads 3 refused with its reason"
     run_ok "no OpenMP: --threads 1 runs" "$mrvi" run "$sys" "${common[@]}" \
       --threads 1 -o "$tmp/one.h5"
+    run_ok "no OpenMP: the default (auto) runs" "$mrvi" run "$sys" \
+      "${common[@]}" -o "$tmp/auto.h5"
     test_finish
     exit $?
   fi
@@ -88,6 +95,66 @@ if env -u OMP_WAIT_POLICY -u GOMP_SPINCOUNT -u MRVI_THREADS "$mrvi" check "$sys"
   pass "one thread: the environment unchanged"
 else
   fail "one thread: the environment unchanged"
+fi
+
+# The automatic count (the default, --threads auto, MRVI_THREADS=auto):
+# the cores available (nproc: the affinity mask) when a loop has at least
+# two parts of tuning.thread_chunk, else 1 without a restart.
+cores=$(nproc)
+big=(--set generate.0.count.0=40 --set generate.0.count.1=20
+  --set integrator.tuning.thread_chunk=16)
+auto_ok() { # NAME WANT-COUNT WANT-REASON ARGS...: mrvi check's threads line
+  local name=$1 want=$2 why=$3 line
+  shift 3
+  line=$(env -u OMP_WAIT_POLICY -u GOMP_SPINCOUNT "$@" 2>&1 | grep "^threads ")
+  if [[ $line == "threads       $want (auto: $why"* ]]; then
+    pass "$name: ${line:0:110}"
+  else
+    fail "$name: $line"
+  fi
+}
+auto_ok "auto, 30 particles: 1" 1 "no loop long enough" \
+  "$mrvi" check "$sys"
+auto_ok "auto, 800 particles in parts of 4096: 1" 1 \
+  "no loop long enough for threads: the longest, 1160 elements of V," \
+  "$mrvi" check "$sys" --set generate.0.count.0=40 --set generate.0.count.1=20
+# big_ok NAME ARGS...: the 40 x 20 lattice in parts of 16 on auto: the
+# cores, the idle ones (others busy) or 1 when other tasks run on all of
+# them (/proc/loadavg; the suite's other tests may), each with its reason,
+# and libgomp's short spin whenever more than one thread is chosen.
+big_ok() {
+  local name=$1 line n ok=0
+  shift
+  line=$(env -u OMP_WAIT_POLICY -u GOMP_SPINCOUNT "$@" 2>&1 | grep "^threads ")
+  n=$(echo "$line" | awk '{print $2}')
+  case $line in
+  "threads       $cores (auto: the cores available to this process: 1160 elements of V"*"GOMP_SPINCOUNT 1000)")
+    [ "$cores" -gt 1 ] && ok=1 ;;
+  *"(auto: the idle cores available to this process (others busy): 1160 elements of V"*"GOMP_SPINCOUNT 1000)")
+    [ "$n" -gt 1 ] && [ "$n" -lt "$cores" ] && ok=1 ;;
+  "threads       1 (auto: "*" other tasks running on the $cores cores available to this process (a loop of 1160 elements of V"*"GOMP_SPINCOUNT "*)
+    ok=1 ;; # (1000 when the load rose between the choice and the restart)
+  "threads       1 (auto: one core available"*"GOMP_SPINCOUNT unset)")
+    [ "$cores" -eq 1 ] && ok=1 ;;
+  esac
+  if [ $ok = 1 ]; then
+    pass "$name: ${line:0:120}"
+  else
+    fail "$name: $line"
+  fi
+}
+big_ok "auto, 800 particles in parts of 16" "$mrvi" check "$sys" "${big[@]}"
+big_ok "MRVI_THREADS=auto" env MRVI_THREADS=auto "$mrvi" check "$sys" "${big[@]}"
+big_ok "--threads auto over MRVI_THREADS=1" env MRVI_THREADS=1 "$mrvi" check \
+  "$sys" "${big[@]}" --threads auto
+if command -v taskset >/dev/null 2>&1; then
+  auto_ok "auto bound to one core (taskset -c 0): 1" 1 "one core available" \
+    taskset -c 0 "$mrvi" check "$sys" "${big[@]}"
+fi
+if grep -q "^threads *3 (--threads or MRVI_THREADS" "$tmp/check.txt"; then
+  pass "--threads 3: as given"
+else
+  fail "--threads 3: as given: $(grep "^threads" "$tmp/check.txt")"
 fi
 
 for scheme in fully-explicit explicit-slow midpoint-midpoint trapezoidal-midpoint; do
@@ -159,11 +226,20 @@ else
   fail "resumed on other thread counts: the uninterrupted run bit for bit"
 fi
 
+# The default (auto) run gives the trajectory of 1 thread bit for bit.
+run_ok "fully-explicit, threads auto" env -u MRVI_THREADS "$mrvi" run "$sys" \
+  "${common[@]}" --set integrator.scheme=fully-explicit -o "$tmp/auto.h5"
+if same "$tmp/fully-explicit.1.h5" "$tmp/auto.h5"; then
+  pass "fully-explicit: the automatic count gives the trajectory of 1 bit for bit"
+else
+  fail "fully-explicit: the automatic count gives the trajectory of 1 bit for bit"
+fi
+
 # Bad counts are refused before anything is written.
 if "$mrvi" run "$sys" "${common[@]}" --threads 0 -o "$tmp/bad.h5" \
   2>"$tmp/err.txt"; then
   fail "--threads 0 refused"
-elif grep -q "thread count 1..4096" "$tmp/err.txt" && [ ! -e "$tmp/bad.h5" ]; then
+elif grep -q "thread count 1..4096 or auto" "$tmp/err.txt" && [ ! -e "$tmp/bad.h5" ]; then
   pass "--threads 0 refused"
 else
   fail "--threads 0 refused: $(cat "$tmp/err.txt")"

@@ -43,8 +43,8 @@ static const char usage_main[] =
     "  run FILE         integrate a description file and write an HDF5 file\n"
     "  check FILE       validate a description file and print the model\n"
     "  optimize FILE    optimal control of the `control:` section (NLopt)\n"
-    "  export FILE.h5   particles of a run for OVITO/VMD (xyz) or ParaView\n"
-    "                   (xdmf)\n"
+    "  export FILE.h5   particles and bodies of a run for OVITO/VMD/ASE (xyz)\n"
+    "                   or ParaView (xdmf)\n"
     "  batch FILE       many runs: parameter studies and ensembles on all\n"
     "                   cores, resumable (doc/batch.md)\n"
     "  help [COMMAND]   show this help or the help of a command\n"
@@ -104,13 +104,13 @@ static const char usage_run[] =
     "                        through the discrete equations of FILE, write\n"
     "                        the trajectory and check the terminal\n"
     "                        conditions (with -o, --set, --quiet only)\n"
-    "      --threads N       threads of the element loops (default: the\n"
-    "                        environment's MRVI_THREADS, else 1); the\n"
-    "                        results are the same bit for bit for every N.\n"
-    "                        N > 1 sets GOMP_SPINCOUNT=1000 (a short spin\n"
-    "                        before a waiting thread sleeps) unless the\n"
-    "                        environment sets it or OMP_WAIT_POLICY.\n"
-    "                        A build without OpenMP refuses N > 1\n"
+    "      --threads N|auto  threads of the element loops (default:\n"
+    "                        MRVI_THREADS, else auto: the cores available\n"
+    "                        if a loop is long enough for threads, else 1;\n"
+    "                        mrvi check says which and why); the same\n"
+    "                        results for every N.  N > 1 sets\n"
+    "                        GOMP_SPINCOUNT=1000 unless the environment sets\n"
+    "                        it or OMP_WAIT_POLICY\n"
     "  -h, --help            show this help\n"
     "\n"
     "Notes about the input, such as initial velocities projected onto the\n"
@@ -153,8 +153,9 @@ static const char usage_check[] =
     "\n"
     "Options:\n"
     "  -s, --set KEY=VALUE   override a scalar of FILE by its dotted path\n"
-    "      --threads N       the thread count to check and show (default:\n"
-    "                        MRVI_THREADS, else 1)\n"
+    "      --threads N|auto  the thread count to check and show (default:\n"
+    "                        MRVI_THREADS, else auto: what mrvi run would\n"
+    "                        choose, and why)\n"
     "  -h, --help            show this help\n"
     "\n"
     "Exit status: 0 if FILE is valid, 1 otherwise.\n";
@@ -184,7 +185,7 @@ typedef struct cli_args {
   int help;
   const char *resume; /* --resume OUT.h5 */
   const char *from;   /* --from OUT.h5[:k] */
-  int threads;        /* --threads N, else MRVI_THREADS, else -1 */
+  int threads;        /* --threads N, else MRVI_THREADS, else 0: auto */
 } cli_args;
 
 /* Options accepted by a command, for the parser and for suggestions
@@ -206,10 +207,13 @@ void mrvi_cli_usage_short(const char *cmd, const char *usage) {
 }
 
 int mrvi_cli_threads(const char *cmd, const char *what, const char *value) {
+  if (!strcmp(value, "auto"))
+    return 0;
   char *end = NULL;
   const long n = strtol(value, &end, 10);
   if (!*value || *end || n < 1 || n > 4096) {
-    fprintf(stderr, "mrvi %s: %s takes a thread count 1..4096, got '%s'\n", cmd,
+    fprintf(stderr,
+            "mrvi %s: %s takes a thread count 1..4096 or auto, got '%s'\n", cmd,
             what, value);
     return -1;
   }
@@ -244,6 +248,7 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
   const char *const *known = allow_run ? run_options : check_options;
   int only_files = 0;
   memset(a, 0, sizeof *a);
+  a->threads = -1; /* not given */
   a->overrides = calloc((size_t)argc + 1, sizeof *a->overrides);
   if (!a->overrides) {
     fprintf(stderr, "mrvi: out of memory\n");
@@ -347,10 +352,12 @@ static int parse_args(const char *cmd, const char *usage, int allow_run,
       return EXIT_INPUT;
     }
   }
-  if (a->threads == 0 && getenv("MRVI_THREADS") &&
+  if (a->threads < 0 && getenv("MRVI_THREADS") &&
       (a->threads =
            mrvi_cli_threads(cmd, "MRVI_THREADS", getenv("MRVI_THREADS"))) < 0)
     return EXIT_INPUT;
+  if (a->threads < 0)
+    a->threads = 0; /* auto */
   if (!a->help && !a->file && !a->resume) {
     fprintf(stderr, "mrvi %s: missing FILE\n", cmd);
     mrvi_cli_usage_short(cmd, usage);
@@ -382,6 +389,25 @@ static mrvi_system *load_system(const cli_args *a) {
   if (a->threads > 0)
     sys->settings.threads = a->threads;
   return sys;
+}
+
+static void restart_with_short_wait(void);
+
+/* The thread count of a run of sys: --threads N or MRVI_THREADS N as
+ * given, else (auto) mrvi_threads_auto's choice, its reason into why; more
+ * than one thread chosen automatically restarts the command with libgomp's
+ * short wait (bounded_wait), as an explicit count does before loading. */
+static void choose_threads(const cli_args *a, mrvi_system *sys, char *why,
+                           size_t len) {
+  if (a->threads > 0) {
+    sys->settings.threads = a->threads;
+    mrvi_fmt(why, len, "--threads or MRVI_THREADS");
+    return;
+  }
+  sys->settings.threads =
+      mrvi_threads_auto(sys->model, &sys->settings, why, len);
+  if (sys->settings.threads > 1)
+    restart_with_short_wait();
 }
 
 /* ---------------------------------------------------------------------------
@@ -455,7 +481,8 @@ static int cmd_check(int argc, char **argv) {
 
   const mrvi_model *m = sys->model;
   const mrvi_settings *s = &sys->settings;
-  char msg[512];
+  char msg[512], threads_why[256];
+  choose_threads(&a, sys, threads_why, sizeof threads_why);
   if (mrvi_settings_check(s, msg, sizeof msg) < 0) {
     fprintf(stderr, "%s: %s\n", a.file, msg);
     mrvi_system_free(sys);
@@ -601,10 +628,9 @@ static int cmd_check(int argc, char **argv) {
          sys->output_file ? sys->output_file : "-", sys->output_every,
          sys->output_micro ? "yes" : "no");
   if (mrvi_threads_supported())
-    printf("%-14s%d%s (element loops; the same results for every count; "
+    printf("%-14s%d (%s%s; element loops; the same results for every count; "
            "OMP_WAIT_POLICY %s, GOMP_SPINCOUNT %s)\n",
-           "threads", s->threads > 0 ? s->threads : mrvi_batch_cores(),
-           s->threads > 0 ? "" : " (settings.threads 0: the cores available)",
+           "threads", s->threads, a.threads > 0 ? "" : "auto: ", threads_why,
            getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset",
            getenv("GOMP_SPINCOUNT") ? getenv("GOMP_SPINCOUNT") : "unset");
   else
@@ -995,8 +1021,8 @@ static int cmd_run(int argc, char **argv) {
   loading = 0;
   if (!sys)
     return EXIT_INPUT;
-  if (a.threads > 0)
-    sys->settings.threads = a.threads;
+  char threads_why[256];
+  choose_threads(&a, sys, threads_why, sizeof threads_why);
   /* Without micro output nothing reads a step's inner micro nodes. */
   sys->settings.micro_last_only = !sys->output_micro && !sys->output_micro_slow;
   char tmsg[256];
@@ -1233,16 +1259,23 @@ static int asks_threads(int argc, char **argv) {
  * GOMP_SPINCOUNT or OMP_WAIT_POLICY (the user's choice stands).  If the
  * restart fails the command goes on with libgomp's default. */
 #define WAIT_SPINS "1000"
-static void bounded_wait(int argc, char **argv) {
+static char **main_argv; /* for the restart */
+static void restart_with_short_wait(void) {
   if (!mrvi_threads_supported() || getenv("OMP_WAIT_POLICY") ||
-      getenv("GOMP_SPINCOUNT") || !asks_threads(argc, argv))
+      getenv("GOMP_SPINCOUNT") || !main_argv)
     return;
+  fflush(NULL);
   if (setenv("GOMP_SPINCOUNT", WAIT_SPINS, 1) == 0)
-    execv("/proc/self/exe", argv);
+    execv("/proc/self/exe", main_argv);
   unsetenv("GOMP_SPINCOUNT");
+}
+static void bounded_wait(int argc, char **argv) {
+  if (asks_threads(argc, argv))
+    restart_with_short_wait();
 }
 
 int main(int argc, char **argv) {
+  main_argv = argv;
   if (argc >= 2 && (!strcmp(argv[1], "run") || !strcmp(argv[1], "check") ||
                     !strcmp(argv[1], "batch")))
     bounded_wait(argc, argv);

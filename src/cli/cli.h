@@ -48,8 +48,9 @@ int mrvi_cli_check_control(const mrvi_system *sys);
  * the rest is ("mrvi help CMD"), not the whole help. */
 void mrvi_cli_usage_short(const char *cmd, const char *usage);
 
-/* The thread count `value` of option (or variable) `what`: 1..4096, and
- * 1 alone in a build without OpenMP; else -1 after printing why. */
+/* The thread count `value` of option (or variable) `what`: 1..4096 (1
+ * alone in a build without OpenMP), or "auto": 0 (mrvi_threads_auto);
+ * else -1 after printing why. */
 int mrvi_cli_threads(const char *cmd, const char *what, const char *value);
 
 /* path with a trailing ".h5" replaced by ext (or ext appended) into buf. */

@@ -63,9 +63,9 @@ const char mrvi_usage_batch[] =
     "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
     "                        cores available divided by --threads, at\n"
     "                        least 1)\n"
-    "      --threads T       threads of each case's element loops (default:\n"
-    "                        1, as for mrvi run: the jobs fill the cores);\n"
-    "                        the results do not depend on T\n"
+    "      --threads T|auto  threads of each case's element loops (default\n"
+    "                        and auto: 1, the jobs fill the cores); the\n"
+    "                        results do not depend on T\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
     "                        killed or interrupted batch)\n"
     "  -q, --quiet           no line per finished case\n"
@@ -306,9 +306,9 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
   return rc;
 }
 
-/* The threads of each case: the given count, else 1 (the default of
- * settings.threads: the threaded loops do not pay yet, doc/performance.md,
- * "Threads"; the jobs fill the cores). */
+/* The threads of each case: the given count, else (auto, the default) 1:
+ * the jobs fill the cores, so jobs x threads stay within them
+ * (doc/performance.md, "The automatic thread count"). */
 static int case_threads(int given) { return given > 0 ? given : 1; }
 
 /* A rank other than 0 of an MPI batch: the plan from rank 0, then its

@@ -1,10 +1,10 @@
 /* mrvi export FILE.h5 --format xyz|xdmf [-o OUT] [--every N] [--micro]
  *                     [--species x|rate|name]
  *
- * Files for viewers from the particles of a run file (doc/output.md,
+ * Files for viewers from the particles and bodies of a run file (doc/output.md,
  * "Viewing the motion"), and the XDMF file `mrvi run` writes beside its
  * output.  Exit status: 0 written, 1 bad arguments or a file that cannot
- * be exported (no particles, not a run file, cannot write). */
+ * be exported (no particles or bodies, not a run file, cannot write). */
 #include "cli.h"
 #include "io/io.h"
 
@@ -16,16 +16,19 @@ const char mrvi_usage_export[] =
     "Usage: mrvi export FILE.h5 --format xyz|xdmf [-o OUT] [--every N]\n"
     "                   [--micro] [--species x|rate|name]\n"
     "\n"
-    "Write the particles of a run file (mrvi run) for a viewer:\n"
+    "Write the particles and rigid bodies of a run file (mrvi run) for a\n"
+    "viewer:\n"
     "  xyz    extended XYZ frames for OVITO, VMD or ASE: a frame per stored\n"
     "         macro node with the time (Time=...), each particle as\n"
     "         'species x y z rate name' (2-D and 1-D padded with zeros; rate\n"
-    "         0 slow, 1 fast), 17 digits\n"
+    "         0 slow, 1 fast), 17 digits; then each body as 1 + d points,\n"
+    "         its centre (name NAME) and the tips of its directors (NAME.d1\n"
+    "         ...), as in the XDMF file\n"
     "  xdmf   the XDMF file for ParaView or VisIt that `mrvi run` writes\n"
     "         beside its output: particles as points and springs and rods as\n"
     "         lines over time, pointing into FILE.h5 (no copy); rewrite it\n"
     "         here, e.g. for a run that was killed\n"
-    "Runs of generalised coordinates only have no particles to export.\n"
+    "Runs of generalised coordinates only have nothing to export.\n"
     "\n"
     "Options:\n"
     "  -f, --format FMT      xyz or xdmf (required)\n"
@@ -33,10 +36,12 @@ const char mrvi_usage_export[] =
     "                        .xyz or .xdmf)\n"
     "      --every N         xyz: every N-th frame (default 1)\n"
     "      --micro           xyz: a frame per micro node (/micro; slow\n"
-    "                        particles need output.micro_slow: true)\n"
+    "                        particles need output.micro_slow: true; slow\n"
+    "                        bodies step with the macro nodes)\n"
     "      --species KIND    xyz: the species column: x (ASE's dummy\n"
     "                        element X, default), rate (slow/fast) or name\n"
-    "                        (the particle names); OVITO and VMD read all\n"
+    "                        (the particle names); bodies: X, body/d1/d2/d3\n"
+    "                        or NAME/NAME.d1...; OVITO and VMD read all\n"
     "                        three, ASE only x\n"
     "  -h, --help            show this help\n"
     "\n"

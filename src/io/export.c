@@ -624,6 +624,175 @@ static int read_row(const run_file *r, const char *name, hsize_t k, int cols,
                         (size_t)cols);
 }
 
+/* The bodies as XYZ points (doc/output.md, "Extended XYZ"): per body its
+ * centre and the tips of its D directors at length s, their names and rates
+ * from /bodies/name and /model/rate at /bodies/column; with --micro the
+ * fast bodies' rows of /micro/bodies (/bodies/fast) and the slow bodies at
+ * the last macro node not after the micro node's time. */
+typedef struct xyz_bodies {
+  char **name;         /* nb: /bodies/name */
+  int *fast;           /* nb: 1 for a fast body (rate of its phi_x) */
+  int *micro_col;      /* nb: column of /micro/bodies, -1 for none */
+  double *mpos, *mrot; /* micro rows x F x d, x d x d */
+  int nf;              /* F: columns of /micro/bodies */
+  hsize_t micro_rows;  /* rows of /micro/bodies/... */
+  double *pos, *rot;   /* one frame: nb x d and nb x d x d */
+  double s;            /* length of the director segments */
+} xyz_bodies;
+
+static void xyz_bodies_free(xyz_bodies *xb, int nb) {
+  mrvi_h5_strings_free(xb->name, (size_t)nb);
+  free(xb->fast);
+  free(xb->micro_col);
+  free(xb->mpos);
+  free(xb->mrot);
+  free(xb->pos);
+  free(xb->rot);
+}
+
+/* The names and rates of the bodies of r (read_bodies done), and with
+ * `micro` the fast bodies' micro rows. */
+static int xyz_bodies_read(const run_file *r, int micro, xyz_bodies *xb,
+                           char *msg, size_t len) {
+  const mrvi_h5in in = {r->file, r->path, msg, len};
+  const int nb = r->nb, d = r->d;
+  const hsize_t want_nb[1] = {(hsize_t)nb};
+  int *column = NULL, *fast_list = NULL;
+  int st;
+  memset(xb, 0, sizeof *xb);
+  if (r->rows == 0) /* no frame to write */
+    return MRVI_OK;
+  xb->s = frame_scale(r);
+  xb->fast = calloc((size_t)nb + 1, sizeof *xb->fast);
+  xb->micro_col = malloc(((size_t)nb + 1) * sizeof *xb->micro_col);
+  xb->pos = malloc(((size_t)nb + 1) * (size_t)d * sizeof *xb->pos);
+  xb->rot = malloc(((size_t)nb + 1) * (size_t)(d * d) * sizeof *xb->rot);
+  if (!xb->fast || !xb->micro_col || !xb->pos || !xb->rot)
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  if ((st = mrvi_h5in_strings(&in, "/bodies/name", 1, want_nb[0], 4096,
+                              &xb->name)) < 0 ||
+      (st = mrvi_h5in_read_new(&in, "/bodies/column", H5T_NATIVE_INT, 1,
+                               want_nb, MRVI_H5_ANY, (void **)&column, NULL)) <
+          0)
+    return st;
+  for (int b = 0; b < nb && st == 0; b++) {
+    xb->micro_col[b] = -1;
+    if (column[b] < 0 || column[b] >= r->n)
+      st = mrvi_fail(msg, len, MRVI_EIO,
+                     "%s: /bodies/column[%d] = %d out of range", r->path, b,
+                     column[b]);
+    else
+      xb->fast[b] = r->rate[column[b]] == 1;
+  }
+  free(column);
+  if (st < 0 || !micro)
+    return st;
+  int any_fast = 0;
+  for (int b = 0; b < nb; b++)
+    any_fast |= xb->fast[b];
+  if (!any_fast)
+    return MRVI_OK;
+  /* The fast bodies' micro rows. */
+  hsize_t df[1], dp[3], dr[4];
+  if (!mrvi_h5in_exists(&in, "/bodies/fast") ||
+      !mrvi_h5in_exists(&in, "/micro/bodies/position"))
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "%s: the fast bodies have no positions at the micro "
+                     "nodes (/micro/bodies)",
+                     r->path);
+  if ((st = mrvi_h5in_read_new(&in, "/bodies/fast", H5T_NATIVE_INT, 1, NULL,
+                               MRVI_H5_ANY, (void **)&fast_list, df)) < 0)
+    return st;
+  xb->nf = (int)df[0];
+  const hsize_t want_p[3] = {MRVI_H5_ANY, df[0], (hsize_t)d},
+                want_r[4] = {MRVI_H5_ANY, df[0], (hsize_t)d, (hsize_t)d};
+  for (int f = 0; f < xb->nf && st == 0; f++)
+    if (fast_list[f] < 0 || fast_list[f] >= nb || !xb->fast[fast_list[f]])
+      st = mrvi_fail(msg, len, MRVI_EIO,
+                     "%s: /bodies/fast[%d] = %d is not a fast body", r->path, f,
+                     fast_list[f]);
+    else
+      xb->micro_col[fast_list[f]] = f;
+  free(fast_list);
+  for (int b = 0; b < nb && st == 0; b++)
+    if (xb->fast[b] && xb->micro_col[b] < 0)
+      st = mrvi_fail(msg, len, MRVI_EIO,
+                     "%s: fast body %d is missing from /bodies/fast", r->path,
+                     b);
+  if (st < 0 ||
+      (st = mrvi_h5in_shape(&in, "/micro/bodies/position", MRVI_H5_NUMBER, 3,
+                            want_p, dp)) < 0 ||
+      (st = mrvi_h5in_shape(&in, "/micro/bodies/rotation", MRVI_H5_NUMBER, 4,
+                            want_r, dr)) < 0)
+    return st;
+  xb->micro_rows = dp[0] < dr[0] ? dp[0] : dr[0];
+  if ((st = mrvi_h5in_read_new(&in, "/micro/bodies/position", H5T_NATIVE_DOUBLE,
+                               3, want_p, xb->micro_rows, (void **)&xb->mpos,
+                               NULL)) < 0 ||
+      (st = mrvi_h5in_read_new(&in, "/micro/bodies/rotation", H5T_NATIVE_DOUBLE,
+                               4, want_r, xb->micro_rows, (void **)&xb->mrot,
+                               NULL)) < 0)
+    return st;
+  return MRVI_OK;
+}
+
+/* The bodies' poses of frame k into xb->pos and xb->rot: macro row k, or
+ * (micro, time t) the fast bodies' micro row k and the slow bodies' last
+ * macro row at or before t. */
+static void xyz_bodies_pose(const run_file *r, xyz_bodies *xb, hsize_t k,
+                            int micro, double t) {
+  const int d = r->d, dd = d * d;
+  hsize_t row = k;
+  if (micro) /* the last macro node not after t (up to round-off) */
+    for (row = 0; row + 1 < r->rows &&
+                  r->t[row + 1] <= t + 1e-9 * (fabs(t) + fabs(r->t[1]));
+         row++)
+      ;
+  for (int b = 0; b < r->nb; b++) {
+    const int f = micro ? xb->micro_col[b] : -1;
+    const double *p =
+        f >= 0 ? xb->mpos + (k * (hsize_t)xb->nf + (hsize_t)f) * (hsize_t)d
+               : r->body_pos + (row * (hsize_t)r->nb + (hsize_t)b) * (hsize_t)d;
+    const double *q =
+        f >= 0
+            ? xb->mrot + (k * (hsize_t)xb->nf + (hsize_t)f) * (hsize_t)dd
+            : r->body_rot + (row * (hsize_t)r->nb + (hsize_t)b) * (hsize_t)dd;
+    memcpy(xb->pos + b * d, p, (size_t)d * sizeof *p);
+    memcpy(xb->rot + b * dd, q, (size_t)dd * sizeof *q);
+  }
+}
+
+/* The 1 + d lines of body b: its centre ("NAME") and the tips of its
+ * directors ("NAME.d1" ...), species X, body/d1/d2/d3 or the name. */
+static void xyz_body_lines(FILE *f, const run_file *r, const xyz_bodies *xb,
+                           int b, int species) {
+  const int d = r->d;
+  static const char *const tip[] = {"body", "d1", "d2", "d3"};
+  for (int i = 0; i <= d; i++) {
+    if (species == MRVI_XYZ_SPECIES_NAME) {
+      put_name(f, xb->name[b]);
+      if (i)
+        fprintf(f, ".d%d", i);
+    } else {
+      fputs(species == MRVI_XYZ_SPECIES_RATE ? tip[i] : "X", f);
+    }
+    for (int a = 0; a < 3; a++) {
+      /* i = 0: the centre; i >= 1: phi + s d_i (column i - 1). */
+      const double x =
+          a >= d ? 0.0
+                 : xb->pos[b * d + a] +
+                       (i ? xb->s * xb->rot[(b * d + a) * d + (i - 1)] : 0.0);
+      fputc(' ', f);
+      put_double(f, x);
+    }
+    fprintf(f, " %d ", xb->fast[b]);
+    put_name(f, xb->name[b]);
+    if (i)
+      fprintf(f, ".d%d", i);
+    fputc('\n', f);
+  }
+}
+
 int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
                     const mrvi_xyz_options *opt, char *msg, size_t len) {
   mrvi_fmt(msg, len, "%s", "");
@@ -638,18 +807,23 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
   mrvi_h5_quiet_begin(&q);
   run_file r;
   micro_map mm = {0};
+  xyz_bodies xb = {0};
   double *row = NULL, *fast = NULL, *slow = NULL, *mt = NULL;
   FILE *f = NULL;
   int st = run_open(&r, h5_path, msg, len);
-  if (st == 0 && r.np == 0)
-    st = mrvi_fail(msg, len, MRVI_EINVAL,
-                   "%s: the model has rigid bodies and no particles: nothing "
-                   "to write as XYZ points (the XDMF file and mrvi-plot "
-                   "animate show the bodies)",
-                   h5_path);
+  if (st == 0)
+    st = read_bodies(&r, msg, len);
+  if (st == 0 && r.nb > 0)
+    st = xyz_bodies_read(&r, o.micro, &xb, msg, len);
   if (st == 0 && o.micro)
     st = micro_setup(&r, &mm, msg, len);
-  const hsize_t frames = o.micro ? mm.rows : r.rows;
+  hsize_t frames = o.micro ? mm.rows : r.rows;
+  if (o.micro && xb.nf > 0 && xb.micro_rows < frames)
+    frames = xb.micro_rows;
+  if (r.nb > 0 && r.rows == 0) /* no pose of the bodies to show */
+    frames = 0;
+  /* A line per particle, then 1 + d per body. */
+  const long atoms = (long)r.np + (long)r.nb * (1 + r.d);
   if (st == 0) {
     row = malloc((size_t)r.n * sizeof *row);
     fast = malloc((size_t)(mm.n_fast + 1) * sizeof *fast);
@@ -677,8 +851,8 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
     } else if ((st = read_row(&r, "/macro/q", k, r.n, row, msg, len)) < 0) {
       break;
     }
-    fprintf(f,
-            "%d\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=", r.np);
+    fprintf(f, "%ld\nProperties=species:S:1:pos:R:3:rate:I:1:name:S:1 Time=",
+            atoms);
     put_double(f, o.micro ? mt[k] : r.t[k]);
     fputs(" pbc=\"F F F\"\n", f);
     for (int i = 0; i < r.np; i++) {
@@ -698,6 +872,10 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
       put_name(f, r.name[i]);
       fputc('\n', f);
     }
+    if (r.nb > 0)
+      xyz_bodies_pose(&r, &xb, k, o.micro, o.micro ? mt[k] : r.t[k]);
+    for (int b = 0; b < r.nb; b++)
+      xyz_body_lines(f, &r, &xb, b, o.species);
   }
   if (f && (ferror(f) | fclose(f)) && st == 0)
     st = mrvi_fail(msg, len, MRVI_EIO, "%s: write error: %s", xyz_path,
@@ -708,6 +886,7 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
   free(mt);
   free(mm.src);
   free(mm.col);
+  xyz_bodies_free(&xb, r.nb);
   run_close(&r);
   mrvi_h5_quiet_end(&q);
   return st;
