@@ -1037,19 +1037,19 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
  * code kk (K_ANY: the class's): each record's kspring (pair_spring),
  * spring_eval's arithmetic, so bitwise springs_eval's over its kspring
  * records. */
-ALWAYS_INLINE void pairs_k(const mrvi_terms *kc, const double *z,
-                           double scale, double *g, double *J, int ld,
-                           double hscale, const int dim, const int kk,
-                           const int unit) {
+ALWAYS_INLINE void pairs_k(const mrvi_terms *kc, const double *z, double scale,
+                           double *g, double *J, int ld, double hscale,
+                           const int dim, const int kk, const int unit) {
   for (int r = 0; r < kc->n; r++) {
     const kspring q = pair_spring(kc, r);
     spring_eval(&q, z, scale, g, J, ld, hscale, dim, 1, kk, unit);
   }
 }
 
-static __attribute__((noinline)) void
-pairs_eval(const mrvi_terms *kc, const double *z, double scale, double *g,
-           double *J, int ld, double hscale) {
+static __attribute__((noinline)) void pairs_eval(const mrvi_terms *kc,
+                                                 const double *z, double scale,
+                                                 double *g, double *J, int ld,
+                                                 double hscale) {
   const int unit = scale == 1.0 && (!J || hscale == 1.0);
   const int morse = kc->qm_law.k == KS_MORSE;
 #define PAIRS(D, K)                                                            \
