@@ -486,8 +486,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   /* (zeros for grad V where V has no point at node k, and for the
    * implicit paths' zero displacement) */
   sw->gzero = dalloc(sw->wv0 == 0.0 || sw->implicit ? ns + nf : 0);
-  /* Columns: (q^s, q^f) packed for V, q^f alone for W (no slow inputs). */
-  int *col = calloc((size_t)(m->n > 0 ? m->n : 1), sizeof *col);
+  /* Columns: (q^s, q^f) packed for V, q^f alone for W (no slow inputs:
+   * the slots).  V's are listed in gv (ns + nf = n entries, written whole
+   * before the step reads it), so that no other array's pages are
+   * touched. */
+  int *col = (int *)sw->gv;
   int s_ok = col != NULL;
   for (int c = 0; s_ok && c < m->n; c++)
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : sw->ns) + m->slot[c];
@@ -496,13 +499,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   s_ok = s_ok && mrvi_terms_create_grad(m, st->elem_of_class[MRVI_SLOW],
                                         st->n_elem_of_class[MRVI_SLOW], col,
                                         &sw->kc[MRVI_SLOW]) == MRVI_OK;
-  for (int c = 0; s_ok && c < m->n; c++)
-    col[c] = m->slot[c];
   s_ok = s_ok &&
          (sw->implicit || nf <= 4 ? mrvi_terms_create : mrvi_terms_create_grad)(
              m, st->elem_of_class[MRVI_FAST], st->n_elem_of_class[MRVI_FAST],
-             col, &sw->kc[MRVI_FAST]) == MRVI_OK;
-  free(col);
+             m->slot, &sw->kc[MRVI_FAST]) == MRVI_OK;
   /* The gradients of large spring classes on threads (the same bits). */
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
