@@ -1040,8 +1040,14 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
 ALWAYS_INLINE void pairs_k(const mrvi_terms *kc, const double *z, double scale,
                            double *g, double *J, int ld, double hscale,
                            const int dim, const int kk, const int unit) {
+  kspring q = kc->qm_law; /* (pair_spring's fields, set per record) */
   for (int r = 0; r < kc->n; r++) {
-    const kspring q = pair_spring(kc, r);
+    const kspair *pr = &kc->qm[r];
+    for (int k = 0; k < dim; k++) {
+      q.ci[k] = pr->ci + k;
+      q.cj[k] = pr->cj + k;
+    }
+    q.shift = pr->shift;
     spring_eval(&q, z, scale, g, J, ld, hscale, dim, 1, kk, unit);
   }
 }
