@@ -72,9 +72,9 @@ struct mrvi_sweep {
   /* The step between the entries of minv_f and m_f that explicit_row
    * reads: 0 where every fast mass is the same (entry 0 is each entry's
    * value: two streams fewer per micro step), else 1; the explicit path
-   * then keeps entry 0 alone (the implicit rows read every entry).
-   * inc_s: the same for minv_s (every sweep path: the slow row alone reads
-   * it). */
+   * then keeps entries 0 and 1 alone (explicit_row loads pairs; the
+   * implicit rows read every entry).  inc_s: the same for minv_s, one
+   * entry (every sweep path: the slow row alone reads it). */
   int mass_inc, inc_s;
   double *zf;        /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
