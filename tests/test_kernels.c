@@ -298,6 +298,28 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
         CHECK(memcmp(&vf, &vg, sizeof vf) == 0,
               "d %d %s, %s alone: gradient-only class's value %.17g vs %.17g",
               d, lc->law, names[kind], vg, vf);
+        /* springs of one compiled law other than Hooke's (one parameter
+         * set here): the law once, columns and rest lengths per spring
+         * (spring_class's kspair records); scaled, with the Hessian, as
+         * the full class bitwise */
+        const int code = !strcmp(lc->law, "morse") ||
+                         (!strcmp(lc->law, "power") && lc->params[1] <= 8);
+        CHECK(mrvi_terms_shared_law(kg) == (kind != 1 && code),
+              "d %d %s (%g), %s alone: one law kept once: %d", d, lc->law,
+              lc->params[1], names[kind], mrvi_terms_shared_law(kg));
+        memset(gs_ref, 0, (size_t)n * sizeof *gs_ref);
+        memset(gs, 0, (size_t)n * sizeof *gs);
+        memset(Hs_ref, 0, (size_t)n * n * sizeof *Hs_ref);
+        memset(Hs, 0, (size_t)n * n * sizeof *Hs);
+        const int shared = kind != 1 && code;
+        mrvi_terms_eval(kf, q, 0.5, gs_ref, Hs_ref, n, 0.25);
+        if (shared)
+          mrvi_terms_eval(kg, q, 0.5, gs, Hs, n, 0.25);
+        CHECK(!shared || (!memcmp(gs, gs_ref, bytes) &&
+                          !memcmp(Hs, Hs_ref, (size_t)n * n * sizeof *Hs)),
+              "d %d %s (%g), %s alone: the gradient-only class scaled, "
+              "with the Hessian, as the full class's",
+              d, lc->law, lc->params[1], names[kind]);
       }
       mrvi_terms_free(kf);
       mrvi_terms_free(kg);

@@ -719,11 +719,12 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
     it->ps = it->p;
     it->pf = it->p + ns;
   } else {
+    /* (written whole below: initial_blocks or split_state) */
     it->packed = 0;
-    it->qs = alloc(ns + nf); /* (qf after qs, as in x: swap_state) */
-    it->ps = alloc(ns);
+    it->qs = alloc_raw(ns + nf); /* (qf after qs, as in x: swap_state) */
+    it->ps = alloc_raw(ns);
     it->qf = it->qs ? it->qs + ns : NULL;
-    it->pf = alloc(nf);
+    it->pf = alloc_raw(nf);
   }
   /* The residual, the update and the reduced right-hand side are the Newton
    * paths' (update != NULL); the sweep paths' step Jacobian solve allocates
@@ -737,7 +738,7 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->x = explicit ? alloc_raw(nu) : alloc(nu);
   it->R = alloc(nn);
   it->dx = alloc(nn);
-  it->ps1 = alloc(ns);
+  it->ps1 = explicit ? alloc_raw(ns) : alloc(ns);
   it->micro_q = explicit ? alloc_raw(p * nf) : alloc(p * nf);
   it->micro_p = explicit ? alloc_raw(p * nf) : alloc(p * nf);
   it->node_stride = nf;
@@ -770,7 +771,9 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->pA = alloc(rm * rm);
   it->pmu = alloc(rm);
   it->pnz = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(int));
-  it->qs_prev = alloc(ns + nf);
+  /* (written by each step that keeps its micro nodes, new_state_blocks,
+   * and read only after one: mrvi_integrator_jacobian_solve) */
+  it->qs_prev = alloc_raw(ns + nf);
   if (!it->qs_prev)
     goto oom;
   it->qf_prev = it->qs_prev + ns;

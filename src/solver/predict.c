@@ -649,18 +649,11 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
   free(pr);
 }
 
-/* g <- grad (V + W) at z, both packed (q^s, q^f): the compiled terms. */
-static void full_gradient(mrvi_predictor *pr) {
-  memset(pr->g, 0, (size_t)pr->m->n * sizeof(double));
-  mrvi_terms_grad(pr->kc[0], pr->z, pr->g);
-  mrvi_terms_grad(pr->kc[1], pr->z, pr->g);
-}
-
 double mrvi_predictor_omega_max(mrvi_predictor *pr) { return pr->omega; }
 
 /* omega_max at q0 (mrvi_predictor_omega_max): power iteration on M^-1/2
  * hess(V + W)(q0) M^-1/2 with Hessian-vector products from central
- * differences of the gradient (fs, fexp, fimp and fb serve as vectors
+ * differences of the gradient (fs, fexp, fimp, fb and fimp1 serve as vectors
  * here), in the packed order of the compiled terms (coordinate c at
  * column (slow ? 0 : n_slow) + slot[c], its start entry 1 + 0.1 (c mod 7)
  * as in model order); computed once, by mrvi_predictor_create. */
@@ -676,6 +669,10 @@ static double power_iteration(mrvi_predictor *pr) {
     h = fmax(h, fabs(m->q0[c]));
   }
   h = 1e-6 * (1.0 + h);
+  /* M^-1/2 once (fimp1 serves: the steps write it before they read it) */
+  double *sm = pr->fimp1;
+  for (int i = 0; i < n; i++)
+    sm[i] = sqrt(pr->minv[i]);
   for (int it = 0; it < 30; it++) {
     double nu = 0.0;
     for (int i = 0; i < n; i++)
@@ -686,14 +683,16 @@ static double power_iteration(mrvi_predictor *pr) {
     for (int i = 0; i < n; i++)
       u[i] /= nu;
     for (int sgn = 0; sgn < 2; sgn++) {
+      double *g = sgn ? gm : gp;
       for (int i = 0; i < n; i++)
-        pr->z[i] = q0[i] + (sgn ? -h : h) * u[i] * sqrt(pr->minv[i]);
-      full_gradient(pr);
-      memcpy(sgn ? gm : gp, pr->g, (size_t)n * sizeof(double));
+        pr->z[i] = q0[i] + (sgn ? -h : h) * u[i] * sm[i];
+      memset(g, 0, (size_t)n * sizeof(double));
+      mrvi_terms_grad(pr->kc[0], pr->z, g);
+      mrvi_terms_grad(pr->kc[1], pr->z, g);
     }
     lambda = 0.0;
     for (int i = 0; i < n; i++) {
-      const double hu = (gp[i] - gm[i]) / (2.0 * h) * sqrt(pr->minv[i]);
+      const double hu = (gp[i] - gm[i]) / (2.0 * h) * sm[i];
       lambda += u[i] * hu;
       u[i] = hu;
     }

@@ -428,6 +428,10 @@ int mrvi_terms_flat(const mrvi_terms *kc);
  * (ld x ld, row-major): a weighted sum of Hessians at many points from
  * one scalar per term and point. */
 int mrvi_terms_count(const mrvi_terms *kc);
+/* Whether kc is a gradient-only class (mrvi_terms_create_grad) of springs
+ * of one law and one parameter set on consecutive columns, kept as their
+ * columns and rest lengths alone (the law once: 16 bytes a spring). */
+int mrvi_terms_shared_law(const mrvi_terms *kc);
 void mrvi_terms_grad_d2(const mrvi_terms *kc, const double *z, double *g,
                         double w, double *dsum);
 void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,

@@ -71,8 +71,11 @@ struct mrvi_sweep {
   double *minv_s, *minv_f, *m_f; /* 1/M^s, 1/M^f, M^f */
   /* The step between the entries of minv_f and m_f that explicit_row
    * reads: 0 where every fast mass is the same (entry 0 is each entry's
-   * value: two streams fewer per micro step), else 1. */
-  int mass_inc;
+   * value: two streams fewer per micro step), else 1; the explicit path
+   * then keeps entries 0 and 1 alone (explicit_row loads pairs; the
+   * implicit rows read every entry).  inc_s: the same for minv_s, one
+   * entry (every sweep path: the slow row alone reads it). */
+  int mass_inc, inc_s;
   double *zf;        /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
   /* W quadratic on a block of at most 4 fast coordinates: grad W = wg0 +
@@ -417,6 +420,14 @@ static double *dalloc_raw(size_t n) {
   return malloc((n > 0 ? n : 1) * sizeof(double));
 }
 
+/* Whether the n coordinates idx[.] all have the first's mass. */
+static int equal_masses(const mrvi_model *m, const int *idx, int n) {
+  for (int i = 1; i < n; i++)
+    if (m->mass[idx[i]] != m->mass[idx[0]])
+      return 0;
+  return 1;
+}
+
 int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
                       mrvi_sweep **out) {
   const mrvi_model *m = st->model;
@@ -461,16 +472,25 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       sw->imp = k++ == 0 ? i : -1;
   sw->node_stride = (size_t)st->nf;
   const size_t ns = (size_t)sw->ns, nf = (size_t)sw->nf;
-  sw->minv_s = dalloc_raw(ns); /* (set below) */
-  sw->minv_f = dalloc_raw(nf);
-  sw->m_f = dalloc_raw(nf);
+  /* The masses (set below): one entry where they are all equal and every
+   * reader steps by inc_s or mass_inc (two of the fast ones: explicit_row
+   * loads pairs). */
+  sw->inc_s = !equal_masses(m, m->slow_index, sw->ns);
+  sw->mass_inc = !equal_masses(m, m->fast_index, sw->nf);
+  const size_t nfm = sw->implicit || sw->mass_inc || nf < 2 ? nf : 2;
+  sw->minv_s = dalloc_raw(sw->inc_s ? ns : 1);
+  sw->minv_f = dalloc_raw(nfm);
+  sw->m_f = dalloc_raw(nfm);
   sw->zv = dalloc_raw(ns + nf); /* (slow_gradient: copied, zeroed there) */
   sw->gv = dalloc_raw(ns + nf);
   /* (zeros for grad V where V has no point at node k, and for the
    * implicit paths' zero displacement) */
   sw->gzero = dalloc(sw->wv0 == 0.0 || sw->implicit ? ns + nf : 0);
-  /* Columns: (q^s, q^f) packed for V, q^f alone for W (no slow inputs). */
-  int *col = calloc((size_t)(m->n > 0 ? m->n : 1), sizeof *col);
+  /* Columns: (q^s, q^f) packed for V, q^f alone for W (no slow inputs:
+   * the slots).  V's are listed in gv (ns + nf = n entries, written whole
+   * before the step reads it), so that no other array's pages are
+   * touched. */
+  int *col = (int *)sw->gv;
   int s_ok = col != NULL;
   for (int c = 0; s_ok && c < m->n; c++)
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : sw->ns) + m->slot[c];
@@ -479,13 +499,10 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   s_ok = s_ok && mrvi_terms_create_grad(m, st->elem_of_class[MRVI_SLOW],
                                         st->n_elem_of_class[MRVI_SLOW], col,
                                         &sw->kc[MRVI_SLOW]) == MRVI_OK;
-  for (int c = 0; s_ok && c < m->n; c++)
-    col[c] = m->slot[c];
   s_ok = s_ok &&
          (sw->implicit || nf <= 4 ? mrvi_terms_create : mrvi_terms_create_grad)(
              m, st->elem_of_class[MRVI_FAST], st->n_elem_of_class[MRVI_FAST],
-             col, &sw->kc[MRVI_FAST]) == MRVI_OK;
-  free(col);
+             m->slot, &sw->kc[MRVI_FAST]) == MRVI_OK;
   /* The gradients of large spring classes on threads (the same bits). */
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
@@ -585,23 +602,21 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
-  for (int i = 0; i < sw->ns; i++)
+  for (int i = 0; i < (sw->inc_s ? sw->ns : (sw->ns > 0)); i++)
     sw->minv_s[i] = 1.0 / m->mass[m->slow_index[i]];
-  sw->mass_inc = 0;
-  for (int i = 0; i < sw->nf; i++) {
+  for (int i = 0; i < (int)nfm; i++) {
     sw->m_f[i] = m->mass[m->fast_index[i]];
     sw->minv_f[i] = 1.0 / sw->m_f[i];
-    if (sw->m_f[i] != sw->m_f[0])
-      sw->mass_inc = 1;
   }
   const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
   sw->rw_one = !scaled;
   sw->cg_unit = 1.0;
   for (int i = 0; i < sw->nf; i++) {
+    const double mi = m->mass[m->fast_index[i]];
     if (sw->implicit)
       sw->rw[i] = scaled ? sw->minv_f[i] : 1.0;
-    if (scaled && (i == 0 || sw->m_f[i] < sw->cg_unit))
-      sw->cg_unit = sw->m_f[i];
+    if (scaled && (i == 0 || mi < sw->cg_unit))
+      sw->cg_unit = mi;
   }
   *out = sw;
   return MRVI_OK;
@@ -1440,7 +1455,7 @@ static void explicit_row(int nf, double dt, double wl, const double *pm,
  * momentum's first part p^{f,m+1} = M dn / dt. */
 ALWAYS_INLINE void explicit_rows(const double *pm, const double *fm,
                                  const double *wl, const double *gnode,
-                                 const double *mf, const double *minv,
+                                 const double *mf, const double *minv, int inc,
                                  const double *qm, double *qn, double *pn,
                                  double dt, const int nl, int f0, int f1) {
   UNROLL
@@ -1450,9 +1465,9 @@ ALWAYS_INLINE void explicit_rows(const double *pm, const double *fm,
       r += fm[f];
     for (int i = 0; i < nl; i++)
       r -= wl[i] * gnode[f];
-    const double dn = dt * minv[f] * r;
+    const double dn = dt * minv[f * inc] * r;
     qn[f] = qm[f] + dn;
-    pn[f] = mf[f] * dn / dt;
+    pn[f] = mf[f * inc] * dn / dt;
   }
 }
 
@@ -1491,7 +1506,8 @@ ALWAYS_INLINE void explicit_nodes(mrvi_sweep *sw, const mrvi_step *st,
       explicit_row(nf, dt, wl[0], pm, gnode, minv, mf, sw->mass_inc, qm, qn,
                    pn);
     } else {
-      explicit_rows(pm, fm, wl, gnode, mf, minv, qm, qn, pn, dt, nl, 0, nf);
+      explicit_rows(pm, fm, wl, gnode, mf, minv, sw->mass_inc, qm, qn, pn, dt,
+                    nl, 0, nf);
     }
     sw->gnode_ok = 0;
     if (nr > 0) {
@@ -1551,8 +1567,8 @@ static void rows_part(const mrvi_sweep *sw, int c, const double *pm,
                  minv + f0 * sw->mass_inc, mf + f0 * sw->mass_inc, sw->mass_inc,
                  qm + f0, qn + f0, pn + f0);
   else
-    explicit_rows(pm, fm, sw->wl, gnode, mf, minv, qm, qn, pn, dt, sw->nl, f0,
-                  f1);
+    explicit_rows(pm, fm, sw->wl, gnode, mf, minv, sw->mass_inc, qm, qn, pn, dt,
+                  sw->nl, f0, f1);
 }
 
 /* The end of a step by end_check's sum: non-finite values propagate along
@@ -1593,7 +1609,7 @@ static void slow_start_part(const mrvi_sweep *sw, const mrvi_step *st, int c,
     if (frow)
       v += frow[s];
     ps1[s] = v;
-    x[s] = qs0[s] + dT * sw->minv_s[s] * v;
+    x[s] = qs0[s] + dT * sw->minv_s[s * sw->inc_s] * v;
     gn[s] = 0.0;
     if (zv != x)
       zv[s] = x[s];
@@ -2206,6 +2222,7 @@ ALWAYS_INLINE int explicit_p1(mrvi_sweep *sw, const mrvi_step *st,
   const double *restrict ps0 = st->ps0, *restrict pf0 = st->pf0;
   const double *restrict minv_s = sw->minv_s, *restrict minv = sw->minv_f;
   const double *restrict mf = sw->m_f;
+  const int inc_s = sw->inc_s, inc = sw->mass_inc;
   if (w0 != 0.0 && !sw->gv_ok)
     slow_gradient(sw, qs0, qf0, ns, nf);
   sw->gv_ok = 0;
@@ -2217,15 +2234,15 @@ ALWAYS_INLINE int explicit_p1(mrvi_sweep *sw, const mrvi_step *st,
   for (int s = 0; s < ns; s++) {
     const double v = ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
     ps1[s] = v;
-    x[s] = qs0[s] + dT * minv_s[s] * v;
+    x[s] = qs0[s] + dT * minv_s[s * inc_s] * v;
   }
   UNROLL
   for (int f = 0; f < nf; f++) {
     double r = pf0[f] - w0 * gv[ns + f]; /* p^{f,0} */
     r -= wl * gnode[f];
-    const double dn = dt * minv[f] * r;
+    const double dn = dt * minv[f * inc] * r;
     x[ns + f] = qf0[f] + dn;
-    pf[f] = mf[f] * dn / dt;
+    pf[f] = mf[f * inc] * dn / dt;
   }
   fast_gradient(sw, x + ns, sw->gnode, nf);
   gnode = sw->gnode;
@@ -2266,13 +2283,14 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double *gv = w0 != 0.0 ? sw->gv : sw->gzero;
   const double *ps0 = st->ps0, *qs0 = st->qs0, *pf0 = st->pf0;
   const double *frow = st->f_rows, *minv_s = sw->minv_s;
+  const int inc_s = sw->inc_s;
   UNROLL
   for (int s = 0; s < ns; s++) {
     double v = ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
     if (frow)
       v += frow[s];
     ps1[s] = v;
-    x[s] = qs0[s] + dT * minv_s[s] * v;
+    x[s] = qs0[s] + dT * minv_s[s * inc_s] * v;
   }
   /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
   double *pm = pf; /* momentum at node m (row m's left part) */

@@ -63,6 +63,15 @@ typedef struct khpair {
   int ci, cj;
 } khpair;
 
+/* A spring of a class whose springs share one law and its parameters, on
+ * consecutive columns (spring_class: the random networks' Morse springs):
+ * its first columns and rest length, the rest of its kspring once per
+ * class (16 bytes a spring instead of 72). */
+typedef struct kspair {
+  int ci, cj;
+  double shift;
+} kspair;
+
 /* khooke records as the kernels read them: q[r], or the columns pr[r] with
  * the class's c and shift. */
 typedef struct hsrc {
@@ -106,8 +115,15 @@ struct mrvi_terms {
   /* A gradient-only class of springs or anchors of one kind and one law
    * code alone, not all khooke springs (spring_class): qs without t, col,
    * coef, qh or hooke_run; its gradient is springs_eval over qs, one run
-   * (terms_springs would make the class one such run). */
+   * (terms_springs would make the class one such run).  Where they are
+   * springs of one law and one parameter set on consecutive columns, qm
+   * (their columns and rest lengths) with qm_law (the rest of each one's
+   * kspring: the first's) instead of qs, its gradient pairs_eval over qm;
+   * qs is made from them where threads partition the class
+   * (class_records). */
   int spring_only;
+  kspair *qm;
+  kspring qm_law;
   unsigned char *hooke_run; /* per record of qs: the run from it is of
                                khooke springs */
   int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
@@ -158,6 +174,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->qs);
   free(kc->qh);
   free(kc->qp);
+  free(kc->qm);
   free(kc->hooke_run);
   free(kc->part_first);
   free(kc->vpart);
@@ -247,6 +264,33 @@ static int hooke_records(mrvi_terms *kc) {
   return MRVI_OK;
 }
 
+/* Record r of a class of kspair records as a kspring (the same values as
+ * spring_law_of and spring_cols give it). */
+ALWAYS_INLINE kspring pair_spring(const mrvi_terms *kc, int r) {
+  kspring q = kc->qm_law;
+  const kspair *pr = &kc->qm[r];
+  for (int k = 0; k < 3; k++) {
+    q.ci[k] = pr->ci + k;
+    q.cj[k] = pr->cj + k;
+  }
+  q.shift = pr->shift;
+  return q;
+}
+
+/* The kspring records of a gradient-only class that keeps fewer (the
+ * threads' partition reads them): from its kspair records, else
+ * hooke_records. */
+static int class_records(mrvi_terms *kc) {
+  if (!kc->qm)
+    return hooke_records(kc);
+  kc->qs = malloc((size_t)(kc->n > 0 ? kc->n : 1) * sizeof *kc->qs);
+  if (!kc->qs)
+    return MRVI_ENOMEM;
+  for (int r = 0; r < kc->n; r++)
+    kc->qs[r] = pair_spring(kc, r);
+  return MRVI_OK;
+}
+
 /* The first ne columns qp of a class that shared one stiffness and rest
  * length as khooke records qh (for the class's ne + 1 and later springs,
  * which do not share them). */
@@ -323,6 +367,32 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   return 1;
 }
 
+/* Whether the n_elems elems are springs of one compiled law (not Hooke's:
+ * hooke_class) with one parameter set, each on consecutive columns: a
+ * class of kspair records. */
+static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
+                      const int *col_of, int dim) {
+  const mrvi_element *e0 = &m->elements[elems[0]];
+  const int law = spring_law(e0);
+  if (e0->kind != MRVI_ELEMENT_SPRING || law == KS_LAW || law == KS_HOOKE)
+    return 0;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    if (!spring_record(e, dim) || e->kind != MRVI_ELEMENT_SPRING ||
+        e->law != e0->law ||
+        (e->params != e0->params &&
+         memcmp(e->params, e0->params,
+                (size_t)e0->law->n_params * sizeof *e->params)))
+      return 0;
+    kspring q = {.two = 1};
+    spring_cols(e, col_of, dim, &q);
+    for (int k = 1; k < dim; k++)
+      if (q.ci[k] != q.ci[0] + k || q.cj[k] != q.cj[0] + k)
+        return 0;
+  }
+  return 1;
+}
+
 /* A gradient-only class of springs or anchors of one kind and one law
  * code, not all khooke springs (hooke_class takes those): their kspring
  * records alone, in the class's order, no kterm (the Morse springs of
@@ -333,8 +403,23 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   const int dim = kc->dim;
   if (n_elems < 1 || !spring_record(&m->elements[elems[0]], dim))
     return 0;
-  const int kind = m->elements[elems[0]].kind;
-  const int law = spring_law(&m->elements[elems[0]]);
+  const mrvi_element *e0 = &m->elements[elems[0]];
+  const int kind = e0->kind;
+  const int law = spring_law(e0);
+  if (shared_law(m, elems, n_elems, col_of, dim)) {
+    kc->qm = malloc((size_t)n_elems * sizeof *kc->qm);
+    if (!kc->qm)
+      return MRVI_ENOMEM;
+    spring_law_of(e0, &kc->qm_law);
+    for (int ie = 0; ie < n_elems; ie++) {
+      const mrvi_element *e = &m->elements[elems[ie]];
+      const int *in = e->in;
+      kc->qm[ie] = (kspair){col_of ? col_of[in[0]] : in[0],
+                            col_of ? col_of[in[dim]] : in[dim], e->shift};
+    }
+    kc->spring_only = 1;
+    return 1;
+  }
   kc->qs = malloc((size_t)n_elems * sizeof *kc->qs);
   if (!kc->qs)
     return MRVI_ENOMEM;
@@ -948,6 +1033,51 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
   }
 }
 
+/* springs_k over a class of kspair records, in dimension dim with law
+ * code kk (K_ANY: the class's): each record's kspring (pair_spring),
+ * spring_eval's arithmetic, so bitwise springs_eval's over its kspring
+ * records. */
+ALWAYS_INLINE void pairs_k(const mrvi_terms *kc, const double *z, double scale,
+                           double *g, double *J, int ld, double hscale,
+                           const int dim, const int kk, const int unit) {
+  kspring q = kc->qm_law; /* (pair_spring's fields, set per record) */
+  for (int r = 0; r < kc->n; r++) {
+    const kspair *pr = &kc->qm[r];
+    for (int k = 0; k < dim; k++) {
+      q.ci[k] = pr->ci + k;
+      q.cj[k] = pr->cj + k;
+    }
+    q.shift = pr->shift;
+    spring_eval(&q, z, scale, g, J, ld, hscale, dim, 1, kk, unit);
+  }
+}
+
+static __attribute__((noinline)) void pairs_eval(const mrvi_terms *kc,
+                                                 const double *z, double scale,
+                                                 double *g, double *J, int ld,
+                                                 double hscale) {
+  const int unit = scale == 1.0 && (!J || hscale == 1.0);
+  const int morse = kc->qm_law.k == KS_MORSE;
+#define PAIRS(D, K)                                                            \
+  do {                                                                         \
+    if (unit)                                                                  \
+      pairs_k(kc, z, scale, g, J, ld, hscale, D, K, 1);                        \
+    else                                                                       \
+      pairs_k(kc, z, scale, g, J, ld, hscale, D, K, 0);                        \
+  } while (0)
+  if (kc->dim == 3 && morse)
+    PAIRS(3, KS_MORSE);
+  else if (kc->dim == 3)
+    PAIRS(3, K_ANY);
+  else if (kc->dim == 2 && morse)
+    PAIRS(2, KS_MORSE);
+  else if (kc->dim == 2)
+    PAIRS(2, K_ANY);
+  else
+    PAIRS(1, K_ANY);
+#undef PAIRS
+}
+
 static __attribute__((noinline)) void
 terms_eval_any(mrvi_terms *kc, const double *z, double scale, double *g,
                double *J, int ld, double hscale) {
@@ -964,6 +1094,8 @@ void mrvi_terms_eval(mrvi_terms *kc, const double *z, double scale, double *g,
                      double *J, int ld, double hscale) {
   if (kc->hooke_only) /* (gradient only: scale 1, no J) */
     mrvi_terms_grad(kc, z, g);
+  else if (kc->qm)
+    pairs_eval(kc, z, scale, g, J, ld, hscale);
   else if (kc->spring_only) /* (eval_k's one run) */
     springs_eval(kc->qs, kc->n, z, scale, g, J, ld, hscale, kc->dim);
   else if (kc->flat && J && scale == 1.0 && hscale == 1.0)
@@ -1359,7 +1491,7 @@ int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
                                   int ncol, double spread) {
   if (threads > 1 && mrvi_threads_supported() && !kc->part_first &&
       chunk >= 1 && springs_alone(kc) &&
-      (kc->qs || hooke_records(kc) == MRVI_OK)) {
+      (kc->qs || class_records(kc) == MRVI_OK)) {
     const int n = ncol > 0 ? ncol : kc->n;
     for (; n / 2 >= 2 * chunk; chunk *= 2) { /* (two parts at least) */
       const long total = part_entries(kc, chunk, ncol);
@@ -1381,7 +1513,7 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   if (threads <= 1 || chunk < 1 || !springs_alone(kc) ||
       (ncol > 0 ? ncol : kc->n) < 2 * chunk)
     return MRVI_OK;
-  if (!kc->qs && hooke_records(kc) < 0) /* (a gradient-only class) */
+  if (!kc->qs && class_records(kc) < 0) /* (a gradient-only class) */
     return MRVI_ENOMEM;
   const int dim = kc->dim;
   int n_col = 0, n_part = 0, part[6];
@@ -1468,6 +1600,8 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
     part_grad(kc, z, g);
   else if (kc->hooke_only)
     hooke_grad1(hooke_src(kc), kc->n, z, g, kc->dim);
+  else if (kc->qm)
+    pairs_eval(kc, z, 1.0, g, NULL, 0, 0.0);
   else if (kc->spring_only) /* (eval_k's one run at unit scale) */
     springs_eval(kc->qs, kc->n, z, 1.0, g, NULL, 0, 0.0, kc->dim);
   else if (kc->flat)
@@ -1477,6 +1611,8 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
 }
 
 int mrvi_terms_count(const mrvi_terms *kc) { return kc->n; }
+
+int mrvi_terms_shared_law(const mrvi_terms *kc) { return kc->qm != NULL; }
 
 /* flat_grad with each record's phi'' weighted into dsum: the gradient's
  * products and their order those of flat_grad (bitwise the same). */
@@ -1803,6 +1939,13 @@ static double value_range(mrvi_terms *kc, int i0, int i1, const double *z) {
   if (kc->hooke_only)
     return hooke_range(kc, i0, i1, z);
   double total = 0.0;
+  if (kc->qm) { /* (as below, each record's kspring) */
+    for (int r = i0; r < i1; r++) {
+      const kspring q = pair_spring(kc, r);
+      total += spring_value(&q, z, kc->dim);
+    }
+    return total;
+  }
   if (kc->spring_only) { /* (the loop below on one run) */
     for (int r = i0; r < i1; r++)
       total += spring_value(&kc->qs[r], z, kc->dim);
