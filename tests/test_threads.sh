@@ -132,7 +132,7 @@ big_ok() {
     [ "$cores" -gt 1 ] && ok=1 ;;
   *"(auto: the idle cores available to this process (others busy): 1160 elements of V"*"GOMP_SPINCOUNT 1000)")
     [ "$n" -gt 1 ] && [ "$n" -lt "$cores" ] && ok=1 ;;
-  "threads       1 (auto: "*" other tasks running on the $cores cores available to this process (a loop of 1160 elements of V"*"GOMP_SPINCOUNT "*)
+  "threads       1 (auto: "*" other task"*" running on the $cores cores available to this process (a loop of 1160 elements of V"*"GOMP_SPINCOUNT "*)
     ok=1 ;; # (1000 when the load rose between the choice and the restart)
   "threads       1 (auto: one core available"*"GOMP_SPINCOUNT unset)")
     [ "$cores" -eq 1 ] && ok=1 ;;

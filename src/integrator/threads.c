@@ -71,11 +71,11 @@ int mrvi_threads_auto(const mrvi_model *m, const mrvi_settings *s, char *why,
     return 1;
   }
   const int others = others_running();
-  if (others >= cores) {
+  if (others >= cores - 1) { /* (at most one core idle: one thread) */
     mrvi_fmt(why, len,
-             "%d other tasks running on the %d cores available to this "
+             "%d other task%s running on the %d cores available to this "
              "process (a loop of %d %s could take them)",
-             others, cores, size[big], what[big]);
+             others, others == 1 ? "" : "s", cores, size[big], what[big]);
     return 1;
   }
   const int free_cores = others > 0 ? cores - others : cores;
