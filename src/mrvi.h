@@ -814,6 +814,10 @@ typedef enum mrvi_newton_criterion {
     "Hessian-vector products of W and V (and a CG per micro step where W's "   \
     "points lie inside the micro intervals; 0: the step Hessian assembled "    \
     "and the transposed step solved)")                                         \
+  X(int, adjoint_hessblocks, 1, 0, 1,                                          \
+    "that CG's Hessian of W at a point inside a micro interval is formed "     \
+    "once per interval and kept (a block per spring) for its products "        \
+    "(0: formed anew at each product)")                                        \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

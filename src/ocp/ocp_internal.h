@@ -150,6 +150,9 @@ struct mrvi_ocp {
   int adj_explicit;
   mrvi_terms *adj_terms[2];
   double *adj_work;
+  /* (the sweep paths: doubles of W's kept Hessian blocks at one point,
+   * mrvi_terms_hessblocks_size; 0 or less: none kept) */
+  long adj_hb;
   /* Terminal velocities of a constrained model (projected_velocity):
    * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
    * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */
