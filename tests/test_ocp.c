@@ -1154,6 +1154,7 @@ static void adjoint_explicit_variant(const char *what, const char *scheme,
         o[0]->adj_explicit, o[1]->adj_explicit);
   double err, sc;
   two_way_diff(&tw, &err, &sc);
+  printf("TMP %s: %.3e\n", what, err / sc);
   CHECK(sc > 0.0 && err <= tol * sc,
         "adjoint explicit, %s: gradients differ from the assembled "
         "adjoint's by %.3e (scale %.3e)",
@@ -1176,6 +1177,10 @@ static void test_adjoint_explicit(void) {
                            "integrator.slow={grid: macro, alpha: 0.3}",
                            "integrator.fast={alpha: 0.7, gamma: 0}");
   adjoint_explicit_variant("explicit-slow", es, "sweep-cg", 1e-11, NULL, NULL);
+  adjoint_explicit_variant("explicit-slow, products", es, "sweep-cg", 1e-11,
+                           "integrator.tuning.adjoint_one_point=0", "integrator.tuning.adjoint_hessblocks=0");
+  adjoint_explicit_variant("explicit-slow, blocks", es, "sweep-cg", 1e-11,
+                           "integrator.tuning.adjoint_one_point=0", NULL);
   adjoint_explicit_variant("explicit-slow, p = 1", es, "sweep-cg", 1e-11,
                            "integrator.micro_steps=1",
                            "integrator.macro_step=0.025");

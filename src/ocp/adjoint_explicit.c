@@ -109,16 +109,18 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
                           &o->adj_terms[MRVI_FAST]);
   free(col);
   /* (the sweep: the points' configurations 2 nf, then per functional the
-   * combined adjoints and CG's r, p, q: 4 nf; its scalars: 3) */
+   * combined adjoints and CG's r, p, q: 4 nf; its scalars: 3; hy: nf; a
+   * norm: 1) */
   const size_t nfw = (size_t)o->nf;
   /* (and the kept Hessian blocks of W at two points, tuning
    * adjoint_hessblocks) */
   o->adj_hb = 0;
   if (s == MRVI_OK && w_inside(o) && o->settings.tuning.adjoint_hessblocks)
     o->adj_hb = mrvi_terms_hessblocks_size(o->adj_terms[MRVI_FAST]);
+  o->adj_one = o->settings.tuning.adjoint_one_point;
   const size_t nhb = o->adj_hb > 0 ? 2 * (size_t)o->adj_hb : 0;
   o->adj_work = malloc((f * 2 * nsf + 3 * nsf + (size_t)o->p + 1 +
-                        (4 * f + 2) * nfw + 3 * f + nhb) *
+                        (5 * f + 2) * nfw + 4 * f + nhb) *
                        sizeof *o->adj_work);
   if (s < 0 || !o->adj_work)
     return MRVI_ENOMEM;
@@ -427,12 +429,14 @@ static void cg_direction(int nf, double beta, const double *restrict dinv,
  * right-hand sides, overwritten) by Jacobi-preconditioned CG (dinv =
  * dt/M^f, the inverse of B's mass part kf) run for all of them in step,
  * one product of B with all their directions per iteration; each stops at
- * ||r_f||_inf <= rtol ||b_f||_inf.  p and q: nfun x nf each, then 3 nfun
- * scalars after q.  MRVI_CG_OK, _CURVATURE or _MAXIT (*its: products).
+ * ||r_f||_inf <= rtol ||b_f||_inf (bnorm[f] instead of ||b_f||_inf where
+ * bnorm is given).  p and q: nfun x nf each, then 3 nfun scalars after q.
+ * MRVI_CG_OK, _CURVATURE or _MAXIT (*its: products).
  * (A NaN or infinity in r poisons the sums r.D^-1 r, which are checked.) */
 static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
                           const double *dinv, double *r, double *x, long xs,
-                          double *p, double *q, double rtol, int *its) {
+                          double *p, double *q, double rtol,
+                          const double *bnorm, int *its) {
   const int nf = o->nf;
   double *rz = q + (size_t)nfun * nf, *stop = rz + nfun, *done = stop + nfun;
   int left = nfun;
@@ -444,7 +448,7 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
                      p + of, q + of, &bn);
     if (!isfinite(rz[f]))
       return MRVI_CG_MAXIT;
-    stop[f] = rtol * bn;
+    stop[f] = rtol * (bnorm ? bnorm[f] : bn);
     done[f] = !(bn > stop[f]);
     left -= done[f] != 0.0;
   }
@@ -480,11 +484,21 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
 
 /* R at fast node g (global) += sum over the points P of interval g (B) of
  * w cA hess W(z_P) (cA mu_g + cB mu_{g+1}): that interval's part of row g
- * (v: the workspace's vW). */
-static void interval_row_a(mrvi_ocp *o, const interval_op *B, int nfun, long g,
-                           double *gQ, double *v) {
+ * (v: the workspace's vW), or, where one, hy: that part as sweep_adjoint
+ * found it (nfun x nf). */
+static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one,
+                           const double *hy, int nfun, long g, double *gQ,
+                           double *v) {
   const int nf = o->nf;
   const long nn = o->n_nodes, at = (o->N + 1) * o->ns + g * nf;
+  for (int f = 0; one && f < nfun; f++) {
+    double *r = gQ + (size_t)f * (size_t)nn + at;
+    const double *h = hy + (size_t)f * nf;
+    for (int i = 0; i < nf; i++)
+      r[i] += h[i];
+  }
+  if (one)
+    return;
   for (int i = 0; i < B->np; i++) {
     if (B->cA[i] == 0.0)
       continue;
@@ -508,10 +522,23 @@ static void interval_row_a(mrvi_ocp *o, const interval_op *B, int nfun, long g,
  * (mu_p alone for 2 mu_g - mu_{g+1} at a step's last node), R_g being r
  * plus every product of known adjoints: the transposed micro step, solved
  * by Jacobi-preconditioned CG (solver/krylov.c) with Hessian-vector
- * products at the interval's points, to tuning.krylov_cg_rtol.  W's
+ * products at the interval's points, to tuning.adjoint_krylov_rtol.  W's
  * Hessian blocks at a point inside interval g - 1 are formed once
- * (mrvi_terms_hessblocks) for the interval's products: its part of row
- * g, every CG iteration, and its part of row g - 1. */
+ * (mrvi_terms_hessblocks) for the interval's products.
+ *
+ * With one point P inside the interval (the midpoint: explicit-slow), H =
+ * hess W(z_P), K = M^f/dt and c = w cA cB, the unknown y = mu_{g-1} +
+ * (cB/cA) mu_g = (cA mu_{g-1} + cB mu_g)/cA takes every product but the
+ * CG's: its system
+ *   (K + c H) y = K (2 mu_g - mu_{g+1} + (cB/cA) mu_g) - R'_g
+ * (R'_g: R_g without interval g - 1's w cB^2 H mu_g, which (K + c H)
+ * (cB/cA) mu_g supplies) has no product on its right, and that interval's
+ * part of row g - 1, w cA H (cA mu_{g-1} + cB mu_g) = w cA^2 H y, is
+ * (cA/cB) (b - r - K y) from the CG's right-hand side b and last residual
+ * r (B y = b - r), without a product either.  The CG stops at rtol times
+ * ||K (2 mu_g - mu_{g+1}) - R'_g||_inf, the right-hand side of mu_{g-1}'s
+ * system but for c H mu_g (relatively O(c ||H|| / K), below 1e-1 where
+ * the forward's chord contracts). */
 static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   const int ns = o->ns, nf = o->nf, p = o->p, nsf = ns + nf;
   const long N = o->N, nn = o->n_nodes, F0 = (N + 1) * ns;
@@ -519,12 +546,14 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   double *cf = ks + ns, *kf = cf + nf, *ww = kf + nf;
   double *zW = ww + p + 1, *vW = zW + 2 * (size_t)nf;
   double *c = vW + (size_t)nfun * nf, *cp = c + (size_t)nfun * nf;
-  double *cq = cp + (size_t)nfun * nf, *hbW = cq + (size_t)nfun * nf + 3 * nfun;
+  double *cq = cp + (size_t)nfun * nf, *hy = cq + (size_t)nfun * nf + 3 * nfun;
+  double *bnorm = hy + (size_t)nfun * nf, *hbW = bnorm + nfun;
   const long nhb = o->adj_hb;
   double wV[2];
   coefficients(o, cs, wV);
   const double rtol = o->settings.tuning.adjoint_krylov_rtol;
   interval_op B = {.kf = kf};
+  int one = 0; /* (B: one point inside, its part of the row before in hy) */
   v_add(o, nfun, N, wV[1], gQ);
   for (long k = N - 1; k >= 0; k--) {
     const long s0 = k * ns, s1 = s0 + ns, fk = F0 + k * p * nf;
@@ -537,24 +566,31 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     for (int j = p; j >= 1; j--) {
       const long fj = fk + (long)j * nf, g = k * p + j;
       if (j < p) /* (B: interval j, solved last) */
-        interval_row_a(o, &B, nfun, g, gQ, vW);
+        interval_row_a(o, &B, one, hy, nfun, g, gQ, vW);
       /* Interval j - 1: its points' mu_g part of row g, and B. */
       interval_setup(o, &B, fk, j - 1, zW, nhb > 0 ? hbW : NULL, nhb);
-      for (int i = 0; i < B.np; i++)
+      one = o->adj_one && B.np == 1 && B.cA[0] != 0.0 && B.cB[0] != 0.0;
+      const double ry = one ? B.cB[0] / B.cA[0] : 0.0;
+      for (int i = 0; !one && i < B.np; i++)
         point_product(o, &B, i, nfun, o->mu + fj, nn, gQ + fj, nn,
                       B.w[i] * B.cB[i] * B.cB[i]);
       for (int f = 0; f < nfun; f++) {
         const double *mu = o->mu + (size_t)f * (size_t)nn;
         const double *r = gQ + (size_t)f * (size_t)nn;
-        double *cf_ = c + (size_t)f * nf;
-        for (int i = 0; i < nf; i++)
-          cf_[i] = kf[i] * (j < p ? 2.0 * mu[fj + i] - mu[fj + nf + i]
-                                  : mu[fj + i]) -
-                   r[fj + i];
+        double *cf_ = c + (size_t)f * nf, bn = 0.0;
+        for (int i = 0; i < nf; i++) {
+          const double m = mu[fj + i], b = kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - r[fj + i];
+          cf_[i] = one ? b + kf[i] * (ry * m) : b;
+          bn = fabs(b) > bn ? fabs(b) : bn;
+        }
+        bnorm[f] = bn;
+        if (one)
+          memcpy(hy + (size_t)f * nf, cf_, (size_t)nf * sizeof *hy);
       }
       int its;
-      const int s = interval_solve(o, &B, nfun, cf, c, o->mu + fj - nf, nn, cp,
-                                   cq, rtol, &its);
+      double *x = o->mu + fj - nf;
+      const int s = interval_solve(o, &B, nfun, cf, c, x, nn, cp, cq, rtol,
+                                   one ? bnorm : NULL, &its);
       if (s != MRVI_CG_OK)
         return mrvi_ocp_fail(o, MRVI_ESINGULAR,
                              "adjoint of micro step %ld: CG %s after %d "
@@ -564,12 +600,21 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
                                  ? "met non-positive curvature"
                                  : "did not converge",
                              its);
+      /* y: the interval's part of row g - 1 into hy, mu_{g-1} from it */
+      for (int f = 0; one && f < nfun; f++) {
+        double *xf = x + (size_t)f * (size_t)nn, *h = hy + (size_t)f * nf;
+        const double *rf = c + (size_t)f * nf, *mg = xf + nf;
+        for (int i = 0; i < nf; i++) {
+          h[i] = (1.0 / ry) * (h[i] - rf[i] - kf[i] * xf[i]);
+          xf[i] -= ry * mg[i];
+        }
+      }
     }
     if (k == 0)
       break;
     kinetic_off(o, nfun, k, ks, kf, gQ);
     v_add(o, nfun, k, wV[0] + wV[1], gQ);
-    interval_row_a(o, &B, nfun, k * p, gQ, vW); /* (B: interval 0) */
+    interval_row_a(o, &B, one, hy, nfun, k * p, gQ, vW); /* (B: interval 0) */
   }
   return MRVI_OK;
 }

@@ -153,6 +153,7 @@ struct mrvi_ocp {
   /* (the sweep paths: doubles of W's kept Hessian blocks at one point,
    * mrvi_terms_hessblocks_size; 0 or less: none kept) */
   long adj_hb;
+  int adj_one; /* (tuning.adjoint_one_point) */
   /* Terminal velocities of a constrained model (projected_velocity):
    * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
    * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */
