@@ -236,11 +236,15 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     /* mu_s0 and mu_{p-1} from the rows of q_{k+1}^s and fast node p. */
     for (int f = 0; f < nfun; f++) {
       double *mu = o->mu + (size_t)f * (size_t)nn;
-      const double *r = gQ + (size_t)f * (size_t)nn;
-      for (int i = 0; i < ns; i++)
+      double *r = gQ + (size_t)f * (size_t)nn;
+      for (int i = 0; i < ns; i++) {
         mu[s0 + i] = mu[s1 + i] - cs[i] * r[s1 + i];
-      for (int i = 0; i < nf; i++)
+        r[s1 + i] = 0.0; /* (read: gQ cleared row by row) */
+      }
+      for (int i = 0; i < nf; i++) {
         mu[fp - nf + i] = mu[fp + i] - cf[i] * r[fp + i];
+        r[fp + i] = 0.0;
+      }
     }
     /* mu_{m-1} from the row of interior micro node m = p-1..1. */
     for (int mm = p - 1; mm >= 1; mm--) {
@@ -248,10 +252,12 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
       w_add(o, nfun, k * p + mm, ww[mm], gQ);
       for (int f = 0; f < nfun; f++) {
         double *mu = o->mu + (size_t)f * (size_t)nn;
-        const double *r = gQ + (size_t)f * (size_t)nn;
-        for (int i = 0; i < nf; i++)
+        double *r = gQ + (size_t)f * (size_t)nn;
+        for (int i = 0; i < nf; i++) {
           mu[fm - nf + i] =
               2.0 * mu[fm + i] - mu[fm + nf + i] - cf[i] * r[fm + i];
+          r[fm + i] = 0.0;
+        }
       }
     }
     if (k == 0)
@@ -559,9 +565,11 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     const long s0 = k * ns, s1 = s0 + ns, fk = F0 + k * p * nf;
     for (int f = 0; f < nfun; f++) {
       double *mu = o->mu + (size_t)f * (size_t)nn;
-      const double *r = gQ + (size_t)f * (size_t)nn;
-      for (int i = 0; i < ns; i++)
+      double *r = gQ + (size_t)f * (size_t)nn;
+      for (int i = 0; i < ns; i++) {
         mu[s0 + i] = mu[s1 + i] - cs[i] * r[s1 + i];
+        r[s1 + i] = 0.0;
+      }
     }
     for (int j = p; j >= 1; j--) {
       const long fj = fk + (long)j * nf, g = k * p + j;
@@ -576,10 +584,13 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
                       B.w[i] * B.cB[i] * B.cB[i]);
       for (int f = 0; f < nfun; f++) {
         const double *mu = o->mu + (size_t)f * (size_t)nn;
-        const double *r = gQ + (size_t)f * (size_t)nn;
+        double *r = gQ + (size_t)f * (size_t)nn;
         double *cf_ = c + (size_t)f * nf, bn = 0.0;
         for (int i = 0; i < nf; i++) {
-          const double m = mu[fj + i], b = kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - r[fj + i];
+          const double m = mu[fj + i];
+          const double b =
+              kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - r[fj + i];
+          r[fj + i] = 0.0;
           cf_[i] = one ? b + kf[i] * (ry * m) : b;
           bn = fabs(b) > bn ? fabs(b) : bn;
         }
@@ -619,9 +630,25 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   return MRVI_OK;
 }
 
+/* The rows of the initial nodes, which the sweeps do not read, cleared:
+ * with the rows the sweeps cleared as they read them, all of gQ. */
+static void initial_rows_off(const mrvi_ocp *o, int nfun, double *gQ) {
+  const long nn = o->n_nodes, F0 = (o->N + 1) * o->ns;
+  for (int f = 0; f < nfun; f++) {
+    double *r = gQ + (size_t)f * (size_t)nn;
+    memset(r, 0, (size_t)o->ns * sizeof *r);
+    memset(r + F0, 0, (size_t)o->nf * sizeof *r);
+  }
+}
+
 int ocp_explicit_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
-  if (w_inside(o))
-    return sweep_adjoint(o, nfun, gQ);
-  node_adjoint(o, nfun, gQ);
+  if (w_inside(o)) {
+    const int s = sweep_adjoint(o, nfun, gQ);
+    if (s < 0)
+      return s;
+  } else {
+    node_adjoint(o, nfun, gQ);
+  }
+  initial_rows_off(o, nfun, gQ);
   return MRVI_OK;
 }
