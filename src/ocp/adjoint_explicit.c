@@ -109,7 +109,7 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
                           &o->adj_terms[MRVI_FAST]);
   free(col);
   /* (the sweep: the points' configurations 2 nf, then per functional the
-   * combined adjoints and CG's r, p, q: 4 nf; its scalars: 3; hy: nf; a
+   * combined adjoints and CG's r, p, q: 4 nf; its scalars: 5; hy: nf; a
    * norm: 1) */
   const size_t nfw = (size_t)o->nf;
   /* (and the kept Hessian blocks of W at two points, tuning
@@ -120,7 +120,7 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
   o->adj_one = o->settings.tuning.adjoint_one_point;
   const size_t nhb = o->adj_hb > 0 ? 2 * (size_t)o->adj_hb : 0;
   o->adj_work = malloc((f * 2 * nsf + 3 * nsf + (size_t)o->p + 1 +
-                        (5 * f + 2) * nfw + 4 * f + nhb) *
+                        (5 * f + 2) * nfw + 6 * f + nhb) *
                        sizeof *o->adj_work);
   if (s < 0 || !o->adj_work)
     return MRVI_ENOMEM;
@@ -285,15 +285,16 @@ typedef struct {
 } interval_op;
 
 /* y_v += scale hess W(z_P) x_v for point i of B and the nvec vectors
- * x_v = x + v xs, y_v = y + v ys. */
+ * x_v = x + v xs, y_v = y + v ys (and xhx[v] += x_v^T that, where the
+ * point's blocks are kept and xhx is not NULL). */
 static void point_product(const mrvi_ocp *o, const interval_op *B, int i,
                           int nvec, const double *x, long xs, double *y,
-                          long ys, double scale) {
+                          long ys, double scale, double *xhx) {
   if (scale == 0.0)
     return;
   if (B->hb[i])
     mrvi_terms_hessblocks_apply(o->adj_terms[MRVI_FAST], B->hb[i], nvec, x, xs,
-                                y, ys, scale);
+                                y, ys, scale, xhx);
   else
     mrvi_terms_hessvec(o->adj_terms[MRVI_FAST], B->z[i], nvec, x, xs, y, ys,
                        scale);
@@ -331,12 +332,14 @@ static void interval_setup(const mrvi_ocp *o, interval_op *B, long at, int m,
 /* The passes of interval_solve over a functional's nf entries, four at a
  * time in two pairs (util/simd.h; the sums' chains are what bounds the
  * passes, not the arithmetic), then the tail.  CG's start: x = 0, p =
- * D^-1 r, q = kf p (B p's mass part); returns r.p, *bn = ||r||_inf. */
+ * D^-1 r, q = kf p (B p's mass part); returns r.p, *bn = ||r||_inf,
+ * *pq = p.q. */
 static double cg_start(int nf, const double *restrict dinv,
                        const double *restrict kf, const double *restrict r,
                        double *restrict x, double *restrict p,
-                       double *restrict q, double *bn) {
+                       double *restrict q, double *bn, double *pq) {
   mrvi_v2 s0 = v2_zero(), s1 = v2_zero(), m0 = v2_zero(), m1 = v2_zero();
+  mrvi_v2 t0 = v2_zero(), t1 = v2_zero();
   int i = 0;
   for (; i + 4 <= nf; i += 4) {
     const mrvi_v2 r0 = v2_load(r + i), r1 = v2_load(r + i + 2);
@@ -346,23 +349,30 @@ static double cg_start(int nf, const double *restrict dinv,
     v2_store(x + i + 2, v2_zero());
     v2_store(p + i, p0);
     v2_store(p + i + 2, p1);
-    v2_store(q + i, v2_mul(v2_load(kf + i), p0));
-    v2_store(q + i + 2, v2_mul(v2_load(kf + i + 2), p1));
+    const mrvi_v2 q0 = v2_mul(v2_load(kf + i), p0);
+    const mrvi_v2 q1 = v2_mul(v2_load(kf + i + 2), p1);
+    v2_store(q + i, q0);
+    v2_store(q + i + 2, q1);
     s0 = v2_add(s0, v2_mul(r0, p0));
     s1 = v2_add(s1, v2_mul(r1, p1));
+    t0 = v2_add(t0, v2_mul(p0, q0));
+    t1 = v2_add(t1, v2_mul(p1, q1));
     m0 = v2_max(v2_abs(r0), m0);
     m1 = v2_max(v2_abs(r1), m1);
   }
-  const mrvi_v2 s = v2_add(s0, s1), m = v2_max(m0, m1);
+  const mrvi_v2 s = v2_add(s0, s1), m = v2_max(m0, m1), t = v2_add(t0, t1);
   double rp = v2_lo(s) + v2_hi(s), mx = fmax(v2_lo(m), v2_hi(m));
+  double pt = v2_lo(t) + v2_hi(t);
   for (; i < nf; i++) {
     x[i] = 0.0;
     p[i] = dinv[i] * r[i];
     q[i] = kf[i] * p[i];
     rp += r[i] * p[i];
+    pt += p[i] * q[i];
     mx = fabs(r[i]) > mx ? fabs(r[i]) : mx;
   }
   *bn = mx;
+  *pq = pt;
   return rp;
 }
 
@@ -414,21 +424,34 @@ static double cg_update(int nf, double alpha, const double *restrict dinv,
   return rz;
 }
 
-/* p = D^-1 r + beta p, q = kf p. */
-static void cg_direction(int nf, double beta, const double *restrict dinv,
-                         const double *restrict kf, const double *restrict r,
-                         double *restrict p, double *restrict q) {
+/* p = D^-1 r + beta p, q = kf p; returns p.q. */
+static double cg_direction(int nf, double beta, const double *restrict dinv,
+                           const double *restrict kf, const double *restrict r,
+                           double *restrict p, double *restrict q) {
+  mrvi_v2 t0 = v2_zero(), t1 = v2_zero();
   int i = 0;
-  for (; i + 2 <= nf; i += 2) {
-    const mrvi_v2 pn = v2_add(v2_mul(v2_load(dinv + i), v2_load(r + i)),
+  for (; i + 4 <= nf; i += 4) {
+    const mrvi_v2 p0 = v2_add(v2_mul(v2_load(dinv + i), v2_load(r + i)),
                               v2_scale(beta, v2_load(p + i)));
-    v2_store(p + i, pn);
-    v2_store(q + i, v2_mul(v2_load(kf + i), pn));
+    const mrvi_v2 p1 = v2_add(v2_mul(v2_load(dinv + i + 2), v2_load(r + i + 2)),
+                              v2_scale(beta, v2_load(p + i + 2)));
+    const mrvi_v2 q0 = v2_mul(v2_load(kf + i), p0);
+    const mrvi_v2 q1 = v2_mul(v2_load(kf + i + 2), p1);
+    v2_store(p + i, p0);
+    v2_store(p + i + 2, p1);
+    v2_store(q + i, q0);
+    v2_store(q + i + 2, q1);
+    t0 = v2_add(t0, v2_mul(p0, q0));
+    t1 = v2_add(t1, v2_mul(p1, q1));
   }
+  const mrvi_v2 t = v2_add(t0, t1);
+  double pt = v2_lo(t) + v2_hi(t);
   for (; i < nf; i++) {
     p[i] = dinv[i] * r[i] + beta * p[i];
     q[i] = kf[i] * p[i];
+    pt += p[i] * q[i];
   }
+  return pt;
 }
 
 /* B x_f = r_f for every functional (x_f = x + f xs; r: nfun x nf, the
@@ -436,22 +459,28 @@ static void cg_direction(int nf, double beta, const double *restrict dinv,
  * dt/M^f, the inverse of B's mass part kf) run for all of them in step,
  * one product of B with all their directions per iteration; each stops at
  * ||r_f||_inf <= rtol ||b_f||_inf (bnorm[f] instead of ||b_f||_inf where
- * bnorm is given).  p and q: nfun x nf each, then 3 nfun scalars after q.
- * MRVI_CG_OK, _CURVATURE or _MAXIT (*its: products).
- * (A NaN or infinity in r poisons the sums r.D^-1 r, which are checked.) */
+ * bnorm is given).  The curvature p.Bp is p.kf p, summed where the
+ * direction is formed, plus the Hessians' p^T H p, summed by the product
+ * where every point's blocks are kept (else by a pass over Bp).  p and q:
+ * nfun x nf each, then 5 nfun scalars after q.  MRVI_CG_OK, _CURVATURE
+ * or _MAXIT (*its: products).  (A NaN or infinity in r poisons the sums
+ * r.D^-1 r, which are checked.) */
 static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
                           const double *dinv, double *r, double *x, long xs,
                           double *p, double *q, double rtol,
                           const double *bnorm, int *its) {
   const int nf = o->nf;
   double *rz = q + (size_t)nfun * nf, *stop = rz + nfun, *done = stop + nfun;
-  int left = nfun;
+  double *pkp = done + nfun, *php = pkp + nfun;
+  int left = nfun, kept = 1;
+  for (int i = 0; i < B->np; i++)
+    kept = kept && (B->hb[i] || B->w[i] * B->cA[i] * B->cB[i] == 0.0);
   *its = 0;
   for (int f = 0; f < nfun; f++) {
     const size_t of = (size_t)f * nf;
     double bn;
     rz[f] = cg_start(nf, dinv, B->kf, r + of, x + (size_t)f * (size_t)xs,
-                     p + of, q + of, &bn);
+                     p + of, q + of, &bn, &pkp[f]);
     if (!isfinite(rz[f]))
       return MRVI_CG_MAXIT;
     stop[f] = rtol * (bnorm ? bnorm[f] : bn);
@@ -459,14 +488,16 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
     left -= done[f] != 0.0;
   }
   for (*its = 0; left > 0 && *its < MRVI_CG_MAX_IT; ++*its) {
+    for (int f = 0; f < nfun; f++)
+      php[f] = 0.0;
     for (int i = 0; i < B->np; i++)
       point_product(o, B, i, nfun, p, nf, q, nf,
-                    B->w[i] * B->cA[i] * B->cB[i]);
+                    B->w[i] * B->cA[i] * B->cB[i], kept ? php : NULL);
     for (int f = 0; f < nfun; f++) {
       if (done[f] != 0.0)
         continue;
       const size_t of = (size_t)f * nf;
-      const double pq = cg_dot(nf, p + of, q + of);
+      const double pq = kept ? pkp[f] + php[f] : cg_dot(nf, p + of, q + of);
       if (!(pq > 0.0))
         return MRVI_CG_CURVATURE;
       const double alpha = rz[f] / pq;
@@ -482,7 +513,7 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
       }
       const double beta = rz1 / rz[f];
       rz[f] = rz1;
-      cg_direction(nf, beta, dinv, B->kf, r + of, p + of, q + of);
+      pkp[f] = cg_direction(nf, beta, dinv, B->kf, r + of, p + of, q + of);
     }
   }
   return left == 0 ? MRVI_CG_OK : MRVI_CG_MAXIT;
@@ -490,19 +521,11 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
 
 /* R at fast node g (global) += sum over the points P of interval g (B) of
  * w cA hess W(z_P) (cA mu_g + cB mu_{g+1}): that interval's part of row g
- * (v: the workspace's vW), or, where one, hy: that part as sweep_adjoint
- * found it (nfun x nf). */
+ * (v: the workspace's vW); nothing where one (sweep_adjoint added it). */
 static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one,
-                           const double *hy, int nfun, long g, double *gQ,
-                           double *v) {
+                           int nfun, long g, double *gQ, double *v) {
   const int nf = o->nf;
   const long nn = o->n_nodes, at = (o->N + 1) * o->ns + g * nf;
-  for (int f = 0; one && f < nfun; f++) {
-    double *r = gQ + (size_t)f * (size_t)nn + at;
-    const double *h = hy + (size_t)f * nf;
-    for (int i = 0; i < nf; i++)
-      r[i] += h[i];
-  }
   if (one)
     return;
   for (int i = 0; i < B->np; i++) {
@@ -513,7 +536,8 @@ static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one,
       for (int l = 0; l < nf; l++)
         v[(size_t)f * nf + l] = B->cA[i] * mu[l] + B->cB[i] * mu[nf + l];
     }
-    point_product(o, B, i, nfun, v, nf, gQ + at, nn, B->w[i] * B->cA[i]);
+    point_product(o, B, i, nfun, v, nf, gQ + at, nn, B->w[i] * B->cA[i],
+                  NULL);
   }
 }
 
@@ -552,14 +576,14 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   double *cf = ks + ns, *kf = cf + nf, *ww = kf + nf;
   double *zW = ww + p + 1, *vW = zW + 2 * (size_t)nf;
   double *c = vW + (size_t)nfun * nf, *cp = c + (size_t)nfun * nf;
-  double *cq = cp + (size_t)nfun * nf, *hy = cq + (size_t)nfun * nf + 3 * nfun;
+  double *cq = cp + (size_t)nfun * nf, *hy = cq + (size_t)nfun * nf + 5 * nfun;
   double *bnorm = hy + (size_t)nfun * nf, *hbW = bnorm + nfun;
   const long nhb = o->adj_hb;
   double wV[2];
   coefficients(o, cs, wV);
   const double rtol = o->settings.tuning.adjoint_krylov_rtol;
   interval_op B = {.kf = kf};
-  int one = 0; /* (B: one point inside, its part of the row before in hy) */
+  int one = 0; /* (B: one point inside, its part of the row before added) */
   v_add(o, nfun, N, wV[1], gQ);
   for (long k = N - 1; k >= 0; k--) {
     const long s0 = k * ns, s1 = s0 + ns, fk = F0 + k * p * nf;
@@ -574,14 +598,14 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     for (int j = p; j >= 1; j--) {
       const long fj = fk + (long)j * nf, g = k * p + j;
       if (j < p) /* (B: interval j, solved last) */
-        interval_row_a(o, &B, one, hy, nfun, g, gQ, vW);
+        interval_row_a(o, &B, one, nfun, g, gQ, vW);
       /* Interval j - 1: its points' mu_g part of row g, and B. */
       interval_setup(o, &B, fk, j - 1, zW, nhb > 0 ? hbW : NULL, nhb);
       one = o->adj_one && B.np == 1 && B.cA[0] != 0.0 && B.cB[0] != 0.0;
       const double ry = one ? B.cB[0] / B.cA[0] : 0.0;
       for (int i = 0; !one && i < B.np; i++)
         point_product(o, &B, i, nfun, o->mu + fj, nn, gQ + fj, nn,
-                      B.w[i] * B.cB[i] * B.cB[i]);
+                      B.w[i] * B.cB[i] * B.cB[i], NULL);
       for (int f = 0; f < nfun; f++) {
         const double *mu = o->mu + (size_t)f * (size_t)nn;
         double *r = gQ + (size_t)f * (size_t)nn;
@@ -592,11 +616,11 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
               kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - r[fj + i];
           r[fj + i] = 0.0;
           cf_[i] = one ? b + kf[i] * (ry * m) : b;
+          if (one)
+            hy[(size_t)f * nf + i] = cf_[i];
           bn = fabs(b) > bn ? fabs(b) : bn;
         }
         bnorm[f] = bn;
-        if (one)
-          memcpy(hy + (size_t)f * nf, cf_, (size_t)nf * sizeof *hy);
       }
       int its;
       double *x = o->mu + fj - nf;
@@ -611,12 +635,14 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
                                  ? "met non-positive curvature"
                                  : "did not converge",
                              its);
-      /* y: the interval's part of row g - 1 into hy, mu_{g-1} from it */
+      /* y: the interval's part of row g - 1 added to it (hy: b), mu_{g-1}
+       * from y */
       for (int f = 0; one && f < nfun; f++) {
         double *xf = x + (size_t)f * (size_t)nn, *h = hy + (size_t)f * nf;
+        double *r = gQ + (size_t)f * (size_t)nn + fj - nf;
         const double *rf = c + (size_t)f * nf, *mg = xf + nf;
         for (int i = 0; i < nf; i++) {
-          h[i] = (1.0 / ry) * (h[i] - rf[i] - kf[i] * xf[i]);
+          r[i] += (1.0 / ry) * (h[i] - rf[i] - kf[i] * xf[i]);
           xf[i] -= ry * mg[i];
         }
       }
@@ -625,7 +651,7 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
       break;
     kinetic_off(o, nfun, k, ks, kf, gQ);
     v_add(o, nfun, k, wV[0] + wV[1], gQ);
-    interval_row_a(o, &B, one, hy, nfun, k * p, gQ, vW); /* (B: interval 0) */
+    interval_row_a(o, &B, one, nfun, k * p, gQ, vW); /* (B: interval 0) */
   }
   return MRVI_OK;
 }

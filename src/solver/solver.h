@@ -485,10 +485,12 @@ void mrvi_terms_hessblocks(mrvi_terms *kc, const double *z, double *B);
 /* y_v += scale hess Z x_v for the nvec vectors x_v = x + v xs, y_v = y + v
  * ys, by the blocks B of mrvi_terms_hessblocks: mrvi_terms_hessvec's
  * products without forming the Hessian again (round-off apart the same:
- * the scale multiplies the block here, the block's terms there). */
+ * the scale multiplies the block here, the block's terms there); unless
+ * xhx is NULL, xhx[v] += x_v^T (scale hess Z x_v) as well, element by
+ * element (CG's curvature without a pass over y). */
 void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
                                  int nvec, const double *x, long xs, double *y,
-                                 long ys, double scale);
+                                 long ys, double scale, double *xhx);
 /* Whether every element of the class is quadratic
  * (mrvi_element_is_quadratic): its Hessian is constant. */
 int mrvi_terms_quadratic(const mrvi_terms *kc);

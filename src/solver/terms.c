@@ -2212,7 +2212,8 @@ void mrvi_terms_hessblocks(mrvi_terms *kc, const double *z, double *B) {
 ALWAYS_INLINE void block_apply(const kspring *q, const double *restrict B,
                                int nvec, const double *restrict x, long xs,
                                double *restrict y, long ys, double scale,
-                               const int dim, const int two) {
+                               double *restrict xhx, const int dim,
+                               const int two) {
   double A[3][3];
   int e = 0;
   UNROLL for (int i = 0; i < dim; i++) UNROLL for (int j = i; j < dim; j++) {
@@ -2230,24 +2231,29 @@ ALWAYS_INLINE void block_apply(const kspring *q, const double *restrict B,
     double dx[3];
     UNROLL for (int k = 0; k < dim; k++) dx[k] =
         xv[ci[k]] - (two ? xv[cj[k]] : 0.0);
+    double xh = 0.0;
     UNROLL for (int i = 0; i < dim; i++) {
       double h = 0.0;
       UNROLL for (int j = 0; j < dim; j++) h += A[i][j] * dx[j];
       yv[ci[i]] += h;
       if (two)
         yv[cj[i]] -= h;
+      xh += dx[i] * h;
     }
+    if (xhx)
+      xhx[v] += xh;
   }
 }
 
 static __attribute__((noinline)) void
 springs_blocks_apply(const kspring *q, int nr, const double *restrict B,
                      int nvec, const double *restrict x, long xs,
-                     double *restrict y, long ys, double scale, int dim) {
+                     double *restrict y, long ys, double scale,
+                     double *restrict xhx, int dim) {
 #define SPRINGS_BA(D, T)                                                       \
   for (int r = 0; r < nr; r++)                                                 \
     block_apply(q + r, B + (long)r * (D * (D + 1) / 2), nvec, x, xs, y, ys,    \
-                scale, D, T);
+                scale, xhx, D, T);
   if (dim == 2 && q->two)
     SPRINGS_BA(2, 1)
   else if (dim == 2)
@@ -2265,12 +2271,12 @@ springs_blocks_apply(const kspring *q, int nr, const double *restrict B,
 
 void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
                                  int nvec, const double *x, long xs, double *y,
-                                 long ys, double scale) {
+                                 long ys, double scale, double *xhx) {
   for (int it = 0; it < kc->n; it++) {
     const kterm *t = &kc->t[it];
     if (t->runs > 0) {
       springs_blocks_apply(kc->qs + t->qs, t->runs, B, nvec, x, xs, y, ys,
-                           scale, kc->dim);
+                           scale, xhx, kc->dim);
       B += (long)t->runs * block_len(kc, t);
       it += t->runs - 1;
       continue;
@@ -2281,12 +2287,16 @@ void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
     for (int v = 0; v < nvec; v++) {
       const double *xv = x + (size_t)v * (size_t)xs;
       double *yv = y + (size_t)v * (size_t)ys;
+      double xh = 0.0;
       for (int j = 0; j < n; j++) {
         double h = 0.0;
         for (int l = 0; l < n; l++)
           h += B[j * n + l] * xv[col[l]];
         yv[col[j]] += scale * h;
+        xh += xv[col[j]] * (scale * h);
       }
+      if (xhx)
+        xhx[v] += xh;
     }
     B += (long)n * n;
   }
