@@ -815,9 +815,10 @@ typedef enum mrvi_newton_criterion {
     "points lie inside the micro intervals; 0: the step Hessian assembled "    \
     "and the transposed step solved)")                                         \
   X(int, adjoint_hessblocks, 1, 0, 1,                                          \
-    "that CG's Hessian of W at a point inside a micro interval is formed "     \
-    "once per interval and kept (a block per spring) for its products "        \
-    "(0: formed anew at each product)")                                        \
+    "adjoint_explicit's Hessians of W formed in one loop (a block per "        \
+    "spring) and kept for their products: each micro node's, and that "        \
+    "CG's at a point inside a micro interval, once per interval (0: formed "   \
+    "anew within each product)")                                               \
   X(int, adjoint_one_point, 1, 0, 1,                                           \
     "that CG, where a micro interval has one point inside (the midpoint), "    \
     "solves for cA mu_{g-1} + cB mu_g and takes the interval's other "         \

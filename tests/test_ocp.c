@@ -1184,6 +1184,8 @@ out:
 static void test_adjoint_explicit(void) {
   const char *fe = "fully-explicit", *es = "explicit-slow";
   adjoint_explicit_variant("fully-explicit", fe, "explicit", 1e-12, NULL, NULL);
+  adjoint_explicit_variant("fully-explicit, products", fe, "explicit", 1e-12,
+                           "integrator.tuning.adjoint_hessblocks=0", NULL);
   adjoint_explicit_variant("fully-explicit, p = 1", fe, "explicit", 1e-12,
                            "integrator.micro_steps=1",
                            "integrator.macro_step=0.025");

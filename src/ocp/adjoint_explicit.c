@@ -114,15 +114,20 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
   const size_t nfw = (size_t)o->nf;
   /* (and the kept Hessian blocks of W at two points, tuning
    * adjoint_hessblocks) */
-  o->adj_hb = 0;
-  if (s == MRVI_OK && w_inside(o) && o->settings.tuning.adjoint_hessblocks)
-    o->adj_hb = mrvi_terms_hessblocks_size(o->adj_terms[MRVI_FAST]);
-  o->adj_one = o->settings.tuning.adjoint_one_point;
-  const size_t nhb = o->adj_hb > 0 ? 2 * (size_t)o->adj_hb : 0;
   o->adj_work = malloc((f * 2 * nsf + 3 * nsf + (size_t)o->p + 1 +
-                        (5 * f + 2) * nfw + 6 * f + nhb) *
+                        (5 * f + 2) * nfw + 6 * f) *
                        sizeof *o->adj_work);
   if (s < 0 || !o->adj_work)
+    return MRVI_ENOMEM;
+  /* W's Hessian blocks at one node or at an interval's two points (tuning
+   * adjoint_hessblocks) */
+  o->adj_hb = 0;
+  o->adj_one = o->settings.tuning.adjoint_one_point;
+  if (o->settings.tuning.adjoint_hessblocks &&
+      o->step.n_elem_of_class[MRVI_FAST] > 0)
+    o->adj_hb = mrvi_terms_hessblocks_size(o->adj_terms[MRVI_FAST]);
+  if (o->adj_hb > 0 &&
+      !(o->adj_blocks = malloc(2 * (size_t)o->adj_hb * sizeof(double))))
     return MRVI_ENOMEM;
   o->adj_explicit = 1;
   return MRVI_OK;
@@ -157,12 +162,23 @@ static void v_add(mrvi_ocp *o, int nfun, long j, double w, double *r) {
 }
 
 /* r += w hess W(q^g) mu^g at global fast node g for every functional
- * (straight into r's rows: W's columns are the fast slots). */
+ * (straight into r's rows: W's columns are the fast slots); the blocks
+ * formed in one loop, then applied, where they are kept (the square
+ * roots and divisions of the springs then overlap, unhindered by the
+ * products' scattered additions). */
 static void w_add(mrvi_ocp *o, int nfun, long g, double w, double *r) {
   const long at = (o->N + 1) * o->ns + g * o->nf;
-  if (w != 0.0)
-    mrvi_terms_hessvec(o->adj_terms[MRVI_FAST], o->Q + at, nfun, o->mu + at,
-                       o->n_nodes, r + at, o->n_nodes, w);
+  if (w == 0.0)
+    return;
+  mrvi_terms *W = o->adj_terms[MRVI_FAST];
+  if (o->adj_hb > 0) {
+    mrvi_terms_hessblocks(W, o->Q + at, o->adj_blocks);
+    mrvi_terms_hessblocks_apply(W, o->adj_blocks, nfun, o->mu + at,
+                                o->n_nodes, r + at, o->n_nodes, w, NULL);
+  } else {
+    mrvi_terms_hessvec(W, o->Q + at, nfun, o->mu + at, o->n_nodes, r + at,
+                       o->n_nodes, w);
+  }
 }
 
 /* The sweeps' coefficients from cs on (the workspace's layout): dT/M^s,
@@ -577,7 +593,7 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   double *zW = ww + p + 1, *vW = zW + 2 * (size_t)nf;
   double *c = vW + (size_t)nfun * nf, *cp = c + (size_t)nfun * nf;
   double *cq = cp + (size_t)nfun * nf, *hy = cq + (size_t)nfun * nf + 5 * nfun;
-  double *bnorm = hy + (size_t)nfun * nf, *hbW = bnorm + nfun;
+  double *bnorm = hy + (size_t)nfun * nf, *hbW = o->adj_blocks;
   const long nhb = o->adj_hb;
   double wV[2];
   coefficients(o, cs, wV);

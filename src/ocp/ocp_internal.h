@@ -150,9 +150,10 @@ struct mrvi_ocp {
   int adj_explicit;
   mrvi_terms *adj_terms[2];
   double *adj_work;
-  /* (the sweep paths: doubles of W's kept Hessian blocks at one point,
-   * mrvi_terms_hessblocks_size; 0 or less: none kept) */
+  /* W's kept Hessian blocks (2 adj_hb doubles: at two points; adj_hb =
+   * mrvi_terms_hessblocks_size, 0 or less: none kept) */
   long adj_hb;
+  double *adj_blocks;
   int adj_one; /* (tuning.adjoint_one_point) */
   /* The first nfun n_nodes of r (dPhi/dY, gQ) are all zero: as allocated,
    * and after the explicit adjoint, which clears each row as it reads it;
