@@ -537,7 +537,8 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
 
 /* R at fast node g (global) += sum over the points P of interval g (B) of
  * w cA hess W(z_P) (cA mu_g + cB mu_{g+1}): that interval's part of row g
- * (v: the workspace's vW); nothing where one (sweep_adjoint added it). */
+ * (v: the workspace's vW); nothing where one (sweep_adjoint keeps it in
+ * hy). */
 static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one,
                            int nfun, long g, double *gQ, double *v) {
   const int nf = o->nf;
@@ -599,7 +600,8 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   coefficients(o, cs, wV);
   const double rtol = o->settings.tuning.adjoint_krylov_rtol;
   interval_op B = {.kf = kf};
-  int one = 0; /* (B: one point inside, its part of the row before added) */
+  int one = 0; /* (B: one point inside) */
+  int pend = 0; /* (hy: a part of the next row read, not in gQ) */
   v_add(o, nfun, N, wV[1], gQ);
   for (long k = N - 1; k >= 0; k--) {
     const long s0 = k * ns, s1 = s0 + ns, fk = F0 + k * p * nf;
@@ -626,18 +628,19 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
         const double *mu = o->mu + (size_t)f * (size_t)nn;
         double *r = gQ + (size_t)f * (size_t)nn;
         double *cf_ = c + (size_t)f * nf, bn = 0.0;
+        double *h = hy + (size_t)f * nf;
         for (int i = 0; i < nf; i++) {
-          const double m = mu[fj + i];
-          const double b =
-              kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - r[fj + i];
+          const double m = mu[fj + i], R = r[fj + i] + (pend ? h[i] : 0.0);
+          const double b = kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - R;
           r[fj + i] = 0.0;
           cf_[i] = one ? b + kf[i] * (ry * m) : b;
           if (one)
-            hy[(size_t)f * nf + i] = cf_[i];
+            h[i] = cf_[i];
           bn = fabs(b) > bn ? fabs(b) : bn;
         }
         bnorm[f] = bn;
       }
+      pend = 0;
       int its;
       double *x = o->mu + fj - nf;
       const int s = interval_solve(o, &B, nfun, cf, c, x, nn, cp, cq, rtol,
@@ -651,17 +654,18 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
                                  ? "met non-positive curvature"
                                  : "did not converge",
                              its);
-      /* y: the interval's part of row g - 1 added to it (hy: b), mu_{g-1}
+      /* y: the interval's part of row g - 1 into hy (b there), pending
+       * till that row is read (it is not in the cache yet), and mu_{g-1}
        * from y */
       for (int f = 0; one && f < nfun; f++) {
         double *xf = x + (size_t)f * (size_t)nn, *h = hy + (size_t)f * nf;
-        double *r = gQ + (size_t)f * (size_t)nn + fj - nf;
         const double *rf = c + (size_t)f * nf, *mg = xf + nf;
         for (int i = 0; i < nf; i++) {
-          r[i] += (1.0 / ry) * (h[i] - rf[i] - kf[i] * xf[i]);
+          h[i] = (1.0 / ry) * (h[i] - rf[i] - kf[i] * xf[i]);
           xf[i] -= ry * mg[i];
         }
       }
+      pend = one;
     }
     if (k == 0)
       break;
