@@ -822,7 +822,7 @@ typedef enum mrvi_newton_criterion {
   X(int, adjoint_one_point, 1, 0, 1,                                           \
     "that CG, where a micro interval has one point inside (the midpoint), "    \
     "solves for cA mu_{g-1} + cB mu_g and takes the interval's other "         \
-    "products from the CG's residual (0: two products more per interval)")   \
+    "products from the CG's residual (0: two products more per interval)")     \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

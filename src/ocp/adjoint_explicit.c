@@ -112,11 +112,9 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
    * combined adjoints and CG's r, p, q: 4 nf; its scalars: 5; hy: nf; a
    * norm: 1) */
   const size_t nfw = (size_t)o->nf;
-  /* (and the kept Hessian blocks of W at two points, tuning
-   * adjoint_hessblocks) */
-  o->adj_work = malloc((f * 2 * nsf + 3 * nsf + (size_t)o->p + 1 +
-                        (5 * f + 2) * nfw + 6 * f) *
-                       sizeof *o->adj_work);
+  o->adj_work = malloc(
+      (f * 2 * nsf + 3 * nsf + (size_t)o->p + 1 + (5 * f + 2) * nfw + 6 * f) *
+      sizeof *o->adj_work);
   if (s < 0 || !o->adj_work)
     return MRVI_ENOMEM;
   /* W's Hessian blocks at one node or at an interval's two points (tuning
@@ -173,8 +171,8 @@ static void w_add(mrvi_ocp *o, int nfun, long g, double w, double *r) {
   mrvi_terms *W = o->adj_terms[MRVI_FAST];
   if (o->adj_hb > 0) {
     mrvi_terms_hessblocks(W, o->Q + at, o->adj_blocks);
-    mrvi_terms_hessblocks_apply(W, o->adj_blocks, nfun, o->mu + at,
-                                o->n_nodes, r + at, o->n_nodes, w, NULL);
+    mrvi_terms_hessblocks_apply(W, o->adj_blocks, nfun, o->mu + at, o->n_nodes,
+                                r + at, o->n_nodes, w, NULL);
   } else {
     mrvi_terms_hessvec(W, o->Q + at, nfun, o->mu + at, o->n_nodes, r + at,
                        o->n_nodes, w);
@@ -507,8 +505,8 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
     for (int f = 0; f < nfun; f++)
       php[f] = 0.0;
     for (int i = 0; i < B->np; i++)
-      point_product(o, B, i, nfun, p, nf, q, nf,
-                    B->w[i] * B->cA[i] * B->cB[i], kept ? php : NULL);
+      point_product(o, B, i, nfun, p, nf, q, nf, B->w[i] * B->cA[i] * B->cB[i],
+                    kept ? php : NULL);
     for (int f = 0; f < nfun; f++) {
       if (done[f] != 0.0)
         continue;
@@ -539,8 +537,8 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
  * w cA hess W(z_P) (cA mu_g + cB mu_{g+1}): that interval's part of row g
  * (v: the workspace's vW); nothing where one (sweep_adjoint keeps it in
  * hy). */
-static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one,
-                           int nfun, long g, double *gQ, double *v) {
+static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one, int nfun,
+                           long g, double *gQ, double *v) {
   const int nf = o->nf;
   const long nn = o->n_nodes, at = (o->N + 1) * o->ns + g * nf;
   if (one)
@@ -553,8 +551,7 @@ static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one,
       for (int l = 0; l < nf; l++)
         v[(size_t)f * nf + l] = B->cA[i] * mu[l] + B->cB[i] * mu[nf + l];
     }
-    point_product(o, B, i, nfun, v, nf, gQ + at, nn, B->w[i] * B->cA[i],
-                  NULL);
+    point_product(o, B, i, nfun, v, nf, gQ + at, nn, B->w[i] * B->cA[i], NULL);
   }
 }
 
@@ -600,7 +597,7 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   coefficients(o, cs, wV);
   const double rtol = o->settings.tuning.adjoint_krylov_rtol;
   interval_op B = {.kf = kf};
-  int one = 0; /* (B: one point inside) */
+  int one = 0;  /* (B: one point inside) */
   int pend = 0; /* (hy: a part of the next row read, not in gQ) */
   v_add(o, nfun, N, wV[1], gQ);
   for (long k = N - 1; k >= 0; k--) {

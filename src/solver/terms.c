@@ -2217,9 +2217,9 @@ ALWAYS_INLINE void block_apply(const kspring *q, const double *restrict B,
   double A[3][3];
   int e = 0;
   UNROLL for (int i = 0; i < dim; i++) UNROLL for (int j = i; j < dim; j++) {
-      A[i][j] = scale * B[e++];
-      A[j][i] = A[i][j];
-    }
+    A[i][j] = scale * B[e++];
+    A[j][i] = A[i][j];
+  }
   int ci[3], cj[3];
   UNROLL for (int k = 0; k < dim; k++) {
     ci[k] = q->ci[k];
