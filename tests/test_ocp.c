@@ -1158,9 +1158,9 @@ static void adjoint_explicit_variant(const char *what, const char *scheme,
         "adjoint explicit, %s: gradients differ from the assembled "
         "adjoint's by %.3e (scale %.3e)",
         what, err, sc);
-  /* The second controls' gradients above came from dPhi/dY rows the
-   * first adjoint left cleared (gq_zero); a value alone dirties them: the
-   * first controls' gradients after it, bitwise the first's. */
+  /* Nothing of an evaluation carries over into the next: the first
+   * controls' gradients again after a value alone at the second, bitwise
+   * the first's. */
   const int n = tw.n, len = n * (1 + tw.nm);
   double J, c[16], *g = calloc((size_t)len, sizeof *g);
   for (int i = 0; i < n; i++)

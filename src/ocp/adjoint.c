@@ -314,8 +314,7 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
   const int nfun = 1 + o->n_con, npn = o->ns + o->nf;
   const long nn = o->n_nodes;
   memset(val, 0, (size_t)nfun * sizeof *val);
-  if (!o->gq_zero)
-    memset(gQ, 0, (size_t)nfun * (size_t)nn * sizeof *gQ);
+  memset(gQ, 0, (size_t)nfun * (size_t)nn * sizeof *gQ);
   memset(gp, 0, (size_t)nfun * (size_t)npn * sizeof *gp);
   memset(gu, 0, (size_t)nfun * (size_t)o->n_u * sizeof *gu);
   const double dT = o->settings.macro_step, dt = dT / o->p;
@@ -498,7 +497,6 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   o->mu = calloc(f * nn + 1, sizeof(double));
   if (!o->r || !o->mu || (R > 0 && !o->pv))
     return MRVI_ENOMEM;
-  o->gq_zero = 1;
   /* The explicit path's adjoint needs no step Jacobian. */
   if (ocp_explicit_ok(o)) {
     if (ocp_explicit_alloc(o, nfun) < 0)
@@ -733,7 +731,6 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
   double *gp = val + nfun, *gu = gp + (size_t)nfun * (size_t)npn;
   /* (val, gp and gu fit in the second n_nodes block of r; see alloc.) */
   functionals(o, u, val, gQ, gp, gu);
-  o->gq_zero = 0;
   *J = val[0];
   if (c)
     for (int i = 0; i < o->n_con; i++)
@@ -756,7 +753,6 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
                       : adjoint_steps(o, nfun, gQ);
   if (s < 0)
     return s;
-  o->gq_zero = o->adj_explicit; /* (it leaves gQ cleared) */
   /* dPhi/du = direct - sum_k mu[z_k]^T dforces_k/du. */
   for (int f = 0; f < nfun; f++) {
     double *out =

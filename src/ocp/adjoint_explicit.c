@@ -251,14 +251,10 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     for (int f = 0; f < nfun; f++) {
       double *mu = o->mu + (size_t)f * (size_t)nn;
       double *r = gQ + (size_t)f * (size_t)nn;
-      for (int i = 0; i < ns; i++) {
+      for (int i = 0; i < ns; i++)
         mu[s0 + i] = mu[s1 + i] - cs[i] * r[s1 + i];
-        r[s1 + i] = 0.0; /* (read: gQ cleared row by row) */
-      }
-      for (int i = 0; i < nf; i++) {
+      for (int i = 0; i < nf; i++)
         mu[fp - nf + i] = mu[fp + i] - cf[i] * r[fp + i];
-        r[fp + i] = 0.0;
-      }
     }
     /* mu_{m-1} from the row of interior micro node m = p-1..1. */
     for (int mm = p - 1; mm >= 1; mm--) {
@@ -267,11 +263,9 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
       for (int f = 0; f < nfun; f++) {
         double *mu = o->mu + (size_t)f * (size_t)nn;
         double *r = gQ + (size_t)f * (size_t)nn;
-        for (int i = 0; i < nf; i++) {
+        for (int i = 0; i < nf; i++)
           mu[fm - nf + i] =
               2.0 * mu[fm + i] - mu[fm + nf + i] - cf[i] * r[fm + i];
-          r[fm + i] = 0.0;
-        }
       }
     }
     if (k == 0)
@@ -605,10 +599,8 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     for (int f = 0; f < nfun; f++) {
       double *mu = o->mu + (size_t)f * (size_t)nn;
       double *r = gQ + (size_t)f * (size_t)nn;
-      for (int i = 0; i < ns; i++) {
+      for (int i = 0; i < ns; i++)
         mu[s0 + i] = mu[s1 + i] - cs[i] * r[s1 + i];
-        r[s1 + i] = 0.0;
-      }
     }
     for (int j = p; j >= 1; j--) {
       const long fj = fk + (long)j * nf, g = k * p + j;
@@ -629,7 +621,6 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
         for (int i = 0; i < nf; i++) {
           const double m = mu[fj + i], R = r[fj + i] + (pend ? h[i] : 0.0);
           const double b = kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - R;
-          r[fj + i] = 0.0;
           cf_[i] = one ? b + kf[i] * (ry * m) : b;
           if (one)
             h[i] = cf_[i];
@@ -673,25 +664,9 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   return MRVI_OK;
 }
 
-/* The rows of the initial nodes, which the sweeps do not read, cleared:
- * with the rows the sweeps cleared as they read them, all of gQ. */
-static void initial_rows_off(const mrvi_ocp *o, int nfun, double *gQ) {
-  const long nn = o->n_nodes, F0 = (o->N + 1) * o->ns;
-  for (int f = 0; f < nfun; f++) {
-    double *r = gQ + (size_t)f * (size_t)nn;
-    memset(r, 0, (size_t)o->ns * sizeof *r);
-    memset(r + F0, 0, (size_t)o->nf * sizeof *r);
-  }
-}
-
 int ocp_explicit_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
-  if (w_inside(o)) {
-    const int s = sweep_adjoint(o, nfun, gQ);
-    if (s < 0)
-      return s;
-  } else {
-    node_adjoint(o, nfun, gQ);
-  }
-  initial_rows_off(o, nfun, gQ);
+  if (w_inside(o))
+    return sweep_adjoint(o, nfun, gQ);
+  node_adjoint(o, nfun, gQ);
   return MRVI_OK;
 }

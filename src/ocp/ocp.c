@@ -206,7 +206,6 @@ void ocp_adjoint_free(mrvi_ocp *o) {
     o->adj_terms[c] = NULL;
   }
   o->adj_explicit = 0;
-  o->gq_zero = 0;
   free(o->gz);
   free(o->h_of_a);
   free(o->h_ptr);

@@ -155,10 +155,6 @@ struct mrvi_ocp {
   long adj_hb;
   double *adj_blocks;
   int adj_one; /* (tuning.adjoint_one_point) */
-  /* The first nfun n_nodes of r (dPhi/dY, gQ) are all zero: as allocated,
-   * and after the explicit adjoint, which clears each row as it reads it;
-   * the next evaluation then does not clear them (mrvi_ocp_evaluate). */
-  int gq_zero;
   /* Terminal velocities of a constrained model (projected_velocity):
    * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
    * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */
