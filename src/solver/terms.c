@@ -2018,6 +2018,24 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   return MRVI_OK;
 }
 
+/* M(D, T) for the dimension D and kind T (1: spring, 0: anchor) of a run
+ * of records q in a class of dimension dim: one instance per shape. */
+#define SPRING_SHAPES(M)                                                       \
+  do {                                                                         \
+    if (dim == 2 && q->two)                                                    \
+      M(2, 1);                                                                 \
+    else if (dim == 2)                                                         \
+      M(2, 0);                                                                 \
+    else if (dim == 3 && q->two)                                               \
+      M(3, 1);                                                                 \
+    else if (dim == 3)                                                         \
+      M(3, 0);                                                                 \
+    else if (q->two)                                                           \
+      M(1, 1);                                                                 \
+    else                                                                       \
+      M(1, 0);                                                                 \
+  } while (0)
+
 /* A spring or anchor's Hessian block A = scale (a u u^T + b I) (its
  * Hessian is [A -A; -A A]; spring_derivs, law code K_ANY; a Hooke
  * spring's a = c L0 / r, b = c - a with one division). */
@@ -2085,18 +2103,7 @@ springs_hessvec(const kspring *q, int nr, const double *restrict z, int nvec,
       for (int r = 0; r < nr; r++)                                             \
         spring_hessvec(q + r, z, nvec, x, xs, y, ys, scale, D, T, 0);          \
   } while (0)
-  if (dim == 2 && q->two)
-    SPRINGS_HV(2, 1);
-  else if (dim == 2)
-    SPRINGS_HV(2, 0);
-  else if (dim == 3 && q->two)
-    SPRINGS_HV(3, 1);
-  else if (dim == 3)
-    SPRINGS_HV(3, 0);
-  else if (q->two)
-    SPRINGS_HV(1, 1);
-  else
-    SPRINGS_HV(1, 0);
+  SPRING_SHAPES(SPRINGS_HV);
 #undef SPRINGS_HV
 }
 
@@ -2172,18 +2179,7 @@ static __attribute__((noinline)) void springs_blocks(const kspring *q, int nr,
     else                                                                       \
       SPRINGS_HB(D, T, 0)                                                      \
   } while (0)
-  if (dim == 2 && q->two)
-    SPRINGS_HB_DIM(2, 1);
-  else if (dim == 2)
-    SPRINGS_HB_DIM(2, 0);
-  else if (dim == 3 && q->two)
-    SPRINGS_HB_DIM(3, 1);
-  else if (dim == 3)
-    SPRINGS_HB_DIM(3, 0);
-  else if (q->two)
-    SPRINGS_HB_DIM(1, 1);
-  else
-    SPRINGS_HB_DIM(1, 0);
+  SPRING_SHAPES(SPRINGS_HB_DIM);
 #undef SPRINGS_HB_DIM
 #undef SPRINGS_HB
 }
@@ -2251,21 +2247,12 @@ springs_blocks_apply(const kspring *q, int nr, const double *restrict B,
                      double *restrict y, long ys, double scale,
                      double *restrict xhx, int dim) {
 #define SPRINGS_BA(D, T)                                                       \
-  for (int r = 0; r < nr; r++)                                                 \
-    block_apply(q + r, B + (long)r * (D * (D + 1) / 2), nvec, x, xs, y, ys,    \
-                scale, xhx, D, T);
-  if (dim == 2 && q->two)
-    SPRINGS_BA(2, 1)
-  else if (dim == 2)
-    SPRINGS_BA(2, 0)
-  else if (dim == 3 && q->two)
-    SPRINGS_BA(3, 1)
-  else if (dim == 3)
-    SPRINGS_BA(3, 0)
-  else if (q->two)
-    SPRINGS_BA(1, 1)
-  else
-    SPRINGS_BA(1, 0)
+  do {                                                                         \
+    for (int r = 0; r < nr; r++)                                               \
+      block_apply(q + r, B + (long)r * (D * (D + 1) / 2), nvec, x, xs, y, ys,  \
+                  scale, xhx, D, T);                                           \
+  } while (0)
+  SPRING_SHAPES(SPRINGS_BA);
 #undef SPRINGS_BA
 }
 
