@@ -814,6 +814,15 @@ typedef enum mrvi_newton_criterion {
     "Hessian-vector products of W and V (and a CG per micro step where W's "   \
     "points lie inside the micro intervals; 0: the step Hessian assembled "    \
     "and the transposed step solved)")                                         \
+  X(int, adjoint_hessblocks, 1, 0, 1,                                          \
+    "adjoint_explicit's Hessians of W formed in one loop (a block per "        \
+    "spring) and kept for their products: each micro node's, and that "        \
+    "CG's at a point inside a micro interval, once per interval (0: formed "   \
+    "anew within each product)")                                               \
+  X(int, adjoint_one_point, 1, 0, 1,                                           \
+    "that CG, where a micro interval has one point inside (the midpoint), "    \
+    "solves for cA mu_{g-1} + cB mu_g and takes the interval's other "         \
+    "products from the CG's residual (0: two products more per interval)")     \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

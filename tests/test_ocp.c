@@ -1158,6 +1158,22 @@ static void adjoint_explicit_variant(const char *what, const char *scheme,
         "adjoint explicit, %s: gradients differ from the assembled "
         "adjoint's by %.3e (scale %.3e)",
         what, err, sc);
+  /* Nothing of an evaluation carries over into the next: the first
+   * controls' gradients again after a value alone at the second, bitwise
+   * the first's. */
+  const int n = tw.n, len = n * (1 + tw.nm);
+  double J, c[16], *g = calloc((size_t)len, sizeof *g);
+  for (int i = 0; i < n; i++)
+    tw.u[0][i] = 0.5 * sin(0.7 * i + 1);
+  int st = mrvi_ocp_evaluate(o[0], tw.u[0], &J, NULL, c, NULL);
+  for (int i = 0; i < n; i++)
+    tw.u[0][i] = 0.5 * sin(0.7 * i);
+  st = st ? st : gradients_at(o[0], tw.u[0], g);
+  CHECK(st == 0 && g && memcmp(g, tw.g[0], (size_t)len * sizeof *g) == 0,
+        "adjoint explicit, %s: the gradients again after a value alone: "
+        "status %d, not the first's",
+        what, st);
+  free(g);
   char name[96];
   snprintf(name, sizeof name, "adjoint explicit: lattice 200, %s", what);
   check_gradients(o[0], name);
@@ -1168,6 +1184,8 @@ out:
 static void test_adjoint_explicit(void) {
   const char *fe = "fully-explicit", *es = "explicit-slow";
   adjoint_explicit_variant("fully-explicit", fe, "explicit", 1e-12, NULL, NULL);
+  adjoint_explicit_variant("fully-explicit, products", fe, "explicit", 1e-12,
+                           "integrator.tuning.adjoint_hessblocks=0", NULL);
   adjoint_explicit_variant("fully-explicit, p = 1", fe, "explicit", 1e-12,
                            "integrator.micro_steps=1",
                            "integrator.macro_step=0.025");
@@ -1176,6 +1194,9 @@ static void test_adjoint_explicit(void) {
                            "integrator.slow={grid: macro, alpha: 0.3}",
                            "integrator.fast={alpha: 0.7, gamma: 0}");
   adjoint_explicit_variant("explicit-slow", es, "sweep-cg", 1e-11, NULL, NULL);
+  adjoint_explicit_variant("explicit-slow, products", es, "sweep-cg", 1e-11,
+                           "integrator.tuning.adjoint_one_point=0",
+                           "integrator.tuning.adjoint_hessblocks=0");
   adjoint_explicit_variant("explicit-slow, p = 1", es, "sweep-cg", 1e-11,
                            "integrator.micro_steps=1",
                            "integrator.macro_step=0.025");

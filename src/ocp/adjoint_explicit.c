@@ -40,6 +40,7 @@
  *     = M^f/dt (2 mu_g - mu_{g+1}) - R_g
  * by CG with Hessian-vector products at the points (sweep_adjoint). */
 #include "ocp/ocp_internal.h"
+#include "util/simd.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -87,7 +88,7 @@ static int w_inside(const mrvi_ocp *o) {
 
 /* Workspace (doubles): per functional hV and its vector (ns + nf each);
  * then zV (ns + nf), dT/M^s and M^s/dT (ns each), dt/M^f and M^f/dt (nf
- * each), ww (p + 1). */
+ * each), ww (p + 1); the sweep's below. */
 int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
   const mrvi_model *m = o->model;
   const mrvi_step *st = &o->step;
@@ -108,12 +109,23 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
                           &o->adj_terms[MRVI_FAST]);
   free(col);
   /* (the sweep: the points' configurations 2 nf, then per functional the
-   * combined adjoints and CG's r, p, q: 4 nf; its scalars: 3) */
+   * combined adjoints and CG's r, p, q: 4 nf; its scalars: 5; hy: nf; a
+   * norm: 1) */
   const size_t nfw = (size_t)o->nf;
   o->adj_work = malloc(
-      (f * 2 * nsf + 3 * nsf + (size_t)o->p + 1 + (4 * f + 2) * nfw + 3 * f) *
+      (f * 2 * nsf + 3 * nsf + (size_t)o->p + 1 + (5 * f + 2) * nfw + 6 * f) *
       sizeof *o->adj_work);
   if (s < 0 || !o->adj_work)
+    return MRVI_ENOMEM;
+  /* W's Hessian blocks at one node or at an interval's two points (tuning
+   * adjoint_hessblocks) */
+  o->adj_hb = 0;
+  o->adj_one = o->settings.tuning.adjoint_one_point;
+  if (o->settings.tuning.adjoint_hessblocks &&
+      o->step.n_elem_of_class[MRVI_FAST] > 0)
+    o->adj_hb = mrvi_terms_hessblocks_size(o->adj_terms[MRVI_FAST]);
+  if (o->adj_hb > 0 &&
+      !(o->adj_blocks = malloc(2 * (size_t)o->adj_hb * sizeof(double))))
     return MRVI_ENOMEM;
   o->adj_explicit = 1;
   return MRVI_OK;
@@ -148,12 +160,23 @@ static void v_add(mrvi_ocp *o, int nfun, long j, double w, double *r) {
 }
 
 /* r += w hess W(q^g) mu^g at global fast node g for every functional
- * (straight into r's rows: W's columns are the fast slots). */
+ * (straight into r's rows: W's columns are the fast slots); the blocks
+ * formed in one loop, then applied, where they are kept (the square
+ * roots and divisions of the springs then overlap, unhindered by the
+ * products' scattered additions). */
 static void w_add(mrvi_ocp *o, int nfun, long g, double w, double *r) {
   const long at = (o->N + 1) * o->ns + g * o->nf;
-  if (w != 0.0)
-    mrvi_terms_hessvec(o->adj_terms[MRVI_FAST], o->Q + at, nfun, o->mu + at,
-                       o->n_nodes, r + at, o->n_nodes, w);
+  if (w == 0.0)
+    return;
+  mrvi_terms *W = o->adj_terms[MRVI_FAST];
+  if (o->adj_hb > 0) {
+    mrvi_terms_hessblocks(W, o->Q + at, o->adj_blocks);
+    mrvi_terms_hessblocks_apply(W, o->adj_blocks, nfun, o->mu + at, o->n_nodes,
+                                r + at, o->n_nodes, w, NULL);
+  } else {
+    mrvi_terms_hessvec(W, o->Q + at, nfun, o->mu + at, o->n_nodes, r + at,
+                       o->n_nodes, w);
+  }
 }
 
 /* The sweeps' coefficients from cs on (the workspace's layout): dT/M^s,
@@ -227,7 +250,7 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
     /* mu_s0 and mu_{p-1} from the rows of q_{k+1}^s and fast node p. */
     for (int f = 0; f < nfun; f++) {
       double *mu = o->mu + (size_t)f * (size_t)nn;
-      const double *r = gQ + (size_t)f * (size_t)nn;
+      double *r = gQ + (size_t)f * (size_t)nn;
       for (int i = 0; i < ns; i++)
         mu[s0 + i] = mu[s1 + i] - cs[i] * r[s1 + i];
       for (int i = 0; i < nf; i++)
@@ -239,7 +262,7 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
       w_add(o, nfun, k * p + mm, ww[mm], gQ);
       for (int f = 0; f < nfun; f++) {
         double *mu = o->mu + (size_t)f * (size_t)nn;
-        const double *r = gQ + (size_t)f * (size_t)nn;
+        double *r = gQ + (size_t)f * (size_t)nn;
         for (int i = 0; i < nf; i++)
           mu[fm - nf + i] =
               2.0 * mu[fm + i] - mu[fm + nf + i] - cf[i] * r[fm + i];
@@ -255,76 +278,241 @@ static void node_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
   }
 }
 
-/* The matrix M^f/dt + sum_P w cA cB hess W(z_P) of a micro interval's
- * transposed step (the sweep paths' midpoint-type W), by its points. */
+/* A micro interval of the sweep paths (W's points inside it) by its
+ * points P (at most two, mrvi_quadrature_points): their configurations
+ * z_P = cA q_g + cB q_{g+1} on the interval's nodes g, g + 1, weights and
+ * coefficients, and the Hessian blocks of W at the points inside the
+ * interval (cA cB != 0), kept for the products there (hb, or NULL: formed
+ * per product, mrvi_terms_hessvec).  The matrix of its transposed step is
+ * M^f/dt + sum_P w cA cB hess W(z_P). */
 typedef struct {
-  const double *kf, *z[2];
-  double w[2];
+  const double *kf;
   int np;
+  double *z[2], *hb[2];
+  double w[2], cA[2], cB[2];
 } interval_op;
 
-/* q_f = B p_f for the nfun vectors p, q (nf each, consecutive): each
- * spring's Hessian formed once per point for all of them. */
-static void interval_products(const mrvi_ocp *o, const interval_op *B, int nfun,
-                              const double *p, double *q) {
+/* y_v += scale hess W(z_P) x_v for point i of B and the nvec vectors
+ * x_v = x + v xs, y_v = y + v ys (and xhx[v] += x_v^T that, where the
+ * point's blocks are kept and xhx is not NULL). */
+static void point_product(const mrvi_ocp *o, const interval_op *B, int i,
+                          int nvec, const double *x, long xs, double *y,
+                          long ys, double scale, double *xhx) {
+  if (scale == 0.0)
+    return;
+  if (B->hb[i])
+    mrvi_terms_hessblocks_apply(o->adj_terms[MRVI_FAST], B->hb[i], nvec, x, xs,
+                                y, ys, scale, xhx);
+  else
+    mrvi_terms_hessvec(o->adj_terms[MRVI_FAST], B->z[i], nvec, x, xs, y, ys,
+                       scale);
+}
+
+/* B for interval m of the step whose fast nodes start at Q + at (its
+ * nodes m and m + 1): the points, their configurations in zW (2 nf) and
+ * the blocks of those inside it in hbW (2 mrvi_terms_hessblocks_size, or
+ * NULL: none kept). */
+static void interval_setup(const mrvi_ocp *o, interval_op *B, long at, int m,
+                           double *zW, double *hbW, long nhb) {
+  const mrvi_step *st = &o->step;
   const int nf = o->nf;
-  for (int f = 0; f < nfun; f++)
-    for (int i = 0; i < nf; i++)
-      q[(size_t)f * nf + i] = B->kf[i] * p[(size_t)f * nf + i];
-  for (int i = 0; i < B->np; i++)
-    mrvi_terms_hessvec(o->adj_terms[MRVI_FAST], B->z[i], nfun, p, nf, q, nf,
-                       B->w[i]);
+  const double *q0 = o->Q + at + (long)m * nf, *q1 = q0 + nf;
+  B->np = 0;
+  for (int ip = 0; ip < st->n_pts[MRVI_FAST] && B->np < 2; ip++) {
+    const mrvi_point *pt = &st->pts[MRVI_FAST][ip];
+    if (pt->m != m)
+      continue;
+    const int i = B->np++;
+    double *z = B->z[i] = zW + (size_t)i * nf;
+    for (int f = 0; f < nf; f++)
+      z[f] = pt->cA * q0[f] + pt->cB * q1[f];
+    B->w[i] = pt->w;
+    B->cA[i] = pt->cA;
+    B->cB[i] = pt->cB;
+    B->hb[i] = NULL;
+    if (hbW && pt->cA != 0.0 && pt->cB != 0.0) {
+      B->hb[i] = hbW + i * nhb;
+      mrvi_terms_hessblocks(o->adj_terms[MRVI_FAST], z, B->hb[i]);
+    }
+  }
+}
+
+/* The passes of interval_solve over a functional's nf entries, four at a
+ * time in two pairs (util/simd.h; the sums' chains are what bounds the
+ * passes, not the arithmetic), then the tail.  CG's start: x = 0, p =
+ * D^-1 r, q = kf p (B p's mass part); returns r.p, *bn = ||r||_inf,
+ * *pq = p.q. */
+static double cg_start(int nf, const double *restrict dinv,
+                       const double *restrict kf, const double *restrict r,
+                       double *restrict x, double *restrict p,
+                       double *restrict q, double *bn, double *pq) {
+  mrvi_v2 s0 = v2_zero(), s1 = v2_zero(), m0 = v2_zero(), m1 = v2_zero();
+  mrvi_v2 t0 = v2_zero(), t1 = v2_zero();
+  int i = 0;
+  for (; i + 4 <= nf; i += 4) {
+    const mrvi_v2 r0 = v2_load(r + i), r1 = v2_load(r + i + 2);
+    const mrvi_v2 p0 = v2_mul(v2_load(dinv + i), r0);
+    const mrvi_v2 p1 = v2_mul(v2_load(dinv + i + 2), r1);
+    v2_store(x + i, v2_zero());
+    v2_store(x + i + 2, v2_zero());
+    v2_store(p + i, p0);
+    v2_store(p + i + 2, p1);
+    const mrvi_v2 q0 = v2_mul(v2_load(kf + i), p0);
+    const mrvi_v2 q1 = v2_mul(v2_load(kf + i + 2), p1);
+    v2_store(q + i, q0);
+    v2_store(q + i + 2, q1);
+    s0 = v2_add(s0, v2_mul(r0, p0));
+    s1 = v2_add(s1, v2_mul(r1, p1));
+    t0 = v2_add(t0, v2_mul(p0, q0));
+    t1 = v2_add(t1, v2_mul(p1, q1));
+    m0 = v2_max(v2_abs(r0), m0);
+    m1 = v2_max(v2_abs(r1), m1);
+  }
+  const mrvi_v2 s = v2_add(s0, s1), m = v2_max(m0, m1), t = v2_add(t0, t1);
+  double rp = v2_lo(s) + v2_hi(s), mx = fmax(v2_lo(m), v2_hi(m));
+  double pt = v2_lo(t) + v2_hi(t);
+  for (; i < nf; i++) {
+    x[i] = 0.0;
+    p[i] = dinv[i] * r[i];
+    q[i] = kf[i] * p[i];
+    rp += r[i] * p[i];
+    pt += p[i] * q[i];
+    mx = fabs(r[i]) > mx ? fabs(r[i]) : mx;
+  }
+  *bn = mx;
+  *pq = pt;
+  return rp;
+}
+
+/* p.q */
+static double cg_dot(int nf, const double *restrict p,
+                     const double *restrict q) {
+  mrvi_v2 s0 = v2_zero(), s1 = v2_zero();
+  int i = 0;
+  for (; i + 4 <= nf; i += 4) {
+    s0 = v2_add(s0, v2_mul(v2_load(p + i), v2_load(q + i)));
+    s1 = v2_add(s1, v2_mul(v2_load(p + i + 2), v2_load(q + i + 2)));
+  }
+  const mrvi_v2 s = v2_add(s0, s1);
+  double d = v2_lo(s) + v2_hi(s);
+  for (; i < nf; i++)
+    d += p[i] * q[i];
+  return d;
+}
+
+/* x += alpha p, r -= alpha q; returns r.D^-1 r, *rn = ||r||_inf. */
+static double cg_update(int nf, double alpha, const double *restrict dinv,
+                        const double *restrict p, const double *restrict q,
+                        double *restrict x, double *restrict r, double *rn) {
+  mrvi_v2 s0 = v2_zero(), s1 = v2_zero(), m0 = v2_zero(), m1 = v2_zero();
+  int i = 0;
+  for (; i + 4 <= nf; i += 4) {
+    v2_store(x + i, v2_add(v2_load(x + i), v2_scale(alpha, v2_load(p + i))));
+    v2_store(x + i + 2,
+             v2_add(v2_load(x + i + 2), v2_scale(alpha, v2_load(p + i + 2))));
+    const mrvi_v2 r0 = v2_sub(v2_load(r + i), v2_scale(alpha, v2_load(q + i)));
+    const mrvi_v2 r1 =
+        v2_sub(v2_load(r + i + 2), v2_scale(alpha, v2_load(q + i + 2)));
+    v2_store(r + i, r0);
+    v2_store(r + i + 2, r1);
+    s0 = v2_add(s0, v2_mul(r0, v2_mul(v2_load(dinv + i), r0)));
+    s1 = v2_add(s1, v2_mul(r1, v2_mul(v2_load(dinv + i + 2), r1)));
+    m0 = v2_max(v2_abs(r0), m0);
+    m1 = v2_max(v2_abs(r1), m1);
+  }
+  const mrvi_v2 s = v2_add(s0, s1), m = v2_max(m0, m1);
+  double rz = v2_lo(s) + v2_hi(s), mx = fmax(v2_lo(m), v2_hi(m));
+  for (; i < nf; i++) {
+    x[i] += alpha * p[i];
+    r[i] -= alpha * q[i];
+    rz += r[i] * (dinv[i] * r[i]);
+    mx = fabs(r[i]) > mx ? fabs(r[i]) : mx;
+  }
+  *rn = mx;
+  return rz;
+}
+
+/* p = D^-1 r + beta p, q = kf p; returns p.q. */
+static double cg_direction(int nf, double beta, const double *restrict dinv,
+                           const double *restrict kf, const double *restrict r,
+                           double *restrict p, double *restrict q) {
+  mrvi_v2 t0 = v2_zero(), t1 = v2_zero();
+  int i = 0;
+  for (; i + 4 <= nf; i += 4) {
+    const mrvi_v2 p0 = v2_add(v2_mul(v2_load(dinv + i), v2_load(r + i)),
+                              v2_scale(beta, v2_load(p + i)));
+    const mrvi_v2 p1 = v2_add(v2_mul(v2_load(dinv + i + 2), v2_load(r + i + 2)),
+                              v2_scale(beta, v2_load(p + i + 2)));
+    const mrvi_v2 q0 = v2_mul(v2_load(kf + i), p0);
+    const mrvi_v2 q1 = v2_mul(v2_load(kf + i + 2), p1);
+    v2_store(p + i, p0);
+    v2_store(p + i + 2, p1);
+    v2_store(q + i, q0);
+    v2_store(q + i + 2, q1);
+    t0 = v2_add(t0, v2_mul(p0, q0));
+    t1 = v2_add(t1, v2_mul(p1, q1));
+  }
+  const mrvi_v2 t = v2_add(t0, t1);
+  double pt = v2_lo(t) + v2_hi(t);
+  for (; i < nf; i++) {
+    p[i] = dinv[i] * r[i] + beta * p[i];
+    q[i] = kf[i] * p[i];
+    pt += p[i] * q[i];
+  }
+  return pt;
 }
 
 /* B x_f = r_f for every functional (x_f = x + f xs; r: nfun x nf, the
  * right-hand sides, overwritten) by Jacobi-preconditioned CG (dinv =
- * dt/M^f) run for all of them in step, one product of B with all their
- * directions per iteration; each stops at ||r_f||_inf <= rtol ||b_f||_inf.
- * p and q: nfun x nf each, then 3 nfun scalars after q.  MRVI_CG_OK,
- * _CURVATURE or _MAXIT (*its: iterations). */
+ * dt/M^f, the inverse of B's mass part kf) run for all of them in step,
+ * one product of B with all their directions per iteration; each stops at
+ * ||r_f||_inf <= rtol ||b_f||_inf (bnorm[f] instead of ||b_f||_inf where
+ * bnorm is given).  The curvature p.Bp is p.kf p, summed where the
+ * direction is formed, plus the Hessians' p^T H p, summed by the product
+ * where every point's blocks are kept (else by a pass over Bp).  p and q:
+ * nfun x nf each, then 5 nfun scalars after q.  MRVI_CG_OK, _CURVATURE
+ * or _MAXIT (*its: products).  (A NaN or infinity in r poisons the sums
+ * r.D^-1 r, which are checked.) */
 static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
                           const double *dinv, double *r, double *x, long xs,
-                          double *p, double *q, double rtol, int *its) {
+                          double *p, double *q, double rtol,
+                          const double *bnorm, int *its) {
   const int nf = o->nf;
   double *rz = q + (size_t)nfun * nf, *stop = rz + nfun, *done = stop + nfun;
-  int left = nfun;
+  double *pkp = done + nfun, *php = pkp + nfun;
+  int left = nfun, kept = 1;
+  for (int i = 0; i < B->np; i++)
+    kept = kept && (B->hb[i] || B->w[i] * B->cA[i] * B->cB[i] == 0.0);
+  *its = 0;
   for (int f = 0; f < nfun; f++) {
-    double *rf = r + (size_t)f * nf, *pf = p + (size_t)f * nf, bn = 0.0;
-    double *xf = x + (size_t)f * (size_t)xs;
-    rz[f] = 0.0;
-    for (int i = 0; i < nf; i++) {
-      xf[i] = 0.0;
-      pf[i] = dinv[i] * rf[i];
-      rz[f] += rf[i] * pf[i];
-      const double a = fabs(rf[i]);
-      bn = isnan(a) || a > bn ? a : bn;
-    }
-    stop[f] = rtol * bn;
+    const size_t of = (size_t)f * nf;
+    double bn;
+    rz[f] = cg_start(nf, dinv, B->kf, r + of, x + (size_t)f * (size_t)xs,
+                     p + of, q + of, &bn, &pkp[f]);
+    if (!isfinite(rz[f]))
+      return MRVI_CG_MAXIT;
+    stop[f] = rtol * (bnorm ? bnorm[f] : bn);
     done[f] = !(bn > stop[f]);
     left -= done[f] != 0.0;
   }
-  for (*its = 1; left > 0 && *its <= MRVI_CG_MAX_IT; ++*its) {
-    interval_products(o, B, nfun, p, q);
+  for (*its = 0; left > 0 && *its < MRVI_CG_MAX_IT; ++*its) {
+    for (int f = 0; f < nfun; f++)
+      php[f] = 0.0;
+    for (int i = 0; i < B->np; i++)
+      point_product(o, B, i, nfun, p, nf, q, nf, B->w[i] * B->cA[i] * B->cB[i],
+                    kept ? php : NULL);
     for (int f = 0; f < nfun; f++) {
       if (done[f] != 0.0)
         continue;
-      double *rf = r + (size_t)f * nf, *pf = p + (size_t)f * nf;
-      const double *qf = q + (size_t)f * nf;
-      double *xf = x + (size_t)f * (size_t)xs, pq = 0.0;
-      for (int i = 0; i < nf; i++)
-        pq += pf[i] * qf[i];
+      const size_t of = (size_t)f * nf;
+      const double pq = kept ? pkp[f] + php[f] : cg_dot(nf, p + of, q + of);
       if (!(pq > 0.0))
         return MRVI_CG_CURVATURE;
       const double alpha = rz[f] / pq;
-      double rn = 0.0, rz1 = 0.0;
-      for (int i = 0; i < nf; i++) {
-        xf[i] += alpha * pf[i];
-        rf[i] -= alpha * qf[i];
-        const double a = fabs(rf[i]);
-        rn = isnan(a) || a > rn ? a : rn;
-        rz1 += rf[i] * (dinv[i] * rf[i]);
-      }
-      if (!isfinite(rn))
+      double rn;
+      const double rz1 = cg_update(nf, alpha, dinv, p + of, q + of,
+                                   x + (size_t)f * (size_t)xs, r + of, &rn);
+      if (!isfinite(rz1))
         return MRVI_CG_MAXIT;
       if (rn <= stop[f]) {
         done[f] = 1.0;
@@ -333,34 +521,31 @@ static int interval_solve(const mrvi_ocp *o, const interval_op *B, int nfun,
       }
       const double beta = rz1 / rz[f];
       rz[f] = rz1;
-      for (int i = 0; i < nf; i++)
-        pf[i] = dinv[i] * rf[i] + beta * pf[i];
+      pkp[f] = cg_direction(nf, beta, dinv, B->kf, r + of, p + of, q + of);
     }
   }
   return left == 0 ? MRVI_CG_OK : MRVI_CG_MAXIT;
 }
 
-/* R at fast node g (global) += sum over the points P of interval g (global)
- * of w cA hess W(z_P) (cA mu_g + cB mu_{g+1}): that interval's part of
- * row g (z, v: the workspace's zW and vW). */
-static void interval_row_a(mrvi_ocp *o, int nfun, long g, double *gQ, double *z,
-                           double *v) {
-  const mrvi_step *st = &o->step;
-  const int nf = o->nf, mm = (int)(g % o->p);
+/* R at fast node g (global) += sum over the points P of interval g (B) of
+ * w cA hess W(z_P) (cA mu_g + cB mu_{g+1}): that interval's part of row g
+ * (v: the workspace's vW); nothing where one (sweep_adjoint keeps it in
+ * hy). */
+static void interval_row_a(mrvi_ocp *o, const interval_op *B, int one, int nfun,
+                           long g, double *gQ, double *v) {
+  const int nf = o->nf;
   const long nn = o->n_nodes, at = (o->N + 1) * o->ns + g * nf;
-  for (int ip = 0; ip < st->n_pts[MRVI_FAST]; ip++) {
-    const mrvi_point *pt = &st->pts[MRVI_FAST][ip];
-    if (pt->m != mm || pt->cA == 0.0)
+  if (one)
+    return;
+  for (int i = 0; i < B->np; i++) {
+    if (B->cA[i] == 0.0)
       continue;
-    for (int i = 0; i < nf; i++)
-      z[i] = pt->cA * o->Q[at + i] + pt->cB * o->Q[at + nf + i];
     for (int f = 0; f < nfun; f++) {
       const double *mu = o->mu + (size_t)f * (size_t)nn + at;
-      for (int i = 0; i < nf; i++)
-        v[(size_t)f * nf + i] = pt->cA * mu[i] + pt->cB * mu[nf + i];
+      for (int l = 0; l < nf; l++)
+        v[(size_t)f * nf + l] = B->cA[i] * mu[l] + B->cB[i] * mu[nf + l];
     }
-    mrvi_terms_hessvec(o->adj_terms[MRVI_FAST], z, nfun, v, nf, gQ + at, nn,
-                       pt->w * pt->cA);
+    point_product(o, B, i, nfun, v, nf, gQ + at, nn, B->w[i] * B->cA[i], NULL);
   }
 }
 
@@ -375,60 +560,79 @@ static void interval_row_a(mrvi_ocp *o, int nfun, long g, double *gQ, double *z,
  * (mu_p alone for 2 mu_g - mu_{g+1} at a step's last node), R_g being r
  * plus every product of known adjoints: the transposed micro step, solved
  * by Jacobi-preconditioned CG (solver/krylov.c) with Hessian-vector
- * products at the interval's points, to tuning.krylov_cg_rtol. */
+ * products at the interval's points, to tuning.adjoint_krylov_rtol.  W's
+ * Hessian blocks at a point inside interval g - 1 are formed once
+ * (mrvi_terms_hessblocks) for the interval's products.
+ *
+ * With one point P inside the interval (the midpoint: explicit-slow), H =
+ * hess W(z_P), K = M^f/dt and c = w cA cB, the unknown y = mu_{g-1} +
+ * (cB/cA) mu_g = (cA mu_{g-1} + cB mu_g)/cA takes every product but the
+ * CG's: its system
+ *   (K + c H) y = K (2 mu_g - mu_{g+1} + (cB/cA) mu_g) - R'_g
+ * (R'_g: R_g without interval g - 1's w cB^2 H mu_g, which (K + c H)
+ * (cB/cA) mu_g supplies) has no product on its right, and that interval's
+ * part of row g - 1, w cA H (cA mu_{g-1} + cB mu_g) = w cA^2 H y, is
+ * (cA/cB) (b - r - K y) from the CG's right-hand side b and last residual
+ * r (B y = b - r), without a product either.  The CG stops at rtol times
+ * ||K (2 mu_g - mu_{g+1}) - R'_g||_inf, the right-hand side of mu_{g-1}'s
+ * system but for c H mu_g (relatively O(c ||H|| / K), below 1e-1 where
+ * the forward's chord contracts). */
 static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
-  const mrvi_step *st = &o->step;
   const int ns = o->ns, nf = o->nf, p = o->p, nsf = ns + nf;
   const long N = o->N, nn = o->n_nodes, F0 = (N + 1) * ns;
   double *cs = o->adj_work + (size_t)nfun * 2 * nsf + nsf, *ks = cs + ns;
   double *cf = ks + ns, *kf = cf + nf, *ww = kf + nf;
   double *zW = ww + p + 1, *vW = zW + 2 * (size_t)nf;
   double *c = vW + (size_t)nfun * nf, *cp = c + (size_t)nfun * nf;
-  double *cq = cp + (size_t)nfun * nf;
+  double *cq = cp + (size_t)nfun * nf, *hy = cq + (size_t)nfun * nf + 5 * nfun;
+  double *bnorm = hy + (size_t)nfun * nf, *hbW = o->adj_blocks;
+  const long nhb = o->adj_hb;
   double wV[2];
   coefficients(o, cs, wV);
   const double rtol = o->settings.tuning.adjoint_krylov_rtol;
   interval_op B = {.kf = kf};
+  int one = 0;  /* (B: one point inside) */
+  int pend = 0; /* (hy: a part of the next row read, not in gQ) */
   v_add(o, nfun, N, wV[1], gQ);
   for (long k = N - 1; k >= 0; k--) {
     const long s0 = k * ns, s1 = s0 + ns, fk = F0 + k * p * nf;
     for (int f = 0; f < nfun; f++) {
       double *mu = o->mu + (size_t)f * (size_t)nn;
-      const double *r = gQ + (size_t)f * (size_t)nn;
+      double *r = gQ + (size_t)f * (size_t)nn;
       for (int i = 0; i < ns; i++)
         mu[s0 + i] = mu[s1 + i] - cs[i] * r[s1 + i];
     }
     for (int j = p; j >= 1; j--) {
       const long fj = fk + (long)j * nf, g = k * p + j;
-      if (j < p)
-        interval_row_a(o, nfun, g, gQ, zW, vW);
-      /* Interval j - 1's points: their mu_g part of row g, and B. */
-      B.np = 0;
-      for (int ip = 0; ip < st->n_pts[MRVI_FAST] && B.np < 2; ip++) {
-        const mrvi_point *pt = &st->pts[MRVI_FAST][ip];
-        if (pt->m != j - 1)
-          continue;
-        double *z = zW + (size_t)B.np * nf;
-        for (int i = 0; i < nf; i++)
-          z[i] = pt->cA * o->Q[fj - nf + i] + pt->cB * o->Q[fj + i];
-        if (pt->cB != 0.0)
-          mrvi_terms_hessvec(o->adj_terms[MRVI_FAST], z, nfun, o->mu + fj, nn,
-                             gQ + fj, nn, pt->w * pt->cB * pt->cB);
-        B.z[B.np] = z;
-        B.w[B.np++] = pt->w * pt->cA * pt->cB;
-      }
+      if (j < p) /* (B: interval j, solved last) */
+        interval_row_a(o, &B, one, nfun, g, gQ, vW);
+      /* Interval j - 1: its points' mu_g part of row g, and B. */
+      interval_setup(o, &B, fk, j - 1, zW, nhb > 0 ? hbW : NULL, nhb);
+      one = o->adj_one && B.np == 1 && B.cA[0] != 0.0 && B.cB[0] != 0.0;
+      const double ry = one ? B.cB[0] / B.cA[0] : 0.0;
+      for (int i = 0; !one && i < B.np; i++)
+        point_product(o, &B, i, nfun, o->mu + fj, nn, gQ + fj, nn,
+                      B.w[i] * B.cB[i] * B.cB[i], NULL);
       for (int f = 0; f < nfun; f++) {
         const double *mu = o->mu + (size_t)f * (size_t)nn;
-        const double *r = gQ + (size_t)f * (size_t)nn;
-        double *cf_ = c + (size_t)f * nf;
-        for (int i = 0; i < nf; i++)
-          cf_[i] = kf[i] * (j < p ? 2.0 * mu[fj + i] - mu[fj + nf + i]
-                                  : mu[fj + i]) -
-                   r[fj + i];
+        double *r = gQ + (size_t)f * (size_t)nn;
+        double *cf_ = c + (size_t)f * nf, bn = 0.0;
+        double *h = hy + (size_t)f * nf;
+        for (int i = 0; i < nf; i++) {
+          const double m = mu[fj + i], R = r[fj + i] + (pend ? h[i] : 0.0);
+          const double b = kf[i] * (j < p ? 2.0 * m - mu[fj + nf + i] : m) - R;
+          cf_[i] = one ? b + kf[i] * (ry * m) : b;
+          if (one)
+            h[i] = cf_[i];
+          bn = fabs(b) > bn ? fabs(b) : bn;
+        }
+        bnorm[f] = bn;
       }
+      pend = 0;
       int its;
-      const int s = interval_solve(o, &B, nfun, cf, c, o->mu + fj - nf, nn, cp,
-                                   cq, rtol, &its);
+      double *x = o->mu + fj - nf;
+      const int s = interval_solve(o, &B, nfun, cf, c, x, nn, cp, cq, rtol,
+                                   one ? bnorm : NULL, &its);
       if (s != MRVI_CG_OK)
         return mrvi_ocp_fail(o, MRVI_ESINGULAR,
                              "adjoint of micro step %ld: CG %s after %d "
@@ -438,12 +642,24 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
                                  ? "met non-positive curvature"
                                  : "did not converge",
                              its);
+      /* y: the interval's part of row g - 1 into hy (b there), pending
+       * till that row is read (it is not in the cache yet), and mu_{g-1}
+       * from y */
+      for (int f = 0; one && f < nfun; f++) {
+        double *xf = x + (size_t)f * (size_t)nn, *h = hy + (size_t)f * nf;
+        const double *rf = c + (size_t)f * nf, *mg = xf + nf;
+        for (int i = 0; i < nf; i++) {
+          h[i] = (1.0 / ry) * (h[i] - rf[i] - kf[i] * xf[i]);
+          xf[i] -= ry * mg[i];
+        }
+      }
+      pend = one;
     }
     if (k == 0)
       break;
     kinetic_off(o, nfun, k, ks, kf, gQ);
     v_add(o, nfun, k, wV[0] + wV[1], gQ);
-    interval_row_a(o, nfun, k * p, gQ, zW, vW);
+    interval_row_a(o, &B, one, nfun, k * p, gQ, vW); /* (B: interval 0) */
   }
   return MRVI_OK;
 }

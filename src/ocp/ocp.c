@@ -193,8 +193,8 @@ oom:
 }
 
 void ocp_adjoint_free(mrvi_ocp *o) {
-  double **d[] = {&o->r,     &o->mu, &o->rhs, &o->sol,     &o->Ak,
-                  &o->h_val, &o->H,  &o->pv,  &o->adj_work};
+  double **d[] = {&o->r,     &o->mu, &o->rhs, &o->sol,      &o->Ak,
+                  &o->h_val, &o->H,  &o->pv,  &o->adj_work, &o->adj_blocks};
   for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
     free(*d[i]);
     *d[i] = NULL;

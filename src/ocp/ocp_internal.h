@@ -150,6 +150,11 @@ struct mrvi_ocp {
   int adj_explicit;
   mrvi_terms *adj_terms[2];
   double *adj_work;
+  /* W's kept Hessian blocks (2 adj_hb doubles: at two points; adj_hb =
+   * mrvi_terms_hessblocks_size, 0 or less: none kept) */
+  long adj_hb;
+  double *adj_blocks;
+  int adj_one; /* (tuning.adjoint_one_point) */
   /* Terminal velocities of a constrained model (projected_velocity):
    * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
    * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */

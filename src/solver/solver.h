@@ -472,6 +472,25 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
 void mrvi_terms_hessvec(mrvi_terms *kc, const double *z, int nvec,
                         const double *x, long xs, double *y, long ys,
                         double scale);
+/* The Hessian of a class kept for several products at one z (the
+ * explicit-slow adjoint's CG, ocp/adjoint_explicit.c): the number of
+ * doubles mrvi_terms_hessblocks writes (per spring or anchor the upper
+ * triangle of its block A, dim (dim + 1) / 2; per other element its
+ * n x n Hessian; gravity none), -1 for a class without element records
+ * (mrvi_terms_create_grad's). */
+long mrvi_terms_hessblocks_size(const mrvi_terms *kc);
+/* The blocks of hess Z(z) into B (mrvi_terms_hessblocks_size doubles):
+ * each formed as mrvi_terms_hessvec forms it, at scale 1. */
+void mrvi_terms_hessblocks(mrvi_terms *kc, const double *z, double *B);
+/* y_v += scale hess Z x_v for the nvec vectors x_v = x + v xs, y_v = y + v
+ * ys, by the blocks B of mrvi_terms_hessblocks: mrvi_terms_hessvec's
+ * products without forming the Hessian again (round-off apart the same:
+ * the scale multiplies the block here, the block's terms there); unless
+ * xhx is NULL, xhx[v] += x_v^T (scale hess Z x_v) as well, element by
+ * element (CG's curvature without a pass over y). */
+void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
+                                 int nvec, const double *x, long xs, double *y,
+                                 long ys, double scale, double *xhx);
 /* Whether every element of the class is quadratic
  * (mrvi_element_is_quadratic): its Hessian is constant. */
 int mrvi_terms_quadratic(const mrvi_terms *kc);

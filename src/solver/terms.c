@@ -2018,25 +2018,35 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   return MRVI_OK;
 }
 
-/* A spring or anchor's Hessian blocks [A -A; -A A], A = a u u^T + b I
- * (spring_derivs, law code K_ANY; a Hooke spring's a = c L0 / r,
- * b = c - a with one division), times scale, applied to every vector:
- * y_v[i] += A (x_v[i] - x_v[j]), y_v[j] -= the same. */
-ALWAYS_INLINE void spring_hessvec(const kspring *q, const double *restrict z,
-                                  int nvec, const double *restrict x, long xs,
-                                  double *restrict y, long ys, double scale,
-                                  const int dim, const int two,
-                                  const int hooke) {
+/* M(D, T) for the dimension D and kind T (1: spring, 0: anchor) of a run
+ * of records q in a class of dimension dim: one instance per shape. */
+#define SPRING_SHAPES(M)                                                       \
+  do {                                                                         \
+    if (dim == 2 && q->two)                                                    \
+      M(2, 1);                                                                 \
+    else if (dim == 2)                                                         \
+      M(2, 0);                                                                 \
+    else if (dim == 3 && q->two)                                               \
+      M(3, 1);                                                                 \
+    else if (dim == 3)                                                         \
+      M(3, 0);                                                                 \
+    else if (q->two)                                                           \
+      M(1, 1);                                                                 \
+    else                                                                       \
+      M(1, 0);                                                                 \
+  } while (0)
+
+/* A spring or anchor's Hessian block A = scale (a u u^T + b I) (its
+ * Hessian is [A -A; -A A]; spring_derivs, law code K_ANY; a Hooke
+ * spring's a = c L0 / r, b = c - a with one division). */
+ALWAYS_INLINE void spring_block(const kspring *q, const double *restrict z,
+                                double scale, double A[3][3], const int dim,
+                                const int two, const int hooke) {
   double u[3], d1, a, b;
-  int ci[3], cj[3];
-  UNROLL for (int k = 0; k < dim; k++) {
-    ci[k] = q->ci[k];
-    cj[k] = two ? q->cj[k] : 0;
-  }
   if (hooke) {
     double d[3], r2 = 0.0;
     UNROLL for (int k = 0; k < dim; k++) {
-      d[k] = z[ci[k]] - (two ? z[cj[k]] : q->el->anchor[k]);
+      d[k] = z[q->ci[k]] - (two ? z[q->cj[k]] : q->el->anchor[k]);
       r2 += d[k] * d[k];
     }
     const double r = sqrt(r2), ir = recip_len(r);
@@ -2046,9 +2056,24 @@ ALWAYS_INLINE void spring_hessvec(const kspring *q, const double *restrict z,
   } else {
     spring_derivs(q, z, u, &d1, &a, &b, dim, two, K_ANY);
   }
-  double A[3][3];
   UNROLL for (int i = 0; i < dim; i++) UNROLL for (int j = 0; j < dim; j++)
       A[i][j] = scale * (a * u[i] * u[j] + (i == j ? b : 0.0));
+}
+
+/* A spring or anchor's Hessian blocks (spring_block) applied to every
+ * vector: y_v[i] += A (x_v[i] - x_v[j]), y_v[j] -= the same. */
+ALWAYS_INLINE void spring_hessvec(const kspring *q, const double *restrict z,
+                                  int nvec, const double *restrict x, long xs,
+                                  double *restrict y, long ys, double scale,
+                                  const int dim, const int two,
+                                  const int hooke) {
+  int ci[3], cj[3];
+  UNROLL for (int k = 0; k < dim; k++) {
+    ci[k] = q->ci[k];
+    cj[k] = two ? q->cj[k] : 0;
+  }
+  double A[3][3];
+  spring_block(q, z, scale, A, dim, two, hooke);
   for (int v = 0; v < nvec; v++) {
     const double *xv = x + (size_t)v * (size_t)xs;
     double *yv = y + (size_t)v * (size_t)ys;
@@ -2078,18 +2103,7 @@ springs_hessvec(const kspring *q, int nr, const double *restrict z, int nvec,
       for (int r = 0; r < nr; r++)                                             \
         spring_hessvec(q + r, z, nvec, x, xs, y, ys, scale, D, T, 0);          \
   } while (0)
-  if (dim == 2 && q->two)
-    SPRINGS_HV(2, 1);
-  else if (dim == 2)
-    SPRINGS_HV(2, 0);
-  else if (dim == 3 && q->two)
-    SPRINGS_HV(3, 1);
-  else if (dim == 3)
-    SPRINGS_HV(3, 0);
-  else if (q->two)
-    SPRINGS_HV(1, 1);
-  else
-    SPRINGS_HV(1, 0);
+  SPRING_SHAPES(SPRINGS_HV);
 #undef SPRINGS_HV
 }
 
@@ -2122,5 +2136,155 @@ void mrvi_terms_hessvec(mrvi_terms *kc, const double *z, int nvec,
         yv[col[j]] += scale * h;
       }
     }
+  }
+}
+
+/* The kept Hessian blocks of mrvi_terms_hessblocks: per spring or anchor
+ * record the upper triangle of its block A by rows (dim (dim + 1) / 2
+ * numbers), per other element its n x n Hessian (row-major), none for
+ * gravity (affine), in the class's order. */
+static long block_len(const mrvi_terms *kc, const kterm *t) {
+  if (t->runs > 0)
+    return (long)kc->dim * (kc->dim + 1) / 2;
+  return t->el->kind == MRVI_ELEMENT_GRAVITY ? 0 : (long)t->n * t->n;
+}
+
+long mrvi_terms_hessblocks_size(const mrvi_terms *kc) {
+  long n = 0;
+  if (!kc->t) /* (a gradient-only class: no records of the elements) */
+    return -1;
+  for (int it = 0; it < kc->n; it++)
+    n += block_len(kc, &kc->t[it]);
+  return n;
+}
+
+/* Runs of springs or anchors: their blocks (spring_block at scale 1),
+ * packed. */
+static __attribute__((noinline)) void springs_blocks(const kspring *q, int nr,
+                                                     const double *restrict z,
+                                                     double *restrict B,
+                                                     int dim) {
+#define SPRINGS_HB(D, T, H)                                                    \
+  for (int r = 0; r < nr; r++, B += D * (D + 1) / 2) {                         \
+    double A[3][3];                                                            \
+    spring_block(q + r, z, 1.0, A, D, T, H);                                   \
+    int e = 0;                                                                 \
+    UNROLL for (int i = 0; i < D; i++) UNROLL for (int j = i; j < D; j++)      \
+        B[e++] = A[i][j];                                                      \
+  }
+#define SPRINGS_HB_DIM(D, T)                                                   \
+  do {                                                                         \
+    if (q->k == KS_HOOKE)                                                      \
+      SPRINGS_HB(D, T, 1)                                                      \
+    else                                                                       \
+      SPRINGS_HB(D, T, 0)                                                      \
+  } while (0)
+  SPRING_SHAPES(SPRINGS_HB_DIM);
+#undef SPRINGS_HB_DIM
+#undef SPRINGS_HB
+}
+
+void mrvi_terms_hessblocks(mrvi_terms *kc, const double *z, double *B) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    if (t->runs > 0) {
+      springs_blocks(kc->qs + t->qs, t->runs, z, B, kc->dim);
+      B += (long)t->runs * block_len(kc, t);
+      it += t->runs - 1;
+      continue;
+    }
+    if (t->el->kind == MRVI_ELEMENT_GRAVITY)
+      continue;
+    const int n = t->n, *col = kc->col + t->first;
+    for (int j = 0; j < n; j++)
+      kc->y[j] = z[col[j]];
+    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, B);
+    B += (long)n * n;
+  }
+}
+
+/* y_v += scale A (x_v[i] - x_v[j]), y_v[j] -= the same, for one packed
+ * block A (springs_blocks) and every vector. */
+ALWAYS_INLINE void block_apply(const kspring *q, const double *restrict B,
+                               int nvec, const double *restrict x, long xs,
+                               double *restrict y, long ys, double scale,
+                               double *restrict xhx, const int dim,
+                               const int two) {
+  double A[3][3];
+  int e = 0;
+  UNROLL for (int i = 0; i < dim; i++) UNROLL for (int j = i; j < dim; j++) {
+    A[i][j] = scale * B[e++];
+    A[j][i] = A[i][j];
+  }
+  int ci[3], cj[3];
+  UNROLL for (int k = 0; k < dim; k++) {
+    ci[k] = q->ci[k];
+    cj[k] = two ? q->cj[k] : 0;
+  }
+  for (int v = 0; v < nvec; v++) {
+    const double *xv = x + (size_t)v * (size_t)xs;
+    double *yv = y + (size_t)v * (size_t)ys;
+    double dx[3];
+    UNROLL for (int k = 0; k < dim; k++) dx[k] =
+        xv[ci[k]] - (two ? xv[cj[k]] : 0.0);
+    double xh = 0.0;
+    UNROLL for (int i = 0; i < dim; i++) {
+      double h = 0.0;
+      UNROLL for (int j = 0; j < dim; j++) h += A[i][j] * dx[j];
+      yv[ci[i]] += h;
+      if (two)
+        yv[cj[i]] -= h;
+      xh += dx[i] * h;
+    }
+    if (xhx)
+      xhx[v] += xh;
+  }
+}
+
+static __attribute__((noinline)) void
+springs_blocks_apply(const kspring *q, int nr, const double *restrict B,
+                     int nvec, const double *restrict x, long xs,
+                     double *restrict y, long ys, double scale,
+                     double *restrict xhx, int dim) {
+#define SPRINGS_BA(D, T)                                                       \
+  do {                                                                         \
+    for (int r = 0; r < nr; r++)                                               \
+      block_apply(q + r, B + (long)r * (D * (D + 1) / 2), nvec, x, xs, y, ys,  \
+                  scale, xhx, D, T);                                           \
+  } while (0)
+  SPRING_SHAPES(SPRINGS_BA);
+#undef SPRINGS_BA
+}
+
+void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
+                                 int nvec, const double *x, long xs, double *y,
+                                 long ys, double scale, double *xhx) {
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    if (t->runs > 0) {
+      springs_blocks_apply(kc->qs + t->qs, t->runs, B, nvec, x, xs, y, ys,
+                           scale, xhx, kc->dim);
+      B += (long)t->runs * block_len(kc, t);
+      it += t->runs - 1;
+      continue;
+    }
+    if (t->el->kind == MRVI_ELEMENT_GRAVITY)
+      continue;
+    const int n = t->n, *col = kc->col + t->first;
+    for (int v = 0; v < nvec; v++) {
+      const double *xv = x + (size_t)v * (size_t)xs;
+      double *yv = y + (size_t)v * (size_t)ys;
+      double xh = 0.0;
+      for (int j = 0; j < n; j++) {
+        double h = 0.0;
+        for (int l = 0; l < n; l++)
+          h += B[j * n + l] * xv[col[l]];
+        yv[col[j]] += scale * h;
+        xh += xv[col[j]] * (scale * h);
+      }
+      if (xhx)
+        xhx[v] += xh;
+    }
+    B += (long)n * n;
   }
 }
