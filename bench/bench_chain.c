@@ -216,31 +216,12 @@ static result run_one(int cs, int links, const char *scheme, double dT, int p,
   const double *q0 = mrvi_model_q0(m), *v0 = mrvi_model_v0(m);
   for (int i = 0; p0 && i < nc; i++)
     p0[i] = mrvi_model_mass(m, i) * v0[i];
-  long newton = 0, k = 0;
-  double t0 = bench_cpu();
-  while (p0 && (k < steps || (bench_cpu() - t0 < MIN_CPU && k < 100000))) {
-    if (k % HORIZON == 0 && k > 0 &&
-        mrvi_integrator_set_state(it, 0.0, q0, p0) < 0) {
-      snprintf(r.message, sizeof r.message, "%.190s",
-               mrvi_integrator_errmsg(it));
-      break;
-    }
-    if (mrvi_integrator_step(it) < 0) {
-      snprintf(r.message, sizeof r.message, "%.190s",
-               mrvi_integrator_errmsg(it));
-      break;
-    }
-    newton += mrvi_integrator_last_iterations(it);
-    k++;
-  }
   if (!p0)
     snprintf(r.message, sizeof r.message, "out of memory");
-  free(p0);
-  if (!r.message[0]) {
-    r.step = (bench_cpu() - t0) / k;
-    r.newton = (double)newton / k;
+  else if (bench_time_steps(it, q0, p0, steps, MIN_CPU, HORIZON, &r.step,
+                            &r.newton, r.message, sizeof r.message) == 0)
     r.status = 0;
-  }
+  free(p0);
   snprintf(r.path, sizeof r.path, "%s", mrvi_integrator_solver_path(it));
   mrvi_integrator_free(it);
   mrvi_model_free(m);

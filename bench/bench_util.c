@@ -240,3 +240,23 @@ double bench_fpu_energy(const double *q, const double *v) {
 #define MRVI_BENCH_BUILD "unknown"
 #endif
 const char *bench_build(void) { return MRVI_BENCH_BUILD; }
+
+int bench_time_steps(mrvi_integrator *it, const double *q0, const double *p0,
+                     long steps, double min_cpu, long horizon, double *step_s,
+                     double *newton, char *msg, size_t len) {
+  long updates = 0, k = 0;
+  const double t0 = bench_cpu();
+  while (k < steps || (bench_cpu() - t0 < min_cpu && k < 100000)) {
+    if ((k % horizon == 0 && k > 0 &&
+         mrvi_integrator_set_state(it, 0.0, q0, p0) < 0) ||
+        mrvi_integrator_step(it) < 0) {
+      snprintf(msg, len, "%.190s", mrvi_integrator_errmsg(it));
+      return -1;
+    }
+    updates += mrvi_integrator_last_iterations(it);
+    k++;
+  }
+  *step_s = (bench_cpu() - t0) / (double)k;
+  *newton = (double)updates / (double)k;
+  return 0;
+}
