@@ -144,14 +144,7 @@ static mrvi_model *chain_model(int c, int n, char *msg, size_t len) {
     prev_h = hi;
     prev_l = li;
   }
-  if (st >= 0)
-    st = mrvi_model_set_gravity(m, g);
-  if (st < 0) {
-    snprintf(msg, len, "%s", m ? mrvi_model_errmsg(m) : "out of memory");
-    mrvi_model_free(m);
-    return NULL;
-  }
-  return m;
+  return bench_model_finish(m, st, g, msg, len);
 }
 
 /* The settings of case cs, with the --tune constants. */
@@ -211,17 +204,9 @@ static result run_one(int cs, int links, const char *scheme, double dT, int p,
     mrvi_model_free(m);
     return r;
   }
-  const int nc = r.n;
-  double *p0 = malloc((size_t)nc * sizeof *p0);
-  const double *q0 = mrvi_model_q0(m), *v0 = mrvi_model_v0(m);
-  for (int i = 0; p0 && i < nc; i++)
-    p0[i] = mrvi_model_mass(m, i) * v0[i];
-  if (!p0)
-    snprintf(r.message, sizeof r.message, "out of memory");
-  else if (bench_time_steps(it, q0, p0, steps, MIN_CPU, HORIZON, &r.step,
-                            &r.newton, r.message, sizeof r.message) == 0)
+  if (bench_time_steps(it, m, steps, MIN_CPU, HORIZON, &r.step, &r.newton,
+                       r.message, sizeof r.message) == 0)
     r.status = 0;
-  free(p0);
   snprintf(r.path, sizeof r.path, "%s", mrvi_integrator_solver_path(it));
   mrvi_integrator_free(it);
   mrvi_model_free(m);

@@ -98,14 +98,7 @@ static mrvi_model *ladder_model(int n, int closed, char *msg, size_t len) {
     }
     prev[0] = rail[0], prev[1] = rail[1];
   }
-  if (st >= 0)
-    st = mrvi_model_set_gravity(m, g);
-  if (st < 0) {
-    snprintf(msg, len, "%s", m ? mrvi_model_errmsg(m) : "out of memory");
-    mrvi_model_free(m);
-    return NULL;
-  }
-  return m;
+  return bench_model_finish(m, st, g, msg, len);
 }
 
 static int ladder; /* --ladder */
@@ -139,14 +132,7 @@ static mrvi_model *ring_model(int n, int closed, char *msg, size_t len) {
   }
   if (st >= 0 && closed) /* the closing joint at the origin */
     st = mrvi_model_add_joint(m, "revolute", prev, first, v[1], NULL);
-  if (st >= 0)
-    st = mrvi_model_set_gravity(m, g);
-  if (st < 0) {
-    snprintf(msg, len, "%s", m ? mrvi_model_errmsg(m) : "out of memory");
-    mrvi_model_free(m);
-    return NULL;
-  }
-  return m;
+  return bench_model_finish(m, st, g, msg, len);
 }
 
 typedef struct result {
@@ -187,15 +173,9 @@ static result run_one(int cs, int links, int steps) {
   }
   r.size = mrvi_integrator_system_size(it);
   r.n = mrvi_model_n(m);
-  const int nc = mrvi_model_n(m);
-  double *p0 = calloc((size_t)nc, sizeof *p0);
-  const double *q0 = mrvi_model_q0(m);
-  if (!p0)
-    snprintf(r.message, sizeof r.message, "out of memory");
-  else if (bench_time_steps(it, q0, p0, steps, MIN_CPU, HORIZON, &r.step,
-                            &r.newton, r.message, sizeof r.message) == 0)
-    r.status = 0;
-  free(p0);
+  if (bench_time_steps(it, m, steps, MIN_CPU, HORIZON, &r.step, &r.newton,
+                       r.message, sizeof r.message) == 0)
+    r.status = 0; /* (from rest: the bodies' v0 are 0) */
   snprintf(r.path, sizeof r.path, "%s", mrvi_integrator_solver_path(it));
   mrvi_integrator_free(it);
   mrvi_model_free(m);

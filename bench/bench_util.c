@@ -241,22 +241,48 @@ double bench_fpu_energy(const double *q, const double *v) {
 #endif
 const char *bench_build(void) { return MRVI_BENCH_BUILD; }
 
-int bench_time_steps(mrvi_integrator *it, const double *q0, const double *p0,
-                     long steps, double min_cpu, long horizon, double *step_s,
+int bench_time_steps(mrvi_integrator *it, const mrvi_model *m, long steps,
+                     double min_cpu, long horizon, double *step_s,
                      double *newton, char *msg, size_t len) {
+  const int nc = mrvi_model_n(m);
+  const double *q0 = mrvi_model_q0(m), *v0 = mrvi_model_v0(m);
+  double *p0 = malloc((size_t)nc * sizeof *p0);
+  if (!p0) {
+    snprintf(msg, len, "out of memory");
+    return -1;
+  }
+  for (int i = 0; i < nc; i++)
+    p0[i] = mrvi_model_mass(m, i) * v0[i];
   long updates = 0, k = 0;
+  int st = 0;
   const double t0 = bench_cpu();
   while (k < steps || (bench_cpu() - t0 < min_cpu && k < 100000)) {
     if ((k % horizon == 0 && k > 0 &&
          mrvi_integrator_set_state(it, 0.0, q0, p0) < 0) ||
         mrvi_integrator_step(it) < 0) {
       snprintf(msg, len, "%.190s", mrvi_integrator_errmsg(it));
-      return -1;
+      st = -1;
+      break;
     }
     updates += mrvi_integrator_last_iterations(it);
     k++;
   }
-  *step_s = (bench_cpu() - t0) / (double)k;
-  *newton = (double)updates / (double)k;
-  return 0;
+  free(p0);
+  if (st == 0) {
+    *step_s = (bench_cpu() - t0) / (double)k;
+    *newton = (double)updates / (double)k;
+  }
+  return st;
+}
+
+mrvi_model *bench_model_finish(mrvi_model *m, int st, const double *g,
+                               char *msg, size_t len) {
+  if (st >= 0)
+    st = mrvi_model_set_gravity(m, g);
+  if (st < 0) {
+    snprintf(msg, len, "%s", m ? mrvi_model_errmsg(m) : "out of memory");
+    mrvi_model_free(m);
+    return NULL;
+  }
+  return m;
 }

@@ -46,13 +46,20 @@ double bench_load(void);
 int bench_run_child(void (*fn)(int fd, void *arg), void *arg, void *rec,
                     size_t size, double budget, double mem_gb, int *wstatus);
 
-/* Step `it` at least `steps` macro steps and until `min_cpu` seconds of
- * CPU time have passed (at most 10^5 steps), restarting from (q0, p0)
- * every `horizon` steps so that long timings stay on the same motion.
- * CPU seconds per step into *step_s and Newton updates per step into
- * *newton; 0, or -1 with the integrator's message in msg. */
-int bench_time_steps(mrvi_integrator *it, const double *q0, const double *p0,
-                     long steps, double min_cpu, long horizon, double *step_s,
+/* A model the caller built up to status st (< 0: a step failed, or m is
+ * NULL): gravity g set, or NULL with the model's message in msg and m
+ * freed. */
+mrvi_model *bench_model_finish(mrvi_model *m, int st, const double *g,
+                               char *msg, size_t len);
+
+/* Step `it` (created on m) from m's initial state, q0 and p0 = M v0, at
+ * least `steps` macro steps and until `min_cpu` seconds of CPU time have
+ * passed (at most 10^5 steps), restarting from that state every `horizon`
+ * steps so that long timings stay on the same motion.  CPU seconds per
+ * step into *step_s and Newton updates per step into *newton; 0, or -1
+ * with the message in msg. */
+int bench_time_steps(mrvi_integrator *it, const mrvi_model *m, long steps,
+                     double min_cpu, long horizon, double *step_s,
                      double *newton, char *msg, size_t len);
 
 /* Path of systems/NAME: $MRVI_SOURCE_ROOT/systems/NAME, else the first of
