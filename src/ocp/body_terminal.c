@@ -211,35 +211,12 @@ double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
   return iJ * L - T->target;
 }
 
-/* Add row v (n entries) to the orthonormal basis B (k rows) if its part
- * outside span(B) is larger than 1e-8 |v| (Gram-Schmidt, twice); returns
- * 0 when v is (numerically) in the span. */
+/* Add row v to the orthonormal basis B (k rows) if its part outside
+ * span(B) is larger than 1e-8 |v|; 0 when v is (numerically) in the span. */
 static int extend_basis(int n, double *B, int *k, double *v) {
-  double n0 = 0.0;
-  for (int j = 0; j < n; j++)
-    n0 += v[j] * v[j];
-  n0 = sqrt(n0);
-  if (!(n0 > 0.0))
-    return 0;
-  for (int pass = 0; pass < 2; pass++)
-    for (int i = 0; i < *k; i++) {
-      const double *b = B + (size_t)i * (size_t)n;
-      double d = 0.0;
-      for (int j = 0; j < n; j++)
-        d += b[j] * v[j];
-      for (int j = 0; j < n; j++)
-        v[j] -= d * b[j];
-    }
-  double nr = 0.0;
-  for (int j = 0; j < n; j++)
-    nr += v[j] * v[j];
-  nr = sqrt(nr);
-  if (nr <= 1e-8 * n0)
-    return 0;
-  double *b = B + (size_t)(*k)++ * (size_t)n;
-  for (int j = 0; j < n; j++)
-    b[j] = v[j] / nr;
-  return 1;
+  const int added = mrvi_dense_extend_basis(n, B, *k, v, 1e-8);
+  *k += added;
+  return added;
 }
 
 int ocp_terminal_redundant(const mrvi_ocp *o, int first) {

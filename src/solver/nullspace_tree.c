@@ -594,31 +594,6 @@ static void cut_forces(mrvi_nstree *z, const mrvi_model *m) {
   }
 }
 
-/* Is row v (n entries) within 1e-9 (relative) of the span of the k
- * orthonormal rows E?  If not, its normalised remainder becomes E's row k
- * (modified Gram-Schmidt, twice). */
-static int dependent(int n, int k, double *E, const double *v) {
-  double *e = E + (size_t)k * n, n0 = 0.0, n1 = 0.0;
-  for (int a = 0; a < n; a++)
-    e[a] = v[a], n0 += v[a] * v[a];
-  for (int pass = 0; pass < 2; pass++)
-    for (int b = 0; b < k; b++) {
-      const double *f = E + (size_t)b * n;
-      double d = 0.0;
-      for (int a = 0; a < n; a++)
-        d += f[a] * e[a];
-      for (int a = 0; a < n; a++)
-        e[a] -= d * f[a];
-    }
-  for (int a = 0; a < n; a++)
-    n1 += e[a] * e[a];
-  if (!(n1 > 1e-18 * n0) || n0 == 0.0)
-    return 1;
-  for (int a = 0; a < n; a++)
-    e[a] /= sqrt(n1);
-  return 0;
-}
-
 /* The kept rows among the cut joints' at q_k = st->qs0 (the geometry taken
  * there; every row of the other constraints is kept): a cut row whose row
  * of C is within 1e-9 (relative) of the span of the earlier ones (a planar
@@ -650,7 +625,7 @@ static int cut_rows(mrvi_nstree *z, const mrvi_step *st,
       int red = 0;
       if (z->cut[c]) {
         cut_row(z, m, k, z->cG + (size_t)r * k->n_in, rate0, C);
-        red = dependent(rate0[nb], kept, E, C);
+        red = !mrvi_dense_extend_basis(rate0[nb], E, kept, C, 1e-9);
         kept += !red;
       }
       differ |= drop && !drop[k->first_row + r] != !red;

@@ -252,3 +252,31 @@ void mrvi_dense_lu_solve_transpose(int n, const double *A, const int *piv,
         b[k * nrhs + c] = t;
       }
 }
+
+int mrvi_dense_extend_basis(int n, double *B, int k, double *v, double rtol) {
+  double n0 = 0.0;
+  for (int j = 0; j < n; j++)
+    n0 += v[j] * v[j];
+  n0 = sqrt(n0);
+  if (!(n0 > 0.0))
+    return 0;
+  for (int pass = 0; pass < 2; pass++)
+    for (int i = 0; i < k; i++) {
+      const double *b = B + (size_t)i * (size_t)n;
+      double d = 0.0;
+      for (int j = 0; j < n; j++)
+        d += b[j] * v[j];
+      for (int j = 0; j < n; j++)
+        v[j] -= d * b[j];
+    }
+  double nr = 0.0;
+  for (int j = 0; j < n; j++)
+    nr += v[j] * v[j];
+  nr = sqrt(nr);
+  if (nr <= rtol * n0)
+    return 0;
+  double *b = B + (size_t)k * (size_t)n;
+  for (int j = 0; j < n; j++)
+    b[j] = v[j] / nr;
+  return 1;
+}

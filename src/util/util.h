@@ -82,5 +82,11 @@ void mrvi_dense_lu_solve_transpose(int n, const double *A, const int *piv,
  * and orthogonal; A = Q R.  Returns -1 if a column is (numerically) in the
  * span of the previous ones. */
 int mrvi_dense_qr(int m, int n, double *A, double *Q);
+/* Rank-revealing step of modified Gram-Schmidt (two passes): v (n
+ * entries, overwritten) against the k orthonormal rows of B.  If the part
+ * of v outside their span is larger than rtol |v|, it is normalised into
+ * B's row k (v may be that row) and 1 returned; else (v numerically in the
+ * span, or zero) 0. */
+int mrvi_dense_extend_basis(int n, double *B, int k, double *v, double rtol);
 
 #endif
