@@ -317,6 +317,9 @@ run_mrvi check "$root/systems/slider_crank.yaml" \
   --set integrator.tuning.nullspace_tree=0
 contains "$out" '^  null space  numerical \(QR.*; 0 redundant rows left out; not joint-reduced: nullspace_tree 0$' \
   "slider-crank, nullspace_tree 0: numerical null space"
+run_mrvi check "$root/tests/fast_fourbar.yaml"
+contains "$out" "^  null space  numerical \\(QR.*; 3 redundant rows left out \\(3 of them enforced at the micro nodes: a closed loop of fast bodies, left out of the QR at every micro node\\); not joint-reduced: joint 'rocker_pivot' closes a loop$" \
+  "fast four-bar in 3-D: redundant micro-node rows left out"
 cat >"$tmp/cart_pole.yaml" <<'EOF'
 name: cart-pole
 dimension: 2

@@ -50,10 +50,11 @@ static void fourbar_points(double th, double P[4][3]) {
   }
 }
 
-/* A uniform bar from P to Q as a body (D = 2 or 3), at rest or with
- * angular velocity w about e3 around P (v = w e3 x (x - P)). */
-static int add_bar(mrvi_model *m, const char *name, int D, const double *P,
-                   const double *Q, double mass, double w) {
+/* A uniform bar from P to Q as a body (D = 2 or 3) of the given rate, at
+ * rest or with angular velocity w about e3 around P (v = w e3 x (x - P)). */
+static int add_bar_rate(mrvi_model *m, const char *name, int D, const double *P,
+                        const double *Q, double mass, double w,
+                        mrvi_rate rate) {
   const double dx = Q[0] - P[0], dy = Q[1] - P[1], l = hypot(dx, dy);
   const double c = dx / l, s = dy / l;
   const double x0[3] = {0.5 * (P[0] + Q[0]), 0.5 * (P[1] + Q[1]), 0.0};
@@ -62,10 +63,15 @@ static int add_bar(mrvi_model *m, const char *name, int D, const double *P,
   if (D == 3) {
     const double R[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
     const double J[3] = {0.1 * Jt, Jt, Jt}, om[3] = {0, 0, w};
-    return mrvi_model_add_body(m, name, 3, MRVI_SLOW, mass, J, x0, R, v0, om);
+    return mrvi_model_add_body(m, name, 3, rate, mass, J, x0, R, v0, om);
   }
   const double R[4] = {c, -s, s, c};
-  return mrvi_model_add_body(m, name, 2, MRVI_SLOW, mass, &Jt, x0, R, v0, &w);
+  return mrvi_model_add_body(m, name, 2, rate, mass, &Jt, x0, R, v0, &w);
+}
+
+static int add_bar(mrvi_model *m, const char *name, int D, const double *P,
+                   const double *Q, double mass, double w) {
+  return add_bar_rate(m, name, D, P, Q, mass, w, MRVI_SLOW);
 }
 
 /* The four-bar in D dimensions; off moves the rocker's centre by off along
@@ -106,6 +112,18 @@ static mrvi_model *fourbar(int D, double off, int fast) {
           "fast particle: %s", mrvi_model_errmsg(m));
   }
   return m;
+}
+
+/* The description file rel (from the source root), or NULL (reported). */
+static mrvi_system *load_system(const char *rel) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  if (mrvi_system_load(test_source_path(rel), NULL, 0, &sys, msg, sizeof msg) !=
+      0) {
+    CHECK(0, "%s loads: %s", rel, msg);
+    return NULL;
+  }
+  return sys;
 }
 
 static mrvi_settings loop_settings(double dT, int p, double t_end,
@@ -1597,13 +1615,9 @@ static void test_loop_reduced(void) {
                        D == 2 ? 5 : 1, 2, 0.01);
     mrvi_model_free(m);
   }
-  mrvi_system *sys = NULL;
-  char msg[1024];
-  if (mrvi_system_load(test_source_path("systems/slider_crank.yaml"), NULL, 0,
-                       &sys, msg, sizeof msg) != 0) {
-    CHECK(0, "systems/slider_crank.yaml loads: %s", msg);
+  mrvi_system *sys = load_system("systems/slider_crank.yaml");
+  if (!sys)
     return;
-  }
   check_loop_reduced("slider-crank", sys->model, 2, 1, 2, 0.01);
   /* 10^4 steps in the null-space form, the loop reduced */
   mrvi_settings s = sys->settings;
@@ -1630,11 +1644,236 @@ static void test_loop_reduced(void) {
   mrvi_system_free(sys);
 }
 
+/* ---------------------------------------------------------------------------
+ * A closed loop of fast bodies (doc/multibody.md, "Fast closed loops"): the
+ * four-bar's links made fast, with a stiff torsional spring (kt) on the
+ * crank's ground joint (fast, in W) and a slow particle on soft slow springs
+ * to an anchor and to the coupler's midpoint (in V).  In 3-D its micro-node
+ * rows carry the 3 redundant rows of the planar loop: the null-space form
+ * leaves them out of the QR basis at every micro node, the multiplier form
+ * refuses the loop.  rate MRVI_SLOW makes the links and the torsional spring
+ * slow (the single-rate loop).
+ * ------------------------------------------------------------------------- */
+static mrvi_model *fast_fourbar(int D, mrvi_rate rate) {
+  mrvi_model *m = mrvi_model_create();
+  double P[4][3];
+  fourbar_points(fb_th0, P);
+  const double axis[3] = {0, 0, 1}, g[3] = {0, -fb_g, 0}, kt = 60.0;
+  mrvi_model_set_dimension(m, D);
+  int st = add_bar_rate(m, "crank", D, P[0], P[1], 1.0, fb_w0, rate);
+  st |= add_bar_rate(m, "coupler", D, P[1], P[2], 2.0, 0.0, rate);
+  st |= add_bar_rate(m, "rocker", D, P[3], P[2], 1.5, 0.0, rate);
+  const double *ax = D == 3 ? axis : NULL;
+  st |= mrvi_model_add_joint(m, "revolute", 0, -1, P[0], ax);
+  st |= mrvi_model_add_joint(m, "revolute", 0, 1, P[1], ax);
+  st |= mrvi_model_add_joint(m, "revolute", 1, 2, P[2], ax);
+  st |= mrvi_model_add_joint(m, "revolute", 2, -1, P[3], ax);
+  st |= mrvi_model_add_torsion(m, rate, 0, -1, ax, "linear", &kt, 0.0);
+  st |= mrvi_model_set_gravity(m, g);
+  const double x[3] = {1.8, 2.6, 0.0}, v[3] = {0.3, -0.2, 0.0};
+  const double anchor[3] = {1.8, 3.0, 0.0}, ka = 20.0, kc = 5.0;
+  const int s = mrvi_model_add_particle(m, "s", 0.5, MRVI_SLOW, x, v);
+  const mrvi_end ps = {.particle = s, .body = -1},
+                 cm = {.particle = -1, .body = 1, .at = {0, 0, 0}};
+  CHECK(st >= 0 && s >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &ps, NULL, anchor, "linear",
+                                      &ka, NAN) >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &ps, &cm, NULL, "linear",
+                                      &kc, NAN) >= 0,
+        "fast four-bar (%d-D): %s", D, mrvi_model_errmsg(m));
+  return m;
+}
+
+/* Run m (midpoint-midpoint, dT = 0.01, p micro steps, n macro steps) at
+ * Newton and constraint tolerance tol in the given form; NULL (reported)
+ * if it fails. */
+static mrvi_trajectory *fast_loop_run(const mrvi_model *m, int p, long n,
+                                      double tol, mrvi_constraint_form form,
+                                      int tree) {
+  mrvi_settings s = loop_settings(0.01, p, n * 0.01, form);
+  s.newton_tol = s.constraint_tol = tol;
+  s.tuning.nullspace_tree = tree;
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0) {
+    CHECK(0, "fast four-bar (p = %d, %s): %s", p, form_name(form), sum.message);
+    mrvi_trajectory_free(tr);
+    return NULL;
+  }
+  return tr;
+}
+
+/* Max difference of the bodies' centres (first D entries of each body's
+ * block) and the particle between a (D = 3) and b (D_b = 2 or 3). */
+static double centres_differ(const mrvi_model *ma, const mrvi_trajectory *a,
+                             const mrvi_model *mb, const mrvi_trajectory *b) {
+  if (!a || !b || a->n_macro != b->n_macro)
+    return INFINITY;
+  const int Db = mrvi_model_dimension(mb);
+  double d = 0.0;
+  for (long k = 0; k < a->n_macro; k++)
+    for (int i = 0; i <= 3; i++) { /* 3 bodies, then the particle */
+      const int oa = i < 3 ? mrvi_model_body_first(ma, i) : 36;
+      const int ob = i < 3 ? mrvi_model_body_first(mb, i) : 3 * Db * (Db + 1);
+      for (int c = 0; c < 2; c++)
+        d = fmax(d, fabs(a->q[k * a->n + oa + c] - b->q[k * b->n + ob + c]));
+    }
+  return d;
+}
+
+static void test_fast_loop(void) {
+  mrvi_model *m3 = fast_fourbar(3, MRVI_FAST), *m2 = fast_fourbar(2, MRVI_FAST);
+  mrvi_model *s3 = fast_fourbar(3, MRVI_SLOW);
+  char why[200] = "";
+  CHECK(!mrvi_nullspace_fast_plan(m3, why, sizeof why),
+        "fast four-bar: no fast forest (a loop): %s", why);
+  /* The multiplier form refuses it, naming the joints. */
+  mrvi_settings s = loop_settings(0.01, 5, 0.1, MRVI_FORM_MULTIPLIERS);
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  CHECK(mrvi_trajectory_run(m3, &s, &tr, &sum) != 0 &&
+            strstr(sum.message, "redundant constraints") &&
+            strstr(sum.message, "revolute"),
+        "fast four-bar refused in the multiplier form: %s", sum.message);
+  mrvi_trajectory_free(tr);
+  /* p = 5: the 3-D loop (null-space form, 3 redundant rows left out at every
+   * micro node) against the planar loop (multipliers, no redundancy). */
+  const long n_short = test_steps(100);
+  mrvi_trajectory *a =
+      fast_loop_run(m3, 5, n_short, 1e-12, MRVI_FORM_NULL_SPACE, 1);
+  mrvi_trajectory *b =
+      fast_loop_run(m2, 5, n_short, 1e-12, MRVI_FORM_MULTIPLIERS, 1);
+  const double d5 = centres_differ(m3, a, m2, b);
+  mrvi_trajectory_free(a), mrvi_trajectory_free(b);
+  /* p = 1: the fast loop is the single-rate loop (links slow). */
+  a = fast_loop_run(m3, 1, n_short, 1e-12, MRVI_FORM_NULL_SPACE, 1);
+  b = fast_loop_run(s3, 1, n_short, 1e-12, MRVI_FORM_NULL_SPACE, 0);
+  double d1 = a && b && a->n_macro == b->n_macro ? 0.0 : INFINITY;
+  for (long i = 0; d1 < INFINITY && i < a->n_macro * a->n; i++)
+    d1 = fmax(d1, fabs(a->q[i] - b->q[i]));
+  mrvi_trajectory_free(a), mrvi_trajectory_free(b);
+  printf("fast four-bar 3-D (null-space, 3 redundant micro-node rows left "
+         "out), %ld steps at tolerances 1e-12: against the 2-D loop in the "
+         "multiplier form (p = 5) %.3g; p = 1 against the loop made slow "
+         "%.3g\n",
+         n_short, d5, d1);
+  CHECK(d5 < 1e-9, "fast four-bar 3-D against 2-D (p = 5): %.3g", d5);
+  CHECK(d1 < 1e-10, "fast four-bar p = 1 against the slow loop: %.3g", d1);
+  /* Long run, p = 5, default-like tolerances: every row (the redundant ones
+   * too) at every micro node, the energy error bounded. */
+  const long n_long = test_steps(2000);
+  mrvi_settings sl =
+      loop_settings(0.01, 5, n_long * 0.01, MRVI_FORM_NULL_SPACE);
+  sl.newton_tol = 1e-10;
+  sl.constraint_tol = 1e-10;
+  tr = NULL;
+  if (mrvi_trajectory_run(m3, &sl, &tr, &sum) != 0) {
+    CHECK(0, "fast four-bar, long run: %s", sum.message);
+  } else {
+    double eg, eH, eH10 = 0.0, es, eH2 = 0.0, H0 = 0.0;
+    loop_invariants(m3, tr, &eg, &eH, &eH10);
+    const double em = micro_residual(m3, tr, 5, &es);
+    /* the energy error over the first half (its swings beat over several
+     * seconds: the tenth is too short a window) */
+    for (long k = 0; 2 * k <= tr->n_macro; k++) {
+      double T, V, W;
+      mrvi_model_energy(m3, tr->q + k * tr->n, tr->p + k * tr->n, &T, &V, &W);
+      if (k == 0)
+        H0 = T + V + W;
+      eH2 = fmax(eH2, fabs(T + V + W - H0) / fabs(H0));
+    }
+    printf("fast four-bar 3-D, p = 5, %ld steps (%ld micro nodes), Newton "
+           "and constraint tolerance 1e-10: max |g| %.3g over all 38 rows at "
+           "every micro node (%.3g at the macro nodes), max relative energy "
+           "error %.3g (%.3g over the first tenth, %.3g over the first "
+           "half)\n",
+           n_long, tr->n_micro, em, eg, eH, eH10, eH2);
+    CHECK(tr->n_micro == 5 * n_long + 1, "fast four-bar: %ld micro nodes",
+          tr->n_micro);
+    CHECK(em <= 1e-10 && eg <= 1e-10, "fast four-bar: loop closure %.3g, %.3g",
+          em, eg);
+    CHECK(eH < 1e-4 && eH < 1.5 * eH2,
+          "fast four-bar: energy error %.3g (%.3g over the first half)", eH,
+          eH2);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m3), mrvi_model_free(m2), mrvi_model_free(s3);
+}
+
+/* A loop of fast and slow bodies whose redundant rows are micro-node rows
+ * that follow only together with the slow rocker's ground joint (listed
+ * first): refused in the null-space form with the constraint named. */
+static void test_mixed_loop(void) {
+  mrvi_model *m = mrvi_model_create();
+  double P[4][3];
+  fourbar_points(fb_th0, P);
+  const double axis[3] = {0, 0, 1};
+  mrvi_model_set_dimension(m, 3);
+  int st = add_bar_rate(m, "crank", 3, P[0], P[1], 1.0, 0.0, MRVI_FAST);
+  st |= add_bar_rate(m, "coupler", 3, P[1], P[2], 2.0, 0.0, MRVI_FAST);
+  st |= add_bar_rate(m, "rocker", 3, P[3], P[2], 1.5, 0.0, MRVI_SLOW);
+  st |= mrvi_model_add_joint(m, "revolute", 2, -1, P[3], axis);
+  st |= mrvi_model_add_joint(m, "revolute", 0, -1, P[0], axis);
+  st |= mrvi_model_add_joint(m, "revolute", 0, 1, P[1], axis);
+  st |= mrvi_model_add_joint(m, "revolute", 1, 2, P[2], axis);
+  CHECK(st >= 0, "mixed loop: %s", mrvi_model_errmsg(m));
+  const mrvi_settings s = loop_settings(0.01, 1, 0.05, MRVI_FORM_NULL_SPACE);
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  const int rc = mrvi_trajectory_run(m, &s, &tr, &sum);
+  printf("fast and slow bodies in one loop (null-space form): %s\n",
+         rc ? sum.message : "ran");
+  CHECK(rc != 0 && strstr(sum.message, "redundant only together") &&
+            strstr(sum.message, "'revolute"),
+        "mixed loop refused: %s", rc ? sum.message : "ran");
+  mrvi_trajectory_free(tr);
+  mrvi_model_free(m);
+}
+
+/* tests/fast_fourbar.yaml, the same loop as a description file: 3 of its
+ * redundant rows are micro-node rows (what `mrvi check` reports); as
+ * shipped (p = 10, tolerances 1e-10) every row holds at every micro node. */
+static void test_fast_loop_file(void) {
+  mrvi_system *sys = load_system("tests/fast_fourbar.yaml");
+  if (!sys)
+    return;
+  const mrvi_model *m = sys->model;
+  const int red = mrvi_nullspace_micro_redundant(m, mrvi_model_q0(m));
+  CHECK(mrvi_model_constraint_rows(m) == 38 && red == 3,
+        "fast_fourbar.yaml: %d rows, %d redundant at the micro nodes",
+        mrvi_model_constraint_rows(m), red);
+  mrvi_settings s = sys->settings;
+  const long n = test_steps(100);
+  s.t_end = n * s.macro_step;
+  mrvi_trajectory *tr = NULL;
+  mrvi_summary sum;
+  if (mrvi_trajectory_run(m, &s, &tr, &sum) != 0) {
+    CHECK(0, "fast_fourbar.yaml: %s", sum.message);
+  } else {
+    double es;
+    const double em = micro_residual(m, tr, s.micro_steps, &es);
+    printf("tests/fast_fourbar.yaml: %d redundant micro-node rows; %ld micro "
+           "nodes (p = %d): max |g| %.3g over all 38 rows\n",
+           red, tr->n_micro, s.micro_steps, em);
+    CHECK(tr->n_micro == s.micro_steps * n + 1 && em <= s.constraint_tol,
+          "fast_fourbar.yaml: %ld micro nodes, max |g| %.3g", tr->n_micro, em);
+  }
+  mrvi_trajectory_free(tr);
+  mrvi_system_free(sys);
+}
+
 /* `test_loops fast`: the fast bodies in joints alone (a meson test of its
- * own, test_loops_fast); else every other study. */
+ * own, test_loops_fast); `test_loops fast-loop`: the closed loop of fast
+ * bodies (test_loops_fast_loop); else every other study. */
 int main(int argc, char **argv) {
   if (argc > 1 && strcmp(argv[1], "fast") == 0) {
     test_fast_joint_reduced();
+    return test_finish();
+  }
+  if (argc > 1 && strcmp(argv[1], "fast-loop") == 0) {
+    test_fast_loop();
+    test_fast_loop_file();
+    test_mixed_loop();
     return test_finish();
   }
   test_fourbar_3d();

@@ -617,12 +617,22 @@ static int cmd_check(int argc, char **argv) {
              "each fast body by its joint's free turns and slides; slow "
              "bodies: %s\n",
              "  null space", slow);
-    } else
+    } else {
+      const int red_f = red > 0 ? mrvi_nullspace_micro_redundant(
+                                      sys->model, mrvi_model_q0(sys->model))
+                                : 0;
+      char at[160] = "";
+      if (red_f > 0)
+        snprintf(at, sizeof at,
+                 " (%d of them enforced at the micro nodes: a closed loop of "
+                 "fast bodies, left out of the QR at every micro node)",
+                 red_f);
       printf("%-14snumerical (QR of the constraint gradients at every node); "
-             "%d redundant row%s left out%s%s\n",
-             "  null space", red > 0 ? red : 0, red == 1 ? "" : "s",
+             "%d redundant row%s left out%s%s%s\n",
+             "  null space", red > 0 ? red : 0, red == 1 ? "" : "s", at,
              mrvi_model_n_bodies(sys->model) > 0 ? "; not joint-reduced: " : "",
              mrvi_model_n_bodies(sys->model) > 0 ? tree_why : "");
+    }
   }
   printf("%-14s%s (every %d, micro %s)\n", "output",
          sys->output_file ? sys->output_file : "-", sys->output_every,

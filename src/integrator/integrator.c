@@ -453,31 +453,42 @@ static int project(mrvi_integrator *it) {
  * coordinates when p > 1.  A combination of them free of fast coordinates
  * is a constraint on the slow coordinates alone, enforced at every micro
  * node on their linear interpolation: p conditions on one unknown node
- * q_{k+1}^s, which no step can meet (the Newton matrix is singular). */
+ * q_{k+1}^s, which no step can meet (the Newton matrix is singular).  The
+ * redundant rows the null-space form leaves out (a closed loop of fast
+ * bodies, it->c_drop) are not counted. */
 static int check_micro_constraints(mrvi_integrator *it) {
   const mrvi_model *m = it->model;
   const mrvi_step *st = &it->step;
   if (st->p == 1 || st->r_micro == 0)
     return MRVI_OK;
-  const int nf = st->nf, r = st->r_micro;
+  int r = 0;
+  for (int i = 0; i < st->n_micro_c; i++) {
+    const mrvi_constraint *k = &m->constraints[st->micro_c[i]];
+    for (int q = 0; q < k->rows; q++)
+      r += !(it->c_drop && it->c_drop[k->first_row + q]);
+  }
+  const int nf = st->nf;
   if (r > nf || nf > MRVI_DENSE_MAX)
     return r > nf ? MRVI_ESINGULAR : MRVI_OK;
   double *A = it->pGf, *Q = malloc((size_t)nf * (size_t)nf * sizeof *Q);
   if (!Q)
     return MRVI_ENOMEM;
-  /* G_f(q0)^T, nf x r */
+  /* G_f(q0)^T over the kept rows, nf x r */
   memset(A, 0, (size_t)r * (size_t)nf * sizeof *A);
   double y[MRVI_MAX_INPUTS];
-  for (int i = 0; i < st->n_micro_c; i++) {
+  for (int i = 0, row = 0; i < st->n_micro_c; i++) {
     const mrvi_constraint *k = &m->constraints[st->micro_c[i]];
     for (int j = 0; j < k->n_in; j++)
       y[j] = m->q0[k->in[j]];
     mrvi_constraint_eval_at(k, y, it->cg, it->cGd, NULL);
-    for (int q = 0; q < k->rows; q++)
+    for (int q = 0; q < k->rows; q++) {
+      if (it->c_drop && it->c_drop[k->first_row + q])
+        continue;
       for (int j = 0; j < k->n_in; j++)
         if (m->rate[k->in[j]] == MRVI_FAST)
-          A[m->slot[k->in[j]] * r + st->c_off[st->micro_c[i]] + q] +=
-              it->cGd[q * k->n_in + j];
+          A[m->slot[k->in[j]] * r + row] += it->cGd[q * k->n_in + j];
+      row++;
+    }
   }
   const int rank_ok = mrvi_dense_qr(nf, r, A, Q) == 0;
   free(Q);

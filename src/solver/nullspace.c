@@ -22,11 +22,13 @@
  *     micro-node constraints.
  * The reduced rows therefore keep the arrowhead pattern of the step.
  *
- * Redundant slow-only rows (a closed loop of joints modelled in 3-D): the
- * rows the integrator's rank-revealing pass at q0 marks (drop) are left out
- * of the QR, of the equations and of lambda (0 there).  The null space of
- * the kept rows is that of all rows while the rank stays, and their zero set
- * is the loop's near q0, so the step is the same (doc/constraints.md).
+ * Redundant rows (a closed loop of joints modelled in 3-D): the rows the
+ * integrator's rank-revealing pass at q0 marks (drop) are left out of the
+ * QR, of the equations and of lambda (0 there), slow-only rows at q_k and
+ * micro-node rows (a loop of fast bodies) at every micro node.  The null
+ * space of the kept rows is that of all rows while the rank stays, and
+ * their zero set is the loop's near q0, so the step is the same
+ * (doc/constraints.md; doc/multibody.md, "Fast closed loops").
  *
  * Newton matrix: at R = F - C lambda = 0, d(P^T F) = P^T (dF - dC lambda)
  * because d(P^T) C lambda = -P^T dC lambda (from P^T C = 0).  dF - dC lambda
@@ -50,9 +52,12 @@ struct mrvi_nullspace {
   int nfc, nsc; /* constrained fast / slow slots */
   int *fc, *sc; /* slot lists */
   int *fpos;    /* fast slot -> index in fc or -1 */
-  int r, rs;    /* rows of micro-node / slow-only constraints */
+  int r, rs;    /* kept micro-node rows / rows of slow-only constraints */
   int rk;       /* slow-only rows kept (rs less the redundant ones) */
   int *srow;    /* slow-only row -> index among the kept ones, or -1 */
+  int rm;       /* micro-node rows, the redundant ones too (st->r_micro) */
+  int *fkeep;   /* micro-node row -> index among the kept ones, or -1 */
+  int *fk_row;  /* kept micro-node row -> its row */
   /* Nodal reparametrisation (free bodies, no other constraint): the slot
    * of each slow body's phi (its directors follow) and of each fast
    * body's, or NULL; dim the bodies' dimension D (D^2 director entries,
@@ -94,6 +99,7 @@ void mrvi_nullspace_free(mrvi_nullspace *z) {
   if (!z)
     return;
   free(z->fc), free(z->sc), free(z->fpos), free(z->b_slot), free(z->srow);
+  free(z->fkeep), free(z->fk_row);
   free(z->rep_slot), free(z->rep_d), free(z->frep_slot), free(z->frep_d);
   free(z->b_coupled), free(z->Q), free(z->Rm), free(z->Gs), free(z->Qs);
   free(z->Rs), free(z->A), free(z->t), free(z->B), free(z->Gf), free(z->Gsl);
@@ -185,7 +191,7 @@ static int build_recipe(mrvi_nullspace *z, const mrvi_step *st) {
     }
   }
   for (int e = 0; e < st->n_lambda; e++) {
-    if (e < z->rs && z->srow[e] < 0)
+    if (e < z->rs ? z->srow[e] < 0 : z->fkeep[(e - z->rs) % z->rm] < 0)
       continue;
     z->rec_start[row++] = (int)z->n_rec;
     if (rec_push(z, &cap, nu + e) < 0)
@@ -264,6 +270,52 @@ static int build_pattern(mrvi_nullspace *z) {
 
 static int reparametrise(mrvi_nullspace *z, const mrvi_model *m);
 
+/* The redundant micro-node rows drop marks (a closed loop of fast bodies)
+ * must follow from the kept micro-node rows alone: those hold at every
+ * micro node, where the slow-only rows do not (enforced at the macro nodes
+ * only).  The rank-revealing pass of mrvi_constraints_rank (rows of G(q0)
+ * in model order, metric M^-1, 1e-9 relative) over the micro-node rows
+ * alone must leave out the same rows. */
+static int micro_redundancy_local(const mrvi_step *st,
+                                  const unsigned char *drop, char *msg,
+                                  size_t len) {
+  const mrvi_model *m = st->model;
+  const int R = m->constraint_rows, n = m->n;
+  double *g = malloc((size_t)R * sizeof *g);
+  double *G = malloc((size_t)R * (size_t)n * sizeof *G);
+  double *E = malloc(((size_t)st->r_micro + 1) * (size_t)n * sizeof *E);
+  double *v = malloc((size_t)n * sizeof *v);
+  if (!g || !G || !E || !v) {
+    free(g), free(G), free(E), free(v);
+    return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+  }
+  mrvi_model_constraint_eval(m, m->q0, g, G);
+  int rank = 0, bad = -1;
+  for (int c = 0; c < m->n_constraints && bad < 0; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    for (int rr = 0; k->where == MRVI_FAST && rr < k->rows; rr++) {
+      const int row = k->first_row + rr;
+      for (int j = 0; j < n; j++)
+        v[j] = G[(size_t)row * n + j] / sqrt(m->mass[j]);
+      const int kept = mrvi_dense_extend_basis(n, E, rank, v, 1e-9);
+      rank += kept;
+      if (kept == !!drop[row]) {
+        bad = c;
+        break;
+      }
+    }
+  }
+  free(g), free(G), free(E), free(v);
+  if (bad < 0)
+    return MRVI_OK;
+  return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                   "null-space form: constraint '%s', enforced at micro "
+                   "nodes, is redundant only together with constraints "
+                   "enforced at the macro nodes (a closed loop of fast and "
+                   "slow bodies); make the loop's bodies all fast or all slow",
+                   m->constraints[bad].label);
+}
+
 int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
                           int tree, mrvi_nullspace **out, char *msg,
                           size_t len) {
@@ -290,7 +342,7 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
   z->ns = st->ns;
   z->nf = st->nf;
   z->p = st->p;
-  z->r = st->r_micro;
+  z->rm = st->r_micro;
   z->rs = st->r_slow;
   const int ns = st->ns, nf = st->nf;
   z->fc = malloc((size_t)(nf + 1) * sizeof(int));
@@ -299,31 +351,39 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
   int *spos = malloc((size_t)(ns + 1) * sizeof(int));
   int *ms = calloc((size_t)(ns + 1), sizeof(int));
   z->srow = malloc((size_t)(z->rs + 1) * sizeof(int));
-  if (!z->fc || !z->fpos || !z->sc || !spos || !ms || !z->srow)
+  z->fkeep = malloc((size_t)(z->rm + 1) * sizeof(int));
+  z->fk_row = malloc((size_t)(z->rm + 1) * sizeof(int));
+  if (!z->fc || !z->fpos || !z->sc || !spos || !ms || !z->srow || !z->fkeep ||
+      !z->fk_row)
     goto oom;
-  /* Kept rows: slow-only ones numbered in order; a redundant micro-node
-   * row is declined. */
+  /* Kept rows, numbered in order: slow-only ones and micro-node ones (a
+   * closed loop of fast bodies), the redundant ones left out. */
   for (int c = 0; c < m->n_constraints; c++) {
     const mrvi_constraint *k = &m->constraints[c];
     for (int rr = 0; rr < k->rows; rr++) {
       const int red = drop && drop[k->first_row + rr];
-      if (k->where == MRVI_FAST && red) {
-        free(spos), free(ms);
-        mrvi_nullspace_free(z);
-        return mrvi_fail(msg, len, MRVI_ESINGULAR,
-                         "null-space form: constraint '%s' is redundant and "
-                         "enforced at micro nodes; redundant rows are handled "
-                         "among constraints on slow coordinates only (make "
-                         "the bodies of the loop slow)",
-                         k->label);
-      }
-      if (k->where != MRVI_FAST)
+      if (k->where == MRVI_FAST)
+        z->fkeep[st->c_off[c] + rr] = red ? -1 : 0;
+      else
         z->srow[st->c_off[c] + rr] = red ? -1 : 0;
     }
   }
   for (int e = 0; e < z->rs; e++)
     if (z->srow[e] == 0)
       z->srow[e] = z->rk++;
+  for (int e = 0; e < z->rm; e++)
+    if (z->fkeep[e] == 0) {
+      z->fk_row[z->r] = e;
+      z->fkeep[e] = z->r++;
+    }
+  if (z->r < z->rm) {
+    const int s = micro_redundancy_local(st, drop, msg, len);
+    if (s < 0) {
+      free(spos), free(ms);
+      mrvi_nullspace_free(z);
+      return s;
+    }
+  }
   for (int f = 0; f < nf; f++)
     z->fpos[f] = -1;
   for (int s = 0; s < ns; s++)
@@ -431,6 +491,24 @@ oom:
   free(spos), free(ms);
   mrvi_nullspace_free(z);
   return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+}
+
+int mrvi_nullspace_micro_redundant(const mrvi_model *m, const double *q) {
+  char why[8];
+  unsigned char *drop = malloc((size_t)m->constraint_rows + 1);
+  if (!drop)
+    return MRVI_ENOMEM;
+  int n = mrvi_constraints_rank(m, q, drop, why, sizeof why);
+  if (n > 0) {
+    n = 0;
+    for (int c = 0; c < m->n_constraints; c++)
+      for (int r = 0;
+           m->constraints[c].where == MRVI_FAST && r < m->constraints[c].rows;
+           r++)
+        n += drop[m->constraints[c].first_row + r];
+  }
+  free(drop);
+  return n;
 }
 
 int mrvi_nullspace_slow_side_free(const mrvi_model *m) {
@@ -766,10 +844,13 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
         const int idx = k->in[j], s = m->slot[idx];
         for (int rr = 0; rr < k->rows; rr++) {
           const double v = st->cG[rr * k->n_in + j];
+          const int q = z->fkeep[off + rr];
+          if (q < 0)
+            continue;
           if (m->rate[idx] == MRVI_FAST)
-            Gb[(off + rr) * nfc + z->fpos[s]] += v;
+            Gb[q * nfc + z->fpos[s]] += v;
           else
-            Gs[(off + rr) * ns + s] += v;
+            Gs[q * ns + s] += v;
         }
       }
     }
@@ -779,8 +860,8 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
                        "constraints are dependent at micro node %d; use form: "
                        "multipliers",
                        mm);
-    /* dt R lambda^m = Q1^T F_m */
-    double *u = lam + rs + mm * r;
+    /* dt R lambda^m = Q1^T F_m on the kept rows, 0 on the redundant ones */
+    double *u = z->t, *l = lam + rs + mm * z->rm;
     for (int a = 0; a < r; a++) {
       double s = 0.0;
       for (int b = 0; b < nfc; b++)
@@ -788,8 +869,8 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
       u[a] = s;
     }
     solve_r(r, R, u);
-    for (int a = 0; a < r; a++)
-      u[a] /= st->dt;
+    for (int e = 0; e < z->rm; e++)
+      l[e] = z->fkeep[e] >= 0 ? u[z->fkeep[e]] / st->dt : 0.0;
     if (z->fast)
       mrvi_nsfast_columns(z->fast, st, x, mm, z->fpos, nfc,
                           z->Fcol + (size_t)mm * (nfc - r) * nfc);
@@ -828,9 +909,9 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
       for (int mm = 0; mm < z->p; mm++) {
         const double a0 = 1.0 - (double)mm / z->p;
         const double *Gs = z->Gs + (size_t)mm * r * ns;
-        const double *l = lam + rs + mm * r;
+        const double *l = lam + rs + mm * z->rm;
         for (int q = 0; q < r; q++)
-          f -= st->dt * a0 * Gs[q * ns + sl] * l[q];
+          f -= st->dt * a0 * Gs[q * ns + sl] * l[z->fk_row[q]];
       }
       s += z->Qs[b * z->nsc + a] * f;
     }
@@ -945,7 +1026,8 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
         z->rec_coef[e++] = Q[a * nfc + j];
     }
   }
-  for (int k = 0; k < st->n_lambda - (z->rs - z->rk); k++)
+  for (int k = 0; k < st->n_lambda - (z->rs - z->rk) - z->p * (z->rm - z->r);
+       k++)
     z->rec_coef[e++] = 1.0;
   /* Rows of the reduced system: combinations of the full rows. */
   const mrvi_row_recipe rr = {z->n,   z->rec_start, z->rec_row,

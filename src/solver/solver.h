@@ -24,6 +24,11 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
                           int tree, mrvi_nullspace **out, char *msg,
                           size_t len);
 void mrvi_nullspace_free(mrvi_nullspace *z);
+/* Of the redundant rows the rank-revealing pass finds at q
+ * (mrvi_constraints_rank), how many are enforced at micro nodes (a closed
+ * loop of fast bodies: the numerical basis leaves them out at every micro
+ * node); MRVI_ENOMEM. */
+int mrvi_nullspace_micro_redundant(const mrvi_model *m, const double *q);
 /* Multipliers lambda(x) (written to x + n_unknowns) from the residual F of
  * the full system assembled at lambda = 0; also factors the node blocks
  * used by mrvi_nullspace_reduce. */
