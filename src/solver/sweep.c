@@ -149,6 +149,15 @@ struct mrvi_sweep {
    * bound in pre[4] (solve_implicit takes them). */
   int pstart, pend;
   double pre[4];
+  /* A row's end deferred to the next row's first chord update on threads
+   * (end_predict_row, chord_residual: one parallel region for both, a
+   * barrier between): on, its order q, cB and nodes. */
+  struct {
+    int on, q;
+    double cB;
+    const double *qm;
+    double *qn, *pn;
+  } defer;
   /* The predictor of the next row formed at the end of the last one
    * (end_predict), with its round-off scale. */
   int predicted;
@@ -1174,12 +1183,20 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
  * needed), and the full pass follows, with the gradient kept, where it is
  * not: the same r, lam and iterates either way, only a pass more or
  * less. */
+static void defer_flush(mrvi_sweep *sw);
+static void defer_part(mrvi_sweep *sw, int c, double *dn);
+static void defer_end(mrvi_sweep *sw);
+
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
                              int zf_ok, int fresh, int track, int light,
                              double *rho) {
   const int nf = sw->nf, i = sw->imp;
   const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
+  /* the last row's end, unless it runs in the first update's region */
+  const int dfr = sw->defer.on && !fresh && sw->cfused && zf_ok && !light;
+  if (sw->defer.on && !dfr)
+    defer_flush(sw);
   if (fresh && sw->cfused) /* (on threads: in the parts) */
     return fresh_parts(sw, qm, dn, zf_ok, rho);
   if (!zf_ok)
@@ -1207,16 +1224,33 @@ again:
     double *cp = sw->cpass, *zn = grad && !light ? sw->zalt : sw->zf;
     const double *zf = sw->zf;
     sw->evals_w += grad;
-    MRVI_PARALLEL_FOR(sw->pthreads)
-    for (int c = 0; c < n_c; c++) {
-      const int f0 = mrvi_part_start(c, nf, n_c);
-      const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
-        zero(g + f0, f1 - f0);
-        mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+    {
+      if (dfr) { /* (the last row's end: this row's start, then a barrier) */
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+        for (int c = 0; c < n_c; c++)
+          defer_part(sw, c, (double *)dn);
       }
-      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c, light);
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_c; c++) {
+        const int f0 = mrvi_part_start(c, nf, n_c);
+        const int f1 = mrvi_part_start(c + 1, nf, n_c);
+        if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
+          zero(g + f0, f1 - f0);
+          mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+        }
+        chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c,
+                        light);
+      }
     }
+    if (dfr)
+      defer_end(sw);
     if (grad && !light) { /* (zalt: the next configuration) */
       sw->zalt = sw->zf;
       sw->zf = zn;
@@ -1304,7 +1338,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) * sw->rw[f];
     scale = v > scale ? v : scale;
   }
-  const double floor = 16.0 * DBL_EPSILON * scale;
+  double floor = 16.0 * DBL_EPSILON * scale;
+  /* (a deferred row end sets the scale in the first update: end_predict) */
+  int deferred = pred && sw->defer.on;
   /* Newton evaluates J with the residual where an update follows for sure
    * (the first iterate), else the residual alone and J only where that
    * residual misses the tolerance (a second evaluation, the same values):
@@ -1327,6 +1363,10 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         r = chord_residual(
             sw, qm, dn, zf_ok, first && sw->fresh && it == 0, it >= 1,
             it >= min_it && it >= (first ? sw->expect0 : sw->expect), &rho);
+      if (deferred) {
+        floor = 16.0 * DBL_EPSILON * sw->pred_scale;
+        deferred = 0;
+      }
       zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
@@ -2093,6 +2133,17 @@ static void end_predict_row(mrvi_sweep *sw, int m, const double *qm, double *qn,
   const double cB = sw->chord && sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
   double *dn = sw->dn, scale = 0.0;
   const double *g = sw->gpt[0];
+  if (n_c > 0 && sw->pthreads > 1 && sw->cfused && cB != 0.0) {
+    /* (in the next row's first chord update: chord_residual) */
+    sw->defer.on = 1;
+    sw->defer.q = q;
+    sw->defer.cB = cB;
+    sw->defer.qm = qm;
+    sw->defer.qn = qn;
+    sw->defer.pn = pn;
+    sw->predicted = 1;
+    return;
+  }
   if (n_c > 0 && sw->pthreads > 1) {
     double *cp = sw->cpass;
     MRVI_PARALLEL_FOR(sw->pthreads)
@@ -2108,6 +2159,38 @@ static void end_predict_row(mrvi_sweep *sw, int m, const double *qm, double *qn,
   rotate_history(sw);
   sw->pred_scale = scale;
   sw->predicted = 1;
+}
+
+/* The deferred row end (end_predict_row) of part c, its scale into the
+ * slots after start_parts' (free then). */
+static void defer_part(mrvi_sweep *sw, int c, double *dn) {
+  const int nf = sw->nf, n_c = sw->n_cpass;
+  sw->cpass[5 * n_c + c] =
+      end_predict(sw, sw->defer.q, sw->defer.cB, sw->defer.qm, dn, sw->gpt[0],
+                  sw->defer.qn, sw->defer.pn, mrvi_part_start(c, nf, n_c),
+                  mrvi_part_start(c + 1, nf, n_c));
+}
+
+/* After the deferred row end's parts: the largest scale (exact in any
+ * order), the history moved on. */
+static void defer_end(mrvi_sweep *sw) {
+  double scale = 0.0;
+  for (int c = 0; c < sw->n_cpass; c++)
+    scale = sw->cpass[5 * sw->n_cpass + c] > scale
+                ? sw->cpass[5 * sw->n_cpass + c]
+                : scale;
+  rotate_history(sw);
+  sw->pred_scale = scale;
+  sw->defer.on = 0;
+}
+
+/* The deferred row end in a parallel region of its own (where the next
+ * row's first update cannot take it). */
+static void defer_flush(mrvi_sweep *sw) {
+  MRVI_PARALLEL_FOR(sw->pthreads)
+  for (int c = 0; c < sw->n_cpass; c++)
+    defer_part(sw, c, sw->dn);
+  defer_end(sw);
 }
 
 static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
