@@ -1723,6 +1723,40 @@ static double end_part(const mrvi_sweep *sw, int c, int n, int n_part,
   return check_part(q, pe, c, n, n_part);
 }
 
+/* In a parallel region (its loops shared by the region's threads): grad
+ * V at the end node zv (complete) into gn (cleared) in V's parts, then the
+ * end momenta and end_check's sums of the n_cs slow and n_f fast parts
+ * (end_part) into csum, no barrier after them. */
+static void end_v_parts(const mrvi_sweep *sw, const double *zv, double *gn,
+                        const double *fe, const double *x, double *ps1,
+                        const double *xe, double *pe, int n_f, double *csum) {
+  const int ns = sw->ns, nf = sw->nf, n_cs = sw->n_cs;
+  const int n_vpart = mrvi_terms_parts(sw->kc[MRVI_SLOW]);
+  if (sw->wv1 != 0.0 && n_vpart > 0) {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_vpart; c++)
+      mrvi_terms_grad_part(sw->kc[MRVI_SLOW], c, zv, gn);
+  } else if (sw->wv1 != 0.0) {
+#ifdef _OPENMP
+#pragma omp single
+#endif
+    mrvi_terms_grad(sw->kc[MRVI_SLOW], zv, gn); /* (a serial class) */
+  }
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+  for (int c = 0; c < n_cs; c++)
+    csum[c] = end_part(sw, c, ns, n_cs, gn, fe, x, ps1);
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+  for (int c = 0; c < n_f; c++)
+    csum[n_cs + c] =
+        end_part(sw, c, nf, n_f, gn + ns, fe ? fe + ns : NULL, xe, pe);
+}
+
 /* The fast configuration of node m + 1 (row m's left end: st->qf0 for m =
  * -1) in explicit_step_par: x's row m, or with node_stride 0 x's fast
  * part and qalt alternately, node p in x. */
@@ -1748,7 +1782,6 @@ static int explicit_step_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
                              double *ps1, double *pf, char *msg, size_t len) {
   const int ns = sw->ns, nf = sw->nf, p = sw->p, nl = sw->nl, nr = sw->nr;
   const int n_part = mrvi_terms_parts(sw->kc[MRVI_FAST]), n_cs = sw->n_cs;
-  const int n_vpart = mrvi_terms_parts(sw->kc[MRVI_SLOW]);
   const double dt = st->dt, w0 = sw->wv0, w1 = sw->wv1, *wr = sw->wr;
   /* grad V at node k: kept from the last step's end node, else evaluated */
   if (w0 != 0.0 && !sw->gv_ok)
@@ -1818,31 +1851,9 @@ static int explicit_step_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
         memcpy(zv + ns + f0, xe + f0, (size_t)(f1 - f0) * sizeof(double));
       }
     }
-    if (w1 != 0.0 && n_vpart > 0) {
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-      for (int c = 0; c < n_vpart; c++)
-        mrvi_terms_grad_part(sw->kc[MRVI_SLOW], c, zv, gn);
-    } else if (w1 != 0.0) {
-#ifdef _OPENMP
-#pragma omp single
-#endif
-      mrvi_terms_grad(sw->kc[MRVI_SLOW], zv, gn); /* (a serial class) */
-    }
     /* the end momenta: each part's rows by the thread that wrote them
      * where V is not evaluated (the same static schedules) */
-#ifdef _OPENMP
-#pragma omp for schedule(static) nowait
-#endif
-    for (int c = 0; c < n_cs; c++)
-      csum[c] = end_part(sw, c, ns, n_cs, gn, fe, x, ps1);
-#ifdef _OPENMP
-#pragma omp for schedule(static) nowait
-#endif
-    for (int c = 0; c < n_part; c++)
-      csum[n_cs + c] =
-          end_part(sw, c, nf, n_part, gn + ns, fe ? fe + ns : NULL, xe, pe);
+    end_v_parts(sw, zv, gn, fe, x, ps1, xe, pe, n_part, csum);
   }
   sw->gnode_ok = nr > 0;
   sw->evals_w += g0 + (long)(p - 1) * (nl > 0 && nr == 0) + (long)p * (nr > 0);
@@ -2471,7 +2482,7 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
 static int end_parts(mrvi_sweep *sw, const mrvi_step *st, double *x,
                      double *ps1, double *pf, char *msg, size_t len) {
   const int ns = sw->ns, nf = sw->nf, p = sw->p, n_c = sw->n_cpass;
-  const int n_cs = sw->n_cs, n_vpart = mrvi_terms_parts(sw->kc[MRVI_SLOW]);
+  const int n_cs = sw->n_cs;
   const size_t stride = sw->node_stride;
   const double dt = st->dt, w1 = sw->wv1, wb = sw->w[0] * sw->cB[0];
   const double wc = sw->w[0] * sw->cA[0], *g = sw->gpt[0];
@@ -2508,28 +2519,7 @@ static int end_parts(mrvi_sweep *sw, const mrvi_step *st, double *x,
           zv[ns + f] = xe[f];
       }
     }
-    if (w1 != 0.0 && n_vpart > 0) {
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-      for (int c = 0; c < n_vpart; c++)
-        mrvi_terms_grad_part(sw->kc[MRVI_SLOW], c, zv, gv);
-    } else if (w1 != 0.0) {
-#ifdef _OPENMP
-#pragma omp single
-#endif
-      mrvi_terms_grad(sw->kc[MRVI_SLOW], zv, gv); /* (a serial class) */
-    }
-#ifdef _OPENMP
-#pragma omp for schedule(static) nowait
-#endif
-    for (int c = 0; c < n_cs; c++)
-      csum[c] = end_part(sw, c, ns, n_cs, gv, NULL, x, ps1);
-#ifdef _OPENMP
-#pragma omp for schedule(static) nowait
-#endif
-    for (int c = 0; c < n_c; c++)
-      csum[n_cs + c] = end_part(sw, c, nf, n_c, gv + ns, NULL, xe, pe);
+    end_v_parts(sw, zv, gv, NULL, x, ps1, xe, pe, n_c, csum);
   }
   double sum = 0.0;
   for (int c = 0; c < n_cs + n_c; c++)
