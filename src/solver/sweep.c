@@ -2426,13 +2426,14 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
-    for (int c = 0; c < n_c; c++)
-      for (int f = mrvi_part_start(c, nf, n_c);
-           f < mrvi_part_start(c + 1, nf, n_c); f++) {
+    for (int c = 0; c < n_c; c++) {
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      for (int f = mrvi_part_start(c, nf, n_c); f < f1; f++) {
         pf[f] = pf0[f] - w0 * gv[ns + f];     /* p^{f,0} */
         dn[f] = dt * minv[f] * (pf[f] - 0.0); /* (fimp 0) */
         zf[f] = 1.0 * qm[f] + cB * dn[f];
       }
+    }
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
@@ -2498,13 +2499,14 @@ static int end_parts(mrvi_sweep *sw, const mrvi_step *st, double *x,
 #ifdef _OPENMP
 #pragma omp for schedule(static) nowait
 #endif
-    for (int c = 0; c < n_cs; c++)
-      for (int s = mrvi_part_start(c, ns, n_cs);
-           w1 != 0.0 && s < mrvi_part_start(c + 1, ns, n_cs); s++) {
+    for (int c = 0; c < n_cs; c++) {
+      const int s1 = w1 != 0.0 ? mrvi_part_start(c + 1, ns, n_cs) : 0;
+      for (int s = mrvi_part_start(c, ns, n_cs); s < s1; s++) {
         gv[s] = 0.0;
         if (zv != x)
           zv[s] = x[s];
       }
+    }
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
