@@ -438,6 +438,24 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
             "d %d %s (%g): %d parts by %s: the serial gradient, diagonal and "
             "row sums bitwise",
             d, lc->law, lc->params[1], np, by_rec ? "records" : "columns");
+      /* ... and sweep-cg's row 0 estimate on threads (start_parts): the
+       * parts' gradient is mrvi_terms_eval's at unit scale without J
+       * bitwise, also with one division per Hooke spring (set_recip, the
+       * chord's classes, which mrvi_terms_eval then takes as well). */
+      for (int recip = 0; recip <= 1 && w3 && kt && np >= 2; recip++) {
+        if (recip)
+          mrvi_terms_set_recip(kt);
+        for (int i = 0; i < 2 * n; i++)
+          w3[i] = 0.0;
+        mrvi_terms_eval(kt, q, 1.0, w3, NULL, n, hscale);
+        for (int c = np - 1; c >= 0; c--)
+          mrvi_terms_grad_part(kt, c, q, w3 + n);
+        CHECK(memcmp(w3, w3 + n, (size_t)n * sizeof *w3) == 0,
+              "d %d %s (%g): %d parts by %s%s: mrvi_terms_eval's gradient "
+              "bitwise",
+              d, lc->law, lc->params[1], np, by_rec ? "records" : "columns",
+              recip ? ", one division" : "");
+      }
       mrvi_terms_free(kt);
       free(w3);
     }

@@ -212,6 +212,17 @@ if h5diff "$tmp/last.1.h5" "$tmp/last.3.h5" /macro/q /macro/q >/dev/null 2>&1 &&
 else
   fail "fully-explicit, micro output off: 3 threads give 1's macro nodes bit for bit"
 fi
+# ... and explicit-slow (sweep-cg's last node in place, grad V read from x
+# itself: end_parts).
+run_ok "explicit-slow, micro output off, on 3 threads" "$mrvi" run "$sys" \
+  "${common[@]}" --set output.micro=false \
+  --set integrator.scheme=explicit-slow --threads 3 -o "$tmp/eslast.3.h5"
+if h5diff "$tmp/eslast.3.h5" "$tmp/explicit-slow.1.h5" /macro /macro \
+  >/dev/null 2>&1; then
+  pass "explicit-slow, micro output off: 3 threads give 1's macro nodes bit for bit"
+else
+  fail "explicit-slow, micro output off: 3 threads give 1's macro nodes bit for bit"
+fi
 
 # Resume across thread counts: 2 threads to t = 0.25, extended on 3.
 scheme=explicit-slow

@@ -141,6 +141,23 @@ struct mrvi_sweep {
    * parts' gradients still read zf), which then becomes zf. */
   int n_cpass, pthreads, cfused;
   double *cpass, *zalt;
+  /* With cfused, sweep-cg's step start (the slow row, p^{f,0}, row 0's
+   * estimate and its first chord iterate: start_parts) and its end (the
+   * last node, grad V there, the end momenta and end_check: end_parts)
+   * each in one parallel region, the slow rows in n_cs parts; pstart:
+   * row 0's estimate formed there, its r0, scale, first residual and
+   * bound in pre[4] (solve_implicit takes them). */
+  int pstart, pend;
+  double pre[4];
+  /* A row's end deferred to the next row's first chord update on threads
+   * (end_predict_row, chord_residual: one parallel region for both, a
+   * barrier between): on, its order q, cB and nodes. */
+  struct {
+    int on, q;
+    double cB;
+    const double *qm;
+    double *qn, *pn;
+  } defer;
   /* The predictor of the next row formed at the end of the last one
    * (end_predict), with its round-off scale. */
   int predicted;
@@ -522,7 +539,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   }
   sw->gnode = dalloc(nf);
   sw->qalt = dalloc(sw->threads > 1 ? nf : 1);
-  if (sw->threads > 1) {
+  if (sw->threads > 1 || (sw->implicit && threads > 1)) { /* (end_parts) */
     const int chunk = s->tuning.thread_chunk;
     sw->n_cs =
         (int)ns >= 2 * chunk ? mrvi_even_parts((int)ns, chunk) : (ns > 0);
@@ -569,7 +586,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->pthreads = threads;
   sw->cfused = sw->n_cpass > 0 && mrvi_terms_threads(sw->kc[MRVI_FAST]) > 1 &&
                mrvi_terms_parts(sw->kc[MRVI_FAST]) == sw->n_cpass;
-  sw->cpass = dalloc(5 * (size_t)sw->n_cpass); /* (+ fresh_parts' bounds) */
+  /* (+ fresh_parts' bounds, start_parts' r0 and scale) */
+  sw->cpass = dalloc(7 * (size_t)sw->n_cpass);
+
   sw->zalt = dalloc(sw->cfused ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
@@ -1060,6 +1079,39 @@ static double fresh_bound(mrvi_sweep *sw, int f0, int f1) {
   return bound;
 }
 
+/* Part c of fresh_parts below (after its barrier): the part's gradient
+ * rows with the Hessian diagonal and off-diagonal sums at zf, its D^-1
+ * and bound, and its pass, the next configuration into zn. */
+static void fresh_part(mrvi_sweep *sw, int c, const double *qm,
+                       const double *dn, const double *zf, double *zn) {
+  const int nf = sw->nf, i = sw->imp, n_c = sw->n_cpass;
+  const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
+  const double hs = wc * sw->cB[i], om = 1.0 / (1.0 - sw->lam);
+  const int f0 = mrvi_part_start(c, nf, n_c);
+  const int f1 = mrvi_part_start(c + 1, nf, n_c);
+  double *g = sw->gpt[i];
+  zero(g + f0, f1 - f0);
+  zero(sw->hd + f0, f1 - f0);
+  zero(sw->off + f0, f1 - f0);
+  mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, sw->hd, sw->off, hs);
+  sw->cpass[4 * n_c + c] = fresh_bound(sw, f0, f1); /* (after the sums) */
+  chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, sw->cpass + 4 * c, 0);
+}
+
+/* After the parts: zn becomes zf, the bound and row residual returned. */
+static double fresh_end(mrvi_sweep *sw, double *zf, double *zn, double *rho) {
+  const int n_c = sw->n_cpass;
+  const double *bound = sw->cpass + 4 * n_c;
+  sw->zalt = zf;
+  sw->zf = zn;
+  double b = 0.0, t[4];
+  for (int c = 0; c < n_c; c++) /* (in order; no NaN among them) */
+    b = bound[c] > b ? bound[c] : b;
+  *rho = sw->rho_c = b;
+  chord_parts_sum(sw->cpass, n_c, t);
+  return isnan(t[1]) ? t[1] : t[0];
+}
+
 /* chord_residual's first iterate of row 0 (fresh) where the fast class is
  * in the chord's parts (sw->cfused, on threads), in one parallel region:
  * the configuration in the parts' rows, then (after the barrier) each
@@ -1071,11 +1123,9 @@ static double fresh_bound(mrvi_sweep *sw, int f0, int f1) {
  * sums per part). */
 static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
                           int zf_ok, double *rho) {
-  const int nf = sw->nf, i = sw->imp, n_c = sw->n_cpass;
-  const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
-  const double hs = wc * sw->cB[i], om = 1.0 / (1.0 - sw->lam);
-  double *g = sw->gpt[i], *zf = sw->zf, *zn = sw->zalt, *cp = sw->cpass;
-  double *bound = cp + 4 * n_c; /* (after the sums) */
+  const int nf = sw->nf, n_c = sw->n_cpass;
+  const double cB = sw->cB[sw->imp];
+  double *zf = sw->zf, *zn = sw->zalt;
   sw->evals_w++;
 #ifdef _OPENMP
 #pragma omp parallel num_threads(sw->pthreads)
@@ -1093,26 +1143,10 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
-    for (int c = 0; c < n_c; c++) {
-      const int f0 = mrvi_part_start(c, nf, n_c);
-      const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      zero(g + f0, f1 - f0);
-      zero(sw->hd + f0, f1 - f0);
-      zero(sw->off + f0, f1 - f0);
-      mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, sw->hd, sw->off,
-                                 hs);
-      bound[c] = fresh_bound(sw, f0, f1);
-      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c, 0);
-    }
+    for (int c = 0; c < n_c; c++)
+      fresh_part(sw, c, qm, dn, zf, zn);
   }
-  sw->zalt = zf;
-  sw->zf = zn;
-  double b = 0.0, t[4];
-  for (int c = 0; c < n_c; c++) /* (in order; no NaN among them) */
-    b = bound[c] > b ? bound[c] : b;
-  *rho = sw->rho_c = b;
-  chord_parts_sum(cp, n_c, t);
-  return isnan(t[1]) ? t[1] : t[0];
+  return fresh_end(sw, zf, zn, rho);
 }
 
 /* The row residual of a chord iterate with one implicit point, whose
@@ -1149,12 +1183,20 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
  * needed), and the full pass follows, with the gradient kept, where it is
  * not: the same r, lam and iterates either way, only a pass more or
  * less. */
+static void defer_flush(mrvi_sweep *sw);
+static void defer_part(mrvi_sweep *sw, int c, double *dn);
+static void defer_end(mrvi_sweep *sw);
+
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
                              int zf_ok, int fresh, int track, int light,
                              double *rho) {
   const int nf = sw->nf, i = sw->imp;
   const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
+  /* the last row's end, unless it runs in the first update's region */
+  const int dfr = sw->defer.on && !fresh && sw->cfused && zf_ok && !light;
+  if (sw->defer.on && !dfr)
+    defer_flush(sw);
   if (fresh && sw->cfused) /* (on threads: in the parts) */
     return fresh_parts(sw, qm, dn, zf_ok, rho);
   if (!zf_ok)
@@ -1182,16 +1224,33 @@ again:
     double *cp = sw->cpass, *zn = grad && !light ? sw->zalt : sw->zf;
     const double *zf = sw->zf;
     sw->evals_w += grad;
-    MRVI_PARALLEL_FOR(sw->pthreads)
-    for (int c = 0; c < n_c; c++) {
-      const int f0 = mrvi_part_start(c, nf, n_c);
-      const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
-        zero(g + f0, f1 - f0);
-        mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+    {
+      if (dfr) { /* (the last row's end: this row's start, then a barrier) */
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+        for (int c = 0; c < n_c; c++)
+          defer_part(sw, c, (double *)dn);
       }
-      chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c, light);
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_c; c++) {
+        const int f0 = mrvi_part_start(c, nf, n_c);
+        const int f1 = mrvi_part_start(c + 1, nf, n_c);
+        if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
+          zero(g + f0, f1 - f0);
+          mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+        }
+        chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c,
+                        light);
+      }
     }
+    if (dfr)
+      defer_end(sw);
     if (grad && !light) { /* (zalt: the next configuration) */
       sw->zalt = sw->zf;
       sw->zf = zn;
@@ -1247,7 +1306,11 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
   double scale = 0.0;
   /* (row 0 too extrapolates where the last step's rows are kept) */
   int pred = (!first || sw->carry > 0) && sw->sparse, zf_ok = 0;
-  if (pred) {
+  const int pre = first && sw->pstart; /* (formed by start_parts) */
+  if (pre) {
+    r0 = sw->pre[0];
+    scale = sw->pre[1];
+  } else if (pred) {
     zf_ok = sw->chord && sw->imp >= 0;
     scale = sw->predicted ? sw->pred_scale
                           : extrapolated_predictor(
@@ -1270,12 +1333,14 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       }
     }
   }
-  for (int f = 0; !pred && f < nf; f++) { /* (fmax's NaN rule, no call) */
+  for (int f = 0; !pred && !pre && f < nf; f++) { /* (fmax's NaN rule) */
     const double v =
         (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) * sw->rw[f];
     scale = v > scale ? v : scale;
   }
-  const double floor = 16.0 * DBL_EPSILON * scale;
+  double floor = 16.0 * DBL_EPSILON * scale;
+  /* (a deferred row end sets the scale in the first update: end_predict) */
+  int deferred = pred && sw->defer.on;
   /* Newton evaluates J with the residual where an update follows for sure
    * (the first iterate), else the residual alone and J only where that
    * residual misses the tolerance (a second evaluation, the same values):
@@ -1290,9 +1355,18 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     double r = 0.0;
     if (chord && sw->imp >= 0) {
       double rho = 0.0;
-      r = chord_residual(
-          sw, qm, dn, zf_ok, first && sw->fresh && it == 0, it >= 1,
-          it >= min_it && it >= (first ? sw->expect0 : sw->expect), &rho);
+      if (pre && it == 0 && sw->pstart) { /* (start_parts' first iterate) */
+        r = sw->pre[2];
+        rho = sw->pre[3];
+        sw->pstart = 0;
+      } else
+        r = chord_residual(
+            sw, qm, dn, zf_ok, first && sw->fresh && it == 0, it >= 1,
+            it >= min_it && it >= (first ? sw->expect0 : sw->expect), &rho);
+      if (deferred) {
+        floor = 16.0 * DBL_EPSILON * sw->pred_scale;
+        deferred = 0;
+      }
       zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
@@ -1596,8 +1670,9 @@ static double check_part(const double *x, const double *y, int c, int n,
 }
 
 /* Slow part c at the explicit step's start (sweep_step's slow row:
- * q_{k+1}^s and ps1 by grad V at node k), its rows of gn cleared for grad
- * V at the end node and, where V reads a copy (zv not x), x's copied. */
+ * q_{k+1}^s and ps1 by grad V at node k), its rows of gn (unless NULL)
+ * cleared for grad V at the end node and, where V reads a copy (zv not
+ * x), x's copied. */
 static void slow_start_part(const mrvi_sweep *sw, const mrvi_step *st, int c,
                             const double *gv, double *x, double *ps1,
                             double *gn, double *zv) {
@@ -1610,7 +1685,8 @@ static void slow_start_part(const mrvi_sweep *sw, const mrvi_step *st, int c,
       v += frow[s];
     ps1[s] = v;
     x[s] = qs0[s] + dT * sw->minv_s[s * sw->inc_s] * v;
-    gn[s] = 0.0;
+    if (gn)
+      gn[s] = 0.0;
     if (zv != x)
       zv[s] = x[s];
   }
@@ -1647,6 +1723,40 @@ static double end_part(const mrvi_sweep *sw, int c, int n, int n_part,
   return check_part(q, pe, c, n, n_part);
 }
 
+/* In a parallel region (its loops shared by the region's threads): grad
+ * V at the end node zv (complete) into gn (cleared) in V's parts, then the
+ * end momenta and end_check's sums of the n_cs slow and n_f fast parts
+ * (end_part) into csum, no barrier after them. */
+static void end_v_parts(const mrvi_sweep *sw, const double *zv, double *gn,
+                        const double *fe, const double *x, double *ps1,
+                        const double *xe, double *pe, int n_f, double *csum) {
+  const int ns = sw->ns, nf = sw->nf, n_cs = sw->n_cs;
+  const int n_vpart = mrvi_terms_parts(sw->kc[MRVI_SLOW]);
+  if (sw->wv1 != 0.0 && n_vpart > 0) {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_vpart; c++)
+      mrvi_terms_grad_part(sw->kc[MRVI_SLOW], c, zv, gn);
+  } else if (sw->wv1 != 0.0) {
+#ifdef _OPENMP
+#pragma omp single
+#endif
+    mrvi_terms_grad(sw->kc[MRVI_SLOW], zv, gn); /* (a serial class) */
+  }
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+  for (int c = 0; c < n_cs; c++)
+    csum[c] = end_part(sw, c, ns, n_cs, gn, fe, x, ps1);
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+  for (int c = 0; c < n_f; c++)
+    csum[n_cs + c] =
+        end_part(sw, c, nf, n_f, gn + ns, fe ? fe + ns : NULL, xe, pe);
+}
+
 /* The fast configuration of node m + 1 (row m's left end: st->qf0 for m =
  * -1) in explicit_step_par: x's row m, or with node_stride 0 x's fast
  * part and qalt alternately, node p in x. */
@@ -1672,7 +1782,6 @@ static int explicit_step_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
                              double *ps1, double *pf, char *msg, size_t len) {
   const int ns = sw->ns, nf = sw->nf, p = sw->p, nl = sw->nl, nr = sw->nr;
   const int n_part = mrvi_terms_parts(sw->kc[MRVI_FAST]), n_cs = sw->n_cs;
-  const int n_vpart = mrvi_terms_parts(sw->kc[MRVI_SLOW]);
   const double dt = st->dt, w0 = sw->wv0, w1 = sw->wv1, *wr = sw->wr;
   /* grad V at node k: kept from the last step's end node, else evaluated */
   if (w0 != 0.0 && !sw->gv_ok)
@@ -1742,31 +1851,9 @@ static int explicit_step_par(mrvi_sweep *sw, const mrvi_step *st, double *x,
         memcpy(zv + ns + f0, xe + f0, (size_t)(f1 - f0) * sizeof(double));
       }
     }
-    if (w1 != 0.0 && n_vpart > 0) {
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-      for (int c = 0; c < n_vpart; c++)
-        mrvi_terms_grad_part(sw->kc[MRVI_SLOW], c, zv, gn);
-    } else if (w1 != 0.0) {
-#ifdef _OPENMP
-#pragma omp single
-#endif
-      mrvi_terms_grad(sw->kc[MRVI_SLOW], zv, gn); /* (a serial class) */
-    }
     /* the end momenta: each part's rows by the thread that wrote them
      * where V is not evaluated (the same static schedules) */
-#ifdef _OPENMP
-#pragma omp for schedule(static) nowait
-#endif
-    for (int c = 0; c < n_cs; c++)
-      csum[c] = end_part(sw, c, ns, n_cs, gn, fe, x, ps1);
-#ifdef _OPENMP
-#pragma omp for schedule(static) nowait
-#endif
-    for (int c = 0; c < n_part; c++)
-      csum[n_cs + c] =
-          end_part(sw, c, nf, n_part, gn + ns, fe ? fe + ns : NULL, xe, pe);
+    end_v_parts(sw, zv, gn, fe, x, ps1, xe, pe, n_part, csum);
   }
   sw->gnode_ok = nr > 0;
   sw->evals_w += g0 + (long)(p - 1) * (nl > 0 && nr == 0) + (long)p * (nr > 0);
@@ -2057,6 +2144,17 @@ static void end_predict_row(mrvi_sweep *sw, int m, const double *qm, double *qn,
   const double cB = sw->chord && sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
   double *dn = sw->dn, scale = 0.0;
   const double *g = sw->gpt[0];
+  if (n_c > 0 && sw->pthreads > 1 && sw->cfused && cB != 0.0) {
+    /* (in the next row's first chord update: chord_residual) */
+    sw->defer.on = 1;
+    sw->defer.q = q;
+    sw->defer.cB = cB;
+    sw->defer.qm = qm;
+    sw->defer.qn = qn;
+    sw->defer.pn = pn;
+    sw->predicted = 1;
+    return;
+  }
   if (n_c > 0 && sw->pthreads > 1) {
     double *cp = sw->cpass;
     MRVI_PARALLEL_FOR(sw->pthreads)
@@ -2072,6 +2170,38 @@ static void end_predict_row(mrvi_sweep *sw, int m, const double *qm, double *qn,
   rotate_history(sw);
   sw->pred_scale = scale;
   sw->predicted = 1;
+}
+
+/* The deferred row end (end_predict_row) of part c, its scale into the
+ * slots after start_parts' (free then). */
+static void defer_part(mrvi_sweep *sw, int c, double *dn) {
+  const int nf = sw->nf, n_c = sw->n_cpass;
+  sw->cpass[5 * n_c + c] =
+      end_predict(sw, sw->defer.q, sw->defer.cB, sw->defer.qm, dn, sw->gpt[0],
+                  sw->defer.qn, sw->defer.pn, mrvi_part_start(c, nf, n_c),
+                  mrvi_part_start(c + 1, nf, n_c));
+}
+
+/* After the deferred row end's parts: the largest scale (exact in any
+ * order), the history moved on. */
+static void defer_end(mrvi_sweep *sw) {
+  double scale = 0.0;
+  for (int c = 0; c < sw->n_cpass; c++)
+    scale = sw->cpass[5 * sw->n_cpass + c] > scale
+                ? sw->cpass[5 * sw->n_cpass + c]
+                : scale;
+  rotate_history(sw);
+  sw->pred_scale = scale;
+  sw->defer.on = 0;
+}
+
+/* The deferred row end in a parallel region of its own (where the next
+ * row's first update cannot take it). */
+static void defer_flush(mrvi_sweep *sw) {
+  MRVI_PARALLEL_FOR(sw->pthreads)
+  for (int c = 0; c < sw->n_cpass; c++)
+    defer_part(sw, c, sw->dn);
+  defer_end(sw);
 }
 
 static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
@@ -2132,6 +2262,10 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     sw->gnode_ok = 0;
     if (own && m + 1 < p) {
       end_predict_row(sw, m, qm, qn, pn);
+      pm = pn;
+      continue;
+    }
+    if (own && sw->pend) { /* (the last node: end_parts) */
       pm = pn;
       continue;
     }
@@ -2254,6 +2388,147 @@ ALWAYS_INLINE int explicit_p1(mrvi_sweep *sw, const mrvi_step *st,
   return end_check(sw, x, x + ns, ps1, pf, msg, len, ns, nf);
 }
 
+/* sweep-cg's step start on threads (sw->cfused; row 0 from the free
+ * flight with the chord from its start, one implicit point, no control
+ * force: sweep_par): sweep_step's slow row and p^{f,0}, solve_implicit's
+ * row 0 estimate (the free flight dn0 = dt M^-1 p^{f,0}, the implicit
+ * force at it, its residual r0 and copy dff, the second free flight dn =
+ * dt M^-1 (p^{f,0} - fimp) and the round-off scale) and the first chord
+ * iterate (fresh_part) in one parallel region, two barriers where each
+ * configuration is complete: the slow rows in n_cs parts, the fast rows
+ * in the chord's parts, the gradients in W's (the same rows), each
+ * entry's serial arithmetic (mrvi_terms_grad_part: mrvi_terms_eval's
+ * gradient bitwise, test_kernels).  The maxima combined in order by the
+ * serial loops' rules (r0's NaN absorbing), so the same bits for every
+ * thread count; r0, the scale, the iterate's residual and bound into
+ * sw->pre for solve_implicit. */
+static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
+                        double *x, double *ps1, double *pf) {
+  const int nf = sw->nf, ns = sw->ns, n_c = sw->n_cpass, n_cs = sw->n_cs;
+  const int i = sw->imp;
+  const double dt = st->dt, w0 = sw->wv0, wc = sw->w[i] * sw->cA[i];
+  const double cB = sw->cB[i], *qm = st->qf0, *pf0 = st->pf0;
+  const double *minv = sw->minv_f, *mf = sw->m_f, *rw = sw->rw;
+  double *dn = sw->dn, *g = sw->gpt[i], *fimp = sw->fimp, *dff = sw->dff;
+  double *zf = sw->zf, *z1 = sw->zalt, *cp = sw->cpass + 5 * n_c;
+  sw->rhs = pf; /* (general_sweep's row 0: its momentum) */
+  sw->lam = 0.0;
+  sw->evals_w += 2; /* (the estimate's gradient and the iterate's) */
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+  {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int c = 0; c < n_cs; c++)
+      slow_start_part(sw, st, c, gv, x, ps1, NULL, x);
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++) {
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      for (int f = mrvi_part_start(c, nf, n_c); f < f1; f++) {
+        pf[f] = pf0[f] - w0 * gv[ns + f];     /* p^{f,0} */
+        dn[f] = dt * minv[f] * (pf[f] - 0.0); /* (fimp 0) */
+        zf[f] = 1.0 * qm[f] + cB * dn[f];
+      }
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      double r0 = 0.0, scale = 0.0;
+      zero(g + f0, f1 - f0);
+      mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+      for (int f = f0; f < f1; f++) {
+        fimp[f] = 0.0 + wc * g[f];
+        dff[f] = dn[f];
+        const double a = fabs(pf[f] - mf[f] * dn[f] / dt - fimp[f]) * rw[f];
+        r0 = isnan(a) || a > r0 ? a : r0;
+        dn[f] = dt * minv[f] * (pf[f] - fimp[f]);
+        const double v = (fabs(pf[f]) + 4.0 * mf[f] * fabs(qm[f]) / dt) * rw[f];
+        scale = v > scale ? v : scale;
+        z1[f] = 1.0 * qm[f] + cB * dn[f]; /* (zf still read) */
+      }
+      cp[2 * c] = r0;
+      cp[2 * c + 1] = scale;
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++)
+      fresh_part(sw, c, qm, dn, z1, zf);
+  }
+  double r0 = 0.0, scale = 0.0;
+  for (int c = 0; c < n_c; c++) {
+    r0 = isnan(cp[2 * c]) || cp[2 * c] > r0 ? cp[2 * c] : r0;
+    scale = cp[2 * c + 1] > scale ? cp[2 * c + 1] : scale;
+  }
+  sw->pre[0] = r0;
+  sw->pre[1] = scale;
+  sw->pre[2] = fresh_end(sw, z1, zf, &sw->pre[3]);
+  sw->pstart = 1;
+}
+
+/* sweep-cg's step end on threads (sw->pend): the last node and its
+ * momentum (general_sweep's node_momentum), grad V at the end node and
+ * the end momenta with end_check's sums (sweep_step's end_potential and
+ * end_check) in one parallel region: the node in the chord's parts, with
+ * the slow rows' and its rows of grad V cleared and of V's configuration
+ * copied where V reads a copy; V's gradient in its parts; the momenta and
+ * sums in the slow and fast parts (end_part), added in order. */
+static int end_parts(mrvi_sweep *sw, const mrvi_step *st, double *x,
+                     double *ps1, double *pf, char *msg, size_t len) {
+  const int ns = sw->ns, nf = sw->nf, p = sw->p, n_c = sw->n_cpass;
+  const int n_cs = sw->n_cs;
+  const size_t stride = sw->node_stride;
+  const double dt = st->dt, w1 = sw->wv1, wb = sw->w[0] * sw->cB[0];
+  const double wc = sw->w[0] * sw->cA[0], *g = sw->gpt[0];
+  const double *qm = p == 1 ? st->qf0 : x + ns + (size_t)(p - 2) * stride;
+  double *xe = x + ns + (size_t)(p - 1) * stride;
+  double *pe = pf + (size_t)(p - 1) * stride, *gv = sw->gv, *csum = sw->csum;
+  double *zv = xe == x + ns ? x : sw->zv; /* (slow_gradient's) */
+  sw->evals_v += w1 != 0.0;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+  {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int c = 0; c < n_cs; c++) {
+      const int s1 = w1 != 0.0 ? mrvi_part_start(c + 1, ns, n_cs) : 0;
+      for (int s = mrvi_part_start(c, ns, n_cs); s < s1; s++) {
+        gv[s] = 0.0;
+        if (zv != x)
+          zv[s] = x[s];
+      }
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      node_momentum(f1 - f0, dt, wb, qm + f0, sw->dn + f0, sw->m_f + f0, g + f0,
+                    xe + f0, pe + f0, wc, sw->fimp + f0);
+      for (int f = f0; w1 != 0.0 && f < f1; f++) {
+        gv[ns + f] = 0.0;
+        if (zv != x)
+          zv[ns + f] = xe[f];
+      }
+    }
+    end_v_parts(sw, zv, gv, NULL, x, ps1, xe, pe, n_c, csum);
+  }
+  double sum = 0.0;
+  for (int c = 0; c < n_cs + n_c; c++)
+    sum += csum[c];
+  return end_status(sw, sum, msg, len);
+}
+
 /* mrvi_sweep_step for ns slow and nf fast coordinates (constants for small
  * blocks, so that the loops over them unroll). */
 ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
@@ -2269,7 +2544,14 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
    * with tuning.chord_carry, the last step's rows where it kept them. */
   sw->carry = sw->carry_next;
   sw->carry_next = 0;
-  if (sw->implicit && !sw->carry)
+  /* sweep-cg on threads: its start and end each in one parallel region
+   * (start_parts, end_parts) */
+  const int own = sw->cfused && sw->n_w == 1 && !st->f_rows;
+  sw->pend = own && !st->f_end;
+  sw->pstart = 0;
+  const int pstart = own && !sw->carry && sw->fresh && sw->imp >= 0 &&
+                     sw->chord_max > 0.0 && sw->cB[sw->imp] != 0.0;
+  if (sw->implicit && !sw->carry && !pstart)
     zero(sw->fimp, nf);
   else if (sw->threads > 1)
     return explicit_step_par(sw, st, x, ps1, pf, msg, len);
@@ -2284,8 +2566,10 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double *ps0 = st->ps0, *qs0 = st->qs0, *pf0 = st->pf0;
   const double *frow = st->f_rows, *minv_s = sw->minv_s;
   const int inc_s = sw->inc_s;
+  if (pstart)
+    start_parts(sw, st, gv, x, ps1, pf);
   UNROLL
-  for (int s = 0; s < ns; s++) {
+  for (int s = 0; !pstart && s < ns; s++) {
     double v = ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
     if (frow)
       v += frow[s];
@@ -2295,7 +2579,7 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
   double *pm = pf; /* momentum at node m (row m's left part) */
   UNROLL
-  for (int f = 0; f < nf; f++)
+  for (int f = 0; !pstart && f < nf; f++)
     pm[f] = pf0[f] - w0 * gv[ns + f];
   int done = 0;
   if (!sw->implicit) {
@@ -2318,8 +2602,8 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   }
   if (!done) {
     const int s = general_sweep(sw, st, x, pf, iterations, residual, msg, len);
-    if (s < 0)
-      return s;
+    if (s < 0 || sw->pend)
+      return s < 0 ? s : end_parts(sw, st, x, ps1, pf, msg, len);
   }
   /* V at node k+1 enters the momenta only: ps1 and p^{f,p}. */
   double *pe = pf + (size_t)(p - 1) * sw->node_stride;
