@@ -38,7 +38,9 @@
  * left, and mu_{g-1} solves the transposed micro step
  *   (M^f/dt + sum_{P of g-1} w cA cB hess W(z_P)) mu_{g-1}
  *     = M^f/dt (2 mu_g - mu_{g+1}) - R_g
- * by CG with Hessian-vector products at the points (sweep_adjoint). */
+ * by CG with Hessian-vector products at the points (sweep_adjoint), or,
+ * where W's springs join the fast particles in a forest (chains, trees),
+ * exactly by block elimination along it (struct ocp_forest). */
 #include "ocp/ocp_internal.h"
 #include "util/simd.h"
 #include "util/small.h"
