@@ -823,6 +823,11 @@ typedef enum mrvi_newton_criterion {
     "that CG, where a micro interval has one point inside (the midpoint), "    \
     "solves for cA mu_{g-1} + cB mu_g and takes the interval's other "         \
     "products from the CG's residual (0: two products more per interval)")     \
+  X(int, adjoint_forest, 1, 0, 1,                                              \
+    "that CG's micro-step matrix, where W's elements are springs and "         \
+    "anchors whose springs join the fast particles in a forest (chains, "      \
+    "trees), solved instead by block elimination along the forest, leaves "    \
+    "first (0: the CG)")                                                       \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
     "revolute and weld joints takes the joint-reduced basis (0: the "          \

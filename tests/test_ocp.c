@@ -1122,7 +1122,9 @@ static void test_adjoint_krylov(void) {
  * solves of the assembled step Jacobian (tuning.adjoint_explicit = 0, with
  * the sparse LU: adjoint_krylov = 0) on the lattice of 200 coordinates,
  * at two controls in turn: the same gradients to 1e-12 relative on the
- * explicit path (no iteration), 1e-11 on sweep-cg (its micro steps' CG at
+ * explicit path (no iteration) and on sweep-cg where its micro steps are
+ * solved by elimination along the lattice's fast chains (adjoint_forest),
+ * 1e-11 where by the CG (adjoint_forest = 0, or no kept blocks: at
  * adjoint_krylov_rtol = 1e-10); and central differences (1e-6).
  * fully-explicit at p = 10 and p = 1 (velocity Verlet; dT = 0.025, away
  * from its stability limit, where the differences lose digits), the
@@ -1158,6 +1160,18 @@ static void adjoint_explicit_variant(const char *what, const char *scheme,
         "adjoint explicit, %s: gradients differ from the assembled "
         "adjoint's by %.3e (scale %.3e)",
         what, err, sc);
+  /* explicit-slow's micro steps: by elimination along the lattice's
+   * fast chains (tuning adjoint_forest), no CG; by the CG alone where
+   * that is off (or the Hessian blocks are not kept) */
+  if (strcmp(path_want, "sweep-cg") == 0) {
+    const int cg = (ov1 && strstr(ov1, "adjoint_forest=0")) ||
+                   (ov2 && strstr(ov2, "adjoint_hessblocks=0"));
+    CHECK(cg ? o[0]->adjoint_forest_solves == 0 && o[0]->adjoint_cg_solves > 0
+             : o[0]->adjoint_forest_solves > 0 && o[0]->adjoint_cg_solves == 0,
+          "adjoint explicit, %s: %ld micro steps by the forest, %ld by the "
+          "CG",
+          what, o[0]->adjoint_forest_solves, o[0]->adjoint_cg_solves);
+  }
   /* Nothing of an evaluation carries over into the next: the first
    * controls' gradients again after a value alone at the second, bitwise
    * the first's. */
@@ -1193,15 +1207,17 @@ static void test_adjoint_explicit(void) {
                            "explicit", 1e-12,
                            "integrator.slow={grid: macro, alpha: 0.3}",
                            "integrator.fast={alpha: 0.7, gamma: 0}");
-  adjoint_explicit_variant("explicit-slow", es, "sweep-cg", 1e-11, NULL, NULL);
+  adjoint_explicit_variant("explicit-slow", es, "sweep-cg", 1e-12, NULL, NULL);
+  adjoint_explicit_variant("explicit-slow, CG", es, "sweep-cg", 1e-11,
+                           "integrator.tuning.adjoint_forest=0", NULL);
   adjoint_explicit_variant("explicit-slow, products", es, "sweep-cg", 1e-11,
                            "integrator.tuning.adjoint_one_point=0",
                            "integrator.tuning.adjoint_hessblocks=0");
-  adjoint_explicit_variant("explicit-slow, p = 1", es, "sweep-cg", 1e-11,
+  adjoint_explicit_variant("explicit-slow, p = 1", es, "sweep-cg", 1e-12,
                            "integrator.micro_steps=1",
                            "integrator.macro_step=0.025");
   adjoint_explicit_variant("explicit-slow, fast alpha 0.4 gamma 0.3", es,
-                           "sweep-cg", 1e-11,
+                           "sweep-cg", 1e-12,
                            "integrator.fast={alpha: 0.4, gamma: 0.3}", NULL);
 }
 

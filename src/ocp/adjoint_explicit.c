@@ -38,9 +38,12 @@
  * left, and mu_{g-1} solves the transposed micro step
  *   (M^f/dt + sum_{P of g-1} w cA cB hess W(z_P)) mu_{g-1}
  *     = M^f/dt (2 mu_g - mu_{g+1}) - R_g
- * by CG with Hessian-vector products at the points (sweep_adjoint). */
+ * by CG with Hessian-vector products at the points (sweep_adjoint), or,
+ * where W's springs join the fast particles in a forest (chains, trees),
+ * exactly by block elimination along it (struct ocp_forest). */
 #include "ocp/ocp_internal.h"
 #include "util/simd.h"
+#include "util/small.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -86,6 +89,9 @@ static int w_inside(const mrvi_ocp *o) {
   return 0;
 }
 
+struct ocp_forest;
+static struct ocp_forest *forest_build(const mrvi_ocp *o);
+
 /* Workspace (doubles): per functional hV and its vector (ns + nf each);
  * then zV (ns + nf), dT/M^s and M^s/dT (ns each), dt/M^f and M^f/dt (nf
  * each), ww (p + 1); the sweep's below. */
@@ -127,6 +133,11 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
   if (o->adj_hb > 0 &&
       !(o->adj_blocks = malloc(2 * (size_t)o->adj_hb * sizeof(double))))
     return MRVI_ENOMEM;
+  /* explicit-slow's micro steps by elimination along W's forest of
+   * springs (tuning adjoint_forest; where it is none: by the CG) */
+  o->adj_forest = NULL;
+  if (o->adj_hb > 0 && o->settings.tuning.adjoint_forest && w_inside(o))
+    o->adj_forest = forest_build(o);
   o->adj_explicit = 1;
   return MRVI_OK;
 }
@@ -334,6 +345,550 @@ static void interval_setup(const mrvi_ocp *o, interval_op *B, long at, int m,
       B->hb[i] = hbW + i * nhb;
       mrvi_terms_hessblocks(o->adj_terms[MRVI_FAST], z, B->hb[i]);
     }
+  }
+}
+
+/* explicit-slow's transposed micro-step matrix K + sum_P c_P hess W(z_P)
+ * (K = M^f/dt, c_P = w cA cB) where W's elements are springs and anchors
+ * (mrvi_terms_hessblocks_springs) whose springs join the fast particles in
+ * a forest: the lattices' fibres are chains.  Its nodes are those
+ * particles (d columns each) in an elimination order, leaves first, each
+ * joined to at most one later node, its parent, by block pe; the matrix's
+ * block LDL^T (A_vv = D_v, A_pv = L_v D_v) has no fill: per node D_v^-1
+ * and L_v = A_pv D_v^-1 (d x d each, row-major).  The other fast columns
+ * are K's alone. */
+struct ocp_forest {
+  int nv, d, nb;
+  int *col;          /* nv x d: the nodes' fast columns */
+  int *par;          /* per node its parent (a later node) or -1 */
+  int *pe;           /* per node the block joining it to its parent */
+  int *bi, *bj;      /* per block its nodes (bj: -1 for an anchor) */
+  int *child;        /* per block the node whose parent it joins, or -1 */
+  int *inc, *inc_at; /* per node its blocks (springs, anchors): inc[inc_at[v]
+                        .. inc_at[v + 1]) */
+  int *ch, *ch_at;   /* per node its children, likewise */
+  int *lone, nlone;  /* the fast columns outside the forest */
+  int two;           /* the last factors forest_factor_2's (D_v^-1 packed) */
+  double *D, *L;
+};
+
+void ocp_forest_free(struct ocp_forest *F) {
+  if (!F)
+    return;
+  free(F->col);
+  free(F->par);
+  free(F->pe);
+  free(F->bi);
+  free(F->bj);
+  free(F->child);
+  free(F->inc);
+  free(F->inc_at);
+  free(F->ch);
+  free(F->ch_at);
+  free(F->lone);
+  free(F->D);
+  free(F->L);
+  free(F);
+}
+
+static int uf_root(int *up, int v) {
+  while (up[v] != v)
+    v = up[v] = up[up[v]];
+  return v;
+}
+
+/* The node of the d columns c (a particle's), made where none is yet
+ * (node numbers in order of first use; cols, colnode): -1 where the
+ * columns are not one particle's. */
+static int forest_node(int nf, int d, const int *c, int *colnode, int *cols,
+                       int *nv) {
+  if (c[0] < 0 || c[0] >= nf)
+    return -1;
+  int v = colnode[c[0]];
+  if (v < 0) {
+    v = (*nv)++;
+    for (int k = 0; k < d; k++) {
+      if (c[k] < 0 || c[k] >= nf || colnode[c[k]] >= 0)
+        return -1;
+      colnode[c[k]] = v;
+      cols[v * d + k] = c[k];
+    }
+  }
+  for (int k = 0; k < d; k++)
+    if (cols[v * d + k] != c[k])
+      return -1;
+  return v;
+}
+
+/* The forest of o's W, or NULL (not springs and anchors alone, a cycle of
+ * springs, or out of memory: the CG takes every micro step). */
+static struct ocp_forest *forest_build(const mrvi_ocp *o) {
+  const int d = o->model->dimension, nf = o->nf;
+  const int ne = o->step.n_elem_of_class[MRVI_FAST];
+  struct ocp_forest *F = calloc(1, sizeof *F);
+  int *ci = malloc(((size_t)d * ne + 1) * sizeof *ci);
+  int *cj = malloc(((size_t)d * ne + 1) * sizeof *cj);
+  int *colnode = malloc(((size_t)nf + 1) * sizeof *colnode);
+  int *cols = malloc(((size_t)nf + 1) * sizeof *cols);
+  int *up = malloc(((size_t)nf + 1) * sizeof *up);
+  int *deg = calloc((size_t)nf + 2, sizeof *deg);
+  int *adj = NULL, *pos = NULL, *queue = NULL, *tree = NULL, ok = 0;
+  if (!F || !ci || !cj || !colnode || !cols || !up || !deg || d < 1 || d > 3)
+    goto out;
+  F->d = d;
+  const int nb = mrvi_terms_hessblocks_springs(o->adj_terms[MRVI_FAST], ci, cj);
+  if (nb < 1 || nb > ne)
+    goto out;
+  F->nb = nb;
+  F->bi = malloc((size_t)nb * sizeof *F->bi);
+  F->bj = malloc((size_t)nb * sizeof *F->bj);
+  F->child = malloc((size_t)nb * sizeof *F->child);
+  if (!F->bi || !F->bj || !F->child)
+    goto out;
+  for (int i = 0; i < nf; i++)
+    colnode[i] = -1;
+  int nv = 0;
+  for (int b = 0; b < nb; b++) {
+    F->child[b] = -1;
+    F->bi[b] = forest_node(nf, d, ci + (size_t)b * d, colnode, cols, &nv);
+    F->bj[b] = cj[(size_t)b * d] < 0
+                   ? -1
+                   : forest_node(nf, d, cj + (size_t)b * d, colnode, cols, &nv);
+    if (F->bi[b] < 0 || (cj[(size_t)b * d] >= 0 && F->bj[b] < 0) ||
+        F->bi[b] == F->bj[b])
+      goto out;
+  }
+  /* A forest: no spring closes a cycle (nor doubles another). */
+  for (int v = 0; v < nv; v++)
+    up[v] = v;
+  for (int b = 0; b < nb; b++) {
+    if (F->bj[b] < 0)
+      continue;
+    const int a = uf_root(up, F->bi[b]), c = uf_root(up, F->bj[b]);
+    if (a == c)
+      goto out;
+    up[a] = c;
+    deg[F->bi[b] + 1]++;
+    deg[F->bj[b] + 1]++;
+  }
+  /* Adjacency (blocks by node), then leaves first: a node is taken when
+   * at most one neighbour is left, which becomes its parent. */
+  adj = malloc(((size_t)2 * nb + 1) * sizeof *adj);
+  pos = malloc(((size_t)nv + 1) * sizeof *pos);
+  queue = malloc(((size_t)nv + 1) * sizeof *queue);
+  F->col = malloc(((size_t)nv * d + 1) * sizeof *F->col);
+  F->par = malloc(((size_t)nv + 1) * sizeof *F->par);
+  F->pe = malloc(((size_t)nv + 1) * sizeof *F->pe);
+  F->D = malloc(((size_t)nv * d * d + 1) * sizeof *F->D);
+  F->L = malloc(((size_t)nv * d * d + 1) * sizeof *F->L);
+  if (!adj || !pos || !queue || !F->col || !F->par || !F->pe || !F->D || !F->L)
+    goto out;
+  for (int v = 0; v < nv; v++)
+    deg[v + 1] += deg[v];
+  for (int v = 0; v < nv; v++)
+    pos[v] = deg[v];
+  for (int b = 0; b < nb; b++)
+    if (F->bj[b] >= 0) {
+      adj[pos[F->bi[b]]++] = b;
+      adj[pos[F->bj[b]]++] = b;
+    }
+  /* Each tree from a leaf (or its one node), depth first, a node
+   * numbered where it is reached, from nv - 1 down: a node's subtree gets
+   * the numbers below its own, and a chain's nodes follow one another.
+   * up: the new number (-1 not reached); pos: the block to the parent. */
+  int taken = 0, nt = 0;
+  tree = malloc(((size_t)2 * nv + 1) * sizeof *tree);
+  if (!tree)
+    goto out;
+  for (int v = 0; v < nv; v++)
+    up[v] = -1;
+  for (int pass = 0; pass < 2; pass++)
+    for (int r0 = 0; r0 < nv; r0++) {
+      if (up[r0] >= 0 || (pass == 0 && deg[r0 + 1] - deg[r0] > 1))
+        continue;
+      tree[2 * nt] = taken;
+      int nst = 0;
+      queue[nst++] = r0;
+      pos[r0] = -1;
+      up[r0] = nv - 1 - taken++;
+      while (nst > 0) {
+        const int v = queue[--nst];
+        for (int e = deg[v]; e < deg[v + 1]; e++) {
+          const int b = adj[e], w = F->bi[b] == v ? F->bj[b] : F->bi[b];
+          if (up[w] >= 0)
+            continue;
+          up[w] = nv - 1 - taken++;
+          pos[w] = b;
+          queue[nst++] = w;
+        }
+      }
+      tree[2 * nt + 1] = taken - tree[2 * nt];
+      nt++;
+    }
+  /* The trees interleaved four at a time, each in its order: the
+   * consecutive nodes of an elimination then belong to four independent
+   * chains, whose divisions and updates overlap (queue: the nodes by
+   * number). */
+  for (int v = 0; v < nv; v++)
+    queue[up[v]] = v;
+  for (int t0 = 0, e = 0; t0 < nt; t0 += 4) {
+    const int t1 = t0 + 4 < nt ? t0 + 4 : nt;
+    int most = 0;
+    for (int t = t0; t < t1; t++)
+      most = tree[2 * t + 1] > most ? tree[2 * t + 1] : most;
+    for (int i = 0; i < most; i++)
+      for (int t = t0; t < t1; t++)
+        if (i < tree[2 * t + 1]) /* (tree t's nodes: numbers nv - taken) */
+          up[queue[nv - tree[2 * t] - tree[2 * t + 1] + i]] = e++;
+  }
+  for (int v = 0; v < nv; v++) {
+    F->pe[up[v]] = pos[v];
+    if (pos[v] >= 0)
+      F->child[pos[v]] = up[v];
+  }
+  for (int v = 0; v < nv; v++)
+    for (int k = 0; k < d; k++)
+      F->col[up[v] * d + k] = cols[v * d + k];
+  for (int b = 0; b < nb; b++) {
+    F->bi[b] = up[F->bi[b]];
+    F->bj[b] = F->bj[b] < 0 ? -1 : up[F->bj[b]];
+  }
+  for (int v = 0; v < nv; v++) {
+    const int b = F->pe[v];
+    F->par[v] = b < 0 ? -1 : F->bi[b] == v ? F->bj[b] : F->bi[b];
+  }
+  F->nv = nv;
+  /* the incidences and children by node, the lone columns */
+  F->inc_at = calloc((size_t)nv + 2, sizeof *F->inc_at);
+  F->ch_at = calloc((size_t)nv + 2, sizeof *F->ch_at);
+  F->inc = malloc(((size_t)2 * nb + 1) * sizeof *F->inc);
+  F->ch = malloc(((size_t)nv + 1) * sizeof *F->ch);
+  F->lone = malloc(((size_t)nf + 1) * sizeof *F->lone);
+  if (!F->inc_at || !F->ch_at || !F->inc || !F->ch || !F->lone)
+    goto out;
+  for (int b = 0; b < nb; b++) {
+    F->inc_at[F->bi[b] + 2]++;
+    if (F->bj[b] >= 0)
+      F->inc_at[F->bj[b] + 2]++;
+  }
+  for (int v = 0; v < nv; v++)
+    if (F->par[v] >= 0)
+      F->ch_at[F->par[v] + 2]++;
+  for (int v = 0; v < nv; v++) {
+    F->inc_at[v + 2] += F->inc_at[v + 1];
+    F->ch_at[v + 2] += F->ch_at[v + 1];
+  }
+  for (int b = 0; b < nb; b++) {
+    F->inc[F->inc_at[F->bi[b] + 1]++] = b;
+    if (F->bj[b] >= 0)
+      F->inc[F->inc_at[F->bj[b] + 1]++] = b;
+  }
+  for (int v = 0; v < nv; v++)
+    if (F->par[v] >= 0)
+      F->ch[F->ch_at[F->par[v] + 1]++] = v;
+  for (int i = 0; i < nf; i++)
+    if (colnode[i] < 0)
+      F->lone[F->nlone++] = i;
+  ok = 1;
+out:
+  free(ci);
+  free(cj);
+  free(colnode);
+  free(cols);
+  free(up);
+  free(deg);
+  free(adj);
+  free(pos);
+  free(queue);
+  free(tree);
+  if (!ok) {
+    ocp_forest_free(F);
+    return NULL;
+  }
+  return F;
+}
+
+/* A d x d matrix (row-major) inverted in place by Gauss-Jordan without
+ * pivoting: 0 if every pivot is positive (a symmetric one is then
+ * positive definite), else -1. */
+ALWAYS_INLINE int spd_invert(double *a, const int d) {
+  for (int k = 0; k < d; k++) {
+    const double piv = a[k * d + k];
+    if (!(piv > 0.0) || !isfinite(piv))
+      return -1;
+    const double ip = 1.0 / piv;
+    a[k * d + k] = 1.0;
+    for (int j = 0; j < d; j++)
+      a[k * d + j] *= ip;
+    for (int i = 0; i < d; i++) {
+      if (i == k)
+        continue;
+      const double f = a[i * d + k];
+      a[i * d + k] = 0.0;
+      for (int j = 0; j < d; j++)
+        a[i * d + j] -= f * a[k * d + j];
+    }
+  }
+  return 0;
+}
+
+/* Whether B's matrix is F's: every point with w cA cB != 0 has its
+ * blocks kept. */
+static int forest_fits(const struct ocp_forest *F, const interval_op *B) {
+  if (!F)
+    return 0;
+  for (int i = 0; i < B->np; i++)
+    if (B->w[i] * B->cA[i] * B->cB[i] != 0.0 && !B->hb[i])
+      return 0;
+  return 1;
+}
+
+/* c S of block b (its packed upper triangle in hb, scaled) summed over
+ * the np points (c[P], hb[P]) into A (d x d, row-major, overwritten). */
+ALWAYS_INLINE void forest_block(int np, const double *c,
+                                const double *const *hb, int b, double *A,
+                                const int d) {
+  const int lb = d * (d + 1) / 2;
+  for (int e = 0; e < d * d; e++)
+    A[e] = 0.0;
+  for (int P = 0; P < np; P++) {
+    const double *h = hb[P] + (size_t)b * lb;
+    for (int r = 0, e = 0; r < d; r++)
+      for (int s = r; s < d; s++, e++) {
+        A[r * d + s] += c[P] * h[e];
+        if (s != r)
+          A[s * d + r] += c[P] * h[e];
+      }
+  }
+}
+
+/* forest_factor for dimension d: the nodes in order, each pulling its
+ * children's updates (D_v = K_v + sum of the blocks on v - sum over its
+ * children u of L_u A_uv), then D_v^-1 and L_v = A_pv D_v^-1 (A_pv = -c S
+ * of the block to the parent). */
+ALWAYS_INLINE int forest_factor_d(struct ocp_forest *F, const double *kf,
+                                  int np, const double *c,
+                                  const double *const *hb, const int d) {
+  const int dd = d * d;
+  for (int v = 0; v < F->nv; v++) {
+    double *Dv = F->D + (size_t)v * dd, A[9], S[9];
+    for (int e = 0; e < dd; e++)
+      Dv[e] = 0.0;
+    for (int k = 0; k < d; k++)
+      Dv[k * d + k] = kf[F->col[v * d + k]];
+    for (int e = F->inc_at[v]; e < F->inc_at[v + 1]; e++) {
+      forest_block(np, c, hb, F->inc[e], S, d);
+      for (int l = 0; l < dd; l++)
+        Dv[l] += S[l];
+    }
+    for (int e = F->ch_at[v]; e < F->ch_at[v + 1]; e++) {
+      const int u = F->ch[e];
+      const double *Lu = F->L + (size_t)u * dd;
+      forest_block(np, c, hb, F->pe[u], S, d); /* (A_uv = -S) */
+      for (int r = 0; r < d; r++)
+        for (int s = 0; s < d; s++) {
+          double t = 0.0;
+          for (int k = 0; k < d; k++)
+            t += Lu[r * d + k] * S[s * d + k];
+          Dv[r * d + s] += t;
+        }
+    }
+    if (spd_invert(Dv, d) != 0)
+      return -1;
+    if (F->par[v] < 0)
+      continue;
+    double *Lv = F->L + (size_t)v * dd;
+    forest_block(np, c, hb, F->pe[v], A, d);
+    for (int r = 0; r < d; r++)
+      for (int s = 0; s < d; s++) {
+        double t = 0.0;
+        for (int k = 0; k < d; k++)
+          t -= A[r * d + k] * Dv[k * d + s];
+        Lv[r * d + s] = t;
+      }
+  }
+  return 0;
+}
+
+/* forest_factor_d in the plane with one point (c, its blocks' packed
+ * upper triangles hb: s0 s1 s2 per block), written out: D_v^-1 as s0 s1
+ * s2 in D's first three entries. */
+static int forest_factor_2(struct ocp_forest *F, const double *kf, double c,
+                           const double *hb) {
+  const int *col = F->col, *inc = F->inc, *ch = F->ch, *pe = F->pe;
+  for (int v = 0; v < F->nv; v++) {
+    double a = kf[col[2 * v]], b = 0.0, d = kf[col[2 * v + 1]];
+    double ha = 0.0, hbb = 0.0, hd = 0.0;
+    for (int e = F->inc_at[v]; e < F->inc_at[v + 1]; e++) {
+      const double *h = hb + 3 * inc[e];
+      ha += h[0];
+      hbb += h[1];
+      hd += h[2];
+    }
+    a += c * ha;
+    b += c * hbb;
+    d += c * hd;
+    for (int e = F->ch_at[v]; e < F->ch_at[v + 1]; e++) {
+      const int u = ch[e];
+      const double *Lu = F->L + 4 * (size_t)u, *h = hb + 3 * pe[u];
+      const double s0 = c * h[0], s1 = c * h[1], s2 = c * h[2];
+      a += Lu[0] * s0 + Lu[1] * s1;
+      b += Lu[0] * s1 + Lu[1] * s2;
+      d += Lu[2] * s1 + Lu[3] * s2;
+    }
+    const double det = a * d - b * b;
+    if (!(a > 0.0) || !(det > 0.0) || !isfinite(det))
+      return -1;
+    const double id = 1.0 / det, i0 = d * id, i1 = -b * id, i2 = a * id;
+    double *Dv = F->D + 4 * (size_t)v;
+    Dv[0] = i0;
+    Dv[1] = i1;
+    Dv[2] = i2;
+    if (F->par[v] < 0)
+      continue;
+    const double *h = hb + 3 * pe[v];
+    const double s0 = c * h[0], s1 = c * h[1], s2 = c * h[2];
+    double *Lv = F->L + 4 * (size_t)v;
+    Lv[0] = -(s0 * i0 + s1 * i1);
+    Lv[1] = -(s0 * i1 + s1 * i2);
+    Lv[2] = -(s1 * i0 + s2 * i1);
+    Lv[3] = -(s1 * i1 + s2 * i2);
+  }
+  return 0;
+}
+
+/* F's factors of B's matrix: 0, or -1 where a pivot block is not
+ * positive definite (the CG takes the micro step). */
+static int forest_factor(struct ocp_forest *F, const interval_op *B) {
+  double c[2];
+  const double *hb[2];
+  int np = 0;
+  for (int i = 0; i < B->np; i++) {
+    c[np] = B->w[i] * B->cA[i] * B->cB[i];
+    hb[np] = B->hb[i];
+    np += c[np] != 0.0;
+  }
+  F->two = F->d == 2 && np == 1;
+  if (F->two)
+    return forest_factor_2(F, B->kf, c[0], hb[0]);
+  switch (F->d) {
+  case 1:
+    return forest_factor_d(F, B->kf, np, c, hb, 1);
+  case 2:
+    return forest_factor_d(F, B->kf, np, c, hb, 2);
+  default:
+    return forest_factor_d(F, B->kf, np, c, hb, 3);
+  }
+}
+
+/* forest_solve for dimension d: L z = b (children first, into b), then
+ * x_v = D_v^-1 z_v - L_v^T x_p (parents first). */
+ALWAYS_INLINE void forest_solve_d(const struct ocp_forest *F, int nfun, int nf,
+                                  const double *dinv, double *r, double *x,
+                                  long xs, const int d) {
+  const int dd = d * d, nv = F->nv, *col = F->col, *par = F->par;
+  for (int v = 0; v < nv; v++) {
+    if (par[v] < 0)
+      continue;
+    const double *Lv = F->L + (size_t)v * dd;
+    const int *cv = col + v * d, *cp = col + par[v] * d;
+    for (int f = 0; f < nfun; f++) {
+      double *b = r + (size_t)f * nf;
+      for (int i = 0; i < d; i++) {
+        double t = 0.0;
+        for (int j = 0; j < d; j++)
+          t += Lv[i * d + j] * b[cv[j]];
+        b[cp[i]] -= t;
+      }
+    }
+  }
+  for (int v = nv - 1; v >= 0; v--) {
+    const double *Dv = F->D + (size_t)v * dd, *Lv = F->L + (size_t)v * dd;
+    const int *cv = col + v * d, *cp = par[v] < 0 ? cv : col + par[v] * d;
+    for (int f = 0; f < nfun; f++) {
+      const double *b = r + (size_t)f * nf;
+      double *xf = x + (size_t)f * (size_t)xs;
+      double t[3];
+      for (int i = 0; i < d; i++) {
+        t[i] = 0.0;
+        for (int j = 0; j < d; j++)
+          t[i] += Dv[i * d + j] * b[cv[j]];
+      }
+      if (par[v] >= 0)
+        for (int i = 0; i < d; i++)
+          for (int j = 0; j < d; j++)
+            t[i] -= Lv[j * d + i] * xf[cp[j]];
+      for (int i = 0; i < d; i++)
+        xf[cv[i]] = t[i];
+    }
+  }
+  for (int f = 0; f < nfun; f++)
+    for (int l = 0; l < F->nlone; l++) {
+      const int i = F->lone[l];
+      x[(size_t)f * (size_t)xs + i] = dinv[i] * r[(size_t)f * nf + i];
+    }
+}
+
+/* forest_solve_d after forest_factor_2, written out */
+static void forest_solve_2(const struct ocp_forest *F, int nfun, int nf,
+                           const double *dinv, double *r, double *x, long xs) {
+  const int nv = F->nv, *col = F->col, *par = F->par;
+  for (int v = 0; v < nv; v++) {
+    if (par[v] < 0)
+      continue;
+    const double *Lv = F->L + 4 * (size_t)v;
+    const int c0 = col[2 * v], c1 = col[2 * v + 1];
+    const int p0 = col[2 * par[v]], p1 = col[2 * par[v] + 1];
+    for (int f = 0; f < nfun; f++) {
+      double *b = r + (size_t)f * nf;
+      const double b0 = b[c0], b1 = b[c1];
+      b[p0] -= Lv[0] * b0 + Lv[1] * b1;
+      b[p1] -= Lv[2] * b0 + Lv[3] * b1;
+    }
+  }
+  for (int v = nv - 1; v >= 0; v--) {
+    const double *Dv = F->D + 4 * (size_t)v, *Lv = F->L + 4 * (size_t)v;
+    const int c0 = col[2 * v], c1 = col[2 * v + 1];
+    const int pv = par[v] < 0 ? v : par[v];
+    const int p0 = col[2 * pv], p1 = col[2 * pv + 1];
+    for (int f = 0; f < nfun; f++) {
+      const double *b = r + (size_t)f * nf;
+      double *xf = x + (size_t)f * (size_t)xs;
+      double t0 = Dv[0] * b[c0] + Dv[1] * b[c1];
+      double t1 = Dv[1] * b[c0] + Dv[2] * b[c1];
+      if (par[v] >= 0) {
+        t0 -= Lv[0] * xf[p0] + Lv[2] * xf[p1];
+        t1 -= Lv[1] * xf[p0] + Lv[3] * xf[p1];
+      }
+      xf[c0] = t0;
+      xf[c1] = t1;
+    }
+  }
+  for (int f = 0; f < nfun; f++)
+    for (int l = 0; l < F->nlone; l++) {
+      const int i = F->lone[l];
+      x[(size_t)f * (size_t)xs + i] = dinv[i] * r[(size_t)f * nf + i];
+    }
+}
+
+/* x_f = (matrix of F's last factors)^-1 r_f for every functional (x_f =
+ * x + f xs; r: nfun x nf, overwritten; dinv = 1/K on the columns outside
+ * the forest). */
+static void forest_solve(const struct ocp_forest *F, int nfun, int nf,
+                         const double *dinv, double *r, double *x, long xs) {
+  if (F->two) {
+    forest_solve_2(F, nfun, nf, dinv, r, x, xs);
+    return;
+  }
+  switch (F->d) {
+  case 1:
+    forest_solve_d(F, nfun, nf, dinv, r, x, xs, 1);
+    break;
+  case 2:
+    forest_solve_d(F, nfun, nf, dinv, r, x, xs, 2);
+    break;
+  default:
+    forest_solve_d(F, nfun, nf, dinv, r, x, xs, 3);
   }
 }
 
@@ -629,10 +1184,19 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
         bnorm[f] = bn;
       }
       pend = 0;
-      int its;
+      int its = 0, s = MRVI_CG_OK;
       double *x = o->mu + fj - nf;
-      const int s = interval_solve(o, &B, nfun, cf, c, x, nn, cp, cq, rtol,
-                                   one ? bnorm : NULL, &its);
+      const int direct = forest_fits(o->adj_forest, &B) &&
+                         forest_factor(o->adj_forest, &B) == 0;
+      if (direct) {
+        forest_solve(o->adj_forest, nfun, nf, cf, c, x, nn);
+        o->adjoint_forest_solves++;
+      } else {
+        s = interval_solve(o, &B, nfun, cf, c, x, nn, cp, cq, rtol,
+                           one ? bnorm : NULL, &its);
+        o->adjoint_cg_solves++;
+        o->adjoint_cg_products += its;
+      }
       if (s != MRVI_CG_OK)
         return mrvi_ocp_fail(o, MRVI_ESINGULAR,
                              "adjoint of micro step %ld: CG %s after %d "
@@ -649,7 +1213,7 @@ static int sweep_adjoint(mrvi_ocp *o, int nfun, double *gQ) {
         double *xf = x + (size_t)f * (size_t)nn, *h = hy + (size_t)f * nf;
         const double *rf = c + (size_t)f * nf, *mg = xf + nf;
         for (int i = 0; i < nf; i++) {
-          h[i] = (1.0 / ry) * (h[i] - rf[i] - kf[i] * xf[i]);
+          h[i] = (1.0 / ry) * (h[i] - (direct ? 0.0 : rf[i]) - kf[i] * xf[i]);
           xf[i] -= ry * mg[i];
         }
       }

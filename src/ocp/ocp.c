@@ -206,6 +206,8 @@ void ocp_adjoint_free(mrvi_ocp *o) {
     o->adj_terms[c] = NULL;
   }
   o->adj_explicit = 0;
+  ocp_forest_free(o->adj_forest);
+  o->adj_forest = NULL;
   free(o->gz);
   free(o->h_of_a);
   free(o->h_ptr);

@@ -155,6 +155,12 @@ struct mrvi_ocp {
   long adj_hb;
   double *adj_blocks;
   int adj_one; /* (tuning.adjoint_one_point) */
+  /* explicit-slow's transposed micro steps solved by block elimination
+   * along W's springs where they form a forest (adjoint_explicit.c,
+   * tuning.adjoint_forest; NULL: by the CG alone); the micro steps solved
+   * so, those solved by the CG and the CG's products (every evaluation) */
+  struct ocp_forest *adj_forest;
+  long adjoint_forest_solves, adjoint_cg_solves, adjoint_cg_products;
   /* Terminal velocities of a constrained model (projected_velocity):
    * q, p, p projected, a unit vector, d/dq, d/dp (6 n), then the projection's
    * workspace g, G, A, mu (R, R n, R R, R); NULL without constraints. */
@@ -274,6 +280,8 @@ void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *a);
 int ocp_explicit_ok(const mrvi_ocp *o);
 /* Its compiled classes and workspace for nfun functionals (MRVI_ENOMEM) */
 int ocp_explicit_alloc(mrvi_ocp *o, int nfun);
+/* The forest of ocp_explicit_alloc (NULL: nothing) */
+void ocp_forest_free(struct ocp_forest *F);
 /* The backward sweep: o->mu (nfun x n_nodes; final nodes set) on every
  * equation node from gQ (nfun x n_nodes, d Phi / dY; overwritten).
  * MRVI_ESINGULAR (message on o) where a micro step's transposed solve

@@ -496,6 +496,15 @@ void mrvi_terms_hessblocks(mrvi_terms *kc, const double *z, double *B);
 void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
                                  int nvec, const double *x, long xs, double *y,
                                  long ys, double scale, double *xhx);
+/* The columns of the blocks of mrvi_terms_hessblocks where each is a
+ * spring's or an anchor's (gravity apart): per block, in their order, the
+ * dim columns of its first particle into ci + dim b and those of its
+ * second into cj + dim b (-1 for an anchor); block b adds A on the
+ * diagonal blocks of both particles and -A on the two between them (an
+ * anchor: A on its one).  Returns the number of blocks, or -1 where an
+ * element has another block (its n x n Hessian) or the class keeps no
+ * element records.  ci, cj: room for dim ints per element. */
+int mrvi_terms_hessblocks_springs(const mrvi_terms *kc, int *ci, int *cj);
 /* Whether every element of the class is quadratic
  * (mrvi_element_is_quadratic): its Hessian is constant. */
 int mrvi_terms_quadratic(const mrvi_terms *kc);

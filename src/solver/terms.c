@@ -2288,3 +2288,26 @@ void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
     B += (long)n * n;
   }
 }
+
+int mrvi_terms_hessblocks_springs(const mrvi_terms *kc, int *ci, int *cj) {
+  int nb = 0;
+  if (!kc->t)
+    return -1;
+  for (int it = 0; it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    if (t->runs > 0) {
+      for (int r = 0; r < t->runs; r++, nb++) {
+        const kspring *q = kc->qs + t->qs + r;
+        for (int k = 0; k < kc->dim; k++) {
+          ci[nb * kc->dim + k] = q->ci[k];
+          cj[nb * kc->dim + k] = q->two ? q->cj[k] : -1;
+        }
+      }
+      it += t->runs - 1;
+      continue;
+    }
+    if (t->el->kind != MRVI_ELEMENT_GRAVITY)
+      return -1;
+  }
+  return nb;
+}
