@@ -37,7 +37,8 @@ static mrvi_model *rod_tree(int D, int n, int loop, int fast_rod) {
     v[0] = 0.2 * cos(0.7 * i), v[D - 1] = 0.1 * sin(0.5 * i);
     char name[16];
     snprintf(name, sizeof name, "h%d", i);
-    h[i] = st = mrvi_model_add_particle(m, name, 1.0 + 0.1 * i, MRVI_SLOW, x, v);
+    h[i] = st =
+        mrvi_model_add_particle(m, name, 1.0 + 0.1 * i, MRVI_SLOW, x, v);
     if (st < 0)
       break;
     /* the rod's length: the initial distance, whatever v does */
@@ -49,9 +50,10 @@ static mrvi_model *rod_tree(int D, int n, int loop, int fast_rod) {
   }
   const int nh = n;
   for (int i = 0; i < 2 && st >= 0; i++) { /* the free pair */
-    const double x[3] = {3.0 + 0.6 * i, 0.5, 0.2 * i}, v[3] = {0.1, -0.3 * i, 0};
-    h[nh + i] = st = mrvi_model_add_particle(m, i ? "f1" : "f0", 0.7, MRVI_SLOW,
-                                             x, v);
+    const double x[3] = {3.0 + 0.6 * i, 0.5, 0.2 * i},
+                 v[3] = {0.1, -0.3 * i, 0};
+    h[nh + i] = st =
+        mrvi_model_add_particle(m, i ? "f1" : "f0", 0.7, MRVI_SLOW, x, v);
   }
   if (st >= 0)
     st = mrvi_model_add_distance(m, h[nh], h[nh + 1], NAN);
@@ -164,8 +166,8 @@ static void test_trajectories(void) {
         printf("%d-D %s p=%d, 100 steps at 1e-12: link-local against QR "
                "%.3g, against multipliers %.3g (the chain moved %.3g)\n",
                D, schemes[a], ps[b], d[0], d[1], moved);
-        CHECK(tr[0] && tr[0]->n_macro == 101 && d[0] < 1e-10 &&
-                  d[1] < 1e-10 && moved > 0.1,
+        CHECK(tr[0] && tr[0]->n_macro == 101 && d[0] < 1e-10 && d[1] < 1e-10 &&
+                  moved > 0.1,
               "%d-D %s p=%d: link-local against QR %.3g, multipliers %.3g, "
               "moved %.3g",
               D, schemes[a], ps[b], d[0], d[1], moved);

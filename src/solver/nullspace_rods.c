@@ -226,8 +226,8 @@ int mrvi_nsrods_create(const mrvi_step *st, const unsigned char *drop,
   /* settled where the multiplier form settles (integrator.c: the sparse
    * Gram matrix), so that both start from the same predictor */
   z->settle = st->tuning.predict_settle && nr > MRVI_GRAM_DENSE_MAX;
-  if (!z->row || !z->ends || !z->pos || !z->dir || !z->qk || !z->qm ||
-      !z->pm || !z->mu || !z->qs)
+  if (!z->row || !z->ends || !z->pos || !z->dir || !z->qk || !z->qm || !z->pm ||
+      !z->mu || !z->qs)
     goto oom;
   /* Rod k is constraint k; its column is that of its multiplier's row. */
   for (int c = 0; c < nr; c++) {
