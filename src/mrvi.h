@@ -830,8 +830,9 @@ typedef enum mrvi_newton_criterion {
     "first (0: the CG)")                                                       \
   X(int, nullspace_tree, 1, 0, 1,                                              \
     "the null-space form of bodies in open chains and trees of spherical, "    \
-    "revolute and weld joints takes the joint-reduced basis (0: the "          \
-    "numerical QR basis)")                                                     \
+    "revolute and weld joints takes the joint-reduced basis, of slow "         \
+    "particles in open chains and trees of slow rods the link-local basis "    \
+    "(0: the numerical QR basis)")                                             \
   X(int, predict_settle, 1, 0, 1,                                              \
     "steps with more than 32 rows of slow constraints start Newton from the "  \
     "predictor moved onto the constraints, nearest in the mass metric (0: "    \

@@ -340,6 +340,15 @@ sed 's/^integrator/constraints:\n  - {type: distance, name: tether, between: [{b
 run_mrvi check "$tmp/cart_tether.yaml"
 contains "$out" "^  null space  numerical \\(QR.*; not joint-reduced: constraint 'tether' \\(point\\) has no joint reduction$" \
   "a tethered pole: numerical null space, the tether named"
+run_mrvi check "$root/systems/pendulum_chain.yaml" \
+  --set integrator.constraints.form=null-space
+contains "$out" '^  null space  link-local \(open chains and trees of slow particles on rods: P = \(I - X\)\^-1 S' \
+  "a chain of particles on rods: link-local null space"
+run_mrvi check "$root/systems/pendulum_chain.yaml" \
+  --set integrator.constraints.form=null-space \
+  --set integrator.tuning.nullspace_tree=0
+contains "$out" '^  null space  numerical \(QR.*; not link-local: nullspace_tree 0$' \
+  "a chain of particles on rods, nullspace_tree 0: numerical null space"
 run_mrvi check "$root/systems/flexible_pendulum.yaml" \
   --set integrator.constraints.form=null-space
 contains "$out" "^  null space  joint-reduced at the micro nodes \\(fast bodies in open chains and trees of joints.*; slow bodies: numerical \\(QR at q_k\\), reparametrised on their joints$" \

@@ -617,6 +617,15 @@ static int cmd_check(int argc, char **argv) {
              "each fast body by its joint's free turns and slides; slow "
              "bodies: %s\n",
              "  null space", slow);
+    } else if (s->tuning.nullspace_tree &&
+               mrvi_model_n_bodies(sys->model) == 0 &&
+               mrvi_nullspace_rods_plan(sys->model, tree_why,
+                                        sizeof tree_why)) {
+      printf("%-14slink-local (open chains and trees of slow particles on "
+             "rods: P = (I - X)^-1 S, S_t normal to particle t's rod, solved "
+             "sparse with one unknown per rod), no reparametrisation (the "
+             "rods held to the Newton tolerance)\n",
+             "  null space");
     } else {
       const int red_f = red > 0 ? mrvi_nullspace_micro_redundant(
                                       sys->model, mrvi_model_q0(sys->model))
@@ -630,8 +639,9 @@ static int cmd_check(int argc, char **argv) {
       printf("%-14snumerical (QR of the constraint gradients at every node); "
              "%d redundant row%s left out%s%s%s\n",
              "  null space", red > 0 ? red : 0, red == 1 ? "" : "s", at,
-             mrvi_model_n_bodies(sys->model) > 0 ? "; not joint-reduced: " : "",
-             mrvi_model_n_bodies(sys->model) > 0 ? tree_why : "");
+             mrvi_model_n_bodies(sys->model) > 0 ? "; not joint-reduced: "
+                                                 : "; not link-local: ",
+             tree_why);
     }
   }
   printf("%-14s%s (every %d, micro %s)\n", "output",

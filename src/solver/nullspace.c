@@ -93,6 +93,7 @@ struct mrvi_nullspace {
   mrvi_nstree *fast;
   double *Fcol, *xold;
   mrvi_nstree *slow; /* beside it, the slow bodies' placement, or NULL */
+  mrvi_nsrods *rods; /* the link-local basis (nullspace_rods.c), or NULL */
 };
 
 void mrvi_nullspace_free(mrvi_nullspace *z) {
@@ -109,23 +110,34 @@ void mrvi_nullspace_free(mrvi_nullspace *z) {
   mrvi_nstree_free(z->tree);
   mrvi_nstree_free(z->fast), free(z->Fcol), free(z->xold);
   mrvi_nstree_free(z->slow);
+  mrvi_nsrods_free(z->rods);
   free(z);
 }
 
 const int *mrvi_nullspace_Ap(const mrvi_nullspace *z) {
-  return z->tree ? mrvi_nstree_Ap(z->tree) : z->Ap;
+  return z->tree   ? mrvi_nstree_Ap(z->tree)
+         : z->rods ? mrvi_nsrods_Ap(z->rods)
+                   : z->Ap;
 }
 const int *mrvi_nullspace_Ai(const mrvi_nullspace *z) {
-  return z->tree ? mrvi_nstree_Ai(z->tree) : z->Ai;
+  return z->tree   ? mrvi_nstree_Ai(z->tree)
+         : z->rods ? mrvi_nsrods_Ai(z->rods)
+                   : z->Ai;
 }
 const double *mrvi_nullspace_Ax(const mrvi_nullspace *z) {
-  return z->tree ? mrvi_nstree_Ax(z->tree) : z->Ax;
+  return z->tree   ? mrvi_nstree_Ax(z->tree)
+         : z->rods ? mrvi_nsrods_Ax(z->rods)
+                   : z->Ax;
 }
 long mrvi_nullspace_nnz(const mrvi_nullspace *z) {
-  return z->tree ? mrvi_nstree_nnz(z->tree) : z->nnz;
+  return z->tree   ? mrvi_nstree_nnz(z->tree)
+         : z->rods ? mrvi_nsrods_nnz(z->rods)
+                   : z->nnz;
 }
 int mrvi_nullspace_size(const mrvi_nullspace *z) {
-  return z->tree ? mrvi_nstree_size(z->tree) : z->n;
+  return z->tree   ? mrvi_nstree_size(z->tree)
+         : z->rods ? mrvi_nsrods_size(z->rods)
+                   : z->n;
 }
 int mrvi_nullspace_joint_reduced(const mrvi_nullspace *z) {
   return z->tree != NULL;
@@ -334,6 +346,17 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
     }
     if (s > 0) {
       z->n = mrvi_nstree_size(z->tree);
+      *out = z;
+      return MRVI_OK;
+    }
+    /* Open chains and trees of particles on rods: the link-local basis. */
+    const int r = mrvi_nsrods_create(st, drop, &z->rods, why, sizeof why);
+    if (r < 0) {
+      mrvi_nullspace_free(z);
+      return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
+    }
+    if (r > 0) {
+      z->n = mrvi_nsrods_size(z->rods);
       *out = z;
       return MRVI_OK;
     }
@@ -564,6 +587,7 @@ static int reparametrise(mrvi_nullspace *z, const mrvi_model *m) {
 
 int mrvi_nullspace_reparametrised(const mrvi_nullspace *z) {
   return z->tree   ? mrvi_nstree_bodies(z->tree)
+         : z->rods ? mrvi_nsrods_settles(z->rods)
          : z->fast ? z->n_rep + mrvi_nsfast_bodies(z->fast) +
                          (z->slow ? mrvi_nsfast_bodies(z->slow) : 0)
                    : z->n_rep + z->n_frep;
@@ -700,6 +724,10 @@ void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
     mrvi_nstree_retract(z->tree, st, x, dx);
     return;
   }
+  if (z->rods) {
+    mrvi_nsrods_retract(z->rods, x, dx);
+    return;
+  }
   const int D = z->dim, p = z->p;
   const double *q0;
   if (z->fast)
@@ -743,6 +771,10 @@ void mrvi_nullspace_retract(mrvi_nullspace *z, const mrvi_step *st, double *x,
 void mrvi_nullspace_start(mrvi_nullspace *z, const mrvi_step *st, double *x) {
   if (z->tree) {
     mrvi_nstree_start(z->tree, st, x);
+    return;
+  }
+  if (z->rods) {
+    mrvi_nsrods_start(z->rods, st, x);
     return;
   }
   const int D = z->dim;
@@ -812,6 +844,8 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
                           const double *F, char *msg, size_t len) {
   if (z->tree)
     return mrvi_nstree_lambda(z->tree, st, x, F, msg, len);
+  if (z->rods)
+    return mrvi_nsrods_lambda(z->rods, st, x, F, msg, len);
   const mrvi_model *m = st->model;
   const int ns = z->ns, nfc = z->nfc, r = z->r, rs = z->rs, rk = z->rk;
   double *lam = x + st->n_unknowns;
@@ -955,6 +989,10 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
                            const double *Rfull, double *rhs) {
   if (z->tree) {
     mrvi_nstree_reduce(z->tree, st, Rfull, rhs);
+    return;
+  }
+  if (z->rods) {
+    mrvi_nsrods_reduce(z->rods, st, Rfull, rhs);
     return;
   }
   const int ns = z->ns, nfc = z->nfc, r = z->r, nsc = z->nsc;

@@ -17,7 +17,8 @@ typedef struct mrvi_nullspace mrvi_nullspace;
  * drop (model rows, may be NULL): the redundant rows to leave out.
  * tree 1: open chains, trees and slow closed loops of bodies in joints take
  * the joint-reduced basis where st->tuning.nullspace_tree allows
- * (nullspace_tree.c), whose
+ * (nullspace_tree.c), open chains and trees of slow particles on rods the
+ * link-local basis (nullspace_rods.c), whose
  * system is larger than n_unknowns (the first n_unknowns entries of its
  * solution are dx); 0: the numerical basis always. */
 int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
@@ -125,6 +126,31 @@ void mrvi_nstree_reduce(mrvi_nstree *z, const mrvi_step *st, const double *R,
 void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
                          const double *dx);
 void mrvi_nstree_start(mrvi_nstree *z, const mrvi_step *st, double *x);
+/* The link-local basis of open chains and trees of particles on rods
+ * (nullspace_rods.c), behind mrvi_nullspace_*: create returns 1 (made), 0
+ * (does not apply: why) or a status < 0; its system is [A N; H 0] of size
+ * n_total.  _settles: 1 if _start settles the predictor onto the rods
+ * (tuning predict_settle, more than MRVI_GRAM_DENSE_MAX rods), which
+ * mrvi_nullspace_reparametrised reports;
+ * _retract is x -= dx.  _plan: 1 if a model's constraints are slow rods in
+ * a forest, else 0 and why. */
+typedef struct mrvi_nsrods mrvi_nsrods;
+int mrvi_nullspace_rods_plan(const mrvi_model *m, char *why, size_t len);
+int mrvi_nsrods_create(const mrvi_step *st, const unsigned char *drop,
+                       mrvi_nsrods **out, char *why, size_t len);
+void mrvi_nsrods_free(mrvi_nsrods *z);
+int mrvi_nsrods_size(const mrvi_nsrods *z);
+const int *mrvi_nsrods_Ap(const mrvi_nsrods *z);
+const int *mrvi_nsrods_Ai(const mrvi_nsrods *z);
+const double *mrvi_nsrods_Ax(const mrvi_nsrods *z);
+long mrvi_nsrods_nnz(const mrvi_nsrods *z);
+int mrvi_nsrods_settles(const mrvi_nsrods *z);
+void mrvi_nsrods_start(mrvi_nsrods *z, const mrvi_step *st, double *x);
+void mrvi_nsrods_retract(const mrvi_nsrods *z, double *x, const double *dx);
+int mrvi_nsrods_lambda(mrvi_nsrods *z, mrvi_step *st, double *x,
+                       const double *F, char *msg, size_t len);
+void mrvi_nsrods_reduce(mrvi_nsrods *z, const mrvi_step *st, const double *R,
+                        double *rhs);
 /* The fast forest (nullspace_tree.c): 1 and *out if mrvi_nullspace_fast_plan
  * holds and its joints' free directions number nfc - r (the fast slots fpos
  * of the micro-node constraints, r their rows), 0 and why if not, < 0 out of
