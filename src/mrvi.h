@@ -738,13 +738,14 @@ typedef enum mrvi_newton_criterion {
     "0's Newton matrix; micro step 0 itself where W is springs and anchors "   \
     "alone, else after its first Newton update) where their Gershgorin "       \
     "bound, and each update's residual ratio, is at most this (0: Newton)")    \
-  X(int, chord_carry, 0, 0, 1,                                                 \
+  X(int, chord_carry, 1, 0, 1,                                                 \
     "sweep-cg: each step's first rows extrapolate the implicit force from "    \
-    "the last rows of the step before, as the later rows do from their own "   \
-    "step's (p >= 5, W springs and anchors alone, the chord regime): fewer "   \
-    "chord updates, but a step no longer depends on (q_k, p_k) alone, so a "   \
-    "resumed or restarted run continues within the Newton tolerance, not "     \
-    "bit for bit (0: off)")                                                    \
+    "the last rows of the step before, as the later rows do from their "       \
+    "own step's (p >= 5, W springs and anchors alone, the chord regime): "     \
+    "fewer chord updates; the history is part of the state "                   \
+    "(mrvi_integrator_chord_history, /resume/chord_history), so mrvi run "     \
+    "--resume continues bit for bit, a run restarted from (q, p) alone "       \
+    "(--from, set_state) within the Newton tolerance (0: off)")                \
   X(int, outer_max, 12, 0, 1000,                                               \
     "schur-krylov: the most sweeps of its matrix-free outer iteration "        \
     "before Newton takes the step from the predictor (0: off)")                \
@@ -849,11 +850,11 @@ typedef struct mrvi_tuning {
 } mrvi_tuning;
 
 typedef struct mrvi_settings {
-  char scheme[48]; /* name of the scheme the rules came from */
-  mrvi_rule slow;  /* rule for V */
-  mrvi_grid
-      slow_grid;  /* grid for V; macro: V_d = dT[a V(q_k) + (1-a) V(q_k+1)] */
-  mrvi_rule fast; /* rule for W (always micro grid) */
+  char scheme[48];     /* name of the scheme the rules came from */
+  mrvi_rule slow;      /* rule for V */
+  mrvi_grid slow_grid; /* grid for V; macro: V_d = dT[a V(q_k) + (1-a)
+                          V(q_k+1)] */
+  mrvi_rule fast;      /* rule for W (always micro grid) */
   double macro_step;   /* Delta T > 0 */
   int micro_steps;     /* p >= 1 */
   double t_end;        /* >= macro_step; N = ceil(t_end/dT - 1e-9) steps */
@@ -884,8 +885,8 @@ typedef struct mrvi_settings {
   int micro_last_only;
 } mrvi_settings;
 
-/* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20 it,
- * energy warning above 10 %. */
+/* Defaults: midpoint-midpoint, dT = 0.01, p = 1, t_end = 1, tol 1e-9, 20
+ * it, energy warning above 10 %. */
 void mrvi_settings_default(mrvi_settings *s);
 /* Set both rules and the slow grid from a named scheme:
  * midpoint-midpoint, trapezoidal-midpoint, trapezoidal-trapezoidal,
@@ -896,7 +897,8 @@ int mrvi_settings_set_scheme(mrvi_settings *s, const char *scheme);
  * one), a value outside its range or a fraction for an integer constant. */
 int mrvi_settings_set_tuning(mrvi_settings *s, const char *name, double value,
                              char *msg, size_t len);
-/* The tuning constant `name` into *value; MRVI_EINVAL for an unknown name. */
+/* The tuning constant `name` into *value; MRVI_EINVAL for an unknown name.
+ */
 int mrvi_settings_get_tuning(const mrvi_settings *s, const char *name,
                              double *value);
 /* One row of MRVI_TUNING_LIST: its name, default, range and meaning
@@ -915,9 +917,9 @@ const mrvi_tuning_info *mrvi_tuning_table(int *count);
  * "sweep-cg" and "schur-krylov" (the same with CG and GMRES for blocks
  * beyond tuning.dense_max, 64, coordinates), "schur-bordered" (constrained,
  * multiplier form: the schur elimination bordered by the multipliers) or
- * "general" (Newton with sparse LU on the whole step).  why (may be NULL) gets
- * the reason for the choice.  With s->solver = structured and no structured
- * path, returns NULL (why says why). */
+ * "general" (Newton with sparse LU on the whole step).  why (may be NULL)
+ * gets the reason for the choice.  With s->solver = structured and no
+ * structured path, returns NULL (why says why). */
 const char *mrvi_solver_path(const mrvi_model *m, const mrvi_settings *s,
                              char *why, size_t len);
 /* Names of the schemes, NULL-terminated. */
@@ -942,9 +944,10 @@ long mrvi_settings_n_steps(const mrvi_settings *s);
 
 /* ---------------------------------------------------------------------------
  * Integrator: one-step position-momentum map (arXiv 2406.12991 §3.1,
- * doc/solver.md), solved by Newton with UMFPACK (pattern and symbolic analysis
- * once, numeric per iteration).
- * ------------------------------------------------------------------------- */
+ * doc/solver.md), solved by Newton with UMFPACK (pattern and symbolic
+ * analysis once, numeric per iteration).
+ * -------------------------------------------------------------------------
+ */
 typedef struct mrvi_integrator mrvi_integrator;
 
 /* Create for a model (must outlive the integrator) and settings (copied).
@@ -974,10 +977,26 @@ const double *mrvi_integrator_torsion_angle(const mrvi_integrator *it);
  * that node as the earlier run had them (resume_state puts each spring on
  * the branch nearest its rest angle).  Each must be the spring's angle at
  * the node's q up to 2 pi turns (to 1e-6 rad), else MRVI_EINVAL.  Taken
- * exactly as given, so that the steps equal the earlier run's bit for bit. */
+ * exactly as given, so that the steps equal the earlier run's bit for bit.
+ */
 int mrvi_integrator_resume_torsion(mrvi_integrator *it, const double *angle);
-/* Advance one macro step.  On failure the state is unchanged and the message
- * gives the step, time and residual. */
+/* tuning.chord_carry (explicit-slow on sweep-cg, doc/solver.md "sweep-cg"):
+ * the rows' history the next step takes from the last one, part of the
+ * state a resumed run needs to continue bit for bit.  Sets part[0..4] to
+ * its five arrays (valid until the next step or state change) and returns
+ * their length (the fast coordinates); 0 where the next step takes no
+ * history (it then depends on (q_k, p_k) alone). */
+int mrvi_integrator_chord_history(const mrvi_integrator *it,
+                                  const double *part[5]);
+/* After mrvi_integrator_resume_state: the history of that node as the
+ * earlier run had it (h: the five parts one after the other, n entries
+ * each).  MRVI_EINVAL where this run keeps none or n differs,
+ * MRVI_ENONFINITE for a non-finite entry (the file it came from is
+ * untrusted). */
+int mrvi_integrator_resume_chord_history(mrvi_integrator *it, int n,
+                                         const double *h);
+/* Advance one macro step.  On failure the state is unchanged and the
+ * message gives the step, time and residual. */
 int mrvi_integrator_step(mrvi_integrator *it);
 
 double mrvi_integrator_time(const mrvi_integrator *it);
@@ -1091,7 +1110,8 @@ int mrvi_integrator_timing(const mrvi_integrator *it, double *assemble,
 
 /* ---------------------------------------------------------------------------
  * Run driver: integrate to t_end, calling an observer at every macro node.
- * ------------------------------------------------------------------------- */
+ * -------------------------------------------------------------------------
+ */
 typedef struct mrvi_record {
   long k;              /* macro node index */
   double t;            /* t_k */
@@ -1099,7 +1119,8 @@ typedef struct mrvi_record {
   double kinetic, potential_slow, potential_fast, energy;
   double linear_momentum[3];  /* dimension entries used */
   double angular_momentum[3]; /* 3 in 3-D, 1 in 2-D */
-  int iterations;  /* Newton iterations of the step ending here (0 at k = 0) */
+  int iterations;  /* Newton iterations of the step ending here (0 at k = 0)
+                    */
   double residual; /* final ||R||_inf of that step (0 at k = 0) */
   /* Fast micro nodes that this record completes: at k = 0 the single node
    * t_0; otherwise nodes m = 1..p of step k-1.  micro_count x n_fast. */
@@ -1112,7 +1133,8 @@ typedef struct mrvi_record {
   /* Multipliers of node k-1 (computed by the step k-1 -> k that ends here;
    * NULL at k = 0): a node's multipliers are known one record late. */
   const double *lambda_prev;
-  double constraint_residual; /* max |g| over the nodes this record completes */
+  double constraint_residual;              /* max |g| over the nodes this record
+                                              completes */
   double hidden_constraint_residual;       /* max |G M^-1 p| at node k */
   const double *micro_constraint_residual; /* micro_count entries */
   /* The run's energy error so far, over every node j <= k (stored or not):
@@ -1125,6 +1147,12 @@ typedef struct mrvi_record {
    * needs them (mrvi_start.torsion_angle). */
   int n_torsion;
   const double *torsion_angle;
+  /* tuning.chord_carry: the history the next step takes from this node's
+   * step (mrvi_integrator_chord_history: n_chord entries in each of the
+   * five parts; 0 and NULLs without).  A run resumed from node k needs it
+   * to continue bit for bit (mrvi_start.chord_history). */
+  int n_chord;
+  const double *chord_history[5];
 } mrvi_record;
 
 /* Observer: return 0 to continue, a status < 0 to stop the run with it. */
@@ -1144,7 +1172,8 @@ typedef struct mrvi_summary {
   double energy_initial; /* H_0 */
   double energy_last;    /* H at the last completed macro node */
   /* Set when max_rel_energy_error exceeds settings.energy_warning: what
-   * the error is and what to do ("" otherwise).  The run still completes. */
+   * the error is and what to do ("" otherwise).  The run still completes.
+   */
   char warning[512];
   double wall_time; /* seconds */
   /* Time spent assembling and solving (mrvi_integrator_timing): measured
@@ -1152,8 +1181,8 @@ typedef struct mrvi_summary {
    * their sum is at most wall_time. */
   double assemble_time, solve_time;
   int timing_estimated;
-  long roundoff_steps; /* steps stopped at the roundoff floor above the Newton
-                          tolerance (doc/solver.md) */
+  long roundoff_steps;      /* steps stopped at the roundoff floor above the
+                               Newton      tolerance (doc/solver.md) */
   mrvi_krylov_stats krylov; /* iterative solves (sweep-cg, schur-krylov) */
   int status;               /* final status */
   /* Why it stopped ("" when completed).  A failed step after an energy
@@ -1183,6 +1212,11 @@ typedef struct mrvi_start {
    * node k), so that a wound spring continues wound. */
   int n_torsion;
   const double *torsion_angle;
+  /* NULL: the first step takes no chord history (tuning.chord_carry).
+   * Else node k's (5 n_chord entries: mrvi_record.chord_history of the run
+   * that stored node k, the parts one after the other). */
+  int n_chord;
+  const double *chord_history;
 } mrvi_start;
 /* mrvi_run from node start->k (mrvi_integrator_resume_state) instead of
  * node 0: the first record is node k (as the initial record of mrvi_run:
@@ -1194,7 +1228,8 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
 
 /* ---------------------------------------------------------------------------
  * Description files (YAML 1.2, doc/description-files.md).
- * ------------------------------------------------------------------------- */
+ * -------------------------------------------------------------------------
+ */
 typedef struct mrvi_system {
   char *name; /* `name:` */
   char *path; /* file it came from ("<string>" for text) */
@@ -1229,7 +1264,8 @@ void mrvi_system_free(mrvi_system *sys);
 /* ---------------------------------------------------------------------------
  * HDF5 output (doc/output.md).  The writer is an observer for mrvi_run;
  * rows are buffered and appended to chunked, extendible datasets.
- * ------------------------------------------------------------------------- */
+ * -------------------------------------------------------------------------
+ */
 typedef struct mrvi_writer mrvi_writer;
 
 typedef struct mrvi_writer_options {
@@ -1276,11 +1312,11 @@ void mrvi_writer_set_summary(mrvi_writer *w, const mrvi_summary *sum);
  * ("completed" or the message) and close.  Frees w. */
 int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
                       size_t len);
-/* The root attribute stop_reason of an mrvi output into reason: "completed",
- * the message of a run that stopped, "incomplete (writer killed)" for a run
- * that never closed, or "running" while a live run holds the file.  Opens a
- * killed file too (SWMR reading).  MRVI_EIO with a message in reason for a
- * file that is not an mrvi output. */
+/* The root attribute stop_reason of an mrvi output into reason:
+ * "completed", the message of a run that stopped, "incomplete (writer
+ * killed)" for a run that never closed, or "running" while a live run holds
+ * the file.  Opens a killed file too (SWMR reading).  MRVI_EIO with a
+ * message in reason for a file that is not an mrvi output. */
 int mrvi_run_file_status(const char *path, char *reason, size_t len);
 
 /* A macro node stored in an mrvi output, to continue a run from it (mrvi
@@ -1299,6 +1335,11 @@ typedef struct mrvi_stored_node {
    * file has none): mrvi_start.torsion_angle. */
   int n_torsion;
   double *torsion_angle;
+  /* /resume/chord_history where it holds node k's (tuning.chord_carry;
+   * MRVI_NODE_RESUME and _EXTEND only; 0 and NULL otherwise):
+   * mrvi_start.chord_history, 5 n_chord entries. */
+  int n_chord;
+  double *chord_history;
   char *description;      /* /model/description: the input after overrides */
   char stop_reason[1024]; /* as mrvi_run_file_status */
 } mrvi_stored_node;
@@ -1324,10 +1365,11 @@ void mrvi_stored_node_free(mrvi_stored_node *node);
 /* The run file at path against sys, the system of its own
  * /model/description: the root attributes macro_step, micro_steps,
  * output_every, t_end, scheme, alpha/gamma and slow_grid, the coordinates
- * (/macro/q's width, /model/name, /model/rate) and /macro/lambda's width must
- * be what that description gives.  MRVI_EINVAL naming the first disagreement
- * (a file edited or crafted after it was written must not be continued:
- * mrvi run --resume and --from check it before they read a node). */
+ * (/macro/q's width, /model/name, /model/rate) and /macro/lambda's width
+ * must be what that description gives.  MRVI_EINVAL naming the first
+ * disagreement (a file edited or crafted after it was written must not be
+ * continued: mrvi run --resume and --from check it before they read a
+ * node). */
 int mrvi_stored_run_check(const char *path, const mrvi_system *sys, char *msg,
                           size_t len);
 
@@ -1336,7 +1378,8 @@ int mrvi_stored_run_check(const char *path, const mrvi_system *sys, char *msg,
  * from a run file, for the macro nodes it stores (also of a run that
  * stopped early or was killed).  Both need a model with particles: a run
  * file of generalised coordinates only gives MRVI_EINVAL ("no particles").
- * ------------------------------------------------------------------------- */
+ * -------------------------------------------------------------------------
+ */
 
 /* XDMF 2 file describing the particles of run file h5_path over time,
  * pointing into its datasets (no data copied): two temporal collections of
@@ -1379,7 +1422,8 @@ int mrvi_export_xyz(const char *h5_path, const char *xyz_path,
 /* ---------------------------------------------------------------------------
  * Analysis (paper §4-§6): trajectories, errors against a reference,
  * propagation matrices and linear stability.
- * ------------------------------------------------------------------------- */
+ * -------------------------------------------------------------------------
+ */
 
 /* Every node of a run, kept in memory. */
 typedef struct mrvi_trajectory {
@@ -1448,10 +1492,10 @@ int mrvi_stability_at(const mrvi_model *m, const mrvi_settings *s, double x,
 int mrvi_stability_limit(const mrvi_model *m, const mrvi_settings *s,
                          double x_max, double step, double *limit, char *msg,
                          size_t len);
-/* Analytic bound of Lemma lemma:stability_slow on omega dT for the slow rule
- * on the micro grid: trapezoidal family (gamma = 0 or 1)
- * sqrt(12 p^2/(p^2+2)), midpoint (gamma = 1/2) sqrt(12 p^2/(p^2-1))
- * (INFINITY for p = 1); NAN for other rules. */
+/* Analytic bound of Lemma lemma:stability_slow on omega dT for the slow
+ * rule on the micro grid: trapezoidal family (gamma = 0 or 1) sqrt(12
+ * p^2/(p^2+2)), midpoint (gamma = 1/2) sqrt(12 p^2/(p^2-1)) (INFINITY for p
+ * = 1); NAN for other rules. */
 double mrvi_stability_bound(mrvi_rule slow, int p);
 
 #ifdef __cplusplus

@@ -546,6 +546,9 @@ static void test_chord(void) {
     if (sg && sa) {
       sa->settings.tuning.chord_jacobi_max = cases[c].bound;
       sa->settings.newton_max_iter = cases[c].max_iter;
+      /* (the chord's history within the step alone; across steps, with
+       * its resume: test_run's restart_carry, test_resume) */
+      sa->settings.tuning.chord_carry = 0;
       trajectory a, b;
       run(sg, steps, &a);
       run(sa, steps, &b);
@@ -557,9 +560,9 @@ static void test_chord(void) {
               "chord case %d (dT %g, bound %g): %ld CG solves in %d steps "
               "of %d rows",
               c, cases[c].dT, cases[c].bound, cg, steps, p);
-        /* A step depends on (q_k, p_k) alone (the chord's history holds
-         * rows of the current step): resumed at node 5, the run continues
-         * bit for bit. */
+        /* Without tuning.chord_carry a step depends on (q_k, p_k) alone
+         * (the chord's history holds rows of the current step): resumed at
+         * node 5, the run continues bit for bit. */
         mrvi_integrator *it = NULL;
         CHECK(resumes_bitwise(sa, &b, 5, &it),
               "chord case %d: resumed at node 5, not bit for bit", c);
@@ -593,6 +596,7 @@ static void test_chord_carry(void) {
   mrvi_system *sc =
       load_text(text, set(&oc, "explicit-slow", 5, 0.03, 1e-12, "auto"), 5);
   if (sg && sa && sc) {
+    sa->settings.tuning.chord_carry = 0;
     sc->settings.tuning.chord_carry = 1;
     trajectory a, b, c;
     run(sg, 10, &a);

@@ -471,6 +471,56 @@ MRVI_TEST_WRITE_FAIL_AFTER=3 "$mrvi" run "$fpu" --set integrator.t_end=3 \
 expect_error "extend a run that did not complete" 1 "did not complete" \
   "$mrvi" run --resume "$tmp/ext_stopped.h5" --set integrator.t_end=6
 
+# tuning.chord_carry (explicit-slow on sweep-cg, doc/solver.md "sweep-cg"):
+# the rows' history a step takes from the one before is part of the state
+# (/resume/chord_history, the last stored node's): the resumed runs continue
+# bit for bit.  Without it (the dataset removed) the resumed run continues
+# within the tolerance but not bit for bit (the history matters); a damaged
+# history is refused.
+lat=("$root/systems/lattice.yaml" --set integrator.scheme=explicit-slow
+  --set integrator.micro_steps=10 --set integrator.tuning.chord_carry=1
+  --set "generate.0.count=[40,20]")
+resume_case "lattice, chord_carry, every 3" 300 "${lat[@]}" \
+  --set integrator.t_end=15 --set output.every=3
+"$py" -c 'import sys, h5py; h = h5py.File(sys.argv[1], "r")["resume/chord_history"]; sys.exit(0 if h[0] == 300 and h[1] == 800 and len(h) == 2 + 5 * 800 else 1)' \
+  "$tmp/ref.h5" && pass "chord_carry: the last node's history (800 per row) stored" ||
+  fail "chord_carry: /resume/chord_history is not node 300's of 800 entries per row"
+# (flushes every 0.1 ms: the stop at step 150 leaves stored nodes; ch_ref:
+# the uninterrupted run of the same description)
+lat+=(--set integrator.t_end=15 --set output.every=3
+  --set output.flush_interval=0.0001)
+run_ok "chord_carry: reference run" "$mrvi" run "${lat[@]}" -o "$tmp/ch_ref.h5" -q
+MRVI_TEST_WRITE_FAIL_AFTER=150 "$mrvi" run "${lat[@]}" -o "$tmp/ch.h5" -q \
+  >/dev/null 2>&1
+k=$(steps_of "$tmp/ch.h5")
+[ "$k" -gt 3 ] && pass "chord_carry: stopped after $k stored steps" ||
+  fail "chord_carry: the stopped run stored $k steps (its flushes every 0.1 ms)"
+cp "$tmp/ch.h5" "$tmp/ch_none.h5"
+cp "$tmp/ch.h5" "$tmp/ch_nan.h5"
+cp "$tmp/ch.h5" "$tmp/ch_n.h5"
+"$py" -c 'import sys, h5py; del h5py.File(sys.argv[1], "r+")["resume/chord_history"]' \
+  "$tmp/ch_none.h5"
+"$py" -c 'import sys, h5py; h5py.File(sys.argv[1], "r+")["resume/chord_history"][9] = float("nan")' \
+  "$tmp/ch_nan.h5"
+"$py" -c 'import sys, h5py; h5py.File(sys.argv[1], "r+")["resume/chord_history"][1] = 7' \
+  "$tmp/ch_n.h5"
+rc=$(resume "$tmp/ch_none.h5")
+if [ "$rc" = 0 ] &&
+  "$py" -c 'import sys, h5py, numpy as np; a, b = (h5py.File(p, "r")["macro/q"][()] for p in sys.argv[1:]); d = np.abs(a - b).max(); print("%.3g" % d); sys.exit(0 if 0 < d < 1e-8 else 1)' \
+    "$tmp/ch_ref.h5" "$tmp/ch_none.h5" >"$tmp/log"; then
+  pass "chord_carry: resumed without the history: q within $(cat "$tmp/log") of the uninterrupted run, not bit for bit"
+else
+  fail "chord_carry: resume without the history: exit $rc, |dq| $(cat "$tmp/log")"
+fi
+expect_error "resume with a non-finite chord history" 1 "not a node's chord history" \
+  "$mrvi" run --resume "$tmp/ch_nan.h5"
+expect_error "resume with a chord history of another size" 1 "not a node's chord history" \
+  "$mrvi" run --resume "$tmp/ch_n.h5"
+rc=$(resume "$tmp/ch.h5")
+[ "$rc" = 0 ] && "$py" "$tmp/same.py" "$tmp/ch_ref.h5" "$tmp/ch.h5" >"$tmp/log" &&
+  pass "chord_carry: the same file resumed = uninterrupted ($(cat "$tmp/log"))" ||
+  fail "chord_carry: resumed: exit $rc, $(cat "$tmp/log")"
+
 run_ok "mrvi help run" "$mrvi" help run
 grep -q -- "--resume OUT.h5" "$tmp/out.txt" && grep -q -- "--from" "$tmp/out.txt" &&
   pass "help run explains --resume and --from" ||

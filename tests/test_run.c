@@ -150,8 +150,107 @@ static void restart(void) {
   CHECK(mrvi_system_load(test_source_path("systems/lattice.yaml"), set, 3, &sys,
                          msg, sizeof msg) == 0,
         "%s", msg);
-  if (sys)
+  /* (without tuning.chord_carry: a step of (q_k, p_k) alone; with it,
+   * restart_carry below) */
+  if (sys) {
+    sys->settings.tuning.chord_carry = 0;
     restart_case(sys->model, &sys->settings, "lattice, explicit-slow");
+  }
+  mrvi_system_free(sys);
+}
+
+/* tuning.chord_carry (solver/sweep.c): a step takes the rows' history of
+ * the one before, so the restart of restart_case continues bit for bit
+ * only with that history (mrvi_integrator_chord_history, then
+ * mrvi_integrator_resume_chord_history after resume_state); restarted from
+ * (q, p) alone it continues within the tolerance, not bit for bit (the
+ * history matters).  The first step has none; a history of another size,
+ * a non-finite one, or one given to a run without carry is refused. */
+static void restart_carry(void) {
+  mrvi_system *sys = NULL;
+  char msg[256];
+  const char *set[] = {
+      "integrator.scheme=explicit-slow", "integrator.micro_steps=10",
+      "integrator.newton.tolerance=1e-9", "generate.0.count=[40,20]",
+      "integrator.tuning.chord_carry=1"};
+  CHECK(mrvi_system_load(test_source_path("systems/lattice.yaml"), set, 5, &sys,
+                         msg, sizeof msg) == 0,
+        "%s", msg);
+  if (!sys)
+    return;
+  const mrvi_model *m = sys->model;
+  mrvi_integrator *a = NULL, *b = NULL, *c = NULL, *off = NULL;
+  mrvi_settings s_off = sys->settings;
+  s_off.tuning.chord_carry = 0;
+  CHECK(
+      mrvi_integrator_create(m, &sys->settings, &a, msg, sizeof msg) == 0 &&
+          mrvi_integrator_create(m, &sys->settings, &b, msg, sizeof msg) == 0 &&
+          mrvi_integrator_create(m, &sys->settings, &c, msg, sizeof msg) == 0 &&
+          mrvi_integrator_create(m, &s_off, &off, msg, sizeof msg) == 0,
+      "%s", msg);
+  if (a && b && c && off) {
+    const double *part[5];
+    CHECK(mrvi_integrator_chord_history(a, part) == 0,
+          "chord carry: no history before the first step");
+    for (int k = 0; k < 10; k++)
+      mrvi_integrator_step(a);
+    const int nh = mrvi_integrator_chord_history(a, part);
+    CHECK(nh == m->n_fast, "chord carry: history of %d per row (%d fast)", nh,
+          m->n_fast);
+    double *h = malloc(5 * (size_t)(nh > 0 ? nh : 1) * sizeof *h);
+    for (int i = 0; i < 5 && nh > 0; i++)
+      memcpy(h + (size_t)i * (size_t)nh, part[i], (size_t)nh * sizeof *h);
+    const long k = mrvi_integrator_step_index(a);
+    CHECK(mrvi_integrator_resume_state(b, k, mrvi_integrator_q(a),
+                                       mrvi_integrator_p(a)) == 0,
+          "resume b");
+    CHECK(mrvi_integrator_resume_chord_history(b, nh, h) == 0, "%s",
+          mrvi_integrator_errmsg(b));
+    CHECK(mrvi_integrator_resume_state(c, k, mrvi_integrator_q(a),
+                                       mrvi_integrator_p(a)) == 0,
+          "resume c");
+    /* refused: another size, a non-finite entry, a run without carry */
+    CHECK(mrvi_integrator_resume_chord_history(c, nh - 1, h) == MRVI_EINVAL,
+          "chord carry: a history of another size refused");
+    const double keep = h[3 * (size_t)nh + 2];
+    h[3 * (size_t)nh + 2] = NAN;
+    CHECK(mrvi_integrator_resume_chord_history(c, nh, h) == MRVI_ENONFINITE,
+          "chord carry: a non-finite history refused");
+    h[3 * (size_t)nh + 2] = keep;
+    CHECK(mrvi_integrator_resume_chord_history(off, nh, h) == MRVI_EINVAL,
+          "chord carry: a history given to a run without carry refused (%s)",
+          mrvi_integrator_errmsg(off));
+    CHECK(mrvi_integrator_chord_history(c, part) == 0,
+          "chord carry: refused histories leave none");
+    for (int j = 0; j < 10; j++) {
+      mrvi_integrator_step(a);
+      mrvi_integrator_step(b);
+      mrvi_integrator_step(c);
+    }
+    double db = 0, dc = 0;
+    for (int i = 0; i < m->n; i++) {
+      db =
+          fmax(db, fabs(mrvi_integrator_q(a)[i] - mrvi_integrator_q(b)[i]) +
+                       fabs(mrvi_integrator_p(a)[i] - mrvi_integrator_p(b)[i]));
+      dc =
+          fmax(dc, fabs(mrvi_integrator_q(a)[i] - mrvi_integrator_q(c)[i]) +
+                       fabs(mrvi_integrator_p(a)[i] - mrvi_integrator_p(c)[i]));
+    }
+    CHECK(db == 0.0,
+          "chord carry (%s path): restart with the history bitwise (%.3e)",
+          mrvi_integrator_solver_path(a), db);
+    CHECK(dc > 0.0 && dc < 1e-6,
+          "chord carry: restart from (q, p) alone within the tolerance, not "
+          "bitwise (%.3e)",
+          dc);
+    printf("chord carry: restart with the history %.3g, without %.3g\n", db,
+           dc);
+    free(h);
+  }
+  mrvi_integrator_free(a);
+  mrvi_integrator_free(b);
+  mrvi_integrator_free(c);
+  mrvi_integrator_free(off);
   mrvi_system_free(sys);
 }
 
@@ -434,6 +533,7 @@ int main(void) {
   newton_failure();
   interruption();
   restart();
+  restart_carry();
   energy_warning();
   settings_checks();
   builder_checks();

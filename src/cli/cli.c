@@ -1158,12 +1158,15 @@ static int cmd_run(int argc, char **argv) {
   /* From a stored node; a resume at node 0 starts as the original run. */
   mrvi_start start = {0};
   if (node)
-    start = (mrvi_start){.k = node->k,
-                         .q = node->q,
-                         .p = node->p,
-                         .energy = a.resume ? node->energy : NULL,
-                         .n_torsion = node->n_torsion,
-                         .torsion_angle = node->torsion_angle};
+    start =
+        (mrvi_start){.k = node->k,
+                     .q = node->q,
+                     .p = node->p,
+                     .energy = a.resume ? node->energy : NULL,
+                     .n_torsion = node->n_torsion,
+                     .torsion_angle = node->torsion_angle,
+                     .n_chord = a.resume ? node->n_chord : 0,
+                     .chord_history = a.resume ? node->chord_history : NULL};
   int st = mrvi_run_from(sys->model, &sys->settings,
                          node && (a.from || node->k > 0) ? &start : NULL,
                          run_observe, &ctx, &mrvi_cli_stop_signal, &sum);

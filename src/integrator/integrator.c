@@ -936,6 +936,26 @@ int mrvi_integrator_resume_torsion(mrvi_integrator *it, const double *angle) {
   return MRVI_OK;
 }
 
+int mrvi_integrator_chord_history(const mrvi_integrator *it,
+                                  const double *part[5]) {
+  return it->sweep ? mrvi_sweep_history(it->sweep, part) : 0;
+}
+
+int mrvi_integrator_resume_chord_history(mrvi_integrator *it, int n,
+                                         const double *h) {
+  char msg[300];
+  const int st = it->sweep && n > 0 && h
+                     ? mrvi_sweep_set_history(it->sweep, n, h, msg, sizeof msg)
+                     : MRVI_EINVAL;
+  if (st < 0)
+    return fail(it, st, "%s",
+                it->sweep && n > 0 && h
+                    ? msg
+                    : "a chord history was given, but this run's solver "
+                      "keeps none");
+  return MRVI_OK;
+}
+
 int mrvi_integrator_n_torsions(const mrvi_integrator *it) {
   return it->n_torsion;
 }

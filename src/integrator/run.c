@@ -213,6 +213,14 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     mrvi_integrator_free(it);
     return sum->status = st;
   }
+  if (start && start->chord_history &&
+      (st = mrvi_integrator_resume_chord_history(it, start->n_chord,
+                                                 start->chord_history)) < 0) {
+    mrvi_fmt(sum->message, sizeof sum->message, "start node %ld: %s", k0,
+             mrvi_integrator_errmsg(it));
+    mrvi_integrator_free(it);
+    return sum->status = st;
+  }
   if (k0 > N) {
     mrvi_fmt(sum->message, sizeof sum->message,
              "start node %ld is beyond the last node %ld", k0, N);
@@ -230,6 +238,7 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
   /* the integrator's array: each record sees the branches of its node */
   r.n_torsion = mrvi_integrator_n_torsions(it);
   r.torsion_angle = r.n_torsion > 0 ? mrvi_integrator_torsion_angle(it) : NULL;
+  r.n_chord = mrvi_integrator_chord_history(it, r.chord_history);
   potentials pot;
   potentials_create(m, s, &pot);
   observe_state(m, &pot, &r);
@@ -311,6 +320,7 @@ int mrvi_run_from(const mrvi_model *m, const mrvi_settings *s,
     r.micro_t0 = rows == p ? (double)k * s->macro_step + dt : r.t;
     r.micro_q_fast = mrvi_integrator_micro_q(it);
     r.micro_p_fast = mrvi_integrator_micro_p(it);
+    r.n_chord = mrvi_integrator_chord_history(it, r.chord_history);
     if (m->n_constraints > 0) {
       r.lambda_prev = mrvi_integrator_lambda(it);
       r.micro_constraint_residual =

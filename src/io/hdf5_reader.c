@@ -464,6 +464,56 @@ static int read_node_energy(const mrvi_h5in *in, mrvi_stored_node *node) {
   return MRVI_OK;
 }
 
+/* node->chord_history <- /resume/chord_history (tuning.chord_carry: the
+ * rows' history the step after the stored node takes, hdf5_writer.c),
+ * where the file has it for node->k: [k, n, then 5 n entries] with n 0 or
+ * the fast coordinates (at most node->n); checked (rank, size, k and n
+ * whole numbers, finite entries) before use. */
+static int read_node_chord(const mrvi_h5in *in, mrvi_stored_node *node) {
+  static const char name[] = "/resume/chord_history";
+  if (!mrvi_h5in_exists(in, name))
+    return MRVI_OK;
+  const hsize_t most = 2 + 5 * (hsize_t)node->n;
+  double *h = NULL;
+  hsize_t d[1] = {0};
+  int st = mrvi_h5in_shape(in, name, MRVI_H5_NUMBER, 1, NULL, d);
+  if (st == MRVI_OK && (d[0] < 2 || d[0] > most))
+    st = mrvi_fail(in->msg, in->len, MRVI_EIO,
+                   "%s: %s has %llu entries (2 to %llu for %d coordinates)",
+                   in->path, name, (unsigned long long)d[0],
+                   (unsigned long long)most, node->n);
+  if (st == MRVI_OK)
+    st = mrvi_h5in_read_new(in, name, H5T_NATIVE_DOUBLE, 1, d, MRVI_H5_ANY,
+                            (void **)&h, NULL);
+  if (st < 0)
+    return st;
+  const double k = h[0], nc = h[1];
+  int bad =
+      !(k >= 0.0 && k < 9.0e15 && k == floor(k) && nc >= 0.0 && nc <= node->n &&
+        nc == floor(nc) && (nc == 0.0 || 2 + 5 * (hsize_t)nc == d[0]));
+  for (hsize_t i = 2; !bad && nc > 0.0 && i < d[0]; i++)
+    bad = !isfinite(h[i]);
+  if (bad) {
+    free(h);
+    return mrvi_fail(in->msg, in->len, MRVI_EIO,
+                     "%s: %s is not a node's chord history (node %.17g, "
+                     "%.17g entries per part, %llu in all, or a non-finite "
+                     "entry)",
+                     in->path, name, k, nc, (unsigned long long)d[0]);
+  }
+  /* The history of another node (a writer killed between the rows and
+   * their history) is not this node's: none, the run then continues
+   * within the tolerance. */
+  if ((long)k != node->k || nc == 0.0) {
+    free(h);
+    return MRVI_OK;
+  }
+  memmove(h, h + 2, (size_t)(d[0] - 2) * sizeof *h);
+  node->n_chord = (int)nc;
+  node->chord_history = h;
+  return MRVI_OK;
+}
+
 int mrvi_stored_node_read(const char *path, long which, int n,
                           mrvi_stored_node **out, char *msg, size_t len) {
   *out = NULL;
@@ -492,6 +542,9 @@ int mrvi_stored_node_read(const char *path, long which, int n,
   if (st == MRVI_OK &&
       (which == MRVI_NODE_RESUME || which == MRVI_NODE_EXTEND) && node->k > 0)
     st = read_node_energy(&in, node);
+  if (st == MRVI_OK &&
+      (which == MRVI_NODE_RESUME || which == MRVI_NODE_EXTEND) && node->k > 0)
+    st = read_node_chord(&in, node);
   if (f >= 0)
     H5Fclose(f);
   mrvi_h5_quiet_end(&q);
@@ -509,6 +562,7 @@ void mrvi_stored_node_free(mrvi_stored_node *node) {
   free(node->q);
   free(node->p);
   free(node->torsion_angle);
+  free(node->chord_history);
   free(node->description);
   free(node);
 }

@@ -281,8 +281,16 @@ struct mrvi_writer {
   double *nan_row;       /* n_lambda NaNs: the /macro/lambda placeholder */
   double *lambda_patch;  /* n_lambda: multipliers of the last row in the file */
   int patch;             /* lambda_patch waits for the next flush */
-  int status;            /* first failure (0 if none) */
-  int io_failed;         /* a write failed: the file is not touched again */
+  /* tuning.chord_carry: /resume/chord_history, the rows' history the step
+   * after the last stored macro node takes ([k, n, 5 n entries],
+   * chord_len in all; 0: none), rewritten with the rows at each flush, so
+   * that a resumed run continues bit for bit (mrvi_stored_node_read). */
+  hid_t chord_id;
+  hsize_t chord_len;
+  double *chord_buf;
+  int chord_dirty; /* chord_buf holds a node the file lacks */
+  int status;      /* first failure (0 if none) */
+  int io_failed;   /* a write failed: the file is not touched again */
   char errmsg[512];
   output out[N_OUTPUTS];
 };
@@ -692,6 +700,38 @@ static int create_output(mrvi_writer *w, int id, hid_t lcpl,
   return 0;
 }
 
+/* /resume/chord_history, node 0's (no history: [0, 0, zeros]). */
+static int create_chord(mrvi_writer *w, hid_t lcpl) {
+  hid_t space = H5Screate_simple(1, &w->chord_len, NULL);
+  if (space >= 0)
+    w->chord_id = H5Dcreate2(w->file, "/resume/chord_history", H5T_IEEE_F64LE,
+                             space, lcpl, H5P_DEFAULT, H5P_DEFAULT);
+  hid_t es = mrvi_h5_keep_errors((herr_t)(w->chord_id < 0 ? -1 : 0));
+  if (space >= 0)
+    H5Sclose(space);
+  mrvi_h5_restore_errors(es);
+  if (w->chord_id < 0 ||
+      mrvi_h5_attr_string(w->chord_id, "long_name",
+                          "tuning.chord_carry: [k, n, the five rows' implicit "
+                          "forces (n each)] the step after stored macro node "
+                          "k takes (mrvi run --resume)") < 0 ||
+      H5Dwrite(w->chord_id, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT,
+               w->chord_buf) < 0)
+    return fail_h5(w, MRVI_EIO, "creating /resume/chord_history");
+  return 0;
+}
+
+/* The chord history of a stored record (hdf5_writer's chord_buf). */
+static void chord_keep(mrvi_writer *w, const mrvi_record *r) {
+  const int n = r->n_chord == w->nf ? w->nf : 0;
+  w->chord_buf[0] = (double)r->k;
+  w->chord_buf[1] = (double)n;
+  for (int i = 0; i < 5 && n > 0; i++)
+    memcpy(w->chord_buf + 2 + (size_t)i * (size_t)n, r->chord_history[i],
+           (size_t)n * sizeof(double));
+  w->chord_dirty = 1;
+}
+
 /* Write `rows` rows from buf at row `start` of dataset id, extending the
  * dataset when they end past the rows in the file. */
 static herr_t write_rows(mrvi_writer *w, int id, hsize_t start, size_t rows,
@@ -792,6 +832,13 @@ static int flush(mrvi_writer *w, int final) {
     if (write_rows(w, id, w->written[st], w->rows[st], w->out[id].buf) < 0)
       rc = fail_dataset(w, output_info[id].path);
   }
+  /* The chord history of the last stored node, with the rows. */
+  if (rc == 0 && w->chord_dirty) {
+    if (H5Dwrite(w->chord_id, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT,
+                 w->chord_buf) < 0)
+      rc = fail_dataset(w, "/resume/chord_history");
+    w->chord_dirty = 0;
+  }
   /* Two flushes, so that the counter never runs ahead of the data: the rows
    * and the datasets' new extents reach the file first; only then is
    * steps_completed raised and flushed.  A process killed between (or
@@ -848,6 +895,9 @@ static void close_handles(mrvi_writer *w) {
       fail_h5(w, MRVI_EIO, "closing the file");
     w->out[id].id = H5I_INVALID_HID;
   }
+  if (w->chord_id >= 0 && H5Dclose(w->chord_id) < 0)
+    fail_h5(w, MRVI_EIO, "closing the file");
+  w->chord_id = H5I_INVALID_HID;
 }
 
 /* Release the memory of a writer whose handles are closed. */
@@ -872,6 +922,7 @@ static void writer_free(mrvi_writer *w) {
   free(w->scratch);
   free(w->nan_row);
   free(w->lambda_patch);
+  free(w->chord_buf);
   free(w->path);
   free(w->part_path);
   free(w);
@@ -1141,6 +1192,21 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
   }
   for (int s = 0; s < N_STREAMS; s++)
     w->written[s] = w->stream_on[s] ? keep[s] : 0;
+  /* The chord history where the file has one of this run's size (SWMR
+   * creates no dataset: a file without it goes on without). */
+  if (w->chord_len > 0) {
+    char why[400];
+    const mrvi_h5in in = {w->file, w->path, why, sizeof why};
+    const hsize_t want[1] = {w->chord_len};
+    hsize_t dims[1];
+    if (mrvi_h5in_exists(&in, "/resume/chord_history") &&
+        (w->chord_id = mrvi_h5in_open(&in, "/resume/chord_history",
+                                      MRVI_H5_NUMBER, 1, want, dims)) < 0)
+      return fail(w, MRVI_EIO, "%s (does not fit this model and settings)",
+                  why);
+    if (w->chord_id < 0)
+      w->chord_len = 0;
+  }
   if (mrvi_h5_attr_long(w->file, "steps_completed", k) < 0 ||
       mrvi_h5_attr_fixed_string(w->file, "stop_reason", "running") < 0)
     return fail_h5(w, MRVI_EIO,
@@ -1273,6 +1339,18 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
     H5Pclose(fapl);
     return fail_h5(w, MRVI_EIO, "cannot select the HDF5 file format");
   }
+  /* (the history: sweep-cg's alone, solver/sweep.c) */
+  const char *path = mrvi_solver_path(m, s, NULL, 0);
+  w->chord_len =
+      s->tuning.chord_carry && w->nf > 0 && path && !strcmp(path, "sweep-cg")
+          ? 2 + 5 * (hsize_t)w->nf
+          : 0;
+  if (w->chord_len > 0 &&
+      !(w->chord_buf = calloc((size_t)w->chord_len, sizeof(double)))) {
+    if (fapl >= 0)
+      H5Pclose(fapl);
+    return fail(w, MRVI_ENOMEM, "out of memory");
+  }
   if (resume_k >= 0) {
     if (w->extend)
       rc = extend_prepare(w, s->t_end, description);
@@ -1333,6 +1411,8 @@ static int writer_setup(mrvi_writer *w, const mrvi_model *m,
   for (int id = 0; id < N_OUTPUTS && rc == 0; id++)
     if (w->out[id].cols > 0)
       rc = create_output(w, id, lcpl, expected[output_info[id].stream]);
+  if (rc == 0 && w->chord_len > 0)
+    rc = create_chord(w, lcpl);
   H5Pclose(lcpl);
   if (rc == 0 && H5Fflush(w->file, H5F_SCOPE_LOCAL) < 0)
     rc = fail_h5(w, MRVI_EIO, "flushing the file");
@@ -1400,6 +1480,7 @@ int mrvi_writer_open(const char *path, const mrvi_model *m,
   w->file = H5I_INVALID_HID;
   for (int id = 0; id < N_OUTPUTS; id++)
     w->out[id].id = H5I_INVALID_HID;
+  w->chord_id = H5I_INVALID_HID;
   w->n = mrvi_model_n(m);
   w->nf = mrvi_model_n_fast(m);
   w->ns = mrvi_model_n_slow(m);
@@ -1598,6 +1679,8 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
       interpolate_slow(w, r, 0);
     if (w->nj > 0)
       memcpy(w->lambda_q, r->q, (size_t)w->n * sizeof *w->lambda_q);
+    if (w->chord_len > 0)
+      chord_keep(w, r);
     w->last_k = r->k;
     return MRVI_OK;
   }
@@ -1632,6 +1715,8 @@ int mrvi_writer_observe(void *writer, const mrvi_record *r) {
   if (r->k % w->every == 0) {
     w->rows[MACRO]++;
     w->pending = 0;
+    if (w->chord_len > 0)
+      chord_keep(w, r);
   } else {
     w->pending = 1;
   }

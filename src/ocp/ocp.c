@@ -1035,6 +1035,9 @@ static int setup(mrvi_ocp *o, const double *u) {
      * unconstrained anyway). */
     mrvi_settings s = o->settings;
     s.project_momenta = 0;
+    /* Each forward run a function of its inputs, each step of (q_k, p_k)
+     * alone, as the adjoint differentiates it: no chord history. */
+    s.tuning.chord_carry = 0;
     const int st =
         mrvi_integrator_create(o->model, &s, &o->integ, msg, sizeof msg);
     if (st < 0)

@@ -302,6 +302,16 @@ void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v);
 /* sweep-cg: the chord's relaxation ratios summed since creation
  * (mrvi_krylov_stats.sweep_chord_sum). */
 double mrvi_sweep_chord_sum(const mrvi_sweep *sw);
+/* sweep-cg with tuning.chord_carry: the history the next step takes from
+ * this one (the converged implicit forces of the last five rows, the last
+ * row's first), part[i] nf entries each; returns nf, or 0 where the next
+ * step takes none.  set_history restores it (h: the five parts one after
+ * the other, n entries each) after mrvi_sweep_reset, so that a resumed run
+ * continues bit for bit; MRVI_EINVAL where this run keeps no history or n
+ * is not its nf, MRVI_ENONFINITE for a non-finite entry. */
+int mrvi_sweep_history(const mrvi_sweep *sw, const double *part[5]);
+int mrvi_sweep_set_history(mrvi_sweep *sw, int n, const double *h, char *msg,
+                           size_t len);
 /* Name of path MRVI_PATH_* ("general", "explicit", ...): the one list. */
 const char *mrvi_path_name(int path);
 

@@ -913,6 +913,48 @@ static int predictor_order(const mrvi_sweep *sw, int m) {
   return sw->mild ? (m >= PREDICTOR_ORDER ? PREDICTOR_ORDER : m) : 1;
 }
 
+/* The rows' history a step takes from the one before (tuning.chord_carry):
+ * the last PREDICTOR_ORDER rows' converged implicit forces, f1 (fimp)
+ * first, where the last step kept them (carry_next), else none. */
+int mrvi_sweep_history(const mrvi_sweep *sw, const double *part[5]) {
+  if (!sw || sw->carry_next != PREDICTOR_ORDER)
+    return 0;
+  part[0] = sw->fimp;
+  for (int i = 0; i < 4; i++)
+    part[i + 1] = sw->fhist[i];
+  return sw->nf;
+}
+
+int mrvi_sweep_set_history(mrvi_sweep *sw, int n, const double *h, char *msg,
+                           size_t len) {
+  if (!sw || !(sw->carry_on && sw->implicit && sw->sparse && sw->fresh &&
+               sw->p >= PREDICTOR_ORDER)) {
+    mrvi_fmt(msg, len,
+             "a chord history was given, but this run's solver keeps none "
+             "(tuning.chord_carry off, or not explicit-slow on sweep-cg "
+             "with springs and anchors and at least %d micro steps)",
+             PREDICTOR_ORDER);
+    return MRVI_EINVAL;
+  }
+  if (n != sw->nf) {
+    mrvi_fmt(msg, len,
+             "chord history of %d fast coordinates per row, the run has %d", n,
+             sw->nf);
+    return MRVI_EINVAL;
+  }
+  for (size_t i = 0; i < (size_t)PREDICTOR_ORDER * (size_t)n; i++)
+    if (!isfinite(h[i])) {
+      mrvi_fmt(msg, len, "chord history entry %zu is not finite", i);
+      return MRVI_ENONFINITE;
+    }
+  memcpy(sw->fimp, h, (size_t)n * sizeof *h);
+  for (int i = 0; i < 4; i++)
+    memcpy(sw->fhist[i], h + (size_t)(i + 1) * (size_t)n,
+           (size_t)n * sizeof *h);
+  sw->carry_next = PREDICTOR_ORDER;
+  return MRVI_OK;
+}
+
 /* Row m's predictor (above) where the last row's end did not form it
  * (end_predict): the displacement dn, in the same pass (one pass over the
  * row instead of three) the point's configuration zf = qm + cB dn where
