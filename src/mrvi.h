@@ -841,7 +841,12 @@ typedef enum mrvi_newton_criterion {
   X(int, predict_joints, 1, 0, 1,                                              \
     "schur-bordered steps with micro-node constraints: the predictor's "       \
     "sweep moves each fast node onto them and sets their multipliers (the "    \
-    "joint sweep; 0: the explicit sweep, multipliers from zero)")
+    "joint sweep; 0: the explicit sweep, multipliers from zero)")              \
+  X(int, joints_omega, 1, 0, 1,                                                \
+    "with the joint sweep, its bound dt omega_max <= 1/2 (else free flight) "  \
+    "takes omega_max of the fast part on the micro-node constraints at the "   \
+    "initial state, with dt omega_max <= 1 on the unconstrained hess(V + W) "  \
+    "(0: dt omega_max <= 1/2 on the unconstrained one)")
 
 typedef struct mrvi_tuning {
 #define MRVI_TUNING_FIELD(type, name, def, lo, hi, meaning) type name;

@@ -654,7 +654,7 @@ static int bordered_create(mrvi_integrator *it, char *msg, size_t len) {
   if (mrvi_bordered_create(&it->step, &it->bordered) < 0 ||
       (it->step.tuning.predict_joints &&
        (mrvi_joint_sweep_create(&it->step, &it->jsweep) < 0 ||
-        mrvi_predictor_set_joints(it->predictor, it->jsweep) < 0)))
+        mrvi_predictor_set_joints(it->predictor, it->jsweep, &it->step) < 0)))
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   return MRVI_OK;
 }

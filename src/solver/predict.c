@@ -456,7 +456,8 @@ static void one_point(mrvi_predictor *pr, const mrvi_step *st) {
   pr->one = 1;
 }
 
-static double power_iteration(mrvi_predictor *pr);
+static double power_iteration(mrvi_predictor *pr, double *Q, int nq,
+                              double *wk);
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
                           mrvi_predictor **out) {
@@ -578,7 +579,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
             pr->slow_coupled = 1;
       }
     }
-  pr->omega = power_iteration(pr);
+  pr->omega = power_iteration(pr, NULL, 0, NULL);
   pr->sweep_ok = st->dt * pr->omega <= 0.5;
   pr->rstop = pr->rsweep = INFINITY;
   if (pr->slow_coupled && m->n <= pr->tn.slow_newton_n) {
@@ -656,24 +657,35 @@ double mrvi_predictor_omega_max(mrvi_predictor *pr) { return pr->omega; }
  * differences of the gradient (fs, fexp, fimp, fb and fimp1 serve as vectors
  * here), in the packed order of the compiled terms (coordinate c at
  * column (slow ? 0 : n_slow) + slot[c], its start entry 1 + 0.1 (c mod 7)
- * as in model order); computed once, by mrvi_predictor_create. */
-static double power_iteration(mrvi_predictor *pr) {
+ * as in model order); computed once, by mrvi_predictor_create.  With Q
+ * (nq orthonormal rows of nf entries, and a row nq of scratch): the slow
+ * coordinates held and the fast ones on the subspace orthogonal to Q's
+ * rows (joints_omega), in the vectors of wk (6 n) instead of the
+ * predictor's, which hold the set-up by then. */
+static double power_iteration(mrvi_predictor *pr, double *Q, int nq,
+                              double *wk) {
   const mrvi_model *m = pr->m;
-  const int n = m->n;
-  double *u = pr->fs, *gp = pr->fexp, *gm = pr->fimp, *q0 = pr->fb;
+  const int n = m->n, ns = m->n_slow;
+  double *u = wk ? wk : pr->fs, *gp = wk ? wk + n : pr->fexp,
+         *gm = wk ? wk + 2 * n : pr->fimp, *q0 = wk ? wk + 3 * n : pr->fb,
+         *z = wk ? wk + 4 * n : pr->z;
   double lambda = 0.0, h = 0.0;
   for (int c = 0; c < n; c++) {
-    const int j = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
-    u[j] = 1.0 + 0.1 * (double)(c % 7);
+    const int slow = m->rate[c] == MRVI_SLOW, j = (slow ? 0 : ns) + m->slot[c];
+    u[j] = Q && slow ? 0.0 : 1.0 + 0.1 * (double)(c % 7);
     q0[j] = m->q0[c];
     h = fmax(h, fabs(m->q0[c]));
   }
   h = 1e-6 * (1.0 + h);
   /* M^-1/2 once (fimp1 serves: the steps write it before they read it) */
-  double *sm = pr->fimp1;
+  double *sm = wk ? wk + 5 * n : pr->fimp1;
   for (int i = 0; i < n; i++)
     sm[i] = sqrt(pr->minv[i]);
   for (int it = 0; it < 30; it++) {
+    /* (on the tangent space: u's fast part less its components along Q's
+     * rows; Q's row nq is scratch) */
+    if (Q)
+      mrvi_dense_extend_basis(n - ns, Q, nq, u + ns, 0.0);
     double nu = 0.0;
     for (int i = 0; i < n; i++)
       nu += u[i] * u[i];
@@ -685,14 +697,14 @@ static double power_iteration(mrvi_predictor *pr) {
     for (int sgn = 0; sgn < 2; sgn++) {
       double *g = sgn ? gm : gp;
       for (int i = 0; i < n; i++)
-        pr->z[i] = q0[i] + (sgn ? -h : h) * u[i] * sm[i];
+        z[i] = q0[i] + (sgn ? -h : h) * u[i] * sm[i];
       memset(g, 0, (size_t)n * sizeof(double));
-      mrvi_terms_grad(pr->kc[0], pr->z, g);
-      mrvi_terms_grad(pr->kc[1], pr->z, g);
+      mrvi_terms_grad(pr->kc[0], z, g);
+      mrvi_terms_grad(pr->kc[1], z, g);
     }
     lambda = 0.0;
     for (int i = 0; i < n; i++) {
-      const double hu = (gp[i] - gm[i]) / (2.0 * h) * sm[i];
+      const double hu = Q && i < ns ? 0.0 : (gp[i] - gm[i]) / (2.0 * h) * sm[i];
       lambda += u[i] * hu;
       u[i] = hu;
     }
@@ -1628,11 +1640,75 @@ int mrvi_predictor_presolve(mrvi_predictor *pr, int on) {
 
 int mrvi_predictor_sweeps(const mrvi_predictor *pr) { return pr->n_sweeps; }
 
-int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w) {
+/* omega_max of the fast part on the micro-node constraints at q0, the slow
+ * part held: power iteration on P M_f^-1/2 hess_ff(V + W)(q0) M_f^-1/2 P,
+ * P the projector onto the null space of G_f(q0) M_f^-1/2 (G_f the
+ * micro-node constraints' gradient in the fast coordinates; the
+ * multipliers' curvature, sum lambda hess g, left out).  The joint sweep
+ * keeps the fast nodes on these constraints, so the frequencies it meets
+ * are these, not those of the unconstrained hess(V + W): on the flexible
+ * pendulum 320 rad/s unconstrained (the wrist spring on one link's
+ * directors) against the wrist's 156 with the arm held (doc/solver.md,
+ * "The joint sweep's step bound on the constrained frequencies").  -1 if
+ * out of memory. */
+static double joints_omega(mrvi_predictor *pr, const mrvi_step *st) {
+  const mrvi_model *m = pr->m;
+  const int nf = st->nf, ns = st->ns;
+  const size_t ni = (size_t)(m->max_constraint_in > 0 ? m->max_constraint_in
+                                                      : 1),
+               r = (size_t)st->r_micro;
+  double *Q = malloc((r + 1) * (size_t)nf * sizeof *Q),
+         *y = malloc((ni + r + r * ni) * sizeof *y),
+         *wk = malloc(6 * (size_t)m->n * sizeof *wk);
+  if (!Q || !y || !wk) {
+    free(Q);
+    free(y);
+    free(wk);
+    return -1.0;
+  }
+  double *g = y + ni, *G = g + r;
+  int nq = 0;
+  for (int i = 0; i < st->n_micro_c; i++) {
+    const mrvi_constraint *k = &m->constraints[st->micro_c[i]];
+    for (int j = 0; j < k->n_in; j++)
+      y[j] = m->q0[k->in[j]];
+    mrvi_constraint_eval_at(k, y, g, G, NULL);
+    for (int row = 0; row < k->rows; row++) {
+      double *b = Q + (size_t)nq * (size_t)nf;
+      memset(b, 0, (size_t)nf * sizeof *b);
+      for (int j = 0; j < k->n_in; j++) {
+        const int c = k->in[j], s = m->slot[c];
+        if (m->rate[c] == MRVI_FAST)
+          b[s] += G[row * k->n_in + j] * sqrt(pr->minv[ns + s]);
+      }
+      nq += mrvi_dense_extend_basis(nf, Q, nq, b, 1e-10);
+    }
+  }
+  const double w = power_iteration(pr, Q, nq, wk);
+  free(Q);
+  free(y);
+  free(wk);
+  return w;
+}
+
+int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w,
+                              const mrvi_step *st) {
   if (w && !pr->ju &&
       !(pr->ju = malloc((size_t)(pr->m->n_fast + 1) * sizeof(double))))
     return MRVI_ENOMEM;
   pr->js = w;
+  /* (the explicit sweep's bound dt omega_max <= 1/2 on the frequencies
+   * the joint sweep meets, and dt omega_max <= 1 on the unconstrained ones:
+   * its explicit rows take the unconstrained forces before each move, and
+   * Stoermer-Verlet is stable on them only for dt omega < 2; the
+   * spacecraft's panels, 36 rad/s on their joints and 1 225 unconstrained,
+   * blew up to 1e175 at p = 5 under the first bound alone) */
+  if (w && st->tuning.joints_omega) {
+    const double om = joints_omega(pr, st);
+    if (om < 0.0)
+      return MRVI_ENOMEM;
+    pr->sweep_ok = st->dt * om <= 0.5 && st->dt * pr->omega <= 1.0;
+  }
   return MRVI_OK;
 }
 

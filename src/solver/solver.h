@@ -631,8 +631,12 @@ void mrvi_joint_sweep_slow_force(const mrvi_joint_sweep *w, const mrvi_step *st,
  * Newton updates), their multipliers set; MRVI_ESINGULAR (x unchanged)
  * where the matrix is singular. */
 int mrvi_joint_sweep_slow(mrvi_joint_sweep *w, const mrvi_step *st, double *x);
-/* The predictor's sweeps take w's moves (NULL: not); MRVI_ENOMEM. */
-int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w);
+/* The predictor's sweeps take w's moves (NULL: not) and, with tuning
+ * joints_omega, the explicit sweep's bound dt omega_max <= 1/2 is checked
+ * on the fast part's frequencies on st's micro-node constraints at the
+ * initial state; MRVI_ENOMEM. */
+int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w,
+                              const mrvi_step *st);
 
 /* The schur-bordered path (solver/bordered.c): a constrained step's
  * Newton matrix [A B; C E] in the multiplier form by the block elimination
