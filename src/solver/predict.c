@@ -497,12 +497,19 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
     pr->minv[col[c]] = 1.0 / m->mass[c];
   }
+  /* Beyond the small systems (the affine classes of ns, nf <= 4 and the
+   * slow Newton solve's Hessians up to slow_newton_n coordinates, below)
+   * the classes' gradients alone: their compact records (16 or 24 bytes a
+   * spring instead of 169), the same gradient bit for bit. */
+  const int grad_only =
+      !(st->ns <= 4 && st->nf <= 4) && m->n > pr->tn.slow_newton_n;
   for (int c = 0; c < 2; c++) {
     /* (a large spring class's gradient on the step's threads, in parts by
      * records as the outer iteration's: the same bits for every count) */
     const int ok =
-        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
-                          &pr->kc[c]) == MRVI_OK &&
+        (grad_only ? mrvi_terms_create_grad_exact : mrvi_terms_create)(
+            m, st->elem_of_class[c], st->n_elem_of_class[c], col, &pr->kc[c]) ==
+            MRVI_OK &&
         mrvi_terms_set_threads(pr->kc[c], st->threads, st->tuning.thread_chunk,
                                0) == MRVI_OK &&
         (pr->kinds[c] = malloc((size_t)st->n_pts[c] + 1));

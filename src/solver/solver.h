@@ -392,6 +392,13 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
  * columns (the explicit paths' classes). */
 int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
                            const int *col_of, mrvi_terms **out);
+/* mrvi_terms_create_grad's records with mrvi_terms_create's gradient bit
+ * for bit (its two divisions per Hooke spring, not the one of a
+ * gradient-only class of Hooke springs): the predictor's classes, which
+ * need the gradient alone beyond the small systems (solver/predict.c). */
+int mrvi_terms_create_grad_exact(const mrvi_model *m, const int *elems,
+                                 int n_elems, const int *col_of,
+                                 mrvi_terms **out);
 /* The same for values alone (mrvi_terms_value; col_of NULL): a class of
  * Hooke springs on consecutive columns keeps its khooke records alone, as
  * mrvi_terms_create_grad's, any other class is mrvi_terms_create's. */

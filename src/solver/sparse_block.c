@@ -12,6 +12,7 @@
  * allocated after creation except UMFPACK's factors on a fallback. */
 #include "solver/solver.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -47,8 +48,41 @@ void mrvi_sblock_free(mrvi_sblock *sb) {
   free(sb);
 }
 
+/* The rows of one column of the pattern (r[0..nr) in bucket order) sorted
+ * with duplicates once into u (returned: their count); then each r[b]
+ * replaced by k0 + its rank in u (its index in Ax). */
+static int column_rows(int *r, int nr, int *u, int k0) {
+  int nu = 0;
+  for (int b = 0; b < nr; b++) { /* (a few dozen rows: insertion) */
+    const int x = r[b];
+    int i = nu;
+    while (i > 0 && u[i - 1] > x)
+      i--;
+    if (i > 0 && u[i - 1] == x)
+      continue;
+    memmove(u + i + 1, u + i, (size_t)(nu - i) * sizeof *u);
+    u[i] = x;
+    nu++;
+  }
+  for (int b = 0; b < nr; b++) {
+    int lo = 0, hi = nu - 1;
+    while (lo < hi) {
+      const int mid = (lo + hi) / 2;
+      if (u[mid] < r[b])
+        lo = mid + 1;
+      else
+        hi = mid;
+    }
+    r[b] = k0 + lo;
+  }
+  return nu;
+}
+
 /* Pattern of the fast-fast Hessians of elements `elems` (model indices)
- * and the diagonal, as triplets mapped to CSC. */
+ * and the diagonal in CSC, rows sorted and each once in a column (as
+ * umfpack_di_triplet_to_col makes it from the triplets: the diagonal, then
+ * every element's fast-fast pairs), built by columns without the triplets:
+ * each pair's bucket position is kept in emap, then its index in Ax. */
 int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
                        int dense_max, mrvi_sblock **out) {
   const int nf = m->n_fast;
@@ -70,61 +104,77 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
     sb->elem_off[ie] = nt - nf;
     nt += (long)e->n_in * e->n_in;
   }
-  int *Ti = malloc((size_t)nt * sizeof(int)),
-      *Tj = malloc((size_t)nt * sizeof(int));
-  int *map = malloc((size_t)nt * sizeof(int));
+  /* Column c's entries are bucket positions start[c] .. start[c + 1]. */
+  long *start = calloc((size_t)nf + 2, sizeof *start);
   sb->emap = malloc((size_t)(nt - nf > 0 ? nt - nf : 1) * sizeof(int));
+  sb->diag = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(int));
   sb->Ap = malloc((size_t)(nf + 1) * sizeof(int));
-  sb->Ai = malloc((size_t)nt * sizeof(int));
-  if (!Ti || !Tj || !map || !sb->emap || !sb->Ap || !sb->Ai) {
-    free(Ti);
-    free(Tj);
-    free(map);
+  if (!start || !sb->emap || !sb->diag || !sb->Ap) {
+    free(start);
     goto oom;
   }
-  /* Triplets: the diagonal, then every element's fast-fast pairs (slow
-   * pairs recorded on the diagonal, their map entry cleared below). */
   for (int f = 0; f < nf; f++)
-    Ti[f] = Tj[f] = f;
+    start[f + 2]++;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
     if (sb->elem_off[ie] < 0)
       continue;
-    const long o = nf + sb->elem_off[ie];
+    for (int j = 0; j < e->n_in; j++)
+      for (int l = 0; l < e->n_in; l++)
+        if (m->rate[e->in[j]] == MRVI_FAST && m->rate[e->in[l]] == MRVI_FAST)
+          start[m->slot[e->in[l]] + 2]++;
+  }
+  for (int c = 0; c < nf; c++)
+    start[c + 2] += start[c + 1];
+  const long nb = start[nf + 1];
+  int *rows =
+      nb <= INT_MAX ? malloc((size_t)(nb > 0 ? nb : 1) * sizeof(int)) : NULL;
+  sb->Ai = rows ? malloc((size_t)(nb > 0 ? nb : 1) * sizeof(int)) : NULL;
+  if (!sb->Ai) {
+    free(rows);
+    free(start);
+    goto oom;
+  }
+  /* (start[c + 1]: the next free position of column c) */
+  for (int f = 0; f < nf; f++) {
+    sb->diag[f] = (int)start[f + 1];
+    rows[start[f + 1]++] = f;
+  }
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    if (sb->elem_off[ie] < 0)
+      continue;
+    int *em = sb->emap + sb->elem_off[ie];
     for (int j = 0; j < e->n_in; j++)
       for (int l = 0; l < e->n_in; l++) {
-        const int fj = m->rate[e->in[j]] == MRVI_FAST,
-                  fl = m->rate[e->in[l]] == MRVI_FAST;
-        const long t = o + (long)j * e->n_in + l;
-        Ti[t] = fj && fl ? m->slot[e->in[j]] : 0;
-        Tj[t] = fj && fl ? m->slot[e->in[l]] : 0;
+        int *t = &em[j * e->n_in + l];
+        *t = -1; /* (a slow pair: no entry) */
+        if (m->rate[e->in[j]] != MRVI_FAST || m->rate[e->in[l]] != MRVI_FAST)
+          continue;
+        const int c = m->slot[e->in[l]];
+        *t = (int)start[c + 1];
+        rows[start[c + 1]++] = m->slot[e->in[j]];
       }
   }
-  const int st = umfpack_di_triplet_to_col(nf, nf, (int)nt, Ti, Tj, NULL,
-                                           sb->Ap, sb->Ai, NULL, map);
-  if (st == UMFPACK_OK) {
-    for (long t = nf; t < nt; t++)
-      sb->emap[t - nf] = map[t];
-    for (int ie = 0; ie < n_elems; ie++) {
-      const mrvi_element *e = &m->elements[elems[ie]];
-      if (sb->elem_off[ie] < 0)
-        continue;
-      for (int j = 0; j < e->n_in; j++)
-        for (int l = 0; l < e->n_in; l++)
-          if (m->rate[e->in[j]] != MRVI_FAST || m->rate[e->in[l]] != MRVI_FAST)
-            sb->emap[sb->elem_off[ie] + (long)j * e->n_in + l] = -1;
-    }
-    sb->diag = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(int));
-    if (sb->diag)
-      for (int f = 0; f < nf; f++)
-        sb->diag[f] = map[f];
+  /* (start[c]: column c's first position again) */
+  int k = 0;
+  sb->Ap[0] = 0;
+  for (int c = 0; c < nf; c++) {
+    k += column_rows(rows + start[c], (int)(start[c + 1] - start[c]),
+                     sb->Ai + k, k);
+    sb->Ap[c + 1] = k;
   }
-  free(Ti);
-  free(Tj);
-  free(map);
-  if (st != UMFPACK_OK || !sb->diag)
-    goto oom;
-  sb->nnz = sb->Ap[nf];
+  for (int f = 0; f < nf; f++)
+    sb->diag[f] = rows[sb->diag[f]];
+  for (long t = 0; t < nt - nf; t++)
+    if (sb->emap[t] >= 0)
+      sb->emap[t] = rows[sb->emap[t]];
+  free(rows);
+  free(start);
+  int *Ai = realloc(sb->Ai, (size_t)(k > 0 ? k : 1) * sizeof(int));
+  if (Ai)
+    sb->Ai = Ai;
+  sb->nnz = k;
   sb->Ax = calloc((size_t)(sb->nnz > 0 ? sb->nnz : 1), sizeof(double));
   sb->dinv = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));
   sb->x = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));

@@ -110,6 +110,8 @@ struct mrvi_terms {
    * length of the first, qp (its columns) with qp_c and qp_shift instead
    * of qh (the lattices: 8 bytes a spring instead of 24). */
   int hooke_only;
+  int exact; /* mrvi_terms_create_grad_exact: hooke_only with hooke_grad's
+                two divisions per spring */
   khpair *qp;
   double qp_c, qp_shift;
   /* A gradient-only class of springs or anchors of one kind and one law
@@ -523,6 +525,7 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   const int dim = kc->dim = m->dimension;
   kc->m = m;
   kc->n = n_elems;
+  kc->exact = grad_only == 2;
   int hc = grad_only ? hooke_class(kc, m, elems, n_elems, col_of) : 0;
   if (hc == 0 && grad_only)
     hc = spring_class(kc, m, elems, n_elems, col_of);
@@ -653,6 +656,12 @@ int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
 int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
                            const int *col_of, mrvi_terms **out) {
   return terms_create(m, elems, n_elems, col_of, 1, out);
+}
+
+int mrvi_terms_create_grad_exact(const mrvi_model *m, const int *elems,
+                                 int n_elems, const int *col_of,
+                                 mrvi_terms **out) {
+  return terms_create(m, elems, n_elems, col_of, 2, out);
 }
 
 int mrvi_terms_create_value(const mrvi_model *m, const int *elems, int n_elems,
@@ -981,6 +990,20 @@ hooke_grad1(hsrc q, int nr, const double *z, double *g, int dim) {
     hooke_grad_k((hsrc){q.q, NULL, 0.0, 0.0}, 0, nr, z, g, 3, 1);
   else
     hooke_grad_k(q, 0, nr, z, g, 1, 1);
+}
+
+/* hooke_grad on a hooke_class's records, shared or not (an exact class,
+ * mrvi_terms_create_grad_exact: the two divisions per spring). */
+static __attribute__((noinline)) void
+hooke_grad_src(hsrc q, int nr, const double *z, double *g, int dim) {
+  if (!q.pr)
+    hooke_grad(q.q, nr, z, g, dim);
+  else if (dim == 2)
+    hooke_grad_k(q, 0, nr, z, g, 2, 0);
+  else if (dim == 3)
+    hooke_grad_k(q, 0, nr, z, g, 3, 0);
+  else
+    hooke_grad_k(q, 0, nr, z, g, 1, 0);
 }
 
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
@@ -1344,9 +1367,16 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   /* (one division per spring: q is the shared columns where the class has
    * them, hooke_class, else its khooke records, as qh; the two-division
    * kernels read qh, whose constant NULL columns the compiler folds) */
-  const int one = kc->hooke_only || kc->recip;
+  const int one = (kc->hooke_only && !kc->exact) || kc->recip;
   const hsrc qh = {kc->qh, NULL, 0.0, 0.0}, q = hooke_src(kc);
-  if (kc->part_hooke && one && kc->dim == 2)
+  if (kc->part_hooke && !one && kc->qp && kc->dim == 2) /* (an exact class's
+                                                           shared ones) */
+    part_hooke_k(q, rec, mask, run, nr, z, g, 2, 0);
+  else if (kc->part_hooke && !one && kc->qp && kc->dim == 3)
+    part_hooke_k(q, rec, mask, run, nr, z, g, 3, 0);
+  else if (kc->part_hooke && !one && kc->qp)
+    part_hooke_k(q, rec, mask, run, nr, z, g, 1, 0);
+  else if (kc->part_hooke && one && kc->dim == 2)
     part_hooke_k(q, rec, mask, run, nr, z, g, 2, 1);
   else if (kc->part_hooke && one && kc->dim == 3)
     part_hooke_k(q, rec, mask, run, nr, z, g, 3, 1);
@@ -1598,6 +1628,8 @@ int mrvi_terms_threads(const mrvi_terms *kc) {
 void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
   if (kc->threads > 1)
     part_grad(kc, z, g);
+  else if (kc->hooke_only && kc->exact)
+    hooke_grad_src(hooke_src(kc), kc->n, z, g, kc->dim);
   else if (kc->hooke_only)
     hooke_grad1(hooke_src(kc), kc->n, z, g, kc->dim);
   else if (kc->qm)
