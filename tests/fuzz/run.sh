@@ -39,9 +39,10 @@
 # (doc/output.md, "Strings"), so the global heap of an input is never
 # read; the run of this script before that change (120 s, 60 s for
 # fuzz_h5, seed 1, load 17 on 2 cores) had 1 finding inside libhdf5, a
-# timeout in H5C_protect under H5HG_read <- H5T__conv_vlen <- read_text,
-# and the one after it none (its 15-input corpus and that artifact replay
-# clean on the new readers).  For fuzz_h5:
+# timeout in H5C_protect under H5HG_read <- H5T__conv_vlen <- read_text
+# (725 inputs), and the runs after it none (348 and 1 231 inputs; the
+# earlier 15-input corpus and that artifact replay clean on the new
+# readers).  For fuzz_h5:
 #   - leaks: tests/fuzz/lsan.supp suppresses every leak allocated inside
 #     libhdf5.  That would also hide an HDF5 object mrvi forgets to close,
 #     so fuzz_h5 itself fails when any HDF5 object is still open after the
