@@ -55,6 +55,14 @@ def huge(f, name, shape, dtype="f8"):
 
 
 def strings(values):
+    """Fixed-length strings (mrvi writes and reads no others)."""
+    a = np.array(values)
+    return a if a.dtype.kind == "S" else np.char.encode(a, "utf-8")
+
+
+def vlen_strings(values):
+    """Variable-length strings, which mrvi refuses unread (their data are
+    in the global heap, which libhdf5 reads unchecked)."""
     return np.array(values, dtype=h5py.string_dtype("utf-8"))
 
 
@@ -65,8 +73,7 @@ def rank(k):
 
 def resumable(f, steps):
     """A completed run turned into one stopped at node `steps`."""
-    # The fixed-length form a stopped run has (a completed run's is
-    # variable-length, which resume refuses): 1024 bytes, UTF-8.
+    # The fixed-length form a stopped run has: 1024 bytes, UTF-8.
     f.attrs.create("stop_reason", "interrupted (SIGINT)",
                    dtype=h5py.string_dtype("utf-8", 1024))
     f.attrs.modify("steps_completed", steps)
@@ -78,7 +85,11 @@ def export_cases(base, out):
         replace(f, "model/particle_name",
                 data=strings(["p%d" % i for i in range(np_ + 5)]))
     with copy(base, out, "names_huge") as f:
-        huge(f, "model/particle_name", (2**32,), h5py.string_dtype())
+        huge(f, "model/particle_name", (2**32,), h5py.string_dtype("utf-8", 8))
+    with copy(base, out, "names_vlen") as f:
+        np_ = f["model/particle_column"].shape[0]
+        replace(f, "model/particle_name",
+                data=vlen_strings(["p%d" % i for i in range(np_)]))
     with copy(base, out, "names_matrix") as f:
         np_ = f["model/particle_column"].shape[0]
         replace(f, "model/particle_name",
@@ -128,14 +139,15 @@ ATTRIBUTE_EDITS = [
     ("every_1e30", "output_every", 1e30),
     ("steps_huge", "steps_completed", 1e300),
     ("t_end_inf", "t_end", np.inf),
-    ("scheme_other", "scheme", "fully-explicit"),
+    ("scheme_other", "scheme", np.bytes_(b"fully-explicit")),
 ]
 
 
 def edit_description(f, old, new):
     text = f["model/description"][()].decode()
     assert old in text, old
-    f["model/description"][()] = text.replace(old, new)
+    replace(f, "model/description",
+            data=np.bytes_(text.replace(old, new).encode()))
 
 
 def resume_cases(base, out):

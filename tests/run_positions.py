@@ -37,7 +37,10 @@ def body_points(h5, grid, t):
     names of each body's centre ("NAME") and director tips ("NAME.d1" ...,
     phi + s d_i, s half the largest distance from a centre to a joint point
     on it at the first node, 0.5 without joints).  Micro frames take a fast
-    body's /micro/bodies row and a slow body's last macro node not after t.
+    body's /micro/bodies row and a slow body as the scheme's slow rule sees
+    it at micro node m of step j (arXiv 2406.12991 (3.18), doc/theory.md):
+    (1 - m/p) x_j + (m/p) x_{j+1} for its centre and each director, frame
+    i = j p + m (the run stores every macro node: output.every 1).
     Empty arrays without /bodies."""
     with h5py.File(h5, "r") as f:
         if "bodies/position" not in f:
@@ -53,10 +56,15 @@ def body_points(h5, grid, t):
         if grid == "macro":
             pos, rot = pos[:t.size], rot[:t.size]
         else:
-            mt = f["macro/t"][()]
-            row = np.searchsorted(mt, t + 1e-9 * (np.abs(t) + mt[1]),
-                                  "right") - 1
-            pos, rot = pos[row], rot[row]
+            p = int(f.attrs["micro_steps"])
+            assert int(f.attrs["output_every"]) == 1, "needs every node"
+            i = np.arange(t.size)
+            j, m = i // p, i % p
+            last = j + 1 >= pos.shape[0]  # the last node: m = 0 there
+            j1 = np.where(last, j, j + 1)
+            w = (m / p)[:, None, None]
+            pos = (1 - w) * pos[j] + w * pos[j1]
+            rot = (1 - w[..., None]) * rot[j] + w[..., None] * rot[j1]
             if "bodies/fast" in f:
                 fast = f["bodies/fast"][()]
                 pos[:, fast] = f["micro/bodies/position"][:t.size]

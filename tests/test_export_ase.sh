@@ -119,7 +119,8 @@ run_ok "mrvi run flexible_pendulum (2-D, slow and fast bodies)" "$mrvi" run \
 run_ok "export flex.xyz" "$mrvi" export flex.h5 -f xyz
 py_ok "ASE: flexible pendulum, macro nodes" flex.xyz flex.h5 1 macro
 run_ok "export flex micro" "$mrvi" export flex.h5 -f xyz --micro -o flexm.xyz
-py_ok "ASE: flexible pendulum, micro nodes (fast bars move, the arm steps)" \
+py_ok "ASE: flexible pendulum, micro nodes (fast bars move, the slow arm
+  interpolated as (1 - m/p) x_j + (m/p) x_{j+1})" \
   flexm.xyz flex.h5 1 micro
 run_ok "mrvi run robot_arm_payload (particles and bodies)" "$mrvi" run \
   "$root/systems/robot_arm_payload.yaml" -o arm.h5 \

@@ -230,35 +230,41 @@ static void check_f64(hid_t f, const char *path, int rank, size_t rows,
              expect);
 }
 
-/* Variable-length string attribute (NULL if missing or not a string). */
+/* The n fixed-length strings of dataset or attribute obj (type ft) as
+ * NUL-terminated rows of (*size) bytes (malloc'd), checking that they are
+ * fixed-length: mrvi writes no variable-length strings (doc/output.md). */
+static char *read_fixed(hid_t obj, int is_attr, hid_t ft, size_t n,
+                        size_t *size, const char *what) {
+  CHECK(H5Tget_class(ft) == H5T_STRING && H5Tis_variable_str(ft) == 0,
+        "%s is a fixed-length string", what);
+  if (H5Tget_class(ft) != H5T_STRING || H5Tis_variable_str(ft) != 0)
+    return NULL;
+  *size = H5Tget_size(ft) + 1;
+  hid_t mt = H5Tcopy(H5T_C_S1);
+  H5Tset_size(mt, *size);
+  H5Tset_cset(mt, H5Tget_cset(ft));
+  H5Tset_strpad(mt, H5T_STR_NULLTERM);
+  char *out = calloc(n ? n * *size : 1, 1);
+  herr_t rc = is_attr ? H5Aread(obj, mt, out)
+                      : H5Dread(obj, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, out);
+  if (out && rc < 0) {
+    free(out);
+    out = NULL;
+  }
+  H5Tclose(mt);
+  return out;
+}
+
+/* String attribute (NULL if missing or not a fixed-length string). */
 static char *attr_string(hid_t obj, const char *name) {
   if (H5Aexists(obj, name) <= 0)
     return NULL;
   hid_t a = H5Aopen(obj, name, H5P_DEFAULT);
   hid_t ft = H5Aget_type(a);
-  char *v = NULL, *out = NULL;
-  if (H5Tget_class(ft) == H5T_STRING && H5Tis_variable_str(ft) > 0) {
-    hid_t mt = H5Tcopy(H5T_C_S1);
-    H5Tset_size(mt, H5T_VARIABLE);
-    H5Tset_cset(mt, H5T_CSET_UTF8);
-    if (H5Aread(a, mt, &v) >= 0 && v) {
-      out = strdup(v);
-      H5free_memory(v);
-    }
-    H5Tclose(mt);
-  } else if (H5Tget_class(ft) == H5T_STRING) { /* fixed length */
-    const size_t n = H5Tget_size(ft);
-    hid_t mt = H5Tcopy(H5T_C_S1);
-    H5Tset_size(mt, n + 1);
-    H5Tset_cset(mt, H5Tget_cset(ft));
-    H5Tset_strpad(mt, H5T_STR_NULLTERM);
-    out = calloc(n + 1, 1);
-    if (out && H5Aread(a, mt, out) < 0) {
-      free(out);
-      out = NULL;
-    }
-    H5Tclose(mt);
-  }
+  char *out = NULL;
+  size_t size = 0;
+  if (H5Tget_class(ft) == H5T_STRING)
+    out = read_fixed(a, 1, ft, 1, &size, name);
   H5Tclose(ft);
   H5Aclose(a);
   return out;
@@ -304,27 +310,26 @@ static void check_attr_long(hid_t obj, const char *name, long want) {
         want);
 }
 
-/* Assert that string dataset `path` holds exactly the count strings want. */
+/* Assert that string dataset `path` holds exactly the count strings want
+ * (fixed-length). */
 static void check_strings(hid_t f, const char *path, int count,
                           const char *const *want) {
   hid_t d = H5Dopen2(f, path, H5P_DEFAULT);
-  hid_t mt = H5Tcopy(H5T_C_S1);
-  H5Tset_size(mt, H5T_VARIABLE);
-  H5Tset_cset(mt, H5T_CSET_UTF8);
-  char **got = calloc((size_t)count + 1, sizeof *got);
   hid_t sp = d >= 0 ? H5Dget_space(d) : H5I_INVALID_HID;
+  hid_t ft = d >= 0 ? H5Dget_type(d) : H5I_INVALID_HID;
+  size_t size = 0;
+  char *got = NULL;
   CHECK(d >= 0 && H5Sget_simple_extent_npoints(sp) == count &&
-            H5Dread(d, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, got) >= 0,
+            (got = read_fixed(d, 0, ft, (size_t)count, &size, path)) != NULL,
         "%s: %d strings", path, count);
-  for (int i = 0; i < count; i++) {
-    CHECK(got[i] && strcmp(got[i], want[i]) == 0, "%s[%d] = %s, expected %s",
-          path, i, got[i] ? got[i] : "(null)", want[i]);
-    H5free_memory(got[i]);
-  }
+  for (int i = 0; got && i < count; i++)
+    CHECK(strcmp(got + (size_t)i * size, want[i]) == 0,
+          "%s[%d] = %s, expected %s", path, i, got + (size_t)i * size, want[i]);
   free(got);
+  if (ft >= 0)
+    H5Tclose(ft);
   if (sp >= 0)
     H5Sclose(sp);
-  H5Tclose(mt);
   if (d >= 0)
     H5Dclose(d);
 }
@@ -456,15 +461,13 @@ static void verify(const char *path, const traj *tr, const expect *e) {
         "/model/description present iff given");
   if (e->description && exists(f, "/model/description")) {
     hid_t d = H5Dopen2(f, "/model/description", H5P_DEFAULT);
-    hid_t mt = H5Tcopy(H5T_C_S1);
-    H5Tset_size(mt, H5T_VARIABLE);
-    H5Tset_cset(mt, H5T_CSET_UTF8);
-    char *text = NULL;
-    H5Dread(d, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, &text);
+    hid_t ft = H5Dget_type(d);
+    size_t size = 0;
+    char *text = read_fixed(d, 0, ft, 1, &size, "/model/description");
     CHECK(text && strcmp(text, e->description) == 0,
           "/model/description is the input text verbatim");
-    H5free_memory(text);
-    H5Tclose(mt);
+    free(text);
+    H5Tclose(ft);
     H5Dclose(d);
   }
 

@@ -120,6 +120,54 @@ for kind in export:lat.h5 resume:cart.h5 from:fpu.h5 controls:- \
     fail "crafting the ${kind%%:*} cases"
 done
 
+# --- no variable-length data in mrvi's outputs ----------------------------
+# Their data would be in the global heap, which libhdf5 reads unchecked
+# (doc/output.md, "Strings"): every output mrvi writes -- runs (with
+# bodies, joints, constraints), a resumed run, an extended one, mrvi
+# optimize, a batch master file and its case files, mrvi converge --
+# holds only fixed-length strings, in datasets and attributes.
+cp cart.h5 ext.h5
+"$py" -c 'import sys, h5py
+with h5py.File(sys.argv[1], "r+") as f:
+    f.attrs.create("stop_reason", "interrupted (SIGINT)",
+                   dtype=h5py.string_dtype("utf-8", 1024))
+    f.attrs.modify("steps_completed", 4)' ext.h5
+run_ok "resume (for the string types)" "$mrvi" run --resume ext.h5 -q
+run_ok "extend (for the string types)" "$mrvi" run --resume ext.h5 -q \
+  --set integrator.t_end=0.3
+run_ok "optimize (for the string types)" "$mrvi" optimize \
+  "$sys/ocp_double_integrator.yaml" -o vopt.h5 -q
+run_ok "batch (for the string types)" "$mrvi" batch "$sys/fpu.yaml" \
+  -o vbatch.h5 -q --vary integrator.micro_steps=1,2 \
+  --vary integrator.t_end=1
+run_ok "converge (for the string types)" "$mrvi" converge "$sys/fpu.yaml" \
+  --p 5 --dt0 0.05 --levels 2 --no-cache -o vconv.h5 -q
+if "$py" - lat.h5 fpu.h5 body.h5 wheel.h5 ext.h5 vopt.h5 vbatch.h5 \
+  vbatch.cases/*.h5 vconv.h5 >vlen.txt 2>&1 <<'PY'; then
+import sys, h5py
+bad = []
+for path in sys.argv[1:]:
+    with h5py.File(path, "r") as f:
+        objs = [("/", f)]
+        f.visititems(lambda n, o: objs.append((n, o)))
+        for name, o in objs:
+            kinds = [("@" + a, o.attrs.get_id(a).dtype) for a in o.attrs]
+            if isinstance(o, h5py.Dataset):
+                kinds.append(("", o.dtype))
+            for a, t in kinds:
+                if h5py.check_vlen_dtype(t) is not None or (
+                        h5py.check_string_dtype(t) and
+                        h5py.check_string_dtype(t).length is None):
+                    bad.append("%s:%s%s" % (path, name, a))
+    print(path)
+print("variable-length:", " ".join(bad) or "none")
+sys.exit(1 if bad else 0)
+PY
+  pass "no variable-length string in $(($(wc -l <vlen.txt) - 1)) output files"
+else
+  fail "variable-length data in mrvi's outputs: $(tail -c 400 vlen.txt)"
+fi
+
 # --- mrvi export -----------------------------------------------------------
 accepts "export the uncrafted file (xyz --micro)" "$mrvi" export lat.h5 \
   --format xyz --micro --species name -o lat.xyz
@@ -136,6 +184,7 @@ while read -r case pattern formats; do
 done <<'EOF'
 names_longer /model/particle_name xyz xdmf
 names_huge /model/particle_name xyz
+names_vlen /model/particle_name:.variable-length xyz xdmf
 names_matrix /model/particle_name xyz
 qfast_wider /micro/q_fast xyz
 qslow_narrower /micro/q_slow xyz
@@ -165,7 +214,7 @@ steps_nan steps_completed
 every_huge output_every
 description_array /model/description
 stop_reason_array stop_reason
-stop_reason_text stop_reason is not the fixed-length
+stop_reason_text stop_reason: variable-length strings
 desc_macro_step attribute macro_step = 0.02 but /model/description says 0.01
 desc_micro_steps attribute micro_steps = 5 but /model/description says 3
 desc_every attribute output_every = 1 but /model/description says 2

@@ -89,12 +89,15 @@ kill_series() {
   local t0 window i f pid ms rc t1 finished=0 plotted=0 stalled=0
   t0=$(date +%s%N)
   "$mrvi" run "$sys" "${set_[@]}" -o "$tmp/ref.h5" -q || fail "reference run"
-  # A completed run's stop_reason is the variable-length form (str in h5py),
-  # put in place by copy and rename: no .part copy is left behind.
+  # A completed run's stop_reason is the fixed-length string SWMR wrote in
+  # place (bytes in h5py; mrvi writes no variable-length strings), and no
+  # .part copy is left behind.
   "$py" -c 'import sys, h5py
-r = h5py.File(sys.argv[1], "r").attrs["stop_reason"]
-sys.exit(0 if r == "completed" and isinstance(r, str) else 1)' "$tmp/ref.h5" &&
-    pass || fail "reference run: stop_reason is not the str 'completed'"
+a = h5py.File(sys.argv[1], "r").attrs
+t = h5py.check_string_dtype(a.get_id("stop_reason").dtype)
+sys.exit(0 if a["stop_reason"] == b"completed" and t and t.length == 1024
+         else 1)' "$tmp/ref.h5" &&
+    pass || fail "reference run: stop_reason is not the fixed b'completed'"
   if compgen -G "$tmp/ref.h5.part*" >/dev/null; then
     fail "reference run left $(echo "$tmp"/ref.h5.part*)"
   else pass; fi

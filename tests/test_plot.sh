@@ -227,7 +227,7 @@ import h5py
 import numpy as np
 
 tmp = sys.argv[1]
-str_t = h5py.string_dtype()
+str_t = h5py.string_dtype("utf-8", 32)  # fixed-length, as mrvi writes
 
 # mrvi converge: errors C dT^2 on 5 halvings, p in {1, 5, 10}
 with h5py.File(tmp + "/conv.h5", "w") as f:

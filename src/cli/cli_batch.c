@@ -60,11 +60,15 @@ const char mrvi_usage_batch[] =
     "      --optimize        cases are 'mrvi optimize' (doc/batch.md)\n"
     "      --control-std S   multi-start: perturb a seeded case's initial\n"
     "                        guess by S times normal numbers of its seed\n"
-    "  -j, --jobs N          worker processes (per MPI rank; default: the\n"
-    "                        cores available divided by --threads, at\n"
-    "                        least 1)\n"
+    "  -j, --jobs N          worker processes (default: the idle cores --\n"
+    "                        those available less the tasks running now,\n"
+    "                        as --threads auto counts them; per MPI rank\n"
+    "                        its share of the cores -- divided by\n"
+    "                        --threads, at least 1)\n"
     "      --threads T|auto  threads of each case's element loops (default\n"
-    "                        and auto: 1, the jobs fill the cores); the\n"
+    "                        and auto: 1, the jobs fill the idle cores);\n"
+    "                        jobs x threads stay within them unless both\n"
+    "                        are given; the\n"
     "                        results do not depend on T\n"
     "      --resume OUT.h5   run the cases of OUT.h5 that did not finish (a\n"
     "                        killed or interrupted batch)\n"
@@ -307,8 +311,8 @@ static int with_section(const mrvi_system *base, mrvi_batch_axis **axes,
 }
 
 /* The threads of each case: the given count, else (auto, the default) 1:
- * the jobs fill the cores, so jobs x threads stay within them
- * (doc/performance.md, "The automatic thread count"). */
+ * the jobs fill the idle cores, so jobs x threads stay within them
+ * (doc/batch.md, "All cores"). */
 static int case_threads(int given) { return given > 0 ? given : 1; }
 
 /* A rank other than 0 of an MPI batch: the plan from rank 0, then its
@@ -509,16 +513,15 @@ int mrvi_cmd_batch(int argc, char **argv) {
   /* MPI: the other ranks get the plan (or leave), and each rank takes the
    * cores of its share of the machine unless --jobs says. */
   /* Each case on one thread unless --threads says, on every rank (the
-   * plan carries it): the jobs and ranks fill the cores. */
+   * plan carries it): the jobs and ranks fill the cores, one process the
+   * idle ones (as --threads auto counts them: mrvi_cores_idle). */
   plan.threads = case_threads(threads);
   int jobs_given = jobs;
   mrvi_batch_mpi_share(rc == 0, &plan, &out, &jobs_given);
   if (rc == 0 && jobs == 0) {
-    jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
-    /* jobs x threads within the cores unless --jobs says */
-    jobs = plan.threads > 1 && jobs / plan.threads > 1 ? jobs / plan.threads
-           : plan.threads > 1                          ? 1
-                                                       : jobs;
+    jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_cores_idle();
+    /* jobs x threads within them unless --jobs says */
+    jobs = jobs / plan.threads > 1 ? jobs / plan.threads : 1;
   }
   /* (mrvi_batch_mpi_jobs is collective: not called here again) */
 

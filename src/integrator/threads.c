@@ -14,23 +14,6 @@
  * to get a core back. */
 #include "integrator/integrator.h"
 
-#include <stdio.h>
-
-/* The tasks runnable now besides this one: the first number of the fourth
- * field of /proc/loadavg (running/total, the reader included) less one;
- * -1 where it cannot be read (not Linux). */
-static int others_running(void) {
-  FILE *f = fopen("/proc/loadavg", "r");
-  int running = -1;
-  if (f) {
-    double l1, l5, l15;
-    if (fscanf(f, "%lf %lf %lf %d/", &l1, &l5, &l15, &running) != 4)
-      running = -1;
-    fclose(f);
-  }
-  return running > 0 ? running - 1 : -1;
-}
-
 int mrvi_threads_auto(const mrvi_model *m, const mrvi_settings *s, char *why,
                       size_t len) {
   char dummy[1];
@@ -70,7 +53,7 @@ int mrvi_threads_auto(const mrvi_model *m, const mrvi_settings *s, char *why,
     mrvi_fmt(why, len, "one core available to this process");
     return 1;
   }
-  const int others = others_running();
+  const int others = mrvi_tasks_others();
   if (others >= cores - 1) { /* (at most one core idle: one thread) */
     mrvi_fmt(why, len,
              "%d other task%s running on the %d cores available to this "

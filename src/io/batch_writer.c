@@ -149,14 +149,11 @@ static void write_plan(mrvi_h5_batch *b, const char *path,
   mrvi_h5_batch_attr_string(b, root, "mrvi_version", MRVI_VERSION);
   mrvi_h5_batch_attr_int(b, root, "batch_version", 1);
   mrvi_h5_batch_attr_string(b, root, "source", p->source);
-  hid_t vls = mrvi_h5_string_type();
   if (b->status == 0 &&
-      (vls < 0 || mrvi_h5_write_fixed(root, "description", H5P_DEFAULT, vls,
-                                      vls, 0, 0, 1, &p->description,
-                                      "the description, before overrides") < 0))
+      mrvi_h5_write_strings(root, "description", H5P_DEFAULT,
+                            (const char *const *)&p->description, 0, 1,
+                            "the description, before overrides") < 0)
     mrvi_h5_batch_fail(b, "description");
-  if (vls >= 0)
-    H5Tclose(vls);
   char *keys = join_keys(p);
   if (!keys)
     mrvi_h5_batch_fail_text(b, MRVI_ENOMEM, "out of memory");

@@ -627,8 +627,9 @@ static int read_row(const run_file *r, const char *name, hsize_t k, int cols,
 /* The bodies as XYZ points (doc/output.md, "Extended XYZ"): per body its
  * centre and the tips of its D directors at length s, their names and rates
  * from /bodies/name and /model/rate at /bodies/column; with --micro the
- * fast bodies' rows of /micro/bodies (/bodies/fast) and the slow bodies at
- * the last macro node not after the micro node's time. */
+ * fast bodies' rows of /micro/bodies (/bodies/fast) and the slow bodies
+ * interpolated between the macro nodes around the micro node's time
+ * (xyz_bodies_pose). */
 typedef struct xyz_bodies {
   char **name;         /* nb: /bodies/name */
   int *fast;           /* nb: 1 for a fast body (rate of its phi_x) */
@@ -737,28 +738,47 @@ static int xyz_bodies_read(const run_file *r, int micro, xyz_bodies *xb,
 }
 
 /* The bodies' poses of frame k into xb->pos and xb->rot: macro row k, or
- * (micro, time t) the fast bodies' micro row k and the slow bodies' last
- * macro row at or before t. */
+ * (micro, time t) the fast bodies' micro row k and the slow bodies as the
+ * scheme's slow rule sees them at the micro node: the linear interpolation
+ * (1 - theta) x_j + theta x_{j+1} of their centre and directors between the
+ * stored macro nodes j, j + 1 around t, theta = (t - t_j) / (t_{j+1} - t_j)
+ * (= m/p at micro node m of the step, arXiv 2406.12991 (3.18),
+ * doc/theory.md; as
+ * /micro/q_slow; between stored nodes when output.every > 1). */
 static void xyz_bodies_pose(const run_file *r, xyz_bodies *xb, hsize_t k,
                             int micro, double t) {
   const int d = r->d, dd = d * d;
   hsize_t row = k;
-  if (micro) /* the last macro node not after t (up to round-off) */
+  double theta = 0.0;
+  if (micro) { /* the last macro node not after t (up to round-off) */
     for (row = 0; row + 1 < r->rows &&
                   r->t[row + 1] <= t + 1e-9 * (fabs(t) + fabs(r->t[1]));
          row++)
       ;
+    if (row + 1 < r->rows && r->t[row + 1] > r->t[row] && t > r->t[row])
+      theta = (t - r->t[row]) / (r->t[row + 1] - r->t[row]);
+  }
   for (int b = 0; b < r->nb; b++) {
     const int f = micro ? xb->micro_col[b] : -1;
-    const double *p =
-        f >= 0 ? xb->mpos + (k * (hsize_t)xb->nf + (hsize_t)f) * (hsize_t)d
-               : r->body_pos + (row * (hsize_t)r->nb + (hsize_t)b) * (hsize_t)d;
-    const double *q =
-        f >= 0
-            ? xb->mrot + (k * (hsize_t)xb->nf + (hsize_t)f) * (hsize_t)dd
-            : r->body_rot + (row * (hsize_t)r->nb + (hsize_t)b) * (hsize_t)dd;
-    memcpy(xb->pos + b * d, p, (size_t)d * sizeof *p);
-    memcpy(xb->rot + b * dd, q, (size_t)dd * sizeof *q);
+    if (f >= 0) {
+      memcpy(xb->pos + b * d,
+             xb->mpos + (k * (hsize_t)xb->nf + (hsize_t)f) * (hsize_t)d,
+             (size_t)d * sizeof *xb->pos);
+      memcpy(xb->rot + b * dd,
+             xb->mrot + (k * (hsize_t)xb->nf + (hsize_t)f) * (hsize_t)dd,
+             (size_t)dd * sizeof *xb->rot);
+      continue;
+    }
+    const hsize_t at = row * (hsize_t)r->nb + (hsize_t)b,
+                  next = theta > 0.0 ? at + (hsize_t)r->nb : at;
+    for (int a = 0; a < d; a++)
+      xb->pos[b * d + a] =
+          (1.0 - theta) * r->body_pos[at * (hsize_t)d + (hsize_t)a] +
+          theta * r->body_pos[next * (hsize_t)d + (hsize_t)a];
+    for (int a = 0; a < dd; a++)
+      xb->rot[b * dd + a] =
+          (1.0 - theta) * r->body_rot[at * (hsize_t)dd + (hsize_t)a] +
+          theta * r->body_rot[next * (hsize_t)dd + (hsize_t)a];
   }
 }
 

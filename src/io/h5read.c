@@ -335,18 +335,27 @@ static int copy_bounded(const char *s, size_t max_len, char **out) {
 }
 
 /* The n strings of the open string dataset or attribute obj (type t,
- * space of n elements): variable-length, or fixed-length up to max_len
- * bytes each.  is_attr: obj is an attribute. */
+ * space of n elements): fixed-length, up to max_len bytes each (and a
+ * terminator).  Variable-length strings are refused before any read: their
+ * data are in the file's global heap, which libhdf5 reads unchecked (an
+ * overrun in H5HG_read, allocations of whatever length a corrupted one
+ * declares; doc/output.md, "Strings").  is_attr: obj is an attribute. */
 static int read_text(const mrvi_h5in *in, const char *name, hid_t obj,
                      int is_attr, hid_t t, size_t n, size_t max_len,
                      char **out) {
-  const int variable = H5Tis_variable_str(t) > 0;
-  const size_t size = variable ? sizeof(char *) : H5Tget_size(t) + 1;
-  size_t bytes;
-  if (!variable && H5Tget_size(t) > max_len)
+  if (mrvi_h5_type_variable(t))
+    return mrvi_fail(in->msg, in->len, MRVI_EIO,
+                     "%s: %s: variable-length strings (a file of an older "
+                     "mrvi, or edited): not read; mrvi reads fixed-length "
+                     "strings only (doc/output.md)",
+                     in->path, name);
+  const size_t stored = H5Tget_size(t);
+  if (stored == 0 || stored > max_len + 1)
     return mrvi_fail(in->msg, in->len, MRVI_EIO,
                      "%s: %s: strings of %zu bytes, at most %zu expected",
-                     in->path, name, H5Tget_size(t), max_len);
+                     in->path, name, stored, max_len + 1);
+  const size_t size = stored + 1;
+  size_t bytes;
   if (product(n, 1, size, &bytes) < 0 || bytes > mrvi_h5_read_cap())
     return mrvi_fail(in->msg, in->len, MRVI_EIO,
                      "%s: %s: too many strings (%zu)", in->path, name, n);
@@ -354,10 +363,9 @@ static int read_text(const mrvi_h5in *in, const char *name, hid_t obj,
   hid_t mt = H5Tcopy(H5T_C_S1);
   int st = raw && mt >= 0 ? MRVI_OK : MRVI_ENOMEM;
   if (st == MRVI_OK) {
-    H5Tset_size(mt, variable ? H5T_VARIABLE : size);
+    H5Tset_size(mt, size);
     H5Tset_cset(mt, H5Tget_cset(t));
-    if (!variable)
-      H5Tset_strpad(mt, H5T_STR_NULLTERM);
+    H5Tset_strpad(mt, H5T_STR_NULLTERM);
     const herr_t rc =
         is_attr ? H5Aread(obj, mt, raw)
                 : H5Dread(obj, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, raw);
@@ -368,17 +376,13 @@ static int read_text(const mrvi_h5in *in, const char *name, hid_t obj,
       st = MRVI_EIO;
     }
     for (size_t i = 0; i < n && st == MRVI_OK; i++) {
-      const char *s = variable ? ((char **)raw)[i] : raw + i * size;
-      if (copy_bounded(s, max_len, &out[i]) < 0)
+      if (copy_bounded(raw + i * size, max_len, &out[i]) < 0)
         st = mrvi_fail(in->msg, in->len, MRVI_EIO,
                        "%s: %s: entry %zu is longer than %zu bytes", in->path,
                        name, i, max_len);
       else if (!out[i])
         st = MRVI_ENOMEM;
     }
-    if (variable && rc >= 0)
-      for (size_t i = 0; i < n; i++)
-        H5free_memory(((char **)raw)[i]);
   }
   if (st == MRVI_ENOMEM)
     mrvi_fail(in->msg, in->len, st, "%s: %s: out of memory", in->path, name);

@@ -9,6 +9,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -88,21 +89,51 @@ void mrvi_h5_error_message(char *buf, size_t len, const char *path,
 /* ---------------------------------------------------------------------------
  * Attributes and datasets written whole
  * ------------------------------------------------------------------------- */
-hid_t mrvi_h5_string_type(void) {
+hid_t mrvi_h5_string_type(size_t size) {
   hid_t t = H5Tcopy(H5T_C_S1);
   if (t < 0)
     return t;
-  if (H5Tset_size(t, H5T_VARIABLE) < 0 || H5Tset_cset(t, H5T_CSET_UTF8) < 0) {
+  if (H5Tset_size(t, size ? size : 1) < 0 ||
+      H5Tset_strpad(t, H5T_STR_NULLTERM) < 0 ||
+      H5Tset_cset(t, H5T_CSET_UTF8) < 0) {
     H5Tclose(t);
     return H5I_INVALID_HID;
   }
   return t;
 }
 
+int mrvi_h5_type_variable(hid_t t) {
+  return t < 0 || H5Tis_variable_str(t) != 0 ||
+         H5Tdetect_class(t, H5T_VLEN) != 0;
+}
+
+/* Attribute `name` of obj, when it exists: 1 when its type is ftype (it is
+ * then rewritten in place), 0 when it is deleted first (another type: a
+ * string of another length), -1 on failure or when it holds variable-length
+ * data (deleting it would free them from the file's global heap, which an
+ * untrusted file may have corrupted). */
+static int attr_same_type(hid_t obj, const char *name, hid_t ftype) {
+  hid_t a = H5Aopen(obj, name, H5P_DEFAULT);
+  hid_t t = a >= 0 ? H5Aget_type(a) : H5I_INVALID_HID;
+  const int variable = mrvi_h5_type_variable(t);
+  const htri_t same = variable ? -1 : H5Tequal(t, ftype);
+  if (t >= 0)
+    H5Tclose(t);
+  if (a >= 0)
+    H5Aclose(a);
+  if (same < 0)
+    return -1;
+  if (same > 0)
+    return 1;
+  return H5Adelete(obj, name) < 0 ? -1 : 0;
+}
+
 herr_t mrvi_h5_attr_write(hid_t obj, const char *name, hid_t ftype, hid_t mtype,
                           const void *value) {
   hid_t a, es;
   htri_t exists = H5Aexists(obj, name);
+  if (exists > 0)
+    exists = attr_same_type(obj, name, ftype);
   if (exists < 0)
     return -1;
   if (exists) {
@@ -127,29 +158,21 @@ herr_t mrvi_h5_attr_write(hid_t obj, const char *name, hid_t ftype, hid_t mtype,
 }
 
 herr_t mrvi_h5_attr_string(hid_t obj, const char *name, const char *value) {
-  hid_t t = mrvi_h5_string_type();
-  if (t < 0)
-    return -1;
   const char *v = value ? value : "";
-  herr_t rc = mrvi_h5_attr_write(obj, name, t, t, &v);
-  hid_t es = mrvi_h5_keep_errors(rc);
-  H5Tclose(t);
-  mrvi_h5_restore_errors(es);
-  return rc;
+  return mrvi_h5_attr_fixed(obj, name, v, strlen(v) + 1, H5T_CSET_UTF8);
 }
 
 herr_t mrvi_h5_attr_fixed(hid_t obj, const char *name, const char *value,
                           size_t size, H5T_cset_t cset) {
   char *buf = calloc(size ? size : 1, 1);
-  hid_t t = buf ? H5Tcopy(H5T_C_S1) : H5I_INVALID_HID;
+  hid_t t = buf ? mrvi_h5_string_type(size) : H5I_INVALID_HID;
   if (t < 0) {
     free(buf);
     return -1;
   }
   mrvi_fmt(buf, size, "%s", value ? value : "");
   herr_t rc = -1;
-  if (H5Tset_size(t, size) >= 0 && H5Tset_cset(t, cset) >= 0 &&
-      H5Tset_strpad(t, H5T_STR_NULLTERM) >= 0)
+  if (H5Tset_cset(t, cset) >= 0)
     rc = mrvi_h5_attr_write(obj, name, t, t, buf);
   hid_t es = mrvi_h5_keep_errors(rc);
   H5Tclose(t);
@@ -162,6 +185,34 @@ herr_t mrvi_h5_attr_fixed_string(hid_t obj, const char *name,
                                  const char *value) {
   return mrvi_h5_attr_fixed(obj, name, value, MRVI_H5_FIXED_BYTES,
                             H5T_CSET_UTF8);
+}
+
+herr_t mrvi_h5_write_strings(hid_t loc, const char *path, hid_t lcpl,
+                             const char *const *v, hsize_t count, int scalar,
+                             const char *long_name) {
+  const size_t n = scalar ? 1 : (size_t)count;
+  size_t size = 1;
+  for (size_t i = 0; i < n; i++) {
+    const size_t l = v[i] ? strlen(v[i]) + 1 : 1;
+    size = l > size ? l : size;
+  }
+  if (n > 0 && size > SIZE_MAX / n)
+    return -1;
+  char *buf = calloc(n ? n * size : 1, 1);
+  hid_t t = buf ? mrvi_h5_string_type(size) : H5I_INVALID_HID;
+  herr_t rc = -1;
+  if (t >= 0) {
+    for (size_t i = 0; i < n; i++)
+      if (v[i])
+        memcpy(buf + i * size, v[i], strlen(v[i]));
+    rc = mrvi_h5_write_fixed(loc, path, lcpl, t, t, count, 0, scalar, buf,
+                             long_name);
+    hid_t es = mrvi_h5_keep_errors(rc);
+    H5Tclose(t);
+    mrvi_h5_restore_errors(es);
+  }
+  free(buf);
+  return rc;
 }
 
 herr_t mrvi_h5_attr_double(hid_t obj, const char *name, double value) {

@@ -134,13 +134,20 @@ int mrvi_h5in_attr_string(const mrvi_h5in *in, const char *name, char *buf,
  * with the reason on HDF5's error stack.
  * ------------------------------------------------------------------------- */
 
-/* Variable-length UTF-8 string type (h5py reads it as str); close it. */
-hid_t mrvi_h5_string_type(void);
+/* Fixed-length UTF-8 string type of `size` bytes (at least 1), NUL-
+ * terminated; close it.  mrvi writes no variable-length strings: their
+ * data live in the file's global heap, which libhdf5 reads unchecked
+ * (doc/output.md, "Strings"); h5py reads these as bytes. */
+hid_t mrvi_h5_string_type(size_t size);
+/* 1 when type t is (or holds) variable-length data, or is invalid. */
+int mrvi_h5_type_variable(hid_t t);
 
-/* Create or overwrite the scalar attribute `name` of obj. */
+/* Create or overwrite the scalar attribute `name` of obj (one of another
+ * type is deleted and created again; one holding variable-length data is
+ * refused, < 0). */
 herr_t mrvi_h5_attr_write(hid_t obj, const char *name, hid_t ftype, hid_t mtype,
                           const void *value);
-/* Variable-length UTF-8 string (NULL: ""). */
+/* Fixed-length UTF-8 string of the value's length (NULL: ""). */
 herr_t mrvi_h5_attr_string(hid_t obj, const char *name, const char *value);
 /* Fixed-length string of `size` bytes (value truncated, NUL-terminated and
  * padded) in character set cset: rewritten in place in the object header,
@@ -152,6 +159,12 @@ herr_t mrvi_h5_attr_fixed(hid_t obj, const char *name, const char *value,
 #define MRVI_H5_FIXED_BYTES 1024
 herr_t mrvi_h5_attr_fixed_string(hid_t obj, const char *name,
                                  const char *value);
+/* Dataset `path` of loc: the strings v[0 .. count-1] (scalar: v[0] alone),
+ * fixed-length UTF-8 of the longest one's size, with the attribute
+ * long_name when not NULL. */
+herr_t mrvi_h5_write_strings(hid_t loc, const char *path, hid_t lcpl,
+                             const char *const *v, hsize_t count, int scalar,
+                             const char *long_name);
 herr_t mrvi_h5_attr_double(hid_t obj, const char *name, double value);
 herr_t mrvi_h5_attr_int(hid_t obj, const char *name, int value);
 herr_t mrvi_h5_attr_long(hid_t obj, const char *name, long value);

@@ -388,7 +388,8 @@ static int fail_dataset(mrvi_writer *w, const char *path) {
 }
 
 /* One dataset of /model: count elements of type (ftype, mtype), or one
- * scalar; STRINGS for variable-length strings (data: const char *[]). */
+ * scalar; STRINGS for strings (data: const char *[]; written fixed-length,
+ * mrvi_h5_write_strings). */
 typedef struct fixed_dataset {
   const char *path;
   hid_t ftype, mtype;
@@ -403,20 +404,21 @@ typedef struct fixed_dataset {
 /* Write the datasets d[0 .. count-1], stopping at the first failure. */
 static int write_fixed_list(mrvi_writer *w, hid_t lcpl, const fixed_dataset *d,
                             int count) {
-  hid_t st = mrvi_h5_string_type();
-  if (st < 0)
-    return fail_h5(w, MRVI_EIO, "writing /model: string type");
   int rc = 0;
   for (int i = 0; i < count && rc == 0; i++) {
     if (!d[i].data)
       continue;
-    const int str = d[i].ftype == H5I_INVALID_HID;
-    if (mrvi_h5_write_fixed(w->file, d[i].path, lcpl, str ? st : d[i].ftype,
-                            str ? st : d[i].mtype, d[i].count, 0, d[i].scalar,
-                            d[i].data, d[i].long_name) < 0)
+    const herr_t h =
+        d[i].ftype == H5I_INVALID_HID
+            ? mrvi_h5_write_strings(w->file, d[i].path, lcpl,
+                                    (const char *const *)d[i].data, d[i].count,
+                                    d[i].scalar, d[i].long_name)
+            : mrvi_h5_write_fixed(w->file, d[i].path, lcpl, d[i].ftype,
+                                  d[i].mtype, d[i].count, 0, d[i].scalar,
+                                  d[i].data, d[i].long_name);
+    if (h < 0)
       rc = fail_dataset(w, d[i].path);
   }
-  H5Tclose(st);
   return rc;
 }
 
@@ -995,46 +997,38 @@ static int copy_file(const char *path, const char *part) {
   return rc;
 }
 
-/* A completed run's stop_reason as a variable-length UTF-8 string, which
- * h5py and other readers return as text (the fixed-length one that SWMR
- * rewrote in place during the run reads as bytes).  Crash-safe: the closed
- * file is copied beside itself (mrvi_h5_part_create), the attribute is
- * replaced in the copy, and the copy is renamed over the output with the
- * lock moved to it (mrvi_h5_part_commit).  Killed at any point before the
- * rename, the output is the complete file with the fixed form and a
- * "path.partXXXXXX" copy may remain beside it; after, the new one.  A
- * failure (a full disk) keeps the fixed form, which every reader of ours
- * decodes: the run's data are never at stake, so it is not an error. */
-static void text_stop_reason(mrvi_writer *w, const char *reason) {
-  char msg[400], *part = NULL;
-  if (mrvi_h5_part_create(w->path, &part, msg, sizeof msg) != MRVI_OK)
-    return;
-  int ok = copy_file(w->path, part) == 0;
-  if (ok) {
-    hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
-#if H5_VERSION_GE(1, 10, 7)
-    if (fapl >= 0)
-      H5Pset_file_locking(fapl, 0, 1); /* no one else knows the copy */
-#endif
-    hid_t f = H5Fopen(part, H5F_ACC_RDWR, fapl >= 0 ? fapl : H5P_DEFAULT);
-    if (fapl >= 0)
-      H5Pclose(fapl);
-    ok = f >= 0 && H5Adelete(f, "stop_reason") >= 0 &&
-         mrvi_h5_attr_string(f, "stop_reason", reason) >= 0;
-    if (f >= 0 && H5Fclose(f) < 0)
-      ok = 0;
-  }
-  if (ok) {
-    int fd = open(part, O_RDWR | O_CLOEXEC);
-    ok = fd >= 0 && fsync(fd) == 0;
-    if (fd >= 0)
-      close(fd);
-  }
-  if (!ok || mrvi_h5_part_commit(part, w->path, &w->lock_fd, msg, sizeof msg) !=
-                 MRVI_OK)
-    unlink(part);
-  H5Eclear2(H5E_DEFAULT);
-  free(part);
+static herr_t attr_variable(hid_t loc, const char *name, const H5A_info_t *ai,
+                            void *data) {
+  (void)ai;
+  hid_t a = H5Aopen(loc, name, H5P_DEFAULT);
+  hid_t t = a >= 0 ? H5Aget_type(a) : H5I_INVALID_HID;
+  const int variable = mrvi_h5_type_variable(t);
+  if (t >= 0)
+    H5Tclose(t);
+  if (a >= 0)
+    H5Aclose(a);
+  if (variable)
+    mrvi_fmt(data, 256, "%s", name);
+  return variable ? 1 : 0;
+}
+
+/* The root attributes of the file being appended to or extended, which
+ * close rewrites or deletes: none may hold variable-length data (an
+ * older mrvi's file, or an edited one), whose rewriting would go through
+ * the file's global heap (doc/output.md, "Strings"). */
+static int variable_attributes(mrvi_writer *w, hid_t f) {
+  char name[256] = "";
+  hsize_t idx = 0;
+  const herr_t rc =
+      H5Aiterate2(f, H5_INDEX_NAME, H5_ITER_NATIVE, &idx, attr_variable, name);
+  if (rc < 0)
+    return fail_h5(w, MRVI_EIO, "reading the root attributes");
+  if (rc > 0)
+    return fail(w, MRVI_EIO,
+                "attribute %s is a variable-length string (a file of an "
+                "older mrvi, or edited): not appended to",
+                name);
+  return 0;
 }
 
 /* Extending a completed run (mrvi_writer_options.extend): lock the file,
@@ -1076,6 +1070,10 @@ static int extend_prepare(mrvi_writer *w, double t_end,
     return fail_h5(w, MRVI_EIO, "cannot open the copy");
   static const char *const old_end[] = {"energy_error_max", "energy_scale",
                                         "energy_scale_kind", "warning"};
+  if (variable_attributes(w, f) < 0) {
+    H5Fclose(f);
+    return w->status;
+  }
   int ok = H5Adelete(f, "stop_reason") >= 0 &&
            mrvi_h5_attr_fixed_string(f, "stop_reason", "running") >= 0 &&
            mrvi_h5_attr_double(f, "t_end", t_end) >= 0;
@@ -1083,13 +1081,10 @@ static int extend_prepare(mrvi_writer *w, double t_end,
     if (H5Aexists(f, old_end[i]) > 0)
       ok = H5Adelete(f, old_end[i]) >= 0;
   if (ok && description) {
-    hid_t st = mrvi_h5_string_type();
-    ok = st >= 0 && H5Ldelete(f, "/model/description", H5P_DEFAULT) >= 0 &&
-         mrvi_h5_write_fixed(f, "/model/description", H5P_DEFAULT, st, st, 0, 0,
-                             1, &description,
-                             "the input description, verbatim") >= 0;
-    if (st >= 0)
-      H5Tclose(st);
+    ok = H5Ldelete(f, "/model/description", H5P_DEFAULT) >= 0 &&
+         mrvi_h5_write_strings(f, "/model/description", H5P_DEFAULT,
+                               &description, 0, 1,
+                               "the input description, verbatim") >= 0;
   }
   if (H5Fclose(f) < 0)
     ok = 0;
@@ -1135,10 +1130,9 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
    * h5clear --increment does). */
   if (H5Fincrement_filesize(w->file, 0) < 0)
     return fail_h5(w, MRVI_EIO, "cannot extend the file's end of allocation");
-  /* stop_reason is rewritten in place, which SWMR can do only to the
-   * fixed-length form of a run that stopped; a completed run has the
-   * variable-length one (text_stop_reason), and so has a file edited by a
-   * tool that replaced it. */
+  /* stop_reason is rewritten in place, which SWMR can do only to a
+   * fixed-length string (mrvi writes no other; a file edited by a tool
+   * that replaced it may have a variable-length one). */
   {
     hid_t a = H5Aexists(w->file, "stop_reason") > 0
                   ? H5Aopen(w->file, "stop_reason", H5P_DEFAULT)
@@ -1153,9 +1147,10 @@ static int resume_open(mrvi_writer *w, long k, hid_t fapl) {
     if (!fixed)
       return fail(w, MRVI_EIO,
                   "attribute stop_reason is not the fixed-length string of "
-                  "a run that stopped (a completed run's, or the file was "
-                  "edited): not resumed");
+                  "a run that stopped (the file was edited): not resumed");
   }
+  if (variable_attributes(w, w->file) < 0)
+    return w->status;
   /* From node 0 the run starts afresh: every row is written again. */
   hsize_t keep[N_STREAMS];
   keep[MACRO] = k > 0 ? (hsize_t)(k / w->every) + 1 : 0;
@@ -1794,11 +1789,7 @@ int mrvi_writer_close(mrvi_writer *w, const char *stop_reason, char *msg,
   if (w->have_summary && write_energy_attributes(w) < 0)
     fail_h5(w, MRVI_EIO, "writing the energy error attributes");
   H5Eclear2(H5E_DEFAULT);
-  const int had_file = w->file >= 0;
   close_handles(w);
-  if (had_file && w->status == MRVI_OK && !w->io_failed &&
-      !strcmp(reason, "completed"))
-    text_stop_reason(w, reason);
   H5Eclear2(H5E_DEFAULT);
   mrvi_h5_quiet_end(&q);
   int rc = w->status;

@@ -172,17 +172,12 @@ static void attr_text(mrvi_h5_batch *b, hid_t loc, const char *name,
     mrvi_h5_batch_fail(b, name);
 }
 
-/* Dataset `name` of loc: n variable-length ASCII strings. */
+/* Dataset `name` of loc: n fixed-length strings. */
 static void strings(mrvi_h5_batch *b, hid_t loc, const char *name,
                     const char **v, hsize_t n) {
-  if (b->status)
-    return;
-  hid_t t = H5Tcopy(H5T_C_S1);
-  if (t < 0 || H5Tset_size(t, H5T_VARIABLE) < 0 ||
-      mrvi_h5_write_fixed(loc, name, H5P_DEFAULT, t, t, n, 0, 0, v, NULL) < 0)
+  if (b->status == 0 &&
+      mrvi_h5_write_strings(loc, name, H5P_DEFAULT, v, n, 0, NULL) < 0)
     mrvi_h5_batch_fail(b, name);
-  if (t >= 0)
-    H5Tclose(t);
 }
 
 /* Root attribute "solver": the step solver path of the forward pass (the

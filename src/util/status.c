@@ -57,6 +57,24 @@ int mrvi_cores(void) {
   return n > 0 ? (int)n : 1;
 }
 
+int mrvi_tasks_others(void) {
+  FILE *f = fopen("/proc/loadavg", "r");
+  int running = -1;
+  if (f) {
+    double l1, l5, l15;
+    if (fscanf(f, "%lf %lf %lf %d/", &l1, &l5, &l15, &running) != 4)
+      running = -1;
+    fclose(f);
+  }
+  return running > 0 ? running - 1 : -1;
+}
+
+int mrvi_cores_idle(void) {
+  const int cores = mrvi_cores(), others = mrvi_tasks_others();
+  const int idle = others > 0 ? cores - others : cores;
+  return idle > 1 ? idle : 1;
+}
+
 int mrvi_threads_supported(void) {
 #ifdef _OPENMP
   return 1;

@@ -40,6 +40,15 @@ double mrvi_machine_memory(void);
  * so marked write disjoint data and combine nothing: no reductions, so
  * results do not depend on the number of threads. */
 int mrvi_cores(void);
+/* The tasks runnable now besides this one: the first number of the fourth
+ * field of /proc/loadavg (running/total, the reader included) less one;
+ * -1 where it cannot be read (not Linux). */
+int mrvi_tasks_others(void);
+/* The cores of mrvi_cores() that no other task is running on now (at
+ * least 1; all of them where mrvi_tasks_others cannot tell): what `--threads
+ * auto` and `mrvi batch` fill (doc/performance.md, "The automatic thread
+ * count"). */
+int mrvi_cores_idle(void);
 int mrvi_threads_resolve(int requested);
 #ifdef _OPENMP
 #define MRVI_PRAGMA(x) _Pragma(#x)
