@@ -1792,7 +1792,11 @@ static void test_fast_loop(void) {
           tr->n_micro);
     CHECK(em <= 1e-10 && eg <= 1e-10, "fast four-bar: loop closure %.3g, %.3g",
           em, eg);
-    CHECK(eH < 1e-4 && eH < 1.5 * eH2,
+    /* Bounded: the whole run's error within 1.5 times the first half's,
+     * judged on the full horizon only (the sanitizers' runs are a tenth as
+     * long, shorter than the swings' beat: there only the size is checked). */
+    const int full_horizon = n_long == 2000;
+    CHECK(eH < 1e-4 && (!full_horizon || eH < 1.5 * eH2),
           "fast four-bar: energy error %.3g (%.3g over the first half)", eH,
           eH2);
   }
