@@ -391,12 +391,6 @@ void ocp_forest_free(struct ocp_forest *F) {
   free(F);
 }
 
-static int uf_root(int *up, int v) {
-  while (up[v] != v)
-    v = up[v] = up[up[v]];
-  return v;
-}
-
 /* The node of the d columns c (a particle's), made where none is yet
  * (node numbers in order of first use; cols, colnode): -1 where the
  * columns are not one particle's. */
@@ -464,7 +458,7 @@ static struct ocp_forest *forest_build(const mrvi_ocp *o) {
   for (int b = 0; b < nb; b++) {
     if (F->bj[b] < 0)
       continue;
-    const int a = uf_root(up, F->bi[b]), c = uf_root(up, F->bj[b]);
+    const int a = mrvi_uf_root(up, F->bi[b]), c = mrvi_uf_root(up, F->bj[b]);
     if (a == c)
       goto out;
     up[a] = c;

@@ -77,12 +77,6 @@ const int *mrvi_nsrods_Ai(const mrvi_nsrods *z) { return z->Ai; }
 const double *mrvi_nsrods_Ax(const mrvi_nsrods *z) { return z->Ax; }
 long mrvi_nsrods_nnz(const mrvi_nsrods *z) { return z->nnz; }
 
-static int find(int *up, int a) {
-  while (up[a] != a)
-    a = up[a] = up[up[a]];
-  return a;
-}
-
 /* Does the link-local basis apply: every constraint a slow rod between slow
  * particles (or to an anchor), the rods a forest?  1, or 0 and why. */
 int mrvi_nullspace_rods_plan(const mrvi_model *m, char *why, size_t len) {
@@ -129,7 +123,7 @@ int mrvi_nullspace_rods_plan(const mrvi_model *m, char *why, size_t len) {
       snprintf(why, len, "rod '%s' does not end at particles", k->label);
       break;
     }
-    const int ra = find(up, node[0]), rb = find(up, node[1]);
+    const int ra = mrvi_uf_root(up, node[0]), rb = mrvi_uf_root(up, node[1]);
     if (ra == rb) {
       snprintf(why, len, "rod '%s' closes a loop", k->label);
       ok = 0;

@@ -171,12 +171,6 @@ long mrvi_nstree_nnz(const mrvi_nstree *z) { return z->nnz; }
  * The forest of joints
  * ------------------------------------------------------------------------- */
 
-static int find(int *up, int a) {
-  while (up[a] != a)
-    a = up[a] = up[up[a]];
-  return a;
-}
-
 /* Body B of joint constraint k (-1: the ground). */
 static int body_b(const mrvi_model *m, const mrvi_constraint *k, int D) {
   return k->n_in > D * (D + 1) ? mrvi_model_body_of(m, k->in[D * (D + 1)]) : -1;
@@ -282,7 +276,7 @@ static int plan(const mrvi_model *m, int mode, int *order, int *parent,
         a = b;
       b = -1;
     }
-    const int ra = find(up, a), rb = find(up, b < 0 ? nb : b);
+    const int ra = mrvi_uf_root(up, a), rb = mrvi_uf_root(up, b < 0 ? nb : b);
     if (ra == rb && cut) { /* a cut joint: its rows close the loop */
       cut[c] = 1;
       continue;

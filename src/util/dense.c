@@ -124,6 +124,12 @@ int mrvi_dense_lu_factor(int n, double *A, int *piv) {
   return 0;
 }
 
+int mrvi_uf_root(int *up, int a) {
+  while (up[a] != a)
+    a = up[a] = up[up[a]];
+  return a;
+}
+
 void mrvi_degree_order(int n, const int *deg, int *order, int *pos) {
   for (int i = 0; i < n; i++) { /* insertion sort */
     int k = i;

@@ -77,6 +77,10 @@ int mrvi_dense_lu_factor_nz(int n, double *A, int *piv, int *nzc);
  * in index order): order[k] the k-th, pos[i] the rank of index i (the
  * elimination order of the dense LUs of Newton matrices: fewer fill). */
 void mrvi_degree_order(int n, const int *deg, int *order, int *pos);
+/* The root of a in the union-find forest up (up[a] == a at a root),
+ * halving the path on the way (the cycle tests of the forests of joints,
+ * rods and fast springs). */
+int mrvi_uf_root(int *up, int a);
 /* Step k of that factorisation's pivoting: the largest |A_ik|, i >= k, its
  * row in piv[k] and swapped with row k; -1 if that column is zero. */
 int mrvi_dense_lu_pivot(int n, double *A, int *piv, int k);
