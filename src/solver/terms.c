@@ -1006,6 +1006,16 @@ hooke_grad_src(hsrc q, int nr, const double *z, double *g, int dim) {
     hooke_grad_k(q, 0, nr, z, g, 1, 0);
 }
 
+/* Element t's value (returned), gradient g and Hessian H (either NULL) at
+ * its inputs gathered from z, by the generic evaluation. */
+static double element_at(const mrvi_terms *kc, const kterm *t, const double *z,
+                         double *g, double *H) {
+  const int *col = kc->col + t->first;
+  for (int j = 0; j < t->n; j++)
+    kc->y[j] = z[col[j]];
+  return mrvi_element_eval(kc->m, t->el, kc->y, g, H);
+}
+
 ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
                           double *g, double *J, int ld, double hscale,
                           const int unit) {
@@ -1040,9 +1050,7 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
     }
     if (t->kind == KT_ELEMENT) {
       const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
-      for (int j = 0; j < n; j++)
-        kc->y[j] = z[col[j]];
-      mrvi_element_eval(kc->m, t->el, kc->y, kc->g, J && !lin ? kc->H : NULL);
+      element_at(kc, t, z, kc->g, J && !lin ? kc->H : NULL);
       for (int j = 0; j < n; j++)
         g[col[j]] += scale * kc->g[j];
       if (J && !lin)
@@ -1790,9 +1798,7 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
     /* Every other element through the generic evaluation. */
     const int n = t->n, *col = kc->col + t->first;
     const int lin = t->el->kind == MRVI_ELEMENT_GRAVITY;
-    for (int j = 0; j < n; j++)
-      kc->y[j] = z[col[j]];
-    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, lin ? NULL : kc->H);
+    element_at(kc, t, z, kc->g, lin ? NULL : kc->H);
     for (int j = 0; j < n; j++)
       g[col[j]] += kc->g[j];
     if (lin || off[it] < 0)
@@ -1997,9 +2003,7 @@ static double value_range(mrvi_terms *kc, int i0, int i1, const double *z) {
           total += a[j] * z[col[j]];
         continue;
       }
-      for (int j = 0; j < n; j++)
-        kc->y[j] = z[col[j]];
-      total += mrvi_element_eval(kc->m, t->el, kc->y, NULL, NULL);
+      total += element_at(kc, t, z, NULL, NULL);
       continue;
     }
     double s = -t->shift, phi, d1, d2;
@@ -2155,9 +2159,7 @@ void mrvi_terms_hessvec(mrvi_terms *kc, const double *z, int nvec,
     if (t->el->kind == MRVI_ELEMENT_GRAVITY)
       continue;
     const int n = t->n, *col = kc->col + t->first;
-    for (int j = 0; j < n; j++)
-      kc->y[j] = z[col[j]];
-    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, kc->H);
+    element_at(kc, t, z, kc->g, kc->H);
     for (int v = 0; v < nvec; v++) {
       const double *xv = x + (size_t)v * (size_t)xs;
       double *yv = y + (size_t)v * (size_t)ys;
@@ -2227,10 +2229,8 @@ void mrvi_terms_hessblocks(mrvi_terms *kc, const double *z, double *B) {
     }
     if (t->el->kind == MRVI_ELEMENT_GRAVITY)
       continue;
-    const int n = t->n, *col = kc->col + t->first;
-    for (int j = 0; j < n; j++)
-      kc->y[j] = z[col[j]];
-    mrvi_element_eval(kc->m, t->el, kc->y, kc->g, B);
+    const int n = t->n;
+    element_at(kc, t, z, kc->g, B);
     B += (long)n * n;
   }
 }
