@@ -197,13 +197,7 @@ done
 # runs the limits and scans in this process (no worker process seen), while
 # --jobs 2 beside the same tasks forks its workers (seen: the polling
 # catches them).
-if [ "$(nproc)" -ge 2 ] && taskset -c 0,1 true 2>/dev/null; then
-  busy=()
-  for i in 1 2 3; do
-    taskset -c 0 sh -c 'while :; do :; done' &
-    busy+=($!)
-  done
-  sleep 0.2
+if busy_start; then
   # workers_seen ARGS...: runs stability ARGS, prints 1 if a child of it
   # was seen while it ran, else 0, then its exit status
   workers_seen() {
@@ -218,8 +212,7 @@ if [ "$(nproc)" -ge 2 ] && taskset -c 0,1 true 2>/dev/null; then
   }
   def=$(workers_seen -o stabdef.h5)
   two=$(workers_seen -o stabtwo.h5 --jobs 2)
-  kill "${busy[@]}"
-  wait "${busy[@]}" 2>/dev/null
+  busy_stop
   [ "$def" = "0 0" ] && [ "$two" = "1 0" ]
   check "stability: busy cores, the default runs in this process, --jobs 2 forks (workers seen, exit: default $def, --jobs 2 $two)" $?
 fi
