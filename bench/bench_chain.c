@@ -284,13 +284,6 @@ int main(int argc, char **argv) {
       if ((n_n = bench_parse_ints(argv[++i], n_list, MAX_N)) <= 0)
         return bad_usage();
       n_set = 1;
-    } else if (!strcmp(a, "--repeats") && has) {
-      repeats = atoi(argv[++i]);
-      if (repeats < 1 || repeats > MAX_REPEATS)
-        return bad_usage();
-    } else if (!strcmp(a, "--steps") && has) {
-      if ((steps = atoi(argv[++i])) < 1)
-        return bad_usage();
     } else if (!strcmp(a, "--p") && has) {
       if ((p = atoi(argv[++i])) < 1)
         return bad_usage();
@@ -327,7 +320,8 @@ int main(int argc, char **argv) {
     } else if (!strcmp(a, "--budget") && has) {
       if (bench_parse_positive(argv[++i], &budget) < 0)
         return bad_usage();
-    } else {
+    } else if (bench_repeats_steps(argc, argv, &i, MAX_REPEATS, &repeats,
+                                   &steps) <= 0) {
       return bad_usage();
     }
   }

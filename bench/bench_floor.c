@@ -1168,13 +1168,6 @@ int main(int argc, char **argv) {
         nets[k] = strstr(s, net_names[k]) != NULL;
       if (!nets[0] && !nets[1] && !nets[2])
         return bad_usage();
-    } else if (!strcmp(a, "--repeats") && has) {
-      repeats = atoi(argv[++i]);
-      if (repeats < 1 || repeats > MAX_REPEATS)
-        return bad_usage();
-    } else if (!strcmp(a, "--steps") && has) {
-      if ((o.steps = atoi(argv[++i])) < 1)
-        return bad_usage();
     } else if (!strcmp(a, "--p") && has) {
       if ((o.p = atoi(argv[++i])) < 1)
         return bad_usage();
@@ -1204,7 +1197,8 @@ int main(int argc, char **argv) {
       o.tuning = argv[++i];
     } else if (!strcmp(a, "--no-lammps")) {
       no_lammps = 1;
-    } else {
+    } else if (bench_repeats_steps(argc, argv, &i, MAX_REPEATS, &repeats,
+                                   &o.steps) <= 0) {
       return bad_usage();
     }
   }

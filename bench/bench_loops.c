@@ -197,14 +197,8 @@ int main(int argc, char **argv) {
     } else if (!strcmp(a, "--n") && has) {
       if ((n_n = bench_parse_ints(argv[++i], n_list, MAX_N)) <= 0)
         return bad_usage();
-    } else if (!strcmp(a, "--repeats") && has) {
-      repeats = atoi(argv[++i]);
-      if (repeats < 1 || repeats > MAX_REPEATS)
-        return bad_usage();
-    } else if (!strcmp(a, "--steps") && has) {
-      if ((steps = atoi(argv[++i])) < 1)
-        return bad_usage();
-    } else {
+    } else if (bench_repeats_steps(argc, argv, &i, MAX_REPEATS, &repeats,
+                                   &steps) <= 0) {
       return bad_usage();
     }
   }

@@ -1,5 +1,7 @@
 #include "bench_util.h"
 
+#include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
@@ -94,6 +96,24 @@ int bench_parse_positive(const char *s, double *out) {
     return -1;
   *out = v;
   return 0;
+}
+
+int bench_repeats_steps(int argc, char **argv, int *i, int max_repeats,
+                        int *repeats, int *steps) {
+  const char *a = argv[*i];
+  const int is_r = !strcmp(a, "--repeats"), is_s = !strcmp(a, "--steps");
+  if (!is_r && !is_s)
+    return 0;
+  if (*i + 1 >= argc)
+    return -1;
+  char *end;
+  const char *s = argv[++*i];
+  errno = 0;
+  const long v = strtol(s, &end, 10);
+  if (end == s || *end || errno || v < 1 || v > (is_r ? max_repeats : INT_MAX))
+    return -1;
+  *(is_r ? repeats : steps) = (int)v;
+  return 1;
 }
 
 double bench_uniform(unsigned long long *state) {

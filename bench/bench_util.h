@@ -28,6 +28,12 @@ int bench_parse_ints(const char *s, int *out, int max);
 int bench_parse_doubles(const char *s, double *out, int max);
 /* Parse a positive double; 0 or -1. */
 int bench_parse_positive(const char *s, double *out);
+/* The options --repeats R (1 <= R <= max_repeats) and --steps K (K >= 1)
+ * that bench_chain, bench_floor and bench_loops share: 1 if argv[*i] is
+ * one of them with its value (into *repeats or *steps; *i advanced past
+ * it), 0 if it is neither, -1 if its value is missing or bad. */
+int bench_repeats_steps(int argc, char **argv, int *i, int max_repeats,
+                        int *repeats, int *steps);
 
 /* Deterministic uniform numbers in [-1, 1) from *state (an LCG). */
 double bench_uniform(unsigned long long *state);

@@ -129,13 +129,7 @@ printf '%s\n' 0:0 1:1 2:2 3:3 4:4 5:5 | same_runs b.h5 j1.h5 &&
 # /proc/loadavg counts them, the machine's other tasks only add to it) no
 # core is idle: the default is 1 job, --threads 2 alone 1 job of 2
 # threads, and only --jobs with --threads goes above (asked for).
-if [ "$(nproc)" -ge 2 ] && taskset -c 0,1 true 2>/dev/null; then
-  busy=()
-  for i in 1 2 3; do
-    taskset -c 0 sh -c 'while :; do :; done' &
-    busy+=($!)
-  done
-  sleep 0.2
+if busy_start; then
   grid=(--vary integrator.micro_steps=1,2,4 --vary "$short")
   taskset -c 0,1 "$mrvi" batch "$fpu" -o idle1.h5 "${grid[@]}" 2>err1.txt
   rc1=$?
@@ -149,8 +143,7 @@ if [ "$(nproc)" -ge 2 ] && taskset -c 0,1 true 2>/dev/null; then
       "${grid[@]}" 2>err3.txt
     rc3=$?
   fi
-  kill "${busy[@]}"
-  wait "${busy[@]}" 2>/dev/null
+  busy_stop
   [ $rc1 = 0 ] && grep -q "3 cases on 1 job x 1 thread " err1.txt &&
     pass "busy cores: the default batch runs 1 job x 1 thread" ||
     fail "busy cores: the default batch (exit $rc1): $(grep cases err1.txt)"

@@ -192,6 +192,30 @@ for j in 2 3; do
     check "stability --jobs $j: h5diff of the table files" $?
   fi
 done
+# The default --jobs: the idle cores, as for mrvi batch (test_batch.sh).
+# Under taskset -c 0,1 beside three busy tasks no core is idle: the default
+# runs the limits and scans in this process (no worker process seen), while
+# --jobs 2 beside the same tasks forks its workers (seen: the polling
+# catches them).
+if busy_start; then
+  # workers_seen ARGS...: runs stability ARGS, prints 1 if a child of it
+  # was seen while it ran, else 0, then its exit status
+  workers_seen() {
+    taskset -c 0,1 "$mrvi" stability "$root/systems/oscillator.yaml" -q "$@" &
+    local pid=$! seen=0
+    while kill -0 "$pid" 2>/dev/null; do
+      [ -n "$(pgrep -P "$pid")" ] && seen=1
+      sleep 0.02
+    done
+    wait "$pid"
+    echo "$seen $?"
+  }
+  def=$(workers_seen -o stabdef.h5)
+  two=$(workers_seen -o stabtwo.h5 --jobs 2)
+  busy_stop
+  [ "$def" = "0 0" ] && [ "$two" = "1 0" ]
+  check "stability: busy cores, the default runs in this process, --jobs 2 forks (workers seen, exit: default $def, --jobs 2 $two)" $?
+fi
 "$mrvi" stability "$fpu" -q 2>bad.err
 [ $? -eq 1 ] && grep -q "one slow coordinate" bad.err
 check "stability: a non-oscillator is refused" $?

@@ -58,6 +58,25 @@ time.sleep(60)' "$1" >"$tmp/lock.ready" &
   return 1
 }
 
+# busy_start: three busy tasks on core 0 (pids in $busy), so that under
+# taskset -c 0,1 no core is idle (the fourth field of /proc/loadavg counts
+# them; the machine's other tasks only add to it); returns 1, starting
+# none, without two cores or taskset.  busy_stop ends them.
+busy_start() {
+  busy=()
+  { [ "$(nproc)" -ge 2 ] && taskset -c 0,1 true 2>/dev/null; } || return 1
+  for _ in 1 2 3; do
+    taskset -c 0 sh -c 'while :; do :; done' &
+    busy+=($!)
+  done
+  sleep 0.2
+}
+
+busy_stop() {
+  kill "${busy[@]}"
+  wait "${busy[@]}" 2>/dev/null
+}
+
 test_finish() {
   echo "$passed passed, $failed failed"
   [ "$failed" -eq 0 ] && [ "$passed" -gt 0 ]

@@ -66,12 +66,12 @@ const char mrvi_usage_converge[] =
     "                      (default .mrvi-cache); --no-cache keeps none\n"
     "  -o, --output OUT.h5 table file (default <name>-convergence.h5)\n"
     "  --csv OUT.csv       also write the table as CSV\n"
-    "  -j, --jobs N        worker processes for the runs (default: the cores\n"
-    "                      available; 1 runs them in this process); with\n"
-    "                      more than one, each run is on one thread.  The\n"
-    "                      table does not depend on N.  Under mpiexec -n R\n"
-    "                      (built with MPI) the runs are spread over the R\n"
-    "                      ranks, N jobs each (doc/batch.md)\n"
+    "  -j, --jobs N        worker processes for the runs (default: the idle\n"
+    "                      cores, as for mrvi batch; 1 runs them in this\n"
+    "                      process); with more than one, each run is on one\n"
+    "                      thread.  The table does not depend on N.  Under\n"
+    "                      mpiexec -n R (built with MPI) the runs are spread\n"
+    "                      over the R ranks, N jobs each (doc/batch.md)\n"
     "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
     "  -q, --quiet         print only errors\n";
 
@@ -93,11 +93,11 @@ const char mrvi_usage_stability[] =
     "  --step X            scan step (default 0.01)\n"
     "  --at X              also print det and trace at omega dT = X\n"
     "  -j, --jobs N        worker processes for the 2 x (number of p) limits\n"
-    "                      and scans (default: the cores available; 1 runs\n"
-    "                      them in this process); the table does not depend\n"
-    "                      on N.  Under mpiexec -n R (built with MPI) they "
-    "are\n"
-    "                      spread over the R ranks, N jobs each\n"
+    "                      and scans (default: the idle cores, as for mrvi\n"
+    "                      batch; 1 runs them in this process); the table\n"
+    "                      does not depend on N.  Under mpiexec -n R (built\n"
+    "                      with MPI) they are spread over the R ranks, N\n"
+    "                      jobs each\n"
     "  -o, --output OUT.h5 table file (default <name>-stability.h5)\n"
     "  -s, --set KEY=VALUE override a key of FILE (repeatable)\n"
     "  -q, --quiet         print only errors\n";
@@ -593,7 +593,8 @@ static void conv_item(void *user, int k, void *out) {
   mrvi_trajectory_free(run);
 }
 
-/* --jobs: worker processes for the runs (default: the cores; over MPI
+/* --jobs: worker processes for the runs (default: the idle cores, as
+ * `mrvi batch` and --threads auto count them, mrvi_cores_idle; over MPI
  * ranks, each rank's share of its machine's cores), or -1 with the message
  * printed.  The results do not depend on threads (util.h), and forked
  * workers must not inherit a thread pool: with more than one job, or over
@@ -601,7 +602,7 @@ static void conv_item(void *user, int k, void *out) {
  * one thread. */
 static int parse_jobs(const char *cmd, const args *a, mrvi_system *sys,
                       int ranks) {
-  int jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_batch_cores();
+  int jobs = ranks > 1 ? mrvi_batch_mpi_jobs() : mrvi_cores_idle();
   if (get(a, "--jobs")) {
     double v;
     if (parse_double(cmd, "--jobs", get(a, "--jobs"), &v) < 0)
