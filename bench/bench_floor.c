@@ -49,6 +49,9 @@
  * measurement: no thresholds (doc/performance.md). */
 #define _DEFAULT_SOURCE /* wait4 */
 #include "bench_util.h"
+#ifdef BENCH_OMP_PROFILE
+#include "omp_profile.h"
+#endif
 
 #include <math.h>
 #include <stdio.h>
@@ -108,7 +111,14 @@ static const char usage[] =
     "--tuning sets a tuning constant of mrvi's methods (mrvi.h,\n"
     "MRVI_TUNING_LIST), e.g. outer_max=0.\n"
     "  --quick: N = 300,1000, R = 1, K = 2, lattice2d\n"
-    "only.\n";
+    "only.\n"
+#ifdef BENCH_OMP_PROFILE
+    "bench_serial --serial T: each scheme on T threads, the serial\n"
+    "fraction of its step from each thread's CPU time in and out of the\n"
+    "parallel regions (run with OMP_WAIT_POLICY=passive), median of R\n"
+    "runs, and the Amdahl bound it implies.\n"
+#endif
+    ;
 
 static int bad_usage(void) {
   fputs(usage, stderr);
@@ -680,6 +690,11 @@ typedef struct result {
   char path[16];
   long rss_before_kb, peak_kb;
   char message[200];
+  /* bench_serial (--serial): per macro step after the first, the CPU time
+   * of the stepping thread outside the parallel regions (the serial
+   * work), of every thread inside them, of the busiest thread summed over
+   * the regions, and the regions entered */
+  double ser, par, par_max, regions;
 } result;
 
 typedef struct options {
@@ -749,6 +764,10 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   r->create = bench_thread_cpu() - t0;
   double t1 = bench_cpu(), w1 = wall_clock();
   long newton = 0, k = 0;
+#ifdef BENCH_OMP_PROFILE
+  bench_omp_profile p0, p1;
+  memset(&p0, 0, sizeof p0);
+#endif
   for (; k < o->steps || (bench_cpu() - t1 < MIN_CPU && k < 100000); k++) {
     if (mrvi_integrator_step(it) < 0) {
       snprintf(r->message, sizeof r->message, "%.190s",
@@ -756,7 +775,21 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
       break;
     }
     newton += mrvi_integrator_last_iterations(it);
+#ifdef BENCH_OMP_PROFILE
+    if (k == 0) /* (the first step apart: its one-off work) */
+      bench_omp_profile_read(&p0);
+#endif
   }
+#ifdef BENCH_OMP_PROFILE
+  if (!r->message[0] && k > 1) {
+    bench_omp_profile_read(&p1);
+    const double ks = (double)(k - 1);
+    r->ser = ((p1.main_cpu - p1.in_main) - (p0.main_cpu - p0.in_main)) / ks;
+    r->par = (p1.in_all - p0.in_all) / ks;
+    r->par_max = (p1.in_max - p0.in_max) / ks;
+    r->regions = (double)(p1.regions - p0.regions) / ks;
+  }
+#endif
   if (!r->message[0]) {
     r->step = (bench_cpu() - t1) / k;
     r->wall = (wall_clock() - w1) / k;
@@ -1136,6 +1169,84 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
   return 0;
 }
 
+#ifdef BENCH_OMP_PROFILE
+/* bench_serial --serial T: each scheme on T threads, the serial fraction
+ * of its step (doc/performance.md, "The serial fraction of a step on
+ * threads"): s = the stepping thread's CPU time outside the parallel
+ * regions over the step's work (that plus every thread's CPU time in the
+ * regions), the Amdahl bound 1 / (s + (1 - s) / T) it implies, the
+ * bound with the imbalance in the regions as well: work / (serial + the
+ * busiest thread's time summed over the regions), and the same with the
+ * one-thread step's CPU time as the work (a run on 1 thread before each
+ * run on T: what the threads add to the work counts against them).
+ * Median of `repeats` runs.  Run with OMP_WAIT_POLICY=passive (a waiting thread
+ * sleeps and is not counted); CPU times, so the machine's load disturbs them
+ * less than wall times. */
+static int serial_table(options *o, int t, const int *nets, const int *n_list,
+                        int n_n, int repeats, const char *only) {
+  const method ms[] = {M_FE, M_ES, M_MM, M_TM};
+  printf("# mrvi %s  serial fraction on %d threads  dT = %g  p = %d  median "
+         "of %d runs  %d cores available  load average %.2f at the start\n",
+         mrvi_version(), t, o->dT, o->p, repeats,
+         (int)sysconf(_SC_NPROCESSORS_ONLN), bench_load());
+  printf("# build: %s; OMP_WAIT_POLICY %s\n\n", bench_build(),
+         getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset");
+  printf("| %-9s | %-20s | %8s | %-12s | %8s | %9s | %9s | %9s | %9s | "
+         "%7s | %7s | %7s | %7s |\n|-----------|----------------------|----"
+         "-----:|--------------|---------:|----------:|----------:|----------"
+         ":|----------:|--------:|--------:|--------:|--------:|\n",
+         "network", "method", "n", "path", "regions", "serial_ms", "par_ms",
+         "imbal_ms", "cpu_1_ms", "s %", "amdahl", "bound", "bound_1");
+  for (int k = 0; k < N_NETS; k++)
+    for (int ni = 0; ni < n_n; ni++)
+      for (int i = 0; i < 4; i++) {
+        const method me = ms[i];
+        if (!nets[k] || (only && strcmp(only, method_names[me])) ||
+            ((me == M_MM || me == M_TM) && n_list[ni] > o->big))
+          continue;
+        double sv[MAX_REPEATS], pv[MAX_REPEATS], mv[MAX_REPEATS];
+        double rv[MAX_REPEATS], fv[MAX_REPEATS], av[MAX_REPEATS],
+            bv[MAX_REPEATS], cv[MAX_REPEATS], b1[MAX_REPEATS];
+        result x;
+        int ok = 0;
+        for (int r = 0; r < repeats; r++) {
+          o->threads = 1;
+          const result x1 = run_case(k, n_list[ni], me, o);
+          o->threads = t;
+          x = run_case(k, n_list[ni], me, o);
+          if (x.status != 0 || x.par <= 0.0 || x1.status != 0)
+            continue;
+          const double work = x.ser + x.par;
+          const double fr = x.ser / work;
+          sv[ok] = x.ser, pv[ok] = x.par, rv[ok] = x.regions;
+          mv[ok] = x.par_max - x.par / t;
+          fv[ok] = fr;
+          av[ok] = 1.0 / (fr + (1.0 - fr) / t);
+          bv[ok] = work / (x.ser + x.par_max);
+          cv[ok] = x1.step;
+          b1[ok] = x1.step / (x.ser + x.par_max);
+          ok++;
+        }
+        if (!ok) {
+          printf("| %-9s | %-20s | %8d | failed or not threaded: %s |\n",
+                 net_names[k], method_names[me], n_list[ni], x.message);
+          continue;
+        }
+        printf("| %-9s | %-20s | %8d | %-12s | %8.0f | %9.3f | %9.2f | %9.3f "
+               "| %9.2f | %7.2f | %7.2f | %7.2f | %7.2f |\n",
+               net_names[k], method_names[me], x.n, x.path,
+               bench_median(rv, ok), 1e3 * bench_median(sv, ok),
+               1e3 * bench_median(pv, ok), 1e3 * bench_median(mv, ok),
+               1e3 * bench_median(cv, ok), 100.0 * bench_median(fv, ok),
+               bench_median(av, ok), bench_median(bv, ok),
+               bench_median(b1, ok));
+        fflush(stdout);
+      }
+  printf("\n# load average %.2f at the end\n", bench_load());
+  return 0;
+}
+#endif
+
 int main(int argc, char **argv) {
   options o;
   memset(&o, 0, sizeof o);
@@ -1148,7 +1259,7 @@ int main(int argc, char **argv) {
   int n_list[MAX_N] = {1000, 10000, 100000}, n_n = 3, repeats = 3;
   int nets[N_NETS] = {1, 1, 1}, quick = 0, no_lammps = 0, n_set = 0;
   const char *only = NULL;
-  int threads = 0;
+  int threads = 0, serial = 0;
   o.threads = 1;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
@@ -1193,6 +1304,11 @@ int main(int argc, char **argv) {
     } else if (!strcmp(a, "--threads") && has) {
       if ((threads = atoi(argv[++i])) < 2)
         return bad_usage();
+#ifdef BENCH_OMP_PROFILE
+    } else if (!strcmp(a, "--serial") && has) {
+      if ((serial = atoi(argv[++i])) < 2)
+        return bad_usage();
+#endif
     } else if (!strcmp(a, "--tuning") && has) {
       o.tuning = argv[++i];
     } else if (!strcmp(a, "--no-lammps")) {
@@ -1212,6 +1328,11 @@ int main(int argc, char **argv) {
     o.steps = 2;
     nets[1] = nets[2] = 0;
   }
+#ifdef BENCH_OMP_PROFILE
+  if (serial > 1)
+    return serial_table(&o, serial, nets, n_list, n_n, repeats, only);
+#endif
+  (void)serial;
   if (threads > 1)
     return threads_table(&o, threads, nets, n_list, n_n, repeats, only);
   const int lammps = !no_lammps && have_lammps();

@@ -94,6 +94,10 @@ struct mrvi_predictor {
    * the sweep): configuration, gradient, slow-row force (ns), the explicit
    * and implicit parts of F_m^A, and F_m^B (nf each). */
   double *z, *g, *fs, *fexp, *fimp, *fb, *fimp1;
+  /* The sweep in one parallel region of pthreads threads (sweep_par):
+   * where each class is in parts (on threads) or empty, beyond the small
+   * systems (so never with one). */
+  int ppar, pthreads;
   double *pm;    /* p^{f,m} (nf) */
   double *H;     /* sum w a0 a1 hess Z along the sweep, packed (n x n, its
                     slow block; NULL for n > slow_newton_n: no Newton
@@ -524,6 +528,14 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     }
   }
   free(col);
+  pr->ppar = grad_only;
+  for (int c = 0; c < 2; c++) {
+    const int parts = mrvi_terms_parts(pr->kc[c]) >= 2;
+    pr->ppar &= parts || st->n_elem_of_class[c] == 0;
+    if (parts && mrvi_terms_threads(pr->kc[c]) > pr->pthreads)
+      pr->pthreads = mrvi_terms_threads(pr->kc[c]);
+  }
+  pr->ppar &= pr->pthreads > 1;
   for (int c = 0; c < 2; c++) {
     if (!(pr->pend[c] =
               malloc((size_t)(st->p > 0 ? st->p : 1) * sizeof(int)))) {
@@ -814,6 +826,81 @@ ALWAYS_INLINE void point_gradient_k(mrvi_predictor *pr, const mrvi_step *st,
     UNROLL for (int i = ns; i < nz; i++) g[i] += tw[i];
 }
 
+/* The sums fa += wa g_f, fb += wb g_f, fs += w0 g_s (NULL: not added)
+ * in ranges of the coordinates, inside a parallel region (point_team). */
+static void sums_team(const double *g, double *fa, double wa, double *fb,
+                      double wb, double *fs, double w0, int ns, int nf) {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+  for (int f = 0; f < nf; f++) {
+    if (fa)
+      fa[f] += wa * g[ns + f];
+    if (fb)
+      fb[f] += wb * g[ns + f];
+  }
+  if (fs) {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int s = 0; s < ns; s++)
+      fs[s] += w0 * g[s];
+  }
+}
+
+/* point_gradient_k (without J, affine maps or a class out of parts:
+ * pr->ppar) with its sums (sums_team), its loops shared by the threads of
+ * the enclosing parallel region: the configuration and g's zeros in
+ * ranges of the coordinates, the gradient in the class's parts (W's after
+ * V's with both, a barrier between), the sums in the same ranges (no
+ * barrier after them: the next loop over the same range runs on the same
+ * thread, schedule(static)).  Each entry takes the serial arithmetic, each
+ * part writes its own columns in the serial order (mrvi_terms_set_threads):
+ * the same bits for every thread count. */
+static void point_team(mrvi_predictor *pr, const mrvi_step *st, const double *x,
+                       const mrvi_point *pt, int c, int both, double *fa,
+                       double wa, double *fb, double wb, double *fs,
+                       double w0) {
+  const int ns = st->ns, nf = st->nf;
+  double *restrict z = pr->z, *restrict g = pr->g;
+  const double *restrict qs0 = st->qs0, *restrict qf0 = st->qf0;
+  const double a1 = pt->a1, cA = pt->cA, cB = pt->cB;
+  const double *dB = x + ns + (size_t)pt->m * nf;
+  const double *dA = pt->m > 0 ? dB - nf : dB;
+  const int mA = pt->m > 0, mB = cB != 0.0;
+  mrvi_terms *kv = pr->kc[c], *kw = both ? pr->kc[1] : NULL;
+  const int npv = mrvi_terms_parts(kv), npw = kw ? mrvi_terms_parts(kw) : 0;
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+  for (int s = 0; s < ns; s++) {
+    z[s] = qs0[s] + a1 * x[s];
+    g[s] = 0.0;
+  }
+  /* (point_gradient_k's four cases, term by term) */
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+  for (int f = 0; f < nf; f++) {
+    z[ns + f] = mA && mB ? qf0[f] + cA * dA[f] + cB * dB[f]
+                : mA     ? qf0[f] + cA * dA[f] + 0.0
+                : mB     ? qf0[f] + 0.0 + cB * dB[f]
+                         : qf0[f] + 0.0 + 0.0;
+    g[ns + f] = 0.0;
+  }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+  for (int k = 0; k < npv; k++)
+    mrvi_terms_grad_part(kv, k, z, g);
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+  for (int k = 0; k < npw; k++)
+    mrvi_terms_grad_part(kw, k, z, g);
+  sums_team(g, fa, wa, fb, wb, fs, w0, ns, nf);
+}
+
 ALWAYS_INLINE void axpy(const int n, double a, const double *restrict g,
                         double *restrict acc) {
   UNROLL for (int i = 0; i < n; i++) acc[i] += a * g[i];
@@ -848,6 +935,60 @@ ALWAYS_INLINE void node_gradients_k(mrvi_predictor *pr, const mrvi_step *st,
       v1 * gv[ns + f] + w1 * gw[ns + f];
   if (pr->same && pr->node_left)
     UNROLL for (int i = 0; i < n; i++) pr->gnode[2 * n + i] = gv[i] + gw[i];
+}
+
+/* node_gradients_k on the step's threads in one parallel region
+ * (pr->ppar: no affine maps): the configuration and zeros in ranges of
+ * the coordinates, V's parts and W's parts (into their own arrays) in one
+ * shared loop, the sums in ranges; each entry node_gradients_k's
+ * arithmetic, each part writing its own columns in the serial order. */
+static __attribute__((noinline)) void node_gradients_par(mrvi_predictor *pr,
+                                                         const mrvi_step *st) {
+  const int ns = st->ns, nf = st->nf, n = ns + nf;
+  double *restrict z = pr->z, *restrict gv = pr->gnode,
+                   *restrict gw = pr->gnode + n;
+  const int npv = st->n_elem_of_class[0] ? mrvi_terms_parts(pr->kc[0]) : 0,
+            npw = st->n_elem_of_class[1] ? mrvi_terms_parts(pr->kc[1]) : 0;
+  const double v0 = pr->wnode[0], w0 = pr->wnode[1];
+  const double v1 = pr->wins[0], w1 = pr->wins[1];
+  const int sum = pr->same && pr->node_left;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(pr->pthreads)
+#endif
+  {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int i = 0; i < n; i++) {
+      z[i] = i < ns ? st->qs0[i] : st->qf0[i - ns];
+      gv[i] = gw[i] = 0.0;
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int k = 0; k < npv + npw; k++)
+      if (k < npv)
+        mrvi_terms_grad_part(pr->kc[0], k, z, gv);
+      else
+        mrvi_terms_grad_part(pr->kc[1], k - npv, z, gw);
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int s = 0; s < ns; s++)
+      pr->fs[s] = v0 * gv[s] + w0 * gw[s];
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int f = 0; f < nf; f++)
+      pr->fimp0[f] = v1 * gv[ns + f] + w1 * gw[ns + f];
+    if (sum) {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+      for (int i = 0; i < n; i++)
+        pr->gnode[2 * n + i] = gv[i] + gw[i];
+    }
+  }
 }
 
 /* Evaluate the points of kind k in [first[c], end[c]) of both classes:
@@ -1104,6 +1245,115 @@ ALWAYS_INLINE void sweep1_k(mrvi_predictor *pr, const mrvi_step *st, double *x,
     UNROLL for (int s = 0; s < ns; s++) pr->fs[s] = fs[s];
 }
 
+/* eval_points_k inside a parallel region, its loops shared (point_team;
+ * the points at node k with the kept gradient, sums_team). */
+static void eval_team(mrvi_predictor *pr, const mrvi_step *st, const double *x,
+                      const int *first, const int *end, int k, double *fa,
+                      double *fb, double *fs, int sum_slow, int at_k) {
+  if (!pr->has_kind[k])
+    return;
+  const int same = pr->same, ns = st->ns, nf = st->nf;
+  for (int c = 0; c < (same ? 1 : 2); c++)
+    for (int ip = first[c]; ip < end[c]; ip++) {
+      if (pr->kinds[c][ip] != k)
+        continue;
+      const mrvi_point *pt = &st->pts[c][ip];
+      double *ta = fa && pt->cA != 0.0 ? fa : NULL,
+             *tb = fb && pt->cB != 0.0 ? fb : NULL,
+             *ts = sum_slow && pt->a0 != 0.0 ? fs : NULL;
+      if (at_k && pt->a1 == 0.0)
+        sums_team(pr->gnode + (size_t)(same ? 2 : c) * (size_t)(ns + nf), ta,
+                  pt->w * pt->cA, tb, pt->w * pt->cB, ts, pt->w * pt->a0, ns,
+                  nf);
+      else
+        point_team(pr, st, x, pt, c, same, ta, pt->w * pt->cA, tb,
+                   pt->w * pt->cB, ts, pt->w * pt->a0);
+    }
+}
+
+/* sweep_k (nf > 0, without the small blocks' local arrays) on the step's
+ * threads in one parallel region (pr->ppar): every thread walks the rows
+ * and points, the row updates in ranges of the fast coordinates (the
+ * same ranges as point_team's sums: schedule(static), so no barrier
+ * between them), the points by point_team.  Each entry takes sweep_k's
+ * arithmetic in its order: the same bits for every thread count. */
+static __attribute__((noinline)) void
+sweep_par(mrvi_predictor *pr, const mrvi_step *st, double *x, int sum_slow) {
+  const int p = st->p, ns = st->ns, nf = st->nf;
+  const double dt = st->dt, *minv = pr->minv + ns;
+  double *restrict fs = pr->fs, *restrict fexp = pr->fexp,
+                   *restrict fimp = pr->fimp, *restrict fimp1 = pr->fimp1,
+                   *restrict fb = pr->fb, *restrict pm = pr->pm,
+                   *restrict u = pr->scr, *restrict cm = pr->scr + nf;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(pr->pthreads)
+#endif
+  {
+    if (sum_slow) {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+      for (int s = 0; s < ns; s++)
+        fs[s] = 0.0;
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int f = 0; f < nf; f++) {
+      fimp[f] = pr->fimp0[f];
+      pm[f] = st->pf0[f];
+      cm[f] = dt * minv[f];
+    }
+    int first[2] = {0, 0}, end[2];
+    for (int mm = 0; mm < p; mm++) {
+      end[0] = pr->pend[0][mm];
+      end[1] = pr->pend[1][mm];
+      const double *d = mm == 0 ? NULL : x + ns + (size_t)(mm - 1) * nf;
+      double *dn = x + ns + (size_t)mm * nf;
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+      for (int f = 0; f < nf; f++)
+        fexp[f] = 0.0;
+      eval_team(pr, st, x, first, end, AT_LEFT, fexp, NULL, fs, sum_slow,
+                mm == 0);
+      /* (extrapolate_k, the row at the estimate, the zeros) */
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+      for (int f = 0; f < nf; f++) {
+        if (mm >= 2) {
+          const double fi = fimp[f];
+          fimp[f] = 2.0 * fi - fimp1[f];
+          fimp1[f] = fi;
+        } else
+          fimp1[f] = fimp[f];
+        dn[f] = (d ? d[f] : 0.0) + cm[f] * (pm[f] - fexp[f] - fimp[f]);
+        fimp[f] = 0.0;
+        fb[f] = 0.0;
+      }
+      eval_team(pr, st, x, first, end, INSIDE, fimp, fb, fs, sum_slow, 0);
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+      for (int f = 0; f < nf; f++) {
+        u[f] = pm[f] - fexp[f] - fimp[f];
+        dn[f] = (d ? d[f] : 0.0) + cm[f] * u[f];
+      }
+      eval_team(pr, st, x, first, end, AT_RIGHT, NULL, fb, fs, sum_slow, 0);
+      if (mm + 1 < p) {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+        for (int f = 0; f < nf; f++)
+          pm[f] = u[f] - fb[f];
+      }
+      first[0] = end[0];
+      first[1] = end[1];
+    }
+  }
+}
+
 /* The sweep with the micro-node constraints' forces (pr->js,
  * predict_joints.c; doc/solver.md, "The joint sweep"), on the points of
  * any rule as sweep_k.  At each node: the row solved with the implicit
@@ -1166,6 +1416,8 @@ static void sweep(mrvi_predictor *pr, const mrvi_step *st, double *x,
   }
   if (pr->one) {
     SMALL2(st->ns, NS, st->nf, NF, sweep1_k(pr, st, x, sum_slow, NS, NF));
+  } else if (pr->ppar && !pr->hsum && st->nf > 0) {
+    sweep_par(pr, st, x, sum_slow);
   } else {
     SMALL2(st->ns, NS, st->nf, NF, sweep_k(pr, st, x, sum_slow, NS, NF));
   }
@@ -1446,7 +1698,10 @@ static void predict_start(mrvi_predictor *pr, const mrvi_step *st, double *x,
                           int pre) {
   pr->h_ok = 0;
   /* Slow row with every point at node k: sum_pts w a0 grad Z_c(q_k). */
-  SMALL2(st->ns, NS, st->nf, NF, node_gradients_k(pr, st, NS, NF));
+  if (pr->ppar)
+    node_gradients_par(pr, st);
+  else
+    SMALL2(st->ns, NS, st->nf, NF, node_gradients_k(pr, st, NS, NF));
   if (pre) { /* for pre_solve */
     const int n = st->ns + st->nf;
     for (int s = 0; s < st->ns; s++)
@@ -1504,14 +1759,32 @@ void mrvi_predict_checked(mrvi_predictor *pr, const mrvi_step *st, double *x) {
    * entry): free flight instead (and, with the joint sweep, the
    * multipliers it set from zero). */
   const int nx = pr->js ? st->n_total : st->n_unknowns;
-  double b4[4] = {0.0, 0.0, 0.0, 0.0}; /* (four independent sums) */
-  int i = 0;
-  for (; i + 4 <= nx; i += 4)
-    for (int j = 0; j < 4; j++)
-      b4[j] += x[i + j] * 0.0;
-  for (; i < nx; i++)
-    b4[0] += x[i] * 0.0;
-  const double bad = (b4[0] + b4[1]) + (b4[2] + b4[3]);
+  double bad;
+  if (pr->ppar) { /* (on threads in CHECK_PARTS parts of nx: the sum is a
+                     zero or NaN in any order, the same test) */
+    enum { CHECK_PARTS = 8 };
+    double bp[CHECK_PARTS];
+    MRVI_PARALLEL_FOR(pr->pthreads)
+    for (int c = 0; c < CHECK_PARTS; c++) {
+      double b = 0.0;
+      for (int i = mrvi_part_start(c, nx, CHECK_PARTS);
+           i < mrvi_part_start(c + 1, nx, CHECK_PARTS); i++)
+        b += x[i] * 0.0;
+      bp[c] = b;
+    }
+    bad = 0.0;
+    for (int c = 0; c < CHECK_PARTS; c++)
+      bad += bp[c];
+  } else {
+    double b4[4] = {0.0, 0.0, 0.0, 0.0}; /* (four independent sums) */
+    int i = 0;
+    for (; i + 4 <= nx; i += 4)
+      for (int j = 0; j < 4; j++)
+        b4[j] += x[i + j] * 0.0;
+    for (; i < nx; i++)
+      b4[0] += x[i] * 0.0;
+    bad = (b4[0] + b4[1]) + (b4[2] + b4[3]);
+  }
   if (bad != 0.0 || bad != bad) {
     mrvi_predict_free_flight(st, x);
     if (pr->js)
