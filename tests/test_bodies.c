@@ -633,7 +633,9 @@ static void test_top(void) {
   CHECK(fabs(of - 2.0) < 0.1, "heavy top: precession order %.3f", of);
   CHECK(fabs(oz - 2.0) < 0.1, "heavy top: tilt order %.3f", oz);
   CHECK(f[2] < 1e-3 && z[2] < 1e-3, "heavy top: errors %.3g %.3g", f[2], z[2]);
-  CHECK(L[2] < 1e-9, "heavy top: L.e3 and L.d3 conserved to %.3g", L[2]);
+  /* to the Newton tolerance (1e-12; measured 3e-15 to 5e-15) */
+  const double Lmax = fmax(L[0], fmax(L[1], L[2]));
+  CHECK(Lmax < 1e-12, "heavy top: L.e3 and L.d3 conserved to %.3g", Lmax);
   /* The energy bounded, not conserved: its error at least O(dT^2) (in
    * this steady precession, a relative equilibrium which the discrete map
    * keeps as one, measured O(dT^4): 3.7e-6, 2.3e-7, 1.4e-8) ... */
