@@ -4,7 +4,8 @@
  * their CG and GMRES iteration counts stay at the few that the condition
  * numbers allow; a micro-step matrix with non-positive curvature falls back
  * to a sparse LU with the reason, and the trajectory is still the general
- * path's. */
+ * path's.  On the shipped unconstrained systems, forced by dense_max = 0,
+ * the iterative paths give the general path's trajectory over 100 steps. */
 #include "solver/solver.h"
 #include "testlib.h"
 
