@@ -288,14 +288,14 @@ static int agree(const char *text, const char *scheme, int p, double dT,
 
 /* A 10 x 8 lattice (80 slow and 80 fast coordinates, beyond the dense
  * limit 64): every scheme with an implicit fast rule on its iterative path
- * against the general path, tolerance 1e-12, 20 steps, p in {1, 5}.  Both
- * solutions meet ||R|| <= 1e-12 with a Jacobian M/dt + O(dt K), so they
- * differ by about 1e-12 dt / M relative to q and p; 1e-10 leaves room for
- * 20 steps of growth (doc/solver.md).  The schur-krylov schemes run twice:
- * with the outer iteration (solver/outer.c), which at p = 5 solves every
- * step (its row chord contracts by about (omega dt)^2/4 = 0.024 per update
- * at dt = 0.002, omega = 98), and without it (outer_max 0: Newton with
- * GMRES and CG in every step).  At p = 1 (dt = 0.01, (omega dt)^2/4 = 0.24
+ * against the general path, tolerance 1e-12, 100 steps (test_steps), p in
+ * {1, 5}.  Both solutions meet ||R|| <= 1e-12 with a Jacobian M/dt +
+ * O(dt K), so they differ by about 1e-12 dt / M relative to q and p; 1e-10
+ * leaves room for 100 steps of growth (doc/solver.md).  The schur-krylov
+ * schemes run twice: with the outer iteration (solver/outer.c), which at p = 5
+ * solves every step (its row chord contracts by about (omega dt)^2/4 = 0.024
+ * per update at dt = 0.002, omega = 98), and without it (outer_max 0: Newton
+ * with GMRES and CG in every step).  At p = 1 (dt = 0.01, (omega dt)^2/4 = 0.24
  * > chord_jacobi_max 0.1) it is not used: Newton in every step. */
 static void test_agree(void) {
   static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint",
@@ -304,6 +304,7 @@ static void test_agree(void) {
   static const char *const want[] = {"sweep-cg", "schur-krylov", "schur-krylov",
                                      "schur-krylov"};
   char *text = lattice(10, 8);
+  const int steps = (int)test_steps(100);
   mrvi_system *one = load_text(text, NULL, 0);
   if (one)
     CHECK(one->model->n_slow == 80 && one->model->n_fast == 80,
@@ -315,16 +316,16 @@ static void test_agree(void) {
       trajectory b;
       /* (explicit-slow at p = 5: the Jacobi chord in every row, row 0's
        * too, no CG; at p = 1 its bound fails and Newton's CG runs) */
-      if (agree_outer(text, schemes[sc], p, 0.01, 20, want[sc], sc > 0 ? 0 : -1,
-                      &b))
+      if (agree_outer(text, schemes[sc], p, 0.01, steps, want[sc],
+                      sc > 0 ? 0 : -1, &b))
         CHECK((b.ks.cg_solves > 0) == (sc > 0 || p == 1) &&
                   b.ks.fallbacks == 0 && b.ks.outer_steps == 0,
               "%s p=%d: %ld CG solves, %ld fallbacks (%s), %ld outer steps",
               schemes[sc], p, b.ks.cg_solves, b.ks.fallbacks,
               b.ks.fallback_reason, b.ks.outer_steps);
-      if (sc > 0 && agree(text, schemes[sc], p, 0.01, 20, want[sc], &b))
+      if (sc > 0 && agree(text, schemes[sc], p, 0.01, steps, want[sc], &b))
         CHECK(p == 1 ? b.ks.outer_steps + b.ks.outer_fallbacks == 0
-                     : b.ks.outer_steps == 20 && b.ks.outer_fallbacks == 0 &&
+                     : b.ks.outer_steps == steps && b.ks.outer_fallbacks == 0 &&
                            b.ks.cg_solves == 0,
               "%s p=%d: %ld outer steps, %ld left to Newton, %ld CG solves",
               schemes[sc], p, b.ks.outer_steps, b.ks.outer_fallbacks,
