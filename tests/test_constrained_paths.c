@@ -205,8 +205,8 @@ static void test_shipped(void) {
             compared++;
           }
         }
-        /* The two constraint forms on the general path directly (issue
-         * 23: the same trajectory to 1e-10 on every shipped system). */
+        /* The two constraint forms on the general path directly: the same
+         * trajectory to 1e-10 on every shipped system (doc/testing.md). */
         if (g[0].ok && g[1].ok) {
           const double d = rel_diff(&g[0], &g[1], N_STEPS);
           worst_forms = fmax(worst_forms, d);
