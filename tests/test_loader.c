@@ -22,14 +22,17 @@
 #define MSG 1024
 
 /* ---------------------------------------------------------------------------
- * Broken files.  Line 1: "# expect: LINE: SUBSTRING" (LINE is a number, or
- * `set` for an error reported against an override); optional line 2:
- * "# set: KEY=VALUE", an override to apply.
+ * Broken files.  Line 1: "# expect: LINE: SUBSTRING" or "# expect: LINE:COL:
+ * SUBSTRING" (LINE and COL numbers; or `set` for an error reported against
+ * an override); optional line 2: "# set: KEY=VALUE", an override to apply.
+ * Every message located in the file carries a column (file:line:col:);
+ * where the case names COL, it is that one.
  * ------------------------------------------------------------------------- */
 
 typedef struct bad_case {
   char path[1024];
   int line;          /* expected line, 0 for an override error */
+  int col;           /* expected column, 0 for any */
   char expect[1024]; /* message substring */
   char set[1024];    /* override, "" if none */
 } bad_case;
@@ -64,6 +67,12 @@ static int read_case(const char *path, bad_case *c) {
   } else {
     char *end;
     c->line = (int)strtol(p, &end, 10);
+    if (end != p && end[0] == ':' && end[1] >= '0' && end[1] <= '9') {
+      const char *col = end + 1;
+      c->col = (int)strtol(col, &end, 10);
+      if (c->col < 1)
+        return -1;
+    }
     if (end == p || strncmp(end, ": ", 2) || c->line < 1)
       return -1;
     p = end + 2;
@@ -104,13 +113,20 @@ static int list_bad_files(char ***out) {
   return n;
 }
 
-/* The message starts with the location the case expects. */
+/* The message starts with the location the case expects: file:line:col:,
+ * the column the case's if it names one. */
 static int location_ok(const bad_case *c, const char *msg) {
   char want[1100];
   if (c->line == 0)
     return !strncmp(msg, "--set ", 6);
   snprintf(want, sizeof want, "%s:%d:", c->path, c->line);
-  return !strncmp(msg, want, strlen(want));
+  if (strncmp(msg, want, strlen(want)))
+    return 0;
+  const char *p = msg + strlen(want);
+  char *end;
+  const long col = strtol(p, &end, 10);
+  return end != p && *p >= '0' && *p <= '9' && col >= 1 && *end == ':' &&
+         (c->col == 0 || col == c->col);
 }
 
 static void test_bad_file(const bad_case *c) {
@@ -121,8 +137,9 @@ static void test_bad_file(const bad_case *c) {
       mrvi_system_load(c->path, ov, c->set[0] ? 1 : 0, &sys, msg, sizeof msg);
   CHECK(st == MRVI_EPARSE, "%s: status %d, expected MRVI_EPARSE", c->path, st);
   CHECK(sys == NULL, "%s: *out not NULL on failure", c->path);
-  CHECK(location_ok(c, msg), "%s: message '%s' does not start at line %d",
-        c->path, msg, c->line);
+  CHECK(location_ok(c, msg),
+        "%s: message '%s' does not start at line %d, column %d (0: any)",
+        c->path, msg, c->line, c->col);
   CHECK(strstr(msg, c->expect) != NULL, "%s: message '%s' lacks '%s'", c->path,
         msg, c->expect);
   mrvi_system_free(sys == (mrvi_system *)&msg ? NULL : sys);
@@ -196,7 +213,9 @@ static void test_cli_bad_files(char **files, int n) {
           c.path, code);
     char *text = slurp(err);
     char want[1100];
-    if (c.line)
+    if (c.line && c.col)
+      snprintf(want, sizeof want, "%s:%d:%d:", c.path, c.line, c.col);
+    else if (c.line)
       snprintf(want, sizeof want, "%s:%d:", c.path, c.line);
     else
       snprintf(want, sizeof want, "--set");

@@ -4,7 +4,8 @@
  * their CG and GMRES iteration counts stay at the few that the condition
  * numbers allow; a micro-step matrix with non-positive curvature falls back
  * to a sparse LU with the reason, and the trajectory is still the general
- * path's. */
+ * path's.  On the shipped unconstrained systems, forced by dense_max = 0,
+ * the iterative paths give the general path's trajectory over 100 steps. */
 #include "solver/solver.h"
 #include "testlib.h"
 
@@ -287,14 +288,14 @@ static int agree(const char *text, const char *scheme, int p, double dT,
 
 /* A 10 x 8 lattice (80 slow and 80 fast coordinates, beyond the dense
  * limit 64): every scheme with an implicit fast rule on its iterative path
- * against the general path, tolerance 1e-12, 20 steps, p in {1, 5}.  Both
- * solutions meet ||R|| <= 1e-12 with a Jacobian M/dt + O(dt K), so they
- * differ by about 1e-12 dt / M relative to q and p; 1e-10 leaves room for
- * 20 steps of growth (doc/solver.md).  The schur-krylov schemes run twice:
- * with the outer iteration (solver/outer.c), which at p = 5 solves every
- * step (its row chord contracts by about (omega dt)^2/4 = 0.024 per update
- * at dt = 0.002, omega = 98), and without it (outer_max 0: Newton with
- * GMRES and CG in every step).  At p = 1 (dt = 0.01, (omega dt)^2/4 = 0.24
+ * against the general path, tolerance 1e-12, 100 steps (test_steps), p in
+ * {1, 5}.  Both solutions meet ||R|| <= 1e-12 with a Jacobian M/dt +
+ * O(dt K), so they differ by about 1e-12 dt / M relative to q and p; 1e-10
+ * leaves room for 100 steps of growth (doc/solver.md).  The schur-krylov
+ * schemes run twice: with the outer iteration (solver/outer.c), which at p = 5
+ * solves every step (its row chord contracts by about (omega dt)^2/4 = 0.024
+ * per update at dt = 0.002, omega = 98), and without it (outer_max 0: Newton
+ * with GMRES and CG in every step).  At p = 1 (dt = 0.01, (omega dt)^2/4 = 0.24
  * > chord_jacobi_max 0.1) it is not used: Newton in every step. */
 static void test_agree(void) {
   static const char *const schemes[] = {"explicit-slow", "midpoint-midpoint",
@@ -303,6 +304,7 @@ static void test_agree(void) {
   static const char *const want[] = {"sweep-cg", "schur-krylov", "schur-krylov",
                                      "schur-krylov"};
   char *text = lattice(10, 8);
+  const int steps = (int)test_steps(100);
   mrvi_system *one = load_text(text, NULL, 0);
   if (one)
     CHECK(one->model->n_slow == 80 && one->model->n_fast == 80,
@@ -314,16 +316,16 @@ static void test_agree(void) {
       trajectory b;
       /* (explicit-slow at p = 5: the Jacobi chord in every row, row 0's
        * too, no CG; at p = 1 its bound fails and Newton's CG runs) */
-      if (agree_outer(text, schemes[sc], p, 0.01, 20, want[sc], sc > 0 ? 0 : -1,
-                      &b))
+      if (agree_outer(text, schemes[sc], p, 0.01, steps, want[sc],
+                      sc > 0 ? 0 : -1, &b))
         CHECK((b.ks.cg_solves > 0) == (sc > 0 || p == 1) &&
                   b.ks.fallbacks == 0 && b.ks.outer_steps == 0,
               "%s p=%d: %ld CG solves, %ld fallbacks (%s), %ld outer steps",
               schemes[sc], p, b.ks.cg_solves, b.ks.fallbacks,
               b.ks.fallback_reason, b.ks.outer_steps);
-      if (sc > 0 && agree(text, schemes[sc], p, 0.01, 20, want[sc], &b))
+      if (sc > 0 && agree(text, schemes[sc], p, 0.01, steps, want[sc], &b))
         CHECK(p == 1 ? b.ks.outer_steps + b.ks.outer_fallbacks == 0
-                     : b.ks.outer_steps == 20 && b.ks.outer_fallbacks == 0 &&
+                     : b.ks.outer_steps == steps && b.ks.outer_fallbacks == 0 &&
                            b.ks.cg_solves == 0,
               "%s p=%d: %ld outer steps, %ld left to Newton, %ld CG solves",
               schemes[sc], p, b.ks.outer_steps, b.ks.outer_fallbacks,
@@ -766,6 +768,96 @@ static void test_outer(void) {
   free(text);
 }
 
+/* The iterative paths forced (integrator.tuning.dense_max = 0: every block
+ * beyond the dense limit) on every shipped unconstrained system, every
+ * scheme, p in {1, 5}: sweep becomes sweep-cg and schur schur-krylov, and
+ * the trajectory is the general path's to 1e-10 over 100 macro steps
+ * (test_steps: 10 under the sanitizers), tolerance 1e-12.  The FPU (and
+ * its optimal control problem's) at the paper's dT = 0.03 (0.3 is for the
+ * midpoint rules; trapezoidal-trapezoidal needs 0.03, arXiv 2406.12991 §6,
+ * and the explicit rules at p = 1 below 2/omega), as in test_solver. */
+static void test_forced_shipped(void) {
+  static const char *const files[] = {"systems/fpu.yaml",
+                                      "systems/oscillator.yaml",
+                                      "systems/spring_ring.yaml",
+                                      "systems/tutorial_spring.yaml",
+                                      "systems/lattice.yaml",
+                                      "systems/ocp_fpu.yaml",
+                                      "systems/ocp_double_integrator.yaml"};
+  const char *const *schemes = mrvi_scheme_names();
+  const int steps = (int)test_steps(100);
+  int n_cg = 0, n_krylov = 0;
+  double worst = 0.0;
+  for (size_t f = 0; f < sizeof files / sizeof *files; f++)
+    for (int sc = 0; schemes[sc]; sc++)
+      for (int pi = 0; pi < 2; pi++) {
+        const int p = pi ? 5 : 1;
+        char ov[6][96];
+        const char *ovp[6];
+        snprintf(ov[0], sizeof ov[0], "integrator.scheme=%s", schemes[sc]);
+        snprintf(ov[1], sizeof ov[1], "integrator.micro_steps=%d", p);
+        snprintf(ov[2], sizeof ov[2], "integrator.newton.tolerance=1e-12");
+        snprintf(ov[3], sizeof ov[3], "integrator.solver=general");
+        snprintf(ov[4], sizeof ov[4], "integrator.tuning.dense_max=0");
+        snprintf(ov[5], sizeof ov[5], "integrator.macro_step=0.03");
+        const int fpu = strstr(files[f], "fpu.yaml") != NULL;
+        for (int i = 0; i < 6; i++)
+          ovp[i] = ov[i];
+        /* the general run: overrides 0-3 (and the FPU's dT, moved) */
+        const char *og[5] = {ovp[0], ovp[1], ovp[2], ovp[3], ovp[5]};
+        mrvi_system *sg = NULL, *sa = NULL;
+        char msg[512];
+        const char *path = test_source_path(files[f]);
+        if (mrvi_system_load(path, og, fpu ? 5 : 4, &sg, msg, sizeof msg) < 0) {
+          CHECK(0, "load %s: %s", files[f], msg);
+          continue;
+        }
+        snprintf(ov[3], sizeof ov[3], "integrator.solver=auto");
+        if (mrvi_system_load(path, ovp, fpu ? 6 : 5, &sa, msg, sizeof msg) <
+            0) {
+          CHECK(0, "load %s: %s", files[f], msg);
+          mrvi_system_free(sg);
+          continue;
+        }
+        CHECK(mrvi_model_constraint_rows(sa->model) == 0, "%s unconstrained",
+              files[f]);
+        /* the path at the default limits, and its iterative counterpart */
+        mrvi_settings sd = sa->settings;
+        sd.tuning.dense_max = sg->settings.tuning.dense_max;
+        const char *dense = mrvi_solver_path(sa->model, &sd, NULL, 0);
+        const char *want = !dense                        ? "(none)"
+                           : strcmp(dense, "sweep") == 0 ? "sweep-cg"
+                           : strcmp(dense, "schur") == 0 ? "schur-krylov"
+                                                         : dense;
+        trajectory a, b;
+        run(sg, steps, &a);
+        run(sa, steps, &b);
+        CHECK(a.ok && b.ok, "%s %s p=%d: runs completed", files[f], schemes[sc],
+              p);
+        if (a.ok && b.ok) {
+          const double d = rel_diff(&a, &b);
+          worst = fmax(worst, d);
+          CHECK(strcmp(a.path, "general") == 0 && strcmp(b.path, want) == 0,
+                "%s %s p=%d: paths %s, %s (want %s)", files[f], schemes[sc], p,
+                a.path, b.path, want);
+          CHECK(d <= 1e-10, "%s %s p=%d: %s forced vs general: %.2e", files[f],
+                schemes[sc], p, b.path, d);
+          n_cg += strcmp(b.path, "sweep-cg") == 0;
+          n_krylov += strcmp(b.path, "schur-krylov") == 0;
+        }
+        release(&a);
+        release(&b);
+        mrvi_system_free(sg);
+        mrvi_system_free(sa);
+      }
+  printf("shipped systems, dense_max 0: %d sweep-cg and %d schur-krylov runs "
+         "over %d steps, largest difference from general %.2e\n",
+         n_cg, n_krylov, steps, worst);
+  CHECK(n_cg >= 12 && n_krylov >= 42,
+        "iterative paths forced: %d sweep-cg, %d schur-krylov runs", n_cg,
+        n_krylov);
+}
+
 int main(void) {
   test_chord();
   test_chord_carry();
@@ -777,5 +869,6 @@ int main(void) {
   test_fallback();
   test_many_gmres();
   test_outer();
+  test_forced_shipped();
   return test_finish();
 }
