@@ -1674,6 +1674,70 @@ static void test_term_description(void) {
   mrvi_system_free(sys);
 }
 
+/* Body orientation as a unit quaternion equals {axis, angle} (q = (cos a/2,
+ * sin a/2 k)), and `frame: body` takes velocity and angular velocity in the
+ * body's frame: the loaded directors d_i and their rates give back
+ * omega = 1/2 sum d_i x d_i' with d_i . omega = Omega_i and phi' = sum V_i d_i.
+ */
+static void test_body_orientation_forms(void) {
+  const double a = 0.7, k[3] = {0, 0.6, 0.8}, W[3] = {1, -2, 3},
+               V[3] = {0.5, 0.25, -1};
+  char text[2][1024];
+  for (int form = 0; form < 2; form++) {
+    char orient[256];
+    if (form == 0)
+      snprintf(orient, sizeof orient,
+               "{axis: [%.17g, %.17g, %.17g], angle: %.17g}", k[0], k[1], k[2],
+               a);
+    else
+      snprintf(orient, sizeof orient,
+               "{quaternion: [%.17g, %.17g, %.17g, %.17g]}", cos(a / 2),
+               sin(a / 2) * k[0], sin(a / 2) * k[1], sin(a / 2) * k[2]);
+    snprintf(
+        text[form], sizeof text[form],
+        "name: b\ndimension: 3\nbodies:\n"
+        "  - {name: top, mass: 2, inertia: [1, 2, 2.5], position: [1, 2, 3],\n"
+        "     orientation: %s, frame: body,\n"
+        "     velocity: [%.17g, %.17g, %.17g],\n"
+        "     angular_velocity: [%.17g, %.17g, %.17g]}\n"
+        "integrator: {macro_step: 0.01, t_end: 0.1}\n",
+        orient, V[0], V[1], V[2], W[0], W[1], W[2]);
+  }
+  mrvi_system *s0 = load_text(text[0], NULL, 0),
+              *s1 = load_text(text[1], NULL, 0);
+  if (!s0 || !s1) {
+    mrvi_system_free(s0), mrvi_system_free(s1);
+    return;
+  }
+  const double *q0 = mrvi_model_q0(s0->model), *q1 = mrvi_model_q0(s1->model),
+               *v0 = mrvi_model_v0(s0->model), *v1 = mrvi_model_v0(s1->model);
+  double dq = 0, dv = 0;
+  for (int i = 0; i < 12; i++) {
+    dq = fmax(dq, fabs(q0[i] - q1[i]));
+    dv = fmax(dv, fabs(v0[i] - v1[i]));
+  }
+  CHECK(dq < 1e-15 && dv < 1e-14,
+        "quaternion and axis-angle differ: q %.3g, v %.3g", dq, dv);
+  double w[3] = {0, 0, 0}, phidot[3] = {0, 0, 0};
+  for (int i = 0; i < 3; i++) {
+    const double *d = q1 + 3 + 3 * i, *dd = v1 + 3 + 3 * i;
+    w[0] += 0.5 * (d[1] * dd[2] - d[2] * dd[1]);
+    w[1] += 0.5 * (d[2] * dd[0] - d[0] * dd[2]);
+    w[2] += 0.5 * (d[0] * dd[1] - d[1] * dd[0]);
+    for (int c = 0; c < 3; c++)
+      phidot[c] += V[i] * d[c];
+  }
+  double err = 0;
+  for (int i = 0; i < 3; i++) {
+    const double *d = q1 + 3 + 3 * i;
+    err = fmax(err, fabs(d[0] * w[0] + d[1] * w[1] + d[2] * w[2] - W[i]));
+    err = fmax(err, fabs(v1[i] - phidot[i]));
+  }
+  CHECK(err < 1e-13, "frame: body: omega / velocity off by %.3g", err);
+  mrvi_system_free(s0);
+  mrvi_system_free(s1);
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_bad_files(&files);
@@ -1704,6 +1768,7 @@ int main(void) {
   test_generated_names();
   test_generated_gravity();
   test_term_description();
+  test_body_orientation_forms();
   test_angles_forces_rest();
   test_cli_bad_files(files, n);
   for (int i = 0; i < n; i++)

@@ -1,6 +1,6 @@
 /* `bodies:` of a description file (doc/multibody.md): rigid bodies
  * {name, mass, inertia, position, orientation, velocity, angular_velocity,
- * rate} in `dimension` 2 or 3, each added by mrvi_model_add_body (its
+ * frame, rate} in `dimension` 2 or 3, each added by mrvi_model_add_body (its
  * coordinates NAME.x .. NAME.d3z follow the particles in model order). */
 #include "io/loader/loader_internal.h"
 
@@ -9,11 +9,13 @@
 
 static const char *const body_keys[] = {
     "name",        "mass",     "inertia",          "position",
-    "orientation", "velocity", "angular_velocity", "rate"};
+    "orientation", "velocity", "angular_velocity", "rate",
+    "frame"};
 
 /* `orientation:` as the rows of a D x D rotation matrix, as {axis, angle}
- * (3-D; angle in radians, Rodrigues' formula) or as an angle (2-D);
- * row-major into R. */
+ * (3-D; a unit axis, the angle in radians, Rodrigues' formula), as
+ * {quaternion: [w, x, y, z]} (3-D, unit) or as an angle (2-D); row-major
+ * into R. */
 static int load_orientation(loader *L, struct fy_node *n, int D, double *R) {
   int st;
   if (D == 2 && fy_node_is_scalar(n)) {
@@ -24,20 +26,32 @@ static int load_orientation(loader *L, struct fy_node *n, int D, double *R) {
     return MRVI_OK;
   }
   if (D == 3 && fy_node_is_mapping(n)) {
-    static const char *const keys[] = {"axis", "angle"};
-    struct fy_node *an, *gn;
-    double k[3], a;
-    if ((st = mrvi_ld_check_keys(L, n, "orientation", keys, 2, NULL, 0)) ||
-        (st = mrvi_ld_need(L, n, "axis", "orientation", &an)) ||
-        (st = mrvi_ld_as_vector(L, an, "axis", 3, k)) ||
+    static const char *const keys[] = {"axis", "angle", "quaternion"};
+    struct fy_node *an, *gn, *qn = mrvi_ld_get(n, "quaternion");
+    double k[4], a;
+    if ((st = mrvi_ld_check_keys(L, n, "orientation", keys, 3, NULL, 0)))
+      return st;
+    if (qn) { /* [w, x, y, z], R = the rotation of the unit quaternion */
+      if (mrvi_ld_get(n, "axis") || mrvi_ld_get(n, "angle"))
+        return mrvi_ld_fail(L, n,
+                            "orientation: give either {axis, angle} or "
+                            "{quaternion}, not both");
+      if ((st = mrvi_ld_as_unit(L, qn, "quaternion", 4, k)))
+        return st;
+      const double w = k[0], x = k[1], y = k[2], z = k[3];
+      const double Q[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z),
+                           2 * (x * z + w * y),     2 * (x * y + w * z),
+                           1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                           2 * (x * z - w * y),     2 * (y * z + w * x),
+                           1 - 2 * (x * x + y * y)};
+      memcpy(R, Q, sizeof Q);
+      return MRVI_OK;
+    }
+    if ((st = mrvi_ld_need(L, n, "axis", "orientation", &an)) ||
+        (st = mrvi_ld_as_unit(L, an, "rotation axis", 3, k)) ||
         (st = mrvi_ld_need(L, n, "angle", "orientation", &gn)) ||
         (st = mrvi_ld_as_number(L, gn, "angle", &a)))
       return st;
-    const double len = sqrt(k[0] * k[0] + k[1] * k[1] + k[2] * k[2]);
-    if (!(len > 0))
-      return mrvi_ld_fail(L, an, "the rotation axis must not be zero");
-    for (int i = 0; i < 3; i++)
-      k[i] /= len;
     const double c = cos(a), s = sin(a);
     for (int i = 0; i < 3; i++)
       for (int j = 0; j < 3; j++) {
@@ -55,7 +69,8 @@ static int load_orientation(loader *L, struct fy_node *n, int D, double *R) {
                         "orientation: a %d x %d rotation matrix is %d rows "
                         "(or %s)",
                         D, D, D,
-                        D == 3 ? "{axis: [x, y, z], angle: radians}"
+                        D == 3 ? "{axis: [x, y, z], angle: radians} or "
+                                 "{quaternion: [w, x, y, z]}"
                                : "an angle in radians");
   for (int i = 0; i < D; i++)
     if ((st = mrvi_ld_as_vector(L, fy_node_sequence_get_by_index(n, i),
@@ -106,6 +121,31 @@ static int load_body(loader *L, struct fy_node *item, int i, int D) {
   if ((v = mrvi_ld_get(item, "angular_velocity")) &&
       (st = mrvi_ld_as_vector(L, v, "angular_velocity", nw, w)))
     return st;
+  static const char *const frames[] = {"space", "body"};
+  int body_frame = 0;
+  if ((v = mrvi_ld_get(item, "frame")) &&
+      (st = mrvi_ld_as_choice(L, v, "frame", frames, 2, &body_frame)))
+    return st;
+  if (body_frame) { /* v = R V, omega = R Omega (2-D: omega a scalar) */
+    double Rb[9], vb[3], wb[3];
+    if (!mrvi_ld_get(item, "orientation"))
+      for (int r = 0; r < D * D; r++)
+        Rb[r] = r % (D + 1) == 0;
+    else
+      memcpy(Rb, R, sizeof(double) * (size_t)(D * D));
+    memcpy(vb, v0, sizeof vb);
+    memcpy(wb, w, sizeof wb);
+    for (int r = 0; r < D; r++) {
+      v0[r] = 0;
+      for (int c = 0; c < D; c++)
+        v0[r] += Rb[r * D + c] * vb[c];
+    }
+    for (int r = 0; D == 3 && r < 3; r++) {
+      w[r] = 0;
+      for (int c = 0; c < 3; c++)
+        w[r] += Rb[r * 3 + c] * wb[c];
+    }
+  }
   mrvi_model *m = L->sys->model;
   const int b =
       mrvi_model_add_body(m, name, D, rate, mass, J, x0,

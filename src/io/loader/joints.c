@@ -95,10 +95,10 @@ static int load_joint(loader *L, struct fy_node *item, int i, int dim) {
       (st = mrvi_ld_as_vector(L, pn, "point", dim, point)))
     return st;
   if ((an = mrvi_ld_get(item, "axis")) &&
-      (st = mrvi_ld_as_vector(L, an, "axis", dim, axis)))
+      (st = mrvi_ld_as_unit(L, an, "axis", dim, axis)))
     return st;
   if ((xn = mrvi_ld_get(item, "second_axis")) &&
-      (st = mrvi_ld_as_vector(L, xn, "second_axis", dim, second)))
+      (st = mrvi_ld_as_unit(L, xn, "second_axis", dim, second)))
     return st;
   mrvi_model *m = L->sys->model;
   const int c = mrvi_model_add_joint_axes(m, types[type], b[0], b[1], point,

@@ -162,6 +162,11 @@ int mrvi_ld_as_choice(loader *L, struct fy_node *n, const char *what,
 /* Exactly `dim` finite numbers (a bare number when dim is 1). */
 int mrvi_ld_as_vector(loader *L, struct fy_node *n, const char *what, int dim,
                       double *out);
+/* A unit vector of `dim` entries (an axis, a quaternion): finite, its
+ * length 1 within 1e-6 (as a rotation matrix's R^T R = I is checked), then
+ * normalised to round-off; a zero or non-unit vector is refused. */
+int mrvi_ld_as_unit(loader *L, struct fy_node *n, const char *what, int dim,
+                    double *out);
 /* `key: slow | fast` (default slow). */
 int mrvi_ld_as_rate(loader *L, struct fy_node *map, const char *key,
                     mrvi_rate *out);

@@ -335,6 +335,32 @@ int mrvi_ld_as_vector(loader *L, struct fy_node *n, const char *what, int dim,
   return MRVI_OK;
 }
 
+int mrvi_ld_as_unit(loader *L, struct fy_node *n, const char *what, int dim,
+                    double *out) {
+  int st = mrvi_ld_want_list(L, n, what);
+  if (st)
+    return st;
+  if (fy_node_sequence_item_count(n) != dim)
+    return mrvi_ld_fail(L, n, "%s has %d entries, expected %d", what,
+                        fy_node_sequence_item_count(n), dim);
+  if ((st = mrvi_ld_as_vector(L, n, what, dim, out)))
+    return st;
+  double len = 0;
+  for (int i = 0; i < dim; i++)
+    len += out[i] * out[i];
+  len = sqrt(len);
+  if (!(len > 0))
+    return mrvi_ld_fail(L, n, "the %s must not be zero", what);
+  if (!(fabs(len - 1) <= 1e-6))
+    return mrvi_ld_fail(L, n,
+                        "the %s must be a unit vector (length %.9g); divide "
+                        "it by its length",
+                        what, len);
+  for (int i = 0; i < dim; i++)
+    out[i] /= len;
+  return MRVI_OK;
+}
+
 /* Every key of `map` must be in keys[0..n) or extra[0..n_extra). */
 int mrvi_ld_check_keys(loader *L, struct fy_node *map, const char *where,
                        const char *const *keys, int n, const char *const *extra,
