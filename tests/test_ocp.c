@@ -999,13 +999,13 @@ static void test_paths_iterative(void) {
  * schur-krylov elimination run backwards give the gradients of the sparse
  * LU's (tuning.adjoint_krylov = 0) to 1e-8 relative, at two controls in
  * turn, with no fallback to the LU; and central differences (1e-6). */
-static const char *lattice_text =
+static const char *lattice_format =
     "name: lattice_ocp\ndimension: 2\n"
     "generate:\n"
-    "  - {kind: lattice2d, name: p, count: [10, 10], spacing: 1.0, mass: 1.0,\n"
-    "     rates: {every: 2}, slow_spring: {law: linear, stiffness: 10},\n"
-    "     fast_spring: {law: linear, stiffness: 1000},\n"
-    "     initial: [{index: [2, 2], displacement: [0.1, 0.05],\n"
+    "  - {kind: lattice2d, name: p, count: [%d, %d], spacing: 1.0, mass: 1.0,\n"
+    "     rates: {every: %d}, slow_spring: {law: linear, stiffness: 10},\n"
+    "     fast_spring: {law: linear, stiffness: %g},\n"
+    "     initial: [{index: [%d, 2], displacement: [%g, %g],\n"
     "                velocity: [0.0, 0.5]}]}\n"
     "integrator: {scheme: midpoint-midpoint, macro_step: 0.05, micro_steps: "
     "10, t_end: 0.5,\n  newton: {tolerance: 1e-12}}\n"
@@ -1016,6 +1016,20 @@ static const char *lattice_text =
     "    - {coordinate: p1_1.y, weight: 1, reference: 0}\n"
     "  terminal:\n"
     "    - {coordinate: p0_0.x, position: 0.2, velocity: 0}\n";
+
+/* The lattice's text: 10 x 10 particles, every second one slow, fast
+ * springs of stiffness 1000, particle (i = 2, 2) displaced by
+ * (dx, dy) = (0.1, 0.05); lattice_set changes these (lattice_set(0, ...):
+ * back to them). */
+static char lattice_text[1024];
+static void lattice_set(int count, int every, double fast_k, int j, double dx,
+                        double dy) {
+  if (count == 0)
+    lattice_set(10, 2, 1000.0, 2, 0.1, 0.05);
+  else
+    snprintf(lattice_text, sizeof lattice_text, lattice_format, count, count,
+             every, fast_k, j, dx, dy);
+}
 
 /* A lattice OCP loaded two ways (way 0 with the first n_common overrides,
  * way 1 with n_extra more), way 0's path checked, and the gradients of
@@ -1117,6 +1131,12 @@ static void test_adjoint_krylov(void) {
   adjoint_krylov_scheme("fully-explicit", "explicit");
 }
 
+/* How explicit-slow's micro steps are expected to be solved (sweep-cg):
+ * by the forest alone, unless the overrides turn it off (then the CG
+ * alone); MICRO_CG: by the CG alone (no forest). */
+enum { MICRO_FOREST, MICRO_CG };
+static int micro_want = MICRO_FOREST;
+
 /* The explicit paths' adjoint (ocp/adjoint_explicit.c: the recursion run
  * backwards with Hessian-vector products) against the transposed step
  * solves of the assembled step Jacobian (tuning.adjoint_explicit = 0, with
@@ -1132,6 +1152,7 @@ static void test_adjoint_krylov(void) {
  * gamma = 0 (weights differing at every node); explicit-slow at p = 10
  * and p = 1, and with two points per micro interval (alpha = 0.4,
  * gamma = 0.3). */
+
 static void adjoint_explicit_variant(const char *what, const char *scheme,
                                      const char *path_want, double tol,
                                      const char *ov1, const char *ov2) {
@@ -1164,13 +1185,17 @@ static void adjoint_explicit_variant(const char *what, const char *scheme,
    * fast chains (tuning adjoint_forest), no CG; by the CG alone where
    * that is off (or the Hessian blocks are not kept) */
   if (strcmp(path_want, "sweep-cg") == 0) {
-    const int cg = (ov1 && strstr(ov1, "adjoint_forest=0")) ||
+    const int cg = micro_want == MICRO_CG ||
+                   (ov1 && strstr(ov1, "adjoint_forest=0")) ||
                    (ov2 && strstr(ov2, "adjoint_hessblocks=0"));
-    CHECK(cg ? o[0]->adjoint_forest_solves == 0 && o[0]->adjoint_cg_solves > 0
-             : o[0]->adjoint_forest_solves > 0 && o[0]->adjoint_cg_solves == 0,
+    const long nfo = o[0]->adjoint_forest_solves, ncg = o[0]->adjoint_cg_solves;
+    CHECK(cg ? nfo == 0 && ncg > 0 : nfo > 0 && ncg == 0,
           "adjoint explicit, %s: %ld micro steps by the forest, %ld by the "
           "CG",
-          what, o[0]->adjoint_forest_solves, o[0]->adjoint_cg_solves);
+          what, nfo, ncg);
+    printf("adjoint explicit, %s: %ld micro steps by the forest, %ld by the "
+           "CG\n",
+           what, nfo, ncg);
   }
   /* Nothing of an evaluation carries over into the next: the first
    * controls' gradients again after a value alone at the second, bitwise
@@ -1219,6 +1244,78 @@ static void test_adjoint_explicit(void) {
   adjoint_explicit_variant("explicit-slow, fast alpha 0.4 gamma 0.3", es,
                            "sweep-cg", 1e-12,
                            "integrator.fast={alpha: 0.4, gamma: 0.3}", NULL);
+}
+
+/* The fallbacks of explicit-slow's elimination along W's forest
+ * (adjoint_explicit.c), each forced.  W's springs in cycles (9 x 9
+ * particles, every third one slow: the fast ones in ladders of two
+ * columns): no forest, every micro step by the CG, the gradients those of
+ * the assembled adjoint and of central differences, as above.  A pivot of
+ * the elimination not positive (stiff fast springs, 2.3e5, one compressed
+ * by 0.3 along its fast column: K + c hess W indefinite on some micro
+ * steps): that step goes to the CG, which needs a positive definite matrix
+ * and (here, after some such steps) stops at non-positive curvature, so
+ * the evaluation fails (MRVI_ESINGULAR, the micro step named) after the
+ * forest took the steps before it, while the value alone is found; the
+ * assembled adjoint (tuning adjoint_explicit = 0, the sparse LU) gives
+ * finite gradients (not checked against central differences: at this
+ * stiffness and h = 1e-5 they agree to 1e-6 relative only, 1.0e-6 on the
+ * constraints; at 2.2e5, every pivot positive, to 2e-9). */
+static void test_adjoint_forest_fallbacks(void) {
+  const char *es = "explicit-slow";
+  lattice_set(9, 3, 1000.0, 2, 0.1, 0.05);
+  micro_want = MICRO_CG;
+  adjoint_explicit_variant("explicit-slow, W in cycles", es, "sweep-cg", 1e-11,
+                           NULL, NULL);
+  micro_want = MICRO_FOREST;
+  lattice_set(10, 2, 2.3e5, 3, 0.0, 0.3);
+  const char *ov[3] = {"integrator.scheme=explicit-slow",
+                       "integrator.tuning.adjoint_explicit=0",
+                       "integrator.tuning.adjoint_krylov=0"};
+  for (int w = 0; w < 2; w++) {
+    char msg[2048];
+    mrvi_system *sys = NULL;
+    mrvi_ocp *o = NULL;
+    double *u = NULL;
+    int st = mrvi_system_load_string(lattice_text, "lattice.yaml", ov,
+                                     w ? 3 : 1, &sys, msg, sizeof msg);
+    if (st == 0)
+      st = mrvi_ocp_load(sys, &o, &u, msg, sizeof msg);
+    CHECK(st == 0, "forest pivot: load: %s", msg);
+    if (st != 0)
+      goto next;
+    const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+    double J, c[16], *g = calloc((size_t)n * (size_t)(1 + m), sizeof *g);
+    for (int i = 0; i < n; i++)
+      u[i] = 0.5 * sin(0.7 * i);
+    st = mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+    CHECK(st == 0 && isfinite(J), "forest pivot, way %d: value: %s", w,
+          mrvi_ocp_errmsg(o));
+    st = mrvi_ocp_evaluate(o, u, &J, g, c, g + n);
+    int finite = 1;
+    for (int i = 0; i < n * (1 + m); i++)
+      finite = finite && isfinite(g[i]);
+    if (w == 1) {
+      CHECK(st == 0 && finite, "forest pivot: the assembled adjoint: %s",
+            mrvi_ocp_errmsg(o));
+    } else {
+      const char *em = mrvi_ocp_errmsg(o);
+      printf("forest pivot: %ld micro steps by the forest, %ld by the CG, "
+             "status %d: %s\n",
+             o->adjoint_forest_solves, o->adjoint_cg_solves, st, em);
+      CHECK(o->adj_explicit && st == MRVI_ESINGULAR &&
+                strstr(em, "non-positive curvature") &&
+                o->adjoint_forest_solves > 0 && o->adjoint_cg_solves >= 1,
+            "forest pivot: status %d (%s), %ld forest, %ld CG solves", st, em,
+            o->adjoint_forest_solves, o->adjoint_cg_solves);
+    }
+    free(g);
+  next:
+    free(u);
+    mrvi_ocp_free(o);
+    mrvi_system_free(sys);
+  }
+  lattice_set(0, 0, 0.0, 0, 0.0, 0.0);
 }
 
 /* The optimum found on the path chosen automatically equals the general
@@ -1326,6 +1423,7 @@ static void test_paths_general(void) {
 }
 
 int main(void) {
+  lattice_set(0, 0, 0.0, 0, 0.0, 0.0);
   test_gradients();
   test_gradients_constrained();
   test_adjoint_ways();
@@ -1342,6 +1440,7 @@ int main(void) {
   test_paths_iterative();
   test_adjoint_krylov();
   test_adjoint_explicit();
+  test_adjoint_forest_fallbacks();
   test_paths_optimum();
   test_paths_general();
   return test_finish();

@@ -252,7 +252,9 @@ static void add_full_row(const mrvi_ocp *o, const ocp_terminal *T, double v,
   int pj;
   val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
   for (int j = 0; j < o->model->n; j++) {
-    gQ[(size_t)f * (size_t)nn + (size_t)final_node(o, j, &pj)] += scale * dq[j];
+    const long g = final_node(o, j, &pj);
+    if (gQ)
+      gQ[(size_t)f * (size_t)nn + (size_t)g] += scale * dq[j];
     gp[f * npn + pj] += scale * dp[j];
   }
 }
@@ -301,20 +303,23 @@ static void body_terminal(const mrvi_ocp *o, const ocp_terminal *T, long nn,
   const double scale = f == 0 ? T->penalty * v : 1.0;
   val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
   for (int k = 0; k < n; k++) {
-    gQ[(size_t)f * (size_t)nn + (size_t)g[k]] += scale * gq[k];
+    if (gQ)
+      gQ[(size_t)f * (size_t)nn + (size_t)g[k]] += scale * gq[k];
     gp[f * npn + ps[k]] += scale * gpv[k];
   }
 }
 
 /* Cost and constraints with their direct partial derivatives: rows
- * f = 0 (cost), 1..n_con of gQ (n_nodes), gp (ns + nf), gu (n_u). */
+ * f = 0 (cost), 1..n_con of gQ (n_nodes; NULL: not wanted, nor cleared),
+ * gp (ns + nf), gu (n_u). */
 static void functionals(const mrvi_ocp *o, const double *u, double *val,
                         double *gQ, double *gp, double *gu) {
   const mrvi_model *m = o->model;
   const int nfun = 1 + o->n_con, npn = o->ns + o->nf;
   const long nn = o->n_nodes;
   memset(val, 0, (size_t)nfun * sizeof *val);
-  memset(gQ, 0, (size_t)nfun * (size_t)nn * sizeof *gQ);
+  if (gQ)
+    memset(gQ, 0, (size_t)nfun * (size_t)nn * sizeof *gQ);
   memset(gp, 0, (size_t)nfun * (size_t)npn * sizeof *gp);
   memset(gu, 0, (size_t)nfun * (size_t)o->n_u * sizeof *gu);
   const double dT = o->settings.macro_step, dt = dT / o->p;
@@ -340,6 +345,8 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
       const long gb = ga + (slow ? o->ns : o->nf);
       const double ea = o->Q[ga] - T->ref, eb = o->Q[gb] - T->ref;
       val[0] += w * (ea * ea + ea * eb + eb * eb);
+      if (!gQ)
+        continue;
       gQ[ga] += w * (2.0 * ea + eb);
       gQ[gb] += w * (2.0 * eb + ea);
     }
@@ -365,7 +372,7 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
     const int f = T->penalty > 0.0 ? 0 : 1 + ic++;
     const double scale = f == 0 ? T->penalty * v : 1.0;
     val[f] += f == 0 ? 0.5 * T->penalty * v * v : v;
-    if (T->kind == MRVI_OCP_POSITION)
+    if (T->kind == MRVI_OCP_POSITION && gQ)
       gQ[(size_t)f * (size_t)nn + (size_t)g] += scale * dv;
     else
       gp[f * npn + ps] += scale * dv;
@@ -508,7 +515,7 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   const mrvi_step *st = &o->step;
   o->h_of_a = malloc(((size_t)st->nnz + 1) * sizeof *o->h_of_a);
   o->Ak = malloc(((size_t)st->nnz + 1) * sizeof *o->Ak);
-  int ok = o->gz && o->h_of_a && o->Ak;
+  int ok = o->gz && o->h_of_a && o->Ak && ocp_state_alloc(o) == MRVI_OK;
   if (ok && dense_jacobian(o)) {
     o->H = malloc((nv * nv + 1) * sizeof *o->H);
     o->h_ptr = malloc((nv + 1) * sizeof *o->h_ptr);
@@ -619,8 +626,10 @@ static int krylov_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
 }
 
 /* The backward sweep over the steps with H_k assembled and A_k^T solved:
- * o->mu (final nodes set) on every equation node from gQ (overwritten). */
-static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ) {
+ * o->mu (final nodes set) on every equation node from gQ (overwritten);
+ * the state actuators' part of the control gradients into gu (nfun rows of
+ * n_u) from the forces of H_k's assembly. */
+static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
   mrvi_step *st = &o->step;
   const int ns = o->ns, nf = o->nf, p = o->p, nu = st->n_unknowns, nz = o->nz;
   const long N = o->N, nn = o->n_nodes;
@@ -711,6 +720,8 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ) {
             r[gz[hy[e]]] -= hv[e] * x[i];
       }
     }
+    if (o->n_state > 0)
+      ocp_state_gradient(o, k, nfun, o->mu, gu);
   }
   return MRVI_OK;
 }
@@ -730,7 +741,7 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
   double *gQ = o->r, *val = o->r + (size_t)nfun * (size_t)nn;
   double *gp = val + nfun, *gu = gp + (size_t)nfun * (size_t)npn;
   /* (val, gp and gu fit in the second n_nodes block of r; see alloc.) */
-  functionals(o, u, val, gQ, gp, gu);
+  functionals(o, u, val, grad || cgrad ? gQ : NULL, gp, gu);
   *J = val[0];
   if (c)
     for (int i = 0; i < o->n_con; i++)
@@ -741,8 +752,8 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
   /* Backward sweep.  mu: global node adjoints; final nodes -dPhi/dp_N. */
   const int ns = o->ns, nf = o->nf, p = o->p;
   const long N = o->N;
-  if (!o->adj_explicit) /* (the explicit sweep writes every node) */
-    memset(o->mu, 0, (size_t)nfun * (size_t)nn * sizeof(double));
+  /* (mu not cleared: either sweep writes every node's adjoint, step k's
+   * equation nodes before any read of them) */
   for (int f = 0; f < nfun; f++) {
     for (int i = 0; i < ns; i++)
       o->mu[f * nn + N * ns + i] = -gp[f * npn + i];
@@ -750,7 +761,7 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
       o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
   }
   s = o->adj_explicit ? ocp_explicit_adjoint(o, nfun, gQ)
-                      : adjoint_steps(o, nfun, gQ);
+                      : adjoint_steps(o, nfun, gQ, gu);
   if (s < 0)
     return s;
   /* dPhi/du = direct - sum_k mu[z_k]^T dforces_k/du. */
@@ -767,9 +778,6 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
         out[ocp_control_index(o, k, fe)] -=
             fe->coef * mu[ocp_global(o, k, fe->z)];
       }
-    if (o->n_state > 0)
-      for (long k = 0; k < N; k++)
-        ocp_state_gradient(o, k, mu, out);
   }
   return MRVI_OK;
 }

@@ -209,6 +209,9 @@ void ocp_adjoint_free(mrvi_ocp *o) {
   ocp_forest_free(o->adj_forest);
   o->adj_forest = NULL;
   free(o->gz);
+  free(o->act_kept);
+  o->act_kept = NULL;
+  o->n_act_kept = 0;
   free(o->h_of_a);
   free(o->h_ptr);
   free(o->h_col);

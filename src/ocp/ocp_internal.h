@@ -89,6 +89,8 @@ struct mrvi_ocp {
   /* State-dependent actuators (state_forces.c): their number, and the controls
    * and step of the forward sweep for the step hook. */
   int n_state;
+  struct ocp_act_kept *act_kept; /* a step's forces, n_state p */
+  int n_act_kept;
   const double *u_cur;
   long k_cur;
   /* Step solver.  The forward pass takes the path the integrator would
@@ -317,8 +319,11 @@ void ocp_state_hook(void *ctx, mrvi_step *st, const double *x, double *R,
  * o->f_end (end nodes) and o->f_plus (fast nodes 1..p). */
 void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u);
 /* Their second derivatives in the step's nodes added to the step
- * Jacobian a of step k at the stored trajectory (controls o->u_cur). */
-void ocp_state_jacobian(const mrvi_ocp *o, long k, ocp_jac *a);
+ * Jacobian a of step k at the stored trajectory (controls o->u_cur); their
+ * forces kept for ocp_state_gradient (o->act_kept, sized by
+ * ocp_state_alloc: MRVI_OK or MRVI_ENOMEM). */
+void ocp_state_jacobian(mrvi_ocp *o, long k, ocp_jac *a);
+int ocp_state_alloc(mrvi_ocp *o);
 /* Value of body terminal condition T at the final nodes; its derivatives in
  * the final positions gq and momenta gp of the body's D (D + 1)
  * coordinates (body_terminal.c). */
@@ -331,9 +336,10 @@ double ocp_body_terminal(const mrvi_ocp *o, const ocp_terminal *T,
  * G q' = 0; momenta: the hidden constraints G M^-1 p = 0) and the conditions
  * before it, or -1 (-2: out of memory) (body_terminal.c). */
 int ocp_terminal_redundant(const mrvi_ocp *o, int first);
-/* out[control] -= mu^T d(forces of step k)/du for every state control of
- * step k (mu: global node adjoints). */
-void ocp_state_gradient(const mrvi_ocp *o, long k, const double *mu,
-                        double *out);
+/* gu[f n_u + control] -= mu_f^T d(forces of step k)/du for every state
+ * control of step k and functional f < nfun (mu: nfun rows of global node
+ * adjoints), from the forces ocp_state_jacobian kept at step k. */
+void ocp_state_gradient(const mrvi_ocp *o, long k, int nfun, const double *mu,
+                        double *gu);
 
 #endif

@@ -25,6 +25,7 @@
 #include "ocp/ocp_internal.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 /* Inputs of a state-dependent actuator at one point: n model coordinates,
@@ -184,8 +185,8 @@ typedef void act_visit(const mrvi_ocp *o, void *ctx, long k,
                        const act_point *ap, double w, int control);
 
 /* Visit every state-dependent actuator and micro interval of step k, the
- * forces at the step unknowns x (with st's known nodes) or, x = NULL, at
- * the stored trajectory. */
+ * forces at the step unknowns x (with st's known nodes); at the stored
+ * trajectory: ocp_state_jacobian. */
 static void each_act(const mrvi_ocp *o, const mrvi_step *st, const double *x,
                      long k, act_visit *fn, void *ctx) {
   for (int ia = 0; ia < o->n_act; ia++) {
@@ -200,7 +201,7 @@ static void each_act(const mrvi_ocp *o, const mrvi_step *st, const double *x,
       for (int i = 0; i < ap.n; i++)
         for (int a = 0; a < 2; a++) {
           const int z = ap.z[i][a];
-          const double v = x ? zval(o, st, x, z) : o->Q[ocp_global(o, k, z)];
+          const double v = zval(o, st, x, z);
           y[i] = a ? y[i] + ap.c[i][a] * v : ap.c[i][a] * v;
         }
       act_force(o, A, y, &ap);
@@ -275,40 +276,128 @@ void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u) {
   each_act(o, &o->step, o->x, k, end_visit, o);
 }
 
-static void jacobian_visit(const mrvi_ocp *o, void *ctx, long k,
-                           const act_point *ap, double w, int ic) {
-  ocp_jac *J = ctx;
-  const double wu = w * o->u_cur[ic];
-  (void)k;
-  for (int i = 0; i < ap->n; i++)
-    for (int a = 0; a < 2; a++)
-      for (int j = 0; j < ap->n; j++)
-        for (int b = 0; b < 2; b++)
-          ocp_jac_add(J, ap->z[i][a], ap->z[j][b],
-                      wu * ap->c[i][a] * ap->c[j][b] * ap->Dm[i * ap->n + j]);
+/* One point's forces per unit control as the adjoint's Jacobian pass
+ * evaluated them, kept for its control gradient (ocp_state_gradient): the
+ * nodes and coefficients of the inputs, F, the weight and the control. */
+struct ocp_act_kept {
+  int n, ic;
+  double w;
+  int z[OCP_MAX_IN][2];
+  double c[OCP_MAX_IN][2];
+  double F[OCP_MAX_IN];
+};
+
+int ocp_state_alloc(mrvi_ocp *o) {
+  free(o->act_kept);
+  o->n_act_kept = 0;
+  o->act_kept = NULL;
+  if (o->n_state == 0)
+    return MRVI_OK;
+  o->act_kept = malloc((size_t)o->n_state * (size_t)o->p * sizeof *o->act_kept);
+  return o->act_kept ? MRVI_OK : MRVI_ENOMEM;
 }
 
-void ocp_state_jacobian(const mrvi_ocp *o, long k, ocp_jac *a) {
-  each_act(o, NULL, NULL, k, jacobian_visit, a);
+/* Whether A's inputs are all slow (then the same two step nodes and
+ * coefficients for every input at a micro point, the same nodes at every
+ * one); whether A and B have the same inputs. */
+static int slow_inputs(const mrvi_ocp *o, const ocp_actuator *A) {
+  for (int i = 0; i < A->n_in; i++)
+    if (o->model->rate[A->in[i]] != MRVI_SLOW)
+      return 0;
+  return 1;
+}
+static int same_inputs(const ocp_actuator *A, const ocp_actuator *B) {
+  return A->n_in == B->n_in &&
+         memcmp(A->in, B->in, (size_t)A->n_in * sizeof *A->in) == 0;
 }
 
-typedef struct gradient_ctx {
-  const double *mu;
-  double *out;
-} gradient_ctx;
-
-static void gradient_visit(const mrvi_ocp *o, void *ctx, long k,
-                           const act_point *ap, double w, int ic) {
-  gradient_ctx *g = ctx;
-  double sum = 0.0;
-  for (int i = 0; i < ap->n; i++)
-    for (int a = 0; a < 2; a++)
-      sum += g->mu[ocp_global(o, k, ap->z[i][a])] * w * ap->c[i][a] * ap->F[i];
-  g->out[ic] -= sum;
+/* The forces of step k at the stored trajectory, kept (o->act_kept), and
+ * their derivatives added to J: sum_m sum_A dt u c_a c_b dF/dy over the
+ * micro intervals m and each run of actuators A with the same slow inputs
+ * (one pair of nodes q_k, q_{k+1} for all of them, coefficients 1 - theta,
+ * theta), added once per run; else per point.  The same calls in the same
+ * order at every step (the pattern). */
+void ocp_state_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
+  enum { NS = OCP_MAX_IN * OCP_MAX_IN };
+  double S[4 * NS];
+  o->n_act_kept = 0;
+  for (int ia = 0; ia < o->n_act;) {
+    const ocp_actuator *A = &o->act[ia];
+    if (A->n_in == 0) {
+      ia++;
+      continue;
+    }
+    const int n = A->n_in, slow = slow_inputs(o, A);
+    int ib = ia + 1;
+    while (slow && ib < o->n_act && same_inputs(A, &o->act[ib]))
+      ib++;
+    if (slow)
+      memset(S, 0, 4 * (size_t)n * (size_t)n * sizeof *S);
+    act_point ap;
+    for (int m = 0; m < o->p; m++) {
+      const mrvi_point pt = mid_point(o, m);
+      act_nodes(o, A, &pt, &ap);
+      double y[OCP_MAX_IN];
+      for (int i = 0; i < n; i++)
+        y[i] = ap.c[i][0] * o->Q[ocp_global(o, k, ap.z[i][0])] +
+               ap.c[i][1] * o->Q[ocp_global(o, k, ap.z[i][1])];
+      for (int ja = ia; ja < ib; ja++) {
+        const ocp_actuator *B = &o->act[ja];
+        act_force(o, B, y, &ap);
+        struct ocp_act_kept *K = &o->act_kept[o->n_act_kept++];
+        K->n = n;
+        K->ic = control(o, B, k, m);
+        K->w = pt.w;
+        memcpy(K->z, ap.z, (size_t)n * sizeof *K->z);
+        memcpy(K->c, ap.c, (size_t)n * sizeof *K->c);
+        memcpy(K->F, ap.F, (size_t)n * sizeof *K->F);
+        const double wu = pt.w * o->u_cur[K->ic];
+        if (slow) {
+          for (int a = 0; a < 2; a++)
+            for (int b = 0; b < 2; b++) {
+              const double cab = wu * ap.c[0][a] * ap.c[0][b];
+              double *Sab = S + (size_t)(2 * a + b) * (size_t)(n * n);
+              for (int e = 0; e < n * n; e++)
+                Sab[e] += cab * ap.Dm[e];
+            }
+          continue;
+        }
+        for (int i = 0; i < n; i++)
+          for (int a = 0; a < 2; a++)
+            for (int j = 0; j < n; j++)
+              for (int b = 0; b < 2; b++)
+                ocp_jac_add(J, ap.z[i][a], ap.z[j][b],
+                            wu * ap.c[i][a] * ap.c[j][b] * ap.Dm[i * n + j]);
+      }
+    }
+    for (int i = 0; slow && i < n; i++)
+      for (int a = 0; a < 2; a++)
+        for (int j = 0; j < n; j++)
+          for (int b = 0; b < 2; b++)
+            ocp_jac_add(J, ap.z[i][a], ap.z[j][b],
+                        S[(size_t)(2 * a + b) * (size_t)(n * n) + i * n + j]);
+    ia = ib;
+  }
 }
 
-void ocp_state_gradient(const mrvi_ocp *o, long k, const double *mu,
-                        double *out) {
-  gradient_ctx g = {mu, out};
-  each_act(o, NULL, NULL, k, gradient_visit, &g);
+void ocp_state_gradient(const mrvi_ocp *o, long k, int nfun, const double *mu,
+                        double *gu) {
+  const long nn = o->n_nodes;
+  for (int t = 0; t < o->n_act_kept; t++) {
+    const struct ocp_act_kept *K = &o->act_kept[t];
+    long g[2 * OCP_MAX_IN];
+    double wf[2 * OCP_MAX_IN];
+    for (int i = 0; i < K->n; i++)
+      for (int a = 0; a < 2; a++) {
+        g[2 * i + a] = ocp_global(o, k, K->z[i][a]);
+        wf[2 * i + a] = K->w * K->c[i][a] * K->F[i];
+      }
+    for (int f = 0; f < nfun; f++) {
+      const double *mf = mu + (size_t)f * (size_t)nn;
+      double sum = 0.0;
+      for (int e = 0; e < 2 * K->n; e++)
+        sum += mf[g[e]] * wf[e];
+      gu[(size_t)f * (size_t)o->n_u + (size_t)K->ic] -= sum;
+    }
+  }
 }
