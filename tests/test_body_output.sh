@@ -48,10 +48,10 @@ name: free
 dimension: 3
 bodies:
   - {name: iso, mass: 2, inertia: [1.5, 1.5, 1.5], position: [0, 0, 0],
-     orientation: {axis: [1, 2, 3], angle: 0.7},
+     orientation: {axis: [0.2672612419124244, 0.5345224838248488, 0.8017837257372732], angle: 0.7},
      velocity: [0.1, 0, 0], angular_velocity: [0.3, -0.7, 1.1]}
   - {name: asym, mass: 1, inertia: [1, 2, 2.5], position: [5, 0, 0],
-     orientation: {axis: [0, 1, 1], angle: 0.4},
+     orientation: {axis: [0, 0.7071067811865476, 0.7071067811865476], angle: 0.4},
      angular_velocity: [1.2, -0.4, 0.8]}
 integrator:
   scheme: midpoint-midpoint

@@ -482,7 +482,8 @@ static void test_universal_oblique_file(void) {
         "     position: [0, 0, -0.6]}\n"
         "joints:\n"
         "  - {type: universal, bodies: [bar], point: [0, 0, 0],\n"
-        "     axis: [1, 0, 0], second_axis: [1, 1, 0]}\n"
+        "     axis: [1, 0, 0], second_axis: [0.7071067811865476, "
+        "0.7071067811865476, 0]}\n"
         "integrator: {scheme: midpoint-midpoint, macro_step: 0.01,\n"
         "             t_end: 0.1}\n",
         f);
