@@ -1957,16 +1957,18 @@ static void test_mixed_loop(void) {
   st |= mrvi_model_add_joint(m, "revolute", 0, 1, P[1], axis);
   st |= mrvi_model_add_joint(m, "revolute", 1, 2, P[2], axis);
   CHECK(st >= 0, "mixed loop: %s", mrvi_model_errmsg(m));
-  const mrvi_settings s = loop_settings(0.01, 1, 0.05, MRVI_FORM_NULL_SPACE);
-  mrvi_trajectory *tr = NULL;
-  mrvi_summary sum;
-  const int rc = mrvi_trajectory_run(m, &s, &tr, &sum);
-  printf("fast and slow bodies in one loop (null-space form): %s\n",
-         rc ? sum.message : "ran");
-  CHECK(rc != 0 && strstr(sum.message, "redundant only together") &&
-            strstr(sum.message, "'revolute"),
-        "mixed loop refused: %s", rc ? sum.message : "ran");
-  mrvi_trajectory_free(tr);
+  for (int p = 1; p <= 5; p += 4) { /* refused whatever p */
+    const mrvi_settings s = loop_settings(0.01, p, 0.05, MRVI_FORM_NULL_SPACE);
+    mrvi_trajectory *tr = NULL;
+    mrvi_summary sum;
+    const int rc = mrvi_trajectory_run(m, &s, &tr, &sum);
+    printf("fast and slow bodies in one loop (null-space form, p = %d): %s\n",
+           p, rc ? sum.message : "ran");
+    CHECK(rc != 0 && strstr(sum.message, "redundant only together") &&
+              strstr(sum.message, "'revolute"),
+          "mixed loop refused (p = %d): %s", p, rc ? sum.message : "ran");
+    mrvi_trajectory_free(tr);
+  }
   mrvi_model_free(m);
 }
 

@@ -1521,6 +1521,7 @@ int mrvi_nullspace_beside_plan(const mrvi_model *m, char *why, size_t len) {
 }
 
 int mrvi_nsfast_bodies(const mrvi_nstree *z) { return z->nb; }
+int mrvi_nsfast_cut_rows(const mrvi_nstree *z) { return z->fq_n; }
 
 /* With cut joints: the tree's columns P_f (z->ncol of them) reduced to the
  * null space of the kept cut rows, P_f N, N spanning the null space of C =

@@ -166,6 +166,8 @@ int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
                        const int *fkeep, mrvi_nstree **out, char *why,
                        size_t len);
 int mrvi_nsfast_bodies(const mrvi_nstree *z);
+/* The kept rows of its cut joints (0: an open forest). */
+int mrvi_nsfast_cut_rows(const mrvi_nstree *z);
 /* The slow bodies beside a fast forest, in open chains and trees of slow
  * joints (mrvi_nullspace_beside_plan): their joint-reduced nodal
  * reparametrisation alone (their basis stays the QR one): _create as
