@@ -25,6 +25,10 @@
  * degrees of freedom); its open twin, "open, reduced", has no rungs.  The
  * cut joints' paths to the ground grow with the depth of the ladder, so
  * C = G_c P_tree has O(n^2) entries there.
+ * --fast: every bar fast and p = 5, the joints enforced at the 5 micro
+ * nodes of a step; loop-reduced is then the cut basis of the fast forest
+ * at every micro node (doc/multibody.md, "Fast closed loops"), QR the
+ * numerical basis at every micro node.
  * midpoint-midpoint, dT = 0.01, p = 1, Newton tolerance 1e-10.  The cases
  * of one n alternate, --repeats rounds, best of them; each times blocks of
  * 20 macro steps from the initial state (the integrator set back to it)
@@ -44,27 +48,32 @@ static const char *const case_names[N_CASES] = {"multipliers", "loop-reduced",
                                                 "QR", "open, reduced"};
 
 static const char usage[] =
-    "usage: bench_loops [--quick] [--ladder] [--n 10,30,100] [--repeats R]\n"
-    "                   [--steps K]\n"
+    "usage: bench_loops [--quick] [--ladder] [--fast] [--n 10,30,100]\n"
+    "                   [--repeats R] [--steps K]\n"
     "Cost per macro step of a ring of n rigid bars on revolute joints (a\n"
     "closed loop; --ladder: a ladder of n four-bars, n loops) against n:\n"
     "multiplier form, null-space form with the joint-reduced basis (the\n"
     "closing joints cut) and with the numerical (QR) basis, and the open\n"
     "twin (no closing joints) with the joint-reduced basis; CPU seconds per\n"
-    "macro step, best of R rounds.\n";
+    "macro step, best of R rounds.  --fast: every bar fast, p = 5 (the\n"
+    "joints enforced at the micro nodes).\n";
 
 static int bad_usage(void) {
   fputs(usage, stderr);
   return 2;
 }
 
-/* Bar from P to Q (2-D, length |Q - P|, mass 1) as body `name`. */
+static int fast; /* --fast */
+
+/* Bar from P to Q (2-D, length |Q - P|, mass 1) as body `name` (fast with
+ * --fast). */
 static int add_bar(mrvi_model *m, const char *name, const double *P,
                    const double *Q) {
   const double dx = Q[0] - P[0], dy = Q[1] - P[1], l = hypot(dx, dy);
   const double x[2] = {0.5 * (P[0] + Q[0]), 0.5 * (P[1] + Q[1])};
   const double R[4] = {dx / l, -dy / l, dy / l, dx / l}, J[1] = {l * l / 12.0};
-  return mrvi_model_add_body(m, name, 2, MRVI_SLOW, 1.0, J, x, R, NULL, NULL);
+  return mrvi_model_add_body(m, name, 2, fast ? MRVI_FAST : MRVI_SLOW, 1.0, J,
+                             x, R, NULL, NULL);
 }
 
 /* The ladder of n four-bars (closed: with its rungs). */
@@ -159,7 +168,7 @@ static result run_one(int cs, int links, int steps) {
   mrvi_settings_default(&s);
   mrvi_settings_set_scheme(&s, "midpoint-midpoint");
   s.macro_step = 0.01;
-  s.micro_steps = 1;
+  s.micro_steps = fast ? 5 : 1;
   s.t_end = 1e4;
   s.newton_tol = 1e-10;
   s.energy_warning = 0;
@@ -192,6 +201,8 @@ int main(int argc, char **argv) {
       return 0;
     } else if (!strcmp(a, "--ladder")) {
       ladder = 1;
+    } else if (!strcmp(a, "--fast")) {
+      fast = 1;
     } else if (!strcmp(a, "--quick")) {
       n_n = 2, repeats = 1;
     } else if (!strcmp(a, "--n") && has) {
@@ -202,12 +213,13 @@ int main(int argc, char **argv) {
       return bad_usage();
     }
   }
-  printf("# bench_loops: %s, midpoint-midpoint, dT = 0.01, p = 1; CPU s "
+  printf("# bench_loops: %s%s, midpoint-midpoint, dT = 0.01, p = %d; CPU s "
          "per macro step, best of %d; load %.2f; %s\n",
          ladder ? "a ladder of n four-bars (2-D, n loops)"
                 : "a ring of n rigid bars on revolute joints (2-D, one closed "
                   "loop)",
-         repeats, bench_load(), bench_build());
+         fast ? ", every bar fast (its joints at the micro nodes)" : "",
+         fast ? 5 : 1, repeats, bench_load(), bench_build());
   printf("%6s %6s  %-14s %8s %-16s %12s %8s\n", "links", "coords", "case",
          "system", "path", "s/step", "updates");
   double xs[N_CASES][MAX_N], ys[N_CASES][MAX_N];

@@ -1387,12 +1387,13 @@ static void test_joint_reduced_kinds(void) {
 /* max |g| of the rows enforced at the micro nodes (micro-node constraints,
  * the slow coordinates interpolated as the step does) over every micro node
  * of tr (p micro steps), and of the other rows at the macro nodes (*eslow,
- * may be NULL). */
-static double micro_residual(const mrvi_model *m, const mrvi_trajectory *tr,
-                             int p, double *eslow) {
+ * may be NULL); *eint (may be NULL): the first over the bodies' internal
+ * rows alone. */
+static double micro_residual_int(const mrvi_model *m, const mrvi_trajectory *tr,
+                                 int p, double *eslow, double *eint) {
   const int n = tr->n, R = mrvi_model_constraint_rows(m);
   double *q = malloc((size_t)n * sizeof *q), *g = malloc((size_t)R * sizeof *g);
-  double e = 0.0, es = 0.0;
+  double e = 0.0, es = 0.0, ei = 0.0;
   for (long i = 0; q && g && i < tr->n_micro; i++) {
     const long k = i / p;
     const double a1 = (double)(i % p) / p;
@@ -1405,19 +1406,33 @@ static double micro_residual(const mrvi_model *m, const mrvi_trajectory *tr,
     mrvi_model_constraint_eval(m, q, g, NULL);
     for (int c = 0; c < m->n_constraints; c++) {
       const mrvi_constraint *k = &m->constraints[c];
+      int internal = 0;
+      for (int b = 0; b < m->n_bodies; b++)
+        internal |= m->bodies[b].constraint == c;
       for (int r = 0; r < k->rows; r++) {
         const double v = fabs(g[k->first_row + r]);
         if (k->where == MRVI_FAST)
           e = fmax(e, v);
         else if (i % p == 0)
           es = fmax(es, v);
+        if (internal && k->where == MRVI_FAST)
+          ei = fmax(ei, v);
       }
     }
   }
   free(q), free(g);
   if (eslow)
     *eslow = es;
+  if (eint)
+    *eint = ei;
   return e;
+}
+
+/* max |g| of the micro-node rows over every micro node (*eslow: the slow
+ * rows at the macro nodes). */
+static double micro_residual(const mrvi_model *m, const mrvi_trajectory *tr,
+                             int p, double *eslow) {
+  return micro_residual_int(m, tr, p, eslow, NULL);
 }
 
 /* On model m (dT its macro step): both forms agree at tolerances 1e-13 over
@@ -1726,8 +1741,9 @@ static void test_fast_loop(void) {
   mrvi_model *m3 = fast_fourbar(3, MRVI_FAST), *m2 = fast_fourbar(2, MRVI_FAST);
   mrvi_model *s3 = fast_fourbar(3, MRVI_SLOW);
   char why[200] = "";
-  CHECK(!mrvi_nullspace_fast_plan(m3, why, sizeof why),
-        "fast four-bar: no fast forest (a loop): %s", why);
+  CHECK(mrvi_nullspace_fast_plan(m3, why, sizeof why) &&
+            strstr(why, "'revolute rocker-ground'"),
+        "fast four-bar: a fast forest cut at the rocker's pivot: %s", why);
   /* The multiplier form refuses it, naming the joints. */
   mrvi_settings s = loop_settings(0.01, 5, 0.1, MRVI_FORM_MULTIPLIERS);
   mrvi_trajectory *tr = NULL;
@@ -1760,6 +1776,24 @@ static void test_fast_loop(void) {
          n_short, d5, d1);
   CHECK(d5 < 1e-9, "fast four-bar 3-D against 2-D (p = 5): %.3g", d5);
   CHECK(d1 < 1e-10, "fast four-bar p = 1 against the slow loop: %.3g", d1);
+  /* The cut basis (the tree's joints analytic, the cut hinge's 2 kept rows
+   * reduced numerically) against the numerical QR basis at every micro
+   * node, p = 1 and 5, tolerances 1e-12. */
+  for (int p = 1; p <= 5; p += 4) {
+    a = fast_loop_run(m3, p, n_short, 1e-12, MRVI_FORM_NULL_SPACE, 1);
+    b = fast_loop_run(m3, p, n_short, 1e-12, MRVI_FORM_NULL_SPACE, 0);
+    double dq = a && b && a->n_macro == b->n_macro ? 0.0 : INFINITY;
+    for (long i = 0; dq < INFINITY && i < a->n_macro * a->n; i++)
+      dq = fmax(dq, fabs(a->q[i] - b->q[i]));
+    for (long i = 0; dq < INFINITY && i < a->n_micro * a->n_fast; i++)
+      dq = fmax(dq, fabs(a->micro_q[i] - b->micro_q[i]));
+    printf("fast four-bar 3-D, p = %d, %ld steps at tolerances 1e-12: the "
+           "cut basis against the QR basis %.3g (macro and micro nodes)\n",
+           p, n_short, dq);
+    CHECK(dq < 1e-10, "fast four-bar p = %d: cut basis against QR: %.3g", p,
+          dq);
+    mrvi_trajectory_free(a), mrvi_trajectory_free(b);
+  }
   /* Long run, p = 5, default-like tolerances: every row (the redundant ones
    * too) at every micro node, the energy error bounded. */
   const long n_long = test_steps(2000);
@@ -1773,7 +1807,8 @@ static void test_fast_loop(void) {
   } else {
     double eg, eH, eH10 = 0.0, es, eH2 = 0.0, H0 = 0.0;
     loop_invariants(m3, tr, &eg, &eH, &eH10);
-    const double em = micro_residual(m3, tr, 5, &es);
+    double ei;
+    const double em = micro_residual_int(m3, tr, 5, &es, &ei);
     /* the energy error over the first half (its swings beat over several
      * seconds: the tenth is too short a window) */
     for (long k = 0; 2 * k <= tr->n_macro; k++) {
@@ -1785,10 +1820,12 @@ static void test_fast_loop(void) {
     }
     printf("fast four-bar 3-D, p = 5, %ld steps (%ld micro nodes), Newton "
            "and constraint tolerance 1e-10: max |g| %.3g over all 38 rows at "
-           "every micro node (%.3g at the macro nodes), max relative energy "
-           "error %.3g (%.3g over the first tenth, %.3g over the first "
-           "half)\n",
-           n_long, tr->n_micro, em, eg, eH, eH10, eH2);
+           "every micro node (%.3g at the macro nodes; the links' internal "
+           "rows %.3g), max relative energy error %.3g (%.3g over the first "
+           "tenth, %.3g over the first half)\n",
+           n_long, tr->n_micro, em, eg, ei, eH, eH10, eH2);
+    CHECK(ei <= 1e-13, "fast four-bar: internal rows %.3g (reparametrised)",
+          ei);
     CHECK(tr->n_micro == 5 * n_long + 1, "fast four-bar: %ld micro nodes",
           tr->n_micro);
     CHECK(em <= 1e-10 && eg <= 1e-10, "fast four-bar: loop closure %.3g, %.3g",
@@ -1803,6 +1840,105 @@ static void test_fast_loop(void) {
   }
   mrvi_trajectory_free(tr);
   mrvi_model_free(m3), mrvi_model_free(m2), mrvi_model_free(s3);
+}
+
+/* A ladder of n fast four-bars (n loops) in D dimensions: two rails of n
+ * bars (length 1, slanted by 0.3) hung from the ground at (0, 0) and (1,
+ * 0), the rungs joining the rails' lower ends, every bar fast on revolute
+ * joints (axis e3 in 3-D), a stiff fast torsional spring on the left
+ * rail's pivot (60 N m/rad) swinging it, gravity, and a slow particle on a
+ * soft slow spring (5 N/m) to the lowest rung's centre.  In 3-D each rung's
+ * second joint is cut, its 3 redundant rows left out: 36 n fast
+ * coordinates, n degrees of freedom. */
+static mrvi_model *fast_ladder(int D, int n) {
+  mrvi_model *m = mrvi_model_create();
+  const double axis[3] = {0, 0, 1}, g[3] = {0, -fb_g, 0}, kt = 60.0, sl = 0.3;
+  const double *ax = D == 3 ? axis : NULL;
+  mrvi_model_set_dimension(m, D);
+  int st = 0, prev[2] = {-1, -1}, rung = -1;
+  for (int j = 0; j < n && st >= 0; j++) {
+    int rail[2];
+    for (int side = 0; side < 2; side++) {
+      const double P[3] = {side + sl * j, -j, 0},
+                   Q[3] = {side + sl * (j + 1), -(j + 1), 0};
+      char name[32];
+      snprintf(name, sizeof name, "%c%d", side ? 'r' : 'l', j);
+      rail[side] = add_bar_rate(m, name, D, P, Q, 1.0, 0.0, MRVI_FAST);
+      st |= rail[side];
+      st |= mrvi_model_add_joint(m, "revolute", rail[side], prev[side], P, ax);
+    }
+    const double P[3] = {sl * (j + 1), -(j + 1), 0},
+                 Q[3] = {1 + sl * (j + 1), -(j + 1), 0};
+    char name[32];
+    snprintf(name, sizeof name, "rung%d", j);
+    rung = add_bar_rate(m, name, D, P, Q, 1.0, 0.0, MRVI_FAST);
+    st |= rung;
+    st |= mrvi_model_add_joint(m, "revolute", rung, rail[0], P, ax);
+    st |= mrvi_model_add_joint(m, "revolute", rung, rail[1], Q, ax);
+    prev[0] = rail[0], prev[1] = rail[1];
+  }
+  st |= mrvi_model_add_torsion(m, MRVI_FAST, 0, -1, ax, "linear", &kt, 0.3);
+  st |= mrvi_model_set_gravity(m, g);
+  const double x[3] = {0.5 + sl * n, -n - 0.8, 0.0}, v[3] = {0.2, 0.1, 0.0};
+  const double kc = 5.0;
+  const int s = mrvi_model_add_particle(m, "s", 0.5, MRVI_SLOW, x, v);
+  const mrvi_end ps = {.particle = s, .body = -1},
+                 cm = {.particle = -1, .body = rung, .at = {0, 0, 0}};
+  CHECK(st >= 0 && s >= 0 &&
+            mrvi_model_add_end_spring(m, MRVI_SLOW, &ps, &cm, NULL, "linear",
+                                      &kc, NAN) >= 0,
+        "fast ladder (%d-D): %s", D, mrvi_model_errmsg(m));
+  return m;
+}
+
+/* A ladder of 8 fast four-bars in 3-D: 288 fast coordinates, above the
+ * numerical basis's cap of 256 (refused with tuning nullspace_tree 0); the
+ * cut basis runs it (p = 2, tolerances 1e-11): every row (the 24 dropped
+ * ones too) at every micro node to the tolerance, the links' internal rows
+ * to 1e-13, and the bodies' centres and the particle as the planar ladder's
+ * in the multiplier form to the tolerance's order. */
+static void test_fast_ladder(void) {
+  const int n = 8, p = 2;
+  mrvi_model *m3 = fast_ladder(3, n), *m2 = fast_ladder(2, n);
+  const long steps = test_steps(40);
+  mrvi_settings s = loop_settings(0.01, p, steps * 0.01, MRVI_FORM_NULL_SPACE);
+  s.tuning.nullspace_tree = 0;
+  mrvi_trajectory *a = NULL, *b = NULL;
+  mrvi_summary sum;
+  const int refused = mrvi_trajectory_run(m3, &s, &a, &sum) != 0;
+  CHECK(refused && strstr(sum.message, "more than 256"),
+        "fast ladder: the QR basis refuses %d fast coordinates: %s",
+        mrvi_model_n_fast(m3), refused ? sum.message : "ran");
+  mrvi_trajectory_free(a);
+  a = NULL;
+  s.tuning.nullspace_tree = 1;
+  const int ra = mrvi_trajectory_run(m3, &s, &a, &sum);
+  CHECK(ra == 0, "fast ladder 3-D, cut basis: %s", sum.message);
+  mrvi_settings s2 = s;
+  s2.constraint_form = MRVI_FORM_MULTIPLIERS;
+  const int rb = mrvi_trajectory_run(m2, &s2, &b, &sum);
+  CHECK(rb == 0, "fast ladder 2-D, multipliers: %s", sum.message);
+  if (ra == 0 && rb == 0 && a->n_macro == b->n_macro) {
+    double es, ei, d = 0.0;
+    const double em = micro_residual_int(m3, a, p, &es, &ei);
+    const int nb = 3 * n;
+    for (long k = 0; k < a->n_macro; k++)
+      for (int i = 0; i <= nb; i++) { /* the bodies, then the particle */
+        const int oa = i < nb ? mrvi_model_body_first(m3, i) : 12 * nb;
+        const int ob = i < nb ? mrvi_model_body_first(m2, i) : 6 * nb;
+        for (int c = 0; c < 2; c++)
+          d = fmax(d, fabs(a->q[k * a->n + oa + c] - b->q[k * b->n + ob + c]));
+      }
+    printf("fast ladder of %d four-bars in 3-D (%d fast coordinates), p = %d, "
+           "%ld steps, tolerances 1e-11: max |g| %.3g over every row at every "
+           "micro node (internal rows %.3g); against the planar ladder in "
+           "the multiplier form %.3g\n",
+           n, mrvi_model_n_fast(m3), p, steps, em, ei, d);
+    CHECK(em <= 1e-11 && ei <= 1e-13 && d < 1e-9,
+          "fast ladder: |g| %.3g, internal %.3g, against 2-D %.3g", em, ei, d);
+  }
+  mrvi_trajectory_free(a), mrvi_trajectory_free(b);
+  mrvi_model_free(m3), mrvi_model_free(m2);
 }
 
 /* A loop of fast and slow bodies whose redundant rows are micro-node rows
@@ -1822,16 +1958,18 @@ static void test_mixed_loop(void) {
   st |= mrvi_model_add_joint(m, "revolute", 0, 1, P[1], axis);
   st |= mrvi_model_add_joint(m, "revolute", 1, 2, P[2], axis);
   CHECK(st >= 0, "mixed loop: %s", mrvi_model_errmsg(m));
-  const mrvi_settings s = loop_settings(0.01, 1, 0.05, MRVI_FORM_NULL_SPACE);
-  mrvi_trajectory *tr = NULL;
-  mrvi_summary sum;
-  const int rc = mrvi_trajectory_run(m, &s, &tr, &sum);
-  printf("fast and slow bodies in one loop (null-space form): %s\n",
-         rc ? sum.message : "ran");
-  CHECK(rc != 0 && strstr(sum.message, "redundant only together") &&
-            strstr(sum.message, "'revolute"),
-        "mixed loop refused: %s", rc ? sum.message : "ran");
-  mrvi_trajectory_free(tr);
+  for (int p = 1; p <= 5; p += 4) { /* refused whatever p */
+    const mrvi_settings s = loop_settings(0.01, p, 0.05, MRVI_FORM_NULL_SPACE);
+    mrvi_trajectory *tr = NULL;
+    mrvi_summary sum;
+    const int rc = mrvi_trajectory_run(m, &s, &tr, &sum);
+    printf("fast and slow bodies in one loop (null-space form, p = %d): %s\n",
+           p, rc ? sum.message : "ran");
+    CHECK(rc != 0 && strstr(sum.message, "redundant only together") &&
+              strstr(sum.message, "'revolute"),
+          "mixed loop refused (p = %d): %s", p, rc ? sum.message : "ran");
+    mrvi_trajectory_free(tr);
+  }
   mrvi_model_free(m);
 }
 
@@ -1879,6 +2017,7 @@ int main(int argc, char **argv) {
     test_fast_loop();
     test_fast_loop_file();
     test_mixed_loop();
+    test_fast_ladder();
     return test_finish();
   }
   test_fourbar_3d();

@@ -610,13 +610,25 @@ static int cmd_check(int argc, char **argv) {
                  "numerical (QR at q_k), their constraints to the constraint "
                  "tolerance (%s)",
                  slow_why);
-      printf("%-14sjoint-reduced at the micro nodes (fast bodies in open "
-             "chains and trees of joints, rooted at the ground or at a slow "
-             "body's joint interpolated at the node: P_f = blkdiag(P_i) (I - "
-             "X)^-1 S at every micro node), nodal reparametrisation moving "
-             "each fast body by its joint's free turns and slides; slow "
-             "bodies: %s\n",
-             "  null space", slow);
+      if (tree_why[0]) /* the fast forest's cut joints */
+        printf("%-14sjoint-reduced at the micro nodes with cut joints "
+               "(closed loops of fast bodies, cut at %s: P_f N at every "
+               "micro node, P_f = blkdiag(P_i) (I - X)^-1 S of the fast "
+               "spanning tree, N the null space of C = G_c P_f of the cut "
+               "joints' kept rows); %d redundant row%s left out; nodal "
+               "reparametrisation moving each fast body by its joint's free "
+               "turns and slides, the cut joints held to the Newton "
+               "tolerance; slow bodies: %s\n",
+               "  null space", tree_why, red > 0 ? red : 0, red == 1 ? "" : "s",
+               slow);
+      else
+        printf("%-14sjoint-reduced at the micro nodes (fast bodies in open "
+               "chains and trees of joints, rooted at the ground or at a slow "
+               "body's joint interpolated at the node: P_f = blkdiag(P_i) (I - "
+               "X)^-1 S at every micro node), nodal reparametrisation moving "
+               "each fast body by its joint's free turns and slides; slow "
+               "bodies: %s\n",
+               "  null space", slow);
     } else if (s->tuning.nullspace_tree &&
                mrvi_model_n_bodies(sys->model) == 0 &&
                mrvi_nullspace_rods_plan(sys->model, tree_why,

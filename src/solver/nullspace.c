@@ -72,8 +72,12 @@ struct mrvi_nullspace {
   int *b_coupled; /* does it couple to the micro-node constraints? */
   /* Per node m = 0..p-1: Q (nfc x nfc), R (r x r), G_s (r x ns). */
   double *Q, *Rm, *Gs;
-  double *Qs, *Rs;  /* slow-only block: nsc x nsc, rs x rs */
-  double *A, *t;    /* scratch: MAXD x MAXD, MAXD */
+  double *Qs, *Rs; /* slow-only block: nsc x nsc, rs x rs */
+  double *A, *t;   /* scratch: MAXD x MAXD, max(MAXD, nfc) */
+  /* Above MAXD constrained fast coordinates (the fast forest only): per
+   * node the kept rows' G_f (r x nfc) in Q and the LU of G_f G_f^T (r x r)
+   * in Rm with its pivots, instead of the QR. */
+  int gram, *piv;
   double *Gf, *Gsl; /* G_f (r x nfc) at one node, slow-only G (rs x nsc) */
   double *B;        /* slow basis vectors, nbs x ns */
   /* Recipe of the reduced rows: source rows and their coefficients. */
@@ -103,7 +107,8 @@ void mrvi_nullspace_free(mrvi_nullspace *z) {
   free(z->fkeep), free(z->fk_row);
   free(z->rep_slot), free(z->rep_d), free(z->frep_slot), free(z->frep_d);
   free(z->b_coupled), free(z->Q), free(z->Rm), free(z->Gs), free(z->Qs);
-  free(z->Rs), free(z->A), free(z->t), free(z->B), free(z->Gf), free(z->Gsl);
+  free(z->Rs), free(z->A), free(z->t), free(z->piv), free(z->B), free(z->Gf),
+      free(z->Gsl);
   free(z->rec_start), free(z->rec_row), free(z->rec_coef);
   free(z->csr_start), free(z->csr_col), free(z->csr_idx);
   free(z->map), free(z->Ap), free(z->Ai), free(z->Ax);
@@ -430,15 +435,6 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
       }
     }
   }
-  if (z->nfc > MAXD || z->nsc > MAXD) {
-    free(spos), free(ms);
-    mrvi_nullspace_free(z);
-    return mrvi_fail(
-        msg, len, MRVI_EMODEL,
-        "null-space form: constraints touch more than %d coordinates "
-        "of one rate; use form: multipliers",
-        MAXD);
-  }
   if (z->r > z->nfc || z->rk > z->nsc) {
     const int st =
         mrvi_fail(msg, len, MRVI_ESINGULAR,
@@ -455,8 +451,8 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
    * local columns at every micro node. */
   if (tree && st->tuning.nullspace_tree && z->r > 0) {
     char why[200];
-    const int s = mrvi_nsfast_create(st, z->fpos, z->nfc, z->r, &z->fast, why,
-                                     sizeof why);
+    const int s = mrvi_nsfast_create(st, z->fpos, z->nfc, z->r, z->fkeep,
+                                     &z->fast, why, sizeof why);
     const size_t nc = (size_t)(z->nfc - z->r) * (size_t)z->nfc;
     if (s < 0 ||
         (z->fast &&
@@ -467,6 +463,21 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
     if (z->fast && !mrvi_nullspace_slow_side_free(m) && z->rk == z->rs &&
         mrvi_nsslow_create(st, &z->slow, why, sizeof why) < 0)
       goto oom;
+  }
+  /* The QR of the micro-node rows is dense and capped; the fast forest
+   * needs it only for the multipliers and the slow coupling, which the
+   * Gram matrix G_f G_f^T gives as well (gram), at a third of the cost
+   * and without the cap: above the cap and for closed loops (cut joints;
+   * open fast trees below the cap keep the QR, their steps unchanged). */
+  z->gram = z->fast && (z->nfc > MAXD || mrvi_nsfast_cut_rows(z->fast) > 0);
+  if ((z->nfc > MAXD && !z->gram) || z->nsc > MAXD) {
+    free(spos), free(ms);
+    mrvi_nullspace_free(z);
+    return mrvi_fail(
+        msg, len, MRVI_EMODEL,
+        "null-space form: constraints touch more than %d coordinates "
+        "of one rate; use form: multipliers",
+        MAXD);
   }
   /* Slow basis: unit vectors of the slots outside sc, then the columns of
    * the slow-only block's null space. */
@@ -491,18 +502,19 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
   free(spos), free(ms);
   spos = ms = NULL;
   const size_t p = (size_t)st->p, nfc = (size_t)z->nfc, r = (size_t)z->r;
-  z->Q = malloc((p * nfc * nfc + 1) * sizeof(double));
+  z->Q = malloc((p * (z->gram ? r : nfc) * nfc + 1) * sizeof(double));
+  z->piv = malloc((p * r + 1) * sizeof(int));
   z->Rm = malloc((p * r * r + 1) * sizeof(double));
   z->Gs = malloc((p * r * (size_t)ns + 1) * sizeof(double));
   z->Qs = malloc(((size_t)z->nsc * (size_t)z->nsc + 1) * sizeof(double));
   z->Rs = malloc(((size_t)z->rk * (size_t)z->rk + 1) * sizeof(double));
   z->A = malloc((size_t)MAXD * MAXD * sizeof(double));
-  z->t = malloc((size_t)MAXD * sizeof(double));
+  z->t = malloc((size_t)(MAXD > z->nfc ? MAXD : z->nfc) * sizeof(double));
   z->B = malloc(((size_t)z->nbs * (size_t)ns + 1) * sizeof(double));
   z->Gf = malloc((r * nfc + 1) * sizeof(double));
   z->Gsl = malloc(((size_t)z->rk * (size_t)z->nsc + 1) * sizeof(double));
-  if (!z->Q || !z->Rm || !z->Gs || !z->Qs || !z->Rs || !z->A || !z->t ||
-      !z->B || !z->Gf || !z->Gsl)
+  if (!z->Q || !z->piv || !z->Rm || !z->Gs || !z->Qs || !z->Rs || !z->A ||
+      !z->t || !z->B || !z->Gf || !z->Gsl)
     goto oom;
   if (build_recipe(z, st) < 0 ||
       mrvi_nullspace_csr(st, &z->csr_start, &z->csr_col, &z->csr_idx) < 0 ||
@@ -820,6 +832,23 @@ static int block_qr(mrvi_nullspace *z, int k, int nc, const double *G,
   return 0;
 }
 
+/* The LU (piv) of G G^T (k x k, into K) of the k x nc block G (row-major):
+ * the QR's R^T R, for blocks above its cap.  -1 if singular. */
+static int gram_lu(int k, int nc, const double *G, double *K, int *piv) {
+  /* column by column over its few nonzero rows (piv: their list) */
+  memset(K, 0, (size_t)k * k * sizeof *K);
+  for (int c = 0; c < nc; c++) {
+    int n = 0;
+    for (int a = 0; a < k; a++)
+      if (G[a * nc + c] != 0.0)
+        piv[n++] = a;
+    for (int i = 0; i < n; i++)
+      for (int j = 0; j < n; j++)
+        K[piv[i] * k + piv[j]] += G[piv[i] * nc + c] * G[piv[j] * nc + c];
+  }
+  return mrvi_dense_lu_factor(k, K, piv);
+}
+
 /* Solve R^T y = u (R k x k upper) in place. */
 static void solve_rt(int k, const double *R, double *u) {
   for (int a = 0; a < k; a++) {
@@ -862,10 +891,10 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
   /* Micro-node constraints, node by node. */
   for (int mm = 0; mm < z->p; mm++) {
     const mrvi_point pt = mrvi_step_node_point(st, mm, st->dt);
-    double *Q = z->Q + (size_t)mm * nfc * nfc;
+    double *Q = z->Q + (size_t)mm * (z->gram ? r : nfc) * nfc;
     double *R = z->Rm + (size_t)mm * r * r;
     double *Gs = z->Gs + (size_t)mm * r * ns;
-    double *Gb = z->Gf;
+    double *Gb = z->gram ? Q : z->Gf;
     if (r == 0)
       continue;
     memset(Gb, 0, (size_t)(r * nfc) * sizeof *Gb);
@@ -888,26 +917,37 @@ int mrvi_nullspace_lambda(mrvi_nullspace *z, mrvi_step *st, double *x,
         }
       }
     }
-    if (block_qr(z, r, nfc, Gb, Q, R) < 0)
+    if (z->gram ? gram_lu(r, nfc, Gb, R, z->piv + (size_t)mm * r) < 0
+                : block_qr(z, r, nfc, Gb, Q, R) < 0)
       return mrvi_fail(msg, len, MRVI_ESINGULAR,
                        "null-space form: the fast parts of the micro-node "
                        "constraints are dependent at micro node %d; use form: "
                        "multipliers",
                        mm);
-    /* dt R lambda^m = Q1^T F_m on the kept rows, 0 on the redundant ones */
+    /* dt R lambda^m = Q1^T F_m on the kept rows (dt G_f G_f^T lambda^m =
+     * G_f F_m: the same least-squares solution), 0 on the redundant ones */
     double *u = z->t, *l = lam + rs + mm * z->rm;
     for (int a = 0; a < r; a++) {
       double s = 0.0;
       for (int b = 0; b < nfc; b++)
-        s += Q[b * nfc + a] * F[frow(z, mm, z->fc[b])];
+        s += (z->gram ? Gb[a * nfc + b] : Q[b * nfc + a]) *
+             F[frow(z, mm, z->fc[b])];
       u[a] = s;
     }
-    solve_r(r, R, u);
+    if (z->gram)
+      mrvi_dense_lu_solve(r, R, z->piv + (size_t)mm * r, u, 1);
+    else
+      solve_r(r, R, u);
     for (int e = 0; e < z->rm; e++)
       l[e] = z->fkeep[e] >= 0 ? u[z->fkeep[e]] / st->dt : 0.0;
-    if (z->fast)
-      mrvi_nsfast_columns(z->fast, st, x, mm, z->fpos, nfc,
-                          z->Fcol + (size_t)mm * (nfc - r) * nfc);
+    if (z->fast &&
+        mrvi_nsfast_columns(z->fast, st, x, mm, z->fpos, nfc, Gb,
+                            z->Fcol + (size_t)mm * (nfc - r) * nfc) < 0)
+      return mrvi_fail(msg, len, MRVI_ESINGULAR,
+                       "null-space form: the kept rows of the cut joints are "
+                       "dependent on the fast tree's motions at micro node %d; "
+                       "use form: multipliers",
+                       mm);
   }
   if (rs == 0)
     return MRVI_OK;
@@ -1023,7 +1063,7 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
     for (int mm = 0; mm < z->p; mm++) {
       /* v_m = -a0 Q1 R^-T (G_s b) */
       const double a0 = 1.0 - (double)mm / z->p;
-      const double *Q = z->Q + (size_t)mm * nfc * nfc;
+      const double *Q = z->Q + (size_t)mm * (z->gram ? r : nfc) * nfc;
       const double *R = z->Rm + (size_t)mm * r * r;
       const double *Gs = z->Gs + (size_t)mm * r * ns;
       double *u = z->t;
@@ -1033,17 +1073,21 @@ void mrvi_nullspace_reduce(mrvi_nullspace *z, const mrvi_step *st,
           s += Gs[q * ns + c] * b[c];
         u[q] = s;
       }
-      solve_rt(r, R, u);
+      /* Q1 R^-T = G_f^T (G_f G_f^T)^-1 */
+      if (z->gram)
+        mrvi_dense_lu_solve(r, R, z->piv + (size_t)mm * r, u, 1);
+      else
+        solve_rt(r, R, u);
       for (int a = 0; a < nfc; a++) {
         double s = 0.0;
         for (int q = 0; q < r; q++)
-          s += Q[a * nfc + q] * u[q];
+          s += (z->gram ? Q[q * nfc + a] : Q[a * nfc + q]) * u[q];
         z->rec_coef[e++] = -a0 * s;
       }
     }
   }
   for (int mm = 0; mm < z->p; mm++) {
-    const double *Q = z->Q + (size_t)mm * nfc * nfc;
+    const double *Q = z->Q + (size_t)mm * (z->gram ? r : nfc) * nfc;
     for (int f = 0; f < z->nf; f++)
       if (z->fpos[f] < 0)
         z->rec_coef[e++] = 1.0;

@@ -137,6 +137,12 @@ struct mrvi_nstree {
   int *tree_of;
   unsigned char *keep;
   double *cv, *cz, *cg, *cG;
+  /* Closed loops of the fast forest: the kept cut rows among the kept
+   * micro-node rows (fq_n indices into them), scratch for the tree's
+   * columns P_f (ncol x nfc), C^T = (G_c P_f)^T (ncol x fq_n) and the Q of
+   * its QR (ncol x ncol). */
+  int fq_n, *fq, ncol;
+  double *Pf, *Ct, *Qc;
 };
 
 void mrvi_nstree_free(mrvi_nstree *z) {
@@ -157,6 +163,7 @@ void mrvi_nstree_free(mrvi_nstree *z) {
   free(z->cut_t), free(z->body_cut_start), free(z->body_cut);
   free(z->tree_of), free(z->keep);
   free(z->cv), free(z->cz), free(z->cg), free(z->cG);
+  free(z->fq), free(z->Pf), free(z->Ct), free(z->Qc);
   free(z);
 }
 
@@ -355,7 +362,7 @@ static int plan_only(const mrvi_model *m, int mode, char *why, size_t len) {
     return snprintf(why, len, "out of memory"), 0;
   int n;
   const int ok = plan(m, mode, a, a + nb + 1, a + 2 * (nb + 1), &n,
-                      mode == PLAN_SLOW ? a + 3 * (nb + 1) : NULL, why, len);
+                      mode != PLAN_BESIDE ? a + 3 * (nb + 1) : NULL, why, len);
   free(a);
   return ok;
 }
@@ -886,9 +893,10 @@ static int planned_tree(const mrvi_model *m, int mode, mrvi_nstree **out,
   z->order = malloc(B * sizeof(int));
   z->parent = malloc(B * sizeof(int));
   z->joint = malloc(B * sizeof(int));
-  if (mode == PLAN_SLOW)
+  if (mode != PLAN_BESIDE)
     z->cut = malloc(((size_t)m->n_constraints + 1) * sizeof(int));
-  if (!z->order || !z->parent || !z->joint || (mode == PLAN_SLOW && !z->cut)) {
+  if (!z->order || !z->parent || !z->joint ||
+      (mode != PLAN_BESIDE && !z->cut)) {
     mrvi_nstree_free(z);
     return MRVI_ENOMEM;
   }
@@ -1378,12 +1386,44 @@ static double *node_of(const mrvi_nstree *z, const mrvi_step *st, double *x,
   return x + z->ns + (size_t)(m - 1) * z->nf;
 }
 
+/* The fast forest's cut joints (closed loops of fast bodies): their kept
+ * rows among the kept micro-node rows (fkeep: the step's micro-node row ->
+ * its index among the kept ones, or -1) into z->fq, and the scratch of
+ * mrvi_nsfast_columns; none (z->cut freed: no orthonormalisation, as for
+ * open trees) without cut joints.  0, or MRVI_ENOMEM. */
+static int fast_cuts(mrvi_nstree *z, const mrvi_step *st, const int *fkeep,
+                     int nfc, int cols) {
+  const mrvi_model *m = st->model;
+  int any = 0;
+  for (int c = 0; c < m->n_constraints; c++)
+    any |= z->cut[c];
+  if (!any) {
+    free(z->cut);
+    z->cut = NULL;
+    return 0;
+  }
+  z->fq = malloc(((size_t)st->r_micro + 1) * sizeof(int));
+  z->Pf = malloc(((size_t)cols * nfc + 1) * sizeof(double));
+  z->Ct = malloc(((size_t)cols * st->r_micro + 1) * sizeof(double));
+  z->Qc = malloc(((size_t)cols * cols + 1) * sizeof(double));
+  if (!z->fq || !z->Pf || !z->Ct || !z->Qc)
+    return MRVI_ENOMEM;
+  for (int i = 0; i < st->n_micro_c; i++) {
+    const int c = st->micro_c[i];
+    for (int rr = 0; z->cut[c] && rr < m->constraints[c].rows; rr++)
+      if (fkeep[st->c_off[c] + rr] >= 0)
+        z->fq[z->fq_n++] = fkeep[st->c_off[c] + rr];
+  }
+  z->ncol = cols;
+  return 0;
+}
+
 /* The forest of plan mode PLAN_FAST or PLAN_BESIDE for placement (and,
  * fast, the columns): 1 and *out, 0 and why, or MRVI_ENOMEM; fast: fpos,
- * nfc and r as for mrvi_nsfast_create. */
+ * nfc, r and fkeep as for mrvi_nsfast_create. */
 static int forest_create(const mrvi_step *st, int mode, const int *fpos,
-                         int nfc, int r, mrvi_nstree **out, char *why,
-                         size_t len) {
+                         int nfc, int r, const int *fkeep, mrvi_nstree **out,
+                         char *why, size_t len) {
   const mrvi_model *m = st->model;
   *out = NULL;
   mrvi_nstree *z;
@@ -1438,7 +1478,17 @@ static int forest_create(const mrvi_step *st, int mode, const int *fpos,
     }
     cols += z->dof[t];
   }
-  if (z->fast && (!in_fc || cols != nfc - r)) {
+  if (z->fast && fast_cuts(z, st, fkeep, nfc, cols) < 0)
+    goto oom;
+  if (z->fq_n && cols > MRVI_DENSE_MAX) { /* C's QR is dense */
+    mrvi_nstree_free(z);
+    return snprintf(why, len,
+                    "the fast tree of a closed loop has %d joint rates, more "
+                    "than %d",
+                    cols, MRVI_DENSE_MAX),
+           0;
+  }
+  if (z->fast && (!in_fc || cols - z->fq_n != nfc - r)) {
     mrvi_nstree_free(z);
     return snprintf(why, len,
                     "the fast joints' rows (%d) do not match the fast "
@@ -1456,13 +1506,14 @@ oom:
 }
 
 int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
-                       mrvi_nstree **out, char *why, size_t len) {
-  return forest_create(st, PLAN_FAST, fpos, nfc, r, out, why, len);
+                       const int *fkeep, mrvi_nstree **out, char *why,
+                       size_t len) {
+  return forest_create(st, PLAN_FAST, fpos, nfc, r, fkeep, out, why, len);
 }
 
 int mrvi_nsslow_create(const mrvi_step *st, mrvi_nstree **out, char *why,
                        size_t len) {
-  return forest_create(st, PLAN_BESIDE, NULL, 0, 0, out, why, len);
+  return forest_create(st, PLAN_BESIDE, NULL, 0, 0, NULL, out, why, len);
 }
 
 int mrvi_nullspace_beside_plan(const mrvi_model *m, char *why, size_t len) {
@@ -1470,9 +1521,42 @@ int mrvi_nullspace_beside_plan(const mrvi_model *m, char *why, size_t len) {
 }
 
 int mrvi_nsfast_bodies(const mrvi_nstree *z) { return z->nb; }
+int mrvi_nsfast_cut_rows(const mrvi_nstree *z) { return z->fq_n; }
 
-void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
-                         const int *fpos, int nfc, double *cols) {
+/* With cut joints: the tree's columns P_f (z->ncol of them) reduced to the
+ * null space of the kept cut rows, P_f N, N spanning the null space of C =
+ * G_c P_f (fq_n x ncol; G_c the kept cut rows of Gf), from the QR of C^T:
+ * its last ncol - fq_n columns (doc/multibody.md, "Fast closed loops"). */
+static int cut_columns(mrvi_nstree *z, int nfc, const double *Gf,
+                       double *cols) {
+  const int nc = z->ncol, k = z->fq_n;
+  for (int j = 0; j < nc; j++)
+    for (int i = 0; i < k; i++) {
+      const double *g = Gf + (size_t)z->fq[i] * nfc,
+                   *c = z->Pf + (size_t)j * nfc;
+      double s = 0.0;
+      for (int a = 0; a < nfc; a++)
+        s += g[a] * c[a];
+      z->Ct[(size_t)j * k + i] = s;
+    }
+  if (mrvi_dense_qr(nc, k, z->Ct, z->Qc) < 0)
+    return -1;
+  for (int o = 0; o < nc - k; o++) {
+    double *col = cols + (size_t)o * nfc;
+    memset(col, 0, (size_t)nfc * sizeof *col);
+    for (int j = 0; j < nc; j++) {
+      const double q = z->Qc[(size_t)j * nc + k + o];
+      const double *c = z->Pf + (size_t)j * nfc;
+      for (int a = 0; q != 0.0 && a < nfc; a++)
+        col[a] += q * c[a];
+    }
+  }
+  return 0;
+}
+
+int mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
+                        const int *fpos, int nfc, const double *Gf,
+                        double *cols) {
   const int T = z->T, w = z->D * (z->D + 1);
   const double *q0 = st->qf0;
   const double *xm = m > 0 ? node_of(z, st, x, m, &q0) : NULL;
@@ -1481,7 +1565,7 @@ void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
   geometry(z, st->model, z->pos);
   /* Column (t, j): the twist S_t e_j carried rigidly down t's subtree
    * (parents first), each body's through its own P_i. */
-  double *col = cols;
+  double *col = z->fq_n ? z->Pf : cols;
   for (int t = 0; t < z->nb; t++)
     for (int j = 0; j < z->dof[t]; j++, col += nfc) {
       memset(col, 0, (size_t)nfc * sizeof *col);
@@ -1513,6 +1597,7 @@ void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
         }
       }
     }
+  return z->fq_n ? cut_columns(z, nfc, Gf, cols) : 0;
 }
 
 void mrvi_nsslow_retract(mrvi_nstree *z, const mrvi_step *st,

@@ -152,15 +152,22 @@ int mrvi_nsrods_lambda(mrvi_nsrods *z, mrvi_step *st, double *x,
 void mrvi_nsrods_reduce(mrvi_nsrods *z, const mrvi_step *st, const double *R,
                         double *rhs);
 /* The fast forest (nullspace_tree.c): 1 and *out if mrvi_nullspace_fast_plan
- * holds and its joints' free directions number nfc - r (the fast slots fpos
- * of the micro-node constraints, r their rows), 0 and why if not, < 0 out of
- * memory.  _columns: the nfc - r columns (nfc entries each, over fpos) of
- * the joint-reduced basis at micro node m of x; _start, _retract: the nodal
+ * holds and its joints' free directions less the kept rows of its cut
+ * joints (closed loops) number nfc - r (the fast slots fpos of the
+ * micro-node constraints, r their kept rows, fkeep: micro-node row -> its
+ * index among the kept ones or -1), 0 and why if not, < 0 out of memory.
+ * _columns: the nfc - r columns (nfc entries each, over fpos) of the
+ * joint-reduced basis at micro node m of x, Gf the kept rows' fast
+ * gradient there (r x nfc; its cut rows reduce the tree's columns), -1 if
+ * the cut rows are dependent there; _start, _retract: the nodal
  * reparametrisation of micro nodes 1..p after the slow unknowns are final
  * (the predictor's; xold the iterate before x -= dx). */
 int mrvi_nsfast_create(const mrvi_step *st, const int *fpos, int nfc, int r,
-                       mrvi_nstree **out, char *why, size_t len);
+                       const int *fkeep, mrvi_nstree **out, char *why,
+                       size_t len);
 int mrvi_nsfast_bodies(const mrvi_nstree *z);
+/* The kept rows of its cut joints (0: an open forest). */
+int mrvi_nsfast_cut_rows(const mrvi_nstree *z);
 /* The slow bodies beside a fast forest, in open chains and trees of slow
  * joints (mrvi_nullspace_beside_plan): their joint-reduced nodal
  * reparametrisation alone (their basis stays the QR one): _create as
@@ -172,8 +179,9 @@ int mrvi_nsslow_create(const mrvi_step *st, mrvi_nstree **out, char *why,
 void mrvi_nsslow_start(mrvi_nstree *z, const mrvi_step *st, double *x);
 void mrvi_nsslow_retract(mrvi_nstree *z, const mrvi_step *st,
                          const double *xold, double *x, const double *dx);
-void mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
-                         const int *fpos, int nfc, double *cols);
+int mrvi_nsfast_columns(mrvi_nstree *z, const mrvi_step *st, double *x, int m,
+                        const int *fpos, int nfc, const double *Gf,
+                        double *cols);
 void mrvi_nsfast_start(mrvi_nstree *z, const mrvi_step *st, double *x);
 void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
                          const double *xold, double *x, const double *dx);
