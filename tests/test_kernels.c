@@ -368,6 +368,17 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
             mrvi_sblock_create(m, elems, ne, 512, &sb) == MRVI_OK &&
             mrvi_sblock_create(m, elems, ne, 512, &sr) == MRVI_OK,
         "d %d %s: create", d, lc->law);
+  /* The maps: in dimensions 2 and 3 the compact form (2 x 2 block bases
+   * and 2 column lengths a spring, 1 and 1 an anchor; the particles'
+   * coordinates on consecutive slots), in 1 the full one (n_in^2). */
+  long want = 0;
+  for (int e = 0; e < ne; e++) {
+    const int ni = m->elements[e].n_in, nb = ni / d;
+    want += d >= 2 ? nb * nb + nb : ni * ni;
+  }
+  CHECK(!sb || mrvi_sblock_map_ints(sb) == want,
+        "d %d %s: maps of %ld ints (%ld expected)", d, lc->law,
+        sb ? mrvi_sblock_map_ints(sb) : -1L, want);
   for (int r = 0; kc && sb && sr && r < 4; r++) {
     for (int i = 0; i < n; i++) {
       q[i] = m->q0[i] + 0.3 * uniform(rng);

@@ -366,6 +366,14 @@ void mrvi_sblock_free(mrvi_sblock *sb);
 void mrvi_sblock_zero(mrvi_sblock *sb);
 void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
                              double scale);
+/* An element's compact map (inputs in nb = n / dim blocks of dim
+ * coordinates, n <= MRVI_SBLOCK_COMPACT_MAX): cm[bj nb + bi] the index in
+ * the values of the entry (row: block bi's first input, column: block bj's
+ * first), -1 where either block is slow, and cm[nb nb + bj] the length of
+ * block bj's columns; expanded into its n x n indices (row-major, -1 a
+ * slow pair): entry (i, j) is base + (j % dim) length + i % dim. */
+#define MRVI_SBLOCK_COMPACT_MAX 12
+void mrvi_sblock_map_expand(const int *cm, int n, int dim, int *map);
 /* g += grad W(z) of the class kc (compiled from the same elems) and
  * scale hess W(z) added to the values (mrvi_terms_eval_sparse): the
  * elements' evaluation and mrvi_sblock_add_element, bitwise. */
@@ -374,6 +382,8 @@ void mrvi_sblock_add_terms(mrvi_sblock *sb, mrvi_terms *kc, const double *z,
 /* The values (nnz, CSC order of the pattern) and y = J x with them as
  * they stand (nf), for tests. */
 const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz);
+/* The ints of the elements' maps (compact and full), for tests. */
+long mrvi_sblock_map_ints(const mrvi_sblock *sb);
 void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y);
 /* Add dscale diag (nf) to the diagonal and solve J x = b in place (b
  * becomes x) by CG, stopping at ||r||_inf <= atol or 1e-12 relative;
@@ -512,8 +522,10 @@ void mrvi_terms_grad_hdiag_part(const mrvi_terms *kc, int c, const double *z,
                                 double hscale);
 /* g += grad Z(z) and hscale times each element's Hessian added into the
  * values Ax of a sparse matrix: entry k of element i's n_in x n_in Hessian
- * (row-major; i in the order of elems) into Ax[emap[off[i] + k]], left
- * out where off[i] < 0 or that index is < 0.  Springs and anchors by the
+ * (row-major; i in the order of elems) into Ax[emap[off[i] + k]], or where
+ * off[i] < -1 into index k of the compact map at emap - 2 - off[i]
+ * (mrvi_sblock_map_expand); left out where off[i] == -1 or that index is
+ * < 0.  Springs and anchors by the
  * compiled kernels, the others by mrvi_element_eval; bitwise a scatter of
  * mrvi_element_eval's Hessians element by element. */
 void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,

@@ -23,10 +23,15 @@ struct mrvi_sblock {
   int dense_max; /* the fallback LU's (mrvi_newton_create) */
   int *Ap, *Ai;  /* CSC pattern (symmetric), sorted rows */
   long nnz;
-  double *Ax;              /* values */
-  int *diag;               /* nf: index of (f, f) in Ax */
-  long *elem_off;          /* per element of the class: offset in emap, -1 */
-  int *emap;               /* per element: n_in x n_in -> Ax index or -1 */
+  double *Ax; /* values */
+  int *diag;  /* nf: index of (f, f) in Ax */
+  int dim;    /* the model's (the compact maps' blocks) */
+  /* per element of the class: offset in emap of its map, n_in x n_in Ax
+   * indices (-1: a slow pair), or -2 - the offset of its compact map
+   * (mrvi_sblock_map_expand), or -1: no Hessian */
+  long *elem_off;
+  int *emap;
+  long n_map;              /* ints in emap */
   double *dinv, *x, *work; /* Jacobi preconditioner, solution, CG (3 nf) */
   mrvi_newton *lu;         /* fallback, created on first use */
   mrvi_krylov_stats stats;
@@ -49,9 +54,8 @@ void mrvi_sblock_free(mrvi_sblock *sb) {
 }
 
 /* The rows of one column of the pattern (r[0..nr) in bucket order) sorted
- * with duplicates once into u (returned: their count); then each r[b]
- * replaced by k0 + its rank in u (its index in Ax). */
-static int column_rows(int *r, int nr, int *u, int k0) {
+ * with duplicates once into u (returned: their count). */
+static int column_rows(const int *r, int nr, int *u) {
   int nu = 0;
   for (int b = 0; b < nr; b++) { /* (a few dozen rows: insertion) */
     const int x = r[b];
@@ -64,52 +68,70 @@ static int column_rows(int *r, int nr, int *u, int k0) {
     u[i] = x;
     nu++;
   }
-  for (int b = 0; b < nr; b++) {
-    int lo = 0, hi = nu - 1;
-    while (lo < hi) {
-      const int mid = (lo + hi) / 2;
-      if (u[mid] < r[b])
-        lo = mid + 1;
-      else
-        hi = mid;
-    }
-    r[b] = k0 + lo;
-  }
   return nu;
+}
+
+/* The index in Ax of entry (row r, column c) of the pattern. */
+static int entry_at(const mrvi_sblock *sb, int r, int c) {
+  int lo = sb->Ap[c], hi = sb->Ap[c + 1] - 1;
+  while (lo < hi) {
+    const int mid = (lo + hi) / 2;
+    if (sb->Ai[mid] < r)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  return lo;
+}
+
+/* Whether element e's map takes the compact form (mrvi_sblock_map_expand):
+ * its inputs in blocks of dim (2 or 3) coordinates, each block either all
+ * slow or all fast on consecutive slots whose columns hold the same rows
+ * (same[c]: column c's rows are column c - 1's), so that the entries of a
+ * pair of blocks are a base index, +1 a row, + the column's length a
+ * column (rows sorted, each once). */
+static int compact_ok(const mrvi_model *m, const mrvi_element *e,
+                      const unsigned char *same) {
+  const int dim = m->dimension, n = e->n_in;
+  if (dim < 2 || n % dim != 0 || n > MRVI_SBLOCK_COMPACT_MAX)
+    return 0;
+  for (int b = 0; b < n; b += dim) {
+    const int fast = m->rate[e->in[b]] == MRVI_FAST, s0 = m->slot[e->in[b]];
+    for (int k = 1; k < dim; k++) {
+      if ((m->rate[e->in[b + k]] == MRVI_FAST) != fast)
+        return 0;
+      if (fast && (m->slot[e->in[b + k]] != s0 + k || !same[s0 + k]))
+        return 0;
+    }
+  }
+  return 1;
 }
 
 /* Pattern of the fast-fast Hessians of elements `elems` (model indices)
  * and the diagonal in CSC, rows sorted and each once in a column (as
  * umfpack_di_triplet_to_col makes it from the triplets: the diagonal, then
- * every element's fast-fast pairs), built by columns without the triplets:
- * each pair's bucket position is kept in emap, then its index in Ax. */
+ * every element's fast-fast pairs), built by columns without the triplets;
+ * then each element's map of its Hessian's entries to their indices in Ax:
+ * compact (nb x nb block bases and nb column lengths, nb = n_in / dim) where
+ * compact_ok, else n_in x n_in indices (-1: a slow pair). */
 int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
                        int dense_max, mrvi_sblock **out) {
-  const int nf = m->n_fast;
+  const int nf = m->n_fast, dim = m->dimension;
   *out = NULL;
   mrvi_sblock *sb = calloc(1, sizeof *sb);
   if (!sb)
     return MRVI_ENOMEM;
   sb->nf = nf;
   sb->dense_max = dense_max;
-  long nt = nf;
+  sb->dim = dim;
   sb->elem_off = malloc((size_t)(n_elems > 0 ? n_elems : 1) * sizeof(long));
   if (!sb->elem_off)
     goto oom;
-  for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
-    sb->elem_off[ie] = -1;
-    if (e->kind == MRVI_ELEMENT_GRAVITY)
-      continue; /* linear: no Hessian */
-    sb->elem_off[ie] = nt - nf;
-    nt += (long)e->n_in * e->n_in;
-  }
   /* Column c's entries are bucket positions start[c] .. start[c + 1]. */
   long *start = calloc((size_t)nf + 2, sizeof *start);
-  sb->emap = malloc((size_t)(nt - nf > 0 ? nt - nf : 1) * sizeof(int));
   sb->diag = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(int));
   sb->Ap = malloc((size_t)(nf + 1) * sizeof(int));
-  if (!start || !sb->emap || !sb->diag || !sb->Ap) {
+  if (!start || !sb->diag || !sb->Ap) {
     free(start);
     goto oom;
   }
@@ -117,8 +139,8 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
     start[f + 2]++;
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
-    if (sb->elem_off[ie] < 0)
-      continue;
+    if (e->kind == MRVI_ELEMENT_GRAVITY)
+      continue; /* linear: no Hessian */
     for (int j = 0; j < e->n_in; j++)
       for (int l = 0; l < e->n_in; l++)
         if (m->rate[e->in[j]] == MRVI_FAST && m->rate[e->in[l]] == MRVI_FAST)
@@ -136,45 +158,95 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
     goto oom;
   }
   /* (start[c + 1]: the next free position of column c) */
-  for (int f = 0; f < nf; f++) {
-    sb->diag[f] = (int)start[f + 1];
+  for (int f = 0; f < nf; f++)
     rows[start[f + 1]++] = f;
-  }
   for (int ie = 0; ie < n_elems; ie++) {
     const mrvi_element *e = &m->elements[elems[ie]];
-    if (sb->elem_off[ie] < 0)
+    if (e->kind == MRVI_ELEMENT_GRAVITY)
       continue;
-    int *em = sb->emap + sb->elem_off[ie];
     for (int j = 0; j < e->n_in; j++)
-      for (int l = 0; l < e->n_in; l++) {
-        int *t = &em[j * e->n_in + l];
-        *t = -1; /* (a slow pair: no entry) */
-        if (m->rate[e->in[j]] != MRVI_FAST || m->rate[e->in[l]] != MRVI_FAST)
-          continue;
-        const int c = m->slot[e->in[l]];
-        *t = (int)start[c + 1];
-        rows[start[c + 1]++] = m->slot[e->in[j]];
-      }
+      for (int l = 0; l < e->n_in; l++)
+        if (m->rate[e->in[j]] == MRVI_FAST && m->rate[e->in[l]] == MRVI_FAST)
+          rows[start[m->slot[e->in[l]] + 1]++] = m->slot[e->in[j]];
   }
   /* (start[c]: column c's first position again) */
   int k = 0;
   sb->Ap[0] = 0;
   for (int c = 0; c < nf; c++) {
     k += column_rows(rows + start[c], (int)(start[c + 1] - start[c]),
-                     sb->Ai + k, k);
+                     sb->Ai + k);
     sb->Ap[c + 1] = k;
   }
-  for (int f = 0; f < nf; f++)
-    sb->diag[f] = rows[sb->diag[f]];
-  for (long t = 0; t < nt - nf; t++)
-    if (sb->emap[t] >= 0)
-      sb->emap[t] = rows[sb->emap[t]];
   free(rows);
   free(start);
   int *Ai = realloc(sb->Ai, (size_t)(k > 0 ? k : 1) * sizeof(int));
   if (Ai)
     sb->Ai = Ai;
   sb->nnz = k;
+  for (int f = 0; f < nf; f++)
+    sb->diag[f] = entry_at(sb, f, f);
+  /* The maps: their sizes, then their entries. */
+  unsigned char *same = malloc((size_t)(nf > 0 ? nf : 1));
+  if (!same)
+    goto oom;
+  for (int c = 0; c < nf; c++) {
+    const int len = sb->Ap[c + 1] - sb->Ap[c];
+    same[c] = c > 0 && len == sb->Ap[c] - sb->Ap[c - 1] &&
+              memcmp(sb->Ai + sb->Ap[c], sb->Ai + sb->Ap[c - 1],
+                     (size_t)len * sizeof(int)) == 0;
+  }
+  long nm = 0;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    sb->elem_off[ie] = -1;
+    if (e->kind == MRVI_ELEMENT_GRAVITY)
+      continue;
+    const int n = e->n_in, nbk = n / (dim > 0 ? dim : 1);
+    if (compact_ok(m, e, same)) {
+      sb->elem_off[ie] = -2 - nm; /* (compact) */
+      nm += (long)nbk * nbk + nbk;
+    } else {
+      sb->elem_off[ie] = nm;
+      nm += (long)n * n;
+    }
+  }
+  sb->n_map = nm;
+  sb->emap = malloc((size_t)(nm > 0 ? nm : 1) * sizeof(int));
+  if (!sb->emap) {
+    free(same);
+    goto oom;
+  }
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    const long o = sb->elem_off[ie];
+    if (o == -1)
+      continue;
+    const int n = e->n_in;
+    if (o >= 0) {
+      int *em = sb->emap + o;
+      for (int j = 0; j < n; j++)
+        for (int l = 0; l < n; l++) {
+          const int fast =
+              m->rate[e->in[j]] == MRVI_FAST && m->rate[e->in[l]] == MRVI_FAST;
+          em[j * n + l] =
+              fast ? entry_at(sb, m->slot[e->in[j]], m->slot[e->in[l]]) : -1;
+        }
+      continue;
+    }
+    int *cm = sb->emap + (-2 - o);
+    const int nbk = n / dim;
+    for (int bj = 0; bj < nbk; bj++) {
+      const int c = m->slot[e->in[bj * dim]];
+      const int cf = m->rate[e->in[bj * dim]] == MRVI_FAST;
+      cm[nbk * nbk + bj] = cf ? sb->Ap[c + 1] - sb->Ap[c] : 0;
+      for (int bi = 0; bi < nbk; bi++) {
+        const int fast = cf && m->rate[e->in[bi * dim]] == MRVI_FAST;
+        cm[bj * nbk + bi] =
+            fast ? entry_at(sb, m->slot[e->in[bi * dim]], c) : -1;
+      }
+    }
+  }
+  free(same);
   sb->Ax = calloc((size_t)(sb->nnz > 0 ? sb->nnz : 1), sizeof(double));
   sb->dinv = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));
   sb->x = malloc((size_t)(nf > 0 ? nf : 1) * sizeof(double));
@@ -188,6 +260,16 @@ oom:
   return MRVI_ENOMEM;
 }
 
+void mrvi_sblock_map_expand(const int *cm, int n, int dim, int *map) {
+  const int nb = n / dim;
+  for (int i = 0; i < n; i++)
+    for (int j = 0; j < n; j++) {
+      const int base = cm[(j / dim) * nb + i / dim];
+      map[i * n + j] =
+          base < 0 ? -1 : base + (j % dim) * cm[nb * nb + j / dim] + i % dim;
+    }
+}
+
 void mrvi_sblock_zero(mrvi_sblock *sb) {
   memset(sb->Ax, 0, (size_t)sb->nnz * sizeof(double));
 }
@@ -195,9 +277,14 @@ void mrvi_sblock_zero(mrvi_sblock *sb) {
 void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
                              double scale) {
   const long o = sb->elem_off[ie];
-  if (o < 0)
+  if (o == -1)
     return;
+  int buf[MRVI_SBLOCK_COMPACT_MAX * MRVI_SBLOCK_COMPACT_MAX];
   const int *map = sb->emap + o;
+  if (o < -1) {
+    mrvi_sblock_map_expand(sb->emap + (-2 - o), n_in, sb->dim, buf);
+    map = buf;
+  }
   for (int k = 0; k < n_in * n_in; k++)
     if (map[k] >= 0)
       sb->Ax[map[k]] += scale * H[k];
@@ -219,6 +306,8 @@ const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz) {
   *nnz = sb->nnz;
   return sb->Ax;
 }
+
+long mrvi_sblock_map_ints(const mrvi_sblock *sb) { return sb->n_map; }
 
 static double matvec(void *ctx, const double *x, double *y) {
   const mrvi_sblock *sb = ctx;

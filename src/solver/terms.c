@@ -1718,7 +1718,8 @@ void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
  * and a scatter of it: bitwise the same); map[k] < 0: entry left out. */
 ALWAYS_INLINE void spring_map(const kspring *q, const double *z, double *g,
                               double *Ax, const int *map, double hscale,
-                              const int dim, const int two, const int kk) {
+                              const int dim, const int two, const int kk,
+                              const int compact) {
   double u[3], d1, a, b;
   spring_derivs(q, z, u, &d1, &a, &b, dim, two, kk);
   UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] += d1 * u[k];
@@ -1729,7 +1730,11 @@ ALWAYS_INLINE void spring_map(const kspring *q, const double *z, double *g,
     UNROLL for (int j = 0; j < n; j++) {
       const int ii = i < dim ? i : i - dim, jj = j < dim ? j : j - dim;
       const double A = a * u[ii] * u[jj] + (ii == jj ? b : 0.0);
-      const int t = map[i * n + j];
+      /* (compact: the block pair's base, + the column's length a column
+       * and 1 a row, mrvi_sblock_map_expand) */
+      const int nb = two ? 2 : 1, bi = i < dim ? 0 : 1, bj = j < dim ? 0 : 1;
+      const int t0 = compact ? map[bj * nb + bi] : map[i * n + j];
+      const int t = compact && t0 >= 0 ? t0 + jj * map[nb * nb + bj] + ii : t0;
       if (t >= 0)
         Ax[t] += hscale * ((i < dim) == (j < dim) ? A : -A);
     }
@@ -1746,7 +1751,9 @@ ALWAYS_INLINE void springs_map_k(const kspring *q, int nr, int ie0,
   for (int r = 0; r < nr; r++) {                                               \
     const long o = off[ie0 + r];                                               \
     if (o >= 0)                                                                \
-      spring_map(q + r, z, g, Ax, emap + o, hscale, dim, two, KK);             \
+      spring_map(q + r, z, g, Ax, emap + o, hscale, dim, two, KK, 0);          \
+    else if (o < -1) /* (a compact map) */                                     \
+      spring_map(q + r, z, g, Ax, emap - 2 - o, hscale, dim, two, KK, 1);      \
     else /* (no Hessian entries) */                                            \
       spring_eval(q + r, z, 1.0, g, NULL, 0, 0.0, dim, two, KK, 1);            \
   }
@@ -1801,9 +1808,14 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
     element_at(kc, t, z, kc->g, lin ? NULL : kc->H);
     for (int j = 0; j < n; j++)
       g[col[j]] += kc->g[j];
-    if (lin || off[it] < 0)
+    if (lin || off[it] == -1)
       continue;
+    int buf[MRVI_SBLOCK_COMPACT_MAX * MRVI_SBLOCK_COMPACT_MAX];
     const int *map = emap + off[it];
+    if (off[it] < -1) {
+      mrvi_sblock_map_expand(emap - 2 - off[it], n, kc->dim, buf);
+      map = buf;
+    }
     for (int k = 0; k < n * n; k++)
       if (map[k] >= 0)
         Ax[map[k]] += hscale * kc->H[k];
