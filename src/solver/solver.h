@@ -197,7 +197,7 @@ void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
  * measured on rod chains and bodies, doc/performance.md ("The dense/sparse
  * switch by flops"). */
 #define MRVI_NEWTON_DENSE_SURE 128
-#define MRVI_NEWTON_DENSE_RATIO 0.65
+#define MRVI_NEWTON_DENSE_RATIO 0.55
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, int dense_max, char *msg,
