@@ -2002,8 +2002,81 @@ static void test_ordering_choice(void) {
   free(x);
 }
 
+/* The dense/sparse switch of solver/newton.c within newton_dense_max (512
+ * here): a chain of 140 blocks of 3 unknowns (each coupled to itself and
+ * the next) numbered i -> 97 i mod n, which the dense LU's degree ordering
+ * leaves scattered (its fill near n^2 against AMD's nearly none), must take
+ * UMFPACK; 20 dense node blocks of 22 joined by 3 x 3 couplings and a
+ * dense border of 10 rows and columns (a body step's shape), whose
+ * degree ordering is fill-free, must keep the dense LU.  Each solves to
+ * round-off and agrees with UMFPACK's solution (dense_max 0). */
+static void test_dense_switch(void) {
+  for (int body = 0; body < 2; body++) {
+    const int n = body ? 22 * 20 + 10 : 3 * 140, nb = n / 3;
+    int *Ap = malloc((size_t)(n + 1) * sizeof *Ap);
+    int *Ai = malloc((size_t)n * (size_t)n * sizeof *Ai);
+    double *Ax = malloc((size_t)n * (size_t)n * sizeof *Ax);
+    double *b = malloc(3 * (size_t)n * sizeof *b), *x = b + n, *y = x + n;
+    int nnz = 0;
+    for (int j = 0; j < n; j++) {
+      Ap[j] = nnz;
+      const int J = (int)(97L * j % n), lo = (J / 3 > 0 ? J / 3 - 1 : 0) * 3,
+                hi = (J / 3 + 1 < nb ? J / 3 + 2 : nb) * 3;
+      for (int i = 0; i < n; i++) {
+        const int I = (int)(97L * i % n), bi = i < n - 10 ? i / 22 : -1,
+                  bj = j < n - 10 ? j / 22 : -1;
+        const int on = body
+                           ? bi < 0 || bj < 0 || bi == bj ||
+                                 (abs(bi - bj) == 1 && i % 22 < 3 && j % 22 < 3)
+                           : I >= lo && I < hi;
+        if (on) {
+          Ai[nnz] = i;
+          Ax[nnz++] = i == j ? 50.0 : 0.3 + 0.01 * ((i + 2 * j) % 7);
+        }
+      }
+    }
+    Ap[n] = nnz;
+    char msg[200];
+    mrvi_newton *nw = mrvi_newton_create(n, Ap, Ai, Ax, 512, msg, sizeof msg),
+                *sp = mrvi_newton_create(n, Ap, Ai, Ax, 0, msg, sizeof msg);
+    CHECK(nw && sp, "dense switch: create: %s", msg);
+    if (nw && sp) {
+      CHECK((mrvi_newton_ordering(nw) < 0) == body,
+            "dense switch: %s of %d rows: ordering %d (-1: dense LU)",
+            body ? "body blocks" : "scrambled chain", n,
+            mrvi_newton_ordering(nw));
+      for (int i = 0; i < n; i++)
+        b[i] = sin(0.3 + 1.1 * i);
+      CHECK(mrvi_newton_solve(nw, Ax, b, x, msg, sizeof msg) == MRVI_OK &&
+                mrvi_newton_solve(sp, Ax, b, y, msg, sizeof msg) == MRVI_OK,
+            "dense switch: solve: %s", msg);
+      double d = 0.0, r = 0.0;
+      for (int i = 0; i < n; i++)
+        d = fmax(d, fabs(x[i] - y[i]));
+      for (int j = 0; j < n; j++)
+        for (int e = Ap[j]; e < Ap[j + 1]; e++)
+          b[Ai[e]] -= Ax[e] * x[j];
+      for (int i = 0; i < n; i++)
+        r = fmax(r, fabs(b[i]));
+      CHECK(r <= 1e3 * DBL_EPSILON && d <= 1e3 * DBL_EPSILON,
+            "dense switch (%s): residual %.2e, against UMFPACK %.2e",
+            body ? "body blocks" : "scrambled chain", r, d);
+      printf("dense switch: %s of %d rows -> %s\n",
+             body ? "body blocks" : "scrambled chain", n,
+             mrvi_newton_ordering(nw) < 0 ? "dense LU" : "UMFPACK");
+    }
+    mrvi_newton_free(nw);
+    mrvi_newton_free(sp);
+    free(Ap);
+    free(Ai);
+    free(Ax);
+    free(b);
+  }
+}
+
 int main(void) {
   test_ordering_choice();
+  test_dense_switch();
   test_keep_micro();
   test_stiff_quartic_sweep();
   test_scaled_criterion();

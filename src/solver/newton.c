@@ -1,5 +1,6 @@
 /* Linear solves of the Newton iteration.  Two backends behind one
- * interface, chosen by size at creation:
+ * interface, chosen at creation by size and, above MRVI_NEWTON_DENSE_SURE
+ * rows, by the estimated flops of both (sparse_cheaper):
  *  - UMFPACK: the symbolic analysis is done once for the fixed pattern of a
  *    run, the numeric factorisation once per iteration (STYLE: symbolic
  *    once, numeric many);
@@ -67,6 +68,59 @@ static int dense_create(mrvi_newton *nw) {
   return MRVI_OK;
 }
 
+/* Frees the dense backend's storage (nw->lu NULL: UMFPACK's). */
+static void dense_release(mrvi_newton *nw) {
+  free(nw->lu);
+  free(nw->rs);
+  free(nw->val);
+  free(nw->y);
+  free(nw->piv);
+  free(nw->pos);
+  free(nw->nzc);
+  free(nw->ptr);
+  free(nw->idx);
+  nw->lu = nw->rs = nw->val = nw->y = NULL;
+  nw->piv = nw->pos = nw->nzc = nw->ptr = nw->idx = NULL;
+}
+
+/* Flops of the dense backend's elimination (a multiply-add per entry
+ * updated) in its ordering pos, without pivoting, from the pattern:
+ * rows as bit sets, row i joined by row k where L(i,k) != 0. */
+static double dense_lu_flops(int n, const int *Ap, const int *Ai,
+                             const int *pos) {
+  const size_t w = ((size_t)n + 63) / 64;
+  unsigned long long *R = calloc((size_t)n * w + 1, sizeof *R);
+  if (!R)
+    return HUGE_VAL;
+  for (int j = 0; j < n; j++)
+    for (int e = Ap[j]; e < Ap[j + 1]; e++) {
+      const int r = pos[Ai[e]], c = pos[j];
+      R[(size_t)r * w + (size_t)c / 64] |= 1ULL << (c % 64);
+    }
+  double flops = 0.0;
+  for (int k = 0; k < n; k++) {
+    const unsigned long long *rk = R + (size_t)k * w;
+    /* entries of row k right of the pivot */
+    double u = 0.0;
+    for (size_t q = (size_t)k / 64; q < w; q++) {
+      unsigned long long x = rk[q];
+      if (q == (size_t)k / 64)
+        x &= k % 64 == 63 ? 0ULL : ~0ULL << (k % 64 + 1);
+      u += (double)__builtin_popcountll(x);
+    }
+    for (int i = k + 1; i < n; i++) {
+      unsigned long long *ri = R + (size_t)i * w;
+      if (!(ri[k / 64] >> (k % 64) & 1ULL))
+        continue;
+      flops += u;
+      for (size_t q = (size_t)k / 64; q < w; q++)
+        ri[q] |= rk[q];
+    }
+  }
+  free(R);
+  return flops;
+}
+
 /* Estimated nonzeros of L and U from a symbolic analysis's Info. */
 static double factor_fill(const double *info) {
   return info[UMFPACK_LNZ_ESTIMATE] + info[UMFPACK_UNZ_ESTIMATE];
@@ -99,6 +153,28 @@ static void try_metis(mrvi_newton *nw, const double *Ax) {
   nw->ordering = (int)info[UMFPACK_ORDERING_USED];
 }
 
+/* The dense backend's choice beyond MRVI_NEWTON_DENSE_SURE rows: UMFPACK
+ * (its analysis kept in nw) where the dense LU's flops in its ordering
+ * exceed MRVI_NEWTON_DENSE_RATIO times UMFPACK's estimate from its symbolic
+ * analysis: on banded steps (rod chains) the degree ordering fills in, on
+ * the body systems' it does not (doc/performance.md, "The dense/sparse
+ * switch by flops"). */
+static int sparse_cheaper(mrvi_newton *nw, const double *Ax) {
+  if (umfpack_di_symbolic(nw->n, nw->n, nw->Ap, nw->Ai, Ax, &nw->symbolic,
+                          nw->control, nw->info) != UMFPACK_OK) {
+    if (nw->symbolic)
+      umfpack_di_free_symbolic(&nw->symbolic);
+    return 0;
+  }
+  const double fd = dense_lu_flops(nw->n, nw->Ap, nw->Ai, nw->pos);
+  if (fd > MRVI_NEWTON_DENSE_RATIO * nw->info[UMFPACK_FLOPS_ESTIMATE]) {
+    nw->ordering = (int)nw->info[UMFPACK_ORDERING_USED];
+    return 1;
+  }
+  umfpack_di_free_symbolic(&nw->symbolic);
+  return 0;
+}
+
 int mrvi_newton_ordering(const mrvi_newton *nw) {
   return nw->lu ? -1 : nw->ordering;
 }
@@ -114,16 +190,19 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
   nw->n = n;
   nw->Ap = Ap;
   nw->Ai = Ai;
+  umfpack_di_defaults(nw->control);
+  nw->control[UMFPACK_PRL] = 0; /* the library never prints */
   if (n <= dense_max) {
     if (dense_create(nw) < 0) {
       mrvi_newton_free(nw);
       mrvi_fmt(msg, len, "out of memory");
       return NULL;
     }
+    if (n <= MRVI_NEWTON_DENSE_SURE || !sparse_cheaper(nw, Ax))
+      return nw;
+    dense_release(nw); /* UMFPACK with the analysis made */
     return nw;
   }
-  umfpack_di_defaults(nw->control);
-  nw->control[UMFPACK_PRL] = 0; /* the library never prints */
   int st = umfpack_di_symbolic(n, n, Ap, Ai, Ax, &nw->symbolic, nw->control,
                                nw->info);
   if (st != UMFPACK_OK) {
@@ -144,15 +223,7 @@ void mrvi_newton_free(mrvi_newton *nw) {
     umfpack_di_free_numeric(&nw->numeric);
   if (nw->symbolic)
     umfpack_di_free_symbolic(&nw->symbolic);
-  free(nw->lu);
-  free(nw->rs);
-  free(nw->val);
-  free(nw->y);
-  free(nw->piv);
-  free(nw->pos);
-  free(nw->nzc);
-  free(nw->ptr);
-  free(nw->idx);
+  dense_release(nw);
   free(nw->ref);
   free(nw);
 }

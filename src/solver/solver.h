@@ -197,6 +197,15 @@ void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
  * second analysis would cost more than it can save (doc/solver.md,
  * "Orderings"). */
 #define MRVI_NEWTON_METIS_TRY 4000
+/* Up to dense_max rows (newton_dense_max) the dense LU that skips zeros,
+ * always up to MRVI_NEWTON_DENSE_SURE rows (UMFPACK's fixed cost per
+ * factorisation dominates there); above, UMFPACK where the dense LU's
+ * flops in its ordering (a symbolic elimination of the pattern) exceed
+ * MRVI_NEWTON_DENSE_RATIO times UMFPACK's estimate (its symbolic analysis):
+ * measured on rod chains and bodies, doc/performance.md ("The dense/sparse
+ * switch by flops"). */
+#define MRVI_NEWTON_DENSE_SURE 128
+#define MRVI_NEWTON_DENSE_RATIO 0.55
 typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, int dense_max, char *msg,
