@@ -580,6 +580,17 @@ static void test_chord(void) {
   free(text);
 }
 
+/* The 10 x 8 lattice at dT = 0.03, p = 5 (the chord in every row),
+ * tolerance 1e-12, by the general path (s[0]) and twice by sweep-cg (s[1],
+ * s[2]): whether all three loaded. */
+static int chord_systems(const char *text, overrides o[3], mrvi_system *s[3]) {
+  for (int k = 0; k < 3; k++)
+    s[k] = load_text(
+        text,
+        set(&o[k], "explicit-slow", 5, 0.03, 1e-12, k ? "auto" : "general"), 5);
+  return s[0] && s[1] && s[2];
+}
+
 /* tuning.chord_carry (solver/sweep.c): each step's first rows extrapolate
  * the implicit force from the last rows of the step before.  On the 10 x 8
  * lattice at dT = 0.03, p = 5 (the chord in every row), tolerance 1e-12:
@@ -633,47 +644,40 @@ static void test_chord_carry(void) {
  * bit for bit (the pattern is fixed within each row). */
 static void test_chord_linear(void) {
   char *text = lattice(10, 8);
-  overrides og, oa, oc;
-  mrvi_system *sg =
-      load_text(text, set(&og, "explicit-slow", 5, 0.03, 1e-12, "general"), 5);
-  mrvi_system *sa =
-      load_text(text, set(&oa, "explicit-slow", 5, 0.03, 1e-12, "auto"), 5);
-  mrvi_system *sc =
-      load_text(text, set(&oc, "explicit-slow", 5, 0.03, 1e-12, "auto"), 5);
-  if (sg && sa && sc) {
-    sa->settings.tuning.chord_carry = sc->settings.tuning.chord_carry = 0;
-    sa->settings.tuning.chord_linear = 0;
-    sc->settings.tuning.chord_linear = 2;
-    trajectory a, b, c;
-    run(sg, 10, &a);
-    run(sa, 10, &b);
-    run(sc, 10, &c);
-    if (a.ok && b.ok && c.ok) {
-      const double d = rel_diff(&a, &c), d0 = rel_diff(&a, &b);
-      CHECK(!strcmp(c.path, "sweep-cg"), "chord linear: path %s", c.path);
-      CHECK(d <= 1e-10, "chord linear: vs general %.2e", d);
-      CHECK(b.ks.sweep_products_w == 0 && c.ks.sweep_products_w > 0 &&
-                c.ks.sweep_evals_w < b.ks.sweep_evals_w,
-            "chord linear: %ld gradients of W and %ld products, %ld and %ld "
-            "without",
-            c.ks.sweep_evals_w, c.ks.sweep_products_w, b.ks.sweep_evals_w,
-            b.ks.sweep_products_w);
-      mrvi_integrator *it = NULL;
-      CHECK(resumes_bitwise(sc, &c, 5, &it),
-            "chord linear: resumed at node 5, not bit for bit");
-      mrvi_integrator_free(it);
-      printf("chord linear: %ld gradients of W and %ld products (%ld "
-             "gradients without), vs general %.2e (%.2e without)\n",
-             c.ks.sweep_evals_w, c.ks.sweep_products_w, b.ks.sweep_evals_w, d,
-             d0);
-    }
-    release(&a);
-    release(&b);
-    release(&c);
+  overrides o[3];
+  mrvi_system *sy[3];
+  trajectory tr[3];
+  const int ok = chord_systems(text, o, sy);
+  for (int k = 1; ok && k < 3; k++) {
+    sy[k]->settings.tuning.chord_carry = 0;
+    sy[k]->settings.tuning.chord_linear = k == 2 ? 2 : 0;
   }
-  mrvi_system_free(sg);
-  mrvi_system_free(sa);
-  mrvi_system_free(sc);
+  for (int k = 0; ok && k < 3; k++)
+    run(sy[k], 10, &tr[k]);
+  const trajectory *a = &tr[0], *b = &tr[1], *c = &tr[2];
+  if (ok && a->ok && b->ok && c->ok) {
+    const double d = rel_diff(a, c), d0 = rel_diff(a, b);
+    CHECK(!strcmp(c->path, "sweep-cg"), "chord linear: path %s", c->path);
+    CHECK(d <= 1e-10, "chord linear: vs general %.2e", d);
+    CHECK(b->ks.sweep_products_w == 0 && c->ks.sweep_products_w > 0 &&
+              c->ks.sweep_evals_w < b->ks.sweep_evals_w,
+          "chord linear: %ld gradients of W and %ld products, %ld and %ld "
+          "without",
+          c->ks.sweep_evals_w, c->ks.sweep_products_w, b->ks.sweep_evals_w,
+          b->ks.sweep_products_w);
+    mrvi_integrator *it = NULL;
+    CHECK(resumes_bitwise(sy[2], c, 5, &it),
+          "chord linear: resumed at node 5, not bit for bit");
+    mrvi_integrator_free(it);
+    printf("chord linear: %ld gradients of W and %ld products (%ld "
+           "gradients without), vs general %.2e (%.2e without)\n",
+           c->ks.sweep_evals_w, c->ks.sweep_products_w, b->ks.sweep_evals_w, d,
+           d0);
+  }
+  for (int k = 0; ok && k < 3; k++)
+    release(&tr[k]);
+  for (int k = 0; k < 3; k++)
+    mrvi_system_free(sy[k]);
   free(text);
 }
 
