@@ -746,6 +746,12 @@ typedef enum mrvi_newton_criterion {
     "(mrvi_integrator_chord_history, /resume/chord_history), so mrvi run "     \
     "--resume continues bit for bit, a run restarted from (q, p) alone "       \
     "(--from, set_state) within the Newton tolerance (0: off)")                \
+  X(int, chord_linear, 0, 0, 8,                                                \
+    "sweep-cg: a chord row's first plain update keeps each Hooke spring's "    \
+    "Hessian and its next chord_linear updates take the residual "             \
+    "linearised there (a Hessian-vector product, no square root or "           \
+    "division, instead of a gradient); rows end on an exact residual "         \
+    "alone (0: off; W Hooke springs alone)")                                   \
   X(int, outer_max, 12, 0, 1000,                                               \
     "schur-krylov: the most sweeps of its matrix-free outer iteration "        \
     "before Newton takes the step from the predictor (0: off)")                \
@@ -1067,6 +1073,10 @@ typedef struct mrvi_krylov_stats {
    * Hessian) and of grad V over the slow class, for the cost model of the
    * benchmarks (doc/performance.md) */
   long sweep_evals_w, sweep_evals_v;
+  /* sweep-cg with tuning.chord_linear: the linearised updates' Hessian-
+   * vector products of W over the fast class (no square root, no division;
+   * not among sweep_evals_w) */
+  long sweep_products_w;
   /* sweep-cg: the sum over the chord updates of the ratio of the last two
    * residuals that relaxes the next one (doc/solver.md, "sweep-cg"): a
    * diagnostic whose last bits depend on the order of the sums over the

@@ -6,6 +6,7 @@
  * Hessian, and so Hessian-vector products, to 1e-13 relative; the value
  * (mrvi_terms_value) likewise.  The kernels do mrvi_element_eval's
  * arithmetic in its order, so the check is also made bitwise. */
+#include "model/model.h"
 #include "solver/solver.h"
 #include "testlib.h"
 
@@ -348,6 +349,81 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
  * compiled, the sweep-cg path's micro-step matrix) against the generic
  * evaluation scattered by mrvi_sblock_add_element, bitwise, and its
  * Hessian-vector products against central differences of the gradient. */
+/* sweep-cg's linearised chord updates (tuning.chord_linear) on a class of
+ * Hooke springs alone after mrvi_terms_set_recip, partitioned in np parts:
+ * mrvi_terms_grad_lin's gradient bitwise mrvi_terms_grad's; the Hessian
+ * products from its records against mrvi_terms_hessvec's (the generic
+ * derivatives) to 1e-13 relative and against central differences of the
+ * gradient; the parts in reverse order give the serial gradient, records
+ * and products bitwise.  Other classes (other laws, anchors) keep none. */
+static void check_lin(mrvi_terms *kt, const double *q, int n, int np, int d,
+                      const law_case *lc, int hooke, unsigned long long *rng) {
+  const long nl = mrvi_terms_lin_size(kt);
+  CHECK(hooke == (strcmp(lc->law, "linear") == 0 && nl > 0) &&
+            (hooke || nl == 0),
+        "d %d %s: %ld linearisation doubles (Hooke springs alone: %d)", d,
+        lc->law, nl, hooke);
+  if (nl <= 0)
+    return;
+  double *w = calloc(8 * (size_t)n, sizeof *w);
+  double *l1 = calloc(2 * (size_t)nl, sizeof *l1), *l2 = l1 + nl;
+  if (!w || !l1) {
+    CHECK(0, "d %d: memory", d);
+    free(w);
+    free(l1);
+    return;
+  }
+  double *g0 = w, *g1 = w + n, *g2 = w + 2 * n, *x = w + 3 * n;
+  double *h1 = w + 4 * n, *h2 = w + 5 * n, *h3 = w + 6 * n, *qq = w + 7 * n;
+  mrvi_terms_grad(kt, q, g0);
+  mrvi_terms_grad_lin(kt, q, g1, l1);
+  for (int c = np - 1; c >= 0; c--)
+    mrvi_terms_grad_lin_part(kt, c, q, g2, l2);
+  CHECK(!memcmp(g0, g1, (size_t)n * sizeof *g0) &&
+            !memcmp(g1, g2, (size_t)n * sizeof *g1) &&
+            !memcmp(l1, l2, (size_t)nl * sizeof *l1),
+        "d %d: the linearisation's gradient bitwise mrvi_terms_grad's, its "
+        "parts' gradient and records bitwise the serial ones",
+        d);
+  for (int i = 0; i < n; i++)
+    x[i] = uniform(rng);
+  const double s = 0.37;
+  mrvi_terms_hv_lin(kt, q, l1, x, s, h1);
+  for (int c = np - 1; c >= 0; c--)
+    mrvi_terms_hv_lin_part(kt, c, q, l1, x, s, h2);
+  mrvi_terms_hessvec(kt, q, 1, x, 0, h3, 0, s);
+  double e = 0.0, sc = 0.0;
+  for (int i = 0; i < n; i++) {
+    e = fmax(e, fabs(h1[i] - h3[i]));
+    sc = fmax(sc, fabs(h3[i]));
+  }
+  CHECK(!memcmp(h1, h2, (size_t)n * sizeof *h1),
+        "d %d: the products in parts bitwise the serial one", d);
+  CHECK(sc > 0.0 && e <= 1e-13 * sc,
+        "d %d: Hessian product from the records %.2e against "
+        "mrvi_terms_hessvec's (scale %.2e)",
+        d, e, sc);
+  /* ... and against central differences of the gradient along x */
+  const double h = 1e-6;
+  for (int i = 0; i < n; i++) {
+    qq[i] = q[i] + h * x[i];
+    g1[i] = g2[i] = 0.0;
+  }
+  mrvi_terms_grad(kt, qq, g1);
+  for (int i = 0; i < n; i++)
+    qq[i] = q[i] - h * x[i];
+  mrvi_terms_grad(kt, qq, g2);
+  double ef = 0.0;
+  for (int i = 0; i < n; i++)
+    ef = fmax(ef, fabs(h1[i] - s * (g1[i] - g2[i]) / (2 * h)));
+  CHECK(ef <= 1e-6 * sc,
+        "d %d: Hessian product %.2e against central "
+        "differences (scale %.2e)",
+        d, ef, sc);
+  free(w);
+  free(l1);
+}
+
 static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
   mrvi_model *m = spring_model_rate(d, lc, rng, MRVI_FAST);
   if (!m)
@@ -467,6 +543,26 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
               d, lc->law, lc->params[1], np, by_rec ? "records" : "columns",
               recip ? ", one division" : "");
       }
+      if (w3 && kt && np >= 2)
+        check_lin(kt, q, n, np, d, lc, 0, rng);
+      /* (the springs alone, without the anchors: a class of Hooke springs
+       * where the law is linear) */
+      mrvi_terms *kl = NULL;
+      int nsp = 0;
+      for (int e = 0; e < ne; e++)
+        if (m->elements[e].kind == MRVI_ELEMENT_SPRING)
+          w3[nsp++] = e; /* (the indices, read back below) */
+      int *sel = calloc((size_t)(nsp > 0 ? nsp : 1), sizeof *sel);
+      for (int e = 0; sel && e < nsp; e++)
+        sel[e] = (int)w3[e];
+      CHECK(sel && mrvi_terms_create(m, sel, nsp, m->slot, &kl) == MRVI_OK &&
+                mrvi_terms_set_threads(kl, 2, 2, by_rec ? 0 : n) == MRVI_OK,
+            "d %d %s: springs' threaded create", d, lc->law);
+      const int npl = kl ? mrvi_terms_parts(kl) : 0;
+      if (kl && npl >= 2)
+        check_lin(kl, q, n, npl, d, lc, mrvi_terms_set_recip(kl), rng);
+      mrvi_terms_free(kl);
+      free(sel);
       mrvi_terms_free(kt);
       free(w3);
     }

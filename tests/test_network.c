@@ -582,6 +582,17 @@ static void test_chord(void) {
   free(text);
 }
 
+/* The 10 x 8 lattice at dT = 0.03, p = 5 (the chord in every row),
+ * tolerance 1e-12, by the general path (s[0]) and twice by sweep-cg (s[1],
+ * s[2]): whether all three loaded. */
+static int chord_systems(const char *text, overrides o[3], mrvi_system *s[3]) {
+  for (int k = 0; k < 3; k++)
+    s[k] = load_text(
+        text,
+        set(&o[k], "explicit-slow", 5, 0.03, 1e-12, k ? "auto" : "general"), 5);
+  return s[0] && s[1] && s[2];
+}
+
 /* tuning.chord_carry (solver/sweep.c): each step's first rows extrapolate
  * the implicit force from the last rows of the step before.  On the 10 x 8
  * lattice at dT = 0.03, p = 5 (the chord in every row), tolerance 1e-12:
@@ -625,6 +636,53 @@ static void test_chord_carry(void) {
   free(text);
 }
 
+/* tuning.chord_linear (solver/sweep.c): each chord row's first plain
+ * update keeps the springs' Hessians and its next two updates take the
+ * residual linearised there (Hessian-vector products); the rows end on
+ * exact residuals alone.  On the 10 x 8 lattice at dT = 0.03, p = 5 (the
+ * chord in every row), tolerance 1e-12, without chord_carry: the general
+ * path's trajectory within 1e-10 (as without it), products taken, fewer
+ * gradients of W than without it, and resumed at node 5 the run continues
+ * bit for bit (the pattern is fixed within each row). */
+static void test_chord_linear(void) {
+  char *text = lattice(10, 8);
+  overrides o[3];
+  mrvi_system *sy[3];
+  trajectory tr[3];
+  const int ok = chord_systems(text, o, sy);
+  for (int k = 1; ok && k < 3; k++) {
+    sy[k]->settings.tuning.chord_carry = 0;
+    sy[k]->settings.tuning.chord_linear = k == 2 ? 2 : 0;
+  }
+  for (int k = 0; ok && k < 3; k++)
+    run(sy[k], 10, &tr[k]);
+  const trajectory *a = &tr[0], *b = &tr[1], *c = &tr[2];
+  if (ok && a->ok && b->ok && c->ok) {
+    const double d = rel_diff(a, c), d0 = rel_diff(a, b);
+    CHECK(!strcmp(c->path, "sweep-cg"), "chord linear: path %s", c->path);
+    CHECK(d <= 1e-10, "chord linear: vs general %.2e", d);
+    CHECK(b->ks.sweep_products_w == 0 && c->ks.sweep_products_w > 0 &&
+              c->ks.sweep_evals_w < b->ks.sweep_evals_w,
+          "chord linear: %ld gradients of W and %ld products, %ld and %ld "
+          "without",
+          c->ks.sweep_evals_w, c->ks.sweep_products_w, b->ks.sweep_evals_w,
+          b->ks.sweep_products_w);
+    mrvi_integrator *it = NULL;
+    CHECK(resumes_bitwise(sy[2], c, 5, &it),
+          "chord linear: resumed at node 5, not bit for bit");
+    mrvi_integrator_free(it);
+    printf("chord linear: %ld gradients of W and %ld products (%ld "
+           "gradients without), vs general %.2e (%.2e without)\n",
+           c->ks.sweep_evals_w, c->ks.sweep_products_w, b->ks.sweep_evals_w, d,
+           d0);
+  }
+  for (int k = 0; ok && k < 3; k++)
+    release(&tr[k]);
+  for (int k = 0; k < 3; k++)
+    mrvi_system_free(sy[k]);
+  free(text);
+}
+
 /* sweep-cg's chord on threads (doc/performance.md, "Threads"): the 40 x 20
  * perturbed lattice (800 fast coordinates, moving everywhere) by
  * explicit-slow with the chord's pass and the row ends in parts of 16
@@ -633,8 +691,10 @@ static void test_chord_carry(void) {
  * bits follow the order of the sums over the parts: the trajectory does
  * not show them) the same bit for bit.  Summing the parts in another
  * order on more than one thread (an OpenMP reduction) fails here.  With
- * carry, the same with tuning.chord_carry (the history kept per entry). */
-static void test_chord_threads(int carry) {
+ * carry, the same with tuning.chord_carry (the history kept per entry);
+ * with lin, with tuning.chord_linear (the linearised updates' products in
+ * the parts). */
+static void test_chord_threads(int carry, int lin) {
   char *text = lattice(40, 20);
   trajectory t[3];
   memset(t, 0, sizeof t);
@@ -648,6 +708,7 @@ static void test_chord_threads(int carry) {
       sys->settings.threads = k + 1;
       sys->settings.tuning.thread_chunk = 16;
       sys->settings.tuning.chord_carry = carry;
+      sys->settings.tuning.chord_linear = lin;
       run(sys, 6, &t[k]);
     }
     ok = ok && t[k].ok;
@@ -656,7 +717,9 @@ static void test_chord_threads(int carry) {
   if (ok) {
     CHECK(!strcmp(t[0].path, "sweep-cg"), "chord threads: path %s", t[0].path);
     CHECK(t[0].ks.sweep_chord_sum != 0.0, "chord threads: no relaxation");
-    printf("chord threads, chord_carry %d:\n", carry);
+    printf("chord threads, chord_carry %d, chord_linear %d:\n", carry, lin);
+    CHECK(!lin || t[0].ks.sweep_products_w > 0,
+          "chord threads: no linearised update");
     const size_t n = (size_t)(t[0].steps + 1) * (size_t)t[0].n;
     for (int k = 1; k < 3; k++) {
       CHECK(!memcmp(t[0].q, t[k].q, n * sizeof(double)) &&
@@ -861,8 +924,10 @@ static void test_forced_shipped(void) {
 int main(void) {
   test_chord();
   test_chord_carry();
-  test_chord_threads(0);
-  test_chord_threads(1);
+  test_chord_threads(0, 0);
+  test_chord_threads(1, 0);
+  test_chord_threads(1, 2);
+  test_chord_linear();
   test_choice();
   test_agree();
   test_iterations();

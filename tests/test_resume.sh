@@ -486,6 +486,11 @@ resume_case "lattice, chord_carry, every 3" 300 "${lat[@]}" \
 "$py" -c 'import sys, h5py; h = h5py.File(sys.argv[1], "r")["resume/chord_history"]; sys.exit(0 if h[0] == 300 and h[1] == 800 and len(h) == 2 + 5 * 800 else 1)' \
   "$tmp/ref.h5" && pass "chord_carry: the last node's history (800 per row) stored" ||
   fail "chord_carry: /resume/chord_history is not node 300's of 800 entries per row"
+# tuning.chord_linear (the linearised chord updates: a pattern fixed within
+# each row) with the history: bit for bit as well.
+resume_case "lattice, chord_carry, chord_linear" 300 "${lat[@]}" \
+  --set integrator.tuning.chord_linear=2 --set integrator.t_end=15 \
+  --set output.every=3
 # (flushes every 0.1 ms: the stop at step 150 leaves stored nodes; ch_ref:
 # the uninterrupted run of the same description)
 lat+=(--set integrator.t_end=15 --set output.every=3

@@ -1886,6 +1886,7 @@ void mrvi_integrator_krylov_stats(const mrvi_integrator *it,
   out->newton_built = it->skrylov != NULL;
   if (it->sweep) {
     mrvi_sweep_evals(it->sweep, &out->sweep_evals_w, &out->sweep_evals_v);
+    out->sweep_products_w = mrvi_sweep_evals_lin(it->sweep);
     out->sweep_chord_sum = mrvi_sweep_chord_sum(it->sweep);
   }
   if (it->outer) {

@@ -316,6 +316,9 @@ int mrvi_sweep_explicit_p1(mrvi_sweep *sw, const mrvi_step *st, double *x,
 const mrvi_krylov_stats *mrvi_sweep_stats(const mrvi_sweep *sw);
 /* Evaluations of grad W (fast class) and grad V (slow class) so far. */
 void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v);
+/* The linearised chord updates' Hessian-vector products of W
+ * (tuning.chord_linear). */
+long mrvi_sweep_evals_lin(const mrvi_sweep *sw);
 /* sweep-cg: the chord's relaxation ratios summed since creation
  * (mrvi_krylov_stats.sweep_chord_sum). */
 double mrvi_sweep_chord_sum(const mrvi_sweep *sw);
@@ -476,6 +479,25 @@ int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
  * kc is Hooke springs alone (returns whether it is; else nothing
  * changes): the last bits differ from mrvi_terms_eval's gradient. */
 int mrvi_terms_set_recip(mrvi_terms *kc);
+/* sweep-cg's linearised chord updates (doc/solver.md, "sweep-cg"), on a
+ * class of Hooke springs alone after mrvi_terms_set_recip: the doubles of
+ * the per-spring Hessian records (2 per spring: t = phi'/r and
+ * a = (c - t)/r^2, the Hessian t I + a d d^T of d = x_i - x_j), 0 where
+ * the class is not such a class.  mrvi_terms_grad_lin: g += grad Z(z)
+ * (mrvi_terms_grad's bits) and the records at z into lin;
+ * mrvi_terms_hv_lin: g += s hess Z(z0) x from them (z0 the z of
+ * mrvi_terms_grad_lin), no square root, no division.  The _part forms:
+ * part c's columns (mrvi_terms_grad_part), the serial values bitwise. */
+long mrvi_terms_lin_size(const mrvi_terms *kc);
+void mrvi_terms_grad_lin(const mrvi_terms *kc, const double *z, double *g,
+                         double *lin);
+void mrvi_terms_grad_lin_part(const mrvi_terms *kc, int c, const double *z,
+                              double *g, double *lin);
+void mrvi_terms_hv_lin(const mrvi_terms *kc, const double *z0,
+                       const double *lin, const double *x, double s, double *g);
+void mrvi_terms_hv_lin_part(const mrvi_terms *kc, int c, const double *z0,
+                            const double *lin, const double *x, double s,
+                            double *g);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
 /* The parts of a partitioned class (0: not partitioned), and g +=

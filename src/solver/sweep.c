@@ -174,6 +174,16 @@ struct mrvi_sweep {
   int carry_on, carry, carry_next;
   int imp; /* the interval's one implicit point, or -1 (several or none) */
   long evals_w, evals_v; /* gradient evaluations (mrvi_sweep_evals) */
+  /* tuning.chord_linear (lin_n > 0): a chord row's first plain update
+   * (after row 0's fresh one) evaluates the gradient with each spring's
+   * Hessian kept (lin, mrvi_terms_grad_lin) at the configuration zl, and
+   * its next lin_n updates take the residual linearised there
+   * (g += cB hess W(zl) (dn - dprev), mrvi_terms_hv_lin: no square root,
+   * no division); the rows' convergence is tested on exact residuals
+   * alone.  evals_lin: the products (mrvi_sweep_evals_lin). */
+  int lin_n;
+  double *lin, *zl;
+  long evals_lin;
 };
 
 /* The structure the sweep needs, or the reason it is missing. */
@@ -375,6 +385,8 @@ void mrvi_sweep_evals(const mrvi_sweep *sw, long *w, long *v) {
 
 double mrvi_sweep_chord_sum(const mrvi_sweep *sw) { return sw->lam_sum; }
 
+long mrvi_sweep_evals_lin(const mrvi_sweep *sw) { return sw->evals_lin; }
+
 void mrvi_sweep_free(mrvi_sweep *sw) {
   if (!sw)
     return;
@@ -395,6 +407,8 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->gv_next);
   free(sw->cpass);
   free(sw->zalt);
+  free(sw->zl);
+  free(sw->lin);
   free(sw->gpt[0]);
   free(sw->gpt[1]);
   free(sw->rhs_buf);
@@ -590,6 +604,13 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->cpass = dalloc(7 * (size_t)sw->n_cpass);
 
   sw->zalt = dalloc(sw->cfused ? nf : 1);
+  /* (the linearised updates: W's class of Hooke springs alone, the chord
+   * from row 0's start) */
+  const long nlin =
+      sparse && sw->fresh ? mrvi_terms_lin_size(sw->kc[MRVI_FAST]) : 0;
+  sw->lin_n = nlin > 0 ? s->tuning.chord_linear : 0;
+  sw->lin = dalloc(sw->lin_n > 0 ? (size_t)nlin : 1);
+  sw->zl = dalloc(sw->lin_n > 0 ? nf : 1);
   const int quad_w = mrvi_terms_quadratic(sw->kc[MRVI_FAST]);
   /* A quadratic W on a dense block: one factorisation per run. */
   sw->linear = sw->implicit && !sparse && quad_w;
@@ -617,7 +638,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
       !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
       !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
-      !sw->fhist[2] || !sw->fhist[3]) {
+      !sw->fhist[2] || !sw->fhist[3] || !sw->lin || !sw->zl) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -1011,13 +1032,16 @@ static void chord_setup(mrvi_sweep *sw) {
  * M dn/dt is formed as M dn (1/dt): no division in the pass.  light: the
  * test of a row's expected last iterate, F's maximum, sum and the sums
  * alone, neither F nor the next iterate stored (4 streams read instead of
- * 6 read and 3 written); the same values of r, on and oo. */
+ * 6 read and 3 written); the same values of r, on and oo.  step: zf
+ * gets the update om D^-1 F instead of the next configuration (the
+ * linearised updates' product reads it, tuning.chord_linear). */
 ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
                               const double *restrict dn,
                               const double *restrict g, double om, double wc,
                               double cB, double *restrict zf, int f0,
                               const int nf, double out[4], const int unit,
-                              const int keep, const int inc, const int light) {
+                              const int keep, const int inc, const int light,
+                              const int step) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
@@ -1039,11 +1063,13 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
     if (keep)
       v2_store(fimp + f, fi);
     if (!light) {
-      const mrvi_v2 dx = v2_add(d, v2_mul(v2_scale(om, v2_load(jd + f)), Ff));
+      const mrvi_v2 s = v2_mul(v2_scale(om, v2_load(jd + f)), Ff);
+      const mrvi_v2 dx = v2_add(d, s);
       v2_store(F + f, Ff);
       v2_store(dnx + f, dx);
       v2_store(zf + f,
-               v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
+               step ? s
+                    : v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
     }
     vmax = v2_max(a, vmax);
     vsum = v2_add(vsum, a);
@@ -1058,8 +1084,9 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
     on += Ff * F[f];
     oo += F[f] * F[f];
     if (!light) {
-      dnx[f] = dn[f] + om * jd[f] * Ff;
-      zf[f] = 1.0 * qm[f] + cB * dnx[f];
+      const double s = om * jd[f] * Ff;
+      dnx[f] = dn[f] + s;
+      zf[f] = step ? s : 1.0 * qm[f] + cB * dnx[f];
       F[f] = Ff;
     }
     const double a = unit ? fabs(Ff) : fabs(Ff) * rw[f];
@@ -1080,18 +1107,22 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
 static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
                             const double *g, double om, double wc, double cB,
                             double *zn, int f0, int f1, double out[4],
-                            int light) {
+                            int light, int step) {
   const int unit = sw->rw_one, keep = sw->n_w != 1;
   if (light && unit && !keep && !sw->mass_inc)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 1);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 1, 0);
   else if (light)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, keep, 1, 1);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, keep, 1, 1, 0);
+  else if (step && unit && !keep && !sw->mass_inc)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 0, 1);
+  else if (step)
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1, 0, 1);
   else if (unit && !keep && !sw->mass_inc)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 0);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 0, 0);
   else if (unit && !keep)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 1, 0);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 1, 0, 0);
   else
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1, 0);
+    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1, 0, 0);
 }
 
 /* The chord pass's part sums combined in order (the maximum, the sums). */
@@ -1137,7 +1168,8 @@ static void fresh_part(mrvi_sweep *sw, int c, const double *qm,
   zero(sw->off + f0, f1 - f0);
   mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, sw->hd, sw->off, hs);
   sw->cpass[4 * n_c + c] = fresh_bound(sw, f0, f1); /* (after the sums) */
-  chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, sw->cpass + 4 * c, 0);
+  chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, sw->cpass + 4 * c, 0,
+                  0);
 }
 
 /* After the parts: zn becomes zf, the bound and row residual returned. */
@@ -1231,10 +1263,11 @@ static void defer_end(mrvi_sweep *sw);
 
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
                              int zf_ok, int fresh, int track, int light,
-                             double *rho) {
+                             int lin, int step, double *rho) {
   const int nf = sw->nf, i = sw->imp;
   const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
+  light = light && !lin; /* (zl's configuration kept: the full pass) */
   /* the last row's end, unless it runs in the first update's region */
   const int dfr = sw->defer.on && !fresh && sw->cfused && zf_ok && !light;
   if (sw->defer.on && !dfr)
@@ -1251,21 +1284,35 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, sw->hd, sw->off,
                           sw->w[i] * sw->cA[i] * sw->cB[i]);
     *rho = sw->rho_c = fresh_bound(sw, 0, nf);
+  } else if (!sw->cfused && lin == 2) { /* g += cB H(zl) (dn - dprev) */
+    sw->evals_lin++;
+    mrvi_terms_hv_lin(sw->kc[MRVI_FAST], sw->zl, sw->lin, sw->zf, cB, g);
+  } else if (!sw->cfused && lin == 1) {
+    sw->evals_w++;
+    zero(g, nf);
+    mrvi_terms_grad_lin(sw->kc[MRVI_FAST], sw->zf, g, sw->lin);
   } else if (!sw->cfused) {
     fast_gradient(sw, sw->zf, g, nf);
+  }
+  if (lin == 1 && !sw->cfused) { /* (zl keeps this configuration) */
+    double *z = sw->zl;
+    sw->zl = sw->zf;
+    sw->zf = z;
   }
   const double om = 1.0 / (1.0 - sw->lam);
   double t[4];
   const int n_c = sw->n_cpass;
   int grad = !fresh && sw->cfused;
   light = light && !fresh;
+  const double *zl = sw->zl;
 again:
   if (n_c == 0) {
-    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t, light);
+    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t, light, step);
   } else {
     double *cp = sw->cpass, *zn = grad && !light ? sw->zalt : sw->zf;
     const double *zf = sw->zf;
-    sw->evals_w += grad;
+    sw->evals_w += grad && lin != 2;
+    sw->evals_lin += grad && lin == 2;
 #ifdef _OPENMP
 #pragma omp parallel num_threads(sw->pthreads)
 #endif
@@ -1283,12 +1330,17 @@ again:
       for (int c = 0; c < n_c; c++) {
         const int f0 = mrvi_part_start(c, nf, n_c);
         const int f1 = mrvi_part_start(c + 1, nf, n_c);
-        if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
+        if (grad && lin == 2) /* (mrvi_terms_hv_lin's rows) */
+          mrvi_terms_hv_lin_part(sw->kc[MRVI_FAST], c, zl, sw->lin, zf, cB, g);
+        else if (grad) { /* part c's gradient rows (fast_gradient's, bitwise) */
           zero(g + f0, f1 - f0);
-          mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+          if (lin == 1)
+            mrvi_terms_grad_lin_part(sw->kc[MRVI_FAST], c, zf, g, sw->lin);
+          else
+            mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
         }
         chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c,
-                        light);
+                        light, step && !light);
       }
     }
     if (dfr)
@@ -1296,6 +1348,10 @@ again:
     if (grad && !light) { /* (zalt: the next configuration) */
       sw->zalt = sw->zf;
       sw->zf = zn;
+      if (lin == 1) { /* (zl keeps this one) */
+        sw->zalt = sw->zl;
+        sw->zl = (double *)zf;
+      }
     }
     chord_parts_sum(cp, n_c, t);
   }
@@ -1389,6 +1445,16 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
    * a micro step that converges in one update assembles J once. */
   int chord = sw->chord, with_j = !chord, min_it = 1;
   double r_prev = HUGE_VAL;
+  /* tuning.chord_linear: the update (it) whose gradient keeps the springs'
+   * Hessians, after it lin_n linearised residuals at most (lin_last the
+   * last), each only where the last residual missed the tolerance: a
+   * pattern fixed within the row, so that a step depends on its start
+   * alone (and the threads' parts give the serial values).  The passes
+   * before a linearised residual write the update into zf (its product
+   * reads it), not the configuration. */
+  const int lin_at = first && sw->fresh ? 1 : 0;
+  const int lin_last = lin_at + sw->lin_n;
+  int lin = 0;
   /* At least one update: the predictor is second-order accurate, so at tiny
    * steps its residual can pass the tolerance while its momentum error,
    * summed over many micro steps, exceeds the truncation error. */
@@ -1401,10 +1467,16 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         r = sw->pre[2];
         rho = sw->pre[3];
         sw->pstart = 0;
-      } else
+      } else {
+        lin = sw->lin_n <= 0 || it < lin_at || it > lin_last ? 0
+              : it == lin_at                                 ? 1
+              : lin == 0 || !(r_prev > sw->tol)              ? 0
+                                                             : 2;
         r = chord_residual(
             sw, qm, dn, zf_ok, first && sw->fresh && it == 0, it >= 1,
-            it >= min_it && it >= (first ? sw->expect0 : sw->expect), &rho);
+            it >= min_it && it >= (first ? sw->expect0 : sw->expect), lin,
+            lin && it < lin_last, &rho);
+      }
       if (deferred) {
         floor = 16.0 * DBL_EPSILON * sw->pred_scale;
         deferred = 0;
@@ -1417,6 +1489,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         continue;
       }
     } else {
+      lin = 0; /* (Newton: exact residuals) */
       if (with_j && sw->sparse) {
         const int s = sblock_ready(sw, msg, len);
         if (s < 0)
@@ -1445,7 +1518,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
      * last update lands far below the tolerance where the chord's lands
      * just below it. */
     const int stalled = !(chord && it >= 1 && r <= sw->chord_max * r_prev);
-    if (it >= min_it && (r <= sw->tol || (r <= floor && (stalled || !chord)))) {
+    if (it >= min_it && lin != 2 &&
+        (r <= sw->tol || (r <= floor && (stalled || !chord)))) {
       if (chord && first)
         sw->expect0 = it;
       if (chord)
@@ -1486,7 +1560,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       sw->dprev = dn;
       dn = sw->dn = sw->dnx;
       sw->dnx = t;
-      zf_ok = 1;
+      /* (zf holds the update where a linearised one was to follow: the
+       * configuration set afresh where it does not) */
+      zf_ok = !(lin && it < lin_last) || r > sw->tol;
       continue;
     }
     if (chord) { /* dn += D^-1 F */

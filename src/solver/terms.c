@@ -1629,6 +1629,152 @@ int mrvi_terms_set_recip(mrvi_terms *kc) {
   return all;
 }
 
+/* The linearised chord updates of sweep-cg (doc/solver.md, "sweep-cg"):
+ * a class of khooke springs with one division per spring
+ * (mrvi_terms_set_recip), each record's Hessian at z0 kept as two numbers
+ * next to the gradient there.  A spring's Hessian with respect to
+ * d = x_i - x_j is t I + a d d^T, t = phi'/r = c (r - shift)/r and
+ * a = (c - t)/r^2 (0 and 0 at r = 0). */
+long mrvi_terms_lin_size(const mrvi_terms *kc) {
+  if (!kc->recip || kc->hooke_only || !kc->qh || kc->n < 1 ||
+      (kc->part_first && !kc->part_hooke))
+    return 0;
+  return 2 * (long)kc->n;
+}
+
+/* Records r0 .. r0 + nr - 1: hooke_grad_k's arithmetic with one = 1 (the
+ * same gradient bits) and each record's (a, t) into lin. */
+ALWAYS_INLINE void hooke_grad_lin_k(const khooke *q, int r0, int nr,
+                                    const double *z, double *g, double *lin,
+                                    const int dim) {
+  for (int r = r0; r < r0 + nr; r++) {
+    const khooke h = q[r];
+    double d[3], r2 = 0.0;
+    UNROLL for (int k = 0; k < dim; k++) {
+      d[k] = z[h.ci + k] - z[h.cj + k];
+      r2 += d[k] * d[k];
+    }
+    const double rr = sqrt(r2), d1 = h.c * (rr - h.shift), ir = recip_len(rr);
+    const double t = d1 * ir;
+    lin[2 * r] = (h.c - t) * ir * ir;
+    lin[2 * r + 1] = t;
+    UNROLL for (int k = 0; k < dim; k++) g[h.ci + k] += d1 * (d[k] * ir);
+    UNROLL for (int k = 0; k < dim; k++) g[h.cj + k] += -d1 * (d[k] * ir);
+  }
+}
+
+/* One record's product: h = (t I + a d d^T) (x_i - x_j), d from z0. */
+ALWAYS_INLINE void hooke_hv_one(const khooke *h, const double *lr,
+                                const double *z0, const double *x,
+                                double h_out[3], const int dim) {
+  double d[3], e[3], dd = 0.0;
+  UNROLL for (int k = 0; k < dim; k++) {
+    d[k] = z0[h->ci + k] - z0[h->cj + k];
+    e[k] = x[h->ci + k] - x[h->cj + k];
+    dd += d[k] * e[k];
+  }
+  const double ad = lr[0] * dd;
+  UNROLL for (int k = 0; k < dim; k++) h_out[k] = ad * d[k] + lr[1] * e[k];
+}
+
+ALWAYS_INLINE void hooke_hv_k(const khooke *q, int r0, int nr, const double *z0,
+                              const double *lin, const double *x, double s,
+                              double *g, const int dim) {
+  for (int r = r0; r < r0 + nr; r++) {
+    double h[3];
+    hooke_hv_one(q + r, lin + 2 * r, z0, x, h, dim);
+    UNROLL for (int k = 0; k < dim; k++) g[q[r].ci + k] += s * h[k];
+    UNROLL for (int k = 0; k < dim; k++) g[q[r].cj + k] += -(s * h[k]);
+  }
+}
+
+/* Part c's records (mrvi_terms_set_threads) of either kernel, in the
+ * serial order on the columns of their masks; lin written by the part
+ * holding a record's first column alone. */
+ALWAYS_INLINE void part_lin_k(const mrvi_terms *kc, int c, const double *z,
+                              double *g, double *lin, const double *x, double s,
+                              const int dim, const int hv) {
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  const int *rec = kc->part_rec + r0, *run = kc->part_run + r0;
+  const unsigned char *mask = kc->part_mask + r0;
+  for (int i = 0; i < nr; i++) {
+    if (run[i] > 0) { /* whole records: the serial loop, the same sums */
+      if (hv)
+        hooke_hv_k(kc->qh, rec[i], run[i], z, lin, x, s, g, dim);
+      else
+        hooke_grad_lin_k(kc->qh, rec[i], run[i], z, g, lin, dim);
+      i += run[i] - 1;
+      continue;
+    }
+    const khooke *h = kc->qh + rec[i];
+    const unsigned mk = mask[i];
+    double v[3];
+    if (hv) {
+      hooke_hv_one(h, lin + 2 * rec[i], z, x, v, dim);
+      UNROLL for (int k = 0; k < dim; k++) v[k] = s * v[k];
+    } else {
+      double d[3], r2 = 0.0;
+      UNROLL for (int k = 0; k < dim; k++) {
+        d[k] = z[h->ci + k] - z[h->cj + k];
+        r2 += d[k] * d[k];
+      }
+      const double rr = sqrt(r2), d1 = h->c * (rr - h->shift),
+                   ir = recip_len(rr), t = d1 * ir;
+      if (mk & 1u) {
+        lin[2 * rec[i]] = (h->c - t) * ir * ir;
+        lin[2 * rec[i] + 1] = t;
+      }
+      UNROLL for (int k = 0; k < dim; k++) v[k] = d1 * (d[k] * ir);
+    }
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[h->ci + k] += v[k];
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k))
+        g[h->cj + k] += -v[k];
+  }
+}
+
+void mrvi_terms_grad_lin(const mrvi_terms *kc, const double *z, double *g,
+                         double *lin) {
+  if (kc->dim == 2)
+    hooke_grad_lin_k(kc->qh, 0, kc->n, z, g, lin, 2);
+  else if (kc->dim == 3)
+    hooke_grad_lin_k(kc->qh, 0, kc->n, z, g, lin, 3);
+  else
+    hooke_grad_lin_k(kc->qh, 0, kc->n, z, g, lin, 1);
+}
+
+void mrvi_terms_grad_lin_part(const mrvi_terms *kc, int c, const double *z,
+                              double *g, double *lin) {
+  if (kc->dim == 2)
+    part_lin_k(kc, c, z, g, lin, NULL, 0.0, 2, 0);
+  else if (kc->dim == 3)
+    part_lin_k(kc, c, z, g, lin, NULL, 0.0, 3, 0);
+  else
+    part_lin_k(kc, c, z, g, lin, NULL, 0.0, 1, 0);
+}
+
+void mrvi_terms_hv_lin(const mrvi_terms *kc, const double *z0,
+                       const double *lin, const double *x, double s,
+                       double *g) {
+  if (kc->dim == 2)
+    hooke_hv_k(kc->qh, 0, kc->n, z0, lin, x, s, g, 2);
+  else if (kc->dim == 3)
+    hooke_hv_k(kc->qh, 0, kc->n, z0, lin, x, s, g, 3);
+  else
+    hooke_hv_k(kc->qh, 0, kc->n, z0, lin, x, s, g, 1);
+}
+
+void mrvi_terms_hv_lin_part(const mrvi_terms *kc, int c, const double *z0,
+                            const double *lin, const double *x, double s,
+                            double *g) {
+  double *l = (double *)lin; /* (read alone where hv) */
+  if (kc->dim == 2)
+    part_lin_k(kc, c, z0, g, l, x, s, 2, 1);
+  else if (kc->dim == 3)
+    part_lin_k(kc, c, z0, g, l, x, s, 3, 1);
+  else
+    part_lin_k(kc, c, z0, g, l, x, s, 1, 1);
+}
+
 int mrvi_terms_threads(const mrvi_terms *kc) {
   return kc->threads > 1 ? kc->threads : 1;
 }
