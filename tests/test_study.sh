@@ -199,9 +199,11 @@ done
 # catches them).
 if busy_start; then
   # workers_seen ARGS...: runs stability ARGS, prints 1 if a child of it
-  # was seen while it ran, else 0, then its exit status
+  # was seen while it ran, else 0, then its exit status. Leak detection off:
+  # under AddressSanitizer its check at exit runs in a child process.
   workers_seen() {
-    taskset -c 0,1 "$mrvi" stability "$root/systems/oscillator.yaml" -q "$@" &
+    ASAN_OPTIONS="${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0" \
+      taskset -c 0,1 "$mrvi" stability "$root/systems/oscillator.yaml" -q "$@" &
     local pid=$! seen=0
     while kill -0 "$pid" 2>/dev/null; do
       [ -n "$(pgrep -P "$pid")" ] && seen=1
