@@ -91,12 +91,7 @@ static void body_rotation(uint64_t seed, int b, int D, double s, int uni,
     const double f = a > 0 ? sin(0.5 * a) / a : 0.5;
     w = cos(0.5 * a), x = f * t[0], y = f * t[1], z = f * t[2];
   }
-  R[0] = 1 - 2 * (y * y + z * z), R[1] = 2 * (x * y - w * z),
-  R[2] = 2 * (x * z + w * y);
-  R[3] = 2 * (x * y + w * z), R[4] = 1 - 2 * (x * x + z * z),
-  R[5] = 2 * (y * z - w * x);
-  R[6] = 2 * (x * z - w * y), R[7] = 2 * (y * z + w * x),
-  R[8] = 1 - 2 * (x * x + y * y);
+  mrvi_quaternion_rotation(w, x, y, z, R);
 }
 
 static void rotate_bodies(mrvi_model *m, uint64_t seed, double s, int uni) {

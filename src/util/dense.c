@@ -130,6 +130,16 @@ int mrvi_uf_root(int *up, int a) {
   return a;
 }
 
+void mrvi_quaternion_rotation(double w, double x, double y, double z,
+                              double *R) {
+  R[0] = 1 - 2 * (y * y + z * z), R[1] = 2 * (x * y - w * z),
+  R[2] = 2 * (x * z + w * y);
+  R[3] = 2 * (x * y + w * z), R[4] = 1 - 2 * (x * x + z * z),
+  R[5] = 2 * (y * z - w * x);
+  R[6] = 2 * (x * z - w * y), R[7] = 2 * (y * z + w * x),
+  R[8] = 1 - 2 * (x * x + y * y);
+}
+
 void mrvi_degree_order(int n, const int *deg, int *order, int *pos) {
   for (int i = 0; i < n; i++) { /* insertion sort */
     int k = i;

@@ -81,6 +81,10 @@ void mrvi_degree_order(int n, const int *deg, int *order, int *pos);
  * halving the path on the way (the cycle tests of the forests of joints,
  * rods and fast springs). */
 int mrvi_uf_root(int *up, int a);
+/* R (3 x 3, row-major) <- the rotation of the unit quaternion
+ * w + x i + y j + z k: R = (w^2 - |v|^2) I + 2 v v^T + 2 w [v]x. */
+void mrvi_quaternion_rotation(double w, double x, double y, double z,
+                              double *R);
 /* Step k of that factorisation's pivoting: the largest |A_ik|, i >= k, its
  * row in piv[k] and swapped with row k; -1 if that column is zero. */
 int mrvi_dense_lu_pivot(int n, double *A, int *piv, int k);

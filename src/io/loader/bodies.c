@@ -38,13 +38,7 @@ static int load_orientation(loader *L, struct fy_node *n, int D, double *R) {
                             "{quaternion}, not both");
       if ((st = mrvi_ld_as_unit(L, qn, "quaternion", 4, k)))
         return st;
-      const double w = k[0], x = k[1], y = k[2], z = k[3];
-      const double Q[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z),
-                           2 * (x * z + w * y),     2 * (x * y + w * z),
-                           1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                           2 * (x * z - w * y),     2 * (y * z + w * x),
-                           1 - 2 * (x * x + y * y)};
-      memcpy(R, Q, sizeof Q);
+      mrvi_quaternion_rotation(k[0], k[1], k[2], k[3], R);
       return MRVI_OK;
     }
     if ((st = mrvi_ld_need(L, n, "axis", "orientation", &an)) ||
