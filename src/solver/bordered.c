@@ -87,12 +87,18 @@ struct mrvi_bordered {
   int a, b, p, ka;
   int *rblk, *roff, *dpiv, *spiv, *ycol;
   /* The structure, listed once at creation: the entries of L1_c, L2_c
-   * (rows li, columns lj, by rows; list 2 c + k - 1 from lp), of Asf
+   * (rows li, columns lj, by rows; list 2 c + k - 1 from lp; its row i
+   * from lr[(2 c + k - 1) (b + 1) + i]), of Asf
    * (columns sfj of slow row i from sfp[i]) and the kept slow columns kt
    * (ka: the column t of Y's r-th).  Workspace dnz (b) for the LU.  Of
    * those, the kv with a nonzero in A_fs at this factorisation (their slow
    * columns kvt), Y's columns at stride kv. */
-  int *lp, *li, *lj, *sfp, *sfj, *kt, *dnz, *kvt, kv;
+  int *lp, *lr, *li, *lj, *sfp, *sfj, *kt, *dnz, *kvt, kv;
+  /* The nonzeros of each factored D_c, listed after its factorisation
+   * (lu_lists): per block 2 b + 1 offsets in fo (L's column k from
+   * fo[k], U's row i without the diagonal from fo[b + i]) into the indices
+   * fi (at most b^2 - b per block, from c b^2). */
+  int *fo, *fi;
   double **dst;
   double *nbuf, *Ass, *Asf, *Y, *D, *L1, *L2, *S, *z;
   size_t n_nbuf;
@@ -115,6 +121,7 @@ void mrvi_bordered_free(mrvi_bordered *bd) {
   free(bd->spiv);
   free(bd->ycol);
   free(bd->lp);
+  free(bd->lr);
   free(bd->li);
   free(bd->lj);
   free(bd->sfp);
@@ -122,6 +129,8 @@ void mrvi_bordered_free(mrvi_bordered *bd) {
   free(bd->kt);
   free(bd->kvt);
   free(bd->dnz);
+  free(bd->fo);
+  free(bd->fi);
   free(bd->dst);
   free(bd->nbuf);
   free(bd->K);
@@ -157,6 +166,7 @@ static int node_lists(mrvi_bordered *bd, const mrvi_step *st) {
   const int a = bd->a, b = bd->b, p = bd->p, nnz = st->Ap[st->n_total];
   const size_t pb = (size_t)p * (size_t)b, bb = (size_t)b * (size_t)b;
   bd->lp = malloc((2 * (size_t)p + 1) * sizeof *bd->lp);
+  bd->lr = malloc((2 * (size_t)p * ((size_t)b + 1) + 1) * sizeof *bd->lr);
   bd->li = malloc(((size_t)nnz + 1) * sizeof *bd->li);
   bd->lj = malloc(((size_t)nnz + 1) * sizeof *bd->lj);
   bd->sfp = malloc(((size_t)a + 1) * sizeof *bd->sfp);
@@ -164,8 +174,8 @@ static int node_lists(mrvi_bordered *bd, const mrvi_step *st) {
   bd->kt = malloc(((size_t)a + 1) * sizeof *bd->kt);
   bd->kvt = malloc(((size_t)a + 1) * sizeof *bd->kvt);
   bd->dnz = malloc(((size_t)b + 1) * sizeof *bd->dnz);
-  if (!bd->lp || !bd->li || !bd->lj || !bd->sfp || !bd->sfj || !bd->kt ||
-      !bd->kvt || !bd->dnz)
+  if (!bd->lp || !bd->lr || !bd->li || !bd->lj || !bd->sfp || !bd->sfj ||
+      !bd->kt || !bd->kvt || !bd->dnz)
     return MRVI_ENOMEM;
   for (int q = 0; q < nnz; q++)
     *bd->dst[q] = 1.0;
@@ -173,11 +183,15 @@ static int node_lists(mrvi_bordered *bd, const mrvi_step *st) {
   for (int c = 0; c < p; c++)
     for (int k = 1; k <= 2; k++) {
       const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * bb;
+      int *lr = bd->lr + (size_t)(2 * c + k - 1) * ((size_t)b + 1);
       bd->lp[2 * c + k - 1] = e;
-      for (int i = 0; i < b; i++)
+      for (int i = 0; i < b; i++) {
+        lr[i] = e;
         for (int j = 0; j < b; j++)
           if (L[(size_t)i * b + j] != 0.0)
             bd->li[e] = i, bd->lj[e++] = j;
+      }
+      lr[b] = e;
     }
   bd->lp[2 * p] = e;
   e = 0;
@@ -208,10 +222,12 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   bd->spiv = malloc((a + 1) * sizeof *bd->spiv);
   bd->ycol = calloc(a + 1, sizeof *bd->ycol);
   bd->dst = malloc(((size_t)st->Ap[n] + 1) * sizeof *bd->dst);
+  bd->fo = malloc(((size_t)p * (2 * b + 1) + 1) * sizeof *bd->fo);
+  bd->fi = malloc((pb * b + 1) * sizeof *bd->fi);
   bd->n_nbuf = 2 * a * a + 2 * a * pb + 3 * pb * b + pb + a;
   bd->nbuf = calloc(bd->n_nbuf + 1, sizeof *bd->nbuf);
   if (!bd->rblk || !bd->roff || !bd->dpiv || !bd->spiv || !bd->ycol ||
-      !bd->dst || !bd->nbuf)
+      !bd->dst || !bd->fo || !bd->fi || !bd->nbuf)
     return MRVI_ENOMEM;
   bd->Ass = bd->nbuf;
   bd->Asf = bd->Ass + a * a;
@@ -341,6 +357,78 @@ static int drop_zero_columns(mrvi_bordered *bd) {
   return bd->kv = kv;
 }
 
+/* The nonzeros of the LU factors of a node block (D, b x b, factored in
+ * place) into the lists o (2 b + 1 offsets) and ix: L's column k (rows
+ * below the diagonal, ascending) and U's row i (columns right of the
+ * diagonal, ascending). */
+static void lu_lists(int b, const double *D, int *o, int *ix) {
+  int e = 0;
+  for (int k = 0; k < b; k++) {
+    o[k] = e;
+    for (int i = k + 1; i < b; i++)
+      if (D[(size_t)i * b + k] != 0.0)
+        ix[e++] = i;
+  }
+  for (int i = 0; i < b; i++) {
+    o[b + i] = e;
+    for (int j = i + 1; j < b; j++)
+      if (D[(size_t)i * b + j] != 0.0)
+        ix[e++] = j;
+  }
+  o[2 * b] = e;
+}
+
+/* mrvi_dense_lu_solve with a node block's factors by their nonzero lists
+ * (lu_lists): x (b x nrhs row-major) becomes D^-1 x, the same arithmetic
+ * in the same order (the dense solve skips the zeros that the lists leave
+ * out) at the cost of the factors' nonzeros, not b^2. */
+static void lu_solve_lists(int b, const double *D, const int *piv, const int *o,
+                           const int *ix, double *x, int nrhs) {
+  for (int k = 0; k < b; k++)
+    if (piv[k] != k)
+      for (int c = 0; c < nrhs; c++) {
+        const double t = x[(size_t)piv[k] * nrhs + c];
+        x[(size_t)piv[k] * nrhs + c] = x[(size_t)k * nrhs + c];
+        x[(size_t)k * nrhs + c] = t;
+      }
+  if (nrhs == 1) {
+    for (int k = 0; k < b; k++) {
+      const double xk = x[k];
+      for (int e = o[k]; e < o[k + 1]; e++)
+        x[ix[e]] -= D[(size_t)ix[e] * b + k] * xk;
+    }
+    for (int i = b - 1; i >= 0; i--) {
+      const double *Di = D + (size_t)i * b;
+      double xi = x[i];
+      for (int e = o[b + i]; e < o[b + i + 1]; e++)
+        xi -= Di[ix[e]] * x[ix[e]];
+      x[i] = xi / Di[i];
+    }
+    return;
+  }
+  for (int k = 0; k < b; k++) {
+    const double *xk = x + (size_t)k * nrhs;
+    for (int e = o[k]; e < o[k + 1]; e++) {
+      const double f = D[(size_t)ix[e] * b + k];
+      double *xi = x + (size_t)ix[e] * nrhs;
+      for (int c = 0; c < nrhs; c++)
+        xi[c] -= f * xk[c];
+    }
+  }
+  for (int i = b - 1; i >= 0; i--) {
+    const double *Di = D + (size_t)i * b;
+    double *xi = x + (size_t)i * nrhs;
+    for (int e = o[b + i]; e < o[b + i + 1]; e++) {
+      const double u = Di[ix[e]];
+      const double *xj = x + (size_t)ix[e] * nrhs;
+      for (int c = 0; c < nrhs; c++)
+        xi[c] -= u * xj[c];
+    }
+    for (int c = 0; c < nrhs; c++)
+      xi[c] /= Di[i];
+  }
+}
+
 /* Node blocks: scatter J, factor the D_c, sweep Y = A_ff^-1 A_fs, form and
  * factor S = A_ss - A_sf Y. */
 static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
@@ -373,7 +461,10 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
                        "singular Newton matrix (node block %d of the "
                        "schur-bordered path)",
                        c + 1);
-    mrvi_dense_lu_solve(b, D, bd->dpiv + (size_t)c * b, Yc, ka);
+    int *o = bd->fo + (size_t)c * (2 * (size_t)b + 1);
+    int *ix = bd->fi + (size_t)c * b * b;
+    lu_lists(b, D, o, ix);
+    lu_solve_lists(b, D, bd->dpiv + (size_t)c * b, o, ix, Yc, ka);
   }
   /* S = A_ss - A_sf Y (Y's columns ycol) */
   memcpy(bd->S, bd->Ass, (size_t)a * (size_t)a * sizeof *bd->S);
@@ -410,17 +501,20 @@ static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
     for (int k = 1; k <= 2 && k <= c; k++) {
       const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * b * b;
       const double *zp = z + (size_t)(c - k) * b;
-      const int end = bd->lp[2 * c + k];
-      for (int e = bd->lp[2 * c + k - 1]; e < end;) { /* row by row */
-        const int i = bd->li[e];
+      const int *lr = bd->lr + (size_t)(2 * c + k - 1) * ((size_t)b + 1);
+      for (int i = 0; i < b; i++) { /* row by row */
+        if (lr[i] == lr[i + 1])
+          continue;
+        const double *Li = L + (size_t)i * b;
         double acc = 0.0;
-        for (; e < end && bd->li[e] == i; e++)
-          acc += L[(size_t)i * b + bd->lj[e]] * zp[bd->lj[e]];
+        for (int e = lr[i]; e < lr[i + 1]; e++)
+          acc += Li[bd->lj[e]] * zp[bd->lj[e]];
         zc[i] -= acc;
       }
     }
-    mrvi_dense_lu_solve(b, bd->D + (size_t)c * b * b, bd->dpiv + (size_t)c * b,
-                        zc, 1);
+    lu_solve_lists(b, bd->D + (size_t)c * b * b, bd->dpiv + (size_t)c * b,
+                   bd->fo + (size_t)c * (2 * (size_t)b + 1),
+                   bd->fi + (size_t)c * b * b, zc, 1);
   }
   /* S ds = R_s - A_sf z, then df = z - Y ds */
   for (int i = 0; i < a; i++) {
