@@ -424,6 +424,73 @@ static void check_lin(mrvi_terms *kt, const double *q, int n, int np, int d,
   free(l1);
 }
 
+/* The sparse block on threads (mrvi_sblock_set_parts, sweep-cg's Newton
+ * matrix): the class kt partitioned by columns in np parts, taken in
+ * reverse, each zeroing its columns first (the values start as garbage):
+ * the values and gradient of mrvi_sblock_add_terms (sb at q, g) bitwise;
+ * the Jacobi bound and D^-1 the serial ones bitwise; the product in row
+ * form the same bits on 1, 2 and 3 threads and the serial scatter's to
+ * 1e-14 relative. */
+static void check_sparse_parts(const mrvi_model *m, const int *elems,
+                               mrvi_terms *kt, int np, const double *q,
+                               const double *g, const mrvi_sblock *sb,
+                               double hscale, unsigned long long *rng) {
+  const int n = m->n, d = m->dimension;
+  mrvi_sblock *sp = NULL;
+  double *w = calloc(7 * (size_t)n, sizeof *w);
+  CHECK(w && mrvi_terms_sparse_parts(kt) == np &&
+            mrvi_sblock_create(m, elems, m->n_elements, 512, &sp) == MRVI_OK &&
+            mrvi_sblock_set_parts(sp, np, 2) == MRVI_OK &&
+            mrvi_sblock_parts(sp) == np,
+        "d %d: the block in %d parts", d, np);
+  if (!w || !sp || mrvi_sblock_parts(sp) != np) {
+    free(w);
+    mrvi_sblock_free(sp);
+    return;
+  }
+  double *gp = w, *x = w + n, *y1 = w + 2 * n, *y2 = w + 3 * n;
+  double *ys = w + 4 * n, *d1 = w + 5 * n, *d2 = w + 6 * n;
+  for (int i = 0; i < n; i++)
+    x[i] = q[i] + 0.5 * uniform(rng);
+  mrvi_sblock_add_terms(sp, kt, x, y1, 3.0); /* (garbage values) */
+  for (int c = np - 1; c >= 0; c--)
+    mrvi_sblock_add_terms_part(sp, kt, c, q, gp, hscale, 1);
+  long nnz = 0, nnz_p = 0;
+  const double *Ax = mrvi_sblock_values(sb, &nnz);
+  const double *Ap = mrvi_sblock_values(sp, &nnz_p);
+  CHECK(nnz == nnz_p && memcmp(Ax, Ap, (size_t)nnz * sizeof *Ax) == 0 &&
+            memcmp(g, gp, (size_t)n * sizeof *g) == 0,
+        "d %d: %d parts: the values and gradient bitwise the serial ones", d,
+        np);
+  const double b1 = mrvi_sblock_jacobi(sb, d1);
+  const double b2 = mrvi_sblock_jacobi(sp, d2);
+  CHECK(b1 == b2 && (b1 == HUGE_VAL || !memcmp(d1, d2, (size_t)n * sizeof *d1)),
+        "d %d: %d parts: the Jacobi bound %.17g (serial %.17g) and D^-1 "
+        "bitwise",
+        d, np, b2, b1);
+  for (int i = 0; i < n; i++)
+    x[i] = uniform(rng);
+  mrvi_sblock_matvec(sb, x, ys);
+  mrvi_sblock_matvec(sp, x, y1);
+  int same = 1;
+  for (int t = 1; t <= 3; t += 2) {
+    mrvi_sblock_set_parts(sp, np, t);
+    mrvi_sblock_matvec(sp, x, y2);
+    same = same && memcmp(y1, y2, (size_t)n * sizeof *y1) == 0;
+  }
+  double e = 0.0, sc = 0.0;
+  for (int i = 0; i < n; i++) {
+    e = fmax(e, fabs(y1[i] - ys[i]));
+    sc = fmax(sc, fabs(ys[i]));
+  }
+  CHECK(same && e <= 1e-14 * sc,
+        "d %d: %d parts: the row-form product the same bits on 1, 2, 3 "
+        "threads (%d), the scatter's to %.2e (scale %.2e)",
+        d, np, same, e, sc);
+  mrvi_sblock_free(sp);
+  free(w);
+}
+
 static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
   mrvi_model *m = spring_model_rate(d, lc, rng, MRVI_FAST);
   if (!m)
@@ -543,6 +610,8 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
               d, lc->law, lc->params[1], np, by_rec ? "records" : "columns",
               recip ? ", one division" : "");
       }
+      if (w3 && kt && np >= 2 && !by_rec)
+        check_sparse_parts(m, elems, kt, np, q, g, sb, hscale, rng);
       if (w3 && kt && np >= 2)
         check_lin(kt, q, n, np, d, lc, 0, rng);
       /* (the springs alone, without the anchors: a class of Hooke springs

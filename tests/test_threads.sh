@@ -300,6 +300,59 @@ for scheme in explicit-slow trapezoidal-midpoint; do
   fi
 done
 
+# explicit-slow on a random network (bench_floor's random3d at 6 x 6 x 6
+# sites: 309 fast coordinates, parts of 16) with Newton on every row
+# (chord_jacobi_max = 0): the micro-step Newton matrix's sparse block on
+# threads (its assembly and Jacobi bound in parts, the CG's product in row
+# form, mrvi_sblock_set_parts) on 1, 2 and 3 threads bit for bit, and
+# resumed from 2 threads to t = 0.25 on 3: the uninterrupted run on 1.
+awk 'BEGIN {
+  srand(7); n = 6; np = 0
+  print "name: random3d\ndimension: 3\nparticles:"
+  for (k = 0; k < n; k++) for (j = 0; j < n; j++) for (i = 0; i < n; i++) {
+    x[np] = i + 0.2 * rand(); y[np] = j + 0.2 * rand(); z[np] = k + 0.2 * rand()
+    f[np] = rand() < 0.5
+    printf "  - {name: p%d, mass: 1, rate: %s, position: [%.17g, %.17g, %.17g], velocity: [%.17g, %.17g, %.17g]}\n",
+      np, f[np] ? "fast" : "slow", x[np], y[np], z[np], 0.1 * rand() - 0.05,
+      0.1 * rand() - 0.05, 0.1 * rand() - 0.05
+    np++
+  }
+  print "springs:"
+  for (a = 0; a < np; a++) for (b = a + 1; b < np; b++) {
+    r = sqrt((x[a] - x[b]) ^ 2 + (y[a] - y[b]) ^ 2 + (z[a] - z[b]) ^ 2)
+    if (r >= 1.45) continue
+    if (f[a] && f[b])
+      printf "  - {between: [p%d, p%d], law: linear, stiffness: 1000, rest_length: %.17g, potential: fast}\n", a, b, r
+    else
+      printf "  - {between: [p%d, p%d], law: morse, depth: 5, width: 1, rest_length: %.17g, potential: slow}\n", a, b, r
+  }
+  print "integrator: {scheme: explicit-slow, macro_step: 0.05, micro_steps: 10, t_end: 0.5,"
+  print "  tuning: {thread_chunk: 16, chord_jacobi_max: 0}}"
+  print "output: {file: random3d.h5, every: 1, micro: true, xdmf: false}"
+}' >"$tmp/random3d.yaml"
+for t in 1 2 3; do
+  "$mrvi" run "$tmp/random3d.yaml" --threads $t -o "$tmp/rnd.$t.h5" \
+    >"$tmp/rnd.$t.txt" 2>&1 || fail "random network on $t threads: $(cat "$tmp/rnd.$t.txt")"
+done
+if grep -q "^  CG (micro blocks) .*[1-9][0-9]* block solves" "$tmp/rnd.1.txt" &&
+  grep -q "^coordinates .* fast)" <("$mrvi" check "$tmp/random3d.yaml"); then
+  pass "random network, explicit-slow: Newton's sparse block ($(grep -o "[0-9]* block solves" "$tmp/rnd.1.txt"))"
+else
+  fail "random network, explicit-slow: Newton's sparse block: $(cat "$tmp/rnd.1.txt")"
+fi
+run_ok "random network to t = 0.25 on 2 threads" "$mrvi" run \
+  "$tmp/random3d.yaml" --set integrator.t_end=0.25 --quiet --threads 2 \
+  -o "$tmp/rndpart.h5"
+run_ok "random network extended to t = 0.5 on 3 threads" env MRVI_THREADS=3 \
+  "$mrvi" run --resume "$tmp/rndpart.h5" --set integrator.t_end=0.5 --quiet
+for other in rnd.2 rnd.3 rndpart; do
+  if same "$tmp/rnd.1.h5" "$tmp/$other.h5"; then
+    pass "random network, explicit-slow: $other gives 1 thread's trajectory bit for bit"
+  else
+    fail "random network, explicit-slow: $other gives 1 thread's trajectory bit for bit"
+  fi
+done
+
 # The default (auto) run gives the trajectory of 1 thread bit for bit.
 run_ok "fully-explicit, threads auto" env -u MRVI_THREADS "$mrvi" run "$sys" \
   "${common[@]}" --set integrator.scheme=fully-explicit -o "$tmp/auto.h5"

@@ -392,7 +392,8 @@ void mrvi_sblock_map_expand(const int *cm, int n, int dim, int *map);
 void mrvi_sblock_add_terms(mrvi_sblock *sb, mrvi_terms *kc, const double *z,
                            double *g, double scale);
 /* The values (nnz, CSC order of the pattern) and y = J x with them as
- * they stand (nf), for tests. */
+ * they stand (nf; the CG's product: in row form where the block is in
+ * parts, mrvi_sblock_set_parts), for tests. */
 const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz);
 /* The ints of the elements' maps (compact and full), for tests. */
 long mrvi_sblock_map_ints(const mrvi_sblock *sb);
@@ -408,6 +409,22 @@ const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb);
  * Gershgorin bound max_f sum_{g != f} |J_fg| / J_ff on the contraction of
  * the Jacobi iteration x += D^-1 (b - J x); HUGE_VAL where a J_ff <= 0. */
 double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv);
+/* Threads: the block's rows (and columns) in n_part parts,
+ * mrvi_part_start(c, nf, n_part) (n_part >= 2, a partition that depends
+ * on nf alone; else serial), on threads threads: mrvi_sblock_jacobi's
+ * columns, and the CG's product in row form, each row by one thread, its
+ * x.y summed per part and the parts' sums in order, so that any number of
+ * threads gives the same bits (the serial scatter's to round-off: the
+ * values are symmetric to round-off).  MRVI_ENOMEM without memory. */
+int mrvi_sblock_set_parts(mrvi_sblock *sb, int n_part, int threads);
+int mrvi_sblock_parts(const mrvi_sblock *sb);
+/* Part c of mrvi_sblock_add_terms (its columns zeroed first where zero):
+ * the gradient and the values of the columns part c owns, the class kc
+ * partitioned in the block's parts (mrvi_terms_sparse_parts), so the parts
+ * give mrvi_sblock_zero and mrvi_sblock_add_terms's values bitwise. */
+void mrvi_sblock_add_terms_part(mrvi_sblock *sb, const mrvi_terms *kc, int c,
+                                const double *z, double *g, double scale,
+                                int zero);
 
 /* A potential class compiled for evaluation (solver/terms.c): the elements
  * elems (n_elems model indices) with input c read from and summed into
@@ -562,6 +579,18 @@ void mrvi_terms_grad_hdiag_part(const mrvi_terms *kc, int c, const double *z,
 void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
                             double *Ax, const long *off, const int *emap,
                             double hscale);
+/* Threads: the parts of a partitioned class (mrvi_terms_set_threads) whose
+ * terms are springs and anchors alone, record i element i (else 0), and
+ * part c of mrvi_terms_eval_sparse: the gradient and the Hessian entries
+ * of the columns part c owns (mrvi_terms_part_columns; in the values, the
+ * pattern's columns), each entry's sum in the serial order, so the parts
+ * on any threads give mrvi_terms_eval_sparse's values bitwise.  A record
+ * with off == -1 adds its gradient alone (the sparse block sets -1 for
+ * linear elements only, none of them a spring). */
+int mrvi_terms_sparse_parts(const mrvi_terms *kc);
+void mrvi_terms_eval_sparse_part(const mrvi_terms *kc, int c, const double *z,
+                                 double *g, double *Ax, const long *off,
+                                 const int *emap, double hscale);
 /* y_v += scale hess Z(z) x_v for the nvec vectors x_v = x + v xs, y_v =
  * y + v ys (on the columns): each element's Hessian formed once and
  * applied to every vector, none assembled (springs and anchors by the

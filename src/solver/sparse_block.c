@@ -35,6 +35,10 @@ struct mrvi_sblock {
   double *dinv, *x, *work; /* Jacobi preconditioner, solution, CG (3 nf) */
   mrvi_newton *lu;         /* fallback, created on first use */
   mrvi_krylov_stats stats;
+  /* mrvi_sblock_set_parts: the rows (columns) in n_part parts on threads;
+   * psum: a part's sum each */
+  int n_part, threads;
+  double *psum;
 };
 
 void mrvi_sblock_free(mrvi_sblock *sb) {
@@ -49,6 +53,7 @@ void mrvi_sblock_free(mrvi_sblock *sb) {
   free(sb->dinv);
   free(sb->x);
   free(sb->work);
+  free(sb->psum);
   mrvi_newton_free(sb->lu);
   free(sb);
 }
@@ -274,6 +279,33 @@ void mrvi_sblock_zero(mrvi_sblock *sb) {
   memset(sb->Ax, 0, (size_t)sb->nnz * sizeof(double));
 }
 
+int mrvi_sblock_set_parts(mrvi_sblock *sb, int n_part, int threads) {
+  if (n_part < 2 || n_part > sb->nf)
+    return MRVI_OK; /* (serial) */
+  double *p = realloc(sb->psum, (size_t)n_part * sizeof *p);
+  if (!p)
+    return MRVI_ENOMEM;
+  sb->psum = p;
+  sb->n_part = n_part;
+  sb->threads = threads > 1 ? threads : 1;
+  return MRVI_OK;
+}
+
+int mrvi_sblock_parts(const mrvi_sblock *sb) { return sb->n_part; }
+
+void mrvi_sblock_add_terms_part(mrvi_sblock *sb, const mrvi_terms *kc, int c,
+                                const double *z, double *g, double scale,
+                                int zero) {
+  if (zero) {
+    const int f0 = mrvi_part_start(c, sb->nf, sb->n_part);
+    const int f1 = mrvi_part_start(c + 1, sb->nf, sb->n_part);
+    memset(sb->Ax + sb->Ap[f0], 0,
+           (size_t)(sb->Ap[f1] - sb->Ap[f0]) * sizeof(double));
+  }
+  mrvi_terms_eval_sparse_part(kc, c, z, g, sb->Ax, sb->elem_off, sb->emap,
+                              scale);
+}
+
 void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
                              double scale) {
   const long o = sb->elem_off[ie];
@@ -295,7 +327,13 @@ void mrvi_sblock_add_terms(mrvi_sblock *sb, mrvi_terms *kc, const double *z,
   mrvi_terms_eval_sparse(kc, z, g, sb->Ax, sb->elem_off, sb->emap, scale);
 }
 
+static double matvec_parts(void *ctx, const double *x, double *y);
+
 void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y) {
+  if (sb->n_part > 0) { /* (the CG's product on threads) */
+    matvec_parts((void *)sb, x, y);
+    return;
+  }
   memset(y, 0, (size_t)sb->nf * sizeof(double));
   for (int j = 0; j < sb->nf; j++)
     for (int q = sb->Ap[j]; q < sb->Ap[j + 1]; q++)
@@ -308,6 +346,41 @@ const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz) {
 }
 
 long mrvi_sblock_map_ints(const mrvi_sblock *sb) { return sb->n_map; }
+
+/* Rows [f0, f1) of y = J x in row form (row f's entries are column f's,
+ * the pattern symmetric: J^T x, which is J x to round-off, the values
+ * symmetric to round-off), each row one sum in the order of its columns;
+ * returns their x.y. */
+static double rows_product(const mrvi_sblock *sb, const double *x, double *y,
+                           int f0, int f1) {
+  const int *Ap = sb->Ap, *Ai = sb->Ai;
+  const double *Ax = sb->Ax;
+  double xy = 0.0;
+  for (int f = f0; f < f1; f++) {
+    double s = 0.0;
+    for (int q = Ap[f]; q < Ap[f + 1]; q++)
+      s += Ax[q] * x[Ai[q]];
+    y[f] = s;
+    xy += x[f] * s;
+  }
+  return xy;
+}
+
+/* The CG's product on threads (mrvi_sblock_set_parts): the parts' rows
+ * and sums, the sums added in the parts' order, so every number of
+ * threads gives the same bits (not the serial scatter's). */
+static double matvec_parts(void *ctx, const double *x, double *y) {
+  mrvi_sblock *sb = ctx;
+  const int nf = sb->nf, n_part = sb->n_part;
+  MRVI_PARALLEL_FOR(sb->threads)
+  for (int c = 0; c < n_part; c++)
+    sb->psum[c] = rows_product(sb, x, y, mrvi_part_start(c, nf, n_part),
+                               mrvi_part_start(c + 1, nf, n_part));
+  double xy = 0.0;
+  for (int c = 0; c < n_part; c++)
+    xy += sb->psum[c];
+  return xy;
+}
 
 static double matvec(void *ctx, const double *x, double *y) {
   const mrvi_sblock *sb = ctx;
@@ -327,9 +400,11 @@ const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb) {
   return &sb->stats;
 }
 
-double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv) {
+/* Columns [j0, j1) of mrvi_sblock_jacobi. */
+static double jacobi_columns(const mrvi_sblock *sb, double *dinv, int j0,
+                             int j1) {
   double bound = 0.0;
-  for (int j = 0; j < sb->nf; j++) {
+  for (int j = j0; j < j1; j++) {
     const double d = sb->Ax[sb->diag[j]];
     if (!(d > 0.0))
       return HUGE_VAL;
@@ -340,6 +415,22 @@ double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv) {
     dinv[j] = 1.0 / d;
     bound = fmax(bound, off * dinv[j]);
   }
+  return bound;
+}
+
+/* (In parts: each column's arithmetic the serial loop's; the parts'
+ * bounds, none NaN, combined by the same maximum: the serial bound.) */
+double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv) {
+  const int nf = sb->nf, n_part = sb->n_part;
+  if (n_part == 0)
+    return jacobi_columns(sb, dinv, 0, nf);
+  MRVI_PARALLEL_FOR(sb->threads)
+  for (int c = 0; c < n_part; c++)
+    sb->psum[c] = jacobi_columns(sb, dinv, mrvi_part_start(c, nf, n_part),
+                                 mrvi_part_start(c + 1, nf, n_part));
+  double bound = 0.0;
+  for (int c = 0; c < n_part; c++)
+    bound = fmax(bound, sb->psum[c]);
   return bound;
 }
 
@@ -358,8 +449,9 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
   int it = 0;
   double curv = 0.0;
   const int max_it = nf < MRVI_CG_MAX_IT ? nf + 10 : MRVI_CG_MAX_IT;
-  const int s = mrvi_pcg(nf, matvec, sb, sb->dinv, b, x, SBLOCK_RTOL, atol,
-                         max_it, sb->work, &it, &curv);
+  const int s =
+      mrvi_pcg(nf, sb->n_part > 0 ? matvec_parts : matvec, sb, sb->dinv, b, x,
+               SBLOCK_RTOL, atol, max_it, sb->work, &it, &curv);
   mrvi_krylov_stats *k = &sb->stats;
   k->cg_solves++;
   k->cg_iterations += it;

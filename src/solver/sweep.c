@@ -684,7 +684,8 @@ static int sblock_ready(mrvi_sweep *sw, char *msg, size_t len) {
   const mrvi_step *st = sw->st;
   if (mrvi_sblock_create(st->model, st->elem_of_class[MRVI_FAST],
                          st->n_elem_of_class[MRVI_FAST], sw->sb_dense_max,
-                         &sw->sb) < 0) {
+                         &sw->sb) < 0 ||
+      mrvi_sblock_set_parts(sw->sb, sw->n_cpass, sw->pthreads) < 0) {
     mrvi_fmt(msg, len,
              "out of memory for the micro-step Newton matrix "
              "(%d fast coordinates)",
@@ -871,12 +872,80 @@ static int solve_linear(mrvi_sweep *sw, const double *qm, double *dn,
   return MRVI_OK;
 }
 
+/* zf = qm + cB dn (set_zf's) in n_c parts of the nf rows: the loop of the
+ * calling parallel region (its barrier at the end). */
+static void set_zf_parts(double *zf, const double *qm, double cB,
+                         const double *dn, int nf, int n_c) {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+  for (int c = 0; c < n_c; c++)
+    for (int f = mrvi_part_start(c, nf, n_c);
+         f < mrvi_part_start(c + 1, nf, n_c); f++)
+      zf[f] = 1.0 * qm[f] + cB * dn[f];
+}
+
+/* Whether the sparse block's assembly is in parts (implicit_force_parts:
+ * the fast class partitioned as the block's rows, on threads). */
+static int sblock_par(const mrvi_sweep *sw) {
+  return sw->sb && mrvi_sblock_parts(sw->sb) > 0 &&
+         mrvi_terms_sparse_parts(sw->kc[MRVI_FAST]) ==
+             mrvi_sblock_parts(sw->sb);
+}
+
+/* implicit_force with the sparse block's J where the fast class is in the
+ * block's parts (on threads), in one parallel region per point: the
+ * configuration in the parts' rows, then (after the barrier) each part's
+ * gradient and Hessian columns (the values' columns zeroed at the first
+ * point) and its rows of fimp.  The serial path's values bitwise (each
+ * column's sums in the serial order, the same entries). */
+static void implicit_force_parts(mrvi_sweep *sw, const double *qm,
+                                 const double *dn) {
+  const int nf = sw->nf, n_c = mrvi_sblock_parts(sw->sb);
+  int first = 1;
+  for (int i = 0; i < sw->n_w; i++) {
+    if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
+      continue;
+    const double cB = sw->cB[i], wc = sw->w[i] * sw->cA[i], hs = wc * cB;
+    double *g = sw->gpt[i], *zf = sw->zf, *fimp = sw->fimp;
+    mrvi_sblock *sb = sw->sb;
+    const mrvi_terms *kc = sw->kc[MRVI_FAST];
+    sw->evals_w++;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+    {
+      set_zf_parts(zf, qm, cB, dn, nf, n_c);
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_c; c++) {
+        const int f0 = mrvi_part_start(c, nf, n_c);
+        const int f1 = mrvi_part_start(c + 1, nf, n_c);
+        zero(g + f0, f1 - f0);
+        mrvi_sblock_add_terms_part(sb, kc, c, zf, g, hs, first);
+        for (int f = f0; f < f1; f++)
+          fimp[f] = (first ? 0.0 : fimp[f]) + wc * g[f];
+      }
+    }
+    first = 0;
+  }
+  if (first) { /* (no implicit point: zero, as the serial path) */
+    memset(sw->fimp, 0, (size_t)nf * sizeof(double));
+    mrvi_sblock_zero(sw->sb);
+  }
+}
+
 /* fimp = sum w cA grad W(z) over the implicit points of the interval,
  * z = qm + cB dn, with the Newton matrix's w cA cB hess W(z) added to J
  * (sw->J or the sparse block) unless J is NULL. */
 static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
                            double *J) {
   const int nf = sw->nf;
+  if (J && sblock_par(sw)) {
+    implicit_force_parts(sw, qm, dn);
+    return;
+  }
   memset(sw->fimp, 0, (size_t)nf * sizeof(double));
   for (int i = 0; i < sw->n_w; i++) {
     if (sw->cA[i] == 0.0 || sw->cB[i] == 0.0)
@@ -1205,15 +1274,8 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
 #pragma omp parallel num_threads(sw->pthreads)
 #endif
   {
-    if (!zf_ok) {
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-      for (int c = 0; c < n_c; c++)
-        for (int f = mrvi_part_start(c, nf, n_c);
-             f < mrvi_part_start(c + 1, nf, n_c); f++)
-          zf[f] = 1.0 * qm[f] + cB * dn[f]; /* (set_zf's) */
-    }
+    if (!zf_ok)
+      set_zf_parts(zf, qm, cB, dn, nf, n_c);
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
@@ -1494,7 +1556,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         const int s = sblock_ready(sw, msg, len);
         if (s < 0)
           return s;
-        mrvi_sblock_zero(sw->sb);
+        if (!sblock_par(sw)) /* (else zeroed in its parts) */
+          mrvi_sblock_zero(sw->sb);
       } else if (with_j)
         memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
       implicit_force(sw, qm, dn, with_j ? sw->J : NULL);

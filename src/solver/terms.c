@@ -1865,15 +1865,21 @@ void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
 ALWAYS_INLINE void spring_map(const kspring *q, const double *z, double *g,
                               double *Ax, const int *map, double hscale,
                               const int dim, const int two, const int kk,
-                              const int compact) {
+                              const int compact, const unsigned mk) {
   double u[3], d1, a, b;
   spring_derivs(q, z, u, &d1, &a, &b, dim, two, kk);
-  UNROLL for (int k = 0; k < dim; k++) g[q->ci[k]] += d1 * u[k];
+  UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[q->ci[k]] +=
+      d1 * u[k];
   if (two)
-    UNROLL for (int k = 0; k < dim; k++) g[q->cj[k]] += -d1 * u[k];
+    UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k))
+        g[q->cj[k]] += -d1 * u[k];
+  if (!map)
+    return;
   const int n = two ? 2 * dim : dim;
   UNROLL for (int i = 0; i < n; i++) {
     UNROLL for (int j = 0; j < n; j++) {
+      if (!(mk & 1u << j)) /* (column j: x_i's k-th, then x_j's) */
+        continue;
       const int ii = i < dim ? i : i - dim, jj = j < dim ? j : j - dim;
       const double A = a * u[ii] * u[jj] + (ii == jj ? b : 0.0);
       /* (compact: the block pair's base, + the column's length a column
@@ -1897,9 +1903,9 @@ ALWAYS_INLINE void springs_map_k(const kspring *q, int nr, int ie0,
   for (int r = 0; r < nr; r++) {                                               \
     const long o = off[ie0 + r];                                               \
     if (o >= 0)                                                                \
-      spring_map(q + r, z, g, Ax, emap + o, hscale, dim, two, KK, 0);          \
+      spring_map(q + r, z, g, Ax, emap + o, hscale, dim, two, KK, 0, ~0u);     \
     else if (o < -1) /* (a compact map) */                                     \
-      spring_map(q + r, z, g, Ax, emap - 2 - o, hscale, dim, two, KK, 1);      \
+      spring_map(q + r, z, g, Ax, emap - 2 - o, hscale, dim, two, KK, 1, ~0u); \
     else /* (no Hessian entries) */                                            \
       spring_eval(q + r, z, 1.0, g, NULL, 0, 0.0, dim, two, KK, 1);            \
   }
@@ -1966,6 +1972,53 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
       if (map[k] >= 0)
         Ax[map[k]] += hscale * kc->H[k];
   }
+}
+
+int mrvi_terms_sparse_parts(const mrvi_terms *kc) {
+  if (!kc->part_first || !kc->t || !kc->qs)
+    return 0;
+  for (int it = 0; it < kc->n; it++) /* (record it: element it) */
+    if (kc->t[it].runs < 1 || kc->t[it].qs != it)
+      return 0;
+  return kc->n_part;
+}
+
+/* Part c's records into the sparse values: spring_map on the columns of
+ * the part's mask alone (the gradient's and the Hessian's), each record's
+ * map by its element index (its record index, mrvi_terms_sparse_parts). */
+static __attribute__((noinline)) void
+part_map(const kspring *q, const int *rec, const unsigned char *mask, int nr,
+         const double *z, double *g, double *Ax, const long *off,
+         const int *emap, double hscale, int dim) {
+#define PART_MAP(D)                                                            \
+  for (int i = 0; i < nr; i++) {                                               \
+    const kspring *s = q + rec[i];                                             \
+    const long o = off[rec[i]];                                                \
+    const int *map = o >= 0 ? emap + o : o < -1 ? emap - 2 - o : NULL;         \
+    if (s->two && o < -1)                                                      \
+      spring_map(s, z, g, Ax, map, hscale, D, 1, K_ANY, 1, mask[i]);           \
+    else if (s->two)                                                           \
+      spring_map(s, z, g, Ax, map, hscale, D, 1, K_ANY, 0, mask[i]);           \
+    else if (o < -1)                                                           \
+      spring_map(s, z, g, Ax, map, hscale, D, 0, K_ANY, 1, mask[i]);           \
+    else                                                                       \
+      spring_map(s, z, g, Ax, map, hscale, D, 0, K_ANY, 0, mask[i]);           \
+  }
+  if (dim == 2)
+    PART_MAP(2)
+  else if (dim == 3)
+    PART_MAP(3)
+  else
+    PART_MAP(1)
+#undef PART_MAP
+}
+
+void mrvi_terms_eval_sparse_part(const mrvi_terms *kc, int c, const double *z,
+                                 double *g, double *Ax, const long *off,
+                                 const int *emap, double hscale) {
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  part_map(kc->qs, kc->part_rec + r0, kc->part_mask + r0, nr, z, g, Ax, off,
+           emap, hscale, kc->dim);
 }
 
 /* A spring or anchor's gradient added to g (spring_eval's products),
