@@ -30,16 +30,22 @@ static void check_gradients(mrvi_ocp *o, const char *what) {
   test_ocp_gradients(o, what, 0.5);
 }
 
+/* mrvi_ocp_create, checked. */
+static mrvi_ocp *create_problem(mrvi_model *m, const mrvi_settings *s) {
+  mrvi_ocp *o = NULL;
+  char msg[300];
+  const int st = mrvi_ocp_create(m, s, &o, msg, sizeof msg);
+  CHECK(st == 0, "create: %s", msg);
+  return st == 0 ? o : NULL;
+}
+
 /* FPU problem (four actuators: slow and fast grids on slow and fast
  * coordinates, tracking, four terminal constraints and a terminal
  * penalty). */
 static mrvi_ocp *fpu_problem(mrvi_model *m, const mrvi_settings *s) {
-  mrvi_ocp *o = NULL;
-  char msg[300];
-  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
-    CHECK(0, "create: %s", msg);
+  mrvi_ocp *o = create_problem(m, s);
+  if (!o)
     return NULL;
-  }
   mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 0.5, -HUGE_VAL, HUGE_VAL);
@@ -80,12 +86,9 @@ static void test_gradients(void) {
  * a pair force between cart and bob, tracking, terminal conditions. */
 static mrvi_ocp *cart_problem_pair(mrvi_model *m, const mrvi_settings *s,
                                    int pair) {
-  mrvi_ocp *o = NULL;
-  char msg[300];
-  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
-    CHECK(0, "create: %s", msg);
+  mrvi_ocp *o = create_problem(m, s);
+  if (!o)
     return NULL;
-  }
   /* cart.x, cart.y slow (0, 1); bob.x, bob.y fast (3, 4) */
   mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
@@ -236,12 +239,9 @@ static mrvi_model *link_chain(void) {
 /* Its problem: slow actuators on two links, a fast one on the tip, a
  * terminal velocity and a penalised position. */
 static mrvi_ocp *chain_problem(mrvi_model *m, const mrvi_settings *s) {
-  mrvi_ocp *o = NULL;
-  char msg[300];
-  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
-    CHECK(0, "create: %s", msg);
+  mrvi_ocp *o = create_problem(m, s);
+  if (!o)
     return NULL;
-  }
   mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 5, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 6, MRVI_GRID_MICRO, 0.5, -HUGE_VAL, HUGE_VAL);

@@ -394,17 +394,29 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   return MRVI_OK;
 }
 
+/* from (J's order) into bd->z (node-block order: the fast blocks, then
+ * the slow one), or (from NULL) bd->z back into to. */
+static void node_order(const mrvi_bordered *bd, const double *from,
+                       double *to) {
+  const size_t b = (size_t)bd->b, pb = (size_t)bd->p * b;
+  for (int i = 0; i < bd->nu + bd->nl; i++) {
+    double *zi = bd->rblk[i] >= 0
+                     ? bd->z + (size_t)bd->rblk[i] * b + (size_t)bd->roff[i]
+                     : bd->z + pb + bd->roff[i];
+    if (from)
+      *zi = from[i];
+    else
+      to[i] = *zi;
+  }
+}
+
 /* J dx = R with the node blocks' factors. */
 static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
   const int a = bd->a, b = bd->b, p = bd->p, ka = bd->kv;
   const size_t pb = (size_t)p * (size_t)b;
   double *z = bd->z, *ds = bd->z + pb;
   /* z = A_ff^-1 R_f (forward sweep), in node-block order */
-  for (int i = 0; i < bd->nu + bd->nl; i++)
-    if (bd->rblk[i] >= 0)
-      z[(size_t)bd->rblk[i] * b + bd->roff[i]] = R[i];
-    else
-      ds[bd->roff[i]] = R[i];
+  node_order(bd, R, NULL);
   for (int c = 0; c < p; c++) {
     double *zc = z + (size_t)c * b;
     for (int k = 1; k <= 2 && k <= c; k++) {
@@ -436,9 +448,7 @@ static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
       acc += bd->Y[j * (size_t)ka + (size_t)r] * ds[bd->kvt[r]];
     z[j] -= acc;
   }
-  for (int i = 0; i < bd->nu + bd->nl; i++)
-    dx[i] = bd->rblk[i] >= 0 ? z[(size_t)bd->rblk[i] * b + bd->roff[i]]
-                             : ds[bd->roff[i]];
+  node_order(bd, NULL, dx);
 }
 
 /* Constraints at macro nodes only: A by block elimination (the
@@ -532,11 +542,7 @@ static void node_solve_transpose(const mrvi_bordered *bd, const double *R,
   const int a = bd->a, b = bd->b, p = bd->p, ka = bd->kv;
   const size_t pb = (size_t)p * (size_t)b;
   double *z = bd->z, *ds = bd->z + pb;
-  for (int i = 0; i < bd->nu + bd->nl; i++)
-    if (bd->rblk[i] >= 0)
-      z[(size_t)bd->rblk[i] * b + bd->roff[i]] = R[i];
-    else
-      ds[bd->roff[i]] = R[i];
+  node_order(bd, R, NULL);
   for (size_t j = 0; j < pb; j++)
     if (z[j] != 0.0)
       for (int r = 0; r < ka; r++)
@@ -557,9 +563,7 @@ static void node_solve_transpose(const mrvi_bordered *bd, const double *R,
         zp[bd->lj[e]] -= L[(size_t)bd->li[e] * b + bd->lj[e]] * zc[bd->li[e]];
     }
   }
-  for (int i = 0; i < bd->nu + bd->nl; i++)
-    dx[i] = bd->rblk[i] >= 0 ? z[(size_t)bd->rblk[i] * b + bd->roff[i]]
-                             : ds[bd->roff[i]];
+  node_order(bd, NULL, dx);
 }
 
 /* J^T dx = R with the factors (constraints at macro nodes only): J = [A B;
