@@ -190,7 +190,7 @@ static void test_torque_impulse(void) {
  * A slow body on a revolute joint to the ground carrying a fast body on a
  * second revolute joint (the joint between them on the micro grid).
  * ------------------------------------------------------------------------- */
-static void test_chain(mrvi_constraint_form form) {
+static mrvi_model *chain_model(void) {
   mrvi_model *m = mrvi_model_create();
   const double J1[3] = {0.5, 0.6, 0.3}, J2[3] = {0.1, 0.12, 0.05};
   const double x1[3] = {0.5, 0.0, 0.0}, x2[3] = {1.3, 0.0, 0.0};
@@ -207,6 +207,16 @@ static void test_chain(mrvi_constraint_form form) {
   CHECK(j0 >= 0 && j1 >= 0, "chain joints: %s", mrvi_model_errmsg(m));
   double one = 0.0;
   CHECK(mrvi_model_project_velocities(m, &one) == 0, "projection");
+  return m;
+}
+
+static void test_chain(mrvi_constraint_form form) {
+  mrvi_model *m = chain_model();
+  int j[2] = {-1, -1}, nj = 0; /* the joints, in the order added */
+  for (int c = 0; c < m->n_constraints && nj < 2; c++)
+    if (!strcmp(m->constraints[c].type->name, "revolute"))
+      j[nj++] = c;
+  const int j0 = j[0], j1 = j[1];
   const mrvi_settings s = settings(0.1, 3, 0.6, form);
   mrvi_ocp *o = create(m, &s);
   if (!o) {
@@ -244,6 +254,54 @@ static void test_chain(mrvi_constraint_form form) {
            form_name(form));
   check_gradients(o, what);
   mrvi_ocp_free(o);
+  mrvi_model_free(m);
+}
+
+/* The same chain driven by forces on the bodies' centres (coordinate
+ * actuators: their forces do not depend on the positions), with the step
+ * solver forced to schur-bordered in the multiplier form (the null-space
+ * form takes general): the gradients against central differences, the
+ * forward run against the general path's to 1e-10. */
+static void test_chain_bordered(mrvi_constraint_form form, int p) {
+  mrvi_model *m = chain_model();
+  mrvi_settings s = settings(0.1, p, 0.6, form);
+  s.solver =
+      form == MRVI_FORM_MULTIPLIERS ? MRVI_SOLVER_STRUCTURED : MRVI_SOLVER_AUTO;
+  mrvi_settings sg = s;
+  sg.solver = MRVI_SOLVER_GENERAL;
+  const mrvi_settings *ss[2] = {&s, &sg};
+  mrvi_ocp *o[2] = {NULL, NULL};
+  const int arm = mrvi_model_body_first(m, 0),
+            tip = mrvi_model_body_first(m, 1);
+  for (int k = 0; k < 2; k++) {
+    if (!(o[k] = create(m, ss[k])))
+      continue;
+    CHECK(mrvi_ocp_add_actuator(o[k], arm + 1, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
+                                HUGE_VAL) == 0 &&
+              mrvi_ocp_add_actuator(o[k], tip + 2, MRVI_GRID_MICRO, 0.5,
+                                    -HUGE_VAL, HUGE_VAL) == 1 &&
+              mrvi_ocp_add_actuator(o[k], tip, MRVI_GRID_MACRO, 2.0, -HUGE_VAL,
+                                    HUGE_VAL) == 2 &&
+              mrvi_ocp_add_terminal(o[k], MRVI_OCP_VELOCITY, tip + 1, 0.2,
+                                    0.0) == 0 &&
+              mrvi_ocp_add_terminal(o[k], MRVI_OCP_POSITION, tip + 2, 0.1,
+                                    4.0) == 0,
+          "chain force actuators: %s", mrvi_ocp_errmsg(o[k]));
+  }
+  char what[120], why[300];
+  snprintf(what, sizeof what, "slow-fast chain, forces (p = %d), %s", p,
+           form_name(form));
+  const char *path = o[0] ? mrvi_ocp_solver_path(o[0], why, sizeof why) : 0;
+  const char *want =
+      form == MRVI_FORM_MULTIPLIERS ? "schur-bordered" : "general";
+  CHECK(path && !strcmp(path, want), "%s: path %s (%s)", what,
+        path ? path : "none", why);
+  if (o[0] && o[1]) {
+    check_gradients(o[0], what);
+    test_ocp_same_forward(o[0], o[1], m->n, what, 0.4, 1e-10);
+  }
+  mrvi_ocp_free(o[0]);
+  mrvi_ocp_free(o[1]);
   mrvi_model_free(m);
 }
 
@@ -573,6 +631,10 @@ int main(void) {
   test_torque_impulse();
   test_chain(MRVI_FORM_MULTIPLIERS);
   test_chain(MRVI_FORM_NULL_SPACE);
+  for (int p = 1; p <= 5; p += 4) {
+    test_chain_bordered(MRVI_FORM_MULTIPLIERS, p);
+    test_chain_bordered(MRVI_FORM_NULL_SPACE, p);
+  }
   test_planar(MRVI_FORM_MULTIPLIERS);
   test_planar(MRVI_FORM_NULL_SPACE);
   test_planar_rest(MRVI_FORM_MULTIPLIERS);

@@ -30,16 +30,22 @@ static void check_gradients(mrvi_ocp *o, const char *what) {
   test_ocp_gradients(o, what, 0.5);
 }
 
+/* mrvi_ocp_create, checked. */
+static mrvi_ocp *create_problem(mrvi_model *m, const mrvi_settings *s) {
+  mrvi_ocp *o = NULL;
+  char msg[300];
+  const int st = mrvi_ocp_create(m, s, &o, msg, sizeof msg);
+  CHECK(st == 0, "create: %s", msg);
+  return st == 0 ? o : NULL;
+}
+
 /* FPU problem (four actuators: slow and fast grids on slow and fast
  * coordinates, tracking, four terminal constraints and a terminal
  * penalty). */
 static mrvi_ocp *fpu_problem(mrvi_model *m, const mrvi_settings *s) {
-  mrvi_ocp *o = NULL;
-  char msg[300];
-  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
-    CHECK(0, "create: %s", msg);
+  mrvi_ocp *o = create_problem(m, s);
+  if (!o)
     return NULL;
-  }
   mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 0.5, -HUGE_VAL, HUGE_VAL);
@@ -78,21 +84,20 @@ static void test_gradients(void) {
 
 /* Cart pendulum problem: actuators on slow and fast coordinates and grids,
  * a pair force between cart and bob, tracking, terminal conditions. */
-static mrvi_ocp *cart_problem(mrvi_model *m, const mrvi_settings *s) {
-  mrvi_ocp *o = NULL;
-  char msg[300];
-  if (mrvi_ocp_create(m, s, &o, msg, sizeof msg) != 0) {
-    CHECK(0, "create: %s", msg);
+static mrvi_ocp *cart_problem_pair(mrvi_model *m, const mrvi_settings *s,
+                                   int pair) {
+  mrvi_ocp *o = create_problem(m, s);
+  if (!o)
     return NULL;
-  }
   /* cart.x, cart.y slow (0, 1); bob.x, bob.y fast (3, 4) */
   mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 1, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 3, MRVI_GRID_MICRO, 0.5, -HUGE_VAL, HUGE_VAL);
   mrvi_ocp_add_actuator(o, 4, MRVI_GRID_MACRO, 1.5, -HUGE_VAL, HUGE_VAL);
   /* A pair force between cart and bob (along the rod). */
-  mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MICRO, 1.0, -HUGE_VAL,
-                             HUGE_VAL);
+  if (pair)
+    mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MICRO, 1.0, -HUGE_VAL,
+                               HUGE_VAL);
   mrvi_ocp_add_tracking(o, 5, 3.0, -0.2);
   mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
   mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 0, 0.0, 0.0);
@@ -100,6 +105,9 @@ static mrvi_ocp *cart_problem(mrvi_model *m, const mrvi_settings *s) {
   mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 4, 0.0, 0.0);
   mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 5, 0.0, 4.0);
   return o;
+}
+static mrvi_ocp *cart_problem(mrvi_model *m, const mrvi_settings *s) {
+  return cart_problem_pair(m, s, 1);
 }
 
 /* Cart pendulum (slow cart on a plane, fast bob on a rod: constraints at
@@ -202,6 +210,127 @@ static void test_adjoint_ways(void) {
       }
       free(ref);
     }
+}
+
+/* A 2-D chain of three slow links on rods from the pivot (constraints at
+ * macro nodes only: schur-bordered's slow-only form), a fast light mass on
+ * a stiff spring from the last link, gravity. */
+static mrvi_model *link_chain(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double gr[2] = {0, -9.81}, pivot[2] = {0, 0};
+  mrvi_model_set_gravity(m, gr);
+  for (int i = 0; i < 3; i++) {
+    const double x[2] = {0.3 * (i + 1), -0.4 * (i + 1)}, v[2] = {0.2 * i, -0.1};
+    char name[8];
+    snprintf(name, sizeof name, "h%d", i + 1);
+    mrvi_model_add_particle(m, name, 1.0 + i, MRVI_SLOW, x, v);
+  }
+  const double xf[2] = {0.9, -1.35}, vf[2] = {0.1, 0.3}, k[1] = {900};
+  mrvi_model_add_particle(m, "tip", 0.1, MRVI_FAST, xf, vf);
+  mrvi_model_add_spring(m, MRVI_FAST, 2, 3, "linear", k, NAN);
+  mrvi_model_add_distance_anchor(m, 0, pivot, NAN);
+  mrvi_model_add_distance(m, 0, 1, NAN);
+  mrvi_model_add_distance(m, 1, 2, NAN);
+  mrvi_model_project_velocities(m, NULL);
+  return m;
+}
+
+/* Its problem: slow actuators on two links, a fast one on the tip, a
+ * terminal velocity and a penalised position. */
+static mrvi_ocp *chain_problem(mrvi_model *m, const mrvi_settings *s) {
+  mrvi_ocp *o = create_problem(m, s);
+  if (!o)
+    return NULL;
+  mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 5, MRVI_GRID_MICRO, 2.0, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_actuator(o, 6, MRVI_GRID_MICRO, 0.5, -HUGE_VAL, HUGE_VAL);
+  mrvi_ocp_add_tracking(o, 7, 3.0, -1.2);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 2, 0.3, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 6, 0.9, 2.0);
+  return o;
+}
+
+/* Constrained models on schur-bordered (the forward pass through its block
+ * elimination keeping the multipliers, the adjoint solving the transposed
+ * steps with it): the path taken, the gradients against central
+ * differences, the forward run against the general path's to 1e-10, the
+ * kept factors refined against every step factorised (1e-10); the
+ * null-space form (general path) on the same problems.  The cart pendulum
+ * (micro-node constraints: the node blocks) for every scheme and a chain
+ * (rods at macro nodes only: the slow block bordered), p in {1, 5}. */
+static void test_bordered(void) {
+  const char *const *schemes = mrvi_scheme_names();
+  const char *forms[2] = {"multipliers", "null-space"};
+  for (int model = 0; model < 2; model++)
+    for (int is = 0; schemes[is] && (model == 0 || is == 0); is++)
+      for (int ip = 0; ip < 2; ip++)
+        for (int form = 0; form < 2; form++) {
+          const int p = ip ? 5 : 1;
+          mrvi_model *m = model ? link_chain() : test_cart_pendulum();
+          mrvi_settings s = test_settings(
+              model ? "midpoint-midpoint" : schemes[is], model ? 0.02 : 0.01, p,
+              model ? 0.1 : 0.04, model ? 1e-14 : 1e-13);
+          s.constraint_form =
+              form ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
+          s.constraint_tol = 1e-13;
+          if ((is + ip) % 2)
+            s.tuning.adjoint_dense_max = 0;
+          if (model) /* (the cost model prefers general on so short a
+                        chain) */
+            s.solver = MRVI_SOLVER_STRUCTURED * !form;
+          mrvi_settings sg = s;
+          sg.solver = MRVI_SOLVER_GENERAL;
+          mrvi_ocp *o =
+              model ? chain_problem(m, &s) : cart_problem_pair(m, &s, 0);
+          mrvi_ocp *og =
+              model ? chain_problem(m, &sg) : cart_problem_pair(m, &sg, 0);
+          s.tuning.adjoint_refine_max = 0;
+          mrvi_ocp *o0 =
+              model ? chain_problem(m, &s) : cart_problem_pair(m, &s, 0);
+          char what[160], why[300];
+          mrvi_fmt(what, sizeof what, "bordered: %s %s p=%d %s",
+                   model ? "chain" : "cart pendulum",
+                   model ? "midpoint-midpoint" : schemes[is], p, forms[form]);
+          const char *path = o ? mrvi_ocp_solver_path(o, why, sizeof why) : 0;
+          const char *want = form ? "general" : "schur-bordered";
+          CHECK(path && strcmp(path, want) == 0, "%s: path %s (%s)", what,
+                path ? path : "none", why);
+          if (o && og && o0) {
+            check_gradients(o, what);
+            /* the adjoint on bordered.c's transposed solves */
+            CHECK(form || o->bordered, "%s: no schur-bordered adjoint", what);
+            test_ocp_same_forward(o, og, m->n, what, 0.5, 1e-10);
+            /* kept factors refined (o) against every step factorised
+             * (o0), at two controls in turn */
+            const int n = mrvi_ocp_n_controls(o),
+                      nm = mrvi_ocp_n_constraints(o);
+            double *u = malloc((size_t)n * sizeof *u),
+                   *g = calloc((size_t)(2 * n * (1 + nm)), sizeof *g);
+            double err = 0.0, sc = 0.0;
+            int st = 0;
+            for (int t = 0; t < 2 && st == 0; t++) {
+              for (int i = 0; i < n; i++)
+                u[i] = 0.5 * sin(1.7 * i + 0.3 + t);
+              st =
+                  gradients_at(o, u, g) | gradients_at(o0, u, g + n * (1 + nm));
+              for (int i = 0; i < n * (1 + nm); i++) {
+                err = fmax(err, fabs(g[i] - g[n * (1 + nm) + i]));
+                sc = fmax(sc, fabs(g[n * (1 + nm) + i]));
+              }
+            }
+            CHECK(st == 0 && err <= 1e-10 * sc,
+                  "%s: kept factors against every step factorised: status "
+                  "%d, gradients differ by %.3e (scale %.3e)",
+                  what, st, err, sc);
+            free(u);
+            free(g);
+          }
+          mrvi_ocp_free(o);
+          mrvi_ocp_free(og);
+          mrvi_ocp_free(o0);
+          mrvi_model_free(m);
+        }
 }
 
 /* Slow free mass (and, if p > 1, an uncoupled fast oscillator). */
@@ -685,7 +814,9 @@ static void test_cli_path(void) {
       {"systems/ocp_double_integrator.yaml", "", "schur"},
       {"systems/ocp_double_integrator.yaml",
        "--set integrator.scheme=explicit-slow", "sweep"},
-      {"systems/ocp_gantry_crane.yaml", "", "general"},
+      {"systems/ocp_gantry_crane.yaml", "", "schur-bordered"},
+      {"systems/ocp_gantry_crane.yaml",
+       "--set integrator.constraints.form=null-space", "general"},
   };
   for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
     char cmd[2048], attr[64];
@@ -1374,18 +1505,22 @@ static void test_paths_optimum(void) {
   }
 }
 
-/* Paths of the general kind: a constrained model, pair actuators, and
- * integrator.solver = structured where no structured path applies. */
+/* Paths of the general kind: a constrained model in the null-space form
+ * (the multiplier form takes schur-bordered, test_bordered), pair
+ * actuators, and integrator.solver = structured where no structured path
+ * applies. */
 static void test_paths_general(void) {
   mrvi_model *m = test_cart_pendulum();
   mrvi_settings s = test_settings("explicit-slow", 0.01, 5, 0.04, 1e-13);
+  s.constraint_form = MRVI_FORM_NULL_SPACE;
   mrvi_ocp *o = NULL;
   char msg[300], why[300];
   if (mrvi_ocp_create(m, &s, &o, msg, sizeof msg) == 0) {
     mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL);
     const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
-    CHECK(path && strcmp(path, "general") == 0 && strstr(why, "constrained"),
-          "cart pendulum: path %s (%s)", path ? path : "none", why);
+    CHECK(path && strcmp(path, "general") == 0 && strstr(why, "null-space"),
+          "cart pendulum, null-space form: path %s (%s)", path ? path : "none",
+          why);
   }
   mrvi_ocp_free(o);
   /* integrator.solver = structured: the evaluation fails with the reason. */
@@ -1398,7 +1533,7 @@ static void test_paths_general(void) {
     const int st = mrvi_ocp_evaluate(o, u, &J, NULL, NULL, NULL);
     CHECK(st == MRVI_EINVAL &&
               strstr(mrvi_ocp_errmsg(o), "integrator.solver = structured") &&
-              strstr(mrvi_ocp_errmsg(o), "constrained"),
+              strstr(mrvi_ocp_errmsg(o), "null-space"),
           "structured on a constrained model: status %d, '%s'", st,
           mrvi_ocp_errmsg(o));
   }
@@ -1427,6 +1562,7 @@ int main(void) {
   test_gradients();
   test_gradients_constrained();
   test_adjoint_ways();
+  test_bordered();
   test_double_integrator();
   test_oscillator_period();
   test_dmoc_reference();

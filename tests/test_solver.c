@@ -520,6 +520,81 @@ static void test_jacobian_solve_constrained(void) {
   }
 }
 
+/* schur-bordered's transposed solve (the adjoint of optimal control):
+ * after mrvi_bordered_factor of a step's Jacobian J at its free-flight
+ * predictor, y = mrvi_bordered_solve_transpose(c) has J^T y = c to 1e-12
+ * relative (J^T y from the CSC entries), and mrvi_bordered_solve agrees:
+ * c.J^-1 b = (J^-T c).b; for the node blocks (cart pendulum, micro-node
+ * constraints) and the slow block bordered by the multipliers (pendulum
+ * chain: mrvi_blocks_solve_transpose), p in {1, 5}. */
+static void test_bordered_transpose(void) {
+  const char *files[2] = {"systems/cart_pendulum.yaml",
+                          "systems/pendulum_chain.yaml"};
+  for (int f = 0; f < 2; f++)
+    for (int p = 1; p <= 5; p += 4) {
+      mrvi_system *s =
+          load(files[f], "midpoint-midpoint", p, "multipliers", "structured");
+      if (!s)
+        continue;
+      mrvi_step st;
+      CHECK(mrvi_step_init(&st, s->model, &s->settings) == 0, "step init");
+      const mrvi_model *m = s->model;
+      const int nt = st.n_total, nu = st.n_unknowns;
+      double *d = calloc((size_t)(4 * m->n + 5 * nt), sizeof *d);
+      double *qs = d, *qf = qs + m->n, *ps = qf + m->n, *pf = ps + m->n;
+      double *x = pf + m->n, *R = x + nt, *b = R + nt, *c = b + nt, *y = c + nt;
+      test_initial_data(&st, qs, qf, ps, pf);
+      st.increments = 1;
+      mrvi_predict_free_flight(&st, x);
+      for (int i = nu; i < nt; i++)
+        x[i] = 0.1 * cos(1.3 * i); /* multipliers: their Hessian terms */
+      mrvi_bordered *bd = NULL;
+      char msg[300] = "";
+      int rc = mrvi_step_build_pattern(&st, x);
+      if (rc == 0) {
+        mrvi_step_assemble(&st, x, R, 1);
+        rc = mrvi_bordered_create(&st, &bd);
+      }
+      if (rc == 0)
+        rc = mrvi_bordered_factor(bd, &st, msg, sizeof msg);
+      for (int i = 0; i < nt; i++) {
+        b[i] = cos(0.3 + 1.1 * i);
+        c[i] = sin(0.5 + 0.9 * i);
+      }
+      if (rc == 0)
+        rc = mrvi_bordered_solve_transpose(bd, &st, c, y, msg, sizeof msg);
+      double res = 0.0, scale = 0.0;
+      for (int j = 0; j < nt && rc == 0; j++) {
+        double r = c[j], sc = fabs(c[j]);
+        for (int e = st.Ap[j]; e < st.Ap[j + 1]; e++) {
+          r -= st.Ax[e] * y[st.Ai[e]];
+          sc += fabs(st.Ax[e] * y[st.Ai[e]]);
+        }
+        res = fmax(res, fabs(r));
+        scale = fmax(scale, sc);
+      }
+      if (rc == 0)
+        rc = mrvi_bordered_solve(bd, &st, b, x, msg, sizeof msg);
+      double cx = 0.0, yb = 0.0, sd = 0.0;
+      for (int i = 0; i < nt; i++) {
+        cx += c[i] * x[i];
+        yb += y[i] * b[i];
+        sd += fabs(c[i] * x[i]) + fabs(y[i] * b[i]);
+      }
+      printf("bordered transpose: %s p=%d: |c - J^T y| %.2e (scale %.2e), "
+             "c.J^-1 b - J^-T c.b %.2e\n",
+             files[f], p, res, scale, fabs(cx - yb));
+      CHECK(rc == 0 && res <= 1e-12 * scale && fabs(cx - yb) <= 1e-12 * sd,
+            "%s p=%d: status %d (%s), |c - J^T y| %.3e (scale %.3e), "
+            "c.J^-1 b = %.15g, J^-T c.b = %.15g",
+            files[f], p, rc, msg, res, scale, cx, yb);
+      mrvi_bordered_free(bd);
+      free(d);
+      mrvi_step_free(&st);
+      mrvi_system_free(s);
+    }
+}
+
 /* The predictor (solver/predict.c): the explicit multirate sweep leaves a
  * residual far below free flight's at the paper's step sizes, so that the
  * FPU at dT = 0.01, p = 10 converges with one Newton update per step (free
@@ -2075,6 +2150,7 @@ static void test_dense_switch(void) {
 }
 
 int main(void) {
+  test_bordered_transpose();
   test_ordering_choice();
   test_dense_switch();
   test_keep_micro();

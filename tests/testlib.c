@@ -113,3 +113,39 @@ void test_ocp_gradients(mrvi_ocp *o, const char *what, double amplitude) {
   free(cp);
   free(cm);
 }
+
+void test_ocp_same_forward(mrvi_ocp *o, mrvi_ocp *og, int n_coords,
+                           const char *what, double amplitude, double tol) {
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  const long nq = (mrvi_ocp_n_steps(o) + 1) * n_coords;
+  double *u = malloc((size_t)n * sizeof *u);
+  double *c = malloc((size_t)(2 * m + 2) * sizeof *c), *cg = c + m + 1;
+  for (int i = 0; i < n; i++)
+    u[i] = amplitude * sin(1.7 * i + 0.3);
+  double J = 0.0, Jg = 0.0;
+  const int st = mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+  const int sg = mrvi_ocp_evaluate(og, u, &Jg, NULL, cg, NULL);
+  CHECK(st == 0 && sg == 0 && n == mrvi_ocp_n_controls(og) &&
+            m == mrvi_ocp_n_constraints(og),
+        "%s: evaluate: %s / %s", what, mrvi_ocp_errmsg(o), mrvi_ocp_errmsg(og));
+  double dc = 0.0, sc = 0.0, dq = 0.0, sq = 0.0;
+  for (int j = 0; j < m && st == 0 && sg == 0; j++) {
+    dc = fmax(dc, fabs(c[j] - cg[j]));
+    sc = fmax(sc, fabs(cg[j]));
+  }
+  const double *q = mrvi_ocp_q(o), *qg = mrvi_ocp_q(og);
+  for (long i = 0; i < nq && st == 0 && sg == 0; i++) {
+    dq = fmax(dq, fabs(q[i] - qg[i]));
+    sq = fmax(sq, fabs(qg[i]));
+  }
+  printf("%s: cost %.15g against %.15g, constraints differ by %.2e, "
+         "positions by %.2e\n",
+         what, J, Jg, dc, dq);
+  CHECK(fabs(J - Jg) <= tol * fabs(Jg) && dc <= tol * fmax(sc, 1.0) &&
+            dq <= tol * sq,
+        "%s: forward runs differ: cost %.17g / %.17g, constraints %.3e, "
+        "positions %.3e",
+        what, J, Jg, dc, dq);
+  free(u);
+  free(c);
+}

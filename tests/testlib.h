@@ -44,5 +44,11 @@ void test_rotation(const double *w, double t, double *R);
  * u_i = amplitude sin(1.7 i + 0.3): each within 1e-6 of its scale (the
  * largest difference quotient); prints the relative errors. */
 void test_ocp_gradients(mrvi_ocp *o, const char *what, double amplitude);
+/* Evaluates o and og (the same problem, og on another step solver path)
+ * at the controls of test_ocp_gradients: cost, constraints and the macro
+ * positions (n_coords a node) agree within tol relative to their largest
+ * magnitude; prints the differences. */
+void test_ocp_same_forward(mrvi_ocp *o, mrvi_ocp *og, int n_coords,
+                           const char *what, double amplitude, double tol);
 
 #endif

@@ -1834,6 +1834,9 @@ const double *mrvi_integrator_micro_q(const mrvi_integrator *it) {
 const double *mrvi_integrator_micro_p(const mrvi_integrator *it) {
   return it->micro_all ? it->micro_p : it->pf;
 }
+const double *mrvi_integrator_step_multipliers(const mrvi_integrator *it) {
+  return it->x + it->step.n_unknowns;
+}
 const double *mrvi_integrator_lambda(const mrvi_integrator *it) {
   return it->lambda;
 }

@@ -13,6 +13,11 @@
 void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
                                 const double *f_end);
 
+/* The multipliers of the last step in the step's layout (mrvi_step:
+ * n_lambda, slow rows then the micro nodes'), as the Newton iteration
+ * converged to them: optimal control keeps them for its adjoint. */
+const double *mrvi_integrator_step_multipliers(const mrvi_integrator *it);
+
 /* The integrator's choice of the chord matrix on the schur path (tests
  * force either): by its rule (auto, the default), never, or for the first
  * update of every step where the structure admits it. */

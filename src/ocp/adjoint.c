@@ -541,6 +541,22 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   if (o->skrylov)
     mrvi_skrylov_set_rtol(o->skrylov, tn->adjoint_krylov_rtol,
                           tn->adjoint_krylov_rtol);
+  /* schur-bordered: its block elimination on the step's pattern (one
+   * outside its structure: the general path's LU, as the forward pass's
+   * integrator would have refused it) */
+  if (o->path == MRVI_PATH_SCHUR_BORDERED) {
+    const int s = mrvi_bordered_create(st, &o->bordered);
+    if (s == MRVI_ENOMEM)
+      return s;
+    o->bd_work = malloc((2 * nu + 1) * sizeof *o->bd_work);
+    if (!o->bd_work)
+      return MRVI_ENOMEM;
+    if (!o->bordered && !o->newton &&
+        !(o->newton =
+              mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                                 tn->newton_dense_max, msg, sizeof msg)))
+      return MRVI_ENOMEM;
+  }
   return MRVI_OK;
 }
 
@@ -625,6 +641,43 @@ static int krylov_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   return MRVI_OK;
 }
 
+/* A_k^T x (rhs, sol: nfun x n_total) with schur-bordered's block
+ * elimination (bordered.c, mrvi_bordered_solve_transpose): from the
+ * factors kept (of a later step, or of the previous evaluation) refined
+ * against A_k as on the general path (mrvi_refine_transpose), A_k
+ * factorised where none are kept or the refinement does not get there. */
+static int bd_solve(void *ctx, const double *b, double *x, char *msg,
+                    size_t len) {
+  mrvi_ocp *o = ctx;
+  return mrvi_bordered_solve_transpose(o->bordered, &o->step, b, x, msg, len);
+}
+static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
+  mrvi_step *st = &o->step;
+  const size_t nt = (size_t)st->n_total;
+  const int max_refine = o->settings.tuning.adjoint_refine_max;
+  for (int f = 0; f < nfun; f++) {
+    const double *b = o->rhs + (size_t)f * nt;
+    double *x = o->sol + (size_t)f * nt;
+    int ok = 0;
+    if (o->bd_factored && max_refine > 0)
+      ok = mrvi_refine_transpose(st->n_total, st->Ap, st->Ai, o->Ak, b, x,
+                                 max_refine, o->bd_work, bd_solve, o, msg, len);
+    if (ok == 1)
+      continue;
+    /* (step.Ax: the values the factors are of, as bordered.c reads them) */
+    memcpy(st->Ax, o->Ak, (size_t)st->nnz * sizeof *st->Ax);
+    o->bd_factored = 0;
+    int s = mrvi_bordered_factor(o->bordered, st, msg, len);
+    if (s < 0)
+      return s;
+    o->bd_factored = 1;
+    o->adjoint_factorisations++;
+    if ((s = bd_solve(o, b, x, msg, len)) < 0)
+      return s;
+  }
+  return MRVI_OK;
+}
+
 /* The backward sweep over the steps with H_k assembled and A_k^T solved:
  * o->mu (final nodes set) on every equation node from gQ (overwritten);
  * the state actuators' part of the control gradients into gu (nfun rows of
@@ -696,6 +749,8 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
      * steps. */
     if (o->skrylov) {
       s = krylov_transpose(o, nfun, msg, sizeof msg);
+    } else if (o->bordered) {
+      s = bordered_transpose(o, nfun, msg, sizeof msg);
     } else {
       int refactored;
       s = mrvi_newton_solve_transpose_kept(

@@ -117,13 +117,6 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
 
 int ocp_path(const mrvi_ocp *o, char *why, size_t len) {
   const int path = mrvi_sweep_path(o->model, &o->settings, why, len);
-  if (path == MRVI_PATH_SCHUR_BORDERED) {
-    /* The structured forward pass keeps no multipliers. */
-    mrvi_fmt(why, len,
-             "constrained model: optimal control solves it on the general "
-             "path");
-    return MRVI_PATH_GENERAL;
-  }
   if (o->n_state == 0 || path == MRVI_PATH_GENERAL)
     return path;
   /* Their forces depend on the positions (the step hook mrvi_step.extra),
@@ -193,14 +186,18 @@ oom:
 }
 
 void ocp_adjoint_free(mrvi_ocp *o) {
-  double **d[] = {&o->r,     &o->mu, &o->rhs, &o->sol,      &o->Ak,
-                  &o->h_val, &o->H,  &o->pv,  &o->adj_work, &o->adj_blocks};
+  double **d[] = {&o->r,        &o->mu,         &o->rhs,    &o->sol,
+                  &o->Ak,       &o->h_val,      &o->H,      &o->pv,
+                  &o->adj_work, &o->adj_blocks, &o->bd_work};
   for (size_t i = 0; i < sizeof d / sizeof *d; i++) {
     free(*d[i]);
     *d[i] = NULL;
   }
   mrvi_skrylov_free(o->skrylov);
   o->skrylov = NULL;
+  mrvi_bordered_free(o->bordered);
+  o->bordered = NULL;
+  o->bd_factored = 0;
   for (int c = 0; c < 2; c++) {
     mrvi_terms_free(o->adj_terms[c]);
     o->adj_terms[c] = NULL;
@@ -929,13 +926,18 @@ static double norm_inf(const double *v, int n) {
 }
 
 /* Pattern, symbolic analysis (and null-space set-up) at the first step's
- * predictor. */
+ * predictor; on schur-bordered the pattern alone (the adjoint factorises
+ * with bordered.c, adjoint.c). */
 static int prepare(mrvi_ocp *o) {
   mrvi_step *st = &o->step;
   char msg[300];
   if (mrvi_step_build_pattern(st, o->x) < 0)
     return mrvi_ocp_fail(o, MRVI_ENOMEM, "out of memory");
   mrvi_step_assemble(st, o->x, o->R, 1);
+  if (o->path == MRVI_PATH_SCHUR_BORDERED) {
+    o->ready = 1;
+    return MRVI_OK;
+  }
   if (o->settings.constraint_form == MRVI_FORM_NULL_SPACE && o->nl > 0) {
     int s = mrvi_nullspace_create(st, NULL, 0, &o->nullspace, msg, sizeof msg);
     if (s == 0) {
@@ -1034,8 +1036,7 @@ static int setup(mrvi_ocp *o, const double *u) {
                          why);
   if (o->path != MRVI_PATH_GENERAL && !o->integ) {
     /* The integrator's own path objects; no momentum projection (the step
-     * equations of the problem have none; structured paths are
-     * unconstrained anyway). */
+     * equations of the problem have none). */
     mrvi_settings s = o->settings;
     s.project_momenta = 0;
     /* Each forward run a function of its inputs, each step of (q_k, p_k)
@@ -1082,6 +1083,15 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
   if (nt > 0)
     memcpy(o->branch + (k + 1) * nt, mrvi_integrator_torsion_angle(it),
            (size_t)nt * sizeof(double));
+  /* schur-bordered: the multipliers of the step (the adjoint's J_k) and
+   * the micro nodes' constraint residuals, as the general path keeps them */
+  if (o->nl > 0) {
+    memcpy(o->Lam + k * o->nl, mrvi_integrator_step_multipliers(it),
+           (size_t)o->nl * sizeof(double));
+    memcpy(o->cres_micro + k * o->p,
+           mrvi_integrator_micro_constraint_residual(it),
+           (size_t)o->p * sizeof(double));
+  }
   const double *q = mrvi_integrator_q(it), *pm = mrvi_integrator_p(it);
   for (int i = 0; i < o->ns; i++) {
     o->ps1[i] = pm[m->slow_index[i]];

@@ -146,6 +146,13 @@ struct mrvi_ocp {
    * solves and those that fell back to the sparse LU. */
   mrvi_skrylov *skrylov;
   long adjoint_krylov_solves, adjoint_krylov_fallbacks;
+  /* The transposed step solves of the adjoint where the forward pass takes
+   * schur-bordered: its block elimination (bordered.c) of A_k, factorised
+   * on step's pattern with the values step.Ax (bd_factored: it holds
+   * factors), run backwards; bd_work: 2 n_total for the refinement. */
+  mrvi_bordered *bordered;
+  int bd_factored;
+  double *bd_work;
   /* The explicit path's adjoint (adjoint_explicit.c, ocp_explicit_ok):
    * V and W compiled for Hessian-vector products (columns: V's slow slots,
    * then ns + fast slots; W's fast slots) and its workspace. */

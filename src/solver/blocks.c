@@ -1468,6 +1468,49 @@ void mrvi_blocks_slow_solve(const mrvi_blocks *b, double *r, int nrhs) {
     lu_solve_k(b->ns, b->S, b->spiv, b->sdinv, r, nrhs);
 }
 
+void mrvi_blocks_solve_transpose(const mrvi_blocks *b, const double *R,
+                                 double *dx) {
+  const int ns = b->ns, nf = b->nf, p = b->p, nF = p * nf;
+  const size_t blk = (size_t)nf * (size_t)nf;
+  double *z = b->z, *r = b->r;
+  /* J = [A_ss A_sf; A_fs A_ff] = [S A_sf; 0 A_ff] [I 0; Y I] (slow
+   * first): J^T x = R by w_s = R_s - Y^T R_f, S^T x_s = w_s, then
+   * A_ff^T x_f = R_f - A_sf^T x_s by a backward block sweep. */
+  for (int j = 0; j < ns; j++)
+    r[j] = R[j];
+  for (int k = 0; k < nF; k++) {
+    const double rk = R[ns + k];
+    if (rk != 0.0)
+      for (int j = 0; j < ns; j++)
+        r[j] -= b->Y[(size_t)k * ns + j] * rk;
+  }
+  if (ns > 0)
+    mrvi_dense_lu_solve_transpose(ns, b->S, b->spiv, r, 1);
+  for (int k = 0; k < nF; k++)
+    z[k] = R[ns + k];
+  for (int i = 0; i < ns; i++)
+    if (r[i] != 0.0)
+      for (int k = 0; k < nF; k++)
+        z[k] -= b->Asf[(size_t)i * nF + k] * r[i];
+  /* Row block m of A_ff has D_m, L1_m, L2_m in column blocks m, m-1, m-2
+   * (uniform: row blocks 3.. those of row block 2). */
+  for (int m = p - 1; m >= 0; m--) {
+    const size_t bm = b->uniform && m >= 3 ? 2 : (size_t)m;
+    double *zm = z + (size_t)m * nf;
+    mrvi_dense_lu_solve_transpose(nf, b->D + bm * blk, b->piv + bm * nf, zm, 1);
+    for (int d = 1; d <= 2 && d <= m; d++) {
+      const double *L = (d == 1 ? b->L1 : b->L2) + bm * blk;
+      double *zc = zm - (size_t)d * nf;
+      for (int i = 0; i < nf; i++)
+        if (zm[i] != 0.0)
+          for (int k = 0; k < nf; k++)
+            zc[k] -= L[i * nf + k] * zm[i];
+    }
+  }
+  memcpy(dx, r, (size_t)ns * sizeof *dx);
+  memcpy(dx + ns, z, (size_t)nF * sizeof *dx);
+}
+
 int mrvi_blocks_factor_solve(mrvi_blocks *b, const mrvi_step *st,
                              const double *R, double *dx) {
   const int s = factor(b, st, R);

@@ -485,17 +485,29 @@ static int node_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   return MRVI_OK;
 }
 
+/* from (J's order) into bd->z (node-block order: the fast blocks, then
+ * the slow one), or (from NULL) bd->z back into to. */
+static void node_order(const mrvi_bordered *bd, const double *from,
+                       double *to) {
+  const size_t b = (size_t)bd->b, pb = (size_t)bd->p * b;
+  for (int i = 0; i < bd->nu + bd->nl; i++) {
+    double *zi = bd->rblk[i] >= 0
+                     ? bd->z + (size_t)bd->rblk[i] * b + (size_t)bd->roff[i]
+                     : bd->z + pb + bd->roff[i];
+    if (from)
+      *zi = from[i];
+    else
+      to[i] = *zi;
+  }
+}
+
 /* J dx = R with the node blocks' factors. */
 static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
   const int a = bd->a, b = bd->b, p = bd->p, ka = bd->kv;
   const size_t pb = (size_t)p * (size_t)b;
   double *z = bd->z, *ds = bd->z + pb;
   /* z = A_ff^-1 R_f (forward sweep), in node-block order */
-  for (int i = 0; i < bd->nu + bd->nl; i++)
-    if (bd->rblk[i] >= 0)
-      z[(size_t)bd->rblk[i] * b + bd->roff[i]] = R[i];
-    else
-      ds[bd->roff[i]] = R[i];
+  node_order(bd, R, NULL);
   for (int c = 0; c < p; c++) {
     double *zc = z + (size_t)c * b;
     for (int k = 1; k <= 2 && k <= c; k++) {
@@ -530,9 +542,7 @@ static void node_solve(const mrvi_bordered *bd, const double *R, double *dx) {
       acc += bd->Y[j * (size_t)ka + (size_t)r] * ds[bd->kvt[r]];
     z[j] -= acc;
   }
-  for (int i = 0; i < bd->nu + bd->nl; i++)
-    dx[i] = bd->rblk[i] >= 0 ? z[(size_t)bd->rblk[i] * b + bd->roff[i]]
-                             : ds[bd->roff[i]];
+  node_order(bd, NULL, dx);
 }
 
 /* Constraints at macro nodes only: A by block elimination (the
@@ -601,26 +611,8 @@ static void solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
 int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
                                const double *R, double *dx, char *msg,
                                size_t len) {
-  if (!bd->slow_only) {
-    if (!bd->whole) {
-      const int s = node_factor(bd, st, msg, len);
-      if (s == MRVI_OK) {
-        node_solve(bd, R, dx);
-        return s;
-      }
-      if (s != MRVI_ESINGULAR)
-        return s;
-      bd->whole = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
-                                     bd->dense_max, msg, len);
-      if (!bd->whole)
-        return MRVI_ESINGULAR;
-    }
-    return mrvi_newton_solve(bd->whole, st->Ax, R, dx, msg, len);
-  }
-  const int s = factor(bd, st, msg, len);
-  if (s == MRVI_OK)
-    solve(bd, st, R, dx);
-  return s;
+  const int s = mrvi_bordered_factor(bd, st, msg, len);
+  return s < 0 ? s : mrvi_bordered_solve(bd, st, R, dx, msg, len);
 }
 
 int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
@@ -631,5 +623,96 @@ int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
     node_solve(bd, R, dx);
   else
     solve(bd, st, R, dx);
+  return MRVI_OK;
+}
+
+/* J^T dx = R with the node blocks' factors: J = [A_ff 0; A_sf S] [I Y;
+ * 0 I] in node-block order (rows and columns alike), so w_s = R_s - Y^T
+ * R_f, S^T ds = w_s, and A_ff^T df = R_f - A_sf^T ds by a backward sweep
+ * (A_ff^T block upper-triangular: D_c^T on the diagonal, L1_{c+1}^T and
+ * L2_{c+2}^T beside it). */
+static void node_solve_transpose(const mrvi_bordered *bd, const double *R,
+                                 double *dx) {
+  const int a = bd->a, b = bd->b, p = bd->p, ka = bd->kv;
+  const size_t pb = (size_t)p * (size_t)b;
+  double *z = bd->z, *ds = bd->z + pb;
+  node_order(bd, R, NULL);
+  for (size_t j = 0; j < pb; j++)
+    if (z[j] != 0.0)
+      for (int r = 0; r < ka; r++)
+        ds[bd->kvt[r]] -= bd->Y[j * (size_t)ka + (size_t)r] * z[j];
+  mrvi_dense_lu_solve_transpose(a, bd->S, bd->spiv, ds, 1);
+  for (int i = 0; i < a; i++)
+    if (ds[i] != 0.0)
+      for (int e = bd->sfp[i]; e < bd->sfp[i + 1]; e++)
+        z[bd->sfj[e]] -= bd->Asf[(size_t)i * pb + (size_t)bd->sfj[e]] * ds[i];
+  for (int c = p - 1; c >= 0; c--) {
+    double *zc = z + (size_t)c * b;
+    mrvi_dense_lu_solve_transpose(b, bd->D + (size_t)c * b * b,
+                                  bd->dpiv + (size_t)c * b, zc, 1);
+    for (int k = 1; k <= 2 && k <= c; k++) {
+      const double *L = (k == 1 ? bd->L1 : bd->L2) + (size_t)c * b * b;
+      double *zp = z + (size_t)(c - k) * b;
+      for (int e = bd->lp[2 * c + k - 1]; e < bd->lp[2 * c + k]; e++)
+        zp[bd->lj[e]] -= L[(size_t)bd->li[e] * b + bd->lj[e]] * zc[bd->li[e]];
+    }
+  }
+  node_order(bd, NULL, dx);
+}
+
+/* J^T dx = R with the factors (constraints at macro nodes only): J = [A B;
+ * C 0], K = -C A^-1 B, so with z = A^-T R_x, K^T dlambda = R_c - B^T z and
+ * dx = A^-T (R_x - C^T dlambda). */
+static void solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
+                            const double *R, double *dx) {
+  const int nu = bd->nu, nl = bd->nl;
+  const int *Ap = st->Ap, *Ai = st->Ai;
+  const double *Ax = st->Ax;
+  mrvi_blocks_solve_transpose(bd->blocks, R, bd->dz);
+  for (int l = 0; l < nl; l++) {
+    double s = R[nu + l];
+    for (int q = Ap[nu + l]; q < Ap[nu + l + 1]; q++)
+      if (Ai[q] < nu)
+        s -= Ax[q] * bd->dz[Ai[q]];
+    bd->r[l] = s;
+  }
+  mrvi_dense_lu_solve_transpose(nl, bd->K, bd->piv, bd->r, 1);
+  for (int j = 0; j < nu; j++) {
+    double s = R[j];
+    for (int q = Ap[j]; q < Ap[j + 1]; q++)
+      if (Ai[q] >= nu)
+        s -= Ax[q] * bd->r[Ai[q] - nu];
+    bd->dz[j] = s;
+  }
+  for (int l = 0; l < nl; l++)
+    dx[nu + l] = bd->r[l];
+  mrvi_blocks_solve_transpose(bd->blocks, bd->dz, dx);
+}
+
+int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
+                         size_t len) {
+  if (bd->slow_only)
+    return factor(bd, st, msg, len);
+  if (!bd->whole) {
+    const int s = node_factor(bd, st, msg, len);
+    if (s != MRVI_ESINGULAR)
+      return s;
+    bd->whole = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
+                                   bd->dense_max, msg, len);
+    if (!bd->whole)
+      return MRVI_ESINGULAR;
+  }
+  return mrvi_newton_factor(bd->whole, st->Ax, msg, len);
+}
+
+int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
+                                  const double *R, double *dx, char *msg,
+                                  size_t len) {
+  if (bd->whole)
+    return mrvi_linsolve_solve(bd->whole, st->Ax, 1, R, dx, msg, len);
+  if (!bd->slow_only)
+    node_solve_transpose(bd, R, dx);
+  else
+    solve_transpose(bd, st, R, dx);
   return MRVI_OK;
 }

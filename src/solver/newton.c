@@ -413,8 +413,55 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
  * converges while ||B^-T (A - B)^T|| < 1 (consecutive steps of a smooth
  * trajectory).  It stops at ||b - A^T x||_inf <= 64 eps max_j (|A^T| |x| +
  * |b|)_j, the size of the round-off of the residual itself, and gives up
- * (A factorised) after max_refine steps or a step that reduced the
- * residual by less than 4. */
+ * after max_refine steps or a step that reduced the residual by less than
+ * 4 (the caller then factorises A). */
+int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
+                          const double *b, double *x, int max_refine,
+                          double *work, mrvi_tsolve_fn solve, void *ctx,
+                          char *msg, size_t len) {
+  double *r = work, *d = work + n;
+  int st = solve(ctx, b, x, msg, len);
+  double rprev = INFINITY;
+  for (int it = 0; st == MRVI_OK; it++) {
+    /* r = b - A^T x (column j of A dotted with x) and its scale. */
+    double rmax = 0.0, scale = 0.0;
+    for (int j = 0; j < n; j++) {
+      double sum = b[j], sc = fabs(b[j]);
+      for (int e = Ap[j]; e < Ap[j + 1]; e++) {
+        const double t = Ax[e] * x[Ai[e]];
+        sum -= t;
+        sc += fabs(t);
+      }
+      r[j] = sum;
+      rmax = fmax(rmax, fabs(sum));
+      scale = fmax(scale, sc);
+      if (!isfinite(sum))
+        rmax = INFINITY;
+    }
+    if (rmax <= 64.0 * DBL_EPSILON * scale)
+      return 1;
+    /* Slower than a factor 4 per step: factorising is cheaper. */
+    if (it == max_refine || (it > 0 && !(rmax <= 0.25 * rprev)))
+      return 0;
+    rprev = rmax;
+    st = solve(ctx, r, d, msg, len);
+    for (int j = 0; j < n && st == MRVI_OK; j++)
+      x[j] += d[j];
+  }
+  return st;
+}
+
+/* A^T x = b with nw's kept factors (mrvi_refine_transpose's solve). */
+typedef struct {
+  mrvi_newton *nw;
+  const double *Ax;
+} kept_ctx;
+static int kept_solve(void *ctx, const double *b, double *x, char *msg,
+                      size_t len) {
+  const kept_ctx *k = ctx;
+  return mrvi_linsolve_solve(k->nw, k->Ax, 1, b, x, msg, len);
+}
+
 int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
                                      int nrhs, const double *b, double *x,
                                      int max_refine, int *refactored, char *msg,
@@ -428,43 +475,17 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
     mrvi_fmt(msg, len, "out of memory");
     return MRVI_ENOMEM;
   }
-  double *r = nw->ref, *d = r + n;
   /* UMFPACK's own refinement steps are this loop's: off meanwhile. */
   const double irstep = nw->control[UMFPACK_IRSTEP];
   nw->control[UMFPACK_IRSTEP] = 0.0;
+  kept_ctx ctx = {nw, Ax};
   for (int i = 0; i < nrhs; i++) {
-    const double *bi = b + (size_t)i * (size_t)n;
-    double *xi = x + (size_t)i * (size_t)n;
-    int st = mrvi_linsolve_solve(nw, Ax, 1, bi, xi, msg, len);
-    int ok = 0;
-    double rprev = INFINITY;
-    for (int it = 0; st == MRVI_OK; it++) {
-      /* r = b - A^T x (column j of A dotted with x) and its scale. */
-      double rmax = 0.0, scale = 0.0;
-      for (int j = 0; j < n; j++) {
-        double sum = bi[j], sc = fabs(bi[j]);
-        for (int e = nw->Ap[j]; e < nw->Ap[j + 1]; e++) {
-          const double t = Ax[e] * xi[nw->Ai[e]];
-          sum -= t;
-          sc += fabs(t);
-        }
-        r[j] = sum;
-        rmax = fmax(rmax, fabs(sum));
-        scale = fmax(scale, sc);
-        if (!isfinite(sum))
-          rmax = INFINITY;
-      }
-      ok = rmax <= 64.0 * DBL_EPSILON * scale;
-      /* Slower than a factor 4 per step: factorising is cheaper. */
-      if (ok || it == max_refine || (it > 0 && !(rmax <= 0.25 * rprev)))
-        break;
-      rprev = rmax;
-      st = mrvi_linsolve_solve(nw, Ax, 1, r, d, msg, len);
-      for (int j = 0; j < n && st == MRVI_OK; j++)
-        xi[j] += d[j];
-    }
+    const int ok =
+        mrvi_refine_transpose(n, nw->Ap, nw->Ai, Ax, b + (size_t)i * (size_t)n,
+                              x + (size_t)i * (size_t)n, max_refine, nw->ref,
+                              kept_solve, &ctx, msg, len);
     /* Stalled (or the kept factors failed): factorise A. */
-    if (!ok) {
+    if (ok != 1) {
       nw->control[UMFPACK_IRSTEP] = irstep;
       return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
     }

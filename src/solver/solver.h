@@ -226,6 +226,18 @@ int mrvi_newton_update(mrvi_newton *nw, const double *Ax, const double *b,
 int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
                                 const double *b, double *x, char *msg,
                                 size_t len);
+/* x solving A^T x = b (A: CSC n x n) from solve (a solve with factors kept
+ * from an earlier matrix of the same pattern), refined against A to the
+ * round-off of the residual (newton.c): 1 if it got there, 0 if it gave up
+ * after max_refine corrections or a correction that reduced the residual by
+ * less than 4 (factorise A then), or solve's status; work: 2 n doubles.
+ * The adjoint's transposed steps on the general and schur-bordered paths. */
+typedef int (*mrvi_tsolve_fn)(void *ctx, const double *b, double *x, char *msg,
+                              size_t len);
+int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
+                          const double *b, double *x, int max_refine,
+                          double *work, mrvi_tsolve_fn solve, void *ctx,
+                          char *msg, size_t len);
 /* The same solves starting from the factors kept from an earlier matrix of
  * the same pattern (a previous step, the forward Newton iteration),
  * refined against A (at most max_refine corrections, each a solve with the
@@ -741,6 +753,15 @@ int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
  * simplified Newton update. */
 int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
                         double *dx, char *msg, size_t len);
+/* Factorise st->Ax alone (the adjoint's steps, src/ocp/adjoint.c), and
+ * solve J^T dx = R with the factors of the last factorisation (st->Ax still
+ * the Jacobian it factorised): the transposed step by the same block
+ * elimination run backwards. */
+int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
+                         size_t len);
+int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
+                                  const double *R, double *dx, char *msg,
+                                  size_t len);
 
 /* Newton matrix of an unconstrained step by block elimination
  * (solver/blocks.c): Schur complement on the slow block, block forward
@@ -762,6 +783,10 @@ int mrvi_blocks_assemble(mrvi_blocks *b, const mrvi_step *st, const double *x,
                          double *R, int jac);
 /* Solve J dx = R with the kept factors. */
 void mrvi_blocks_solve(const mrvi_blocks *b, const double *R, double *dx);
+/* Solve J^T dx = R with the kept factors (the adjoint's transposed step,
+ * src/ocp/adjoint.c, through bordered.c). */
+void mrvi_blocks_solve_transpose(const mrvi_blocks *b, const double *R,
+                                 double *dx);
 /* r (ns x nrhs row-major) becomes S^-1 r, S = A_ss - A_sf A_ff^-1 A_fs the
  * kept Schur complement: the slow block of J^-1 (bordered.c). */
 void mrvi_blocks_slow_solve(const mrvi_blocks *b, double *r, int nrhs);
