@@ -489,8 +489,9 @@ lanes_residual(const mrvi_newton *nw, int L, const double *Ax, const double *xt,
 
 /* The dense factors' transposed solve (dense_solve) of the L lanes of bt
  * into xt (interleaved; yt: L n), lane by lane its scalar operations. */
-static void dense_solve_lanes(const mrvi_newton *nw, int L, const double *bt,
-                              double *xt, double *yt) {
+static inline __attribute__((always_inline)) void
+dense_solve_lanes(const mrvi_newton *nw, int L, const double *bt, double *xt,
+                  double *yt) {
   const int n = nw->n, *lp = nw->ptr, *up = nw->ptr + n + 1, *ix = nw->idx;
   const double *v = nw->val;
   const size_t l = (size_t)L;
@@ -536,13 +537,19 @@ static void dense_solve_lanes(const mrvi_newton *nw, int L, const double *bt,
 
 /* The kept factors' transposed solve of the lanes of bt into dt (both
  * interleaved, L lanes; lanes not active: dt anything) with workspace w
- * (L n): the dense ones all at once, UMFPACK's lane by lane. */
+ * (L n): the dense ones all at once where more than half the lanes are
+ * active (na of them), else (and UMFPACK's) lane by lane. */
 static int solve_lanes(mrvi_newton *nw, const double *Ax, int L,
-                       const int *active, int nb, const double *bt, double *dt,
-                       double *w, char *msg, size_t len) {
+                       const int *active, int nb, int na, const double *bt,
+                       double *dt, double *w, char *msg, size_t len) {
   const int n = nw->n;
-  if (nw->lu) {
-    dense_solve_lanes(nw, L, bt, dt, w);
+  if (nw->lu && 2 * na > L) {
+    if (L == 2)
+      dense_solve_lanes(nw, 2, bt, dt, w);
+    else if (L == 4)
+      dense_solve_lanes(nw, 4, bt, dt, w);
+    else
+      dense_solve_lanes(nw, REF_LANES, bt, dt, w);
     return MRVI_OK;
   }
   for (int i = 0; i < nb; i++) {
@@ -601,7 +608,8 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
       for (int j = 0; j < n; j++)
         bt[(size_t)j * l + (size_t)i] = bi[(size_t)i * (size_t)n + (size_t)j];
     }
-    ok = solve_lanes(nw, Ax, L, active, nb, bt, xt, yt, msg, len) == MRVI_OK;
+    ok =
+        solve_lanes(nw, Ax, L, active, nb, na, bt, xt, yt, msg, len) == MRVI_OK;
     for (int it = 0; na > 0 && ok; it++) {
       if (L == 2)
         lanes_residual(nw, 2, Ax, xt, bt, r, rmax, scale);
@@ -625,7 +633,8 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
       }
       if (!ok || na == 0)
         break;
-      ok = solve_lanes(nw, Ax, L, active, nb, r, d, yt, msg, len) == MRVI_OK;
+      ok =
+          solve_lanes(nw, Ax, L, active, nb, na, r, d, yt, msg, len) == MRVI_OK;
       for (int j = 0; j < n && ok; j++)
         for (int i = 0; i < nb; i++)
           if (active[i])
