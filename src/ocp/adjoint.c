@@ -15,6 +15,7 @@
  *   dPhi/du = dPhi/du|_direct - sum_k mu[z_k]^T d(forces_k)/du.
  * All functionals (cost and every terminal constraint) share one sweep. */
 #include "ocp/ocp_internal.h"
+#include "util/simd.h"
 
 #include <limits.h>
 #include <math.h>
@@ -38,6 +39,23 @@ static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
     if (o->model->rate[kc->in[j]] == MRVI_FAST)
       zc[j][1] = 0.0; /* node point: fast node m only */
   }
+  /* hs = sum_r lambda_r d^2 g_r (rows in order for every entry: the sums
+   * of the entries one by one). */
+  double hs[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
+  if (lv >= 0) {
+    const double *lam = o->x + st->n_unknowns + (lv - o->nz);
+    for (int e = 0; e < n * n; e++)
+      hs[e] = 0.0;
+    for (int r = 0; r < rows; r++) {
+      const double *Hr = st->cH + (size_t)r * (size_t)(n * n);
+      const mrvi_v2 lr = v2_set(lam[r], lam[r]);
+      int e = 0;
+      for (; e + 1 < n * n; e += 2)
+        v2_store(hs + e, v2_add(v2_load(hs + e), v2_mul(lr, v2_load(Hr + e))));
+      for (; e < n * n; e++)
+        hs[e] += lam[r] * Hr[e];
+    }
+  }
   for (int j = 0; j < n; j++)
     for (int a = 0; a < 2; a++) {
       if (zc[j][a] == 0.0)
@@ -48,13 +66,10 @@ static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
           ocp_jac_add(J, er + r, zr, zc[j][a] * st->cG[r * n + j]);
       if (lv < 0)
         continue;
-      const double *lam = o->x + st->n_unknowns + (lv - o->nz);
       for (int r = 0; r < rows; r++)
         ocp_jac_add(J, zr, lv + r, -pt->w * zc[j][a] * st->cG[r * n + j]);
       for (int l = 0; l < n; l++) {
-        double h = 0.0;
-        for (int r = 0; r < rows; r++)
-          h += lam[r] * st->cH[(r * n + j) * n + l];
+        const double h = hs[j * n + l];
         for (int b = 0; b < 2; b++)
           if (zc[l][b] != 0.0)
             ocp_jac_add(J, zr, zi[l][b], -pt->w * zc[j][a] * zc[l][b] * h);
@@ -490,6 +505,14 @@ static int adjoint_krylov_path(const mrvi_ocp *o) {
   }
 }
 
+/* The place of every entry of A_k in the dense H. */
+static void dense_slots(mrvi_ocp *o) {
+  const mrvi_step *st = &o->step;
+  for (int j = 0; j < st->n_total; j++)
+    for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++)
+      o->h_of_a[e] = (long)h_row(o, st->Ai[e]) * o->nv + h_column(o, j);
+}
+
 /* Lazily sized adjoint workspace for nfun functionals: the dense H and its
  * rows where dense_jacobian, else the sparse rows at the first step. */
 static int adjoint_alloc(mrvi_ocp *o, int nfun) {
@@ -518,13 +541,9 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   int ok = o->gz && o->h_of_a && o->Ak && ocp_state_alloc(o) == MRVI_OK;
   if (ok && dense_jacobian(o)) {
     o->H = malloc((nv * nv + 1) * sizeof *o->H);
-    o->h_ptr = malloc((nv + 1) * sizeof *o->h_ptr);
-    o->h_col = malloc((nv * nv + 1) * sizeof *o->h_col);
-    o->h_val = malloc((nv * nv + 1) * sizeof *o->h_val);
-    ok = o->H && o->h_ptr && o->h_col && o->h_val;
-    for (int j = 0; ok && j < st->n_total; j++)
-      for (int e = st->Ap[j]; e < st->Ap[j + 1]; e++)
-        o->h_of_a[e] = (long)h_row(o, st->Ai[e]) * o->nv + h_column(o, j);
+    ok = o->H != NULL;
+    if (ok)
+      dense_slots(o);
   }
   o->rhs = calloc(f * nu + 1, sizeof(double));
   o->sol = calloc(f * nu + nu + 1, sizeof(double));
@@ -560,26 +579,27 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   return MRVI_OK;
 }
 
-/* H of step k (its data loaded) into its rows (h_ptr, h_col, h_val) and
- * A_k (Ak): assembled dense and compressed, or into the sparse rows. */
+/* H of step k (its data loaded) into its sparse rows (h_ptr, h_col,
+ * h_val) and A_k (Ak): assembled dense (o->H) and gathered into the rows
+ * of the assembly's pattern (made at the first step, sparse_pattern), or
+ * into the rows directly. */
 static int step_jacobian(mrvi_ocp *o, long k) {
   const int nv = o->nv;
   const long nnz = o->step.nnz;
   if (dense_jacobian(o)) {
+    if (!o->h_sparse) {
+      const int s = sparse_pattern(o, k);
+      if (s < 0)
+        return s;
+      dense_slots(o);
+    }
     double *H = o->H;
     memset(H, 0, (size_t)nv * (size_t)nv * sizeof *H);
     ocp_jac a = {.mode = OCP_JAC_DENSE, .nv = nv, .J = H};
     ocp_jacobian(o, k, &a);
-    long nh = 0;
-    for (int row = 0; row < nv; row++) {
-      o->h_ptr[row] = nh;
-      for (int y = 0; y < nv; y++)
-        if (H[(size_t)row * nv + y] != 0.0) {
-          o->h_col[nh] = y;
-          o->h_val[nh++] = H[(size_t)row * nv + y];
-        }
-    }
-    o->h_ptr[nv] = nh;
+    for (int row = 0; row < nv; row++)
+      for (long e = o->h_ptr[row]; e < o->h_ptr[row + 1]; e++)
+        o->h_val[e] = H[(size_t)row * (size_t)nv + (size_t)o->h_col[e]];
     for (long e = 0; e < nnz; e++)
       o->Ak[e] = H[o->h_of_a[e]];
     return MRVI_OK;
@@ -688,7 +708,6 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
   const long N = o->N, nn = o->n_nodes;
   int s;
   const int nl = o->nl, nt = st->n_total;
-  double *rloc = o->sol + (size_t)nfun * (size_t)nt; /* nl, see alloc */
   char msg[300];
   for (long k = N - 1; k >= 0; k--) {
     /* Step k's data and converged unknowns (x, lambda). */
@@ -704,40 +723,40 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
     if ((s = step_jacobian(o, k)) < 0)
       return mrvi_ocp_fail(o, s, "out of memory");
     const long *gz = o->gz; /* global node of every z of step k */
-    /* The nonzeros of H's rows (columns ascending: nodes, then
-     * multipliers). */
-    const long *hp = o->h_ptr;
-    const int *hy = o->h_col;
-    const double *hv = o->h_val;
-    for (int f = 0; f < nfun; f++) {
-      double *r = gQ + f * nn;
-      const double *mu = o->mu + f * nn;
-      /* r -= J_k[final rows, :]^T mu[final] (final: q_{k+1}^s and fast
-       * node p, whose adjoints are known). */
+    /* r -= J_k[final rows, :]^T mu[final] (final: q_{k+1}^s and fast node
+     * p, whose adjoints are known), every functional f at each entry of
+     * H (its order of operations for each f as alone); the multiplier
+     * columns into the right-hand sides' lambda rows. */
+    for (int f = 0; f < nfun; f++)
       for (int i = 0; i < nl; i++)
-        rloc[i] = 0.0;
-      for (int zz = ns; zz < nz; zz++) {
-        if (zz >= 2 * ns && zz < 2 * ns + p * nf)
+        o->rhs[(size_t)f * (size_t)nt + (size_t)(nu + i)] = 0.0;
+    for (int zz = ns; zz < nz; zz++) {
+      if (zz >= 2 * ns && zz < 2 * ns + p * nf)
+        continue;
+      for (long e = o->h_ptr[zz]; e < o->h_ptr[zz + 1]; e++) {
+        const int y = o->h_col[e];
+        const double h = o->h_val[e];
+        if (h == 0.0)
           continue;
-        const double mz = mu[gz[zz]];
-        if (mz == 0.0)
-          continue;
-        for (long e = hp[zz]; e < hp[zz + 1]; e++) {
-          const int y = hy[e];
+        for (int f = 0; f < nfun; f++) {
+          const double mz = o->mu[f * nn + gz[zz]];
+          if (mz == 0.0)
+            continue;
           if (y < nz)
-            r[gz[y]] -= hv[e] * mz;
+            gQ[f * nn + gz[y]] -= h * mz;
           else
-            rloc[y - nz] -= hv[e] * mz;
+            o->rhs[(size_t)f * (size_t)nt + (size_t)(nu + y - nz)] -= h * mz;
         }
       }
-      /* Right-hand side on the step's unknowns (x_k, lambda_k). */
+    }
+    /* Right-hand side on the step's unknowns (x_k, lambda_k). */
+    for (int f = 0; f < nfun; f++) {
+      const double *r = gQ + f * nn;
       double *b = o->rhs + (size_t)f * (size_t)nt;
       for (int i = 0; i < ns; i++)
         b[i] = r[gz[ns + i]];
       for (int i = 0; i < p * nf; i++)
         b[ns + i] = r[gz[2 * ns + nf + i]];
-      for (int i = 0; i < nl; i++)
-        b[nu + i] = rloc[i];
     }
     /* A_k^T mu_k = b with the step Jacobian at the converged step: where
      * the forward pass takes schur-krylov or an explicit path
@@ -761,18 +780,26 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
     }
     if (s < 0)
       return mrvi_ocp_fail(o, s, "adjoint step %ld: %s", k + 1, msg);
-    /* mu on the equation nodes of step k; r -= J_k[rows_k, :]^T mu_k. */
-    for (int f = 0; f < nfun; f++) {
-      double *r = gQ + f * nn, *mu = o->mu + f * nn;
-      const double *x = o->sol + (size_t)f * (size_t)nt;
-      for (int i = 0; i < nt; i++) {
-        /* dynamic rows: q_k^s, fast nodes 0..p-1; then constraint rows */
-        const int row = i < ns ? i : (i < nu ? 2 * ns + (i - ns) : nz + i - nu);
-        if (row < nz)
-          mu[gz[row]] = x[i];
-        if (x[i] != 0.0)
-          for (long e = hp[row]; e < hp[row + 1] && hy[e] < nz; e++)
-            r[gz[hy[e]]] -= hv[e] * x[i];
+    /* mu on the equation nodes of step k; r -= J_k[rows_k, :]^T mu_k
+     * (every f at each entry, as above). */
+    const double *x = o->sol;
+    for (int i = 0; i < nt; i++) {
+      /* dynamic rows: q_k^s, fast nodes 0..p-1; then constraint rows */
+      const int row = i < ns ? i : (i < nu ? 2 * ns + (i - ns) : nz + i - nu);
+      for (int f = 0; f < nfun && row < nz; f++)
+        o->mu[f * nn + gz[row]] = x[(size_t)f * (size_t)nt + (size_t)i];
+      for (long e = o->h_ptr[row]; e < o->h_ptr[row + 1]; e++) {
+        const int y = o->h_col[e];
+        const double h = o->h_val[e];
+        if (y >= nz)
+          break;
+        if (h == 0.0)
+          continue;
+        for (int f = 0; f < nfun; f++) {
+          const double xf = x[(size_t)f * (size_t)nt + (size_t)i];
+          if (xf != 0.0)
+            gQ[f * nn + gz[y]] -= h * xf;
+        }
       }
     }
     if (o->n_state > 0)

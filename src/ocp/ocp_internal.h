@@ -124,19 +124,19 @@ struct mrvi_ocp {
   int n_torsion;
   double *branch;
   /* Adjoint workspace.  The step Jacobian H (nv x nv) is assembled dense
-   * (H) for nv <= tuning.adjoint_dense_max, then its nonzeros compressed
-   * into rows; beyond, straight into its sparse rows (pattern found once,
-   * the same for every step). */
+   * (H) for nv <= tuning.adjoint_dense_max, then gathered into the sparse
+   * rows of the assembly's pattern; beyond, straight into those rows
+   * (pattern found once, the same for every step). */
   double *H, *r, *mu, *rhs, *sol;
   long *gz;             /* global node of every z of the step (nz) */
   long *h_of_a;         /* entry of H (dense: row nv + col; sparse: slot in
                            h_val; -1: none) of every CSC entry of A_k */
   double *Ak;           /* A_k on the step's CSC pattern, gathered from H */
-  long *h_ptr;          /* nonzeros of H's rows (CSR, all columns) */
+  long *h_ptr;          /* H's rows (CSR on the assembly's pattern) */
   int *h_slot;          /* slot in h_val of every entry of the assembly */
   long n_h_slot;        /* their number (0: not recorded) */
   long h_slot_cap;      /* room in h_slot: the assembly's entries */
-  int *h_col, h_sparse; /* h_sparse: the pattern is fixed (sparse mode) */
+  int *h_col, h_sparse; /* h_sparse: the pattern is made (either mode) */
   double *h_val;
   int nfun_alloc; /* functionals the adjoint workspace is sized for */
   long adjoint_factorisations; /* step factorisations of the adjoints */

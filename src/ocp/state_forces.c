@@ -86,10 +86,13 @@ static void pair_force(int d, const double *y, act_point *ap) {
  * xo.., D^2 of them): f_{d_i} = 1/2 a x d_i (3-D), 1/2 a J d_i (2-D, J the
  * rotation by +90 degrees, a = the scalar torque), with a = s axis (space)
  * or a = s sum_j t^j d_Y^j (axis fixed in body block Y at inputs yo).
- * Its virtual work on d_i' = w x d_i is a . w (doc/optimal-control.md). */
-static void torque_force(int D, const ocp_torque *T, const double *y,
-                         act_point *ap) {
-  const int n = ap->n, xo = T->x_off;
+ * Its virtual work on d_i' = w x d_i is a . w (doc/optimal-control.md).
+ * Added: the forces to F (if not NULL) and sc times their derivative
+ * (n x n, linear in s axis) to Dm (if not NULL). */
+static inline __attribute__((always_inline)) void
+torque_force(int D, int n, const ocp_torque *T, const double *y, double *F,
+             double sc, double *Dm) {
+  const int xo = T->x_off;
   double a[3] = {T->s * T->axis[0], T->s * T->axis[1], T->s * T->axis[2]};
   if (D == 3 && T->y_off >= 0)
     for (int c = 0; c < 3; c++) {
@@ -102,20 +105,28 @@ static void torque_force(int D, const ocp_torque *T, const double *y,
     const int r = xo + D * i;
     if (D == 2) {
       const double h = 0.5 * T->s * T->axis[2];
-      ap->F[r] += -h * d[1];
-      ap->F[r + 1] += h * d[0];
-      ap->Dm[r * n + r + 1] += -h;
-      ap->Dm[(r + 1) * n + r] += h;
+      if (F) {
+        F[r] += -h * d[1];
+        F[r + 1] += h * d[0];
+      }
+      if (Dm) {
+        Dm[r * n + r + 1] += sc * -h;
+        Dm[(r + 1) * n + r] += sc * h;
+      }
       continue;
     }
-    ap->F[r] += 0.5 * (a[1] * d[2] - a[2] * d[1]);
-    ap->F[r + 1] += 0.5 * (a[2] * d[0] - a[0] * d[2]);
-    ap->F[r + 2] += 0.5 * (a[0] * d[1] - a[1] * d[0]);
+    if (F) {
+      F[r] += 0.5 * (a[1] * d[2] - a[2] * d[1]);
+      F[r + 1] += 0.5 * (a[2] * d[0] - a[0] * d[2]);
+      F[r + 2] += 0.5 * (a[0] * d[1] - a[1] * d[0]);
+    }
+    if (!Dm)
+      continue;
     /* d(a x d)/dd = [a]x */
     const double ax[9] = {0, -a[2], a[1], a[2], 0, -a[0], -a[1], a[0], 0};
     for (int p = 0; p < 3; p++)
       for (int q = 0; q < 3; q++)
-        ap->Dm[(r + p) * n + r + q] += 0.5 * ax[p * 3 + q];
+        Dm[(r + p) * n + r + q] += sc * (0.5 * ax[p * 3 + q]);
     if (T->y_off < 0)
       continue;
     /* d(a x d)/da = -[d]x, da/dd_Y^j = s t^j I */
@@ -123,30 +134,48 @@ static void torque_force(int D, const ocp_torque *T, const double *y,
     for (int j = 0; j < 3; j++)
       for (int p = 0; p < 3; p++)
         for (int q = 0; q < 3; q++)
-          ap->Dm[(r + p) * n + T->y_off + 3 * j + q] +=
-              -0.5 * T->s * T->axis[j] * dx[p * 3 + q];
+          Dm[(r + p) * n + T->y_off + 3 * j + q] +=
+              sc * (-0.5 * T->s * T->axis[j] * dx[p * 3 + q]);
   }
+}
+
+/* F of actuator A at the interpolated inputs y into F (n), and sc dF/dy
+ * added to Dm (n x n; NULL: F only). */
+static inline __attribute__((always_inline)) void
+act_force_scaled(const mrvi_ocp *o, const ocp_actuator *A, const double *y,
+                 double *F, double sc, double *Dm) {
+  const int D = o->model->dimension, n = A->n_in;
+  if (A->pi >= 0) {
+    act_point ap;
+    ap.n = n;
+    pair_force(D, y, &ap);
+    memcpy(F, ap.F, (size_t)n * sizeof *F);
+    for (int e = 0; Dm && e < n * n; e++)
+      Dm[e] += sc * ap.Dm[e];
+    return;
+  }
+  memset(F, 0, (size_t)n * sizeof *F);
+  if (A->n_torque == 0) {
+    /* Body force at a body point: x = phi + sum rho^i d_i, direction e
+     * fixed in space: F_phi = e, F_{d_i} = rho^i e (constant). */
+    for (int k = 0; k < n; k++)
+      F[k] = (k < D ? 1.0 : A->at[k / D - 1]) * A->dir[k % D];
+    return;
+  }
+  for (int t = 0; t < A->n_torque; t++)
+    torque_force(D, n, &A->torque[t], y, F, sc, Dm);
 }
 
 /* F and Dm of actuator A at the interpolated inputs y. */
 static void act_force(const mrvi_ocp *o, const ocp_actuator *A, const double *y,
                       act_point *ap) {
-  const int D = o->model->dimension, n = ap->n;
+  const int n = ap->n;
   if (A->pi >= 0) {
-    pair_force(D, y, ap);
+    pair_force(o->model->dimension, y, ap);
     return;
   }
-  memset(ap->F, 0, (size_t)n * sizeof *ap->F);
   memset(ap->Dm, 0, (size_t)n * (size_t)n * sizeof *ap->Dm);
-  if (A->n_torque == 0) {
-    /* Body force at a body point: x = phi + sum rho^i d_i, direction e
-     * fixed in space: F_phi = e, F_{d_i} = rho^i e (constant). */
-    for (int k = 0; k < n; k++)
-      ap->F[k] = (k < D ? 1.0 : A->at[k / D - 1]) * A->dir[k % D];
-    return;
-  }
-  for (int t = 0; t < A->n_torque; t++)
-    torque_force(D, &A->torque[t], y, ap);
+  act_force_scaled(o, A, y, ap->F, 1.0, ap->Dm);
 }
 
 /* Control index of actuator A in step k, micro interval m. */
@@ -310,6 +339,19 @@ static int same_inputs(const ocp_actuator *A, const ocp_actuator *B) {
   return A->n_in == B->n_in &&
          memcmp(A->in, B->in, (size_t)A->n_in * sizeof *A->in) == 0;
 }
+/* Whether actuators ia..ib-1 are torques of one term each on the same
+ * director blocks: then sum_B dt u_B dF_B/dy is the derivative of one
+ * torque of axis sum_B dt u_B s_B t_B (its derivative is linear in s t). */
+static int one_torque_run(const mrvi_ocp *o, int ia, int ib) {
+  const ocp_torque *T = &o->act[ia].torque[0];
+  for (int ja = ia; ja < ib; ja++) {
+    const ocp_actuator *B = &o->act[ja];
+    if (B->pi >= 0 || B->n_torque != 1 || B->torque[0].x_off != T->x_off ||
+        B->torque[0].y_off != T->y_off)
+      return 0;
+  }
+  return 1;
+}
 
 /* The forces of step k at the stored trajectory, kept (o->act_kept), and
  * their derivatives added to J: sum_m sum_A dt u c_a c_b dF/dy over the
@@ -319,7 +361,7 @@ static int same_inputs(const ocp_actuator *A, const ocp_actuator *B) {
  * order at every step (the pattern). */
 void ocp_state_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
   enum { NS = OCP_MAX_IN * OCP_MAX_IN };
-  double S[4 * NS];
+  double S[4 * NS], Dsum[NS];
   o->n_act_kept = 0;
   for (int ia = 0; ia < o->n_act;) {
     const ocp_actuator *A = &o->act[ia];
@@ -331,7 +373,8 @@ void ocp_state_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
     int ib = ia + 1;
     while (slow && ib < o->n_act && same_inputs(A, &o->act[ib]))
       ib++;
-    if (slow)
+    const int one = slow && one_torque_run(o, ia, ib);
+    if (slow && o->p > 1)
       memset(S, 0, 4 * (size_t)n * (size_t)n * sizeof *S);
     act_point ap;
     for (int m = 0; m < o->p; m++) {
@@ -341,27 +384,37 @@ void ocp_state_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
       for (int i = 0; i < n; i++)
         y[i] = ap.c[i][0] * o->Q[ocp_global(o, k, ap.z[i][0])] +
                ap.c[i][1] * o->Q[ocp_global(o, k, ap.z[i][1])];
+      /* A slow run: Dsum = sum_B dt u_B dF_B/dy at this point, each
+       * actuator's derivative added scaled (no matrix of its own). */
+      ocp_torque Tsum = {.x_off = A->torque[0].x_off,
+                         .y_off = A->torque[0].y_off,
+                         .s = 1.0,
+                         .axis = {0.0, 0.0, 0.0}};
+      if (slow)
+        memset(Dsum, 0, (size_t)n * (size_t)n * sizeof *Dsum);
       for (int ja = ia; ja < ib; ja++) {
         const ocp_actuator *B = &o->act[ja];
-        act_force(o, B, y, &ap);
         struct ocp_act_kept *K = &o->act_kept[o->n_act_kept++];
         K->n = n;
         K->ic = control(o, B, k, m);
         K->w = pt.w;
         memcpy(K->z, ap.z, (size_t)n * sizeof *K->z);
         memcpy(K->c, ap.c, (size_t)n * sizeof *K->c);
-        memcpy(K->F, ap.F, (size_t)n * sizeof *K->F);
         const double wu = pt.w * o->u_cur[K->ic];
-        if (slow) {
-          for (int a = 0; a < 2; a++)
-            for (int b = 0; b < 2; b++) {
-              const double cab = wu * ap.c[0][a] * ap.c[0][b];
-              double *Sab = S + (size_t)(2 * a + b) * (size_t)(n * n);
-              for (int e = 0; e < n * n; e++)
-                Sab[e] += cab * ap.Dm[e];
-            }
+        if (one) {
+          const ocp_torque *T = &B->torque[0];
+          memset(K->F, 0, (size_t)n * sizeof *K->F);
+          torque_force(o->model->dimension, n, T, y, K->F, 0.0, NULL);
+          for (int c = 0; c < 3; c++)
+            Tsum.axis[c] += wu * T->s * T->axis[c];
           continue;
         }
+        if (slow) {
+          act_force_scaled(o, B, y, K->F, wu, Dsum);
+          continue;
+        }
+        act_force(o, B, y, &ap);
+        memcpy(K->F, ap.F, (size_t)n * sizeof *K->F);
         for (int i = 0; i < n; i++)
           for (int a = 0; a < 2; a++)
             for (int j = 0; j < n; j++)
@@ -369,17 +422,42 @@ void ocp_state_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
                 ocp_jac_add(J, ap.z[i][a], ap.z[j][b],
                             wu * ap.c[i][a] * ap.c[j][b] * ap.Dm[i * n + j]);
       }
+      if (one)
+        torque_force(o->model->dimension, n, &Tsum, y, NULL, 1.0, Dsum);
+      for (int a = 0; slow && o->p > 1 && a < 2; a++)
+        for (int b = 0; b < 2; b++) {
+          const double cab = ap.c[0][a] * ap.c[0][b];
+          double *Sab = S + (size_t)(2 * a + b) * (size_t)(n * n);
+          for (int e = 0; e < n * n; e++)
+            Sab[e] += cab * Dsum[e];
+        }
     }
+    /* (one micro interval: S_ab = c_a c_b Dsum, not summed; a dense J's
+     * rows addressed directly, the same adds in the same order) */
     for (int i = 0; slow && i < n; i++)
-      for (int a = 0; a < 2; a++)
+      for (int a = 0; a < 2; a++) {
+        double *Jrow = J->mode == OCP_JAC_DENSE
+                           ? J->J + (size_t)ap.z[i][a] * (size_t)J->nv
+                           : NULL;
         for (int j = 0; j < n; j++)
-          for (int b = 0; b < 2; b++)
-            ocp_jac_add(J, ap.z[i][a], ap.z[j][b],
-                        S[(size_t)(2 * a + b) * (size_t)(n * n) + i * n + j]);
+          for (int b = 0; b < 2; b++) {
+            const double v =
+                o->p == 1
+                    ? ap.c[0][a] * ap.c[0][b] * Dsum[i * n + j]
+                    : S[(size_t)(2 * a + b) * (size_t)(n * n) + i * n + j];
+            if (Jrow)
+              Jrow[ap.z[j][b]] += v;
+            else
+              ocp_jac_add(J, ap.z[i][a], ap.z[j][b], v);
+          }
+      }
     ia = ib;
   }
 }
 
+/* Up to FB functionals' sums at once (independent chains, each in the
+ * order of its terms). */
+enum { FB = 8 };
 void ocp_state_gradient(const mrvi_ocp *o, long k, int nfun, const double *mu,
                         double *gu) {
   const long nn = o->n_nodes;
@@ -392,12 +470,16 @@ void ocp_state_gradient(const mrvi_ocp *o, long k, int nfun, const double *mu,
         g[2 * i + a] = ocp_global(o, k, K->z[i][a]);
         wf[2 * i + a] = K->w * K->c[i][a] * K->F[i];
       }
-    for (int f = 0; f < nfun; f++) {
-      const double *mf = mu + (size_t)f * (size_t)nn;
-      double sum = 0.0;
+    for (int f0 = 0; f0 < nfun; f0 += FB) {
+      const int nb = nfun - f0 < FB ? nfun - f0 : FB;
+      double sum[FB];
+      for (int f = 0; f < nb; f++)
+        sum[f] = 0.0;
       for (int e = 0; e < 2 * K->n; e++)
-        sum += mf[g[e]] * wf[e];
-      gu[(size_t)f * (size_t)o->n_u + (size_t)K->ic] -= sum;
+        for (int f = 0; f < nb; f++)
+          sum[f] += mu[(size_t)(f0 + f) * (size_t)nn + (size_t)g[e]] * wf[e];
+      for (int f = 0; f < nb; f++)
+        gu[(size_t)(f0 + f) * (size_t)o->n_u + (size_t)K->ic] -= sum[f];
     }
   }
 }

@@ -13,6 +13,7 @@
  * The factors are kept after a solve, so that the same matrix can be solved
  * again, transposed too (mrvi_linsolve_solve: adjoint solves). */
 #include "solver/solver.h"
+#include "util/simd.h"
 
 #include <float.h>
 #include <math.h>
@@ -40,7 +41,10 @@ struct mrvi_newton {
   double *lu, *rs, *val, *y;
   int *piv, *pos, *nzc, *ptr, *idx;
   int factored;
-  double *ref; /* refinement workspace (3 n; mrvi_newton_solve_kept) */
+  /* refinement workspace (mrvi_newton_solve_transpose_kept: 4 L n
+   * doubles for L interleaved right-hand sides) */
+  double *ref;
+  int ref_lanes;
 };
 
 /* Dense backend set-up: workspaces and the ordering pos. */
@@ -451,15 +455,154 @@ int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
   return st;
 }
 
-/* A^T x = b with nw's kept factors (mrvi_refine_transpose's solve). */
-typedef struct {
-  mrvi_newton *nw;
-  const double *Ax;
-} kept_ctx;
-static int kept_solve(void *ctx, const double *b, double *x, char *msg,
-                      size_t len) {
-  const kept_ctx *k = ctx;
-  return mrvi_linsolve_solve(k->nw, k->Ax, 1, b, x, msg, len);
+/* mrvi_newton_solve_transpose_kept: the same refinement with nw's own kept
+ * factors (UMFPACK's or the dense LU's), A factorised where it stalls.  The
+ * right-hand sides go in blocks of L = 2, 4
+ * or 8 (the fewest lanes that hold them, at most 8), whose residuals are
+ * taken in one pass over A with x and b interleaved (xt[row L + i]; each
+ * one's sums in the same order as alone: the same iterates). */
+enum { REF_LANES = 8 };
+
+/* r_i = b_i - A^T x_i for the L lanes (r: L rows of n), with
+ * rmax_i = ||r_i||_inf (infinite where r_i is not finite) and
+ * scale_i = max_j (|A^T| |x_i| + |b_i|)_j; a constant L in each call (the
+ * lane loops unrolled and vectorised). */
+static inline __attribute__((always_inline)) void
+lanes_residual(const mrvi_newton *nw, int L, const double *Ax, const double *xt,
+               const double *bt, double *r, double *rmax, double *scale) {
+  const int n = nw->n;
+  for (int i = 0; i < L; i++)
+    rmax[i] = scale[i] = 0.0;
+  for (int j = 0; j < n; j++) {
+    /* lanes 2 h, 2 h + 1 in s_h, c_h (held in registers: L / 2 of them
+     * used; lane by lane the scalar operations) */
+    const double *bj = bt + (size_t)j * (size_t)L;
+    mrvi_v2 s0 = v2_load(bj), s1 = v2_zero(), s2 = v2_zero(), s3 = v2_zero();
+    mrvi_v2 c0 = v2_abs(s0), c1 = v2_zero(), c2 = v2_zero(), c3 = v2_zero();
+    if (L > 2) {
+      s1 = v2_load(bj + 2);
+      c1 = v2_abs(s1);
+    }
+    if (L > 4) {
+      s2 = v2_load(bj + 4);
+      c2 = v2_abs(s2);
+      s3 = v2_load(bj + 6);
+      c3 = v2_abs(s3);
+    }
+    for (int e = nw->Ap[j]; e < nw->Ap[j + 1]; e++) {
+      const mrvi_v2 a = v2_set(Ax[e], Ax[e]);
+      const double *xr = xt + (size_t)nw->Ai[e] * (size_t)L;
+      const mrvi_v2 t0 = v2_mul(a, v2_load(xr));
+      s0 = v2_sub(s0, t0);
+      c0 = v2_add(c0, v2_abs(t0));
+      if (L > 2) {
+        const mrvi_v2 t1 = v2_mul(a, v2_load(xr + 2));
+        s1 = v2_sub(s1, t1);
+        c1 = v2_add(c1, v2_abs(t1));
+      }
+      if (L > 4) {
+        const mrvi_v2 t2 = v2_mul(a, v2_load(xr + 4));
+        s2 = v2_sub(s2, t2);
+        c2 = v2_add(c2, v2_abs(t2));
+        const mrvi_v2 t3 = v2_mul(a, v2_load(xr + 6));
+        s3 = v2_sub(s3, t3);
+        c3 = v2_add(c3, v2_abs(t3));
+      }
+    }
+    const mrvi_v2 sum[4] = {s0, s1, s2, s3}, sc[4] = {c0, c1, c2, c3};
+    double s[REF_LANES], c[REF_LANES];
+    for (int h = 0; h < L / 2; h++) {
+      v2_store(s + 2 * h, sum[h]);
+      v2_store(c + 2 * h, sc[h]);
+    }
+    for (int i = 0; i < L; i++) {
+      r[(size_t)j * (size_t)L + (size_t)i] = s[i];
+      const double as = fabs(s[i]);
+      rmax[i] = as > rmax[i] ? as : rmax[i];
+      scale[i] = c[i] > scale[i] ? c[i] : scale[i];
+      if (!isfinite(s[i]))
+        rmax[i] = INFINITY;
+    }
+  }
+}
+
+/* The dense factors' transposed solve (dense_solve) of the L lanes of bt
+ * into xt (interleaved; yt: L n), lane by lane its scalar operations. */
+static inline __attribute__((always_inline)) void
+dense_solve_lanes(const mrvi_newton *nw, int L, const double *bt, double *xt,
+                  double *yt) {
+  const int n = nw->n, *lp = nw->ptr, *up = nw->ptr + n + 1, *ix = nw->idx;
+  const double *v = nw->val;
+  const size_t l = (size_t)L;
+  for (int i = 0; i < n; i++)
+    memcpy(yt + (size_t)nw->pos[i] * l, bt + (size_t)i * l, l * sizeof *yt);
+  for (int i = 0; i < n; i++) {
+    double *yi = yt + (size_t)i * l;
+    const mrvi_v2 p = v2_set(v[up[i]], v[up[i]]);
+    for (int h = 0; h < L; h += 2)
+      v2_store(yi + h, v2_div(v2_load(yi + h), p));
+    for (int e = up[i] + 1; e < up[i + 1]; e++) {
+      double *ye = yt + (size_t)ix[e] * l;
+      const mrvi_v2 c = v2_set(v[e], v[e]);
+      for (int h = 0; h < L; h += 2)
+        v2_store(ye + h, v2_sub(v2_load(ye + h), v2_mul(c, v2_load(yi + h))));
+    }
+  }
+  for (int i = n - 1; i >= 0; i--) {
+    const double *yi = yt + (size_t)i * l;
+    for (int e = lp[i]; e < lp[i + 1]; e++) {
+      double *ye = yt + (size_t)ix[e] * l;
+      const mrvi_v2 c = v2_set(v[e], v[e]);
+      for (int h = 0; h < L; h += 2)
+        v2_store(ye + h, v2_sub(v2_load(ye + h), v2_mul(c, v2_load(yi + h))));
+    }
+  }
+  for (int k = n - 1; k >= 0; k--)
+    if (nw->piv[k] != k) {
+      double *a = yt + (size_t)k * l, *c = yt + (size_t)nw->piv[k] * l;
+      for (int h = 0; h < L; h += 2) {
+        const mrvi_v2 t = v2_load(a + h);
+        v2_store(a + h, v2_load(c + h));
+        v2_store(c + h, t);
+      }
+    }
+  for (int i = 0; i < n; i++) {
+    const double *yp = yt + (size_t)nw->pos[i] * l;
+    const mrvi_v2 rs = v2_set(nw->rs[i], nw->rs[i]);
+    for (int h = 0; h < L; h += 2)
+      v2_store(xt + (size_t)i * l + h, v2_mul(rs, v2_load(yp + h)));
+  }
+}
+
+/* The kept factors' transposed solve of the lanes of bt into dt (both
+ * interleaved, L lanes; lanes not active: dt anything) with workspace w
+ * (L n): the dense ones all at once where more than half the lanes are
+ * active (na of them), else (and UMFPACK's) lane by lane. */
+static int solve_lanes(mrvi_newton *nw, const double *Ax, int L,
+                       const int *active, int nb, int na, const double *bt,
+                       double *dt, double *w, char *msg, size_t len) {
+  const int n = nw->n;
+  if (nw->lu && 2 * na > L) {
+    if (L == 2)
+      dense_solve_lanes(nw, 2, bt, dt, w);
+    else if (L == 4)
+      dense_solve_lanes(nw, 4, bt, dt, w);
+    else
+      dense_solve_lanes(nw, REF_LANES, bt, dt, w);
+    return MRVI_OK;
+  }
+  for (int i = 0; i < nb; i++) {
+    if (!active[i])
+      continue;
+    for (int j = 0; j < n; j++)
+      w[j] = bt[(size_t)j * (size_t)L + (size_t)i];
+    const int st = mrvi_linsolve_solve(nw, Ax, 1, w, w + n, msg, len);
+    if (st != MRVI_OK)
+      return st;
+    for (int j = 0; j < n; j++)
+      dt[(size_t)j * (size_t)L + (size_t)i] = w[n + j];
+  }
+  return MRVI_OK;
 }
 
 int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
@@ -471,26 +614,79 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
   *refactored = 1;
   if (!kept || max_refine <= 0)
     return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
-  if (!nw->ref && !(nw->ref = malloc((3 * (size_t)n + 1) * sizeof *nw->ref))) {
-    mrvi_fmt(msg, len, "out of memory");
-    return MRVI_ENOMEM;
+  const int L = nrhs <= 2 ? 2 : nrhs <= 4 ? 4 : REF_LANES;
+  const size_t ln = (size_t)L * (size_t)n, l = (size_t)L;
+  if (nw->ref_lanes < L) {
+    free(nw->ref);
+    nw->ref_lanes = 0;
+    if (!(nw->ref = malloc((5 * ln + 1) * sizeof *nw->ref))) {
+      mrvi_fmt(msg, len, "out of memory");
+      return MRVI_ENOMEM;
+    }
+    nw->ref_lanes = L;
   }
+  /* Interleaved (unused lanes zero): residuals r, corrections d, x, b;
+   * the lanes' solve's workspace y. */
+  double *r = nw->ref, *d = r + ln, *xt = d + ln, *bt = xt + ln, *yt = bt + ln;
   /* UMFPACK's own refinement steps are this loop's: off meanwhile. */
   const double irstep = nw->control[UMFPACK_IRSTEP];
   nw->control[UMFPACK_IRSTEP] = 0.0;
-  kept_ctx ctx = {nw, Ax};
-  for (int i = 0; i < nrhs; i++) {
-    const int ok =
-        mrvi_refine_transpose(n, nw->Ap, nw->Ai, Ax, b + (size_t)i * (size_t)n,
-                              x + (size_t)i * (size_t)n, max_refine, nw->ref,
-                              kept_solve, &ctx, msg, len);
-    /* Stalled (or the kept factors failed): factorise A. */
-    if (ok != 1) {
-      nw->control[UMFPACK_IRSTEP] = irstep;
-      return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
+  int ok = 1;
+  for (int i0 = 0; i0 < nrhs && ok; i0 += L) {
+    const int nb = nrhs - i0 < L ? nrhs - i0 : L;
+    const double *bi = b + (size_t)i0 * (size_t)n;
+    double *xi = x + (size_t)i0 * (size_t)n;
+    /* active[i]: right-hand side i0 + i still refined */
+    int active[REF_LANES], na = nb;
+    double rprev[REF_LANES], rmax[REF_LANES], scale[REF_LANES];
+    memset(bt, 0, ln * sizeof *bt);
+    memset(xt, 0, ln * sizeof *xt);
+    for (int i = 0; i < nb; i++) {
+      active[i] = 1;
+      rprev[i] = INFINITY;
+      for (int j = 0; j < n; j++)
+        bt[(size_t)j * l + (size_t)i] = bi[(size_t)i * (size_t)n + (size_t)j];
     }
+    ok =
+        solve_lanes(nw, Ax, L, active, nb, na, bt, xt, yt, msg, len) == MRVI_OK;
+    for (int it = 0; na > 0 && ok; it++) {
+      if (L == 2)
+        lanes_residual(nw, 2, Ax, xt, bt, r, rmax, scale);
+      else if (L == 4)
+        lanes_residual(nw, 4, Ax, xt, bt, r, rmax, scale);
+      else
+        lanes_residual(nw, REF_LANES, Ax, xt, bt, r, rmax, scale);
+      /* Converged ones leave the block; slower than a factor 4 per step
+       * (or max_refine steps): factorising is cheaper. */
+      for (int i = 0; i < nb && ok; i++) {
+        if (!active[i])
+          continue;
+        if (rmax[i] <= 64.0 * DBL_EPSILON * scale[i]) {
+          active[i] = 0;
+          na--;
+          continue;
+        }
+        if (it == max_refine || (it > 0 && !(rmax[i] <= 0.25 * rprev[i])))
+          ok = 0;
+        rprev[i] = rmax[i];
+      }
+      if (!ok || na == 0)
+        break;
+      ok =
+          solve_lanes(nw, Ax, L, active, nb, na, r, d, yt, msg, len) == MRVI_OK;
+      for (int j = 0; j < n && ok; j++)
+        for (int i = 0; i < nb; i++)
+          if (active[i])
+            xt[(size_t)j * l + (size_t)i] += d[(size_t)j * l + (size_t)i];
+    }
+    for (int i = 0; i < nb && ok; i++)
+      for (int j = 0; j < n; j++)
+        xi[(size_t)i * (size_t)n + (size_t)j] = xt[(size_t)j * l + (size_t)i];
   }
   nw->control[UMFPACK_IRSTEP] = irstep;
+  /* Stalled (or the kept factors failed): factorise A. */
+  if (!ok)
+    return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
   *refactored = 0;
   return MRVI_OK;
 }
