@@ -5,7 +5,10 @@
  * (mrvi_terms_grad and mrvi_terms_eval, scaled and unscaled) and the
  * Hessian, and so Hessian-vector products, to 1e-13 relative; the value
  * (mrvi_terms_value) likewise.  The kernels do mrvi_element_eval's
- * arithmetic in its order, so the check is also made bitwise. */
+ * arithmetic in its order, so the check is also made bitwise.  A full
+ * class of springs and anchors alone (no kterms) and one of Hooke springs
+ * alone (no kspring records either, made in pieces) as well, with its
+ * bytes (check_runs). */
 #include "model/model.h"
 #include "solver/solver.h"
 #include "testlib.h"
@@ -675,6 +678,126 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
   mrvi_model_free(m);
 }
 
+/* A full class (mrvi_terms_create) of springs and anchors alone is kept
+ * without a kterm per element, one of Hooke springs on consecutive
+ * columns without kspring records either (its kernels make them from the
+ * khooke records, in pieces of 64: solver/terms.c, springs_runs and
+ * springs_at): a chain of N_RUN particles in dimension d, its springs of
+ * law lc (and anchors on every 7th particle where anchors), against the
+ * generic evaluation scattered: the gradient, the Hessian (unit and
+ * scaled), the Hessian diagonal of mrvi_terms_grad_hdiag bitwise, the
+ * Hessian-vector products of mrvi_terms_hessvec and of the kept blocks
+ * and the value to 1e-13; the bytes kept per element. */
+enum { N_RUN = 150 };
+static void check_runs(int d, const law_case *lc, int anchors,
+                       unsigned long long *rng) {
+  mrvi_model *m = mrvi_model_create();
+  CHECK(m && mrvi_model_set_dimension(m, d) == 0, "d %d: model", d);
+  if (!m)
+    return;
+  for (int i = 0; i < N_RUN; i++) {
+    double x[3] = {1.05 * i, 0.1 * (i % 3), 0.0}, v[3] = {0, 0, 0};
+    char name[16];
+    snprintf(name, sizeof name, "p%d", i);
+    CHECK(mrvi_model_add_particle(m, name, 1.0, MRVI_FAST, x, v) >= 0,
+          "add particle: %s", mrvi_model_errmsg(m));
+  }
+  int ok = 1;
+  for (int i = 0; i + 1 < N_RUN; i++) {
+    ok = ok && mrvi_model_add_spring(m, MRVI_FAST, i, i + 1, lc->law,
+                                     lc->params, 1.0 + 0.1 * uniform(rng)) >= 0;
+    const double a[3] = {1.05 * i + 0.3, 0.5, -0.2};
+    if (anchors && i % 7 == 0)
+      ok = ok && mrvi_model_add_anchor_spring(m, MRVI_FAST, i, a, lc->law,
+                                              lc->params, 0.6) >= 0;
+  }
+  CHECK(ok, "%s: springs: %s", lc->law, mrvi_model_errmsg(m));
+  const int n = m->n, ne = m->n_elements;
+  const size_t nn = (size_t)n * (size_t)n, bn = (size_t)n * sizeof(double);
+  int *elems = calloc((size_t)ne, sizeof *elems);
+  double *q = calloc((size_t)n, sizeof *q), *v = calloc((size_t)n, sizeof *v);
+  double *g = calloc(4 * (size_t)n, sizeof *g), *gr = g + n, *hd = g + 2 * n,
+         *hr = g + 3 * n;
+  double *H = calloc(nn, sizeof *H), *Hr = calloc(nn, sizeof *Hr);
+  double *y = calloc(2 * (size_t)n, sizeof *y), *yr = y + n;
+  for (int e = 0; e < ne; e++)
+    elems[e] = e;
+  for (int i = 0; i < n; i++) {
+    q[i] = m->q0[i] + 0.2 * uniform(rng);
+    v[i] = uniform(rng);
+  }
+  mrvi_terms *kc = NULL;
+  CHECK(mrvi_terms_create(m, elems, ne, NULL, &kc) == MRVI_OK,
+        "d %d %s: create", d, lc->law);
+  if (kc && elems && q && v && g && H && Hr && y) {
+    const int hooke = !anchors && strcmp(lc->law, "linear") == 0;
+    const long per = hooke ? 25 : 97, bytes = mrvi_terms_bytes(kc);
+    /* (and the run list: an int a run, one run an anchor here) */
+    CHECK(bytes <= per * ne + 8 * (ne / 7 + 2),
+          "d %d %s%s: %ld bytes kept for %d elements (%ld each expected)", d,
+          lc->law, anchors ? " and anchors" : "", bytes, ne, per);
+    const double val_ref = mrvi_model_potential(m, MRVI_FAST, q, gr, Hr);
+    mrvi_terms_grad(kc, q, g);
+    CHECK(memcmp(g, gr, bn) == 0, "d %d %s: gradient bitwise", d, lc->law);
+    memset(g, 0, bn);
+    mrvi_terms_eval(kc, q, 1.0, g, H, n, 1.0);
+    CHECK(memcmp(g, gr, bn) == 0 && memcmp(H, Hr, nn * sizeof *H) == 0,
+          "d %d %s%s: gradient and Hessian bitwise (%.2e, %.2e)", d, lc->law,
+          anchors ? " and anchors" : "", rel_diff(g, gr, (size_t)n),
+          rel_diff(H, Hr, nn));
+    const double sc = 0.37, hs = -1.9;
+    memset(g, 0, bn);
+    memset(H, 0, nn * sizeof *H);
+    mrvi_terms_eval(kc, q, sc, g, H, n, hs);
+    for (int i = 0; i < n; i++)
+      gr[i] *= sc;
+    for (size_t k = 0; k < nn; k++)
+      Hr[k] *= hs;
+    CHECK(rel_diff(g, gr, (size_t)n) <= 1e-13 && rel_diff(H, Hr, nn) <= 1e-13,
+          "d %d %s: scaled gradient %.2e, Hessian %.2e", d, lc->law,
+          rel_diff(g, gr, (size_t)n), rel_diff(H, Hr, nn));
+    memset(g, 0, bn);
+    memset(hd, 0, bn);
+    mrvi_terms_grad_hdiag(kc, q, g, hd, NULL, hs);
+    for (int i = 0; i < n; i++)
+      hr[i] = Hr[(size_t)i * (size_t)n + (size_t)i];
+    CHECK(rel_diff(hd, hr, (size_t)n) <= 1e-13,
+          "d %d %s: Hessian diagonal %.2e", d, lc->law,
+          rel_diff(hd, hr, (size_t)n));
+    for (int i = 0; i < n; i++) {
+      yr[i] = 0.0;
+      for (int j = 0; j < n; j++)
+        yr[i] += Hr[(size_t)i * (size_t)n + (size_t)j] * v[j];
+    }
+    mrvi_terms_hessvec(kc, q, 1, v, n, y, n, hs);
+    CHECK(rel_diff(y, yr, (size_t)n) <= 1e-13, "d %d %s: H v %.2e", d, lc->law,
+          rel_diff(y, yr, (size_t)n));
+    const long nb = mrvi_terms_hessblocks_size(kc);
+    double *B = nb > 0 ? calloc((size_t)nb, sizeof *B) : NULL;
+    CHECK(B != NULL, "d %d %s: %ld block entries", d, lc->law, nb);
+    if (B) {
+      memset(y, 0, bn);
+      mrvi_terms_hessblocks(kc, q, B);
+      mrvi_terms_hessblocks_apply(kc, B, 1, v, n, y, n, hs, NULL);
+      CHECK(rel_diff(y, yr, (size_t)n) <= 1e-13, "d %d %s: kept blocks %.2e", d,
+            lc->law, rel_diff(y, yr, (size_t)n));
+    }
+    free(B);
+    const double val = mrvi_terms_value(kc, q);
+    CHECK(fabs(val - val_ref) <= 1e-13 * fabs(val_ref),
+          "d %d %s: value %.17g vs %.17g", d, lc->law, val, val_ref);
+  }
+  mrvi_terms_free(kc);
+  free(elems);
+  free(q);
+  free(v);
+  free(g);
+  free(H);
+  free(Hr);
+  free(y);
+  mrvi_model_free(m);
+}
+
 /* Every registered law has a case (a new law must be added above). */
 static void check_coverage(void) {
   for (int i = 0; i < mrvi_law_count(); i++) {
@@ -695,5 +818,9 @@ int main(void) {
   for (int d = 1; d <= 3; d++)
     for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++)
       check_sparse(d, &cases[c], &rng);
+  for (int d = 1; d <= 3; d++)
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++)
+      for (int anchors = 0; anchors <= 1; anchors++)
+        check_runs(d, &cases[c], anchors, &rng);
   return test_finish();
 }

@@ -558,6 +558,13 @@ int mrvi_terms_count(const mrvi_terms *kc);
  * of one law and one parameter set on consecutive columns, kept as their
  * columns and rest lengths alone (the law once: 16 bytes a spring). */
 int mrvi_terms_shared_law(const mrvi_terms *kc);
+/* The bytes kc keeps per element's records (the kterms, columns,
+ * coefficients, compact and spring records, run lists; not the few
+ * scratch and thread arrays): a full class of springs and anchors alone
+ * keeps no kterm (97 bytes an element: its kspring and khooke records and
+ * a flag), one of Hooke springs on consecutive columns alone no kspring
+ * either (25 bytes). */
+long mrvi_terms_bytes(const mrvi_terms *kc);
 void mrvi_terms_grad_d2(const mrvi_terms *kc, const double *z, double *g,
                         double w, double *dsum);
 void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,

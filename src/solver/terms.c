@@ -128,6 +128,13 @@ struct mrvi_terms {
   kspring qm_law;
   unsigned char *hooke_run; /* per record of qs: the run from it is of
                                khooke springs */
+  /* A class of springs and anchors alone (every element a kspring record;
+   * springs_runs): qs, qh and hooke_run as terms_springs makes them, and
+   * instead of a kterm per element (t NULL) the first record of each run,
+   * rs[0 .. n_rs] (rs[n_rs] = n): the loops over the kterms step from run
+   * to run, term_at making each run's kterm (72 bytes an element less:
+   * the random networks' fast springs on explicit-slow). */
+  int *rs, n_rs;
   int dim; /* the model's dimension (a spring's inputs: 2 dim, an anchor's
               dim) */
   /* Every term a compact record (q4[0..n)): gradients by one loop over
@@ -178,6 +185,7 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->qp);
   free(kc->qm);
   free(kc->hooke_run);
+  free(kc->rs);
   free(kc->part_first);
   free(kc->vpart);
   free(kc->part_rec);
@@ -185,6 +193,71 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->part_run);
   free(kc);
 }
+
+/* Element it's kterm: kc->t[it], or in a class kept without them
+ * (springs_runs) the kterm terms_springs would have made, the run of
+ * records from it (the last of its run's in rs: a binary search) into
+ * tmp. */
+ALWAYS_INLINE const kterm *term_at(const mrvi_terms *kc, int it, kterm *tmp) {
+  if (kc->t)
+    return &kc->t[it];
+  int lo = 0, hi = kc->n_rs; /* rs[lo] <= it < rs[hi] */
+  while (hi - lo > 1) {
+    const int mid = (lo + hi) / 2;
+    if (kc->rs[mid] <= it)
+      lo = mid;
+    else
+      hi = mid;
+  }
+  const kspring *q = kc->qs ? &kc->qs[it] : NULL; /* (NULL: khooke) */
+  *tmp = (kterm){.kind = KT_ELEMENT,
+                 .n = (!q || q->two ? 2 : 1) * kc->dim,
+                 .el = q ? q->el : NULL,
+                 .runs = kc->rs[hi] - it,
+                 .qs = it};
+  return tmp;
+}
+
+/* Record r of a class of khooke springs kept without kspring records
+ * (springs_runs) as its kspring: a Hooke spring's fields that the kernels
+ * read (two, k, c, shift, the columns), the values spring_law_of and
+ * spring_cols give them. */
+ALWAYS_INLINE kspring hooke_spring(const khooke *h, int dim) {
+  kspring q = {.two = 1, .k = KS_HOOKE, .c = h->c, .shift = h->shift};
+  for (int k = 0; k < dim; k++) {
+    q.ci[k] = h->ci + k;
+    q.cj[k] = h->cj + k;
+  }
+  return q;
+}
+
+/* Records r0 .. r0 + nr - 1 (nr <= KS_PIECE unless kc->qs) as kspring
+ * records: kc->qs + r0, or made into buf from qh where the class keeps
+ * none. */
+enum { KS_PIECE = 64 };
+ALWAYS_INLINE const kspring *springs_at(const mrvi_terms *kc, int r0, int nr,
+                                        kspring *buf) {
+  if (kc->qs)
+    return kc->qs + r0;
+  for (int r = 0; r < nr; r++)
+    buf[r] = hooke_spring(&kc->qh[r0 + r], kc->dim);
+  return buf;
+}
+
+/* A run of nr records from r0 through a kernel CALL(q, n, r) (the n
+ * records q, the r-th of the run first): at once from qs, or in pieces of
+ * KS_PIECE made from qh, in their order (each record's sums as at once:
+ * the same bits). */
+#define SPRING_PIECES(kc, r0, nr, CALL)                                        \
+  do {                                                                         \
+    kspring piece_[KS_PIECE];                                                  \
+    const int step_ = (kc)->qs ? (nr) : KS_PIECE;                              \
+    for (int r_ = 0; r_ < (nr); r_ += step_) {                                 \
+      const int n_ = (nr)-r_ < step_ ? (nr)-r_ : step_;                        \
+      const kspring *q_ = springs_at(kc, (r0) + r_, n_, piece_);               \
+      CALL(q_, n_, r_);                                                        \
+    }                                                                          \
+  } while (0)
 
 static int spring_law(const mrvi_element *e) {
   if (e->form == MRVI_LAW_FORM_HOOKE)
@@ -243,21 +316,23 @@ static hsrc hooke_src(const mrvi_terms *kc) {
  * terms_springs and hooke_class leave out of a gradient-only class. */
 static int hooke_records(mrvi_terms *kc) {
   int ns = 0;
+  const int all = kc->hooke_only || kc->rs; /* (rs: khooke springs) */
   for (int ie = 0; ie < kc->n; ie++)
-    ns += kc->hooke_only || kc->t[ie].runs > 0;
+    ns += all || kc->t[ie].runs > 0;
   kc->qs = calloc((size_t)(ns > 0 ? ns : 1), sizeof *kc->qs);
   if (!kc->qs)
     return MRVI_ENOMEM;
   for (int ie = 0; ie < kc->n; ie++) {
-    if (!kc->hooke_only && kc->t[ie].runs == 0)
+    if (!all && kc->t[ie].runs == 0)
       continue;
-    const int r = kc->hooke_only ? ie : kc->t[ie].qs;
+    const int r = all ? ie : kc->t[ie].qs;
     kspring *q = &kc->qs[r];
     const khooke h = hooke_rec(hooke_src(kc), r);
-    if (kc->hooke_only) /* (a Hooke spring: its law is its khooke's) */
-      *q = (kspring){.two = 1, .k = KS_HOOKE, .c = h.c, .shift = h.shift};
-    else
-      spring_law_of(kc->t[ie].el, q);
+    if (all) { /* (a Hooke spring: its law is its khooke's) */
+      *q = hooke_spring(&h, kc->dim);
+      continue;
+    }
+    spring_law_of(kc->t[ie].el, q);
     for (int k = 0; k < kc->dim; k++) {
       q->ci[k] = h.ci + k;
       q->cj[k] = h.cj + k;
@@ -516,6 +591,74 @@ static int terms_springs(mrvi_terms *kc, const int *col_of, int grad_only) {
   return MRVI_OK;
 }
 
+/* A full class (not gradient-only) whose every element is a kspring
+ * record: the records terms_springs would make (qs, qh, hooke_run: the
+ * same runs of one kind and one law code, the same values) without the
+ * kterms, col or coef; the first record of each run in rs.  0 if the
+ * class is not such, else 1, or MRVI_ENOMEM. */
+static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
+                        int n_elems, const int *col_of) {
+  const int dim = kc->dim;
+  if (n_elems < 1)
+    return 0;
+  /* (first the runs and whether every record is a khooke spring, so that
+   * the kspring records are not made where they would be freed: freeing
+   * them would raise glibc's mmap threshold, and the sweep's arrays after
+   * them would be zeroed in the heap instead of mapped untouched) */
+  int n_rs = 1, all_hooke = 1;
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    if (!spring_record(e, dim))
+      return 0;
+    const mrvi_element *u = ie > 0 ? &m->elements[elems[ie - 1]] : NULL;
+    n_rs += u && (u->kind != e->kind || spring_law(u) != spring_law(e));
+    kspring q = {.two = e->kind == MRVI_ELEMENT_SPRING};
+    spring_cols(e, col_of, dim, &q);
+    all_hooke &= q.two && spring_law(e) == KS_HOOKE;
+    for (int k = 1; k < dim; k++)
+      all_hooke &= q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
+  }
+  const size_t nq = (size_t)n_elems;
+  /* (every record a khooke spring: no kspring records, the kernels make
+   * them from qh, springs_at; the lattices' fast springs) */
+  kc->qs = all_hooke ? NULL : malloc(nq * sizeof *kc->qs);
+  kc->qh = malloc(nq * sizeof *kc->qh);
+  kc->hooke_run = malloc(nq);
+  kc->rs = malloc(((size_t)n_rs + 1) * sizeof *kc->rs);
+  kc->y = calloc(1, sizeof *kc->y); /* (no generic element: a stub each) */
+  kc->g = calloc(1, sizeof *kc->g);
+  kc->H = calloc(1, sizeof *kc->H);
+  if ((!all_hooke && !kc->qs) || !kc->qh || !kc->hooke_run || !kc->rs ||
+      !kc->y || !kc->g || !kc->H)
+    return MRVI_ENOMEM;
+  kc->n_rs = 0;
+  kspring prev = {0};
+  for (int ie = 0; ie < n_elems; ie++) {
+    const mrvi_element *e = &m->elements[elems[ie]];
+    kspring q = {0};
+    spring_law_of(e, &q);
+    spring_cols(e, col_of, dim, &q);
+    if (ie == 0 || q.two != prev.two || q.k != prev.k)
+      kc->rs[kc->n_rs++] = ie;
+    prev = q;
+    int consecutive = q.two && q.k == KS_HOOKE;
+    for (int k = 1; k < dim; k++)
+      consecutive &= q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
+    if (kc->qs)
+      kc->qs[ie] = q;
+    kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
+    kc->hooke_run[ie] = (unsigned char)consecutive;
+  }
+  kc->rs[kc->n_rs] = n_elems;
+  /* (terms_springs' rule: hooke_run[r] = the record's and the rest of its
+   * run's) */
+  for (int i = 0; i < kc->n_rs; i++)
+    for (int r = kc->rs[i + 1] - 2; r >= kc->rs[i]; r--)
+      if (!kc->hooke_run[r + 1])
+        kc->hooke_run[r] = 0;
+  return 1;
+}
+
 static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
                         const int *col_of, int grad_only, mrvi_terms **out) {
   mrvi_terms *kc = calloc(1, sizeof *kc);
@@ -529,6 +672,8 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   int hc = grad_only ? hooke_class(kc, m, elems, n_elems, col_of) : 0;
   if (hc == 0 && grad_only)
     hc = spring_class(kc, m, elems, n_elems, col_of);
+  if (hc == 0 && !grad_only)
+    hc = springs_runs(kc, m, elems, n_elems, col_of);
   if (hc < 0) {
     mrvi_terms_free(kc);
     return hc;
@@ -1020,7 +1165,8 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
                           double *g, double *J, int ld, double hscale,
                           const int unit) {
   for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
     if (t->run4 > 0) {
       run4_eval(kc->q4 + t->q4, t->run4, z, scale, g, J, ld, hscale, unit);
       it += t->run4 - 1;
@@ -1036,8 +1182,9 @@ ALWAYS_INLINE void eval_k(mrvi_terms *kc, const double *z, double scale,
       continue;
     }
     if (t->runs > 0) {
-      springs_eval(kc->qs + t->qs, t->runs, z, scale, g, J, ld, hscale,
-                   kc->dim);
+#define EVAL_(q, n, r) springs_eval(q, n, z, scale, g, J, ld, hscale, kc->dim)
+      SPRING_PIECES(kc, t->qs, t->runs, EVAL_);
+#undef EVAL_
       it += t->runs - 1;
       continue;
     }
@@ -1283,7 +1430,8 @@ void mrvi_terms_eval_set(mrvi_terms *kc, const double *z, double *g, double *J,
 }
 
 int mrvi_terms_quadratic(const mrvi_terms *kc) {
-  if (kc->hooke_only || kc->spring_only) /* (springs: not polynomial) */
+  if (kc->hooke_only || kc->spring_only || kc->rs) /* (springs: not
+                                                       polynomial) */
     return 0;
   for (int i = 0; i < kc->n; i++)
     if (!mrvi_element_is_quadratic(kc->t[i].el))
@@ -1521,7 +1669,7 @@ static long part_entries(const mrvi_terms *kc, int chunk, int ncol) {
 static int springs_alone(const mrvi_terms *kc) {
   int ns = 0;
   for (int i = 0; i < kc->n; i++)
-    ns += kc->hooke_only || kc->spring_only || kc->t[i].runs > 0;
+    ns += kc->hooke_only || kc->spring_only || kc->rs || kc->t[i].runs > 0;
   return ns == kc->n;
 }
 
@@ -1623,7 +1771,8 @@ int mrvi_terms_set_recip(mrvi_terms *kc) {
   if (!all && !kc->spring_only && kc->hooke_run && kc->n > 0) {
     all = 1;
     for (int i = 0; i < kc->n; i++)
-      all &= kc->t[i].runs > 0 && kc->hooke_run[kc->t[i].qs];
+      all &= kc->rs ? kc->hooke_run[i]
+                    : kc->t[i].runs > 0 && kc->hooke_run[kc->t[i].qs];
   }
   kc->recip = all;
   return all;
@@ -1800,6 +1949,29 @@ int mrvi_terms_count(const mrvi_terms *kc) { return kc->n; }
 
 int mrvi_terms_shared_law(const mrvi_terms *kc) { return kc->qm != NULL; }
 
+long mrvi_terms_bytes(const mrvi_terms *kc) {
+  long b = 0, n_col = 0, n_coef = 0, n4 = 0, ns = 0;
+  for (int it = 0; kc->t && it < kc->n; it++) {
+    const kterm *t = &kc->t[it];
+    n_col += t->runs > 0 ? 0 : t->n;
+    n_coef += t->el->coef ? t->n : 0;
+    n4 += t->run4 > 0;
+    ns += t->runs > 0;
+  }
+  if (!kc->t)
+    ns = kc->qs || kc->qh ? kc->n : 0;
+  b += kc->t ? kc->n * (long)sizeof *kc->t : 0;
+  b += n_col * (long)sizeof *kc->col + n_coef * (long)sizeof *kc->coef;
+  b += n4 * (long)sizeof *kc->q4;
+  b += kc->qs ? ns * (long)sizeof *kc->qs : 0;
+  b += kc->qh ? ns * (long)sizeof *kc->qh : 0;
+  b += kc->hooke_run ? ns : 0;
+  b += kc->qp ? kc->n * (long)sizeof *kc->qp : 0;
+  b += kc->qm ? kc->n * (long)sizeof *kc->qm : 0;
+  b += kc->rs ? (kc->n_rs + 1) * (long)sizeof *kc->rs : 0;
+  return b;
+}
+
 /* flat_grad with each record's phi'' weighted into dsum: the gradient's
  * products and their order those of flat_grad (bitwise the same). */
 ALWAYS_INLINE void term4_grad_d2(const kterm4 *q, const double *z, double *g,
@@ -1947,10 +2119,13 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
                             double *Ax, const long *off, const int *emap,
                             double hscale) {
   for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
     if (t->runs > 0) {
-      springs_map(kc->qs + t->qs, t->runs, it, z, g, Ax, off, emap, hscale,
-                  kc->dim);
+#define MAP_(q, n, r)                                                          \
+  springs_map(q, n, it + r, z, g, Ax, off, emap, hscale, kc->dim)
+      SPRING_PIECES(kc, t->qs, t->runs, MAP_);
+#undef MAP_
       it += t->runs - 1;
       continue;
     }
@@ -2087,7 +2262,7 @@ static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
 int mrvi_terms_springs_only(const mrvi_terms *kc) {
   if (kc->n < 1)
     return 0;
-  if (kc->hooke_only || kc->spring_only)
+  if (kc->hooke_only || kc->spring_only || kc->rs)
     return 1;
   for (int it = 0; it < kc->n; it++)
     if (kc->t[it].runs < 1)
@@ -2098,8 +2273,11 @@ int mrvi_terms_springs_only(const mrvi_terms *kc) {
 void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
                            double *hd, double *off, double hscale) {
   for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
-    springs_hdiag(kc->qs + t->qs, t->runs, z, g, hd, off, hscale, kc->dim);
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
+#define HD_(q, n, r) springs_hdiag(q, n, z, g, hd, off, hscale, kc->dim)
+    SPRING_PIECES(kc, t->qs, t->runs, HD_);
+#undef HD_
     it += t->runs - 1;
   }
 }
@@ -2195,9 +2373,11 @@ static double value_range(mrvi_terms *kc, int i0, int i1, const double *z) {
     }
     return total;
   }
-  if (kc->spring_only) { /* (the loop below on one run) */
-    for (int r = i0; r < i1; r++)
-      total += spring_value(&kc->qs[r], z, kc->dim);
+  if (kc->spring_only || kc->rs) { /* (the loop below on runs) */
+    for (int r = i0; r < i1; r++) {
+      kspring one;
+      total += spring_value(springs_at(kc, r, 1, &one), z, kc->dim);
+    }
     return total;
   }
   for (int it = i0; it < i1; it++) {
@@ -2250,7 +2430,7 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vchunk = 0;
   kc->vthreads = 1;
   if (chunk < 1 || kc->n < 2 * chunk ||
-      (!kc->t && !kc->hooke_only && !kc->spring_only))
+      (!kc->t && !kc->hooke_only && !kc->spring_only && !kc->rs))
     return MRVI_OK;
   free(kc->vpart);
   if (!(kc->vpart = malloc((size_t)((kc->n - 1) / chunk + 1) * sizeof(double))))
@@ -2258,7 +2438,8 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vchunk = chunk;
   /* (threads only where no element needs the shared scratch kc->y) */
   int safe = mrvi_threads_supported();
-  for (int i = 0; safe && !kc->hooke_only && !kc->spring_only && i < kc->n; i++)
+  for (int i = 0;
+       safe && !kc->hooke_only && !kc->spring_only && !kc->rs && i < kc->n; i++)
     safe = kc->t[i].runs > 0 || kc->t[i].kind != KT_ELEMENT ||
            kc->t[i].el->kind == MRVI_ELEMENT_GRAVITY;
   kc->vthreads = safe && threads > 1 ? threads : 1;
@@ -2358,10 +2539,13 @@ void mrvi_terms_hessvec(mrvi_terms *kc, const double *z, int nvec,
                         const double *x, long xs, double *y, long ys,
                         double scale) {
   for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
     if (t->runs > 0) {
-      springs_hessvec(kc->qs + t->qs, t->runs, z, nvec, x, xs, y, ys, scale,
-                      kc->dim);
+#define HV_(q, n, r)                                                           \
+  springs_hessvec(q, n, z, nvec, x, xs, y, ys, scale, kc->dim)
+      SPRING_PIECES(kc, t->qs, t->runs, HV_);
+#undef HV_
       it += t->runs - 1;
       continue;
     }
@@ -2396,10 +2580,13 @@ static long block_len(const mrvi_terms *kc, const kterm *t) {
 
 long mrvi_terms_hessblocks_size(const mrvi_terms *kc) {
   long n = 0;
-  if (!kc->t) /* (a gradient-only class: no records of the elements) */
+  if (!kc->t && !kc->rs) /* (a gradient-only class: no records of the
+                            elements) */
     return -1;
-  for (int it = 0; it < kc->n; it++)
-    n += block_len(kc, &kc->t[it]);
+  for (int it = 0; it < kc->n; it++) {
+    kterm tt;
+    n += block_len(kc, term_at(kc, it, &tt));
+  }
   return n;
 }
 
@@ -2431,9 +2618,13 @@ static __attribute__((noinline)) void springs_blocks(const kspring *q, int nr,
 
 void mrvi_terms_hessblocks(mrvi_terms *kc, const double *z, double *B) {
   for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
     if (t->runs > 0) {
-      springs_blocks(kc->qs + t->qs, t->runs, z, B, kc->dim);
+#define HB_(q, n, r)                                                           \
+  springs_blocks(q, n, z, B + (long)r * block_len(kc, t), kc->dim)
+      SPRING_PIECES(kc, t->qs, t->runs, HB_);
+#undef HB_
       B += (long)t->runs * block_len(kc, t);
       it += t->runs - 1;
       continue;
@@ -2503,10 +2694,14 @@ void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
                                  int nvec, const double *x, long xs, double *y,
                                  long ys, double scale, double *xhx) {
   for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
     if (t->runs > 0) {
-      springs_blocks_apply(kc->qs + t->qs, t->runs, B, nvec, x, xs, y, ys,
-                           scale, xhx, kc->dim);
+#define BA_(q, n, r)                                                           \
+  springs_blocks_apply(q, n, B + (long)r * block_len(kc, t), nvec, x, xs, y,   \
+                       ys, scale, xhx, kc->dim)
+      SPRING_PIECES(kc, t->qs, t->runs, BA_);
+#undef BA_
       B += (long)t->runs * block_len(kc, t);
       it += t->runs - 1;
       continue;
@@ -2534,13 +2729,15 @@ void mrvi_terms_hessblocks_apply(const mrvi_terms *kc, const double *B,
 
 int mrvi_terms_hessblocks_springs(const mrvi_terms *kc, int *ci, int *cj) {
   int nb = 0;
-  if (!kc->t)
+  if (!kc->t && !kc->rs)
     return -1;
   for (int it = 0; it < kc->n; it++) {
-    const kterm *t = &kc->t[it];
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
     if (t->runs > 0) {
       for (int r = 0; r < t->runs; r++, nb++) {
-        const kspring *q = kc->qs + t->qs + r;
+        kspring one;
+        const kspring *q = springs_at(kc, t->qs + r, 1, &one);
         for (int k = 0; k < kc->dim; k++) {
           ci[nb * kc->dim + k] = q->ci[k];
           cj[nb * kc->dim + k] = q->two ? q->cj[k] : -1;
