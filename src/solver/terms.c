@@ -2150,7 +2150,11 @@ void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
 }
 
 int mrvi_terms_sparse_parts(const mrvi_terms *kc) {
-  if (!kc->part_first || !kc->t || !kc->qs)
+  if (!kc->part_first || !kc->qs)
+    return 0;
+  if (kc->rs) /* (springs_runs: record it is element it) */
+    return kc->n_part;
+  if (!kc->t)
     return 0;
   for (int it = 0; it < kc->n; it++) /* (record it: element it) */
     if (kc->t[it].runs < 1 || kc->t[it].qs != it)
