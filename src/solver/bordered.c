@@ -102,6 +102,9 @@ struct mrvi_bordered {
    * saddle-point blocks singular while the step is not. */
   mrvi_newton *whole;
   int dense_max;
+  /* The chain elimination (solver/chain.c) of the whole step, for chains
+   * and trees beyond the dense blocks' limits (mrvi_chain_wanted). */
+  mrvi_chain *chain;
 };
 
 void mrvi_bordered_free(mrvi_bordered *bd) {
@@ -109,6 +112,7 @@ void mrvi_bordered_free(mrvi_bordered *bd) {
     return;
   mrvi_blocks_free(bd->blocks);
   mrvi_newton_free(bd->whole);
+  mrvi_chain_free(bd->chain);
   free(bd->rblk);
   free(bd->roff);
   free(bd->dpiv);
@@ -294,8 +298,15 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
           (col_c && !row_c && st->Ai[q] >= st->ns))
         bd->slow_only = 0;
     }
-  int s = MRVI_OK;
-  if (!bd->slow_only) {
+  int s = MRVI_OK, nb, width;
+  if (mrvi_chain_wanted(st->model, st->p, &st->tuning, &nb, &width) == 1) {
+    /* (a pattern not block tridiagonal in the chain's blocks: the LU of
+     * the whole step, as where a block is singular) */
+    s = mrvi_chain_create(st, &bd->chain);
+    if (s == MRVI_EINVAL)
+      s = MRVI_OK;
+    bd->slow_only = 0;
+  } else if (!bd->slow_only) {
     s = node_create(bd, st);
   } else {
     const size_t nu = (size_t)bd->nu, nl = (size_t)bd->nl;
@@ -508,10 +519,14 @@ int mrvi_bordered_factor_solve(mrvi_bordered *bd, const mrvi_step *st,
                                const double *R, double *dx, char *msg,
                                size_t len) {
   if (!bd->slow_only) {
-    if (!bd->whole) {
-      const int s = node_factor(bd, st, msg, len);
+    if (!bd->whole && (bd->chain || bd->nbuf)) {
+      const int s = bd->chain ? mrvi_chain_factor(bd->chain, st->Ax)
+                              : node_factor(bd, st, msg, len);
       if (s == MRVI_OK) {
-        node_solve(bd, R, dx);
+        if (bd->chain)
+          mrvi_chain_solve(bd->chain, R, dx);
+        else
+          node_solve(bd, R, dx);
         return s;
       }
       if (s != MRVI_ESINGULAR)
@@ -533,7 +548,9 @@ int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
                         double *dx, char *msg, size_t len) {
   if (bd->whole)
     return mrvi_linsolve_solve(bd->whole, st->Ax, 0, R, dx, msg, len);
-  if (!bd->slow_only)
+  if (bd->chain)
+    mrvi_chain_solve(bd->chain, R, dx);
+  else if (!bd->slow_only)
     node_solve(bd, R, dx);
   else
     solve(bd, st, R, dx);
