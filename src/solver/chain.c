@@ -29,8 +29,8 @@
  *
  * A model whose constraints close a loop (a constraint joins two particles
  * or bodies that other constraints join already: the cut joints of
- * doc/multibody.md) keeps its path, as is one whose blocks exceed chain_block_max
- * (mrvi.h, MRVI_TUNING_LIST; 0: off). */
+ * doc/multibody.md) keeps its path, as is one whose blocks exceed
+ * chain_block_max (mrvi.h, MRVI_TUNING_LIST; 0: off). */
 #include "solver/solver.h"
 
 #include <stdlib.h>
@@ -50,7 +50,7 @@ struct mrvi_chain {
                         * for each unknown of block k+1, its column of
                         * X_k or -1 */
   int *ccol, *cur;
-  size_t *uo, *xo;     /* offsets of U_k and X_k in buf */
+  size_t *uo, *xo; /* offsets of U_k and X_k in buf */
   int *piv, *nzc;
   /* CSC entries: into U_k (dq, dd), into X_k (xq, xd), and of J_k+1,k
    * (lq by block k from lp: row, column in their blocks lr, lc) */
@@ -254,9 +254,8 @@ int mrvi_chain_wanted(const mrvi_model *m, int p, const mrvi_tuning *t,
     *(m->constraints[c].where == MRVI_SLOW ? &rs : &rf) +=
         m->constraints[c].rows;
   const int bmax = t->bordered_max, nmax = t->bordered_node_max;
-  const int beyond =
-      rf == 0 ? m->n_slow > bmax || m->n_fast > bmax || rs > bmax
-              : m->n_slow + rs > nmax || m->n_fast + rf > nmax;
+  const int beyond = rf == 0 ? m->n_slow > bmax || m->n_fast > bmax || rs > bmax
+                             : m->n_slow + rs > nmax || m->n_fast + rf > nmax;
   *n_blocks = *width = 0;
   if (!beyond || t->chain_block_max <= 0 || m->n_constraints == 0)
     return 0;
