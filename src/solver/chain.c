@@ -187,6 +187,8 @@ int mrvi_chain_levels(const mrvi_model *m, int *level) {
       par[bo->first + d] = bo->first;
   }
   for (int c = 0; c < m->n_constraints && tree; c++) {
+    if (m->constraints[c].n_in < 1)
+      continue;
     const mrvi_constraint *ct = &m->constraints[c];
     const int o = par[ct->in[0]];
     for (int i = 1; i < ct->n_in && tree; i++) {
