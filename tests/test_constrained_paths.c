@@ -140,6 +140,22 @@ static double rel_diff(const run_out *a, const run_out *b, int steps) {
   return worst;
 }
 
+/* m run with sa and with sg (general) for `steps` macro steps: both
+ * complete and agree to 1e-10 relative. */
+static void agree(const mrvi_model *m, const mrvi_settings *sa,
+                  const mrvi_settings *sg, int steps, const char *what) {
+  run_out a = {0}, g = {0};
+  run(m, sa, steps, &a);
+  run(m, sg, steps, &g);
+  CHECK(a.ok && g.ok, "%s: runs completed", what);
+  if (a.ok && g.ok) {
+    const double d = rel_diff(&g, &a, steps);
+    CHECK(d <= 1e-10, "%s: %s vs general: %.2e", what, a.path, d);
+  }
+  run_free(&a);
+  run_free(&g);
+}
+
 /* schur-bordered (auto, multiplier form) against general in both forms,
  * every shipped constrained system, scheme and p in {1, 5}. */
 /* Under AddressSanitizer (about 20× slower here) each system is compared
@@ -403,16 +419,9 @@ static void test_chain_elimination(void) {
       }
       if (c == 3)
         continue;
-      run_out a = {0}, g = {0};
-      run(m, &sa, N_STEPS, &a);
-      run(m, &sg, N_STEPS, &g);
-      CHECK(a.ok && g.ok, "case %d, p = %d: runs completed", c, p);
-      if (a.ok && g.ok) {
-        const double d = rel_diff(&g, &a, N_STEPS);
-        CHECK(d <= 1e-10, "case %d p=%d: %s vs general: %.2e", c, p, a.path, d);
-      }
-      run_free(&a);
-      run_free(&g);
+      char what[32];
+      snprintf(what, sizeof what, "case %d p=%d", c, p);
+      agree(m, &sa, &sg, N_STEPS, what);
     }
     mrvi_model_free(m);
   }
@@ -583,17 +592,9 @@ static void test_chains(void) {
             path ? path : "none", why);
       if (c == 1)
         CHECK(strstr(why, "chain elimination") != NULL, "reason: %s", why);
-      run_out a = {0}, g = {0};
-      run(m, &sa, steps, &a);
-      run(m, &sg, steps, &g);
-      CHECK(a.ok && g.ok, "chain of %d, p = %d: runs completed", n, p);
-      if (a.ok && g.ok) {
-        const double d = rel_diff(&g, &a, steps);
-        CHECK(d <= 1e-10, "chain of %d p=%d: %s vs general: %.2e", n, p, a.path,
-              d);
-      }
-      run_free(&a);
-      run_free(&g);
+      char what[32];
+      snprintf(what, sizeof what, "chain of %d p=%d", n, p);
+      agree(m, &sa, &sg, steps, what);
     }
     mrvi_model_free(m);
   }

@@ -65,11 +65,9 @@ struct mrvi_chain {
 void mrvi_chain_free(mrvi_chain *ch) {
   if (!ch)
     return;
-  free(ch->blk), free(ch->pos), free(ch->bo), free(ch->bs);
-  free(ch->cn), free(ch->co), free(ch->cpos);
-  free(ch->uo), free(ch->xo), free(ch->piv), free(ch->nzc);
-  free(ch->dq), free(ch->xq), free(ch->lq), free(ch->lp), free(ch->lr);
-  free(ch->lc), free(ch->dd), free(ch->xd), free(ch->buf), free(ch->y);
+  free(ch->blk), free(ch->dq), free(ch->bo), free(ch->bs);
+  free(ch->cn), free(ch->co), free(ch->uo), free(ch->xo), free(ch->lp);
+  free(ch->dd), free(ch->xd), free(ch->buf), free(ch->y);
   free(ch->ccol), free(ch->cur), free(ch->lv);
   free(ch);
 }
@@ -316,11 +314,17 @@ int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out) {
   }
   const int nb = ch->nb;
   const size_t N = (size_t)n + 1, B = (size_t)nb + 1;
-  ch->blk = malloc(N * sizeof *ch->blk);
-  ch->pos = malloc(N * sizeof *ch->pos);
-  ch->cpos = malloc(N * sizeof *ch->cpos);
-  ch->piv = malloc(N * sizeof *ch->piv);
-  ch->nzc = malloc(N * sizeof *ch->nzc);
+  /* the int arrays of n (blk, pos, cpos, piv, nzc) and of the entries
+   * (dq, xq, lq, lr, lc) in two allocations, blk and dq */
+  const size_t Z = (size_t)nnz + 1;
+  ch->blk = malloc(5 * N * sizeof *ch->blk);
+  ch->dq = malloc(5 * Z * sizeof *ch->dq);
+  if (ch->blk && ch->dq) {
+    ch->pos = ch->blk + N, ch->cpos = ch->pos + N, ch->piv = ch->cpos + N;
+    ch->nzc = ch->piv + N;
+    ch->xq = ch->dq + Z, ch->lq = ch->xq + Z, ch->lr = ch->lq + Z;
+    ch->lc = ch->lr + Z;
+  }
   ch->y = malloc(N * sizeof *ch->y);
   ch->bo = calloc(B + 1, sizeof *ch->bo);
   ch->bs = calloc(B, sizeof *ch->bs);
@@ -329,18 +333,10 @@ int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out) {
   ch->uo = calloc(B, sizeof *ch->uo);
   ch->xo = calloc(B, sizeof *ch->xo);
   ch->lp = calloc(B + 1, sizeof *ch->lp);
-  const size_t Z = (size_t)nnz + 1;
-  ch->dq = malloc(Z * sizeof *ch->dq);
-  ch->xq = malloc(Z * sizeof *ch->xq);
-  ch->lq = malloc(Z * sizeof *ch->lq);
-  ch->lr = malloc(Z * sizeof *ch->lr);
-  ch->lc = malloc(Z * sizeof *ch->lc);
   ch->dd = malloc(Z * sizeof *ch->dd);
   ch->xd = malloc(Z * sizeof *ch->xd);
-  if (!ch->blk || !ch->pos || !ch->cpos || !ch->piv || !ch->nzc || !ch->y ||
-      !ch->bo || !ch->bs || !ch->cn || !ch->co || !ch->uo || !ch->xo ||
-      !ch->lp || !ch->dq || !ch->xq || !ch->lq || !ch->lr || !ch->lc ||
-      !ch->dd || !ch->xd) {
+  if (!ch->blk || !ch->dq || !ch->y || !ch->bo || !ch->bs || !ch->cn ||
+      !ch->co || !ch->uo || !ch->xo || !ch->lp || !ch->dd || !ch->xd) {
     s = MRVI_ENOMEM;
     goto done;
   }
