@@ -771,6 +771,10 @@ typedef enum mrvi_newton_criterion {
     "largest node block (fast unknowns and a micro node's multipliers, or "    \
     "slow unknowns and the slow multipliers) of a step with micro-node "       \
     "constraints solved by schur-bordered; beyond: general")                   \
+  X(int, chain_block_max, 160, 0, 1000000,                                     \
+    "largest block of schur-bordered's chain elimination, which takes "        \
+    "constrained chains and trees beyond bordered_max and "                    \
+    "bordered_node_max (0: off, general)")                                     \
   X(double, path_entry_cost, 5.0, 0.0, 1e300,                                  \
     "cost of an entry of the general path's dense LU storage per "             \
     "factorisation, in its flops, in the estimate that chooses general or "    \

@@ -140,6 +140,22 @@ static double rel_diff(const run_out *a, const run_out *b, int steps) {
   return worst;
 }
 
+/* m run with sa and with sg (general) for `steps` macro steps: both
+ * complete and agree to 1e-10 relative. */
+static void agree(const mrvi_model *m, const mrvi_settings *sa,
+                  const mrvi_settings *sg, int steps, const char *what) {
+  run_out a = {0}, g = {0};
+  run(m, sa, steps, &a);
+  run(m, sg, steps, &g);
+  CHECK(a.ok && g.ok, "%s: runs completed", what);
+  if (a.ok && g.ok) {
+    const double d = rel_diff(&g, &a, steps);
+    CHECK(d <= 1e-10, "%s: %s vs general: %.2e", what, a.path, d);
+  }
+  run_free(&a);
+  run_free(&g);
+}
+
 /* schur-bordered (auto, multiplier form) against general in both forms,
  * every shipped constrained system, scheme and p in {1, 5}. */
 /* Under AddressSanitizer (about 20× slower here) each system is compared
@@ -277,6 +293,138 @@ static mrvi_settings chain_settings(int p, const char *solver) {
   s.solver =
       strcmp(solver, "general") == 0 ? MRVI_SOLVER_GENERAL : MRVI_SOLVER_AUTO;
   return s;
+}
+
+/* n rigid bars (2-D bodies, length 1, mass 2, slow) on revolute joints
+ * along a line 45 degrees from the downward vertical, the first to the
+ * ground at the origin, each with a light fast mass on a slow spring to its
+ * lower end, the light masses joined by fast springs (bench_chain's rigid
+ * chain); ring: a joint from the last bar's lower end to the first bar
+ * closes a loop. */
+static mrvi_model *bars(int n, int ring) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double g[2] = {0.0, -9.81}, e[2] = {sqrt(0.5), -sqrt(0.5)};
+  mrvi_model_set_gravity(m, g);
+  int prev_b = -1, prev_l = -1, first = -1;
+  for (int i = 0; i < n; i++) {
+    const double h[2] = {(i + 1) * e[0], (i + 1) * e[1]};
+    const double x[2] = {h[0] - 0.5 * e[0], h[1] - 0.5 * e[1]};
+    const double R[4] = {e[0], -e[1], e[1], e[0]}, J[1] = {2.0 / 12.0};
+    const double v[2] = {0.3 * sin(i), 0.2 * cos(i)}, w[1] = {0.4 * cos(i)};
+    const double l[2] = {h[0], h[1] - 0.1}, k[1] = {2000.0};
+    const double pivot[2] = {i * e[0], i * e[1]};
+    char name[16];
+    snprintf(name, sizeof name, "b%d", i);
+    const int b =
+        mrvi_model_add_body(m, name, 2, MRVI_SLOW, 2.0, J, x, R, v, w);
+    CHECK(b >= 0 &&
+              mrvi_model_add_joint(m, "revolute", b, prev_b, pivot, NULL) >= 0,
+          "bar %d", i);
+    snprintf(name, sizeof name, "l%d", i);
+    const int li = mrvi_model_add_particle(m, name, 0.05, MRVI_FAST, l, v);
+    mrvi_end eb = {-1, b, {0.5, 0, 0}}, el = {li, -1, {0, 0, 0}};
+    CHECK(li >= 0 &&
+              mrvi_model_add_end_spring(m, MRVI_SLOW, &eb, &el, NULL, "linear",
+                                        k, 0.1) >= 0 &&
+              (prev_l < 0 || mrvi_model_add_spring(m, MRVI_FAST, prev_l, li,
+                                                   "linear", k, 1.0) >= 0),
+          "light mass %d", i);
+    first = first < 0 ? b : first;
+    prev_b = b, prev_l = li;
+  }
+  if (ring) {
+    const double end[2] = {n * e[0], n * e[1]};
+    CHECK(mrvi_model_add_joint(m, "revolute", first, prev_b, end, NULL) >= 0,
+          "closing joint");
+  }
+  mrvi_model_project_velocities(m, NULL);
+  return m;
+}
+
+/* A binary tree of 7 slow particles (mass 2) on rods, the root on a rod to
+ * the origin, each carrying a light fast mass on a slow spring, the light
+ * masses joined by fast springs along the tree's edges. */
+static mrvi_model *rod_tree(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double gr[2] = {0, -9.81}, k[1] = {2000}, pivot[2] = {0, 0};
+  mrvi_model_set_gravity(m, gr);
+  enum { N = 7 };
+  double x[N][2] = {{0, -1}};
+  char name[16];
+  for (int i = 0; i < N; i++) {
+    if (i > 0) { /* children below their parent, left and right */
+      const int u = (i - 1) / 2, depth = i < 3 ? 1 : 2;
+      x[i][0] = x[u][0] + (i % 2 ? -1.0 : 1.0) / depth;
+      x[i][1] = x[u][1] - 0.5;
+    }
+    const double v[2] = {0.3 * sin(i), 0.2 * cos(i)};
+    snprintf(name, sizeof name, "h%d", i);
+    mrvi_model_add_particle(m, name, 2.0, MRVI_SLOW, x[i], v);
+  }
+  for (int i = 0; i < N; i++) {
+    const double l[2] = {x[i][0], x[i][1] - 0.1}, v[2] = {0.1 * i, 0};
+    snprintf(name, sizeof name, "l%d", i);
+    mrvi_model_add_particle(m, name, 0.05, MRVI_FAST, l, v);
+    mrvi_model_add_spring(m, MRVI_SLOW, i, N + i, "linear", k, 0.1);
+    if (i > 0) {
+      mrvi_model_add_spring(m, MRVI_FAST, N + (i - 1) / 2, N + i, "linear", k,
+                            NAN);
+      mrvi_model_add_distance(m, (i - 1) / 2, i, NAN);
+    } else {
+      mrvi_model_add_distance_anchor(m, 0, pivot, NAN);
+    }
+  }
+  mrvi_model_project_velocities(m, NULL);
+  return m;
+}
+
+/* The chain elimination of schur-bordered (solver/chain.c) against the
+ * general path over N_STEPS macro steps (tolerances 1e-12), at p = 1 and
+ * 5: a rod chain, a bar chain and a tree of rods (c = 0, 1, 4) forced onto
+ * it (integrator.solver structured, bordered_max 0) and the bar chain by the
+ * automatic choice (c = 2: beyond bordered_max, its check names it); a
+ * closed loop of bars (c = 3) keeps general, and chain_block_max 0 turns it
+ * off. */
+static void test_chain_elimination(void) {
+  for (int c = 0; c < 5; c++) {
+    mrvi_model *m = c == 0   ? chain(8, 1)
+                    : c == 4 ? rod_tree()
+                             : bars(c == 3 ? 6 : 8, c == 3);
+    for (int pi = 0; pi < 2; pi++) {
+      const int p = pi ? 5 : 1;
+      mrvi_settings sa = chain_settings(p, "auto"),
+                    sg = chain_settings(p, "general");
+      char msg[200], why[512] = "";
+      if (c == 0 || c == 1 || c == 4) {
+        sa.solver = MRVI_SOLVER_STRUCTURED;
+        CHECK(mrvi_settings_set_tuning(&sa, "bordered_max", 0, msg,
+                                       sizeof msg) == 0,
+              "%s", msg);
+      }
+      const char *path = mrvi_solver_path(m, &sa, why, sizeof why);
+      const int want = c != 3;
+      CHECK(path && strcmp(path, want ? "schur-bordered" : "general") == 0 &&
+                (strstr(why, "chain elimination") != NULL) == want,
+            "case %d p = %d: path %s (%s)", c, p, path ? path : "none", why);
+      if (c == 2) { /* off: general */
+        mrvi_settings so = sa;
+        CHECK(mrvi_settings_set_tuning(&so, "chain_block_max", 0, msg,
+                                       sizeof msg) == 0,
+              "%s", msg);
+        path = mrvi_solver_path(m, &so, why, sizeof why);
+        CHECK(path && strcmp(path, "general") == 0, "chain_block_max 0: %s",
+              path ? path : "none");
+      }
+      if (c == 3)
+        continue;
+      char what[32];
+      snprintf(what, sizeof what, "case %d p=%d", c, p);
+      agree(m, &sa, &sg, N_STEPS, what);
+    }
+    mrvi_model_free(m);
+  }
 }
 
 /* The node blocks (micro-node multipliers joined to their nodes) at the
@@ -435,7 +583,7 @@ static void test_chains(void) {
               "%s", msg);
       char why[512] = "";
       const char *path = mrvi_solver_path(m, &sa, why, sizeof why);
-      const char *want = c == 1 ? "general" : "schur-bordered";
+      const char *want = "schur-bordered";
       CHECK(path && strcmp(path, want) == 0, "chain of %d (%s): path %s (%s)",
             n,
             c == 2 ? "bordered_max 128"
@@ -443,18 +591,10 @@ static void test_chains(void) {
                    : "structured",
             path ? path : "none", why);
       if (c == 1)
-        CHECK(strstr(why, "beyond the dense limit") != NULL, "reason: %s", why);
-      run_out a = {0}, g = {0};
-      run(m, &sa, steps, &a);
-      run(m, &sg, steps, &g);
-      CHECK(a.ok && g.ok, "chain of %d, p = %d: runs completed", n, p);
-      if (a.ok && g.ok) {
-        const double d = rel_diff(&g, &a, steps);
-        CHECK(d <= 1e-10, "chain of %d p=%d: %s vs general: %.2e", n, p, a.path,
-              d);
-      }
-      run_free(&a);
-      run_free(&g);
+        CHECK(strstr(why, "chain elimination") != NULL, "reason: %s", why);
+      char what[32];
+      snprintf(what, sizeof what, "chain of %d p=%d", n, p);
+      agree(m, &sa, &sg, steps, what);
     }
     mrvi_model_free(m);
   }
@@ -523,6 +663,7 @@ int main(void) {
   test_gram();
   test_path_choice();
   test_chains();
+  test_chain_elimination();
   test_node_blocks();
   test_shipped();
   return test_finish();

@@ -567,6 +567,10 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
     const int s = mrvi_bordered_create(st, &o->bordered);
     if (s == MRVI_ENOMEM)
       return s;
+    if (o->bordered && !mrvi_bordered_transposable(o->bordered)) {
+      mrvi_bordered_free(o->bordered);
+      o->bordered = NULL;
+    }
     o->bd_work = malloc((2 * nu + 1) * sizeof *o->bd_work);
     if (!o->bd_work)
       return MRVI_ENOMEM;

@@ -108,6 +108,9 @@ struct mrvi_bordered {
    * saddle-point blocks singular while the step is not. */
   mrvi_newton *whole;
   int dense_max;
+  /* The chain elimination (solver/chain.c) of the whole step, for chains
+   * and trees beyond the dense blocks' limits (mrvi_chain_wanted). */
+  mrvi_chain *chain;
 };
 
 void mrvi_bordered_free(mrvi_bordered *bd) {
@@ -115,6 +118,7 @@ void mrvi_bordered_free(mrvi_bordered *bd) {
     return;
   mrvi_blocks_free(bd->blocks);
   mrvi_newton_free(bd->whole);
+  mrvi_chain_free(bd->chain);
   free(bd->rblk);
   free(bd->roff);
   free(bd->dpiv);
@@ -310,8 +314,15 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
           (col_c && !row_c && st->Ai[q] >= st->ns))
         bd->slow_only = 0;
     }
-  int s = MRVI_OK;
-  if (!bd->slow_only) {
+  int s = MRVI_OK, nb, width;
+  if (mrvi_chain_wanted(st->model, st->p, &st->tuning, &nb, &width) == 1) {
+    /* (a pattern not block tridiagonal in the chain's blocks: the LU of
+     * the whole step, as where a block is singular) */
+    s = mrvi_chain_create(st, &bd->chain);
+    if (s == MRVI_EINVAL)
+      s = MRVI_OK;
+    bd->slow_only = 0;
+  } else if (!bd->slow_only) {
     s = node_create(bd, st);
   } else {
     const size_t nu = (size_t)bd->nu, nl = (size_t)bd->nl;
@@ -619,7 +630,9 @@ int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
                         double *dx, char *msg, size_t len) {
   if (bd->whole)
     return mrvi_linsolve_solve(bd->whole, st->Ax, 0, R, dx, msg, len);
-  if (!bd->slow_only)
+  if (bd->chain)
+    mrvi_chain_solve(bd->chain, R, dx);
+  else if (!bd->slow_only)
     node_solve(bd, R, dx);
   else
     solve(bd, st, R, dx);
@@ -694,7 +707,11 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   if (bd->slow_only)
     return factor(bd, st, msg, len);
   if (!bd->whole) {
-    const int s = node_factor(bd, st, msg, len);
+    /* (neither a chain nor node blocks: the chain's pattern was not block
+     * tridiagonal, the whole step's LU from the start) */
+    const int s = bd->chain   ? mrvi_chain_factor(bd->chain, st->Ax)
+                  : bd->nbuf ? node_factor(bd, st, msg, len)
+                             : MRVI_ESINGULAR;
     if (s != MRVI_ESINGULAR)
       return s;
     bd->whole = mrvi_newton_create(st->n_total, st->Ap, st->Ai, st->Ax,
@@ -705,11 +722,20 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   return mrvi_newton_factor(bd->whole, st->Ax, msg, len);
 }
 
+int mrvi_bordered_transposable(const mrvi_bordered *bd) {
+  return !bd->chain || bd->whole;
+}
+
 int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   const double *R, double *dx, char *msg,
                                   size_t len) {
   if (bd->whole)
     return mrvi_linsolve_solve(bd->whole, st->Ax, 1, R, dx, msg, len);
+  if (bd->chain) {
+    mrvi_fmt(msg, len,
+             "schur-bordered's chain elimination has no transposed solve");
+    return MRVI_EINVAL;
+  }
   if (!bd->slow_only)
     node_solve_transpose(bd, R, dx);
   else

@@ -769,6 +769,34 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
 int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   const double *R, double *dx, char *msg,
                                   size_t len);
+/* Whether mrvi_bordered_solve_transpose applies: not on the chain
+ * elimination (solver/chain.c keeps no transposed solve; the adjoint takes
+ * the general path's LU there). */
+int mrvi_bordered_transposable(const mrvi_bordered *bd);
+
+/* The chain elimination of schur-bordered (solver/chain.c): the step of a
+ * model whose coupling graph is a chain or a tree, block tridiagonal along
+ * its breadth-first levels.  mrvi_chain_levels: the level of each of m's
+ * coordinates; returns the number of levels, 0 if the levels' parts form a
+ * cycle (a closed loop).  mrvi_chain_blocks: the levels merged into blocks
+ * (blk: m->n), the widest in step unknowns at p micro nodes in *width;
+ * returns their number (0: a loop).  mrvi_chain_wanted: 1 where s puts the
+ * constrained step beyond schur-bordered's dense limits (bordered_max,
+ * bordered_node_max) and m is a chain or a tree of at least two blocks of
+ * at most chain_block_max unknowns (their number and width set), else 0.
+ * mrvi_chain_create: MRVI_EINVAL if st's Jacobian pattern is not block
+ * tridiagonal in those blocks; mrvi_chain_factor: the CSC values Ax (st's
+ * pattern), MRVI_ESINGULAR if a block is singular; mrvi_chain_solve:
+ * J dx = R with the factors. */
+typedef struct mrvi_chain mrvi_chain;
+int mrvi_chain_levels(const mrvi_model *m, int *level);
+int mrvi_chain_blocks(const mrvi_model *m, int p, int *blk, int *width);
+int mrvi_chain_wanted(const mrvi_model *m, int p, const mrvi_tuning *t,
+                      int *n_blocks, int *width);
+int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out);
+int mrvi_chain_factor(mrvi_chain *ch, const double *Ax);
+void mrvi_chain_solve(const mrvi_chain *ch, const double *R, double *dx);
+void mrvi_chain_free(mrvi_chain *ch);
 
 /* Newton matrix of an unconstrained step by block elimination
  * (solver/blocks.c): Schur complement on the slow block, block forward

@@ -216,6 +216,20 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
              bodies);
     return MRVI_PATH_GENERAL;
   }
+  int nb = 0, width = 0;
+  const int chain =
+      mrvi_chain_wanted(m, s->micro_steps, &s->tuning, &nb, &width);
+  if (chain == 1) {
+    mrvi_fmt(why, len,
+             "constrained model%s: %d slow and %d fast unknowns per node and "
+             "%d multipliers, beyond the dense limits (bordered_max, "
+             "bordered_node_max), on a chain or tree of couplings: Newton with "
+             "the step eliminated along it in %d blocks of at most %d "
+             "unknowns (chain elimination, chain_block_max %d)",
+             bodies, m->n_slow, m->n_fast, r_slow + r_micro, nb, width,
+             s->tuning.chain_block_max);
+    return MRVI_PATH_SCHUR_BORDERED;
+  }
   if (r_micro == 0 && (m->n_slow > bmax || m->n_fast > bmax || r_slow > bmax)) {
     mrvi_fmt(why, len,
              "constrained model%s: %d slow and %d fast unknowns per node and "
