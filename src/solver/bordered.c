@@ -709,7 +709,7 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   if (!bd->whole) {
     /* (neither a chain nor node blocks: the chain's pattern was not block
      * tridiagonal, the whole step's LU from the start) */
-    const int s = bd->chain   ? mrvi_chain_factor(bd->chain, st->Ax)
+    const int s = bd->chain  ? mrvi_chain_factor(bd->chain, st->Ax)
                   : bd->nbuf ? node_factor(bd, st, msg, len)
                              : MRVI_ESINGULAR;
     if (s != MRVI_ESINGULAR)
