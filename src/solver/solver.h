@@ -210,6 +210,14 @@ typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, int dense_max, char *msg,
                                 size_t len);
+/* 1 where mrvi_newton_create(n, Ap, Ai, Ax, dense_max, ..) takes the dense
+ * LU, 0 where it takes UMFPACK, < 0 out of memory: the same decision (the
+ * flops of the dense LU in its ordering against UMFPACK's estimate) without
+ * the backends' storage; Ax may be NULL (the pattern's entries all taken
+ * as nonzero by UMFPACK's analysis).  The general path's cost estimate
+ * (solver/path_cost.c) takes it. */
+int mrvi_newton_dense_chosen(int n, const int *Ap, const int *Ai,
+                             const double *Ax, int dense_max);
 /* The fill-reducing ordering kept: UMFPACK_ORDERING_AMD or
  * UMFPACK_ORDERING_METIS (umfpack.h), -1 for the dense backend. */
 int mrvi_newton_ordering(const mrvi_newton *nw);
