@@ -274,10 +274,13 @@ enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };
  * schur-bordered paths, in flops (solver/path_cost.c): the step's size n
  * and estimated nonzeros nnz (multiplier form), the dense slow block a and
  * fast node block b of schur-bordered, the rows at macro and micro nodes;
- * general is HUGE_VAL and bordered 0 beyond newton_dense_max. */
+ * general is HUGE_VAL and bordered 0 beyond newton_dense_max, general
+ * HUGE_VAL where general's Newton solver takes UMFPACK within it
+ * (general_dense 0: mrvi_newton_dense_chosen on the estimated pattern). */
 typedef struct mrvi_path_cost {
   long n, nnz;
   int a, b, r_slow, r_micro;
+  int general_dense; /* 1: general's dense LU (costed), 0: UMFPACK */
   double general, bordered;
 } mrvi_path_cost;
 int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
