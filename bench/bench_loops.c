@@ -15,14 +15,17 @@
  *   QR               the null-space form with the numerical basis (tuning
  *                    nullspace_tree 0; refused above 256 constrained
  *                    coordinates of one rate, n > 42),
- *   open, reduced    the ring without its closing joint (an open chain) in
- *                    the null-space form with the joint-reduced basis: what
- *                    the cut joint adds.
+ *   open, QR         the ring without its closing joint (an open chain) in
+ *   open, Gram       the null-space form with the joint-reduced basis: what
+ *                    the cut joint adds; with --fast, the fast multipliers
+ *                    and slow coupling by the QR of G_f (nullspace_gram_min
+ *                    257; refused above 256) or the Gram matrix G_f G_f^T
+ *                    (nullspace_gram_min 0).
  * --ladder: instead a ladder of n four-bars (n loops): two rails of n bars
  * each (length 1, slanted by 0.3 to the side) hung from the ground at (0,
  * 0) and (1, 0), the rungs (length 1, horizontal) joining the rails' lower
  * ends, every bar on revolute joints at the nodes (3n bars, 4n joints, n
- * degrees of freedom); its open twin, "open, reduced", has no rungs.  The
+ * degrees of freedom); its open twin, "open, QR/Gram", has no rungs.  The
  * cut joints' paths to the ground grow with the depth of the ladder, so
  * C = G_c P_tree has O(n^2) entries there.
  * --fast: every bar fast and p = 5, the joints enforced at the 5 micro
@@ -41,11 +44,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 4, HORIZON = 20 };
+enum { MAX_N = 16, MAX_REPEATS = 9, N_CASES = 5, HORIZON = 20 };
 #define MIN_CPU 0.3
 
 static const char *const case_names[N_CASES] = {"multipliers", "loop-reduced",
-                                                "QR", "open, reduced"};
+                                                "QR", "open, QR", "open, Gram"};
 
 static const char usage[] =
     "usage: bench_loops [--quick] [--ladder] [--fast] [--n 10,30,100]\n"
@@ -158,8 +161,9 @@ static result run_one(int cs, int links, int steps) {
   memset(&r, 0, sizeof r);
   r.status = 1;
   char msg[512];
-  mrvi_model *m = ladder ? ladder_model(links, cs != 3, msg, sizeof msg)
-                         : ring_model(links, cs != 3, msg, sizeof msg);
+  const int open = cs >= 3;
+  mrvi_model *m = ladder ? ladder_model(links, !open, msg, sizeof msg)
+                         : ring_model(links, !open, msg, sizeof msg);
   if (!m) {
     snprintf(r.message, sizeof r.message, "%.190s", msg);
     return r;
@@ -174,6 +178,10 @@ static result run_one(int cs, int links, int steps) {
   s.energy_warning = 0;
   s.constraint_form = cs ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
   s.tuning.nullspace_tree = cs != 2;
+  /* the open model's fast multipliers: by the QR of G_f (up to its 256
+   * coordinates) or the Gram matrix */
+  if (open)
+    s.tuning.nullspace_gram_min = cs == 3 ? 257 : 0;
   mrvi_integrator *it = NULL;
   if (mrvi_integrator_create(m, &s, &it, msg, sizeof msg) < 0) {
     snprintf(r.message, sizeof r.message, "%.190s", msg);

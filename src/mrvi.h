@@ -844,6 +844,11 @@ typedef enum mrvi_newton_criterion {
     "revolute and weld joints takes the joint-reduced basis, of slow "         \
     "particles in open chains and trees of slow rods the link-local basis "    \
     "(0: the numerical QR basis)")                                             \
+  X(int, nullspace_gram_min, 0, 0, 4096,                                       \
+    "fast bodies in open chains and trees of joints with at least this many "  \
+    "constrained fast coordinates take the Gram matrix G_f G_f^T for their "   \
+    "multipliers and slow coupling at the micro nodes, fewer the QR of G_f "   \
+    "(closed fast loops and more than 256 coordinates: the Gram matrix)")      \
   X(int, predict_settle, 1, 0, 1,                                              \
     "steps with more than 32 rows of slow constraints start Newton from the "  \
     "predictor moved onto the constraints, nearest in the mass metric (0: "    \

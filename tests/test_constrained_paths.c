@@ -287,6 +287,35 @@ static mrvi_model *chain(int n, int reverse) {
   return m;
 }
 
+/* The rod chain of bench/bench_chain.c ("rods"): chain()'s links, each
+ * link's particles, springs and rod added in turn (another numbering of
+ * the same step: the dense LU's degree ordering, solver/newton.c, breaks
+ * ties by it). */
+static mrvi_model *chain_interleaved(int n) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 2);
+  const double gr[2] = {0, -9.81}, c = sqrt(0.5), v0[2] = {0, 0};
+  const double k[1] = {2000}, pivot[2] = {0, 0};
+  mrvi_model_set_gravity(m, gr);
+  char name[16];
+  for (int i = 0; i < n; i++) {
+    const double x[2] = {(i + 1) * c, -(i + 1) * c}, l[2] = {x[0], x[1] - 0.1};
+    snprintf(name, sizeof name, "h%d", i + 1);
+    mrvi_model_add_particle(m, name, 2.0, MRVI_SLOW, x, v0);
+    snprintf(name, sizeof name, "l%d", i + 1);
+    mrvi_model_add_particle(m, name, 0.05, MRVI_FAST, l, v0);
+    mrvi_model_add_spring(m, MRVI_SLOW, 2 * i, 2 * i + 1, "linear", k, 0.1);
+    if (i > 0)
+      mrvi_model_add_spring(m, MRVI_FAST, 2 * i - 1, 2 * i + 1, "linear", k,
+                            1.0);
+    if (i == 0)
+      mrvi_model_add_distance_anchor(m, 0, pivot, 1.0);
+    else
+      mrvi_model_add_distance(m, 2 * i - 2, 2 * i, 1.0);
+  }
+  return m;
+}
+
 static mrvi_settings chain_settings(int p, const char *solver) {
   mrvi_settings s = test_settings("midpoint-midpoint", 0.01, p, 1.0, 1e-12);
   s.constraint_tol = 1e-12;
@@ -600,6 +629,35 @@ static void test_chains(void) {
   }
 }
 
+/* The general path's estimate takes newton.c's dense/sparse decision
+ * (mrvi_newton_dense_chosen) on its estimated pattern: bench_chain's rod
+ * chain at p = 10 (23 unknowns per link) keeps the dense LU at 10 links
+ * (230 unknowns) and takes UMFPACK at 16 (368), as newton.c does on the
+ * general path's assembled step (dense flops 1.60e5 and 6.15e5 against
+ * UMFPACK's 4.51e5 and 7.48e5 there, 8.05e5 on the estimated pattern at
+ * 16; doc/performance.md, "The dense/sparse switch by flops"); there
+ * general is not costed and schur-bordered is chosen, saying why. */
+static void test_general_backend(void) {
+  for (int big = 0; big < 2; big++) {
+    const int n = big ? 16 : 10;
+    mrvi_model *m = chain_interleaved(n);
+    mrvi_settings s = chain_settings(10, "auto");
+    mrvi_path_cost c;
+    CHECK(mrvi_path_costs(m, &s, &c) == 0, "chain of %d: costs", n);
+    CHECK(c.n == 23L * n && c.general_dense == !big &&
+              isfinite(c.general) == !big,
+          "chain of %d: %ld unknowns, general_dense %d, general %.4g", n, c.n,
+          c.general_dense, c.general);
+    char why[512] = "";
+    const char *path = mrvi_solver_path(m, &s, why, sizeof why);
+    CHECK(path && strcmp(path, "schur-bordered") == 0 &&
+              strstr(why, big ? "sparse LU by its flop estimate"
+                              : "on general") != NULL,
+          "chain of %d: %s (%s)", n, path ? path : "none", why);
+    mrvi_model_free(m);
+  }
+}
+
 /* The sparse Gram matrix (more than MRVI_GRAM_DENSE_MAX rows) against the
  * dense projection, rods in order and reversed (a wide envelope); a
  * redundant rod still refused with its name by the dense check. */
@@ -662,6 +720,7 @@ static void test_gram(void) {
 int main(void) {
   test_gram();
   test_path_choice();
+  test_general_backend();
   test_chains();
   test_chain_elimination();
   test_node_blocks();

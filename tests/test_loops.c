@@ -1503,6 +1503,39 @@ static void check_fast_forest(const char *name, const mrvi_model *m, double dT,
   CHECK(es[0] <= 1e-13, "%s: the slow bodies' constraints %.3g", name, es[0]);
 }
 
+/* The fast forest's multipliers and slow coupling by the Gram matrix
+ * G_f G_f^T (tuning nullspace_gram_min 0, the default) against the QR of
+ * G_f (257): the same least-squares quantities, so over `steps` macro
+ * steps at tolerances 1e-12 (p = 5) the trajectories agree to 1e-10. */
+static void check_gram_vs_qr(const char *name, const mrvi_model *m, double dT,
+                             int steps) {
+  mrvi_trajectory *tt[2] = {NULL, NULL};
+  for (int f = 0; f < 2; f++) {
+    mrvi_settings s =
+        test_settings("midpoint-midpoint", dT, 5, steps * dT, 1e-12);
+    s.constraint_tol = 1e-12;
+    s.constraint_form = MRVI_FORM_NULL_SPACE;
+    s.tuning.nullspace_gram_min = f ? 0 : 257;
+    mrvi_summary sum;
+    if (mrvi_trajectory_run(m, &s, &tt[f], &sum) != 0)
+      CHECK(0, "%s (%s): %s", name, f ? "Gram" : "QR", sum.message);
+  }
+  double d = INFINITY, qm = 0.0;
+  if (tt[0] && tt[1] && tt[0]->n_macro == tt[1]->n_macro) {
+    d = 0.0;
+    for (long i = 0; i < tt[0]->n_macro * tt[0]->n; i++) {
+      d = fmax(d, fabs(tt[1]->q[i] - tt[0]->q[i]));
+      qm = fmax(qm, fabs(tt[0]->q[i]));
+    }
+  }
+  printf("  %s: Gram against QR multipliers, %d steps (p = 5, tolerances "
+         "1e-12): max |q| difference %.3g (max |q| %.3g)\n",
+         name, steps, d, qm);
+  CHECK(d <= 1e-10, "%s: Gram against QR: %.3g", name, d);
+  mrvi_trajectory_free(tt[0]);
+  mrvi_trajectory_free(tt[1]);
+}
+
 static void test_fast_joint_reduced(void) {
   static const char *const files[] = {"systems/flexible_pendulum.yaml",
                                       "systems/spacecraft.yaml"};
@@ -1521,6 +1554,8 @@ static void test_fast_joint_reduced(void) {
      * "Fast bodies in joints"): 1 000 micro nodes */
     check_fast_forest(files[i], sys->model, sys->settings.macro_step,
                       i == 1 ? 100 : 1000);
+    check_gram_vs_qr(files[i], sys->model, sys->settings.macro_step,
+                     i == 1 ? 20 : 100);
     mrvi_system_free(sys);
   }
   for (int D = 2; D <= 3; D++) {
@@ -1530,6 +1565,7 @@ static void test_fast_joint_reduced(void) {
     CHECK(mrvi_nullspace_fast_plan(m, why, sizeof why), "%s planned (%s)", name,
           why);
     check_fast_forest(name, m, 0.01, 1000);
+    check_gram_vs_qr(name, m, 0.01, 100);
     mrvi_model_free(m);
   }
 }

@@ -2084,7 +2084,8 @@ static void test_ordering_choice(void) {
  * UMFPACK; 20 dense node blocks of 22 joined by 3 x 3 couplings and a
  * dense border of 10 rows and columns (a body step's shape), whose
  * degree ordering is fill-free, must keep the dense LU.  Each solves to
- * round-off and agrees with UMFPACK's solution (dense_max 0). */
+ * round-off and agrees with UMFPACK's solution (dense_max 0);
+ * mrvi_newton_dense_chosen takes the same decision. */
 static void test_dense_switch(void) {
   for (int body = 0; body < 2; body++) {
     const int n = body ? 22 * 20 + 10 : 3 * 140, nb = n / 3;
@@ -2120,6 +2121,13 @@ static void test_dense_switch(void) {
             "dense switch: %s of %d rows: ordering %d (-1: dense LU)",
             body ? "body blocks" : "scrambled chain", n,
             mrvi_newton_ordering(nw));
+      /* the decision alone (the general path's cost estimate), with the
+       * values and from the pattern alone */
+      CHECK(mrvi_newton_dense_chosen(n, Ap, Ai, Ax, 512) == body &&
+                mrvi_newton_dense_chosen(n, Ap, Ai, NULL, 512) == body &&
+                mrvi_newton_dense_chosen(n, Ap, Ai, NULL, n - 1) == 0,
+            "dense switch: %s: mrvi_newton_dense_chosen disagrees",
+            body ? "body blocks" : "scrambled chain");
       for (int i = 0; i < n; i++)
         b[i] = sin(0.3 + 1.1 * i);
       CHECK(mrvi_newton_solve(nw, Ax, b, x, msg, sizeof msg) == MRVI_OK &&

@@ -597,18 +597,26 @@ static int cmd_check(int argc, char **argv) {
              "  null space");
     else if (s->tuning.nullspace_tree &&
              mrvi_nullspace_fast_plan(sys->model, tree_why, sizeof tree_why)) {
-      char slow[320], slow_why[200];
-      if (mrvi_nullspace_slow_side_free(sys->model))
+      char slow[340], slow_why[200];
+      int n_slow_bodies = 0;
+      for (int b = 0; b < mrvi_model_n_bodies(sys->model); b++)
+        n_slow_bodies +=
+            mrvi_model_rate(sys->model, mrvi_model_body_first(sys->model, b)) ==
+            MRVI_SLOW;
+      if (n_slow_bodies == 0)
+        snprintf(slow, sizeof slow, "no slow bodies");
+      else if (mrvi_nullspace_slow_side_free(sys->model))
         snprintf(slow, sizeof slow,
-                 "analytic (free rigid bodies), reparametrised");
+                 "slow bodies: analytic (free rigid bodies), reparametrised");
       else if (mrvi_nullspace_beside_plan(sys->model, slow_why,
                                           sizeof slow_why))
         snprintf(slow, sizeof slow,
-                 "numerical (QR at q_k), reparametrised on their joints");
+                 "slow bodies: numerical (QR at q_k), reparametrised on their "
+                 "joints");
       else
         snprintf(slow, sizeof slow,
-                 "numerical (QR at q_k), their constraints to the constraint "
-                 "tolerance (%s)",
+                 "slow bodies: numerical (QR at q_k), their constraints to the "
+                 "constraint tolerance (%s)",
                  slow_why);
       if (tree_why[0]) /* the fast forest's cut joints */
         printf("%-14sjoint-reduced at the micro nodes with cut joints "
@@ -618,7 +626,7 @@ static int cmd_check(int argc, char **argv) {
                "joints' kept rows); %d redundant row%s left out; nodal "
                "reparametrisation moving each fast body by its joint's free "
                "turns and slides, the cut joints held to the Newton "
-               "tolerance; slow bodies: %s\n",
+               "tolerance; %s\n",
                "  null space", tree_why, red > 0 ? red : 0, red == 1 ? "" : "s",
                slow);
       else
@@ -626,8 +634,7 @@ static int cmd_check(int argc, char **argv) {
                "chains and trees of joints, rooted at the ground or at a slow "
                "body's joint interpolated at the node: P_f = blkdiag(P_i) (I - "
                "X)^-1 S at every micro node), nodal reparametrisation moving "
-               "each fast body by its joint's free turns and slides; slow "
-               "bodies: %s\n",
+               "each fast body by its joint's free turns and slides; %s\n",
                "  null space", slow);
     } else if (s->tuning.nullspace_tree &&
                mrvi_model_n_bodies(sys->model) == 0 &&

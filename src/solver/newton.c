@@ -47,7 +47,19 @@ struct mrvi_newton {
   int ref_lanes;
 };
 
-/* Dense backend set-up: workspaces and the ordering pos. */
+/* The dense backend's ordering pos (original -> position, n entries) of
+ * the pattern (Ap, Ai): increasing nonzero count of row plus column (deg,
+ * order: workspaces of n entries). */
+static void dense_order(int n, const int *Ap, const int *Ai, int *deg,
+                        int *order, int *pos) {
+  for (int i = 0; i < n; i++)
+    deg[i] = Ap[i + 1] - Ap[i];
+  for (int e = 0; e < Ap[n]; e++)
+    deg[Ai[e]]++;
+  mrvi_degree_order(n, deg, order, pos);
+}
+
+/* Dense backend set-up: its workspaces (nw->pos made by choose_dense). */
 static int dense_create(mrvi_newton *nw) {
   const size_t n = (size_t)nw->n, nn = n * n + 1;
   nw->lu = malloc(nn * sizeof *nw->lu);
@@ -56,19 +68,11 @@ static int dense_create(mrvi_newton *nw) {
   nw->rs = malloc((n + 1) * sizeof *nw->rs);
   nw->y = malloc((n + 1) * sizeof *nw->y);
   nw->piv = malloc((n + 1) * sizeof *nw->piv);
-  nw->pos = malloc((n + 1) * sizeof *nw->pos);
   nw->nzc = malloc((n + 1) * sizeof *nw->nzc);
   nw->ptr = malloc((2 * n + 2) * sizeof *nw->ptr);
   if (!nw->lu || !nw->val || !nw->idx || !nw->rs || !nw->y || !nw->piv ||
-      !nw->pos || !nw->nzc || !nw->ptr)
+      !nw->nzc || !nw->ptr)
     return MRVI_ENOMEM;
-  /* Degree of index i: nonzeros of row i plus column i (in ptr). */
-  int *deg = nw->ptr, *order = nw->nzc;
-  for (int i = 0; i < nw->n; i++)
-    deg[i] = nw->Ap[i + 1] - nw->Ap[i];
-  for (int e = 0; e < nw->Ap[nw->n]; e++)
-    deg[nw->Ai[e]]++;
-  mrvi_degree_order(nw->n, deg, order, nw->pos);
   return MRVI_OK;
 }
 
@@ -179,6 +183,45 @@ static int sparse_cheaper(mrvi_newton *nw, const double *Ax) {
   return 0;
 }
 
+/* The backend of an nw of at most dense_max rows (n, Ap, Ai and control
+ * set): the dense backend's ordering in nw->pos, then 1 for the dense LU,
+ * 0 for UMFPACK (its analysis kept in nw: sparse_cheaper), < 0 out of
+ * memory.  Decided before the dense LU's n^2 storage is made. */
+static int choose_dense(mrvi_newton *nw, const double *Ax) {
+  const size_t n = (size_t)nw->n;
+  int *ws = malloc((2 * n + 1) * sizeof *ws);
+  nw->pos = malloc((n + 1) * sizeof *nw->pos);
+  if (!ws || !nw->pos) {
+    free(ws);
+    return MRVI_ENOMEM;
+  }
+  dense_order(nw->n, nw->Ap, nw->Ai, ws, ws + n, nw->pos);
+  free(ws);
+  return nw->n <= MRVI_NEWTON_DENSE_SURE || !sparse_cheaper(nw, Ax);
+}
+
+/* An nw with no backend yet. */
+static void newton_init(mrvi_newton *nw, int n, const int *Ap, const int *Ai) {
+  nw->n = n;
+  nw->Ap = Ap;
+  nw->Ai = Ai;
+  umfpack_di_defaults(nw->control);
+  nw->control[UMFPACK_PRL] = 0; /* the library never prints */
+}
+
+int mrvi_newton_dense_chosen(int n, const int *Ap, const int *Ai,
+                             const double *Ax, int dense_max) {
+  if (n > dense_max)
+    return 0;
+  mrvi_newton nw = {0};
+  newton_init(&nw, n, Ap, Ai);
+  const int dense = choose_dense(&nw, Ax);
+  if (nw.symbolic)
+    umfpack_di_free_symbolic(&nw.symbolic);
+  free(nw.pos);
+  return dense;
+}
+
 int mrvi_newton_ordering(const mrvi_newton *nw) {
   return nw->lu ? -1 : nw->ordering;
 }
@@ -191,21 +234,19 @@ mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
     mrvi_fmt(msg, len, "out of memory");
     return NULL;
   }
-  nw->n = n;
-  nw->Ap = Ap;
-  nw->Ai = Ai;
-  umfpack_di_defaults(nw->control);
-  nw->control[UMFPACK_PRL] = 0; /* the library never prints */
+  newton_init(nw, n, Ap, Ai);
   if (n <= dense_max) {
-    if (dense_create(nw) < 0) {
-      mrvi_newton_free(nw);
-      mrvi_fmt(msg, len, "out of memory");
-      return NULL;
-    }
-    if (n <= MRVI_NEWTON_DENSE_SURE || !sparse_cheaper(nw, Ax))
+    const int dense = choose_dense(nw, Ax);
+    if (dense > 0 && dense_create(nw) == MRVI_OK)
       return nw;
-    dense_release(nw); /* UMFPACK with the analysis made */
-    return nw;
+    if (dense == 0) { /* UMFPACK with the analysis made */
+      free(nw->pos);
+      nw->pos = NULL;
+      return nw;
+    }
+    mrvi_newton_free(nw);
+    mrvi_fmt(msg, len, "out of memory");
+    return NULL;
   }
   int st = umfpack_di_symbolic(n, n, Ap, Ai, Ax, &nw->symbolic, nw->control,
                                nw->info);

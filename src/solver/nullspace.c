@@ -467,9 +467,12 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
   /* The QR of the micro-node rows is dense and capped; the fast forest
    * needs it only for the multipliers and the slow coupling, which the
    * Gram matrix G_f G_f^T gives as well (gram), at a third of the cost
-   * and without the cap: above the cap and for closed loops (cut joints;
-   * open fast trees below the cap keep the QR, their steps unchanged). */
-  z->gram = z->fast && (z->nfc > MAXD || mrvi_nsfast_cut_rows(z->fast) > 0);
+   * and without the cap: above the cap, for closed loops (cut joints) and
+   * for open fast trees from nullspace_gram_min constrained fast
+   * coordinates (doc/performance.md, "The Gram matrix for open fast
+   * trees"). */
+  z->gram = z->fast && (z->nfc > MAXD || mrvi_nsfast_cut_rows(z->fast) > 0 ||
+                        z->nfc >= st->tuning.nullspace_gram_min);
   if ((z->nfc > MAXD && !z->gram) || z->nsc > MAXD) {
     free(spos), free(ms);
     mrvi_nullspace_free(z);

@@ -34,9 +34,12 @@
  * path_factor_general and path_factor_bordered (the fixed cost of a
  * factorisation: calls, clearing, pivot searches), all in flops of the dense
  * block kernels and measured across the shipped systems (MRVI_TUNING_LIST).
- * Beyond newton_dense_max the general path takes UMFPACK, whose fixed costs and
- * fill this does not model: there the structured path is kept, as measured (the
- * spacecraft and the flexible pendulum at p >= 5 and 20).
+ * Beyond newton_dense_max, and above MRVI_NEWTON_DENSE_SURE rows where
+ * newton.c's own decision (mrvi_newton_dense_chosen, taken here on the
+ * pattern J) prefers it by flops, the general path takes UMFPACK, whose
+ * fixed costs and fill this does not model: there general is HUGE_VAL and
+ * the structured path is kept, as measured (the spacecraft and the
+ * flexible pendulum at p >= 5 and 20).
  */
 #include "solver/solver.h"
 
@@ -305,6 +308,36 @@ static int bordered_flops(const mrvi_model *m, const pattern *J, int p, int rs,
   return MRVI_OK;
 }
 
+/* Whether the general path's Newton solver (solver/newton.c) takes its
+ * dense LU on the step's pattern J: its own decision
+ * (mrvi_newton_dense_chosen) on J in compressed columns, from the pattern
+ * alone (1 dense, 0 UMFPACK, < 0 out of memory). */
+static int general_dense(const pattern *J, int dense_max) {
+  const int n = J->n;
+  if (n > dense_max || n <= MRVI_NEWTON_DENSE_SURE)
+    return n <= dense_max;
+  long nnz = 0;
+  for (int r = 0; r < n; r++)
+    for (int c = 0; c < n; c++)
+      nnz += get(J, r, c);
+  int *Ap = malloc(((size_t)n + 1) * sizeof *Ap),
+      *Ai = malloc(((size_t)nnz + 1) * sizeof *Ai);
+  int dense = MRVI_ENOMEM;
+  if (Ap && Ai) {
+    int e = 0;
+    for (int c = 0; c < n; c++) {
+      Ap[c] = e;
+      for (int r = 0; r < n; r++)
+        if (get(J, r, c))
+          Ai[e++] = r;
+    }
+    Ap[n] = e;
+    dense = mrvi_newton_dense_chosen(n, Ap, Ai, NULL, dense_max);
+  }
+  free(Ap), free(Ai);
+  return dense;
+}
+
 int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
                     mrvi_path_cost *c) {
   const int n = m->n, p = s->micro_steps;
@@ -337,7 +370,8 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
   c->nnz = -1;
   c->a = m->n_slow + (rf > 0 ? rs : 0);
   c->b = m->n_fast + rf;
-  c->general = HUGE_VAL; /* beyond newton_dense_max: not modelled */
+  c->general = HUGE_VAL; /* UMFPACK's: not modelled */
+  c->general_dense = 0;
   c->bordered = 0.0;
   if (c->n <= t->newton_dense_max) {
     const int nj = (int)c->n, nw = (nj + 63) / 64;
@@ -355,13 +389,19 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
         c->nnz++;
     double fb = 0.0, sb = 0.0;
     st = bordered_flops(m, &J, p, rs, rf, &fb, &sb);
+    if (st == MRVI_OK)
+      c->general_dense = general_dense(&J, t->newton_dense_max);
+    if (c->general_dense < 0)
+      st = c->general_dense;
     /* Per macro step of u Newton updates: general factorises for each (its
      * LU that skips zeros, weighted, and a fixed cost); schur-bordered for
      * the first, and solves the others with the kept factors. */
     const double nn = (double)nj, u = t->path_updates;
-    const double fg = t->path_index_cost *
-                      (t->path_entry_cost * nn * nn + lu_flops(&J, deg, order));
-    c->general = u * (fg + t->path_factor_general);
+    if (c->general_dense > 0) {
+      const double fg = t->path_index_cost * (t->path_entry_cost * nn * nn +
+                                              lu_flops(&J, deg, order));
+      c->general = u * (fg + t->path_factor_general);
+    }
     c->bordered = fb + t->path_factor_bordered + (u - 1.0) * sb;
     free(J.bits), free(deg), free(order);
   }

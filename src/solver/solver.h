@@ -210,6 +210,14 @@ typedef struct mrvi_newton mrvi_newton;
 mrvi_newton *mrvi_newton_create(int n, const int *Ap, const int *Ai,
                                 const double *Ax, int dense_max, char *msg,
                                 size_t len);
+/* 1 where mrvi_newton_create(n, Ap, Ai, Ax, dense_max, ..) takes the dense
+ * LU, 0 where it takes UMFPACK, < 0 out of memory: the same decision (the
+ * flops of the dense LU in its ordering against UMFPACK's estimate) without
+ * the backends' storage; Ax may be NULL (the pattern's entries all taken
+ * as nonzero by UMFPACK's analysis).  The general path's cost estimate
+ * (solver/path_cost.c) takes it. */
+int mrvi_newton_dense_chosen(int n, const int *Ap, const int *Ai,
+                             const double *Ax, int dense_max);
 /* The fill-reducing ordering kept: UMFPACK_ORDERING_AMD or
  * UMFPACK_ORDERING_METIS (umfpack.h), -1 for the dense backend. */
 int mrvi_newton_ordering(const mrvi_newton *nw);
@@ -278,10 +286,13 @@ enum { MRVI_PATH_LIST(MRVI_PATH_ENUM) MRVI_N_PATHS };
  * schur-bordered paths, in flops (solver/path_cost.c): the step's size n
  * and estimated nonzeros nnz (multiplier form), the dense slow block a and
  * fast node block b of schur-bordered, the rows at macro and micro nodes;
- * general is HUGE_VAL and bordered 0 beyond newton_dense_max. */
+ * general is HUGE_VAL and bordered 0 beyond newton_dense_max, general
+ * HUGE_VAL where general's Newton solver takes UMFPACK within it
+ * (general_dense 0: mrvi_newton_dense_chosen on the estimated pattern). */
 typedef struct mrvi_path_cost {
   long n, nnz;
   int a, b, r_slow, r_micro;
+  int general_dense; /* 1: general's dense LU (costed), 0: UMFPACK */
   double general, bordered;
 } mrvi_path_cost;
 int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,

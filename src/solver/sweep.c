@@ -253,17 +253,22 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
   const int costed =
       s->solver != MRVI_SOLVER_STRUCTURED && mrvi_path_costs(m, s, &c) == 0;
   char est[200] = "";
-  if (costed && c.n <= s->tuning.newton_dense_max)
+  if (costed && c.general_dense)
     mrvi_fmt(est, sizeof est,
              "; estimated %.3g flop per macro step of %g Newton updates "
              "against %.3g on general (%ld unknowns, about %ld nonzeros)",
              c.bordered, s->tuning.path_updates, c.general, c.n, c.nnz);
-  else if (costed)
+  else if (costed && c.n > s->tuning.newton_dense_max)
     mrvi_fmt(est, sizeof est,
              "; %ld unknowns, beyond the general path's dense LU "
              "(newton_dense_max %d)",
              c.n, s->tuning.newton_dense_max);
-  if (costed && c.n <= s->tuning.newton_dense_max && c.general < c.bordered) {
+  else if (costed)
+    mrvi_fmt(est, sizeof est,
+             "; %ld unknowns, the general path's sparse LU by its flop "
+             "estimate (not costed)",
+             c.n);
+  if (costed && c.general_dense && c.general < c.bordered) {
     mrvi_fmt(why, len,
              "constrained model%s: Newton with a sparse LU of the whole step "
              "(%ld unknowns, about %ld nonzeros), estimated %.3g flop per "
