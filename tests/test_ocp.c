@@ -222,7 +222,7 @@ static mrvi_model *link_chain(int nl) {
   mrvi_model_set_gravity(m, gr);
   for (int i = 0; i < nl; i++) {
     const double x[2] = {0.3 * (i + 1), -0.4 * (i + 1)}, v[2] = {0.2 * i, -0.1};
-    char name[8];
+    char name[16];
     snprintf(name, sizeof name, "h%d", i + 1);
     mrvi_model_add_particle(m, name, 1.0 + i, MRVI_SLOW, x, v);
   }
