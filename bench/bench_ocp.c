@@ -17,10 +17,18 @@
  *      the last column clamped (fixed) and rods (distance) between pairs
  *      of the top row, each coupling a slow and a fast particle;
  *      --solve then solves each size's problem with its algorithm (SLSQP)
- *      from the loaded initial controls: evaluations, CPU time, status.
+ *      from the loaded initial controls: evaluations, CPU time, status;
+ *   4. (--chain LINKS, alone) the same measurements on bench_chain's rod
+ *      chain (bench_chain_model: particles on rods, each with a fast light
+ *      mass; midpoint-midpoint, p = 10, dT = 0.01, N = 20): a macro-grid
+ *      actuator pushing the first link along x, the last link's x at
+ *      t_end a terminal constraint, effort cost (the chain elimination's
+ *      adjoint: doc/performance.md, "Optimal control on the chain
+ *      elimination").
  * Usage: bench_ocp [--budget SECONDS] [--only PROBLEM] [--lattice SIZES
- * [--constrained] [--solve] [--set NAME=VALUE]...] (--set: overrides of
- * the problems of parts 1 and 3)
+ * [--constrained] [--solve] [--set NAME=VALUE]...] [--chain LINKS [--solve]
+ * [--set integrator.tuning.NAME=VALUE]...] (--set: overrides of the
+ * problems of parts 1, 3 and 4)
  * (run from the source root, or set MRVI_SOURCE_ROOT; --only: part 1 for
  * one problem, e.g. ocp_reorient, and no part 2). */
 #include "bench_util.h"
@@ -183,6 +191,95 @@ static char *lattice_text(int nx, int ny) {
   return t;
 }
 
+/* Times one forward run and one cost + gradient of o at a controlled
+ * motion (u: the loaded controls, kept for --solve), peak memory after
+ * each, and with --solve the solve from u: records of r to fd (r's n, m
+ * and traj_kb set by the caller).  Frees o and u. */
+static void measure(int fd, mrvi_ocp *o, double *u, lattice_rec *r) {
+  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
+  double *u0 = NULL, *g = NULL, *c = NULL, *cg = NULL;
+  r->n_u = n;
+  u0 = malloc((size_t)n * sizeof *u0); /* the loaded guess, for --solve */
+  if (u0)
+    memcpy(u0, u, (size_t)n * sizeof *u0);
+  for (int i = 0; i < n; i++)
+    u[i] = 0.5 * sin(0.7 * i); /* a controlled motion */
+  g = malloc((size_t)n * sizeof *g);
+  c = malloc((size_t)(m + 1) * sizeof *c);
+  cg = malloc((size_t)(m * n + 1) * sizeof *cg);
+  const char *path = mrvi_ocp_solver_path(o, NULL, 0);
+  snprintf(r->path, sizeof r->path, "%s", path ? path : "none");
+  double J;
+  int ok = u0 && g && c && cg;
+  /* First forward (allocation and set-up) untimed, then the best of up
+   * to three rounds within about a second each.  A round repeats the call
+   * for at least ROUND_CPU seconds: the CPU clock of the child ticks in
+   * steps of some milliseconds (4 ms here), as long as a small lattice's
+   * forward run. */
+  ok = ok && mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) == 0;
+  r->t_fwd = 1e30;
+  for (int i = 0; i < 3 && ok; i++) {
+    const double t0 = bench_cpu();
+    int calls = 0;
+    do {
+      ok = mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) == 0;
+      calls++;
+    } while (ok && bench_cpu() - t0 < ROUND_CPU);
+    r->t_fwd = fmin(r->t_fwd, (bench_cpu() - t0) / calls);
+    if (r->t_fwd > 1.0)
+      break;
+  }
+  r->fwd_kb = (double)bench_status_kb("VmHWM:");
+  /* The first cost + gradient (the adjoint's set-up: pattern, first
+   * factorisation) apart, then the best of up to two rounds, each call at
+   * controls moved as an optimiser would (kept factors from the
+   * evaluation before). */
+  r->t_grad = 1e30;
+  for (int i = 0; i < 3 && ok; i++) {
+    const double t0 = bench_cpu();
+    int calls = 0;
+    do {
+      ok = mrvi_ocp_evaluate(o, u, &J, g, c, cg) == 0;
+      calls++;
+      for (int j = 0; j < n; j++)
+        u[j] -= 0.01 * g[j];
+    } while (ok && i > 0 && bench_cpu() - t0 < ROUND_CPU);
+    const double t = (bench_cpu() - t0) / calls;
+    if (i == 0)
+      r->t_first = t;
+    else
+      r->t_grad = fmin(r->t_grad, t);
+    (void)!write(fd, r, sizeof *r); /* a partial record */
+    if (i > 0 && r->t_grad > 5.0)
+      break;
+  }
+  r->grad_kb = (double)bench_status_kb("VmHWM:");
+  r->ok = ok;
+  if (!ok)
+    snprintf(r->message, sizeof r->message, "%.199s", mrvi_ocp_errmsg(o));
+  (void)!write(fd, r, sizeof *r);
+  if (ok && solve) {
+    mrvi_ocp_result res;
+    memset(&res, 0, sizeof res);
+    const double t0 = bench_cpu();
+    (void)mrvi_ocp_solve(o, u0, &res);
+    r->solve_cpu = bench_cpu() - t0;
+    r->solve_evals = res.evaluations;
+    r->solve_cost = res.cost;
+    r->solve_violation = res.violation;
+    r->solve_kb = (double)bench_status_kb("VmHWM:");
+    snprintf(r->solve_status, sizeof r->solve_status, "%s", res.status);
+    snprintf(r->solve_nlopt, sizeof r->solve_nlopt, "%s", res.nlopt_name);
+    (void)!write(fd, r, sizeof *r);
+  }
+  free(u0);
+  free(g);
+  free(c);
+  free(cg);
+  free(u);
+  mrvi_ocp_free(o);
+}
+
 static void lattice_child(int fd, void *arg) {
   const int target = *(const int *)arg;
   lattice_rec r;
@@ -201,7 +298,7 @@ static void lattice_child(int fd, void *arg) {
     ov[1 + i] = set[i];
   mrvi_system *sys = NULL;
   mrvi_ocp *o = NULL;
-  double *u = NULL, *u0 = NULL, *g = NULL, *c = NULL, *cg = NULL;
+  double *u = NULL;
   if (!text)
     snprintf(msg, sizeof msg, "out of memory");
   if (!text ||
@@ -216,106 +313,98 @@ static void lattice_child(int fd, void *arg) {
   }
   free(text);
   r.n = 2 * nx * ny;
-  const int n = mrvi_ocp_n_controls(o), m = mrvi_ocp_n_constraints(o);
-  r.n_u = n;
   r.m = mrvi_model_constraint_rows(sys->model);
-  u0 = malloc((size_t)n * sizeof *u0); /* the loaded guess, for --solve */
-  if (u0)
-    memcpy(u0, u, (size_t)n * sizeof *u0);
-  for (int i = 0; i < n; i++)
-    u[i] = 0.5 * sin(0.7 * i); /* a controlled motion */
-  g = malloc((size_t)n * sizeof *g);
-  c = malloc((size_t)(m + 1) * sizeof *c);
-  cg = malloc((size_t)(m * n + 1) * sizeof *cg);
-  const char *path = mrvi_ocp_solver_path(o, NULL, 0);
-  snprintf(r.path, sizeof r.path, "%s", path ? path : "none");
   /* Trajectory kept for the adjoint: nodes, momenta, multipliers. */
   r.traj_kb = 8.0 * (21.0 * 2 * nx * ny * 10 + 2 * 21.0 * 2 * nx * ny) / 1024.0;
-  double J;
-  int ok = u0 && g && c && cg;
-  /* First forward (allocation and set-up) untimed, then the best of up
-   * to three rounds within about a second each.  A round repeats the call
-   * for at least ROUND_CPU seconds: the CPU clock of the child ticks in
-   * steps of some milliseconds (4 ms here), as long as a small lattice's
-   * forward run. */
-  ok = ok && mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) == 0;
-  r.t_fwd = 1e30;
-  for (int i = 0; i < 3 && ok; i++) {
-    const double t0 = bench_cpu();
-    int calls = 0;
-    do {
-      ok = mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL) == 0;
-      calls++;
-    } while (ok && bench_cpu() - t0 < ROUND_CPU);
-    r.t_fwd = fmin(r.t_fwd, (bench_cpu() - t0) / calls);
-    if (r.t_fwd > 1.0)
-      break;
-  }
-  r.fwd_kb = (double)bench_status_kb("VmHWM:");
-  /* The first cost + gradient (the adjoint's set-up: pattern, first
-   * factorisation) apart, then the best of up to two rounds, each call at
-   * controls moved as an optimiser would (kept factors from the
-   * evaluation before). */
-  r.t_grad = 1e30;
-  for (int i = 0; i < 3 && ok; i++) {
-    const double t0 = bench_cpu();
-    int calls = 0;
-    do {
-      ok = mrvi_ocp_evaluate(o, u, &J, g, c, cg) == 0;
-      calls++;
-      for (int j = 0; j < n; j++)
-        u[j] -= 0.01 * g[j];
-    } while (ok && i > 0 && bench_cpu() - t0 < ROUND_CPU);
-    const double t = (bench_cpu() - t0) / calls;
-    if (i == 0)
-      r.t_first = t;
-    else
-      r.t_grad = fmin(r.t_grad, t);
-    (void)!write(fd, &r, sizeof r); /* a partial record */
-    if (i > 0 && r.t_grad > 5.0)
-      break;
-  }
-  r.grad_kb = (double)bench_status_kb("VmHWM:");
-  r.ok = ok;
-  if (!ok)
-    snprintf(r.message, sizeof r.message, "%.199s", mrvi_ocp_errmsg(o));
-  (void)!write(fd, &r, sizeof r);
-  if (ok && solve) {
-    mrvi_ocp_result res;
-    memset(&res, 0, sizeof res);
-    const double t0 = bench_cpu();
-    (void)mrvi_ocp_solve(o, u0, &res);
-    r.solve_cpu = bench_cpu() - t0;
-    r.solve_evals = res.evaluations;
-    r.solve_cost = res.cost;
-    r.solve_violation = res.violation;
-    r.solve_kb = (double)bench_status_kb("VmHWM:");
-    snprintf(r.solve_status, sizeof r.solve_status, "%s", res.status);
-    snprintf(r.solve_nlopt, sizeof r.solve_nlopt, "%s", res.nlopt_name);
-    (void)!write(fd, &r, sizeof r);
-  }
-  free(u0);
-  free(g);
-  free(c);
-  free(cg);
-  free(u);
-  mrvi_ocp_free(o);
+  measure(fd, o, u, &r);
   mrvi_system_free(sys);
 }
 
-static int lattice_table(const char *sizes, double budget) {
+/* Part 4: the optimal control of a rod chain of n links (bench_chain's
+ * "rods", bench_chain_model; midpoint-midpoint, p = 10, dT = 0.01, N = 20):
+ * a macro-grid actuator pushing the first link along x, the last link's x
+ * at t_end held at its initial value plus 0.05 (a terminal constraint),
+ * effort cost. */
+enum { CHAIN_P = 10, CHAIN_N = 20 };
+static void chain_child(int fd, void *arg) {
+  const int links = *(const int *)arg;
+  lattice_rec r;
+  memset(&r, 0, sizeof r);
+  char msg[2048] = "";
+  mrvi_settings s;
+  mrvi_settings_default(&s);
+  mrvi_model *m = bench_chain_model(0, links, 9.81, msg, sizeof msg);
+  mrvi_ocp *o = NULL;
+  int st = m ? mrvi_settings_set_scheme(&s, "midpoint-midpoint") : -1;
+  s.macro_step = 0.01, s.micro_steps = CHAIN_P, s.t_end = CHAIN_N * 0.01;
+  const char *pre = "integrator.tuning."; /* (--set: tuning constants) */
+  const size_t lp = strlen(pre);
+  for (int i = 0; i < n_set && st >= 0; i++) {
+    const char *eq = strchr(set[i], '=');
+    char key[64];
+    if (!eq || strncmp(set[i], pre, lp) != 0) {
+      snprintf(msg, sizeof msg, "--chain: --set takes %sNAME=VALUE", pre);
+      st = -1;
+      break;
+    }
+    snprintf(key, sizeof key, "%.*s", (int)(eq - set[i] - (long)lp),
+             set[i] + lp);
+    st = mrvi_settings_set_tuning(&s, key, atof(eq + 1), msg, sizeof msg);
+  }
+  if (st >= 0)
+    st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
+  const int last = 4 * (links - 1); /* h_n's x (h_i, l_i in turn) */
+  if (st >= 0 &&
+      (mrvi_ocp_add_actuator(o, 0, MRVI_GRID_MACRO, 1.0, -HUGE_VAL, HUGE_VAL) <
+           0 ||
+       mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, last,
+                             mrvi_model_q0(m)[last] + 0.05, 0.0) < 0)) {
+    snprintf(msg, sizeof msg, "%s", mrvi_ocp_errmsg(o));
+    st = -1;
+  }
+  double *u =
+      st >= 0 ? calloc((size_t)mrvi_ocp_n_controls(o) + 1, sizeof *u) : NULL;
+  if (!u) {
+    snprintf(r.message, sizeof r.message, "%.199s",
+             msg[0] ? msg : "out of memory");
+    (void)!write(fd, &r, sizeof r);
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+    return;
+  }
+  r.n = mrvi_model_n(m);
+  r.m = mrvi_model_constraint_rows(m);
+  /* Trajectory kept for the adjoint: slow and fast nodes with their
+   * momenta (and the fast micro momenta), the step multipliers. */
+  r.traj_kb = 8.0 *
+              ((CHAIN_N + 1.0) * 2 * mrvi_model_n_slow(m) +
+               (CHAIN_N * CHAIN_P + 1.0) * 2 * mrvi_model_n_fast(m) +
+               (double)CHAIN_N * r.m) /
+              1024.0;
+  measure(fd, o, u, &r);
+  mrvi_model_free(m);
+}
+
+/* The table of parts 3 and 4: one child per size. */
+static int size_table(const char *sizes, double budget, int chain) {
   int ns[16];
   const int k = bench_parse_ints(sizes, ns, 16);
   if (k < 1) {
-    fputs("bench_ocp: --lattice takes sizes such as 60,240,1012\n", stderr);
+    fputs("bench_ocp: --lattice and --chain take sizes such as 60,240,1012\n",
+          stderr);
     return 1;
   }
-  printf("lattice optimal control (midpoint-midpoint, p = 10, dT = 0.05, "
-         "N = 20)%s, one process per size; %s\n",
-         constrained ? ", constrained (last column fixed, rods between "
-                       "slow-fast pairs of the top row)"
-                     : "",
-         bench_build());
+  if (chain)
+    printf("rod chain optimal control (midpoint-midpoint, p = %d, dT = 0.01, "
+           "N = %d; n: coordinates), one process per size; %s\n",
+           CHAIN_P, CHAIN_N, bench_build());
+  else
+    printf("lattice optimal control (midpoint-midpoint, p = 10, dT = 0.05, "
+           "N = 20)%s, one process per size; %s\n",
+           constrained ? ", constrained (last column fixed, rods between "
+                         "slow-fast pairs of the top row)"
+                       : "",
+           bench_build());
   for (int i = 0; i < n_set; i++)
     printf("  --set %s\n", set[i]);
   printf("%6s %4s %4s %-13s %9s %9s %9s %7s %7s %9s %9s %9s %s\n", "n", "n_u",
@@ -324,8 +413,8 @@ static int lattice_table(const char *sizes, double budget) {
   for (int i = 0; i < k; i++) {
     lattice_rec r;
     int wstatus = 0;
-    const int got = bench_run_child(lattice_child, &ns[i], &r, sizeof r, budget,
-                                    8.0, &wstatus);
+    const int got = bench_run_child(chain ? chain_child : lattice_child, &ns[i],
+                                    &r, sizeof r, budget, 8.0, &wstatus);
     if (got == 0) {
       printf("%6d  did not finish within %.0f s CPU\n", ns[i], budget);
       continue;
@@ -350,7 +439,7 @@ static int lattice_table(const char *sizes, double budget) {
 
 int main(int argc, char **argv) {
   double budget = 60.0;
-  const char *only = NULL, *lattice = NULL;
+  const char *only = NULL, *lattice = NULL, *chain = NULL;
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--budget") && i + 1 < argc) {
       budget = atof(argv[++i]);
@@ -358,6 +447,8 @@ int main(int argc, char **argv) {
       only = argv[++i];
     } else if (!strcmp(argv[i], "--lattice") && i + 1 < argc) {
       lattice = argv[++i];
+    } else if (!strcmp(argv[i], "--chain") && i + 1 < argc) {
+      chain = argv[++i];
     } else if (!strcmp(argv[i], "--constrained")) {
       constrained = 1;
     } else if (!strcmp(argv[i], "--solve")) {
@@ -367,13 +458,14 @@ int main(int argc, char **argv) {
     } else {
       fputs("usage: bench_ocp [--budget SECONDS] [--only PROBLEM] "
             "[--lattice SIZES [--constrained] [--solve] "
-            "[--set NAME=VALUE]...]\n",
+            "[--set NAME=VALUE]...] [--chain LINKS [--solve] "
+            "[--set integrator.tuning.NAME=VALUE]...]\n",
             stderr);
       return !!strcmp(argv[i], "--help");
     }
   }
-  if (lattice)
-    return lattice_table(lattice, budget);
+  if (lattice || chain)
+    return size_table(lattice ? lattice : chain, budget, !lattice);
   const char *root = getenv("MRVI_SOURCE_ROOT");
   /* The shipped problems (their scheme), and the FPU problem with the
    * schemes of the sweep and explicit paths. */

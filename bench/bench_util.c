@@ -306,3 +306,63 @@ mrvi_model *bench_model_finish(mrvi_model *m, int st, const double *g,
   }
   return m;
 }
+
+mrvi_model *bench_chain_model(int c, int n, double gravity, char *msg,
+                              size_t len) {
+  mrvi_model *m = mrvi_model_create();
+  const double g[2] = {0.0, -gravity}, e[2] = {sqrt(0.5), -sqrt(0.5)};
+  const double zero[2] = {0.0, 0.0};
+  int st = m ? mrvi_model_set_dimension(m, 2) : MRVI_ENOMEM;
+  int prev_h = -1, prev_l = -1;
+  for (int i = 0; i < n && st >= 0; i++) {
+    const double h[2] = {(i + 1) * e[0], (i + 1) * e[1]};
+    const double l[2] = {h[0], h[1] - 0.1};
+    char name[32];
+    double k_soft[1] = {2000.0}, k_rod[1] = {1e5};
+    int hi = -1, li = -1;
+    mrvi_end end_h = {-1, -1, {0, 0, 0}};
+    if (c < 3) {
+      snprintf(name, sizeof name, "h%d", i);
+      hi = st = mrvi_model_add_particle(m, name, 2.0, MRVI_SLOW, h, zero);
+      end_h.particle = hi;
+    } else {
+      /* a bar from the previous joint to h along e: centre halfway */
+      const double x[2] = {h[0] - 0.5 * e[0], h[1] - 0.5 * e[1]};
+      const double R[4] = {e[0], -e[1], e[1], e[0]}; /* d1 along e */
+      const double J[1] = {2.0 / 12.0};
+      snprintf(name, sizeof name, "b%d", i);
+      int b = st =
+          mrvi_model_add_body(m, name, 2, MRVI_SLOW, 2.0, J, x, R, NULL, NULL);
+      if (st >= 0) {
+        const double pivot[2] = {i * e[0], i * e[1]};
+        st = mrvi_model_add_joint(m, "revolute", b, prev_h, pivot, NULL);
+      }
+      end_h.body = b;
+      end_h.at[0] = 0.5; /* the lower end along d1 */
+      hi = b;
+    }
+    if (st < 0)
+      break;
+    snprintf(name, sizeof name, "l%d", i);
+    li = st = mrvi_model_add_particle(m, name, 0.05, MRVI_FAST, l, zero);
+    if (st < 0)
+      break;
+    mrvi_end end_l = {li, -1, {0, 0, 0}};
+    st = mrvi_model_add_end_spring(m, MRVI_SLOW, &end_h, &end_l, NULL, "linear",
+                                   k_soft, 0.1);
+    if (st >= 0 && prev_l >= 0)
+      st = mrvi_model_add_spring(m, MRVI_FAST, prev_l, li, "linear", k_soft,
+                                 1.0);
+    if (st >= 0 && c < 2)
+      st = prev_h < 0 ? mrvi_model_add_distance_anchor(m, hi, zero, 1.0)
+                      : mrvi_model_add_distance(m, prev_h, hi, 1.0);
+    if (st >= 0 && c == 2)
+      st = prev_h < 0 ? mrvi_model_add_anchor_spring(m, MRVI_SLOW, hi, zero,
+                                                     "linear", k_rod, 1.0)
+                      : mrvi_model_add_spring(m, MRVI_SLOW, prev_h, hi,
+                                              "linear", k_rod, 1.0);
+    prev_h = hi;
+    prev_l = li;
+  }
+  return bench_model_finish(m, st, g, msg, len);
+}

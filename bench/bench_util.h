@@ -58,6 +58,19 @@ int bench_run_child(void (*fn)(int fd, void *arg), void *arg, void *rec,
 mrvi_model *bench_model_finish(mrvi_model *m, int st, const double *g,
                                char *msg, size_t len);
 
+/* bench_chain's pendulum chain of n links (2-D, gravity (0, -gravity)):
+ * heavy links h_i (mass 2, slow) one apart along a line 45 degrees from
+ * the downward vertical, each with a light mass l_i (0.05, fast) 0.1
+ * below it on a slow spring (k = 2000), consecutive light masses joined by
+ * fast springs (k = 2000, rest length 1); kind c: 0, 1 the links on rods
+ * (distance constraints, h_1 to the origin), 2 on stiff slow springs
+ * (k = 10^5, rest length 1) instead, 3 rigid bars (2-D bodies, length 1,
+ * mass 2, slow) on revolute joints, the first to the ground at the
+ * origin, the light masses on their lower ends.  NULL with the message in
+ * msg. */
+mrvi_model *bench_chain_model(int c, int n, double gravity, char *msg,
+                              size_t len);
+
 /* Step `it` (created on m) from m's initial state, q0 and p0 = M v0, at
  * least `steps` macro steps and until `min_cpu` seconds of CPU time have
  * passed (at most 10^5 steps), restarting from that state every `horizon`

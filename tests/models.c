@@ -1,5 +1,6 @@
 #include "models.h"
 
+#include "solver/solver.h"
 #include "step/step.h"
 
 #include <math.h>
@@ -113,6 +114,65 @@ void test_initial_data(mrvi_step *st, double *qs, double *qf, double *ps,
   st->qf0 = qf;
   st->ps0 = ps;
   st->pf0 = pf;
+}
+
+int test_bordered_transpose_solve(const mrvi_model *m, const mrvi_settings *s,
+                                  double *res, double *dual, int *on_chain,
+                                  char *msg, size_t len) {
+  mrvi_step st;
+  *res = *dual = INFINITY, *on_chain = -1, msg[0] = 0;
+  int rc = mrvi_step_init(&st, m, s);
+  if (rc < 0)
+    return rc;
+  const int nt = st.n_total, nu = st.n_unknowns;
+  double *d = calloc((size_t)(4 * m->n + 5 * nt), sizeof *d);
+  double *qs = d, *qf = qs + m->n, *ps = qf + m->n, *pf = ps + m->n;
+  double *x = pf + m->n, *R = x + nt, *b = R + nt, *c = b + nt, *y = c + nt;
+  mrvi_bordered *bd = NULL;
+  rc = d ? MRVI_OK : MRVI_ENOMEM;
+  if (rc == 0) {
+    test_initial_data(&st, qs, qf, ps, pf);
+    st.increments = 1;
+    mrvi_predict_free_flight(&st, x);
+    for (int i = nu; i < nt; i++)
+      x[i] = 0.1 * cos(1.3 * i);
+    rc = mrvi_step_build_pattern(&st, x);
+  }
+  if (rc == 0) {
+    mrvi_step_assemble(&st, x, R, 1);
+    rc = mrvi_bordered_create(&st, &bd);
+  }
+  if (rc == 0)
+    rc = mrvi_bordered_factor(bd, &st, msg, len);
+  for (int i = 0; i < nt && d; i++) {
+    b[i] = cos(0.3 + 1.1 * i);
+    c[i] = sin(0.5 + 0.9 * i);
+  }
+  if (rc == 0)
+    rc = mrvi_bordered_solve_transpose(bd, &st, c, y, msg, len);
+  if (rc == 0)
+    rc = mrvi_bordered_solve(bd, &st, b, x, msg, len);
+  if (rc == 0) {
+    double r = 0.0, scale = 0.0, cx = 0.0, yb = 0.0, sd = 0.0;
+    for (int j = 0; j < nt; j++) {
+      double rj = c[j], sc = fabs(c[j]);
+      for (int e = st.Ap[j]; e < st.Ap[j + 1]; e++) {
+        rj -= st.Ax[e] * y[st.Ai[e]];
+        sc += fabs(st.Ax[e] * y[st.Ai[e]]);
+      }
+      r = fmax(r, fabs(rj));
+      scale = fmax(scale, sc);
+      cx += c[j] * x[j];
+      yb += y[j] * b[j];
+      sd += fabs(c[j] * x[j]) + fabs(y[j] * b[j]);
+    }
+    *res = r / scale, *dual = fabs(cx - yb) / sd;
+    *on_chain = mrvi_bordered_on_chain(bd);
+  }
+  mrvi_bordered_free(bd);
+  free(d);
+  mrvi_step_free(&st);
+  return rc;
 }
 
 mrvi_settings test_settings(const char *scheme, double dT, int p, double t_end,

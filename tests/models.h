@@ -6,6 +6,8 @@
 
 #include "mrvi.h"
 
+#include <stddef.h>
+
 /* FPU (§6): l = 3, unit masses, omega^2 = 2500. */
 mrvi_model *test_fpu(void);
 /* The same with the laws of V and W named (tables like power's and
@@ -34,6 +36,19 @@ double test_step_fd_error(struct mrvi_step *st, double *x, double *scale);
  * into the rate blocks qs, ps (n_slow) and qf, pf (n_fast), set on st. */
 void test_initial_data(struct mrvi_step *st, double *qs, double *qf, double *ps,
                        double *pf);
+
+/* schur-bordered's transposed solve (the adjoint of optimal control) on
+ * m's step with s (multiplier form): after mrvi_bordered_factor of the
+ * step's Jacobian J at its free-flight predictor (multipliers
+ * 0.1 cos(1.3 i): their Hessian terms), y = mrvi_bordered_solve_transpose
+ * of c, and x = mrvi_bordered_solve of b.  *res: max |c - J^T y| (J^T y
+ * from the CSC entries) relative to the largest row sum of |terms|;
+ * *dual: |c.x - y.b| relative to the sum of |terms|; *on_chain:
+ * mrvi_bordered_on_chain.  Returns the first failing status (its message
+ * in msg). */
+int test_bordered_transpose_solve(const mrvi_model *m, const mrvi_settings *s,
+                                  double *res, double *dual, int *on_chain,
+                                  char *msg, size_t len);
 
 mrvi_settings test_settings(const char *scheme, double dT, int p, double t_end,
                             double tol);

@@ -456,6 +456,37 @@ static void test_chain_elimination(void) {
   }
 }
 
+/* The chain elimination's transposed solve (mrvi_chain_solve_transpose,
+ * the optimal-control adjoint's; test_bordered_transpose_solve): on the
+ * rod chain, the bar chain and the tree of rods of test_chain_elimination
+ * forced onto it (bordered_max 0), p in {1, 5}, J^T y = c to 1e-12
+ * relative and c.J^-1 b = (J^-T c).b, on the chain elimination. */
+static void test_chain_transpose(void) {
+  for (int c = 0; c < 3; c++) {
+    mrvi_model *m = c == 0 ? chain(8, 1) : c == 1 ? bars(8, 0) : rod_tree();
+    for (int p = 1; p <= 5; p += 4) {
+      mrvi_settings s = chain_settings(p, "auto");
+      char msg[300];
+      CHECK(mrvi_settings_set_tuning(&s, "bordered_max", 0, msg, sizeof msg) ==
+                0,
+            "%s", msg);
+      double res, dual;
+      int on_chain;
+      const int rc = test_bordered_transpose_solve(m, &s, &res, &dual,
+                                                   &on_chain, msg, sizeof msg);
+      const char *name = c == 0 ? "rods" : c == 1 ? "bars" : "tree";
+      printf("chain transpose: %s p=%d: |c - J^T y| %.2e, c.J^-1 b - J^-T c.b "
+             "%.2e (relative)\n",
+             name, p, res, dual);
+      CHECK(rc == 0 && res <= 1e-12 && dual <= 1e-12 && on_chain == 1,
+            "%s p=%d: status %d (%s), |c - J^T y| %.3e, c.J^-1 b - J^-T c.b "
+            "%.3e (relative), on the chain elimination %d",
+            name, p, rc, msg, res, dual, on_chain);
+    }
+    mrvi_model_free(m);
+  }
+}
+
 /* The node blocks (micro-node multipliers joined to their nodes) at the
  * default limits: flexible_pendulum (blocks 11 and 22) and spacecraft
  * (18 and 138) take schur-bordered at p = 10 and 20 and agree with
@@ -723,6 +754,7 @@ int main(void) {
   test_general_backend();
   test_chains();
   test_chain_elimination();
+  test_chain_transpose();
   test_node_blocks();
   test_shipped();
   return test_finish();

@@ -259,8 +259,10 @@ static mrvi_ocp *chain_problem(mrvi_model *m, const mrvi_settings *s) {
  * differences, the forward run against the general path's to 1e-10, the
  * kept factors refined against every step factorised (1e-10); the
  * null-space form (general path) on the same problems.  The cart pendulum
- * (micro-node constraints: the node blocks) for every scheme and a chain
- * (rods at macro nodes only: the slow block bordered), p in {1, 5}. */
+ * (micro-node constraints: the node blocks) for every scheme, a chain of
+ * 3 links (rods at macro nodes only: the slow block bordered) and one of
+ * 12 links on the chain elimination (bordered_max 0: the forward pass and
+ * the adjoint's transposed solves), p in {1, 5}. */
 static void test_bordered(void) {
   const char *const *schemes = mrvi_scheme_names();
   const char *forms[2] = {"multipliers", "null-space"};
@@ -282,9 +284,8 @@ static void test_bordered(void) {
           if (model) /* (the cost model prefers general on so short a
                         chain) */
             s.solver = MRVI_SOLVER_STRUCTURED * !form;
-          if (model == 2) /* (the chain elimination, solver/chain.c: no
-                             transposed solve, the adjoint on general's
-                             LU) */
+          if (model == 2) /* (the chain elimination, solver/chain.c, in
+                             the forward pass and the adjoint) */
             s.tuning.bordered_max = 0;
           mrvi_settings sg = s;
           sg.solver = MRVI_SOLVER_GENERAL;
@@ -303,14 +304,21 @@ static void test_bordered(void) {
                    model ? "midpoint-midpoint" : schemes[is], p, forms[form]);
           const char *path = o ? mrvi_ocp_solver_path(o, why, sizeof why) : 0;
           const char *want = form ? "general" : "schur-bordered";
-          CHECK(path && strcmp(path, want) == 0, "%s: path %s (%s)", what,
-                path ? path : "none", why);
+          CHECK(path && strcmp(path, want) == 0 &&
+                    (form || (strstr(why, "chain elimination") != NULL) ==
+                                 (model == 2)),
+                "%s: path %s (%s)", what, path ? path : "none", why);
           if (o && og && o0) {
             check_gradients(o, what);
-            /* the adjoint on bordered.c's transposed solves */
-            CHECK(form || (model == 2) == !o->bordered,
+            /* the adjoint on bordered.c's transposed solves, the chain
+             * elimination's on the 12-link chain */
+            const int on_chain =
+                o->bordered ? mrvi_bordered_on_chain(o->bordered) : -1;
+            CHECK(form || on_chain == (model == 2),
                   "%s: schur-bordered adjoint %s", what,
-                  o->bordered ? "on the chain elimination" : "missing");
+                  on_chain < 0 ? "missing"
+                  : on_chain   ? "on the chain elimination"
+                               : "on the dense blocks");
             test_ocp_same_forward(o, og, m->n, what, 0.5, 1e-10);
             /* kept factors refined (o) against every step factorised
              * (o0), at two controls in turn */

@@ -520,13 +520,12 @@ static void test_jacobian_solve_constrained(void) {
   }
 }
 
-/* schur-bordered's transposed solve (the adjoint of optimal control):
- * after mrvi_bordered_factor of a step's Jacobian J at its free-flight
- * predictor, y = mrvi_bordered_solve_transpose(c) has J^T y = c to 1e-12
- * relative (J^T y from the CSC entries), and mrvi_bordered_solve agrees:
- * c.J^-1 b = (J^-T c).b; for the node blocks (cart pendulum, micro-node
+/* schur-bordered's transposed solve (the adjoint of optimal control,
+ * test_bordered_transpose_solve): J^T y = c to 1e-12 relative and
+ * c.J^-1 b = (J^-T c).b for the node blocks (cart pendulum, micro-node
  * constraints) and the slow block bordered by the multipliers (pendulum
- * chain: mrvi_blocks_solve_transpose), p in {1, 5}. */
+ * chain: mrvi_blocks_solve_transpose), p in {1, 5}; the chain elimination:
+ * test_constrained_paths. */
 static void test_bordered_transpose(void) {
   const char *files[2] = {"systems/cart_pendulum.yaml",
                           "systems/pendulum_chain.yaml"};
@@ -536,61 +535,18 @@ static void test_bordered_transpose(void) {
           load(files[f], "midpoint-midpoint", p, "multipliers", "structured");
       if (!s)
         continue;
-      mrvi_step st;
-      CHECK(mrvi_step_init(&st, s->model, &s->settings) == 0, "step init");
-      const mrvi_model *m = s->model;
-      const int nt = st.n_total, nu = st.n_unknowns;
-      double *d = calloc((size_t)(4 * m->n + 5 * nt), sizeof *d);
-      double *qs = d, *qf = qs + m->n, *ps = qf + m->n, *pf = ps + m->n;
-      double *x = pf + m->n, *R = x + nt, *b = R + nt, *c = b + nt, *y = c + nt;
-      test_initial_data(&st, qs, qf, ps, pf);
-      st.increments = 1;
-      mrvi_predict_free_flight(&st, x);
-      for (int i = nu; i < nt; i++)
-        x[i] = 0.1 * cos(1.3 * i); /* multipliers: their Hessian terms */
-      mrvi_bordered *bd = NULL;
-      char msg[300] = "";
-      int rc = mrvi_step_build_pattern(&st, x);
-      if (rc == 0) {
-        mrvi_step_assemble(&st, x, R, 1);
-        rc = mrvi_bordered_create(&st, &bd);
-      }
-      if (rc == 0)
-        rc = mrvi_bordered_factor(bd, &st, msg, sizeof msg);
-      for (int i = 0; i < nt; i++) {
-        b[i] = cos(0.3 + 1.1 * i);
-        c[i] = sin(0.5 + 0.9 * i);
-      }
-      if (rc == 0)
-        rc = mrvi_bordered_solve_transpose(bd, &st, c, y, msg, sizeof msg);
-      double res = 0.0, scale = 0.0;
-      for (int j = 0; j < nt && rc == 0; j++) {
-        double r = c[j], sc = fabs(c[j]);
-        for (int e = st.Ap[j]; e < st.Ap[j + 1]; e++) {
-          r -= st.Ax[e] * y[st.Ai[e]];
-          sc += fabs(st.Ax[e] * y[st.Ai[e]]);
-        }
-        res = fmax(res, fabs(r));
-        scale = fmax(scale, sc);
-      }
-      if (rc == 0)
-        rc = mrvi_bordered_solve(bd, &st, b, x, msg, sizeof msg);
-      double cx = 0.0, yb = 0.0, sd = 0.0;
-      for (int i = 0; i < nt; i++) {
-        cx += c[i] * x[i];
-        yb += y[i] * b[i];
-        sd += fabs(c[i] * x[i]) + fabs(y[i] * b[i]);
-      }
-      printf("bordered transpose: %s p=%d: |c - J^T y| %.2e (scale %.2e), "
-             "c.J^-1 b - J^-T c.b %.2e\n",
-             files[f], p, res, scale, fabs(cx - yb));
-      CHECK(rc == 0 && res <= 1e-12 * scale && fabs(cx - yb) <= 1e-12 * sd,
-            "%s p=%d: status %d (%s), |c - J^T y| %.3e (scale %.3e), "
-            "c.J^-1 b = %.15g, J^-T c.b = %.15g",
-            files[f], p, rc, msg, res, scale, cx, yb);
-      mrvi_bordered_free(bd);
-      free(d);
-      mrvi_step_free(&st);
+      double res, dual;
+      int on_chain;
+      char msg[300];
+      const int rc = test_bordered_transpose_solve(
+          s->model, &s->settings, &res, &dual, &on_chain, msg, sizeof msg);
+      printf("bordered transpose: %s p=%d: |c - J^T y| %.2e, c.J^-1 b - "
+             "J^-T c.b %.2e (relative)\n",
+             files[f], p, res, dual);
+      CHECK(rc == 0 && res <= 1e-12 && dual <= 1e-12 && on_chain == 0,
+            "%s p=%d: status %d (%s), |c - J^T y| %.3e, c.J^-1 b - J^-T c.b "
+            "%.3e (relative), on the chain elimination %d",
+            files[f], p, rc, msg, res, dual, on_chain);
       mrvi_system_free(s);
     }
 }

@@ -560,17 +560,15 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   if (o->skrylov)
     mrvi_skrylov_set_rtol(o->skrylov, tn->adjoint_krylov_rtol,
                           tn->adjoint_krylov_rtol);
-  /* schur-bordered: its block elimination on the step's pattern (one
-   * outside its structure: the general path's LU, as the forward pass's
-   * integrator would have refused it) */
+  /* schur-bordered: its block elimination on the step's pattern, the
+   * forward pass's (node blocks, the slow block bordered, or the chain
+   * elimination: each has its transposed solve); one outside its
+   * structure: the general path's LU, as the forward pass's integrator
+   * would have refused it */
   if (o->path == MRVI_PATH_SCHUR_BORDERED) {
     const int s = mrvi_bordered_create(st, &o->bordered);
     if (s == MRVI_ENOMEM)
       return s;
-    if (o->bordered && !mrvi_bordered_transposable(o->bordered)) {
-      mrvi_bordered_free(o->bordered);
-      o->bordered = NULL;
-    }
     o->bd_work = malloc((2 * nu + 1) * sizeof *o->bd_work);
     if (!o->bd_work)
       return MRVI_ENOMEM;

@@ -314,17 +314,16 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
           (col_c && !row_c && st->Ai[q] >= st->ns))
         bd->slow_only = 0;
     }
-  int s = MRVI_OK, nb, width;
-  if (mrvi_chain_wanted(st->model, st->p, &st->tuning, &nb, &width) == 1) {
-    /* (a pattern not block tridiagonal in the chain's blocks: the LU of
-     * the whole step, as where a block is singular) */
-    s = mrvi_chain_create(st, &bd->chain);
-    if (s == MRVI_EINVAL)
-      s = MRVI_OK;
+  /* The chain elimination where mrvi_chain_wanted (the path's choice)
+   * takes it (a pattern not block tridiagonal in the chain's blocks: the
+   * LU of the whole step, as where a block is singular). */
+  int s = mrvi_chain_create(st, &bd->chain);
+  if (s == MRVI_EINVAL || bd->chain) {
+    s = MRVI_OK;
     bd->slow_only = 0;
-  } else if (!bd->slow_only) {
+  } else if (s == MRVI_OK && !bd->slow_only) {
     s = node_create(bd, st);
-  } else {
+  } else if (s == MRVI_OK) {
     const size_t nu = (size_t)bd->nu, nl = (size_t)bd->nl;
     bd->K = malloc((nl * nl + 1) * sizeof *bd->K);
     bd->piv = malloc((nl + 1) * sizeof *bd->piv);
@@ -722,8 +721,8 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
   return mrvi_newton_factor(bd->whole, st->Ax, msg, len);
 }
 
-int mrvi_bordered_transposable(const mrvi_bordered *bd) {
-  return !bd->chain || bd->whole;
+int mrvi_bordered_on_chain(const mrvi_bordered *bd) {
+  return bd->chain && !bd->whole;
 }
 
 int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
@@ -731,12 +730,9 @@ int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   size_t len) {
   if (bd->whole)
     return mrvi_linsolve_solve(bd->whole, st->Ax, 1, R, dx, msg, len);
-  if (bd->chain) {
-    mrvi_fmt(msg, len,
-             "schur-bordered's chain elimination has no transposed solve");
-    return MRVI_EINVAL;
-  }
-  if (!bd->slow_only)
+  if (bd->chain)
+    mrvi_chain_solve_transpose(bd->chain, R, dx);
+  else if (!bd->slow_only)
     node_solve_transpose(bd, R, dx);
   else
     solve_transpose(bd, st, R, dx);

@@ -23,7 +23,10 @@
  * bounded width, where schur-bordered's node blocks (the slow block of all
  * links: bordered.c) grow as its cube and the general path's sparse LU
  * pays UMFPACK's overheads (doc/performance.md, "Chains: the chain
- * elimination").  The multipliers of a block come after the coordinates
+ * elimination").  The transposed step (the optimal-control adjoint's,
+ * src/ocp/adjoint.c) is solved with the same factors, the two block sweeps
+ * transposed and run in the other order (mrvi_chain_solve_transpose).
+ * The multipliers of a block come after the coordinates
  * of their inputs (in it or in the block before), so a leading block of
  * the saddle-point matrix holds every coordinate its multipliers act on.
  *
@@ -247,8 +250,10 @@ int mrvi_chain_blocks(const mrvi_model *m, int p, int *blk, int *width) {
   return nb;
 }
 
-int mrvi_chain_wanted(const mrvi_model *m, int p, const mrvi_tuning *t,
-                      int *n_blocks, int *width) {
+/* Whether schur-bordered's dense blocks are beyond their limits
+ * (bordered_max, bordered_node_max) on m's constrained step with the chain
+ * elimination on (chain_block_max > 0): the cheap part of the choice. */
+static int beyond_dense(const mrvi_model *m, const mrvi_tuning *t) {
   int rs = 0, rf = 0;
   for (int c = 0; c < m->n_constraints; c++)
     *(m->constraints[c].where == MRVI_SLOW ? &rs : &rf) +=
@@ -256,18 +261,31 @@ int mrvi_chain_wanted(const mrvi_model *m, int p, const mrvi_tuning *t,
   const int bmax = t->bordered_max, nmax = t->bordered_node_max;
   const int beyond = rf == 0 ? m->n_slow > bmax || m->n_fast > bmax || rs > bmax
                              : m->n_slow + rs > nmax || m->n_fast + rf > nmax;
-  *n_blocks = *width = 0;
-  if (!beyond || t->chain_block_max <= 0 || m->n_constraints == 0)
-    return 0;
-  int *blk = malloc(((size_t)m->n + 1) * sizeof *blk);
-  if (!blk)
-    return MRVI_ENOMEM;
+  return beyond && t->chain_block_max > 0 && m->n_constraints > 0;
+}
+
+/* mrvi_chain_wanted with m's blocks in blk (m->n; set where it returns
+ * 1). */
+static int chain_fits(const mrvi_model *m, int p, const mrvi_tuning *t,
+                      int *blk, int *n_blocks, int *width) {
   const int nb = mrvi_chain_blocks(m, p, blk, width);
-  free(blk);
   if (nb < 0)
     return nb;
   *n_blocks = nb;
   return nb >= 2 && *width <= t->chain_block_max;
+}
+
+int mrvi_chain_wanted(const mrvi_model *m, int p, const mrvi_tuning *t,
+                      int *n_blocks, int *width) {
+  *n_blocks = *width = 0;
+  if (!beyond_dense(m, t))
+    return 0;
+  int *blk = malloc(((size_t)m->n + 1) * sizeof *blk);
+  if (!blk)
+    return MRVI_ENOMEM;
+  const int s = chain_fits(m, p, t, blk, n_blocks, width);
+  free(blk);
+  return s;
 }
 
 /* The block of every step unknown (step.h's layout). */
@@ -298,6 +316,8 @@ static int step_blocks(mrvi_chain *ch, const mrvi_step *st, const int *mb) {
 int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out) {
   *out = NULL;
   const mrvi_model *m = st->model;
+  if (!beyond_dense(m, &st->tuning))
+    return MRVI_OK;
   const int n = st->n_total, *Ap = st->Ap, *Ai = st->Ai, nnz = Ap[n];
   mrvi_chain *ch = calloc(1, sizeof *ch);
   int *mb = malloc(((size_t)m->n + 1) * sizeof *mb);
@@ -307,10 +327,10 @@ int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out) {
   }
   int width = 0, s = MRVI_OK;
   ch->n = n;
-  ch->nb = mrvi_chain_blocks(m, st->p, mb, &width);
-  if (ch->nb <= 0) {
-    s = ch->nb < 0 ? ch->nb : MRVI_EINVAL;
-    goto done;
+  const int fits = chain_fits(m, st->p, &st->tuning, mb, &ch->nb, &width);
+  if (fits <= 0) { /* (not a chain within the limits: none, MRVI_OK) */
+    free(mb), mrvi_chain_free(ch);
+    return fits;
   }
   const int nb = ch->nb;
   const size_t N = (size_t)n + 1, B = (size_t)nb + 1;
@@ -483,6 +503,43 @@ void mrvi_chain_solve(const mrvi_chain *ch, const double *R, double *dx) {
         acc += X[(size_t)i * (size_t)c + (size_t)t] * y1[col[t]];
       yk[i] -= acc;
     }
+  }
+  for (int i = 0; i < n; i++)
+    dx[i] = y[ch->bo[ch->blk[i]] + ch->pos[i]];
+}
+
+/* J = L U with L block lower bidiagonal (U_k on the diagonal, J_k+1,k
+ * below it) and U block upper bidiagonal (identities, X_k beside them), so
+ * J^T = U^T L^T: w_k+1 = R_k+1 - X_k^T w_k forwards, then
+ * x_k = U_k^-T (w_k - J_k+1,k^T x_k+1) backwards, with the same factors. */
+void mrvi_chain_solve_transpose(const mrvi_chain *ch, const double *R,
+                                double *dx) {
+  const int n = ch->n, nb = ch->nb;
+  double *y = ch->y;
+  for (int i = 0; i < n; i++)
+    y[ch->bo[ch->blk[i]] + ch->pos[i]] = R[i];
+  for (int k = 0; k + 1 < nb; k++) {
+    const double *yk = y + ch->bo[k], *X = ch->buf + ch->xo[k];
+    double *y1 = y + ch->bo[k + 1];
+    const int c = ch->cn[k], *col = ch->ccol + ch->co[k];
+    for (int i = 0; i < ch->bs[k]; i++) {
+      const double w = yk[i];
+      if (w == 0.0)
+        continue;
+      const double *xi = X + (size_t)i * (size_t)c;
+      for (int t = 0; t < c; t++)
+        y1[col[t]] -= xi[t] * w;
+    }
+  }
+  for (int k = nb - 1; k >= 0; k--) {
+    double *yk = y + ch->bo[k];
+    if (k + 1 < nb) {
+      const double *y1 = y + ch->bo[k + 1];
+      for (int e = ch->lp[k]; e < ch->lp[k + 1]; e++)
+        yk[ch->lc[e]] -= ch->lv[e] * y1[ch->lr[e]];
+    }
+    mrvi_dense_lu_solve_transpose(ch->bs[k], ch->buf + ch->uo[k],
+                                  ch->piv + ch->bo[k], yk, 1);
   }
   for (int i = 0; i < n; i++)
     dx[i] = y[ch->bo[ch->blk[i]] + ch->pos[i]];

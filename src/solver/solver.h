@@ -780,10 +780,9 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
 int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   const double *R, double *dx, char *msg,
                                   size_t len);
-/* Whether mrvi_bordered_solve_transpose applies: not on the chain
- * elimination (solver/chain.c keeps no transposed solve; the adjoint takes
- * the general path's LU there). */
-int mrvi_bordered_transposable(const mrvi_bordered *bd);
+/* Whether bd solves with the chain elimination (solver/chain.c; not
+ * fallen back to the LU of the whole step). */
+int mrvi_bordered_on_chain(const mrvi_bordered *bd);
 
 /* The chain elimination of schur-bordered (solver/chain.c): the step of a
  * model whose coupling graph is a chain or a tree, block tridiagonal along
@@ -795,10 +794,13 @@ int mrvi_bordered_transposable(const mrvi_bordered *bd);
  * constrained step beyond schur-bordered's dense limits (bordered_max,
  * bordered_node_max) and m is a chain or a tree of at least two blocks of
  * at most chain_block_max unknowns (their number and width set), else 0.
- * mrvi_chain_create: MRVI_EINVAL if st's Jacobian pattern is not block
+ * mrvi_chain_create: the chain elimination of st where mrvi_chain_wanted
+ * (with st's model, p and tuning) is 1, else *out NULL and MRVI_OK (the
+ * blocks found once); MRVI_EINVAL if st's Jacobian pattern is not block
  * tridiagonal in those blocks; mrvi_chain_factor: the CSC values Ax (st's
  * pattern), MRVI_ESINGULAR if a block is singular; mrvi_chain_solve:
- * J dx = R with the factors. */
+ * J dx = R with the factors; mrvi_chain_solve_transpose: J^T dx = R with
+ * the same factors (the elimination run backwards). */
 typedef struct mrvi_chain mrvi_chain;
 int mrvi_chain_levels(const mrvi_model *m, int *level);
 int mrvi_chain_blocks(const mrvi_model *m, int p, int *blk, int *width);
@@ -807,6 +809,8 @@ int mrvi_chain_wanted(const mrvi_model *m, int p, const mrvi_tuning *t,
 int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out);
 int mrvi_chain_factor(mrvi_chain *ch, const double *Ax);
 void mrvi_chain_solve(const mrvi_chain *ch, const double *R, double *dx);
+void mrvi_chain_solve_transpose(const mrvi_chain *ch, const double *R,
+                                double *dx);
 void mrvi_chain_free(mrvi_chain *ch);
 
 /* Newton matrix of an unconstrained step by block elimination

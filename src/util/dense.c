@@ -243,14 +243,21 @@ void mrvi_dense_lu_solve(int n, const double *A, const int *piv, double *b,
  * A^T = U^T L^T P); b (n x nrhs row-major) becomes x. */
 void mrvi_dense_lu_solve_transpose(int n, const double *A, const int *piv,
                                    double *b, int nrhs) {
-  /* U^T w = b: forward substitution. */
-  for (int i = 0; i < n; i++)
-    for (int c = 0; c < nrhs; c++) {
-      double s = b[i * nrhs + c];
-      for (int j = 0; j < i; j++)
-        s -= A[j * n + i] * b[j * nrhs + c];
-      b[i * nrhs + c] = s / A[i * n + i];
+  /* U^T w = b: forward substitution by rows of U (contiguous), its
+   * nonzeros only; each entry of w takes its terms in the order of j as
+   * the dot product of a column would. */
+  for (int j = 0; j < n; j++) {
+    const double *uj = A + (size_t)j * (size_t)n;
+    double *bj = b + (size_t)j * (size_t)nrhs;
+    for (int c = 0; c < nrhs; c++)
+      bj[c] /= uj[j];
+    for (int i = j + 1; i < n; i++) {
+      const double u = uj[i];
+      if (u != 0.0)
+        for (int c = 0; c < nrhs; c++)
+          b[(size_t)i * nrhs + c] -= u * bj[c];
     }
+  }
   /* L^T y = w: backward substitution, unit diagonal. */
   for (int k = n - 1; k >= 0; k--)
     for (int i = k + 1; i < n; i++) {
