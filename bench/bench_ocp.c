@@ -30,7 +30,8 @@
  * [--set integrator.tuning.NAME=VALUE]...] (--set: overrides of the
  * problems of parts 1, 3 and 4)
  * (run from the source root, or set MRVI_SOURCE_ROOT; --only: part 1 for
- * one problem, e.g. ocp_reorient, and no part 2). */
+ * one problem, e.g. ocp_reorient, and no part 2; ocp_winch and
+ * ocp_winch_free, a crane with a winch (pair actuator), are in bench/). */
 #include "bench_util.h"
 #include "mrvi.h"
 #include "ocp/ocp.h"
@@ -469,24 +470,26 @@ int main(int argc, char **argv) {
   const char *root = getenv("MRVI_SOURCE_ROOT");
   /* The shipped problems (their scheme), and the FPU problem with the
    * schemes of the sweep and explicit paths. */
-  enum { NP = 6 };
+  enum { NP = 8 };
   const char *names[NP] = {"ocp_double_integrator",
                            "ocp_gantry_crane",
                            "ocp_fpu",
                            "ocp_fpu",
                            "ocp_fpu",
-                           "ocp_reorient"};
+                           "ocp_reorient",
+                           "ocp_winch",
+                           "ocp_winch_free"};
   const char *scheme[NP] = {NULL, NULL, NULL, "explicit-slow", "fully-explicit",
-                            NULL};
+                            NULL, NULL, NULL};
   char files[NP][1024];
-  for (int i = 0; i < NP; i++)
-    snprintf(files[i], sizeof files[i], "%s/systems/%s.yaml", root ? root : ".",
-             names[i]);
+  for (int i = 0; i < NP; i++) /* (ocp_winch*: bench/, a pair actuator) */
+    snprintf(files[i], sizeof files[i], "%s/%s/%s.yaml", root ? root : ".",
+             i >= 6 ? "bench" : "systems", names[i]);
   printf("# build: %s\n", bench_build());
   printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %8s %9s %-8s %s\n", "problem",
          "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd", "at opt",
          "total [s]", "path", "status");
-  const double T[NP] = {2.0, 2.0, 6.0, 6.0, 6.0, 5.0};
+  const double T[NP] = {2.0, 2.0, 6.0, 6.0, 6.0, 5.0, 2.0, 2.0};
   const int Ns[3] = {20, 40, 80}, ps[2] = {1, 5};
   for (int f = 0; f < NP; f++)
     for (int in = 0; in < 3 && (!only || !strcmp(only, names[f])); in++)

@@ -258,11 +258,13 @@ static void test_chain(mrvi_constraint_form form) {
 }
 
 /* The same chain driven by forces on the bodies' centres (coordinate
- * actuators: their forces do not depend on the positions), with the step
+ * actuators: their forces do not depend on the positions) or, if torques,
+ * by the joint torques, a body torque and a force at a body point (state
+ * actuators: their Jacobian in the node blocks, ocp_path), with the step
  * solver forced to schur-bordered in the multiplier form (the null-space
  * form takes general): the gradients against central differences, the
  * forward run against the general path's to 1e-10. */
-static void test_chain_bordered(mrvi_constraint_form form, int p) {
+static void test_chain_bordered(mrvi_constraint_form form, int p, int torques) {
   mrvi_model *m = chain_model();
   mrvi_settings s = settings(0.1, p, 0.6, form);
   s.solver =
@@ -273,9 +275,33 @@ static void test_chain_bordered(mrvi_constraint_form form, int p) {
   mrvi_ocp *o[2] = {NULL, NULL};
   const int arm = mrvi_model_body_first(m, 0),
             tip = mrvi_model_body_first(m, 1);
+  int j[2] = {-1, -1}, nj = 0; /* the joints, in the order added */
+  for (int c = 0; c < m->n_constraints && nj < 2; c++)
+    if (!strcmp(m->constraints[c].type->name, "revolute"))
+      j[nj++] = c;
+  const double tx[3] = {1.0, 0.0, 0.2}, at[3] = {0.1, 0.05, 0.0},
+               dir[3] = {0.0, 0.6, 0.8};
   for (int k = 0; k < 2; k++) {
     if (!(o[k] = create(m, ss[k])))
       continue;
+    if (torques) {
+      CHECK(mrvi_ocp_add_joint_torque_actuator(o[k], j[0], MRVI_GRID_MACRO, 1.0,
+                                               -HUGE_VAL, HUGE_VAL) == 0 &&
+                mrvi_ocp_add_joint_torque_actuator(o[k], j[1], MRVI_GRID_MICRO,
+                                                   0.5, -HUGE_VAL,
+                                                   HUGE_VAL) == 1 &&
+                mrvi_ocp_add_torque_actuator(o[k], 1, tx, 1, MRVI_GRID_MICRO,
+                                             1.0, -HUGE_VAL, HUGE_VAL) == 2 &&
+                mrvi_ocp_add_body_force_actuator(o[k], 0, at, dir,
+                                                 MRVI_GRID_MACRO, 1.0,
+                                                 -HUGE_VAL, HUGE_VAL) == 3 &&
+                mrvi_ocp_add_terminal(o[k], MRVI_OCP_VELOCITY, tip + 1, 0.2,
+                                      0.0) == 0 &&
+                mrvi_ocp_add_terminal(o[k], MRVI_OCP_POSITION, tip + 2, 0.1,
+                                      4.0) == 0,
+            "chain state actuators: %s", mrvi_ocp_errmsg(o[k]));
+      continue;
+    }
     CHECK(mrvi_ocp_add_actuator(o[k], arm + 1, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
                                 HUGE_VAL) == 0 &&
               mrvi_ocp_add_actuator(o[k], tip + 2, MRVI_GRID_MICRO, 0.5,
@@ -289,8 +315,8 @@ static void test_chain_bordered(mrvi_constraint_form form, int p) {
           "chain force actuators: %s", mrvi_ocp_errmsg(o[k]));
   }
   char what[120], why[300];
-  snprintf(what, sizeof what, "slow-fast chain, forces (p = %d), %s", p,
-           form_name(form));
+  snprintf(what, sizeof what, "slow-fast chain, %s (p = %d), %s",
+           torques ? "torques" : "forces", p, form_name(form));
   const char *path = o[0] ? mrvi_ocp_solver_path(o[0], why, sizeof why) : 0;
   const char *want =
       form == MRVI_FORM_MULTIPLIERS ? "schur-bordered" : "general";
@@ -632,8 +658,10 @@ int main(void) {
   test_chain(MRVI_FORM_MULTIPLIERS);
   test_chain(MRVI_FORM_NULL_SPACE);
   for (int p = 1; p <= 5; p += 4) {
-    test_chain_bordered(MRVI_FORM_MULTIPLIERS, p);
-    test_chain_bordered(MRVI_FORM_NULL_SPACE, p);
+    for (int t = 0; t < 2; t++) {
+      test_chain_bordered(MRVI_FORM_MULTIPLIERS, p, t);
+      test_chain_bordered(MRVI_FORM_NULL_SPACE, p, t);
+    }
   }
   test_planar(MRVI_FORM_MULTIPLIERS);
   test_planar(MRVI_FORM_NULL_SPACE);

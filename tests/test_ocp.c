@@ -266,10 +266,13 @@ static mrvi_ocp *chain_problem(mrvi_model *m, const mrvi_settings *s) {
 static void test_bordered(void) {
   const char *const *schemes = mrvi_scheme_names();
   const char *forms[2] = {"multipliers", "null-space"};
-  for (int model = 0; model < 3; model++)
-    for (int is = 0; schemes[is] && (model == 0 || is == 0); is++)
+  /* (case 1: the cart pendulum with its pair actuator, a state actuator:
+   * its Jacobian in the node blocks, ocp_path) */
+  for (int mc = 0; mc < 4; mc++)
+    for (int is = 0; schemes[is] && (mc <= 1 || is == 0); is++)
       for (int ip = 0; ip < 2; ip++)
         for (int form = 0; form < 2; form++) {
+          const int model = mc > 1 ? mc - 1 : 0, pair = mc == 1;
           const int p = ip ? 5 : 1;
           mrvi_model *m =
               model ? link_chain(model == 2 ? 12 : 3) : test_cart_pendulum();
@@ -290,16 +293,17 @@ static void test_bordered(void) {
           mrvi_settings sg = s;
           sg.solver = MRVI_SOLVER_GENERAL;
           mrvi_ocp *o =
-              model ? chain_problem(m, &s) : cart_problem_pair(m, &s, 0);
+              model ? chain_problem(m, &s) : cart_problem_pair(m, &s, pair);
           mrvi_ocp *og =
-              model ? chain_problem(m, &sg) : cart_problem_pair(m, &sg, 0);
+              model ? chain_problem(m, &sg) : cart_problem_pair(m, &sg, pair);
           s.tuning.adjoint_refine_max = 0;
           mrvi_ocp *o0 =
-              model ? chain_problem(m, &s) : cart_problem_pair(m, &s, 0);
+              model ? chain_problem(m, &s) : cart_problem_pair(m, &s, pair);
           char what[160], why[300];
           mrvi_fmt(what, sizeof what, "bordered: %s %s p=%d %s",
                    model == 2 ? "chain (chain elimination)"
                    : model    ? "chain"
+                   : pair     ? "cart pendulum with a pair actuator"
                               : "cart pendulum",
                    model ? "midpoint-midpoint" : schemes[is], p, forms[form]);
           const char *path = o ? mrvi_ocp_solver_path(o, why, sizeof why) : 0;
@@ -311,10 +315,13 @@ static void test_bordered(void) {
           if (o && og && o0) {
             check_gradients(o, what);
             /* the adjoint on bordered.c's transposed solves, the chain
-             * elimination's on the 12-link chain */
+             * elimination's on the 12-link chain (with a state actuator
+             * on the dense LU where H is dense) */
+            const int dense_lu =
+                pair && o->nv <= o->settings.tuning.adjoint_dense_max;
             const int on_chain =
                 o->bordered ? mrvi_bordered_on_chain(o->bordered) : -1;
-            CHECK(form || on_chain == (model == 2),
+            CHECK(form || (dense_lu ? on_chain < 0 : on_chain == (model == 2)),
                   "%s: schur-bordered adjoint %s", what,
                   on_chain < 0 ? "missing"
                   : on_chain   ? "on the chain elimination"
@@ -590,6 +597,29 @@ static mrvi_model *four_particles(void) {
  *   only and is rotation invariant), while the motion does change;
  * - two free particles moving along their line: the direction is constant,
  *   so the momenta are exactly p_0 -+ u t_k e. */
+/* The four particles with four pair actuators (slow-slow, fast-fast,
+ * slow-fast on both grids), tracking and terminal conditions. */
+static mrvi_ocp *pair_problem(mrvi_model *m, const mrvi_settings *s) {
+  mrvi_ocp *o = create_problem(m, s);
+  if (!o)
+    return NULL;
+  int a = mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MACRO, 1.0, -HUGE_VAL,
+                                     HUGE_VAL);
+  a |= mrvi_ocp_add_pair_actuator(o, 2, 3, MRVI_GRID_MICRO, 2.0, -HUGE_VAL,
+                                  HUGE_VAL);
+  a |= mrvi_ocp_add_pair_actuator(o, 1, 2, MRVI_GRID_MACRO, 0.5, -HUGE_VAL,
+                                  HUGE_VAL);
+  a |= mrvi_ocp_add_pair_actuator(o, 3, 0, MRVI_GRID_MICRO, 1.5, -HUGE_VAL,
+                                  HUGE_VAL);
+  CHECK(a >= 0, "pair actuators: %s", mrvi_ocp_errmsg(o));
+  mrvi_ocp_add_tracking(o, 4, 3.0, 1.1);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 7, 0.2, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 5, 0.3, 0.0);
+  mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 3, 0.1, 5.0);
+  return o;
+}
+
 static void test_pair_actuators(void) {
   const char *const *schemes = mrvi_scheme_names();
   const int ps[2] = {1, 5};
@@ -597,28 +627,27 @@ static void test_pair_actuators(void) {
     for (int ip = 0; ip < 2; ip++) {
       mrvi_model *m = four_particles();
       mrvi_settings s = test_settings(schemes[is], 0.05, ps[ip], 0.2, 1e-13);
-      mrvi_ocp *o = NULL;
-      char msg[300];
-      int st = mrvi_ocp_create(m, &s, &o, msg, sizeof msg);
-      CHECK(st == 0, "pair create: %s", msg);
-      if (st == 0) {
-        int a = mrvi_ocp_add_pair_actuator(o, 0, 1, MRVI_GRID_MACRO, 1.0,
-                                           -HUGE_VAL, HUGE_VAL);
-        a |= mrvi_ocp_add_pair_actuator(o, 2, 3, MRVI_GRID_MICRO, 2.0,
-                                        -HUGE_VAL, HUGE_VAL);
-        a |= mrvi_ocp_add_pair_actuator(o, 1, 2, MRVI_GRID_MACRO, 0.5,
-                                        -HUGE_VAL, HUGE_VAL);
-        a |= mrvi_ocp_add_pair_actuator(o, 3, 0, MRVI_GRID_MICRO, 1.5,
-                                        -HUGE_VAL, HUGE_VAL);
-        CHECK(a >= 0, "pair actuators: %s", mrvi_ocp_errmsg(o));
-        mrvi_ocp_add_tracking(o, 4, 3.0, 1.1);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 0, 0.1, 0.0);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 7, 0.2, 0.0);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_POSITION, 5, 0.3, 0.0);
-        mrvi_ocp_add_terminal(o, MRVI_OCP_VELOCITY, 3, 0.1, 5.0);
-        char what[100];
+      mrvi_settings sg = s;
+      sg.solver = MRVI_SOLVER_GENERAL;
+      mrvi_ocp *o = pair_problem(m, &s), *og = pair_problem(m, &sg);
+      int st = o ? 0 : MRVI_EINVAL;
+      if (o && og) {
+        char what[100], why[300];
         mrvi_fmt(what, sizeof what, "pair %s p=%d", schemes[is], ps[ip]);
+        /* the integrator's path where it is a Newton path on the CSC
+         * assembly (the model's own choice: schur on midpoint-midpoint),
+         * else general */
+        const char *ip_path = mrvi_solver_path(m, &s, NULL, 0);
+        const char *path = mrvi_ocp_solver_path(o, why, sizeof why);
+        const int newton = ip_path && (!strcmp(ip_path, "schur") ||
+                                       !strcmp(ip_path, "schur-bordered"));
+        CHECK(path && ip_path && !strcmp(path, newton ? ip_path : "general") &&
+                  (strcmp(schemes[is], "midpoint-midpoint") ||
+                   !strcmp(path, "schur")),
+              "%s: path %s (%s), the integrator's %s", what,
+              path ? path : "none", why, ip_path ? ip_path : "none");
         check_gradients(o, what);
+        test_ocp_same_forward(o, og, m->n, what, 0.5, 1e-10);
         /* Momentum maps at every macro node. */
         const int n = mrvi_ocp_n_controls(o);
         double *u = malloc((size_t)n * sizeof *u), J;
@@ -649,7 +678,10 @@ static void test_pair_actuators(void) {
         free(qf);
         free(u);
       }
+      CHECK(st == 0, "pair problem %s p=%d: %s", schemes[is], ps[ip],
+            o ? mrvi_ocp_errmsg(o) : "not created");
       mrvi_ocp_free(o);
+      mrvi_ocp_free(og);
       mrvi_model_free(m);
     }
   /* Two free slow particles on the x axis, pushed apart by u. */

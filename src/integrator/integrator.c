@@ -687,8 +687,11 @@ int mrvi_integrator_check_inputs(const mrvi_model *m, const mrvi_settings *s,
   return MRVI_OK;
 }
 
-int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
-                           mrvi_integrator **out, char *msg, size_t len) {
+/* mrvi_integrator_create, the step hooks (if any: hooks[0] = extra,
+ * hooks[1] = end, ctx) set before the path objects are made. */
+static int create(const mrvi_model *m, const mrvi_settings *s,
+                  const mrvi_step *hooks, mrvi_integrator **out, char *msg,
+                  size_t len) {
   *out = NULL;
   int st = mrvi_integrator_check_inputs(m, s, msg, len);
   if (st < 0)
@@ -839,6 +842,11 @@ int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
   it->step.qf0 = it->qf;
   it->step.ps0 = it->ps;
   it->step.pf0 = it->pf;
+  if (hooks) {
+    it->step.extra = hooks->extra;
+    it->step.extra_end = hooks->extra_end;
+    it->step.extra_ctx = hooks->extra_ctx;
+  }
   it->ops = path_ops_of(it->path);
   if ((st = it->ops->create(it, msg, len)) < 0) {
     mrvi_integrator_free(it);
@@ -850,6 +858,21 @@ oom:
   mrvi_integrator_free(it);
   mrvi_fmt(msg, len, "out of memory");
   return MRVI_ENOMEM;
+}
+
+int mrvi_integrator_create(const mrvi_model *m, const mrvi_settings *s,
+                           mrvi_integrator **out, char *msg, size_t len) {
+  return create(m, s, NULL, out, msg, len);
+}
+
+int mrvi_integrator_create_hooked(
+    const mrvi_model *m, const mrvi_settings *s,
+    void (*extra)(void *ctx, mrvi_step *st, const double *x, double *R,
+                  int jac),
+    void (*end)(void *ctx, mrvi_step *st, const double *x), void *ctx,
+    mrvi_integrator **out, char *msg, size_t len) {
+  mrvi_step hooks = {.extra = extra, .extra_end = end, .extra_ctx = ctx};
+  return create(m, s, &hooks, out, msg, len);
 }
 
 int mrvi_integrator_set_state(mrvi_integrator *it, double t, const double *q,

@@ -13,6 +13,20 @@
 void mrvi_integrator_set_forces(mrvi_integrator *it, const double *f_rows,
                                 const double *f_end);
 
+/* mrvi_integrator_create with configuration-dependent control forces
+ * (optimal control's state actuators, src/ocp/state_forces.c): the step
+ * hooks extra (residual and Jacobian entries, mrvi_step.extra) and end
+ * (f^+ into f_end at the converged step, mrvi_step.extra_end), called with
+ * ctx, set before the path builds its Jacobian pattern.  The Newton paths
+ * take them through the CSC assembly (schur's direct block assembly falls
+ * back to it); the callers choose those paths (ocp.c, ocp_path). */
+int mrvi_integrator_create_hooked(
+    const mrvi_model *m, const mrvi_settings *s,
+    void (*extra)(void *ctx, mrvi_step *st, const double *x, double *R,
+                  int jac),
+    void (*end)(void *ctx, mrvi_step *st, const double *x), void *ctx,
+    mrvi_integrator **out, char *msg, size_t len);
+
 /* The multipliers of the last step in the step's layout (mrvi_step:
  * n_lambda, slow rows then the micro nodes'), as the Newton iteration
  * converged to them: optimal control keeps them for its adjoint. */

@@ -564,11 +564,19 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
    * forward pass's (node blocks, the slow block bordered, or the chain
    * elimination: each has its transposed solve); one outside its
    * structure: the general path's LU, as the forward pass's integrator
-   * would have refused it */
+   * would have refused it.  With state actuators and a step within the
+   * dense H (adjoint_dense_max), the dense LU's refinement of all
+   * functionals at once costs less (bench/ocp_winch.yaml, p = 5: cost +
+   * gradient 1.7x cheaper; doc/performance.md, "State actuators on schur
+   * and schur-bordered"). */
   if (o->path == MRVI_PATH_SCHUR_BORDERED) {
     const int s = mrvi_bordered_create(st, &o->bordered);
     if (s == MRVI_ENOMEM)
       return s;
+    if (o->bordered && o->n_state > 0 && dense_jacobian(o)) {
+      mrvi_bordered_free(o->bordered);
+      o->bordered = NULL;
+    }
     o->bd_work = malloc((2 * nu + 1) * sizeof *o->bd_work);
     if (!o->bd_work)
       return MRVI_ENOMEM;

@@ -117,13 +117,19 @@ int mrvi_ocp_create(const mrvi_model *m, const mrvi_settings *s, mrvi_ocp **out,
 
 int ocp_path(const mrvi_ocp *o, char *why, size_t len) {
   const int path = mrvi_sweep_path(o->model, &o->settings, why, len);
-  if (o->n_state == 0 || path == MRVI_PATH_GENERAL)
+  /* The state actuators' forces depend on the positions (the step hook
+   * mrvi_step.extra): the Newton paths on the CSC assembly take them into
+   * their blocks (schur from its CSC fallback), their entries those of an
+   * element on the same coordinates at the micro intervals' midpoints;
+   * the sweeps and schur-krylov's outer iteration assemble no Jacobian. */
+  if (o->n_state == 0 || path == MRVI_PATH_GENERAL || path == MRVI_PATH_SCHUR ||
+      path == MRVI_PATH_SCHUR_BORDERED)
     return path;
-  /* Their forces depend on the positions (the step hook mrvi_step.extra),
-   * which only the general path's assembly takes. */
   mrvi_fmt(why, len,
-           "pair actuators (or actuators on bodies): their forces depend "
-           "on the positions, which only the general path assembles");
+           "pair actuators (or actuators on bodies) on the %s path: their "
+           "forces depend on the positions, which only the Newton paths "
+           "general, schur and schur-bordered assemble",
+           mrvi_path_name(path));
   return MRVI_PATH_GENERAL;
 }
 
@@ -151,7 +157,7 @@ int ocp_alloc(mrvi_ocp *o) {
   o->R = dalloc(nu);
   o->dx = dalloc(nu);
   o->f_rows = dalloc(nu);
-  o->f_end = dalloc((size_t)(o->ns + o->nf));
+  o->f_end = dalloc(2 * (size_t)(o->ns + o->nf));
   o->ps1 = dalloc((size_t)o->ns);
   o->pf1 = dalloc((size_t)(o->p * o->nf));
   o->Q = dalloc((size_t)o->n_nodes);
@@ -159,7 +165,7 @@ int ocp_alloc(mrvi_ocp *o) {
   o->ps_k = dalloc(N1 * (size_t)o->ns);
   o->pf_k = dalloc(N1 * (size_t)o->nf);
   o->pf_micro = dalloc(((size_t)o->N * (size_t)o->p + 1) * (size_t)o->nf);
-  o->f_plus = dalloc((size_t)o->p * (size_t)o->nf);
+  o->f_plus = dalloc(2 * (size_t)o->p * (size_t)o->nf);
   o->cres_micro = dalloc((size_t)o->N * (size_t)o->p);
   o->q_out = dalloc(N1 * n);
   o->p_out = dalloc(N1 * n);
@@ -173,6 +179,8 @@ int ocp_alloc(mrvi_ocp *o) {
       !o->pf_micro || !o->f_plus || !o->cres_micro || !o->q_out || !o->p_out ||
       !o->Lam || !o->rhs_ns || !o->branch)
     goto oom;
+  o->f_end_c = o->f_end + o->ns + o->nf;
+  o->f_plus_c = o->f_plus + (size_t)o->p * (size_t)o->nf;
   o->step.f_rows = o->f_rows;
   o->step.f_end = o->f_end;
   if (o->n_state > 0) {
@@ -1039,11 +1047,17 @@ static int setup(mrvi_ocp *o, const double *u) {
      * equations of the problem have none). */
     mrvi_settings s = o->settings;
     s.project_momenta = 0;
+    o->u_cur = u; /* (the step hooks at the integrator's first assembly) */
+    o->k_cur = 0;
     /* Each forward run a function of its inputs, each step of (q_k, p_k)
      * alone, as the adjoint differentiates it: no chord history. */
     s.tuning.chord_carry = 0;
     const int st =
-        mrvi_integrator_create(o->model, &s, &o->integ, msg, sizeof msg);
+        o->n_state > 0
+            ? mrvi_integrator_create_hooked(o->model, &s, ocp_state_hook,
+                                            ocp_state_end_hook, o, &o->integ,
+                                            msg, sizeof msg)
+            : mrvi_integrator_create(o->model, &s, &o->integ, msg, sizeof msg);
     if (st < 0)
       return mrvi_ocp_fail(o, st, "%s", msg);
     mrvi_integrator_set_forces(o->integ, o->f_rows, o->f_end);
@@ -1073,6 +1087,14 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
       return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
   }
   step_forces(o, k, u);
+  if (o->n_state > 0) {
+    /* for the step hooks: the controls, the step and the constant parts
+     * of f^+ (ocp_state_end_hook) */
+    o->u_cur = u;
+    o->k_cur = k;
+    memcpy(o->f_end_c, o->f_end, (size_t)(o->ns + o->nf) * sizeof(double));
+    memcpy(o->f_plus_c, o->f_plus, (size_t)(o->p * o->nf) * sizeof(double));
+  }
   const int nt = o->n_torsion;
   if (nt > 0)
     memcpy(o->branch + k * nt, mrvi_integrator_torsion_angle(it),

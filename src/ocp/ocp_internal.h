@@ -111,11 +111,15 @@ struct mrvi_ocp {
   /* Trajectory: global nodes: slow (N+1) x ns, then fast (N p + 1) x nf. */
   long n_nodes;
   double *Q;
-  double *pN;            /* final momenta ns + nf */
-  double *Lam;           /* multipliers of every step, N x nl */
-  double *ps_k, *pf_k;   /* momenta p_k per step (N+1) x ns, (N+1) x nf */
-  double *pf_micro;      /* fast momenta at every micro node (N p + 1) x nf */
-  double *f_plus;        /* f^+ of a step on fast nodes 1..p, p x nf */
+  double *pN;          /* final momenta ns + nf */
+  double *Lam;         /* multipliers of every step, N x nl */
+  double *ps_k, *pf_k; /* momenta p_k per step (N+1) x ns, (N+1) x nf */
+  double *pf_micro;    /* fast momenta at every micro node (N p + 1) x nf */
+  double *f_plus;      /* f^+ of a step on fast nodes 1..p, p x nf */
+  /* The coordinate actuators' parts of f_end and f_plus of the step (the
+   * state actuators' f^+ is added to them at the integrator's converged
+   * step: ocp_state_end_hook); in the second halves of f_end, f_plus. */
+  double *f_end_c, *f_plus_c;
   double *cres_micro;    /* max |g| at micro nodes 1..p of every step, N p */
   double *q_out, *p_out; /* (N+1) x n model order */
   /* Torsional springs: each one's branch at every macro node, (N+1) x
@@ -325,6 +329,11 @@ void ocp_state_hook(void *ctx, mrvi_step *st, const double *x, double *R,
 /* After convergence of step k at o->x under controls u: their f^+ into
  * o->f_end (end nodes) and o->f_plus (fast nodes 1..p). */
 void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u);
+/* The same as the integrator's step hook (mrvi_step.extra_end) at its
+ * converged step x (step o->k_cur, controls o->u_cur): o->f_end and
+ * o->f_plus set to the coordinate actuators' parts (f_end_c, f_plus_c)
+ * plus the state actuators' f^+. */
+void ocp_state_end_hook(void *ctx, mrvi_step *st, const double *x);
 /* Their second derivatives in the step's nodes added to the step
  * Jacobian a of step k at the stored trajectory (controls o->u_cur); their
  * forces kept for ocp_state_gradient (o->act_kept, sized by

@@ -205,7 +205,14 @@ static double zval(const mrvi_ocp *o, const mrvi_step *st, const double *x,
   if (z < o->ns)
     return st->qs0[z];
   const int c = zcol(o, z);
-  return c >= 0 ? x[c] : st->qf0[z - 2 * o->ns];
+  if (c < 0)
+    return st->qf0[z - 2 * o->ns];
+  if (!st->increments)
+    return x[c];
+  /* (the integrator's Newton paths: displacements from q_k^s, q_k^{f,0}) */
+  return (z < 2 * o->ns ? st->qs0[z - o->ns]
+                        : st->qf0[(z - 2 * o->ns) % o->nf]) +
+         x[c];
 }
 
 /* Visitor of one (state-dependent actuator, micro interval m) of step k
@@ -303,6 +310,13 @@ static void end_visit(const mrvi_ocp *o, void *ctx, long k, const act_point *ap,
 void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u) {
   o->u_cur = u;
   each_act(o, &o->step, o->x, k, end_visit, o);
+}
+
+void ocp_state_end_hook(void *ctx, mrvi_step *st, const double *x) {
+  mrvi_ocp *o = ctx;
+  memcpy(o->f_end, o->f_end_c, (size_t)(o->ns + o->nf) * sizeof *o->f_end);
+  memcpy(o->f_plus, o->f_plus_c, (size_t)(o->p * o->nf) * sizeof *o->f_plus);
+  each_act(o, st, x, o->k_cur, end_visit, o);
 }
 
 /* One point's forces per unit control as the adjoint's Jacobian pass

@@ -741,6 +741,8 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
         pf[mm * nf + s] += M * fast_diff(st, x, mm, s) / dt;
     }
   }
+  if (st->extra_end)
+    st->extra_end(st->extra_ctx, st, x);
   if (st->f_end) {
     for (int s = 0; s < ns; s++)
       ps1[s] += st->f_end[s];

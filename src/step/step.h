@@ -92,6 +92,11 @@ typedef struct mrvi_step {
   void (*extra)(void *ctx, struct mrvi_step *st, const double *x, double *R,
                 int jac);
   void *extra_ctx;
+  /* Optional, with extra: called (with extra_ctx) by
+   * mrvi_step_momenta_finish at the converged x before f_end is added, so
+   * that f_end may take forces that depend on the converged nodes (the
+   * state actuators' f^+).  NULL (the default) for none. */
+  void (*extra_end)(void *ctx, struct mrvi_step *st, const double *x);
   /* If not NULL, mrvi_step_assemble also sums the potential parts of the
    * momenta at x into mom_ps (ns) and mom_pf (p x nf), which
    * mrvi_step_momenta_finish completes: the gradients of the residual
