@@ -784,6 +784,11 @@ int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
  * elimination (solver/chain.c keeps no transposed solve; the adjoint takes
  * the general path's LU there). */
 int mrvi_bordered_transposable(const mrvi_bordered *bd);
+/* A factorisation's cost in kept-factor updates (a solve and a residual)
+ * where the factors are the chain elimination's (its flop ratio over 3: the
+ * residual measured at 1.5-2 times the solve, doc/solver.md, "Newton
+ * details"); 0 elsewhere (no estimate: the reuse_rate rule alone). */
+double mrvi_bordered_refactor_cost(const mrvi_bordered *bd);
 
 /* The chain elimination of schur-bordered (solver/chain.c): the step of a
  * model whose coupling graph is a chain or a tree, block tridiagonal along
@@ -798,7 +803,8 @@ int mrvi_bordered_transposable(const mrvi_bordered *bd);
  * mrvi_chain_create: MRVI_EINVAL if st's Jacobian pattern is not block
  * tridiagonal in those blocks; mrvi_chain_factor: the CSC values Ax (st's
  * pattern), MRVI_ESINGULAR if a block is singular; mrvi_chain_solve:
- * J dx = R with the factors. */
+ * J dx = R with the factors; mrvi_chain_factor_ratio: the flops of a
+ * factorisation over a solve's (the pattern's estimate). */
 typedef struct mrvi_chain mrvi_chain;
 int mrvi_chain_levels(const mrvi_model *m, int *level);
 int mrvi_chain_blocks(const mrvi_model *m, int p, int *blk, int *width);
@@ -807,6 +813,7 @@ int mrvi_chain_wanted(const mrvi_model *m, int p, const mrvi_tuning *t,
 int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out);
 int mrvi_chain_factor(mrvi_chain *ch, const double *Ax);
 void mrvi_chain_solve(const mrvi_chain *ch, const double *R, double *dx);
+double mrvi_chain_factor_ratio(const mrvi_chain *ch);
 void mrvi_chain_free(mrvi_chain *ch);
 
 /* Newton matrix of an unconstrained step by block elimination
