@@ -775,6 +775,10 @@ typedef enum mrvi_newton_criterion {
     "largest block of schur-bordered's chain elimination, which takes "        \
     "constrained chains and trees beyond bordered_max and "                    \
     "bordered_node_max (0: off, general)")                                     \
+  X(int, keep_by_cost, 1, 0, 1,                                                \
+    "schur-bordered's chain elimination keeps its factors while the "          \
+    "updates they need at their last contraction cost less than a "            \
+    "factorisation (flop estimate; 0: the reuse_rate rule alone)")             \
   X(double, path_entry_cost, 5.0, 0.0, 1e300,                                  \
     "cost of an entry of the general path's dense LU storage per "             \
     "factorisation, in its flops, in the estimate that chooses general or "    \

@@ -79,6 +79,7 @@ typedef struct run_out {
   int n, ok;
   double *q, *p; /* (N_STEPS + 1) x n */
   char path[32];
+  long factorisations, updates; /* of the run (Newton updates) */
 } run_out;
 
 /* Run m with s for `steps` macro steps; the macro q and p. */
@@ -105,7 +106,9 @@ static void run(const mrvi_model *m, const mrvi_settings *s, int steps,
            n * sizeof(double));
     memcpy(o->p + (size_t)(k + 1) * n, mrvi_integrator_p(it),
            n * sizeof(double));
+    o->updates += mrvi_integrator_last_iterations(it);
   }
+  o->factorisations = mrvi_integrator_factorisations(it);
   mrvi_integrator_free(it);
   o->ok = 1;
 }
@@ -487,6 +490,63 @@ static void test_chain_transpose(void) {
   }
 }
 
+/* The chain elimination's refactorisation by cost (tuning keep_by_cost):
+ * the rod chain and the bar chain of 8 links at p = 1 and 5 with the
+ * policy on, off (the reuse_rate rule alone) and the refactorisation
+ * forced at every update (reuse_rate 0: full Newton) agree with general to
+ * 1e-10 over the steps; forced, every update factorises; kept, fewer; by
+ * cost, no more factorisations than by the rate rule, and on the bars
+ * fewer (measured: one per step against two, the kept factors' slower
+ * contraction near the target taken on instead). */
+static void test_chain_refactor(void) {
+  for (int c = 0; c < 2; c++) {
+    mrvi_model *m = c ? bars(8, 0) : chain(8, 1);
+    for (int pi = 0; pi < 2; pi++) {
+      const int p = pi ? 5 : 1;
+      mrvi_settings sg = chain_settings(p, "general");
+      run_out o[3] = {{0}}, g = {0};
+      run(m, &sg, N_STEPS, &g);
+      CHECK(g.ok, "case %d p = %d: general completed", c, p);
+      for (int v = 0; v < 3; v++) {
+        mrvi_settings s = chain_settings(p, "auto");
+        char msg[200];
+        s.solver = MRVI_SOLVER_STRUCTURED;
+        CHECK(mrvi_settings_set_tuning(&s, "bordered_max", 0, msg,
+                                       sizeof msg) == 0 &&
+                  mrvi_settings_set_tuning(&s, "keep_by_cost", v != 1, msg,
+                                           sizeof msg) == 0 &&
+                  mrvi_settings_set_tuning(&s, "reuse_rate", v == 2 ? 0 : 0.1,
+                                           msg, sizeof msg) == 0,
+              "%s", msg);
+        run(m, &s, N_STEPS, &o[v]);
+        CHECK(o[v].ok && strcmp(o[v].path, "schur-bordered") == 0,
+              "case %d p = %d variant %d: completed on %s", c, p, v, o[v].path);
+        if (o[v].ok && g.ok) {
+          const double d = rel_diff(&g, &o[v], N_STEPS);
+          CHECK(d <= 1e-10, "case %d p = %d variant %d vs general: %.2e", c, p,
+                v, d);
+        }
+      }
+      CHECK(o[2].factorisations == o[2].updates &&
+                o[0].factorisations < o[0].updates &&
+                o[0].factorisations <= o[1].factorisations &&
+                (c == 0 || o[0].factorisations < o[1].factorisations),
+            "case %d p = %d: factorisations / updates by cost %ld / %ld, by "
+            "rate %ld / %ld, forced %ld / %ld",
+            c, p, o[0].factorisations, o[0].updates, o[1].factorisations,
+            o[1].updates, o[2].factorisations, o[2].updates);
+      printf("chain refactor case %d p = %d: factorisations / updates by cost "
+             "%ld / %ld, by rate %ld / %ld, forced %ld / %ld\n",
+             c, p, o[0].factorisations, o[0].updates, o[1].factorisations,
+             o[1].updates, o[2].factorisations, o[2].updates);
+      for (int v = 0; v < 3; v++)
+        run_free(&o[v]);
+      run_free(&g);
+    }
+    mrvi_model_free(m);
+  }
+}
+
 /* The node blocks (micro-node multipliers joined to their nodes) at the
  * default limits: flexible_pendulum (blocks 11 and 22) and spacecraft
  * (18 and 138) take schur-bordered at p = 10 and 20 and agree with
@@ -755,6 +815,7 @@ int main(void) {
   test_chains();
   test_chain_elimination();
   test_chain_transpose();
+  test_chain_refactor();
   test_node_blocks();
   test_shipped();
   return test_finish();

@@ -1475,13 +1475,28 @@ static int accept_step(mrvi_integrator *it, int iters, double res) {
  * from converged where the dynamic rows are at round-off (trapezoidal
  * rules, whose dynamic rows are linear in the unknowns). */
 static int keep_factors(const mrvi_integrator *it, double res, double cres,
-                        double prev, double cprev, double tol) {
+                        double prev, double cprev, double tol, int iter) {
   const mrvi_tuning *tn = &it->step.tuning;
   const double r = cres > res ? cres : res, rp = cprev > prev ? cprev : prev;
   /* (the constant chord's factors: only if one more update reaches
    * the target at that rate; else an exact update from here costs
    * less than the kept factors' slow linear convergence) */
   const double rate = r / rp, target = tn->reuse_tighten * tol;
+  const double phi = it->bordered && tn->keep_by_cost && tn->reuse_rate > 0.0
+                         ? mrvi_bordered_refactor_cost(it->bordered)
+                         : 0.0;
+  if (phi > 0.0) {
+    /* By cost (the chain elimination, whose factorisation costs phi kept
+     * updates): kept while the updates that reach the target at this
+     * contraction, m, cost less than a factorisation and its update (a
+     * fresh update's own contraction taken as reaching it at once), and
+     * within the iteration limit (a residual at its rounding floor stalls
+     * and ends the step there: newton_step). */
+    if (!(rate < 1.0))
+      return 0;
+    const double m = r > target ? ceil(log(target / r) / log(rate)) : 1.0;
+    return m <= 1.0 + phi && iter + m < it->settings.newton_max_iter;
+  }
   return !(rate > tn->reuse_rate ||
            r * rate * (it->const_kept ? 1.0 : rate) > target);
 }
@@ -1638,7 +1653,7 @@ static int newton_step(mrvi_integrator *it) {
     }
     fresh = !it->ops->keeps_factors || !it->factors_ok ||
             !keep_factors(it, res, cres * (tol / ctol), prev,
-                          cprev * (tol / ctol), tol);
+                          cprev * (tol / ctol), tol, iter);
     /* (full Newton: the general path always; schur-bordered where it
      * refactorises (always at the iterate); schur where it refactorises at
      * the iterate, not on its first update, which may take a chord; not

@@ -725,6 +725,11 @@ int mrvi_bordered_on_chain(const mrvi_bordered *bd) {
   return bd->chain && !bd->whole;
 }
 
+double mrvi_bordered_refactor_cost(const mrvi_bordered *bd) {
+  return bd->chain && !bd->whole ? mrvi_chain_factor_ratio(bd->chain) / 3.0
+                                 : 0.0;
+}
+
 int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   const double *R, double *dx, char *msg,
                                   size_t len) {

@@ -59,6 +59,7 @@ struct mrvi_chain {
    * (lq by block k from lp: row, column in their blocks lr, lc) */
   int *dq, *xq, *lq, *lp, *lr, *lc;
   size_t *dd, *xd;
+  int *dp, *xp; /* the entries into U_k and X_k: dq, xq from dp[k], xp[k] */
   int nd, nx;
   double *lv; /* J_k+1,k's values at the last factorisation (by lq) */
   double *buf, *y;
@@ -71,7 +72,7 @@ void mrvi_chain_free(mrvi_chain *ch) {
   free(ch->blk), free(ch->dq), free(ch->bo), free(ch->bs);
   free(ch->cn), free(ch->co), free(ch->uo), free(ch->xo), free(ch->lp);
   free(ch->dd), free(ch->xd), free(ch->buf), free(ch->y);
-  free(ch->ccol), free(ch->cur), free(ch->lv);
+  free(ch->ccol), free(ch->cur), free(ch->lv), free(ch->dp);
   free(ch);
 }
 
@@ -353,10 +354,12 @@ int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out) {
   ch->uo = calloc(B, sizeof *ch->uo);
   ch->xo = calloc(B, sizeof *ch->xo);
   ch->lp = calloc(B + 1, sizeof *ch->lp);
+  ch->dp = calloc(2 * (B + 1), sizeof *ch->dp);
   ch->dd = malloc(Z * sizeof *ch->dd);
   ch->xd = malloc(Z * sizeof *ch->xd);
   if (!ch->blk || !ch->dq || !ch->y || !ch->bo || !ch->bs || !ch->cn ||
-      !ch->co || !ch->uo || !ch->xo || !ch->lp || !ch->dd || !ch->xd) {
+      !ch->co || !ch->uo || !ch->xo || !ch->lp || !ch->dp || !ch->dd ||
+      !ch->xd) {
     s = MRVI_ENOMEM;
     goto done;
   }
@@ -404,34 +407,46 @@ int mrvi_chain_create(const mrvi_step *st, mrvi_chain **out) {
     s = MRVI_ENOMEM;
     goto done;
   }
-  /* the entries' destinations; J_k+1,k's listed by block k (counted, then
-   * placed with cursors) */
+  /* the entries' destinations, listed by block (U_k's and X_k's by the
+   * block of their row, so that mrvi_chain_factor fills a block just before
+   * it eliminates it; J_k+1,k's by block k): counted, then placed with
+   * cursors */
+  ch->xp = ch->dp + B + 1;
   for (int j = 0; j < n; j++)
     for (int q = Ap[j]; q < Ap[j + 1]; q++) {
-      const int i = Ai[q], bi = ch->blk[i], bj = ch->blk[j];
-      if (bi == bj) {
-        ch->dq[ch->nd] = q;
-        ch->dd[ch->nd++] =
-            ch->uo[bi] + (size_t)ch->pos[i] * (size_t)ch->bs[bi] + ch->pos[j];
-      } else if (bj == bi + 1) {
-        ch->xq[ch->nx] = q;
-        ch->xd[ch->nx++] = ch->xo[bi] +
-                           (size_t)ch->pos[i] * (size_t)ch->cn[bi] +
-                           (size_t)ch->cpos[j];
-      } else {
-        ch->lp[bj + 1]++;
-      }
+      const int bi = ch->blk[Ai[q]], bj = ch->blk[j];
+      ch->dp[bi + 1] += bi == bj;
+      ch->xp[bi + 1] += bj == bi + 1;
+      ch->lp[bj + 1] += bi == bj + 1;
     }
+  for (int pass = 0; pass < 2; pass++) {
+    int *list = pass ? ch->dp : ch->xp;
+    for (int k = 0; k < nb; k++)
+      list[k + 1] += list[k];
+    for (int k = nb; k > 0; k--) /* (cursors: list[k + 1] from list[k]) */
+      list[k] = list[k - 1];
+  }
   for (int k = 0; k < nb; k++)
     ch->lp[k + 1] += ch->lp[k], ch->cur[k] = ch->lp[k];
   for (int j = 0; j < n; j++)
     for (int q = Ap[j]; q < Ap[j + 1]; q++) {
-      const int i = Ai[q], bj = ch->blk[j];
-      if (ch->blk[i] == bj + 1) {
+      const int i = Ai[q], bi = ch->blk[i], bj = ch->blk[j];
+      if (bi == bj) {
+        const int e = ch->dp[bi + 1]++;
+        ch->dq[e] = q;
+        ch->dd[e] =
+            ch->uo[bi] + (size_t)ch->pos[i] * (size_t)ch->bs[bi] + ch->pos[j];
+      } else if (bj == bi + 1) {
+        const int e = ch->xp[bi + 1]++;
+        ch->xq[e] = q;
+        ch->xd[e] = ch->xo[bi] + (size_t)ch->pos[i] * (size_t)ch->cn[bi] +
+                    (size_t)ch->cpos[j];
+      } else {
         const int e = ch->cur[bj]++;
         ch->lq[e] = q, ch->lr[e] = ch->pos[i], ch->lc[e] = ch->pos[j];
       }
     }
+  ch->nd = ch->dp[nb], ch->nx = ch->xp[nb];
 done:
   free(mb);
   if (s < 0) {
@@ -442,14 +457,36 @@ done:
   return MRVI_OK;
 }
 
-int mrvi_chain_factor(mrvi_chain *ch, const double *Ax) {
-  memset(ch->buf, 0, ch->n_buf * sizeof *ch->buf);
-  for (int e = 0; e < ch->nd; e++)
+/* A factorisation's flops over a solve's: the blocks' LU (2 b^3 / 3), X_k
+ * (2 b^2 c) and the Schur updates (2 c per entry of J_k+1,k) against the
+ * forward sweep (2 b^2 and 2 per entry of J_k+1,k) and the backward one
+ * (2 b c).  Fixed by the pattern (not by a clock): the policy built on it
+ * gives the same iterates on every run. */
+double mrvi_chain_factor_ratio(const mrvi_chain *ch) {
+  double f = 0.0, s = 0.0;
+  for (int k = 0; k < ch->nb; k++) {
+    const double b = ch->bs[k], c = k + 1 < ch->nb ? ch->cn[k] : 0.0,
+                 l = k + 1 < ch->nb ? ch->lp[k + 1] - ch->lp[k] : 0.0;
+    f += 2.0 * b * b * b / 3.0 + 2.0 * b * b * c + 2.0 * l * c;
+    s += 2.0 * b * b + 2.0 * l + 2.0 * b * c;
+  }
+  return s > 0.0 ? f / s : 0.0;
+}
+
+/* U_k and X_k (adjacent in buf) from the entries of block k. */
+static void fill(mrvi_chain *ch, const double *Ax, int k) {
+  const size_t end = k + 1 < ch->nb ? ch->uo[k + 1] : ch->n_buf;
+  memset(ch->buf + ch->uo[k], 0, (end - ch->uo[k]) * sizeof *ch->buf);
+  for (int e = ch->dp[k]; e < ch->dp[k + 1]; e++)
     ch->buf[ch->dd[e]] = Ax[ch->dq[e]];
-  for (int e = 0; e < ch->nx; e++)
+  for (int e = ch->xp[k]; e < ch->xp[k + 1]; e++)
     ch->buf[ch->xd[e]] = Ax[ch->xq[e]];
+}
+
+int mrvi_chain_factor(mrvi_chain *ch, const double *Ax) {
   for (int e = 0; e < ch->lp[ch->nb]; e++)
     ch->lv[e] = Ax[ch->lq[e]];
+  fill(ch, Ax, 0);
   for (int k = 0; k < ch->nb; k++) {
     const int b = ch->bs[k];
     double *U = ch->buf + ch->uo[k], *X = ch->buf + ch->xo[k];
@@ -461,6 +498,7 @@ int mrvi_chain_factor(mrvi_chain *ch, const double *Ax) {
     const int c = ch->cn[k], b1 = ch->bs[k + 1];
     const int *col = ch->ccol + ch->co[k];
     mrvi_dense_lu_solve(b, U, piv, X, c);
+    fill(ch, Ax, k + 1);
     /* U_k+1 -= J_k+1,k X_k on X_k's columns */
     double *U1 = ch->buf + ch->uo[k + 1];
     for (int e = ch->lp[k]; e < ch->lp[k + 1]; e++) {

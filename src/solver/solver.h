@@ -783,6 +783,11 @@ int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
 /* Whether bd solves with the chain elimination (solver/chain.c; not
  * fallen back to the LU of the whole step). */
 int mrvi_bordered_on_chain(const mrvi_bordered *bd);
+/* A factorisation's cost in kept-factor updates (a solve and a residual)
+ * where the factors are the chain elimination's (its flop ratio over 3: the
+ * residual measured at 1.5-2 times the solve, doc/solver.md, "Newton
+ * details"); 0 elsewhere (no estimate: the reuse_rate rule alone). */
+double mrvi_bordered_refactor_cost(const mrvi_bordered *bd);
 
 /* The chain elimination of schur-bordered (solver/chain.c): the step of a
  * model whose coupling graph is a chain or a tree, block tridiagonal along
@@ -800,7 +805,9 @@ int mrvi_bordered_on_chain(const mrvi_bordered *bd);
  * tridiagonal in those blocks; mrvi_chain_factor: the CSC values Ax (st's
  * pattern), MRVI_ESINGULAR if a block is singular; mrvi_chain_solve:
  * J dx = R with the factors; mrvi_chain_solve_transpose: J^T dx = R with
- * the same factors (the elimination run backwards). */
+ * the same factors (the elimination run backwards);
+ * mrvi_chain_factor_ratio: the flops of a factorisation over a solve's
+ * (the pattern's estimate). */
 typedef struct mrvi_chain mrvi_chain;
 int mrvi_chain_levels(const mrvi_model *m, int *level);
 int mrvi_chain_blocks(const mrvi_model *m, int p, int *blk, int *width);
@@ -811,6 +818,7 @@ int mrvi_chain_factor(mrvi_chain *ch, const double *Ax);
 void mrvi_chain_solve(const mrvi_chain *ch, const double *R, double *dx);
 void mrvi_chain_solve_transpose(const mrvi_chain *ch, const double *R,
                                 double *dx);
+double mrvi_chain_factor_ratio(const mrvi_chain *ch);
 void mrvi_chain_free(mrvi_chain *ch);
 
 /* Newton matrix of an unconstrained step by block elimination
