@@ -352,6 +352,69 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
  * compiled, the sweep-cg path's micro-step matrix) against the generic
  * evaluation scattered by mrvi_sblock_add_element, bitwise, and its
  * Hessian-vector products against central differences of the gradient. */
+/* sweep-cg's chord pass fused into the spring loop: mrvi_terms_grad_fused
+ * on a class of Hooke springs alone after mrvi_terms_set_recip, in blocks
+ * of 1, 3 and 64 records, g filled with NaN before (every column zeroed
+ * by the kernel): mrvi_terms_grad's gradient bitwise; the callback's
+ * columns increase to n, and the columns it reports complete are final
+ * (their g then equals the end's bitwise) and no longer read (z there
+ * overwritten with NaN by the callback).  Other classes keep none. */
+typedef struct fuse_seen {
+  const double *g;
+  double *z, *gc;
+  int last, calls, ok;
+} fuse_seen;
+
+static void fuse_cols(void *ctx, int c) {
+  fuse_seen *s = ctx;
+  s->ok &= c > s->last;
+  for (int f = s->last; f < c; f++) {
+    s->gc[f] = s->g[f];
+    s->z[f] = NAN;
+  }
+  s->last = c;
+  s->calls++;
+}
+
+static void check_fused(const mrvi_model *m, const int *sel, int nsp,
+                        const double *q, int n, int d, const law_case *lc) {
+  mrvi_terms *kf = NULL;
+  CHECK(mrvi_terms_create(m, sel, nsp, m->slot, &kf) == MRVI_OK,
+        "d %d %s: create", d, lc->law);
+  double *w = calloc(4 * (size_t)n, sizeof *w);
+  if (!kf || !w) {
+    CHECK(0, "d %d: memory", d);
+    mrvi_terms_free(kf);
+    free(w);
+    return;
+  }
+  const int hooke = mrvi_terms_set_recip(kf);
+  double *g0 = w, *g1 = w + n, *gc = w + 2 * n, *z = w + 3 * n;
+  mrvi_terms_grad(kf, q, g0);
+  const int blocks[3] = {1, 3, 64};
+  for (int b = 0; b < 3; b++) {
+    const int set = mrvi_terms_set_fused(kf, n, blocks[b]);
+    CHECK(set == (hooke && nsp > 0) && mrvi_terms_fused(kf) == set,
+          "d %d %s: fused %d (Hooke springs alone: %d)", d, lc->law, set,
+          hooke);
+    if (set != 1)
+      continue;
+    for (int i = 0; i < n; i++) {
+      g1[i] = gc[i] = NAN;
+      z[i] = q[i];
+    }
+    fuse_seen s = {g1, z, gc, 0, 0, 1};
+    mrvi_terms_grad_fused(kf, z, g1, fuse_cols, &s);
+    CHECK(s.ok && s.last == n && !memcmp(g0, g1, (size_t)n * sizeof *g0) &&
+              !memcmp(g1, gc, (size_t)n * sizeof *g1),
+          "d %d block %d: %d calls to column %d; the fused gradient bitwise "
+          "mrvi_terms_grad's, the complete columns final and unread",
+          d, blocks[b], s.calls, s.last);
+  }
+  mrvi_terms_free(kf);
+  free(w);
+}
+
 /* sweep-cg's linearised chord updates (tuning.chord_linear) on a class of
  * Hooke springs alone after mrvi_terms_set_recip, partitioned in np parts:
  * mrvi_terms_grad_lin's gradient bitwise mrvi_terms_grad's; the Hessian
@@ -633,6 +696,8 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
       const int npl = kl ? mrvi_terms_parts(kl) : 0;
       if (kl && npl >= 2)
         check_lin(kl, q, n, npl, d, lc, mrvi_terms_set_recip(kl), rng);
+      if (sel)
+        check_fused(m, sel, nsp, q, n, d, lc);
       mrvi_terms_free(kl);
       free(sel);
       mrvi_terms_free(kt);

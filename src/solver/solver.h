@@ -538,6 +538,22 @@ void mrvi_terms_hv_lin(const mrvi_terms *kc, const double *z0,
 void mrvi_terms_hv_lin_part(const mrvi_terms *kc, int c, const double *z0,
                             const double *lin, const double *x, double s,
                             double *g);
+/* sweep-cg's chord pass fused into the spring loop (doc/solver.md,
+ * "sweep-cg"): on a class of Hooke springs alone after
+ * mrvi_terms_set_recip whose records are in the serial order, the
+ * records in blocks of `block` and, after each, the columns [0, c) that
+ * no later record reads or writes (1; 0 where the class is not such a
+ * class, nothing kept; MRVI_ENOMEM).  mrvi_terms_fused: kept, and the
+ * gradient serial.  mrvi_terms_grad_fused: g = grad Z(z) over the ncol
+ * columns (zeroed here, each just before its first sum), mrvi_terms_grad's
+ * values bitwise, calling done(ctx, c) each time the complete columns
+ * grow to [0, c), last with c = ncol: done may then read g and write z
+ * in those columns. */
+typedef void (*mrvi_cols_fn)(void *ctx, int c);
+int mrvi_terms_set_fused(mrvi_terms *kc, int ncol, int block);
+int mrvi_terms_fused(const mrvi_terms *kc);
+void mrvi_terms_grad_fused(const mrvi_terms *kc, const double *z, double *g,
+                           mrvi_cols_fn done, void *ctx);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
 /* The parts of a partitioned class (0: not partitioned), and g +=

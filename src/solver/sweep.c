@@ -184,7 +184,14 @@ struct mrvi_sweep {
   int lin_n;
   double *lin, *zl;
   long evals_lin;
+  /* The chord's plain updates take the pass in the spring loop
+   * (mrvi_terms_set_fused, chord_stream): one pass over the row. */
+  int fuse;
 };
+
+/* The springs per block of the fused loop: the rows the pass takes after
+ * each block stay in the cache from the block's sums. */
+enum { FUSE_BLOCK = 128 };
 
 /* The structure the sweep needs, or the reason it is missing. */
 /* Path of a constrained model (doc/solver.md): schur-bordered in the
@@ -605,6 +612,14 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
    * explicit path's (the last bits differ from the Newton evaluations'). */
   if (sparse)
     mrvi_terms_set_recip(sw->kc[MRVI_FAST]);
+  /* (the chord pass in the spring loop: blocks of FUSE_BLOCK springs) */
+  const int fz =
+      sparse ? mrvi_terms_set_fused(sw->kc[MRVI_FAST], (int)nf, FUSE_BLOCK) : 0;
+  if (fz < 0) {
+    mrvi_sweep_free(sw);
+    return fz;
+  }
+  sw->fuse = fz == 1;
   sw->hd = dalloc(sw->fresh ? nf : 1);
   sw->off = dalloc(sw->fresh ? nf : 1);
   sw->dprev = dalloc(sparse ? nf : 1);
@@ -1127,9 +1142,9 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
                               const double *restrict dn,
                               const double *restrict g, double om, double wc,
                               double cB, double *restrict zf, int f0,
-                              const int nf, double out[4], const int unit,
-                              const int keep, const int inc, const int light,
-                              const int step) {
+                              const int nf, double out[4], mrvi_v2 acc[4],
+                              const int fin, const int unit, const int keep,
+                              const int inc, const int light, const int step) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
@@ -1137,7 +1152,7 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
                    *restrict F = sw->F;
   const double idt = 1.0 / dt;
   const mrvi_v2 vidt = v2_set(idt, idt), vm = v2_set(mf[0], mf[0]);
-  mrvi_v2 vmax = v2_zero(), vsum = v2_zero(), von = v2_zero(), voo = v2_zero();
+  mrvi_v2 vmax = acc[0], vsum = acc[1], von = acc[2], voo = acc[3];
   int f = f0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, v2_load(g + f)));
@@ -1161,6 +1176,13 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
     }
     vmax = v2_max(a, vmax);
     vsum = v2_add(vsum, a);
+  }
+  if (!fin) { /* (pairs alone: the sums go on in acc) */
+    acc[0] = vmax;
+    acc[1] = vsum;
+    acc[2] = von;
+    acc[3] = voo;
+    return;
   }
   double r = fmax(v2_lo(vmax), v2_hi(vmax)), sum = v2_lo(vsum) + v2_hi(vsum);
   double on = v2_lo(von) + v2_hi(von), oo = v2_lo(voo) + v2_hi(voo);
@@ -1195,22 +1217,67 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
 static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
                             const double *g, double om, double wc, double cB,
                             double *zn, int f0, int f1, double out[4],
-                            int light, int step) {
+                            int light, int step, mrvi_v2 acc[4], int fin) {
   const int unit = sw->rw_one, keep = sw->n_w != 1;
+  mrvi_v2 a0[4] = {v2_zero(), v2_zero(), v2_zero(), v2_zero()};
+  mrvi_v2 *a = acc ? acc : a0; /* (NULL: the whole of [f0, f1)) */
+#define PASS(U, K, I, L, S)                                                    \
+  chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, a, fin, U, K, I, L, S)
   if (light && unit && !keep && !sw->mass_inc)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 1, 0);
+    PASS(1, 0, 0, 1, 0);
   else if (light)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, keep, 1, 1, 0);
+    PASS(unit, keep, 1, 1, 0);
   else if (step && unit && !keep && !sw->mass_inc)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 0, 1);
+    PASS(1, 0, 0, 0, 1);
   else if (step)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1, 0, 1);
+    PASS(unit, 1, 1, 0, 1);
   else if (unit && !keep && !sw->mass_inc)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 0, 0, 0);
+    PASS(1, 0, 0, 0, 0);
   else if (unit && !keep)
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, 1, 0, 1, 0, 0);
+    PASS(1, 0, 1, 0, 0);
   else
-    chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, unit, 1, 1, 0, 0);
+    PASS(unit, 1, 1, 0, 0);
+#undef PASS
+}
+
+/* The chord pass fused into the spring loop (mrvi_terms_grad_fused, the
+ * serial gradient): the pass over the rows whose gradient is complete,
+ * each time the spring loop completes more, in chord_residual's parts
+ * (n_c of them, or one part [0, nf) where n_c is 0), each part's pairs
+ * in order with its sums carried in acc and its tail and sums at its end:
+ * chord_pass_rows's values over each part, bitwise.  The next
+ * configuration goes over zf in place (no later spring reads a complete
+ * row). */
+typedef struct chord_stream {
+  mrvi_sweep *sw;
+  const double *qm, *dn, *g;
+  double om, wc, cB;
+  double *zn, *out; /* out: 4 numbers per part */
+  int light, n_c, c, pos, end;
+  mrvi_v2 acc[4];
+} chord_stream;
+
+static void chord_stream_to(void *ctx, int to) {
+  chord_stream *s = ctx;
+  const int nf = s->sw->nf;
+  while (s->pos < to) {
+    if (to >= s->end) { /* (the part's last rows and its sums) */
+      chord_pass_rows(s->sw, s->qm, s->dn, s->g, s->om, s->wc, s->cB, s->zn,
+                      s->pos, s->end, s->out + 4 * s->c, s->light, 0, s->acc,
+                      1);
+      s->pos = s->end;
+      s->c++;
+      s->end = s->n_c > 0 ? mrvi_part_start(s->c + 1, nf, s->n_c) : nf;
+      s->acc[0] = s->acc[1] = s->acc[2] = s->acc[3] = v2_zero();
+      continue;
+    }
+    const int e = s->pos + ((to - s->pos) & ~1); /* (pairs) */
+    if (e > s->pos)
+      chord_pass_rows(s->sw, s->qm, s->dn, s->g, s->om, s->wc, s->cB, s->zn,
+                      s->pos, e, NULL, s->light, 0, s->acc, 0);
+    s->pos = e;
+    return;
+  }
 }
 
 /* The chord pass's part sums combined in order (the maximum, the sums). */
@@ -1257,7 +1324,7 @@ static void fresh_part(mrvi_sweep *sw, int c, const double *qm,
   mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, sw->hd, sw->off, hs);
   sw->cpass[4 * n_c + c] = fresh_bound(sw, f0, f1); /* (after the sums) */
   chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, sw->cpass + 4 * c, 0,
-                  0);
+                  0, NULL, 1);
 }
 
 /* After the parts: zn becomes zf, the bound and row residual returned. */
@@ -1349,6 +1416,11 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
   const double wc = sw->w[i] * sw->cA[i], cB = sw->cB[i];
   double *g = sw->gpt[i];
   light = light && !lin; /* (zl's configuration kept: the full pass) */
+  /* the gradient and the pass in one loop (chord_stream; not where the
+   * pass's parts run on threads) */
+  int fuse = sw->fuse && !fresh && !lin && !sw->cfused &&
+             (sw->n_cpass == 0 || sw->pthreads <= 1) &&
+             mrvi_terms_fused(sw->kc[MRVI_FAST]);
   /* the last row's end, unless it runs in the first update's region */
   const int dfr = sw->defer.on && !fresh && sw->cfused && zf_ok && !light;
   if (sw->defer.on && !dfr)
@@ -1372,7 +1444,7 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     sw->evals_w++;
     zero(g, nf);
     mrvi_terms_grad_lin(sw->kc[MRVI_FAST], sw->zf, g, sw->lin);
-  } else if (!sw->cfused) {
+  } else if (!sw->cfused && !fuse) {
     fast_gradient(sw, sw->zf, g, nf);
   }
   if (lin == 1 && !sw->cfused) { /* (zl keeps this configuration) */
@@ -1387,8 +1459,30 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
   light = light && !fresh;
   const double *zl = sw->zl;
 again:
-  if (n_c == 0) {
-    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t, light, step);
+  if (fuse) { /* (the gradient's rows with their pass as they complete) */
+    fuse = 0;
+    sw->evals_w++;
+    chord_stream cs = {sw,
+                       qm,
+                       dn,
+                       g,
+                       om,
+                       wc,
+                       cB,
+                       sw->zf,
+                       n_c > 0 ? sw->cpass : t,
+                       light,
+                       n_c,
+                       0,
+                       0,
+                       n_c > 0 ? mrvi_part_start(1, nf, n_c) : nf,
+                       {v2_zero(), v2_zero(), v2_zero(), v2_zero()}};
+    mrvi_terms_grad_fused(sw->kc[MRVI_FAST], sw->zf, g, chord_stream_to, &cs);
+    if (n_c > 0)
+      chord_parts_sum(sw->cpass, n_c, t);
+  } else if (n_c == 0) {
+    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t, light, step,
+                    NULL, 1);
   } else {
     double *cp = sw->cpass, *zn = grad && !light ? sw->zalt : sw->zf;
     const double *zf = sw->zf;
@@ -1421,7 +1515,7 @@ again:
             mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
         }
         chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c,
-                        light, step && !light);
+                        light, step && !light, NULL, 1);
       }
     }
     if (dfr)

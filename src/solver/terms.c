@@ -168,6 +168,14 @@ struct mrvi_terms {
   int recip;
   int *part_first, *part_rec, *part_run;
   unsigned char *part_mask;
+  /* mrvi_terms_set_fused (a class of khooke springs alone, one division
+   * per spring, its records qh[0 .. n) in the serial order): the records
+   * in blocks of fuse_b, and after block b every column below fuse_done[b]
+   * complete (no later record reads or writes it); fuse_zero[b]: one past
+   * the largest column blocks 0..b touch (the columns zeroed before block
+   * b, none touched before).  fuse_ncol: the columns. */
+  int fuse_nb, fuse_b, fuse_ncol;
+  int *fuse_zero, *fuse_done;
 };
 
 void mrvi_terms_free(mrvi_terms *kc) {
@@ -191,6 +199,8 @@ void mrvi_terms_free(mrvi_terms *kc) {
   free(kc->part_rec);
   free(kc->part_mask);
   free(kc->part_run);
+  free(kc->fuse_zero);
+  free(kc->fuse_done);
   free(kc);
 }
 
@@ -1943,6 +1953,111 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g) {
     flat_grad(kc, z, g);
   else
     terms_grad_any(kc, z, g);
+}
+
+/* Whether every term of kc is a khooke record of qh in the serial order
+ * (hooke_grad1 over qh[0 .. n) is then mrvi_terms_grad's loop, bitwise). */
+static int hooke_in_order(const mrvi_terms *kc) {
+  if (kc->hooke_only || !kc->recip || !kc->qh || !kc->hooke_run || kc->n < 1)
+    return 0;
+  for (int it = 0; it < kc->n;) {
+    kterm tt;
+    const kterm *t = term_at(kc, it, &tt);
+    if (!(t->runs > 0 && t->qs == it && kc->hooke_run[t->qs]))
+      return 0;
+    it += t->runs;
+  }
+  return 1;
+}
+
+int mrvi_terms_set_fused(mrvi_terms *kc, int ncol, int block) {
+  free(kc->fuse_zero);
+  free(kc->fuse_done);
+  kc->fuse_zero = kc->fuse_done = NULL;
+  kc->fuse_nb = 0;
+  if (block < 1 || ncol < 1 || !hooke_in_order(kc))
+    return 0;
+  const int n = kc->n, dim = kc->dim, nb = (n + block - 1) / block;
+  int *last = malloc((size_t)ncol * sizeof(int));
+  kc->fuse_zero = malloc((size_t)nb * sizeof(int));
+  kc->fuse_done = malloc((size_t)nb * sizeof(int));
+  if (!last || !kc->fuse_zero || !kc->fuse_done) {
+    free(last);
+    free(kc->fuse_zero);
+    free(kc->fuse_done);
+    kc->fuse_zero = kc->fuse_done = NULL;
+    return MRVI_ENOMEM;
+  }
+  for (int f = 0; f < ncol; f++)
+    last[f] = -1;
+  int top = 0; /* one past the largest column touched so far */
+  for (int r = 0; r < n; r++) {
+    const khooke *h = kc->qh + r;
+    for (int k = 0; k < dim; k++) {
+      if (h->ci + k >= ncol || h->cj + k >= ncol || h->ci < 0 || h->cj < 0) {
+        free(last); /* (columns beyond ncol: not this class's layout) */
+        return mrvi_terms_set_fused(kc, 0, 0);
+      }
+      last[h->ci + k] = last[h->cj + k] = r;
+      top = h->ci + k + 1 > top ? h->ci + k + 1 : top;
+      top = h->cj + k + 1 > top ? h->cj + k + 1 : top;
+    }
+    if (r % block == block - 1 || r == n - 1)
+      kc->fuse_zero[r / block] = top;
+  }
+  /* fuse_done[b]: the columns below it all last touched in blocks <= b */
+  int f = 0;
+  for (int b = 0; b < nb; b++) {
+    const int end = b + 1 < nb ? (b + 1) * block : n;
+    while (f < ncol && last[f] < end)
+      f++;
+    kc->fuse_done[b] = f;
+  }
+  free(last);
+  kc->fuse_nb = nb;
+  kc->fuse_b = block;
+  kc->fuse_ncol = ncol;
+  return 1;
+}
+
+int mrvi_terms_fused(const mrvi_terms *kc) {
+  return kc->fuse_nb > 0 && kc->threads <= 1;
+}
+
+/* mrvi_terms_grad_fused in dimension dim: the blocks of hooke_grad1's
+ * loop, each column zeroed just before the first block that adds to it. */
+ALWAYS_INLINE void fused_k(const mrvi_terms *kc, const double *z, double *g,
+                           mrvi_cols_fn done, void *ctx, const int dim) {
+  const hsrc q = {kc->qh, NULL, 0.0, 0.0};
+  const int n = kc->n, nb = kc->fuse_nb, B = kc->fuse_b;
+  int zp = 0, dp = 0;
+  for (int b = 0; b < nb; b++) {
+    const int r0 = b * B, nr = b + 1 < nb ? B : n - r0;
+    for (; zp < kc->fuse_zero[b]; zp++)
+      g[zp] = 0.0;
+    hooke_grad_k(q, r0, nr, z, g, dim, 1);
+    const int d = kc->fuse_done[b];
+    if (d > dp) {
+      for (; zp < d; zp++) /* (columns no record touches) */
+        g[zp] = 0.0;
+      done(ctx, d);
+      dp = d;
+    }
+  }
+  for (; zp < kc->fuse_ncol; zp++)
+    g[zp] = 0.0;
+  if (dp < kc->fuse_ncol)
+    done(ctx, kc->fuse_ncol);
+}
+
+void mrvi_terms_grad_fused(const mrvi_terms *kc, const double *z, double *g,
+                           mrvi_cols_fn done, void *ctx) {
+  if (kc->dim == 2)
+    fused_k(kc, z, g, done, ctx, 2);
+  else if (kc->dim == 3)
+    fused_k(kc, z, g, done, ctx, 3);
+  else
+    fused_k(kc, z, g, done, ctx, 1);
 }
 
 int mrvi_terms_count(const mrvi_terms *kc) { return kc->n; }
