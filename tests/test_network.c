@@ -739,6 +739,59 @@ static void test_chord_threads(int carry, int lin) {
   free(text);
 }
 
+/* sweep-cg's storage (solver/sweep.c): under the absolute criterion with
+ * equal fast masses the sweep keeps two entries of 1/M^f and M^f (its
+ * passes read entry 0) and no Newton weights; the scaled criterion keeps
+ * every entry and the weights 1/M^f.  With unit masses both criteria are
+ * the same arithmetic (every weight 1, the CG tolerance's smallest mass 1),
+ * so the 40 x 20 lattice by explicit-slow (the fresh chord of row 0, whose
+ * Hessian diagonal and off-diagonal sums share the chord's arrays, the
+ * extrapolated predictors, end_predict) gives the same trajectory bit for
+ * bit either way on 1 thread, and on 2 threads (the chord's parts of 16,
+ * fresh_part) the absolute criterion's again: a pass that read an entry
+ * the compact layout does not keep, or an array shared while it is live,
+ * would not.  (The scaled criterion on 2 threads is not the 1 thread's bit
+ * for bit, 4e-10 apart here, before this layout too: doc/limits.md.) */
+static void test_storage(void) {
+  char *text = lattice(40, 20);
+  trajectory t[3];
+  memset(t, 0, sizeof t);
+  int ok = 1;
+  for (int k = 0; k < 3; k++) {
+    overrides o;
+    mrvi_system *sys =
+        load_text(text, set(&o, "explicit-slow", 5, 0.02, 1e-9, "auto"), 5);
+    t[k].ok = 0;
+    if (sys) {
+      sys->settings.newton_criterion =
+          k == 1 ? MRVI_CRITERION_SCALED : MRVI_CRITERION_ABSOLUTE;
+      sys->settings.threads = k == 2 ? 2 : 1;
+      sys->settings.tuning.thread_chunk = 16;
+      run(sys, 6, &t[k]);
+    }
+    ok = ok && t[k].ok;
+    mrvi_system_free(sys);
+  }
+  if (ok) {
+    CHECK(!strcmp(t[0].path, "sweep-cg"), "storage: path %s", t[0].path);
+    const size_t n = (size_t)(t[0].steps + 1) * (size_t)t[0].n;
+    const size_t nm = (size_t)t[0].steps * (size_t)t[0].nmicro;
+    for (int k = 1; k < 3; k++)
+      CHECK(!memcmp(t[0].q, t[k].q, n * sizeof(double)) &&
+                !memcmp(t[0].p, t[k].p, n * sizeof(double)) &&
+                !memcmp(t[0].micro, t[k].micro, nm * sizeof(double)),
+            "storage: %s criterion on %d threads, trajectory not the "
+            "absolute criterion's on 1 bit for bit (max rel. diff %.3g)",
+            k == 1 ? "scaled" : "absolute", k == 2 ? 2 : 1,
+            rel_diff(&t[0], &t[k]));
+    printf("storage: explicit-slow, the scaled criterion and 2 threads: the "
+           "absolute criterion's trajectory on 1 thread bit for bit\n");
+  }
+  for (int k = 0; k < 3; k++)
+    release(&t[k]);
+  free(text);
+}
+
 /* schur-krylov's outer iteration (solver/outer.c, doc/solver.md) on the
  * 10 x 8 lattice at dT = 0.01, p = 5 (dt = 0.002: its fast rows' chord
  * contracts by about (omega dt)^2/4 = 0.024 per update, omega = 98), 10
@@ -928,6 +981,7 @@ int main(void) {
   test_chord_threads(1, 0);
   test_chord_threads(1, 2);
   test_chord_linear();
+  test_storage();
   test_choice();
   test_agree();
   test_iterations();

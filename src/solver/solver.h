@@ -421,12 +421,14 @@ const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz);
 /* The ints of the elements' maps (compact and full), for tests. */
 long mrvi_sblock_map_ints(const mrvi_sblock *sb);
 void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y);
-/* Add dscale diag (nf) to the diagonal and solve J x = b in place (b
- * becomes x) by CG, stopping at ||r||_inf <= atol or 1e-12 relative;
- * sparse LU where CG meets non-positive curvature or does not converge
- * (counted in the stats with the reason). */
-int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
-                      double *b, double atol, char *msg, size_t len);
+/* Add dscale diag to the diagonal (entry f of diag at f inc: inc 0 where
+ * every entry is diag[0]) and solve J x = b in place (b becomes x) by CG,
+ * stopping at ||r||_inf <= atol or 1e-12 relative; sparse LU where CG
+ * meets non-positive curvature or does not converge (counted in the stats
+ * with the reason). */
+int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, int inc,
+                      double dscale, double *b, double atol, char *msg,
+                      size_t len);
 const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb);
 /* After mrvi_sblock_solve: dinv (nf) = 1 / J_ff, and the return value the
  * Gershgorin bound max_f sum_{g != f} |J_fg| / J_ff on the contraction of

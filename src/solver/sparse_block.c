@@ -438,12 +438,13 @@ double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv) {
  * Newton tolerance): reachable where that share is below round-off. */
 #define SBLOCK_RTOL 1e-12
 
-int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, double dscale,
-                      double *b, double atol, char *msg, size_t len) {
+int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, int inc,
+                      double dscale, double *b, double atol, char *msg,
+                      size_t len) {
   const int nf = sb->nf;
   double *x = sb->x;
   for (int f = 0; f < nf; f++) {
-    const double d = (sb->Ax[sb->diag[f]] += dscale * diag[f]);
+    const double d = (sb->Ax[sb->diag[f]] += dscale * diag[f * inc]);
     sb->dinv[f] = d > 0.0 ? 1.0 / d : 1.0;
   }
   int it = 0;

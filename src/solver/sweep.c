@@ -43,7 +43,8 @@ struct mrvi_sweep {
    * residual divided by its mass), else ones; the smallest fast mass or 1
    * (CG's tolerance is on the unscaled residual) */
   double *rw, cg_unit;
-  int rw_one;      /* every rw 1 (the absolute criterion) */
+  int rw_one;      /* every rw 1 (the absolute criterion): rw not kept, each
+                      reader takes the unweighted value (rweight) */
   double wv0, wv1; /* weights of V at the macro nodes k and k+1 */
   int n_w;         /* W points of one interval (the same in every one) */
   double w[2], cA[2], cB[2];
@@ -72,10 +73,12 @@ struct mrvi_sweep {
   /* The step between the entries of minv_f and m_f that explicit_row
    * reads: 0 where every fast mass is the same (entry 0 is each entry's
    * value: two streams fewer per micro step), else 1; the explicit path
-   * then keeps entries 0 and 1 alone (explicit_row loads pairs; the
-   * implicit rows read every entry).  inc_s: the same for minv_s, one
-   * entry (every sweep path: the slow row alone reads it). */
-  int mass_inc, inc_s;
+   * then keeps entries 0 and 1 alone (explicit_row loads pairs), and so
+   * does sweep-cg where every pass it takes reads them by mass_inc
+   * (mass_small: the absolute criterion, one implicit point per
+   * interval; the dense implicit rows read every entry).  inc_s: the same for
+   * minv_s, one entry (every sweep path: the slow row alone reads it). */
+  int mass_inc, inc_s, mass_small;
   double *zf;        /* point configuration of W */
   mrvi_terms *kc[2]; /* the potential classes compiled (solver/terms.c) */
   /* W quadratic on a block of at most 4 fast coordinates: grad W = wg0 +
@@ -117,11 +120,13 @@ struct mrvi_sweep {
    * bound chord_jacobi_max; dprev: the iterate before a chord update;
    * fhist: the converged implicit forces of the four rows before the last.
    * fresh: W's class is springs and anchors alone, so that row 0 takes
-   * the chord from its start (chord_residual's D and bound, hd and off
-   * its workspace).  dnx: the next chord iterate, formed in the pass of
-   * the residual (chord_residual) and taken by a rotation of dprev, dn and
-   * dnx where the row goes on. */
-  double *jdinv, *dprev, *dnx, *fhist[4], *hd, *off;
+   * the chord from its start (chord_residual's D and bound: the Hessian
+   * diagonal is summed into jdinv itself and the off-diagonal sums into
+   * dnx, each entry read before the pass writes it: fresh_bound).  dnx:
+   * the next chord iterate, formed in the pass of the residual
+   * (chord_residual) and taken by a rotation of dprev, dn and dnx where
+   * the row goes on. */
+  double *jdinv, *dprev, *dnx, *fhist[4];
   int mild, chord, fresh;
   double chord_max;
   /* The chord's relaxation (chord_residual): rho_c, the Gershgorin bound of
@@ -451,8 +456,6 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw->piv);
   mrvi_sblock_free(sw->sb);
   free(sw->jdinv);
-  free(sw->hd);
-  free(sw->off);
   free(sw->dprev);
   free(sw->dnx);
   free(sw->fhist[0]);
@@ -475,6 +478,12 @@ static double *dalloc(size_t n) {
  * never). */
 static double *dalloc_raw(size_t n) {
   return malloc((n > 0 ? n : 1) * sizeof(double));
+}
+
+/* a rw[f], or a where every weight is 1 (unit: rw not kept; a times 1
+ * is a, the same bits). */
+static inline double rweight(const double *rw, int unit, double a, int f) {
+  return unit ? a : a * rw[f];
 }
 
 /* Whether the n coordinates idx[.] all have the first's mass. */
@@ -534,7 +543,11 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
    * loads pairs). */
   sw->inc_s = !equal_masses(m, m->slow_index, sw->ns);
   sw->mass_inc = !equal_masses(m, m->fast_index, sw->nf);
-  const size_t nfm = sw->implicit || sw->mass_inc || nf < 2 ? nf : 2;
+  const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
+  sw->mass_small = !sw->mass_inc && nf >= 2 &&
+                   (!sw->implicit ||
+                    (sw->nf > s->tuning.dense_max && !scaled && sw->n_w == 1));
+  const size_t nfm = sw->mass_small ? 2 : nf;
   sw->minv_s = dalloc_raw(sw->inc_s ? ns : 1);
   sw->minv_f = dalloc_raw(nfm);
   sw->m_f = dalloc_raw(nfm);
@@ -598,7 +611,7 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fimp = dalloc(ni);
   sw->dn = dalloc(ni);
   sw->dff = dalloc(ni);
-  sw->rw = dalloc(ni);
+  sw->rw = dalloc(scaled ? ni : 0);
   const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
   sw->sparse = sparse;
   sw->sb_dense_max = s->tuning.newton_dense_max;
@@ -620,8 +633,6 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return fz;
   }
   sw->fuse = fz == 1;
-  sw->hd = dalloc(sw->fresh ? nf : 1);
-  sw->off = dalloc(sw->fresh ? nf : 1);
   sw->dprev = dalloc(sparse ? nf : 1);
   sw->dnx = dalloc(sparse ? nf : 1);
   sw->fhist[0] = dalloc(sparse ? nf : 1);
@@ -670,9 +681,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
       !sw->gzero || !sw->gnode || !sw->qalt || !sw->csum || !sw->gv_next ||
       !sw->cpass || !sw->zalt || !sw->gpt[0] || !sw->gpt[1] || !sw->rhs ||
       !sw->F || !sw->fimp || !sw->dn || !sw->dff || !sw->rw || !sw->J ||
-      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->hd ||
-      !sw->off || !sw->dprev || !sw->dnx || !sw->fhist[0] || !sw->fhist[1] ||
-      !sw->fhist[2] || !sw->fhist[3] || !sw->lin || !sw->zl) {
+      !sw->Hpt[0] || !sw->Hpt[1] || !sw->piv || !sw->jdinv || !sw->dprev ||
+      !sw->dnx || !sw->fhist[0] || !sw->fhist[1] || !sw->fhist[2] ||
+      !sw->fhist[3] || !sw->lin || !sw->zl) {
     mrvi_sweep_free(sw);
     return MRVI_ENOMEM;
   }
@@ -682,13 +693,12 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     sw->m_f[i] = m->mass[m->fast_index[i]];
     sw->minv_f[i] = 1.0 / sw->m_f[i];
   }
-  const int scaled = s->newton_criterion == MRVI_CRITERION_SCALED;
   sw->rw_one = !scaled;
   sw->cg_unit = 1.0;
   for (int i = 0; i < sw->nf; i++) {
     const double mi = m->mass[m->fast_index[i]];
-    if (sw->implicit)
-      sw->rw[i] = scaled ? sw->minv_f[i] : 1.0;
+    if (sw->implicit && scaled)
+      sw->rw[i] = sw->minv_f[i * sw->mass_inc];
     if (scaled && (i == 0 || mi < sw->cg_unit))
       sw->cg_unit = mi;
   }
@@ -1095,15 +1105,18 @@ static double extrapolated_predictor(mrvi_sweep *sw, int m,
                          *restrict f5 = sw->fhist[3];
   const double *restrict rhs = sw->rhs, *restrict minv = sw->minv_f,
                          *restrict mf = sw->m_f, *restrict rw = sw->rw;
+  const int unit = sw->rw_one;
+  const size_t inc = (size_t)sw->mass_inc;
   double *restrict zf = sw->zf;
   double scale = 0.0;
   for (int f = 0; f < nf; f++) {
     const double fp = predicted_force(q, f1[f], f2[f], f3[f], f4[f], f5[f]);
-    dn[f] = dt * minv[f] * (rhs[f] - fp);
+    dn[f] = dt * minv[f * inc] * (rhs[f] - fp);
     if (cB != 0.0)
       zf[f] = 1.0 * qm[f] + cB * dn[f];
     /* (fmax's NaN rule, without its call) */
-    const double v = (fabs(rhs[f]) + 4.0 * mf[f] * fabs(qm[f]) / dt) * rw[f];
+    const double v = rweight(
+        rw, unit, fabs(rhs[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
     scale = v > scale ? v : scale;
   }
   rotate_history(sw);
@@ -1294,14 +1307,20 @@ static void chord_parts_sum(const double *cp, int n_c, double t[4]) {
 /* Rows [f0, f1) of row 0's fresh D: D^-1 = 1 / (hd + M/dt) into jdinv
  * (M/dt added as mrvi_sblock_solve) and the Gershgorin bound max off D^-1
  * over them, HUGE_VAL where some D <= 0 or is NaN (so that the bounds of
- * parts combined by the same rule give the bound of the whole row). */
+ * parts combined by the same rule give the bound of the whole row).  hd,
+ * the Hessian diagonal, is held in jdinv itself and off, the off-diagonal
+ * sums, in dnx (fresh_hd, fresh_off): each entry is read before it is
+ * written here or by the pass that follows. */
+static double *fresh_hd(mrvi_sweep *sw) { return sw->jdinv; }
+static double *fresh_off(mrvi_sweep *sw) { return sw->dnx; }
 static double fresh_bound(mrvi_sweep *sw, int f0, int f1) {
   const double dt = sw->st->dt;
+  const double *hd = fresh_hd(sw), *off = fresh_off(sw);
   double bound = 0.0;
   for (int f = f0; f < f1; f++) {
-    const double d = sw->hd[f] + (1.0 / dt) * sw->m_f[f];
+    const double d = hd[f] + (1.0 / dt) * sw->m_f[f * sw->mass_inc];
     sw->jdinv[f] = 1.0 / d;
-    const double b = sw->off[f] * sw->jdinv[f]; /* (fmax's NaN rule) */
+    const double b = off[f] * sw->jdinv[f]; /* (fmax's NaN rule) */
     bound = d > 0.0 ? (b > bound ? b : bound) : HUGE_VAL;
   }
   return bound;
@@ -1319,9 +1338,10 @@ static void fresh_part(mrvi_sweep *sw, int c, const double *qm,
   const int f1 = mrvi_part_start(c + 1, nf, n_c);
   double *g = sw->gpt[i];
   zero(g + f0, f1 - f0);
-  zero(sw->hd + f0, f1 - f0);
-  zero(sw->off + f0, f1 - f0);
-  mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, sw->hd, sw->off, hs);
+  zero(fresh_hd(sw) + f0, f1 - f0);
+  zero(fresh_off(sw) + f0, f1 - f0);
+  mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, fresh_hd(sw),
+                             fresh_off(sw), hs);
   sw->cpass[4 * n_c + c] = fresh_bound(sw, f0, f1); /* (after the sums) */
   chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, sw->cpass + 4 * c, 0,
                   0, NULL, 1);
@@ -1431,11 +1451,11 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
     set_zf(sw, 1.0, qm, cB, dn);
   if (fresh) {
     zero(g, nf);
-    zero(sw->hd, nf);
-    zero(sw->off, nf);
+    zero(fresh_hd(sw), nf);
+    zero(fresh_off(sw), nf);
     sw->evals_w++;
-    mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, sw->hd, sw->off,
-                          sw->w[i] * sw->cA[i] * sw->cB[i]);
+    mrvi_terms_grad_hdiag(sw->kc[MRVI_FAST], sw->zf, g, fresh_hd(sw),
+                          fresh_off(sw), sw->w[i] * sw->cA[i] * sw->cB[i]);
     *rho = sw->rho_c = fresh_bound(sw, 0, nf);
   } else if (!sw->cfused && lin == 2) { /* g += cB H(zl) (dn - dprev) */
     sw->evals_lin++;
@@ -1548,7 +1568,7 @@ again:
  * digits).  Row 0's predictor has no last implicit force. */
 static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
                           int *iters, double *res, char *msg, size_t len) {
-  const int nf = sw->nf, first = m == 0;
+  const int nf = sw->nf, first = m == 0, inc = sw->mass_inc;
   const double dt = sw->st->dt;
   /* Predictor: the last implicit force held fixed (explicit in it).  Row 0
    * has none (nothing is carried from the last step, so a step depends on
@@ -1592,23 +1612,25 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
   } else {
     for (int pass = first ? 0 : 1; pass < 2; pass++) {
       for (int f = 0; f < nf; f++)
-        dn[f] = dt * sw->minv_f[f] * (sw->rhs[f] - sw->fimp[f]);
+        dn[f] = dt * sw->minv_f[f * inc] * (sw->rhs[f] - sw->fimp[f]);
       if (pass == 0) {
         implicit_force(sw, qm, dn, NULL);
         r0 = 0.0;
         for (int f = 0; f < nf; f++) {
           sw->dff[f] = dn[f];
-          const double a =
-              fabs(sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f]) *
-              sw->rw[f];
+          const double a = rweight(
+              sw->rw, sw->rw_one,
+              fabs(sw->rhs[f] - sw->m_f[f * inc] * dn[f] / dt - sw->fimp[f]),
+              f);
           r0 = isnan(a) || a > r0 ? a : r0;
         }
       }
     }
   }
   for (int f = 0; !pred && !pre && f < nf; f++) { /* (fmax's NaN rule) */
-    const double v =
-        (fabs(sw->rhs[f]) + 4.0 * sw->m_f[f] * fabs(qm[f]) / dt) * sw->rw[f];
+    const double v = rweight(
+        sw->rw, sw->rw_one,
+        fabs(sw->rhs[f]) + 4.0 * sw->m_f[f * inc] * fabs(qm[f]) / dt, f);
     scale = v > scale ? v : scale;
   }
   double floor = 16.0 * DBL_EPSILON * scale;
@@ -1675,8 +1697,8 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         memset(sw->J, 0, (size_t)nf * (size_t)nf * sizeof(double));
       implicit_force(sw, qm, dn, with_j ? sw->J : NULL);
       for (int f = 0; f < nf; f++) {
-        sw->F[f] = sw->rhs[f] - sw->m_f[f] * dn[f] / dt - sw->fimp[f];
-        const double a = fabs(sw->F[f]) * sw->rw[f];
+        sw->F[f] = sw->rhs[f] - sw->m_f[f * inc] * dn[f] / dt - sw->fimp[f];
+        const double a = rweight(sw->rw, sw->rw_one, fabs(sw->F[f]), f);
         r = isnan(a) || a > r ? a : r;
       }
     }
@@ -1758,9 +1780,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
     if (sw->sparse) {
       /* J d = F by CG to 1 % of the tolerance (inexact Newton: the
        * residual above is exact, so the solution is the same). */
-      const int s = mrvi_sblock_solve(sw->sb, sw->m_f, 1.0 / dt, sw->F,
-                                      0.01 * fmax(sw->tol, floor) * sw->cg_unit,
-                                      msg, len);
+      const int s = mrvi_sblock_solve(
+          sw->sb, sw->m_f, (int)inc, 1.0 / dt, sw->F,
+          0.01 * fmax(sw->tol, floor) * sw->cg_unit, msg, len);
       if (s < 0)
         return s;
       /* Row 0's first matrix sets the chord up; its later updates take
@@ -2320,15 +2342,16 @@ ALWAYS_INLINE int affine_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
  * qn may be qm and pn the row's own momentum (the last node alone kept):
  * each entry is read before it is written. */
 static void node_momentum(int nf, double dt, double wb, const double *qm,
-                          const double *dn, const double *mf, const double *g,
-                          double *qn, double *pn, double wc, double *fimp) {
-  const mrvi_v2 vdt = v2_set(dt, dt);
+                          const double *dn, const double *mf, size_t inc,
+                          const double *g, double *qn, double *pn, double wc,
+                          double *fimp) {
+  const mrvi_v2 vdt = v2_set(dt, dt), vm = v2_set(mf[0], mf[0]);
   int f = 0;
   for (; f + 2 <= nf; f += 2) {
     const mrvi_v2 d = v2_load(dn + f);
     if (fimp)
       v2_store(fimp + f, v2_add(v2_zero(), v2_scale(wc, v2_load(g + f))));
-    const mrvi_v2 mv = v2_div(v2_mul(v2_load(mf + f), d), vdt);
+    const mrvi_v2 mv = v2_div(v2_mul(inc ? v2_load(mf + f) : vm, d), vdt);
     const mrvi_v2 pv = v2_sub(mv, v2_scale(wb, v2_load(g + f)));
     v2_store(qn + f, v2_add(v2_load(qm + f), d));
     v2_store(pn + f, pv);
@@ -2338,7 +2361,7 @@ static void node_momentum(int nf, double dt, double wb, const double *qm,
     if (fimp)
       fimp[f] = 0.0 + wc * g[f];
     qn[f] = qm[f] + d;
-    pn[f] = mf[f] * d / dt - wb * g[f];
+    pn[f] = mf[inc * (size_t)f] * d / dt - wb * g[f];
   }
 }
 
@@ -2423,7 +2446,7 @@ static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
     if (cB != 0.0)
       zf[f] = 1.0 * q1 + cB * dp;
     const double a = fabs(p1) + m * fabs(q1) * idt4;
-    const double v = unit ? a : a * rw[f]; /* (rw 1: the same bits) */
+    const double v = rweight(rw, unit, a, f);
     scale = v > scale ? v : scale;
   }
   return scale;
@@ -2565,15 +2588,15 @@ static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,
     }
     if (sw->implicit && sw->n_w == 1) { /* (midpoint: one pass) */
       node_momentum(nf, dt, sw->w[0] * sw->cB[0], qm, sw->dn, sw->m_f,
-                    sw->gpt[0], qn, pn, sw->w[0] * sw->cA[0],
-                    sw->linear ? NULL : sw->fimp);
+                    (size_t)sw->mass_inc, sw->gpt[0], qn, pn,
+                    sw->w[0] * sw->cA[0], sw->linear ? NULL : sw->fimp);
       pm = pn;
       continue;
     }
     for (int f = 0; f < nf; f++)
       qn[f] = qm[f] + sw->dn[f];
     for (int f = 0; f < nf; f++)
-      pn[f] = sw->m_f[f] * sw->dn[f] / dt;
+      pn[f] = sw->m_f[f * sw->mass_inc] * sw->dn[f] / dt;
     for (int i = 0; i < sw->n_w; i++) {
       if (sw->cB[i] == 0.0)
         continue;
@@ -2703,6 +2726,8 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
   const double dt = st->dt, w0 = sw->wv0, wc = sw->w[i] * sw->cA[i];
   const double cB = sw->cB[i], *qm = st->qf0, *pf0 = st->pf0;
   const double *minv = sw->minv_f, *mf = sw->m_f, *rw = sw->rw;
+  const int unit = sw->rw_one;
+  const size_t inc = (size_t)sw->mass_inc;
   double *dn = sw->dn, *g = sw->gpt[i], *fimp = sw->fimp, *dff = sw->dff;
   double *zf = sw->zf, *z1 = sw->zalt, *cp = sw->cpass + 5 * n_c;
   sw->rhs = pf; /* (general_sweep's row 0: its momentum) */
@@ -2723,8 +2748,8 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
     for (int c = 0; c < n_c; c++) {
       const int f1 = mrvi_part_start(c + 1, nf, n_c);
       for (int f = mrvi_part_start(c, nf, n_c); f < f1; f++) {
-        pf[f] = pf0[f] - w0 * gv[ns + f];     /* p^{f,0} */
-        dn[f] = dt * minv[f] * (pf[f] - 0.0); /* (fimp 0) */
+        pf[f] = pf0[f] - w0 * gv[ns + f];           /* p^{f,0} */
+        dn[f] = dt * minv[f * inc] * (pf[f] - 0.0); /* (fimp 0) */
         zf[f] = 1.0 * qm[f] + cB * dn[f];
       }
     }
@@ -2740,10 +2765,12 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
       for (int f = f0; f < f1; f++) {
         fimp[f] = 0.0 + wc * g[f];
         dff[f] = dn[f];
-        const double a = fabs(pf[f] - mf[f] * dn[f] / dt - fimp[f]) * rw[f];
+        const double a = rweight(
+            rw, unit, fabs(pf[f] - mf[f * inc] * dn[f] / dt - fimp[f]), f);
         r0 = isnan(a) || a > r0 ? a : r0;
-        dn[f] = dt * minv[f] * (pf[f] - fimp[f]);
-        const double v = (fabs(pf[f]) + 4.0 * mf[f] * fabs(qm[f]) / dt) * rw[f];
+        dn[f] = dt * minv[f * inc] * (pf[f] - fimp[f]);
+        const double v = rweight(
+            rw, unit, fabs(pf[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
         scale = v > scale ? v : scale;
         z1[f] = 1.0 * qm[f] + cB * dn[f]; /* (zf still read) */
       }
@@ -2807,8 +2834,10 @@ static int end_parts(mrvi_sweep *sw, const mrvi_step *st, double *x,
     for (int c = 0; c < n_c; c++) {
       const int f0 = mrvi_part_start(c, nf, n_c);
       const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      node_momentum(f1 - f0, dt, wb, qm + f0, sw->dn + f0, sw->m_f + f0, g + f0,
-                    xe + f0, pe + f0, wc, sw->fimp + f0);
+      node_momentum(f1 - f0, dt, wb, qm + f0, sw->dn + f0,
+                    sw->m_f + (size_t)f0 * (size_t)sw->mass_inc,
+                    (size_t)sw->mass_inc, g + f0, xe + f0, pe + f0, wc,
+                    sw->fimp + f0);
       for (int f = f0; w1 != 0.0 && f < f1; f++) {
         gv[ns + f] = 0.0;
         if (zv != x)
