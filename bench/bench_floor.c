@@ -15,27 +15,29 @@
  * Every particle starts displaced by up to 0.05 per axis and moving with up
  * to 0.1 (deterministic).  dT = 0.05, p = 10 by default.
  *
- * Methods, all single-threaded on the same forces (the spring force
- * phi'(s) (x_i - x_j)/|x_i - x_j|, s = |x_i - x_j| - L0, written out here):
- *   respa    the r-RESPA floor: impulse method, dT/2 kicks of the slow force
- *            at the macro nodes around p velocity-Verlet steps of dt = dT/p
- *            with the fast force (fast particles stored first; the slow
- *            ones drift once per macro step, which they may since no fast
- *            spring touches them).  Algebraically mrvi's fully-explicit.
- *   verlet   the Stoermer-Verlet floor: velocity Verlet at dt with all
- *            forces, p steps per macro step: the step size at which
- *            mrvi's implicit schemes resolve the fast motion (bench_fpu's
- *            pairing).
- *   mrvi     fully-explicit, explicit-slow, midpoint-midpoint,
- *            trapezoidal-midpoint through mrvi_integrator_step (no output,
- *            no energy monitor, the last micro node alone kept where the
- *            path allows it, mrvi_integrator_keep_micro: the floors keep
- *            and compute none of these either).
- *   lammps   Debian's `lmp` (found on PATH, else skipped with a note) on
- *            the lattices: run_style respa 2 p (fast springs as bonds on
- *            the inner level, slow springs as `pair_style list` on the
+ * Methods, on one thread (but --threads, below) on the same forces (the spring
+ * force phi'(s) (x_i - x_j)/|x_i - x_j|, s = |x_i - x_j| - L0, written out
+ * here): respa    the r-RESPA floor: impulse method, dT/2 kicks of the slow
+ * force at the macro nodes around p velocity-Verlet steps of dt = dT/p with the
+ * fast force (fast particles stored first; the slow ones drift once per macro
+ * step, which they may since no fast spring touches them).  Algebraically
+ * mrvi's fully-explicit. verlet   the Stoermer-Verlet floor: velocity Verlet at
+ * dt with all forces, p steps per macro step: the step size at which mrvi's
+ * implicit schemes resolve the fast motion (bench_fpu's pairing). mrvi
+ * fully-explicit, explicit-slow, midpoint-midpoint, trapezoidal-midpoint
+ * through mrvi_integrator_step (no output, no energy monitor, the last micro
+ * node alone kept where the path allows it, mrvi_integrator_keep_micro: the
+ * floors keep and compute none of these either). lammps   Debian's `lmp` (found
+ * on PATH, else skipped with a note) on the lattices: run_style respa 2 p (fast
+ * springs as bonds on the inner level, slow springs as `pair_style list` on the
  *            outer) and run_style verlet at dt; CPU time = the log's loop
  *            time times its CPU share.
+ *
+ * --threads T: the floors also on threads (OpenMP over a static partition
+ * of the coordinates, the same for every thread count: bitwise the serial
+ * floor's state, checked), beside mrvi's schemes on 1 and T threads, and
+ * STREAM's triad over the same array sizes: what two cores of this machine
+ * give a hand-written step (doc/performance.md, "Threads").
  *
  * Each case (network, n, method) runs in a forked child: build the network,
  * create the integrator (CPU time, also in macro steps), step at least
@@ -49,6 +51,9 @@
  * measurement: no thresholds (doc/performance.md). */
 #define _DEFAULT_SOURCE /* wait4 */
 #include "bench_util.h"
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 #ifdef BENCH_OMP_PROFILE
 #include "omp_profile.h"
 #endif
@@ -105,9 +110,12 @@ static const char usage[] =
     "--method runs one method alone (as the tables name it, e.g.\n"
     "midpoint-midpoint) with the floor of its ratio (r-RESPA for the\n"
     "explicit paths, Verlet for the implicit schemes).  --threads T: instead "
-    "of the tables above, mrvi's\n"
-    "schemes on 1 and on T threads (settings.threads), alternating, wall\n"
-    "time per macro step and the ratio; the other tables are on 1 thread.\n"
+    "of the tables above, the floors\n"
+    "on a static partition of the coordinates (bitwise the serial floor's)\n"
+    "and mrvi's schemes on 1 and on T threads (settings.threads),\n"
+    "alternating, wall time per macro step, the ratio, the CPU ratio and\n"
+    "the floor's ratio beside each scheme's, and STREAM's triad over arrays\n"
+    "of n doubles on 1 and T threads; the other tables are on 1 thread.\n"
     "--tuning sets a tuning constant of mrvi's methods (mrvi.h,\n"
     "MRVI_TUNING_LIST), e.g. outer_max=0.\n"
     "  --quick: N = 300,1000, R = 1, K = 2, lattice2d\n"
@@ -396,11 +404,11 @@ static int floor_make(floor_sys *f, const network *w) {
   return 0;
 }
 
-/* Add the spring forces of bonds b[0..nb) to F (D = 2, 3; Morse or
- * linear): the gradient of phi(|x_i - x_j| - L0). */
-#define SPRINGS(D, MORSE)                                                      \
-  static void springs##D##MORSE(const fbond *b, long nb, const double *x,      \
-                                double *F) {                                   \
+/* Add the spring forces of bonds b[0..nb) (of type T, reading x at b.i,
+ * b.j and writing F at b.WI, b.WJ) to F (D = 2, 3; Morse or linear): the
+ * gradient of phi(|x_i - x_j| - L0). */
+#define SPRINGS(NAME, T, WI, WJ, D, MORSE)                                     \
+  static void NAME(const T *b, long nb, const double *x, double *F) {          \
     for (long e = 0; e < nb; e++) {                                            \
       const double *xi = x + b[e].i, *xj = x + b[e].j;                         \
       double dx[D], r2 = 0.0;                                                  \
@@ -418,15 +426,15 @@ static int floor_make(floor_sys *f, const network *w) {
       }                                                                        \
       const double c0 = dphi / r;                                              \
       for (int c = 0; c < D; c++) {                                            \
-        F[b[e].i + c] -= c0 * dx[c];                                           \
-        F[b[e].j + c] += c0 * dx[c];                                           \
+        F[b[e].WI + c] -= c0 * dx[c];                                          \
+        F[b[e].WJ + c] += c0 * dx[c];                                          \
       }                                                                        \
     }                                                                          \
   }
-SPRINGS(2, 0)
-SPRINGS(3, 0)
-SPRINGS(2, 1)
-SPRINGS(3, 1)
+SPRINGS(springs20, fbond, i, j, 2, 0)
+SPRINGS(springs30, fbond, i, j, 3, 0)
+SPRINGS(springs21, fbond, i, j, 2, 1)
+SPRINGS(springs31, fbond, i, j, 3, 1)
 
 static void floor_slow(const floor_sys *f, double *F) {
   if (f->d == 2)
@@ -498,6 +506,297 @@ static void verlet_forces(floor_sys *f) {
   memset(f->fs, 0, (size_t)f->n * sizeof *f->fs);
   floor_slow(f, f->fs);
   floor_fast(f, f->fs);
+}
+
+/* ------------------------------------------------------------------------
+ * The floors on threads (--threads): the same r-RESPA and Verlet steps with
+ * OpenMP over a static partition of the coordinates that depends on n
+ * alone (parts of PF_CHUNK coordinates, an even count, whole particles:
+ * the fast coordinates' parts, then the slow ones').  Each part owns its
+ * coordinates and lists, in the serial order, every bond with an end
+ * among them; an end it does not own writes into the part's sink (a cache
+ * line of its own after the n coordinates).  Each coordinate therefore
+ * sums its bonds in the serial order: the state is bitwise the serial
+ * floor's for every thread count (checked before the table).  One parallel
+ * region per macro step, two position buffers (a part drifts into the
+ * other buffer while other parts still read this one): one barrier per
+ * micro step, two more per macro step (r-RESPA); one per Verlet step.
+ * ---------------------------------------------------------------------- */
+enum { PF_CHUNK = 4096, PF_SINK = 8 };
+
+typedef struct pbond {
+  int i, j;   /* read: first coordinate of each end */
+  int wi, wj; /* write: the same, or the part's sink */
+  double L0, k, a;
+} pbond;
+
+SPRINGS(psprings20, pbond, wi, wj, 2, 0)
+SPRINGS(psprings30, pbond, wi, wj, 3, 0)
+SPRINGS(psprings21, pbond, wi, wj, 2, 1)
+SPRINGS(psprings31, pbond, wi, wj, 3, 1)
+
+typedef struct pfloor {
+  int d, n, nf, morse;
+  int pf, pa;       /* fast parts [0, pf), all parts [0, pa) */
+  int *lo;          /* pa + 1 coordinate bounds */
+  long *so, *fo;    /* pa + 1 offsets of each part's slow, fast bonds */
+  pbond *sb, *fb;   /* the parts' bond lists */
+  double *x[2], *v; /* positions (two buffers), velocities */
+  double *fs, *ff;  /* n + PF_SINK pa each */
+  int cur;          /* the buffer holding the positions */
+} pfloor;
+
+static void pfloor_free(pfloor *f) {
+  free(f->lo);
+  free(f->so);
+  free(f->fo);
+  free(f->sb);
+  free(f->fb);
+  free(f->x[0]);
+  free(f->x[1]);
+  free(f->v);
+  free(f->fs);
+  free(f->ff);
+  memset(f, 0, sizeof *f);
+}
+
+/* Part bounds of m coordinates (whole particles of d) from coordinate c0:
+ * `parts` parts of equal particle counts written to lo[0..parts]. */
+static void pfloor_bounds(int *lo, int c0, int m, int d, int parts) {
+  const long np = m / d;
+  for (int q = 0; q <= parts; q++)
+    lo[q] = c0 + d * (int)(np * q / parts);
+}
+
+static int pfloor_parts(int m) {
+  const int np = m > 0 ? (m - 1) / PF_CHUNK + 1 : 0;
+  return np + (np & 1);
+}
+
+/* The part owning coordinate c (lo ascending). */
+static int pfloor_owner(const int *lo, int pa, int c) {
+  int a = 0, b = pa - 1;
+  while (a < b) {
+    const int mid = (a + b + 1) / 2;
+    if (lo[mid] <= c)
+      a = mid;
+    else
+      b = mid - 1;
+  }
+  return a;
+}
+
+/* The parts' lists of nb bonds b (of the floor f0) into *out, offsets off. */
+static int pfloor_lists(pfloor *f, const fbond *b, long nb, long **off,
+                        pbond **out) {
+  const int pa = f->pa;
+  *off = calloc((size_t)pa + 1, sizeof **off);
+  if (!*off)
+    return -1;
+  for (long e = 0; e < nb; e++) {
+    const int qi = pfloor_owner(f->lo, pa, b[e].i),
+              qj = pfloor_owner(f->lo, pa, b[e].j);
+    (*off)[qi + 1]++;
+    if (qj != qi)
+      (*off)[qj + 1]++;
+  }
+  for (int q = 0; q < pa; q++)
+    (*off)[q + 1] += (*off)[q];
+  *out = malloc((size_t)((*off)[pa] + 1) * sizeof **out);
+  long *fill = malloc((size_t)pa * sizeof *fill);
+  if (!*out || !fill) {
+    free(fill);
+    return -1;
+  }
+  memcpy(fill, *off, (size_t)pa * sizeof *fill);
+  for (long e = 0; e < nb; e++) {
+    const int qi = pfloor_owner(f->lo, pa, b[e].i),
+              qj = pfloor_owner(f->lo, pa, b[e].j);
+    for (int t = 0; t < (qj != qi ? 2 : 1); t++) {
+      const int q = t ? qj : qi, sink = f->n + PF_SINK * q;
+      (*out)[fill[q]++] = (pbond){b[e].i,
+                                  b[e].j,
+                                  qi == q ? b[e].i : sink,
+                                  qj == q ? b[e].j : sink,
+                                  b[e].L0,
+                                  b[e].k,
+                                  b[e].a};
+    }
+  }
+  free(fill);
+  return 0;
+}
+
+/* The partitioned floor of the serial floor s (its state and bonds). */
+static int pfloor_make(pfloor *f, const floor_sys *s) {
+  memset(f, 0, sizeof *f);
+  f->d = s->d;
+  f->n = s->n;
+  f->nf = s->nf;
+  f->morse = s->morse;
+  f->pf = pfloor_parts(s->nf);
+  f->pa = f->pf + pfloor_parts(s->n - s->nf);
+  f->lo = malloc(((size_t)f->pa + 1) * sizeof *f->lo);
+  if (!f->lo)
+    return -1;
+  pfloor_bounds(f->lo, 0, s->nf, s->d, f->pf);
+  pfloor_bounds(f->lo + f->pf, s->nf, s->n - s->nf, s->d, f->pa - f->pf);
+  const size_t len = (size_t)s->n + (size_t)PF_SINK * f->pa;
+  for (int b = 0; b < 2; b++)
+    f->x[b] = malloc(len * sizeof *f->x[b]);
+  f->v = malloc(len * sizeof *f->v);
+  f->fs = malloc(len * sizeof *f->fs);
+  f->ff = malloc(len * sizeof *f->ff);
+  if (!f->x[0] || !f->x[1] || !f->v || !f->fs || !f->ff ||
+      pfloor_lists(f, s->slow, s->n_slow, &f->so, &f->sb) < 0 ||
+      pfloor_lists(f, s->fst, s->n_fast, &f->fo, &f->fb) < 0)
+    return -1;
+    /* first touch by the part's thread (the same static schedule as the
+     * steps) */
+#pragma omp parallel for schedule(static)
+  for (int q = 0; q < f->pa; q++)
+    for (int i = f->lo[q]; i < f->lo[q + 1]; i++) {
+      f->x[0][i] = f->x[1][i] = s->x[i];
+      f->v[i] = s->v[i];
+      f->fs[i] = f->ff[i] = 0.0;
+    }
+  return 0;
+}
+
+/* Part q's slow (fast) bonds' forces on x into F, added. */
+static void pfloor_springs(const pfloor *f, int q, int fast, const double *x,
+                           double *F) {
+  const long *o = fast ? f->fo : f->so;
+  const pbond *b = (fast ? f->fb : f->sb) + o[q];
+  const long nb = o[q + 1] - o[q];
+  if (f->d == 2)
+    (fast || !f->morse ? psprings20 : psprings21)(b, nb, x, F);
+  else
+    (fast || !f->morse ? psprings30 : psprings31)(b, nb, x, F);
+}
+
+/* Zero part q's coordinates of F and add its slow and/or fast forces. */
+static void pfloor_part_force(const pfloor *f, int q, int slow, int fast,
+                              const double *x, double *F) {
+  memset(F + f->lo[q], 0, (size_t)(f->lo[q + 1] - f->lo[q]) * sizeof *F);
+  if (slow)
+    pfloor_springs(f, q, 0, x, F);
+  if (fast)
+    pfloor_springs(f, q, 1, x, F);
+}
+
+/* The forces at the positions (r-RESPA: fs slow, ff fast; Verlet: fs
+ * all). */
+static void pfloor_forces(pfloor *f, int verlet) {
+  const double *x = f->x[f->cur];
+#pragma omp parallel for schedule(static)
+  for (int q = 0; q < f->pa; q++) {
+    pfloor_part_force(f, q, 1, verlet, x, f->fs);
+    if (!verlet && q < f->pf)
+      pfloor_part_force(f, q, 0, 1, x, f->ff);
+  }
+}
+
+/* Part q's v += h F and, unless x1 is NULL, its drift x1 = x0 + dt v. */
+static void pfloor_kick(const pfloor *f, int q, const double *F, double h,
+                        double dt, const double *x0, double *x1) {
+  double *v = f->v;
+  for (int i = f->lo[q]; i < f->lo[q + 1]; i++) {
+    v[i] += h * F[i];
+    if (x1)
+      x1[i] = x0[i] + dt * v[i];
+  }
+}
+
+/* Part q's half kick with F at dt, and unless last the next step's half
+ * kick and its drift from xc into xn (the serial loops' operations on each
+ * coordinate in their order). */
+static void pfloor_kick_drift(const pfloor *f, int q, const double *F,
+                              double dt, int last, const double *xc,
+                              double *xn) {
+  double *v = f->v;
+  for (int i = f->lo[q]; i < f->lo[q + 1]; i++) {
+    v[i] += 0.5 * dt * F[i];
+    if (!last) {
+      v[i] += 0.5 * dt * F[i];
+      xn[i] = xc[i] + dt * v[i];
+    }
+  }
+}
+
+/* respa_steps on the parts, bitwise: one macro step per parallel region. */
+static void prespa_steps(pfloor *f, double dT, int p, long steps) {
+  const double dt = dT / p;
+  double *v = f->v, *fs = f->fs, *ff = f->ff;
+  const int *lo = f->lo, pf = f->pf, pa = f->pa;
+  for (long k = 0; k < steps; k++) {
+    const int c0 = f->cur;
+#pragma omp parallel
+    {
+      int c = c0;
+      /* the slow kick; the slow particles' drift (into both buffers: the
+       * fast force reads no slow coordinate); the first fast half kick
+       * and drift */
+      double *x0 = f->x[c], *x1 = f->x[1 - c];
+#pragma omp for schedule(static)
+      for (int q = 0; q < pa; q++) {
+        pfloor_kick(f, q, fs, 0.5 * dT, 0.0, NULL, NULL);
+        if (q < pf)
+          pfloor_kick(f, q, ff, 0.5 * dt, dt, x0, x1);
+        else
+          for (int i = lo[q]; i < lo[q + 1]; i++)
+            x0[i] = x1[i] = x0[i] + dT * v[i];
+      }
+      c = 1 - c;
+      for (int m = 0; m < p; m++) {
+        const double *xc = f->x[c];
+        double *xn = f->x[1 - c];
+        const int last = m == p - 1;
+#pragma omp for schedule(static)
+        for (int q = 0; q < pf; q++) {
+          pfloor_part_force(f, q, 0, 1, xc, ff);
+          pfloor_kick_drift(f, q, ff, dt, last, xc, xn);
+        }
+        if (!last)
+          c = 1 - c;
+      }
+      const double *xe = f->x[c];
+#pragma omp for schedule(static)
+      for (int q = 0; q < pa; q++) {
+        pfloor_part_force(f, q, 1, 0, xe, fs);
+        pfloor_kick(f, q, fs, 0.5 * dT, 0.0, NULL, NULL);
+      }
+    }
+    f->cur = (c0 + p) & 1;
+  }
+}
+
+/* verlet_steps on the parts, bitwise: one parallel region per call. */
+static void pverlet_steps(pfloor *f, double dt, long steps) {
+  double *F = f->fs;
+  const int pa = f->pa, pf = f->pf;
+  const int c0 = f->cur;
+#pragma omp parallel
+  {
+    int c = c0;
+#pragma omp for schedule(static)
+    for (int q = 0; q < pa; q++)
+      pfloor_kick(f, q, F, 0.5 * dt, dt, f->x[c], f->x[1 - c]);
+    c = 1 - c;
+    for (long k = 0; k < steps; k++) {
+      const double *xc = f->x[c];
+      double *xn = f->x[1 - c];
+      const int last = k == steps - 1;
+#pragma omp for schedule(static)
+      for (int q = 0; q < pa; q++) {
+        pfloor_part_force(f, q, 1, q < pf, xc, F);
+        pfloor_kick_drift(f, q, F, dt, last, xc, xn);
+      }
+      if (!last)
+        c = 1 - c;
+    }
+  }
+  f->cur = (int)((c0 + steps) & 1);
 }
 
 /* ------------------------------------------------------------------------
@@ -693,14 +992,15 @@ typedef struct result {
   /* bench_serial (--serial): per macro step after the first, the CPU time
    * of the stepping thread outside the parallel regions (the serial
    * work), of every thread inside them, of the busiest thread summed over
-   * the regions, and the regions entered */
-  double ser, par, par_max, regions;
+   * the regions, and the regions entered and barriers passed in them */
+  double ser, par, par_max, regions, barriers;
 } result;
 
 typedef struct options {
   double dT, budget, mem_gb;
   int p, steps, big;
   int threads;        /* settings.threads of the mrvi methods (default 1) */
+  int par_floor;      /* the floors on the parts, o->threads threads */
   const char *tuning; /* NAME=VALUE for the mrvi methods, or NULL */
   char tmpdir[256];
 } options;
@@ -788,6 +1088,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     r->par = (p1.in_all - p0.in_all) / ks;
     r->par_max = (p1.in_max - p0.in_max) / ks;
     r->regions = (double)(p1.regions - p0.regions) / ks;
+    r->barriers = (double)(p1.barriers - p0.barriers) / ks;
   }
 #endif
   if (!r->message[0]) {
@@ -834,6 +1135,39 @@ static void floor_case(floor_sys *f, method me, const options *o, result *r) {
     snprintf(r->message, sizeof r->message, "floor diverged");
 }
 
+/* floor_case on the parts (--threads), on o->threads threads: CPU of all
+ * threads and wall time per macro step. */
+static void pfloor_case(floor_sys *s, method me, const options *o, result *r) {
+#ifdef _OPENMP
+  omp_set_num_threads(o->threads);
+#endif
+  pfloor f;
+  r->n = s->n;
+  if (pfloor_make(&f, s) < 0) {
+    pfloor_free(&f);
+    snprintf(r->message, sizeof r->message, "floor: out of memory");
+    return;
+  }
+  pfloor_forces(&f, me == M_VERLET);
+  const double t1 = bench_cpu(), w1 = wall_clock();
+  long k = 0;
+  while (k < o->steps || bench_cpu() - t1 < MIN_CPU) {
+    if (me == M_RESPA)
+      prespa_steps(&f, o->dT, o->p, 1);
+    else
+      pverlet_steps(&f, o->dT / o->p, o->p);
+    k++;
+  }
+  r->step = (bench_cpu() - t1) / k;
+  r->wall = (wall_clock() - w1) / k;
+  r->steps = k;
+  snprintf(r->path, sizeof r->path, "%d parts", f.pa);
+  r->status = isfinite(f.x[f.cur][0]) ? 0 : 1;
+  if (r->status)
+    snprintf(r->message, sizeof r->message, "floor diverged");
+  pfloor_free(&f);
+}
+
 /* The network is built and freed before the measured part, so that the
  * peak memory is that of the model (or the floor's arrays) and the
  * integrator. */
@@ -855,6 +1189,8 @@ static void child_case(int fd, int kind, int n, method me, const options *o) {
   network_free(&w);
   if (!ok && !r.message[0])
     snprintf(r.message, sizeof r.message, "network: out of memory");
+  else if (ok && fl && o->par_floor)
+    pfloor_case(&f, me, o, &r);
   else if (ok && fl)
     floor_case(&f, me, o, &r);
   else if (ok)
@@ -1108,61 +1444,205 @@ static void cost_model(result (*r)[N_METHODS], const int *n_list, int n_n) {
     }
 }
 
-/* mrvi's schemes on 1 and on t threads, alternating: wall time per macro
- * step, best of `repeats` rounds, and the ratio (one run). */
+/* STREAM's triad a = b + s c over arrays of n doubles on t threads, a
+ * static partition, `passes` passes in one parallel region without a
+ * barrier between them (what the memory allows, no synchronisation):
+ * bytes moved per second of wall time (24 n a pass) in *wall and per
+ * second of the threads' CPU time in *cpu. */
+static void triad_rate(double *a, const double *b, const double *c, int n,
+                       int t, long passes, double *wall, double *cpu) {
+  const double w0 = wall_clock(), c0 = bench_cpu();
+#pragma omp parallel num_threads(t)
+  for (long k = 0; k < passes; k++) {
+#pragma omp for schedule(static) nowait
+    for (int i = 0; i < n; i++)
+      a[i] = b[i] + 3.0 * c[i];
+  }
+  const double bytes = 24.0 * n * (double)passes;
+  *wall = bytes / (wall_clock() - w0);
+  *cpu = bytes / (bench_cpu() - c0);
+}
+
+/* What threads_table measures beside the cases, in a child (libgomp's pool
+ * does not survive a fork): whether the floors on the parts give the serial
+ * floor's state bitwise on t threads (2 macro steps), and the triad's
+ * bytes per second over arrays of the case's n doubles on 1 and t threads
+ * (best of 3 each, alternating). */
+typedef struct machine_args {
+  int kind, n, t;
+  const options *o;
+} machine_args;
+
+typedef struct machine_result {
+  int bitwise;             /* 1 both floors bitwise, 0 not, -1 not run */
+  double triad_1, triad_t; /* bytes per second of wall time */
+  double cpu_1, cpu_t;     /* ... per second of CPU time */
+} machine_result;
+
+static int pfloor_same(const pfloor *p, const floor_sys *s) {
+  return !memcmp(p->x[p->cur], s->x, (size_t)s->n * sizeof *s->x) &&
+         !memcmp(p->v, s->v, (size_t)s->n * sizeof *s->v);
+}
+
+static void machine_fn(int fd, void *arg) {
+  const machine_args *a = arg;
+  machine_result mr = {-1, 0.0, 0.0, 0.0, 0.0};
+  network w;
+  if (network_make(&w, a->kind, a->n) == 0) {
+    mr.bitwise = 1;
+    for (int me = M_RESPA; me <= M_VERLET; me++) {
+      floor_sys f;
+      pfloor pf;
+      memset(&pf, 0, sizeof pf);
+#ifdef _OPENMP
+      omp_set_num_threads(a->t);
+#endif
+      if (floor_make(&f, &w) < 0 || pfloor_make(&pf, &f) < 0) {
+        mr.bitwise = -1;
+      } else if (me == M_RESPA) {
+        floor_forces(&f);
+        pfloor_forces(&pf, 0);
+        respa_steps(&f, a->o->dT, a->o->p, 2);
+        prespa_steps(&pf, a->o->dT, a->o->p, 2);
+      } else {
+        verlet_forces(&f);
+        pfloor_forces(&pf, 1);
+        verlet_steps(&f, a->o->dT / a->o->p, 2 * a->o->p);
+        pverlet_steps(&pf, a->o->dT / a->o->p, a->o->p);
+        pverlet_steps(&pf, a->o->dT / a->o->p, a->o->p);
+      }
+      if (mr.bitwise == 1 && !pfloor_same(&pf, &f))
+        mr.bitwise = 0;
+      pfloor_free(&pf);
+      floor_free(&f);
+    }
+  }
+  network_free(&w);
+  const int n = a->n;
+  double *x = malloc(3 * (size_t)n * sizeof *x);
+  if (x) {
+#pragma omp parallel for schedule(static) num_threads(a->t)
+    for (int i = 0; i < n; i++)
+      x[i] = 0.0, x[n + i] = 1.0, x[2 * n + i] = 2.0;
+    /* passes for about 0.2 s of one thread (best of 3 rounds each) */
+    double w, c;
+    triad_rate(x, x + n, x + 2 * n, n, 1, 10, &w, &c);
+    const long passes = (long)(0.2 * w / (24.0 * n)) + 1;
+    for (int r = 0; r < 3; r++)
+      for (int j = 0; j < 2; j++) {
+        triad_rate(x, x + n, x + 2 * n, n, j ? a->t : 1, passes, &w, &c);
+        double *bw = j ? &mr.triad_t : &mr.triad_1;
+        double *bc = j ? &mr.cpu_t : &mr.cpu_1;
+        *bw = w > *bw ? w : *bw;
+        *bc = c > *bc ? c : *bc;
+      }
+    free(x);
+  }
+  ssize_t wr = write(fd, &mr, sizeof mr);
+  (void)wr;
+}
+
+/* The floors (on the parts) and mrvi's schemes on 1 and on t threads,
+ * alternating: wall time per macro step, best of `repeats` rounds, the
+ * ratio (one run), the CPU ratio, and beside each scheme its floor's ratio
+ * (r-RESPA for the explicit paths, Verlet for the implicit schemes). */
 static int threads_table(options *o, int t, const int *nets, const int *n_list,
                          int n_n, int repeats, const char *only) {
-  const method ms[] = {M_FE, M_ES, M_MM, M_TM};
+  const method ms[] = {M_RESPA, M_VERLET, M_FE, M_ES, M_MM, M_TM};
+  const int n_ms = (int)(sizeof ms / sizeof *ms);
   printf("# mrvi %s  threads: 1 against %d  dT = %g  p = %d  best of %d "
          "alternating rounds (wall time)  %d cores available  load average "
          "%.2f at the start\n",
          mrvi_version(), t, o->dT, o->p, repeats,
          (int)sysconf(_SC_NPROCESSORS_ONLN), bench_load());
-  printf("# build: %s; threads %s; OMP_WAIT_POLICY %s\n\n", bench_build(),
+  printf("# build: %s; threads %s; OMP_WAIT_POLICY %s; GOMP_SPINCOUNT %s\n\n",
+         bench_build(),
          mrvi_threads_supported() ? "on (OpenMP)" : "off (no OpenMP)",
-         getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset");
+         getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset",
+         getenv("GOMP_SPINCOUNT") ? getenv("GOMP_SPINCOUNT") : "unset");
   for (int k = 0; k < N_NETS; k++) {
     if (!nets[k])
       continue;
-    printf("## %s\n\nwall: wall time per macro step; cpu: the CPU time of "
-           "all threads per macro step (cpu_T / cpu_1 near 1: the threads "
-           "add little work, whatever the machine's load does to the wall "
-           "times)\n\n| %-20s | %8s | %-12s | %11s | %11s | %7s | %11s | "
-           "%11s |\n",
-           net_names[k], "method", "n", "path", "wall_1_s", "wall_T_s",
-           "speedup", "cpu_1_s", "cpu_T_s");
+    printf("## %s\n\nwall: wall time per macro step; cpu_T/cpu_1: the CPU "
+           "time of all threads per macro step over one thread's (near 1: "
+           "the threads add little work, whatever the load does to the wall "
+           "times); floor: the speed-up of the floor of the scheme's pairing "
+           "(r-RESPA for fully-explicit and explicit-slow, Verlet for the "
+           "implicit schemes) in the same round; floors on %d-coordinate "
+           "parts (path: their count)\n\n| %-20s | %8s | %-12s | %11s | "
+           "%11s | %7s | %11s | %7s |\n",
+           net_names[k], (int)PF_CHUNK, "method", "n", "path", "wall_1_s",
+           "wall_T_s", "speedup", "cpu_T/cpu_1", "floor");
     printf("|----------------------|---------:|--------------|------------:|"
-           "------------:|--------:|------------:|------------:|\n");
-    for (int ni = 0; ni < n_n; ni++)
-      for (int i = 0; i < 4; i++) {
+           "------------:|--------:|------------:|--------:|\n");
+    for (int ni = 0; ni < n_n; ni++) {
+      result best[N_METHODS][2];
+      int run[N_METHODS] = {0};
+      for (int i = 0; i < n_ms; i++) {
         const method me = ms[i];
-        if ((only && strcmp(only, method_names[me])) ||
-            ((me == M_MM || me == M_TM) && n_list[ni] > o->big))
-          continue;
-        result best[2];
-        best[0].status = best[1].status = 1;
-        for (int r = 0; r < repeats; r++)
-          for (int j = 0; j < 2; j++) {
+        const int fl = me == M_RESPA || me == M_VERLET;
+        run[me] = !((me == M_MM || me == M_TM) && n_list[ni] > o->big) &&
+                  (!only || !strcmp(only, method_names[me]) ||
+                   (fl && (me == M_RESPA) == (!strcmp(only, "fully-explicit") ||
+                                              !strcmp(only, "explicit-slow"))));
+        best[me][0].status = best[me][1].status = 1;
+        snprintf(best[me][0].message, sizeof best[me][0].message, "not run");
+      }
+      for (int r = 0; r < repeats; r++)
+        for (int i = 0; i < n_ms; i++)
+          for (int j = 0; j < 2 && run[ms[i]]; j++) {
+            const method me = ms[i];
             o->threads = j ? t : 1;
+            o->par_floor = me == M_RESPA || me == M_VERLET;
             result x = run_case(k, n_list[ni], me, o);
-            if (x.status == 0 && (best[j].status != 0 || x.wall < best[j].wall))
-              best[j] = x;
-            else if (x.status != 0 && best[j].status != 0)
-              best[j] = x;
+            result *b = &best[me][j];
+            if (x.status == 0 && (b->status != 0 || x.wall < b->wall))
+              *b = x;
+            else if (x.status != 0 && b->status != 0)
+              *b = x;
           }
-        o->threads = 1;
-        if (best[0].status != 0 || best[1].status != 0) {
+      o->threads = 1;
+      o->par_floor = 0;
+      for (int i = 0; i < n_ms; i++) {
+        const method me = ms[i];
+        const result *b = best[me];
+        if (!run[me])
+          continue;
+        if (b[0].status != 0 || b[1].status != 0) {
           printf("| %-20s | %8d | failed: %s |\n", method_names[me], n_list[ni],
-                 best[0].status ? best[0].message : best[1].message);
+                 b[0].status ? b[0].message : b[1].message);
           continue;
         }
-        printf("| %-20s | %8d | %-12s | %11.4g | %11.4g | %7.2f | %11.4g | "
-               "%11.4g |\n",
-               method_names[me], best[0].n, best[0].path, best[0].wall,
-               best[1].wall, best[0].wall / best[1].wall, best[0].step,
-               best[1].step);
+        const method fm = me == M_MM || me == M_TM ? M_VERLET : M_RESPA;
+        const result *fb = best[fm];
+        const double floor_x = me != M_RESPA && me != M_VERLET &&
+                                       fb[0].status == 0 && fb[1].status == 0
+                                   ? fb[0].wall / fb[1].wall
+                                   : NAN;
+        printf("| %-20s | %8d | %-12s | %11.4g | %11.4g | %7.2f | %11.2f | "
+               "%7.2f |\n",
+               method_names[me], b[0].n, b[0].path, b[0].wall, b[1].wall,
+               b[0].wall / b[1].wall, b[1].step / b[0].step, floor_x);
         fflush(stdout);
       }
+      machine_args ma = {k, n_list[ni], t, o};
+      machine_result mr = {-1, 0.0, 0.0, 0.0, 0.0};
+      int ws = 0;
+      if (bench_run_child(machine_fn, &ma, &mr, sizeof mr, o->budget, o->mem_gb,
+                          &ws) == 0)
+        mr.bitwise = -1;
+      printf("| (n = %d: triad a = b + 3 c over arrays of %d doubles, best "
+             "of 3: 1 thread %.2f GB/s, %d threads %.2f GB/s, ratio %.2f; "
+             "per CPU second %.2f and %.2f GB/s, cpu_T/cpu_1 %.2f; floors on "
+             "%d threads bitwise the serial floor's: %s) |\n",
+             n_list[ni], n_list[ni], 1e-9 * mr.triad_1, t, 1e-9 * mr.triad_t,
+             mr.triad_t / mr.triad_1, 1e-9 * mr.cpu_1, 1e-9 * mr.cpu_t,
+             mr.cpu_1 / mr.cpu_t, t,
+             mr.bitwise == 1   ? "yes"
+             : mr.bitwise == 0 ? "NO"
+                               : "not checked");
+      fflush(stdout);
+    }
     printf("\n");
   }
   printf("# load average %.2f at the end\n", bench_load());
@@ -1191,12 +1671,13 @@ static int serial_table(options *o, int t, const int *nets, const int *n_list,
          (int)sysconf(_SC_NPROCESSORS_ONLN), bench_load());
   printf("# build: %s; OMP_WAIT_POLICY %s\n\n", bench_build(),
          getenv("OMP_WAIT_POLICY") ? getenv("OMP_WAIT_POLICY") : "unset");
-  printf("| %-9s | %-20s | %8s | %-12s | %8s | %9s | %9s | %9s | %9s | "
-         "%7s | %7s | %7s | %7s |\n|-----------|----------------------|----"
-         "-----:|--------------|---------:|----------:|----------:|----------"
-         ":|----------:|--------:|--------:|--------:|--------:|\n",
-         "network", "method", "n", "path", "regions", "serial_ms", "par_ms",
-         "imbal_ms", "cpu_1_ms", "s %", "amdahl", "bound", "bound_1");
+  printf("| %-9s | %-20s | %8s | %-12s | %8s | %8s | %9s | %9s | %9s | "
+         "%9s | %7s | %7s | %7s | %7s |\n|-----------|----------------------|"
+         "---------:|--------------|---------:|---------:|----------:|--------"
+         "--:|----------:|----------:|--------:|--------:|--------:|--------:|"
+         "\n",
+         "network", "method", "n", "path", "regions", "barriers", "serial_ms",
+         "par_ms", "imbal_ms", "cpu_1_ms", "s %", "amdahl", "bound", "bound_1");
   for (int k = 0; k < N_NETS; k++)
     for (int ni = 0; ni < n_n; ni++)
       for (int i = 0; i < 4; i++) {
@@ -1205,8 +1686,8 @@ static int serial_table(options *o, int t, const int *nets, const int *n_list,
             ((me == M_MM || me == M_TM) && n_list[ni] > o->big))
           continue;
         double sv[MAX_REPEATS], pv[MAX_REPEATS], mv[MAX_REPEATS];
-        double rv[MAX_REPEATS], fv[MAX_REPEATS], av[MAX_REPEATS],
-            bv[MAX_REPEATS], cv[MAX_REPEATS], b1[MAX_REPEATS];
+        double rv[MAX_REPEATS], nb[MAX_REPEATS], fv[MAX_REPEATS],
+            av[MAX_REPEATS], bv[MAX_REPEATS], cv[MAX_REPEATS], b1[MAX_REPEATS];
         result x;
         int ok = 0;
         for (int r = 0; r < repeats; r++) {
@@ -1219,6 +1700,7 @@ static int serial_table(options *o, int t, const int *nets, const int *n_list,
           const double work = x.ser + x.par;
           const double fr = x.ser / work;
           sv[ok] = x.ser, pv[ok] = x.par, rv[ok] = x.regions;
+          nb[ok] = x.barriers;
           mv[ok] = x.par_max - x.par / t;
           fv[ok] = fr;
           av[ok] = 1.0 / (fr + (1.0 - fr) / t);
@@ -1232,14 +1714,14 @@ static int serial_table(options *o, int t, const int *nets, const int *n_list,
                  net_names[k], method_names[me], n_list[ni], x.message);
           continue;
         }
-        printf("| %-9s | %-20s | %8d | %-12s | %8.0f | %9.3f | %9.2f | %9.3f "
-               "| %9.2f | %7.2f | %7.2f | %7.2f | %7.2f |\n",
+        printf("| %-9s | %-20s | %8d | %-12s | %8.0f | %8.0f | %9.3f | %9.2f "
+               "| %9.3f | %9.2f | %7.2f | %7.2f | %7.2f | %7.2f |\n",
                net_names[k], method_names[me], x.n, x.path,
-               bench_median(rv, ok), 1e3 * bench_median(sv, ok),
-               1e3 * bench_median(pv, ok), 1e3 * bench_median(mv, ok),
-               1e3 * bench_median(cv, ok), 100.0 * bench_median(fv, ok),
-               bench_median(av, ok), bench_median(bv, ok),
-               bench_median(b1, ok));
+               bench_median(rv, ok), bench_median(nb, ok),
+               1e3 * bench_median(sv, ok), 1e3 * bench_median(pv, ok),
+               1e3 * bench_median(mv, ok), 1e3 * bench_median(cv, ok),
+               100.0 * bench_median(fv, ok), bench_median(av, ok),
+               bench_median(bv, ok), bench_median(b1, ok));
         fflush(stdout);
       }
   printf("\n# load average %.2f at the end\n", bench_load());

@@ -18,8 +18,11 @@
 enum { MAX_TEAM = 256 };
 
 typedef void (*gomp_parallel_fn)(void (*)(void *), void *, unsigned, unsigned);
+typedef void (*gomp_barrier_fn)(void);
 
 static gomp_parallel_fn real_parallel;
+static gomp_barrier_fn real_barrier;
+static long n_barriers; /* (team thread 0's: written by it alone) */
 static _Thread_local int depth;
 static double slot[MAX_TEAM];
 static long n_regions;
@@ -56,8 +59,12 @@ void GOMP_parallel(void (*fn)(void *), void *data, unsigned num_threads,
      * ISO C does not define) */
     void *sym = dlsym(RTLD_NEXT, "GOMP_parallel");
     memcpy(&real_parallel, &sym, sizeof real_parallel);
-    if (!real_parallel) {
-      fputs("omp_profile: libgomp's GOMP_parallel not found\n", stderr);
+    sym = dlsym(RTLD_NEXT, "GOMP_barrier");
+    memcpy(&real_barrier, &sym, sizeof real_barrier);
+    if (!real_parallel || !real_barrier) {
+      fputs("omp_profile: libgomp's GOMP_parallel or GOMP_barrier not "
+            "found\n",
+            stderr);
       abort();
     }
   }
@@ -81,8 +88,19 @@ void GOMP_parallel(void (*fn)(void *), void *data, unsigned num_threads,
   sum_max += mx;
 }
 
+/* The barriers GCC emits (`omp barrier`, the end of a static `omp for`)
+ * counted on team thread 0; only inside a region, so after GOMP_parallel
+ * has found libgomp's. */
+void GOMP_barrier(void);
+void GOMP_barrier(void) {
+  if (omp_get_thread_num() == 0)
+    n_barriers++;
+  real_barrier();
+}
+
 int bench_omp_profile_read(bench_omp_profile *p) {
   p->regions = n_regions;
+  p->barriers = n_barriers;
   p->main_cpu = thread_cpu();
   p->in_main = sum_main;
   p->in_all = sum_all;

@@ -490,6 +490,63 @@ static void check_lin(mrvi_terms *kt, const double *q, int n, int np, int d,
   free(l1);
 }
 
+/* The block's CG on the parts (mrvi_sblock_solve, one parallel region):
+ * J = the values at q + dscale I, assembled again before each solve, with
+ * the smallest dscale of |hscale| 2^j for which CG finds no direction of
+ * non-positive curvature (no fallback to LU); on 1, 2 and 3 threads: the
+ * same bits, and J x = b to the CG's tolerance (J x by the block's
+ * product, against the right-hand side). */
+static void check_sparse_solve(mrvi_sblock *sp, const mrvi_terms *kt, int n,
+                               int np, const double *q, double *gp,
+                               double hscale, unsigned long long *rng) {
+  double *w = calloc(5 * (size_t)n, sizeof *w);
+  CHECK(w != NULL, "solve: out of memory");
+  if (!w)
+    return;
+  double *b = w, *one = w + n, *x1 = w + 2 * n, *rhs = w + 3 * n,
+         *y = w + 4 * n;
+  for (int i = 0; i < n; i++) {
+    rhs[i] = uniform(rng);
+    one[i] = 1.0;
+  }
+  char msg[256] = "";
+  int st = MRVI_OK, same = 1, t = 1;
+  long its = 0, fb = 0;
+  double dscale = fabs(hscale);
+  for (int j = 0; j < 200 && t <= 3 && st == MRVI_OK; j += t == 1) {
+    mrvi_sblock_set_parts(sp, np, t);
+    for (int c = 0; c < np; c++)
+      mrvi_sblock_add_terms_part(sp, kt, c, q, gp, hscale, 1);
+    memcpy(b, rhs, (size_t)n * sizeof *b);
+    const mrvi_krylov_stats *ks = mrvi_sblock_stats(sp);
+    const long i0 = ks->cg_iterations, f0 = ks->fallbacks;
+    st = mrvi_sblock_solve(sp, one, dscale, b, 1e-14, msg, sizeof msg);
+    its = ks->cg_iterations - i0;
+    fb = ks->fallbacks - f0;
+    if (t == 1 && fb) { /* (not positive definite: a larger shift) */
+      dscale *= 2.0;
+      continue;
+    }
+    if (t == 1)
+      memcpy(x1, b, (size_t)n * sizeof *b);
+    else
+      same = same && !memcmp(x1, b, (size_t)n * sizeof *b);
+    t++;
+  }
+  mrvi_sblock_matvec(sp, x1, y);
+  double e = 0.0, sc = 0.0;
+  for (int i = 0; i < n; i++) {
+    e = fmax(e, fabs(y[i] - rhs[i]));
+    sc = fmax(sc, fabs(rhs[i]));
+  }
+  CHECK(st == MRVI_OK && t == 4 && fb == 0 && same && its >= 2 &&
+            e <= 1e-10 * sc,
+        "%d parts: the CG on the parts (J + %g I) the same bits on 1, 2, 3 "
+        "threads (%d), %ld iterations, J x - b %.2e (scale %.2e) %s",
+        np, dscale, same, its, e, sc, msg);
+  free(w);
+}
+
 /* The sparse block on threads (mrvi_sblock_set_parts, sweep-cg's Newton
  * matrix): the class kt partitioned by columns in np parts, taken in
  * reverse, each zeroing its columns first (the values start as garbage):
@@ -553,6 +610,7 @@ static void check_sparse_parts(const mrvi_model *m, const int *elems,
         "d %d: %d parts: the row-form product the same bits on 1, 2, 3 "
         "threads (%d), the scatter's to %.2e (scale %.2e)",
         d, np, same, e, sc);
+  check_sparse_solve(sp, kt, n, np, q, gp, hscale, rng);
   mrvi_sblock_free(sp);
   free(w);
 }

@@ -16,6 +16,25 @@ static double dot(int n, const double *a, const double *b) {
   return s;
 }
 
+/* One pass of mrvi_pcg over rows [i0, i1): x += alpha p, r -= alpha q,
+ * and ||r||_inf and r^T D^-1 r of the rows (the same sums in the same
+ * order as separate passes). */
+void mrvi_pcg_update(double *x, double *r, const double *p, const double *q,
+                     const double *dinv, double alpha, int i0, int i1,
+                     double *r_inf, double *rz) {
+  double rn = 0.0, rz1 = 0.0;
+  for (int i = i0; i < i1; i++) {
+    x[i] += alpha * p[i];
+    const double ri = r[i] - alpha * q[i];
+    r[i] = ri;
+    const double a = fabs(ri);
+    rn = isnan(a) || a > rn ? a : rn;
+    rz1 += ri * (dinv[i] * ri);
+  }
+  *r_inf = rn;
+  *rz = rz1;
+}
+
 /* Jacobi-preconditioned CG on A x = b from x = 0.  Stops when
  * ||r||_inf <= max(atol, rtol ||b||_inf) (r the recursively updated
  * residual b - A x).  A direction with p^T A p <= 0 (A not positive
@@ -49,17 +68,8 @@ int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
       return MRVI_CG_CURVATURE;
     }
     const double alpha = rz / pq;
-    /* One pass: x, r, ||r||_inf and r^T z (the same sums in the same order
-     * as separate passes). */
     double rn = 0.0, rz1 = 0.0;
-    for (int i = 0; i < n; i++) {
-      x[i] += alpha * p[i];
-      const double ri = r[i] - alpha * q[i];
-      r[i] = ri;
-      const double a = fabs(ri);
-      rn = isnan(a) || a > rn ? a : rn;
-      rz1 += ri * (dinv[i] * ri);
-    }
+    mrvi_pcg_update(x, r, p, q, dinv, alpha, 0, n, &rn, &rz1);
     *iterations = k;
     if (rn <= stop)
       return MRVI_CG_OK;

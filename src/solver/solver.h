@@ -375,6 +375,11 @@ typedef int (*mrvi_matvec_status)(void *ctx, const double *x, double *y);
 int mrvi_pcg(int n, mrvi_matvec A, void *ctx, const double *dinv,
              const double *b, double *x, double rtol, double atol, int max_it,
              double *work, int *iterations, double *curvature);
+/* mrvi_pcg's pass over rows [i0, i1): x += alpha p, r -= alpha q, and the
+ * rows' ||r||_inf and r^T D^-1 r (pcg_parts' parts, sparse_block.c). */
+void mrvi_pcg_update(double *x, double *r, const double *p, const double *q,
+                     const double *dinv, double alpha, int i0, int i1,
+                     double *r_inf, double *rz);
 /* Workspace (doubles) of mrvi_gmres. */
 size_t mrvi_gmres_work(int n, int restart);
 /* Restarted GMRES(restart) on A x = b from x = 0, right-preconditioned by

@@ -36,10 +36,14 @@ struct mrvi_sblock {
   mrvi_newton *lu;         /* fallback, created on first use */
   mrvi_krylov_stats stats;
   /* mrvi_sblock_set_parts: the rows (columns) in n_part parts on threads;
-   * psum: a part's sum each */
+   * psum: a part's sums, PSUM_STRIDE doubles (a cache line) each */
   int n_part, threads;
   double *psum;
 };
+
+/* Doubles per part in psum: a cache line of its own (the parts' sums are
+ * written by different threads). */
+enum { PSUM_STRIDE = 8 };
 
 void mrvi_sblock_free(mrvi_sblock *sb) {
   if (!sb)
@@ -282,7 +286,7 @@ void mrvi_sblock_zero(mrvi_sblock *sb) {
 int mrvi_sblock_set_parts(mrvi_sblock *sb, int n_part, int threads) {
   if (n_part < 2 || n_part > sb->nf)
     return MRVI_OK; /* (serial) */
-  double *p = realloc(sb->psum, (size_t)n_part * sizeof *p);
+  double *p = realloc(sb->psum, (size_t)n_part * PSUM_STRIDE * sizeof *p);
   if (!p)
     return MRVI_ENOMEM;
   sb->psum = p;
@@ -374,11 +378,12 @@ static double matvec_parts(void *ctx, const double *x, double *y) {
   const int nf = sb->nf, n_part = sb->n_part;
   MRVI_PARALLEL_FOR(sb->threads)
   for (int c = 0; c < n_part; c++)
-    sb->psum[c] = rows_product(sb, x, y, mrvi_part_start(c, nf, n_part),
-                               mrvi_part_start(c + 1, nf, n_part));
+    sb->psum[PSUM_STRIDE * c] =
+        rows_product(sb, x, y, mrvi_part_start(c, nf, n_part),
+                     mrvi_part_start(c + 1, nf, n_part));
   double xy = 0.0;
   for (int c = 0; c < n_part; c++)
-    xy += sb->psum[c];
+    xy += sb->psum[PSUM_STRIDE * c];
   return xy;
 }
 
@@ -426,12 +431,125 @@ double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv) {
     return jacobi_columns(sb, dinv, 0, nf);
   MRVI_PARALLEL_FOR(sb->threads)
   for (int c = 0; c < n_part; c++)
-    sb->psum[c] = jacobi_columns(sb, dinv, mrvi_part_start(c, nf, n_part),
-                                 mrvi_part_start(c + 1, nf, n_part));
+    sb->psum[PSUM_STRIDE * c] =
+        jacobi_columns(sb, dinv, mrvi_part_start(c, nf, n_part),
+                       mrvi_part_start(c + 1, nf, n_part));
   double bound = 0.0;
   for (int c = 0; c < n_part; c++)
-    bound = fmax(bound, sb->psum[c]);
+    bound = fmax(bound, sb->psum[PSUM_STRIDE * c]);
   return bound;
+}
+
+/* The parts' slots k of psum combined in the parts' order: their sum
+ * (max = 0) or their maximum, a NaN kept (max = 1; mrvi_pcg's test). */
+static double psum_combine(const double *psum, int n_part, int k, int max) {
+  double v = 0.0;
+  for (int c = 0; c < n_part; c++) {
+    const double a = psum[PSUM_STRIDE * c + k];
+    v = !max ? v + a : isnan(a) || a > v ? a : v;
+  }
+  return v;
+}
+
+/* mrvi_pcg on the parts (mrvi_sblock_set_parts) in one parallel region:
+ * the same iteration, each vector loop (the start, the product, x and r
+ * with ||r||_inf and r^T z, the next direction) in the parts' rows, their
+ * sums per part and the parts' sums added in the parts' order by every
+ * thread, so that every thread takes the same decisions and every number
+ * of threads gives the same bits (those of per-part sums, not mrvi_pcg's
+ * one sum).  Three barriers per iteration; before, the product was a
+ * region of its own and the vector loops ran on one thread. */
+static int pcg_parts(mrvi_sblock *sb, double *b, double rtol, double atol,
+                     int max_it, int *iterations, double *curvature) {
+  const int n = sb->nf, n_part = sb->n_part;
+  const double *dinv = sb->dinv;
+  double *x = sb->x, *r = sb->work, *p = sb->work + n;
+  double *q = sb->work + 2 * (size_t)n, *ps = sb->psum;
+  int status = MRVI_CG_MAXIT, its = 0;
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sb->threads)
+#endif
+  {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_part; c++) {
+      const int i1 = mrvi_part_start(c + 1, n, n_part);
+      double bn = 0.0, rz = 0.0;
+      for (int i = mrvi_part_start(c, n, n_part); i < i1; i++) {
+        const double bi = b[i], a = fabs(bi);
+        x[i] = 0.0;
+        r[i] = bi;
+        p[i] = dinv[i] * bi;
+        rz += bi * p[i];
+        bn = isnan(a) || a > bn ? a : bn;
+      }
+      ps[PSUM_STRIDE * c] = rz;
+      ps[PSUM_STRIDE * c + 1] = bn;
+    }
+    double rz = psum_combine(ps, n_part, 0, 0);
+    const double bn = psum_combine(ps, n_part, 1, 1);
+    const double stop = fmax(atol, rtol * bn);
+    int st = bn <= stop ? MRVI_CG_OK : MRVI_CG_MAXIT, k = 0;
+    /* (slots: 0, 1 the start; 2 the product; 3, 4 the update: a slot is
+     * written again only after a barrier that follows its reads) */
+    for (k = 1; k <= max_it && st == MRVI_CG_MAXIT; k++) {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_part; c++)
+        ps[PSUM_STRIDE * c + 2] =
+            rows_product(sb, p, q, mrvi_part_start(c, n, n_part),
+                         mrvi_part_start(c + 1, n, n_part));
+      const double pq = psum_combine(ps, n_part, 2, 0);
+      if (!(pq > 0.0)) {
+        st = MRVI_CG_CURVATURE;
+        break;
+      }
+      const double alpha = rz / pq;
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_part; c++)
+        mrvi_pcg_update(x, r, p, q, dinv, alpha, mrvi_part_start(c, n, n_part),
+                        mrvi_part_start(c + 1, n, n_part),
+                        &ps[PSUM_STRIDE * c + 3], &ps[PSUM_STRIDE * c + 4]);
+      const double rn = psum_combine(ps, n_part, 3, 1);
+      const double rz1 = psum_combine(ps, n_part, 4, 0);
+      if (rn <= stop) {
+        st = MRVI_CG_OK;
+        break;
+      }
+      if (!isfinite(rn))
+        break;
+      const double beta = rz1 / rz;
+      rz = rz1;
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+      for (int c = 0; c < n_part; c++) {
+        const int i1 = mrvi_part_start(c + 1, n, n_part);
+        for (int i = mrvi_part_start(c, n, n_part); i < i1; i++)
+          p[i] = dinv[i] * r[i] + beta * p[i];
+      }
+    }
+#ifdef _OPENMP
+#pragma omp master
+#endif
+    {
+      status = st;
+      its = bn <= stop ? 0 : k > max_it ? max_it : k;
+    }
+  }
+  *iterations = its;
+  *curvature = 0.0;
+  if (status == MRVI_CG_CURVATURE) {
+    double pp = 0.0;
+    for (int i = 0; i < n; i++)
+      pp += p[i] * p[i];
+    *curvature = psum_combine(ps, n_part, 2, 0) / pp;
+  }
+  return status;
 }
 
 /* Relative CG tolerance besides the caller's absolute one (a share of the
@@ -450,9 +568,10 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, int inc,
   int it = 0;
   double curv = 0.0;
   const int max_it = nf < MRVI_CG_MAX_IT ? nf + 10 : MRVI_CG_MAX_IT;
-  const int s =
-      mrvi_pcg(nf, sb->n_part > 0 ? matvec_parts : matvec, sb, sb->dinv, b, x,
-               SBLOCK_RTOL, atol, max_it, sb->work, &it, &curv);
+  const int s = sb->n_part > 0
+                    ? pcg_parts(sb, b, SBLOCK_RTOL, atol, max_it, &it, &curv)
+                    : mrvi_pcg(nf, matvec, sb, sb->dinv, b, x, SBLOCK_RTOL,
+                               atol, max_it, sb->work, &it, &curv);
   mrvi_krylov_stats *k = &sb->stats;
   k->cg_solves++;
   k->cg_iterations += it;
