@@ -520,7 +520,7 @@ static void check_sparse_solve(mrvi_sblock *sp, const mrvi_terms *kt, int n,
     memcpy(b, rhs, (size_t)n * sizeof *b);
     const mrvi_krylov_stats *ks = mrvi_sblock_stats(sp);
     const long i0 = ks->cg_iterations, f0 = ks->fallbacks;
-    st = mrvi_sblock_solve(sp, one, dscale, b, 1e-14, msg, sizeof msg);
+    st = mrvi_sblock_solve(sp, one, 1, dscale, b, 1e-14, msg, sizeof msg);
     its = ks->cg_iterations - i0;
     fb = ks->fallbacks - f0;
     if (t == 1 && fb) { /* (not positive definite: a larger shift) */
