@@ -131,7 +131,7 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
     const double val_ref = mrvi_model_potential(m, MRVI_SLOW, q, gr, Hr);
     const double scale = 0.37, hscale = -1.9;
     for (int e = 0; e < ne; e++) {
-      const mrvi_element *el = &m->elements[e];
+      const mrvi_element *el = MRVI_ELEMENT(m, e);
       double y[6], ge[6], He[36];
       for (int j = 0; j < el->n_in; j++)
         y[j] = q[el->in[j]];
@@ -237,7 +237,7 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
     for (int only = 0; only < 2 && r == 0; only++) {
       int ns = 0, *sel = calloc((size_t)ne, sizeof *sel);
       for (int i = 0; sel && i < ne; i++)
-        if (!only || m->elements[i].kind == MRVI_ELEMENT_SPRING)
+        if (!only || m->erecs[i].kind == MRVI_ELEMENT_SPRING)
           sel[ns++] = i;
       mrvi_terms *kf = NULL, *kv = NULL;
       CHECK(sel && mrvi_terms_create(m, sel, ns, NULL, &kf) == MRVI_OK &&
@@ -273,8 +273,8 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
       const int want = kind == 1 ? MRVI_ELEMENT_ANCHOR : MRVI_ELEMENT_SPRING;
       int ns = 0, *sel = calloc((size_t)ne, sizeof *sel);
       for (int i = 0; sel && i < ne; i++)
-        if (m->elements[i].kind == want &&
-            (kind < 2 || m->elements[i].shift == 2.9))
+        if (m->erecs[i].kind == want &&
+            (kind < 2 || MRVI_ELEMENT(m, i)->shift == 2.9))
           sel[ns++] = i;
       mrvi_terms *kf = NULL, *kg = NULL, *kt = NULL;
       CHECK(sel && mrvi_terms_create(m, sel, ns, NULL, &kf) == MRVI_OK &&
@@ -640,7 +640,7 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
    * coordinates on consecutive slots), in 1 the full one (n_in^2). */
   long want = 0;
   for (int e = 0; e < ne; e++) {
-    const int ni = m->elements[e].n_in, nb = ni / d;
+    const int ni = MRVI_ELEMENT(m, e)->n_in, nb = ni / d;
     want += d >= 2 ? nb * nb + nb : ni * ni;
   }
   CHECK(!sb || mrvi_sblock_map_ints(sb) == want,
@@ -657,7 +657,7 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
     mrvi_sblock_zero(sr);
     mrvi_sblock_add_terms(sb, kc, q, g, hscale);
     for (int e = 0; e < ne; e++) { /* the reference */
-      const mrvi_element *el = &m->elements[e];
+      const mrvi_element *el = MRVI_ELEMENT(m, e);
       double y[6], ge[6], He[36];
       for (int j = 0; j < el->n_in; j++)
         y[j] = q[m->slot[el->in[j]]];
@@ -743,7 +743,7 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
       mrvi_terms *kl = NULL;
       int nsp = 0;
       for (int e = 0; e < ne; e++)
-        if (m->elements[e].kind == MRVI_ELEMENT_SPRING)
+        if (m->erecs[e].kind == MRVI_ELEMENT_SPRING)
           w3[nsp++] = e; /* (the indices, read back below) */
       int *sel = calloc((size_t)(nsp > 0 ? nsp : 1), sizeof *sel);
       for (int e = 0; sel && e < nsp; e++)

@@ -43,7 +43,7 @@ static void check_elements(mrvi_model *m, const char *what) {
       gm[MRVI_MAX_INPUTS];
   srand(7);
   for (int ei = 0; ei < m->n_elements; ei++) {
-    const mrvi_element *e = &m->elements[ei];
+    const mrvi_element *e = MRVI_ELEMENT(m, ei);
     const int n = e->n_in;
     if (n > MRVI_MAX_INPUTS)
       continue;
@@ -238,13 +238,13 @@ static void check_angles_forces(void) {
                     dim == 2 ? "2-D angle/force pot" : "3-D angle/force pot");
     /* Initial rest angle: zero energy at q0 for the third angle; the energy
      * of the first against its formula; the force is -f^T q. */
-    const mrvi_element *e = &m->elements[2];
+    const mrvi_element *e = MRVI_ELEMENT(m, 2);
     double y[9], th;
     for (int j = 0; j < e->n_in; j++)
       y[j] = m->q0[e->in[j]];
     CHECK_NEAR(mrvi_element_eval(m, e, y, NULL, NULL), 0.0, 1e-14,
                "angle energy zero at its initial rest angle");
-    e = &m->elements[0];
+    e = MRVI_ELEMENT(m, 0);
     for (int j = 0; j < e->n_in; j++)
       y[j] = m->q0[e->in[j]];
     {
@@ -258,7 +258,7 @@ static void check_angles_forces(void) {
     }
     CHECK_NEAR(mrvi_element_eval(m, e, y, NULL, NULL),
                2.0 * (1 - cos(th - 1.1)), 1e-14, "angle energy formula");
-    e = &m->elements[3];
+    e = MRVI_ELEMENT(m, 3);
     for (int j = 0; j < e->n_in; j++)
       y[j] = m->q0[e->in[j]];
     CHECK_NEAR(mrvi_element_eval(m, e, y, NULL, NULL),
@@ -544,7 +544,7 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
   for (int c = 0; c < 2; c++) {
     int ne = 0;
     for (int e = 0; e < m->n_elements; e++)
-      if (m->elements[e].potential == (mrvi_rate)c)
+      if (m->erecs[e].potential == (mrvi_rate)c)
         elems[ne++] = e;
     mrvi_terms *kc = NULL;
     CHECK(mrvi_terms_create(m, elems, ne, NULL, &kc) == MRVI_OK, "%s: create",
@@ -554,9 +554,9 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
     /* Which gradient loop it takes: the flat one for a class of linear and
      * small integer-power terms on 2..4 inputs (one law: 1, mixed: 2). */
     int compact = ne > 0, one_law = 1;
-    const mrvi_element *e0 = ne > 0 ? &m->elements[elems[0]] : NULL;
+    const mrvi_element *e0 = ne > 0 ? MRVI_ELEMENT(m, elems[0]) : NULL;
     for (int i = 0; i < ne && compact; i++) {
-      const mrvi_element *e = &m->elements[elems[i]];
+      const mrvi_element *e = MRVI_ELEMENT(m, elems[i]);
       const int term = e->kind == MRVI_ELEMENT_TERM && e->n_in >= 2 &&
                        e->n_in <= 4 && e0->kind == MRVI_ELEMENT_TERM;
       const int linear = term && strcmp(e->law->name, "linear") == 0;
@@ -570,7 +570,7 @@ static void check_terms_grad(const mrvi_model *m, const char *what) {
     const int flat = compact ? (one_law ? 1 : 2) : 0;
     int unit = 1; /* coefficients +-1 */
     for (int i = 0; i < ne; i++) {
-      const mrvi_element *e = &m->elements[elems[i]];
+      const mrvi_element *e = MRVI_ELEMENT(m, elems[i]);
       for (int j = 0; j < e->n_in && e->coef; j++)
         unit = unit && fabs(e->coef[j]) == 1.0;
     }
@@ -714,10 +714,10 @@ static void check_law_copies(void) {
   const double one = 1, par[1] = {2.0};
   CHECK(mrvi_model_add_term(m, MRVI_SLOW, 1, &c, &one, 0, "square", par) == 0,
         "term with square");
-  CHECK(!mrvi_element_is_quadratic(&m->elements[0]),
+  CHECK(!mrvi_element_is_quadratic(MRVI_ELEMENT(m, 0)),
         "a law without a degree taken as quadratic");
   square.degree = degree_two; /* (read when asked) */
-  CHECK(mrvi_element_is_quadratic(&m->elements[0]),
+  CHECK(mrvi_element_is_quadratic(MRVI_ELEMENT(m, 0)),
         "a law of degree 2 not taken as quadratic");
   mrvi_model_free(m);
   static mrvi_law bad = {.name = "bad-power",
@@ -729,7 +729,108 @@ static void check_law_copies(void) {
         "a power form with one parameter registered");
 }
 
+/* The model's compact spring table (model.h, mrvi_erec): every spring of
+ * every registered law added between two particles, in 1-D, 2-D and 3-D,
+ * slow and fast, with parameter sets shared and not, between anchors,
+ * terms and gravity (kept in full), reads back through the accessor as it
+ * was added: kind, rate, law, parameters, rest length (bits), inputs,
+ * particles; the prototypes the compiled terms keep stay valid while more
+ * laws are added. */
+static void check_compact_table(void) {
+  for (int d = 1; d <= 3; d++) {
+    mrvi_model *m = mrvi_model_create();
+    mrvi_model_set_dimension(m, d);
+    const double v[3] = {0, 0, 0};
+    for (int i = 0; i < 6; i++) {
+      char name[8];
+      snprintf(name, sizeof name, "p%d", i);
+      const double x[3] = {0.9 * i, 0.1 * i * i, -0.3 * i};
+      CHECK(mrvi_model_add_particle(m, name, 1.0 + i,
+                                    i < 2 ? MRVI_SLOW : MRVI_FAST, x, v) >= 0,
+            "compact: particle (%s)", mrvi_model_errmsg(m));
+    }
+    enum { MAX_ADD = 512 };
+    struct {
+      int e, i, j, slow;
+      const mrvi_law *law;
+      double par[MRVI_LAW_MAX_PARAMS], rest;
+      const mrvi_element *stable;
+    } add[MAX_ADD];
+    int na = 0, full = 0;
+    const double sets[][MRVI_LAW_MAX_PARAMS] = {
+        {1.25, 4, 3.0}, {0.7, 2, 2.5}, {2.0, 1.5, 4.0}, {-0.0, 3, 2.0}};
+    for (int l = 0; l < mrvi_law_count(); l++) {
+      const mrvi_law *law = mrvi_law_get(l);
+      for (size_t a = 0; a < sizeof sets / sizeof sets[0]; a++) {
+        char msg[128];
+        if (law->check && law->check(sets[a], msg, sizeof msg) < 0)
+          continue;
+        for (int r = 0; r < 3 && na < MAX_ADD; r++) {
+          const int slow = (r + (int)a) % 2, i = slow ? r % 2 : 2 + r,
+                    j = slow ? 5 - r : 3 + (r + 1) % 3;
+          const double rest = r == 1 ? -0.0 : 0.25 * (1 + r + (int)a);
+          const int e = mrvi_model_add_spring(m, slow ? MRVI_SLOW : MRVI_FAST,
+                                              i, j, law->name, sets[a], rest);
+          CHECK(e == mrvi_model_n_elements(m) - 1, "compact: %s added (%s)",
+                law->name, mrvi_model_errmsg(m));
+          if (e < 0)
+            continue;
+          add[na].e = e;
+          add[na].i = i;
+          add[na].j = j;
+          add[na].slow = slow;
+          add[na].law = law;
+          memcpy(add[na].par, sets[a], sizeof add[na].par);
+          add[na].rest = rest;
+          add[na].stable = mrvi_element_stable(MRVI_ELEMENT(m, e));
+          na++;
+        }
+        /* (elements kept in full between them) */
+        const double anchor[3] = {0.5, -1.0, 2.0}, k[1] = {3.0};
+        if (mrvi_model_add_anchor_spring(m, MRVI_FAST, 4, anchor, "linear", k,
+                                         0.5) >= 0)
+          full++;
+      }
+    }
+    const double g[3] = {0.1, -9.81, 0.3};
+    CHECK(mrvi_model_set_gravity(m, g) >= 0, "compact: gravity");
+    full++;
+    CHECK(na >= 3 * mrvi_law_count() && m->n_full == full &&
+              m->n_elements == na + full,
+          "compact: %d springs in records, %d elements in full", na, m->n_full);
+    for (int a = 0; a < na; a++) {
+      const mrvi_element *e = MRVI_ELEMENT(m, add[a].e);
+      const mrvi_law *law = add[a].law;
+      int ok = m->erecs[add[a].e].compact && e->kind == MRVI_ELEMENT_SPRING &&
+               e->potential == (add[a].slow ? MRVI_SLOW : MRVI_FAST) &&
+               e->law == law && e->form == law->form && !e->coef &&
+               e->n_in == 2 * d &&
+               memcmp(&e->shift, &add[a].rest, sizeof e->shift) == 0 &&
+               memcmp(e->params, add[a].par,
+                      (size_t)law->n_params * sizeof *e->params) == 0 &&
+               mrvi_element_particle(m, e, 0) == add[a].i &&
+               mrvi_element_particle(m, e, d) == add[a].j;
+      for (int k = 0; k < d; k++)
+        ok &= e->in[k] == m->particles[add[a].i].first + k &&
+              e->in[d + k] == m->particles[add[a].j].first + k;
+      /* (the prototype the terms keep: the law, parameters and rate) */
+      const mrvi_element *p = add[a].stable;
+      ok &= p == mrvi_element_stable(e) && p->law == law &&
+            p->params == e->params && p->potential == e->potential &&
+            p->kind == MRVI_ELEMENT_SPRING && !p->coef;
+      CHECK(ok, "compact: %dD spring %d (%s) reads back as added", d, a,
+            law->name);
+    }
+    /* (equal law and parameters share a prototype; a rate does not) */
+    CHECK(add[0].stable == MRVI_ELEMENT(m, add[0].e)->proto &&
+              add[0].stable != add[1].stable,
+          "compact: prototypes by law, parameters and rate");
+    mrvi_model_free(m);
+  }
+}
+
 int main(void) {
+  check_compact_table();
   check_law_properties();
   check_law_copies();
   check_laws();

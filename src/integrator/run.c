@@ -23,7 +23,7 @@ static void potentials_create(const mrvi_model *m, const mrvi_settings *s,
   for (int c = 0; elems && c < 2; c++) {
     int n = 0;
     for (int e = 0; e < m->n_elements; e++)
-      if (m->elements[e].potential == (mrvi_rate)c)
+      if (m->erecs[e].potential == (mrvi_rate)c)
         elems[n++] = e;
     if (mrvi_terms_create_value(m, elems, n, &pot->kc[c]) < 0 ||
         mrvi_terms_set_value_chunks(pot->kc[c],

@@ -33,7 +33,7 @@ int mrvi_threads_auto(const mrvi_model *m, const mrvi_settings *s, char *why,
   /* The longest loop that can be cut into parts. */
   int elems[2] = {0, 0};
   for (int e = 0; e < m->n_elements; e++)
-    elems[m->elements[e].potential == MRVI_FAST]++;
+    elems[m->erecs[e].potential == MRVI_FAST]++;
   const int size[4] = {m->n_fast, m->n_slow, elems[MRVI_FAST],
                        elems[MRVI_SLOW]};
   static const char *const what[4] = {"fast coordinates", "slow coordinates",

@@ -38,7 +38,7 @@ int mrvi_model_anchors(const mrvi_model *m, int *particle, double *point,
     return MRVI_EINVAL;
   int count = 0;
   for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
+    const mrvi_element *el = MRVI_ELEMENT(m, e);
     const int pi =
         el->kind == MRVI_ELEMENT_ANCHOR ? mrvi_element_particle(m, el, 0) : -1;
     if (pi >= 0)
@@ -87,7 +87,7 @@ int mrvi_model_edges(const mrvi_model *m, int *pairs, int *kind, int cap) {
     return MRVI_EINVAL;
   int count = 0;
   for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
+    const mrvi_element *el = MRVI_ELEMENT(m, e);
     const int pi =
         el->kind == MRVI_ELEMENT_SPRING ? mrvi_element_particle(m, el, 0) : -1;
     if (pi >= 0 && !pair_law(el->law))

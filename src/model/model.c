@@ -60,10 +60,10 @@ void mrvi_model_free(mrvi_model *m) {
   for (int i = 0; i < m->n_blocks; i++)
     free(m->blocks[i]);
   free(m->blocks);
-  for (int e = 0; e < m->n_elements; e++) {
-    free(m->elements[e].coef);
-    if (m->elements[e].kind == MRVI_ELEMENT_TORSION)
-      free(m->elements[e].axes);
+  for (int e = 0; e < m->n_full; e++) {
+    free(m->full[e].coef);
+    if (m->full[e].kind == MRVI_ELEMENT_TORSION)
+      free(m->full[e].axes);
   }
   free(m->own_names);
   free(m->own_coord);
@@ -75,7 +75,12 @@ void mrvi_model_free(mrvi_model *m) {
   free(m->v0);
   free(m->rate);
   free(m->particles);
-  free(m->elements);
+  free(m->erecs);
+  free(m->full);
+  for (int i = 0; i < m->n_protos; i++)
+    free(m->protos[i]);
+  free(m->protos);
+  free(m->proto_table);
   free_constraints(m);
   mrvi_model_free_bodies(m);
   free(m->slow_index);
@@ -541,8 +546,8 @@ int mrvi_model_reserve(mrvi_model *m, int particles, int elements) {
       reserve_coordinates(m, m->n + d * particles) ||
       grow((void **)&m->particles, &m->cap_particles,
            m->n_particles + particles, sizeof *m->particles) ||
-      grow((void **)&m->elements, &m->cap_elements, m->n_elements + elements,
-           sizeof *m->elements))
+      grow((void **)&m->erecs, &m->cap_elements, m->n_elements + elements,
+           sizeof *m->erecs))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   return MRVI_OK;
 }
@@ -594,6 +599,74 @@ static void drop_element(mrvi_element *e) {
     free(e->axes);
 }
 
+/* Hash of a spring's law, parameter set (interned: its address) and rate. */
+static size_t proto_hash(const mrvi_element *e) {
+  unsigned long long h = 14695981039346656037ULL;
+  fnv(&h, &e->law, sizeof e->law);
+  fnv(&h, &e->params, sizeof e->params);
+  fnv(&h, &e->potential, sizeof e->potential);
+  return (size_t)h;
+}
+
+/* The prototype of e's law, parameters and rate (kind spring, no inputs,
+ * rest length NaN), made if new; its index. */
+static int spring_proto(mrvi_model *m, const mrvi_element *e) {
+  if (2 * (m->n_protos + 1) > m->proto_table_cap) {
+    const int c = m->proto_table_cap ? 2 * m->proto_table_cap : 16;
+    int *t = calloc((size_t)c, sizeof *t);
+    if (!t)
+      return MRVI_ENOMEM;
+    free(m->proto_table);
+    m->proto_table = t;
+    m->proto_table_cap = c;
+    for (int i = 0; i < m->n_protos; i++) {
+      size_t k = proto_hash(m->protos[i]) & (size_t)(c - 1);
+      while (t[k] != 0)
+        k = (k + 1) & (size_t)(c - 1);
+      t[k] = i + 1;
+    }
+  }
+  const size_t mask = (size_t)(m->proto_table_cap - 1);
+  size_t k = proto_hash(e) & mask;
+  for (; m->proto_table[k] != 0; k = (k + 1) & mask) {
+    const mrvi_element *p = m->protos[m->proto_table[k] - 1];
+    if (p->law == e->law && p->params == e->params &&
+        p->potential == e->potential)
+      return m->proto_table[k] - 1;
+  }
+  mrvi_element *p = malloc(sizeof *p);
+  if (!p || grow((void **)&m->protos, &m->cap_protos, m->n_protos + 1,
+                 sizeof *m->protos)) {
+    free(p);
+    return MRVI_ENOMEM;
+  }
+  m->protos[m->n_protos] = p;
+  *p = (mrvi_element){.law = e->law,
+                      .params = e->params,
+                      .shift = NAN,
+                      .n_in = e->n_in,
+                      .kind = MRVI_ELEMENT_SPRING,
+                      .potential = e->potential,
+                      .form = e->form};
+  m->proto_table[k] = m->n_protos + 1;
+  return m->n_protos++;
+}
+
+/* The prototype index of e if it is kept in its record alone (a spring of
+ * a law between two particles' consecutive coordinates, no coefficients),
+ * else NOT_COMPACT; MRVI_ENOMEM. */
+enum { NOT_COMPACT = -1000 };
+static int compact_spring(mrvi_model *m, const mrvi_element *e) {
+  const int d = m->dimension;
+  if (e->kind != MRVI_ELEMENT_SPRING || e->coef || !e->law || !e->params ||
+      d < 1 || d > 3 || e->n_in != 2 * d || e->proto)
+    return NOT_COMPACT;
+  for (int k = 0; k < d; k++)
+    if (e->in[k] != e->in[0] + k || e->in[d + k] != e->in[d] + k)
+      return NOT_COMPACT;
+  return spring_proto(m, e);
+}
+
 /* Append an element whose inputs are already set; checks the rate rule. */
 static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   if (e->potential != MRVI_SLOW && e->potential != MRVI_FAST) {
@@ -615,14 +688,30 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
             "micro step",
             what, MRVI_CNAME(m, c));
       }
-  if (grow((void **)&m->elements, &m->cap_elements, m->n_elements + 1,
-           sizeof *m->elements)) {
+  const int lp = compact_spring(m, e);
+  if ((lp < 0 && lp != NOT_COMPACT) ||
+      grow((void **)&m->erecs, &m->cap_elements, m->n_elements + 1,
+           sizeof *m->erecs) ||
+      (lp < 0 &&
+       grow((void **)&m->full, &m->cap_full, m->n_full + 1, sizeof *m->full))) {
     drop_element(e);
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   }
   if (e->kind != MRVI_ELEMENT_GRAVITY && e->n_in > m->max_in)
     m->max_in = e->n_in;
-  m->elements[m->n_elements] = *e;
+  mrvi_erec *r = &m->erecs[m->n_elements];
+  *r = (mrvi_erec){.kind = e->kind, .potential = e->potential};
+  if (lp >= 0) {
+    r->shift = e->shift;
+    r->lp = lp;
+    r->ci = e->in[0];
+    r->cj = e->in[m->dimension];
+    r->compact = 1;
+  } else {
+    r->ci = m->n_full;
+    m->full[m->n_full] = *e;
+    m->full[m->n_full++].proto = NULL;
+  }
   m->n_torsions += e->kind == MRVI_ELEMENT_TORSION;
   return m->n_elements++;
 }
@@ -750,9 +839,15 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
   int st = mrvi_model_set_law(m, &e, law, params, what);
   if (st < 0)
     return st;
-  int parts[2] = {particle_i, particle_j};
-  if ((st = particle_inputs(m, &e, 2, parts)) < 0)
-    return st;
+  /* (its inputs on the stack: push_element keeps the spring in its record
+   * alone) */
+  int in[6];
+  e.n_in = 2 * m->dimension;
+  e.in = in;
+  for (int k = 0; k < m->dimension; k++) {
+    in[k] = m->particles[particle_i].first + k;
+    in[m->dimension + k] = m->particles[particle_j].first + k;
+  }
   return push_element(m, &e, what);
 }
 
@@ -1128,7 +1223,7 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
     if (!isfinite(g[k]))
       return mrvi_model_fail(m, MRVI_EINVAL, "gravity must be finite");
   for (int e = 0; e < m->n_elements; e++)
-    if (m->elements[e].kind == MRVI_ELEMENT_GRAVITY)
+    if (m->erecs[e].kind == MRVI_ELEMENT_GRAVITY)
       return mrvi_model_fail(m, MRVI_EINVAL, "gravity is already set");
   const int d = m->dimension;
   mrvi_element e = {.kind = MRVI_ELEMENT_GRAVITY,
@@ -1284,7 +1379,7 @@ int mrvi_model_describe_element(const mrvi_model *m, int idx, char *buf,
                                 size_t len) {
   if (idx < 0 || idx >= m->n_elements)
     return MRVI_EINVAL;
-  const mrvi_element *e = &m->elements[idx];
+  const mrvi_element *e = MRVI_ELEMENT(m, idx);
   const char *rate = e->potential == MRVI_SLOW ? "slow" : "fast";
   char law[256] = "";
   if (e->law) {
@@ -1646,9 +1741,9 @@ double mrvi_model_potential(const mrvi_model *m, mrvi_rate potential,
   double H[MRVI_MAX_INPUTS * MRVI_MAX_INPUTS];
   double total = 0.0;
   for (int ei = 0; ei < m->n_elements; ei++) {
-    const mrvi_element *e = &m->elements[ei];
-    if (e->potential != potential)
+    if (m->erecs[ei].potential != potential)
       continue;
+    const mrvi_element *e = MRVI_ELEMENT(m, ei);
     const int lin = e->kind == MRVI_ELEMENT_GRAVITY;
     /* Gravity is evaluated in one pass; other elements are small. */
     if (lin) {
@@ -1743,7 +1838,7 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     fnv(&h, &m->rate[i], sizeof m->rate[i]);
   }
   for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
+    const mrvi_element *el = MRVI_ELEMENT(m, e);
     /* (the enumerations' bytes, as when the fields had their types) */
     const mrvi_element_kind kind = el->kind;
     const mrvi_rate potential = el->potential;

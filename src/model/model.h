@@ -50,7 +50,33 @@ typedef struct mrvi_element {
   unsigned char kind;      /* mrvi_element_kind */
   unsigned char potential; /* mrvi_rate: MRVI_SLOW: part of V, MRVI_FAST: W */
   unsigned char form;      /* mrvi_law_form: law->form (set with the law) */
+  /* A view of a compact spring (mrvi_model_element): its law's prototype,
+   * which lasts as long as the model (mrvi_element_stable); NULL for an
+   * element stored in full. */
+  const struct mrvi_element *proto;
 } mrvi_element;
+
+/* The model's element table (model.c): one 24-byte record per element.  A
+ * spring between two particles (mrvi_model_add_spring: no coefficients,
+ * each end a particle's consecutive coordinates) is kept in its record
+ * alone: its rest length, the first coordinates of its ends and the index
+ * of its law, parameter set and rate in the model's prototypes (laws with
+ * equal parameters shared), instead of an mrvi_element (64 bytes) and its
+ * inputs (2 dim ints).  Every other element is kept in full (m->full[ci]).
+ * Read an element through mrvi_model_element or MRVI_ELEMENT. */
+typedef struct mrvi_erec {
+  double shift; /* compact spring: its rest length */
+  int lp;       /* compact spring: its prototype m->protos[lp] */
+  int ci, cj;   /* compact spring: first coordinates of x_i, x_j; else ci is the
+                   element's index in m->full */
+  unsigned char kind, potential, compact;
+} mrvi_erec;
+
+/* Room for a view of an element (mrvi_model_element). */
+typedef struct mrvi_element_buf {
+  mrvi_element e;
+  int in[6]; /* a spring's 2 dim inputs */
+} mrvi_element_buf;
 
 typedef struct mrvi_particle {
   /* NULL for a generated particle, whose name its generator's rule makes
@@ -109,7 +135,17 @@ struct mrvi_model {
   mrvi_name_rule *rules; /* generators' names (generators.c) */
   int n_rules, cap_rules;
   int n_elements, cap_elements;
-  mrvi_element *elements;
+  mrvi_erec *erecs;   /* the element table (mrvi_erec) */
+  mrvi_element *full; /* the elements not kept in their record alone */
+  int n_full, cap_full;
+  /* The compact springs' laws: one prototype element per distinct law,
+   * parameter set and rate (kind spring, no inputs, rest length NaN), each
+   * its own allocation (the compiled terms keep pointers to them while
+   * more are added), found by an open-addressing table (0 = empty, else
+   * index + 1). */
+  mrvi_element **protos;
+  int n_protos, cap_protos;
+  int *proto_table, proto_table_cap;
   /* Partition, extended by every add. */
   int n_slow, n_fast;
   int *slow_index, *fast_index; /* slot -> model index */
@@ -198,6 +234,37 @@ int mrvi_model_add_ruled_particle(mrvi_model *m, const char *name, double mass,
  * `kind` with `prefix` on n[0] x n[1] x n[2] particles (generators.c). */
 void mrvi_generated_name(int kind, const char *prefix, const int n[3], long lin,
                          char *buf, size_t len);
+
+/* Element i of m: a pointer to it where it is kept in full, else its view
+ * made in b (valid while b is; in points into b).  The fields are those the
+ * element was added with. */
+static inline const mrvi_element *mrvi_model_element(const mrvi_model *m, int i,
+                                                     mrvi_element_buf *b) {
+  const mrvi_erec *r = &m->erecs[i];
+  if (!r->compact)
+    return &m->full[r->ci];
+  const int d = m->dimension;
+  b->e = *m->protos[r->lp];
+  b->e.shift = r->shift;
+  b->e.in = b->in;
+  b->e.proto = m->protos[r->lp];
+  for (int k = 0; k < d; k++) {
+    b->in[k] = r->ci + k;
+    b->in[d + k] = r->cj + k;
+  }
+  return &b->e;
+}
+/* mrvi_model_element with a buffer that lasts to the end of the enclosing
+ * block. */
+#define MRVI_ELEMENT(m, i)                                                     \
+  mrvi_model_element((m), (i), &(mrvi_element_buf){.e.proto = NULL})
+/* An element of the same law, parameters, kind, rate and coefficients as
+ * e that lasts as long as the model: e itself where it is kept in full,
+ * else its prototype (no inputs, no rest length).  For the compiled terms,
+ * which keep a pointer to each element's law. */
+static inline const mrvi_element *mrvi_element_stable(const mrvi_element *e) {
+  return e->proto ? e->proto : e;
+}
 
 /* Particle owning input j of element e (springs, anchors and angles of
  * particles: particle i's inputs first, then j's, k's), or -1 (model.c). */

@@ -173,7 +173,7 @@ int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular) {
     for (int c = 0; c < d * (d + 1); c++)
       part[m->bodies[b].first + c] = c % d + (c < d ? 0 : DIRECTOR);
   for (int e = 0; e < m->n_elements; e++)
-    element(part, &s, &m->elements[e], lin);
+    element(part, &s, MRVI_ELEMENT(m, e), lin);
   linear_row(part, &s, m->n, all, lin);
   for (int c = 0; c < m->n_constraints; c++)
     constraint(part, &s, &m->constraints[c]);

@@ -150,8 +150,8 @@ void mrvi_model_torsion_init(const mrvi_model *m, const double *q,
   if (m->n_torsions == 0) /* (no pass over a network's elements) */
     return;
   for (int i = 0, t = 0; i < m->n_elements; i++)
-    if (m->elements[i].kind == MRVI_ELEMENT_TORSION) {
-      const mrvi_element *e = &m->elements[i];
+    if (m->erecs[i].kind == MRVI_ELEMENT_TORSION) {
+      const mrvi_element *e = &m->full[m->erecs[i].ci]; /* (kept in full) */
       ref[t++] = angle_at(m, e, q, e->shift);
     }
 }
@@ -161,8 +161,8 @@ void mrvi_model_torsion_set(const mrvi_model *m, const double *ref) {
   if (m->n_torsions == 0)
     return;
   for (int i = 0, t = 0; i < m->n_elements; i++)
-    if (m->elements[i].kind == MRVI_ELEMENT_TORSION)
-      m->elements[i].axes[MRVI_TORSION_BRANCH] = ref[t++];
+    if (m->erecs[i].kind == MRVI_ELEMENT_TORSION)
+      m->full[m->erecs[i].ci].axes[MRVI_TORSION_BRANCH] = ref[t++];
 }
 
 double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
@@ -171,14 +171,15 @@ double mrvi_model_torsion_follow(const mrvi_model *m, const double *q,
   if (worst)
     *worst = -1;
   for (int i = 0, t = 0; i < m->n_elements; i++)
-    if (m->elements[i].kind == MRVI_ELEMENT_TORSION) {
-      const double a = angle_at(m, &m->elements[i], q, ref[t]);
+    if (m->erecs[i].kind == MRVI_ELEMENT_TORSION) {
+      mrvi_element *e = &m->full[m->erecs[i].ci];
+      const double a = angle_at(m, e, q, ref[t]);
       if (fabs(a - ref[t]) > jump) {
         jump = fabs(a - ref[t]);
         if (worst)
           *worst = i;
       }
-      m->elements[i].axes[MRVI_TORSION_BRANCH] = ref[t++] = a;
+      e->axes[MRVI_TORSION_BRANCH] = ref[t++] = a;
     }
   return jump;
 }

@@ -106,7 +106,7 @@ void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+        const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
         if (e->kind == MRVI_ELEMENT_GRAVITY)
           continue;
         const int n = e->n_in;

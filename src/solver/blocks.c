@@ -254,7 +254,7 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
         mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
                           &b->kc[c]) == MRVI_OK;
     for (int ie = 0; st_ok && ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
       for (int j = 0; j < e->n_in; j++) {
         if (m->rate[e->in[j]] == MRVI_SLOW)
           b->has_s[c] = 1;

@@ -87,8 +87,9 @@ static int graph(const mrvi_model *m, int **gp, int **gi) {
     for (int e = 0; e < m->n_elements + m->n_constraints; e++) {
       const int *in;
       int k;
+      mrvi_element_buf eb; /* (in points into it) */
       if (e < m->n_elements) {
-        const mrvi_element *el = &m->elements[e];
+        const mrvi_element *el = mrvi_model_element(m, e, &eb);
         if (el->kind == MRVI_ELEMENT_GRAVITY || el->kind == MRVI_ELEMENT_FORCE)
           continue;
         in = el->in, k = el->n_in;

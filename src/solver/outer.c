@@ -239,7 +239,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     for (int part = 0; part < 2; part++) {
       int n_sel = 0;
       for (int i = 0; i < st->n_elem_of_class[c]; i++) {
-        const mrvi_element *e = &m->elements[st->elem_of_class[c][i]];
+        const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][i]);
         int slow_only = 1;
         for (int j = 0; j < e->n_in; j++)
           slow_only &= col[e->in[j]] < o->ns;

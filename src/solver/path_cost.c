@@ -347,7 +347,7 @@ int mrvi_path_costs(const mrvi_model *m, const mrvi_settings *s,
   for (int i = 0; i < n; i++)
     P[(size_t)i * (size_t)n + (size_t)i] = 1;
   for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
+    const mrvi_element *el = MRVI_ELEMENT(m, e);
     /* (gravity and constant forces are linear: no Hessian) */
     if (el->kind != MRVI_ELEMENT_GRAVITY && el->kind != MRVI_ELEMENT_FORCE)
       couple(P, n, el->in, el->n_in);

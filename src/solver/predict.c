@@ -182,7 +182,7 @@ static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
   int slow_in[2] = {0, 0}, count = 0;
   for (int c = 0; c < 2; c++) {
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
       for (int j = 0; j < e->n_in; j++)
         slow_in[c] |= m->rate[e->in[j]] == MRVI_SLOW;
     }
@@ -554,7 +554,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       continue;
     int slow = 0;
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
       for (int j = 0; j < e->n_in; j++)
         slow |= m->rate[e->in[j]] == MRVI_SLOW;
     }
@@ -592,7 +592,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       if (pt->a0 == 0.0 || pt->a1 == 0.0)
         continue;
       for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-        const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+        const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
         for (int j = 0; j < e->n_in; j++)
           if (m->rate[e->in[j]] == MRVI_SLOW)
             pr->slow_coupled = 1;

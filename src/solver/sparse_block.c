@@ -147,7 +147,7 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
   for (int f = 0; f < nf; f++)
     start[f + 2]++;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     if (e->kind == MRVI_ELEMENT_GRAVITY)
       continue; /* linear: no Hessian */
     for (int j = 0; j < e->n_in; j++)
@@ -170,7 +170,7 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
   for (int f = 0; f < nf; f++)
     rows[start[f + 1]++] = f;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     if (e->kind == MRVI_ELEMENT_GRAVITY)
       continue;
     for (int j = 0; j < e->n_in; j++)
@@ -206,7 +206,7 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
   }
   long nm = 0;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     sb->elem_off[ie] = -1;
     if (e->kind == MRVI_ELEMENT_GRAVITY)
       continue;
@@ -226,7 +226,7 @@ int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
     goto oom;
   }
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     const long o = sb->elem_off[ie];
     if (o == -1)
       continue;

@@ -311,7 +311,7 @@ int mrvi_sweep_path(const mrvi_model *m, const mrvi_settings *s, char *why,
                     size_t len) {
   int fast_on_slow = -1;
   for (int e = 0; fast_on_slow < 0 && e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
+    const mrvi_element *el = MRVI_ELEMENT(m, e);
     for (int j = 0; el->potential == MRVI_FAST && j < el->n_in; j++)
       if (m->rate[el->in[j]] == MRVI_SLOW) {
         fast_on_slow = e;
@@ -350,7 +350,7 @@ int mrvi_sweep_path_of(const mrvi_model *m, const mrvi_settings *s,
     return MRVI_PATH_SCHUR;
   }
   if (fast_on_slow >= 0) {
-    const mrvi_element *el = &m->elements[fast_on_slow];
+    const mrvi_element *el = MRVI_ELEMENT(m, fast_on_slow);
     for (int j = 0; j < el->n_in; j++)
       if (m->rate[el->in[j]] == MRVI_SLOW) {
         mrvi_fmt(why, len,

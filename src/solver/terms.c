@@ -293,7 +293,7 @@ static int spring_record(const mrvi_element *e, int dim) {
 static void spring_law_of(const mrvi_element *e, kspring *q) {
   q->two = e->kind == MRVI_ELEMENT_SPRING;
   q->k = spring_law(e);
-  q->el = e;
+  q->el = mrvi_element_stable(e);
   q->c = e->params[0];
   q->shift = e->shift;
   q->ce = e->params[0] * e->params[1];
@@ -343,6 +343,7 @@ static int hooke_records(mrvi_terms *kc) {
       continue;
     }
     spring_law_of(kc->t[ie].el, q);
+    q->shift = h.shift; /* (the element's: t->el may be its law alone) */
     for (int k = 0; k < kc->dim; k++) {
       q->ci[k] = h.ci + k;
       q->cj[k] = h.cj + k;
@@ -409,7 +410,7 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   if (!kc->qp)
     return MRVI_ENOMEM;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     /* (a Hooke spring's record: spring_law_of's c and shift, spring_cols'
      * first columns; the law's other products are not read) */
     kspring q = {.two = 1};
@@ -459,12 +460,12 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
  * class of kspair records. */
 static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, int dim) {
-  const mrvi_element *e0 = &m->elements[elems[0]];
+  const mrvi_element *e0 = MRVI_ELEMENT(m, elems[0]);
   const int law = spring_law(e0);
   if (e0->kind != MRVI_ELEMENT_SPRING || law == KS_LAW || law == KS_HOOKE)
     return 0;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     if (!spring_record(e, dim) || e->kind != MRVI_ELEMENT_SPRING ||
         e->law != e0->law ||
         (e->params != e0->params &&
@@ -488,9 +489,9 @@ static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
 static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
                         int n_elems, const int *col_of) {
   const int dim = kc->dim;
-  if (n_elems < 1 || !spring_record(&m->elements[elems[0]], dim))
+  if (n_elems < 1 || !spring_record(MRVI_ELEMENT(m, elems[0]), dim))
     return 0;
-  const mrvi_element *e0 = &m->elements[elems[0]];
+  const mrvi_element *e0 = MRVI_ELEMENT(m, elems[0]);
   const int kind = e0->kind;
   const int law = spring_law(e0);
   if (shared_law(m, elems, n_elems, col_of, dim)) {
@@ -499,7 +500,7 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
       return MRVI_ENOMEM;
     spring_law_of(e0, &kc->qm_law);
     for (int ie = 0; ie < n_elems; ie++) {
-      const mrvi_element *e = &m->elements[elems[ie]];
+      const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
       const int *in = e->in;
       kc->qm[ie] = (kspair){col_of ? col_of[in[0]] : in[0],
                             col_of ? col_of[in[dim]] : in[dim], e->shift};
@@ -513,7 +514,7 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   /* (all khooke springs: terms_springs' khooke run instead) */
   int hooke = kind == MRVI_ELEMENT_SPRING && law == KS_HOOKE;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     if (!spring_record(e, dim) || e->kind != kind || spring_law(e) != law) {
       free(kc->qs);
       kc->qs = NULL;
@@ -539,7 +540,8 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
  * (spring or anchor) and one law code; their columns col_of[e->in[.]] (or
  * e->in itself without col_of).  grad_only: the kspring records are left
  * out when every run is of khooke springs (mrvi_terms_create_grad). */
-static int terms_springs(mrvi_terms *kc, const int *col_of, int grad_only) {
+static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
+                         int grad_only) {
   const int dim = kc->dim;
   int ns = 0;
   for (int ie = kc->n - 1; ie >= 0; ie--) {
@@ -563,7 +565,7 @@ static int terms_springs(mrvi_terms *kc, const int *col_of, int grad_only) {
     kterm *t = &kc->t[ie];
     if (t->runs == 0)
       continue;
-    const mrvi_element *e = t->el;
+    const mrvi_element *e = MRVI_ELEMENT(kc->m, elems[ie]);
     kspring one, *q = kc->qs ? &kc->qs[is] : &one;
     t->qs = is++;
     spring_law_of(e, q);
@@ -595,8 +597,9 @@ static int terms_springs(mrvi_terms *kc, const int *col_of, int grad_only) {
     if (t->runs == 0)
       continue;
     kspring *q = &kc->qs[t->qs];
-    spring_law_of(t->el, q);
-    spring_cols(t->el, col_of, dim, q);
+    const mrvi_element *e = MRVI_ELEMENT(kc->m, elems[ie]);
+    spring_law_of(e, q);
+    spring_cols(e, col_of, dim, q);
   }
   return MRVI_OK;
 }
@@ -617,10 +620,10 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
    * them would be zeroed in the heap instead of mapped untouched) */
   int n_rs = 1, all_hooke = 1;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     if (!spring_record(e, dim))
       return 0;
-    const mrvi_element *u = ie > 0 ? &m->elements[elems[ie - 1]] : NULL;
+    const mrvi_element *u = ie > 0 ? MRVI_ELEMENT(m, elems[ie - 1]) : NULL;
     n_rs += u && (u->kind != e->kind || spring_law(u) != spring_law(e));
     kspring q = {.two = e->kind == MRVI_ELEMENT_SPRING};
     spring_cols(e, col_of, dim, &q);
@@ -644,7 +647,7 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   kc->n_rs = 0;
   kspring prev = {0};
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     kspring q = {0};
     spring_law_of(e, &q);
     spring_cols(e, col_of, dim, &q);
@@ -696,7 +699,7 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
    * those that have them. */
   int n_col = 0, n_coef = 0, max_in = 1;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     n_col += spring_record(e, dim) ? 0 : e->n_in;
     n_coef += e->coef ? e->n_in : 0;
     max_in = e->n_in > max_in ? e->n_in : max_in;
@@ -714,9 +717,9 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   }
   int first = 0, cfirst = 0;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = &m->elements[elems[ie]];
+    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
     kterm *t = &kc->t[ie];
-    t->el = e;
+    t->el = mrvi_element_stable(e); /* (its law: it lasts) */
     t->n = e->n_in;
     t->first = first;
     t->cfirst = cfirst;
@@ -784,7 +787,7 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
       q->a[j] = kc->coef[t->cfirst + j];
     }
   }
-  if (terms_springs(kc, col_of, grad_only) < 0) {
+  if (terms_springs(kc, elems, col_of, grad_only) < 0) {
     mrvi_terms_free(kc);
     return MRVI_ENOMEM;
   }

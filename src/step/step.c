@@ -217,7 +217,7 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   }
   st->fast_on_slow = -1;
   for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = &m->elements[e];
+    const mrvi_element *el = MRVI_ELEMENT(m, e);
     st->elem_of_class[el->potential][st->n_elem_of_class[el->potential]++] = e;
     if (el->n_in > max_n_in)
       max_n_in = el->n_in;
@@ -482,7 +482,7 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
    * one per point, for networks beyond the caches). */
   for (int c = 0; c < 2; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
         const int n = e->n_in;
@@ -801,7 +801,7 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
    * order of the sums). */
   for (int c = 0; c < 2; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = &m->elements[st->elem_of_class[c][ie]];
+      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
         gather(st, e, pt, x, st->y);
