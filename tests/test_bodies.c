@@ -1104,7 +1104,7 @@ static void test_output(void) {
   }
   static double q[11 * 12], pos[11 * 3], rot[11 * 9], L[11 * 3], p[11 * 12];
   hsize_t dq[4], dp[4], dr[4], dl[4], dpp[4];
-  int rq, rp, rr, rl, rpp;
+  int rq = 0, rp = 0, rr = 0, rl = 0, rpp = 0;
   CHECK(read_all(f, "/macro/q", q, 132, dq, &rq) >= 0 &&
             read_all(f, "/macro/p", p, 132, dpp, &rpp) >= 0 &&
             read_all(f, "/bodies/position", pos, 33, dp, &rp) >= 0 &&
