@@ -1176,19 +1176,19 @@ static void test_loader(void) {
  * 0.25); and at dT = 0.01 it is more accurate than p = 1 at the same
  * macro step by a factor above 5 (the micro steps resolve the payload's
  * ringing at 173 rad/s, which the macro step does not: omega dT = 1.7). */
-static double arm_error(const mrvi_system *sys, int p, double dT, long N,
-                        const double *q_ref, double *q) {
+static double run_error(const mrvi_system *sys, const char *name, int p,
+                        double dT, long N, const double *q_ref, double *q) {
   mrvi_settings s = sys->settings;
   s.micro_steps = p, s.macro_step = dT, s.t_end = (double)N * dT;
   mrvi_integrator *it = NULL;
   char msg[512];
   if (mrvi_integrator_create(sys->model, &s, &it, msg, sizeof msg) < 0) {
-    CHECK(0, "robot arm p = %d, dT = %g: %s", p, dT, msg);
+    CHECK(0, "%s p = %d, dT = %g: %s", name, p, dT, msg);
     return NAN;
   }
   for (long k = 0; k < N; k++)
     if (mrvi_integrator_step(it) < 0) {
-      CHECK(0, "robot arm p = %d, dT = %g: %s", p, dT,
+      CHECK(0, "%s p = %d, dT = %g: %s", name, p, dT,
             mrvi_integrator_errmsg(it));
       mrvi_integrator_free(it);
       return NAN;
@@ -1213,10 +1213,11 @@ static void test_arm_multirate(void) {
   const int n = mrvi_model_n(sys->model);
   double *q_ref = malloc((size_t)n * sizeof *q_ref),
          *q = malloc((size_t)n * sizeof *q);
-  arm_error(sys, 1, 0.01 / 128, 20 * 128, NULL, q_ref);
-  const double e2 = arm_error(sys, 20, 0.02, 10, q_ref, q),
-               e1 = arm_error(sys, 20, 0.01, 20, q_ref, q),
-               s1 = arm_error(sys, 1, 0.01, 20, q_ref, q);
+  const char *arm = "robot arm";
+  run_error(sys, arm, 1, 0.01 / 128, 20 * 128, NULL, q_ref);
+  const double e2 = run_error(sys, arm, 20, 0.02, 10, q_ref, q),
+               e1 = run_error(sys, arm, 20, 0.01, 20, q_ref, q),
+               s1 = run_error(sys, arm, 1, 0.01, 20, q_ref, q);
   const double order = log2(e2 / e1);
   CHECK(fabs(order - 2.0) <= 0.25,
         "robot arm p = 20: order %.3f in dT (errors %.3e, %.3e at dT = "
@@ -1229,6 +1230,41 @@ static void test_arm_multirate(void) {
   printf("robot arm: p = 20 errors %.3e, %.3e at dT = 0.02, 0.01 (order "
          "%.2f); p = 1 at dT = 0.01: %.3e\n",
          e2, e1, order, s1);
+  free(q_ref);
+  free(q);
+  mrvi_system_free(sys);
+}
+
+/* Issue 23's multirate showcase (systems/flexible_pendulum.yaml, its
+ * header: the error at t = 1 is about 3.4e4 dt^2 + 190 dT^2): at p = 10
+ * the error against a fine reference (p = 10, dT = 0.01 / 64, whose own
+ * error is some 1e-5) falls with order 2 in dT (the midpoint rules' order,
+ * arXiv 2406.12991, Sec. 4), fitted from dT = 0.01 and 0.005.  That it
+ * reaches p = 1's error for less CPU time is a benchmark
+ * (bench/bench_multibody.c; doc/performance.md). */
+static void test_flex_multirate(void) {
+  mrvi_system *sys = NULL;
+  char msg[1024];
+  if (mrvi_system_load(test_source_path("systems/flexible_pendulum.yaml"), NULL,
+                       0, &sys, msg, sizeof msg) < 0) {
+    CHECK(0, "systems/flexible_pendulum.yaml loads: %s", msg);
+    return;
+  }
+  const int n = mrvi_model_n(sys->model);
+  double *q_ref = malloc((size_t)n * sizeof *q_ref),
+         *q = malloc((size_t)n * sizeof *q);
+  const char *flex = "flexible pendulum";
+  run_error(sys, flex, 10, 0.01 / 64, 100 * 64, NULL, q_ref);
+  const double e1 = run_error(sys, flex, 10, 0.01, 100, q_ref, q),
+               e2 = run_error(sys, flex, 10, 0.005, 200, q_ref, q);
+  const double order = log2(e1 / e2);
+  CHECK(fabs(order - 2.0) <= 0.25,
+        "flexible pendulum p = 10: order %.3f in dT (errors %.3e, %.3e at "
+        "dT = 0.01, 0.005)",
+        order, e1, e2);
+  printf("flexible pendulum: p = 10 errors %.3e, %.3e at dT = 0.01, 0.005 "
+         "(order %.2f)\n",
+         e1, e2, order);
   free(q_ref);
   free(q);
   mrvi_system_free(sys);
@@ -1251,6 +1287,7 @@ int main(void) {
   test_output();
   test_loader();
   test_arm_multirate();
+  test_flex_multirate();
   for (int D = 2; D <= 3; D++) {
     test_weld(D, MRVI_FORM_MULTIPLIERS);
     test_weld(D, MRVI_FORM_NULL_SPACE);
