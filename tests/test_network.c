@@ -683,6 +683,46 @@ static void test_chord_linear(void) {
   free(text);
 }
 
+/* Three runs of explicit-slow on the lattice text (p = 5, dT = 0.02,
+ * tolerance 1e-9, 6 steps, parts of 16 coordinates), run k with its
+ * settings set by cfg(settings, k, a, b); 1 where all three completed. */
+typedef void (*variant_fn)(mrvi_settings *s, int k, int a, int b);
+static int run_three(const char *text, trajectory t[3], variant_fn cfg, int a,
+                     int b) {
+  memset(t, 0, 3 * sizeof *t);
+  int ok = 1;
+  for (int k = 0; k < 3; k++) {
+    overrides o;
+    mrvi_system *sys =
+        load_text(text, set(&o, "explicit-slow", 5, 0.02, 1e-9, "auto"), 5);
+    t[k].ok = 0;
+    if (sys) {
+      sys->settings.tuning.thread_chunk = 16;
+      cfg(&sys->settings, k, a, b);
+      run(sys, 6, &t[k]);
+    }
+    ok = ok && t[k].ok;
+    mrvi_system_free(sys);
+  }
+  return ok;
+}
+
+/* test_chord_threads's runs: 1, 2, 3 threads. */
+static void chord_variant(mrvi_settings *s, int k, int carry, int lin) {
+  s->threads = k + 1;
+  s->tuning.chord_carry = carry;
+  s->tuning.chord_linear = lin;
+}
+
+/* test_storage's runs: the absolute criterion on 1 thread, the scaled one
+ * on 1, the absolute one on 2. */
+static void storage_variant(mrvi_settings *s, int k, int a, int b) {
+  (void)a, (void)b;
+  s->newton_criterion =
+      k == 1 ? MRVI_CRITERION_SCALED : MRVI_CRITERION_ABSOLUTE;
+  s->threads = k == 2 ? 2 : 1;
+}
+
 /* sweep-cg's chord on threads (doc/performance.md, "Threads"): the 40 x 20
  * perturbed lattice (800 fast coordinates, moving everywhere) by
  * explicit-slow with the chord's pass and the row ends in parts of 16
@@ -697,23 +737,7 @@ static void test_chord_linear(void) {
 static void test_chord_threads(int carry, int lin) {
   char *text = lattice(40, 20);
   trajectory t[3];
-  memset(t, 0, sizeof t);
-  int ok = 1;
-  for (int k = 0; k < 3; k++) {
-    overrides o;
-    mrvi_system *sys =
-        load_text(text, set(&o, "explicit-slow", 5, 0.02, 1e-9, "auto"), 5);
-    t[k].ok = 0;
-    if (sys) {
-      sys->settings.threads = k + 1;
-      sys->settings.tuning.thread_chunk = 16;
-      sys->settings.tuning.chord_carry = carry;
-      sys->settings.tuning.chord_linear = lin;
-      run(sys, 6, &t[k]);
-    }
-    ok = ok && t[k].ok;
-    mrvi_system_free(sys);
-  }
+  const int ok = run_three(text, t, chord_variant, carry, lin);
   if (ok) {
     CHECK(!strcmp(t[0].path, "sweep-cg"), "chord threads: path %s", t[0].path);
     CHECK(t[0].ks.sweep_chord_sum != 0.0, "chord threads: no relaxation");
@@ -755,23 +779,7 @@ static void test_chord_threads(int carry, int lin) {
 static void test_storage(void) {
   char *text = lattice(40, 20);
   trajectory t[3];
-  memset(t, 0, sizeof t);
-  int ok = 1;
-  for (int k = 0; k < 3; k++) {
-    overrides o;
-    mrvi_system *sys =
-        load_text(text, set(&o, "explicit-slow", 5, 0.02, 1e-9, "auto"), 5);
-    t[k].ok = 0;
-    if (sys) {
-      sys->settings.newton_criterion =
-          k == 1 ? MRVI_CRITERION_SCALED : MRVI_CRITERION_ABSOLUTE;
-      sys->settings.threads = k == 2 ? 2 : 1;
-      sys->settings.tuning.thread_chunk = 16;
-      run(sys, 6, &t[k]);
-    }
-    ok = ok && t[k].ok;
-    mrvi_system_free(sys);
-  }
+  const int ok = run_three(text, t, storage_variant, 0, 0);
   if (ok) {
     CHECK(!strcmp(t[0].path, "sweep-cg"), "storage: path %s", t[0].path);
     const size_t n = (size_t)(t[0].steps + 1) * (size_t)t[0].n;
