@@ -742,7 +742,7 @@ static void check_compact_table(void) {
     mrvi_model_set_dimension(m, d);
     const double v[3] = {0, 0, 0};
     for (int i = 0; i < 6; i++) {
-      char name[8];
+      char name[16];
       snprintf(name, sizeof name, "p%d", i);
       const double x[3] = {0.9 * i, 0.1 * i * i, -0.3 * i};
       CHECK(mrvi_model_add_particle(m, name, 1.0 + i,

@@ -237,17 +237,21 @@ void mrvi_generated_name(int kind, const char *prefix, const int n[3], long lin,
 
 /* Element i of m: a pointer to it where it is kept in full, else its view
  * made in b (valid while b is; in points into b).  The fields are those the
- * element was added with. */
+ * element was added with.  b's proto is NULL or that of the view b last
+ * held (a buffer reused across a loop: the prototype's fields are copied
+ * only when it changes). */
 static inline const mrvi_element *mrvi_model_element(const mrvi_model *m, int i,
                                                      mrvi_element_buf *b) {
   const mrvi_erec *r = &m->erecs[i];
   if (!r->compact)
     return &m->full[r->ci];
   const int d = m->dimension;
-  b->e = *m->protos[r->lp];
+  const mrvi_element *p = m->protos[r->lp];
+  if (b->e.proto != p) /* (a buffer reused for springs of one prototype) */
+    b->e = *p;
   b->e.shift = r->shift;
   b->e.in = b->in;
-  b->e.proto = m->protos[r->lp];
+  b->e.proto = p;
   for (int k = 0; k < d; k++) {
     b->in[k] = r->ci + k;
     b->in[d + k] = r->cj + k;

@@ -87,7 +87,7 @@ static int graph(const mrvi_model *m, int **gp, int **gi) {
     for (int e = 0; e < m->n_elements + m->n_constraints; e++) {
       const int *in;
       int k;
-      mrvi_element_buf eb; /* (in points into it) */
+      mrvi_element_buf eb = {.e.proto = NULL}; /* (in points into it) */
       if (e < m->n_elements) {
         const mrvi_element *el = mrvi_model_element(m, e, &eb);
         if (el->kind == MRVI_ELEMENT_GRAVITY || el->kind == MRVI_ELEMENT_FORCE)

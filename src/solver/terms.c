@@ -409,8 +409,9 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   kc->qp = malloc((size_t)n_elems * sizeof *kc->qp);
   if (!kc->qp)
     return MRVI_ENOMEM;
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
     /* (a Hooke spring's record: spring_law_of's c and shift, spring_cols'
      * first columns; the law's other products are not read) */
     kspring q = {.two = 1};
@@ -464,8 +465,9 @@ static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
   const int law = spring_law(e0);
   if (e0->kind != MRVI_ELEMENT_SPRING || law == KS_LAW || law == KS_HOOKE)
     return 0;
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
     if (!spring_record(e, dim) || e->kind != MRVI_ELEMENT_SPRING ||
         e->law != e0->law ||
         (e->params != e0->params &&
@@ -499,8 +501,9 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     if (!kc->qm)
       return MRVI_ENOMEM;
     spring_law_of(e0, &kc->qm_law);
+    mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
     for (int ie = 0; ie < n_elems; ie++) {
-      const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+      const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
       const int *in = e->in;
       kc->qm[ie] = (kspair){col_of ? col_of[in[0]] : in[0],
                             col_of ? col_of[in[dim]] : in[dim], e->shift};
@@ -513,8 +516,9 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     return MRVI_ENOMEM;
   /* (all khooke springs: terms_springs' khooke run instead) */
   int hooke = kind == MRVI_ELEMENT_SPRING && law == KS_HOOKE;
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
     if (!spring_record(e, dim) || e->kind != kind || spring_law(e) != law) {
       free(kc->qs);
       kc->qs = NULL;
@@ -561,11 +565,12 @@ static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
   kc->hooke_run = calloc(nq, 1);
   if ((!grad_only && !kc->qs) || !kc->qh || !kc->hooke_run)
     return MRVI_ENOMEM;
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0, is = 0; ie < kc->n; ie++) {
     kterm *t = &kc->t[ie];
     if (t->runs == 0)
       continue;
-    const mrvi_element *e = MRVI_ELEMENT(kc->m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(kc->m, elems[ie], &eb);
     kspring one, *q = kc->qs ? &kc->qs[is] : &one;
     t->qs = is++;
     spring_law_of(e, q);
@@ -597,7 +602,7 @@ static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
     if (t->runs == 0)
       continue;
     kspring *q = &kc->qs[t->qs];
-    const mrvi_element *e = MRVI_ELEMENT(kc->m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(kc->m, elems[ie], &eb);
     spring_law_of(e, q);
     spring_cols(e, col_of, dim, q);
   }
@@ -646,8 +651,9 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     return MRVI_ENOMEM;
   kc->n_rs = 0;
   kspring prev = {0};
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
     kspring q = {0};
     spring_law_of(e, &q);
     spring_cols(e, col_of, dim, &q);
@@ -698,8 +704,9 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   /* Columns for the elements without a kspring record, coefficients for
    * those that have them. */
   int n_col = 0, n_coef = 0, max_in = 1;
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
     n_col += spring_record(e, dim) ? 0 : e->n_in;
     n_coef += e->coef ? e->n_in : 0;
     max_in = e->n_in > max_in ? e->n_in : max_in;
@@ -717,7 +724,7 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   }
   int first = 0, cfirst = 0;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
     kterm *t = &kc->t[ie];
     t->el = mrvi_element_stable(e); /* (its law: it lasts) */
     t->n = e->n_in;

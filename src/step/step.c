@@ -216,8 +216,9 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
         mrvi_quadrature_points(rules[c], grids[c], st->dT, st->p, st->pts[c]);
   }
   st->fast_on_slow = -1;
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = MRVI_ELEMENT(m, e);
+    const mrvi_element *el = mrvi_model_element(m, e, &eb);
     st->elem_of_class[el->potential][st->n_elem_of_class[el->potential]++] = e;
     if (el->n_in > max_n_in)
       max_n_in = el->n_in;
@@ -480,9 +481,11 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
   /* Elements outer, points inner: one element's entries of all its points
    * are summed while they are in cache (one pass over the Jacobian, not
    * one per point, for networks beyond the caches). */
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int c = 0; c < 2; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
+      const mrvi_element *e =
+          mrvi_model_element(m, st->elem_of_class[c][ie], &eb);
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
         const int n = e->n_in;
@@ -799,9 +802,11 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
   memset(pf, 0, (size_t)st->p * (size_t)st->nf * sizeof(double));
   /* Elements outer, points inner, as in mrvi_step_assemble (the same
    * order of the sums). */
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int c = 0; c < 2; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
+      const mrvi_element *e =
+          mrvi_model_element(m, st->elem_of_class[c][ie], &eb);
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
         gather(st, e, pt, x, st->y);
