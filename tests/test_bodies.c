@@ -1166,16 +1166,9 @@ static void test_loader(void) {
   mrvi_system_free(sys);
 }
 
-/* Multirate on the shipped robot arm with an elastic payload
- * (systems/robot_arm_payload.yaml; doc/multibody.md, "Multirate pays?"):
- * four slow links in joints, three fast particles on stiff springs hung by
- * soft springs in V.  At T = 0.2 against p = 1 at dT = 0.01/128, the
- * midpoint-midpoint run with p = 20 micro steps converges to it at order 2
- * in dT (the scheme's order, arXiv 2406.12991, Theorem "midpoint fast,
- * midpoint slow"): error ratio between dT = 0.02 and 0.01 within 2^(2 +-
- * 0.25); and at dT = 0.01 it is more accurate than p = 1 at the same
- * macro step by a factor above 5 (the micro steps resolve the payload's
- * ringing at 173 rad/s, which the macro step does not: omega dT = 1.7). */
+/* The error at t = T, max over the coordinates, of the shipped system's
+ * run with p micro steps at macro step dT for N steps, against q_ref (none:
+ * the run's q alone). */
 static double run_error(const mrvi_system *sys, const char *name, int p,
                         double dT, long N, const double *q_ref, double *q) {
   mrvi_settings s = sys->settings;
@@ -1202,37 +1195,61 @@ static double run_error(const mrvi_system *sys, const char *name, int p,
   return e;
 }
 
-static void test_arm_multirate(void) {
+/* The shipped system `file` to t = N dT: the errors e[0], e[1] of p micro
+ * steps at dT and dT / 2 against a reference of p_ref micro steps at
+ * dT / (2 ref_div), and (where s1) of p = 1 at dT / 2; the fitted order in
+ * dT returned (NAN where the file does not load). */
+static double halving_order(const char *file, const char *name, int p,
+                            int p_ref, int ref_div, double dT, long N,
+                            double e[2], double *s1) {
   mrvi_system *sys = NULL;
   char msg[1024];
-  if (mrvi_system_load(test_source_path("systems/robot_arm_payload.yaml"), NULL,
-                       0, &sys, msg, sizeof msg) < 0) {
-    CHECK(0, "systems/robot_arm_payload.yaml loads: %s", msg);
-    return;
+  if (mrvi_system_load(test_source_path(file), NULL, 0, &sys, msg, sizeof msg) <
+      0) {
+    CHECK(0, "%s loads: %s", file, msg);
+    return NAN;
   }
   const int n = mrvi_model_n(sys->model);
   double *q_ref = malloc((size_t)n * sizeof *q_ref),
          *q = malloc((size_t)n * sizeof *q);
-  const char *arm = "robot arm";
-  run_error(sys, arm, 1, 0.01 / 128, 20 * 128, NULL, q_ref);
-  const double e2 = run_error(sys, arm, 20, 0.02, 10, q_ref, q),
-               e1 = run_error(sys, arm, 20, 0.01, 20, q_ref, q),
-               s1 = run_error(sys, arm, 1, 0.01, 20, q_ref, q);
-  const double order = log2(e2 / e1);
-  CHECK(fabs(order - 2.0) <= 0.25,
-        "robot arm p = 20: order %.3f in dT (errors %.3e, %.3e at dT = "
-        "0.02, 0.01)",
-        order, e2, e1);
-  CHECK(s1 > 5.0 * e1,
-        "robot arm dT = 0.01: p = 20 error %.3e, p = 1 %.3e (want 5 times "
-        "more)",
-        e1, s1);
-  printf("robot arm: p = 20 errors %.3e, %.3e at dT = 0.02, 0.01 (order "
-         "%.2f); p = 1 at dT = 0.01: %.3e\n",
-         e2, e1, order, s1);
+  run_error(sys, name, p_ref, dT / 2 / ref_div, 2 * ref_div * N, NULL, q_ref);
+  e[0] = run_error(sys, name, p, dT, N, q_ref, q);
+  e[1] = run_error(sys, name, p, dT / 2, 2 * N, q_ref, q);
+  if (s1)
+    *s1 = run_error(sys, name, 1, dT / 2, 2 * N, q_ref, q);
   free(q_ref);
   free(q);
   mrvi_system_free(sys);
+  return log2(e[0] / e[1]);
+}
+
+/* Multirate on the shipped robot arm with an elastic payload
+ * (systems/robot_arm_payload.yaml; doc/multibody.md, "Multirate pays?"):
+ * four slow links in joints, three fast particles on stiff springs hung by
+ * soft springs in V.  At T = 0.2 against p = 1 at dT = 0.01/128, the
+ * midpoint-midpoint run with p = 20 micro steps converges to it at order 2
+ * in dT (the scheme's order, arXiv 2406.12991, Theorem "midpoint fast,
+ * midpoint slow"): error ratio between dT = 0.02 and 0.01 within 2^(2 +-
+ * 0.25); and at dT = 0.01 it is more accurate than p = 1 at the same
+ * macro step by a factor above 5 (the micro steps resolve the payload's
+ * ringing at 173 rad/s, which the macro step does not: omega dT = 1.7). */
+static void test_arm_multirate(void) {
+  double e[2], s1 = NAN;
+  const double order = halving_order("systems/robot_arm_payload.yaml",
+                                     "robot arm", 20, 1, 128, 0.02, 10, e, &s1);
+  if (isnan(order))
+    return;
+  CHECK(fabs(order - 2.0) <= 0.25,
+        "robot arm p = 20: order %.3f in dT (errors %.3e, %.3e at dT = "
+        "0.02, 0.01)",
+        order, e[0], e[1]);
+  CHECK(s1 > 5.0 * e[1],
+        "robot arm dT = 0.01: p = 20 error %.3e, p = 1 %.3e (want 5 times "
+        "more)",
+        e[1], s1);
+  printf("robot arm: p = 20 errors %.3e, %.3e at dT = 0.02, 0.01 (order "
+         "%.2f); p = 1 at dT = 0.01: %.3e\n",
+         e[0], e[1], order, s1);
 }
 
 /* Issue 23's multirate showcase (systems/flexible_pendulum.yaml, its
@@ -1243,31 +1260,19 @@ static void test_arm_multirate(void) {
  * reaches p = 1's error for less CPU time is a benchmark
  * (bench/bench_multibody.c; doc/performance.md). */
 static void test_flex_multirate(void) {
-  mrvi_system *sys = NULL;
-  char msg[1024];
-  if (mrvi_system_load(test_source_path("systems/flexible_pendulum.yaml"), NULL,
-                       0, &sys, msg, sizeof msg) < 0) {
-    CHECK(0, "systems/flexible_pendulum.yaml loads: %s", msg);
+  double e[2];
+  const double order =
+      halving_order("systems/flexible_pendulum.yaml", "flexible pendulum", 10,
+                    10, 32, 0.01, 100, e, NULL);
+  if (isnan(order))
     return;
-  }
-  const int n = mrvi_model_n(sys->model);
-  double *q_ref = malloc((size_t)n * sizeof *q_ref),
-         *q = malloc((size_t)n * sizeof *q);
-  const char *flex = "flexible pendulum";
-  run_error(sys, flex, 10, 0.01 / 64, 100 * 64, NULL, q_ref);
-  const double e1 = run_error(sys, flex, 10, 0.01, 100, q_ref, q),
-               e2 = run_error(sys, flex, 10, 0.005, 200, q_ref, q);
-  const double order = log2(e1 / e2);
   CHECK(fabs(order - 2.0) <= 0.25,
         "flexible pendulum p = 10: order %.3f in dT (errors %.3e, %.3e at "
         "dT = 0.01, 0.005)",
-        order, e1, e2);
+        order, e[0], e[1]);
   printf("flexible pendulum: p = 10 errors %.3e, %.3e at dT = 0.01, 0.005 "
          "(order %.2f)\n",
-         e1, e2, order);
-  free(q_ref);
-  free(q);
-  mrvi_system_free(sys);
+         e[0], e[1], order);
 }
 
 int main(void) {
