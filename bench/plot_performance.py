@@ -1,13 +1,17 @@
 #!/usr/bin/python3
 """Figures of doc/performance.md from the benchmark tables in doc/results/.
 
-Usage: bench/plot_performance.py [RESULTS_DIR [FIGURES_DIR]]
+Usage: bench/plot_performance.py [--data FILE] [RESULTS_DIR [FIGURES_DIR]]
 (defaults doc/results and doc/figures; needs python3-matplotlib).
 Reads bench_fpu.txt, bench_mristep.txt, bench_lattice.txt, bench_floor.txt
 and bench_chain.txt (the stdout of build/bench/bench_fpu, bench_mristep,
 bench_lattice, bench_floor and bench_chain) and writes perf_fpu_p.png,
 perf_mristep.png, perf_lattice.png, perf_floor.png, perf_floor_ratios.png
-and perf_chain.png."""
+and perf_chain.png.  From the idle runs of bench_floor that idle_runs.txt
+lists (see idle_runs() below) it writes perf_idle_ratios.png, the ratio to
+the floor against n per scheme and network, goals dotted; --data FILE
+also writes the points drawn there, one line each: network, ratio, n,
+value and the run it came from."""
 import math
 import os
 import sys
@@ -16,6 +20,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 
 
 def rows(path, first_header):
@@ -36,14 +41,16 @@ def rows(path, first_header):
     return out
 
 
-def sections(path):
+def sections(path, lines=None):
     """{section: {key: rows}} of a file whose tables follow '## NAME' lines
     (bench_floor: one section per network).  A table is keyed by its first
     header, a later one whose first two headers differ by those two; a
     section or table that comes again (a second run appended) adds its
-    rows."""
+    rows.  lines: the file's lines to read instead of the whole file."""
     out, heads, name, header = {}, {}, None, None
-    for line in open(path, encoding="utf-8"):
+    if lines is None:
+        lines = open(path, encoding="utf-8").readlines()
+    for line in lines:
         if line.startswith("## "):
             name, header = line[3:].strip(), None
             out.setdefault(name, {})
@@ -72,10 +79,142 @@ def number(s):
         return None
 
 
+# The ratio columns of bench_floor's "n" table drawn in perf_idle_ratios.png:
+# (column, label, goal of issue 24).
+IDLE_RATIOS = [("FE/RESPA", "fully-explicit ÷ r-RESPA floor", 1.3),
+               ("ES/RESPA", "explicit-slow ÷ r-RESPA floor", 4.0),
+               ("MM/Verlet", "midpoint-midpoint ÷ Verlet floor", 15.0),
+               ("TM/Verlet", "trapezoidal-midpoint ÷ Verlet floor", 15.0)]
+NETWORKS = ["lattice2d", "lattice3d", "random3d"]
+
+
+def blocks(path, names):
+    """The lines of the blocks NAME of a file of concatenated outputs, each
+    headed by a line '=== NAME' and ending at the next '=== ' line; the
+    whole file when names is empty."""
+    lines = open(path, encoding="utf-8").readlines()
+    if not names:
+        return lines
+    out, keep, found = [], False, set()
+    for line in lines:
+        if line.startswith("=== "):
+            name = line[4:].strip()
+            keep = name in names
+            if keep:
+                found.add(name)
+            continue
+        if keep:
+            out.append(line)
+    missing = [n for n in names if n not in found]
+    if missing:
+        raise SystemExit("%s: no block %s" % (path, ", ".join(missing)))
+    return out
+
+
+def idle_runs(res):
+    """The points of perf_idle_ratios.png: {(network, column, n): (value,
+    run)} from the runs RES/idle_runs.txt lists, oldest first, one a line:
+    'DATE TIME FILE [BLOCK...]' (FILE in RES; BLOCKs: only those blocks of a
+    file of concatenated outputs; '#' starts a comment).  A later run's
+    value replaces an earlier one's, so each point is the latest idle
+    figure; a listed run that adds no point is an error."""
+    path = os.path.join(res, "idle_runs.txt")
+    points, runs = {}, []
+    for k, line in enumerate(open(path, encoding="utf-8"), 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        if len(words) < 3:
+            raise SystemExit("%s:%d: expected DATE TIME FILE [BLOCK...]"
+                             % (path, k))
+        run = "%s %s %s" % tuple(words[:3])
+        lines = blocks(os.path.join(res, words[2]), words[3:])
+        added = 0
+        for net, tables in sections(None, lines).items():
+            for r in tables.get("n", []):
+                n = number(r.get("n", ""))
+                for col, _, _ in IDLE_RATIOS:
+                    v = number(r.get(col, ""))
+                    if n and v:
+                        points[(net, col, int(n))] = (v, run)
+                        added += 1
+        if not added:
+            raise SystemExit("%s:%d: %s has no ratio to draw" % (path, k, run))
+        runs.append(run)
+    return points, runs
+
+
+def plot_idle_ratios(res, fig, data):
+    """perf_idle_ratios.png: one panel per network, a line per scheme
+    (colour) through its latest idle points, the run of each point by its
+    marker, the goals dotted."""
+    points, runs = idle_runs(res)
+    markers = dict(zip(runs, "osD^vP*X"))
+    fig_, ax = plt.subplots(1, len(NETWORKS), figsize=(13, 4.6), sharey=True)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for col, net in enumerate(NETWORKS):
+        a = ax[col]
+        for k, (key, label, goal) in enumerate(IDLE_RATIOS):
+            pts = sorted((n, v, run) for (nt, c, n), (v, run) in points.items()
+                         if nt == net and c == key)
+            colour = colours[k]
+            a.axhline(goal, ls=":", lw=0.9, color=colour)
+            if not pts:
+                continue
+            a.loglog([p[0] for p in pts], [p[1] for p in pts], "-", lw=1,
+                     color=colour, label=label + " (goal %g)" % goal)
+            for n, v, run in pts:
+                a.loglog([n], [v], markers[run], color=colour, ms=6)
+                if data:
+                    data.write("%s %s %d %g %s\n" % (net, key, n, v, run))
+        drawn = {c for (nt, c, _) in points if nt == net}
+        absent = [lab.split(" ÷")[0] for key, lab, _ in IDLE_RATIOS
+                  if key not in drawn]
+        a.set_title(net + (" (no idle run: %s)" % ", ".join(absent)
+                           if absent else ""), fontsize=9)
+        a.set_xlabel("coordinates n")
+        a.set_xlim(600, 2e6)
+        a.grid(True, which="major", lw=0.3)
+    ticks = sorted({1.0, 2.0, 10.0} | {g for _, _, g in IDLE_RATIOS})
+    ax[0].set_yticks(ticks)
+    ax[0].set_yticklabels(["%g" % t for t in ticks])
+    ax[0].yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax[0].set_ylabel("CPU time per macro step ÷ the floor's (one thread)")
+    lines, labels = ax[0].get_legend_handles_labels()
+    for a in ax[1:]:  # a scheme drawn on one network only
+        for h, lab in zip(*a.get_legend_handles_labels()):
+            if lab not in labels:
+                lines.append(h)
+                labels.append(lab)
+    fig_.legend(lines, labels, fontsize=7, loc="lower left", ncol=2,
+                bbox_to_anchor=(0.01, 0.0))
+    handles = [plt.Line2D([], [], ls="", marker=markers[r], color="k")
+               for r in runs]
+    fig_.legend(handles, ["run of " + r for r in runs], fontsize=7,
+                loc="lower right", bbox_to_anchor=(0.99, 0.0))
+    fig_.suptitle("bench_floor on an idle machine, dT = 0.05, p = 10: the "
+                  "latest figure at each n (dotted: issue 24's goals)",
+                  fontsize=10)
+    rows = max(2, len(runs))
+    fig_.tight_layout(rect=(0, 0.035 * rows + 0.02, 1, 1))
+    fig_.savefig(os.path.join(fig, "perf_idle_ratios.png"), dpi=110)
+    plt.close(fig_)
+
+
 def main():
-    res = sys.argv[1] if len(sys.argv) > 1 else "doc/results"
-    fig = sys.argv[2] if len(sys.argv) > 2 else "doc/figures"
+    args = sys.argv[1:]
+    data = None
+    if args[:1] == ["--data"] and len(args) > 1:
+        data = open(args[1], "w", encoding="utf-8")
+        args = args[2:]
+    res = args[0] if len(args) > 0 else "doc/results"
+    fig = args[1] if len(args) > 1 else "doc/figures"
     os.makedirs(fig, exist_ok=True)
+
+    if os.path.exists(os.path.join(res, "idle_runs.txt")):
+        plot_idle_ratios(res, fig, data)
+    if data:
+        data.close()
 
     path = os.path.join(res, "bench_fpu.txt")
     if os.path.exists(path):

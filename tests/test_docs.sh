@@ -12,6 +12,10 @@
 #   - no file of the repository refers to design notes or directories
 #     outside it (the repository must stand alone);
 #   - doc/gallery.md has an entry with figures for every systems/*.yaml;
+#   - every link to a heading (FILE.md#ANCHOR, #ANCHOR) names one
+#     (tests/doc_anchors.py), the checker first shown to fail;
+#   - bench/plot_performance.py draws doc/performance.md's figures from
+#     doc/results, and takes each idle ratio from the latest run listed;
 #   - every command and program whose output README.md and doc/*.md show is
 #     re-run and its output compared, numbers within the tolerances stated
 #     in tests/doc_outputs.py (timings excepted); the checker is first shown
@@ -162,6 +166,113 @@ if [ -z "$images" ] || [ -n "$gone" ]; then
   fail "doc/gallery.md: missing figures: $(echo $gone)"
 else
   pass "doc/gallery.md: its $(echo "$images" | wc -w) figures exist"
+fi
+
+# --- links to headings resolve (tests/doc_anchors.py) ---
+# The checker first shown to report exactly the broken anchor (a repeated
+# heading takes "-1", punctuation is dropped).
+# shellcheck disable=SC2016 # backquotes: a Markdown fence, not a command
+printf '# A title\n## Goals (issue 8): where?\n## A title\n```\n# not a heading\n```\n' >"$tmp/d/c.md"
+printf '[a](#goals-issue-8-where) [b](#a-title-1) [c](#not-a-heading) [d](c.md#a-title)\n' >>"$tmp/d/c.md"
+if /usr/bin/python3 "$root/tests/doc_anchors.py" "$tmp/d/c.md" >"$tmp/out.txt"; then
+  fail "anchor checker accepts a broken anchor"
+elif [ "$(head -1 "$tmp/out.txt")" = "$tmp/d/c.md: #not-a-heading" ] &&
+  grep -q "^4 anchors checked, 1 broken$" "$tmp/out.txt"; then
+  pass "anchor checker reports exactly the broken anchor"
+else
+  fail "anchor checker output: $(cat "$tmp/out.txt")"
+fi
+if /usr/bin/python3 "$root/tests/doc_anchors.py" "${docs[@]}" >"$tmp/out.txt"; then
+  pass "README.md and doc/*.md: $(tail -1 "$tmp/out.txt")"
+else
+  fail "links to headings that do not exist:"
+  sed 's/^/     /' "$tmp/out.txt"
+fi
+
+# --- bench/plot_performance.py draws doc/performance.md's figures ---
+# From the shipped results files, every figure; then, on two synthetic
+# bench_floor outputs, perf_idle_ratios.png's rule: the latest run listed
+# in idle_runs.txt gives each point, only the blocks named are read, and a
+# listed run without a ratio or a missing block is an error.
+if /usr/bin/python3 -c "import matplotlib" 2>/dev/null; then
+  plotp=$root/bench/plot_performance.py
+  if /usr/bin/python3 "$plotp" --data "$tmp/idle.txt" "$root/doc/results" \
+    "$tmp/figs" >"$tmp/out.txt" 2>&1; then
+    small=""
+    for f in perf_fpu_p perf_mristep perf_lattice perf_floor \
+      perf_floor_ratios perf_chain perf_idle_ratios; do
+      [ "$(head -c 4 "$tmp/figs/$f.png" 2>/dev/null | od -An -tx1 | tr -d ' \n')" = 89504e47 ] &&
+        [ "$(stat -c %s "$tmp/figs/$f.png")" -gt 10240 ] || small="$small $f"
+    done
+    runs=$(grep -cvE '^[[:space:]]*(#|$)' "$root/doc/results/idle_runs.txt")
+    used=$(awk '{print $5, $6, $7}' "$tmp/idle.txt" | sort -u | wc -l)
+    if [ -n "$small" ]; then
+      fail "plot_performance.py: missing or not a PNG:$small"
+    elif [ "$used" != "$runs" ] || [ "$(wc -l <"$tmp/idle.txt")" -lt 12 ]; then
+      fail "plot_performance.py: $(wc -l <"$tmp/idle.txt") idle points from $used of $runs runs"
+    else
+      pass "plot_performance.py: 7 figures from doc/results, $(wc -l <"$tmp/idle.txt") idle points from its $runs runs"
+    fi
+  else
+    fail "plot_performance.py on doc/results: $(tail -3 "$tmp/out.txt")"
+  fi
+  mkdir -p "$tmp/res"
+  floor_out() { # NETWORK then lines "n FE ES MM TM"
+    printf '## %s\n\n|        n |   FE/RESPA |   ES/RESPA |  MM/Verlet |  TM/Verlet |\n|---:|---:|---:|---:|---:|\n' "$1"
+    shift
+    for row in "$@"; do
+      # shellcheck disable=SC2086
+      printf '| %s | %s | %s | %s | %s |\n' $row
+    done
+    echo
+  }
+  floor_out lattice2d "1000 1.10 5.00 13.0 -" "10000 1.20 5.50 14.0 -" >"$tmp/res/a.txt"
+  {
+    echo "=== base"
+    floor_out lattice2d "10000 9.99 9.99 - -"
+    echo "=== new"
+    floor_out lattice2d "10000 0.90 - - -"
+    floor_out random3d "1000 - 3.50 - 12.5"
+  } >"$tmp/res/b.txt"
+  printf '# a comment\n2026-01-01 10:00 a.txt\n\n2026-01-02 11:00 b.txt new  # not base\n' \
+    >"$tmp/res/idle_runs.txt"
+  cat >"$tmp/want.txt" <<'EOF_'
+lattice2d FE/RESPA 1000 1.1 2026-01-01 10:00 a.txt
+lattice2d FE/RESPA 10000 0.9 2026-01-02 11:00 b.txt
+lattice2d ES/RESPA 1000 5 2026-01-01 10:00 a.txt
+lattice2d ES/RESPA 10000 5.5 2026-01-01 10:00 a.txt
+lattice2d MM/Verlet 1000 13 2026-01-01 10:00 a.txt
+lattice2d MM/Verlet 10000 14 2026-01-01 10:00 a.txt
+random3d ES/RESPA 1000 3.5 2026-01-02 11:00 b.txt
+random3d TM/Verlet 1000 12.5 2026-01-02 11:00 b.txt
+EOF_
+  if /usr/bin/python3 "$plotp" --data "$tmp/got.txt" "$tmp/res" "$tmp/rfigs" \
+    >"$tmp/out.txt" 2>&1 && cmp -s "$tmp/got.txt" "$tmp/want.txt"; then
+    pass "plot_performance.py: each idle point from the latest run listed, only the blocks named"
+  else
+    fail "plot_performance.py: idle points $(diff "$tmp/want.txt" "$tmp/got.txt" | tr '\n' ' ') $(tail -2 "$tmp/out.txt")"
+  fi
+  # refused NAME PATTERN: the script exits non-zero with PATTERN in its output
+  refused() {
+    local rc
+    /usr/bin/python3 "$plotp" "$tmp/res" "$tmp/rfigs" >"$tmp/out.txt" 2>&1
+    rc=$?
+    if [ $rc -ne 0 ] && grep -q "$2" "$tmp/out.txt"; then
+      pass "plot_performance.py: $1"
+    else
+      fail "plot_performance.py: $1 (exit $rc): $(tail -2 "$tmp/out.txt")"
+    fi
+  }
+  printf '2026-01-01 10:00 a.txt\n2026-01-02 11:00 b.txt base\n2026-01-03 12:00 b.txt gone\n' \
+    >"$tmp/res/idle_runs.txt"
+  refused "a block that is not in its file is an error" "b.txt: no block gone"
+  printf '2026-01-01 10:00 a.txt\n2026-01-03 12:00 b.txt base\n' >"$tmp/res/idle_runs.txt"
+  floor_out lattice2d "10000 - - - -" >"$tmp/res/b.txt"
+  sed -i '1i === base' "$tmp/res/b.txt"
+  refused "a listed run without a ratio is an error" \
+    "idle_runs.txt:2: 2026-01-03 12:00 b.txt has no ratio"
+else
+  echo "skipped: plot_performance.py (/usr/bin/python3 lacks matplotlib)"
 fi
 
 # --- shown outputs equal what the tool prints (tests/doc_outputs.py) ---
