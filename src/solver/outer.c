@@ -234,7 +234,8 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   }
   /* each class's terms split by their columns (the order kept); the
    * gradients of large spring classes on threads, in parts by records
-   * (mrvi_terms_set_threads, the same bits for every count) */
+   * (mrvi_terms_set_threads, the same bits for every count), doubled
+   * until at most MRVI_TERMS_SPREAD of the records span parts */
   for (int c = 0; c < 2; c++)
     for (int part = 0; part < 2; part++) {
       int n_sel = 0;
@@ -252,8 +253,9 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
       mrvi_terms **kt = part ? &o->kss[c] : &o->kc[c];
       if (n_sel > 0 &&
           (mrvi_terms_create_grad(m, sel, n_sel, col, kt) != MRVI_OK ||
-           mrvi_terms_set_threads(*kt, st->threads, st->tuning.thread_chunk,
-                                  0) != MRVI_OK)) {
+           mrvi_terms_set_threads_spread(*kt, st->threads,
+                                         st->tuning.thread_chunk, 0,
+                                         MRVI_TERMS_SPREAD) != MRVI_OK)) {
         free(col);
         free(sel);
         mrvi_outer_free(o);

@@ -509,13 +509,15 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
       !(st->ns <= 4 && st->nf <= 4) && m->n > pr->tn.slow_newton_n;
   for (int c = 0; c < 2; c++) {
     /* (a large spring class's gradient on the step's threads, in parts by
-     * records as the outer iteration's: the same bits for every count) */
+     * records as the outer iteration's, doubled until few records span
+     * them: the same bits for every count) */
     const int ok =
         (grad_only ? mrvi_terms_create_grad_exact : mrvi_terms_create)(
             m, st->elem_of_class[c], st->n_elem_of_class[c], col, &pr->kc[c]) ==
             MRVI_OK &&
-        mrvi_terms_set_threads(pr->kc[c], st->threads, st->tuning.thread_chunk,
-                               0) == MRVI_OK &&
+        mrvi_terms_set_threads_spread(pr->kc[c], st->threads,
+                                      st->tuning.thread_chunk, 0,
+                                      MRVI_TERMS_SPREAD) == MRVI_OK &&
         (pr->kinds[c] = malloc((size_t)st->n_pts[c] + 1));
     if (!ok) {
       free(col);

@@ -520,6 +520,11 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
  * many records span parts (a 3-D lattice's records between layers). */
 int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
                                   int ncol, double spread);
+/* The share for the Newton paths' classes (solver/outer.c,
+ * solver/predict.c): on random3d's slow class in parts of 4 096 records
+ * most records span two parts (a column belongs to the part of the first
+ * record that writes it, a layer back), so each was evaluated twice. */
+#define MRVI_TERMS_SPREAD 0.05
 /* mrvi_terms_grad and mrvi_terms_grad_part on kc's Hooke springs with one
  * division per spring (u = d / r by the reciprocal of r, as in a
  * gradient-only class) instead of spring_eval's division per axis, where

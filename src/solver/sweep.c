@@ -1226,7 +1226,13 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
  * configuration into zn: the absolute criterion with one point per
  * interval (the common case) with every fast mass read from entry 0 where
  * they are equal (sw->mass_inc 0: a stream fewer) or from its own entry,
- * and the general pass. */
+ * and the general pass.  Every variant stores fimp only where the
+ * interval has several points (keep): with one, fimp holds the last row's
+ * converged force until the history moves on, which a row end deferred
+ * to this update's parallel region (defer_part) does only after the pass
+ * (defer_end); a pass storing over it there gave threads other bits than
+ * one thread's (the scaled criterion; tuning.chord_linear where the fast
+ * masses differ). */
 static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
                             const double *g, double om, double wc, double cB,
                             double *zn, int f0, int f1, double out[4],
@@ -1243,13 +1249,13 @@ static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
   else if (step && unit && !keep && !sw->mass_inc)
     PASS(1, 0, 0, 0, 1);
   else if (step)
-    PASS(unit, 1, 1, 0, 1);
+    PASS(unit, keep, 1, 0, 1);
   else if (unit && !keep && !sw->mass_inc)
     PASS(1, 0, 0, 0, 0);
   else if (unit && !keep)
     PASS(1, 0, 1, 0, 0);
   else
-    PASS(unit, 1, 1, 0, 0);
+    PASS(unit, keep, 1, 0, 0);
 #undef PASS
 }
 
