@@ -615,6 +615,139 @@ static void check_sparse_parts(const mrvi_model *m, const int *elems,
   free(w);
 }
 
+/* The matrix-free block (mrvi_sblock_create_free, sweep-cg's Newton matrix
+ * where W is springs and anchors) against the assembled sb at q: the
+ * gradient bitwise; the product H x to 1e-13 relative; on J = H + s I
+ * (positive definite: CG) and J = H - s' I (negative definite: CG meets
+ * non-positive curvature and the LU fallback assembles the block from
+ * the records) the solutions to 1e-9 relative, D^-1 bitwise and the
+ * Jacobi bound to 1e-13 relative (positive definite).  kt, where not NULL:
+ * the class in np parts by columns; the block in those parts assembled by
+ * parts in reverse, and the block in np parts over the class kc (not in
+ * parts: its products formed whole) give the serial product bitwise, and
+ * the CG on the parts the same bits on 1, 2, 3 threads
+ * (check_sparse_solve). */
+static void check_sparse_free(mrvi_terms *kc, mrvi_terms *kt, int np, int n,
+                              int d, const law_case *lc, const double *q,
+                              const double *g, mrvi_sblock *sb, double hscale,
+                              unsigned long long *rng) {
+  mrvi_sblock *sf = NULL;
+  double *w = calloc(9 * (size_t)n, sizeof *w);
+  CHECK(w && mrvi_sblock_create_free(kc, n, d, 512, &sf) == MRVI_OK &&
+            mrvi_sblock_free_form(sf),
+        "d %d %s: the matrix-free block", d, lc->law);
+  if (!w || !sf) {
+    free(w);
+    mrvi_sblock_free(sf);
+    return;
+  }
+  double *gf = w, *x = w + n, *ya = w + 2 * n, *yf = w + 3 * n;
+  double *ba = w + 4 * n, *bf = w + 5 * n, *one = w + 6 * n;
+  double *da = w + 7 * n, *df = w + 8 * n;
+  char msg[256] = "";
+  mrvi_sblock_zero(sf);
+  mrvi_sblock_add_terms(sf, kc, q, gf, hscale);
+  CHECK(memcmp(g, gf, (size_t)n * sizeof *g) == 0,
+        "d %d %s (%g): matrix-free: the gradient bitwise the assembly's", d,
+        lc->law, lc->params[1]);
+  double hn = 0.0; /* ||H||_inf from the columns */
+  for (int f = 0; f < n; f++) {
+    for (int i = 0; i < n; i++)
+      x[i] = i == f;
+    mrvi_sblock_matvec(sb, x, ya);
+    double s = 0.0;
+    for (int i = 0; i < n; i++)
+      s += fabs(ya[i]);
+    hn = fmax(hn, s);
+  }
+  for (int i = 0; i < n; i++) {
+    x[i] = uniform(rng);
+    one[i] = 1.0;
+  }
+  mrvi_sblock_matvec(sb, x, ya);
+  mrvi_sblock_matvec(sf, x, yf);
+  double e = 0.0, sc = 0.0;
+  for (int i = 0; i < n; i++) {
+    e = fmax(e, fabs(ya[i] - yf[i]));
+    sc = fmax(sc, fabs(ya[i]));
+  }
+  CHECK(sc > 0.0 && e <= 1e-13 * sc,
+        "d %d %s (%g): matrix-free product %.2e against the assembled "
+        "block's (scale %.2e)",
+        d, lc->law, lc->params[1], e, sc);
+  const double shift[2] = {2.0 * hn + 1.0, -(2.0 * hn + 1.0)};
+  for (int k = 0; k < 2; k++) {
+    long nnz = 0;
+    mrvi_sblock *bk[2] = {sb, sf};
+    double *bb[2] = {ba, bf};
+    int st[2];
+    for (int b = 0; b < 2; b++) { /* (assembled again: the solve shifts) */
+      mrvi_sblock_zero(bk[b]);
+      mrvi_sblock_add_terms(bk[b], kc, q, gf, hscale);
+      for (int i = 0; i < n; i++)
+        bb[b][i] = x[i];
+      st[b] = mrvi_sblock_solve(bk[b], one, 0, shift[k], bb[b], 1e-14, msg,
+                                sizeof msg);
+    }
+    e = 0.0;
+    double xs = 0.0;
+    for (int i = 0; i < n; i++) {
+      e = fmax(e, fabs(ba[i] - bf[i]));
+      xs = fmax(xs, fabs(ba[i]));
+    }
+    const long fb = mrvi_sblock_stats(sf)->fallbacks;
+    CHECK(st[0] == MRVI_OK && st[1] == MRVI_OK && e <= 1e-9 * xs && fb == k &&
+              mrvi_sblock_values(sf, &nnz) == NULL,
+          "d %d %s (%g): J + %g I: matrix-free solution %.2e from the "
+          "assembled (scale %.2e), %ld LU fallbacks (%d expected) %s",
+          d, lc->law, lc->params[1], shift[k], e, xs, fb, k, msg);
+    if (k == 1)
+      break;
+    const double ja = mrvi_sblock_jacobi(sb, da);
+    const double jf = mrvi_sblock_jacobi(sf, df);
+    CHECK(memcmp(da, df, (size_t)n * sizeof *da) == 0 &&
+              fabs(ja - jf) <= 1e-13 * ja,
+          "d %d %s (%g): matrix-free Jacobi bound %.17g (assembled %.17g), "
+          "D^-1 bitwise",
+          d, lc->law, lc->params[1], jf, ja);
+  }
+  if (kt && np >= 2) {
+    mrvi_sblock *sp = NULL;
+    mrvi_sblock_zero(sf);
+    mrvi_sblock_add_terms(sf, kc, q, gf, hscale);
+    mrvi_sblock_matvec(sf, x, ya); /* (the serial product) */
+    CHECK(mrvi_sblock_create_free(kt, n, d, 512, &sp) == MRVI_OK &&
+              mrvi_sblock_set_parts(sp, np, 2) == MRVI_OK &&
+              mrvi_sblock_set_parts(sf, np, 2) == MRVI_OK,
+          "d %d %s: matrix-free in %d parts", d, lc->law, np);
+    for (int i = 0; sp && i < n; i++)
+      ba[i] = 0.0;
+    for (int c = np - 1; sp && c >= 0; c--)
+      mrvi_sblock_add_terms_part(sp, kt, c, q, ba, hscale, 1);
+    int same = sp && memcmp(g, ba, (size_t)n * sizeof *g) == 0;
+    for (int t = 1; sp && t <= 3; t++) {
+      mrvi_sblock_set_parts(sp, np, t);
+      mrvi_sblock_set_parts(sf, np, t);
+      mrvi_sblock_matvec(sp, x, yf);
+      mrvi_sblock_matvec(sf, x, bf);
+      same = same && !memcmp(ya, yf, (size_t)n * sizeof *ya) &&
+             !memcmp(ya, bf, (size_t)n * sizeof *ya);
+    }
+    CHECK(same,
+          "d %d %s (%g): matrix-free in %d parts: the gradient and, on 1, 2, "
+          "3 threads, the product (the class in parts or whole) bitwise the "
+          "serial ones",
+          d, lc->law, lc->params[1], np);
+    if (sp)
+      check_sparse_solve(sp, kt, n, np, q, ba, hscale, rng);
+    mrvi_sblock_free(sp);
+  }
+  mrvi_sblock_zero(sb); /* (sb as it came: the caller's values) */
+  mrvi_sblock_add_terms(sb, kc, q, gf, hscale);
+  mrvi_sblock_free(sf);
+  free(w);
+}
+
 static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
   mrvi_model *m = spring_model_rate(d, lc, rng, MRVI_FAST);
   if (!m)
@@ -734,8 +867,10 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
               d, lc->law, lc->params[1], np, by_rec ? "records" : "columns",
               recip ? ", one division" : "");
       }
-      if (w3 && kt && np >= 2 && !by_rec)
+      if (w3 && kt && np >= 2 && !by_rec) {
         check_sparse_parts(m, elems, kt, np, q, g, sb, hscale, rng);
+        check_sparse_free(kc, kt, np, n, d, lc, q, g, sb, hscale, rng);
+      }
       if (w3 && kt && np >= 2)
         check_lin(kt, q, n, np, d, lc, 0, rng);
       /* (the springs alone, without the anchors: a class of Hooke springs
@@ -785,6 +920,8 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
           "d %d %s (%g): sparse Hessian-vector %.2e against central "
           "differences (scale %.2e)",
           d, lc->law, lc->params[1], e, sc);
+    if (r == 0) /* (serial: the block whole) */
+      check_sparse_free(kc, NULL, 0, n, d, lc, q, g, sb, hscale, rng);
   }
   mrvi_sblock_free(sb);
   mrvi_sblock_free(sr);

@@ -402,6 +402,17 @@ typedef struct mrvi_terms mrvi_terms; /* (below) */
 int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
                        int dense_max, mrvi_sblock **out);
 void mrvi_sblock_free(mrvi_sblock *sb);
+/* The block matrix-free (solver/sparse_block.c, "matrix-free") on the
+ * records of kc (mrvi_terms_springs_only; its columns the block's nf
+ * rows; dim the model's; kept by the block): no pattern and no values, each
+ * product forming the records' Hessian blocks at the configuration of the last
+ * assembly (mrvi_sblock_add_terms or its parts, once after a zero: one
+ * configuration, which the caller keeps unchanged until the solve and
+ * mrvi_sblock_jacobi).  MRVI_EINVAL for another class, MRVI_ENOMEM.
+ * mrvi_sblock_free_form: whether sb is. */
+int mrvi_sblock_create_free(mrvi_terms *kc, int nf, int dim, int dense_max,
+                            mrvi_sblock **out);
+int mrvi_sblock_free_form(const mrvi_sblock *sb);
 /* Values to zero, then add scale H (n_in x n_in, element ie of the list). */
 void mrvi_sblock_zero(mrvi_sblock *sb);
 void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
@@ -649,6 +660,24 @@ int mrvi_terms_sparse_parts(const mrvi_terms *kc);
 void mrvi_terms_eval_sparse_part(const mrvi_terms *kc, int c, const double *z,
                                  double *g, double *Ax, const long *off,
                                  const int *emap, double hscale);
+/* y += scale hess Z(z) x, each record's block formed at z and applied
+ * (mrvi_terms_hessvec's spring_block, none assembled) on the columns of
+ * part c (mrvi_terms_set_threads; c < 0: every record, all columns), in
+ * the records' order: the parts give c = -1's y bitwise.  A class of
+ * springs and anchors alone (mrvi_terms_springs_only), partitioned where
+ * c >= 0 (mrvi_terms_sparse_parts). */
+void mrvi_terms_hessvec_part(const mrvi_terms *kc, int c, const double *z,
+                             const double *x, double *y, double scale);
+/* The off-diagonal entries of hscale hess Z(z) on the rows of part c
+ * (c < 0: all), mrvi_terms_eval_sparse's products: within a particle's
+ * own dim x dim block summed into own[0] and own[1] by row (the row's
+ * other components in their order; dim 3: both, 2: own[0]), and the
+ * absolute values of the entries between the two particles of each
+ * spring added into nbr by row, so that |own[0]| + |own[1]| + nbr is
+ * the assembled row's off-diagonal absolute sum (more where two springs
+ * join the same two particles).  The classes of mrvi_terms_hessvec_part. */
+void mrvi_terms_offdiag_part(const mrvi_terms *kc, int c, const double *z,
+                             double hscale, double *const own[2], double *nbr);
 /* y_v += scale hess Z(z) x_v for the nvec vectors x_v = x + v xs, y_v =
  * y + v ys (on the columns): each element's Hessian formed once and
  * applied to every vector, none assembled (springs and anchors by the

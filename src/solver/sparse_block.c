@@ -9,7 +9,19 @@
  * non-positive curvature, or no convergence, falls back to a sparse LU of
  * J (UMFPACK: symbolic analysis on the first fallback of the run, numeric
  * per fallback), counted with its reason.  Memory O(nnz); nothing is
- * allocated after creation except UMFPACK's factors on a fallback. */
+ * allocated after creation except UMFPACK's factors on a fallback.
+ *
+ * Matrix-free (mrvi_sblock_create_free, a class of springs and anchors
+ * kept as records): no pattern and no values; the assembly keeps the
+ * configuration z, the scale and the Hessian's diagonal alone (with the
+ * gradient, mrvi_terms_grad_hdiag: the assembled diagonal bitwise, summed
+ * into D^-1's array, which the solve inverts in place), and each CG
+ * product forms every record's dim x dim block at z again
+ * (mrvi_terms_hessvec_part): 5 nf doubles in all (D^-1 and the CG's four
+ * vectors) where the values and their row indices took 12
+ * bytes an entry, about 20 entries a fast coordinate on the random
+ * networks (doc/performance.md, "explicit-slow's matrix-free Newton
+ * block").  The LU fallback assembles the block from the records then. */
 #include "solver/solver.h"
 
 #include <limits.h>
@@ -39,6 +51,23 @@ struct mrvi_sblock {
    * psum: a part's sums, PSUM_STRIDE doubles (a cache line) each */
   int n_part, threads;
   double *psum;
+  /* matrix-free (kc set): the records of kc at z (the last assembly's
+   * configuration: the caller keeps it until the solve and
+   * mrvi_sblock_jacobi) times hs, n_add assemblies since the values were
+   * zeroed (one allowed: one z); the Hessian's diagonal in dinv until
+   * the solve makes it D^-1 (nonpos: some J_ff <= 0 or NaN there, D^-1 1);
+   * the product's M/dt: mscale mdiag[f minc] (mscale 0 before the solve,
+   * as the values before their shift).  Ap, Ai, Ax: made by an LU
+   * fallback alone. */
+  mrvi_terms *kc;
+  const double *z, *mdiag;
+  double hs, mscale;
+  int minc, n_add, nonpos;
+  /* kc partitioned as the block's rows (mrvi_sblock_set_parts): each part
+   * forms its rows of a product from its records; else (one thread: kc
+   * not partitioned) one thread forms the product whole first, each
+   * row's sum the same bits either way (the records' order) */
+  int kc_parts;
 };
 
 /* Doubles per part in psum: a cache line of its own (the parts' sums are
@@ -123,16 +152,24 @@ static int compact_ok(const mrvi_model *m, const mrvi_element *e,
  * then each element's map of its Hessian's entries to their indices in Ax:
  * compact (nb x nb block bases and nb column lengths, nb = n_in / dim) where
  * compact_ok, else n_in x n_in indices (-1: a slow pair). */
+/* A block of nf rows with nothing allocated but itself. */
+static mrvi_sblock *sblock_new(int nf, int dim, int dense_max) {
+  mrvi_sblock *sb = calloc(1, sizeof *sb);
+  if (sb) {
+    sb->nf = nf;
+    sb->dense_max = dense_max;
+    sb->dim = dim;
+  }
+  return sb;
+}
+
 int mrvi_sblock_create(const mrvi_model *m, const int *elems, int n_elems,
                        int dense_max, mrvi_sblock **out) {
   const int nf = m->n_fast, dim = m->dimension;
   *out = NULL;
-  mrvi_sblock *sb = calloc(1, sizeof *sb);
+  mrvi_sblock *sb = sblock_new(nf, dim, dense_max);
   if (!sb)
     return MRVI_ENOMEM;
-  sb->nf = nf;
-  sb->dense_max = dense_max;
-  sb->dim = dim;
   sb->elem_off = malloc((size_t)(n_elems > 0 ? n_elems : 1) * sizeof(long));
   if (!sb->elem_off)
     goto oom;
@@ -269,6 +306,30 @@ oom:
   return MRVI_ENOMEM;
 }
 
+int mrvi_sblock_create_free(mrvi_terms *kc, int nf, int dim, int dense_max,
+                            mrvi_sblock **out) {
+  *out = NULL;
+  if (!mrvi_terms_springs_only(kc) || mrvi_terms_hessblocks_size(kc) < 0 ||
+      nf < 0 || dim < 1 || dim > 3)
+    return MRVI_EINVAL;
+  mrvi_sblock *sb = sblock_new(nf, dim, dense_max);
+  if (!sb)
+    return MRVI_ENOMEM;
+  sb->kc = kc;
+  const size_t n = (size_t)(nf > 0 ? nf : 1);
+  sb->dinv = calloc(n, sizeof(double));
+  sb->x = malloc(n * sizeof(double));
+  sb->work = malloc(3 * n * sizeof(double));
+  if (!sb->dinv || !sb->x || !sb->work) {
+    mrvi_sblock_free(sb);
+    return MRVI_ENOMEM;
+  }
+  *out = sb;
+  return MRVI_OK;
+}
+
+int mrvi_sblock_free_form(const mrvi_sblock *sb) { return sb->kc != NULL; }
+
 void mrvi_sblock_map_expand(const int *cm, int n, int dim, int *map) {
   const int nb = n / dim;
   for (int i = 0; i < n; i++)
@@ -280,6 +341,12 @@ void mrvi_sblock_map_expand(const int *cm, int n, int dim, int *map) {
 }
 
 void mrvi_sblock_zero(mrvi_sblock *sb) {
+  if (sb->kc) {
+    memset(sb->dinv, 0, (size_t)sb->nf * sizeof(double));
+    sb->n_add = 0;
+    sb->mscale = 0.0;
+    return;
+  }
   memset(sb->Ax, 0, (size_t)sb->nnz * sizeof(double));
 }
 
@@ -291,6 +358,7 @@ int mrvi_sblock_set_parts(mrvi_sblock *sb, int n_part, int threads) {
     return MRVI_ENOMEM;
   sb->psum = p;
   sb->n_part = n_part;
+  sb->kc_parts = sb->kc && mrvi_terms_sparse_parts(sb->kc) == n_part;
   sb->threads = threads > 1 ? threads : 1;
   return MRVI_OK;
 }
@@ -300,18 +368,31 @@ int mrvi_sblock_parts(const mrvi_sblock *sb) { return sb->n_part; }
 void mrvi_sblock_add_terms_part(mrvi_sblock *sb, const mrvi_terms *kc, int c,
                                 const double *z, double *g, double scale,
                                 int zero) {
-  if (zero) {
-    const int f0 = mrvi_part_start(c, sb->nf, sb->n_part);
-    const int f1 = mrvi_part_start(c + 1, sb->nf, sb->n_part);
+  const int f0 = mrvi_part_start(c, sb->nf, sb->n_part);
+  const int f1 = mrvi_part_start(c + 1, sb->nf, sb->n_part);
+  if (sb->kc) { /* (the configuration and scale kept by part 0 alone) */
+    if (zero)
+      memset(sb->dinv + f0, 0, (size_t)(f1 - f0) * sizeof(double));
+    mrvi_terms_grad_hdiag_part(kc, c, z, g, sb->dinv, NULL, scale);
+    if (c == 0) {
+      sb->z = z;
+      sb->hs = scale;
+      sb->n_add = zero ? 1 : sb->n_add + 1;
+      sb->mscale = 0.0;
+    }
+    return;
+  }
+  if (zero)
     memset(sb->Ax + sb->Ap[f0], 0,
            (size_t)(sb->Ap[f1] - sb->Ap[f0]) * sizeof(double));
-  }
   mrvi_terms_eval_sparse_part(kc, c, z, g, sb->Ax, sb->elem_off, sb->emap,
                               scale);
 }
 
 void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
                              double scale) {
+  if (sb->kc) /* (matrix-free: the records' Hessians alone) */
+    return;
   const long o = sb->elem_off[ie];
   if (o == -1)
     return;
@@ -328,14 +409,28 @@ void mrvi_sblock_add_element(mrvi_sblock *sb, int ie, const double *H, int n_in,
 
 void mrvi_sblock_add_terms(mrvi_sblock *sb, mrvi_terms *kc, const double *z,
                            double *g, double scale) {
+  if (sb->kc) {
+    mrvi_terms_grad_hdiag(kc, z, g, sb->dinv, NULL, scale);
+    sb->z = z;
+    sb->hs = scale;
+    sb->n_add++;
+    sb->mscale = 0.0;
+    return;
+  }
   mrvi_terms_eval_sparse(kc, z, g, sb->Ax, sb->elem_off, sb->emap, scale);
 }
 
 static double matvec_parts(void *ctx, const double *x, double *y);
+static double free_rows(const mrvi_sblock *sb, int c, const double *x,
+                        double *y, int f0, int f1);
 
 void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y) {
   if (sb->n_part > 0) { /* (the CG's product on threads) */
     matvec_parts((void *)sb, x, y);
+    return;
+  }
+  if (sb->kc) {
+    free_rows(sb, -1, x, y, 0, sb->nf);
     return;
   }
   memset(y, 0, (size_t)sb->nf * sizeof(double));
@@ -345,18 +440,54 @@ void mrvi_sblock_matvec(const mrvi_sblock *sb, const double *x, double *y) {
 }
 
 const double *mrvi_sblock_values(const mrvi_sblock *sb, long *nnz) {
-  *nnz = sb->nnz;
-  return sb->Ax;
+  *nnz = sb->kc ? 0 : sb->nnz;
+  return sb->kc ? NULL : sb->Ax;
 }
 
 long mrvi_sblock_map_ints(const mrvi_sblock *sb) { return sb->n_map; }
 
+/* Matrix-free: rows [f0, f1) of y = J x, those of part c (c < 0: every
+ * record, all rows): the records' blocks at z on the part's columns, in
+ * the records' order, then the rows' M/dt x. */
+static void free_y(const mrvi_sblock *sb, int c, const double *x, double *y,
+                   int f0, int f1) {
+  memset(y + f0, 0, (size_t)(f1 - f0) * sizeof(double));
+  mrvi_terms_hessvec_part(sb->kc, c, sb->z, x, y, sb->hs);
+  const double ms = sb->mscale, *md = sb->mdiag;
+  const size_t inc = (size_t)sb->minc;
+  if (ms != 0.0)
+    for (int f = f0; f < f1; f++)
+      y[f] += ms * md[f * inc] * x[f];
+}
+
+/* Whether a product on the parts takes free_y whole first (kc not in the
+ * block's parts). */
+static int free_whole(const mrvi_sblock *sb) { return sb->kc && !sb->kc_parts; }
+
+/* free_y and the rows' x.y. */
+static double free_rows(const mrvi_sblock *sb, int c, const double *x,
+                        double *y, int f0, int f1) {
+  free_y(sb, c, x, y, f0, f1);
+  double xy = 0.0;
+  for (int f = f0; f < f1; f++)
+    xy += x[f] * y[f];
+  return xy;
+}
+
 /* Rows [f0, f1) of y = J x in row form (row f's entries are column f's,
  * the pattern symmetric: J^T x, which is J x to round-off, the values
  * symmetric to round-off), each row one sum in the order of its columns;
- * returns their x.y. */
-static double rows_product(const mrvi_sblock *sb, const double *x, double *y,
-                           int f0, int f1) {
+ * returns their x.y.  Matrix-free: part c's (free_rows). */
+static double rows_product(const mrvi_sblock *sb, int c, const double *x,
+                           double *y, int f0, int f1) {
+  if (sb->kc && !sb->kc_parts) { /* (y formed whole: free_whole) */
+    double xy = 0.0;
+    for (int f = f0; f < f1; f++)
+      xy += x[f] * y[f];
+    return xy;
+  }
+  if (sb->kc)
+    return free_rows(sb, c, x, y, f0, f1);
   const int *Ap = sb->Ap, *Ai = sb->Ai;
   const double *Ax = sb->Ax;
   double xy = 0.0;
@@ -376,10 +507,12 @@ static double rows_product(const mrvi_sblock *sb, const double *x, double *y,
 static double matvec_parts(void *ctx, const double *x, double *y) {
   mrvi_sblock *sb = ctx;
   const int nf = sb->nf, n_part = sb->n_part;
+  if (free_whole(sb))
+    free_y(sb, -1, x, y, 0, nf);
   MRVI_PARALLEL_FOR(sb->threads)
   for (int c = 0; c < n_part; c++)
     sb->psum[PSUM_STRIDE * c] =
-        rows_product(sb, x, y, mrvi_part_start(c, nf, n_part),
+        rows_product(sb, c, x, y, mrvi_part_start(c, nf, n_part),
                      mrvi_part_start(c + 1, nf, n_part));
   double xy = 0.0;
   for (int c = 0; c < n_part; c++)
@@ -389,6 +522,8 @@ static double matvec_parts(void *ctx, const double *x, double *y) {
 
 static double matvec(void *ctx, const double *x, double *y) {
   const mrvi_sblock *sb = ctx;
+  if (sb->kc)
+    return free_rows(sb, -1, x, y, 0, sb->nf);
   memset(y, 0, (size_t)sb->nf * sizeof(double));
   for (int j = 0; j < sb->nf; j++) {
     const double xj = x[j];
@@ -405,9 +540,46 @@ const mrvi_krylov_stats *mrvi_sblock_stats(const mrvi_sblock *sb) {
   return &sb->stats;
 }
 
-/* Columns [j0, j1) of mrvi_sblock_jacobi. */
-static double jacobi_columns(const mrvi_sblock *sb, double *dinv, int j0,
+/* Matrix-free: rows [j0, j1) of mrvi_sblock_jacobi, part c's (c < 0:
+ * all), the off-diagonal sums from the records at z into the CG's work
+ * (idle after the solve): |own[0]| + |own[1]| + nbr, the assembled row's
+ * absolute sum (mrvi_terms_offdiag_part; its own block's entries each the
+ * assembled one bitwise, the sum's order the particle's then the
+ * springs'), D^-1 the solve's (1 / J_ff, bitwise the assembled
+ * block's). */
+static void free_offdiag(const mrvi_sblock *sb, int c, int j0, int j1) {
+  const int nf = sb->nf;
+  double *const own[2] = {sb->work, sb->work + nf};
+  for (int k = 0; k < 3; k++)
+    memset(sb->work + (size_t)k * nf + j0, 0,
+           (size_t)(j1 - j0) * sizeof(double));
+  mrvi_terms_offdiag_part(sb->kc, c, sb->z, sb->hs, own,
+                          sb->work + 2 * (size_t)nf);
+}
+static double free_jacobi(const mrvi_sblock *sb, int c, double *dinv, int j0,
+                          int j1) {
+  const int nf = sb->nf;
+  const double *own[2] = {sb->work, sb->work + nf};
+  const double *nbr = sb->work + 2 * (size_t)nf;
+  if (!free_whole(sb) || sb->n_part == 0)
+    free_offdiag(sb, c, j0, j1);
+  double bound = 0.0;
+  for (int j = j0; j < j1; j++) {
+    if (sb->nonpos)
+      return HUGE_VAL;
+    const double off = fabs(own[0][j]) + fabs(own[1][j]) + nbr[j];
+    dinv[j] = sb->dinv[j];
+    bound = fmax(bound, off * dinv[j]);
+  }
+  return bound;
+}
+
+/* Columns [j0, j1) of mrvi_sblock_jacobi (part c; matrix-free:
+ * free_jacobi). */
+static double jacobi_columns(const mrvi_sblock *sb, int c, double *dinv, int j0,
                              int j1) {
+  if (sb->kc)
+    return free_jacobi(sb, c, dinv, j0, j1);
   double bound = 0.0;
   for (int j = j0; j < j1; j++) {
     const double d = sb->Ax[sb->diag[j]];
@@ -428,11 +600,13 @@ static double jacobi_columns(const mrvi_sblock *sb, double *dinv, int j0,
 double mrvi_sblock_jacobi(const mrvi_sblock *sb, double *dinv) {
   const int nf = sb->nf, n_part = sb->n_part;
   if (n_part == 0)
-    return jacobi_columns(sb, dinv, 0, nf);
+    return jacobi_columns(sb, -1, dinv, 0, nf);
+  if (free_whole(sb)) /* (the sums whole first) */
+    free_offdiag(sb, -1, 0, nf);
   MRVI_PARALLEL_FOR(sb->threads)
   for (int c = 0; c < n_part; c++)
     sb->psum[PSUM_STRIDE * c] =
-        jacobi_columns(sb, dinv, mrvi_part_start(c, nf, n_part),
+        jacobi_columns(sb, c, dinv, mrvi_part_start(c, nf, n_part),
                        mrvi_part_start(c + 1, nf, n_part));
   double bound = 0.0;
   for (int c = 0; c < n_part; c++)
@@ -494,12 +668,18 @@ static int pcg_parts(mrvi_sblock *sb, double *b, double rtol, double atol,
     /* (slots: 0, 1 the start; 2 the product; 3, 4 the update: a slot is
      * written again only after a barrier that follows its reads) */
     for (k = 1; k <= max_it && st == MRVI_CG_MAXIT; k++) {
+      if (free_whole(sb)) {
+#ifdef _OPENMP
+#pragma omp single
+#endif
+        free_y(sb, -1, p, q, 0, n);
+      }
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
       for (int c = 0; c < n_part; c++)
         ps[PSUM_STRIDE * c + 2] =
-            rows_product(sb, p, q, mrvi_part_start(c, n, n_part),
+            rows_product(sb, c, p, q, mrvi_part_start(c, n, n_part),
                          mrvi_part_start(c + 1, n, n_part));
       const double pq = psum_combine(ps, n_part, 2, 0);
       if (!(pq > 0.0)) {
@@ -552,6 +732,73 @@ static int pcg_parts(mrvi_sblock *sb, double *b, double rtol, double atol,
   return status;
 }
 
+/* Matrix-free: J assembled from the records at z (their blocks,
+ * mrvi_terms_hessblocks, times hs) and M/dt into Ap, Ai, Ax (CSC, the
+ * triplets summed by UMFPACK) for the LU fallback. */
+static int free_assemble(mrvi_sblock *sb) {
+  const int nf = sb->nf, dim = sb->dim;
+  const long nbd = mrvi_terms_hessblocks_size(sb->kc);
+  const int nr = nbd >= 0 ? (int)(nbd / (dim * (dim + 1) / 2)) : -1;
+  const long nt = nf + 4L * dim * dim * (nr > 0 ? nr : 0);
+  free(sb->Ap);
+  free(sb->Ai);
+  free(sb->Ax);
+  sb->Ap = NULL;
+  sb->Ai = NULL;
+  sb->Ax = NULL;
+  if (nr < 0 || nbd < 0 || nt > INT_MAX)
+    return MRVI_ENOMEM;
+  double *B = malloc((size_t)(nbd > 0 ? nbd : 1) * sizeof *B);
+  int *ci = malloc((size_t)(2 * dim * nr + 1) * sizeof *ci);
+  int *Ti = malloc((size_t)nt * 2 * sizeof *Ti);
+  double *Tx = malloc((size_t)nt * sizeof *Tx);
+  sb->Ap = malloc((size_t)(nf + 1) * sizeof(int));
+  sb->Ai = malloc((size_t)nt * sizeof(int));
+  sb->Ax = malloc((size_t)nt * sizeof(double));
+  int st = MRVI_ENOMEM;
+  if (!B || !ci || !Ti || !Tx || !sb->Ap || !sb->Ai || !sb->Ax)
+    goto done;
+  mrvi_terms_hessblocks(sb->kc, sb->z, B);
+  int *cj = ci + (size_t)dim * nr, *Tj = Ti + nt, t = 0;
+  if (mrvi_terms_hessblocks_springs(sb->kc, ci, cj) != nr)
+    goto done;
+  for (int f = 0; f < nf; f++, t++) {
+    Ti[t] = Tj[t] = f;
+    Tx[t] = sb->mscale * sb->mdiag[(size_t)f * (size_t)sb->minc];
+  }
+  const double *b = B;
+  for (int r = 0; r < nr; r++, b += dim * (dim + 1) / 2) {
+    double A[3][3];
+    int e = 0;
+    for (int i = 0; i < dim; i++)
+      for (int j = i; j < dim; j++)
+        A[i][j] = A[j][i] = sb->hs * b[e++];
+    const int *pi = ci + r * dim, *pj = cj + r * dim;
+    for (int i = 0; i < dim; i++)
+      for (int j = 0; j < dim; j++) {
+        const int two = pj[0] >= 0;
+        const int rows[2] = {pi[i], two ? pj[i] : -1};
+        const int cols[2] = {pi[j], two ? pj[j] : -1};
+        for (int a = 0; a < 1 + two; a++)
+          for (int c = 0; c < 1 + two; c++) {
+            Ti[t] = rows[a];
+            Tj[t] = cols[c];
+            Tx[t++] = a == c ? A[i][j] : -A[i][j];
+          }
+      }
+  }
+  st = umfpack_di_triplet_to_col(nf, nf, t, Ti, Tj, Tx, sb->Ap, sb->Ai, sb->Ax,
+                                 NULL) == UMFPACK_OK
+           ? MRVI_OK
+           : MRVI_ENOMEM;
+done:
+  free(B);
+  free(ci);
+  free(Ti);
+  free(Tx);
+  return st;
+}
+
 /* Relative CG tolerance besides the caller's absolute one (a share of the
  * Newton tolerance): reachable where that share is below round-off. */
 #define SBLOCK_RTOL 1e-12
@@ -561,9 +808,25 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, int inc,
                       size_t len) {
   const int nf = sb->nf;
   double *x = sb->x;
+  if (sb->kc && sb->n_add != 1) {
+    mrvi_fmt(msg, len,
+             "matrix-free micro-step block: %d assemblies since the values "
+             "were zeroed (one configuration is kept)",
+             sb->n_add);
+    return MRVI_EINVAL;
+  }
+  double *dg = sb->kc ? sb->dinv : sb->Ax;
+  int nonpos = 0;
   for (int f = 0; f < nf; f++) {
-    const double d = (sb->Ax[sb->diag[f]] += dscale * diag[f * inc]);
+    const double d = (dg[sb->kc ? f : sb->diag[f]] += dscale * diag[f * inc]);
     sb->dinv[f] = d > 0.0 ? 1.0 / d : 1.0;
+    nonpos |= !(d > 0.0);
+  }
+  if (sb->kc) {
+    sb->nonpos = nonpos;
+    sb->mscale = dscale;
+    sb->mdiag = diag;
+    sb->minc = inc;
   }
   int it = 0;
   double curv = 0.0;
@@ -595,6 +858,18 @@ int mrvi_sblock_solve(mrvi_sblock *sb, const double *diag, int inc,
                "CG on the micro-step Newton matrix did not converge in %d "
                "iterations: sparse LU of the %d x %d block",
                it, nf, nf);
+  }
+  if (sb->kc) { /* (assembled from the records, analysed afresh) */
+    mrvi_newton_free(sb->lu);
+    sb->lu = NULL;
+    const int a = free_assemble(sb);
+    if (a < 0) {
+      mrvi_fmt(msg, len,
+               "out of memory for the LU fallback of the %d x %d "
+               "micro-step block",
+               nf, nf);
+      return a;
+    }
   }
   if (!sb->lu && !(sb->lu = mrvi_newton_create(nf, sb->Ap, sb->Ai, sb->Ax,
                                                sb->dense_max, msg, len)))

@@ -721,14 +721,25 @@ void mrvi_sweep_reset(mrvi_sweep *sw) {
 }
 
 /* The sparse block of the Newton matrix (its pattern, assembly maps and CG
- * vectors), made once, where Newton first assembles J. */
+ * vectors), made once, where Newton first assembles J: matrix-free where
+ * W's class is springs and anchors kept as records and one point of the
+ * interval has a Hessian (its configuration zf is the one the block
+ * keeps: neither the residual nor the solve changes zf). */
 static int sblock_ready(mrvi_sweep *sw, char *msg, size_t len) {
   if (sw->sb)
     return MRVI_OK;
   const mrvi_step *st = sw->st;
-  if (mrvi_sblock_create(st->model, st->elem_of_class[MRVI_FAST],
-                         st->n_elem_of_class[MRVI_FAST], sw->sb_dense_max,
-                         &sw->sb) < 0 ||
+  int n_hess = 0;
+  for (int i = 0; i < sw->n_w; i++)
+    n_hess += sw->cA[i] != 0.0 && sw->cB[i] != 0.0;
+  const int free_form =
+      n_hess == 1 && mrvi_terms_springs_only(sw->kc[MRVI_FAST]);
+  if ((free_form ? mrvi_sblock_create_free(sw->kc[MRVI_FAST], sw->nf,
+                                           st->model->dimension,
+                                           sw->sb_dense_max, &sw->sb)
+                 : mrvi_sblock_create(st->model, st->elem_of_class[MRVI_FAST],
+                                      st->n_elem_of_class[MRVI_FAST],
+                                      sw->sb_dense_max, &sw->sb)) < 0 ||
       mrvi_sblock_set_parts(sw->sb, sw->n_cpass, sw->pthreads) < 0) {
     mrvi_fmt(msg, len,
              "out of memory for the micro-step Newton matrix "

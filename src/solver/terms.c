@@ -2697,6 +2697,149 @@ void mrvi_terms_hessvec(mrvi_terms *kc, const double *z, int nvec,
   }
 }
 
+/* A record's Hessian blocks (spring_block: scale (a u u^T + b I), [A -A;
+ * -A A]) applied to x on the columns of the mask mk alone (bit k: x_i's
+ * k-th, bit dim + k: x_j's): y[i] += A (x[i] - x[j]), y[j] -= the same,
+ * spring_hessvec's products. */
+ALWAYS_INLINE void spring_hessvec_mask(const kspring *q,
+                                       const double *restrict z,
+                                       const double *restrict x,
+                                       double *restrict y, double scale,
+                                       const unsigned mk, const int dim,
+                                       const int two, const int hooke) {
+  double A[3][3], dx[3];
+  spring_block(q, z, scale, A, dim, two, hooke);
+  UNROLL for (int k = 0; k < dim; k++) dx[k] =
+      x[q->ci[k]] - (two ? x[q->cj[k]] : 0.0);
+  UNROLL for (int i = 0; i < dim; i++) {
+    double h = 0.0;
+    UNROLL for (int j = 0; j < dim; j++) h += A[i][j] * dx[j];
+    if (mk & 1u << i)
+      y[q->ci[i]] += h;
+    if (two && mk & 1u << (dim + i))
+      y[q->cj[i]] -= h;
+  }
+}
+
+static __attribute__((noinline)) void
+recs_hessvec(const kspring *q, const int *rec, const unsigned char *mask,
+             int nr, const double *z, const double *x, double *y, double scale,
+             int dim) {
+#define RECS_HV(D)                                                             \
+  for (int i = 0; i < nr; i++) {                                               \
+    const kspring *s = q + (rec ? rec[i] : i);                                 \
+    const unsigned mk = mask ? mask[i] : ~0u;                                  \
+    const int hk = s->k == KS_HOOKE;                                           \
+    if (s->two && hk)                                                          \
+      spring_hessvec_mask(s, z, x, y, scale, mk, D, 1, 1);                     \
+    else if (s->two)                                                           \
+      spring_hessvec_mask(s, z, x, y, scale, mk, D, 1, 0);                     \
+    else if (hk)                                                               \
+      spring_hessvec_mask(s, z, x, y, scale, mk, D, 0, 1);                     \
+    else                                                                       \
+      spring_hessvec_mask(s, z, x, y, scale, mk, D, 0, 0);                     \
+  }
+  if (dim == 2)
+    RECS_HV(2)
+  else if (dim == 3)
+    RECS_HV(3)
+  else
+    RECS_HV(1)
+#undef RECS_HV
+}
+
+void mrvi_terms_hessvec_part(const mrvi_terms *kc, int c, const double *z,
+                             const double *x, double *y, double scale) {
+  if (c < 0) { /* (every run, its records at once or in pieces) */
+    for (int it = 0; it < kc->n; it++) {
+      kterm tt;
+      const kterm *t = term_at(kc, it, &tt);
+#define HVP_(q, n, r) recs_hessvec(q, NULL, NULL, n, z, x, y, scale, kc->dim)
+      SPRING_PIECES(kc, t->qs, t->runs, HVP_);
+#undef HVP_
+      it += t->runs - 1;
+    }
+    return;
+  }
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  recs_hessvec(kc->qs, kc->part_rec + r0, kc->part_mask + r0, nr, z, x, y,
+               scale, kc->dim);
+}
+
+/* A record's off-diagonal Hessian entries on the columns of the mask mk
+ * (spring_map's products, hscale A with A = a u_k u_l (+ b on l = k)):
+ * those of its particles' own blocks (l != k) summed into own[0] and
+ * own[1] by row (the other two components of the row's particle in their
+ * order), the absolute values of those between its two particles into
+ * nbr by row. */
+ALWAYS_INLINE void spring_offdiag(const kspring *q, const double *z,
+                                  double hscale, double *const own[2],
+                                  double *nbr, const unsigned mk, const int dim,
+                                  const int two) {
+  double u[3], d1, a, b;
+  spring_derivs(q, z, u, &d1, &a, &b, dim, two, K_ANY);
+  UNROLL for (int k = 0; k < dim; k++) {
+    double o = 0.0;
+    UNROLL for (int l = 0; l < dim; l++) {
+      const double A = a * u[k] * u[l] + (l == k ? b : 0.0);
+      if (two)
+        o += fabs(hscale * -A);
+      if (l == k)
+        continue;
+      double *ol = own[l < k ? l : l - 1];
+      if (mk & 1u << k)
+        ol[q->ci[k]] += hscale * A;
+      if (two && mk & 1u << (dim + k))
+        ol[q->cj[k]] += hscale * A;
+    }
+    if (two && mk & 1u << k)
+      nbr[q->ci[k]] += o;
+    if (two && mk & 1u << (dim + k))
+      nbr[q->cj[k]] += o;
+  }
+}
+
+static __attribute__((noinline)) void
+recs_offdiag(const kspring *q, const int *rec, const unsigned char *mask,
+             int nr, const double *z, double hscale, double *const own[2],
+             double *nbr, int dim) {
+#define RECS_OD(D)                                                             \
+  for (int i = 0; i < nr; i++) {                                               \
+    const kspring *s = q + (rec ? rec[i] : i);                                 \
+    const unsigned mk = mask ? mask[i] : ~0u;                                  \
+    if (s->two)                                                                \
+      spring_offdiag(s, z, hscale, own, nbr, mk, D, 1);                        \
+    else                                                                       \
+      spring_offdiag(s, z, hscale, own, nbr, mk, D, 0);                        \
+  }
+  if (dim == 2)
+    RECS_OD(2)
+  else if (dim == 3)
+    RECS_OD(3)
+  else
+    RECS_OD(1)
+#undef RECS_OD
+}
+
+void mrvi_terms_offdiag_part(const mrvi_terms *kc, int c, const double *z,
+                             double hscale, double *const own[2], double *nbr) {
+  if (c < 0) {
+    for (int it = 0; it < kc->n; it++) {
+      kterm tt;
+      const kterm *t = term_at(kc, it, &tt);
+#define ODP_(q, n, r)                                                          \
+  recs_offdiag(q, NULL, NULL, n, z, hscale, own, nbr, kc->dim)
+      SPRING_PIECES(kc, t->qs, t->runs, ODP_);
+#undef ODP_
+      it += t->runs - 1;
+    }
+    return;
+  }
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  recs_offdiag(kc->qs, kc->part_rec + r0, kc->part_mask + r0, nr, z, hscale,
+               own, nbr, kc->dim);
+}
+
 /* The kept Hessian blocks of mrvi_terms_hessblocks: per spring or anchor
  * record the upper triangle of its block A by rows (dim (dim + 1) / 2
  * numbers), per other element its n x n Hessian (row-major), none for
