@@ -685,13 +685,20 @@ static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   mrvi_step *st = &o->step;
   const size_t nt = (size_t)st->n_total;
   const int max_refine = o->settings.tuning.adjoint_refine_max;
+  /* (a factorisation's cost in refinement steps: the chain elimination's
+   * estimate, mrvi_bordered_refactor_cost; node blocks and the bordered
+   * slow block have none, 0: no cost rule) */
+  const double phi = o->settings.tuning.adjoint_refine_by_cost
+                         ? mrvi_bordered_refactor_cost(o->bordered)
+                         : 0.0;
   for (int f = 0; f < nfun; f++) {
     const double *b = o->rhs + (size_t)f * nt;
     double *x = o->sol + (size_t)f * nt;
     int ok = 0;
     if (o->bd_factored && max_refine > 0)
       ok = mrvi_refine_transpose(st->n_total, st->Ap, st->Ai, o->Ak, b, x,
-                                 max_refine, o->bd_work, bd_solve, o, msg, len);
+                                 max_refine, phi, o->bd_work, bd_solve, o, msg,
+                                 len);
     if (ok == 1)
       continue;
     /* (step.Ax: the values the factors are of, as bordered.c reads them) */
@@ -784,7 +791,8 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
       int refactored;
       s = mrvi_newton_solve_transpose_kept(
           o->newton_full ? o->newton_full : o->newton, o->Ak, nfun, o->rhs,
-          o->sol, o->settings.tuning.adjoint_refine_max, &refactored, msg,
+          o->sol, o->settings.tuning.adjoint_refine_max,
+          o->settings.tuning.adjoint_refine_by_cost, &refactored, msg,
           sizeof msg);
       o->adjoint_factorisations += refactored;
     }

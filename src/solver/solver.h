@@ -237,26 +237,36 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
 /* x solving A^T x = b (A: CSC n x n) from solve (a solve with factors kept
  * from an earlier matrix of the same pattern), refined against A to the
  * round-off of the residual (newton.c): 1 if it got there, 0 if it gave up
- * after max_refine corrections or a correction that reduced the residual by
- * less than 4 (factorise A then), or solve's status; work: 2 n doubles.
+ * after max_refine corrections, a correction that reduced the residual by
+ * less than 4, or (phi > 0) where the corrections still needed at the last
+ * contraction are more than phi, the cost of a factorisation in
+ * corrections (factorise A then); or solve's status; work: 2 n doubles.
  * The adjoint's transposed steps on the general and schur-bordered paths. */
 typedef int (*mrvi_tsolve_fn)(void *ctx, const double *b, double *x, char *msg,
                               size_t len);
 int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
                           const double *b, double *x, int max_refine,
-                          double *work, mrvi_tsolve_fn solve, void *ctx,
-                          char *msg, size_t len);
+                          double phi, double *work, mrvi_tsolve_fn solve,
+                          void *ctx, char *msg, size_t len);
 /* The same solves starting from the factors kept from an earlier matrix of
  * the same pattern (a previous step, the forward Newton iteration),
  * refined against A (at most max_refine corrections, each a solve with the
  * kept factors) to the round-off of the residual; A is factorised, as by
  * mrvi_newton_solve_transpose, where no factors are kept, max_refine <= 0
  * or the refinement does not get there (*refactored = 1; then its factors
- * are the kept ones). */
+ * are the kept ones).  by_cost: it also gives up where the corrections
+ * still needed at the last contraction cost more than a factorisation
+ * (mrvi_newton_refactor_cost). */
 int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
                                      int nrhs, const double *b, double *x,
-                                     int max_refine, int *refactored, char *msg,
-                                     size_t len);
+                                     int max_refine, int by_cost,
+                                     int *refactored, char *msg, size_t len);
+/* A factorisation's cost over a refinement correction's (a solve with the
+ * factors and a residual, A^T x): multiply-adds estimated from the
+ * pattern of A and the factors (the dense LU's elimination in its
+ * ordering, or UMFPACK's counts of its last factorisation); 0 where
+ * unknown (nothing factorised yet). */
+double mrvi_newton_refactor_cost(mrvi_newton *nw);
 
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).
