@@ -497,43 +497,72 @@ static int refine_give_up(int it, int max_refine, double phi, double rmax,
 /* Iterative refinement against A of a solution from kept factors of an
  * earlier matrix B of the same pattern: x <- x + B^-T (b - A^T x), which
  * converges while ||B^-T (A - B)^T|| < 1 (consecutive steps of a smooth
- * trajectory).  It stops at ||b - A^T x||_inf <= 64 eps max_j (|A^T| |x| +
- * |b|)_j, the size of the round-off of the residual itself, and gives up
- * where refine_give_up says so (the caller then factorises A). */
+ * trajectory).  Each right-hand side stops at ||b - A^T x||_inf <= 64 eps
+ * max_j (|A^T| |x| + |b|)_j, the size of the round-off of the residual
+ * itself (its iterates those of its refinement alone), and the block
+ * gives up where refine_give_up says so for one (the caller then
+ * factorises A). */
 int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
-                          const double *b, double *x, int max_refine,
+                          int nrhs, const double *b, double *x, int max_refine,
                           double phi, double *work, mrvi_tsolve_fn solve,
                           void *ctx, char *msg, size_t len) {
-  double *r = work, *d = work + n;
-  int st = solve(ctx, b, x, msg, len);
-  double rprev = INFINITY;
-  for (int it = 0; st == MRVI_OK; it++) {
-    /* r = b - A^T x (column j of A dotted with x) and its scale. */
-    double rmax = 0.0, scale = 0.0;
-    for (int j = 0; j < n; j++) {
-      double sum = b[j], sc = fabs(b[j]);
-      for (int e = Ap[j]; e < Ap[j + 1]; e++) {
-        const double t = Ax[e] * x[Ai[e]];
-        sum -= t;
-        sc += fabs(t);
-      }
-      r[j] = sum;
-      rmax = fmax(rmax, fabs(sum));
-      scale = fmax(scale, sc);
-      if (!isfinite(sum))
-        rmax = INFINITY;
+  const size_t nn = (size_t)n;
+  double *r = work, *d = work + MRVI_REFINE_BLOCK * nn;
+  for (int c0 = 0; c0 < nrhs; c0 += MRVI_REFINE_BLOCK) {
+    const int nb =
+        nrhs - c0 < MRVI_REFINE_BLOCK ? nrhs - c0 : MRVI_REFINE_BLOCK;
+    /* act[a]: the right-hand side c0 + act[a] of the na still refined */
+    int act[MRVI_REFINE_BLOCK], na = nb;
+    double rprev[MRVI_REFINE_BLOCK];
+    for (int a = 0; a < nb; a++) {
+      act[a] = a;
+      rprev[a] = INFINITY;
     }
-    if (rmax <= 64.0 * DBL_EPSILON * scale)
-      return 1;
-    if (refine_give_up(it, max_refine, phi, rmax, rprev,
-                       64.0 * DBL_EPSILON * scale))
-      return 0;
-    rprev = rmax;
-    st = solve(ctx, r, d, msg, len);
-    for (int j = 0; j < n && st == MRVI_OK; j++)
-      x[j] += d[j];
+    int st = solve(ctx, nb, b + (size_t)c0 * nn, x + (size_t)c0 * nn, msg, len);
+    for (int it = 0; st == MRVI_OK && na > 0; it++) {
+      int kept = 0;
+      for (int a = 0; a < na; a++) {
+        const int c = c0 + act[a];
+        const double *bc = b + (size_t)c * nn, *xc = x + (size_t)c * nn;
+        double *rc = r + (size_t)kept * nn;
+        /* r = b - A^T x (column j of A dotted with x) and its scale. */
+        double rmax = 0.0, scale = 0.0;
+        for (int j = 0; j < n; j++) {
+          double sum = bc[j], sc = fabs(bc[j]);
+          for (int e = Ap[j]; e < Ap[j + 1]; e++) {
+            const double t = Ax[e] * xc[Ai[e]];
+            sum -= t;
+            sc += fabs(t);
+          }
+          rc[j] = sum;
+          rmax = fmax(rmax, fabs(sum));
+          scale = fmax(scale, sc);
+          if (!isfinite(sum))
+            rmax = INFINITY;
+        }
+        if (rmax <= 64.0 * DBL_EPSILON * scale)
+          continue;
+        if (refine_give_up(it, max_refine, phi, rmax, rprev[act[a]],
+                           64.0 * DBL_EPSILON * scale))
+          return 0;
+        rprev[act[a]] = rmax;
+        act[kept++] = act[a];
+      }
+      na = kept;
+      if (na == 0)
+        break;
+      st = solve(ctx, na, r, d, msg, len);
+      for (int a = 0; a < na && st == MRVI_OK; a++) {
+        double *xc = x + (size_t)(c0 + act[a]) * nn;
+        const double *dc = d + (size_t)a * nn;
+        for (int j = 0; j < n; j++)
+          xc[j] += dc[j];
+      }
+    }
+    if (st != MRVI_OK)
+      return st;
   }
-  return st;
+  return 1;
 }
 
 /* mrvi_newton_solve_transpose_kept: the same refinement with nw's own kept
