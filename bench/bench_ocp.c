@@ -25,7 +25,11 @@
  *      t_end a terminal constraint, effort cost (the chain elimination's
  *      adjoint: doc/performance.md, "Optimal control on the chain
  *      elimination").
- * Usage: bench_ocp [--budget SECONDS] [--only PROBLEM] [--lattice SIZES
+ *      --no-solve: part 1 without the solves: cost + gradient per
+ *      evaluation and over the forward run (best of three chunks of 20)
+ *      at the loaded controls ("rest") and at u_i = 0.5 sin(0.7 i).
+ * Usage: bench_ocp [--budget SECONDS] [--only PROBLEM] [--no-solve] [--lattice
+ * SIZES
  * [--constrained] [--solve] [--set NAME=VALUE]...] [--chain LINKS [--solve]
  * [--set integrator.tuning.NAME=VALUE]...] (--set: overrides of the
  * problems of parts 1, 3 and 4)
@@ -55,6 +59,7 @@ enum { MAX_SET = 8 };
 static const char *set[MAX_SET];
 static int n_set;
 static int constrained, solve; /* --constrained, --solve (part 3) */
+static int no_solve;           /* --no-solve (part 1) */
 
 typedef struct row {
   int n_u, evals, ok;
@@ -79,7 +84,28 @@ static void time_eval(mrvi_ocp *o, const double *u, double *g, double *c,
   }
 }
 
-/* Load FILE with overrides, time evaluations and solve. */
+/* --no-solve: CPU time per evaluation, best of three chunks of 20, of the
+ * forward run alone (tf) and of cost + gradient (ta) at u. */
+static void time_chunks(mrvi_ocp *o, const double *u, double *g, double *c,
+                        double *cg, double *tf, double *ta) {
+  double J;
+  *tf = *ta = 1e30;
+  for (int i = 0; i < 3; i++) {
+    double t0 = bench_cpu();
+    for (int k = 0; k < 20; k++)
+      mrvi_ocp_evaluate(o, u, &J, NULL, c, NULL);
+    *tf = fmin(*tf, (bench_cpu() - t0) / 20.0);
+    t0 = bench_cpu();
+    for (int k = 0; k < 20; k++)
+      mrvi_ocp_evaluate(o, u, &J, g, c, cg);
+    *ta = fmin(*ta, (bench_cpu() - t0) / 20.0);
+  }
+}
+
+/* Load FILE with overrides, time evaluations and solve (--no-solve: time
+ * at the loaded controls, r->ratio, and at u_i = 0.5 sin(0.7 i),
+ * r->ratio_opt, with r->t_eval and r->total the two cost + gradient
+ * times). */
 static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
   char msg[2048];
   mrvi_system *sys = NULL;
@@ -102,9 +128,24 @@ static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
   double *cg = malloc((size_t)(m * n + 1) * sizeof *cg);
   double *c = malloc((size_t)(m + 1) * sizeof *c);
   double tf, ta;
-  time_eval(o, u, g, c, cg, &tf, &ta);
+  if (no_solve) {
+    time_chunks(o, u, g, c, cg, &tf, &ta);
+    r->t_eval = ta;
+    r->ratio = ta / tf;
+    for (int i = 0; i < n; i++)
+      u[i] = 0.5 * sin(0.7 * i);
+    time_chunks(o, u, g, c, cg, &tf, &ta);
+    r->total = ta;
+    r->ratio_opt = ta / tf;
+    r->n_u = n;
+    r->ok = 1;
+  } else {
+    time_eval(o, u, g, c, cg, &tf, &ta);
+  }
   const char *path = mrvi_ocp_solver_path(o, NULL, 0);
   snprintf(r->path, sizeof r->path, "%s", path ? path : "none");
+  if (no_solve)
+    goto done;
   mrvi_ocp_result res;
   const double t0 = now();
   const int st = mrvi_ocp_solve(o, u, &res);
@@ -120,6 +161,7 @@ static int bench(const char *file, const char **ov, int n_ov, int alg, row *r) {
   double tf1, ta1;
   time_eval(o, u, g, c, cg, &tf1, &ta1);
   r->ratio_opt = ta1 / tf1;
+done:
   free(g);
   free(cg);
   free(c);
@@ -454,10 +496,13 @@ int main(int argc, char **argv) {
       constrained = 1;
     } else if (!strcmp(argv[i], "--solve")) {
       solve = 1;
+    } else if (!strcmp(argv[i], "--no-solve")) {
+      no_solve = 1;
     } else if (!strcmp(argv[i], "--set") && i + 1 < argc && n_set < MAX_SET) {
       set[n_set++] = argv[++i];
     } else {
       fputs("usage: bench_ocp [--budget SECONDS] [--only PROBLEM] "
+            "[--no-solve] "
             "[--lattice SIZES [--constrained] [--solve] "
             "[--set NAME=VALUE]...] [--chain LINKS [--solve] "
             "[--set integrator.tuning.NAME=VALUE]...]\n",
@@ -486,9 +531,14 @@ int main(int argc, char **argv) {
     snprintf(files[i], sizeof files[i], "%s/%s/%s.yaml", root ? root : ".",
              i >= 6 ? "bench" : "systems", names[i]);
   printf("# build: %s\n", bench_build());
-  printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %8s %9s %-8s %s\n", "problem",
-         "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd", "at opt",
-         "total [s]", "path", "status");
+  if (no_solve)
+    printf("%-22s %-15s %4s %2s %5s %11s %8s %11s %8s %s\n", "problem",
+           "scheme", "N", "p", "n_u", "c+g rest[ms]", "c+g/fwd", "c+g sin[ms]",
+           "c+g/fwd", "path");
+  else
+    printf("%-22s %-15s %4s %2s %5s %5s %9s %8s %8s %9s %-8s %s\n", "problem",
+           "scheme", "N", "p", "n_u", "evals", "eval [ms]", "eval/fwd",
+           "at opt", "total [s]", "path", "status");
   const double T[NP] = {2.0, 2.0, 6.0, 6.0, 6.0, 5.0, 2.0, 2.0};
   const int Ns[3] = {20, 40, 80}, ps[2] = {1, 5};
   for (int f = 0; f < NP; f++)
@@ -505,14 +555,20 @@ int main(int argc, char **argv) {
         row r;
         if (bench(files[f], ov, 3 + n_set, -1, &r) < 0)
           return 1;
-        printf("%-22s %-15s %4d %2d %5d %5d %9.3f %8.2f %8.2f %9.3f %-8s "
-               "%s\n",
-               names[f], scheme[f] ? scheme[f] : "midpoint-midpoint", Ns[in],
-               ps[ip], r.n_u, r.evals, 1e3 * r.t_eval, r.ratio, r.ratio_opt,
-               r.total, r.path, r.ok ? "ok" : "FAILED");
+        if (no_solve)
+          printf("%-22s %-15s %4d %2d %5d %11.4f %8.2f %11.4f %8.2f %s\n",
+                 names[f], scheme[f] ? scheme[f] : "midpoint-midpoint", Ns[in],
+                 ps[ip], r.n_u, 1e3 * r.t_eval, r.ratio, 1e3 * r.total,
+                 r.ratio_opt, r.path);
+        else
+          printf("%-22s %-15s %4d %2d %5d %5d %9.3f %8.2f %8.2f %9.3f %-8s "
+                 "%s\n",
+                 names[f], scheme[f] ? scheme[f] : "midpoint-midpoint", Ns[in],
+                 ps[ip], r.n_u, r.evals, 1e3 * r.t_eval, r.ratio, r.ratio_opt,
+                 r.total, r.path, r.ok ? "ok" : "FAILED");
         fflush(stdout);
       }
-  if (only)
+  if (only || no_solve)
     return 0;
   printf("\nlargest N (double integrator, p = 1, terminal tolerance 1e-8) "
          "solved within %.0f s:\n",

@@ -118,16 +118,19 @@ void test_initial_data(mrvi_step *st, double *qs, double *qf, double *ps,
 
 int test_bordered_transpose_solve(const mrvi_model *m, const mrvi_settings *s,
                                   double *res, double *dual, int *on_chain,
-                                  char *msg, size_t len) {
+                                  double *multi, char *msg, size_t len) {
   mrvi_step st;
-  *res = *dual = INFINITY, *on_chain = -1, msg[0] = 0;
+  *res = *dual = *multi = INFINITY, *on_chain = -1, msg[0] = 0;
   int rc = mrvi_step_init(&st, m, s);
   if (rc < 0)
     return rc;
   const int nt = st.n_total, nu = st.n_unknowns;
-  double *d = calloc((size_t)(4 * m->n + 5 * nt), sizeof *d);
+  double *d = calloc((size_t)(4 * m->n + 17 * nt), sizeof *d);
   double *qs = d, *qf = qs + m->n, *ps = qf + m->n, *pf = ps + m->n;
   double *x = pf + m->n, *R = x + nt, *b = R + nt, *c = b + nt, *y = c + nt;
+  /* three right-hand sides, their solves one by one and together, and the
+   * blocked solve's workspace */
+  double *B3 = y + nt, *Y1 = B3 + 3 * nt, *Y3 = Y1 + 3 * nt, *w = Y3 + 3 * nt;
   mrvi_bordered *bd = NULL;
   rc = d ? MRVI_OK : MRVI_ENOMEM;
   if (rc == 0) {
@@ -152,6 +155,24 @@ int test_bordered_transpose_solve(const mrvi_model *m, const mrvi_settings *s,
     rc = mrvi_bordered_solve_transpose(bd, &st, c, y, msg, len);
   if (rc == 0)
     rc = mrvi_bordered_solve(bd, &st, b, x, msg, len);
+  for (int i = 0; i < nt && rc == 0; i++) {
+    B3[i] = c[i];
+    B3[nt + i] = b[i];
+    B3[2 * nt + i] = i % 2 ? c[i] : 0.0;
+  }
+  for (int k = 0; k < 3 && rc == 0; k++)
+    rc = mrvi_bordered_solve_transpose(bd, &st, B3 + k * nt, Y1 + k * nt, msg,
+                                       len);
+  if (rc == 0)
+    rc = mrvi_bordered_solve_transpose_n(bd, &st, 3, B3, Y3, w, msg, len);
+  if (rc == 0) {
+    double dm = 0.0, ym = 0.0;
+    for (int i = 0; i < 3 * nt; i++) {
+      dm = fmax(dm, fabs(Y3[i] - Y1[i]));
+      ym = fmax(ym, fabs(Y1[i]));
+    }
+    *multi = dm / ym;
+  }
   if (rc == 0) {
     double r = 0.0, scale = 0.0, cx = 0.0, yb = 0.0, sd = 0.0;
     for (int j = 0; j < nt; j++) {

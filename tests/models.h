@@ -44,11 +44,14 @@ void test_initial_data(struct mrvi_step *st, double *qs, double *qf, double *ps,
  * of c, and x = mrvi_bordered_solve of b.  *res: max |c - J^T y| (J^T y
  * from the CSC entries) relative to the largest row sum of |terms|;
  * *dual: |c.x - y.b| relative to the sum of |terms|; *on_chain:
- * mrvi_bordered_on_chain.  Returns the first failing status (its message
- * in msg). */
+ * mrvi_bordered_on_chain; *multi: the largest difference between the
+ * columns of mrvi_bordered_solve_transpose_n of three right-hand sides
+ * (c, b, and c zero at the even rows) and their single solves, relative
+ * to the largest entry (0: each column equal to its single solve).
+ * Returns the first failing status (its message in msg). */
 int test_bordered_transpose_solve(const mrvi_model *m, const mrvi_settings *s,
                                   double *res, double *dual, int *on_chain,
-                                  char *msg, size_t len);
+                                  double *multi, char *msg, size_t len);
 
 mrvi_settings test_settings(const char *scheme, double dT, int p, double t_end,
                             double tol);

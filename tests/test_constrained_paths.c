@@ -463,7 +463,9 @@ static void test_chain_elimination(void) {
  * the optimal-control adjoint's; test_bordered_transpose_solve): on the
  * rod chain, the bar chain and the tree of rods of test_chain_elimination
  * forced onto it (bordered_max 0), p in {1, 5}, J^T y = c to 1e-12
- * relative and c.J^-1 b = (J^-T c).b, on the chain elimination. */
+ * relative and c.J^-1 b = (J^-T c).b, on the chain elimination; three
+ * right-hand sides in one pass (mrvi_chain_solve_transpose_n) each equal
+ * to its single solve. */
 static void test_chain_transpose(void) {
   for (int c = 0; c < 3; c++) {
     mrvi_model *m = c == 0 ? chain(8, 1) : c == 1 ? bars(8, 0) : rod_tree();
@@ -473,18 +475,20 @@ static void test_chain_transpose(void) {
       CHECK(mrvi_settings_set_tuning(&s, "bordered_max", 0, msg, sizeof msg) ==
                 0,
             "%s", msg);
-      double res, dual;
+      double res, dual, multi;
       int on_chain;
-      const int rc = test_bordered_transpose_solve(m, &s, &res, &dual,
-                                                   &on_chain, msg, sizeof msg);
+      const int rc = test_bordered_transpose_solve(
+          m, &s, &res, &dual, &on_chain, &multi, msg, sizeof msg);
       const char *name = c == 0 ? "rods" : c == 1 ? "bars" : "tree";
       printf("chain transpose: %s p=%d: |c - J^T y| %.2e, c.J^-1 b - J^-T c.b "
-             "%.2e (relative)\n",
-             name, p, res, dual);
-      CHECK(rc == 0 && res <= 1e-12 && dual <= 1e-12 && on_chain == 1,
+             "%.2e (relative), three together %.2e\n",
+             name, p, res, dual, multi);
+      CHECK(rc == 0 && res <= 1e-12 && dual <= 1e-12 && on_chain == 1 &&
+                multi == 0.0,
             "%s p=%d: status %d (%s), |c - J^T y| %.3e, c.J^-1 b - J^-T c.b "
-            "%.3e (relative), on the chain elimination %d",
-            name, p, rc, msg, res, dual, on_chain);
+            "%.3e (relative), on the chain elimination %d, three together "
+            "%.3e",
+            name, p, rc, msg, res, dual, on_chain, multi);
     }
     mrvi_model_free(m);
   }

@@ -144,11 +144,12 @@ static int gradients_at(mrvi_ocp *o, const double *u, double *g) {
   return m <= 16 ? mrvi_ocp_evaluate(o, u, &J, g, c, g + n) : -1;
 }
 
-/* The adjoint's four ways (step Jacobian dense or in sparse rows; every
- * step factorised, or kept factors refined) give the same gradients to
- * 1e-10 relative, at two controls in turn (the second starts from the
- * first's kept factors); on the FPU the refined ways factorise fewer
- * steps than there are. */
+/* The adjoint's six ways (step Jacobian dense or in sparse rows; every
+ * step factorised, kept factors refined to adjoint_refine_max, or refined
+ * while that costs less than a factorisation, adjoint_refine_by_cost)
+ * give the same gradients to 1e-10 relative, at two controls in turn (the
+ * second starts from the first's kept factors); on the FPU the ways
+ * refined to adjoint_refine_max factorise fewer steps than there are. */
 static void test_adjoint_ways(void) {
   const char *forms[3] = {"unconstrained", "multipliers", "null-space"};
   for (int f = 0; f < 3; f++)
@@ -156,7 +157,7 @@ static void test_adjoint_ways(void) {
       const int p = ip ? 5 : 1;
       double *ref = NULL;
       int n_ref = 0;
-      for (int way = 0; way < 4; way++) {
+      for (int way = 0; way < 6; way++) {
         mrvi_model *m = f ? test_cart_pendulum() : test_fpu();
         mrvi_settings s = test_settings("midpoint-midpoint", f ? 0.01 : 0.03, p,
                                         f ? 0.08 : 0.24, 1e-13);
@@ -164,7 +165,8 @@ static void test_adjoint_ways(void) {
             f == 2 ? MRVI_FORM_NULL_SPACE : MRVI_FORM_MULTIPLIERS;
         s.constraint_tol = 1e-13;
         s.tuning.adjoint_dense_max = way & 1 ? 0 : 1000000;
-        s.tuning.adjoint_refine_max = way & 2 ? 8 : 0;
+        s.tuning.adjoint_refine_max = way & 6 ? 8 : 0;
+        s.tuning.adjoint_refine_by_cost = way >= 4;
         mrvi_ocp *o = f ? cart_problem(m, &s) : fpu_problem(m, &s);
         if (!o) {
           mrvi_model_free(m);

@@ -535,18 +535,21 @@ static void test_bordered_transpose(void) {
           load(files[f], "midpoint-midpoint", p, "multipliers", "structured");
       if (!s)
         continue;
-      double res, dual;
+      double res, dual, multi;
       int on_chain;
       char msg[300];
-      const int rc = test_bordered_transpose_solve(
-          s->model, &s->settings, &res, &dual, &on_chain, msg, sizeof msg);
+      const int rc =
+          test_bordered_transpose_solve(s->model, &s->settings, &res, &dual,
+                                        &on_chain, &multi, msg, sizeof msg);
       printf("bordered transpose: %s p=%d: |c - J^T y| %.2e, c.J^-1 b - "
-             "J^-T c.b %.2e (relative)\n",
-             files[f], p, res, dual);
-      CHECK(rc == 0 && res <= 1e-12 && dual <= 1e-12 && on_chain == 0,
+             "J^-T c.b %.2e (relative), three together %.2e\n",
+             files[f], p, res, dual, multi);
+      CHECK(rc == 0 && res <= 1e-12 && dual <= 1e-12 && on_chain == 0 &&
+                multi == 0.0,
             "%s p=%d: status %d (%s), |c - J^T y| %.3e, c.J^-1 b - J^-T c.b "
-            "%.3e (relative), on the chain elimination %d",
-            files[f], p, rc, msg, res, dual, on_chain);
+            "%.3e (relative), on the chain elimination %d, three together "
+            "%.3e",
+            files[f], p, rc, msg, res, dual, on_chain, multi);
       mrvi_system_free(s);
     }
 }

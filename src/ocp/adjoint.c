@@ -577,7 +577,9 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
       mrvi_bordered_free(o->bordered);
       o->bordered = NULL;
     }
-    o->bd_work = malloc((2 * nu + 1) * sizeof *o->bd_work);
+    /* (the refinement's 2 blocks and the blocked solve's nfun columns) */
+    o->bd_work =
+        malloc(((2 * MRVI_REFINE_BLOCK + f) * nu + 1) * sizeof *o->bd_work);
     if (!o->bd_work)
       return MRVI_ENOMEM;
     if (!o->bordered && !o->newton &&
@@ -672,40 +674,46 @@ static int krylov_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
 }
 
 /* A_k^T x (rhs, sol: nfun x n_total) with schur-bordered's block
- * elimination (bordered.c, mrvi_bordered_solve_transpose): from the
- * factors kept (of a later step, or of the previous evaluation) refined
- * against A_k as on the general path (mrvi_refine_transpose), A_k
- * factorised where none are kept or the refinement does not get there. */
-static int bd_solve(void *ctx, const double *b, double *x, char *msg,
+ * elimination (bordered.c, mrvi_bordered_solve_transpose_n: the
+ * functionals together, in one pass over the chain elimination's
+ * factors): from the factors kept (of a later step, or of the previous
+ * evaluation) refined against A_k as on the general path
+ * (mrvi_refine_transpose), A_k factorised where none are kept or the
+ * refinement does not get there. */
+static int bd_solve(void *ctx, int nrhs, const double *b, double *x, char *msg,
                     size_t len) {
   mrvi_ocp *o = ctx;
-  return mrvi_bordered_solve_transpose(o->bordered, &o->step, b, x, msg, len);
+  return mrvi_bordered_solve_transpose_n(
+      o->bordered, &o->step, nrhs, b, x,
+      o->bd_work + 2 * MRVI_REFINE_BLOCK * (size_t)o->step.n_total, msg, len);
 }
 static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   mrvi_step *st = &o->step;
-  const size_t nt = (size_t)st->n_total;
   const int max_refine = o->settings.tuning.adjoint_refine_max;
-  for (int f = 0; f < nfun; f++) {
-    const double *b = o->rhs + (size_t)f * nt;
-    double *x = o->sol + (size_t)f * nt;
-    int ok = 0;
-    if (o->bd_factored && max_refine > 0)
-      ok = mrvi_refine_transpose(st->n_total, st->Ap, st->Ai, o->Ak, b, x,
-                                 max_refine, o->bd_work, bd_solve, o, msg, len);
-    if (ok == 1)
-      continue;
-    /* (step.Ax: the values the factors are of, as bordered.c reads them) */
-    memcpy(st->Ax, o->Ak, (size_t)st->nnz * sizeof *st->Ax);
-    o->bd_factored = 0;
-    int s = mrvi_bordered_factor(o->bordered, st, msg, len);
-    if (s < 0)
-      return s;
-    o->bd_factored = 1;
-    o->adjoint_factorisations++;
-    if ((s = bd_solve(o, b, x, msg, len)) < 0)
-      return s;
-  }
-  return MRVI_OK;
+  /* (a factorisation's cost in refinement steps: the chain elimination's
+   * estimate, mrvi_bordered_refactor_cost; node blocks and the bordered
+   * slow block have none, 0: no cost rule) */
+  const double phi = o->settings.tuning.adjoint_refine_by_cost
+                         ? mrvi_bordered_refactor_cost(o->bordered)
+                         : 0.0;
+  int ok = 0;
+  if (o->bd_factored && max_refine > 0)
+    ok = mrvi_refine_transpose(st->n_total, st->Ap, st->Ai, o->Ak, nfun, o->rhs,
+                               o->sol, max_refine, phi, o->bd_work, bd_solve, o,
+                               msg, len);
+  if (ok < 0)
+    return ok;
+  if (ok == 1)
+    return MRVI_OK;
+  /* (step.Ax: the values the factors are of, as bordered.c reads them) */
+  memcpy(st->Ax, o->Ak, (size_t)st->nnz * sizeof *st->Ax);
+  o->bd_factored = 0;
+  int s = mrvi_bordered_factor(o->bordered, st, msg, len);
+  if (s < 0)
+    return s;
+  o->bd_factored = 1;
+  o->adjoint_factorisations++;
+  return bd_solve(o, nfun, o->rhs, o->sol, msg, len);
 }
 
 /* The backward sweep over the steps with H_k assembled and A_k^T solved:
@@ -784,7 +792,8 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
       int refactored;
       s = mrvi_newton_solve_transpose_kept(
           o->newton_full ? o->newton_full : o->newton, o->Ak, nfun, o->rhs,
-          o->sol, o->settings.tuning.adjoint_refine_max, &refactored, msg,
+          o->sol, o->settings.tuning.adjoint_refine_max,
+          o->settings.tuning.adjoint_refine_by_cost, &refactored, msg,
           sizeof msg);
       o->adjoint_factorisations += refactored;
     }

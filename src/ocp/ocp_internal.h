@@ -153,7 +153,8 @@ struct mrvi_ocp {
   /* The transposed step solves of the adjoint where the forward pass takes
    * schur-bordered: its block elimination (bordered.c) of A_k, factorised
    * on step's pattern with the values step.Ax (bd_factored: it holds
-   * factors), run backwards; bd_work: 2 n_total for the refinement. */
+   * factors), run backwards; bd_work: 2 MRVI_REFINE_BLOCK n_total for the
+   * refinement and nfun n_total for the blocked solves. */
   mrvi_bordered *bordered;
   int bd_factored;
   double *bd_work;

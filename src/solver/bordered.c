@@ -730,6 +730,23 @@ double mrvi_bordered_refactor_cost(const mrvi_bordered *bd) {
                                  : 0.0;
 }
 
+int mrvi_bordered_solve_transpose_n(mrvi_bordered *bd, const mrvi_step *st,
+                                    int nrhs, const double *R, double *dx,
+                                    double *work, char *msg, size_t len) {
+  const size_t n = (size_t)st->n_total;
+  if (bd->chain && !bd->whole && nrhs > 1) {
+    mrvi_chain_solve_transpose_n(bd->chain, nrhs, R, dx, work);
+    return MRVI_OK;
+  }
+  for (int c = 0; c < nrhs; c++) {
+    const int s = mrvi_bordered_solve_transpose(bd, st, R + (size_t)c * n,
+                                                dx + (size_t)c * n, msg, len);
+    if (s < 0)
+      return s;
+  }
+  return MRVI_OK;
+}
+
 int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   const double *R, double *dx, char *msg,
                                   size_t len) {

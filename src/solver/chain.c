@@ -550,36 +550,58 @@ void mrvi_chain_solve(const mrvi_chain *ch, const double *R, double *dx) {
 /* J = L U with L block lower bidiagonal (U_k on the diagonal, J_k+1,k
  * below it) and U block upper bidiagonal (identities, X_k beside them), so
  * J^T = U^T L^T: w_k+1 = R_k+1 - X_k^T w_k forwards, then
- * x_k = U_k^-T (w_k - J_k+1,k^T x_k+1) backwards, with the same factors. */
-void mrvi_chain_solve_transpose(const mrvi_chain *ch, const double *R,
-                                double *dx) {
+ * x_k = U_k^-T (w_k - J_k+1,k^T x_k+1) backwards, with the same factors;
+ * the nrhs right-hand sides interleaved in y (entry i of right-hand side
+ * c at y[i nrhs + c]), each one's operations in the same order as alone
+ * (a row of X_k^T skipped where w is zero in every one). */
+void mrvi_chain_solve_transpose_n(const mrvi_chain *ch, int nrhs,
+                                  const double *R, double *dx, double *y) {
   const int n = ch->n, nb = ch->nb;
-  double *y = ch->y;
+  const size_t m = (size_t)nrhs;
   for (int i = 0; i < n; i++)
-    y[ch->bo[ch->blk[i]] + ch->pos[i]] = R[i];
+    for (size_t c = 0; c < m; c++)
+      y[(size_t)(ch->bo[ch->blk[i]] + ch->pos[i]) * m + c] =
+          R[c * (size_t)n + (size_t)i];
   for (int k = 0; k + 1 < nb; k++) {
-    const double *yk = y + ch->bo[k], *X = ch->buf + ch->xo[k];
-    double *y1 = y + ch->bo[k + 1];
-    const int c = ch->cn[k], *col = ch->ccol + ch->co[k];
+    const double *yk = y + (size_t)ch->bo[k] * m, *X = ch->buf + ch->xo[k];
+    double *y1 = y + (size_t)ch->bo[k + 1] * m;
+    const int cn = ch->cn[k], *col = ch->ccol + ch->co[k];
     for (int i = 0; i < ch->bs[k]; i++) {
-      const double w = yk[i];
-      if (w == 0.0)
+      const double *w = yk + (size_t)i * m;
+      size_t nz = 0;
+      for (size_t c = 0; c < m; c++)
+        nz += w[c] != 0.0;
+      if (!nz)
         continue;
-      const double *xi = X + (size_t)i * (size_t)c;
-      for (int t = 0; t < c; t++)
-        y1[col[t]] -= xi[t] * w;
+      const double *xi = X + (size_t)i * (size_t)cn;
+      for (int t = 0; t < cn; t++) {
+        double *yt = y1 + (size_t)col[t] * m;
+        for (size_t c = 0; c < m; c++)
+          yt[c] -= xi[t] * w[c];
+      }
     }
   }
   for (int k = nb - 1; k >= 0; k--) {
-    double *yk = y + ch->bo[k];
+    double *yk = y + (size_t)ch->bo[k] * m;
     if (k + 1 < nb) {
-      const double *y1 = y + ch->bo[k + 1];
-      for (int e = ch->lp[k]; e < ch->lp[k + 1]; e++)
-        yk[ch->lc[e]] -= ch->lv[e] * y1[ch->lr[e]];
+      const double *y1 = y + (size_t)ch->bo[k + 1] * m;
+      for (int e = ch->lp[k]; e < ch->lp[k + 1]; e++) {
+        double *a = yk + (size_t)ch->lc[e] * m;
+        const double *b = y1 + (size_t)ch->lr[e] * m;
+        for (size_t c = 0; c < m; c++)
+          a[c] -= ch->lv[e] * b[c];
+      }
     }
     mrvi_dense_lu_solve_transpose(ch->bs[k], ch->buf + ch->uo[k],
-                                  ch->piv + ch->bo[k], yk, 1);
+                                  ch->piv + ch->bo[k], yk, nrhs);
   }
   for (int i = 0; i < n; i++)
-    dx[i] = y[ch->bo[ch->blk[i]] + ch->pos[i]];
+    for (size_t c = 0; c < m; c++)
+      dx[c * (size_t)n + (size_t)i] =
+          y[(size_t)(ch->bo[ch->blk[i]] + ch->pos[i]) * m + c];
+}
+
+void mrvi_chain_solve_transpose(const mrvi_chain *ch, const double *R,
+                                double *dx) {
+  mrvi_chain_solve_transpose_n(ch, 1, R, dx, ch->y);
 }

@@ -45,6 +45,10 @@ struct mrvi_newton {
    * doubles for L interleaved right-hand sides) */
   double *ref;
   int ref_lanes;
+  /* mrvi_newton_refactor_cost: the dense elimination's multiply-adds from
+   * the pattern (dense_lu_flops; 0: not yet counted), UMFPACK's flops and
+   * nonzeros of L and U at its last factorisation */
+  double lu_ma, umf_flops, umf_lu;
 };
 
 /* The dense backend's ordering pos (original -> position, n entries) of
@@ -386,8 +390,11 @@ int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
     umfpack_di_free_numeric(&nw->numeric);
   int st = umfpack_di_numeric(nw->Ap, nw->Ai, Ax, nw->symbolic, &nw->numeric,
                               nw->control, nw->info);
-  if (st == UMFPACK_OK)
+  if (st == UMFPACK_OK) {
+    nw->umf_flops = nw->info[UMFPACK_FLOPS];
+    nw->umf_lu = nw->info[UMFPACK_LNZ] + nw->info[UMFPACK_UNZ];
     return MRVI_OK;
+  }
   if (nw->numeric)
     umfpack_di_free_numeric(&nw->numeric);
   if (st == UMFPACK_WARNING_singular_matrix) {
@@ -453,47 +460,109 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
   return st;
 }
 
+double mrvi_newton_refactor_cost(mrvi_newton *nw) {
+  const double n = nw->n, nnz = nw->Ap[nw->n];
+  if (nw->lu) {
+    if (!nw->factored)
+      return 0.0;
+    if (nw->lu_ma == 0.0)
+      nw->lu_ma = dense_lu_flops(nw->n, nw->Ap, nw->Ai, nw->pos);
+    /* (the factorisation also clears, fills and lists the n^2 entries;
+     * a solve runs over the factors' nonzeros, permutes and scales) */
+    return (nw->lu_ma + 3.0 * n * n) /
+           ((double)nw->ptr[2 * nw->n + 1] + 2.0 * n + 2.0 * nnz);
+  }
+  if (!nw->numeric)
+    return 0.0;
+  return 0.5 * nw->umf_flops / (nw->umf_lu + 2.0 * n + 2.0 * nnz);
+}
+
+/* Whether a refinement stops at step it (residual rmax, the step before's
+ * rprev, target: its round-off): after max_refine steps, a step that
+ * reduced the residual by less than 4, or (phi > 0) where the steps still
+ * needed at this contraction are more than phi (a factorisation's cost in
+ * refinement steps: factorising A is cheaper). */
+static int refine_give_up(int it, int max_refine, double phi, double rmax,
+                          double rprev, double target) {
+  if (it == max_refine)
+    return 1;
+  if (it == 0)
+    return 0;
+  const double rate = rmax / rprev;
+  if (!(rate <= 0.25))
+    return 1;
+  return phi > 0.0 && rate > 0.0 && ceil(log(target / rmax) / log(rate)) > phi;
+}
+
 /* Iterative refinement against A of a solution from kept factors of an
  * earlier matrix B of the same pattern: x <- x + B^-T (b - A^T x), which
  * converges while ||B^-T (A - B)^T|| < 1 (consecutive steps of a smooth
- * trajectory).  It stops at ||b - A^T x||_inf <= 64 eps max_j (|A^T| |x| +
- * |b|)_j, the size of the round-off of the residual itself, and gives up
- * after max_refine steps or a step that reduced the residual by less than
- * 4 (the caller then factorises A). */
+ * trajectory).  Each right-hand side stops at ||b - A^T x||_inf <= 64 eps
+ * max_j (|A^T| |x| + |b|)_j, the size of the round-off of the residual
+ * itself (its iterates those of its refinement alone), and the block
+ * gives up where refine_give_up says so for one (the caller then
+ * factorises A). */
 int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
-                          const double *b, double *x, int max_refine,
-                          double *work, mrvi_tsolve_fn solve, void *ctx,
-                          char *msg, size_t len) {
-  double *r = work, *d = work + n;
-  int st = solve(ctx, b, x, msg, len);
-  double rprev = INFINITY;
-  for (int it = 0; st == MRVI_OK; it++) {
-    /* r = b - A^T x (column j of A dotted with x) and its scale. */
-    double rmax = 0.0, scale = 0.0;
-    for (int j = 0; j < n; j++) {
-      double sum = b[j], sc = fabs(b[j]);
-      for (int e = Ap[j]; e < Ap[j + 1]; e++) {
-        const double t = Ax[e] * x[Ai[e]];
-        sum -= t;
-        sc += fabs(t);
-      }
-      r[j] = sum;
-      rmax = fmax(rmax, fabs(sum));
-      scale = fmax(scale, sc);
-      if (!isfinite(sum))
-        rmax = INFINITY;
+                          int nrhs, const double *b, double *x, int max_refine,
+                          double phi, double *work, mrvi_tsolve_fn solve,
+                          void *ctx, char *msg, size_t len) {
+  const size_t nn = (size_t)n;
+  double *r = work, *d = work + MRVI_REFINE_BLOCK * nn;
+  for (int c0 = 0; c0 < nrhs; c0 += MRVI_REFINE_BLOCK) {
+    const int nb =
+        nrhs - c0 < MRVI_REFINE_BLOCK ? nrhs - c0 : MRVI_REFINE_BLOCK;
+    /* act[a]: the right-hand side c0 + act[a] of the na still refined */
+    int act[MRVI_REFINE_BLOCK], na = nb;
+    double rprev[MRVI_REFINE_BLOCK];
+    for (int a = 0; a < nb; a++) {
+      act[a] = a;
+      rprev[a] = INFINITY;
     }
-    if (rmax <= 64.0 * DBL_EPSILON * scale)
-      return 1;
-    /* Slower than a factor 4 per step: factorising is cheaper. */
-    if (it == max_refine || (it > 0 && !(rmax <= 0.25 * rprev)))
-      return 0;
-    rprev = rmax;
-    st = solve(ctx, r, d, msg, len);
-    for (int j = 0; j < n && st == MRVI_OK; j++)
-      x[j] += d[j];
+    int st = solve(ctx, nb, b + (size_t)c0 * nn, x + (size_t)c0 * nn, msg, len);
+    for (int it = 0; st == MRVI_OK && na > 0; it++) {
+      int kept = 0;
+      for (int a = 0; a < na; a++) {
+        const int c = c0 + act[a];
+        const double *bc = b + (size_t)c * nn, *xc = x + (size_t)c * nn;
+        double *rc = r + (size_t)kept * nn;
+        /* r = b - A^T x (column j of A dotted with x) and its scale. */
+        double rmax = 0.0, scale = 0.0;
+        for (int j = 0; j < n; j++) {
+          double sum = bc[j], sc = fabs(bc[j]);
+          for (int e = Ap[j]; e < Ap[j + 1]; e++) {
+            const double t = Ax[e] * xc[Ai[e]];
+            sum -= t;
+            sc += fabs(t);
+          }
+          rc[j] = sum;
+          rmax = fmax(rmax, fabs(sum));
+          scale = fmax(scale, sc);
+          if (!isfinite(sum))
+            rmax = INFINITY;
+        }
+        if (rmax <= 64.0 * DBL_EPSILON * scale)
+          continue;
+        if (refine_give_up(it, max_refine, phi, rmax, rprev[act[a]],
+                           64.0 * DBL_EPSILON * scale))
+          return 0;
+        rprev[act[a]] = rmax;
+        act[kept++] = act[a];
+      }
+      na = kept;
+      if (na == 0)
+        break;
+      st = solve(ctx, na, r, d, msg, len);
+      for (int a = 0; a < na && st == MRVI_OK; a++) {
+        double *xc = x + (size_t)(c0 + act[a]) * nn;
+        const double *dc = d + (size_t)a * nn;
+        for (int j = 0; j < n; j++)
+          xc[j] += dc[j];
+      }
+    }
+    if (st != MRVI_OK)
+      return st;
   }
-  return st;
+  return 1;
 }
 
 /* mrvi_newton_solve_transpose_kept: the same refinement with nw's own kept
@@ -648,13 +717,14 @@ static int solve_lanes(mrvi_newton *nw, const double *Ax, int L,
 
 int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
                                      int nrhs, const double *b, double *x,
-                                     int max_refine, int *refactored, char *msg,
-                                     size_t len) {
+                                     int max_refine, int by_cost,
+                                     int *refactored, char *msg, size_t len) {
   const int n = nw->n;
   const int kept = nw->lu ? nw->factored : nw->numeric != NULL;
   *refactored = 1;
   if (!kept || max_refine <= 0)
     return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
+  const double phi = by_cost ? mrvi_newton_refactor_cost(nw) : 0.0;
   const int L = nrhs <= 2 ? 2 : nrhs <= 4 ? 4 : REF_LANES;
   const size_t ln = (size_t)L * (size_t)n, l = (size_t)L;
   if (nw->ref_lanes < L) {
@@ -697,8 +767,8 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
         lanes_residual(nw, 4, Ax, xt, bt, r, rmax, scale);
       else
         lanes_residual(nw, REF_LANES, Ax, xt, bt, r, rmax, scale);
-      /* Converged ones leave the block; slower than a factor 4 per step
-       * (or max_refine steps): factorising is cheaper. */
+      /* Converged ones leave the block; where one gives up
+       * (refine_give_up), factorising is cheaper. */
       for (int i = 0; i < nb && ok; i++) {
         if (!active[i])
           continue;
@@ -707,7 +777,8 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
           na--;
           continue;
         }
-        if (it == max_refine || (it > 0 && !(rmax[i] <= 0.25 * rprev[i])))
+        if (refine_give_up(it, max_refine, phi, rmax[i], rprev[i],
+                           64.0 * DBL_EPSILON * scale[i]))
           ok = 0;
         rprev[i] = rmax[i];
       }

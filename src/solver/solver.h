@@ -234,29 +234,43 @@ int mrvi_newton_update(mrvi_newton *nw, const double *Ax, const double *b,
 int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
                                 const double *b, double *x, char *msg,
                                 size_t len);
-/* x solving A^T x = b (A: CSC n x n) from solve (a solve with factors kept
- * from an earlier matrix of the same pattern), refined against A to the
- * round-off of the residual (newton.c): 1 if it got there, 0 if it gave up
- * after max_refine corrections or a correction that reduced the residual by
- * less than 4 (factorise A then), or solve's status; work: 2 n doubles.
- * The adjoint's transposed steps on the general and schur-bordered paths. */
-typedef int (*mrvi_tsolve_fn)(void *ctx, const double *b, double *x, char *msg,
-                              size_t len);
+/* x_c solving A^T x_c = b_c (A: CSC n x n; b, x: nrhs x n, each
+ * contiguous) from solve (nrhs solves with factors kept from an earlier
+ * matrix of the same pattern), refined against A to the round-off of each
+ * residual (newton.c), the corrections of the right-hand sides not yet
+ * there solved together: 1 if all got there, 0 if one gave up after
+ * max_refine corrections, a correction that reduced its residual by less
+ * than 4, or (phi > 0) where the corrections still needed at its last
+ * contraction are more than phi, the cost of a factorisation in
+ * corrections (factorise A then); or solve's status; work:
+ * 2 MRVI_REFINE_BLOCK n doubles (the right-hand sides go in blocks of that
+ * many).  The adjoint's transposed steps on schur-bordered. */
+enum { MRVI_REFINE_BLOCK = 8 };
+typedef int (*mrvi_tsolve_fn)(void *ctx, int nrhs, const double *b, double *x,
+                              char *msg, size_t len);
 int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
-                          const double *b, double *x, int max_refine,
-                          double *work, mrvi_tsolve_fn solve, void *ctx,
-                          char *msg, size_t len);
+                          int nrhs, const double *b, double *x, int max_refine,
+                          double phi, double *work, mrvi_tsolve_fn solve,
+                          void *ctx, char *msg, size_t len);
 /* The same solves starting from the factors kept from an earlier matrix of
  * the same pattern (a previous step, the forward Newton iteration),
  * refined against A (at most max_refine corrections, each a solve with the
  * kept factors) to the round-off of the residual; A is factorised, as by
  * mrvi_newton_solve_transpose, where no factors are kept, max_refine <= 0
  * or the refinement does not get there (*refactored = 1; then its factors
- * are the kept ones). */
+ * are the kept ones).  by_cost: it also gives up where the corrections
+ * still needed at the last contraction cost more than a factorisation
+ * (mrvi_newton_refactor_cost). */
 int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
                                      int nrhs, const double *b, double *x,
-                                     int max_refine, int *refactored, char *msg,
-                                     size_t len);
+                                     int max_refine, int by_cost,
+                                     int *refactored, char *msg, size_t len);
+/* A factorisation's cost over a refinement correction's (a solve with the
+ * factors and a residual, A^T x): multiply-adds estimated from the
+ * pattern of A and the factors (the dense LU's elimination in its
+ * ordering, or UMFPACK's counts of its last factorisation); 0 where
+ * unknown (nothing factorised yet). */
+double mrvi_newton_refactor_cost(mrvi_newton *nw);
 
 /* ---------------------------------------------------------------------------
  * Structured step solver (solver/sweep.c, doc/solver.md).
@@ -837,6 +851,13 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
 int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   const double *R, double *dx, char *msg,
                                   size_t len);
+/* The same for nrhs right-hand sides (R, dx: nrhs x n_total, each
+ * contiguous), with work (nrhs n_total doubles): on the chain elimination
+ * all in one pass over the factors (mrvi_chain_solve_transpose_n), else
+ * one after the other; each as alone (the same operations in order). */
+int mrvi_bordered_solve_transpose_n(mrvi_bordered *bd, const mrvi_step *st,
+                                    int nrhs, const double *R, double *dx,
+                                    double *work, char *msg, size_t len);
 /* Whether bd solves with the chain elimination (solver/chain.c; not
  * fallen back to the LU of the whole step). */
 int mrvi_bordered_on_chain(const mrvi_bordered *bd);
@@ -875,6 +896,11 @@ int mrvi_chain_factor(mrvi_chain *ch, const double *Ax);
 void mrvi_chain_solve(const mrvi_chain *ch, const double *R, double *dx);
 void mrvi_chain_solve_transpose(const mrvi_chain *ch, const double *R,
                                 double *dx);
+/* J^T dx_c = R_c for nrhs right-hand sides (R, dx: nrhs x n, each
+ * contiguous) in one pass over the factors (y: nrhs n doubles), each as
+ * mrvi_chain_solve_transpose alone. */
+void mrvi_chain_solve_transpose_n(const mrvi_chain *ch, int nrhs,
+                                  const double *R, double *dx, double *y);
 double mrvi_chain_factor_ratio(const mrvi_chain *ch);
 void mrvi_chain_free(mrvi_chain *ch);
 
