@@ -4,6 +4,7 @@
 #include "solver/solver.h"
 #include "testlib.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -829,8 +830,45 @@ static void check_compact_table(void) {
   }
 }
 
+/* Counts beyond an int (the compact table's 32-bit first coordinates and
+ * prototype indices, every int count of the model): mrvi_model_reserve
+ * refuses them with a message before it allocates, and the model is as
+ * before; a generator too (mrvi_model_room). */
+static void check_model_room(void) {
+  mrvi_model *m = mrvi_model_create();
+  mrvi_model_set_dimension(m, 3);
+  const double x[3] = {0, 0, 0};
+  const double x1[3] = {1, 0, 0}, k[1] = {1.0};
+  CHECK(mrvi_model_add_particle(m, "a", 1.0, MRVI_SLOW, x, x) == 0 &&
+            mrvi_model_add_particle(m, "b", 1.0, MRVI_SLOW, x1, x) == 1 &&
+            mrvi_model_add_spring(m, MRVI_SLOW, 0, 1, "linear", k, 1.0) == 0,
+        "room: particles (%s)", mrvi_model_errmsg(m));
+  const int cap = m->cap, cap_e = m->cap_elements;
+  /* 6 + 3 floor((2^31 - 1) / 3) coordinates; 1 + (2^31 - 1) elements */
+  const int st = mrvi_model_reserve(m, INT_MAX / 3, 0);
+  CHECK(st == MRVI_EINVAL && m->cap == cap && m->n == 6 &&
+            strstr(mrvi_model_errmsg(m), "the model would have 2147483652 "
+                                         "coordinates") != NULL,
+        "room: %d, '%s'", st, mrvi_model_errmsg(m));
+  const int se = mrvi_model_reserve(m, 0, INT_MAX);
+  CHECK(se == MRVI_EINVAL && m->cap_elements == cap_e && m->n_elements == 1 &&
+            strstr(mrvi_model_errmsg(m), "2147483648 elements") != NULL,
+        "room: elements %d, '%s'", se, mrvi_model_errmsg(m));
+  /* a ring of 10^6 x 1 particles 2000 times: within an int per generator,
+   * beyond one for the model (mrvi_model_room's sum, as the loader's) */
+  char msg[256] = "";
+  CHECK(mrvi_model_room(m, 2000.0 * 1e6, 2000.0 * 1e6, msg, sizeof msg) ==
+                MRVI_EINVAL &&
+            strstr(msg, "6000000006 coordinates") != NULL,
+        "room: sum '%s'", msg);
+  CHECK(mrvi_model_room(m, 10, 10, msg, sizeof msg) == MRVI_OK,
+        "room: 10 particles refused: %s", msg);
+  mrvi_model_free(m);
+}
+
 int main(void) {
   check_compact_table();
+  check_model_room();
   check_law_properties();
   check_law_copies();
   check_laws();

@@ -33,6 +33,18 @@ long mrvi_generator_particles(const mrvi_generator *g, char *msg, size_t len) {
   return total;
 }
 
+long mrvi_generator_springs(const mrvi_generator *g) {
+  int n[3];
+  extent(g, n);
+  const long total = (long)n[0] * n[1] * n[2];
+  /* along each axis, (n_a - 1) per line of the others; a ring's closing
+   * one */
+  long springs = g->kind == MRVI_GEN_RING;
+  for (int a = 0; a < 3; a++)
+    springs += (long)(n[a] - 1) * (total / n[a]);
+  return springs;
+}
+
 void mrvi_generated_name(int kind, const char *prefix, const int n[3], long lin,
                          char *buf, size_t len) {
   const int i = (int)(lin % n[0]), j = (int)(lin / n[0] % n[1]),
@@ -101,12 +113,7 @@ int mrvi_model_generate(mrvi_model *m, const mrvi_generator *g,
   int n[3], counts[4] = {0, 0, 0, 0};
   extent(g, n);
   const int first = m->n_particles;
-  /* Springs: along each axis, (n_a - 1) per line of the others; a ring's
-   * closing one. */
-  long springs = g->kind == MRVI_GEN_RING;
-  for (int a = 0; a < 3; a++)
-    springs += (long)(n[a] - 1) * (total / n[a]);
-  int st0 = mrvi_model_reserve(m, (int)total, (int)springs);
+  int st0 = mrvi_model_reserve(m, (int)total, (int)mrvi_generator_springs(g));
   if (st0 < 0)
     return st0;
   /* The names by a rule, made when asked (model.c), not stored: a network

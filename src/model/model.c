@@ -20,8 +20,8 @@ static int grow(void **p, int *cap, int need, size_t sz) {
   if (need <= *cap)
     return 0;
   int c = *cap ? *cap : 8;
-  while (c < need)
-    c *= 2;
+  while (c < need) /* (doubled up to INT_MAX: an int count never wraps) */
+    c = c > INT_MAX / 2 ? INT_MAX : 2 * c;
   void *q = realloc(*p, (size_t)c * sz);
   if (!q)
     return -1;
@@ -135,6 +135,10 @@ static void fnv(unsigned long long *h, const void *data, size_t n) {
  * Name tables: open addressing (linear probing) on an FNV-1a hash, load at
  * most 1/2, so that building a model with n names costs O(n).
  * ------------------------------------------------------------------------- */
+/* Entries a table (names, parameter sets, spring prototypes) holds at most:
+ * its power-of-two capacity, at least twice the count, stays an int. */
+#define TABLE_MAX (INT_MAX / 4)
+
 static unsigned long name_hash(const char *s, size_t len) {
   unsigned long h = 2166136261UL;
   for (size_t i = 0; i < len; i++)
@@ -175,6 +179,8 @@ static int table_reserve(int **table, int *cap, int count, int n_index,
                          const mrvi_model *m) {
   if (2 * (count + 1) <= *cap)
     return 0;
+  if (count >= TABLE_MAX)
+    return -1;
   int c = *cap ? 2 * *cap : 64;
   while (2 * (count + 1) > c)
     c *= 2;
@@ -355,7 +361,7 @@ static void update_partition(mrvi_model *m) {
 static int reserve_coordinates(mrvi_model *m, int need) {
   if (need <= m->cap)
     return 0;
-  int c = m->cap ? 2 * m->cap : 16;
+  int c = m->cap ? (m->cap > INT_MAX / 2 ? INT_MAX : 2 * m->cap) : 16;
   if (c < need)
     c = need;
   void *b = realloc(m->mass, (size_t)c * sizeof *m->mass);
@@ -538,12 +544,41 @@ int mrvi_model_add_ruled_particle(mrvi_model *m, const char *name, double mass,
   return add_particle(m, name, mass, rate, x0, v0, 1);
 }
 
+int mrvi_model_room(const mrvi_model *m, double particles, double springs,
+                    char *msg, size_t len) {
+  const double d = m->dimension > 0 ? m->dimension : 1;
+  const double n = m->n + d * particles, np = m->n_particles + particles,
+               ne = m->n_elements + springs;
+  if (n > INT_MAX || np > INT_MAX || ne > INT_MAX)
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "the model would have %.0f coordinates, %.0f "
+                     "particles and %.0f elements: more than %d of one kind",
+                     n, np, ne, INT_MAX);
+  /* the per-coordinate arrays (mass, q0, v0, rate, slow_index, fast_index,
+   * slot), the particles, the element records */
+  const double per_coord =
+                   3.0 * sizeof(double) + sizeof(mrvi_rate) + 3.0 * sizeof(int),
+               need = per_coord * n + sizeof(mrvi_particle) * np +
+                      sizeof(mrvi_erec) * ne,
+               have = mrvi_machine_memory();
+  if (have > 0 && need > have)
+    return mrvi_fail(msg, len, MRVI_EINVAL,
+                     "the model would have %.0f particles (%.0f "
+                     "coordinates) and %.0f elements, about %.3g GiB: more "
+                     "than this machine's %.3g GiB",
+                     np, n, ne, need / 1073741824.0, have / 1073741824.0);
+  return MRVI_OK;
+}
+
 int mrvi_model_reserve(mrvi_model *m, int particles, int elements) {
   const int d = m->dimension > 0 ? m->dimension : 1;
-  if (particles < 0 || elements < 0 ||
-      particles > (INT_MAX - m->n) / d - m->n_particles ||
-      elements > INT_MAX - m->n_elements ||
-      reserve_coordinates(m, m->n + d * particles) ||
+  if (particles < 0 || elements < 0)
+    return mrvi_model_fail(m, MRVI_EINVAL, "reserve: negative count");
+  const int st =
+      mrvi_model_room(m, particles, elements, m->errmsg, sizeof m->errmsg);
+  if (st < 0)
+    return st;
+  if (reserve_coordinates(m, m->n + d * particles) ||
       grow((void **)&m->particles, &m->cap_particles,
            m->n_particles + particles, sizeof *m->particles) ||
       grow((void **)&m->erecs, &m->cap_elements, m->n_elements + elements,
@@ -611,6 +646,8 @@ static size_t proto_hash(const mrvi_element *e) {
 /* The prototype of e's law, parameters and rate (kind spring, no inputs,
  * rest length NaN), made if new; its index. */
 static int spring_proto(mrvi_model *m, const mrvi_element *e) {
+  if (m->n_protos >= TABLE_MAX)
+    return MRVI_ENOMEM;
   if (2 * (m->n_protos + 1) > m->proto_table_cap) {
     const int c = m->proto_table_cap ? 2 * m->proto_table_cap : 16;
     int *t = calloc((size_t)c, sizeof *t);
@@ -742,6 +779,8 @@ static unsigned long long set_hash(const double *v) {
 
 static const double *intern_params(mrvi_model *m, const double *v) {
   const size_t bytes = MRVI_LAW_MAX_PARAMS * sizeof *v;
+  if (m->n_param_sets >= TABLE_MAX)
+    return NULL;
   if (2 * (m->n_param_sets + 1) > m->param_table_cap) {
     const int c = m->param_table_cap ? 2 * m->param_table_cap : 64;
     int *t = calloc((size_t)c, sizeof *t);

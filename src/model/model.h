@@ -63,7 +63,12 @@ typedef struct mrvi_element {
  * of its law, parameter set and rate in the model's prototypes (laws with
  * equal parameters shared), instead of an mrvi_element (64 bytes) and its
  * inputs (2 dim ints).  Every other element is kept in full (m->full[ci]).
- * Read an element through mrvi_model_element or MRVI_ELEMENT. */
+ * Read an element through mrvi_model_element or MRVI_ELEMENT.  The 32-bit
+ * fields hold the model's own int counts (coordinates, prototypes at most
+ * the elements): mrvi_model_reserve and mrvi_model_room refuse a model
+ * beyond INT_MAX of any, the tables (prototypes, parameter sets, names)
+ * stop at INT_MAX / 4 entries (out of memory) and every array grows to at
+ * most INT_MAX entries. */
 typedef struct mrvi_erec {
   double shift; /* compact spring: its rest length */
   int lp;       /* compact spring: its prototype m->protos[lp] */
@@ -221,6 +226,19 @@ char *mrvi_model_names(const mrvi_model *m, int particles, const char **out);
  * more elements, made at once: a network grown by doubling leaves the
  * touched arrays it outgrew on the heap (model.c). */
 int mrvi_model_reserve(mrvi_model *m, int particles, int elements);
+/* Whether m has room for `particles` more particles (of its dimension) and
+ * `springs` more two-particle springs: coordinates, particles and elements
+ * each within an int, and the storage of the model so grown (its
+ * per-coordinate arrays, particle table and element records) within the
+ * machine's memory (mrvi_machine_memory); else a status < 0 with a message
+ * in msg.  mrvi_model_reserve checks it; the loader checks the sum of all
+ * `generate:` entries before making any (io/loader/generate.c) (model.c). */
+int mrvi_model_room(const mrvi_model *m, double particles, double springs,
+                    char *msg, size_t len);
+/* The springs generator g joins (nearest neighbours, a ring's closing one;
+ * those of a rate without a law included), its counts valid
+ * (generators.c). */
+long mrvi_generator_springs(const mrvi_generator *g);
 /* A rule (a generator's kind, prefix and counts n) that names the
  * particles mrvi_model_add_ruled_particle adds next (model.c). */
 int mrvi_model_add_rule(mrvi_model *m, int kind, const char *prefix,

@@ -1,13 +1,19 @@
 #!/usr/bin/env bash
 # Build the libFuzzer targets (clang, ASan + UBSan) in their own build
 # directory and run each for a bounded time:
-#   - fuzz_loader, the description loader, seeded by systems/ and
-#     tests/bad_input/ with the key dictionary tests/fuzz/loader.dict;
+#   - fuzz_loader, the description loader, seeded by systems/,
+#     tests/bad_input/ and tests/fuzz/seeds/ (valid files of features the
+#     shipped systems leave out: the compact spring table's laws and big
+#     generators, state actuators on bodies, joints and pairs, and links to
+#     bench/'s problems) with the key dictionary tests/fuzz/loader.dict;
 #   - fuzz_h5, the readers of an mrvi output (HDF5) file, seeded by small
 #     outputs made here by the fuzz build's mrvi (BUILD_DIR/h5seeds: FPU,
 #     a constrained cart pendulum, the heavy top (a body), a lattice with
-#     particles and /micro, and for the --controls reader the output of
-#     mrvi optimize on systems/ocp_double_integrator.yaml).
+#     particles and /micro (its springs in the compact table), the robot
+#     arm (bodies, joints, particles on body points), bench/ocp_winch.yaml
+#     run without its controls (a rail, a fast load), and for the
+#     --controls reader the output of mrvi optimize on
+#     systems/ocp_double_integrator.yaml).
 #
 #   tests/fuzz/run.sh [SECONDS [BUILD_DIR [H5_SECONDS]]]
 #                                        (default 120, build-fuzz, 60)
@@ -81,11 +87,12 @@ export UBSAN_OPTIONS=${UBSAN_OPTIONS:-halt_on_error=1:print_stacktrace=1}
   -seed="${FUZZ_SEED:-1}" -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -max_len=16384 \
   -dict="$root/tests/fuzz/loader.dict" \
   -artifact_prefix="$build/artifacts/" -print_final_stats=1 \
-  "$build/corpus" "$root/systems" "$root/tests/bad_input"
+  "$build/corpus" "$root/systems" "$root/tests/bad_input" \
+  "$root/tests/fuzz/seeds"
 
 # --- the HDF5 readers -------------------------------------------------------
 seeds=$build/h5seeds
-if [ ! -f "$seeds/ocp.h5" ]; then
+if [ ! -f "$seeds/ocp.h5" ] || [ ! -f "$seeds/winch.h5" ]; then
   mkdir -p "$seeds"
   run() { ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" run -q --force "$@"; }
   run "$root/systems/fpu.yaml" --set integrator.t_end=0.6 -o "$seeds/fpu.h5"
@@ -95,6 +102,10 @@ if [ ! -f "$seeds/ocp.h5" ]; then
     -o "$seeds/top.h5" 2>/dev/null
   run "$root/systems/lattice.yaml" --set integrator.t_end=0.05 \
     -o "$seeds/lat.h5" 2>/dev/null
+  run "$root/systems/robot_arm_payload.yaml" --set integrator.t_end=0.02 \
+    -o "$seeds/arm.h5" 2>/dev/null
+  run "$root/bench/ocp_winch.yaml" --set integrator.t_end=0.1 \
+    -o "$seeds/winch.h5" 2>/dev/null
   # the --controls reader's: a file of mrvi optimize for its problem
   ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" optimize -q \
     "$root/systems/ocp_double_integrator.yaml" -o "$seeds/ocp.h5" >/dev/null

@@ -95,11 +95,38 @@ static int load_generated_initial(loader *L, struct fy_node *list,
   return st;
 }
 
+static const char *const kinds[] = {"chain", "ring", "lattice2d", "lattice3d"};
+
+/* `count:` (node n) of a generator of kind g->kind into g->count; the
+ * particles it makes, or a status < 0. */
+static long load_count(loader *L, struct fy_node *n, mrvi_generator *g) {
+  const int axes = g->kind == MRVI_GEN_LATTICE3D   ? 3
+                   : g->kind == MRVI_GEN_LATTICE2D ? 2
+                                                   : 1;
+  int st;
+  if (axes <= 1) {
+    if ((st = mrvi_ld_as_int(L, n, "count", &g->count[0])))
+      return st;
+  } else {
+    double c[3];
+    if ((st = mrvi_ld_as_vector(L, n, "count", axes, c)))
+      return st;
+    for (int a = 0; a < axes; a++)
+      if (c[a] != floor(c[a]) || c[a] < 1 || c[a] > 1e6)
+        return mrvi_ld_fail(L, n, "count entries must be integers >= 1");
+    for (int a = 0; a < axes; a++)
+      g->count[a] = (int)c[a];
+  }
+  char msg[256];
+  const long total = mrvi_generator_particles(g, msg, sizeof msg);
+  if (total < 0)
+    return mrvi_ld_fail(L, n, "%s", msg);
+  return total;
+}
+
 /* One `generate:` entry; notes its counts for `mrvi check`. */
 static int load_generator(loader *L, struct fy_node *item, const char *where,
                           int dim) {
-  static const char *const kinds[] = {"chain", "ring", "lattice2d",
-                                      "lattice3d"};
   mrvi_generator g = {.spacing = 1.0, .every = 1};
   struct fy_node *n;
   int st, kind = 0;
@@ -116,28 +143,11 @@ static int load_generator(loader *L, struct fy_node *item, const char *where,
   if (!(g.mass > 0))
     return mrvi_ld_fail(L, n, "mass must be > 0, got %s", mrvi_ld_scalar0(n));
   g.kind = (mrvi_generator_kind)kind;
-  const int axes = kind == MRVI_GEN_LATTICE3D   ? 3
-                   : kind == MRVI_GEN_LATTICE2D ? 2
-                                                : 1;
   if ((st = mrvi_ld_need(L, item, "count", where, &n)))
     return st;
-  if (axes <= 1) {
-    if ((st = mrvi_ld_as_int(L, n, "count", &g.count[0])))
-      return st;
-  } else {
-    double c[3];
-    if ((st = mrvi_ld_as_vector(L, n, "count", axes, c)))
-      return st;
-    for (int a = 0; a < axes; a++)
-      if (c[a] != floor(c[a]) || c[a] < 1 || c[a] > 1e6)
-        return mrvi_ld_fail(L, n, "count entries must be integers >= 1");
-    for (int a = 0; a < axes; a++)
-      g.count[a] = (int)c[a];
-  }
-  char msg[256];
-  const long total = mrvi_generator_particles(&g, msg, sizeof msg);
+  const long total = load_count(L, n, &g);
   if (total < 0)
-    return mrvi_ld_fail(L, n, "%s", msg);
+    return (int)total;
   if ((st = mrvi_ld_opt_positive(L, item, "spacing", "spacing", &g.spacing,
                                  NULL)))
     return st;
@@ -186,9 +196,58 @@ static int load_generator(loader *L, struct fy_node *item, const char *where,
       counts[2] + counts[3], counts[2], counts[3]);
 }
 
+/* The model with the particles and springs of the `count` entries of list
+ * within mrvi_model_room, and its integrator's step within the machine's
+ * memory, summed entry by entry: a few lines (or aliases) may ask for more
+ * than an int counts or the machine holds, refused at the count that
+ * crosses before any entry is made.  An entry whose kind or
+ * count does not read ends the sum (load_generator reports it in the
+ * file's order). */
+static int check_room(loader *L, struct fy_node *list, int count, int dim) {
+  double particles = 0.0, springs = 0.0;
+  for (int i = 0; i < count; i++) {
+    struct fy_node *item = fy_node_sequence_get_by_index(list, i), *k = NULL,
+                   *c = NULL;
+    mrvi_generator g = {0};
+    int kind;
+    long total = -1;
+    if (fy_node_is_mapping(item) && (k = mrvi_ld_get(item, "kind")) &&
+        (c = mrvi_ld_get(item, "count")) &&
+        !mrvi_ld_as_choice(L, k, "generator kind", kinds, 4, &kind)) {
+      g.kind = (mrvi_generator_kind)kind;
+      total = load_count(L, c, &g);
+    }
+    if (total < 0) {
+      L->msg[0] = '\0';
+      return MRVI_OK;
+    }
+    particles += (double)total;
+    springs += (double)mrvi_generator_springs(&g);
+    char why[400];
+    if (mrvi_model_room(L->sys->model, particles, springs, why, sizeof why))
+      return mrvi_ld_fail(L, c, "generate.%d (with the entries before it): %s",
+                          i, why);
+    /* (the integrator's eight vectors of the step's unknowns, at least the
+     * coordinates: what mrvi_ld_check_sizes refuses after the model is
+     * made) */
+    const double n = mrvi_model_n(L->sys->model) + dim * particles,
+                 have = mrvi_machine_memory();
+    if (have > 0 && 64.0 * n > have)
+      return mrvi_ld_fail(
+          L, c,
+          "generate.%d (with the entries before it): %.0f coordinates "
+          "need about %.3g GiB per macro step (eight vectors of the step's "
+          "unknowns), more than this machine's %.3g GiB",
+          i, n, 64.0 * n / 1073741824.0, have / 1073741824.0);
+  }
+  return MRVI_OK;
+}
+
 int mrvi_ld_generators(loader *L, struct fy_node *list, int dim) {
   int st = mrvi_ld_want_list(L, list, "generate");
   int count = st ? 0 : fy_node_sequence_item_count(list);
+  if (!st)
+    st = check_room(L, list, count, dim);
   for (int i = 0; i < count && !st; i++) {
     char where[64];
     mrvi_fmt(where, sizeof where, "generate.%d", i);
