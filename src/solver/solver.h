@@ -555,12 +555,16 @@ void mrvi_terms_hv_lin_part(const mrvi_terms *kc, int c, const double *z0,
  * columns (zeroed here, each just before its first sum), mrvi_terms_grad's
  * values bitwise, calling done(ctx, c) each time the complete columns
  * grow to [0, c), last with c = ncol: done may then read g and write z
- * in those columns. */
+ * in those columns.  first (or NULL): first(ctx, c) before any record
+ * reads z or any sum writes g in the columns beyond the last call's c,
+ * with c increasing to ncol: first may read g (its values before this
+ * call) and write z in [last c, c), and must zero g there (in place of
+ * the kernel's own zeroing: one pass over those columns). */
 typedef void (*mrvi_cols_fn)(void *ctx, int c);
 int mrvi_terms_set_fused(mrvi_terms *kc, int ncol, int block);
 int mrvi_terms_fused(const mrvi_terms *kc);
 void mrvi_terms_grad_fused(const mrvi_terms *kc, const double *z, double *g,
-                           mrvi_cols_fn done, void *ctx);
+                           mrvi_cols_fn first, mrvi_cols_fn done, void *ctx);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
 /* The parts of a partitioned class (0: not partitioned), and g +=

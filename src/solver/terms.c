@@ -2034,40 +2034,53 @@ int mrvi_terms_fused(const mrvi_terms *kc) {
   return kc->fuse_nb > 0 && kc->threads <= 1;
 }
 
+/* The columns [zp, to) of mrvi_terms_grad_fused zeroed, by first where
+ * given (in its pass over them); the new zp returned. */
+static int fused_zero(double *g, int zp, int to, mrvi_cols_fn first,
+                      void *ctx) {
+  if (to <= zp)
+    return zp;
+  if (first) {
+    first(ctx, to);
+    return to;
+  }
+  for (; zp < to; zp++)
+    g[zp] = 0.0;
+  return zp;
+}
+
 /* mrvi_terms_grad_fused in dimension dim: the blocks of hooke_grad1's
  * loop, each column zeroed just before the first block that adds to it. */
 ALWAYS_INLINE void fused_k(const mrvi_terms *kc, const double *z, double *g,
-                           mrvi_cols_fn done, void *ctx, const int dim) {
+                           mrvi_cols_fn first, mrvi_cols_fn done, void *ctx,
+                           const int dim) {
   const hsrc q = {kc->qh, NULL, 0.0, 0.0};
   const int n = kc->n, nb = kc->fuse_nb, B = kc->fuse_b;
   int zp = 0, dp = 0;
   for (int b = 0; b < nb; b++) {
     const int r0 = b * B, nr = b + 1 < nb ? B : n - r0;
-    for (; zp < kc->fuse_zero[b]; zp++)
-      g[zp] = 0.0;
+    zp = fused_zero(g, zp, kc->fuse_zero[b], first, ctx);
     hooke_grad_k(q, r0, nr, z, g, dim, 1);
     const int d = kc->fuse_done[b];
-    if (d > dp) {
-      for (; zp < d; zp++) /* (columns no record touches) */
-        g[zp] = 0.0;
+    if (d > dp) { /* (and the columns no record touches) */
+      zp = fused_zero(g, zp, d, first, ctx);
       done(ctx, d);
       dp = d;
     }
   }
-  for (; zp < kc->fuse_ncol; zp++)
-    g[zp] = 0.0;
+  zp = fused_zero(g, zp, kc->fuse_ncol, first, ctx);
   if (dp < kc->fuse_ncol)
     done(ctx, kc->fuse_ncol);
 }
 
 void mrvi_terms_grad_fused(const mrvi_terms *kc, const double *z, double *g,
-                           mrvi_cols_fn done, void *ctx) {
+                           mrvi_cols_fn first, mrvi_cols_fn done, void *ctx) {
   if (kc->dim == 2)
-    fused_k(kc, z, g, done, ctx, 2);
+    fused_k(kc, z, g, first, done, ctx, 2);
   else if (kc->dim == 3)
-    fused_k(kc, z, g, done, ctx, 3);
+    fused_k(kc, z, g, first, done, ctx, 3);
   else
-    fused_k(kc, z, g, done, ctx, 1);
+    fused_k(kc, z, g, first, done, ctx, 1);
 }
 
 int mrvi_terms_count(const mrvi_terms *kc) { return kc->n; }
