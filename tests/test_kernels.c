@@ -437,6 +437,51 @@ static void check_fused(const mrvi_model *m, const int *sel, int nsp,
   free(w);
 }
 
+/* sweep-cg's row 0 bound (mrvi_terms_gershgorin) on a class of springs
+ * and anchors: at least the Gershgorin bound of the assembled matrix
+ * hscale hess Z (mrvi_terms_eval's dense Hessian, rows scaled by a
+ * positive dinv) and at most the elements' bound from
+ * mrvi_terms_grad_hdiag's off (to 1e-13 relative): a bound that dropped
+ * or mis-slotted a particle's own off-diagonal sums would fall below the
+ * assembled one. */
+static void check_gersh(mrvi_terms *kt, const double *q, int n, int d,
+                        const law_case *lc, unsigned long long *rng) {
+  if (!mrvi_terms_springs_only(kt))
+    return;
+  const double hs = 0.25 * (1.0 + uniform(rng));
+  double *H = calloc((size_t)n * (size_t)n, sizeof *H);
+  double *w = calloc(5 * (size_t)n, sizeof *w);
+  if (!H || !w) {
+    CHECK(0, "d %d: memory", d);
+    free(H);
+    free(w);
+    return;
+  }
+  double *g = w, *dinv = w + n, *s = w + 2 * n, *o = w + 3 * n, *hd = w + 4 * n;
+  mrvi_terms_eval(kt, q, 1.0, g, H, n, hs);
+  double ref = 0.0;
+  for (int i = 0; i < n; i++) {
+    dinv[i] = 1.0 / (fabs(H[(size_t)i * n + i]) + 1.0 + uniform(rng));
+    double t = 0.0;
+    for (int j = 0; j < n; j++)
+      t += j != i ? fabs(H[(size_t)i * n + j]) : 0.0;
+    ref = fmax(ref, t * dinv[i]);
+  }
+  const double b = mrvi_terms_gershgorin(kt, q, hs, dinv, s, o, n);
+  memset(g, 0, (size_t)n * sizeof *g);
+  memset(hd, 0, (size_t)n * sizeof *hd);
+  memset(o, 0, (size_t)n * sizeof *o);
+  mrvi_terms_grad_hdiag(kt, q, g, hd, o, hs);
+  double elem = 0.0;
+  for (int i = 0; i < n; i++)
+    elem = fmax(elem, o[i] * dinv[i]);
+  CHECK(b >= ref * (1.0 - 1e-13) && b <= elem * (1.0 + 1e-13),
+        "d %d %s: row 0 bound %.17g, assembled %.17g, elements' %.17g", d,
+        lc->law, b, ref, elem);
+  free(H);
+  free(w);
+}
+
 /* sweep-cg's linearised chord updates (tuning.chord_linear) on a class of
  * Hooke springs alone after mrvi_terms_set_recip, partitioned in np parts:
  * mrvi_terms_grad_lin's gradient bitwise mrvi_terms_grad's; the Hessian
@@ -760,6 +805,8 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
         check_sparse_parts(m, elems, kt, np, q, g, sb, hscale, rng);
       if (w3 && kt && np >= 2)
         check_lin(kt, q, n, np, d, lc, 0, rng);
+      if (kt)
+        check_gersh(kt, q, n, d, lc, rng);
       /* (the springs alone, without the anchors: a class of Hooke springs
        * where the law is linear) */
       mrvi_terms *kl = NULL;

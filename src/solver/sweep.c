@@ -1581,6 +1581,30 @@ again:
   return r;
 }
 
+/* Row 0's fresh bound where the elements' (fresh_bound: each element's
+ * off-diagonal entries by absolute value) exceeds chord_jacobi_max: the
+ * bound of the matrix Newton would assemble at the same iterate dn (its
+ * own-particle blocks summed with their signs, which cancel where a
+ * particle has springs in several directions: random networks), one pass
+ * more over the springs, in the arrays the row does not hold then (the
+ * configuration in the gradient's, the sums in dprev and fimp: the next
+ * update writes each whole before it reads it).  It decides the regime,
+ * and the relaxation's bound rho_c becomes it.  Serial: the same bits for
+ * every thread count (bench_floor's random3d at 1e5 took Newton at every
+ * step's row 0 with the elements' bound, doc/performance.md). */
+static double fresh_exact(mrvi_sweep *sw, const double *qm, const double *dn) {
+  const int nf = sw->nf, i = sw->imp;
+  const double cB = sw->cB[i];
+  double *z = sw->gpt[i];
+  for (int f = 0; f < nf; f++)
+    z[f] = 1.0 * qm[f] + cB * dn[f];
+  const double b =
+      mrvi_terms_gershgorin(sw->kc[MRVI_FAST], z, sw->w[i] * sw->cA[i] * cB,
+                            sw->jdinv, sw->dprev, sw->fimp, nf);
+  sw->rho_c = b <= sw->chord_max ? b : sw->rho_c;
+  return b;
+}
+
 /* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
  * rhs = p^{f,m} minus the forces of the points at node m (Newton on nf
  * unknowns, or the Jacobi chord above; displacements keep tiny steps'
@@ -1698,6 +1722,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         deferred = 0;
       }
       zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
+      if (!(rho <= sw->chord_max) && rho < HUGE_VAL && first && sw->fresh &&
+          it == 0) /* (the elements' bound: the assembled one decides) */
+        rho = fresh_exact(sw, qm, dn);
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
         with_j = 1;
