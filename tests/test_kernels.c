@@ -358,12 +358,31 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
  * by the kernel): mrvi_terms_grad's gradient bitwise; the callback's
  * columns increase to n, and the columns it reports complete are final
  * (their g then equals the end's bitwise) and no longer read (z there
- * overwritten with NaN by the callback).  Other classes keep none. */
+ * overwritten with NaN by the callback); with the first callback (the
+ * next row's end formed in the loop), z NaN until first reports its
+ * column, which g must not yet have been written in.  Other classes keep
+ * none. */
 typedef struct fuse_seen {
-  const double *g;
+  double *g;
+  const double *q;
   double *z, *gc;
-  int last, calls, ok;
+  int last, calls, ok, first;
 } fuse_seen;
+
+/* mrvi_terms_grad_fused's first: the columns it reports still unread and
+ * unsummed (g there still NaN), their z set only now (NaN before, so that
+ * a record reading one earlier poisons the gradient) and g zeroed (first's
+ * task: the kernel leaves them). */
+static void fuse_first(void *ctx, int c) {
+  fuse_seen *s = ctx;
+  s->ok &= c > s->first;
+  for (int f = s->first; f < c; f++) {
+    s->ok &= isnan(s->g[f]) != 0;
+    s->z[f] = s->q[f];
+    s->g[f] = 0.0;
+  }
+  s->first = c;
+}
 
 static void fuse_cols(void *ctx, int c) {
   fuse_seen *s = ctx;
@@ -392,26 +411,74 @@ static void check_fused(const mrvi_model *m, const int *sel, int nsp,
   double *g0 = w, *g1 = w + n, *gc = w + 2 * n, *z = w + 3 * n;
   mrvi_terms_grad(kf, q, g0);
   const int blocks[3] = {1, 3, 64};
-  for (int b = 0; b < 3; b++) {
-    const int set = mrvi_terms_set_fused(kf, n, blocks[b]);
+  for (int b = 0; b < 6; b++) {
+    const int set = mrvi_terms_set_fused(kf, n, blocks[b % 3]);
     CHECK(set == (hooke && nsp > 0) && mrvi_terms_fused(kf) == set,
           "d %d %s: fused %d (Hooke springs alone: %d)", d, lc->law, set,
           hooke);
     if (set != 1)
       continue;
+    const int first = b >= 3; /* (with first: z set there) */
     for (int i = 0; i < n; i++) {
       g1[i] = gc[i] = NAN;
-      z[i] = q[i];
+      z[i] = first ? NAN : q[i];
     }
-    fuse_seen s = {g1, z, gc, 0, 0, 1};
-    mrvi_terms_grad_fused(kf, z, g1, fuse_cols, &s);
-    CHECK(s.ok && s.last == n && !memcmp(g0, g1, (size_t)n * sizeof *g0) &&
+    fuse_seen s = {g1, q, z, gc, 0, 0, 1, 0};
+    mrvi_terms_grad_fused(kf, z, g1, first ? fuse_first : NULL, fuse_cols, &s);
+    CHECK(s.ok && s.last == n && s.first == (first ? n : 0) &&
+              !memcmp(g0, g1, (size_t)n * sizeof *g0) &&
               !memcmp(g1, gc, (size_t)n * sizeof *g1),
-          "d %d block %d: %d calls to column %d; the fused gradient bitwise "
-          "mrvi_terms_grad's, the complete columns final and unread",
-          d, blocks[b], s.calls, s.last);
+          "d %d block %d first %d: %d calls to column %d; the fused gradient "
+          "bitwise mrvi_terms_grad's, the complete columns final and unread, "
+          "first's columns before any read",
+          d, blocks[b % 3], first, s.calls, s.last);
   }
   mrvi_terms_free(kf);
+  free(w);
+}
+
+/* sweep-cg's row 0 bound (mrvi_terms_gershgorin) on a class of springs
+ * and anchors: at least the Gershgorin bound of the assembled matrix
+ * hscale hess Z (mrvi_terms_eval's dense Hessian, rows scaled by a
+ * positive dinv) and at most the elements' bound from
+ * mrvi_terms_grad_hdiag's off (to 1e-13 relative): a bound that dropped
+ * or mis-slotted a particle's own off-diagonal sums would fall below the
+ * assembled one. */
+static void check_gersh(mrvi_terms *kt, const double *q, int n, int d,
+                        const law_case *lc, unsigned long long *rng) {
+  if (!mrvi_terms_springs_only(kt))
+    return;
+  const double hs = 0.25 * (1.0 + uniform(rng));
+  double *H = calloc((size_t)n * (size_t)n, sizeof *H);
+  double *w = calloc(5 * (size_t)n, sizeof *w);
+  if (!H || !w) {
+    CHECK(0, "d %d: memory", d);
+    free(H);
+    free(w);
+    return;
+  }
+  double *g = w, *dinv = w + n, *s = w + 2 * n, *o = w + 3 * n, *hd = w + 4 * n;
+  mrvi_terms_eval(kt, q, 1.0, g, H, n, hs);
+  double ref = 0.0;
+  for (int i = 0; i < n; i++) {
+    dinv[i] = 1.0 / (fabs(H[(size_t)i * n + i]) + 1.0 + uniform(rng));
+    double t = 0.0;
+    for (int j = 0; j < n; j++)
+      t += j != i ? fabs(H[(size_t)i * n + j]) : 0.0;
+    ref = fmax(ref, t * dinv[i]);
+  }
+  const double b = mrvi_terms_gershgorin(kt, q, hs, dinv, s, o, n);
+  memset(g, 0, (size_t)n * sizeof *g);
+  memset(hd, 0, (size_t)n * sizeof *hd);
+  memset(o, 0, (size_t)n * sizeof *o);
+  mrvi_terms_grad_hdiag(kt, q, g, hd, o, hs);
+  double elem = 0.0;
+  for (int i = 0; i < n; i++)
+    elem = fmax(elem, o[i] * dinv[i]);
+  CHECK(b >= ref * (1.0 - 1e-13) && b <= elem * (1.0 + 1e-13),
+        "d %d %s: row 0 bound %.17g, assembled %.17g, elements' %.17g", d,
+        lc->law, b, ref, elem);
+  free(H);
   free(w);
 }
 
@@ -873,6 +940,8 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
       }
       if (w3 && kt && np >= 2)
         check_lin(kt, q, n, np, d, lc, 0, rng);
+      if (kt)
+        check_gersh(kt, q, n, d, lc, rng);
       /* (the springs alone, without the anchors: a class of Hooke springs
        * where the law is linear) */
       mrvi_terms *kl = NULL;

@@ -585,12 +585,16 @@ void mrvi_terms_hv_lin_part(const mrvi_terms *kc, int c, const double *z0,
  * columns (zeroed here, each just before its first sum), mrvi_terms_grad's
  * values bitwise, calling done(ctx, c) each time the complete columns
  * grow to [0, c), last with c = ncol: done may then read g and write z
- * in those columns. */
+ * in those columns.  first (or NULL): first(ctx, c) before any record
+ * reads z or any sum writes g in the columns beyond the last call's c,
+ * with c increasing to ncol: first may read g (its values before this
+ * call) and write z in [last c, c), and must zero g there (in place of
+ * the kernel's own zeroing: one pass over those columns). */
 typedef void (*mrvi_cols_fn)(void *ctx, int c);
 int mrvi_terms_set_fused(mrvi_terms *kc, int ncol, int block);
 int mrvi_terms_fused(const mrvi_terms *kc);
 void mrvi_terms_grad_fused(const mrvi_terms *kc, const double *z, double *g,
-                           mrvi_cols_fn done, void *ctx);
+                           mrvi_cols_fn first, mrvi_cols_fn done, void *ctx);
 /* The threads mrvi_terms_grad runs on (1: the serial loop). */
 int mrvi_terms_threads(const mrvi_terms *kc);
 /* The parts of a partitioned class (0: not partitioned), and g +=
@@ -642,6 +646,20 @@ void mrvi_terms_hess_d2(const mrvi_terms *kc, const double *dsum, double *J,
  * x (at least the assembled matrix's off-diagonal row sum: a Gershgorin
  * bound without the assembly). */
 int mrvi_terms_springs_only(const mrvi_terms *kc);
+/* The Gershgorin bound of D^-1 (H - diag H), H = M/dt + hscale hess Z(z)
+ * as assembled, over the rows (max_i sum_{j != i} |H_ij| dinv_i) for such
+ * a class: each particle's own off-diagonal block entries summed with
+ * their signs over its elements (as the assembly adds them; in s, the
+ * pair k < l of a particle's columns at its column k + l - 1) and the
+ * entries between the two ends of a spring by absolute value (in o by
+ * row; at least the assembled matrix's where two springs join the same
+ * pair), s and o (ncol) overwritten; HUGE_VAL where a value is not
+ * finite.  The bound of mrvi_terms_grad_hdiag's off without the
+ * within-particle sums' cancellations taken as losses (sweep-cg's row 0,
+ * doc/solver.md). */
+double mrvi_terms_gershgorin(const mrvi_terms *kc, const double *z,
+                             double hscale, const double *dinv, double *s,
+                             double *o, int ncol);
 void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
                            double *hd, double *off, double hscale);
 /* mrvi_terms_grad_hdiag on part c's columns of a partitioned class

@@ -156,9 +156,12 @@ struct mrvi_sweep {
   double pre[4];
   /* A row's end deferred to the next row's first chord update on threads
    * (end_predict_row, chord_residual: one parallel region for both, a
-   * barrier between): on, its order q, cB and nodes. */
+   * barrier between), or on one thread (serial) into its fused spring
+   * loop (chord_stream: each entry formed just before the first spring
+   * that reads it; one pass over the row instead of two): on, its order
+   * q, cB and nodes. */
   struct {
-    int on, q;
+    int on, serial, q;
     double cB;
     const double *qm;
     double *qn, *pn;
@@ -1285,6 +1288,10 @@ typedef struct chord_stream {
   double *zn, *out; /* out: 4 numbers per part */
   int light, n_c, c, pos, end;
   mrvi_v2 acc[4];
+  /* the deferred row end (sw->defer.serial): formed up to epos, its
+   * scale's pairs in eacc (defer_stream_to) */
+  int epos;
+  mrvi_v2 eacc;
 } chord_stream;
 
 static void chord_stream_to(void *ctx, int to) {
@@ -1445,6 +1452,7 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
 static void defer_flush(mrvi_sweep *sw);
 static void defer_part(mrvi_sweep *sw, int c, double *dn);
 static void defer_end(mrvi_sweep *sw);
+static void defer_stream_to(void *ctx, int to);
 
 static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
                              int zf_ok, int fresh, int track, int light,
@@ -1458,9 +1466,11 @@ static double chord_residual(mrvi_sweep *sw, const double *qm, const double *dn,
   int fuse = sw->fuse && !fresh && !lin && !sw->cfused &&
              (sw->n_cpass == 0 || sw->pthreads <= 1) &&
              mrvi_terms_fused(sw->kc[MRVI_FAST]);
-  /* the last row's end, unless it runs in the first update's region */
+  /* the last row's end, unless it runs in the first update's region or
+   * (on one thread) in its spring loop */
   const int dfr = sw->defer.on && !fresh && sw->cfused && zf_ok && !light;
-  if (sw->defer.on && !dfr)
+  const int dfs = sw->defer.on && sw->defer.serial && fuse && zf_ok && !light;
+  if (sw->defer.on && !dfr && !dfs)
     defer_flush(sw);
   if (fresh && sw->cfused) /* (on threads: in the parts) */
     return fresh_parts(sw, qm, dn, zf_ok, rho);
@@ -1513,8 +1523,17 @@ again:
                        0,
                        0,
                        n_c > 0 ? mrvi_part_start(1, nf, n_c) : nf,
-                       {v2_zero(), v2_zero(), v2_zero(), v2_zero()}};
-    mrvi_terms_grad_fused(sw->kc[MRVI_FAST], sw->zf, g, chord_stream_to, &cs);
+                       {v2_zero(), v2_zero(), v2_zero(), v2_zero()},
+                       0,
+                       v2_zero()};
+    if (dfs) /* (before the pass, which may store fimp: defer_stream_to) */
+      rotate_history(sw);
+    mrvi_terms_grad_fused(sw->kc[MRVI_FAST], sw->zf, g,
+                          dfs ? defer_stream_to : NULL, chord_stream_to, &cs);
+    if (dfs) { /* (the tail and the scale formed at the last columns) */
+      sw->pred_scale = v2_lo(cs.eacc);
+      sw->defer.on = 0;
+    }
     if (n_c > 0)
       chord_parts_sum(sw->cpass, n_c, t);
   } else if (n_c == 0) {
@@ -1577,6 +1596,30 @@ again:
     sw->lam_sum += sw->lam;
   }
   return r;
+}
+
+/* Row 0's fresh bound where the elements' (fresh_bound: each element's
+ * off-diagonal entries by absolute value) exceeds chord_jacobi_max: the
+ * bound of the matrix Newton would assemble at the same iterate dn (its
+ * own-particle blocks summed with their signs, which cancel where a
+ * particle has springs in several directions: random networks), one pass
+ * more over the springs, in the arrays the row does not hold then (the
+ * configuration in the gradient's, the sums in dprev and fimp: the next
+ * update writes each whole before it reads it).  It decides the regime,
+ * and the relaxation's bound rho_c becomes it.  Serial: the same bits for
+ * every thread count (bench_floor's random3d at 1e5 took Newton at every
+ * step's row 0 with the elements' bound, doc/performance.md). */
+static double fresh_exact(mrvi_sweep *sw, const double *qm, const double *dn) {
+  const int nf = sw->nf, i = sw->imp;
+  const double cB = sw->cB[i];
+  double *z = sw->gpt[i];
+  for (int f = 0; f < nf; f++)
+    z[f] = 1.0 * qm[f] + cB * dn[f];
+  const double b =
+      mrvi_terms_gershgorin(sw->kc[MRVI_FAST], z, sw->w[i] * sw->cA[i] * cB,
+                            sw->jdinv, sw->dprev, sw->fimp, nf);
+  sw->rho_c = b <= sw->chord_max ? b : sw->rho_c;
+  return b;
 }
 
 /* Solve row m for the displacement dn = q^{m+1} - q^m given qm = q^m and
@@ -1696,6 +1739,9 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         deferred = 0;
       }
       zf_ok = 0; /* (zf: the next iterate's, taken by the update below) */
+      if (!(rho <= sw->chord_max) && rho < HUGE_VAL && first && sw->fresh &&
+          it == 0) /* (the elements' bound: the assembled one decides) */
+        rho = fresh_exact(sw, qm, dn);
       if (!(rho <= sw->chord_max)) { /* Newton on row 0 (an evaluation) */
         chord = sw->chord = sw->mild = 0;
         with_j = 1;
@@ -2411,26 +2457,34 @@ ALWAYS_INLINE mrvi_v2 v2_predicted_force(int q, mrvi_v2 f1, mrvi_v2 f2,
   return f1;
 }
 
-static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
-                          double *dn, const double *g, double *qn, double *pn,
-                          int f0, int f1) {
+/* end_predict over the pairs of [f0, f1) from f0, the scale's pairs
+ * carried in acc, and where fin its tail and the scale, returned (the
+ * whole row in pieces: the same values as in one piece); the implicit
+ * force into h[0], the history f2..f5 read from h[1..4]; with zg, g
+ * zeroed once read (the next gradient's start). */
+ALWAYS_INLINE double end_predict_k(mrvi_sweep *sw, int q, double cB,
+                                   const double *qm, double *dn, double *g,
+                                   double *qn, double *pn, double *const h[5],
+                                   int f0, int f1, mrvi_v2 *acc, const int fin,
+                                   const int zg) {
   const double dt = sw->st->dt, wb = sw->w[0] * sw->cB[0];
   const double wc = sw->w[0] * sw->cA[0];
   const size_t inc = (size_t)sw->mass_inc;
   const int unit = sw->rw_one;
-  const double *restrict f2 = sw->fhist[0], *restrict f3 = sw->fhist[1],
-                         *restrict f4 = sw->fhist[2],
-                         *restrict f5 = sw->fhist[3];
+  const double *restrict f2 = h[1], *restrict f3 = h[2], *restrict f4 = h[3],
+                         *restrict f5 = h[4];
   const double *restrict minv = sw->minv_f, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw;
-  double *restrict fimp = sw->fimp, *restrict zf = sw->zf;
+  double *restrict fimp = h[0], *restrict zf = sw->zf;
   const double idt = 1.0 / dt, idt4 = 4.0 / dt;
   const mrvi_v2 vidt = v2_set(idt, idt), vidt4 = v2_set(idt4, idt4);
   const mrvi_v2 vm = v2_set(mf[0], mf[0]), vminv = v2_set(minv[0], minv[0]);
-  mrvi_v2 vs = v2_zero();
+  mrvi_v2 vs = *acc;
   int f = f0;
   for (; f + 2 <= f1; f += 2) {
     const mrvi_v2 d = v2_load(dn + f), gf = v2_load(g + f);
+    if (zg)
+      v2_store(g + f, v2_zero());
     const mrvi_v2 m = inc ? v2_load(mf + f) : vm;
     const mrvi_v2 fi = v2_add(v2_zero(), v2_scale(wc, gf));
     const mrvi_v2 q1 = v2_add(v2_load(qm + f), d);
@@ -2449,9 +2503,15 @@ static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
     const mrvi_v2 a = v2_add(v2_abs(p1), v2_mul(v2_mul(m, v2_abs(q1)), vidt4));
     vs = v2_max(unit ? a : v2_mul(a, v2_load(rw + f)), vs);
   }
+  if (!fin) {
+    *acc = vs;
+    return 0.0;
+  }
   double scale = v2_lo(vs) > v2_hi(vs) ? v2_lo(vs) : v2_hi(vs);
   for (; f < f1; f++) {
     const double d = dn[f], gf = g[f], m = mf[inc * (size_t)f];
+    if (zg)
+      g[f] = 0.0;
     const double fi = 0.0 + wc * gf;
     const double q1 = qm[f] + d, p1 = m * d * idt - wb * gf;
     fimp[f] = fi;
@@ -2469,6 +2529,16 @@ static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
   return scale;
 }
 
+static double end_predict(mrvi_sweep *sw, int q, double cB, const double *qm,
+                          double *dn, const double *g, double *qn, double *pn,
+                          int f0, int f1) {
+  mrvi_v2 acc = v2_zero();
+  double *const h[5] = {sw->fimp, sw->fhist[0], sw->fhist[1], sw->fhist[2],
+                        sw->fhist[3]};
+  return end_predict_k(sw, q, cB, qm, dn, (double *)g, qn, pn, h, f0, f1, &acc,
+                       1, 0);
+}
+
 /* end_predict over the row, in the parts of chord_residual's pass on
  * threads (the largest scale is exact in any order), the history moved
  * on and the predictor kept for row m + 1 (solve_implicit). */
@@ -2478,9 +2548,12 @@ static void end_predict_row(mrvi_sweep *sw, int m, const double *qm, double *qn,
   const double cB = sw->chord && sw->imp >= 0 ? sw->cB[sw->imp] : 0.0;
   double *dn = sw->dn, scale = 0.0;
   const double *g = sw->gpt[0];
-  if (n_c > 0 && sw->pthreads > 1 && sw->cfused && cB != 0.0) {
+  const int serial =
+      sw->fuse && sw->lin_n <= 0 && !(n_c > 0 && sw->pthreads > 1);
+  if (cB != 0.0 && (serial || (n_c > 0 && sw->pthreads > 1 && sw->cfused))) {
     /* (in the next row's first chord update: chord_residual) */
     sw->defer.on = 1;
+    sw->defer.serial = serial;
     sw->defer.q = q;
     sw->defer.cB = cB;
     sw->defer.qm = qm;
@@ -2530,12 +2603,48 @@ static void defer_end(mrvi_sweep *sw) {
 }
 
 /* The deferred row end in a parallel region of its own (where the next
- * row's first update cannot take it). */
+ * row's first update cannot take it), or in one pass (serial). */
 static void defer_flush(mrvi_sweep *sw) {
+  if (sw->defer.serial) {
+    sw->pred_scale =
+        end_predict(sw, sw->defer.q, sw->defer.cB, sw->defer.qm, sw->dn,
+                    sw->gpt[0], sw->defer.qn, sw->defer.pn, 0, sw->nf);
+    rotate_history(sw);
+    sw->defer.on = 0;
+    return;
+  }
   MRVI_PARALLEL_FOR(sw->pthreads)
   for (int c = 0; c < sw->n_cpass; c++)
     defer_part(sw, c, sw->dn);
   defer_end(sw);
+}
+
+/* The deferred row end in the next row's fused spring loop
+ * (mrvi_terms_grad_fused's first): the entries [epos, to) formed before
+ * any spring reads their configuration or sums into their gradient (which
+ * end_predict reads), in pairs from entry 0, one entry early where to is
+ * odd (end_predict's pairs, the scale's pairs carried in eacc) and at the
+ * last columns the tail, the scale left in eacc's low lane (end_predict's
+ * values bitwise), g zeroed there for the loop's sums.  The history was
+ * moved on before the loop (the pass may
+ * store the new row's force in fimp, in entries formed here first): the
+ * implicit force into fhist[0], the older rows' read from fhist[1..3] and
+ * fimp. */
+static void defer_stream_to(void *ctx, int to) {
+  chord_stream *s = ctx;
+  mrvi_sweep *sw = s->sw;
+  const int nf = sw->nf, fin = to >= nf;
+  const int e = fin ? nf : s->epos + ((to - s->epos + 1) & ~1); /* (>= to) */
+  if (e <= s->epos && !fin)
+    return;
+  double *const h[5] = {sw->fhist[0], sw->fhist[1], sw->fhist[2], sw->fhist[3],
+                        sw->fimp};
+  const double r = end_predict_k(sw, sw->defer.q, sw->defer.cB, sw->defer.qm,
+                                 (double *)s->dn, sw->gpt[0], sw->defer.qn,
+                                 sw->defer.pn, h, s->epos, e, &s->eacc, fin, 1);
+  if (fin)
+    s->eacc = v2_set(r, r);
+  s->epos = e;
 }
 
 static int general_sweep(mrvi_sweep *sw, const mrvi_step *st, double *x,

@@ -2034,40 +2034,53 @@ int mrvi_terms_fused(const mrvi_terms *kc) {
   return kc->fuse_nb > 0 && kc->threads <= 1;
 }
 
+/* The columns [zp, to) of mrvi_terms_grad_fused zeroed, by first where
+ * given (in its pass over them); the new zp returned. */
+static int fused_zero(double *g, int zp, int to, mrvi_cols_fn first,
+                      void *ctx) {
+  if (to <= zp)
+    return zp;
+  if (first) {
+    first(ctx, to);
+    return to;
+  }
+  for (; zp < to; zp++)
+    g[zp] = 0.0;
+  return zp;
+}
+
 /* mrvi_terms_grad_fused in dimension dim: the blocks of hooke_grad1's
  * loop, each column zeroed just before the first block that adds to it. */
 ALWAYS_INLINE void fused_k(const mrvi_terms *kc, const double *z, double *g,
-                           mrvi_cols_fn done, void *ctx, const int dim) {
+                           mrvi_cols_fn first, mrvi_cols_fn done, void *ctx,
+                           const int dim) {
   const hsrc q = {kc->qh, NULL, 0.0, 0.0};
   const int n = kc->n, nb = kc->fuse_nb, B = kc->fuse_b;
   int zp = 0, dp = 0;
   for (int b = 0; b < nb; b++) {
     const int r0 = b * B, nr = b + 1 < nb ? B : n - r0;
-    for (; zp < kc->fuse_zero[b]; zp++)
-      g[zp] = 0.0;
+    zp = fused_zero(g, zp, kc->fuse_zero[b], first, ctx);
     hooke_grad_k(q, r0, nr, z, g, dim, 1);
     const int d = kc->fuse_done[b];
-    if (d > dp) {
-      for (; zp < d; zp++) /* (columns no record touches) */
-        g[zp] = 0.0;
+    if (d > dp) { /* (and the columns no record touches) */
+      zp = fused_zero(g, zp, d, first, ctx);
       done(ctx, d);
       dp = d;
     }
   }
-  for (; zp < kc->fuse_ncol; zp++)
-    g[zp] = 0.0;
+  zp = fused_zero(g, zp, kc->fuse_ncol, first, ctx);
   if (dp < kc->fuse_ncol)
     done(ctx, kc->fuse_ncol);
 }
 
 void mrvi_terms_grad_fused(const mrvi_terms *kc, const double *z, double *g,
-                           mrvi_cols_fn done, void *ctx) {
+                           mrvi_cols_fn first, mrvi_cols_fn done, void *ctx) {
   if (kc->dim == 2)
-    fused_k(kc, z, g, done, ctx, 2);
+    fused_k(kc, z, g, first, done, ctx, 2);
   else if (kc->dim == 3)
-    fused_k(kc, z, g, done, ctx, 3);
+    fused_k(kc, z, g, first, done, ctx, 3);
   else
-    fused_k(kc, z, g, done, ctx, 1);
+    fused_k(kc, z, g, first, done, ctx, 1);
 }
 
 int mrvi_terms_count(const mrvi_terms *kc) { return kc->n; }
@@ -2409,6 +2422,98 @@ void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
 #undef HD_
     it += t->runs - 1;
   }
+}
+
+/* One record of mrvi_terms_gershgorin: pass 0 adds its blocks' signed
+ * own-particle off-diagonal entries hscale a u_k u_l (k < l) to s at the
+ * particle's column k + l - 1 and, for a spring, each row's sum of the
+ * absolute entries between its ends, hscale |a u_k u_l + b delta_kl|, to
+ * o; pass 1 returns the largest row bound (o + sum_l |s|) dinv over its
+ * columns (NaN where one is). */
+ALWAYS_INLINE double spring_gersh(const kspring *q, const double *z, double *s,
+                                  double *o, const double *dinv, double hscale,
+                                  const int pass, const int dim,
+                                  const int two) {
+  if (pass == 1) {
+    double m = 0.0;
+    for (int e = 0; e < (two ? 2 : 1); e++) {
+      const int *c = e ? q->cj : q->ci;
+      UNROLL for (int k = 0; k < dim; k++) {
+        double t = o[c[k]];
+        UNROLL for (int l = 0; l < dim; l++) if (l != k) t +=
+            fabs(s[c[k + l - 1]]);
+        const double v = t * dinv[c[k]];
+        m = v > m || isnan(v) ? v : m;
+      }
+    }
+    return m;
+  }
+  double u[3], d1, a, b;
+  spring_derivs(q, z, u, &d1, &a, &b, dim, two, K_ANY);
+  UNROLL for (int k = 0; k < dim; k++)
+      UNROLL for (int l = k + 1; l < dim; l++) {
+    const double x = hscale * a * u[k] * u[l];
+    s[q->ci[k + l - 1]] += x;
+    if (two)
+      s[q->cj[k + l - 1]] += x;
+  }
+  if (two)
+    UNROLL for (int k = 0; k < dim; k++) {
+      double t = 0.0;
+      UNROLL for (int l = 0; l < dim; l++) t +=
+          fabs(hscale * (a * u[k] * u[l] + (l == k ? b : 0.0)));
+      o[q->ci[k]] += t;
+      o[q->cj[k]] += t;
+    }
+  return 0.0;
+}
+
+static __attribute__((noinline)) double
+springs_gersh(const kspring *q, int nr, const double *z, double *s, double *o,
+              const double *dinv, double hscale, int pass, int dim) {
+  double m = 0.0;
+#define SPRINGS_GS(D, T)                                                       \
+  for (int r = 0; r < nr; r++) {                                               \
+    const double v = spring_gersh(q + r, z, s, o, dinv, hscale, pass, D, T);   \
+    m = v > m || isnan(v) ? v : m;                                             \
+  }
+  if (dim == 2 && q->two)
+    SPRINGS_GS(2, 1)
+  else if (dim == 2)
+    SPRINGS_GS(2, 0)
+  else if (dim == 3 && q->two)
+    SPRINGS_GS(3, 1)
+  else if (dim == 3)
+    SPRINGS_GS(3, 0)
+  else if (q->two)
+    SPRINGS_GS(1, 1)
+  else
+    SPRINGS_GS(1, 0)
+#undef SPRINGS_GS
+  return m;
+}
+
+double mrvi_terms_gershgorin(const mrvi_terms *kc, const double *z,
+                             double hscale, const double *dinv, double *s,
+                             double *o, int ncol) {
+  memset(s, 0, (size_t)ncol * sizeof *s);
+  memset(o, 0, (size_t)ncol * sizeof *o);
+  double m = 0.0;
+  for (int pass = 0; pass < 2; pass++)
+    for (int it = 0; it < kc->n; it++) {
+      kterm tt;
+      const kterm *t = term_at(kc, it, &tt);
+#define GS_(q, n, r)                                                           \
+  do {                                                                         \
+    const double v =                                                           \
+        springs_gersh(q, n, z, s, o, dinv, hscale, pass, kc->dim);             \
+    m = v > m || isnan(v) ? v : m;                                             \
+  } while (0)
+      SPRING_PIECES(kc, t->qs, t->runs, GS_);
+#undef GS_
+      it += t->runs - 1;
+    }
+  return isfinite(m) ? m : HUGE_VAL;
 }
 
 /* Part c's records (mrvi_terms_set_threads) in the serial order, each
