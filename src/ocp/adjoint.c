@@ -685,13 +685,24 @@ static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   mrvi_step *st = &o->step;
   const size_t nt = (size_t)st->n_total;
   const int max_refine = o->settings.tuning.adjoint_refine_max;
+  /* Outside the chain elimination (the node blocks, the slow block
+   * bordered) the first functional's refinement gives up after two sweeps:
+   * where the kept factors (of step k + 1, or of step 0 of the evaluation
+   * before) need more, a fresh factorisation and one solve per functional cost
+   * less (the constrained lattice at n = 60: 5-9 sweeps per functional and step
+   * with 8 allowed, cost + gradient 20-25 % dearer; doc/performance.md, "The
+   * constrained lattice's first evaluation").  The other functionals, and the
+   * chain elimination (whose factorisation costs more), keep the limit. */
+  const int first_refine =
+      max_refine > 2 && !mrvi_bordered_on_chain(o->bordered) ? 2 : max_refine;
   for (int f = 0; f < nfun; f++) {
     const double *b = o->rhs + (size_t)f * nt;
     double *x = o->sol + (size_t)f * nt;
     int ok = 0;
     if (o->bd_factored && max_refine > 0)
       ok = mrvi_refine_transpose(st->n_total, st->Ap, st->Ai, o->Ak, b, x,
-                                 max_refine, o->bd_work, bd_solve, o, msg, len);
+                                 f == 0 ? first_refine : max_refine, o->bd_work,
+                                 bd_solve, o, msg, len);
     if (ok == 1)
       continue;
     /* (step.Ax: the values the factors are of, as bordered.c reads them) */
