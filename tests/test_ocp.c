@@ -1610,6 +1610,74 @@ static void test_paths_general(void) {
   mrvi_model_free(m);
 }
 
+/* The redundancy check of terminal equalities (ocp_terminal_redundant) on
+ * a long rigid truss: a 2-D ladder of K cells (bottom b_i = (i, 0), top
+ * t_i = (i, 1); rods b_i t_i, b_i b_i+1, t_i t_i+1 and the diagonal
+ * b_i t_i+1), 3 degrees of freedom.  With b_K-1's x and y and t_K-1's x
+ * given at one end, b_0's y at the other end, K cells away, is implied (the
+ * rank test must see the whole truss, not the coordinates the condition
+ * touches), for positions and for velocities; without the diagonal of the
+ * middle cell (4 degrees of freedom) it is not.  K = 120: 480 coordinates,
+ * 477 rows. */
+static void test_redundant_truss(void) {
+  enum { K = 120 };
+  for (int broken = 0; broken < 2; broken++) {
+    mrvi_model *m = mrvi_model_create();
+    mrvi_model_set_dimension(m, 2);
+    for (int i = 0; i < K; i++)
+      for (int top = 0; top < 2; top++) {
+        const double x[2] = {1.0 * i, 1.0 * top}, v[2] = {0.0, 0.0};
+        char name[16];
+        snprintf(name, sizeof name, "%c%d", top ? 't' : 'b', i);
+        mrvi_model_add_particle(m, name, 1.0 + 0.5 * top, MRVI_SLOW, x, v);
+      }
+    for (int i = 0; i < K; i++) {
+      mrvi_model_add_distance(m, 2 * i, 2 * i + 1, NAN);
+      if (i + 1 < K) {
+        mrvi_model_add_distance(m, 2 * i, 2 * i + 2, NAN);
+        mrvi_model_add_distance(m, 2 * i + 1, 2 * i + 3, NAN);
+        if (!broken || i != K / 2)
+          mrvi_model_add_distance(m, 2 * i, 2 * i + 3, NAN);
+      }
+    }
+    CHECK(mrvi_model_constraint_rows(m) == 4 * K - 3 - broken, "truss rows %d",
+          mrvi_model_constraint_rows(m));
+    mrvi_settings s;
+    mrvi_settings_default(&s);
+    mrvi_ocp *o = create_problem(m, &s);
+    if (!o) {
+      mrvi_model_free(m);
+      continue;
+    }
+    const int bx = 4 * (K - 1), by = bx + 1, tx = bx + 2, b0y = 1;
+    const mrvi_ocp_terminal_kind kinds[2] = {MRVI_OCP_POSITION,
+                                             MRVI_OCP_VELOCITY};
+    for (int k = 0; k < 2; k++) {
+      const int c[3] = {bx, by, tx};
+      for (int j = 0; j < 3; j++) {
+        const int st = mrvi_ocp_add_terminal(o, kinds[k], c[j], 0.0, 0.0);
+        CHECK(st == (3 + broken) * k + j,
+              "truss (broken %d), %s %d: accepted (%d: %s)", broken,
+              k ? "velocity" : "position", j, st, mrvi_ocp_errmsg(o));
+      }
+      const int st = mrvi_ocp_add_terminal(o, kinds[k], b0y, 0.0, 0.0);
+      if (broken)
+        CHECK(st == 4 * k + 3,
+              "truss without a diagonal: the far %s condition is free (%d: "
+              "%s)",
+              k ? "velocity" : "position", st, mrvi_ocp_errmsg(o));
+      else
+        CHECK(st < 0 && strstr(mrvi_ocp_errmsg(o), "implied"),
+              "rigid truss: the far %s condition is implied (%d: %s)",
+              k ? "velocity" : "position", st, mrvi_ocp_errmsg(o));
+    }
+    CHECK(mrvi_ocp_n_constraints(o) == 6 + 2 * broken, "truss: %d conditions",
+          mrvi_ocp_n_constraints(o));
+    mrvi_ocp_free(o);
+    mrvi_model_free(m);
+  }
+}
+
 int main(void) {
   lattice_set(0, 0, 0.0, 0, 0.0, 0.0);
   test_gradients();
@@ -1632,5 +1700,6 @@ int main(void) {
   test_adjoint_forest_fallbacks();
   test_paths_optimum();
   test_paths_general();
+  test_redundant_truss();
   return test_finish();
 }

@@ -696,10 +696,19 @@ static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   const double phi = o->settings.tuning.adjoint_refine_by_cost
                          ? mrvi_bordered_refactor_cost(o->bordered)
                          : 0.0;
+  /* Outside the chain elimination (the node blocks, the slow block
+   * bordered), which has no cost estimate, the refinement gives up after two
+   * sweeps: where the kept factors (of step k + 1, or of step 0 of the
+   * evaluation before) need more, a fresh factorisation and one solve cost
+   * less (the constrained lattice at n = 60: 5-9 sweeps per functional and
+   * step with 8 allowed, cost + gradient 20-25 % dearer; doc/performance.md,
+   * "The constrained lattice's first evaluation"). */
+  const int refine =
+      max_refine > 2 && !mrvi_bordered_on_chain(o->bordered) ? 2 : max_refine;
   int ok = 0;
-  if (o->bd_factored && max_refine > 0)
+  if (o->bd_factored && refine > 0)
     ok = mrvi_refine_transpose(st->n_total, st->Ap, st->Ai, o->Ak, nfun, o->rhs,
-                               o->sol, max_refine, phi, o->bd_work, bd_solve, o,
+                               o->sol, refine, phi, o->bd_work, bd_solve, o,
                                msg, len);
   if (ok < 0)
     return ok;

@@ -219,7 +219,51 @@ static int extend_basis(int n, double *B, int *k, double *v) {
   return added;
 }
 
-int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
+/* The test point of the rank test: q0 moved by 1e-4 max(1, |q0|) in a
+ * fixed pattern (projected back onto the constraints by the caller), so
+ * that a condition is judged by the structure of the constraints rather
+ * than by where they happen to point at q0 (a pendulum hanging straight
+ * down has its rod gradient along y, which made a condition on the bob's y
+ * look redundant; at 45 degrees it did not).  Returns max(1, |q0|). */
+static double test_point(const mrvi_model *m, double *qg) {
+  double qmax = 1.0;
+  for (int i = 0; i < m->n; i++)
+    qmax = fmax(qmax, fabs(m->q0[i]));
+  for (int i = 0; i < m->n; i++)
+    qg[i] = m->q0[i] + 1e-4 * qmax * sin(1.7 * i + 0.3);
+  return qmax;
+}
+
+/* Equality condition T's gradient at (qg, p0) into v (n, zero outside the
+ * condition's coordinates): in the positions (1) or the momenta (0); -1
+ * where it is not finite (such a row is not judged). */
+static int condition_row(const mrvi_ocp *o, const ocp_terminal *T,
+                         const double *qg, const double *p0, double *v) {
+  const int n = o->model->n, D = o->model->dimension, nb = D * (D + 1);
+  double gq[12], gp[12];
+  int pos;
+  memset(v, 0, (size_t)n * sizeof *v);
+  if (T->body >= 0) {
+    ocp_body_terminal(o, T, qg + T->coord, p0 + T->coord, gq, gp);
+    pos = T->kind == MRVI_OCP_ATTITUDE || T->kind == MRVI_OCP_DIRECTION;
+    for (int j = 0; j < nb; j++)
+      v[T->coord + j] = pos ? gq[j] : gp[j];
+  } else {
+    pos = T->kind == MRVI_OCP_POSITION;
+    v[T->coord] = 1.0;
+  }
+  for (int j = 0; j < n; j++)
+    if (!isfinite(v[j]))
+      return -1;
+  return pos;
+}
+
+/* The rank test in dense storage: Gram-Schmidt on the rows of G (positions)
+ * and G M^-1 (momenta, the hidden constraints), then on the conditions;
+ * O(R^2 n).  The fallback of the sparse test where the constraint rows are
+ * dependent (closed loops) or the Gram factor fails. */
+static int redundant_dense(const mrvi_ocp *o, int first, double *qg,
+                           const double *p0, double qmax) {
   const mrvi_model *m = o->model;
   const int n = m->n, R = mrvi_model_constraint_rows(m);
   const int rows = R + o->n_term;
@@ -228,25 +272,10 @@ int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
   double *Bp = malloc(((size_t)rows * (size_t)n + 1) * sizeof *Bp);
   double *v = malloc(((size_t)n + 1) * sizeof *v);
   double *g = malloc(((size_t)R + 1) * sizeof *g);
-  double *p0 = malloc(((size_t)n + 1) * sizeof *p0);
-  double *qg = malloc(((size_t)n + 1) * sizeof *qg);
   int kq = 0, kp = 0, bad = -2;
-  if (!G || !Bq || !Bp || !v || !g || !p0 || !qg)
+  if (!G || !Bq || !Bp || !v || !g)
     goto out;
   bad = -1;
-  for (int i = 0; i < n; i++)
-    p0[i] = m->mass[i] * m->v0[i];
-  /* The test point: q0 moved by 1e-4 max(1, |q0|) in a fixed pattern and
-   * projected back onto the constraints, so that a condition is judged by
-   * the structure of the constraints rather than by where they happen to
-   * point at q0 (a pendulum hanging straight down has its rod gradient
-   * along y, which made a condition on the bob's y look redundant; at
-   * 45 degrees it did not).  q0 itself where that projection fails. */
-  double qmax = 1.0;
-  for (int i = 0; i < n; i++)
-    qmax = fmax(qmax, fabs(m->q0[i]));
-  for (int i = 0; i < n; i++)
-    qg[i] = m->q0[i] + 1e-4 * qmax * sin(1.7 * i + 0.3);
   if (R > 0) {
     double change;
     char msg[200];
@@ -265,27 +294,13 @@ int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
   }
   /* The equality conditions in order: the first from `first` on that is
    * implied by the constraints and the earlier conditions. */
-  const int D = m->dimension, nb = D * (D + 1);
   for (int t = 0; t < o->n_term && bad < 0; t++) {
     const ocp_terminal *T = &o->term[t];
     if (T->penalty > 0.0)
       continue;
-    double gq[12], gp[12];
-    int pos;
-    memset(v, 0, (size_t)n * sizeof *v);
-    if (T->body >= 0) {
-      ocp_body_terminal(o, T, qg + T->coord, p0 + T->coord, gq, gp);
-      pos = T->kind == MRVI_OCP_ATTITUDE || T->kind == MRVI_OCP_DIRECTION;
-      for (int j = 0; j < nb; j++)
-        v[T->coord + j] = pos ? gq[j] : gp[j];
-    } else {
-      pos = T->kind == MRVI_OCP_POSITION;
-      v[T->coord] = 1.0;
-    }
-    int ok = 1;
-    for (int j = 0; j < n; j++)
-      ok &= isfinite(v[j]);
-    if (ok && !extend_basis(n, pos ? Bq : Bp, pos ? &kq : &kp, v) && t >= first)
+    const int pos = condition_row(o, T, qg, p0, v);
+    if (pos >= 0 && !extend_basis(n, pos ? Bq : Bp, pos ? &kq : &kp, v) &&
+        t >= first)
       bad = t;
   }
 out:
@@ -294,6 +309,102 @@ out:
   free(Bp);
   free(v);
   free(g);
+  return bad;
+}
+
+/* The rank test through the sparse Gram matrix A = G M^-1 G^T
+ * (constraint_gram.c; O(R) for chains and trees): a condition's row x
+ * (positions: its gradient v; momenta: M v, since v lies in the span of
+ * the rows of G M^-1 exactly where M v lies in that of G) is split off the
+ * span of G's rows in the metric M^-1, w = x - G^T A^-1 G M^-1 x (twice,
+ * the second pass taking the first's round-off), and w, scaled to
+ * y = M^-1/2 w, is Gram-Schmidt'ed against the earlier conditions' in the
+ * same space; the condition is implied where what is left is at most
+ * 1e-8 of |M^-1/2 x|.  Linear in n for a fixed number of conditions (the
+ * dense test: O(R^2 n)).  -3 where the Gram factor fails (dependent rows):
+ * the caller takes the dense test. */
+static int redundant_sparse(const mrvi_ocp *o, int first, double *qg,
+                            const double *p0, double qmax) {
+  const mrvi_model *m = o->model;
+  const int n = m->n, R = mrvi_model_constraint_rows(m);
+  int ne = 0;
+  for (int t = 0; t < o->n_term; t++)
+    ne += o->term[t].penalty == 0.0;
+  mrvi_gram *gr = NULL;
+  double *Bq = malloc(((size_t)ne * (size_t)n + 1) * sizeof *Bq);
+  double *Bp = malloc(((size_t)ne * (size_t)n + 1) * sizeof *Bp);
+  double *v = malloc(((size_t)n + 1) * sizeof *v);
+  double *mu = malloc(((size_t)R + 1) * sizeof *mu);
+  int kq = 0, kp = 0, bad = -2;
+  if (!Bq || !Bp || !v || !mu || mrvi_gram_create(m, &gr) < 0)
+    goto out;
+  bad = -3;
+  /* The test point onto the constraints by chord corrections from the
+   * factor at the moved point (as mrvi_constraints_project_positions does
+   * by Newton), q0 itself where they do not get there. */
+  if (mrvi_gram_factor(gr, m, qg) != MRVI_OK)
+    goto out;
+  if (!(mrvi_gram_settle(gr, m, qg, mu, MRVI_GRAM_SETTLE_PASSES) <=
+        1e-13 * qmax))
+    memcpy(qg, m->q0, (size_t)n * sizeof *qg);
+  if (mrvi_gram_factor(gr, m, qg) != MRVI_OK)
+    goto out;
+  bad = -1;
+  for (int t = 0; t < o->n_term && bad < 0; t++) {
+    const ocp_terminal *T = &o->term[t];
+    if (T->penalty > 0.0)
+      continue;
+    const int pos = condition_row(o, T, qg, p0, v);
+    if (pos < 0)
+      continue;
+    double nx = 0.0;
+    for (int j = 0; j < n; j++) {
+      if (!pos)
+        v[j] *= m->mass[j];
+      nx += v[j] * v[j] / m->mass[j];
+    }
+    mrvi_gram_project(gr, m, v, mu);
+    mrvi_gram_project(gr, m, v, mu);
+    double nw = 0.0;
+    for (int j = 0; j < n; j++) {
+      v[j] /= sqrt(m->mass[j]);
+      nw += v[j] * v[j];
+    }
+    const int added =
+        nw > 0.0 && mrvi_dense_extend_basis(n, pos ? Bq : Bp, pos ? kq : kp, v,
+                                            1e-8 * sqrt(nx / nw));
+    if (pos)
+      kq += added;
+    else
+      kp += added;
+    if (!added && t >= first)
+      bad = t;
+  }
+out:
+  mrvi_gram_free(gr);
+  free(Bq);
+  free(Bp);
+  free(v);
+  free(mu);
+  return bad;
+}
+
+int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
+  const mrvi_model *m = o->model;
+  const int n = m->n, R = mrvi_model_constraint_rows(m);
+  double *p0 = malloc(((size_t)n + 1) * sizeof *p0);
+  double *qg = malloc(((size_t)n + 1) * sizeof *qg);
+  int bad = -2;
+  if (p0 && qg) {
+    for (int i = 0; i < n; i++)
+      p0[i] = m->mass[i] * m->v0[i];
+    const double qmax = test_point(m, qg);
+    bad = R > 0 ? redundant_sparse(o, first, qg, p0, qmax) : -3;
+    if (bad == -3) {
+      test_point(m, qg);
+      bad = redundant_dense(o, first, qg, p0, qmax);
+    }
+  }
   free(p0);
   free(qg);
   return bad;
