@@ -257,7 +257,8 @@ void mrvi_generated_name(int kind, const char *prefix, const int n[3], long lin,
  * made in b (valid while b is; in points into b).  The fields are those the
  * element was added with.  b's proto is NULL or that of the view b last
  * held (a buffer reused across a loop: the prototype's fields are copied
- * only when it changes). */
+ * only when it changes); b may be NULL where element i is kept in full
+ * (mrvi_model_compact(m, i) NULL). */
 static inline const mrvi_element *mrvi_model_element(const mrvi_model *m, int i,
                                                      mrvi_element_buf *b) {
   const mrvi_erec *r = &m->erecs[i];
@@ -275,6 +276,33 @@ static inline const mrvi_element *mrvi_model_element(const mrvi_model *m, int i,
     b->in[d + k] = r->cj + k;
   }
   return &b->e;
+}
+/* Element i's prototype where it is a compact spring, else NULL (it is
+ * kept in full).  A compact spring is its prototype (law, parameters,
+ * form, rate, kind spring, 2 d inputs, no coefficients) with the rest
+ * length erecs[i].shift and the inputs erecs[i].ci + k, then erecs[i].cj +
+ * k (k < d): the loops over a network's elements read these (and
+ * mrvi_model_element for the others) instead of making views. */
+static inline const mrvi_element *mrvi_model_compact(const mrvi_model *m,
+                                                     int i) {
+  const mrvi_erec *r = &m->erecs[i];
+  return r->compact ? m->protos[r->lp] : NULL;
+}
+/* The rates of element i's inputs: bit 1 << MRVI_SLOW set where one of
+ * them is slow, 1 << MRVI_FAST where one is fast (a compact spring's read
+ * from its record). */
+static inline int mrvi_model_element_rates(const mrvi_model *m, int i) {
+  const mrvi_erec *r = &m->erecs[i];
+  int mask = 0;
+  if (r->compact) {
+    for (int k = 0; k < m->dimension; k++)
+      mask |= (1 << m->rate[r->ci + k]) | (1 << m->rate[r->cj + k]);
+    return mask;
+  }
+  const mrvi_element *e = mrvi_model_element(m, i, NULL);
+  for (int j = 0; j < e->n_in; j++)
+    mask |= 1 << m->rate[e->in[j]];
+  return mask;
 }
 /* mrvi_model_element with a buffer that lasts to the end of the enclosing
  * block. */

@@ -254,13 +254,9 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
         mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
                           &b->kc[c]) == MRVI_OK;
     for (int ie = 0; st_ok && ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
-      for (int j = 0; j < e->n_in; j++) {
-        if (m->rate[e->in[j]] == MRVI_SLOW)
-          b->has_s[c] = 1;
-        else
-          b->has_f[c] = 1;
-      }
+      const int r = mrvi_model_element_rates(m, st->elem_of_class[c][ie]);
+      b->has_s[c] |= (r >> MRVI_SLOW) & 1;
+      b->has_f[c] |= (r >> MRVI_FAST) & 1;
     }
     if (!st_ok) {
       free(col);

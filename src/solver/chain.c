@@ -82,12 +82,13 @@ static int graph(const mrvi_model *m, int **gp, int **gi) {
   int *p = calloc((size_t)n + 2, sizeof *p), *deg = p + 1;
   if (!p)
     return MRVI_ENOMEM;
+  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused; in points
+                                              into it) */
   for (int pass = 0; pass < 2; pass++) {
     int *g = pass ? *gi : NULL;
     for (int e = 0; e < m->n_elements + m->n_constraints; e++) {
       const int *in;
       int k;
-      mrvi_element_buf eb = {.e.proto = NULL}; /* (in points into it) */
       if (e < m->n_elements) {
         const mrvi_element *el = mrvi_model_element(m, e, &eb);
         if (el->kind == MRVI_ELEMENT_GRAVITY || el->kind == MRVI_ELEMENT_FORCE)

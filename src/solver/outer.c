@@ -240,15 +240,13 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     for (int part = 0; part < 2; part++) {
       int n_sel = 0;
       for (int i = 0; i < st->n_elem_of_class[c]; i++) {
-        const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][i]);
-        int slow_only = 1;
-        for (int j = 0; j < e->n_in; j++)
-          slow_only &= col[e->in[j]] < o->ns;
+        /* (col[j] < ns: input j slow) */
+        const int r = mrvi_model_element_rates(m, st->elem_of_class[c][i]);
+        const int slow_only = !(r & (1 << MRVI_FAST));
         if (slow_only == part)
           sel[n_sel++] = st->elem_of_class[c][i];
         if (!part && !slow_only)
-          for (int j = 0; j < e->n_in; j++)
-            o->slow_in[c] |= col[e->in[j]] < o->ns;
+          o->slow_in[c] |= (r >> MRVI_SLOW) & 1;
       }
       mrvi_terms **kt = part ? &o->kss[c] : &o->kc[c];
       if (n_sel > 0 &&

@@ -181,11 +181,9 @@ static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
   const mrvi_model *m = pr->m;
   int slow_in[2] = {0, 0}, count = 0;
   for (int c = 0; c < 2; c++) {
-    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
-      for (int j = 0; j < e->n_in; j++)
-        slow_in[c] |= m->rate[e->in[j]] == MRVI_SLOW;
-    }
+    for (int ie = 0; !slow_in[c] && ie < st->n_elem_of_class[c]; ie++)
+      slow_in[c] = (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
+                    (1 << MRVI_SLOW)) != 0;
     for (int ip = 0; slow_in[c] && ip < st->n_pts[c]; ip++)
       count += st->pts[c][ip].a0 * st->pts[c][ip].a1 != 0.0;
   }
@@ -555,11 +553,9 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     if (!mrvi_terms_quadratic(pr->kc[c]))
       continue;
     int slow = 0;
-    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-      const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
-      for (int j = 0; j < e->n_in; j++)
-        slow |= m->rate[e->in[j]] == MRVI_SLOW;
-    }
+    for (int ie = 0; !slow && ie < st->n_elem_of_class[c]; ie++)
+      slow = (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
+              (1 << MRVI_SLOW)) != 0;
     if (mrvi_terms_affine(pr->kc[c], (int)nz, &pr->g0[c], &pr->Hq[c]) !=
         MRVI_OK) {
       mrvi_predictor_free(pr);
@@ -588,18 +584,16 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     }
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
-  for (int c = 0; c < 2; c++)
-    for (int i = 0; i < st->n_pts[c]; i++) {
-      const mrvi_point *pt = &st->pts[c][i];
-      if (pt->a0 == 0.0 || pt->a1 == 0.0)
-        continue;
-      for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-        const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
-        for (int j = 0; j < e->n_in; j++)
-          if (m->rate[e->in[j]] == MRVI_SLOW)
-            pr->slow_coupled = 1;
-      }
-    }
+  for (int c = 0; c < 2; c++) {
+    int inside = 0; /* (the element loop once per class: the same flag) */
+    for (int i = 0; i < st->n_pts[c]; i++)
+      inside |= st->pts[c][i].a0 != 0.0 && st->pts[c][i].a1 != 0.0;
+    for (int ie = 0; inside && !pr->slow_coupled && ie < st->n_elem_of_class[c];
+         ie++)
+      if (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
+          (1 << MRVI_SLOW))
+        pr->slow_coupled = 1;
+  }
   pr->omega = power_iteration(pr, NULL, 0, NULL);
   pr->sweep_ok = st->dt * pr->omega <= 0.5;
   pr->rstop = pr->rsweep = INFINITY;

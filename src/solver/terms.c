@@ -316,6 +316,55 @@ static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
   }
 }
 
+/* Element i as the loops below read it: its prototype where it is a
+ * compact spring (every field but its rest length and inputs, which
+ * compact_cols and spring_rec read from its record: no view made), else
+ * the element. */
+ALWAYS_INLINE const mrvi_element *law_el(const mrvi_model *m, int i) {
+  const mrvi_element *p = mrvi_model_compact(m, i);
+  return p ? p : mrvi_model_element(m, i, NULL);
+}
+
+/* Compact spring i's rest length and the first columns of its ends:
+ * col_of[.] of their first coordinates, or those without col_of (its
+ * view's shift and spring_cols' ci[0], cj[0]). */
+ALWAYS_INLINE kspair compact_ends(const mrvi_model *m, int i,
+                                  const int *col_of) {
+  const mrvi_erec *r = &m->erecs[i];
+  return col_of ? (kspair){col_of[r->ci], col_of[r->cj], r->shift}
+                : (kspair){r->ci, r->cj, r->shift};
+}
+
+/* Whether each end of compact spring i has consecutive columns (its
+ * coordinates do: so without col_of). */
+ALWAYS_INLINE int compact_consecutive(const mrvi_model *m, int i,
+                                      const int *col_of, int dim) {
+  const mrvi_erec *r = &m->erecs[i];
+  int ok = 1;
+  for (int k = 1; col_of && k < dim; k++)
+    ok &= (col_of[r->ci + k] == col_of[r->ci] + k) &
+          (col_of[r->cj + k] == col_of[r->cj] + k);
+  return ok;
+}
+
+/* The record of spring or anchor element i, e = law_el(m, i): spring_law_of
+ * and spring_cols of the element (a compact spring's rest length and
+ * columns from its record). */
+static void spring_rec(const mrvi_model *m, int i, const mrvi_element *e,
+                       const int *col_of, int dim, kspring *q) {
+  spring_law_of(e, q);
+  if (!mrvi_model_compact(m, i)) {
+    spring_cols(e, col_of, dim, q);
+    return;
+  }
+  const mrvi_erec *r = &m->erecs[i];
+  q->shift = r->shift;
+  for (int k = 0; k < dim; k++) {
+    q->ci[k] = col_of ? col_of[r->ci + k] : r->ci + k;
+    q->cj[k] = col_of ? col_of[r->cj + k] : r->cj + k;
+  }
+}
+
 /* The khooke records of kc as the kernels read them. */
 static hsrc hooke_src(const mrvi_terms *kc) {
   return (hsrc){kc->qh, kc->qp, kc->qp_c, kc->qp_shift};
@@ -393,6 +442,44 @@ static int hooke_unshare(mrvi_terms *kc, int ne) {
   return MRVI_OK;
 }
 
+/* The number of compact springs from elems[0] on of prototype lp, each
+ * end on consecutive columns col_of[.] (or coordinates without col_of)
+ * and, where qp, of the rest length `shift` (its bits): their columns into
+ * qp (hooke_class's records of the springs of one law and rest length,
+ * the lattices', and shared_law's check of one law and parameter set, the
+ * random networks', read from the records alone). */
+ALWAYS_INLINE int compact_run_k(const mrvi_model *m, const int *elems, int n,
+                                const int *col_of, const int dim, int lp,
+                                double shift, khpair *restrict qp) {
+  const mrvi_erec *rec = m->erecs;
+  int ie = 0;
+  for (; ie < n; ie++) {
+    const mrvi_erec *r = &rec[elems[ie]];
+    if (!r->compact || r->lp != lp ||
+        (qp && memcmp(&r->shift, &shift, sizeof shift) != 0))
+      break;
+    int ok = 1;
+    if (col_of)
+      for (int k = 1; k < dim; k++)
+        ok &= (col_of[r->ci + k] == col_of[r->ci] + k) &
+              (col_of[r->cj + k] == col_of[r->cj] + k);
+    if (!ok)
+      break;
+    if (qp)
+      qp[ie] = col_of ? (khpair){col_of[r->ci], col_of[r->cj]}
+                      : (khpair){r->ci, r->cj};
+  }
+  return ie;
+}
+
+static int compact_run(const mrvi_model *m, const int *elems, int n,
+                       const int *col_of, int dim, int lp, double shift,
+                       khpair *qp) {
+  return dim == 2   ? compact_run_k(m, elems, n, col_of, 2, lp, shift, qp)
+         : dim == 3 ? compact_run_k(m, elems, n, col_of, 3, lp, shift, qp)
+                    : compact_run_k(m, elems, n, col_of, dim, lp, shift, qp);
+}
+
 /* A gradient-only class whose elements are all Hooke springs on
  * consecutive columns (terms_springs would make them one run of khooke
  * springs): their khooke records and elements alone, no kterm (the
@@ -406,39 +493,45 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   /* (one pass, the records made as the elements are checked: columns
    * alone while the springs share the first's stiffness and rest length,
    * khooke records from the first that does not) */
-  kc->qp = malloc((size_t)n_elems * sizeof *kc->qp);
-  if (!kc->qp)
+  khpair *qp = kc->qp = malloc((size_t)n_elems * sizeof *kc->qp);
+  if (!qp)
     return MRVI_ENOMEM;
-  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
-  for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
+  const mrvi_element *hooke = NULL; /* (a law found to be Hooke's) */
+  /* (the springs from the first on that share its prototype, a Hooke
+   * spring's, and rest length in one loop: the values the loop below
+   * would give them) */
+  int ie0 = 0;
+  const mrvi_element *p0 = mrvi_model_compact(m, elems[0]);
+  if (p0 && spring_record(p0, dim) && p0->form == MRVI_LAW_FORM_HOOKE) {
+    const mrvi_erec *r0 = &m->erecs[elems[0]];
+    ie0 = compact_run(m, elems, n_elems, col_of, dim, r0->lp, r0->shift, qp);
+    kc->qp_c = p0->params[0];
+    kc->qp_shift = r0->shift;
+    hooke = p0;
+  }
+  for (int ie = ie0; ie < n_elems; ie++) {
+    const int i = elems[ie];
+    const mrvi_element *e = law_el(m, i);
     /* (a Hooke spring's record: spring_law_of's c and shift, spring_cols'
      * first columns; the law's other products are not read) */
-    kspring q = {.two = 1};
-    int ok = spring_record(e, dim) && e->kind == MRVI_ELEMENT_SPRING &&
-             e->form == MRVI_LAW_FORM_HOOKE;
-    if (ok) {
+    khooke h;
+    int ok = e == hooke ||
+             (spring_record(e, dim) && e->kind == MRVI_ELEMENT_SPRING &&
+              e->form == MRVI_LAW_FORM_HOOKE);
+    if (ok && mrvi_model_compact(m, i)) {
+      const kspair pr = compact_ends(m, i, col_of);
+      h = (khooke){pr.ci, pr.cj, e->params[0], pr.shift};
+      ok = compact_consecutive(m, i, col_of, dim);
+      hooke = e;
+    } else if (ok) {
       const int *in = e->in;
-      q.c = e->params[0];
-      q.shift = e->shift;
-      q.ci[0] = col_of ? col_of[in[0]] : in[0];
-      q.cj[0] = col_of ? col_of[in[dim]] : in[dim];
+      h.c = e->params[0];
+      h.shift = e->shift;
+      h.ci = col_of ? col_of[in[0]] : in[0];
+      h.cj = col_of ? col_of[in[dim]] : in[dim];
       for (int k = 1; ok && k < dim; k++)
-        ok = (col_of ? col_of[in[k]] : in[k]) == q.ci[0] + k &&
-             (col_of ? col_of[in[dim + k]] : in[dim + k]) == q.cj[0] + k;
-    }
-    if (ie == 0) {
-      kc->qp_c = q.c;
-      kc->qp_shift = q.shift;
-    }
-    /* (the same bits: -0 and 0 are not one stiffness here) */
-    if (ok && kc->qp &&
-        (memcmp(&q.c, &kc->qp_c, sizeof q.c) ||
-         memcmp(&q.shift, &kc->qp_shift, sizeof q.shift)) &&
-        hooke_unshare(kc, ie) < 0) {
-      free(kc->qp);
-      kc->qp = NULL;
-      return MRVI_ENOMEM;
+        ok = (col_of ? col_of[in[k]] : in[k]) == h.ci + k &&
+             (col_of ? col_of[in[dim + k]] : in[dim + k]) == h.cj + k;
     }
     if (!ok) {
       free(kc->qh);
@@ -447,10 +540,24 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
       kc->qp = NULL;
       return 0;
     }
-    if (kc->qp)
-      kc->qp[ie] = (khpair){q.ci[0], q.cj[0]};
+    if (ie == 0) {
+      kc->qp_c = h.c;
+      kc->qp_shift = h.shift;
+    }
+    /* (the same bits: -0 and 0 are not one stiffness here) */
+    if (qp && (memcmp(&h.c, &kc->qp_c, sizeof h.c) ||
+               memcmp(&h.shift, &kc->qp_shift, sizeof h.shift))) {
+      if (hooke_unshare(kc, ie) < 0) {
+        free(kc->qp);
+        kc->qp = NULL;
+        return MRVI_ENOMEM;
+      }
+      qp = NULL;
+    }
+    if (qp)
+      qp[ie] = (khpair){h.ci, h.cj};
     else
-      kc->qh[ie] = (khooke){q.ci[0], q.cj[0], q.c, q.shift};
+      kc->qh[ie] = h;
   }
   kc->hooke_only = 1;
   return 1;
@@ -461,19 +568,29 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
  * class of kspair records. */
 static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, int dim) {
-  const mrvi_element *e0 = MRVI_ELEMENT(m, elems[0]);
+  const mrvi_element *e0 = law_el(m, elems[0]);
   const int law = spring_law(e0);
   if (e0->kind != MRVI_ELEMENT_SPRING || law == KS_LAW || law == KS_HOOKE)
     return 0;
-  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
-  for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
+  /* (the springs of the first's prototype from the first on in one loop) */
+  const int ie0 = mrvi_model_compact(m, elems[0]) && spring_record(e0, dim)
+                      ? compact_run(m, elems, n_elems, col_of, dim,
+                                    m->erecs[elems[0]].lp, 0.0, NULL)
+                      : 0;
+  for (int ie = ie0; ie < n_elems; ie++) {
+    const int i = elems[ie];
+    const mrvi_element *e = law_el(m, i);
     if (!spring_record(e, dim) || e->kind != MRVI_ELEMENT_SPRING ||
         e->law != e0->law ||
         (e->params != e0->params &&
          memcmp(e->params, e0->params,
                 (size_t)e0->law->n_params * sizeof *e->params)))
       return 0;
+    if (mrvi_model_compact(m, i)) {
+      if (!compact_consecutive(m, i, col_of, dim))
+        return 0;
+      continue;
+    }
     kspring q = {.two = 1};
     spring_cols(e, col_of, dim, &q);
     for (int k = 1; k < dim; k++)
@@ -491,9 +608,9 @@ static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
 static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
                         int n_elems, const int *col_of) {
   const int dim = kc->dim;
-  if (n_elems < 1 || !spring_record(MRVI_ELEMENT(m, elems[0]), dim))
+  if (n_elems < 1 || !spring_record(law_el(m, elems[0]), dim))
     return 0;
-  const mrvi_element *e0 = MRVI_ELEMENT(m, elems[0]);
+  const mrvi_element *e0 = law_el(m, elems[0]);
   const int kind = e0->kind;
   const int law = spring_law(e0);
   if (shared_law(m, elems, n_elems, col_of, dim)) {
@@ -501,13 +618,15 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     if (!kc->qm)
       return MRVI_ENOMEM;
     spring_law_of(e0, &kc->qm_law);
-    mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
     for (int ie = 0; ie < n_elems; ie++) {
-      const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
-      const int *in = e->in;
-      kc->qm[ie] = (kspair){col_of ? col_of[in[0]] : in[0],
-                            col_of ? col_of[in[dim]] : in[dim], e->shift};
+      const int i = elems[ie];
+      const mrvi_element *e = mrvi_model_compact(m, i) ? NULL : law_el(m, i);
+      kc->qm[ie] =
+          e ? (kspair){col_of ? col_of[e->in[0]] : e->in[0],
+                       col_of ? col_of[e->in[dim]] : e->in[dim], e->shift}
+            : compact_ends(m, i, col_of);
     }
+    kc->qm_law.shift = kc->qm[0].shift; /* (the first's, as its view's) */
     kc->spring_only = 1;
     return 1;
   }
@@ -516,9 +635,8 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     return MRVI_ENOMEM;
   /* (all khooke springs: terms_springs' khooke run instead) */
   int hooke = kind == MRVI_ELEMENT_SPRING && law == KS_HOOKE;
-  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
+    const mrvi_element *e = law_el(m, elems[ie]);
     if (!spring_record(e, dim) || e->kind != kind || spring_law(e) != law) {
       free(kc->qs);
       kc->qs = NULL;
@@ -526,8 +644,7 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     }
     kspring *q = &kc->qs[ie];
     *q = (kspring){0};
-    spring_law_of(e, q);
-    spring_cols(e, col_of, dim, q);
+    spring_rec(m, elems[ie], e, col_of, dim, q);
     for (int k = 1; hooke && k < dim; k++)
       hooke = q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
   }
@@ -565,16 +682,13 @@ static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
   kc->hooke_run = calloc(nq, 1);
   if ((!grad_only && !kc->qs) || !kc->qh || !kc->hooke_run)
     return MRVI_ENOMEM;
-  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0, is = 0; ie < kc->n; ie++) {
     kterm *t = &kc->t[ie];
     if (t->runs == 0)
       continue;
-    const mrvi_element *e = mrvi_model_element(kc->m, elems[ie], &eb);
     kspring one, *q = kc->qs ? &kc->qs[is] : &one;
     t->qs = is++;
-    spring_law_of(e, q);
-    spring_cols(e, col_of, dim, q);
+    spring_rec(kc->m, elems[ie], t->el, col_of, dim, q);
     int consecutive = q->two && q->k == KS_HOOKE;
     for (int k = 1; k < dim; k++)
       consecutive &= q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
@@ -601,10 +715,7 @@ static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
     const kterm *t = &kc->t[ie];
     if (t->runs == 0)
       continue;
-    kspring *q = &kc->qs[t->qs];
-    const mrvi_element *e = mrvi_model_element(kc->m, elems[ie], &eb);
-    spring_law_of(e, q);
-    spring_cols(e, col_of, dim, q);
+    spring_rec(kc->m, elems[ie], t->el, col_of, dim, &kc->qs[t->qs]);
   }
   return MRVI_OK;
 }
@@ -624,15 +735,22 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
    * them would raise glibc's mmap threshold, and the sweep's arrays after
    * them would be zeroed in the heap instead of mapped untouched) */
   int n_rs = 1, all_hooke = 1;
+  const mrvi_element *u = NULL; /* (the previous element's law) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = MRVI_ELEMENT(m, elems[ie]);
+    const int i = elems[ie];
+    const mrvi_element *e = law_el(m, i);
     if (!spring_record(e, dim))
       return 0;
-    const mrvi_element *u = ie > 0 ? MRVI_ELEMENT(m, elems[ie - 1]) : NULL;
-    n_rs += u && (u->kind != e->kind || spring_law(u) != spring_law(e));
+    n_rs +=
+        u && u != e && (u->kind != e->kind || spring_law(u) != spring_law(e));
+    u = e;
+    all_hooke &= e->kind == MRVI_ELEMENT_SPRING && spring_law(e) == KS_HOOKE;
+    if (mrvi_model_compact(m, i)) {
+      all_hooke &= compact_consecutive(m, i, col_of, dim);
+      continue;
+    }
     kspring q = {.two = e->kind == MRVI_ELEMENT_SPRING};
     spring_cols(e, col_of, dim, &q);
-    all_hooke &= q.two && spring_law(e) == KS_HOOKE;
     for (int k = 1; k < dim; k++)
       all_hooke &= q.ci[k] == q.ci[0] + k && q.cj[k] == q.cj[0] + k;
   }
@@ -651,12 +769,9 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     return MRVI_ENOMEM;
   kc->n_rs = 0;
   kspring prev = {0};
-  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
     kspring q = {0};
-    spring_law_of(e, &q);
-    spring_cols(e, col_of, dim, &q);
+    spring_rec(m, elems[ie], law_el(m, elems[ie]), col_of, dim, &q);
     if (ie == 0 || q.two != prev.two || q.k != prev.k)
       kc->rs[kc->n_rs++] = ie;
     prev = q;
@@ -704,9 +819,8 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   /* Columns for the elements without a kspring record, coefficients for
    * those that have them. */
   int n_col = 0, n_coef = 0, max_in = 1;
-  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
+    const mrvi_element *e = law_el(m, elems[ie]);
     n_col += spring_record(e, dim) ? 0 : e->n_in;
     n_coef += e->coef ? e->n_in : 0;
     max_in = e->n_in > max_in ? e->n_in : max_in;
@@ -724,7 +838,7 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   }
   int first = 0, cfirst = 0;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = mrvi_model_element(m, elems[ie], &eb);
+    const mrvi_element *e = law_el(m, elems[ie]);
     kterm *t = &kc->t[ie];
     t->el = mrvi_element_stable(e); /* (its law: it lasts) */
     t->n = e->n_in;

@@ -215,18 +215,31 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
     st->n_pts[c] =
         mrvi_quadrature_points(rules[c], grids[c], st->dT, st->p, st->pts[c]);
   }
-  st->fast_on_slow = -1;
-  mrvi_element_buf eb = {.e.proto = NULL}; /* (one view reused) */
+  /* (the records read directly: a compact spring has 2 d inputs, its
+   * ends' d consecutive coordinates each, mrvi_model_compact; the lists
+   * and counts in locals, which the stores do not alias) */
+  const int d = m->dimension;
+  int *list[2] = {st->elem_of_class[0], st->elem_of_class[1]}, count[2] = {0};
+  int compact = 0;
   for (int e = 0; e < m->n_elements; e++) {
-    const mrvi_element *el = mrvi_model_element(m, e, &eb);
-    st->elem_of_class[el->potential][st->n_elem_of_class[el->potential]++] = e;
-    if (el->n_in > max_n_in)
-      max_n_in = el->n_in;
-    for (int j = 0;
-         st->fast_on_slow < 0 && el->potential == MRVI_FAST && j < el->n_in;
-         j++)
-      if (m->rate[el->in[j]] == MRVI_SLOW)
-        st->fast_on_slow = e;
+    const int pot = m->erecs[e].potential;
+    list[pot][count[pot]++] = e;
+    if (m->erecs[e].compact) {
+      compact = 1;
+      continue;
+    }
+    const int n_in = mrvi_model_element(m, e, NULL)->n_in;
+    max_n_in = n_in > max_n_in ? n_in : max_n_in;
+  }
+  st->n_elem_of_class[0] = count[0];
+  st->n_elem_of_class[1] = count[1];
+  max_n_in = compact && 2 * d > max_n_in ? 2 * d : max_n_in;
+  /* The first element of W (in element order) with a slow input. */
+  st->fast_on_slow = -1;
+  for (int i = 0; st->fast_on_slow < 0 && i < count[MRVI_FAST]; i++) {
+    const int e = list[MRVI_FAST][i];
+    if (mrvi_model_element_rates(m, e) & (1 << MRVI_SLOW))
+      st->fast_on_slow = e;
   }
   const size_t mi = (size_t)(m->max_in > 0 ? m->max_in : 1);
   st->y = malloc((size_t)max_n_in * sizeof(double));
