@@ -222,6 +222,7 @@ static void test_cli_bad_files(char **files, int n) {
       snprintf(want, sizeof want, "--set");
     CHECK(text && strstr(text, want), "%s: stderr lacks '%s': %s", c.path, want,
           text ? text : "(none)");
+    free(text);
     CHECK(access(out, F_OK) != 0, "%s: output file was created", c.path);
     unlink(out);
   }
@@ -1281,6 +1282,7 @@ static void test_hostile_input(void) {
     CHECK(st == MRVI_EPARSE && strstr(msg, "larger than 64 MiB"),
           "64 MiB + 1: status %d, '%s'", st, msg);
     mrvi_system_free(sys);
+    free(text);
   }
 }
 
