@@ -2493,25 +2493,34 @@ ALWAYS_INLINE void spring_hdiag(const kspring *q, const double *z, double *g,
   }
 }
 
+/* M(D, T) for the dimension D and kind T (1: spring, 0: anchor) of a run
+ * of records q in a class of dimension dim: one instance per shape. */
+#define SPRING_SHAPES(M)                                                       \
+  do {                                                                         \
+    if (dim == 2 && q->two)                                                    \
+      M(2, 1);                                                                 \
+    else if (dim == 2)                                                         \
+      M(2, 0);                                                                 \
+    else if (dim == 3 && q->two)                                               \
+      M(3, 1);                                                                 \
+    else if (dim == 3)                                                         \
+      M(3, 0);                                                                 \
+    else if (q->two)                                                           \
+      M(1, 1);                                                                 \
+    else                                                                       \
+      M(1, 0);                                                                 \
+  } while (0)
+
 static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
                                                     const double *z, double *g,
                                                     double *hd, double *off,
                                                     double hscale, int dim) {
 #define SPRINGS_HD(D, T)                                                       \
-  for (int r = 0; r < nr; r++)                                                 \
-    spring_hdiag(q + r, z, g, hd, off, hscale, ~0u, D, T);
-  if (dim == 2 && q->two)
-    SPRINGS_HD(2, 1)
-  else if (dim == 2)
-    SPRINGS_HD(2, 0)
-  else if (dim == 3 && q->two)
-    SPRINGS_HD(3, 1)
-  else if (dim == 3)
-    SPRINGS_HD(3, 0)
-  else if (q->two)
-    SPRINGS_HD(1, 1)
-  else
-    SPRINGS_HD(1, 0)
+  do {                                                                         \
+    for (int r = 0; r < nr; r++)                                               \
+      spring_hdiag(q + r, z, g, hd, off, hscale, ~0u, D, T);                   \
+  } while (0)
+  SPRING_SHAPES(SPRINGS_HD);
 #undef SPRINGS_HD
 }
 
@@ -2587,22 +2596,13 @@ springs_gersh(const kspring *q, int nr, const double *z, double *s, double *o,
               const double *dinv, double hscale, int pass, int dim) {
   double m = 0.0;
 #define SPRINGS_GS(D, T)                                                       \
-  for (int r = 0; r < nr; r++) {                                               \
-    const double v = spring_gersh(q + r, z, s, o, dinv, hscale, pass, D, T);   \
-    m = v > m || isnan(v) ? v : m;                                             \
-  }
-  if (dim == 2 && q->two)
-    SPRINGS_GS(2, 1)
-  else if (dim == 2)
-    SPRINGS_GS(2, 0)
-  else if (dim == 3 && q->two)
-    SPRINGS_GS(3, 1)
-  else if (dim == 3)
-    SPRINGS_GS(3, 0)
-  else if (q->two)
-    SPRINGS_GS(1, 1)
-  else
-    SPRINGS_GS(1, 0)
+  do {                                                                         \
+    for (int r = 0; r < nr; r++) {                                             \
+      const double v = spring_gersh(q + r, z, s, o, dinv, hscale, pass, D, T); \
+      m = v > m || isnan(v) ? v : m;                                           \
+    }                                                                          \
+  } while (0)
+  SPRING_SHAPES(SPRINGS_GS);
 #undef SPRINGS_GS
   return m;
 }
@@ -2793,24 +2793,6 @@ int mrvi_terms_set_value_chunks(mrvi_terms *kc, int threads, int chunk) {
   kc->vthreads = safe && threads > 1 ? threads : 1;
   return MRVI_OK;
 }
-
-/* M(D, T) for the dimension D and kind T (1: spring, 0: anchor) of a run
- * of records q in a class of dimension dim: one instance per shape. */
-#define SPRING_SHAPES(M)                                                       \
-  do {                                                                         \
-    if (dim == 2 && q->two)                                                    \
-      M(2, 1);                                                                 \
-    else if (dim == 2)                                                         \
-      M(2, 0);                                                                 \
-    else if (dim == 3 && q->two)                                               \
-      M(3, 1);                                                                 \
-    else if (dim == 3)                                                         \
-      M(3, 0);                                                                 \
-    else if (q->two)                                                           \
-      M(1, 1);                                                                 \
-    else                                                                       \
-      M(1, 0);                                                                 \
-  } while (0)
 
 /* A spring or anchor's Hessian block A = scale (a u u^T + b I) (its
  * Hessian is [A -A; -A A]; spring_derivs, law code K_ANY; a Hooke
