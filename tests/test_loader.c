@@ -1772,6 +1772,33 @@ static void test_fuzz_seeds(void) {
   free(files);
 }
 
+/* limits.max_coordinates (doc/description-files.md, "Limits"): the file's
+ * bound on what `generate:` makes, raised by --set to exactly the model's
+ * 1204 coordinates it loads; one below, refused naming the count to set. */
+static void test_generate_limit(void) {
+  char path[1024];
+  snprintf(path, sizeof path, "%s",
+           test_source_path("tests/bad_input/generate_over_limit.yaml"));
+  const char *at[1] = {"limits.max_coordinates=1204"};
+  const char *below[1] = {"limits.max_coordinates=1203"};
+  char msg[MSG] = "";
+  mrvi_system *sys = NULL;
+  int st = mrvi_system_load(path, at, 1, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_OK && sys && mrvi_model_n(sys->model) == 1204,
+        "limit 1204: status %d, %d coordinates (%s)", st,
+        sys ? mrvi_model_n(sys->model) : -1, msg);
+  mrvi_system_free(sys);
+  sys = NULL;
+  msg[0] = '\0';
+  st = mrvi_system_load(path, below, 1, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && !sys &&
+            strstr(msg, "generate_over_limit.yaml:13:13: generate.2") &&
+            strstr(msg, "more than limits.max_coordinates = 1203: to load "
+                        "it, set `limits: {max_coordinates: 1204}`"),
+        "limit 1203: status %d, '%s'", st, msg);
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_yaml_files("tests/bad_input", &files);
@@ -1796,6 +1823,7 @@ int main(void) {
   test_doc_example();
   test_hostile_input();
   test_large_lattice();
+  test_generate_limit();
   test_long_set_path();
   test_generators();
   test_generated_equals_hand();

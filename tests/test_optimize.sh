@@ -62,6 +62,34 @@ t = lambda v: v.decode() if isinstance(v, bytes) else v
 print(t(a["stop_reason"]), t(a.get("replay_stop_reason", "none")))' "$1" 2>&1
 }
 
+# wait_rows FILE K PID: wait until the progress file FILE holds at least K
+# rows of /optimizer/history (0: until it exists), polling it every 0.05 s,
+# so that a signal is sent at a known point of the run, not after a fixed
+# time (a loaded machine may take seconds to the first evaluation);
+# returns 1 when PID ends first (/proc) or after 120 s.  (Progress files are
+# renamed over FILE when complete, so a reader sees whole files; no lock
+# is taken, so the writer's next rename is never delayed.)
+wait_rows() {
+  HDF5_USE_FILE_LOCKING=FALSE "$py" -c 'import sys, time, h5py
+path, k, pid = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+end = time.monotonic() + 120
+while time.monotonic() < end:
+    try:
+        with h5py.File(path, "r") as f:
+            if f["optimizer/history"].shape[0] >= k:
+                sys.exit(0)
+    except (OSError, KeyError):
+        pass
+    try:  # (ended: gone, or a zombie until the shell waits for it)
+        with open("/proc/%d/stat" % pid) as st:
+            if st.read().rsplit(")", 1)[1].split()[0] == "Z":
+                sys.exit(1)
+    except OSError:
+        sys.exit(1)
+    time.sleep(0.05)
+sys.exit(1)' "$1" "$2" "$3" 2>/dev/null
+}
+
 # --- an evaluation limit is never converged --------------------------------
 "$mrvi" optimize "$di" -o limit.h5 -q --set control.solver.max_evaluations=2 \
   >out.txt 2>err.txt
@@ -157,7 +185,7 @@ for sig in INT TERM; do
     "$mrvi" optimize "$fpu" -o sig.h5 --set integrator.t_end=$t_end \
       >out.txt 2>err.txt &
     pid=$!
-    sleep 1
+    wait_rows sig.h5 1 $pid # (one evaluation done: a best iterate exists)
     kill -$sig $pid
     wait $pid
     rc=$?
@@ -200,7 +228,8 @@ done
 
 # --- SIGKILL: the last progress file, readable and said incomplete ---------
 # (output.flush_interval 0.2 s: a progress file at most every 0.2 s, the
-# first at the first evaluation)
+# first at the first evaluation; the kill comes once a progress file with
+# two history rows is there, so the file left is a later one)
 t_end=20
 done_ok=0
 for _ in 1 2 3; do
@@ -209,7 +238,7 @@ for _ in 1 2 3; do
   "$mrvi" optimize "$fpu" -o kill.h5 --set integrator.t_end=$t_end \
     --set output.flush_interval=0.2 >out.txt 2>err.txt &
   pid=$!
-  sleep 1.5
+  wait_rows kill.h5 2 $pid
   kill -KILL $pid
   wait $pid
   rc=$?
@@ -282,7 +311,7 @@ for i in 1 2 3 4; do
     ms=$((RANDOM % 300))
     sleep "0.$(printf %03d $ms)"
   else
-    for _ in $(seq 1 1000); do # at most 10 s
+    for _ in $(seq 1 6000); do # at most 60 s
       [ -s early.h5 ] && break
       sleep 0.01
     done
@@ -291,7 +320,7 @@ for i in 1 2 3 4; do
   wait $pid 2>/dev/null
   if [ ! -s early.h5 ]; then
     early_none=$((early_none + 1))
-    [ $i -eq 4 ] && early_bad="$early_bad kill 4: no file after 10 s;"
+    [ $i -eq 4 ] && early_bad="$early_bad kill 4: no file after 60 s;"
     continue
   fi
   check=$("$py" -c 'import sys, h5py, numpy as np

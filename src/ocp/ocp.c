@@ -159,7 +159,7 @@ int ocp_alloc(mrvi_ocp *o) {
   o->f_rows = dalloc(nu);
   o->f_end = dalloc(2 * (size_t)(o->ns + o->nf));
   o->ps1 = dalloc((size_t)o->ns);
-  o->pf1 = dalloc((size_t)(o->p * o->nf));
+  o->pf1 = dalloc((size_t)o->p * (size_t)o->nf);
   o->Q = dalloc((size_t)o->n_nodes);
   o->pN = dalloc((size_t)(o->ns + o->nf));
   o->ps_k = dalloc(N1 * (size_t)o->ns);
@@ -903,7 +903,7 @@ static void step_forces(mrvi_ocp *o, long k, const double *u) {
   const int ns = o->ns, nf = o->nf, p = o->p;
   memset(o->f_rows, 0, (size_t)o->step.n_unknowns * sizeof(double));
   memset(o->f_end, 0, (size_t)(ns + nf) * sizeof(double));
-  memset(o->f_plus, 0, (size_t)(p * nf) * sizeof(double));
+  memset(o->f_plus, 0, (size_t)p * (size_t)nf * sizeof(double));
   for (int i = 0; i < o->n_force; i++) {
     const ocp_force *fe = &o->force[i];
     const double f = fe->coef * u[ocp_control_index(o, k, fe)];
@@ -1023,7 +1023,7 @@ static void store_step(mrvi_ocp *o, long k, const double *qs1, const double *qf,
       o->pf_micro[(k * p + mm + 1) * nf + s] =
           pf[mm * nf + s] + (mm < p - 1 ? o->f_plus[mm * nf + s] : 0.0);
   memcpy(Qs + (k + 1) * ns, qs1, (size_t)ns * sizeof(double));
-  memcpy(Qf + (k * p + 1) * nf, qf, (size_t)(p * nf) * sizeof(double));
+  memcpy(Qf + (k * p + 1) * nf, qf, (size_t)p * (size_t)nf * sizeof(double));
   memcpy(o->ps_k + (k + 1) * ns, ps1, (size_t)ns * sizeof(double));
   memcpy(o->pf_k + (k + 1) * nf, pf + (p - 1) * nf,
          (size_t)nf * sizeof(double));
@@ -1093,7 +1093,8 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
     o->u_cur = u;
     o->k_cur = k;
     memcpy(o->f_end_c, o->f_end, (size_t)(o->ns + o->nf) * sizeof(double));
-    memcpy(o->f_plus_c, o->f_plus, (size_t)(o->p * o->nf) * sizeof(double));
+    memcpy(o->f_plus_c, o->f_plus,
+           (size_t)o->p * (size_t)o->nf * sizeof(double));
   }
   const int nt = o->n_torsion;
   if (nt > 0)

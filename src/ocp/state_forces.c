@@ -191,7 +191,7 @@ static int zrow(const mrvi_ocp *o, int z) {
     return z;
   if (z < 2 * o->ns)
     return -1;
-  return z - 2 * o->ns < o->p * o->nf ? z - o->ns : -1;
+  return z - 2 * o->ns < (long)o->p * o->nf ? z - o->ns : -1;
 }
 static int zcol(const mrvi_ocp *o, int z) {
   if (z < o->ns)
@@ -315,7 +315,8 @@ void ocp_state_end_forces(mrvi_ocp *o, long k, const double *u) {
 void ocp_state_end_hook(void *ctx, mrvi_step *st, const double *x) {
   mrvi_ocp *o = ctx;
   memcpy(o->f_end, o->f_end_c, (size_t)(o->ns + o->nf) * sizeof *o->f_end);
-  memcpy(o->f_plus, o->f_plus_c, (size_t)(o->p * o->nf) * sizeof *o->f_plus);
+  memcpy(o->f_plus, o->f_plus_c,
+         (size_t)o->p * (size_t)o->nf * sizeof *o->f_plus);
   each_act(o, st, x, o->k_cur, end_visit, o);
 }
 

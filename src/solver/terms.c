@@ -1171,6 +1171,24 @@ ALWAYS_INLINE void springs_k(const kspring *q, int nr, const double *z,
   }
 }
 
+/* M(D, T) for the dimension D and kind T (1: spring, 0: anchor) of a run
+ * of records q in a class of dimension dim: one instance per shape. */
+#define SPRING_SHAPES(M)                                                       \
+  do {                                                                         \
+    if (dim == 2 && q->two)                                                    \
+      M(2, 1);                                                                 \
+    else if (dim == 2)                                                         \
+      M(2, 0);                                                                 \
+    else if (dim == 3 && q->two)                                               \
+      M(3, 1);                                                                 \
+    else if (dim == 3)                                                         \
+      M(3, 0);                                                                 \
+    else if (q->two)                                                           \
+      M(1, 1);                                                                 \
+    else                                                                       \
+      M(1, 0);                                                                 \
+  } while (0)
+
 /* A run of nr springs or anchors of one law code (a loop per dimension,
  * kind and law code). */
 static __attribute__((noinline)) void
@@ -1184,18 +1202,7 @@ springs_eval(const kspring *q, int nr, const double *z, double scale, double *g,
     else                                                                       \
       springs_k(q, nr, z, scale, g, J, ld, hscale, D, T, 0);                   \
   } while (0)
-  if (dim == 2 && q->two)
-    SPRINGS(2, 1);
-  else if (dim == 2)
-    SPRINGS(2, 0);
-  else if (dim == 3 && q->two)
-    SPRINGS(3, 1);
-  else if (dim == 3)
-    SPRINGS(3, 0);
-  else if (q->two)
-    SPRINGS(1, 1);
-  else
-    SPRINGS(1, 0);
+  SPRING_SHAPES(SPRINGS);
 #undef SPRINGS
 }
 
@@ -2353,18 +2360,10 @@ static __attribute__((noinline)) void
 springs_map(const kspring *q, int nr, int ie0, const double *z, double *g,
             double *Ax, const long *off, const int *emap, double hscale,
             int dim) {
-  if (dim == 2 && q->two)
-    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 2, 1);
-  else if (dim == 2)
-    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 2, 0);
-  else if (dim == 3 && q->two)
-    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 3, 1);
-  else if (dim == 3)
-    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 3, 0);
-  else if (q->two)
-    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 1, 1);
-  else
-    springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, 1, 0);
+#define SPRINGS_MP(D, T)                                                       \
+  springs_map_k(q, nr, ie0, z, g, Ax, off, emap, hscale, D, T)
+  SPRING_SHAPES(SPRINGS_MP);
+#undef SPRINGS_MP
 }
 
 void mrvi_terms_eval_sparse(mrvi_terms *kc, const double *z, double *g,
@@ -2492,24 +2491,6 @@ ALWAYS_INLINE void spring_hdiag(const kspring *q, const double *z, double *g,
       off[q->cj[k]] += o;
   }
 }
-
-/* M(D, T) for the dimension D and kind T (1: spring, 0: anchor) of a run
- * of records q in a class of dimension dim: one instance per shape. */
-#define SPRING_SHAPES(M)                                                       \
-  do {                                                                         \
-    if (dim == 2 && q->two)                                                    \
-      M(2, 1);                                                                 \
-    else if (dim == 2)                                                         \
-      M(2, 0);                                                                 \
-    else if (dim == 3 && q->two)                                               \
-      M(3, 1);                                                                 \
-    else if (dim == 3)                                                         \
-      M(3, 0);                                                                 \
-    else if (q->two)                                                           \
-      M(1, 1);                                                                 \
-    else                                                                       \
-      M(1, 0);                                                                 \
-  } while (0)
 
 static __attribute__((noinline)) void springs_hdiag(const kspring *q, int nr,
                                                     const double *z, double *g,

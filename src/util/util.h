@@ -61,6 +61,13 @@ int mrvi_threads_resolve(int requested);
 #ifndef MRVI_MAX_GENERATED
 #define MRVI_MAX_GENERATED 10000000
 #endif
+/* Coordinates a description's model may reach through its `generate:`
+ * entries when its `limits.max_coordinates` is absent: 10^7, ten times the
+ * largest network the benchmarks run, on every machine alike
+ * (doc/description-files.md, "Limits"). */
+#ifndef MRVI_MAX_COORDINATES
+#define MRVI_MAX_COORDINATES 10000000
+#endif
 
 /* Dense helpers (dense.c).  Solve A x = b in place (A n x n row-major,
  * overwritten; b becomes x); -1 if singular. */

@@ -3,6 +3,8 @@
  * bounded before libfyaml resolves them. */
 #include "io/loader/loader_internal.h"
 
+#include <limits.h>
+#include <math.h>
 #include <string.h>
 
 /* Nodes aliases may add: this many plus 4 per node of the file. */
@@ -187,5 +189,26 @@ int mrvi_ld_resolve_aliases(loader *L) {
       return mrvi_ld_syntax_error(L);
     return mrvi_ld_fail(L, NULL, "cannot resolve aliases");
   }
+  return MRVI_OK;
+}
+
+int mrvi_ld_limits(loader *L, struct fy_node *lim) {
+  static const char *const keys[] = {"max_coordinates"};
+  struct fy_node *n;
+  double v;
+  int st;
+  if ((st = mrvi_ld_want_mapping(L, lim, "limits")) ||
+      (st = mrvi_ld_check_keys(L, lim, "limits", keys, COUNT(keys), NULL, 0)))
+    return st;
+  if (!(n = mrvi_ld_get(lim, "max_coordinates")))
+    return MRVI_OK;
+  if ((st = mrvi_ld_as_number(L, n, "limits.max_coordinates", &v)))
+    return st;
+  if (v != floor(v) || v < 1 || v > INT_MAX)
+    return mrvi_ld_fail(L, n,
+                        "limits.max_coordinates must be a whole number from "
+                        "1 to %d, got %s",
+                        INT_MAX, mrvi_ld_scalar0(n));
+  L->max_coordinates = v;
   return MRVI_OK;
 }

@@ -25,7 +25,7 @@ static const char *const top_keys[] = {
     "name",        "dimension", "gravity",     "particles",  "springs",
     "coordinates", "terms",     "constraints", "integrator", "output",
     "angles",      "forces",    "generate",    "bodies",     "joints",
-    "control",     "batch"};
+    "control",     "batch",     "limits"};
 
 static int load_model(loader *L, struct fy_node *root) {
   mrvi_model *m = L->sys->model;
@@ -49,6 +49,8 @@ static int load_model(loader *L, struct fy_node *root) {
                         : mrvi_ld_get(root, "generate") ? "generate"
                                                         : "bodies");
   }
+  if ((n = mrvi_ld_get(root, "limits")) && (st = mrvi_ld_limits(L, n)))
+    return st;
   /* Model order: coordinates first, then particles as declared (names by
    * hash, the partition extended by each add: linear in the file). */
   if ((n = mrvi_ld_get(root, "coordinates")) &&

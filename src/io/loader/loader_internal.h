@@ -79,6 +79,7 @@ typedef struct loader {
   struct fy_node *constraint_list;   /* `constraints:`, NULL if absent */
   struct fy_node **constraint_items; /* entry of each model constraint */
   int cap_constraint_items;
+  double max_coordinates; /* limits.max_coordinates; 0: MRVI_MAX_COORDINATES */
   mrvi_system *sys;
 } loader;
 
@@ -88,6 +89,8 @@ typedef struct loader {
 int mrvi_ld_coordinates(loader *L, struct fy_node *list);
 int mrvi_ld_particles(loader *L, struct fy_node *list, int dim);
 int mrvi_ld_generators(loader *L, struct fy_node *list, int dim);
+/* `limits:` (limits.c): max_coordinates, what `generate:` may reach. */
+int mrvi_ld_limits(loader *L, struct fy_node *lim);
 int mrvi_ld_springs(loader *L, struct fy_node *list, int dim);
 int mrvi_ld_terms(loader *L, struct fy_node *list);
 int mrvi_ld_angles(loader *L, struct fy_node *list);
