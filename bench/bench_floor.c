@@ -114,7 +114,9 @@ static const char usage[] =
     "on a static partition of the coordinates (bitwise the serial floor's)\n"
     "and mrvi's schemes on 1 and on T threads (settings.threads),\n"
     "alternating, wall time per macro step, the ratio, the CPU ratio and\n"
-    "the floor's ratio beside each scheme's, and STREAM's triad over arrays\n"
+    "the floor's ratio beside each scheme's (with the scheme's over it, the\n"
+    "floor's CPU ratio and the T threads' CPU over their wall time), and\n"
+    "STREAM's triad over arrays\n"
     "of n doubles on 1 and T threads; the other tables are on 1 thread.\n"
     "--tuning sets a tuning constant of mrvi's methods (mrvi.h,\n"
     "MRVI_TUNING_LIST), e.g. outer_max=0.\n"
@@ -1545,7 +1547,11 @@ static void machine_fn(int fd, void *arg) {
 /* The floors (on the parts) and mrvi's schemes on 1 and on t threads,
  * alternating: wall time per macro step, best of `repeats` rounds, the
  * ratio (one run), the CPU ratio, and beside each scheme its floor's ratio
- * (r-RESPA for the explicit paths, Verlet for the implicit schemes). */
+ * (r-RESPA for the explicit paths, Verlet for the implicit schemes), the
+ * scheme's over the floor's, the floor's CPU ratio and the T threads' CPU
+ * over their wall time: on a loaded machine the speed-ups scatter, but the
+ * ratio to the floor of the same round and the CPU ratios judge the goal
+ * (doc/performance.md, "Threads: explicit-slow's serial bound"). */
 static int threads_table(options *o, int t, const int *nets, const int *n_list,
                          int n_n, int repeats, const char *only) {
   const method ms[] = {M_RESPA, M_VERLET, M_FE, M_ES, M_MM, M_TM};
@@ -1568,13 +1574,21 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
            "the threads add little work, whatever the load does to the wall "
            "times); floor: the speed-up of the floor of the scheme's pairing "
            "(r-RESPA for fully-explicit and explicit-slow, Verlet for the "
-           "implicit schemes) in the same round; floors on %d-coordinate "
-           "parts (path: their count)\n\n| %-20s | %8s | %-12s | %11s | "
-           "%11s | %7s | %11s | %7s |\n",
+           "implicit schemes) in the same round; ours/floor: the speed-up "
+           "over the floor's (the goal's 1.6 over a floor's 2 is 0.8); "
+           "floor_cpu: the floor's cpu_T/cpu_1; busy_T: the CPU time of the "
+           "T threads over their wall time (the cores the run had: T where "
+           "the machine gave it every core, so that a speed-up below T "
+           "with cpu_T/cpu_1 near 1 is the machine's, not serial work); "
+           "floors on %d-coordinate parts (path: their count)\n\n| %-20s "
+           "| %8s | %-12s | %11s | %11s | %7s | %11s | %7s | %10s | %9s | "
+           "%6s |\n",
            net_names[k], (int)PF_CHUNK, "method", "n", "path", "wall_1_s",
-           "wall_T_s", "speedup", "cpu_T/cpu_1", "floor");
+           "wall_T_s", "speedup", "cpu_T/cpu_1", "floor", "ours/floor",
+           "floor_cpu", "busy_T");
     printf("|----------------------|---------:|--------------|------------:|"
-           "------------:|--------:|------------:|--------:|\n");
+           "------------:|--------:|------------:|--------:|-----------:|"
+           "----------:|-------:|\n");
     for (int ni = 0; ni < n_n; ni++) {
       result best[N_METHODS][2];
       int run[N_METHODS] = {0};
@@ -1615,14 +1629,16 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
         }
         const method fm = me == M_MM || me == M_TM ? M_VERLET : M_RESPA;
         const result *fb = best[fm];
-        const double floor_x = me != M_RESPA && me != M_VERLET &&
-                                       fb[0].status == 0 && fb[1].status == 0
-                                   ? fb[0].wall / fb[1].wall
-                                   : NAN;
+        const int fl_ok = me != M_RESPA && me != M_VERLET &&
+                          fb[0].status == 0 && fb[1].status == 0;
+        const double floor_x = fl_ok ? fb[0].wall / fb[1].wall : NAN;
+        const double floor_c = fl_ok ? fb[1].step / fb[0].step : NAN;
+        const double sp = b[0].wall / b[1].wall;
         printf("| %-20s | %8d | %-12s | %11.4g | %11.4g | %7.2f | %11.2f | "
-               "%7.2f |\n",
-               method_names[me], b[0].n, b[0].path, b[0].wall, b[1].wall,
-               b[0].wall / b[1].wall, b[1].step / b[0].step, floor_x);
+               "%7.2f | %10.2f | %9.2f | %6.2f |\n",
+               method_names[me], b[0].n, b[0].path, b[0].wall, b[1].wall, sp,
+               b[1].step / b[0].step, floor_x, sp / floor_x, floor_c,
+               b[1].step / b[1].wall);
         fflush(stdout);
       }
       machine_args ma = {k, n_list[ni], t, o};

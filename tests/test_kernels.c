@@ -443,9 +443,11 @@ static void check_fused(const mrvi_model *m, const int *sel, int nsp,
  * positive dinv) and at most the elements' bound from
  * mrvi_terms_grad_hdiag's off (to 1e-13 relative): a bound that dropped
  * or mis-slotted a particle's own off-diagonal sums would fall below the
- * assembled one. */
+ * assembled one.  Where kt is in np >= 2 parts by columns, the parts
+ * (mrvi_terms_gershgorin_part, sweep-cg's row 0 on threads), taken in
+ * reverse over arrays of NaN, give the same s, o and bound bitwise. */
 static void check_gersh(mrvi_terms *kt, const double *q, int n, int d,
-                        const law_case *lc, unsigned long long *rng) {
+                        const law_case *lc, int np, unsigned long long *rng) {
   if (!mrvi_terms_springs_only(kt))
     return;
   const double hs = 0.25 * (1.0 + uniform(rng));
@@ -468,6 +470,26 @@ static void check_gersh(mrvi_terms *kt, const double *q, int n, int d,
     ref = fmax(ref, t * dinv[i]);
   }
   const double b = mrvi_terms_gershgorin(kt, q, hs, dinv, s, o, n);
+  double *w2 = np >= 2 ? malloc(2 * (size_t)n * sizeof *w2) : NULL;
+  if (w2) {
+    for (int i = 0; i < 2 * n; i++)
+      w2[i] = NAN;
+    for (int c = np - 1; c >= 0; c--)
+      mrvi_terms_gershgorin_part(kt, c, q, hs, dinv, w2, w2 + n, 0);
+    double bp = 0.0;
+    for (int c = np - 1; c >= 0; c--) {
+      const double v =
+          mrvi_terms_gershgorin_part(kt, c, q, hs, dinv, w2, w2 + n, 1);
+      bp = v > bp || isnan(v) ? v : bp;
+    }
+    bp = isfinite(bp) ? bp : HUGE_VAL;
+    CHECK(!memcmp(&bp, &b, sizeof b) && !memcmp(w2, s, (size_t)n * sizeof *s) &&
+              !memcmp(w2 + n, o, (size_t)n * sizeof *o),
+          "d %d %s: row 0 bound in %d parts by columns %.17g, serial %.17g, "
+          "the sums bitwise",
+          d, lc->law, np, bp, b);
+    free(w2);
+  }
   memset(g, 0, (size_t)n * sizeof *g);
   memset(hd, 0, (size_t)n * sizeof *hd);
   memset(o, 0, (size_t)n * sizeof *o);
@@ -941,7 +963,7 @@ static void check_sparse(int d, const law_case *lc, unsigned long long *rng) {
       if (w3 && kt && np >= 2)
         check_lin(kt, q, n, np, d, lc, 0, rng);
       if (kt)
-        check_gersh(kt, q, n, d, lc, rng);
+        check_gersh(kt, q, n, d, lc, by_rec ? 0 : np, rng);
       /* (the springs alone, without the anchors: a class of Hooke springs
        * where the law is linear) */
       mrvi_terms *kl = NULL;

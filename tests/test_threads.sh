@@ -20,7 +20,9 @@
 # trapezoidal-midpoint).  `mrvi check` shows the
 # count; a build without OpenMP refuses --threads 2 with a message that
 # says so.  explicit-slow's chord sums (the summary's relaxation sum, to
-# the last bit) the same on 1, 2 and 3 threads.  The automatic count (the
+# the last bit) the same on 1, 2 and 3 threads; and with row 0's
+# assembled bound in the chord's parts (fresh_exact_parts).  The automatic
+# count (the
 # default, `--threads auto`, MRVI_THREADS=auto): 1 for the 6 x 5 and the
 # 40 x 20 lattice in parts of 4096 (no loop of two parts) and bound to one
 # core (taskset); in parts of 16 the cores available (nproc) less those
@@ -382,6 +384,24 @@ for other in rnd.2 rnd.3 rndpart; do
     fail "random network, explicit-slow: $other gives 1 thread's trajectory bit for bit"
   fi
 done
+
+# ... and on the chord with chord_jacobi_max 0.02, which the elements'
+# bound exceeds at every step's row 0: the assembled matrix's bound there
+# (fresh_exact) in the chord's parts on threads (fresh_exact_parts, its
+# own parallel region): 1, 2 and 3 threads bit for bit.
+sed -e 's/chord_jacobi_max: 0}/chord_jacobi_max: 0.02}/' "$tmp/random3d.yaml" \
+  >"$tmp/rndex.yaml"
+for t in 1 2 3; do
+  run_ok "random network, chord_jacobi_max 0.02, on $t threads" "$mrvi" run \
+    "$tmp/rndex.yaml" --threads $t -o "$tmp/rndex.$t.h5" --quiet
+done
+if grep -q "chord_jacobi_max: 0.02}" "$tmp/rndex.yaml" &&
+  same "$tmp/rndex.1.h5" "$tmp/rndex.2.h5" &&
+  same "$tmp/rndex.1.h5" "$tmp/rndex.3.h5"; then
+  pass "random network, row 0's assembled bound: 1, 2, 3 threads bit for bit"
+else
+  fail "random network, row 0's assembled bound: 1, 2, 3 threads bit for bit"
+fi
 
 # ... and with unequal fast masses (every odd particle of mass 2: each
 # entry of M^f read) and the chord's linearised updates

@@ -660,6 +660,17 @@ int mrvi_terms_springs_only(const mrvi_terms *kc);
 double mrvi_terms_gershgorin(const mrvi_terms *kc, const double *z,
                              double hscale, const double *dinv, double *s,
                              double *o, int ncol);
+/* mrvi_terms_gershgorin on part c of a class partitioned by columns
+ * (mrvi_terms_set_threads with ncol > 0): pass 0 zeroes the part's
+ * columns of s and o and adds its records' entries there, each column's
+ * sums in the serial order; pass 1 (after every part's pass 0) returns the
+ * largest row bound over the part's columns (NaN where one is).  The
+ * parts' pass-1 maxima combined by the same rule, HUGE_VAL where not
+ * finite, are mrvi_terms_gershgorin's bound bitwise (sweep-cg's row 0 on
+ * threads). */
+double mrvi_terms_gershgorin_part(const mrvi_terms *kc, int c, const double *z,
+                                  double hscale, const double *dinv, double *s,
+                                  double *o, int pass);
 void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
                            double *hd, double *off, double hscale);
 /* mrvi_terms_grad_hdiag on part c's columns of a partitioned class

@@ -468,9 +468,9 @@ void mrvi_sweep_free(mrvi_sweep *sw) {
   free(sw);
 }
 
-/* The explicit path's classes on threads: parts of thread_chunk doubled
- * until the records that span parts add at most this share of a class's
- * (mrvi_terms_set_threads_spread). */
+/* The explicit path's classes and V's on every path on threads: parts of
+ * thread_chunk doubled until the records that span parts add at most this
+ * share of a class's (mrvi_terms_set_threads_spread). */
 #define SPREAD 0.05
 
 static double *dalloc(size_t n) {
@@ -576,13 +576,16 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
          (sw->implicit || nf <= 4 ? mrvi_terms_create : mrvi_terms_create_grad)(
              m, st->elem_of_class[MRVI_FAST], st->n_elem_of_class[MRVI_FAST],
              m->slot, &sw->kc[MRVI_FAST]) == MRVI_OK;
-  /* The gradients of large spring classes on threads (the same bits). */
+  /* The gradients of large spring classes on threads (the same bits).
+   * V's parts (by records: each column summed in the serial order) spread
+   * on every path; W's on the implicit path keep thread_chunk, the chord's
+   * parts (n_cpass below), whose sums are per part. */
   const int threads = mrvi_threads_resolve(s->threads);
   for (int c = 0; s_ok && c < 2; c++)
     s_ok =
         mrvi_terms_set_threads_spread(
             sw->kc[c], threads, s->tuning.thread_chunk, c == MRVI_SLOW ? 0 : nf,
-            sw->implicit ? HUGE_VAL : SPREAD) == MRVI_OK;
+            sw->implicit && c == MRVI_FAST ? HUGE_VAL : SPREAD) == MRVI_OK;
   /* The explicit step's one parallel region: W's gradient by
    * parts of the fast rows (explicit_step_par). */
   sw->threads = s_ok && !sw->implicit && !sw->wH &&
@@ -1598,6 +1601,49 @@ again:
   return r;
 }
 
+/* fresh_exact's bound where the fast class is in the chord's parts
+ * (sw->cfused, on threads), in one parallel region: the configuration z
+ * in the parts' columns, then (after a barrier) each part's sums
+ * (mrvi_terms_gershgorin_part's pass 0), then (after a barrier) each
+ * part's largest row bound, combined in the parts' order by the serial
+ * rule: mrvi_terms_gershgorin's value bitwise, for every thread count. */
+static double fresh_exact_parts(mrvi_sweep *sw, const double *qm,
+                                const double *dn, double *z, double hs) {
+  const int nf = sw->nf, n_c = sw->n_cpass;
+  const double cB = sw->cB[sw->imp];
+  const mrvi_terms *kc = sw->kc[MRVI_FAST];
+  double *bound = sw->cpass + 4 * n_c; /* (fresh_end has read them) */
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+  {
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++) {
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      for (int f = mrvi_part_start(c, nf, n_c); f < f1; f++)
+        z[f] = 1.0 * qm[f] + cB * dn[f];
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++)
+      mrvi_terms_gershgorin_part(kc, c, z, hs, sw->jdinv, sw->dprev, sw->fimp,
+                                 0);
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int c = 0; c < n_c; c++)
+      bound[c] = mrvi_terms_gershgorin_part(kc, c, z, hs, sw->jdinv, sw->dprev,
+                                            sw->fimp, 1);
+  }
+  double m = 0.0;
+  for (int c = 0; c < n_c; c++) /* (mrvi_terms_gershgorin's rule) */
+    m = bound[c] > m || isnan(bound[c]) ? bound[c] : m;
+  return isfinite(m) ? m : HUGE_VAL;
+}
+
 /* Row 0's fresh bound where the elements' (fresh_bound: each element's
  * off-diagonal entries by absolute value) exceeds chord_jacobi_max: the
  * bound of the matrix Newton would assemble at the same iterate dn (its
@@ -1606,18 +1652,23 @@ again:
  * more over the springs, in the arrays the row does not hold then (the
  * configuration in the gradient's, the sums in dprev and fimp: the next
  * update writes each whole before it reads it).  It decides the regime,
- * and the relaxation's bound rho_c becomes it.  Serial: the same bits for
- * every thread count (bench_floor's random3d at 1e5 took Newton at every
- * step's row 0 with the elements' bound, doc/performance.md). */
+ * and the relaxation's bound rho_c becomes it.  The same bits for every
+ * thread count (fresh_exact_parts on threads; bench_floor's random3d at
+ * 1e5 took Newton at every step's row 0 with the elements' bound,
+ * doc/performance.md). */
 static double fresh_exact(mrvi_sweep *sw, const double *qm, const double *dn) {
   const int nf = sw->nf, i = sw->imp;
-  const double cB = sw->cB[i];
+  const double cB = sw->cB[i], hs = sw->w[i] * sw->cA[i] * cB;
   double *z = sw->gpt[i];
-  for (int f = 0; f < nf; f++)
-    z[f] = 1.0 * qm[f] + cB * dn[f];
-  const double b =
-      mrvi_terms_gershgorin(sw->kc[MRVI_FAST], z, sw->w[i] * sw->cA[i] * cB,
-                            sw->jdinv, sw->dprev, sw->fimp, nf);
+  double b;
+  if (sw->cfused) { /* (on threads: fresh_exact_parts) */
+    b = fresh_exact_parts(sw, qm, dn, z, hs);
+  } else {
+    for (int f = 0; f < nf; f++)
+      z[f] = 1.0 * qm[f] + cB * dn[f];
+    b = mrvi_terms_gershgorin(sw->kc[MRVI_FAST], z, hs, sw->jdinv, sw->dprev,
+                              sw->fimp, nf);
+  }
   sw->rho_c = b <= sw->chord_max ? b : sw->rho_c;
   return b;
 }

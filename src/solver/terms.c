@@ -2533,16 +2533,19 @@ void mrvi_terms_grad_hdiag(const mrvi_terms *kc, const double *z, double *g,
  * particle's column k + l - 1 and, for a spring, each row's sum of the
  * absolute entries between its ends, hscale |a u_k u_l + b delta_kl|, to
  * o; pass 1 returns the largest row bound (o + sum_l |s|) dinv over its
- * columns (NaN where one is). */
+ * columns (NaN where one is).  Only on the columns of the mask mk
+ * (record_col's bits; ~0u: all). */
 ALWAYS_INLINE double spring_gersh(const kspring *q, const double *z, double *s,
                                   double *o, const double *dinv, double hscale,
-                                  const int pass, const int dim,
-                                  const int two) {
+                                  const unsigned mk, const int pass,
+                                  const int dim, const int two) {
   if (pass == 1) {
     double m = 0.0;
     for (int e = 0; e < (two ? 2 : 1); e++) {
       const int *c = e ? q->cj : q->ci;
       UNROLL for (int k = 0; k < dim; k++) {
+        if (!(mk & 1u << (e * dim + k)))
+          continue;
         double t = o[c[k]];
         UNROLL for (int l = 0; l < dim; l++) if (l != k) t +=
             fabs(s[c[k + l - 1]]);
@@ -2557,8 +2560,9 @@ ALWAYS_INLINE double spring_gersh(const kspring *q, const double *z, double *s,
   UNROLL for (int k = 0; k < dim; k++)
       UNROLL for (int l = k + 1; l < dim; l++) {
     const double x = hscale * a * u[k] * u[l];
-    s[q->ci[k + l - 1]] += x;
-    if (two)
+    if (mk & 1u << (k + l - 1))
+      s[q->ci[k + l - 1]] += x;
+    if (two && mk & 1u << (dim + k + l - 1))
       s[q->cj[k + l - 1]] += x;
   }
   if (two)
@@ -2566,8 +2570,10 @@ ALWAYS_INLINE double spring_gersh(const kspring *q, const double *z, double *s,
       double t = 0.0;
       UNROLL for (int l = 0; l < dim; l++) t +=
           fabs(hscale * (a * u[k] * u[l] + (l == k ? b : 0.0)));
-      o[q->ci[k]] += t;
-      o[q->cj[k]] += t;
+      if (mk & 1u << k)
+        o[q->ci[k]] += t;
+      if (mk & 1u << (dim + k))
+        o[q->cj[k]] += t;
     }
   return 0.0;
 }
@@ -2579,7 +2585,8 @@ springs_gersh(const kspring *q, int nr, const double *z, double *s, double *o,
 #define SPRINGS_GS(D, T)                                                       \
   do {                                                                         \
     for (int r = 0; r < nr; r++) {                                             \
-      const double v = spring_gersh(q + r, z, s, o, dinv, hscale, pass, D, T); \
+      const double v =                                                         \
+          spring_gersh(q + r, z, s, o, dinv, hscale, ~0u, pass, D, T);         \
       m = v > m || isnan(v) ? v : m;                                           \
     }                                                                          \
   } while (0)
@@ -2609,6 +2616,34 @@ double mrvi_terms_gershgorin(const mrvi_terms *kc, const double *z,
       it += t->runs - 1;
     }
   return isfinite(m) ? m : HUGE_VAL;
+}
+
+double mrvi_terms_gershgorin_part(const mrvi_terms *kc, int c, const double *z,
+                                  double hscale, const double *dinv, double *s,
+                                  double *o, int pass) {
+  const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
+  const int *rec = kc->part_rec + r0, dim = kc->dim;
+  const unsigned char *mask = kc->part_mask + r0;
+  const kspring *qs = kc->qs;
+  if (pass == 0) { /* (the part's columns: no other part writes them) */
+    int f0, f1;
+    mrvi_terms_part_columns(kc, c, &f0, &f1);
+    memset(s + f0, 0, (size_t)(f1 - f0) * sizeof *s);
+    memset(o + f0, 0, (size_t)(f1 - f0) * sizeof *o);
+  }
+  double m = 0.0;
+#define PART_GS(D, T)                                                          \
+  do {                                                                         \
+    const double v =                                                           \
+        spring_gersh(q, z, s, o, dinv, hscale, mask[i], pass, D, T);           \
+    m = v > m || isnan(v) ? v : m;                                             \
+  } while (0)
+  for (int i = 0; i < nr; i++) {
+    const kspring *q = qs + rec[i];
+    SPRING_SHAPES(PART_GS);
+  }
+#undef PART_GS
+  return m;
 }
 
 /* Part c's records (mrvi_terms_set_threads) in the serial order, each
