@@ -986,7 +986,58 @@ static void test_forced_shipped(void) {
         n_krylov);
 }
 
+/* omega_max at creation (mrvi_predictor_omega_max): where Gershgorin's
+ * bound settles the paths' tests of it (dt omega <= 1/2, (omega dt)^2/4 <=
+ * chord_jacobi_max) it is that bound, which must lie above the power
+ * iteration's estimate (a Rayleigh quotient: at most the largest
+ * eigenvalue) and, on the lattice, near it (1.06 measured); elsewhere it is
+ * the power iteration's, bit for bit.  The lattice's springs are
+ * stretched and sheared (tension terms off the diagonal), the anchors'
+ * W indefinite. */
+static void test_omega_bound(void) {
+  char *lat = lattice(12, 10), *anc = inverted_anchors(20, 50.0);
+  const struct {
+    const char *text, *scheme;
+    int p;
+    double dT;
+    int bound; /* 1: the bound settles the tests, 0: it does not */
+  } cs[] = {{lat, "midpoint-midpoint", 10, 0.01, 1},
+            {lat, "trapezoidal-midpoint", 2, 0.1, 0},
+            {anc, "midpoint-midpoint", 10, 0.01, 1},
+            {anc, "midpoint-midpoint", 1, 0.2, 0}};
+  for (size_t i = 0; i < sizeof cs / sizeof *cs; i++) {
+    overrides o;
+    mrvi_system *s = load_text(
+        cs[i].text, set(&o, cs[i].scheme, cs[i].p, cs[i].dT, 1e-9, "auto"), 5);
+    if (!s)
+      continue;
+    mrvi_step st;
+    mrvi_predictor *pr = NULL;
+    mrvi_step_init(&st, s->model, &s->settings);
+    mrvi_predictor_create(s->model, &st, &pr);
+    const double w = mrvi_predictor_omega_max(pr),
+                 wp = mrvi_predictor_omega_power(pr), dt = st.dt;
+    if (cs[i].bound)
+      CHECK(w >= wp * (1.0 - 1e-9) && w <= 1.5 * wp && dt * w <= 0.5 &&
+                0.25 * (w * dt) * (w * dt) <= st.tuning.chord_jacobi_max,
+            "case %zu: omega_max %.6g a bound that settles the tests, "
+            "power iteration %.6g",
+            i, w, wp);
+    else
+      CHECK(w == wp && dt * wp > 0.5,
+            "case %zu: omega_max %.6g the power iteration's %.6g", i, w, wp);
+    printf("omega_max case %zu: %.6g (power iteration %.6g, dt omega %.3g)\n",
+           i, w, wp, dt * w);
+    mrvi_predictor_free(pr);
+    mrvi_step_free(&st);
+    mrvi_system_free(s);
+  }
+  free(lat);
+  free(anc);
+}
+
 int main(void) {
+  test_omega_bound();
   test_chord();
   test_chord_carry();
   test_chord_threads(0, 0);

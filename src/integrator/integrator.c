@@ -526,13 +526,20 @@ static int sweep_create(mrvi_integrator *it, char *msg, size_t len) {
 
 static void sweep_free(mrvi_integrator *it) { mrvi_sweep_free(it->sweep); }
 
-/* The Newton paths' predictor, to Newton's tolerance, and x at it. */
-static int predictor_create(mrvi_integrator *it, char *msg, size_t len) {
+/* The Newton paths' predictor, to Newton's tolerance. */
+static int predictor_only(mrvi_integrator *it, char *msg, size_t len) {
   if (mrvi_predictor_create(it->model, &it->step, &it->predictor) < 0)
     return mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory");
   mrvi_predictor_set_tolerance(it->predictor, it->settings.newton_tol);
-  predict(it);
   return MRVI_OK;
+}
+
+/* The predictor and x at it. */
+static int predictor_create(mrvi_integrator *it, char *msg, size_t len) {
+  const int st = predictor_only(it, msg, len);
+  if (st == MRVI_OK)
+    predict(it);
+  return st;
 }
 
 /* The Jacobian pattern and the residual and Jacobian at the predictor
@@ -621,9 +628,13 @@ static int skrylov_newton(mrvi_integrator *it, char *msg, size_t len) {
   return mrvi_skrylov_create(&it->step, &it->skrylov, msg, len);
 }
 
-/* The schur-krylov path (solver/schur_krylov.c). */
+/* The schur-krylov path (solver/schur_krylov.c).  The predictor's x at
+ * the initial state only where Newton's Jacobian is made here: every step
+ * predicts x afresh (newton_step), and the outer iteration builds no
+ * Jacobian at creation, so there no prediction is made before the first
+ * step (the same steps, the prediction's time saved). */
 static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
-  int st = predictor_create(it, msg, len);
+  int st = predictor_only(it, msg, len);
   if (st < 0)
     return st;
   /* The matrix-free outer iteration on unconstrained steps (solver/outer.c)
@@ -639,6 +650,7 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
     return mrvi_outer_create(it->model, sp, &it->outer) < 0
                ? mrvi_fail(msg, len, MRVI_ENOMEM, "out of memory")
                : MRVI_OK;
+  predict(it);
   return (st = jacobian_create(it, msg, len)) < 0
              ? st
              : skrylov_newton(it, msg, len);

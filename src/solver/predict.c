@@ -88,7 +88,8 @@ struct mrvi_predictor {
   double *ju;
   mrvi_tuning tn;   /* the step's tuning constants */
   int sweep_ok;     /* dt omega_max small enough for the explicit sweep */
-  double omega;     /* omega_max at q0 (power_iteration, once) */
+  double omega;     /* omega_max at q0 (power_iteration, once), or an
+                       upper bound that settles its tests (omega_bound) */
   int slow_coupled; /* the slow row sees the micro nodes */
   /* Vectors of n entries (model order in omega_max; packed (q^s, q^f) in
    * the sweep): configuration, gradient, slow-row force (ns), the explicit
@@ -460,6 +461,7 @@ static void one_point(mrvi_predictor *pr, const mrvi_step *st) {
 
 static double power_iteration(mrvi_predictor *pr, double *Q, int nq,
                               double *wk);
+static double omega_bound(mrvi_predictor *pr, const mrvi_step *st);
 
 int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
                           mrvi_predictor **out) {
@@ -594,7 +596,13 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
           (1 << MRVI_SLOW))
         pr->slow_coupled = 1;
   }
-  pr->omega = power_iteration(pr, NULL, 0, NULL);
+  /* (the Gershgorin bound where it settles every test of omega_max, the
+   * sweep's and the outer iteration's; else the power iteration) */
+  const double ob = omega_bound(pr, st);
+  pr->omega = st->dt * ob <= 0.5 && 0.25 * (ob * st->dt) * (ob * st->dt) <=
+                                        pr->tn.chord_jacobi_max
+                  ? ob
+                  : power_iteration(pr, NULL, 0, NULL);
   pr->sweep_ok = st->dt * pr->omega <= 0.5;
   pr->rstop = pr->rsweep = INFINITY;
   if (pr->slow_coupled && m->n <= pr->tn.slow_newton_n) {
@@ -666,6 +674,69 @@ void mrvi_predictor_free(mrvi_predictor *pr) {
 }
 
 double mrvi_predictor_omega_max(mrvi_predictor *pr) { return pr->omega; }
+
+double mrvi_predictor_omega_power(mrvi_predictor *pr) {
+  return power_iteration(pr, NULL, 0, NULL);
+}
+
+/* An upper bound of omega_max at q0: Gershgorin's on M^-1 hess(V + W)(q0)
+ * (its eigenvalues are those of M^-1/2 hess M^-1/2), max_i minv_i (H_ii +
+ * sum_{j != i} |H_ij|), from each element's Hessian (mrvi_element_eval)
+ * at q0: its entries on one coordinate added to the diagonal, the others'
+ * absolute values to the row (at least the sum's: the bound holds).  One
+ * Hessian per element, against the power iteration's 60 gradients.  The
+ * power iteration's estimate is a Rayleigh quotient, at most the largest
+ * eigenvalue (up to its central differences' O(h^2)), so where this bound
+ * passes a test of omega_max, that estimate passes it too.  HUGE_VAL
+ * where a value is not finite or out of memory.  g, fexp (model order)
+ * serve as vectors (the steps write them before they read them). */
+static double omega_bound(mrvi_predictor *pr, const mrvi_step *st) {
+  const mrvi_model *m = pr->m;
+  double *hd = pr->g, *off = pr->fexp;
+  memset(hd, 0, (size_t)m->n * sizeof *hd);
+  memset(off, 0, (size_t)m->n * sizeof *off);
+  mrvi_element_buf eb = {.e.proto = NULL};
+  double sy[6], sg[6], sh[36], *y = sy, *g = sg, *h = sh;
+  int cap = 6, ok = 1;
+  for (int c = 0; c < 2 && ok; c++)
+    for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
+      const mrvi_element *e =
+          mrvi_model_element(m, st->elem_of_class[c][ie], &eb);
+      const int ni = e->n_in;
+      if (ni > cap) {
+        if (y != sy)
+          free(y);
+        cap = ni;
+        if (!(y = malloc((size_t)cap * (size_t)(cap + 2) * sizeof *y))) {
+          ok = 0;
+          break;
+        }
+        g = y + cap;
+        h = y + 2 * cap;
+      }
+      for (int j = 0; j < ni; j++)
+        y[j] = m->q0[e->in[j]];
+      mrvi_element_eval(m, e, y, g, h);
+      for (int j = 0; j < ni; j++)
+        for (int k = 0; k < ni; k++) {
+          const double v = h[j * ni + k];
+          if (e->in[j] == e->in[k])
+            hd[e->in[j]] += v;
+          else
+            off[e->in[j]] += fabs(v);
+        }
+    }
+  if (y != sy)
+    free(y);
+  if (!ok)
+    return HUGE_VAL;
+  double b = 0.0;
+  for (int i = 0; i < m->n; i++) {
+    const double v = (hd[i] + off[i]) / m->mass[i];
+    b = v > b || isnan(v) ? v : b;
+  }
+  return isfinite(b) ? sqrt(b) : HUGE_VAL;
+}
 
 /* omega_max at q0 (mrvi_predictor_omega_max): power iteration on M^-1/2
  * hess(V + W)(q0) M^-1/2 with Hessian-vector products from central

@@ -821,8 +821,17 @@ int mrvi_predictor_sweeps(const mrvi_predictor *pr);
  * previous setting. */
 int mrvi_predictor_one_point(mrvi_predictor *pr, int on);
 /* Largest frequency sqrt(max eig M^-1 hess(V + W)) at the initial state,
- * by power iteration at creation (0 if not positive). */
+ * by power iteration at creation (0 if not positive); or, where it settles
+ * every test the paths make of omega_max (dt omega_max <= 1/2 for the
+ * predictor's sweep, (omega_max dt)^2 / 4 <= chord_jacobi_max for the
+ * outer iteration), Gershgorin's upper bound of it instead, which takes one
+ * Hessian per element against the power iteration's 60 gradients: the
+ * same decisions (doc/solver.md, "Predictor"). */
 double mrvi_predictor_omega_max(mrvi_predictor *pr);
+/* The power iteration's estimate of omega_max at the initial state, made
+ * afresh (tests: omega_max against it; the predictor's vectors are
+ * overwritten, which the steps write before they read). */
+double mrvi_predictor_omega_power(mrvi_predictor *pr);
 
 /* The predictor's constraint forces at the micro nodes
  * (solver/predict_joints.c, doc/solver.md "The joint sweep").  create
