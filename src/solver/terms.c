@@ -1660,7 +1660,9 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   const int r0 = kc->part_first[c], nr = kc->part_first[c + 1] - r0;
   const int *rec = kc->part_rec + r0;
   const unsigned char *mask = kc->part_mask + r0;
-  const int *run = kc->part_run + r0;
+  /* (part_run: a class of khooke springs' alone, else NULL, which takes
+   * no offset) */
+  const int *run = kc->part_run ? kc->part_run + r0 : NULL;
   /* (one division per spring: q is the shared columns where the class has
    * them, hooke_class, else its khooke records, as qh; the two-division
    * kernels read qh, whose constant NULL columns the compiler folds) */

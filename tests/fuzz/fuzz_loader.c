@@ -5,7 +5,16 @@
  * override, so the seeds in systems/ and tests/bad_input/ carry theirs.
  * The description is read up to its first NUL byte (as a string).  Any
  * crash, sanitizer report, leak or timeout is a finding; a rejected input
- * is not. */
+ * is not.
+ *
+ * A model the loader admits that is small (at most STEP_MAX_N coordinates,
+ * STEP_MAX_P micro steps a macro step) then takes STEP_COUNT macro steps,
+ * on two threads where the build has them (the description's
+ * tuning.thread_chunk decides the partitions): a crafted file reaches the
+ * integrator's creation from the model (the compact springs' records, the
+ * partitions of the records over threads, the solver path's blocks) and
+ * its solvers, not only the loader.  A step may fail (Newton, a singular
+ * matrix): only a crash, a report or a leak is a finding. */
 #include "mrvi.h"
 
 #include <stddef.h>
@@ -14,6 +23,9 @@
 #include <string.h>
 
 #define MAX_OVERRIDES 16
+#define STEP_MAX_N 64
+#define STEP_MAX_P 16
+#define STEP_COUNT 2
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
@@ -46,6 +58,28 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   /* The contract: a system on success, none and a message on failure. */
   if ((st == MRVI_OK) != (sys != NULL) || (st != MRVI_OK && !msg[0]))
     abort();
+  if (sys && mrvi_model_n(sys->model) <= STEP_MAX_N &&
+      sys->settings.micro_steps <= STEP_MAX_P) {
+    mrvi_settings s = sys->settings;
+    s.threads = mrvi_threads_supported() ? 2 : 1;
+    /* (iteration and sample counts the file may raise a thousandfold
+     * bounded, so that a step stays within the fuzzer's timeout) */
+#define AT_MOST(x, n) ((x) = (x) < (n) ? (x) : (n))
+    AT_MOST(s.newton_max_iter, 50);
+    AT_MOST(s.tuning.slow_newton_max, 50);
+    AT_MOST(s.tuning.outer_max, 50);
+    AT_MOST(s.tuning.shoot_max, 8);
+    AT_MOST(s.tuning.krylov_max_it, 1000);
+    AT_MOST(s.tuning.slow_samples, 64);
+    AT_MOST(s.tuning.slow_hess_samples, 64);
+#undef AT_MOST
+    mrvi_integrator *it = NULL;
+    if (mrvi_integrator_create(sys->model, &s, &it, msg, sizeof msg) == MRVI_OK)
+      for (int k = 0; k < STEP_COUNT && mrvi_integrator_step(it) == MRVI_OK;
+           k++)
+        ;
+    mrvi_integrator_free(it);
+  }
   mrvi_system_free(sys);
   for (int i = 0; i < n_ov; i++)
     free(ov[i]);

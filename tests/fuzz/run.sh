@@ -5,7 +5,13 @@
 #     tests/bad_input/ and tests/fuzz/seeds/ (valid files of features the
 #     shipped systems leave out: the compact spring table's laws and big
 #     generators, state actuators on bodies, joints and pairs, and links to
-#     bench/'s problems) with the key dictionary tests/fuzz/loader.dict;
+#     bench/'s problems, and the edge cases of a network: no springs, one
+#     particle, the smallest chain, ring and lattices 1 x N, every spring
+#     fast or slow, more threads than records) with the key dictionary
+#     tests/fuzz/loader.dict; a model it admits with at most 64
+#     coordinates and 16 micro steps then takes two macro steps on two
+#     threads (fuzz_loader.c), so that a crafted file reaches the
+#     integrator's creation and its solvers too;
 #   - fuzz_h5, the readers of an mrvi output (HDF5) file, seeded by small
 #     outputs made here by the fuzz build's mrvi (BUILD_DIR/h5seeds: FPU,
 #     a constrained cart pendulum, the heavy top (a body), a lattice with
