@@ -2164,6 +2164,19 @@ static int fused_zero(double *g, int zp, int to, mrvi_cols_fn first,
   return zp;
 }
 
+/* One spring's sums of hooke_grad_pairs in dimension 2 or 3: its first
+ * two axes v01 as a pair at ci and cj (g + v, g - v = g + (-v) lane by
+ * lane), the third v2 alone. */
+ALWAYS_INLINE void pair_add(double *g, int ci, int cj, mrvi_v2 v01, double v2,
+                            const int dim) {
+  v2_store(g + ci, v2_add(v2_load(g + ci), v01));
+  if (dim == 3)
+    g[ci + 2] += v2;
+  v2_store(g + cj, v2_sub(v2_load(g + cj), v01));
+  if (dim == 3)
+    g[cj + 2] += -v2;
+}
+
 /* hooke_grad_k with one = 1 on q[r0 .. r0 + nr), two springs at a time:
  * each lane the scalar kernel's operations (the square root and the
  * division of two springs in one instruction each, util/simd.h), the
@@ -2197,20 +2210,9 @@ ALWAYS_INLINE void hooke_grad_pairs(const khooke *q, int r0, int nr,
     }
     /* (a spring's first two axes as a pair: g + v and g - v = g + (-v)
      * lane by lane; a particle's columns are all or none of another's) */
-    const mrvi_v2 va = v2_set(v2_lo(t[0]), v2_lo(t[1]));
-    const mrvi_v2 vb = v2_set(v2_hi(t[0]), v2_hi(t[1]));
-    v2_store(g + a->ci, v2_add(v2_load(g + a->ci), va));
-    if (dim == 3)
-      g[a->ci + 2] += v2_lo(t[2]);
-    v2_store(g + a->cj, v2_sub(v2_load(g + a->cj), va));
-    if (dim == 3)
-      g[a->cj + 2] += -v2_lo(t[2]);
-    v2_store(g + b->ci, v2_add(v2_load(g + b->ci), vb));
-    if (dim == 3)
-      g[b->ci + 2] += v2_hi(t[2]);
-    v2_store(g + b->cj, v2_sub(v2_load(g + b->cj), vb));
-    if (dim == 3)
-      g[b->cj + 2] += -v2_hi(t[2]);
+    const mrvi_v2 t2 = dim == 3 ? t[2] : v2_zero();
+    pair_add(g, a->ci, a->cj, v2_set(v2_lo(t[0]), v2_lo(t[1])), v2_lo(t2), dim);
+    pair_add(g, b->ci, b->cj, v2_set(v2_hi(t[0]), v2_hi(t[1])), v2_hi(t2), dim);
   }
   const hsrc s = {q, NULL, 0.0, 0.0};
   hooke_grad_k(s, r, r0 + nr - r, z, g, dim, 1);
