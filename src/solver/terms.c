@@ -11,6 +11,7 @@
  * arithmetic is that of mrvi_element_eval and the laws, in the same order,
  * so the results are bitwise the same. */
 #include "solver/solver.h"
+#include "util/simd.h"
 #include "util/small.h"
 
 #include <limits.h>
@@ -2172,18 +2173,71 @@ static int fused_zero(double *g, int zp, int to, mrvi_cols_fn first,
   return zp;
 }
 
+/* One spring's sums of hooke_grad_pairs in dimension 2 or 3: its first
+ * two axes v01 as a pair at ci and cj (g + v, g - v = g + (-v) lane by
+ * lane), the third v2 alone. */
+ALWAYS_INLINE void pair_add(double *g, int ci, int cj, mrvi_v2 v01, double v2,
+                            const int dim) {
+  v2_store(g + ci, v2_add(v2_load(g + ci), v01));
+  if (dim == 3)
+    g[ci + 2] += v2;
+  v2_store(g + cj, v2_sub(v2_load(g + cj), v01));
+  if (dim == 3)
+    g[cj + 2] += -v2;
+}
+
+/* hooke_grad_k with one = 1 on q[r0 .. r0 + nr), two springs at a time:
+ * each lane the scalar kernel's operations (the square root and the
+ * division of two springs in one instruction each, util/simd.h), the
+ * sums into g spring by spring in the serial order, a spring's first two
+ * axes as one pair (the same additions lane by lane), so g is
+ * hooke_grad_k's bit for bit (z is not g: every difference is read before
+ * any sum). */
+ALWAYS_INLINE void hooke_grad_pairs(const khooke *q, int r0, int nr,
+                                    const double *z, double *g, const int dim) {
+  int r = r0;
+  for (; r + 2 <= r0 + nr; r += 2) {
+    const khooke *a = q + r, *b = q + r + 1;
+    mrvi_v2 d[3], r2 = v2_zero();
+    UNROLL for (int k = 0; k < dim; k++) {
+      d[k] = v2_sub(v2_set(z[a->ci + k], z[b->ci + k]),
+                    v2_set(z[a->cj + k], z[b->cj + k]));
+      r2 = v2_add(r2, v2_mul(d[k], d[k]));
+    }
+    const mrvi_v2 rr = v2_sqrt(r2);
+    const mrvi_v2 d1 =
+        v2_mul(v2_set(a->c, b->c), v2_sub(rr, v2_set(a->shift, b->shift)));
+    const mrvi_v2 ir = v2_pos_or_zero(rr, v2_div(v2_set(1.0, 1.0), rr));
+    mrvi_v2 t[3];
+    UNROLL for (int k = 0; k < dim; k++) t[k] = v2_mul(d1, v2_mul(d[k], ir));
+    if (dim == 1) {
+      g[a->ci] += v2_lo(t[0]);
+      g[a->cj] += -v2_lo(t[0]);
+      g[b->ci] += v2_hi(t[0]);
+      g[b->cj] += -v2_hi(t[0]);
+      continue;
+    }
+    /* (a spring's first two axes as a pair: g + v and g - v = g + (-v)
+     * lane by lane; a particle's columns are all or none of another's) */
+    const mrvi_v2 t2 = dim == 3 ? t[2] : v2_zero();
+    pair_add(g, a->ci, a->cj, v2_set(v2_lo(t[0]), v2_lo(t[1])), v2_lo(t2), dim);
+    pair_add(g, b->ci, b->cj, v2_set(v2_hi(t[0]), v2_hi(t[1])), v2_hi(t2), dim);
+  }
+  const hsrc s = {q, NULL, 0.0, 0.0};
+  hooke_grad_k(s, r, r0 + nr - r, z, g, dim, 1);
+}
+
 /* mrvi_terms_grad_fused in dimension dim: the blocks of hooke_grad1's
  * loop, each column zeroed just before the first block that adds to it. */
 ALWAYS_INLINE void fused_k(const mrvi_terms *kc, const double *z, double *g,
                            mrvi_cols_fn first, mrvi_cols_fn done, void *ctx,
                            const int dim) {
-  const hsrc q = {kc->qh, NULL, 0.0, 0.0};
   const int n = kc->n, nb = kc->fuse_nb, B = kc->fuse_b;
   int zp = 0, dp = 0;
   for (int b = 0; b < nb; b++) {
     const int r0 = b * B, nr = b + 1 < nb ? B : n - r0;
     zp = fused_zero(g, zp, kc->fuse_zero[b], first, ctx);
-    hooke_grad_k(q, r0, nr, z, g, dim, 1);
+    hooke_grad_pairs(kc->qh, r0, nr, z, g, dim);
     const int d = kc->fuse_done[b];
     if (d > dp) { /* (and the columns no record touches) */
       zp = fused_zero(g, zp, d, first, ctx);

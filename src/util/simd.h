@@ -59,6 +59,12 @@ MRVI_V2_INLINE mrvi_v2 v2_abs(mrvi_v2 v) {
 }
 /* a > b ? a : b, each lane (b if either is NaN) */
 MRVI_V2_INLINE mrvi_v2 v2_max(mrvi_v2 a, mrvi_v2 b) { return _mm_max_pd(a, b); }
+/* sqrt(v), each lane (the correctly rounded root, as sqrt) */
+MRVI_V2_INLINE mrvi_v2 v2_sqrt(mrvi_v2 v) { return _mm_sqrt_pd(v); }
+/* c > 0 ? v : 0, each lane (0 where c is NaN) */
+MRVI_V2_INLINE mrvi_v2 v2_pos_or_zero(mrvi_v2 c, mrvi_v2 v) {
+  return _mm_and_pd(_mm_cmpgt_pd(c, _mm_setzero_pd()), v);
+}
 
 #else
 #include <math.h>
@@ -102,6 +108,12 @@ MRVI_V2_INLINE mrvi_v2 v2_abs(mrvi_v2 v) {
 }
 MRVI_V2_INLINE mrvi_v2 v2_max(mrvi_v2 a, mrvi_v2 b) {
   return v2_set(a.lo > b.lo ? a.lo : b.lo, a.hi > b.hi ? a.hi : b.hi);
+}
+MRVI_V2_INLINE mrvi_v2 v2_sqrt(mrvi_v2 v) {
+  return v2_set(sqrt(v.lo), sqrt(v.hi));
+}
+MRVI_V2_INLINE mrvi_v2 v2_pos_or_zero(mrvi_v2 c, mrvi_v2 v) {
+  return v2_set(c.lo > 0.0 ? v.lo : 0.0, c.hi > 0.0 ? v.hi : 0.0);
 }
 #endif
 
