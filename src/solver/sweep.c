@@ -1167,14 +1167,21 @@ static void chord_setup(mrvi_sweep *sw) {
  * alone, neither F nor the next iterate stored (4 streams read instead of
  * 6 read and 3 written); the same values of r, on and oo.  step: zf
  * gets the update om D^-1 F instead of the next configuration (the
- * linearised updates' product reads it, tuning.chord_linear). */
-ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
+ * linearised updates' product reads it, tuning.chord_linear).  cur: qm
+ * holds the current iterate's configuration z = q^m + cB dn (the zf that
+ * the gradient read) and the next one is z + cB om D^-1 F, formed from the
+ * update instead of from q^m + cB dnx: the row's stream of q^m is not read
+ * (an out-of-cache pass reads one array less); z differs from q^m + cB dn
+ * by the rounding of these sums, at most a few units in the last place of
+ * |q| in a row (end_predict forms each row's first configuration from q^m
+ * afresh), which is the rounding q^m + cB dn itself carries. */
+ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *qm,
                               const double *restrict dn,
                               const double *restrict g, double om, double wc,
-                              double cB, double *restrict zf, int f0,
-                              const int nf, double out[4], mrvi_v2 acc[4],
-                              const int fin, const int unit, const int keep,
-                              const int inc, const int light, const int step) {
+                              double cB, double *zf, int f0, const int nf,
+                              double out[4], mrvi_v2 acc[4], const int fin,
+                              const int unit, const int keep, const int inc,
+                              const int light, const int step, const int cur) {
   const double dt = sw->st->dt;
   const double *restrict rhs = sw->rhs, *restrict mf = sw->m_f,
                          *restrict rw = sw->rw, *restrict jd = sw->jdinv;
@@ -1200,9 +1207,10 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
       const mrvi_v2 dx = v2_add(d, s);
       v2_store(F + f, Ff);
       v2_store(dnx + f, dx);
-      v2_store(zf + f,
-               step ? s
-                    : v2_add(v2_scale(1.0, v2_load(qm + f)), v2_scale(cB, dx)));
+      v2_store(zf + f, step  ? s
+                       : cur ? v2_add(v2_load(qm + f), v2_scale(cB, s))
+                             : v2_add(v2_scale(1.0, v2_load(qm + f)),
+                                      v2_scale(cB, dx)));
     }
     vmax = v2_max(a, vmax);
     vsum = v2_add(vsum, a);
@@ -1226,7 +1234,7 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
     if (!light) {
       const double s = om * jd[f] * Ff;
       dnx[f] = dn[f] + s;
-      zf[f] = step ? s : 1.0 * qm[f] + cB * dnx[f];
+      zf[f] = step ? s : cur ? qm[f] + cB * s : 1.0 * qm[f] + cB * dnx[f];
       F[f] = Ff;
     }
     const double a = unit ? fabs(Ff) : fabs(Ff) * rw[f];
@@ -1250,29 +1258,37 @@ ALWAYS_INLINE void chord_pass(mrvi_sweep *sw, const double *restrict qm,
  * (defer_end); a pass storing over it there gave threads other bits than
  * one thread's (the scaled criterion; tuning.chord_linear where the fast
  * masses differ). */
-static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *dn,
-                            const double *g, double om, double wc, double cB,
-                            double *zn, int f0, int f1, double out[4],
-                            int light, int step, mrvi_v2 acc[4], int fin) {
+static void chord_pass_rows(mrvi_sweep *sw, const double *qm, const double *zc,
+                            const double *dn, const double *g, double om,
+                            double wc, double cB, double *zn, int f0, int f1,
+                            double out[4], int light, int step, mrvi_v2 acc[4],
+                            int fin) {
   const int unit = sw->rw_one, keep = sw->n_w != 1;
   mrvi_v2 a0[4] = {v2_zero(), v2_zero(), v2_zero(), v2_zero()};
   mrvi_v2 *a = acc ? acc : a0; /* (NULL: the whole of [f0, f1)) */
-#define PASS(U, K, I, L, S)                                                    \
-  chord_pass(sw, qm, dn, g, om, wc, cB, zn, f0, f1, out, a, fin, U, K, I, L, S)
+#define PASS(U, K, I, L, S, C)                                                 \
+  chord_pass(sw, C ? zc : qm, dn, g, om, wc, cB, zn, f0, f1, out, a, fin, U,   \
+             K, I, L, S, C)
   if (light && unit && !keep && !sw->mass_inc)
-    PASS(1, 0, 0, 1, 0);
+    PASS(1, 0, 0, 1, 0, 0);
   else if (light)
-    PASS(unit, keep, 1, 1, 0);
+    PASS(unit, keep, 1, 1, 0, 0);
   else if (step && unit && !keep && !sw->mass_inc)
-    PASS(1, 0, 0, 0, 1);
+    PASS(1, 0, 0, 0, 1, 0);
   else if (step)
-    PASS(unit, keep, 1, 0, 1);
+    PASS(unit, keep, 1, 0, 1, 0);
+  else if (zc && unit && !keep && !sw->mass_inc)
+    PASS(1, 0, 0, 0, 0, 1);
+  else if (zc && unit && !keep)
+    PASS(1, 0, 1, 0, 0, 1);
+  else if (zc)
+    PASS(unit, keep, 1, 0, 0, 1);
   else if (unit && !keep && !sw->mass_inc)
-    PASS(1, 0, 0, 0, 0);
+    PASS(1, 0, 0, 0, 0, 0);
   else if (unit && !keep)
-    PASS(1, 0, 1, 0, 0);
+    PASS(1, 0, 1, 0, 0, 0);
   else
-    PASS(unit, keep, 1, 0, 0);
+    PASS(unit, keep, 1, 0, 0, 0);
 #undef PASS
 }
 
@@ -1302,9 +1318,9 @@ static void chord_stream_to(void *ctx, int to) {
   const int nf = s->sw->nf;
   while (s->pos < to) {
     if (to >= s->end) { /* (the part's last rows and its sums) */
-      chord_pass_rows(s->sw, s->qm, s->dn, s->g, s->om, s->wc, s->cB, s->zn,
-                      s->pos, s->end, s->out + 4 * s->c, s->light, 0, s->acc,
-                      1);
+      chord_pass_rows(s->sw, s->qm, s->zn, s->dn, s->g, s->om, s->wc, s->cB,
+                      s->zn, s->pos, s->end, s->out + 4 * s->c, s->light, 0,
+                      s->acc, 1);
       s->pos = s->end;
       s->c++;
       s->end = s->n_c > 0 ? mrvi_part_start(s->c + 1, nf, s->n_c) : nf;
@@ -1313,8 +1329,8 @@ static void chord_stream_to(void *ctx, int to) {
     }
     const int e = s->pos + ((to - s->pos) & ~1); /* (pairs) */
     if (e > s->pos)
-      chord_pass_rows(s->sw, s->qm, s->dn, s->g, s->om, s->wc, s->cB, s->zn,
-                      s->pos, e, NULL, s->light, 0, s->acc, 0);
+      chord_pass_rows(s->sw, s->qm, s->zn, s->dn, s->g, s->om, s->wc, s->cB,
+                      s->zn, s->pos, e, NULL, s->light, 0, s->acc, 0);
     s->pos = e;
     return;
   }
@@ -1370,8 +1386,8 @@ static void fresh_part(mrvi_sweep *sw, int c, const double *qm,
   mrvi_terms_grad_hdiag_part(sw->kc[MRVI_FAST], c, zf, g, fresh_hd(sw),
                              fresh_off(sw), hs);
   sw->cpass[4 * n_c + c] = fresh_bound(sw, f0, f1); /* (after the sums) */
-  chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, sw->cpass + 4 * c, 0,
-                  0, NULL, 1);
+  chord_pass_rows(sw, qm, zf, dn, g, om, wc, cB, zn, f0, f1, sw->cpass + 4 * c,
+                  0, 0, NULL, 1);
 }
 
 /* After the parts: zn becomes zf, the bound and row residual returned. */
@@ -1540,8 +1556,8 @@ again:
     if (n_c > 0)
       chord_parts_sum(sw->cpass, n_c, t);
   } else if (n_c == 0) {
-    chord_pass_rows(sw, qm, dn, g, om, wc, cB, sw->zf, 0, nf, t, light, step,
-                    NULL, 1);
+    chord_pass_rows(sw, qm, lin ? NULL : sw->zf, dn, g, om, wc, cB, sw->zf, 0,
+                    nf, t, light, step, NULL, 1);
   } else {
     double *cp = sw->cpass, *zn = grad && !light ? sw->zalt : sw->zf;
     const double *zf = sw->zf;
@@ -1573,8 +1589,8 @@ again:
           else
             mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
         }
-        chord_pass_rows(sw, qm, dn, g, om, wc, cB, zn, f0, f1, cp + 4 * c,
-                        light, step && !light, NULL, 1);
+        chord_pass_rows(sw, qm, lin ? NULL : zf, dn, g, om, wc, cB, zn, f0, f1,
+                        cp + 4 * c, light, step && !light, NULL, 1);
       }
     }
     if (dfr)
