@@ -186,10 +186,23 @@ static char *slurp(const char *path) {
   FILE *f = fopen(path, "rb");
   if (!f)
     return NULL;
-  size_t cap = 1 << 16, n;
+  size_t cap = 1 << 16, n = 0, got;
   char *buf = malloc(cap);
-  n = fread(buf, 1, cap - 1, f);
-  buf[n] = '\0';
+  while (buf && (got = fread(buf + n, 1, cap - 1 - n, f)) > 0) {
+    n += got;
+    if (n == cap - 1) { /* full: the file may be longer */
+      char *more = realloc(buf, 2 * cap);
+      if (!more) {
+        free(buf);
+        buf = NULL;
+        break;
+      }
+      buf = more;
+      cap *= 2;
+    }
+  }
+  if (buf)
+    buf[n] = '\0';
   fclose(f);
   return buf;
 }
