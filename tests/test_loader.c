@@ -4,6 +4,7 @@
  * reach the model and the stored description, and constraints
  * (doc/constraints.md) are parsed, checked and their initial velocities
  * projected. */
+#include "model/model.h"
 #include "models.h"
 #include "mrvi.h"
 #include "testlib.h"
@@ -1544,6 +1545,71 @@ static void test_generated_names(void) {
   mrvi_system_free(sys);
 }
 
+/* Particles added one by one as PREFIX0, PREFIX1, ... are named by a
+ * sequence rule (src/model/model.c, sequence_name), not stored: every name
+ * reads as given, every look-up finds it, a name out of sequence (a gap, a
+ * leading zero, another particle in between, a ninth sequence) is stored,
+ * and a duplicate is refused as before. */
+static void test_sequence_names(void) {
+  static const char *const names[] = {
+      "p0",   "p1",   "p2",   "b",    "p3", "q0", "q00",  "q1",
+      "p4",   "r0",   "r1",   "r2",   "s7", "t0", "a0_0", "a1_0",
+      "a2_0", "a3_0", "a4_0", "a5_0", "r3", "x"};
+  const int np = (int)(sizeof names / sizeof *names);
+  /* stored: b, p3, q00, q1, p4, s7, a4_0, a5_0 (the ninth and tenth
+   * sequence), r3 (r's sequence is not the last rule), x */
+  mrvi_model *m = mrvi_model_create();
+  CHECK(m && mrvi_model_set_dimension(m, 2) == MRVI_OK, "model");
+  if (!m)
+    return;
+  const double x0[2] = {0, 0}, v0[2] = {0, 0};
+  for (int i = 0; i < np; i++)
+    CHECK(mrvi_model_add_particle(m, names[i], 1.0, MRVI_SLOW, x0, v0) == i,
+          "add %s: %s", names[i], mrvi_model_errmsg(m));
+  CHECK(m->n_particle_table == 10 && m->n_rules == 8,
+        "stored names %d (want 10), rules %d (want 8)", m->n_particle_table,
+        m->n_rules);
+  const char *all[64];
+  char *block = mrvi_model_names(m, 1, all);
+  for (int i = 0; i < np; i++) {
+    char want[64], buf[MRVI_NAME_MAX];
+    CHECK(!strcmp(MRVI_PNAME(m, i), names[i]), "particle %d: %s, want %s", i,
+          MRVI_PNAME(m, i), names[i]);
+    CHECK(block && !strcmp(all[i], names[i]), "names[%d]: %s, want %s", i,
+          block ? all[i] : "(no memory)", names[i]);
+    CHECK(mrvi_model_find_particle(m, names[i]) == i, "find %s: %d", names[i],
+          mrvi_model_find_particle(m, names[i]));
+    snprintf(want, sizeof want, "%s.y", names[i]);
+    const char *got = mrvi_model_coordinate_name(m, 2 * i + 1, buf);
+    CHECK(got && !strcmp(got, want), "coordinate %d: %s, want %s", 2 * i + 1,
+          got ? got : "(null)", want);
+    CHECK(mrvi_model_find_coordinate(m, want) == 2 * i + 1, "find %s", want);
+  }
+  free(block);
+  static const char *const absent[] = {"p5", "q2", "r4",   "p01", "r",
+                                       "t1", "s0", "a0_1", "p-1", "p 1"};
+  for (size_t i = 0; i < sizeof absent / sizeof *absent; i++)
+    CHECK(mrvi_model_find_particle(m, absent[i]) == -1, "%s found", absent[i]);
+  CHECK(mrvi_model_add_particle(m, "r1", 1.0, MRVI_SLOW, x0, v0) < 0 &&
+            strstr(mrvi_model_errmsg(m), "duplicate particle name 'r1'"),
+        "duplicate r1: %s", mrvi_model_errmsg(m));
+  CHECK(mrvi_model_add_particle(m, "p3", 1.0, MRVI_SLOW, x0, v0) < 0 &&
+            strstr(mrvi_model_errmsg(m), "duplicate particle name 'p3'"),
+        "duplicate p3: %s", mrvi_model_errmsg(m));
+  /* a bad mass leaves no sequence behind: the next x0 begins one */
+  CHECK(mrvi_model_add_particle(m, "y0", -1.0, MRVI_SLOW, x0, v0) < 0,
+        "negative mass");
+  CHECK(mrvi_model_find_particle(m, "y0") == -1 && m->n_rules == 8,
+        "y0 after its failure: %d rules", m->n_rules);
+  mrvi_model_free(m);
+  /* Through the loader: the messages that name such particles. */
+  load_fails("name: s\ndimension: 1\nintegrator: {macro_step: 0.1, t_end: 1}\n"
+             "particles:\n  - {name: n0, mass: 1, position: 0}\n"
+             "  - {name: n1, mass: 1, position: 1}\n"
+             "springs:\n  - {between: [n0, n2], law: linear, stiffness: 1}\n",
+             "unknown particle 'n2'; did you mean 'n0'?");
+}
+
 static void test_angles_forces_rest(void) {
   static const char text[] =
       "name: t\ndimension: 2\n"
@@ -1841,6 +1907,7 @@ int main(void) {
   test_generators();
   test_generated_equals_hand();
   test_generated_names();
+  test_sequence_names();
   test_generated_gravity();
   test_term_description();
   test_body_orientation_forms();

@@ -476,6 +476,33 @@ int mrvi_model_add_coordinate(mrvi_model *m, const char *name, double mass,
   return add_coord(m, name, mass, rate, q0, v0, 1);
 }
 
+/* Whether `name` is PREFIX + k (k decimal, no leading zero, below 10^9:
+ * what rule_find reads back) that a sequence rule makes: 1 where the last
+ * rule is the sequence of PREFIX that ends at the next particle and k its
+ * next index, 2 where k is 0 and a new sequence may start (fewer than
+ * MRVI_SEQUENCE_RULES), else 0 (the name is stored). */
+static int sequence_name(const mrvi_model *m, const char *name) {
+  const size_t len = strlen(name);
+  size_t pl = len;
+  while (pl > 0 && name[pl - 1] >= '0' && name[pl - 1] <= '9')
+    pl--;
+  const size_t digits = len - pl;
+  if (pl == 0 || pl > MRVI_RULE_PREFIX_MAX || digits == 0 || digits > 9 ||
+      (digits > 1 && name[pl] == '0'))
+    return 0;
+  const char *s = name + pl;
+  const long k = parse_index(&s);
+  int seq = 0;
+  for (int r = 0; r < m->n_rules; r++)
+    seq += m->rules[r].kind == MRVI_RULE_SEQUENCE;
+  const mrvi_name_rule *u = m->n_rules ? &m->rules[m->n_rules - 1] : NULL;
+  if (u && u->kind == MRVI_RULE_SEQUENCE && k == u->count &&
+      u->first + u->count == m->n_particles && strlen(u->prefix) == pl &&
+      strncmp(u->prefix, name, pl) == 0)
+    return 1;
+  return k == 0 && seq < MRVI_SEQUENCE_RULES ? 2 : 0;
+}
+
 /* mrvi_model_add_particle; ruled: named by the last rule (not stored). */
 static int add_particle(mrvi_model *m, const char *name, double mass,
                         mrvi_rate rate, const double *x0, const double *v0,
@@ -497,19 +524,29 @@ static int add_particle(mrvi_model *m, const char *name, double mass,
   if (mrvi_model_find_body(m, name) >= 0)
     return mrvi_model_fail(m, MRVI_EINVAL,
                            "particle '%s': a body has that name", name);
+  if (!isfinite(mass) || mass <= 0)
+    return mrvi_model_fail(
+        m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name, mass);
+  /* (PREFIX0, PREFIX1, ...: named by a sequence rule, not stored) */
+  const int seq = ruled ? 0 : sequence_name(m, name);
+  ruled = ruled || seq;
   if (!ruled && table_reserve(&m->particle_table, &m->particle_table_cap,
                               m->n_particle_table, m->n_particles,
                               has_stored_name, particle_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  if (!isfinite(mass) || mass <= 0)
-    return mrvi_model_fail(
-        m, MRVI_EINVAL, "mass of '%s' must be positive (got %g)", name, mass);
   if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
            sizeof *m->particles))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   char *pname = ruled ? NULL : store_name(m, name);
   if (!ruled && !pname)
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+  if (seq == 2) { /* (a new sequence: PREFIX0) */
+    char prefix[MRVI_RULE_PREFIX_MAX + 1];
+    mrvi_fmt(prefix, sizeof prefix, "%.*s", (int)(strlen(name) - 1), name);
+    const int n1[3] = {INT_MAX, 1, 1};
+    if (mrvi_model_add_rule(m, MRVI_RULE_SEQUENCE, prefix, n1) < 0)
+      return MRVI_ENOMEM;
+  }
   int first = m->n;
   for (int d = 0; d < m->dimension; d++) {
     char buf[256];
@@ -518,6 +555,8 @@ static int add_particle(mrvi_model *m, const char *name, double mass,
     if (st < 0) { /* (its coordinates go: they have no name without it) */
       while (m->n > first)
         m->rate[--m->n] == MRVI_SLOW ? m->n_slow-- : m->n_fast--;
+      if (seq == 2) /* (and the sequence it began) */
+        free(m->rules[--m->n_rules].prefix);
       return st;
     }
   }
@@ -643,11 +682,11 @@ static size_t proto_hash(const mrvi_element *e) {
   return (size_t)h;
 }
 
+enum { NOT_COMPACT = -1000 };
 /* The prototype of e's law, parameters and rate (kind spring, no inputs,
- * rest length NaN), made if new; its index. */
+ * rest length NaN), made if new; its index, NOT_COMPACT beyond
+ * MRVI_EREC_LP_MAX prototypes. */
 static int spring_proto(mrvi_model *m, const mrvi_element *e) {
-  if (m->n_protos >= TABLE_MAX)
-    return MRVI_ENOMEM;
   if (2 * (m->n_protos + 1) > m->proto_table_cap) {
     const int c = m->proto_table_cap ? 2 * m->proto_table_cap : 16;
     int *t = calloc((size_t)c, sizeof *t);
@@ -671,6 +710,9 @@ static int spring_proto(mrvi_model *m, const mrvi_element *e) {
         p->potential == e->potential)
       return m->proto_table[k] - 1;
   }
+  /* (the record's 24 bits: a further law's springs are kept in full) */
+  if (m->n_protos >= MRVI_EREC_LP_MAX)
+    return NOT_COMPACT;
   mrvi_element *p = malloc(sizeof *p);
   if (!p || grow((void **)&m->protos, &m->cap_protos, m->n_protos + 1,
                  sizeof *m->protos)) {
@@ -692,7 +734,6 @@ static int spring_proto(mrvi_model *m, const mrvi_element *e) {
 /* The prototype index of e if it is kept in its record alone (a spring of
  * a law between two particles' consecutive coordinates, no coefficients),
  * else NOT_COMPACT; MRVI_ENOMEM. */
-enum { NOT_COMPACT = -1000 };
 static int compact_spring(mrvi_model *m, const mrvi_element *e) {
   const int d = m->dimension;
   if (e->kind != MRVI_ELEMENT_SPRING || e->coef || !e->law || !e->params ||
@@ -740,7 +781,7 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
   *r = (mrvi_erec){.kind = e->kind, .potential = e->potential};
   if (lp >= 0) {
     r->shift = e->shift;
-    r->lp = lp;
+    r->lp = (unsigned)lp;
     r->ci = e->in[0];
     r->cj = e->in[m->dimension];
     r->compact = 1;

@@ -64,18 +64,29 @@ typedef struct mrvi_element {
  * equal parameters shared), instead of an mrvi_element (64 bytes) and its
  * inputs (2 dim ints).  Every other element is kept in full (m->full[ci]).
  * Read an element through mrvi_model_element or MRVI_ELEMENT.  The 32-bit
- * fields hold the model's own int counts (coordinates, prototypes at most
- * the elements): mrvi_model_reserve and mrvi_model_room refuse a model
- * beyond INT_MAX of any, the tables (prototypes, parameter sets, names)
- * stop at INT_MAX / 4 entries (out of memory) and every array grows to at
- * most INT_MAX entries. */
+ * fields hold the model's own int counts (coordinates, the element's
+ * index in m->full): mrvi_model_reserve and mrvi_model_room refuse a model
+ * beyond INT_MAX of any, the tables (parameter sets, names) stop at
+ * INT_MAX / 4 entries (out of memory) and every array grows to at most
+ * INT_MAX entries; a compact spring's prototype index has 24 bits (a
+ * spring of a law beyond MRVI_EREC_LP_MAX distinct ones is kept in full).
+ * The record is packed to 4-byte alignment: 20 bytes (the rest length
+ * read unaligned on every machine mrvi builds on). */
+#pragma pack(push, 4) /* 20 bytes a record, not 24 (a network holds about      \
+                          two a coordinate) */
 typedef struct mrvi_erec {
   double shift; /* compact spring: its rest length */
-  int lp;       /* compact spring: its prototype m->protos[lp] */
   int ci, cj;   /* compact spring: first coordinates of x_i, x_j; else ci is the
                    element's index in m->full */
-  unsigned char kind, potential, compact;
+  unsigned lp : 24;       /* compact spring: its prototype m->protos[lp] */
+  unsigned kind : 4;      /* mrvi_element_kind */
+  unsigned potential : 1; /* mrvi_rate */
+  unsigned compact : 1;
 } mrvi_erec;
+#pragma pack(pop)
+/* Prototypes a compact spring can name (lp); a spring of a further law is
+ * kept in full. */
+#define MRVI_EREC_LP_MAX (1 << 24)
 
 /* Room for a view of an element (mrvi_model_element). */
 typedef struct mrvi_element_buf {
@@ -102,6 +113,13 @@ typedef struct mrvi_name_rule {
 /* The longest prefix a rule takes (longer ones: names stored, as a name
  * of MRVI_NAME_MAX - 1 characters or more would be cut). */
 #define MRVI_RULE_PREFIX_MAX 200
+/* A rule's kind for particles added one by one with the names PREFIX0,
+ * PREFIX1, ... (mrvi_model_add_particle: the name of the next index of
+ * the last rule of that prefix, or PREFIX0 for a new one; at most
+ * MRVI_SEQUENCE_RULES such rules, so that a lookup tries few): made
+ * "PREFIX%ld" as a chain's (n = INT_MAX, 1, 1), not stored. */
+#define MRVI_RULE_SEQUENCE (-1)
+#define MRVI_SEQUENCE_RULES 8
 
 /* A constraint instance: type applied to model coordinates `in`. */
 typedef struct mrvi_constraint {
