@@ -817,10 +817,11 @@ typedef enum mrvi_newton_criterion {
     "(0: every step)")                                                         \
   X(int, adjoint_refine_by_cost, 1, 0, 1,                                      \
     "that refinement also gives up where the steps still needed at its "       \
-    "last contraction cost more than a factorisation (flop estimates of the "  \
-    "dense LU, UMFPACK and the chain elimination; node blocks and the "        \
-    "bordered slow block have none; 0: the adjoint_refine_max and factor-4 "   \
-    "rules alone)")                                                            \
+    "last contraction cost more than a factorisation, and is skipped where "   \
+    "a factorisation and the solves cost less than its mean cost so far "      \
+    "(flop estimates of the dense LU, UMFPACK, the chain elimination and "     \
+    "the node blocks; the bordered slow block has none: 2 steps there; 0: "    \
+    "the adjoint_refine_max and factor-4 rules alone)")                        \
   X(int, adjoint_krylov, 1, 0, 1,                                              \
     "where the forward pass takes schur-krylov, or an explicit path on "       \
     "steps beyond adjoint_dense_max with adjoint_explicit = 0, the "           \

@@ -968,6 +968,78 @@ static void chain_yaml(int nc, char *text, size_t size) {
  * (sum_slow) and, at p = 100 on the FPU (dT = 0.1), the sampled slow solve
  * after it.  The prediction's residual at the initial state must be within
  * 10 sqrt(0.01 tol), from where one Newton update reaches the stop. */
+/* The adjoint's transposed solves from kept factors by cost
+ * (mrvi_newton_solve_transpose_kept): on a dense 4 x 4 step, whose
+ * factorisation costs about one refinement correction, five right-hand
+ * sides are solved by factorising A at once (refactored, the same x as
+ * mrvi_newton_solve_transpose bit for bit); without the cost rule the
+ * kept factors of a matrix within 1e-10 are refined (not refactored) to the
+ * same x within the refinement's round-off; on a full 60 x 60 matrix (a
+ * factorisation about seven corrections) the rule refines too. */
+static void test_transpose_kept_cost(void) {
+  const int sizes[2] = {4, 60}, nrhs = 5;
+  for (int t = 0; t < 2; t++) {
+    const int n = sizes[t];
+    int *Ap = malloc((size_t)(n + 1) * sizeof *Ap);
+    int *Ai = malloc((size_t)(n * n) * sizeof *Ai);
+    double *Ax = malloc((size_t)(n * n) * sizeof *Ax),
+           *Bx = malloc((size_t)(n * n) * sizeof *Bx);
+    double *b = malloc((size_t)(nrhs * n) * sizeof *b),
+           *x = malloc((size_t)(nrhs * n) * sizeof *x),
+           *y = malloc((size_t)(nrhs * n) * sizeof *y);
+    int nnz = 0;
+    for (int j = 0; j < n; j++) {
+      Ap[j] = nnz;
+      for (int i = t ? 0 : j - 1; i <= (t ? n - 1 : j + 1); i++)
+        if (i >= 0 && i < n) {
+          Ai[nnz] = i;
+          Ax[nnz] = i == j
+                        ? 4.0 + sin(j)
+                        : (t ? 2.0 / n : 1.0) * (-1.0 + 0.3 * cos(i + 2.0 * j));
+          Bx[nnz] = Ax[nnz] * (1.0 + 1e-10 * sin(3.0 * nnz));
+          nnz++;
+        }
+    }
+    Ap[n] = nnz;
+    for (int i = 0; i < nrhs * n; i++)
+      b[i] = cos(0.3 + 1.1 * i);
+    char msg[200] = "";
+    for (int by_cost = 0; by_cost < 2; by_cost++) {
+      mrvi_newton *nw = mrvi_newton_create(n, Ap, Ai, Bx, 128, msg, sizeof msg);
+      CHECK(nw && mrvi_newton_factor(nw, Bx, msg, sizeof msg) == MRVI_OK,
+            "n = %d: %s", n, msg);
+      if (!nw)
+        continue;
+      int refactored = -1;
+      const int s = mrvi_newton_solve_transpose_kept(
+          nw, Ax, nrhs, b, x, 8, by_cost, &refactored, msg, sizeof msg);
+      const int want = by_cost && n == 4;
+      CHECK(s == MRVI_OK && refactored == want,
+            "n = %d, by cost %d: refactored %d, expected %d (%s)", n, by_cost,
+            refactored, want, msg);
+      CHECK(mrvi_newton_solve_transpose(nw, Ax, nrhs, b, y, msg, sizeof msg) ==
+                MRVI_OK,
+            "n = %d: %s", n, msg);
+      double d = 0.0, sc = 0.0;
+      for (int i = 0; i < nrhs * n; i++) {
+        d = fmax(d, fabs(x[i] - y[i]));
+        sc = fmax(sc, fabs(y[i]));
+      }
+      CHECK(want ? d == 0.0 : d <= 1e-13 * sc,
+            "n = %d, by cost %d: x differs from A's own solve by %.3e", n,
+            by_cost, d);
+      mrvi_newton_free(nw);
+    }
+    free(Ap);
+    free(Ai);
+    free(Ax);
+    free(Bx);
+    free(b);
+    free(x);
+    free(y);
+  }
+}
+
 static void test_predictor_one_point(void) {
   static const char *const schemes[] = {
       "midpoint-midpoint", "trapezoidal-midpoint", "trapezoidal-trapezoidal"};
@@ -2130,6 +2202,7 @@ int main(void) {
   test_const_chord();
   test_shoot();
   test_linsolve_backends();
+  test_transpose_kept_cost();
   test_predictor();
   test_predictor_large_steps();
   test_predictor_small_steps();

@@ -690,26 +690,43 @@ static int bd_solve(void *ctx, int nrhs, const double *b, double *x, char *msg,
 static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
   mrvi_step *st = &o->step;
   const int max_refine = o->settings.tuning.adjoint_refine_max;
-  /* (a factorisation's cost in refinement steps: the chain elimination's
-   * estimate, mrvi_bordered_refactor_cost; node blocks and the bordered
-   * slow block have none, 0: no cost rule) */
+  /* (a factorisation's cost in refinement steps, phi, and a solve's part
+   * of one, sigma: mrvi_bordered_transpose_cost, the chain elimination's
+   * and the node blocks' estimates; the bordered slow block has none, 0) */
+  double sigma = 0.5;
   const double phi = o->settings.tuning.adjoint_refine_by_cost
-                         ? mrvi_bordered_refactor_cost(o->bordered)
+                         ? mrvi_bordered_transpose_cost(o->bordered, st, &sigma)
                          : 0.0;
-  /* Outside the chain elimination (the node blocks, the slow block
-   * bordered), which has no cost estimate, the refinement gives up after two
-   * sweeps: where the kept factors (of step k + 1, or of step 0 of the
-   * evaluation before) need more, a fresh factorisation and one solve cost
-   * less (the constrained lattice at n = 60: 5-9 sweeps per functional and
-   * step with 8 allowed, cost + gradient 20-25 % dearer; doc/performance.md,
-   * "The constrained lattice's first evaluation"). */
+  /* Without an estimate (the bordered slow block, the whole step's LU)
+   * the refinement gives up after two sweeps: where the kept factors (of
+   * step k + 1, or of step 0 of the evaluation before) need more, a fresh
+   * factorisation and one solve cost less (the constrained lattice at
+   * n = 60 on node blocks: 5-9 sweeps per functional and step with 8
+   * allowed, cost + gradient 20-25 % dearer; doc/performance.md, "The
+   * constrained lattice's first evaluation").  With one, the cost rule
+   * stops it (refine_give_up), and A_k is factorised at once where that
+   * and the nfun solves cost less than the refinement is expected to: its
+   * mean cost per functional over the steps so far, at least one
+   * correction's (the first solve and the residual that accepts it). */
   const int refine =
-      max_refine > 2 && !mrvi_bordered_on_chain(o->bordered) ? 2 : max_refine;
+      phi > 0.0 || max_refine <= 2 || mrvi_bordered_on_chain(o->bordered)
+          ? max_refine
+          : 2;
+  const double expect = o->bd_ref_units > 1.0 ? o->bd_ref_units : 1.0;
+  const int direct = phi > 0.0 && phi + nfun * sigma <= nfun * expect;
   int ok = 0;
-  if (o->bd_factored && refine > 0)
+  if (o->bd_factored && refine > 0 && !direct) {
+    double units;
     ok = mrvi_refine_transpose(st->n_total, st->Ap, st->Ai, o->Ak, nfun, o->rhs,
-                               o->sol, refine, phi, o->bd_work, bd_solve, o,
-                               msg, len);
+                               o->sol, refine, phi, sigma, &units, o->bd_work,
+                               bd_solve, o, msg, len);
+    if (phi > 0.0 && ok >= 0) {
+      units = (units + (ok ? 0.0 : phi + nfun * sigma)) / nfun;
+      o->bd_ref_units = o->bd_ref_units > 0.0
+                            ? 0.875 * o->bd_ref_units + 0.125 * units
+                            : units;
+    }
+  }
   if (ok < 0)
     return ok;
   if (ok == 1)

@@ -157,6 +157,9 @@ struct mrvi_ocp {
    * refinement and nfun n_total for the blocked solves. */
   mrvi_bordered *bordered;
   int bd_factored;
+  /* bordered_transpose: the refinement's cost per functional in
+   * corrections, a running mean over the steps (0: none yet) */
+  double bd_ref_units;
   double *bd_work;
   /* The explicit path's adjoint (adjoint_explicit.c, ocp_explicit_ok):
    * V and W compiled for Hessian-vector products (columns: V's slow slots,

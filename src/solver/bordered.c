@@ -730,6 +730,31 @@ double mrvi_bordered_refactor_cost(const mrvi_bordered *bd) {
                                  : 0.0;
 }
 
+double mrvi_bordered_transpose_cost(const mrvi_bordered *bd,
+                                    const mrvi_step *st, double *solve_share) {
+  *solve_share = 0.5;
+  if (bd->whole || bd->chain)
+    return mrvi_bordered_refactor_cost(bd);
+  if (bd->slow_only || !bd->nbuf)
+    return 0.0;
+  /* Node blocks, multiply-adds from their sizes and lists (as node_factor
+   * and node_solve_transpose run them; Y's columns the ka kept): the
+   * factorisation scatters J and clears D and Y, factors the p D_c (b^3 /
+   * 3), sweeps Y (L1, L2 entries and D_c's solves, ka columns), forms S
+   * (A_sf's entries, ka each) and factors it (a^3 / 3); the transposed
+   * solve runs over Y, S's and the D_c's factors, A_sf, L1 and L2 once,
+   * the residual over J twice. */
+  const double a = bd->a, b = bd->b, p = bd->p, ka = bd->ka;
+  const double nl = bd->lp[2 * bd->p], nsf = bd->sfp[bd->a];
+  const double nnz = st->Ap[st->n_total];
+  const double f = nnz + p * b * (b + ka) + p * b * b * b / 3.0 +
+                   ka * (nl + p * b * b) + ka * nsf + a * a * a / 3.0;
+  const double solve =
+      p * b * ka + a * a + nsf + p * b * b + nl + 2.0 * (p * b + a);
+  *solve_share = solve / (solve + 2.0 * nnz);
+  return f / (solve + 2.0 * nnz);
+}
+
 int mrvi_bordered_solve_transpose_n(mrvi_bordered *bd, const mrvi_step *st,
                                     int nrhs, const double *R, double *dx,
                                     double *work, char *msg, size_t len) {

@@ -49,6 +49,11 @@ struct mrvi_newton {
    * the pattern (dense_lu_flops; 0: not yet counted), UMFPACK's flops and
    * nonzeros of L and U at its last factorisation */
   double lu_ma, umf_flops, umf_lu;
+  /* mrvi_newton_solve_transpose_kept by cost: the refinement's cost per
+   * right-hand side in corrections (a solve and a residual), a running
+   * mean over its calls (a call that gave up counted with the
+   * factorisation after it); 0: none yet */
+  double ref_units;
 };
 
 /* The dense backend's ordering pos (original -> position, n entries) of
@@ -460,8 +465,11 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
   return st;
 }
 
-double mrvi_newton_refactor_cost(mrvi_newton *nw) {
+/* A factorisation's cost over a refinement correction's (a solve and a
+ * residual), and in *solve_share the solve's part of a correction. */
+static double refactor_units(mrvi_newton *nw, double *solve_share) {
   const double n = nw->n, nnz = nw->Ap[nw->n];
+  *solve_share = 0.5;
   if (nw->lu) {
     if (!nw->factored)
       return 0.0;
@@ -469,12 +477,20 @@ double mrvi_newton_refactor_cost(mrvi_newton *nw) {
       nw->lu_ma = dense_lu_flops(nw->n, nw->Ap, nw->Ai, nw->pos);
     /* (the factorisation also clears, fills and lists the n^2 entries;
      * a solve runs over the factors' nonzeros, permutes and scales) */
-    return (nw->lu_ma + 3.0 * n * n) /
-           ((double)nw->ptr[2 * nw->n + 1] + 2.0 * n + 2.0 * nnz);
+    const double solve = (double)nw->ptr[2 * nw->n + 1] + 2.0 * n;
+    *solve_share = solve / (solve + 2.0 * nnz);
+    return (nw->lu_ma + 3.0 * n * n) / (solve + 2.0 * nnz);
   }
   if (!nw->numeric)
     return 0.0;
-  return 0.5 * nw->umf_flops / (nw->umf_lu + 2.0 * n + 2.0 * nnz);
+  const double solve = nw->umf_lu + 2.0 * n;
+  *solve_share = solve / (solve + 2.0 * nnz);
+  return 0.5 * nw->umf_flops / (solve + 2.0 * nnz);
+}
+
+double mrvi_newton_refactor_cost(mrvi_newton *nw) {
+  double share;
+  return refactor_units(nw, &share);
 }
 
 /* Whether a refinement stops at step it (residual rmax, the step before's
@@ -504,9 +520,11 @@ static int refine_give_up(int it, int max_refine, double phi, double rmax,
  * factorises A). */
 int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
                           int nrhs, const double *b, double *x, int max_refine,
-                          double phi, double *work, mrvi_tsolve_fn solve,
-                          void *ctx, char *msg, size_t len) {
+                          double phi, double sigma, double *units, double *work,
+                          mrvi_tsolve_fn solve, void *ctx, char *msg,
+                          size_t len) {
   const size_t nn = (size_t)n;
+  *units = 0.0;
   double *r = work, *d = work + MRVI_REFINE_BLOCK * nn;
   for (int c0 = 0; c0 < nrhs; c0 += MRVI_REFINE_BLOCK) {
     const int nb =
@@ -519,8 +537,10 @@ int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
       rprev[a] = INFINITY;
     }
     int st = solve(ctx, nb, b + (size_t)c0 * nn, x + (size_t)c0 * nn, msg, len);
+    *units += nb * sigma;
     for (int it = 0; st == MRVI_OK && na > 0; it++) {
       int kept = 0;
+      *units += na * (1.0 - sigma);
       for (int a = 0; a < na; a++) {
         const int c = c0 + act[a];
         const double *bc = b + (size_t)c * nn, *xc = x + (size_t)c * nn;
@@ -551,6 +571,7 @@ int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
       na = kept;
       if (na == 0)
         break;
+      *units += na * sigma;
       st = solve(ctx, na, r, d, msg, len);
       for (int a = 0; a < na && st == MRVI_OK; a++) {
         double *xc = x + (size_t)(c0 + act[a]) * nn;
@@ -724,7 +745,18 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
   *refactored = 1;
   if (!kept || max_refine <= 0)
     return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
-  const double phi = by_cost ? mrvi_newton_refactor_cost(nw) : 0.0;
+  double sigma = 0.5;
+  const double phi = by_cost ? refactor_units(nw, &sigma) : 0.0;
+  /* By cost, A is factorised at once where that and the nrhs solves cost
+   * less than the refinement is expected to: its mean cost per right-hand
+   * side so far, at least one correction's (the first solve and the
+   * residual that accepts it).  On the smallest steps (the dense LU of a
+   * few unknowns) a factorisation costs about one correction, and the
+   * residual is the work saved. */
+  const double expect = nw->ref_units > 1.0 ? nw->ref_units : 1.0;
+  if (phi > 0.0 && phi + nrhs * sigma <= nrhs * expect)
+    return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);
+  double units = 0.0; /* this call's, in corrections */
   const int L = nrhs <= 2 ? 2 : nrhs <= 4 ? 4 : REF_LANES;
   const size_t ln = (size_t)L * (size_t)n, l = (size_t)L;
   if (nw->ref_lanes < L) {
@@ -760,7 +792,9 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
     }
     ok =
         solve_lanes(nw, Ax, L, active, nb, na, bt, xt, yt, msg, len) == MRVI_OK;
+    units += nb * sigma;
     for (int it = 0; na > 0 && ok; it++) {
+      units += na * (1.0 - sigma);
       if (L == 2)
         lanes_residual(nw, 2, Ax, xt, bt, r, rmax, scale);
       else if (L == 4)
@@ -784,6 +818,7 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
       }
       if (!ok || na == 0)
         break;
+      units += na * sigma;
       ok =
           solve_lanes(nw, Ax, L, active, nb, na, r, d, yt, msg, len) == MRVI_OK;
       for (int j = 0; j < n && ok; j++)
@@ -796,6 +831,11 @@ int mrvi_newton_solve_transpose_kept(mrvi_newton *nw, const double *Ax,
         xi[(size_t)i * (size_t)n + (size_t)j] = xt[(size_t)j * l + (size_t)i];
   }
   nw->control[UMFPACK_IRSTEP] = irstep;
+  if (phi > 0.0) {
+    units = (units + (ok ? 0.0 : phi + nrhs * sigma)) / nrhs;
+    nw->ref_units =
+        nw->ref_units > 0.0 ? 0.875 * nw->ref_units + 0.125 * units : units;
+  }
   /* Stalled (or the kept factors failed): factorise A. */
   if (!ok)
     return mrvi_newton_solve_transpose(nw, Ax, nrhs, b, x, msg, len);

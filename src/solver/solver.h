@@ -244,14 +244,17 @@ int mrvi_newton_solve_transpose(mrvi_newton *nw, const double *Ax, int nrhs,
  * contraction are more than phi, the cost of a factorisation in
  * corrections (factorise A then); or solve's status; work:
  * 2 MRVI_REFINE_BLOCK n doubles (the right-hand sides go in blocks of that
- * many).  The adjoint's transposed steps on schur-bordered. */
+ * many).  *units: the work done, in corrections (a solve and a residual,
+ * sigma the solve's part), summed over the right-hand sides.  The
+ * adjoint's transposed steps on schur-bordered. */
 enum { MRVI_REFINE_BLOCK = 8 };
 typedef int (*mrvi_tsolve_fn)(void *ctx, int nrhs, const double *b, double *x,
                               char *msg, size_t len);
 int mrvi_refine_transpose(int n, const int *Ap, const int *Ai, const double *Ax,
                           int nrhs, const double *b, double *x, int max_refine,
-                          double phi, double *work, mrvi_tsolve_fn solve,
-                          void *ctx, char *msg, size_t len);
+                          double phi, double sigma, double *units, double *work,
+                          mrvi_tsolve_fn solve, void *ctx, char *msg,
+                          size_t len);
 /* The same solves starting from the factors kept from an earlier matrix of
  * the same pattern (a previous step, the forward Newton iteration),
  * refined against A (at most max_refine corrections, each a solve with the
@@ -904,6 +907,14 @@ int mrvi_bordered_on_chain(const mrvi_bordered *bd);
  * residual measured at 1.5-2 times the solve, doc/solver.md, "Newton
  * details"); 0 elsewhere (no estimate: the reuse_rate rule alone). */
 double mrvi_bordered_refactor_cost(const mrvi_bordered *bd);
+/* The same for the adjoint's transposed solves (src/ocp/adjoint.c), also
+ * where the factors are the node blocks' (multiply-adds from their sizes
+ * and lists; st the step bd was made for), with in *solve_share the
+ * solve's part of an update (0.5 where not estimated); 0 for the bordered
+ * slow block and the whole step's LU.  (The forward pass's rule,
+ * mrvi_bordered_refactor_cost, keeps the chain elimination's alone.) */
+double mrvi_bordered_transpose_cost(const mrvi_bordered *bd,
+                                    const mrvi_step *st, double *solve_share);
 
 /* The chain elimination of schur-bordered (solver/chain.c): the step of a
  * model whose coupling graph is a chain or a tree, block tridiagonal along
