@@ -72,8 +72,8 @@ typedef struct mrvi_element {
  * spring of a law beyond MRVI_EREC_LP_MAX distinct ones is kept in full).
  * The record is packed to 4-byte alignment: 20 bytes (the rest length
  * read unaligned on every machine mrvi builds on). */
-#pragma pack(push, 4) /* 20 bytes a record, not 24 (a network holds about      \
-                          two a coordinate) */
+/* 20 bytes a record, not 24 (a network holds about two a coordinate). */
+#pragma pack(push, 4)
 typedef struct mrvi_erec {
   double shift; /* compact spring: its rest length */
   int ci, cj;   /* compact spring: first coordinates of x_i, x_j; else ci is the
