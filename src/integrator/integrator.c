@@ -644,7 +644,7 @@ static int skrylov_create(mrvi_integrator *it, char *msg, size_t len) {
    * Newton is built on the first step left to it. */
   const mrvi_step *sp = &it->step;
   const double a =
-      0.25 * pow(mrvi_predictor_omega_max(it->predictor) * sp->dt, 2.0);
+      mrvi_outer_contraction(mrvi_predictor_omega_max(it->predictor), sp->dt);
   if (sp->tuning.outer_max > 0 && sp->n_lambda == 0 &&
       a <= sp->tuning.chord_jacobi_max)
     return mrvi_outer_create(it->model, sp, &it->outer) < 0

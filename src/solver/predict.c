@@ -173,18 +173,24 @@ struct mrvi_predictor {
   double *dsum[2];
 };
 
+/* Whether an element of class c (0: V, 1: W) has a slow input. */
+static int class_sees_slow(const mrvi_model *m, const mrvi_step *st, int c) {
+  for (int ie = 0; ie < st->n_elem_of_class[c]; ie++)
+    if (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
+        (1 << MRVI_SLOW))
+      return 1;
+  return 0;
+}
+
 /* The points whose force on the slow row changes with q_{k+1}^s
  * (a0 a1 != 0, of a class with a slow input), every stride-th of each
  * class, stride such that at most slow_samples are taken in all; a
  * sample stands for the points around it by the ratio of the sums of
  * w a0 a1. */
 static void choose_samples(mrvi_predictor *pr, const mrvi_step *st) {
-  const mrvi_model *m = pr->m;
   int slow_in[2] = {0, 0}, count = 0;
   for (int c = 0; c < 2; c++) {
-    for (int ie = 0; !slow_in[c] && ie < st->n_elem_of_class[c]; ie++)
-      slow_in[c] = (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
-                    (1 << MRVI_SLOW)) != 0;
+    slow_in[c] = class_sees_slow(pr->m, st, c);
     for (int ip = 0; slow_in[c] && ip < st->n_pts[c]; ip++)
       count += st->pts[c][ip].a0 * st->pts[c][ip].a1 != 0.0;
   }
@@ -554,10 +560,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   for (int c = 0; c < 2 && st->ns <= 4 && st->nf <= 4 && nz > 0; c++) {
     if (!mrvi_terms_quadratic(pr->kc[c]))
       continue;
-    int slow = 0;
-    for (int ie = 0; !slow && ie < st->n_elem_of_class[c]; ie++)
-      slow = (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
-              (1 << MRVI_SLOW)) != 0;
+    const int slow = class_sees_slow(m, st, c);
     if (mrvi_terms_affine(pr->kc[c], (int)nz, &pr->g0[c], &pr->Hq[c]) !=
         MRVI_OK) {
       mrvi_predictor_free(pr);
@@ -586,20 +589,16 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     }
   /* A point strictly inside the step with a slow input feeds the slow row
    * from the micro nodes. */
-  for (int c = 0; c < 2; c++) {
-    int inside = 0; /* (the element loop once per class: the same flag) */
+  for (int c = 0; c < 2 && !pr->slow_coupled; c++) {
+    int inside = 0;
     for (int i = 0; i < st->n_pts[c]; i++)
       inside |= st->pts[c][i].a0 != 0.0 && st->pts[c][i].a1 != 0.0;
-    for (int ie = 0; inside && !pr->slow_coupled && ie < st->n_elem_of_class[c];
-         ie++)
-      if (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
-          (1 << MRVI_SLOW))
-        pr->slow_coupled = 1;
+    pr->slow_coupled = inside && class_sees_slow(m, st, c);
   }
   /* (the Gershgorin bound where it settles every test of omega_max, the
    * sweep's and the outer iteration's; else the power iteration) */
   const double ob = omega_bound(pr, st);
-  pr->omega = st->dt * ob <= 0.5 && 0.25 * (ob * st->dt) * (ob * st->dt) <=
+  pr->omega = st->dt * ob <= 0.5 && mrvi_outer_contraction(ob, st->dt) <=
                                         pr->tn.chord_jacobi_max
                   ? ob
                   : power_iteration(pr, NULL, 0, NULL);

@@ -1074,6 +1074,14 @@ typedef struct mrvi_outer_stats {
 } mrvi_outer_stats;
 int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
                       mrvi_outer **out);
+/* The outer iteration's Jacobi chord contraction on the fast rows at
+ * omega_max, (omega_max dt)^2 / 4: the outer iteration is chosen where it
+ * is at most chord_jacobi_max (integrator.c), and the predictor takes a
+ * Gershgorin bound of omega_max in place of the power iteration only where
+ * the bound passes this test too (predict.c). */
+static inline double mrvi_outer_contraction(double omega, double dt) {
+  return 0.25 * (omega * dt) * (omega * dt);
+}
 void mrvi_outer_free(mrvi_outer *o);
 int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
                      const double *rw, double target, double rate,
