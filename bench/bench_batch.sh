@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# `mrvi batch` against one `mrvi run` per case (doc/performance.md,
+# `mrvi batch` against one `mrvi run` per case (doc/performance/batches.md,
 # "Batches (`bench_batch`)"): FPU cases of about a second each, run
 #   - one after another by `mrvi run` (the reference: its wall time and the
 #     sum of its file sizes),

@@ -26,7 +26,7 @@
  * integrator set back to it, so that the falling chain stays in its first
  * 0.2 s) until --steps steps and 0.3 s.  Then the exponent of the time per
  * macro step in n and the ratio rods / springs.  A measurement: no thresholds
- * (doc/performance.md, "Chains").
+ * (doc/performance/chains.md, "Chains").
  *
  * --trajectory K: instead, each n of the list runs one case (--case C, the
  * index in case_names, default the rigid bars) and one scheme for K
@@ -34,7 +34,7 @@
  * falls for K dT) and prints the Newton updates of every step, their mean
  * and largest, and the first step that failed.  --gravity G scales the
  * load (the tension at the chain's top, which limits dT), --tune NAME=VALUE
- * sets a tuning constant (doc/performance.md, "The rigid chain at 1 000
+ * sets a tuning constant (doc/performance/chains.md, "The rigid chain at 1 000
  * links, continued"). */
 #include "bench_util.h"
 

@@ -37,7 +37,7 @@
  * of the coordinates, the same for every thread count: bitwise the serial
  * floor's state, checked), beside mrvi's schemes on 1 and T threads, and
  * STREAM's triad over the same array sizes: what two cores of this machine
- * give a hand-written step (doc/performance.md, "Threads").
+ * give a hand-written step (doc/performance/threads.md, "Threads").
  *
  * Each case (network, n, method) runs in a forked child: build the network,
  * create the integrator (CPU time, also in macro steps), step at least
@@ -1551,7 +1551,7 @@ static void machine_fn(int fd, void *arg) {
  * scheme's over the floor's, the floor's CPU ratio and the T threads' CPU
  * over their wall time: on a loaded machine the speed-ups scatter, but the
  * ratio to the floor of the same round and the CPU ratios judge the goal
- * (doc/performance.md, "Threads: explicit-slow's serial bound"). */
+ * (doc/performance/threads.md, "Threads: explicit-slow's serial bound"). */
 static int threads_table(options *o, int t, const int *nets, const int *n_list,
                          int n_n, int repeats, const char *only) {
   const method ms[] = {M_RESPA, M_VERLET, M_FE, M_ES, M_MM, M_TM};
@@ -1667,7 +1667,7 @@ static int threads_table(options *o, int t, const int *nets, const int *n_list,
 
 #ifdef BENCH_OMP_PROFILE
 /* bench_serial --serial T: each scheme on T threads, the serial fraction
- * of its step (doc/performance.md, "The serial fraction of a step on
+ * of its step (doc/performance/threads.md, "The serial fraction of a step on
  * threads"): s = the stepping thread's CPU time outside the parallel
  * regions over the step's work (that plus every thread's CPU time in the
  * regions), the Amdahl bound 1 / (s + (1 - s) / T) it implies, the

@@ -1,5 +1,5 @@
 /* Closed loops: cost per macro step of a ring of n rigid bars against n,
- * by constraint form and null-space basis (doc/performance.md, "Closed
+ * by constraint form and null-space basis (doc/performance/chains.md, "Closed
  * loops: the joint-reduced null space with cut joints").
  *
  * The ring: n uniform bars (2-D bodies, length 1, mass 1, slow) along a

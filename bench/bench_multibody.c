@@ -1,5 +1,5 @@
-/* Multirate pays on a multibody system (doc/performance.md, "Multibody";
- * doc/multibody.md): a description file (default
+/* Multirate pays on a multibody system (doc/performance/multibody.md,
+ * "Multibody"; doc/multibody.md): a description file (default
  * systems/flexible_pendulum.yaml; systems/robot_arm_payload.yaml is the
  * one where it pays) with its scheme (midpoint-midpoint in both) at p
  * micro steps against p = 1 (the same scheme single-rate).  Each run's
@@ -25,7 +25,7 @@
  * --halvings: the single-rate steps 0.02 / 2^i, i < K (default 8), the
  * reference at 1/16 of the finest; --p1-general: the single-rate runs (and
  * the reference) on the general path, where it is faster than the
- * automatic choice (doc/performance.md, "Multibody").
+ * automatic choice (doc/performance/multibody.md, "Multibody").
  * --cost: CPU time per macro step (creation left out, the best of R runs)
  * at the file's macro step for p = 1, 2, 5, 10, 20, 40, with the solver
  * path each takes: how the cost of a macro step grows with p; and the

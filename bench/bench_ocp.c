@@ -23,7 +23,7 @@
  *      mass; midpoint-midpoint, p = 10, dT = 0.01, N = 20): a macro-grid
  *      actuator pushing the first link along x, the last link's x at
  *      t_end a terminal constraint, effort cost (the chain elimination's
- *      adjoint: doc/performance.md, "Optimal control on the chain
+ *      adjoint: doc/performance/ocp.md, "Optimal control on the chain
  *      elimination").
  *      --no-solve: part 1 without the solves: cost + gradient per
  *      evaluation and over the forward run (best of three chunks of 20)

@@ -1,5 +1,5 @@
 /* The automatic path choice of constrained models against measurement
- * (doc/performance.md, "Constrained paths: the choice by cost estimates"
+ * (doc/performance/paths.md, "Constrained paths: the choice by cost estimates"
  * and "Constrained paths: per-step costs"; doc/solver.md, "Paths"): for
  * every shipped constrained system, at p = 1 and the file's p, at the
  * file's macro step and a quarter of it, the CPU time per macro step

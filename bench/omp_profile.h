@@ -1,5 +1,5 @@
 /* Per-region CPU times of OpenMP parallel regions (bench_serial only;
- * doc/performance.md, "The serial fraction of a step on threads").
+ * doc/performance/threads.md, "The serial fraction of a step on threads").
  * omp_profile.c interposes libgomp's GOMP_parallel (the one entry point
  * GCC emits for mrvi's `parallel` and `parallel for schedule(static)`
  * regions) and times, with each thread's CPU clock, every top-level

@@ -901,11 +901,11 @@ typedef struct mrvi_settings {
    * (default 0.1); 0 never warns. */
   double energy_warning;
   mrvi_tuning tuning; /* MRVI_TUNING_LIST's defaults */
-  /* Threads of the element loops (OpenMP; doc/performance.md, "Threads"):
-   * 1 (default) none, 0 the cores this process may use; mrvi_threads_auto
-   * chooses by the model's size and the idle cores (the mrvi command's
-   * default).  Results are the same bit for bit for every count.  Above 1
-   * in a build without OpenMP, mrvi_settings_check refuses it
+  /* Threads of the element loops (OpenMP; doc/performance/threads.md,
+   * "Threads"): 1 (default) none, 0 the cores this process may use;
+   * mrvi_threads_auto chooses by the model's size and the idle cores (the mrvi
+   * command's default).  Results are the same bit for bit for every count.
+   * Above 1 in a build without OpenMP, mrvi_settings_check refuses it
    * (mrvi_threads_supported). */
   int threads;
   /* 1: mrvi_run's steps keep the last fast micro node alone
@@ -960,8 +960,8 @@ const char *const *mrvi_scheme_names(void);
 int mrvi_settings_check(const mrvi_settings *s, char *msg, size_t len);
 
 /* The thread count for a run of m with s (`mrvi run --threads auto`, the
- * command's default; doc/performance.md, "The automatic thread count"): the
- * cores this process may use (its affinity mask) less the tasks running on
+ * command's default; doc/performance/threads.md, "The automatic thread count"):
+ * the cores this process may use (its affinity mask) less the tasks running on
  * them now (Linux's /proc/loadavg) when some loop of the step can run on
  * threads -- the fast or slow coordinates or the elements of V or W number
  * at least two parts of s->tuning.thread_chunk -- else 1 (a smaller model

@@ -929,7 +929,7 @@ static void test_chain_updates(void) {
   chain_steps(links, 0.0, 8, "chain updates", updates_check, &links);
 }
 
-/* The chain's step-size limit (doc/performance.md, "The rigid chain at
+/* The chain's step-size limit (doc/performance/chains.md, "The rigid chain at
  * 1 000 links, continued"): the zig-zag mode of bars of mass m, length L
  * under tension T has omega^2 = 12 T / (m L), and the steps fail where
  * omega dT is well above 2.  10 bars at 100 g have the tension of 1 000 at

@@ -615,8 +615,8 @@ static void test_node_blocks(void) {
 /* The choice between general and schur-bordered by the structural cost
  * estimates (solver/path_cost.c, doc/solver.md): on structurally different
  * models, the path (the faster one measured by bench_paths:
- * doc/performance.md, "Constrained paths: per-step costs"), its reason with
- * both estimates, the estimate of the chosen path the smaller, the same
+ * doc/performance/paths.md, "Constrained paths: per-step costs"), its reason
+ * with both estimates, the estimate of the chosen path the smaller, the same
  * answer twice (no timing), and integrator.solver = structured keeping
  * schur-bordered. */
 static void test_path_choice(void) {
@@ -730,7 +730,7 @@ static void test_chains(void) {
  * (230 unknowns) and takes UMFPACK at 16 (368), as newton.c does on the
  * general path's assembled step (dense flops 1.60e5 and 6.15e5 against
  * UMFPACK's 4.51e5 and 7.48e5 there, 8.05e5 on the estimated pattern at
- * 16; doc/performance.md, "The dense/sparse switch by flops"); there
+ * 16; doc/performance/kernels.md, "The dense/sparse switch by flops"); there
  * general is not costed and schur-bordered is chosen, saying why. */
 static void test_general_backend(void) {
   for (int big = 0; big < 2; big++) {

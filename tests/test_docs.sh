@@ -2,8 +2,10 @@
 # Keeps the documentation true:
 #   - every systems/*.yaml that README.md or doc/*.md names exists and passes
 #     `mrvi check`;
-#   - every relative link in README.md and doc/*.md points to an existing
-#     file or directory (the part before '#'; anchors are not checked);
+#   - every relative link in README.md, doc/*.md and doc/performance/*.md
+#     (the measurements' history) points to an existing file or directory
+#     (the part before '#'; anchors are not checked); the same files are
+#     read by the checks of systems, source paths and anchors below;
 #     the checker itself is first shown to fail on a broken link;
 #   - the description file printed in doc/tutorial.md is the shipped
 #     systems/tutorial_spring.yaml (without its header comment);
@@ -32,7 +34,7 @@ root=${2:?usage: test_docs.sh MRVI_BINARY SOURCE_ROOT}
 # shellcheck source=tests/testlib.sh
 . "$(dirname "$0")/testlib.sh"
 
-docs=("$root/README.md" "$root"/doc/*.md)
+docs=("$root/README.md" "$root"/doc/*.md "$root"/doc/performance/*.md)
 
 # --- description files named by the docs pass `mrvi check` ---
 names=$(grep -ohE 'systems/[A-Za-z0-9_.-]+\.yaml' "${docs[@]}" | sort -u)

@@ -1150,11 +1150,11 @@ static void test_joint_reduced(void) {
   }
 }
 
-/* Newton updates per step along a long chain (doc/performance.md, "Chains:
- * the ordering and the settled start"): the 2-D jointed tree of 100 bars,
- * 10 steps (p = 2) at the tolerances of bench_chain, each form with and without
- * tuning predict_settle.  The predictor leaves the constraint forces out:
- * it violates the joints by about its error.  From it, the multiplier
+/* Newton updates per step along a long chain (doc/performance/chains.md,
+ * "Chains: the ordering and the settled start"): the 2-D jointed tree of 100
+ * bars, 10 steps (p = 2) at the tolerances of bench_chain, each form with and
+ * without tuning predict_settle.  The predictor leaves the constraint forces
+ * out: it violates the joints by about its error.  From it, the multiplier
  * form's first update has to absorb that violation; the joint-reduced form
  * turns each bar to the predictor's frame and places it on its parent's
  * joint point, which sets the chain's far end off by the sum of the turns'
@@ -1550,7 +1550,7 @@ static void test_fast_joint_reduced(void) {
     CHECK(mrvi_nullspace_fast_plan(sys->model, why, sizeof why),
           "%s: fast forest planned (%s)", files[i], why);
     /* the spacecraft's null-space step (general path, 72 fast coordinates
-     * per node) is far dearer than the pendulum's (doc/performance.md,
+     * per node) is far dearer than the pendulum's (doc/performance/kernels.md,
      * "Fast bodies in joints"): 1 000 micro nodes */
     check_fast_forest(files[i], sys->model, sys->settings.macro_step,
                       i == 1 ? 100 : 1000);

@@ -723,8 +723,8 @@ static void storage_variant(mrvi_settings *s, int k, int a, int b) {
   s->threads = k == 2 ? 2 : 1;
 }
 
-/* sweep-cg's chord on threads (doc/performance.md, "Threads"): the 40 x 20
- * perturbed lattice (800 fast coordinates, moving everywhere) by
+/* sweep-cg's chord on threads (doc/performance/threads.md, "Threads"): the 40 x
+ * 20 perturbed lattice (800 fast coordinates, moving everywhere) by
  * explicit-slow with the chord's pass and the row ends in parts of 16
  * coordinates, on 1, 2 and 3 threads: the trajectory and the sum of the
  * chord's relaxation ratios (mrvi_krylov_stats.sweep_chord_sum, whose last

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Threads (doc/performance.md, "Threads"): the planar lattice of
+# Threads (doc/performance/threads.md, "Threads"): the planar lattice of
 # systems/lattice.yaml grown to 40 x 20 particles (1600 coordinates), its
 # threaded loops in parts of 16 coordinates (integrator.tuning.thread_chunk;
 # fully-explicit's, the whole step in one region, doubled until few

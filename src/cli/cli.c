@@ -1299,7 +1299,7 @@ static int asks_threads(int argc, char **argv) {
  * about what two threads save between two barriers.  So a command on more
  * than one thread spins briefly, WAIT_SPINS iterations (libgomp's own
  * count for more threads than cores; about 25 us on the machine measured,
- * doc/performance.md, "Threads"), then sleeps.  libgomp reads its
+ * doc/performance/threads.md, "Threads"), then sleeps.  libgomp reads its
  * environment once, as the program loads, so the command restarts itself
  * once with GOMP_SPINCOUNT set, unless the environment sets
  * GOMP_SPINCOUNT or OMP_WAIT_POLICY (the user's choice stands).  If the

@@ -118,7 +118,7 @@ typedef struct path_ops {
 static const path_ops *path_ops_of(int path);
 
 /* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; tn
- * below); what their defaults were measured on is in doc/performance.md,
+ * below); what their defaults were measured on is in doc/performance/paths.md,
  * "Tuning constants: what the defaults were measured on":
  *  - reuse_rate, reuse_tighten: the largest residual ratio of an update with
  *    kept factors (schur path) for which they are kept for the next update,
@@ -144,7 +144,7 @@ static const path_ops *path_ops_of(int path);
  * step of its block, at most the block's elapsed time (read at the block's
  * ends): a clock read costs as much as a micro step of the explicit paths,
  * and a sampled step slowed by the machine's load must not count 64 times.
- * (doc/performance.md, "Tuning constants"). */
+ * (doc/performance/paths.md, "Tuning constants"). */
 #define MRVI_TIME_ALL 64
 #define MRVI_TIME_EVERY 64
 #define MRVI_TIME_STEP_MIN 50e-6
@@ -261,7 +261,7 @@ static void predict(mrvi_integrator *it) {
  * multipliers' first update absorbs its force and that update starts from
  * the constraints held instead of from the predictor's violation (the
  * predictor leaves the constraint forces out): on long chains one Newton
- * update less per step (doc/performance.md, "Chains").  A singular Gram
+ * update less per step (doc/performance/chains.md, "Chains").  A singular Gram
  * matrix leaves the predictor as it is (the step reports it).  The
  * joint-reduced null space settles its own start
  * (solver/nullspace_tree.c). */

@@ -1,5 +1,5 @@
 /* The automatic thread count (`mrvi run --threads auto`, the command's
- * default; doc/performance.md, "The automatic thread count").
+ * default; doc/performance/threads.md, "The automatic thread count").
  *
  * A loop of the step runs on threads only when it has at least two parts
  * of tuning.thread_chunk entries (mrvi.h, MRVI_TUNING_LIST): the fast or
@@ -10,8 +10,8 @@
  * the command's restart (cli.c, bounded_wait); a model with one that long
  * gets the cores this process may use that no other task is running on:
  * on a machine busier than its cores two threads lost to one
- * (doc/performance.md), a thread waiting at each barrier for its partner
- * to get a core back. */
+ * (doc/performance/threads.md), a thread waiting at each barrier for its
+ * partner to get a core back. */
 #include "integrator/integrator.h"
 
 int mrvi_threads_auto(const mrvi_model *m, const mrvi_settings *s, char *why,

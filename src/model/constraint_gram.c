@@ -3,12 +3,12 @@
  * The momentum projection (doc/constraints.md, "Momentum projection")
  * solves A mu = G M^-1 p at every macro node, and the independence check
  * asks whether G has full row rank.  In dense storage both cost
- * O(R^2 n) (R rows, n coordinates; doc/performance.md, "Constrained chains
- * on structured paths").  Rows a and b couple in A only where their constraints
- * share a coordinate, so for chains and trees A is banded in the rows' natural
- * order.  Here A is kept in skyline (envelope) storage in that order: row r
- * holds the entries first[r] .. r, first[r] the smallest row that shares a
- * coordinate with row r; the Cholesky factor A = L L^T fills only the
+ * O(R^2 n) (R rows, n coordinates; doc/performance/paths.md, "Constrained
+ * chains on structured paths").  Rows a and b couple in A only where their
+ * constraints share a coordinate, so for chains and trees A is banded in the
+ * rows' natural order.  Here A is kept in skyline (envelope) storage in that
+ * order: row r holds the entries first[r] .. r, first[r] the smallest row that
+ * shares a coordinate with row r; the Cholesky factor A = L L^T fills only the
  * envelope (no pivoting: A is symmetric positive definite when G has full
  * rank).  Cost per factorisation: the coordinate-wise products, sum over
  * coordinates of (rows touching it)^2, plus sum_r (r - first[r])^2; for a

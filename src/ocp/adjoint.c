@@ -395,7 +395,7 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
 }
 
 /* Whether the adjoint assembles the step Jacobian dense (small steps, where
- * that is cheaper: doc/performance.md, bench_ocp --lattice). */
+ * that is cheaper: doc/performance/ocp.md, bench_ocp --lattice). */
 static int dense_jacobian(const mrvi_ocp *o) {
   return o->nv <= o->settings.tuning.adjoint_dense_max;
 }
@@ -489,7 +489,7 @@ static int sparse_pattern(mrvi_ocp *o, long k) {
  * elimination: where the forward pass does (large unconstrained steps),
  * and on the explicit paths (explicit, sweep, sweep-cg) for steps too
  * large for the dense H, whose forward pass factorises nothing either
- * (against the sparse LU of the step: doc/performance.md, "Optimal
+ * (against the sparse LU of the step: doc/performance/ocp.md, "Optimal
  * control on a lattice"), where they do not take their own adjoint
  * (adjoint_explicit.c, ocp_explicit_ok). */
 static int adjoint_krylov_path(const mrvi_ocp *o) {
@@ -567,7 +567,7 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
    * would have refused it.  With state actuators and a step within the
    * dense H (adjoint_dense_max), the dense LU's refinement of all
    * functionals at once costs less (bench/ocp_winch.yaml, p = 5: cost +
-   * gradient 1.7x cheaper; doc/performance.md, "State actuators on schur
+   * gradient 1.7x cheaper; doc/performance/ocp.md, "State actuators on schur
    * and schur-bordered"). */
   if (o->path == MRVI_PATH_SCHUR_BORDERED) {
     const int s = mrvi_bordered_create(st, &o->bordered);
@@ -702,7 +702,7 @@ static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
    * step k + 1, or of step 0 of the evaluation before) need more, a fresh
    * factorisation and one solve cost less (the constrained lattice at
    * n = 60 on node blocks: 5-9 sweeps per functional and step with 8
-   * allowed, cost + gradient 20-25 % dearer; doc/performance.md, "The
+   * allowed, cost + gradient 20-25 % dearer; doc/performance/ocp.md, "The
    * constrained lattice's first evaluation").  With one, the cost rule
    * stops it (refine_give_up), and A_k is factorised at once where that
    * and the nfun solves cost less than the refinement is expected to: its

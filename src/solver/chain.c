@@ -22,7 +22,7 @@
  * O(sum_k b_k^3) flops: linear in the length of a chain or a tree of
  * bounded width, where schur-bordered's node blocks (the slow block of all
  * links: bordered.c) grow as its cube and the general path's sparse LU
- * pays UMFPACK's overheads (doc/performance.md, "Chains: the chain
+ * pays UMFPACK's overheads (doc/performance/chains.md, "Chains: the chain
  * elimination").  The transposed step (the optimal-control adjoint's,
  * src/ocp/adjoint.c) is solved with the same factors, the two block sweeps
  * transposed and run in the other order (mrvi_chain_solve_transpose).

@@ -9,7 +9,7 @@
  *    storage that skips zeros, of the row-scaled matrix renumbered for
  *    little fill: on the small step Jacobians (general path, optimal-control
  *    adjoint) UMFPACK's fixed cost per factorisation dominates
- *    (doc/performance.md, bench_ocp).
+ *    (doc/performance/ocp.md, bench_ocp).
  * The factors are kept after a solve, so that the same matrix can be solved
  * again, transposed too (mrvi_linsolve_solve: adjoint solves). */
 #include "solver/solver.h"
@@ -148,7 +148,8 @@ static double factor_fill(const double *info) {
  * than with AMD's (the analysis in nw).  Neither ordering wins everywhere:
  * nested dissection gives less fill on 2-D lattices, AMD on chains and
  * trees, whose minimum-degree order is nearly fill-free (doc/solver.md,
- * "Orderings"; doc/performance.md).  A failed METIS analysis keeps AMD's. */
+ * "Orderings"; doc/performance/chains.md).  A failed METIS analysis keeps
+ * AMD's. */
 static void try_metis(mrvi_newton *nw, const double *Ax) {
   double control[UMFPACK_CONTROL], info[UMFPACK_INFO];
   memcpy(control, nw->control, sizeof control);
@@ -174,7 +175,7 @@ static void try_metis(mrvi_newton *nw, const double *Ax) {
  * (its analysis kept in nw) where the dense LU's flops in its ordering
  * exceed MRVI_NEWTON_DENSE_RATIO times UMFPACK's estimate from its symbolic
  * analysis: on banded steps (rod chains) the degree ordering fills in, on
- * the body systems' it does not (doc/performance.md, "The dense/sparse
+ * the body systems' it does not (doc/performance/kernels.md, "The dense/sparse
  * switch by flops"). */
 static int sparse_cheaper(mrvi_newton *nw, const double *Ax) {
   if (umfpack_di_symbolic(nw->n, nw->n, nw->Ap, nw->Ai, Ax, &nw->symbolic,

@@ -469,7 +469,7 @@ int mrvi_nullspace_create(const mrvi_step *st, const unsigned char *drop,
    * Gram matrix G_f G_f^T gives as well (gram), at a third of the cost
    * and without the cap: above the cap, for closed loops (cut joints) and
    * for open fast trees from nullspace_gram_min constrained fast
-   * coordinates (doc/performance.md, "The Gram matrix for open fast
+   * coordinates (doc/performance/chains.md, "The Gram matrix for open fast
    * trees"). */
   z->gram = z->fast && (z->nfc > MAXD || mrvi_nsfast_cut_rows(z->fast) > 0 ||
                         z->nfc >= st->tuning.nullspace_gram_min);

@@ -35,7 +35,7 @@
  * predictor is settled onto the rods where the multiplier form settles it
  * (tuning predict_settle, more than MRVI_GRAM_DENSE_MAX rods:
  * mrvi_gram_settle with the factor at q_k; on long chains one Newton update
- * less per step, doc/performance.md "Chains"). */
+ * less per step, doc/performance/chains.md "Chains"). */
 #include "solver/solver.h"
 
 #include <math.h>

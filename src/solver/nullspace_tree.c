@@ -1309,7 +1309,8 @@ void mrvi_nstree_retract(mrvi_nstree *z, const mrvi_step *st, double *x,
  * residual P^T R only to second order, while turning each body towards
  * the predictor's frame and placing it on its parent's joint point moves
  * the chain's far end along the constraints by the sum of the errors
- * above it (doc/performance.md, "Chains: the joint-reduced null space"). */
+ * above it (doc/performance/chains.md, "Chains: the joint-reduced null space").
+ */
 static void settle(mrvi_nstree *z, const mrvi_step *st, double *x) {
   const mrvi_model *m = st->model;
   const int w = z->D * (z->D + 1);

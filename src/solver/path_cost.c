@@ -1,6 +1,6 @@
 /* Cost estimates of the two paths of a constrained step in the multiplier
  * form (doc/solver.md, "Choosing between general and schur-bordered";
- * measured with bench_paths: doc/performance.md, "Constrained paths: the
+ * measured with bench_paths: doc/performance/paths.md, "Constrained paths: the
  * choice by cost estimates" and "Constrained paths: per-step costs"): the
  * work of one macro step's linear algebra, which is all the two paths do
  * differently (both assemble the same CSC Jacobian, step.c, from the same

@@ -47,7 +47,7 @@
 #include <string.h>
 
 /* The tuning constants this file reads (mrvi.h, MRVI_TUNING_LIST; pr->tn);
- * what their defaults were measured on is in doc/performance.md, "Tuning
+ * what their defaults were measured on is in doc/performance/paths.md, "Tuning
  * constants: what the defaults were measured on":
  *  - slow_newton_max, slow_newton_n, slow_samples, slow_hess_samples: slow
  *    Newton steps of the predictor (slow_newton) take at most
@@ -1732,8 +1732,8 @@ static void pre_solve(mrvi_predictor *pr, const mrvi_step *st, double *x) {
  * are swept again along the new slow path and the slow row solved again.  What
  * the sampled solve leaves out, the response of the fast nodes to x_s and the
  * sample's quadrature error, is a small fraction of its change (about 1e-3
- * of it on the FPU chain; doc/performance.md, "Tuning constants").  Every step
- * of this depends on (q_k, p_k) only. */
+ * of it on the FPU chain; doc/performance/paths.md, "Tuning constants").  Every
+ * step of this depends on (q_k, p_k) only. */
 static void slow_newton(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   const double r = slow_update(pr, st, x, 1);
   /* (after the pre-solve the slow row is close, but not to the
@@ -1811,7 +1811,7 @@ static void predict_sweep(mrvi_predictor *pr, const mrvi_step *st, double *x) {
   } else {
     /* The slow row again with its points along the swept path.  (Sweeping
      * the fast nodes once more along the corrected slow path saves no
-     * Newton update: doc/performance.md, "Tuning constants".) */
+     * Newton update: doc/performance/paths.md, "Tuning constants".) */
     sweep(pr, st, x, 1);
     slow_newton(pr, st, x);
   }
@@ -1973,7 +1973,7 @@ void mrvi_predictor_set_tolerance(mrvi_predictor *pr, double tol) {
    * the 0.01 tol where the updates stop (integrator.c).  The fast path,
    * swept along the old slow path, lags a sampled solve's change by a
    * small fraction of it, hence a new sweep only above 10 rstop (the factor
-   * and its measurement: doc/performance.md, "Tuning constants"). */
+   * and its measurement: doc/performance/paths.md, "Tuning constants"). */
   pr->rstop = pow(0.01 * tol, 0.25);
   pr->rsweep = 10.0 * pr->rstop;
 }

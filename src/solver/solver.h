@@ -202,8 +202,8 @@ void mrvi_nsfast_retract(mrvi_nstree *z, const mrvi_step *st,
  * factorisation dominates there); above, UMFPACK where the dense LU's
  * flops in its ordering (a symbolic elimination of the pattern) exceed
  * MRVI_NEWTON_DENSE_RATIO times UMFPACK's estimate (its symbolic analysis):
- * measured on rod chains and bodies, doc/performance.md ("The dense/sparse
- * switch by flops"). */
+ * measured on rod chains and bodies, doc/performance/kernels.md ("The
+ * dense/sparse switch by flops"). */
 #define MRVI_NEWTON_DENSE_SURE 128
 #define MRVI_NEWTON_DENSE_RATIO 0.55
 typedef struct mrvi_newton mrvi_newton;

@@ -20,7 +20,7 @@
  * (mrvi_terms_hessvec_part): 5 nf doubles in all (D^-1 and the CG's four
  * vectors) where the values and their row indices took 12
  * bytes an entry, about 20 entries a fast coordinate on the random
- * networks (doc/performance.md, "explicit-slow's matrix-free Newton
+ * networks (doc/performance/explicit.md, "explicit-slow's matrix-free Newton
  * block").  The LU fallback assembles the block from the records then. */
 #include "solver/solver.h"
 

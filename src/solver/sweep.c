@@ -207,11 +207,11 @@ enum { FUSE_BLOCK = 128 };
  * (solver/bordered.c): with constraints at macro nodes only, the slow and
  * fast blocks and the r_s multipliers at most bordered_max (mrvi.h,
  * MRVI_TUNING_LIST; beyond it the dense blocks cost more than the sparse LU
- * of chains: doc/performance.md, "Constrained chains on structured
+ * of chains: doc/performance/paths.md, "Constrained chains on structured
  * paths"); with micro-node constraints, the node blocks of n_s + r_s and
  * n_f + r_f unknowns (the multipliers joined to their nodes) at most
- * bordered_node_max, whatever p (measured on bodies: doc/performance.md,
- * "Multibody"). */
+ * bordered_node_max, whatever p (measured on bodies:
+ * doc/performance/multibody.md, "Multibody"). */
 static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
                             char *why, size_t len) {
   const char *bodies = mrvi_model_n_bodies(m) > 0
@@ -1028,10 +1028,10 @@ static void implicit_force(mrvi_sweep *sw, const double *qm, const double *dn,
  * (bench_floor, lattice2d, n = 1012, dT = 0.05, p = 10): r0 8.3e-2 held
  * fixed, 2.4e-2 linear, 6.6e-3 quadratic, 1.3e-3 cubic (medians); the
  * quartic leaves the chord rows of 10^5 coordinates within the tolerance
- * after three updates more often (doc/performance.md, "explicit-slow: the
- * cost model, fused row ends").  The history holds only rows of the
- * current step (a step depends on (q_k, p_k) alone).  f1: the last row's
- * converged implicit force, f2..f5 the rows' before it. */
+ * after three updates more often (doc/performance/explicit.md, "explicit-slow:
+ * the cost model, fused row ends").  The history holds only rows of the current
+ * step (a step depends on (q_k, p_k) alone).  f1: the last row's converged
+ * implicit force, f2..f5 the rows' before it. */
 enum { PREDICTOR_ORDER = 5 };
 ALWAYS_INLINE double predicted_force(int q, double f1, double f2, double f3,
                                      double f4, double f5) {
@@ -1444,7 +1444,8 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
  * assemble there) and, in rho, the Gershgorin bound of chord_setup from
  * the elements' off-diagonal entries (at least the assembled matrix's: no
  * assembly).  A fresh D at every update contracted no faster and cost
- * more (doc/performance.md, "explicit-slow: micro step 0 on the chord").
+ * more (doc/performance/explicit.md, "explicit-slow: micro step 0 on the
+ * chord").
  *
  * In the same pass, the next chord iterate dnx = dn + om D^-1 F and its
  * configuration, written over sw->zf: taken where the row goes on, else
@@ -1458,8 +1459,8 @@ static double fresh_parts(mrvi_sweep *sw, const double *qm, const double *dn,
  * in sw->F), lam = F.F_old / F_old.F_old, within [-rho_c, rho_c], for the
  * next update: after a relaxed update that ratio is small and the next
  * update nearly plain, so plain and relaxed updates alternate
- * (doc/performance.md, "explicit-slow: relaxed chord").  Convergence is
- * decided by the exact residual F as before.
+ * (doc/performance/explicit.md, "explicit-slow: relaxed chord").  Convergence
+ * is decided by the exact residual F as before.
  *
  * With light (the iterate that the row is expected to end on, sw->expect),
  * the pass first only tests F against the tolerance (chord_pass's light
@@ -1671,7 +1672,7 @@ static double fresh_exact_parts(mrvi_sweep *sw, const double *qm,
  * and the relaxation's bound rho_c becomes it.  The same bits for every
  * thread count (fresh_exact_parts on threads; bench_floor's random3d at
  * 1e5 took Newton at every step's row 0 with the elements' bound,
- * doc/performance.md). */
+ * doc/performance/explicit.md). */
 static double fresh_exact(mrvi_sweep *sw, const double *qm, const double *dn) {
   const int nf = sw->nf, i = sw->imp;
   const double cB = sw->cB[i], hs = sw->w[i] * sw->cA[i] * cB;

@@ -1,5 +1,5 @@
 /* Pairs of doubles: the one place where mrvi uses machine-specific
- * instructions (doc/performance.md, "Specialised kernels").
+ * instructions (doc/performance/kernels.md, "Specialised kernels").
  *
  * With MRVI_SIMD = 1 (the default wherever the compiler offers SSE2, i.e.
  * on x86-64) an mrvi_v2 is one SSE2 register and each operation one SSE2

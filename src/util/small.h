@@ -80,7 +80,7 @@
  * for one size: NS and NF integer constants where ns = nf = 1 or 3 (the
  * double integrator, the FPU), both at run time otherwise.  SMALL over each
  * size (the product, 25 cases) cost compile time and code for no speed a
- * benchmark measures (doc/performance.md, "Specialised kernels"). */
+ * benchmark measures (doc/performance/kernels.md, "Specialised kernels"). */
 #define SMALL2_CASE(K, NS, NF, ...)                                            \
   case K: {                                                                    \
     enum { NS = K, NF = K };                                                   \

@@ -32,13 +32,13 @@ double mrvi_clock(void);
  * -DMRVI_MEMORY_CAP=BYTES (the fuzz build does, so that what the checks
  * admit fits the fuzzer's memory limit; tests/fuzz/run.sh). */
 double mrvi_machine_memory(void);
-/* Threads (OpenMP, meson option `openmp`; doc/performance.md, "Threads"):
- * the processors this process may run on (its affinity mask), and the
- * count a setting asks for (0: that) capped to 1 in a build without
- * OpenMP.  MRVI_PARALLEL_FOR(t): the next loop on t threads, its
- * iterations split statically; a plain loop without OpenMP.  The loops
- * so marked write disjoint data and combine nothing: no reductions, so
- * results do not depend on the number of threads. */
+/* Threads (OpenMP, meson option `openmp`; doc/performance/threads.md,
+ * "Threads"): the processors this process may run on (its affinity mask), and
+ * the count a setting asks for (0: that) capped to 1 in a build without OpenMP.
+ * MRVI_PARALLEL_FOR(t): the next loop on t threads, its iterations split
+ * statically; a plain loop without OpenMP.  The loops so marked write disjoint
+ * data and combine nothing: no reductions, so results do not depend on the
+ * number of threads. */
 int mrvi_cores(void);
 /* The tasks runnable now besides this one: the first number of the fourth
  * field of /proc/loadavg (running/total, the reader included) less one;
@@ -46,8 +46,8 @@ int mrvi_cores(void);
 int mrvi_tasks_others(void);
 /* The cores of mrvi_cores() that no other task is running on now (at
  * least 1; all of them where mrvi_tasks_others cannot tell): what `--threads
- * auto` and `mrvi batch` fill (doc/performance.md, "The automatic thread
- * count"). */
+ * auto` and `mrvi batch` fill (doc/performance/threads.md, "The automatic
+ * thread count"). */
 int mrvi_cores_idle(void);
 int mrvi_threads_resolve(int requested);
 #ifdef _OPENMP
