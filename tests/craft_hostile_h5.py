@@ -210,6 +210,20 @@ def resume_cases(base, out):
     with copy(base, out, "rate_flipped") as f:
         resumable(f, 5)
         f["model/rate"][0] = 1 - f["model/rate"][0]
+    # The particles' names and columns (mrvi export's) against the
+    # description, /model/name left as it is.
+    with copy(base, out, "particle_renamed") as f:
+        resumable(f, 5)
+        names = [s.decode() for s in f["model/particle_name"][...]]
+        names[-1] = "other"
+        replace(f, "model/particle_name", data=strings(names))
+    with copy(base, out, "particle_column_moved") as f:
+        resumable(f, 5)
+        f["model/particle_column"][-1] = 0
+    with copy(base, out, "particle_fewer") as f:
+        resumable(f, 5)
+        names = f["model/particle_name"][...]
+        replace(f, "model/particle_name", data=names[:1])
     with copy(base, out, "t_backwards") as f:
         resumable(f, 5)
         f["macro/t"][5] = -f["macro/t"][5]

@@ -233,6 +233,9 @@ t_end_inf attribute t_end = inf
 scheme_other attribute scheme = 'fully-explicit'
 name_renamed /model/name\[5\] = 'other.z'
 rate_flipped /model/rate\[0\] = 1
+particle_renamed /model/particle_name\[1\] = 'other' but /model/description names particle 1 'bob'
+particle_column_moved /model/particle_column\[1\] = 0 but /model/description puts particle 'bob' at column 3
+particle_fewer /model/particle_name
 t_backwards /macro/t\[5\] = -0.1
 controlled resuming a controlled run is not supported
 EOF

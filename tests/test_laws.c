@@ -857,11 +857,11 @@ static void check_model_room(void) {
   /* a ring of 10^6 x 1 particles 2000 times: within an int per generator,
    * beyond one for the model (mrvi_model_room's sum, as the loader's) */
   char msg[256] = "";
-  CHECK(mrvi_model_room(m, 2000.0 * 1e6, 2000.0 * 1e6, msg, sizeof msg) ==
+  CHECK(mrvi_model_room(m, 2000.0 * 1e6, 2000.0 * 1e6, NULL, msg, sizeof msg) ==
                 MRVI_EINVAL &&
             strstr(msg, "6000000006 coordinates") != NULL,
         "room: sum '%s'", msg);
-  CHECK(mrvi_model_room(m, 10, 10, msg, sizeof msg) == MRVI_OK,
+  CHECK(mrvi_model_room(m, 10, 10, NULL, msg, sizeof msg) == MRVI_OK,
         "room: 10 particles refused: %s", msg);
   mrvi_model_free(m);
 }

@@ -1878,6 +1878,41 @@ static void test_generate_limit(void) {
   mrvi_system_free(sys);
 }
 
+/* limits.max_memory (doc/description-files.md, "Limits"): the file's bound
+ * on the integrator's step (and the model), the same on every machine:
+ * tests/bad_input/memory_limit_step.yaml's 10^5 micro steps of one fast
+ * coordinate need 64 (10^5 + 1) + 4 (10^5 + 1) 48 bytes = 0.02384 GiB,
+ * loaded with the value the message says to set (0.024) and refused with
+ * 0.023; the default limit (16 GiB) loads it too. */
+static void test_memory_limit(void) {
+  char path[1024];
+  snprintf(path, sizeof path, "%s",
+           test_source_path("tests/bad_input/memory_limit_step.yaml"));
+  const char *at[1] = {"limits.max_memory=0.024"};
+  const char *below[1] = {"limits.max_memory=0.023"};
+  const char *dflt[1] = {"limits.max_memory=16"};
+  char msg[MSG] = "";
+  mrvi_system *sys = NULL;
+  int st = mrvi_system_load(path, at, 1, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_OK && sys, "max_memory 0.024: status %d (%s)", st, msg);
+  mrvi_system_free(sys);
+  sys = NULL;
+  st = mrvi_system_load(path, dflt, 1, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_OK && sys, "max_memory 16: status %d (%s)", st, msg);
+  mrvi_system_free(sys);
+  sys = NULL;
+  msg[0] = '\0';
+  st = mrvi_system_load(path, below, 1, &sys, msg, sizeof msg);
+  CHECK(st == MRVI_EPARSE && !sys &&
+            strstr(msg, "memory_limit_step.yaml:9:14: integrator.micro_steps "
+                        "× fast coordinates = 100000 × 1 (and 1 coordinates) "
+                        "need per macro step about 0.02384 GiB, more than "
+                        "limits.max_memory = 0.023 GiB: to load it, set "
+                        "`limits: {max_memory: 0.024}`"),
+        "max_memory 0.023: status %d, '%s'", st, msg);
+  mrvi_system_free(sys);
+}
+
 int main(void) {
   char **files = NULL;
   int n = list_yaml_files("tests/bad_input", &files);
@@ -1903,6 +1938,7 @@ int main(void) {
   test_hostile_input();
   test_large_lattice();
   test_generate_limit();
+  test_memory_limit();
   test_long_set_path();
   test_generators();
   test_generated_equals_hand();

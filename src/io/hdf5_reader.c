@@ -601,8 +601,47 @@ static int same_string(const mrvi_h5in *in, const char *name,
   return MRVI_OK;
 }
 
+/* /model/particle_name and /model/particle_column against the model's
+ * particles (mrvi export names and places the particles by them; a run
+ * continued from a file whose particles say another model than its
+ * description would export under names and columns not the run's). */
+static int same_particles(const mrvi_h5in *in, const mrvi_model *m) {
+  const int np = mrvi_model_n_particles(m);
+  const hsize_t dn = (hsize_t)np;
+  int *column = NULL, st;
+  char **name = NULL;
+  /* (a model without particles: the writer leaves both out) */
+  if (np == 0 && !mrvi_h5in_exists(in, "/model/particle_column") &&
+      !mrvi_h5in_exists(in, "/model/particle_name"))
+    return MRVI_OK;
+  if ((st = mrvi_h5in_read_new(in, "/model/particle_column", H5T_NATIVE_INT, 1,
+                               &dn, MRVI_H5_ANY, (void **)&column, NULL)) < 0 ||
+      (st = mrvi_h5in_strings(in, "/model/particle_name", 1, dn,
+                              MRVI_H5_MAX_ATTR, &name)) < 0) {
+    free(column);
+    return st;
+  }
+  for (int i = 0; i < np && st == MRVI_OK; i++) {
+    char buf[MRVI_NAME_MAX];
+    const char *want = mrvi_model_particle_name(m, i, buf);
+    if (strcmp(name[i], want) != 0)
+      st = mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: /model/particle_name[%d] = '%s' but "
+                     "/model/description names particle %d '%s'",
+                     in->path, i, name[i], i, want);
+    else if (column[i] != m->particles[i].first)
+      st = mrvi_fail(in->msg, in->len, MRVI_EINVAL,
+                     "%s: /model/particle_column[%d] = %d but "
+                     "/model/description puts particle '%s' at column %d",
+                     in->path, i, column[i], want, m->particles[i].first);
+  }
+  free(column);
+  mrvi_h5_strings_free(name, (size_t)np);
+  return st;
+}
+
 /* /model/rate and /model/name against the model, /macro/lambda's width
- * against its constraint rows. */
+ * against its constraint rows, its particles (same_particles). */
 static int same_coordinates(const mrvi_h5in *in, const mrvi_model *m) {
   const int n = mrvi_model_n(m);
   int nq = 0, st;
@@ -640,7 +679,7 @@ static int same_coordinates(const mrvi_h5in *in, const mrvi_model *m) {
   }
   free(rate);
   mrvi_h5_strings_free(name, (size_t)n);
-  if (st < 0)
+  if (st < 0 || (st = same_particles(in, m)) < 0)
     return st;
   const int nt = mrvi_model_n_torsions(m);
   hsize_t dt[2] = {0, 0};

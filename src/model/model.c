@@ -584,7 +584,7 @@ int mrvi_model_add_ruled_particle(mrvi_model *m, const char *name, double mass,
 }
 
 int mrvi_model_room(const mrvi_model *m, double particles, double springs,
-                    char *msg, size_t len) {
+                    double *bytes, char *msg, size_t len) {
   const double d = m->dimension > 0 ? m->dimension : 1;
   const double n = m->n + d * particles, np = m->n_particles + particles,
                ne = m->n_elements + springs;
@@ -596,16 +596,10 @@ int mrvi_model_room(const mrvi_model *m, double particles, double springs,
   /* the per-coordinate arrays (mass, q0, v0, rate, slow_index, fast_index,
    * slot), the particles, the element records */
   const double per_coord =
-                   3.0 * sizeof(double) + sizeof(mrvi_rate) + 3.0 * sizeof(int),
-               need = per_coord * n + sizeof(mrvi_particle) * np +
-                      sizeof(mrvi_erec) * ne,
-               have = mrvi_machine_memory();
-  if (have > 0 && need > have)
-    return mrvi_fail(msg, len, MRVI_EINVAL,
-                     "the model would have %.0f particles (%.0f "
-                     "coordinates) and %.0f elements, about %.3g GiB: more "
-                     "than this machine's %.3g GiB",
-                     np, n, ne, need / 1073741824.0, have / 1073741824.0);
+      3.0 * sizeof(double) + sizeof(mrvi_rate) + 3.0 * sizeof(int);
+  if (bytes)
+    *bytes =
+        per_coord * n + sizeof(mrvi_particle) * np + sizeof(mrvi_erec) * ne;
   return MRVI_OK;
 }
 
@@ -613,8 +607,8 @@ int mrvi_model_reserve(mrvi_model *m, int particles, int elements) {
   const int d = m->dimension > 0 ? m->dimension : 1;
   if (particles < 0 || elements < 0)
     return mrvi_model_fail(m, MRVI_EINVAL, "reserve: negative count");
-  const int st =
-      mrvi_model_room(m, particles, elements, m->errmsg, sizeof m->errmsg);
+  const int st = mrvi_model_room(m, particles, elements, NULL, m->errmsg,
+                                 sizeof m->errmsg);
   if (st < 0)
     return st;
   if (reserve_coordinates(m, m->n + d * particles) ||
@@ -682,9 +676,18 @@ static size_t proto_hash(const mrvi_element *e) {
   return (size_t)h;
 }
 
-enum { NOT_COMPACT = -1000 };
+/* NOT_COMPACT: an element kept in full; BEYOND_PROTOS: a spring that would
+ * be compact but its law is one beyond MRVI_EREC_LP_MAX prototypes (kept
+ * in full too). */
+enum { NOT_COMPACT = -1000, BEYOND_PROTOS = -1001 };
+/* (the record's fields: lp's 24 bits, kind's 4, potential's 1) */
+_Static_assert(MRVI_EREC_LP_MAX >= 1 && MRVI_EREC_LP_MAX <= (1 << 24),
+               "a prototype index beyond the record's 24 bits");
+_Static_assert(MRVI_ELEMENT_TORSION < 16, "an element kind beyond 4 bits");
+_Static_assert(MRVI_SLOW < 2 && MRVI_FAST < 2, "a rate beyond 1 bit");
+_Static_assert(sizeof(mrvi_erec) == 20, "the element record is 20 bytes");
 /* The prototype of e's law, parameters and rate (kind spring, no inputs,
- * rest length NaN), made if new; its index, NOT_COMPACT beyond
+ * rest length NaN), made if new; its index, BEYOND_PROTOS beyond
  * MRVI_EREC_LP_MAX prototypes. */
 static int spring_proto(mrvi_model *m, const mrvi_element *e) {
   if (2 * (m->n_protos + 1) > m->proto_table_cap) {
@@ -712,7 +715,7 @@ static int spring_proto(mrvi_model *m, const mrvi_element *e) {
   }
   /* (the record's 24 bits: a further law's springs are kept in full) */
   if (m->n_protos >= MRVI_EREC_LP_MAX)
-    return NOT_COMPACT;
+    return BEYOND_PROTOS;
   mrvi_element *p = malloc(sizeof *p);
   if (!p || grow((void **)&m->protos, &m->cap_protos, m->n_protos + 1,
                  sizeof *m->protos)) {
@@ -733,7 +736,7 @@ static int spring_proto(mrvi_model *m, const mrvi_element *e) {
 
 /* The prototype index of e if it is kept in its record alone (a spring of
  * a law between two particles' consecutive coordinates, no coefficients),
- * else NOT_COMPACT; MRVI_ENOMEM. */
+ * else NOT_COMPACT or BEYOND_PROTOS; MRVI_ENOMEM. */
 static int compact_spring(mrvi_model *m, const mrvi_element *e) {
   const int d = m->dimension;
   if (e->kind != MRVI_ELEMENT_SPRING || e->coef || !e->law || !e->params ||
@@ -766,7 +769,17 @@ static int push_element(mrvi_model *m, mrvi_element *e, const char *what) {
             "micro step",
             what, MRVI_CNAME(m, c));
       }
-  const int lp = compact_spring(m, e);
+  int lp = compact_spring(m, e);
+  /* A spring beyond the prototypes is kept in full: its inputs, which a
+   * compact spring's caller may pass on its stack (mrvi_model_add_spring),
+   * copied into the model's blocks. */
+  if (lp == BEYOND_PROTOS) {
+    int *in = mrvi_model_inputs(m, e->n_in);
+    if (in)
+      memcpy(in, e->in, (size_t)e->n_in * sizeof *in);
+    e->in = in;
+    lp = in ? NOT_COMPACT : MRVI_ENOMEM;
+  }
   if ((lp < 0 && lp != NOT_COMPACT) ||
       grow((void **)&m->erecs, &m->cap_elements, m->n_elements + 1,
            sizeof *m->erecs) ||
@@ -920,7 +933,7 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
   if (st < 0)
     return st;
   /* (its inputs on the stack: push_element keeps the spring in its record
-   * alone) */
+   * alone, or copies them where it keeps it in full) */
   int in[6];
   e.n_in = 2 * m->dimension;
   e.in = in;

@@ -85,8 +85,11 @@ typedef struct mrvi_erec {
 } mrvi_erec;
 #pragma pack(pop)
 /* Prototypes a compact spring can name (lp); a spring of a further law is
- * kept in full. */
+ * kept in full.  The fuzz build lowers it (tests/fuzz/run.sh: 4), so that
+ * crafted files reach springs of one law both compact and in full. */
+#ifndef MRVI_EREC_LP_MAX
 #define MRVI_EREC_LP_MAX (1 << 24)
+#endif
 
 /* Room for a view of an element (mrvi_model_element). */
 typedef struct mrvi_element_buf {
@@ -246,13 +249,15 @@ char *mrvi_model_names(const mrvi_model *m, int particles, const char **out);
 int mrvi_model_reserve(mrvi_model *m, int particles, int elements);
 /* Whether m has room for `particles` more particles (of its dimension) and
  * `springs` more two-particle springs: coordinates, particles and elements
- * each within an int, and the storage of the model so grown (its
- * per-coordinate arrays, particle table and element records) within the
- * machine's memory (mrvi_machine_memory); else a status < 0 with a message
- * in msg.  mrvi_model_reserve checks it; the loader checks the sum of all
+ * each within an int, else a status < 0 with a message in msg; *bytes
+ * (bytes may be NULL) gets the storage of the model so grown (its
+ * per-coordinate arrays, particle table and element records), which the
+ * caller holds against its own bound (the loader: limits.max_memory; not
+ * the machine's memory, so that a refusal is the same on every machine).
+ * mrvi_model_reserve checks the counts; the loader checks the sum of all
  * `generate:` entries before making any (io/loader/generate.c) (model.c). */
 int mrvi_model_room(const mrvi_model *m, double particles, double springs,
-                    char *msg, size_t len);
+                    double *bytes, char *msg, size_t len);
 /* The springs generator g joins (nearest neighbours, a ring's closing one;
  * those of a rate without a law included), its counts valid
  * (generators.c). */

@@ -63,11 +63,14 @@ static void jac_constraint(mrvi_ocp *o, int c, const mrvi_point *pt, int lv,
       const int zr = zi[j][a];
       if (er >= 0)
         for (int r = 0; r < rows; r++)
-          ocp_jac_add(J, er + r, zr, zc[j][a] * st->cG[r * n + j]);
+          ocp_jac_add(J, er + r, zr,
+                      zc[j][a] * st->cG[(size_t)r * (size_t)n + (size_t)j]);
       if (lv < 0)
         continue;
       for (int r = 0; r < rows; r++)
-        ocp_jac_add(J, zr, lv + r, -pt->w * zc[j][a] * st->cG[r * n + j]);
+        ocp_jac_add(J, zr, lv + r,
+                    -pt->w * zc[j][a] *
+                        st->cG[(size_t)r * (size_t)n + (size_t)j]);
       for (int l = 0; l < n; l++) {
         const double h = hs[j * n + l];
         for (int b = 0; b < 2; b++)
@@ -270,7 +273,7 @@ static void add_full_row(const mrvi_ocp *o, const ocp_terminal *T, double v,
     const long g = final_node(o, j, &pj);
     if (gQ)
       gQ[(size_t)f * (size_t)nn + (size_t)g] += scale * dq[j];
-    gp[f * npn + pj] += scale * dp[j];
+    gp[(size_t)f * (size_t)npn + (size_t)pj] += scale * dp[j];
   }
 }
 
@@ -320,7 +323,7 @@ static void body_terminal(const mrvi_ocp *o, const ocp_terminal *T, long nn,
   for (int k = 0; k < n; k++) {
     if (gQ)
       gQ[(size_t)f * (size_t)nn + (size_t)g[k]] += scale * gq[k];
-    gp[f * npn + ps[k]] += scale * gpv[k];
+    gp[(size_t)f * (size_t)npn + (size_t)ps[k]] += scale * gpv[k];
   }
 }
 
@@ -390,7 +393,7 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
     if (T->kind == MRVI_OCP_POSITION && gQ)
       gQ[(size_t)f * (size_t)nn + (size_t)g] += scale * dv;
     else
-      gp[f * npn + ps] += scale * dv;
+      gp[(size_t)f * (size_t)npn + (size_t)ps] += scale * dv;
   }
 }
 
@@ -747,6 +750,9 @@ static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
  * the state actuators' part of the control gradients into gu (nfun rows of
  * n_u) from the forces of H_k's assembly. */
 static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
+  /* (sizes: products over the functionals, nodes or steps in size_t or
+   * long; within one step's unknowns, such as 2 ns + p nf <= nz <= nv, in
+   * int: ocp_check_sizes refuses nv beyond INT_MAX) */
   mrvi_step *st = &o->step;
   const int ns = o->ns, nf = o->nf, p = o->p, nu = st->n_unknowns, nz = o->nz;
   const long N = o->N, nn = o->n_nodes;
@@ -759,7 +765,7 @@ static int adjoint_steps(mrvi_ocp *o, int nfun, double *gQ, double *gu) {
     st->qf0 = o->Q + (N + 1) * ns + k * p * nf;
     memcpy(o->x, o->Q + (k + 1) * ns, (size_t)ns * sizeof(double));
     memcpy(o->x + ns, o->Q + (N + 1) * ns + (k * p + 1) * nf,
-           (size_t)(p * nf) * sizeof(double));
+           (size_t)p * (size_t)nf * sizeof(double));
     memcpy(o->x + nu, o->Lam + k * nl, (size_t)nl * sizeof(double));
     o->k_cur = k;         /* for the pair-force step hook */
     if (o->n_torsion > 0) /* step k's branches, as in the forward pass */
@@ -883,9 +889,10 @@ int mrvi_ocp_evaluate(mrvi_ocp *o, const double *u, double *J, double *grad,
    * equation nodes before any read of them) */
   for (int f = 0; f < nfun; f++) {
     for (int i = 0; i < ns; i++)
-      o->mu[f * nn + N * ns + i] = -gp[f * npn + i];
+      o->mu[f * nn + N * ns + i] = -gp[(size_t)f * (size_t)npn + (size_t)i];
     for (int i = 0; i < nf; i++)
-      o->mu[f * nn + (N + 1) * ns + N * p * nf + i] = -gp[f * npn + ns + i];
+      o->mu[f * nn + (N + 1) * ns + N * p * nf + i] =
+          -gp[(size_t)f * (size_t)npn + (size_t)(ns + i)];
   }
   s = o->adj_explicit ? ocp_explicit_adjoint(o, nfun, gQ)
                       : adjoint_steps(o, nfun, gQ, gu);

@@ -68,6 +68,15 @@ int mrvi_threads_resolve(int requested);
 #ifndef MRVI_MAX_COORDINATES
 #define MRVI_MAX_COORDINATES 10000000
 #endif
+/* The memory, in GiB, a description's model and its integrator's step may
+ * take by the loader's estimates when its `limits.max_memory` is absent:
+ * the same on every machine (doc/description-files.md, "Limits"); 16 GiB
+ * is 64 bytes (the step's eight vectors) for each of the 2^28 micro
+ * unknowns the loader admits.  A build with -DMRVI_MEMORY_CAP=BYTES (the
+ * fuzz build) also caps a limit the file raises. */
+#ifndef MRVI_MAX_MEMORY_GIB
+#define MRVI_MAX_MEMORY_GIB 16
+#endif
 
 /* Dense helpers (dense.c).  Solve A x = b in place (A n x n row-major,
  * overwritten; b becomes x); -1 if singular. */

@@ -19,7 +19,11 @@
  *     (the writer reads the file's datasets itself and must check them);
  *   - the --controls reader, mrvi_ocp_controls_read, for the problem of
  *     systems/ocp_double_integrator.yaml (seeds: its mrvi optimize output,
- *     tests/fuzz/run.sh), with one macro and one micro actuator.
+ *     tests/fuzz/run.sh), with one macro and one micro actuator;
+ *   - a batch's master file as mrvi batch --resume reads it
+ *     (mrvi_batch_file_open with the plan and the cases' status), a row
+ *     written for a case of the plan and mrvi_batch_file_best (seeds: a
+ *     run batch and an optimize batch, tests/fuzz/run.sh).
  * Any crash, sanitizer report, leak or timeout is a finding; a refused
  * file is not.  So is an HDF5 object (file, dataset, attribute, ...) the
  * readers leave open: that is mrvi's leak even where LeakSanitizer can only
@@ -30,6 +34,7 @@
 #include "ocp/ocp.h"
 
 #include <hdf5.h>
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -154,6 +159,43 @@ static void read_controls(const char *path) {
   }
 }
 
+/* mrvi batch --resume (and mrvi batch's own reopening): the master file's
+ * plan and the cases' status, a row written for the last case of the plan
+ * (as a resumed case's), then the best case of an optimize batch (written
+ * in place). */
+static void read_batch(const char *path) {
+  char msg[MSG] = "";
+  mrvi_batch_plan plan;
+  int *status = NULL;
+  mrvi_batch_file *f = NULL;
+  int st = mrvi_batch_file_open(path, &plan, &status, &f, msg, sizeof msg);
+  refused_with_message(st, msg);
+  if ((st == MRVI_OK) != (f != NULL))
+    abort();
+  if (f) {
+    if (plan.n_cases > 0) {
+      mrvi_batch_result res = {.c = plan.n_cases - 1,
+                               .status = MRVI_BATCH_COMPLETED,
+                               .steps = 1,
+                               .cost = plan.command ? 1.0 : NAN,
+                               .reason = "completed"};
+      msg[0] = '\0';
+      refused_with_message(mrvi_batch_file_row(f, &res, msg, sizeof msg), msg);
+    }
+    int best = -1;
+    double cost = 0;
+    msg[0] = '\0';
+    refused_with_message(mrvi_batch_file_best(f, &best, &cost, msg, sizeof msg),
+                         msg);
+    if (best >= plan.n_cases)
+      abort();
+    mrvi_batch_plan_free(&plan);
+  }
+  free(status);
+  msg[0] = '\0';
+  refused_with_message(mrvi_batch_file_close(f, msg, sizeof msg), msg);
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   /* One file per process: libFuzzer's -fork and -jobs run several. */
   static char path[64], out[64];
@@ -193,7 +235,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   refused_with_message(mrvi_export_xdmf(path, out, msg, sizeof msg), msg);
 
   read_controls(path);
-  /* Last: the writer changes the file. */
+  /* Last: the batch file's row and the writer change the file. */
+  read_batch(path);
   resume_writer(path, MRVI_NODE_RESUME);
   resume_writer(path, MRVI_NODE_EXTEND);
 

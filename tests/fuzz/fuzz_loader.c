@@ -14,7 +14,12 @@
  * integrator's creation from the model (the compact springs' records, the
  * partitions of the records over threads, the solver path's blocks) and
  * its solvers, not only the loader.  A step may fail (Newton, a singular
- * matrix): only a crash, a report or a leak is a finding. */
+ * matrix): only a crash, a report or a leak is a finding.
+ *
+ * Built twice (tests/fuzz/meson.build): fuzz_loader steps as above;
+ * fuzz_load (-DFUZZ_STEP=0) only loads, several times the inputs a second,
+ * so that CI's bounded time covers more of the loader (tests/fuzz/run.sh
+ * runs both on one corpus). */
 #include "mrvi.h"
 
 #include <stddef.h>
@@ -26,6 +31,9 @@
 #define STEP_MAX_N 64
 #define STEP_MAX_P 16
 #define STEP_COUNT 2
+#ifndef FUZZ_STEP
+#define FUZZ_STEP 1
+#endif
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
@@ -58,7 +66,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   /* The contract: a system on success, none and a message on failure. */
   if ((st == MRVI_OK) != (sys != NULL) || (st != MRVI_OK && !msg[0]))
     abort();
-  if (sys && mrvi_model_n(sys->model) <= STEP_MAX_N &&
+  if (FUZZ_STEP && sys && mrvi_model_n(sys->model) <= STEP_MAX_N &&
       sys->settings.micro_steps <= STEP_MAX_P) {
     mrvi_settings s = sys->settings;
     s.threads = mrvi_threads_supported() ? 2 : 1;

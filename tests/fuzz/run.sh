@@ -19,10 +19,15 @@
 #     arm (bodies, joints, particles on body points), bench/ocp_winch.yaml
 #     run without its controls (a rail, a fast load), and for the
 #     --controls reader the output of mrvi optimize on
-#     systems/ocp_double_integrator.yaml).
+#     systems/ocp_double_integrator.yaml, and for mrvi batch --resume's
+#     the master files of a run batch and of an optimize batch).
 #
-#   tests/fuzz/run.sh [SECONDS [BUILD_DIR [H5_SECONDS]]]
-#                                        (default 120, build-fuzz, 60)
+#   - fuzz_load, the same target built without the steps (-DFUZZ_STEP=0):
+#     the loader alone at several times the inputs a second, run first for
+#     LOAD_SECONDS on the same corpus, which fuzz_loader then starts from;
+#
+#   tests/fuzz/run.sh [SECONDS [BUILD_DIR [H5_SECONDS [LOAD_SECONDS]]]]
+#                         (default 120, build-fuzz, 60, LOAD_SECONDS = SECONDS)
 #
 # FUZZ_SEED (default 1) fixes libFuzzer's random seed, so that a run of the
 # same code on the same seeds repeats its inputs (CI runs this way: what
@@ -30,10 +35,15 @@
 # exploratory runs:  FUZZ_SEED=0 tests/fuzz/run.sh 3600
 #
 # The fuzz build lowers two limits so that every input the loader admits
-# fits the fuzzer's 2 GiB: the memory the size checks assume
-# (MRVI_MEMORY_CAP, 256 MiB) and the particles per generator
+# fits the fuzzer's 2 GiB: the memory the size checks allow
+# (MRVI_MEMORY_CAP, 256 MiB: limits.max_memory, default 16 GiB, is capped
+# there, also where the file raises it) and the particles per generator
 # (MRVI_MAX_GENERATED, 20000; a 3000 x 3000 lattice takes 42 s and 6 GB to
-# load, legitimately).  The checks themselves are the same code.
+# load, legitimately).  The checks themselves are the same code.  It also
+# keeps at most 4 spring prototypes in the compact element table
+# (MRVI_EREC_LP_MAX, 2^24 in other builds; src/model/model.h), so that a
+# file with a few parameter sets of one law takes the path of a model
+# beyond 2^24: the later sets' springs kept in full beside compact ones.
 #
 # Exits non-zero when the fuzzer finds a crash, sanitizer report, leak or
 # timeout; the input that triggered it is left in BUILD_DIR/artifacts/.
@@ -77,28 +87,37 @@ secs=${1:-120}
 root=$(cd "$(dirname "$0")/../.." && pwd)
 build=${2:-$root/build-fuzz}
 h5secs=${3:-60}
+loadsecs=${4:-$secs}
 if [ ! -d "$build" ]; then
   CC=clang meson setup "$build" "$root" -Dfuzz=true \
     -Db_sanitize=address,undefined -Db_lundef=false \
-    -Dc_args="-fsanitize=fuzzer-no-link -DMRVI_SMALL_KERNELS=0 -DMRVI_MEMORY_CAP=268435456 -DMRVI_MAX_GENERATED=20000" \
+    -Dc_args="-fsanitize=fuzzer-no-link -DMRVI_SMALL_KERNELS=0 -DMRVI_MEMORY_CAP=268435456 -DMRVI_MAX_GENERATED=20000 -DMRVI_EREC_LP_MAX=4" \
     -Dbuildtype=debugoptimized >/dev/null
 fi
-meson compile -C "$build" tests/fuzz/fuzz_loader tests/fuzz/fuzz_h5 \
+meson compile -C "$build" tests/fuzz/fuzz_load tests/fuzz/fuzz_loader tests/fuzz/fuzz_h5 \
   mrvi:executable >/dev/null
 mkdir -p "$build/corpus" "$build/artifacts"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1}
 export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$root/tests/fuzz/lsan.supp}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-halt_on_error=1:print_stacktrace=1}
-"$build/tests/fuzz/fuzz_loader" \
-  -seed="${FUZZ_SEED:-1}" -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -max_len=16384 \
-  -dict="$root/tests/fuzz/loader.dict" \
-  -artifact_prefix="$build/artifacts/" -print_final_stats=1 \
-  "$build/corpus" "$root/systems" "$root/tests/bad_input" \
-  "$root/tests/fuzz/seeds"
+# fuzz_load (the loader alone, LOAD_SECONDS) first, then fuzz_loader
+# (stepping what it loads, SECONDS) on the corpus the first one grew.
+for target in fuzz_load fuzz_loader; do
+  t=$secs
+  [ $target = fuzz_load ] && t=$loadsecs
+  [ "$t" -gt 0 ] || continue
+  "$build/tests/fuzz/$target" \
+    -seed="${FUZZ_SEED:-1}" -max_total_time="$t" -timeout=10 -rss_limit_mb=2048 -max_len=16384 \
+    -dict="$root/tests/fuzz/loader.dict" \
+    -artifact_prefix="$build/artifacts/" -print_final_stats=1 \
+    "$build/corpus" "$root/systems" "$root/tests/bad_input" \
+    "$root/tests/fuzz/seeds"
+done
 
 # --- the HDF5 readers -------------------------------------------------------
 seeds=$build/h5seeds
-if [ ! -f "$seeds/ocp.h5" ] || [ ! -f "$seeds/winch.h5" ]; then
+if [ ! -f "$seeds/ocp.h5" ] || [ ! -f "$seeds/winch.h5" ] ||
+  [ ! -f "$seeds/batch_opt.h5" ]; then
   mkdir -p "$seeds"
   run() { ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" run -q --force "$@"; }
   run "$root/systems/fpu.yaml" --set integrator.t_end=0.6 -o "$seeds/fpu.h5"
@@ -115,7 +134,15 @@ if [ ! -f "$seeds/ocp.h5" ] || [ ! -f "$seeds/winch.h5" ]; then
   # the --controls reader's: a file of mrvi optimize for its problem
   ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" optimize -q \
     "$root/systems/ocp_double_integrator.yaml" -o "$seeds/ocp.h5" >/dev/null
-  rm -f "$seeds"/*.xdmf
+  # mrvi batch --resume's: the master files of a run batch (2 x 2 cases,
+  # seeded) and of an optimize batch (2 cases); their case folders go
+  ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" batch -q "$root/systems/fpu.yaml" \
+    -o "$seeds/batch_run.h5" --vary integrator.t_end=0.6 \
+    --vary integrator.micro_steps=1,2 --seeds 2 --velocity-std 0.1 >/dev/null
+  ASAN_OPTIONS=detect_leaks=0 "$build/mrvi" batch -q --optimize \
+    "$root/systems/ocp_double_integrator.yaml" -o "$seeds/batch_opt.h5" \
+    --vary integrator.t_end=2,2.2 >/dev/null
+  rm -rf "$seeds"/*.xdmf "$seeds"/*.cases
 fi
 art=$build/artifacts-h5
 mkdir -p "$build/corpus-h5" "$art"

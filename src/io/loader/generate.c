@@ -199,9 +199,11 @@ static int load_generator(loader *L, struct fy_node *item, const char *where,
 
 /* The model with the particles and springs of the `count` entries of list
  * within the file's limits.max_coordinates (MRVI_MAX_COORDINATES when it
- * has none: the same bound on every machine), within mrvi_model_room, and
- * its integrator's step within the machine's memory (a limit the file
- * raised may still exceed it), summed entry by entry: a few lines (or
+ * has none: the same bound on every machine), within mrvi_model_room's
+ * counts, and the model's storage and its integrator's step within the
+ * file's limits.max_memory (MRVI_MAX_MEMORY_GIB when it has none: not the
+ * machine's memory, so that the refusal is the same on every machine),
+ * summed entry by entry: a few lines (or
  * aliases) may ask for more than an int counts or the machine holds,
  * refused at the count that crosses before any entry is made.  An entry whose
  * kind or count does not read ends the sum (load_generator reports it in the
@@ -239,20 +241,26 @@ static int check_room(loader *L, struct fy_node *list, int count, int dim) {
           "(or --set limits.max_coordinates=%.0f)",
           i, n, lim, L->max_coordinates > 0 ? "" : " (the default)", n, n);
     char why[400];
-    if (mrvi_model_room(L->sys->model, particles, springs, why, sizeof why))
+    double bytes = 0.0;
+    if (mrvi_model_room(L->sys->model, particles, springs, &bytes, why,
+                        sizeof why))
       return mrvi_ld_fail(L, c, "generate.%d (with the entries before it): %s",
                           i, why);
-    /* (the integrator's eight vectors of the step's unknowns, at least the
-     * coordinates: what mrvi_ld_check_sizes refuses after the model is
-     * made) */
-    const double have = mrvi_machine_memory();
-    if (have > 0 && 64.0 * n > have)
-      return mrvi_ld_fail(
-          L, c,
-          "generate.%d (with the entries before it): %.0f coordinates "
-          "need about %.3g GiB per macro step (eight vectors of the step's "
-          "unknowns), more than this machine's %.3g GiB",
-          i, n, 64.0 * n / 1073741824.0, have / 1073741824.0);
+    /* (the model's storage, and the integrator's eight vectors of the
+     * step's unknowns, at least the coordinates: what mrvi_ld_check_sizes
+     * refuses after the model is made; both within limits.max_memory) */
+    int st = mrvi_ld_check_memory(L, c, bytes,
+                                  "generate.%d (with the entries before it): "
+                                  "the model of %.0f coordinates would take",
+                                  i, n);
+    if (!st)
+      st = mrvi_ld_check_memory(L, c, 64.0 * n,
+                                "generate.%d (with the entries before it): "
+                                "%.0f coordinates need per macro step (eight "
+                                "vectors of the step's unknowns)",
+                                i, n);
+    if (st)
+      return st;
   }
   return MRVI_OK;
 }

@@ -197,7 +197,7 @@ int mrvi_ld_integrator(loader *L, struct fy_node *in) {
 }
 
 /* Sizes the integrator allocates per macro step: p n_f micro unknowns in
- * an int, and their storage within the machine's memory. */
+ * an int, and their storage within limits.max_memory. */
 int mrvi_ld_check_sizes(loader *L, struct fy_node *at) {
   const mrvi_settings *s = &L->sys->settings;
   long long pn = (long long)s->micro_steps * mrvi_model_n_fast(L->sys->model);
@@ -207,19 +207,15 @@ int mrvi_ld_check_sizes(loader *L, struct fy_node *at) {
         "integrator.micro_steps × fast coordinates = %d × %d is too "
         "large (at most %d)",
         s->micro_steps, mrvi_model_n_fast(L->sys->model), INT_MAX / 8);
-  const double have = mrvi_machine_memory();
   /* eight vectors of the step's unknowns, and the quadrature points of
-   * both potentials (2p + 2 each) */
-  const double mrvi_ld_need =
-      8.0 * 8.0 * (double)(pn + mrvi_model_n(L->sys->model)) +
-      4.0 * ((double)s->micro_steps + 1.0) * sizeof(mrvi_point);
-  if (have > 0 && mrvi_ld_need > have)
-    return mrvi_ld_fail(
-        L, at,
-        "integrator.micro_steps × fast coordinates = %d × %d needs "
-        "about %.3g GiB per macro step, more than this machine's "
-        "%.3g GiB",
-        s->micro_steps, mrvi_model_n_fast(L->sys->model),
-        mrvi_ld_need / 1073741824.0, have / 1073741824.0);
-  return MRVI_OK;
+   * both potentials (2p + 2 each), within limits.max_memory (not the
+   * machine's memory: the same refusal on every machine) */
+  const double need = 8.0 * 8.0 * (double)(pn + mrvi_model_n(L->sys->model)) +
+                      4.0 * ((double)s->micro_steps + 1.0) * sizeof(mrvi_point);
+  return mrvi_ld_check_memory(
+      L, at, need,
+      "integrator.micro_steps × fast coordinates = %d × %d (and %d "
+      "coordinates) need per macro step",
+      s->micro_steps, mrvi_model_n_fast(L->sys->model),
+      mrvi_model_n(L->sys->model));
 }

@@ -5,6 +5,8 @@
 
 #include <limits.h>
 #include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
 #include <string.h>
 
 /* Nodes aliases may add: this many plus 4 per node of the file. */
@@ -192,23 +194,75 @@ int mrvi_ld_resolve_aliases(loader *L) {
   return MRVI_OK;
 }
 
+/* The largest limits.max_memory, GiB: 2^20 (a PiB). */
+#define MAX_MEMORY_GIB 1048576.0
+
 int mrvi_ld_limits(loader *L, struct fy_node *lim) {
-  static const char *const keys[] = {"max_coordinates"};
+  static const char *const keys[] = {"max_coordinates", "max_memory"};
   struct fy_node *n;
   double v;
   int st;
   if ((st = mrvi_ld_want_mapping(L, lim, "limits")) ||
       (st = mrvi_ld_check_keys(L, lim, "limits", keys, COUNT(keys), NULL, 0)))
     return st;
-  if (!(n = mrvi_ld_get(lim, "max_coordinates")))
-    return MRVI_OK;
-  if ((st = mrvi_ld_as_number(L, n, "limits.max_coordinates", &v)))
-    return st;
-  if (v != floor(v) || v < 1 || v > INT_MAX)
-    return mrvi_ld_fail(L, n,
-                        "limits.max_coordinates must be a whole number from "
-                        "1 to %d, got %s",
-                        INT_MAX, mrvi_ld_scalar0(n));
-  L->max_coordinates = v;
+  if ((n = mrvi_ld_get(lim, "max_coordinates"))) {
+    if ((st = mrvi_ld_as_number(L, n, "limits.max_coordinates", &v)))
+      return st;
+    if (v != floor(v) || v < 1 || v > INT_MAX)
+      return mrvi_ld_fail(L, n,
+                          "limits.max_coordinates must be a whole number from "
+                          "1 to %d, got %s",
+                          INT_MAX, mrvi_ld_scalar0(n));
+    L->max_coordinates = v;
+  }
+  if ((n = mrvi_ld_get(lim, "max_memory"))) {
+    if ((st = mrvi_ld_as_number(L, n, "limits.max_memory", &v)))
+      return st;
+    if (!(v > 0) || v > MAX_MEMORY_GIB)
+      return mrvi_ld_fail(L, n,
+                          "limits.max_memory must be a number of GiB above 0 "
+                          "and at most %.0f, got %s",
+                          MAX_MEMORY_GIB, mrvi_ld_scalar0(n));
+    L->max_memory = v;
+  }
   return MRVI_OK;
+}
+
+double mrvi_ld_memory_limit(const loader *L) {
+  const double gib = L->max_memory > 0 ? L->max_memory : MRVI_MAX_MEMORY_GIB;
+  double b = gib * 1073741824.0;
+#ifdef MRVI_MEMORY_CAP
+  if (b > (double)MRVI_MEMORY_CAP)
+    b = (double)MRVI_MEMORY_CAP;
+#endif
+  return b;
+}
+
+int mrvi_ld_check_memory(loader *L, struct fy_node *at, double need,
+                         const char *fmt, ...) {
+  const double lim = mrvi_ld_memory_limit(L);
+  if (need <= lim)
+    return MRVI_OK;
+  char what[512];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(what, sizeof what, fmt, ap);
+  va_end(ap);
+  /* the value to set: need in GiB rounded up to 0.001 (and within it) */
+  double set = ceil(need / 1073741824.0 * 1000.0) / 1000.0;
+  if (set * 1073741824.0 < need)
+    set += 0.001;
+  const int dflt = L->max_memory <= 0;
+  if (set > MAX_MEMORY_GIB)
+    return mrvi_ld_fail(L, at,
+                        "%s about %.4g GiB, more than limits.max_memory can "
+                        "allow (%.0f GiB)",
+                        what, need / 1073741824.0, MAX_MEMORY_GIB);
+  return mrvi_ld_fail(
+      L, at,
+      "%s about %.4g GiB, more than limits.max_memory = %.10g GiB%s: to load "
+      "it, set `limits: {max_memory: %.10g}` at the top level (or --set "
+      "limits.max_memory=%.10g)",
+      what, need / 1073741824.0, lim / 1073741824.0,
+      dflt ? " (the default)" : "", set, set);
 }

@@ -80,6 +80,7 @@ typedef struct loader {
   struct fy_node **constraint_items; /* entry of each model constraint */
   int cap_constraint_items;
   double max_coordinates; /* limits.max_coordinates; 0: MRVI_MAX_COORDINATES */
+  double max_memory;      /* limits.max_memory (GiB); 0: MRVI_MAX_MEMORY_GIB */
   mrvi_system *sys;
 } loader;
 
@@ -89,8 +90,19 @@ typedef struct loader {
 int mrvi_ld_coordinates(loader *L, struct fy_node *list);
 int mrvi_ld_particles(loader *L, struct fy_node *list, int dim);
 int mrvi_ld_generators(loader *L, struct fy_node *list, int dim);
-/* `limits:` (limits.c): max_coordinates, what `generate:` may reach. */
+/* `limits:` (limits.c): max_coordinates, what `generate:` may reach, and
+ * max_memory, what the model and the integrator's step may take. */
 int mrvi_ld_limits(loader *L, struct fy_node *lim);
+/* limits.max_memory in bytes (the default where the file has none; a
+ * build's MRVI_MEMORY_CAP caps it). */
+double mrvi_ld_memory_limit(const loader *L);
+/* MRVI_EPARSE at `at` when need (bytes) exceeds mrvi_ld_memory_limit:
+ * "WHAT need(s) about X GiB, more than limits.max_memory = Y GiB: to load
+ * it, set `limits: {max_memory: Z}`" (Z: need in GiB rounded up to
+ * 0.001); MRVI_OK within it. */
+int mrvi_ld_check_memory(loader *L, struct fy_node *at, double need,
+                         const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
 int mrvi_ld_springs(loader *L, struct fy_node *list, int dim);
 int mrvi_ld_terms(loader *L, struct fy_node *list);
 int mrvi_ld_angles(loader *L, struct fy_node *list);
@@ -103,7 +115,8 @@ int mrvi_ld_constraint_item(loader *L, int c, struct fy_node *item);
 /* Initial data against the constraints, once the settings are known. */
 int mrvi_ld_check_constraints(loader *L);
 int mrvi_ld_integrator(loader *L, struct fy_node *in);
-/* Sizes the integrator allocates per macro step, against the machine. */
+/* Sizes the integrator allocates per macro step, against the file's
+ * limits (mrvi_ld_check_memory). */
 int mrvi_ld_check_sizes(loader *L, struct fy_node *at);
 int mrvi_ld_output(loader *L, struct fy_node *out);
 /* `batch:` checked (every load), read by mrvi_batch_section_read. */
