@@ -104,11 +104,11 @@ void test_initial_data(mrvi_step *st, double *qs, double *qf, double *ps,
   const mrvi_model *m = st->model;
   for (int i = 0; i < m->n_slow; i++) {
     qs[i] = m->q0[m->slow_index[i]];
-    ps[i] = m->mass[m->slow_index[i]] * m->v0[m->slow_index[i]];
+    ps[i] = MRVI_MASS(m, m->slow_index[i]) * m->v0[m->slow_index[i]];
   }
   for (int i = 0; i < m->n_fast; i++) {
     qf[i] = m->q0[m->fast_index[i]];
-    pf[i] = m->mass[m->fast_index[i]] * m->v0[m->fast_index[i]];
+    pf[i] = MRVI_MASS(m, m->fast_index[i]) * m->v0[m->fast_index[i]];
   }
   st->qs0 = qs;
   st->qf0 = qf;

@@ -767,7 +767,7 @@ static void test_gram(void) {
            *A = malloc((size_t)R * R * 8), *mu = malloc((size_t)R * 8),
            *mus = malloc((size_t)R * 8);
     for (int j = 0; j < nn; j++)
-      p[j] = pd[j] = sin(1.7 * j + 0.3) * m->mass[j];
+      p[j] = pd[j] = sin(1.7 * j + 0.3) * MRVI_MASS(m, j);
     mrvi_gram *gr = NULL;
     CHECK(mrvi_gram_create(m, &gr) == 0, "gram created");
     CHECK(mrvi_gram_factor(gr, m, m->q0) == 0, "gram factored");

@@ -76,7 +76,7 @@ static void midpoint(const sys *S, int which, const int *mask, double h,
   const int n = S->n;
   double q1[NMAX], g[NMAX], H[NMAX * NMAX], F[NMAX], A[NMAX * NMAX], mid[NMAX];
   for (int i = 0; i < n; i++)
-    q1[i] = q[i] + (mask[i] ? h * p[i] / S->m->mass[i] : 0.0);
+    q1[i] = q[i] + (mask[i] ? h * p[i] / MRVI_MASS(S->m, i) : 0.0);
   for (int it = 0; it < 30; it++) {
     for (int i = 0; i < n; i++)
       mid[i] = 0.5 * (q[i] + q1[i]);
@@ -84,13 +84,14 @@ static void midpoint(const sys *S, int which, const int *mask, double h,
     hess(S, which, mid, H);
     /* F(q1) = M (q1 - q0)/h - p0 + h/2 grad U(mid) = 0 on the mask */
     for (int i = 0; i < n; i++) {
-      F[i] = mask[i]
-                 ? S->m->mass[i] * (q1[i] - q[i]) / h - p[i] + 0.5 * h * g[i]
-                 : 0.0;
+      F[i] = mask[i] ? MRVI_MASS(S->m, i) * (q1[i] - q[i]) / h - p[i] +
+                           0.5 * h * g[i]
+                     : 0.0;
       for (int j = 0; j < n; j++)
-        A[i * n + j] = mask[i] && mask[j] ? (i == j ? S->m->mass[i] / h : 0.0) +
-                                                0.25 * h * H[i * n + j]
-                                          : (i == j ? 1.0 : 0.0);
+        A[i * n + j] = mask[i] && mask[j]
+                           ? (i == j ? MRVI_MASS(S->m, i) / h : 0.0) +
+                                 0.25 * h * H[i * n + j]
+                           : (i == j ? 1.0 : 0.0);
     }
     solve(n, A, F);
     for (int i = 0; i < n; i++)
@@ -119,7 +120,7 @@ static void drift(const sys *S, double h, double *q, const double *p,
                   const int *mask) {
   for (int i = 0; i < S->n; i++)
     if (!mask || mask[i])
-      q[i] += h * p[i] / S->m->mass[i];
+      q[i] += h * p[i] / MRVI_MASS(S->m, i);
 }
 
 typedef enum {
@@ -189,7 +190,7 @@ static double deviation(const mrvi_model *m, mrvi_settings s, classical c,
   double q[NMAX], p[NMAX];
   for (int i = 0; i < m->n; i++) {
     q[i] = m->q0[i];
-    p[i] = m->mass[i] * m->v0[i];
+    p[i] = MRVI_MASS(m, i) * m->v0[i];
   }
   double err = 0.0;
   int ok = 1;

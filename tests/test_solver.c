@@ -1437,11 +1437,11 @@ static void direct_case(mrvi_model *m, const char *label, const char *scheme,
   }
   /* displacements: free flight plus a wiggle */
   for (int i = 0; i < ns; i++)
-    x[i] = dT * ps0[i] / m->mass[m->slow_index[i]] + 0.01 * sin(i + 1.0);
+    x[i] = dT * ps0[i] / MRVI_MASS(m, m->slow_index[i]) + 0.01 * sin(i + 1.0);
   for (int k = 1; k <= p; k++)
     for (int i = 0; i < nf; i++)
       x[ns + (k - 1) * nf + i] =
-          k * (dT / p) * pf0[i] / m->mass[m->fast_index[i]] +
+          k * (dT / p) * pf0[i] / MRVI_MASS(m, m->fast_index[i]) +
           0.01 * cos(k + 2.0 * i);
   mrvi_blocks *b[2] = {NULL, NULL};
   for (int k = 0; k < 2; k++)

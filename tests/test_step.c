@@ -11,6 +11,7 @@
 #include "testlib.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -61,14 +62,14 @@ static double Ld(const nodes *X, int only) {
   if (only < 0)
     for (int i = 0; i < ns; i++) {
       double v = (X->qs1[i] - X->qs0[i]) / dT;
-      L += 0.5 * dT * m->mass[m->slow_index[i]] * v * v;
+      L += 0.5 * dT * MRVI_MASS(m, m->slow_index[i]) * v * v;
     }
   for (int mm = 0; mm < p; mm++) {
     if (only >= 0 && mm != only)
       continue;
     for (int i = 0; i < nf; i++) {
       double v = (X->qf[(mm + 1) * nf + i] - X->qf[mm * nf + i]) / dt;
-      L += 0.5 * dt * m->mass[m->fast_index[i]] * v * v;
+      L += 0.5 * dt * MRVI_MASS(m, m->fast_index[i]) * v * v;
     }
     /* eq:Zapprox for W, and for V on the micro grid */
     for (int c = 0; c < 2; c++) {
@@ -116,12 +117,12 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
   /* A generic point: free flight plus a deterministic wiggle. */
   double *x = calloc(nu, sizeof(double)), *R = calloc(nu, sizeof(double));
   for (int i = 0; i < ns; i++)
-    x[i] =
-        qs0[i] + dT * ps0[i] / m->mass[m->slow_index[i]] + 0.01 * sin(i + 1.0);
+    x[i] = qs0[i] + dT * ps0[i] / MRVI_MASS(m, m->slow_index[i]) +
+           0.01 * sin(i + 1.0);
   for (int k = 1; k <= p; k++)
     for (int i = 0; i < nf; i++)
       x[ns + (k - 1) * nf + i] =
-          qf0[i] + k * (dT / p) * pf0[i] / m->mass[m->fast_index[i]] +
+          qf0[i] + k * (dT / p) * pf0[i] / MRVI_MASS(m, m->fast_index[i]) +
           0.01 * cos(k + 2.0 * i);
   CHECK(mrvi_step_build_pattern(&st, x) == 0, "pattern");
   mrvi_step_assemble(&st, x, R, 1);
@@ -182,7 +183,82 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
   mrvi_step_free(&st);
 }
 
+/* The model's and the step's compact storage (doc/performance/16-es-mem16.md):
+ * one mass entry while every mass is the first's, every entry from the
+ * first that differs; no element list for a class of consecutive elements,
+ * a list for an interleaved one, both read as the element order. */
+static void test_compact_storage(void) {
+  const double masses[4] = {2.0, 2.0, 2.0, 0.5};
+  mrvi_model *m = mrvi_model_create();
+  CHECK(m && mrvi_model_set_dimension(m, 2) == 0, "model");
+  for (int i = 0; i < 4; i++) {
+    const double x[2] = {(double)i, 0.1 * i}, v[2] = {0.0, 0.0};
+    char name[8];
+    snprintf(name, sizeof name, "a%d", i);
+    CHECK(mrvi_model_add_particle(m, name, masses[i],
+                                  i % 2 ? MRVI_FAST : MRVI_SLOW, x, v) >= 0,
+          "particle %d", i);
+    CHECK(m->mass_inc == (i == 3), "mass_inc %d after particle %d", m->mass_inc,
+          i);
+  }
+  for (int c = 0; c < 8; c++)
+    CHECK(mrvi_model_mass(m, c) == masses[c / 2] &&
+              MRVI_MASS(m, c) == masses[c / 2],
+          "mass of coordinate %d", c);
+  /* springs by potential: slow, slow, fast, slow (V interleaved) */
+  const double k[1] = {10.0};
+  const mrvi_rate pot[4] = {MRVI_SLOW, MRVI_SLOW, MRVI_FAST, MRVI_SLOW};
+  const int ends[4][2] = {{0, 2}, {0, 1}, {1, 3}, {2, 3}};
+  for (int e = 0; e < 4; e++)
+    CHECK(mrvi_model_add_spring(m, pot[e], ends[e][0], ends[e][1], "linear", k,
+                                1.0) >= 0,
+          "spring %d", e);
+  for (int interleaved = 1; interleaved >= 0; interleaved--) {
+    if (!interleaved) { /* (a model of V's springs then W's) */
+      mrvi_model_free(m);
+      m = mrvi_model_create();
+      mrvi_model_set_dimension(m, 2);
+      for (int i = 0; i < 4; i++) {
+        const double x[2] = {(double)i, 0.1 * i}, v[2] = {0.0, 0.0};
+        char name[8];
+        snprintf(name, sizeof name, "a%d", i);
+        mrvi_model_add_particle(m, name, 1.0, i % 2 ? MRVI_FAST : MRVI_SLOW, x,
+                                v);
+      }
+      for (int e = 0; e < 4; e++)
+        mrvi_model_add_spring(m, e == 3 ? MRVI_FAST : MRVI_SLOW, ends[e][0],
+                              ends[e][1], "linear", k, 1.0);
+      CHECK(m->mass_inc == 0, "equal masses: one entry");
+    }
+    mrvi_settings s = test_settings("explicit-slow", 0.1, 2, 1.0, 1e-10);
+    mrvi_step st;
+    CHECK(mrvi_step_init(&st, m, &s) == MRVI_OK, "step init");
+    CHECK((st.elem_of_class[MRVI_SLOW] != NULL) == interleaved &&
+              st.elem_of_class[MRVI_FAST] == NULL,
+          "element lists kept: V %d, W %d (interleaved %d)",
+          st.elem_of_class[MRVI_SLOW] != NULL,
+          st.elem_of_class[MRVI_FAST] != NULL, interleaved);
+    for (int c = 0; c < 2; c++) {
+      int *own = NULL, i = 0;
+      const int *list = mrvi_step_class_list(&st, c, &own);
+      CHECK(list != NULL, "class list");
+      for (int e = 0; list && e < m->n_elements; e++)
+        if ((int)m->erecs[e].potential == c) {
+          CHECK(i < st.n_elem_of_class[c] && MRVI_STEP_ELEM(&st, c, i) == e &&
+                    list[i] == e,
+                "class %d element %d: %d", c, i, e);
+          i++;
+        }
+      CHECK(i == st.n_elem_of_class[c], "class %d: %d elements", c, i);
+      free(own);
+    }
+    mrvi_step_free(&st);
+  }
+  mrvi_model_free(m);
+}
+
 int main(void) {
+  test_compact_storage();
   mrvi_model *fpu = test_fpu(), *ring = test_spring_ring(),
              *osc = test_oscillator(2.0);
   const char *const *schemes = mrvi_scheme_names();

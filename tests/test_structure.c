@@ -27,7 +27,7 @@ static void symplecticity(const char *scheme) {
   double z0[24], z[24], Phi[24 * 24];
   for (int i = 0; i < n; i++) {
     z0[i] = m->q0[i];
-    z0[n + i] = m->mass[i] * m->v0[i];
+    z0[n + i] = MRVI_MASS(m, i) * m->v0[i];
   }
   const double h = 1e-5;
   int ok = 1;

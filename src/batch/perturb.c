@@ -152,13 +152,13 @@ static int thermal(mrvi_model *m, uint64_t seed, double T, int *dof, char *msg,
   for (int i = 0; i < n; i++)
     m->v0[i] =
         mrvi_batch_normal(seed, MRVI_BATCH_STREAM_VELOCITIES + (uint64_t)i) /
-        sqrt(m->mass[i]);
+        sqrt(MRVI_MASS(m, i));
   /* Remove the centre-of-mass velocity of every direction. */
   for (int d = 0; d < nd; d++) {
     double P = 0.0, M = 0.0;
     for (int i = 0; i < n; i++)
       if (comp[i] == d)
-        P += m->mass[i] * m->v0[i], M += m->mass[i];
+        P += MRVI_MASS(m, i) * m->v0[i], M += MRVI_MASS(m, i);
     for (int i = 0; i < n; i++)
       if (comp[i] == d)
         m->v0[i] -= P / M;
@@ -175,7 +175,7 @@ static int thermal(mrvi_model *m, uint64_t seed, double T, int *dof, char *msg,
   *dof = n - (m->constraint_rows - redundant) - nd;
   double ke = 0.0;
   for (int i = 0; i < n; i++)
-    ke += 0.5 * m->mass[i] * m->v0[i] * m->v0[i];
+    ke += 0.5 * MRVI_MASS(m, i) * m->v0[i] * m->v0[i];
   if (st == 0 && (*dof < 1 || !(ke > 0))) {
     mrvi_fmt(msg, len,
              "thermal velocities: %d degrees of freedom after the "

@@ -254,7 +254,7 @@ int mrvi_oscillator_omega(const mrvi_model *m, double *omega, char *msg,
              H);
     return MRVI_EMODEL;
   }
-  *omega = sqrt(H / m->mass[0]);
+  *omega = sqrt(H / MRVI_MASS(m, 0));
   return MRVI_OK;
 }
 

@@ -238,12 +238,12 @@ static void initial_blocks(mrvi_integrator *it) {
   for (int s = 0; s < m->n_slow; s++) {
     const int i = m->slow_index[s];
     it->qs[s] = m->q0[i];
-    it->ps[s] = m->mass[i] * m->v0[i];
+    it->ps[s] = MRVI_MASS(m, i) * m->v0[i];
   }
   for (int s = 0; s < m->n_fast; s++) {
     const int i = m->fast_index[s];
     it->qf[s] = m->q0[i];
-    it->pf[s] = m->mass[i] * m->v0[i];
+    it->pf[s] = MRVI_MASS(m, i) * m->v0[i];
   }
 }
 
@@ -365,7 +365,7 @@ static double residual_floor(const mrvi_integrator *it) {
   const int scaled = it->rinv != NULL;
   double scale = 0.0;
   for (int s = 0; s < st->ns; s++) {
-    const double M = m->mass[m->slow_index[s]];
+    const double M = MRVI_MASS(m, m->slow_index[s]);
     const double a =
         fabs(it->ps[s]) +
         M * (fabs(it->qs[s]) + fabs(it->qs[s] + it->x[s])) / st->dT;
@@ -376,7 +376,7 @@ static double residual_floor(const mrvi_integrator *it) {
     for (int mm = 1; mm <= st->p; mm++)
       qmax =
           fmax(qmax, fabs(it->qf[s] + it->x[st->ns + (mm - 1) * st->nf + s]));
-    const double M = m->mass[m->fast_index[s]];
+    const double M = MRVI_MASS(m, m->fast_index[s]);
     const double a = fabs(it->pf[s]) + 4.0 * M * qmax / st->dt;
     scale = fmax(scale, scaled ? a / M : a);
   }
@@ -807,9 +807,8 @@ static int create(const mrvi_model *m, const mrvi_settings *s,
     /* Rows: the slow unknowns, then the fast ones of micro nodes 1..p. */
     it->rinv = alloc((size_t)it->step.n_unknowns);
     for (size_t r = 0; it->rinv && r < (size_t)it->step.n_unknowns; r++)
-      it->rinv[r] =
-          1.0 /
-          m->mass[r < ns ? m->slow_index[r] : m->fast_index[(r - ns) % nf]];
+      it->rinv[r] = 1.0 / MRVI_MASS(m, r < ns ? m->slow_index[r]
+                                              : m->fast_index[(r - ns) % nf]);
     if (!it->rinv)
       goto oom;
   }
@@ -826,7 +825,7 @@ static int create(const mrvi_model *m, const mrvi_settings *s,
     initial_blocks(it);
   for (size_t i = 0; !it->blocks_only && i < n; i++) {
     it->q[i] = m->q0[i];
-    it->p[i] = m->mass[i] * m->v0[i];
+    it->p[i] = MRVI_MASS(m, i) * m->v0[i];
   }
   if (m->n_constraints > 0) {
     if ((st = check_constraints(it, m->q0, msg, len)) < 0) {
@@ -1251,7 +1250,7 @@ static int project_micro(mrvi_integrator *it) {
           if (m->rate[idx] == MRVI_SLOW) {
             gv += G * (it->x[sl] - st->qs0[sl]) / st->dT;
           } else {
-            gv += G * pf[sl] / m->mass[idx];
+            gv += G * pf[sl] / MRVI_MASS(m, idx);
             it->pGf[(off + q) * nf + sl] += G;
           }
         }
@@ -1271,7 +1270,7 @@ static int project_micro(mrvi_integrator *it) {
         double t = 0.0;
         for (int i = 0; i < nz; i++) {
           const int f = it->pnz[i];
-          t += ga[f] * gb[f] / m->mass[m->fast_index[f]];
+          t += ga[f] * gb[f] / MRVI_MASS(m, m->fast_index[f]);
         }
         it->pA[a * r + b] = it->pA[b * r + a] = t;
       }

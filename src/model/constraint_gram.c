@@ -174,7 +174,7 @@ int mrvi_gram_factor(mrvi_gram *gr, const mrvi_model *m, const double *q) {
   /* A = G M^-1 G^T coordinate by coordinate (lower triangle). */
   memset(gr->L, 0, (size_t)gr->start[gr->R] * sizeof *gr->L);
   for (int j = 0; j < m->n; j++) {
-    const double w = 1.0 / m->mass[j];
+    const double w = 1.0 / MRVI_MASS(m, j);
     for (int e = gr->coord_ptr[j]; e < gr->coord_ptr[j + 1]; e++) {
       const int a = gr->entry_row[e];
       const double ga = gr->grad[gr->entry_grad[e]] * w;
@@ -239,7 +239,8 @@ void mrvi_gram_project(mrvi_gram *gr, const mrvi_model *m, double *p,
   memset(mu, 0, (size_t)R * sizeof *mu);
   for (int e = 0; e < gr->n_entries; e++) {
     const int j = gr->entry_coord[e];
-    mu[gr->entry_row[e]] += gr->grad[gr->entry_grad[e]] * p[j] / m->mass[j];
+    mu[gr->entry_row[e]] +=
+        gr->grad[gr->entry_grad[e]] * p[j] / MRVI_MASS(m, j);
   }
   for (int r = 0; gr->drop && r < R; r++)
     if (gr->drop[r])
@@ -278,7 +279,8 @@ double mrvi_gram_settle(mrvi_gram *gr, const mrvi_model *m, double *q,
     chol_solve(gr, mu);
     for (int e = 0; e < gr->n_entries; e++) {
       const int j = gr->entry_coord[e];
-      q[j] -= gr->grad[gr->entry_grad[e]] * mu[gr->entry_row[e]] / m->mass[j];
+      q[j] -=
+          gr->grad[gr->entry_grad[e]] * mu[gr->entry_row[e]] / MRVI_MASS(m, j);
     }
   }
   return gmax;

@@ -371,7 +371,7 @@ double mrvi_model_hidden_residual(const mrvi_model *m, const double *q,
     for (int r = 0; r < k->rows; r++) {
       double s = 0.0;
       for (int j = 0; j < k->n_in; j++)
-        s += Gl[r * k->n_in + j] * p[k->in[j]] / m->mass[k->in[j]];
+        s += Gl[r * k->n_in + j] * p[k->in[j]] / MRVI_MASS(m, k->in[j]);
       worst = fmax(worst, fabs(s));
     }
   }
@@ -507,7 +507,7 @@ int mrvi_constraints_rank(const mrvi_model *m, const double *q,
   for (int r = 0; r < R; r++) {
     double norm0 = 0.0;
     for (int j = 0; j < n; j++) {
-      v[j] = G[(size_t)r * n + j] / sqrt(m->mass[j]);
+      v[j] = G[(size_t)r * n + j] / sqrt(MRVI_MASS(m, j));
       norm0 += v[j] * v[j];
     }
     norm0 = sqrt(norm0);
@@ -574,7 +574,7 @@ static int solve_kept(const mrvi_model *m, const double *G,
         continue;
       double t = 0.0;
       for (int j = 0; j < n; j++)
-        t += G[(size_t)a * n + j] * G[(size_t)c * n + j] / m->mass[j];
+        t += G[(size_t)a * n + j] * G[(size_t)c * n + j] / MRVI_MASS(m, j);
       A[k * R + l] = A[l * R + k] = t;
       l++;
     }
@@ -599,7 +599,7 @@ int mrvi_constraints_project(const mrvi_model *m, const double *q, double *p,
   for (int a = 0; a < R; a++) {
     double s = 0.0;
     for (int j = 0; j < n; j++)
-      s += G[(size_t)a * n + j] * p[j] / m->mass[j];
+      s += G[(size_t)a * n + j] * p[j] / MRVI_MASS(m, j);
     g[a] = s;
   }
   if (solve_kept(m, G, drop, g, A, mu) < 0)
@@ -615,7 +615,7 @@ static void store_velocities(mrvi_model *m, const double *p,
                              double *correction) {
   double worst = 0.0;
   for (int j = 0; j < m->n; j++) {
-    const double v = p[j] / m->mass[j];
+    const double v = p[j] / MRVI_MASS(m, j);
     worst = fmax(worst, fabs(v - m->v0[j]));
     m->v0[j] = v;
   }
@@ -693,7 +693,7 @@ int mrvi_constraints_project_positions(const mrvi_model *m, double *q,
       double s = 0.0;
       for (int a = 0; a < R; a++)
         s += G[(size_t)a * n + j] * mu[a];
-      q[j] -= s / m->mass[j];
+      q[j] -= s / MRVI_MASS(m, j);
     }
     prev = gmax;
   }
@@ -751,7 +751,7 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
     const int sparse_ok = mrvi_gram_factor(gr, m, m->q0) == MRVI_OK;
     if (sparse_ok) {
       for (int j = 0; j < n; j++)
-        p[j] = m->mass[j] * m->v0[j];
+        p[j] = MRVI_MASS(m, j) * m->v0[j];
       mrvi_gram_project(gr, m, p, mu);
       store_velocities(m, p, correction);
     }
@@ -774,7 +774,7 @@ int mrvi_model_project_velocities(mrvi_model *m, double *correction) {
   /* Project p0 = M v0 onto the tangent space of the independent rows (the
    * redundant ones add nothing to it) and read the velocities back. */
   for (int j = 0; j < n; j++)
-    p[j] = m->mass[j] * m->v0[j];
+    p[j] = MRVI_MASS(m, j) * m->v0[j];
   if (mrvi_constraints_project(m, m->q0, p, drop, g, G, A, mu) < 0) {
     st = mrvi_model_fail(m, MRVI_ESINGULAR,
                          "constraint gradients are dependent");

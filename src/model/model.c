@@ -364,7 +364,7 @@ static int reserve_coordinates(mrvi_model *m, int need) {
   int c = m->cap ? (m->cap > INT_MAX / 2 ? INT_MAX : 2 * m->cap) : 16;
   if (c < need)
     c = need;
-  void *b = realloc(m->mass, (size_t)c * sizeof *m->mass);
+  void *b = realloc(m->mass, (m->mass_inc ? (size_t)c : 1) * sizeof *m->mass);
   if (b)
     m->mass = b;
   void *q = realloc(m->q0, (size_t)c * sizeof *m->q0);
@@ -462,7 +462,17 @@ static int add_coord(mrvi_model *m, const char *name, double mass,
     table_put(m->coord_table, m->coord_table_cap, d, m->n_own);
     m->n_own++;
   }
-  m->mass[m->n] = mass;
+  if (m->mass_inc == 0 && m->n > 0 && mass != m->mass[0]) {
+    /* (the first mass that differs: every entry kept from here on) */
+    double *b = realloc(m->mass, (size_t)m->cap * sizeof *m->mass);
+    if (!b)
+      return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
+    for (int i = 1; i < m->n; i++)
+      b[i] = b[0];
+    m->mass = b;
+    m->mass_inc = 1;
+  }
+  m->mass[(size_t)m->n * (size_t)m->mass_inc] = mass;
   m->q0[m->n] = q0;
   m->v0[m->n] = v0;
   m->rate[m->n] = rate;
@@ -596,7 +606,7 @@ int mrvi_model_room(const mrvi_model *m, double particles, double springs,
   /* the per-coordinate arrays (mass, q0, v0, rate, slow_index, fast_index,
    * slot), the particles, the element records */
   const double per_coord =
-      3.0 * sizeof(double) + sizeof(mrvi_rate) + 3.0 * sizeof(int);
+      3.0 * sizeof(double) + sizeof *m->rate + 3.0 * sizeof(int);
   if (bytes)
     *bytes =
         per_coord * n + sizeof(mrvi_particle) * np + sizeof(mrvi_erec) * ne;
@@ -1332,7 +1342,7 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
                                   : m->bodies[i - m->n_particles].first) +
               k;
       e.in[i * d + k] = c;
-      e.coef[i * d + k] = -m->mass[c] * g[k];
+      e.coef[i * d + k] = -MRVI_MASS(m, c) * g[k];
     }
   return push_element(m, &e, "gravity");
 }
@@ -1461,8 +1471,10 @@ int mrvi_model_dimension(const mrvi_model *m) {
 int mrvi_model_n_particles(const mrvi_model *m) { return m->n_particles; }
 int mrvi_model_n_elements(const mrvi_model *m) { return m->n_elements; }
 const char *mrvi_model_name(const mrvi_model *m) { return m->name; }
-double mrvi_model_mass(const mrvi_model *m, int i) { return m->mass[i]; }
-mrvi_rate mrvi_model_rate(const mrvi_model *m, int i) { return m->rate[i]; }
+double mrvi_model_mass(const mrvi_model *m, int i) { return MRVI_MASS(m, i); }
+mrvi_rate mrvi_model_rate(const mrvi_model *m, int i) {
+  return (mrvi_rate)m->rate[i];
+}
 const double *mrvi_model_q0(const mrvi_model *m) { return m->q0; }
 const double *mrvi_model_v0(const mrvi_model *m) { return m->v0; }
 const int *mrvi_model_slow_index(const mrvi_model *m) { return m->slow_index; }
@@ -1866,7 +1878,7 @@ void mrvi_model_energy(const mrvi_model *m, const double *q, const double *p,
                        double *kinetic, double *slow, double *fast) {
   double t = 0.0;
   for (int i = 0; i < m->n; i++)
-    t += 0.5 * p[i] * p[i] / m->mass[i];
+    t += 0.5 * p[i] * p[i] / MRVI_MASS(m, i);
   if (kinetic)
     *kinetic = t;
   if (slow)
@@ -1925,10 +1937,12 @@ unsigned long long mrvi_model_hash(const mrvi_model *m) {
     char buf[MRVI_NAME_MAX];
     const char *name = mrvi_model_coordinate_name(m, i, buf);
     fnv(&h, name, strlen(name) + 1);
-    fnv(&h, &m->mass[i], sizeof(double));
+    const double mass = MRVI_MASS(m, i);
+    const mrvi_rate rate = (mrvi_rate)m->rate[i];
+    fnv(&h, &mass, sizeof(double));
     fnv(&h, &m->q0[i], sizeof(double));
     fnv(&h, &m->v0[i], sizeof(double));
-    fnv(&h, &m->rate[i], sizeof m->rate[i]);
+    fnv(&h, &rate, sizeof rate);
   }
   for (int e = 0; e < m->n_elements; e++) {
     const mrvi_element *el = MRVI_ELEMENT(m, e);

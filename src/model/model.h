@@ -147,8 +147,14 @@ struct mrvi_model {
   char **own_names;
   int *own_coord;
   int n_own, cap_own;
+  /* The masses, read through MRVI_MASS: mass_inc 0 while every
+   * coordinate's mass is the first's (one entry kept: 8 bytes a coordinate
+   * less on the benchmark's networks, doc/performance/16-es-mem16.md), 1
+   * once one differs (every entry). */
   double *mass, *q0, *v0;
-  mrvi_rate *rate;
+  int mass_inc;
+  /* a mrvi_rate each, one byte (the hash reads each as a mrvi_rate) */
+  unsigned char *rate;
   int n_particles, cap_particles;
   /* Name lookup (model.c): open-addressing tables by name, 0 = empty, else
    * index + 1: of own_names (the coordinates that are not a particle's: a
@@ -198,6 +204,9 @@ struct mrvi_model {
   struct mrvi_body *bodies;
   char errmsg[512];
 };
+
+/* The mass of coordinate i (m->mass_inc). */
+#define MRVI_MASS(m, i) ((m)->mass[(size_t)(i) * (size_t)(m)->mass_inc])
 
 /* A rigid body (model/bodies.c, doc/multibody.md): dimension d (d + 1)
  * consecutive coordinates from `first`: phi (d), then d_1 .. d_d (d each). */

@@ -89,7 +89,7 @@ void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
     o->gz[z] = ocp_global(o, k, z);
   /* Kinetic: M/h [[1, -1], [-1, 1]] on every interval. */
   for (int s = 0; s < ns; s++) {
-    const double a = m->mass[m->slow_index[s]] / st->dT;
+    const double a = MRVI_MASS(m, m->slow_index[s]) / st->dT;
     ocp_jac_add(J, s, s, a);
     ocp_jac_add(J, ns + s, ns + s, a);
     ocp_jac_add(J, s, ns + s, -a);
@@ -97,7 +97,7 @@ void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
   }
   for (int mm = 0; mm < p; mm++)
     for (int s = 0; s < nf; s++) {
-      const double a = m->mass[m->fast_index[s]] / st->dt;
+      const double a = MRVI_MASS(m, m->fast_index[s]) / st->dt;
       const int i = 2 * ns + mm * nf + s, j = i + nf;
       ocp_jac_add(J, i, i, a);
       ocp_jac_add(J, j, j, a);
@@ -109,7 +109,7 @@ void ocp_jacobian(mrvi_ocp *o, long k, ocp_jac *J) {
     for (int ip = 0; ip < st->n_pts[c]; ip++) {
       const mrvi_point *pt = &st->pts[c][ip];
       for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
-        const mrvi_element *e = MRVI_ELEMENT(m, st->elem_of_class[c][ie]);
+        const mrvi_element *e = MRVI_ELEMENT(m, MRVI_STEP_ELEM(st, c, ie));
         if (e->kind == MRVI_ELEMENT_GRAVITY)
           continue;
         const int n = e->n_in;
@@ -202,7 +202,7 @@ static double projected(const mrvi_ocp *o, const ocp_terminal *T, momentum_fn f,
       mrvi_constraints_project(m, q, b, NULL, g, G, A, mu) != MRVI_OK)
     v = NAN;
   for (int j = 0; j < n; j++)
-    gp[j] = isfinite(v) ? b[j] / m->mass[j] : NAN;
+    gp[j] = isfinite(v) ? b[j] / MRVI_MASS(m, j) : NAN;
   for (int j = 0; j < n; j++) {
     const double qj = q[j], h = 1e-6 * fmax(1.0, fabs(qj));
     double vs[2] = {NAN, NAN};
@@ -225,7 +225,7 @@ static double coordinate_velocity(const mrvi_ocp *o, const ocp_terminal *T,
   (void)q;
   if (b)
     b[T->coord] = 1.0;
-  return pp[T->coord] / o->model->mass[T->coord] - T->target;
+  return pp[T->coord] / MRVI_MASS(o->model, T->coord) - T->target;
 }
 
 /* Body condition T (momentum_fn): its value on the body's D (D + 1)
@@ -236,7 +236,7 @@ static double body_condition(const mrvi_ocp *o, const ocp_terminal *T,
   double gq[12], gp[12];
   const double v = ocp_body_terminal(o, T, q + T->coord, pp + T->coord, gq, gp);
   for (int k = 0; b && k < nb; k++)
-    b[T->coord + k] = o->model->mass[T->coord + k] * gp[k];
+    b[T->coord + k] = MRVI_MASS(o->model, T->coord + k) * gp[k];
   return v;
 }
 
@@ -379,7 +379,7 @@ static void functionals(const mrvi_ocp *o, const double *u, double *val,
     }
     int ps;
     const long g = final_node(o, T->coord, &ps);
-    const double M = m->mass[T->coord];
+    const double M = MRVI_MASS(m, T->coord);
     if (T->kind == MRVI_OCP_VELOCITY && o->pv) {
       projected_row(o, T, coordinate_velocity, nn, npn, &ic, val, gQ, gp);
       continue;

@@ -104,15 +104,21 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
     return MRVI_ENOMEM;
   for (int i = 0; i < m->n; i++)
     col[i] = m->rate[i] == MRVI_SLOW ? m->slot[i] : o->ns + m->slot[i];
-  int s = mrvi_terms_create(m, st->elem_of_class[MRVI_SLOW],
-                            st->n_elem_of_class[MRVI_SLOW], col,
-                            &o->adj_terms[MRVI_SLOW]);
+  int *own = NULL;
+  const int *list = mrvi_step_class_list(st, MRVI_SLOW, &own);
+  int s = list ? mrvi_terms_create(m, list, st->n_elem_of_class[MRVI_SLOW], col,
+                                   &o->adj_terms[MRVI_SLOW])
+               : MRVI_ENOMEM;
+  free(own);
+  own = NULL;
   for (int i = 0; i < m->n; i++)
     col[i] = m->slot[i];
+  list = s == MRVI_OK ? mrvi_step_class_list(st, MRVI_FAST, &own) : NULL;
   if (s == MRVI_OK)
-    s = mrvi_terms_create(m, st->elem_of_class[MRVI_FAST],
-                          st->n_elem_of_class[MRVI_FAST], col,
-                          &o->adj_terms[MRVI_FAST]);
+    s = list ? mrvi_terms_create(m, list, st->n_elem_of_class[MRVI_FAST], col,
+                                 &o->adj_terms[MRVI_FAST])
+             : MRVI_ENOMEM;
+  free(own);
   free(col);
   /* (the sweep: the points' configurations 2 nf, then per functional the
    * combined adjoints and CG's r, p, q: 4 nf; its scalars: 5; hy: nf; a
@@ -200,12 +206,12 @@ static void coefficients(const mrvi_ocp *o, double *cs, double *wV) {
   const int ns = o->ns, nf = o->nf, p = o->p;
   double *ks = cs + ns, *cf = ks + ns, *kf = cf + nf, *ww = kf + nf;
   for (int i = 0; i < ns; i++) {
-    ks[i] = m->mass[m->slow_index[i]] / st->dT;
-    cs[i] = st->dT / m->mass[m->slow_index[i]];
+    ks[i] = MRVI_MASS(m, m->slow_index[i]) / st->dT;
+    cs[i] = st->dT / MRVI_MASS(m, m->slow_index[i]);
   }
   for (int i = 0; i < nf; i++) {
-    kf[i] = m->mass[m->fast_index[i]] / st->dt;
-    cf[i] = st->dt / m->mass[m->fast_index[i]];
+    kf[i] = MRVI_MASS(m, m->fast_index[i]) / st->dt;
+    cf[i] = st->dt / MRVI_MASS(m, m->fast_index[i]);
   }
   /* The points' weights on their nodes (ocp_explicit_ok). */
   wV[0] = wV[1] = 0.0;

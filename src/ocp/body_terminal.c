@@ -289,7 +289,7 @@ static int redundant_dense(const mrvi_ocp *o, int first, double *qg,
     memcpy(v, G + (size_t)r * (size_t)n, (size_t)n * sizeof *v);
     extend_basis(n, Bq, &kq, v);
     for (int j = 0; j < n; j++)
-      v[j] = G[(size_t)r * (size_t)n + j] / m->mass[j];
+      v[j] = G[(size_t)r * (size_t)n + j] / MRVI_MASS(m, j);
     extend_basis(n, Bp, &kp, v);
   }
   /* The equality conditions in order: the first from `first` on that is
@@ -360,14 +360,14 @@ static int redundant_sparse(const mrvi_ocp *o, int first, double *qg,
     double nx = 0.0;
     for (int j = 0; j < n; j++) {
       if (!pos)
-        v[j] *= m->mass[j];
-      nx += v[j] * v[j] / m->mass[j];
+        v[j] *= MRVI_MASS(m, j);
+      nx += v[j] * v[j] / MRVI_MASS(m, j);
     }
     mrvi_gram_project(gr, m, v, mu);
     mrvi_gram_project(gr, m, v, mu);
     double nw = 0.0;
     for (int j = 0; j < n; j++) {
-      v[j] /= sqrt(m->mass[j]);
+      v[j] /= sqrt(MRVI_MASS(m, j));
       nw += v[j] * v[j];
     }
     const int added =
@@ -397,7 +397,7 @@ int ocp_terminal_redundant(const mrvi_ocp *o, int first) {
   int bad = -2;
   if (p0 && qg) {
     for (int i = 0; i < n; i++)
-      p0[i] = m->mass[i] * m->v0[i];
+      p0[i] = MRVI_MASS(m, i) * m->v0[i];
     const double qmax = test_point(m, qg);
     bad = R > 0 ? redundant_sparse(o, first, qg, p0, qmax) : -3;
     if (bad == -3) {

@@ -1002,11 +1002,12 @@ static void free_flight(mrvi_ocp *o) {
   const mrvi_step *st = &o->step;
   const int ns = o->ns, nf = o->nf, p = o->p;
   for (int s = 0; s < ns; s++)
-    o->x[s] = st->qs0[s] + st->dT * st->ps0[s] / m->mass[m->slow_index[s]];
+    o->x[s] = st->qs0[s] + st->dT * st->ps0[s] / MRVI_MASS(m, m->slow_index[s]);
   for (int mm = 1; mm <= p; mm++)
     for (int s = 0; s < nf; s++)
       o->x[ns + (mm - 1) * nf + s] =
-          st->qf0[s] + mm * st->dt * st->pf0[s] / m->mass[m->fast_index[s]];
+          st->qf0[s] +
+          mm * st->dt * st->pf0[s] / MRVI_MASS(m, m->fast_index[s]);
 }
 
 /* Converged step k into the trajectory: slow node qs1 (ns), fast nodes
@@ -1081,7 +1082,7 @@ static int structured_step(mrvi_ocp *o, long k, const double *u) {
   mrvi_integrator *it = o->integ;
   if (k == 0) {
     for (int i = 0; i < m->n; i++)
-      o->p0[i] = m->mass[i] * m->v0[i];
+      o->p0[i] = MRVI_MASS(m, i) * m->v0[i];
     const int s = mrvi_integrator_resume_state(it, 0, m->q0, o->p0);
     if (s < 0)
       return mrvi_ocp_fail(o, s, "%s", mrvi_integrator_errmsg(it));
@@ -1167,12 +1168,12 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
   for (int s = 0; s < ns; s++) {
     const int c = m->slow_index[s];
     Qs[s] = m->q0[c];
-    o->ps_k[s] = m->mass[c] * m->v0[c];
+    o->ps_k[s] = MRVI_MASS(m, c) * m->v0[c];
   }
   for (int s = 0; s < nf; s++) {
     const int c = m->fast_index[s];
     Qf[s] = m->q0[c];
-    o->pf_k[s] = m->mass[c] * m->v0[c];
+    o->pf_k[s] = MRVI_MASS(m, c) * m->v0[c];
     o->pf_micro[s] = o->pf_k[s];
   }
   if (!o->ready && (s0 = setup(o, u)) < 0)
@@ -1202,14 +1203,14 @@ int ocp_forward(mrvi_ocp *o, const double *u) {
     double scale = 0.0;
     for (int i = 0; i < ns; i++)
       scale = fmax(scale, fabs(st->ps0[i]) +
-                              m->mass[m->slow_index[i]] *
+                              MRVI_MASS(m, m->slow_index[i]) *
                                   (fabs(st->qs0[i]) + fabs(o->x[i])) / dT);
     for (int i = 0; i < nf; i++) {
       double qm = fabs(st->qf0[i]);
       for (int mm = 1; mm <= p; mm++)
         qm = fmax(qm, fabs(o->x[ns + (mm - 1) * nf + i]));
       scale = fmax(scale, fabs(st->pf0[i]) +
-                              4.0 * m->mass[m->fast_index[i]] * qm / dt);
+                              4.0 * MRVI_MASS(m, m->fast_index[i]) * qm / dt);
     }
     const double tol = fmax(o->settings.newton_tol, 16.0 * DBL_EPSILON * scale);
     while (!(res <= tol)) {

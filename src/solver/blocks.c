@@ -250,11 +250,13 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   for (int c = 0; c < m->n; c++)
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : b->ns) + m->slot[c];
   for (int c = 0; c < 2; c++) {
-    const int st_ok =
-        mrvi_terms_create(m, st->elem_of_class[c], st->n_elem_of_class[c], col,
-                          &b->kc[c]) == MRVI_OK;
+    int *own = NULL;
+    const int *list = mrvi_step_class_list(st, c, &own);
+    const int st_ok = list && mrvi_terms_create(m, list, st->n_elem_of_class[c],
+                                                col, &b->kc[c]) == MRVI_OK;
+    free(own);
     for (int ie = 0; st_ok && ie < st->n_elem_of_class[c]; ie++) {
-      const int r = mrvi_model_element_rates(m, st->elem_of_class[c][ie]);
+      const int r = mrvi_model_element_rates(m, MRVI_STEP_ELEM(st, c, ie));
       b->has_s[c] |= (r >> MRVI_SLOW) & 1;
       b->has_f[c] |= (r >> MRVI_FAST) & 1;
     }
@@ -335,9 +337,9 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
     }
   }
   for (int i = 0; i < b->ns; i++)
-    b->ms[i] = m->mass[m->slow_index[i]];
+    b->ms[i] = MRVI_MASS(m, m->slow_index[i]);
   for (int i = 0; i < b->nf; i++)
-    b->mf[i] = m->mass[m->fast_index[i]];
+    b->mf[i] = MRVI_MASS(m, m->fast_index[i]);
   b->m_min = INFINITY;
   for (int i = 0; i < b->ns; i++)
     b->m_min = fmin(b->m_min, b->ms[i]);

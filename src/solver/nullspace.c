@@ -313,7 +313,7 @@ static int micro_redundancy_local(const mrvi_step *st,
     for (int rr = 0; k->where == MRVI_FAST && rr < k->rows; rr++) {
       const int row = k->first_row + rr;
       for (int j = 0; j < n; j++)
-        v[j] = G[(size_t)row * n + j] / sqrt(m->mass[j]);
+        v[j] = G[(size_t)row * n + j] / sqrt(MRVI_MASS(m, j));
       const int kept = mrvi_dense_extend_basis(n, E, rank, v, 1e-9);
       rank += kept;
       if (kept == !!drop[row]) {

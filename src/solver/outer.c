@@ -221,12 +221,12 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   for (int c = 0; c < m->n; c++)
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
   for (int s = 0; s < o->ns; s++) {
-    o->m_s[s] = m->mass[m->slow_index[s]];
+    o->m_s[s] = MRVI_MASS(m, m->slow_index[s]);
     o->minv_s[s] = 1.0 / o->m_s[s];
   }
   o->eq_f = 1;
   for (int f = 0; f < o->nf; f++) {
-    o->m_f[f] = m->mass[m->fast_index[f]];
+    o->m_f[f] = MRVI_MASS(m, m->fast_index[f]);
     o->eq_f &= o->m_f[f] == o->m_f[0];
     o->minv_f[f] = 1.0 / o->m_f[f];
     o->mdt[f] = o->m_f[f] / st->dt;
@@ -241,10 +241,10 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
       int n_sel = 0;
       for (int i = 0; i < st->n_elem_of_class[c]; i++) {
         /* (col[j] < ns: input j slow) */
-        const int r = mrvi_model_element_rates(m, st->elem_of_class[c][i]);
+        const int r = mrvi_model_element_rates(m, MRVI_STEP_ELEM(st, c, i));
         const int slow_only = !(r & (1 << MRVI_FAST));
         if (slow_only == part)
-          sel[n_sel++] = st->elem_of_class[c][i];
+          sel[n_sel++] = MRVI_STEP_ELEM(st, c, i);
         if (!part && !slow_only)
           o->slow_in[c] |= (r >> MRVI_SLOW) & 1;
       }

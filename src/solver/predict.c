@@ -176,7 +176,7 @@ struct mrvi_predictor {
 /* Whether an element of class c (0: V, 1: W) has a slow input. */
 static int class_sees_slow(const mrvi_model *m, const mrvi_step *st, int c) {
   for (int ie = 0; ie < st->n_elem_of_class[c]; ie++)
-    if (mrvi_model_element_rates(m, st->elem_of_class[c][ie]) &
+    if (mrvi_model_element_rates(m, MRVI_STEP_ELEM(st, c, ie)) &
         (1 << MRVI_SLOW))
       return 1;
   return 0;
@@ -505,7 +505,7 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
   }
   for (int c = 0; c < m->n; c++) {
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : m->n_slow) + m->slot[c];
-    pr->minv[col[c]] = 1.0 / m->mass[c];
+    pr->minv[col[c]] = 1.0 / MRVI_MASS(m, c);
   }
   /* Beyond the small systems (the affine classes of ns, nf <= 4 and the
    * slow Newton solve's Hessians up to slow_newton_n coordinates, below)
@@ -517,14 +517,18 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     /* (a large spring class's gradient on the step's threads, in parts by
      * records as the outer iteration's, doubled until few records span
      * them: the same bits for every count) */
-    const int ok =
-        (grad_only ? mrvi_terms_create_grad_exact : mrvi_terms_create)(
-            m, st->elem_of_class[c], st->n_elem_of_class[c], col, &pr->kc[c]) ==
-            MRVI_OK &&
-        mrvi_terms_set_threads_spread(pr->kc[c], st->threads,
-                                      st->tuning.thread_chunk, 0,
-                                      MRVI_TERMS_SPREAD) == MRVI_OK &&
-        (pr->kinds[c] = malloc((size_t)st->n_pts[c] + 1));
+    int *own = NULL;
+    const int *list = mrvi_step_class_list(st, c, &own);
+    const int made =
+        list && (grad_only ? mrvi_terms_create_grad_exact
+                           : mrvi_terms_create)(m, list, st->n_elem_of_class[c],
+                                                col, &pr->kc[c]) == MRVI_OK;
+    free(own);
+    const int ok = made &&
+                   mrvi_terms_set_threads_spread(
+                       pr->kc[c], st->threads, st->tuning.thread_chunk, 0,
+                       MRVI_TERMS_SPREAD) == MRVI_OK &&
+                   (pr->kinds[c] = malloc((size_t)st->n_pts[c] + 1));
     if (!ok) {
       free(col);
       mrvi_predictor_free(pr);
@@ -700,7 +704,7 @@ static double omega_bound(mrvi_predictor *pr, const mrvi_step *st) {
   for (int c = 0; c < 2 && ok; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
       const mrvi_element *e =
-          mrvi_model_element(m, st->elem_of_class[c][ie], &eb);
+          mrvi_model_element(m, MRVI_STEP_ELEM(st, c, ie), &eb);
       const int ni = e->n_in;
       if (ni > cap) {
         if (y != sy)
@@ -731,7 +735,7 @@ static double omega_bound(mrvi_predictor *pr, const mrvi_step *st) {
     return HUGE_VAL;
   double b = 0.0;
   for (int i = 0; i < m->n; i++) {
-    const double v = (hd[i] + off[i]) / m->mass[i];
+    const double v = (hd[i] + off[i]) / MRVI_MASS(m, i);
     b = v > b || isnan(v) ? v : b;
   }
   return isfinite(b) ? sqrt(b) : HUGE_VAL;
@@ -801,11 +805,11 @@ static double power_iteration(mrvi_predictor *pr, double *Q, int nq,
 void mrvi_predict_free_flight(const mrvi_step *st, double *x) {
   const mrvi_model *m = st->model;
   for (int s = 0; s < st->ns; s++)
-    x[s] = st->dT * st->ps0[s] / m->mass[m->slow_index[s]];
+    x[s] = st->dT * st->ps0[s] / MRVI_MASS(m, m->slow_index[s]);
   for (int mm = 1; mm <= st->p; mm++)
     for (int s = 0; s < st->nf; s++)
       x[st->ns + (size_t)(mm - 1) * st->nf + s] =
-          mm * st->dt * st->pf0[s] / m->mass[m->fast_index[s]];
+          mm * st->dt * st->pf0[s] / MRVI_MASS(m, m->fast_index[s]);
 }
 
 /* g <- grad Z_c at point pt of the step at the displacements x (fast nodes

@@ -184,9 +184,9 @@ int mrvi_joint_sweep_create(const mrvi_step *st, mrvi_joint_sweep **out) {
   w->cg = w->y + ni;
   w->cG = w->cg + r;
   for (int s = 0; s < st->ns; s++)
-    w->minv[s] = 1.0 / m->mass[m->slow_index[s]];
+    w->minv[s] = 1.0 / MRVI_MASS(m, m->slow_index[s]);
   for (int s = 0; s < st->nf; s++)
-    w->minv[st->ns + s] = 1.0 / m->mass[m->fast_index[s]];
+    w->minv[st->ns + s] = 1.0 / MRVI_MASS(m, m->fast_index[s]);
   *out = w;
   return MRVI_OK;
 }

@@ -492,7 +492,7 @@ static inline double rweight(const double *rw, int unit, double a, int f) {
 /* Whether the n coordinates idx[.] all have the first's mass. */
 static int equal_masses(const mrvi_model *m, const int *idx, int n) {
   for (int i = 1; i < n; i++)
-    if (m->mass[idx[i]] != m->mass[idx[0]])
+    if (MRVI_MASS(m, idx[i]) != MRVI_MASS(m, idx[0]))
       return 0;
   return 1;
 }
@@ -569,13 +569,18 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : sw->ns) + m->slot[c];
   /* (V's gradient alone; W's too on the explicit path, unless its affine
    * map is made below) */
-  s_ok = s_ok && mrvi_terms_create_grad(m, st->elem_of_class[MRVI_SLOW],
-                                        st->n_elem_of_class[MRVI_SLOW], col,
-                                        &sw->kc[MRVI_SLOW]) == MRVI_OK;
-  s_ok = s_ok &&
+  int *own = NULL;
+  const int *list = s_ok ? mrvi_step_class_list(st, MRVI_SLOW, &own) : NULL;
+  s_ok = list && mrvi_terms_create_grad(m, list, st->n_elem_of_class[MRVI_SLOW],
+                                        col, &sw->kc[MRVI_SLOW]) == MRVI_OK;
+  free(own);
+  own = NULL;
+  list = s_ok ? mrvi_step_class_list(st, MRVI_FAST, &own) : NULL;
+  s_ok = list &&
          (sw->implicit || nf <= 4 ? mrvi_terms_create : mrvi_terms_create_grad)(
-             m, st->elem_of_class[MRVI_FAST], st->n_elem_of_class[MRVI_FAST],
-             m->slot, &sw->kc[MRVI_FAST]) == MRVI_OK;
+             m, list, st->n_elem_of_class[MRVI_FAST], m->slot,
+             &sw->kc[MRVI_FAST]) == MRVI_OK;
+  free(own);
   /* The gradients of large spring classes on threads (the same bits).
    * V's parts (by records: each column summed in the serial order) spread
    * on every path; W's on the implicit path keep thread_chunk, the chord's
@@ -616,9 +621,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->F = dalloc(ni);
   sw->fimp = dalloc(ni);
   sw->dn = dalloc(ni);
-  sw->dff = dalloc(ni);
   sw->rw = dalloc(scaled ? ni : 0);
   const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
+  sw->dff = dalloc(sparse ? 1 : ni); /* (sparse: in fhist[3], free_flight) */
   sw->sparse = sparse;
   sw->sb_dense_max = s->tuning.newton_dense_max;
   sw->J = dalloc(sw->implicit && !sparse ? nf * nf : 1);
@@ -694,15 +699,15 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     return MRVI_ENOMEM;
   }
   for (int i = 0; i < (sw->inc_s ? sw->ns : (sw->ns > 0)); i++)
-    sw->minv_s[i] = 1.0 / m->mass[m->slow_index[i]];
+    sw->minv_s[i] = 1.0 / MRVI_MASS(m, m->slow_index[i]);
   for (int i = 0; i < (int)nfm; i++) {
-    sw->m_f[i] = m->mass[m->fast_index[i]];
+    sw->m_f[i] = MRVI_MASS(m, m->fast_index[i]);
     sw->minv_f[i] = 1.0 / sw->m_f[i];
   }
   sw->rw_one = !scaled;
   sw->cg_unit = 1.0;
   for (int i = 0; i < sw->nf; i++) {
-    const double mi = m->mass[m->fast_index[i]];
+    const double mi = MRVI_MASS(m, m->fast_index[i]);
     if (sw->implicit && scaled)
       sw->rw[i] = sw->minv_f[i * sw->mass_inc];
     if (scaled && (i == 0 || mi < sw->cg_unit))
@@ -740,12 +745,19 @@ static int sblock_ready(mrvi_sweep *sw, char *msg, size_t len) {
     n_hess += sw->cA[i] != 0.0 && sw->cB[i] != 0.0;
   const int free_form =
       n_hess == 1 && mrvi_terms_springs_only(sw->kc[MRVI_FAST]);
-  if ((free_form ? mrvi_sblock_create_free(sw->kc[MRVI_FAST], sw->nf,
-                                           st->model->dimension,
-                                           sw->sb_dense_max, &sw->sb)
-                 : mrvi_sblock_create(st->model, st->elem_of_class[MRVI_FAST],
-                                      st->n_elem_of_class[MRVI_FAST],
-                                      sw->sb_dense_max, &sw->sb)) < 0 ||
+  int *own = NULL;
+  const int *list =
+      free_form ? NULL : mrvi_step_class_list(st, MRVI_FAST, &own);
+  const int made =
+      free_form ? mrvi_sblock_create_free(sw->kc[MRVI_FAST], sw->nf,
+                                          st->model->dimension,
+                                          sw->sb_dense_max, &sw->sb)
+      : list
+          ? mrvi_sblock_create(st->model, list, st->n_elem_of_class[MRVI_FAST],
+                               sw->sb_dense_max, &sw->sb)
+          : MRVI_ENOMEM;
+  free(own);
+  if (made < 0 ||
       mrvi_sblock_set_parts(sw->sb, sw->n_cpass, sw->pthreads) < 0) {
     mrvi_fmt(msg, len,
              "out of memory for the micro-step Newton matrix "
@@ -1044,6 +1056,16 @@ ALWAYS_INLINE double predicted_force(int q, double f1, double f2, double f3,
   if (q == 5)
     return 5.0 * f1 - 10.0 * f2 + 10.0 * f3 - 5.0 * f4 + f5;
   return f1;
+}
+
+/* Row 0's free flight dn0 (solve_implicit, start_parts): dff, or on
+ * sweep-cg the oldest row of the force history, fhist[3]: dn0 is formed
+ * only where no history is carried (sw->carry 0), and then row 0 reads no
+ * history and its end hands fhist[3]'s array to fimp, which every path
+ * writes whole before it reads it (rotate_history): 4 bytes a coordinate
+ * less at n_f ~ n / 2 (doc/performance/16-es-mem16.md). */
+static inline double *free_flight(const mrvi_sweep *sw) {
+  return sw->sparse ? sw->fhist[3] : sw->dff;
 }
 
 /* The history moves one row on: the last force becomes fhist[0], and
@@ -1745,7 +1767,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
         implicit_force(sw, qm, dn, NULL);
         r0 = 0.0;
         for (int f = 0; f < nf; f++) {
-          sw->dff[f] = dn[f];
+          free_flight(sw)[f] = dn[f];
           const double a = rweight(
               sw->rw, sw->rw_one,
               fabs(sw->rhs[f] - sw->m_f[f * inc] * dn[f] / dt - sw->fimp[f]),
@@ -1834,7 +1856,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
       }
     }
     if (it == 0 && r > r0) { /* (not for NaN r0: r > r0 is false) */
-      memcpy(dn, sw->dff, (size_t)nf * sizeof(double));
+      memcpy(dn, free_flight(sw), (size_t)nf * sizeof(double));
       r0 = HUGE_VAL;
       it = -1; /* (the fallback is no update) */
       continue;
@@ -2922,7 +2944,8 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
   const double *minv = sw->minv_f, *mf = sw->m_f, *rw = sw->rw;
   const int unit = sw->rw_one;
   const size_t inc = (size_t)sw->mass_inc;
-  double *dn = sw->dn, *g = sw->gpt[i], *fimp = sw->fimp, *dff = sw->dff;
+  double *dn = sw->dn, *g = sw->gpt[i], *fimp = sw->fimp,
+         *dff = free_flight(sw);
   double *zf = sw->zf, *z1 = sw->zalt, *cp = sw->cpass + 5 * n_c;
   sw->rhs = pf; /* (general_sweep's row 0: its momentum) */
   sw->lam = 0.0;

@@ -209,8 +209,7 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   int max_n_in = 1;
   for (int c = 0; c < 2; c++) {
     st->pts[c] = malloc((size_t)(2 * st->p + 2) * sizeof(mrvi_point));
-    st->elem_of_class[c] = malloc((size_t)(m->n_elements + 1) * sizeof(int));
-    if (!st->pts[c] || !st->elem_of_class[c])
+    if (!st->pts[c])
       return MRVI_ENOMEM;
     st->n_pts[c] =
         mrvi_quadrature_points(rules[c], grids[c], st->dT, st->p, st->pts[c]);
@@ -219,11 +218,29 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
    * ends' d consecutive coordinates each, mrvi_model_compact; the lists
    * and counts in locals, which the stores do not alias) */
   const int d = m->dimension;
-  int *list[2] = {st->elem_of_class[0], st->elem_of_class[1]}, count[2] = {0};
+  /* Each class's count and span: a class whose elements are consecutive
+   * (a network's springs added class by class) keeps no list. */
+  int count[2] = {0}, last[2] = {-1, -1};
+  for (int e = 0; e < m->n_elements; e++) {
+    const int pot = m->erecs[e].potential;
+    if (count[pot]++ == 0)
+      st->elem_first[pot] = e;
+    last[pot] = e;
+  }
+  int *list[2] = {NULL, NULL};
+  for (int c = 0; c < 2; c++)
+    if (count[c] > 0 && last[c] - st->elem_first[c] + 1 != count[c]) {
+      list[c] = st->elem_of_class[c] = malloc((size_t)count[c] * sizeof(int));
+      if (!list[c])
+        return MRVI_ENOMEM;
+    }
+  count[0] = count[1] = 0;
   int compact = 0;
   for (int e = 0; e < m->n_elements; e++) {
     const int pot = m->erecs[e].potential;
-    list[pot][count[pot]++] = e;
+    if (list[pot])
+      list[pot][count[pot]] = e;
+    count[pot]++;
     if (m->erecs[e].compact) {
       compact = 1;
       continue;
@@ -237,7 +254,7 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   /* The first element of W (in element order) with a slow input. */
   st->fast_on_slow = -1;
   for (int i = 0; st->fast_on_slow < 0 && i < count[MRVI_FAST]; i++) {
-    const int e = list[MRVI_FAST][i];
+    const int e = MRVI_STEP_ELEM(st, MRVI_FAST, i);
     if (mrvi_model_element_rates(m, e) & (1 << MRVI_SLOW))
       st->fast_on_slow = e;
   }
@@ -249,6 +266,18 @@ int mrvi_step_init(mrvi_step *st, const mrvi_model *m, const mrvi_settings *s) {
   if (!st->y || !st->g || !st->H || !st->kin)
     return MRVI_ENOMEM;
   return init_constraints(st);
+}
+
+const int *mrvi_step_class_list(const mrvi_step *st, int c, int **own) {
+  *own = NULL;
+  if (st->elem_of_class[c])
+    return st->elem_of_class[c];
+  const int n = st->n_elem_of_class[c];
+  if (!(*own = malloc((size_t)(n > 0 ? n : 1) * sizeof(int))))
+    return NULL;
+  for (int i = 0; i < n; i++)
+    (*own)[i] = st->elem_first[c] + i;
+  return *own;
 }
 
 void mrvi_step_free(mrvi_step *st) {
@@ -285,7 +314,7 @@ static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
   const int ns = st->ns, nf = st->nf, p = st->p;
   /* slow: p_k^s - M^s (q_{k+1}^s - q_k^s)/dT */
   for (int s = 0; s < ns; s++) {
-    const double M = m->mass[m->slow_index[s]];
+    const double M = MRVI_MASS(m, m->slow_index[s]);
     R[s] = st->ps0[s] - M * slow_diff(st, x, s) / st->dT;
     if (jac)
       jac_add(st, s, s, -M / st->dT);
@@ -296,7 +325,7 @@ static void assemble_kinetic(mrvi_step *st, const double *x, double *R,
    * formed once per call: the same values) */
   double *km = st->kin, *kd = km + nf, *k2 = kd + nf, *vl = k2 + nf;
   for (int s = 0; s < nf; s++) {
-    const double M = m->mass[m->fast_index[s]];
+    const double M = MRVI_MASS(m, m->fast_index[s]);
     km[s] = M;
     kd[s] = -M / st->dt;
     k2[s] = 2.0 * M / st->dt;
@@ -498,7 +527,7 @@ void mrvi_step_assemble(mrvi_step *st, const double *x, double *R, int jac) {
   for (int c = 0; c < 2; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
       const mrvi_element *e =
-          mrvi_model_element(m, st->elem_of_class[c][ie], &eb);
+          mrvi_model_element(m, MRVI_STEP_ELEM(st, c, ie), &eb);
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
         const int n = e->n_in;
@@ -682,7 +711,7 @@ static void kinetic_fast_columns(const mrvi_step *st, const double *d,
   const int nf = st->nf, p = st->p;
   const double dt = st->dt;
   for (int s = s0; s < s1; s++) {
-    const double M = m->mass[m->fast_index[s]];
+    const double M = MRVI_MASS(m, m->fast_index[s]);
     const double *ds = d + s;
     pf[s] += M * (ds[0] - 0.0) / dt;
     for (int mm = 1; mm < p; mm++)
@@ -699,7 +728,7 @@ ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
   const int p = st->p;
   const double dT = st->dT, dt = st->dt;
   UNROLL for (int s = 0; s < ns; s++) ps1[s] +=
-      m->mass[m->slow_index[s]] * x[s] / dT;
+      MRVI_MASS(m, m->slow_index[s]) * x[s] / dT;
   if (nf > 4) { /* (node by node; in parts of columns on threads) */
     const int chunk = st->tuning.thread_chunk;
     const int n_part = st->threads > 1 && chunk > 0 && nf >= 2 * chunk
@@ -721,7 +750,7 @@ ALWAYS_INLINE void kinetic_increments_k(const mrvi_step *st, const double *x,
    * nodes, nf pairs, per pass, with the masses of two nodes in M2. */
   double M2[8] = {0};
   UNROLL for (int s = 0; s < nf; s++) M2[s] = M2[nf + s] =
-      m->mass[m->fast_index[s]];
+      MRVI_MASS(m, m->fast_index[s]);
   const double *restrict d = x + ns;
   double *restrict pv = pf;
   UNROLL for (int s = 0; s < nf; s++) pv[s] += M2[s] * (d[s] - 0.0) / dt;
@@ -750,9 +779,9 @@ void mrvi_step_momenta_finish(mrvi_step *st, const double *x, double *ps1,
     SMALL2(ns, NS, nf, NF, kinetic_increments_k(st, x, ps1, pf, NS, NF));
   } else {
     for (int s = 0; s < ns; s++)
-      ps1[s] += m->mass[m->slow_index[s]] * slow_diff(st, x, s) / dT;
+      ps1[s] += MRVI_MASS(m, m->slow_index[s]) * slow_diff(st, x, s) / dT;
     for (int s = 0; s < nf; s++) {
-      const double M = m->mass[m->fast_index[s]];
+      const double M = MRVI_MASS(m, m->fast_index[s]);
       for (int mm = 0; mm < p; mm++)
         pf[mm * nf + s] += M * fast_diff(st, x, mm, s) / dt;
     }
@@ -819,7 +848,7 @@ void mrvi_step_momenta(mrvi_step *st, const double *x, double *ps1,
   for (int c = 0; c < 2; c++)
     for (int ie = 0; ie < st->n_elem_of_class[c]; ie++) {
       const mrvi_element *e =
-          mrvi_model_element(m, st->elem_of_class[c][ie], &eb);
+          mrvi_model_element(m, MRVI_STEP_ELEM(st, c, ie), &eb);
       for (int ip = 0; ip < st->n_pts[c]; ip++) {
         const mrvi_point *pt = &st->pts[c][ip];
         gather(st, e, pt, x, st->y);

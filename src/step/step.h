@@ -43,8 +43,12 @@ typedef struct mrvi_step {
   int threads;        /* settings.threads resolved (>= 1) */
   mrvi_point *pts[2]; /* [MRVI_SLOW] points of V, [MRVI_FAST] of W */
   int n_pts[2];
-  int *elem_of_class[2]; /* element indices of V and W */
-  int n_elem_of_class[2];
+  /* The element indices of V and W (read through MRVI_STEP_ELEM and
+   * mrvi_step_class_list): elem_of_class[c] NULL where class c is the
+   * elements elem_first[c] .. elem_first[c] + n_elem_of_class[c] - 1 (no
+   * list kept: 4 bytes an element less, doc/performance/16-es-mem16.md). */
+  int *elem_of_class[2];
+  int n_elem_of_class[2], elem_first[2];
   /* The first element of W with a slow input, or -1 (the path choice:
    * mrvi_sweep_path_of). */
   int fast_on_slow;
@@ -103,6 +107,14 @@ typedef struct mrvi_step {
    * serve both. */
   double *mom_ps, *mom_pf;
 } mrvi_step;
+
+/* Element i of class c (0: V, 1: W). */
+#define MRVI_STEP_ELEM(st, c, i)                                               \
+  ((st)->elem_of_class[c] ? (st)->elem_of_class[c][i]                          \
+                          : (st)->elem_first[c] + (i))
+/* Class c's element indices as a list: elem_of_class[c], or a list made
+ * into *own (the caller frees it; NULL out of memory). */
+const int *mrvi_step_class_list(const mrvi_step *st, int c, int **own);
 
 /* Point of constraint evaluation at node m (0..p) of the step: slow part
  * interpolated (1 - m/p, m/p), fast node m, weight w. */
