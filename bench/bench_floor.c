@@ -44,7 +44,11 @@
  * --steps macro steps and 0.3 s, report the time per macro step, the
  * solver's counters, and the peak resident memory (VmHWM) with the resident
  * memory before creation.  The methods of one (network, n) alternate,
- * --repeats rounds, best time of the rounds.  Before the timings, checks on
+ * --repeats rounds, best time of the rounds; with two rounds or more also
+ * every round's time, the process' transparent huge pages (AnonHugePages)
+ * and page faults, the best, median and worst round and the ratios to the
+ * floor both ways round (a ratio moved by the floor's own spread shows as
+ * such: doc/performance/16-fe16.md).  Before the timings, checks on
  * the smallest n: mrvi fully-explicit against the r-RESPA floor (and
  * LAMMPS respa against it), and every method's error against a fine
  * Verlet reference at t = 20 dT, which says what the pairings compare.  A
@@ -68,7 +72,7 @@
 #include <time.h>
 #include <unistd.h>
 
-enum { MAX_N = 8, MAX_REPEATS = 9, N_NETS = 3, CHECK_STEPS = 20 };
+enum { MAX_N = 8, MAX_REPEATS = 15, N_NETS = 3, CHECK_STEPS = 20 };
 enum { CHECK_MAX_N = 20000 }; /* the checks run a fine Verlet reference */
 #define MIN_CPU 0.3
 
@@ -104,7 +108,9 @@ static const char usage[] =
     "coordinates (default 1000,10000,100000): lattice2d, lattice3d,\n"
     "random3d (default all).  Each case in a child process limited to\n"
     "SECONDS of CPU (default 300) and GB of address space (default 12);\n"
-    "R rounds alternating the methods (default 3), best of them; at least\n"
+    "R rounds alternating the methods (default 3, at most 15), best of\n"
+    "them (R >= 2: also every round, its huge pages and page faults, and\n"
+    "best / median / worst with the ratios to the floor both ways); at least\n"
     "K macro steps (default 3) and 0.3 s; dT = 0.05, P = 10.  Implicit\n"
     "schemes run only up to --big N coordinates (default 1000000).\n"
     "--method runs one method alone (as the tables name it, e.g.\n"
@@ -990,6 +996,11 @@ typedef struct result {
   long nnz;
   char path[16];
   long rss_before_kb, peak_kb;
+  /* where the time of the large networks moves (doc/performance/16-fe16.md):
+   * the process' transparent huge pages at the end of the stepping
+   * (AnonHugePages of /proc/self/smaps_rollup, kB, -1 unknown) and its page
+   * faults (minor + major) during the stepping and in all */
+  long ahp_kb, faults_step, faults_all;
   char message[200];
   /* bench_serial (--serial): per macro step after the first, the CPU time
    * of the stepping thread outside the parallel regions (the serial
@@ -1016,6 +1027,18 @@ static void reset_peak(void) {
     fputs("5", f);
     fclose(f);
   }
+}
+
+static long page_faults(void) {
+  struct rusage u;
+  return getrusage(RUSAGE_SELF, &u) == 0 ? u.ru_minflt + u.ru_majflt : -1;
+}
+
+/* After the stepping: the huge pages and the faults since f0. */
+static void memory_probe(result *r, long f0) {
+  r->ahp_kb = bench_proc_kb("/proc/self/smaps_rollup", "AnonHugePages:");
+  r->faults_all = page_faults();
+  r->faults_step = f0 >= 0 && r->faults_all >= 0 ? r->faults_all - f0 : -1;
 }
 
 static double wall_clock(void) {
@@ -1064,6 +1087,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     return;
   }
   r->create = bench_thread_cpu() - t0;
+  const long f0 = page_faults();
   double t1 = bench_cpu(), w1 = wall_clock();
   long newton = 0, k = 0;
 #ifdef BENCH_OMP_PROFILE
@@ -1097,6 +1121,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
     r->step = (bench_cpu() - t1) / k;
     r->wall = (wall_clock() - w1) / k;
     r->steps = k;
+    memory_probe(r, f0);
     mrvi_krylov_stats ks;
     mrvi_integrator_krylov_stats(it, &ks);
     r->newton = (double)newton / k;
@@ -1120,6 +1145,7 @@ static void floor_case(floor_sys *f, method me, const options *o, result *r) {
   double t0 = bench_thread_cpu();
   me == M_RESPA ? floor_forces(f) : verlet_forces(f);
   r->create = bench_thread_cpu() - t0;
+  const long f0 = page_faults();
   double t1 = bench_cpu();
   long k = 0;
   while (k < o->steps || bench_cpu() - t1 < MIN_CPU) {
@@ -1131,6 +1157,7 @@ static void floor_case(floor_sys *f, method me, const options *o, result *r) {
   }
   r->step = (bench_cpu() - t1) / k;
   r->steps = k;
+  memory_probe(r, f0);
   snprintf(r->path, sizeof r->path, "-");
   r->status = isfinite(f->x[0]) ? 0 : 1;
   if (r->status)
@@ -1413,6 +1440,81 @@ static void print_ratio(const result *a, const result *b) {
     printf(" %10s |", "-");
   else
     printf(" %10.2f |", x);
+}
+
+/* The median of the rounds of one case that completed (NAN if none). */
+static double median_step(const result *x, int repeats) {
+  double t[MAX_REPEATS];
+  int c = 0;
+  for (int r = 0; r < repeats; r++)
+    if (x[r].status == 0)
+      t[c++] = x[r].step;
+  return c ? bench_median(t, c) : NAN;
+}
+
+/* Every round of the cases (the best-of table hides a bimodal time): its
+ * time, the process' transparent huge pages at the end of its stepping and
+ * its page faults; then per method the best, the median and the worst
+ * round, and the ratios to the floor of the ratio table (r-RESPA for the
+ * explicit paths, Verlet for the implicit schemes) both ways round: best
+ * over best, median over median, best over the floor's median and median
+ * over the floor's best, so that a ratio moved by the floor's own spread
+ * shows as such (doc/performance/16-fe16.md). */
+static void rounds_table(result (*res)[N_METHODS][MAX_REPEATS], int n_n,
+                         int repeats) {
+  printf("\nEvery round (CPU s per macro step; AnonHugePages of the process "
+         "at the end of the stepping, MB; page faults during the stepping "
+         "and in the whole child)\n\n| %8s | %5s | %-20s | %11s | %8s | "
+         "%10s | %10s |\n|---------:|------:|----------------------|---------"
+         "---:|---------:|-----------:|-----------:|\n",
+         "n", "round", "method", "step_s", "AHP_MB", "faults/st", "faults");
+  for (int ni = 0; ni < n_n; ni++)
+    for (int r = 0; r < repeats; r++)
+      for (int me = 0; me < N_METHODS; me++) {
+        const result *x = &res[ni][me][r];
+        if (x->status != 0 || me >= M_LMP_RESPA)
+          continue;
+        printf("| %8d | %5d | %-20s | %11.4g | %8.1f | %10ld | %10ld |\n", x->n,
+               r + 1, method_names[me], x->step, x->ahp_kb / 1024.0,
+               x->faults_step, x->faults_all);
+      }
+  printf("\nSpread of the rounds, and the ratios to the floor both ways "
+         "round (best/best, median/median, best/floor's median, "
+         "median/floor's best)\n\n| %8s | %-20s | %10s | %10s | %10s | "
+         "%9s | %9s | %9s | %9s |\n|---------:|----------------------|-----"
+         "------:|-----------:|-----------:|----------:|----------:|--------"
+         "--:|----------:|\n",
+         "n", "method", "best_s", "median_s", "worst_s", "best/best", "med/med",
+         "best/med", "med/best");
+  for (int ni = 0; ni < n_n; ni++)
+    for (int me = 0; me < M_LMP_RESPA; me++) {
+      const result *x = res[ni][me];
+      double best = INFINITY, worst = -INFINITY;
+      int n = 0;
+      for (int r = 0; r < repeats; r++)
+        if (x[r].status == 0) {
+          best = fmin(best, x[r].step);
+          worst = fmax(worst, x[r].step);
+          n = x[r].n;
+        }
+      if (!n)
+        continue;
+      const double med = median_step(x, repeats);
+      printf("| %8d | %-20s | %10.4g | %10.4g | %10.4g |", n, method_names[me],
+             best, med, worst);
+      const method fm = me == M_MM || me == M_TM ? M_VERLET : M_RESPA;
+      const result *f = res[ni][fm];
+      double fb = INFINITY;
+      for (int r = 0; r < repeats; r++)
+        if (f[r].status == 0)
+          fb = fmin(fb, f[r].step);
+      const double fmed = median_step(f, repeats);
+      if (me == M_RESPA || me == M_VERLET || !isfinite(fb))
+        printf(" %9s | %9s | %9s | %9s |\n", "-", "-", "-", "-");
+      else
+        printf(" %9.2f | %9.2f | %9.2f | %9.2f |\n", best / fb, med / fmed,
+               best / fmed, med / fb);
+    }
 }
 
 /* The implicit schemes' cost model in the floor's micro steps (one
@@ -1860,6 +1962,7 @@ int main(int argc, char **argv) {
       checks(k, n_list[0], &o, lammps);
 
   static result res[N_NETS][MAX_N][N_METHODS];
+  static result rounds[N_NETS][MAX_N][N_METHODS][MAX_REPEATS];
   for (int k = 0; k < N_NETS; k++) {
     if (!nets[k])
       continue;
@@ -1868,6 +1971,8 @@ int main(int argc, char **argv) {
       for (int me = 0; me < N_METHODS; me++) {
         res[k][ni][me].status = 3;
         res[k][ni][me].step = INFINITY;
+        for (int r = 0; r < repeats; r++)
+          rounds[k][ni][me][r].status = 3;
       }
       network w;
       int have_w = 0;
@@ -1888,6 +1993,7 @@ int main(int argc, char **argv) {
           } else {
             x = run_case(k, n_list[ni], (method)me, &o);
           }
+          rounds[k][ni][me][r] = x;
           result *best = &res[k][ni][me];
           if (x.status == 0 && (best->status != 0 || x.step < best->step))
             *best = x;
@@ -1983,6 +2089,8 @@ int main(int argc, char **argv) {
                100.0 * (1.0 - work / x));
       }
     cost_model(res[k], n_list, n_n);
+    if (repeats >= 2)
+      rounds_table(rounds[k], n_n, repeats);
     printf("\nExponents of the time per macro step in n (least squares on "
            "log-log over the completed n)\n\n| %-20s | %8s |\n|----------"
            "------------|---------:|\n",

@@ -122,7 +122,11 @@ double bench_uniform(unsigned long long *state) {
 }
 
 long bench_status_kb(const char *key) {
-  FILE *f = fopen("/proc/self/status", "r");
+  return bench_proc_kb("/proc/self/status", key);
+}
+
+long bench_proc_kb(const char *file, const char *key) {
+  FILE *f = fopen(file, "r");
   char line[256];
   long kb = -1;
   const size_t len = strlen(key);

@@ -40,6 +40,9 @@ double bench_uniform(unsigned long long *state);
 /* The value in kB of the /proc/self/status line starting with key (e.g.
  * "VmHWM:", the peak resident set), -1 if unknown. */
 long bench_status_kb(const char *key);
+/* The same from another /proc file of that format (e.g.
+ * /proc/self/smaps_rollup, "AnonHugePages:"); -1 when absent. */
+long bench_proc_kb(const char *file, const char *key);
 /* The 1-minute load average (/proc/loadavg), NAN if unknown. */
 double bench_load(void);
 
