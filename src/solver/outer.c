@@ -29,6 +29,7 @@
  * takes Newton from its predictor.  A step depends on its known data and
  * x's start alone. */
 #include "solver/solver.h"
+#include "util/simd.h"
 
 #include <float.h>
 #include <math.h>
@@ -110,7 +111,12 @@ struct mrvi_outer {
   double *z;             /* packed configuration */
   double *pm, *fexp, *F; /* p^{f,m}, the forces of node-m sites, F_m */
   double *fs;            /* slow-row force (ns) */
-  double *dlt[3];        /* the changes of the last three nodes, nf each */
+  /* the fused row pass (solve_row): the next iterate of d^{m+1} (nf) and
+   * a spare gradient of the inside site, for sites whose terms on fast
+   * columns read slow ones (galt[1]: its slow part zeroed before each use)
+   * and for the others (galt[0]: its slow part stays zero) */
+  double *nb, *galt[2];
+  double *dlt[3]; /* the changes of the last three nodes, nf each */
   /* Anderson: the slow iterate and its update f = (dT/M^s) G before (ns
    * each) and the differences of the last OUTER_AA (ns x OUTER_AA each) */
   double *xp, *fp, *dX, *dF;
@@ -151,6 +157,9 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->fexp);
   free(o->F);
   free(o->fs);
+  free(o->nb);
+  free(o->galt[0]);
+  free(o->galt[1]);
   for (int i = 0; i < 3; i++)
     free(o->dlt[i]);
   free(o->xp);
@@ -202,6 +211,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->fexp = dalloc(nf);
   o->F = dalloc(nf);
   o->fs = dalloc(ns);
+  o->nb = dalloc(nf);
   for (int i = 0; i < 3; i++)
     o->dlt[i] = dalloc(nf);
   o->xp = dalloc(ns);
@@ -210,7 +220,7 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->dF = dalloc(ns * OUTER_AA);
   if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send ||
       !o->minv_s || !o->m_s || !o->minv_f || !o->m_f || !o->mdt || !o->dtm ||
-      !o->zero || !o->z || !o->pm || !o->fexp || !o->F || !o->fs ||
+      !o->zero || !o->z || !o->pm || !o->fexp || !o->F || !o->fs || !o->nb ||
       !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp || !o->dX ||
       !o->dF) {
     free(col);
@@ -312,6 +322,12 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
     S->grp = -1;
     for (int c = 0; c < 2; c++)
       S->rs |= (S->cls >> c & 1) && o->kc[c] && o->slow_in[c];
+    /* (a spare gradient of each kind the inside sites need) */
+    if (S->cA != 0.0 && S->cB != 0.0 && !o->galt[S->rs] &&
+        !(o->galt[S->rs] = calloc(n, sizeof(double)))) {
+      mrvi_outer_free(o);
+      return MRVI_ENOMEM;
+    }
     if (!cls)
       continue;
     for (int j = 0; j < o->n_grps; j++)
@@ -429,42 +445,49 @@ site_config(const mrvi_outer *o, double *restrict zf, double *restrict gf,
     }
 }
 
-/* S->g = grad Z at the site's configuration for the slow displacement xs
- * and the fast displacements dm = d^m, dn = d^{m+1} (NULL: zeros); with
- * F, dn first takes the chord update dn += (dt/M^f) F (in the same pass
- * over the fast columns).  By the team: each lane's span of the
- * configuration, then the gradient's parts. */
+/* g (the site's S->g, or a spare) = grad Z at the site's configuration
+ * for the slow displacement xs and the fast displacements dm = d^m, dn =
+ * d^{m+1} (NULL: zeros); with F, dn first takes the chord update dn +=
+ * (dt/M^f) F (in the same pass over the fast columns).  By the team: each
+ * lane's span of the configuration, then the gradient's parts.  ready: the
+ * fast configuration and g's zeros were written by the fused row pass
+ * before a barrier (solve_row), so only the gradient is left. */
 static void eval_site(mrvi_outer *o, lane *L, const mrvi_step *st, site *S,
-                      const double *xs, const double *dm, double *dn,
-                      const double *F) {
+                      double *g, const double *xs, const double *dm, double *dn,
+                      const double *F, int ready) {
   const int ns = o->ns;
   double *z = o->z;
   int lo, hi;
   span(L, ns, &lo, &hi);
   /* (z's slow part depends on a1 alone within a sweep) */
+  int zs_new = 0;
   if (S->rs &&
       (!L->z_site || L->z_site->a1 != S->a1 || L->z_sweep != L->sweep)) {
     for (int s = lo; s < hi; s++)
       z[s] = st->qs0[s] + S->a1 * xs[s];
     L->z_site = S;
     L->z_sweep = L->sweep;
+    zs_new = 1;
   }
-  if (S->rs)
-    memset(S->g + lo, 0, (size_t)(hi - lo) * sizeof(double));
-  const double cB = dn ? S->cB : 0.0;
-  const double *a = dm ? dm : o->zero;
-  double *b = dn ? dn : o->zero; /* (written only with F, where dn is) */
-  span(L, o->nf, &lo, &hi);
-  if (o->eq_f)
-    site_config(o, z + ns, S->g + ns, st->qf0, S->cA, cB, a, b, F, lo, hi, 1);
-  else
-    site_config(o, z + ns, S->g + ns, st->qf0, S->cA, cB, a, b, F, lo, hi, 0);
+  if (!ready) {
+    if (S->rs)
+      memset(g + lo, 0, (size_t)(hi - lo) * sizeof(double));
+    const double cB = dn ? S->cB : 0.0;
+    const double *a = dm ? dm : o->zero;
+    double *b = dn ? dn : o->zero; /* (written only with F, where dn is) */
+    span(L, o->nf, &lo, &hi);
+    if (o->eq_f)
+      site_config(o, z + ns, g + ns, st->qf0, S->cA, cB, a, b, F, lo, hi, 1);
+    else
+      site_config(o, z + ns, g + ns, st->qf0, S->cA, cB, a, b, F, lo, hi, 0);
+  }
   /* (a barrier after each class: the two classes' parts write the same
    * columns, in the serial order) */
-  TEAM_BARRIER(L);
+  if (!ready || zs_new)
+    TEAM_BARRIER(L);
   for (int c = 0; c < 2; c++)
     if (S->cls & (1 << c) && o->kc[c]) {
-      grad_team(L, o->kc[c], z, S->g);
+      grad_team(L, o->kc[c], z, g);
       if (L->tid == 0)
         o->stats.grad_equiv += o->share[c];
       TEAM_BARRIER(L);
@@ -505,20 +528,38 @@ static const double *slow_site(mrvi_outer *o, lane *L, const mrvi_step *st,
   return G->g;
 }
 
+/* The next configuration written by the fused row pass (solve_row):
+ * d^{m+1} after the chord update into nb, the site's fast configuration
+ * qf0 + cA dp + cB nb into zf, and the spare gradient's fast part gz
+ * zeroed (site_config's arithmetic). */
+typedef struct row_next {
+  double *nb, *zf, *gz;
+  const double *qf0;
+  double cA, cB;
+} row_next;
+
 /* Entry f of the row F_m = (p^{f,m} - the node-m sites' forces fx (NULL:
  * none, zeros), or F's partial sum where more than one site is inside:
  * one = 0) - w1 g1 -
- * M^f (dn - dp)/dt into o->F, its weighted size (w NULL: 1) into the
+ * M^f (dn - dp)/dt into o->F (with fuse, into the next configuration nx
+ * instead), its weighted size (w NULL: 1) into the
  * running maximum *r and the sum *sum, and with c the size of its largest
  * term into *c (eq: the masses equal, mdt[0] for every column). */
 static inline __attribute__((always_inline)) void
 row_entry(mrvi_outer *o, const double *fx, int f, int one, double w1,
           const double *g1, const double *dn, const double *dp, const double *w,
-          double *r, double *sum, double *c, const int eq) {
+          double *r, double *sum, double *c, const int eq, const row_next *nx,
+          const int fuse) {
   const double mv = (eq ? o->mdt[0] : o->mdt[f]) * (dn[f] - dp[f]);
   const double x = fx ? fx[f] : 0.0;
   const double Ff = (one ? o->pm[f] - x : o->F[f]) - w1 * g1[f] - mv;
-  o->F[f] = Ff;
+  if (fuse) {
+    const double b = dn[f] + (eq ? o->dtm[0] : o->dtm[f]) * Ff;
+    nx->nb[f] = b;
+    nx->zf[f] = nx->qf0[f] + nx->cA * dp[f] + nx->cB * b;
+    nx->gz[f] = 0.0;
+  } else
+    o->F[f] = Ff;
   const double wf = w ? w[f] : 1.0, a = fabs(Ff) * wf;
   *r = a > *r ? a : *r;
   *sum += a;
@@ -529,31 +570,116 @@ row_entry(mrvi_outer *o, const double *fx, int f, int one, double w1,
   }
 }
 
-/* The row entries of columns [lo, hi) (row_entry) in four lanes of
- * partial maxima and sums: v = (max, sum, max of the largest terms where
- * want_c). */
+/* Entries f, f + 1 of the row (row_entry's arithmetic lane by lane, in
+ * pairs of doubles) into the pairs of running maxima *r, *c and sums *sum
+ * (c with want_c; no node-m forces read where fx is NULL: p^{f,m} - 0 and
+ * |p^{f,m}| + 0 are p^{f,m} and |p^{f,m}|). */
+static inline __attribute__((always_inline)) void
+row_pair(mrvi_outer *o, const double *fx, int f, int one, double w1,
+         const double *g1, const double *dn, const double *dp, const double *w,
+         mrvi_v2 *r, mrvi_v2 *sum, mrvi_v2 *c, const int want_c, const int eq,
+         const row_next *nx, const int fuse) {
+  const mrvi_v2 dnf = v2_load(dn + f), dpf = v2_load(dp + f);
+  const mrvi_v2 mv =
+      v2_mul(eq ? v2_set(o->mdt[0], o->mdt[0]) : v2_load(o->mdt + f),
+             v2_sub(dnf, dpf));
+  const mrvi_v2 pm = v2_load(o->pm + f);
+  const mrvi_v2 x = fx ? v2_load(fx + f) : v2_zero();
+  const mrvi_v2 p0 = fx ? v2_sub(pm, x) : pm;
+  const mrvi_v2 Ff = v2_sub(
+      v2_sub(one ? p0 : v2_load(o->F + f), v2_scale(w1, v2_load(g1 + f))), mv);
+  if (fuse) {
+    const mrvi_v2 bn = v2_add(
+        dnf,
+        v2_mul(eq ? v2_set(o->dtm[0], o->dtm[0]) : v2_load(o->dtm + f), Ff));
+    v2_store(nx->nb + f, bn);
+    v2_store(nx->zf + f,
+             v2_add(v2_add(v2_load(nx->qf0 + f), v2_scale(nx->cA, dpf)),
+                    v2_scale(nx->cB, bn)));
+    v2_store(nx->gz + f, v2_zero());
+  } else
+    v2_store(o->F + f, Ff);
+  const mrvi_v2 wf = w ? v2_load(w + f) : v2_set(1.0, 1.0);
+  const mrvi_v2 a = v2_mul(v2_abs(Ff), wf);
+  *r = v2_max(a, *r);
+  *sum = v2_add(*sum, a);
+  if (want_c) {
+    const mrvi_v2 fi = v2_sub(v2_sub(p0, mv), Ff);
+    const mrvi_v2 pa = fx ? v2_add(v2_abs(pm), v2_abs(x)) : v2_abs(pm);
+    const mrvi_v2 t = v2_mul(v2_add(v2_add(pa, v2_abs(fi)), v2_abs(mv)), wf);
+    *c = v2_max(t, *c);
+  }
+}
+
+/* The row entries of columns [lo, hi) in four lanes (two pairs, row_pair;
+ * the last ones by row_entry) of partial maxima and sums: v = (max, sum,
+ * max of the largest terms where want_c).  The maxima are exact and the
+ * sum only tells NaN, so the lanes' grouping does not matter. */
 static inline __attribute__((always_inline)) void
 row_pass(mrvi_outer *o, const double *fx, int lo, int hi, int one, double w1,
          const double *g1, const double *dn, const double *dp, const double *w,
-         double v[3], const int want_c, const int eq) {
-  double rl[4] = {0, 0, 0, 0}, sl[4] = {0, 0, 0, 0}, cl[4] = {0, 0, 0, 0};
+         double v[3], const int want_c, const int eq, const row_next *nx,
+         const int fuse) {
+  mrvi_v2 ra = v2_zero(), rb = v2_zero(), sa = v2_zero(), sb = v2_zero(),
+          ca = v2_zero(), cb = v2_zero();
   const int hi4 = lo + ((hi - lo) & ~3);
   for (int f0 = lo; f0 < hi4; f0 += 4) {
-    row_entry(o, fx, f0, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL,
-              eq);
-    row_entry(o, fx, f0 + 1, one, w1, g1, dn, dp, w, rl + 1, sl + 1,
-              want_c ? cl + 1 : NULL, eq);
-    row_entry(o, fx, f0 + 2, one, w1, g1, dn, dp, w, rl + 2, sl + 2,
-              want_c ? cl + 2 : NULL, eq);
-    row_entry(o, fx, f0 + 3, one, w1, g1, dn, dp, w, rl + 3, sl + 3,
-              want_c ? cl + 3 : NULL, eq);
+    row_pair(o, fx, f0, one, w1, g1, dn, dp, w, &ra, &sa, &ca, want_c, eq, nx,
+             fuse);
+    row_pair(o, fx, f0 + 2, one, w1, g1, dn, dp, w, &rb, &sb, &cb, want_c, eq,
+             nx, fuse);
   }
+  double rl = 0.0, sl = 0.0, cl = 0.0;
   for (int f = hi4; f < hi; f++)
-    row_entry(o, fx, f, one, w1, g1, dn, dp, w, rl, sl, want_c ? cl : NULL, eq);
-  v[0] = fmax(fmax(rl[0], rl[1]), fmax(rl[2], rl[3]));
-  v[1] = sl[0] + sl[1] + sl[2] + sl[3];
-  v[2] = fmax(fmax(cl[0], cl[1]), fmax(cl[2], cl[3]));
+    row_entry(o, fx, f, one, w1, g1, dn, dp, w, &rl, &sl, want_c ? &cl : NULL,
+              eq, nx, fuse);
+  ra = v2_max(ra, rb);
+  sa = v2_add(sa, sb);
+  ca = v2_max(ca, cb);
+  v[0] = fmax(fmax(v2_lo(ra), v2_hi(ra)), rl);
+  v[1] = v2_lo(sa) + v2_hi(sa) + sl;
+  v[2] = fmax(fmax(v2_lo(ca), v2_hi(ca)), cl);
 }
+
+/* row_pass with its flags as constants: want_c (the first iterate), eq
+ * (equal fast masses), fuse (nx: the next configuration too) and whether
+ * there are node-m forces fx (without, none read). */
+#define ROW_PASS_FX(FX, WC, EQ, FU)                                            \
+  row_pass(o, FX, lo, hi, one, w1, g1, dn, dp, w, v, WC, EQ, nx, FU)
+#define ROW_PASS_EQ(WC, EQ, FU)                                                \
+  do {                                                                         \
+    if (fx)                                                                    \
+      ROW_PASS_FX(fx, WC, EQ, FU);                                             \
+    else                                                                       \
+      ROW_PASS_FX(NULL, WC, EQ, FU);                                           \
+  } while (0)
+#define ROW_PASS_FU(WC, FU)                                                    \
+  do {                                                                         \
+    if (eq)                                                                    \
+      ROW_PASS_EQ(WC, 1, FU);                                                  \
+    else                                                                       \
+      ROW_PASS_EQ(WC, 0, FU);                                                  \
+  } while (0)
+#define ROW_PASS_WC(WC)                                                        \
+  do {                                                                         \
+    if (nx)                                                                    \
+      ROW_PASS_FU(WC, 1);                                                      \
+    else                                                                       \
+      ROW_PASS_FU(WC, 0);                                                      \
+  } while (0)
+static void row_pass_run(mrvi_outer *o, const double *fx, int lo, int hi,
+                         int one, double w1, const double *g1, const double *dn,
+                         const double *dp, const double *w, double v[3],
+                         int want_c, int eq, const row_next *nx) {
+  if (want_c)
+    ROW_PASS_WC(1);
+  else
+    ROW_PASS_WC(0);
+}
+#undef ROW_PASS_WC
+#undef ROW_PASS_FU
+#undef ROW_PASS_EQ
+#undef ROW_PASS_FX
 
 /* The row of interval m for d^{m+1} = dn by the Jacobi chord from dn as
  * given, with d^m = dm (NULL at m = 0), the slow displacement xs and
@@ -588,7 +714,7 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
       inside |= S->cA != 0.0;
       continue;
     }
-    eval_site(o, L, st, S, xs, dm, NULL, NULL);
+    eval_site(o, L, st, S, S->g, xs, dm, NULL, NULL, 0);
     for (int f = lo; f < hi; f++)
       o->fexp[f] += S->w * S->cA * S->g[ns + f];
   }
@@ -597,6 +723,21 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
     n_inside += S->cB != 0.0 && S->cA != 0.0;
   const double *dp = dm ? dm : o->zero;
   double r = 0.0, r_prev = HUGE_VAL, floor = 0.0, *F = o->F;
+  /* One site inside (midpoint-midpoint's, trapezoidal-midpoint's W): the
+   * row pass also writes the next iterate's configuration (the chord
+   * update into the other of dn and o->nb, the site's fast configuration
+   * and the other of its gradient and a spare zeroed) before the
+   * reduction's barrier, which then stands for eval_site's: one pass over
+   * the fast columns and one barrier less per update.  The same
+   * arithmetic as the unfused update (site_config). */
+  site *sin = NULL;
+  if (n_inside == 1)
+    for (site *S = s0; S < s1; S++)
+      if (S->cB != 0.0 && S->cA != 0.0)
+        sin = S;
+  double *gbuf[2] = {sin ? sin->g : NULL, sin ? o->galt[sin->rs] : NULL};
+  double *dbuf[2] = {dn, o->nb};
+  int cur = 0; /* gbuf[cur], dbuf[cur]: the iterate */
   for (int it = 0;; it++) {
     /* F_m at dn: the sites inside the interval at dn (no iteration where
      * there is none: the row is explicit in d^{m+1}); from the second
@@ -613,10 +754,13 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
     for (site *S = s0; S < s1; S++) {
       if (S->cB == 0.0 || S->cA == 0.0)
         continue;
-      eval_site(o, L, st, S, xs, dm, dn, first && it > 0 ? F : NULL);
+      if (S == sin)
+        eval_site(o, L, st, S, gbuf[cur], xs, dm, dbuf[cur], NULL, it > 0);
+      else
+        eval_site(o, L, st, S, S->g, xs, dm, dn, first && it > 0 ? F : NULL, 0);
       if (first) {
         first = 0;
-        g1 = S->g + ns;
+        g1 = (S == sin ? gbuf[cur] : S->g) + ns;
         w1 = S->w * S->cA;
         if (n_inside > 1)
           for (int f = lo; f < hi; f++)
@@ -633,14 +777,14 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
      * row (the unknowns being displacements) */
     double v[3];
     const int one = n_inside <= 1;
-    if (it == 0 && o->eq_f)
-      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 1);
-    else if (it == 0)
-      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 1, 0);
-    else if (o->eq_f)
-      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 1);
-    else
-      row_pass(o, fx, lo, hi, one, w1, g1, dn, dp, rw, v, 0, 0);
+    const row_next nx = {sin ? dbuf[!cur] : NULL,      o->z + ns,
+                         sin ? gbuf[!cur] + ns : NULL, st->qf0,
+                         sin ? sin->cA : 0.0,          sin ? sin->cB : 0.0};
+    row_pass_run(o, fx, lo, hi, one, w1, g1, sin ? dbuf[cur] : dn, dp, rw, v,
+                 it == 0, o->eq_f, sin ? &nx : NULL);
+    /* (the spare's slow part, where the site's terms write there) */
+    if (sin && sin->rs)
+      memset(gbuf[!cur] + slo, 0, (size_t)(shi - slo) * sizeof(double));
     team_reduce(o, L, v);
     r = v[0];
     if (isnan(v[1]))
@@ -661,12 +805,17 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
     r_prev = r;
     if (L->tid == 0)
       o->stats.row_updates++;
-    /* (the update dn += (dt/M^f) F: by eval_site in the next iterate) */
+    /* (the update dn += (dt/M^f) F: by eval_site in the next iterate, or
+     * made by the fused pass above) */
+    cur = !cur;
   }
+  /* (the iterate back into dn) */
+  if (dbuf[cur] != dn)
+    memcpy(dn + lo, dbuf[cur] + lo, (size_t)(hi - lo) * sizeof(double));
   /* the sites at node m + 1 (cA = 0), then p^{f,m+1} and the slow forces */
   for (site *S = s0; S < s1; S++)
     if (S->cA == 0.0)
-      eval_site(o, L, st, S, xs, dm, dn, NULL);
+      eval_site(o, L, st, S, S->g, xs, dm, dn, NULL, 0);
   /* (one site with a node-(m+1) coefficient, midpoint-midpoint's: pfm,
    * p^{f,m+1} and the node's change in one pass below) */
   const site *sb = NULL;
@@ -680,26 +829,28 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
     memset(pfm + lo, 0, (size_t)(hi - lo) * sizeof(double));
   for (site *S = s0; S < s1; S++) {
     const double wa = S->w * S->a0, w1 = S->w * S->a1, wb = S->w * S->cB;
+    const double *Sg = S == sin ? gbuf[cur] : S->g;
     const double *gss =
         wa != 0.0 || w1 != 0.0 ? slow_site(o, L, st, S, xs) : NULL;
     if (gss)
       for (int s = slo; s < shi; s++) {
-        const double gs = S->g[s] + gss[s];
+        const double gs = Sg[s] + gss[s];
         o->fs[s] += wa * gs;
         ps1[s] -= w1 * gs;
       }
     else if (S->rs && (wa != 0.0 || w1 != 0.0))
       for (int s = slo; s < shi; s++) {
-        o->fs[s] += wa * S->g[s];
-        ps1[s] -= w1 * S->g[s];
+        o->fs[s] += wa * Sg[s];
+        ps1[s] -= w1 * Sg[s];
       }
     if (wb != 0.0 && n_b != 1)
       for (int f = lo; f < hi; f++)
-        pfm[f] -= wb * S->g[ns + f];
+        pfm[f] -= wb * Sg[ns + f];
   }
   const double mdt0 = o->mdt[0];
   if (n_b == 1) {
-    const double wb = sb->w * sb->cB, *gf = sb->g + ns;
+    const double wb = sb->w * sb->cB,
+                 *gf = (sb == sin ? gbuf[cur] : sb->g) + ns;
     for (int f = lo; f < hi; f++) {
       pfm[f] = 0.0 - wb * gf[f];
       o->pm[f] = (o->eq_f ? mdt0 : o->mdt[f]) * (dn[f] - dp[f]) + pfm[f];
