@@ -150,8 +150,9 @@ struct mrvi_sweep {
    * estimate and its first chord iterate: start_parts) and its end (the
    * last node, grad V there, the end momenta and end_check: end_parts)
    * each in one parallel region, the slow rows in n_cs parts; pstart:
-   * row 0's estimate formed there, its r0, scale, first residual and
-   * bound in pre[4] (solve_implicit takes them). */
+   * row 0's estimate formed there (or, where the step carries the last
+   * one's rows, its predictor: carry_parts), its r0, scale, first
+   * residual and bound in pre[4] (solve_implicit takes them). */
   int pstart, pend;
   double pre[4];
   /* A row's end deferred to the next row's first chord update on threads
@@ -1110,11 +1111,12 @@ int mrvi_sweep_set_history(mrvi_sweep *sw, int n, const double *h, char *msg,
  * (end_predict): the displacement dn, in the same pass (one pass over the
  * row instead of three) the point's configuration zf = qm + cB dn where
  * cB is not 0 (the chord's first iterate), and the row's round-off scale,
- * returned (solve_implicit). */
-static double extrapolated_predictor(mrvi_sweep *sw, int m,
-                                     const double *restrict qm,
-                                     double *restrict dn, double cB) {
-  const int nf = sw->nf, q = predictor_order(sw, m);
+ * returned (solve_implicit); predictor_rows: of order q over the rows
+ * [f0, f1r), the history not moved on (carry_parts: in parts). */
+ALWAYS_INLINE double predictor_rows(mrvi_sweep *sw, int q,
+                                    const double *restrict qm,
+                                    double *restrict dn, double cB, int f0,
+                                    int f1r) {
   const double dt = sw->st->dt;
   const double *restrict f1 = sw->fimp, *restrict f2 = sw->fhist[0],
                          *restrict f3 = sw->fhist[1],
@@ -1126,7 +1128,7 @@ static double extrapolated_predictor(mrvi_sweep *sw, int m,
   const size_t inc = (size_t)sw->mass_inc;
   double *restrict zf = sw->zf;
   double scale = 0.0;
-  for (int f = 0; f < nf; f++) {
+  for (int f = f0; f < f1r; f++) {
     const double fp = predicted_force(q, f1[f], f2[f], f3[f], f4[f], f5[f]);
     dn[f] = dt * minv[f * inc] * (rhs[f] - fp);
     if (cB != 0.0)
@@ -1136,6 +1138,14 @@ static double extrapolated_predictor(mrvi_sweep *sw, int m,
         rw, unit, fabs(rhs[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
     scale = v > scale ? v : scale;
   }
+  return scale;
+}
+
+static double extrapolated_predictor(mrvi_sweep *sw, int m,
+                                     const double *restrict qm,
+                                     double *restrict dn, double cB) {
+  const double scale =
+      predictor_rows(sw, predictor_order(sw, m), qm, dn, cB, 0, sw->nf);
   rotate_history(sw);
   return scale;
 }
@@ -1726,7 +1736,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
   double scale = 0.0;
   /* (row 0 too extrapolates where the last step's rows are kept) */
   int pred = (!first || sw->carry > 0) && sw->sparse, zf_ok = 0;
-  const int pre = first && sw->pstart; /* (formed by start_parts) */
+  const int pre = first && sw->pstart; /* (start_parts, carry_parts) */
   if (pre) {
     r0 = sw->pre[0];
     scale = sw->pre[1];
@@ -2987,6 +2997,63 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
   sw->pstart = 1;
 }
 
+/* sweep-cg's step start on threads where the step takes the last one's
+ * rows (sw->carry, tuning.chord_carry; sw->cfused, one implicit point, no
+ * control force): sweep_step's slow row and p^{f,0}, solve_implicit's row
+ * 0 predictor (extrapolated_predictor: the displacement, its
+ * configuration and the round-off scale) and the first chord iterate
+ * (fresh_part) in one parallel region with a barrier where the
+ * configuration is complete: the slow rows in n_cs parts, the fast rows
+ * in the chord's parts, each entry's serial arithmetic; the scales'
+ * maximum exact in any order.  So the same bits for every thread count;
+ * r0 (none: HUGE_VAL), the scale, the iterate's residual and bound into
+ * sw->pre for solve_implicit, as start_parts. */
+static void carry_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
+                        double *x, double *ps1, double *pf) {
+  const int nf = sw->nf, ns = sw->ns, n_c = sw->n_cpass, n_cs = sw->n_cs;
+  const double w0 = sw->wv0, cB = sw->cB[sw->imp], *qm = st->qf0;
+  const double *pf0 = st->pf0;
+  double *dn = sw->dn, *zf = sw->zf, *z1 = sw->zalt, *cp = sw->cpass + 5 * n_c;
+  sw->rhs = pf;             /* (general_sweep's row 0: its momentum) */
+  sw->mild = sw->chord = 1; /* (solve_implicit's row 0 on the chord) */
+  sw->lam = 0.0;
+  sw->evals_w++; /* (the iterate's gradient) */
+  const int q = predictor_order(sw, 0);
+#ifdef _OPENMP
+#pragma omp parallel num_threads(sw->pthreads)
+#endif
+  {
+#ifdef _OPENMP
+#pragma omp for schedule(static) nowait
+#endif
+    for (int c = 0; c < n_cs; c++)
+      slow_start_part(sw, st, c, gv, x, ps1, NULL, x);
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
+      const int f1 = mrvi_part_start(c + 1, nf, n_c);
+      for (int f = f0; f < f1; f++)
+        pf[f] = pf0[f] - w0 * gv[ns + f]; /* p^{f,0} */
+      cp[2 * c + 1] = predictor_rows(sw, q, qm, dn, cB, f0, f1);
+    }
+#ifdef _OPENMP
+#pragma omp for schedule(static)
+#endif
+    for (int c = 0; c < n_c; c++)
+      fresh_part(sw, c, qm, dn, zf, z1);
+  }
+  rotate_history(sw);
+  double scale = 0.0;
+  for (int c = 0; c < n_c; c++)
+    scale = cp[2 * c + 1] > scale ? cp[2 * c + 1] : scale;
+  sw->pre[0] = HUGE_VAL;
+  sw->pre[1] = scale;
+  sw->pre[2] = fresh_end(sw, zf, z1, &sw->pre[3]);
+  sw->pstart = 1;
+}
+
 /* sweep-cg's step end on threads (sw->pend): the last node and its
  * momentum (general_sweep's node_momentum), grad V at the end node and
  * the end momenta with end_check's sums (sweep_step's end_potential and
@@ -3065,8 +3132,10 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const int own = sw->cfused && sw->n_w == 1 && !st->f_rows;
   sw->pend = own && !st->f_end;
   sw->pstart = 0;
-  const int pstart = own && !sw->carry && sw->fresh && sw->imp >= 0 &&
-                     sw->chord_max > 0.0 && sw->cB[sw->imp] != 0.0;
+  const int chord0 = own && sw->fresh && sw->imp >= 0 && sw->chord_max > 0.0 &&
+                     sw->cB[sw->imp] != 0.0;
+  const int pstart = chord0 && !sw->carry;
+  const int cstart = chord0 && sw->carry; /* (carry_parts) */
   if (sw->implicit && !sw->carry && !pstart)
     zero(sw->fimp, nf);
   else if (sw->threads > 1)
@@ -3084,8 +3153,11 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const int inc_s = sw->inc_s;
   if (pstart)
     start_parts(sw, st, gv, x, ps1, pf);
+  else if (cstart)
+    carry_parts(sw, st, gv, x, ps1, pf);
+  const int started = pstart || cstart;
   UNROLL
-  for (int s = 0; !pstart && s < ns; s++) {
+  for (int s = 0; !started && s < ns; s++) {
     double v = ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
     if (frow)
       v += frow[s];
@@ -3095,7 +3167,7 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
   double *pm = pf; /* momentum at node m (row m's left part) */
   UNROLL
-  for (int f = 0; !pstart && f < nf; f++)
+  for (int f = 0; !started && f < nf; f++)
     pm[f] = pf0[f] - w0 * gv[ns + f];
   int done = 0;
   if (!sw->implicit) {
