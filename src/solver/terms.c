@@ -1734,9 +1734,8 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   /* (part_run: a class of khooke springs' alone, else NULL, which takes
    * no offset) */
   const int *run = kc->part_run ? kc->part_run + r0 : NULL;
-  /* (one division per spring: q is the shared columns where the class has
-   * them, hooke_class, else its khooke records, as qh; the two-division
-   * kernels read qh, whose constant NULL columns the compiler folds) */
+  /* (q: the shared columns where the class has them, hooke_class; else
+   * the kernels read qh, whose constant NULL columns the compiler folds) */
   const int one = (kc->hooke_only && !kc->exact) || kc->recip;
   const hsrc qh = {kc->qh, NULL, 0.0, 0.0}, q = hooke_src(kc);
   if (kc->part_hooke && !one && kc->qp && kc->dim == 2) /* (an exact class's
@@ -1746,12 +1745,18 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
     part_hooke_k(q, rec, mask, run, nr, z, g, 3, 0);
   else if (kc->part_hooke && !one && kc->qp)
     part_hooke_k(q, rec, mask, run, nr, z, g, 1, 0);
-  else if (kc->part_hooke && one && kc->dim == 2)
+  else if (kc->part_hooke && one && kc->qp && kc->dim == 2)
     part_hooke_k(q, rec, mask, run, nr, z, g, 2, 1);
-  else if (kc->part_hooke && one && kc->dim == 3)
+  else if (kc->part_hooke && one && kc->qp && kc->dim == 3)
     part_hooke_k(q, rec, mask, run, nr, z, g, 3, 1);
-  else if (kc->part_hooke && one)
+  else if (kc->part_hooke && one && kc->qp)
     part_hooke_k(q, rec, mask, run, nr, z, g, 1, 1);
+  else if (kc->part_hooke && one && kc->dim == 2) /* (qh: pr NULL folded) */
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 2, 1);
+  else if (kc->part_hooke && one && kc->dim == 3)
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 3, 1);
+  else if (kc->part_hooke && one)
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 1, 1);
   else if (kc->part_hooke && kc->dim == 2)
     part_hooke_k(qh, rec, mask, run, nr, z, g, 2, 0);
   else if (kc->part_hooke && kc->dim == 3)
