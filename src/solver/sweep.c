@@ -151,7 +151,7 @@ struct mrvi_sweep {
    * last node, grad V there, the end momenta and end_check: end_parts)
    * each in one parallel region, the slow rows in n_cs parts; pstart:
    * row 0's estimate formed there (or, where the step carries the last
-   * one's rows, its predictor: carry_parts), its r0, scale, first
+   * one's rows, its predictor: start_parts' carry), its r0, scale, first
    * residual and bound in pre[4] (solve_implicit takes them). */
   int pstart, pend;
   double pre[4];
@@ -1112,7 +1112,7 @@ int mrvi_sweep_set_history(mrvi_sweep *sw, int n, const double *h, char *msg,
  * row instead of three) the point's configuration zf = qm + cB dn where
  * cB is not 0 (the chord's first iterate), and the row's round-off scale,
  * returned (solve_implicit); predictor_rows: of order q over the rows
- * [f0, f1r), the history not moved on (carry_parts: in parts). */
+ * [f0, f1r), the history not moved on (start_parts: in parts). */
 ALWAYS_INLINE double predictor_rows(mrvi_sweep *sw, int q,
                                     const double *restrict qm,
                                     double *restrict dn, double cB, int f0,
@@ -1736,7 +1736,7 @@ static int solve_implicit(mrvi_sweep *sw, const double *qm, double *dn, int m,
   double scale = 0.0;
   /* (row 0 too extrapolates where the last step's rows are kept) */
   int pred = (!first || sw->carry > 0) && sw->sparse, zf_ok = 0;
-  const int pre = first && sw->pstart; /* (start_parts, carry_parts) */
+  const int pre = first && sw->pstart; /* (formed by start_parts) */
   if (pre) {
     r0 = sw->pre[0];
     scale = sw->pre[1];
@@ -2921,9 +2921,13 @@ ALWAYS_INLINE int explicit_p1(mrvi_sweep *sw, const mrvi_step *st,
  * gradient bitwise, test_kernels).  The maxima combined in order by the
  * serial loops' rules (r0's NaN absorbing), so the same bits for every
  * thread count; r0, the scale, the iterate's residual and bound into
- * sw->pre for solve_implicit. */
+ * sw->pre for solve_implicit.  With carry (the step carries the last
+ * one's rows, tuning.chord_carry), row 0's extrapolated predictor
+ * (predictor_rows, in the parts of p^{f,0}) instead of the estimate, one
+ * barrier before the first iterate, r0 none (HUGE_VAL): before, three
+ * serial passes (doc/performance/16-es-thr.md). */
 static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
-                        double *x, double *ps1, double *pf) {
+                        double *x, double *ps1, double *pf, int carry) {
   const int nf = sw->nf, ns = sw->ns, n_c = sw->n_cpass, n_cs = sw->n_cs;
   const int i = sw->imp;
   const double dt = st->dt, w0 = sw->wv0, wc = sw->w[i] * sw->cA[i];
@@ -2935,7 +2939,10 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
   double *zf = sw->zf, *z1 = sw->zalt, *cp = sw->cpass + 5 * n_c;
   sw->rhs = pf; /* (general_sweep's row 0: its momentum) */
   sw->lam = 0.0;
-  sw->evals_w += 2; /* (the estimate's gradient and the iterate's) */
+  if (carry) /* (solve_implicit's row 0 on the chord) */
+    sw->mild = sw->chord = 1;
+  const int q = carry ? predictor_order(sw, 0) : 0;
+  sw->evals_w += carry ? 1 : 2; /* (the estimate's gradient, the iterate's) */
 #ifdef _OPENMP
 #pragma omp parallel num_threads(sw->pthreads)
 #endif
@@ -2949,108 +2956,61 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
 #pragma omp for schedule(static)
 #endif
     for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
       const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      for (int f = mrvi_part_start(c, nf, n_c); f < f1; f++) {
-        pf[f] = pf0[f] - w0 * gv[ns + f];           /* p^{f,0} */
+      for (int f = f0; f < f1; f++) {
+        pf[f] = pf0[f] - w0 * gv[ns + f]; /* p^{f,0} */
+        if (carry)
+          continue;
         dn[f] = dt * minv[f * inc] * (pf[f] - 0.0); /* (fimp 0) */
         zf[f] = 1.0 * qm[f] + cB * dn[f];
       }
+      if (carry) /* (row 0's predictor and its configuration in zf) */
+        cp[2 * c + 1] = predictor_rows(sw, q, qm, dn, cB, f0, f1);
     }
+    if (!carry) { /* (row 0's estimate) */
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
-    for (int c = 0; c < n_c; c++) {
-      const int f0 = mrvi_part_start(c, nf, n_c);
-      const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      double r0 = 0.0, scale = 0.0;
-      zero(g + f0, f1 - f0);
-      mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
-      for (int f = f0; f < f1; f++) {
-        fimp[f] = 0.0 + wc * g[f];
-        dff[f] = dn[f];
-        const double a = rweight(
-            rw, unit, fabs(pf[f] - mf[f * inc] * dn[f] / dt - fimp[f]), f);
-        r0 = isnan(a) || a > r0 ? a : r0;
-        dn[f] = dt * minv[f * inc] * (pf[f] - fimp[f]);
-        const double v = rweight(
-            rw, unit, fabs(pf[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
-        scale = v > scale ? v : scale;
-        z1[f] = 1.0 * qm[f] + cB * dn[f]; /* (zf still read) */
+      for (int c = 0; c < n_c; c++) {
+        const int f0 = mrvi_part_start(c, nf, n_c);
+        const int f1 = mrvi_part_start(c + 1, nf, n_c);
+        double r0 = 0.0, scale = 0.0;
+        zero(g + f0, f1 - f0);
+        mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+        for (int f = f0; f < f1; f++) {
+          fimp[f] = 0.0 + wc * g[f];
+          dff[f] = dn[f];
+          const double a = rweight(
+              rw, unit, fabs(pf[f] - mf[f * inc] * dn[f] / dt - fimp[f]), f);
+          r0 = isnan(a) || a > r0 ? a : r0;
+          dn[f] = dt * minv[f * inc] * (pf[f] - fimp[f]);
+          const double v = rweight(
+              rw, unit, fabs(pf[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
+          scale = v > scale ? v : scale;
+          z1[f] = 1.0 * qm[f] + cB * dn[f]; /* (zf still read) */
+        }
+        cp[2 * c] = r0;
+        cp[2 * c + 1] = scale;
       }
-      cp[2 * c] = r0;
-      cp[2 * c + 1] = scale;
     }
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
     for (int c = 0; c < n_c; c++)
-      fresh_part(sw, c, qm, dn, z1, zf);
+      fresh_part(sw, c, qm, dn, carry ? zf : z1, carry ? z1 : zf);
   }
-  double r0 = 0.0, scale = 0.0;
+  double r0 = carry ? HUGE_VAL : 0.0, scale = 0.0;
   for (int c = 0; c < n_c; c++) {
-    r0 = isnan(cp[2 * c]) || cp[2 * c] > r0 ? cp[2 * c] : r0;
+    r0 = carry || !(isnan(cp[2 * c]) || cp[2 * c] > r0) ? r0 : cp[2 * c];
     scale = cp[2 * c + 1] > scale ? cp[2 * c + 1] : scale;
   }
+  if (carry)
+    rotate_history(sw);
   sw->pre[0] = r0;
   sw->pre[1] = scale;
-  sw->pre[2] = fresh_end(sw, z1, zf, &sw->pre[3]);
-  sw->pstart = 1;
-}
-
-/* sweep-cg's step start on threads where the step takes the last one's
- * rows (sw->carry, tuning.chord_carry; sw->cfused, one implicit point, no
- * control force): sweep_step's slow row and p^{f,0}, solve_implicit's row
- * 0 predictor (extrapolated_predictor: the displacement, its
- * configuration and the round-off scale) and the first chord iterate
- * (fresh_part) in one parallel region with a barrier where the
- * configuration is complete: the slow rows in n_cs parts, the fast rows
- * in the chord's parts, each entry's serial arithmetic; the scales'
- * maximum exact in any order.  So the same bits for every thread count;
- * r0 (none: HUGE_VAL), the scale, the iterate's residual and bound into
- * sw->pre for solve_implicit, as start_parts. */
-static void carry_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
-                        double *x, double *ps1, double *pf) {
-  const int nf = sw->nf, ns = sw->ns, n_c = sw->n_cpass, n_cs = sw->n_cs;
-  const double w0 = sw->wv0, cB = sw->cB[sw->imp], *qm = st->qf0;
-  const double *pf0 = st->pf0;
-  double *dn = sw->dn, *zf = sw->zf, *z1 = sw->zalt, *cp = sw->cpass + 5 * n_c;
-  sw->rhs = pf;             /* (general_sweep's row 0: its momentum) */
-  sw->mild = sw->chord = 1; /* (solve_implicit's row 0 on the chord) */
-  sw->lam = 0.0;
-  sw->evals_w++; /* (the iterate's gradient) */
-  const int q = predictor_order(sw, 0);
-#ifdef _OPENMP
-#pragma omp parallel num_threads(sw->pthreads)
-#endif
-  {
-#ifdef _OPENMP
-#pragma omp for schedule(static) nowait
-#endif
-    for (int c = 0; c < n_cs; c++)
-      slow_start_part(sw, st, c, gv, x, ps1, NULL, x);
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-    for (int c = 0; c < n_c; c++) {
-      const int f0 = mrvi_part_start(c, nf, n_c);
-      const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      for (int f = f0; f < f1; f++)
-        pf[f] = pf0[f] - w0 * gv[ns + f]; /* p^{f,0} */
-      cp[2 * c + 1] = predictor_rows(sw, q, qm, dn, cB, f0, f1);
-    }
-#ifdef _OPENMP
-#pragma omp for schedule(static)
-#endif
-    for (int c = 0; c < n_c; c++)
-      fresh_part(sw, c, qm, dn, zf, z1);
-  }
-  rotate_history(sw);
-  double scale = 0.0;
-  for (int c = 0; c < n_c; c++)
-    scale = cp[2 * c + 1] > scale ? cp[2 * c + 1] : scale;
-  sw->pre[0] = HUGE_VAL;
-  sw->pre[1] = scale;
-  sw->pre[2] = fresh_end(sw, zf, z1, &sw->pre[3]);
+  sw->pre[2] = carry ? fresh_end(sw, zf, z1, &sw->pre[3])
+                     : fresh_end(sw, z1, zf, &sw->pre[3]);
   sw->pstart = 1;
 }
 
@@ -3135,7 +3095,7 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const int chord0 = own && sw->fresh && sw->imp >= 0 && sw->chord_max > 0.0 &&
                      sw->cB[sw->imp] != 0.0;
   const int pstart = chord0 && !sw->carry;
-  const int cstart = chord0 && sw->carry; /* (carry_parts) */
+  const int cstart = chord0 && sw->carry; /* (start_parts' carry) */
   if (sw->implicit && !sw->carry && !pstart)
     zero(sw->fimp, nf);
   else if (sw->threads > 1)
@@ -3152,9 +3112,9 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double *frow = st->f_rows, *minv_s = sw->minv_s;
   const int inc_s = sw->inc_s;
   if (pstart)
-    start_parts(sw, st, gv, x, ps1, pf);
+    start_parts(sw, st, gv, x, ps1, pf, 0);
   else if (cstart)
-    carry_parts(sw, st, gv, x, ps1, pf);
+    start_parts(sw, st, gv, x, ps1, pf, 1);
   const int started = pstart || cstart;
   UNROLL
   for (int s = 0; !started && s < ns; s++) {
