@@ -298,6 +298,12 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
               "threads %.2e relative to the full class's",
               d, lc->law, lc->params[1], names[kind],
               rel_diff(gs, gs_ref, (size_t)n), rel_diff(Hv, gs_ref, (size_t)n));
+        /* (on threads the serial gradient-only class's bits: the parts'
+         * Hooke springs two at a time, part_hooke_pairs) */
+        CHECK(!memcmp(Hv, gs, bytes),
+              "d %d %s (%g), %s alone: on 2 threads in parts of 2 records "
+              "bitwise the serial gradient-only class",
+              d, lc->law, lc->params[1], names[kind]);
         const double vf = mrvi_terms_value(kf, q), vg = mrvi_terms_value(kg, q);
         CHECK(memcmp(&vf, &vg, sizeof vf) == 0,
               "d %d %s, %s alone: gradient-only class's value %.17g vs %.17g",

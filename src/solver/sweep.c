@@ -150,8 +150,9 @@ struct mrvi_sweep {
    * estimate and its first chord iterate: start_parts) and its end (the
    * last node, grad V there, the end momenta and end_check: end_parts)
    * each in one parallel region, the slow rows in n_cs parts; pstart:
-   * row 0's estimate formed there, its r0, scale, first residual and
-   * bound in pre[4] (solve_implicit takes them). */
+   * row 0's estimate formed there (or, where the step carries the last
+   * one's rows, its predictor: start_parts' carry), its r0, scale, first
+   * residual and bound in pre[4] (solve_implicit takes them). */
   int pstart, pend;
   double pre[4];
   /* A row's end deferred to the next row's first chord update on threads
@@ -1132,11 +1133,12 @@ int mrvi_sweep_set_history(mrvi_sweep *sw, int n, const double *h, char *msg,
  * (end_predict): the displacement dn, in the same pass (one pass over the
  * row instead of three) the point's configuration zf = qm + cB dn where
  * cB is not 0 (the chord's first iterate), and the row's round-off scale,
- * returned (solve_implicit). */
-static double extrapolated_predictor(mrvi_sweep *sw, int m,
-                                     const double *restrict qm,
-                                     double *restrict dn, double cB) {
-  const int nf = sw->nf, q = predictor_order(sw, m);
+ * returned (solve_implicit); predictor_rows: of order q over the rows
+ * [f0, f1r), the history not moved on (start_parts: in parts). */
+ALWAYS_INLINE double predictor_rows(mrvi_sweep *sw, int q,
+                                    const double *restrict qm,
+                                    double *restrict dn, double cB, int f0,
+                                    int f1r) {
   const double dt = sw->st->dt;
   const double *restrict f1 = sw->fimp, *restrict f2 = sw->fhist[0],
                          *restrict f3 = sw->fhist[1],
@@ -1148,7 +1150,7 @@ static double extrapolated_predictor(mrvi_sweep *sw, int m,
   const size_t inc = (size_t)sw->mass_inc;
   double *restrict zf = sw->zf;
   double scale = 0.0;
-  for (int f = 0; f < nf; f++) {
+  for (int f = f0; f < f1r; f++) {
     const double fp = predicted_force(q, f1[f], f2[f], f3[f], f4[f], f5[f]);
     dn[f] = dt * minv[f * inc] * (rhs[f] - fp);
     if (cB != 0.0)
@@ -1158,6 +1160,14 @@ static double extrapolated_predictor(mrvi_sweep *sw, int m,
         rw, unit, fabs(rhs[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
     scale = v > scale ? v : scale;
   }
+  return scale;
+}
+
+static double extrapolated_predictor(mrvi_sweep *sw, int m,
+                                     const double *restrict qm,
+                                     double *restrict dn, double cB) {
+  const double scale =
+      predictor_rows(sw, predictor_order(sw, m), qm, dn, cB, 0, sw->nf);
   rotate_history(sw);
   return scale;
 }
@@ -2934,9 +2944,13 @@ ALWAYS_INLINE int explicit_p1(mrvi_sweep *sw, const mrvi_step *st,
  * gradient bitwise, test_kernels).  The maxima combined in order by the
  * serial loops' rules (r0's NaN absorbing), so the same bits for every
  * thread count; r0, the scale, the iterate's residual and bound into
- * sw->pre for solve_implicit. */
+ * sw->pre for solve_implicit.  With carry (the step carries the last
+ * one's rows, tuning.chord_carry), row 0's extrapolated predictor
+ * (predictor_rows, in the parts of p^{f,0}) instead of the estimate, one
+ * barrier before the first iterate, r0 none (HUGE_VAL): before, three
+ * serial passes (doc/performance/16-es-thr.md). */
 static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
-                        double *x, double *ps1, double *pf) {
+                        double *x, double *ps1, double *pf, int carry) {
   const int nf = sw->nf, ns = sw->ns, n_c = sw->n_cpass, n_cs = sw->n_cs;
   const int i = sw->imp;
   const double dt = st->dt, w0 = sw->wv0, wc = sw->w[i] * sw->cA[i];
@@ -2949,7 +2963,10 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
   double *zf = sw->zf, *z1 = sw->zalt, *cp = sw->cpass + 5 * n_c;
   sw->rhs = pf; /* (general_sweep's row 0: its momentum) */
   sw->lam = 0.0;
-  sw->evals_w += 2; /* (the estimate's gradient and the iterate's) */
+  if (carry) /* (solve_implicit's row 0 on the chord) */
+    sw->mild = sw->chord = 1;
+  const int q = carry ? predictor_order(sw, 0) : 0;
+  sw->evals_w += carry ? 1 : 2; /* (the estimate's gradient, the iterate's) */
 #ifdef _OPENMP
 #pragma omp parallel num_threads(sw->pthreads)
 #endif
@@ -2963,51 +2980,61 @@ static void start_parts(mrvi_sweep *sw, const mrvi_step *st, const double *gv,
 #pragma omp for schedule(static)
 #endif
     for (int c = 0; c < n_c; c++) {
+      const int f0 = mrvi_part_start(c, nf, n_c);
       const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      for (int f = mrvi_part_start(c, nf, n_c); f < f1; f++) {
-        pf[f] = pf0[f] - w0 * gv[ns + f];           /* p^{f,0} */
+      for (int f = f0; f < f1; f++) {
+        pf[f] = pf0[f] - w0 * gv[ns + f]; /* p^{f,0} */
+        if (carry)
+          continue;
         dn[f] = dt * minv[f * inc] * (pf[f] - 0.0); /* (fimp 0) */
         zf[f] = 1.0 * qm[f] + cB * dn[f];
       }
+      if (carry) /* (row 0's predictor and its configuration in zf) */
+        cp[2 * c + 1] = predictor_rows(sw, q, qm, dn, cB, f0, f1);
     }
+    if (!carry) { /* (row 0's estimate) */
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
-    for (int c = 0; c < n_c; c++) {
-      const int f0 = mrvi_part_start(c, nf, n_c);
-      const int f1 = mrvi_part_start(c + 1, nf, n_c);
-      double r0 = 0.0, scale = 0.0;
-      zero(g + f0, f1 - f0);
-      mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
-      for (int f = f0; f < f1; f++) {
-        fimp[f] = 0.0 + wc * g[f];
-        dff[f] = dn[f];
-        const double a = rweight(
-            rw, unit, fabs(pf[f] - mf[f * inc] * dn[f] / dt - fimp[f]), f);
-        r0 = isnan(a) || a > r0 ? a : r0;
-        dn[f] = dt * minv[f * inc] * (pf[f] - fimp[f]);
-        const double v = rweight(
-            rw, unit, fabs(pf[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
-        scale = v > scale ? v : scale;
-        z1[f] = 1.0 * qm[f] + cB * dn[f]; /* (zf still read) */
+      for (int c = 0; c < n_c; c++) {
+        const int f0 = mrvi_part_start(c, nf, n_c);
+        const int f1 = mrvi_part_start(c + 1, nf, n_c);
+        double r0 = 0.0, scale = 0.0;
+        zero(g + f0, f1 - f0);
+        mrvi_terms_grad_part(sw->kc[MRVI_FAST], c, zf, g);
+        for (int f = f0; f < f1; f++) {
+          fimp[f] = 0.0 + wc * g[f];
+          dff[f] = dn[f];
+          const double a = rweight(
+              rw, unit, fabs(pf[f] - mf[f * inc] * dn[f] / dt - fimp[f]), f);
+          r0 = isnan(a) || a > r0 ? a : r0;
+          dn[f] = dt * minv[f * inc] * (pf[f] - fimp[f]);
+          const double v = rweight(
+              rw, unit, fabs(pf[f]) + 4.0 * mf[f * inc] * fabs(qm[f]) / dt, f);
+          scale = v > scale ? v : scale;
+          z1[f] = 1.0 * qm[f] + cB * dn[f]; /* (zf still read) */
+        }
+        cp[2 * c] = r0;
+        cp[2 * c + 1] = scale;
       }
-      cp[2 * c] = r0;
-      cp[2 * c + 1] = scale;
     }
 #ifdef _OPENMP
 #pragma omp for schedule(static)
 #endif
     for (int c = 0; c < n_c; c++)
-      fresh_part(sw, c, qm, dn, z1, zf);
+      fresh_part(sw, c, qm, dn, carry ? zf : z1, carry ? z1 : zf);
   }
-  double r0 = 0.0, scale = 0.0;
+  double r0 = carry ? HUGE_VAL : 0.0, scale = 0.0;
   for (int c = 0; c < n_c; c++) {
-    r0 = isnan(cp[2 * c]) || cp[2 * c] > r0 ? cp[2 * c] : r0;
+    r0 = carry || !(isnan(cp[2 * c]) || cp[2 * c] > r0) ? r0 : cp[2 * c];
     scale = cp[2 * c + 1] > scale ? cp[2 * c + 1] : scale;
   }
+  if (carry)
+    rotate_history(sw);
   sw->pre[0] = r0;
   sw->pre[1] = scale;
-  sw->pre[2] = fresh_end(sw, z1, zf, &sw->pre[3]);
+  sw->pre[2] = carry ? fresh_end(sw, zf, z1, &sw->pre[3])
+                     : fresh_end(sw, z1, zf, &sw->pre[3]);
   sw->pstart = 1;
 }
 
@@ -3089,8 +3116,10 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const int own = sw->cfused && sw->n_w == 1 && !st->f_rows;
   sw->pend = own && !st->f_end;
   sw->pstart = 0;
-  const int pstart = own && !sw->carry && sw->fresh && sw->imp >= 0 &&
-                     sw->chord_max > 0.0 && sw->cB[sw->imp] != 0.0;
+  const int chord0 = own && sw->fresh && sw->imp >= 0 && sw->chord_max > 0.0 &&
+                     sw->cB[sw->imp] != 0.0;
+  const int pstart = chord0 && !sw->carry;
+  const int cstart = chord0 && sw->carry; /* (start_parts' carry) */
   if (sw->implicit && !sw->carry && !pstart)
     zero(sw->fimp, nf);
   else if (sw->threads > 1)
@@ -3107,9 +3136,12 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   const double *frow = st->f_rows, *minv_s = sw->minv_s;
   const int inc_s = sw->inc_s;
   if (pstart)
-    start_parts(sw, st, gv, x, ps1, pf);
+    start_parts(sw, st, gv, x, ps1, pf, 0);
+  else if (cstart)
+    start_parts(sw, st, gv, x, ps1, pf, 1);
+  const int started = pstart || cstart;
   UNROLL
-  for (int s = 0; !pstart && s < ns; s++) {
+  for (int s = 0; !started && s < ns; s++) {
     double v = ps0[s] - w0 * gv[s]; /* M^s (q_{k+1}^s - q_k^s)/dT */
     if (frow)
       v += frow[s];
@@ -3119,7 +3151,7 @@ ALWAYS_INLINE int sweep_step(mrvi_sweep *sw, const mrvi_step *st, double *x,
   /* p^{f,0} of row 0 (kept in pf's first row until node 1 overwrites it). */
   double *pm = pf; /* momentum at node m (row m's left part) */
   UNROLL
-  for (int f = 0; !pstart && f < nf; f++)
+  for (int f = 0; !started && f < nf; f++)
     pm[f] = pf0[f] - w0 * gv[ns + f];
   int done = 0;
   if (!sw->implicit) {

@@ -1609,6 +1609,38 @@ terms_grad_any(mrvi_terms *kc, const double *z, double *g) {
   eval_k(kc, z, 1.0, g, NULL, 0, 0.0, 1);
 }
 
+/* Springs a and b of hooke_grad_k with one = 1, one in each lane of a pair
+ * (util/simd.h): each lane the scalar kernel's operations in its order, the
+ * two square roots and divisions in one instruction each; t[k] = c (r -
+ * shift) d_k (1 / r), 0 where r <= 0 or NaN (hooke_dir's u times d1). */
+ALWAYS_INLINE void hooke_pair(const khooke *a, const khooke *b, const double *z,
+                              mrvi_v2 t[3], const int dim) {
+  mrvi_v2 d[3], r2 = v2_zero();
+  UNROLL for (int k = 0; k < dim; k++) {
+    d[k] = v2_sub(v2_set(z[a->ci + k], z[b->ci + k]),
+                  v2_set(z[a->cj + k], z[b->cj + k]));
+    r2 = v2_add(r2, v2_mul(d[k], d[k]));
+  }
+  const mrvi_v2 rr = v2_sqrt(r2);
+  const mrvi_v2 d1 =
+      v2_mul(v2_set(a->c, b->c), v2_sub(rr, v2_set(a->shift, b->shift)));
+  const mrvi_v2 ir = v2_pos_or_zero(rr, v2_div(v2_set(1.0, 1.0), rr));
+  UNROLL for (int k = 0; k < dim; k++) t[k] = v2_mul(d1, v2_mul(d[k], ir));
+}
+
+/* One spring's sums of hooke_grad_pairs in dimension 2 or 3: its first
+ * two axes v01 as a pair at ci and cj (g + v, g - v = g + (-v) lane by
+ * lane), the third v2 alone. */
+ALWAYS_INLINE void pair_add(double *g, int ci, int cj, mrvi_v2 v01, double v2,
+                            const int dim) {
+  v2_store(g + ci, v2_add(v2_load(g + ci), v01));
+  if (dim == 3)
+    g[ci + 2] += v2;
+  v2_store(g + cj, v2_sub(v2_load(g + cj), v01));
+  if (dim == 3)
+    g[cj + 2] += -v2;
+}
+
 /* Part c's records (mrvi_terms_set_threads): spring_eval's gradient at
  * unit scale, each column written only where the record's mask has it. */
 ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
@@ -1631,14 +1663,52 @@ ALWAYS_INLINE void part_k(const kspring *q, const int *rec,
   }
 }
 
+/* Spring h's sums in part_hooke_pairs: its axes' values v01 (the first
+ * two) and v2, each column of the mask mk (pair_add where it has all). */
+ALWAYS_INLINE void part_pair_add(double *g, const khooke *h, unsigned mk,
+                                 mrvi_v2 v01, double v2, const int dim) {
+  if (dim >= 2 && mk == (1u << 2 * dim) - 1) {
+    pair_add(g, h->ci, h->cj, v01, v2, dim);
+    return;
+  }
+  const double v[3] = {v2_lo(v01), v2_hi(v01), v2};
+  UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << k) g[h->ci + k] += v[k];
+  UNROLL for (int k = 0; k < dim; k++) if (mk & 1u << (dim + k)) g[h->cj + k] +=
+      -v[k];
+}
+
+/* part_hooke_k with one = 1 on a part's entries two at a time (the lanes
+ * of hooke_pair), the sums entry by entry in the part's order, whole
+ * records or masked: the scalar loop's values bit for bit (es-zero's
+ * argument, hooke_grad_pairs); the entries paired returned (an odd last
+ * one left to the scalar loop). */
+ALWAYS_INLINE int part_hooke_pairs(hsrc q, const int *rec,
+                                   const unsigned char *mask, int nr,
+                                   const double *z, double *g, const int dim) {
+  int i = 0;
+  for (; i + 2 <= nr; i += 2) {
+    const khooke a = hooke_rec(q, rec[i]), b = hooke_rec(q, rec[i + 1]);
+    mrvi_v2 t[3];
+    hooke_pair(&a, &b, z, t, dim);
+    const mrvi_v2 t1 = dim >= 2 ? t[1] : v2_zero();
+    const mrvi_v2 t2 = dim == 3 ? t[2] : v2_zero();
+    part_pair_add(g, &a, mask[i], v2_set(v2_lo(t[0]), v2_lo(t1)), v2_lo(t2),
+                  dim);
+    part_pair_add(g, &b, mask[i + 1], v2_set(v2_hi(t[0]), v2_hi(t1)), v2_hi(t2),
+                  dim);
+  }
+  return i;
+}
+
 /* part_k for a class of khooke springs alone (hooke_grad_k's arithmetic,
- * bitwise spring_eval's, or with one = 1 hooke_grad1's): the quarter-size
- * records. */
+ * bitwise spring_eval's, or with one = 1 hooke_grad1's, two springs at a
+ * time: part_hooke_pairs): the quarter-size records. */
 ALWAYS_INLINE void part_hooke_k(hsrc q, const int *rec,
                                 const unsigned char *mask, const int *run,
                                 int nr, const double *z, double *g,
                                 const int dim, const int one) {
-  for (int i = 0; i < nr; i++) {
+  for (int i = one ? part_hooke_pairs(q, rec, mask, nr, z, g, dim) : 0; i < nr;
+       i++) {
     if (run[i] > 0) { /* whole records: the serial loop, the same sums */
       hooke_grad_k(q, rec[i], run[i], z, g, dim, one);
       i += run[i] - 1;
@@ -1664,9 +1734,8 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
   /* (part_run: a class of khooke springs' alone, else NULL, which takes
    * no offset) */
   const int *run = kc->part_run ? kc->part_run + r0 : NULL;
-  /* (one division per spring: q is the shared columns where the class has
-   * them, hooke_class, else its khooke records, as qh; the two-division
-   * kernels read qh, whose constant NULL columns the compiler folds) */
+  /* (q: the shared columns where the class has them, hooke_class; else
+   * the kernels read qh, whose constant NULL columns the compiler folds) */
   const int one = (kc->hooke_only && !kc->exact) || kc->recip;
   const hsrc qh = {kc->qh, NULL, 0.0, 0.0}, q = hooke_src(kc);
   if (kc->part_hooke && !one && kc->qp && kc->dim == 2) /* (an exact class's
@@ -1676,12 +1745,18 @@ void mrvi_terms_grad_part(const mrvi_terms *kc, int c, const double *z,
     part_hooke_k(q, rec, mask, run, nr, z, g, 3, 0);
   else if (kc->part_hooke && !one && kc->qp)
     part_hooke_k(q, rec, mask, run, nr, z, g, 1, 0);
-  else if (kc->part_hooke && one && kc->dim == 2)
+  else if (kc->part_hooke && one && kc->qp && kc->dim == 2)
     part_hooke_k(q, rec, mask, run, nr, z, g, 2, 1);
-  else if (kc->part_hooke && one && kc->dim == 3)
+  else if (kc->part_hooke && one && kc->qp && kc->dim == 3)
     part_hooke_k(q, rec, mask, run, nr, z, g, 3, 1);
-  else if (kc->part_hooke && one)
+  else if (kc->part_hooke && one && kc->qp)
     part_hooke_k(q, rec, mask, run, nr, z, g, 1, 1);
+  else if (kc->part_hooke && one && kc->dim == 2) /* (qh: pr NULL folded) */
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 2, 1);
+  else if (kc->part_hooke && one && kc->dim == 3)
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 3, 1);
+  else if (kc->part_hooke && one)
+    part_hooke_k(qh, rec, mask, run, nr, z, g, 1, 1);
   else if (kc->part_hooke && kc->dim == 2)
     part_hooke_k(qh, rec, mask, run, nr, z, g, 2, 0);
   else if (kc->part_hooke && kc->dim == 3)
@@ -2173,19 +2248,6 @@ static int fused_zero(double *g, int zp, int to, mrvi_cols_fn first,
   return zp;
 }
 
-/* One spring's sums of hooke_grad_pairs in dimension 2 or 3: its first
- * two axes v01 as a pair at ci and cj (g + v, g - v = g + (-v) lane by
- * lane), the third v2 alone. */
-ALWAYS_INLINE void pair_add(double *g, int ci, int cj, mrvi_v2 v01, double v2,
-                            const int dim) {
-  v2_store(g + ci, v2_add(v2_load(g + ci), v01));
-  if (dim == 3)
-    g[ci + 2] += v2;
-  v2_store(g + cj, v2_sub(v2_load(g + cj), v01));
-  if (dim == 3)
-    g[cj + 2] += -v2;
-}
-
 /* hooke_grad_k with one = 1 on q[r0 .. r0 + nr), two springs at a time:
  * each lane the scalar kernel's operations (the square root and the
  * division of two springs in one instruction each, util/simd.h), the
@@ -2198,18 +2260,8 @@ ALWAYS_INLINE void hooke_grad_pairs(const khooke *q, int r0, int nr,
   int r = r0;
   for (; r + 2 <= r0 + nr; r += 2) {
     const khooke *a = q + r, *b = q + r + 1;
-    mrvi_v2 d[3], r2 = v2_zero();
-    UNROLL for (int k = 0; k < dim; k++) {
-      d[k] = v2_sub(v2_set(z[a->ci + k], z[b->ci + k]),
-                    v2_set(z[a->cj + k], z[b->cj + k]));
-      r2 = v2_add(r2, v2_mul(d[k], d[k]));
-    }
-    const mrvi_v2 rr = v2_sqrt(r2);
-    const mrvi_v2 d1 =
-        v2_mul(v2_set(a->c, b->c), v2_sub(rr, v2_set(a->shift, b->shift)));
-    const mrvi_v2 ir = v2_pos_or_zero(rr, v2_div(v2_set(1.0, 1.0), rr));
     mrvi_v2 t[3];
-    UNROLL for (int k = 0; k < dim; k++) t[k] = v2_mul(d1, v2_mul(d[k], ir));
+    hooke_pair(a, b, z, t, dim);
     if (dim == 1) {
       g[a->ci] += v2_lo(t[0]);
       g[a->cj] += -v2_lo(t[0]);
