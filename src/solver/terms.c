@@ -1264,19 +1264,24 @@ hooke_grad(const khooke *q, int nr, const double *z, double *g, int dim) {
     hooke_grad_k(s, 0, nr, z, g, 1, 0);
 }
 
-/* hooke_grad with one division per spring (a gradient-only class). */
+ALWAYS_INLINE void hooke_grad_pairs(hsrc q, int r0, int nr, const double *z,
+                                    double *g, const int dim);
+
+/* hooke_grad with one division per spring (a gradient-only class), two
+ * springs at a time (hooke_grad_pairs: hooke_grad_k's values bit for
+ * bit). */
 static __attribute__((noinline)) void
 hooke_grad1(hsrc q, int nr, const double *z, double *g, int dim) {
   if (dim == 2 && q.pr) /* (one stiffness and rest length: the columns) */
-    hooke_grad_k((hsrc){NULL, q.pr, q.c, q.shift}, 0, nr, z, g, 2, 1);
+    hooke_grad_pairs((hsrc){NULL, q.pr, q.c, q.shift}, 0, nr, z, g, 2);
   else if (dim == 3 && q.pr)
-    hooke_grad_k((hsrc){NULL, q.pr, q.c, q.shift}, 0, nr, z, g, 3, 1);
+    hooke_grad_pairs((hsrc){NULL, q.pr, q.c, q.shift}, 0, nr, z, g, 3);
   else if (dim == 2)
-    hooke_grad_k((hsrc){q.q, NULL, 0.0, 0.0}, 0, nr, z, g, 2, 1);
+    hooke_grad_pairs((hsrc){q.q, NULL, 0.0, 0.0}, 0, nr, z, g, 2);
   else if (dim == 3)
-    hooke_grad_k((hsrc){q.q, NULL, 0.0, 0.0}, 0, nr, z, g, 3, 1);
+    hooke_grad_pairs((hsrc){q.q, NULL, 0.0, 0.0}, 0, nr, z, g, 3);
   else
-    hooke_grad_k(q, 0, nr, z, g, 1, 1);
+    hooke_grad_pairs(q, 0, nr, z, g, 1);
 }
 
 /* hooke_grad on a hooke_class's records, shared or not (an exact class,
@@ -2254,12 +2259,14 @@ static int fused_zero(double *g, int zp, int to, mrvi_cols_fn first,
  * sums into g spring by spring in the serial order, a spring's first two
  * axes as one pair (the same additions lane by lane), so g is
  * hooke_grad_k's bit for bit (z is not g: every difference is read before
- * any sum). */
-ALWAYS_INLINE void hooke_grad_pairs(const khooke *q, int r0, int nr,
-                                    const double *z, double *g, const int dim) {
+ * any sum).  q: the records, or the columns of a class whose springs share
+ * one stiffness and rest length (hooke_rec). */
+ALWAYS_INLINE void hooke_grad_pairs(hsrc q, int r0, int nr, const double *z,
+                                    double *g, const int dim) {
   int r = r0;
   for (; r + 2 <= r0 + nr; r += 2) {
-    const khooke *a = q + r, *b = q + r + 1;
+    const khooke ra = hooke_rec(q, r), rb = hooke_rec(q, r + 1);
+    const khooke *a = &ra, *b = &rb;
     mrvi_v2 t[3];
     hooke_pair(a, b, z, t, dim);
     if (dim == 1) {
@@ -2275,8 +2282,7 @@ ALWAYS_INLINE void hooke_grad_pairs(const khooke *q, int r0, int nr,
     pair_add(g, a->ci, a->cj, v2_set(v2_lo(t[0]), v2_lo(t[1])), v2_lo(t2), dim);
     pair_add(g, b->ci, b->cj, v2_set(v2_hi(t[0]), v2_hi(t[1])), v2_hi(t2), dim);
   }
-  const hsrc s = {q, NULL, 0.0, 0.0};
-  hooke_grad_k(s, r, r0 + nr - r, z, g, dim, 1);
+  hooke_grad_k(q, r, r0 + nr - r, z, g, dim, 1);
 }
 
 /* mrvi_terms_grad_fused in dimension dim: the blocks of hooke_grad1's
@@ -2289,7 +2295,7 @@ ALWAYS_INLINE void fused_k(const mrvi_terms *kc, const double *z, double *g,
   for (int b = 0; b < nb; b++) {
     const int r0 = b * B, nr = b + 1 < nb ? B : n - r0;
     zp = fused_zero(g, zp, kc->fuse_zero[b], first, ctx);
-    hooke_grad_pairs(kc->qh, r0, nr, z, g, dim);
+    hooke_grad_pairs((hsrc){kc->qh, NULL, 0.0, 0.0}, r0, nr, z, g, dim);
     const int d = kc->fuse_done[b];
     if (d > dp) { /* (and the columns no record touches) */
       zp = fused_zero(g, zp, d, first, ctx);
