@@ -771,6 +771,11 @@ typedef enum mrvi_newton_criterion {
     "largest node block (fast unknowns and a micro node's multipliers, or "    \
     "slow unknowns and the slow multipliers) of a step with micro-node "       \
     "constraints solved by schur-bordered; beyond: general")                   \
+  X(int, bordered_slow_max, 0, 0, 1000000,                                     \
+    "largest slow block with its multipliers (a dense Schur complement) of "   \
+    "a step with micro-node constraints whose fast node blocks, beyond "       \
+    "bordered_node_max, schur-bordered factors sparse (0, the default: "       \
+    "off, general)")                                                           \
   X(int, chain_block_max, 160, 0, 1000000,                                     \
     "largest block of schur-bordered's chain elimination, which takes "        \
     "constrained chains and trees beyond bordered_max and "                    \

@@ -600,7 +600,9 @@ static void test_node_blocks(void) {
       mrvi_settings s = sa->settings;
       s.solver = MRVI_SOLVER_AUTO;
       CHECK(mrvi_settings_set_tuning(&s, "bordered_node_max", 16, msg,
-                                     sizeof msg) == 0,
+                                     sizeof msg) == 0 &&
+                mrvi_settings_set_tuning(&s, "bordered_slow_max", 0, msg,
+                                         sizeof msg) == 0,
             "%s", msg);
       path = mrvi_solver_path(sa->model, &s, why, sizeof why);
       CHECK(path && strcmp(path, "general") == 0 &&
@@ -610,6 +612,73 @@ static void test_node_blocks(void) {
       mrvi_system_free(sa);
       mrvi_system_free(sg);
     }
+}
+
+/* The sparse node blocks (solver/bordered_sparse.c): a planar lattice of
+ * 15 x 14 particles (alternately slow and fast: 210 fast coordinates), its
+ * last column clamped and rods between slow-fast pairs of its top row
+ * (bench_ocp --lattice --constrained's model), p = 10: the fast node block
+ * of 210 coordinates and 21 multipliers is beyond bordered_node_max, so
+ * the automatic choice takes schur-bordered with sparse node blocks where
+ * bordered_slow_max allows (here 6000; off by default); its
+ * trajectory against the general path's over 100 macro steps at tight
+ * tolerances. */
+static void test_sparse_node_blocks(void) {
+  const int nx = 15, ny = 14;
+  char text[8192];
+  size_t k = (size_t)snprintf(
+      text, sizeof text,
+      "name: lattice\ndimension: 2\ngenerate:\n  - kind: lattice2d\n"
+      "    name: p\n    count: [%d, %d]\n    spacing: 1.0\n    mass: 1.0\n"
+      "    rates: {every: 2}\n"
+      "    slow_spring: {law: linear, stiffness: 10}\n"
+      "    fast_spring: {law: linear, stiffness: 1000}\n    initial:\n"
+      "      - {index: [2, 2], displacement: [0.1, 0.05], velocity: [0.0, "
+      "0.5]}\n"
+      "integrator: {scheme: midpoint-midpoint, macro_step: 0.05, "
+      "micro_steps: 10, t_end: 5, newton: {tolerance: 1e-12}, "
+      "constraints: {tolerance: 1e-12}, tuning: {bordered_slow_max: 6000}}\n"
+      "constraints:\n",
+      nx, ny);
+  for (int j = 0; j < ny; j++)
+    k += (size_t)snprintf(text + k, sizeof text - k,
+                          "  - {type: fixed, particle: p%d_%d}\n", nx - 1, j);
+  for (int i = 0; i + 2 < nx; i += 2)
+    k += (size_t)snprintf(text + k, sizeof text - k,
+                          "  - {type: distance, between: [p%d_%d, p%d_%d]}\n",
+                          i, ny - 1, i + 1, ny - 1);
+  const char *gen[] = {"integrator.solver=general"};
+  mrvi_system *sa = NULL, *sg = NULL;
+  char msg[512], why[400] = "";
+  if (mrvi_system_load_string(text, "lattice", NULL, 0, &sa, msg, sizeof msg) <
+          0 ||
+      mrvi_system_load_string(text, "lattice", gen, 1, &sg, msg, sizeof msg) <
+          0) {
+    CHECK(0, "load lattice: %s", msg);
+    mrvi_system_free(sa);
+    return;
+  }
+  const char *path =
+      mrvi_solver_path(sa->model, &sa->settings, why, sizeof why);
+  CHECK(path && strcmp(path, "schur-bordered") == 0 &&
+            strstr(why, "sparse LU") != NULL,
+        "lattice: path %s (%s)", path ? path : "none", why);
+  const int steps = 100;
+  run_out a = {0}, g = {0};
+  run(sa->model, &sa->settings, steps, &a);
+  run(sg->model, &sg->settings, steps, &g);
+  CHECK(a.ok && g.ok && strcmp(a.path, "schur-bordered") == 0 &&
+            strcmp(g.path, "general") == 0,
+        "lattice: runs completed (%s, %s)", a.path, g.path);
+  if (a.ok && g.ok) {
+    const double d = rel_diff(&g, &a, steps);
+    CHECK(d <= 1e-10, "lattice: sparse node blocks vs general: %.2e", d);
+    printf("lattice %d x %d: sparse node blocks vs general %.2e\n", nx, ny, d);
+  }
+  run_free(&a);
+  run_free(&g);
+  mrvi_system_free(sa);
+  mrvi_system_free(sg);
 }
 
 /* The choice between general and schur-bordered by the structural cost
@@ -821,6 +890,7 @@ int main(void) {
   test_chain_transpose();
   test_chain_refactor();
   test_node_blocks();
+  test_sparse_node_blocks();
   test_shipped();
   return test_finish();
 }

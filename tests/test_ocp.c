@@ -270,11 +270,14 @@ static void test_bordered(void) {
   const char *forms[2] = {"multipliers", "null-space"};
   /* (case 1: the cart pendulum with its pair actuator, a state actuator:
    * its Jacobian in the node blocks, ocp_path) */
-  for (int mc = 0; mc < 4; mc++)
+  for (int mc = 0; mc < 5; mc++)
     for (int is = 0; schemes[is] && (mc <= 1 || is == 0); is++)
       for (int ip = 0; ip < 2; ip++)
         for (int form = 0; form < 2; form++) {
-          const int model = mc > 1 ? mc - 1 : 0, pair = mc == 1;
+          /* (case 4: the cart pendulum on the sparse node blocks,
+           * solver/bordered_sparse.c: bordered_node_max 0) */
+          const int model = mc > 1 && mc < 4 ? mc - 1 : 0, pair = mc == 1,
+                    sparse = mc == 4;
           const int p = ip ? 5 : 1;
           mrvi_model *m =
               model ? link_chain(model == 2 ? 12 : 3) : test_cart_pendulum();
@@ -292,6 +295,8 @@ static void test_bordered(void) {
           if (model == 2) /* (the chain elimination, solver/chain.c, in
                              the forward pass and the adjoint) */
             s.tuning.bordered_max = 0;
+          if (sparse)
+            s.tuning.bordered_node_max = 0, s.tuning.bordered_slow_max = 6000;
           mrvi_settings sg = s;
           sg.solver = MRVI_SOLVER_GENERAL;
           mrvi_ocp *o =
@@ -306,6 +311,7 @@ static void test_bordered(void) {
                    model == 2 ? "chain (chain elimination)"
                    : model    ? "chain"
                    : pair     ? "cart pendulum with a pair actuator"
+                   : sparse   ? "cart pendulum (sparse node blocks)"
                               : "cart pendulum",
                    model ? "midpoint-midpoint" : schemes[is], p, forms[form]);
           const char *path = o ? mrvi_ocp_solver_path(o, why, sizeof why) : 0;

@@ -111,6 +111,9 @@ struct mrvi_bordered {
   /* The chain elimination (solver/chain.c) of the whole step, for chains
    * and trees beyond the dense blocks' limits (mrvi_chain_wanted). */
   mrvi_chain *chain;
+  /* The node blocks beyond bordered_node_max, sparse
+   * (solver/bordered_sparse.c; rblk, roff J's order within each block). */
+  mrvi_nsparse *nsp;
 };
 
 void mrvi_bordered_free(mrvi_bordered *bd) {
@@ -119,6 +122,7 @@ void mrvi_bordered_free(mrvi_bordered *bd) {
   mrvi_blocks_free(bd->blocks);
   mrvi_newton_free(bd->whole);
   mrvi_chain_free(bd->chain);
+  mrvi_nsparse_free(bd->nsp);
   free(bd->rblk);
   free(bd->roff);
   free(bd->dpiv);
@@ -295,6 +299,20 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   return node_lists(bd, st);
 }
 
+/* The sparse node blocks (beyond bordered_node_max): J's rows and columns
+ * in their blocks in J's order (no reordering: each block's pattern keeps
+ * its rows ascending). */
+static int nsparse_create(mrvi_bordered *bd, const mrvi_step *st) {
+  const int n = st->n_total;
+  bd->rblk = malloc(((size_t)n + 1) * sizeof *bd->rblk);
+  bd->roff = malloc(((size_t)n + 1) * sizeof *bd->roff);
+  if (!bd->rblk || !bd->roff)
+    return MRVI_ENOMEM;
+  for (int i = 0; i < n; i++)
+    node_of(st, i, &bd->rblk[i], &bd->roff[i]);
+  return mrvi_nsparse_create(st, bd->rblk, bd->roff, &bd->nsp);
+}
+
 int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
   *out = NULL;
   mrvi_bordered *bd = calloc(1, sizeof *bd);
@@ -321,6 +339,9 @@ int mrvi_bordered_create(const mrvi_step *st, mrvi_bordered **out) {
   if (s == MRVI_EINVAL || bd->chain) {
     s = MRVI_OK;
     bd->slow_only = 0;
+  } else if (s == MRVI_OK && !bd->slow_only &&
+             st->nf + st->r_micro > st->tuning.bordered_node_max) {
+    s = nsparse_create(bd, st);
   } else if (s == MRVI_OK && !bd->slow_only) {
     s = node_create(bd, st);
   } else if (s == MRVI_OK) {
@@ -629,6 +650,8 @@ int mrvi_bordered_solve(mrvi_bordered *bd, const mrvi_step *st, const double *R,
                         double *dx, char *msg, size_t len) {
   if (bd->whole)
     return mrvi_linsolve_solve(bd->whole, st->Ax, 0, R, dx, msg, len);
+  if (bd->nsp)
+    return mrvi_nsparse_solve(bd->nsp, 0, R, dx, msg, len);
   if (bd->chain)
     mrvi_chain_solve(bd->chain, R, dx);
   else if (!bd->slow_only)
@@ -709,6 +732,7 @@ int mrvi_bordered_factor(mrvi_bordered *bd, const mrvi_step *st, char *msg,
     /* (neither a chain nor node blocks: the chain's pattern was not block
      * tridiagonal, the whole step's LU from the start) */
     const int s = bd->chain  ? mrvi_chain_factor(bd->chain, st->Ax)
+                  : bd->nsp  ? mrvi_nsparse_factor(bd->nsp, st, msg, len)
                   : bd->nbuf ? node_factor(bd, st, msg, len)
                              : MRVI_ESINGULAR;
     if (s != MRVI_ESINGULAR)
@@ -777,6 +801,8 @@ int mrvi_bordered_solve_transpose(mrvi_bordered *bd, const mrvi_step *st,
                                   size_t len) {
   if (bd->whole)
     return mrvi_linsolve_solve(bd->whole, st->Ax, 1, R, dx, msg, len);
+  if (bd->nsp)
+    return mrvi_nsparse_solve(bd->nsp, 1, R, dx, msg, len);
   if (bd->chain)
     mrvi_chain_solve_transpose(bd->chain, R, dx);
   else if (!bd->slow_only)

@@ -411,6 +411,10 @@ int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
   return st == UMFPACK_ERROR_out_of_memory ? MRVI_ENOMEM : MRVI_ESINGULAR;
 }
 
+void mrvi_newton_no_refine(mrvi_newton *nw) {
+  nw->control[UMFPACK_IRSTEP] = 0.0;
+}
+
 int mrvi_linsolve_solve(mrvi_newton *nw, const double *Ax, int transpose,
                         const double *b, double *x, char *msg, size_t len) {
   if (nw->lu && nw->factored) {

@@ -867,6 +867,22 @@ int mrvi_joint_sweep_slow(mrvi_joint_sweep *w, const mrvi_step *st, double *x);
 int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w,
                               const mrvi_step *st);
 
+/* schur-bordered's node blocks beyond bordered_node_max
+ * (solver/bordered_sparse.c): each fast node block factored on its own
+ * sparse pattern by mrvi_newton, the slow Schur complement dense.  rblk,
+ * roff (kept, not copied): the node block (-1 slow) and offset of each of
+ * J's rows, ascending within a block.  mrvi_nsparse_factor: st->Ax;
+ * MRVI_ESINGULAR where a block or S is singular.  mrvi_nsparse_solve:
+ * J dx = R (transpose 0) or J^T dx = R (1) with the last factors. */
+typedef struct mrvi_nsparse mrvi_nsparse;
+int mrvi_nsparse_create(const mrvi_step *st, const int *rblk, const int *roff,
+                        mrvi_nsparse **out);
+void mrvi_nsparse_free(mrvi_nsparse *ns);
+int mrvi_nsparse_factor(mrvi_nsparse *ns, const mrvi_step *st, char *msg,
+                        size_t len);
+int mrvi_nsparse_solve(mrvi_nsparse *ns, int transpose, const double *R,
+                       double *dx, char *msg, size_t len);
+
 /* The schur-bordered path (solver/bordered.c): a constrained step's
  * Newton matrix [A B; C E] in the multiplier form by the block elimination
  * of A (blocks.c) bordered by the multipliers. */
@@ -1098,6 +1114,10 @@ const mrvi_outer_stats *mrvi_outer_stats_of(const mrvi_outer *o);
 /* Factorise A (values Ax on the fixed pattern) and keep the factors. */
 int mrvi_newton_factor(mrvi_newton *nw, const double *Ax, char *msg,
                        size_t len);
+/* UMFPACK's iterative refinement off for every later solve of nw (the
+ * sparse node blocks of schur-bordered, solver/bordered_sparse.c: a step
+ * of a solve there, whose caller checks the whole step's residual). */
+void mrvi_newton_no_refine(mrvi_newton *nw);
 /* Solve A x = b or A^T x = b with the kept factors (n = the create size). */
 int mrvi_linsolve_solve(mrvi_newton *nw, const double *Ax, int transpose,
                         const double *b, double *x, char *msg, size_t len);

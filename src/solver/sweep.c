@@ -254,6 +254,19 @@ static int constrained_path(const mrvi_model *m, const mrvi_settings *s,
              bodies, m->n_slow, m->n_fast, r_slow, bmax);
     return MRVI_PATH_GENERAL;
   }
+  if (r_micro > 0 && m->n_fast + r_micro > nmax &&
+      s->tuning.bordered_slow_max > 0 &&
+      m->n_slow + r_slow <= s->tuning.bordered_slow_max) {
+    mrvi_fmt(why, len,
+             "constrained model%s: node blocks of %d fast unknowns and "
+             "multipliers, beyond the dense limit %d (bordered_node_max): "
+             "Newton with a Schur complement on the %d slow unknowns and "
+             "multipliers (at most bordered_slow_max %d) and block sweeps "
+             "over %d micro nodes, each block a sparse LU",
+             bodies, m->n_fast + r_micro, nmax, m->n_slow + r_slow,
+             s->tuning.bordered_slow_max, s->micro_steps);
+    return MRVI_PATH_SCHUR_BORDERED;
+  }
   if (r_micro > 0 &&
       (m->n_slow + r_slow > nmax || m->n_fast + r_micro > nmax)) {
     mrvi_fmt(why, len,
