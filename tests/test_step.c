@@ -193,7 +193,7 @@ static void test_compact_storage(void) {
   CHECK(m && mrvi_model_set_dimension(m, 2) == 0, "model");
   for (int i = 0; i < 4; i++) {
     const double x[2] = {(double)i, 0.1 * i}, v[2] = {0.0, 0.0};
-    char name[8];
+    char name[16];
     snprintf(name, sizeof name, "a%d", i);
     CHECK(mrvi_model_add_particle(m, name, masses[i],
                                   i % 2 ? MRVI_FAST : MRVI_SLOW, x, v) >= 0,
@@ -220,7 +220,7 @@ static void test_compact_storage(void) {
       mrvi_model_set_dimension(m, 2);
       for (int i = 0; i < 4; i++) {
         const double x[2] = {(double)i, 0.1 * i}, v[2] = {0.0, 0.0};
-        char name[8];
+        char name[16];
         snprintf(name, sizeof name, "a%d", i);
         mrvi_model_add_particle(m, name, 1.0, i % 2 ? MRVI_FAST : MRVI_SLOW, x,
                                 v);
