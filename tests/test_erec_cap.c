@@ -46,7 +46,7 @@ int main(void) {
   for (int i = 0; i < NP; i++) {
     const double x[2] = {cos(1.3 * i) * (1.0 + 0.1 * i), sin(1.3 * i)},
                  v[2] = {0.1 * i, -0.05 * i};
-    char name[8];
+    char name[16];
     snprintf(name, sizeof name, "p%d", i);
     CHECK(mrvi_model_add_particle(m, name, 1.0 + i, MRVI_SLOW, x, v) == i,
           "particle %d: %s", i, mrvi_model_errmsg(m));
