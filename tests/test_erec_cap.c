@@ -114,8 +114,8 @@ int main(void) {
       for (int k = 0; rc == MRVI_OK && k < 200; k++) {
         rc = mrvi_integrator_step(it);
         double kin, slow, fast;
-        mrvi_model_energy(m, mrvi_integrator_q(it), mrvi_integrator_p(it),
-                          &kin, &slow, &fast);
+        mrvi_model_energy(m, mrvi_integrator_q(it), mrvi_integrator_p(it), &kin,
+                          &slow, &fast);
         H = kin + slow + fast;
         if (k == 0)
           H0 = H;

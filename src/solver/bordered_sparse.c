@@ -288,9 +288,8 @@ int mrvi_nsparse_factor(mrvi_nsparse *ns, const mrvi_step *st, char *msg,
   for (int c = 0; c < p; c++) {
     const int *dp = ns->dp + (size_t)c * b1;
     double *dx = ns->dx + doff;
-    if (!ns->nw[c] &&
-        !(ns->nw[c] = mrvi_newton_create(b, dp, ns->di + doff, dx,
-                                         ns->dense_max, msg, len)))
+    if (!ns->nw[c] && !(ns->nw[c] = mrvi_newton_create(
+                            b, dp, ns->di + doff, dx, ns->dense_max, msg, len)))
       return MRVI_ENOMEM;
     mrvi_newton_no_refine(ns->nw[c]);
     if (mrvi_newton_factor(ns->nw[c], dx, msg, len) < 0)
