@@ -1,6 +1,6 @@
 /* mrvi's analysis commands (paper §5-§6):
  *
- *   mrvi converge FILE   convergence study: errors eq:err_mac / eq:err_mic
+ *   mrvi converge FILE   convergence study: errors (6.1) / (6.2) of the paper
  *                        against a single-rate reference, observed orders
  *   mrvi stability FILE  propagation matrix of the slow oscillator, largest
  *                        stable omega dT next to Lemma lemma:stability_slow
@@ -33,9 +33,10 @@ const char mrvi_usage_converge[] =
     "Usage: mrvi converge FILE [options]\n"
     "\n"
     "Convergence study of the scheme in FILE: runs with halving macro steps\n"
-    "at fixed p, errors on macro nodes (eq:err_mac, also split into slow and\n"
-    "fast parts) and fast micro nodes (eq:err_mic) against a single-rate\n"
-    "reference run with a tiny step, and the observed order between rows.\n"
+    "at fixed p, errors on macro nodes (arXiv 2406.12991, eq. (6.1), also\n"
+    "split into slow and fast parts) and fast micro nodes (eq. (6.2)) against\n"
+    "a single-rate reference run with a tiny step, and the observed order\n"
+    "between rows.\n"
     "The reference is computed with a step of the smallest micro step / 8\n"
     "(deepened as the chosen range goes down).\n"
     "\n"
