@@ -312,6 +312,16 @@ def controls_cases(out):
         f["control/u"] = strings([["a"]] * 10)
     with control_file(out, "u_missing") as f:
         f["control/v"] = np.zeros((10, 1))
+    # non-finite values (round 17: refused naming the file and entry;
+    # before, a NaN failed the run's first step and inf was replayed)
+    with control_file(out, "u_nan") as f:
+        u = np.full((10, 1), 0.25)
+        u[3, 0] = np.nan
+        f["control/u"] = u
+    with control_file(out, "u_inf") as f:
+        u = np.full((10, 1), 0.25)
+        u[9, 0] = -np.inf
+        f["control/u"] = u
     path = os.path.join(out, "not_hdf5.h5")
     with open(path, "w") as t:
         t.write("not an HDF5 file\n")

@@ -309,8 +309,16 @@ u_rows_huge /control/u
 u_rank3 /control/u
 u_strings /control/u
 u_missing /control/u
+u_nan /control/u\[3, 0\] = nan: actuator 'push' takes finite values
+u_inf /control/u\[9, 0\] = -inf: actuator 'push' takes finite values
 not_hdf5 not_hdf5.h5
 EOF
+# Controls outside the description's bounds (round 17: refused; before,
+# replayed): ok.h5's 0.25 against an upper bound of 0.1.
+refuses "--controls: beyond the bounds" \
+  "/control/u\[0, 0\] = 0.25: actuator 'push' takes finite values in \[-inf, 0.1\]" \
+  "$mrvi" run "$ocp" --controls controls/ok.h5 -o replay.h5 -q \
+  --set control.actuators.0.upper=0.1
 
 # --- mrvi-plot (class 9) ---------------------------------------------------
 # Crafted run files: drawn (exit 0) or refused with one line naming the

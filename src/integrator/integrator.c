@@ -696,7 +696,9 @@ int mrvi_integrator_check_inputs(const mrvi_model *m, const mrvi_settings *s,
     mrvi_fmt(msg, len, "the model has no coordinates");
     return MRVI_EMODEL;
   }
-  return MRVI_OK;
+  const long R = m->constraint_rows, p = s->micro_steps;
+  return mrvi_tuning_check_model(&s->tuning, (long)m->n + R,
+                                 m->n_slow + p * (m->n_fast + R), msg, len);
 }
 
 /* mrvi_integrator_create, the step hooks (if any: hooks[0] = extra,

@@ -566,8 +566,24 @@ int mrvi_ocp_controls_read(const char *path, const mrvi_ocp *o, int micro_steps,
                      "%s: actuator '%s' needs %d values, /control/u has %llu",
                      path, mrvi_ocp_actuator_name(o, a), size,
                      (unsigned long long)dims[0]);
-    for (int j = 0; st == MRVI_OK && j < size; j++)
-      u[mrvi_ocp_actuator_offset(o, a) + j] = U[(micro ? j : j * pt) * na + a];
+    /* The values the problem admits: finite and within the actuator's
+     * bounds (a crafted or edited file, or a description whose bounds
+     * changed since; mrvi optimize stores values within them).  Before
+     * round 17 a NaN failed the run's first step, not naming the file, and
+     * a value beyond the bounds was replayed. */
+    double lo = -HUGE_VAL, hi = HUGE_VAL;
+    mrvi_ocp_actuator_bounds(o, a, &lo, &hi);
+    for (int j = 0; st == MRVI_OK && j < size; j++) {
+      const long row = micro ? j : (long)j * pt;
+      const double v = U[row * na + a];
+      if (isfinite(v) && v >= lo && v <= hi)
+        u[mrvi_ocp_actuator_offset(o, a) + j] = v;
+      else
+        st = mrvi_fail(msg, len, MRVI_EIO,
+                       "%s: /control/u[%ld, %d] = %.17g: actuator '%s' takes "
+                       "finite values in [%g, %g]",
+                       path, row, a, v, mrvi_ocp_actuator_name(o, a), lo, hi);
+    }
   }
   free(U);
   if (f >= 0)

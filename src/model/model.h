@@ -474,8 +474,11 @@ int mrvi_constraints_independent(const mrvi_model *m, const double *q,
  * projection and the independence check in O(R) for chains and trees,
  * where the dense ones cost O(R^2 n).  The projection takes it above
  * MRVI_GRAM_DENSE_MAX rows (below, the dense solve keeps the shipped
- * systems' numbers). */
+ * systems' numbers).  A second fuzz build lowers it (tests/fuzz/run.sh,
+ * FUZZ_LOW=1) so that small crafted models reach the sparse Gram. */
+#ifndef MRVI_GRAM_DENSE_MAX
 #define MRVI_GRAM_DENSE_MAX 32
+#endif
 typedef struct mrvi_gram mrvi_gram;
 int mrvi_gram_create(const mrvi_model *m, mrvi_gram **out);
 void mrvi_gram_free(mrvi_gram *gr);

@@ -10,6 +10,20 @@
  * MRVI_EINVAL with a message if one is out of its range. */
 void mrvi_tuning_default(mrvi_tuning *t);
 int mrvi_tuning_check(const mrvi_tuning *t, char *msg, size_t len);
+/* The dense blocks the tuning lets the step solvers form on a model of
+ * `block` coordinates and constraint rows (n + rows) and `step` unknowns
+ * per step (n_s + p n_f and the multipliers): MRVI_EINVAL, with a message
+ * naming the constant, where a dense-size threshold exceeds
+ * MRVI_DENSE_BLOCK_MAX and so could the blocks it governs (dense_max,
+ * bordered_max, bordered_node_max, bordered_slow_max: per rate or node, at
+ * most `block`; chain_block_max: a chain's blocks, at most `step`).  The
+ * dense kernels index a block's n^2 entries with int and the loader's
+ * memory estimate leaves dense blocks out: dense_max = 10^6 on 10^5 fast
+ * coordinates would ask for an 80 GB matrix whose indices overflow
+ * (doc/performance/17-audit17.md). */
+#define MRVI_DENSE_BLOCK_MAX 32768
+int mrvi_tuning_check_model(const mrvi_tuning *t, long block, long step,
+                            char *msg, size_t len);
 
 /* ---------------------------------------------------------------------------
  * Quadrature (eq:Zapprox and eq:slow_potential_affine as evaluation points)

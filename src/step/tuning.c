@@ -111,3 +111,26 @@ int mrvi_tuning_check(const mrvi_tuning *t, char *msg, size_t len) {
       return MRVI_EINVAL;
   return MRVI_OK;
 }
+
+int mrvi_tuning_check_model(const mrvi_tuning *t, long block, long step,
+                            char *msg, size_t len) {
+  static const char *const dense[] = {"dense_max", "bordered_max",
+                                      "bordered_node_max", "bordered_slow_max",
+                                      "chain_block_max"};
+  for (size_t k = 0; k < sizeof dense / sizeof *dense; k++) {
+    const double v = get(t, find(dense[k]));
+    const long most = k + 1 < sizeof dense / sizeof *dense ? block : step;
+    if (v > MRVI_DENSE_BLOCK_MAX && most > MRVI_DENSE_BLOCK_MAX) {
+      mrvi_fmt(msg, len,
+               "tuning %s = %.0f would let the step solvers factorise "
+               "blocks of up to %ld unknowns as dense matrices (%s); a dense "
+               "block has at most %d rows: set %s to at most %d",
+               dense[k], v, most,
+               most == block ? "this model's coordinates and constraint rows"
+                             : "this model's step",
+               MRVI_DENSE_BLOCK_MAX, dense[k], MRVI_DENSE_BLOCK_MAX);
+      return MRVI_EINVAL;
+    }
+  }
+  return MRVI_OK;
+}

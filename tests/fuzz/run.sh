@@ -45,6 +45,14 @@
 # file with a few parameter sets of one law takes the path of a model
 # beyond 2^24: the later sets' springs kept in full beside compact ones.
 #
+# FUZZ_LOW=1 (default BUILD_DIR build-fuzz-low) lowers the limits further,
+# so that small crafted files reach the paths of large models: one spring
+# prototype (MRVI_EREC_LP_MAX=1), 64 particles a generator, 128
+# coordinates by default, 16 MiB of memory, and the sparse Gram matrix
+# from 3 constraint rows (MRVI_GRAM_DENSE_MAX=2, src/model/model.h; 32 in
+# other builds).  Round 17 ran both builds 1200 s a target
+# (doc/performance/17-audit17.md).
+#
 # Exits non-zero when the fuzzer finds a crash, sanitizer report, leak or
 # timeout; the input that triggered it is left in BUILD_DIR/artifacts/.
 # Keep every finding as a regression file in tests/bad_input/ (loader) or
@@ -85,13 +93,18 @@
 set -euo pipefail
 secs=${1:-120}
 root=$(cd "$(dirname "$0")/../.." && pwd)
+limits="-DMRVI_MEMORY_CAP=268435456 -DMRVI_MAX_GENERATED=20000 -DMRVI_EREC_LP_MAX=4"
 build=${2:-$root/build-fuzz}
+if [ "${FUZZ_LOW:-0}" = 1 ]; then
+  limits="-DMRVI_MEMORY_CAP=16777216 -DMRVI_MAX_GENERATED=64 -DMRVI_MAX_COORDINATES=128 -DMRVI_EREC_LP_MAX=1 -DMRVI_GRAM_DENSE_MAX=2"
+  build=${2:-$root/build-fuzz-low}
+fi
 h5secs=${3:-60}
 loadsecs=${4:-$secs}
 if [ ! -d "$build" ]; then
   CC=clang meson setup "$build" "$root" -Dfuzz=true \
     -Db_sanitize=address,undefined -Db_lundef=false \
-    -Dc_args="-fsanitize=fuzzer-no-link -DMRVI_SMALL_KERNELS=0 -DMRVI_MEMORY_CAP=268435456 -DMRVI_MAX_GENERATED=20000 -DMRVI_EREC_LP_MAX=4" \
+    -Dc_args="-fsanitize=fuzzer-no-link -DMRVI_SMALL_KERNELS=0 $limits" \
     -Dbuildtype=debugoptimized >/dev/null
 fi
 meson compile -C "$build" tests/fuzz/fuzz_load tests/fuzz/fuzz_loader tests/fuzz/fuzz_h5 \

@@ -2,7 +2,10 @@
  * solver and constraint settings; and the sizes a run would allocate. */
 #include "io/loader/loader_internal.h"
 
+#include "step/step.h"
+
 #include <limits.h>
+#include <stdio.h>
 #include <string.h>
 
 static const char *const integrator_keys[] = {
@@ -207,6 +210,23 @@ int mrvi_ld_check_sizes(loader *L, struct fy_node *at) {
         "integrator.micro_steps × fast coordinates = %d × %d is too "
         "large (at most %d)",
         s->micro_steps, mrvi_model_n_fast(L->sys->model), INT_MAX / 8);
+  /* the dense blocks the tuning allows, against the model's size */
+  char why[400];
+  const mrvi_model *m = L->sys->model;
+  const long R = mrvi_model_constraint_rows(m);
+  if (mrvi_tuning_check_model(&s->tuning, (long)mrvi_model_n(m) + R,
+                              mrvi_model_n(m) - mrvi_model_n_fast(m) +
+                                  (long)s->micro_steps *
+                                      (mrvi_model_n_fast(m) + R),
+                              why, sizeof why) < 0) {
+    /* (at the constant's value: the message starts "tuning NAME =") */
+    char name[64] = "";
+    sscanf(why, "tuning %63s", name);
+    struct fy_node *t = at ? mrvi_ld_get(at, "tuning") : NULL;
+    struct fy_node *k =
+        t && fy_node_is_mapping(t) ? mrvi_ld_get(t, name) : NULL;
+    return mrvi_ld_fail(L, k ? k : t ? t : at, "%s", why);
+  }
   /* eight vectors of the step's unknowns, and the quadrature points of
    * both potentials (2p + 2 each), within limits.max_memory (not the
    * machine's memory: the same refusal on every machine) */
