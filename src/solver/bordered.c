@@ -259,7 +259,7 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
   }
   for (int j = 0; j < n; j++)
     for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
-      if (bd->rblk[st->Ai[q]] >= 0 && bd->rblk[st->Ai[q]] == bd->rblk[j])
+      if (mrvi_node_class(bd->rblk[st->Ai[q]], bd->rblk[j]) == MRVI_NODE_D)
         deg[bd->roff[st->Ai[q]]]++, deg[bd->roff[j]]++;
   mrvi_degree_order(bd->b, deg, ord, pos);
   for (int i = 0; i < n; i++)
@@ -270,7 +270,7 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
    * first marks them, then maps a column to its rank among them). */
   for (int j = 0; j < n; j++)
     for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++)
-      if (bd->rblk[st->Ai[q]] >= 0 && bd->rblk[j] < 0)
+      if (mrvi_node_class(bd->rblk[st->Ai[q]], bd->rblk[j]) == MRVI_NODE_FS)
         bd->ycol[bd->roff[j]] = 1;
   bd->ka = 0;
   for (int t = 0; t < bd->a; t++)
@@ -280,20 +280,29 @@ static int node_create(mrvi_bordered *bd, const mrvi_step *st) {
     for (int q = st->Ap[j]; q < st->Ap[j + 1]; q++) {
       const int i = st->Ai[q], rb = bd->rblk[i], cb = bd->rblk[j];
       const size_t ro = (size_t)bd->roff[i], co = (size_t)bd->roff[j];
+      const int cls = mrvi_node_class(rb, cb);
       double *d;
-      if (rb < 0 && cb < 0)
+      switch (cls) {
+      case MRVI_NODE_SS:
         d = bd->Ass + ro * a + co;
-      else if (rb < 0)
+        break;
+      case MRVI_NODE_SF:
         d = bd->Asf + ro * pb + (size_t)cb * b + co;
-      else if (cb < 0)
+        break;
+      case MRVI_NODE_FS:
         d = bd->Y + ((size_t)rb * b + ro) * ka + (size_t)bd->ycol[co];
-      else if (cb <= rb && cb >= rb - 2)
-        d = (rb == cb       ? bd->D
-             : rb == cb + 1 ? bd->L1
-                            : bd->L2) +
+        break;
+      case MRVI_NODE_D:
+      case MRVI_NODE_L1:
+      case MRVI_NODE_L2:
+        d = (cls == MRVI_NODE_D    ? bd->D
+             : cls == MRVI_NODE_L1 ? bd->L1
+                                   : bd->L2) +
             ((size_t)rb * b + ro) * b + co;
-      else
+        break;
+      default:
         return MRVI_EINVAL;
+      }
       bd->dst[q] = d;
     }
   return node_lists(bd, st);

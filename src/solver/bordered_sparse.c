@@ -103,18 +103,25 @@ static int lists(mrvi_nsparse *ns, const mrvi_step *st) {
   for (int j = 0; j < n; j++)
     for (int q = Ap[j]; q < Ap[j + 1]; q++) {
       const int rb = ns->rblk[Ai[q]], cb = ns->rblk[j];
-      if (rb < 0 && cb < 0)
-        continue;
-      else if (rb < 0)
+      switch (mrvi_node_class(rb, cb)) {
+      case MRVI_NODE_SS:
+        break;
+      case MRVI_NODE_SF:
         nsf++;
-      else if (cb < 0)
+        break;
+      case MRVI_NODE_FS:
         nfs++, fcnt[ns->roff[j]]++;
-      else if (rb == cb)
+        break;
+      case MRVI_NODE_D:
         nd++;
-      else if (cb < rb && cb >= rb - 2)
+        break;
+      case MRVI_NODE_L1:
+      case MRVI_NODE_L2:
         nl++, lcnt[rb]++;
-      else
+        break;
+      default:
         bad = 1;
+      }
     }
   if (bad) {
     free(lcnt), free(fcnt);
@@ -147,7 +154,7 @@ static int lists(mrvi_nsparse *ns, const mrvi_step *st) {
    * kept slow columns */
   for (int j = 0; j < n; j++)
     for (int q = Ap[j]; q < Ap[j + 1]; q++)
-      if (ns->rblk[Ai[q]] >= 0 && ns->rblk[Ai[q]] == ns->rblk[j])
+      if (mrvi_node_class(ns->rblk[Ai[q]], ns->rblk[j]) == MRVI_NODE_D)
         dcnt[(size_t)ns->rblk[j] * ((size_t)b + 1) + (size_t)ns->roff[j]]++;
   int e = 0;
   for (int c = 0; c < p; c++) {
@@ -191,24 +198,32 @@ static int lists(mrvi_nsparse *ns, const mrvi_step *st) {
     for (int q = Ap[j]; q < Ap[j + 1]; q++) {
       const int i = Ai[q], rb = ns->rblk[i], cb = ns->rblk[j];
       const int ro = ns->roff[i], co = ns->roff[j];
-      if (rb < 0 && cb < 0) {
+      switch (mrvi_node_class(rb, cb)) { /* (none outside: checked above) */
+      case MRVI_NODE_SS:
         ns->dst[q] = ns->Ass + (size_t)ro * (size_t)a + (size_t)co;
-      } else if (rb < 0) {
+        break;
+      case MRVI_NODE_SF:
         ns->si[nsf] = ro, ns->sj[nsf] = cb * b + co;
         ns->dst[q] = ns->sx + nsf++;
-      } else if (cb < 0) {
+        break;
+      case MRVI_NODE_FS: {
         const int u = fpos[co], k = ns->fp[u] + fcnt[u]++;
         ns->fi[k] = rb * b + ro;
         ns->dst[q] = ns->fx + k;
-      } else if (rb == cb) {
+        break;
+      }
+      case MRVI_NODE_D: {
         const size_t col = (size_t)rb * ((size_t)b + 1) + (size_t)co;
         const int k = dstart[rb] + ns->dp[col] + dcnt[col]++;
         ns->di[k] = ro;
         ns->dst[q] = ns->dx + k;
-      } else {
+        break;
+      }
+      default: {
         const int k = ns->lo[rb] + lcnt[rb]++;
         ns->lr[k] = ro, ns->lc[k] = cb * b + co;
         ns->dst[q] = ns->lx + k;
+      }
       }
     }
   ns->nsf = nsf;

@@ -875,6 +875,31 @@ int mrvi_predictor_set_joints(mrvi_predictor *pr, mrvi_joint_sweep *w,
  * MRVI_ESINGULAR where a block or S is singular.  mrvi_nsparse_solve:
  * J dx = R (transpose 0) or J^T dx = R (1) with the last factors. */
 typedef struct mrvi_nsparse mrvi_nsparse;
+/* The block of schur-bordered's matrix that an entry of J lies in, from
+ * the node blocks of its row (rb) and column (cb), -1 slow: the slow
+ * block, A_sf, A_fs, a fast node block's D, the blocks L1 and L2 one and
+ * two nodes below D, or none (a fast row coupled to a column block after
+ * it or more than two before it).  bordered.c's node_create and
+ * bordered_sparse.c's lists classify J's entries by it. */
+enum {
+  MRVI_NODE_SS,
+  MRVI_NODE_SF,
+  MRVI_NODE_FS,
+  MRVI_NODE_D,
+  MRVI_NODE_L1,
+  MRVI_NODE_L2,
+  MRVI_NODE_OUTSIDE
+};
+static inline int mrvi_node_class(int rb, int cb) {
+  if (rb < 0)
+    return cb < 0 ? MRVI_NODE_SS : MRVI_NODE_SF;
+  if (cb < 0)
+    return MRVI_NODE_FS;
+  return cb == rb       ? MRVI_NODE_D
+         : cb == rb - 1 ? MRVI_NODE_L1
+         : cb == rb - 2 ? MRVI_NODE_L2
+                        : MRVI_NODE_OUTSIDE;
+}
 int mrvi_nsparse_create(const mrvi_step *st, const int *rblk, const int *roff,
                         mrvi_nsparse **out);
 void mrvi_nsparse_free(mrvi_nsparse *ns);
