@@ -176,53 +176,79 @@ static long final_node(const mrvi_ocp *o, int c, int *pslot) {
 }
 
 /* A terminal condition of the final positions q and momenta pp (model
- * order, n each): its value (target subtracted) and, with b not NULL, b_j = M_j
- * df/dpp_j (b cleared by the caller). */
+ * order, n each): its value (target subtracted) and, with b not NULL, b_j =
+ * M_j df/dpp_j and gq_j = df/dq_j at fixed pp (b and gq cleared by the
+ * caller; gq may be NULL). */
 typedef double (*momentum_fn)(const mrvi_ocp *o, const ocp_terminal *T,
-                              const double *q, const double *pp, double *b);
+                              const double *q, const double *pp, double *b,
+                              double *gq);
 
 /* f(q, P(q) p): f evaluated on the momenta p (model order, n) at q
  * projected onto the hidden constraint G M^-1 p = 0 (the physical,
  * constraint-consistent velocities; mrvi_constraints_project), with its
- * derivatives in p into gp: the projection pp = P p is linear and M^-1 P
- * symmetric, so P^T a = M^-1 P (M a) for a = df/dpp (one projection of
- * b = M a); and in q into gq by central differences (G and f depend on q).
- * NAN where the constraint gradients are dependent. */
+ * derivatives in p into gp and, with gq not NULL, in q into gq.  pp = p -
+ * G^T mu, (G M^-1 G^T) mu = G M^-1 p, is linear in p and M^-1 P symmetric,
+ * so gp = P^T a = M^-1 P (M a) for a = df/dpp (one projection of b = M a,
+ * whose multiplier is w = (G M^-1 G^T)^-1 G a).  Differentiating pp in q
+ * (G = G(q), H_r the Hessian of constraint row r):
+ *   df/dq = df/dq|_pp - sum_r (mu_r H_r gp + w_r H_r M^-1 pp),
+ * one Hessian per constraint (the central differences in every coordinate
+ * this replaces cost n projections of O(R^2 n) each: minutes on the
+ * constrained lattice at n = 3 040, doc/performance/17-ocp17.md).  NAN
+ * where the constraint gradients are dependent. */
 static double projected(const mrvi_ocp *o, const ocp_terminal *T, momentum_fn f,
-                        double *q, const double *p, double *gq, double *gp) {
+                        const double *q, const double *p, double *gq,
+                        double *gp) {
   const mrvi_model *m = o->model;
   const int n = m->n, R = mrvi_model_constraint_rows(m);
+  const int ci = m->max_constraint_in > 0 ? m->max_constraint_in : 1;
   double *pp = o->pv + 2 * n, *b = o->pv + 3 * n, *g = o->pv + 6 * n;
   double *G = g + R, *A = G + (size_t)R * (size_t)n, *mu = A + (size_t)R * R;
+  double *lam = mu + R, *y = lam + R, *gl = y + ci, *Gl = gl + ci;
+  double *H = Gl + (size_t)ci * ci;
   memset(b, 0, (size_t)n * sizeof *b);
+  if (gq)
+    memset(gq, 0, (size_t)n * sizeof *gq);
   memcpy(pp, p, (size_t)n * sizeof *pp);
   const int ok = mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu);
-  double v = f(o, T, q, pp, b);
+  memcpy(lam, mu, (size_t)R * sizeof *lam);
+  double v = f(o, T, q, pp, b, gq);
   if (ok != MRVI_OK ||
       mrvi_constraints_project(m, q, b, NULL, g, G, A, mu) != MRVI_OK)
     v = NAN;
   for (int j = 0; j < n; j++)
     gp[j] = isfinite(v) ? b[j] / MRVI_MASS(m, j) : NAN;
-  for (int j = 0; j < n; j++) {
-    const double qj = q[j], h = 1e-6 * fmax(1.0, fabs(qj));
-    double vs[2] = {NAN, NAN};
-    for (int s = 0; s < 2; s++) {
-      q[j] = qj + (s ? -h : h);
-      memcpy(pp, p, (size_t)n * sizeof *pp);
-      if (mrvi_constraints_project(m, q, pp, NULL, g, G, A, mu) == MRVI_OK)
-        vs[s] = f(o, T, q, pp, NULL);
+  for (int c = 0; gq && isfinite(v) && c < m->n_constraints; c++) {
+    const mrvi_constraint *k = &m->constraints[c];
+    if (k->affine)
+      continue;
+    const int ni = k->n_in;
+    for (int j = 0; j < ni; j++)
+      y[j] = q[k->in[j]];
+    mrvi_constraint_eval_at(k, y, gl, Gl, H);
+    for (int r = 0; r < k->rows; r++) {
+      const double a = lam[k->first_row + r], w = mu[k->first_row + r];
+      for (int i = 0; i < ni; i++) {
+        double s = 0.0;
+        for (int j = 0; j < ni; j++) {
+          const int cj = k->in[j];
+          s += H[((size_t)r * ni + i) * ni + j] *
+               (a * gp[cj] + w * pp[cj] / MRVI_MASS(m, cj));
+        }
+        gq[k->in[i]] -= s;
+      }
     }
-    q[j] = qj;
-    gq[j] = (vs[0] - vs[1]) / (2.0 * h);
   }
+  for (int j = 0; gq && !isfinite(v) && j < n; j++)
+    gq[j] = NAN;
   return v;
 }
 
 /* Velocity of coordinate T->coord minus its target (momentum_fn). */
 static double coordinate_velocity(const mrvi_ocp *o, const ocp_terminal *T,
-                                  const double *q, const double *pp,
-                                  double *b) {
-  (void)q;
+                                  const double *q, const double *pp, double *b,
+                                  double *gq) {
+  (void)q, (void)gq;
   if (b)
     b[T->coord] = 1.0;
   return pp[T->coord] / MRVI_MASS(o->model, T->coord) - T->target;
@@ -231,12 +257,16 @@ static double coordinate_velocity(const mrvi_ocp *o, const ocp_terminal *T,
 /* Body condition T (momentum_fn): its value on the body's D (D + 1)
  * coordinates. */
 static double body_condition(const mrvi_ocp *o, const ocp_terminal *T,
-                             const double *q, const double *pp, double *b) {
+                             const double *q, const double *pp, double *b,
+                             double *gq) {
   const int D = o->model->dimension, nb = D * (D + 1);
-  double gq[12], gp[12];
-  const double v = ocp_body_terminal(o, T, q + T->coord, pp + T->coord, gq, gp);
+  double gqb[12], gp[12];
+  const double v =
+      ocp_body_terminal(o, T, q + T->coord, pp + T->coord, gqb, gp);
   for (int k = 0; b && k < nb; k++)
     b[T->coord + k] = MRVI_MASS(o->model, T->coord + k) * gp[k];
+  for (int k = 0; gq && k < nb; k++)
+    gq[T->coord + k] = gqb[k];
   return v;
 }
 
@@ -289,7 +319,7 @@ static void projected_row(const mrvi_ocp *o, const ocp_terminal *T,
     q[j] = o->Q[final_node(o, j, &pj)];
     p[j] = o->pN[pj];
   }
-  const double v = projected(o, T, fn, q, p, dq, dp);
+  const double v = projected(o, T, fn, q, p, gQ ? dq : NULL, dp);
   add_full_row(o, T, v, dq, dp, nn, npn, ic, val, gQ, gp);
 }
 
@@ -525,7 +555,12 @@ static int adjoint_alloc(mrvi_ocp *o, int nfun) {
   ocp_adjoint_free(o);
   const size_t n = (size_t)o->model->n,
                R = (size_t)mrvi_model_constraint_rows(o->model);
-  o->pv = R > 0 ? malloc((6 * n + R * (n + R + 2)) * sizeof *o->pv) : NULL;
+  const size_t ci = (size_t)(o->model->max_constraint_in > 0
+                                 ? o->model->max_constraint_in
+                                 : 1); /* (projected's workspace) */
+  o->pv = R > 0 ? malloc((6 * n + R * (n + R + 3) + ci * (2 + ci + ci * ci)) *
+                         sizeof *o->pv)
+                : NULL;
   o->r = calloc(f * (2 * nn + npn + (size_t)o->n_u + 1), sizeof(double));
   o->mu = calloc(f * nn + 1, sizeof(double));
   if (!o->r || !o->mu || (R > 0 && !o->pv))
@@ -724,10 +759,16 @@ static int bordered_transpose(mrvi_ocp *o, int nfun, char *msg, size_t len) {
                                o->sol, refine, phi, sigma, &units, o->bd_work,
                                bd_solve, o, msg, len);
     if (phi > 0.0 && ok >= 0) {
+      /* The mean of the steps seen, then a running mean of weight 1/8:
+       * with no history (the first evaluation) the first step's cost
+       * alone, one step that converged quickly, held the mean below the
+       * factorisation's cost for most of the sweep (the constrained
+       * lattice at n = 60: 14 of 20 steps refined at 5-13 corrections per
+       * functional, the first cost + gradient 3.1 forward runs against
+       * 2.1 later; doc/performance/17-ocp17.md). */
       units = (units + (ok ? 0.0 : phi + nfun * sigma)) / nfun;
-      o->bd_ref_units = o->bd_ref_units > 0.0
-                            ? 0.875 * o->bd_ref_units + 0.125 * units
-                            : units;
+      const int c = o->bd_ref_count < 8 ? ++o->bd_ref_count : 8;
+      o->bd_ref_units += (units - o->bd_ref_units) / c;
     }
   }
   if (ok < 0)

@@ -158,8 +158,10 @@ struct mrvi_ocp {
   mrvi_bordered *bordered;
   int bd_factored;
   /* bordered_transpose: the refinement's cost per functional in
-   * corrections, a running mean over the steps (0: none yet) */
+   * corrections, a running mean over the steps (0: none yet), and the
+   * number of steps it has seen (up to 8) */
   double bd_ref_units;
+  int bd_ref_count;
   double *bd_work;
   /* The explicit path's adjoint (adjoint_explicit.c, ocp_explicit_ok):
    * V and W compiled for Hessian-vector products (columns: V's slow slots,
