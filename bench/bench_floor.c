@@ -74,7 +74,7 @@
 
 enum { MAX_N = 8, MAX_REPEATS = 15, N_NETS = 3, CHECK_STEPS = 20 };
 enum { CHECK_MAX_N = 20000 }; /* the checks run a fine Verlet reference */
-#define MIN_CPU 0.3
+#define MIN_CPU 0.3           /* (the default of --min-cpu) */
 
 typedef enum method {
   M_RESPA,
@@ -100,6 +100,7 @@ static const char usage[] =
     "                   [--repeats R] [--steps K] [--dT DT] [--p P]\n"
     "                   [--budget SECONDS] [--mem GB] [--big N]\n"
     "                   [--no-lammps] [--method NAME] [--threads T]\n"
+    "                   [--min-cpu S]\n"
     "                   [--tuning NAME=VALUE]\n"
     "\n"
     "The r-RESPA and Stoermer-Verlet floors, mrvi's fully-explicit,\n"
@@ -111,7 +112,10 @@ static const char usage[] =
     "R rounds alternating the methods (default 3, at most 15), best of\n"
     "them (R >= 2: also every round, its huge pages and page faults, and\n"
     "best / median / worst with the ratios to the floor both ways); at least\n"
-    "K macro steps (default 3) and 0.3 s; dT = 0.05, P = 10.  Implicit\n"
+    "K macro steps (default 3) and S s of CPU (--min-cpu, default 0.3; 0:\n"
+    "exactly K macro steps, so that two runs average the iteration counts\n"
+    "over the same steps; the times of so short a run mean little, the cost\n"
+    "model's ratio may be nan); dT = 0.05, P = 10.  Implicit\n"
     "schemes run only up to --big N coordinates (default 1000000).\n"
     "--method runs one method alone (as the tables name it, e.g.\n"
     "midpoint-midpoint) with the floor of its ratio (r-RESPA for the\n"
@@ -1011,6 +1015,7 @@ typedef struct result {
 
 typedef struct options {
   double dT, budget, mem_gb;
+  double min_cpu; /* --min-cpu: at least this CPU time of steps (0: K alone) */
   int p, steps, big;
   int threads;        /* settings.threads of the mrvi methods (default 1) */
   int par_floor;      /* the floors on the parts, o->threads threads */
@@ -1094,7 +1099,7 @@ static void mrvi_case(mrvi_model *m, method me, const options *o, result *r) {
   bench_omp_profile p0, p1;
   memset(&p0, 0, sizeof p0);
 #endif
-  for (; k < o->steps || (bench_cpu() - t1 < MIN_CPU && k < 100000); k++) {
+  for (; k < o->steps || (bench_cpu() - t1 < o->min_cpu && k < 100000); k++) {
     if (mrvi_integrator_step(it) < 0) {
       snprintf(r->message, sizeof r->message, "%.190s",
                mrvi_integrator_errmsg(it));
@@ -1148,7 +1153,7 @@ static void floor_case(floor_sys *f, method me, const options *o, result *r) {
   const long f0 = page_faults();
   double t1 = bench_cpu();
   long k = 0;
-  while (k < o->steps || bench_cpu() - t1 < MIN_CPU) {
+  while (k < o->steps || bench_cpu() - t1 < o->min_cpu) {
     if (me == M_RESPA)
       respa_steps(f, o->dT, o->p, 1);
     else
@@ -1180,7 +1185,7 @@ static void pfloor_case(floor_sys *s, method me, const options *o, result *r) {
   pfloor_forces(&f, me == M_VERLET);
   const double t1 = bench_cpu(), w1 = wall_clock();
   long k = 0;
-  while (k < o->steps || bench_cpu() - t1 < MIN_CPU) {
+  while (k < o->steps || bench_cpu() - t1 < o->min_cpu) {
     if (me == M_RESPA)
       prespa_steps(&f, o->dT, o->p, 1);
     else
@@ -1265,7 +1270,7 @@ static result lammps_case(const network *w, method me, const options *o) {
   r.status = 1;
   r.n = w->d * w->np;
   snprintf(r.path, sizeof r.path, "-");
-  /* at least MIN_CPU: steps from the r-RESPA floor's speed are not known
+  /* at least o->min_cpu: steps from the r-RESPA floor's speed are not known
    * here, so run o->steps and scale up while the loop is short */
   long steps = o->steps;
   for (int tries = 0; tries < 6; tries++) {
@@ -1281,9 +1286,9 @@ static result lammps_case(const network *w, method me, const options *o) {
     r.steps = steps;
     r.step = t / steps;
     r.status = 0;
-    if (t >= MIN_CPU)
+    if (t >= o->min_cpu)
       break;
-    steps = (long)ceil(steps * fmin(10.0, 1.5 * MIN_CPU / fmax(t, 1e-3)));
+    steps = (long)ceil(steps * fmin(10.0, 1.5 * o->min_cpu / fmax(t, 1e-3)));
   }
   return r;
 }
@@ -1855,6 +1860,7 @@ int main(int argc, char **argv) {
   o.steps = 3;
   o.budget = 300;
   o.mem_gb = 12;
+  o.min_cpu = MIN_CPU;
   o.big = 1000000;
   int n_list[MAX_N] = {1000, 10000, 100000}, n_n = 3, repeats = 3;
   int nets[N_NETS] = {1, 1, 1}, quick = 0, no_lammps = 0, n_set = 0;
@@ -1887,6 +1893,12 @@ int main(int argc, char **argv) {
         return bad_usage();
     } else if (!strcmp(a, "--dT") && has) {
       if (bench_parse_positive(argv[++i], &o.dT) < 0)
+        return bad_usage();
+    } else if (!strcmp(a, "--min-cpu") && has) {
+      char *end = NULL;
+      o.min_cpu = strtod(argv[++i], &end);
+      if (!end || *end || end == argv[i] || !(o.min_cpu >= 0.0) ||
+          !(o.min_cpu <= 3600.0))
         return bad_usage();
     } else if (!strcmp(a, "--budget") && has) {
       if (bench_parse_positive(argv[++i], &o.budget) < 0)
@@ -1945,7 +1957,7 @@ int main(int argc, char **argv) {
   printf("# mrvi %s  networks  dT = %g  p = %d  at least %d macro steps and "
          "%g s  best of %d alternating rounds  load average %.2f at the "
          "start\n",
-         mrvi_version(), o.dT, o.p, o.steps, MIN_CPU, repeats, bench_load());
+         mrvi_version(), o.dT, o.p, o.steps, o.min_cpu, repeats, bench_load());
   printf("# build: %s\n", bench_build());
   printf("# LAMMPS: %s\n\n",
          no_lammps ? "off (--no-lammps)"
