@@ -87,8 +87,9 @@ typedef struct lane {
   int own;         /* the fast-column classes in the lanes' own parts (o->own, a
                       full team): no barrier after their gradients */
   int own_ss;      /* the same for the slow-only classes (o->own_ss) */
-  int dirty;       /* bit b: zb[b] read by a gradient since the team's last
-                      barrier (own: written only after one) */
+  int dirty;       /* bit b: zb[b] (b = 2: o->zs) read by a gradient since
+                      the team's last barrier (written only after one,
+                      z_sync) */
   long *grp_sweep; /* per slow group: its g is at x_s of this sweep (0:
                       none yet) */
   double *dlt[3];  /* the changes of the last three nodes (o->dlt) */
