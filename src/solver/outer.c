@@ -80,9 +80,16 @@ typedef struct slow_group {
  * kept on the object and changes is the lane's own. */
 typedef struct lane {
   int tid, nth;
-  long sweep;         /* the sweep under way (its number in stats.sweeps) */
-  const site *z_site; /* z's slow part: site z_site's in sweep z_sweep */
-  long z_sweep;
+  long sweep;            /* the sweep under way (its number in stats.sweeps) */
+  const site *z_site[2]; /* zb[b]'s slow part: site z_site[b]'s in sweep
+                            z_sweep[b] */
+  long z_sweep[2];
+  int own;         /* the fast-column classes in the lanes' own parts (o->own, a
+                      full team): no barrier after their gradients */
+  int own_ss;      /* the same for the slow-only classes (o->own_ss) */
+  int dirty;       /* bit b: zb[b] (b = 2: o->zs) read by a gradient since
+                      the team's last barrier (written only after one,
+                      z_sync) */
   long *grp_sweep; /* per slow group: its g is at x_s of this sweep (0:
                       none yet) */
   double *dlt[3];  /* the changes of the last three nodes (o->dlt) */
@@ -104,11 +111,15 @@ struct mrvi_outer {
   double *zs; /* a slow configuration (ns) */
   int *send;  /* p + 1: sites of interval m are send[m] .. send[m+1]-1 */
   double *minv_s, *minv_f, *m_s, *m_f;
-  double *mdt, *dtm;     /* M^f/dt, dt/M^f */
-  int eq_f;              /* the fast masses are equal: mdt[0], dtm[0] for
-                            every column (bitwise each column's) */
-  double *zero;          /* nf zeros */
-  double *z;             /* packed configuration */
+  double *mdt, *dtm; /* M^f/dt, dt/M^f */
+  int eq_f;          /* the fast masses are equal: mdt[0], dtm[0] for
+                        every column (bitwise each column's) */
+  double *zero;      /* nf zeros */
+  double *zb[2];     /* packed configurations: the fused row pass
+                        writes the next iterate's into the other one */
+  int own;    /* kc's parts: n_lanes, part t the columns of lane t's spans of
+                 the slow and the fast columns (mrvi_terms_set_threads_owner) */
+  int own_ss; /* kss's the same */
   double *pm, *fexp, *F; /* p^{f,m}, the forces of node-m sites, F_m */
   double *fs;            /* slow-row force (ns) */
   /* the fused row pass (solve_row): the next iterate of d^{m+1} (nf) and
@@ -128,6 +139,12 @@ struct mrvi_outer {
   long *grp_sweeps;       /* n_lanes x n_grps (the lanes' grp_sweep) */
   mrvi_outer_stats stats; /* of the run */
 };
+
+/* Lane L's span [*lo, *hi) of n items (all of them on one thread). */
+static void span(const lane *L, int n, int *lo, int *hi) {
+  *lo = (int)((long)n * L->tid / L->nth);
+  *hi = (int)((long)n * (L->tid + 1) / L->nth);
+}
 
 void mrvi_outer_free(mrvi_outer *o) {
   if (!o)
@@ -152,7 +169,8 @@ void mrvi_outer_free(mrvi_outer *o) {
   free(o->mdt);
   free(o->dtm);
   free(o->zero);
-  free(o->z);
+  free(o->zb[0]);
+  free(o->zb[1]);
   free(o->pm);
   free(o->fexp);
   free(o->F);
@@ -206,7 +224,8 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->mdt = dalloc(nf);
   o->dtm = dalloc(nf);
   o->zero = calloc(nf > 0 ? nf : 1, sizeof(double));
-  o->z = dalloc(n);
+  o->zb[0] = dalloc(n);
+  o->zb[1] = dalloc(n);
   o->pm = dalloc(nf);
   o->fexp = dalloc(nf);
   o->F = dalloc(nf);
@@ -220,9 +239,9 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   o->dF = dalloc(ns * OUTER_AA);
   if (!col || !sel || !o->sites || !o->grps || !o->zs || !o->send ||
       !o->minv_s || !o->m_s || !o->minv_f || !o->m_f || !o->mdt || !o->dtm ||
-      !o->zero || !o->z || !o->pm || !o->fexp || !o->F || !o->fs || !o->nb ||
-      !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp || !o->fp || !o->dX ||
-      !o->dF) {
+      !o->zero || !o->zb[0] || !o->zb[1] || !o->pm || !o->fexp || !o->F ||
+      !o->fs || !o->nb || !o->dlt[0] || !o->dlt[1] || !o->dlt[2] || !o->xp ||
+      !o->fp || !o->dX || !o->dF) {
     free(col);
     free(sel);
     mrvi_outer_free(o);
@@ -245,7 +264,31 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
   /* each class's terms split by their columns (the order kept); the
    * gradients of large spring classes on threads, in parts by records
    * (mrvi_terms_set_threads, the same bits for every count), doubled
-   * until at most MRVI_TERMS_SPREAD of the records span parts */
+   * until at most MRVI_TERMS_SPREAD of the records span parts; the
+   * classes with a fast input in one part per thread instead, part t
+   * owning lane t's spans of the slow and the fast columns (owner), so
+   * that a lane reads in its spans only what it wrote there */
+  int *owner = NULL;
+  if (st->threads > 1) {
+    owner = malloc((n > 0 ? n : 1) * sizeof *owner);
+    if (!owner) {
+      free(col);
+      free(sel);
+      mrvi_outer_free(o);
+      return MRVI_ENOMEM;
+    }
+    for (int t = 0; t < st->threads; t++) {
+      const lane L = {.tid = t, .nth = st->threads};
+      int lo, hi;
+      span(&L, o->ns, &lo, &hi);
+      for (int s = lo; s < hi; s++)
+        owner[s] = t;
+      span(&L, o->nf, &lo, &hi);
+      for (int f = lo; f < hi; f++)
+        owner[o->ns + f] = t;
+    }
+  }
+  o->own = o->own_ss = st->threads > 1;
   for (int c = 0; c < 2; c++)
     for (int part = 0; part < 2; part++) {
       int n_sel = 0;
@@ -259,19 +302,30 @@ int mrvi_outer_create(const mrvi_model *m, const mrvi_step *st,
           o->slow_in[c] |= (r >> MRVI_SLOW) & 1;
       }
       mrvi_terms **kt = part ? &o->kss[c] : &o->kc[c];
-      if (n_sel > 0 &&
-          (mrvi_terms_create_grad(m, sel, n_sel, col, kt) != MRVI_OK ||
-           mrvi_terms_set_threads_spread(*kt, st->threads,
-                                         st->tuning.thread_chunk, 0,
-                                         MRVI_TERMS_SPREAD) != MRVI_OK)) {
+      int rc =
+          n_sel > 0 ? mrvi_terms_create_grad(m, sel, n_sel, col, kt) : MRVI_OK;
+      if (rc == MRVI_OK && n_sel > 0 && owner &&
+          n_sel >= 2 * st->tuning.thread_chunk)
+        rc = mrvi_terms_set_threads_owner(*kt, st->threads, owner, (int)n,
+                                          st->threads);
+      if (part)
+        o->own_ss &= !*kt || mrvi_terms_parts(*kt) == st->threads;
+      else
+        o->own &= !*kt || mrvi_terms_parts(*kt) == st->threads;
+      if (rc == MRVI_OK && n_sel > 0)
+        rc = mrvi_terms_set_threads_spread(
+            *kt, st->threads, st->tuning.thread_chunk, 0, MRVI_TERMS_SPREAD);
+      if (rc != MRVI_OK) {
         free(col);
         free(sel);
+        free(owner);
         mrvi_outer_free(o);
         return MRVI_ENOMEM;
       }
     }
   free(col);
   free(sel);
+  free(owner);
   const int n_terms = st->n_elem_of_class[0] + st->n_elem_of_class[1];
   for (int c = 0; c < 2 && n_terms > 0; c++) {
     o->share[c] = o->kc[c] ? (double)mrvi_terms_count(o->kc[c]) / n_terms : 0;
@@ -370,12 +424,6 @@ const mrvi_outer_stats *mrvi_outer_stats_of(const mrvi_outer *o) {
   return &o->stats;
 }
 
-/* Lane L's span [*lo, *hi) of n items (all of them on one thread). */
-static void span(const lane *L, int n, int *lo, int *hi) {
-  *lo = (int)((long)n * L->tid / L->nth);
-  *hi = (int)((long)n * (L->tid + 1) / L->nth);
-}
-
 /* Every thread of the team waits for the others (none on one). */
 #ifdef _OPENMP
 #define TEAM_BARRIER(L)                                                        \
@@ -388,6 +436,19 @@ static void span(const lane *L, int n, int *lo, int *hi) {
 #define TEAM_BARRIER(L) (void)(L)
 #endif
 
+/* TEAM_BARRIER, after which no buffer is read by a gradient. */
+static void team_barrier(lane *L) {
+  TEAM_BARRIER(L);
+  L->dirty = 0;
+}
+
+/* Before a lane writes zb[b]: a barrier where a gradient read it since the
+ * last one (every lane passes the same calls, so all agree). */
+static void z_sync(lane *L, int b) {
+  if (L->dirty >> b & 1)
+    team_barrier(L);
+}
+
 /* v = (a maximum, a sum, a maximum) of the lane's span -> the team's, the
  * same in every lane: the lanes' values combined in lane order after a
  * barrier.  The maxima skip NaN, which the sum keeps (the callers test
@@ -398,7 +459,7 @@ static void team_reduce(mrvi_outer *o, lane *L, double v[3]) {
     return;
   double *slot = o->red + (size_t)(L->n_red++ & 1) * RED * (size_t)o->n_lanes;
   memcpy(slot + (size_t)L->tid * RED, v, 3 * sizeof(double));
-  TEAM_BARRIER(L);
+  team_barrier(L);
   v[0] = v[1] = v[2] = 0.0;
   for (int t = 0; t < L->nth; t++) {
     const double *u = slot + (size_t)t * RED;
@@ -446,6 +507,7 @@ site_config(const mrvi_outer *o, double *restrict zf, double *restrict gf,
 }
 
 /* g (the site's S->g, or a spare) = grad Z at the site's configuration
+ * (in zb[zi])
  * for the slow displacement xs and the fast displacements dm = d^m, dn =
  * d^{m+1} (NULL: zeros); with F, dn first takes the chord update dn +=
  * (dt/M^f) F (in the same pass over the fast columns).  By the team: each
@@ -454,22 +516,34 @@ site_config(const mrvi_outer *o, double *restrict zf, double *restrict gf,
  * before a barrier (solve_row), so only the gradient is left. */
 static void eval_site(mrvi_outer *o, lane *L, const mrvi_step *st, site *S,
                       double *g, const double *xs, const double *dm, double *dn,
-                      const double *F, int ready) {
+                      const double *F, int ready, int zi) {
   const int ns = o->ns;
-  double *z = o->z;
+  double *z = o->zb[zi];
   int lo, hi;
   span(L, ns, &lo, &hi);
   /* (z's slow part depends on a1 alone within a sweep) */
   int zs_new = 0;
-  if (S->rs &&
-      (!L->z_site || L->z_site->a1 != S->a1 || L->z_sweep != L->sweep)) {
-    for (int s = lo; s < hi; s++)
+  if (S->rs && (!L->z_site[zi] || L->z_site[zi]->a1 != S->a1 ||
+                L->z_sweep[zi] != L->sweep)) {
+    z_sync(L, zi);
+    /* (and the other buffer's, free now, which the fused row pass fills
+     * next for an inside site: no barrier for it at the next iterate) */
+    const int both = S->cA != 0.0 && S->cB != 0.0 && !(L->dirty >> !zi & 1);
+    double *z2 = o->zb[!zi];
+    for (int s = lo; s < hi; s++) {
       z[s] = st->qs0[s] + S->a1 * xs[s];
-    L->z_site = S;
-    L->z_sweep = L->sweep;
+      if (both)
+        z2[s] = z[s];
+    }
+    for (int b = 0; b < 2; b++)
+      if (b == zi || both) {
+        L->z_site[b] = S;
+        L->z_sweep[b] = L->sweep;
+      }
     zs_new = 1;
   }
   if (!ready) {
+    z_sync(L, zi);
     if (S->rs)
       memset(g + lo, 0, (size_t)(hi - lo) * sizeof(double));
     const double cB = dn ? S->cB : 0.0;
@@ -482,15 +556,20 @@ static void eval_site(mrvi_outer *o, lane *L, const mrvi_step *st, site *S,
       site_config(o, z + ns, g + ns, st->qf0, S->cA, cB, a, b, F, lo, hi, 0);
   }
   /* (a barrier after each class: the two classes' parts write the same
-   * columns, in the serial order) */
+   * columns, in the serial order; none where each lane's part writes the
+   * columns of its spans, which the lane alone reads and writes until z
+   * is written again, z_sync) */
   if (!ready || zs_new)
-    TEAM_BARRIER(L);
+    team_barrier(L);
   for (int c = 0; c < 2; c++)
     if (S->cls & (1 << c) && o->kc[c]) {
       grad_team(L, o->kc[c], z, g);
       if (L->tid == 0)
         o->stats.grad_equiv += o->share[c];
-      TEAM_BARRIER(L);
+      if (L->own)
+        L->dirty |= 1 << zi;
+      else
+        team_barrier(L);
     }
   if (L->tid == 0)
     o->stats.site_evals++;
@@ -508,20 +587,34 @@ static const double *slow_site(mrvi_outer *o, lane *L, const mrvi_step *st,
     /* (the slow configuration: z's where it is this one, else built) */
     int lo, hi;
     span(L, o->ns, &lo, &hi);
+    /* (bit zi of L->dirty: zb[0], zb[1] or, 2, o->zs) */
     const double *zs = o->zs;
-    if (L->z_site && L->z_site->a1 == G->a1 && L->z_sweep == L->sweep)
-      zs = o->z;
-    else
+    int zi = 2;
+    for (int b = 0; b < 2; b++)
+      if (L->z_site[b] && L->z_site[b]->a1 == G->a1 &&
+          L->z_sweep[b] == L->sweep) {
+        zs = o->zb[b];
+        zi = b;
+      }
+    if (zi == 2) {
+      z_sync(L, 2);
       for (int s = lo; s < hi; s++)
         o->zs[s] = st->qs0[s] + G->a1 * xs[s];
+    }
     memset(G->g + lo, 0, (size_t)(hi - lo) * sizeof(double));
-    TEAM_BARRIER(L);
+    /* (with own parts, a barrier for a configuration just written alone:
+     * zb[b]'s slow part was written before one, eval_site) */
+    if (!L->own_ss || zi == 2)
+      team_barrier(L);
     for (int c = 0; c < 2; c++)
       if (G->cls & (1 << c)) {
         grad_team(L, o->kss[c], zs, G->g);
         if (L->tid == 0)
           o->stats.grad_equiv += o->share_ss[c];
-        TEAM_BARRIER(L);
+        if (L->own_ss)
+          L->dirty |= 1 << zi;
+        else
+          team_barrier(L);
       }
     L->grp_sweep[S->grp] = L->sweep;
   }
@@ -714,7 +807,7 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
       inside |= S->cA != 0.0;
       continue;
     }
-    eval_site(o, L, st, S, S->g, xs, dm, NULL, NULL, 0);
+    eval_site(o, L, st, S, S->g, xs, dm, NULL, NULL, 0, 1);
     for (int f = lo; f < hi; f++)
       o->fexp[f] += S->w * S->cA * S->g[ns + f];
   }
@@ -755,9 +848,10 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
       if (S->cB == 0.0 || S->cA == 0.0)
         continue;
       if (S == sin)
-        eval_site(o, L, st, S, gbuf[cur], xs, dm, dbuf[cur], NULL, it > 0);
+        eval_site(o, L, st, S, gbuf[cur], xs, dm, dbuf[cur], NULL, it > 0, cur);
       else
-        eval_site(o, L, st, S, S->g, xs, dm, dn, first && it > 0 ? F : NULL, 0);
+        eval_site(o, L, st, S, S->g, xs, dm, dn, first && it > 0 ? F : NULL, 0,
+                  0);
       if (first) {
         first = 0;
         g1 = (S == sin ? gbuf[cur] : S->g) + ns;
@@ -777,7 +871,9 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
      * row (the unknowns being displacements) */
     double v[3];
     const int one = n_inside <= 1;
-    const row_next nx = {sin ? dbuf[!cur] : NULL,      o->z + ns,
+    if (sin)
+      z_sync(L, !cur);
+    const row_next nx = {sin ? dbuf[!cur] : NULL,      o->zb[!cur] + ns,
                          sin ? gbuf[!cur] + ns : NULL, st->qf0,
                          sin ? sin->cA : 0.0,          sin ? sin->cB : 0.0};
     row_pass_run(o, fx, lo, hi, one, w1, g1, sin ? dbuf[cur] : dn, dp, rw, v,
@@ -815,7 +911,7 @@ static double solve_row(mrvi_outer *o, lane *L, const mrvi_step *st, int m,
   /* the sites at node m + 1 (cA = 0), then p^{f,m+1} and the slow forces */
   for (site *S = s0; S < s1; S++)
     if (S->cA == 0.0)
-      eval_site(o, L, st, S, S->g, xs, dm, dn, NULL, 0);
+      eval_site(o, L, st, S, S->g, xs, dm, dn, NULL, 0, 0);
   /* (one site with a node-(m+1) coefficient, midpoint-midpoint's: pfm,
    * p^{f,m+1} and the node's change in one pass below) */
   const site *sb = NULL;
@@ -1024,7 +1120,7 @@ static int outer_lane(mrvi_outer *o, lane *L, const mrvi_step *st, double *x,
       slow_update(o, xs, k - 1, dT);
       o->stats.slow_updates++;
     }
-    TEAM_BARRIER(L);
+    team_barrier(L);
   }
   if (L->tid == 0)
     o->stats.failed++;
@@ -1036,7 +1132,9 @@ static void lane_start(const mrvi_outer *o, lane *L, int tid, int nth) {
   L->tid = tid;
   L->nth = nth;
   L->sweep = o->stats.sweeps;
-  L->z_site = NULL;
+  L->z_site[0] = L->z_site[1] = NULL;
+  L->own = L->own_ss = 0;
+  L->dirty = 0;
   L->met = 1;
   L->n_red = 0;
   for (int i = 0; i < 3; i++)
@@ -1060,6 +1158,8 @@ int mrvi_outer_solve(mrvi_outer *o, const mrvi_step *st, double *x,
     /* (the team may be smaller than asked: the spans follow its size) */
     lane *L = &o->lanes[omp_get_thread_num()];
     L->nth = omp_get_num_threads();
+    L->own = o->own && L->nth == o->n_lanes;
+    L->own_ss = o->own_ss && L->nth == o->n_lanes;
     const int kl =
         outer_lane(o, L, st, x, rw, target, rate, max_outer, ps1, pf, res);
     if (L->tid == 0)

@@ -541,6 +541,15 @@ void mrvi_terms_grad(mrvi_terms *kc, const double *z, double *g);
  * order, so the gradient is the serial one bitwise for every thread count.
  * Fewer than two parts: one thread.  MRVI_ENOMEM, else MRVI_OK. */
 int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol);
+/* mrvi_terms_set_threads in the caller's n_part parts: owner[col] (n_col
+ * entries) the part owning column col (solver/outer.c: each thread's range
+ * of the slow and of the fast columns, so that a thread's part writes the
+ * columns the thread's own vector loops read).  Each part writes its own
+ * columns from its records in the serial order: the serial gradient
+ * bitwise, whatever the owners.  A class that is not springs and anchors
+ * alone, or that writes a column without an owner, stays serial. */
+int mrvi_terms_set_threads_owner(mrvi_terms *kc, int threads, const int *owner,
+                                 int n_col, int n_part);
 /* mrvi_terms_set_threads in parts of chunk 2^j, the smallest j >= 0 at
  * which the records listed in two parts or more add at most `spread` of
  * the class's records (each is evaluated once per part), or at which a

@@ -1897,6 +1897,8 @@ static int springs_alone(const mrvi_terms *kc) {
   return ns == kc->n;
 }
 
+static int set_parts(mrvi_terms *kc, int threads, const int *owner, int n_part);
+
 int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
                                   int ncol, double spread) {
   if (threads > 1 && mrvi_threads_supported() && !kc->part_first &&
@@ -1925,12 +1927,48 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
     return MRVI_OK;
   if (!kc->qs && class_records(kc) < 0) /* (a gradient-only class) */
     return MRVI_ENOMEM;
-  const int dim = kc->dim;
-  int n_col = 0, n_part = 0, part[6];
-  unsigned mask[6];
+  int n_col = 0, n_part = 0;
   int *owner = column_owners(kc, chunk, ncol, &n_col, &n_part);
   if (!owner) /* (no memory, or a column outside [0, ncol): stays serial) */
     return ncol > 0 ? MRVI_OK : MRVI_ENOMEM;
+  const int rc = set_parts(kc, threads, owner, n_part);
+  free(owner);
+  if (rc == MRVI_OK && kc->part_first) {
+    kc->ncol = ncol;
+    kc->chunk = chunk;
+  }
+  return rc;
+}
+
+int mrvi_terms_set_threads_owner(mrvi_terms *kc, int threads, const int *owner,
+                                 int n_col, int n_part) {
+  if (!mrvi_threads_supported())
+    threads = 1;
+  if (kc->part_first)
+    return MRVI_OK;
+  kc->threads = 1;
+  if (threads <= 1 || n_part < 2 || !springs_alone(kc))
+    return MRVI_OK;
+  if (!kc->qs && class_records(kc) < 0)
+    return MRVI_ENOMEM;
+  /* (every column the records write mapped to a part) */
+  for (int r = 0; r < kc->n; r++)
+    for (int k = 0; k < (kc->qs[r].two ? 2 * kc->dim : kc->dim); k++) {
+      const int col = record_col(&kc->qs[r], kc->dim, k);
+      if (col < 0 || col >= n_col || owner[col] < 0 || owner[col] >= n_part)
+        return MRVI_OK;
+    }
+  return set_parts(kc, threads, owner, n_part);
+}
+
+/* kc in the n_part parts of the columns' owners (mrvi_terms_set_threads):
+ * each part's records in the serial order with their masks of its
+ * columns. */
+static int set_parts(mrvi_terms *kc, int threads, const int *owner,
+                     int n_part) {
+  const int dim = kc->dim;
+  int part[6];
+  unsigned mask[6];
   /* Count each part's records, then list them in the serial order. */
   int *first = calloc((size_t)n_part + 1, sizeof *first);
   int *fill = malloc((size_t)n_part * sizeof *fill);
@@ -1946,7 +1984,6 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
     kc->part_mask = malloc((size_t)(total > 0 ? total : 1));
   }
   if (!first || !fill || !kc->part_rec || !kc->part_mask) {
-    free(owner);
     free(first);
     free(fill);
     return total > INT_MAX ? MRVI_OK : MRVI_ENOMEM; /* (freed with kc) */
@@ -1962,7 +1999,6 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
       kc->part_mask[fill[part[i]]++] = (unsigned char)mask[i];
     }
   }
-  free(owner);
   free(fill);
   kc->part_hooke = 1;
   for (int r = 0; r < kc->n; r++)
@@ -1973,8 +2009,6 @@ int mrvi_terms_set_threads(mrvi_terms *kc, int threads, int chunk, int ncol) {
   }
   kc->part_first = first;
   kc->n_part = n_part;
-  kc->ncol = ncol;
-  kc->chunk = chunk;
   kc->threads = threads;
   return MRVI_OK;
 }
