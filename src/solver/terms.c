@@ -1910,6 +1910,7 @@ static int springs_alone(const mrvi_terms *kc) {
 
 int mrvi_terms_spread_chunk(mrvi_terms *kc, int chunk, int ncol,
                             double spread) {
+  const int made = !kc->qs;
   if (!kc->part_first && chunk >= 1 && springs_alone(kc) &&
       (kc->qs || class_records(kc) == MRVI_OK)) {
     const int n = ncol > 0 ? ncol : kc->n;
@@ -1918,6 +1919,12 @@ int mrvi_terms_spread_chunk(mrvi_terms *kc, int chunk, int ncol,
       if (total < 0 || (double)total <= (1.0 + spread) * kc->n)
         break;
     }
+  }
+  if (made) { /* (records made for the count alone, 35 B a coordinate on
+               * random3d: mrvi_terms_set_threads makes them again where it
+               * partitions the class) */
+    free(kc->qs);
+    kc->qs = NULL;
   }
   return chunk;
 }
