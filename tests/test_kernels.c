@@ -301,6 +301,32 @@ static void check_case(int d, const law_case *lc, unsigned long long *rng) {
               "the parts' one at a time)",
               d, lc->law, lc->params[1], names[kind],
               rel_diff(gs, gs_ref, (size_t)n), rel_diff(Hv, gs, (size_t)n));
+        /* ... and in larger parts (chunks of 3 and 6 records or 2 and 3
+         * columns): runs of whole consecutive records, which the parts
+         * take by the serial pair loop (part_hooke_pairs), between masked
+         * records and odd tails, each part in turn: the serial gradient
+         * bitwise */
+        for (int big = 0; big < 4 && mrvi_threads_supported(); big++) {
+          const int by_rec = big < 2,
+                    chunk = by_rec ? 3 + 3 * big : 2 + big % 2;
+          mrvi_terms *kb = NULL;
+          CHECK(mrvi_terms_create_grad(m, sel, ns, NULL, &kb) == MRVI_OK &&
+                    mrvi_terms_set_threads(kb, 2, chunk, by_rec ? 0 : n) ==
+                        MRVI_OK,
+                "d %d %s: gradient-only create in parts of %d", d, lc->law,
+                chunk);
+          const int np = kb ? mrvi_terms_parts(kb) : 0;
+          memset(Hv, 0, (size_t)n * sizeof *Hv);
+          for (int c = 0; c < np; c++)
+            mrvi_terms_grad_part(kb, c, q, Hv);
+          CHECK((by_rec ? ns : n) < 2 * chunk ||
+                    (np >= 2 && !memcmp(Hv, gs, bytes)),
+                "d %d %s (%g), %s alone, %d parts of %d %s: the serial "
+                "gradient-only class's bitwise (%.2e relative)",
+                d, lc->law, lc->params[1], names[kind], np, chunk,
+                by_rec ? "records" : "columns", rel_diff(Hv, gs, (size_t)n));
+          mrvi_terms_free(kb);
+        }
         const double vf = mrvi_terms_value(kf, q), vg = mrvi_terms_value(kg, q);
         CHECK(memcmp(&vf, &vg, sizeof vf) == 0,
               "d %d %s, %s alone: gradient-only class's value %.17g vs %.17g",

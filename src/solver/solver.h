@@ -557,6 +557,11 @@ int mrvi_terms_set_threads_owner(mrvi_terms *kc, int threads, const int *owner,
  * many records span parts (a 3-D lattice's records between layers). */
 int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
                                   int ncol, double spread);
+/* The chunk that mrvi_terms_set_threads_spread takes on threads, from the
+ * class and ncol alone (whatever the thread count): sweep-cg's chord parts
+ * (doc/performance/17-thr17.md).  chunk unchanged where kc is partitioned
+ * already, is not springs alone or has no records. */
+int mrvi_terms_spread_chunk(mrvi_terms *kc, int chunk, int ncol, double spread);
 /* The share for the Newton paths' classes (solver/outer.c,
  * solver/predict.c): on random3d's slow class in parts of 4 096 records
  * most records span two parts (a column belongs to the part of the first

@@ -136,7 +136,9 @@ struct mrvi_sweep {
   /* lam summed over the updates that set it (mrvi_sweep_chord_sum) */
   double lam_sum;
   /* chord_residual's pass in n_cpass parts of the rows (mrvi_even_parts
-   * by tuning.thread_chunk; nf at least two chunks, else 0: one pass),
+   * by tuning.thread_chunk, doubled while the fast class's records that
+   * span parts exceed SPREAD of them, mrvi_terms_spread_chunk; nf at
+   * least two thread_chunk, else 0: one pass),
    * each part's maximum and sums in cpass (4 per part; then row 0's bound
    * per part, fresh_parts) added in order, on
    * pthreads threads: the same bits for every thread count.  cfused: the
@@ -597,14 +599,23 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   free(own);
   /* The gradients of large spring classes on threads (the same bits).
    * V's parts (by records: each column summed in the serial order) spread
-   * on every path; W's on the implicit path keep thread_chunk, the chord's
-   * parts (n_cpass below), whose sums are per part. */
+   * on every path; W's on the implicit path are the chord's parts (n_cpass
+   * below), whose sums are per part: with a sparse block, thread_chunk
+   * doubled by the same rule from the class alone, so the same parts (and
+   * bits) on every thread count (fewer records in two parts: random3d's
+   * 21 % at 4 096 columns, doc/performance/17-thr17.md). */
   const int threads = mrvi_threads_resolve(s->threads);
+  const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
+  int cchunk = s->tuning.thread_chunk;
+  if (s_ok && sparse && (int)nf >= 2 * cchunk)
+    cchunk =
+        mrvi_terms_spread_chunk(sw->kc[MRVI_FAST], cchunk, (int)nf, SPREAD);
   for (int c = 0; s_ok && c < 2; c++)
-    s_ok =
-        mrvi_terms_set_threads_spread(
-            sw->kc[c], threads, s->tuning.thread_chunk, c == MRVI_SLOW ? 0 : nf,
-            sw->implicit && c == MRVI_FAST ? HUGE_VAL : SPREAD) == MRVI_OK;
+    s_ok = mrvi_terms_set_threads_spread(
+               sw->kc[c], threads,
+               sw->implicit && c == MRVI_FAST ? cchunk : s->tuning.thread_chunk,
+               c == MRVI_SLOW ? 0 : nf,
+               sw->implicit && c == MRVI_FAST ? HUGE_VAL : SPREAD) == MRVI_OK;
   /* The explicit step's one parallel region: W's gradient by
    * parts of the fast rows (explicit_step_par). */
   sw->threads = s_ok && !sw->implicit && !sw->wH &&
@@ -636,7 +647,6 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fimp = dalloc(ni);
   sw->dn = dalloc(ni);
   sw->rw = dalloc(scaled ? ni : 0);
-  const int sparse = sw->implicit && sw->nf > s->tuning.dense_max;
   sw->dff = dalloc(sparse ? 1 : ni); /* (sparse: in fhist[3], free_flight) */
   sw->sparse = sparse;
   sw->sb_dense_max = s->tuning.newton_dense_max;
@@ -664,9 +674,9 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
   sw->fhist[1] = dalloc(sparse ? nf : 1);
   sw->fhist[2] = dalloc(sparse ? nf : 1);
   sw->fhist[3] = dalloc(sparse ? nf : 1);
-  const int chunk = s->tuning.thread_chunk;
-  sw->n_cpass =
-      sparse && (int)nf >= 2 * chunk ? mrvi_even_parts((int)nf, chunk) : 0;
+  sw->n_cpass = sparse && (int)nf >= 2 * s->tuning.thread_chunk
+                    ? mrvi_even_parts((int)nf, cchunk)
+                    : 0;
   sw->pthreads = threads;
   sw->cfused = sw->n_cpass > 0 && mrvi_terms_threads(sw->kc[MRVI_FAST]) > 1 &&
                mrvi_terms_parts(sw->kc[MRVI_FAST]) == sw->n_cpass;

@@ -1685,13 +1685,23 @@ ALWAYS_INLINE void part_pair_add(double *g, const khooke *h, unsigned mk,
 /* part_hooke_k with one = 1 on a part's entries two at a time (the lanes
  * of hooke_pair), the sums entry by entry in the part's order, whole
  * records or masked: the scalar loop's values bit for bit (es-zero's
- * argument, hooke_grad_pairs); the entries paired returned (an odd last
+ * argument, hooke_grad_pairs); a run of at least two consecutive whole
+ * records (run) by the serial kernel's loop itself, hooke_grad_pairs,
+ * without the list and the masks (the same lanes and sums: the parts'
+ * gradient had cost 1.45 times the serial one on lattice2d,
+ * doc/performance/17-thr17.md); the entries done returned (an odd last
  * one left to the scalar loop). */
 ALWAYS_INLINE int part_hooke_pairs(hsrc q, const int *rec,
-                                   const unsigned char *mask, int nr,
-                                   const double *z, double *g, const int dim) {
+                                   const unsigned char *mask, const int *run,
+                                   int nr, const double *z, double *g,
+                                   const int dim) {
   int i = 0;
-  for (; i + 2 <= nr; i += 2) {
+  while (i + 2 <= nr) {
+    if (run[i] >= 2) {
+      hooke_grad_pairs(q, rec[i], run[i], z, g, dim);
+      i += run[i];
+      continue;
+    }
     const khooke a = hooke_rec(q, rec[i]), b = hooke_rec(q, rec[i + 1]);
     mrvi_v2 t[3];
     hooke_pair(&a, &b, z, t, dim);
@@ -1701,6 +1711,7 @@ ALWAYS_INLINE int part_hooke_pairs(hsrc q, const int *rec,
                   dim);
     part_pair_add(g, &b, mask[i + 1], v2_set(v2_hi(t[0]), v2_hi(t1)), v2_hi(t2),
                   dim);
+    i += 2;
   }
   return i;
 }
@@ -1712,8 +1723,8 @@ ALWAYS_INLINE void part_hooke_k(hsrc q, const int *rec,
                                 const unsigned char *mask, const int *run,
                                 int nr, const double *z, double *g,
                                 const int dim, const int one) {
-  for (int i = one ? part_hooke_pairs(q, rec, mask, nr, z, g, dim) : 0; i < nr;
-       i++) {
+  for (int i = one ? part_hooke_pairs(q, rec, mask, run, nr, z, g, dim) : 0;
+       i < nr; i++) {
     if (run[i] > 0) { /* whole records: the serial loop, the same sums */
       hooke_grad_k(q, rec[i], run[i], z, g, dim, one);
       i += run[i] - 1;
@@ -1899,10 +1910,10 @@ static int springs_alone(const mrvi_terms *kc) {
 
 static int set_parts(mrvi_terms *kc, int threads, const int *owner, int n_part);
 
-int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
-                                  int ncol, double spread) {
-  if (threads > 1 && mrvi_threads_supported() && !kc->part_first &&
-      chunk >= 1 && springs_alone(kc) &&
+int mrvi_terms_spread_chunk(mrvi_terms *kc, int chunk, int ncol,
+                            double spread) {
+  const int made = !kc->qs;
+  if (!kc->part_first && chunk >= 1 && springs_alone(kc) &&
       (kc->qs || class_records(kc) == MRVI_OK)) {
     const int n = ncol > 0 ? ncol : kc->n;
     for (; n / 2 >= 2 * chunk; chunk *= 2) { /* (two parts at least) */
@@ -1911,6 +1922,19 @@ int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
         break;
     }
   }
+  if (made) { /* (records made for the count alone, 35 B a coordinate on
+               * random3d: mrvi_terms_set_threads makes them again where it
+               * partitions the class) */
+    free(kc->qs);
+    kc->qs = NULL;
+  }
+  return chunk;
+}
+
+int mrvi_terms_set_threads_spread(mrvi_terms *kc, int threads, int chunk,
+                                  int ncol, double spread) {
+  if (threads > 1 && mrvi_threads_supported())
+    chunk = mrvi_terms_spread_chunk(kc, chunk, ncol, spread);
   return mrvi_terms_set_threads(kc, threads, chunk, ncol);
 }
 
