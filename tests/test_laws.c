@@ -812,8 +812,8 @@ static void check_compact_table(void) {
                mrvi_element_particle(m, e, 0) == add[a].i &&
                mrvi_element_particle(m, e, d) == add[a].j;
       for (int k = 0; k < d; k++)
-        ok &= e->in[k] == m->particles[add[a].i].first + k &&
-              e->in[d + k] == m->particles[add[a].j].first + k;
+        ok &= e->in[k] == mrvi_particle_first(m, add[a].i) + k &&
+              e->in[d + k] == mrvi_particle_first(m, add[a].j) + k;
       /* (the prototype the terms keep: the law, parameters and rate) */
       const mrvi_element *p = add[a].stable;
       ok &= p == mrvi_element_stable(e) && p->law == law &&

@@ -187,6 +187,60 @@ static void check_settings(const mrvi_model *m, mrvi_settings s,
  * one mass entry while every mass is the first's, every entry from the
  * first that differs; no element list for a class of consecutive elements,
  * a list for an interleaved one, both read as the element order. */
+/* Particles named by a sequence rule, each on the coordinates after the
+ * last, keep no record (particles_kept 0); the first that is not such (after
+ * a coordinate of its own, or with a stored name) makes every record, and
+ * the names and first coordinates read the same before and after. */
+static void test_particle_records(void) {
+  for (int how = 0; how < 2; how++) {
+    mrvi_model *m = mrvi_model_create();
+    CHECK(m && mrvi_model_set_dimension(m, 3) == 0, "model");
+    const double x[3] = {0.0, 1.0, 2.0}, v[3] = {0.0, 0.0, 0.0};
+    for (int i = 0; i < 3; i++) {
+      char name[16];
+      snprintf(name, sizeof name, "q%d", i);
+      CHECK(mrvi_model_add_particle(m, name, 1.0, MRVI_SLOW, x, v) == i,
+            "particle %d", i);
+    }
+    CHECK(m->particles_kept == 0, "no particle records kept");
+    for (int kept = 0; kept < 2; kept++) {
+      for (int i = 0; i < 3; i++) {
+        char want[16], buf[MRVI_NAME_MAX];
+        snprintf(want, sizeof want, "q%d", i);
+        CHECK(mrvi_particle_first(m, i) == 3 * i &&
+                  strcmp(mrvi_model_particle_name(m, i, buf), want) == 0 &&
+                  mrvi_model_find_particle(m, want) == i,
+              "particle %d (kept %d): first %d, name %s", i, kept,
+              mrvi_particle_first(m, i), mrvi_model_particle_name(m, i, buf));
+        snprintf(want, sizeof want, "q%d.z", i);
+        CHECK(strcmp(MRVI_CNAME(m, 3 * i + 2), want) == 0 &&
+                  mrvi_model_find_coordinate(m, want) == 3 * i + 2,
+              "coordinate %s (kept %d)", want, kept);
+      }
+      if (kept)
+        break;
+      /* how 0: a coordinate of its own, then q3 (first 10, not 9); how 1:
+       * a particle whose name is stored */
+      if (how == 0)
+        CHECK(mrvi_model_add_coordinate(m, "c", 1.0, MRVI_SLOW, 0.0, 0.0) == 9,
+              "own coordinate");
+      CHECK(mrvi_model_add_particle(m, how ? "b" : "q3", 1.0, MRVI_FAST, x,
+                                    v) == 3,
+            "particle 3");
+      CHECK(m->particles_kept == 1, "records kept (how %d)", how);
+      CHECK(mrvi_particle_first(m, 3) == 9 + !how &&
+                (mrvi_particle_stored(m, 3) != NULL) == how &&
+                strcmp(MRVI_PNAME(m, 3), how ? "b" : "q3") == 0 &&
+                strcmp(MRVI_CNAME(m, 9 + !how), how ? "b.x" : "q3.x") == 0,
+            "particle 3 (how %d): first %d, name %s", how,
+            mrvi_particle_first(m, 3), MRVI_PNAME(m, 3));
+    }
+    if (how == 0)
+      CHECK(strcmp(MRVI_CNAME(m, 9), "c") == 0, "own coordinate's name");
+    mrvi_model_free(m);
+  }
+}
+
 static void test_compact_storage(void) {
   const double masses[4] = {2.0, 2.0, 2.0, 0.5};
   mrvi_model *m = mrvi_model_create();
@@ -259,6 +313,7 @@ static void test_compact_storage(void) {
 
 int main(void) {
   test_compact_storage();
+  test_particle_records();
   mrvi_model *fpu = test_fpu(), *ring = test_spring_ring(),
              *osc = test_oscillator(2.0);
   const char *const *schemes = mrvi_scheme_names();

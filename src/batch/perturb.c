@@ -130,7 +130,7 @@ static int directions(const mrvi_model *m, int *comp) {
   const int D = m->dimension;
   for (int k = 0; k < m->n_particles; k++)
     for (int d = 0; d < D; d++)
-      comp[m->particles[k].first + d] = d;
+      comp[mrvi_particle_first(m, k) + d] = d;
   for (int b = 0; b < m->n_bodies; b++)
     for (int d = 0; d < D; d++)
       comp[m->bodies[b].first + d] = d;

@@ -629,11 +629,11 @@ static int same_particles(const mrvi_h5in *in, const mrvi_model *m) {
                      "%s: /model/particle_name[%d] = '%s' but "
                      "/model/description names particle %d '%s'",
                      in->path, i, name[i], i, want);
-    else if (column[i] != m->particles[i].first)
+    else if (column[i] != mrvi_particle_first(m, i))
       st = mrvi_fail(in->msg, in->len, MRVI_EINVAL,
                      "%s: /model/particle_column[%d] = %d but "
                      "/model/description puts particle '%s' at column %d",
-                     in->path, i, column[i], want, m->particles[i].first);
+                     in->path, i, column[i], want, mrvi_particle_first(m, i));
   }
   free(column);
   mrvi_h5_strings_free(name, (size_t)np);

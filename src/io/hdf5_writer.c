@@ -490,7 +490,7 @@ static int write_particles(mrvi_writer *w, const mrvi_model *m, hid_t lcpl) {
   mrvi_model_edges(m, pairs, kind, ne);
   mrvi_model_anchors(m, a_particle, a_point, a_kind, na);
   for (int i = 0; i < np; i++) {
-    column[i] = m->particles[i].first;
+    column[i] = mrvi_particle_first(m, i);
     if (!name[i])
       name[i] = "";
   }

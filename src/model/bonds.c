@@ -63,7 +63,7 @@ int mrvi_model_anchors(const mrvi_model *m, int *particle, double *point,
 /* Particle whose x coordinate is model coordinate c, or -1. */
 static int particle_at(const mrvi_model *m, int c) {
   for (int i = 0; i < m->n_particles; i++)
-    if (m->particles[i].first == c)
+    if (mrvi_particle_first(m, i) == c)
       return i;
   return -1;
 }

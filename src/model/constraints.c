@@ -177,7 +177,7 @@ static int particle_coords(mrvi_model *m, const char *what, int i, int *in) {
     return mrvi_model_fail(m, MRVI_EINVAL, "%s: particle index %d out of range",
                            what, i);
   for (int a = 0; a < m->dimension; a++)
-    in[a] = m->particles[i].first + a;
+    in[a] = mrvi_particle_first(m, i) + a;
   return MRVI_OK;
 }
 

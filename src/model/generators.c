@@ -73,8 +73,8 @@ static mrvi_rate rate_of(const mrvi_generator *g, const int idx[3], long lin) {
 /* Spring between generated particles a and b (model particle indices). */
 static int join(mrvi_model *m, const mrvi_generator *g, int a, int b,
                 int counts[4]) {
-  const int fast = m->rate[m->particles[a].first] == MRVI_FAST &&
-                   m->rate[m->particles[b].first] == MRVI_FAST;
+  const int fast = m->rate[mrvi_particle_first(m, a)] == MRVI_FAST &&
+                   m->rate[mrvi_particle_first(m, b)] == MRVI_FAST;
   const mrvi_spring_spec *sp = fast ? &g->fast : &g->slow;
   if (!sp->law)
     return MRVI_OK;

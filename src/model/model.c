@@ -196,14 +196,28 @@ static int table_reserve(int **table, int *cap, int count, int n_index,
   return 0;
 }
 
+/* Room for one more particle record, the records of the particles before
+ * it made where none were kept (each {NULL, p * dimension}); nonzero when
+ * out of memory. */
+static int keep_particles(mrvi_model *m) {
+  if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
+           sizeof *m->particles))
+    return 1;
+  if (!m->particles_kept)
+    for (int p = 0; p < m->n_particles; p++)
+      m->particles[p] = (mrvi_particle){NULL, p * m->dimension};
+  m->particles_kept = 1;
+  return 0;
+}
+
 static const char *own_name(const mrvi_model *m, int k) {
   return m->own_names[k];
 }
 static const char *particle_name(const mrvi_model *m, int i) {
-  return m->particles[i].name;
+  return mrvi_particle_stored(m, i);
 }
 static int has_stored_name(const mrvi_model *m, int i) {
-  return m->particles[i].name != NULL;
+  return mrvi_particle_stored(m, i) != NULL;
 }
 
 /* Particle owning coordinate c, or -1: particles are added with fresh
@@ -213,14 +227,14 @@ static int particle_of(const mrvi_model *m, int c) {
   int lo = 0, hi = m->n_particles - 1, p = -1;
   while (lo <= hi) { /* the last particle whose first is <= c */
     const int mid = lo + (hi - lo) / 2;
-    if (m->particles[mid].first <= c) {
+    if (mrvi_particle_first(m, mid) <= c) {
       p = mid;
       lo = mid + 1;
     } else {
       hi = mid - 1;
     }
   }
-  return p >= 0 && c < m->particles[p].first + m->dimension ? p : -1;
+  return p >= 0 && c < mrvi_particle_first(m, p) + m->dimension ? p : -1;
 }
 
 /* The unsigned decimal number at *s (no sign, at most 9 digits), or -1;
@@ -282,8 +296,8 @@ int mrvi_model_find_particle(const mrvi_model *m, const char *name) {
 }
 
 const char *mrvi_model_particle_name(const mrvi_model *m, int p, char *buf) {
-  if (m->particles[p].name)
-    return m->particles[p].name;
+  if (mrvi_particle_stored(m, p))
+    return mrvi_particle_stored(m, p);
   for (int r = 0; r < m->n_rules; r++) {
     const mrvi_name_rule *u = &m->rules[r];
     if (p >= u->first && p < u->first + u->count) {
@@ -320,7 +334,7 @@ const char *mrvi_model_coordinate_name(const mrvi_model *m, int i, char *buf) {
     return k >= 0 ? m->own_names[k] : NULL;
   char pname[MRVI_NAME_MAX];
   mrvi_fmt(buf, MRVI_NAME_MAX, "%s.%c", mrvi_model_particle_name(m, p, pname),
-           axis[i - m->particles[p].first]);
+           axis[i - mrvi_particle_first(m, p)]);
   return buf;
 }
 
@@ -339,7 +353,7 @@ int mrvi_model_find_coordinate(const mrvi_model *m, const char *name) {
   const int p = find_particle_n(m, name, (size_t)(dot - name));
   if (p < 0)
     return -1;
-  const int pc = m->particles[p].first + (int)(a - axes);
+  const int pc = mrvi_particle_first(m, p) + (int)(a - axes);
   char buf[MRVI_NAME_MAX]; /* (a name cut at MRVI_NAME_MAX is not found) */
   return strcmp(mrvi_model_coordinate_name(m, pc, buf), name) == 0 ? pc : -1;
 }
@@ -544,8 +558,11 @@ static int add_particle(mrvi_model *m, const char *name, double mass,
                               m->n_particle_table, m->n_particles,
                               has_stored_name, particle_name, m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
-  if (grow((void **)&m->particles, &m->cap_particles, m->n_particles + 1,
-           sizeof *m->particles))
+  /* (a particle whose name is not stored and whose first coordinate is
+   * its index times the dimension needs no record while every one before
+   * it is such: m->particles_kept) */
+  if ((m->particles_kept || !ruled || m->n != m->n_particles * m->dimension) &&
+      keep_particles(m))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   char *pname = ruled ? NULL : store_name(m, name);
   if (!ruled && !pname)
@@ -570,8 +587,8 @@ static int add_particle(mrvi_model *m, const char *name, double mass,
       return st;
     }
   }
-  m->particles[m->n_particles].name = pname;
-  m->particles[m->n_particles].first = first;
+  if (m->particles_kept)
+    m->particles[m->n_particles] = (mrvi_particle){pname, first};
   if (ruled) {
     m->rules[m->n_rules - 1].count++;
   } else {
@@ -622,8 +639,9 @@ int mrvi_model_reserve(mrvi_model *m, int particles, int elements) {
   if (st < 0)
     return st;
   if (reserve_coordinates(m, m->n + d * particles) ||
-      grow((void **)&m->particles, &m->cap_particles,
-           m->n_particles + particles, sizeof *m->particles) ||
+      (m->particles_kept &&
+       grow((void **)&m->particles, &m->cap_particles,
+            m->n_particles + particles, sizeof *m->particles)) ||
       grow((void **)&m->erecs, &m->cap_elements, m->n_elements + elements,
            sizeof *m->erecs))
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
@@ -648,7 +666,8 @@ char *mrvi_model_names(const mrvi_model *m, int particles, const char **out) {
   size_t bytes = 1;
   char buf[MRVI_NAME_MAX];
   for (int i = 0; i < count; i++) { /* (the names made here: their room) */
-    const int made = particles ? !m->particles[i].name : particle_of(m, i) >= 0;
+    const int made =
+        particles ? !mrvi_particle_stored(m, i) : particle_of(m, i) >= 0;
     if (made)
       bytes += strlen(particles ? mrvi_model_particle_name(m, i, buf)
                                 : mrvi_model_coordinate_name(m, i, buf)) +
@@ -915,7 +934,7 @@ static int particle_inputs(mrvi_model *m, mrvi_element *e, int np,
     return mrvi_model_fail(m, MRVI_ENOMEM, "out of memory");
   for (int a = 0; a < np; a++)
     for (int k = 0; k < d; k++)
-      e->in[a * d + k] = m->particles[parts[a]].first + k;
+      e->in[a * d + k] = mrvi_particle_first(m, parts[a]) + k;
   return MRVI_OK;
 }
 
@@ -948,8 +967,8 @@ int mrvi_model_add_spring(mrvi_model *m, mrvi_rate potential, int particle_i,
   e.n_in = 2 * m->dimension;
   e.in = in;
   for (int k = 0; k < m->dimension; k++) {
-    in[k] = m->particles[particle_i].first + k;
-    in[m->dimension + k] = m->particles[particle_j].first + k;
+    in[k] = mrvi_particle_first(m, particle_i) + k;
+    in[m->dimension + k] = mrvi_particle_first(m, particle_j) + k;
   }
   return push_element(m, &e, what);
 }
@@ -1049,7 +1068,7 @@ static int end_pair(mrvi_model *m, const char *kind, const mrvi_end *a,
 static int end_blocks(const mrvi_model *m, const mrvi_end *e, int *first,
                       double *w) {
   if (e->particle >= 0) {
-    first[0] = m->particles[e->particle].first;
+    first[0] = mrvi_particle_first(m, e->particle);
     w[0] = 1.0;
     return 1;
   }
@@ -1338,7 +1357,7 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
    * (doc/multibody.md) */
   for (int i = 0; i < m->n_particles + m->n_bodies; i++)
     for (int k = 0; k < d; k++) {
-      int c = (i < m->n_particles ? m->particles[i].first
+      int c = (i < m->n_particles ? mrvi_particle_first(m, i)
                                   : m->bodies[i - m->n_particles].first) +
               k;
       e.in[i * d + k] = c;
@@ -1351,8 +1370,9 @@ int mrvi_model_set_gravity(mrvi_model *m, const double *g) {
 static double angle_at(const mrvi_model *m, const double *x, int i, int j,
                        int k) {
   const int d = m->dimension;
-  const double *xi = x + m->particles[i].first, *xj = x + m->particles[j].first,
-               *xk = x + m->particles[k].first;
+  const double *xi = x + mrvi_particle_first(m, i),
+               *xj = x + mrvi_particle_first(m, j),
+               *xk = x + mrvi_particle_first(m, k);
   double uv = 0, uu = 0, vv = 0;
   for (int a = 0; a < d; a++) {
     const double u = xi[a] - xj[a], v = xk[a] - xj[a];
@@ -1450,8 +1470,8 @@ double mrvi_model_initial_distance(const mrvi_model *m, int particle_i,
   if (particle_i < 0 || particle_i >= m->n_particles ||
       particle_j >= m->n_particles || (particle_j < 0 && !anchor))
     return NAN;
-  const double *a = m->q0 + m->particles[particle_i].first,
-               *b = particle_j >= 0 ? m->q0 + m->particles[particle_j].first
+  const double *a = m->q0 + mrvi_particle_first(m, particle_i),
+               *b = particle_j >= 0 ? m->q0 + mrvi_particle_first(m, particle_j)
                                     : anchor;
   double r2 = 0;
   for (int k = 0; k < m->dimension; k++)
@@ -1903,8 +1923,8 @@ void mrvi_model_momentum(const mrvi_model *m, const double *q, const double *p,
   const int d = m->dimension;
   double L[3] = {0, 0, 0}, J[3] = {0, 0, 0};
   for (int i = 0; i < m->n_particles; i++) {
-    const double *x = q + m->particles[i].first;
-    const double *v = p + m->particles[i].first;
+    const double *x = q + mrvi_particle_first(m, i);
+    const double *v = p + mrvi_particle_first(m, i);
     for (int k = 0; k < d; k++)
       L[k] += v[k];
     add_cross(d, x, v, J);

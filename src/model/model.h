@@ -156,6 +156,12 @@ struct mrvi_model {
   /* a mrvi_rate each, one byte (the hash reads each as a mrvi_rate) */
   unsigned char *rate;
   int n_particles, cap_particles;
+  /* particles[] is kept (1) from the first particle whose name is stored
+   * or whose first coordinate is not its index times the dimension; until
+   * then (0) no record is kept (16 bytes a particle less: names made by
+   * their rules, doc/performance/17-mem17.md).  Read a particle through
+   * mrvi_particle_first and mrvi_particle_stored. */
+  int particles_kept;
   /* Name lookup (model.c): open-addressing tables by name, 0 = empty, else
    * index + 1: of own_names (the coordinates that are not a particle's: a
    * particle's are found through its name) and of the n_particle_table
@@ -204,6 +210,15 @@ struct mrvi_model {
   struct mrvi_body *bodies;
   char errmsg[512];
 };
+
+/* Particle p's first coordinate and its stored name (NULL: made by its
+ * rule, mrvi_model_particle_name) (m->particles_kept). */
+static inline int mrvi_particle_first(const mrvi_model *m, int p) {
+  return m->particles_kept ? m->particles[p].first : p * m->dimension;
+}
+static inline const char *mrvi_particle_stored(const mrvi_model *m, int p) {
+  return m->particles_kept ? m->particles[p].name : NULL;
+}
 
 /* The mass of coordinate i (m->mass_inc). */
 #define MRVI_MASS(m, i) ((m)->mass[(size_t)(i) * (size_t)(m)->mass_inc])

@@ -168,7 +168,7 @@ int mrvi_model_conserved(const mrvi_model *m, int *linear, int *angular) {
   }
   for (int i = 0; i < m->n_particles; i++)
     for (int a = 0; a < d; a++)
-      part[m->particles[i].first + a] = a;
+      part[mrvi_particle_first(m, i) + a] = a;
   for (int b = 0; b < m->n_bodies; b++)
     for (int c = 0; c < d * (d + 1); c++)
       part[m->bodies[b].first + c] = c % d + (c < d ? 0 : DIRECTOR);

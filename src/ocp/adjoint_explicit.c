@@ -104,21 +104,15 @@ int ocp_explicit_alloc(mrvi_ocp *o, int nfun) {
     return MRVI_ENOMEM;
   for (int i = 0; i < m->n; i++)
     col[i] = m->rate[i] == MRVI_SLOW ? m->slot[i] : o->ns + m->slot[i];
-  int *own = NULL;
-  const int *list = mrvi_step_class_list(st, MRVI_SLOW, &own);
-  int s = list ? mrvi_terms_create(m, list, st->n_elem_of_class[MRVI_SLOW], col,
-                                   &o->adj_terms[MRVI_SLOW])
-               : MRVI_ENOMEM;
-  free(own);
-  own = NULL;
+  int s = mrvi_terms_create_range(
+      m, st->elem_of_class[MRVI_SLOW], st->elem_first[MRVI_SLOW],
+      st->n_elem_of_class[MRVI_SLOW], col, 0, &o->adj_terms[MRVI_SLOW]);
   for (int i = 0; i < m->n; i++)
     col[i] = m->slot[i];
-  list = s == MRVI_OK ? mrvi_step_class_list(st, MRVI_FAST, &own) : NULL;
   if (s == MRVI_OK)
-    s = list ? mrvi_terms_create(m, list, st->n_elem_of_class[MRVI_FAST], col,
-                                 &o->adj_terms[MRVI_FAST])
-             : MRVI_ENOMEM;
-  free(own);
+    s = mrvi_terms_create_range(
+        m, st->elem_of_class[MRVI_FAST], st->elem_first[MRVI_FAST],
+        st->n_elem_of_class[MRVI_FAST], col, 0, &o->adj_terms[MRVI_FAST]);
   free(col);
   /* (the sweep: the points' configurations 2 nf, then per functional the
    * combined adjoints and CG's r, p, q: 4 nf; its scalars: 5; hy: nf; a

@@ -367,8 +367,8 @@ int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
    * its force template: add one on particle i and drop the template
    * entries it pushed. */
   const int n_force = o->n_force;
-  const int ia = mrvi_ocp_add_actuator(o, m->particles[pi].first, grid, weight,
-                                       lower, upper);
+  const int ia = mrvi_ocp_add_actuator(o, mrvi_particle_first(m, pi), grid,
+                                       weight, lower, upper);
   if (ia < 0)
     return ia;
   o->n_force = n_force;
@@ -377,8 +377,8 @@ int mrvi_ocp_add_pair_actuator(mrvi_ocp *o, int pi, int pj, mrvi_grid grid,
   const int d = m->dimension;
   o->act[ia].n_in = 2 * d;
   for (int k = 0; k < d; k++) {
-    o->act[ia].in[k] = m->particles[pi].first + k;
-    o->act[ia].in[d + k] = m->particles[pj].first + k;
+    o->act[ia].in[k] = mrvi_particle_first(m, pi) + k;
+    o->act[ia].in[d + k] = mrvi_particle_first(m, pj) + k;
   }
   mrvi_fmt(o->act[ia].name, sizeof o->act[ia].name, "%s-%s", MRVI_PNAME(m, pi),
            MRVI_PNAME(m, pj));

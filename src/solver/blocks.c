@@ -250,11 +250,9 @@ int mrvi_blocks_create(const mrvi_step *st, mrvi_blocks **out) {
   for (int c = 0; c < m->n; c++)
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : b->ns) + m->slot[c];
   for (int c = 0; c < 2; c++) {
-    int *own = NULL;
-    const int *list = mrvi_step_class_list(st, c, &own);
-    const int st_ok = list && mrvi_terms_create(m, list, st->n_elem_of_class[c],
-                                                col, &b->kc[c]) == MRVI_OK;
-    free(own);
+    const int st_ok = mrvi_terms_create_range(
+                          m, st->elem_of_class[c], st->elem_first[c],
+                          st->n_elem_of_class[c], col, 0, &b->kc[c]) == MRVI_OK;
     for (int ie = 0; st_ok && ie < st->n_elem_of_class[c]; ie++) {
       const int r = mrvi_model_element_rates(m, MRVI_STEP_ELEM(st, c, ie));
       b->has_s[c] |= (r >> MRVI_SLOW) & 1;

@@ -184,7 +184,7 @@ int mrvi_chain_levels(const mrvi_model *m, int *level) {
     up[i] = i, par[i] = i;
   for (int k = 0; k < m->n_particles; k++)
     for (int d = 1; d < m->dimension; d++)
-      par[m->particles[k].first + d] = m->particles[k].first;
+      par[mrvi_particle_first(m, k) + d] = mrvi_particle_first(m, k);
   for (int k = 0; k < m->n_bodies; k++) {
     const mrvi_body *bo = &m->bodies[k];
     for (int d = 1; d < bo->dim * (bo->dim + 1); d++)

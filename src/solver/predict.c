@@ -517,13 +517,10 @@ int mrvi_predictor_create(const mrvi_model *m, const mrvi_step *st,
     /* (a large spring class's gradient on the step's threads, in parts by
      * records as the outer iteration's, doubled until few records span
      * them: the same bits for every count) */
-    int *own = NULL;
-    const int *list = mrvi_step_class_list(st, c, &own);
     const int made =
-        list && (grad_only ? mrvi_terms_create_grad_exact
-                           : mrvi_terms_create)(m, list, st->n_elem_of_class[c],
-                                                col, &pr->kc[c]) == MRVI_OK;
-    free(own);
+        mrvi_terms_create_range(m, st->elem_of_class[c], st->elem_first[c],
+                                st->n_elem_of_class[c], col, grad_only ? 2 : 0,
+                                &pr->kc[c]) == MRVI_OK;
     const int ok = made &&
                    mrvi_terms_set_threads_spread(
                        pr->kc[c], st->threads, st->tuning.thread_chunk, 0,

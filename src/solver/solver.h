@@ -504,6 +504,13 @@ int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
 int mrvi_terms_create_grad_exact(const mrvi_model *m, const int *elems,
                                  int n_elems, const int *col_of,
                                  mrvi_terms **out);
+/* mrvi_terms_create (mode 0), _grad (1) or _grad_exact (2) of the elements
+ * elems[0 .. n_elems - 1], or without elems (NULL) of the consecutive
+ * elements first .. first + n_elems - 1 (a step class without a list,
+ * mrvi_step.elem_first: no temporary list made). */
+int mrvi_terms_create_range(const mrvi_model *m, const int *elems, int first,
+                            int n_elems, const int *col_of, int mode,
+                            mrvi_terms **out);
 /* The same for values alone (mrvi_terms_value; col_of NULL): a class of
  * Hooke springs on consecutive columns keeps its khooke records alone, as
  * mrvi_terms_create_grad's, any other class is mrvi_terms_create's. */

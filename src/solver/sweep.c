@@ -585,18 +585,16 @@ int mrvi_sweep_create(const mrvi_step *st, const mrvi_settings *s,
     col[c] = (m->rate[c] == MRVI_SLOW ? 0 : sw->ns) + m->slot[c];
   /* (V's gradient alone; W's too on the explicit path, unless its affine
    * map is made below) */
-  int *own = NULL;
-  const int *list = s_ok ? mrvi_step_class_list(st, MRVI_SLOW, &own) : NULL;
-  s_ok = list && mrvi_terms_create_grad(m, list, st->n_elem_of_class[MRVI_SLOW],
-                                        col, &sw->kc[MRVI_SLOW]) == MRVI_OK;
-  free(own);
-  own = NULL;
-  list = s_ok ? mrvi_step_class_list(st, MRVI_FAST, &own) : NULL;
-  s_ok = list &&
-         (sw->implicit || nf <= 4 ? mrvi_terms_create : mrvi_terms_create_grad)(
-             m, list, st->n_elem_of_class[MRVI_FAST], m->slot,
-             &sw->kc[MRVI_FAST]) == MRVI_OK;
-  free(own);
+  /* (each class from its list or its range: no temporary list) */
+  s_ok = s_ok && mrvi_terms_create_range(m, st->elem_of_class[MRVI_SLOW],
+                                         st->elem_first[MRVI_SLOW],
+                                         st->n_elem_of_class[MRVI_SLOW], col, 1,
+                                         &sw->kc[MRVI_SLOW]) == MRVI_OK;
+  s_ok = s_ok &&
+         mrvi_terms_create_range(
+             m, st->elem_of_class[MRVI_FAST], st->elem_first[MRVI_FAST],
+             st->n_elem_of_class[MRVI_FAST], m->slot,
+             sw->implicit || nf <= 4 ? 0 : 1, &sw->kc[MRVI_FAST]) == MRVI_OK;
   /* The gradients of large spring classes on threads (the same bits).
    * V's parts (by records: each column summed in the serial order) spread
    * on every path; W's on the implicit path are the chord's parts (n_cpass

@@ -317,6 +317,19 @@ static void spring_cols(const mrvi_element *e, const int *col_of, int dim,
   }
 }
 
+/* The elements of a class being compiled: list[0 .. n - 1], or without a
+ * list the consecutive elements first, first + 1, ... (a class of the step
+ * that keeps no list, mrvi_step.elem_first: no temporary list, whose freed
+ * pages glibc would keep, doc/performance/17-mem17.md). */
+typedef struct elem_src {
+  const int *list;
+  int first;
+} elem_src;
+
+ALWAYS_INLINE int elem_at(elem_src s, int ie) {
+  return s.list ? s.list[ie] : s.first + ie;
+}
+
 /* Element i as the loops below read it: its prototype where it is a
  * compact spring (every field but its rest length and inputs, which
  * compact_cols and spring_rec read from its record: no view made), else
@@ -443,19 +456,19 @@ static int hooke_unshare(mrvi_terms *kc, int ne) {
   return MRVI_OK;
 }
 
-/* The number of compact springs from elems[0] on of prototype lp, each
+/* The number of compact springs from elem_at(elems, 0) on of prototype lp, each
  * end on consecutive columns col_of[.] (or coordinates without col_of)
  * and, where qp, of the rest length `shift` (its bits): their columns into
  * qp (hooke_class's records of the springs of one law and rest length,
  * the lattices', and shared_law's check of one law and parameter set, the
  * random networks', read from the records alone). */
-ALWAYS_INLINE int compact_run_k(const mrvi_model *m, const int *elems, int n,
+ALWAYS_INLINE int compact_run_k(const mrvi_model *m, elem_src elems, int n,
                                 const int *col_of, const int dim, int lp,
                                 double shift, khpair *restrict qp) {
   const mrvi_erec *rec = m->erecs;
   int ie = 0;
   for (; ie < n; ie++) {
-    const mrvi_erec *r = &rec[elems[ie]];
+    const mrvi_erec *r = &rec[elem_at(elems, ie)];
     if (!r->compact || r->lp != lp ||
         (qp && memcmp(&r->shift, &shift, sizeof shift) != 0))
       break;
@@ -473,7 +486,7 @@ ALWAYS_INLINE int compact_run_k(const mrvi_model *m, const int *elems, int n,
   return ie;
 }
 
-static int compact_run(const mrvi_model *m, const int *elems, int n,
+static int compact_run(const mrvi_model *m, elem_src elems, int n,
                        const int *col_of, int dim, int lp, double shift,
                        khpair *qp) {
   return dim == 2   ? compact_run_k(m, elems, n, col_of, 2, lp, shift, qp)
@@ -486,7 +499,7 @@ static int compact_run(const mrvi_model *m, const int *elems, int n,
  * springs): their khooke records and elements alone, no kterm (the
  * lattices' classes on the explicit paths).  0 if the class is not such,
  * else 1, or MRVI_ENOMEM. */
-static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
+static int hooke_class(mrvi_terms *kc, const mrvi_model *m, elem_src elems,
                        int n_elems, const int *col_of) {
   const int dim = kc->dim;
   if (n_elems < 1)
@@ -502,16 +515,16 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
    * spring's, and rest length in one loop: the values the loop below
    * would give them) */
   int ie0 = 0;
-  const mrvi_element *p0 = mrvi_model_compact(m, elems[0]);
+  const mrvi_element *p0 = mrvi_model_compact(m, elem_at(elems, 0));
   if (p0 && spring_record(p0, dim) && p0->form == MRVI_LAW_FORM_HOOKE) {
-    const mrvi_erec *r0 = &m->erecs[elems[0]];
+    const mrvi_erec *r0 = &m->erecs[elem_at(elems, 0)];
     ie0 = compact_run(m, elems, n_elems, col_of, dim, r0->lp, r0->shift, qp);
     kc->qp_c = p0->params[0];
     kc->qp_shift = r0->shift;
     hooke = p0;
   }
   for (int ie = ie0; ie < n_elems; ie++) {
-    const int i = elems[ie];
+    const int i = elem_at(elems, ie);
     const mrvi_element *e = law_el(m, i);
     /* (a Hooke spring's record: spring_law_of's c and shift, spring_cols'
      * first columns; the law's other products are not read) */
@@ -567,19 +580,20 @@ static int hooke_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
 /* Whether the n_elems elems are springs of one compiled law (not Hooke's:
  * hooke_class) with one parameter set, each on consecutive columns: a
  * class of kspair records. */
-static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
+static int shared_law(const mrvi_model *m, elem_src elems, int n_elems,
                       const int *col_of, int dim) {
-  const mrvi_element *e0 = law_el(m, elems[0]);
+  const mrvi_element *e0 = law_el(m, elem_at(elems, 0));
   const int law = spring_law(e0);
   if (e0->kind != MRVI_ELEMENT_SPRING || law == KS_LAW || law == KS_HOOKE)
     return 0;
   /* (the springs of the first's prototype from the first on in one loop) */
-  const int ie0 = mrvi_model_compact(m, elems[0]) && spring_record(e0, dim)
-                      ? compact_run(m, elems, n_elems, col_of, dim,
-                                    m->erecs[elems[0]].lp, 0.0, NULL)
-                      : 0;
+  const int ie0 =
+      mrvi_model_compact(m, elem_at(elems, 0)) && spring_record(e0, dim)
+          ? compact_run(m, elems, n_elems, col_of, dim,
+                        m->erecs[elem_at(elems, 0)].lp, 0.0, NULL)
+          : 0;
   for (int ie = ie0; ie < n_elems; ie++) {
-    const int i = elems[ie];
+    const int i = elem_at(elems, ie);
     const mrvi_element *e = law_el(m, i);
     if (!spring_record(e, dim) || e->kind != MRVI_ELEMENT_SPRING ||
         e->law != e0->law ||
@@ -606,12 +620,12 @@ static int shared_law(const mrvi_model *m, const int *elems, int n_elems,
  * records alone, in the class's order, no kterm (the Morse springs of
  * random networks on the explicit paths).  0 if the class is not such,
  * else 1, or MRVI_ENOMEM. */
-static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
+static int spring_class(mrvi_terms *kc, const mrvi_model *m, elem_src elems,
                         int n_elems, const int *col_of) {
   const int dim = kc->dim;
-  if (n_elems < 1 || !spring_record(law_el(m, elems[0]), dim))
+  if (n_elems < 1 || !spring_record(law_el(m, elem_at(elems, 0)), dim))
     return 0;
-  const mrvi_element *e0 = law_el(m, elems[0]);
+  const mrvi_element *e0 = law_el(m, elem_at(elems, 0));
   const int kind = e0->kind;
   const int law = spring_law(e0);
   if (shared_law(m, elems, n_elems, col_of, dim)) {
@@ -620,7 +634,7 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
       return MRVI_ENOMEM;
     spring_law_of(e0, &kc->qm_law);
     for (int ie = 0; ie < n_elems; ie++) {
-      const int i = elems[ie];
+      const int i = elem_at(elems, ie);
       const mrvi_element *e = mrvi_model_compact(m, i) ? NULL : law_el(m, i);
       kc->qm[ie] =
           e ? (kspair){col_of ? col_of[e->in[0]] : e->in[0],
@@ -637,7 +651,7 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   /* (all khooke springs: terms_springs' khooke run instead) */
   int hooke = kind == MRVI_ELEMENT_SPRING && law == KS_HOOKE;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = law_el(m, elems[ie]);
+    const mrvi_element *e = law_el(m, elem_at(elems, ie));
     if (!spring_record(e, dim) || e->kind != kind || spring_law(e) != law) {
       free(kc->qs);
       kc->qs = NULL;
@@ -645,7 +659,7 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
     }
     kspring *q = &kc->qs[ie];
     *q = (kspring){0};
-    spring_rec(m, elems[ie], e, col_of, dim, q);
+    spring_rec(m, elem_at(elems, ie), e, col_of, dim, q);
     for (int k = 1; hooke && k < dim; k++)
       hooke = q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
   }
@@ -662,7 +676,7 @@ static int spring_class(mrvi_terms *kc, const mrvi_model *m, const int *elems,
  * (spring or anchor) and one law code; their columns col_of[e->in[.]] (or
  * e->in itself without col_of).  grad_only: the kspring records are left
  * out when every run is of khooke springs (mrvi_terms_create_grad). */
-static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
+static int terms_springs(mrvi_terms *kc, elem_src elems, const int *col_of,
                          int grad_only) {
   const int dim = kc->dim;
   int ns = 0;
@@ -689,7 +703,7 @@ static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
       continue;
     kspring one, *q = kc->qs ? &kc->qs[is] : &one;
     t->qs = is++;
-    spring_rec(kc->m, elems[ie], t->el, col_of, dim, q);
+    spring_rec(kc->m, elem_at(elems, ie), t->el, col_of, dim, q);
     int consecutive = q->two && q->k == KS_HOOKE;
     for (int k = 1; k < dim; k++)
       consecutive &= q->ci[k] == q->ci[0] + k && q->cj[k] == q->cj[0] + k;
@@ -716,7 +730,7 @@ static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
     const kterm *t = &kc->t[ie];
     if (t->runs == 0)
       continue;
-    spring_rec(kc->m, elems[ie], t->el, col_of, dim, &kc->qs[t->qs]);
+    spring_rec(kc->m, elem_at(elems, ie), t->el, col_of, dim, &kc->qs[t->qs]);
   }
   return MRVI_OK;
 }
@@ -726,7 +740,7 @@ static int terms_springs(mrvi_terms *kc, const int *elems, const int *col_of,
  * same runs of one kind and one law code, the same values) without the
  * kterms, col or coef; the first record of each run in rs.  0 if the
  * class is not such, else 1, or MRVI_ENOMEM. */
-static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
+static int springs_runs(mrvi_terms *kc, const mrvi_model *m, elem_src elems,
                         int n_elems, const int *col_of) {
   const int dim = kc->dim;
   if (n_elems < 1)
@@ -738,7 +752,7 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   int n_rs = 1, all_hooke = 1;
   const mrvi_element *u = NULL; /* (the previous element's law) */
   for (int ie = 0; ie < n_elems; ie++) {
-    const int i = elems[ie];
+    const int i = elem_at(elems, ie);
     const mrvi_element *e = law_el(m, i);
     if (!spring_record(e, dim))
       return 0;
@@ -772,7 +786,8 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   kspring prev = {0};
   for (int ie = 0; ie < n_elems; ie++) {
     kspring q = {0};
-    spring_rec(m, elems[ie], law_el(m, elems[ie]), col_of, dim, &q);
+    spring_rec(m, elem_at(elems, ie), law_el(m, elem_at(elems, ie)), col_of,
+               dim, &q);
     if (ie == 0 || q.two != prev.two || q.k != prev.k)
       kc->rs[kc->n_rs++] = ie;
     prev = q;
@@ -794,7 +809,7 @@ static int springs_runs(mrvi_terms *kc, const mrvi_model *m, const int *elems,
   return 1;
 }
 
-static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
+static int terms_create(const mrvi_model *m, elem_src elems, int n_elems,
                         const int *col_of, int grad_only, mrvi_terms **out) {
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
@@ -821,7 +836,7 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
    * those that have them. */
   int n_col = 0, n_coef = 0, max_in = 1;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = law_el(m, elems[ie]);
+    const mrvi_element *e = law_el(m, elem_at(elems, ie));
     n_col += spring_record(e, dim) ? 0 : e->n_in;
     n_coef += e->coef ? e->n_in : 0;
     max_in = e->n_in > max_in ? e->n_in : max_in;
@@ -839,7 +854,7 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
   }
   int first = 0, cfirst = 0;
   for (int ie = 0; ie < n_elems; ie++) {
-    const mrvi_element *e = law_el(m, elems[ie]);
+    const mrvi_element *e = law_el(m, elem_at(elems, ie));
     kterm *t = &kc->t[ie];
     t->el = mrvi_element_stable(e); /* (its law: it lasts) */
     t->n = e->n_in;
@@ -930,22 +945,29 @@ static int terms_create(const mrvi_model *m, const int *elems, int n_elems,
 
 int mrvi_terms_create(const mrvi_model *m, const int *elems, int n_elems,
                       const int *col_of, mrvi_terms **out) {
-  return terms_create(m, elems, n_elems, col_of, 0, out);
+  return terms_create(m, (elem_src){elems, 0}, n_elems, col_of, 0, out);
 }
 
 int mrvi_terms_create_grad(const mrvi_model *m, const int *elems, int n_elems,
                            const int *col_of, mrvi_terms **out) {
-  return terms_create(m, elems, n_elems, col_of, 1, out);
+  return terms_create(m, (elem_src){elems, 0}, n_elems, col_of, 1, out);
 }
 
 int mrvi_terms_create_grad_exact(const mrvi_model *m, const int *elems,
                                  int n_elems, const int *col_of,
                                  mrvi_terms **out) {
-  return terms_create(m, elems, n_elems, col_of, 2, out);
+  return terms_create(m, (elem_src){elems, 0}, n_elems, col_of, 2, out);
 }
 
-int mrvi_terms_create_value(const mrvi_model *m, const int *elems, int n_elems,
+int mrvi_terms_create_range(const mrvi_model *m, const int *elems, int first,
+                            int n_elems, const int *col_of, int mode,
                             mrvi_terms **out) {
+  return terms_create(m, (elem_src){elems, first}, n_elems, col_of, mode, out);
+}
+
+int mrvi_terms_create_value(const mrvi_model *m, const int *list, int n_elems,
+                            mrvi_terms **out) {
+  const elem_src elems = {list, 0};
   mrvi_terms *kc = calloc(1, sizeof *kc);
   *out = NULL;
   if (!kc)
@@ -2250,9 +2272,12 @@ int mrvi_terms_set_fused(mrvi_terms *kc, int ncol, int block) {
   if (block < 1 || ncol < 1 || !hooke_in_order(kc))
     return 0;
   const int n = kc->n, dim = kc->dim, nb = (n + block - 1) / block;
-  int *last = malloc((size_t)ncol * sizeof(int));
+  /* (the kept arrays before the temporary one, so that the temporary is
+   * not held below them: freed, its pages go to what is allocated next
+   * instead of staying a hole, doc/performance/17-mem17.md) */
   kc->fuse_zero = malloc((size_t)nb * sizeof(int));
   kc->fuse_done = malloc((size_t)nb * sizeof(int));
+  int *last = malloc((size_t)ncol * sizeof(int));
   if (!last || !kc->fuse_zero || !kc->fuse_done) {
     free(last);
     free(kc->fuse_zero);

@@ -63,7 +63,7 @@ static int set_numbers(loader *L, entry *e, int k, const double *v, int n) {
 static int add_particle(loader *L, entry *e, int p) {
   int c[3];
   for (int a = 0; a < e->dim; a++)
-    c[a] = L->sys->model->particles[p].first + a;
+    c[a] = mrvi_particle_first(L->sys->model, p) + a;
   if (e->n_parts < 2)
     e->parts[e->n_parts++] = p;
   e->first = e->n_in;

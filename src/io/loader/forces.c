@@ -35,7 +35,7 @@ int mrvi_ld_forces(loader *L, struct fy_node *list, int dim) {
       if ((st = mrvi_ld_find_particle(L, pn, "particle", &p)) ||
           (st = mrvi_ld_as_vector(L, f, "force", dim, force)))
         break;
-      const int first = L->sys->model->particles[p].first;
+      const int first = mrvi_particle_first(L->sys->model, p);
       for (int a = 0; a < dim; a++)
         coords[a] = first + a;
       k = dim;
