@@ -810,9 +810,9 @@ typedef enum mrvi_newton_criterion {
   X(int, thread_chunk, 4096, 1, 100000000,                                     \
     "largest part of a threaded loop (settings.threads), in coordinates "      \
     "or records: a loop is cut into an even number of equal parts of at "      \
-    "most this size (fully-explicit's: this size doubled until records "       \
-    "spanning parts add at most 5 %); a loop of fewer than two such parts "    \
-    "runs on one thread")                                                      \
+    "most this size (fully-explicit's and explicit-slow's chord parts: "       \
+    "this size doubled until records spanning parts add at most 5 %); a "      \
+    "loop of fewer than two such parts runs on one thread")                    \
   X(int, adjoint_dense_max, 64, 0, 1000000,                                    \
     "largest step (nodes and multipliers) whose optimal-control adjoint "      \
     "assembles the step Jacobian dense; beyond: sparse rows")                  \
